@@ -1,0 +1,31 @@
+# The README's commands.  Each bootstraps .venv on first use (python3 + pip, nothing else).
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+PYTEST := $(BIN)/python -m pytest
+
+.PHONY: run test bench lint install clean-data
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/conforma serve
+
+test: $(STAMP)
+	$(PYTEST)
+
+bench: $(STAMP)
+	$(PYTEST) tests/bench -o addopts="" -s -q -p no:cacheprovider
+
+lint: $(STAMP)
+	$(BIN)/python -m compileall -q app hardware tests
+
+clean-data:
+	rm -rf data

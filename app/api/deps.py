@@ -1,0 +1,56 @@
+"""Dependencies shared by the routers: runtime, sessions, and role checks."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Request, Security
+from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
+from sqlmodel import Session
+
+from app.auth import KeyRing, role_allows
+from app.jobs.runtime import Runtime
+
+_bearer = HTTPBearer(auto_error=False, description="API key as a bearer token")
+_header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key")
+
+
+def get_runtime(request: Request) -> Runtime:
+    return request.app.state.runtime
+
+
+def get_keyring(request: Request) -> KeyRing:
+    return request.app.state.keyring
+
+
+def get_session(runtime: Annotated[Runtime, Depends(get_runtime)]) -> Iterator[Session]:
+    with Session(runtime.engine, expire_on_commit=False) as session:
+        yield session
+
+
+def _require(need: str):  # type: ignore[no-untyped-def]
+    def check(
+        keyring: Annotated[KeyRing, Depends(get_keyring)],
+        bearer: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)] = None,
+        header_key: Annotated[str | None, Security(_header)] = None,
+    ) -> str:
+        key = bearer.credentials if bearer is not None else header_key
+        if not key:
+            raise HTTPException(401, "an API key is required (Authorization: Bearer <key> or X-API-Key)",
+                                headers={"WWW-Authenticate": "Bearer"})
+        role = keyring.role_of(key)
+        if role is None:
+            raise HTTPException(401, "the API key is not valid (unknown or revoked)", headers={"WWW-Authenticate": "Bearer"})
+        if not role_allows(role, need):
+            raise HTTPException(403, f"this needs the {need} role; the key has the {role} role")
+        return role
+
+    return check
+
+
+Viewer = Depends(_require("viewer"))
+Operator = Depends(_require("operator"))
+Admin = Depends(_require("admin"))
+RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
+SessionDep = Annotated[Session, Depends(get_session)]

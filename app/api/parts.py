@@ -1,0 +1,91 @@
+"""Parts: upload a mesh, list, read, download, delete."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, File, Form, HTTPException, Query, Response, UploadFile
+from sqlalchemy import delete, func
+from sqlmodel import select
+
+from app.api.deps import Admin, Operator, RuntimeDep, SessionDep, Viewer
+from app.api.schemas import Page, PartOut
+from app.errors import Conflict
+from app.mesh_intake import detect_format, export_mesh, parse_mesh, summarize
+from app.models import JobReference, Part, Trace, new_id, utcnow
+from app.records import get_or_404
+
+router = APIRouter(prefix="/api/v1/parts", tags=["parts"])
+
+
+def part_out(part: Part) -> PartOut:
+    return PartOut(**part.model_dump())
+
+
+@router.post("", status_code=201, dependencies=[Operator])
+def upload_part(
+    runtime: RuntimeDep,
+    session: SessionDep,
+    file: Annotated[UploadFile, File(description="STL (ascii/binary), OBJ, PLY, OFF, 3MF or GLB")],
+    name: Annotated[str | None, Form(max_length=200)] = None,
+    format: Annotated[str | None, Form(description="overrides the file extension")] = None,
+) -> PartOut:
+    """Upload a part mesh (413 over the size limit; 422 for empty, non-finite or unparsable meshes)."""
+    fmt = detect_format(file.filename, format)
+    data = file.file.read()
+    mesh = parse_mesh(data, fmt, max_unzipped_bytes=int(runtime.settings.max_unzipped_mb * 2**20))
+    summary = summarize(mesh)
+    sha = runtime.blobs.put(session, data)
+    part = Part(
+        id=new_id("part"), name=name or (file.filename or "part").rsplit("/", 1)[-1], format=fmt,
+        faces=summary.faces, vertices=summary.vertices, bounds=summary.bounds, watertight=summary.watertight,
+        volume_mm3=summary.volume_mm3, area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(),
+    )
+    session.add(part)
+    session.commit()
+    runtime.meshes.put(sha, mesh)
+    return part_out(part)
+
+
+@router.get("", dependencies=[Viewer])
+def list_parts(session: SessionDep, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+               offset: Annotated[int, Query(ge=0)] = 0) -> Page[PartOut]:
+    total = session.exec(select(func.count()).select_from(Part)).one()
+    rows = session.exec(select(Part).order_by(Part.created_at.desc(), Part.id).offset(offset).limit(limit)).all()
+    return Page(items=[part_out(p) for p in rows], total=total)
+
+
+@router.get("/{part_id}", dependencies=[Viewer])
+def get_part(part_id: str, session: SessionDep) -> PartOut:
+    return part_out(get_or_404(session, Part, part_id))
+
+
+@router.get("/{part_id}/mesh", dependencies=[Viewer],
+            responses={200: {"content": {"model/stl": {}, "model/gltf-binary": {}}}})
+def download_mesh(part_id: str, runtime: RuntimeDep, session: SessionDep,
+                  format: Annotated[Literal["stl", "glb"], Query()] = "stl") -> Response:
+    """The part's mesh as binary STL or GLB."""
+    part = get_or_404(session, Part, part_id)
+    data = export_mesh(runtime.meshes.mesh(part), format)
+    media = "model/stl" if format == "stl" else "model/gltf-binary"
+    return Response(data, media_type=media, headers={"Content-Disposition": f'attachment; filename="{part.id}.{format}"'})
+
+
+@router.delete("/{part_id}", status_code=204)
+def delete_part(part_id: str, session: SessionDep, role: str = Operator,
+                force: Annotated[bool, Query(description="admin only: delete even if jobs reference it")] = False,
+                ) -> None:
+    """Delete a part and its traces; 409 while jobs reference them unless ``force`` (admin)."""
+    part = get_or_404(session, Part, part_id)
+    trace_ids = list(session.exec(select(Trace.id).where(Trace.part_id == part_id)).all())
+    refs = session.exec(select(JobReference.job_id).where(JobReference.ref_id.in_([part_id, *trace_ids]))).all()
+    if refs and not force:
+        raise Conflict(f"part {part_id!r} is referenced by {len(set(refs))} job(s), e.g. {sorted(set(refs))[0]}",
+                       field="part_id", value=part_id)
+    if force and role != "admin":
+        raise HTTPException(403, "force=true needs the admin role")
+    session.exec(delete(JobReference).where(JobReference.ref_id.in_([part_id, *trace_ids])))  # type: ignore[call-overload]
+    session.exec(delete(Trace).where(Trace.part_id == part_id))  # type: ignore[call-overload]
+    session.delete(part)
+    session.commit()
+

@@ -1,0 +1,155 @@
+"""Request and response models of the HTTP API (lengths mm, angles degrees, feeds mm/min)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Generic, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field
+
+T = TypeVar("T")
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+XY = Annotated[list[Finite], Field(min_length=2, max_length=2)]
+XYorXYZ = Annotated[list[Finite], Field(min_length=2, max_length=3)]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Page(BaseModel, Generic[T]):
+    items: list[T]
+    total: int
+
+
+class PartOut(BaseModel):
+    id: str
+    name: str
+    format: str
+    faces: int
+    vertices: int
+    bounds: list[list[float]]
+    watertight: bool
+    volume_mm3: float | None
+    area_mm2: float
+    sha256: str
+    created_at: datetime
+
+
+class LineGeometry(Strict):
+    type: Literal["line"]
+    start: XY
+    end: XY
+
+
+class ArcGeometry(Strict):
+    type: Literal["arc"]
+    center: XY
+    radius: Finite = Field(gt=0)
+    start_deg: Finite
+    end_deg: Finite
+
+
+class PolylineGeometry(Strict):
+    type: Literal["polyline"]
+    points: list[XYorXYZ] = Field(min_length=2, max_length=100_000)
+
+
+class NurbsGeometry(Strict):
+    type: Literal["nurbs"]
+    degree: int = Field(ge=1, le=10)
+    control_points: list[XYorXYZ] = Field(min_length=2, max_length=100_000)
+    weights: list[Finite] | None = None
+    knots: list[Finite] | None = None
+
+
+Geometry = Annotated[LineGeometry | ArcGeometry | PolylineGeometry | NurbsGeometry, Field(discriminator="type")]
+
+
+class TraceCreate(Strict):
+    name: str = Field(min_length=1, max_length=200)
+    geometry: Geometry
+    frame: Literal["xy", "3d"] = "xy"
+    standoff_mm: Finite = Field(0.10, gt=0, le=50)
+    width_mm: Finite | None = Field(None, gt=0, le=50)
+    feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
+
+
+class NominalOut(BaseModel):
+    points: list[list[float]]
+    normals: list[list[float]] | None = None
+    slope_stretch: float | None = None
+
+
+class TraceOut(BaseModel):
+    id: str
+    part_id: str
+    name: str
+    frame: str
+    geometry: dict[str, Any]
+    standoff_mm: float
+    width_mm: float | None
+    feed_mm_min: float | None
+    length_mm: float
+    z_range: list[float]
+    nominal: NominalOut
+    created_at: datetime
+
+
+class JobCreate(Strict):
+    kind: str = Field(min_length=1, max_length=40, description="a job kind; see GET /api/v1/job-kinds")
+    params: dict[str, Any] = Field(default_factory=dict, description="the kind's parameters (schema per kind)")
+
+
+class ArtifactOut(BaseModel):
+    name: str
+    media_type: str
+    bytes: int
+    sha256: str
+    url: str
+    meta: dict[str, Any] = Field(default_factory=dict)
+
+
+class JobOut(BaseModel):
+    id: str
+    kind: str
+    status: Literal["queued", "running", "succeeded", "failed", "cancelled"]
+    progress: float
+    message: str
+    params: dict[str, Any]
+    parent_id: str | None
+    attempts: int
+    cancel_requested: bool
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    error: dict[str, Any] | None
+    result: dict[str, Any] | None
+    input_hashes: dict[str, str]
+    software_version: str
+    artifacts: list[ArtifactOut]
+
+
+class JobKindOut(BaseModel):
+    name: str
+    queue: str
+    description: str
+    params_schema: dict[str, Any]
+
+
+class KeyCreate(Strict):
+    role: Literal["viewer", "operator", "admin"]
+    name: str = Field("", max_length=200)
+
+
+class KeyOut(BaseModel):
+    id: str
+    name: str
+    role: str
+    prefix: str
+    created_at: datetime
+    revoked_at: datetime | None
+
+
+class KeyCreated(KeyOut):
+    key: str = Field(description="shown once; only its hash is stored")

@@ -1,0 +1,55 @@
+"""Health, job kinds and API key management."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends
+from sqlalchemy import text
+from sqlmodel import select
+
+import app
+from app.api.deps import Admin, RuntimeDep, SessionDep, Viewer, get_keyring
+from app.api.schemas import JobKindOut, KeyCreate, KeyCreated, KeyOut, Page
+from app.auth import KeyRing
+from app.errors import NotFound
+from app.jobs.registry import kinds
+from app.models import ApiKey
+
+router = APIRouter(prefix="/api/v1", tags=["system"])
+
+
+@router.get("/health")
+def health(runtime: RuntimeDep) -> dict:
+    """Liveness and database reachability (no key needed)."""
+    with runtime.engine.connect() as conn:
+        conn.execute(text("SELECT 1"))
+    return {"status": "ok", "version": app.__version__,
+            "database": runtime.engine.dialect.name, "queue": "redis" if runtime.settings.queue_url else "sqlite"}
+
+
+@router.get("/job-kinds", dependencies=[Viewer])
+def job_kinds() -> list[JobKindOut]:
+    """Every job kind with the JSON schema of its parameters."""
+    return [JobKindOut(name=k.name, queue=k.queue, description=k.description, params_schema=k.params.model_json_schema())
+            for k in sorted(kinds().values(), key=lambda k: k.name)]
+
+
+@router.post("/keys", status_code=201, dependencies=[Admin])
+def create_key(body: KeyCreate, keyring: Annotated[KeyRing, Depends(get_keyring)]) -> KeyCreated:
+    """Create an API key; the key is in this response only."""
+    record, key = keyring.create(body.role, body.name)
+    return KeyCreated(**record.model_dump(), key=key)
+
+
+@router.get("/keys", dependencies=[Admin])
+def list_keys(session: SessionDep) -> Page[KeyOut]:
+    rows = session.exec(select(ApiKey).order_by(ApiKey.created_at)).all()
+    return Page(items=[KeyOut(**r.model_dump()) for r in rows], total=len(rows))
+
+
+@router.delete("/keys/{key_id}", status_code=204, dependencies=[Admin])
+def revoke_key(key_id: str, keyring: Annotated[KeyRing, Depends(get_keyring)]) -> None:
+    """Revoke a stored key (404 if unknown or already revoked)."""
+    if not keyring.revoke(key_id):
+        raise NotFound(f"key {key_id!r} does not exist or is already revoked", field="key_id", value=key_id)

@@ -1,0 +1,54 @@
+"""Content-addressed files under ``data_dir/blobs/ab/abcdef...`` listed in the ``blobs`` table.
+
+A blob is written to a temporary file, fsynced and renamed into place before its row is
+inserted, so a crash never leaves a row pointing at a missing or partial file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+from sqlmodel import Session
+
+from app.models import Blob, utcnow
+
+
+class BlobStore:
+    """Bytes in, sha256 out; files are immutable once written."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def path(self, sha256: str) -> Path:
+        return self.root / sha256[:2] / sha256
+
+    def put(self, session: Session, data: bytes) -> str:
+        """Store ``data`` (idempotent) and list it in ``session``; returns its sha256."""
+        digest = hashlib.sha256(data).hexdigest()
+        target = self.path(digest)
+        if not target.exists():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-")
+            try:
+                with os.fdopen(fd, "wb") as handle:
+                    handle.write(data)
+                    handle.flush()
+                    os.fsync(handle.fileno())
+                os.replace(tmp, target)
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
+        dialect = session.get_bind().dialect.name
+        insert = pg_insert if dialect == "postgresql" else sqlite_insert
+        session.exec(  # type: ignore[call-overload]
+            insert(Blob).values(sha256=digest, bytes=len(data), created_at=utcnow()).on_conflict_do_nothing()
+        )
+        return digest
+
+    def read(self, sha256: str) -> bytes:
+        return self.path(sha256).read_bytes()

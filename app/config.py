@@ -1,0 +1,119 @@
+"""Typed, strict settings (environment prefix ``CONFORMA_``).
+
+Settings are made by :func:`load_settings` and injected (``create_app(settings)``);
+nothing reads the environment at import time.  Unknown ``CONFORMA_*`` variables and
+out-of-range values are errors at start-up, not surprises later.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+ROLES = ("viewer", "operator", "admin")
+Role = Literal["viewer", "operator", "admin"]
+
+# Variables with the prefix that are read elsewhere (tests, hardware contract suite).
+_FOREIGN_VARIABLES = {"CONFORMA_TEST_PORT", "CONFORMA_TEST_DATABASE_URL", "CONFORMA_TEST_QUEUE_URL"}
+
+
+class SettingsError(Exception):
+    """The configuration cannot be used; the message names the variable and the value."""
+
+
+class Settings(BaseSettings):
+    """Everything the service can be told.  Paths are resolved; sizes in MiB; times in s."""
+
+    model_config = SettingsConfigDict(env_prefix="CONFORMA_", extra="forbid", frozen=True)
+
+    data_dir: Path = Path("./data")
+    database_url: str | None = Field(None, description="SQLAlchemy URL; default SQLite under data_dir")
+    queue_url: str | None = Field(None, description="redis://... for RedisHuey; default SqliteHuey under data_dir")
+    api_keys: str = Field("", description='static keys, "key1:operator,key2:admin"')
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=1, le=65535)
+    viewer: bool = True
+    viewer_host: str = "127.0.0.1"
+    viewer_port: int = Field(8080, ge=1, le=65535)
+    embedded_worker: bool = True
+    worker_threads: int = Field(2, ge=1, le=64)
+    lease_s: float = Field(30.0, gt=0.5, le=3600)
+    max_attempts: int = Field(3, ge=1, le=100)
+    reaper_interval_s: float = Field(1.0, gt=0.01, le=600)
+    poll_max_delay_s: float = Field(0.02, gt=0.0, le=10)
+    max_upload_mb: float = Field(200.0, gt=0, le=100_000)
+    max_json_mb: float = Field(20.0, gt=0, le=10_000)
+    max_unzipped_mb: float = Field(1000.0, gt=0, le=100_000)
+    job_plugins: str = Field("", description="comma-separated modules that register extra job kinds")
+    db_pool_size: int = Field(40, ge=1, le=1000)
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+    @field_validator("api_keys")
+    @classmethod
+    def _check_keys(cls, value: str) -> str:
+        for item in filter(None, (part.strip() for part in value.split(","))):
+            key, sep, role = item.rpartition(":")
+            if not sep or not key or role not in ROLES:
+                raise ValueError(f"expected 'key:role' with role in {ROLES}, got {item!r}")
+            if len(key) < 8:
+                raise ValueError("API keys must have at least 8 characters")
+        return value
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The SQLAlchemy URL in use (SQLite file under ``data_dir`` by default)."""
+        if self.database_url:
+            url = self.database_url
+            if url.startswith("postgresql://") or url.startswith("postgres://"):
+                url = "postgresql+psycopg://" + url.split("://", 1)[1]
+            return url
+        return f"sqlite:///{(self.data_dir / 'conforma.db').resolve()}"
+
+    @property
+    def is_sqlite(self) -> bool:
+        return self.resolved_database_url.startswith("sqlite")
+
+    @property
+    def blob_dir(self) -> Path:
+        return self.data_dir / "blobs"
+
+    def static_keys(self) -> dict[str, str]:
+        """``{key: role}`` from ``api_keys``."""
+        out: dict[str, str] = {}
+        for item in filter(None, (part.strip() for part in self.api_keys.split(","))):
+            key, _, role = item.rpartition(":")
+            out[key] = role
+        return out
+
+
+def load_settings(environ: dict[str, str] | None = None, **overrides: object) -> Settings:
+    """Build settings from ``environ`` (default ``os.environ``) plus explicit overrides.
+
+    Raises :class:`SettingsError` for unknown ``CONFORMA_*`` variables or bad values.
+    """
+    env = dict(os.environ if environ is None else environ)
+    known = {f"CONFORMA_{name.upper()}" for name in Settings.model_fields}
+    unknown = sorted(k for k in env if k.startswith("CONFORMA_") and k not in known | _FOREIGN_VARIABLES)
+    if unknown:
+        raise SettingsError(f"unknown setting(s): {', '.join(unknown)}")
+    values: dict[str, object] = {
+        name: env[f"CONFORMA_{name.upper()}"]
+        for name in Settings.model_fields
+        if f"CONFORMA_{name.upper()}" in env
+    }
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        # model_validate does not read the environment again: errors name our keys only.
+        settings = Settings.model_validate(values)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"CONFORMA_{'.'.join(str(p) for p in err['loc']).upper()}={err.get('input')!r}: {err['msg']}"
+            for err in exc.errors()
+        )
+        raise SettingsError(problems) from None
+    return settings.model_copy(update={"data_dir": settings.data_dir.expanduser().resolve()})
+

@@ -1,0 +1,59 @@
+"""The domain's small exception family.
+
+Every layer raises one of these (or a subclass of its own); the API turns them into
+RFC 9457 problem details.  Each error may name the offending input ``field`` (a dotted
+path such as ``"geometry.knots"``) and ``value`` so that the client sees exactly what
+was wrong.  This module is pure: the compute core may import it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class ConformaError(Exception):
+    """Base of all expected errors.  ``status`` is the HTTP status it maps to."""
+
+    status: int = 400
+    title: str = "Bad request"
+
+    def __init__(self, message: str, *, field: str | None = None, value: Any = None) -> None:
+        super().__init__(message)
+        self.message = message
+        self.field = field
+        self.value = value
+
+
+class InvalidInput(ConformaError):
+    """The input is well-formed but its content cannot be used (422)."""
+
+    status = 422
+    title = "Unprocessable input"
+
+
+class NotFound(ConformaError):
+    """A referenced record does not exist (404)."""
+
+    status = 404
+    title = "Not found"
+
+
+class Conflict(ConformaError):
+    """The request conflicts with the current state of a record (409)."""
+
+    status = 409
+    title = "Conflict"
+
+
+class TooLarge(ConformaError):
+    """The request or an upload exceeds a configured limit (413)."""
+
+    status = 413
+    title = "Payload too large"
+
+
+class Cancelled(ConformaError):
+    """A job observed its cancel request and stopped cooperatively."""
+
+    status = 409
+    title = "Cancelled"

@@ -1,0 +1,1 @@
+"""One module per job kind (thin adapters: load inputs, call the core, store results)."""

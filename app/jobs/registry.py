@@ -1,0 +1,96 @@
+"""The registry of job kinds: a later issue adds a kind as one module.
+
+A kind names its parameter model (validated at submission, so bad parameters are a 422
+before anything is queued), the function that runs it, the queue it belongs on
+(``"machine"`` for jobs that own a serial port), and what stored records it reads (so
+that those cannot be deleted from under it).
+
+Example (a module in ``app/jobs/kinds/``)::
+
+    class Params(JobParams):
+        trace_id: str
+
+    @job_kind("probe_plan", Params, references=lambda p: [("trace", p.trace_id)])
+    def run(ctx: JobContext, params: Params) -> dict: ...
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel, ConfigDict
+
+if TYPE_CHECKING:
+    from app.jobs.context import JobContext
+
+
+class JobParams(BaseModel):
+    """Base of every kind's parameters: unknown fields are errors."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+Reference = tuple[str, str]  # ("part" | "trace" | "job" | "machine", id)
+
+
+@dataclass(frozen=True)
+class JobKind:
+    name: str
+    params: type[JobParams]
+    run: Callable[["JobContext", Any], dict]
+    queue: str = "default"
+    references: Callable[[Any], list[Reference]] = field(default=lambda _params: [])
+    description: str = ""
+
+
+_KINDS: dict[str, JobKind] = {}
+
+
+def job_kind(
+    name: str,
+    params: type[JobParams],
+    *,
+    queue: str = "default",
+    references: Callable[[Any], list[Reference]] | None = None,
+) -> Callable[[Callable[["JobContext", Any], dict]], Callable[["JobContext", Any], dict]]:
+    """Register the decorated function as the runner of job kind ``name``."""
+
+    def register(run: Callable[["JobContext", Any], dict]) -> Callable[["JobContext", Any], dict]:
+        if name in _KINDS and _KINDS[name].run is not run:
+            raise ValueError(f"job kind {name!r} is registered twice")
+        _KINDS[name] = JobKind(
+            name=name,
+            params=params,
+            run=run,
+            queue=queue,
+            references=references or (lambda _params: []),
+            description=(run.__doc__ or "").strip().split("\n")[0],
+        )
+        return run
+
+    return register
+
+
+def kinds() -> dict[str, JobKind]:
+    """All registered kinds by name."""
+    return dict(_KINDS)
+
+
+def get_kind(name: str) -> JobKind | None:
+    return _KINDS.get(name)
+
+
+def load_kinds(plugins: Iterable[str] = ()) -> dict[str, JobKind]:
+    """Import every module in ``app.jobs.kinds`` and the named plugin modules."""
+    import app.jobs.kinds as package
+
+    for info in pkgutil.iter_modules(package.__path__):
+        importlib.import_module(f"{package.__name__}.{info.name}")
+    for module in plugins:
+        if module.strip():
+            importlib.import_module(module.strip())
+    return kinds()

@@ -1,0 +1,161 @@
+"""Job state transitions, each one conditional ``UPDATE ... WHERE ... RETURNING``.
+
+The job table is the source of truth; the queue only carries job ids (at most once).
+A worker owns a running job while ``worker`` and ``attempts`` match what it claimed and
+its lease has not been taken away by the reaper.  Every change bumps ``revision`` so
+that watchers (SSE) can tell that something changed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Engine, and_, or_, select, update
+
+from app.models import TERMINAL_STATES, Job, utcnow
+
+
+@dataclass(frozen=True)
+class Claim:
+    """What a worker holds while it runs a job."""
+
+    job_id: str
+    kind: str
+    worker: str
+    attempt: int
+    params: dict[str, Any]
+
+
+class JobStore:
+    """Conditional state changes on the jobs table."""
+
+    def __init__(self, engine: Engine, lease_s: float) -> None:
+        self.engine = engine
+        self.lease_s = lease_s
+
+    def _run(self, statement):  # type: ignore[no-untyped-def]
+        with self.engine.begin() as conn:
+            return conn.execute(statement).fetchall()
+
+    def mark_enqueued(self, job_id: str) -> None:
+        self._run(update(Job).where(Job.id == job_id).values(enqueued_at=time.time()))
+
+    def claim(self, job_id: str, worker: str) -> Claim | None:
+        """queued -> running for ``worker``; None if someone else has it or it was cancelled."""
+        rows = self._run(
+            update(Job)
+            .where(and_(Job.id == job_id, Job.status == "queued", Job.cancel_requested.is_(False)))
+            .values(
+                status="running",
+                attempts=Job.attempts + 1,
+                worker=worker,
+                lease_until=time.time() + self.lease_s,
+                started_at=utcnow(),
+                revision=Job.revision + 1,
+            )
+            .returning(Job.kind, Job.attempts, Job.params)
+        )
+        if not rows:
+            return None
+        kind, attempt, params = rows[0]
+        return Claim(job_id, kind, worker, attempt, dict(params))
+
+    def _owned(self, claim: Claim):  # type: ignore[no-untyped-def]
+        return and_(
+            Job.id == claim.job_id,
+            Job.status == "running",
+            Job.worker == claim.worker,
+            Job.attempts == claim.attempt,
+        )
+
+    def heartbeat(self, claim: Claim, progress: float | None = None, message: str | None = None) -> bool | None:
+        """Renew the lease (and report progress).  Returns ``cancel_requested``, or None if lost."""
+        values: dict[str, Any] = {"lease_until": time.time() + self.lease_s}
+        if progress is not None:
+            values["progress"] = min(max(float(progress), 0.0), 1.0)
+            values["revision"] = Job.revision + 1
+        if message is not None:
+            values["message"] = message[:500]
+            values["revision"] = Job.revision + 1
+        rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(Job.cancel_requested))
+        return bool(rows[0][0]) if rows else None
+
+    def finish(self, claim: Claim, status: str, *, result: dict | None = None, error: dict | None = None) -> bool:
+        """running -> succeeded/failed/cancelled, only while ``claim`` still owns the job."""
+        assert status in TERMINAL_STATES
+        values: dict[str, Any] = {
+            "status": status,
+            "result": result,
+            "error": error,
+            "finished_at": utcnow(),
+            "lease_until": None,
+            "revision": Job.revision + 1,
+        }
+        if status == "succeeded":
+            values["progress"] = 1.0
+        rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(Job.id))
+        return bool(rows)
+
+    def request_cancel(self, job_id: str) -> str | None:
+        """Ask a job to stop.  A queued job is cancelled at once; a running one cooperatively.
+
+        Returns the status after the request, or None when the job is already finished
+        (or a cancel was already requested for it).
+        """
+        rows = self._run(
+            update(Job)
+            .where(and_(Job.id == job_id, Job.status.in_(("queued", "running")), Job.cancel_requested.is_(False)))
+            .values(cancel_requested=True, revision=Job.revision + 1)
+            .returning(Job.status)
+        )
+        if not rows:
+            return None
+        self._run(
+            update(Job)
+            .where(and_(Job.id == job_id, Job.status == "queued"))
+            .values(status="cancelled", finished_at=utcnow(), message="cancelled before start", revision=Job.revision + 1)
+        )
+        return "cancelled" if rows[0][0] == "queued" else "running"
+
+    def reap(self, stale_enqueue_s: float) -> list[str]:
+        """Requeue jobs whose lease expired (attempts left) and fail the rest.
+
+        Also returns queued jobs whose enqueue is older than ``stale_enqueue_s`` (their queue
+        message may have been lost with a crashed process); enqueueing them again is safe
+        because :meth:`claim` is conditional.  Returns the ids to (re)enqueue.
+        """
+        now = time.time()
+        expired = and_(Job.status == "running", Job.lease_until < now)
+        requeued = self._run(
+            update(Job)
+            .where(and_(expired, Job.attempts < Job.max_attempts, Job.cancel_requested.is_(False)))
+            .values(status="queued", worker=None, lease_until=None, enqueued_at=now,
+                    message="requeued after lost lease", revision=Job.revision + 1)
+            .returning(Job.id)
+        )
+        self._run(
+            update(Job)
+            .where(and_(expired, or_(Job.attempts >= Job.max_attempts, Job.cancel_requested.is_(True))))
+            .values(
+                status="failed",
+                finished_at=utcnow(),
+                lease_until=None,
+                revision=Job.revision + 1,
+                error={"type": "about:blank#lease-expired", "title": "Worker lost", "status": 500,
+                       "detail": "the worker stopped reporting and no attempts are left"},
+            )
+        )
+        stale = self._run(
+            update(Job)
+            .where(and_(Job.status == "queued", Job.cancel_requested.is_(False),
+                        or_(Job.enqueued_at.is_(None), Job.enqueued_at < now - stale_enqueue_s)))
+            .values(enqueued_at=now)
+            .returning(Job.id)
+        )
+        return [r[0] for r in requeued] + [r[0] for r in stale]
+
+    def status(self, job_id: str) -> tuple[str, int] | None:
+        rows = self._run(select(Job.status, Job.revision).where(Job.id == job_id))
+        return (rows[0][0], rows[0][1]) if rows else None

@@ -1,0 +1,65 @@
+"""The application factory.  Nothing is built at import time: ``create_app(settings)``."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+import app as app_package
+from app.api import jobs, parts, system, traces
+from app.api.errors import install_error_handlers
+from app.api.limits import BodyLimitMiddleware
+from app.auth import KeyRing
+from app.config import Settings
+from app.db import migrate
+from app.jobs.runtime import Runtime
+
+WEB_DIR = Path(__file__).resolve().parent.parent / "web"
+log = logging.getLogger("conforma")
+
+
+def create_app(settings: Settings, *, start_workers: bool | None = None) -> FastAPI:
+    """Build the API for ``settings``.  On start-up: migrate, open the runtime, start the
+    embedded worker (unless disabled) and the viewer (if enabled)."""
+
+    @asynccontextmanager
+    async def lifespan(api: FastAPI) -> AsyncIterator[None]:
+        migrate(settings)
+        runtime = Runtime(settings)
+        api.state.runtime = runtime
+        api.state.keyring = KeyRing(runtime.engine, settings.static_keys())
+        if settings.embedded_worker if start_workers is None else start_workers:
+            runtime.start_workers()
+        viewer = None
+        if settings.viewer:
+            from app.viewer.server import start_viewer
+
+            viewer = start_viewer(settings, runtime)
+            api.state.viewer = viewer
+        try:
+            yield
+        finally:
+            if viewer is not None:
+                viewer.stop()
+            runtime.stop()
+
+    api = FastAPI(
+        title="Conforma",
+        version=app_package.__version__,
+        description="Plan, measure and compensate toolpaths for printing electronics onto curved parts.",
+        lifespan=lifespan,
+    )
+    api.state.settings = settings
+    install_error_handlers(api)
+    api.add_middleware(BodyLimitMiddleware, upload_bytes=int(settings.max_upload_mb * 2**20),
+                       json_bytes=int(settings.max_json_mb * 2**20))
+    for router in (system.router, parts.router, traces.router, jobs.router):
+        api.include_router(router)
+    if WEB_DIR.is_dir():
+        api.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
+    return api

@@ -1,0 +1,141 @@
+"""SQLModel tables.  The job table is the source of truth for job state.
+
+Ids are short random strings; timestamps are timezone-aware UTC; JSON columns carry
+structured parameters and results.  Schema changes go through an Alembic revision in
+``migrations/``.
+"""
+
+from __future__ import annotations
+
+import secrets
+from datetime import datetime, timezone
+from typing import Any
+
+from sqlalchemy import JSON, Column, DateTime, Index, UniqueConstraint
+from sqlmodel import Field, SQLModel
+
+# Constraint names are deterministic so that batch migrations on SQLite can find them.
+SQLModel.metadata.naming_convention = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
+TERMINAL_STATES = ("succeeded", "failed", "cancelled")
+
+def new_id(prefix: str) -> str:
+    """A random, URL-safe id such as ``job_4f3a9c1e0b7d2a65``."""
+    return f"{prefix}_{secrets.token_hex(8)}"
+
+def utcnow() -> datetime:
+    return datetime.now(timezone.utc)
+
+class Blob(SQLModel, table=True):
+    """A content-addressed file under ``data_dir/blobs`` (sha256 of its bytes)."""
+
+    __tablename__ = "blobs"
+    sha256: str = Field(primary_key=True, max_length=64)
+    bytes: int
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+class Part(SQLModel, table=True):
+    __tablename__ = "parts"
+    id: str = Field(primary_key=True, max_length=40)
+    name: str = Field(max_length=200)
+    format: str = Field(max_length=10)
+    faces: int
+    vertices: int
+    bounds: list = Field(sa_column=Column(JSON, nullable=False))
+    watertight: bool
+    volume_mm3: float | None = None
+    area_mm2: float
+    sha256: str = Field(foreign_key="blobs.sha256", max_length=64, index=True)
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+class Trace(SQLModel, table=True):
+    __tablename__ = "traces"
+    id: str = Field(primary_key=True, max_length=40)
+    part_id: str = Field(foreign_key="parts.id", index=True, max_length=40)
+    name: str = Field(max_length=200)
+    frame: str = Field(max_length=4)
+    geometry: dict = Field(sa_column=Column(JSON, nullable=False))
+    standoff_mm: float
+    width_mm: float | None = None
+    feed_mm_min: float | None = None
+    length_mm: float
+    z_min: float
+    z_max: float
+    nominal: dict = Field(sa_column=Column(JSON, nullable=False))
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+class Job(SQLModel, table=True):
+    __tablename__ = "jobs"
+    __table_args__ = (Index("ix_jobs_status_lease", "status", "lease_until"),)
+    id: str = Field(primary_key=True, max_length=40)
+    kind: str = Field(max_length=40, index=True)
+    status: str = Field(default="queued", max_length=12, index=True)
+    progress: float = 0.0
+    message: str = Field(default="", max_length=500)
+    params: dict = Field(sa_column=Column(JSON, nullable=False))
+    result: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    error: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    parent_id: str | None = Field(default=None, foreign_key="jobs.id", index=True, max_length=40)
+    queue: str = Field(default="default", max_length=40)
+    attempts: int = 0
+    max_attempts: int = 3
+    worker: str | None = Field(default=None, max_length=120)
+    lease_until: float | None = None
+    cancel_requested: bool = False
+    input_hashes: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))
+    software_version: str = Field(default="", max_length=40)
+    revision: int = 0
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+    enqueued_at: float | None = None
+    started_at: datetime | None = Field(default=None, sa_column=Column(DateTime(timezone=True)))
+    finished_at: datetime | None = Field(default=None, sa_column=Column(DateTime(timezone=True)))
+
+class JobReference(SQLModel, table=True):
+    """Which stored records a job reads (parts, traces, other jobs): guards deletion."""
+
+    __tablename__ = "job_references"
+    job_id: str = Field(foreign_key="jobs.id", primary_key=True, max_length=40)
+    ref_kind: str = Field(primary_key=True, max_length=12)
+    ref_id: str = Field(primary_key=True, max_length=40, index=True)
+
+class Artifact(SQLModel, table=True):
+    __tablename__ = "artifacts"
+    __table_args__ = (UniqueConstraint("job_id", "name"),)
+    id: int | None = Field(default=None, primary_key=True)
+    job_id: str = Field(foreign_key="jobs.id", index=True, max_length=40)
+    name: str = Field(max_length=200)
+    media_type: str = Field(max_length=100)
+    bytes: int
+    sha256: str = Field(foreign_key="blobs.sha256", max_length=64)
+    meta: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+class Machine(SQLModel, table=True):
+    __tablename__ = "machines"
+    id: str = Field(primary_key=True, max_length=40)
+    name: str = Field(max_length=200)
+    port: str = Field(max_length=500)
+    baudrate: int = 115200
+    dialect: str = Field(max_length=10)
+    profile: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))
+    mock: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+class ApiKey(SQLModel, table=True):
+    """A stored API key: only its sha256 is kept; ``prefix`` helps people tell keys apart."""
+
+    __tablename__ = "api_keys"
+    id: str = Field(primary_key=True, max_length=40)
+    name: str = Field(default="", max_length=200)
+    role: str = Field(max_length=10)
+    prefix: str = Field(max_length=12)
+    key_sha256: str = Field(max_length=64, unique=True)
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+    revoked_at: datetime | None = Field(default=None, sa_column=Column(DateTime(timezone=True)))

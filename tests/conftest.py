@@ -1,0 +1,52 @@
+"""Shared fixtures: every test app gets its own data directory and static keys."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+KEYS = {"viewer": "viewer-key-123", "operator": "operator-key-123", "admin": "admin-key-123"}
+# Tests must not inherit a developer's configuration.
+for _name in [n for n in os.environ if n.startswith("CONFORMA_") and n not in {"CONFORMA_TEST_PORT"}]:
+    os.environ.pop(_name)
+
+
+def auth(role: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {KEYS[role]}"}
+
+
+@pytest.fixture
+def settings_factory(tmp_path: Path):  # type: ignore[no-untyped-def]
+    from app.config import load_settings
+
+    def make(**overrides: object):  # type: ignore[no-untyped-def]
+        values: dict[str, object] = {
+            "data_dir": tmp_path / "data",
+            "api_keys": ",".join(f"{k}:{r}" for r, k in KEYS.items()),
+            "viewer": False,
+            "lease_s": 5.0,
+            "reaper_interval_s": 0.2,
+            "job_plugins": "tests.jobs.sample_kinds",
+        }
+        values.update(overrides)
+        return load_settings({}, **values)
+
+    return make
+
+
+@pytest.fixture
+def settings(settings_factory):  # type: ignore[no-untyped-def]
+    return settings_factory()
+
+
+@pytest.fixture
+def client(settings) -> Iterator:  # type: ignore[no-untyped-def]
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+
+    with TestClient(create_app(settings), raise_server_exceptions=False) as test_client:
+        yield test_client
