@@ -69,10 +69,29 @@ def _check_zip(data: bytes, max_unzipped_bytes: int) -> None:
         )
 
 
+def _check_stl(data: bytes) -> None:
+    """Binary STL must have exactly 84 + 50 * n bytes; ASCII STL must start with 'solid'."""
+    head = data[:512].lstrip()
+    if head[:5].lower() == b"solid" and b"\0" not in head:
+        return
+    if len(data) < 84:
+        raise MeshError(f"not an STL file: {len(data)} bytes is shorter than a binary STL header", field="file")
+    declared = int.from_bytes(data[80:84], "little")
+    if len(data) != 84 + 50 * declared:
+        raise MeshError(
+            f"not a valid binary STL: the header declares {declared} triangles ({84 + 50 * declared} bytes) "
+            f"but the file has {len(data)} bytes",
+            field="file",
+            value=len(data),
+        )
+
+
 def parse_mesh(data: bytes, fmt: str, *, max_unzipped_bytes: int) -> trimesh.Trimesh:
     """Parse ``data`` as ``fmt`` into one triangle mesh (scenes are concatenated)."""
     if not data:
         raise MeshError("the uploaded file is empty", field="file", value=0)
+    if fmt == "stl":
+        _check_stl(data)
     if fmt in ("3mf", "glb") and data[:2] == b"PK":
         _check_zip(data, max_unzipped_bytes)
     elif fmt == "3mf":

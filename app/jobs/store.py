@@ -37,7 +37,8 @@ class JobStore:
 
     def _run(self, statement):  # type: ignore[no-untyped-def]
         with self.engine.begin() as conn:
-            return conn.execute(statement).fetchall()
+            result = conn.execute(statement)
+            return result.fetchall() if result.returns_rows else []
 
     def mark_enqueued(self, job_id: str) -> None:
         self._run(update(Job).where(Job.id == job_id).values(enqueued_at=time.time()))

@@ -1,0 +1,60 @@
+"""The job table's conditional transitions, leases and the reaper."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from app.db import migrate
+from app.jobs.runtime import Runtime
+
+
+@pytest.fixture
+def runtime(settings_factory):
+    settings = settings_factory(lease_s=1.0, max_attempts=2)
+    migrate(settings)
+    runtime = Runtime(settings)
+    yield runtime
+    runtime.stop()
+
+
+def test_only_one_worker_can_claim(runtime):
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    first = runtime.store.claim(job.id, "w1")
+    assert first is not None and first.attempt == 1
+    assert runtime.store.claim(job.id, "w2") is None
+
+
+def test_lost_lease_is_requeued_then_failed_after_max_attempts(runtime):
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    claim = runtime.store.claim(job.id, "dead-worker")
+    assert runtime.store.reap(stale_enqueue_s=60) == []  # lease still valid
+    time.sleep(1.1)
+    assert job.id in runtime.store.reap(stale_enqueue_s=60)
+    # the dead worker's late report is refused: it no longer owns the job
+    assert runtime.store.heartbeat(claim, 0.5) is None
+    assert runtime.store.finish(claim, "succeeded", result={}) is False
+    second = runtime.store.claim(job.id, "w2")
+    assert second.attempt == 2
+    time.sleep(1.1)
+    runtime.store.reap(stale_enqueue_s=60)
+    status, _ = runtime.store.status(job.id)
+    assert status == "failed"
+
+
+def test_cancel_of_queued_job_is_immediate(runtime):
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    assert runtime.store.request_cancel(job.id) == "cancelled"
+    assert runtime.store.request_cancel(job.id) is None
+    assert runtime.store.claim(job.id, "w1") is None
+
+
+def test_reaped_job_finishes_on_a_live_worker(runtime):
+    job = runtime.submit("test_sleep", {"seconds": 0.05})
+    runtime.store.claim(job.id, "crashed-worker")  # claimed, then the process "died"
+    runtime.start_workers(("default",))
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline and runtime.store.status(job.id)[0] != "succeeded":
+        time.sleep(0.05)
+    assert runtime.store.status(job.id)[0] == "succeeded"
