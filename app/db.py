@@ -13,14 +13,18 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import fcntl
+
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.pool import NullPool
 from sqlmodel import Session
 
 from app.config import Settings
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
+_PG_MIGRATION_LOCK = 0x436F6E66  # "Conf"
 SQLITE_PRAGMAS = (
     "PRAGMA journal_mode=WAL",
     "PRAGMA synchronous=NORMAL",
@@ -73,7 +77,25 @@ def alembic_config(url: str) -> Config:
 
 
 def migrate(settings: Settings, revision: str = "head") -> None:
-    """Apply migrations up to ``revision`` (each in one transaction, also on SQLite)."""
+    """Apply migrations up to ``revision`` (each in one transaction, also on SQLite).
+
+    Processes starting together (API and workers) take turns: a file lock on SQLite, an
+    advisory lock on PostgreSQL.
+    """
+    config = alembic_config(settings.resolved_database_url)
     if settings.is_sqlite:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
-    command.upgrade(alembic_config(settings.resolved_database_url), revision)
+        with open(settings.data_dir / ".migrate.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            command.upgrade(config, revision)
+        return
+    engine = create_engine(settings.resolved_database_url, poolclass=NullPool)
+    try:
+        with engine.connect() as conn:
+            conn.execute(text("SELECT pg_advisory_lock(:key)"), {"key": _PG_MIGRATION_LOCK})
+            try:
+                command.upgrade(config, revision)
+            finally:
+                conn.execute(text("SELECT pg_advisory_unlock(:key)"), {"key": _PG_MIGRATION_LOCK})
+    finally:
+        engine.dispose()

@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
-from datetime import datetime
+from datetime import datetime, timezone
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 T = TypeVar("T")
+
+
+def _as_utc(value: datetime) -> datetime:
+    """SQLite returns naive datetimes; every stored time is UTC."""
+    return value.replace(tzinfo=timezone.utc) if value.tzinfo is None else value.astimezone(timezone.utc)
+
+
+UtcDatetime = Annotated[datetime, AfterValidator(_as_utc)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 XY = Annotated[list[Finite], Field(min_length=2, max_length=2)]
 XYorXYZ = Annotated[list[Finite], Field(min_length=2, max_length=3)]
@@ -33,7 +41,7 @@ class PartOut(BaseModel):
     volume_mm3: float | None
     area_mm2: float
     sha256: str
-    created_at: datetime
+    created_at: UtcDatetime
 
 
 class LineGeometry(Strict):
@@ -93,7 +101,7 @@ class TraceOut(BaseModel):
     length_mm: float
     z_range: list[float]
     nominal: NominalOut
-    created_at: datetime
+    created_at: UtcDatetime
 
 
 class JobCreate(Strict):
@@ -120,9 +128,9 @@ class JobOut(BaseModel):
     parent_id: str | None
     attempts: int
     cancel_requested: bool
-    created_at: datetime
-    started_at: datetime | None
-    finished_at: datetime | None
+    created_at: UtcDatetime
+    started_at: UtcDatetime | None
+    finished_at: UtcDatetime | None
     error: dict[str, Any] | None
     result: dict[str, Any] | None
     input_hashes: dict[str, str]
@@ -147,8 +155,8 @@ class KeyOut(BaseModel):
     name: str
     role: str
     prefix: str
-    created_at: datetime
-    revoked_at: datetime | None
+    created_at: UtcDatetime
+    revoked_at: UtcDatetime | None
 
 
 class KeyCreated(KeyOut):
