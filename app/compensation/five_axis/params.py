@@ -1,0 +1,98 @@
+"""Parameters of a five-axis plan (one explicit object; degrees and mm/min only here)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from app.compensation.five_axis.contact import NormalSide, NormalSource
+from app.compensation.five_axis.errors import FiveAxisError
+from app.compensation.five_axis.kinematics import MachineConfig
+from app.compensation.five_axis.program import FeedMode, ProgramStyle
+
+__all__ = ["FiveAxisParams"]
+
+
+@dataclass(frozen=True)
+class FiveAxisParams:
+    """Everything a five-axis plan needs.
+
+    standoff_mm: nozzle height h above the contact point along the nozzle direction.
+    feed_mm_min: print speed of the contact point along the trace.
+    servo_period_s: interpolation period T of the Taylor update.
+    segment_mm: program line spacing along the trace (a multiple of v T, >= one period).
+    normal_source: "surface" (nozzle along the surface normal) or "principal" (patent).
+    normal_side: which side of the surface is "up" ("up": the +Z side at its centre).
+    pivot_mm: table pivot (x0, y0, z0) in workpiece coordinates at A = C = 0.
+    a_limits_deg: (min, max) table tilt; c_limits_deg: (min, max) or None = endless C.
+    c_start_deg: C before the path (held while the first normals are vertical).
+    singular_tilt_deg: below this tilt of the normal C is held (A = 0 singularity).
+    on_surface_tol_mm: max trace-to-surface distance before the trace counts as "off".
+    feed_mode: "inverse_time" (G93) or "tcp" (G94), see :mod:`.program`.
+    dialect, job_id, decimals, safe_z_mm, approach_feed_mm_min: program formatting.
+    """
+
+    standoff_mm: float = 0.5
+    feed_mm_min: float = 600.0
+    servo_period_s: float = 0.001
+    segment_mm: float = 0.5
+    normal_source: NormalSource = "surface"
+    normal_side: NormalSide = "up"
+    pivot_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    a_limits_deg: tuple[float, float] = (-90.0, 90.0)
+    c_limits_deg: tuple[float, float] | None = None
+    c_start_deg: float = 0.0
+    singular_tilt_deg: float = 1e-4
+    on_surface_tol_mm: float = 0.05
+    feed_mode: FeedMode = "inverse_time"
+    dialect: str = "grbl"
+    job_id: str | None = None
+    decimals: int = 4
+    safe_z_mm: float | None = None
+    approach_feed_mm_min: float = 300.0
+
+    def __post_init__(self) -> None:
+        positive = ("standoff_mm", "feed_mm_min", "servo_period_s", "segment_mm",
+                    "on_surface_tol_mm", "approach_feed_mm_min")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise FiveAxisError(f"{name} must be a positive finite number",
+                                    field=f"params.{name}", value=value)
+        if not (0 <= self.singular_tilt_deg < 1.0):
+            raise FiveAxisError("singular_tilt_deg must be in [0, 1)",
+                                field="params.singular_tilt_deg", value=self.singular_tilt_deg)
+        lo, hi = self.a_limits_deg
+        if not (-180.0 <= lo <= hi <= 180.0):
+            raise FiveAxisError("a_limits_deg must be (min, max) within [-180, 180]",
+                                field="params.a_limits_deg", value=list(self.a_limits_deg))
+        if self.c_limits_deg is not None and not (self.c_limits_deg[0] < self.c_limits_deg[1]):
+            raise FiveAxisError("c_limits_deg must be (min, max) with min < max",
+                                field="params.c_limits_deg", value=list(self.c_limits_deg))
+        if self.feed_mode not in ("inverse_time", "tcp"):
+            raise FiveAxisError("feed_mode must be 'inverse_time' or 'tcp'",
+                                field="params.feed_mode", value=self.feed_mode)
+        if self.normal_source not in ("surface", "principal"):
+            raise FiveAxisError("normal_source must be 'surface' or 'principal'",
+                                field="params.normal_source", value=self.normal_source)
+        if self.normal_side not in ("up", "as_is", "flipped"):
+            raise FiveAxisError("normal_side must be 'up', 'as_is' or 'flipped'",
+                                field="params.normal_side", value=self.normal_side)
+
+    @property
+    def feed_mm_s(self) -> float:
+        """Feed in mm/s."""
+        return self.feed_mm_min / 60.0
+
+    def machine(self) -> MachineConfig:
+        """The machine description in internal units (rad)."""
+        c_lim = None if self.c_limits_deg is None else tuple(map(math.radians, self.c_limits_deg))
+        return MachineConfig(pivot_mm=tuple(map(float, self.pivot_mm)),
+                             a_limits_rad=tuple(map(math.radians, self.a_limits_deg)),
+                             c_limits_rad=c_lim)
+
+    def style(self) -> ProgramStyle:
+        """Program formatting."""
+        return ProgramStyle(dialect=self.dialect, job_id=self.job_id, decimals=self.decimals,
+                            safe_z_mm=self.safe_z_mm,
+                            approach_feed_mm_min=self.approach_feed_mm_min)

@@ -1,0 +1,99 @@
+"""G-code text for five-axis and nominal three-axis traverses.
+
+Feed modes of the five-axis program (documented in its header comment):
+
+* ``"inverse_time"`` (default): ``G93``; each ``G1 X Y Z A C F`` line's F is 1 / (segment
+  duration in minutes), the duration being the time the contact point needs at the set
+  feed along the trace.  Any controller then reproduces the intended constant feed along
+  the workpiece, independent of how far the linear and rotary axes move.
+* ``"tcp"``: ``G94``; F (mm/min) is the nozzle tip's straight-line machine-coordinate
+  distance of the segment divided by its duration: what a controller that feeds only the
+  X Y Z path length (rotaries slaved) needs for the same timing.  Segments with no linear
+  motion fall back to the nominal feed.
+
+Angles are written in degrees, lengths in mm (the user-facing boundary).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from app.gcode.writer import ProgramBuilder, format_number
+
+__all__ = ["FeedMode", "ProgramStyle", "five_axis_program", "nominal_program"]
+
+FeedMode = Literal["inverse_time", "tcp"]
+
+
+@dataclass(frozen=True)
+class ProgramStyle:
+    """Formatting and approach of a program.
+
+    dialect: G-code dialect of :mod:`app.gcode.writer`; job_id: header id; decimals:
+    digits for mm and degrees; safe_z_mm: machine Z for the approach rapids (None: no
+    rapids, the first line moves straight to the start pose at approach_feed_mm_min).
+    """
+
+    dialect: str = "grbl"
+    job_id: str | None = None
+    decimals: int = 4
+    safe_z_mm: float | None = None
+    approach_feed_mm_min: float = 300.0
+
+
+def _approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
+              rotary: dict[str, float]) -> None:
+    if style.safe_z_mm is not None:
+        b.rapid(z=style.safe_z_mm)
+        words = [f"X{format_number(xyz[0], style.decimals, 'x')}",
+                 f"Y{format_number(xyz[1], style.decimals, 'y')}"]
+        words += [f"{k.upper()}{format_number(v, style.decimals, k)}" for k, v in rotary.items()]
+        b.raw("G0 " + " ".join(words))
+    b.move(x=xyz[0], y=xyz[1], z=xyz[2], feed_mm_min=style.approach_feed_mm_min, **rotary)
+
+
+def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
+                      durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
+                      style: ProgramStyle, header: list[str]) -> str:
+    """Program text: approach to pose 0, then one ``G1 X Y Z A C F`` per later pose.
+
+    xyz_mm (k,3) machine tip positions; a_deg, c_deg (k,); durations_s (k-1,) segment
+    times; header: comment lines written after the standard header.
+    """
+    b = ProgramBuilder(style.dialect, "five_axis", style.job_id, decimals=style.decimals,
+                       feed_decimals=3)
+    for line in header:
+        b.comment(line)
+    b.raw("G94")
+    _approach(b, style, xyz_mm[0], {"a": float(a_deg[0]), "c": float(c_deg[0])})
+    b.raw("G93" if feed_mode == "inverse_time" else "G94")
+    seg_len = np.linalg.norm(np.diff(xyz_mm, axis=0), axis=1)
+    for j in range(1, xyz_mm.shape[0]):
+        dt = float(durations_s[j - 1])
+        if feed_mode == "inverse_time":
+            feed = 60.0 / dt
+        else:
+            feed = seg_len[j - 1] / dt * 60.0 if seg_len[j - 1] > 1e-9 else nominal_feed_mm_min
+        b.move(x=xyz_mm[j, 0], y=xyz_mm[j, 1], z=xyz_mm[j, 2], feed_mm_min=feed,
+               a=float(a_deg[j]), c=float(c_deg[j]))
+    b.raw("G94")
+    b.end()
+    return b.text()
+
+
+def nominal_program(xyz_mm: np.ndarray, feed_mm_min: float, style: ProgramStyle,
+                    header: list[str]) -> str:
+    """Three-axis comparison program: ``G1 X Y Z F`` through tip positions (k,3) mm."""
+    b = ProgramBuilder(style.dialect, "five_axis_nominal", style.job_id,
+                       decimals=style.decimals, feed_decimals=1)
+    for line in header:
+        b.comment(line)
+    b.raw("G94")
+    _approach(b, style, xyz_mm[0], {})
+    for j in range(1, xyz_mm.shape[0]):
+        b.move(x=xyz_mm[j, 0], y=xyz_mm[j, 1], z=xyz_mm[j, 2], feed_mm_min=feed_mm_min)
+    b.end()
+    return b.text()

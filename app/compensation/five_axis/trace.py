@@ -1,0 +1,70 @@
+"""Build a trace (3-D NURBS curve) lying on a surface (patent S3, steps 2-3).
+
+* :func:`trace_on_surface` — through surface points at given (u, v) parameters;
+* :func:`trace_over_xy` — a plan-view (x, y) polyline draped onto a surface that is a
+  height field over the XY plane (each point solved for S(u, v)_xy = (x, y)).
+The curve interpolates the surface points (cubic, chord length); between them it deviates
+from the surface by the chordal sag of the sampling, which the planner reports.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.compensation.five_axis.errors import TraceOffSurfaceError
+from app.geometry.fitting import interpolate_curve
+from app.geometry.nurbs import NurbsCurve
+from app.geometry.nurbs_surface import NurbsSurface
+
+__all__ = ["trace_on_surface", "trace_over_xy", "uv_over_xy"]
+
+_NEWTON_STEPS = 30
+_SEED_GRID = 41
+
+
+def trace_on_surface(surface: NurbsSurface, uv: np.ndarray, degree: int = 3) -> NurbsCurve:
+    """Cubic interpolation of S(u_i, v_i) for uv (k,2) inside the domain -> NurbsCurve (mm)."""
+    uv = np.asarray(uv, dtype=float)
+    return interpolate_curve(surface.evaluate(uv[:, 0], uv[:, 1]), degree, field="trace.uv")
+
+
+def uv_over_xy(surface: NurbsSurface, xy: np.ndarray, tol_mm: float = 1e-9) -> np.ndarray:
+    """Surface parameters (k,2) whose points lie over the plan-view points xy (k,2) mm.
+
+    Newton on S_xy(u, v) = (x, y) from the nearest of a 41 x 41 parameter sample.
+    Raises TraceOffSurfaceError for a point outside the surface's XY footprint.
+    """
+    xy = np.atleast_2d(np.asarray(xy, dtype=float))
+    (u0, u1), (v0, v1) = surface.domain
+    gu, gv = np.meshgrid(np.linspace(u0, u1, _SEED_GRID), np.linspace(v0, v1, _SEED_GRID),
+                         indexing="ij")
+    seeds = np.column_stack([gu.ravel(), gv.ravel()])
+    sample_xy = surface.evaluate(seeds[:, 0], seeds[:, 1])[:, :2]
+    nearest = np.argmin(((xy[:, None, :] - sample_xy[None, :, :]) ** 2).sum(-1), axis=1)
+    uv = seeds[nearest].copy()
+    lo, hi = np.array([u0, v0]), np.array([u1, v1])
+    for _ in range(_NEWTON_STEPS):
+        d = surface.derivatives(uv[:, 0], uv[:, 1], 1)
+        r = d[0][0][:, :2] - xy
+        jac = np.stack([d[1][0][:, :2], d[0][1][:, :2]], axis=-1)  # (k, 2, 2)
+        det = np.linalg.det(jac)
+        safe = np.abs(det) > 1e-300
+        step = np.zeros_like(uv)
+        step[safe] = np.linalg.solve(jac[safe], r[safe][..., None])[..., 0]
+        uv = np.clip(uv - step, lo, hi)
+        if np.abs(r).max(initial=0.0) <= tol_mm:
+            break
+    miss = np.linalg.norm(surface.evaluate(uv[:, 0], uv[:, 1])[:, :2] - xy, axis=1)
+    bad = np.flatnonzero(miss > max(1e3 * tol_mm, 1e-6))
+    if bad.size:
+        j = int(bad[0])
+        raise TraceOffSurfaceError(
+            f"plan-view point {xy[j].round(4).tolist()} is outside the surface's footprint "
+            f"(nearest surface point is {miss[j]:.4f} mm away in XY)",
+            field="trace.xy", value={"index": j, "xy": xy[j], "miss_mm": miss[j]})
+    return uv
+
+
+def trace_over_xy(surface: NurbsSurface, xy: np.ndarray, degree: int = 3) -> NurbsCurve:
+    """Drape a plan-view polyline xy (k,2) mm onto a height-field surface -> NurbsCurve."""
+    return trace_on_surface(surface, uv_over_xy(surface, xy), degree)

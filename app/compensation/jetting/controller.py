@@ -1,0 +1,110 @@
+"""One layer of control: the seed's receding-horizon MPC (solve, binarize, apply first).
+
+``mpc_layer`` is what a real printer calls between layers: measured height map in,
+next 0/1 pattern out. The reference sequence R_l (eq. 14) is the part mask raised
+``fill`` nominal layer heights per layer: r_(l+i) = (l + i) * fill * t on the part, 0 off it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .binarize import BINARIZE_METHODS, binarize
+from .errors import JettingError
+from .kernel import DropKernel
+from .model import MODEL_KINDS, build_layer_model
+from .params import ControllerParams, DropParams, FlowParams
+from .qp import LayerQP, QPSolution, solve_fista, solve_lbfgsb
+from .targets import Target
+
+CONTROLLER_KINDS = ("open_loop", "mpc")
+SOLVERS = ("fista", "lbfgsb")
+
+
+@dataclass(frozen=True)
+class LayerDecision:
+    """pattern: (L, W) bool drops to print; relaxed: (m, L, W) QP optimum; objectives
+    (relaxed and with the binary first layer), integer_gap, kkt_residual, iterations,
+    solve_ms (model + QP + binarization), flips (greedy), reference_mm: (L, W) r_(l+1)."""
+
+    pattern: np.ndarray
+    relaxed: np.ndarray
+    objective_relaxed: float
+    objective_binary: float
+    integer_gap: float
+    kkt_residual: float
+    iterations: int
+    solve_ms: float
+    flips: int
+    reference_mm: np.ndarray
+
+
+def validate_controller(ctrl: ControllerParams) -> None:
+    """Raise ``JettingError`` for controller settings that cannot be used."""
+    checks = [
+        (ctrl.kind in CONTROLLER_KINDS, "controller.kind", ctrl.kind),
+        (ctrl.model in MODEL_KINDS, "controller.model", ctrl.model),
+        (ctrl.solver in SOLVERS, "controller.solver", ctrl.solver),
+        (ctrl.binarize in BINARIZE_METHODS, "controller.binarize", ctrl.binarize),
+        (1 <= ctrl.horizon <= 10, "controller.horizon", ctrl.horizon),
+        (0.0 < ctrl.fill <= 1.0, "controller.fill", ctrl.fill),
+        (ctrl.q_weight >= 0 and ctrl.f_weight > 0 and ctrl.r_weight >= 0, "controller.weights",
+         [ctrl.q_weight, ctrl.r_weight, ctrl.f_weight]),
+        (ctrl.outside_weight >= 0, "controller.outside_weight", ctrl.outside_weight),
+        (ctrl.max_iter >= 1 and ctrl.tol > 0, "controller.max_iter", [ctrl.max_iter, ctrl.tol]),
+    ]
+    for ok, name, value in checks:
+        if not ok:
+            raise JettingError(f"invalid {name}", field=name, value=value)
+
+
+def references(target: Target, drop: DropParams, ctrl: ControllerParams, layer: int) -> np.ndarray:
+    """(m, L, W) reference heights r_(l+1..l+m), mm, after ``layer`` printed layers."""
+    steps = layer + np.arange(1, ctrl.horizon + 1)
+    return steps[:, None, None] * (ctrl.fill * drop.layer_mm) * target.mask[None].astype(float)
+
+
+def build_qp(measured_mm: np.ndarray, target: Target, guess: np.ndarray, kernel: DropKernel,
+             drop: DropParams, flow: FlowParams, mobility: np.ndarray, ctrl: ControllerParams,
+             layer: int) -> LayerQP:
+    """The layer's QP with G frozen at the predicted flow of ``guess`` (L, W)."""
+    model = build_layer_model(measured_mm, guess, kernel, flow, mobility, ctrl.model)
+    m = ctrl.horizon
+    stage = np.full(m, ctrl.q_weight)
+    stage[-1] = ctrl.f_weight
+    cell_weight = np.where(target.mask, 1.0, ctrl.outside_weight)
+    return LayerQP(model=model, h0=measured_mm, references=references(target, drop, ctrl, layer),
+                   free=target.mask, stage_weights=stage, cell_weight=cell_weight,
+                   rho=ctrl.r_weight, scale_mm=drop.layer_mm)
+
+
+def solve_qp(qp: LayerQP, ctrl: ControllerParams, warm: np.ndarray | None = None) -> QPSolution:
+    """Solve with the configured solver (FISTA or the L-BFGS-B reference)."""
+    if ctrl.solver == "lbfgsb":
+        return solve_lbfgsb(qp, warm)
+    return solve_fista(qp, warm, ctrl.max_iter, ctrl.tol)
+
+
+def mpc_layer(measured_mm: np.ndarray, target: Target, kernel: DropKernel, drop: DropParams,
+              flow: FlowParams, mobility: np.ndarray, ctrl: ControllerParams, layer: int,
+              guess: np.ndarray | None = None, warm: np.ndarray | None = None) -> LayerDecision:
+    """Next layer's 0/1 pattern from the measured heights (L, W), mm, after ``layer`` layers.
+
+    guess: (L, W) pattern the flow is frozen at (default: ``fill`` on the part);
+    warm: (m, L, W) starting point of the solver (e.g. the previous relaxed solution).
+    """
+    start = time.perf_counter()
+    if guess is None:
+        guess = ctrl.fill * target.mask
+    qp = build_qp(measured_mm, target, guess, kernel, drop, flow, mobility, ctrl, layer)
+    solution = solve_qp(qp, ctrl, warm)
+    binary = binarize(qp, solution.x, solution.objective, ctrl.binarize, ctrl.greedy_rounds)
+    return LayerDecision(
+        pattern=binary.pattern, relaxed=solution.x, objective_relaxed=solution.objective,
+        objective_binary=binary.objective, integer_gap=binary.integer_gap,
+        kkt_residual=solution.kkt_residual, iterations=solution.iterations,
+        solve_ms=(time.perf_counter() - start) * 1e3, flips=binary.flips,
+        reference_mm=qp.references[0])

@@ -1,0 +1,86 @@
+"""The controller's linear layer model h_(l+1) = h_l + G f_l (seed S2 eq. 9).
+
+G = (I + Dg) B in the seed's form: B deposits drops (kernel convolution) and the flow is
+frozen at a predicted pattern (the previous layer's, or ``fill`` everywhere at the first
+layer). Two readings of the frozen flow:
+
+* ``"seed_diagonal"``: Dg diagonal, d_ii = dh_i / (B f)_i, exactly as published;
+* ``"transport"``: the same flow kept as the sparse, mass-conserving transport operator
+  P (G = P B), which also knows where the ink that leaves a cell goes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from .errors import JettingError
+from .flow import TransportOperator, flow_layer
+from .kernel import DropKernel, deposit, deposit_adjoint
+from .params import FlowParams
+
+MODEL_KINDS = ("seed_diagonal", "transport")
+
+
+@dataclass(frozen=True)
+class LayerModel:
+    """G as a matrix-free operator on (L, W) drop maps; ``transport`` xor ``gain`` is set."""
+
+    kernel: DropKernel
+    transport: TransportOperator | None = None
+    gain: np.ndarray | None = None
+
+    def apply(self, drops: np.ndarray) -> np.ndarray:
+        """G f: heights (L, W) mm added by drops (L, W)."""
+        d = deposit(drops, self.kernel)
+        if self.transport is not None:
+            return self.transport.apply(d)
+        return d if self.gain is None else self.gain * d
+
+    def adjoint(self, heights: np.ndarray) -> np.ndarray:
+        """G^T y for y (L, W)."""
+        if self.transport is not None:
+            y = self.transport.adjoint(heights)
+        else:
+            y = heights if self.gain is None else self.gain * heights
+        return deposit_adjoint(y, self.kernel)
+
+    def norm_bound(self) -> float:
+        """Upper bound of ||G||_2 (||B||_2 <= sum of the non-negative kernel), mm."""
+        b = float(self.kernel.heights_mm.sum())
+        if self.transport is not None:
+            return b * self.transport.norm_bound()
+        return b * (1.0 if self.gain is None else float(np.abs(self.gain).max()))
+
+    def support_radius(self) -> int:
+        """Cells beyond this distance from a drop are never touched by G."""
+        steps = self.transport.steps if self.transport is not None else 0
+        return self.kernel.radius_cells + steps
+
+    def coupled_cells(self, shape: tuple[int, int]) -> np.ndarray:
+        """(L, W) bool: cells whose drop interacts with a neighbour's in G^T G.
+
+        Cells elsewhere are decoupled: their QP is separable and rounding is exact there.
+        """
+        if self.kernel.radius_cells > 0:
+            return np.ones(shape, dtype=bool)
+        if self.transport is None:
+            return np.zeros(shape, dtype=bool)
+        t = self.transport
+        active = (t.right + t.left + t.down + t.up).sum(axis=0) > 0.0
+        reach = 2 * self.support_radius() + 1
+        return ndimage.maximum_filter(active, size=reach, mode="constant")
+
+
+def build_layer_model(measured_mm: np.ndarray, guess: np.ndarray, kernel: DropKernel,
+                      flow: FlowParams, mobility: np.ndarray, kind: str) -> LayerModel:
+    """Freeze the flow of ``guess`` (L, W drops, may be fractional) printed on ``measured_mm``."""
+    if kind not in MODEL_KINDS:
+        raise JettingError("unknown controller model", field="controller.model", value=kind)
+    d0 = deposit(guess, kernel)
+    result = flow_layer(measured_mm + d0, d0, mobility, flow)
+    if kind == "transport":
+        return LayerModel(kernel=kernel, transport=result.transport)
+    return LayerModel(kernel=kernel, gain=np.maximum(result.transport.diagonal_gain(d0), 0.0))

@@ -1,0 +1,17 @@
+"""Surface measurement plan, preprocessing (bad points, densification, smoothing) and
+NURBS surface fit of a measured part (seed S3, step 1)."""
+
+from app.compensation.surface_fit.errors import GridHoleError, SurfaceFitError
+from app.compensation.surface_fit.fit import SurfaceFit, SurfaceFitParams, fit_surface
+from app.compensation.surface_fit.grid import (
+    HeightGrid,
+    ProbeGridPlan,
+    ProbeRegion,
+    grid_from_plan,
+    plan_probe_grid,
+)
+
+__all__ = [
+    "GridHoleError", "HeightGrid", "ProbeGridPlan", "ProbeRegion", "SurfaceFit",
+    "SurfaceFitError", "SurfaceFitParams", "fit_surface", "grid_from_plan", "plan_probe_grid",
+]

@@ -1,0 +1,260 @@
+"""Print-time estimator: a Marlin-style planner (trapezoids + junction deviation).
+
+Usable on any G-code text (:func:`estimate_gcode`) or on move arrays
+(:func:`estimate_moves`).  Model ("marlin-jd, full lookahead"):
+
+* each move is a block of length L (XYZ distance; |dE| for extruder-only moves) with
+  nominal speed F (mm/s) capped so that no axis exceeds its max feed (M203);
+* acceleration: printing moves (E > 0 with XYZ motion) ``accel_mm_s2`` (M204 P/S),
+  travel ``travel_accel_mm_s2`` (M204 T), extruder-only ``retract_accel_mm_s2`` (M204 R),
+  each capped by the per-axis max accelerations (M201) projected on the move;
+* junction speed between blocks (Marlin ``JUNCTION_DEVIATION``):
+  cos(theta) = -u_prev . u_cur, sin(theta/2) = sqrt((1 - cos theta) / 2),
+  v_j^2 = a * jd * sin(theta/2) / (1 - sin(theta/2)), capped by both nominal speeds;
+  a full reversal gives 0, a straight continuation the smaller nominal speed; junctions
+  touching extruder-only moves, dwells and the program ends are full stops;
+* lookahead over the whole program: backward then forward passes of
+  v_(i)^2 <= v_(i+1)^2 + 2 a L (solved in closed form with cumulative minima);
+* time of a block with entry vi, exit vf, nominal vn: trapezoid
+  (vn - vi)/a + (vn - vf)/a + (L - d_acc - d_dec)/vn, or a triangle with peak
+  sqrt((2 a L + vi^2 + vf^2) / 2) when L is too short to reach vn.
+Not modelled: Marlin's 16-block planner buffer, minimum segment time, S-curves, arcs
+(G2/G3 are timed as straight chords), firmware retraction (G10/G11), heating waits.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from app.errors import InvalidInput
+
+
+class EstimatorError(InvalidInput):
+    """Bad machine limits or unparsable G-code numbers."""
+
+
+@dataclass(frozen=True)
+class MachineLimits:
+    """Planner limits (mm, s).  ``max_feed_mm_s`` / ``max_accel_mm_s2`` per axis X, Y, Z, E."""
+
+    accel_mm_s2: float = 1000.0
+    travel_accel_mm_s2: float = 1500.0
+    retract_accel_mm_s2: float = 1500.0
+    junction_deviation_mm: float = 0.013
+    max_feed_mm_s: tuple[float, float, float, float] = (300.0, 300.0, 10.0, 60.0)
+    max_accel_mm_s2: tuple[float, float, float, float] = (5000.0, 5000.0, 200.0, 5000.0)
+
+    def validate(self) -> None:
+        """Raise :class:`EstimatorError` for non-positive limits."""
+        vals = (self.accel_mm_s2, self.travel_accel_mm_s2, self.retract_accel_mm_s2,
+                *self.max_feed_mm_s, *self.max_accel_mm_s2)
+        if not all(np.isfinite(v) and v > 0 for v in vals) or not (
+                self.junction_deviation_mm >= 0):
+            raise EstimatorError("machine limits must be positive", field="limits",
+                                 value=str(self))
+
+    def describe(self) -> str:
+        """One line naming the estimator and these limits (for benchmark tables)."""
+        return (f"marlin-jd planner: a={self.accel_mm_s2:g} (travel "
+                f"{self.travel_accel_mm_s2:g}) mm/s2, jd={self.junction_deviation_mm:g} mm, "
+                f"vmax XY={self.max_feed_mm_s[0]:g} mm/s")
+
+
+@dataclass(frozen=True)
+class TimeEstimate:
+    """Estimated times (s).  ``block_times``: (N,) per move; ``layer_times``: per ``;LAYER``
+    marker (moves before the first marker count as layer -1 and are excluded)."""
+
+    total_s: float
+    print_s: float
+    travel_s: float
+    dwell_s: float
+    moves: int
+    block_times: np.ndarray
+    layer_times: tuple[float, ...]
+
+
+def _trapezoid_times(L, vi, vf, vn, a):
+    d_acc = (vn ** 2 - vi ** 2) / (2 * a)
+    d_dec = (vn ** 2 - vf ** 2) / (2 * a)
+    cruise = L - d_acc - d_dec
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_trap = (vn - vi) / a + (vn - vf) / a + np.where(vn > 0, cruise / vn, 0.0)
+        vp = np.sqrt(np.maximum((2 * a * L + vi ** 2 + vf ** 2) / 2, 0.0))
+        vp = np.maximum(vp, np.maximum(vi, vf))
+        t_tri = (vp - vi) / a + (vp - vf) / a
+    return np.where(cruise >= 0, t_trap, t_tri)
+
+
+def estimate_moves(positions: np.ndarray, feed_mm_s: np.ndarray, limits: MachineLimits,
+                   stops: np.ndarray | None = None,
+                   jumps: np.ndarray | None = None) -> np.ndarray:
+    """Per-move times (s) of the moves between ``positions`` (N+1, 4) [x, y, z, e] mm.
+
+    ``feed_mm_s`` (N,) requested feed; ``stops`` (N+1,) bool forces a full stop at a
+    junction (index k = before move k); ``jumps`` (N,) bool marks moves that take no
+    time (homing, coordinate resets).  Zero-length moves take 0 s.
+    """
+    limits.validate()
+    pos = np.asarray(positions, dtype=np.float64)
+    d = np.diff(pos, axis=0)
+    n = len(d)
+    if n == 0:
+        return np.zeros(0)
+    xyz = np.linalg.norm(d[:, :3], axis=1)
+    e_only = (xyz <= 1e-12) & (np.abs(d[:, 3]) > 1e-12)
+    L = np.where(e_only, np.abs(d[:, 3]), xyz)
+    valid = L > 1e-12
+    if jumps is not None:
+        valid &= ~np.asarray(jumps, dtype=bool)
+    Ls = np.where(valid, L, 1.0)
+    frac = np.abs(d) / Ls[:, None]
+    with np.errstate(divide="ignore"):
+        v_cap = np.min(np.where(frac > 0, np.asarray(limits.max_feed_mm_s) / frac, np.inf),
+                       axis=1)
+        a_cap = np.min(np.where(frac > 0, np.asarray(limits.max_accel_mm_s2) / frac, np.inf),
+                       axis=1)
+    printing = (d[:, 3] > 1e-12) & ~e_only
+    a = np.where(e_only, limits.retract_accel_mm_s2,
+                 np.where(printing, limits.accel_mm_s2, limits.travel_accel_mm_s2))
+    a = np.minimum(a, a_cap)
+    vn = np.minimum(np.asarray(feed_mm_s, dtype=np.float64), v_cap)
+    if np.any(vn[valid] <= 0):
+        raise EstimatorError("a move has a non-positive feed", field="feed_mm_s", value=0)
+    u = np.where(valid[:, None] & ~e_only[:, None], d[:, :3] / Ls[:, None], 0.0)
+    # junction k sits before move k (k = 1..n-1)
+    cos_t = -np.einsum("ij,ij->i", u[:-1], u[1:])
+    sin_h = np.sqrt(np.clip(0.5 * (1 - cos_t), 0.0, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vj2 = np.where(sin_h < 1 - 1e-9,
+                       a[1:] * limits.junction_deviation_mm * sin_h / (1 - sin_h), np.inf)
+    vj2 = np.where(cos_t > 0.999999, 0.0, vj2)
+    vmax = np.concatenate([[0.0], np.minimum(np.minimum(vn[:-1], vn[1:]) ** 2, vj2), [0.0]])
+    # zero-length / extruder-only moves are full stops on both sides
+    bad = ~valid | e_only
+    vmax[:-1][bad] = 0.0
+    vmax[1:][bad] = 0.0
+    if stops is not None:
+        vmax = np.where(np.asarray(stops, dtype=bool), 0.0, vmax)
+    dd = np.where(valid, 2 * a * L, 0.0)                 # v_k^2 <= v_(k+1)^2 + dd_k
+    P = np.concatenate([[0.0], np.cumsum(dd)])           # P[k] = sum_{j<k} dd_j
+    w = np.minimum.accumulate((vmax + P)[::-1])[::-1] - P          # backward pass
+    w = np.minimum.accumulate(w - P) + P                           # forward pass
+    v = np.sqrt(np.maximum(w, 0.0))
+    vi, vf = np.minimum(v[:-1], vn), np.minimum(v[1:], vn)
+    t = _trapezoid_times(L, vi, vf, vn, a)
+    return np.where(valid, t, 0.0)
+
+
+_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_LAYER = re.compile(r";\s*LAYER[:\s]*(-?\d+)", re.IGNORECASE)
+
+
+def _parse(text: str, limits: MachineLimits):
+    pos = np.zeros(4)                                     # machine position
+    offset = np.zeros(4)                                  # machine - programmed (G92)
+    absolute, e_absolute, scale = True, True, 1.0
+    feed = 25.0                                           # mm/s until the first F
+    rows, feeds, stops, jumps, layers = [pos.copy()], [], [False], [], []
+    dwell, layer = 0.0, -1
+    for raw in text.splitlines():
+        m = _LAYER.search(raw)
+        if m:
+            layer = int(m.group(1))
+        line = raw.split(";", 1)[0].upper()
+        if "(" in line:
+            line = re.sub(r"\(.*?\)", "", line)
+        words = _WORD.findall(line)
+        if not words:
+            continue
+        w = {}
+        for k, val in words:
+            w.setdefault(k, float(val))
+        g, mcode = w.get("G"), w.get("M")
+        if g in (0.0, 1.0, 2.0, 3.0):
+            if "F" in w:
+                feed = w["F"] * scale / 60.0
+            target = pos.copy()
+            for i, ax in enumerate("XYZE"):
+                if ax in w:
+                    rel = not absolute or (ax == "E" and not e_absolute)
+                    target[i] = pos[i] + w[ax] * scale if rel else w[ax] * scale + offset[i]
+            if np.any(target != pos):
+                rows.append(target)
+                feeds.append(feed)
+                stops.append(False)
+                jumps.append(False)
+                layers.append(layer)
+                pos = target
+        elif g == 4.0:
+            dwell += w.get("P", 0.0) / 1000.0 + w.get("S", 0.0)
+            stops[-1] = True
+        elif g == 20.0:
+            scale = 25.4
+        elif g == 21.0:
+            scale = 1.0
+        elif g == 90.0:
+            absolute = True
+        elif g == 91.0:
+            absolute = False
+        elif g == 92.0:
+            for i, ax in enumerate("XYZE"):
+                if ax in w:
+                    offset[i] = pos[i] - w[ax] * scale
+        elif g == 28.0:
+            target = pos.copy()
+            for i, ax in enumerate("XYZ"):
+                if ax in w or not any(a in w for a in "XYZ"):
+                    target[i], offset[i] = 0.0, 0.0
+            rows.append(target)
+            feeds.append(feed)
+            stops.append(True)
+            jumps.append(True)
+            layers.append(layer)
+            pos = target
+        elif mcode == 82.0:
+            e_absolute = True
+        elif mcode == 83.0:
+            e_absolute = False
+        elif mcode == 204.0:
+            p = w.get("P", w.get("S"))
+            limits = replace(limits, accel_mm_s2=p if p else limits.accel_mm_s2,
+                             travel_accel_mm_s2=w.get("T", w.get("S",
+                                                               limits.travel_accel_mm_s2)),
+                             retract_accel_mm_s2=w.get("R", limits.retract_accel_mm_s2))
+        elif mcode == 205.0 and "J" in w:
+            limits = replace(limits, junction_deviation_mm=w["J"])
+        elif mcode in (203.0, 201.0):
+            attr = "max_feed_mm_s" if mcode == 203.0 else "max_accel_mm_s2"
+            cur = list(getattr(limits, attr))
+            for i, ax in enumerate("XYZE"):
+                if ax in w:
+                    cur[i] = w[ax]
+            limits = replace(limits, **{attr: tuple(cur)})
+    return (np.array(rows), np.array(feeds), np.array(stops + [True]), np.array(jumps, dtype=bool),
+            layers, dwell, limits)
+
+
+def estimate_gcode(text: str, limits: MachineLimits = MachineLimits()) -> TimeEstimate:
+    """Estimate the run time of G-code ``text`` (G0/G1/G2/G3/G4/G20/G21/G28/G90/G91/G92,
+    M82/M83/M201/M203/M204/M205 J).  The last M201/M203/M204/M205 seen applies to the
+    whole file (limits are normally set once in the start section)."""
+    rows, feeds, stops, jumps, layers, dwell, limits = _parse(text, limits)
+    if len(rows) < 2:
+        return TimeEstimate(dwell, 0.0, 0.0, dwell, 0, np.zeros(0), ())
+    stops = stops[: len(rows)]
+    stops[-1] = True
+    t = estimate_moves(rows, feeds, limits, stops, jumps)
+    d = np.diff(rows, axis=0)
+    printing = d[:, 3] > 1e-12
+    lay = np.asarray(layers)
+    layer_times = ()
+    if len(lay) and lay.max() >= 0:
+        sums = np.bincount(lay[lay >= 0], weights=t[lay >= 0])
+        layer_times = tuple(float(s) for s in sums)
+    return TimeEstimate(total_s=float(t.sum() + dwell), print_s=float(t[printing].sum()),
+                        travel_s=float(t[~printing].sum()), dwell_s=float(dwell),
+                        moves=len(t), block_times=t, layer_times=layer_times)

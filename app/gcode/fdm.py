@@ -1,0 +1,134 @@
+"""FDM / dispensing G-code from a planned toolpath: start, process and end sections.
+
+``write_fdm_gcode(toolpath, FdmParams) -> str`` (pure, byte-identical for equal inputs).
+Sections (seed S5: only the process part depends on the part):
+
+* start - header (from :class:`~app.gcode.writer.ProgramBuilder`), machine limits
+  (M204/M205 for Marlin), heating (extrusion) and relative/absolute E, homing, prime;
+* process - per layer ``;LAYER:n`` then for every piece: travel (retract in extrusion mode)
+  and the extruded moves with E (``mode="extrude"``) or dispenser on/off commands around
+  the piece (``mode="dispense"``: Marlin ``M106 S255``/``M107``, grbl ``M8``/``M9`` unless
+  overridden);
+* end - lift, heaters and dispenser off, motors off (Marlin), program end (grbl ``M2``).
+Units: mm and mm/s inside; feeds written as mm/min, temperatures in deg C.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from app.gcode.writer import GcodeError, ProgramBuilder
+
+_DISPENSE = {"marlin": ("M106 S255", "M107"), "grbl": ("M8", "M9")}
+
+
+@dataclass(frozen=True)
+class FdmParams:
+    """G-code output options (mm, mm/s, deg C)."""
+
+    dialect: str = "marlin"
+    mode: Literal["extrude", "dispense"] = "extrude"
+    job_id: str | None = None
+    nozzle_temp_c: float = 210.0
+    bed_temp_c: float = 60.0
+    retract_mm: float = 0.8
+    retract_feed_mm_s: float = 35.0
+    z_lift_mm: float = 0.0
+    min_travel_for_retract_mm: float = 1.0
+    home: bool = True
+    dispense_on: str | None = None
+    dispense_off: str | None = None
+
+
+def _start(b: ProgramBuilder, tp, p: FdmParams) -> None:
+    lim = tp.params.limits
+    b.comment("start")
+    if p.dialect == "marlin":
+        b.raw(f"M204 P{lim.accel_mm_s2:g} T{lim.travel_accel_mm_s2:g} "
+              f"R{lim.retract_accel_mm_s2:g}")
+        b.raw(f"M205 J{lim.junction_deviation_mm:g}")
+        if p.mode == "extrude":
+            b.raw(f"M140 S{p.bed_temp_c:g}").raw(f"M104 S{p.nozzle_temp_c:g}")
+            b.raw(f"M190 S{p.bed_temp_c:g}").raw(f"M109 S{p.nozzle_temp_c:g}")
+            b.raw("M82")
+    if p.home:
+        b.raw("G28")
+    if p.mode == "extrude":
+        b.raw("G92 E0")
+
+
+def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str) -> None:
+    b.comment("end")
+    if p.mode == "dispense":
+        b.raw(off)
+    b.move(z=z + 5.0, feed_mm_min=600.0)
+    if p.dialect == "marlin":
+        if p.mode == "extrude":
+            b.raw("M104 S0").raw("M140 S0")
+        b.raw("M84")
+    b.end()
+
+
+def write_fdm_gcode(toolpath, params: FdmParams = FdmParams()) -> str:
+    """G-code text of ``toolpath`` (a :class:`~app.slicing.toolpath.Toolpath`)."""
+    if params.mode not in ("extrude", "dispense"):
+        raise GcodeError(f"unknown mode {params.mode!r}", field="mode", value=params.mode)
+    if params.mode == "extrude" and params.dialect != "marlin":
+        raise GcodeError("extrusion (E axis) output needs the marlin dialect", field="dialect",
+                         value=params.dialect)
+    b = ProgramBuilder(params.dialect, "toolpath", params.job_id)
+    on, off = _DISPENSE.get(params.dialect, ("M106 S255", "M107"))
+    on, off = params.dispense_on or on, params.dispense_off or off
+    tpp = toolpath.params
+    fil_area = math.pi * (tpp.filament_mm / 2) ** 2
+    _start(b, toolpath, params)
+    b.comment("process")
+    e, retracted = 0.0, False
+    pos = None
+    travel = tpp.travel_feed_mm_s * 60.0
+    z = 0.0
+    for lay in toolpath.layers:
+        z = lay.z
+        h = tpp.layer_height_mm or lay.thickness
+        e_per_mm = tpp.line_width_mm * h / fil_area
+        b.raw(f";LAYER:{lay.index}")
+        b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
+        for piece in lay.pieces:
+            start = piece.points[0]
+            dist = math.inf if pos is None else math.hypot(*(start - pos))
+            if params.mode == "extrude" and dist > params.min_travel_for_retract_mm \
+                    and params.retract_mm > 0:
+                e -= params.retract_mm
+                b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
+                retracted = True
+            if dist > 1e-9:
+                b.move(x=start[0], y=start[1], feed_mm_min=travel)
+            if params.z_lift_mm:
+                b.move(z=z, feed_mm_min=travel)
+            if retracted:
+                e += params.retract_mm
+                b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
+                retracted = False
+            if params.mode == "dispense":
+                b.raw(on)
+            feed = piece.feed_mm_s * 60.0
+            first = True
+            for a, c in zip(piece.points[:-1], piece.points[1:]):
+                seg = math.hypot(*(c - a))
+                if seg <= 1e-9:
+                    continue
+                if params.mode == "extrude":
+                    e += seg * e_per_mm
+                    b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None, e=e)
+                else:
+                    b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None)
+                first = False
+            if params.mode == "dispense":
+                b.raw(off)
+            pos = piece.points[-1]
+            if params.z_lift_mm:
+                b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
+    _end(b, params, z, off)
+    return b.text()

@@ -1,0 +1,200 @@
+"""Small shared G-code program builder (pure: builds text, touches no file).
+
+Every Conforma program starts with the same header::
+
+    ; conforma job=<id> kind=<kind> units=mm
+    G21
+    G90
+
+and then consists of moves written with a fixed number of decimals (never ``-0.0000``).
+Dialect knowledge (probe commands, "wait for moves", program end) lives in the one
+table :data:`DIALECTS`; callers ask the builder, never spell dialect commands themselves.
+
+Units: coordinates in mm, feeds in mm/min (the user-facing G-code boundary).
+Re-building a program from the same inputs gives byte-identical text (no timestamps).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+from app.errors import InvalidInput
+
+DialectName = Literal["marlin", "grbl"]
+ProbeStyle = Literal["g38", "g30"]
+
+
+class GcodeError(InvalidInput):
+    """Bad input for a G-code program (a non-finite coordinate, an unknown dialect...)."""
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """What differs between firmware families.
+
+    ``probe_styles`` lists the probing commands the firmware understands: ``"g38"`` is
+    ``G38.2`` (probe toward a target along an axis, stop on trigger; grbl, LinuxCNC, and
+    Marlin built with ``G38_PROBE_TARGET``), ``"g30"`` is Marlin's single-point ``G30``
+    (probe straight down at X/Y; the firmware chooses the probing feed and lift).
+    """
+
+    name: str
+    probe_styles: tuple[str, ...]
+    wait_for_moves: str
+    program_end: str | None
+
+
+DIALECTS: dict[str, Dialect] = {
+    "grbl": Dialect("grbl", probe_styles=("g38",), wait_for_moves="G4 P0", program_end="M2"),
+    "marlin": Dialect("marlin", probe_styles=("g30", "g38"), wait_for_moves="M400",
+                      program_end=None),
+}
+
+_AXIS_RE = re.compile(r"^[ABCEUVW]$")
+
+
+def format_number(value: float, decimals: int, field: str = "value") -> str:
+    """Fixed-decimal text of ``value``; negative zero prints as zero; NaN/inf -> GcodeError."""
+    v = float(value)
+    if not math.isfinite(v):
+        raise GcodeError(f"{field} must be finite, got {value!r}", field=field, value=str(value))
+    text = f"{v:.{decimals}f}"
+    if text.startswith("-") and float(text) == 0.0:
+        text = text[1:]
+    return text
+
+
+class ProgramBuilder:
+    """Accumulates one G-code program.
+
+    Parameters
+    ----------
+    dialect : "marlin" | "grbl"
+    kind : str
+        Job kind written into the header (e.g. ``"probe_plan"``); no whitespace.
+    job_id : str | None
+        Job id for the header (``-`` when None).
+    decimals : int
+        Decimals for coordinates (mm); feeds use ``feed_decimals``.
+    """
+
+    def __init__(self, dialect: str, kind: str, job_id: str | None = None,
+                 decimals: int = 4, feed_decimals: int = 1) -> None:
+        if dialect not in DIALECTS:
+            raise GcodeError(f"unknown G-code dialect {dialect!r}; expected one of "
+                             f"{sorted(DIALECTS)}", field="dialect", value=dialect)
+        if not (0 <= int(decimals) <= 6) or not (0 <= int(feed_decimals) <= 6):
+            raise GcodeError("decimals must be in 0..6", field="decimals", value=decimals)
+        for name, text in (("kind", kind), ("job_id", job_id or "-")):
+            if not text or any(c.isspace() for c in text) or ";" in text:
+                raise GcodeError(f"{name} must be a non-empty word without spaces or ';'",
+                                 field=name, value=text)
+        self.dialect = DIALECTS[dialect]
+        self.kind = kind
+        self.job_id = job_id
+        self.decimals = int(decimals)
+        self.feed_decimals = int(feed_decimals)
+        self._lines: list[str] = [f"; conforma job={job_id or '-'} kind={kind} units=mm",
+                                  "G21", "G90"]
+
+    # -- formatting ---------------------------------------------------------------
+    def _coord(self, axis: str, value: float) -> str:
+        return axis + format_number(value, self.decimals, field=axis.lower())
+
+    def _feed(self, feed_mm_min: float) -> str:
+        if not math.isfinite(float(feed_mm_min)) or float(feed_mm_min) <= 0:
+            raise GcodeError(f"feed must be a positive finite mm/min, got {feed_mm_min!r}",
+                             field="feed_mm_min", value=str(feed_mm_min))
+        return "F" + format_number(feed_mm_min, self.feed_decimals, field="feed_mm_min")
+
+    def _words(self, x: float | None, y: float | None, z: float | None,
+               extra_axes: dict[str, float]) -> list[str]:
+        words = [self._coord(a, v) for a, v in (("X", x), ("Y", y), ("Z", z)) if v is not None]
+        for name, value in extra_axes.items():
+            axis = name.upper()
+            if not _AXIS_RE.match(axis):
+                raise GcodeError(f"unknown extra axis {name!r}", field="axis", value=name)
+            words.append(self._coord(axis, value))
+        return words
+
+    # -- program content ----------------------------------------------------------
+    def comment(self, text: str) -> "ProgramBuilder":
+        """Append ``; text`` (one line; newlines and parentheses are replaced)."""
+        clean = " ".join(str(text).replace("(", "[").replace(")", "]").split())
+        self._lines.append(f"; {clean}" if clean else ";")
+        return self
+
+    def rapid(self, x: float | None = None, y: float | None = None,
+              z: float | None = None) -> "ProgramBuilder":
+        """Rapid move ``G0`` to the given coordinates (mm); at least one axis."""
+        words = self._words(x, y, z, {})
+        if not words:
+            raise GcodeError("rapid move without any axis", field="axis", value=None)
+        self._lines.append("G0 " + " ".join(words))
+        return self
+
+    def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
+             feed_mm_min: float | None = None, **extra_axes: float) -> "ProgramBuilder":
+        """Linear move ``G1`` (mm, feed in mm/min); extra axes such as ``a=``, ``c=``, ``e=``."""
+        words = self._words(x, y, z, extra_axes)
+        if not words:
+            raise GcodeError("linear move without any axis", field="axis", value=None)
+        if feed_mm_min is not None:
+            words.append(self._feed(feed_mm_min))
+        self._lines.append("G1 " + " ".join(words))
+        return self
+
+    def probe(self, style: str, *, x: float | None = None, y: float | None = None,
+              z: float | None = None, feed_mm_min: float | None = None) -> "ProgramBuilder":
+        """One probing command in this dialect.
+
+        ``style="g38"``: ``G38.2 Z<z> F<feed>`` — move toward ``z`` (the deepest allowed
+        point) and stop on trigger (an error/alarm if it never triggers).
+        ``style="g30"``: Marlin ``G30 X<x> Y<y>`` — probe down at X/Y with the firmware's
+        own probing feed (``feed_mm_min`` and ``z`` are not part of the command).
+        """
+        if style not in self.dialect.probe_styles:
+            raise GcodeError(f"dialect {self.dialect.name} does not support probe style "
+                             f"{style!r} (supports {list(self.dialect.probe_styles)})",
+                             field="probe_style", value=style)
+        if style == "g38":
+            if z is None or feed_mm_min is None:
+                raise GcodeError("G38.2 needs a target z and a feed", field="z", value=z)
+            words = self._words(x, y, z, {}) + [self._feed(feed_mm_min)]
+            self._lines.append("G38.2 " + " ".join(words))
+        else:
+            if x is None or y is None:
+                raise GcodeError("G30 needs x and y", field="x", value=x)
+            self._lines.append("G30 " + " ".join(self._words(x, y, None, {})))
+        return self
+
+    def wait_for_moves(self) -> "ProgramBuilder":
+        """Block until all queued moves finished (``M400`` Marlin, ``G4 P0`` grbl)."""
+        self._lines.append(self.dialect.wait_for_moves)
+        return self
+
+    def end(self) -> "ProgramBuilder":
+        """Program end marker where the dialect has one (grbl ``M2``)."""
+        if self.dialect.program_end:
+            self._lines.append(self.dialect.program_end)
+        return self
+
+    def raw(self, line: str) -> "ProgramBuilder":
+        """Append one verbatim line (must not contain a newline)."""
+        if "\n" in line or "\r" in line:
+            raise GcodeError("raw line must not contain a newline", field="line",
+                             value=line[:40])
+        self._lines.append(line.rstrip())
+        return self
+
+    @property
+    def lines(self) -> tuple[str, ...]:
+        """The program lines so far (no newlines)."""
+        return tuple(self._lines)
+
+    def text(self) -> str:
+        """The program: lines joined with ``\\n``, ending in one newline."""
+        return "\n".join(self._lines) + "\n"

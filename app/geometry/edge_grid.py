@@ -1,0 +1,113 @@
+"""A uniform 2-D grid over a mesh's projected (top-view) edges, for exact draping.
+
+The grid finds, for each segment of a top-view polyline, every mesh edge whose XY
+projection it crosses.  Built once per mesh (cached on the trimesh object, invalidated by
+trimesh when the mesh changes).  Lengths in mm.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import trimesh
+
+__all__ = ["EdgeGrid", "edge_grid", "segment_edge_crossings"]
+
+_CACHE_KEY = "conforma_edge_grid"
+_MAX_CELLS = 4_000_000
+_MAX_ENTRIES = 40_000_000
+
+
+class EdgeGrid(NamedTuple):
+    """a, b: (E, 2) projected edge ends; origin (2,), cell (mm), shape (nx, ny); CSR cell -> edges."""
+
+    a: np.ndarray
+    b: np.ndarray
+    origin: np.ndarray
+    cell: float
+    shape: tuple[int, int]
+    indptr: np.ndarray
+    edges: np.ndarray
+
+
+def _expand_ranges(starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For ranges (start, count): (owner index, position within range) of every element."""
+    owner = np.repeat(np.arange(counts.size), counts)
+    offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    return owner, starts[owner] + offset if starts is not None else offset
+
+
+def edge_grid(mesh: trimesh.Trimesh) -> EdgeGrid:
+    """The (cached) grid of the projected edges of every non-vertical face of ``mesh``."""
+    cached = mesh._cache[_CACHE_KEY]  # trimesh's cache returns None for a missing key
+    if isinstance(cached, EdgeGrid):
+        return cached
+    faces = mesh.faces[np.abs(mesh.face_normals[:, 2]) > 1e-12]
+    pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1).astype(np.int64)
+    keys = np.sort(pairs[:, 0] * len(mesh.vertices) + pairs[:, 1])
+    keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]  # shared edges once
+    v0, v1 = keys // len(mesh.vertices), keys % len(mesh.vertices)
+    a, b = mesh.vertices[v0, :2], mesh.vertices[v1, :2]
+    keep = np.linalg.norm(b - a, axis=1) > 1e-12
+    a, b = a[keep], b[keep]
+    lo = np.minimum(a, b).min(axis=0) if a.size else np.zeros(2)
+    hi = np.maximum(a, b).max(axis=0) if a.size else np.ones(2)
+    extent = np.maximum(hi - lo, 1e-9)
+    mean_len = float(np.linalg.norm(b - a, axis=1).mean()) if a.size else float(extent.max())
+    cell = max(mean_len, float(np.sqrt(extent.prod() / _MAX_CELLS)), float(extent.max()) / 4096)
+    while True:
+        shape = (int(extent[0] // cell) + 1, int(extent[1] // cell) + 1)
+        i0 = ((np.minimum(a, b) - lo) // cell).astype(np.int64)
+        i1 = ((np.maximum(a, b) - lo) // cell).astype(np.int64)
+        span = i1 - i0 + 1
+        counts = span[:, 0] * span[:, 1]
+        if counts.sum() <= _MAX_ENTRIES:
+            break
+        cell *= 2.0
+    owner, k = _expand_ranges(None, counts)
+    ci = i0[owner, 0] + k // span[owner, 1]
+    cj = i0[owner, 1] + k % span[owner, 1]
+    cell_id = ci * shape[1] + cj
+    order = np.argsort(cell_id, kind="stable")
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(cell_id, minlength=shape[0] * shape[1]))])
+    grid = EdgeGrid(a, b, lo, cell, shape, indptr, owner[order])
+    mesh._cache[_CACHE_KEY] = grid
+    return grid
+
+
+def segment_edge_crossings(grid: EdgeGrid, p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Crossings of segments p0 -> p1 (m, 2) with the grid's edges.
+
+    Returns (segment index (c,), t (c,) in (0, 1) along the segment); duplicates possible.
+    """
+    seg_len = np.linalg.norm(p1 - p0, axis=1)
+    pieces = np.maximum(1, np.ceil(seg_len / grid.cell).astype(np.int64))
+    seg, k = _expand_ranges(None, pieces)
+    f0, f1 = k / pieces[seg], (k + 1) / pieces[seg]
+    q0 = p0[seg] + f0[:, None] * (p1 - p0)[seg]
+    q1 = p0[seg] + f1[:, None] * (p1 - p0)[seg]
+    nx, ny = grid.shape
+    c0 = np.clip(((np.minimum(q0, q1) - grid.origin) // grid.cell).astype(np.int64), 0, [nx - 1, ny - 1])
+    c1 = np.clip(((np.maximum(q0, q1) - grid.origin) // grid.cell).astype(np.int64), 0, [nx - 1, ny - 1])
+    # each piece is at most one cell long, so its bounding box spans <= 2 x 2 cells
+    cand = []
+    for di in (0, 1):
+        for dj in (0, 1):
+            ci, cj = np.minimum(c0[:, 0] + di, c1[:, 0]), np.minimum(c0[:, 1] + dj, c1[:, 1])
+            cand.append(seg * (nx * ny) + ci * ny + cj)
+    key = np.unique(np.concatenate(cand))
+    seg_of, cell_of = key // (nx * ny), key % (nx * ny)
+    starts, counts = grid.indptr[cell_of], grid.indptr[cell_of + 1] - grid.indptr[cell_of]
+    owner, pos = _expand_ranges(starts, counts)
+    s_idx, e_idx = seg_of[owner], grid.edges[pos]
+    r = (p1 - p0)[s_idx]
+    e = grid.b[e_idx] - grid.a[e_idx]
+    qp = grid.a[e_idx] - p0[s_idx]
+    denom = r[:, 0] * e[:, 1] - r[:, 1] * e[:, 0]
+    ok = np.abs(denom) > 1e-14 * np.linalg.norm(r, axis=1) * np.linalg.norm(e, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (qp[:, 0] * e[:, 1] - qp[:, 1] * e[:, 0]) / denom
+        s = (qp[:, 0] * r[:, 1] - qp[:, 1] * r[:, 0]) / denom
+    ok &= (t > 0) & (t < 1) & (s >= -1e-12) & (s <= 1 + 1e-12)
+    return s_idx[ok], t[ok]

@@ -1,0 +1,15 @@
+"""app/probing: point count (seed eq. 1), probe selection, probe programs (pure)."""
+
+from app.probing.nominal import NominalPath, NominalTraceError, as_nominal_path
+from app.probing.point_count import PointCount, PointCountError, seed_point_count
+from app.probing.program import (ProbeProgram, ProbeProgramParams, ProbeRecord,
+                                 build_probe_program, segment_top_max)
+from app.probing.selection import (METHODS, PlanError, PlanParams, ProbePlan,
+                                   chord_height_select, plan_probes)
+
+__all__ = [
+    "NominalPath", "NominalTraceError", "as_nominal_path", "PointCount", "PointCountError",
+    "seed_point_count", "ProbeProgram", "ProbeProgramParams", "ProbeRecord",
+    "build_probe_program", "segment_top_max", "METHODS", "PlanError", "PlanParams",
+    "ProbePlan", "chord_height_select", "plan_probes",
+]

@@ -1,0 +1,201 @@
+"""The probe program: G-code that touches the part at each planned point.
+
+Per point: retract to the travel height of the coming segment, move in X/Y at that height,
+drop (rapid) to the approach height, probe along -Z at the probe feed, and on to the next.
+
+Safe travel: the travel height of a segment is the part's highest point *along that
+segment* (not just at its ends) plus ``clearance_mm``.  ``top`` is either a trimesh
+(exact: the part is cut by the vertical plane through the segment and the section's
+highest point inside the segment is taken) or a callable ``top(xy (m, 2)) -> z (m,)``
+(NaN where off the part) sampled every ``sample_mm`` along the segment (plus both ends).
+
+Dialects: ``g38`` (grbl/LinuxCNC, Marlin with G38 support): ``G38.2 Z<target> F<feed>``
+from the approach height down to ``expected - overtravel_mm`` (an alarm if the probe never
+triggers).  ``g30`` (Marlin): ``G30 X Y`` probes down at X/Y with the firmware's own
+feed and limits; the program only positions it at the travel height.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from app.gcode.writer import DIALECTS, ProgramBuilder
+from app.probing.selection import PlanError, ProbePlan
+
+TopHeight = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class ProbeProgramParams:
+    """Probe program settings (mm, mm/min).
+
+    approach_mm: the probing move starts this far above the expected trigger height; it
+        must exceed the largest upward deviation of the real part from the nominal.
+    overtravel_mm: the probe may travel this far below the expected height (G38.2 target).
+    part_max_z_mm: highest point of the whole part if known; the program's first move
+        raises Z to max(this, every travel height) + clearance before any X/Y move.
+    """
+
+    dialect: str = "grbl"
+    probe_style: str | None = None
+    clearance_mm: float = 2.0
+    approach_mm: float = 1.0
+    overtravel_mm: float = 1.0
+    probe_feed_mm_min: float = 100.0
+    sample_mm: float = 0.25
+    part_max_z_mm: float | None = None
+    decimals: int = 4
+
+    def __post_init__(self) -> None:
+        if self.dialect not in DIALECTS:
+            raise PlanError(f"unknown dialect {self.dialect!r}", field="dialect",
+                            value=self.dialect)
+        style = self.style
+        if style not in DIALECTS[self.dialect].probe_styles:
+            raise PlanError(f"dialect {self.dialect} cannot probe with {style!r}",
+                            field="probe_style", value=style)
+        for name in ("clearance_mm", "approach_mm", "overtravel_mm", "probe_feed_mm_min",
+                     "sample_mm"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise PlanError(f"{name} must be a positive finite number", field=name, value=v)
+
+    @property
+    def style(self) -> str:
+        """Probe style: given, or the dialect's first (grbl g38, Marlin g30)."""
+        return self.probe_style or DIALECTS[self.dialect].probe_styles[0]
+
+
+@dataclass(frozen=True)
+class ProbeRecord:
+    """Plan record of one probe point (mm)."""
+
+    index: int
+    s_mm: float
+    nominal: tuple[float, float, float]
+    safe_z_mm: float
+    approach_z_mm: float
+    target_z_mm: float
+    expected_trigger_z_mm: float
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["nominal"] = list(self.nominal)
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class ProbeProgram:
+    """gcode: program text.  records: one per probe point.  moves: (q, 3) planned tool-tip
+    waypoints in order (for checks and viewers; G30 probing shown as its expected trigger).
+    """
+
+    gcode: str
+    records: tuple[ProbeRecord, ...]
+    moves: np.ndarray
+
+
+def segment_top_max(top: Any, a: np.ndarray, b: np.ndarray, sample_mm: float) -> float:
+    """Highest point (mm) of the part over the xy segment a-b ((2,) each); -inf if none."""
+    if hasattr(top, "vertices") and hasattr(top, "faces"):
+        return _mesh_segment_max(top, a, b)
+    length = float(np.linalg.norm(b - a))
+    n = max(2, int(math.ceil(length / sample_mm)) + 1)
+    t = np.linspace(0.0, 1.0, n)
+    z = np.asarray(top(a + t[:, None] * (b - a)), dtype=float)
+    z = z[np.isfinite(z)]
+    return float(z.max()) if len(z) else -math.inf
+
+
+def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
+    """Exact highest point of a triangle mesh above the xy segment a-b."""
+    import trimesh
+
+    d = b - a
+    length = float(np.linalg.norm(d))
+    if length < 1e-12:
+        origin = np.array([[a[0], a[1], mesh.bounds[1][2] + 1.0]])
+        loc, _, _ = mesh.ray.intersects_location(origin, np.array([[0.0, 0.0, -1.0]]))
+        return float(loc[:, 2].max()) if len(loc) else -math.inf
+    u = d / length
+    normal = np.array([-u[1], u[0], 0.0])
+    segs = trimesh.intersections.mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]))
+    if len(segs) == 0:
+        return -math.inf
+    t = (segs[:, :, :2] - a) @ u  # (n, 2) position along the segment
+    t0, t1 = t[:, 0], t[:, 1]
+    z0, z1 = segs[:, 0, 2], segs[:, 1, 2]
+    lo = np.maximum(np.minimum(t0, t1), 0.0)
+    hi = np.minimum(np.maximum(t0, t1), length)
+    ok = lo <= hi
+    if not ok.any():
+        return -math.inf
+    span = np.where(np.abs(t1 - t0) > 1e-15, t1 - t0, 1.0)
+
+    def z_at(tt: np.ndarray) -> np.ndarray:
+        w = np.where(np.abs(t1 - t0) > 1e-15, (tt - t0) / span, 0.0)
+        flat = np.maximum(z0, z1)
+        return np.where(np.abs(t1 - t0) > 1e-15, z0 + w * (z1 - z0), flat)
+
+    return float(max(z_at(lo)[ok].max(), z_at(hi)[ok].max()))
+
+
+def build_probe_program(plan: ProbePlan, top: Any, params: ProbeProgramParams | None = None,
+                        *, job_id: str | None = None) -> ProbeProgram:
+    """Probe program for ``plan`` over a part whose top is ``top`` (trimesh or callable).
+
+    Returns G-code, one :class:`ProbeRecord` per point and the planned tool-tip path.
+    """
+    p = params or ProbeProgramParams()
+    pts = np.asarray(plan.points, dtype=float)
+    if len(pts) == 0:
+        raise PlanError("probe plan has no points", field="plan.points", value=0)
+    b = ProgramBuilder(p.dialect, "probe_plan", job_id, decimals=p.decimals)
+    b.comment(f"probe plan method={plan.method} points={len(pts)} style={p.style} "
+              f"clearance={p.clearance_mm:g}mm")
+    xy = pts[:, :2]
+    travel_tops = [segment_top_max(top, xy[0], xy[0], p.sample_mm)]
+    travel_tops += [segment_top_max(top, xy[i - 1], xy[i], p.sample_mm) for i in range(1, len(pts))]
+    approach = pts[:, 2] + p.approach_mm
+    safe = []
+    for i, t in enumerate(travel_tops):
+        prev = approach[i - 1] if i else -math.inf
+        floor = max(t, pts[i, 2], pts[i - 1, 2] if i else -math.inf) + p.clearance_mm
+        safe.append(max(floor, approach[i], prev))
+    start_z = max(max(safe), (p.part_max_z_mm + p.clearance_mm) if p.part_max_z_mm is not None
+                  else -math.inf)
+    b.rapid(z=start_z)
+    moves: list[tuple[float, float, float]] = []
+    records = []
+    for i, (x, y, z) in enumerate(pts):
+        if i == 0:
+            b.rapid(x=x, y=y)
+            moves.append((x, y, start_z))
+            if start_z > safe[0]:
+                b.rapid(z=safe[0])
+        else:
+            b.rapid(z=safe[i])
+            moves.append((pts[i - 1, 0], pts[i - 1, 1], safe[i]))
+            b.rapid(x=x, y=y)
+        moves.append((x, y, safe[i]))
+        b.comment(f"point {i} s={plan.s_mm[i]:.4f} expected z={z:.4f}")
+        target = z - p.overtravel_mm
+        if p.style == "g38":
+            b.rapid(z=approach[i])
+            moves.append((x, y, approach[i]))
+            b.probe("g38", z=target, feed_mm_min=p.probe_feed_mm_min)
+        else:
+            b.probe("g30", x=x, y=y)
+        moves.append((x, y, z))
+        records.append(ProbeRecord(i, float(plan.s_mm[i]), (float(x), float(y), float(z)),
+                                   float(safe[i]), float(approach[i]), float(target), float(z)))
+    end_z = max(segment_top_max(top, xy[-1], xy[-1], p.sample_mm), pts[-1, 2]) + p.clearance_mm
+    b.rapid(z=end_z)
+    moves.append((pts[-1, 0], pts[-1, 1], end_z))
+    b.end()
+    return ProbeProgram(gcode=b.text(), records=tuple(records), moves=np.asarray(moves))

@@ -1,0 +1,181 @@
+"""Reconstruct the real trace from probe points (job ``reconstruct``).
+
+Methods:
+
+``"interpolate"`` — seed S1 eqs. 2-3: inverse cubic NURBS interpolation through the
+    measured points (clamped averaged knots, chord-length parameters, all weights 1) via
+    ``app.geometry.fitting.interpolate_curve``.  Passes through every point; carries the
+    probe noise into the curve.
+``"approximate"`` — noise-aware 3-D alternative: a smoothing spline whose residual sum
+    of squares matches the probe's sigma (``smooth_curve``).
+``"deviation"`` — Conforma's model: real = nominal (exact, from CAD) + dz(s), with dz a
+    cubic spline in arc length through the deviation samples (a smoothing spline with
+    s = n sigma^2 when sigma > 0).  The probes only carry the small smooth deviation, so
+    far fewer of them give the same accuracy (see tests/bench/test_bench_probing.py).
+
+Every result gives the real surface height along the trace, ``height_at_s`` /
+``height_at_xy``, for compensation.  Heights from the curve methods are read where the
+curve's top view passes closest to the query point.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from scipy.interpolate import make_interp_spline, make_splrep
+
+from app.geometry.errors import GeometryError
+from app.geometry.fitting import interpolate_curve, smooth_curve
+from app.geometry.nurbs import NurbsCurve
+from app.probing.nominal import NominalPath, as_nominal_path
+from app.probing.selection import chord_height_select
+from app.reconstruction.preprocess import (CleanPoints, PreprocessParams, ReconstructionError,
+                                           preprocess)
+
+METHODS: tuple[str, ...] = ("interpolate", "approximate", "deviation")
+
+
+@dataclass(frozen=True)
+class ReconstructParams:
+    """Reconstruction settings (mm).  ``preprocess`` holds sigma and outlier settings.
+
+    degree: curve degree (the seed: 3).  cl_tolerance_mm: chordal tolerance of the nominal
+    points the "deviation" result curve is built on.  samples_step_mm: spacing of the
+    dense deviation profile.
+    """
+
+    degree: int = 3
+    cl_tolerance_mm: float = 0.001
+    profile_step_mm: float = 0.5
+    preprocess: PreprocessParams = field(default_factory=PreprocessParams)
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """The real trace.
+
+    method: name.  curve: NurbsCurve (3-D, mm) of the real trace.  clean: the preprocessed
+    measurement.  samples: (n, 2) [s_mm, dz_mm] measured minus nominal at each kept point.
+    max_mm / rms_mm: max |dz| and rms dz of the samples.
+    """
+
+    method: str
+    curve: NurbsCurve
+    clean: CleanPoints
+    samples: np.ndarray
+    max_mm: float
+    rms_mm: float
+    nominal: NominalPath
+    _height_s: Callable[[np.ndarray], np.ndarray]
+
+    def height_at_s(self, s: Any) -> np.ndarray:
+        """Real surface height (m,) mm along the trace at nominal arc lengths ``s`` (m,)."""
+        s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.nominal.length_mm)
+        return self._height_s(s)
+
+    def height_at_xy(self, xy: Any) -> np.ndarray:
+        """Real height (m,) mm at top-view points ``xy`` (m, 2) on (or next to) the trace."""
+        return self.height_at_s(self.nominal.project_xy(np.atleast_2d(xy)).s)
+
+    def deviation_at_s(self, s: Any) -> np.ndarray:
+        """Reconstructed deviation real - nominal (m,) mm at arc lengths ``s``."""
+        s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.nominal.length_mm)
+        return self.height_at_s(s) - self.nominal.z_at(s)
+
+    def to_result(self) -> dict[str, Any]:
+        """API form: ``{method, curve, deviation: {max_mm, rms_mm, samples}, ...}``."""
+        return {
+            "method": self.method,
+            "curve": self.curve.to_dict(),
+            "deviation": {"max_mm": self.max_mm, "rms_mm": self.rms_mm,
+                          "samples": [[float(a), float(b)] for a, b in self.samples]},
+            "points_used": int(len(self.clean.s)),
+            "outliers": list(self.clean.outliers),
+            "merged_duplicates": self.clean.merged,
+        }
+
+
+def fit_deviation(s: np.ndarray, dz: np.ndarray, sigma_mm: float, degree: int = 3):
+    """Spline dz(s) (scipy BSpline) through (n,) samples: interpolating when sigma = 0 or
+    n <= degree + 1, else the smoothing spline with residual sum n * sigma^2."""
+    k = int(min(degree, len(s) - 1))
+    if sigma_mm <= 0 or len(s) <= degree + 1:
+        return make_interp_spline(s, dz, k=k)
+    return make_splrep(s, dz, k=k, s=len(s) * sigma_mm ** 2)
+
+
+def _curve_height(curve: NurbsCurve, path: NominalPath) -> Callable[[np.ndarray], np.ndarray]:
+    top = NurbsCurve(curve.degree, curve.knots, curve.control_points[:, :2], curve.weights)
+
+    def height(s: np.ndarray) -> np.ndarray:
+        inv = top.invert(path.at(s)[:, :2])
+        return curve.evaluate(inv.u)[:, 2]
+
+    return height
+
+
+def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
+                sigma_mm: float | None = None,
+                params: ReconstructParams | None = None) -> Reconstruction:
+    """Reconstruct the real trace from measured probe points.
+
+    nominal: NominalPath / NominalTrace-like / (k, 3) dense nominal polyline (mm).
+    measured: (m, 3) probe results (mm), any order.  method: "interpolate" (seed),
+    "approximate" or "deviation".  sigma_mm overrides ``params.preprocess.sigma_mm``.
+    Raises ReconstructionError (422) for bad input (NaN, too few points, off-trace).
+    """
+    params = params or ReconstructParams()
+    if method not in METHODS:
+        raise ReconstructionError(f"unknown reconstruction method {method!r}; expected one "
+                                  f"of {list(METHODS)}", field="method", value=method)
+    pre = params.preprocess
+    if sigma_mm is not None:
+        if not (math.isfinite(sigma_mm) and sigma_mm >= 0):
+            raise ReconstructionError("sigma_mm must be >= 0", field="sigma_mm", value=sigma_mm)
+        pre = PreprocessParams(**{**pre.__dict__, "sigma_mm": float(sigma_mm)})
+    path = as_nominal_path(nominal)
+    clean = preprocess(path, measured, pre)
+    need = params.degree + 1
+    if len(clean.s) < need:
+        raise ReconstructionError(
+            f"degree {params.degree} needs at least {need} distinct measured points, got "
+            f"{len(clean.s)} after removing duplicates and outliers", field="points",
+            value=len(clean.s))
+    try:
+        if method == "deviation":
+            curve, height = _deviation_model(path, clean, pre.sigma_mm, params)
+        else:
+            if method == "interpolate" or pre.sigma_mm <= 0:
+                curve = interpolate_curve(clean.points, params.degree)
+            else:
+                curve = smooth_curve(clean.points, pre.sigma_mm, params.degree)
+            height = _curve_height(curve, path)
+    except GeometryError as exc:
+        raise ReconstructionError(f"reconstruction failed: {exc.message}", field="points",
+                                  value=exc.value) from exc
+    samples = np.stack([clean.s, clean.dz], axis=1)
+    return Reconstruction(method=method, curve=curve, clean=clean, samples=samples,
+                          max_mm=float(np.max(np.abs(clean.dz))),
+                          rms_mm=float(np.sqrt(np.mean(clean.dz ** 2))),
+                          nominal=path, _height_s=height)
+
+
+def _deviation_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
+                     params: ReconstructParams):
+    spline = fit_deviation(clean.s, clean.dz, sigma_mm, params.degree)
+    lo, hi = float(clean.s[0]), float(clean.s[-1])
+
+    def height(s: np.ndarray) -> np.ndarray:
+        # outside the probed span the deviation is held at its end value (no extrapolation)
+        return path.z_at(s) + spline(np.clip(s, lo, hi))
+
+    idx = chord_height_select(path.points, params.cl_tolerance_mm)
+    s_cl = path.s[idx]
+    if len(s_cl) < params.degree + 1:
+        s_cl = np.linspace(0.0, path.length_mm, params.degree + 1)
+    pts = path.at(s_cl)
+    pts[:, 2] = height(s_cl)
+    return interpolate_curve(pts, params.degree), height

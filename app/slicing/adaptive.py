@@ -1,0 +1,211 @@
+"""Layer-thickness planners: uniform, the seed S4 rules (area, multi-cavity), cusp.
+
+Each planner takes a :class:`~app.slicing.layers.Sampler` (sections by height) and
+:class:`~app.slicing.layers.SliceParams` and returns ``(layers, notes)``.
+
+Seed S4, steps 1-11 as published (``area`` mode = steps without step 9):
+  3-4  slice at Z = z_min, store rings, A_i and the inner-ring count n;
+  5    Z_step = l_max, Z' = Z + Z_step; stop when Z' > z_max;
+  6    eps = |A_(i+1) - A_i| / A_i <= eps0 ? -> 9 : -> 7;
+  7    Z_step -= l_min; if Z_step < l_min: Z_step = l_min, -> 10;
+  8    slice at Z + Z_step, eps <= eps0 ? -> 9 : -> 7;
+  9    theta, mu = theta * sigma / n of the current layer; mu0 <= mu <= mu1 -> Z_step = l_min,
+       otherwise Z_step = l_max (literal, ``step9_resets_to_lmax``) or keep (default);
+  10   Z' = Z + Z_step, store the rings at Z', A_i = A_(i+1), Z = Z', -> 5.
+Deviation from the print, stated in ``notes``: the seed stops when Z + l_max > z_max and
+leaves the top unsliced; we cap the step at the remaining height so the part is complete.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from app.slicing.errors import SlicingError
+from app.slicing.rings import SectionStats
+
+_STEP_EPS = 1e-9  # mm; float slack when comparing accumulated steps
+
+
+def theta(sigma: float, sigma0: float, rule: str) -> int:
+    """Seed S4 discriminant theta: 1 when the section is cavity-rich, else 0.
+
+    ``rule="indicator"``: sigma >= sigma0.  ``rule="printed"``: int(ln(sigma - sigma0 + 55)
+    / 4) evaluated literally (0 when the logarithm's argument is not positive).
+    """
+    if rule == "indicator":
+        return 1 if sigma >= sigma0 else 0
+    arg = sigma - sigma0 + 55.0
+    return int(math.log(arg) / 4.0) if arg > 0 else 0
+
+
+def cavity_mu(st: SectionStats, params) -> float:
+    """mu = theta * (1/n) * sum(A_in) / A_out (0 without inner rings)."""
+    if st.inner_ring_count == 0:
+        return 0.0
+    return theta(st.sigma, params.sigma0, params.theta_rule) * st.mean_inner_ratio
+
+
+def _check_count(n: int, params) -> None:
+    if n > params.max_layers:
+        raise SlicingError(f"more than {params.max_layers} layers needed", field="params",
+                           value=n)
+
+
+def uniform_layers(sampler, params):
+    """ceil(H / layer_mm) slabs of ``layer_mm`` (the last one thinner), sampled mid-height."""
+    from app.slicing.layers import make_layer
+
+    z0, z1 = sampler.prepared.z_min, sampler.prepared.z_max
+    n = max(1, math.ceil((z1 - z0) / params.layer_mm - 1e-9))
+    _check_count(n, params)
+    layers, prev = [], None
+    for k in range(n):
+        bottom = z0 + k * params.layer_mm
+        top = min(z0 + (k + 1) * params.layer_mm, z1) if k < n - 1 else z1
+        reason = "uniform" if k < n - 1 or abs(top - bottom - params.layer_mm) < 1e-9 \
+            else "uniform (last layer: remaining height)"
+        lay = make_layer(k, bottom, top, 0.5 * (bottom + top), sampler, prev, reason, params)
+        layers.append(lay)
+        prev = lay.area
+    return layers, []
+
+
+def area_layers(sampler, params):
+    """Seed S4 area-deviation rule, plus step 9 (multi-cavity) in ``cavity`` mode."""
+    from app.slicing.layers import make_layer
+
+    z_min, z_max = sampler.prepared.z_min, sampler.prepared.z_max
+    z = z_min
+    _, st_i = sampler.section(z)
+    if st_i.area <= 0:
+        raise SlicingError(f"the section at z_min={z_min:.6g} mm has no area", field="mesh",
+                           value=z_min)
+    a_i = st_i.area
+    layers = []
+    notes = ["seed S4 stops when Z + l_max > z_max; the last step is capped at the "
+             "remaining height instead so the whole part is sliced"]
+    if params.mode == "cavity":
+        notes.append(f"theta rule: {params.theta_rule}; step 9 "
+                     + ("resets non-cavity steps to l_max (literal)" if
+                        params.step9_resets_to_lmax else "keeps the area rule's step"))
+    while z_max - z > params.z_tol:
+        remaining = z_max - z
+        step = min(params.l_max, remaining)                        # step 5
+        _, st = sampler.section(z + step)
+        eps = abs(st.area - a_i) / a_i
+        reason = "eps <= eps0 at l_max" if step >= params.l_max - _STEP_EPS \
+            else "eps <= eps0 at the remaining height"
+        floor_hit = False
+        while eps > params.eps0:                                    # steps 6-8
+            step -= params.l_min                                    # step 7
+            if step < params.l_min - _STEP_EPS:
+                step = min(params.l_min, remaining)
+                floor_hit = True
+                reason = f"area change: eps {eps:.3g} > eps0 even at l_min"
+                break
+            _, st = sampler.section(z + step)                       # step 8
+            eps = abs(st.area - a_i) / a_i
+            reason = f"area change: eps {eps:.3g} <= eps0 at {step:.6g} mm"
+        if not floor_hit and params.mode == "cavity":               # step 9
+            mu = cavity_mu(st_i, params)
+            if params.mu0 <= mu <= params.mu1:
+                step = min(params.l_min, remaining)
+                reason = f"multi-cavity: mu {mu:.4g} in [mu0, mu1], sigma {st_i.sigma:.3g}"
+            elif params.step9_resets_to_lmax:
+                step = min(params.l_max, remaining)
+                reason += " (step 9: l_max)"
+        top = z + step                                              # step 10
+        if z_max - top < params.z_tol:
+            top = z_max
+        lay = make_layer(len(layers), z, top, top, sampler, layers[-1].area if layers else a_i,
+                         reason, params)
+        layers.append(lay)
+        _check_count(len(layers), params)
+        _, st_i = sampler.section(top)
+        a_i, z = lay.area, top
+    return layers, notes
+
+
+class _RangeMax:
+    """Max of per-facet values over z bins: range-max painting + O(1) range queries."""
+
+    def __init__(self, lo_bin: np.ndarray, hi_bin: np.ndarray, values: np.ndarray,
+                 n_bins: int) -> None:
+        levels = max(1, int(np.ceil(np.log2(max(n_bins, 2)))) + 1)
+        paint = np.zeros((levels, n_bins + 1))
+        length = hi_bin - lo_bin + 1
+        k = np.floor(np.log2(np.maximum(length, 1))).astype(int)
+        np.maximum.at(paint, (k, lo_bin), values)
+        np.maximum.at(paint, (k, hi_bin - (1 << k) + 1), values)
+        for lev in range(levels - 1, 0, -1):
+            half = 1 << (lev - 1)
+            row = paint[lev, :n_bins]
+            paint[lev - 1, :n_bins] = np.maximum(paint[lev - 1, :n_bins], row)
+            paint[lev - 1, half:n_bins] = np.maximum(paint[lev - 1, half:n_bins],
+                                                     row[:n_bins - half])
+        self.table = [paint[0, :n_bins].copy()]
+        lev = 1
+        while (1 << lev) <= n_bins:
+            prev = self.table[-1]
+            half = 1 << (lev - 1)
+            self.table.append(np.maximum(prev[:len(prev) - half], prev[half:]))
+            lev += 1
+
+    def query(self, i0: int, i1: int) -> float:
+        """Max over bins i0..i1 inclusive."""
+        k = int(math.floor(math.log2(i1 - i0 + 1)))
+        t = self.table[k]
+        return float(max(t[i0], t[i1 - (1 << k) + 1]))
+
+
+def cusp_layers(sampler, params):
+    """Cusp-height rule: t = clamp(cusp_mm / max|n_z|, l_min, l_max) over the slab's facets.
+
+    Facets with |n_z| > 1 - 1e-9 (horizontal) are excluded and their heights become snap
+    levels: a slab is cut at a flat face when that keeps it at least ``l_min`` thick.
+    """
+    from app.slicing.layers import make_layer
+
+    pm = sampler.prepared
+    z_min, z_max = pm.z_min, pm.z_max
+    nz = np.abs(pm.normals_z)
+    flat = nz > 1 - 1e-9
+    bin_mm = min(params.l_min, params.cusp_mm) / 4.0
+    n_bins = max(1, int(math.ceil((z_max - z_min) / bin_mm)))
+    _check_count(int((z_max - z_min) / params.l_min), params)
+    lo = np.clip(((pm.face_z[~flat, 0] - z_min) / bin_mm).astype(int), 0, n_bins - 1)
+    hi = np.clip(((pm.face_z[~flat, 1] - z_min) / bin_mm).astype(int), 0, n_bins - 1)
+    rmq = _RangeMax(lo, hi, nz[~flat], n_bins)
+    flats = np.unique(np.round(pm.face_z[flat, 0], 9))
+    flats = flats[(flats > z_min + params.z_tol) & (flats < z_max - params.z_tol)]
+    layers, z = [], z_min
+    while z_max - z > params.z_tol:
+        t = min(params.l_max, z_max - z)
+        reason = "l_max" if t >= params.l_max - _STEP_EPS else "top: remaining height"
+        while True:
+            i0 = min(int((z - z_min) / bin_mm), n_bins - 1)
+            i1 = min(int((z + t - z_min) / bin_mm - 1e-9), n_bins - 1)
+            m = rmq.query(i0, max(i0, i1))
+            t_new = t if m <= 0 else min(t, max(params.l_min, params.cusp_mm / m))
+            if t_new >= t - _STEP_EPS:
+                break
+            t = t_new
+            reason = f"cusp: max |n_z| {m:.3g}"
+        slack = params.z_tol
+        inside = flats[(flats >= z + params.l_min - slack) & (flats < z + t - slack)]
+        ahead = flats[(flats >= z + t - slack) & (flats < z + t + params.l_min - slack)]
+        if len(inside):
+            t = float(inside[0] - z)
+            reason = "snapped to a flat face"
+        elif len(ahead) and ahead[0] - z - params.l_min >= params.l_min:
+            t = float(ahead[0] - z - params.l_min)
+            reason = "shortened so the next layer ends on a flat face"
+        top = z + t if z_max - (z + t) > params.z_tol else z_max
+        lay = make_layer(len(layers), z, top, 0.5 * (z + top), sampler,
+                         layers[-1].area if layers else None, reason, params)
+        layers.append(lay)
+        _check_count(len(layers), params)
+        z = top
+    return layers, [f"cusp height {params.cusp_mm} mm; z bins of {bin_mm:.4g} mm"]

@@ -1,0 +1,186 @@
+"""Layer exports (pure: values in, bytes/str out): SLC, CLI (ASCII), JSON, SVG.
+
+SLC (3D Systems Stereolithography Contour, little-endian): ASCII header ending in
+``\\r\\n\\x1a`` (<= 2048 bytes), 256 reserved bytes, the sampling table (uint8 count <= 255,
+then per entry float32 min-z, layer thickness, line-width compensation, reserved), then per
+layer float32 z (the layer bottom) and uint32 boundary count, per boundary uint32 vertex
+count (closed: first vertex repeated), uint32 gap count (0) and float32 x, y pairs; the
+file ends with float32 max-z and uint32 0xFFFFFFFF.  Outer rings anticlockwise, holes
+clockwise.  Adaptive thicknesses are rounded to multiples of ``quantum_mm`` (the layer z
+values are their running sums; :attr:`SlcExport.notes` says so and by how much z moved) and, if more than 255 runs of equal thickness
+remain, neighbouring runs are merged in the sampling table (each layer's own z in the
+contour section stays exact).
+
+CLI (Common Layer Interface 2.0, ASCII, units mm): ``$$LAYER/z`` is the layer top;
+``$$POLYLINE/id,dir,n,...`` with dir 1 = anticlockwise (outer), 0 = clockwise (hole);
+optional ``$$HATCHES/id,n,x1,y1,x2,y2,...``.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from app.slicing.errors import SlicingError
+from app.slicing.rings import Island, oriented
+
+SLC_END = 0xFFFFFFFF
+
+
+class SlcExport(NamedTuple):
+    """SLC bytes, the sampling table rows (min_z, thickness, compensation) and notes."""
+
+    data: bytes
+    table: tuple[tuple[float, float, float], ...]
+    notes: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class SlcOptions:
+    """``quantum_mm``: thickness grid; ``compensation_mm``: function-free constant beam
+    width written in the table (0 when contours are already compensated); ``label``."""
+
+    quantum_mm: float = 0.001
+    compensation_mm: float = 0.0
+    label: str = "CONFORMA"
+
+
+def _closed(ring: np.ndarray) -> np.ndarray:
+    return np.vstack([ring, ring[:1]])
+
+
+def _quantised_boundaries(result, q: float) -> np.ndarray:
+    """Layer boundaries (L+1,) built from thicknesses rounded to multiples of ``q``."""
+    t = np.array([lay.thickness for lay in result.layers])
+    tq = np.round(t / q) * q
+    if np.any(tq <= 0):
+        raise SlicingError(f"a layer is thinner than half the SLC thickness quantum {q} mm",
+                           field="slc.quantum_mm", value=q)
+    return result.layers[0].z_bottom + np.concatenate([[0.0], np.cumsum(tq)])
+
+
+def _sampling_table(zq: np.ndarray, comp: float, notes: list[str]):
+    t = np.round(np.diff(zq), 9)
+    starts = [0] + [i for i in range(1, len(t)) if t[i] != t[i - 1]]
+    runs = [[zq[s], t[s], (starts + [len(t)])[k + 1] - s] for k, s in enumerate(starts)]
+    if len(runs) > 255:
+        notes.append(f"{len(runs)} runs of equal thickness merged into 255 sampling-table "
+                     f"entries (entry thickness = the run's most common one); each layer's "
+                     f"exact z is in the contour section")
+        while len(runs) > 255:
+            k = min(range(len(runs) - 1), key=lambda i: runs[i][2] + runs[i + 1][2])
+            a, b = runs[k], runs[k + 1]
+            runs[k] = [a[0], a[1] if a[2] >= b[2] else b[1], a[2] + b[2]]
+            del runs[k + 1]
+    return tuple((float(r[0]), float(r[1]), comp) for r in runs)
+
+
+def to_slc(result, options: SlcOptions = SlcOptions()) -> SlcExport:
+    """Encode ``result`` (a SliceResult) as SLC bytes; see the module docstring."""
+    if not result.layers:
+        raise SlicingError("no layers to export", field="layers", value=0)
+    if not options.quantum_mm > 0:
+        raise SlicingError("quantum_mm must be > 0", field="slc.quantum_mm",
+                           value=options.quantum_mm)
+    notes: list[str] = []
+    zq = _quantised_boundaries(result, options.quantum_mm)
+    moved = float(np.max(np.abs(zq - np.array([result.layers[0].z_bottom]
+                                              + [lay.z_top for lay in result.layers]))))
+    if moved > 0:
+        notes.append(f"layer thicknesses quantised to multiples of {options.quantum_mm} mm "
+                     f"(layer z shifted by up to {moved:.3g} mm)")
+    table = _sampling_table(zq, options.compensation_mm, notes)
+    b = result.bounds
+    header = (f"-SLCVER 2.0 -UNIT MM -TYPE PART -PACKAGE {options.label} -EXTENTS "
+              f"{b[0, 0]:.6f},{b[1, 0]:.6f} {b[0, 1]:.6f},{b[1, 1]:.6f} "
+              f"{b[0, 2]:.6f},{b[1, 2]:.6f}").encode("ascii") + b"\r\n\x1a"
+    if len(header) > 2048:
+        raise SlicingError("SLC header too long", field="slc.label", value=options.label)
+    out = [header, bytes(256), struct.pack("<B", len(table))]
+    for min_z, thick, comp in table:
+        out.append(struct.pack("<4f", min_z, thick, comp, 0.0))
+    for lay, z in zip(result.layers, zq[:-1]):
+        rings = [r for isl in lay.islands for r in
+                 (oriented(isl.outer, True), *(oriented(h, False) for h in isl.holes))]
+        out.append(struct.pack("<fI", z, len(rings)))
+        for r in rings:
+            pts = _closed(r).astype("<f4")
+            out.append(struct.pack("<II", len(pts), 0))
+            out.append(pts.tobytes())
+    out.append(struct.pack("<fI", zq[-1], SLC_END))
+    return SlcExport(b"".join(out), table, tuple(notes))
+
+
+def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "part",
+           decimals: int = 6) -> str:
+    """Encode ``result`` as ASCII CLI text; ``hatches[layer_index]``: (k, 4) x1,y1,x2,y2 mm."""
+    if not result.layers:
+        raise SlicingError("no layers to export", field="layers", value=0)
+    b = result.bounds
+    f = f"{{:.{decimals}f}}".format
+    lines = ["$$HEADERSTART", "$$ASCII", "$$UNITS/1.000000", "$$VERSION/200",
+             f"$$LABEL/1,{label}",
+             "$$DIMENSION/" + ",".join(f(v) for v in (*b[0], *b[1])),
+             f"$$LAYERS/{len(result.layers)}", "$$HEADEREND", "$$GEOMETRYSTART"]
+    for lay in result.layers:
+        lines.append(f"$$LAYER/{f(lay.z_top)}")
+        for isl in lay.islands:
+            for ring, direction in ((oriented(isl.outer, True), 1),
+                                    *((oriented(h, False), 0) for h in isl.holes)):
+                pts = _closed(ring)
+                coords = ",".join(f(v) for v in pts.ravel())
+                lines.append(f"$$POLYLINE/1,{direction},{len(pts)},{coords}")
+        if hatches and lay.index in hatches and len(hatches[lay.index]):
+            h = np.asarray(hatches[lay.index], dtype=float).reshape(-1, 4)
+            lines.append(f"$$HATCHES/1,{len(h)}," + ",".join(f(v) for v in h.ravel()))
+    lines.append("$$GEOMETRYEND")
+    return "\n".join(lines) + "\n"
+
+
+def _island_json(isl: Island, decimals: int) -> dict:
+    return {"outer": np.round(isl.outer, decimals).tolist(),
+            "holes": [np.round(h, decimals).tolist() for h in isl.holes]}
+
+
+def to_json(result, decimals: int = 6) -> str:
+    """Per-layer contours and statistics as JSON text (mm, mm^2)."""
+    layers = [{"index": lay.index, "z_bottom": round(lay.z_bottom, 9),
+               "z_top": round(lay.z_top, 9), "z_sample": round(lay.z_sample, 9),
+               "thickness": round(lay.thickness, 9), "area_mm2": round(lay.area, 9),
+               "rings": lay.ring_count, "inner_rings": lay.inner_ring_count,
+               "sigma": round(lay.sigma, 9), "mu": round(lay.mu, 9), "eps": round(lay.eps, 9),
+               "reason": lay.reason,
+               "islands": [_island_json(i, decimals) for i in lay.islands]}
+              for lay in result.layers]
+    doc = {"units": "mm", "mode": result.params.mode, "z_min": result.z_min,
+           "z_max": result.z_max, "repairs": list(result.repairs),
+           "notes": list(result.notes), "layers": layers}
+    return json.dumps(doc, separators=(",", ":"))
+
+
+def layer_svg(result, index: int, paths: list[np.ndarray] | None = None,
+              size_px: int = 600) -> str:
+    """SVG of layer ``index``: material filled (even-odd), optional (n, 2) polylines on top."""
+    if not 0 <= index < len(result.layers):
+        raise SlicingError(f"layer index {index} out of range 0..{len(result.layers) - 1}",
+                           field="layer", value=index)
+    lay = result.layers[index]
+    (x0, y0), (x1, y1) = result.bounds[0, :2], result.bounds[1, :2]
+    w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
+    pad = 0.02 * max(w, h)
+
+    def pts(a: np.ndarray) -> str:
+        return " ".join(f"{x:.4f},{y0 + y1 - y:.4f}" for x, y in a)   # flip y (SVG is y-down)
+
+    d = " ".join(f"M {pts(r)} Z" for isl in lay.islands for r in isl.rings())
+    lines = "".join(f'<polyline points="{pts(p)}" fill="none" stroke="#d33" '
+                    f'stroke-width="{0.002 * max(w, h):.4f}"/>' for p in (paths or []))
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" width="{size_px}" '
+            f'height="{int(size_px * h / w)}" viewBox="{x0 - pad:.4f} {y0 - pad:.4f} '
+            f'{w + 2 * pad:.4f} {h + 2 * pad:.4f}"><title>layer {index} z={lay.z_top:.4f} '
+            f'mm</title><path d="{d}" fill="#8ab" fill-rule="evenodd" stroke="#234" '
+            f'stroke-width="{0.001 * max(w, h):.4f}"/>{lines}</svg>')

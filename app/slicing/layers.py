@@ -1,0 +1,228 @@
+"""Slice a mesh into layers of closed rings: the entry point of the slicing package.
+
+``slice_mesh(mesh, SliceParams) -> SliceResult``.  Layers are slabs
+``[z_bottom, z_top]`` (mm); each carries the section sampled at ``z_sample`` as nested,
+oriented rings (:class:`~app.slicing.rings.Island`) plus the seed S4 statistics (area,
+ring counts, sigma, mu), the area deviation eps to the previous layer and the reason
+its thickness was chosen.  Modes (see :mod:`app.slicing.adaptive`):
+
+* ``uniform`` - ``ceil(H / layer_mm)`` slabs (the last one may be thinner), sampled at
+  mid-height;
+* ``area`` - the seed's area-deviation rule (eps0, l_min, l_max), sampled at the slab top
+  as published;
+* ``cavity`` - the seed's multi-cavity refinement (S4 steps 1-11: sigma0, mu0, mu1, theta);
+* ``cusp`` - our geometric-error rule: the largest thickness whose cusp height
+  ``t * |n_z|`` stays below ``cusp_mm`` on every facet crossing the slab, with slab
+  boundaries snapped to horizontal faces; sampled at mid-height.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import manifold3d
+import numpy as np
+import trimesh
+
+from app.slicing.errors import SlicingError
+from app.slicing.mesh_prep import PreparedMesh, prepare_mesh
+from app.slicing.rings import Island, SectionStats, oriented, section_stats
+
+SliceMode = Literal["uniform", "area", "cavity", "cusp"]
+ThetaRule = Literal["indicator", "printed"]
+
+
+@dataclass(frozen=True)
+class SliceParams:
+    """Slicing parameters (lengths in mm).
+
+    ``layer_mm``: uniform thickness.  ``l_min``/``l_max``: adaptive bounds.  ``eps0``:
+    allowed relative area deviation.  ``sigma0``, ``mu0``, ``mu1``: multi-cavity
+    discriminants.  ``theta_rule``: ``"indicator"`` (theta = 1 iff sigma >= sigma0, as the
+    seed's text states) or ``"printed"`` (int(ln(sigma - sigma0 + 55) / 4) evaluated
+    literally: it is 1 already from sigma >= sigma0 - 0.4018).  ``step9_resets_to_lmax``:
+    read step 9 literally (a non-cavity layer always gets l_max, discarding the step found
+    by the area rule); default False keeps the area rule's step.  ``cusp_mm``: allowed cusp
+    height (cusp mode).  ``z_tol``: planes at the very bottom/top are moved this far into
+    the part.  ``repair``: repair bad meshes instead of refusing them.
+    """
+
+    mode: SliceMode = "uniform"
+    layer_mm: float = 0.2
+    l_min: float = 0.03
+    l_max: float = 0.1
+    eps0: float = 0.05
+    sigma0: float = 0.45
+    mu0: float = 0.005
+    mu1: float = 0.167
+    theta_rule: ThetaRule = "indicator"
+    step9_resets_to_lmax: bool = False
+    cusp_mm: float = 0.02
+    z_tol: float = 1e-5
+    repair: bool = True
+    max_layers: int = 200_000
+
+    def validate(self) -> None:
+        """Raise :class:`SlicingError` naming the first bad field."""
+        if self.mode not in ("uniform", "area", "cavity", "cusp"):
+            raise SlicingError(f"unknown slicing mode {self.mode!r}", field="params.mode",
+                               value=self.mode)
+        checks = [("layer_mm", self.layer_mm), ("l_min", self.l_min), ("l_max", self.l_max),
+                  ("cusp_mm", self.cusp_mm), ("z_tol", self.z_tol)]
+        for name, v in checks:
+            if not (math.isfinite(v) and v > 0):
+                raise SlicingError(f"{name} must be a positive thickness in mm, got {v!r}",
+                                   field=f"params.{name}", value=v)
+        if self.l_min > self.l_max:
+            raise SlicingError(f"l_min ({self.l_min} mm) is larger than l_max "
+                               f"({self.l_max} mm)", field="params.l_min", value=self.l_min)
+        for name, v in (("eps0", self.eps0), ("sigma0", self.sigma0), ("mu0", self.mu0),
+                        ("mu1", self.mu1)):
+            if not (math.isfinite(v) and v >= 0):
+                raise SlicingError(f"{name} must be >= 0, got {v!r}", field=f"params.{name}",
+                                   value=v)
+        if self.mu0 > self.mu1:
+            raise SlicingError(f"mu0 ({self.mu0}) is larger than mu1 ({self.mu1})",
+                               field="params.mu0", value=self.mu0)
+        if self.theta_rule not in ("indicator", "printed"):
+            raise SlicingError(f"unknown theta rule {self.theta_rule!r}",
+                               field="params.theta_rule", value=self.theta_rule)
+
+
+@dataclass(frozen=True, eq=False)
+class Layer:
+    """One slab ``[z_bottom, z_top]`` (mm) and its section sampled at ``z_sample``.
+
+    ``area``: net area mm^2; ``sigma``, ``mu``: seed S4 ratios; ``eps``: relative area
+    deviation to the previous layer (0 for the first); ``reason``: why this thickness.
+    """
+
+    index: int
+    z_bottom: float
+    z_top: float
+    z_sample: float
+    islands: tuple[Island, ...]
+    area: float
+    ring_count: int
+    inner_ring_count: int
+    sigma: float
+    mu: float
+    eps: float
+    reason: str
+
+    @property
+    def thickness(self) -> float:
+        """Slab thickness, mm."""
+        return self.z_top - self.z_bottom
+
+    @property
+    def z(self) -> float:
+        """The slab top, mm (the height the layer is built to)."""
+        return self.z_top
+
+
+@dataclass(frozen=True, eq=False)
+class SliceResult:
+    """All layers of one part plus what was repaired or approximated.
+
+    ``bounds``: (2, 3) mm; ``volume``: mm^3 of the (repaired) solid; ``repairs``: mesh
+    repairs; ``notes``: other remarks (e.g. seed-rule interpretations).
+    """
+
+    layers: tuple[Layer, ...]
+    params: SliceParams
+    z_min: float
+    z_max: float
+    bounds: np.ndarray
+    volume: float
+    repairs: tuple[str, ...]
+    notes: tuple[str, ...] = ()
+
+    @property
+    def thicknesses(self) -> np.ndarray:
+        """(L,) slab thicknesses, mm."""
+        return np.array([lay.thickness for lay in self.layers])
+
+
+def section_at(solid: manifold3d.Manifold, z: float) -> tuple[Island, ...]:
+    """Section of ``solid`` by the plane at height ``z`` (mm) as sorted islands."""
+    islands = []
+    for part in solid.slice(float(z)).decompose():
+        polys = [np.asarray(p, dtype=np.float64) for p in part.to_polygons()]
+        if not polys:
+            continue
+        areas = [abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1))
+                            - np.dot(np.roll(p[:, 0], -1), p[:, 1]))) for p in polys]
+        k = int(np.argmax(areas))
+        holes = tuple(oriented(p, ccw=False) for i, p in enumerate(polys) if i != k)
+        islands.append(Island(oriented(polys[k], ccw=True), holes))
+    islands.sort(key=lambda i: (float(i.outer[:, 1].min()), float(i.outer[:, 0].min())))
+    return tuple(islands)
+
+
+class Sampler:
+    """Caches sections of one prepared mesh by height (planes nudged into the part)."""
+
+    def __init__(self, prepared: PreparedMesh, z_tol: float) -> None:
+        self.prepared = prepared
+        self.z_tol = z_tol
+        self._cache: dict[float, tuple[tuple[Island, ...], SectionStats]] = {}
+
+    def clamp(self, z: float) -> float:
+        """``z`` moved inside ``[z_min + z_tol, z_max - z_tol]``."""
+        lo = self.prepared.z_min + self.z_tol
+        hi = self.prepared.z_max - self.z_tol
+        return min(max(z, lo), hi)
+
+    def section(self, z: float) -> tuple[tuple[Island, ...], SectionStats]:
+        """(islands, stats) of the section at ``clamp(z)``."""
+        key = round(self.clamp(z), 12)
+        if key not in self._cache:
+            islands = section_at(self.prepared.solid, key)
+            self._cache[key] = (islands, section_stats(islands))
+        return self._cache[key]
+
+
+def make_layer(index: int, z_bottom: float, z_top: float, z_sample: float,
+               sampler: Sampler, prev_area: float | None, reason: str,
+               params: SliceParams) -> Layer:
+    """Build a :class:`Layer`; raises :class:`SlicingError` when the section is empty."""
+    from app.slicing.adaptive import cavity_mu
+
+    if not z_top - z_bottom > 0:
+        raise SlicingError(f"layer {index} has zero thickness at z={z_top:.6g} mm",
+                           field="params", value=float(z_top - z_bottom))
+    islands, st = sampler.section(z_sample)
+    if st.area <= 0:
+        raise SlicingError(f"layer {index} at z={z_sample:.6g} mm has no area (the part is "
+                           f"empty there)", field="mesh", value=round(float(z_sample), 6))
+    eps = abs(st.area - prev_area) / prev_area if prev_area else 0.0
+    return Layer(index=index, z_bottom=float(z_bottom), z_top=float(z_top),
+                 z_sample=float(sampler.clamp(z_sample)), islands=islands, area=st.area,
+                 ring_count=st.ring_count, inner_ring_count=st.inner_ring_count,
+                 sigma=st.sigma, mu=cavity_mu(st, params), eps=float(eps), reason=reason)
+
+
+def slice_mesh(mesh: trimesh.Trimesh | PreparedMesh, params: SliceParams) -> SliceResult:
+    """Slice ``mesh`` (a trimesh or an already prepared mesh) into layers.
+
+    Raises :class:`SlicingError` for bad parameters, an unusable mesh, a layer with no
+    area, or more than ``params.max_layers`` layers.
+    """
+    from app.slicing import adaptive
+
+    params.validate()
+    prepared = mesh if isinstance(mesh, PreparedMesh) else prepare_mesh(mesh, params.repair)
+    height = prepared.z_max - prepared.z_min
+    if not height > 2 * params.z_tol:
+        raise SlicingError(f"part height {height:.6g} mm is too small to slice",
+                           field="mesh", value=float(height))
+    sampler = Sampler(prepared, params.z_tol)
+    planner = {"uniform": adaptive.uniform_layers, "area": adaptive.area_layers,
+               "cavity": adaptive.area_layers, "cusp": adaptive.cusp_layers}[params.mode]
+    layers, notes = planner(sampler, params)
+    return SliceResult(layers=tuple(layers), params=params, z_min=prepared.z_min,
+                       z_max=prepared.z_max, bounds=prepared.bounds, volume=prepared.volume,
+                       repairs=prepared.repairs, notes=tuple(notes))

@@ -1,0 +1,154 @@
+"""Turn a triangle mesh into a sliceable solid (check, optionally repair, or refuse).
+
+Checks, in order: non-empty; watertight (every edge shared by exactly two faces) and
+consistently wound; positive volume; overlapping shells (self-intersection between
+bodies).  With ``repair=True`` the mesh is cleaned (merge duplicate vertices, drop
+degenerate/duplicate faces, fill small holes, fix winding, invert inside-out meshes,
+union overlapping shells) and every repair is reported; otherwise, or when repair does
+not help, :class:`MeshError` names the problem.
+
+Not detected: a *single* shell that passes through itself (a folded surface).  Its
+sections are still well defined because manifold3d resolves each slice with the
+positive fill rule (the union of the overlapping parts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import manifold3d
+import numpy as np
+import trimesh
+
+from app.slicing.errors import MeshError
+
+
+@dataclass(frozen=True)
+class PreparedMesh:
+    """A solid ready to slice.
+
+    ``solid``: manifold3d.Manifold; ``z_min``/``z_max``: mm; ``bounds``: (2, 3) mm;
+    ``normals_z``: (F,) z component of unit face normals; ``face_z``: (F, 2) min/max z of
+    each face (mm); ``repairs``: human-readable notes of what was repaired.
+    """
+
+    solid: manifold3d.Manifold
+    z_min: float
+    z_max: float
+    bounds: np.ndarray
+    normals_z: np.ndarray
+    face_z: np.ndarray
+    volume: float
+    repairs: tuple[str, ...]
+
+
+def _open_edge_count(mesh: trimesh.Trimesh) -> int:
+    edges = mesh.edges_sorted
+    if len(edges) == 0:
+        return 0
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return int(np.sum(counts != 2))
+
+
+def _clean(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
+    m = mesh.copy()
+    n_v, n_f = len(m.vertices), len(m.faces)
+    m.merge_vertices()
+    m.update_faces(m.nondegenerate_faces())
+    m.update_faces(m.unique_faces())
+    m.remove_unreferenced_vertices()
+    if len(m.vertices) != n_v or len(m.faces) != n_f:
+        repairs.append(f"merged/removed {n_v - len(m.vertices)} vertices and "
+                       f"{n_f - len(m.faces)} degenerate or duplicate faces")
+    if not m.is_watertight:
+        before = _open_edge_count(m)
+        trimesh.repair.fill_holes(m)
+        if m.is_watertight:
+            repairs.append(f"filled holes ({before} open edges)")
+    if m.is_watertight and not m.is_winding_consistent:
+        trimesh.repair.fix_winding(m)
+        repairs.append("fixed inconsistent face winding")
+    if m.is_watertight and m.volume < 0:
+        m.invert()
+        repairs.append("inverted inside-out mesh")
+    return m
+
+
+def _to_manifold(m: trimesh.Trimesh) -> manifold3d.Manifold:
+    return manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(m.vertices, dtype=np.float64),
+        tri_verts=np.ascontiguousarray(m.faces, dtype=np.uint64)))
+
+
+def _diagnose(m: trimesh.Trimesh, repair: bool) -> None:
+    """Raise the MeshError that says why ``m`` is not a sliceable solid."""
+    open_edges = _open_edge_count(m)
+    if open_edges:
+        raise MeshError(f"mesh is not watertight: {open_edges} edges are not shared by "
+                        f"exactly two faces" + ("" if repair else " (repair disabled)"),
+                        field="mesh", value={"open_edges": open_edges})
+    if not m.is_winding_consistent:
+        raise MeshError("mesh face winding is inconsistent", field="mesh", value="winding")
+    if m.volume <= 0:
+        raise MeshError(f"mesh encloses a non-positive volume ({m.volume:.6g} mm^3): "
+                        f"inside-out", field="mesh", value=float(m.volume))
+    raise MeshError("mesh is not an oriented 2-manifold", field="mesh", value="topology")
+
+
+def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True) -> PreparedMesh:
+    """Check (and with ``repair`` fix) ``mesh``; return a :class:`PreparedMesh`.
+
+    Fast path: a mesh that manifold3d accepts as an oriented 2-manifold with positive
+    volume is used as is.  Otherwise it is cleaned (``repair``) or refused.
+    Raises :class:`MeshError` (field ``"mesh"``) for an empty, open, inconsistently
+    wound or inside-out mesh that cannot be (or may not be) repaired.
+    """
+    if mesh is None or len(mesh.faces) == 0:
+        raise MeshError("mesh has no faces", field="mesh", value=0)
+    repairs: list[str] = []
+    m = mesh
+    solid = _to_manifold(m)
+    ok = solid.status() == manifold3d.Error.NoError and not solid.is_empty() \
+        and solid.volume() > 0
+    if not ok:
+        if not repair:
+            _diagnose(m, repair)
+        m = _clean(mesh, repairs)
+        solid = _to_manifold(m)
+        if solid.status() != manifold3d.Error.NoError or solid.is_empty() \
+                or solid.volume() <= 0:
+            _diagnose(m, repair)
+    parts = solid.decompose()
+    if len(parts) > 1:
+        total = sum(p.volume() for p in parts)
+        union = manifold3d.Manifold.batch_boolean(parts, manifold3d.OpType.Add)
+        if union.volume() < total * (1 - 1e-9) - 1e-9:
+            if not repair:
+                raise MeshError(f"mesh is self-intersecting: {len(parts)} shells overlap "
+                                f"by {total - union.volume():.6g} mm^3", field="mesh",
+                                value={"shells": len(parts),
+                                       "overlap_mm3": float(total - union.volume())})
+            repairs.append(f"united {len(parts)} overlapping shells "
+                           f"(overlap {total - union.volume():.6g} mm^3)")
+            solid = union
+    bb = solid.bounding_box()
+    bounds = np.array([bb[:3], bb[3:]], dtype=np.float64)
+    tri = np.asarray(m.vertices, dtype=np.float64)[np.asarray(m.faces)]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(normals, axis=1)
+    normals_z = np.divide(normals[:, 2], norm, out=np.zeros(len(norm)), where=norm > 0)
+    face_z = np.stack([tri[:, :, 2].min(axis=1), tri[:, :, 2].max(axis=1)], axis=1)
+    return PreparedMesh(solid=solid, z_min=float(bounds[0, 2]), z_max=float(bounds[1, 2]),
+                        bounds=bounds, normals_z=normals_z, face_z=face_z,
+                        volume=float(solid.volume()), repairs=tuple(repairs))
+
+
+def place_on_bed(mesh: trimesh.Trimesh, center_xy: tuple[float, float] = (0.0, 0.0)
+                 ) -> trimesh.Trimesh:
+    """A copy of ``mesh`` translated so that z_min = 0 and its XY bounding-box centre is at
+    ``center_xy`` (mm), as a printer expects."""
+    m = mesh.copy()
+    lo, hi = m.bounds
+    m.apply_translation((center_xy[0] - 0.5 * (lo[0] + hi[0]),
+                         center_xy[1] - 0.5 * (lo[1] + hi[1]), -lo[2]))
+    return m

@@ -1,0 +1,213 @@
+"""Fill paths per layer: ``plan_toolpath(slice_result, ToolpathParams) -> Toolpath``.
+
+Per layer: ``perimeters`` closed loops at offsets w/2, 3w/2, ... inside the section, then
+the infill of the remaining region (offset n*w, or w/2 without perimeters) with the chosen
+pattern at pitch ``line_width / infill`` (raster direction rotated by ``angle_step_deg``
+each layer), then travel ordering.  Statistics per layer: extruded path length, travel
+length, turns (direction changes above ``turn_threshold_deg`` inside extruded
+polylines), jumps (travel moves between polylines) and the planner's estimated time
+(:mod:`app.gcode.estimator`).  Lengths mm, times s, feeds mm/s, accelerations mm/s^2.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from app.gcode.estimator import MachineLimits, estimate_moves
+from app.slicing.errors import SlicingError
+from app.slicing.fills import contour_fill, raster_fill, zone_fill
+from app.slicing.fractal import MergeWeights, hilbert_fill, merged_fractal_fill
+from app.slicing.offset import offset_islands
+from app.slicing.ordering import order_paths
+
+Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
+PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
+
+
+@dataclass(frozen=True)
+class ToolpathParams:
+    """Fill and motion parameters.
+
+    ``pattern``: raster (zigzag), lines (raster without links), contour, zone, hilbert,
+    hilbert_merged (seed S5 improved fractal).  ``infill``: density in (0, 1].
+    ``filament_mm``: filament diameter for E (extrusion mode).
+    """
+
+    pattern: Pattern = "raster"
+    line_width_mm: float = 0.4
+    nozzle_mm: float = 0.4
+    layer_height_mm: float | None = None
+    infill: float = 1.0
+    perimeters: int = 1
+    angle_deg: float = 45.0
+    angle_step_deg: float = 90.0
+    print_feed_mm_s: float = 40.0
+    perimeter_feed_mm_s: float = 30.0
+    travel_feed_mm_s: float = 120.0
+    filament_mm: float = 1.75
+    turn_threshold_deg: float = 10.0
+    limits: MachineLimits = field(default_factory=MachineLimits)
+    merge_weights: MergeWeights = field(default_factory=MergeWeights)
+
+    def validate(self) -> None:
+        """Raise :class:`SlicingError` naming the first bad field."""
+        if self.pattern not in PATTERNS:
+            raise SlicingError(f"unknown fill pattern {self.pattern!r}; expected one of "
+                               f"{list(PATTERNS)}", field="params.pattern", value=self.pattern)
+        for name in ("line_width_mm", "nozzle_mm", "print_feed_mm_s", "perimeter_feed_mm_s",
+                     "travel_feed_mm_s", "filament_mm"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise SlicingError(f"{name} must be > 0, got {v!r}", field=f"params.{name}",
+                                   value=v)
+        if not (0 < self.infill <= 1):
+            raise SlicingError(f"infill must be in (0, 1], got {self.infill!r}",
+                               field="params.infill", value=self.infill)
+        if self.perimeters < 0 or self.perimeters > 100:
+            raise SlicingError("perimeters must be in 0..100", field="params.perimeters",
+                               value=self.perimeters)
+        if self.layer_height_mm is not None and not self.layer_height_mm > 0:
+            raise SlicingError("layer_height_mm must be > 0", field="params.layer_height_mm",
+                               value=self.layer_height_mm)
+        self.limits.validate()
+
+
+@dataclass(frozen=True, eq=False)
+class PathPiece:
+    """One extruded polyline: ``points`` (n, 2) mm; ``kind`` perimeter | infill."""
+
+    kind: str
+    points: np.ndarray
+    feed_mm_s: float
+
+
+@dataclass(frozen=True)
+class LayerStats:
+    """Per-layer (or total) statistics: mm, counts, s."""
+
+    path_mm: float
+    travel_mm: float
+    turns: int
+    jumps: int
+    time_s: float
+
+
+@dataclass(frozen=True, eq=False)
+class LayerToolpath:
+    """Print-ordered pieces of one layer at height ``z`` (mm) with ``thickness`` (mm)."""
+
+    index: int
+    z: float
+    thickness: float
+    pieces: tuple[PathPiece, ...]
+    stats: LayerStats
+
+
+@dataclass(frozen=True, eq=False)
+class Toolpath:
+    """All layers, the totals and the estimator description."""
+
+    layers: tuple[LayerToolpath, ...]
+    params: ToolpathParams
+    totals: LayerStats
+    estimator: str
+
+
+def count_turns(points: np.ndarray, threshold_rad: float) -> int:
+    """Direction changes above ``threshold_rad`` along a polyline (n, 2) (a closed one,
+    first == last, also counts the closing junction)."""
+    d = np.diff(points, axis=0)
+    d = d[np.hypot(d[:, 0], d[:, 1]) > 1e-12]
+    if len(points) > 2 and np.allclose(points[0], points[-1]) and len(d) > 1:
+        d = np.vstack([d, d[:1]])
+    if len(d) < 2:
+        return 0
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    turn = np.abs((np.diff(ang) + np.pi) % (2 * np.pi) - np.pi)
+    return int(np.count_nonzero(turn > threshold_rad))
+
+
+def infill_paths(islands, params: ToolpathParams, layer_index: int) -> list[np.ndarray]:
+    """Infill polylines of one section (unordered), pattern per ``params``."""
+    w = params.line_width_mm
+    region = offset_islands(islands, -(params.perimeters * w if params.perimeters else w / 2))
+    if not region:
+        return []
+    pitch = w / params.infill
+    angle = math.radians(params.angle_deg + layer_index * params.angle_step_deg)
+    p = params.pattern
+    if p in ("raster", "lines"):
+        return raster_fill(region, pitch, angle, zigzag=(p == "raster"))
+    if p == "zone":
+        return zone_fill(region, pitch, angle)
+    if p == "contour":
+        return contour_fill(region, pitch)
+    # grid fills: cell centres may sit half a line into the innermost perimeter's bead
+    # (overlap), so that the cells reach the perimeter; beads still stay inside the ring
+    grid_region = offset_islands(islands, -max(params.perimeters - 0.5, 0.5) * w)
+    if p == "hilbert":
+        return hilbert_fill(grid_region, pitch)
+    return merged_fractal_fill(grid_region, pitch, along_x=(layer_index % 2 == 0),
+                               weights=params.merge_weights)
+
+
+def perimeter_paths(islands, params: ToolpathParams) -> list[np.ndarray]:
+    """Closed perimeter loops (first vertex repeated), outermost first."""
+    out = []
+    for k in range(params.perimeters):
+        for isl in offset_islands(islands, -(params.line_width_mm * (0.5 + k))):
+            out.extend(np.vstack([r, r[:1]]) for r in isl.rings())
+    return out
+
+
+def _layer_moves(pieces, start, z, e_per_mm, params):
+    pos, feeds, stops = [np.array([*start, z, 0.0])], [], [True]
+    e = 0.0
+    for piece in pieces:
+        pos.append(np.array([*piece.points[0], z, e]))
+        feeds.append(params.travel_feed_mm_s)
+        stops.append(False)
+        seg = np.hypot(*np.diff(piece.points, axis=0).T)
+        es = e + np.cumsum(seg) * e_per_mm
+        pos.extend(np.c_[piece.points[1:], np.full(len(seg), z), es])
+        feeds.extend([piece.feed_mm_s] * len(seg))
+        stops.extend([False] * len(seg))
+        e = float(es[-1]) if len(es) else e
+    stops[-1] = True
+    return np.array(pos), np.array(feeds), np.array(stops)
+
+
+def plan_toolpath(slice_result, params: ToolpathParams = ToolpathParams()) -> Toolpath:
+    """Perimeters + infill + travel ordering + statistics for every layer."""
+    params.validate()
+    thr = math.radians(params.turn_threshold_deg)
+    fil_area = math.pi * (params.filament_mm / 2) ** 2
+    layers, pos = [], np.zeros(2)
+    for lay in slice_result.layers:
+        h = params.layer_height_mm or lay.thickness
+        e_per_mm = params.line_width_mm * h / fil_area
+        per, pos1 = order_paths(perimeter_paths(lay.islands, params), pos)
+        inf, pos2 = order_paths(infill_paths(lay.islands, params, lay.index), pos1)
+        pieces = tuple([PathPiece("perimeter", p, params.perimeter_feed_mm_s) for p in per]
+                       + [PathPiece("infill", p, params.print_feed_mm_s) for p in inf])
+        path_mm = float(sum(np.hypot(*np.diff(p.points, axis=0).T).sum() for p in pieces))
+        gaps = [np.hypot(*(b.points[0] - a.points[-1])) for a, b in zip(pieces, pieces[1:])]
+        first = np.hypot(*(pieces[0].points[0] - pos)) if pieces else 0.0
+        moves = _layer_moves(pieces, pos, lay.z_top, e_per_mm, params)
+        t = estimate_moves(*moves[:2], params.limits, moves[2]) if len(moves[1]) else [0.0]
+        stats = LayerStats(path_mm=path_mm, travel_mm=float(first + sum(gaps)),
+                           turns=sum(count_turns(p.points, thr) for p in pieces),
+                           jumps=int(sum(1 for g in gaps if g > 1e-9)),
+                           time_s=float(np.sum(t)))
+        layers.append(LayerToolpath(lay.index, lay.z_top, lay.thickness, pieces, stats))
+        pos = pos2 if len(inf) else pos1
+    tot = LayerStats(path_mm=sum(x.stats.path_mm for x in layers),
+                     travel_mm=sum(x.stats.travel_mm for x in layers),
+                     turns=sum(x.stats.turns for x in layers),
+                     jumps=sum(x.stats.jumps for x in layers),
+                     time_s=sum(x.stats.time_s for x in layers))
+    return Toolpath(tuple(layers), params, tot, params.limits.describe())
