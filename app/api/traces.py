@@ -12,6 +12,7 @@ from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, TraceCreate, TraceOut
 from app.errors import Conflict, ConformaError
 from app.geometry.tolerance import Tolerance
+from app.geometry.traces import build_nominal_trace
 
 from app.jobs.runtime import Runtime
 from app.models import JobReference, Part, Trace, new_id, utcnow
@@ -29,8 +30,6 @@ def trace_out(trace: Trace) -> TraceOut:
 
 def _build(runtime: Runtime, part: Part, body: TraceCreate, field_prefix: str = "") -> Trace:
     """Drape/snap the trace onto the part (geometry core) and make the record (not yet added)."""
-    from app.geometry.traces import build_nominal_trace
-
     geometry = body.geometry.model_dump()
     try:
         nominal = build_nominal_trace(runtime.meshes.mesh(part), geometry, body.frame, Tolerance())

@@ -3,7 +3,9 @@
 A kind names its parameter model (validated at submission, so bad parameters are a 422
 before anything is queued), the function that runs it, the queue it belongs on
 (``"machine"`` for jobs that own a serial port), and what stored records it reads (so
-that those cannot be deleted from under it).
+that those cannot be deleted from under it).  An optional ``check(params, session)``
+runs content checks that need stored records (e.g. measured points against the trace)
+at submission, so that bad input is a 422 then and never a failed job later.
 
 Example (a module in ``app/jobs/kinds/``)::
 
@@ -44,6 +46,7 @@ class JobKind:
     run: Callable[["JobContext", Any], dict]
     queue: str = "default"
     references: Callable[[Any], list[Reference]] = field(default=lambda _params: [])
+    check: Callable[[Any, Any], None] | None = None  # (params, session): raise InvalidInput at submission
     description: str = ""
 
 
@@ -56,6 +59,7 @@ def job_kind(
     *,
     queue: str = "default",
     references: Callable[[Any], list[Reference]] | None = None,
+    check: Callable[[Any, Any], None] | None = None,
 ) -> Callable[[Callable[["JobContext", Any], dict]], Callable[["JobContext", Any], dict]]:
     """Register the decorated function as the runner of job kind ``name``."""
 
@@ -68,6 +72,7 @@ def job_kind(
             run=run,
             queue=queue,
             references=references or (lambda _params: []),
+            check=check,
             description=(run.__doc__ or "").strip().split("\n")[0],
         )
         return run

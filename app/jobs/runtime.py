@@ -125,6 +125,8 @@ class Runtime:
                     hashes[f"part:{ref_id}"] = record.sha256
                 elif isinstance(record, Trace):
                     hashes[f"trace:{ref_id}"] = _canonical_hash([record.geometry, record.frame, record.standoff_mm])
+            if kind.check is not None:
+                kind.check(validated, session)
             job = Job(
                 id=new_id("job"), kind=kind.name, params=validated.model_dump(mode="json"),
                 parent_id=parent_id, queue=kind.queue, max_attempts=self.settings.max_attempts,

@@ -119,12 +119,13 @@ def area_layers(sampler, params):
         top = z + step                                              # step 10
         if z_max - top < params.z_tol:
             top = z_max
-        lay = make_layer(len(layers), z, top, top, sampler, layers[-1].area if layers else a_i,
-                         reason, params)
+        sample = top if params.seed_sample == "top" else 0.5 * (z + top)
+        lay = make_layer(len(layers), z, top, sample, sampler,
+                         layers[-1].area if layers else a_i, reason, params)
         layers.append(lay)
         _check_count(len(layers), params)
         _, st_i = sampler.section(top)
-        a_i, z = lay.area, top
+        a_i, z = st_i.area, top
     return layers, notes
 
 

@@ -7,9 +7,9 @@ layer float32 z (the layer bottom) and uint32 boundary count, per boundary uint3
 count (closed: first vertex repeated), uint32 gap count (0) and float32 x, y pairs; the
 file ends with float32 max-z and uint32 0xFFFFFFFF.  Outer rings anticlockwise, holes
 clockwise.  Adaptive thicknesses are rounded to multiples of ``quantum_mm`` (the layer z
-values are their running sums; :attr:`SlcExport.notes` says so and by how much z moved) and, if more than 255 runs of equal thickness
-remain, neighbouring runs are merged in the sampling table (each layer's own z in the
-contour section stays exact).
+values are their running sums; :attr:`SlcExport.notes` says so and by how much z moved)
+and, if more than 255 runs of equal thickness remain, neighbouring runs are merged in the
+sampling table (each layer's own z in the contour section stays exact).
 
 CLI (Common Layer Interface 2.0, ASCII, units mm): ``$$LAYER/z`` is the layer top;
 ``$$POLYLINE/id,dir,n,...`` with dir 1 = anticlockwise (outer), 0 = clockwise (hole);
@@ -41,8 +41,9 @@ class SlcExport(NamedTuple):
 
 @dataclass(frozen=True)
 class SlcOptions:
-    """``quantum_mm``: thickness grid; ``compensation_mm``: function-free constant beam
-    width written in the table (0 when contours are already compensated); ``label``."""
+    """``quantum_mm``: thickness grid; ``compensation_mm``: line-width compensation written
+    in every sampling-table entry (0 when the contours are already compensated);
+    ``label``: the header's -PACKAGE word."""
 
     quantum_mm: float = 0.001
     compensation_mm: float = 0.0

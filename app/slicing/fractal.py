@@ -156,10 +156,6 @@ def _cycle_edges(full: np.ndarray, nx: int, ny: int, weights: MergeWeights, alon
 
 def _splice_free_cells(edges, free: set[int], ny: int, ok) -> None:
     """Insert pairs of free neighbouring cells into cycle edges next to them (in place)."""
-    def nbrs(c):
-        i, j = divmod(c, ny)
-        return ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1))
-
     progress = True
     while progress and free:
         progress = False
@@ -184,7 +180,6 @@ def _splice_free_cells(edges, free: set[int], ny: int, ok) -> None:
                         break
                 if c1 not in free:
                     break
-    del nbrs
 
 
 def _walk_cycles(edges) -> list[list[int]]:

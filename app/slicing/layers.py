@@ -44,7 +44,10 @@ class SliceParams:
     seed's text states) or ``"printed"`` (int(ln(sigma - sigma0 + 55) / 4) evaluated
     literally: it is 1 already from sigma >= sigma0 - 0.4018).  ``step9_resets_to_lmax``:
     read step 9 literally (a non-cavity layer always gets l_max, discarding the step found
-    by the area rule); default False keeps the area rule's step.  ``cusp_mm``: allowed cusp
+    by the area rule); default False keeps the area rule's step.  ``seed_sample``: where the
+    area/cavity modes take a layer's contour: ``"top"`` (the plane Z' the seed stores) or
+    ``"mid"`` (mid-height, halves the staircase error; the rule itself is unchanged).
+    ``cusp_mm``: allowed cusp
     height (cusp mode).  ``z_tol``: planes at the very bottom/top are moved this far into
     the part.  ``repair``: repair bad meshes instead of refusing them.
     """
@@ -60,6 +63,7 @@ class SliceParams:
     theta_rule: ThetaRule = "indicator"
     step9_resets_to_lmax: bool = False
     cusp_mm: float = 0.02
+    seed_sample: Literal["top", "mid"] = "top"
     z_tol: float = 1e-5
     repair: bool = True
     max_layers: int = 200_000
@@ -86,6 +90,9 @@ class SliceParams:
         if self.mu0 > self.mu1:
             raise SlicingError(f"mu0 ({self.mu0}) is larger than mu1 ({self.mu1})",
                                field="params.mu0", value=self.mu0)
+        if self.seed_sample not in ("top", "mid"):
+            raise SlicingError(f"unknown seed_sample {self.seed_sample!r}",
+                               field="params.seed_sample", value=self.seed_sample)
         if self.theta_rule not in ("indicator", "printed"):
             raise SlicingError(f"unknown theta rule {self.theta_rule!r}",
                                field="params.theta_rule", value=self.theta_rule)

@@ -77,13 +77,20 @@ SEED_HAZ_TABLE = BeamWidthTable(thickness_mm=(0.020, 0.025, 0.030, 0.035, 0.040)
                                 width_mm=(0.021, 0.023, 0.024, 0.0255, 0.028))
 
 
-def compensate_beam(result, table: BeamWidthTable = SEED_HAZ_TABLE, join: str = "miter"):
-    """Offset every layer's rings inward by the table width for its thickness.
+def compensate_beam(result, table: BeamWidthTable | float = SEED_HAZ_TABLE,
+                    join: str = "miter"):
+    """Offset every layer's rings inward by the table width for its thickness (or by a
+    constant width in mm when ``table`` is a number, e.g. the API's ``offset_mm``).
 
     Returns a new :class:`~app.slicing.layers.SliceResult` whose layers carry the
     compensated islands and re-computed areas/ring counts; a layer that vanishes raises
     :class:`SlicingError` (the part is thinner than the beam compensation).
     """
+    if not isinstance(table, BeamWidthTable):
+        if not (np.isfinite(table) and table >= 0):
+            raise SlicingError(f"beam offset must be >= 0 mm, got {table!r}",
+                               field="offset_mm", value=table)
+        table = BeamWidthTable((1.0,), (float(table),))
     layers = []
     for lay in result.layers:
         w = table.width(lay.thickness)

@@ -3,7 +3,7 @@
 1. bad-point removal: each point is compared with a least-squares cubic B-spline height
    surface (net by GCV, leave-one-out residuals); points whose residual exceeds ``k_sigma`` robust standard
    deviations (1.4826 MAD), and at least ``min_mm``, are removed and the surface refitted
-   (a few rounds).  A local quadratic through the nearest neighbours was tried first: its
+   (dominant ones first, until stable).  A local quadratic through the nearest neighbours was tried first: its
    model error on steep, strongly curved parts (a cylinder's flanks) exceeded 10 um and
    flagged good points;
 2. densification ("surface interpolation"): holes are filled from a least-squares
@@ -32,7 +32,7 @@ __all__ = ["BadPointResult", "find_bad_points", "choose_control_count", "square_
            "moving_average", "five_point_cubic", "spline_smooth", "smooth_grid"]
 
 _MAD_TO_SIGMA = 1.4826
-_ROUNDS = 3
+_ROUNDS = 30
 _FILL_NEIGHBOURS = 40
 
 # five-point cubic smoothing (least-squares cubic through 5 consecutive samples)
@@ -99,7 +99,8 @@ def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float =
     points.  A point is bad when its studentised residual r / sqrt(1 - leverage) exceeds
     ``k_sigma`` robust sigmas (1.4826 MAD) *and* its deleted residual r / (1 - leverage)
     exceeds ``min_mm`` (leverage-aware, so a corner point neither hides by pulling the fit
-    nor is flagged for its larger variance).  Removal and refit repeat for a few rounds.
+    nor is flagged for its larger variance).  Each round removes the dominant outliers
+    (>= half the worst statistic) and refits, until nothing changes.
     residual_mm holds the deleted residuals; threshold_mm the sigma cut.
     """
     pts = np.asarray(points, dtype=float)
@@ -120,11 +121,16 @@ def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float =
         one_minus_h = np.ones(pts.shape[0])  # removed points: already out of sample
         one_minus_h[kept] = np.maximum(1.0 - np.sum(q * q, axis=1), 0.01)
         deleted = raw / one_minus_h
-        student = raw / np.sqrt(one_minus_h)
-        good = student[kept]
+        signed = raw / np.sqrt(one_minus_h)
+        good = signed[kept]
         sigma = _MAD_TO_SIGMA * float(np.median(np.abs(good - np.median(good))))
+        student = np.abs(signed - np.median(good))
         threshold = k_sigma * sigma
-        new_bad = (np.abs(student) > threshold) & (np.abs(deleted) > min_mm)
+        over = (student > threshold) & (np.abs(deleted) > min_mm)
+        # remove only the dominant outliers of this round (a big spike drags its
+        # neighbours' residuals up until it is gone); re-admit removed points that fit
+        worst = student[over & kept].max(initial=0.0)
+        new_bad = (bad & over) | (over & kept & (student >= 0.5 * worst))
         if np.array_equal(new_bad, bad):
             break
         bad = new_bad

@@ -1,0 +1,133 @@
+"""Bench: probes needed for max height error <= 5 um on the S1 reference part.
+
+Run: .venv/bin/python -m pytest tests/bench/test_bench_probing.py -s -o addopts="" -q
+
+Simulation: as-made S1 parts (smooth machining error 0.15 mm peak, wavelengths >= 15 mm,
+seeded random placement), probing = true height at the planned xy + N(0, 1 um).  Error =
+max |reconstructed height - true height| along the trace (every 0.05 mm), worst case over
+parts x noise draws.  "Needed" = smallest probe count from which every larger count tried
+meets 5 um.  Methods: the seed's adaptive chord-height rule + inverse cubic interpolation
+(seed), uniform + interpolation (seed baseline), our deviation planner + deviation model;
+"uniform+dev" (even stations, deviation model) shows how much comes from the model alone.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from app.probing.selection import PlanParams, plan_probes
+from app.reconstruction.reconstruct import reconstruct
+from app.reference.s1 import as_made, nominal_path, s1_traces
+
+LIMIT_MM = 0.005
+SIGMA_MM = 0.001
+PARTS = [as_made(seed) for seed in (11, 12)]
+NOISE_DRAWS = 2
+COUNTS = list(range(4, 31)) + [35, 40, 50, 60]
+CHORD_ERRORS = np.geomspace(0.5, 2e-4, 36)
+
+
+def worst_error(path, truths, plan, rmethod):
+    err = 0.0
+    for p_i, part in enumerate(PARTS):
+        for d in range(NOISE_DRAWS):
+            rng = np.random.default_rng(1000 * p_i + d)
+            pts = plan.points.copy()
+            pts[:, 2] = part.true_height(pts[:, :2]) + rng.normal(0.0, SIGMA_MM, len(pts))
+            rec = reconstruct(path, pts, rmethod, sigma_mm=SIGMA_MM)
+            err = max(err, float(np.abs(rec.height_at_s(path.s) - truths[p_i]).max()))
+    return err
+
+
+def needed(results):
+    """Smallest count c such that every tried count >= c meets the limit (None if none)."""
+    ok = None
+    for count, err in sorted(results, reverse=True):
+        if err > LIMIT_MM:
+            break
+        ok = count
+    return ok
+
+
+def sweep(path, truths, method, rmethod):
+    res = []
+    if method == "adaptive":
+        seen = set()
+        for e in CHORD_ERRORS:
+            plan = plan_probes(path, "adaptive", PlanParams(chord_error_mm=float(e)))
+            if plan.count < 4 or plan.count in seen:
+                continue
+            seen.add(plan.count)
+            res.append((plan.count, worst_error(path, truths, plan, rmethod)))
+    else:
+        for n in COUNTS:
+            plan = plan_probes(path, method, PlanParams(count=n))
+            res.append((n, worst_error(path, truths, plan, rmethod)))
+            if len(res) >= 4 and all(r[1] <= LIMIT_MM for r in res[-4:]) and n >= 12:
+                break  # converged: the rest of the sweep stays under the limit
+    return res
+
+
+def timed(path, method, rmethod, params, part, reps=5):
+    plan = plan_probes(path, method, params)
+    pts = plan.points.copy()
+    pts[:, 2] = part.true_height(pts[:, :2])
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        plan = plan_probes(path, method, params)
+        reconstruct(path, pts, rmethod, sigma_mm=SIGMA_MM)
+    return (time.perf_counter() - t0) / reps * 1000
+
+
+def test_probe_count_for_5um():
+    methods = [("seed adaptive", "adaptive", "interpolate"),
+               ("seed uniform", "uniform", "interpolate"),
+               ("deviation (ours)", "deviation", "deviation"),
+               ("uniform+dev", "uniform", "deviation")]
+    need = {}
+    times = {}
+    auto = {}
+    for trace in s1_traces():
+        path = nominal_path(trace, 0.05)
+        truths = [part.true_height(path.points[:, :2]) for part in PARTS]
+        for label, method, rmethod in methods:
+            n = needed(sweep(path, truths, method, rmethod))
+            need.setdefault((trace.kind, label), []).append(n)
+            params = (PlanParams(chord_error_mm=0.005) if method == "adaptive"
+                      else PlanParams(count=n or 30))
+            times.setdefault(label, []).append(timed(path, method, rmethod, params, PARTS[0]))
+        model = PlanParams(deviation_amplitude_mm=0.15, deviation_wavelength_mm=15.0)
+        plan = plan_probes(path, "deviation", model)
+        auto.setdefault(trace.kind, []).append(
+            (plan.count, worst_error(path, truths, plan, "deviation")))
+
+    print("\n\nProbes needed for max height error <= 5 um (worst trace of each type; "
+          f"{len(PARTS)} as-made parts x {NOISE_DRAWS} noise draws, sigma 1 um)")
+    head = f"{'trace type':<10}" + "".join(f"{lab:>18}" for lab, _, _ in methods)
+    print(head + f"{'ours / best seed':>18}")
+    ratios = {}
+    for kind in ("line", "arc", "nurbs"):
+        row = {}
+        for label, _, _ in methods:
+            vals = need[(kind, label)]
+            row[label] = None if None in vals else max(vals)
+        best_seed = min(v for k, v in row.items() if k.startswith("seed") and v is not None)
+        ratios[kind] = row["deviation (ours)"] / best_seed
+        print(f"{kind:<10}" + "".join(f"{str(row[lab]):>18}" for lab, _, _ in methods)
+              + f"{ratios[kind]:>18.2f}")
+    print("\nPer trace (1..9):")
+    for label, _, _ in methods:
+        per = [v for kind in ("line", "arc", "nurbs") for v in need[(kind, label)]]
+        print(f"  {label:<18}" + " ".join(f"{str(v):>4}" for v in per))
+    print("\nDeviation planner with its own model count (A = 0.15 mm, lambda = 15 mm):")
+    for kind, vals in auto.items():
+        print(f"  {kind:<6} counts {[c for c, _ in vals]}  max error um "
+              f"{[round(e * 1000, 2) for _, e in vals]}")
+    print("\nplan + reconstruct per trace, ms (median over the 9 traces; at the needed count):")
+    for label, vals in times.items():
+        print(f"  {label:<18} {np.median(vals):8.1f}")
+    assert all(e <= LIMIT_MM for vals in auto.values() for _, e in vals)
+    for kind, r in ratios.items():
+        assert r <= 0.5, f"{kind}: ours needs {r:.2f} x the probes of the best seed method"

@@ -1,0 +1,78 @@
+"""Tests for app.gcode.writer: header, number formatting, dialect table, bad input."""
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from app.errors import InvalidInput
+from app.gcode.writer import DIALECTS, GcodeError, ProgramBuilder, format_number
+
+
+def test_header_and_units():
+    text = ProgramBuilder("grbl", "probe_plan", "j42").text()
+    assert text.splitlines() == ["; conforma job=j42 kind=probe_plan units=mm", "G21", "G90"]
+    assert text.endswith("\n") and not text.endswith("\n\n")
+    assert ProgramBuilder("marlin", "print").lines[0] == "; conforma job=- kind=print units=mm"
+
+
+def test_moves_fixed_decimals_and_no_negative_zero():
+    b = ProgramBuilder("marlin", "print", "a", decimals=4)
+    b.rapid(z=5).move(x=-0.00001, y=1.23456789, z=-2, feed_mm_min=1200, e=0.5)
+    assert b.lines[-2:] == ("G0 Z5.0000", "G1 X0.0000 Y1.2346 Z-2.0000 E0.5000 F1200.0")
+    assert "-0.0000" not in b.text()
+
+
+@settings(max_examples=60)
+@given(st.floats(min_value=-1e4, max_value=1e4, allow_nan=False), st.integers(0, 6))
+def test_format_number_round_trip(value, decimals):
+    text = format_number(value, decimals)
+    assert abs(float(text) - value) <= 0.5 * 10 ** -decimals + 1e-9
+    assert not (text.startswith("-") and float(text) == 0.0)
+    assert len(text.split(".")[1]) == decimals if decimals else "." not in text
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_coordinates_rejected(bad):
+    with pytest.raises(GcodeError) as info:
+        ProgramBuilder("grbl", "k").move(x=bad)
+    assert isinstance(info.value, InvalidInput) and info.value.field == "x"
+
+
+def test_probe_commands_per_dialect():
+    g = ProgramBuilder("grbl", "probe_plan").probe("g38", z=-1.5, feed_mm_min=100)
+    assert g.lines[-1] == "G38.2 Z-1.5000 F100.0"
+    m = ProgramBuilder("marlin", "probe_plan").probe("g30", x=10, y=20)
+    assert m.lines[-1] == "G30 X10.0000 Y20.0000"
+    ProgramBuilder("marlin", "probe_plan").probe("g38", z=0, feed_mm_min=50)
+    with pytest.raises(GcodeError):
+        ProgramBuilder("grbl", "probe_plan").probe("g30", x=0, y=0)
+    assert set(DIALECTS) == {"grbl", "marlin"}
+
+
+def test_bad_inputs_are_typed():
+    with pytest.raises(GcodeError):
+        ProgramBuilder("fanuc", "k")
+    with pytest.raises(GcodeError):
+        ProgramBuilder("grbl", "two words")
+    with pytest.raises(GcodeError):
+        ProgramBuilder("grbl", "k").move()
+    with pytest.raises(GcodeError):
+        ProgramBuilder("grbl", "k").move(x=1, feed_mm_min=0)
+    with pytest.raises(GcodeError):
+        ProgramBuilder("grbl", "k").move(x=1, q=2)
+    with pytest.raises(GcodeError):
+        ProgramBuilder("grbl", "k").raw("G0 X1\nG0 X2")
+
+
+def test_comment_is_one_line_and_end_markers():
+    b = ProgramBuilder("grbl", "k").comment("a (b)\nc").wait_for_moves().end()
+    assert b.lines[-3:] == ("; a [b] c", "G4 P0", "M2")
+    assert ProgramBuilder("marlin", "k").wait_for_moves().end().lines[-1] == "M400"
+
+
+def test_identical_inputs_identical_bytes():
+    def build():
+        return ProgramBuilder("marlin", "k", "x").rapid(x=1, y=2).move(z=0.1, feed_mm_min=60).text()
+    assert build() == build()
