@@ -47,7 +47,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
     settings = _settings(args)
     migrate(settings)
     runtime = Runtime(settings)
-    queues = tuple(args.queue) if args.queue else QUEUES
+    queues = tuple(args.queue) if args.queue else ("default",)
     unknown = [q for q in queues if q not in QUEUES]
     if unknown:
         print(f"unknown queue(s) {unknown}; known: {QUEUES}", file=sys.stderr)
@@ -115,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     worker = sub.add_parser("worker", help="a worker process (more workers = more throughput)")
     data_dir(worker)
-    worker.add_argument("--queue", action="append", help="default: all queues")
+    worker.add_argument("--queue", action="append",
+                        help="default: the compute queue; 'machine' only on the host that owns the ports")
     worker.set_defaults(func=cmd_worker)
 
     mig = sub.add_parser("migrate", help="apply database migrations")

@@ -11,13 +11,13 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 import app as app_package
-from app.api import jobs, parts, system, traces
+from app.api import jobs, machines, parts, programs, system, traces
 from app.api.errors import install_error_handlers
 from app.api.limits import BodyLimitMiddleware
 from app.auth import KeyRing
 from app.config import Settings
 from app.db import migrate
-from app.jobs.runtime import Runtime
+from app.jobs.runtime import QUEUES, Runtime
 
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 log = logging.getLogger("conforma")
@@ -33,8 +33,9 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
         runtime = Runtime(settings)
         api.state.runtime = runtime
         api.state.keyring = KeyRing(runtime.engine, settings.static_keys())
-        if settings.embedded_worker if start_workers is None else start_workers:
-            runtime.start_workers()
+        # This process owns the serial ports: it always consumes the machine queue.
+        embedded = settings.embedded_worker if start_workers is None else start_workers
+        runtime.start_workers(QUEUES if embedded else ("machine",))
         viewer = None
         if settings.viewer:
             from app.viewer.server import start_viewer
@@ -58,7 +59,7 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
     install_error_handlers(api)
     api.add_middleware(BodyLimitMiddleware, upload_bytes=int(settings.max_upload_mb * 2**20),
                        json_bytes=int(settings.max_json_mb * 2**20))
-    for router in (system.router, parts.router, traces.router, jobs.router):
+    for router in (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router):
         api.include_router(router)
     if WEB_DIR.is_dir():
         api.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")

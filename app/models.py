@@ -139,3 +139,17 @@ class ApiKey(SQLModel, table=True):
     key_sha256: str = Field(max_length=64, unique=True)
     created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
     revoked_at: datetime | None = Field(default=None, sa_column=Column(DateTime(timezone=True)))
+
+
+class Program(SQLModel, table=True):
+    """An uploaded G-code program (the file is a blob)."""
+
+    __tablename__ = "programs"
+    id: str = Field(primary_key=True, max_length=40)
+    name: str = Field(max_length=200)
+    sha256: str = Field(foreign_key="blobs.sha256", max_length=64)
+    lines: int
+    commands: int
+    commands_sha256: str = Field(max_length=64)
+    bounds: list | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))

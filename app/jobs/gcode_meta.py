@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import re
 
+from app.errors import InvalidInput
 from hardware.protocol import commands_sha256, normalized_commands
 
+_WORD = re.compile(r"^([GMTFSXYZEIJKPRNABC]\s*-?\d|\$[A-Z#$]?|[~!?]$)", re.IGNORECASE)
 _AXIS = re.compile(r"([XYZ])\s*(-?\d+(?:\.\d*)?|-?\.\d+)", re.IGNORECASE)
 
 
@@ -36,3 +38,13 @@ def gcode_meta(text: str) -> dict:
     if all(a in lows for a in "XYZ"):
         bounds = [[lows[a] for a in "XYZ"], [highs[a] for a in "XYZ"]]
     return {"lines": len(lines), "commands": digest.count, "commands_sha256": digest.sha256, "bounds": bounds}
+
+
+def check_gcode(text: str, field: str = "file") -> None:
+    """Refuse text that is not G-code: no commands, or a command that starts with no G-code word."""
+    commands = normalized_commands(text.splitlines())
+    if not commands:
+        raise InvalidInput("the program has no G-code commands", field=field, value=0)
+    for number, command in enumerate(commands, start=1):
+        if not _WORD.match(command):
+            raise InvalidInput(f"command {number} is not G-code: {command[:60]!r}", field=field, value=number)

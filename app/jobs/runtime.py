@@ -32,7 +32,9 @@ from app.errors import Cancelled, ConformaError, InvalidInput, NotFound
 from app.jobs.context import JobContext
 from app.jobs.registry import JobKind, get_kind, load_kinds
 from app.jobs.store import JobStore
+from app.machines import MachineManager
 from app.models import Job, JobReference, Part, Trace, new_id, utcnow
+from app.models import Machine as MachineRow
 from app.problems import from_error, problem
 from app.records import MeshCache, get_or_404
 
@@ -82,6 +84,7 @@ class Runtime:
         self.blobs = BlobStore(settings.blob_dir)
         self.meshes = MeshCache(self.blobs)
         self.store = JobStore(self.engine, settings.lease_s)
+        self.machines = MachineManager(self._part_mesh)
         self.worker_id = f"{socket.gethostname()}:{os.getpid()}"
         self.kinds = load_kinds(settings.job_plugins.split(","))
         self.queues = {name: make_queue(settings, name) for name in QUEUES}
@@ -89,6 +92,10 @@ class Runtime:
         self._consumers: list[Consumer] = []
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+
+    def _part_mesh(self, part_id: str) -> Any:
+        with Session(self.engine) as session:
+            return self.meshes.mesh(get_or_404(session, Part, part_id))
 
     # submission ------------------------------------------------------------------
     def validate(self, kind_name: str, params: dict[str, Any]) -> tuple[JobKind, Any]:
@@ -114,7 +121,7 @@ class Runtime:
         with Session(self.engine, expire_on_commit=False) as session:
             hashes: dict[str, str] = {}
             for ref_kind, ref_id in references:
-                model = {"part": Part, "trace": Trace, "job": Job}.get(ref_kind)
+                model = {"part": Part, "trace": Trace, "job": Job, "machine": MachineRow}.get(ref_kind)
                 if model is None:
                     continue
                 try:
@@ -220,6 +227,7 @@ class Runtime:
 
     def stop(self) -> None:
         self._stop.set()
+        self.machines.close_all()
         for consumer in self._consumers:
             consumer.stop(graceful=False)
         self._consumers.clear()

@@ -1,0 +1,108 @@
+"""Request/response models of machines and programs (mm, mm/min, degrees)."""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, Field, field_validator
+
+from app.api.schemas import Finite, Strict, UtcDatetime
+
+_PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*)$")
+Rate = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+
+
+class Profile(Strict):
+    dispense_on: str = Field("M106", min_length=1, max_length=80, description="G-code that starts dispensing")
+    dispense_off: str = Field("M107", min_length=1, max_length=80, description="G-code that stops dispensing")
+    probe_feed_mm_min: Finite = Field(100.0, gt=0, le=10_000)
+    travel_feed_mm_min: Finite = Field(3000.0, gt=0, le=100_000)
+    print_feed_mm_min: Finite = Field(300.0, gt=0, le=100_000)
+    clearance_z: Finite = Field(5.0, gt=-1000, le=1000, description="safe Z for travel, mm")
+    probe_z_min: Finite = Field(-10.0, gt=-1000, le=1000, description="lowest Z a probe may reach, mm")
+    probe_command: Literal["G30", "G38.2"] | None = None
+
+
+class MockPlacement(Strict):
+    dx: Finite = Field(0.0, ge=-100, le=100)
+    dy: Finite = Field(0.0, ge=-100, le=100)
+    dz: Finite = Field(0.0, ge=-100, le=100)
+    rz_deg: Finite = Field(0.0, ge=-180, le=180)
+
+
+class MockFaults(Strict):
+    checksum_rate: Rate = 0.0
+    drop_ok_rate: Rate = 0.0
+    duplicate_ok_rate: Rate = 0.0
+    resend_rate: Rate = 0.0
+    garbage_rate: Rate = 0.0
+    busy_rate: Rate = 0.0
+    slow_rate: Rate = 0.0
+    disconnect_at_line: int | None = Field(None, ge=1)
+    reset_at_line: int | None = Field(None, ge=1)
+    seed: int = Field(0, ge=0, le=2**31)
+
+
+class MockSettings(Strict):
+    true_part_id: str | None = Field(None, description="the as-made part the mock probes against")
+    placement: MockPlacement = Field(default_factory=MockPlacement)
+    probe_noise_mm: Finite = Field(0.0, ge=0, le=1)
+    time_scale: Finite = Field(0.0, ge=0, le=10, description="1 = real time, 0 = as fast as possible")
+    faults: MockFaults = Field(default_factory=MockFaults)
+
+
+class MachineCreate(Strict):
+    name: str = Field(min_length=1, max_length=200)
+    port: str = Field(description='"mock://", "socket://host:port" or a device such as "/dev/ttyUSB0"')
+    baudrate: int = Field(115200, ge=300, le=4_000_000)
+    dialect: Literal["marlin", "grbl"] = "marlin"
+    profile: Profile = Field(default_factory=Profile)
+    mock: MockSettings | None = None
+
+    @field_validator("port")
+    @classmethod
+    def _port(cls, value: str) -> str:
+        if not _PORT.match(value):
+            raise ValueError("expected mock://..., socket://host:port or a serial device path")
+        return value
+
+
+class ProgramState(BaseModel):
+    job_id: str | None
+    line: int | None
+    total: int | None
+
+
+class MachineOut(BaseModel):
+    id: str
+    name: str
+    port: str
+    baudrate: int
+    dialect: str
+    profile: dict[str, Any]
+    mock: dict[str, Any] | None = Field(
+        None, description="mock settings plus, once connected, executed_commands, executed_sha256 "
+        "(API.md's commands_sha256 over what the firmware executed) and deposited_moves")
+    created_at: UtcDatetime
+    state: Literal["disconnected", "idle", "busy", "printing", "paused", "error"]
+    position: list[float] | None
+    program: ProgramState | None
+    firmware: str | None = None
+
+
+class PrintRequest(Strict):
+    program_id: str | None = None
+    job_id: str | None = None
+    artifact: str | None = Field(None, description="artifact name of job_id, e.g. print.gcode")
+
+
+class ProgramOut(BaseModel):
+    id: str
+    name: str
+    lines: int
+    commands: int
+    commands_sha256: str
+    bounds: list[list[float]] | None
+    sha256: str
+    created_at: UtcDatetime

@@ -1,0 +1,129 @@
+"""Machines: register, connect, status, pause/resume, emergency stop, print.
+
+The API process owns the serial ports (and runs the single-thread ``machine`` queue), so
+these endpoints act on the live connection directly.  Nothing here waits behind a
+running program: pause/resume/stop go straight to the machine (stop is out of band).
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from sqlmodel import Session, select
+
+from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.jobs import load_job_out
+from app.api.machine_schemas import MachineCreate, MachineOut, MockSettings, PrintRequest, ProgramState
+from app.api.schemas import JobOut, Page
+from app.errors import InvalidInput
+from app.jobs.runtime import Runtime
+from app.machines import hardware_errors
+from hardware.mock import parse_mock_options
+from app.models import Machine, Part, new_id, utcnow
+from app.records import get_or_404
+
+router = APIRouter(prefix="/api/v1/machines", tags=["machines"])
+
+
+def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
+    live = runtime.machines.get(row.id)
+    state = live.state if live is not None else "disconnected"
+    position = None
+    program = None
+    world = runtime.machines.world(row)
+    if world is not None:
+        position = list(world.position)
+    elif live is not None and state == "idle":
+        with hardware_errors():
+            position = list(live.position())
+    if live is not None and live.progress is not None and state in ("printing", "paused"):
+        executed, total = live.progress
+        program = ProgramState(job_id=runtime.machines.running_job.get(row.id), line=executed, total=total)
+    mock = None
+    if row.mock is not None:
+        mock = dict(row.mock)
+        if world is not None:
+            mock.update(executed_commands=world.executed_count, executed_sha256=world.executed_sha256,
+                        deposited_moves=len(world.deposition_log))
+    return MachineOut(**row.model_dump(exclude={"mock"}), mock=mock, state=state, position=position,
+                      program=program, firmware=live.identity.firmware if live is not None and live.identity else None)
+
+
+@router.post("", status_code=201, dependencies=[Operator])
+def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Register a machine (a real port, socket:// or the mock firmware)."""
+    is_mock = body.port.startswith("mock://")
+    if body.mock is not None and not is_mock:
+        raise InvalidInput("mock settings need a mock:// port", field="mock", value=body.port)
+    if body.mock is not None and body.mock.true_part_id is not None:
+        if session.get(Part, body.mock.true_part_id) is None:
+            raise InvalidInput(f"part {body.mock.true_part_id!r} does not exist", field="mock.true_part_id",
+                               value=body.mock.true_part_id)
+    if is_mock:
+        with hardware_errors():
+            parse_mock_options(body.port.split("?", 1)[1] if "?" in body.port else "")
+    mock = body.mock.model_dump() if body.mock else (MockSettings().model_dump() if is_mock else None)
+    row = Machine(id=new_id("mach"), name=body.name, port=body.port, baudrate=body.baudrate, dialect=body.dialect,
+                  profile=body.profile.model_dump(), mock=mock, created_at=utcnow())
+    session.add(row)
+    session.commit()
+    return machine_out(runtime, row)
+
+
+@router.get("", dependencies=[Viewer])
+def list_machines(runtime: RuntimeDep, session: SessionDep) -> Page[MachineOut]:
+    rows = session.exec(select(Machine).order_by(Machine.created_at)).all()
+    return Page(items=[machine_out(runtime, r) for r in rows], total=len(rows))
+
+
+@router.get("/{machine_id}", dependencies=[Viewer])
+def get_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    return machine_out(runtime, get_or_404(session, Machine, machine_id))
+
+
+@router.post("/{machine_id}/connect", dependencies=[Operator])
+def connect_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Open the port and identify the firmware (503 if unreachable)."""
+    row = get_or_404(session, Machine, machine_id)
+    runtime.machines.connect(row)
+    return machine_out(runtime, row)
+
+
+@router.post("/{machine_id}/disconnect", dependencies=[Operator])
+def disconnect_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    row = get_or_404(session, Machine, machine_id)
+    runtime.machines.disconnect(machine_id)
+    return machine_out(runtime, row)
+
+
+def _act(runtime: Runtime, session: Session, machine_id: str, action: str) -> MachineOut:
+    row = get_or_404(session, Machine, machine_id)
+    machine = runtime.machines.require(machine_id)
+    with hardware_errors():
+        getattr(machine, action)()
+    return machine_out(runtime, row)
+
+
+@router.post("/{machine_id}/pause", dependencies=[Operator])
+def pause_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Stop sending program lines (409 unless printing)."""
+    return _act(runtime, session, machine_id, "pause")
+
+
+@router.post("/{machine_id}/resume", dependencies=[Operator])
+def resume_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    return _act(runtime, session, machine_id, "resume")
+
+
+@router.post("/{machine_id}/stop", dependencies=[Operator])
+def stop_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Emergency stop, out of band (M112 / grbl 0x18); 409 when nothing runs."""
+    return _act(runtime, session, machine_id, "stop")
+
+
+@router.post("/{machine_id}/print", status_code=202, dependencies=[Operator])
+def print_on_machine(machine_id: str, body: PrintRequest, runtime: RuntimeDep, session: SessionDep) -> JobOut:
+    """Start a print job streaming an uploaded program or a job's G-code artifact (409 if busy)."""
+    get_or_404(session, Machine, machine_id)
+    params = {"machine_id": machine_id, **body.model_dump(exclude_none=True)}
+    job = runtime.submit("print", params)
+    return load_job_out(session, job.id)

@@ -1,0 +1,59 @@
+"""Programs: G-code that users bring, stored as blobs with their command digest."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, File, Response, UploadFile
+from sqlalchemy import func
+from sqlmodel import select
+
+from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.machine_schemas import ProgramOut
+from app.api.schemas import Page
+from app.errors import InvalidInput
+from app.jobs.gcode_meta import check_gcode, gcode_meta
+from app.models import Program, new_id, utcnow
+from app.records import get_or_404
+
+router = APIRouter(prefix="/api/v1/programs", tags=["programs"])
+
+
+@router.post("", status_code=201, dependencies=[Operator])
+def upload_program(runtime: RuntimeDep, session: SessionDep,
+                   file: Annotated[UploadFile, File(description="G-code text")]) -> ProgramOut:
+    """Upload a G-code program (422 if it is not G-code text)."""
+    data = file.file.read()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InvalidInput(f"the file is not UTF-8 text (byte {exc.start})", field="file", value=exc.start) from None
+    check_gcode(text)
+    meta = gcode_meta(text)
+    sha = runtime.blobs.put(session, data)
+    program = Program(id=new_id("prog"), name=(file.filename or "program.gcode").rsplit("/", 1)[-1], sha256=sha,
+                      lines=meta["lines"], commands=meta["commands"], commands_sha256=meta["commands_sha256"],
+                      bounds=meta["bounds"], created_at=utcnow())
+    session.add(program)
+    session.commit()
+    return ProgramOut(**program.model_dump())
+
+
+@router.get("", dependencies=[Viewer])
+def list_programs(session: SessionDep, limit: int = 100, offset: int = 0) -> Page[ProgramOut]:
+    total = session.exec(select(func.count()).select_from(Program)).one()
+    rows = session.exec(select(Program).order_by(Program.created_at.desc()).offset(max(offset, 0))
+                        .limit(min(max(limit, 1), 1000))).all()
+    return Page(items=[ProgramOut(**r.model_dump()) for r in rows], total=total)
+
+
+@router.get("/{program_id}", dependencies=[Viewer])
+def get_program(program_id: str, session: SessionDep) -> ProgramOut:
+    return ProgramOut(**get_or_404(session, Program, program_id).model_dump())
+
+
+@router.get("/{program_id}/file", dependencies=[Viewer], responses={200: {"content": {"text/x-gcode": {}}}})
+def download_program(program_id: str, runtime: RuntimeDep, session: SessionDep) -> Response:
+    program = get_or_404(session, Program, program_id)
+    return Response(runtime.blobs.read(program.sha256), media_type="text/x-gcode",
+                    headers={"Content-Disposition": f'attachment; filename="{program.name}"'})

@@ -1,0 +1,132 @@
+"""Job ``print``: stream an uploaded program or a job's G-code artifact to a machine.
+
+Cancel ends the program after the commands in flight; pause/resume act on the machine.
+When the link drops mid-program the job reconnects (up to ``reconnect_attempts``) and
+resumes from the first command not known to be executed (``Machine.resume_line``).
+"""
+
+from __future__ import annotations
+
+import time
+
+from pydantic import Field, model_validator
+from sqlmodel import Session, select
+
+from app.errors import Cancelled, InvalidInput
+from app.jobs.context import JobContext
+from app.jobs.gcode_meta import check_gcode, gcode_meta
+from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
+from app.jobs.registry import JobParams, job_kind
+from app.machines import MachineUnavailable, hardware_errors
+from app.models import Artifact, Program
+from app.records import get_or_404
+from hardware.errors import LinkError
+
+PROGRESS_INTERVAL_S = 0.25
+GCODE_MEDIA_TYPE = "text/x-gcode"
+
+
+class PrintParams(JobParams):
+    machine_id: str
+    program_id: str | None = None
+    job_id: str | None = None
+    artifact: str | None = Field(None, description="artifact of job_id to print, e.g. print.gcode")
+    reconnect_attempts: int = Field(3, ge=0, le=20)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "PrintParams":
+        if (self.program_id is None) == (self.job_id is None):
+            raise ValueError("give exactly one of program_id or job_id (+ artifact)")
+        if self.job_id is not None and not self.artifact:
+            raise ValueError("artifact names the job's G-code artifact to print")
+        return self
+
+
+def _check(params: PrintParams, session: Session) -> None:
+    refuse_if_machine_busy(params.machine_id, session)
+    if params.program_id is not None:
+        get_or_404(session, Program, params.program_id, field="params.program_id")
+        return
+    artifact = session.exec(select(Artifact).where(Artifact.job_id == params.job_id,
+                                                   Artifact.name == params.artifact)).first()
+    if artifact is None:
+        raise InvalidInput(f"job {params.job_id!r} has no artifact {params.artifact!r}", field="params.artifact",
+                           value=params.artifact)
+    if artifact.media_type != GCODE_MEDIA_TYPE:
+        raise InvalidInput(f"artifact {params.artifact!r} is {artifact.media_type}, not G-code",
+                           field="params.artifact", value=params.artifact)
+
+
+def _references(params: PrintParams) -> list[tuple[str, str]]:
+    refs = [("machine", params.machine_id)]
+    if params.job_id:
+        refs.append(("job", params.job_id))
+    return refs
+
+
+def _program_text(ctx: JobContext, params: PrintParams) -> str:
+    if params.program_id is not None:
+        with ctx.session() as session:
+            program = get_or_404(session, Program, params.program_id, field="params.program_id")
+        data = ctx.runtime.blobs.read(program.sha256)
+    else:
+        data = ctx.artifact_bytes(params.job_id, params.artifact)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InvalidInput("the artifact is not G-code text", field="params.artifact", value=params.artifact) from None
+    check_gcode(text, field="params.artifact" if params.job_id else "params.program_id")
+    return text
+
+
+@job_kind("print", PrintParams, queue="machine", check=_check, references=_references)
+def run(ctx: JobContext, params: PrintParams) -> dict:
+    """Stream a program to the machine with progress, cancel, and resume after a disconnect."""
+    lines = _program_text(ctx, params).splitlines()
+    meta = gcode_meta("\n".join(lines))
+    machine = connected_machine(ctx, params.machine_id)
+    ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
+    last_report = 0.0
+    cancelled = False
+
+    def on_progress(executed: int, total: int) -> None:
+        nonlocal last_report, cancelled
+        now = time.monotonic()
+        if now - last_report < PROGRESS_INTERVAL_S and executed < total:
+            return
+        last_report = now
+        try:
+            ctx.progress(executed / max(total, 1), f"{executed}/{total} commands")
+        except Cancelled:
+            if not cancelled:
+                cancelled = True
+                machine.cancel()
+
+    start_line, reconnects = 0, 0
+    try:
+        while True:
+            try:
+                with hardware_errors():
+                    report = machine.stream(lines, on_progress=on_progress, start_line=start_line)
+                break
+            except MachineUnavailable as exc:
+                if not isinstance(exc.__cause__, LinkError) or reconnects >= params.reconnect_attempts:
+                    raise
+                reconnects += 1
+                ctx.progress(ctx_fraction(machine), f"link lost; reconnecting ({reconnects})")
+                time.sleep(0.2 * reconnects)
+                machine = connected_machine(ctx, params.machine_id)
+                with hardware_errors():
+                    start_line = machine.resume_line()
+    finally:
+        ctx.runtime.machines.running_job.pop(params.machine_id, None)
+    if cancelled or report.cancelled:
+        raise Cancelled(f"print cancelled after {report.executed} of {report.total} commands",
+                        field="job_id", value=ctx.job_id)
+    return {"executed": report.executed, "total": report.total, "reconnects": reconnects,
+            "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
+
+
+def ctx_fraction(machine) -> float:  # type: ignore[no-untyped-def]
+    executed, total = machine.progress or (0, 1)
+    return executed / max(total, 1)

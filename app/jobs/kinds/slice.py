@@ -1,0 +1,180 @@
+"""Job ``slice``: a part into layers of closed rings (seed S4), with SLC/CLI/JSON/SVG exports.
+
+Beam (track-width) compensation is chosen by ``beam``: ``none``; ``seed_haz`` - the seed
+S4 heat-affected widths (21 / 23 / 24 / 25.5 / 28 um at 20 / 25 / 30 / 35 / 40 um layers,
+interpolated linearly in each layer's thickness, end values outside); ``table`` - the
+caller's own ``beam_table``; or a constant inward ``offset_mm`` (with ``beam: none``).
+Compensated contours are what every artifact carries (the SLC table's compensation
+entry is then 0).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from sqlmodel import Session
+
+from app.jobs.context import JobContext
+from app.jobs.registry import JobParams, job_kind
+from app.models import Part
+from app.records import get_or_404
+from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
+from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
+
+MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at submission)
+_CORE = SliceParams()
+_SLC = SlcOptions()
+
+Thickness = Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)]
+Width = Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)]
+
+
+class BeamTable(BaseModel):
+    """Compensation width per layer thickness (ascending thicknesses, one width each)."""
+
+    model_config = ConfigDict(extra="forbid")
+    thickness_mm: list[Thickness] = Field(min_length=1, max_length=64, description="layer thicknesses, mm, ascending")
+    width_mm: list[Width] = Field(min_length=1, max_length=64, description="inward contour offset at each thickness, mm")
+
+    @model_validator(mode="after")
+    def _ascending_pairs(self) -> "BeamTable":
+        if len(self.thickness_mm) != len(self.width_mm):
+            raise ValueError("beam_table needs one width_mm per thickness_mm")
+        if any(b <= a for a, b in zip(self.thickness_mm, self.thickness_mm[1:])):
+            raise ValueError("beam_table.thickness_mm must be strictly ascending")
+        return self
+
+
+class SliceJobParams(JobParams):
+    part_id: str
+    mode: Literal["uniform", "area", "cavity", "cusp"] = Field(
+        "uniform", description="uniform: ceil(H / layer_mm) layers; area: the seed S4 area-deviation rule "
+        "(eps0, l_min, l_max); cavity: S4 multi-cavity refinement (adds sigma0, mu0, mu1); cusp: our "
+        "cusp-height rule (cusp_mm, l_min, l_max)")
+    layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False, description="uniform layer thickness, mm")
+    l_min: float = Field(_CORE.l_min, gt=0, le=100, allow_inf_nan=False, description="thinnest adaptive layer, mm")
+    l_max: float = Field(_CORE.l_max, gt=0, le=100, allow_inf_nan=False, description="thickest adaptive layer, mm")
+    eps0: float = Field(_CORE.eps0, ge=0, le=10, allow_inf_nan=False,
+                        description="allowed relative area change between layers (S4)")
+    sigma0: float = Field(_CORE.sigma0, ge=0, le=1, allow_inf_nan=False,
+                          description="S4 inner-area ratio threshold sum(A_in)/A_out")
+    mu0: float = Field(_CORE.mu0, ge=0, le=1, allow_inf_nan=False, description="S4 lower mean inner ratio")
+    mu1: float = Field(_CORE.mu1, ge=0, le=1, allow_inf_nan=False, description="S4 upper mean inner ratio")
+    theta_rule: Literal["indicator", "printed"] = Field(
+        _CORE.theta_rule, description="S4 theta: indicator (sigma >= sigma0, the seed's text) or the printed formula")
+    step9_resets_to_lmax: bool = Field(
+        _CORE.step9_resets_to_lmax, description="read S4 step 9 literally (non-cavity layers always l_max)")
+    seed_sample: Literal["top", "mid"] = Field(
+        _CORE.seed_sample, description="area/cavity modes: contour at the layer top (as published) or mid-height")
+    cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False, description="allowed cusp height (cusp mode), mm")
+    repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it")
+    beam: Literal["none", "seed_haz", "table"] = Field(
+        "none", description="beam compensation: none, seed_haz (seed S4 heat-affected widths 21-28 um for "
+        "20-40 um layers, linear in thickness) or table (beam_table)")
+    beam_table: BeamTable | None = Field(None, description="own compensation table (beam: table)")
+    offset_mm: float | None = Field(None, ge=0, le=10, allow_inf_nan=False,
+                                    description="constant inward contour offset, mm (with beam: none)")
+    slc_quantum_mm: float = Field(_SLC.quantum_mm, gt=0, le=1, allow_inf_nan=False,
+                                  description="SLC thickness grid: adaptive thicknesses are rounded to it")
+    svg_layer: int | None = Field(None, ge=0, description="layer drawn in layer.svg (default: the middle one)")
+
+    def core(self) -> SliceParams:
+        """The pure core's parameters."""
+        return SliceParams(mode=self.mode, layer_mm=self.layer_mm, l_min=self.l_min, l_max=self.l_max,
+                           eps0=self.eps0, sigma0=self.sigma0, mu0=self.mu0, mu1=self.mu1,
+                           theta_rule=self.theta_rule, step9_resets_to_lmax=self.step9_resets_to_lmax,
+                           cusp_mm=self.cusp_mm, seed_sample=self.seed_sample, repair=self.repair,
+                           max_layers=MAX_LAYERS)
+
+    def beam_compensation(self) -> BeamWidthTable | float | None:
+        """What :func:`compensate_beam` gets (None: no compensation)."""
+        if self.beam == "seed_haz":
+            return SEED_HAZ_TABLE
+        if self.beam == "table" and self.beam_table is not None:
+            return BeamWidthTable(tuple(self.beam_table.thickness_mm), tuple(self.beam_table.width_mm))
+        return self.offset_mm
+
+
+def _most_layers(height_mm: float, params: SliceJobParams) -> int:
+    """An upper bound of the layer count: every layer but the last is >= the thinnest step."""
+    thinnest = params.layer_mm if params.mode == "uniform" else params.l_min
+    return max(1, math.ceil(height_mm / thinnest - 1e-9))
+
+
+def _check(params: SliceJobParams, session: Session) -> None:
+    """Cross-field rules and the part's height and watertightness, before anything is queued."""
+    params.core().validate()  # names params.l_min, params.mu0 ... (SlicingError, 422)
+    if params.offset_mm is not None and params.beam != "none":
+        raise SlicingError(f"offset_mm is a constant beam offset; it cannot be combined with beam={params.beam!r}",
+                           field="params.offset_mm", value=params.offset_mm)
+    if (params.beam == "table") != (params.beam_table is not None):
+        raise SlicingError("beam_table is required with beam: table and only then",
+                           field="params.beam_table", value=params.beam)
+    part = get_or_404(session, Part, params.part_id, field="params.part_id")
+    if not part.watertight and not params.repair:
+        raise SlicingError("the part's mesh is not watertight; slice it with repair: true or upload a closed mesh",
+                           field="params.repair", value=False)
+    height = float(part.bounds[1][2]) - float(part.bounds[0][2])
+    most = _most_layers(height, params)
+    if most > MAX_LAYERS:
+        step = "params.layer_mm" if params.mode == "uniform" else "params.l_min"
+        raise SlicingError(f"a {height:.6g} mm tall part could need {most} layers; at most {MAX_LAYERS} "
+                           f"(use thicker layers)", field=step, value=getattr(params, step.split(".")[1]))
+    if params.svg_layer is not None and params.svg_layer >= most:
+        raise SlicingError(f"svg_layer {params.svg_layer} does not exist: this part gets at most {most} layers",
+                           field="params.svg_layer", value=params.svg_layer)
+
+
+def _layer_row(layer, beam_offset_mm: float | None) -> dict:
+    row = {"index": layer.index, "z": layer.z_top, "z_bottom": layer.z_bottom, "z_sample": layer.z_sample,
+           "thickness": layer.thickness, "area_mm2": layer.area, "rings": layer.ring_count,
+           "inner_rings": layer.inner_ring_count, "sigma": layer.sigma, "mu": layer.mu, "eps": layer.eps,
+           "reason": layer.reason}
+    if beam_offset_mm is not None:
+        row["beam_offset_mm"] = beam_offset_mm
+    return row
+
+
+@job_kind("slice", SliceJobParams, references=lambda p: [("part", p.part_id)], check=_check)
+def run(ctx: JobContext, params: SliceJobParams) -> dict:
+    """Slice a part into layers (uniform, S4 area / multi-cavity adaptive, or cusp) and export them."""
+    mesh = ctx.mesh(params.part_id)
+    ctx.progress(0.05, f"slicing {len(mesh.faces)} faces ({params.mode})")
+    sliced = slice_mesh(mesh, params.core())
+    beam = params.beam_compensation()
+    widths: list[float | None] = [None] * len(sliced.layers)
+    if beam is not None:
+        ctx.progress(0.5, f"beam compensation of {len(sliced.layers)} layers")
+        sliced = compensate_beam(sliced, beam)
+        table = beam if isinstance(beam, BeamWidthTable) else BeamWidthTable((1.0,), (float(beam),))
+        widths = [table.width(layer.thickness) for layer in sliced.layers]
+    ctx.progress(0.7, "writing SLC, CLI, JSON and SVG")
+    slc = to_slc(sliced, SlcOptions(quantum_mm=params.slc_quantum_mm))
+    ctx.artifact("layers.slc", slc.data, "application/octet-stream",
+                 {"layers": len(sliced.layers), "sampling_table_entries": len(slc.table)})
+    ctx.artifact("layers.cli", to_cli(sliced).encode(), "text/plain", {"layers": len(sliced.layers)})
+    ctx.artifact("layers.json", to_json(sliced).encode(), "application/json", {"layers": len(sliced.layers)})
+    notes = list(sliced.notes) + list(slc.notes)
+    svg_index = len(sliced.layers) // 2 if params.svg_layer is None else params.svg_layer
+    if svg_index >= len(sliced.layers):
+        notes.append(f"svg_layer {svg_index} is beyond the {len(sliced.layers)} layers; layer.svg shows the last one")
+        svg_index = len(sliced.layers) - 1
+    chosen = sliced.layers[svg_index]
+    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml",
+                 {"layer": svg_index, "z": chosen.z_top})
+    return {
+        "mode": params.mode,
+        "layer_count": len(sliced.layers),
+        "z_min": sliced.z_min,
+        "z_max": sliced.z_max,
+        "volume_mm3": sliced.volume,
+        "repairs": list(sliced.repairs),
+        "notes": notes,
+        "beam": {"kind": "offset_mm" if params.beam == "none" and beam is not None else params.beam,
+                 "offset_mm": params.offset_mm},
+        "slc": {"quantum_mm": params.slc_quantum_mm, "sampling_table": [list(row) for row in slc.table]},
+        "svg": {"layer": svg_index, "z": chosen.z_top, "artifact": "layer.svg"},
+        "layers": [_layer_row(layer, w) for layer, w in zip(sliced.layers, widths)],
+    }

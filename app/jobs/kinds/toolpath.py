@@ -1,0 +1,164 @@
+"""Job ``toolpath``: fill paths for the layers of a slice job, G-code and its print time (seed S5).
+
+The layers come from the slice job's ``layers.json`` artifact (exactly the contours that
+job exported, beam compensation included); nothing is re-sliced.  ``time_s`` is the
+estimate of the written ``print.gcode`` by :func:`app.gcode.estimator.estimate_gcode` with
+the machine limits below (so anyone can re-run it on the downloaded file);
+``planner_time_s`` is the fill planner's own estimate of the extruded and travel moves
+alone (no retracts, homing or start section).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Annotated, Literal
+
+from pydantic import Field
+from sqlmodel import Session
+
+from app.gcode.estimator import MachineLimits, estimate_gcode
+from app.gcode.fdm import FdmParams, write_fdm_gcode
+from app.jobs.context import JobContext
+from app.jobs.gcode_meta import gcode_meta
+from app.jobs.registry import JobParams, job_kind
+from app.models import Job
+from app.records import get_or_404
+from app.slicing import SlicingError, ToolpathParams, plan_toolpath
+from app.slicing.export import from_json
+from app.slicing.fractal import MergeWeights
+
+MM_MIN_PER_MM_S = 60.0
+_FILL = ToolpathParams()
+_LIMITS = MachineLimits()
+_FDM = FdmParams()
+_WEIGHTS = MergeWeights()
+
+Speed = Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)]
+Accel = Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)]
+Command = Annotated[str, Field(min_length=1, max_length=60, pattern=r"^[A-Za-z0-9 .\-]+$")]
+
+
+def _mm_min(mm_s: float) -> float:
+    return mm_s * MM_MIN_PER_MM_S
+
+
+class ToolpathJobParams(JobParams):
+    slice_job_id: str = Field(description="a succeeded slice job; its layers.json is filled")
+    pattern: Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"] = Field(
+        "raster", description="raster (zigzag), lines (raster without links), contour (offsets), zone (partition "
+        "scanning), hilbert (plain fractal), hilbert_merged (seed S5 improved fractal: one circuit)")
+    line_width_mm: float = Field(_FILL.line_width_mm, gt=0, le=20, allow_inf_nan=False, description="bead width, mm")
+    nozzle_mm: float = Field(_FILL.nozzle_mm, gt=0, le=20, allow_inf_nan=False, description="nozzle diameter, mm")
+    layer_height_mm: float | None = Field(None, gt=0, le=20, allow_inf_nan=False,
+                                          description="bead height for E; default each layer's thickness")
+    infill: float = Field(_FILL.infill, gt=0, le=1, allow_inf_nan=False, description="infill density (0, 1]")
+    perimeters: int = Field(_FILL.perimeters, ge=0, le=100, description="closed loops inside each ring")
+    angle_deg: float = Field(_FILL.angle_deg, ge=-360, le=360, allow_inf_nan=False, description="raster angle, deg")
+    angle_step_deg: float = Field(_FILL.angle_step_deg, ge=-360, le=360, allow_inf_nan=False,
+                                  description="raster angle change per layer, deg")
+    print_feed_mm_min: Speed = Field(_mm_min(_FILL.print_feed_mm_s), description="infill feed, mm/min")
+    perimeter_feed_mm_min: Speed = Field(_mm_min(_FILL.perimeter_feed_mm_s), description="perimeter feed, mm/min")
+    travel_feed_mm_min: Speed = Field(_mm_min(_FILL.travel_feed_mm_s), description="travel feed, mm/min")
+    filament_mm: float = Field(_FILL.filament_mm, gt=0, le=10, allow_inf_nan=False, description="filament diameter, mm")
+    turn_threshold_deg: float = Field(_FILL.turn_threshold_deg, ge=0, le=180, allow_inf_nan=False,
+                                      description="direction changes above this count as turns, deg")
+    merge_weight_along: float = Field(_WEIGHTS.along, ge=0, le=1000, allow_inf_nan=False,
+                                      description="hilbert_merged: weight of merging along the layer direction")
+    merge_weight_across: float = Field(_WEIGHTS.across, ge=0, le=1000, allow_inf_nan=False,
+                                       description="hilbert_merged: weight of merging across it")
+    accel_mm_s2: Accel = Field(_LIMITS.accel_mm_s2, description="printing acceleration (M204 P), mm/s^2")
+    travel_accel_mm_s2: Accel = Field(_LIMITS.travel_accel_mm_s2, description="travel acceleration (M204 T)")
+    retract_accel_mm_s2: Accel = Field(_LIMITS.retract_accel_mm_s2, description="retract acceleration (M204 R)")
+    junction_deviation_mm: float = Field(_LIMITS.junction_deviation_mm, ge=0, le=10, allow_inf_nan=False,
+                                         description="Marlin junction deviation (M205 J), mm")
+    max_feed_mm_s: tuple[Speed, Speed, Speed, Speed] = Field(_LIMITS.max_feed_mm_s,
+                                                             description="axis feed limits X Y Z E (M203), mm/s")
+    max_accel_mm_s2: tuple[Accel, Accel, Accel, Accel] = Field(_LIMITS.max_accel_mm_s2,
+                                                               description="axis acceleration limits X Y Z E (M201)")
+    dialect: Literal["marlin", "grbl"] = Field(_FDM.dialect, description="G-code dialect (extrude needs marlin)")
+    mode: Literal["extrude", "dispense"] = Field(_FDM.mode, description="E-axis extrusion or dispenser on/off")
+    nozzle_temp_c: float = Field(_FDM.nozzle_temp_c, ge=0, le=500, allow_inf_nan=False, description="extrude, deg C")
+    bed_temp_c: float = Field(_FDM.bed_temp_c, ge=0, le=200, allow_inf_nan=False, description="extrude, deg C")
+    retract_mm: float = Field(_FDM.retract_mm, ge=0, le=50, allow_inf_nan=False, description="retraction length, mm")
+    retract_feed_mm_min: Speed = Field(_mm_min(_FDM.retract_feed_mm_s), description="retraction feed, mm/min")
+    z_lift_mm: float = Field(_FDM.z_lift_mm, ge=0, le=50, allow_inf_nan=False, description="lift during travel, mm")
+    min_travel_for_retract_mm: float = Field(_FDM.min_travel_for_retract_mm, ge=0, le=1000, allow_inf_nan=False,
+                                             description="retract only before longer travels, mm")
+    home: bool = Field(_FDM.home, description="home (G28) in the start section")
+    dispense_on: Command | None = Field(None, description="dispense mode: on command (default M106 S255 / M8)")
+    dispense_off: Command | None = Field(None, description="dispense mode: off command (default M107 / M9)")
+
+    def limits(self) -> MachineLimits:
+        return MachineLimits(accel_mm_s2=self.accel_mm_s2, travel_accel_mm_s2=self.travel_accel_mm_s2,
+                             retract_accel_mm_s2=self.retract_accel_mm_s2,
+                             junction_deviation_mm=self.junction_deviation_mm,
+                             max_feed_mm_s=tuple(self.max_feed_mm_s), max_accel_mm_s2=tuple(self.max_accel_mm_s2))
+
+    def fill(self) -> ToolpathParams:
+        return ToolpathParams(
+            pattern=self.pattern, line_width_mm=self.line_width_mm, nozzle_mm=self.nozzle_mm,
+            layer_height_mm=self.layer_height_mm, infill=self.infill, perimeters=self.perimeters,
+            angle_deg=self.angle_deg, angle_step_deg=self.angle_step_deg,
+            print_feed_mm_s=self.print_feed_mm_min / MM_MIN_PER_MM_S,
+            perimeter_feed_mm_s=self.perimeter_feed_mm_min / MM_MIN_PER_MM_S,
+            travel_feed_mm_s=self.travel_feed_mm_min / MM_MIN_PER_MM_S, filament_mm=self.filament_mm,
+            turn_threshold_deg=self.turn_threshold_deg, limits=self.limits(),
+            merge_weights=MergeWeights(along=self.merge_weight_along, across=self.merge_weight_across))
+
+    def fdm(self, job_id: str | None) -> FdmParams:
+        return FdmParams(dialect=self.dialect, mode=self.mode, job_id=job_id, nozzle_temp_c=self.nozzle_temp_c,
+                         bed_temp_c=self.bed_temp_c, retract_mm=self.retract_mm,
+                         retract_feed_mm_s=self.retract_feed_mm_min / MM_MIN_PER_MM_S, z_lift_mm=self.z_lift_mm,
+                         min_travel_for_retract_mm=self.min_travel_for_retract_mm, home=self.home,
+                         dispense_on=self.dispense_on, dispense_off=self.dispense_off)
+
+
+def _check(params: ToolpathJobParams, session: Session) -> None:
+    """The slice job must be a succeeded slice job; extrusion needs the marlin dialect."""
+    job = get_or_404(session, Job, params.slice_job_id, field="params.slice_job_id")
+    if job.kind != "slice" or job.status != "succeeded":
+        raise SlicingError(f"job {job.id!r} is a {job.status} {job.kind} job; a succeeded slice job is needed "
+                           f"(submit the toolpath once the slice has succeeded)",
+                           field="params.slice_job_id", value=job.id)
+    if params.mode == "extrude" and params.dialect != "marlin":
+        raise SlicingError("extrusion (E axis) output needs the marlin dialect; use mode: dispense on grbl",
+                           field="params.dialect", value=params.dialect)
+    params.fill().validate()
+
+
+def _per_layer(toolpath, layer_times: tuple[float, ...]) -> list[dict]:
+    return [{"index": lay.index, "z": lay.z, "thickness": lay.thickness, "path_mm": lay.stats.path_mm,
+             "travel_mm": lay.stats.travel_mm, "turns": lay.stats.turns, "jumps": lay.stats.jumps,
+             "time_s": layer_times[lay.index] if lay.index < len(layer_times) else 0.0,
+             "planner_time_s": lay.stats.time_s, "pieces": len(lay.pieces)}
+            for lay in toolpath.layers]
+
+
+@job_kind("toolpath", ToolpathJobParams, references=lambda p: [("job", p.slice_job_id)], check=_check)
+def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
+    """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
+    slice_job = ctx.job(params.slice_job_id, kind="slice", field="params.slice_job_id")
+    sliced = from_json(ctx.artifact_bytes(slice_job.id, "layers.json"))
+    ctx.progress(0.1, f"filling {len(sliced.layers)} layers ({params.pattern})")
+    toolpath = plan_toolpath(sliced, params.fill())
+    ctx.progress(0.7, "writing G-code")
+    gcode = write_fdm_gcode(toolpath, params.fdm(ctx.job_id))
+    limits = params.limits()
+    estimate = estimate_gcode(gcode, limits)
+    meta = gcode_meta(gcode)
+    ctx.artifact("print.gcode", gcode.encode(), "text/x-gcode", meta)
+    totals = toolpath.totals
+    return {
+        "time_s": estimate.total_s,
+        "planner_time_s": totals.time_s,
+        "estimator": {"name": "app.gcode.estimator.estimate_gcode (marlin-jd, full lookahead)",
+                      "description": toolpath.estimator, "limits": dataclasses.asdict(limits)},
+        "pattern": params.pattern,
+        "layer_count": len(toolpath.layers),
+        "path_mm": totals.path_mm,
+        "travel_mm": totals.travel_mm,
+        "turns": totals.turns,
+        "jumps": totals.jumps,
+        "program": meta,
+        "layers": _per_layer(toolpath, estimate.layer_times),
+    }

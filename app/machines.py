@@ -1,0 +1,174 @@
+"""Live machine connections of this process (the one that owns the serial ports).
+
+A registered machine is a row; connecting builds a :class:`hardware.machine.Machine`
+from it.  For ``mock://`` ports the mock firmware's world is built from the row's
+``mock`` settings: the true part is the stored mesh of ``true_part_id`` with its rigid
+placement, probe noise, timing and faults.  Hardware errors are translated into the
+service's error family here, so routers and jobs only see :mod:`app.errors`.
+"""
+
+from __future__ import annotations
+
+import threading
+from contextlib import contextmanager
+from typing import Any
+from urllib.parse import urlsplit
+
+from hardware.errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineBusy,
+                             MachineStateError, ProbeFailed, ProtocolError)
+from hardware.machine import Machine, MachineProfile
+from hardware.mock import FaultConfig, MockWorld, Placement, register_world, unregister_world
+
+from app.errors import Conflict, ConformaError, InvalidInput
+from app.models import Machine as MachineRow
+
+
+class MachineUnavailable(ConformaError):
+    """The port cannot be reached or the firmware does not answer (503)."""
+
+    status = 503
+    title = "Machine unavailable"
+
+
+class MachineFault(ConformaError):
+    """The firmware rejected a command, halted, or answered nonsense (502)."""
+
+    status = 502
+    title = "Machine fault"
+
+
+class ProbeMissed(InvalidInput):
+    """The probe reached its lower limit without touching anything."""
+
+
+def translate(exc: HardwareError) -> ConformaError:
+    """The service error for a hardware error (message, field and value kept)."""
+    field = getattr(exc, "field", None)
+    value = getattr(exc, "value", None)
+    kind: type[ConformaError]
+    if isinstance(exc, (MachineBusy, MachineStateError)):
+        kind = Conflict
+    elif isinstance(exc, InvalidConfig):
+        kind = InvalidInput
+    elif isinstance(exc, ProbeFailed):
+        kind = ProbeMissed
+    elif isinstance(exc, LinkError):
+        kind = MachineUnavailable
+    elif isinstance(exc, (FirmwareError, ProtocolError)):
+        kind = MachineFault
+    else:
+        kind = MachineFault
+    return kind(str(exc), field=field, value=value)
+
+
+@contextmanager
+def hardware_errors():  # type: ignore[no-untyped-def]
+    """Re-raise hardware errors as service errors."""
+    try:
+        yield
+    except HardwareError as exc:
+        raise translate(exc) from exc
+
+
+def profile_of(row: MachineRow) -> MachineProfile:
+    fields = {k: v for k, v in (row.profile or {}).items() if k in MachineProfile.__dataclass_fields__}
+    with hardware_errors():
+        return MachineProfile(**fields)
+
+
+def port_url(row: MachineRow) -> str:
+    """The URL to open: ``mock://`` ports get the machine's own world name."""
+    parts = urlsplit(row.port)
+    if parts.scheme == "mock":
+        query = f"?{parts.query}" if parts.query else ""
+        return f"mock://{row.id}{query}"
+    return row.port
+
+
+class MachineManager:
+    """Machine objects by id; builds mock worlds; one lock per registry change."""
+
+    def __init__(self, load_mesh: Any) -> None:
+        self._machines: dict[str, Machine] = {}
+        self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it
+        self._lock = threading.Lock()
+        self._load_mesh = load_mesh  # part_id -> trimesh
+
+    def get(self, machine_id: str) -> Machine | None:
+        with self._lock:
+            return self._machines.get(machine_id)
+
+    def require(self, machine_id: str) -> Machine:
+        machine = self.get(machine_id)
+        if machine is None or machine.state == "disconnected":
+            raise Conflict(f"machine {machine_id!r} is not connected", field="machine_id", value=machine_id)
+        return machine
+
+    def world(self, row: MachineRow) -> MockWorld | None:
+        """The mock world of a mock machine (None for real ports)."""
+        if urlsplit(row.port).scheme != "mock":
+            return None
+        from hardware.mock import get_world
+
+        try:
+            return get_world(row.id)
+        except KeyError:
+            return None
+
+    def _build_world(self, row: MachineRow) -> None:
+        mock = row.mock or {}
+        placement = mock.get("placement") or {}
+        faults = mock.get("faults") or {}
+        true_part_id = mock.get("true_part_id")
+        profile = row.profile or {}
+        world = MockWorld(
+            true_part=self._load_mesh(true_part_id) if true_part_id else None,
+            placement=Placement(**placement),
+            probe_noise_mm=float(mock.get("probe_noise_mm", 0.0)),
+            seed=int(faults.get("seed", mock.get("seed", 0))),
+            dialect=row.dialect,
+            time_scale=float(mock.get("time_scale", 0.0)),
+            faults=FaultConfig(**faults),
+            dispense_on=profile.get("dispense_on"),
+            dispense_off=profile.get("dispense_off"),
+        )
+        register_world(row.id, world)
+
+    def connect(self, row: MachineRow) -> Machine:
+        """Connect (again) and identify; the mock world is kept across reconnects."""
+        with self._lock:
+            machine = self._machines.get(row.id)
+            if machine is None:
+                with hardware_errors():
+                    if urlsplit(row.port).scheme == "mock" and self.world(row) is None:
+                        self._build_world(row)
+                    machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
+                                      boot_wait_s=0.0 if row.port.startswith("mock://") else 2.0)
+                self._machines[row.id] = machine
+        with hardware_errors():
+            machine.connect()
+        return machine
+
+    def disconnect(self, machine_id: str) -> None:
+        machine = self.get(machine_id)
+        if machine is not None:
+            with hardware_errors():
+                machine.disconnect()
+
+    def forget(self, machine_id: str) -> None:
+        with self._lock:
+            machine = self._machines.pop(machine_id, None)
+        if machine is not None and machine.state != "disconnected":
+            machine.disconnect()
+        unregister_world(machine_id)
+
+    def close_all(self) -> None:
+        with self._lock:
+            machines = list(self._machines.values())
+        for machine in machines:
+            try:
+                if machine.state != "disconnected":
+                    machine.disconnect()
+            except HardwareError:
+                pass
+

@@ -1,0 +1,473 @@
+"""A printer as one object: connect/identify, home, move, probe, stream programs with
+pause/resume/cancel, emergency stop, and resume after a disconnect.
+
+    machine = Machine("mock://bench", "marlin", MachineProfile(dispense_on="M106"))
+    identity = machine.connect()
+    machine.home()
+    point = machine.probe(10.0, 20.0)                 # ProbeResult(x, y, z) or ProbeFailed
+    report = machine.stream(lines, on_progress=cb)    # cb(executed, total)
+    ...
+    except LinkError as exc:                          # USB dropped mid-program
+        machine.connect()
+        machine.stream(lines, start_line=machine.resume_line())
+
+The service maps this 1:1: ``connect``/``disconnect``/``status()``/``pause``/``resume``/
+``stop`` endpoints, ``probe_run`` calls ``probe`` per point, ``print`` calls ``stream``
+from its single-worker queue; ``MachineBusy``/``MachineStateError`` become 409,
+``InvalidConfig`` 422, ``LinkError``/``FirmwareError`` 502/503.
+
+Indices count *commands* (normalised, non-empty lines: the same list ``commands_sha256``
+hashes), so ``start_line=n`` skips the first n commands.
+
+What "known executed" means (``resume_line``):
+
+* A command is executed when the firmware acknowledged it as processed (``ok``; Marlin
+  ``ok N<n>`` also covers every earlier line).
+* Marlin, disconnected without a reset: the firmware keeps running what it accepted and
+  keeps its line number.  On reconnect (no ``M110``) the machine sends ``N<next> M114``;
+  the firmware accepts it or answers ``Resend: L+1`` — every line up to L was accepted and
+  Marlin executes every accepted line, so lines <= L count as executed.
+* Marlin after a reset (banner seen, or L went backwards), and grbl always (a disconnect
+  resets an Arduino-based controller and flushes its buffer): only acknowledged lines.
+  The controller lost its position: home before continuing.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
+                     MachineBusy, MachineStateError, ProbeFailed)
+from .events import Capability, FirmwareInfo, PositionReport, ProbeReport, StartBanner
+from .link import CommandResult, Link, PendingCommand
+from .protocol import check_dialect, normalized_commands
+
+STATES = ("disconnected", "idle", "busy", "printing", "paused", "error")
+
+
+@dataclass(frozen=True)
+class MachineProfile:
+    """Machine-specific commands and motion defaults (mm, mm/min)."""
+
+    dispense_on: str = "M106"
+    dispense_off: str = "M107"
+    probe_feed_mm_min: float = 100.0
+    travel_feed_mm_min: float = 3000.0
+    clearance_z: float = 5.0
+    probe_z_min: float = -10.0
+    probe_command: str | None = None   # "G30" | "G38.2"; None: G30 (marlin), G38.2 (grbl)
+    home_command: str | None = None    # None: "G28" (marlin), "$H" (grbl)
+
+    def __post_init__(self) -> None:
+        if self.probe_command not in (None, "G30", "G38.2"):
+            raise InvalidConfig("probe_command must be G30 or G38.2", field="profile.probe_command",
+                                value=self.probe_command)
+        for name in ("probe_feed_mm_min", "travel_feed_mm_min"):
+            if not getattr(self, name) > 0:
+                raise InvalidConfig(f"{name} must be > 0", field=f"profile.{name}",
+                                    value=getattr(self, name))
+        if not self.dispense_on.strip() or not self.dispense_off.strip():
+            raise InvalidConfig("dispense commands must not be empty", field="profile.dispense_on")
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Who answered: firmware name, M115/``$I`` fields, capabilities, start banner."""
+
+    dialect: str
+    firmware: str
+    fields: dict[str, str]
+    capabilities: dict[str, bool]
+    banner: tuple[str, ...]
+    reset_detected: bool
+
+
+@dataclass(frozen=True)
+class ProbeResult:
+    """A measured surface point (mm, machine coordinates)."""
+
+    x: float
+    y: float
+    z: float
+
+
+@dataclass(frozen=True)
+class StreamReport:
+    """Outcome of ``stream``: commands known executed (index of the next one), total,
+    where it started, whether it was cancelled, elapsed seconds, link counters."""
+
+    executed: int
+    total: int
+    start_line: int
+    cancelled: bool
+    elapsed_s: float
+    link_stats: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class _Interrupted:
+    total: int
+    acked_index: int                      # commands [0, acked_index) known processed
+    acked_line_no: int | None
+    inflight: list[tuple[int | None, int]]  # (line number, command index)
+    reset: bool
+
+
+class Machine:
+    """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
+    for a second caller); pause/resume/cancel/stop/status work from any thread."""
+
+    def __init__(self, url: str, dialect: str = "marlin", profile: MachineProfile | None = None,
+                 *, baudrate: int = 115200, window: str = "windowed", timeout_s: float = 30.0,
+                 boot_wait_s: float = 2.0) -> None:
+        self.url = url
+        self.dialect = check_dialect(dialect)
+        self.profile = profile or MachineProfile()
+        self.baudrate = baudrate
+        self.window = window
+        self.timeout_s = timeout_s
+        self.boot_wait_s = boot_wait_s
+        self.link: Link | None = None
+        self.identity: Identity | None = None
+        self.progress: tuple[int, int] | None = None  # (executed, total) of the running program
+        self._state = "disconnected"
+        self._hold = threading.Lock()
+        self._resume_event = threading.Event()
+        self._resume_event.set()
+        self._cancel = False
+        self._interrupted: _Interrupted | None = None
+        self._estopped = False
+
+    # ------------------------------------------------------------------ state
+    @property
+    def state(self) -> str:
+        """disconnected | idle | busy | printing | paused | error."""
+        if self.link is None:
+            return "disconnected"
+        if not self.link.healthy and self._state in ("idle", "busy"):
+            return "error"
+        return self._state
+
+    def _claim(self, state: str) -> None:
+        if self.link is None:
+            raise MachineStateError("machine is not connected", field="state", value="disconnected")
+        if not self._hold.acquire(blocking=False):
+            raise MachineBusy(f"machine is {self._state}", field="state", value=self._state)
+        if self.state == "error":
+            self._hold.release()
+            raise MachineStateError("machine is in error state: reconnect first", field="state",
+                                    value="error")
+        self._state = state
+
+    def _release(self, state: str = "idle") -> None:
+        self._state = state
+        self._hold.release()
+
+    # ------------------------------------------------------------------ connection
+    def connect(self) -> Identity:
+        """Open the port, wait for the boot chatter, number lines (Marlin ``M110 N0``,
+        unless an interrupted program waits for ``resume_line``) and identify."""
+        if self.link is not None:
+            self.disconnect()
+        self.link = Link.open(self.url, baudrate=self.baudrate, dialect=self.dialect,
+                              timeout_s=self.timeout_s, window=self.window)
+        self._state = "busy"
+        self._estopped = False
+        try:
+            banner = self._await_quiet()
+            reset = any(isinstance(e, StartBanner) for e in banner)
+            if self._interrupted is not None and reset:
+                self._interrupted.reset = True
+            if self.dialect == "marlin" and (self._interrupted is None or self._interrupted.reset):
+                self.link.reset_line_numbers(1)
+            self.identity = self._identify(banner, reset)
+        except HardwareError:
+            self._state = "error"
+            raise
+        self._state = "idle"
+        return self.identity
+
+    def _await_quiet(self) -> list:
+        link = self.link
+        deadline = time.monotonic() + self.boot_wait_s
+        seen = 0
+        quiet_since = time.monotonic()
+        while time.monotonic() < deadline:
+            time.sleep(0.02)
+            if len(link.unsolicited) != seen:
+                seen = len(link.unsolicited)
+                quiet_since = time.monotonic()
+            elif time.monotonic() - quiet_since > 0.1:
+                break
+        events = list(link.unsolicited)
+        link.unsolicited.clear()
+        return events
+
+    def _identify(self, banner: list, reset: bool) -> Identity:
+        command = "M115" if self.dialect == "marlin" else "$I"
+        result = self.link.send(command, self.timeout_s)
+        fields: dict[str, str] = {}
+        caps: dict[str, bool] = {}
+        for event in result.events:
+            if isinstance(event, FirmwareInfo):
+                fields.update(event.fields)
+            elif isinstance(event, Capability):
+                caps[event.name] = event.enabled
+        name = (fields.get("FIRMWARE_NAME") or ("grbl " + fields.get("VER", ""))).strip()
+        return Identity(self.dialect, name, fields, caps, tuple(e.raw for e in banner), reset)
+
+    def disconnect(self) -> None:
+        """Close the link (a running program fails with ``LinkError``)."""
+        link, self.link = self.link, None
+        self._cancel = True
+        self._resume_event.set()
+        if link is not None:
+            link.close()
+        self._state = "disconnected"
+
+    # ------------------------------------------------------------------ simple commands
+    def send(self, command: str) -> CommandResult:
+        """Raw console command (blocking; FirmwareError when rejected)."""
+        self._claim("busy")
+        try:
+            return self.link.send(command, self.timeout_s * 10)
+        finally:
+            self._release()
+
+    def _run(self, commands: Iterable[str]) -> list[CommandResult]:
+        return [self.link.send(c, self.timeout_s * 10) for c in commands]
+
+    def home(self) -> tuple[float, float, float]:
+        """Home all axes; returns the position afterwards."""
+        command = self.profile.home_command or ("G28" if self.dialect == "marlin" else "$H")
+        self._claim("busy")
+        try:
+            self._run([command])
+            return self._position()
+        finally:
+            self._release()
+
+    def _wait_motion(self) -> str:
+        return "M400" if self.dialect == "marlin" else "G4 P0"
+
+    def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
+             feed_mm_min: float | None = None) -> tuple[float, float, float]:
+        """Absolute straight move; returns once the motion is finished."""
+        feed = feed_mm_min or self.profile.travel_feed_mm_min
+        words = "".join(f" {a}{v:.4f}" for a, v in zip("XYZ", (x, y, z)) if v is not None)
+        if not words:
+            raise InvalidConfig("move needs at least one of x, y, z", field="move")
+        self._claim("busy")
+        try:
+            self._run(["G90", f"G1{words} F{feed:.1f}", self._wait_motion()])
+            return self._position()
+        finally:
+            self._release()
+
+    def position(self) -> tuple[float, float, float]:
+        """Current position: Marlin ``M114`` (planned), grbl status ``MPos``."""
+        self._claim("busy")
+        try:
+            return self._position()
+        finally:
+            self._release()
+
+    def _position(self) -> tuple[float, float, float]:
+        if self.dialect == "grbl":
+            status = self.link.query_status()
+            return tuple(status.mpos[:3]) if status.mpos else (0.0, 0.0, 0.0)
+        result = self.link.send("M114", self.timeout_s)
+        report = result.payload
+        if not isinstance(report, PositionReport):
+            raise FirmwareError("M114 returned no position", command="M114")
+        return (report.axes.get("X", 0.0), report.axes.get("Y", 0.0), report.axes.get("Z", 0.0))
+
+    def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
+              feed_mm_min: float | None = None) -> ProbeResult:
+        """Travel to (x, y) at ``z_start`` (default clearance), probe down to ``z_min``,
+        retract; ``ProbeFailed`` when nothing is hit (the machine is left idle, unlocked
+        and retracted)."""
+        p = self.profile
+        z_start = p.clearance_z if z_start is None else z_start
+        z_min = p.probe_z_min if z_min is None else z_min
+        feed = feed_mm_min or p.probe_feed_mm_min
+        if z_min >= z_start:
+            raise InvalidConfig("z_min must be below z_start", field="z_min", value=z_min)
+        kind = p.probe_command or ("G30" if self.dialect == "marlin" else "G38.2")
+        travel = p.travel_feed_mm_min
+        self._claim("busy")
+        try:
+            self._run(["G90", f"G1 Z{z_start:.4f} F{travel:.1f}",
+                       f"G1 X{x:.4f} Y{y:.4f} F{travel:.1f}"])
+            command = f"G30 X{x:.4f} Y{y:.4f}" if kind == "G30" else f"G38.2 Z{z_min:.4f} F{feed:.1f}"
+            try:
+                result = self.link.send(command, self.timeout_s * 10)
+            except FirmwareError as exc:
+                self._recover_after_probe(z_start)
+                raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
+                                  f"z={z_min:.3f}: {exc.message}", x=x, y=y, field="probe",
+                                  value=[x, y]) from exc
+            if kind == "G30":
+                report = result.payload
+            elif self.dialect == "grbl":
+                report = result.payload
+            else:
+                position = self._position()
+                report = ProbeReport(*position)
+            if not isinstance(report, ProbeReport) or not report.triggered or report.z < z_min:
+                self._recover_after_probe(z_start)
+                raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
+                                  f"z={z_min:.3f}", x=x, y=y, field="probe", value=[x, y])
+            self._run([f"G1 Z{z_start:.4f} F{travel:.1f}"])
+            return ProbeResult(report.x, report.y, report.z)
+        finally:
+            self._release()
+
+    def _recover_after_probe(self, z_start: float) -> None:
+        if self.dialect == "grbl":
+            self.link.send("$X", self.timeout_s)
+        self._run([f"G1 Z{z_start:.4f} F{self.profile.travel_feed_mm_min:.1f}"])
+
+    # ------------------------------------------------------------------ programs
+    def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
+               start_line: int = 0) -> StreamReport:
+        """Send a program (comments/blank lines dropped) from command ``start_line``.
+
+        Returns when every command is acknowledged, or when cancelled (after the commands
+        in flight were answered).  On ``LinkError`` the machine remembers what is known to
+        be executed (see ``resume_line``) and re-raises."""
+        commands = normalized_commands(lines)
+        total = len(commands)
+        if not 0 <= start_line <= total:
+            raise InvalidConfig(f"start_line must be within 0..{total}", field="start_line",
+                                value=start_line)
+        self._claim("printing")
+        self._cancel = False
+        self._resume_event.set()
+        self._interrupted = None
+        link = self.link
+        started = time.monotonic()
+        inflight: deque[tuple[int, PendingCommand]] = deque()
+        executed = start_line
+        acked_line: int | None = None
+        self.progress = (executed, total)
+        try:
+            for index in range(start_line, total):
+                if not self._resume_event.is_set():
+                    self._state = "paused"
+                    self._resume_event.wait()
+                    self._state = "printing"
+                if self._cancel:
+                    break
+                inflight.append((index, link.send_async(commands[index])))
+                while inflight and inflight[0][1].done():
+                    index_done, pending = inflight[0]
+                    outcome = pending.result()
+                    inflight.popleft()
+                    executed, acked_line = index_done + 1, outcome.line_no
+                    self.progress = (executed, total)
+                    if on_progress is not None:
+                        on_progress(executed, total)
+            while inflight:
+                index_done, pending = inflight[0]
+                outcome = pending.result()
+                inflight.popleft()
+                executed, acked_line = index_done + 1, outcome.line_no
+                self.progress = (executed, total)
+                if on_progress is not None:
+                    on_progress(executed, total)
+        except LinkError as exc:
+            while inflight and inflight[0][1].done() and inflight[0][1].failure is None \
+                    and inflight[0][1].outcome.status != "error":
+                index_done, pending = inflight.popleft()  # answered before the failure
+                executed, acked_line = index_done + 1, pending.outcome.line_no
+            self.progress = (executed, total)
+            self._interrupted = _Interrupted(total, executed, acked_line,
+                                             [(p.line_no, i) for i, p in inflight],
+                                             isinstance(exc, FirmwareReset))
+            self._release("error")
+            exc.resume_line = executed  # lower bound; resume_line() refines it
+            raise
+        except HardwareError:
+            self._interrupted = _Interrupted(total, executed, acked_line, [], True)
+            self._release("error" if not link.healthy or self._estopped else "idle")
+            raise
+        cancelled = self._cancel
+        self._release("idle")
+        return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started,
+                            dict(link.stats))
+
+    def resume_line(self) -> int:
+        """After reconnecting: index of the first command not known to be executed."""
+        gap = self._interrupted
+        if gap is None:
+            raise MachineStateError("no interrupted program to resume", field="state")
+        if self.link is None:
+            raise MachineStateError("connect before resuming", field="state", value="disconnected")
+        if self.dialect == "grbl" or gap.reset or not gap.inflight:
+            return gap.acked_index
+        first_line = gap.inflight[0][0]
+        last = self.link.sync_line_number(first_line)
+        if gap.acked_line_no is not None and last < gap.acked_line_no:
+            self.link.reset_line_numbers(1)  # the firmware restarted meanwhile
+            return gap.acked_index
+        done = [index + 1 for number, index in gap.inflight if number is not None and number <= last]
+        return max([gap.acked_index, *done])
+
+    def pause(self) -> None:
+        """Stop sending program lines (commands already sent still run)."""
+        if self._state != "printing":
+            raise MachineStateError(f"cannot pause while {self.state}", field="state",
+                                    value=self.state)
+        self._resume_event.clear()
+        self._state = "paused"
+
+    def resume(self) -> None:
+        """Continue a paused program."""
+        if self._state != "paused":
+            raise MachineStateError(f"cannot resume while {self.state}", field="state",
+                                    value=self.state)
+        self._state = "printing"
+        self._resume_event.set()
+
+    def cancel(self) -> None:
+        """End the program after the commands in flight (no emergency stop)."""
+        if self._state not in ("printing", "paused"):
+            raise MachineStateError(f"no program to cancel while {self.state}", field="state",
+                                    value=self.state)
+        self._cancel = True
+        self._resume_event.set()
+
+    def stop(self) -> None:
+        """The service's stop: emergency stop while something runs; ``MachineStateError``
+        while idle or disconnected (nothing is sent, the machine stays as it is)."""
+        state = self.state
+        if state not in ("printing", "paused", "busy"):
+            raise MachineStateError(f"nothing to stop: machine is {state}", field="state",
+                                    value=state)
+        self.emergency_stop()
+
+    def emergency_stop(self) -> None:
+        """Out-of-band emergency stop (M112 / 0x18) whatever runs; the machine goes to
+        ``error`` (Marlin halts until reconnected; grbl resets)."""
+        if self.link is None:
+            raise MachineStateError("machine is not connected", field="state", value="disconnected")
+        self._cancel = True
+        self._estopped = True
+        self._resume_event.set()
+        self.link.emergency_stop()
+        self._state = "error"
+
+    def status(self) -> dict:
+        """JSON-friendly snapshot for the API (state, identity, program progress)."""
+        executed, total = self.progress or (None, None)
+        return {"state": self.state, "dialect": self.dialect, "url": self.url,
+                "firmware": self.identity.firmware if self.identity else None,
+                "program": None if self.progress is None or self.state not in ("printing", "paused")
+                else {"line": executed, "total": total},
+                "link": dict(self.link.stats) if self.link else None,
+                "fallbacks": list(self.link.fallbacks) if self.link else []}

@@ -1,0 +1,326 @@
+"""Mock firmware core shared by the Marlin and grbl personalities.
+
+A discrete-event model of a controller, driven by ``advance(now)``:
+
+* the wire: bytes written by the host arrive one by one at the baud rate (10 bits per
+  byte) plus a link latency; they land in an RX buffer of ``rx_buffer`` bytes (overflowing
+  bytes are lost, as on a UART without flow control);
+* the command path (dialect specific, see ``marlin.py``/``grbl.py``) takes complete lines
+  out of RX, checks them and executes them one by one;
+* commands run as generators that yield what they wait for: a time, a free planner block,
+  or an empty planner (``M400``); moves become planner blocks of constant speed
+  (``length / feed``); the "stepper" retires blocks at their end time;
+* replies leave through the same kind of wire (baud + latency) into the port's buffer.
+
+Times are real seconds: every modelled duration is multiplied by ``time_scale``
+(1 = real time, 0 = as fast as possible, everything instantaneous).
+"""
+
+from __future__ import annotations
+
+import random
+import re
+from collections import deque
+from collections.abc import Generator
+from typing import Any
+
+import numpy as np
+
+from ..protocol import normalize_command
+from .surface import PlacedSurface
+from .world import HOST_QUERIES, DepositedMove, MockWorld
+
+_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+KEEPALIVE_S = 2.0
+SLOW_S = 2.5
+UNDERRUN_WINDOW_S = 0.2
+
+Wait = tuple  # ("until", t) | ("slot",) | ("drain",)
+
+
+def split_words(command: str) -> tuple[str, dict[str, float]]:
+    """``"G1 X1 Y2"`` -> ``("G1", {"X": 1.0, "Y": 2.0})``; the head is upper-cased."""
+    words = _WORD.findall(command)
+    if not words or not command.lstrip()[:1].isalpha():
+        return command.strip().upper(), {}
+    letter, number = words[0]
+    head = f"{letter.upper()}{number.lstrip('+')}"
+    if "." in head:
+        head = head.rstrip("0").rstrip(".") if head.split(".")[1].strip("0") == "" else head
+    params = {}
+    for letter, number in words[1:]:
+        params[letter.upper()] = float(number)
+    return head, params
+
+
+class FirmwareCore:
+    """State and timing common to both dialects (see module docstring)."""
+
+    dialect = "base"
+
+    def __init__(self, world: MockWorld, baudrate: int) -> None:
+        self.world = world
+        self.scale = float(world.time_scale)
+        self.byte_s = 10.0 / float(baudrate) * self.scale
+        self.latency_s = world.latency_ms / 1000.0 * self.scale
+        self.faults = world.faults
+        self.rng = random.Random(world.faults.seed)
+        self.noise = np.random.default_rng(world.seed)
+        self.surface = PlacedSurface(world.true_part, world.placement, world.bed_z)
+        self.port: Any = None
+        self.wire: deque[tuple[float, bytes]] = deque()
+        self.wire_free_at = 0.0
+        self.out_free_at = 0.0
+        self.fired: set[str] = set()
+        self.now = 0.0
+        self.cold_start()
+
+    # ------------------------------------------------------------------ state
+    def cold_start(self) -> None:
+        """Power-on state: empty buffers, position unknown (0, 0, 0), not homed."""
+        self.rx = bytearray()
+        self.queue: deque[tuple[int | None, str]] = deque()
+        self.current: Generator[Wait, None, None] | None = None
+        self.waiting: Wait | None = None
+        self.keepalive_at = float("inf")
+        self.planner: deque[float] = deque()  # end times of planned blocks
+        self.motion_end = 0.0
+        self.position = [0.0, 0.0, 0.0]
+        self.absolute = True
+        self.feed = 1000.0
+        self.dispensing = False
+        self.homed = False
+        self.halted = False
+
+    # ------------------------------------------------------------------ I/O
+    def receive(self, data: bytes, now: float) -> None:
+        """Bytes written by the host at ``now``; real-time bytes are handled at once."""
+        data = self.realtime(data, now)
+        if not data:
+            return
+        if self.scale == 0.0:
+            self.wire.append((now, data))
+        else:
+            start = max(now + self.latency_s, self.wire_free_at)
+            self.wire_free_at = start + len(data) * self.byte_s
+            self.wire.append((self.wire_free_at, data))
+
+    def realtime(self, data: bytes, now: float) -> bytes:
+        """Dialect hook: consume real-time bytes, return the rest."""
+        return data
+
+    def emit(self, line: str, now: float) -> None:
+        """Send one reply line (subject to the garbage fault)."""
+        port = self.port
+        if port is None:
+            return
+        if self.faults.garbage_rate and self.rng.random() < self.faults.garbage_rate:
+            self.count_fault("garbage")
+            noise = b"\xfe" + bytes(self.rng.choice(b"\x00\x07\x1b\xfe\xff!#%&o k")
+                                     for _ in range(6))
+            self._send(port, noise + b"\n", now)
+        self._send(port, line.encode("utf-8") + b"\n", now)
+
+    def _send(self, port: Any, data: bytes, now: float) -> None:
+        if self.scale == 0.0:
+            port.deliver(0.0, data)
+            return
+        start = max(now + self.latency_s, self.out_free_at)
+        self.out_free_at = start + len(data) * self.byte_s
+        port.deliver(self.out_free_at, data)
+
+    def count_fault(self, name: str) -> None:
+        faults = self.world.stats.faults
+        faults[name] = faults.get(name, 0) + 1
+
+    def chance(self, rate: float, name: str) -> bool:
+        """True with probability ``rate`` (and counts the injected fault)."""
+        if rate and self.rng.random() < rate:
+            self.count_fault(name)
+            return True
+        return False
+
+    # ------------------------------------------------------------------ event loop
+    def advance(self, now: float) -> float | None:
+        """Run everything due at ``now``; return the next time something happens by
+        itself (None: nothing until the host sends more)."""
+        self.now = now
+        while True:
+            progressed = False
+            while self.wire and self.wire[0][0] <= now:
+                _, data = self.wire.popleft()
+                room = self.world.rx_buffer - len(self.rx)
+                if len(data) > room:
+                    self.world.stats.rx_overflows += 1
+                    data = data[:max(room, 0)]
+                self.rx += data
+                progressed = True
+            while self.planner and self.planner[0] <= now:
+                self.planner.popleft()
+            if self.current is not None:
+                if self._ready(self.waiting, now):
+                    progressed = True
+                    self._step(now)
+                elif self.keepalive_at <= now:
+                    self.keepalive(now)
+                    self.keepalive_at = now + KEEPALIVE_S * self.scale
+            if not self.halted:
+                progressed = self.pump(now) or progressed
+            if not progressed:
+                return self._next_time()
+
+    def _ready(self, waiting: Wait | None, now: float) -> bool:
+        if waiting is None:
+            return True
+        if waiting[0] == "until":
+            return waiting[1] <= now
+        if waiting[0] == "slot":
+            return len(self.planner) < self.world.planner_blocks
+        return not self.planner  # "drain"
+
+    def _next_time(self) -> float | None:
+        times = []
+        if self.wire:
+            times.append(self.wire[0][0])
+        if self.current is not None:
+            if self.waiting and self.waiting[0] == "until":
+                times.append(self.waiting[1])
+            elif self.planner:
+                times.append(self.planner[0])
+            if self.keepalive_at != float("inf"):
+                times.append(self.keepalive_at)
+        return min(times) if times else None
+
+    def start(self, line_no: int | None, command: str, now: float) -> None:
+        """Begin executing ``command`` (already checked)."""
+        self.current = self.run(line_no, command, now)
+        self.waiting = None
+        self.keepalive_at = now + KEEPALIVE_S * self.scale if self.scale else float("inf")
+        self._step(now)
+
+    def _step(self, now: float) -> None:
+        try:
+            self.waiting = self.current.send(None)
+        except StopIteration:
+            self.current = None
+            self.waiting = None
+            self.keepalive_at = float("inf")
+
+    def record(self, command: str, now: float) -> None:
+        """Put an executed command into the transcript; fire ``disconnect_at_line``."""
+        head = command.split(" ", 1)[0].upper()
+        if head in HOST_QUERIES:
+            return
+        transcript = self.world.transcript
+        transcript.record(command)
+        if self.dialect == "marlin" and self.faults.disconnect_at_line == transcript.executed_count \
+                and "disconnect" not in self.fired:
+            self.fired.add("disconnect")
+            self.disconnect(now)
+
+    def due(self, fault: str, command: str) -> bool:
+        """True (once) when ``command`` would be the recorded command number
+        ``<fault>_at_line`` names (``fault``: "reset" or "disconnect")."""
+        target = getattr(self.faults, f"{fault}_at_line")
+        if target is None or fault in self.fired:
+            return False
+        if command.split(" ", 1)[0].upper() in HOST_QUERIES:
+            return False
+        if self.world.transcript.executed_count + 1 >= target:
+            self.fired.add(fault)
+            return True
+        return False
+
+    def disconnect(self, now: float) -> None:
+        """The USB link drops: the port dies (what it already received stays readable)."""
+        port, self.port = self.port, None
+        self.wire.clear()
+        if port is not None:
+            port.mark_dead()
+
+    # ------------------------------------------------------------------ motion
+    def plan_move(self, target: list[float], feed_mm_min: float, now: float
+                  ) -> Generator[Wait, None, None]:
+        """Wait for a free planner block, then plan a straight move to ``target``."""
+        if len(self.planner) >= self.world.planner_blocks:
+            yield ("slot",)
+        start = tuple(self.position)
+        length = float(np.linalg.norm(np.subtract(target, start)))
+        if self.dispensing and length > 0:
+            self.world.deposition_log.append(DepositedMove(start, tuple(target), feed_mm_min))
+        self.position = list(target)
+        if length == 0.0:
+            return
+        duration = length / max(feed_mm_min, 1e-9) * 60.0 * self.scale
+        self.world.stats.blocks += 1
+        if self.scale:
+            now = self.clock()
+            if not self.planner and self.motion_end < now:
+                gap = now - self.motion_end
+                if gap < UNDERRUN_WINDOW_S and self.motion_end > 0:
+                    self.world.stats.underruns += 1
+                    self.world.stats.starved_s += gap
+            begin = max(now, self.motion_end)
+            self.motion_end = begin + duration
+            self.planner.append(self.motion_end)
+
+    def clock(self) -> float:
+        """Current time (generators resume later than they started)."""
+        return self.now
+
+    def target_of(self, params: dict[str, float]) -> list[float]:
+        """Move target from X/Y/Z words (absolute or relative mode)."""
+        target = list(self.position)
+        for i, axis in enumerate("XYZ"):
+            if axis in params:
+                target[i] = params[axis] if self.absolute else target[i] + params[axis]
+        return target
+
+    def dwell(self, seconds: float, now: float) -> Generator[Wait, None, None]:
+        """Wait ``seconds`` of model time (nothing when time_scale is 0)."""
+        if seconds > 0 and self.scale:
+            yield ("until", self.clock() + seconds * self.scale)
+
+    def probe_down(self, z_min: float) -> float | None | str:
+        """Probe straight down from the current position; z, None (no contact) or
+        ``"inside"`` when the probe starts inside the part."""
+        x, y, z = self.position
+        hit = self.surface.probe(x, y, z, z_min)
+        if hit.started_inside:
+            return "inside"
+        if hit.z is None:
+            return None
+        noise = self.world.probe_noise_mm
+        return hit.z + (float(self.noise.normal(0.0, noise)) if noise > 0 else 0.0)
+
+    # ------------------------------------------------------------------ dialect hooks
+    def pump(self, now: float) -> bool:
+        raise NotImplementedError
+
+    def run(self, line_no: int | None, command: str, now: float) -> Generator[Wait, None, None]:
+        raise NotImplementedError
+
+    def keepalive(self, now: float) -> None:
+        """Dialect hook: what to print while a command runs long."""
+
+    def banner(self, now: float) -> None:
+        raise NotImplementedError
+
+    def on_attach(self, now: float, first: bool) -> None:
+        """A port opened: boot on the first open, reset when the dialect resets on open."""
+        if first:
+            self.banner(now)
+
+    def take_line(self) -> bytes | None:
+        """Remove one complete line (without terminator) from RX, or None."""
+        index = self.rx.find(b"\n")
+        if index < 0:
+            return None
+        line = bytes(self.rx[:index])
+        del self.rx[:index + 1]
+        return line.rstrip(b"\r")
+
+
+def normalized(text: str) -> str | None:
+    """Normalised command text (comments and blanks removed)."""
+    return normalize_command(text)

@@ -1,0 +1,245 @@
+"""Marlin personality of the mock firmware (after Marlin 2.x ``queue.cpp``/``gcode.cpp``).
+
+* Lines with ``N`` must be ``last_N + 1`` (except ``M110``) and carry a correct ``*``
+  checksum; otherwise ``Error:<reason>, Last Line: n`` then ``Resend: n+1`` then ``ok``,
+  and the rest of the RX buffer is flushed (``gcode_line_error``).
+* Accepted lines go into a command ring buffer of ``command_buffer`` slots (BUFSIZE; the
+  running command holds one); ``ok`` is sent after a command was *processed* (for moves:
+  planned), with ``ADVANCED_OK`` as ``ok N<n> P<planner free> B<buffer free>``.
+* ``echo:busy: processing`` every 2 s (scaled) while a command runs long.
+* ``M112`` is caught by the emergency parser on arrival: ``Error:Printer halted. kill()
+  called!`` and nothing more until the port is reopened (reset).
+* ``G30 [X Y]`` probes down and prints ``Bed X: x Y: y Z: z``; a miss prints
+  ``Error:Probing Failed``.  ``G38.2 Z.. F..`` stops at contact (miss: ``Error:Failed to
+  reach target``).  ``M114`` prints the planned position.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Generator
+
+from ..protocol import checksum
+from .firmware import SLOW_S, FirmwareCore, Wait, normalized, split_words
+
+_NUMBERED = re.compile(r"^N(-?\d+)\s*")
+_SILENT = {"G21", "G90", "G91", "G92", "M82", "M83", "M84", "M17", "M18", "M104", "M140",
+           "M106", "M107", "M117", "M400", "G4", "M110", "T0", "M211", "M220", "M221"}
+
+
+class MarlinFirmware(FirmwareCore):
+    """Marlin 2 behaviour; see module docstring."""
+
+    dialect = "marlin"
+
+    def cold_start(self) -> None:
+        super().cold_start()
+        self.last_n = 0
+
+    # ------------------------------------------------------------------ receive path
+    def realtime(self, data: bytes, now: float) -> bytes:
+        if b"M112" not in data:
+            return data
+        kept = []
+        for line in data.split(b"\n"):
+            text = normalized(line.decode("latin-1")) or ""
+            if text.split(" ")[0] == "M112":
+                self.kill(now)
+            else:
+                kept.append(line)
+        return b"\n".join(kept)
+
+    def kill(self, now: float) -> None:
+        """Emergency stop: halt everything; only a reset (reopen) brings it back."""
+        self.emit("Error:Printer halted. kill() called!", now)
+        self.cold_start()
+        self.halted = True
+
+    def pump(self, now: float) -> bool:
+        # Marlin reads serial lines only between commands (a blocking command, including
+        # one waiting for a planner block, keeps the main loop from reading).
+        progressed = False
+        if self.current is not None:
+            return False
+        while len(self.queue) < self.world.command_buffer:
+            raw = self.take_line()
+            if raw is None:
+                break
+            progressed = True
+            self.accept(raw.decode("latin-1"), now)
+        if self.current is None and self.queue and not self.halted:
+            line_no, command = self.queue.popleft()
+            if self.due("reset", command):
+                self.reset(now)
+            else:
+                self.start(line_no, command, now)
+            progressed = True
+        return progressed
+
+    def line_error(self, reason: str, now: float) -> None:
+        """``gcode_line_error`` + ``flush_and_request_resend``."""
+        self.emit(f"Error:{reason}, Last Line: {self.last_n}", now)
+        self.rx.clear()
+        self.emit(f"Resend: {self.last_n + 1}", now)
+        self.emit("ok", now)
+
+    def accept(self, text: str, now: float) -> None:
+        """Check one received line and queue its command."""
+        text = text.strip()
+        if not text:
+            return
+        match = _NUMBERED.match(text)
+        star_at = text.rfind("*")
+        if match and star_at > match.end() and self.chance(self.faults.checksum_rate, "checksum"):
+            i = self.rng.randrange(match.end(), star_at)
+            flipped = chr(ord(text[i]) ^ 0x01)
+            text = text[:i] + (flipped if flipped not in "*\r\n;(" else "#") + text[i + 1:]
+        line_no = None
+        if match:
+            line_no = int(match.group(1))
+            is_m110 = "M110" in text
+            if line_no != self.last_n + 1 and not is_m110:
+                return self.line_error("Line Number is not Last Line Number+1", now)
+            body, star, given = text.rpartition("*")
+            if not star:
+                return self.line_error("No Checksum with line number", now)
+            if not given.strip().isdigit() or int(given) != checksum(body):
+                return self.line_error("checksum mismatch", now)
+            self.last_n = line_no
+            if is_m110:
+                _, params = split_words(normalized(body) or "")
+                self.last_n = int(params.get("N", line_no))
+        elif "*" in text:
+            return self.line_error("No Line Number with checksum", now)
+        command = normalized(text)
+        if command:
+            self.queue.append((line_no, command))
+
+    # ------------------------------------------------------------------ execution
+    def keepalive(self, now: float) -> None:
+        self.emit("echo:busy: processing", now)
+
+    def ok(self, line_no: int | None, now: float) -> None:
+        """Acknowledge a processed command (with the ok faults)."""
+        if self.chance(self.faults.drop_ok_rate, "drop_ok"):
+            return
+        if self.world.advanced_ok:
+            free_p = self.world.planner_blocks - len(self.planner)
+            free_b = self.world.command_buffer - 1 - len(self.queue)
+            number = f" N{line_no}" if line_no is not None else ""
+            text = f"ok{number} P{free_p} B{max(free_b, 0)}"
+        else:
+            text = "ok"
+        self.emit(text, now)
+        if self.chance(self.faults.duplicate_ok_rate, "duplicate_ok"):
+            self.emit(text, now)
+        if line_no is not None and self.chance(self.faults.resend_rate, "resend"):
+            self.emit(f"Resend: {max(self.last_n - self.rng.randrange(0, 2), 1)}", now)
+            self.emit("ok", now)
+
+    def run(self, line_no: int | None, command: str, now: float) -> Generator[Wait, None, None]:
+        head, params = split_words(command)
+        if self.chance(self.faults.busy_rate, "busy"):
+            for _ in range(self.rng.randrange(2, 6)):
+                self.emit("echo:busy: processing", now)
+        if self.chance(self.faults.slow_rate, "slow"):
+            if not self.scale:
+                self.emit("echo:busy: processing", now)
+            yield from self.dwell(SLOW_S, now)
+        dispense_on, dispense_off = self.world.dispense_commands
+        if head in ("G0", "G1"):
+            if "F" in params:
+                self.feed = params["F"]
+            yield from self.plan_move(self.target_of(params), self.feed, now)
+        elif command == dispense_on or head == dispense_on.split(" ")[0]:
+            yield ("drain",)
+            self.dispensing = True
+        elif command == dispense_off or head == dispense_off.split(" ")[0]:
+            yield ("drain",)
+            self.dispensing = False
+        elif head == "G28":
+            yield from self.plan_move([0.0, 0.0, 0.0], self.world.rapid_feed_mm_min, now)
+            yield ("drain",)
+            self.homed = True
+        elif head == "G90":
+            self.absolute = True
+        elif head == "G91":
+            self.absolute = False
+        elif head == "G92":
+            yield ("drain",)
+            for i, axis in enumerate("XYZ"):
+                if axis in params:
+                    self.position[i] = params[axis]
+        elif head in ("M400", "G4"):
+            yield ("drain",)
+            yield from self.dwell(params.get("P", 0.0) / 1000.0 + params.get("S", 0.0), now)
+        elif head == "G30":
+            yield from self.g30(params, now)
+        elif head == "G38.2" or head == "G38.3":
+            yield from self.g38(head, params, now)
+        elif head == "M114":
+            x, y, z = self.position
+            self.emit(f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:0.00 Count X:{round(x * 80)} "
+                      f"Y:{round(y * 80)} Z:{round(z * 400)}", now)
+        elif head == "M115":
+            self.identify(now)
+        elif head == "M105":
+            self.record(command, now)
+            self.emit("ok T:21.50 /0.00 B:21.20 /0.00 @:0 B@:0", now)
+            return
+        elif head not in _SILENT:
+            self.emit(f'echo:Unknown command: "{command}"', now)
+        self.record(command, now)
+        self.ok(line_no, now)
+
+    def g30(self, params: dict[str, float], now: float) -> Generator[Wait, None, None]:
+        x = params.get("X", self.position[0])
+        y = params.get("Y", self.position[1])
+        z_start = self.position[2]
+        yield from self.plan_move([x, y, z_start], self.world.rapid_feed_mm_min, now)
+        yield ("drain",)
+        z = self.probe_down(self.world.probe_z_min)
+        travel = z_start - (z if isinstance(z, float) else self.world.probe_z_min)
+        yield from self.dwell(max(travel, 0.0) / 5.0, now)  # 5 mm/s probing speed
+        if isinstance(z, float):
+            self.emit(f"Bed X: {x:.3f} Y: {y:.3f} Z: {z:.3f}", now)
+        else:
+            self.emit("Error:Probing Failed", now)
+
+    def g38(self, head: str, params: dict[str, float], now: float
+            ) -> Generator[Wait, None, None]:
+        yield ("drain",)
+        z_target = params.get("Z", self.position[2])
+        feed = params.get("F", self.feed)
+        z = self.probe_down(z_target)
+        end = z if isinstance(z, float) else z_target
+        if z == "inside":
+            end = self.position[2]
+        yield from self.dwell(abs(self.position[2] - end) / max(feed, 1e-9) * 60.0, now)
+        self.position[2] = end
+        if not isinstance(z, float) and head == "G38.2":
+            self.emit("Error:Failed to reach target", now)
+
+    def identify(self, now: float) -> None:
+        self.emit("FIRMWARE_NAME:Marlin 2.1.2.1 (mock) SOURCE_CODE_URL:github.com/MarlinFirmware/"
+                  "Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:Conforma mock KINEMATICS:Cartesian "
+                  "EXTRUDER_COUNT:1 UUID:00000000-0000-0000-0000-000000000000", now)
+        caps = {"SERIAL_XON_XOFF": 0, "EEPROM": 0, "AUTOREPORT_TEMP": 0, "EMERGENCY_PARSER": 1,
+                "Z_PROBE": 1, "ADVANCED_OK": int(self.world.advanced_ok)}
+        for name, flag in caps.items():
+            self.emit(f"Cap:{name}:{flag}", now)
+
+    # ------------------------------------------------------------------ resets
+    def banner(self, now: float) -> None:
+        self.emit("start", now)
+        self.emit("echo:Marlin 2.1.2.1 (mock)", now)
+        self.emit(f"echo: Last Updated: 2024-01-01 | Author: (conforma mock)", now)
+
+    def reset(self, now: float) -> None:
+        """Controller restart: buffers and line number lost, banner printed."""
+        self.cold_start()
+        self.banner(now)
+
+    def on_attach(self, now: float, first: bool) -> None:
+        if first or self.halted:
+            self.reset(now)

@@ -1,0 +1,291 @@
+"""The mock printer's world: configuration, fault plan, transcript, deposition log, registry.
+
+A ``MockWorld`` outlives connections: the firmware state (position, line number, planner,
+transcript) lives here, so closing and reopening ``mock://NAME`` talks to the same
+"machine" again, like re-plugging a USB cable.
+
+URL form (every option optional)::
+
+    mock://NAME?dialect=marlin&time_scale=0&seed=1&probe_noise_mm=0.01
+        &checksum_rate=0.01&drop_ok_rate=0&duplicate_ok_rate=0&resend_rate=0
+        &garbage_rate=0&busy_rate=0&slow_rate=0&disconnect_at_line=500&reset_at_line=900
+        &advanced_ok=1&latency_ms=1&rx_buffer=128&command_buffer=4&planner_blocks=16
+
+``NAME`` selects a world registered with ``register_world``; an unknown name creates (and
+registers) a fresh world from the options.  Options given for an existing world update
+it (the dialect must match).  Malformed options raise ``InvalidConfig``.
+
+Fault semantics (per received command line, probabilities 0..1, deterministic by seed):
+``checksum_rate`` damages one character on the wire; ``drop_ok_rate``/``duplicate_ok_rate``
+lose / repeat the ``ok``; ``resend_rate`` emits a spurious ``Resend:`` for a line already
+accepted (Marlin); ``garbage_rate`` puts a line of random bytes before a reply;
+``busy_rate`` emits a burst of ``echo:busy: processing`` (Marlin); ``slow_rate`` makes the
+command take 2.5 s (times ``time_scale``).  ``disconnect_at_line=N`` drops the link right
+after the firmware executed its N-th recorded command (before its ``ok``): Marlin keeps
+running and keeps its line number; grbl resets (Arduino boards reset on re-enumeration)
+and loses its receive buffer.  ``reset_at_line=N`` restarts the controller instead of
+executing its N-th command (it is not executed; queued commands are lost; grbl's
+bootloader then ignores input for 1 s, or until the port is reopened with time_scale 0).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field, fields
+from urllib.parse import parse_qsl, urlsplit
+
+from ..errors import InvalidConfig
+from ..protocol import DIALECTS, CommandHasher, CommandDigest
+
+#: Host queries that do not change the machine; the transcript leaves them out so the
+#: executed digest compares directly with the program's ``commands_sha256``.
+HOST_QUERIES = frozenset({"M105", "M110", "M114", "M115", "M119", "M503", "$I", "$$", "$#",
+                          "$G", "$N", "$X"})
+
+
+@dataclass
+class FaultConfig:
+    """Fault injection plan (see module docstring)."""
+
+    checksum_rate: float = 0.0
+    drop_ok_rate: float = 0.0
+    duplicate_ok_rate: float = 0.0
+    resend_rate: float = 0.0
+    garbage_rate: float = 0.0
+    busy_rate: float = 0.0
+    slow_rate: float = 0.0
+    disconnect_at_line: int | None = None
+    reset_at_line: int | None = None
+    seed: int = 0
+
+    @classmethod
+    def uniform(cls, rate: float, seed: int = 0) -> FaultConfig:
+        """Every probabilistic fault class at ``rate``."""
+        return cls(rate, rate, rate, rate, rate, rate, rate, seed=seed)
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Rigid offset of the as-made part: rotation ``rz_deg`` about the Z axis through the
+    origin, then translation (dx, dy, dz) in mm."""
+
+    dx: float = 0.0
+    dy: float = 0.0
+    dz: float = 0.0
+    rz_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class DepositedMove:
+    """One move made with the dispenser on: start/end (x, y, z) in mm, feed in mm/min."""
+
+    start: tuple[float, float, float]
+    end: tuple[float, float, float]
+    feed_mm_min: float
+
+
+class Transcript:
+    """Commands the firmware executed, in order (host queries in ``HOST_QUERIES`` left out).
+
+    ``executed_count``/``executed_sha256`` follow API.md's ``commands_sha256``; ``commands``
+    keeps the texts when ``keep`` is true (tests), or stays empty (long soaks)."""
+
+    def __init__(self, keep: bool = True) -> None:
+        self.keep = keep
+        self.commands: list[str] = []
+        self._hasher = CommandHasher()
+
+    def record(self, command: str) -> None:
+        """Add one executed (normalised) command."""
+        self._hasher.update(command)
+        if self.keep:
+            self.commands.append(command)
+
+    def reset(self) -> None:
+        """Forget everything recorded so far."""
+        self.commands = []
+        self._hasher = CommandHasher()
+
+    @property
+    def executed_count(self) -> int:
+        return self._hasher.count
+
+    @property
+    def executed_sha256(self) -> str:
+        return self._hasher.digest().sha256
+
+    def digest(self) -> CommandDigest:
+        return self._hasher.digest()
+
+
+@dataclass
+class MockStats:
+    """Counters the firmware keeps: planner underruns (the planner ran dry between moves
+    while the host was streaming), receive-buffer overflows, faults injected per class."""
+
+    underruns: int = 0
+    starved_s: float = 0.0
+    rx_overflows: int = 0
+    blocks: int = 0
+    faults: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class MockWorld:
+    """Everything the mock printer is: part, placement, noise, dialect, timing, faults."""
+
+    true_part: object | None = None  # trimesh.Trimesh of the as-made part, or None (flat bed)
+    placement: Placement = field(default_factory=Placement)
+    probe_noise_mm: float = 0.0
+    seed: int = 0
+    dialect: str = "marlin"
+    time_scale: float = 0.0
+    faults: FaultConfig = field(default_factory=FaultConfig)
+    dispense_on: str | None = None   # None: "M106" (marlin) / "M3" (grbl)
+    dispense_off: str | None = None  # None: "M107" (marlin) / "M5" (grbl)
+    advanced_ok: bool = True
+    latency_ms: float = 1.0
+    rx_buffer: int = 128
+    command_buffer: int = 4
+    planner_blocks: int = 16
+    bed_z: float = 0.0
+    probe_z_min: float = -20.0
+    rapid_feed_mm_min: float = 6000.0
+    keep_transcript: bool = True
+
+    def __post_init__(self) -> None:
+        if self.dialect not in DIALECTS:
+            raise InvalidConfig(f"unknown dialect {self.dialect!r}", field="dialect",
+                                value=str(self.dialect)[:40])
+        self.lock = threading.RLock()
+        self.cond = threading.Condition(self.lock)
+        self.transcript = Transcript(self.keep_transcript)
+        self.deposition_log: list[DepositedMove] = []
+        self.stats = MockStats()
+        self.firmware = None  # created by the first connection (hardware.mock.firmware)
+
+    @property
+    def dispense_commands(self) -> tuple[str, str]:
+        default = ("M106", "M107") if self.dialect == "marlin" else ("M3", "M5")
+        return (self.dispense_on or default[0], self.dispense_off or default[1])
+
+    @property
+    def position(self) -> tuple[float, float, float]:
+        """Planned tool position (mm); (0, 0, 0) before the first connection."""
+        fw = self.firmware
+        return tuple(fw.position) if fw is not None else (0.0, 0.0, 0.0)
+
+    @property
+    def executed_count(self) -> int:
+        return self.transcript.executed_count
+
+    @property
+    def executed_sha256(self) -> str:
+        return self.transcript.executed_sha256
+
+
+_REGISTRY: dict[str, MockWorld] = {}
+_REGISTRY_LOCK = threading.Lock()
+
+_FAULT_KEYS = {f.name: f.type for f in fields(FaultConfig)}
+_WORLD_KEYS = {"dialect": str, "time_scale": float, "seed": int, "probe_noise_mm": float,
+               "advanced_ok": bool, "latency_ms": float, "rx_buffer": int,
+               "command_buffer": int, "planner_blocks": int, "bed_z": float,
+               "probe_z_min": float, "dispense_on": str, "dispense_off": str,
+               "keep_transcript": bool}
+
+
+def register_world(name: str, world: MockWorld) -> MockWorld:
+    """Make ``world`` reachable as ``mock://name`` (replacing any previous one)."""
+    if not name or "/" in name or "?" in name:
+        raise InvalidConfig(f"invalid mock world name {name!r}", field="name", value=name)
+    with _REGISTRY_LOCK:
+        _REGISTRY[name] = world
+    return world
+
+
+def get_world(name: str) -> MockWorld:
+    """The world registered under ``name`` (``KeyError`` when there is none)."""
+    with _REGISTRY_LOCK:
+        return _REGISTRY[name]
+
+
+def unregister_world(name: str) -> None:
+    """Forget ``name`` (no error when absent)."""
+    with _REGISTRY_LOCK:
+        _REGISTRY.pop(name, None)
+
+
+def _convert(key: str, text: str, kind: object) -> object:
+    try:
+        if kind in (bool, "bool"):
+            if text.lower() in ("1", "true", "yes", "on"):
+                return True
+            if text.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError(text)
+        if kind in (int, "int", "int | None"):
+            return int(text)
+        if kind in (float, "float"):
+            value = float(text)
+            if value != value or value in (float("inf"), float("-inf")):
+                raise ValueError(text)
+            return value
+        return text
+    except ValueError:
+        raise InvalidConfig(f"mock option {key}={text!r} is not a valid {getattr(kind, '__name__', kind)}",
+                            field=f"port.{key}", value=text[:40]) from None
+
+
+def parse_mock_options(query: str) -> dict[str, object]:
+    """Typed options from a ``mock://`` query string; ``InvalidConfig`` when malformed."""
+    options: dict[str, object] = {}
+    try:
+        pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
+    except ValueError:
+        raise InvalidConfig(f"malformed mock options {query!r}", field="port",
+                            value=query[:80]) from None
+    for key, text in pairs:
+        if key in _FAULT_KEYS:
+            value = _convert(key, text, _FAULT_KEYS[key])
+        elif key in _WORLD_KEYS:
+            value = _convert(key, text, _WORLD_KEYS[key])
+        else:
+            raise InvalidConfig(f"unknown mock option {key!r}", field=f"port.{key}", value=text[:40])
+        if key.endswith("_rate") and not 0.0 <= value <= 1.0:
+            raise InvalidConfig(f"mock option {key} must be within 0..1", field=f"port.{key}",
+                                value=value)
+        if key in ("time_scale", "latency_ms", "probe_noise_mm") and value < 0:
+            raise InvalidConfig(f"mock option {key} must be >= 0", field=f"port.{key}", value=value)
+        if key in ("rx_buffer", "command_buffer", "planner_blocks") and value < 1:
+            raise InvalidConfig(f"mock option {key} must be >= 1", field=f"port.{key}", value=value)
+        if key == "dialect" and value not in DIALECTS:
+            raise InvalidConfig(f"unknown dialect {value!r}; expected one of {', '.join(DIALECTS)}",
+                                field="dialect", value=str(value)[:40])
+        options[key] = value
+    return options
+
+
+def world_from_url(url: str) -> MockWorld:
+    """Resolve ``mock://NAME?options`` to a (possibly new, then registered) world."""
+    parts = urlsplit(url)
+    if parts.scheme != "mock":
+        raise InvalidConfig(f"not a mock URL: {url!r}", field="port", value=url[:80])
+    name = (parts.netloc + parts.path).strip("/") or "default"
+    options = parse_mock_options(parts.query)
+    with _REGISTRY_LOCK:
+        world = _REGISTRY.get(name)
+        if world is None:
+            world = MockWorld(dialect=str(options.get("dialect", "marlin")))
+            _REGISTRY[name] = world
+    if "dialect" in options and options["dialect"] != world.dialect:
+        raise InvalidConfig(f"mock world {name!r} speaks {world.dialect}, not {options['dialect']}",
+                            field="dialect", value=options["dialect"])
+    for key, value in options.items():
+        if key in _FAULT_KEYS:
+            setattr(world.faults, key, value)
+        elif key == "keep_transcript":
+            world.transcript.keep = bool(value)
+        else:
+            setattr(world, key, value)
+    return world
