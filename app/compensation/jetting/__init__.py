@@ -11,10 +11,28 @@ from .encode import npz_arrays, npz_bytes, pattern_png, png_pattern
 from .errors import JettingError
 from .kernel import DropKernel, drop_kernel
 from .metrics import SurfaceMetrics, surface_metrics
-from .params import (ControllerParams, DropParams, FlowParams, JettingParams, PlantParams,
-                     TargetSpec)
-from .simulate import LayerRecord, SimulationResult, estimate_bytes, next_layer, simulate
-from .targets import Target, target_from_mask, target_from_png, target_from_rings, target_from_spec
+from .params import (
+                     ControllerParams,
+                     DropParams,
+                     FlowParams,
+                     JettingParams,
+                     PlantParams,
+                     TargetSpec,
+)
+from .simulate import (
+                     LayerRecord,
+                     SimulationResult,
+                     estimate_bytes,
+                     next_layer,
+                     simulate,
+)
+from .targets import (
+                     Target,
+                     target_from_mask,
+                     target_from_png,
+                     target_from_rings,
+                     target_from_spec,
+)
 
 __all__ = [
     "ControllerParams", "DropKernel", "DropParams", "FlowParams", "JettingError", "JettingParams",

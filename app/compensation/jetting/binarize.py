@@ -21,6 +21,7 @@ import numpy as np
 from scipy import ndimage
 
 from .errors import JettingError
+from .model import diamond
 from .qp import LayerQP
 
 BINARIZE_METHODS = ("threshold", "error_diffusion", "greedy")
@@ -54,22 +55,27 @@ def error_diffusion_pattern(relaxed: np.ndarray, free: np.ndarray) -> np.ndarray
     return out
 
 
+def lee_colours(shape: tuple[int, int], radius: int) -> tuple[np.ndarray, int]:
+    """(L, W) colour per cell and the colour count; same colours are >= 2R+1 apart in L1."""
+    i, j = np.indices(shape)
+    count = 2 * radius * radius + 2 * radius + 1
+    return (i + (2 * radius + 1) * j) % count, count
+
+
 def first_stage_hessian_diagonal(qp: LayerQP, cells: np.ndarray) -> np.ndarray:
     """diag of d^2 J / d f_l^2 at ``cells`` (L, W) by probing G with spaced unit drops."""
     radius = qp.model.support_radius()
-    spacing = 2 * radius + 1
+    colours, count = lee_colours(qp.h0.shape, radius)
+    footprint = diamond(radius).astype(float)
     diag = np.zeros(qp.h0.shape)
     total_w = float(qp.stage_weights.sum())
-    for a in range(spacing):
-        for b in range(spacing):
-            probe = np.zeros(qp.h0.shape)
-            probe[a::spacing, b::spacing] = 1.0
-            probe *= cells
-            if not probe.any():
-                continue
-            y = qp.model.apply(probe) / qp.scale_mm
-            box = ndimage.uniform_filter(qp.cell_weight * y * y, size=spacing, mode="constant")
-            diag = np.where(probe > 0.0, box * spacing * spacing, diag)
+    for colour in range(count):
+        probe = (colours == colour) & cells
+        if not probe.any():
+            continue
+        y = qp.model.apply(probe.astype(float)) / qp.scale_mm
+        sums = ndimage.correlate(qp.cell_weight * y * y, footprint, mode="constant")
+        diag = np.where(probe, sums, diag)
     return 2.0 * total_w * diag + 2.0 * qp.rho
 
 
@@ -79,31 +85,31 @@ def _with_first(x: np.ndarray, first: np.ndarray) -> np.ndarray:
     return out
 
 
-def greedy_pattern(qp: LayerQP, x: np.ndarray, start: np.ndarray, rounds: int) -> tuple[np.ndarray, int]:
-    """Improve the 0/1 first layer ``start`` by exact single-drop flips; returns (pattern, flips)."""
+def greedy_pattern(qp: LayerQP, x: np.ndarray, start: np.ndarray,
+                   rounds: int) -> tuple[np.ndarray, int]:
+    """Improve the 0/1 first layer ``start`` (L, W) by exact single-drop flips.
+
+    x: (m, L, W) relaxed solution (later layers stay relaxed). Returns (pattern, flips).
+    """
     cells = qp.model.coupled_cells(qp.h0.shape) & qp.free
     pattern = start.astype(float)
     if not cells.any() or rounds <= 0:
         return start, 0
     hdiag = first_stage_hessian_diagonal(qp, cells)
-    spacing = 2 * qp.model.support_radius() + 1
+    colours, count = lee_colours(qp.h0.shape, qp.model.support_radius())
     _, grad = qp.objective_and_gradient(_with_first(x, pattern))
     flips = 0
     for _ in range(rounds):
         changed = 0
-        for a in range(spacing):
-            for b in range(spacing):
-                colour = np.zeros(qp.h0.shape, dtype=bool)
-                colour[a::spacing, b::spacing] = True
-                colour &= cells
-                delta = 1.0 - 2.0 * pattern
-                gain = delta * grad[0] + 0.5 * hdiag
-                flip = colour & (gain < -1e-12)
-                if not flip.any():
-                    continue
-                pattern = np.where(flip, 1.0 - pattern, pattern)
-                changed += int(flip.sum())
-                _, grad = qp.objective_and_gradient(_with_first(x, pattern))
+        for c in range(count):
+            delta = 1.0 - 2.0 * pattern
+            gain = delta * grad[0] + 0.5 * hdiag
+            flip = (colours == c) & cells & (gain < -1e-12)
+            if not flip.any():
+                continue
+            pattern = np.where(flip, 1.0 - pattern, pattern)
+            changed += int(flip.sum())
+            _, grad = qp.objective_and_gradient(_with_first(x, pattern))
         flips += changed
         if changed == 0:
             break

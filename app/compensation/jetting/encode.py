@@ -1,11 +1,18 @@
-"""Byte encodings of jetting outputs (no file system): 1-bit PNG patterns, NPZ archives."""
+"""Byte encodings of jetting outputs (no file system): 1-bit PNG patterns, NPZ archives.
+
+Both are byte-identical for identical inputs (the NPZ members carry a fixed timestamp),
+so re-running a job reproduces its artifacts exactly.
+"""
 
 from __future__ import annotations
 
 import io
+import zipfile
 
 import numpy as np
 from PIL import Image
+
+FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
 def pattern_png(pattern: np.ndarray, dpi: float | None = None) -> bytes:
@@ -23,13 +30,19 @@ def png_pattern(data: bytes) -> np.ndarray:
 
 
 def npz_bytes(**arrays: np.ndarray) -> bytes:
-    """Compressed NPZ of the named arrays, as bytes (deterministic content)."""
+    """Compressed NPZ (readable by ``numpy.load``) of the named arrays, as bytes."""
     out = io.BytesIO()
-    np.savez_compressed(out, **arrays)
+    with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, value in arrays.items():
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=FIXED_ZIP_TIME)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            archive.writestr(info, member.getvalue())
     return out.getvalue()
 
 
 def npz_arrays(data: bytes) -> dict[str, np.ndarray]:
-    """Inverse of ``npz_bytes``."""
+    """Inverse of ``npz_bytes`` (any NPZ without pickled objects)."""
     with np.load(io.BytesIO(data), allow_pickle=False) as archive:
         return {name: archive[name] for name in archive.files}

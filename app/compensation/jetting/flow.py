@@ -30,7 +30,7 @@ class FlowResult:
     """``surface``: (L, W) heights after flow, mm; ``transport``: the frozen operator."""
 
     surface: np.ndarray
-    transport: "TransportOperator"
+    transport: TransportOperator
 
 
 @dataclass(frozen=True)
@@ -102,7 +102,8 @@ class TransportOperator:
         return bound
 
 
-def substrate_tilt(substrate_mm: np.ndarray | None, shape: tuple[int, int], pitch_mm: float) -> np.ndarray:
+def substrate_tilt(substrate_mm: np.ndarray | None, shape: tuple[int, int],
+                   pitch_mm: float) -> np.ndarray:
     """k_i of eq. 6 for the surface z - z_sub(x, y) = 0: arctan |grad z_sub|, rad, (L, W)."""
     if substrate_mm is None:
         return np.zeros(shape)

@@ -31,6 +31,13 @@ class DropKernel:
     def radius_cells(self) -> int:
         return self.heights_mm.shape[0] // 2
 
+    @property
+    def l1_radius(self) -> int:
+        """Largest |di| + |dj| of a non-zero tap (a plus-shaped 3x3 kernel has 1)."""
+        r = self.radius_cells
+        di, dj = np.nonzero(self.heights_mm)
+        return int((np.abs(di - r) + np.abs(dj - r)).max())
+
     def volume(self) -> float:
         """Volume the kernel deposits, mm^3 (== ``volume_mm3``)."""
         return float(self.heights_mm.sum() * self.pitch_mm**2)

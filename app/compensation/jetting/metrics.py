@@ -1,8 +1,9 @@
 """Surface metrics of a printed layer over the part's cells (seed S2, section 3.2).
 
 Sa = mean |h - mean h|, Sz = max h - min h, RMSE (eq. 16) = sqrt(mean (h - mean h)^2),
-all over the part mask (``sa_interior_um``: Sa of the interior cells alone). Edge collapse = mean height of the interior cells minus the mean
-height of the edge cells (outer edge, hole edge, and both together). Heights in, um out.
+all over the part mask (``sa_interior_um``: Sa of the interior cells alone). Edge
+collapse = mean height of the interior cells minus the mean height of the edge cells
+(outer edge, hole edge, and both together). Heights in mm, metrics out in um.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ def _collapse(heights: np.ndarray, interior_mean: float, edge: np.ndarray) -> fl
     return float(interior_mean - heights[edge].mean()) if edge.any() else 0.0
 
 
-def surface_metrics(heights_mm: np.ndarray, target: Target, target_height_mm: float) -> SurfaceMetrics:
+def surface_metrics(heights_mm: np.ndarray, target: Target,
+                    target_height_mm: float) -> SurfaceMetrics:
     """Metrics of heights (L, W) mm over ``target.mask``; ``target_height_mm`` is the reference."""
     h = np.asarray(heights_mm, dtype=float)
     part = h[target.mask]

@@ -55,23 +55,28 @@ class LayerModel:
         return b * (1.0 if self.gain is None else float(np.abs(self.gain).max()))
 
     def support_radius(self) -> int:
-        """Cells beyond this distance from a drop are never touched by G."""
-        steps = self.transport.steps if self.transport is not None else 0
-        return self.kernel.radius_cells + steps
+        """L1 radius (|di| + |dj|) of a column of G: cells farther from a drop are untouched."""
+        steps = sum(self.transport.moving) if self.transport is not None else 0
+        return self.kernel.l1_radius + steps
 
     def coupled_cells(self, shape: tuple[int, int]) -> np.ndarray:
         """(L, W) bool: cells whose drop interacts with a neighbour's in G^T G.
 
         Cells elsewhere are decoupled: their QP is separable and rounding is exact there.
         """
-        if self.kernel.radius_cells > 0:
+        if self.kernel.l1_radius > 0:
             return np.ones(shape, dtype=bool)
-        if self.transport is None:
+        if self.transport is None or not any(self.transport.moving):
             return np.zeros(shape, dtype=bool)
         t = self.transport
         active = (t.right + t.left + t.down + t.up).sum(axis=0) > 0.0
-        reach = 2 * self.support_radius() + 1
-        return ndimage.maximum_filter(active, size=reach, mode="constant")
+        return ndimage.binary_dilation(active, structure=diamond(2 * self.support_radius()))
+
+
+def diamond(radius: int) -> np.ndarray:
+    """(2r+1, 2r+1) bool footprint of the L1 ball of ``radius``."""
+    i, j = np.indices((2 * radius + 1, 2 * radius + 1)) - radius
+    return (np.abs(i) + np.abs(j)) <= radius
 
 
 def build_layer_model(measured_mm: np.ndarray, guess: np.ndarray, kernel: DropKernel,

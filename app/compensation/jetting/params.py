@@ -108,7 +108,7 @@ class ControllerParams:
     binarize: str = "greedy"
     max_iter: int = 300
     tol: float = 1e-2
-    greedy_rounds: int = 3
+    greedy_rounds: int = 1
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import numpy as np
 from .errors import JettingError
 from .flow import flow_layer, mobility_map
 from .kernel import DropKernel, deposit
-from .params import FlowParams, PlantParams, MM_PER_UM
+from .params import MM_PER_UM, FlowParams, PlantParams
 
 
 class Plant:
@@ -25,13 +25,16 @@ class Plant:
             raise JettingError("noise levels must be >= 0", field="plant",
                                value=[plant.nozzle_spread, plant.drop_noise, plant.sensor_noise_um])
         if plant.n_nozzles < 1:
-            raise JettingError("need at least one nozzle", field="plant.n_nozzles", value=plant.n_nozzles)
+            raise JettingError("need at least one nozzle", field="plant.n_nozzles",
+                               value=plant.n_nozzles)
         self.kernel, self.flow, self.params = kernel, flow, plant
         self.rng = np.random.default_rng(plant.seed)
-        nozzle = np.maximum(1.0 + plant.nozzle_spread * self.rng.standard_normal(plant.n_nozzles), 0.0)
+        spread = plant.nozzle_spread * self.rng.standard_normal(plant.n_nozzles)
+        nozzle = np.maximum(1.0 + spread, 0.0)
         for dead in plant.dead_nozzles:
             if not 0 <= dead < plant.n_nozzles:
-                raise JettingError("dead nozzle index out of range", field="plant.dead_nozzles", value=dead)
+                raise JettingError("dead nozzle index out of range",
+                                   field="plant.dead_nozzles", value=dead)
             nozzle[dead] = 0.0
         self.column_volume = plant.volume_bias * nozzle[np.arange(shape[1]) % plant.n_nozzles]
         tilt = np.zeros(shape) if tilt_rad is None else tilt_rad

@@ -6,6 +6,9 @@ Errors are counted in nominal layer heights t, so the weights are dimensionless:
 
 J(x) = sum_i w_i sum_c omega_c ((h_(l+i) - r_(l+i)) / t)_c^2 + rho |x|^2,
 w_i = q for i < m and f for i = m (Q = q Omega, F = f Omega, R = rho I, diagonal).
+The seed's eq. 15 sums the input term over i = 1..m-1 only (empty for m = 1, and the
+applied f_l never penalised); here every planned layer f_l..f_(l+m-1) carries R, and
+rho = 0 recovers the literal m = 1 cost.
 
 Fast solver: FISTA (projected accelerated gradient, matrix-free, adaptive restart).
 Reference: scipy L-BFGS-B with the same bounds. Both report the projected-gradient
@@ -53,7 +56,9 @@ class LayerQP:
     def objective(self, x: np.ndarray) -> float:
         return self.objective_and_gradient(x, need_gradient=False)[0]
 
-    def objective_and_gradient(self, x: np.ndarray, need_gradient: bool = True) -> tuple[float, np.ndarray]:
+    def objective_and_gradient(self, x: np.ndarray,
+                               need_gradient: bool = True) -> tuple[float, np.ndarray]:
+        """J(x) and its gradient (m, L, W) (zero on fixed cells)."""
         e = self.residuals(x)
         value = self.rho * float(np.sum(x * x))
         u = np.empty(x.shape) if need_gradient else x
@@ -83,7 +88,8 @@ class LayerQP:
         """max |projected gradient| over the free cells (0 at a KKT point)."""
         if grad is None:
             grad = self.objective_and_gradient(x)[1]
-        pg = np.where(x <= 0.0, np.minimum(grad, 0.0), np.where(x >= 1.0, np.maximum(grad, 0.0), grad))
+        inner = np.where(x >= 1.0, np.maximum(grad, 0.0), grad)
+        pg = np.where(x <= 0.0, np.minimum(grad, 0.0), inner)
         pg = pg * self.free[None]
         return float(np.abs(pg).max()) if pg.size else 0.0
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .controller import LayerDecision, mpc_layer, validate_controller
+from .encode import npz_bytes
 from .errors import JettingError
 from .flow import mobility_map, substrate_tilt
 from .kernel import drop_kernel
@@ -28,13 +29,15 @@ class LayerRecord:
     metrics: SurfaceMetrics
     drops: int
     solve_ms: float
+    solve_cpu_ms: float
     iterations: int
     integer_gap: float
     kkt_residual: float
 
     def as_dict(self) -> dict[str, float | int]:
         out: dict[str, float | int] = {"layer": self.layer, **self.metrics.as_dict()}
-        out.update(drops=self.drops, solve_ms=self.solve_ms, iterations=self.iterations,
+        out.update(drops=self.drops, solve_ms=self.solve_ms, solve_cpu_ms=self.solve_cpu_ms,
+                   iterations=self.iterations,
                    integer_gap=self.integer_gap, kkt_residual=self.kkt_residual)
         return out
 
@@ -56,6 +59,20 @@ class SimulationResult:
     def final(self) -> LayerRecord:
         return self.layers[-1]
 
+    def summary(self) -> dict[str, object]:
+        """JSON-ready metric curves: {"layers": [per-layer dicts], "final": {...}}."""
+        return {"layers": [r.as_dict() for r in self.layers], "final": self.final.as_dict()}
+
+    def patterns_npz(self) -> bytes:
+        """NPZ bytes: ``patterns`` (n, L, W) bool, ``mask`` (L, W), ``pitch_mm``."""
+        return npz_bytes(patterns=self.patterns, mask=self.target.mask,
+                         pitch_mm=np.float64(self.target.pitch_mm))
+
+    def heights_npz(self) -> bytes:
+        """NPZ bytes: ``heights`` (k, L, W) float32 mm, ``layers`` (k,), ``final`` (L, W) mm."""
+        return npz_bytes(heights=self.heights, layers=np.asarray(self.snapshot_layers),
+                         final=self.final_heights, pitch_mm=np.float64(self.target.pitch_mm))
+
 
 def estimate_bytes(shape: tuple[int, int], params: JettingParams) -> int:
     """Memory a run needs: working arrays, packed patterns and float32 snapshots."""
@@ -70,7 +87,8 @@ def check_memory(shape: tuple[int, int], params: JettingParams) -> None:
     need = estimate_bytes(shape, params)
     if need > params.memory_limit_bytes:
         raise JettingError(
-            f"a {shape[0]} x {shape[1]} grid at {params.drop.dpi} dpi needs ~{need / 2**20:.0f} MiB, "
+            f"a {shape[0]} x {shape[1]} grid at {params.drop.dpi} dpi needs "
+            f"~{need / 2**20:.0f} MiB, "
             f"over the {params.memory_limit_bytes / 2**20:.0f} MiB limit",
             field="drop.dpi", value=params.drop.dpi)
 
@@ -80,7 +98,8 @@ def _validate(params: JettingParams) -> None:
         raise JettingError("layers must be in 1..100000", field="layers", value=params.layers)
     if params.flow.steps < 0 or params.flow.threshold_um < 0 or not 0 <= params.flow.mobility <= 1:
         raise JettingError("invalid flow parameters", field="flow",
-                           value=[params.flow.steps, params.flow.threshold_um, params.flow.mobility])
+                           value=[params.flow.steps, params.flow.threshold_um,
+                                  params.flow.mobility])
     validate_controller(params.controller)
 
 
@@ -130,10 +149,12 @@ def simulate(params: JettingParams, target: Target | None = None,
         records.append(LayerRecord(
             layer=done, metrics=metrics, drops=int(pattern.sum()),
             solve_ms=decision.solve_ms if decision else 0.0,
+            solve_cpu_ms=decision.solve_cpu_ms if decision else 0.0,
             iterations=decision.iterations if decision else 0,
             integer_gap=decision.integer_gap if decision else 0.0,
             kkt_residual=decision.kkt_residual if decision else 0.0))
-        if params.snapshot_every > 0 and done % params.snapshot_every == 0 and done != params.layers:
+        every = params.snapshot_every
+        if every > 0 and done % every == 0 and done != params.layers:
             snaps.append(heights.astype(np.float32))
             snap_layers.append(done)
         if progress is not None:
@@ -167,7 +188,7 @@ def next_layer(measured_height_mm: np.ndarray, target: Target, params: JettingPa
     kernel = drop_kernel(params.drop)
     step = params.controller.fill * params.drop.layer_mm
     if layer is None:
-        layer = max(int(round(float(h[target.mask].mean()) / step)), 0)
+        layer = max(round(float(h[target.mask].mean()) / step), 0)
     if layer < 0:
         raise JettingError("layer must be >= 0", field="layer", value=layer)
     guess = None if previous_pattern is None else np.asarray(previous_pattern, dtype=float)

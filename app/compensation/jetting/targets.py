@@ -52,20 +52,23 @@ def target_from_mask(mask: np.ndarray, drop: DropParams, margin_mm: float = 0.25
     """Target from a boolean (L, W) part mask at the print pitch; pads ``margin_mm``."""
     part = np.asarray(mask, dtype=bool)
     if part.ndim != 2 or part.size == 0:
-        raise JettingError("mask must be a non-empty 2-D image", field=field, value=list(part.shape))
+        raise JettingError("mask must be a non-empty 2-D image", field=field,
+                           value=list(part.shape))
     if not part.any():
-        raise JettingError("mask has no part cells (all black)", field=field, value=list(part.shape))
+        raise JettingError("mask has no part cells (all black)", field=field,
+                           value=list(part.shape))
     rows, cols = np.nonzero(part)
     part = part[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
     extent_mm = min(part.shape) * drop.pitch_mm
     if drop.drop_diameter_um * 1e-3 > extent_mm:
         raise JettingError(
-            f"drop diameter {drop.drop_diameter_um} um is larger than the part ({extent_mm * 1e3:.0f} um)",
+            f"drop diameter {drop.drop_diameter_um} um is larger than the part "
+            f"({extent_mm * 1e3:.0f} um)",
             field="drop.drop_diameter_um", value=drop.drop_diameter_um)
     kernel_radius = int(np.ceil(drop.radius_mm / drop.pitch_mm + 0.5)) - 1
     pad = max(int(np.ceil(margin_mm / drop.pitch_mm)), kernel_radius + 3)
     part = np.pad(part, pad)
-    labels, count = ndimage.label(~part, structure=FOUR_NEIGHBOURS)
+    labels, _ = ndimage.label(~part, structure=FOUR_NEIGHBOURS)
     outside = labels == labels[0, 0]
     holes = (~part) & ~outside
     outer_edge = part & ndimage.binary_dilation(outside, structure=FOUR_NEIGHBOURS)
@@ -86,7 +89,7 @@ def target_from_png(data: bytes, drop: DropParams, margin_mm: float = 0.25,
     try:
         image = Image.open(io.BytesIO(data))
         image.load()
-    except (UnidentifiedImageError, OSError) as exc:
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
         raise JettingError(f"mask is not a readable image: {exc}", field="target.mask",
                            value=len(data)) from exc
     check_cells(image.width * image.height, max_cells, drop)
