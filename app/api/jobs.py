@@ -7,12 +7,12 @@ import time
 from collections.abc import Iterator
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Header, Query, Response
+from fastapi import APIRouter, Header, Response
 from fastapi.responses import StreamingResponse
 from sqlalchemy import bindparam, func
 from sqlmodel import Session, select
 
-from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page
 from app.errors import Conflict, NotFound
 from app.models import TERMINAL_STATES, Artifact, Job
@@ -52,8 +52,8 @@ def submit_job(body: JobCreate, runtime: RuntimeDep, session: SessionDep, respon
 
 @router.get("", dependencies=[Viewer])
 def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | None = None,
-              parent_id: str | None = None, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-              offset: Annotated[int, Query(ge=0)] = 0) -> Page[JobOut]:
+              parent_id: str | None = None, limit: Limit = 100,
+              offset: Offset = 0) -> Page[JobOut]:
     filters = [c for c in (Job.kind == kind if kind else None, Job.status == status if status else None,
                            Job.parent_id == parent_id if parent_id else None) if c is not None]
     total = session.exec(select(func.count()).select_from(Job).where(*filters)).one()

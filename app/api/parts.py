@@ -8,7 +8,7 @@ from fastapi import APIRouter, File, Form, HTTPException, Query, Response, Uploa
 from sqlalchemy import delete, func
 from sqlmodel import select
 
-from app.api.deps import Admin, Operator, RuntimeDep, SessionDep, Viewer
+from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, PartOut
 from app.errors import Conflict
 from app.mesh_intake import detect_format, export_mesh, parse_mesh, summarize
@@ -48,8 +48,8 @@ def upload_part(
 
 
 @router.get("", dependencies=[Viewer])
-def list_parts(session: SessionDep, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-               offset: Annotated[int, Query(ge=0)] = 0) -> Page[PartOut]:
+def list_parts(session: SessionDep, limit: Limit = 100,
+               offset: Offset = 0) -> Page[PartOut]:
     total = session.exec(select(func.count()).select_from(Part)).one()
     rows = session.exec(select(Part).order_by(Part.created_at.desc(), Part.id).offset(offset).limit(limit)).all()
     return Page(items=[part_out(p) for p in rows], total=total)

@@ -8,7 +8,7 @@ from fastapi import APIRouter, File, Response, UploadFile
 from sqlalchemy import func
 from sqlmodel import select
 
-from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.machine_schemas import ProgramOut
 from app.api.schemas import Page
 from app.errors import InvalidInput
@@ -40,10 +40,9 @@ def upload_program(runtime: RuntimeDep, session: SessionDep,
 
 
 @router.get("", dependencies=[Viewer])
-def list_programs(session: SessionDep, limit: int = 100, offset: int = 0) -> Page[ProgramOut]:
+def list_programs(session: SessionDep, limit: Limit = 100, offset: Offset = 0) -> Page[ProgramOut]:
     total = session.exec(select(func.count()).select_from(Program)).one()
-    rows = session.exec(select(Program).order_by(Program.created_at.desc()).offset(max(offset, 0))
-                        .limit(min(max(limit, 1), 1000))).all()
+    rows = session.exec(select(Program).order_by(Program.created_at.desc()).offset(offset).limit(limit)).all()
     return Page(items=[ProgramOut(**r.model_dump()) for r in rows], total=total)
 
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Query
+from fastapi import APIRouter, Body
 from sqlalchemy import func
 from sqlmodel import Session, select
 
-from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, TraceCreate, TraceOut
 from app.errors import Conflict, ConformaError
 from app.geometry.tolerance import Tolerance
@@ -72,8 +72,8 @@ def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep,
 
 
 @router.get("/parts/{part_id}/traces", dependencies=[Viewer])
-def list_traces(part_id: str, session: SessionDep, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-                offset: Annotated[int, Query(ge=0)] = 0) -> Page[TraceOut]:
+def list_traces(part_id: str, session: SessionDep, limit: Limit = 100,
+                offset: Offset = 0) -> Page[TraceOut]:
     get_or_404(session, Part, part_id)
     total = session.exec(select(func.count()).select_from(Trace).where(Trace.part_id == part_id)).one()
     rows = session.exec(select(Trace).where(Trace.part_id == part_id).order_by(Trace.created_at, Trace.id)

@@ -71,6 +71,14 @@ def make_queue(settings: Settings, queue: str) -> Any:
     return _Huey(name=name, filename=str(settings.data_dir / "queue.db"), results=False)
 
 
+def _param_holding(params: Any, value: str, ref_kind: str) -> str:
+    """The name of the (top-level) parameter whose value is ``value``, for error messages."""
+    for name, given in params.model_dump().items():
+        if given == value:
+            return name
+    return f"{ref_kind}_id"
+
+
 def _canonical_hash(value: Any) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -127,7 +135,8 @@ class Runtime:
                 try:
                     record = get_or_404(session, model, ref_id)
                 except NotFound as exc:
-                    raise InvalidInput(exc.message, field=f"params.{ref_kind}_id", value=ref_id) from None
+                    raise InvalidInput(exc.message, field=f"params.{_param_holding(validated, ref_id, ref_kind)}",
+                                       value=ref_id) from None
                 if isinstance(record, Part):
                     hashes[f"part:{ref_id}"] = record.sha256
                 elif isinstance(record, Trace):

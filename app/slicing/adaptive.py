@@ -58,7 +58,9 @@ def uniform_layers(sampler, params):
     from app.slicing.layers import make_layer
 
     z0, z1 = sampler.prepared.z_min, sampler.prepared.z_max
-    n = max(1, math.ceil((z1 - z0) / params.layer_mm - 1e-9))
+    # A remainder thinner than z_tol (e.g. a float32 STL height just above a multiple of
+    # layer_mm) is folded into the last layer instead of becoming a sliver.
+    n = max(1, math.ceil((z1 - z0 - params.z_tol) / params.layer_mm))
     _check_count(n, params)
     layers, prev = [], None
     for k in range(n):

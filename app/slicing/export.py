@@ -18,6 +18,7 @@ optional ``$$HATCHES/id,n,x1,y1,x2,y2,...``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import struct
 from dataclasses import dataclass
@@ -26,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from app.slicing.errors import SlicingError
+from app.slicing.layers import Layer, SliceParams, SliceResult
 from app.slicing.rings import Island, oriented
 
 SLC_END = 0xFFFFFFFF
@@ -158,9 +160,63 @@ def to_json(result, decimals: int = 6) -> str:
                "islands": [_island_json(i, decimals) for i in lay.islands]}
               for lay in result.layers]
     doc = {"units": "mm", "mode": result.params.mode, "z_min": result.z_min,
-           "z_max": result.z_max, "repairs": list(result.repairs),
-           "notes": list(result.notes), "layers": layers}
+           "z_max": result.z_max, "bounds": np.asarray(result.bounds, dtype=float).tolist(),
+           "volume_mm3": float(result.volume), "params": dataclasses.asdict(result.params),
+           "repairs": list(result.repairs), "notes": list(result.notes), "layers": layers}
     return json.dumps(doc, separators=(",", ":"))
+
+
+def _ring(points, where: str) -> np.ndarray:
+    ring = np.asarray(points, dtype=np.float64)
+    if ring.ndim != 2 or ring.shape[1] != 2 or len(ring) < 3 or not np.all(np.isfinite(ring)):
+        raise SlicingError(f"{where}: a ring needs >= 3 finite [x, y] points", field=where,
+                           value=list(ring.shape))
+    return ring
+
+
+def from_json(text: str | bytes) -> SliceResult:
+    """Rebuild a :class:`SliceResult` from :func:`to_json` text.
+
+    Contours come back at the JSON's precision (``decimals``); rings keep their order and
+    orientation (outer CCW, holes CW).  Raises :class:`SlicingError` (field ``layers.json``
+    or the offending ``layers[i]...`` entry) for anything that is not such a document.
+    """
+    try:
+        doc = json.loads(text)
+        params = SliceParams(**doc["params"]) if "params" in doc else SliceParams(mode=doc["mode"])
+        rows = doc["layers"]
+        layers = []
+        for k, row in enumerate(rows):
+            where = f"layers[{k}]"
+            islands = tuple(
+                Island(oriented(_ring(isl["outer"], f"{where}.outer"), ccw=True),
+                       tuple(oriented(_ring(h, f"{where}.holes"), ccw=False)
+                             for h in isl["holes"]))
+                for isl in row["islands"])
+            layers.append(Layer(index=int(row["index"]), z_bottom=float(row["z_bottom"]),
+                                z_top=float(row["z_top"]), z_sample=float(row["z_sample"]),
+                                islands=islands, area=float(row["area_mm2"]),
+                                ring_count=int(row["rings"]),
+                                inner_ring_count=int(row["inner_rings"]),
+                                sigma=float(row["sigma"]), mu=float(row["mu"]),
+                                eps=float(row["eps"]), reason=str(row["reason"])))
+        z_min, z_max = float(doc["z_min"]), float(doc["z_max"])
+        if "bounds" in doc:
+            bounds = np.asarray(doc["bounds"], dtype=np.float64).reshape(2, 3)
+        else:
+            xy = np.vstack([r for lay in layers for isl in lay.islands for r in isl.rings()])
+            bounds = np.array([[*xy.min(axis=0), z_min], [*xy.max(axis=0), z_max]])
+        volume = float(doc.get("volume_mm3", float("nan")))
+        repairs, notes = tuple(map(str, doc["repairs"])), tuple(map(str, doc["notes"]))
+    except SlicingError:
+        raise
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise SlicingError(f"not a layers.json document: {type(exc).__name__}: {exc}",
+                           field="layers.json", value=str(exc)[:80]) from None
+    if not layers:
+        raise SlicingError("layers.json has no layers", field="layers.json", value=0)
+    return SliceResult(layers=tuple(layers), params=params, z_min=z_min, z_max=z_max,
+                       bounds=bounds, volume=volume, repairs=repairs, notes=notes)
 
 
 def layer_svg(result, index: int, paths: list[np.ndarray] | None = None,

@@ -105,3 +105,15 @@ def test_seed_modes_mid_sampling_keeps_the_rule():
         assert lay.z_sample == pytest.approx(0.5 * (lay.z_bottom + lay.z_top), abs=1e-4)
     for lay in top.layers:
         assert lay.z_sample == pytest.approx(min(lay.z_top, top.z_max - 1e-5))
+
+
+def test_uniform_folds_a_float32_sliver_into_the_last_layer():
+    import trimesh
+
+    from app.slicing import SliceParams, slice_mesh
+
+    box = trimesh.creation.box([10.0, 10.0, 0.05])
+    box.apply_translation([0, 0, 0.025])
+    box = trimesh.Trimesh(box.vertices.astype("float32").astype(float), box.faces)  # as read from STL
+    result = slice_mesh(box, SliceParams(mode="uniform", layer_mm=0.025))
+    assert [round(layer.thickness, 6) for layer in result.layers] == [0.025, 0.025]

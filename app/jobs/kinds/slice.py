@@ -36,10 +36,11 @@ class BeamTable(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     thickness_mm: list[Thickness] = Field(min_length=1, max_length=64, description="layer thicknesses, mm, ascending")
-    width_mm: list[Width] = Field(min_length=1, max_length=64, description="inward contour offset at each thickness, mm")
+    width_mm: list[Width] = Field(min_length=1, max_length=64,
+                                  description="inward contour offset at each thickness, mm")
 
     @model_validator(mode="after")
-    def _ascending_pairs(self) -> "BeamTable":
+    def _ascending_pairs(self) -> BeamTable:
         if len(self.thickness_mm) != len(self.width_mm):
             raise ValueError("beam_table needs one width_mm per thickness_mm")
         if any(b <= a for a, b in zip(self.thickness_mm, self.thickness_mm[1:])):
@@ -48,12 +49,13 @@ class BeamTable(BaseModel):
 
 
 class SliceJobParams(JobParams):
-    part_id: str
+    part_id: str = Field(description="the part to slice")
     mode: Literal["uniform", "area", "cavity", "cusp"] = Field(
         "uniform", description="uniform: ceil(H / layer_mm) layers; area: the seed S4 area-deviation rule "
         "(eps0, l_min, l_max); cavity: S4 multi-cavity refinement (adds sigma0, mu0, mu1); cusp: our "
         "cusp-height rule (cusp_mm, l_min, l_max)")
-    layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False, description="uniform layer thickness, mm")
+    layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False,
+                            description="uniform layer thickness, mm")
     l_min: float = Field(_CORE.l_min, gt=0, le=100, allow_inf_nan=False, description="thinnest adaptive layer, mm")
     l_max: float = Field(_CORE.l_max, gt=0, le=100, allow_inf_nan=False, description="thickest adaptive layer, mm")
     eps0: float = Field(_CORE.eps0, ge=0, le=10, allow_inf_nan=False,
@@ -68,7 +70,8 @@ class SliceJobParams(JobParams):
         _CORE.step9_resets_to_lmax, description="read S4 step 9 literally (non-cavity layers always l_max)")
     seed_sample: Literal["top", "mid"] = Field(
         _CORE.seed_sample, description="area/cavity modes: contour at the layer top (as published) or mid-height")
-    cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False, description="allowed cusp height (cusp mode), mm")
+    cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False,
+                           description="allowed cusp height (cusp mode), mm")
     repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it")
     beam: Literal["none", "seed_haz", "table"] = Field(
         "none", description="beam compensation: none, seed_haz (seed S4 heat-affected widths 21-28 um for "

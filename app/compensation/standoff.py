@@ -1,0 +1,305 @@
+"""Trace height compensation (seed S1 step 5, job ``compensate``).
+
+From a :class:`~app.reconstruction.reconstruct.Reconstruction` of the real trace, the
+print path keeps the nozzle tip ``standoff_mm`` above the REAL surface:
+
+    tip(s) = (x_nom(s), y_nom(s), h_real(s) + standoff)
+
+for s along the nominal trace (arc length, mm).  The offset is along +Z: pneumatic
+direct-write nozzles (the seed's conical nozzle) are mounted vertically and the standoff
+is the vertical gap under the nozzle, so the designed top-view path is kept exactly and
+only Z changes.  (An offset along the surface normal would move the tip off the designed
+xy by standoff x slope and is not offered.)
+
+Segmentation: the tip path is sampled densely (every ``verify_step_mm`` plus every
+vertex of the nominal polyline), vertices are placed by the curvature of the compensated
+curve, and every segment is *proved* within ``chord_error_mm``
+(:mod:`app.compensation.print_path`).  The gap bound between adjacent samples comes from
+the structure of the curve: between two nominal vertices the tip path is a straight line
+plus the smooth deviation d(s) = tip_z - z_nom(s) in Z, so it leaves the chord of two
+samples h apart by at most max|d''| h^2 / 8 (d'' from divided differences, times
+``curvature_safety``).
+
+Policy outside the probed span (before the first / after the last kept probe): REFUSED
+with :class:`OutsideProbedSpanError` (422, naming trace extent and probed extent) unless
+the gap is within ``span_tolerance_mm`` or ``hold_mm`` allows it; then, and only then,
+the deviation measured at the span's end is held constant over the gap (the tip follows
+the nominal shape shifted by the end deviation) and the result says so
+(``extension_mm``).  Nothing is extrapolated silently.
+
+The *nominal* program beside it is the same trace at the same standoff above the CAD
+surface: what the uncompensated machine would print.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
+from app.errors import InvalidInput
+from app.gcode.writer import DIALECTS, ProgramBuilder
+
+__all__ = ["CompensationError", "OutsideProbedSpanError", "CompensationParams",
+           "CompensatedPath", "compensate_trace", "tip_path"]
+
+
+class CompensationError(InvalidInput):
+    """A reconstruction or setting that cannot give a safe print path (422)."""
+
+
+class OutsideProbedSpanError(CompensationError):
+    """The trace runs beyond the probed span by more than the policy allows."""
+
+
+@dataclass(frozen=True)
+class CompensationParams:
+    """Compensation settings (mm, mm/min, s).
+
+    standoff_mm: vertical nozzle-to-surface gap.  feed_mm_min: printing feed.
+    chord_error_mm: largest distance between the emitted polyline and the compensated
+        curve (proved per segment).  dispense_on / dispense_off: the machine profile's
+        commands.  dialect: "marlin" | "grbl".  clearance_mm: travel height above the
+        highest of the path and ``part_max_z_mm``.  approach_mm: the plunge starts this far
+        above the first point and runs at ``plunge_feed_mm_min``.  dwell_s: pause after
+        dispense_on (valve opening).  span_tolerance_mm: gap to the probed span that is
+        accepted silently (probe xy placement noise).  hold_mm: largest gap over which the
+        end deviation may be held (0: refuse).  max_deviation_mm: refuse a reconstruction
+        that departs more than this from the nominal (wrong part, placement or probe).
+        verify_step_mm: dense sampling step of the proof.  curvature_safety: factor on the
+        estimated |d''| of the gap bound.  decimals: G-code coordinate decimals.
+    """
+
+    standoff_mm: float = 0.10
+    feed_mm_min: float = 300.0
+    chord_error_mm: float = 0.002
+    dispense_on: str = "M106"
+    dispense_off: str = "M107"
+    dialect: str = "marlin"
+    clearance_mm: float = 2.0
+    part_max_z_mm: float | None = None
+    approach_mm: float = 0.5
+    plunge_feed_mm_min: float = 60.0
+    dwell_s: float = 0.0
+    span_tolerance_mm: float = 0.005
+    hold_mm: float = 0.0
+    max_deviation_mm: float = 1.0
+    verify_step_mm: float = 0.01
+    curvature_safety: float = 2.0
+    decimals: int = 4
+
+    def __post_init__(self) -> None:
+        positive = ("standoff_mm", "feed_mm_min", "chord_error_mm", "clearance_mm",
+                    "approach_mm", "plunge_feed_mm_min", "max_deviation_mm", "verify_step_mm",
+                    "curvature_safety")
+        for name in positive:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
+                                           and v > 0):
+                raise CompensationError(f"{name} must be a positive finite number",
+                                        field=name, value=v)
+        for name in ("dwell_s", "span_tolerance_mm", "hold_mm"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
+                                           and v >= 0):
+                raise CompensationError(f"{name} must be a finite number >= 0", field=name,
+                                        value=v)
+        if self.part_max_z_mm is not None and not math.isfinite(self.part_max_z_mm):
+            raise CompensationError("part_max_z_mm must be finite", field="part_max_z_mm",
+                                    value=str(self.part_max_z_mm))
+        if self.dialect not in DIALECTS:
+            raise CompensationError(f"unknown dialect {self.dialect!r}; expected one of "
+                                    f"{sorted(DIALECTS)}", field="dialect", value=self.dialect)
+        for name in ("dispense_on", "dispense_off"):
+            text = getattr(self, name)
+            if not isinstance(text, str) or not text.strip() or "\n" in text or "\r" in text:
+                raise CompensationError(f"{name} must be one non-empty G-code line",
+                                        field=name, value=str(text)[:40])
+        if self.verify_step_mm > self.chord_error_mm * 50:
+            raise CompensationError("verify_step_mm must be <= 50 x chord_error_mm",
+                                    field="verify_step_mm", value=self.verify_step_mm)
+
+
+@dataclass(frozen=True, eq=False)
+class CompensatedPath:
+    """The compensated print path and its programs.
+
+    points: (k, 3) nozzle-tip vertices, mm (machine frame of the reconstruction).
+    s_mm: (k,) their arc length along the nominal trace.  program: compensated G-code.
+    nominal_points: (j, 3) tip vertices at standoff above the CAD surface.
+    nominal_program: the uncompensated G-code.  segments: printing G1 moves (k - 1).
+    length_mm: 3-D length of the compensated polyline.  max_chord_error_mm: proved bound
+    (<= chord_error_mm).  segment_error_mm: (k-1,) per-segment bound.
+    span: (s0, s1) probed span.  trace_extent: (0, L).  extension_mm: (before, after)
+    lengths over which the end deviation was held (0, 0 unless ``hold_mm`` allowed it).
+    """
+
+    points: np.ndarray
+    s_mm: np.ndarray
+    program: str
+    nominal_points: np.ndarray
+    nominal_program: str
+    segments: int
+    length_mm: float
+    max_chord_error_mm: float
+    segment_error_mm: np.ndarray
+    span: tuple[float, float]
+    trace_extent: tuple[float, float]
+    extension_mm: tuple[float, float]
+    standoff_mm: float
+    dispense_on: str
+    dispense_off: str
+    method: str
+
+    def to_result(self) -> dict[str, Any]:
+        """API result of job ``compensate``."""
+        return {"dispense_on": self.dispense_on, "dispense_off": self.dispense_off,
+                "segments": self.segments, "length_mm": self.length_mm,
+                "max_chord_error_mm": self.max_chord_error_mm,
+                "standoff_mm": self.standoff_mm, "method": self.method,
+                "span_mm": list(self.span), "trace_extent_mm": list(self.trace_extent),
+                "extension_mm": list(self.extension_mm),
+                "nominal_segments": int(len(self.nominal_points) - 1)}
+
+
+def _span(reconstruction: Any, params: CompensationParams) -> tuple[float, float, float, float]:
+    """(s0, s1) probed span and (before, after) gaps after applying the span policy."""
+    s_kept = np.asarray(reconstruction.clean.s, dtype=float)
+    length = float(reconstruction.nominal.length_mm)
+    s0, s1 = float(s_kept[0]), float(s_kept[-1])
+    before, after = max(s0, 0.0), max(length - s1, 0.0)
+    allowed = max(params.span_tolerance_mm, params.hold_mm)
+    if before > allowed or after > allowed:
+        raise OutsideProbedSpanError(
+            f"trace extends over s = [0, {length:.3f}] mm but the probes cover only "
+            f"[{s0:.3f}, {s1:.3f}] mm ({before:.3f} mm before, {after:.3f} mm after); "
+            f"refusing to extrapolate beyond {allowed:.3f} mm (probe the trace ends, or set "
+            f"hold_mm to hold the end deviation)", field="span",
+            value={"trace_mm": [0.0, round(length, 4)], "probed_mm": [round(s0, 4), round(s1, 4)]})
+    return s0, s1, before, after
+
+
+def tip_path(reconstruction: Any, s: np.ndarray, standoff_mm: float,
+             span: tuple[float, float]) -> np.ndarray:
+    """Compensated tip points (m, 3) mm at stations ``s`` (m,) mm.
+
+    Inside the probed ``span`` the reconstruction's real height is used; outside it the
+    deviation at the nearer span end is held (callers decide whether that is allowed).
+    """
+    nominal = reconstruction.nominal
+    s = np.asarray(s, dtype=float)
+    pts = nominal.at(s)
+    s0, s1 = span
+    inside = (s >= s0) & (s <= s1)
+    h = np.empty(len(s))
+    if inside.any():
+        h[inside] = reconstruction.height_at_s(s[inside])
+    if (~inside).any():
+        ends = np.array([s0, s1])
+        dev_end = reconstruction.height_at_s(ends) - nominal.z_at(ends)
+        out = s[~inside]
+        h[~inside] = nominal.z_at(out) + np.where(out < s0, dev_end[0], dev_end[1])
+    pts[:, 2] = h + standoff_mm
+    return pts
+
+
+def _gap_bound(s: np.ndarray, dev: np.ndarray, safety: float) -> np.ndarray:
+    """Bound (N-1,) mm on the curve's departure from the line between adjacent samples:
+    safety * max|d''| over the interval's ends * h^2 / 8 (d'' by divided differences)."""
+    h = np.diff(s)
+    slope = np.diff(dev) / h
+    d2 = np.zeros(len(s))
+    if len(s) > 2:
+        d2[1:-1] = 2.0 * np.diff(slope) / (h[1:] + h[:-1])
+        d2[0], d2[-1] = d2[1], d2[-2]
+    worst = np.maximum(np.abs(d2[:-1]), np.abs(d2[1:]))
+    return safety * worst * h ** 2 / 8.0
+
+
+def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
+             notes: list[str]) -> str:
+    b = ProgramBuilder(params.dialect, "compensate", job_id, decimals=params.decimals)
+    for note in notes:
+        b.comment(note)
+    top = float(points[:, 2].max())
+    if params.part_max_z_mm is not None:
+        top = max(top, float(params.part_max_z_mm))
+    travel_z = top + params.clearance_mm
+    x0, y0, z0 = points[0]
+    b.rapid(z=travel_z).rapid(x=x0, y=y0).rapid(z=z0 + params.approach_mm)
+    b.move(z=z0, feed_mm_min=params.plunge_feed_mm_min)
+    b.raw(params.dispense_on.strip())
+    if params.dwell_s > 0:
+        b.raw(f"G4 P{round(params.dwell_s * 1000)}" if params.dialect == "marlin"
+              else f"G4 P{params.dwell_s:.3f}")
+    for i, (x, y, z) in enumerate(points[1:]):
+        b.move(x=x, y=y, z=z, feed_mm_min=params.feed_mm_min if i == 0 else None)
+    b.raw(params.dispense_off.strip())
+    b.rapid(z=travel_z)
+    b.end()
+    return b.text()
+
+
+def _segment(reconstruction: Any, s: np.ndarray, pts: np.ndarray,
+             params: CompensationParams) -> SegmentedPath:
+    dev = pts[:, 2] - reconstruction.nominal.z_at(s)
+    return segment_adaptive(s, pts, params.chord_error_mm,
+                            _gap_bound(s, dev, params.curvature_safety))
+
+
+def compensate_trace(reconstruction: Any, params: CompensationParams | None = None,
+                     job_id: str | None = None) -> CompensatedPath:
+    """Print path at ``params.standoff_mm`` above the reconstructed real surface.
+
+    reconstruction: a Reconstruction (``.nominal`` NominalPath, ``.clean.s`` kept probe
+    stations, ``.height_at_s``, ``.method``).  Returns a :class:`CompensatedPath` with the
+    compensated and nominal G-code.  Raises OutsideProbedSpanError when the trace leaves
+    the probed span beyond the policy, CompensationError for a reconstruction departing
+    more than ``max_deviation_mm`` from the nominal or with non-finite heights.
+    """
+    params = params or CompensationParams()
+    nominal = reconstruction.nominal
+    length = float(nominal.length_mm)
+    s0, s1, before, after = _span(reconstruction, params)
+    required = np.concatenate([nominal.s, [s0, s1]])
+    s = dense_stations(0.0, length, params.verify_step_mm, required)
+    pts = tip_path(reconstruction, s, params.standoff_mm, (s0, s1))
+    dev = pts[:, 2] - params.standoff_mm - nominal.z_at(s)
+    if not np.isfinite(dev).all():
+        j = int(np.argmax(~np.isfinite(dev)))
+        raise CompensationError(f"reconstructed height is not finite at s = {s[j]:.3f} mm",
+                                field="reconstruction", value=float(s[j]))
+    j = int(np.argmax(np.abs(dev)))
+    if abs(dev[j]) > params.max_deviation_mm:
+        raise CompensationError(
+            f"the reconstructed surface departs {dev[j]:+.3f} mm from the nominal at "
+            f"s = {s[j]:.3f} mm (limit {params.max_deviation_mm} mm): wrong part, placement "
+            f"or a bad probe point; no program produced", field="reconstruction",
+            value=round(float(dev[j]), 4))
+    seg = _segment(reconstruction, s, pts, params)
+    nominal_pts = nominal.at(s)
+    nominal_pts[:, 2] += params.standoff_mm
+    nominal_seg = segment_adaptive(s, nominal_pts, params.chord_error_mm, 0.0)
+    method = str(getattr(reconstruction, "method", "unknown"))
+    extension = (before if before > params.span_tolerance_mm else 0.0,
+                 after if after > params.span_tolerance_mm else 0.0)
+    notes = [f"compensated trace: tip {params.standoff_mm:.4f} mm above the reconstructed real "
+             f"surface [{method}], offset along +Z [vertical nozzle]",
+             f"probed span s = {s0:.4f}..{s1:.4f} mm of 0..{length:.4f} mm; held end "
+             f"deviation over {extension[0]:.4f} / {extension[1]:.4f} mm",
+             f"{len(seg.points) - 1} segments, proved chord error <= {seg.max_error_mm:.6f} mm"]
+    nominal_notes = [f"NOMINAL [uncompensated] trace: tip {params.standoff_mm:.4f} mm above the "
+                     f"CAD surface", f"{len(nominal_seg.points) - 1} segments"]
+    return CompensatedPath(
+        points=seg.points, s_mm=seg.s, program=_program(seg.points, params, job_id, notes),
+        nominal_points=nominal_seg.points,
+        nominal_program=_program(nominal_seg.points, params, job_id, nominal_notes),
+        segments=int(len(seg.points) - 1),
+        length_mm=float(np.linalg.norm(np.diff(seg.points, axis=0), axis=1).sum()),
+        max_chord_error_mm=seg.max_error_mm, segment_error_mm=seg.segment_error_mm,
+        span=(s0, s1), trace_extent=(0.0, length), extension_mm=extension,
+        standoff_mm=float(params.standoff_mm), dispense_on=params.dispense_on.strip(),
+        dispense_off=params.dispense_off.strip(), method=method)

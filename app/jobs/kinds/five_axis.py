@@ -1,0 +1,248 @@
+"""Job ``five_axis``: a nozzle-normal X Y Z A C program for a trace on a surface (seed S3).
+
+* Surface: the ``surface_fit_job_id`` job's surface (the "real surface"), or else a fit of
+  the part's nominal top surface over the trace's bounding region (grown by
+  ``fit_margin_mm``, clipped to the part's footprint, sampled on a ``fit_grid`` grid,
+  missing heights filled) — the result's ``surface_source`` says which.
+* Trace: its stored nominal points' top view (x, y), draped onto that surface
+  (:func:`app.compensation.five_axis.trace.trace_over_xy`).
+* Plan: :func:`app.compensation.five_axis.plan_five_axis` — constant feed with the
+  second-order Taylor parameter update at ``period_s`` (first order measured beside it),
+  nozzle along the surface normal (or the patent's principal normal, ``normal``), a
+  table-tilting A (about X) / C (about Z) machine with the table pivot ``pivot``; X Y Z are
+  the nozzle tip in machine coordinates, ``m = Rx(A) Rz(C) (p - pivot) + pivot``.
+* Artifacts ``five_axis.gcode`` and the three-axis ``nominal.gcode`` (nozzle straight
+  above the contact points): ``dispense_on`` follows the approach move to the first pose
+  and ``dispense_off`` the last move, so every G1 between them dispenses.
+
+A pose needing A beyond ``a_limits_deg`` fails the job with a 422 problem naming
+``params.a_limits_deg``.  Units: mm, mm/min and degrees at this boundary.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal, NamedTuple
+
+import numpy as np
+from pydantic import Field, field_validator
+from sqlmodel import Session
+
+from app.compensation.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
+from app.compensation.five_axis.errors import TraceOffSurfaceError
+from app.compensation.five_axis.trace import trace_over_xy, uv_over_xy
+from app.compensation.surface_fit import ProbeRegion, SurfaceFitParams, plan_probe_grid
+from app.errors import InvalidInput
+from app.geometry.nurbs_surface import NurbsSurface
+from app.geometry.tolerance import DEFAULT_TOLERANCE
+from app.jobs.context import JobContext
+from app.jobs.gcode_meta import gcode_meta
+from app.jobs.kinds.surface_fit import fit_part_top
+from app.jobs.registry import JobParams, job_kind
+from app.models import Job, Part, Trace
+from app.records import get_or_404
+
+DEFAULT_FEED_MM_MIN = 600.0
+MIN_TRACE_POINTS = 4  # a cubic trace curve interpolates at least degree + 1 points
+_DISPENSE_COMMAND = r"^[A-Z][0-9]+(\.[0-9]+)?( [A-Z]-?[0-9]+(\.[0-9]+)?)*$"
+# core parameter names -> this job's parameter names
+_FIELDS = {
+    "params.normal_source": "params.normal", "params.servo_period_s": "params.period_s",
+    "params.pivot_mm": "params.pivot", "trace": "params.trace_id", "trace.xy": "params.trace_id",
+    "trace.control_points": "params.trace_id",
+}
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Angle = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
+
+
+class FiveAxisJobParams(JobParams):
+    part_id: str = Field(description="the part that carries the trace")
+    trace_id: str = Field(description="a trace of the part (its nominal top view is followed)")
+    surface_fit_job_id: str | None = Field(
+        None, description="a succeeded surface_fit job of the part: its surface is the real surface; "
+        "default: a fit of the part's nominal top over the trace's region")
+    standoff_mm: float | None = Field(None, gt=0, le=50, description="nozzle height h above the "
+                                      "surface along the nozzle axis; default: the trace's")
+    feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="print speed along the trace; "
+                                      f"default: the trace's, else {DEFAULT_FEED_MM_MIN:g}")
+    period_s: float = Field(0.001, ge=1e-4, le=0.1, description="servo period T of the Taylor update")
+    segment_mm: float = Field(0.5, gt=0, le=50, description="program line spacing along the trace")
+    pivot: list[Finite] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
+                                description="table pivot [x0, y0, z0] mm (workpiece coordinates at A = C = 0)")
+    normal: Literal["surface", "principal"] = Field(
+        "surface", description="nozzle direction: surface normal, or the trace's principal normal (patent)")
+    a_limits_deg: list[Angle] = Field([-90.0, 90.0], min_length=2, max_length=2,
+                                      description="[min, max] table tilt A")
+    c_limits_deg: list[Finite] | None = Field(None, min_length=2, max_length=2,
+                                              description="[min, max] C; default endless")
+    c_start_deg: float = Field(0.0, ge=-3600, le=3600, description="C before the path (held at A = 0)")
+    feed_mode: Literal["inverse_time", "tcp"] = Field(
+        "inverse_time", description="inverse_time: G93, F = 1/minutes per line; tcp: G94, F = tip mm/min")
+    on_surface_tol_mm: float = Field(0.05, gt=0, le=5, description="max distance of the trace from the surface")
+    decimals: int = Field(4, ge=3, le=6, description="digits of mm and degrees in the program")
+    safe_z_mm: float | None = Field(None, ge=-1000, le=1000, description="machine Z of the approach "
+                                    "rapids; default: straight approach move")
+    approach_feed_mm_min: float = Field(300.0, gt=0, le=100_000, description="feed of the approach move")
+    dispense_on: str = Field("M8", max_length=40, pattern=_DISPENSE_COMMAND,
+                             description="command that starts dispensing (after the approach)")
+    dispense_off: str = Field("M9", max_length=40, pattern=_DISPENSE_COMMAND,
+                              description="command that stops dispensing (after the last move)")
+    fit_grid: list[Annotated[int, Field(ge=4, le=100)]] = Field(
+        [20, 20], min_length=2, max_length=2, description="without surface_fit_job_id: grid [nu, nv] "
+        "of the nominal top fit")
+    fit_margin_mm: float = Field(1.0, gt=0, le=100, description="without surface_fit_job_id: margin "
+                                 "around the trace's bounding box")
+
+    @field_validator("a_limits_deg")
+    @classmethod
+    def _a_ordered(cls, value: list[float]) -> list[float]:
+        if value[0] > value[1]:
+            raise ValueError("a_limits_deg must be [min, max] with min <= max")
+        return value
+
+    @field_validator("c_limits_deg")
+    @classmethod
+    def _c_ordered(cls, value: list[float] | None) -> list[float] | None:
+        if value is not None and value[0] >= value[1]:
+            raise ValueError("c_limits_deg must be [min, max] with min < max")
+        return value
+
+    def plan_params(self, trace: Trace, job_id: str | None) -> FiveAxisParams:
+        """The core's parameters; standoff and feed default to the trace's."""
+        return FiveAxisParams(
+            standoff_mm=self.standoff_mm or trace.standoff_mm,
+            feed_mm_min=self.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN,
+            servo_period_s=self.period_s, segment_mm=self.segment_mm, normal_source=self.normal,
+            pivot_mm=tuple(self.pivot), a_limits_deg=tuple(self.a_limits_deg),
+            c_limits_deg=None if self.c_limits_deg is None else tuple(self.c_limits_deg),
+            c_start_deg=self.c_start_deg, on_surface_tol_mm=self.on_surface_tol_mm,
+            feed_mode=self.feed_mode, job_id=job_id, decimals=self.decimals, safe_z_mm=self.safe_z_mm,
+            approach_feed_mm_min=self.approach_feed_mm_min)
+
+
+def _in_params(exc: FiveAxisError) -> FiveAxisError:
+    """The core's error with its field named as this job's parameter."""
+    return type(exc)(exc.message, field=_FIELDS.get(exc.field or "", exc.field), value=exc.value)
+
+
+def trace_xy(trace: Trace) -> np.ndarray:
+    """Top view (k, 2) mm of the trace's stored nominal points, consecutive duplicates
+    (vertical steps of the draped polyline) dropped.  A polyline of fewer than
+    MIN_TRACE_POINTS points (a straight trace over one facet) gets the midpoints of its
+    longest segments (the cubic through a straight trace stays that straight line)."""
+    xy = np.asarray(trace.nominal["points"], dtype=float)[:, :2]
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=1) > DEFAULT_TOLERANCE.dedup_mm])
+    xy = xy[keep]
+    while 2 <= xy.shape[0] < MIN_TRACE_POINTS:
+        longest = int(np.argmax(np.linalg.norm(np.diff(xy, axis=0), axis=1)))
+        xy = np.insert(xy, longest + 1, 0.5 * (xy[longest] + xy[longest + 1]), axis=0)
+    return xy
+
+
+def _fitted_surface(job: Job, field: str) -> NurbsSurface:
+    return NurbsSurface.from_dict((job.result or {}).get("surface"), field=field)
+
+
+def _check(params: FiveAxisJobParams, session: Session) -> None:
+    """At submission: the trace belongs to the part, the surface_fit job is a succeeded fit
+    of the same part, and the trace lies over its surface."""
+    trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
+    if trace.part_id != params.part_id:
+        raise InvalidInput(f"trace {trace.id!r} belongs to part {trace.part_id!r}, not {params.part_id!r}",
+                           field="params.trace_id", value=params.trace_id)
+    try:
+        params.plan_params(trace, None)
+    except FiveAxisError as exc:
+        raise _in_params(exc) from None
+    if params.surface_fit_job_id is None:
+        return
+    field = "params.surface_fit_job_id"
+    job = get_or_404(session, Job, params.surface_fit_job_id, field=field)
+    if job.kind != "surface_fit" or job.status != "succeeded":
+        raise InvalidInput(f"job {job.id!r} is a {job.status} {job.kind} job; a succeeded surface_fit job "
+                           "is needed", field=field, value=job.id)
+    if job.params.get("part_id") != params.part_id:
+        raise InvalidInput(f"surface_fit job {job.id!r} fitted part {job.params.get('part_id')!r}, "
+                           f"not {params.part_id!r}", field=field, value=job.id)
+    try:
+        uv_over_xy(_fitted_surface(job, field), trace_xy(trace))
+    except TraceOffSurfaceError as exc:
+        raise TraceOffSurfaceError(f"the trace leaves the surface of surface_fit job {job.id!r}: {exc.message}",
+                                   field="params.trace_id", value=exc.value) from None
+
+
+def _trace_region(xy: np.ndarray, margin_mm: float, part: Part) -> ProbeRegion:
+    """The trace's top-view bounding box grown by ``margin_mm``, within the part's footprint."""
+    (x_lo, y_lo, _), (x_hi, y_hi, _) = part.bounds
+    lo, hi = xy.min(axis=0) - margin_mm, xy.max(axis=0) + margin_mm
+    return ProbeRegion(max(float(lo[0]), x_lo), min(float(hi[0]), x_hi),
+                       max(float(lo[1]), y_lo), min(float(hi[1]), y_hi))
+
+
+def _with_dispense(program: str, on: str, off: str) -> str:
+    """``on`` after the first G1 (the approach to the first pose), ``off`` after the last G1."""
+    lines = program.splitlines()
+    moves = [i for i, line in enumerate(lines) if line.startswith("G1 ")]
+    first, last = moves[0], moves[-1]
+    lines = lines[:first + 1] + [on] + lines[first + 1:last + 1] + [off] + lines[last + 1:]
+    return "\n".join(lines) + "\n"
+
+
+class ChosenSurface(NamedTuple):
+    """The surface to print on and where it came from (JSON-friendly description)."""
+
+    surface: NurbsSurface
+    source: dict[str, Any]
+
+
+def _surface(ctx: JobContext, params: FiveAxisJobParams, xy: np.ndarray) -> ChosenSurface:
+    """The surface_fit job's surface, or a fit of the part's nominal top around the trace."""
+    if params.surface_fit_job_id is not None:
+        field = "params.surface_fit_job_id"
+        job = ctx.job(params.surface_fit_job_id, kind="surface_fit", field=field)
+        return ChosenSurface(_fitted_surface(job, field), {"kind": "surface_fit", "job_id": job.id})
+    region = _trace_region(xy, params.fit_margin_mm, ctx.part(params.part_id))
+    plan = plan_probe_grid(region, params.fit_grid[0], params.fit_grid[1])
+    fit = fit_part_top(ctx.mesh(params.part_id), plan, SurfaceFitParams(hole_policy="fill"))
+    return ChosenSurface(fit.surface, {
+        "kind": "nominal_top", "region": {"x": [region.x_min, region.x_max], "y": [region.y_min, region.y_max]},
+        "grid": list(params.fit_grid), "filled_holes": fit.filled_holes,
+        "residual": {"max_mm": fit.residual_max_mm, "rms_mm": fit.residual_rms_mm}})
+
+
+@job_kind("five_axis", FiveAxisJobParams, check=_check, references=lambda p: [
+    ("part", p.part_id), ("trace", p.trace_id), *([("job", p.surface_fit_job_id)] if p.surface_fit_job_id else [])])
+def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
+    """Plan a nozzle-normal five-axis (X Y Z A C) traverse of a trace and write its program."""
+    trace = ctx.trace(params.trace_id)
+    plan_params = params.plan_params(trace, ctx.job_id)
+    xy = trace_xy(trace)
+    ctx.progress(0.05, "loading the surface")
+    surface, source = _surface(ctx, params, xy)
+    ctx.progress(0.3, f"surface from {source['kind']}; planning {trace.length_mm:.1f} mm of trace")
+    try:
+        path = plan_five_axis(surface, trace_over_xy(surface, xy), plan_params)
+    except FiveAxisError as exc:
+        raise _in_params(exc) from None
+    ctx.progress(0.9, f"{path.u.size} poses; writing the programs")
+    metas = {}
+    for name, text in (("five_axis.gcode", path.program), ("nominal.gcode", path.nominal_program)):
+        text = _with_dispense(text, params.dispense_on, params.dispense_off)
+        metas[name] = gcode_meta(text)
+        ctx.artifact(name, text.encode(), "text/x-gcode", metas[name])
+    return {
+        **path.summary(),
+        "dispense_on": params.dispense_on,
+        "dispense_off": params.dispense_off,
+        "feed_fluctuation": path.feed.max_rel,
+        "feed_fluctuation_first_order": path.feed_first_order.max_rel,
+        "standoff_mm": plan_params.standoff_mm,
+        "feed_mm_min": plan_params.feed_mm_min,
+        "feed_mode": plan_params.feed_mode,
+        "pivot": list(plan_params.pivot_mm),
+        "surface_source": source,
+        "surface": surface.to_dict(),
+        "offset_curve": path.offset_curve.to_dict(),
+        "program": metas["five_axis.gcode"],
+        "nominal_program": metas["nominal.gcode"],
+    }

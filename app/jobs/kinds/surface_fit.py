@@ -1,0 +1,293 @@
+"""Job ``surface_fit``: a NURBS surface of a region of a part (seed S3, step 1).
+
+Where the heights come from:
+
+* ``points`` (JSON ``[[x, y, z], ...]``) or ``points_csv`` (CSV text, one ``x, y, z`` per
+  line): CMM measurements, fitted as given (least squares over x, y) or, with
+  ``resample_to_grid``, resampled onto the ``grid`` first (densification);
+* neither: the planned probing grid is sampled from the part mesh's top surface (the
+  nominal part: vertical rays).  Probing the grid on a machine (``machine_id``) comes with
+  the hardware issue; until then measured heights arrive as ``points``.
+
+Preprocessing and fit are :func:`app.compensation.surface_fit.fit_surface` (bad points,
+holes, densification, smoothing, interpolating or least-squares NURBS).  The result's
+``surface`` is the "real surface" a ``five_axis`` job uses via ``surface_fit_job_id``; the
+same surface is stored as the artifact ``surface.json``.  Units: mm.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import trimesh
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from sqlmodel import Session
+
+from app.compensation.surface_fit import (
+    GridHoleError,
+    ProbeGridPlan,
+    ProbeRegion,
+    SurfaceFit,
+    SurfaceFitError,
+    SurfaceFitParams,
+    fit_surface,
+    grid_from_plan,
+    plan_probe_grid,
+)
+from app.geometry.drape import top_surface_z
+from app.jobs.context import JobContext
+from app.jobs.registry import JobParams, job_kind
+from app.models import Part
+from app.records import get_or_404
+
+MAX_POINTS = 100_000
+MAX_GRID = 200
+BAD_POINT_FACTOR = 2  # find_bad_points needs 2 (degree + 1)^2 points
+_CSV_SEPARATOR = re.compile(r"[,;\s]+")
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Interval = Annotated[list[Finite], Field(min_length=2, max_length=2)]
+Point = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+
+
+def parse_points_csv(text: str) -> np.ndarray:
+    """CSV text -> points (k, 3) mm.  One ``x, y, z`` per line (separators ``,`` ``;`` or
+    blanks); blank lines and ``#`` comments are skipped, and so is one leading header line.
+    Raises ValueError naming the first bad line."""
+    rows: list[list[float]] = []
+    header_skipped = False
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        cells = [cell for cell in _CSV_SEPARATOR.split(stripped) if cell]
+        try:
+            values = [float(cell) for cell in cells]
+        except ValueError:
+            if not rows and not header_skipped:
+                header_skipped = True
+                continue
+            raise ValueError(f"line {number}: {stripped[:60]!r} is not three numbers x, y, z") from None
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise ValueError(f"line {number}: {stripped[:60]!r} is not three finite numbers x, y, z")
+        rows.append(values)
+        if len(rows) > MAX_POINTS:
+            raise ValueError(f"more than {MAX_POINTS} points")
+    if not rows:
+        raise ValueError("no points (expected one 'x, y, z' per line)")
+    return np.array(rows, dtype=float)
+
+
+class Region(BaseModel):
+    """Axis-aligned rectangle of the part, seen from above (mm)."""
+
+    model_config = ConfigDict(extra="forbid")
+    x: Interval = Field(description="[x0, x1] mm with x0 < x1")
+    y: Interval = Field(description="[y0, y1] mm with y0 < y1")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Region:
+        if not (self.x[0] < self.x[1] and self.y[0] < self.y[1]):
+            raise ValueError("region needs x0 < x1 and y0 < y1")
+        return self
+
+    def probe_region(self) -> ProbeRegion:
+        return ProbeRegion(self.x[0], self.x[1], self.y[0], self.y[1])
+
+
+class SurfaceFitJobParams(JobParams):
+    part_id: str = Field(description="the part whose region is measured")
+    region: Region = Field(description="where to probe: {x: [x0, x1], y: [y0, y1]} mm")
+    grid: list[Annotated[int, Field(ge=2, le=MAX_GRID)]] = Field(
+        [20, 20], min_length=2, max_length=2,
+        description="probing grid [nu, nv]: nu lines along x (surface u), nv along y (v)")
+    points: list[Point] | None = Field(
+        None, min_length=1, max_length=MAX_POINTS,
+        description="CMM points [[x, y, z], ...] mm; without points (or points_csv) the grid is "
+        "sampled from the part's nominal top surface (machine probing comes with the hardware issue)")
+    points_csv: str | None = Field(
+        None, max_length=8_000_000,
+        description="CMM points as CSV text, one 'x, y, z' per line (mm); instead of points")
+    method: Literal["least_squares", "interpolate"] = Field(
+        "least_squares", description="least_squares: smoothing NURBS fit (control net by GCV unless "
+        "control_points); interpolate: through every (preprocessed) grid point")
+    degree: int = Field(3, ge=1, le=5, description="degree in u and v")
+    control_points: list[Annotated[int, Field(ge=2, le=MAX_GRID * 8)]] | None = Field(
+        None, min_length=2, max_length=2, description="least-squares control net [n_u, n_v]; default: GCV")
+    penalty: float = Field(0.0, ge=0, le=1e6, description="second-difference smoothing weight (least squares)")
+    smoothing: Literal["none", "moving_average", "five_point_cubic", "spline"] = Field(
+        "none", description="grid smoothing of the patent's preprocessing")
+    moving_average_window: int = Field(3, ge=1, le=15, description="odd window of the moving average")
+    smoothing_passes: int = Field(1, ge=1, le=20, description="how often the smoothing is applied")
+    remove_bad_points: bool = Field(True, description="remove outliers before fitting (reported)")
+    bad_point_sigma: float = Field(5.0, gt=0, le=100, description="outlier threshold in robust sigmas")
+    bad_point_min_mm: float = Field(0.01, ge=0, le=10, description="never call a point bad below this residual")
+    hole_policy: Literal["error", "fill"] = Field(
+        "error", description="missing grid heights (a probe that failed, a grid point off the part): "
+        "error, or fill by interpolation")
+    densify_factor: int = Field(1, ge=1, le=8, description="grid refinement factor before smoothing and fit")
+    resample_to_grid: bool = Field(False, description="points: resample onto the grid before the fit")
+
+    @field_validator("moving_average_window")
+    @classmethod
+    def _odd(cls, value: int) -> int:
+        if value % 2 == 0:
+            raise ValueError("the moving-average window must be odd")
+        return value
+
+    @field_validator("points_csv")
+    @classmethod
+    def _parses(cls, value: str | None) -> str | None:
+        if value is not None:
+            parse_points_csv(value)
+        return value
+
+    @model_validator(mode="after")
+    def _one_source(self) -> SurfaceFitJobParams:
+        if self.points is not None and self.points_csv is not None:
+            raise ValueError("give points or points_csv, not both")
+        return self
+
+    def measured_points(self) -> np.ndarray | None:
+        """The CMM points (k, 3) mm, or None when the nominal grid is to be sampled."""
+        if self.points is not None:
+            return np.asarray(self.points, dtype=float)
+        if self.points_csv is not None:
+            return parse_points_csv(self.points_csv)
+        return None
+
+    @property
+    def points_field(self) -> str:
+        return "params.points_csv" if self.points_csv is not None else "params.points"
+
+    def fit_params(self) -> SurfaceFitParams:
+        """The core's parameters (raises SurfaceFitError naming params.<field>)."""
+        resample = tuple(self.grid) if self.resample_to_grid and self.has_points else None
+        return SurfaceFitParams(
+            method=self.method, degree=self.degree,
+            control_points=None if self.control_points is None else tuple(self.control_points),
+            penalty=self.penalty, smoothing=self.smoothing,
+            moving_average_window=self.moving_average_window, smoothing_passes=self.smoothing_passes,
+            remove_bad_points=self.remove_bad_points, bad_point_sigma=self.bad_point_sigma,
+            bad_point_min_mm=self.bad_point_min_mm, hole_policy=self.hole_policy,
+            densify_factor=self.densify_factor, resample_shape=resample)
+
+    @property
+    def has_points(self) -> bool:
+        return self.points is not None or self.points_csv is not None
+
+
+def _check(params: SurfaceFitJobParams, session: Session) -> None:
+    """Content checks at submission: region over the part, grid and net sizes, point count."""
+    part = get_or_404(session, Part, params.part_id, field="params.part_id")
+    fit = params.fit_params()
+    (x_lo, y_lo, _), (x_hi, y_hi, _) = part.bounds
+    if not params.has_points and (params.region.x[0] < x_lo or params.region.x[1] > x_hi
+                                  or params.region.y[0] < y_lo or params.region.y[1] > y_hi):
+        raise SurfaceFitError(
+            f"params.region {params.region.model_dump()} reaches beyond the part's footprint "
+            f"x [{x_lo:g}, {x_hi:g}], y [{y_lo:g}, {y_hi:g}] mm", field="params.region",
+            value=params.region.model_dump())
+    grid_fitted = not params.has_points or params.resample_to_grid
+    if grid_fitted and min(params.grid) < fit.degree + 1:
+        raise SurfaceFitError(f"params.grid {params.grid}: a degree-{fit.degree} fit needs at least "
+                              f"{fit.degree + 1} points per direction", field="params.grid", value=params.grid)
+    points = params.measured_points()
+    if points is not None:
+        _check_points(points, fit, params.points_field)
+    if fit.control_points is None or fit.method != "least_squares":
+        return
+    if grid_fitted:
+        dense = [(n - 1) * fit.densify_factor + 1 for n in params.grid]
+        if fit.control_points[0] > dense[0] or fit.control_points[1] > dense[1]:
+            raise SurfaceFitError(f"params.control_points {list(fit.control_points)} exceed the fitted "
+                                  f"grid {dense}", field="params.control_points", value=list(fit.control_points))
+    elif points is not None and math.prod(fit.control_points) > points.shape[0]:
+        raise SurfaceFitError(f"params.control_points {list(fit.control_points)} need more than the "
+                              f"{points.shape[0]} points given", field="params.control_points",
+                              value=list(fit.control_points))
+
+
+def _check_points(points: np.ndarray, fit: SurfaceFitParams, field: str) -> None:
+    """Points (k, 3) must be enough distinct (x, y) positions spread over an area."""
+    xy = np.unique(points[:, :2], axis=0)
+    # the core's outlier detection fits a surface of its own: twice the unknowns of a patch
+    needed = (fit.degree + 1) ** 2 * (BAD_POINT_FACTOR if fit.remove_bad_points else 1)
+    if xy.shape[0] < needed:
+        raise SurfaceFitError(
+            f"{xy.shape[0]} distinct (x, y) positions; a degree-{fit.degree} surface needs at least {needed}"
+            + (" (with remove_bad_points)" if fit.remove_bad_points else ""), field=field, value=xy.shape[0])
+    if np.linalg.matrix_rank(xy - xy.mean(axis=0)) < 2:
+        raise SurfaceFitError("the points lie on one line in (x, y): they span no area", field=field,
+                              value=xy[:2])
+    if fit.resample_shape is not None and xy.shape[0] < points.shape[0]:
+        raise SurfaceFitError(f"{points.shape[0] - xy.shape[0]} points repeat an (x, y) position: "
+                              "resample_to_grid needs one height per position", field=field,
+                              value=points.shape[0] - xy.shape[0])
+
+
+def _in_params(exc: SurfaceFitError, params: SurfaceFitJobParams) -> SurfaceFitError:
+    """The core's error with its field named as the job parameter it comes from."""
+    message, field = exc.message, exc.field
+    if params.has_points and field == "points":
+        field = params.points_field
+    elif not params.has_points and isinstance(exc, GridHoleError):
+        message = f"the part's top surface is missing under some grid points of params.region: {message}"
+        field = "params.region"
+    return type(exc)(message, field=field, value=exc.value)
+
+
+def sample_nominal_grid(mesh: trimesh.Trimesh, plan: ProbeGridPlan) -> np.ndarray:
+    """Nominal heights (nu*nv,) of the plan's probe points on the part's top, probing order
+    (NaN where a vertical ray misses the part)."""
+    return top_surface_z(mesh, plan.points_xy).z
+
+
+def fit_part_top(mesh: trimesh.Trimesh, plan: ProbeGridPlan, fit_params: SurfaceFitParams) -> SurfaceFit:
+    """Fit the part's nominal top surface sampled at the plan's grid."""
+    return fit_surface(grid_from_plan(plan, sample_nominal_grid(mesh, plan)), fit_params)
+
+
+def _json_z(values: np.ndarray) -> list[float | None]:
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
+@job_kind("surface_fit", SurfaceFitJobParams, references=lambda p: [("part", p.part_id)], check=_check)
+def run(ctx: JobContext, params: SurfaceFitJobParams) -> dict:
+    """Fit a NURBS surface to measured points or the sampled nominal grid of a part region."""
+    mesh = ctx.mesh(params.part_id)
+    plan = plan_probe_grid(params.region.probe_region(), params.grid[0], params.grid[1])
+    nominal_z = sample_nominal_grid(mesh, plan)
+    ctx.progress(0.2, f"probing grid {params.grid[0]} x {params.grid[1]} planned")
+    points = params.measured_points()
+    data: Any = grid_from_plan(plan, nominal_z) if points is None else points
+    try:
+        fit = fit_surface(data, params.fit_params())
+    except SurfaceFitError as exc:
+        raise _in_params(exc, params) from None
+    ctx.progress(0.8, f"fitted: residual max {fit.residual_max_mm:.4g} mm")
+    surface = fit.surface.to_dict()
+    ctx.artifact("surface.json", json.dumps(surface, sort_keys=True).encode(), "application/json",
+                 {"degree_u": fit.surface.degree_u, "degree_v": fit.surface.degree_v,
+                  "control_points": list(fit.control_points)})
+    return {
+        "source": "nominal_grid" if points is None else "points",
+        "surface": surface,
+        "residual": {"max_mm": fit.residual_max_mm, "rms_mm": fit.residual_rms_mm,
+                     "points": int(fit.residuals_mm.size)},
+        "probe_grid": {
+            "shape": list(params.grid), "x": plan.x.tolist(), "y": plan.y.tolist(),
+            "index": plan.index.tolist(),
+            "points": [[float(x), float(y), z] for (x, y), z in zip(plan.points_xy, _json_z(nominal_z))],
+        },
+        "removed_points": fit.removed_points.tolist(),
+        "filled_holes": fit.filled_holes,
+        "method": fit.method,
+        "smoothing": fit.smoothing,
+        "control_net": list(fit.control_points),
+        "region": params.region.model_dump(),
+    }

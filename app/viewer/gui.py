@@ -1,0 +1,134 @@
+"""The viser side panel: job selector, visibility toggles, layer sliders and the
+measured-versus-nominal deviation plots (uPlot, x axis in mm along the trace).
+
+Nothing here can move a machine: the panel only changes what the view shows.
+Callbacks fired by server-side value changes (``event.client is None``) are ignored, so
+that a focus change coming from the API does not echo back as a new focus request.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from app.viewer.registry import SceneRegistry
+from app.viewer.scene_data import FocusScene
+from app.viewer.scenes import SceneBuilder
+
+log = logging.getLogger("conforma.viewer")
+GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "layers", "axes", "heights", "surfaces")
+NO_JOB = "(none)"
+
+
+class ViewerPanel:
+    """GUI handles of the panel; ``refresh_jobs`` and ``show`` are called by the Viewer."""
+
+    def __init__(self, server: Any, builder: SceneBuilder, registry: SceneRegistry,
+                 on_select: Callable[[str | None, str | None], None],
+                 list_jobs: Callable[[], list[tuple[str, str]]]) -> None:
+        self.server = server
+        self.builder = builder
+        self.registry = registry
+        self._on_select = on_select
+        self._list_jobs = list_jobs
+        self._choices: dict[str, tuple[str | None, str | None]] = {}
+        gui = server.gui
+        gui.configure_theme(control_layout="collapsible", show_logo=False)
+        self.title = gui.add_markdown("**Conforma** (view only): open a part or a job in the web pages.")
+        with gui.add_folder("Focus"):
+            self.selector = gui.add_dropdown("Job / part", [NO_JOB], initial_value=NO_JOB)
+            self.refresh_button = gui.add_button("Refresh list", icon=None)
+        with gui.add_folder("Show"):
+            self.toggles = {g: gui.add_checkbox(g.capitalize(), True, visible=False) for g in GROUPS}
+        self.layer_folder = gui.add_folder("Layers", visible=False)
+        self.plot_folder = gui.add_folder("Deviation", visible=False)
+        self._dynamic: list[Any] = []
+        self.selector.on_update(self._selected)
+        self.refresh_button.on_click(lambda _event: self.refresh_jobs())
+        for group, box in self.toggles.items():
+            box.on_update(self._toggle_callback(group))
+
+    # callbacks -------------------------------------------------------------------------
+    def _selected(self, event: Any) -> None:
+        if event.client is None:
+            return
+        part_id, job_id = self._choices.get(self.selector.value, (None, None))
+        if part_id or job_id:
+            self._on_select(part_id, job_id)
+
+    def _toggle_callback(self, group: str) -> Callable[[Any], None]:
+        def toggle(_event: Any) -> None:
+            self.builder.set_group_visible(group, bool(self.toggles[group].value))
+        return toggle
+
+    # updates ---------------------------------------------------------------------------
+    def refresh_jobs(self, current: str | None = None) -> None:
+        """Fill the selector with recent parts and jobs (label -> (part_id, job_id))."""
+        try:
+            entries = self._list_jobs()
+        except Exception:  # the database may be busy; keep the old list
+            log.exception("could not list jobs for the viewer")
+            return
+        self._choices = {NO_JOB: (None, None)}
+        for label, ref in entries:
+            self._choices[label] = (ref, None) if ref.startswith("part_") else (None, ref)
+        self.selector.options = list(self._choices)
+        if current is not None:
+            label = next((lab for lab, ids in self._choices.items() if current in ids), None)
+            if label is not None:
+                self.selector.value = label
+
+    def show(self, scene: FocusScene) -> None:
+        """Rebuild the dynamic parts of the panel for ``scene`` (already drawn)."""
+        for handle in self._dynamic:
+            handle.remove()
+        self._dynamic.clear()
+        gui = self.server.gui
+        present = set(self.registry.groups())
+        for group, box in self.toggles.items():
+            box.visible = group in present
+        self.title.content = f"**{scene.title}**" + "".join(f"\n\n_{n}_" for n in scene.notes)
+        self.layer_folder.visible = bool(self.builder.layer_stacks or self.builder.height_stacks)
+        with self.layer_folder:
+            for name, stack in self.builder.layer_stacks.items():
+                self._slider(gui, name, stack.labels, self.builder.show_layer)
+            for name, stack in self.builder.height_stacks.items():
+                self._slider(gui, name, stack.labels, self.builder.show_height)
+        self.plot_folder.visible = bool(scene.plots)
+        with self.plot_folder:
+            for plot in scene.plots:
+                self._plot(gui, plot)
+
+    def _slider(self, gui: Any, name: str, labels: tuple[str, ...], show: Callable[[str, int], int]) -> None:
+        last = max(len(labels) - 1, 0)
+        slider = gui.add_slider(f"{name}", min=0, max=max(last, 1), step=1, initial_value=last,
+                                disabled=last == 0, hint="layer index")
+        caption = gui.add_markdown(labels[last] if labels else "")
+        self.registry.set_slider(name, 0, last, last, list(labels))
+
+        def moved(_event: Any) -> None:
+            index = show(name, int(slider.value))
+            caption.content = labels[index]
+            self.registry.set_slider(name, 0, last, index, list(labels))
+
+        slider.on_update(moved)
+        self._dynamic += [slider, caption]
+
+    def _plot(self, gui: Any, plot: Any) -> None:
+        import viser.uplot as uplot
+
+        s = np.asarray(plot.s_mm, np.float64)
+        dz = np.asarray(plot.dz_mm, np.float64)
+        handle = gui.add_uplot(
+            (s, dz),
+            (uplot.Series(label="s (mm)"), uplot.Series(label="dz (mm)", stroke="#d33", width=2)),
+            title=plot.title, scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)},
+            axes=(uplot.Axis(label="mm along the trace"), uplot.Axis(label="dz (mm)")),
+            aspect=1.6,
+        )
+        self.registry.add_plot(f"deviation/{plot.name}", plot.title, s.tolist(), dz.tolist(),
+                               "mm along the trace", "dz (mm)")
+        self._dynamic.append(handle)

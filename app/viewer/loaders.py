@@ -1,0 +1,261 @@
+"""Build the :class:`FocusScene` of a part or a job from the stored records.
+
+Reads the database and the blob store through the runtime (never over HTTP): job
+records, their results and artifacts.  One function per job kind; a kind without its
+own loader still shows its part and every G-code artifact as a toolpath.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from sqlmodel import Session, select
+
+from app.errors import NotFound
+from app.geometry.nurbs import NurbsCurve
+from app.geometry.nurbs_surface import NurbsSurface
+from app.models import Artifact, Job, JobReference, Part, Trace
+from app.records import get_or_404
+from app.viewer.gcode_paths import parse_toolpath
+from app.viewer.scene_data import (AxisGlyphs, DeviationPlot, FocusScene, HeightStack, LayerStack, Polyline,
+                                   ProbeSet, SurfaceMesh, Toolpath)
+from app.viewer.trace_math import project_onto_polyline, rings_to_segments
+
+CURVE_SAMPLES = 400
+
+
+class Loader:
+    """Loads scenes from one runtime (engine + blobs + mesh cache)."""
+
+    def __init__(self, runtime: Any) -> None:
+        self.runtime = runtime
+
+    # public --------------------------------------------------------------------------
+    def part_scene(self, part_id: str) -> FocusScene:
+        with Session(self.runtime.engine) as session:
+            part = get_or_404(session, Part, part_id)
+            traces = session.exec(select(Trace).where(Trace.part_id == part_id).order_by(Trace.created_at)).all()
+            vertices, faces = self._mesh(part)
+            lines = tuple(Polyline(t.name, np.asarray(t.nominal["points"], float)) for t in traces)
+        return FocusScene({"part_id": part_id}, f"part {part.name}", vertices, faces, polylines=lines)
+
+    def job_scene(self, job_id: str) -> FocusScene:
+        with Session(self.runtime.engine) as session:
+            job = get_or_404(session, Job, job_id)
+            part = self._part_of(session, job)
+            vertices, faces = self._mesh(part) if part is not None else (None, None)
+            base = FocusScene({"job_id": job_id, "part_id": part.id if part else None},
+                              f"{job.kind} {job.id} ({job.status})", vertices, faces)
+            if job.status != "succeeded":
+                return replace(base, notes=(f"job is {job.status}: {job.message}",))
+            content = self._content(session, job)
+        return replace(content, focus=base.focus, title=base.title, mesh_vertices=vertices, mesh_faces=faces)
+
+    # records ---------------------------------------------------------------------------
+    def _mesh(self, part: Part) -> tuple[np.ndarray, np.ndarray]:
+        mesh = self.runtime.meshes.mesh(part)
+        return np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+
+    def _part_of(self, session: Session, job: Job, depth: int = 0) -> Part | None:
+        """The part a job works on: directly, through a trace or through a job it reads."""
+        refs = session.exec(select(JobReference).where(JobReference.job_id == job.id)).all()
+        for ref in sorted(refs, key=lambda r: {"part": 0, "trace": 1}.get(r.ref_kind, 2)):
+            if ref.ref_kind == "part":
+                part = session.get(Part, ref.ref_id)
+            elif ref.ref_kind == "trace":
+                trace = session.get(Trace, ref.ref_id)
+                part = session.get(Part, trace.part_id) if trace else None
+            elif ref.ref_kind == "job" and depth < 4:
+                other = session.get(Job, ref.ref_id)
+                part = self._part_of(session, other, depth + 1) if other else None
+            else:
+                part = None
+            if part is not None:
+                return part
+        return None
+
+    def _artifact(self, session: Session, job_id: str, name: str) -> bytes | None:
+        row = session.exec(select(Artifact).where(Artifact.job_id == job_id, Artifact.name == name)).first()
+        return None if row is None else self.runtime.blobs.read(row.sha256)
+
+    def _trace(self, session: Session, trace_id: str | None) -> Trace | None:
+        return session.get(Trace, trace_id) if trace_id else None
+
+    def _trace_of(self, session: Session, job: Job, depth: int = 0) -> Trace | None:
+        trace = self._trace(session, job.params.get("trace_id"))
+        if trace is not None or depth >= 4:
+            return trace
+        for key in ("plan_job_id", "probe_run_job_id", "reconstruct_job_id"):
+            other = session.get(Job, job.params[key]) if job.params.get(key) else None
+            if other is not None:
+                return self._trace_of(session, other, depth + 1)
+        return None
+
+    # per kind ----------------------------------------------------------------------------
+    def _content(self, session: Session, job: Job) -> FocusScene:
+        loader = self._loaders().get(job.kind, self._generic)
+        return loader(session, job)
+
+    def _loaders(self) -> dict[str, Callable[[Session, Job], FocusScene]]:
+        return {"probe_plan": self._probe_plan, "probe_run": self._probe_run, "reconstruct": self._reconstruct,
+                "compensate": self._compensate, "closed_loop": self._closed_loop, "surface_fit": self._surface_fit,
+                "five_axis": self._five_axis, "slice": self._slice, "toolpath": self._toolpath,
+                "jetting": self._jetting}
+
+    def _with_trace(self, session: Session, job: Job, **parts: Any) -> FocusScene:
+        trace = self._trace_of(session, job)
+        lines = (Polyline(trace.name, np.asarray(trace.nominal["points"], float)),) if trace else ()
+        return FocusScene({}, "", polylines=lines + tuple(parts.pop("polylines", ())), **parts)
+
+    def _probe_plan(self, session: Session, job: Job) -> FocusScene:
+        planned = np.asarray(job.result.get("points", []), float).reshape(-1, 3)
+        return self._with_trace(session, job, probes=(ProbeSet("plan", planned=planned),))
+
+    def _measured_probes(self, trace: Trace | None, measured: np.ndarray, label: str,
+                         planned: np.ndarray | None = None) -> tuple[ProbeSet, DeviationPlot | None]:
+        if trace is None or not len(measured):
+            return ProbeSet(label, planned=planned, measured=measured), None
+        proj = project_onto_polyline(measured, np.asarray(trace.nominal["points"], float))
+        dz = measured[:, 2] - proj.nominal[:, 2]
+        order = np.argsort(proj.s_mm)
+        plot = DeviationPlot(trace.name, f"{trace.name}: measured - nominal (probes)", proj.s_mm[order], dz[order])
+        return ProbeSet(label, planned=planned, measured=measured, deviation_mm=dz), plot
+
+    def _probe_run(self, session: Session, job: Job) -> FocusScene:
+        rows = job.result.get("points", [])
+        nominal = np.asarray([r["nominal"] for r in rows], float).reshape(-1, 3)
+        measured = np.asarray([r["measured"] for r in rows], float).reshape(-1, 3)
+        probes, plot = self._measured_probes(self._trace_of(session, job), measured, "run", planned=nominal)
+        return self._with_trace(session, job, probes=(probes,), plots=(plot,) if plot else ())
+
+    def _reconstruct(self, session: Session, job: Job) -> FocusScene:
+        trace = self._trace_of(session, job)
+        if job.params.get("points") is not None:
+            measured = np.asarray(job.params["points"], float).reshape(-1, 3)
+        else:
+            run = session.get(Job, job.params.get("probe_run_job_id"))
+            rows = (run.result or {}).get("points", []) if run else []
+            measured = np.asarray([r["measured"] for r in rows], float).reshape(-1, 3)
+        probes, _ = self._measured_probes(trace, measured, "measured")
+        curve = NurbsCurve.from_dict(job.result["curve"])
+        lo, hi = curve.domain
+        rebuilt = Polyline(f"{trace.name if trace else 'trace'} reconstructed",
+                           curve.evaluate(np.linspace(lo, hi, CURVE_SAMPLES)), role="reconstructed")
+        samples = np.asarray(job.result.get("deviation", {}).get("samples", []), float).reshape(-1, 2)
+        name = trace.name if trace else job.id
+        plot = DeviationPlot(name, f"{name}: reconstructed - nominal", samples[:, 0], samples[:, 1])
+        return self._with_trace(session, job, polylines=(rebuilt,), probes=(probes,), plots=(plot,))
+
+    def _gcode(self, session: Session, job: Job, name: str, role: str, label: str | None = None) -> tuple[Toolpath, ...]:
+        data = self._artifact(session, job.id, name)
+        if data is None:
+            return ()
+        result = job.result or {}
+        segments = parse_toolpath(data, result.get("dispense_on"), result.get("dispense_off"))
+        return (Toolpath(label or name.rsplit(".", 1)[0], segments, role),)
+
+    def _compensate(self, session: Session, job: Job) -> FocusScene:
+        paths = self._gcode(session, job, "nominal.gcode", "nominal") + self._gcode(session, job, "print.gcode", "compensated")
+        return self._with_trace(session, job, toolpaths=paths)
+
+    def _closed_loop(self, session: Session, job: Job) -> FocusScene:
+        children = session.exec(select(Job).where(Job.parent_id == job.id, Job.status == "succeeded")
+                                .order_by(Job.created_at)).all()
+        merged = FocusScene({}, "")
+        for child in children:
+            scene = self._content(session, child)
+            merged = replace(merged, **{key: getattr(merged, key) + tuple(
+                replace(item, name=f"{child.kind}:{item.name}") for item in getattr(scene, key))
+                for key in ("polylines", "probes", "toolpaths", "layers", "axes", "heights", "surfaces", "plots")})
+        return merged
+
+    def _surface_fit(self, session: Session, job: Job) -> FocusScene:
+        mesh = NurbsSurface.from_dict(job.result["surface"]).to_mesh(60, 60)
+        points = job.params.get("points")
+        probes = (ProbeSet("fit points", measured=np.asarray(points, float).reshape(-1, 3)),) if points else ()
+        return FocusScene({}, "", surfaces=(SurfaceMesh("fitted surface", np.asarray(mesh.vertices), np.asarray(mesh.faces)),),
+                          probes=probes)
+
+    def _five_axis(self, session: Session, job: Job) -> FocusScene:
+        from app.compensation.five_axis.kinematics import machine_to_workpiece, tool_axis_from_angles
+
+        paths = list(self._gcode(session, job, "nominal.gcode", "nominal"))
+        data = self._artifact(session, job.id, "five_axis.gcode")
+        axes: tuple[AxisGlyphs, ...] = ()
+        if data is not None:
+            seg = parse_toolpath(data, (job.result or {}).get("dispense_on"), (job.result or {}).get("dispense_off"))
+            pivot = np.asarray(job.params.get("pivot") or [0.0, 0.0, 0.0], float)
+            a, c = np.radians(seg.a_deg), np.radians(seg.c_deg)
+            ends = machine_to_workpiece(seg.ends, a, c, pivot)
+            starts = np.vstack([ends[:1], ends[:-1]])
+            seg = replace(seg, starts=starts, ends=ends)
+            paths.append(Toolpath("five_axis", seg, "compensated"))
+            extent = float(np.ptp(ends, axis=0).max()) if len(ends) else 10.0
+            axes = (AxisGlyphs("nozzle axis", ends[seg.dispense] if seg.dispense.any() else ends,
+                               tool_axis_from_angles(a, c)[seg.dispense] if seg.dispense.any() else tool_axis_from_angles(a, c),
+                               max(0.06 * extent, 0.5)),)
+        return self._with_trace(session, job, toolpaths=tuple(paths), axes=axes)
+
+    def _slice(self, session: Session, job: Job) -> FocusScene:
+        data = self._artifact(session, job.id, "layers.json")
+        if data is None:
+            return FocusScene({}, "", notes=("slice job has no layers.json",))
+        doc = json.loads(data)
+        segments, labels = [], []
+        for layer in doc.get("layers", []):
+            z = float(layer.get("z_top", layer.get("z", 0.0)))
+            rings = [r for isl in layer.get("islands", []) for r in [isl["outer"], *isl.get("holes", [])]]
+            segments.append(rings_to_segments(rings, z))
+            labels.append(f"layer {layer.get('index', len(labels))} z={z:.3f} mm")
+        return FocusScene({}, "", layers=(LayerStack("slices", tuple(labels), tuple(segments)),))
+
+    def _toolpath(self, session: Session, job: Job) -> FocusScene:
+        paths = self._gcode(session, job, "print.gcode", "nominal", "toolpath")
+        layers: tuple[LayerStack, ...] = ()
+        if paths and (paths[0].segments.layer >= 0).any():
+            seg = paths[0].segments
+            both = np.stack([seg.starts, seg.ends], axis=1)
+            ids = np.unique(seg.layer[seg.layer >= 0])
+            layers = (LayerStack("toolpath layers", tuple(f"layer {i}" for i in ids),
+                                 tuple(both[(seg.layer == i) & seg.dispense] for i in ids)),)
+        return FocusScene({}, "", toolpaths=paths, layers=layers)
+
+    def _jetting(self, session: Session, job: Job) -> FocusScene:
+        data = self._artifact(session, job.id, "heights.npz")
+        if data is None:
+            return FocusScene({}, "", notes=("jetting job has no heights.npz",))
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+        key = "heights" if "heights" in arrays else next(
+            (k for k, v in arrays.items() if v.ndim in (2, 3) and v.dtype.kind == "f"), None)
+        if key is None:
+            return FocusScene({}, "", notes=("heights.npz holds no height array",))
+        heights = arrays[key] if arrays[key].ndim == 3 else arrays[key][None]
+        layer_ids = next((arrays[k] for k in ("snapshot_layers", "layers") if k in arrays and arrays[k].ndim == 1), None)
+        labels = tuple(f"layer {int(i)}" for i in layer_ids) if layer_ids is not None and len(layer_ids) == len(heights) \
+            else tuple(f"snapshot {i}" for i in range(len(heights)))
+        pitch = float(arrays["pitch_mm"]) if "pitch_mm" in arrays else 25.4 / float(job.params.get("dpi", 300))
+        return FocusScene({}, "", heights=(HeightStack("heights", np.asarray(heights, float), pitch, labels),))
+
+    def _generic(self, session: Session, job: Job) -> FocusScene:
+        rows = session.exec(select(Artifact).where(Artifact.job_id == job.id)).all()
+        paths: tuple[Toolpath, ...] = ()
+        for row in rows:
+            if row.name.endswith(".gcode"):
+                paths += self._gcode(session, job, row.name, "nominal")
+        return self._with_trace(session, job, toolpaths=paths)
+
+
+def load_focus(runtime: Any, part_id: str | None = None, job_id: str | None = None) -> FocusScene:
+    """The scene of a part or a job; NotFound names the missing id."""
+    loader = Loader(runtime)
+    if job_id:
+        return loader.job_scene(job_id)
+    if part_id:
+        return loader.part_scene(part_id)
+    raise NotFound("give part_id or job_id", field="part_id", value=None)

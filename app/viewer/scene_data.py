@@ -1,0 +1,130 @@
+"""What one focus (a part or a job) shows, as arrays: built by the loaders, drawn by
+:mod:`app.viewer.scenes`.  All lengths mm, in part (workpiece) coordinates."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from app.viewer.gcode_paths import ToolpathSegments
+
+
+@dataclass(frozen=True)
+class Polyline:
+    """A curve drawn as a polyline: points (k, 3) mm; role "nominal" or "reconstructed"."""
+
+    name: str
+    points: np.ndarray
+    role: str = "nominal"
+
+
+@dataclass(frozen=True)
+class ProbeSet:
+    """Probe points: planned (n, 3) and/or measured (m, 3) mm; deviation_mm (m,) signed,
+    measured minus nominal along z, colours the measured points."""
+
+    name: str
+    planned: np.ndarray | None = None
+    measured: np.ndarray | None = None
+    deviation_mm: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Toolpath:
+    """A program's moves; role "nominal" or "compensated"."""
+
+    name: str
+    segments: ToolpathSegments
+    role: str = "nominal"
+
+
+@dataclass(frozen=True)
+class LayerStack:
+    """Layers for a slider: per layer a (m_i, 2, 3) array of segments (mm) and a label."""
+
+    name: str
+    labels: tuple[str, ...]
+    segments: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True)
+class AxisGlyphs:
+    """Nozzle axes along a five-axis path: positions (n, 3) mm, unit directions (n, 3)."""
+
+    name: str
+    positions: np.ndarray
+    directions: np.ndarray
+    length_mm: float
+
+
+@dataclass(frozen=True)
+class HeightStack:
+    """Height maps for a slider: heights (k, L, W) mm on a grid of pitch_mm, cell (0, 0)
+    at origin_xy; labels (k,) name the layer of each snapshot."""
+
+    name: str
+    heights: np.ndarray
+    pitch_mm: float
+    labels: tuple[str, ...]
+    origin_xy: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class SurfaceMesh:
+    """A triangle surface (e.g. a fitted NURBS surface): vertices (v, 3) mm, faces (f, 3)."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+@dataclass(frozen=True)
+class DeviationPlot:
+    """Measured minus nominal height along a trace: s_mm (n,) arc length, dz_mm (n,)."""
+
+    name: str
+    title: str
+    s_mm: np.ndarray
+    dz_mm: np.ndarray
+
+
+@dataclass(frozen=True)
+class FocusScene:
+    """Everything one focus shows.  ``focus`` is {"part_id": ...} or {"job_id": ...}."""
+
+    focus: dict[str, Any]
+    title: str
+    mesh_vertices: np.ndarray | None = None
+    mesh_faces: np.ndarray | None = None
+    polylines: tuple[Polyline, ...] = ()
+    probes: tuple[ProbeSet, ...] = ()
+    toolpaths: tuple[Toolpath, ...] = ()
+    layers: tuple[LayerStack, ...] = ()
+    axes: tuple[AxisGlyphs, ...] = ()
+    heights: tuple[HeightStack, ...] = ()
+    surfaces: tuple[SurfaceMesh, ...] = ()
+    plots: tuple[DeviationPlot, ...] = ()
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    def bounds(self) -> np.ndarray | None:
+        """(2, 3) min/max corner of everything in the scene (mm), or None when empty."""
+        chunks = [self.mesh_vertices] if self.mesh_vertices is not None else []
+        chunks += [p.points for p in self.polylines]
+        chunks += [a for p in self.probes for a in (p.planned, p.measured) if a is not None]
+        chunks += [t.segments.ends for t in self.toolpaths]
+        chunks += [s.vertices for s in self.surfaces]
+        chunks += [a.positions for a in self.axes]
+        for h in self.heights:
+            k, rows, cols = h.heights.shape
+            x0, y0 = h.origin_xy
+            chunks.append(np.array([[x0, y0, 0.0], [x0 + cols * h.pitch_mm, y0 + rows * h.pitch_mm, float(np.nanmax(h.heights))]]))
+        chunks = [np.asarray(c, dtype=float).reshape(-1, 3) for c in chunks if c is not None and np.size(c)]
+        if not chunks:
+            return None
+        allpts = np.concatenate(chunks)
+        allpts = allpts[np.all(np.isfinite(allpts), axis=1)]
+        if not len(allpts):
+            return None
+        return np.stack([allpts.min(axis=0), allpts.max(axis=0)])
