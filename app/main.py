@@ -33,9 +33,10 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
         runtime = Runtime(settings)
         api.state.runtime = runtime
         api.state.keyring = KeyRing(runtime.engine, settings.static_keys())
-        # This process owns the serial ports: it always consumes the machine queue.
+        # This process owns the serial ports: it always consumes the machine queue (and the
+        # workflows that drive machines).
         embedded = settings.embedded_worker if start_workers is None else start_workers
-        runtime.start_workers(QUEUES if embedded else ("machine",))
+        runtime.start_workers(QUEUES if embedded else ("machine", "workflow"))
         viewer = None
         if settings.viewer:
             from app.viewer.server import start_viewer

@@ -22,16 +22,21 @@ for :func:`~app.compensation.registration.fit_placement`.  Lengths in mm.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import trimesh
 
-from app.compensation.registration import (PARAMETERS, RegistrationError, _unobservable,
-                                           information_rows)
+from app.compensation.registration import (
+    PARAMETERS,
+    RegistrationError,
+    _unobservable,
+    information_rows,
+)
 
-__all__ = ["DatumPlan", "plan_datum_probes", "EdgeFind", "find_edge"]
+__all__ = ["DatumPlan", "EdgeFind", "find_edge", "plan_datum_probes"]
 
 _EPS_INFO = 1e-9
 
@@ -99,12 +104,18 @@ def _candidates(mesh: trimesh.Trimesh, mode: str, count: int, seed: int, min_top
         need = np.where(side, pts[:, 2] + margin, zmin + margin)
         ok &= np.isfinite(hit_z) & (hit_z >= need)
     ok &= np.where(side, pts[:, 2] >= zmin + margin, True)
+    tangent = np.column_stack([-nrm[:, 1], nrm[:, 0], np.zeros(len(pts))])
+    for sign in (1.0, -1.0):
+        # side touches: the wall continues margin along it (not near a corner)
+        shifted = pts + sign * margin * tangent
+        reach = _first_hit(mesh, shifted - dirs * approach, dirs)
+        ok &= ~side | (np.abs(reach - approach) < 1e-3)
     return pts[ok], nrm[ok], dirs[ok], side[ok]
 
 
 def plan_datum_probes(mesh: trimesh.Trimesh, mode: str = "sides", count: int | None = None,
                       approach_mm: float = 2.0, overtravel_mm: float = 1.0,
-                      margin_mm: float = 1.0, min_spacing_mm: float = 3.0,
+                      margin_mm: float = 2.0, min_spacing_mm: float = 3.0,
                       candidates: int = 3000, seed: int = 0, min_top_nz: float = 0.3,
                       pivot_xy: tuple[float, float] | None = None,
                       sigma_mm: float = 0.001) -> DatumPlan:

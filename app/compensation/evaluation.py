@@ -31,15 +31,25 @@ Nozzle contact (h <= 0) happens on those parts, hence the cap.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 from app.errors import InvalidInput
 
-__all__ = ["EvaluationError", "StandoffReport", "evaluate_deposition", "LineWidthModel",
-           "WidthPrediction", "predicted_width", "Table1Row", "table_row", "format_table"]
+__all__ = [
+    "EvaluationError",
+    "LineWidthModel",
+    "StandoffReport",
+    "Table1Row",
+    "WidthPrediction",
+    "evaluate_deposition",
+    "format_table",
+    "predicted_width",
+    "table_row",
+]
 
 HeightFn = Callable[[np.ndarray], np.ndarray]
 
@@ -117,11 +127,11 @@ def evaluate_deposition(deposited_moves: Any, true_height: HeightFn, target_stan
     a, b, length = a[keep], b[keep], length[keep]
     if len(a) == 0:
         raise EvaluationError("all deposited moves have zero length", field="deposited_moves",
-                              value=int(len(moves)))
+                              value=len(moves))
     pieces, stations, weights = [], [], []
     s_start = 0.0
     for p, q, ln in zip(a, b, length):
-        k = max(1, int(math.ceil(ln / sample_mm)))
+        k = max(1, math.ceil(ln / sample_mm))
         t = np.linspace(0.0, 1.0, k + 1)
         w = np.full(k + 1, ln / k)
         w[0] = w[-1] = ln / (2 * k)

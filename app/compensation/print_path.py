@@ -28,8 +28,14 @@ import numpy as np
 
 from app.errors import InvalidInput
 
-__all__ = ["SegmentedPath", "SegmentationError", "dense_stations", "segment_adaptive",
-           "segment_errors", "chord_distances"]
+__all__ = [
+    "SegmentationError",
+    "SegmentedPath",
+    "chord_distances",
+    "dense_stations",
+    "segment_adaptive",
+    "segment_errors",
+]
 
 _KAPPA_SCALE_MM = 0.1  # curvature is estimated on a sub-grid of about this spacing
 _MAX_ROUNDS = 200

@@ -30,24 +30,35 @@ Observability (say which touches determine what):
   (0.15 mm over slopes ~0.3 -> ~0.5 mm): use planar features.  ``plan_datum_probes``
   with ``mode="z_only"`` therefore prefers sloped faces and reports the predicted
   uncertainties; side faces can also be located with -Z touches by edge finding
-  (:func:`app.compensation.datum_plan.find_edge`), which is what the closed loop uses on
-  the mock.
+  (:func:`app.compensation.datum_plan.find_edge`): the way to register on the mock.
 Lengths mm, angles rad inside (``rz_deg`` at the boundary).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from app.errors import InvalidInput
+from app.probing.nominal import NominalPath, as_nominal_path
 
-__all__ = ["RegistrationError", "DegenerateDatumError", "Placement", "apply_placement",
-           "remove_placement", "RegistrationParams", "Registration", "fit_placement",
-           "information_rows", "PARAMETERS"]
+__all__ = [
+    "PARAMETERS",
+    "DegenerateDatumError",
+    "Placement",
+    "Registration",
+    "RegistrationError",
+    "RegistrationParams",
+    "apply_placement",
+    "fit_placement",
+    "information_rows",
+    "place_path",
+    "remove_placement",
+]
 
 PARAMETERS: tuple[str, ...] = ("dx", "dy", "dz", "rz")
 SurfaceFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -79,7 +90,7 @@ class Placement:
 
     @classmethod
     def from_deg(cls, dx: float = 0.0, dy: float = 0.0, dz: float = 0.0, rz_deg: float = 0.0,
-                 pivot_xy: tuple[float, float] = (0.0, 0.0)) -> "Placement":
+                 pivot_xy: tuple[float, float] = (0.0, 0.0)) -> Placement:
         return cls(dx, dy, dz, math.radians(rz_deg), float(pivot_xy[0]), float(pivot_xy[1]))
 
     def rotation(self) -> np.ndarray:
@@ -132,6 +143,15 @@ def remove_placement(points: Any, placement: Placement) -> np.ndarray:
     return out[:, :p.shape[1]]
 
 
+def place_path(nominal: Any, placement: Placement) -> NominalPath:
+    """A nominal trace (NominalPath / ``.points`` (k, 3) / array) moved into the machine
+    frame: points placed, normals rotated, arc lengths unchanged (rigid motion)."""
+    path = as_nominal_path(nominal)
+    normals = None if path.normals is None else path.normals @ placement.rotation().T
+    return NominalPath(points=apply_placement(path.points, placement), s=path.s.copy(),
+                       normals=normals)
+
+
 @dataclass(frozen=True)
 class RegistrationParams:
     """Fit settings.  sigma_mm: probe repeatability along its direction.  estimate: the
@@ -179,7 +199,7 @@ class Registration:
             unc["rz_deg"] = math.degrees(self.std["rz"])
         return {"placement": self.placement.to_dict(), "uncertainty": unc,
                 "estimated": list(self.estimated), "rms_mm": self.rms_mm,
-                "touches": int(len(self.residuals_mm)), "iterations": self.iterations}
+                "touches": len(self.residuals_mm), "iterations": self.iterations}
 
 
 def information_rows(points: np.ndarray, normals: np.ndarray, pivot_xy: tuple[float, float],

@@ -43,8 +43,14 @@ from app.compensation.print_path import SegmentedPath, dense_stations, segment_a
 from app.errors import InvalidInput
 from app.gcode.writer import DIALECTS, ProgramBuilder
 
-__all__ = ["CompensationError", "OutsideProbedSpanError", "CompensationParams",
-           "CompensatedPath", "compensate_trace", "tip_path"]
+__all__ = [
+    "CompensatedPath",
+    "CompensationError",
+    "CompensationParams",
+    "OutsideProbedSpanError",
+    "compensate_trace",
+    "tip_path",
+]
 
 
 class CompensationError(InvalidInput):
@@ -286,13 +292,13 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
     method = str(getattr(reconstruction, "method", "unknown"))
     extension = (before if before > params.span_tolerance_mm else 0.0,
                  after if after > params.span_tolerance_mm else 0.0)
-    notes = [f"compensated trace: tip {params.standoff_mm:.4f} mm above the reconstructed real "
-             f"surface [{method}], offset along +Z [vertical nozzle]",
-             f"probed span s = {s0:.4f}..{s1:.4f} mm of 0..{length:.4f} mm; held end "
-             f"deviation over {extension[0]:.4f} / {extension[1]:.4f} mm",
+    notes = [(f"compensated trace: tip {params.standoff_mm:.4f} mm above the reconstructed "
+              f"real surface [{method}], offset along +Z [vertical nozzle]"),
+             (f"probed span s = {s0:.4f}..{s1:.4f} mm of 0..{length:.4f} mm; held end "
+              f"deviation over {extension[0]:.4f} / {extension[1]:.4f} mm"),
              f"{len(seg.points) - 1} segments, proved chord error <= {seg.max_error_mm:.6f} mm"]
-    nominal_notes = [f"NOMINAL [uncompensated] trace: tip {params.standoff_mm:.4f} mm above the "
-                     f"CAD surface", f"{len(nominal_seg.points) - 1} segments"]
+    nominal_notes = [(f"NOMINAL [uncompensated] trace: tip {params.standoff_mm:.4f} mm above "
+                      f"the CAD surface"), f"{len(nominal_seg.points) - 1} segments"]
     return CompensatedPath(
         points=seg.points, s_mm=seg.s, program=_program(seg.points, params, job_id, notes),
         nominal_points=nominal_seg.points,

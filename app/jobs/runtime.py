@@ -3,8 +3,8 @@
 One :class:`Runtime` per process.  The API process submits (and, by default, runs an
 embedded consumer); ``conforma worker`` processes only consume.  The queue carries job ids
 only; the job table decides who runs what (``JobStore``).  Queues: ``default`` for compute
-jobs and ``machine`` for jobs that own a serial port (one worker thread, on the host that
-owns the port).
+jobs, ``machine`` for jobs that own a serial port (one worker thread, on the host that
+owns the port) and ``workflow`` for parents that chain child jobs.
 """
 
 from __future__ import annotations
@@ -39,7 +39,10 @@ from app.problems import from_error, problem
 from app.records import MeshCache, get_or_404
 
 log = logging.getLogger("conforma.jobs")
-QUEUES = ("default", "machine")
+QUEUES = ("default", "machine", "workflow")
+# Threads per queue: "machine" owns serial ports (one job at a time); "workflow" runs
+# parents that only submit children and wait, so they never starve compute jobs.
+_THREADS = {"machine": 1, "workflow": 2}
 
 
 class _NormalSyncSqliteStorage(SqliteStorage):
@@ -206,7 +209,7 @@ class Runtime:
     def start_workers(self, queues: tuple[str, ...] = QUEUES) -> None:
         """Start consumer threads for ``queues`` plus the reaper (idempotent per process)."""
         for name in queues:
-            threads = 1 if name == "machine" else self.settings.worker_threads
+            threads = _THREADS.get(name, self.settings.worker_threads)
             consumer = _EmbeddedConsumer(
                 self.queues[name], workers=threads, worker_type="thread", periodic=False,
                 initial_delay=min(0.005, self.settings.poll_max_delay_s), backoff=1.5,

@@ -12,6 +12,11 @@ Methods:
     cubic spline in arc length through the deviation samples (a smoothing spline with
     s = n sigma^2 when sigma > 0).  The probes only carry the small smooth deviation, so
     far fewer of them give the same accuracy (see tests/bench/test_bench_probing.py).
+``"kriging"`` — the best model when the nominal has normals: dz is the posterior mean
+    of a Gaussian process, band-limited machining error + the part's rigid placement
+    error through the CAD slopes (``app.probing.deviation_prior``), given the probes and
+    their sigma.  State the process in ``ReconstructParams.prior`` (the planner's
+    ``PlanParams.prior()``); pair it with ``plan_probes(..., "kriging")``.
 
 Every result gives the real surface height along the trace, ``height_at_s`` /
 ``height_at_xy``, for compensation.  Heights from the curve methods are read where the
@@ -30,12 +35,14 @@ from scipy.interpolate import make_interp_spline, make_splrep
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import interpolate_curve, smooth_curve
 from app.geometry.nurbs import NurbsCurve
+from app.probing.deviation_prior import (DeviationPrior, Sites, fit_posterior, path_center,
+                                         path_gradient, path_sites)
 from app.probing.nominal import NominalPath, as_nominal_path
 from app.probing.selection import chord_height_select
 from app.reconstruction.preprocess import (CleanPoints, PreprocessParams, ReconstructionError,
                                            preprocess)
 
-METHODS: tuple[str, ...] = ("interpolate", "approximate", "deviation")
+METHODS: tuple[str, ...] = ("interpolate", "approximate", "deviation", "kriging")
 
 
 @dataclass(frozen=True)
@@ -44,13 +51,15 @@ class ReconstructParams:
 
     degree: curve degree (the seed: 3).  cl_tolerance_mm: chordal tolerance of the nominal
     points the "deviation" result curve is built on.  samples_step_mm: spacing of the
-    dense deviation profile.
+    dense deviation profile.  prior: the "kriging" model's deviation prior (its
+    sigma_mm is replaced by the preprocessing sigma).
     """
 
     degree: int = 3
     cl_tolerance_mm: float = 0.001
     profile_step_mm: float = 0.5
     preprocess: PreprocessParams = field(default_factory=PreprocessParams)
+    prior: DeviationPrior = field(default_factory=DeviationPrior)
 
 
 @dataclass(frozen=True, eq=False)
@@ -147,6 +156,8 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
     try:
         if method == "deviation":
             curve, height = _deviation_model(path, clean, pre.sigma_mm, params)
+        elif method == "kriging":
+            curve, height = _kriging_model(path, clean, pre.sigma_mm, params)
         else:
             if method == "interpolate" or pre.sigma_mm <= 0:
                 curve = interpolate_curve(clean.points, params.degree)
@@ -172,10 +183,28 @@ def _deviation_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
         # outside the probed span the deviation is held at its end value (no extrapolation)
         return path.z_at(s) + spline(np.clip(s, lo, hi))
 
+    return _result_curve(path, height, params), height
+
+
+def _kriging_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
+                   params: ReconstructParams):
+    prior = DeviationPrior(**{**params.prior.__dict__, "sigma_mm": float(sigma_mm)})
+    probes = Sites(clean.points[:, :2], path_gradient(path, clean.s))
+    posterior = fit_posterior(prior, probes, clean.dz, center=path_center(path))
+
+    def height(s: np.ndarray) -> np.ndarray:
+        return path.z_at(s) + posterior.mean(path_sites(path, s))
+
+    return _result_curve(path, height, params), height
+
+
+def _result_curve(path: NominalPath, height: Callable[[np.ndarray], np.ndarray],
+                  params: ReconstructParams) -> NurbsCurve:
+    """Cubic interpolation of the real trace through the nominal's CL stations."""
     idx = chord_height_select(path.points, params.cl_tolerance_mm)
     s_cl = path.s[idx]
     if len(s_cl) < params.degree + 1:
         s_cl = np.linspace(0.0, path.length_mm, params.degree + 1)
     pts = path.at(s_cl)
     pts[:, 2] = height(s_cl)
-    return interpolate_curve(pts, params.degree), height
+    return interpolate_curve(pts, params.degree)

@@ -11,7 +11,7 @@ from app.jobs.context import JobContext
 from app.jobs.kinds.probe_plan import nominal_of
 from app.jobs.registry import JobParams, job_kind
 from app.models import Trace
-from app.reconstruction import PreprocessParams, ReconstructionError, preprocess, reconstruct
+from app.reconstruction import PreprocessParams, Reconstruction, ReconstructionError, preprocess, reconstruct
 from app.records import get_or_404
 
 DEGREE = 3
@@ -58,12 +58,17 @@ def _check(params: ReconstructJobParams, session: Session) -> None:
 @job_kind("reconstruct", ReconstructJobParams, references=_references, check=_check)
 def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
     """Rebuild the real trace from measured points (outliers rejected, duplicates merged)."""
+    ctx.progress(0.2, "reconstructing")
+    return rebuild(ctx, params).to_result()
+
+
+def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
+    """The reconstruction a ``reconstruct`` job with ``params`` makes (deterministic, so the
+    ``compensate`` job rebuilds it from the stored parameters instead of storing objects)."""
     trace = ctx.trace(params.trace_id)
     if params.points is not None:
         measured = params.points
     else:
         probe_run = ctx.job(params.probe_run_job_id, kind="probe_run", field="params.probe_run_job_id")
         measured = [p["measured"] for p in probe_run.result["points"]]
-    ctx.progress(0.2, f"reconstructing from {len(measured)} points")
-    rebuilt = reconstruct(nominal_of(trace), measured, params.method, sigma_mm=params.sigma_mm)
-    return rebuilt.to_result()
+    return reconstruct(nominal_of(trace), measured, params.method, sigma_mm=params.sigma_mm)

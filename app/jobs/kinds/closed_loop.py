@@ -1,0 +1,139 @@
+"""Job ``closed_loop``: per trace, plan -> probe -> reconstruct -> compensate (-> print).
+
+Each step is a child job (visible, cancellable, with its own artifacts).  The parent runs
+on the ``workflow`` queue and only submits and waits.  Resume: if the parent is retried
+(its worker died), succeeded children of the same step and trace are reused, so a
+restarted loop continues where it stopped instead of probing again.
+
+``evaluate`` (mock machines with a true part only): print the nominal program and then
+the compensated one on the mock and compare the standoff along what was really deposited
+(the mock's deposition log) with the truth — the seed's Table 1, in simulation.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, Literal
+
+from pydantic import Field, field_validator
+from sqlmodel import Session, select
+
+from app.compensation.evaluation import predicted_width, table_row
+from app.errors import ConformaError, InvalidInput
+from app.jobs.context import JobContext
+from app.jobs.kinds.probe_plan import ProbePlanParams
+from app.jobs.machine_jobs import refuse_if_machine_busy
+from app.jobs.registry import JobParams, get_kind, job_kind
+from app.jobs.simulation import evaluate_print
+from app.models import Job, Machine, Trace
+from app.records import get_or_404
+
+STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
+
+
+class ClosedLoopParams(JobParams):
+    part_id: str
+    trace_ids: list[str] = Field(min_length=1, max_length=200)
+    machine_id: str
+    probe: dict[str, Any] = Field(default_factory=lambda: {"method": "deviation"},
+                                  description="probe_plan parameters (without trace_id); dialect comes from the machine")
+    reconstruct_method: Literal["interpolate", "approximate", "deviation"] = "deviation"
+    sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma) for the reconstruction")
+    chord_error_mm: float = Field(0.002, gt=0, le=1)
+    hold_mm: float = Field(0.0, ge=0, le=5)
+    print: bool = Field(False, description="print each compensated program on the machine")
+    evaluate: bool = Field(False, description="simulation: print nominal and compensated programs on the mock "
+                           "and measure the standoff against its true part")
+
+    @field_validator("probe")
+    @classmethod
+    def _probe_params(cls, value: dict[str, Any]) -> dict[str, Any]:
+        if "trace_id" in value:
+            raise ValueError("probe parameters apply to every trace: leave out trace_id")
+        ProbePlanParams.model_validate({**value, "trace_id": "x"})
+        return value
+
+
+def _check(params: ClosedLoopParams, session: Session) -> None:
+    machine = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    for index, trace_id in enumerate(params.trace_ids):
+        trace = session.get(Trace, trace_id)
+        if trace is None or trace.part_id != params.part_id:
+            raise InvalidInput(f"trace {trace_id!r} is not a trace of part {params.part_id!r}",
+                               field=f"params.trace_ids.{index}", value=trace_id)
+    if params.evaluate and not (machine.mock and machine.mock.get("true_part_id")):
+        raise InvalidInput("evaluate needs a mock machine with a true part", field="params.evaluate", value=True)
+    refuse_if_machine_busy(params.machine_id, session)
+
+
+def _references(params: ClosedLoopParams) -> list[tuple[str, str]]:
+    return [("part", params.part_id), ("machine", params.machine_id), *(("trace", t) for t in params.trace_ids)]
+
+
+class _Steps:
+    """Runs child jobs, reusing a succeeded child of an earlier attempt of this parent that
+    had exactly the same kind and (validated) parameters."""
+
+    def __init__(self, ctx: JobContext) -> None:
+        self.ctx = ctx
+        with ctx.session() as session:
+            done = session.exec(select(Job).where(Job.parent_id == ctx.job_id, Job.status == "succeeded")).all()
+        self.reusable = {(j.kind, json.dumps(j.params, sort_keys=True)): j for j in done}
+
+    def run(self, kind: str, params: dict[str, Any], trace_id: str) -> Job:
+        normalized = get_kind(kind).params.model_validate(params).model_dump(mode="json")
+        key = (kind, json.dumps(normalized, sort_keys=True))
+        if key in self.reusable:
+            return self.reusable[key]
+        [job] = self.ctx.wait_for([self.ctx.submit_child(kind, params)])
+        if job.status != "succeeded":
+            detail = (job.error or {}).get("detail", job.status)
+            raise ConformaError(f"{kind} of trace {trace_id} {job.status}: {detail}", field="trace_ids", value=trace_id)
+        return job
+
+
+@job_kind("closed_loop", ClosedLoopParams, queue="workflow", check=_check, references=_references)
+def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
+    """Probe, rebuild and compensate every trace on a machine (and print, and evaluate)."""
+    machine = ctx.machine(params.machine_id)
+    steps = _Steps(ctx)
+    per_trace, rows = [], []
+    total = len(params.trace_ids)
+    for index, trace_id in enumerate(params.trace_ids):
+        trace = ctx.trace(trace_id)
+        plan = steps.run("probe_plan", {**params.probe, "trace_id": trace_id, "dialect": machine.dialect}, trace_id)
+        ctx.progress((index + 0.25) / total, f"trace {index + 1}/{total}: probing")
+        probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id}, trace_id)
+        rebuilt = steps.run("reconstruct", {"trace_id": trace_id, "probe_run_job_id": probe.id,
+                                            "method": params.reconstruct_method, "sigma_mm": params.sigma_mm}, trace_id)
+        ctx.progress((index + 0.5) / total, f"trace {index + 1}/{total}: compensating")
+        compensated = steps.run("compensate", {"trace_id": trace_id, "reconstruct_job_id": rebuilt.id,
+                                               "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
+                                               "hold_mm": params.hold_mm}, trace_id)
+        entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
+                 "compensate": compensated.id, "probes": plan.result["count"],
+                 "deviation_max_mm": rebuilt.result["deviation"]["max_mm"]}
+        if params.evaluate:
+            world = ctx.runtime.machines.world(machine)  # built when the probe run connected
+            reports = {}
+            for artifact in ("nominal.gcode", "print.gcode"):
+                start = len(world.deposition_log)
+                steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id, "artifact": artifact},
+                          trace_id)
+                reports[artifact] = evaluate_print(world, start, trace.standoff_mm)
+            before, after = reports["nominal.gcode"], reports["print.gcode"]
+            row = table_row(index + 1, before, after, plan.result["count"])
+            rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name})
+            entry["evaluation"] = {"nominal": _report(before), "compensated": _report(after)}
+        elif params.print:
+            entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id,
+                                                 "artifact": "print.gcode"}, trace_id).id
+        per_trace.append(entry)
+        ctx.progress((index + 1) / total, f"trace {index + 1}/{total} done")
+    return {"traces": per_trace, "table": rows}
+
+
+def _report(report: Any) -> dict[str, float]:
+    width = predicted_width(report)
+    return {"standoff_error_max_mm": report.max_abs_error_mm, "standoff_error_rms_mm": report.rms_error_mm,
+            "width_mean_mm": width.mean_mm, "width_std_mm": width.std_mm, "length_mm": report.length_mm}

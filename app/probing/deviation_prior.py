@@ -1,0 +1,199 @@
+"""A Gaussian-process prior for the deviation of a real part from its CAD nominal.
+
+The deviation dz (real height - nominal height, mm) seen at a top-view point p = (x, y) is
+modelled as the sum of
+
+* a **machining error** field e(x, y): zero mean, stationary and isotropic in the plane,
+  band-limited to wavelengths >= ``wavelength_mm`` (flat disk spectrum), so its covariance
+  is the 2-D "jinc" kernel ``rms^2 * 2 J1(k r) / (k r)``, k = 2 pi / wavelength,
+  r = |p - p'| (mm).  rms = ``amplitude_mm / peak_factor`` (the amplitude is a peak);
+* a **rigid placement** error of the part (offset dx, dy, dz, rotation rz, tilt tx, ty):
+  to first order it changes the height by
+  ``dz + tx (x - cx) + ty (y - cy) - grad h . (dx - rz (y - cy), dy + rz (x - cx))``
+  where grad h (2,) is the nominal's slope (known from CAD, here from the surface normals)
+  and c the centre of the probed region.  Each coefficient gets an independent zero-mean
+  Gaussian prior with its tolerance as standard deviation.
+
+Both parts are linear in Gaussian unknowns, so the deviation is one Gaussian process whose
+covariance is the kernel plus ``B diag(tol^2) B'`` over the placement basis B (m, 6).  The
+posterior (kriging) mean is the reconstruction; the posterior standard deviation does not
+depend on the measured values, which is what lets a planner choose stations in advance
+(a sequential, after-each-touch planner would choose the same stations).
+
+Pure: numpy/scipy only.  Units: mm, rad inside; ``placement_rz_deg`` at the boundary.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.special import j1
+
+from app.errors import InvalidInput
+from app.probing.nominal import NominalPath
+
+
+class PriorError(InvalidInput):
+    """Deviation-prior parameters that cannot be used."""
+
+
+@dataclass(frozen=True)
+class DeviationPrior:
+    """What is expected of the real part (mm unless named otherwise).
+
+    amplitude_mm: peak machining error; wavelength_mm: its shortest wavelength.
+    peak_factor: peak / rms of the machining error (3: a Gaussian field's peak over a part).
+    placement_xy_mm, placement_z_mm, placement_rz_deg, tilt_rad: 1-sigma placement errors.
+    sigma_mm: probe repeatability (1 sigma).
+    """
+
+    amplitude_mm: float = 0.2
+    wavelength_mm: float = 20.0
+    peak_factor: float = 3.0
+    placement_xy_mm: float = 0.1
+    placement_z_mm: float = 0.05
+    placement_rz_deg: float = 0.2
+    tilt_rad: float = 0.001
+    sigma_mm: float = 0.001
+
+    def __post_init__(self) -> None:
+        for name in ("amplitude_mm", "wavelength_mm", "peak_factor"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise PriorError(f"{name} must be a positive finite number", field=name, value=v)
+        for name in ("placement_xy_mm", "placement_z_mm", "placement_rz_deg", "tilt_rad",
+                     "sigma_mm"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise PriorError(f"{name} must be a finite number >= 0", field=name, value=v)
+
+    @property
+    def rms_mm(self) -> float:
+        return self.amplitude_mm / self.peak_factor
+
+    @property
+    def basis_sd(self) -> np.ndarray:
+        """(6,) prior sd of (dz, dx, dy, rz, tx, ty) in mm, mm, mm, rad, rad, rad."""
+        t = self.placement_xy_mm
+        return np.array([self.placement_z_mm, t, t, math.radians(self.placement_rz_deg),
+                         self.tilt_rad, self.tilt_rad])
+
+
+@dataclass(frozen=True, eq=False)
+class Sites:
+    """Top-view points where the deviation is measured or wanted.
+
+    xy: (m, 2) mm.  grad: (m, 2) nominal slope (dh/dx, dh/dy) there (dimensionless).
+    """
+
+    xy: np.ndarray
+    grad: np.ndarray
+
+    def take(self, idx: np.ndarray) -> "Sites":
+        return Sites(self.xy[idx], self.grad[idx])
+
+
+def path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
+    """Nominal slope (m, 2) at arc lengths ``s`` (m,): from the normals when the path has
+    them (n = (-hx, -hy, 1)/|.|), else only its along-trace part dz/ds_xy * tangent_xy."""
+    s = np.asarray(s, dtype=float)
+    n = path.normals_at(s)
+    if n is not None:
+        nz = np.where(np.abs(n[:, 2]) > 1e-6, n[:, 2], 1e-6)
+        return np.stack([-n[:, 0] / nz, -n[:, 1] / nz], axis=1)
+    d = np.diff(path.points, axis=0)
+    dxy = np.linalg.norm(d[:, :2], axis=1)
+    seg = np.clip(np.searchsorted(path.s, s, side="right") - 1, 0, len(d) - 1)
+    safe = np.where(dxy[seg] > 1e-12, dxy[seg], 1.0)
+    slope = np.where(dxy[seg] > 1e-12, d[seg, 2] / safe, 0.0)
+    return slope[:, None] * d[seg, :2] / safe[:, None]
+
+
+def path_sites(path: NominalPath, s: np.ndarray) -> Sites:
+    """Sites on the nominal at arc lengths ``s`` (m,) mm."""
+    s = np.asarray(s, dtype=float)
+    return Sites(path.at(s)[:, :2], path_gradient(path, s))
+
+
+def path_center(path: NominalPath) -> np.ndarray:
+    """Rotation/tilt centre (2,) mm of a trace: mean top-view point, even in arc length."""
+    return path.at(np.linspace(0.0, path.length_mm, 65))[:, :2].mean(axis=0)
+
+
+def placement_basis(sites: Sites, center: np.ndarray) -> np.ndarray:
+    """(m, 6) first-order height change per unit (dz, dx, dy, rz, tx, ty) at ``sites``."""
+    x = sites.xy[:, 0] - center[0]
+    y = sites.xy[:, 1] - center[1]
+    hx, hy = sites.grad[:, 0], sites.grad[:, 1]
+    return np.stack([np.ones(len(x)), -hx, -hy, hx * y - hy * x, x, y], axis=1)
+
+
+def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float) -> np.ndarray:
+    """Unit-variance band-limited isotropic kernel (m, k) between points a (m, 2), b (k, 2)."""
+    r = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    x = np.maximum(2.0 * math.pi / wavelength_mm * r, 1e-12)
+    return np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
+
+
+def prior_covariance(prior: DeviationPrior, a: Sites, b: Sites,
+                     center: np.ndarray) -> np.ndarray:
+    """Prior covariance (m, k) mm^2 of the deviation between sites a and b."""
+    sd = prior.basis_sd
+    ba = placement_basis(a, center) * sd
+    bb = placement_basis(b, center) * sd
+    return prior.rms_mm ** 2 * jinc_kernel(a.xy, b.xy, prior.wavelength_mm) + ba @ bb.T
+
+
+def _factor(k: np.ndarray, sigma_mm: float, scale: float):
+    jitter = max(sigma_mm ** 2, 1e-10 * scale)
+    return cho_factor(k + jitter * np.eye(len(k)), lower=True)
+
+
+@dataclass(frozen=True, eq=False)
+class DeviationPosterior:
+    """The deviation given measurements: mean and sd at any sites.
+
+    prior, center (2,) mm, probes: the measured Sites, alpha (m,) = K^-1 dz.
+    """
+
+    prior: DeviationPrior
+    center: np.ndarray
+    probes: Sites
+    alpha: np.ndarray
+    factor: tuple
+
+    def mean(self, sites: Sites) -> np.ndarray:
+        """Posterior mean deviation (q,) mm at ``sites``."""
+        return prior_covariance(self.prior, sites, self.probes, self.center) @ self.alpha
+
+    def sd(self, sites: Sites) -> np.ndarray:
+        """Posterior standard deviation (q,) mm at ``sites``."""
+        kq = prior_covariance(self.prior, sites, self.probes, self.center)
+        prior_var = self.prior.rms_mm ** 2 + np.sum(
+            (placement_basis(sites, self.center) * self.prior.basis_sd) ** 2, axis=1)
+        v = prior_var - np.sum(kq.T * cho_solve(self.factor, kq.T), axis=0)
+        return np.sqrt(np.maximum(v, 0.0))
+
+
+def fit_posterior(prior: DeviationPrior, probes: Sites, dz: np.ndarray,
+                  center: np.ndarray | None = None) -> DeviationPosterior:
+    """Condition the prior on deviations dz (m,) mm measured at ``probes`` (+ N(0, sigma^2))."""
+    c = probes.xy.mean(axis=0) if center is None else np.asarray(center, dtype=float)
+    k = prior_covariance(prior, probes, probes, c)
+    factor = _factor(k, prior.sigma_mm, prior.rms_mm ** 2)
+    alpha = cho_solve(factor, np.asarray(dz, dtype=float))
+    return DeviationPosterior(prior, c, probes, alpha, factor)
+
+
+def max_posterior_sd(cov: np.ndarray, prior_var: np.ndarray, chosen: np.ndarray,
+                     targets: np.ndarray, sigma_mm: float) -> float:
+    """Largest posterior sd (mm) over ``targets`` (indices) with probes at ``chosen``
+    (indices), all into one precomputed prior covariance ``cov`` (N, N), ``prior_var`` (N,)."""
+    kc = cov[np.ix_(chosen, chosen)]
+    factor = _factor(kc, sigma_mm, float(prior_var.max()))
+    kq = cov[np.ix_(chosen, targets)]
+    v = prior_var[targets] - np.sum(kq * cho_solve(factor, kq), axis=0)
+    return float(np.sqrt(max(float(v.max()), 0.0)))
