@@ -79,6 +79,8 @@ def _param_holding(params: Any, value: str, ref_kind: str) -> str:
     for name, given in params.model_dump().items():
         if given == value:
             return name
+        if isinstance(given, list) and value in given:
+            return f"{name}.{given.index(value)}"
     return f"{ref_kind}_id"
 
 

@@ -36,7 +36,8 @@ class ViewerPanel:
         self._list_jobs = list_jobs
         self._choices: dict[str, tuple[str | None, str | None]] = {}
         gui = server.gui
-        gui.configure_theme(control_layout="collapsible", show_logo=False)
+        gui.configure_theme(control_layout="collapsible", control_width="medium", show_logo=False,
+                            show_share_button=False)
         self.title = gui.add_markdown("**Conforma** (view only): open a part or a job in the web pages.")
         with gui.add_folder("Focus"):
             self.selector = gui.add_dropdown("Job / part", [NO_JOB], initial_value=NO_JOB)
