@@ -98,6 +98,13 @@ def cmd_keys(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_demo(args: argparse.Namespace) -> int:
+    from app.demo import run_demo
+
+    run_demo(_settings(args), args)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="conforma", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -123,6 +130,13 @@ def build_parser() -> argparse.ArgumentParser:
     data_dir(mig)
     mig.add_argument("--revision", default="head")
     mig.set_defaults(func=cmd_migrate)
+
+    demo = sub.add_parser("demo", help="seed S1's experiment on the mock printer: closed loop + Table 1")
+    data_dir(demo)
+    from app.demo import add_arguments
+
+    add_arguments(demo)
+    demo.set_defaults(func=cmd_demo)
 
     keys = sub.add_parser("keys", help="manage API keys")
     data_dir(keys)

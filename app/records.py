@@ -14,9 +14,11 @@ import trimesh
 from sqlmodel import Session, SQLModel
 
 from app.blobs import BlobStore
-from app.errors import NotFound
-from app.mesh_intake import parse_mesh
-from app.models import Artifact, Job, Machine, Part, Trace, utcnow
+from app.errors import ConformaError, NotFound
+from app.geometry.tolerance import Tolerance
+from app.geometry.traces import build_nominal_trace
+from app.mesh_intake import parse_mesh, summarize
+from app.models import Artifact, Job, Machine, Part, Trace, new_id, utcnow
 
 T = TypeVar("T", bound=SQLModel)
 _LABELS = {Part: "part", Trace: "trace", Job: "job", Machine: "machine"}
@@ -80,3 +82,44 @@ def add_artifact(
     )
     session.add(artifact)
     return artifact
+
+
+def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: bytes, fmt: str, name: str,
+               max_unzipped_bytes: int) -> Part:
+    """Parse, check and store an uploaded mesh as a part (added to ``session``, not committed)."""
+    mesh = parse_mesh(data, fmt, max_unzipped_bytes=max_unzipped_bytes)
+    summary = summarize(mesh)
+    sha = blobs.put(session, data)
+    part = Part(
+        id=new_id("part"), name=name, format=fmt, faces=summary.faces, vertices=summary.vertices,
+        bounds=summary.bounds, watertight=summary.watertight, volume_mm3=summary.volume_mm3,
+        area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(),
+    )
+    session.add(part)
+    meshes.put(sha, mesh)
+    return part
+
+
+def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = "") -> Trace:
+    """Drape/snap a trace (an API ``TraceCreate``) onto its part and make the record (not added).
+
+    Errors from the geometry core name their field under ``field_prefix`` (the index of a
+    trace in a bulk import)."""
+    geometry = body.geometry.model_dump()
+    try:
+        nominal = build_nominal_trace(meshes.mesh(part), geometry, body.frame, Tolerance())
+    except ConformaError as exc:
+        if field_prefix and exc.field:
+            exc.field = f"{field_prefix}.{exc.field}"
+        raise
+    return Trace(
+        id=new_id("trace"), part_id=part.id, name=body.name, frame=body.frame, geometry=geometry,
+        standoff_mm=body.standoff_mm, width_mm=body.width_mm, feed_mm_min=body.feed_mm_min,
+        length_mm=float(nominal.length_mm), z_min=float(nominal.z_range[0]), z_max=float(nominal.z_range[1]),
+        nominal={
+            "points": [[round(float(v), 6) for v in p] for p in nominal.points],
+            "normals": [[round(float(v), 6) for v in n] for n in nominal.normals],
+            "slope_stretch": float(nominal.slope_stretch),
+        },
+        created_at=utcnow(),
+    )

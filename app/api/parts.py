@@ -11,9 +11,9 @@ from sqlmodel import select
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, PartOut
 from app.errors import Conflict
-from app.mesh_intake import detect_format, export_mesh, parse_mesh, summarize
-from app.models import JobReference, Part, Trace, new_id, utcnow
-from app.records import get_or_404
+from app.mesh_intake import detect_format, export_mesh
+from app.models import JobReference, Part, Trace
+from app.records import get_or_404, store_part
 
 router = APIRouter(prefix="/api/v1/parts", tags=["parts"])
 
@@ -32,18 +32,10 @@ def upload_part(
 ) -> PartOut:
     """Upload a part mesh (413 over the size limit; 422 for empty, non-finite or unparsable meshes)."""
     fmt = detect_format(file.filename, format)
-    data = file.file.read()
-    mesh = parse_mesh(data, fmt, max_unzipped_bytes=int(runtime.settings.max_unzipped_mb * 2**20))
-    summary = summarize(mesh)
-    sha = runtime.blobs.put(session, data)
-    part = Part(
-        id=new_id("part"), name=name or (file.filename or "part").rsplit("/", 1)[-1], format=fmt,
-        faces=summary.faces, vertices=summary.vertices, bounds=summary.bounds, watertight=summary.watertight,
-        volume_mm3=summary.volume_mm3, area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(),
-    )
-    session.add(part)
+    part = store_part(session, runtime.blobs, runtime.meshes, file.file.read(), fmt,
+                      name or (file.filename or "part").rsplit("/", 1)[-1],
+                      max_unzipped_bytes=int(runtime.settings.max_unzipped_mb * 2**20))
     session.commit()
-    runtime.meshes.put(sha, mesh)
     return part_out(part)
 
 

@@ -10,13 +10,9 @@ from sqlmodel import Session, select
 
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, TraceCreate, TraceOut
-from app.errors import Conflict, ConformaError
-from app.geometry.tolerance import Tolerance
-from app.geometry.traces import build_nominal_trace
-
-from app.jobs.runtime import Runtime
-from app.models import JobReference, Part, Trace, new_id, utcnow
-from app.records import get_or_404
+from app.errors import Conflict
+from app.models import JobReference, Part, Trace
+from app.records import build_trace, get_or_404
 
 router = APIRouter(prefix="/api/v1", tags=["traces"])
 MAX_IMPORT = 1000
@@ -28,33 +24,11 @@ def trace_out(trace: Trace) -> TraceOut:
     return TraceOut(**data)
 
 
-def _build(runtime: Runtime, part: Part, body: TraceCreate, field_prefix: str = "") -> Trace:
-    """Drape/snap the trace onto the part (geometry core) and make the record (not yet added)."""
-    geometry = body.geometry.model_dump()
-    try:
-        nominal = build_nominal_trace(runtime.meshes.mesh(part), geometry, body.frame, Tolerance())
-    except ConformaError as exc:
-        if field_prefix and exc.field:
-            exc.field = f"{field_prefix}.{exc.field}"
-        raise
-    return Trace(
-        id=new_id("trace"), part_id=part.id, name=body.name, frame=body.frame, geometry=geometry,
-        standoff_mm=body.standoff_mm, width_mm=body.width_mm, feed_mm_min=body.feed_mm_min,
-        length_mm=float(nominal.length_mm), z_min=float(nominal.z_range[0]), z_max=float(nominal.z_range[1]),
-        nominal={
-            "points": [[round(float(v), 6) for v in p] for p in nominal.points],
-            "normals": [[round(float(v), 6) for v in n] for n in nominal.normals],
-            "slope_stretch": float(nominal.slope_stretch),
-        },
-        created_at=utcnow(),
-    )
-
-
 @router.post("/parts/{part_id}/traces", status_code=201, dependencies=[Operator])
 def create_trace(part_id: str, body: TraceCreate, runtime: RuntimeDep, session: SessionDep) -> TraceOut:
     """Create a trace; 422 if it leaves the part's surface (naming the first offending point)."""
     part = get_or_404(session, Part, part_id)
-    trace = _build(runtime, part, body)
+    trace = build_trace(runtime.meshes, part, body)
     session.add(trace)
     session.commit()
     return trace_out(trace)
@@ -65,7 +39,7 @@ def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep,
                   body: Annotated[list[TraceCreate], Body(min_length=1, max_length=MAX_IMPORT)]) -> Page[TraceOut]:
     """Create many traces at once: all or nothing (the first bad one is named by its index)."""
     part = get_or_404(session, Part, part_id)
-    traces = [_build(runtime, part, item, field_prefix=str(i)) for i, item in enumerate(body)]
+    traces = [build_trace(runtime.meshes, part, item, field_prefix=str(i)) for i, item in enumerate(body)]
     session.add_all(traces)
     session.commit()
     return Page(items=[trace_out(t) for t in traces], total=len(traces))
