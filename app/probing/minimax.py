@@ -79,12 +79,11 @@ def exchange(grid: DesignGrid, chosen: np.ndarray) -> np.ndarray:
     """Coordinate exchange on grid indices (n,) minimising the largest posterior sd."""
     chosen = np.array(sorted(chosen), dtype=int)
     best = grid.max_sd(chosen)
-    g = len(grid.s)
     for _ in range(MAX_SWEEPS):
         moved = False
         for i in range(len(chosen)):
             lo = chosen[i - 1] + 1 if i > 0 else 0
-            hi = chosen[i + 1] - 1 if i + 1 < len(chosen) else g - 1
+            hi = chosen[i + 1] - 1 if i + 1 < len(chosen) else len(grid.s) - 1
             for j in range(lo, hi + 1):
                 if j == chosen[i]:
                     continue

@@ -131,3 +131,22 @@ def test_api_result_round_trips(path):
     assert curve.evaluate([0.0, 1.0]).shape == (2, 3)
     assert len(result["deviation"]["samples"]) == 8
     assert set(result["deviation"]) == {"max_mm", "rms_mm", "samples"}
+
+
+def test_kriging_passes_through_noise_free_points_and_recovers_placement(path):
+    from app.reference.s1 import Placement
+    s = np.linspace(0, path.length_mm, 8)
+    pts = measure(path, s, cubic_dz)
+    rec = reconstruct(path, pts, "kriging", sigma_mm=0.0)
+    assert rec.method == "kriging"
+    assert np.abs(rec.height_at_xy(pts[:, :2]) - pts[:, 2]).max() < 1e-5
+    assert rec.to_result()["curve"]["degree"] == 3
+    # a placed part without machining error: the CAD slopes carry the whole deviation
+    part = as_made(4, amplitude_mm=1e-12, placement=Placement(0.09, -0.07, 0.02, 0.18))
+    s = np.linspace(0, path.length_mm, 6)
+    pts = path.at(s)
+    pts[:, 2] = part.true_height(pts[:, :2])
+    truth = part.true_height(path.points[:, :2])
+    err = np.abs(reconstruct(path, pts, "kriging", sigma_mm=0.0).height_at_s(path.s) - truth)
+    spline = reconstruct(path, pts, "deviation", sigma_mm=0.0).height_at_s(path.s) - truth
+    assert err.max() < 1.2e-3 and err.max() < 0.5 * np.abs(spline).max()
