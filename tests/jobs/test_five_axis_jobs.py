@@ -259,6 +259,36 @@ def test_five_axis_default_surface_is_deterministic(client, cap_stl):
     assert_normal_and_standoff(NurbsSurface.from_dict(first["result"]["surface"]), tips, axes)
 
 
+@pytest.mark.parametrize("offset_mm", [0.0, 0.1])
+def test_five_axis_over_the_apex_keeps_the_tip_on_the_path(client, cap_stl, offset_mm):
+    """A straight trace through the cap's apex, and one 0.1 mm beside it, on the default
+    (fitted nominal top) surface: C is blended near A = 0 instead of swinging, and
+    halfway through every move (all five axes linear) the tip is h above the sphere and
+    over the trace, to 10 um, from the program text alone."""
+    part = upload(client, cap_stl)
+    along = np.array([np.cos(0.5), np.sin(0.5)])
+    across = np.array([-along[1], along[0]])
+    start, end = -12.0 * along + offset_mm * across, 12.0 * along + offset_mm * across
+    trace = add_trace(client, part["id"], {"type": "line", "start": start.tolist(), "end": end.tolist()})
+    job = run_job(client, "five_axis", {"part_id": part["id"], "trace_id": trace["id"], "feed_mm_min": 1200,
+                                        "pivot": PIVOT, "segment_mm": 0.5})
+    assert job["status"] == "succeeded", job["error"]
+    result = job["result"]
+    assert result["max_midpoint_error_mm"] < 0.01 and result["max_c_step_deg"] < 10.0
+    assert result["max_normal_error_deg"] <= 0.5  # the default pole window
+    text = artifact(client, job, "five_axis.gcode")[1].text
+    rows = g1_rows(text)
+    assert rows.shape[0] == result["lines"] and np.abs(np.diff(rows[:, 4])).max() < 10.0
+    tips, _ = workpiece_frames(0.5 * (rows[1:] + rows[:-1]))
+    radial = tips - CENTER
+    radius = np.linalg.norm(radial, axis=1)
+    assert np.abs(radius - R - H).max() < 0.01
+    assert np.abs((radial * (R / radius)[:, None])[:, :2] @ across - offset_mm).max() < 0.01
+    lines = text.splitlines()
+    g1 = [i for i, line in enumerate(lines) if line.startswith("G1 ")]
+    assert lines.index("M8") == g1[0] + 1 and lines.index("M9") == g1[-1] + 1
+
+
 def test_a_limit_violation_is_a_failed_job_naming_the_limits(client, cap_stl):
     part = upload(client, cap_stl)
     trace = add_trace(client, part["id"], ARC)

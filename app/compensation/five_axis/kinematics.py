@@ -27,7 +27,7 @@ so ``vx = 0``, ``vy = sin A`` and ``nz = cos A``.  With ``rho = sqrt(nx^2 + ny^2
 
 Forward (the tool axis in workpiece coordinates) is ``n = Rz(-C) Rx(-A) e_z =
 (sin A sin C, sin A cos C, cos A)``.  At ``A = 0`` (normal already vertical) C is undefined:
-the caller holds the previous C (see :mod:`.branches`).
+the caller chooses it (:mod:`.branches`: C is blended across a pole window).
 
 All angles in radians, lengths in mm.
 """

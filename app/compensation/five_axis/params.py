@@ -12,6 +12,9 @@ from app.compensation.five_axis.program import FeedMode, ProgramStyle
 
 __all__ = ["FiveAxisParams"]
 
+_MAX_POLE_WINDOW_DEG = 5.0
+_MAX_SPLIT_ROUNDS = 16
+
 
 @dataclass(frozen=True)
 class FiveAxisParams:
@@ -25,11 +28,20 @@ class FiveAxisParams:
     normal_side: which side of the surface is "up" ("up": the +Z side at its centre).
     pivot_mm: table pivot (x0, y0, z0) in workpiece coordinates at A = C = 0.
     a_limits_deg: (min, max) table tilt; c_limits_deg: (min, max) or None = endless C.
-    c_start_deg: C before the path (held while the first normals are vertical).
-    singular_tilt_deg: below this tilt of the normal C is held (A = 0 singularity).
+    c_start_deg: C before the path (biases the first branch; held if the whole path is
+    in the pole window).
+    pole_window_deg: half-angle of the pole window around +Z (A = 0 singularity): where
+    the normal is tilted less than this, C is blended smoothly between the window's ends
+    instead of following the normal's azimuth, and the nozzle axis may deviate from the
+    normal by at most this angle (see :mod:`.branches`).  0 = exact normals everywhere.
+    midpoint_tol_mm: max distance of the tool tip from the planned tip path halfway
+    between two program lines; longer lines are split (at most ``max_split_rounds``
+    halvings) until it holds.
     on_surface_tol_mm: max trace-to-surface distance before the trace counts as "off".
     feed_mode: "inverse_time" (G93) or "tcp" (G94), see :mod:`.program`.
     dialect, job_id, decimals, safe_z_mm, approach_feed_mm_min: program formatting.
+    dispense_on / dispense_off: commands (one line each, or None) written after the
+    approach move and after the last print move.
     """
 
     standoff_mm: float = 0.5
@@ -42,7 +54,9 @@ class FiveAxisParams:
     a_limits_deg: tuple[float, float] = (-90.0, 90.0)
     c_limits_deg: tuple[float, float] | None = None
     c_start_deg: float = 0.0
-    singular_tilt_deg: float = 1e-4
+    pole_window_deg: float = 0.5
+    midpoint_tol_mm: float = 0.01
+    max_split_rounds: int = 10
     on_surface_tol_mm: float = 0.05
     feed_mode: FeedMode = "inverse_time"
     dialect: str = "grbl"
@@ -50,18 +64,30 @@ class FiveAxisParams:
     decimals: int = 4
     safe_z_mm: float | None = None
     approach_feed_mm_min: float = 300.0
+    dispense_on: str | None = None
+    dispense_off: str | None = None
 
     def __post_init__(self) -> None:
         positive = ("standoff_mm", "feed_mm_min", "servo_period_s", "segment_mm",
-                    "on_surface_tol_mm", "approach_feed_mm_min")
+                    "on_surface_tol_mm", "approach_feed_mm_min", "midpoint_tol_mm")
         for name in positive:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise FiveAxisError(f"{name} must be a positive finite number",
                                     field=f"params.{name}", value=value)
-        if not (0 <= self.singular_tilt_deg < 1.0):
-            raise FiveAxisError("singular_tilt_deg must be in [0, 1)",
-                                field="params.singular_tilt_deg", value=self.singular_tilt_deg)
+        if not (0 <= self.pole_window_deg <= _MAX_POLE_WINDOW_DEG):
+            raise FiveAxisError(f"pole_window_deg must be in [0, {_MAX_POLE_WINDOW_DEG:g}]",
+                                field="params.pole_window_deg", value=self.pole_window_deg)
+        if not (isinstance(self.max_split_rounds, int) and 0 <= self.max_split_rounds
+                <= _MAX_SPLIT_ROUNDS):
+            raise FiveAxisError(f"max_split_rounds must be an integer in [0, {_MAX_SPLIT_ROUNDS}]",
+                                field="params.max_split_rounds", value=self.max_split_rounds)
+        for name in ("dispense_on", "dispense_off"):
+            command = getattr(self, name)
+            if command is not None and not (isinstance(command, str) and command.strip()
+                                            and "\n" not in command and "\r" not in command):
+                raise FiveAxisError(f"{name} must be one non-empty G-code line or None",
+                                    field=f"params.{name}", value=str(command)[:40])
         lo, hi = self.a_limits_deg
         if not (-180.0 <= lo <= hi <= 180.0):
             raise FiveAxisError("a_limits_deg must be (min, max) within [-180, 180]",
@@ -95,4 +121,5 @@ class FiveAxisParams:
         """Program formatting."""
         return ProgramStyle(dialect=self.dialect, job_id=self.job_id, decimals=self.decimals,
                             safe_z_mm=self.safe_z_mm,
-                            approach_feed_mm_min=self.approach_feed_mm_min)
+                            approach_feed_mm_min=self.approach_feed_mm_min,
+                            dispense_on=self.dispense_on, dispense_off=self.dispense_off)

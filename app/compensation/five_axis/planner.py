@@ -5,14 +5,20 @@
 1. interpolate the trace at constant feed with the second-order Taylor update at the servo
    period T (and, for comparison, the first-order update); measure both feed fluctuations;
 2. keep every ``segment_mm / (v T)``-th servo sample as a program line; project those trace
-   points onto the surface (contact points) and take the nozzle direction (surface normal,
-   or the patent's principal normal);
-3. choose A, C continuously (:mod:`.branches`), round them to the program's decimals and
-   place the nozzle tip h above the contact point in machine coordinates;
-4. verify independently: apply each line's (rounded) A and C to the surface normal
+   points, and the trace points halfway (in time) between them, onto the surface (contact
+   points) and take the nozzle direction (surface normal, or the patent's principal normal);
+3. choose A, C continuously over lines and midpoints together (:mod:`.branches`: no C
+   flips, and a pole window around A = 0 where C is blended instead of following the
+   normal's azimuth), round the lines' angles to the program's decimals and place the
+   nozzle tip h above the contact point in machine coordinates;
+4. midpoint check: the machine moves all five axes linearly between two lines, so a large
+   rotary move swings the tip off the planned tip path (contact + h * planned nozzle axis);
+   the tip halfway through each line is compared with the planned tip at that moment, and
+   lines whose error exceeds ``midpoint_tol_mm`` are split at their midpoint (repeat);
+5. verify independently: apply each line's (rounded) A and C to the surface normal
    (angle to +Z) and map the tip back to the workpiece to measure its distance to the
-   surface (surface inversion); check the midpoint of each linear segment too;
-5. write the five-axis program and the nominal three-axis program (nozzle h straight
+   surface (surface inversion);
+6. write the five-axis program and the nominal three-axis program (nozzle h straight
    above each contact point, no tilt) with the same metrics for comparison.
 """
 
@@ -32,8 +38,10 @@ from app.compensation.five_axis.interpolation import (
 )
 from app.compensation.five_axis.kinematics import (
     AxisPose,
+    MachineConfig,
     machine_to_workpiece,
     rotation_matrices,
+    tool_axis_from_angles,
     workpiece_to_machine,
 )
 from app.compensation.five_axis.params import FiveAxisParams
@@ -42,7 +50,7 @@ from app.geometry.fitting import interpolate_curve
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
 
-__all__ = ["FiveAxisPath", "plan_five_axis", "line_indices", "segment_durations"]
+__all__ = ["FiveAxisPath", "plan_five_axis", "line_indices", "servo_times"]
 
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -59,11 +67,16 @@ class FiveAxisPath:
     normal_source: "surface" or "principal".
     max_normal_error_deg: max angle between +Z and the surface normal after A, C.
     max_standoff_error_mm: max | distance(tip, surface) - h | (surface inversion).
-    max_midpoint_error_mm: max distance between the tip of a linear move's midpoint and the
-    ideal tip at the trace's mid parameter (the chordal error of the program).
+    max_midpoint_error_mm: max distance between the tip halfway (in time) through a linear
+    move and the planned tip at that moment (contact + h * planned nozzle axis; the planned
+    axis is the surface normal outside the pole window); at most ``midpoint_tol_mm``
+    unless ``split_rounds`` reached ``max_split_rounds``.
     nominal_max_normal_error_deg / nominal_max_standoff_error_mm: same for the 3-axis program.
     feed: second-order feed fluctuation; feed_first_order: the first-order one.
-    max_c_step_deg / max_a_step_deg: largest rotary move between consecutive lines.
+    max_c_step_deg / max_a_step_deg: largest rotary move between consecutive lines;
+    max_c_speed_deg_s / max_a_speed_deg_s: largest rotary speed the program asks for.
+    pole_lines: lines inside the pole window; split_lines: lines added by midpoint splits;
+    split_rounds: halving rounds used.
     max_trace_deviation_mm: max distance of the trace from the surface.
     servo_periods: number of servo periods; duration_s: total print time.
     """
@@ -85,6 +98,11 @@ class FiveAxisPath:
     feed_first_order: FeedFluctuation
     max_c_step_deg: float
     max_a_step_deg: float
+    max_c_speed_deg_s: float
+    max_a_speed_deg_s: float
+    pole_lines: int
+    split_lines: int
+    split_rounds: int
     max_trace_deviation_mm: float
     servo_periods: int
     duration_s: float
@@ -112,6 +130,11 @@ class FiveAxisPath:
             "feed_fluctuation_first_order_rms_pct": 100.0 * self.feed_first_order.rms_rel,
             "max_c_step_deg": self.max_c_step_deg,
             "max_a_step_deg": self.max_a_step_deg,
+            "max_c_speed_deg_s": self.max_c_speed_deg_s,
+            "max_a_speed_deg_s": self.max_a_speed_deg_s,
+            "pole_lines": self.pole_lines,
+            "split_lines": self.split_lines,
+            "split_rounds": self.split_rounds,
             "a_range_deg": [float(np.degrees(self.axes.a_rad.min())),
                             float(np.degrees(self.axes.a_rad.max()))],
             "max_trace_deviation_mm": self.max_trace_deviation_mm,
@@ -124,18 +147,74 @@ def line_indices(n_samples: int, stride: int) -> np.ndarray:
     return idx if idx[-1] == n_samples - 1 else np.append(idx, n_samples - 1)
 
 
-def segment_durations(idx: np.ndarray, n_samples: int, period_s: float,
-                      last_fraction: float) -> np.ndarray:
-    """Time of each line segment (k-1,) s: whole periods, the final one partial."""
+def servo_times(n_samples: int, period_s: float, last_fraction: float) -> np.ndarray:
+    """Time (s) at each of n servo samples: whole periods, the final one partial."""
     per = np.full(n_samples - 1, period_s)
     per[-1] = period_s * last_fraction
-    cum = np.concatenate([[0.0], np.cumsum(per)])
-    return np.diff(cum[idx])
+    return np.concatenate([[0.0], np.cumsum(per)])
 
 
 def _angle_to_z_deg(directions: np.ndarray) -> np.ndarray:
     d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     return np.degrees(np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2]))
+
+
+def _take(frames: ContactFrames, idx: np.ndarray) -> ContactFrames:
+    return ContactFrames(u=frames.u[idx], trace_points=frames.trace_points[idx],
+                         contact=frames.contact[idx], uv=frames.uv[idx],
+                         surface_normal=frames.surface_normal[idx],
+                         direction=frames.direction[idx],
+                         trace_deviation_mm=frames.trace_deviation_mm[idx],
+                         normal_source=frames.normal_source)
+
+
+@dataclass(frozen=True)
+class _Poses:
+    """Program poses of k lines planned together with their k-1 time midpoints."""
+
+    frames: ContactFrames  # the lines'
+    axes: AxisPose  # the lines' (angles rounded as written)
+    a_deg: np.ndarray
+    c_deg: np.ndarray
+    pole: np.ndarray  # (k,) lines in the pole window
+    times_s: np.ndarray  # (k,)
+    mid_u: np.ndarray  # (k-1,)
+    midpoint_error_mm: np.ndarray  # (k-1,)
+
+
+def _plan_poses(surface: NurbsSurface, trace: NurbsCurve, u_lines: np.ndarray,
+                params: FiveAxisParams, machine: MachineConfig, servo_u: np.ndarray,
+                servo_t: np.ndarray) -> _Poses:
+    """Axes for lines at trace parameters u_lines (k,), and their midpoint tip errors."""
+    h = params.standoff_mm
+    t_lines = np.interp(u_lines, servo_u, servo_t)
+    mid_u = np.interp(0.5 * (t_lines[1:] + t_lines[:-1]), servo_t, servo_u)
+    k = u_lines.size
+    u_all = np.empty(2 * k - 1)
+    u_all[0::2], u_all[1::2] = u_lines, mid_u
+    frames = contact_frames(surface, trace, u_all, on_surface_tol_mm=params.on_surface_tol_mm,
+                            normal_source=params.normal_source, normal_side=params.normal_side)
+    choice = choose_axes(frames.direction, machine, c_start_rad=np.radians(params.c_start_deg),
+                         pole_tilt_rad=np.radians(params.pole_window_deg),
+                         arc_mm=params.feed_mm_s * np.interp(u_all, servo_u, servo_t))
+    a_deg = np.round(np.degrees(choice.a_rad[0::2]), params.decimals)
+    c_deg = np.round(np.degrees(choice.c_rad[0::2]), params.decimals)
+    a, c = np.radians(a_deg), np.radians(c_deg)
+    pivot = machine.pivot
+    xyz = workpiece_to_machine(frames.contact[0::2], a, c, pivot) + h * _Z
+    planned_mid = frames.contact[1::2] + h * tool_axis_from_angles(choice.a_rad[1::2],
+                                                                    choice.c_rad[1::2])
+    moved_mid = machine_to_workpiece(0.5 * (xyz[1:] + xyz[:-1]), 0.5 * (a[1:] + a[:-1]),
+                                     0.5 * (c[1:] + c[:-1]), pivot)
+    return _Poses(frames=_take(frames, np.arange(0, 2 * k - 1, 2)),
+                  axes=AxisPose(xyz_mm=xyz, a_rad=a, c_rad=c), a_deg=a_deg, c_deg=c_deg,
+                  pole=choice.held[0::2], times_s=t_lines, mid_u=mid_u,
+                  midpoint_error_mm=np.linalg.norm(moved_mid - planned_mid, axis=1))
+
+
+def _max_speed(step_deg: np.ndarray, durations_s: np.ndarray) -> float:
+    ok = durations_s > 0
+    return float((np.abs(step_deg[ok]) / durations_s[ok]).max(initial=0.0))
 
 
 def plan_five_axis(surface: NurbsSurface, trace: NurbsCurve,
@@ -152,65 +231,62 @@ def plan_five_axis(surface: NurbsSurface, trace: NurbsCurve,
     sched1 = interpolate_parameters(trace, params.feed_mm_s, params.servo_period_s, order=1)
     fluct2, fluct1 = feed_fluctuation(trace, sched), feed_fluctuation(trace, sched1)
     n = sched.u.size
+    servo_t = servo_times(n, params.servo_period_s, fluct2.last_step_mm / sched.step_mm)
     stride = int(round(params.segment_mm / sched.step_mm))
-    idx = line_indices(n, stride)
-    durations = segment_durations(idx, n, params.servo_period_s,
-                                  fluct2.last_step_mm / sched.step_mm)
-    frames = contact_frames(surface, trace, sched.u[idx],
-                            on_surface_tol_mm=params.on_surface_tol_mm,
-                            normal_source=params.normal_source, normal_side=params.normal_side)
-    choice = choose_axes(frames.direction, machine, c_start_rad=np.radians(params.c_start_deg),
-                         singular_rho=np.sin(np.radians(params.singular_tilt_deg)))
-    a_deg = np.round(np.degrees(choice.a_rad), params.decimals)
-    c_deg = np.round(np.degrees(choice.c_rad), params.decimals)
-    a, c = np.radians(a_deg), np.radians(c_deg)
-    pivot = machine.pivot
-    xyz = workpiece_to_machine(frames.contact, a, c, pivot) + h * _Z
-    axes = AxisPose(xyz_mm=xyz, a_rad=a, c_rad=c)
+    u_lines = sched.u[line_indices(n, stride)]
+    first_count = u_lines.size
+    rounds = 0
+    while True:
+        poses = _plan_poses(surface, trace, u_lines, params, machine, sched.u, servo_t)
+        split = poses.midpoint_error_mm > params.midpoint_tol_mm
+        if not split.any() or rounds >= params.max_split_rounds:
+            break
+        u_lines = np.sort(np.concatenate([u_lines, poses.mid_u[split]]))
+        rounds += 1
+    frames, axes, a_deg, c_deg = poses.frames, poses.axes, poses.a_deg, poses.c_deg
+    xyz, a, c, pivot = axes.xyz_mm, axes.a_rad, axes.c_rad, machine.pivot
+    durations = np.diff(poses.times_s)
 
     # independent verification of what the program does
     turned = np.einsum("kij,kj->ki", rotation_matrices(a, c), frames.surface_normal)
     normal_err = _angle_to_z_deg(turned)
     tip_wp = machine_to_workpiece(xyz, a, c, pivot)
     standoff_err = np.abs(surface.invert(tip_wp).distance - h)
-    mid_u = 0.5 * (frames.u[1:] + frames.u[:-1])
-    mid_frames = contact_frames(surface, trace, mid_u, on_surface_tol_mm=params.on_surface_tol_mm,
-                                normal_source=params.normal_source,
-                                normal_side=params.normal_side)
-    ideal_mid = mid_frames.contact + h * mid_frames.direction
-    am, cm = 0.5 * (a[1:] + a[:-1]), 0.5 * (c[1:] + c[:-1])
-    mid_tip = machine_to_workpiece(0.5 * (xyz[1:] + xyz[:-1]), am, cm, pivot)
-    midpoint_err = np.linalg.norm(mid_tip - ideal_mid, axis=1)
     nominal_xyz = frames.contact + h * _Z
     nominal_standoff_err = np.abs(surface.invert(nominal_xyz).distance - h)
 
+    feed_words = ("[G93, F = 1/minutes per line]" if params.feed_mode == "inverse_time"
+                  else "[G94, F = tip mm/min in machine coordinates]")
     header = [
-        f"five-axis table-tilting A[about X]/C[about Z], pivot {list(machine.pivot_mm)} mm,"
-        " X Y Z = nozzle tip in machine coordinates",
-        f"nozzle direction: {frames.normal_source} normal, standoff {h} mm",
-        f"feed mode: {params.feed_mode} "
-        + ("[G93, F = 1/minutes per line]" if params.feed_mode == "inverse_time"
-           else "[G94, F = tip mm/min in machine coordinates]")
-        + f", trace feed {params.feed_mm_min} mm/min",
+        (f"five-axis table-tilting A[about X]/C[about Z], pivot {list(machine.pivot_mm)} mm,"
+         " X Y Z = nozzle tip in machine coordinates"),
+        (f"nozzle direction: {frames.normal_source} normal, standoff {h} mm; within "
+         f"{params.pole_window_deg} deg of A = 0 C is blended [pole window]"),
+        f"feed mode: {params.feed_mode} {feed_words}, trace feed {params.feed_mm_min} mm/min",
         f"servo period {params.servo_period_s} s, second-order Taylor parameter update",
     ]
     program = five_axis_program(xyz, a_deg, c_deg, durations, params.feed_mode,
                                 params.feed_mm_min, params.style(), header)
     nominal = nominal_program(nominal_xyz, params.feed_mm_min, params.style(),
-                              [f"nominal three-axis traverse, nozzle {h} mm straight above "
-                               "the contact points, no tilt"])
+                              [(f"nominal three-axis traverse, nozzle {h} mm straight above "
+                                "the contact points, no tilt")])
     offset_curve = interpolate_curve(frames.contact + h * frames.direction, 3,
                                      field="trace")
+    c_step, a_step = np.diff(c_deg), np.diff(a_deg)
     return FiveAxisPath(
         program=program, nominal_program=nominal, axes=axes, u=frames.u, frames=frames,
         durations_s=durations, offset_curve=offset_curve, normal_source=frames.normal_source,
         max_normal_error_deg=float(normal_err.max()),
         max_standoff_error_mm=float(standoff_err.max()),
-        max_midpoint_error_mm=float(midpoint_err.max(initial=0.0)),
+        max_midpoint_error_mm=float(poses.midpoint_error_mm.max(initial=0.0)),
         nominal_max_normal_error_deg=float(_angle_to_z_deg(frames.surface_normal).max()),
         nominal_max_standoff_error_mm=float(nominal_standoff_err.max()),
         feed=fluct2, feed_first_order=fluct1,
-        max_c_step_deg=float(np.abs(np.diff(c_deg)).max(initial=0.0)),
-        max_a_step_deg=float(np.abs(np.diff(a_deg)).max(initial=0.0)),
+        max_c_step_deg=float(np.abs(c_step).max(initial=0.0)),
+        max_a_step_deg=float(np.abs(a_step).max(initial=0.0)),
+        max_c_speed_deg_s=_max_speed(c_step, durations),
+        max_a_speed_deg_s=_max_speed(a_step, durations),
+        pole_lines=int(poses.pole.sum()), split_lines=int(u_lines.size - first_count),
+        split_rounds=rounds,
         max_trace_deviation_mm=float(frames.trace_deviation_mm.max()),
         servo_periods=int(n - 1), duration_s=float(durations.sum()))

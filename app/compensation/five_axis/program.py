@@ -11,6 +11,10 @@ Feed modes of the five-axis program (documented in its header comment):
   X Y Z path length (rotaries slaved) needs for the same timing.  Segments with no linear
   motion fall back to the nominal feed.
 
+Dispensing: with ``ProgramStyle.dispense_on`` / ``dispense_off`` set, the on command is
+written right after the approach move to the first pose and the off command right after
+the last print move, so every ``G1`` between them dispenses (both programs).
+
 Angles are written in degrees, lengths in mm (the user-facing boundary).
 """
 
@@ -35,6 +39,8 @@ class ProgramStyle:
     dialect: G-code dialect of :mod:`app.gcode.writer`; job_id: header id; decimals:
     digits for mm and degrees; safe_z_mm: machine Z for the approach rapids (None: no
     rapids, the first line moves straight to the start pose at approach_feed_mm_min).
+    dispense_on / dispense_off: one G-code line each (e.g. ``"M8"`` / ``"M9"``) written
+    after the approach move / after the last print move; None: not written.
     """
 
     dialect: str = "grbl"
@@ -42,6 +48,13 @@ class ProgramStyle:
     decimals: int = 4
     safe_z_mm: float | None = None
     approach_feed_mm_min: float = 300.0
+    dispense_on: str | None = None
+    dispense_off: str | None = None
+
+
+def _dispense(b: ProgramBuilder, command: str | None) -> None:
+    if command is not None:
+        b.raw(command.strip())
 
 
 def _approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
@@ -58,7 +71,8 @@ def _approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
 def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
                       durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
                       style: ProgramStyle, header: list[str]) -> str:
-    """Program text: approach to pose 0, then one ``G1 X Y Z A C F`` per later pose.
+    """Program text: approach to pose 0, dispense on, one ``G1 X Y Z A C F`` per later
+    pose, dispense off.
 
     xyz_mm (k,3) machine tip positions; a_deg, c_deg (k,); durations_s (k-1,) segment
     times; header: comment lines written after the standard header.
@@ -69,6 +83,7 @@ def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
         b.comment(line)
     b.raw("G94")
     _approach(b, style, xyz_mm[0], {"a": float(a_deg[0]), "c": float(c_deg[0])})
+    _dispense(b, style.dispense_on)
     b.raw("G93" if feed_mode == "inverse_time" else "G94")
     seg_len = np.linalg.norm(np.diff(xyz_mm, axis=0), axis=1)
     for j in range(1, xyz_mm.shape[0]):
@@ -79,6 +94,7 @@ def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
             feed = seg_len[j - 1] / dt * 60.0 if seg_len[j - 1] > 1e-9 else nominal_feed_mm_min
         b.move(x=xyz_mm[j, 0], y=xyz_mm[j, 1], z=xyz_mm[j, 2], feed_mm_min=feed,
                a=float(a_deg[j]), c=float(c_deg[j]))
+    _dispense(b, style.dispense_off)
     b.raw("G94")
     b.end()
     return b.text()
@@ -86,14 +102,17 @@ def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
 
 def nominal_program(xyz_mm: np.ndarray, feed_mm_min: float, style: ProgramStyle,
                     header: list[str]) -> str:
-    """Three-axis comparison program: ``G1 X Y Z F`` through tip positions (k,3) mm."""
+    """Three-axis comparison program: approach, dispense on, ``G1 X Y Z F`` through the
+    tip positions (k,3) mm, dispense off."""
     b = ProgramBuilder(style.dialect, "five_axis_nominal", style.job_id,
                        decimals=style.decimals, feed_decimals=1)
     for line in header:
         b.comment(line)
     b.raw("G94")
     _approach(b, style, xyz_mm[0], {})
+    _dispense(b, style.dispense_on)
     for j in range(1, xyz_mm.shape[0]):
         b.move(x=xyz_mm[j, 0], y=xyz_mm[j, 1], z=xyz_mm[j, 2], feed_mm_min=feed_mm_min)
+    _dispense(b, style.dispense_off)
     b.end()
     return b.text()

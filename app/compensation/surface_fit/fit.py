@@ -12,7 +12,10 @@ points: bad-point removal -> either a least-squares fit of the scattered points 
 
 Residuals are the distances of the kept measured points to the fitted surface (closest
 point, surface inversion), signed positive above the surface.  The least-squares control
-net size is chosen by generalised cross-validation when not given.  Units: mm.
+net size is chosen by generalised cross-validation when not given.  Degenerate data
+(too few distinct (x, y) positions, positions on one line, repeated positions where
+resampling needs one height per position, a singular fit) raise SurfaceFitError naming
+the field.  Units: mm.
 """
 
 from __future__ import annotations
@@ -25,14 +28,16 @@ import numpy as np
 from app.compensation.surface_fit.errors import GridHoleError, SurfaceFitError
 from app.compensation.surface_fit.grid import HeightGrid
 from app.compensation.surface_fit.preprocess import (
+    check_point_spread,
+    choose_control_count,
     densify_grid,
     fill_holes,
-    choose_control_count,
     find_bad_points,
     interpolate_heights,
     smooth_grid,
     square_shape,
 )
+from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
 from app.geometry.fitting import interpolate_surface
 from app.geometry.nurbs_surface import NurbsSurface
@@ -174,8 +179,23 @@ def fit_surface(data: HeightGrid | np.ndarray, params: SurfaceFitParams) -> Surf
     """Fit a NURBS surface to a measured grid or to CMM points (k,3) (see module doc).
 
     Raises GridHoleError (NaN heights with hole_policy "error"), SurfaceFitError (bad
-    shapes, too few points, a net larger than the data).
+    shapes, too few distinct (x, y) positions, positions on one line, repeated positions
+    with ``resample_shape``, a net larger than the data or a singular fit).
     """
+    try:
+        return _fit_surface(data, params)
+    except GeometryError as exc:  # the geometry core's fits: report as this package's error
+        field = exc.field or "points"
+        if field.startswith("n_ctrl"):
+            field = "params.control_points"
+        raise SurfaceFitError(exc.message, field=field, value=exc.value) from None
+    except np.linalg.LinAlgError as exc:  # a last resort: every known case is checked first
+        raise SurfaceFitError(f"the surface fit is singular for these data: {exc}",
+                              field="points" if not isinstance(data, HeightGrid) else "grid.z",
+                              value=None) from None
+
+
+def _fit_surface(data: HeightGrid | np.ndarray, params: SurfaceFitParams) -> SurfaceFit:
     if isinstance(data, HeightGrid):
         grid, points = data, None
         _check_holes(grid, params)
@@ -185,14 +205,16 @@ def fit_surface(data: HeightGrid | np.ndarray, params: SurfaceFitParams) -> Surf
         if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
             raise SurfaceFitError("points must be a finite (k, 3) array in mm",
                                   field="points", value=list(points.shape))
-        if points.shape[0] < (params.degree + 1) ** 2:
-            raise SurfaceFitError(f"need at least {(params.degree + 1) ** 2} points",
-                                  field="points", value=int(points.shape[0]))
+        # the bad-point detection fits a height surface of its own: twice the unknowns
+        per_patch = (params.degree + 1) ** 2 * (2 if params.remove_bad_points else 1)
+        check_point_spread(points, per_patch, field="points",
+                           unique=params.resample_shape is not None)
         measured = points
     removed = np.zeros((0, 3))
     if params.remove_bad_points:
         bad = find_bad_points(measured, k_sigma=params.bad_point_sigma,
-                              min_mm=params.bad_point_min_mm, degree=params.degree).bad
+                              min_mm=params.bad_point_min_mm, degree=params.degree,
+                              field="points" if points is not None else "grid.z").bad
         removed, measured = measured[bad], measured[~bad]
     filled = 0
     fitted_grid: HeightGrid | None = None

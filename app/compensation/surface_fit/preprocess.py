@@ -13,6 +13,9 @@
 3. smoothing along both grid directions (separable): moving average, five-point cubic
    smoothing (least-squares cubic through 5 neighbours; end points with the one-sided
    formulas), or a smoothing spline (scipy's ``make_smoothing_spline``, lambda by GCV).
+Degenerate point sets (too few distinct (x, y) positions, positions on one line, an
+(x, y) position measured twice where one height per position is needed) raise
+:class:`SurfaceFitError` naming the field, never a bare numpy ``LinAlgError``.
 Units: mm.
 """
 
@@ -21,17 +24,26 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import BSpline, RBFInterpolator, RectBivariateSpline, make_smoothing_spline
+from scipy.interpolate import (
+    BSpline,
+    RBFInterpolator,
+    RectBivariateSpline,
+    make_smoothing_spline,
+)
 
 from app.compensation.surface_fit.errors import SurfaceFitError
 from app.compensation.surface_fit.grid import HeightGrid
+from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
+from app.geometry.tolerance import DEFAULT_TOLERANCE
 
-__all__ = ["BadPointResult", "find_bad_points", "choose_control_count", "square_shape",
+__all__ = ["BadPointResult", "PointSpread", "check_point_spread", "find_bad_points",
+           "choose_control_count", "square_shape",
            "fill_holes", "interpolate_heights", "height_surface_values", "densify_grid",
            "moving_average", "five_point_cubic", "spline_smooth", "smooth_grid"]
 
 _MAD_TO_SIGMA = 1.4826
+_LINE_REL = 1e-9  # second/first singular value of the centred (x, y) below this: one line
 _ROUNDS = 30
 _FILL_NEIGHBOURS = 40
 
@@ -49,6 +61,50 @@ class BadPointResult:
     bad: np.ndarray
     residual_mm: np.ndarray
     threshold_mm: float
+
+
+@dataclass(frozen=True)
+class PointSpread:
+    """distinct: number of distinct (x, y) positions (closer than ``same_mm`` counts as
+    the same); repeats: points beyond the first at an already counted position."""
+
+    distinct: int
+    repeats: int
+
+
+def check_point_spread(points: np.ndarray, needed: int, *, field: str,
+                       same_mm: float = DEFAULT_TOLERANCE.dedup_mm,
+                       unique: bool = False) -> PointSpread:
+    """Check that points (k, 3) (or (k, 2)) have at least ``needed`` distinct (x, y)
+    positions spanning an area and, with ``unique``, no position measured twice.
+
+    Raises SurfaceFitError(field=field) naming what is wrong: the count, the line the
+    positions lie on, or the number of repeats.
+    """
+    xy = np.asarray(points, dtype=float)[:, :2]
+    keys = np.unique(np.round(xy / same_mm), axis=0) if xy.size else np.zeros((0, 2))
+    distinct, repeats = int(keys.shape[0]), int(xy.shape[0] - keys.shape[0])
+    if distinct < needed:
+        raise SurfaceFitError(f"{distinct} distinct (x, y) positions among {xy.shape[0]} "
+                              f"points; at least {needed} are needed", field=field,
+                              value={"distinct": distinct, "needed": needed})
+    centred = xy - xy.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False)
+    if sv[1] <= _LINE_REL * max(sv[0], 1e-300):
+        raise SurfaceFitError("the points lie on one line in (x, y): they span no area to "
+                              "fit a surface over", field=field,
+                              value={"first": xy[0], "last": xy[-1]})
+    if unique and repeats:
+        raise SurfaceFitError(f"{repeats} points repeat an (x, y) position already measured; "
+                              "resampling onto a grid needs one height per position",
+                              field=field, value={"repeats": repeats})
+    return PointSpread(distinct=distinct, repeats=repeats)
+
+
+def _solve_failed(exc: np.linalg.LinAlgError, what: str, field: str,
+                  n_points: int) -> SurfaceFitError:
+    return SurfaceFitError(f"{what} is singular for these points (badly spread or "
+                           f"repeated positions): {exc}", field=field, value=n_points)
 
 
 def _gcv_score(residual: np.ndarray, n_coef: int) -> float:
@@ -92,7 +148,7 @@ def _height_design(uv: np.ndarray, size: tuple[int, int], degree: int) -> np.nda
 
 
 def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float = 0.01,
-                    degree: int = 3) -> BadPointResult:
+                    degree: int = 3, field: str = "points") -> BadPointResult:
     """Outliers among measured points (k,3) mm.
 
     A least-squares B-spline height surface z(x, y) (net by GCV) is fitted to the kept
@@ -102,11 +158,19 @@ def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float =
     nor is flagged for its larger variance).  Each round removes the dominant outliers
     (>= half the worst statistic) and refits, until nothing changes.
     residual_mm holds the deleted residuals; threshold_mm the sigma cut.
+    Raises SurfaceFitError (``field``) for fewer than 2 (degree+1)^2 distinct (x, y)
+    positions or positions on one line.
     """
     pts = np.asarray(points, dtype=float)
-    if pts.shape[0] < 2 * (degree + 1) ** 2:
-        raise SurfaceFitError(f"too few points for bad-point detection (need "
-                              f"{2 * (degree + 1) ** 2})", field="points", value=int(pts.shape[0]))
+    check_point_spread(pts, 2 * (degree + 1) ** 2, field=field)
+    try:
+        return _find_bad_points(pts, k_sigma, min_mm, degree)
+    except np.linalg.LinAlgError as exc:
+        raise _solve_failed(exc, "the bad-point height fit", field, pts.shape[0]) from None
+
+
+def _find_bad_points(pts: np.ndarray, k_sigma: float, min_mm: float,
+                     degree: int) -> BadPointResult:
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     uv = (pts[:, :2] - lo) / np.maximum(hi - lo, 1e-12)
     bad = np.zeros(pts.shape[0], dtype=bool)
@@ -137,14 +201,21 @@ def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float =
     return BadPointResult(bad=bad, residual_mm=deleted, threshold_mm=max(threshold, min_mm))
 
 
-def height_surface_values(points: np.ndarray, query_xy: np.ndarray, degree: int = 3) -> np.ndarray:
+def height_surface_values(points: np.ndarray, query_xy: np.ndarray, degree: int = 3, *,
+                          field: str = "points") -> np.ndarray:
     """Heights at query_xy (m,2) of a least-squares B-spline height surface (net by GCV)
-    through points (k,3) (query points inside the points' bounding box)."""
+    through points (k,3) (query points inside the points' bounding box).
+    Raises SurfaceFitError (``field``) when the fit is singular for these points."""
     lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
     scale = np.maximum(hi - lo, 1e-12)
-    size = choose_control_count(points, degree, 0.0, square_shape(points.shape[0]))
-    design = _height_design((points[:, :2] - lo) / scale, size, degree)
-    coef = np.linalg.lstsq(design, points[:, 2], rcond=None)[0]
+    try:
+        size = choose_control_count(points, degree, 0.0, square_shape(points.shape[0]))
+        design = _height_design((points[:, :2] - lo) / scale, size, degree)
+        coef = np.linalg.lstsq(design, points[:, 2], rcond=None)[0]
+    except np.linalg.LinAlgError as exc:
+        raise _solve_failed(exc, "the height surface fit", field, points.shape[0]) from None
+    except GeometryError as exc:
+        raise SurfaceFitError(exc.message, field=field, value=exc.value) from None
     return _height_design((query_xy - lo) / scale, size, degree) @ coef
 
 
@@ -156,28 +227,45 @@ def fill_holes(grid: HeightGrid, degree: int = 3) -> HeightGrid:
     if not holes.any():
         return grid
     pts = grid.points()
-    if pts.shape[0] < 3:
-        raise SurfaceFitError("too few valid heights to fill the holes", field="grid.z",
-                              value=int(pts.shape[0]))
+    check_point_spread(pts, 3, field="grid.z")
     xx, yy = np.meshgrid(grid.x, grid.y, indexing="ij")
     z = grid.z.copy()
     query = np.column_stack([xx[holes], yy[holes]])
     if pts.shape[0] >= 2 * (degree + 1) ** 2:
-        z[holes] = height_surface_values(pts, query, degree)
+        z[holes] = height_surface_values(pts, query, degree, field="grid.z")
     else:
-        z[holes] = interpolate_heights(pts, query)
+        z[holes] = interpolate_heights(pts, query, field="grid.z")
     return HeightGrid(grid.x, grid.y, z)
 
 
-def interpolate_heights(points: np.ndarray, query_xy: np.ndarray) -> np.ndarray:
+def interpolate_heights(points: np.ndarray, query_xy: np.ndarray, *,
+                        field: str = "points") -> np.ndarray:
     """Heights at query_xy (m,2) from measured points (k,3): thin-plate spline plus a cubic
     polynomial on the 40 nearest points (the cubic term keeps extrapolation at grid corners
-    tame on curved parts)."""
+    tame on curved parts; where the points lie on a cubic curve, such as a circle, and the
+    cubic term is undetermined, the linear one is used).  The points need distinct (x, y)
+    positions spanning an area;
+    otherwise (or when a local system is singular) SurfaceFitError names ``field``."""
     n = points.shape[0]
-    degree = 3 if n >= 20 else 1
-    rbf = RBFInterpolator(points[:, :2], points[:, 2], kernel="thin_plate_spline",
-                          degree=degree, neighbors=min(_FILL_NEIGHBOURS, n))
-    return rbf(query_xy)
+    check_point_spread(points, 3, field=field, unique=True)
+    for degree in ((3, 1) if n >= 20 and _cubic_determined(points) else (1,)):
+        try:
+            rbf = RBFInterpolator(points[:, :2], points[:, 2], kernel="thin_plate_spline",
+                                  degree=degree, neighbors=min(_FILL_NEIGHBOURS, n))
+            return rbf(query_xy)
+        except np.linalg.LinAlgError as exc:
+            failure = exc  # points on a cubic curve (a circle, two lines): retry linear
+    raise _solve_failed(failure, "the thin-plate interpolation", field, n) from None
+
+
+def _cubic_determined(points: np.ndarray) -> bool:
+    """True when the (x, y) positions determine a cubic polynomial (its 10 monomials are
+    independent on them; not so on a circle, two lines, a conic...)."""
+    xy = points[:, :2] - points[:, :2].mean(axis=0)
+    xy = xy / max(float(np.abs(xy).max()), 1e-300)
+    x, y = xy[:, 0], xy[:, 1]
+    monomials = np.column_stack([x**i * y**j for i in range(4) for j in range(4 - i)])
+    return bool(np.linalg.matrix_rank(monomials, tol=_LINE_REL ** 0.5) == monomials.shape[1])
 
 
 def densify_grid(grid: HeightGrid, factor: int) -> HeightGrid:

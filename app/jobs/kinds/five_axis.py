@@ -11,9 +11,13 @@
   nozzle along the surface normal (or the patent's principal normal, ``normal``), a
   table-tilting A (about X) / C (about Z) machine with the table pivot ``pivot``; X Y Z are
   the nozzle tip in machine coordinates, ``m = Rx(A) Rz(C) (p - pivot) + pivot``.
+* Singularity: within ``pole_window_deg`` of A = 0 the core blends C instead of following
+  the normal's azimuth, and splits program lines until the tip stays within
+  ``midpoint_tol_mm`` of its planned path between lines (result ``max_midpoint_error_mm``).
 * Artifacts ``five_axis.gcode`` and the three-axis ``nominal.gcode`` (nozzle straight
-  above the contact points): ``dispense_on`` follows the approach move to the first pose
-  and ``dispense_off`` the last move, so every G1 between them dispenses.
+  above the contact points), written by the core: ``dispense_on`` follows the approach
+  move to the first pose and ``dispense_off`` the last move, so every G1 between them
+  dispenses.
 
 A pose needing A beyond ``a_limits_deg`` fails the job with a 422 problem naming
 ``params.a_limits_deg``.  Units: mm, mm/min and degrees at this boundary.
@@ -75,7 +79,13 @@ class FiveAxisJobParams(JobParams):
                                       description="[min, max] table tilt A")
     c_limits_deg: list[Finite] | None = Field(None, min_length=2, max_length=2,
                                               description="[min, max] C; default endless")
-    c_start_deg: float = Field(0.0, ge=-3600, le=3600, description="C before the path (held at A = 0)")
+    c_start_deg: float = Field(0.0, ge=-3600, le=3600, description="C before the path (biases the "
+                               "first branch; held if the whole path is within the pole window)")
+    pole_window_deg: float = Field(0.5, ge=0, le=5, description="within this tilt of the normal from "
+                                   "vertical (A = 0) C is blended smoothly and the nozzle may lean "
+                                   "from the normal by at most this angle; 0 = exact normals")
+    midpoint_tol_mm: float = Field(0.01, gt=0, le=1, description="max tip deviation from its planned path "
+                                   "halfway between program lines (longer lines are split)")
     feed_mode: Literal["inverse_time", "tcp"] = Field(
         "inverse_time", description="inverse_time: G93, F = 1/minutes per line; tcp: G94, F = tip mm/min")
     on_surface_tol_mm: float = Field(0.05, gt=0, le=5, description="max distance of the trace from the surface")
@@ -115,9 +125,11 @@ class FiveAxisJobParams(JobParams):
             servo_period_s=self.period_s, segment_mm=self.segment_mm, normal_source=self.normal,
             pivot_mm=tuple(self.pivot), a_limits_deg=tuple(self.a_limits_deg),
             c_limits_deg=None if self.c_limits_deg is None else tuple(self.c_limits_deg),
-            c_start_deg=self.c_start_deg, on_surface_tol_mm=self.on_surface_tol_mm,
+            c_start_deg=self.c_start_deg, pole_window_deg=self.pole_window_deg,
+            midpoint_tol_mm=self.midpoint_tol_mm, on_surface_tol_mm=self.on_surface_tol_mm,
             feed_mode=self.feed_mode, job_id=job_id, decimals=self.decimals, safe_z_mm=self.safe_z_mm,
-            approach_feed_mm_min=self.approach_feed_mm_min)
+            approach_feed_mm_min=self.approach_feed_mm_min, dispense_on=self.dispense_on,
+            dispense_off=self.dispense_off)
 
 
 def _in_params(exc: FiveAxisError) -> FiveAxisError:
@@ -179,15 +191,6 @@ def _trace_region(xy: np.ndarray, margin_mm: float, part: Part) -> ProbeRegion:
                        max(float(lo[1]), y_lo), min(float(hi[1]), y_hi))
 
 
-def _with_dispense(program: str, on: str, off: str) -> str:
-    """``on`` after the first G1 (the approach to the first pose), ``off`` after the last G1."""
-    lines = program.splitlines()
-    moves = [i for i, line in enumerate(lines) if line.startswith("G1 ")]
-    first, last = moves[0], moves[-1]
-    lines = lines[:first + 1] + [on] + lines[first + 1:last + 1] + [off] + lines[last + 1:]
-    return "\n".join(lines) + "\n"
-
-
 class ChosenSurface(NamedTuple):
     """The surface to print on and where it came from (JSON-friendly description)."""
 
@@ -227,7 +230,6 @@ def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
     ctx.progress(0.9, f"{path.u.size} poses; writing the programs")
     metas = {}
     for name, text in (("five_axis.gcode", path.program), ("nominal.gcode", path.nominal_program)):
-        text = _with_dispense(text, params.dispense_on, params.dispense_off)
         metas[name] = gcode_meta(text)
         ctx.artifact(name, text.encode(), "text/x-gcode", metas[name])
     return {

@@ -238,6 +238,8 @@ def _in_params(exc: SurfaceFitError, params: SurfaceFitJobParams) -> SurfaceFitE
     elif not params.has_points and isinstance(exc, GridHoleError):
         message = f"the part's top surface is missing under some grid points of params.region: {message}"
         field = "params.region"
+    elif not params.has_points and field == "grid.z":  # e.g. the heights found lie on one line
+        message, field = f"the part's top sampled over params.region: {message}", "params.region"
     return type(exc)(message, field=field, value=exc.value)
 
 

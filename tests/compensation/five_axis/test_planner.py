@@ -15,9 +15,14 @@ from app.compensation.five_axis import (
     TraceOffSurfaceError,
     plan_five_axis,
 )
-from app.compensation.five_axis.kinematics import machine_to_workpiece, rotation_matrices
+from app.compensation.five_axis.kinematics import (
+    machine_to_workpiece,
+    rotation_matrices,
+)
 from app.compensation.five_axis.trace import trace_over_xy
+from app.geometry.fitting import fit_surface
 from app.geometry.nurbs_surface import NurbsSurface
+from tests.compensation.five_axis.conftest import SPHERE_R
 
 H = 0.5
 PIVOT = (5.0, -3.0, -20.0)
@@ -160,3 +165,111 @@ def test_bad_parameters_name_the_field() -> None:
     with pytest.raises(FiveAxisError) as info:
         FiveAxisParams(a_limits_deg=(30.0, -30.0))
     assert info.value.field == "params.a_limits_deg"
+
+
+# ---------------------------------------------------------------- the A = 0 singularity
+def _line_over_apex(offset_mm: float, angle_deg: float = 30.0, half: float = 15.0,
+                    k: int = 31) -> tuple[np.ndarray, np.ndarray]:
+    """Plan-view points (k,2) of a straight line at ``angle_deg`` passing ``offset_mm``
+    beside the apex (0, 0), and the line's unit plan-view normal (2,)."""
+    t = np.radians(angle_deg)
+    along, across = np.array([np.cos(t), np.sin(t)]), np.array([-np.sin(t), np.cos(t)])
+    s = np.linspace(-half, half, k)
+    return s[:, None] * along + offset_mm * across, across
+
+
+def _midpoint_tips(text: str, pivot: tuple) -> np.ndarray:
+    """Workpiece tip (m,3) halfway through every move: all five axes move linearly."""
+    rows = _parse_g1(text)
+    mid = 0.5 * (rows[1:] + rows[:-1])
+    return machine_to_workpiece(mid[:, :3], np.radians(mid[:, 3]), np.radians(mid[:, 4]),
+                                np.array(pivot))
+
+
+def _measured_sphere(noise_mm: float = 0.005, n: int = 20, half: float = 15.0) -> NurbsSurface:
+    """A "measured" cap: least-squares 12 x 12 fit of noisy sphere heights on an n x n grid,
+    so that its pole is not exactly at (0, 0)."""
+    x = np.linspace(-half, half, n)
+    xx, yy = np.meshgrid(x, x, indexing="ij")
+    zz = np.sqrt(SPHERE_R**2 - xx**2 - yy**2)
+    zz += np.random.default_rng(3).normal(0.0, noise_mm, zz.shape)
+    return fit_surface(np.stack([xx, yy, zz], axis=-1), 12, 12).surface
+
+
+@pytest.mark.parametrize(("surface_kind", "offset_mm", "angle_deg"), [
+    ("sphere", 0.0, 30.0), ("sphere", 0.1, 30.0), ("sphere", 0.1, 90.0), ("measured", 0.0, 0.0),
+    ("measured", 0.0, 30.0)])
+def test_straight_trace_over_the_apex_keeps_the_tip_on_the_path(
+        sphere: NurbsSurface, surface_kind: str, offset_mm: float, angle_deg: float) -> None:
+    """Through the apex and 0.1 mm beside it: exact normals would swing C by up to
+    ~180 deg within a millimetre and the tip leaves the path between lines (0.2-1.5 mm
+    beside the apex, 40-90 um over a measured apex).  From the program text alone: halfway
+    through every move the tip is h above the surface and over the plan-view line, to
+    10 um; at every line it is h +- 1 um above the surface."""
+    surface = sphere if surface_kind == "sphere" else _measured_sphere()
+    xy, across = _line_over_apex(offset_mm, angle_deg, half=12.0, k=25)
+    params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, servo_period_s=0.002,
+                            segment_mm=0.5, pivot_mm=PIVOT)
+    path = plan_five_axis(surface, trace_over_xy(surface, xy), params)
+    rows = _parse_g1(path.program)
+    inv = surface.invert(_midpoint_tips(path.program, PIVOT))
+    assert np.abs(inv.distance - H).max() < 0.01
+    assert np.abs(inv.closest[:, :2] @ across - offset_mm).max() < 0.01
+    assert path.max_midpoint_error_mm < 0.01
+    assert np.abs(np.diff(rows[:, 4])).max() < 10.0 and path.max_c_step_deg < 10.0
+    xyz, a, c = rows[:, :3], np.radians(rows[:, 3]), np.radians(rows[:, 4])
+    assert np.abs(surface.invert(machine_to_workpiece(xyz, a, c, np.array(PIVOT))).distance
+                  - H).max() < 1e-3
+    # the nozzle axis leaves the normal only inside the pole window, by at most the
+    # normal's tilt there (~ offset / R on the sphere)
+    assert path.max_normal_error_deg <= params.pole_window_deg
+    if surface_kind == "sphere":
+        assert path.max_normal_error_deg < max(0.05, np.degrees(offset_mm / SPHERE_R) + 0.01)
+    assert rows[0, 3] * rows[-1, 3] < 0  # A changes sign instead of C turning
+
+
+def test_exact_normals_beside_the_apex_are_kept_by_splitting_lines(sphere: NurbsSurface) -> None:
+    """pole_window_deg = 0: every line is exactly normal; the big C moves beside the
+    pole are split until the midpoint tip error is below the tolerance."""
+    xy, across = _line_over_apex(0.1)
+    trace = trace_over_xy(sphere, xy)
+    base = {"standoff_mm": H, "feed_mm_min": 1200, "servo_period_s": 0.002, "segment_mm": 1.0,
+            "pivot_mm": PIVOT, "pole_window_deg": 0.0}
+    path = plan_five_axis(sphere, trace, FiveAxisParams(**base))
+    unsplit = plan_five_axis(sphere, trace, FiveAxisParams(**base, max_split_rounds=0))
+    assert unsplit.max_midpoint_error_mm > 0.1 and unsplit.split_lines == 0
+    assert path.max_midpoint_error_mm < 0.01 < path.split_lines
+    assert path.u.size == unsplit.u.size + path.split_lines
+    tips = _midpoint_tips(path.program, PIVOT)
+    radius = np.linalg.norm(tips, axis=1)
+    assert np.abs(radius - (SPHERE_R + H)).max() < 0.01
+    assert np.abs((tips * (SPHERE_R / radius)[:, None])[:, :2] @ across - 0.1).max() < 0.01
+    _check_program(sphere, path.program, H, PIVOT)  # normals within 0.05 deg at every line
+    # the price: C turns ~180 deg within a millimetre, far faster than with the window
+    windowed = plan_five_axis(sphere, trace, FiveAxisParams(**{**base, "pole_window_deg": 0.5}))
+    assert path.max_c_speed_deg_s > 5 * windowed.max_c_speed_deg_s
+    # inverse-time F still adds up to the print time
+    f = _parse_g1(path.program)[1:, 5]
+    assert (1.0 / f).sum() * 60.0 == pytest.approx(path.duration_s, rel=1e-3)
+    summary = path.summary()
+    assert summary["split_lines"] == path.split_lines and summary["pole_lines"] == 0
+
+
+def test_dispense_commands_follow_the_approach_and_the_last_move(sphere: NurbsSurface) -> None:
+    trace = trace_over_xy(sphere, _ellipse_xy(4.0, 2.0, 14.0, 9.0))
+    fast = {"feed_mm_min": 1200, "servo_period_s": 0.002, "segment_mm": 2.0, "safe_z_mm": 80.0}
+    params = FiveAxisParams(**fast, dispense_on="M106 S255", dispense_off="M107")
+    path = plan_five_axis(sphere, trace, params)
+    for text in (path.program, path.nominal_program):
+        lines = text.splitlines()
+        g1 = [i for i, line in enumerate(lines) if line.startswith("G1 ")]
+        assert lines.count("M106 S255") == 1 and lines.count("M107") == 1
+        assert lines.index("M106 S255") == g1[0] + 1 and lines.index("M107") == g1[-1] + 1
+    plain = plan_five_axis(sphere, trace, FiveAxisParams(**fast))
+    assert "M106 S255" not in plain.program and "M107" not in plain.nominal_program
+    assert [ln for ln in path.program.splitlines() if ln not in ("M106 S255", "M107")] \
+        == plain.program.splitlines()
+    for bad in ("M8\nG28", "  ", 8):
+        with pytest.raises(FiveAxisError) as info:
+            FiveAxisParams(dispense_on=bad)
+        assert info.value.field == "params.dispense_on"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from app.compensation.surface_fit import (
     GridHoleError,
@@ -124,3 +126,79 @@ def test_bad_inputs_name_the_field() -> None:
     with pytest.raises(SurfaceFitError) as info:
         HeightGrid(np.array([0.0, 0.0, 1.0]), np.arange(4.0), np.zeros((3, 4)))
     assert info.value.field == "grid.x"
+
+
+# ------------------------------------------------- degenerate point sets: typed errors
+def _on_a_line(k: int = 40) -> np.ndarray:
+    t = np.arange(k, dtype=float)
+    return np.column_stack([t, 2.0 * t, np.ones(k)])
+
+
+def _lattice(n: int, copies: int = 1) -> np.ndarray:
+    i = np.arange(n * n)
+    return np.tile(np.column_stack([i % n, i // n, 0.01 * (i % n) ** 2]), (copies, 1)).astype(float)
+
+
+@pytest.mark.parametrize(("name", "points", "needle"), [
+    ("collinear", _on_a_line(), "one line"),
+    ("identical", np.tile([[0.0, 0.0, 1.0]], (40, 1)), "1 distinct"),
+    ("few positions", _lattice(3, copies=5), "9 distinct"),
+])
+@pytest.mark.parametrize("remove_bad_points", [True, False])
+@pytest.mark.parametrize("resample_shape", [None, (10, 10)])
+def test_degenerate_points_are_a_typed_error(name, points, needle, remove_bad_points,
+                                             resample_shape) -> None:
+    """Formerly a bare numpy LinAlgError (or, for collinear points, a meaningless fit)."""
+    params = SurfaceFitParams(remove_bad_points=remove_bad_points,
+                              resample_shape=resample_shape)
+    with pytest.raises(SurfaceFitError) as info:
+        fit_surface(points, params)
+    assert info.value.field == "points" and needle in info.value.message, name
+
+
+def test_repeated_positions_cannot_be_resampled_but_can_be_fitted() -> None:
+    points = _lattice(7, copies=2)  # every (x, y) measured twice
+    for remove_bad_points in (True, False):
+        with pytest.raises(SurfaceFitError) as info:
+            fit_surface(points, SurfaceFitParams(resample_shape=(10, 10),
+                                                 remove_bad_points=remove_bad_points))
+        assert info.value.field == "points" and info.value.value == {"repeats": 49}
+    # a least-squares fit of the scattered points takes both heights (here equal)
+    fit = fit_surface(points, SurfaceFitParams(remove_bad_points=False, control_points=(4, 4)))
+    assert fit.residual_max_mm < 1e-9  # z = 0.01 x^2 is in the cubic spline space
+
+
+def test_points_on_two_lines_are_a_typed_error_not_a_singular_matrix() -> None:
+    """Two parallel lines span an area, but a bicubic height fit over them is singular."""
+    t = np.linspace(0.0, 10.0, 20)
+    points = np.vstack([np.column_stack([t, np.full(20, y), np.ones(20)]) for y in (0.0, 1.0)])
+    for remove_bad_points in (True, False):
+        with pytest.raises(SurfaceFitError) as info:
+            fit_surface(points, SurfaceFitParams(remove_bad_points=remove_bad_points))
+        assert info.value.field == "points"
+
+
+@given(st.integers(16, 60), st.floats(-3.0, 3.0), st.floats(0.1, 10.0), st.integers(1, 3),
+       st.booleans(), st.booleans())
+@settings(max_examples=25, deadline=None)
+def test_any_collinear_or_repeated_point_set_is_a_typed_error(k, angle, step, copies,
+                                                             remove_bad_points,
+                                                             resample) -> None:
+    t = step * np.arange(k)
+    line = np.column_stack([t * np.cos(angle) + 3.0, t * np.sin(angle) - 1.0, 0.1 * t])
+    params = SurfaceFitParams(remove_bad_points=remove_bad_points,
+                              resample_shape=(8, 8) if resample else None)
+    with pytest.raises(SurfaceFitError) as info:
+        fit_surface(np.tile(line, (copies, 1)), params)
+    assert info.value.field == "points"
+
+
+def test_grid_whose_valid_heights_lie_on_one_line_is_a_typed_error() -> None:
+    z = np.ones((2, 20))
+    z[1] = np.nan  # half the grid missing: one valid column
+    grid = HeightGrid(np.array([0.0, 1.0]), np.linspace(0.0, 1.0, 20), z)
+    for remove_bad_points in (True, False):
+        with pytest.raises(SurfaceFitError) as info:
+            fit_surface(grid, SurfaceFitParams(hole_policy="fill", degree=1,
+                                               remove_bad_points=remove_bad_points))
+        assert info.value.field == "grid.z" and "one line" in info.value.message

@@ -14,6 +14,7 @@ from app.compensation.surface_fit.preprocess import (
     fill_holes,
     find_bad_points,
     five_point_cubic,
+    interpolate_heights,
     moving_average,
     spline_smooth,
 )
@@ -94,3 +95,31 @@ def test_fill_holes_and_densify_reproduce_a_smooth_surface() -> None:
     assert dense.z.shape == (43, 43)
     dx, dy = np.meshgrid(dense.x, dense.y, indexing="ij")
     assert np.abs(dense.z - np.sqrt(50.0**2 - dx**2 - dy**2)).max() < 2e-3
+
+
+def test_preprocessing_steps_raise_typed_errors_on_degenerate_points() -> None:
+    t = np.arange(40.0)
+    line = np.column_stack([t, -t, np.zeros(40)])
+    with pytest.raises(SurfaceFitError) as info:
+        find_bad_points(line, field="points")
+    assert info.value.field == "points" and "one line" in info.value.message
+    with pytest.raises(SurfaceFitError) as info:
+        find_bad_points(np.tile([[1.0, 2.0, 3.0]], (40, 1)))
+    assert info.value.field == "points" and info.value.value["distinct"] == 1
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 10, (30, 2))
+    twice = np.vstack([np.column_stack([xy, np.zeros(30)])] * 2)
+    with pytest.raises(SurfaceFitError) as info:
+        interpolate_heights(twice, xy[:3], field="points")
+    assert info.value.field == "points" and info.value.value == {"repeats": 30}
+
+
+def test_thin_plate_resampling_of_a_ring_reproduces_a_plane() -> None:
+    """Points on a circle determine no cubic term (x^2 + y^2 - r^2 vanishes on them);
+    the linear thin-plate spline is used and reproduces a plane exactly."""
+    phi = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    x, y = 5 * np.cos(phi), 5 * np.sin(phi)
+    ring = np.column_stack([x, y, 0.3 * x - 0.2 * y + 1.0])
+    query = np.array([[0.0, 0.0], [1.0, -2.0], [3.0, 2.5]])
+    np.testing.assert_allclose(interpolate_heights(ring, query),
+                               0.3 * query[:, 0] - 0.2 * query[:, 1] + 1.0, atol=1e-8)
