@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 PYTEST := $(BIN)/python -m pytest
 
-.PHONY: run test bench lint install clean-data
+.PHONY: run test bench lint install clean-data screenshots
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -23,6 +23,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PYTEST) tests/bench -o addopts="" -s -q -p no:cacheprovider
+
+screenshots: $(STAMP)
+	$(PYTEST) tests/e2e/browser
+	cp tests/artifacts/screenshots/*.png web/screenshots/
 
 lint: $(STAMP)
 	$(BIN)/python -m compileall -q app hardware tests

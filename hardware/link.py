@@ -21,14 +21,26 @@ by character counting.  The link falls back to ping-pong (``link.fallbacks`` say
 when Marlin answers without ``ok N`` (no ADVANCED_OK), when grbl rejects a line, or after
 repeated stalls.
 
+Reply handling lives in ``hardware.replies`` (a mixin of ``Link``).
+
 Resends: ``Resend: r`` retransmits lines r.. from a bounded history (``history`` lines);
-repeated requests caused by lines already in flight are ignored.  A stall (no
-acknowledgement for ``poke_s``, adaptive) pokes the firmware: Marlin gets the oldest
-unacknowledged line again (its line number makes that safe: an already accepted line is
-answered with ``Resend: last+1``), grbl gets ``?`` and, when its status shows an empty RX
-buffer and an idle machine, the lost ``ok``s are taken as received.  Busy keepalives
-(``echo:busy``) and any other reply count as life; ``timeout_s`` of silence with commands
-in flight raises ``LinkError``.
+repeated requests caused by lines already in flight are ignored, and the requested lines
+go out one at a time (so stale copies on the wire cannot overflow the RX buffer).  A
+stall (no acknowledgement for ``poke_s``, default 2.5 s: longer than Marlin's 2 s busy
+keepalive; use ~0.02 s against a mock with ``time_scale=0``) pokes the firmware: Marlin
+gets the oldest unacknowledged lines again (line numbers make that safe: an accepted line
+is answered with ``Resend: last+1``, and when every line in flight is known accepted a
+numbered ``M114`` collects the missing ``ok N``), grbl gets ``?`` and, when its status
+shows an empty RX buffer and an idle machine, the lost ``ok``s are taken as received
+(status ``assumed``).  Busy keepalives (``echo:busy``) and every parsed reply (not line
+noise) count as life; ``timeout_s`` of silence with commands in flight raises
+``LinkError``.  A start banner after the first answer means the controller restarted:
+commands in flight fail with ``FirmwareReset`` and the link refuses further sends.
+
+Limits, honestly: grbl has no line numbers, so a line it rejects while others are
+already queued behind it cannot be re-sent in order; the link then reports the
+``FirmwareError`` and falls back to ping-pong (where a damaged line, ``error:1``/``2``,
+is re-sent: grbl discards a rejected line whole).
 """
 
 from __future__ import annotations
@@ -37,96 +49,25 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import serial
 
 from . import mock as _mock  # noqa: F401  (registers the mock:// handler)
-from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
-                     ProtocolError)
-from .events import (Alarm, Busy, FirmwareErrorEvent, Halted, Ok, ReplyEvent, Resend,
-                     StartBanner, StatusReport)
-from .protocol import check_dialect, frame, normalize_command, parse_reply
+from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError
+from .events import ReplyEvent, StatusReport
+from .pending import CommandResult, PendingCommand
+from .protocol import check_dialect, frame, normalize_command
+from .replies import ReplyHandling
 
 WINDOWS = ("pingpong", "windowed")
-_PAYLOAD_TYPES = ("ProbeReport", "PositionReport", "FirmwareInfo", "StatusReport",
-                  "TemperatureReport")
+__all__ = ["WINDOWS", "CommandResult", "Link", "PendingCommand"]
 
 
-@dataclass(frozen=True)
-class CommandResult:
-    """What one command got back.  ``status``: ``ok``, ``error`` (firmware rejected it;
-    ``error`` holds the event) or ``assumed`` (grbl ``ok`` lost, inferred from an idle
-    status).  Times are ``time.monotonic()`` seconds."""
-
-    command: str
-    line_no: int | None
-    reply_lines: tuple[str, ...]
-    events: tuple[ReplyEvent, ...]
-    payload: ReplyEvent | None
-    status: str
-    error: ReplyEvent | None
-    t_sent: float
-    t_done: float
-    resends: int
-
-
-class PendingCommand:
-    """A command in flight; ``result()`` blocks until it is answered."""
-
-    def __init__(self, link: Link, command: str, line_no: int | None, data: bytes,
-                 internal: bool = False) -> None:
-        self.link = link
-        self.command = command
-        self.line_no = line_no
-        self.data = data
-        self.internal = internal
-        self.t_sent = time.monotonic()
-        self.replies: list[ReplyEvent] = []
-        self.resends = 0
-        self.accepted = False
-        self.sync = False
-        self.error_event: ReplyEvent | None = None
-        self.outcome: CommandResult | None = None
-        self.failure: HardwareError | None = None
-        self._done = threading.Event()
-
-    def done(self) -> bool:
-        return self._done.is_set()
-
-    def finish(self, status: str, error: ReplyEvent | None = None) -> None:
-        payload = next((e for e in self.replies if type(e).__name__ in _PAYLOAD_TYPES), None)
-        self.outcome = CommandResult(self.command, self.line_no,
-                                     tuple(e.raw for e in self.replies), tuple(self.replies),
-                                     payload, status, error, self.t_sent, time.monotonic(),
-                                     self.resends)
-        self._done.set()
-
-    def fail(self, failure: HardwareError) -> None:
-        self.failure = failure
-        self._done.set()
-
-    def result(self, timeout: float | None = None, *, check: bool = True) -> CommandResult:
-        """Wait for the answer.  Raises the link's failure (``LinkError``...), or
-        ``FirmwareError`` when ``check`` and the firmware rejected the command."""
-        if not self._done.wait(timeout):
-            raise LinkError(f"no answer to {self.command!r} within {timeout} s",
-                            field="command", value=self.command[:60])
-        if self.failure is not None:
-            raise self.failure
-        outcome = self.outcome
-        if check and outcome.status == "error":
-            event = outcome.error
-            raise FirmwareError(f"{self.command!r} failed: {getattr(event, 'message', event.raw)}",
-                                code=getattr(event, "code", None), command=self.command)
-        return outcome
-
-
-class Link:
+class Link(ReplyHandling):
     """A connection to one controller; see the module docstring.  Thread-safe."""
 
     def __init__(self, port: serial.SerialBase, *, dialect: str, timeout_s: float, window: str,
-                 history: int, command_buffer: int, rx_buffer: int,
+                 history: int, command_buffer: int, rx_buffer: int, poke_s: float,
                  on_event: Callable[[ReplyEvent], None] | None) -> None:
         self.port = port
         self.dialect = dialect
@@ -145,19 +86,20 @@ class Link:
         self._outstanding: deque[PendingCommand] = deque()
         self._history: OrderedDict[int, PendingCommand] = OrderedDict()
         self._next_line = 1
-        self._swallow = 0
+        self._swallow = False  # the plain ok right after a Resend belongs to the request
         self._guard: list[int] | None = None
-        self._tx = 0
-        self._outcomes = 0
+        self._replay: deque[int] = deque()
+        self._replay_inflight: int | None = None
         self._n_ok = False
         self._fatal: HardwareError | None = None
+        self._answered = False
         self._status_seq = 0
         self._last_status: StatusReport | None = None
         self._closed = False
         self._last_rx = time.monotonic()
         self._last_ack = time.monotonic()
         self._rtt = 0.002
-        self._poke_s = 0.01
+        self._poke_s = poke_s
         self._pokes_in_row = 0
         self._reader = threading.Thread(target=self._read_loop, daemon=True, name="link-reader")
         self._reader.start()
@@ -166,27 +108,33 @@ class Link:
     @classmethod
     def open(cls, url: str, *, baudrate: int = 115200, dialect: str = "marlin",
              timeout_s: float = 30.0, window: str = "windowed", history: int = 1024,
-             command_buffer: int = 4, rx_buffer: int = 128,
+             command_buffer: int = 4, rx_buffer: int = 128, poke_s: float = 2.5,
              on_event: Callable[[ReplyEvent], None] | None = None) -> Link:
         """Open ``url`` and start the reader.  ``InvalidConfig`` for bad arguments,
-        ``LinkError`` when the port cannot be opened."""
+        ``LinkError`` when the port cannot be opened.
+
+        ``command_buffer``/``rx_buffer``: the controller's command slots (Marlin BUFSIZE)
+        and receive buffer in bytes, the windowed limits.  ``on_event(event)`` sees every
+        parsed reply on the reader thread with the link locked: keep it quick and never
+        call the link from it."""
         check_dialect(dialect)
         if window not in WINDOWS:
             raise InvalidConfig(f"unknown window mode {window!r}; expected pingpong or windowed",
                                 field="window", value=str(window)[:40])
         if not isinstance(url, str) or not url.strip():
             raise InvalidConfig("port URL is empty", field="port", value=url)
-        if timeout_s <= 0 or history < 16 or command_buffer < 1 or rx_buffer < 16:
+        if timeout_s <= 0 or poke_s <= 0 or history < 16 or command_buffer < 1 or rx_buffer < 16:
             raise InvalidConfig("timeout_s, history, command_buffer or rx_buffer out of range",
                                 field="link", value=[timeout_s, history, command_buffer, rx_buffer])
         try:
-            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.05, write_timeout=5)
+            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.01, write_timeout=5)
         except InvalidConfig:
             raise
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkError(f"cannot open port {url!r}: {exc}", field="port", value=url[:80]) from exc
         return cls(port, dialect=dialect, timeout_s=timeout_s, window=window, history=history,
-                   command_buffer=command_buffer, rx_buffer=rx_buffer, on_event=on_event)
+                   command_buffer=command_buffer, rx_buffer=rx_buffer, poke_s=poke_s,
+                   on_event=on_event)
 
     # ------------------------------------------------------------------ sending
     def send(self, command: str, timeout_s: float | None = None, *, check: bool = True
@@ -201,7 +149,7 @@ class Link:
         if text is None:
             raise InvalidConfig("empty command", field="command", value=command[:60])
         with self._cond:
-            nbytes = len(text) + 1 if self.dialect == "grbl" else 0
+            nbytes = len(text) + 1 if self.dialect == "grbl" else len(text) + 16
             if nbytes > self.rx_buffer - 1:
                 raise InvalidConfig(f"line longer than the controller's {self.rx_buffer}-byte "
                                     "buffer", field="command", value=text[:60])
@@ -214,14 +162,19 @@ class Link:
     def _window_open(self, nbytes: int) -> bool:
         if self._fatal is not None:
             return True
+        if self._replay or self._replay_inflight is not None:
+            return False  # recovering from a resend request
         outstanding = self._outstanding
         if not outstanding:
             return True
         if self.mode == "pingpong":
             return False
+        in_flight = sum(len(p.data) for p in outstanding)
         if self.dialect == "grbl":
-            return sum(len(p.data) for p in outstanding) + nbytes <= self.rx_buffer - 1
-        return len(outstanding) < self.command_buffer
+            return in_flight + nbytes <= self.rx_buffer - 1
+        # Marlin: free command slots, and never more bytes than its RX buffer holds (it
+        # stops reading serial while a command blocks, e.g. on a full planner)
+        return len(outstanding) < self.command_buffer and in_flight + nbytes <= self.rx_buffer - 1
 
     def _transmit_new(self, text: str, internal: bool = False) -> PendingCommand:
         if self.dialect == "marlin":
@@ -248,7 +201,6 @@ class Link:
             return
         try:
             self.port.write(data)
-            self._tx += 1
         except (serial.SerialException, OSError) as exc:
             self._write_failed(exc)
 
@@ -339,146 +291,6 @@ class Link:
                 best = pending.line_no
         return best
 
-    def _handle(self, line: str) -> None:
-        event = parse_reply(line, self.dialect)
-        now = time.monotonic()
-        self._last_rx = now
-        if self._fatal is not None:  # a dead session: listen, never act
-            self.unsolicited.append(event)
-            return
-        if self.on_event is not None:
-            try:
-                self.on_event(event)
-            except Exception:  # an observer must never break the link
-                pass
-        if isinstance(event, Ok):
-            self._on_ok(event, now)
-        elif isinstance(event, Resend):
-            self._on_resend(event.line)
-        elif isinstance(event, Busy):
-            self._last_ack = now
-        elif isinstance(event, FirmwareErrorEvent) and event.is_transmission:
-            pass  # the Resend that follows does the work
-        elif isinstance(event, FirmwareErrorEvent) and event.kind == "halted" or isinstance(event, Halted):
-            self._set_fatal(FirmwareError(f"firmware halted: {event.raw}"))
-        elif isinstance(event, FirmwareErrorEvent):
-            self._on_command_error(event, now)
-        elif isinstance(event, Alarm):
-            self._on_alarm(event)
-        elif isinstance(event, StartBanner):
-            self._on_banner(event)
-        elif isinstance(event, StatusReport):
-            self._on_status(event)
-        elif self._outstanding:
-            self._outstanding[0].replies.append(event)
-        elif event.raw.strip():
-            self.unsolicited.append(event)
-
-    def _complete_head(self, status: str, now: float, error: ReplyEvent | None = None) -> None:
-        pending = self._outstanding.popleft()
-        if pending.error_event is not None and status == "ok":
-            status, error = "error", pending.error_event
-        pending.finish(status, error)
-        self._rtt = 0.9 * self._rtt + 0.1 * max(now - pending.t_sent, 1e-5)
-        self._last_ack = now
-        self._pokes_in_row = 0
-
-    def _on_ok(self, event: Ok, now: float) -> None:
-        self._outcomes += 1
-        if event.line is not None:
-            self._n_ok = True
-            while self._outstanding and self._outstanding[0].line_no is not None \
-                    and self._outstanding[0].line_no <= event.line:
-                if self._outstanding[0].line_no == event.line:
-                    self._outstanding[0].replies.append(event)
-                self._complete_head("ok", now)
-            return
-        if self._swallow > 0:
-            self._swallow -= 1
-            return
-        if not self._outstanding:
-            self.unsolicited.append(event)
-            return
-        if self.dialect == "marlin" and self._n_ok and self._outstanding[0].command != "M105":
-            return  # stray plain ok while the firmware speaks ADVANCED_OK
-        if self.dialect == "marlin" and not self._n_ok and self.mode == "windowed" \
-                and len(self._outstanding) > 1:
-            self._fallback("firmware acknowledges without line numbers (no ADVANCED_OK)")
-        self._outstanding[0].replies.append(event)
-        self._complete_head("ok", now)
-
-    def _on_resend(self, line: int) -> None:
-        self._swallow += 1
-        head = self._outstanding[0] if self._outstanding else None
-        if head is not None and head.sync:
-            # sync probe answered "Line Number is not Last Line Number+1": adopt the number
-            self._outstanding.popleft()
-            head.line_no = line
-            head.finish("ok")
-            self._next_line = line
-            return
-        now = time.monotonic()
-        for pending in self._outstanding:
-            if pending.line_no is not None and pending.line_no < line:
-                pending.accepted = True
-        if not self._n_ok:  # no ok N will ever confirm them: accepted is all we learn
-            while self._outstanding and self._outstanding[0].accepted:
-                self._complete_head("ok", now)
-        if line >= self._next_line:
-            if line > self._next_line:
-                self._next_line = line
-            return
-        if self._guard is not None and self._guard[0] == line and self._guard[1] > 0:
-            self._guard[1] -= 1  # a line already in flight repeats the same request
-            self.stats["ignored_resends"] += 1
-            return
-        if line not in self._history:
-            self._set_fatal(ProtocolError(f"firmware asked to resend line {line}, which is no "
-                                          "longer in the history", field="history", value=line))
-            return
-        self._guard = [line, self._next_line - 1 - line]
-        for number in range(line, self._next_line):
-            pending = self._history.get(number)
-            if pending is None:
-                break
-            pending.resends += 1
-            self.stats["resends"] += 1
-            self._write(pending.data)
-
-    def _on_command_error(self, event: FirmwareErrorEvent, now: float) -> None:
-        if not self._outstanding:
-            self.unsolicited.append(event)
-            return
-        head = self._outstanding[0]
-        head.replies.append(event)
-        if self.dialect == "marlin":
-            head.error_event = event  # Marlin still sends ok for this command
-            return
-        if self.mode == "windowed" and len(self._outstanding) > 1:
-            self._fallback(f"grbl rejected a streamed line ({event.raw})")
-        elif event.code in (1, 2) and head.resends < 2 and self.mode == "pingpong":
-            head.resends += 1  # damaged line: nothing ran, so sending it again is safe
-            self.stats["retries"] += 1
-            self._write(head.data)
-            return
-        self._complete_head("error", now, event)
-
-    def _on_alarm(self, event: Alarm) -> None:
-        if self._outstanding:
-            head = self._outstanding.popleft()
-            head.replies.append(event)
-            head.finish("error", event)
-        self._fail_all(FirmwareError(f"alarm {event.code}: {event.message}", code=event.code))
-
-    def _on_banner(self, event: StartBanner) -> None:
-        self._next_line = 1
-        self._swallow = 0
-        self._guard = None
-        if self._outstanding:  # poison the link: nothing may be sent into the new session
-            self._set_fatal(FirmwareReset("the controller restarted with commands in flight",
-                                          last_line=self.last_acked_line()))
-        self.unsolicited.append(event)
-
     def query_status(self, timeout_s: float = 2.0) -> StatusReport:
         """grbl: write ``?`` and wait for the next status report."""
         with self._cond:
@@ -491,76 +303,6 @@ class Link:
                     raise LinkError("no status report", field="timeout_s")
                 self._cond.wait(0.05)
             return self._last_status
-
-    def _on_status(self, event: StatusReport) -> None:
-        self._status_seq += 1
-        self._last_status = event
-        self.unsolicited.append(event)
-        if self.dialect != "grbl" or not self._outstanding:
-            return
-        free = event.fields.get("Bf", "")
-        rx_free = int(free.split(",")[1]) if "," in free else None
-        if event.state == "Idle" and rx_free is not None and rx_free >= self.rx_buffer - 1:
-            now = time.monotonic()
-            while self._outstanding:
-                self.stats["assumed_ok"] += 1
-                self._complete_head("assumed", now)
-
-    # ------------------------------------------------------------------ stalls / failures
-    def _check_stall(self) -> None:
-        if not self._outstanding or self._fatal is not None:
-            return
-        now = time.monotonic()
-        if now - self._last_rx > self.timeout_s:
-            self._set_fatal(LinkError(f"no reply for {self.timeout_s} s", field="timeout_s",
-                                      last_line=self.last_acked_line()))
-            return
-        limit = min(max(self._poke_s, 20 * self._rtt), 2.0) * (2 ** min(self._pokes_in_row, 5))
-        if now - self._last_ack < limit:
-            return
-        self._last_ack = now
-        self._pokes_in_row += 1
-        self.stats["pokes"] += 1
-        if self._pokes_in_row >= 3 and self.mode == "windowed":
-            self._fallback("repeated stalls")
-        if self.dialect == "grbl":
-            self._write_raw(b"?")
-            return
-        head = self._outstanding[0]
-        if all(p.accepted for p in self._outstanding):
-            self._transmit_new("M114", internal=True)
-        else:
-            head.resends += 1
-            self._write(head.data)
-
-    def _write_raw(self, data: bytes) -> None:
-        if self._fatal is not None:
-            return
-        try:
-            self.port.write(data)
-        except (serial.SerialException, OSError) as exc:
-            self._write_failed(exc)
-
-    def _fallback(self, reason: str) -> None:
-        if self.mode != "pingpong":
-            self.mode = "pingpong"
-            self.fallbacks.append(reason)
-
-    def _fail_all(self, failure: HardwareError) -> None:
-        while self._outstanding:
-            self._outstanding.popleft().fail(failure)
-        self._cond.notify_all()
-
-    def _set_fatal(self, failure: HardwareError) -> None:
-        if self._fatal is None:
-            self._fatal = failure
-        self._fail_all(failure)
-
-    def _check_fatal(self) -> None:
-        if self._fatal is not None:
-            raise self._fatal
-        if self._closed:
-            raise LinkError("link is closed", field="port")
 
     # ------------------------------------------------------------------ misc
     @property

@@ -38,84 +38,16 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 
 from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
                      MachineBusy, MachineStateError, ProbeFailed)
 from .events import Capability, FirmwareInfo, PositionReport, ProbeReport, StartBanner
 from .link import CommandResult, Link, PendingCommand
-from .protocol import check_dialect, normalized_commands
+from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
+                            _Interrupted)
+from .protocol import check_dialect, validate_program
 
-STATES = ("disconnected", "idle", "busy", "printing", "paused", "error")
-
-
-@dataclass(frozen=True)
-class MachineProfile:
-    """Machine-specific commands and motion defaults (mm, mm/min)."""
-
-    dispense_on: str = "M106"
-    dispense_off: str = "M107"
-    probe_feed_mm_min: float = 100.0
-    travel_feed_mm_min: float = 3000.0
-    clearance_z: float = 5.0
-    probe_z_min: float = -10.0
-    probe_command: str | None = None   # "G30" | "G38.2"; None: G30 (marlin), G38.2 (grbl)
-    home_command: str | None = None    # None: "G28" (marlin), "$H" (grbl)
-
-    def __post_init__(self) -> None:
-        if self.probe_command not in (None, "G30", "G38.2"):
-            raise InvalidConfig("probe_command must be G30 or G38.2", field="profile.probe_command",
-                                value=self.probe_command)
-        for name in ("probe_feed_mm_min", "travel_feed_mm_min"):
-            if not getattr(self, name) > 0:
-                raise InvalidConfig(f"{name} must be > 0", field=f"profile.{name}",
-                                    value=getattr(self, name))
-        if not self.dispense_on.strip() or not self.dispense_off.strip():
-            raise InvalidConfig("dispense commands must not be empty", field="profile.dispense_on")
-
-
-@dataclass(frozen=True)
-class Identity:
-    """Who answered: firmware name, M115/``$I`` fields, capabilities, start banner."""
-
-    dialect: str
-    firmware: str
-    fields: dict[str, str]
-    capabilities: dict[str, bool]
-    banner: tuple[str, ...]
-    reset_detected: bool
-
-
-@dataclass(frozen=True)
-class ProbeResult:
-    """A measured surface point (mm, machine coordinates)."""
-
-    x: float
-    y: float
-    z: float
-
-
-@dataclass(frozen=True)
-class StreamReport:
-    """Outcome of ``stream``: commands known executed (index of the next one), total,
-    where it started, whether it was cancelled, elapsed seconds, link counters."""
-
-    executed: int
-    total: int
-    start_line: int
-    cancelled: bool
-    elapsed_s: float
-    link_stats: dict[str, int] = field(default_factory=dict)
-
-
-@dataclass
-class _Interrupted:
-    total: int
-    acked_index: int                      # commands [0, acked_index) known processed
-    acked_line_no: int | None
-    inflight: list[tuple[int | None, int]]  # (line number, command index)
-    reset: bool
-
+__all__ = ["STATES", "Identity", "Machine", "MachineProfile", "ProbeResult", "StreamReport"]
 
 class Machine:
     """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
@@ -123,7 +55,8 @@ class Machine:
 
     def __init__(self, url: str, dialect: str = "marlin", profile: MachineProfile | None = None,
                  *, baudrate: int = 115200, window: str = "windowed", timeout_s: float = 30.0,
-                 boot_wait_s: float = 2.0) -> None:
+                 boot_wait_s: float = 2.0, boot_quiet_s: float = 0.1, poke_s: float = 2.5
+                 ) -> None:
         self.url = url
         self.dialect = check_dialect(dialect)
         self.profile = profile or MachineProfile()
@@ -131,6 +64,8 @@ class Machine:
         self.window = window
         self.timeout_s = timeout_s
         self.boot_wait_s = boot_wait_s
+        self.boot_quiet_s = boot_quiet_s
+        self.poke_s = poke_s
         self.link: Link | None = None
         self.identity: Identity | None = None
         self.progress: tuple[int, int] | None = None  # (executed, total) of the running program
@@ -174,7 +109,7 @@ class Machine:
         if self.link is not None:
             self.disconnect()
         self.link = Link.open(self.url, baudrate=self.baudrate, dialect=self.dialect,
-                              timeout_s=self.timeout_s, window=self.window)
+                              timeout_s=self.timeout_s, window=self.window, poke_s=self.poke_s)
         self._state = "busy"
         self._estopped = False
         try:
@@ -197,11 +132,11 @@ class Machine:
         seen = 0
         quiet_since = time.monotonic()
         while time.monotonic() < deadline:
-            time.sleep(0.02)
+            time.sleep(min(0.02, self.boot_quiet_s / 2))
             if len(link.unsolicited) != seen:
                 seen = len(link.unsolicited)
                 quiet_since = time.monotonic()
-            elif time.monotonic() - quiet_since > 0.1:
+            elif time.monotonic() - quiet_since > self.boot_quiet_s:
                 break
         events = list(link.unsolicited)
         link.unsolicited.clear()
@@ -311,13 +246,10 @@ class Machine:
                 raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
                                   f"z={z_min:.3f}: {exc.message}", x=x, y=y, field="probe",
                                   value=[x, y]) from exc
-            if kind == "G30":
-                report = result.payload
-            elif self.dialect == "grbl":
-                report = result.payload
-            else:
-                position = self._position()
-                report = ProbeReport(*position)
+            if kind == "G30" or self.dialect == "grbl":
+                report = result.payload  # "Bed X: .. Y: .. Z: .." / "[PRB:x,y,z:1]"
+            else:  # Marlin G38.2 prints nothing: it stopped at the contact point
+                report = ProbeReport(*self._position())
             if not isinstance(report, ProbeReport) or not report.triggered or report.z < z_min:
                 self._recover_after_probe(z_start)
                 raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
@@ -336,11 +268,12 @@ class Machine:
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
                start_line: int = 0) -> StreamReport:
         """Send a program (comments/blank lines dropped) from command ``start_line``.
+        ``InvalidConfig`` (field ``program``) when a line is not G-code.
 
         Returns when every command is acknowledged, or when cancelled (after the commands
         in flight were answered).  On ``LinkError`` the machine remembers what is known to
         be executed (see ``resume_line``) and re-raises."""
-        commands = normalized_commands(lines)
+        commands = validate_program(lines)
         total = len(commands)
         if not 0 <= start_line <= total:
             raise InvalidConfig(f"start_line must be within 0..{total}", field="start_line",

@@ -129,6 +129,28 @@ def normalized_commands(lines: Iterable[str]) -> list[str]:
     return out
 
 
+_COMMAND_START = re.compile(r"^[A-Za-z$%]")
+_PRINTABLE = re.compile(r"^[\x20-\x7e\t]*$")
+
+
+def validate_program(lines: Iterable[str], max_line_bytes: int = 256) -> list[str]:
+    """The program's normalised commands, or ``InvalidConfig`` naming the first line that
+    is not G-code (binary data, a word not starting with a letter, an over-long line)."""
+    commands = []
+    for number, line in enumerate(lines, start=1):
+        command = normalize_command(line)
+        if command is None:
+            continue
+        if not _PRINTABLE.match(command) or not _COMMAND_START.match(command) \
+                or len(command) > max_line_bytes:
+            raise InvalidConfig(f"line {number} is not a G-code command", field="program",
+                                value=f"line {number}: {command[:40]!r}")
+        commands.append(command)
+    if not commands:
+        raise InvalidConfig("the program contains no commands", field="program", value=None)
+    return commands
+
+
 def commands_sha256(lines: Iterable[str]) -> CommandDigest:
     """API.md's program digest over ``lines`` (raw G-code lines, comments allowed)."""
     hasher = CommandHasher()

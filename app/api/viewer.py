@@ -30,7 +30,7 @@ class FocusRequest(BaseModel):
     job_id: str | None = Field(None, max_length=40, description="show this job's results (and its part)")
 
     @model_validator(mode="after")
-    def _exactly_one(self) -> "FocusRequest":
+    def _exactly_one(self) -> FocusRequest:
         if (self.part_id is None) == (self.job_id is None):
             raise ValueError("give exactly one of part_id or job_id")
         return self

@@ -16,7 +16,10 @@ placement fit (each pick maximises the variance it removes, r M^-1 r^T), at leas
 point over the part and one beside it (a touch higher than ``part_threshold_z`` is on the
 part), to ``resolution_mm``.  A ball tip of radius r catches the top edge up to r beyond
 the wall, which is corrected.  The wall point it returns (machine frame) is a side datum
-for :func:`~app.compensation.registration.fit_placement`.  Lengths in mm.
+for :func:`~app.compensation.registration.fit_placement`.
+
+:func:`register_with_z_probe` runs a plan with a -Z probe callable (edges, then heights
+at the placed points) and returns the placement with its covariance.  Lengths in mm.
 """
 
 from __future__ import annotations
@@ -31,12 +34,20 @@ import trimesh
 
 from app.compensation.registration import (
     PARAMETERS,
+    DegenerateDatumError,
+    Placement,
+    Registration,
     RegistrationError,
+    RegistrationParams,
     _unobservable,
+    apply_placement,
+    fit_placement,
     information_rows,
+    remove_placement,
 )
 
-__all__ = ["DatumPlan", "EdgeFind", "find_edge", "plan_datum_probes"]
+__all__ = ["DatumPlan", "DatumProbeParams", "DatumRegistration", "DatumTouch", "EdgeFind",
+           "find_edge", "plan_datum_probes", "register_with_z_probe"]
 
 _EPS_INFO = 1e-9
 
@@ -226,3 +237,163 @@ def find_edge(probe_z: Callable[[float, float], float], inside_xy: Any, outside_
     return EdgeFind(point=np.array([wall[0], wall[1], z_top]),
                     normal=np.array([direction[0], direction[1], 0.0]), touches=touches,
                     bracket_mm=hi - lo)
+
+
+ProbeZ = Callable[[float, float], float]
+
+
+@dataclass(frozen=True)
+class DatumProbeParams:
+    """How a :class:`DatumPlan` is touched with -Z probes (:func:`register_with_z_probe`).
+
+    search_mm: an edge search runs from ``search_mm`` inside to ``search_mm`` outside the
+    nominal wall, so it finds walls displaced by less than that (keep it below the plan's
+    ``margin_mm``).  resolution_mm / tip_radius_mm / max_touches_per_edge: see
+    :func:`find_edge`.  sigma_mm: probe repeatability (1 sigma).  pivot_xy: rotation axis
+    of the estimated placement (mm, machine frame)."""
+
+    search_mm: float = 1.5
+    resolution_mm: float = 0.001
+    tip_radius_mm: float = 0.0
+    max_touches_per_edge: int = 40
+    sigma_mm: float = 0.001
+    pivot_xy: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("search_mm", "resolution_mm", "sigma_mm"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise RegistrationError(f"{name} must be positive", field=name, value=value)
+
+
+@dataclass(frozen=True)
+class DatumTouch:
+    """One datum measurement: face label, nominal point / outward normal used in the fit
+    (3,) part frame, measured point (3,) machine frame, probe direction (3,), and the
+    number of -Z touches it took (an edge search takes several)."""
+
+    face: str
+    nominal: np.ndarray
+    normal: np.ndarray
+    measured: np.ndarray
+    direction: np.ndarray
+    touches: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"face": self.face, "nominal": self.nominal.tolist(), "normal": self.normal.tolist(),
+                "measured": self.measured.tolist(), "touches": self.touches}
+
+
+@dataclass(frozen=True, eq=False)
+class DatumRegistration:
+    """Placement from datum touches.  std: 1-sigma per estimated parameter (mm; rz rad).
+    covariance: (4, 4) in :data:`PARAMETERS` order (mm, rad), zero rows/columns for
+    parameters not estimated.  unobservable: parameters the touches cannot see (held 0).
+    fits: the underlying fits, named by fit_names ("edges", "heights" or "z_only")."""
+
+    placement: Placement
+    std: dict[str, float]
+    covariance: np.ndarray
+    unobservable: tuple[str, ...]
+    touches: tuple[DatumTouch, ...]
+    fits: tuple[Registration, ...]
+    fit_names: tuple[str, ...]
+
+    @property
+    def probe_count(self) -> int:
+        return sum(t.touches for t in self.touches)
+
+    def to_result(self) -> dict[str, Any]:
+        """JSON form; lengths mm, angles degrees (covariance in mm and deg)."""
+        names = [p for p in PARAMETERS if p in self.std]
+        unit = {p: math.degrees(1.0) if p == "rz" else 1.0 for p in PARAMETERS}
+        labels = [f"{p}_deg" if p == "rz" else f"{p}_mm" for p in names]
+        idx = [PARAMETERS.index(p) for p in names]
+        scale = np.array([unit[p] for p in names])
+        cov = self.covariance[np.ix_(idx, idx)] * np.outer(scale, scale)
+        return {"placement": self.placement.to_dict(),
+                "std": {lab: self.std[p] * unit[p] for lab, p in zip(labels, names)},
+                "covariance": {"parameters": labels, "matrix": cov.tolist()},
+                "unobservable": list(self.unobservable),
+                "rms_mm": {name: f.rms_mm for name, f in zip(self.fit_names, self.fits)},
+                "probe_count": self.probe_count, "touches": [t.to_dict() for t in self.touches]}
+
+
+def _edge_touch(plan: DatumPlan, i: int, probe_z: ProbeZ, floor_z: float,
+                params: DatumProbeParams) -> DatumTouch:
+    q, n = plan.points[i], plan.normals[i]
+    inside, outside = q[:2] - n[:2] * params.search_mm, q[:2] + n[:2] * params.search_mm
+    # the plan keeps the part's top >= q_z + margin next to a side touch: halfway to q_z
+    edge = find_edge(probe_z, inside, outside, 0.5 * (floor_z + q[2]), params.resolution_mm,
+                     params.tip_radius_mm, params.max_touches_per_edge)
+    return DatumTouch(plan.faces[i], q.copy(), n.copy(), edge.point, edge.normal, edge.touches)
+
+
+def _combine(parts: list[tuple[str, Registration, tuple[str, ...]]], pivot: tuple[float, float],
+             unobservable: tuple[str, ...], touches: list[DatumTouch]) -> DatumRegistration:
+    theta, std, cov = np.zeros(4), {}, np.zeros((4, 4))
+    for _, reg, names in parts:
+        idx = [PARAMETERS.index(p) for p in names]
+        values = (reg.placement.dx, reg.placement.dy, reg.placement.dz, reg.placement.rz_rad)
+        theta[idx] = [values[k] for k in idx]
+        cov[np.ix_(idx, idx)] = reg.covariance
+        std.update(reg.std)
+    return DatumRegistration(Placement(*theta, pivot[0], pivot[1]), std, cov, unobservable,
+                             tuple(touches), tuple(r for _, r, _ in parts),
+                             tuple(n for n, _, _ in parts))
+
+
+def register_with_z_probe(plan: DatumPlan, probe_z: ProbeZ, floor_z_mm: float,
+                          params: DatumProbeParams | None = None) -> DatumRegistration:
+    """Touch ``plan`` with -Z probes only and fit the placement (mm, machine frame).
+
+    probe_z(x, y) -> z: one -Z touch (machine frame); beside the part it meets the floor
+    at about ``floor_z_mm`` (the part's bottom).  ``mode="sides"`` plans: each side touch
+    becomes an edge search across the nominal wall (:func:`find_edge`), which fixes dx,
+    dy, rz (fit 1, planar walls); top touches are then made at the points placed by fit 1,
+    so each lands on its nominal point and measures the height there: fit 2 gives dz from
+    them with a vertical normal, free of the slopes (a machining error of the top biases
+    dz only).  The two fits share no parameter; their covariances form the blocks of
+    ``covariance``.  ``mode="z_only"`` plans: one fit of the observable parameters from
+    touches at the nominal xy (planar faces at the touch points; see the registration
+    module doc for the bias of free-form tops).  Raises RegistrationError /
+    DegenerateDatumError naming what cannot be determined.
+    """
+    params = params or DatumProbeParams()
+    pivot = (float(params.pivot_xy[0]), float(params.pivot_xy[1]))
+    vertical = np.abs(plan.directions[:, 2]) > 0.5
+    if plan.mode == "z_only" or vertical.all():
+        names = tuple(p for p in PARAMETERS if p not in plan.unobservable)
+        touches = [DatumTouch(plan.faces[i], plan.points[i].copy(), plan.normals[i].copy(),
+                              np.array([*plan.points[i][:2], probe_z(*plan.points[i][:2])]),
+                              plan.directions[i].copy(), 1) for i in range(len(plan.points))]
+        reg = _fit(touches, names, pivot, params)
+        return _combine([("z_only", reg, names)], pivot, tuple(plan.unobservable), touches)
+    edges = [_edge_touch(plan, i, probe_z, floor_z_mm, params) for i in np.flatnonzero(~vertical)]
+    xy_names = ("dx", "dy", "rz")
+    first = _fit(edges, xy_names, pivot, params)
+    parts = [("edges", first, xy_names)]
+    heights: list[DatumTouch] = []
+    for i in np.flatnonzero(vertical):
+        at = apply_placement(plan.points[i][None, :2], first.placement)[0]
+        heights.append(DatumTouch(plan.faces[i], plan.points[i].copy(), np.array([0.0, 0.0, 1.0]),
+                                  np.array([at[0], at[1], probe_z(*at)]), plan.directions[i].copy(), 1))
+    if heights:
+        # heights in the frame of fit 1: only dz is left (a z shift commutes with it)
+        level = [DatumTouch(t.face, t.nominal, t.normal,
+                            remove_placement(t.measured[None], first.placement)[0], t.direction, 1)
+                 for t in heights]
+        parts.append(("heights", _fit(level, ("dz",), pivot, params), ("dz",)))
+    return _combine(parts, pivot, () if heights else ("dz",), edges + heights)
+
+
+def _fit(touches: list[DatumTouch], names: tuple[str, ...], pivot: tuple[float, float],
+         params: DatumProbeParams) -> Registration:
+    if not touches:
+        raise DegenerateDatumError(f"no datum touches to determine {list(names)}",
+                                   field="plan", value=list(names))
+    sigma = max(params.sigma_mm, params.resolution_mm / math.sqrt(12.0))
+    return fit_placement(np.array([t.nominal for t in touches]), np.array([t.normal for t in touches]),
+                         np.array([t.measured for t in touches]),
+                         RegistrationParams(sigma_mm=sigma, estimate=names, pivot_xy=pivot),
+                         directions=np.array([t.direction for t in touches]))

@@ -9,7 +9,7 @@ from app.jobs.context import JobContext
 from app.models import Job, JobReference
 from hardware.machine import Machine
 
-MACHINE_KINDS = ("print", "probe_run", "closed_loop")
+MACHINE_KINDS = ("print", "probe_run", "register")  # jobs that drive a machine themselves
 
 
 def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
@@ -17,7 +17,7 @@ def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
     busy = session.exec(
         select(Job.id, Job.kind).join(JobReference, JobReference.job_id == Job.id)
         .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
-               Job.status.in_(("queued", "running")), Job.kind.in_(("print", "probe_run")))
+               Job.status.in_(("queued", "running")), Job.kind.in_(MACHINE_KINDS))
     ).first()
     if busy is not None:
         raise Conflict(f"machine {machine_id!r} is busy with {busy[1]} job {busy[0]}; one program at a time",

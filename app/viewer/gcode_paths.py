@@ -48,7 +48,7 @@ class ToolpathSegments:
 
     @property
     def count(self) -> int:
-        return int(len(self.starts))
+        return len(self.starts)
 
     @property
     def has_rotary(self) -> bool:

@@ -119,7 +119,7 @@ class ViewerPanel:
         self._dynamic += [slider, caption]
 
     def _plot(self, gui: Any, plot: Any) -> None:
-        import viser.uplot as uplot
+        from viser import uplot
 
         s = np.asarray(plot.s_mm, np.float64)
         dz = np.asarray(plot.dz_mm, np.float64)

@@ -21,9 +21,18 @@ from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
 from app.records import get_or_404
-from app.viewer.gcode_paths import parse_toolpath
-from app.viewer.scene_data import (AxisGlyphs, DeviationPlot, FocusScene, HeightStack, LayerStack, Polyline,
-                                   ProbeSet, SurfaceMesh, Toolpath)
+from app.viewer.offload import ParsePool
+from app.viewer.scene_data import (
+    AxisGlyphs,
+    DeviationPlot,
+    FocusScene,
+    HeightStack,
+    LayerStack,
+    Polyline,
+    ProbeSet,
+    SurfaceMesh,
+    Toolpath,
+)
 from app.viewer.trace_math import project_onto_polyline, rings_to_segments
 
 CURVE_SAMPLES = 400
@@ -32,8 +41,9 @@ CURVE_SAMPLES = 400
 class Loader:
     """Loads scenes from one runtime (engine + blobs + mesh cache)."""
 
-    def __init__(self, runtime: Any) -> None:
+    def __init__(self, runtime: Any, parser: ParsePool | None = None) -> None:
         self.runtime = runtime
+        self.parser = parser or ParsePool()
 
     # public --------------------------------------------------------------------------
     def part_scene(self, part_id: str) -> FocusScene:
@@ -80,8 +90,18 @@ class Loader:
         return None
 
     def _artifact(self, session: Session, job_id: str, name: str) -> bytes | None:
-        row = session.exec(select(Artifact).where(Artifact.job_id == job_id, Artifact.name == name)).first()
+        row = self._artifact_row(session, job_id, name)
         return None if row is None else self.runtime.blobs.read(row.sha256)
+
+    def _artifact_row(self, session: Session, job_id: str, name: str) -> Artifact | None:
+        return session.exec(select(Artifact).where(Artifact.job_id == job_id, Artifact.name == name)).first()
+
+    def _program(self, session: Session, job: Job, name: str) -> Any:
+        """The parsed moves of G-code artifact ``name`` (None when the job has none)."""
+        row = self._artifact_row(session, job.id, name)
+        if row is None:
+            return None
+        return self.parser.parse(self.runtime.blobs.read(row.sha256), *_dispense_lines(job), key=row.sha256)
 
     def _trace(self, session: Session, trace_id: str | None) -> Trace | None:
         return session.get(Trace, trace_id) if trace_id else None
@@ -152,11 +172,9 @@ class Loader:
         return self._with_trace(session, job, polylines=(rebuilt,), probes=(probes,), plots=(plot,))
 
     def _gcode(self, session: Session, job: Job, name: str, role: str, label: str | None = None) -> tuple[Toolpath, ...]:
-        data = self._artifact(session, job.id, name)
-        if data is None:
+        segments = self._program(session, job, name)
+        if segments is None:
             return ()
-        result = job.result or {}
-        segments = parse_toolpath(data, result.get("dispense_on"), result.get("dispense_off"))
         return (Toolpath(label or name.rsplit(".", 1)[0], segments, role),)
 
     def _compensate(self, session: Session, job: Job) -> FocusScene:
@@ -175,20 +193,28 @@ class Loader:
         return merged
 
     def _surface_fit(self, session: Session, job: Job) -> FocusScene:
-        mesh = NurbsSurface.from_dict(job.result["surface"]).to_mesh(60, 60)
-        points = job.params.get("points")
-        probes = (ProbeSet("fit points", measured=np.asarray(points, float).reshape(-1, 3)),) if points else ()
-        return FocusScene({}, "", surfaces=(SurfaceMesh("fitted surface", np.asarray(mesh.vertices), np.asarray(mesh.faces)),),
-                          probes=probes)
+        stored = job.result.get("surface")
+        if stored is None:
+            data = self._artifact(session, job.id, "surface.json")
+            stored = json.loads(data) if data else None
+        if stored is None:
+            return FocusScene({}, "", notes=("surface_fit job has no surface",))
+        mesh = NurbsSurface.from_dict(stored).to_mesh(60, 60)
+        grid = [p for p in job.result.get("probe_grid", {}).get("points", []) if p[2] is not None]
+        probes = (ProbeSet("probe grid", planned=np.asarray(grid, float).reshape(-1, 3)),) if grid else ()
+        return FocusScene({}, "", probes=probes, surfaces=(
+            SurfaceMesh("fitted surface", np.asarray(mesh.vertices), np.asarray(mesh.faces)),))
 
     def _five_axis(self, session: Session, job: Job) -> FocusScene:
-        from app.compensation.five_axis.kinematics import machine_to_workpiece, tool_axis_from_angles
+        from app.compensation.five_axis.kinematics import (
+            machine_to_workpiece,
+            tool_axis_from_angles,
+        )
 
         paths = list(self._gcode(session, job, "nominal.gcode", "nominal"))
-        data = self._artifact(session, job.id, "five_axis.gcode")
+        seg = self._program(session, job, "five_axis.gcode")
         axes: tuple[AxisGlyphs, ...] = ()
-        if data is not None:
-            seg = parse_toolpath(data, (job.result or {}).get("dispense_on"), (job.result or {}).get("dispense_off"))
+        if seg is not None:
             pivot = np.asarray(job.params.get("pivot") or [0.0, 0.0, 0.0], float)
             a, c = np.radians(seg.a_deg), np.radians(seg.c_deg)
             ends = machine_to_workpiece(seg.ends, a, c, pivot)
@@ -251,9 +277,17 @@ class Loader:
         return self._with_trace(session, job, toolpaths=paths)
 
 
-def load_focus(runtime: Any, part_id: str | None = None, job_id: str | None = None) -> FocusScene:
+def _dispense_lines(job: Job) -> tuple[str | None, str | None]:
+    """The program's dispense on/off lines as the job echoes them (result, else params)."""
+    result, params = job.result or {}, job.params or {}
+    return (result.get("dispense_on") or params.get("dispense_on"),
+            result.get("dispense_off") or params.get("dispense_off"))
+
+
+def load_focus(runtime: Any, part_id: str | None = None, job_id: str | None = None,
+               parser: ParsePool | None = None) -> FocusScene:
     """The scene of a part or a job; NotFound names the missing id."""
-    loader = Loader(runtime)
+    loader = Loader(runtime, parser)
     if job_id:
         return loader.job_scene(job_id)
     if part_id:

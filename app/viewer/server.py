@@ -20,6 +20,7 @@ from app.config import Settings
 from app.models import Job, Part
 from app.viewer.gui import ViewerPanel
 from app.viewer.loaders import load_focus
+from app.viewer.offload import ParsePool
 from app.viewer.registry import SceneRegistry
 from app.viewer.scene_data import FocusScene
 from app.viewer.scenes import SceneBuilder
@@ -38,6 +39,7 @@ class Viewer:
         self.registry = SceneRegistry()
         self.builder = SceneBuilder(server, self.registry)
         self._lock = threading.Lock()
+        self.parser = ParsePool()
         self.panel = ViewerPanel(server, self.builder, self.registry, self._select_from_panel, self._recent)
         if runtime is not None:
             self.panel.refresh_jobs()
@@ -51,13 +53,14 @@ class Viewer:
         return f"http://{self.host}:{self.port}/"
 
     def stop(self) -> None:
+        self.parser.close()
         self.server.stop()
 
     # focus -----------------------------------------------------------------------------
     def focus(self, part_id: str | None = None, job_id: str | None = None) -> dict[str, Any]:
         """Show a part or a job (read from the runtime); returns the registry snapshot.
         Raises NotFound for an unknown id (nothing changes then)."""
-        scene = load_focus(self.runtime, part_id=part_id, job_id=job_id)
+        scene = load_focus(self.runtime, part_id=part_id, job_id=job_id, parser=self.parser)
         self.show(scene)
         self.panel.refresh_jobs(current=job_id or part_id)
         return self.registry.snapshot()

@@ -18,6 +18,7 @@ Times are real seconds: every modelled duration is multiplied by ``time_scale``
 
 from __future__ import annotations
 
+import math
 import random
 import re
 from collections import deque
@@ -245,7 +246,7 @@ class FirmwareCore:
         if len(self.planner) >= self.world.planner_blocks:
             yield ("slot",)
         start = tuple(self.position)
-        length = float(np.linalg.norm(np.subtract(target, start)))
+        length = math.dist(target, start)
         if self.dispensing and length > 0:
             self.world.deposition_log.append(DepositedMove(start, tuple(target), feed_mm_min))
         self.position = list(target)

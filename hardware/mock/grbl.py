@@ -6,9 +6,9 @@
 * Real-time bytes are taken out of the stream on arrival: ``?`` status report
   (``<Idle|MPos:x,y,z|Bf:blocks,bytes|FS:f,0>``), ``!`` hold, ``~`` resume, ``0x18``
   soft reset (``ALARM:3`` if moving, then the banner).
-* ``G38.2 Z.. F..`` probes down: ``[PRB:x,y,z:1]`` then ``ok``; no contact ``ALARM:5``,
-  starting inside the part ``ALARM:4``; an alarm flushes the RX buffer, sends no ``ok``
-  and locks G-code (``error:9``) until ``$X`` or ``$H``.
+* ``G38.2 Z.. F..`` probes down: ``[PRB:x,y,z:1]`` then ``ok``; no contact: ``ALARM:5``,
+  ``[PRB:x,y,z:0]``, ``ok`` (grbl 1.1 ``mc_probe_cycle``); starting inside the part:
+  ``ALARM:4``, ``ok``.  The alarm locks G-code (``error:9``) until ``$X`` or ``$H``.
 * A damaged line (``checksum_rate``) is rejected with ``error:2`` and not executed.
 * Opening the port resets the controller (DTR), and so does a disconnect.
 """
@@ -195,27 +195,22 @@ class GrblFirmware(FirmwareCore):
         yield ("drain",)
         z_target = params["Z"] if self.absolute else self.position[2] + params["Z"]
         z = self.probe_down(z_target)
-        if z == "inside":
+        if z == "inside":  # grbl 1.1 mc_probe_cycle: alarm, no motion, the line still gets ok
             self.raise_alarm(4, now)
-            return False
+            return True
         end = z if isinstance(z, float) else z_target
         yield from self.dwell(abs(self.position[2] - end) / max(self.feed, 1e-9) * 60.0, now)
         self.position[2] = end
         x, y, _ = self.position
-        if not isinstance(z, float):
-            if head == "G38.2":
-                self.raise_alarm(5, now)
-                return False
-            self.emit(f"[PRB:{x:.3f},{y:.3f},{end:.3f}:0]", now)
-            return True
-        self.emit(f"[PRB:{x:.3f},{y:.3f},{end:.3f}:1]", now)
+        if not isinstance(z, float) and head == "G38.2":
+            self.raise_alarm(5, now)  # then [PRB:..:0] and ok, like grbl 1.1
+        flag = 1 if isinstance(z, float) else 0
+        self.emit(f"[PRB:{x:.3f},{y:.3f},{end:.3f}:{flag}]", now)
         return True
 
     def raise_alarm(self, code: int, now: float) -> None:
-        """Probe alarm: abort the cycle, flush RX, lock until ``$X``."""
+        """Probe alarm (not critical): report it and lock G-code until ``$X``/``$H``."""
         self.emit(f"ALARM:{code}", now)
-        self.rx.clear()
-        self.wire.clear()
         self.alarm = True
 
     # ------------------------------------------------------------------ resets

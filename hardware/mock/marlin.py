@@ -233,7 +233,7 @@ class MarlinFirmware(FirmwareCore):
     def banner(self, now: float) -> None:
         self.emit("start", now)
         self.emit("echo:Marlin 2.1.2.1 (mock)", now)
-        self.emit(f"echo: Last Updated: 2024-01-01 | Author: (conforma mock)", now)
+        self.emit("echo: Last Updated: 2024-01-01 | Author: (conforma mock)", now)
 
     def reset(self, now: float) -> None:
         """Controller restart: buffers and line number lost, banner printed."""

@@ -62,6 +62,7 @@ class Serial(SerialBase):
         world = world_from_url(self.portstr)
         self._world = world
         self._out: deque[tuple[float, bytes]] = deque()
+        self._out_bytes = 0
         self._dead = False
         with world.cond:
             firmware, first = _firmware_for(world, self._baudrate or 115200)
@@ -95,6 +96,7 @@ class Serial(SerialBase):
     # called by the firmware with the world lock held
     def deliver(self, ready_at: float, data: bytes) -> None:
         self._out.append((ready_at, data))
+        self._out_bytes += len(data)
 
     def mark_dead(self) -> None:
         self._dead = True
@@ -108,8 +110,11 @@ class Serial(SerialBase):
         if not self.is_open:
             raise PortNotOpenError()
         with self._world.cond:
-            now = _clock(self._world)
-            count = sum(len(d) for t, d in self._out if t <= now)
+            if self._world.time_scale == 0:
+                count = self._out_bytes
+            else:
+                now = _clock(self._world)
+                count = sum(len(d) for t, d in self._out if t <= now)
             if not count and self._dead:
                 raise SerialException("device disconnected")
             return count
@@ -130,6 +135,7 @@ class Serial(SerialBase):
                         self._out.appendleft((ready, data[take:]))
                         data = data[:take]
                     buf += data
+                    self._out_bytes -= len(data)
                 if len(buf) >= size:
                     break
                 if self._dead and not self._out:
@@ -166,6 +172,7 @@ class Serial(SerialBase):
     def reset_input_buffer(self) -> None:
         with self._world.cond:
             self._out.clear()
+            self._out_bytes = 0
 
     def reset_output_buffer(self) -> None:
         """Nothing is buffered on the host side."""

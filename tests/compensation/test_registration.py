@@ -12,7 +12,12 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.compensation.datum_plan import find_edge, plan_datum_probes
+from app.compensation.datum_plan import (
+    DatumProbeParams,
+    find_edge,
+    plan_datum_probes,
+    register_with_z_probe,
+)
 from app.compensation.registration import (
     DegenerateDatumError,
     Placement,
@@ -256,3 +261,71 @@ def test_find_edge_refuses_ends_that_do_not_straddle():
     part = s1.as_made(seed=2, placement=s1.Placement())
     with pytest.raises(RegistrationError):
         find_edge(placed_probe(part), (5.0, 5.0), (6.0, 5.0), 4.0)
+
+
+def mesh_probe(mesh: trimesh.Trimesh, pl: Placement, noise: float = 0.0, seed: int = 0):
+    """-Z touch on ``mesh`` placed by ``pl`` (ray cast), the bed z = 0 beside it."""
+    placed = mesh.copy()
+    placed.apply_transform(pl.matrix())
+    top = placed.bounds[1][2] + 1.0
+    rng = np.random.default_rng(seed)
+
+    def probe(x, y):
+        hits, _, _ = placed.ray.intersects_location([[x, y, top]], [[0.0, 0.0, -1.0]])
+        z = float(hits[:, 2].max()) if len(hits) else 0.0
+        return z + (rng.normal(0.0, noise) if noise else 0.0)
+    return probe
+
+
+def test_register_with_z_probe_exact_on_the_placed_mesh(s1_part_mesh):
+    """No noise, no machining error: walls to the bisection resolution, dz exactly
+    (the height touches land on their nominal points), covariance in two blocks."""
+    truth = Placement.from_deg(0.2, -0.15, 0.03, 0.3)  # about the origin, as the mock
+    plan = plan_datum_probes(s1_part_mesh, "sides", candidates=2000)
+    reg = register_with_z_probe(plan, mesh_probe(s1_part_mesh, truth), 0.0,
+                                DatumProbeParams(resolution_mm=0.0002))
+    got = reg.placement
+    assert abs(got.dx - 0.2) < 5e-4 and abs(got.dy + 0.15) < 5e-4
+    assert abs(got.rz_deg - 0.3) < 0.001 and abs(got.dz - 0.03) < 1e-4  # 0.1 um
+    assert reg.unobservable == () and reg.fit_names == ("edges", "heights")
+    assert reg.covariance[2, [0, 1, 3]].tolist() == [0.0, 0.0, 0.0]
+    assert reg.probe_count == sum(t.touches for t in reg.touches) > len(plan.points)
+    # the found wall points lie on the placed walls
+    for t in reg.touches:
+        if t.face in SIDES:
+            back = remove_placement(t.measured[None], truth)[0]
+            assert abs(t.normal @ (back - t.nominal)) < 3e-4
+    result = reg.to_result()
+    assert result["std"]["rz_deg"] == pytest.approx(math.degrees(reg.std["rz"]))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_register_with_z_probe_within_three_sigma_with_machining_error(s1_part_mesh, seed):
+    """1 um noise, +-0.15 mm machining error on the top: dx, dy, rz within 3 sigma (the
+    walls are planar); dz within the machining error."""
+    part = s1.as_made(seed=seed + 4, amplitude_mm=0.15,
+                      placement=s1.Placement(0.12, 0.09, 0.03, -0.25))
+    rng = np.random.default_rng(seed)
+
+    def probe(x, y):
+        return placed_probe(part)(x, y) + rng.normal(0.0, 0.001)
+    plan = plan_datum_probes(s1_part_mesh, "sides", candidates=2000)
+    reg = register_with_z_probe(plan, probe, 0.0, DatumProbeParams(pivot_xy=CENTER))
+    got, std = reg.placement, reg.std
+    assert abs(got.dx - 0.12) <= 3 * std["dx"] and abs(got.dy - 0.09) <= 3 * std["dy"]
+    assert abs(got.rz_deg + 0.25) <= 3 * math.degrees(std["rz"]) and std["dx"] < 0.002
+    assert abs(got.dz - 0.03) <= 0.15
+
+
+def test_register_with_z_probe_flat_top_and_out_of_reach():
+    box = trimesh.creation.box(extents=(60, 40, 10))
+    box.apply_translation([30.0, 20.0, 5.0])
+    truth = Placement.from_deg(0.3, 0.0, 0.05, 0.2)
+    z_only = plan_datum_probes(box, "z_only", count=4, candidates=1500)
+    reg = register_with_z_probe(z_only, mesh_probe(box, truth), 0.0)
+    assert {"dx", "dy"} <= set(reg.unobservable) and reg.placement.dx == 0.0
+    assert abs(reg.placement.dz - 0.05) < 1e-9 and reg.probe_count == 4
+    sides = plan_datum_probes(box, "sides", candidates=1500)
+    with pytest.raises(RegistrationError, match="straddle"):  # moved further than the search
+        register_with_z_probe(sides, mesh_probe(box, Placement(dx=2.5, dy=2.5)), 0.0,
+                              DatumProbeParams(search_mm=1.0))

@@ -4,12 +4,21 @@ S1 reference part, as-made with +-0.15 mm machining error and a 0.03 mm placemen
 in z, 1 um probe noise: every compensated trace holds its standoff within 10 um along the
 whole printed length (measured on what the mock really deposited), while the nominal
 programs are off by >= 100 um (on the worst trace; >= 50 um on each).
+
+With an XY + rotation placement (dx 0.2, dy -0.15, rz 0.3 deg about the machine origin,
+dz 0.03) and ``registration``: the printed path lies within 10 um (top view) of the
+designed trace moved by the TRUE placement, still at its standoff within 10 um; the same
+loop without registration prints the designed trace where the part is not (XY error of
+the order of the offset).
 """
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from app.compensation.registration import Placement, apply_placement
+from app.reference.s1 import Placement as PartPlacement
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
@@ -54,6 +63,58 @@ def test_compensated_traces_hold_their_standoff_on_the_real_part(client, meshes)
     assert all(j["status"] == "succeeded" for j in children["items"])
 
 
+PLACED = {"dx": 0.2, "dy": -0.15, "dz": 0.03, "rz_deg": 0.3}
+
+
+def test_registration_puts_the_print_on_the_part_where_it_really_sits(client, meshes):
+    nominal_stl = meshes[0]
+    true_stl = as_made(seed=11, amplitude_mm=0.15, placement=PartPlacement()).mesh(grid_mm=0.3).export(
+        file_type="stl")  # as made, in the part frame: the mock applies the placement
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal_stl)}, headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("s1-as-made.stl", true_stl)}, headers=OP).json()
+    refs = [s1_traces()[i] for i in TRACES]
+    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=[t.to_api() for t in refs],
+                         headers=OP).json()["items"]
+    machine = client.post("/api/v1/machines", json={
+        "name": "placed", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "placement": PLACED, "probe_noise_mm": 0.001,
+                 "faults": {"seed": 7}}}, headers=OP).json()
+    base = {"part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"],
+            "probe": {"method": "deviation"}, "sigma_mm": 0.001, "evaluate": True}
+    runs = {}
+    for registration in (True, False):
+        response = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+            **base, "registration": registration}}, headers=OP)
+        assert response.status_code == 202, response.text
+        runs[registration] = wait_for(client, response.json()["id"], timeout=240)
+        assert runs[registration]["status"] == "succeeded", runs[registration]["error"]
+    registered, unregistered = runs[True]["result"], runs[False]["result"]
+    # the estimated transform and its uncertainty are reported
+    reg = registered["registration"]
+    est, std = reg["placement"], reg["std"]
+    for key in ("dx", "dy"):
+        assert abs(est[key] - PLACED[key]) <= 3 * std[f"{key}_mm"] + 0.001, (key, est, std)
+    assert abs(est["rz_deg"] - PLACED["rz_deg"]) <= 3 * std["rz_deg"] + 0.001
+    assert abs(est["dz"] - PLACED["dz"]) <= 0.15 + 3 * std["dz_mm"]  # the top's machining error biases dz
+    assert reg["unobservable"] == [] and reg["probe_count"] > 20
+    # with registration: on the truly placed design in XY, at the standoff in Z
+    for row in registered["table"]:
+        assert row["xy_max_after_um"] <= 10.0 and row["xy_max_before_um"] <= 10.0, row
+        assert row["standoff_max_after_um"] <= 10.0, row
+        assert row["standoff_max_before_um"] >= 50.0, row
+    # without: the designed trace printed where the part is not, off by about the offset
+    truth = Placement.from_deg(**PLACED)
+    for row, trace in zip(unregistered["table"], traces):
+        nominal = np.array(trace["nominal"]["points"])
+        moved_um = 1000 * np.linalg.norm(apply_placement(nominal, truth)[:, :2] - nominal[:, :2], axis=1)
+        assert 150.0 <= row["xy_max_after_um"] <= moved_um.max() + 5.0, (row, moved_um.max())
+        assert row["xy_max_after_um"] > 15 * max(r["xy_max_after_um"] for r in registered["table"])
+    children = client.get(f"/api/v1/jobs?parent_id={runs[True]['id']}&limit=100", headers=OP).json()["items"]
+    plans = [j for j in children if j["kind"] == "probe_plan"]
+    assert [j["kind"] for j in children].count("register") == 1
+    assert all(j["params"]["registration_job_id"] == reg["job_id"] for j in plans)
+
+
 def test_closed_loop_bad_input(client, meshes):
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", meshes[0])}, headers=OP).json()
     trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[0].to_api(), headers=OP).json()
@@ -69,3 +130,11 @@ def test_closed_loop_bad_input(client, meshes):
     bad_probe = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
         **base, "probe": {"method": "psychic"}}}, headers=OP)
     assert bad_probe.status_code == 422
+    bad_register = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        **base, "registration": True, "registration_params": {"mode": "psychic"}}}, headers=OP)
+    assert bad_register.status_code == 422
+    assert bad_register.json()["errors"][0]["loc"][:2] == ["params", "registration_params"]
+    two_placements = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        **base, "registration": True, "probe": {"placement": {"dx": 0.1}}}}, headers=OP)
+    assert two_placements.status_code == 422 and "registration" in two_placements.json()["detail"]
+    assert client.get("/api/v1/jobs?kind=closed_loop", headers=OP).json()["total"] == 0

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from hardware import events
 from hardware.errors import InvalidConfig
 from hardware.protocol import (CommandHasher, checksum, commands_sha256, frame,
-                               normalize_command, parse_reply)
+                               normalize_command, parse_reply, validate_program)
 
 DATA = Path(__file__).parent / "data"
 
@@ -122,3 +122,23 @@ def test_unknown_dialect_is_rejected():
 
 def test_all_event_classes_keep_raw_line():
     assert parse_reply("ok N3 P1 B2") == events.Ok("N3 P1 B2", 3, 1, 2, raw="ok N3 P1 B2")
+
+
+def test_validate_program_accepts_gcode_and_names_bad_lines():
+    assert validate_program(["; job 1", "G21", "G1 X1 ; go", "$H", "M3 S1000"]) == [
+        "G21", "G1 X1", "$H", "M3 S1000"]
+    with pytest.raises(InvalidConfig) as info:
+        validate_program(["G21", "\x89PNG\r\n\x1a\n", "G1 X1"])
+    assert info.value.field == "program" and info.value.value.startswith("line 2")
+    with pytest.raises(InvalidConfig):
+        validate_program(["G21", "123 456"])
+    with pytest.raises(InvalidConfig):
+        validate_program(["; only comments", ""])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(max_size=80), st.sampled_from(["marlin", "grbl"]))
+def test_parse_reply_never_raises_and_keeps_the_line(text, dialect):
+    line = text.replace("\n", " ").replace("\r", " ")
+    event = parse_reply(line, dialect)
+    assert isinstance(event, events.ReplyEvent) and event.raw == line

@@ -27,7 +27,7 @@ def submit(client, kind: str, params: dict):
     return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
-@pytest.mark.parametrize("method", ["adaptive", "uniform", "deviation"])
+@pytest.mark.parametrize("method", ["adaptive", "uniform", "deviation", "kriging"])
 def test_probe_plan_writes_a_safe_program(client, trace, method):
     params = {"trace_id": trace["id"], "method": method}
     if method == "uniform":
@@ -53,13 +53,14 @@ def test_probe_plan_writes_a_safe_program(client, trace, method):
     assert np.allclose(path.at(np.array(result["s_mm"])), points, atol=1e-6)
 
 
-def test_reconstruct_from_points_recovers_the_as_made_deviation(client, trace):
-    plan = wait_for(client, submit(client, "probe_plan", {"trace_id": trace["id"], "method": "deviation"}).json()["id"])
+@pytest.mark.parametrize("method", ["deviation", "kriging"])
+def test_reconstruct_from_points_recovers_the_as_made_deviation(client, trace, method):
+    plan = wait_for(client, submit(client, "probe_plan", {"trace_id": trace["id"], "method": method}).json()["id"])
     truth = as_made(seed=3, amplitude_mm=0.15)
     xy = np.array(plan["result"]["points"])[:, :2]
     measured = np.column_stack([xy, truth.true_height(xy)])
     job = wait_for(client, submit(client, "reconstruct", {"trace_id": trace["id"], "points": measured.tolist(),
-                                                          "method": "deviation"}).json()["id"])
+                                                          "method": method}).json()["id"])
     assert job["status"] == "succeeded", job["error"]
     samples = np.array(job["result"]["deviation"]["samples"])
     nominal_z = np.array(plan["result"]["points"])[:, 2]

@@ -30,7 +30,8 @@ class FiveAxisParams:
     a_limits_deg: (min, max) table tilt; c_limits_deg: (min, max) or None = endless C.
     c_start_deg: C before the path (biases the first branch; held if the whole path is
     in the pole window).
-    pole_window_deg: half-angle of the pole window around +Z (A = 0 singularity): where
+    pole_window_deg: half-angle of the pole window around +Z (A = 0 singularity; default
+    0.05 deg, so that every line keeps the nozzle within 0.05 deg of the normal): where
     the normal is tilted less than this, C is blended smoothly between the window's ends
     instead of following the normal's azimuth, and the nozzle axis may deviate from the
     normal by at most this angle (see :mod:`.branches`).  0 = exact normals everywhere.
@@ -54,7 +55,7 @@ class FiveAxisParams:
     a_limits_deg: tuple[float, float] = (-90.0, 90.0)
     c_limits_deg: tuple[float, float] | None = None
     c_start_deg: float = 0.0
-    pole_window_deg: float = 0.5
+    pole_window_deg: float = 0.05
     midpoint_tol_mm: float = 0.01
     max_split_rounds: int = 10
     on_surface_tol_mm: float = 0.05

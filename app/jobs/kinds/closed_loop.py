@@ -1,4 +1,9 @@
-"""Job ``closed_loop``: per trace, plan -> probe -> reconstruct -> compensate (-> print).
+"""Job ``closed_loop``: (register ->) per trace, plan -> probe -> reconstruct -> compensate (-> print).
+
+``registration``: a ``register`` child first touches the part's datum features and fits
+its placement on the machine; every probe_plan / reconstruct child then gets its
+``registration_job_id``, so traces are planned, rebuilt and compensated in machine
+coordinates; the result reports the transform and its uncertainty.
 
 Each step is a child job (visible, cancellable, with its own artifacts).  The parent runs
 on the ``workflow`` queue and only submits and waits.  Resume: if the parent is retried
@@ -7,7 +12,8 @@ restarted loop continues where it stopped instead of probing again.
 
 ``evaluate`` (mock machines with a true part only): print the nominal program and then
 the compensated one on the mock and compare the standoff along what was really deposited
-(the mock's deposition log) with the truth — the seed's Table 1, in simulation.
+(the mock's deposition log) with the truth — the seed's Table 1, in simulation — and the
+top-view (XY) distance of the printed path from the design at the part's true placement.
 """
 
 from __future__ import annotations
@@ -15,16 +21,17 @@ from __future__ import annotations
 import json
 from typing import Any, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from sqlmodel import Session, select
 
 from app.compensation.evaluation import predicted_width, table_row
 from app.errors import ConformaError, InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.kinds.probe_plan import ProbePlanParams
+from app.jobs.kinds.register import RegisterParams
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, get_kind, job_kind
-from app.jobs.simulation import evaluate_print
+from app.jobs.simulation import evaluate_print, xy_error
 from app.models import Job, Machine, Trace
 from app.records import get_or_404
 
@@ -37,13 +44,17 @@ class ClosedLoopParams(JobParams):
     machine_id: str
     probe: dict[str, Any] = Field(default_factory=lambda: {"method": "deviation"},
                                   description="probe_plan parameters (without trace_id); dialect comes from the machine")
-    reconstruct_method: Literal["interpolate", "approximate", "deviation"] = "deviation"
+    reconstruct_method: Literal["interpolate", "approximate", "deviation", "kriging"] = "deviation"
     sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma) for the reconstruction")
     chord_error_mm: float = Field(0.002, gt=0, le=1)
     hold_mm: float = Field(0.0, ge=0, le=5)
     print: bool = Field(False, description="print each compensated program on the machine")
     evaluate: bool = Field(False, description="simulation: print nominal and compensated programs on the mock "
                            "and measure the standoff against its true part")
+    registration: bool = Field(False, description="register the part on the machine first (datum touches) and "
+                               "work in machine coordinates")
+    registration_params: dict[str, Any] = Field(default_factory=dict,
+                                     description="register parameters (without part_id and machine_id)")
 
     @field_validator("probe")
     @classmethod
@@ -52,6 +63,21 @@ class ClosedLoopParams(JobParams):
             raise ValueError("probe parameters apply to every trace: leave out trace_id")
         ProbePlanParams.model_validate({**value, "trace_id": "x"})
         return value
+
+    @field_validator("registration_params")
+    @classmethod
+    def _register_params(cls, value: dict[str, Any]) -> dict[str, Any]:
+        if "part_id" in value or "machine_id" in value:
+            raise ValueError("register parameters: leave out part_id and machine_id (the loop's are used)")
+        RegisterParams.model_validate({**value, "part_id": "x", "machine_id": "x"})
+        return value
+
+    @model_validator(mode="after")
+    def _one_placement(self) -> "ClosedLoopParams":
+        if self.registration and ({"placement", "registration_job_id"} & set(self.probe)):
+            raise ValueError("with registration the placement comes from the register step: leave "
+                             "placement / registration_job_id out of probe")
+        return self
 
 
 def _check(params: ClosedLoopParams, session: Session) -> None:
@@ -80,7 +106,7 @@ class _Steps:
             done = session.exec(select(Job).where(Job.parent_id == ctx.job_id, Job.status == "succeeded")).all()
         self.reusable = {(j.kind, json.dumps(j.params, sort_keys=True)): j for j in done}
 
-    def run(self, kind: str, params: dict[str, Any], trace_id: str) -> Job:
+    def run(self, kind: str, params: dict[str, Any], trace_id: str | None) -> Job:
         normalized = get_kind(kind).params.model_validate(params).model_dump(mode="json")
         key = (kind, json.dumps(normalized, sort_keys=True))
         if key in self.reusable:
@@ -88,6 +114,8 @@ class _Steps:
         [job] = self.ctx.wait_for([self.ctx.submit_child(kind, params)])
         if job.status != "succeeded":
             detail = (job.error or {}).get("detail", job.status)
+            if trace_id is None:
+                raise ConformaError(f"{kind} {job.status}: {detail}", field=kind, value=job.id)
             raise ConformaError(f"{kind} of trace {trace_id} {job.status}: {detail}", field="trace_ids", value=trace_id)
         return job
 
@@ -99,12 +127,22 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     steps = _Steps(ctx)
     per_trace, rows = [], []
     total = len(params.trace_ids)
+    placed: dict[str, Any] = {}
+    registration = None
+    if params.registration:
+        ctx.progress(0.0, "registering the part")
+        registration = steps.run("register", {**params.registration_params, "part_id": params.part_id,
+                                              "machine_id": params.machine_id}, None)
+        placed = {"registration_job_id": registration.id}
     for index, trace_id in enumerate(params.trace_ids):
         trace = ctx.trace(trace_id)
-        plan = steps.run("probe_plan", {**params.probe, "trace_id": trace_id, "dialect": machine.dialect}, trace_id)
+        plan = steps.run("probe_plan", {**params.probe, **placed, "trace_id": trace_id, "dialect": machine.dialect},
+                         trace_id)
         ctx.progress((index + 0.25) / total, f"trace {index + 1}/{total}: probing")
         probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id}, trace_id)
-        rebuilt = steps.run("reconstruct", {"trace_id": trace_id, "probe_run_job_id": probe.id,
+        prior = {k: params.probe[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in params.probe}
+        rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
+                                            "trace_id": trace_id, "probe_run_job_id": probe.id,
                                             "method": params.reconstruct_method, "sigma_mm": params.sigma_mm}, trace_id)
         ctx.progress((index + 0.5) / total, f"trace {index + 1}/{total}: compensating")
         compensated = steps.run("compensate", {"trace_id": trace_id, "reconstruct_job_id": rebuilt.id,
@@ -120,20 +158,33 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                 start = len(world.deposition_log)
                 steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id, "artifact": artifact},
                           trace_id)
-                reports[artifact] = evaluate_print(world, start, trace.standoff_mm)
-            before, after = reports["nominal.gcode"], reports["print.gcode"]
+                reports[artifact] = (evaluate_print(world, start, trace.standoff_mm),
+                                     xy_error(world, start, trace.nominal["points"]))
+            (before, xy_before), (after, xy_after) = reports["nominal.gcode"], reports["print.gcode"]
             row = table_row(index + 1, before, after, plan.result["count"])
-            rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name})
-            entry["evaluation"] = {"nominal": _report(before), "compensated": _report(after)}
+            rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name,
+                                         "xy_max_before_um": round(xy_before.max_mm * 1000, 2),
+                                         "xy_max_after_um": round(xy_after.max_mm * 1000, 2)})
+            entry["evaluation"] = {"nominal": _report(before, xy_before), "compensated": _report(after, xy_after)}
         elif params.print:
             entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id,
                                                  "artifact": "print.gcode"}, trace_id).id
         per_trace.append(entry)
         ctx.progress((index + 1) / total, f"trace {index + 1}/{total} done")
-    return {"traces": per_trace, "table": rows}
+    result: dict[str, Any] = {"traces": per_trace, "table": rows}
+    if registration is not None:
+        result["registration"] = {"job_id": registration.id, **{
+            k: registration.result[k] for k in ("placement", "std", "covariance", "unobservable", "probe_count")}}
+    return result
 
 
-def _report(report: Any) -> dict[str, float]:
+def _placement_of(probe: dict[str, Any]) -> dict[str, Any]:
+    """An explicit placement among the probe parameters also applies to the reconstruction."""
+    return {k: probe[k] for k in ("placement", "registration_job_id") if k in probe}
+
+
+def _report(report: Any, xy: Any) -> dict[str, float]:
     width = predicted_width(report)
     return {"standoff_error_max_mm": report.max_abs_error_mm, "standoff_error_rms_mm": report.rms_error_mm,
-            "width_mean_mm": width.mean_mm, "width_std_mm": width.std_mm, "length_mm": report.length_mm}
+            "width_mean_mm": width.mean_mm, "width_std_mm": width.std_mm, "length_mm": report.length_mm,
+            "xy_error_max_mm": xy.max_mm, "xy_error_rms_mm": xy.rms_mm}

@@ -1,5 +1,9 @@
 """Job ``compensate``: the print program at the trace's standoff above the REAL surface.
 
+Frame: the reconstruction's (rebuilt from the reconstruct job's parameters): when that
+job mapped the trace with a placement / registration, the programs are in machine
+coordinates.
+
 Policy outside the probed span: refused (422) unless ``hold_mm`` allows holding the end
 deviation over a short gap; see :mod:`app.compensation.standoff`.
 """
@@ -15,6 +19,7 @@ from app.compensation.standoff import CompensationParams, compensate_trace
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.kinds.reconstruct import ReconstructJobParams, rebuild
+from app.jobs.kinds.register import placed_mesh, placement_from
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Machine
 from app.records import get_or_404
@@ -56,13 +61,15 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     """Regenerate the trace's print program above the reconstructed real surface."""
     trace = ctx.trace(params.trace_id)
     source = ctx.job(params.reconstruct_job_id, kind="reconstruct", field="params.reconstruct_job_id")
-    reconstruction = rebuild(ctx, ReconstructJobParams.model_validate(source.params))
+    rebuilt_params = ReconstructJobParams.model_validate(source.params)
+    reconstruction = rebuild(ctx, rebuilt_params)
     ctx.progress(0.3, "segmenting the compensated path")
     dialect, on, off = params.dialect, params.dispense_on, params.dispense_off
     if params.machine_id:
         machine: Machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
-    mesh = ctx.mesh(trace.part_id)
+    placement = placement_from(ctx, rebuilt_params)  # the reconstruction's frame (machine, when placed)
+    mesh = placed_mesh(ctx.mesh(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
         standoff_mm=params.standoff_mm or trace.standoff_mm,
         feed_mm_min=params.feed_mm_min or trace.feed_mm_min or 300.0,
@@ -71,4 +78,7 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     ), job_id=ctx.job_id)
     ctx.artifact("print.gcode", path.program.encode(), "text/x-gcode", gcode_meta(path.program))
     ctx.artifact("nominal.gcode", path.nominal_program.encode(), "text/x-gcode", gcode_meta(path.nominal_program))
-    return {**path.to_result(), "points": path.points.tolist()}
+    result = {**path.to_result(), "points": path.points.tolist()}
+    if placement is not None:
+        result["placement"] = placement.to_dict()
+    return result

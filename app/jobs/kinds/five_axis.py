@@ -81,7 +81,7 @@ class FiveAxisJobParams(JobParams):
                                               description="[min, max] C; default endless")
     c_start_deg: float = Field(0.0, ge=-3600, le=3600, description="C before the path (biases the "
                                "first branch; held if the whole path is within the pole window)")
-    pole_window_deg: float = Field(0.5, ge=0, le=5, description="within this tilt of the normal from "
+    pole_window_deg: float = Field(0.05, ge=0, le=5, description="within this tilt of the normal from "
                                    "vertical (A = 0) C is blended smoothly and the nozzle may lean "
                                    "from the normal by at most this angle; 0 = exact normals")
     midpoint_tol_mm: float = Field(0.01, gt=0, le=1, description="max tip deviation from its planned path "

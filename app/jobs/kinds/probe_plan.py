@@ -1,4 +1,8 @@
-"""Job ``probe_plan``: where to probe a trace, and the probe program (G-code)."""
+"""Job ``probe_plan``: where to probe a trace, and the probe program (G-code).
+
+With ``placement`` or ``registration_job_id`` the trace (and the part, for safe travel
+heights) is first mapped into machine coordinates, so the probes land on the part where
+it really sits; without, the part frame is the machine frame (unchanged behaviour)."""
 
 from __future__ import annotations
 
@@ -7,20 +11,30 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+from sqlmodel import Session
 
+from app.compensation.registration import Placement, place_path
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.registry import JobParams, job_kind
+from app.jobs.kinds.register import (
+    PlacedParams,
+    check_registration,
+    placed_mesh,
+    placement_from,
+    registration_reference,
+)
+from app.jobs.registry import job_kind
 from app.models import Trace
 from app.probing import NominalPath, PlanParams, ProbeProgramParams, build_probe_program, plan_probes
 from app.probing.nominal import as_nominal_path
 
 
-class ProbePlanParams(JobParams):
+class ProbePlanParams(PlacedParams):
     trace_id: str
-    method: Literal["adaptive", "uniform", "deviation"] = Field(
+    method: Literal["adaptive", "uniform", "deviation", "kriging"] = Field(
         "adaptive", description="adaptive: the seed's chord-height rule; uniform: even arc length; "
-        "deviation: spacing from the expected deviation of the real part from CAD (fewest probes)")
+        "deviation: spacing from the expected deviation of the real part from CAD; kriging: stations that "
+        "minimise the largest predicted error of the deviation (machining error + placement), fewest probes")
     chord_error_mm: float = Field(0.005, gt=0, le=10)
     count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation)")
     capability_k: float | None = Field(None, gt=0, lt=1, description="seed eq. 1: process capability K")
@@ -60,13 +74,26 @@ def nominal_of(trace: Trace) -> NominalPath:
     return as_nominal_path(stored, field="trace.nominal")
 
 
-@job_kind("probe_plan", ProbePlanParams, references=lambda p: [("trace", p.trace_id)])
+def placed_nominal(trace: Trace, placement: Placement | None) -> NominalPath:
+    """The trace's nominal in machine coordinates (unchanged without a placement)."""
+    nominal = nominal_of(trace)
+    return nominal if placement is None else place_path(nominal, placement)
+
+
+def _check(params: ProbePlanParams, session: Session) -> None:
+    check_registration(params, session)
+
+
+@job_kind("probe_plan", ProbePlanParams, check=_check,
+          references=lambda p: [("trace", p.trace_id), *registration_reference(p)])
 def run(ctx: JobContext, params: ProbePlanParams) -> dict:
-    """Plan probe points along a trace and write the probe program."""
+    """Plan probe points along a trace (placed into machine coordinates when asked) and
+    write the probe program."""
     trace = ctx.trace(params.trace_id)
-    mesh = ctx.mesh(trace.part_id)
+    placement = placement_from(ctx, params)
+    mesh = placed_mesh(ctx.mesh(trace.part_id), placement)
     ctx.progress(0.1, "planning probe points")
-    plan = plan_probes(nominal_of(trace), params.method, PlanParams(
+    plan = plan_probes(placed_nominal(trace, placement), params.method, PlanParams(
         chord_error_mm=params.chord_error_mm, cl_tolerance_mm=params.cl_tolerance_mm, count=params.count,
         capability_k=params.capability_k, confidence=params.confidence,
         deviation_amplitude_mm=params.deviation_amplitude_mm, deviation_wavelength_mm=params.deviation_wavelength_mm,
@@ -90,6 +117,8 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
         "trace_length_mm": trace.length_mm,
         "program": meta,
     }
+    if placement is not None:
+        result["placement"] = placement.to_dict()
     if plan.point_count is not None:
         result["point_count"] = {"count": plan.point_count.count, "n_exact": plan.point_count.n_exact,
                                  "z_gamma": plan.point_count.z_gamma}

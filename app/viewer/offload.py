@@ -1,0 +1,69 @@
+"""Parse big G-code programs in a worker process, and remember what was parsed.
+
+Parsing 100k moves is ~2 s of pure Python: done in the API process it holds the GIL and
+every API request queues behind it (the convoy effect measured in
+tests/bench/test_bench_viewer.py).  Programs above ``inline_bytes`` are parsed in one
+spawned worker process; the result (arrays) comes back pickled.  Parsed programs are
+cached by their content hash, so opening the same job again is immediate.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import threading
+from collections import OrderedDict
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+
+from app.viewer.gcode_paths import ToolpathSegments, parse_toolpath
+
+log = logging.getLogger("conforma.viewer")
+
+
+class ParsePool:
+    """``parse(data, on, off, key)`` -> ToolpathSegments, off the API's GIL when large."""
+
+    def __init__(self, inline_bytes: int = 200_000, cache_size: int = 8) -> None:
+        self.inline_bytes = inline_bytes
+        self.cache_size = cache_size
+        self._cache: OrderedDict[tuple, ToolpathSegments] = OrderedDict()
+        self._lock = threading.Lock()
+        self._pool: ProcessPoolExecutor | None = None
+
+    def _executor(self) -> ProcessPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+            return self._pool
+
+    def parse(self, data: bytes, dispense_on: str | None, dispense_off: str | None,
+              key: str | None = None) -> ToolpathSegments:
+        cache_key = (key, dispense_on, dispense_off) if key else None
+        if cache_key is not None:
+            with self._lock:
+                if cache_key in self._cache:
+                    self._cache.move_to_end(cache_key)
+                    return self._cache[cache_key]
+        if len(data) <= self.inline_bytes:
+            segments = parse_toolpath(data, dispense_on, dispense_off)
+        else:
+            try:
+                segments = self._executor().submit(parse_toolpath, data, dispense_on, dispense_off).result()
+            except (BrokenProcessPool, OSError, RuntimeError):
+                log.warning("G-code worker process unavailable; parsing in the API process", exc_info=True)
+                with self._lock:
+                    self._pool = None
+                segments = parse_toolpath(data, dispense_on, dispense_off)
+        if cache_key is not None:
+            with self._lock:
+                self._cache[cache_key] = segments
+                while len(self._cache) > self.cache_size:
+                    self._cache.popitem(last=False)
+        return segments
+
+    def close(self) -> None:
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)

@@ -1,0 +1,77 @@
+"""Value types of ``hardware.machine``: profile, identity, probe result, stream report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .errors import InvalidConfig
+
+STATES = ("disconnected", "idle", "busy", "printing", "paused", "error")
+
+
+@dataclass(frozen=True)
+class MachineProfile:
+    """Machine-specific commands and motion defaults (mm, mm/min)."""
+
+    dispense_on: str = "M106"
+    dispense_off: str = "M107"
+    probe_feed_mm_min: float = 100.0
+    travel_feed_mm_min: float = 3000.0
+    clearance_z: float = 5.0
+    probe_z_min: float = -10.0
+    probe_command: str | None = None   # "G30" | "G38.2"; None: G30 (marlin), G38.2 (grbl)
+    home_command: str | None = None    # None: "G28" (marlin), "$H" (grbl)
+
+    def __post_init__(self) -> None:
+        if self.probe_command not in (None, "G30", "G38.2"):
+            raise InvalidConfig("probe_command must be G30 or G38.2", field="profile.probe_command",
+                                value=self.probe_command)
+        for name in ("probe_feed_mm_min", "travel_feed_mm_min"):
+            if not getattr(self, name) > 0:
+                raise InvalidConfig(f"{name} must be > 0", field=f"profile.{name}",
+                                    value=getattr(self, name))
+        if not self.dispense_on.strip() or not self.dispense_off.strip():
+            raise InvalidConfig("dispense commands must not be empty", field="profile.dispense_on")
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Who answered: firmware name, M115/``$I`` fields, capabilities, start banner."""
+
+    dialect: str
+    firmware: str
+    fields: dict[str, str]
+    capabilities: dict[str, bool]
+    banner: tuple[str, ...]
+    reset_detected: bool
+
+
+@dataclass(frozen=True)
+class ProbeResult:
+    """A measured surface point (mm, machine coordinates)."""
+
+    x: float
+    y: float
+    z: float
+
+
+@dataclass(frozen=True)
+class StreamReport:
+    """Outcome of ``stream``: commands known executed (index of the next one), total,
+    where it started, whether it was cancelled, elapsed seconds, link counters."""
+
+    executed: int
+    total: int
+    start_line: int
+    cancelled: bool
+    elapsed_s: float
+    link_stats: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class _Interrupted:
+    total: int
+    acked_index: int                      # commands [0, acked_index) known processed
+    acked_line_no: int | None
+    inflight: list[tuple[int | None, int]]  # (line number, command index)
+    reset: bool

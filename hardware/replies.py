@@ -1,0 +1,267 @@
+"""Reply handling of ``hardware.link.Link``: acknowledgements, resend requests and
+replays, command errors, alarms, restarts, grbl status, stalls and failures.
+
+A mixin so that the link module stays readable; every method runs with the link's
+condition held (the reader thread, or a sender inside ``Link``)."""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import serial
+
+from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
+from .events import (Alarm, Busy, FirmwareErrorEvent, Halted, Ok, ReplyEvent, Resend,
+                     StartBanner, StatusReport, Unknown)
+from .protocol import parse_reply
+
+
+class ReplyHandling:
+    """Mixin: the reader side of the link (state lives in ``Link.__init__``)."""
+
+    def _handle(self, line: str) -> None:
+        event = parse_reply(line, self.dialect)
+        now = time.monotonic()
+        if not isinstance(event, Unknown):  # noise and echoes are no sign of life
+            self._last_rx = now
+        if self._fatal is not None:  # a dead session: listen, never act
+            self.unsolicited.append(event)
+            return
+        if self.on_event is not None:
+            try:
+                self.on_event(event)
+            except Exception:  # an observer must never break the link
+                pass
+        if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
+            self._answered = True
+        swallow, self._swallow = self._swallow, False
+        if isinstance(event, Ok):
+            self._on_ok(event, now, swallow)
+        elif isinstance(event, Resend):
+            self._on_resend(event.line)
+        elif isinstance(event, Busy):
+            self._last_ack = now
+            if self._outstanding:
+                self._outstanding[0].replies.append(event)
+        elif isinstance(event, FirmwareErrorEvent) and event.is_transmission:
+            pass  # the Resend that follows does the work
+        elif isinstance(event, FirmwareErrorEvent) and event.kind == "halted" or isinstance(event, Halted):
+            self._set_fatal(FirmwareError(f"firmware halted: {event.raw}"))
+        elif isinstance(event, FirmwareErrorEvent):
+            self._on_command_error(event, now)
+        elif isinstance(event, Alarm):
+            self._on_alarm(event)
+        elif isinstance(event, StartBanner):
+            self._on_banner(event)
+        elif isinstance(event, StatusReport):
+            self._on_status(event)
+        elif self._outstanding:
+            self._outstanding[0].replies.append(event)
+        elif event.raw.strip():
+            self.unsolicited.append(event)
+
+    def _complete_head(self, status: str, now: float, error: ReplyEvent | None = None) -> None:
+        pending = self._outstanding.popleft()
+        if pending.error_event is not None and status == "ok":
+            status, error = "error", pending.error_event
+        pending.finish(status, error)
+        if self._replay_inflight is not None and pending.line_no is not None \
+                and pending.line_no >= self._replay_inflight:
+            self._replay_inflight = None  # the replayed line is through: send the next
+            self._pump_replay()
+        self._rtt = 0.9 * self._rtt + 0.1 * max(now - pending.t_sent, 1e-5)
+        self._last_ack = now
+        self._pokes_in_row = 0
+
+    def _on_ok(self, event: Ok, now: float, swallow: bool = False) -> None:
+        if event.line is not None:
+            self._n_ok = True
+            while self._outstanding and self._outstanding[0].line_no is not None \
+                    and self._outstanding[0].line_no <= event.line:
+                if self._outstanding[0].line_no == event.line:
+                    self._outstanding[0].replies.append(event)
+                self._complete_head("ok", now)
+            if self._replay_inflight is not None and event.line >= self._replay_inflight:
+                self._replay_inflight = None
+                self._pump_replay()
+            return
+        if swallow:  # Marlin 1.x/2.1 follow "Resend: n" with an ok (2.0.x does not)
+            return
+        if not self._outstanding:
+            self.unsolicited.append(event)
+            return
+        if self.dialect == "marlin" and self._n_ok and self._outstanding[0].command != "M105":
+            return  # stray plain ok while the firmware speaks ADVANCED_OK
+        if self.dialect == "marlin" and not self._n_ok and self.mode == "windowed" \
+                and len(self._outstanding) > 1:
+            self._fallback("firmware acknowledges without line numbers (no ADVANCED_OK)")
+        self._outstanding[0].replies.append(event)
+        self._complete_head("ok", now)
+
+    def _on_resend(self, line: int) -> None:
+        self._swallow = True
+        head = self._outstanding[0] if self._outstanding else None
+        if head is not None and head.sync:
+            # sync probe answered "Line Number is not Last Line Number+1": adopt the number
+            self._outstanding.popleft()
+            head.line_no = line
+            head.finish("ok")
+            self._next_line = line
+            return
+        now = time.monotonic()
+        for pending in self._outstanding:
+            if pending.line_no is not None and pending.line_no < line:
+                pending.accepted = True
+        if not self._n_ok:  # no ok N will ever confirm them: accepted is all we learn
+            while self._outstanding and self._outstanding[0].accepted:
+                self._complete_head("ok", now)
+        if line >= self._next_line:
+            if line > self._next_line:
+                self._next_line = line
+            if self._outstanding and all(p.accepted for p in self._outstanding) \
+                    and not any(p.internal for p in self._outstanding):
+                self._transmit_new("M114", internal=True)  # its ok N confirms them all
+            return
+        if self._guard is not None and self._guard[0] == line and self._guard[1] > 0:
+            self._guard[1] -= 1  # a line already in flight repeats the same request
+            self.stats["ignored_resends"] += 1
+            return
+        if line not in self._history:
+            self._set_fatal(ProtocolError(f"firmware asked to resend line {line}, which is no "
+                                          "longer in the history", field="history", value=line))
+            return
+        self._guard = [line, self._next_line - 1 - line]
+        self._replay = deque(range(line, self._next_line))
+        self._replay_inflight = None
+        self._pump_replay()
+
+    def _pump_replay(self) -> None:
+        """Retransmit the lines the firmware asked for, one at a time (ping-pong while
+        recovering, so stale copies still on the wire cannot overflow its RX buffer)."""
+        while self._replay and self._replay_inflight is None:
+            number = self._replay.popleft()
+            pending = self._history.get(number)
+            if pending is None:
+                self._set_fatal(ProtocolError(f"line {number} to resend is no longer in the "
+                                              "history", field="history", value=number))
+                return
+            if pending.outcome is not None:
+                continue  # acknowledged already: the request was spurious for this line
+            pending.resends += 1
+            self.stats["resends"] += 1
+            self._replay_inflight = number
+            self._write(pending.data)
+
+    def _on_command_error(self, event: FirmwareErrorEvent, now: float) -> None:
+        if not self._outstanding:
+            self.unsolicited.append(event)
+            return
+        head = self._outstanding[0]
+        head.replies.append(event)
+        if self.dialect == "marlin":
+            head.error_event = event  # Marlin still sends ok for this command
+            return
+        if self.mode == "windowed" and len(self._outstanding) > 1:
+            self._fallback(f"grbl rejected a streamed line ({event.raw})")
+        elif event.code in (1, 2) and head.resends < 2 and self.mode == "pingpong":
+            head.resends += 1  # damaged line: nothing ran, so sending it again is safe
+            self.stats["retries"] += 1
+            self._write(head.data)
+            return
+        self._complete_head("error", now, event)
+
+    def _on_alarm(self, event: Alarm) -> None:
+        """grbl alarm: the running command fails (its ``ok`` still follows for probe
+        alarms); later lines are refused with ``error:9`` by the firmware itself."""
+        if self._outstanding:
+            head = self._outstanding[0]
+            head.replies.append(event)
+            head.error_event = event
+        else:
+            self.unsolicited.append(event)
+
+    def _on_banner(self, event: StartBanner) -> None:
+        self._next_line = 1
+        self._swallow = False
+        self._guard = None
+        self._replay.clear()
+        self._replay_inflight = None
+        if self._outstanding and self._answered:  # a restart, not the boot banner of open()
+            # poison the link: nothing may be sent into the new session
+            self._set_fatal(FirmwareReset("the controller restarted with commands in flight",
+                                          last_line=self.last_acked_line()))
+        self.unsolicited.append(event)
+
+    def _on_status(self, event: StatusReport) -> None:
+        self._status_seq += 1
+        self._last_status = event
+        self.unsolicited.append(event)
+        if self.dialect != "grbl" or not self._outstanding:
+            return
+        free = event.fields.get("Bf", "")
+        rx_free = int(free.split(",")[1]) if "," in free else None
+        if event.state.split(":")[0] in ("Idle", "Alarm") and rx_free is not None \
+                and rx_free >= self.rx_buffer - 1:
+            now = time.monotonic()  # everything sent was parsed: the answers were lost
+            while self._outstanding:
+                self.stats["assumed_ok"] += 1
+                error = self._outstanding[0].error_event
+                self._complete_head("error" if error else "assumed", now, error)
+
+    # ------------------------------------------------------------------ stalls / failures
+    def _check_stall(self) -> None:
+        if not self._outstanding or self._fatal is not None:
+            return
+        now = time.monotonic()
+        if now - self._last_rx > self.timeout_s:
+            self._set_fatal(LinkError(f"no reply for {self.timeout_s} s", field="timeout_s",
+                                      last_line=self.last_acked_line()))
+            return
+        limit = max(self._poke_s, min(20 * self._rtt, 2.0)) * (2 ** min(self._pokes_in_row, 5))
+        if now - self._last_ack < limit:
+            return
+        self._last_ack = now
+        self._pokes_in_row += 1
+        self.stats["pokes"] += 1
+        if self._pokes_in_row >= 3 and self.mode == "windowed":
+            self._fallback("repeated stalls")
+        if self.dialect == "grbl":
+            self._write_raw(b"?")
+            return
+        if all(p.accepted for p in self._outstanding):
+            self._transmit_new("M114", internal=True)
+        else:  # replay from the oldest unanswered line (line numbers make this safe)
+            self._replay = deque(p.line_no for p in self._outstanding if not p.accepted)
+            self._replay_inflight = None
+            self._pump_replay()
+
+    def _write_raw(self, data: bytes) -> None:
+        if self._fatal is not None:
+            return
+        try:
+            self.port.write(data)
+        except (serial.SerialException, OSError) as exc:
+            self._write_failed(exc)
+
+    def _fallback(self, reason: str) -> None:
+        if self.mode != "pingpong":
+            self.mode = "pingpong"
+            self.fallbacks.append(reason)
+
+    def _fail_all(self, failure: HardwareError) -> None:
+        while self._outstanding:
+            self._outstanding.popleft().fail(failure)
+        self._cond.notify_all()
+
+    def _set_fatal(self, failure: HardwareError) -> None:
+        if self._fatal is None:
+            self._fatal = failure
+        self._fail_all(failure)
+
+    def _check_fatal(self) -> None:
+        if self._fatal is not None:
+            raise self._fatal
+        if self._closed:
+            raise LinkError("link is closed", field="port")
+

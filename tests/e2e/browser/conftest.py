@@ -1,0 +1,138 @@
+"""Headless Chromium (the Debian ``chromium`` package) driven by playwright against a real
+``conforma serve`` (API + worker + viser view).  Never downloads a browser: without
+chromium or playwright the tests skip and say why."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+# Test runs write screenshots as test artifacts; `make screenshots` copies them to
+# web/screenshots/, the committed ones the README shows.
+SCREENSHOTS = ROOT / "tests" / "artifacts" / "screenshots"
+KEY = "browser-operator-key-1"
+CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--no-first-run"]
+
+
+def _missing() -> str | None:
+    if shutil.which("chromium") is None:
+        return "chromium is not installed (apt-get install -y chromium)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright is not installed (pip install playwright; never `playwright install`)"
+    return None
+
+
+def pytest_collection_modifyitems(items):  # type: ignore[no-untyped-def]
+    reason = _missing()
+    if reason:
+        for item in items:
+            if "tests/e2e/browser" in str(item.fspath):
+                item.add_marker(pytest.mark.skip(reason=reason))
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@dataclass(frozen=True)
+class Served:
+    base: str
+    key: str
+    viewer_port: int
+
+    def api(self) -> httpx.Client:
+        return httpx.Client(base_url=self.base, headers={"Authorization": f"Bearer {self.key}"}, timeout=30)
+
+
+@pytest.fixture(scope="session")
+def served(tmp_path_factory) -> Iterator[Served]:  # type: ignore[no-untyped-def]
+    data = tmp_path_factory.mktemp("browser-data")
+    port, viewer_port = free_port(), free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CONFORMA_")}
+    env.update({"PYTHONPATH": str(ROOT), "CONFORMA_DATA_DIR": str(data), "CONFORMA_API_KEYS": f"{KEY}:admin",
+                "CONFORMA_VIEWER": "true", "CONFORMA_LOG_LEVEL": "warning"})
+    log = open(data / "serve.log", "w")  # noqa: SIM115 (closed below)
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port), "--viewer-port",
+                             str(viewer_port)], env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    try:
+        while True:
+            if proc.poll() is not None:
+                raise AssertionError(f"conforma serve exited: {(data / 'serve.log').read_text()[-2000:]}")
+            try:
+                if httpx.get(f"{base}/api/v1/health", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise AssertionError("conforma serve did not become healthy")
+            time.sleep(0.1)
+        info = httpx.get(f"{base}/api/v1/viewer", headers={"Authorization": f"Bearer {KEY}"}).json()
+        yield Served(base, KEY, int(info["port"]))
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        log.close()
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator:  # type: ignore[no-untyped-def]
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        chromium = pw.chromium.launch(executable_path=shutil.which("chromium"), args=CHROMIUM_ARGS)
+        try:
+            yield chromium
+        finally:
+            chromium.close()
+
+
+@pytest.fixture
+def page(browser, served):  # type: ignore[no-untyped-def]
+    """A fresh page whose browser already holds the operator's key (localStorage)."""
+    context = browser.new_context(viewport={"width": 1400, "height": 900}, base_url=served.base)
+    context.add_init_script(f"localStorage.setItem('conforma.apiKey', {served.key!r});")
+    page = context.new_page()
+    page.set_default_timeout(30_000)  # the test machine may be heavily loaded
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.js_errors = errors  # type: ignore[attr-defined]
+    yield page
+    context.close()
+
+
+def screenshot_path(name: str) -> Path:
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    return SCREENSHOTS / f"{name}.png"
+
+
+def screenshot(page, name: str) -> Path:  # type: ignore[no-untyped-def]
+    """Save the visible page as tests/artifacts/screenshots/<name>.png."""
+    path = screenshot_path(name)
+    page.screenshot(path=str(path), full_page=False)
+    return path

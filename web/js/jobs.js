@@ -1,0 +1,221 @@
+// Jobs: submit from forms generated from the job kinds' schemas, follow progress live
+// (Server-Sent Events over fetch with the key in the header), read results, download
+// artifacts, cancel, open in 3D.
+import { ApiError, download, get, post, streamEvents } from "./api.js";
+import { schemaForm } from "./schema_form.js";
+import { el, fmt, guarded, initPage, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
+
+const TERMINAL = new Set(["succeeded", "failed", "cancelled"]);
+const main = initPage("jobs.html");
+const left = el("div");
+const right = el("div");
+const viewerSection = el("section", { id: "viewer-panel" });
+const detail = el("section", { id: "job-detail" }, el("h2", {}, "Job"), el("p", { class: "small" }, "Select a job in the list."));
+right.append(detail, viewerSection);
+main.append(el("h1", {}, "Jobs"), el("div", { class: "layout" }, left, right));
+const viewer = viewerPanel(viewerSection);
+
+// ---- submission -----------------------------------------------------------------------
+const kindSelect = el("select", { id: "job-kind", "aria-label": "job kind" });
+const kindDescription = el("p", { class: "small", id: "kind-description" });
+const formBody = el("div", { id: "job-form-body" });
+const submitButton = el("button", { type: "submit", class: "primary", id: "submit-job" }, "Submit job");
+const form = el("form", { id: "job-form", onsubmit: onSubmit }, formBody, submitButton);
+left.append(el("section", {}, el("h2", {}, "New job"), kindSelect, kindDescription, form));
+let kinds = [];
+let current = null;
+
+async function suggestions() {
+  const out = { part_id: [], trace_id: [], machine_id: [] };
+  const [parts, jobs] = await Promise.all([get("parts?limit=50"), get("jobs?limit=200")]);
+  out.part_id = parts.items.map((p) => [p.id, p.name]);
+  for (const p of parts.items.slice(0, 20)) {
+    const traces = await get(`parts/${p.id}/traces?limit=200`);
+    out.trace_id.push(...traces.items.map((t) => [t.id, `${t.name} on ${p.name}`]));
+  }
+  const byKind = (k) => jobs.items.filter((j) => j.kind === k && j.status === "succeeded").map((j) => [j.id, `${j.kind} ${fmt.time(j.created_at)}`]);
+  Object.assign(out, { plan_job_id: byKind("probe_plan"), probe_run_job_id: byKind("probe_run"),
+    reconstruct_job_id: byKind("reconstruct"), slice_job_id: byKind("slice"), surface_fit_job_id: byKind("surface_fit") });
+  try { out.machine_id = (await get("machines")).items.map((m) => [m.id, m.name]); } catch { /* no machines API */ }
+  return out;
+}
+
+async function buildForm(prefill = {}) {
+  const kind = kinds.find((k) => k.name === kindSelect.value);
+  if (!kind) return;
+  kindDescription.textContent = kind.description || "";
+  const hints = await suggestions().catch(() => ({}));
+  current = schemaForm(kind.params_schema, { suggestions: hints, prefill });
+  formBody.replaceChildren(current.node);
+  formBody.dataset.kind = kind.name;
+}
+
+async function loadKinds() {
+  await guarded("Job kinds", async () => {
+    kinds = await get("job-kinds");
+    const wanted = query("kind");
+    kindSelect.replaceChildren(...kinds.map((k) => el("option", { value: k.name, selected: k.name === wanted }, k.name)));
+    const prefill = Object.fromEntries([...new URLSearchParams(location.search)].filter(([k]) => k !== "kind"));
+    await buildForm(prefill);
+  });
+}
+kindSelect.addEventListener("change", () => { delete formBody.dataset.kind; buildForm(); });
+
+async function onSubmit(event) {
+  event.preventDefault();
+  if (!current) return;
+  let params;
+  try {
+    params = current.values();
+  } catch (err) {
+    current.markErrors(err.field ? [{ loc: `params.${err.field}`, msg: err.message }] : []);
+    showError(err, "New job");
+    return;
+  }
+  submitButton.disabled = true;
+  try {
+    const job = await post("jobs", { kind: kindSelect.value, params });
+    current.markErrors([]);
+    showInfo(`Job ${job.id} (${job.kind}) queued.`);
+    await refresh();
+    openJob(job.id);
+  } catch (err) {
+    if (err instanceof ApiError) current.markErrors(err.fieldErrors);
+    showError(err, `Submitting ${kindSelect.value}`);
+  } finally {
+    submitButton.disabled = false;
+  }
+}
+
+// ---- list with live progress -------------------------------------------------------------
+const tbody = el("tbody", { id: "jobs-body" });
+left.append(el("section", {}, el("h2", {}, "Recent jobs ", el("button", { onclick: () => refresh(), class: "small" }, "Refresh")),
+  el("table", { id: "jobs-table" }, el("thead", {}, el("tr", {}, ["Job", "Status", "Progress", "Message"].map((h) => el("th", {}, h)))), tbody)));
+const streams = new Map();
+let selected = null;
+
+function statusCell(job) {
+  return el("span", { class: `badge ${job.status}`, "data-status": job.status }, job.status);
+}
+
+function row(job) {
+  return el("tr", { "data-id": job.id, onclick: () => openJob(job.id), style: "cursor:pointer" },
+    el("td", {}, el("strong", {}, job.kind), el("div", { class: "small mono" }, job.id)),
+    el("td", { class: "status" }, statusCell(job)),
+    el("td", {}, el("progress", { max: 1, value: job.progress })),
+    el("td", { class: "small message" }, job.message || (job.error ? job.error.detail : "")));
+}
+
+function updateRow(job) {
+  const tr = tbody.querySelector(`tr[data-id="${job.id}"]`);
+  if (!tr) return;
+  tr.querySelector(".status").replaceChildren(statusCell(job));
+  tr.querySelector("progress").value = job.progress;
+  tr.querySelector(".message").textContent = job.message || "";
+}
+
+function follow(job) {
+  if (TERMINAL.has(job.status) || streams.has(job.id)) return;
+  const ctrl = streamEvents(`/api/v1/jobs/${job.id}/events`, (ev) => {
+    updateRow(ev.data);
+    if (selected === job.id) renderProgress(ev.data);
+  }, async (err) => {
+    streams.delete(job.id);
+    if (err) { showError(err, `Live progress of ${job.id}`); return; }
+    await guarded("Jobs", async () => {
+      const fresh = await get(`jobs/${job.id}`);
+      updateRow(fresh);
+      if (selected === job.id) renderDetail(fresh);
+    });
+  });
+  streams.set(job.id, ctrl);
+}
+
+async function refresh() {
+  await guarded("Jobs", async () => {
+    const page = await get("jobs?limit=50");
+    tbody.replaceChildren(...page.items.map(row));
+    if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 4, class: "small" }, "No jobs yet.")));
+    page.items.forEach(follow);
+    if (selected) tbody.querySelector(`tr[data-id="${selected}"]`)?.classList.add("selected");
+  });
+}
+
+// ---- detail ------------------------------------------------------------------------------
+function compact(value) {
+  return JSON.stringify(value, (k, v) => (Array.isArray(v) && v.length > 12 ? [...v.slice(0, 6), `… ${v.length - 6} more`] : v), 2);
+}
+
+function renderProgress(ev) {
+  const bar = detail.querySelector("#detail-progress");
+  if (bar) bar.value = ev.progress;
+  const st = detail.querySelector("#detail-status");
+  if (st) st.replaceChildren(statusCell(ev), ` ${ev.message || ""}`);
+}
+
+// Deviation samples [[s_mm, dz_mm], ...] as an SVG line plot (data kept on the node).
+function deviationPlot(samples, title) {
+  const w = 600, h = 180, pad = 30;
+  const xs = samples.map((p) => p[0]); const ys = samples.map((p) => p[1]);
+  const x0 = Math.min(...xs), x1 = Math.max(...xs), ylim = Math.max(1e-6, ...ys.map(Math.abs));
+  const X = (x) => pad + ((x - x0) / Math.max(x1 - x0, 1e-9)) * (w - 2 * pad);
+  const Y = (y) => h / 2 - (y / ylim) * (h / 2 - pad / 2);
+  const ns = "http://www.w3.org/2000/svg";
+  const svg = document.createElementNS(ns, "svg");
+  svg.setAttribute("viewBox", `0 0 ${w} ${h}`);
+  const mk = (tag, attrs, text) => { const n = document.createElementNS(ns, tag); for (const [k, v] of Object.entries(attrs)) n.setAttribute(k, v); if (text) n.textContent = text; svg.append(n); return n; };
+  mk("line", { x1: pad, x2: w - pad, y1: h / 2, y2: h / 2, stroke: "#999", "stroke-dasharray": "4 3" });
+  mk("polyline", { points: samples.map((p) => `${X(p[0]).toFixed(1)},${Y(p[1]).toFixed(1)}`).join(" "), fill: "none", stroke: "#d33", "stroke-width": 2 });
+  mk("text", { x: pad, y: 14, "font-size": 12 }, `${title}  (±${ylim.toFixed(4)} mm)`);
+  mk("text", { x: w - pad, y: h - 4, "font-size": 11, "text-anchor": "end" }, `${x1.toFixed(1)} mm along the trace`);
+  return el("div", { class: "plot", id: "deviation-plot", "data-samples": JSON.stringify(samples) }, svg);
+}
+
+function renderDetail(job) {
+  const canCancel = !TERMINAL.has(job.status);
+  const parts = [
+    el("h2", {}, `${job.kind} `, el("span", { class: "mono small" }, job.id)),
+    el("div", { id: "detail-status" }, statusCell(job), ` ${job.message || ""}`),
+    el("progress", { id: "detail-progress", max: 1, value: job.progress }),
+    el("div", { class: "row" },
+      el("button", { id: "open-3d", onclick: () => viewer.show({ job_id: job.id }) }, "Open in 3D"),
+      canCancel ? el("button", { class: "danger", id: "cancel-job", onclick: () => guarded("Cancel", async () => {
+        renderDetail(await post(`jobs/${job.id}/cancel`)); showInfo(`Cancel requested for ${job.id}.`);
+      }) }, "Cancel") : null),
+    el("p", { class: "small" }, `created ${fmt.time(job.created_at)} · started ${fmt.time(job.started_at)} · finished ${fmt.time(job.finished_at)}`),
+  ];
+  if (job.error) parts.push(el("div", { class: "msg error", id: "job-error" }, `${job.error.title}: ${job.error.detail}`));
+  const samples = job.result?.deviation?.samples;
+  if (Array.isArray(samples) && samples.length > 1) {
+    parts.push(el("h3", {}, "Deviation along the trace"),
+      el("p", { class: "small" }, `max ${fmt.mm(job.result.deviation.max_mm, 4)}, rms ${fmt.mm(job.result.deviation.rms_mm, 4)}`),
+      deviationPlot(samples, "measured − nominal"));
+  }
+  if (job.artifacts?.length) {
+    parts.push(el("h3", {}, "Artifacts"), el("ul", { id: "artifacts" }, job.artifacts.map((a) => el("li", {},
+      el("button", { class: "artifact", onclick: () => guarded("Download", () => download(a.url, a.name)) }, a.name),
+      ` ${a.media_type}, ${fmt.bytes(a.bytes)}`))));
+  }
+  parts.push(el("details", {}, el("summary", {}, "Parameters"), el("pre", {}, compact(job.params))));
+  if (job.result) parts.push(el("details", { open: true }, el("summary", {}, "Result"), el("pre", { id: "job-result" }, compact(job.result))));
+  detail.replaceChildren(...parts);
+  detail.dataset.jobId = job.id;
+  detail.dataset.status = job.status;
+}
+
+async function openJob(jobId) {
+  selected = jobId;
+  tbody.querySelectorAll("tr.selected").forEach((r) => r.classList.remove("selected"));
+  tbody.querySelector(`tr[data-id="${jobId}"]`)?.classList.add("selected");
+  await guarded(`Job ${jobId}`, async () => {
+    const job = await get(`jobs/${jobId}`);
+    renderDetail(job);
+    follow(job);
+  });
+}
+
+document.addEventListener("conforma:key", async () => { await loadKinds(); await refresh(); });
+await loadKinds();
+await refresh();
+if (query("job")) await openJob(query("job"));
+markReady();

@@ -1,0 +1,135 @@
+// Machines: register (mock or real port), connect, live state and position, pause /
+// resume, and a big emergency stop.  The page polls the machines' status once a second.
+import { ApiError, get, post } from "./api.js";
+import { el, guarded, initPage, markReady, showError, showInfo } from "./ui.js";
+
+const POLL_MS = 1000;
+const main = initPage("machines.html");
+const unavailable = el("section", { id: "machines-unavailable", hidden: true });
+const list = el("div", { id: "machines-list" });
+main.append(el("h1", {}, "Machines"), unavailable);
+
+// ---- register -------------------------------------------------------------------------
+const f = {
+  name: el("input", { id: "m-name", value: "mock-1", required: true, maxlength: 200 }),
+  port: el("input", { id: "m-port", value: "mock://", required: true }),
+  dialect: el("select", { id: "m-dialect" }, el("option", { value: "marlin" }, "marlin"), el("option", { value: "grbl" }, "grbl")),
+  baudrate: el("input", { id: "m-baud", type: "number", value: 115200 }),
+  truePart: el("select", { id: "m-true-part" }, el("option", { value: "" }, "(none)")),
+  noise: el("input", { id: "m-noise", type: "number", step: "any", value: 0, min: 0 }),
+  timeScale: el("input", { id: "m-time-scale", type: "number", step: "any", value: 0, min: 0 }),
+};
+const wrap = (id, label, input) => el("div", { class: "field" }, el("label", { for: id }, label), input);
+const mockBox = el("fieldset", { id: "mock-settings" }, el("legend", {}, "Mock machine (port mock://)"),
+  el("div", { class: "row" }, wrap("m-true-part", "as-made part", f.truePart), wrap("m-noise", "probe noise (mm)", f.noise),
+    wrap("m-time-scale", "time scale (1 = real time, 0 = fast)", f.timeScale)));
+const registerForm = el("form", { id: "register-form", onsubmit: onRegister },
+  el("div", { class: "row" }, wrap("m-name", "name", f.name), wrap("m-port", "port", f.port),
+    wrap("m-dialect", "dialect", f.dialect), wrap("m-baud", "baud rate", f.baudrate)),
+  mockBox, el("button", { type: "submit", class: "primary", id: "register-machine" }, "Register machine"));
+const registerSection = el("section", {}, el("h2", {}, "Register a machine"), registerForm);
+main.append(registerSection, list);
+f.port.addEventListener("input", () => { mockBox.hidden = !f.port.value.startsWith("mock://"); });
+
+async function onRegister(event) {
+  event.preventDefault();
+  const body = { name: f.name.value, port: f.port.value.trim(), dialect: f.dialect.value, baudrate: Number(f.baudrate.value) };
+  if (body.port.startsWith("mock://")) {
+    body.mock = { probe_noise_mm: Number(f.noise.value), time_scale: Number(f.timeScale.value) };
+    if (f.truePart.value) body.mock.true_part_id = f.truePart.value;
+  }
+  await guarded("Register", async () => {
+    const m = await post("machines", body);
+    showInfo(`Machine "${m.name}" registered (${m.id}).`);
+    await refresh();
+  });
+}
+
+// ---- cards with live status --------------------------------------------------------------
+const cards = new Map();
+
+function position(m) {
+  if (!m.position) return "position unknown";
+  return ["X", "Y", "Z"].map((a, i) => `${a} ${Number(m.position[i] ?? 0).toFixed(3)}`).join("   ") +
+    (m.position.length > 3 ? `   ${m.position.slice(3).map((v) => Number(v).toFixed(2)).join(" ")}` : "");
+}
+
+function act(m, action, label) {
+  return el("button", { class: `act-${action}`, onclick: () => guarded(`${label} ${m.name}`, async () => {
+    const fresh = await post(`machines/${m.id}/${action}`);
+    update(fresh);
+    if (action === "stop") showInfo(`EMERGENCY STOP sent to ${m.name}: state ${fresh.state}.`, 10000);
+  }) }, label);
+}
+
+function card(m) {
+  const state = el("span", { class: `badge ${m.state}`, "data-state": m.state }, m.state);
+  const pos = el("div", { class: "pos" }, position(m));
+  const prog = el("div", { class: "small program" });
+  const estop = el("button", { class: "estop", "data-machine": m.id, title: "Emergency stop (out of band: M112 / grbl reset)",
+    onclick: () => guarded(`EMERGENCY STOP ${m.name}`, async () => {
+      const fresh = await post(`machines/${m.id}/stop`);
+      update(fresh);
+      showInfo(`EMERGENCY STOP sent to ${m.name}: state ${fresh.state}.`, 10000);
+    }) }, "■ Emergency stop");
+  const node = el("section", { class: "machine-card", "data-id": m.id },
+    el("h2", {}, m.name, " ", state), el("div", { class: "small mono" }, `${m.id} · ${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
+    pos, prog,
+    el("div", { class: "row" }, act(m, "connect", "Connect"), act(m, "disconnect", "Disconnect"), act(m, "pause", "Pause"), act(m, "resume", "Resume")),
+    el("p", {}), estop);
+  cards.set(m.id, { node, state, pos, prog });
+  update(m);
+  return node;
+}
+
+function update(m) {
+  const c = cards.get(m.id);
+  if (!c) return;
+  c.state.className = `badge ${m.state}`;
+  c.state.dataset.state = m.state;
+  c.state.textContent = m.state;
+  c.pos.textContent = position(m);
+  c.prog.textContent = m.program ? `program ${m.program.job_id || ""}: line ${m.program.line ?? "?"} of ${m.program.total ?? "?"}` : "no program running";
+}
+
+let available = true;
+async function refresh() {
+  try {
+    const page = await get("machines");
+    available = true;
+    unavailable.hidden = true;
+    registerSection.hidden = false;
+    const ids = new Set(page.items.map((m) => m.id));
+    for (const id of [...cards.keys()]) if (!ids.has(id)) { cards.get(id).node.remove(); cards.delete(id); }
+    for (const m of page.items) {
+      if (cards.has(m.id)) update(m);
+      else list.append(card(m));
+    }
+    if (!page.items.length && !list.querySelector(".empty")) list.append(el("p", { class: "small empty" }, "No machines registered yet."));
+    if (page.items.length) list.querySelector(".empty")?.remove();
+  } catch (err) {
+    if (err instanceof ApiError && err.status === 404) {
+      available = false;
+      unavailable.hidden = false;
+      registerSection.hidden = true;
+      unavailable.replaceChildren(el("h2", {}, "Machines are not available"),
+        el("p", {}, "This server has no machines API (/api/v1/machines answered 404)."));
+      return;
+    }
+    if (!err.offline) showError(err, "Machines");
+  }
+}
+
+async function loadParts() {
+  await guarded("Parts", async () => {
+    const parts = await get("parts?limit=200");
+    f.truePart.append(...parts.items.map((p) => el("option", { value: p.id }, `${p.name} (${p.id})`)));
+  });
+}
+
+document.addEventListener("conforma:key", () => refresh());
+await loadParts();
+await refresh();
+markReady();
+setInterval(() => { if (available) refresh(); }, POLL_MS);
+

@@ -1,0 +1,175 @@
+// Shared page furniture: navigation, the API key box, the connection indicator, the
+// message area and the embedded 3D view.
+import { ApiError, get, getKey, post, setKey } from "./api.js";
+
+const PAGES = [
+  ["index.html", "Home"], ["parts.html", "Parts"], ["traces.html", "Traces"],
+  ["jobs.html", "Jobs"], ["machines.html", "Machines"],
+];
+
+// el("div", {class: "x", onclick: f}, child, "text", ...)
+export function el(tag, attrs = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (v === null || v === undefined || v === false) continue;
+    if (k.startsWith("on") && typeof v === "function") node.addEventListener(k.slice(2), v);
+    else if (k === "dataset") Object.assign(node.dataset, v);
+    else node.setAttribute(k, v === true ? "" : String(v));
+  }
+  for (const c of children.flat()) {
+    if (c === null || c === undefined || c === false) continue;
+    node.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  }
+  return node;
+}
+
+export const fmt = {
+  mm: (v, d = 3) => (v === null || v === undefined ? "—" : `${Number(v).toFixed(d)} mm`),
+  num: (v, d = 3) => (v === null || v === undefined ? "—" : Number(v).toFixed(d)),
+  time: (iso) => (iso ? new Date(iso).toLocaleString() : "—"),
+  bytes: (n) => (n < 1024 ? `${n} B` : n < 2 ** 20 ? `${(n / 1024).toFixed(1)} KiB` : `${(n / 2 ** 20).toFixed(1)} MiB`),
+};
+
+// ---- messages ---------------------------------------------------------------------
+function messageArea() {
+  return document.getElementById("messages");
+}
+
+// Show an error (ApiError or any Error) as a readable, dismissable message.
+export function showError(err, context = "") {
+  const area = messageArea();
+  const text = err instanceof ApiError ? err.message : `${err?.message || err}`;
+  const box = el("div", { class: `msg error${err?.offline ? " offline" : ""}`, role: "alert" },
+    el("button", { class: "close", title: "dismiss", onclick: () => box.remove() }, "×"),
+    el("strong", {}, context ? `${context}: ` : ""), text);
+  if (err instanceof ApiError && err.fieldErrors.length) {
+    box.append(el("ul", { class: "field-errors" },
+      err.fieldErrors.map((e) => el("li", {}, el("code", {}, e.loc || "request"), ` ${e.msg}`))));
+  }
+  area.prepend(box);
+  while (area.children.length > 6) area.lastChild.remove();
+  return box;
+}
+
+export function showInfo(text, timeoutMs = 5000) {
+  const box = el("div", { class: "msg info", role: "status" }, text);
+  messageArea().prepend(box);
+  if (timeoutMs) setTimeout(() => box.remove(), timeoutMs);
+  return box;
+}
+
+export function clearMessages() {
+  messageArea().replaceChildren();
+}
+
+// Run an async action, showing its error instead of breaking the page.
+export async function guarded(context, fn) {
+  try {
+    return await fn();
+  } catch (err) {
+    showError(err, context);
+    return undefined;
+  }
+}
+
+// ---- header: navigation, key, connection --------------------------------------------
+function header(active) {
+  const keyInput = el("input", { type: "password", id: "api-key", placeholder: "paste your API key",
+    autocomplete: "off", value: getKey(), "aria-label": "API key" });
+  const form = el("form", { id: "key-form", onsubmit: (e) => {
+    e.preventDefault();
+    setKey(keyInput.value);
+    showInfo(keyInput.value.trim() ? "API key saved in this browser." : "API key removed.");
+  } }, keyInput, el("button", { type: "submit" }, "Save key"));
+  const status = el("span", { id: "conn", class: "conn unknown", title: "API connection" }, "…");
+  return el("header", {},
+    el("a", { class: "brand", href: "index.html" }, "Conforma"),
+    el("nav", {}, PAGES.map(([href, label]) =>
+      el("a", { href, class: href === active ? "active" : null }, label))),
+    form, status);
+}
+
+function setConnection(state, text) {
+  const node = document.getElementById("conn");
+  if (!node) return;
+  node.className = `conn ${state}`;
+  node.textContent = text;
+  document.body.classList.toggle("is-offline", state === "offline");
+}
+
+// Poll the health endpoint: every 5 s, every second while the API is unreachable.
+async function checkHealth() {
+  let offline = false;
+  try {
+    const r = await fetch("/api/v1/health", { cache: "no-store" });
+    if (r.ok) setConnection("online", "API online");
+    else setConnection("degraded", `API error ${r.status}`);
+  } catch {
+    offline = true;
+    setConnection("offline", "API unreachable");
+  }
+  setTimeout(checkHealth, offline || document.body.classList.contains("is-offline") ? 1000 : 5000);
+}
+
+// Build the common page frame; returns the <main> element to fill.
+export function initPage(active) {
+  document.body.prepend(header(active));
+  const banner = el("div", { id: "offline-banner", role: "alert" },
+    "Connection to the Conforma API lost — retrying. Actions are paused until it is back.");
+  document.body.insertBefore(banner, document.querySelector("main"));
+  document.addEventListener("conforma:offline", () => setConnection("offline", "API unreachable"));
+  document.addEventListener("conforma:online", () => setConnection("online", "API online"));
+  checkHealth();
+  if (!getKey()) {
+    showInfo("Paste your API key in the box at the top (the server printed one at first start).", 0);
+    setTimeout(() => document.getElementById("api-key")?.focus(), 0);
+  }
+  return document.querySelector("main");
+}
+
+// Mark the page as loaded with its first data (used by tests and the load benchmark).
+export function markReady() {
+  document.body.dataset.ready = "1";
+}
+
+export function query(name) {
+  return new URLSearchParams(location.search).get(name);
+}
+
+// ---- the embedded 3D view -----------------------------------------------------------
+let viewerInfo = null;
+
+// Fill `container` with the 3D view panel; returns {show({part_id}|{job_id})}.
+export function viewerPanel(container) {
+  const frameBox = el("div", { class: "viewer-frame" });
+  const caption = el("div", { class: "viewer-caption", id: "viewer-caption" }, "Open a part or a job to see it in 3D.");
+  container.append(el("h2", {}, "3D view"), caption, frameBox);
+
+  async function ensureFrame() {
+    if (!viewerInfo) viewerInfo = await get("viewer");
+    if (!viewerInfo.enabled) {
+      caption.textContent = "The 3D view is off on this server (start it without --no-viewer).";
+      return false;
+    }
+    if (!frameBox.querySelector("iframe")) {
+      const src = `${location.protocol}//${location.hostname}:${viewerInfo.port}/`;
+      frameBox.append(el("iframe", { id: "viewer-iframe", src, title: "3D view", loading: "eager" }));
+      frameBox.append(el("a", { href: src, target: "_blank", rel: "noopener", class: "small" }, "open the 3D view in its own tab"));
+    }
+    return true;
+  }
+
+  async function show(target) {
+    if (!(await ensureFrame())) return null;
+    const scene = await post("viewer/focus", target);
+    const nodes = Object.values(scene.nodes || {});
+    const plots = Object.keys(scene.plots || {}).length;
+    caption.textContent = `Showing ${target.job_id ? `job ${target.job_id}` : `part ${target.part_id}`}: ` +
+      `${nodes.length} scene nodes` + (plots ? `, ${plots} deviation plot(s) in the side panel` : "") +
+      ((scene.notes || []).length ? ` — ${scene.notes.join("; ")}` : "");
+    container.dataset.generation = scene.generation;
+    return scene;
+  }
+
+  return { show: (target) => guarded("3D view", () => show(target)), ensureFrame };
+}
