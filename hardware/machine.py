@@ -79,6 +79,12 @@ class Machine:
 
     # ------------------------------------------------------------------ state
     @property
+    def link_lost(self) -> bool:
+        """True when the transport failed under a connected machine (not after an emergency
+        stop): reconnecting and resuming is safe."""
+        return self.link is not None and not self.link.healthy and not self._estopped
+
+    @property
     def state(self) -> str:
         """disconnected | idle | busy | printing | paused | error."""
         if self.link is None:

@@ -25,9 +25,9 @@ def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
 
 
 def connected_machine(ctx: JobContext, machine_id: str) -> Machine:
-    """The live machine, connected now if it was not."""
+    """The live machine, connected now if it was not (or reconnected if its link dropped)."""
     machines = ctx.runtime.machines
     machine = machines.get(machine_id)
-    if machine is None or machine.state == "disconnected":
+    if machine is None or machine.state == "disconnected" or machine.link_lost:
         machine = machines.connect(ctx.machine(machine_id))
     return machine

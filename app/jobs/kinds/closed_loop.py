@@ -25,7 +25,7 @@ from pydantic import Field, field_validator, model_validator
 from sqlmodel import Session, select
 
 from app.compensation.evaluation import predicted_width, table_row
-from app.errors import ConformaError, InvalidInput
+from app.errors import Cancelled, ConformaError, InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.kinds.probe_plan import ProbePlanParams
 from app.jobs.kinds.register import RegisterParams
@@ -112,6 +112,8 @@ class _Steps:
         if key in self.reusable:
             return self.reusable[key]
         [job] = self.ctx.wait_for([self.ctx.submit_child(kind, params)])
+        if job.status == "cancelled":  # the loop's cancel reached its child first, or a user cancelled the step
+            raise Cancelled(f"{kind} of trace {trace_id} was cancelled", field="trace_ids", value=trace_id)
         if job.status != "succeeded":
             detail = (job.error or {}).get("detail", job.status)
             if trace_id is None:

@@ -1,6 +1,14 @@
-"""Job ``probe_run``: execute a probe plan on a machine and record the measured points."""
+"""Job ``probe_run``: execute a probe plan on a machine and record the measured points.
+
+Recovery: when the link drops mid-run, the job reconnects (up to ``reconnect_attempts``)
+and touches the interrupted point again — a touch is idempotent, and every point before
+it was already recorded.  A probe that finds no surface fails the job with a 422 naming
+the point; no measured points are stored from a failed run.
+"""
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from pydantic import Field
@@ -9,13 +17,15 @@ from sqlmodel import Session
 from app.jobs.context import JobContext
 from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
 from app.jobs.registry import JobParams, job_kind
-from app.machines import hardware_errors
+from app.machines import MachineUnavailable, hardware_errors
+from hardware.errors import LinkError
 
 
 class ProbeRunParams(JobParams):
     plan_job_id: str = Field(description="a succeeded probe_plan job")
     machine_id: str
     probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the plan's")
+    reconnect_attempts: int = Field(3, ge=0, le=20, description="reconnects after a lost link before failing")
 
 
 def _check(params: ProbeRunParams, session: Session) -> None:
@@ -32,18 +42,31 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
     machine = connected_machine(ctx, params.machine_id)
     ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
     points = []
+    reconnects = 0
     try:
         for index, record in enumerate(records):
             x, y, z_nominal = record["nominal"]
-            with hardware_errors():
-                touch = machine.probe(x, y, z_start=record["safe_z_mm"], z_min=record["target_z_mm"],
-                                      feed_mm_min=feed)
+            while True:
+                try:
+                    if machine.link_lost:  # the link dropped after the previous touch
+                        raise MachineUnavailable("link lost") from LinkError("link lost")
+                    with hardware_errors():
+                        touch = machine.probe(x, y, z_start=record["safe_z_mm"], z_min=record["target_z_mm"],
+                                              feed_mm_min=feed)
+                    break
+                except MachineUnavailable as exc:
+                    if not isinstance(exc.__cause__, LinkError) or reconnects >= params.reconnect_attempts:
+                        raise
+                    reconnects += 1
+                    ctx.progress(index / len(records), f"link lost at point {index}; reconnecting ({reconnects})")
+                    time.sleep(0.2 * reconnects)
+                    machine = connected_machine(ctx, params.machine_id)
             points.append({"index": index, "nominal": [x, y, z_nominal], "measured": [touch.x, touch.y, touch.z],
                            "deviation_mm": touch.z - z_nominal})
             ctx.progress((index + 1) / len(records), f"probed {index + 1}/{len(records)}")
     finally:
         ctx.runtime.machines.running_job.pop(params.machine_id, None)
     deviations = np.array([p["deviation_mm"] for p in points])
-    return {"points": points, "stats": {"count": len(points), "max_abs_mm": float(np.abs(deviations).max()),
+    return {"points": points, "reconnects": reconnects, "stats": {"count": len(points), "max_abs_mm": float(np.abs(deviations).max()),
                                         "mean_mm": float(deviations.mean()),
                                         "rms_mm": float(np.sqrt(np.mean(deviations ** 2)))}}
