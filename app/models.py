@@ -152,3 +152,15 @@ class Program(SQLModel, table=True):
     commands_sha256: str = Field(max_length=64)
     bounds: list | None = Field(default=None, sa_column=Column(JSON, nullable=True))
     created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+
+class UploadedFile(SQLModel, table=True):
+    """A user's data file (a measured height map, a mask image...) that jobs can read."""
+
+    __tablename__ = "files"
+    id: str = Field(primary_key=True, max_length=40)
+    name: str = Field(max_length=200)
+    media_type: str = Field(max_length=100)
+    bytes: int
+    sha256: str = Field(foreign_key="blobs.sha256", max_length=64)
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))

@@ -88,6 +88,14 @@ class JobContext:
             raise ConformaError(f"job {job_id!r} has no artifact {name!r}", field="artifact", value=name)
         return self.runtime.blobs.read(row.sha256)
 
+    def file_bytes(self, file_id: str, field: str = "file_id") -> bytes:
+        """The content of an uploaded file (``POST /api/v1/files``)."""
+        from app.models import UploadedFile
+
+        with self.session() as session:
+            row = get_or_404(session, UploadedFile, file_id, field=field)
+        return self.runtime.blobs.read(row.sha256)
+
     # outputs ---------------------------------------------------------------------
     def artifact(self, name: str, data: bytes, media_type: str, meta: dict[str, Any] | None = None) -> str:
         """Store an artifact of this job; returns its sha256."""
