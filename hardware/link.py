@@ -295,7 +295,7 @@ class Link(ReplyHandling):
         """grbl: write ``?`` and wait for the next status report."""
         with self._cond:
             seen = self._status_seq
-            self._write_raw(b"?")
+            self._write(b"?")
             deadline = time.monotonic() + timeout_s
             while self._status_seq == seen:
                 self._check_fatal()

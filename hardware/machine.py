@@ -294,6 +294,19 @@ class Machine:
         executed = start_line
         acked_line: int | None = None
         self.progress = (executed, total)
+
+        def retire_oldest() -> None:
+            """Wait for the oldest in-flight command (its LinkError propagates, leaving it
+            in flight) and count it as executed."""
+            nonlocal executed, acked_line
+            index_done, pending = inflight[0]
+            outcome = pending.result()
+            inflight.popleft()
+            executed, acked_line = index_done + 1, outcome.line_no
+            self.progress = (executed, total)
+            if on_progress is not None:
+                on_progress(executed, total)
+
         try:
             for index in range(start_line, total):
                 if not self._resume_event.is_set():
@@ -304,21 +317,9 @@ class Machine:
                     break
                 inflight.append((index, link.send_async(commands[index])))
                 while inflight and inflight[0][1].done():
-                    index_done, pending = inflight[0]
-                    outcome = pending.result()
-                    inflight.popleft()
-                    executed, acked_line = index_done + 1, outcome.line_no
-                    self.progress = (executed, total)
-                    if on_progress is not None:
-                        on_progress(executed, total)
+                    retire_oldest()
             while inflight:
-                index_done, pending = inflight[0]
-                outcome = pending.result()
-                inflight.popleft()
-                executed, acked_line = index_done + 1, outcome.line_no
-                self.progress = (executed, total)
-                if on_progress is not None:
-                    on_progress(executed, total)
+                retire_oldest()
         except LinkError as exc:
             while inflight and inflight[0][1].done() and inflight[0][1].failure is None \
                     and inflight[0][1].outcome.status != "error":

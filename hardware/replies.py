@@ -9,8 +9,6 @@ from __future__ import annotations
 import time
 from collections import deque
 
-import serial
-
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
 from .events import (Alarm, Busy, FirmwareErrorEvent, Halted, Ok, ReplyEvent, Resend,
                      StartBanner, StatusReport, Unknown)
@@ -227,7 +225,7 @@ class ReplyHandling:
         if self._pokes_in_row >= 3 and self.mode == "windowed":
             self._fallback("repeated stalls")
         if self.dialect == "grbl":
-            self._write_raw(b"?")
+            self._write(b"?")
             return
         if all(p.accepted for p in self._outstanding):
             self._transmit_new("M114", internal=True)
@@ -235,14 +233,6 @@ class ReplyHandling:
             self._replay = deque(p.line_no for p in self._outstanding if not p.accepted)
             self._replay_inflight = None
             self._pump_replay()
-
-    def _write_raw(self, data: bytes) -> None:
-        if self._fatal is not None:
-            return
-        try:
-            self.port.write(data)
-        except (serial.SerialException, OSError) as exc:
-            self._write_failed(exc)
 
     def _fallback(self, reason: str) -> None:
         if self.mode != "pingpong":

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from app.checks import require_positive
 from app.compensation.registration import (
     PARAMETERS,
     DegenerateDatumError,
@@ -260,10 +261,7 @@ class DatumProbeParams:
     pivot_xy: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        for name in ("search_mm", "resolution_mm", "sigma_mm"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise RegistrationError(f"{name} must be positive", field=name, value=value)
+        require_positive(self, ("search_mm", "resolution_mm", "sigma_mm"), RegistrationError)
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
 
 __all__ = [
@@ -176,12 +177,9 @@ class LineWidthModel:
     process_std_mm: float = 0.07
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-            if not ok or v < 0 or (v == 0 and f.name != "process_std_mm"):
-                raise EvaluationError(f"{f.name} must be a positive finite number",
-                                      field=f.name, value=v)
+        require_positive(self, (f.name for f in fields(self) if f.name != "process_std_mm"),
+                         EvaluationError)
+        require_non_negative(self, ("process_std_mm",), EvaluationError)
         if not (self.pile_standoff_mm < self.nominal_standoff_mm < self.stretch_standoff_mm
                 < self.break_standoff_mm):
             raise EvaluationError("need pile < nominal < stretch < break standoff",

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from app.checks import require_positive
 from app.errors import InvalidInput
 from app.probing.nominal import NominalPath, as_nominal_path
 
@@ -167,9 +168,7 @@ class RegistrationParams:
     min_relative_sv: float = 1e-4
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.sigma_mm) and self.sigma_mm > 0):
-            raise RegistrationError("sigma_mm must be positive", field="sigma_mm",
-                                    value=self.sigma_mm)
+        require_positive(self, ("sigma_mm",), RegistrationError)
         bad = [e for e in self.estimate if e not in PARAMETERS]
         if bad or not self.estimate or len(set(self.estimate)) != len(self.estimate):
             raise RegistrationError(f"estimate must be distinct names from {list(PARAMETERS)}",

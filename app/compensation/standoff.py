@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from app.checks import require_non_negative, require_positive
 from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
 from app.errors import InvalidInput
 from app.gcode.writer import DIALECTS, ProgramBuilder
@@ -101,18 +102,9 @@ class CompensationParams:
         positive = ("standoff_mm", "feed_mm_min", "chord_error_mm", "clearance_mm",
                     "approach_mm", "plunge_feed_mm_min", "max_deviation_mm", "verify_step_mm",
                     "curvature_safety")
-        for name in positive:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
-                                           and v > 0):
-                raise CompensationError(f"{name} must be a positive finite number",
-                                        field=name, value=v)
-        for name in ("dwell_s", "span_tolerance_mm", "hold_mm"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
-                                           and v >= 0):
-                raise CompensationError(f"{name} must be a finite number >= 0", field=name,
-                                        value=v)
+        require_positive(self, positive, CompensationError)
+        require_non_negative(self, ("dwell_s", "span_tolerance_mm", "hold_mm"),
+                             CompensationError)
         if self.part_max_z_mm is not None and not math.isfinite(self.part_max_z_mm):
             raise CompensationError("part_max_z_mm must be finite", field="part_max_z_mm",
                                     value=str(self.part_max_z_mm))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from app.checks import require_positive
+
 __all__ = ["Tolerance", "DEFAULT_TOLERANCE"]
 
 
@@ -27,12 +29,8 @@ class Tolerance:
     def __post_init__(self) -> None:
         from app.geometry.errors import GeometryError
 
-        for name in ("chord_mm", "dedup_mm", "snap_mm", "param_rel", "length_rel"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and value > 0 and value < float("inf")):
-                raise GeometryError(
-                    f"tolerance {name} must be a positive finite number", field=name, value=value
-                )
+        require_positive(self, ("chord_mm", "dedup_mm", "snap_mm", "param_rel", "length_rel"),
+                         GeometryError)
 
 
 DEFAULT_TOLERANCE = Tolerance()

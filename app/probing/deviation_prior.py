@@ -32,6 +32,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.special import j1
 
+from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
 from app.probing.nominal import NominalPath
 
@@ -60,15 +61,9 @@ class DeviationPrior:
     sigma_mm: float = 0.001
 
     def __post_init__(self) -> None:
-        for name in ("amplitude_mm", "wavelength_mm", "peak_factor"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise PriorError(f"{name} must be a positive finite number", field=name, value=v)
-        for name in ("placement_xy_mm", "placement_z_mm", "placement_rz_deg", "tilt_rad",
-                     "sigma_mm"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise PriorError(f"{name} must be a finite number >= 0", field=name, value=v)
+        require_positive(self, ("amplitude_mm", "wavelength_mm", "peak_factor"), PriorError)
+        require_non_negative(self, ("placement_xy_mm", "placement_z_mm", "placement_rz_deg",
+                                    "tilt_rad", "sigma_mm"), PriorError)
 
     @property
     def rms_mm(self) -> float:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from app.checks import require_positive
 from app.gcode.writer import DIALECTS, ProgramBuilder
 from app.probing.selection import PlanError, ProbePlan
 
@@ -59,11 +60,8 @@ class ProbeProgramParams:
         if style not in DIALECTS[self.dialect].probe_styles:
             raise PlanError(f"dialect {self.dialect} cannot probe with {style!r}",
                             field="probe_style", value=style)
-        for name in ("clearance_mm", "approach_mm", "overtravel_mm", "probe_feed_mm_min",
-                     "sample_mm"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise PlanError(f"{name} must be a positive finite number", field=name, value=v)
+        require_positive(self, ("clearance_mm", "approach_mm", "overtravel_mm",
+                                "probe_feed_mm_min", "sample_mm"), PlanError)
 
     @property
     def style(self) -> str:

@@ -45,6 +45,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
 from app.probing.deviation_prior import DeviationPrior
 from app.probing.minimax import auto_count, design_grid, design_stations
@@ -97,21 +98,15 @@ class PlanParams:
     coverage: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("chord_error_mm", "cl_tolerance_mm", "deviation_amplitude_mm",
-                     "deviation_wavelength_mm", "target_error_mm"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise PlanError(f"{name} must be a positive finite number", field=name, value=v)
-        if not (math.isfinite(self.probe_sigma_mm) and self.probe_sigma_mm >= 0):
-            raise PlanError("probe_sigma_mm must be >= 0", field="probe_sigma_mm",
-                            value=self.probe_sigma_mm)
+        require_positive(self, ("chord_error_mm", "cl_tolerance_mm", "deviation_amplitude_mm",
+                                "deviation_wavelength_mm", "target_error_mm"), PlanError)
+        require_non_negative(self, ("probe_sigma_mm",), PlanError)
         if not (0 < self.end_ratio <= 1):
             raise PlanError("end_ratio must be in (0, 1]", field="end_ratio", value=self.end_ratio)
         if self.count is not None and (isinstance(self.count, bool) or int(self.count) != self.count
                                        or self.count < 2):
             raise PlanError("count must be an integer >= 2", field="count", value=self.count)
-        if not (math.isfinite(self.coverage) and self.coverage > 0):
-            raise PlanError("coverage must be > 0", field="coverage", value=self.coverage)
+        require_positive(self, ("coverage",), PlanError)
         self.prior()  # validates the prior's fields under their own names
         if (self.capability_k is None) != (self.confidence is None):
             raise PlanError("capability_k and confidence go together", field="capability_k",

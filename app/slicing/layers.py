@@ -18,7 +18,6 @@ its thickness was chosen.  Modes (see :mod:`app.slicing.adaptive`):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -26,6 +25,7 @@ import manifold3d
 import numpy as np
 import trimesh
 
+from app.checks import require_non_negative, require_positive
 from app.slicing.errors import SlicingError
 from app.slicing.mesh_prep import PreparedMesh, prepare_mesh
 from app.slicing.rings import Island, SectionStats, oriented, section_stats
@@ -73,20 +73,13 @@ class SliceParams:
         if self.mode not in ("uniform", "area", "cavity", "cusp"):
             raise SlicingError(f"unknown slicing mode {self.mode!r}", field="params.mode",
                                value=self.mode)
-        checks = [("layer_mm", self.layer_mm), ("l_min", self.l_min), ("l_max", self.l_max),
-                  ("cusp_mm", self.cusp_mm), ("z_tol", self.z_tol)]
-        for name, v in checks:
-            if not (math.isfinite(v) and v > 0):
-                raise SlicingError(f"{name} must be a positive thickness in mm, got {v!r}",
-                                   field=f"params.{name}", value=v)
+        require_positive(self, ("layer_mm", "l_min", "l_max", "cusp_mm", "z_tol"), SlicingError,
+                         prefix="params.")
         if self.l_min > self.l_max:
             raise SlicingError(f"l_min ({self.l_min} mm) is larger than l_max "
                                f"({self.l_max} mm)", field="params.l_min", value=self.l_min)
-        for name, v in (("eps0", self.eps0), ("sigma0", self.sigma0), ("mu0", self.mu0),
-                        ("mu1", self.mu1)):
-            if not (math.isfinite(v) and v >= 0):
-                raise SlicingError(f"{name} must be >= 0, got {v!r}", field=f"params.{name}",
-                                   value=v)
+        require_non_negative(self, ("eps0", "sigma0", "mu0", "mu1"), SlicingError,
+                             prefix="params.")
         if self.mu0 > self.mu1:
             raise SlicingError(f"mu0 ({self.mu0}) is larger than mu1 ({self.mu1})",
                                field="params.mu0", value=self.mu0)

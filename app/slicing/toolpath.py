@@ -17,6 +17,7 @@ from typing import Literal
 
 import numpy as np
 
+from app.checks import require_positive
 from app.gcode.estimator import MachineLimits, estimate_moves
 from app.slicing.errors import SlicingError
 from app.slicing.fills import contour_fill, raster_fill, zone_fill
@@ -58,12 +59,9 @@ class ToolpathParams:
         if self.pattern not in PATTERNS:
             raise SlicingError(f"unknown fill pattern {self.pattern!r}; expected one of "
                                f"{list(PATTERNS)}", field="params.pattern", value=self.pattern)
-        for name in ("line_width_mm", "nozzle_mm", "print_feed_mm_s", "perimeter_feed_mm_s",
-                     "travel_feed_mm_s", "filament_mm"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise SlicingError(f"{name} must be > 0, got {v!r}", field=f"params.{name}",
-                                   value=v)
+        require_positive(self, ("line_width_mm", "nozzle_mm", "print_feed_mm_s",
+                                "perimeter_feed_mm_s", "travel_feed_mm_s", "filament_mm"),
+                         SlicingError, prefix="params.")
         if not (0 < self.infill <= 1):
             raise SlicingError(f"infill must be in (0, 1], got {self.infill!r}",
                                field="params.infill", value=self.infill)

@@ -294,6 +294,30 @@ class FirmwareCore:
         noise = self.world.probe_noise_mm
         return hit.z + (float(self.noise.normal(0.0, noise)) if noise > 0 else 0.0)
 
+    def run_shared(self, command: str, head: str, params: dict[str, float]
+                   ) -> Generator[Wait, None, bool]:
+        """Run a command both dialects treat alike (the world's dispense on/off commands,
+        G90, G91, G92); False, doing nothing, for any other command."""
+        dispense_on, dispense_off = self.world.dispense_commands
+        if command == dispense_on or head == dispense_on.split(" ")[0]:
+            yield ("drain",)
+            self.dispensing = True
+        elif command == dispense_off or head == dispense_off.split(" ")[0]:
+            yield ("drain",)
+            self.dispensing = False
+        elif head == "G90":
+            self.absolute = True
+        elif head == "G91":
+            self.absolute = False
+        elif head == "G92":
+            yield ("drain",)
+            for i, axis in enumerate("XYZ"):
+                if axis in params:
+                    self.position[i] = params[axis]
+        else:
+            return False
+        return True
+
     # ------------------------------------------------------------------ dialect hooks
     def pump(self, now: float) -> bool:
         raise NotImplementedError

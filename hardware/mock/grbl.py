@@ -145,7 +145,6 @@ class GrblFirmware(FirmwareCore):
         head, params = split_words(command)
         if self.chance(self.faults.slow_rate, "slow"):
             yield from self.dwell(SLOW_S, now)
-        dispense_on, dispense_off = self.world.dispense_commands
         if head in ("G0", "G1"):
             if "F" in params:
                 self.feed = params["F"]
@@ -154,21 +153,8 @@ class GrblFirmware(FirmwareCore):
                 return
             feed = self.world.rapid_feed_mm_min if head == "G0" else self.feed
             yield from self.plan_move(self.target_of(params), feed, now)
-        elif command == dispense_on or head == dispense_on.split(" ")[0]:
-            yield ("drain",)
-            self.dispensing = True
-        elif command == dispense_off or head == dispense_off.split(" ")[0]:
-            yield ("drain",)
-            self.dispensing = False
-        elif head == "G90":
-            self.absolute = True
-        elif head == "G91":
-            self.absolute = False
-        elif head == "G92":
-            yield ("drain",)
-            for i, axis in enumerate("XYZ"):
-                if axis in params:
-                    self.position[i] = params[axis]
+        elif (yield from self.run_shared(command, head, params)):
+            pass  # dispense on/off, G90, G91, G92
         elif head == "G4":
             yield ("drain",)
             yield from self.dwell(params.get("P", 0.0), now)

@@ -146,30 +146,16 @@ class MarlinFirmware(FirmwareCore):
             if not self.scale:
                 self.emit("echo:busy: processing", now)
             yield from self.dwell(SLOW_S, now)
-        dispense_on, dispense_off = self.world.dispense_commands
         if head in ("G0", "G1"):
             if "F" in params:
                 self.feed = params["F"]
             yield from self.plan_move(self.target_of(params), self.feed, now)
-        elif command == dispense_on or head == dispense_on.split(" ")[0]:
-            yield ("drain",)
-            self.dispensing = True
-        elif command == dispense_off or head == dispense_off.split(" ")[0]:
-            yield ("drain",)
-            self.dispensing = False
+        elif (yield from self.run_shared(command, head, params)):
+            pass  # dispense on/off, G90, G91, G92
         elif head == "G28":
             yield from self.plan_move([0.0, 0.0, 0.0], self.world.rapid_feed_mm_min, now)
             yield ("drain",)
             self.homed = True
-        elif head == "G90":
-            self.absolute = True
-        elif head == "G91":
-            self.absolute = False
-        elif head == "G92":
-            yield ("drain",)
-            for i, axis in enumerate("XYZ"):
-                if axis in params:
-                    self.position[i] = params[axis]
         elif head in ("M400", "G4"):
             yield ("drain",)
             yield from self.dwell(params.get("P", 0.0) / 1000.0 + params.get("S", 0.0), now)

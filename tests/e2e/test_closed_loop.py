@@ -33,17 +33,25 @@ def meshes():
     return s1_mesh(grid_mm=0.3).export(file_type="stl"), truth.mesh(grid_mm=0.3).export(file_type="stl")
 
 
-def test_compensated_traces_hold_their_standoff_on_the_real_part(client, meshes):
-    nominal_stl, true_stl = meshes
+def _mock_setup(client, nominal_stl: bytes, true_stl: bytes, name: str, placement: dict,
+                seed: int) -> tuple[dict, list[dict], dict]:
+    """Upload the nominal and the as-made part, import the TRACES on the nominal and add a
+    mock Marlin machine holding the as-made part at ``placement``: (part, traces, machine)."""
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal_stl)}, headers=OP).json()
     real = client.post("/api/v1/parts", files={"file": ("s1-as-made.stl", true_stl)}, headers=OP).json()
     refs = [s1_traces()[i] for i in TRACES]
     traces = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=[t.to_api() for t in refs],
                          headers=OP).json()["items"]
     machine = client.post("/api/v1/machines", json={
-        "name": "sim", "port": "mock://", "dialect": "marlin",
-        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001,
-                 "faults": {"seed": 5}}}, headers=OP).json()
+        "name": name, "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "placement": placement, "probe_noise_mm": 0.001,
+                 "faults": {"seed": seed}}}, headers=OP).json()
+    return part, traces, machine
+
+
+def test_compensated_traces_hold_their_standoff_on_the_real_part(client, meshes):
+    nominal_stl, true_stl = meshes
+    part, traces, machine = _mock_setup(client, nominal_stl, true_stl, "sim", {"dz": 0.03}, seed=5)
     response = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
         "part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"],
         "probe": {"method": "deviation"}, "sigma_mm": 0.001, "evaluate": True}}, headers=OP)
@@ -70,15 +78,7 @@ def test_registration_puts_the_print_on_the_part_where_it_really_sits(client, me
     nominal_stl = meshes[0]
     true_stl = as_made(seed=11, amplitude_mm=0.15, placement=PartPlacement()).mesh(grid_mm=0.3).export(
         file_type="stl")  # as made, in the part frame: the mock applies the placement
-    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal_stl)}, headers=OP).json()
-    real = client.post("/api/v1/parts", files={"file": ("s1-as-made.stl", true_stl)}, headers=OP).json()
-    refs = [s1_traces()[i] for i in TRACES]
-    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=[t.to_api() for t in refs],
-                         headers=OP).json()["items"]
-    machine = client.post("/api/v1/machines", json={
-        "name": "placed", "port": "mock://", "dialect": "marlin",
-        "mock": {"true_part_id": real["id"], "placement": PLACED, "probe_noise_mm": 0.001,
-                 "faults": {"seed": 7}}}, headers=OP).json()
+    part, traces, machine = _mock_setup(client, nominal_stl, true_stl, "placed", PLACED, seed=7)
     base = {"part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"],
             "probe": {"method": "deviation"}, "sigma_mm": 0.001, "evaluate": True}
     runs = {}

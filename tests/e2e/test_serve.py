@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -15,15 +14,11 @@ import httpx
 import pytest
 import trimesh
 
+from tests.processes import free_port, stop, wait_healthy
+
 ROOT = Path(__file__).resolve().parents[2]
 CONFORMA = [sys.executable, "-m", "app.cli"]
 ADMIN = "e2e-admin-key-1"
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def env_for(data_dir: Path, **extra: str) -> dict[str, str]:
@@ -37,30 +32,6 @@ def start(args: list[str], env: dict[str, str], log: Path | None = None) -> subp
     out = open(log, "a") if log is not None else subprocess.PIPE  # noqa: SIM115 (closed with the process)
     return subprocess.Popen(CONFORMA + args, env=env, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
-
-
-def wait_healthy(url: str, proc: subprocess.Popen, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise AssertionError(f"server exited: {proc.stdout.read()}")
-        try:
-            if httpx.get(f"{url}/api/v1/health", timeout=1).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.1)
-    raise AssertionError("server did not become healthy")
-
-
-def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM) -> None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, sig)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
 
 
 def test_first_start_prints_url_and_a_working_operator_key(tmp_path):

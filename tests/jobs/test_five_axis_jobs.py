@@ -9,7 +9,6 @@ workpiece p -> machine m = Rx(A) Rz(C) (p - pivot) + pivot.
 from __future__ import annotations
 
 import json
-import re
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ import trimesh
 from app.geometry.nurbs_surface import NurbsSurface
 from hardware.protocol import commands_sha256
 from tests.conftest import auth
+from tests.gcode_words import g1_rows
 from tests.jobs.test_jobs_api import wait_for
 
 OP = auth("operator")
@@ -27,7 +27,6 @@ HALF = 20.0  # the part covers [-20, 20]^2
 H = 0.5  # standoff, mm
 PIVOT = [5.0, -3.0, -20.0]
 ARC = {"type": "arc", "center": [2.0, 1.0], "radius": 11.0, "start_deg": -30.0, "end_deg": 250.0}
-_WORD = re.compile(r"([XYZACF])(-?\d+(?:\.\d+)?)")
 
 
 def sphere_z(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -80,16 +79,6 @@ def artifact(client, job: dict, name: str):
     assert response.status_code == 200
     assert response.headers["content-type"].startswith(entry["media_type"])
     return entry, response
-
-
-def g1_rows(text: str) -> np.ndarray:
-    """(k, 6) X Y Z A C F of the G1 lines; A, C NaN where absent."""
-    rows = []
-    for line in text.splitlines():
-        if line.startswith("G1 "):
-            words = dict(_WORD.findall(line))
-            rows.append([float(words.get(k, "nan")) for k in "XYZACF"])
-    return np.array(rows)
 
 
 def workpiece_frames(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

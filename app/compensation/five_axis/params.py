@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from app.checks import require_positive
 from app.compensation.five_axis.contact import NormalSide, NormalSource
 from app.compensation.five_axis.errors import FiveAxisError
 from app.compensation.five_axis.kinematics import MachineConfig
@@ -71,11 +72,7 @@ class FiveAxisParams:
     def __post_init__(self) -> None:
         positive = ("standoff_mm", "feed_mm_min", "servo_period_s", "segment_mm",
                     "on_surface_tol_mm", "approach_feed_mm_min", "midpoint_tol_mm")
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise FiveAxisError(f"{name} must be a positive finite number",
-                                    field=f"params.{name}", value=value)
+        require_positive(self, positive, FiveAxisError, prefix="params.")
         if not (0 <= self.pole_window_deg <= _MAX_POLE_WINDOW_DEG):
             raise FiveAxisError(f"pole_window_deg must be in [0, {_MAX_POLE_WINDOW_DEG:g}]",
                                 field="params.pole_window_deg", value=self.pole_window_deg)

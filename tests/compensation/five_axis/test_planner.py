@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 import pytest
 
@@ -23,20 +21,10 @@ from app.compensation.five_axis.trace import trace_over_xy
 from app.geometry.fitting import fit_surface
 from app.geometry.nurbs_surface import NurbsSurface
 from tests.compensation.five_axis.conftest import SPHERE_R
+from tests.gcode_words import g1_rows
 
 H = 0.5
 PIVOT = (5.0, -3.0, -20.0)
-_WORD = re.compile(r"([XYZACF])(-?\d+(?:\.\d+)?)")
-
-
-def _parse_g1(text: str) -> np.ndarray:
-    """(k, 6) X Y Z A C F of every G1 line (the approach line first)."""
-    rows = []
-    for line in text.splitlines():
-        if line.startswith("G1 "):
-            words = dict(_WORD.findall(line))
-            rows.append([float(words.get(k, "nan")) for k in "XYZACF"])
-    return np.array(rows)
 
 
 def _ellipse_xy(cx: float, cy: float, ax: float, by: float, n: int = 40) -> np.ndarray:
@@ -45,7 +33,7 @@ def _ellipse_xy(cx: float, cy: float, ax: float, by: float, n: int = 40) -> np.n
 
 
 def _check_program(surface: NurbsSurface, text: str, h: float, pivot: tuple) -> np.ndarray:
-    rows = _parse_g1(text)
+    rows = g1_rows(text)
     xyz, a, c = rows[:, :3], np.radians(rows[:, 3]), np.radians(rows[:, 4])
     tips_wp = machine_to_workpiece(xyz, a, c, np.array(pivot))
     inv = surface.invert(tips_wp)
@@ -82,7 +70,7 @@ def test_program_brings_normal_to_z_at_standoff(sphere: NurbsSurface) -> None:
     assert path.feed.max_rel < 1e-3
     assert path.feed.max_rel < 0.2 * path.feed_first_order.max_rel
     # the nominal program is 3-axis, h above the contact points, but tilted from the normal
-    nominal = _parse_g1(path.nominal_program)
+    nominal = g1_rows(path.nominal_program)
     assert np.isnan(nominal[:, 3]).all()
     assert path.nominal_max_normal_error_deg > 10.0
     assert path.nominal_max_standoff_error_mm > 0.01
@@ -180,7 +168,7 @@ def _line_over_apex(offset_mm: float, angle_deg: float = 30.0, half: float = 15.
 
 def _midpoint_tips(text: str, pivot: tuple) -> np.ndarray:
     """Workpiece tip (m,3) halfway through every move: all five axes move linearly."""
-    rows = _parse_g1(text)
+    rows = g1_rows(text)
     mid = 0.5 * (rows[1:] + rows[:-1])
     return machine_to_workpiece(mid[:, :3], np.radians(mid[:, 3]), np.radians(mid[:, 4]),
                                 np.array(pivot))
@@ -211,7 +199,7 @@ def test_straight_trace_over_the_apex_keeps_the_tip_on_the_path(
     params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, servo_period_s=0.002,
                             segment_mm=0.5, pivot_mm=PIVOT, pole_window_deg=0.5)  # the wide window
     path = plan_five_axis(surface, trace_over_xy(surface, xy), params)
-    rows = _parse_g1(path.program)
+    rows = g1_rows(path.program)
     inv = surface.invert(_midpoint_tips(path.program, PIVOT))
     assert np.abs(inv.distance - H).max() < 0.01
     assert np.abs(inv.closest[:, :2] @ across - offset_mm).max() < 0.01
@@ -249,7 +237,7 @@ def test_exact_normals_beside_the_apex_are_kept_by_splitting_lines(sphere: Nurbs
     windowed = plan_five_axis(sphere, trace, FiveAxisParams(**{**base, "pole_window_deg": 0.5}))
     assert path.max_c_speed_deg_s > 5 * windowed.max_c_speed_deg_s
     # inverse-time F still adds up to the print time
-    f = _parse_g1(path.program)[1:, 5]
+    f = g1_rows(path.program)[1:, 5]
     assert (1.0 / f).sum() * 60.0 == pytest.approx(path.duration_s, rel=1e-3)
     summary = path.summary()
     assert summary["split_lines"] == path.split_lines and summary["pole_lines"] == 0

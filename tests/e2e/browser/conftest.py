@@ -6,17 +6,16 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
-import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
 import pytest
+
+from tests.processes import free_port, stop, wait_healthy
 
 ROOT = Path(__file__).resolve().parents[3]
 # Test runs write screenshots as test artifacts; `make screenshots` copies them to
@@ -46,12 +45,6 @@ def pytest_collection_modifyitems(items):  # type: ignore[no-untyped-def]
                 item.add_marker(pytest.mark.skip(reason=reason))
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 @dataclass(frozen=True)
 class Served:
     base: str
@@ -74,29 +67,12 @@ def served(tmp_path_factory) -> Iterator[Served]:  # type: ignore[no-untyped-def
                              str(viewer_port)], env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
                             start_new_session=True)
     base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60
     try:
-        while True:
-            if proc.poll() is not None:
-                raise AssertionError(f"conforma serve exited: {(data / 'serve.log').read_text()[-2000:]}")
-            try:
-                if httpx.get(f"{base}/api/v1/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline:
-                raise AssertionError("conforma serve did not become healthy")
-            time.sleep(0.1)
+        wait_healthy(base, proc, log=data / "serve.log")
         info = httpx.get(f"{base}/api/v1/viewer", headers={"Authorization": f"Bearer {KEY}"}).json()
         yield Served(base, KEY, int(info["port"]))
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+        stop(proc)
         log.close()
 
 
