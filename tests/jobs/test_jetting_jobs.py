@@ -195,6 +195,30 @@ def test_next_layer_fills_a_measured_trench(client):
     assert density_left > 0.9 and density_right < 0.1, (density_left, density_right)
 
 
+def test_next_layer_from_an_uploaded_height_map_equals_the_inline_one(client):
+    """The printer uploads its sensor's map (NPZ, heights (L, W) mm) as a file: same pattern
+    as sending it inline; a file of the wrong type or grid is refused."""
+    grid = small_target()
+    layer_um = 1e3 * DROP_MM3 / grid.pitch_mm**2
+    heights_um = np.where(grid.mask, 5 * 0.8 * layer_um, 0.0)
+    buffer = io.BytesIO()
+    np.savez(buffer, heights=heights_um / 1e3)
+    upload = client.post("/api/v1/files", files={"file": ("sensor.npz", buffer.getvalue())}, headers=OP).json()
+    base = {"dpi": 150, "target": {"size_mm": 5, "hole_mm": 2}, "layer": 4}
+    from_file = run_job(client, "jetting_next_layer", {**base, "measured": {"file_id": upload["id"]}})
+    inline = run_job(client, "jetting_next_layer", {**base, "measured": {"heights_um": heights_um.tolist()}})
+    assert sha(from_file, "next_pattern.npz") == sha(inline, "next_pattern.npz")
+    csv = client.post("/api/v1/files", files={"file": ("points.csv", b"x,y\n1,2\n")}, headers=OP).json()
+    refused = submit(client, "jetting_next_layer", {**base, "measured": {"file_id": csv["id"]}})
+    assert refused.status_code == 422 and error_field(refused) == "params.measured.file_id"
+    buffer = io.BytesIO()
+    np.savez(buffer, heights=np.zeros((3, 4)))
+    wrong = client.post("/api/v1/files", files={"file": ("small.npz", buffer.getvalue())}, headers=OP).json()
+    failed = submit(client, "jetting_next_layer", {**base, "measured": {"file_id": wrong["id"]}}).json()
+    done = wait_for(client, failed["id"])
+    assert done["status"] == "failed" and "does not match" in done["error"]["detail"]
+
+
 def _black_png() -> str:
     return png_b64(np.zeros((20, 20), dtype=bool))
 

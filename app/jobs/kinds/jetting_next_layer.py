@@ -37,6 +37,7 @@ from app.jobs.kinds.jetting import (
     target_of,
     target_references,
 )
+from app.models import UploadedFile
 from app.jobs.registry import job_kind
 
 MAX_INLINE_CELLS_PER_AXIS = 512
@@ -55,6 +56,8 @@ class MeasuredSource(StrictModel):
         description="inline (L, W) heights, um, on the target's print grid (row i, column j = pixel "
         "(i, j) of the pattern PNGs; the grid is the target's bounding box plus the margin)")
     job_id: str | None = Field(None, description="a succeeded job with a heights NPZ (a jetting job)")
+    file_id: str | None = Field(None, description="an uploaded NPZ (POST /api/v1/files) from the printer's "
+                                "height sensor: array heights (L, W) mm, or heights (k, L, W) with layers (k,)")
     artifact: str | None = Field(None, min_length=1, max_length=200, description="that job's NPZ with "
                                  f"arrays heights (k, L, W) mm and layers (k,) (default {HEIGHTS_NPZ})")
     layer: int | None = Field(None, ge=0, le=1_000_000,
@@ -62,8 +65,10 @@ class MeasuredSource(StrictModel):
 
     @model_validator(mode="after")
     def _one_source(self) -> MeasuredSource:
-        if (self.job_id is None) == (self.heights_um is None):
-            raise ValueError("give exactly one of heights_um or job_id")
+        if sum(v is not None for v in (self.heights_um, self.job_id, self.file_id)) != 1:
+            raise ValueError("give exactly one of heights_um, job_id or file_id")
+        if self.file_id is not None and self.artifact is not None:
+            raise ValueError("artifact selects a job's NPZ; not with file_id")
         if self.heights_um is not None:
             if self.layer is not None or self.artifact is not None:
                 raise ValueError("layer and artifact select a stored NPZ; not with heights_um")
@@ -90,7 +95,7 @@ class NextLayerParams(PrintModelParams):
         "(default: fill on every part cell)")
 
 
-def _references(params: NextLayerParams) -> list[tuple[str, str]]:
+def _references(params: NextLayerParams) -> list[tuple[str, str]]:  # uploaded files are not deletable records
     refs = target_references(params.target)
     refs += [("job", params.measured.job_id)] if params.measured.job_id else []
     refs += [("job", params.previous_pattern.job_id)] if params.previous_pattern else []
@@ -110,6 +115,12 @@ def _check(params: NextLayerParams, session: Session) -> None:
         got = [len(measured.heights_um), len(measured.heights_um[0])]
         if grid is not None and tuple(got) != grid:
             raise _mismatch("params.measured.heights_um", got, grid)
+    elif measured.file_id is not None:
+        upload = session.get(UploadedFile, measured.file_id)
+        if upload is None or upload.media_type != NPZ_MEDIA_TYPE:
+            state = "does not exist" if upload is None else f"is {upload.media_type}"
+            raise JettingError(f"params.measured.file_id: file {measured.file_id!r} {state}; an NPZ is needed",
+                               field="params.measured.file_id", value=measured.file_id)
     else:
         row = stored_artifact(session, measured.job_id or "", measured.npz_name, "params.measured", NPZ_MEDIA_TYPE)
         shape = row.meta.get("arrays", {}).get("heights")
@@ -134,7 +145,12 @@ def measured_heights_mm(ctx: JobContext, measured: MeasuredSource) -> tuple[np.n
     """(L, W) measured heights, mm, and the snapshot's layer (None for inline maps)."""
     if measured.heights_um is not None:
         return np.asarray(measured.heights_um, dtype=float) / UM_PER_MM, None
-    arrays = npz_arrays(ctx.artifact_bytes(measured.job_id or "", measured.npz_name))
+    if measured.file_id is not None:
+        arrays = npz_arrays(ctx.file_bytes(measured.file_id, field="params.measured.file_id"))
+        if arrays.get("heights") is not None and arrays["heights"].ndim == 2:
+            return np.asarray(arrays["heights"], dtype=float), None
+    else:
+        arrays = npz_arrays(ctx.artifact_bytes(measured.job_id or "", measured.npz_name))
     heights, layers = arrays.get("heights"), arrays.get("layers")
     if heights is None or layers is None or heights.ndim != 3 or layers.shape != (len(heights),):
         raise JettingError("params.measured: the NPZ needs heights (k, L, W) and layers (k,)",
@@ -149,6 +165,8 @@ def run(ctx: JobContext, params: NextLayerParams) -> dict:
     core = params.core()
     target = target_of(params.target, core, lambda job_id, name: ctx.artifact_bytes(job_id, name))
     heights_mm, snapshot = measured_heights_mm(ctx, params.measured)
+    if heights_mm.shape != target.shape:
+        raise _mismatch("params.measured", list(heights_mm.shape), target.shape)
     previous = None
     if params.previous_pattern is not None:
         previous = png_pattern(ctx.artifact_bytes(params.previous_pattern.job_id, params.previous_pattern.artifact))
