@@ -147,6 +147,7 @@ class Runtime:
                 elif isinstance(record, Trace):
                     hashes[f"trace:{ref_id}"] = _canonical_hash([record.geometry, record.frame, record.standoff_mm])
             if kind.check is not None:
+                session.info["parent_id"] = parent_id  # checks may need to know whose child this is
                 kind.check(validated, session)
             job = Job(
                 id=new_id("job"), kind=kind.name, params=validated.model_dump(mode="json"),

@@ -121,3 +121,19 @@ def test_closed_loop_cancel_stops_it_and_a_retried_loop_reuses_finished_children
     assert again["status"] == "succeeded" and again["attempts"] == 2
     assert client.get(f"/api/v1/jobs?parent_id={first['id']}", headers=OP).json()["total"] == before
     assert again["result"]["traces"] == first["result"]["traces"]
+
+
+def test_a_running_loop_holds_its_machine_against_other_programs(client, setup):
+    part, real, trace = setup
+    slow = machine(client, true_part_id=real["id"], time_scale=1.0)
+    loop = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        "part_id": part["id"], "trace_ids": [trace["id"]], "machine_id": slow["id"]}}, headers=OP).json()
+    wait_for(client, loop["id"], states=("running",))
+    program = client.post("/api/v1/programs", files={"file": ("p.gcode", b"G21\nG90\nG0 X1\n")}, headers=OP).json()
+    refused = client.post(f"/api/v1/machines/{slow['id']}/print", json={"program_id": program["id"]}, headers=OP)
+    assert refused.status_code == 409 and "closed_loop" in refused.json()["detail"]
+    client.post(f"/api/v1/jobs/{loop['id']}/cancel", headers=OP)
+    assert wait_for(client, loop["id"])["status"] == "cancelled"
+    allowed = client.post(f"/api/v1/machines/{slow['id']}/print", json={"program_id": program["id"]}, headers=OP)
+    assert allowed.status_code == 202
+    assert wait_for(client, allowed.json()["id"])["status"] == "succeeded"
