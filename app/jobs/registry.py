@@ -5,7 +5,8 @@ before anything is queued), the function that runs it, the queue it belongs on
 (``"machine"`` for jobs that own a serial port), and what stored records it reads (so
 that those cannot be deleted from under it).  An optional ``check(params, session)``
 runs content checks that need stored records (e.g. measured points against the trace)
-at submission, so that bad input is a 422 then and never a failed job later.
+at submission, so that bad input is a 422 then and never a failed job later; the session's
+``info`` carries ``parent_id`` (of a child job) and ``read_blob(sha256) -> bytes``.
 
 Example (a module in ``app/jobs/kinds/``)::
 

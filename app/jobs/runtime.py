@@ -148,6 +148,7 @@ class Runtime:
                     hashes[f"trace:{ref_id}"] = _canonical_hash([record.geometry, record.frame, record.standoff_mm])
             if kind.check is not None:
                 session.info["parent_id"] = parent_id  # checks may need to know whose child this is
+                session.info["read_blob"] = self.blobs.read  # ...and to read stored files
                 kind.check(validated, session)
             job = Job(
                 id=new_id("job"), kind=kind.name, params=validated.model_dump(mode="json"),

@@ -132,6 +132,12 @@ def test_mask_artifact_of_a_previous_job_reproduces_its_run(client):
     assert sha(masked, "patterns.npz") == sha(square, "patterns.npz")
     inline = run_job(client, "jetting", {**params, "target": {"mask": {"png_base64": png_b64(small_target().mask)}}})
     assert sha(inline, "heights.npz") == sha(square, "heights.npz")
+    # the stored mask is read and checked at submission: a drop larger than that part is a 422 now,
+    # not a failed job later
+    too_big = submit(client, "jetting", {**params, "drop_diameter_um": 5000, "target": {
+        "mask": {"job_id": square["id"], "artifact": "pattern_0001.png"}}})
+    assert too_big.status_code == 422, too_big.text
+    assert error_field(too_big) == "params.drop_diameter_um"
 
 
 def test_slice_layer_target_matches_the_same_parametric_square(client):

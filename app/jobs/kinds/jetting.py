@@ -307,10 +307,11 @@ def stored_artifact(session: Session, job_id: str, name: str, field: str, media_
 
 
 def check_target(spec: TargetParams, core: JettingParams, session: Session) -> tuple[int, int] | None:
-    """Submission-time checks of the target that need no artifact bytes: the grid's
-    memory need, the mask artifact's type and (when its meta says) that it has part
-    cells, the slice layer's existence and the sliced part's extent.  Returns the grid
-    shape when it is known now (parametric and inline targets are built and validated)."""
+    """Submission-time checks of the target: the grid's memory need, the mask artifact's
+    type and part cells, the slice layer's existence and the sliced part's extent; when the
+    session can read stored files (as it can at submission), the target is built and fully
+    validated now.  Returns the grid shape when it is known."""
+    reader = _stored_reader(session)
     if spec.mask is not None and spec.mask.job_id is not None:
         row = stored_artifact(session, spec.mask.job_id, spec.mask.artifact or "", "params.target.mask", "image/png")
         if row.meta.get("drops") == 0:
@@ -320,7 +321,7 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
             drop = core.drop
             pad = 2 * (math.ceil(core.margin_mm / drop.pitch_mm) + math.ceil(drop.radius_mm / drop.pitch_mm) + 3)
             check_grid((int(row.meta["shape"][0]) + pad, int(row.meta["shape"][1]) + pad), core)
-        return None
+        return target_of(spec, core, reader).shape if reader is not None else None
     if spec.slice is not None:
         job = _succeeded_job(session, spec.slice.slice_job_id, "params.target.slice.slice_job_id", "slice")
         count = int((job.result or {}).get("layer_count", 0))
@@ -332,8 +333,22 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
             extent = np.ptp(np.asarray(part.bounds, dtype=float)[:, :2], axis=0) + 2 * core.margin_mm
             cells = [math.ceil(e / core.drop.pitch_mm) + 1 for e in extent]
             check_grid((cells[0], cells[1]), core)
-        return None
+        return target_of(spec, core, reader).shape if reader is not None else None
     return target_of(spec, core, _no_reader).shape  # parametric or inline mask: built now
+
+
+def _stored_reader(session: Session) -> ArtifactReader | None:
+    """Reads a stored artifact's bytes during a submission check (the runtime puts a blob
+    reader in ``session.info``), so stored masks and slices are fully checked up front."""
+    read_blob = session.info.get("read_blob")
+    if read_blob is None:
+        return None
+
+    def read(job_id: str, name: str) -> bytes:
+        row = session.query(Artifact).filter(Artifact.job_id == job_id, Artifact.name == name).one()
+        return read_blob(row.sha256)
+
+    return read
 
 
 def _no_reader(job_id: str, name: str) -> bytes:  # parametric and inline targets read no artifacts
