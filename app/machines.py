@@ -14,8 +14,7 @@ from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
 
-from hardware.errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineBusy,
-                             MachineStateError, ProbeFailed, ProtocolError)
+from hardware.errors import HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
 from hardware.machine import Machine, MachineProfile
 from hardware.mock import FaultConfig, MockWorld, Placement, register_world, unregister_world
 
@@ -54,9 +53,7 @@ def translate(exc: HardwareError) -> ConformaError:
         kind = ProbeMissed
     elif isinstance(exc, LinkError):
         kind = MachineUnavailable
-    elif isinstance(exc, (FirmwareError, ProtocolError)):
-        kind = MachineFault
-    else:
+    else:  # FirmwareError, ProtocolError and anything else the firmware side raised
         kind = MachineFault
     return kind(str(exc), field=field, value=value)
 

@@ -15,7 +15,7 @@ from sqlmodel import Session
 
 from app.errors import Cancelled, ConformaError
 from app.jobs.store import Claim
-from app.models import TERMINAL_STATES, Job, Machine, Part, Trace
+from app.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile
 from app.records import add_artifact, get_or_404
 
 if TYPE_CHECKING:
@@ -80,8 +80,6 @@ class JobContext:
         return job
 
     def artifact_bytes(self, job_id: str, name: str) -> bytes:
-        from app.models import Artifact
-
         with self.session() as session:
             row = session.query(Artifact).filter(Artifact.job_id == job_id, Artifact.name == name).one_or_none()
         if row is None:
@@ -90,8 +88,6 @@ class JobContext:
 
     def file_bytes(self, file_id: str, field: str = "file_id") -> bytes:
         """The content of an uploaded file (``POST /api/v1/files``)."""
-        from app.models import UploadedFile
-
         with self.session() as session:
             row = get_or_404(session, UploadedFile, file_id, field=field)
         return self.runtime.blobs.read(row.sha256)

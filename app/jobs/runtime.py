@@ -181,10 +181,8 @@ class Runtime:
             self.store.finish(claim, "failed", error=problem(422, "Unknown job kind", f"no worker kind {claim.kind!r}"))
             return
         ctx = JobContext(self, claim)
-        beat = threading.Thread(target=self._heartbeat, args=(ctx,), daemon=True, name=f"lease-{job_id}")
         done = threading.Event()
-        beat.done = done  # type: ignore[attr-defined]
-        beat.start()
+        threading.Thread(target=self._heartbeat, args=(ctx, done), daemon=True, name=f"lease-{job_id}").start()
         try:
             params = kind.params.model_validate(claim.params)
             result = kind.run(ctx, params)
@@ -199,8 +197,8 @@ class Runtime:
         finally:
             done.set()
 
-    def _heartbeat(self, ctx: JobContext) -> None:
-        done: threading.Event = threading.current_thread().done  # type: ignore[attr-defined]
+    def _heartbeat(self, ctx: JobContext, done: threading.Event) -> None:
+        """Renew the lease every third of it until ``done``; note cancel requests and a lost lease."""
         while not done.wait(self.settings.lease_s / 3):
             answer = self.store.heartbeat(ctx.claim)
             if answer is None:
