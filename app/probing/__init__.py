@@ -2,6 +2,7 @@
 
 from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, PriorError, Sites,
                                          fit_posterior, path_sites)
+from app.probing.joint import plan_joint
 from app.probing.nominal import NominalPath, NominalTraceError, as_nominal_path
 from app.probing.point_count import PointCount, PointCountError, seed_point_count
 from app.probing.program import (ProbeProgram, ProbeProgramParams, ProbeRecord,
@@ -14,5 +15,5 @@ __all__ = [
     "NominalPath", "NominalTraceError", "as_nominal_path", "PointCount", "PointCountError",
     "seed_point_count", "ProbeProgram", "ProbeProgramParams", "ProbeRecord",
     "build_probe_program", "segment_top_max", "METHODS", "PlanError", "PlanParams",
-    "ProbePlan", "chord_height_select", "plan_probes",
+    "ProbePlan", "chord_height_select", "plan_probes", "plan_joint",
 ]

@@ -34,7 +34,9 @@ Methods (``plan_probes(nominal, method, params)``):
 
 Which one: reproduce the paper -> "adaptive"; nothing known about the part ->
 "uniform"; CAD nominal known, few probes wanted -> "kriging" (or "deviation" when the
-nominal has no normals and a plain spline model is preferred).
+nominal has no normals and a plain spline model is preferred); several traces of one part
+probed in one session -> :func:`app.probing.joint.plan_joint` (kriging over all of them
+together: the fewest probes of all, see tests/bench/test_bench_probing.py).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
@@ -263,12 +266,13 @@ def plan_probes(nominal: Any, method: str = "adaptive",
 
 
 def _kriging_plan(path: NominalPath, params: PlanParams) -> ProbePlan:
-    grid = design_grid(path, params.prior())
-    if params.count is not None:
-        count = int(params.count)
-    else:
-        count = auto_count(grid, params.target_error_mm, params.coverage, params.min_count)
-    design = design_stations(grid, count)
+    with threadpool_limits(limits=1, user_api="blas"):  # many small solves: one thread is faster
+        grid = design_grid(path, params.prior())
+        if params.count is not None:
+            count = int(params.count)
+        else:
+            count = auto_count(grid, params.target_error_mm, params.coverage, params.min_count)
+        design = design_stations(grid, count)
     s = design.s_mm
     sd = None if math.isnan(design.max_sd_mm) else design.max_sd_mm
     return ProbePlan("kriging", s, path.at(s), path.normals_at(s), predicted_sd_mm=sd)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any, Callable
 
 import numpy as np
@@ -37,6 +38,7 @@ from app.geometry.fitting import interpolate_curve, smooth_curve
 from app.geometry.nurbs import NurbsCurve
 from app.probing.deviation_prior import (DeviationPrior, Sites, fit_posterior, path_center,
                                          path_gradient, path_sites)
+from app.probing.joint import joint_center
 from app.probing.nominal import NominalPath, as_nominal_path
 from app.probing.selection import chord_height_select
 from app.reconstruction.preprocess import (CleanPoints, PreprocessParams, ReconstructionError,
@@ -128,12 +130,18 @@ def _curve_height(curve: NurbsCurve, path: NominalPath) -> Callable[[np.ndarray]
 
 def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
                 sigma_mm: float | None = None,
-                params: ReconstructParams | None = None) -> Reconstruction:
+                params: ReconstructParams | None = None,
+                context: Sequence[tuple[Any, Any]] = ()) -> Reconstruction:
     """Reconstruct the real trace from measured probe points.
 
     nominal: NominalPath / NominalTrace-like / (k, 3) dense nominal polyline (mm).
     measured: (m, 3) probe results (mm), any order.  method: "interpolate" (seed),
-    "approximate" or "deviation".  sigma_mm overrides ``params.preprocess.sigma_mm``.
+    "approximate", "deviation" or "kriging".  sigma_mm overrides
+    ``params.preprocess.sigma_mm``.  context ("kriging" only): (nominal, measured) pairs
+    of OTHER traces of the same part, in the same frame; their probes (cleaned against
+    their own nominals) join this trace's in one posterior over the part (see
+    :func:`app.probing.joint.plan_joint`).  The result's samples and statistics stay this
+    trace's own.
     Raises ReconstructionError (422) for bad input (NaN, too few points, off-trace).
     """
     params = params or ReconstructParams()
@@ -145,8 +153,12 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
         if not (math.isfinite(sigma_mm) and sigma_mm >= 0):
             raise ReconstructionError("sigma_mm must be >= 0", field="sigma_mm", value=sigma_mm)
         pre = PreprocessParams(**{**pre.__dict__, "sigma_mm": float(sigma_mm)})
+    if context and method != "kriging":
+        raise ReconstructionError("probes of other traces (context) are only used by the kriging "
+                                  "method", field="context", value=len(context))
     path = as_nominal_path(nominal)
     clean = preprocess(path, measured, pre)
+    neighbours = [_context_trace(i, other, points, pre) for i, (other, points) in enumerate(context)]
     need = params.degree + 1
     if len(clean.s) < need:
         raise ReconstructionError(
@@ -157,7 +169,7 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
         if method == "deviation":
             curve, height = _deviation_model(path, clean, pre.sigma_mm, params)
         elif method == "kriging":
-            curve, height = _kriging_model(path, clean, pre.sigma_mm, params)
+            curve, height = _kriging_model(path, clean, pre.sigma_mm, params, neighbours)
         else:
             if method == "interpolate" or pre.sigma_mm <= 0:
                 curve = interpolate_curve(clean.points, params.degree)
@@ -186,11 +198,23 @@ def _deviation_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
     return _result_curve(path, height, params), height
 
 
+def _context_trace(index: int, nominal: Any, measured: Any,
+                   pre: PreprocessParams) -> tuple[NominalPath, CleanPoints]:
+    """Another trace's nominal and cleaned probes, errors named ``context[index]...``."""
+    path = as_nominal_path(nominal, field=f"context[{index}].nominal")
+    return path, preprocess(path, measured, pre, field=f"context[{index}].points")
+
+
 def _kriging_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
-                   params: ReconstructParams):
+                   params: ReconstructParams,
+                   neighbours: Sequence[tuple[NominalPath, CleanPoints]] = ()):
     prior = DeviationPrior(**{**params.prior.__dict__, "sigma_mm": float(sigma_mm)})
-    probes = Sites(clean.points[:, :2], path_gradient(path, clean.s))
-    posterior = fit_posterior(prior, probes, clean.dz, center=path_center(path))
+    traces = [(path, clean), *neighbours]
+    probes = Sites(np.concatenate([c.points[:, :2] for _, c in traces]),
+                   np.concatenate([path_gradient(p, c.s) for p, c in traces]))
+    center = joint_center([p for p, _ in traces]) if neighbours else path_center(path)
+    posterior = fit_posterior(prior, probes, np.concatenate([c.dz for _, c in traces]),
+                              center=center)
 
     def height(s: np.ndarray) -> np.ndarray:
         return path.z_at(s) + posterior.mean(path_sites(path, s))
