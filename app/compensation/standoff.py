@@ -20,7 +20,8 @@ plus the smooth deviation d(s) = tip_z - z_nom(s) in Z, so it leaves the chord o
 samples h apart by at most max|d''| h^2 / 8 (d'' from divided differences, times
 ``curvature_safety``).
 
-Policy outside the probed span (before the first / after the last kept probe): REFUSED
+Policy outside the probed span (the reconstruction's ``span_mm``: the first to the last
+kept probe; a kriging model's reaches a quarter wavelength further): REFUSED
 with :class:`OutsideProbedSpanError` (422, naming trace extent and probed extent) unless
 the gap is within ``span_tolerance_mm`` or ``hold_mm`` allows it; then, and only then,
 the deviation measured at the span's end is held constant over the gap (the tip follows
@@ -165,9 +166,8 @@ class CompensatedPath:
 
 def _span(reconstruction: Any, params: CompensationParams) -> tuple[float, float, float, float]:
     """(s0, s1) probed span and (before, after) gaps after applying the span policy."""
-    s_kept = np.asarray(reconstruction.clean.s, dtype=float)
     length = float(reconstruction.nominal.length_mm)
-    s0, s1 = float(s_kept[0]), float(s_kept[-1])
+    s0, s1 = (float(v) for v in reconstruction.span_mm)
     before, after = max(s0, 0.0), max(length - s1, 0.0)
     allowed = max(params.span_tolerance_mm, params.hold_mm)
     if before > allowed or after > allowed:
@@ -252,8 +252,8 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
                      job_id: str | None = None) -> CompensatedPath:
     """Print path at ``params.standoff_mm`` above the reconstructed real surface.
 
-    reconstruction: a Reconstruction (``.nominal`` NominalPath, ``.clean.s`` kept probe
-    stations, ``.height_at_s``, ``.method``).  Returns a :class:`CompensatedPath` with the
+    reconstruction: a Reconstruction (``.nominal`` NominalPath, ``.span_mm`` the stretch its
+    heights stand for, ``.height_at_s``, ``.method``).  Returns a :class:`CompensatedPath` with the
     compensated and nominal G-code.  Raises OutsideProbedSpanError when the trace leaves
     the probed span beyond the policy, CompensationError for a reconstruction departing
     more than ``max_deviation_mm`` from the nominal or with non-finite heights.

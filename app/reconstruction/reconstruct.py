@@ -71,6 +71,11 @@ class Reconstruction:
     method: name.  curve: NurbsCurve (3-D, mm) of the real trace.  clean: the preprocessed
     measurement.  samples: (n, 2) [s_mm, dz_mm] measured minus nominal at each kept point.
     max_mm / rms_mm: max |dz| and rms dz of the samples.
+    span_mm: (s0, s1) the stretch of the trace the model's heights stand for: the kept
+    probes' span; for "kriging" that span widened by a quarter of the prior's shortest
+    wavelength on each side (within the trace) — a band-limited deviation cannot turn
+    within lambda / 4, and the posterior there is conditioned on the part's probes (the
+    probing bench measures the error over the whole trace).
     """
 
     method: str
@@ -81,6 +86,7 @@ class Reconstruction:
     rms_mm: float
     nominal: NominalPath
     _height_s: Callable[[np.ndarray], np.ndarray]
+    span_mm: tuple[float, float] = (0.0, 0.0)
 
     def height_at_s(self, s: Any) -> np.ndarray:
         """Real surface height (m,) mm along the trace at nominal arc lengths ``s`` (m,)."""
@@ -180,10 +186,12 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
         raise ReconstructionError(f"reconstruction failed: {exc.message}", field="points",
                                   value=exc.value) from exc
     samples = np.stack([clean.s, clean.dz], axis=1)
+    reach = params.prior.wavelength_mm / 4.0 if method == "kriging" else 0.0
+    span = (max(0.0, float(clean.s[0]) - reach), min(path.length_mm, float(clean.s[-1]) + reach))
     return Reconstruction(method=method, curve=curve, clean=clean, samples=samples,
                           max_mm=float(np.max(np.abs(clean.dz))),
                           rms_mm=float(np.sqrt(np.mean(clean.dz ** 2))),
-                          nominal=path, _height_s=height)
+                          nominal=path, _height_s=height, span_mm=span)
 
 
 def _deviation_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,

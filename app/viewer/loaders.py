@@ -11,7 +11,7 @@ import io
 import json
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from sqlmodel import Session, select
@@ -36,6 +36,16 @@ from app.viewer.scene_data import (
 from app.viewer.trace_math import project_onto_polyline, rings_to_segments
 
 CURVE_SAMPLES = 400
+
+
+class TraceRange(NamedTuple):
+    """One trace's points [first, stop) of a joint probe plan / run."""
+
+    trace_id: str
+    trace: Trace | None
+    name: str
+    first: int
+    stop: int
 
 
 class Loader:
@@ -132,8 +142,37 @@ class Loader:
         lines = (Polyline(trace.name, np.asarray(trace.nominal["points"], float)),) if trace else ()
         return FocusScene({}, "", polylines=lines + tuple(parts.pop("polylines", ())), **parts)
 
+    def _joint_ranges(self, session: Session, plan: Job | None) -> list[TraceRange] | None:
+        """Each trace's range of the points of a joint probe plan (``trace_ids``); None otherwise."""
+        if plan is None or not (plan.params or {}).get("trace_ids"):
+            return None
+        out = []
+        for entry in (plan.result or {}).get("traces", []):
+            trace = self._trace(session, entry["trace_id"])
+            out.append(TraceRange(entry["trace_id"], trace, trace.name if trace else entry["trace_id"],
+                                  entry["first"], entry["first"] + entry["count"]))
+        return out
+
+    def _joint_scene(self, ranges: list[TraceRange], planned: np.ndarray,
+                     measured: np.ndarray | None) -> FocusScene:
+        """Every trace of a joint plan / run: its nominal and its own probes (and deviations)."""
+        lines, probes, plots = [], [], []
+        for _, trace, name, lo, hi in ranges:
+            if trace is not None:
+                lines.append(Polyline(name, np.asarray(trace.nominal["points"], float)))
+            if measured is None:
+                probes.append(ProbeSet(name, planned=planned[lo:hi]))
+                continue
+            probe, plot = self._measured_probes(trace, measured[lo:hi], name, planned=planned[lo:hi])
+            probes.append(probe)
+            plots.extend([plot] if plot else [])
+        return FocusScene({}, "", polylines=tuple(lines), probes=tuple(probes), plots=tuple(plots))
+
     def _probe_plan(self, session: Session, job: Job) -> FocusScene:
         planned = np.asarray(job.result.get("points", []), float).reshape(-1, 3)
+        ranges = self._joint_ranges(session, job)
+        if ranges is not None:
+            return self._joint_scene(ranges, planned, None)
         return self._with_trace(session, job, probes=(ProbeSet("plan", planned=planned),))
 
     def _measured_probes(self, trace: Trace | None, measured: np.ndarray, label: str,
@@ -150,6 +189,9 @@ class Loader:
         rows = job.result.get("points", [])
         nominal = np.asarray([r["nominal"] for r in rows], float).reshape(-1, 3)
         measured = np.asarray([r["measured"] for r in rows], float).reshape(-1, 3)
+        ranges = self._joint_ranges(session, session.get(Job, job.params.get("plan_job_id", "")))
+        if ranges is not None:
+            return self._joint_scene(ranges, nominal, measured)
         probes, plot = self._measured_probes(self._trace_of(session, job), measured, "run", planned=nominal)
         return self._with_trace(session, job, probes=(probes,), plots=(plot,) if plot else ())
 
@@ -160,6 +202,10 @@ class Loader:
         else:
             run = session.get(Job, job.params.get("probe_run_job_id"))
             rows = (run.result or {}).get("points", []) if run else []
+            ranges = self._joint_ranges(session, session.get(Job, run.params.get("plan_job_id", ""))) if run else None
+            own = [r for r in ranges or () if r.trace_id == job.params.get("trace_id")]
+            if own:  # a joint run: only this trace's own probes (the others are context)
+                rows = [row for row in rows if own[0].first <= row["index"] < own[0].stop]
             measured = np.asarray([r["measured"] for r in rows], float).reshape(-1, 3)
         probes, _ = self._measured_probes(trace, measured, "measured")
         curve = NurbsCurve.from_dict(job.result["curve"])

@@ -63,6 +63,10 @@ class AnalyticReconstruction:
     def clean(self):
         return SimpleNamespace(s=self.probe_s)
 
+    @property
+    def span_mm(self):
+        return float(self.probe_s[0]), float(self.probe_s[-1])
+
     def height_at_s(self, s):
         s = np.clip(np.atleast_1d(np.asarray(s, float)), 0.0, self.nominal.length_mm)
         return self.real(self.nominal.at(s)[:, :2])

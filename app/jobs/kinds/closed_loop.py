@@ -1,5 +1,10 @@
 """Job ``closed_loop``: (register ->) per trace, plan -> probe -> reconstruct -> compensate (-> print).
 
+``joint_probing``: one plan (``probe_plan`` with ``trace_ids``) and one probe run for all
+traces, then per trace reconstruct (from that run) -> compensate (-> print); with the
+kriging planner the stations are designed together and, with the kriging reconstruction,
+each trace is rebuilt from every trace's probes.
+
 ``registration``: a ``register`` child first touches the part's datum features and fits
 its placement on the machine; every probe_plan / reconstruct child then gets its
 ``registration_job_id``, so traces are planned, rebuilt and compensated in machine
@@ -55,12 +60,15 @@ class ClosedLoopParams(JobParams):
                                "work in machine coordinates")
     registration_params: dict[str, Any] = Field(default_factory=dict,
                                      description="register parameters (without part_id and machine_id)")
+    joint_probing: bool = Field(False, description="one plan and one probe run for all traces; with the kriging "
+                                "planner the stations are designed together and each trace's reconstruction uses "
+                                "every trace's probes (with reconstruct_method kriging); trace_ids must be distinct")
 
     @field_validator("probe")
     @classmethod
     def _probe_params(cls, value: dict[str, Any]) -> dict[str, Any]:
-        if "trace_id" in value:
-            raise ValueError("probe parameters apply to every trace: leave out trace_id")
+        if "trace_id" in value or "trace_ids" in value:
+            raise ValueError("probe parameters apply to every trace: leave out trace_id and trace_ids")
         ProbePlanParams.model_validate({**value, "trace_id": "x"})
         return value
 
@@ -86,6 +94,9 @@ def _check(params: ClosedLoopParams, session: Session) -> None:
         trace = session.get(Trace, trace_id)
         if trace is None or trace.part_id != params.part_id:
             raise InvalidInput(f"trace {trace_id!r} is not a trace of part {params.part_id!r}",
+                               field=f"params.trace_ids.{index}", value=trace_id)
+        if params.joint_probing and trace_id in params.trace_ids[:index]:
+            raise InvalidInput(f"trace {trace_id!r} is listed twice; a joint plan probes each trace once",
                                field=f"params.trace_ids.{index}", value=trace_id)
     if params.evaluate and not (machine.mock and machine.mock.get("true_part_id")):
         raise InvalidInput("evaluate needs a mock machine with a true part", field="params.evaluate", value=True)
@@ -113,7 +124,8 @@ class _Steps:
             return self.reusable[key]
         [job] = self.ctx.wait_for([self.ctx.submit_child(kind, params)])
         if job.status == "cancelled":  # the loop's cancel reached its child first, or a user cancelled the step
-            raise Cancelled(f"{kind} of trace {trace_id} was cancelled", field="trace_ids", value=trace_id)
+            step = kind if trace_id is None else f"{kind} of trace {trace_id}"
+            raise Cancelled(f"{step} was cancelled", field="trace_ids", value=trace_id)
         if job.status != "succeeded":
             detail = (job.error or {}).get("detail", job.status)
             if trace_id is None:
@@ -136,12 +148,14 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         registration = steps.run("register", {**params.registration_params, "part_id": params.part_id,
                                               "machine_id": params.machine_id}, None)
         placed = {"registration_job_id": registration.id}
+    shared = None
+    if params.joint_probing:
+        shared = _plan_and_probe(steps, params, placed, machine.dialect, None, (0.0, f"probing all {total} traces"))
     for index, trace_id in enumerate(params.trace_ids):
         trace = ctx.trace(trace_id)
-        plan = steps.run("probe_plan", {**params.probe, **placed, "trace_id": trace_id, "dialect": machine.dialect},
-                         trace_id)
-        ctx.progress((index + 0.25) / total, f"trace {index + 1}/{total}: probing")
-        probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id}, trace_id)
+        plan, probe = shared or _plan_and_probe(steps, params, placed, machine.dialect, trace_id,
+                                                ((index + 0.25) / total, f"trace {index + 1}/{total}: probing"))
+        count = _probe_count(plan, trace_id)
         prior = {k: params.probe[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in params.probe}
         rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
                                             "trace_id": trace_id, "probe_run_job_id": probe.id,
@@ -151,7 +165,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                                                "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
                                                "hold_mm": params.hold_mm}, trace_id)
         entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
-                 "compensate": compensated.id, "probes": plan.result["count"],
+                 "compensate": compensated.id, "probes": count,
                  "deviation_max_mm": rebuilt.result["deviation"]["max_mm"]}
         if params.evaluate:
             world = ctx.runtime.machines.world(machine)  # built when the probe run connected
@@ -163,7 +177,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                 reports[artifact] = (evaluate_print(world, start, trace.standoff_mm),
                                      xy_error(world, start, trace.nominal["points"]))
             (before, xy_before), (after, xy_after) = reports["nominal.gcode"], reports["print.gcode"]
-            row = table_row(index + 1, before, after, plan.result["count"])
+            row = table_row(index + 1, before, after, count)
             rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name,
                                          "xy_max_before_um": round(xy_before.max_mm * 1000, 2),
                                          "xy_max_after_um": round(xy_after.max_mm * 1000, 2)})
@@ -178,6 +192,26 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         result["registration"] = {"job_id": registration.id, **{
             k: registration.result[k] for k in ("placement", "std", "covariance", "unobservable", "probe_count")}}
     return result
+
+
+def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any], dialect: str,
+                    trace_id: str | None, progress: tuple[float, str]) -> tuple[Job, Job]:
+    """The probe_plan and probe_run children of one trace, or (``trace_id`` None) of every
+    trace of the loop together (joint probing); ``progress`` is reported between them (a
+    cancel that came during planning stops the loop before the machine is used)."""
+    target: dict[str, Any] = {"trace_ids": params.trace_ids} if trace_id is None else {"trace_id": trace_id}
+    plan = steps.run("probe_plan", {**params.probe, **placed, **target, "dialect": dialect}, trace_id)
+    steps.ctx.progress(*progress)
+    probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id}, trace_id)
+    return plan, probe
+
+
+def _probe_count(plan: Job, trace_id: str) -> int:
+    """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's)."""
+    for entry in plan.result.get("traces", ()):
+        if entry["trace_id"] == trace_id:
+            return int(entry["count"])
+    return int(plan.result["count"])
 
 
 def _placement_of(probe: dict[str, Any]) -> dict[str, Any]:

@@ -1,19 +1,26 @@
-"""Job ``probe_plan``: where to probe a trace, and the probe program (G-code).
+"""Job ``probe_plan``: where to probe a trace (or several traces of one part), and the
+probe program (G-code).
 
 With ``placement`` or ``registration_job_id`` the trace (and the part, for safe travel
 heights) is first mapped into machine coordinates, so the probes land on the part where
-it really sits; without, the part frame is the machine frame (unchanged behaviour)."""
+it really sits; without, the part frame is the machine frame (unchanged behaviour).
+
+With ``trace_ids`` (part-level probing) one program touches every trace in the given
+order; with the ``kriging`` planner the stations of all traces are designed together
+(:func:`app.probing.joint.plan_joint`).  The result's ``traces`` give each trace's range
+``[first, first + count)`` in ``points`` / ``records`` (and so in the probe run's points)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session
 
 from app.compensation.registration import Placement, place_path
+from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.kinds.register import (
@@ -25,18 +32,27 @@ from app.jobs.kinds.register import (
 )
 from app.jobs.registry import job_kind
 from app.models import Trace
-from app.probing import NominalPath, PlanParams, ProbeProgramParams, build_probe_program, plan_probes
+from app.probing import (NominalPath, PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams,
+                         build_probe_program, plan_probes)
+from app.probing.joint import plan_joint
 from app.probing.nominal import as_nominal_path
 
 
 class ProbePlanParams(PlacedParams):
-    trace_id: str
+    trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)")
+    trace_ids: list[str] | None = Field(
+        None, min_length=1, max_length=200,
+        description="part-level probing (instead of trace_id): several distinct traces of ONE part, probed by "
+        "one program in this order; with the kriging planner their stations are designed together (fewer "
+        "probes per trace when each trace is rebuilt from every trace's probes, see reconstruct). The result's "
+        "traces list each trace's range [first, first + count) in points / records")
     method: Literal["adaptive", "uniform", "deviation", "kriging"] = Field(
         "adaptive", description="adaptive: the seed's chord-height rule; uniform: even arc length; "
         "deviation: spacing from the expected deviation of the real part from CAD; kriging: stations that "
         "minimise the largest predicted error of the deviation (machining error + placement), fewest probes")
     chord_error_mm: float = Field(0.005, gt=0, le=10)
-    count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation)")
+    count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation; per trace "
+                              "with trace_ids)")
     capability_k: float | None = Field(None, gt=0, lt=1, description="seed eq. 1: process capability K")
     confidence: float | None = Field(None, gt=0.5, lt=1, description="seed eq. 1: confidence gamma")
     cl_tolerance_mm: float = Field(0.001, gt=0, le=1)
@@ -55,6 +71,8 @@ class ProbePlanParams(PlacedParams):
     def _both_or_neither(self) -> "ProbePlanParams":
         if (self.capability_k is None) != (self.confidence is None):
             raise ValueError("capability_k and confidence go together (seed eq. 1)")
+        if (self.trace_id is None) == (self.trace_ids is None):
+            raise ValueError("give exactly one of trace_id or trace_ids")
         return self
 
 
@@ -80,26 +98,47 @@ def placed_nominal(trace: Trace, placement: Placement | None) -> NominalPath:
     return nominal if placement is None else place_path(nominal, placement)
 
 
+def check_same_part(session: Session, trace_ids: list[str], field: str) -> None:
+    """Submission check: the traces exist, are distinct and all lie on the first one's part;
+    otherwise a 422 naming ``{field}.<i>``."""
+    seen: dict[str, int] = {}
+    part_id = None
+    for index, trace_id in enumerate(trace_ids):
+        if trace_id in seen:
+            raise InvalidInput(f"trace {trace_id!r} is listed twice (also at {field}.{seen[trace_id]})",
+                               field=f"{field}.{index}", value=trace_id)
+        seen[trace_id] = index
+        trace = session.get(Trace, trace_id)
+        if trace is None:
+            raise InvalidInput(f"trace {trace_id!r} does not exist", field=f"{field}.{index}", value=trace_id)
+        part_id = part_id or trace.part_id
+        if trace.part_id != part_id:
+            raise InvalidInput(f"trace {trace_id!r} is on part {trace.part_id!r}, not on part {part_id!r} like "
+                               f"{field}.0: one plan probes one part", field=f"{field}.{index}", value=trace_id)
+
+
 def _check(params: ProbePlanParams, session: Session) -> None:
     check_registration(params, session)
+    if params.trace_ids is not None:
+        check_same_part(session, params.trace_ids, "params.trace_ids")
 
 
-@job_kind("probe_plan", ProbePlanParams, check=_check,
-          references=lambda p: [("trace", p.trace_id), *registration_reference(p)])
-def run(ctx: JobContext, params: ProbePlanParams) -> dict:
-    """Plan probe points along a trace (placed into machine coordinates when asked) and
-    write the probe program."""
-    trace = ctx.trace(params.trace_id)
-    placement = placement_from(ctx, params)
-    mesh = placed_mesh(ctx.mesh(trace.part_id), placement)
-    ctx.progress(0.1, "planning probe points")
-    plan = plan_probes(placed_nominal(trace, placement), params.method, PlanParams(
+def _references(params: ProbePlanParams) -> list[tuple[str, str]]:
+    traces = params.trace_ids if params.trace_ids is not None else [params.trace_id]
+    return [*(("trace", t) for t in traces if t is not None), *registration_reference(params)]
+
+
+def _plan_params(params: ProbePlanParams) -> PlanParams:
+    return PlanParams(
         chord_error_mm=params.chord_error_mm, cl_tolerance_mm=params.cl_tolerance_mm, count=params.count,
         capability_k=params.capability_k, confidence=params.confidence,
         deviation_amplitude_mm=params.deviation_amplitude_mm, deviation_wavelength_mm=params.deviation_wavelength_mm,
         target_error_mm=params.target_error_mm, probe_sigma_mm=params.probe_sigma_mm,
-    ))
-    ctx.progress(0.5, f"{plan.count} probe points; writing the program")
+    )
+
+
+def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: Any) -> tuple[ProbeProgram, dict]:
+    """Build the probe program of ``plan`` over ``mesh``, store it; (program, its G-code meta)."""
     program = build_probe_program(plan, mesh, ProbeProgramParams(
         dialect=params.dialect, probe_style=params.probe_style, clearance_mm=params.clearance_mm,
         approach_mm=params.approach_mm, overtravel_mm=params.overtravel_mm,
@@ -107,6 +146,23 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
     ), job_id=ctx.job_id)
     meta = gcode_meta(program.gcode)
     ctx.artifact("probe.gcode", program.gcode.encode(), "text/x-gcode", meta)
+    return program, meta
+
+
+@job_kind("probe_plan", ProbePlanParams, check=_check, references=_references)
+def run(ctx: JobContext, params: ProbePlanParams) -> dict:
+    """Plan probe points on a trace or on several traces of one part, and write the probe program.
+
+    The traces are placed into machine coordinates first when asked."""
+    if params.trace_ids is not None:
+        return _run_joint(ctx, params, params.trace_ids)
+    trace = ctx.trace(str(params.trace_id))
+    placement = placement_from(ctx, params)
+    mesh = placed_mesh(ctx.mesh(trace.part_id), placement)
+    ctx.progress(0.1, "planning probe points")
+    plan = plan_probes(placed_nominal(trace, placement), params.method, _plan_params(params))
+    ctx.progress(0.5, f"{plan.count} probe points; writing the program")
+    program, meta = _program(ctx, params, plan, mesh)
     result = {
         "count": plan.count,
         "method": plan.method,
@@ -122,4 +178,37 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
     if plan.point_count is not None:
         result["point_count"] = {"count": plan.point_count.count, "n_exact": plan.point_count.n_exact,
                                  "z_gamma": plan.point_count.z_gamma}
+    return result
+
+
+def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
+    """Part-level plan: stations per trace (jointly for kriging), one program in trace order."""
+    traces = [ctx.trace(t) for t in trace_ids]
+    placement = placement_from(ctx, params)
+    mesh = placed_mesh(ctx.mesh(traces[0].part_id), placement)
+    nominals = [placed_nominal(trace, placement) for trace in traces]
+    ctx.progress(0.1, f"planning probe points on {len(traces)} traces")
+    if params.method == "kriging":
+        plans = plan_joint(nominals, _plan_params(params))
+    else:
+        plans = tuple(plan_probes(nominal, params.method, _plan_params(params)) for nominal in nominals)
+    normals = None if any(p.normals is None for p in plans) else np.concatenate([p.normals for p in plans])
+    combined = ProbePlan(params.method, np.concatenate([p.s_mm for p in plans]),
+                         np.concatenate([p.points for p in plans]), normals)
+    ctx.progress(0.5, f"{combined.count} probe points on {len(traces)} traces; writing the program")
+    program, meta = _program(ctx, params, combined, mesh)
+    firsts = np.concatenate([[0], np.cumsum([p.count for p in plans])[:-1]])
+    result = {
+        "count": combined.count,
+        "method": params.method,
+        "points": combined.points.tolist(),
+        "s_mm": combined.s_mm.tolist(),
+        "records": [r.to_dict() for r in program.records],
+        "program": meta,
+        "traces": [{"trace_id": trace.id, "first": int(first), "count": plan.count, "s_mm": plan.s_mm.tolist(),
+                    "trace_length_mm": trace.length_mm, "predicted_sd_mm": plan.predicted_sd_mm}
+                   for trace, plan, first in zip(traces, plans, firsts)],
+    }
+    if placement is not None:
+        result["placement"] = placement.to_dict()
     return result

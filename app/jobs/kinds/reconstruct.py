@@ -2,20 +2,27 @@
 
 With ``placement`` or ``registration_job_id`` the trace's nominal is mapped into machine
 coordinates first (as the probe plan that measured the points did); the reconstruction,
-and so the ``compensate`` job that rebuilds it, is then in machine coordinates."""
+and so the ``compensate`` job that rebuilds it, is then in machine coordinates.
+
+Part-level probing: from a probe run of a JOINT plan (``probe_plan`` with ``trace_ids``)
+the trace's own points are its range of the run; with ``method: "kriging"`` every other
+trace's range joins the posterior as context (the real part's deviation is one field over
+the part).  With ``points``, ``context`` gives the other traces' probes explicitly."""
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
+from app.compensation.registration import Placement
+from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.kinds.probe_plan import placed_nominal
 from app.jobs.kinds.register import PlacedParams, check_registration, placement_from, registration_reference
 from app.jobs.registry import job_kind
-from app.models import Trace
+from app.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
@@ -24,13 +31,30 @@ from app.records import get_or_404
 DEGREE = 3
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+Points = list[Annotated[list[Finite], Field(min_length=3, max_length=3)]]
+
+
+class ContextTrace(BaseModel):
+    """Measured points of another trace of the same part (kriging context)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    trace_id: str = Field(description="another trace of the same part (not trace_id itself)")
+    points: Points = Field(min_length=1, max_length=100_000, description="its measured points [[x, y, z], ...] mm")
 
 
 class ReconstructJobParams(PlacedParams):
     trace_id: str
-    probe_run_job_id: str | None = None
-    points: list[Annotated[list[Finite], Field(min_length=3, max_length=3)]] | None = Field(
+    probe_run_job_id: str | None = Field(
+        None, description="a succeeded probe_run; when its plan probed several traces (trace_ids), trace_id must "
+        "be one of them and its own range of the run is used, with method kriging every other trace's range too "
+        "(as context)")
+    points: Points | None = Field(
         None, max_length=100_000, description="measured points [[x, y, z], ...] mm, instead of a probe run")
+    context: list[ContextTrace] | None = Field(
+        None, min_length=1, max_length=199,
+        description="kriging with points only: measured points of OTHER traces of the same part (same frame); "
+        "they join this trace's in one posterior over the part (pair with a joint kriging plan)")
     method: Literal["interpolate", "approximate", "deviation", "kriging"] = Field(
         "interpolate", description="interpolate: the seed's cubic NURBS through the points; approximate: "
         "least squares; deviation: nominal + smoothed deviation (noise-aware); kriging: nominal + the "
@@ -51,20 +75,60 @@ def _references(params: ReconstructJobParams) -> list[tuple[str, str]]:
     refs = [("trace", params.trace_id), *registration_reference(params)]
     if params.probe_run_job_id:
         refs.append(("job", params.probe_run_job_id))
+    refs.extend(("trace", c.trace_id) for c in params.context or ())
     return refs
 
 
 def _check(params: ReconstructJobParams, session: Session) -> None:
-    """Given points must be finite, near the (placed) trace and enough for the method after cleaning."""
+    """Given points must be finite, near the (placed) trace and enough for the method after
+    cleaning; context only for kriging, on other traces of the same part; a joint probe run
+    must have probed the trace."""
     placement = check_registration(params, session)
+    trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
+    if params.probe_run_job_id is not None:
+        _check_joint_run(params, session)
+    if params.context is not None:
+        _check_context(params, trace, placement, session)
     if params.points is None:
         return
-    trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
     clean = preprocess(placed_nominal(trace, placement), params.points, PreprocessParams(), field="params.points")
     if len(clean.s) < DEGREE + 1:
         raise ReconstructionError(
             f"params.points: {len(clean.s)} distinct usable points; a cubic reconstruction needs {DEGREE + 1}",
             field="params.points", value=len(clean.s))
+
+
+def _check_context(params: ReconstructJobParams, trace: Trace, placement: Placement | None,
+                   session: Session) -> None:
+    if params.method != "kriging":
+        raise InvalidInput(f"context (other traces' probes) is only used by method kriging, not {params.method!r}",
+                           field="params.context", value=params.method)
+    if params.points is None:
+        raise InvalidInput("context goes with points; a joint probe run brings the other traces' probes itself",
+                           field="params.context", value=len(params.context or ()))
+    seen = {params.trace_id}
+    for index, entry in enumerate(params.context or ()):
+        field = f"params.context.{index}"
+        other = get_or_404(session, Trace, entry.trace_id, field=f"{field}.trace_id")
+        if entry.trace_id in seen:
+            raise InvalidInput(f"{field}.trace_id: trace {entry.trace_id!r} is trace_id itself or listed twice",
+                               field=f"{field}.trace_id", value=entry.trace_id)
+        seen.add(entry.trace_id)
+        if other.part_id != trace.part_id:
+            raise InvalidInput(f"{field}.trace_id: trace {entry.trace_id!r} is on part {other.part_id!r}, not on "
+                               f"part {trace.part_id!r} of trace_id", field=f"{field}.trace_id", value=entry.trace_id)
+        preprocess(placed_nominal(other, placement), entry.points, PreprocessParams(), field=f"{field}.points")
+
+
+def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
+    """A run of a joint plan must have probed trace_id (422 ``params.trace_id``)."""
+    run = session.get(Job, params.probe_run_job_id)
+    plan = session.get(Job, (run.params or {}).get("plan_job_id")) if run is not None and run.kind == "probe_run" \
+        else None
+    trace_ids = (plan.params or {}).get("trace_ids") if plan is not None else None
+    if trace_ids is not None and params.trace_id not in trace_ids:
+        raise InvalidInput(f"trace {params.trace_id!r} is not one of the traces probed by probe run "
+                           f"{run.id!r} (plan {plan.id!r})", field="params.trace_id", value=params.trace_id)
 
 
 @job_kind("reconstruct", ReconstructJobParams, references=_references, check=_check)
@@ -78,13 +142,41 @@ def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
     """The reconstruction a ``reconstruct`` job with ``params`` makes (deterministic, so the
     ``compensate`` job rebuilds it from the stored parameters instead of storing objects)."""
     trace = ctx.trace(params.trace_id)
+    placement = placement_from(ctx, params)
+    context: list[tuple[Any, Any]] = []
     if params.points is not None:
-        measured = params.points
+        measured: Any = params.points
+        context = [(placed_nominal(ctx.trace(c.trace_id), placement), c.points) for c in params.context or ()]
     else:
-        probe_run = ctx.job(params.probe_run_job_id, kind="probe_run", field="params.probe_run_job_id")
-        measured = [p["measured"] for p in probe_run.result["points"]]
-    nominal = placed_nominal(trace, placement_from(ctx, params))
+        measured, others = run_points(ctx, params)
+        if params.method == "kriging":
+            context = [(placed_nominal(ctx.trace(t), placement), pts) for t, pts in others.items()]
+    nominal = placed_nominal(trace, placement)
     prior = PlanParams(deviation_amplitude_mm=params.deviation_amplitude_mm,
                        deviation_wavelength_mm=params.deviation_wavelength_mm).prior()
     return reconstruct(nominal, measured, params.method, sigma_mm=params.sigma_mm,
-                       params=ReconstructParams(prior=prior))
+                       params=ReconstructParams(prior=prior), context=context)
+
+
+def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dict[str, list]]:
+    """Measured points of the probe run: (this trace's, {other trace: its points}); the
+    others are empty unless the run's plan probed several traces."""
+    probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
+    rows = probe_run.result["points"]
+    plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
+    ranges = trace_ranges(plan)
+    if ranges is None:
+        return [p["measured"] for p in rows], {}
+    if params.trace_id not in ranges:
+        raise InvalidInput(f"trace {params.trace_id!r} is not one of the traces probed by probe run "
+                           f"{probe_run.id!r} (plan {plan.id!r})", field="params.trace_id", value=params.trace_id)
+    by_trace = {t: [p["measured"] for p in rows if lo <= p["index"] < hi] for t, (lo, hi) in ranges.items()}
+    own = by_trace.pop(params.trace_id)
+    return own, by_trace
+
+
+def trace_ranges(plan: Job) -> dict[str, tuple[int, int]] | None:
+    """{trace id: [first, stop) point indices} of a joint probe plan; None for a one-trace plan."""
+    if not (plan.params or {}).get("trace_ids"):
+        return None
+    return {t["trace_id"]: (t["first"], t["first"] + t["count"]) for t in (plan.result or {}).get("traces", [])}
