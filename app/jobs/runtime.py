@@ -75,13 +75,21 @@ def make_queue(settings: Settings, queue: str) -> Any:
 
 
 def _param_holding(params: Any, value: str, ref_kind: str) -> str:
-    """The name of the (top-level) parameter whose value is ``value``, for error messages."""
-    for name, given in params.model_dump().items():
+    """The dotted path of the parameter whose value is ``value`` (searched through nested
+    lists and objects, e.g. ``context.1.trace_id``), for error messages."""
+
+    def find(given: Any, path: str) -> str | None:
         if given == value:
-            return name
-        if isinstance(given, list) and value in given:
-            return f"{name}.{given.index(value)}"
-    return f"{ref_kind}_id"
+            return path
+        items = given.items() if isinstance(given, dict) else (
+            enumerate(given) if isinstance(given, list) else ())
+        for key, inner in items:
+            found = find(inner, f"{path}.{key}" if path else str(key))
+            if found is not None:
+                return found
+        return None
+
+    return find(params.model_dump(), "") or f"{ref_kind}_id"
 
 
 def _canonical_hash(value: Any) -> str:

@@ -204,6 +204,9 @@ def test_reconstruct_from_a_joint_probe_run(client, setup):
             ["params", "context", "0", "trace_id"])
     refused(submit(client, "reconstruct", {**base, "context": [{"trace_id": middle, "points": own[middle]}]}),
             ["params", "context", "0", "trace_id"])
+    missing = refused(submit(client, "reconstruct", {**base, "context": [
+        *context, {"trace_id": "trace_missing", "points": own[middle]}]}), ["params", "context", "1", "trace_id"])
+    assert missing["errors"][0]["value"] == "trace_missing"
     far = (np.array(own[traces[0]["id"]]) + [30.0, 0.0, 0.0]).tolist()
     body = refused(submit(client, "reconstruct", {**base, "context": [
         *context, {"trace_id": traces[2]["id"], "points": far}]}), ["params", "context", "1", "points[0]"])
