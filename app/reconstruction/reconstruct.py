@@ -16,7 +16,9 @@ Methods:
     of a Gaussian process, band-limited machining error + the part's rigid placement
     error through the CAD slopes (``app.probing.deviation_prior``), given the probes and
     their sigma.  State the process in ``ReconstructParams.prior`` (the planner's
-    ``PlanParams.prior()``); pair it with ``plan_probes(..., "kriging")``.
+    ``PlanParams.prior()``); pair it with ``plan_probes(..., "kriging")``, or, for
+    several traces of one part, with ``plan_joint`` and pass the other traces' probes as
+    ``context`` (one posterior over the part).
 
 Every result gives the real surface height along the trace, ``height_at_s`` /
 ``height_at_xy``, for compensation.  Heights from the curve methods are read where the
