@@ -128,8 +128,14 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
         page.wait_for_timeout(300)
         spread = canvas_is_drawn(page.locator("#viewer-iframe").screenshot())
     assert spread > 5.0, f"the 3D view looks blank (grey-level std {spread:.2f})"
-    # viser's own panel shows the uPlot deviation plot
-    assert frame.locator(".uplot").count() >= 1 or frame.get_by_text("Deviation").count() >= 1
+    # viser's own panel shows the uPlot deviation plot (it renders a little after the canvas)
+    def plot_shown() -> bool:
+        return frame.locator(".uplot").count() >= 1 or frame.get_by_text("Deviation").count() >= 1
+
+    deadline = time.monotonic() + 15
+    while not plot_shown() and time.monotonic() < deadline:
+        page.wait_for_timeout(250)
+    assert plot_shown()
     close = frame.locator("[class*='Notification'] button")  # viser's SwiftShader notice: not for the README
     if close.count():
         try:
