@@ -180,6 +180,11 @@ def prior_covariance(prior: DeviationPrior, a: Sites, b: Sites,
     return prior.rms_mm ** 2 * jinc_kernel(a.xy, b.xy, prior.wavelength_mm) + ba @ bb.T
 
 
+def prior_variance(prior: DeviationPrior, sites: Sites, center: np.ndarray) -> np.ndarray:
+    """Prior variance (m,) mm^2 of the deviation at ``sites`` (the covariance's diagonal)."""
+    return prior.rms_mm ** 2 + np.sum((placement_basis(sites, center) * prior.basis_sd) ** 2, axis=1)
+
+
 def _factor(k: np.ndarray, sigma_mm: float, scale: float):
     jitter = max(sigma_mm ** 2, 1e-10 * scale)
     return cho_factor(k + jitter * np.eye(len(k)), lower=True)
@@ -205,8 +210,7 @@ class DeviationPosterior:
     def sd(self, sites: Sites) -> np.ndarray:
         """Posterior standard deviation (q,) mm at ``sites``."""
         kq = prior_covariance(self.prior, sites, self.probes, self.center)
-        prior_var = self.prior.rms_mm ** 2 + np.sum(
-            (placement_basis(sites, self.center) * self.prior.basis_sd) ** 2, axis=1)
+        prior_var = prior_variance(self.prior, sites, self.center)
         v = prior_var - np.sum(kq.T * cho_solve(self.factor, kq.T), axis=0)
         return np.sqrt(np.maximum(v, 0.0))
 

@@ -33,8 +33,9 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from threadpoolctl import threadpool_limits
 
-from app.probing.deviation_prior import (DeviationPrior, Sites, path_sites, placement_basis,
-                                         prior_covariance)
+from app.probing.deviation_prior import (DeviationPrior, Sites, path_sites, prior_covariance,
+                                         prior_variance)
+from app.probing.minimax import even_indices, fewest_probes
 from app.probing.nominal import NominalPath, as_nominal_path
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
@@ -94,7 +95,7 @@ def joint_grid(paths: Sequence[NominalPath], prior: DeviationPrior) -> JointGrid
     sites = Sites(np.concatenate([q.xy for q in per]), np.concatenate([q.grad for q in per]))
     center = joint_center(paths)
     cov = prior_covariance(prior, sites, sites, center)
-    prior_var = prior.rms_mm ** 2 + np.sum((placement_basis(sites, center) * prior.basis_sd) ** 2, axis=1)
+    prior_var = prior_variance(prior, sites, center)
     jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
     return JointGrid(s, offsets, cov, prior_var, jitter, center)
 
@@ -111,11 +112,8 @@ def power_mean(var: np.ndarray) -> float:
 
 def even_joint_indices(grid: JointGrid, count: int) -> np.ndarray:
     """Joint indices of ``count`` evenly spread stations on every trace (ends included)."""
-    out = []
-    for t, s in enumerate(grid.s):
-        idx = np.unique(np.round(np.linspace(0, len(s) - 1, min(count, len(s)))).astype(int))
-        out.append(grid.offsets[t] + idx)
-    return np.concatenate(out)
+    return np.concatenate([grid.offsets[t] + even_indices(len(s), min(count, len(s)))
+                           for t, s in enumerate(grid.s)])
 
 
 def _move_range(grid: JointGrid, chosen: np.ndarray, k: int) -> np.ndarray:
@@ -182,29 +180,13 @@ def design_joint(grid: JointGrid, count: int) -> JointDesign:
 
 
 def auto_joint_count(grid: JointGrid, target_mm: float, coverage: float, min_count: int) -> int:
-    """Fewest probes per trace whose joint design has coverage x largest sd <= target_mm.
-
-    Even spacing bounds it from above (doubling, then bisection); the exchange design
-    then walks down from that bound.
-    """
-    most = min(MAX_AUTO_COUNT, min(len(s) for s in grid.s))
+    """Fewest probes per trace whose joint design has coverage x largest sd <= target_mm."""
 
     def even_ok(n: int) -> bool:
         return coverage * math.sqrt(grid.posterior_var(even_joint_indices(grid, n)).max()) <= target_mm
 
-    hi = max(min_count, 2)
-    while not even_ok(hi):
-        if hi >= most:
-            return most
-        hi = min(2 * hi, most)
-    lo = max(min_count, 2) - 1
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        lo, hi = (lo, mid) if even_ok(mid) else (mid, hi)
-    n = hi
-    while n - 1 >= max(min_count, 2) and coverage * design_joint(grid, n - 1).max_sd_mm <= target_mm:
-        n -= 1
-    return n
+    return fewest_probes(even_ok, lambda n: coverage * design_joint(grid, n).max_sd_mm <= target_mm,
+                         min_count, min(MAX_AUTO_COUNT, min(len(s) for s in grid.s)))
 
 
 def plan_joint(nominals: Sequence[object], params: PlanParams | None = None) -> tuple[ProbePlan, ...]:

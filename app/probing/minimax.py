@@ -17,12 +17,13 @@ sequential rule is worse than even spacing; the exchange design is better than b
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from app.probing.deviation_prior import (DeviationPrior, max_posterior_sd, path_sites,
-                                         path_center, placement_basis, prior_covariance)
+from app.probing.deviation_prior import (DeviationPrior, max_posterior_sd, path_center,
+                                         path_sites, prior_covariance, prior_variance)
 from app.probing.nominal import NominalPath
 
 MAX_GRID = 401
@@ -65,8 +66,7 @@ def design_grid(path: NominalPath, prior: DeviationPrior) -> DesignGrid:
     sites = path_sites(path, s)
     center = path_center(path)
     cov = prior_covariance(prior, sites, sites, center)
-    prior_var = prior.rms_mm ** 2 + np.sum(
-        (placement_basis(sites, center) * prior.basis_sd) ** 2, axis=1)
+    prior_var = prior_variance(prior, sites, center)
     return DesignGrid(s, cov, prior_var, prior.sigma_mm)
 
 
@@ -111,29 +111,35 @@ def design_stations(grid: DesignGrid, count: int) -> StationDesign:
     return StationDesign(grid.s[chosen], grid.max_sd(chosen))
 
 
-def auto_count(grid: DesignGrid, target_mm: float, coverage: float, min_count: int) -> int:
-    """Fewest probes whose minimax design has coverage x largest sd <= target_mm.
+def fewest_probes(even_ok: Callable[[int], bool], design_ok: Callable[[int], bool],
+                  min_count: int, most: int) -> int:
+    """Fewest probe count n >= min_count (>= 2) whose design meets a target.
 
-    Even spacing bounds it from above (found by doubling then bisection: the sd falls as
-    probes are added); the exchange design then walks down from that bound.
+    ``even_ok(n)``: even spacing meets it; ``design_ok(n)``: the optimised design does.
+    Even spacing bounds the answer from above (doubling, then bisection: the sd falls as
+    probes are added); the optimised design then walks down from that bound.  Returns
+    ``most`` when even spacing never meets the target below it.
     """
-    g = len(grid.s)
-
-    def even_ok(n: int) -> bool:
-        return coverage * grid.max_sd(even_indices(g, n)) <= target_mm
-
-    hi = max(min_count, 2)
+    floor = max(min_count, 2)
+    hi = floor
     while not even_ok(hi):
-        if hi >= min(g, MAX_AUTO_COUNT):
-            return min(g, MAX_AUTO_COUNT)
-        hi = min(2 * hi, g, MAX_AUTO_COUNT)
-    lo = max(min_count, 2) - 1
-    while hi - lo > 1:  # even_ok(hi) holds, even_ok(lo) fails (or lo below min_count)
+        if hi >= most:
+            return most
+        hi = min(2 * hi, most)
+    lo = floor - 1
+    while hi - lo > 1:  # even_ok(hi) holds, even_ok(lo) fails (or lo below the floor)
         mid = (lo + hi) // 2
         lo, hi = (lo, mid) if even_ok(mid) else (mid, hi)
     n = hi
-    while n - 1 >= min_count and n - 1 <= MAX_EXCHANGE_COUNT:
-        if coverage * design_stations(grid, n - 1).max_sd_mm > target_mm:
-            break
+    while n - 1 >= floor and design_ok(n - 1):
         n -= 1
     return n
+
+
+def auto_count(grid: DesignGrid, target_mm: float, coverage: float, min_count: int) -> int:
+    """Fewest probes whose minimax design has coverage x largest sd <= target_mm."""
+    g = len(grid.s)
+    return fewest_probes(
+        lambda n: coverage * grid.max_sd(even_indices(g, n)) <= target_mm,
+        lambda n: n <= MAX_EXCHANGE_COUNT and coverage * design_stations(grid, n).max_sd_mm <= target_mm,
+        min_count, min(g, MAX_AUTO_COUNT))
