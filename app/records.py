@@ -123,3 +123,11 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
         },
         created_at=utcnow(),
     )
+
+
+def joint_trace_ranges(plan: Job) -> dict[str, tuple[int, int]] | None:
+    """{trace id: [first, stop) point indices} of a joint probe plan (``probe_plan`` with
+    ``trace_ids``; the same indices hold in its probe runs); None for a one-trace plan."""
+    if not (plan.params or {}).get("trace_ids"):
+        return None
+    return {t["trace_id"]: (t["first"], t["first"] + t["count"]) for t in (plan.result or {}).get("traces", [])}

@@ -20,7 +20,7 @@ from app.errors import NotFound
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
-from app.records import get_or_404
+from app.records import get_or_404, joint_trace_ranges
 from app.viewer.offload import ParsePool
 from app.viewer.scene_data import (
     AxisGlyphs,
@@ -144,13 +144,13 @@ class Loader:
 
     def _joint_ranges(self, session: Session, plan: Job | None) -> list[TraceRange] | None:
         """Each trace's range of the points of a joint probe plan (``trace_ids``); None otherwise."""
-        if plan is None or not (plan.params or {}).get("trace_ids"):
+        ranges = joint_trace_ranges(plan) if plan is not None else None
+        if ranges is None:
             return None
         out = []
-        for entry in (plan.result or {}).get("traces", []):
-            trace = self._trace(session, entry["trace_id"])
-            out.append(TraceRange(entry["trace_id"], trace, trace.name if trace else entry["trace_id"],
-                                  entry["first"], entry["first"] + entry["count"]))
+        for trace_id, (first, stop) in ranges.items():
+            trace = self._trace(session, trace_id)
+            out.append(TraceRange(trace_id, trace, trace.name if trace else trace_id, first, stop))
         return out
 
     def _joint_scene(self, ranges: list[TraceRange], planned: np.ndarray,
@@ -202,10 +202,10 @@ class Loader:
         else:
             run = session.get(Job, job.params.get("probe_run_job_id"))
             rows = (run.result or {}).get("points", []) if run else []
-            ranges = self._joint_ranges(session, session.get(Job, run.params.get("plan_job_id", ""))) if run else None
-            own = [r for r in ranges or () if r.trace_id == job.params.get("trace_id")]
+            plan = session.get(Job, run.params.get("plan_job_id", "")) if run else None
+            own = (joint_trace_ranges(plan) or {}).get(job.params.get("trace_id")) if plan else None
             if own:  # a joint run: only this trace's own probes (the others are context)
-                rows = [row for row in rows if own[0].first <= row["index"] < own[0].stop]
+                rows = [row for row in rows if own[0] <= row["index"] < own[1]]
             measured = np.asarray([r["measured"] for r in rows], float).reshape(-1, 3)
         probes, _ = self._measured_probes(trace, measured, "measured")
         curve = NurbsCurve.from_dict(job.result["curve"])

@@ -26,7 +26,7 @@ from app.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
-from app.records import get_or_404
+from app.records import get_or_404, joint_trace_ranges
 
 DEGREE = 3
 
@@ -164,7 +164,7 @@ def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dic
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
     rows = probe_run.result["points"]
     plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
-    ranges = trace_ranges(plan)
+    ranges = joint_trace_ranges(plan)
     if ranges is None:
         return [p["measured"] for p in rows], {}
     if params.trace_id not in ranges:
@@ -173,10 +173,3 @@ def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dic
     by_trace = {t: [p["measured"] for p in rows if lo <= p["index"] < hi] for t, (lo, hi) in ranges.items()}
     own = by_trace.pop(params.trace_id)
     return own, by_trace
-
-
-def trace_ranges(plan: Job) -> dict[str, tuple[int, int]] | None:
-    """{trace id: [first, stop) point indices} of a joint probe plan; None for a one-trace plan."""
-    if not (plan.params or {}).get("trace_ids"):
-        return None
-    return {t["trace_id"]: (t["first"], t["first"] + t["count"]) for t in (plan.result or {}).get("traces", [])}
