@@ -1,4 +1,5 @@
-"""The scale-out profile on real PostgreSQL + Redis (skipped, with the reason, when absent).
+"""The scale-out profile on real PostgreSQL + Redis (skipped, with the reason, when absent;
+under ``CI=true`` a missing server fails the test: ``tests/real_components.py``).
 
 Same models, same migrations, same job code: only CONFORMA_DATABASE_URL and
 CONFORMA_QUEUE_URL change.  Servers default to the project machines' 127.0.0.1:5432 and
@@ -13,28 +14,36 @@ import time
 
 import pytest
 
+from tests.real_components import missing
+
 PG_ADMIN_URL = os.environ.get("CONFORMA_TEST_DATABASE_URL", "postgresql://postgres@127.0.0.1:5432/postgres")
 REDIS_URL = os.environ.get("CONFORMA_TEST_QUEUE_URL", "redis://127.0.0.1:6379/15")
 
 
 def _postgres_database():
-    psycopg = pytest.importorskip("psycopg")
+    try:
+        import psycopg
+    except ImportError as exc:
+        missing("PostgreSQL", f"psycopg is not installed: {exc}")
     try:
         admin = psycopg.connect(PG_ADMIN_URL, autocommit=True, connect_timeout=2)
     except Exception as exc:  # pragma: no cover - depends on the machine
-        pytest.skip(f"PostgreSQL not reachable at {PG_ADMIN_URL}: {exc}")
+        missing("PostgreSQL", f"not reachable at {PG_ADMIN_URL}: {exc}")
     name = f"conforma_test_{secrets.token_hex(4)}"
     admin.execute(f'CREATE DATABASE "{name}"')
     return admin, name
 
 
 def _redis():
-    redis = pytest.importorskip("redis")
+    try:
+        import redis
+    except ImportError as exc:
+        missing("Redis", f"the redis client is not installed: {exc}")
     client = redis.Redis.from_url(REDIS_URL, socket_connect_timeout=2)
     try:
         client.ping()
     except Exception as exc:  # pragma: no cover
-        pytest.skip(f"Redis not reachable at {REDIS_URL}: {exc}")
+        missing("Redis", f"not reachable at {REDIS_URL}: {exc}")
     return client
 
 

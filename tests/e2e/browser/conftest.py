@@ -1,6 +1,7 @@
 """Headless Chromium (the Debian ``chromium`` package) driven by playwright against a real
 ``conforma serve`` (API + worker + viser view).  Never downloads a browser: without
-chromium or playwright the tests skip and say why."""
+chromium or playwright the tests skip and say why, except under ``CI=true``, where they
+fail (``tests/real_components.py``)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import httpx
 import pytest
 
 from tests.processes import free_port, stop, wait_healthy
+from tests.real_components import missing
 
 ROOT = Path(__file__).resolve().parents[3]
 # Test runs write screenshots as test artifacts; `make screenshots` copies them to
@@ -37,12 +39,12 @@ def _missing() -> str | None:
     return None
 
 
-def pytest_collection_modifyitems(items):  # type: ignore[no-untyped-def]
+@pytest.fixture(autouse=True)
+def _chromium_present() -> None:
+    """Every browser test needs Debian's Chromium and playwright: skip, or fail under CI."""
     reason = _missing()
     if reason:
-        for item in items:
-            if "tests/e2e/browser" in str(item.fspath):
-                item.add_marker(pytest.mark.skip(reason=reason))
+        missing("Chromium (browser tests)", reason)
 
 
 @dataclass(frozen=True)
