@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import time
 
-
 from tests.e2e.browser.conftest import screenshot
 
 # A slow program on a real-time mock: long enough to still be printing when stopped.
