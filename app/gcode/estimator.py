@@ -18,18 +18,20 @@ Usable on any G-code text (:func:`estimate_gcode`) or on move arrays
 * time of a block with entry vi, exit vf, nominal vn: trapezoid
   (vn - vi)/a + (vn - vf)/a + (L - d_acc - d_dec)/vn, or a triangle with peak
   sqrt((2 a L + vi^2 + vf^2) / 2) when L is too short to reach vn.
-Not modelled: Marlin's 16-block planner buffer, minimum segment time, S-curves, arcs
-(G2/G3 are timed as straight chords), firmware retraction (G10/G11), heating waits.
+The program is read by the one G-code reader (:mod:`app.gcode.reader`): G92, G28, units,
+relative modes and arcs (timed along their chords) as it defines them.
+Not modelled: Marlin's 16-block planner buffer, minimum segment time, S-curves, firmware
+retraction (G10/G11), heating waits.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from app.errors import InvalidInput
+from app.gcode.reader import ReadOptions, read_program
 
 
 class EstimatorError(InvalidInput):
@@ -149,105 +151,41 @@ def estimate_moves(positions: np.ndarray, feed_mm_s: np.ndarray, limits: Machine
     return np.where(valid, t, 0.0)
 
 
-_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
-_LAYER = re.compile(r";\s*LAYER[:\s]*(-?\d+)", re.IGNORECASE)
-
-
-def _parse(text: str, limits: MachineLimits):
-    pos = np.zeros(4)                                     # machine position
-    offset = np.zeros(4)                                  # machine - programmed (G92)
-    absolute, e_absolute, scale = True, True, 1.0
-    feed = 25.0                                           # mm/s until the first F
-    rows, feeds, stops, jumps, layers = [pos.copy()], [], [False], [], []
-    dwell, layer = 0.0, -1
-    for raw in text.splitlines():
-        m = _LAYER.search(raw)
-        if m:
-            layer = int(m.group(1))
-        line = raw.split(";", 1)[0].upper()
-        if "(" in line:
-            line = re.sub(r"\(.*?\)", "", line)
-        words = _WORD.findall(line)
-        if not words:
-            continue
-        w = {}
-        for k, val in words:
-            w.setdefault(k, float(val))
-        g, mcode = w.get("G"), w.get("M")
-        if g in (0.0, 1.0, 2.0, 3.0):
-            if "F" in w:
-                feed = w["F"] * scale / 60.0
-            target = pos.copy()
-            for i, ax in enumerate("XYZE"):
-                if ax in w:
-                    rel = not absolute or (ax == "E" and not e_absolute)
-                    target[i] = pos[i] + w[ax] * scale if rel else w[ax] * scale + offset[i]
-            if np.any(target != pos):
-                rows.append(target)
-                feeds.append(feed)
-                stops.append(False)
-                jumps.append(False)
-                layers.append(layer)
-                pos = target
-        elif g == 4.0:
-            dwell += w.get("P", 0.0) / 1000.0 + w.get("S", 0.0)
-            stops[-1] = True
-        elif g == 20.0:
-            scale = 25.4
-        elif g == 21.0:
-            scale = 1.0
-        elif g == 90.0:
-            absolute = True
-        elif g == 91.0:
-            absolute = False
-        elif g == 92.0:
-            for i, ax in enumerate("XYZE"):
-                if ax in w:
-                    offset[i] = pos[i] - w[ax] * scale
-        elif g == 28.0:
-            target = pos.copy()
-            for i, ax in enumerate("XYZ"):
-                if ax in w or not any(a in w for a in "XYZ"):
-                    target[i], offset[i] = 0.0, 0.0
-            rows.append(target)
-            feeds.append(feed)
-            stops.append(True)
-            jumps.append(True)
-            layers.append(layer)
-            pos = target
-        elif mcode == 82.0:
-            e_absolute = True
-        elif mcode == 83.0:
-            e_absolute = False
-        elif mcode == 204.0:
+def _apply_limit_commands(limits: MachineLimits,
+                          commands: tuple[tuple[str, dict[str, float]], ...]) -> MachineLimits:
+    """``limits`` after the program's M201/M203/M204/M205 commands, in order."""
+    for code, w in commands:
+        if code == "M204":
             p = w.get("P", w.get("S"))
             limits = replace(limits, accel_mm_s2=p if p else limits.accel_mm_s2,
-                             travel_accel_mm_s2=w.get("T", w.get("S",
-                                                               limits.travel_accel_mm_s2)),
+                             travel_accel_mm_s2=w.get("T", w.get("S", limits.travel_accel_mm_s2)),
                              retract_accel_mm_s2=w.get("R", limits.retract_accel_mm_s2))
-        elif mcode == 205.0 and "J" in w:
+        elif code == "M205" and "J" in w:
             limits = replace(limits, junction_deviation_mm=w["J"])
-        elif mcode in (203.0, 201.0):
-            attr = "max_feed_mm_s" if mcode == 203.0 else "max_accel_mm_s2"
+        elif code in ("M203", "M201"):
+            attr = "max_feed_mm_s" if code == "M203" else "max_accel_mm_s2"
             cur = list(getattr(limits, attr))
             for i, ax in enumerate("XYZE"):
                 if ax in w:
                     cur[i] = w[ax]
             limits = replace(limits, **{attr: tuple(cur)})
-    return (np.array(rows), np.array(feeds), np.array(stops + [True]), np.array(jumps, dtype=bool),
-            layers, dwell, limits)
+    return limits
 
 
 def estimate_gcode(text: str, limits: MachineLimits = MachineLimits()) -> TimeEstimate:
-    """Estimate the run time of G-code ``text`` (G0/G1/G2/G3/G4/G20/G21/G28/G90/G91/G92,
-    M82/M83/M201/M203/M204/M205 J).  The last M201/M203/M204/M205 seen applies to the
-    whole file (limits are normally set once in the start section)."""
-    rows, feeds, stops, jumps, layers, dwell, limits = _parse(text, limits)
-    if len(rows) < 2:
+    """Estimate the run time of G-code ``text`` as :func:`app.gcode.reader.read_program`
+    reads it (arcs timed along their chords at the reader's tolerance).  The last
+    M201/M203/M204/M205 seen applies to the whole file (limits are normally set once in
+    the start section)."""
+    program = read_program(text, ReadOptions(feed_mm_s=25.0))
+    limits = _apply_limit_commands(limits, program.limits)
+    dwell = program.dwell_s
+    if program.count == 0:
         return TimeEstimate(dwell, 0.0, 0.0, dwell, 0, np.zeros(0), ())
-    stops = stops[: len(rows)]
-    stops[-1] = True
-    t = estimate_moves(rows, feeds, limits, stops, jumps)
+    rows = np.vstack([program.start[:1], program.end])
+    stops = np.concatenate([program.stop_before, [True]])
+    t = estimate_moves(rows, program.feed_mm_s, limits, stops, program.home)
+    layers = program.layer
     d = np.diff(rows, axis=0)
     printing = d[:, 3] > 1e-12
     lay = np.asarray(layers)

@@ -11,32 +11,21 @@ from __future__ import annotations
 import re
 
 from app.errors import InvalidInput
+from app.gcode.reader import read_program
 from hardware.protocol import commands_sha256, normalized_commands
 
 _WORD = re.compile(r"^([GMTFSXYZEIJKPRNABC]\s*-?\d|\$[A-Z#$]?|[~!?]$)", re.IGNORECASE)
-_AXIS = re.compile(r"([XYZ])\s*(-?\d+(?:\.\d*)?|-?\.\d+)", re.IGNORECASE)
 
 
 def gcode_meta(text: str) -> dict:
-    """``{lines, commands, commands_sha256, bounds}``; bounds of absolute G0/G1 X Y Z
-    targets in mm as ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` (None when no moves)."""
+    """``{lines, commands, commands_sha256, bounds}``; ``bounds``: the lowest and highest
+    machine position the program moves to, ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm,
+    as :func:`app.gcode.reader.read_program` reads it (relative moves, G92, G28, arcs and
+    inches included; None when there are no moves)."""
     lines = text.splitlines()
     digest = commands_sha256(lines)
-    position: dict[str, float] = {}
-    lows: dict[str, float] = {}
-    highs: dict[str, float] = {}
-    for command in normalized_commands(lines):
-        head = command.split(None, 1)[0].upper()
-        if head not in ("G0", "G1", "G00", "G01"):
-            continue
-        for axis, value in _AXIS.findall(command):
-            position[axis.upper()] = float(value)
-        for axis, value in position.items():
-            lows[axis] = min(lows.get(axis, value), value)
-            highs[axis] = max(highs.get(axis, value), value)
-    bounds = None
-    if all(a in lows for a in "XYZ"):
-        bounds = [[lows[a] for a in "XYZ"], [highs[a] for a in "XYZ"]]
+    extent = read_program(text).bounds()
+    bounds = None if extent is None else extent.tolist()
     return {"lines": len(lines), "commands": digest.count, "commands_sha256": digest.sha256, "bounds": bounds}
 
 

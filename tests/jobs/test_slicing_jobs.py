@@ -13,6 +13,7 @@ import trimesh
 from shapely.geometry import Polygon
 
 from app.gcode.estimator import MachineLimits, estimate_gcode
+from app.gcode.reader import read_program
 from hardware.protocol import commands_sha256
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
@@ -171,9 +172,15 @@ def test_toolpath_time_is_the_estimate_of_the_downloaded_program(client, part):
         for lay in result["layers"]:
             assert 0.95 * NET_AREA < lay["path_mm"] * w < 1.3 * NET_AREA
         assert result["path_mm"] == pytest.approx(sum(lay["path_mm"] for lay in result["layers"]))
+        # every extruding move stays inside the part's footprint, half a bead in
+        program = read_program(text)
+        beads = program.end[program.dispense, :2]
+        assert beads.min() >= w / 2 - 1e-3 and beads[:, 0].max() <= SIZE[0] - w / 2 + 1e-3
+        assert beads[:, 1].max() <= SIZE[1] - w / 2 + 1e-3
+        # the stored bounds are the machine's: from home (after G28) to the 5 mm lift at the end
         (x0, y0, _), (x1, y1, z1) = meta["meta"]["bounds"]
-        assert min(x0, y0) >= w / 2 - 1e-3 and x1 <= SIZE[0] - w / 2 + 1e-3 and y1 <= SIZE[1] - w / 2 + 1e-3
-        assert z1 == pytest.approx(SIZE[2] + 5.0)       # the end section lifts 5 mm
+        np.testing.assert_allclose(meta["meta"]["bounds"], program.bounds().tolist())
+        assert z1 == pytest.approx(SIZE[2] + 5.0)
 
 
 def test_dispense_on_grbl_writes_the_dispenser_commands(client, part):

@@ -1,0 +1,363 @@
+"""The one G-code reader: a modal interpreter that turns program text into moves.
+
+Every consumer of G-code in the service reads programs through :func:`read_program` — the
+time estimator, the 3-D view and the metadata stored with programs and artifacts — so they
+agree on what a program does.  (The hardware package keeps its own line codec: it frames
+and checksums lines, it does not interpret them.)
+
+Semantics (RS274/NGC as Marlin, grbl and LinuxCNC share them):
+
+* comments ``;...`` and ``(...)``, line numbers ``N..`` and ``*checksum`` are dropped; words
+  are case-insensitive; several G/M codes may share a line and act in order;
+* motion is modal: a line with axis words and no motion code repeats the last of
+  ``G0 G1 G2 G3`` (none before the first: such a line is ignored, as grbl reports error 31);
+* ``G20``/``G21`` set inches/millimetres for axis words, arc centres and ``F``; A/C are degrees;
+* ``G90``/``G91`` absolute/relative XYZ (and A/C); ``M82``/``M83`` absolute/relative E;
+* ``G92`` declares the current position to be the given coordinates: the *machine* position
+  does not move, the program frame shifts.  Positions reported here are machine positions
+  (what the nozzle really does), so ``G92`` never produces a move;
+* ``G28`` homes the named axes (all XYZ when none is named) to machine zero and clears their
+  ``G92`` shift (Marlin's behaviour); it is reported as a move flagged ``home``;
+* ``G2``/``G3`` arcs in the XY plane (``G17``; ``G18``/``G19`` are refused) with ``I J``
+  centre offsets or ``R`` radius, helical in Z and linear in E, are split into chords whose
+  sagitta is at most ``arc_tolerance_mm``;
+* ``G4 P<ms>`` / ``G4 S<s>`` dwell: the machine stops there;
+* the dispenser is on between the profile's exact ``dispense_on`` and ``dispense_off`` lines
+  when given, else between the command words ``M3 M4 M7 M8 M106`` and ``M5 M9 M107``;
+* ``;LAYER:n`` (or ``;LAYER n``) comments tag the following moves with layer ``n``;
+* ``M201 M203 M204 M205`` (machine limits) are collected in order for the estimator.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.errors import InvalidInput
+
+INCH_MM = 25.4
+DEFAULT_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
+DEFAULT_OFF = frozenset({"M107", "M9", "M5"})
+LIMIT_CODES = frozenset({"M201", "M203", "M204", "M205"})
+RAPID, FEED, ARC_CW, ARC_CCW, HOME = 0, 1, 2, 3, 28
+
+_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_LAYER = re.compile(r";\s*LAYER[:\s]*(-?\d+)", re.IGNORECASE)
+_PAREN = re.compile(r"\([^)]*\)")
+_LINE_NUMBER = re.compile(r"^N\d+\s*")
+_AXES = "XYZE"
+
+
+class GcodeReadError(InvalidInput):
+    """The text cannot be read as G-code (not UTF-8, a malformed arc, an unsupported plane)."""
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """How to read a program.
+
+    ``dispense_on``/``dispense_off``: the machine profile's exact lines (whitespace and case
+    are normalised), replacing the default command words; ``arc_tolerance_mm``: the largest
+    sagitta of an arc's chords (mm); ``feed_mm_s``: the feed until the first ``F`` (mm/s).
+    """
+
+    dispense_on: str | None = None
+    dispense_off: str | None = None
+    arc_tolerance_mm: float = 0.002
+    feed_mm_s: float = 25.0
+
+
+@dataclass(frozen=True)
+class Program:
+    """Every move of a program, m of them, in machine coordinates (mm, degrees, s).
+
+    start, end: (m, 4) float64 x, y, z, e before/after each move; rotary: (m, 2) float64 A, C
+    (degrees) after each move; feed_mm_s: (m,) requested feed; motion: (m,) int8 — RAPID,
+    FEED, ARC_CW, ARC_CCW (one entry per chord) or HOME; dispense: (m,) bool — a feed move
+    while the dispenser is on or the extruder advances; layer: (m,) int64 (-1 before any tag);
+    line: (m,) int64 1-based source line; stop_before: (m,) bool — the machine stops (dwell)
+    between the previous move and this one.  ``dwell_s``: total dwell; ``limits``: the
+    M201/M203/M204/M205 commands in order as (code, {letter: value}).
+    """
+
+    start: np.ndarray
+    end: np.ndarray
+    rotary: np.ndarray
+    feed_mm_s: np.ndarray
+    motion: np.ndarray
+    dispense: np.ndarray
+    layer: np.ndarray
+    line: np.ndarray
+    stop_before: np.ndarray
+    dwell_s: float
+    limits: tuple[tuple[str, dict[str, float]], ...]
+
+    @property
+    def count(self) -> int:
+        return len(self.start)
+
+    @property
+    def home(self) -> np.ndarray:
+        """(m,) bool: homing moves (they take no planned time)."""
+        return self.motion == HOME
+
+    def bounds(self) -> np.ndarray | None:
+        """(2, 3) lowest and highest XYZ the program commands (mm), None without moves.
+        Homing moves do not count (home is the machine's own place, inside its volume by
+        definition), nor does the position before the first move (never commanded)."""
+        ends = self.end[~self.home, :3]
+        if len(ends) == 0:
+            return None
+        return np.stack([ends.min(axis=0), ends.max(axis=0)])
+
+
+@dataclass
+class _State:
+    """The modal state while reading (machine frame unless named otherwise)."""
+
+    pos: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    shift: np.ndarray = field(default_factory=lambda: np.zeros(4))  # machine - program (G92)
+    rot: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    scale: float = 1.0
+    relative: bool = False
+    relative_e: bool = False
+    motion: int | None = None
+    feed: float = 25.0
+    dispensing: bool = False
+    layer: int = -1
+    stop_pending: bool = False
+
+
+def _normalise(line: str | None) -> str | None:
+    return None if line is None else " ".join(line.split(";")[0].upper().split())
+
+
+def _strip(raw: str) -> str:
+    """A line without comments, line number and checksum, upper case, blanks collapsed."""
+    line = _PAREN.sub("", raw.split(";", 1)[0]).strip().upper()
+    if "*" in line:
+        line = line.split("*", 1)[0].strip()
+    if line.startswith("N"):
+        line = _LINE_NUMBER.sub("", line)
+    return " ".join(line.split())
+
+
+class _Reader:
+    def __init__(self, options: ReadOptions) -> None:
+        self.options = options
+        self.on_line = _normalise(options.dispense_on)
+        self.off_line = _normalise(options.dispense_off)
+        self.state = _State(feed=options.feed_mm_s)
+        self.rows: list[tuple] = []
+        self.dwell = 0.0
+        self.limits: list[tuple[str, dict[str, float]]] = []
+        self.text = ""  # the current line, stripped
+
+    def emit(self, start: np.ndarray, end: np.ndarray, motion: int, number: int, extrudes: bool) -> None:
+        s = self.state
+        dispense = motion in (FEED, ARC_CW, ARC_CCW) and (s.dispensing or extrudes)
+        self.rows.append((start.copy(), end.copy(), s.rot.copy(), s.feed, motion, dispense, s.layer, number,
+                          s.stop_pending))
+        s.stop_pending = False
+
+    def line(self, raw: str, number: int) -> None:
+        s = self.state
+        tag = _LAYER.search(raw)
+        if tag:
+            s.layer = int(tag.group(1))
+        text = _strip(raw)
+        if not text:
+            return
+        self.text = text
+        if self.on_line is not None and text == self.on_line:
+            s.dispensing = True
+            return
+        if self.off_line is not None and text == self.off_line:
+            s.dispensing = False
+            return
+        words = _WORD.findall(text)
+        if not words:
+            return
+        codes: list[str] = []
+        values: dict[str, float] = {}
+        for letter, value in words:
+            number_value = float(value)
+            if letter in "GM":
+                codes.append(f"{letter}{number_value:g}")
+            elif letter != "N":
+                values.setdefault(letter, number_value)
+        motion_here: int | None = None
+        axis_consumer = False  # a non-motion code on this line owns the axis words
+        for code in codes:
+            axis_consumer |= self.modal(code, values, number)
+            if code in ("G0", "G1", "G2", "G3"):
+                motion_here = int(code[1:])
+        if "F" in values:
+            s.feed = values["F"] * s.scale / 60.0
+        if axis_consumer:
+            return
+        if motion_here is not None:
+            s.motion = motion_here
+        if s.motion is None or not any(k in values for k in "XYZEAC"):
+            return
+        self.move(values, number)
+
+    def modal(self, code: str, values: dict[str, float], number: int) -> bool:
+        """Apply one non-motion code; True when it consumes the line's axis words."""
+        s = self.state
+        if self.on_line is None and code in DEFAULT_ON:
+            s.dispensing = True
+        elif self.off_line is None and code in DEFAULT_OFF:
+            s.dispensing = False
+        elif code == "G20":
+            s.scale = INCH_MM
+        elif code == "G21":
+            s.scale = 1.0
+        elif code == "G90":
+            s.relative = False
+        elif code == "G91":
+            s.relative = True
+        elif code == "M82":
+            s.relative_e = False
+        elif code == "M83":
+            s.relative_e = True
+        elif code in ("G18", "G19"):
+            raise GcodeReadError(f"line {number}: only the XY plane (G17) is supported for arcs",
+                                 field="gcode", value=number)
+        elif code == "G4":
+            self.dwell += values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
+            s.stop_pending = True
+            return True
+        elif code == "G92":
+            for i, axis in enumerate(_AXES):
+                if axis in values:
+                    unit = 1.0 if axis == "E" else s.scale
+                    s.shift[i] = s.pos[i] - values[axis] * unit
+            return True
+        elif code == "G28":  # "G28 X" and "G28 X0" both home X
+            letters = set(re.sub(r"G\s*28(?![\d.])", "", self.text))
+            named = [axis for axis in "XYZ" if axis in letters] or list("XYZ")
+            target = s.pos.copy()
+            for axis in named:
+                target[_AXES.index(axis)] = 0.0
+                s.shift[_AXES.index(axis)] = 0.0
+            self.emit(s.pos, target, HOME, number, False)
+            s.pos = target
+            s.stop_pending = True
+            return True
+        elif code in LIMIT_CODES:
+            self.limits.append((code, dict(values)))
+            return True
+        elif code.startswith("G") and code not in ("G0", "G1", "G2", "G3", "G17"):
+            return True  # G10, G53, G38.x...: axis words are not a move of ours
+        return False
+
+    def target(self, values: dict[str, float]) -> np.ndarray:
+        s = self.state
+        target = s.pos.copy()
+        for i, axis in enumerate(_AXES):
+            if axis not in values:
+                continue
+            if axis == "E":
+                relative, unit = s.relative_e or s.relative, 1.0
+            else:
+                relative, unit = s.relative, s.scale
+            target[i] = s.pos[i] + values[axis] * unit if relative else values[axis] * unit + s.shift[i]
+        for k, axis in enumerate("AC"):
+            if axis in values:
+                s.rot[k] = s.rot[k] + values[axis] if s.relative else values[axis]
+        return target
+
+    def move(self, values: dict[str, float], number: int) -> None:
+        s = self.state
+        start = s.pos.copy()
+        rotated = "A" in values or "C" in values
+        end = self.target(values)
+        extrudes = bool(end[3] > start[3] + 1e-12)
+        if s.motion in (ARC_CW, ARC_CCW):
+            points = self.arc_points(start, end, values, number)
+            for a, b in zip(points[:-1], points[1:]):
+                self.emit(a, b, s.motion, number, extrudes)
+        elif np.any(end != start) or rotated:
+            self.emit(start, end, s.motion if s.motion is not None else FEED, number, extrudes)
+        s.pos = end
+
+    def arc_points(self, start: np.ndarray, end: np.ndarray, values: dict[str, float], number: int) -> np.ndarray:
+        """(k + 1, 4) chord points of an XY arc from ``start`` to ``end`` (helical Z, linear E)."""
+        s = self.state
+        clockwise = s.motion == ARC_CW
+        if "R" in values:
+            radius = values["R"] * s.scale
+            chord = end[:2] - start[:2]
+            half = float(np.hypot(*chord)) / 2.0
+            if half < 1e-12 or abs(radius) < half - 1e-9:
+                raise GcodeReadError(f"line {number}: arc radius {values['R']:g} cannot join its end points",
+                                     field="gcode", value=number)
+            offset = math.sqrt(max(radius * radius - half * half, 0.0))
+            middle = (start[:2] + end[:2]) / 2.0
+            normal = np.array([-chord[1], chord[0]]) / (2.0 * half)
+            # the centre lies left of the chord for a short CCW (or long CW) arc
+            sign = 1.0 if (clockwise == (radius < 0)) else -1.0
+            centre = middle + sign * offset * normal
+        elif "I" in values or "J" in values:
+            centre = start[:2] + np.array([values.get("I", 0.0), values.get("J", 0.0)]) * s.scale
+        else:
+            raise GcodeReadError(f"line {number}: an arc needs I/J or R", field="gcode", value=number)
+        r0 = float(np.hypot(*(start[:2] - centre)))
+        r1 = float(np.hypot(*(end[:2] - centre)))
+        if r0 < 1e-9 or abs(r0 - r1) > max(0.005, 1e-3 * r0):
+            raise GcodeReadError(f"line {number}: arc end is not on its circle (radius {r0:.4f} vs {r1:.4f} mm)",
+                                 field="gcode", value=number)
+        a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
+        a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
+        sweep = a1 - a0
+        if clockwise:
+            sweep = sweep - 2 * math.pi if sweep >= -1e-12 else sweep
+        else:
+            sweep = sweep + 2 * math.pi if sweep <= 1e-12 else sweep
+        tol = max(self.options.arc_tolerance_mm, 1e-6)
+        step = 2.0 * math.acos(max(1.0 - tol / r0, -1.0)) if tol < r0 else math.pi / 2
+        count = max(1, int(math.ceil(abs(sweep) / max(step, 1e-6))))
+        t = np.linspace(0.0, 1.0, count + 1)
+        angle = a0 + sweep * t
+        radius_t = r0 + (r1 - r0) * t
+        points = np.empty((count + 1, 4))
+        points[:, 0] = centre[0] + radius_t * np.cos(angle)
+        points[:, 1] = centre[1] + radius_t * np.sin(angle)
+        points[:, 2] = start[2] + (end[2] - start[2]) * t
+        points[:, 3] = start[3] + (end[3] - start[3]) * t
+        points[0], points[-1] = start, end
+        return points
+
+    def program(self) -> Program:
+        m = len(self.rows)
+        if m == 0:
+            empty = np.zeros((0, 4))
+            return Program(empty, empty.copy(), np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int8),
+                           np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool),
+                           self.dwell, tuple(self.limits))
+        start, end, rot, feed, motion, dispense, layer, line, stop = zip(*self.rows)
+        return Program(np.array(start), np.array(end), np.array(rot), np.array(feed, dtype=float),
+                       np.array(motion, dtype=np.int8), np.array(dispense, dtype=bool),
+                       np.array(layer, dtype=np.int64), np.array(line, dtype=np.int64),
+                       np.array(stop, dtype=bool), self.dwell, tuple(self.limits))
+
+
+def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Program:
+    """Every move of G-code ``text`` (see the module docstring for the rules).
+
+    Raises :class:`GcodeReadError` (field ``gcode``) when the bytes are not UTF-8 or an arc
+    is malformed.
+    """
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise GcodeReadError("the program is not UTF-8 text", field="gcode", value=str(exc)[:80]) from None
+    reader = _Reader(options)
+    for number, raw in enumerate(text.splitlines(), start=1):
+        reader.line(raw, number)
+    return reader.program()
