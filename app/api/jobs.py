@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import json
 import time
+from datetime import datetime, timezone
 from collections.abc import Iterator
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Header, Response
+from fastapi import APIRouter, Header, Query, Response
 from fastapi.responses import StreamingResponse
 from sqlalchemy import bindparam, func
 from sqlmodel import Session, select
@@ -15,7 +16,7 @@ from sqlmodel import Session, select
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page
 from app.errors import Conflict, NotFound
-from app.models import TERMINAL_STATES, Artifact, Job
+from app.models import TERMINAL_STATES, Artifact, Job, JobReference, Trace
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
@@ -52,10 +53,28 @@ def submit_job(body: JobCreate, runtime: RuntimeDep, session: SessionDep, respon
 
 @router.get("", dependencies=[Viewer])
 def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | None = None,
-              parent_id: str | None = None, limit: Limit = 100,
-              offset: Offset = 0) -> Page[JobOut]:
+              parent_id: str | None = None,
+              part_id: Annotated[str | None, Query(max_length=40, description=(
+                  "jobs that read this part or one of its traces"))] = None,
+              machine_id: Annotated[str | None, Query(max_length=40, description="jobs that use this machine")] = None,
+              top_level: Annotated[bool, Query(description="only jobs without a parent (hide workflow children)")] = False,
+              created_after: Annotated[datetime | None, Query(description="ISO 8601; inclusive")] = None,
+              created_before: Annotated[datetime | None, Query(description="ISO 8601; exclusive")] = None,
+              limit: Limit = 100, offset: Offset = 0) -> Page[JobOut]:
+    """Jobs, newest first, filtered by kind, status, parent, part, machine and creation time."""
     filters = [c for c in (Job.kind == kind if kind else None, Job.status == status if status else None,
-                           Job.parent_id == parent_id if parent_id else None) if c is not None]
+                           Job.parent_id == parent_id if parent_id else None,
+                           Job.parent_id.is_(None) if top_level else None,  # type: ignore[union-attr]
+                           Job.created_at >= _utc(created_after) if created_after else None,
+                           Job.created_at < _utc(created_before) if created_before else None) if c is not None]
+    if part_id:
+        traces = select(Trace.id).where(Trace.part_id == part_id)
+        filters.append(Job.id.in_(select(JobReference.job_id).where(  # type: ignore[attr-defined]
+            ((JobReference.ref_kind == "part") & (JobReference.ref_id == part_id))
+            | ((JobReference.ref_kind == "trace") & JobReference.ref_id.in_(traces)))))  # type: ignore[attr-defined]
+    if machine_id:
+        filters.append(Job.id.in_(select(JobReference.job_id).where(  # type: ignore[attr-defined]
+            JobReference.ref_kind == "machine", JobReference.ref_id == machine_id)))
     total = session.exec(select(func.count()).select_from(Job).where(*filters)).one()
     jobs = session.exec(select(Job).where(*filters).order_by(Job.created_at.desc(), Job.id).offset(offset).limit(limit)).all()
     ids = [j.id for j in jobs]
@@ -64,6 +83,11 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
         for artifact in session.exec(select(Artifact).where(Artifact.job_id.in_(ids)).order_by(Artifact.id)).all():
             by_job[artifact.job_id].append(artifact)
     return Page(items=[job_out(j, by_job[j.id]) for j in jobs], total=total)
+
+
+def _utc(moment: datetime) -> datetime:
+    """A naive time from a query is taken as UTC (jobs are stored in UTC)."""
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=timezone.utc)
 
 
 @router.get("/{job_id}", dependencies=[Viewer], response_model=JobOut)

@@ -3,6 +3,7 @@
 // artifacts, cancel, open in 3D.
 import { ApiError, download, get, post, streamEvents } from "./api.js";
 import { schemaForm } from "./schema_form.js";
+import { figuresTable } from "./results.js";
 import { el, fmt, guarded, initPage, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
 
 const TERMINAL = new Set(["succeeded", "failed", "cancelled"]);
@@ -87,12 +88,56 @@ async function onSubmit(event) {
   }
 }
 
-// ---- list with live progress -------------------------------------------------------------
+// ---- history: filters, paging and live progress ------------------------------------------
+const PAGE_SIZE = 25;
+const STATUSES = ["queued", "running", "succeeded", "failed", "cancelled", "interrupted"];
 const tbody = el("tbody", { id: "jobs-body" });
-left.append(el("section", {}, el("h2", {}, "Recent jobs ", el("button", { onclick: () => refresh(), class: "small" }, "Refresh")),
-  el("table", { id: "jobs-table" }, el("thead", {}, el("tr", {}, ["Job", "Status", "Progress", "Message"].map((h) => el("th", {}, h)))), tbody)));
+const filterKind = el("select", { id: "filter-kind", "aria-label": "filter by kind" }, el("option", { value: "" }, "any kind"));
+const filterStatus = el("select", { id: "filter-status", "aria-label": "filter by status" },
+  el("option", { value: "" }, "any status"), STATUSES.map((st) => el("option", { value: st }, st)));
+const filterPart = el("select", { id: "filter-part", "aria-label": "filter by part" }, el("option", { value: "" }, "any part"));
+const filterMachine = el("select", { id: "filter-machine", "aria-label": "filter by machine" }, el("option", { value: "" }, "any machine"));
+const filterAfter = el("input", { type: "date", id: "filter-after", "aria-label": "created on or after" });
+const filterBefore = el("input", { type: "date", id: "filter-before", "aria-label": "created before" });
+const filterTop = el("input", { type: "checkbox", id: "filter-top", checked: true });
+const pageInfo = el("span", { id: "page-info", class: "small" });
+const prevButton = el("button", { type: "button", id: "page-prev", onclick: () => { offset = Math.max(0, offset - PAGE_SIZE); refresh(); } }, "← newer");
+const nextButton = el("button", { type: "button", id: "page-next", onclick: () => { offset += PAGE_SIZE; refresh(); } }, "older →");
+let offset = 0;
+for (const control of [filterKind, filterStatus, filterPart, filterMachine, filterAfter, filterBefore, filterTop]) {
+  control.addEventListener("change", () => { offset = 0; refresh(); });
+}
+left.append(el("section", {}, el("h2", {}, "History ", el("button", { onclick: () => refresh(), class: "small" }, "Refresh")),
+  el("div", { class: "filters", role: "group", "aria-label": "job filters" }, filterKind, filterStatus, filterPart, filterMachine,
+    el("label", {}, "from ", filterAfter), el("label", {}, "before ", filterBefore),
+    el("label", {}, filterTop, " hide workflow steps")),
+  el("table", { id: "jobs-table" }, el("thead", {}, el("tr", {}, ["Job", "Status", "Progress", "Message"].map((h) => el("th", { scope: "col" }, h)))), tbody),
+  el("div", { class: "row pager" }, prevButton, pageInfo, nextButton)));
 const streams = new Map();
 let selected = null;
+
+function historyQuery() {
+  const q = new URLSearchParams({ limit: PAGE_SIZE, offset });
+  if (filterKind.value) q.set("kind", filterKind.value);
+  if (filterStatus.value) q.set("status", filterStatus.value);
+  if (filterPart.value) q.set("part_id", filterPart.value);
+  if (filterMachine.value) q.set("machine_id", filterMachine.value);
+  if (filterAfter.value) q.set("created_after", new Date(`${filterAfter.value}T00:00:00`).toISOString());
+  if (filterBefore.value) q.set("created_before", new Date(`${filterBefore.value}T00:00:00`).toISOString());
+  if (filterTop.checked) q.set("top_level", "true");
+  return q.toString();
+}
+
+async function loadFilterChoices() {
+  await guarded("Filters", async () => {
+    const [parts, machines] = await Promise.all([get("parts?limit=200"), get("machines").catch(() => ({ items: [] }))]);
+    filterPart.replaceChildren(el("option", { value: "" }, "any part"), ...parts.items.map((p) => el("option", { value: p.id }, p.name)));
+    filterMachine.replaceChildren(el("option", { value: "" }, "any machine"), ...machines.items.map((m) => el("option", { value: m.id }, m.name)));
+    filterKind.replaceChildren(el("option", { value: "" }, "any kind"), ...kinds.map((k) => el("option", { value: k.name }, k.name)));
+    if (query("part_id")) filterPart.value = query("part_id");
+    if (query("machine_id")) filterMachine.value = query("machine_id");
+  });
+}
 
 function statusCell(job) {
   return el("span", { class: `badge ${job.status}`, "data-status": job.status }, job.status);
@@ -133,9 +178,13 @@ function follow(job) {
 
 async function refresh() {
   await guarded("Jobs", async () => {
-    const page = await get("jobs?limit=50");
+    const page = await get(`jobs?${historyQuery()}`);
     tbody.replaceChildren(...page.items.map(row));
-    if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 4, class: "small" }, "No jobs yet.")));
+    if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 4, class: "small" }, offset ? "No older jobs." : "No jobs match.")));
+    const last = Math.min(offset + page.items.length, page.total);
+    pageInfo.textContent = page.total ? `${offset + 1}–${last} of ${page.total}` : "0 jobs";
+    prevButton.disabled = offset === 0;
+    nextButton.disabled = last >= page.total;
     page.items.forEach(follow);
     if (selected) tbody.querySelector(`tr[data-id="${selected}"]`)?.classList.add("selected");
   });
@@ -181,7 +230,9 @@ function renderDetail(job) {
       el("button", { id: "open-3d", onclick: () => viewer.show({ job_id: job.id }) }, "Open in 3D"),
       canCancel ? el("button", { class: "danger", id: "cancel-job", onclick: () => guarded("Cancel", async () => {
         renderDetail(await post(`jobs/${job.id}/cancel`)); showInfo(`Cancel requested for ${job.id}.`);
-      }) }, "Cancel") : null),
+      }) }, "Cancel") : null,
+      el("button", { id: "rerun-job", onclick: () => rerun(job) }, "Run again"),
+      el("button", { id: "edit-rerun", onclick: () => editCopy(job) }, "Edit a copy")),
     el("p", { class: "small" }, `created ${fmt.time(job.created_at)} · started ${fmt.time(job.started_at)} · finished ${fmt.time(job.finished_at)}`),
   ];
   if (job.error) parts.push(el("div", { class: "msg error", id: "job-error" }, `${job.error.title}: ${job.error.detail}`));
@@ -197,10 +248,33 @@ function renderDetail(job) {
       ` ${a.media_type}, ${fmt.bytes(a.bytes)}`))));
   }
   parts.push(el("details", {}, el("summary", {}, "Parameters"), el("pre", {}, compact(job.params))));
-  if (job.result) parts.push(el("details", { open: true }, el("summary", {}, "Result"), el("pre", { id: "job-result" }, compact(job.result))));
+  if (job.result) {
+    const figures = figuresTable(job.result);
+    if (figures) parts.push(el("h3", {}, "Result"), figures);
+    parts.push(el("details", {}, el("summary", {}, "Raw result (JSON)"), el("pre", { id: "job-result" }, compact(job.result))));
+  }
   detail.replaceChildren(...parts);
   detail.dataset.jobId = job.id;
   detail.dataset.status = job.status;
+}
+
+// Run a job again with exactly its parameters (a machine job asks first: it moves a machine).
+async function rerun(job) {
+  const moves = ["print", "probe_run", "register", "closed_loop"].includes(job.kind);
+  if (moves && !window.confirm(`Run ${job.kind} again? It will move the machine.`)) return;
+  await guarded("Run again", async () => {
+    const copy = await post("jobs", { kind: job.kind, params: job.params });
+    showInfo(`Job ${copy.id} (${copy.kind}) queued with the parameters of ${job.id}.`);
+    await refresh();
+    openJob(copy.id);
+  });
+}
+
+// Fill the submission form with this job's parameters, to change some before submitting.
+async function editCopy(job) {
+  kindSelect.value = job.kind;
+  await buildForm(job.params);
+  kindSelect.scrollIntoView({ behavior: "smooth", block: "start" });
 }
 
 async function openJob(jobId) {
@@ -214,8 +288,9 @@ async function openJob(jobId) {
   });
 }
 
-document.addEventListener("conforma:key", async () => { await loadKinds(); await refresh(); });
+document.addEventListener("conforma:key", async () => { await loadKinds(); await loadFilterChoices(); await refresh(); });
 await loadKinds();
+await loadFilterChoices();
 await refresh();
 if (query("job")) await openJob(query("job"));
 markReady();

@@ -82,11 +82,36 @@ function header(active) {
     showInfo(keyInput.value.trim() ? "API key saved in this browser." : "API key removed.");
   } }, keyInput, el("button", { type: "submit" }, "Save key"));
   const status = el("span", { id: "conn", class: "conn unknown", title: "API connection" }, "…");
+  const stop = el("button", { type: "button", id: "stop-all", class: "stop-all",
+    title: "Emergency stop every connected machine (keyboard: Alt+S)", onclick: stopAll }, "STOP ALL");
   return el("header", {},
     el("a", { class: "brand", href: "index.html" }, "Conforma"),
     el("nav", {}, PAGES.map(([href, label]) =>
       el("a", { href, class: href === active ? "active" : null }, label))),
-    form, status);
+    form, status, stop);
+}
+
+// ---- the global emergency stop --------------------------------------------------------
+// The machines are listed every few seconds, so a click sends the stops at once (no list
+// request first); the list is then re-read and any machine not yet stopped gets one too.
+let knownMachines = [];
+
+async function listMachines() {
+  try { knownMachines = (await get("machines")).items.map((m) => m.id); } catch { /* shown elsewhere */ }
+  return knownMachines;
+}
+
+export async function stopAll() {
+  const sent = new Set(knownMachines);
+  const stops = knownMachines.map((id) => post(`machines/${id}/stop`).then(() => id, (err) => ({ id, err })));
+  const later = (await listMachines()).filter((id) => !sent.has(id));
+  stops.push(...later.map((id) => post(`machines/${id}/stop`).then(() => id, (err) => ({ id, err }))));
+  const results = await Promise.all(stops);
+  const failed = results.filter((r) => typeof r !== "string");
+  if (!results.length) showInfo("No machine is registered: nothing to stop.");
+  else if (failed.length) failed.forEach((f) => showError(f.err, `STOP ${f.id}`));
+  else showInfo(`Emergency stop sent to ${results.length} machine(s). Home and check each machine before resuming.`, 15000);
+  document.dispatchEvent(new CustomEvent("conforma:stopped"));
 }
 
 function setConnection(state, text) {
@@ -120,6 +145,8 @@ export function initPage(active) {
   document.addEventListener("conforma:offline", () => setConnection("offline", "API unreachable"));
   document.addEventListener("conforma:online", () => setConnection("online", "API online"));
   checkHealth();
+  document.addEventListener("keydown", (e) => { if (e.altKey && (e.key === "s" || e.key === "S")) { e.preventDefault(); stopAll(); } });
+  if (getKey()) { listMachines(); setInterval(listMachines, 5000); }
   if (!getKey()) {
     showInfo("Paste your API key in the box at the top (the server printed one at first start).", 0);
     setTimeout(() => document.getElementById("api-key")?.focus(), 0);

@@ -1,0 +1,114 @@
+"""The operator's console in a real browser: a STOP on every page that stops a printing
+machine, the dashboard home, the job history's filters and paging, results with units."""
+
+from __future__ import annotations
+
+import io
+import re
+import time
+
+import pytest
+import trimesh
+
+from tests.e2e.browser.conftest import screenshot
+
+PAGES = ["index.html", "parts.html", "traces.html", "jobs.html", "machines.html"]
+SLOW_PROGRAM = "G21\nG90\nG1 X1 Y0 Z5 F600\n" + "".join(f"G1 X{10 + i} Y{i % 7} F30\n" for i in range(60))
+
+
+def _wait(api, job_id: str, timeout: float = 60.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = api.get(f"/api/v1/jobs/{job_id}").json()
+        if job["status"] in ("succeeded", "failed", "cancelled"):
+            return job
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not finish")
+
+
+@pytest.fixture(scope="module")
+def sliced(served) -> dict:
+    """A 20 x 20 x 5 mm box, sliced and filled: a toolpath job with a print time."""
+    api = served.api()
+    buffer = io.BytesIO()
+    mesh = trimesh.creation.box(extents=(20, 20, 5))
+    mesh.apply_translation([10, 10, 2.5])
+    mesh.export(buffer, file_type="stl")
+    part = api.post("/api/v1/parts", files={"file": ("console-box.stl", buffer.getvalue())}).json()
+    sliced = _wait(api, api.post("/api/v1/jobs", json={"kind": "slice", "params": {"part_id": part["id"]}}).json()["id"])
+    assert sliced["status"] == "succeeded", sliced
+    toolpath = _wait(api, api.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
+        "slice_job_id": sliced["id"], "pattern": "lines"}}).json()["id"])
+    assert toolpath["status"] == "succeeded", toolpath
+    return {"part": part, "slice": sliced, "toolpath": toolpath}
+
+
+@pytest.mark.parametrize("name", PAGES)
+def test_stop_is_on_every_page_in_view(page, name):
+    page.goto(f"/{name}")
+    stop = page.wait_for_selector("#stop-all")
+    box = stop.bounding_box()
+    assert box is not None and box["y"] + box["height"] <= 900 and box["width"] > 40
+    page.mouse.wheel(0, 3000)                      # still there after scrolling (sticky header)
+    assert page.is_visible("#stop-all")
+    assert stop.evaluate("(b) => getComputedStyle(b).backgroundColor") == "rgb(207, 34, 46)"
+
+
+def test_global_stop_stops_a_printing_machine_from_the_home_page(page, served):
+    api = served.api()
+    machine = api.post("/api/v1/machines", json={"name": "console-mock", "port": "mock://",
+                                                 "mock": {"time_scale": 1.0}}).json()
+    assert api.post(f"/api/v1/machines/{machine['id']}/connect").status_code == 200
+    program = api.post("/api/v1/programs", files={"file": ("slow.gcode", SLOW_PROGRAM.encode())}).json()
+    assert api.post(f"/api/v1/machines/{machine['id']}/print", json={"program_id": program["id"]}).status_code == 202
+    page.goto("/index.html")
+    row = f'#dash-machines .machine[data-id="{machine["id"]}"]'
+    page.wait_for_selector(f'{row} [data-state="printing"]', timeout=20_000)
+    assert "lines" in page.inner_text(row)
+    page.click("#stop-all")
+    page.wait_for_selector(f'{row} [data-state="error"]', timeout=10_000)
+    executed = api.get(f"/api/v1/machines/{machine['id']}").json()["mock"]["executed_commands"]
+    time.sleep(1.0)
+    assert api.get(f"/api/v1/machines/{machine['id']}").json()["mock"]["executed_commands"] == executed
+    assert executed < len(SLOW_PROGRAM.splitlines())
+    screenshot(page, "dashboard")
+
+
+def test_dashboard_shows_recent_results_with_units(page, sliced):
+    page.goto("/index.html")
+    line = page.wait_for_selector(f'#dash-recent [data-id="{sliced["toolpath"]["id"]}"]')
+    text = line.inner_text()
+    assert "toolpath" in text and re.search(r"\d (mm|µm|s|min)", text), text
+    assert page.js_errors == []
+
+
+def test_result_figures_have_units_and_no_float_noise(page, sliced):
+    job = sliced["toolpath"]
+    page.goto(f"/jobs.html?job={job['id']}")
+    table = page.wait_for_selector("#result-figures")
+    time_row = page.inner_text('#result-figures tr[data-key="time_s"] td')
+    seconds = job["result"]["time_s"]
+    minutes = int(seconds // 60)
+    assert (f"{minutes} min" in time_row) if seconds >= 60 else time_row.endswith(" s"), (time_row, seconds)
+    assert not re.search(r"\d\.\d{6,}", table.inner_text())       # no 17-digit numbers
+    assert not page.is_visible("#job-result")                      # raw JSON one click away
+    page.click("text=Raw result (JSON)")
+    assert page.is_visible("#job-result")
+
+
+def test_history_filters_by_kind_and_part_and_pages(page, served, sliced):
+    api = served.api()
+    page.goto("/jobs.html")
+    page.wait_for_selector("#jobs-body tr")
+    page.wait_for_selector('body[data-ready="1"]')
+    page.select_option("#filter-kind", "toolpath")
+    page.wait_for_function("() => [...document.querySelectorAll('#jobs-body tr[data-id]')].length > 0 && "
+                           "[...document.querySelectorAll('#jobs-body tr[data-id] strong')].every(s => s.textContent === 'toolpath')")
+    page.select_option("#filter-kind", "")
+    page.select_option("#filter-part", sliced["part"]["id"])
+    expected = api.get(f"/api/v1/jobs?part_id={sliced['part']['id']}&top_level=true").json()["total"]
+    page.wait_for_function("(n) => document.querySelector('#page-info').textContent.endsWith(`of ${n}`)", arg=expected)
+    ids = {row.get_attribute("data-id") for row in page.query_selector_all("#jobs-body tr[data-id]")}
+    assert sliced["slice"]["id"] in ids
+    screenshot(page, "history")
+    assert page.js_errors == []
