@@ -73,8 +73,28 @@ export function offlineError(cause) {
   return err;
 }
 
+// Raised without a request when the browser holds no key: every call but /health needs one.
+export class NoKeyError extends ApiError {
+  constructor() {
+    super("No API key yet: paste one in the box at the top.", { status: 401 });
+    this.noKey = true;
+  }
+}
+
+// Check a key against the API before it is stored: resolves, or throws ApiError (401).
+export async function verifyKey(key) {
+  let response;
+  try {
+    response = await fetch(`${API}/parts?limit=1`, { headers: { Accept: "application/json", Authorization: `Bearer ${key.trim()}` } });
+  } catch (cause) {
+    throw offlineError(cause);
+  }
+  if (!response.ok) throw await errorFrom(response);
+}
+
 // JSON request: returns the parsed body (null for 204) or throws ApiError.
 export async function request(method, path, body) {
+  if (!getKey() && !String(path).endsWith("health")) throw new NoKeyError();
   const init = { method, headers: headers() };
   if (body !== undefined) {
     init.headers["Content-Type"] = "application/json";

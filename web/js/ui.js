@@ -1,6 +1,6 @@
 // Shared page furniture: navigation, the API key box, the connection indicator, the
 // message area and the embedded 3D view.
-import { ApiError, get, getKey, post, setKey } from "./api.js";
+import { ApiError, get, getKey, post, setKey, verifyKey } from "./api.js";
 
 const PAGES = [
   ["index.html", "Home"], ["parts.html", "Parts"], ["traces.html", "Traces"],
@@ -35,11 +35,18 @@ function messageArea() {
   return document.getElementById("messages");
 }
 
-// Show an error (ApiError or any Error) as a readable, dismissable message.
+// Show an error (ApiError or any Error) as a readable, dismissable message.  The same
+// message is shown once; it goes away by itself after ERROR_TTL_MS unless it names
+// fields to fix; a missing key is not an error (the key box says what to do).
+const ERROR_TTL_MS = 20000;
+
 export function showError(err, context = "") {
   const area = messageArea();
+  if (err?.noKey) return null;
   const text = err instanceof ApiError ? err.message : `${err?.message || err}`;
-  const box = el("div", { class: `msg error${err?.offline ? " offline" : ""}`, role: "alert" },
+  const signature = `${context}|${text}`;
+  for (const old of area.querySelectorAll(".msg.error")) if (old.dataset.signature === signature) old.remove();
+  const box = el("div", { class: `msg error${err?.offline ? " offline" : ""}`, role: "alert", dataset: { signature } },
     el("button", { class: "close", title: "dismiss", onclick: () => box.remove() }, "×"),
     el("strong", {}, context ? `${context}: ` : ""), text);
   if (err instanceof ApiError && err.fieldErrors.length) {
@@ -47,7 +54,8 @@ export function showError(err, context = "") {
       err.fieldErrors.map((e) => el("li", {}, el("code", {}, e.loc || "request"), ` ${e.msg}`))));
   }
   area.prepend(box);
-  while (area.children.length > 6) area.lastChild.remove();
+  while (area.children.length > 4) area.lastChild.remove();
+  if (!(err instanceof ApiError && err.fieldErrors.length)) setTimeout(() => box.remove(), ERROR_TTL_MS);
   return box;
 }
 
@@ -76,10 +84,20 @@ export async function guarded(context, fn) {
 function header(active) {
   const keyInput = el("input", { type: "password", id: "api-key", placeholder: "paste your API key",
     autocomplete: "off", value: getKey(), "aria-label": "API key" });
-  const form = el("form", { id: "key-form", onsubmit: (e) => {
+  const form = el("form", { id: "key-form", onsubmit: async (e) => {
     e.preventDefault();
-    setKey(keyInput.value);
-    showInfo(keyInput.value.trim() ? "API key saved in this browser." : "API key removed.");
+    const key = keyInput.value.trim();
+    if (key) {
+      try {
+        await verifyKey(key);
+      } catch (err) {
+        showError(err, "API key not saved");
+        return;
+      }
+    }
+    for (const box of messageArea().querySelectorAll(".msg")) if (/API key/.test(box.textContent)) box.remove();
+    setKey(key);
+    showInfo(key ? "API key checked and saved in this browser." : "API key removed.");
   } }, keyInput, el("button", { type: "submit" }, "Save key"));
   const status = el("span", { id: "conn", class: "conn unknown", title: "API connection" }, "…");
   const stop = el("button", { type: "button", id: "stop-all", class: "stop-all",
@@ -146,9 +164,11 @@ export function initPage(active) {
   document.addEventListener("conforma:online", () => setConnection("online", "API online"));
   checkHealth();
   document.addEventListener("keydown", (e) => { if (e.altKey && (e.key === "s" || e.key === "S")) { e.preventDefault(); stopAll(); } });
-  if (getKey()) { listMachines(); setInterval(listMachines, 5000); }
+  listMachines();
+  setInterval(listMachines, 5000);
+  document.addEventListener("conforma:key", listMachines);
   if (!getKey()) {
-    showInfo("Paste your API key in the box at the top (the server printed one at first start).", 0);
+    showInfo("Paste your API key in the box at the top (`make run` printed one at the first start), then Save key.", 0);
     setTimeout(() => document.getElementById("api-key")?.focus(), 0);
   }
   return document.querySelector("main");

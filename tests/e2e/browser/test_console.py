@@ -112,3 +112,29 @@ def test_history_filters_by_kind_and_part_and_pages(page, served, sliced):
     assert sliced["slice"]["id"] in ids
     screenshot(page, "history")
     assert page.js_errors == []
+
+
+def test_first_run_without_a_key_shows_no_error_and_a_wrong_key_is_not_saved(browser, served):
+    context = browser.new_context(viewport={"width": 1440, "height": 900}, base_url=served.base)
+    page = context.new_page()
+    page.set_default_timeout(30_000)
+    try:
+        for name in PAGES:
+            page.goto(f"/{name}")
+            page.wait_for_selector("#messages .msg.info")
+            page.wait_for_timeout(300)
+            assert page.query_selector_all("#messages .msg.error") == [], name   # no 401 before any key
+        page.fill("#api-key", "cf_not_a_key")
+        page.click("#key-form button")
+        page.wait_for_selector("#messages .msg.error >> text=API key not saved")
+        assert page.evaluate("localStorage.getItem('conforma.apiKey')") is None
+        page.fill("#api-key", served.key)
+        page.click("#key-form button")
+        page.wait_for_selector("#messages .msg.info >> text=checked and saved")
+        assert page.evaluate("localStorage.getItem('conforma.apiKey')") == served.key
+        assert page.query_selector_all("#messages .msg.error") == []            # the refusal went away
+        page.goto("/jobs.html")
+        page.wait_for_selector("#jobs-body tr")                                  # pages load their data now
+        assert page.query_selector_all("#messages .msg.error") == []
+    finally:
+        context.close()
