@@ -233,8 +233,12 @@ class Loader:
         merged = FocusScene({}, "")
         for child in children:
             scene = self._content(session, child)
+            # every child's nodes get its own name (its trace's, else its id): nine traces'
+            # probe runs must not overwrite each other's "probe_run:run" node
+            trace = self._trace(session, (child.params or {}).get("trace_id") or "")
+            owner = f"{trace.name} {trace.id}" if trace is not None else child.id
             merged = replace(merged, **{key: getattr(merged, key) + tuple(
-                replace(item, name=f"{child.kind}:{item.name}") for item in getattr(scene, key))
+                replace(item, name=f"{child.kind}:{owner}:{item.name}") for item in getattr(scene, key))
                 for key in ("polylines", "probes", "toolpaths", "layers", "axes", "heights", "surfaces", "plots")})
         return merged
 

@@ -20,6 +20,7 @@ import pytest
 from app.compensation.registration import Placement, apply_placement
 from app.reference.s1 import Placement as PartPlacement
 from app.reference.s1 import as_made, s1_mesh, s1_traces
+from app.viewer.loaders import load_focus
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
 
@@ -69,6 +70,15 @@ def test_compensated_traces_hold_their_standoff_on_the_real_part(client, meshes)
     kinds = sorted(j["kind"] for j in children["items"])
     assert kinds.count("probe_run") == len(TRACES) and kinds.count("print") == 2 * len(TRACES)
     assert all(j["status"] == "succeeded" for j in children["items"])
+    # the 3-D view of the loop shows every trace's probes and programs, none overwriting another
+    scene = load_focus(client.app.state.runtime, job_id=done["id"])
+    runs = [j for j in children["items"] if j["kind"] == "probe_run"]
+    measured = [p for p in scene.probes if p.measured is not None and p.name.startswith("probe_run:")]
+    assert len(measured) == len(TRACES)
+    assert sum(len(p.measured) for p in measured) == sum(len(run["result"]["points"]) for run in runs)
+    names = [item.name for key in ("polylines", "probes", "toolpaths") for item in getattr(scene, key)]
+    assert len(names) == len(set(names))
+    assert sum(t.name.startswith("compensate:") for t in scene.toolpaths) == 2 * len(TRACES)
 
 
 PLACED = {"dx": 0.2, "dy": -0.15, "dz": 0.03, "rz_deg": 0.3}
