@@ -105,12 +105,24 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+START_HERE = """start here:
+  conforma demo     seed S1's closed loop on the mock printer: probes, compensates and prints
+                    nine traces and prints the before/after table (about 10 s)
+  conforma serve    then the service: the pages at http://127.0.0.1:8000/ (the first start
+                    prints an operator API key), the API at /api/v1, its docs at /docs
+  conforma keys create --role operator    another key (viewer, operator or admin)
+"""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="conforma", description=__doc__)
+    parser = argparse.ArgumentParser(prog="conforma", description=__doc__, epilog=START_HERE,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def data_dir(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--data-dir", type=Path, default=None, help="default: CONFORMA_DATA_DIR or ./data")
+    def data_dir(p: argparse.ArgumentParser, nested: bool = False) -> None:
+        # a nested command (keys list) takes it too, without overriding the parent's value
+        p.add_argument("--data-dir", type=Path, default=argparse.SUPPRESS if nested else None,
+                       help="default: CONFORMA_DATA_DIR or ./data")
 
     serve = sub.add_parser("serve", help="API + embedded worker + viewer")
     data_dir(serve)
@@ -141,12 +153,14 @@ def build_parser() -> argparse.ArgumentParser:
     keys = sub.add_parser("keys", help="manage API keys")
     data_dir(keys)
     keys_sub = keys.add_subparsers(dest="keys_command", required=True)
-    create = keys_sub.add_parser("create")
+    create = keys_sub.add_parser("create", help="a new key, printed once")
     create.add_argument("--role", choices=ROLES, required=True)
     create.add_argument("--name", default="")
-    revoke = keys_sub.add_parser("revoke")
+    revoke = keys_sub.add_parser("revoke", help="revoke a key by its id")
     revoke.add_argument("key_id")
-    keys_sub.add_parser("list")
+    listing = keys_sub.add_parser("list", help="the stored keys (ids, roles, names; never the keys)")
+    for nested in (create, revoke, listing):
+        data_dir(nested, nested=True)
     keys.set_defaults(func=cmd_keys)
     return parser
 
