@@ -9,6 +9,7 @@ from pathlib import Path
 
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 
 import app as app_package
 from app.api import files, jobs, machines, parts, programs, system, traces, viewer as viewer_api
@@ -50,7 +51,7 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
                 viewer.stop()
             runtime.stop()
 
-    api = FastAPI(
+    api = FastAPIOffline(  # /docs served from the package: no CDN, works offline
         title="Conforma",
         version=app_package.__version__,
         description="Plan, measure and compensate toolpaths for printing electronics onto curved parts.",

@@ -111,7 +111,7 @@ async function onCreate(event) {
 }
 
 // ---- import -------------------------------------------------------------------------
-const importFile = el("input", { type: "file", id: "import-file", accept: ".json,.svg,application/json,image/svg+xml" });
+const importFile = el("input", { type: "file", id: "import-file", "aria-label": "traces file to import (JSON or SVG)", accept: ".json,.svg,application/json,image/svg+xml" });
 left.append(el("section", {}, el("h2", {}, "Import traces"),
   el("p", { class: "small" }, "A JSON array of traces (the API's trace objects) or an SVG drawing (paths in mm, top view)."),
   el("form", { id: "import-form", onsubmit: onImport }, el("div", { class: "row" }, importFile,
