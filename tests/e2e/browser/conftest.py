@@ -52,6 +52,7 @@ class Served:
     base: str
     key: str
     viewer_port: int
+    data_dir: Path
 
     def api(self) -> httpx.Client:
         return httpx.Client(base_url=self.base, headers={"Authorization": f"Bearer {self.key}"}, timeout=30)
@@ -72,7 +73,7 @@ def served(tmp_path_factory) -> Iterator[Served]:  # type: ignore[no-untyped-def
     try:
         wait_healthy(base, proc, log=data / "serve.log")
         info = httpx.get(f"{base}/api/v1/viewer", headers={"Authorization": f"Bearer {KEY}"}).json()
-        yield Served(base, KEY, int(info["port"]))
+        yield Served(base, KEY, int(info["port"]), data)
     finally:
         stop(proc)
         log.close()
