@@ -117,6 +117,12 @@ def cancel_job(job_id: str, runtime: RuntimeDep, session: SessionDep) -> JobOut:
     return load_job_out(session, job_id)
 
 
+@router.get("/{job_id}/artifacts", dependencies=[Viewer])
+def list_artifacts(job_id: str, session: SessionDep) -> list[ArtifactOut]:
+    """The files a job wrote, in the order it wrote them (name, type, size, sha256, url)."""
+    return load_job_out(session, job_id).artifacts
+
+
 @router.get("/{job_id}/artifacts/{name}", dependencies=[Viewer],
             responses={200: {"content": {"application/octet-stream": {}}}})
 def get_artifact(job_id: str, name: str, runtime: RuntimeDep, session: SessionDep) -> Response:

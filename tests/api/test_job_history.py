@@ -89,3 +89,14 @@ def test_bad_filters_are_422_naming_the_parameter(client):
     assert response.status_code == 422
     assert any("created_after" in error["loc"] for error in response.json()["errors"])
     assert client.get("/api/v1/jobs?top_level=maybe", headers=OP).status_code == 422
+
+
+def test_a_jobs_artifacts_are_listed(client):
+    job_id = _submit(client, "test_sleep", {"seconds": 0, "artifact": True})
+    done = wait_for(client, job_id)
+    listed = client.get(f"/api/v1/jobs/{job_id}/artifacts", headers=OP)
+    assert listed.status_code == 200 and listed.json() == done["artifacts"] and len(listed.json()) == 1
+    body = client.get(listed.json()[0]["url"], headers=OP)
+    assert body.status_code == 200
+    assert client.get("/api/v1/jobs/job_missing/artifacts", headers=OP).status_code == 404
+    assert client.get(f"/api/v1/jobs/{job_id}/artifacts").status_code == 401

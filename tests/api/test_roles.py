@@ -30,6 +30,7 @@ ROLES = {
     ("GET", "/api/v1/jobs"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}"): "viewer",
     ("POST", "/api/v1/jobs/{job_id}/cancel"): "operator",
+    ("GET", "/api/v1/jobs/{job_id}/artifacts"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/events"): "viewer",
     ("POST", "/api/v1/programs"): "operator",
