@@ -3,7 +3,7 @@
 // artifacts, cancel, open in 3D.
 import { ApiError, download, get, post, streamEvents } from "./api.js";
 import { schemaForm } from "./schema_form.js";
-import { figuresTable } from "./results.js";
+import { figuresTable, kindView } from "./results.js";
 import { el, fmt, guarded, initPage, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
 
 const TERMINAL = new Set(["succeeded", "failed", "cancelled"]);
@@ -251,6 +251,7 @@ function renderDetail(job) {
   if (job.result) {
     const figures = figuresTable(job.result);
     if (figures) parts.push(el("h3", {}, "Result"), figures);
+    parts.push(...kindView(job));
     parts.push(el("details", {}, el("summary", {}, "Raw result (JSON)"), el("pre", { id: "job-result" }, compact(job.result))));
   }
   detail.replaceChildren(...parts);

@@ -138,3 +138,14 @@ def test_first_run_without_a_key_shows_no_error_and_a_wrong_key_is_not_saved(bro
         assert page.query_selector_all("#messages .msg.error") == []
     finally:
         context.close()
+
+
+def test_slice_and_toolpath_results_draw_their_layer_curves(page, sliced):
+    for job, series in ((sliced["slice"], "thickness"), (sliced["toolpath"], "time_s")):
+        page.goto(f"/jobs.html?job={job['id']}")
+        figure = page.wait_for_selector("figure.chart")
+        assert figure.get_attribute("data-series") == series
+        assert int(figure.get_attribute("data-rows")) == len(job["result"]["layers"]) > 1
+        points = page.get_attribute("figure.chart polyline", "points").split()
+        assert len(points) == len(job["result"]["layers"])
+    assert page.js_errors == []
