@@ -31,6 +31,7 @@ ROLES = {
     ("GET", "/api/v1/jobs/{job_id}"): "viewer",
     ("POST", "/api/v1/jobs/{job_id}/cancel"): "operator",
     ("GET", "/api/v1/jobs/{job_id}/artifacts"): "viewer",
+    ("GET", "/api/v1/jobs/{job_id}/report"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/events"): "viewer",
     ("POST", "/api/v1/programs"): "operator",

@@ -80,6 +80,32 @@ def test_compensated_traces_hold_their_standoff_on_the_real_part(client, meshes)
     assert len(names) == len(set(names))
     assert sum(t.name.startswith("compensate:") for t in scene.toolpaths) == 2 * len(TRACES)
 
+    # the run report: one page with the part, every trace, its compensated program's hash
+    # and the deposited standoff before / after, as the jobs recorded them
+    report = client.get(f"/api/v1/jobs/{done['id']}/report", headers=OP)
+    assert report.status_code == 200 and report.headers["content-type"].startswith("text/html")
+    page = report.text
+    assert part["sha256"] in page and machine["id"] in page
+    for trace in traces:
+        assert trace["name"] in page
+    for child in children["items"]:
+        assert child["id"] in page
+        if child["kind"] == "compensate":
+            program = next(a for a in child["artifacts"] if a["name"] == "print.gcode")
+            assert program["meta"]["commands_sha256"] in page
+    for row in table:
+        assert f"<td class=\"n\">{row['standoff_max_after_um']}</td>" in page
+    assert page.count("<svg") == len(TRACES)          # one deviation plot per trace
+    download = client.get(f"/api/v1/jobs/{done['id']}/report?download=true", headers=OP)
+    assert download.headers["content-disposition"] == f'attachment; filename="run-report-{done["id"]}.html"'
+    compensate = next(j for j in children["items"] if j["kind"] == "compensate")
+    refused = client.get(f"/api/v1/jobs/{compensate['id']}/report", headers=OP)
+    assert refused.status_code == 422 and refused.json()["errors"][0]["loc"][-1] == "job_id"
+    run = next(j for j in children["items"] if j["kind"] == "probe_run")     # a probe run has its own report:
+    own = client.get(f"/api/v1/jobs/{run['id']}/report", headers=OP).text    # its plan, and what was made from it
+    assert run["params"]["plan_job_id"] in own and own.count("<svg") == 1
+    assert client.get("/api/v1/jobs/job_missing/report", headers=OP).status_code == 404
+
 
 PLACED = {"dx": 0.2, "dy": -0.15, "dz": 0.03, "rz_deg": 0.3}
 

@@ -1,0 +1,134 @@
+"""Render a run report as one self-contained HTML page (inline CSS and SVG, no scripts),
+for a lab's records: what was probed, how far the real part was from its model, what was
+printed, with the hashes that identify every program and input."""
+
+from __future__ import annotations
+
+import html
+from datetime import datetime, timezone
+from typing import Any
+
+from app.reporting.collect import RunRecords
+
+_CSS = """body{font:14px/1.45 system-ui,sans-serif;color:#1d2430;max-width:1000px;margin:1.5rem auto;padding:0 1rem}
+h1{font-size:1.5rem;margin:.2rem 0}h2{font-size:1.15rem;border-bottom:1px solid #d9dde5;padding-bottom:.2rem;margin-top:1.6rem}
+table{border-collapse:collapse;width:100%;margin:.4rem 0}th,td{text-align:left;padding:.25rem .4rem;border-bottom:1px solid #e5e8ee;
+vertical-align:top}th{color:#647084;font-weight:600}td.n{font-variant-numeric:tabular-nums;text-align:right}
+.mono{font-family:ui-monospace,monospace;font-size:.85em;word-break:break-all}.muted{color:#647084}
+.ok{color:#1a7f37;font-weight:600}.bad{color:#cf222e;font-weight:600}svg{background:#fff;border:1px solid #d9dde5}
+@media print{body{margin:0}h2{break-after:avoid}}"""
+
+
+def _e(value: Any) -> str:
+    return html.escape("—" if value is None else str(value))
+
+
+def _um(mm: Any) -> str:
+    return "—" if not isinstance(mm, (int, float)) else f"{mm * 1000:.2f}"
+
+
+def _table(head: list[str], rows: list[list[Any]], numeric: set[int] = frozenset()) -> str:  # type: ignore[assignment]
+    cells = "".join("<tr>" + "".join(f'<td class="{"n" if i in numeric else ""}">{_e(v)}</td>' for i, v in enumerate(row))
+                    + "</tr>" for row in rows)
+    return "<table><thead><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + f"</tr></thead><tbody>{cells}</tbody></table>"
+
+
+def _facts(pairs: list[tuple[str, Any]]) -> str:
+    return "<table>" + "".join(f'<tr><th style="width:30%">{_e(k)}</th><td>{_e(v)}</td></tr>' for k, v in pairs) + "</table>"
+
+
+def _plot(samples: list[list[float]], title: str) -> str:
+    """Deviation (mm) along the trace (mm) as an inline SVG line, labelled in um."""
+    pts = [(float(s), float(d)) for s, d in samples if isinstance(s, (int, float)) and isinstance(d, (int, float))]
+    if len(pts) < 2:
+        return ""
+    w, h, pad = 640, 160, 40
+    s0, s1 = min(p[0] for p in pts), max(p[0] for p in pts)
+    lim = max(max(abs(p[1]) for p in pts), 1e-9)
+    xy = " ".join(f"{pad + (s - s0) / max(s1 - s0, 1e-9) * (w - 2 * pad):.1f},{h / 2 - d / lim * (h / 2 - 14):.1f}"
+                  for s, d in pts)
+    return (f'<figure><svg viewBox="0 0 {w} {h}" width="{w}" height="{h}" role="img" aria-label="{_e(title)}">'
+            f'<line x1="{pad}" x2="{w - pad}" y1="{h / 2}" y2="{h / 2}" stroke="#8c959f" stroke-dasharray="4 3"/>'
+            f'<polyline points="{xy}" fill="none" stroke="#cf222e" stroke-width="2"/>'
+            f'<text x="4" y="14" font-size="11">+{lim * 1000:.1f} µm</text>'
+            f'<text x="4" y="{h - 4}" font-size="11">−{lim * 1000:.1f} µm</text>'
+            f'<text x="{w - pad}" y="{h - 4}" font-size="11" text-anchor="end">{s1:.1f} mm along the trace</text>'
+            f'</svg><figcaption class="muted">{_e(title)}</figcaption></figure>')
+
+
+def _artifact_hash(records: RunRecords, job_id: str, name: str) -> str | None:
+    for artifact in records.artifacts.get(job_id, []):
+        if artifact["name"] == name:
+            return (artifact.get("meta") or {}).get("commands_sha256") or artifact["sha256"]
+    return None
+
+
+def _trace_rows(records: RunRecords) -> tuple[list[list[Any]], list[str]]:
+    """One row per trace: probes, how far the model was off, the compensated program, its print."""
+    reconstructions = {j["params"].get("trace_id"): j for j in records.of_kind("reconstruct") if j["status"] == "succeeded"}
+    compensations = {j["params"].get("trace_id"): j for j in records.of_kind("compensate") if j["status"] == "succeeded"}
+    prints: dict[str, list[dict[str, Any]]] = {}
+    for job in records.of_kind("print"):
+        prints.setdefault(job["params"].get("job_id") or "", []).append(job)
+    rows, plots = [], []
+    for trace_id, trace in records.traces.items():
+        rec, comp = reconstructions.get(trace_id), compensations.get(trace_id)
+        deviation = ((rec or {}).get("result") or {}).get("deviation") or {}
+        comp_result = (comp or {}).get("result") or {}
+        printed = [p for p in prints.get((comp or {}).get("id", ""), []) if p["params"].get("artifact") in (None, "print.gcode")]
+        print_state = ", ".join(f"{p['status']} ({(p.get('result') or {}).get('executed', '—')}/"
+                                f"{(p.get('result') or {}).get('total', '—')})" for p in printed) or "not printed"
+        rows.append([trace["name"], _um(deviation.get("max_mm")), _um(deviation.get("rms_mm")),
+                     comp_result.get("segments"), _um(comp_result.get("max_chord_error_mm")),
+                     _artifact_hash(records, comp["id"], "print.gcode") if comp else None, print_state])
+        if deviation.get("samples"):
+            plots.append(_plot(deviation["samples"], f"{trace['name']}: real surface − model along the trace"))
+    return rows, plots
+
+
+def render_run_report(records: RunRecords, software_version: str) -> str:
+    """The whole report as an HTML document."""
+    root = records.root
+    now = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+    part, machine = records.part or {}, records.machine or {}
+    plan = next((j for j in records.of_kind("probe_plan") if j["status"] == "succeeded"), None)
+    run = next((j for j in records.of_kind("probe_run")), None)
+    run_result = (run or {}).get("result") or {}
+    stats = run_result.get("stats") or {}
+    body = [f"<h1>Run report — {_e(root['kind'])} {_e(root['id'])}</h1>",
+            f'<p class="muted">status {_e(root["status"])} · created {_e(root["created_at"])} · finished '
+            f'{_e(root["finished_at"])} · generated {now} by Conforma {_e(software_version)}</p>',
+            "<h2>Part</h2>", _facts([("name", part.get("name")), ("id", part.get("id")),
+                                       ("mesh sha256", part.get("sha256")), ("faces", part.get("faces")),
+                                       ("bounds (mm)", part.get("bounds"))]),
+            "<h2>Machine and calibration</h2>",
+            _facts([("name", machine.get("name")), ("id", machine.get("id")), ("port", machine.get("port")),
+                    ("dialect", machine.get("dialect")), ("profile", machine.get("profile")),
+                    ("calibration", machine.get("calibration") or "none recorded for this machine")]),
+            "<h2>Probing</h2>",
+            _facts([("plan job", (plan or {}).get("id")),
+                    ("method", ((plan or {}).get("params") or {}).get("method") or ((plan or {}).get("result") or {}).get("method")),
+                    ("probes planned", ((plan or {}).get("result") or {}).get("count")),
+                    ("probe program (commands sha256)", _artifact_hash(records, plan["id"], "probe.gcode") if plan else None),
+                    ("probe run job", (run or {}).get("id")), ("run status", (run or {}).get("status")),
+                    ("probes measured", stats.get("count")),
+                    ("largest |measured − model| (µm)", _um(stats.get("max_abs_mm"))),
+                    ("rms measured − model (µm)", _um(stats.get("rms_mm")))])]
+    rows, plots = _trace_rows(records)
+    body += ["<h2>Traces</h2>",
+             _table(["trace", "model off by, max (µm)", "rms (µm)", "segments", "chord error (µm)",
+                     "compensated program (commands sha256)", "print"], rows, numeric={1, 2, 3, 4})]
+    table = (root.get("result") or {}).get("table") or []
+    if table:
+        body += ["<h2>Deposited standoff: nominal program vs compensated (measured on the machine)</h2>",
+                 _table(["trace", "probes", "max before (µm)", "max after (µm)", "rms before (µm)", "rms after (µm)"],
+                        [[r.get("name", r.get("trace")), r.get("probes"), r.get("standoff_max_before_um"),
+                          r.get("standoff_max_after_um"), r.get("standoff_rms_before_um"), r.get("standoff_rms_after_um")]
+                         for r in table], numeric={1, 2, 3, 4, 5})]
+    body += plots and ["<h2>Real surface minus model along each trace</h2>", *plots] or []
+    body += ["<h2>Jobs</h2>", _table(["job", "kind", "status", "started", "finished", "input hashes"],
+                                     [[j["id"], j["kind"], j["status"], j["started_at"], j["finished_at"],
+                                       "; ".join(f"{k}={v[:12]}" for k, v in (j.get("input_hashes") or {}).items())]
+                                      for j in records.jobs])]
+    return (f'<!doctype html><html lang="en"><head><meta charset="utf-8"><title>Conforma run report '
+            f'{_e(root["id"])}</title><style>{_CSS}</style></head><body>{"".join(body)}</body></html>')
