@@ -3,7 +3,7 @@
 import { ApiError, get, getKey, post, setKey, verifyKey } from "./api.js";
 
 const PAGES = [
-  ["index.html", "Home"], ["parts.html", "Parts"], ["traces.html", "Traces"],
+  ["index.html", "Home"], ["loop.html", "Closed loop"], ["parts.html", "Parts"], ["traces.html", "Traces"],
   ["jobs.html", "Jobs"], ["machines.html", "Machines"],
 ];
 

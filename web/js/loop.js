@@ -1,0 +1,227 @@
+// The closed-loop wizard: part -> traces -> machine -> plan (touches and predicted error
+// before anything moves) -> probe (live touch count) -> review (how far the model was off,
+// where, and the compensated programs) -> print (after a confirmation) -> run report.
+// Every step is an ordinary job of the API; nothing moves a machine without a click and a
+// confirmation.
+import { download, get, post, streamEvents } from "./api.js";
+import { chart, length } from "./results.js";
+import { el, guarded, initPage, markReady, showInfo, viewerPanel } from "./ui.js";
+
+const main = initPage("loop.html");
+const TERMINAL = new Set(["succeeded", "failed", "cancelled", "interrupted"]);
+const state = { part: null, traces: [], machine: null, plan: null, run: null, rows: [] };
+
+function step(id, title, ...body) {
+  return el("section", { id, class: "wizard-step", "data-done": "0", "aria-labelledby": `${id}-h` },
+    el("h2", { id: `${id}-h` }, title), ...body);
+}
+
+const partSelect = el("select", { id: "wz-part", "aria-label": "part" });
+const traceList = el("div", { id: "wz-traces", role: "group", "aria-label": "traces to print" });
+const machineSelect = el("select", { id: "wz-machine", "aria-label": "machine" });
+const machineState = el("span", { id: "wz-machine-state", class: "small" });
+const planOut = el("div", { id: "wz-plan-out" });
+const probeOut = el("div", { id: "wz-probe-out" });
+const reviewOut = el("div", { id: "wz-review-out" });
+const printOut = el("div", { id: "wz-print-out" });
+const reportOut = el("div", { id: "wz-report-out" });
+const buttons = {
+  connect: el("button", { id: "wz-connect", type: "button", onclick: () => connect() }, "Connect"),
+  plan: el("button", { id: "wz-plan", class: "primary", type: "button", onclick: () => plan() }, "Plan the probes"),
+  probe: el("button", { id: "wz-probe", class: "primary", type: "button", disabled: true, onclick: () => probe() }, "Probe the part"),
+  print: el("button", { id: "wz-print", class: "primary", type: "button", disabled: true, onclick: () => printAll() }, "Print"),
+};
+const viewerSection = el("section", { id: "viewer-panel" });
+main.append(el("h1", {}, "Closed loop"),
+  el("p", { class: "small" }, "Probe the real part, rebuild each trace on its real surface and print at the standoff above it. ",
+    "The machine moves only at “Probe” and “Print”, each after a confirmation."),
+  el("div", { class: "layout" },
+    el("div", {},
+      step("wz-1", "1 · Part", partSelect),
+      step("wz-2", "2 · Traces", traceList),
+      step("wz-3", "3 · Machine", machineSelect, " ", buttons.connect, " ", machineState),
+      step("wz-4", "4 · Plan", el("p", { class: "small" }, "How many touches, and the error they leave, before anything moves."),
+        buttons.plan, planOut),
+      step("wz-5", "5 · Probe", buttons.probe, probeOut),
+      step("wz-6", "6 · Review", reviewOut),
+      step("wz-7", "7 · Print", buttons.print, printOut),
+      step("wz-8", "8 · Report", reportOut)),
+    viewerSection));
+const viewer = viewerPanel(viewerSection);
+
+const done = (id) => { document.getElementById(id).dataset.done = "1"; };
+
+async function waitJob(job, onEvent) {
+  if (TERMINAL.has(job.status)) return job;
+  await new Promise((resolve) => {
+    streamEvents(`/api/v1/jobs/${job.id}/events`, (ev) => onEvent?.(ev.data), () => resolve());
+  });
+  return get(`jobs/${job.id}`);
+}
+
+function failed(job, what) {
+  const reason = job.error ? `${job.error.title}: ${job.error.detail}` : job.status;
+  throw new Error(`${what} ${job.id} ${job.status}: ${reason}`);
+}
+
+// ---- 1-3: part, traces, machine ------------------------------------------------------------
+async function loadParts() {
+  const parts = (await get("parts?limit=200")).items;
+  partSelect.replaceChildren(el("option", { value: "" }, "choose a part…"), ...parts.map((p) => el("option", { value: p.id }, p.name)));
+}
+
+async function loadTraces() {
+  state.part = partSelect.value || null;
+  state.traces = state.part ? (await get(`parts/${state.part}/traces?limit=1000`)).items : [];
+  traceList.replaceChildren(...(state.traces.length ? state.traces.map((t) => el("label", { class: "inline" },
+    el("input", { type: "checkbox", value: t.id, checked: true }), ` ${t.name} (${length(t.length_mm)})`))
+    : [el("p", { class: "small" }, state.part ? "This part has no traces: add some on the Traces page." : "Choose a part first.")]));
+  if (state.part) { done("wz-1"); viewer.show({ part_id: state.part }); }
+  if (state.traces.length) done("wz-2");
+}
+
+async function loadMachines() {
+  const machines = (await get("machines")).items;
+  machineSelect.replaceChildren(el("option", { value: "" }, "choose a machine…"),
+    ...machines.map((m) => el("option", { value: m.id, "data-state": m.state }, `${m.name} (${m.state})`)));
+}
+
+async function showMachine() {
+  state.machine = machineSelect.value || null;
+  if (!state.machine) { machineState.textContent = ""; return; }
+  const m = await get(`machines/${state.machine}`);
+  machineState.textContent = `${m.state}${m.firmware ? ` · ${m.firmware}` : ""}`;
+  machineSelect.selectedOptions[0].textContent = `${m.name} (${m.state})`;
+  machineState.dataset.state = m.state;
+  buttons.connect.disabled = m.state !== "disconnected";
+  if (m.state !== "disconnected") done("wz-3");
+}
+
+async function connect() {
+  await guarded("Connect", async () => {
+    await post(`machines/${state.machine}/connect`);
+    await showMachine();
+  });
+}
+
+const chosenTraces = () => [...traceList.querySelectorAll("input:checked")].map((i) => i.value);
+
+// ---- 4: plan ---------------------------------------------------------------------------------
+async function plan() {
+  await guarded("Plan", async () => {
+    const traceIds = chosenTraces();
+    if (!traceIds.length) throw new Error("choose at least one trace");
+    buttons.plan.disabled = true;
+    planOut.textContent = "planning…";
+    const job = await waitJob(await post("jobs", { kind: "probe_plan", params: { trace_ids: traceIds, method: "kriging" } }));
+    if (job.status !== "succeeded") failed(job, "probe plan");
+    state.plan = job;
+    const sds = (job.result.traces || []).map((t) => t.predicted_sd_mm).filter(Number.isFinite);
+    const worst = sds.length ? Math.max(...sds) : null;
+    planOut.replaceChildren(el("p", { id: "wz-plan-summary" },
+      el("strong", { class: "figure", "data-touches": job.result.count }, `${job.result.count} touches`),
+      ` on ${traceIds.length} trace(s)`, worst !== null ? ` · predicted error (3σ) ≤ ${length(3 * worst)}` : ""));
+    done("wz-4");
+    buttons.probe.disabled = !state.machine;
+    viewer.show({ job_id: job.id });
+  });
+  buttons.plan.disabled = false;
+}
+
+// ---- 5: probe --------------------------------------------------------------------------------
+async function probe() {
+  if (!state.plan || !state.machine) return;
+  if (!window.confirm(`Probe ${state.plan.result.count} points? The machine will move.`)) return;
+  await guarded("Probe", async () => {
+    buttons.probe.disabled = true;
+    const live = el("p", { id: "wz-probe-live" }, "starting…");
+    probeOut.replaceChildren(live);
+    const total = state.plan.result.count;
+    const job = await waitJob(await post("jobs", { kind: "probe_run", params: { plan_job_id: state.plan.id, machine_id: state.machine } }),
+      (ev) => { live.textContent = `touch ${Math.round(ev.progress * total)} of ${total} · ${ev.message || ""}`; });
+    if (job.status !== "succeeded") failed(job, "probe run");
+    state.run = job;
+    const stats = job.result.stats || {};
+    live.textContent = `${stats.count} touches · largest |real − model| ${length(stats.max_abs_mm)} · rms ${length(stats.rms_mm)}`;
+    probeOut.append(chart(job.result.points, { x: "index", ys: ["deviation_mm"], title: "Real − model height at each touch" }) || "");
+    done("wz-5");
+    viewer.show({ job_id: job.id });
+    await review();
+  });
+}
+
+// ---- 6: review -------------------------------------------------------------------------------
+async function review() {
+  reviewOut.textContent = "rebuilding each trace on the real surface…";
+  const rows = [];
+  for (const traceId of chosenTraces()) {
+    const trace = state.traces.find((t) => t.id === traceId);
+    const rebuilt = await waitJob(await post("jobs", { kind: "reconstruct", params: {
+      trace_id: traceId, probe_run_job_id: state.run.id, method: "kriging" } }));
+    if (rebuilt.status !== "succeeded") failed(rebuilt, `reconstruction of ${trace.name}`);
+    const program = await waitJob(await post("jobs", { kind: "compensate", params: {
+      trace_id: traceId, reconstruct_job_id: rebuilt.id, machine_id: state.machine } }));
+    const samples = rebuilt.result.deviation?.samples || [];
+    const worst = samples.reduce((a, b) => (Math.abs(b[1]) > Math.abs(a[1]) ? b : a), [0, 0]);
+    rows.push({ trace, rebuilt, program, worst });
+  }
+  state.rows = rows;
+  reviewOut.replaceChildren(el("table", { id: "wz-review", class: "records" },
+    el("thead", {}, el("tr", {}, ["trace", "model off by (max)", "where", "compensated program", "ready"].map((h) => el("th", { scope: "col" }, h)))),
+    el("tbody", {}, rows.map((r) => el("tr", { "data-trace": r.trace.id, "data-ready": r.program.status === "succeeded" ? "1" : "0" },
+      el("td", {}, r.trace.name),
+      el("td", {}, length(r.rebuilt.result.deviation?.max_mm)),
+      el("td", {}, `${length(r.worst[0])} along the trace (${length(r.worst[1])})`),
+      el("td", {}, r.program.status === "succeeded"
+        ? `${r.program.result.segments} segments, chord error ≤ ${length(r.program.result.max_chord_error_mm)}`
+        : `${r.program.error?.title || r.program.status}: ${r.program.error?.detail || ""}`),
+      el("td", {}, r.program.status === "succeeded" ? el("span", { class: "badge succeeded" }, "ready") : el("span", { class: "badge failed" }, "not printable")))))),
+  ...rows.map((r) => chart((r.rebuilt.result.deviation?.samples || []).map(([s, d]) => ({ s_mm: s, deviation_mm: d })),
+    { x: "s_mm", ys: ["deviation_mm"], title: `${r.trace.name}: real surface − model along the trace` }) || ""));
+  done("wz-6");
+  const ready = rows.filter((r) => r.program.status === "succeeded");
+  buttons.print.textContent = `Print ${ready.length} trace(s)`;
+  buttons.print.disabled = !ready.length;
+  await showReport();
+}
+
+// ---- 7: print --------------------------------------------------------------------------------
+async function printAll() {
+  const ready = state.rows.filter((r) => r.program.status === "succeeded");
+  if (!window.confirm(`Print ${ready.length} compensated trace(s) on the machine? It will move.`)) return;
+  await guarded("Print", async () => {
+    buttons.print.disabled = true;
+    const list = el("ol", { id: "wz-prints" });
+    printOut.replaceChildren(list);
+    for (const r of ready) {
+      const item = el("li", { "data-trace": r.trace.id }, `${r.trace.name}: queued`);
+      list.append(item);
+      const job = await waitJob(await post(`machines/${state.machine}/print`, { job_id: r.program.id, artifact: "print.gcode" }),
+        (ev) => { item.textContent = `${r.trace.name}: ${Math.round(ev.progress * 100)} % ${ev.message || ""}`; });
+      item.textContent = `${r.trace.name}: ${job.status}${job.result ? ` (${job.result.executed}/${job.result.total} commands)` : ""}`;
+      item.dataset.status = job.status;
+      if (job.status !== "succeeded") failed(job, `print of ${r.trace.name}`);
+    }
+    done("wz-7");
+    showInfo("Every trace printed. The run report lists the programs and their hashes.");
+  });
+}
+
+// ---- 8: report -------------------------------------------------------------------------------
+async function showReport() {
+  const path = `/api/v1/jobs/${state.run.id}/report`;
+  reportOut.replaceChildren(
+    el("button", { id: "wz-report-open", type: "button", onclick: () => guarded("Report", async () => {
+      const blob = await download(`${path}`, `run-report-${state.run.id}.html`);
+      return blob;
+    }) }, "Download the run report"),
+    el("p", { class: "small" }, "One page with the part, machine, touches, how far the model was off on each trace, ",
+      "the compensated programs with their hashes and the prints."));
+  done("wz-8");
+}
+
+partSelect.addEventListener("change", () => guarded("Traces", loadTraces));
+machineSelect.addEventListener("change", () => guarded("Machine", showMachine));
+document.addEventListener("conforma:key", () => guarded("Parts", async () => { await loadParts(); await loadMachines(); }));
+await Promise.all([guarded("Parts", loadParts), guarded("Machines", loadMachines)]);
+markReady();
