@@ -10,6 +10,7 @@ import threading
 from pathlib import Path
 
 from app.config import ROLES, Settings, SettingsError, load_settings
+from app.ownership import MachineOwnerLock
 
 
 def _settings(args: argparse.Namespace, **extra: object) -> Settings:
@@ -27,6 +28,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     settings = _settings(args, host=args.host, port=args.port, viewer_port=args.viewer_port,
                          viewer=False if args.no_viewer else None)
     migrate(settings)
+    owner = MachineOwnerLock(settings.data_dir)
+    if not owner.acquire():
+        print(f"another Conforma server (pid {owner.holder_pid()}) already runs on {settings.data_dir}: "
+              "one process owns a data directory's machines; stop it or use --data-dir", file=sys.stderr)
+        return 1
     engine = make_engine(settings)
     keyring = KeyRing(engine, settings.static_keys())
     new_key = None

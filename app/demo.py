@@ -21,6 +21,7 @@ from app.compensation.evaluation import Table1Row, format_table
 from app.config import Settings
 from app.db import migrate
 from app.jobs.runtime import QUEUES, Runtime
+from app.ownership import MachineOwnerLock
 from app.models import Machine, TERMINAL_STATES, Job, new_id, utcnow
 from app.records import build_trace, store_part
 from app.reference.s1 import as_made, s1_mesh, s1_traces
@@ -50,7 +51,13 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
     numbers = _numbers(args.traces)
     migrate(settings)
     runtime = Runtime(settings)
-    runtime.start_workers(QUEUES)
+    owner = MachineOwnerLock(settings.data_dir)
+    served = not owner.acquire()
+    if served:  # a running server owns this data directory's machines: it runs the demo's jobs
+        print(f"a Conforma server (pid {owner.holder_pid()}) runs on {settings.data_dir}: "
+              "the demo's jobs run there and show on its pages", file=out)
+    else:
+        runtime.start_workers(QUEUES)
     try:
         truth = as_made(seed=args.seed, amplitude_mm=args.amplitude_mm)
         limit = int(settings.max_unzipped_mb * 2**20)
@@ -101,3 +108,4 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
         return rows
     finally:
         runtime.stop()
+        owner.release()
