@@ -1,0 +1,118 @@
+"""The house rules (shared/DESIGN.md), checked on the source instead of remembered:
+
+* the compute core never imports the web framework, the database, the viewer or the hardware;
+* ``hardware`` never imports ``app``;
+* job kinds never import each other (the known exceptions below may only shrink: issue 14);
+* no import cycles between modules (function-local imports included);
+* every module can be read in one sitting.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import networkx as nx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CORE = ("geometry", "probing", "reconstruction", "compensation", "slicing", "gcode", "reference")
+FORBIDDEN_IN_CORE = ("fastapi", "starlette", "sqlmodel", "sqlalchemy", "viser", "hardware", "huey", "uvicorn",
+                     "app.api", "app.jobs", "app.viewer", "app.db", "app.models", "app.main")
+MAX_MODULE_LINES = 500
+# import cycles that exist today (issue 14 names the slicing one); the list may only shrink
+KNOWN_CYCLES = {
+    frozenset({"app.slicing.adaptive", "app.slicing.layers"}),
+    frozenset({"app.jobs.context", "app.jobs.runtime"}),
+    frozenset({"app.jobs.context", "app.jobs.runtime", "app.jobs.registry"}),
+}
+# kind -> kind imports that exist today; issue 14 removes them. A new one fails the test, and
+# so does an entry that is no longer true (so the list can only shrink).
+KNOWN_KIND_IMPORTS = {
+    ("closed_loop", "probe_plan"), ("closed_loop", "register"), ("compensate", "reconstruct"),
+    ("compensate", "register"), ("five_axis", "surface_fit"), ("jetting_next_layer", "jetting"),
+    ("probe_plan", "register"), ("reconstruct", "probe_plan"), ("reconstruct", "register"),
+}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for top in ("app", "hardware") for p in (ROOT / top).rglob("*.py")}
+
+
+def _imports(path: Path, module: str) -> set[str]:
+    """Every module ``path`` imports, anywhere in it (top level or inside functions)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            found.add(base)
+            found.update(f"{base}.{alias.name}" for alias in node.names)
+    return found
+
+
+MODULES = _modules()
+IMPORTS = {name: _imports(path, name) for name, path in MODULES.items()}
+
+
+def _internal(name: str) -> str | None:
+    """The module of ours that an imported name refers to (longest match), if any."""
+    while name:
+        if name in MODULES:
+            return name
+        name = name.rpartition(".")[0]
+    return None
+
+
+@pytest.mark.parametrize("package", CORE)
+def test_the_compute_core_is_pure(package):
+    offenders = {(module, imported) for module, imported_names in IMPORTS.items()
+                 if module.startswith(f"app.{package}") for imported in imported_names
+                 if any(imported == f or imported.startswith(f"{f}.") for f in FORBIDDEN_IN_CORE)}
+    assert offenders == set()
+
+
+def test_hardware_never_imports_app():
+    offenders = {(m, i) for m, names in IMPORTS.items() if m.startswith("hardware") for i in names
+                 if i == "app" or i.startswith("app.")}
+    assert offenders == set()
+
+
+def test_job_kinds_do_not_import_each_other_beyond_the_known_list():
+    prefix = "app.jobs.kinds."
+    found = {(m[len(prefix):], _internal(i)[len(prefix):]) for m, names in IMPORTS.items() if m.startswith(prefix)
+             for i in names if (_internal(i) or "").startswith(prefix) and _internal(i) != m}
+    assert found - KNOWN_KIND_IMPORTS == set(), "a new kind -> kind import: move the shared code out of the kinds"
+    assert KNOWN_KIND_IMPORTS - found == set(), "an exception is gone: remove it from KNOWN_KIND_IMPORTS"
+
+
+def test_no_import_cycles():
+    graph = nx.DiGraph()
+    for module, names in IMPORTS.items():
+        graph.add_node(module)
+        for imported in names:
+            target = _internal(imported)
+            # a package's __init__ importing its own submodules is how packages re-export
+            if target and target != module and not module.startswith(f"{target}.") \
+                    and not target.startswith(f"{module}.") and target not in ("app", "hardware"):
+                graph.add_edge(module, target)
+    cycles = {frozenset(c) for c in nx.simple_cycles(graph) if len(c) > 1}
+    assert cycles - KNOWN_CYCLES == set(), "a new import cycle"
+    assert KNOWN_CYCLES - cycles == set(), "a known cycle is gone: remove it from KNOWN_CYCLES"
+
+
+def test_modules_are_small_enough_to_read_in_one_sitting():
+    big = {name: n for name, path in MODULES.items() if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert big == {}
