@@ -29,7 +29,7 @@ screenshots: $(STAMP)
 	cp tests/artifacts/screenshots/*.png web/screenshots/
 
 lint: $(STAMP)
-	$(BIN)/python -m compileall -q app hardware tests
+	$(BIN)/ruff check app hardware tests
 
 clean-data:
 	rm -rf data

@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import httpx
-import pytest
 import trimesh
 
 from tests.processes import free_port, stop, wait_healthy

@@ -31,7 +31,7 @@ def assert_exact_on_mesh(mesh: trimesh.Trimesh, points: np.ndarray) -> None:
 
 def test_plane_and_tilted_plane() -> None:
     for a, b, c in ((0, 0, 3.0), (0.3, -0.2, 10.0)):
-        mesh = height_field_mesh(lambda x, y: a * x + b * y + c, 9, 13)
+        mesh = height_field_mesh(lambda x, y, a=a, b=b, c=c: a * x + b * y + c, 9, 13)
         xy = np.array([[1, 1], [30, 50], [35.5, 2.2], [2, 58]])
         d = drape_polyline(mesh, xy)
         assert np.abs(d.points[:, 2] - (a * d.points[:, 0] + b * d.points[:, 1] + c)).max() < 1e-12
