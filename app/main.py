@@ -11,7 +11,7 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 import app as app_package
-from app.api import files, jobs, machines, parts, programs, system, traces, viewer as viewer_api
+from app.api import circuits, files, jobs, machines, parts, programs, system, traces, viewer as viewer_api
 from app.api.errors import install_error_handlers
 from app.api.limits import BodyLimitMiddleware
 from app.auth import KeyRing
@@ -61,7 +61,7 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
     api.add_middleware(BodyLimitMiddleware, upload_bytes=int(settings.max_upload_mb * 2**20),
                        json_bytes=int(settings.max_json_mb * 2**20))
     for router in (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router,
-                   files.router, viewer_api.router):
+                   files.router, viewer_api.router, circuits.router):
         api.include_router(router)
     if WEB_DIR.is_dir():
         api.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")

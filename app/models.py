@@ -69,6 +69,8 @@ class Trace(SQLModel, table=True):
     z_max: float
     nominal: dict = Field(sa_column=Column(JSON, nullable=False))
     created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+    #: where an imported trace came from: {file, layer, net, width_mm, entity, import_id, mapping, stretch}
+    source: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 class Job(SQLModel, table=True):
     __tablename__ = "jobs"
