@@ -1,0 +1,60 @@
+"""A G-code reader: each line's number, words and comment (pure, no state).
+
+``read_lines(text)`` -> one :class:`GcodeLine` per source line (1-based ``number``), with
+its command words in order (letter, value) after stripping ``;`` and ``( )`` comments,
+line numbers ``N`` and ``*checksum``.  Modal interpretation (units, absolute/relative,
+dispensing) belongs to the callers.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from app.errors import InvalidInput
+
+__all__ = ["GcodeLine", "GcodeReadError", "read_lines"]
+
+_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
+_PAREN = re.compile(r"\([^)]*\)")
+
+
+class GcodeReadError(InvalidInput):
+    """A line whose words cannot be read; ``value`` names the line number and text."""
+
+
+@dataclass(frozen=True)
+class GcodeLine:
+    """number: 1-based line; text: the raw line; words: ((letter upper, value), ...); comment."""
+
+    number: int
+    text: str
+    words: tuple[tuple[str, float], ...]
+    comment: str
+
+    def get(self, letter: str, default: float | None = None) -> float | None:
+        for k, v in self.words:
+            if k == letter:
+                return v
+        return default
+
+    def codes(self, letter: str) -> tuple[float, ...]:
+        return tuple(v for k, v in self.words if k == letter)
+
+
+def read_lines(text: str) -> list[GcodeLine]:
+    """Every line of ``text`` with its words; GcodeReadError names a line with stray characters."""
+    out = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        body, _, comment = raw.partition(";")
+        if "(" in body:
+            comment = " ".join(_PAREN.findall(body)) + comment
+            body = _PAREN.sub(" ", body)
+        body = body.split("*", 1)[0]
+        words = [(k.upper(), float(v)) for k, v in _WORD.findall(body)]
+        rest = _WORD.sub("", body).strip()
+        if rest and not rest.startswith(("%", "$")):
+            raise GcodeReadError(f"line {number}: cannot read {rest[:30]!r} in {raw.strip()[:60]!r}",
+                                 field="file", value={"line": number, "text": raw.strip()[:80]})
+        out.append(GcodeLine(number, raw, tuple(w for w in words if w[0] != "N"), comment.strip()))
+    return out
