@@ -9,6 +9,7 @@ Coordinates are converted to mm (an inch file's 25.4 mm per inch exactly); the y
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -26,6 +27,7 @@ from app.circuits.shapes import CHORD_MM, ring_of, rotate
 
 __all__ = ["read_gerber", "read_excellon"]
 
+_WHERE = re.compile(r'^.*?:(\d+)\s+"(.*?)":\s*(.*)$', re.S)
 _SHAPES = {"CircleAperture": "circle", "RectangleAperture": "rect", "ObroundAperture": "oval",
            "PolygonAperture": "polygon", "ExcellonTool": "circle"}
 
@@ -37,8 +39,10 @@ def _parse(loader, text: str, name: str):
         try:
             parsed = loader(text, filename=name)
         except SyntaxError as exc:
-            raise CircuitFileError(str(exc).split(": ", 1)[-1], file=name,
-                                   where=f"line {exc.lineno}" if exc.lineno else None) from exc
+            m = _WHERE.match(str(exc))     # gerbonara: 'name:LINE "statement": message'
+            line_no = exc.lineno or (int(m.group(1)) if m else None)
+            message = f'{m.group(3)} (statement "{m.group(2)}")' if m else str(exc)
+            raise CircuitFileError(message, file=name, where=f"line {line_no}" if line_no else None) from exc
         except Exception as exc:  # gerbonara raises ValueError/KeyError/... on damaged files
             raise CircuitFileError(f"cannot read the file: {exc}", file=name) from exc
     for w in caught:
