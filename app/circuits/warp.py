@@ -127,7 +127,8 @@ def _piece_lines(prints, n: np.ndarray, pts: np.ndarray, z: np.ndarray, d: int) 
     e0 = np.array([r[2][3] for r in prints])[seg]
     e1 = np.array([r[3][3] for r in prints])[seg]
     e_abs = np.array([r[5] for r in prints])[seg]
-    e = np.where(e_abs, e0 + k / n[seg] * (e1 - e0), (e1 - e0) / n[seg])
+    share = np.round(k / n[seg] * (e1 - e0), 5) - np.round((k - 1) / n[seg] * (e1 - e0), 5)  # sums exactly
+    e = np.where(e_abs, e0 + k / n[seg] * (e1 - e0), share)
     has_e = e1 != e0
     xyz = f"G1 X{{:.{d}f}} Y{{:.{d}f}} Z{{:.{d}f}}".format
     lines = list(map(xyz, pts[:, 0], pts[:, 1], z))
