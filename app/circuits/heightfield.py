@@ -109,3 +109,27 @@ class HeightField:
         uncovered = span > 2 * (1 << level)          # wider than the coarsest window pair: whole grid
         out[uncovered] = self._table[0].max()
         return out
+
+
+def height_field_from_points(points: np.ndarray, spacing_mm: float = 1.0) -> HeightField:
+    """A height field from scattered surface points (n, 3) mm (probe touches, a fitted surface's
+    samples): C1 Clough-Tocher interpolation onto a grid of ``spacing_mm`` over their bounding
+    box; the measured region is their convex hull (grid nodes outside it take the nearest value)."""
+    from scipy.interpolate import CloughTocher2DInterpolator, NearestNDInterpolator
+
+    pts = np.asarray(points, float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4 or not np.isfinite(pts).all():
+        raise WarpError("a surface needs at least 4 finite (x, y, z) points", field="surface",
+                        value=list(pts.shape))
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    if (hi - lo).min() <= 0:
+        raise WarpError("the surface points span no area", field="surface", value=[lo.tolist(), hi.tolist()])
+    nx = max(4, int(np.ceil((hi[0] - lo[0]) / spacing_mm)) + 1)
+    ny = max(4, int(np.ceil((hi[1] - lo[1]) / spacing_mm)) + 1)
+    x, y = np.linspace(lo[0], hi[0], nx), np.linspace(lo[1], hi[1], ny)
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    z = CloughTocher2DInterpolator(pts[:, :2], pts[:, 2])(X, Y)
+    missing = ~np.isfinite(z)
+    if missing.any():
+        z[missing] = NearestNDInterpolator(pts[:, :2], pts[:, 2])(X[missing], Y[missing])
+    return HeightField(x, y, z, hull_points=pts[:, :2])
