@@ -60,48 +60,43 @@ def _fmt(v: float, d: int) -> str:
     return "0" if s in ("-0", "") else s
 
 
+def _refuse(ln, message: str) -> WarpError:
+    return WarpError(f"line {ln.number}: {message}", field="file",
+                     value={"line": ln.number, "text": ln.text.strip()[:80]})
+
+
 def _scan(text: str):
-    """First pass: modal interpretation.  Returns per-line records:
-    (kind, line, start (x,y,z,e), end (x,y,z,e), feed) with kind in print/travel/zonly/other/mode."""
-    pos = np.zeros(4)
+    """First pass: modal interpretation.  Returns per-line records
+    (kind, line, start [x, y, z, e], end [x, y, z, e], feed mm/min, e absolute) with kind in
+    print / travel / zonly / eonly / mode / other (start, end None for the last two)."""
+    pos = [0.0, 0.0, 0.0, 0.0]
     absolute, e_abs, scale, dispensing, feed = True, True, 1.0, False, None
     recs = []
+    axes = (("X", 0), ("Y", 1), ("Z", 2), ("E", 3))
     for ln in read_lines(text):
-        g = ln.codes("G")
-        m = {f"M{int(v)}" for v in ln.codes("M")}
-        if m & DISPENSE_ON:
-            dispensing = True
-        if m & DISPENSE_OFF:
-            dispensing = False
-        if any(c in (2.0, 3.0) for c in g):
-            raise WarpError(f"line {ln.number}: arcs (G2/G3) are not warped; linearise them first",
-                            field="file", value={"line": ln.number, "text": ln.text.strip()[:80]})
-        if 20.0 in g:
-            scale = 25.4
-        if 21.0 in g:
-            scale = 1.0
-        if 90.0 in g:
-            absolute = True
-        if 91.0 in g:
-            absolute = False
-        if "M82" in m:
-            e_abs = True
-        if "M83" in m:
-            e_abs = False
-        if 92.0 in g:
-            raise WarpError(f"line {ln.number}: G92 (set position) is not supported by the warp",
-                            field="file", value={"line": ln.number, "text": ln.text.strip()[:80]})
-        if g and g[0] in (0.0, 1.0) and any(k in "XYZE" for k, _ in ln.words):
-            if ln.get("F") is not None:
-                feed = ln.get("F") * scale
-            start = pos.copy()
-            for i, ax in enumerate("XYZE"):
-                v = ln.get(ax)
+        g, values = ln.g, ln.values
+        if ln.m:
+            m = {f"M{int(v)}" for v in ln.m}
+            if m & DISPENSE_ON:
+                dispensing = True
+            if m & DISPENSE_OFF:
+                dispensing = False
+            if "M82" in m:
+                e_abs = True
+            if "M83" in m:
+                e_abs = False
+        if g and (g[0] in (0.0, 1.0)) and len(g) == 1 and ("X" in values or "Y" in values or "Z" in values
+                                                              or "E" in values):
+            if "F" in values:
+                feed = values["F"] * scale
+            start = pos[:]
+            for ax, i in axes:
+                v = values.get(ax)
                 if v is None:
                     continue
-                rel = (not absolute) if ax != "E" else (not e_abs)
+                rel = (not absolute) if i < 3 else (not e_abs)
                 pos[i] = pos[i] + v * scale if rel else v * scale
-            moved_xy = abs(pos[0] - start[0]) + abs(pos[1] - start[1]) > 0
+            moved_xy = pos[0] != start[0] or pos[1] != start[1]
             de = pos[3] - start[3]
             if moved_xy and g[0] == 1.0 and (de > 0 or dispensing):
                 kind = "print"
@@ -111,11 +106,23 @@ def _scan(text: str):
                 kind = "zonly"
             else:
                 kind = "eonly" if de != 0 else "other"
-            recs.append((kind, ln, start, pos.copy(), feed, e_abs))
-        elif g and g[0] in (20.0, 21.0, 90.0, 91.0):
-            recs.append(("mode", ln, None, None, None, e_abs))
-        else:
-            recs.append(("other", ln, None, None, None, e_abs))
+            recs.append((kind, ln, start, pos[:], feed, e_abs))
+            continue
+        for code in g:
+            if code in (2.0, 3.0):
+                raise _refuse(ln, "arcs (G2/G3) are not warped; linearise them first")
+            if code == 92.0:
+                raise _refuse(ln, "G92 (set position) is not supported by the warp")
+            if code == 20.0:
+                scale = 25.4
+            elif code == 21.0:
+                scale = 1.0
+            elif code == 90.0:
+                absolute = True
+            elif code == 91.0:
+                absolute = False
+        kind = "mode" if g and all(c in (20.0, 21.0, 90.0, 91.0) for c in g) else "other"
+        recs.append((kind, ln, None, None, None, e_abs))
     return recs
 
 

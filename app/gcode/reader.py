@@ -9,7 +9,7 @@ dispensing) belongs to the callers.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from app.errors import InvalidInput
 
@@ -17,28 +17,32 @@ __all__ = ["GcodeLine", "GcodeReadError", "read_lines"]
 
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
 _PAREN = re.compile(r"\([^)]*\)")
+_VALID = re.compile(r"\s*(?:[A-Za-z]\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*)*")
 
 
 class GcodeReadError(InvalidInput):
     """A line whose words cannot be read; ``value`` names the line number and text."""
 
 
-@dataclass(frozen=True)
-class GcodeLine:
+class GcodeLine(NamedTuple):
     """number: 1-based line; text: the raw line; words: ((letter upper, value), ...); comment."""
 
     number: int
     text: str
     words: tuple[tuple[str, float], ...]
     comment: str
+    values: dict[str, float]          # first value of each letter
+    g: tuple[float, ...]              # every G code on the line, in order
+    m: tuple[float, ...]              # every M code on the line, in order
 
     def get(self, letter: str, default: float | None = None) -> float | None:
-        for k, v in self.words:
-            if k == letter:
-                return v
-        return default
+        return self.values.get(letter, default)
 
     def codes(self, letter: str) -> tuple[float, ...]:
+        if letter == "G":
+            return self.g
+        if letter == "M":
+            return self.m
         return tuple(v for k, v in self.words if k == letter)
 
 
@@ -52,9 +56,12 @@ def read_lines(text: str) -> list[GcodeLine]:
             body = _PAREN.sub(" ", body)
         body = body.split("*", 1)[0]
         words = [(k.upper(), float(v)) for k, v in _WORD.findall(body)]
-        rest = _WORD.sub("", body).strip()
+        rest = "" if _VALID.fullmatch(body) else _WORD.sub("", body).strip()
         if rest and not rest.startswith(("%", "$")):
             raise GcodeReadError(f"line {number}: cannot read {rest[:30]!r} in {raw.strip()[:60]!r}",
                                  field="file", value={"line": number, "text": raw.strip()[:80]})
-        out.append(GcodeLine(number, raw, tuple(w for w in words if w[0] != "N"), comment.strip()))
+        values = dict(reversed(words))           # the first value of each letter wins
+        values.pop("N", None)
+        out.append(GcodeLine(number, raw, tuple(words), comment.strip(), values,
+                             tuple(v for k, v in words if k == "G"), tuple(v for k, v in words if k == "M")))
     return out
