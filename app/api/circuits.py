@@ -14,14 +14,14 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, File, Form, UploadFile
 from pydantic import BaseModel, Field, ValidationError
 
-from app.api.deps import Operator, RuntimeDep, SessionDep
-from app.api.schemas import Finite, Strict, TraceCreate
+from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
 from app.circuits.formats import FORMATS, read_layout
 from app.circuits.mapping import MappingOptions, map_layout
 from app.circuits.placement import Placement
 from app.errors import ConformaError, InvalidInput
-from app.models import Part, new_id
+from app.models import CircuitImport, Part, new_id, utcnow
 from app.records import build_trace, get_or_404
 
 router = APIRouter(prefix="/api/v1", tags=["circuits"])
@@ -86,6 +86,17 @@ class CircuitImportOut(BaseModel):
     pads: list[ImportedPad]
     areas: list[list[list[float]]]
     warnings: list[dict[str, Any]]
+
+
+class CircuitImportRecord(BaseModel):
+    id: str
+    part_id: str
+    files: list[dict[str, Any]]
+    options: dict[str, Any]
+    trace_ids: list[str]
+    pads: list[dict[str, Any]]
+    areas: list[list[list[float]]]
+    created_at: UtcDatetime
 
 
 def _options(raw: str) -> CircuitImportOptions:
@@ -173,9 +184,19 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep,
             raise InvalidInput(f"{first.name}: the trace leaves the part's upper surface (use a dry run to see "
                                "every warning)", field=f"traces.{first.index}", value=first.source.get("entity"))
         session.add_all([trace for _, trace in records])
+        session.add(CircuitImport(
+            id=import_id, part_id=part.id, files=[f.model_dump() for f in out.files],
+            options=opts.model_dump(), trace_ids=[trace.id for _, trace in records],
+            pads=[p.model_dump() for p in out.pads], areas=out.areas, created_at=utcnow()))
         session.commit()
     for item, trace in records:
         item.trace = trace_out(trace).model_dump(mode="json") if not opts.dry_run else {
             "id": None, "name": trace.name, "length_mm": trace.length_mm, "z_range": [trace.z_min, trace.z_max],
             "width_mm": trace.width_mm, "geometry": trace.geometry}
     return out
+
+
+@router.get("/circuit-imports/{import_id}", dependencies=[Viewer])
+def get_circuit_import(import_id: str, session: SessionDep) -> CircuitImportRecord:
+    """A committed import: its files, options, trace ids, and mapped pads and areas."""
+    return CircuitImportRecord(**get_or_404(session, CircuitImport, import_id, field="import_id").model_dump())
