@@ -25,7 +25,7 @@ from app.circuits.errors import WarpError
 from app.circuits.heightfield import HeightField
 from app.gcode.reader import read_lines
 
-__all__ = ["WarpOptions", "WarpResult", "warp_program", "fixed_split_error"]
+__all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "fixed_split_error"]
 
 DISPENSE_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
 DISPENSE_OFF = frozenset({"M107", "M9", "M5"})
@@ -147,21 +147,37 @@ def _piece_lines(prints, n: np.ndarray, pts: np.ndarray, z: np.ndarray, d: int) 
     return lines
 
 
+def check_program(text: str, surface: HeightField, allow_outside: bool = False) -> int:
+    """Raise WarpError naming the first refused line (arcs, G92, a printing move outside the
+    measured region unless allowed); returns the number of printing moves."""
+    recs = _scan(text)
+    if not allow_outside:
+        _refuse_outside([r for r in recs if r[0] == "print"], surface)
+    return sum(1 for r in recs if r[0] == "print")
+
+
+def _refuse_outside(prints: list, surface: HeightField) -> None:
+    if not prints:
+        return
+    p0 = np.array([r[2] for r in prints])
+    p1 = np.array([r[3] for r in prints])
+    inside = surface.inside(p0[:, 0], p0[:, 1]) & surface.inside(p1[:, 0], p1[:, 1])
+    if not inside.all():
+        k = int(np.argmin(inside))
+        raise _refuse(prints[k][1], f"the printing move from x={p0[k, 0]:.4f}, y={p0[k, 1]:.4f} to "
+                      f"x={p1[k, 0]:.4f}, y={p1[k, 1]:.4f} leaves the measured region (x {surface.x[0]:.3f}.."
+                      f"{surface.x[-1]:.3f}, y {surface.y[0]:.3f}..{surface.y[-1]:.3f})")
+
+
 def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOptions()) -> WarpResult:
     """The warped program (see the module doc); WarpError names a refused line."""
     recs = _scan(text)
     prints = [r for r in recs if r[0] == "print"]
     p0 = np.array([r[2] for r in prints]).reshape(-1, 4)
     p1 = np.array([r[3] for r in prints]).reshape(-1, 4)
+    if not opts.allow_outside:
+        _refuse_outside(prints, surface)
     if len(prints):
-        inside = surface.inside(p0[:, 0], p0[:, 1]) & surface.inside(p1[:, 0], p1[:, 1])
-        if not opts.allow_outside and not inside.all():
-            k = int(np.argmin(inside))
-            ln = prints[k][1]
-            raise WarpError(f"line {ln.number}: the printing move from x={p0[k, 0]:.4f}, y={p0[k, 1]:.4f} to "
-                            f"x={p1[k, 0]:.4f}, y={p1[k, 1]:.4f} leaves the measured region "
-                            f"(x {surface.x[0]:.3f}..{surface.x[-1]:.3f}, y {surface.y[0]:.3f}..{surface.y[-1]:.3f})",
-                            field="file", value={"line": ln.number, "text": ln.text.strip()[:80]})
         length = np.hypot(p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1])
         bound = surface.curvature_bound(p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1])
         with np.errstate(divide="ignore"):
