@@ -192,7 +192,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep,
     for item, trace in records:
         item.trace = trace_out(trace).model_dump(mode="json") if not opts.dry_run else {
             "id": None, "name": trace.name, "length_mm": trace.length_mm, "z_range": [trace.z_min, trace.z_max],
-            "width_mm": trace.width_mm, "geometry": trace.geometry}
+            "width_mm": trace.width_mm, "geometry": trace.geometry, "nominal": {"points": trace.nominal["points"]}}
     return out
 
 
