@@ -12,7 +12,7 @@ from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
 import app as app_package
-from app.api import files, jobs, machines, parts, programs, reports, system, traces, viewer as viewer_api
+from app.api import circuits, files, jobs, machines, parts, programs, reports, system, traces, viewer as viewer_api
 from app.api.errors import install_error_handlers
 from app.api.limits import BodyLimitMiddleware
 from app.auth import KeyRing
@@ -62,7 +62,7 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
     api.add_middleware(BodyLimitMiddleware, upload_bytes=int(settings.max_upload_mb * 2**20),
                        json_bytes=int(settings.max_json_mb * 2**20))
     for router in (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router,
-                   files.router, viewer_api.router, reports.router):
+                   files.router, viewer_api.router, reports.router, circuits.router):
         api.include_router(router)
     if WEB_DIR.is_dir():
         api.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")

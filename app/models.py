@@ -69,6 +69,8 @@ class Trace(SQLModel, table=True):
     z_max: float
     nominal: dict = Field(sa_column=Column(JSON, nullable=False))
     created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+    #: where an imported trace came from: {file, layer, net, width_mm, entity, import_id, mapping, stretch}
+    source: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 class Job(SQLModel, table=True):
     __tablename__ = "jobs"
@@ -163,4 +165,19 @@ class UploadedFile(SQLModel, table=True):
     media_type: str = Field(max_length=100)
     bytes: int
     sha256: str = Field(foreign_key="blobs.sha256", max_length=64)
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+
+class CircuitImport(SQLModel, table=True):
+    """One committed circuit import: its files, placement options, the traces it created and
+    the mapped pads and areas (top-view outlines, mm) that a circuit program fills."""
+
+    __tablename__ = "circuit_imports"
+    id: str = Field(primary_key=True, max_length=40)
+    part_id: str = Field(index=True, max_length=40)  # no foreign key: a part may be deleted
+    files: list = Field(sa_column=Column(JSON, nullable=False))
+    options: dict = Field(sa_column=Column(JSON, nullable=False))
+    trace_ids: list = Field(sa_column=Column(JSON, nullable=False))
+    pads: list = Field(sa_column=Column(JSON, nullable=False))
+    areas: list = Field(sa_column=Column(JSON, nullable=False))
     created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))

@@ -102,6 +102,7 @@ class TraceOut(BaseModel):
     z_range: list[float]
     nominal: NominalOut
     created_at: UtcDatetime
+    source: dict[str, Any] | None = Field(None, description="imported traces: file, layer, net, width_mm, ...")
 
 
 class JobCreate(Strict):

@@ -2,7 +2,8 @@
 
 Every consumer of G-code in the service reads programs through :func:`read_program` — the
 time estimator, the 3-D view and the metadata stored with programs and artifacts — so they
-agree on what a program does.  (The hardware package keeps its own line codec: it frames
+agree on what a program does.  Lines are tokenized by :func:`app.gcode.lines.read_lines`
+(shared with the program warp).  (The hardware package keeps its own line codec: it frames
 and checksums lines, it does not interpret them.)
 
 Semantics (RS274/NGC as Marlin, grbl and LinuxCNC share them):
@@ -36,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
 
 INCH_MM = 25.4
 DEFAULT_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
@@ -44,15 +45,10 @@ DEFAULT_OFF = frozenset({"M107", "M9", "M5"})
 LIMIT_CODES = frozenset({"M201", "M203", "M204", "M205"})
 RAPID, FEED, ARC_CW, ARC_CCW, HOME = 0, 1, 2, 3, 28
 
-_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _LAYER = re.compile(r";\s*LAYER[:\s]*(-?\d+)", re.IGNORECASE)
 _PAREN = re.compile(r"\([^)]*\)")
 _LINE_NUMBER = re.compile(r"^N\d+\s*")
 _AXES = "XYZE"
-
-
-class GcodeReadError(InvalidInput):
-    """The text cannot be read as G-code (not UTF-8, a malformed arc, an unsupported plane)."""
 
 
 @dataclass(frozen=True)
@@ -131,8 +127,16 @@ class _State:
     stop_pending: bool = False
 
 
+def _words_key(words: tuple[tuple[str, float], ...]) -> str:
+    """A line's command as comparable text: ``m64  p0.0`` and ``M64 P0`` are the same."""
+    return " ".join(f"{letter}{value:g}" for letter, value in words if letter != "N")
+
+
 def _normalise(line: str | None) -> str | None:
-    return None if line is None else " ".join(line.split(";")[0].upper().split())
+    if line is None:
+        return None
+    parsed = read_lines(line, strict=False)
+    return _words_key(parsed[0].words) if parsed else ""
 
 
 def _strip(raw: str) -> str:
@@ -163,32 +167,23 @@ class _Reader:
                           s.stop_pending))
         s.stop_pending = False
 
-    def line(self, raw: str, number: int) -> None:
-        s = self.state
-        tag = _LAYER.search(raw)
+    def line(self, parsed: GcodeLine) -> None:
+        s, number = self.state, parsed.number
+        tag = _LAYER.search(parsed.text)
         if tag:
             s.layer = int(tag.group(1))
-        text = _strip(raw)
-        if not text:
+        if not parsed.words:
             return
-        self.text = text
-        if self.on_line is not None and text == self.on_line:
+        self.text = _strip(parsed.text)
+        key = _words_key(parsed.words)
+        if self.on_line is not None and key == self.on_line:
             s.dispensing = True
             return
-        if self.off_line is not None and text == self.off_line:
+        if self.off_line is not None and key == self.off_line:
             s.dispensing = False
             return
-        words = _WORD.findall(text)
-        if not words:
-            return
-        codes: list[str] = []
-        values: dict[str, float] = {}
-        for letter, value in words:
-            number_value = float(value)
-            if letter in "GM":
-                codes.append(f"{letter}{number_value:g}")
-            elif letter != "N":
-                values.setdefault(letter, number_value)
+        codes = [f"{letter}{value:g}" for letter, value in parsed.words if letter in "GM"]
+        values = {letter: value for letter, value in parsed.values.items() if letter not in "GMN"}
         motion_here: int | None = None
         axis_consumer = False  # a non-motion code on this line owns the axis words
         for code in codes:
@@ -358,6 +353,6 @@ def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Pro
         except UnicodeDecodeError as exc:
             raise GcodeReadError("the program is not UTF-8 text", field="gcode", value=str(exc)[:80]) from None
     reader = _Reader(options)
-    for number, raw in enumerate(text.splitlines(), start=1):
-        reader.line(raw, number)
+    for parsed in read_lines(text, strict=False):
+        reader.line(parsed)
     return reader.program()

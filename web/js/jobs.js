@@ -38,6 +38,8 @@ async function suggestions() {
   Object.assign(out, { plan_job_id: byKind("probe_plan"), probe_run_job_id: byKind("probe_run"),
     reconstruct_job_id: byKind("reconstruct"), slice_job_id: byKind("slice"), surface_fit_job_id: byKind("surface_fit") });
   try { out.machine_id = (await get("machines")).items.map((m) => [m.id, m.name]); } catch { /* no machines API */ }
+  out.closed_loop_job_id = byKind("closed_loop");
+  try { out.program_id = (await get("programs?limit=200")).items.map((p) => [p.id, `${p.name} (${p.lines} lines)`]); } catch { /* none */ }
   return out;
 }
 

@@ -1,6 +1,6 @@
 // Traces: create one from a form, import many (JSON array or SVG), list, open in 3D.
-import { del, get, post } from "./api.js";
-import { svgToTraces } from "./svg_import.js";
+import { del, get, post, upload } from "./api.js";
+import { circuitImportSection } from "./circuit_import.js";
 import { el, fmt, guarded, initPage, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
 
 const main = initPage("traces.html");
@@ -113,7 +113,8 @@ async function onCreate(event) {
 // ---- import -------------------------------------------------------------------------
 const importFile = el("input", { type: "file", id: "import-file", "aria-label": "traces file to import (JSON or SVG)", accept: ".json,.svg,application/json,image/svg+xml" });
 left.append(el("section", {}, el("h2", {}, "Import traces"),
-  el("p", { class: "small" }, "A JSON array of traces (the API's trace objects) or an SVG drawing (paths in mm, top view)."),
+  el("p", { class: "small" }, "A JSON array of traces (the API's trace objects) or an SVG drawing (read by the server: "
+    + "transforms, viewBox and units honoured, y up from the page's bottom edge)."),
   el("form", { id: "import-form", onsubmit: onImport }, el("div", { class: "row" }, importFile,
     el("button", { type: "submit", id: "import-button" }, "Import")))));
 
@@ -124,10 +125,19 @@ async function onImport(event) {
   if (!partSelect.value) { showError(new Error("upload a part first"), "Import"); return; }
   const text = await file.text();
   let items;
+  if (/\.svg$/i.test(file.name) || text.trimStart().startsWith("<")) {
+    await guarded(`Import of ${file.name}`, async () => {
+      const form = new FormData();
+      form.append("files", file, file.name);
+      form.append("options", JSON.stringify({ format: "svg" }));
+      const result = await upload(`parts/${partSelect.value}/circuits:import`, form);
+      showInfo(`${result.traces.length} trace(s) imported from ${file.name}.`);
+      await refresh();
+    });
+    return;
+  }
   try {
-    if (/\.svg$/i.test(file.name) || text.trimStart().startsWith("<")) {
-      items = svgToTraces(text, { prefix: file.name.replace(/\.[^.]+$/, "") });
-    } else if (/\.json$/i.test(file.name)) {
+    if (/\.json$/i.test(file.name)) {
       const doc = JSON.parse(text);
       items = Array.isArray(doc) ? doc : Array.isArray(doc.items) ? doc.items : [doc];
     } else {
@@ -146,6 +156,8 @@ async function onImport(event) {
 
 // ---- list ---------------------------------------------------------------------------
 const tbody = el("tbody", { id: "traces-body" });
+left.append(circuitImportSection({ partSelect, getPart: (id) => get(`parts/${id}`), onDone: () => refresh() }));
+
 left.append(el("section", {}, el("h2", {}, "Traces on this part"),
   el("table", { id: "traces-table" }, el("thead", {}, el("tr", {},
     ["Name", "Length", "z range (mm)", "Standoff", ""].map((h) => el("th", {}, h)))), tbody)));

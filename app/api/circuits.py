@@ -1,0 +1,202 @@
+"""Circuit import: ECAD files (KiCad, Gerber + Excellon, DXF, SVG) placed on a part.
+
+``POST /api/v1/parts/{part_id}/circuits:import`` — multipart ``files`` (one or more) and an
+``options`` JSON form field.  All or nothing: every trace of every file is draped like a
+trace created by ``POST /parts/{id}/traces`` (the same code path), and either all are stored
+or none.  ``dry_run`` returns the mapped circuit and its warnings and stores nothing.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, File, Form, UploadFile
+from pydantic import BaseModel, Field, ValidationError
+
+from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
+from app.api.traces import trace_out
+from app.circuits.formats import FORMATS, read_layout
+from app.circuits.mapping import MappingOptions, map_layout
+from app.circuits.placement import Placement
+from app.errors import ConformaError, InvalidInput
+from app.models import CircuitImport, Part, new_id, utcnow
+from app.records import build_trace, get_or_404
+
+router = APIRouter(prefix="/api/v1", tags=["circuits"])
+MAX_FILES = 20
+MAX_TRACES = 5000
+
+
+class CircuitImportOptions(Strict):
+    """How to read the files and lay the circuit on the part (mm, degrees)."""
+
+    format: Literal["kicad", "gerber", "excellon", "dxf", "svg"] | None = Field(
+        None, description="auto-detected from the name and content when omitted")
+    layers: list[str] | None = Field(None, max_length=50, description="KiCad copper layer (one; default F.Cu), "
+                                     "DXF layers, SVG group ids/labels; default all")
+    origin_mm: list[Finite] = Field([0.0, 0.0], min_length=2, max_length=2,
+                                    description="top-view point where the layout's (0, 0) lands; the wrap anchor")
+    rotation_deg: Finite = 0.0
+    mirror: bool = Field(False, description="mirror the layout in x (bottom layers)")
+    mapping: Literal["project", "wrap"] = "project"
+    max_stretch: Finite = Field(1.01, ge=1.0, le=10.0, description="warn above this stretch")
+    standoff_mm: Finite = Field(0.10, gt=0, le=50)
+    feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
+    dry_run: bool = False
+
+
+class ImportedFile(BaseModel):
+    file: str
+    format: str
+    units: str
+    layers: list[str]
+    notes: list[str]
+    traces: int
+    pads: int
+    areas: int
+
+
+class ImportedTrace(BaseModel):
+    index: int
+    name: str
+    source: dict[str, Any]
+    layout_length_mm: float
+    length_mm: float | None
+    stretch: float | None
+    on_part: bool
+    trace: dict[str, Any] | None = Field(None, description="the stored trace (or, on a dry run, what it would be)")
+
+
+class ImportedPad(BaseModel):
+    name: str
+    shape: str
+    source: dict[str, Any]
+    center_mm: list[float | None]
+    outline_xy_mm: list[list[float]]
+    on_part: bool
+
+
+class CircuitImportOut(BaseModel):
+    import_id: str
+    dry_run: bool
+    files: list[ImportedFile]
+    traces: list[ImportedTrace]
+    pads: list[ImportedPad]
+    areas: list[list[list[float]]]
+    warnings: list[dict[str, Any]]
+
+
+class CircuitImportRecord(BaseModel):
+    id: str
+    part_id: str
+    files: list[dict[str, Any]]
+    options: dict[str, Any]
+    trace_ids: list[str]
+    pads: list[dict[str, Any]]
+    areas: list[list[list[float]]]
+    created_at: UtcDatetime
+
+
+def _options(raw: str) -> CircuitImportOptions:
+    try:
+        return CircuitImportOptions.model_validate(json.loads(raw or "{}"))
+    except json.JSONDecodeError as exc:
+        raise InvalidInput(f"options is not JSON: {exc.msg} at column {exc.colno}", field="options",
+                           value=raw[:80]) from None
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(["options", *map(str, err["loc"])])
+        raise InvalidInput(f"{loc}: {err['msg']}", field=loc, value=err.get("input")) from None
+
+
+def _finite(v: float) -> float | None:
+    return None if v != v else round(float(v), 6)
+
+
+@router.post("/parts/{part_id}/circuits:import", status_code=201, dependencies=[Operator])
+def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep,
+                   files: Annotated[list[UploadFile], File(description="circuit files (KiCad, Gerber, Excellon, "
+                                                                       "DXF, SVG)")],
+                   options: Annotated[str, Form(description="CircuitImportOptions as JSON")] = "{}",
+                   ) -> CircuitImportOut:
+    """Import circuits onto a part: all files' traces are stored, or none (422 naming the file's
+    line or entity, or the trace); ``dry_run`` stores nothing."""
+    opts = _options(options)
+    part = get_or_404(session, Part, part_id)
+    if len(files) > MAX_FILES:
+        raise InvalidInput(f"at most {MAX_FILES} files per import", field="files", value=len(files))
+    placement = Placement(tuple(opts.origin_mm), opts.rotation_deg, opts.mirror)
+    mesh = runtime.meshes.mesh(part)
+    mapping = MappingOptions(opts.mapping, opts.max_stretch)
+    import_id = new_id("cimp")
+    out = CircuitImportOut(import_id=import_id, dry_run=opts.dry_run, files=[], traces=[], pads=[], areas=[],
+                           warnings=[])
+    records = []
+    for upload in files:
+        name = (upload.filename or "circuit").rsplit("/", 1)[-1]
+        layout = read_layout(upload.file.read(), name, opts.format, opts.layers)
+        if len(out.traces) + len(layout.traces) > MAX_TRACES:
+            raise InvalidInput(f"more than {MAX_TRACES} traces in one import", field="files", value=name)
+        mapped = map_layout(layout, placement, mesh, mapping)
+        out.files.append(ImportedFile(file=name, format=layout.format, units=layout.units,
+                                      layers=list(layout.layers), notes=layout.notes, traces=len(layout.traces),
+                                      pads=len(layout.pads), areas=len(layout.areas)))
+        base = len(out.traces)
+        for w in mapped.warnings:
+            w = dict(w, file=name)
+            if "traces" in w:
+                w["traces"] = [base + i for i in w["traces"]]
+            out.warnings.append(w)
+        for mt in mapped.traces:
+            index = base + mt.index
+            label = f"{name}:{mt.source['entity']}"[:200]
+            item = ImportedTrace(index=index, name=label, source=mt.source, layout_length_mm=mt.layout_length_mm,
+                                 length_mm=_finite(mt.length_mm), stretch=_finite(mt.stretch), on_part=mt.on_part)
+            out.traces.append(item)
+            if not mt.on_part:
+                continue
+            body = TraceCreate(name=label, geometry=mt.geometry, frame="xy", standoff_mm=opts.standoff_mm,
+                               width_mm=mt.source["width_mm"] or None, feed_mm_min=opts.feed_mm_min)
+            try:
+                trace = build_trace(runtime.meshes, part, body, field_prefix=f"traces.{index}")
+            except ConformaError as exc:
+                if opts.dry_run:
+                    out.warnings.append({"kind": "leaves_part", "traces": [index], "file": name,
+                                         "message": exc.message, "value": exc.value})
+                    item.on_part = False
+                    continue
+                exc.message = f"{label}: {exc.message}"
+                raise
+            trace.source = {**mt.source, "import_id": import_id, "mapping": opts.mapping,
+                            "stretch": _finite(mt.stretch), "layout_length_mm": mt.layout_length_mm}
+            records.append((item, trace))
+        for p in mapped.pads:
+            out.pads.append(ImportedPad(name=p.name, shape=p.shape, source=p.source,
+                                        center_mm=[_finite(v) for v in p.center],
+                                        outline_xy_mm=p.outline_xy.round(6).tolist(), on_part=p.on_part))
+        out.areas += [a.round(6).tolist() for a in mapped.areas_xy]
+    if not opts.dry_run:
+        off = [t for t in out.traces if not t.on_part]
+        if off:
+            first = off[0]
+            raise InvalidInput(f"{first.name}: the trace leaves the part's upper surface (use a dry run to see "
+                               "every warning)", field=f"traces.{first.index}", value=first.source.get("entity"))
+        session.add_all([trace for _, trace in records])
+        session.add(CircuitImport(
+            id=import_id, part_id=part.id, files=[f.model_dump() for f in out.files],
+            options=opts.model_dump(), trace_ids=[trace.id for _, trace in records],
+            pads=[p.model_dump() for p in out.pads], areas=out.areas, created_at=utcnow()))
+        session.commit()
+    for item, trace in records:
+        item.trace = trace_out(trace).model_dump(mode="json") if not opts.dry_run else {
+            "id": None, "name": trace.name, "length_mm": trace.length_mm, "z_range": [trace.z_min, trace.z_max],
+            "width_mm": trace.width_mm, "geometry": trace.geometry, "nominal": {"points": trace.nominal["points"]}}
+    return out
+
+
+@router.get("/circuit-imports/{import_id}", dependencies=[Viewer])
+def get_circuit_import(import_id: str, session: SessionDep) -> CircuitImportRecord:
+    """A committed import: its files, options, trace ids, and mapped pads and areas."""
+    return CircuitImportRecord(**get_or_404(session, CircuitImport, import_id, field="import_id").model_dump())

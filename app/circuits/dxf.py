@@ -1,0 +1,152 @@
+"""DXF drawings (ezdxf): LINE, ARC, CIRCLE, LWPOLYLINE (with bulges), SPLINE (exact NURBS),
+ELLIPSE (exact rational spline) and blocks placed by INSERT (nested, with their transforms).
+
+Units come from the header's ``$INSUNITS`` (inch = 25.4 mm exactly; unitless files are read
+as mm and say so in the layout's notes).  A trace's width is the polyline's constant width
+or, else, the entity's lineweight (1/100 mm); 0 when neither is set.  Entities of a block
+on layer "0" take the layer of the INSERT that places them (DXF's BYBLOCK rule).
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import ezdxf
+from ezdxf.math import rational_bspline_from_ellipse
+
+from app.circuits.curves import arc_center, bulge_arc, concatenated, line
+from app.circuits.errors import CircuitFileError
+from app.circuits.layout import Layout, LayoutTrace, Source
+from app.geometry.errors import GeometryError
+from app.geometry.nurbs import NurbsCurve
+
+__all__ = ["read_dxf", "INSUNITS_MM"]
+
+#: $INSUNITS code -> mm per drawing unit (exact factors)
+INSUNITS_MM = {0: 1.0, 1: 25.4, 2: 304.8, 4: 1.0, 5: 10.0, 6: 1000.0, 8: 25.4e-6, 9: 0.0254, 10: 914.4,
+               13: 1e-3, 14: 0.1}
+_NAMES = {0: "unitless", 1: "inch", 2: "foot", 4: "mm", 5: "cm", 6: "m", 8: "microinch", 9: "mil", 10: "yard",
+          13: "micron", 14: "decimetre"}
+
+
+def _xy(v, scale: float) -> np.ndarray:
+    return np.array([float(v[0]), float(v[1])]) * scale
+
+
+def _width(entity, scale: float) -> float:
+    const = float(entity.dxf.get("const_width", 0.0) or 0.0) if entity.dxftype() == "LWPOLYLINE" else 0.0
+    if const > 0:
+        return const * scale
+    lw = int(entity.dxf.get("lineweight", -1))
+    return lw / 100.0 if lw > 0 else 0.0
+
+
+def _lwpolyline(e, scale: float) -> NurbsCurve | None:
+    ocs = e.ocs()
+    flip = e.dxf.extrusion[2] < 0
+    elevation = float(e.dxf.get("elevation", 0.0))
+    raw = [(x, y, b) for x, y, *_, b in e.get_points("xyseb")]
+    pts = [np.array(tuple(ocs.to_wcs((x, y, elevation)))[:2], float) * scale for x, y, _ in raw]
+    bulges = [(-b if flip else b) for _, _, b in raw]
+    if e.closed:
+        pts.append(pts[0])
+        bulges.append(0.0)
+    pieces = []
+    for i in range(len(pts) - 1):
+        if np.linalg.norm(pts[i + 1] - pts[i]) <= 1e-9:
+            continue
+        pieces.append(bulge_arc(pts[i], pts[i + 1], bulges[i]) if bulges[i] else line(pts[i], pts[i + 1]))
+    return concatenated(pieces) if pieces else None
+
+
+def _arc(e, scale: float, full: bool) -> NurbsCurve:
+    ocs = e.ocs()
+    center = np.array(tuple(ocs.to_wcs(e.dxf.center))[:2], float) * scale
+    if full:
+        start = end = center + [float(e.dxf.radius) * scale * (-1.0 if e.dxf.extrusion[2] < 0 else 1.0), 0.0]
+    else:
+        start, end = _xy(e.start_point, scale), _xy(e.end_point, scale)
+    return arc_center(start, end, center, clockwise=e.dxf.extrusion[2] < 0)
+
+
+def _spline(e, scale: float) -> NurbsCurve:
+    if e.control_point_count() == 0:
+        tool = e.construction_tool()     # fit points only: ezdxf's interpolating B-spline
+        cps, knots, weights, degree = tool.control_points, tool.knots(), tool.weights(), tool.degree
+    else:
+        cps, knots, weights, degree = e.control_points, e.knots, e.weights, e.dxf.degree
+    pts = np.array([[p[0], p[1]] for p in cps], float) * scale
+    w = np.asarray(weights, float) if len(weights) else None
+    return NurbsCurve(int(degree), np.asarray(knots, float), pts, w)
+
+
+def _ellipse(e, scale: float) -> NurbsCurve:
+    spline = rational_bspline_from_ellipse(e.construction_tool())
+    pts = np.array([[p[0], p[1]] for p in spline.control_points], float) * scale
+    return NurbsCurve(spline.degree, np.asarray(spline.knots(), float), pts, np.asarray(spline.weights(), float))
+
+
+def _entities(layout, parent_layer: str | None = None):
+    """(entity, effective layer) for every drawable entity, block references expanded (nested)."""
+    for e in layout:
+        layer = e.dxf.get("layer", "0")
+        if parent_layer is not None and layer == "0":
+            layer = parent_layer
+        if e.dxftype() == "INSERT":
+            yield from _entities(e.virtual_entities(), layer)
+        else:
+            yield e, layer
+
+
+def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
+    """Traces of the chosen ``layers`` (all when None) of a DXF drawing, in mm."""
+    if "EOF" not in text[-200:]:
+        raise CircuitFileError("the file ends without its EOF marker: truncated", file=name,
+                               where=f"line {len(text.splitlines())}")
+    try:
+        doc = ezdxf.read(io.StringIO(text))
+    except (ezdxf.DXFError, ValueError, KeyError, IndexError) as exc:
+        raise CircuitFileError(f"not a readable DXF: {exc}", file=name) from exc
+    code = int(doc.header.get("$INSUNITS", 0))
+    if code not in INSUNITS_MM:
+        raise CircuitFileError(f"$INSUNITS {code} is not a length unit this importer knows", file=name,
+                               where="header $INSUNITS")
+    scale = INSUNITS_MM[code]
+    out = Layout(file=name, format="dxf", units=_NAMES[code])
+    if code == 0:
+        out.notes.append("$INSUNITS is 0 (unitless): read as mm")
+    items = list(_entities(doc.modelspace()))
+    present = sorted({layer for _, layer in items})
+    out.layers = tuple(present)
+    if layers:
+        missing = [lay for lay in layers if lay not in present]
+        if missing:
+            raise CircuitFileError(f"layer {missing[0]!r} has no entities (the drawing's layers: {', '.join(present)})",
+                                   file=name, where=f"layer {missing[0]}", field="layers")
+    for e, layer in items:
+        if layers and layer not in layers:
+            continue
+        kind = e.dxftype()
+        entity = f"{kind} #{e.dxf.get('handle', '?')} on layer {layer}"
+        try:
+            if kind == "LINE":
+                p0, p1 = _xy(e.dxf.start, scale), _xy(e.dxf.end, scale)
+                curve = line(p0, p1) if np.linalg.norm(p1 - p0) > 1e-9 else None
+            elif kind in ("ARC", "CIRCLE"):
+                curve = _arc(e, scale, full=kind == "CIRCLE")
+            elif kind == "LWPOLYLINE":
+                curve = _lwpolyline(e, scale)
+            elif kind == "SPLINE":
+                curve = _spline(e, scale)
+            elif kind == "ELLIPSE":
+                curve = _ellipse(e, scale)
+            else:
+                continue
+        except (GeometryError, ValueError, ZeroDivisionError, ezdxf.DXFError) as exc:
+            raise CircuitFileError(f"cannot use this entity: {getattr(exc, 'message', exc)}", file=name,
+                                   where=entity) from exc
+        if curve is None:
+            continue
+        out.traces.append(LayoutTrace(curve, Source(name, layer, "", _width(e, scale), entity)))
+    return out

@@ -1,0 +1,73 @@
+"""Pick the importer for a file (by name, then by content) and run it."""
+
+from __future__ import annotations
+
+from app.circuits.dxf import read_dxf
+from app.circuits.errors import CircuitFileError
+from app.circuits.gerber import read_excellon, read_gerber
+from app.circuits.kicad import read_kicad
+from app.circuits.layout import Layout
+from app.circuits.svg import read_svg
+
+__all__ = ["FORMATS", "detect_format", "read_layout"]
+
+FORMATS = ("kicad", "gerber", "excellon", "dxf", "svg")
+_SUFFIXES = {".kicad_pcb": "kicad", ".gbr": "gerber", ".ger": "gerber", ".gtl": "gerber", ".gbl": "gerber",
+             ".gts": "gerber", ".gbs": "gerber", ".gto": "gerber", ".gm1": "gerber", ".drl": "excellon",
+             ".xln": "excellon", ".exc": "excellon", ".dxf": "dxf", ".svg": "svg"}
+
+
+def detect_format(name: str, data: bytes) -> str:
+    """The format of a file from its suffix, else from its first bytes; CircuitFileError if neither."""
+    lower = name.lower()
+    for suffix, fmt in _SUFFIXES.items():
+        if lower.endswith(suffix):
+            return fmt
+    head = data[:4096].lstrip().decode("latin-1")
+    if head.startswith("(kicad_pcb"):
+        return "kicad"
+    if head.startswith("M48") or head.startswith(";") and "M48" in head:
+        return "excellon"
+    if "%FS" in head or "%MO" in head or head.startswith("G04"):
+        return "gerber"
+    if "<svg" in head or head.startswith("<?xml") and "<svg" in data[:65536].decode("latin-1"):
+        return "svg"
+    if head.startswith("0") and "SECTION" in head[:200]:
+        return "dxf"
+    raise CircuitFileError(f"cannot tell the format of the file (name or first bytes); give format, one of "
+                           f"{', '.join(FORMATS)}", file=name, field="format")
+
+
+def _text(data: bytes, name: str) -> str:
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        try:
+            return data.decode("cp1252")      # old DXF and Gerber files
+        except UnicodeDecodeError as exc:
+            raise CircuitFileError(f"not a text file (byte {exc.start})", file=name, where=f"byte {exc.start}") \
+                from exc
+
+
+def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str] | None = None) -> Layout:
+    """A file's layout in mm (``fmt`` None = auto-detect).  ``layers``: KiCad copper layer (one),
+    DXF layers, SVG group ids/labels, a Gerber file's function; None takes the default
+    (KiCad F.Cu, everything else all)."""
+    fmt = fmt or detect_format(name, data)
+    if fmt not in FORMATS:
+        raise CircuitFileError(f"unknown format {fmt!r}; one of {', '.join(FORMATS)}", file=name, field="format")
+    if not data.strip():
+        raise CircuitFileError("the file is empty", file=name)
+    if fmt == "svg":
+        return read_svg(data, name, layers)
+    text = _text(data, name)
+    if fmt == "kicad":
+        if layers and len(layers) > 1:
+            raise CircuitFileError("a KiCad import takes one copper layer", file=name, where=f"layer {layers[1]}",
+                                   field="layers")
+        return read_kicad(text, name, layers[0] if layers else None)
+    if fmt == "gerber":
+        return read_gerber(text, name, layers[0] if layers else None)
+    if fmt == "excellon":
+        return read_excellon(text, name)
+    return read_dxf(text, name, layers)

@@ -1,0 +1,200 @@
+"""Gerber RS-274X and Excellon drill files (gerbonara).
+
+Gerber: draws (D01 lines and arcs) become traces whose width is their aperture's width;
+flashes (D03) become pads with the aperture's outline (circles, rectangles, obrounds,
+polygons and macros, via gerbonara's primitives); regions (G36/G37) become areas.
+Excellon: every hit becomes a round pad of its tool's diameter; routed slots become traces.
+Coordinates are converted to mm (an inch file's 25.4 mm per inch exactly); the y axis is up.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+
+import numpy as np
+from gerbonara import ExcellonFile, GerberFile
+from gerbonara import graphic_objects as go
+from gerbonara import graphic_primitives as gp
+from gerbonara.utils import MM
+from shapely.geometry import LineString, Point, Polygon
+from shapely.ops import unary_union
+
+from app.circuits.curves import arc_center, line
+from app.circuits.errors import CircuitFileError
+from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, arc_points
+from app.circuits.shapes import CHORD_MM, ring_of, rotate
+
+__all__ = ["read_gerber", "read_excellon"]
+
+_WHERE = re.compile(r'^.*?:(\d+)\s+"(.*?)":\s*(.*)$', re.S)
+_SHAPES = {"CircleAperture": "circle", "RectangleAperture": "rect", "ObroundAperture": "oval",
+           "PolygonAperture": "polygon", "ExcellonTool": "circle"}
+
+
+def _parse(loader, text: str, name: str):
+    """Run a gerbonara parser; its SyntaxErrors name the line; a missing end marker is a truncation."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            parsed = loader(text, filename=name)
+        except SyntaxError as exc:
+            m = _WHERE.match(str(exc))     # gerbonara: 'name:LINE "statement": message'
+            line_no = exc.lineno or (int(m.group(1)) if m else None)
+            message = f'{m.group(3)} (statement "{m.group(2)}")' if m else str(exc)
+            raise CircuitFileError(message, file=name, where=f"line {line_no}" if line_no else None) from exc
+        except Exception as exc:  # gerbonara raises ValueError/KeyError/... on damaged files
+            raise CircuitFileError(f"cannot read the file: {exc}", file=name) from exc
+    for w in caught:
+        text_w = str(w.message)
+        if "missing mandatory M02" in text_w or "truncated" in text_w.lower():
+            last = len(text.splitlines())
+            raise CircuitFileError("the file ends without its end marker (M02 / M30): truncated", file=name,
+                                   where=f"line {last}")
+    return parsed
+
+
+def _primitive_geometry(prim) -> Polygon:
+    if isinstance(prim, gp.Circle):
+        r = prim.r
+        return Point(prim.x, prim.y).buffer(r, quad_segs=max(8, int(np.ceil(np.pi / 2 / (2 * np.arccos(
+            max(0.0, 1 - CHORD_MM / r)) + 1e-12))))) if r > 0 else Polygon()
+    if isinstance(prim, gp.Rectangle):
+        corners = np.array([[-prim.w, -prim.h], [prim.w, -prim.h], [prim.w, prim.h], [-prim.w, prim.h]]) / 2
+        return Polygon(rotate(corners, prim.rotation) + [prim.x, prim.y])
+    if isinstance(prim, gp.Line):
+        return LineString([(prim.x1, prim.y1), (prim.x2, prim.y2)]).buffer(prim.width / 2)
+    if isinstance(prim, gp.ArcPoly):
+        return Polygon(_outline_points(prim.outline, prim.arc_centers))
+    return Polygon()
+
+
+def _outline_points(outline, arc_centers) -> np.ndarray:
+    """A closed outline with optional arc segments, arcs sampled within CHORD_MM."""
+    pts = [np.asarray(outline[0], float)]
+    for i in range(1, len(outline)):
+        p0, p1 = np.asarray(outline[i - 1], float), np.asarray(outline[i], float)
+        arc = arc_centers[i - 1] if arc_centers and i - 1 < len(arc_centers) else None
+        if arc is None:
+            pts.append(p1)
+            continue
+        clockwise, center = arc
+        sweep = _signed_sweep(p0, p1, np.asarray(center, float), clockwise)
+        r = float(np.linalg.norm(p0 - np.asarray(center, float)))
+        a0 = np.arctan2(*(p0 - center)[::-1])
+        pts.extend(arc_points(np.asarray(center, float), r, a0, sweep, CHORD_MM)[1:])
+    return np.array(pts)
+
+
+def _signed_sweep(p0, p1, center, clockwise: bool) -> float:
+    a0 = np.arctan2(*(p0 - center)[::-1])
+    a1 = np.arctan2(*(p1 - center)[::-1])
+    ccw = (a1 - a0) % (2 * np.pi)
+    if ccw == 0.0:
+        ccw = 2 * np.pi
+    return -(2 * np.pi - ccw if ccw < 2 * np.pi else 2 * np.pi) if clockwise else ccw
+
+
+def _flash_pad(obj, source: Source, k: int) -> Pad:
+    dark, clear = [], []
+    for prim in obj.to_primitives(unit=MM):
+        (dark if getattr(prim, "polarity_dark", True) else clear).append(_primitive_geometry(prim))
+    shape = unary_union(dark)
+    if clear:
+        shape = shape.difference(unary_union(clear))
+    if shape.geom_type != "Polygon":
+        shape = max(getattr(shape, "geoms", [shape]), key=lambda g: g.area)
+    ap = obj.aperture
+    kind = _SHAPES.get(type(ap).__name__, getattr(getattr(ap, "macro", None), "name", "macro"))
+    center = np.array([MM.convert_from(obj.unit, obj.x), MM.convert_from(obj.unit, obj.y)])
+    return Pad(kind, center, ring_of(shape), source, f"flash {k}")
+
+
+def _draw_width(obj, name: str, k: int) -> float:
+    try:
+        return float(obj.aperture.equivalent_width(MM))
+    except ValueError as exc:
+        raise CircuitFileError(f"draw {k} uses a non-circular aperture (D{obj.aperture.original_number}): "
+                               "its line width is undefined", file=name,
+                               where=f"draw {k}, aperture D{obj.aperture.original_number}") from exc
+
+
+def _draw_curve(obj):
+    o = obj.converted(MM)
+    p0, p1 = np.array([o.x1, o.y1]), np.array([o.x2, o.y2])
+    if isinstance(o, go.Arc):
+        return arc_center(p0, p1, p0 + [o.cx, o.cy], bool(o.clockwise))
+    if np.linalg.norm(p1 - p0) <= 1e-9:
+        return None
+    return line(p0, p1)
+
+
+def _layer_name(gerber, name: str) -> str:
+    attrs = getattr(gerber, "file_attrs", None) or {}
+    function = attrs.get(".FileFunction") if isinstance(attrs, dict) else None
+    if function:
+        return ",".join(function) if isinstance(function, (list, tuple)) else str(function)
+    return name
+
+
+def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
+    """Traces, pads and areas of one Gerber file (a Gerber file is one layer)."""
+    gerber = _parse(GerberFile.from_string, text, name)
+    layer_name = _layer_name(gerber, name)
+    if layer and layer not in (layer_name, name) and not layer_name.startswith(layer):
+        raise CircuitFileError(f"layer {layer!r} is not this Gerber file's layer ({layer_name!r})", file=name,
+                               where=f"layer {layer}", field="layers")
+    unit = getattr(getattr(gerber, "import_settings", None), "unit", None)
+    out = Layout(file=name, format="gerber", units=getattr(unit, "name", "mm") if unit else "mm",
+                 layers=(layer_name,))
+    draws = flashes = 0
+    for obj in gerber.objects:
+        if isinstance(obj, (go.Line, go.Arc)):
+            draws += 1
+            width = _draw_width(obj, name, draws)
+            curve = _draw_curve(obj)
+            src = Source(name, layer_name, "", width, f"draw {draws} (D{obj.aperture.original_number})")
+            if curve is None:   # a zero-length draw stamps its aperture: a round pad
+                flash = go.Flash(obj.x1, obj.y1, obj.aperture, unit=obj.unit)
+                out.pads.append(_flash_pad(flash, src, draws))
+                continue
+            if not obj.polarity_dark:
+                out.notes.append(f"draw {draws}: clear-polarity draw ignored")
+                continue
+            out.traces.append(LayoutTrace(curve, src))
+        elif isinstance(obj, go.Flash):
+            flashes += 1
+            src = Source(name, layer_name, "", 0.0, f"flash {flashes} (D{obj.aperture.original_number})")
+            out.pads.append(_flash_pad(obj, src, flashes))
+        elif isinstance(obj, go.Region):
+            f = MM.convert_from(obj.unit, 1.0)
+            outline = [(x * f, y * f) for x, y in obj.outline]
+            arcs = [None if a is None else (a[0], (a[1][0] * f, a[1][1] * f)) for a in obj.arc_centers]
+            ring = _outline_points(outline, arcs)
+            poly = Polygon(ring).buffer(0)
+            if not obj.polarity_dark or poly.is_empty:
+                out.notes.append(f"region {len(out.areas) + 1}: clear or empty region ignored")
+                continue
+            geoms = getattr(poly, "geoms", [poly])
+            for g in geoms:
+                holes = tuple(np.asarray(h.coords)[:-1] for h in g.interiors)
+                out.areas.append(Area(ring_of(g), holes, Source(name, layer_name, "", 0.0,
+                                                                f"region {len(out.areas) + 1}")))
+    return out
+
+
+def read_excellon(text: str, name: str, layer: str | None = None) -> Layout:
+    """Drill hits as round pads (tool diameter), routed slots as traces; mm."""
+    drill = _parse(ExcellonFile.from_string, text, name)
+    out = Layout(file=name, format="excellon", units="mm", layers=("drill",))
+    for k, obj in enumerate(drill.objects, start=1):
+        tool = obj.aperture
+        dia = float(MM.convert_from(tool.unit, tool.diameter))
+        src = Source(name, "drill", "", dia, f"hit {k} (T{tool.original_number or ''})".replace(" ()", ""))
+        if isinstance(obj, go.Flash):
+            out.pads.append(_flash_pad(obj, src, k))
+        elif isinstance(obj, (go.Line, go.Arc)):
+            curve = _draw_curve(obj)
+            if curve is not None:
+                out.traces.append(LayoutTrace(curve, src))
+    return out

@@ -1,0 +1,168 @@
+"""Laying a placed layout on the part: ``project`` (vertical projection) or ``wrap``
+(exponential map at the placement's origin, see :mod:`app.circuits.wrap`).
+
+Both give top-view geometry in the API's form (``frame: "xy"``), so traces are then draped
+like any other trace: ``project`` keeps the exact placed curve (a NURBS); ``wrap`` gives the
+top view of the wrapped curve as a polyline, sampled every ``step_mm`` of layout length and
+at every ``chord_mm`` of layout curvature.  A trace's stretch is its length on the surface
+over its layout length (1 for a length-preserving map; for ``project`` the slope stretch).
+Warnings: a trace that leaves the part, a stretch beyond ``max_stretch``, and two traces of
+different nets closer than their half widths (top view).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import trimesh
+from shapely import STRtree
+from shapely.geometry import LineString
+
+from app.circuits.layout import Layout, LayoutTrace
+from app.circuits.placement import Placement, place_layout
+from app.circuits.wrap import SurfaceWalker
+from app.geometry.cl_points import cl_points
+from app.geometry.drape import top_surface_z
+
+__all__ = ["MappedTrace", "MappedPad", "MappedLayout", "MappingOptions", "map_layout"]
+
+Mapping = Literal["project", "wrap"]
+
+
+@dataclass(frozen=True)
+class MappingOptions:
+    mapping: Mapping = "project"
+    max_stretch: float = 1.01
+    step_mm: float = 0.25
+    chord_mm: float = 0.001
+
+
+@dataclass
+class MappedTrace:
+    """geometry: API form (top view); surface_points (k, 3) mm (NaN rows off the part);
+    layout_length_mm; length_mm on the surface; stretch = length / layout length."""
+
+    index: int
+    source: dict
+    geometry: dict
+    surface_points: np.ndarray
+    layout_length_mm: float
+    length_mm: float
+    stretch: float
+    on_part: bool
+    top_view: np.ndarray
+
+
+@dataclass
+class MappedPad:
+    """center (3,) mm on the surface (NaN off the part); outline_xy (k, 2) mm top view."""
+
+    name: str
+    shape: str
+    source: dict
+    center: np.ndarray
+    outline_xy: np.ndarray
+    on_part: bool
+
+
+@dataclass
+class MappedLayout:
+    traces: list[MappedTrace]
+    pads: list[MappedPad]
+    areas_xy: list[np.ndarray]
+    warnings: list[dict] = field(default_factory=list)
+
+
+def _layout_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
+    """Layout points (k, 2): the curve's chord-verified CL points plus one every step_mm."""
+    curve = trace.curve
+    u_cl = cl_points(curve, opts.chord_mm).u
+    n = max(2, int(np.ceil(curve.length / opts.step_mm)) + 1)
+    u_step = curve.param_at_length(np.linspace(0.0, curve.length, n))
+    u = np.unique(np.concatenate([u_cl, u_step]))
+    return curve.evaluate(u)
+
+
+def _length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def _spacing_warnings(traces: list[MappedTrace], widths: list[float], nets: list[str]) -> list[dict]:
+    """Pairs of traces of different (or no) nets closer than their half widths, not touching at ends."""
+    lines = [LineString(t.top_view) for t in traces]
+    tree = STRtree(lines)
+    out = []
+    reach = max(widths, default=0.0)
+    for i, line in enumerate(lines):
+        for j in tree.query(line.buffer(reach)):
+            j = int(j)
+            if j <= i or (nets[i] and nets[i] == nets[j]):
+                continue
+            need = 0.5 * (widths[i] + widths[j])
+            if need <= 0:
+                continue
+            gap = line.distance(lines[j])
+            ends_i = np.array(line.coords)[[0, -1]]
+            ends_j = np.array(lines[j].coords)[[0, -1]]
+            touching = np.min(np.linalg.norm(ends_i[:, None] - ends_j[None], axis=2)) <= need
+            if gap < need and not touching:
+                out.append({"kind": "spacing", "traces": [traces[i].index, traces[j].index],
+                            "message": f"traces {traces[i].index} and {traces[j].index} are {gap:.4f} mm apart, "
+                                       f"closer than their half widths ({need:.4f} mm)", "value": round(gap, 6)})
+    return out
+
+
+def map_layout(layout: Layout, placement: Placement, mesh: trimesh.Trimesh,
+               opts: MappingOptions = MappingOptions()) -> MappedLayout:
+    """Place and map every trace and pad of ``layout`` onto ``mesh``'s upper surface."""
+    origin = np.asarray(placement.origin_mm, float)
+    placed = place_layout(layout, placement, relative=opts.mapping == "wrap")
+    walker = SurfaceWalker(mesh) if opts.mapping == "wrap" else None
+
+    def to_surface(points: np.ndarray) -> np.ndarray:
+        """Placed points (k, 2) -> surface points (k, 3) (NaN off the part)."""
+        if walker is not None:
+            return walker.exp_map(origin, points).points
+        top = top_surface_z(mesh, points)
+        return np.column_stack([points, np.where(top.hit, top.z, np.nan)])
+
+    traces, warnings = [], []
+    for i, t in enumerate(placed.traces):
+        samples = _layout_samples(t, opts)
+        surface = to_surface(samples)
+        on_part = bool(np.isfinite(surface[:, 2]).all())
+        layout_len = float(t.curve.length)
+        if opts.mapping == "wrap":
+            xy = surface[:, :2] if on_part else samples + origin
+            geometry = {"type": "polyline", "points": [[float(a), float(b)] for a, b in xy]}
+        else:
+            geometry = {"type": "nurbs", **t.curve.to_dict()}
+        length = _length(surface) if on_part else float("nan")
+        stretch = length / layout_len if on_part else float("nan")
+        top_view = surface[:, :2] if on_part else samples + (origin if walker else 0.0)
+        traces.append(MappedTrace(i, t.source.to_dict(), geometry, surface, layout_len, length, stretch, on_part,
+                                  top_view))
+        if not on_part:
+            k = int(np.argmax(~np.isfinite(surface[:, 2])))
+            warnings.append({"kind": "leaves_part", "traces": [i], "value": [round(float(c), 6) for c in
+                                                                            (samples[k] + (origin if walker else 0))],
+                             "message": f"trace {i} ({t.source.entity}) leaves the part's upper surface"})
+        elif abs(stretch - 1.0) > opts.max_stretch - 1.0:
+            warnings.append({"kind": "stretch", "traces": [i], "value": round(stretch, 6),
+                             "message": f"trace {i} ({t.source.entity}) is stretched {stretch:.5f}x "
+                                        f"(limit {opts.max_stretch})"})
+    pads = []
+    for p in placed.pads:
+        pts = to_surface(np.vstack([p.center[None, :], p.exterior]))
+        ok = bool(np.isfinite(pts[:, 2]).all())
+        pads.append(MappedPad(p.name, p.shape, p.source.to_dict(), pts[0], pts[1:, :2], ok))
+        if not ok:
+            warnings.append({"kind": "leaves_part", "pads": [p.name], "value": p.name,
+                             "message": f"pad {p.name} is not all on the part's upper surface"})
+    areas = [to_surface(a.exterior)[:, :2] for a in placed.areas]
+    widths = [t.source.width_mm for t in placed.traces]
+    nets = [t.source.net for t in placed.traces]
+    warnings += _spacing_warnings(traces, widths, nets)
+    return MappedLayout(traces, pads, areas, warnings)

@@ -1,0 +1,54 @@
+"""Placing a flat layout in the part's top view: mirror (x -> -x), then rotate, then move.
+
+A layout point x (2,) mm goes to ``origin + R(rotation) @ M @ x`` with M = diag(-1, 1) when
+mirrored.  Curves are moved exactly (affine maps act on NURBS control points).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from app.circuits.curves import transformed
+from app.circuits.layout import Area, Layout, LayoutTrace, Pad
+
+__all__ = ["Placement", "place_layout"]
+
+
+@dataclass(frozen=True)
+class Placement:
+    """origin_mm: where the layout's (0, 0) lands (top view, mm); rotation_deg CCW; mirror x."""
+
+    origin_mm: tuple[float, float] = (0.0, 0.0)
+    rotation_deg: float = 0.0
+    mirror: bool = False
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The linear part (2, 2): rotation after mirror."""
+        a = np.radians(self.rotation_deg)
+        rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        return rot @ np.diag([-1.0 if self.mirror else 1.0, 1.0])
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Points (k, 2) layout mm -> top view mm."""
+        return np.asarray(points, float) @ self.matrix.T + np.asarray(self.origin_mm, float)
+
+
+def _ccw(ring: np.ndarray) -> np.ndarray:
+    x, y = ring[:, 0], ring[:, 1]
+    area2 = float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return ring if area2 >= 0 else ring[::-1]
+
+
+def place_layout(layout: Layout, placement: Placement, *, relative: bool = False) -> Layout:
+    """The layout moved by ``placement``; ``relative`` leaves out the origin (vectors from it)."""
+    m = placement.matrix
+    offset = np.zeros(2) if relative else np.asarray(placement.origin_mm, float)
+    traces = [LayoutTrace(transformed(t.curve, m, offset), t.source) for t in layout.traces]
+    pads = [Pad(p.shape, m @ p.center + offset, _ccw(p.exterior @ m.T + offset), p.source, p.name)
+            for p in layout.pads]
+    areas = [Area(_ccw(a.exterior @ m.T + offset), tuple(h @ m.T + offset for h in a.holes), a.source)
+             for a in layout.areas]
+    return replace(layout, traces=traces, pads=pads, areas=areas)

@@ -1,0 +1,106 @@
+"""Job ``circuit_program``: all traces, pads and areas of a circuit import in one program.
+
+Traces come compensated from a ``closed_loop`` over the import's traces (each trace's
+``compensate`` child; the per-trace programs stay available there); pads and areas are
+filled (contour + raster at ``line_width_mm``) on the nominal surface lifted by the
+deviation that loop's probes measured.  Strokes are ordered for short travel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+from sqlmodel import Session
+
+from app.circuits.program import Stroke, write_circuit_program
+from app.circuits.strokes import deviation_field, fill_tip_strokes, trace_passes
+from app.errors import InvalidInput
+from app.geometry.drape import drape_polyline, top_surface_z
+from app.jobs.context import JobContext
+from app.jobs.gcode_meta import gcode_meta
+from app.jobs.registry import JobParams, job_kind
+from app.models import CircuitImport, Job
+from app.records import get_or_404
+
+
+class CircuitProgramParams(JobParams):
+    import_id: str = Field(description="a committed circuit import (POST /parts/{id}/circuits:import)")
+    closed_loop_job_id: str = Field(description="a succeeded closed_loop over the import's traces")
+    machine_id: str | None = Field(None, description="dialect and dispense codes from this machine's profile")
+    line_width_mm: float = Field(0.2, gt=0.01, le=5, description="the nozzle's line: pass pitch and fill spacing")
+    standoff_mm: float | None = Field(None, gt=0, le=50, description="pads and areas; default: the import's")
+    feed_mm_min: float = Field(300.0, gt=0, le=100_000)
+    clearance_mm: float = Field(2.0, gt=0, le=100)
+    pads: bool = Field(True, description="fill pads and areas")
+
+
+def _loop_entries(loop: Job) -> dict[str, dict]:
+    return {e["trace_id"]: e for e in (loop.result or {}).get("traces", [])}
+
+
+def _check(params: CircuitProgramParams, session: Session) -> None:
+    imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
+    loop = get_or_404(session, Job, params.closed_loop_job_id, field="params.closed_loop_job_id")
+    if loop.kind != "closed_loop" or loop.status != "succeeded":
+        raise InvalidInput(f"job {loop.id!r} is not a succeeded closed_loop job", field="params.closed_loop_job_id",
+                           value=loop.id)
+    missing = [t for t in imp.trace_ids if t not in _loop_entries(loop)]
+    if missing:
+        raise InvalidInput(f"the closed loop did not compensate trace {missing[0]!r} of the import",
+                           field="params.closed_loop_job_id", value=missing[0])
+
+
+@job_kind("circuit_program", CircuitProgramParams, check=_check,
+          references=lambda p: [("job", p.closed_loop_job_id)] + ([("machine", p.machine_id)] if p.machine_id else []))
+def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
+    """One program for the whole circuit; artifact ``circuit.gcode``."""
+    with ctx.session() as session:
+        imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
+    loop = ctx.job(params.closed_loop_job_id, kind="closed_loop", field="params.closed_loop_job_id")
+    entries = _loop_entries(loop)
+    mesh = ctx.mesh(imp.part_id)
+
+    def nominal_top(xy: np.ndarray) -> np.ndarray:
+        return top_surface_z(mesh, xy).z
+
+    strokes: list[Stroke] = []
+    stations, deviations = [], []
+    for trace_id in imp.trace_ids:
+        trace = ctx.trace(trace_id)
+        comp = ctx.job(entries[trace_id]["compensate"], kind="compensate", field="params.closed_loop_job_id")
+        tip = np.asarray(comp.result["points"], float)
+        for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
+                                           nominal_top)):
+            strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
+        probe = ctx.job(entries[trace_id]["probe_run"], kind="probe_run", field="params.closed_loop_job_id")
+        for pt in probe.result["points"]:
+            stations.append(pt["nominal"][:2])
+            deviations.append(pt["measured"][2] - pt["nominal"][2])
+    ctx.progress(0.5, "filling pads and areas")
+    fills = 0
+    if params.pads and (imp.pads or imp.areas):
+        field = deviation_field(np.array(stations), np.array(deviations))
+        standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
+
+        def drape(xy: np.ndarray) -> np.ndarray:
+            return drape_polyline(mesh, xy).points
+
+        outlines = [(p["outline_xy_mm"], p["name"], "pad") for p in imp.pads if p["on_part"]]
+        outlines += [(a, f"area {i}", "area") for i, a in enumerate(imp.areas)]
+        for ring, name, kind in outlines:
+            for s in fill_tip_strokes(np.asarray(ring, float), [], params.line_width_mm, drape, field, standoff):
+                strokes.append(Stroke(s, kind, name, params.feed_mm_min))
+                fills += 1
+    if not strokes:
+        raise InvalidInput("the import has nothing to print", field="params.import_id", value=params.import_id)
+    dialect, on, off = "marlin", "M106", "M107"
+    if params.machine_id:
+        machine = ctx.machine(params.machine_id)
+        dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
+    program = write_circuit_program(strokes, dialect=dialect, dispense_on=on, dispense_off=off,
+                                    clearance_mm=params.clearance_mm, part_top_mm=float(mesh.bounds[1][2]),
+                                    job_id=ctx.job_id)
+    ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
+    return {"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
+            "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
+            "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off}

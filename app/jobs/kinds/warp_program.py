@@ -1,0 +1,84 @@
+"""Job ``warp_program``: an uploaded G-code program moved onto a measured surface.
+
+The surface is a ``surface_fit`` job's NURBS surface (sampled) or a ``probe_run`` job's
+measured points; see :mod:`app.circuits.warp` for what happens to each move.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field, model_validator
+from sqlmodel import Session
+
+from app.circuits.heightfield import height_field_from_points
+from app.circuits.warp import WarpOptions, fixed_split_error, warp_program
+from app.errors import InvalidInput
+from app.geometry.nurbs_surface import NurbsSurface
+from app.jobs.context import JobContext
+from app.jobs.gcode_meta import gcode_meta
+from app.jobs.registry import JobParams, job_kind
+from app.models import Job, Program
+from app.records import get_or_404
+
+
+class WarpProgramParams(JobParams):
+    program_id: str = Field(description="an uploaded program (POST /api/v1/programs)")
+    surface_fit_job_id: str | None = Field(None, description="a succeeded surface_fit job")
+    probe_run_job_id: str | None = Field(None, description="a succeeded probe_run job (its measured points)")
+    standoff_mm: float | None = Field(None, gt=0, le=50, description="printing moves at the surface + this; "
+                                      "default: the program's z + the surface height")
+    chord_error_mm: float = Field(0.002, gt=0, le=1, description="proved bound per emitted piece")
+    clearance_mm: float = Field(2.0, gt=0, le=100, description="travel height above the surface's top")
+    allow_outside: bool = Field(False, description="hold the edge height outside the measured region")
+    grid_mm: float = Field(1.0, gt=0.05, le=20, description="height-field grid spacing")
+    compare_split_mm: float = Field(5.0, gt=0, le=100, description="fixed split length reported beside ours")
+
+    @model_validator(mode="after")
+    def _one_surface(self) -> "WarpProgramParams":
+        if (self.surface_fit_job_id is None) == (self.probe_run_job_id is None):
+            raise ValueError("give exactly one of surface_fit_job_id and probe_run_job_id")
+        return self
+
+
+def _surface_job(params: WarpProgramParams) -> tuple[str, str]:
+    if params.surface_fit_job_id:
+        return "surface_fit", params.surface_fit_job_id
+    return "probe_run", str(params.probe_run_job_id)
+
+
+def _check(params: WarpProgramParams, session: Session) -> None:
+    get_or_404(session, Program, params.program_id, field="params.program_id")
+    kind, job_id = _surface_job(params)
+    job = get_or_404(session, Job, job_id, field=f"params.{kind}_job_id")
+    if job.kind != kind or job.status != "succeeded":
+        raise InvalidInput(f"job {job_id!r} is not a succeeded {kind} job", field=f"params.{kind}_job_id",
+                           value=job_id)
+
+
+def _surface_points(job: Job) -> np.ndarray:
+    if job.kind == "surface_fit":
+        surface = NurbsSurface.from_dict(job.result["surface"], field="surface")
+        (u0, u1), (v0, v1) = surface.domain
+        u, v = np.meshgrid(np.linspace(u0, u1, 60), np.linspace(v0, v1, 60), indexing="ij")
+        return surface.evaluate(u.ravel(), v.ravel())
+    return np.array([p["measured"] for p in job.result["points"]], float)
+
+
+@job_kind("warp_program", WarpProgramParams, check=_check,
+          references=lambda p: [("job", _surface_job(p)[1])])
+def run(ctx: JobContext, params: WarpProgramParams) -> dict:
+    """Warp the program onto the surface; artifact ``warped.gcode``."""
+    with ctx.session() as session:
+        program = get_or_404(session, Program, params.program_id, field="params.program_id")
+    text = ctx.runtime.blobs.read(program.sha256).decode("utf-8")
+    kind, job_id = _surface_job(params)
+    field = height_field_from_points(_surface_points(ctx.job(job_id, kind=kind, field=f"params.{kind}_job_id")),
+                                     params.grid_mm)
+    ctx.progress(0.2, "warping")
+    result = warp_program(text, field, WarpOptions(params.standoff_mm, params.chord_error_mm, params.clearance_mm,
+                                                   allow_outside=params.allow_outside))
+    ctx.artifact("warped.gcode", result.text.encode(), "text/x-gcode", gcode_meta(result.text))
+    pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
+    return {"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
+            "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm, "safe_z_mm": result.safe_z_mm,
+            "fixed_split": {"split_mm": params.compare_split_mm, "pieces": pieces, "max_error_mm": worst}}

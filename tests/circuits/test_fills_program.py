@@ -1,0 +1,67 @@
+"""Fills cover their outline, wide traces get side-by-side passes, the circuit program
+orders strokes for short travel and prints each between the dispense codes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from app.circuits.fills import fill_strokes, offset_polyline, pass_offsets
+from app.circuits.layout import circle_ring
+from app.circuits.program import Stroke, write_circuit_program
+from app.circuits.strokes import deviation_field, trace_passes
+
+
+@pytest.mark.parametrize("outline", [
+    np.array([[0, 0], [2, 0], [2, 1], [0, 1]], float),
+    circle_ring(np.zeros(2), 0.6, 0.001),
+    np.array([[0, 0], [3, 0], [3, 0.5], [0.5, 0.5], [0.5, 2], [0, 2]], float),   # an L
+])
+def test_fill_beads_cover_the_outline_and_stay_inside_it(outline):
+    w = 0.2
+    strokes = fill_strokes(outline, [], w)
+    beads = shapely.union_all([LineString(s).buffer(w / 2) for s in strokes])
+    pad = Polygon(outline)
+    assert beads.intersection(pad).area >= 0.98 * pad.area
+    assert beads.difference(pad.buffer(1e-6)).area <= 0.02 * pad.area + 1e-9
+
+
+def test_passes_are_centred_and_span_the_width():
+    np.testing.assert_allclose(pass_offsets(0.2, 0.2), [0.0])
+    offsets = pass_offsets(0.5, 0.2)
+    assert len(offsets) == 3 and offsets.sum() == pytest.approx(0.0)
+    assert offsets.max() + 0.1 == pytest.approx(0.25)          # outer bead edge at the trace edge
+    xy = np.array([[0, 0], [1, 0], [1, 1]], float)
+    moved = offset_polyline(xy, 0.1)
+    assert LineString(moved).hausdorff_distance(LineString(xy).offset_curve(0.1, join_style="mitre")) < 1e-9
+
+
+def test_side_passes_follow_the_nominal_slope():
+    tip = np.column_stack([np.linspace(0, 10, 11), np.zeros(11), np.full(11, 1.0)])
+    passes = trace_passes(tip, 0.5, 0.2, lambda xy: 0.1 * xy[:, 1])        # the surface rises with y
+    assert len(passes) == 3
+    for p in passes:
+        np.testing.assert_allclose(p[:, 2], 1.0 + 0.1 * p[:, 1], atol=1e-12)
+
+
+def test_deviation_field_interpolates_linearly_and_holds_outside():
+    xy = np.array([[0, 0], [10, 0], [0, 10], [10, 10]], float)
+    field = deviation_field(xy, 0.01 * xy[:, 0])
+    np.testing.assert_allclose(field(np.array([[5.0, 5.0], [2.5, 7.5]])), [0.05, 0.025], atol=1e-12)
+    assert field(np.array([[20.0, 0.0]]))[0] == pytest.approx(0.1)
+
+
+def test_program_orders_strokes_for_short_travel():
+    rng = np.random.default_rng(4)
+    strokes = []
+    for k in rng.permutation(20):
+        a = np.array([k * 2.0, 0.0, 1.0])
+        strokes.append(Stroke(np.vstack([a, a + [0, 5, 0]]), "trace", f"t{k}", 300.0))
+    program = write_circuit_program(strokes, dialect="marlin", dispense_on="M106", dispense_off="M107",
+                                    clearance_mm=2.0, part_top_mm=1.0)
+    assert program.travel_mm < 0.5 * program.travel_input_order_mm
+    lines = program.text.splitlines()
+    assert lines.count("M106") == 20 and lines.count("M107") == 20
+    assert sorted(i for i, _ in program.order) == list(range(20))

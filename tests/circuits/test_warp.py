@@ -1,0 +1,105 @@
+"""Program warp: every printing move at its standoff on the surface, the proved chord bound
+holding on every emitted piece (checked densely against the analytic surface), travel lifted,
+extrusion conserved, moves outside the measured region refused naming the line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.circuits.errors import WarpError
+from app.circuits.heightfield import HeightField
+from app.circuits.warp import WarpOptions, fixed_split_error, warp_program
+from app.gcode.lines import read_lines
+
+
+def h(x, y):
+    """A cubic surface: the bicubic interpolating spline reproduces it exactly."""
+    return 3.0 + 0.002 * x**2 - 0.0004 * x * y + 0.0001 * y**3 / 10
+
+
+@pytest.fixture(scope="module")
+def surface() -> HeightField:
+    x, y = np.linspace(0, 60, 13), np.linspace(0, 40, 9)
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    return HeightField(x, y, h(X, Y))
+
+
+PROGRAM = """; a mecode-like program
+G21
+G91
+M83
+G0 X5 Y5
+G1 Z0.2
+M106
+G1 X40 Y10 E1.0 F600
+G1 X5 Y20 E0.5
+M107
+G0 X-30 Y-10
+G1 X20 Y0 E0.4
+"""
+
+
+def _moves(text):
+    pos, out, safe = np.zeros(3), [], []
+    for ln in read_lines(text):
+        if ln.codes("G") and ln.codes("G")[0] in (0.0, 1.0):
+            new = pos.copy()
+            for i, ax in enumerate("XYZ"):
+                if ln.get(ax) is not None:
+                    new[i] = ln.get(ax)
+            out.append((ln.codes("G")[0], pos.copy(), new.copy(), ln.get("E")))
+            pos = new
+    return out
+
+
+def test_printing_moves_lie_at_the_standoff_within_the_proved_bound(surface):
+    result = warp_program(PROGRAM, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
+    assert result.printing_moves == 3 and result.max_bound_mm <= 0.002
+    moves = _moves(result.text)
+    printing = [m for m in moves if m[0] == 1.0 and m[3] is not None]
+    assert sum(m[3] for m in printing) == pytest.approx(1.9, abs=1e-4)   # extrusion conserved
+    worst = 0.0
+    for _, a, b, _ in printing:
+        assert b[2] == pytest.approx(h(b[0], b[1]) + 0.1, abs=1e-4)     # 4 decimals written
+        t = np.linspace(0, 1, 51)
+        p = a[None, :] + t[:, None] * (b - a)[None, :]
+        worst = max(worst, np.abs(p[:, 2] - (h(p[:, 0], p[:, 1]) + 0.1)).max())
+    assert worst <= 0.002 + 1e-4
+    travel = [m for m in moves if m[0] == 0.0 and (m[1][:2] != m[2][:2]).any()]
+    assert all(m[2][2] >= surface.z.max() + 2.0 - 1e-9 for m in travel[1:])   # lifted after the first print
+
+
+def test_a_move_outside_the_probed_area_is_refused_naming_its_line(surface):
+    program = PROGRAM + "G1 X50 Y0 E0.1\n"
+    with pytest.raises(WarpError, match="line 13"):
+        warp_program(program, surface, WarpOptions(standoff_mm=0.1))
+    allowed = warp_program(program, surface, WarpOptions(standoff_mm=0.1, allow_outside=True))
+    assert allowed.printing_moves == 4
+
+
+def test_arcs_are_refused_naming_the_line(surface):
+    with pytest.raises(WarpError, match="line 2"):
+        warp_program("G1 X1 Y1\nG2 X2 Y2 I1 J0 E1\n", surface)
+
+
+def test_fixed_length_split_leaves_a_larger_error_than_ours(surface):
+    pieces, worst = fixed_split_error(PROGRAM, surface, split_mm=5.0, standoff_mm=0.1)
+    ours = warp_program(PROGRAM, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
+    assert worst > 0.002 >= ours.max_bound_mm
+    assert pieces > 0
+
+
+def test_curvature_bound_is_an_upper_bound(surface):
+    rng = np.random.default_rng(0)
+    x0, y0 = rng.uniform(0, 60, 200), rng.uniform(0, 40, 200)
+    x1, y1 = rng.uniform(0, 60, 200), rng.uniform(0, 40, 200)
+    bound = surface.curvature_bound(x0, y0, x1, y1)
+    t = np.linspace(0, 1, 201)
+    for k in range(200):
+        d = np.array([x1[k] - x0[k], y1[k] - y0[k]])
+        L = np.linalg.norm(d)
+        s = t * L
+        z = h(x0[k] + t * d[0], y0[k] + t * d[1])
+        second = np.gradient(np.gradient(z, s), s)[2:-2]
+        assert np.abs(second).max() <= bound[k] * (1 + 1e-6) + 1e-9

@@ -1,0 +1,47 @@
+"""The circuit import on the traces page: preview (dry run: drawing, warnings, stretch; nothing
+stored), then accept (traces stored with their source); an SVG through the server."""
+
+from __future__ import annotations
+
+from app.reference.s1 import s1_mesh
+from tests.api.test_circuits import GERBER_MM
+from tests.e2e.browser.conftest import screenshot
+
+
+def test_preview_then_accept_a_gerber(page, served, tmp_path):
+    api = served.api()
+    stl = tmp_path / "s1.stl"
+    stl.write_bytes(s1_mesh(grid_mm=1.0).export(file_type="stl"))
+    part = api.post("/api/v1/parts", files={"file": ("s1.stl", stl.read_bytes())}).json()
+    gerber = tmp_path / "top.gbr"
+    gerber.write_text(GERBER_MM)
+    page.goto(f"/traces.html?part={part['id']}")
+    page.set_input_files("#circuit-file", str(gerber))
+    page.fill("#circuit-origin-x", "5")
+    page.fill("#circuit-origin-y", "10")
+    page.click("#circuit-preview-button")                                   # project: exact curves
+    page.wait_for_selector("#circuit-preview polyline", state="attached")
+    page.select_option("#circuit-mapping", "wrap")
+    page.click("#circuit-preview-button")
+    page.wait_for_function("document.querySelector('#circuit-result table').innerText.includes('1.0000')")
+    assert page.locator("#circuit-preview polyline").count() == 2
+    assert page.locator("#circuit-preview polygon").count() == 1            # the flashed pad
+    assert "1.0000" in page.inner_text("#circuit-result table")             # stretch of a wrapped trace
+    assert api.get(f"/api/v1/parts/{part['id']}/traces").json()["total"] == 0
+    page.locator("#circuit-preview").scroll_into_view_if_needed()
+    screenshot(page, "circuit-preview")
+    page.click("#circuit-accept")
+    page.wait_for_function("document.querySelectorAll('#traces-body tr[data-id]').length === 2")
+    traces = api.get(f"/api/v1/parts/{part['id']}/traces").json()["items"]
+    assert {t["source"]["file"] for t in traces} == {"top.gbr"}
+    svg = tmp_path / "art.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="40mm" viewBox="0 0 60 40">'
+                   '<g transform="translate(10,5)"><path d="M 0 0 L 20 0" stroke-width="0.2"/></g></svg>')
+    page.set_input_files("#import-file", str(svg))
+    page.click("#import-button")
+    page.wait_for_function("document.querySelectorAll('#traces-body tr[data-id]').length === 3")
+    items = api.get(f"/api/v1/parts/{part['id']}/traces").json()["items"]
+    line = next(t for t in items if t["source"]["file"] == "art.svg")
+    start = line["nominal"]["points"][0]
+    assert abs(start[0] - 10.0) < 1e-6 and abs(start[1] - 35.0) < 1e-6      # y up from the page's bottom
+    assert page.js_errors == []

@@ -1,0 +1,110 @@
+// Circuit import (KiCad, Gerber, Excellon, DXF, SVG): preview with a dry run, then accept.
+// The preview draws the mapped circuit in top view over the part's outline and lists each
+// trace's length, stretch and the warnings; nothing is stored until "Accept".
+import { upload } from "./api.js";
+import { el, fmt, guarded, showError, showInfo } from "./ui.js";
+
+const SVG_NS = "http://www.w3.org/2000/svg";
+
+function svgEl(tag, attrs = {}) {
+  const node = document.createElementNS(SVG_NS, tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, String(v));
+  return node;
+}
+
+// Top-view drawing (mm, y up) of the dry run: traces as polylines, pads and areas as outlines.
+function previewDrawing(result, bounds) {
+  const [[x0, y0], [x1, y1]] = bounds;
+  const pad = 0.05 * Math.max(x1 - x0, y1 - y0, 1);
+  const svg = svgEl("svg", { id: "circuit-preview", viewBox: `${x0 - pad} ${-(y1 + pad)} ${x1 - x0 + 2 * pad} ${y1 - y0 + 2 * pad}`,
+    width: "100%", height: "260", style: "background:#fafafa;border:1px solid #ccc" });
+  svg.append(svgEl("rect", { x: x0, y: -y1, width: x1 - x0, height: y1 - y0, fill: "#eef", stroke: "#99a", "stroke-width": pad / 20 }));
+  for (const t of result.traces) {
+    const pts = t.trace?.nominal?.points || null;
+    const path = pts ? pts.map(([x, y]) => `${x},${-y}`).join(" ") : null;
+    if (path) svg.append(svgEl("polyline", { points: path, fill: "none", stroke: t.on_part ? "#c60" : "#d00",
+      "stroke-width": Math.max(t.source.width_mm || 0.2, pad / 40) }));
+  }
+  for (const p of result.pads) {
+    svg.append(svgEl("polygon", { points: p.outline_xy_mm.map(([x, y]) => `${x},${-y}`).join(" "),
+      fill: p.on_part ? "#c60" : "#d00", "fill-opacity": 0.6 }));
+  }
+  for (const a of result.areas) {
+    svg.append(svgEl("polygon", { points: a.map(([x, y]) => `${x},${-y}`).join(" "), fill: "#c60", "fill-opacity": 0.3 }));
+  }
+  return svg;
+}
+
+// A section for the traces page: partSelect gives the part; onDone(result) after an accepted import.
+export function circuitImportSection({ partSelect, getPart, onDone }) {
+  const file = el("input", { type: "file", id: "circuit-file", multiple: true,
+    accept: ".kicad_pcb,.gbr,.ger,.gtl,.gbl,.drl,.xln,.dxf,.svg" });
+  const num = (id, value) => el("input", { type: "number", step: "any", id, value, style: "width:6em" });
+  const inputs = {
+    ox: num("circuit-origin-x", 0), oy: num("circuit-origin-y", 0), rot: num("circuit-rotation", 0),
+    mirror: el("input", { type: "checkbox", id: "circuit-mirror" }),
+    mapping: el("select", { id: "circuit-mapping" }, el("option", { value: "project" }, "project (vertical)"),
+      el("option", { value: "wrap" }, "wrap (length-preserving)")),
+    layers: el("input", { type: "text", id: "circuit-layers", placeholder: "F.Cu / DXF layers, comma separated" }),
+    standoff: num("circuit-standoff", 0.1),
+  };
+  const output = el("div", { id: "circuit-result" });
+  const accept = el("button", { type: "button", id: "circuit-accept", disabled: true }, "Accept (store the traces)");
+
+  function options(dryRun) {
+    const layers = inputs.layers.value.split(",").map((s) => s.trim()).filter(Boolean);
+    return { origin_mm: [Number(inputs.ox.value), Number(inputs.oy.value)], rotation_deg: Number(inputs.rot.value),
+      mirror: inputs.mirror.checked, mapping: inputs.mapping.value, standoff_mm: Number(inputs.standoff.value),
+      layers: layers.length ? layers : null, dry_run: dryRun };
+  }
+
+  async function send(dryRun) {
+    if (!file.files.length) throw new Error("choose one or more circuit files");
+    if (!partSelect.value) throw new Error("upload a part first");
+    const form = new FormData();
+    for (const f of file.files) form.append("files", f, f.name);
+    form.append("options", JSON.stringify(options(dryRun)));
+    return upload(`parts/${partSelect.value}/circuits:import`, form);
+  }
+
+  function show(result, part) {
+    const rows = result.traces.map((t) => el("tr", {},
+      el("td", { class: "small" }, t.name), el("td", {}, t.source.net || "—"), el("td", {}, fmt.mm(t.source.width_mm, 3)),
+      el("td", {}, fmt.mm(t.layout_length_mm, 3)), el("td", {}, fmt.num(t.stretch, 5)), el("td", {}, t.on_part ? "yes" : "NO")));
+    output.replaceChildren(
+      el("p", { class: "small" }, result.files.map((f) => `${f.file}: ${f.format}, ${f.units}, ${f.traces} traces, ${f.pads} pads, ${f.areas} areas`).join("; ")),
+      previewDrawing(result, part ? part.bounds.map((b) => b.slice(0, 2)) : [[0, 0], [100, 100]]),
+      el("ul", { id: "circuit-warnings" }, result.warnings.map((w) => el("li", { class: "small" }, `${w.kind}: ${w.message}`))),
+      el("table", {}, el("thead", {}, el("tr", {}, ["trace", "net", "width", "layout length", "stretch", "on part"].map((h) => el("th", {}, h)))),
+        el("tbody", {}, rows)));
+  }
+
+  async function preview(event) {
+    event.preventDefault();
+    await guarded("Circuit preview", async () => {
+      const result = await send(true);
+      show(result, getPart ? await getPart(partSelect.value) : null);
+      accept.disabled = false;
+      showInfo(`Preview: ${result.traces.length} traces, ${result.pads.length} pads, ${result.warnings.length} warning(s).`);
+    });
+  }
+
+  accept.addEventListener("click", () => guarded("Circuit import", async () => {
+    const result = await send(false);
+    accept.disabled = true;
+    showInfo(`${result.traces.length} trace(s) stored (import ${result.import_id}).`);
+    if (onDone) await onDone(result);
+  }).catch((err) => showError(err, "Circuit import")));
+
+  return el("section", {}, el("h2", {}, "Import a circuit"),
+    el("p", { class: "small" }, "KiCad .kicad_pcb, Gerber + Excellon, DXF or SVG, placed on the part (origin, rotation, mirror) "
+      + "and projected or wrapped. Preview first: nothing is stored until you accept."),
+    el("form", { id: "circuit-form", onsubmit: preview },
+      el("div", { class: "row" }, file),
+      el("div", { class: "row" }, el("label", {}, "origin x ", inputs.ox), el("label", {}, " y ", inputs.oy),
+        el("label", {}, " rotation (deg) ", inputs.rot), el("label", {}, " mirror ", inputs.mirror)),
+      el("div", { class: "row" }, el("label", {}, "mapping ", inputs.mapping), el("label", {}, " layers ", inputs.layers),
+        el("label", {}, " standoff (mm) ", inputs.standoff)),
+      el("div", { class: "row" }, el("button", { type: "submit", id: "circuit-preview-button" }, "Preview (dry run)"), " ", accept)),
+    output);
+}
