@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field, ValidationError
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
-from app.circuits.formats import FORMATS, read_layout
+from app.circuits.formats import read_layout
 from app.circuits.mapping import MappingOptions, map_layout
 from app.circuits.placement import Placement
 from app.errors import ConformaError, InvalidInput

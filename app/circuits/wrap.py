@@ -147,7 +147,7 @@ class SurfaceWalker:
             along = d3[0] * ed[0] + d3[1] * ed[1] + d3[2] * ed[2]
             across = d3[0] * uf[0] + d3[1] * uf[1] + d3[2] * uf[2]
             d3 = (along * ed[0] + across * ug[0], along * ed[1] + across * ug[1], along * ed[2] + across * ug[2])
-            came_from, face = face, nxt
+            face = nxt
             o, e1, e2 = self._origin[face], self._e1[face], self._e2[face]
             rel = (p3[0] - o[0], p3[1] - o[1], p3[2] - o[2])
             px = rel[0] * e1[0] + rel[1] * e1[1] + rel[2] * e1[2]

@@ -41,7 +41,7 @@ G1 X20 Y0 E0.4
 
 
 def _moves(text):
-    pos, out, safe = np.zeros(3), [], []
+    pos, out = np.zeros(3), []
     for ln in read_lines(text):
         if ln.codes("G") and ln.codes("G")[0] in (0.0, 1.0):
             new = pos.copy()
