@@ -106,7 +106,6 @@ class SurfaceWalker:
         norm = math.hypot(dx, dy)
         dx, dy = dx / norm, dy / norm
         remaining = float(length)
-        came_from = -1
         for _ in range(1_000_000):
             tri = self._p2[face]
             (x0, y0), (x1, y1), (x2, y2) = tri
