@@ -30,6 +30,7 @@ def loop_setup(served) -> dict:
 def test_wizard_walks_plan_probe_review_print_report(page, served, loop_setup):
     api = served.api()
     part, traces, machine = loop_setup["part"], loop_setup["traces"], loop_setup["machine"]
+    page.set_default_timeout(90_000)   # the 3-D view renders in software beside the page: slow under load
     page.on("dialog", lambda dialog: dialog.accept())          # the operator confirms each motion
     page.goto("/loop.html")
     page.wait_for_selector('body[data-ready="1"]')
