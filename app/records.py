@@ -17,7 +17,7 @@ from app.blobs import BlobStore
 from app.errors import ConformaError, NotFound
 from app.geometry.tolerance import Tolerance
 from app.geometry.traces import build_nominal_trace
-from app.mesh_intake import parse_mesh, summarize
+from app.mesh_intake import intake, parse_mesh
 from app.models import Artifact, Job, Machine, Part, Trace, new_id, utcnow
 
 T = TypeVar("T", bound=SQLModel)
@@ -85,18 +85,26 @@ def add_artifact(
 
 
 def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: bytes, fmt: str, name: str,
-               max_unzipped_bytes: int) -> Part:
-    """Parse, check and store an uploaded mesh as a part (added to ``session``, not committed)."""
-    mesh = parse_mesh(data, fmt, max_unzipped_bytes=max_unzipped_bytes)
-    summary = summarize(mesh)
-    sha = blobs.put(session, data)
+               max_unzipped_bytes: int, units: str | None = None, up: str | None = None,
+               rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Part:
+    """Parse, check and store an uploaded mesh as a part in mm, +Z up (added to ``session``,
+    not committed).  When units or orientation change the file, the converted mesh is
+    stored (binary PLY) beside the uploaded file (``source_sha256``)."""
+    taken = intake(data, fmt, max_unzipped_bytes=max_unzipped_bytes, units=units, up=up, rotate_deg=rotate_deg)
+    summary = taken.summary
+    source = blobs.put(session, data)
+    del data
+    sha, stored_format = source, fmt
+    if taken.canonical is not None:
+        sha, stored_format = blobs.put(session, taken.canonical), "ply"
     part = Part(
-        id=new_id("part"), name=name, format=fmt, faces=summary.faces, vertices=summary.vertices,
+        id=new_id("part"), name=name, format=stored_format, faces=summary.faces, vertices=summary.vertices,
         bounds=summary.bounds, watertight=summary.watertight, volume_mm3=summary.volume_mm3,
-        area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(),
+        area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(), units=taken.frame.units,
+        frame=taken.frame.describe(), source_sha256=source, source_format=fmt, warnings=taken.warnings,
     )
     session.add(part)
-    meshes.put(sha, mesh)
+    meshes.put(sha, taken.mesh)
     return part
 
 

@@ -42,6 +42,13 @@ class PartOut(BaseModel):
     area_mm2: float
     sha256: str
     created_at: UtcDatetime
+    units: str = Field("mm", description="the uploaded file's units (the part itself is always in mm)")
+    frame: dict[str, Any] | None = Field(
+        None, description="file -> part map: units, units_source (file|upload|default), up, rotate_deg, "
+        "scale_to_mm, rotation (3x3)")
+    source_sha256: str | None = Field(None, description="sha256 of the uploaded file (sha256 is the stored mesh)")
+    source_format: str | None = None
+    warnings: list[str] | None = Field(None, description="e.g. a size that suggests wrong units")
 
 
 class LineGeometry(Strict):
