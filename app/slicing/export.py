@@ -6,8 +6,8 @@ then per entry float32 min-z, layer thickness, line-width compensation, reserved
 layer float32 z (the layer bottom) and uint32 boundary count, per boundary uint32 vertex
 count (closed: first vertex repeated), uint32 gap count (0) and float32 x, y pairs; the
 file ends with float32 max-z and uint32 0xFFFFFFFF.  Outer rings anticlockwise, holes
-clockwise.  Adaptive thicknesses are rounded to multiples of ``quantum_mm`` (the layer z
-values are their running sums; :attr:`SlcExport.notes` says so and by how much z moved)
+clockwise.  Layer tops are rounded to the ``quantum_mm`` grid (from the running sum of
+the thicknesses, so the stack never drifts; :attr:`SlcExport.notes` says by how much z moved)
 and, if more than 255 runs of equal thickness remain, neighbouring runs are merged in the
 sampling table (each layer's own z in the contour section stays exact).
 
@@ -57,13 +57,17 @@ def _closed(ring: np.ndarray) -> np.ndarray:
 
 
 def _quantised_boundaries(result, q: float) -> np.ndarray:
-    """Layer boundaries (L+1,) built from thicknesses rounded to multiples of ``q``."""
-    t = np.array([lay.thickness for lay in result.layers])
-    tq = np.round(t / q) * q
-    if np.any(tq <= 0):
-        raise SlicingError(f"a layer is thinner than half the SLC thickness quantum {q} mm",
-                           field="slc.quantum_mm", value=q)
-    return result.layers[0].z_bottom + np.concatenate([[0.0], np.cumsum(tq)])
+    """Layer boundaries (L+1,): each layer's true top (the running sum of thicknesses)
+    rounded to the ``q`` grid above the first bottom, so rounding never accumulates."""
+    z0 = result.layers[0].z_bottom
+    tops = np.array([lay.z_top for lay in result.layers])
+    zq = z0 + np.concatenate([[0.0], np.round((tops - z0) / q) * q])
+    thin = np.flatnonzero(np.diff(zq) <= 0)
+    if len(thin):
+        k = int(thin[0])
+        raise SlicingError(f"layer {k} ({result.layers[k].thickness:.6g} mm) vanishes on the SLC "
+                           f"thickness quantum {q} mm", field="slc.quantum_mm", value=q)
+    return zq
 
 
 def _sampling_table(zq: np.ndarray, comp: float, notes: list[str]):

@@ -6,10 +6,10 @@ oriented rings (:class:`~app.slicing.rings.Island`) plus the seed S4 statistics 
 ring counts, sigma, mu), the area deviation eps to the previous layer and the reason
 its thickness was chosen.  Modes (see :mod:`app.slicing.adaptive`):
 
-* ``uniform`` - ``ceil(H / layer_mm)`` slabs (the last one may be thinner), sampled at
-  mid-height;
-* ``area`` - the seed's area-deviation rule (eps0, l_min, l_max), sampled at the slab top
-  as published;
+* ``uniform`` - slabs of ``layer_mm`` with the remainder distributed over all of them
+  (default) or merged into the last one, never a sliver; sampled at mid-height;
+* ``area`` - the seed's area-deviation rule (eps0, l_min, l_max), sampled at mid-height
+  (``seed_sample="top"``: at the slab top, as published);
 * ``cavity`` - the seed's multi-cavity refinement (S4 steps 1-11: sigma0, mu0, mu1, theta);
 * ``cusp`` - our geometric-error rule: the largest thickness whose cusp height
   ``t * |n_z|`` stays below ``cusp_mm`` on every facet crossing the slab, with slab
@@ -45,8 +45,11 @@ class SliceParams:
     literally: it is 1 already from sigma >= sigma0 - 0.4018).  ``step9_resets_to_lmax``:
     read step 9 literally (a non-cavity layer always gets l_max, discarding the step found
     by the area rule); default False keeps the area rule's step.  ``seed_sample``: where the
-    area/cavity modes take a layer's contour: ``"top"`` (the plane Z' the seed stores) or
-    ``"mid"`` (mid-height, halves the staircase error; the rule itself is unchanged).
+    area/cavity modes take a layer's contour: ``"mid"`` (default: mid-height, inside the
+    slab, halves the staircase error and never lands on a horizontal face at the slab top)
+    or ``"top"`` (the plane Z' the seed stores); the rule itself is unchanged.
+    ``remainder``: uniform mode's top, ``"distribute"`` or ``"merge"`` (see
+    :func:`app.slicing.adaptive.uniform_plan`).
     ``cusp_mm``: allowed cusp
     height (cusp mode).  ``z_tol``: planes at the very bottom/top are moved this far into
     the part.  ``repair``: repair bad meshes instead of refusing them.
@@ -63,7 +66,8 @@ class SliceParams:
     theta_rule: ThetaRule = "indicator"
     step9_resets_to_lmax: bool = False
     cusp_mm: float = 0.02
-    seed_sample: Literal["top", "mid"] = "top"
+    seed_sample: Literal["top", "mid"] = "mid"
+    remainder: Literal["distribute", "merge"] = "distribute"
     z_tol: float = 1e-5
     repair: bool = True
     max_layers: int = 200_000
@@ -86,6 +90,9 @@ class SliceParams:
         if self.seed_sample not in ("top", "mid"):
             raise SlicingError(f"unknown seed_sample {self.seed_sample!r}",
                                field="params.seed_sample", value=self.seed_sample)
+        if self.remainder not in ("distribute", "merge"):
+            raise SlicingError(f"unknown remainder rule {self.remainder!r}",
+                               field="params.remainder", value=self.remainder)
         if self.theta_rule not in ("indicator", "printed"):
             raise SlicingError(f"unknown theta rule {self.theta_rule!r}",
                                field="params.theta_rule", value=self.theta_rule)

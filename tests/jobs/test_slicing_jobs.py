@@ -70,13 +70,15 @@ def part(client) -> str:
     return upload(client, box_with_hole())
 
 
-def test_uniform_slice_has_ceil_h_over_l_layers_with_exact_areas_and_readable_exports(client, part):
+def test_uniform_slice_distributes_the_remainder_with_exact_areas_and_readable_exports(client, part):
     job = run(client, "slice", {"part_id": part, "mode": "uniform", "layer_mm": 0.7})
     result = job["result"]
     layers = result["layers"]
-    assert result["layer_count"] == len(layers) == math.ceil(SIZE[2] / 0.7) == 5
-    assert [lay["thickness"] for lay in layers] == pytest.approx([0.7] * 4 + [SIZE[2] - 2.8])
-    assert [lay["z"] for lay in layers] == pytest.approx([0.7, 1.4, 2.1, 2.8, 3.0])
+    # 3.0 / 0.7 = 4.29 layers: four of 0.75 mm, no 0.2 mm sliver on top
+    assert result["layer_count"] == len(layers) == round(SIZE[2] / 0.7) == 4
+    assert [lay["thickness"] for lay in layers] == pytest.approx([0.75] * 4)
+    assert [lay["z"] for lay in layers] == pytest.approx([0.75, 1.5, 2.25, 3.0])
+    assert any("not a multiple" in note for note in result["notes"])
     for lay in layers:
         assert lay["area_mm2"] == pytest.approx(NET_AREA, rel=1e-6)
         assert (lay["rings"], lay["inner_rings"]) == (2, 1)
@@ -97,7 +99,7 @@ def test_uniform_slice_has_ceil_h_over_l_layers_with_exact_areas_and_readable_ex
         assert outer.exterior.is_ccw and not hole.exterior.is_ccw
         assert outer.area - hole.area == pytest.approx(NET_AREA, rel=1e-6)
     cli = read_cli(files["layers.cli"][1].decode())
-    assert cli["n_layers"] == 5 and [z for z, _, _ in cli["layers"]] == pytest.approx([lay["z"] for lay in layers])
+    assert cli["n_layers"] == 4 and [z for z, _, _ in cli["layers"]] == pytest.approx([lay["z"] for lay in layers])
     for _, polylines, _ in cli["layers"]:
         assert sorted(d for d, _ in polylines) == [0, 1]
         areas = {d: Polygon(p).area for d, p in polylines}
@@ -140,10 +142,10 @@ def test_beam_offsets_constant_and_seed_table(client, part):
     assert all(lay["beam_offset_mm"] == d for lay in layers)
 
     thin = upload(client, trimesh.creation.box((20.0, 12.0, 0.06)), "thin.stl")
-    job = run(client, "slice", {"part_id": thin, "layer_mm": 0.025, "beam": "seed_haz"})
+    job = run(client, "slice", {"part_id": thin, "layer_mm": 0.025, "beam": "seed_haz", "remainder": "merge"})
     layers = job["result"]["layers"]
-    # seed S4: 23 um heat-affected width at 25 um layers; the 10 um top layer takes the 20 um end value, 21 um
-    assert [lay["beam_offset_mm"] for lay in layers] == pytest.approx([0.023, 0.023, 0.021])
+    # seed S4: 23 um heat-affected width at 25 um layers; the 10 um rest merged into a 35 um top layer: 25.5 um
+    assert [lay["beam_offset_mm"] for lay in layers] == pytest.approx([0.023, 0.0255])
     for lay in layers:
         width = 2 * lay["beam_offset_mm"]
         assert lay["area_mm2"] == pytest.approx((20.0 - width) * (12.0 - width), rel=1e-6)

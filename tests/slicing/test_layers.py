@@ -24,8 +24,11 @@ def polygon_area(r: float, n: int = N_SIDES) -> float:
 def test_cylinder_area_and_uniform_count():
     cyl = trimesh.creation.cylinder(radius=5.0, height=7.0, sections=N_SIDES)
     res = slice_mesh(cyl, SliceParams(mode="uniform", layer_mm=0.3))
-    assert len(res.layers) == math.ceil(7.0 / 0.3)
-    assert res.layers[-1].thickness == pytest.approx(7.0 - 23 * 0.3)
+    assert len(res.layers) == round(7.0 / 0.3) == 23          # 7 / 0.3 = 23.33: remainder distributed
+    assert np.allclose(res.thicknesses, 7.0 / 23)
+    merged = slice_mesh(cyl, SliceParams(mode="uniform", layer_mm=0.3, remainder="merge"))
+    assert len(merged.layers) == 23                             # 0.1 mm rest < half a layer: merged
+    assert merged.layers[-1].thickness == pytest.approx(0.4) and np.allclose(merged.thicknesses[:-1], 0.3)
     for lay in res.layers:
         assert lay.area == pytest.approx(polygon_area(5.0), rel=1e-9)
         assert lay.ring_count == 1 and lay.inner_ring_count == 0

@@ -21,6 +21,7 @@ from app.jobs.registry import JobParams, job_kind
 from app.models import Part
 from app.records import get_or_404
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
+from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
 
 MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at submission)
@@ -69,7 +70,12 @@ class SliceJobParams(JobParams):
     step9_resets_to_lmax: bool = Field(
         _CORE.step9_resets_to_lmax, description="read S4 step 9 literally (non-cavity layers always l_max)")
     seed_sample: Literal["top", "mid"] = Field(
-        _CORE.seed_sample, description="area/cavity modes: contour at the layer top (as published) or mid-height")
+        _CORE.seed_sample, description="area/cavity modes: contour at mid-height (default, inside the layer) or "
+        "at the layer top (as published)")
+    remainder: Literal["distribute", "merge"] = Field(
+        _CORE.remainder, description="uniform mode, a height that is not a multiple of layer_mm: distribute "
+        "(round(H / layer_mm) equal layers) or merge (layer_mm layers; a remainder under half a layer joins the "
+        "last one). Never a sliver.")
     cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False,
                            description="allowed cusp height (cusp mode), mm")
     repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it")
@@ -88,7 +94,8 @@ class SliceJobParams(JobParams):
         return SliceParams(mode=self.mode, layer_mm=self.layer_mm, l_min=self.l_min, l_max=self.l_max,
                            eps0=self.eps0, sigma0=self.sigma0, mu0=self.mu0, mu1=self.mu1,
                            theta_rule=self.theta_rule, step9_resets_to_lmax=self.step9_resets_to_lmax,
-                           cusp_mm=self.cusp_mm, seed_sample=self.seed_sample, repair=self.repair,
+                           cusp_mm=self.cusp_mm, seed_sample=self.seed_sample, remainder=self.remainder,
+                           repair=self.repair,
                            max_layers=MAX_LAYERS)
 
     def beam_compensation(self) -> BeamWidthTable | float | None:
@@ -104,6 +111,15 @@ def _most_layers(height_mm: float, params: SliceJobParams) -> int:
     """An upper bound of the layer count: every layer but the last is >= the thinnest step."""
     thinnest = params.layer_mm if params.mode == "uniform" else params.l_min
     return max(1, math.ceil(height_mm / thinnest - 1e-9))
+
+
+def _thinnest_layer(height_mm: float, params: SliceJobParams) -> float:
+    """A lower bound of the thinnest layer the planners make (no slivers, see
+    :func:`app.slicing.adaptive.uniform_plan` and the adaptive planners' top merge)."""
+    if params.mode == "uniform":
+        plan = uniform_plan(height_mm, params.layer_mm, params.remainder, _CORE.z_tol)
+        return min(plan)
+    return min(height_mm, 0.5 * params.l_min)
 
 
 def _check(params: SliceJobParams, session: Session) -> None:
@@ -125,6 +141,12 @@ def _check(params: SliceJobParams, session: Session) -> None:
         step = "params.layer_mm" if params.mode == "uniform" else "params.l_min"
         raise SlicingError(f"a {height:.6g} mm tall part could need {most} layers; at most {MAX_LAYERS} "
                            f"(use thicker layers)", field=step, value=getattr(params, step.split(".")[1]))
+    thinnest = _thinnest_layer(height, params)
+    if thinnest < params.slc_quantum_mm:
+        step = "params.layer_mm" if params.mode == "uniform" else "params.l_min"
+        raise SlicingError(f"layers down to {thinnest:.6g} mm would vanish on the SLC thickness quantum "
+                           f"{params.slc_quantum_mm} mm; use thicker layers or a finer slc_quantum_mm",
+                           field=step, value=getattr(params, step.split(".")[1]))
     if params.svg_layer is not None and params.svg_layer >= most:
         raise SlicingError(f"svg_layer {params.svg_layer} does not exist: this part gets at most {most} layers",
                            field="params.svg_layer", value=params.svg_layer)
