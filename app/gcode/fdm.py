@@ -22,6 +22,7 @@ from typing import Literal
 from app.gcode.writer import GcodeError, ProgramBuilder
 
 _DISPENSE = {"marlin": ("M106 S255", "M107"), "grbl": ("M8", "M9")}
+END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str) -> None:
     b.comment("end")
     if p.mode == "dispense":
         b.raw(off)
-    b.move(z=z + 5.0, feed_mm_min=600.0)
+    b.move(z=z + END_LIFT_MM, feed_mm_min=600.0)
     if p.dialect == "marlin":
         if p.mode == "extrude":
             b.raw("M104 S0").raw("M140 S0")

@@ -18,6 +18,7 @@ its thickness was chosen.  Modes (see :mod:`app.slicing.adaptive`):
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -233,3 +234,15 @@ def slice_mesh(mesh: trimesh.Trimesh | PreparedMesh, params: SliceParams) -> Sli
     return SliceResult(layers=tuple(layers), params=params, z_min=prepared.z_min,
                        z_max=prepared.z_max, bounds=prepared.bounds, volume=prepared.volume,
                        repairs=prepared.repairs, notes=tuple(notes))
+
+
+def translated(result: SliceResult, shift: np.ndarray) -> SliceResult:
+    """``result`` moved by ``shift`` (3,) mm: every ring, every z and the bounds (the machine
+    placement of a part sliced in its own frame)."""
+    dx, dz = np.asarray(shift[:2], dtype=np.float64), float(shift[2])
+    layers = tuple(dataclasses.replace(
+        lay, z_bottom=lay.z_bottom + dz, z_top=lay.z_top + dz, z_sample=lay.z_sample + dz,
+        islands=tuple(Island(isl.outer + dx, tuple(h + dx for h in isl.holes)) for isl in lay.islands))
+        for lay in result.layers)
+    return dataclasses.replace(result, layers=layers, z_min=result.z_min + dz, z_max=result.z_max + dz,
+                               bounds=np.asarray(result.bounds, dtype=np.float64) + np.asarray(shift, dtype=float))

@@ -158,7 +158,7 @@ def test_toolpath_time_is_the_estimate_of_the_downloaded_program(client, part):
     w = 0.8
     for pattern in ("raster", "hilbert_merged"):
         job = run(client, "toolpath", {"slice_job_id": sliced["id"], "pattern": pattern, "line_width_mm": w,
-                                       "print_feed_mm_min": 1800, **limits})
+                                       "print_feed_mm_min": 1800, "placement": {"xy": "as_is"}, **limits})
         result = job["result"]
         (meta, gcode), = artifacts(client, job).values()
         assert meta["name"] == "print.gcode" and meta["media_type"] == "text/x-gcode"
@@ -292,3 +292,28 @@ def test_svg_layer_beyond_the_adaptive_count_draws_the_last_layer_and_says_so(cl
     assert any("svg_layer 4" in note for note in result["notes"])
     svg = next(a for a in job["artifacts"] if a["name"] == "layer.svg")
     assert svg["meta"] == {"layer": 2, "z": pytest.approx(3.0)}
+
+
+def test_toolpath_is_placed_on_the_bed_and_refused_outside_the_machine(client, part):
+    sliced = run(client, "slice", {"part_id": part, "layer_mm": 1.5})
+    job = run(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0})   # default placement
+    placement = job["result"]["placement"]
+    assert placement["xy"] == "center" and placement["drop_to_bed"] is True
+    assert "default" in placement["volume_mm"]["source"]
+    (x0, y0, z0), (x1, y1, z1) = job["artifacts"][0]["meta"]["bounds"]
+    assert (x0 + x1) / 2 == pytest.approx(100.0, abs=0.51) and (y0 + y1) / 2 == pytest.approx(100.0, abs=0.51)
+    assert 0 < z0 <= 1.5 + 1e-9 and z1 == pytest.approx(SIZE[2] + 5.0)
+    # a given offset on a given bed: the part's minimum corner goes there
+    job = run(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0,
+                                   "placement": {"xy": "offset", "offset_mm": [30, 40]},
+                                   "volume_mm": {"x": [0, 60], "y": [0, 60], "z": [0, 20]}})
+    (x0, y0, _), (x1, y1, _) = job["artifacts"][0]["meta"]["bounds"]
+    assert x0 >= 30 and y0 >= 40 and x1 <= 50 and y1 <= 52
+    # a machine too small: refused at submission with the axis and the amount
+    response = submit(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0,
+                                           "volume_mm": {"x": [0, 15], "y": [0, 100], "z": [0, 100]}})
+    assert response.status_code == 422, response.text
+    problem = response.json()
+    error = problem["errors"][0]
+    assert "placement" in str(error["loc"]) and "on X" in problem["detail"]
+    assert "2.5" in problem["detail"]       # a 20 mm wide part centred on a 15 mm bed: 2.5 mm over each side

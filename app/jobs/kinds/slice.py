@@ -194,6 +194,8 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         "layer_count": len(sliced.layers),
         "z_min": sliced.z_min,
         "z_max": sliced.z_max,
+        "bounds": [[float(v) for v in row] for row in sliced.bounds],
+        "frame": "the part's own (toolpath places it on the machine)",
         "volume_mm3": sliced.volume,
         "repairs": list(sliced.repairs),
         "notes": notes,
