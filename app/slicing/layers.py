@@ -53,7 +53,8 @@ class SliceParams:
     :func:`app.slicing.adaptive.uniform_plan`).
     ``cusp_mm``: allowed cusp
     height (cusp mode).  ``z_tol``: planes at the very bottom/top are moved this far into
-    the part.  ``repair``: repair bad meshes instead of refusing them.
+    the part.  ``repair``: repair bad meshes instead of refusing them; ``max_hole_mm``: the
+    longest hole boundary repair fills (None: the perimeter of the bounding box's largest face).
     """
 
     mode: SliceMode = "uniform"
@@ -71,6 +72,7 @@ class SliceParams:
     remainder: Literal["distribute", "merge"] = "distribute"
     z_tol: float = 1e-5
     repair: bool = True
+    max_hole_mm: float | None = None
     max_layers: int = 200_000
 
     def validate(self) -> None:
@@ -222,7 +224,7 @@ def slice_mesh(mesh: trimesh.Trimesh | PreparedMesh, params: SliceParams) -> Sli
     from app.slicing import adaptive
 
     params.validate()
-    prepared = mesh if isinstance(mesh, PreparedMesh) else prepare_mesh(mesh, params.repair)
+    prepared = mesh if isinstance(mesh, PreparedMesh) else prepare_mesh(mesh, params.repair, params.max_hole_mm)
     height = prepared.z_max - prepared.z_min
     if not height > 2 * params.z_tol:
         raise SlicingError(f"part height {height:.6g} mm is too small to slice",

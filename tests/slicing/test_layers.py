@@ -85,9 +85,13 @@ def test_open_mesh_refused_or_repaired():
     cyl = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=32)
     top = cyl.triangles_center[:, 2] > 0.49
     uncapped = trimesh.Trimesh(cyl.vertices, cyl.faces[~top], process=False)
-    with pytest.raises(MeshError) as e:              # a 32-gon hole: not repairable here
-        slice_mesh(uncapped, SliceParams(layer_mm=0.5))
-    assert e.value.value["open_edges"] == 32
+    res = slice_mesh(uncapped, SliceParams(layer_mm=0.5))   # a 32-gon hole: filled flat (a fan)
+    assert res.volume == pytest.approx(polygon_area(1.0, 32) * 1.0, rel=1e-9)
+    assert any("filled holes: 1 (32 open edges" in r for r in res.repairs)
+    with pytest.raises(MeshError) as e:                       # unless holes that large may not be filled
+        slice_mesh(uncapped, SliceParams(layer_mm=0.5, max_hole_mm=5.0))
+    assert e.value.value["largest_hole_mm"] == pytest.approx(32 * 2 * math.sin(math.pi / 32), abs=1e-4)
+    assert "max_hole_mm" in e.value.message
 
 
 def test_overlapping_shells_repaired_or_refused():

@@ -78,7 +78,11 @@ class SliceJobParams(JobParams):
         "last one). Never a sliver.")
     cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False,
                            description="allowed cusp height (cusp mode), mm")
-    repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it")
+    repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it: winding "
+                         "and normals fixed, holes filled, shells united")
+    max_hole_mm: float | None = Field(None, gt=0, le=100_000, allow_inf_nan=False,
+                                      description="repair fills holes up to this perimeter, mm (default: the perimeter "
+                                      "of the part's bounding box's largest face); larger holes are refused with their size")
     beam: Literal["none", "seed_haz", "table"] = Field(
         "none", description="beam compensation: none, seed_haz (seed S4 heat-affected widths 21-28 um for "
         "20-40 um layers, linear in thickness) or table (beam_table)")
@@ -95,7 +99,7 @@ class SliceJobParams(JobParams):
                            eps0=self.eps0, sigma0=self.sigma0, mu0=self.mu0, mu1=self.mu1,
                            theta_rule=self.theta_rule, step9_resets_to_lmax=self.step9_resets_to_lmax,
                            cusp_mm=self.cusp_mm, seed_sample=self.seed_sample, remainder=self.remainder,
-                           repair=self.repair,
+                           repair=self.repair, max_hole_mm=self.max_hole_mm,
                            max_layers=MAX_LAYERS)
 
     def beam_compensation(self) -> BeamWidthTable | float | None:
