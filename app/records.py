@@ -15,6 +15,7 @@ from sqlmodel import Session, SQLModel
 
 from app.blobs import BlobStore
 from app.errors import ConformaError, NotFound
+from app.geometry.slope import SlopePolicy, check_slope
 from app.geometry.tolerance import Tolerance
 from app.geometry.traces import build_nominal_trace
 from app.mesh_intake import intake, parse_mesh
@@ -114,8 +115,10 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
     Errors from the geometry core name their field under ``field_prefix`` (the index of a
     trace in a bulk import)."""
     geometry = body.geometry.model_dump()
+    policy = SlopePolicy(warn_deg=min(body.slope_warn_deg, body.slope_max_deg), max_deg=body.slope_max_deg)
     try:
         nominal = build_nominal_trace(meshes.mesh(part), geometry, body.frame, Tolerance())
+        slope = check_slope(nominal.points, nominal.normals, policy)
     except ConformaError as exc:
         if field_prefix and exc.field:
             exc.field = f"{field_prefix}.{exc.field}"
@@ -128,6 +131,7 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
             "points": [[round(float(v), 6) for v in p] for p in nominal.points],
             "normals": [[round(float(v), 6) for v in n] for n in nominal.normals],
             "slope_stretch": float(nominal.slope_stretch),
+            "slope": slope.to_json(),
         },
         created_at=utcnow(),
     )

@@ -88,12 +88,18 @@ class TraceCreate(Strict):
     standoff_mm: Finite = Field(0.10, gt=0, le=50)
     width_mm: Finite | None = Field(None, gt=0, le=50)
     feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
+    slope_warn_deg: Finite = Field(30.0, ge=0, le=90, description="warn when the surface under the trace is "
+                                   "steeper than this for a vertical nozzle, deg")
+    slope_max_deg: Finite = Field(60.0, ge=0, le=90, description="refuse the trace beyond this slope, deg "
+                                  "(steeper traces need five_axis paths)")
 
 
 class NominalOut(BaseModel):
     points: list[list[float]]
     normals: list[list[float]] | None = None
     slope_stretch: float | None = None
+    slope: dict[str, Any] | None = Field(None, description="largest surface slope under the trace (deg), where, "
+                                         "the standoff error per mm of lateral error there, and warnings")
 
 
 class TraceOut(BaseModel):
