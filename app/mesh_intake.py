@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import io
 from dataclasses import dataclass, field
+from typing import BinaryIO
 
 import numpy as np
 import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from app.errors import InvalidInput, TooLarge
 from app.mesh_archive import inflate_zip, stored_zip, threemf_unit
@@ -77,46 +80,105 @@ def detect_format(filename: str | None, declared: str | None = None) -> str:
     return candidate
 
 
-def _binary_stl(data: bytes) -> trimesh.Trimesh | None:
-    """Binary STL -> mesh with vertices merged by exact value; None for ASCII STL.
+def _binary_stl(source: bytes | BinaryIO) -> trimesh.Trimesh | None:
+    """Binary STL (bytes or an open binary file) -> mesh with vertices merged by exact
+    value; None for ASCII STL.
 
-    Binary STL must have exactly 84 + 50 * n bytes.  Memory: the float32 corners (36 B per
-    face) and numpy's unique (about 60 B per face) beside the file's 50 B per face."""
-    head = data[:512].lstrip()
-    if head[:5].lower() == b"solid" and b"\0" not in head:
+    Binary STL must have exactly 84 + 50 * n bytes.  A file is read in chunks of records
+    straight into the float32 corners (36 B per face), so the file itself is never held;
+    merging adds about 100 B per face at its peak."""
+    handle = io.BytesIO(source) if isinstance(source, (bytes, bytearray, memoryview)) else source
+    handle.seek(0, io.SEEK_END)
+    size = handle.tell()
+    handle.seek(0)
+    head = handle.read(512)
+    stripped = head.lstrip()
+    if stripped[:5].lower() == b"solid" and b"\0" not in stripped:
         return None
-    if len(data) < 84:
-        raise MeshError(f"not an STL file: {len(data)} bytes is shorter than a binary STL header", field="file")
-    declared = int.from_bytes(data[80:84], "little")
-    if len(data) != 84 + 50 * declared:
+    if size < 84:
+        raise MeshError(f"not an STL file: {size} bytes is shorter than a binary STL header", field="file")
+    declared = int.from_bytes(head[80:84], "little")
+    if size != 84 + 50 * declared:
         raise MeshError(
             f"not a valid binary STL: the header declares {declared} triangles ({84 + 50 * declared} bytes) "
-            f"but the file has {len(data)} bytes",
+            f"but the file has {size} bytes",
             field="file",
-            value=len(data),
+            value=size,
         )
-    records = np.frombuffer(data, dtype=_STL_RECORD, count=declared, offset=84)
-    corners = records["corners"].reshape(-1, 3) + np.float32(0.0)   # a copy; -0.0 becomes 0.0
-    del records
-    keys = corners.view(np.dtype((np.void, 12))).ravel()
-    unique, inverse = np.unique(keys, return_inverse=True)
-    del corners, keys
-    vertices = unique.view(np.float32).reshape(-1, 3).astype(np.float64)
-    faces = inverse.reshape(-1, 3).astype(np.int64)
-    del inverse
+    corners = np.empty((declared, 9), dtype=np.float32)
+    handle.seek(84)
+    step = 1 << 16
+    for start in range(0, declared, step):
+        count = min(step, declared - start)
+        block = np.frombuffer(handle.read(50 * count), dtype=_STL_RECORD, count=count)
+        corners[start:start + count] = block["corners"]
+    corners = corners.reshape(-1, 3)
+    corners += np.float32(0.0)                     # -0.0 becomes 0.0
+    vertices, faces = merge_exact(corners)
+    del corners
     return trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
 
 
-def read_mesh(data: bytes, fmt: str, *, max_unzipped_bytes: int) -> LoadedMesh:
-    """Parse ``data`` as ``fmt`` into one triangle mesh (scenes are concatenated) in the
-    file's own coordinates, with the units the file declares."""
-    if not data:
+def merge_exact(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(3F, 3) float32 triangle corners -> (V, 3) float64 distinct vertices and (F, 3) faces.
+
+    Corners are grouped by a 64-bit mix of their bits (one integer sort instead of a
+    12-byte one); the grouping is then verified exactly, and a hash collision (never seen,
+    but possible) falls back to numpy's exact unique over the raw bytes."""
+    bits = corners.view(np.uint32)
+    key = bits[:, 0].astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    for column, (add, mul) in ((1, (0x632BE59BD9B4E019, 0xBF58476D1CE4E5B9)),
+                               (2, (0x94D049BB133111EB, 0xD6E8FEB86659FD93))):
+        mixed = bits[:, column].astype(np.uint64)
+        mixed += np.uint64(add)
+        mixed *= np.uint64(mul)
+        key ^= mixed
+        del mixed
+    order = np.argsort(key)
+    sorted_key = key[order]
+    del key
+    first = np.empty(len(order), dtype=bool)
+    first[:1] = True
+    np.not_equal(sorted_key[1:], sorted_key[:-1], out=first[1:])
+    del sorted_key
+    group = np.cumsum(first) - 1
+    inverse = np.empty(len(order), dtype=np.int64)
+    inverse[order] = group
+    unique = corners[order[first]]
+    del order, first, group
+    chunk = 1 << 20
+    exact = all(np.array_equal(unique[inverse[i:i + chunk]], corners[i:i + chunk])
+                for i in range(0, len(corners), chunk))
+    if not exact:                                              # a collision: be exact instead
+        keys = corners.view(np.dtype((np.void, 12))).ravel()
+        raw, inverse = np.unique(keys, return_inverse=True)
+        unique = raw.view(np.float32).reshape(-1, 3)
+    return unique.astype(np.float64), inverse.reshape(-1, 3)
+
+
+def _size(source: bytes | BinaryIO) -> int:
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        return len(source)
+    source.seek(0, io.SEEK_END)
+    return source.tell()
+
+
+def read_mesh(source: bytes | BinaryIO, fmt: str, *, max_unzipped_bytes: int) -> LoadedMesh:
+    """Parse ``source`` (bytes or an open binary file) as ``fmt`` into one triangle mesh
+    (scenes are concatenated) in the file's own coordinates, with the units the file
+    declares.  Binary STL files are read in chunks; other formats are read whole."""
+    if _size(source) == 0:
         raise MeshError("the uploaded file is empty", field="file", value=0)
     file_units = None
     if fmt == "stl":
-        fast = _binary_stl(data)
+        fast = _binary_stl(source)
         if fast is not None:
             return LoadedMesh(check_mesh(fast, merged=True), None)
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        data = bytes(source)
+    else:
+        source.seek(0)
+        data = source.read()
     if fmt == "3mf":
         if data[:2] != b"PK":
             raise MeshError("3MF file is not a valid zip archive", field="file")
@@ -172,46 +234,103 @@ def check_mesh(mesh: trimesh.Trimesh, merged: bool = False) -> trimesh.Trimesh:
     return mesh
 
 
-def _volume_if_meaningful(mesh: trimesh.Trimesh, watertight: bool) -> tuple[float | None, int, list[str]]:
-    """(volume or None, body count, notes): a volume is reported only for a closed,
-    consistently wound mesh whose inside-out bodies (if any) lie inside an outward one."""
-    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
-    bodies = int(labels.max()) + 1 if len(labels) else 0
-    if not watertight:
-        return None, bodies, ["volume not reported: the mesh is not closed with consistent winding"]
-    tri = mesh.triangles
-    signed = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
-    per_body = np.bincount(labels, weights=signed, minlength=bodies)
-    order = np.argsort(labels, kind="stable")
-    starts = np.searchsorted(labels[order], np.arange(bodies))
-    lows = np.minimum.reduceat(tri.min(axis=1)[order], starts, axis=0)
-    highs = np.maximum.reduceat(tri.max(axis=1)[order], starts, axis=0)
-    for b in np.flatnonzero(per_body <= 0):
-        inside = [o for o in np.flatnonzero(per_body > 0)
-                  if np.all(lows[o] <= lows[b]) and np.all(highs[b] <= highs[o])]
-        if not inside:
-            return None, bodies, [f"volume not reported: body {int(b)} of {bodies} is inside out "
-                                  f"(slicing with repair: true turns it outward)"]
+@dataclass(frozen=True)
+class EdgeFacts:
+    """``watertight``: every edge used by exactly two faces; ``consistent``: those two
+    faces traverse it in opposite directions; ``labels`` (F,) body of each face (bodies
+    are connected through shared edges); ``bodies``: their count."""
+
+    watertight: bool
+    consistent: bool
+    labels: np.ndarray
+    bodies: int
+
+
+def edge_facts(faces: np.ndarray, n_vertices: int) -> EdgeFacts:
+    """Edge use of a triangle mesh from one integer sort of its 3F edges (memory: a few
+    8-byte arrays of 3F)."""
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    a = f.ravel()
+    b = np.roll(f, -1, axis=1).ravel()
+    forward = a < b
+    key = np.minimum(a, b)
+    key *= n_vertices
+    key += np.maximum(a, b)
+    del b
+    order = np.argsort(key)
+    sorted_key = key[order]
+    del key
+    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
+    del sorted_key
+    runs = np.diff(np.append(starts, len(order)))
+    watertight = bool(np.all(runs == 2))
+    pair_at = starts[runs == 2]
+    e0, e1 = order[pair_at], order[pair_at + 1]
+    consistent = watertight and bool(np.all(forward[e0] != forward[e1]))
+    del order, forward
+    graph = coo_matrix((np.ones(len(e0), dtype=np.int8), (e0 // 3, e1 // 3)), shape=(len(f), len(f)))
+    bodies, labels = connected_components(graph, directed=False)
+    return EdgeFacts(watertight, consistent, labels, int(bodies))
+
+
+def _per_face(mesh: trimesh.Trimesh, chunk: int = 1 << 18) -> tuple[np.ndarray, np.ndarray]:
+    """(F,) signed volume contributions (mm^3) and (F,) areas (mm^2), in chunks."""
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    signed, area = np.empty(len(faces)), np.empty(len(faces))
+    for i in range(0, len(faces), chunk):
+        tri = vertices[faces[i:i + chunk]]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area[i:i + chunk] = 0.5 * np.linalg.norm(cross, axis=1)
+        signed[i:i + chunk] = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
+    return signed, area
+
+
+def _body_boxes(mesh: trimesh.Trimesh, labels: np.ndarray, bodies: int) -> tuple[np.ndarray, np.ndarray]:
+    """(B, 3) lows and highs of each body's vertices."""
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    vertex_body = np.empty(len(vertices), dtype=np.int64)
+    vertex_body[faces.ravel()] = np.repeat(labels, 3)
+    order = np.argsort(vertex_body, kind="stable")
+    starts = np.searchsorted(vertex_body[order], np.arange(bodies))
+    return (np.minimum.reduceat(vertices[order], starts, axis=0),
+            np.maximum.reduceat(vertices[order], starts, axis=0))
+
+
+def _volume_if_meaningful(mesh: trimesh.Trimesh, facts: EdgeFacts, signed: np.ndarray) -> tuple[float | None, list[str]]:
+    """(volume or None, notes): a volume is reported only for a closed, consistently wound
+    mesh whose inside-out bodies (if any) lie inside an outward one (a cavity)."""
+    if not (facts.watertight and facts.consistent):
+        return None, ["volume not reported: the mesh is not closed with consistent winding (slicing with "
+                      "repair: true fixes what it can)"]
+    per_body = np.bincount(facts.labels, weights=signed, minlength=facts.bodies)
+    if np.any(per_body <= 0):
+        lows, highs = _body_boxes(mesh, facts.labels, facts.bodies)
+        for b in np.flatnonzero(per_body <= 0):
+            inside = [o for o in np.flatnonzero(per_body > 0)
+                      if np.all(lows[o] <= lows[b]) and np.all(highs[b] <= highs[o])]
+            if not inside:
+                return None, [f"volume not reported: body {int(b)} of {facts.bodies} is inside out "
+                              f"(slicing with repair: true turns it outward)"]
     total = float(per_body.sum())
-    return (total if total > 0 else None), bodies, []
+    return (total if total > 0 else None), []
 
 
 def summarize(mesh: trimesh.Trimesh) -> MeshSummary:
-    """Facts about ``mesh``; the mesh's cached derived arrays are dropped afterwards."""
-    watertight = bool(mesh.is_watertight) and bool(mesh.is_winding_consistent)
-    volume, bodies, notes = _volume_if_meaningful(mesh, watertight)
-    summary = MeshSummary(
+    """Facts about ``mesh`` (edge use from one sort; volume and area in chunks)."""
+    facts = edge_facts(mesh.faces, len(mesh.vertices))
+    signed, area = _per_face(mesh)
+    volume, notes = _volume_if_meaningful(mesh, facts, signed)
+    vertices = np.asarray(mesh.vertices)
+    return MeshSummary(
         faces=int(len(mesh.faces)),
-        vertices=int(len(mesh.vertices)),
-        bounds=[[float(v) for v in row] for row in mesh.bounds],
-        watertight=watertight,
+        vertices=int(len(vertices)),
+        bounds=[[float(v) for v in vertices.min(axis=0)], [float(v) for v in vertices.max(axis=0)]],
+        watertight=facts.watertight and facts.consistent,
         volume_mm3=volume,
-        area_mm2=float(mesh.area),
-        bodies=bodies,
+        area_mm2=float(area.sum()),
+        bodies=facts.bodies,
         notes=tuple(notes),
     )
-    mesh._cache.clear()
-    return summary
 
 
 def ply_bytes(mesh: trimesh.Trimesh) -> bytes:
@@ -226,7 +345,7 @@ def ply_bytes(mesh: trimesh.Trimesh) -> bytes:
     return header.encode("ascii") + vertices.tobytes() + faces.tobytes()
 
 
-def intake(data: bytes, fmt: str, *, max_unzipped_bytes: int, units: str | None = None, up: str | None = None,
+def intake(data: bytes | BinaryIO, fmt: str, *, max_unzipped_bytes: int, units: str | None = None, up: str | None = None,
            rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Intake:
     """Parse an upload and bring it into the part's frame (mm, +Z up).
 

@@ -122,6 +122,22 @@ def to_slc(result, options: SlcOptions = SlcOptions()) -> SlcExport:
     return SlcExport(b"".join(out), table, tuple(notes))
 
 
+def _joined(values: np.ndarray, decimals: int, sep: str = ",") -> str:
+    """Fixed-decimal numbers of ``values`` (flattened) joined by ``sep``, formatted in C
+    (printf), never ``-0.000...``."""
+    flat = np.asarray(values, dtype=np.float64).ravel() + 0.0
+    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
+    return (sep.join([f"%.{decimals}f"] * len(flat))) % tuple(flat.tolist())
+
+
+def _points_json(ring: np.ndarray, decimals: int) -> str:
+    """A ring (n, 2) as JSON text ``[[x,y],...]`` at ``decimals`` (formatted in C)."""
+    flat = np.asarray(ring, dtype=np.float64).ravel() + 0.0
+    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
+    pair = f"[%.{decimals}f,%.{decimals}f]"
+    return "[" + ",".join([pair] * (len(flat) // 2)) % tuple(flat.tolist()) + "]"
+
+
 def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "part",
            decimals: int = 6) -> str:
     """Encode ``result`` as ASCII CLI text; ``hatches[layer_index]``: (k, 4) x1,y1,x2,y2 mm."""
@@ -139,8 +155,7 @@ def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "p
             for ring, direction in ((oriented(isl.outer, True), 1),
                                     *((oriented(h, False), 0) for h in isl.holes)):
                 pts = _closed(ring)
-                coords = ",".join(f(v) for v in pts.ravel())
-                lines.append(f"$$POLYLINE/1,{direction},{len(pts)},{coords}")
+                lines.append(f"$$POLYLINE/1,{direction},{len(pts)},{_joined(pts, decimals)}")
         if hatches and lay.index in hatches and len(hatches[lay.index]):
             h = np.asarray(hatches[lay.index], dtype=float).reshape(-1, 4)
             lines.append(f"$$HATCHES/1,{len(h)}," + ",".join(f(v) for v in h.ravel()))
@@ -148,9 +163,9 @@ def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "p
     return "\n".join(lines) + "\n"
 
 
-def _island_json(isl: Island, decimals: int) -> dict:
-    return {"outer": np.round(isl.outer, decimals).tolist(),
-            "holes": [np.round(h, decimals).tolist() for h in isl.holes]}
+def _island_json(isl: Island, decimals: int) -> str:
+    holes = ",".join(_points_json(h, decimals) for h in isl.holes)
+    return f'{{"outer":{_points_json(isl.outer, decimals)},"holes":[{holes}]}}'
 
 
 def to_json(result, decimals: int = 6) -> str:
@@ -160,14 +175,17 @@ def to_json(result, decimals: int = 6) -> str:
                "thickness": round(lay.thickness, 9), "area_mm2": round(lay.area, 9),
                "rings": lay.ring_count, "inner_rings": lay.inner_ring_count,
                "sigma": round(lay.sigma, 9), "mu": round(lay.mu, 9), "eps": round(lay.eps, 9),
-               "reason": lay.reason,
-               "islands": [_island_json(i, decimals) for i in lay.islands]}
+               "reason": lay.reason}
               for lay in result.layers]
     doc = {"units": "mm", "mode": result.params.mode, "z_min": result.z_min,
            "z_max": result.z_max, "bounds": np.asarray(result.bounds, dtype=float).tolist(),
            "volume_mm3": float(result.volume), "params": dataclasses.asdict(result.params),
-           "repairs": list(result.repairs), "notes": list(result.notes), "layers": layers}
-    return json.dumps(doc, separators=(",", ":"))
+           "repairs": list(result.repairs), "notes": list(result.notes), "layers": []}
+    head = json.dumps(doc, separators=(",", ":"))[:-len("[]}")]
+    rows = (json.dumps(row, separators=(",", ":"))[:-1] + ',"islands":['
+            + ",".join(_island_json(i, decimals) for i in lay.islands) + "]}"
+            for row, lay in zip(layers, result.layers))
+    return head + "[" + ",".join(rows) + "]}"
 
 
 def _ring(points, where: str) -> np.ndarray:
