@@ -273,7 +273,7 @@ def edge_facts(faces: np.ndarray, n_vertices: int) -> EdgeFacts:
     return EdgeFacts(watertight, consistent, labels, int(bodies))
 
 
-def _per_face(mesh: trimesh.Trimesh, chunk: int = 1 << 18) -> tuple[np.ndarray, np.ndarray]:
+def _per_face(mesh: trimesh.Trimesh, chunk: int = 1 << 15) -> tuple[np.ndarray, np.ndarray]:
     """(F,) signed volume contributions (mm^3) and (F,) areas (mm^2), in chunks."""
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     signed, area = np.empty(len(faces)), np.empty(len(faces))

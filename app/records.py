@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from typing import Any, TypeVar
+from typing import Any, BinaryIO, TypeVar
 
 import trimesh
 from sqlmodel import Session, SQLModel
@@ -85,16 +85,16 @@ def add_artifact(
     return artifact
 
 
-def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: bytes, fmt: str, name: str,
+def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: bytes | BinaryIO, fmt: str, name: str,
                max_unzipped_bytes: int, units: str | None = None, up: str | None = None,
                rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Part:
     """Parse, check and store an uploaded mesh as a part in mm, +Z up (added to ``session``,
     not committed).  When units or orientation change the file, the converted mesh is
-    stored (binary PLY) beside the uploaded file (``source_sha256``)."""
+    stored (binary PLY) beside the uploaded file (``source_sha256``).  ``data``: bytes or an
+    open binary file (read in chunks where the format allows: binary STL)."""
     taken = intake(data, fmt, max_unzipped_bytes=max_unzipped_bytes, units=units, up=up, rotate_deg=rotate_deg)
     summary = taken.summary
-    source = blobs.put(session, data)
-    del data
+    source = blobs.put(session, data) if isinstance(data, bytes) else blobs.put_file(session, data)
     sha, stored_format = source, fmt
     if taken.canonical is not None:
         sha, stored_format = blobs.put(session, taken.canonical), "ply"

@@ -42,7 +42,7 @@ def upload_part(
     The stored part is in millimetres with +Z up; ``units``, ``up`` and ``rotate_deg`` say how
     to read the file, and the response's ``frame`` and ``warnings`` say what was done."""
     fmt = detect_format(file.filename, format)
-    part = store_part(session, runtime.blobs, runtime.meshes, file.file.read(), fmt,
+    part = store_part(session, runtime.blobs, runtime.meshes, file.file, fmt,
                       name or (file.filename or "part").rsplit("/", 1)[-1],
                       max_unzipped_bytes=int(runtime.settings.max_unzipped_mb * 2**20),
                       units=units, up=up, rotate_deg=parse_angles(rotate_deg))
