@@ -85,3 +85,12 @@ def check_inside(bounds: np.ndarray, volume: MachineVolume, field: str = "params
                 f"({volume.source}); move or shrink the part, or give the machine's real travel",
                 field=field, value={"axis": axis, "beyond_mm": round(float(amount), 6),
                                     "limit_mm": float(edge)})
+
+
+def profile_volume(profile: dict | None, label: str) -> MachineVolume | None:
+    """The travel limits in a machine profile's ``volume_mm`` ({x: [min, max], y, z}), or None."""
+    given = (profile or {}).get("volume_mm")
+    if not given:
+        return None
+    return MachineVolume(tuple(given["x"]), tuple(given["y"]), tuple(given["z"]),  # type: ignore[arg-type]
+                         f"{label} profile.volume_mm")
