@@ -29,6 +29,7 @@ class MeshSummary:
     area_mm2: float
     bodies: int = 1
     notes: tuple[str, ...] = ()
+    defects: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,8 @@ class EdgeFacts:
     consistent: bool
     labels: np.ndarray
     bodies: int
+    open_edges: int = 0
+    non_manifold_edges: int = 0
 
 
 def edge_facts(faces: np.ndarray, n_vertices: int) -> EdgeFacts:
@@ -67,7 +70,7 @@ def edge_facts(faces: np.ndarray, n_vertices: int) -> EdgeFacts:
     del order, forward
     graph = coo_matrix((np.ones(len(e0), dtype=np.int8), (e0 // 3, e1 // 3)), shape=(len(f), len(f)))
     bodies, labels = connected_components(graph, directed=False)
-    return EdgeFacts(watertight, consistent, labels, int(bodies))
+    return EdgeFacts(watertight, consistent, labels, int(bodies), int(np.sum(runs == 1)), int(np.sum(runs > 2)))
 
 
 def _per_face(mesh: trimesh.Trimesh, chunk: int = 1 << 15) -> tuple[np.ndarray, np.ndarray]:
@@ -112,6 +115,30 @@ def _volume_if_meaningful(mesh: trimesh.Trimesh, facts: EdgeFacts, signed: np.nd
     return (total if total > 0 else None), []
 
 
+def hole_perimeters(mesh: trimesh.Trimesh) -> list[float] | None:
+    """Perimeters (mm) of the mesh's boundary loops; None when an open boundary does not
+    close into a loop."""
+    vertices = np.asarray(mesh.vertices)
+    out = []
+    for entity in mesh.outline().entities:
+        points = np.asarray(entity.points)
+        if len(points) < 4 or points[0] != points[-1]:
+            return None
+        out.append(float(np.linalg.norm(np.diff(vertices[points], axis=0), axis=1).sum()))
+    return out
+
+
+def _defects(mesh: trimesh.Trimesh, facts: EdgeFacts) -> dict | None:
+    """What slicing's repair would face: open and non-manifold edges, holes and the largest."""
+    if facts.watertight:
+        return None
+    holes = hole_perimeters(mesh) if facts.non_manifold_edges == 0 else None
+    return {"open_edges": facts.open_edges, "non_manifold_edges": facts.non_manifold_edges,
+            "holes": None if holes is None else len(holes),
+            "largest_hole_mm": None if not holes else round(max(holes), 6),
+            "closable": holes is not None}
+
+
 def summarize(mesh: trimesh.Trimesh) -> MeshSummary:
     """Facts about ``mesh`` (edge use from one sort; volume and area in chunks)."""
     facts = edge_facts(mesh.faces, len(mesh.vertices))
@@ -127,4 +154,5 @@ def summarize(mesh: trimesh.Trimesh) -> MeshSummary:
         area_mm2=float(area.sum()),
         bodies=facts.bodies,
         notes=tuple(notes),
+        defects=_defects(mesh, facts),
     )

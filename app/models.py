@@ -60,6 +60,7 @@ class Part(SQLModel, table=True):
     source_sha256: str | None = Field(default=None, foreign_key="blobs.sha256", max_length=64)
     source_format: str | None = Field(default=None, max_length=10)
     warnings: list | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    defects: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 class Trace(SQLModel, table=True):
     __tablename__ = "traces"

@@ -103,6 +103,7 @@ def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: byte
         bounds=summary.bounds, watertight=summary.watertight, volume_mm3=summary.volume_mm3,
         area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(), units=taken.frame.units,
         frame=taken.frame.describe(), source_sha256=source, source_format=fmt, warnings=taken.warnings,
+        defects=summary.defects,
     )
     session.add(part)
     meshes.put(sha, taken.mesh)

@@ -49,6 +49,9 @@ class PartOut(BaseModel):
     source_sha256: str | None = Field(None, description="sha256 of the uploaded file (sha256 is the stored mesh)")
     source_format: str | None = None
     warnings: list[str] | None = Field(None, description="e.g. a size that suggests wrong units")
+    defects: dict[str, Any] | None = Field(
+        None, description="an open mesh's open_edges, non_manifold_edges, holes, largest_hole_mm and whether "
+        "slicing's repair can close it (closable); null when watertight")
 
 
 class LineGeometry(Strict):

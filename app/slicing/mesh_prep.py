@@ -52,10 +52,12 @@ def _open_edge_count(mesh: trimesh.Trimesh) -> int:
     return int(np.sum(counts != 2))
 
 
-def default_max_hole_mm(mesh: trimesh.Trimesh) -> float:
+def default_max_hole_mm(mesh_or_bounds: trimesh.Trimesh | np.ndarray) -> float:
     """The longest hole boundary repair fills by default: the perimeter of the bounding box's
-    largest face (plus 1 %) - a hole may be as large as the part's outline, no larger."""
-    extents = np.sort(np.ptp(np.asarray(mesh.bounds), axis=0))
+    largest face (plus 1 %) - a hole may be as large as the part's outline, no larger.
+    Takes a mesh or its (2, 3) bounds (mm)."""
+    bounds = mesh_or_bounds.bounds if isinstance(mesh_or_bounds, trimesh.Trimesh) else mesh_or_bounds
+    extents = np.sort(np.ptp(np.asarray(bounds, dtype=float), axis=0))
     return 1.01 * 2.0 * float(extents[1] + extents[2])
 
 

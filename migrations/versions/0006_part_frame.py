@@ -1,4 +1,4 @@
-"""part intake frame: units, orientation, source file, warnings
+"""part intake frame: units, orientation, source file, warnings, mesh defects
 
 Revision ID: 0006
 Revises: 0003
@@ -23,6 +23,7 @@ def upgrade() -> None:
         batch_op.add_column(sa.Column('source_sha256', sqlmodel.sql.sqltypes.AutoString(length=64), nullable=True))
         batch_op.add_column(sa.Column('source_format', sqlmodel.sql.sqltypes.AutoString(length=10), nullable=True))
         batch_op.add_column(sa.Column('warnings', sa.JSON(), nullable=True))
+        batch_op.add_column(sa.Column('defects', sa.JSON(), nullable=True))
         batch_op.create_foreign_key(batch_op.f('fk_parts_source_sha256_blobs'), 'blobs', ['source_sha256'],
                                     ['sha256'])
 
@@ -30,6 +31,7 @@ def upgrade() -> None:
 def downgrade() -> None:
     with op.batch_alter_table('parts', schema=None) as batch_op:
         batch_op.drop_constraint(batch_op.f('fk_parts_source_sha256_blobs'), type_='foreignkey')
+        batch_op.drop_column('defects')
         batch_op.drop_column('warnings')
         batch_op.drop_column('source_format')
         batch_op.drop_column('source_sha256')

@@ -101,8 +101,13 @@ def test_open_teapot_is_repaired_or_refused_with_the_hole_size(client):
     repairs = sliced["result"]["repairs"]
     assert any(r.startswith("filled holes: 1 (64 open edges") for r in repairs), repairs
     assert sliced["result"]["volume_mm3"] == pytest.approx(closed_volume, rel=1e-6)   # closed flat, as designed (float32 STL)
-    refused = run(client, "slice", {"part_id": part["id"], "layer_mm": 1.0, "max_hole_mm": 100.0}, "failed")
-    detail = refused["error"]["detail"]
+    assert part["defects"]["holes"] == 1 and part["defects"]["open_edges"] == 64
+    assert part["defects"]["largest_hole_mm"] == pytest.approx(opening, rel=1e-6)
+    # a hole larger than allowed is refused at submission, not after queuing
+    refused = client.post("/api/v1/jobs", json={"kind": "slice", "params": {
+        "part_id": part["id"], "layer_mm": 1.0, "max_hole_mm": 100.0}}, headers=OP)
+    assert refused.status_code == 422
+    detail = refused.json()["detail"]
     assert "cannot be made watertight" in detail and f"{opening:.4g} mm around" in detail
 
 

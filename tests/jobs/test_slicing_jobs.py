@@ -262,11 +262,11 @@ def test_bad_toolpath_parameters_are_refused_naming_the_field(client, part):
 
 
 def test_a_failed_slice_cannot_be_filled(client):
-    cyl = trimesh.creation.cylinder(3.0, 5.0, sections=16)
-    tube = upload(client, trimesh.Trimesh(cyl.vertices, cyl.faces[np.abs(cyl.face_normals[:, 2]) < 0.5]), "tube.stl")
-    failed = wait_for(client, submit(client, "slice", {"part_id": tube, "layer_mm": 1.0,
-                                                       "max_hole_mm": 1.0}).json()["id"])
-    assert failed["status"] == "failed" and "cannot be made watertight" in failed["error"]["detail"]
+    low, high = trimesh.creation.box((5.0, 5.0, 1.0)), trimesh.creation.box((5.0, 5.0, 1.0))
+    high.apply_translation((0.0, 0.0, 4.0))                 # nothing between z = 0.5 and 3.5
+    gap = upload(client, trimesh.util.concatenate([low, high]), "gap.stl")
+    failed = wait_for(client, submit(client, "slice", {"part_id": gap, "layer_mm": 1.0}).json()["id"])
+    assert failed["status"] == "failed" and "no area" in failed["error"]["detail"]
     assert failed["artifacts"] == []
     refused = submit(client, "toolpath", {"slice_job_id": failed["id"]})
     assert refused.status_code == 422 and "failed slice job" in refused.json()["detail"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
@@ -23,6 +24,7 @@ from app.records import get_or_404
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
 from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
+from app.slicing.mesh_prep import default_max_hole_mm
 
 MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at submission)
 _CORE = SliceParams()
@@ -126,6 +128,26 @@ def _thinnest_layer(height_mm: float, params: SliceJobParams) -> float:
     return min(height_mm, 0.5 * params.l_min)
 
 
+def _check_repairable(part: Part, params: SliceJobParams) -> None:
+    """An open mesh that repair cannot close is refused now, not after queuing (from the
+    defects found at upload)."""
+    defects = part.defects or {}
+    if part.watertight or not params.repair or not defects:
+        return
+    if defects.get("non_manifold_edges"):
+        raise SlicingError(f"the part's mesh cannot be made watertight: {defects['non_manifold_edges']} edges are "
+                           f"shared by more than two faces", field="params.part_id", value=part.id)
+    if not defects.get("closable", True):
+        raise SlicingError("the part's mesh cannot be made watertight: an open boundary does not close into a "
+                           "loop", field="params.part_id", value=part.id)
+    largest = defects.get("largest_hole_mm")
+    limit = params.max_hole_mm if params.max_hole_mm is not None else default_max_hole_mm(np.asarray(part.bounds))
+    if largest is not None and largest > limit:
+        raise SlicingError(f"the part's mesh cannot be made watertight: its largest hole is {largest:.4g} mm around, "
+                           f"more than max_hole_mm = {limit:.4g} mm; close it in CAD or raise max_hole_mm",
+                           field="params.max_hole_mm", value=params.max_hole_mm)
+
+
 def _check(params: SliceJobParams, session: Session) -> None:
     """Cross-field rules and the part's height and watertightness, before anything is queued."""
     params.core().validate()  # names params.l_min, params.mu0 ... (SlicingError, 422)
@@ -139,6 +161,7 @@ def _check(params: SliceJobParams, session: Session) -> None:
     if not part.watertight and not params.repair:
         raise SlicingError("the part's mesh is not watertight; slice it with repair: true or upload a closed mesh",
                            field="params.repair", value=False)
+    _check_repairable(part, params)
     height = float(part.bounds[1][2]) - float(part.bounds[0][2])
     most = _most_layers(height, params)
     if most > MAX_LAYERS:
