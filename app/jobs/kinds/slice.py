@@ -55,8 +55,8 @@ class SliceJobParams(JobParams):
     part_id: str = Field(description="the part to slice")
     mode: Literal["uniform", "area", "cavity", "cusp"] = Field(
         "uniform", description="uniform: layers of layer_mm, the remainder distributed or merged (see "
-        "remainder); area: the seed S4 area-deviation rule (eps0, l_min, l_max); cavity: S4 multi-cavity refinement (adds sigma0, mu0, mu1); cusp: our "
-        "cusp-height rule (cusp_mm, l_min, l_max)")
+        "remainder); area: the seed S4 area-deviation rule (eps0, l_min, l_max); cavity: S4 multi-cavity "
+        "refinement (adds sigma0, mu0, mu1); cusp: our cusp-height rule (cusp_mm, l_min, l_max)")
     layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False,
                             description="uniform layer thickness, mm")
     l_min: float = Field(_CORE.l_min, gt=0, le=100, allow_inf_nan=False, description="thinnest adaptive layer, mm")
