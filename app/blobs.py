@@ -10,6 +10,7 @@ import hashlib
 import os
 import tempfile
 from pathlib import Path
+from typing import BinaryIO
 
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
@@ -49,6 +50,38 @@ class BlobStore:
             insert(Blob).values(sha256=digest, bytes=len(data), created_at=utcnow()).on_conflict_do_nothing()
         )
         return digest
+
+    def put_file(self, session: Session, handle: BinaryIO, chunk: int = 1 << 20) -> str:
+        """Store the rest of the open binary file ``handle`` from its start (idempotent),
+        copying and hashing it chunk by chunk (memory: one chunk); returns its sha256."""
+        handle.seek(0)
+        self.root.mkdir(parents=True, exist_ok=True)
+        digest, size = hashlib.sha256(), 0
+        fd, tmp = tempfile.mkstemp(dir=self.root, prefix=".tmp-")
+        try:
+            with os.fdopen(fd, "wb") as out:
+                while block := handle.read(chunk):
+                    digest.update(block)
+                    out.write(block)
+                    size += len(block)
+                out.flush()
+                os.fsync(out.fileno())
+            sha = digest.hexdigest()
+            target = self.path(sha)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if target.exists():
+                Path(tmp).unlink()
+            else:
+                os.replace(tmp, target)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        dialect = session.get_bind().dialect.name
+        insert = pg_insert if dialect == "postgresql" else sqlite_insert
+        session.exec(  # type: ignore[call-overload]
+            insert(Blob).values(sha256=sha, bytes=size, created_at=utcnow()).on_conflict_do_nothing()
+        )
+        return sha
 
     def read(self, sha256: str) -> bytes:
         return self.path(sha256).read_bytes()

@@ -53,6 +53,14 @@ class Part(SQLModel, table=True):
     area_mm2: float
     sha256: str = Field(foreign_key="blobs.sha256", max_length=64, index=True)
     created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+    # intake frame (migration 0006): the stored mesh (sha256, format) is in mm with +Z up;
+    # the uploaded file is source_sha256 / source_format when it had to be converted
+    units: str = Field(default="mm", max_length=8)
+    frame: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    source_sha256: str | None = Field(default=None, foreign_key="blobs.sha256", max_length=64)
+    source_format: str | None = Field(default=None, max_length=10)
+    warnings: list | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    defects: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 class Trace(SQLModel, table=True):
     __tablename__ = "traces"

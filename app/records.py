@@ -8,16 +8,17 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from typing import Any, TypeVar
+from typing import Any, BinaryIO, TypeVar
 
 import trimesh
 from sqlmodel import Session, SQLModel
 
 from app.blobs import BlobStore
 from app.errors import ConformaError, NotFound
+from app.geometry.slope import SlopePolicy, check_slope
 from app.geometry.tolerance import Tolerance
 from app.geometry.traces import build_nominal_trace
-from app.mesh_intake import parse_mesh, summarize
+from app.mesh_intake import intake, parse_mesh
 from app.models import Artifact, Job, Machine, Part, Trace, new_id, utcnow
 
 T = TypeVar("T", bound=SQLModel)
@@ -84,19 +85,28 @@ def add_artifact(
     return artifact
 
 
-def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: bytes, fmt: str, name: str,
-               max_unzipped_bytes: int) -> Part:
-    """Parse, check and store an uploaded mesh as a part (added to ``session``, not committed)."""
-    mesh = parse_mesh(data, fmt, max_unzipped_bytes=max_unzipped_bytes)
-    summary = summarize(mesh)
-    sha = blobs.put(session, data)
+def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: bytes | BinaryIO, fmt: str, name: str,
+               max_unzipped_bytes: int, units: str | None = None, up: str | None = None,
+               rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Part:
+    """Parse, check and store an uploaded mesh as a part in mm, +Z up (added to ``session``,
+    not committed).  When units or orientation change the file, the converted mesh is
+    stored (binary PLY) beside the uploaded file (``source_sha256``).  ``data``: bytes or an
+    open binary file (read in chunks where the format allows: binary STL)."""
+    taken = intake(data, fmt, max_unzipped_bytes=max_unzipped_bytes, units=units, up=up, rotate_deg=rotate_deg)
+    summary = taken.summary
+    source = blobs.put(session, data) if isinstance(data, bytes) else blobs.put_file(session, data)
+    sha, stored_format = source, fmt
+    if taken.canonical is not None:
+        sha, stored_format = blobs.put(session, taken.canonical), "ply"
     part = Part(
-        id=new_id("part"), name=name, format=fmt, faces=summary.faces, vertices=summary.vertices,
+        id=new_id("part"), name=name, format=stored_format, faces=summary.faces, vertices=summary.vertices,
         bounds=summary.bounds, watertight=summary.watertight, volume_mm3=summary.volume_mm3,
-        area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(),
+        area_mm2=summary.area_mm2, sha256=sha, created_at=utcnow(), units=taken.frame.units,
+        frame=taken.frame.describe(), source_sha256=source, source_format=fmt, warnings=taken.warnings,
+        defects=summary.defects,
     )
     session.add(part)
-    meshes.put(sha, mesh)
+    meshes.put(sha, taken.mesh)
     return part
 
 
@@ -106,8 +116,10 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
     Errors from the geometry core name their field under ``field_prefix`` (the index of a
     trace in a bulk import)."""
     geometry = body.geometry.model_dump()
+    policy = SlopePolicy(warn_deg=min(body.slope_warn_deg, body.slope_max_deg), max_deg=body.slope_max_deg)
     try:
         nominal = build_nominal_trace(meshes.mesh(part), geometry, body.frame, Tolerance())
+        slope = check_slope(nominal.points, nominal.normals, policy)
     except ConformaError as exc:
         if field_prefix and exc.field:
             exc.field = f"{field_prefix}.{exc.field}"
@@ -120,6 +132,7 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
             "points": [[round(float(v), 6) for v in p] for p in nominal.points],
             "normals": [[round(float(v), 6) for v in n] for n in nominal.normals],
             "slope_stretch": float(nominal.slope_stretch),
+            "slope": slope.to_json(),
         },
         created_at=utcnow(),
     )

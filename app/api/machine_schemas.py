@@ -13,6 +13,21 @@ _PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za
 Rate = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 
 
+class TravelVolume(Strict):
+    """Travel limits, mm: [min, max] per axis (toolpath jobs place parts inside them)."""
+
+    x: Annotated[list[Finite], Field(min_length=2, max_length=2)]
+    y: Annotated[list[Finite], Field(min_length=2, max_length=2)]
+    z: Annotated[list[Finite], Field(min_length=2, max_length=2)]
+
+    @field_validator("x", "y", "z")
+    @classmethod
+    def _ordered(cls, value: list[float]) -> list[float]:
+        if not value[1] > value[0] or max(abs(v) for v in value) > 10_000:
+            raise ValueError("expected [min, max] with min < max within +-10000 mm")
+        return value
+
+
 class Profile(Strict):
     dispense_on: str = Field("M106", min_length=1, max_length=80, description="G-code that starts dispensing")
     dispense_off: str = Field("M107", min_length=1, max_length=80, description="G-code that stops dispensing")
@@ -22,6 +37,8 @@ class Profile(Strict):
     clearance_z: Finite = Field(5.0, gt=-1000, le=1000, description="safe Z for travel, mm")
     probe_z_min: Finite = Field(-10.0, gt=-1000, le=1000, description="lowest Z a probe may reach, mm")
     probe_command: Literal["G30", "G38.2"] | None = None
+    volume_mm: TravelVolume | None = Field(None, description="the machine's travel limits (real-parts: programs "
+                                           "from a part in its own frame are placed inside and refused beyond)")
 
 
 class MockPlacement(Strict):

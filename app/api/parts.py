@@ -11,6 +11,7 @@ from sqlmodel import select
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, PartOut
 from app.errors import Conflict
+from app.mesh_frame import Units, Up, parse_angles
 from app.mesh_intake import detect_format, export_mesh
 from app.models import JobReference, Part, Trace
 from app.records import get_or_404, store_part
@@ -29,12 +30,22 @@ def upload_part(
     file: Annotated[UploadFile, File(description="STL (ascii/binary), OBJ, PLY, OFF, 3MF or GLB")],
     name: Annotated[str | None, Form(max_length=200)] = None,
     format: Annotated[str | None, Form(description="overrides the file extension")] = None,
+    units: Annotated[Units | None, Form(
+        description="the file's units (default: what the file declares - 3MF unit, GLB metres - else mm)")] = None,
+    up: Annotated[Up | None, Form(
+        description="the file's axis that points up (default +y for GLB as glTF specifies, else +z)")] = None,
+    rotate_deg: Annotated[str | None, Form(
+        description='further rotation "rx,ry,rz" in degrees about X, then Y, then Z', max_length=100)] = None,
 ) -> PartOut:
-    """Upload a part mesh (413 over the size limit; 422 for empty, non-finite or unparsable meshes)."""
+    """Upload a part mesh (413 over the size limit; 422 for empty, non-finite or unparsable meshes).
+
+    The stored part is in millimetres with +Z up; ``units``, ``up`` and ``rotate_deg`` say how
+    to read the file, and the response's ``frame`` and ``warnings`` say what was done."""
     fmt = detect_format(file.filename, format)
-    part = store_part(session, runtime.blobs, runtime.meshes, file.file.read(), fmt,
+    part = store_part(session, runtime.blobs, runtime.meshes, file.file, fmt,
                       name or (file.filename or "part").rsplit("/", 1)[-1],
-                      max_unzipped_bytes=int(runtime.settings.max_unzipped_mb * 2**20))
+                      max_unzipped_bytes=int(runtime.settings.max_unzipped_mb * 2**20),
+                      units=units, up=up, rotate_deg=parse_angles(rotate_deg))
     session.commit()
     return part_out(part)
 

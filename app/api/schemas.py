@@ -42,6 +42,16 @@ class PartOut(BaseModel):
     area_mm2: float
     sha256: str
     created_at: UtcDatetime
+    units: str = Field("mm", description="the uploaded file's units (the part itself is always in mm)")
+    frame: dict[str, Any] | None = Field(
+        None, description="file -> part map: units, units_source (file|upload|default), up, rotate_deg, "
+        "scale_to_mm, rotation (3x3)")
+    source_sha256: str | None = Field(None, description="sha256 of the uploaded file (sha256 is the stored mesh)")
+    source_format: str | None = None
+    warnings: list[str] | None = Field(None, description="e.g. a size that suggests wrong units")
+    defects: dict[str, Any] | None = Field(
+        None, description="an open mesh's open_edges, non_manifold_edges, holes, largest_hole_mm and whether "
+        "slicing's repair can close it (closable); null when watertight")
 
 
 class LineGeometry(Strict):
@@ -81,12 +91,18 @@ class TraceCreate(Strict):
     standoff_mm: Finite = Field(0.10, gt=0, le=50)
     width_mm: Finite | None = Field(None, gt=0, le=50)
     feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
+    slope_warn_deg: Finite = Field(30.0, ge=0, le=90, description="warn when the surface under the trace is "
+                                   "steeper than this for a vertical nozzle, deg")
+    slope_max_deg: Finite = Field(60.0, ge=0, le=90, description="refuse the trace beyond this slope, deg "
+                                  "(steeper traces need five_axis paths)")
 
 
 class NominalOut(BaseModel):
     points: list[list[float]]
     normals: list[list[float]] | None = None
     slope_stretch: float | None = None
+    slope: dict[str, Any] | None = Field(None, description="largest surface slope under the trace (deg), where, "
+                                         "the standoff error per mm of lateral error there, and warnings")
 
 
 class TraceOut(BaseModel):

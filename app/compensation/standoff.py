@@ -43,6 +43,7 @@ import numpy as np
 from app.checks import require_non_negative, require_positive
 from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
 from app.errors import InvalidInput
+from app.geometry.slope import height_error_mm, surface_slopes_deg
 from app.gcode.writer import DIALECTS, ProgramBuilder
 
 __all__ = [
@@ -79,6 +80,8 @@ class CompensationParams:
         that departs more than this from the nominal (wrong part, placement or probe).
         verify_step_mm: dense sampling step of the proof.  curvature_safety: factor on the
         estimated |d''| of the gap bound.  decimals: G-code coordinate decimals.
+        xy_uncertainty_mm: lateral error of machine and placement assumed by the slope term
+        of the error model (a vertical nozzle's standoff errs by xy x tan(slope)).
     """
 
     standoff_mm: float = 0.10
@@ -98,6 +101,7 @@ class CompensationParams:
     verify_step_mm: float = 0.01
     curvature_safety: float = 2.0
     decimals: int = 4
+    xy_uncertainty_mm: float = 0.01
 
     def __post_init__(self) -> None:
         positive = ("standoff_mm", "feed_mm_min", "chord_error_mm", "clearance_mm",
@@ -152,6 +156,7 @@ class CompensatedPath:
     dispense_on: str
     dispense_off: str
     method: str
+    slope: dict[str, Any] | None = None
 
     def to_result(self) -> dict[str, Any]:
         """API result of job ``compensate``."""
@@ -161,7 +166,24 @@ class CompensatedPath:
                 "standoff_mm": self.standoff_mm, "method": self.method,
                 "span_mm": list(self.span), "trace_extent_mm": list(self.trace_extent),
                 "extension_mm": list(self.extension_mm),
-                "nominal_segments": int(len(self.nominal_points) - 1)}
+                "nominal_segments": int(len(self.nominal_points) - 1),
+                "slope": self.slope}
+
+
+def slope_error_model(nominal: Any, s: np.ndarray, params: CompensationParams) -> dict[str, Any] | None:
+    """The error model's slope term along the path: the surface slope (deg) from the nominal's
+    normals and the standoff error ``xy_uncertainty_mm * tan(slope)`` it adds; None without
+    normals."""
+    normals = nominal.normals_at(s) if nominal.normals is not None else None
+    if normals is None:
+        return None
+    slopes = surface_slopes_deg(normals)
+    k = int(np.argmax(slopes))
+    return {"max_slope_deg": round(float(slopes[k]), 4), "at_s_mm": round(float(s[k]), 4),
+            "xy_uncertainty_mm": params.xy_uncertainty_mm,
+            "max_height_error_mm": round(float(height_error_mm(slopes[k], params.xy_uncertainty_mm)), 6),
+            "model": "standoff error = xy_uncertainty_mm x tan(surface slope) for a vertical nozzle, on top of "
+                     "the reconstruction's error"}
 
 
 def _span(reconstruction: Any, params: CompensationParams) -> tuple[float, float, float, float]:
@@ -300,4 +322,5 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
         max_chord_error_mm=seg.max_error_mm, segment_error_mm=seg.segment_error_mm,
         span=(s0, s1), trace_extent=(0.0, length), extension_mm=extension,
         standoff_mm=float(params.standoff_mm), dispense_on=params.dispense_on.strip(),
-        dispense_off=params.dispense_off.strip(), method=method)
+        dispense_off=params.dispense_off.strip(), method=method,
+        slope=slope_error_model(nominal, seg.s, params))

@@ -5,8 +5,9 @@ Sections (seed S5: only the process part depends on the part):
 
 * start - header (from :class:`~app.gcode.writer.ProgramBuilder`), machine limits
   (M204/M205 for Marlin), heating (extrusion) and relative/absolute E, homing, prime;
-* process - per layer ``;LAYER:n`` then for every piece: travel (retract in extrusion mode)
-  and the extruded moves with E (``mode="extrude"``) or dispenser on/off commands around
+* process - per layer ``;LAYER:n`` then for every piece: travel (retract in extrusion mode,
+  never before the first extrusion) and the extruded moves with E (per mm: the stadium bead
+  cross-section :func:`bead_area_mm2` over the filament's) (``mode="extrude"``) or dispenser on/off commands around
   the piece (``mode="dispense"``: Marlin ``M106 S255``/``M107``, grbl ``M8``/``M9`` unless
   overridden);
 * end - lift, heaters and dispenser off, motors off (Marlin), program end (grbl ``M2``).
@@ -22,6 +23,17 @@ from typing import Literal
 from app.gcode.writer import GcodeError, ProgramBuilder
 
 _DISPENSE = {"marlin": ("M106 S255", "M107"), "grbl": ("M8", "M9")}
+END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
+
+
+def bead_area_mm2(width_mm: float, height_mm: float) -> float:
+    """Cross-section of an extruded bead, mm^2: a rectangle with semicircular sides (a
+    stadium, PrusaSlicer's Flow model) - ``(w - h) h + pi h^2 / 4``; a bead narrower than
+    it is high is a circle of diameter w."""
+    w, h = float(width_mm), float(height_mm)
+    if w <= h:
+        return math.pi * w * w / 4.0
+    return (w - h) * h + math.pi * h * h / 4.0
 
 
 @dataclass(frozen=True)
@@ -63,7 +75,7 @@ def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str) -> None:
     b.comment("end")
     if p.mode == "dispense":
         b.raw(off)
-    b.move(z=z + 5.0, feed_mm_min=600.0)
+    b.move(z=z + END_LIFT_MM, feed_mm_min=600.0)
     if p.dialect == "marlin":
         if p.mode == "extrude":
             b.raw("M104 S0").raw("M140 S0")
@@ -85,21 +97,21 @@ def write_fdm_gcode(toolpath, params: FdmParams = FdmParams()) -> str:
     fil_area = math.pi * (tpp.filament_mm / 2) ** 2
     _start(b, toolpath, params)
     b.comment("process")
-    e, retracted = 0.0, False
+    e, retracted, extruded = 0.0, False, False
     pos = None
     travel = tpp.travel_feed_mm_s * 60.0
     z = 0.0
     for lay in toolpath.layers:
         z = lay.z
         h = tpp.layer_height_mm or lay.thickness
-        e_per_mm = tpp.line_width_mm * h / fil_area
+        e_per_mm = bead_area_mm2(tpp.line_width_mm, h) / fil_area
         b.raw(f";LAYER:{lay.index}")
         b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
         for piece in lay.pieces:
             start = piece.points[0]
             dist = math.inf if pos is None else math.hypot(*(start - pos))
-            if params.mode == "extrude" and dist > params.min_travel_for_retract_mm \
-                    and params.retract_mm > 0:
+            if params.mode == "extrude" and extruded and dist > params.min_travel_for_retract_mm \
+                    and params.retract_mm > 0:   # never before anything was extruded
                 e -= params.retract_mm
                 b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
                 retracted = True
@@ -121,6 +133,7 @@ def write_fdm_gcode(toolpath, params: FdmParams = FdmParams()) -> str:
                     continue
                 if params.mode == "extrude":
                     e += seg * e_per_mm
+                    extruded = True
                     b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None, e=e)
                 else:
                     b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None)

@@ -53,25 +53,65 @@ def _check_count(n: int, params) -> None:
                            value=n)
 
 
+def uniform_plan(height: float, layer_mm: float, remainder: str, z_tol: float) -> list[float]:
+    """Slab thicknesses (mm) that stack to ``height`` with no sliver on top.
+
+    ``remainder="distribute"``: n = round(height / layer_mm) (at least 1) equal slabs of
+    height / n, within layer_mm / (2 n) of the nominal.  ``"merge"``: slabs of exactly
+    ``layer_mm``; a remainder under half a layer joins the last slab (<= 1.5 x layer_mm),
+    a larger one is a slab of its own (>= 0.5 x layer_mm).  A remainder below ``z_tol``
+    is float noise and is dropped into the last slab either way.
+    """
+    if remainder == "distribute":
+        n = max(1, round(height / layer_mm))
+        return [height / n] * n
+    full = int(math.floor((height + z_tol) / layer_mm))
+    rest = height - full * layer_mm
+    if full == 0:
+        return [height]
+    if rest < 0.5 * layer_mm:
+        return [layer_mm] * (full - 1) + [layer_mm + rest]
+    return [layer_mm] * full + [rest]
+
+
 def uniform_layers(sampler, params):
-    """ceil(H / layer_mm) slabs of ``layer_mm`` (the last one thinner), sampled mid-height."""
+    """Slabs of ``layer_mm`` with the remainder distributed or merged (no sliver), sampled
+    mid-height."""
     from app.slicing.layers import make_layer
 
     z0, z1 = sampler.prepared.z_min, sampler.prepared.z_max
-    # A remainder thinner than z_tol (e.g. a float32 STL height just above a multiple of
-    # layer_mm) is folded into the last layer instead of becoming a sliver.
-    n = max(1, math.ceil((z1 - z0 - params.z_tol) / params.layer_mm))
-    _check_count(n, params)
+    plan = uniform_plan(z1 - z0, params.layer_mm, params.remainder, params.z_tol)
+    _check_count(len(plan), params)
+    bounds = z0 + np.concatenate([[0.0], np.cumsum(plan)])
+    bounds[-1] = z1
     layers, prev = [], None
-    for k in range(n):
-        bottom = z0 + k * params.layer_mm
-        top = min(z0 + (k + 1) * params.layer_mm, z1) if k < n - 1 else z1
-        reason = "uniform" if k < n - 1 or abs(top - bottom - params.layer_mm) < 1e-9 \
-            else "uniform (last layer: remaining height)"
+    for k in range(len(plan)):
+        bottom, top = float(bounds[k]), float(bounds[k + 1])
+        off = abs(top - bottom - params.layer_mm)
+        reason = "uniform" if off < 1e-9 else (
+            f"uniform: height / {len(plan)} layers (remainder distributed)" if params.remainder == "distribute"
+            else "uniform (last layer: remainder merged)" if top - bottom > params.layer_mm
+            else "uniform (last layer: remaining height >= half a layer)")
         lay = make_layer(k, bottom, top, 0.5 * (bottom + top), sampler, prev, reason, params)
         layers.append(lay)
         prev = lay.area
-    return layers, []
+    notes = []
+    if len(plan) and abs(plan[-1] - params.layer_mm) > 1e-9:
+        notes.append(f"the part's height {z1 - z0:.6g} mm is not a multiple of {params.layer_mm} mm: "
+                     + (f"{len(plan)} layers of {plan[0]:.6g} mm" if params.remainder == "distribute"
+                        else f"last layer {plan[-1]:.6g} mm"))
+    return layers, notes
+
+
+def _no_sliver(z: float, step: float, z_max: float, params) -> float:
+    """The slab top after ``z + step``: a rest under ``l_min`` above it is merged into this
+    slab (or, when that would pass ``l_max``, the two are split evenly)."""
+    rest = z_max - (z + step)
+    if rest <= params.z_tol:
+        return z_max
+    if rest < params.l_min:
+        return z_max if step + rest <= params.l_max + _STEP_EPS else z + 0.5 * (step + rest)
+    return z + step
 
 
 def area_layers(sampler, params):
@@ -118,9 +158,7 @@ def area_layers(sampler, params):
             elif params.step9_resets_to_lmax:
                 step = min(params.l_max, remaining)
                 reason += " (step 9: l_max)"
-        top = z + step                                              # step 10
-        if z_max - top < params.z_tol:
-            top = z_max
+        top = _no_sliver(z, step, z_max, params)                    # step 10
         sample = top if params.seed_sample == "top" else 0.5 * (z + top)
         lay = make_layer(len(layers), z, top, sample, sampler,
                          layers[-1].area if layers else a_i, reason, params)
@@ -205,7 +243,7 @@ def cusp_layers(sampler, params):
         elif len(ahead) and ahead[0] - z - params.l_min >= params.l_min:
             t = float(ahead[0] - z - params.l_min)
             reason = "shortened so the next layer ends on a flat face"
-        top = z + t if z_max - (z + t) > params.z_tol else z_max
+        top = _no_sliver(z, t, z_max, params)
         lay = make_layer(len(layers), z, top, 0.5 * (z + top), sampler,
                          layers[-1].area if layers else None, reason, params)
         layers.append(lay)

@@ -6,8 +6,8 @@ then per entry float32 min-z, layer thickness, line-width compensation, reserved
 layer float32 z (the layer bottom) and uint32 boundary count, per boundary uint32 vertex
 count (closed: first vertex repeated), uint32 gap count (0) and float32 x, y pairs; the
 file ends with float32 max-z and uint32 0xFFFFFFFF.  Outer rings anticlockwise, holes
-clockwise.  Adaptive thicknesses are rounded to multiples of ``quantum_mm`` (the layer z
-values are their running sums; :attr:`SlcExport.notes` says so and by how much z moved)
+clockwise.  Layer tops are rounded to the ``quantum_mm`` grid (from the running sum of
+the thicknesses, so the stack never drifts; :attr:`SlcExport.notes` says by how much z moved)
 and, if more than 255 runs of equal thickness remain, neighbouring runs are merged in the
 sampling table (each layer's own z in the contour section stays exact).
 
@@ -57,13 +57,17 @@ def _closed(ring: np.ndarray) -> np.ndarray:
 
 
 def _quantised_boundaries(result, q: float) -> np.ndarray:
-    """Layer boundaries (L+1,) built from thicknesses rounded to multiples of ``q``."""
-    t = np.array([lay.thickness for lay in result.layers])
-    tq = np.round(t / q) * q
-    if np.any(tq <= 0):
-        raise SlicingError(f"a layer is thinner than half the SLC thickness quantum {q} mm",
-                           field="slc.quantum_mm", value=q)
-    return result.layers[0].z_bottom + np.concatenate([[0.0], np.cumsum(tq)])
+    """Layer boundaries (L+1,): each layer's true top (the running sum of thicknesses)
+    rounded to the ``q`` grid above the first bottom, so rounding never accumulates."""
+    z0 = result.layers[0].z_bottom
+    tops = np.array([lay.z_top for lay in result.layers])
+    zq = z0 + np.concatenate([[0.0], np.round((tops - z0) / q) * q])
+    thin = np.flatnonzero(np.diff(zq) <= 0)
+    if len(thin):
+        k = int(thin[0])
+        raise SlicingError(f"layer {k} ({result.layers[k].thickness:.6g} mm) vanishes on the SLC "
+                           f"thickness quantum {q} mm", field="slc.quantum_mm", value=q)
+    return zq
 
 
 def _sampling_table(zq: np.ndarray, comp: float, notes: list[str]):
@@ -118,6 +122,22 @@ def to_slc(result, options: SlcOptions = SlcOptions()) -> SlcExport:
     return SlcExport(b"".join(out), table, tuple(notes))
 
 
+def _joined(values: np.ndarray, decimals: int, sep: str = ",") -> str:
+    """Fixed-decimal numbers of ``values`` (flattened) joined by ``sep``, formatted in C
+    (printf), never ``-0.000...``."""
+    flat = np.asarray(values, dtype=np.float64).ravel() + 0.0
+    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
+    return (sep.join([f"%.{decimals}f"] * len(flat))) % tuple(flat.tolist())
+
+
+def _points_json(ring: np.ndarray, decimals: int) -> str:
+    """A ring (n, 2) as JSON text ``[[x,y],...]`` at ``decimals`` (formatted in C)."""
+    flat = np.asarray(ring, dtype=np.float64).ravel() + 0.0
+    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
+    pair = f"[%.{decimals}f,%.{decimals}f]"
+    return "[" + ",".join([pair] * (len(flat) // 2)) % tuple(flat.tolist()) + "]"
+
+
 def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "part",
            decimals: int = 6) -> str:
     """Encode ``result`` as ASCII CLI text; ``hatches[layer_index]``: (k, 4) x1,y1,x2,y2 mm."""
@@ -135,8 +155,7 @@ def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "p
             for ring, direction in ((oriented(isl.outer, True), 1),
                                     *((oriented(h, False), 0) for h in isl.holes)):
                 pts = _closed(ring)
-                coords = ",".join(f(v) for v in pts.ravel())
-                lines.append(f"$$POLYLINE/1,{direction},{len(pts)},{coords}")
+                lines.append(f"$$POLYLINE/1,{direction},{len(pts)},{_joined(pts, decimals)}")
         if hatches and lay.index in hatches and len(hatches[lay.index]):
             h = np.asarray(hatches[lay.index], dtype=float).reshape(-1, 4)
             lines.append(f"$$HATCHES/1,{len(h)}," + ",".join(f(v) for v in h.ravel()))
@@ -144,9 +163,9 @@ def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "p
     return "\n".join(lines) + "\n"
 
 
-def _island_json(isl: Island, decimals: int) -> dict:
-    return {"outer": np.round(isl.outer, decimals).tolist(),
-            "holes": [np.round(h, decimals).tolist() for h in isl.holes]}
+def _island_json(isl: Island, decimals: int) -> str:
+    holes = ",".join(_points_json(h, decimals) for h in isl.holes)
+    return f'{{"outer":{_points_json(isl.outer, decimals)},"holes":[{holes}]}}'
 
 
 def to_json(result, decimals: int = 6) -> str:
@@ -156,14 +175,17 @@ def to_json(result, decimals: int = 6) -> str:
                "thickness": round(lay.thickness, 9), "area_mm2": round(lay.area, 9),
                "rings": lay.ring_count, "inner_rings": lay.inner_ring_count,
                "sigma": round(lay.sigma, 9), "mu": round(lay.mu, 9), "eps": round(lay.eps, 9),
-               "reason": lay.reason,
-               "islands": [_island_json(i, decimals) for i in lay.islands]}
+               "reason": lay.reason}
               for lay in result.layers]
     doc = {"units": "mm", "mode": result.params.mode, "z_min": result.z_min,
            "z_max": result.z_max, "bounds": np.asarray(result.bounds, dtype=float).tolist(),
            "volume_mm3": float(result.volume), "params": dataclasses.asdict(result.params),
-           "repairs": list(result.repairs), "notes": list(result.notes), "layers": layers}
-    return json.dumps(doc, separators=(",", ":"))
+           "repairs": list(result.repairs), "notes": list(result.notes), "layers": []}
+    head = json.dumps(doc, separators=(",", ":"))[:-len("[]}")]
+    rows = (json.dumps(row, separators=(",", ":"))[:-1] + ',"islands":['
+            + ",".join(_island_json(i, decimals) for i in lay.islands) + "]}"
+            for row, lay in zip(layers, result.layers))
+    return head + "[" + ",".join(rows) + "]}"
 
 
 def _ring(points, where: str) -> np.ndarray:

@@ -6,10 +6,10 @@ oriented rings (:class:`~app.slicing.rings.Island`) plus the seed S4 statistics 
 ring counts, sigma, mu), the area deviation eps to the previous layer and the reason
 its thickness was chosen.  Modes (see :mod:`app.slicing.adaptive`):
 
-* ``uniform`` - ``ceil(H / layer_mm)`` slabs (the last one may be thinner), sampled at
-  mid-height;
-* ``area`` - the seed's area-deviation rule (eps0, l_min, l_max), sampled at the slab top
-  as published;
+* ``uniform`` - slabs of ``layer_mm`` with the remainder distributed over all of them
+  (default) or merged into the last one, never a sliver; sampled at mid-height;
+* ``area`` - the seed's area-deviation rule (eps0, l_min, l_max), sampled at mid-height
+  (``seed_sample="top"``: at the slab top, as published);
 * ``cavity`` - the seed's multi-cavity refinement (S4 steps 1-11: sigma0, mu0, mu1, theta);
 * ``cusp`` - our geometric-error rule: the largest thickness whose cusp height
   ``t * |n_z|`` stays below ``cusp_mm`` on every facet crossing the slab, with slab
@@ -18,6 +18,7 @@ its thickness was chosen.  Modes (see :mod:`app.slicing.adaptive`):
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -45,11 +46,15 @@ class SliceParams:
     literally: it is 1 already from sigma >= sigma0 - 0.4018).  ``step9_resets_to_lmax``:
     read step 9 literally (a non-cavity layer always gets l_max, discarding the step found
     by the area rule); default False keeps the area rule's step.  ``seed_sample``: where the
-    area/cavity modes take a layer's contour: ``"top"`` (the plane Z' the seed stores) or
-    ``"mid"`` (mid-height, halves the staircase error; the rule itself is unchanged).
+    area/cavity modes take a layer's contour: ``"mid"`` (default: mid-height, inside the
+    slab, halves the staircase error and never lands on a horizontal face at the slab top)
+    or ``"top"`` (the plane Z' the seed stores); the rule itself is unchanged.
+    ``remainder``: uniform mode's top, ``"distribute"`` or ``"merge"`` (see
+    :func:`app.slicing.adaptive.uniform_plan`).
     ``cusp_mm``: allowed cusp
     height (cusp mode).  ``z_tol``: planes at the very bottom/top are moved this far into
-    the part.  ``repair``: repair bad meshes instead of refusing them.
+    the part.  ``repair``: repair bad meshes instead of refusing them; ``max_hole_mm``: the
+    longest hole boundary repair fills (None: the perimeter of the bounding box's largest face).
     """
 
     mode: SliceMode = "uniform"
@@ -63,9 +68,11 @@ class SliceParams:
     theta_rule: ThetaRule = "indicator"
     step9_resets_to_lmax: bool = False
     cusp_mm: float = 0.02
-    seed_sample: Literal["top", "mid"] = "top"
+    seed_sample: Literal["top", "mid"] = "mid"
+    remainder: Literal["distribute", "merge"] = "distribute"
     z_tol: float = 1e-5
     repair: bool = True
+    max_hole_mm: float | None = None
     max_layers: int = 200_000
 
     def validate(self) -> None:
@@ -86,6 +93,9 @@ class SliceParams:
         if self.seed_sample not in ("top", "mid"):
             raise SlicingError(f"unknown seed_sample {self.seed_sample!r}",
                                field="params.seed_sample", value=self.seed_sample)
+        if self.remainder not in ("distribute", "merge"):
+            raise SlicingError(f"unknown remainder rule {self.remainder!r}",
+                               field="params.remainder", value=self.remainder)
         if self.theta_rule not in ("indicator", "printed"):
             raise SlicingError(f"unknown theta rule {self.theta_rule!r}",
                                field="params.theta_rule", value=self.theta_rule)
@@ -214,7 +224,7 @@ def slice_mesh(mesh: trimesh.Trimesh | PreparedMesh, params: SliceParams) -> Sli
     from app.slicing import adaptive
 
     params.validate()
-    prepared = mesh if isinstance(mesh, PreparedMesh) else prepare_mesh(mesh, params.repair)
+    prepared = mesh if isinstance(mesh, PreparedMesh) else prepare_mesh(mesh, params.repair, params.max_hole_mm)
     height = prepared.z_max - prepared.z_min
     if not height > 2 * params.z_tol:
         raise SlicingError(f"part height {height:.6g} mm is too small to slice",
@@ -226,3 +236,15 @@ def slice_mesh(mesh: trimesh.Trimesh | PreparedMesh, params: SliceParams) -> Sli
     return SliceResult(layers=tuple(layers), params=params, z_min=prepared.z_min,
                        z_max=prepared.z_max, bounds=prepared.bounds, volume=prepared.volume,
                        repairs=prepared.repairs, notes=tuple(notes))
+
+
+def translated(result: SliceResult, shift: np.ndarray) -> SliceResult:
+    """``result`` moved by ``shift`` (3,) mm: every ring, every z and the bounds (the machine
+    placement of a part sliced in its own frame)."""
+    dx, dz = np.asarray(shift[:2], dtype=np.float64), float(shift[2])
+    layers = tuple(dataclasses.replace(
+        lay, z_bottom=lay.z_bottom + dz, z_top=lay.z_top + dz, z_sample=lay.z_sample + dz,
+        islands=tuple(Island(isl.outer + dx, tuple(h + dx for h in isl.holes)) for isl in lay.islands))
+        for lay in result.layers)
+    return dataclasses.replace(result, layers=layers, z_min=result.z_min + dz, z_max=result.z_max + dz,
+                               bounds=np.asarray(result.bounds, dtype=np.float64) + np.asarray(shift, dtype=float))

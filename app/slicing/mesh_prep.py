@@ -2,10 +2,11 @@
 
 Checks, in order: non-empty; watertight (every edge shared by exactly two faces) and
 consistently wound; positive volume; overlapping shells (self-intersection between
-bodies).  With ``repair=True`` the mesh is cleaned (merge duplicate vertices, drop
-degenerate/duplicate faces, fill small holes, fix winding, invert inside-out meshes,
-union overlapping shells) and every repair is reported; otherwise, or when repair does
-not help, :class:`MeshError` names the problem.
+bodies).  With ``repair=True`` the mesh is repaired by :func:`app.slicing.repair.repair_mesh`
+(merge duplicate vertices, drop degenerate/duplicate faces, fill holes up to
+``max_hole_mm`` around - by default the perimeter of the bounding box's largest face -, fix winding and normals per
+body) and overlapping shells are united; every repair is reported; otherwise, or when
+repair does not help, :class:`MeshError` names the problem.
 
 Not detected: a *single* shell that passes through itself (a folded surface).  Its
 sections are still well defined because manifold3d resolves each slice with the
@@ -21,6 +22,7 @@ import numpy as np
 import trimesh
 
 from app.slicing.errors import MeshError
+from app.slicing.repair import repair_mesh
 
 
 @dataclass(frozen=True)
@@ -50,28 +52,13 @@ def _open_edge_count(mesh: trimesh.Trimesh) -> int:
     return int(np.sum(counts != 2))
 
 
-def _clean(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
-    m = mesh.copy()
-    n_v, n_f = len(m.vertices), len(m.faces)
-    m.merge_vertices()
-    m.update_faces(m.nondegenerate_faces())
-    m.update_faces(m.unique_faces())
-    m.remove_unreferenced_vertices()
-    if len(m.vertices) != n_v or len(m.faces) != n_f:
-        repairs.append(f"merged/removed {n_v - len(m.vertices)} vertices and "
-                       f"{n_f - len(m.faces)} degenerate or duplicate faces")
-    if not m.is_watertight:
-        before = _open_edge_count(m)
-        trimesh.repair.fill_holes(m)
-        if m.is_watertight:
-            repairs.append(f"filled holes ({before} open edges)")
-    if m.is_watertight and not m.is_winding_consistent:
-        trimesh.repair.fix_winding(m)
-        repairs.append("fixed inconsistent face winding")
-    if m.is_watertight and m.volume < 0:
-        m.invert()
-        repairs.append("inverted inside-out mesh")
-    return m
+def default_max_hole_mm(mesh_or_bounds: trimesh.Trimesh | np.ndarray) -> float:
+    """The longest hole boundary repair fills by default: the perimeter of the bounding box's
+    largest face (plus 1 %) - a hole may be as large as the part's outline, no larger.
+    Takes a mesh or its (2, 3) bounds (mm)."""
+    bounds = mesh_or_bounds.bounds if isinstance(mesh_or_bounds, trimesh.Trimesh) else mesh_or_bounds
+    extents = np.sort(np.ptp(np.asarray(bounds, dtype=float), axis=0))
+    return 1.01 * 2.0 * float(extents[1] + extents[2])
 
 
 def _to_manifold(m: trimesh.Trimesh) -> manifold3d.Manifold:
@@ -95,7 +82,7 @@ def _diagnose(m: trimesh.Trimesh, repair: bool) -> None:
     raise MeshError("mesh is not an oriented 2-manifold", field="mesh", value="topology")
 
 
-def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True) -> PreparedMesh:
+def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, max_hole_mm: float | None = None) -> PreparedMesh:
     """Check (and with ``repair`` fix) ``mesh``; return a :class:`PreparedMesh`.
 
     Fast path: a mesh that manifold3d accepts as an oriented 2-manifold with positive
@@ -113,7 +100,10 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True) -> PreparedMesh:
     if not ok:
         if not repair:
             _diagnose(m, repair)
-        m = _clean(mesh, repairs)
+        limit = default_max_hole_mm(mesh) if max_hole_mm is None else max_hole_mm
+        report = repair_mesh(mesh, limit)
+        m = report.mesh
+        repairs.extend(report.changes)
         solid = _to_manifold(m)
         if solid.status() != manifold3d.Error.NoError or solid.is_empty() \
                 or solid.volume() <= 0:

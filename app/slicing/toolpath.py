@@ -19,6 +19,7 @@ import numpy as np
 
 from app.checks import require_positive
 from app.gcode.estimator import MachineLimits, estimate_moves
+from app.gcode.fdm import bead_area_mm2
 from app.slicing.errors import SlicingError
 from app.slicing.fills import contour_fill, raster_fill, zone_fill
 from app.slicing.fractal import MergeWeights, hilbert_fill, merged_fractal_fill
@@ -187,7 +188,7 @@ def plan_toolpath(slice_result, params: ToolpathParams = ToolpathParams()) -> To
     layers, pos = [], np.zeros(2)
     for lay in slice_result.layers:
         h = params.layer_height_mm or lay.thickness
-        e_per_mm = params.line_width_mm * h / fil_area
+        e_per_mm = bead_area_mm2(params.line_width_mm, h) / fil_area
         per, pos1 = order_paths(perimeter_paths(lay.islands, params), pos)
         inf, pos2 = order_paths(infill_paths(lay.islands, params, lay.index), pos1)
         pieces = tuple([PathPiece("perimeter", p, params.perimeter_feed_mm_s) for p in per]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from app.mesh_intake import export_mesh
 from tests.conftest import auth
 
 OP = auth("operator")
@@ -18,8 +19,8 @@ def box_bytes(fmt: str) -> bytes:
     box = trimesh.creation.box([40.0, 60.0, 10.0])
     if fmt == "stl_ascii":
         return box.export(file_type="stl_ascii").encode() if isinstance(box.export(file_type="stl_ascii"), str) else box.export(file_type="stl_ascii")
-    if fmt == "glb":
-        return trimesh.Scene(box).export(file_type="glb")
+    if fmt == "glb":  # as glTF specifies: metres, +Y up
+        return export_mesh(box, "glb")
     data = box.export(file_type=fmt)
     return data.encode() if isinstance(data, str) else data
 
@@ -47,7 +48,10 @@ def test_download_round_trips(client):
         data = client.get(f"/api/v1/parts/{part['id']}/mesh?format={fmt}", headers=OP)
         assert data.status_code == 200
         mesh = trimesh.load(io.BytesIO(data.content), file_type=ft, force="mesh")
-        assert mesh.volume == pytest.approx(24000.0)
+        mm3_per_unit = 1e9 if fmt == "glb" else 1.0   # GLB is in metres, as glTF specifies
+        assert mesh.volume * mm3_per_unit == pytest.approx(24000.0)
+        again = upload(client, f"again.{fmt}", data.content).json()
+        assert np.allclose(again["bounds"], part["bounds"], atol=1e-5)
     assert client.get(f"/api/v1/parts/{part['id']}/mesh?format=obj", headers=OP).status_code == 422
 
 

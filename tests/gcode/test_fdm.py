@@ -25,8 +25,17 @@ def test_extrusion_e_matches_path_volume(toolpath):
     g = write_fdm_gcode(toolpath, FdmParams(retract_mm=0.0))
     e_values = [float(m) for m in re.findall(r" E(-?[\d.]+)", g)]
     area = math.pi * (1.75 / 2) ** 2
-    expect = toolpath.totals.path_mm * 0.4 * 0.2 / area
+    bead = (0.4 - 0.2) * 0.2 + math.pi * 0.2 ** 2 / 4       # stadium: 0.0714 mm^2, PrusaSlicer's Flow model
+    expect = toolpath.totals.path_mm * bead / area
     assert e_values[-1] == pytest.approx(expect, rel=1e-4)
+    assert bead / (0.4 * 0.2) == pytest.approx(0.8927, abs=1e-4)  # the rectangle gave 12 % more
+
+
+def test_no_retract_before_anything_was_extruded(toolpath):
+    g = write_fdm_gcode(toolpath, FdmParams(retract_mm=0.8))
+    e_values = [float(m) for m in re.findall(r" E(-?[\d.]+)", g.split("; process", 1)[1])]
+    assert e_values[0] > 0                                      # the first E move extrudes
+    assert min(e_values) >= 0 and any(b < a for a, b in zip(e_values, e_values[1:]))   # later retracts exist
     for section in ("; start", "; process", "; end"):
         assert section in g
     assert g.count(";LAYER:") == len(toolpath.layers)

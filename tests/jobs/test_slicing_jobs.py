@@ -71,13 +71,15 @@ def part(client) -> str:
     return upload(client, box_with_hole())
 
 
-def test_uniform_slice_has_ceil_h_over_l_layers_with_exact_areas_and_readable_exports(client, part):
+def test_uniform_slice_distributes_the_remainder_with_exact_areas_and_readable_exports(client, part):
     job = run(client, "slice", {"part_id": part, "mode": "uniform", "layer_mm": 0.7})
     result = job["result"]
     layers = result["layers"]
-    assert result["layer_count"] == len(layers) == math.ceil(SIZE[2] / 0.7) == 5
-    assert [lay["thickness"] for lay in layers] == pytest.approx([0.7] * 4 + [SIZE[2] - 2.8])
-    assert [lay["z"] for lay in layers] == pytest.approx([0.7, 1.4, 2.1, 2.8, 3.0])
+    # 3.0 / 0.7 = 4.29 layers: four of 0.75 mm, no 0.2 mm sliver on top
+    assert result["layer_count"] == len(layers) == round(SIZE[2] / 0.7) == 4
+    assert [lay["thickness"] for lay in layers] == pytest.approx([0.75] * 4)
+    assert [lay["z"] for lay in layers] == pytest.approx([0.75, 1.5, 2.25, 3.0])
+    assert any("not a multiple" in note for note in result["notes"])
     for lay in layers:
         assert lay["area_mm2"] == pytest.approx(NET_AREA, rel=1e-6)
         assert (lay["rings"], lay["inner_rings"]) == (2, 1)
@@ -98,7 +100,7 @@ def test_uniform_slice_has_ceil_h_over_l_layers_with_exact_areas_and_readable_ex
         assert outer.exterior.is_ccw and not hole.exterior.is_ccw
         assert outer.area - hole.area == pytest.approx(NET_AREA, rel=1e-6)
     cli = read_cli(files["layers.cli"][1].decode())
-    assert cli["n_layers"] == 5 and [z for z, _, _ in cli["layers"]] == pytest.approx([lay["z"] for lay in layers])
+    assert cli["n_layers"] == 4 and [z for z, _, _ in cli["layers"]] == pytest.approx([lay["z"] for lay in layers])
     for _, polylines, _ in cli["layers"]:
         assert sorted(d for d, _ in polylines) == [0, 1]
         areas = {d: Polygon(p).area for d, p in polylines}
@@ -141,10 +143,10 @@ def test_beam_offsets_constant_and_seed_table(client, part):
     assert all(lay["beam_offset_mm"] == d for lay in layers)
 
     thin = upload(client, trimesh.creation.box((20.0, 12.0, 0.06)), "thin.stl")
-    job = run(client, "slice", {"part_id": thin, "layer_mm": 0.025, "beam": "seed_haz"})
+    job = run(client, "slice", {"part_id": thin, "layer_mm": 0.025, "beam": "seed_haz", "remainder": "merge"})
     layers = job["result"]["layers"]
-    # seed S4: 23 um heat-affected width at 25 um layers; the 10 um top layer takes the 20 um end value, 21 um
-    assert [lay["beam_offset_mm"] for lay in layers] == pytest.approx([0.023, 0.023, 0.021])
+    # seed S4: 23 um heat-affected width at 25 um layers; the 10 um rest merged into a 35 um top layer: 25.5 um
+    assert [lay["beam_offset_mm"] for lay in layers] == pytest.approx([0.023, 0.0255])
     for lay in layers:
         width = 2 * lay["beam_offset_mm"]
         assert lay["area_mm2"] == pytest.approx((20.0 - width) * (12.0 - width), rel=1e-6)
@@ -157,7 +159,7 @@ def test_toolpath_time_is_the_estimate_of_the_downloaded_program(client, part):
     w = 0.8
     for pattern in ("raster", "hilbert_merged"):
         job = run(client, "toolpath", {"slice_job_id": sliced["id"], "pattern": pattern, "line_width_mm": w,
-                                       "print_feed_mm_min": 1800, **limits})
+                                       "print_feed_mm_min": 1800, "placement": {"xy": "as_is"}, **limits})
         result = job["result"]
         (meta, gcode), = artifacts(client, job).values()
         assert meta["name"] == "print.gcode" and meta["media_type"] == "text/x-gcode"
@@ -267,10 +269,11 @@ def test_bad_toolpath_parameters_are_refused_naming_the_field(client, part):
 
 
 def test_a_failed_slice_cannot_be_filled(client):
-    cyl = trimesh.creation.cylinder(3.0, 5.0, sections=16)
-    tube = upload(client, trimesh.Trimesh(cyl.vertices, cyl.faces[np.abs(cyl.face_normals[:, 2]) < 0.5]), "tube.stl")
-    failed = wait_for(client, submit(client, "slice", {"part_id": tube, "layer_mm": 1.0}).json()["id"])
-    assert failed["status"] == "failed" and "not watertight" in failed["error"]["detail"]
+    low, high = trimesh.creation.box((5.0, 5.0, 1.0)), trimesh.creation.box((5.0, 5.0, 1.0))
+    high.apply_translation((0.0, 0.0, 4.0))                 # nothing between z = 0.5 and 3.5
+    gap = upload(client, trimesh.util.concatenate([low, high]), "gap.stl")
+    failed = wait_for(client, submit(client, "slice", {"part_id": gap, "layer_mm": 1.0}).json()["id"])
+    assert failed["status"] == "failed" and "no area" in failed["error"]["detail"]
     assert failed["artifacts"] == []
     refused = submit(client, "toolpath", {"slice_job_id": failed["id"]})
     assert refused.status_code == 422 and "failed slice job" in refused.json()["detail"]
@@ -297,3 +300,28 @@ def test_svg_layer_beyond_the_adaptive_count_draws_the_last_layer_and_says_so(cl
     assert any("svg_layer 4" in note for note in result["notes"])
     svg = next(a for a in job["artifacts"] if a["name"] == "layer.svg")
     assert svg["meta"] == {"layer": 2, "z": pytest.approx(3.0)}
+
+
+def test_toolpath_is_placed_on_the_bed_and_refused_outside_the_machine(client, part):
+    sliced = run(client, "slice", {"part_id": part, "layer_mm": 1.5})
+    job = run(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0})   # default placement
+    placement = job["result"]["placement"]
+    assert placement["xy"] == "center" and placement["drop_to_bed"] is True
+    assert "default" in placement["volume_mm"]["source"]
+    (x0, y0, z0), (x1, y1, z1) = job["artifacts"][0]["meta"]["bounds"]
+    assert (x0 + x1) / 2 == pytest.approx(100.0, abs=0.51) and (y0 + y1) / 2 == pytest.approx(100.0, abs=0.51)
+    assert 0 < z0 <= 1.5 + 1e-9 and z1 == pytest.approx(SIZE[2] + 5.0)
+    # a given offset on a given bed: the part's minimum corner goes there
+    job = run(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0,
+                                   "placement": {"xy": "offset", "offset_mm": [30, 40]},
+                                   "volume_mm": {"x": [0, 60], "y": [0, 60], "z": [0, 20]}})
+    (x0, y0, _), (x1, y1, _) = job["artifacts"][0]["meta"]["bounds"]
+    assert x0 >= 30 and y0 >= 40 and x1 <= 50 and y1 <= 52
+    # a machine too small: refused at submission with the axis and the amount
+    response = submit(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0,
+                                           "volume_mm": {"x": [0, 15], "y": [0, 100], "z": [0, 100]}})
+    assert response.status_code == 422, response.text
+    problem = response.json()
+    error = problem["errors"][0]
+    assert "placement" in str(error["loc"]) and "on X" in problem["detail"]
+    assert "2.5" in problem["detail"]       # a 20 mm wide part centred on a 15 mm bed: 2.5 mm over each side

@@ -98,7 +98,7 @@ def test_cusp_rule_matches_slope_and_snaps_to_flats():
 
 
 def test_seed_modes_mid_sampling_keeps_the_rule():
-    top = slice_mesh(stepped_block(), SliceParams(mode="area", **SEED))
+    top = slice_mesh(stepped_block(), SliceParams(mode="area", seed_sample="top", **SEED))
     mid = slice_mesh(stepped_block(), SliceParams(mode="area", seed_sample="mid", **SEED))
     assert np.allclose(top.thicknesses, mid.thicknesses)          # same layer boundaries
     for lay in mid.layers:

@@ -24,8 +24,11 @@ def polygon_area(r: float, n: int = N_SIDES) -> float:
 def test_cylinder_area_and_uniform_count():
     cyl = trimesh.creation.cylinder(radius=5.0, height=7.0, sections=N_SIDES)
     res = slice_mesh(cyl, SliceParams(mode="uniform", layer_mm=0.3))
-    assert len(res.layers) == math.ceil(7.0 / 0.3)
-    assert res.layers[-1].thickness == pytest.approx(7.0 - 23 * 0.3)
+    assert len(res.layers) == round(7.0 / 0.3) == 23          # 7 / 0.3 = 23.33: remainder distributed
+    assert np.allclose(res.thicknesses, 7.0 / 23)
+    merged = slice_mesh(cyl, SliceParams(mode="uniform", layer_mm=0.3, remainder="merge"))
+    assert len(merged.layers) == 23                             # 0.1 mm rest < half a layer: merged
+    assert merged.layers[-1].thickness == pytest.approx(0.4) and np.allclose(merged.thicknesses[:-1], 0.3)
     for lay in res.layers:
         assert lay.area == pytest.approx(polygon_area(5.0), rel=1e-9)
         assert lay.ring_count == 1 and lay.inner_ring_count == 0
@@ -82,9 +85,13 @@ def test_open_mesh_refused_or_repaired():
     cyl = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=32)
     top = cyl.triangles_center[:, 2] > 0.49
     uncapped = trimesh.Trimesh(cyl.vertices, cyl.faces[~top], process=False)
-    with pytest.raises(MeshError) as e:              # a 32-gon hole: not repairable here
-        slice_mesh(uncapped, SliceParams(layer_mm=0.5))
-    assert e.value.value["open_edges"] == 32
+    res = slice_mesh(uncapped, SliceParams(layer_mm=0.5))   # a 32-gon hole: filled flat (a fan)
+    assert res.volume == pytest.approx(polygon_area(1.0, 32) * 1.0, rel=1e-9)
+    assert any("filled holes: 1 (32 open edges" in r for r in res.repairs)
+    with pytest.raises(MeshError) as e:                       # unless holes that large may not be filled
+        slice_mesh(uncapped, SliceParams(layer_mm=0.5, max_hole_mm=5.0))
+    assert e.value.value["largest_hole_mm"] == pytest.approx(32 * 2 * math.sin(math.pi / 32), abs=1e-4)
+    assert "max_hole_mm" in e.value.message
 
 
 def test_overlapping_shells_repaired_or_refused():

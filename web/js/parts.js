@@ -12,6 +12,10 @@ const viewer = viewerPanel(right);
 // ---- upload -------------------------------------------------------------------------
 const fileInput = el("input", { type: "file", id: "part-file", name: "file", accept: FORMATS.map((f) => `.${f}`).join(","), required: true });
 const nameInput = el("input", { type: "text", id: "part-name", name: "name", maxlength: 200, placeholder: "optional" });
+const UNITS = [["", "as the file says (else mm)"], ["mm", "mm"], ["cm", "cm"], ["m", "m"], ["um", "µm"], ["inch", "inch"], ["ft", "ft"]];
+const UPS = [["", "as the file says (+Z; GLB +Y)"], ["+z", "+Z"], ["-z", "−Z"], ["+y", "+Y"], ["-y", "−Y"], ["+x", "+X"], ["-x", "−X"]];
+const unitsSelect = el("select", { id: "part-units", name: "units" }, ...UNITS.map(([v, t]) => el("option", { value: v }, t)));
+const upSelect = el("select", { id: "part-up", name: "up" }, ...UPS.map(([v, t]) => el("option", { value: v }, t)));
 const progress = el("progress", { id: "upload-progress", max: 1, value: 0, hidden: true });
 const progressText = el("span", { id: "upload-status", class: "small" });
 const uploadButton = el("button", { type: "submit", class: "primary", id: "upload-button" }, "Upload");
@@ -19,10 +23,12 @@ const form = el("form", { id: "upload-form", onsubmit: onUpload },
   el("div", { class: "row" },
     el("div", { class: "field" }, el("label", { for: "part-file" }, "Mesh file"), fileInput),
     el("div", { class: "field" }, el("label", { for: "part-name" }, "Name"), nameInput),
+    el("div", { class: "field" }, el("label", { for: "part-units" }, "File units"), unitsSelect),
+    el("div", { class: "field" }, el("label", { for: "part-up" }, "Up axis"), upSelect),
     uploadButton),
   progress, progressText);
 left.append(el("section", {}, el("h2", {}, "Upload a part"),
-  el("p", { class: "small" }, `Accepted: ${FORMATS.map((f) => f.toUpperCase()).join(", ")}. Lengths in mm.`), form));
+  el("p", { class: "small" }, `Accepted: ${FORMATS.map((f) => f.toUpperCase()).join(", ")}. Parts are stored in mm with +Z up.`), form));
 
 function extensionOf(name) {
   const dot = name.lastIndexOf(".");
@@ -41,6 +47,8 @@ async function onUpload(event) {
   const data = new FormData();
   data.append("file", file, file.name);
   if (nameInput.value.trim()) data.append("name", nameInput.value.trim());
+  if (unitsSelect.value) data.append("units", unitsSelect.value);
+  if (upSelect.value) data.append("up", upSelect.value);
   progress.hidden = false;
   progress.value = 0;
   uploadButton.disabled = true;
@@ -51,7 +59,8 @@ async function onUpload(event) {
       progressText.textContent = f < 1 ? `uploading… ${(100 * f).toFixed(0)} %` : "checking the mesh…";
     });
     progressText.textContent = `uploaded: ${part.name} (${part.faces} faces)`;
-    showInfo(`Part "${part.name}" uploaded (${part.id}).`);
+    const notes = (part.warnings || []).length ? ` Note: ${part.warnings.join(" ")}` : "";
+    showInfo(`Part "${part.name}" uploaded (${part.id}), read in ${part.units}.${notes}`);
     form.reset();
     await refresh(part.id);
   } catch (err) {

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session, select
 
@@ -18,7 +19,8 @@ from app.jobs.gcode_meta import check_gcode, gcode_meta
 from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
 from app.jobs.registry import JobParams, job_kind
 from app.machines import MachineUnavailable, hardware_errors
-from app.models import Artifact, Program
+from app.gcode.placement import check_inside, profile_volume
+from app.models import Artifact, Machine, Program
 from app.records import get_or_404
 from hardware.errors import LinkError
 
@@ -42,10 +44,19 @@ class PrintParams(JobParams):
         return self
 
 
+def _refuse_outside_travel(params: PrintParams, session: Session, bounds: list | None, field: str) -> None:
+    """A program whose moves leave the machine's ``profile.volume_mm`` is refused (real-parts)."""
+    machine = session.get(Machine, params.machine_id)
+    volume = profile_volume(machine.profile if machine else None, f"machine {params.machine_id}")
+    if volume is not None and bounds is not None:
+        check_inside(np.asarray(bounds, dtype=float), volume, field=field, what="the program")
+
+
 def _check(params: PrintParams, session: Session) -> None:
     refuse_if_machine_busy(params.machine_id, session)
     if params.program_id is not None:
-        get_or_404(session, Program, params.program_id, field="params.program_id")
+        program = get_or_404(session, Program, params.program_id, field="params.program_id")
+        _refuse_outside_travel(params, session, program.bounds, "params.program_id")
         return
     artifact = session.exec(select(Artifact).where(Artifact.job_id == params.job_id,
                                                    Artifact.name == params.artifact)).first()
@@ -55,6 +66,7 @@ def _check(params: PrintParams, session: Session) -> None:
     if artifact.media_type != GCODE_MEDIA_TYPE:
         raise InvalidInput(f"artifact {params.artifact!r} is {artifact.media_type}, not G-code",
                            field="params.artifact", value=params.artifact)
+    _refuse_outside_travel(params, session, (artifact.meta or {}).get("bounds"), "params.artifact")
 
 
 def _references(params: PrintParams) -> list[tuple[str, str]]:

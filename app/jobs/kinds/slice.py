@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
@@ -21,7 +22,9 @@ from app.jobs.registry import JobParams, job_kind
 from app.models import Part
 from app.records import get_or_404
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
+from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
+from app.slicing.mesh_prep import default_max_hole_mm
 
 MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at submission)
 _CORE = SliceParams()
@@ -51,9 +54,9 @@ class BeamTable(BaseModel):
 class SliceJobParams(JobParams):
     part_id: str = Field(description="the part to slice")
     mode: Literal["uniform", "area", "cavity", "cusp"] = Field(
-        "uniform", description="uniform: ceil(H / layer_mm) layers; area: the seed S4 area-deviation rule "
-        "(eps0, l_min, l_max); cavity: S4 multi-cavity refinement (adds sigma0, mu0, mu1); cusp: our "
-        "cusp-height rule (cusp_mm, l_min, l_max)")
+        "uniform", description="uniform: layers of layer_mm, the remainder distributed or merged (see "
+        "remainder); area: the seed S4 area-deviation rule (eps0, l_min, l_max); cavity: S4 multi-cavity "
+        "refinement (adds sigma0, mu0, mu1); cusp: our cusp-height rule (cusp_mm, l_min, l_max)")
     layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False,
                             description="uniform layer thickness, mm")
     l_min: float = Field(_CORE.l_min, gt=0, le=100, allow_inf_nan=False, description="thinnest adaptive layer, mm")
@@ -69,10 +72,19 @@ class SliceJobParams(JobParams):
     step9_resets_to_lmax: bool = Field(
         _CORE.step9_resets_to_lmax, description="read S4 step 9 literally (non-cavity layers always l_max)")
     seed_sample: Literal["top", "mid"] = Field(
-        _CORE.seed_sample, description="area/cavity modes: contour at the layer top (as published) or mid-height")
+        _CORE.seed_sample, description="area/cavity modes: contour at mid-height (default, inside the layer) or "
+        "at the layer top (as published)")
+    remainder: Literal["distribute", "merge"] = Field(
+        _CORE.remainder, description="uniform mode, a height that is not a multiple of layer_mm: distribute "
+        "(round(H / layer_mm) equal layers) or merge (layer_mm layers; a remainder under half a layer joins the "
+        "last one). Never a sliver.")
     cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False,
                            description="allowed cusp height (cusp mode), mm")
-    repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it")
+    repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it: winding "
+                         "and normals fixed, holes filled, shells united")
+    max_hole_mm: float | None = Field(None, gt=0, le=100_000, allow_inf_nan=False,
+                                      description="repair fills holes up to this perimeter, mm (default: the perimeter "
+                                      "of the part's bounding box's largest face); larger holes are refused with their size")
     beam: Literal["none", "seed_haz", "table"] = Field(
         "none", description="beam compensation: none, seed_haz (seed S4 heat-affected widths 21-28 um for "
         "20-40 um layers, linear in thickness) or table (beam_table)")
@@ -88,7 +100,8 @@ class SliceJobParams(JobParams):
         return SliceParams(mode=self.mode, layer_mm=self.layer_mm, l_min=self.l_min, l_max=self.l_max,
                            eps0=self.eps0, sigma0=self.sigma0, mu0=self.mu0, mu1=self.mu1,
                            theta_rule=self.theta_rule, step9_resets_to_lmax=self.step9_resets_to_lmax,
-                           cusp_mm=self.cusp_mm, seed_sample=self.seed_sample, repair=self.repair,
+                           cusp_mm=self.cusp_mm, seed_sample=self.seed_sample, remainder=self.remainder,
+                           repair=self.repair, max_hole_mm=self.max_hole_mm,
                            max_layers=MAX_LAYERS)
 
     def beam_compensation(self) -> BeamWidthTable | float | None:
@@ -106,6 +119,35 @@ def _most_layers(height_mm: float, params: SliceJobParams) -> int:
     return max(1, math.ceil(height_mm / thinnest - 1e-9))
 
 
+def _thinnest_layer(height_mm: float, params: SliceJobParams) -> float:
+    """A lower bound of the thinnest layer the planners make (no slivers, see
+    :func:`app.slicing.adaptive.uniform_plan` and the adaptive planners' top merge)."""
+    if params.mode == "uniform":
+        plan = uniform_plan(height_mm, params.layer_mm, params.remainder, _CORE.z_tol)
+        return min(plan)
+    return min(height_mm, 0.5 * params.l_min)
+
+
+def _check_repairable(part: Part, params: SliceJobParams) -> None:
+    """An open mesh that repair cannot close is refused now, not after queuing (from the
+    defects found at upload)."""
+    defects = part.defects or {}
+    if part.watertight or not params.repair or not defects:
+        return
+    if defects.get("non_manifold_edges"):
+        raise SlicingError(f"the part's mesh cannot be made watertight: {defects['non_manifold_edges']} edges are "
+                           f"shared by more than two faces", field="params.part_id", value=part.id)
+    if not defects.get("closable", True):
+        raise SlicingError("the part's mesh cannot be made watertight: an open boundary does not close into a "
+                           "loop", field="params.part_id", value=part.id)
+    largest = defects.get("largest_hole_mm")
+    limit = params.max_hole_mm if params.max_hole_mm is not None else default_max_hole_mm(np.asarray(part.bounds))
+    if largest is not None and largest > limit:
+        raise SlicingError(f"the part's mesh cannot be made watertight: its largest hole is {largest:.4g} mm around, "
+                           f"more than max_hole_mm = {limit:.4g} mm; close it in CAD or raise max_hole_mm",
+                           field="params.max_hole_mm", value=params.max_hole_mm)
+
+
 def _check(params: SliceJobParams, session: Session) -> None:
     """Cross-field rules and the part's height and watertightness, before anything is queued."""
     params.core().validate()  # names params.l_min, params.mu0 ... (SlicingError, 422)
@@ -119,12 +161,19 @@ def _check(params: SliceJobParams, session: Session) -> None:
     if not part.watertight and not params.repair:
         raise SlicingError("the part's mesh is not watertight; slice it with repair: true or upload a closed mesh",
                            field="params.repair", value=False)
+    _check_repairable(part, params)
     height = float(part.bounds[1][2]) - float(part.bounds[0][2])
     most = _most_layers(height, params)
     if most > MAX_LAYERS:
         step = "params.layer_mm" if params.mode == "uniform" else "params.l_min"
         raise SlicingError(f"a {height:.6g} mm tall part could need {most} layers; at most {MAX_LAYERS} "
                            f"(use thicker layers)", field=step, value=getattr(params, step.split(".")[1]))
+    thinnest = _thinnest_layer(height, params)
+    if thinnest < params.slc_quantum_mm:
+        step = "params.layer_mm" if params.mode == "uniform" else "params.l_min"
+        raise SlicingError(f"layers down to {thinnest:.6g} mm would vanish on the SLC thickness quantum "
+                           f"{params.slc_quantum_mm} mm; use thicker layers or a finer slc_quantum_mm",
+                           field=step, value=getattr(params, step.split(".")[1]))
     if params.svg_layer is not None and params.svg_layer >= most:
         raise SlicingError(f"svg_layer {params.svg_layer} does not exist: this part gets at most {most} layers",
                            field="params.svg_layer", value=params.svg_layer)
@@ -172,6 +221,8 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         "layer_count": len(sliced.layers),
         "z_min": sliced.z_min,
         "z_max": sliced.z_max,
+        "bounds": [[float(v) for v in row] for row in sliced.bounds],
+        "frame": "the part's own (toolpath places it on the machine)",
         "volume_mm3": sliced.volume,
         "repairs": list(sliced.repairs),
         "notes": notes,

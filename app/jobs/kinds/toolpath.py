@@ -13,18 +13,21 @@ from __future__ import annotations
 import dataclasses
 from typing import Annotated, Literal
 
-from pydantic import Field
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
 from app.gcode.estimator import MachineLimits, estimate_gcode
-from app.gcode.fdm import FdmParams, write_fdm_gcode
+from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_gcode
+from app.gcode.placement import MachineVolume, Placement, check_inside, placement_shift
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
-from app.models import Job
+from app.models import Job, Machine
 from app.records import get_or_404
 from app.slicing import SlicingError, ToolpathParams, plan_toolpath
 from app.slicing.export import from_json
+from app.slicing.layers import translated
 from app.slicing.fractal import MergeWeights
 
 MM_MIN_PER_MM_S = 60.0
@@ -40,6 +43,45 @@ Command = Annotated[str, Field(min_length=1, max_length=60, pattern=r"^[A-Za-z0-
 
 def _mm_min(mm_s: float) -> float:
     return mm_s * MM_MIN_PER_MM_S
+
+
+Finite = Annotated[float, Field(ge=-10_000, le=10_000, allow_inf_nan=False)]
+Travel = Annotated[list[Finite], Field(min_length=2, max_length=2)]
+
+
+class VolumeIn(BaseModel):
+    """A machine's travel limits, mm: [min, max] per axis."""
+
+    model_config = ConfigDict(extra="forbid")
+    x: Travel
+    y: Travel
+    z: Travel
+
+    @model_validator(mode="after")
+    def _ordered(self) -> VolumeIn:
+        for axis in "xyz":
+            lo, hi = getattr(self, axis)
+            if not hi > lo:
+                raise ValueError(f"volume_mm.{axis}: the maximum must exceed the minimum")
+        return self
+
+    def volume(self, source: str) -> MachineVolume:
+        return MachineVolume(tuple(self.x), tuple(self.y), tuple(self.z), source)  # type: ignore[arg-type]
+
+
+class PlacementIn(BaseModel):
+    """How the part goes onto the bed (the slice is in the part's own frame)."""
+
+    model_config = ConfigDict(extra="forbid")
+    xy: Literal["center", "offset", "as_is"] = Field(
+        "center", description="center: the part's bounding box centred on the bed; offset: its minimum corner at "
+        "offset_mm; as_is: keep the part's own x, y")
+    offset_mm: tuple[Finite, Finite] = Field((0.0, 0.0), description="xy: offset - bed position of the part's "
+                                             "minimum x, y corner, mm")
+    drop_to_bed: bool = Field(True, description="put the part's lowest point on the bed (the volume's z minimum)")
+
+    def core(self) -> Placement:
+        return Placement(self.xy, tuple(self.offset_mm), self.drop_to_bed)  # type: ignore[arg-type]
 
 
 class ToolpathJobParams(JobParams):
@@ -87,6 +129,11 @@ class ToolpathJobParams(JobParams):
     home: bool = Field(_FDM.home, description="home (G28) in the start section")
     dispense_on: Command | None = Field(None, description="dispense mode: on command (default M106 S255 / M8)")
     dispense_off: Command | None = Field(None, description="dispense mode: off command (default M107 / M9)")
+    placement: PlacementIn = Field(default_factory=PlacementIn, description="where the part goes on the machine "
+                                   "(default: dropped to the bed and centred)")
+    machine_id: str | None = Field(None, description="take the travel limits (profile.volume_mm) of this machine")
+    volume_mm: VolumeIn | None = Field(None, description="the machine's travel limits, mm (default: the machine's "
+                                       "profile, else a 200 x 200 x 200 mm machine with its origin at a bed corner)")
 
     def limits(self) -> MachineLimits:
         return MachineLimits(accel_mm_s2=self.accel_mm_s2, travel_accel_mm_s2=self.travel_accel_mm_s2,
@@ -124,6 +171,26 @@ def _check(params: ToolpathJobParams, session: Session) -> None:
         raise SlicingError("extrusion (E axis) output needs the marlin dialect; use mode: dispense on grbl",
                            field="params.dialect", value=params.dialect)
     params.fill().validate()
+    volume = machine_volume(params, session)
+    bounds = job.result.get("bounds") if job.result else None
+    if bounds is not None:
+        placed = np.asarray(bounds, dtype=float) + placement_shift(np.asarray(bounds), params.placement.core(), volume)
+        check_inside(placed + [[0, 0, 0], [0, 0, END_LIFT_MM + params.z_lift_mm]], volume,
+                     what="the part (with the program's end lift), placed on the bed,")
+
+
+def machine_volume(params: ToolpathJobParams, session: Session) -> MachineVolume:
+    """The travel limits: the parameters', else the machine profile's, else the default bed."""
+    if params.volume_mm is not None:
+        return params.volume_mm.volume("params.volume_mm")
+    if params.machine_id is not None:
+        machine = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+        given = (machine.profile or {}).get("volume_mm")
+        if given:
+            return VolumeIn(**given).volume(f"machine {machine.id} profile.volume_mm")
+        return dataclasses.replace(MachineVolume(), source=f"machine {machine.id} has no profile.volume_mm; "
+                                   + MachineVolume().source)
+    return MachineVolume()
 
 
 def _per_layer(toolpath, layer_times: tuple[float, ...]) -> list[dict]:
@@ -134,11 +201,18 @@ def _per_layer(toolpath, layer_times: tuple[float, ...]) -> list[dict]:
             for lay in toolpath.layers]
 
 
-@job_kind("toolpath", ToolpathJobParams, references=lambda p: [("job", p.slice_job_id)], check=_check)
+def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
+    return [("job", params.slice_job_id)] + ([("machine", params.machine_id)] if params.machine_id else [])
+
+
+@job_kind("toolpath", ToolpathJobParams, references=_references, check=_check)
 def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
     slice_job = ctx.job(params.slice_job_id, kind="slice", field="params.slice_job_id")
     sliced = from_json(ctx.artifact_bytes(slice_job.id, "layers.json"))
+    volume = machine_volume(params, ctx.session)
+    shift = placement_shift(sliced.bounds, params.placement.core(), volume)
+    sliced = translated(sliced, shift)
     ctx.progress(0.1, f"filling {len(sliced.layers)} layers ({params.pattern})")
     toolpath = plan_toolpath(sliced, params.fill())
     ctx.progress(0.7, "writing G-code")
@@ -146,6 +220,8 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     limits = params.limits()
     estimate = estimate_gcode(gcode, limits)
     meta = gcode_meta(gcode)
+    if meta["bounds"] is not None:
+        check_inside(np.asarray(meta["bounds"]), volume, what="print.gcode")
     ctx.artifact("print.gcode", gcode.encode(), "text/x-gcode", meta)
     totals = toolpath.totals
     return {
@@ -160,5 +236,8 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
         "turns": totals.turns,
         "jumps": totals.jumps,
         "program": meta,
+        "placement": {**params.placement.model_dump(), "shift_mm": [float(v) for v in shift],
+                      "volume_mm": volume.describe(),
+                      "note": f"the part's frame moved by {np.round(shift, 6).tolist()} mm into the machine's"},
         "layers": _per_layer(toolpath, estimate.layer_times),
     }

@@ -1,0 +1,74 @@
+"""Peak memory of one upload, measured on a real `conforma serve` process (Linux /proc).
+
+The server's peak resident set (VmHWM) is reset to its current RSS through
+``/proc/<pid>/clear_refs`` just before the upload (root, or the process's owner), so
+``VmHWM`` after the upload minus ``VmRSS`` before is the upload's peak growth.  The file
+is streamed from disk by the client, which is another process.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import trimesh
+
+from tests.processes import free_port, stop, wait_healthy
+
+ROOT = Path(__file__).resolve().parents[1]
+KEY = "upload-memory-key-1"
+
+
+@dataclass(frozen=True)
+class UploadPeak:
+    """``growth_bytes``: peak RSS growth of the server during the upload; ``file_bytes``;
+    ``part``: the API's response."""
+
+    growth_bytes: int
+    file_bytes: int
+    part: dict
+
+    @property
+    def ratio(self) -> float:
+        return self.growth_bytes / self.file_bytes
+
+
+def _status(pid: int, field: str) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError(f"{field} not in /proc/{pid}/status")
+
+
+def measure_upload(stl: Path, data_dir: Path) -> UploadPeak:
+    """Start a server on ``data_dir``, warm it up, upload ``stl`` and measure."""
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CONFORMA_")}
+    env.update({"PYTHONPATH": str(ROOT), "CONFORMA_DATA_DIR": str(data_dir), "CONFORMA_VIEWER": "false",
+                "CONFORMA_EMBEDDED_WORKER": "false", "CONFORMA_API_KEYS": f"{KEY}:operator",
+                "CONFORMA_MAX_UPLOAD_MB": "1000"})
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port)], env=env, cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    headers = {"Authorization": f"Bearer {KEY}"}
+    try:
+        wait_healthy(base, proc)
+        warm = trimesh.creation.icosphere(subdivisions=3).export(file_type="stl")
+        for _ in range(2):
+            assert httpx.post(f"{base}/api/v1/parts", files={"file": ("warm.stl", warm)}, headers=headers,
+                              timeout=60).status_code == 201
+        Path(f"/proc/{proc.pid}/clear_refs").write_text("5")
+        before = _status(proc.pid, "VmRSS")
+        assert _status(proc.pid, "VmHWM") <= before + (1 << 20), "clear_refs did not reset VmHWM"
+        with open(stl, "rb") as handle:
+            response = httpx.post(f"{base}/api/v1/parts", files={"file": (stl.name, handle)}, headers=headers,
+                                  timeout=600)
+        assert response.status_code == 201, response.text
+        peak = _status(proc.pid, "VmHWM")
+        return UploadPeak(peak - before, stl.stat().st_size, response.json())
+    finally:
+        stop(proc)
