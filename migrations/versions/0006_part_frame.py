@@ -10,7 +10,7 @@ import sqlmodel.sql.sqltypes
 
 
 revision = '0006'
-down_revision = '0003'
+down_revision = '0007'
 branch_labels = None
 depends_on = None
 
