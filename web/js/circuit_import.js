@@ -37,7 +37,7 @@ function previewDrawing(result, bounds) {
 
 // A section for the traces page: partSelect gives the part; onDone(result) after an accepted import.
 export function circuitImportSection({ partSelect, getPart, onDone }) {
-  const file = el("input", { type: "file", id: "circuit-file", multiple: true,
+  const file = el("input", { type: "file", id: "circuit-file", multiple: true, "aria-label": "circuit files (KiCad, Gerber, Excellon, DXF, SVG)",
     accept: ".kicad_pcb,.gbr,.ger,.gtl,.gbl,.drl,.xln,.dxf,.svg" });
   const num = (id, value) => el("input", { type: "number", step: "any", id, value, style: "width:6em" });
   const inputs = {
