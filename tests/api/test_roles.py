@@ -52,6 +52,7 @@ ROLES = {
     ("GET", "/api/v1/viewer"): "viewer",
     ("GET", "/api/v1/viewer/scene"): "viewer",
     ("POST", "/api/v1/viewer/focus"): "viewer",
+    ("POST", "/api/v1/viewer/token"): "viewer",
 }
 BELOW = {"operator": "viewer", "admin": "operator"}
 

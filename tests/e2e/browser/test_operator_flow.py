@@ -108,7 +108,8 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
     # -- 3D view: the job's scene pushed, the canvas drawn, the deviation plot's data
     page.click("#open-3d")
     page.wait_for_function("document.querySelector('#viewer-panel').dataset.generation !== undefined")
-    scene = api.get("/api/v1/viewer/scene").json()
+    view_id = page.get_attribute("#viewer-panel", "data-view")  # the page's own view (token-opened)
+    scene = api.get("/api/v1/viewer/scene", params={"view_id": view_id}).json()
     assert scene["focus"] == {"job_id": rec_id, "part_id": part_id}
     nodes = scene["nodes"]
     assert nodes["/focus/part"]["count"] == 5400
