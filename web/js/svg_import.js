@@ -12,7 +12,7 @@ export function svgToTraces(text, { stepMm = 0.5, maxPoints = 5000, offset = [0,
   }
   // Measure inside a live, hidden SVG so that the browser computes path lengths.
   const host = document.createElementNS(SVG_NS, "svg");
-  host.setAttribute("style", "position:absolute;width:0;height:0;visibility:hidden");
+  host.style.cssText = "position:absolute;width:0;height:0;visibility:hidden";  // CSSOM: allowed by the CSP
   document.body.append(host);
   const traces = [];
   try {
