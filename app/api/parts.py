@@ -4,13 +4,17 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, File, Form, HTTPException, Query, Response, UploadFile
+from fastapi import APIRouter, File, Form, HTTPException, Query, Request, Response, UploadFile
 from sqlalchemy import delete, func
 from sqlmodel import select
 
+from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, PartOut
-from app.errors import Conflict
+from app.api.downloads import attachment
+from app.api.part_checks import check_part_geometry
+from app.db import lock_for_delete
+from app.errors import Conflict, NotFound
 from app.mesh_intake import detect_format, export_mesh
 from app.models import JobReference, Part, Trace
 from app.records import get_or_404, store_part
@@ -26,17 +30,27 @@ def part_out(part: Part) -> PartOut:
 def upload_part(
     runtime: RuntimeDep,
     session: SessionDep,
+    request: Request,
     file: Annotated[UploadFile, File(description="STL (ascii/binary), OBJ, PLY, OFF, 3MF or GLB")],
     name: Annotated[str | None, Form(max_length=200)] = None,
     format: Annotated[str | None, Form(description="overrides the file extension")] = None,
+    idempotency_key: idempotency.IdempotencyKey = None,
 ) -> PartOut:
-    """Upload a part mesh (413 over the size limit; 422 for empty, non-finite or unparsable meshes)."""
+    """Upload a part mesh (413 over the size limit; 422 for empty, non-finite, degenerate,
+    unbounded or unparsable meshes)."""
+    data = file.file.read()
+    claim = idempotency.claim(request, idempotency_key, data, file.filename or "", name or "", format or "")
+    replayed = idempotency.replay(session, claim)
+    if replayed is not None:
+        return replayed  # type: ignore[return-value]
     fmt = detect_format(file.filename, format)
-    part = store_part(session, runtime.blobs, runtime.meshes, file.file.read(), fmt,
+    part = store_part(session, runtime.blobs, runtime.meshes, data, fmt,
                       name or (file.filename or "part").rsplit("/", 1)[-1],
                       max_unzipped_bytes=int(runtime.settings.max_unzipped_mb * 2**20))
-    session.commit()
-    return part_out(part)
+    check_part_geometry(part)
+    out = part_out(part)
+    idempotency.remember(session, claim, 201, out)
+    return idempotency.commit(session, claim) or out  # type: ignore[return-value]
 
 
 @router.get("", dependencies=[Viewer])
@@ -60,22 +74,31 @@ def download_mesh(part_id: str, runtime: RuntimeDep, session: SessionDep,
     part = get_or_404(session, Part, part_id)
     data = export_mesh(runtime.meshes.mesh(part), format)
     media = "model/stl" if format == "stl" else "model/gltf-binary"
-    return Response(data, media_type=media, headers={"Content-Disposition": f'attachment; filename="{part.id}.{format}"'})
+    return Response(data, media_type=media, headers={"Content-Disposition": attachment(f"{part.id}.{format}")})
 
 
 @router.delete("/{part_id}", status_code=204)
 def delete_part(part_id: str, session: SessionDep, role: str = Operator,
                 force: Annotated[bool, Query(description="admin only: delete even if jobs reference it")] = False,
                 ) -> None:
-    """Delete a part and its traces; 409 while jobs reference them unless ``force`` (admin)."""
-    part = get_or_404(session, Part, part_id)
-    trace_ids = list(session.exec(select(Trace.id).where(Trace.part_id == part_id)).all())
-    refs = session.exec(select(JobReference.job_id).where(JobReference.ref_id.in_([part_id, *trace_ids]))).all()
-    if refs and not force:
-        raise Conflict(f"part {part_id!r} is referenced by {len(set(refs))} job(s), e.g. {sorted(set(refs))[0]}",
-                       field="part_id", value=part_id)
+    """Delete a part and its traces; 409 while jobs reference them unless ``force`` (admin).
+
+    One transaction that first locks the part and its traces, so a job or trace created
+    at the same moment either lands before (then this is a 409, or its trace is deleted
+    with the part) or finds the part gone (404): never a reference to nothing."""
     if force and role != "admin":
         raise HTTPException(403, "force=true needs the admin role")
+    if not lock_for_delete(session, Part, [part_id]):
+        session.rollback()
+        raise NotFound(f"part {part_id!r} does not exist", field="part_id", value=part_id)
+    part = get_or_404(session, Part, part_id)
+    trace_ids = list(session.exec(select(Trace.id).where(Trace.part_id == part_id)).all())
+    lock_for_delete(session, Trace, trace_ids)
+    refs = session.exec(select(JobReference.job_id).where(JobReference.ref_id.in_([part_id, *trace_ids]))).all()
+    if refs and not force:
+        session.rollback()
+        raise Conflict(f"part {part_id!r} is referenced by {len(set(refs))} job(s), e.g. {sorted(set(refs))[0]}",
+                       field="part_id", value=part_id)
     session.exec(delete(JobReference).where(JobReference.ref_id.in_([part_id, *trace_ids])))  # type: ignore[call-overload]
     session.exec(delete(Trace).where(Trace.part_id == part_id))  # type: ignore[call-overload]
     session.delete(part)
