@@ -3,7 +3,7 @@
 The codes come from the layers a request passes, so they cannot drift from the code:
 keyed routes answer 401 and 429 (throttled failed keys), 403 when they need more than the
 viewer role; routes with path parameters 404; routes with parameters or a body 422; routes
-with a body 413 (and 401 before the body is read); creating and deleting routes 409
+with a body 400 (unparsable) and 413 (and 401 before the body is read); creating and deleting routes 409
 (a conflicting state or Idempotency-Key); every admitted route 503 with Retry-After.
 Codes a router declares itself keep their description.
 """
@@ -35,6 +35,7 @@ PROBLEM_SCHEMA: dict[str, Any] = {
 
 
 _DESCRIPTIONS = {
+    400: "the body cannot be parsed (not UTF-8, not JSON, broken multipart)",
     401: "no API key, or an unknown or revoked one",
     403: "the key's role is not allowed to do this",
     404: "a record named in the path does not exist",
@@ -71,7 +72,7 @@ def error_codes(route: APIRoute) -> set[int]:
     if dependant.path_params or dependant.query_params or dependant.header_params or dependant.body_params:
         codes.add(422)
     if dependant.body_params:
-        codes |= {413, 401}
+        codes |= {400, 401, 413}
     if route.methods & {"POST", "DELETE"} and need is not None:
         codes.add(409)
     return codes
