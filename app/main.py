@@ -65,7 +65,9 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
     # Outermost last: security headers -> admission -> authentication and size limits.
     api.add_middleware(BodyLimitMiddleware, upload_bytes=int(settings.max_upload_mb * 2**20),
                        json_bytes=int(settings.max_json_mb * 2**20))
-    api.add_middleware(AdmissionMiddleware, max_active=settings.max_active_requests,
+    # Each admitted request holds at most two pooled connections: never admit more than the
+    # pool (pool_size + overflow = 2 x db_pool_size) can serve next to the workers.
+    api.add_middleware(AdmissionMiddleware, max_active=min(settings.max_active_requests, settings.db_pool_size),
                        max_waiting=settings.max_waiting_requests, wait_s=settings.request_wait_s)
     api.add_middleware(SecurityHeadersMiddleware)
     routers = (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router,

@@ -11,7 +11,7 @@ import trimesh
 from sqlalchemy import func
 from sqlmodel import Session, select
 
-from app.models import Job, Part, Program, Trace, UploadedFile
+from app.models import Job, Machine, Part, Program, Trace, UploadedFile
 from tests.conftest import auth
 
 OP, ADMIN = auth("operator"), auth("admin")
@@ -37,10 +37,12 @@ def _creations(part_id: str) -> dict:
         "jobs": (Job, lambda v: dict(url="/api/v1/jobs", json={"kind": "test_sleep", "params": {"seconds": v}})),
         "programs": (Program, lambda v: dict(url="/api/v1/programs", files={"file": ("p.gcode", f"G1 X{v}\n".encode())})),
         "files": (UploadedFile, lambda v: dict(url="/api/v1/files", files={"file": ("d.csv", f"{v},1\n".encode())})),
+        "machines": (Machine, lambda v: dict(url="/api/v1/machines", json={"name": f"m{v}", "port": "mock://",
+                                                                            "dialect": "marlin"})),
     }
 
 
-@pytest.mark.parametrize("resource", ["parts", "traces", "jobs", "programs", "files"])
+@pytest.mark.parametrize("resource", ["parts", "traces", "jobs", "programs", "files", "machines"])
 def test_same_key_same_record_and_a_different_request_is_refused(client, part_id, resource):  # type: ignore[no-untyped-def]
     model, request = _creations(part_id)[resource]
     before = _count(client, model)
