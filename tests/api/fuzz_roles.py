@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+from collections import Counter
 from pathlib import Path
 
 import schemathesis
@@ -18,6 +19,7 @@ from tests.conftest import KEYS
 
 ROLES = ("viewer", "operator", "admin", None)  # None: no key at all
 CHECKS = [not_a_server_error, status_code_conformance]
+ANSWERS: Counter = Counter()  # status code -> count, over the whole run
 
 
 def make_app():  # type: ignore[no-untyped-def]
@@ -35,12 +37,14 @@ def call(case, role: str | None):  # type: ignore[no-untyped-def]
         case.path_parameters = {"job_id": "job_does_not_exist"}  # a live stream would never end
     headers = {"Authorization": f"Bearer {KEYS[role]}"} if role else {}
     response = case.call(headers=headers)
+    ANSWERS[response.status_code] += 1
     case.validate_response(response, checks=CHECKS)
     return response
 
 
 def cleanup(data: Path) -> None:
+    print(f"\nschemathesis answers by status: {dict(sorted(ANSWERS.items()))} ({sum(ANSWERS.values())} requests)")
     shutil.rmtree(data, ignore_errors=True)
 
 
-__all__ = ["ROLES", "call", "cleanup", "make_app", "schemathesis"]
+__all__ = ["ANSWERS", "ROLES", "call", "cleanup", "make_app", "schemathesis"]

@@ -1,7 +1,7 @@
 """Schemathesis against /openapi.json with every role (viewer, operator, admin keys and no
 key): no generated request may produce a server error, and every answer's status code
 must be documented for its route (the problem responses of app.api.openapi_errors).
-A short run (a few examples per route and role); tests/bench/test_bench_fuzz.py runs long."""
+A short run (4 examples per route and role); tests/bench/test_bench_fuzz.py runs long."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def running_app():
 
 @pytest.mark.parametrize("role", ROLES)
 @schema.parametrize()
-@hypothesis_settings(max_examples=6, deadline=None, database=None,
+@hypothesis_settings(max_examples=4, deadline=None, database=None,
                      suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 def test_no_request_produces_a_server_error_or_an_undocumented_status(case, role):
     call(case, role)

@@ -1,6 +1,6 @@
 """The long schemathesis run: every route with every role (viewer, operator, admin keys and
 no key), 150 examples each: no server error, and every status code documented for its
-route.  The default suite runs the same with 6 examples (tests/api/test_fuzz_openapi.py)."""
+route.  The default suite runs the same with 4 examples (tests/api/test_fuzz_openapi.py)."""
 
 from __future__ import annotations
 
