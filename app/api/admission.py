@@ -15,7 +15,7 @@ import re
 
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from app.api.limits import _send_problem
+from app.api.limits import send_problem
 
 _EXEMPT = re.compile(r"^/api/v1/(health$|machines/[^/]+/stop$|jobs/[^/]+/events$)")
 
@@ -53,5 +53,5 @@ class AdmissionMiddleware:
 
     async def _refuse(self, send: Send, why: str) -> None:
         self.refused += 1
-        await _send_problem(send, 503, "Service busy", f"the server is at capacity ({why}); retry later",
+        await send_problem(send, 503, "Service busy", f"the server is at capacity ({why}); retry later",
                             headers={"Retry-After": "1"})

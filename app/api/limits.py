@@ -22,6 +22,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from app.api.deps import authenticate, presented_key
 from app.problems import PROBLEM_MEDIA_TYPE, problem
 
 _BODY_METHODS = {"POST", "PUT", "PATCH", "DELETE"}
@@ -46,7 +47,7 @@ def lone_surrogate_path(value: Any, path: tuple[str, ...] = ()) -> tuple[str, ..
     return None
 
 
-async def _send_problem(send: Send, status: int, title: str, detail: str, *, errors: list | None = None,
+async def send_problem(send: Send, status: int, title: str, detail: str, *, errors: list | None = None,
                         headers: dict[str, str] | None = None) -> None:
     body = json.dumps(problem(status, title, detail, errors=errors)).encode()
     raw = [(b"content-type", PROBLEM_MEDIA_TYPE.encode()), (b"content-length", str(len(body)).encode())]
@@ -82,8 +83,6 @@ class BodyLimitMiddleware:
         await self.app(scope, *self._counted(receive, send, limit))
 
     async def _authenticated(self, scope: Scope, headers: Headers, send: Send) -> bool:
-        from app.api.deps import authenticate, presented_key
-
         state = scope["app"].state
         keyring, throttle = getattr(state, "keyring", None), getattr(state, "login_throttle", None)
         if keyring is None or throttle is None:  # not started yet: the route refuses anyway
@@ -93,7 +92,7 @@ class BodyLimitMiddleware:
             await run_in_threadpool(authenticate, keyring, throttle, presented_key(headers), address)
         except HTTPException as exc:
             titles = {401: "Unauthorized", 429: "Too many requests"}
-            await _send_problem(send, exc.status_code, titles.get(exc.status_code, "Error"), str(exc.detail),
+            await send_problem(send, exc.status_code, titles.get(exc.status_code, "Error"), str(exc.detail),
                                 headers=exc.headers)
             return False
         return True
@@ -152,7 +151,7 @@ class BodyLimitMiddleware:
             if path is not None:
                 loc = ["body", *path]
                 msg = "a lone UTF-16 surrogate escape is not valid Unicode text"
-                await _send_problem(send, 422, "Unprocessable input", f"{'.'.join(loc)}: {msg}",
+                await send_problem(send, 422, "Unprocessable input", f"{'.'.join(loc)}: {msg}",
                                     errors=[{"loc": loc, "msg": msg}])
                 return
         replayed = False
@@ -168,5 +167,5 @@ class BodyLimitMiddleware:
 
     @staticmethod
     async def _too_large(send: Send, size: int, limit: int) -> None:
-        await _send_problem(send, 413, "Payload too large",
+        await send_problem(send, 413, "Payload too large",
                             f"the request body ({size} bytes or more) exceeds the limit of {limit} bytes")

@@ -180,7 +180,10 @@ class Viewer:
         return view.registry.snapshot()
 
     def snapshot(self, view_id: str = DEFAULT_VIEW) -> dict[str, Any]:
-        return self.view(view_id).registry.snapshot()
+        """What a view shows (an empty scene for a view nobody has focused or opened)."""
+        with self._lock:
+            view = self._views.get(view_id)
+        return (view.registry if view is not None else SceneRegistry()).snapshot()
 
     def _draw(self, view: View, drawer: _Drawer, scene: FocusScene) -> None:
         try:
