@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import httpx
 
+from tests.async_run import run_async
+
 JOB = {"kind": "test_sleep", "params": {"seconds": 0}}
 
 
@@ -57,7 +59,7 @@ async def _submit_all(base: str, key: str, clients: int, retries: int) -> Outcom
 
 
 def submit_all(base: str, key: str, clients: int, retries: int = 0) -> Outcome:
-    return asyncio.run(_submit_all(base, key, clients, retries))
+    return run_async(lambda: _submit_all(base, key, clients, retries))
 
 
 def count_jobs(base: str, key: str) -> int:

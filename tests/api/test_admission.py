@@ -9,6 +9,7 @@ import asyncio
 import httpx
 
 from app.api.admission import AdmissionMiddleware
+from tests.async_run import run_async
 
 
 def _app(release: asyncio.Event):  # type: ignore[no-untyped-def]
@@ -36,7 +37,7 @@ def test_over_capacity_requests_get_503_with_retry_after():
         return ([a.status_code for a in answers], [a.headers.get("retry-after") for a in answers],
                 stop.status_code, health.status_code)
 
-    codes, retry_after, stop, health = asyncio.run(scenario())
+    codes, retry_after, stop, health = run_async(scenario)
     assert sorted(codes) == [200] * 5 + [503] * 3
     assert all(r == "1" for c, r in zip(codes, retry_after) if c == 503)
     assert stop == 200 and health == 200
@@ -53,4 +54,4 @@ def test_a_request_that_waits_too_long_gets_503():
             release.set()
             return [(await first).status_code, second.status_code]
 
-    assert asyncio.run(scenario()) == [200, 503]
+    assert run_async(scenario) == [200, 503]

@@ -17,6 +17,7 @@ from websockets.exceptions import InvalidStatus
 
 from app.reference.s1 import s1_mesh
 from app.viewer.access import TokenError, TokenSigner, load_secret
+from tests.async_run import run_async
 from tests.conftest import auth
 from tests.viewer.conftest import free_port
 
@@ -60,7 +61,7 @@ def _handshake(port: int, token: str | None, origin: str | None) -> tuple[int, b
         except InvalidStatus as exc:
             return exc.response.status_code, exc.response.body or b""
 
-    return asyncio.run(attempt())
+    return run_async(attempt)
 
 
 def test_no_token_forged_or_expired_token_and_foreign_origins_are_refused(served):  # type: ignore[no-untyped-def]
@@ -145,7 +146,7 @@ def test_each_view_has_its_own_focus_drawn_only_into_its_own_browsers(served):  
             assert drawer_b.builder._handles == {}                  # B's browser got nothing
             assert drawer_a.target.client_id != drawer_b.target.client_id
 
-    asyncio.run(two_browsers())
+    run_async(two_browsers)
     scene_b = served.get("/api/v1/viewer/scene", params={"view_id": b["view_id"]}, headers=VIEWER).json()
     scene_a = served.get("/api/v1/viewer/scene", params={"view_id": a["view_id"]}, headers=VIEWER).json()
     assert scene_b["nodes"] == {} and scene_a["focus"] == {"part_id": part["id"]}
