@@ -1,7 +1,11 @@
 """API keys: static ones from settings and stored ones (only their sha256 is kept).
 
 Roles are ordered viewer < operator < admin.  Lookups of stored keys are cached for a
-few seconds per process; revoking through this process clears the cache at once.
+few seconds per process in a bounded LRU (unknown keys too, so a flood of random keys
+costs one query each and a fixed amount of memory); revoking through this process clears
+the cache at once.  Failed attempts are counted per client address: after
+``LoginThrottle.max_failures`` within ``window_s`` the address gets 429 until the window
+passes.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ import hmac
 import secrets
 import threading
 import time
+from collections import OrderedDict, deque
 
 from sqlalchemy import Engine, update
 from sqlmodel import Session, select
@@ -20,6 +25,7 @@ from app.models import ApiKey, new_id, utcnow
 
 ROLE_RANK = {role: rank for rank, role in enumerate(ROLES)}
 CACHE_TTL_S = 5.0
+CACHE_MAX_ENTRIES = 4096
 
 
 def hash_key(key: str) -> str:
@@ -40,10 +46,12 @@ class KeyRing:
     def __init__(self, engine: Engine, static_keys: dict[str, str]) -> None:
         self.engine = engine
         self._static = {hash_key(k): role for k, role in static_keys.items()}
-        self._cache: dict[str, tuple[str | None, float]] = {}
+        self._cache: OrderedDict[str, tuple[str | None, float]] = OrderedDict()
         self._lock = threading.Lock()
 
-    def role_of(self, key: str) -> str | None:
+    def role_of(self, key: str, *, lookup: bool = True) -> str | None:
+        """The key's role, or None if unknown or revoked.  ``lookup=False`` answers from
+        the static keys and the cache only (no database query: for throttled clients)."""
         digest = hash_key(key)
         for known, role in self._static.items():
             if hmac.compare_digest(known, digest):
@@ -51,14 +59,25 @@ class KeyRing:
         now = time.monotonic()
         with self._lock:
             cached = self._cache.get(digest)
+            if cached is not None:
+                self._cache.move_to_end(digest)
         if cached is not None and cached[1] > now:
             return cached[0]
+        if not lookup:
+            return None
         with Session(self.engine) as session:
             row = session.exec(select(ApiKey).where(ApiKey.key_sha256 == digest, ApiKey.revoked_at.is_(None))).first()
         role = row.role if row is not None else None
         with self._lock:
             self._cache[digest] = (role, now + CACHE_TTL_S)
+            self._cache.move_to_end(digest)
+            while len(self._cache) > CACHE_MAX_ENTRIES:
+                self._cache.popitem(last=False)
         return role
+
+    @property
+    def cache_size(self) -> int:
+        return len(self._cache)
 
     def create(self, role: str, name: str = "") -> tuple[ApiKey, str]:
         """Store a new key; returns the record and the key (shown once, never stored)."""
@@ -86,3 +105,38 @@ class KeyRing:
             return True
         with Session(self.engine) as session:
             return session.exec(select(ApiKey.id).where(ApiKey.revoked_at.is_(None))).first() is not None
+
+
+class LoginThrottle:
+    """Failed key attempts per client address in a sliding window (bounded memory)."""
+
+    def __init__(self, max_failures: int = 20, window_s: float = 60.0, max_addresses: int = 10_000,
+                 clock=time.monotonic) -> None:  # type: ignore[no-untyped-def]
+        self.max_failures = max_failures
+        self.window_s = window_s
+        self.max_addresses = max_addresses
+        self._clock = clock
+        self._failures: OrderedDict[str, deque[float]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def retry_after(self, address: str) -> int | None:
+        """Seconds until ``address`` may try again, or None when it is not throttled."""
+        now = self._clock()
+        with self._lock:
+            times = self._failures.get(address)
+            if not times:
+                return None
+            while times and times[0] <= now - self.window_s:
+                times.popleft()
+            if len(times) < self.max_failures:
+                return None
+            return max(1, int(times[0] + self.window_s - now + 0.999))
+
+    def failed(self, address: str) -> None:
+        now = self._clock()
+        with self._lock:
+            times = self._failures.setdefault(address, deque(maxlen=self.max_failures))
+            times.append(now)
+            self._failures.move_to_end(address)
+            while len(self._failures) > self.max_addresses:
+                self._failures.popitem(last=False)

@@ -39,6 +39,9 @@ class Settings(BaseSettings):
     viewer: bool = True
     viewer_host: str = "127.0.0.1"
     viewer_port: int = Field(8080, ge=1, le=65535)
+    viewer_token_ttl_s: float = Field(120.0, ge=5, le=86_400, description="life of a view token (checked at connect)")
+    viewer_origins: str = Field("", description="extra Origins allowed to open the view, comma-separated")
+    viewer_secret: str | None = Field(None, min_length=16, description="view token key; default <data_dir>/viewer.secret")
     embedded_worker: bool = True
     worker_threads: int = Field(2, ge=1, le=64)
     lease_s: float = Field(30.0, gt=0.5, le=3600)
@@ -50,6 +53,9 @@ class Settings(BaseSettings):
     max_unzipped_mb: float = Field(1000.0, gt=0, le=100_000)
     job_plugins: str = Field("", description="comma-separated modules that register extra job kinds")
     db_pool_size: int = Field(40, ge=1, le=1000)
+    max_active_requests: int = Field(24, ge=1, le=1000, description="API requests served at once (admission)")
+    max_waiting_requests: int = Field(2000, ge=0, le=100_000, description="requests queued beyond; more get 503")
+    request_wait_s: float = Field(30.0, gt=0, le=600, description="longest wait for a request slot before 503")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
     @field_validator("api_keys")

@@ -12,12 +12,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import fcntl
 
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy import Engine, create_engine, event, select, text, update
 from sqlalchemy.pool import NullPool
 from sqlmodel import Session
 
@@ -50,6 +51,7 @@ def make_engine(settings: Settings) -> Engine:
             connect_args={"check_same_thread": False, "timeout": 10},
             pool_size=settings.db_pool_size,
             max_overflow=settings.db_pool_size,
+            pool_timeout=10,  # then a 503 with Retry-After (app.api.errors), never a 30 s hang
             pool_pre_ping=False,
         )
         event.listen(engine, "connect", _apply_sqlite_pragmas)
@@ -99,3 +101,26 @@ def migrate(settings: Settings, revision: str = "head") -> None:
                 conn.execute(text("SELECT pg_advisory_unlock(:key)"), {"key": _PG_MIGRATION_LOCK})
     finally:
         engine.dispose()
+
+
+def lock_for_delete(session: Session, table: Any, ids: list[str]) -> int:
+    """Lock rows of ``table`` (a SQLModel class with an ``id``) against concurrent readers that
+    lock with :func:`existing_locked`, inside the session's transaction; returns how many exist.
+
+    SQLite: the no-op UPDATE takes the database's write lock, so what this transaction reads
+    next is current and no other writer commits until it ends.  PostgreSQL: ``FOR UPDATE``
+    row locks, which conflict with the ``FOR SHARE`` of :func:`existing_locked`.
+    """
+    if not ids:
+        return 0
+    session.execute(update(table).where(table.id.in_(ids)).values(id=table.id))
+    return len(session.execute(select(table.id).where(table.id.in_(ids)).with_for_update()).all())
+
+
+def existing_locked(session: Session, table: Any, ids: list[str]) -> set[str]:
+    """The ids of ``table`` that exist, read under a lock that keeps them from being deleted
+    before the transaction ends.  Call after the transaction's first write (on SQLite that
+    write holds the database lock, so the answer is current)."""
+    if not ids:
+        return set()
+    return set(session.execute(select(table.id).where(table.id.in_(ids)).with_for_update(read=True)).scalars())

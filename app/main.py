@@ -13,9 +13,12 @@ from fastapi_offline import FastAPIOffline
 
 import app as app_package
 from app.api import circuits, files, jobs, machines, parts, programs, reports, system, traces, viewer as viewer_api
+from app.api.admission import AdmissionMiddleware
 from app.api.errors import install_error_handlers
+from app.api.headers import SecurityHeadersMiddleware
 from app.api.limits import BodyLimitMiddleware
-from app.auth import KeyRing
+from app.api.openapi_errors import document_error_responses
+from app.auth import KeyRing, LoginThrottle
 from app.config import Settings
 from app.db import migrate
 from app.jobs.runtime import QUEUES, Runtime
@@ -34,6 +37,7 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
         runtime = Runtime(settings)
         api.state.runtime = runtime
         api.state.keyring = KeyRing(runtime.engine, settings.static_keys())
+        api.state.login_throttle = LoginThrottle()
         # This process owns the serial ports: it always consumes the machine queue (and the
         # workflows that drive machines).
         embedded = settings.embedded_worker if start_workers is None else start_workers
@@ -59,10 +63,18 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
     )
     api.state.settings = settings
     install_error_handlers(api)
+    # Outermost last: security headers -> admission -> authentication and size limits.
     api.add_middleware(BodyLimitMiddleware, upload_bytes=int(settings.max_upload_mb * 2**20),
                        json_bytes=int(settings.max_json_mb * 2**20))
-    for router in (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router,
-                   files.router, viewer_api.router, reports.router, circuits.router):
+    # Each admitted request holds at most two pooled connections: never admit more than the
+    # pool (pool_size + overflow = 2 x db_pool_size) can serve next to the workers.
+    api.add_middleware(AdmissionMiddleware, max_active=min(settings.max_active_requests, settings.db_pool_size),
+                       max_waiting=settings.max_waiting_requests, wait_s=settings.request_wait_s)
+    api.add_middleware(SecurityHeadersMiddleware)
+    routers = (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router,
+               files.router, viewer_api.router, reports.router, circuits.router)
+    document_error_responses(routers)
+    for router in routers:
         api.include_router(router)
     if WEB_DIR.is_dir():
         api.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")

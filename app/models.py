@@ -189,3 +189,17 @@ class CircuitImport(SQLModel, table=True):
     pads: list = Field(sa_column=Column(JSON, nullable=False))
     areas: list = Field(sa_column=Column(JSON, nullable=False))
     created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False))
+
+class IdempotencyRecord(SQLModel, table=True):
+    """The answer to a creating POST sent with an ``Idempotency-Key`` (per API key), written in
+    the transaction that creates the record, so that a retry gets the same record back."""
+
+    __tablename__ = "idempotency_keys"
+    owner: str = Field(primary_key=True, max_length=64)  # sha256 of the API key
+    key: str = Field(primary_key=True, max_length=255)
+    scope: str = Field(max_length=300)  # "POST /api/v1/parts"
+    request_sha256: str = Field(max_length=64)
+    status_code: int
+    body: dict = Field(sa_column=Column(JSON, nullable=False))
+    location: str | None = Field(default=None, max_length=300)
+    created_at: datetime = Field(sa_column=Column(DateTime(timezone=True), nullable=False, index=True))

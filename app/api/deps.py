@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import AsyncIterator
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Query, Request, Security
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 from sqlmodel import Session
 
-from app.auth import KeyRing, role_allows
+from app.auth import KeyRing, LoginThrottle, hash_key, role_allows
 from app.jobs.runtime import Runtime
 
 _bearer = HTTPBearer(auto_error=False, description="API key as a bearer token")
@@ -35,23 +35,47 @@ async def get_session(runtime: Annotated[Runtime, Depends(get_runtime)]) -> Asyn
         session.close()
 
 
+def authenticate(keyring: KeyRing, throttle: LoginThrottle, key: str | None, address: str) -> str:
+    """The role of ``key``; 401 when missing or unknown, 429 (Retry-After) for an address
+    with too many recent failures (a valid key still works from it)."""
+    if not key:
+        raise HTTPException(401, "an API key is required (Authorization: Bearer <key> or X-API-Key)",
+                            headers={"WWW-Authenticate": "Bearer"})
+    wait = throttle.retry_after(address)
+    role = keyring.role_of(key, lookup=wait is None)  # static and cached keys: no I/O on the hot path
+    if role is None:
+        if wait is not None:
+            raise HTTPException(429, f"too many failed API key attempts from {address}; retry in {wait} s",
+                                headers={"Retry-After": str(wait)})
+        throttle.failed(address)
+        raise HTTPException(401, "the API key is not valid (unknown or revoked)", headers={"WWW-Authenticate": "Bearer"})
+    return role
+
+
+def presented_key(headers: Any) -> str | None:
+    """The key of ``Authorization: Bearer <key>`` or ``X-API-Key``."""
+    scheme, _, credentials = (headers.get("authorization") or "").partition(" ")
+    if scheme.lower() == "bearer" and credentials.strip():
+        return credentials.strip()
+    return headers.get("x-api-key") or None
+
+
 def _require(need: str):  # type: ignore[no-untyped-def]
     async def check(
+        request: Request,
         keyring: Annotated[KeyRing, Depends(get_keyring)],
         bearer: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)] = None,
         header_key: Annotated[str | None, Security(_header)] = None,
     ) -> str:
         key = bearer.credentials if bearer is not None else header_key
-        if not key:
-            raise HTTPException(401, "an API key is required (Authorization: Bearer <key> or X-API-Key)",
-                                headers={"WWW-Authenticate": "Bearer"})
-        role = keyring.role_of(key)  # static keys and cached stored keys: no I/O on the hot path
-        if role is None:
-            raise HTTPException(401, "the API key is not valid (unknown or revoked)", headers={"WWW-Authenticate": "Bearer"})
+        address = request.client.host if request.client else "unknown"
+        role = authenticate(keyring, request.app.state.login_throttle, key, address)
         if not role_allows(role, need):
             raise HTTPException(403, f"this needs the {need} role; the key has the {role} role")
+        request.state.key_sha256 = hash_key(key or "")  # whose Idempotency-Keys these are
         return role
 
+    check.needs_role = need  # type: ignore[attr-defined]  # read by app.api.openapi_errors
     return check
 
 

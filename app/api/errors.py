@@ -7,6 +7,8 @@ import logging
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import IntegrityError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.errors import ConformaError
@@ -14,7 +16,9 @@ from app.problems import PROBLEM_MEDIA_TYPE, _short, from_error, problem
 
 log = logging.getLogger("conforma.api")
 _TITLES = {400: "Bad request", 401: "Unauthorized", 403: "Forbidden", 404: "Not found", 405: "Method not allowed",
-           409: "Conflict", 413: "Payload too large", 415: "Unsupported media type", 422: "Unprocessable input"}
+           409: "Conflict", 413: "Payload too large", 415: "Unsupported media type", 422: "Unprocessable input",
+           429: "Too many requests", 503: "Service busy"}
+BUSY_RETRY_AFTER_S = 1
 
 
 def _respond(body: dict, headers: dict | None = None) -> JSONResponse:
@@ -45,6 +49,25 @@ def install_error_handlers(app: FastAPI) -> None:
         detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
         return _respond(problem(exc.status_code, _TITLES.get(exc.status_code, "Error"), detail),
                         headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(PoolTimeout)
+    async def _pool_busy(_request: Request, _exc: PoolTimeout) -> JSONResponse:
+        return _respond(problem(503, "Service busy", "no database connection became free in time; retry later"),
+                        headers={"Retry-After": str(BUSY_RETRY_AFTER_S)})
+
+    @app.exception_handler(OperationalError)
+    async def _db_busy(request: Request, exc: OperationalError) -> JSONResponse:
+        if "locked" not in str(exc.orig) and "busy" not in str(exc.orig):
+            return await _bug(request, exc)
+        return _respond(problem(503, "Service busy", "the database is busy; retry later"),
+                        headers={"Retry-After": str(BUSY_RETRY_AFTER_S)})
+
+    @app.exception_handler(IntegrityError)
+    async def _integrity(request: Request, exc: IntegrityError) -> JSONResponse:
+        # A record changed under the request (e.g. deleted meanwhile): nothing was written.
+        log.info("integrity conflict on %s %s: %s", request.method, request.url.path, exc.orig)
+        return _respond(problem(409, "Conflict", "a record this request refers to changed meanwhile "
+                                "(created or deleted by another request); nothing was written"))
 
     @app.exception_handler(Exception)
     async def _bug(request: Request, exc: Exception) -> JSONResponse:

@@ -8,12 +8,14 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, File, Response, UploadFile
+from fastapi import APIRouter, File, Request, Response, UploadFile
 from pydantic import BaseModel
 from sqlalchemy import func
 from sqlmodel import select
 
+from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
+from app.api.downloads import attachment
 from app.api.schemas import Page, UtcDatetime
 from app.errors import InvalidInput
 from app.models import UploadedFile, new_id, utcnow
@@ -53,16 +55,22 @@ def media_type_of(name: str, data: bytes) -> str:
 
 
 @router.post("", status_code=201, dependencies=[Operator])
-def upload_file(runtime: RuntimeDep, session: SessionDep, file: Annotated[UploadFile, File()]) -> FileOut:
+def upload_file(runtime: RuntimeDep, session: SessionDep, request: Request, file: Annotated[UploadFile, File()],
+                idempotency_key: idempotency.IdempotencyKey = None) -> FileOut:
     """Upload a data file for jobs (PNG, NPZ/NPY, CSV, JSON, text)."""
     data = file.file.read()
+    claim = idempotency.claim(request, idempotency_key, data, file.filename or "")
+    replayed = idempotency.replay(session, claim)
+    if replayed is not None:
+        return replayed  # type: ignore[return-value]
     name = (file.filename or "file").rsplit("/", 1)[-1][:200]
     media = media_type_of(name, data)
     row = UploadedFile(id=new_id("file"), name=name, media_type=media, bytes=len(data),
                        sha256=runtime.blobs.put(session, data), created_at=utcnow())
     session.add(row)
-    session.commit()
-    return FileOut(**row.model_dump())
+    out = FileOut(**row.model_dump())
+    idempotency.remember(session, claim, 201, out)
+    return idempotency.commit(session, claim) or out  # type: ignore[return-value]
 
 
 @router.get("", dependencies=[Viewer])
@@ -81,4 +89,4 @@ def get_file(file_id: str, session: SessionDep) -> FileOut:
 def download_file(file_id: str, runtime: RuntimeDep, session: SessionDep) -> Response:
     row = get_or_404(session, UploadedFile, file_id, field="file_id")
     return Response(runtime.blobs.read(row.sha256), media_type=row.media_type,
-                    headers={"Content-Disposition": f'attachment; filename="{row.name}"'})
+                    headers={"Content-Disposition": attachment(row.name)})

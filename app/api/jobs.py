@@ -8,11 +8,13 @@ from datetime import datetime, timezone
 from collections.abc import Iterator
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Header, Query, Response
+from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import StreamingResponse
 from sqlalchemy import bindparam, func
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
+from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page
 from app.errors import Conflict, NotFound
@@ -44,11 +46,29 @@ def load_job_out(session: Session, job_id: str) -> JobOut:
 
 
 @router.post("", status_code=202, dependencies=[Operator])
-def submit_job(body: JobCreate, runtime: RuntimeDep, session: SessionDep, response: Response) -> JobOut:
-    """Queue a job; its parameters are checked now (422), not when it runs."""
-    job = runtime.submit(body.kind, body.params)
+def submit_job(body: JobCreate, runtime: RuntimeDep, session: SessionDep, request: Request, response: Response,
+               idempotency_key: idempotency.IdempotencyKey = None) -> JobOut:
+    """Queue a job; its parameters are checked now (422), not when it runs.  The job exists
+    exactly when this 202 is sent: it is created in one transaction (with its references
+    re-checked under a lock and the Idempotency-Key's answer) and the answer is built from
+    that transaction's record, with no further query that could fail after it."""
+    claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
+    replayed = idempotency.replay(session, claim)
+    if replayed is not None:
+        return replayed  # type: ignore[return-value]
+
+    def remember(tx: Session, job: Job) -> None:
+        idempotency.remember(tx, claim, 202, job_out(job, []), f"/api/v1/jobs/{job.id}")
+
+    try:
+        job = runtime.submit(body.kind, body.params, before_commit=remember if claim else None)
+    except IntegrityError:
+        winner = idempotency.lost_race(session, claim)
+        if winner is None:
+            raise
+        return winner  # type: ignore[return-value]
     response.headers["Location"] = f"/api/v1/jobs/{job.id}"
-    return load_job_out(session, job.id)
+    return job_out(job, [])
 
 
 @router.get("", dependencies=[Viewer])

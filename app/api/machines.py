@@ -7,9 +7,10 @@ running program: pause/resume/stop go straight to the machine (stop is out of ba
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 from sqlmodel import Session, select
 
+from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.jobs import load_job_out
 from app.api.machine_schemas import MachineCreate, MachineOut, MockSettings, PrintRequest, ProgramState
@@ -49,8 +50,12 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
 
 
 @router.post("", status_code=201, dependencies=[Operator])
-def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionDep, request: Request,
+                     idempotency_key: idempotency.IdempotencyKey = None) -> MachineOut:
     """Register a machine (a real port, socket:// or the mock firmware)."""
+    claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
+    if (replayed := idempotency.replay(session, claim)) is not None:
+        return replayed  # type: ignore[return-value]
     is_mock = body.port.startswith("mock://")
     if body.mock is not None and not is_mock:
         raise InvalidInput("mock settings need a mock:// port", field="mock", value=body.port)
@@ -65,8 +70,9 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
     row = Machine(id=new_id("mach"), name=body.name, port=body.port, baudrate=body.baudrate, dialect=body.dialect,
                   profile=body.profile.model_dump(), mock=mock, created_at=utcnow())
     session.add(row)
-    session.commit()
-    return machine_out(runtime, row)
+    out = machine_out(runtime, row)
+    idempotency.remember(session, claim, 201, out)
+    return idempotency.commit(session, claim) or out  # type: ignore[return-value]
 
 
 @router.get("", dependencies=[Viewer])

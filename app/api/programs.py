@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, File, Response, UploadFile
+from fastapi import APIRouter, File, Request, Response, UploadFile
 from sqlalchemy import func
 from sqlmodel import select
 
+from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
+from app.api.downloads import attachment
 from app.api.machine_schemas import ProgramOut
 from app.api.schemas import Page
 from app.errors import InvalidInput
@@ -20,10 +22,15 @@ router = APIRouter(prefix="/api/v1/programs", tags=["programs"])
 
 
 @router.post("", status_code=201, dependencies=[Operator])
-def upload_program(runtime: RuntimeDep, session: SessionDep,
-                   file: Annotated[UploadFile, File(description="G-code text")]) -> ProgramOut:
+def upload_program(runtime: RuntimeDep, session: SessionDep, request: Request,
+                   file: Annotated[UploadFile, File(description="G-code text")],
+                   idempotency_key: idempotency.IdempotencyKey = None) -> ProgramOut:
     """Upload a G-code program (422 if it is not G-code text)."""
     data = file.file.read()
+    claim = idempotency.claim(request, idempotency_key, data, file.filename or "")
+    replayed = idempotency.replay(session, claim)
+    if replayed is not None:
+        return replayed  # type: ignore[return-value]
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -35,8 +42,9 @@ def upload_program(runtime: RuntimeDep, session: SessionDep,
                       lines=meta["lines"], commands=meta["commands"], commands_sha256=meta["commands_sha256"],
                       bounds=meta["bounds"], created_at=utcnow())
     session.add(program)
-    session.commit()
-    return ProgramOut(**program.model_dump())
+    out = ProgramOut(**program.model_dump())
+    idempotency.remember(session, claim, 201, out)
+    return idempotency.commit(session, claim) or out  # type: ignore[return-value]
 
 
 @router.get("", dependencies=[Viewer])
@@ -55,4 +63,4 @@ def get_program(program_id: str, session: SessionDep) -> ProgramOut:
 def download_program(program_id: str, runtime: RuntimeDep, session: SessionDep) -> Response:
     program = get_or_404(session, Program, program_id)
     return Response(runtime.blobs.read(program.sha256), media_type="text/x-gcode",
-                    headers={"Content-Disposition": f'attachment; filename="{program.name}"'})
+                    headers={"Content-Disposition": attachment(program.name)})

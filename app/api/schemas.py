@@ -17,8 +17,11 @@ def _as_utc(value: datetime) -> datetime:
 
 UtcDatetime = Annotated[datetime, AfterValidator(_as_utc)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
-XY = Annotated[list[Finite], Field(min_length=2, max_length=2)]
-XYorXYZ = Annotated[list[Finite], Field(min_length=2, max_length=3)]
+# Coordinates in mm are finite and bounded (±1e6 mm = 1 km, as app.api.part_checks): beyond,
+# squares and cross products overflow (±1e308 gave 500s); a 422 names the coordinate.
+Coordinate = Annotated[float, Field(allow_inf_nan=False, ge=-1e6, le=1e6)]
+XY = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
+XYorXYZ = Annotated[list[Coordinate], Field(min_length=2, max_length=3)]
 
 
 class Strict(BaseModel):
@@ -63,9 +66,9 @@ class LineGeometry(Strict):
 class ArcGeometry(Strict):
     type: Literal["arc"]
     center: XY
-    radius: Finite = Field(gt=0)
-    start_deg: Finite
-    end_deg: Finite
+    radius: Finite = Field(gt=0, le=1e6)
+    start_deg: Finite = Field(ge=-1e6, le=1e6)
+    end_deg: Finite = Field(ge=-1e6, le=1e6)
 
 
 class PolylineGeometry(Strict):

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Body
+from fastapi import APIRouter, Body, Request, Response
 from sqlalchemy import func
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
+from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, TraceCreate, TraceOut
-from app.errors import Conflict
+from app.db import lock_for_delete
+from app.errors import Conflict, NotFound
 from app.models import JobReference, Part, Trace
 from app.records import build_trace, get_or_404
 
@@ -25,24 +28,47 @@ def trace_out(trace: Trace) -> TraceOut:
 
 
 @router.post("/parts/{part_id}/traces", status_code=201, dependencies=[Operator])
-def create_trace(part_id: str, body: TraceCreate, runtime: RuntimeDep, session: SessionDep) -> TraceOut:
-    """Create a trace; 422 if it leaves the part's surface (naming the first offending point)."""
+def create_trace(part_id: str, body: TraceCreate, runtime: RuntimeDep, session: SessionDep, request: Request,
+                 idempotency_key: idempotency.IdempotencyKey = None) -> TraceOut:
+    """Create a trace; 422 if it leaves the part's surface (naming the first offending point);
+    404 if the part does not exist (also when it is deleted while the trace is built)."""
+    claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
+    replayed = idempotency.replay(session, claim)
+    if replayed is not None:
+        return replayed  # type: ignore[return-value]
     part = get_or_404(session, Part, part_id)
     trace = build_trace(runtime.meshes, part, body)
+    out = trace_out(trace)
     session.add(trace)
-    session.commit()
-    return trace_out(trace)
+    idempotency.remember(session, claim, 201, out)
+    return _commit(session, claim, part_id) or out  # type: ignore[return-value]
 
 
 @router.post("/parts/{part_id}/traces:import", status_code=201, dependencies=[Operator])
-def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep,
-                  body: Annotated[list[TraceCreate], Body(min_length=1, max_length=MAX_IMPORT)]) -> Page[TraceOut]:
+def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep, request: Request,
+                  body: Annotated[list[TraceCreate], Body(min_length=1, max_length=MAX_IMPORT)],
+                  idempotency_key: idempotency.IdempotencyKey = None) -> Page[TraceOut]:
     """Create many traces at once: all or nothing (the first bad one is named by its index)."""
+    claim = idempotency.claim(request, idempotency_key, *(idempotency.canonical(item) for item in body))
+    replayed = idempotency.replay(session, claim)
+    if replayed is not None:
+        return replayed  # type: ignore[return-value]
     part = get_or_404(session, Part, part_id)
     traces = [build_trace(runtime.meshes, part, item, field_prefix=str(i)) for i, item in enumerate(body)]
+    out = Page(items=[trace_out(t) for t in traces], total=len(traces))
     session.add_all(traces)
-    session.commit()
-    return Page(items=[trace_out(t) for t in traces], total=len(traces))
+    idempotency.remember(session, claim, 201, out)
+    return _commit(session, claim, part_id) or out  # type: ignore[return-value]
+
+
+def _commit(session: Session, claim: idempotency.Claim | None, part_id: str) -> Response | None:
+    """Commit new traces: the foreign key refuses them if the part was deleted meanwhile (404);
+    a concurrent request with the same Idempotency-Key wins and is replayed."""
+    try:
+        return idempotency.commit(session, claim)
+    except IntegrityError:
+        raise NotFound(f"part {part_id!r} does not exist (deleted while the trace was built)",
+                       field="part_id", value=part_id) from None
 
 
 @router.get("/parts/{part_id}/traces", dependencies=[Viewer])
@@ -62,9 +88,17 @@ def get_trace(trace_id: str, session: SessionDep) -> TraceOut:
 
 @router.delete("/traces/{trace_id}", status_code=204, dependencies=[Operator])
 def delete_trace(trace_id: str, session: SessionDep) -> None:
-    """Delete a trace; 409 while jobs reference it."""
+    """Delete a trace; 409 while jobs reference it (checked under the trace's lock, so a job
+    submitted at the same moment either is seen here or finds the trace gone)."""
+    if not lock_for_delete(session, Trace, [trace_id]):
+        session.rollback()
+        raise NotFound(f"trace {trace_id!r} does not exist", field="trace_id", value=trace_id)
     trace = get_or_404(session, Trace, trace_id)
-    _refuse_if_referenced(session, trace_id)
+    try:
+        _refuse_if_referenced(session, trace_id)
+    except Conflict:
+        session.rollback()
+        raise
     session.delete(trace)
     session.commit()
 

@@ -1,14 +1,17 @@
-"""The 3D view: where it is, what it shows, and what to show next.
+"""The 3D view: where it is, how to open it, what it shows, and what to show next.
 
-The web pages embed the viser view (an iframe to its port) and tell it which part or
-job to show; the view reads the records itself.  Nothing here moves a machine.
+The web pages ask for a short-lived view token (``POST /viewer/token``), embed the viser
+view (an iframe to its port, the token in its websocket URL) and tell that view which
+part or job to show; the view reads the records itself.  Each view (``view_id``) has its
+own focus.  Nothing here moves a machine.
 """
 
 from __future__ import annotations
 
-from typing import Any
+import time
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request
 from pydantic import BaseModel, Field, model_validator
 
 from app.api.deps import Viewer as ViewerRole
@@ -24,8 +27,25 @@ class ViewerInfo(BaseModel):
     url: str | None = Field(None, description="the view's URL as seen from the server")
 
 
+ViewId = Annotated[str, Field(min_length=1, max_length=40, pattern=r"^[A-Za-z0-9_-]+$",
+                              description="the view (from POST /viewer/token) whose focus this is")]
+
+
+class TokenRequest(BaseModel):
+    model_config = {"extra": "forbid"}
+    view_id: ViewId | None = Field(None, description="renew a token for this view; a new view when omitted")
+
+
+class ViewToken(BaseModel):
+    token: str = Field(description="pass as ?token= in the view's websocket URL; checked when it connects")
+    view_id: str
+    expires_in_s: float = Field(description="seconds left to connect with it")
+    port: int = Field(description="the view's port: open http://<host>:<port>/?websocket=<ws://<host>:<port>/?token=...>")
+
+
 class FocusRequest(BaseModel):
     model_config = {"extra": "forbid"}
+    view_id: ViewId = Field("default", description="the view to change (its own focus)")
     part_id: str | None = Field(None, max_length=40, description="show this part and its traces")
     job_id: str | None = Field(None, max_length=40, description="show this job's results (and its part)")
 
@@ -62,14 +82,24 @@ def viewer_info(request: Request) -> ViewerInfo:
     return ViewerInfo(enabled=True, host=viewer.host, port=viewer.port, url=viewer.url)
 
 
+@router.post("/token", dependencies=[ViewerRole], responses={409: {"description": "the view is off"}})
+def viewer_token(body: TokenRequest, request: Request) -> ViewToken:
+    """A short-lived token that opens the 3D view (any role may view)."""
+    viewer = _viewer(request)
+    minted = viewer.guard.signer.mint(body.view_id)
+    return ViewToken(token=minted.token, view_id=minted.view_id, expires_in_s=round(minted.expires_at - time.time(), 3),
+                     port=viewer.port)
+
+
 @router.get("/scene", dependencies=[ViewerRole], responses={409: {"description": "the view is off"}})
-def viewer_scene(request: Request) -> SceneOut:
-    """What the view shows now: nodes, toggles, plots and sliders."""
-    return SceneOut(**_viewer(request).snapshot())
+def viewer_scene(request: Request, view_id: Annotated[str, Query(min_length=1, max_length=40,
+                 pattern=r"^[A-Za-z0-9_-]+$")] = "default") -> SceneOut:
+    """What a view shows now: nodes, toggles, plots and sliders."""
+    return SceneOut(**_viewer(request).snapshot(view_id))
 
 
 @router.post("/focus", dependencies=[ViewerRole],
              responses={404: {"description": "no such part or job"}, 409: {"description": "the view is off"}})
 def viewer_focus(body: FocusRequest, request: Request) -> SceneOut:
-    """Show a part (mesh and traces) or a job's results in the view; returns what is shown."""
-    return SceneOut(**_viewer(request).focus(part_id=body.part_id, job_id=body.job_id))
+    """Show a part (mesh and traces) or a job's results in one view; returns what is shown."""
+    return SceneOut(**_viewer(request).focus(part_id=body.part_id, job_id=body.job_id, view_id=body.view_id))

@@ -16,6 +16,7 @@ import os
 import socket
 import sqlite3
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from huey import RedisHuey, SqliteHuey
@@ -27,7 +28,7 @@ from sqlmodel import Session
 import app
 from app.blobs import BlobStore
 from app.config import Settings
-from app.db import make_engine
+from app.db import existing_locked, make_engine
 from app.errors import Cancelled, ConformaError, InvalidInput, NotFound
 from app.jobs.context import JobContext
 from app.jobs.registry import JobKind, get_kind, load_kinds
@@ -92,6 +93,19 @@ def _param_holding(params: Any, value: str, ref_kind: str) -> str:
     return find(params.model_dump(), "") or f"{ref_kind}_id"
 
 
+_REFERENCED = {"part": Part, "trace": Trace, "job": Job, "machine": MachineRow}
+
+
+def _recheck_references(session: Session, references: list[tuple[str, str]], validated: Any) -> None:
+    """After the job's rows are written (the transaction holds the write lock): every
+    referenced record still exists, else NotFound naming the parameter (rolled back)."""
+    for ref_kind, ref_id in references:
+        model = _REFERENCED.get(ref_kind)
+        if model is not None and not existing_locked(session, model, [ref_id]):
+            raise NotFound(f"{ref_kind} {ref_id!r} was deleted while the job was being submitted",
+                           field=f"params.{_param_holding(validated, ref_id, ref_kind)}", value=ref_id)
+
+
 def _canonical_hash(value: Any) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -135,8 +149,14 @@ class Runtime:
             raise InvalidInput(f"{loc}: {first['msg']}", field=loc, value=first.get("input")) from None
         return kind, validated
 
-    def submit(self, kind_name: str, params: dict[str, Any], *, parent_id: str | None = None) -> Job:
-        """Validate, record (with input hashes) and enqueue a job.  Raises before writing on bad input."""
+    def submit(self, kind_name: str, params: dict[str, Any], *, parent_id: str | None = None,
+               before_commit: Callable[[Session, Job], None] | None = None) -> Job:
+        """Validate, record (with input hashes) and enqueue a job.  Raises before writing on bad input.
+
+        The references are checked again under a lock after the job is written, so a record
+        deleted meanwhile is a 404 naming it and never a job pointing at nothing.
+        ``before_commit(session, job)`` may add rows to the job's transaction (the API's
+        idempotency record)."""
         kind, validated = self.validate(kind_name, params)
         references = kind.references(validated)
         with Session(self.engine, expire_on_commit=False) as session:
@@ -167,6 +187,10 @@ class Runtime:
             session.flush()
             for ref_kind, ref_id in dict.fromkeys(references):
                 session.add(JobReference(job_id=job.id, ref_kind=ref_kind, ref_id=ref_id))
+            session.flush()
+            _recheck_references(session, references, validated)
+            if before_commit is not None:
+                before_commit(session, job)
             session.commit()
         self.enqueue(job.id, job.queue)
         return job

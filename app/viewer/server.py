@@ -1,16 +1,20 @@
 """The viser 3D view, started next to the API (bound to 127.0.0.1 by default).
 
-viser has no authentication: nothing in it can move a machine (the panel only changes
-what is shown).  The web pages tell the view what to show through the API
-(``POST /api/v1/viewer/focus``); the view reads job records and artifacts through the
-runtime.  The server's port is read back, since viser silently moves to the next port
-when the asked one is busy.
+Access: every websocket needs a short-lived signed token from the API and an allowed
+Origin (``app.viewer.access``); without them the handshake is refused and nothing —
+no names, ids or meshes — is sent.  Each token names a *view*; each view has its own
+focus, drawn into the per-client scenes of the browsers opened with that view's tokens
+(never into the shared scene), so one operator's focus never changes what another sees.
+Nothing in the view can move a machine (the panel only changes what is shown).  The
+server's port is read back, since viser silently moves to the next port when the asked
+one is busy.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -18,7 +22,9 @@ from sqlmodel import Session, select
 
 from app.config import Settings
 from app.models import Job, Part
+from app.viewer.access import HandshakeGuard, TokenSigner, allowed_origins, guarded_viser_serve, load_secret
 from app.viewer.gui import ViewerPanel
+from app.viewer.headless import HeadlessTarget
 from app.viewer.loaders import load_focus
 from app.viewer.offload import ParsePool
 from app.viewer.registry import SceneRegistry
@@ -27,22 +33,51 @@ from app.viewer.scenes import SceneBuilder
 
 log = logging.getLogger("conforma.viewer")
 JOB_LIST_LIMIT = 50
+DEFAULT_VIEW = "default"
+MAX_VIEWS = 256
+
+
+class ViewerStartError(RuntimeError):
+    """The view could not be started with its access check in place."""
+
+
+@dataclass
+class _Drawer:
+    """One drawing target (a browser's client handle, or the headless recorder)."""
+
+    target: Any
+    builder: SceneBuilder
+    panel: ViewerPanel
+
+
+@dataclass
+class View:
+    """One view's focus: its registry (what it shows), last scene and drawers."""
+
+    registry: SceneRegistry
+    headless: _Drawer
+    scene: FocusScene | None = None
+    camera: tuple[np.ndarray, np.ndarray, float, float] | None = None  # look_at, position, near, far
+    clients: dict[int, _Drawer] = field(default_factory=dict)
 
 
 class Viewer:
-    """A running viser server with the Conforma scenes and panel."""
+    """A running viser server with per-view Conforma scenes and panels."""
 
-    def __init__(self, server: Any, runtime: Any = None, host: str = "127.0.0.1") -> None:
+    def __init__(self, server: Any, runtime: Any = None, host: str = "127.0.0.1",
+                 guard: HandshakeGuard | None = None) -> None:
         self.server = server
         self.runtime = runtime
         self.host = host
-        self.registry = SceneRegistry()
-        self.builder = SceneBuilder(server, self.registry)
-        self._lock = threading.Lock()
+        self.guard = guard
+        self._lock = threading.RLock()
         self.parser = ParsePool()
-        self.panel = ViewerPanel(server, self.builder, self.registry, self._select_from_panel, self._recent)
-        if runtime is not None:
-            self.panel.refresh_jobs()
+        self._views: dict[str, View] = {}
+        self._client_views: dict[int, str] = {}
+        if guard is not None:
+            server._websock_server.on_client_connect(self._on_socket)
+        server.on_client_connect(self._on_client)
+        server.on_client_disconnect(self._on_client_gone)
 
     @property
     def port(self) -> int:
@@ -56,53 +91,117 @@ class Viewer:
         self.parser.close()
         self.server.stop()
 
+    # views -----------------------------------------------------------------------------
+    def view(self, view_id: str = DEFAULT_VIEW) -> View:
+        with self._lock:
+            view = self._views.get(view_id)
+            if view is None:
+                if len(self._views) >= MAX_VIEWS:  # forget the oldest view without browsers
+                    idle = next((k for k, v in self._views.items() if not v.clients and k != DEFAULT_VIEW), None)
+                    if idle is not None:
+                        del self._views[idle]
+                registry = SceneRegistry()
+                view = View(registry, self._drawer(HeadlessTarget(), registry, view_id))
+                self._views[view_id] = view
+            return view
+
+    def _drawer(self, target: Any, registry: SceneRegistry, view_id: str) -> _Drawer:
+        builder = SceneBuilder(target, registry)
+
+        def select(part_id: str | None, job_id: str | None) -> None:
+            self._select_from_panel(view_id, part_id, job_id)
+
+        return _Drawer(target, builder, ViewerPanel(target, builder, registry, select, self._recent))
+
+    @property
+    def builder(self) -> SceneBuilder:
+        """The default view's recording builder (tests read its nodes)."""
+        return self.view().headless.builder
+
+    @property
+    def registry(self) -> SceneRegistry:
+        return self.view().registry
+
+    # connections -------------------------------------------------------------------------
+    def _on_socket(self, conn: Any) -> None:
+        """A websocket passed the handshake: note which view its token named."""
+        raw = getattr(self.server._websock_server, "_live_connections", {}).get(conn.client_id)
+        view_id = self.guard.view_of(raw) if (self.guard is not None and raw is not None) else None
+        if view_id is None:
+            log.error("viewer: no view for client %s; it will show nothing", conn.client_id)
+            return
+        with self._lock:
+            self._client_views[conn.client_id] = view_id
+
+    def _on_client(self, client: Any) -> None:
+        """A browser is ready: give it its own panel and draw its view's focus."""
+        with self._lock:
+            view_id = self._client_views.get(client.client_id, None if self.guard is not None else DEFAULT_VIEW)
+            if view_id is None:
+                return
+            view = self.view(view_id)
+            drawer = self._drawer(client, view.registry, view_id)
+            view.clients[client.client_id] = drawer
+            scene = view.scene
+        drawer.panel.refresh_jobs()
+        if scene is not None:
+            self._draw(view, drawer, scene)
+
+    def _on_client_gone(self, client: Any) -> None:
+        with self._lock:
+            view_id = self._client_views.pop(client.client_id, DEFAULT_VIEW)
+            view = self._views.get(view_id)
+            if view is not None:
+                view.clients.pop(client.client_id, None)
+
     # focus -----------------------------------------------------------------------------
-    def focus(self, part_id: str | None = None, job_id: str | None = None) -> dict[str, Any]:
-        """Show a part or a job (read from the runtime); returns the registry snapshot.
+    def focus(self, part_id: str | None = None, job_id: str | None = None,
+              view_id: str = DEFAULT_VIEW) -> dict[str, Any]:
+        """Show a part or a job (read from the runtime) in one view; returns its snapshot.
         Raises NotFound for an unknown id (nothing changes then)."""
         scene = load_focus(self.runtime, part_id=part_id, job_id=job_id, parser=self.parser)
-        self.show(scene)
-        self.panel.refresh_jobs(current=job_id or part_id)
-        return self.registry.snapshot()
+        snapshot = self.show(scene, view_id)
+        for drawer in list(self.view(view_id).clients.values()):
+            drawer.panel.refresh_jobs(current=job_id or part_id)
+        return snapshot
 
-    def show(self, scene: FocusScene) -> dict[str, Any]:
-        """Draw an already loaded scene (also used by tests and benchmarks)."""
+    def show(self, scene: FocusScene, view_id: str = DEFAULT_VIEW) -> dict[str, Any]:
+        """Draw an already loaded scene in one view (also used by tests and benchmarks)."""
+        view = self.view(view_id)
         with self._lock:
-            self.registry.reset(scene.focus)
+            view.scene = scene
+            view.registry.reset(scene.focus)
             for note in scene.notes:
-                self.registry.note(note)
-            self.builder.draw(scene)
-            self.panel.show(scene)
-            self._aim_camera(scene)
-        return self.registry.snapshot()
+                view.registry.note(note)
+            view.camera = _camera_for(scene)
+            drawers = [view.headless, *view.clients.values()]
+        for drawer in drawers:
+            self._draw(view, drawer, scene)
+        return view.registry.snapshot()
 
-    def snapshot(self) -> dict[str, Any]:
-        return self.registry.snapshot()
+    def snapshot(self, view_id: str = DEFAULT_VIEW) -> dict[str, Any]:
+        """What a view shows (an empty scene for a view nobody has focused or opened)."""
+        with self._lock:
+            view = self._views.get(view_id)
+        return (view.registry if view is not None else SceneRegistry()).snapshot()
 
-    def _aim_camera(self, scene: FocusScene) -> None:
-        bounds = scene.bounds()
-        if bounds is None:
-            return
-        centre = bounds.mean(axis=0)
-        size = float(max(np.linalg.norm(bounds[1] - bounds[0]), 1.0))
-        eye = centre + size * np.array([0.6, -0.9, 0.8])
-        camera = self.server.initial_camera
-        camera.far = max(10.0 * size, 1000.0)
-        camera.near = max(size * 1e-3, 0.01)
-        camera.look_at = centre
-        camera.position = eye
-        for client in self.server.get_clients().values():
-            try:
-                client.camera.far = camera.far
-                client.camera.near = camera.near
-                client.camera.look_at = centre
-                client.camera.position = eye
-            except Exception:  # a client disconnecting meanwhile
-                log.debug("could not move a client's camera", exc_info=True)
-
-    def _select_from_panel(self, part_id: str | None, job_id: str | None) -> None:
+    def _draw(self, view: View, drawer: _Drawer, scene: FocusScene) -> None:
         try:
-            self.focus(part_id=part_id, job_id=job_id)
+            drawer.builder.draw(scene)
+            drawer.panel.show(scene)
+            if view.camera is not None and drawer is not view.headless:
+                look_at, position, near, far = view.camera
+                camera = drawer.target.camera
+                camera.far, camera.near = far, near
+                camera.look_at, camera.position = look_at, position
+        except Exception:  # a browser disconnecting meanwhile
+            if drawer is view.headless:
+                raise
+            log.debug("could not draw for a client", exc_info=True)
+
+    def _select_from_panel(self, view_id: str, part_id: str | None, job_id: str | None) -> None:
+        try:
+            self.focus(part_id=part_id, job_id=job_id, view_id=view_id)
         except Exception:
             log.exception("viewer could not show %s", job_id or part_id)
 
@@ -117,12 +216,51 @@ class Viewer:
                [(f"{j.kind} {j.status} ({j.id})", j.id) for j in jobs]
 
 
+def _camera_for(scene: FocusScene) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """(look_at, position, near, far) framing the scene's bounds, or None without bounds."""
+    bounds = scene.bounds()
+    if bounds is None:
+        return None
+    centre = bounds.mean(axis=0)
+    size = float(max(np.linalg.norm(bounds[1] - bounds[0]), 1.0))
+    return centre, centre + size * np.array([0.6, -0.9, 0.8]), max(size * 1e-3, 0.01), max(10.0 * size, 1000.0)
+
+
+class OriginPolicy:
+    """The Origins allowed to open the view's websocket; none until the port is known."""
+
+    def __init__(self, host: str, extra: list[str]) -> None:
+        self.host = host
+        self.extra = extra
+        self._allowed: frozenset[str] = frozenset()
+
+    def set_port(self, port: int) -> None:
+        self._allowed = allowed_origins(self.host, port, self.extra)
+
+    def __call__(self) -> frozenset[str]:
+        return self._allowed
+
+
+def make_guard(settings: Settings) -> tuple[HandshakeGuard, OriginPolicy]:
+    """The handshake check for ``settings`` and its origin policy (port set after start)."""
+    signer = TokenSigner(load_secret(settings.data_dir, settings.viewer_secret), settings.viewer_token_ttl_s)
+    policy = OriginPolicy(settings.viewer_host, [o.strip() for o in settings.viewer_origins.split(",") if o.strip()])
+    return HandshakeGuard(signer, policy), policy
+
+
 def start_viewer(settings: Settings, runtime: Any) -> Viewer:
     import viser
 
-    server = viser.ViserServer(host=settings.viewer_host, port=settings.viewer_port, verbose=False)
+    guard, origins = make_guard(settings)
+    with guarded_viser_serve(guard) as installed:
+        server = viser.ViserServer(host=settings.viewer_host, port=settings.viewer_port, verbose=False)
+    if not installed.is_set():
+        server.stop()
+        raise ViewerStartError("viser did not start through websockets.asyncio.server.serve: the view's "
+                               "access check could not be installed, so the view is not served")
+    origins.set_port(int(server.get_port()))
     server.scene.set_up_direction("+z")
     server.scene.add_grid("/grid", width=200.0, height=200.0, cell_size=10.0)
-    viewer = Viewer(server, runtime, host=settings.viewer_host)
-    log.info("viewer on http://%s:%d", settings.viewer_host, viewer.port)
+    viewer = Viewer(server, runtime, host=settings.viewer_host, guard=guard)
+    log.info("viewer on http://%s:%d (tokens required)", settings.viewer_host, viewer.port)
     return viewer

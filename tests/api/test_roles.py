@@ -56,6 +56,7 @@ ROLES = {
     ("POST", "/api/v1/viewer/focus"): "viewer",
     ("POST", "/api/v1/parts/{part_id}/circuits:import"): "operator",
     ("GET", "/api/v1/circuit-imports/{import_id}"): "viewer",
+    ("POST", "/api/v1/viewer/token"): "viewer",
 }
 BELOW = {"operator": "viewer", "admin": "operator"}
 

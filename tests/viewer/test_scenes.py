@@ -135,7 +135,7 @@ def test_viewer_show_registers_plots_and_aims_the_camera(viewer):
     assert snap["plots"]["deviation/t"]["x"] == pytest.approx(s.tolist())
     assert snap["plots"]["deviation/t"]["y"] == pytest.approx((0.01 * np.sin(s)).tolist())
     assert snap["nodes"]["/focus/axes/nozzle"]["count"] == 3
-    assert np.allclose(viewer.server.initial_camera.look_at, [15, 0, 3])
+    assert np.allclose(viewer.view().camera[0], [15, 0, 3])  # each view aims its own browsers' cameras
     second = viewer.show(FocusScene({"part_id": "p"}, "part"))
     assert second["generation"] == snap["generation"] + 1 and second["nodes"] == {} and second["plots"] == {}
 

@@ -17,7 +17,7 @@ function previewDrawing(result, bounds) {
   const [[x0, y0], [x1, y1]] = bounds;
   const pad = 0.05 * Math.max(x1 - x0, y1 - y0, 1);
   const svg = svgEl("svg", { id: "circuit-preview", viewBox: `${x0 - pad} ${-(y1 + pad)} ${x1 - x0 + 2 * pad} ${y1 - y0 + 2 * pad}`,
-    width: "100%", height: "260", style: "background:#fafafa;border:1px solid #ccc" });
+    width: "100%", height: "260", class: "circuit-preview" });
   svg.append(svgEl("rect", { x: x0, y: -y1, width: x1 - x0, height: y1 - y0, fill: "#eef", stroke: "#99a", "stroke-width": pad / 20 }));
   for (const t of result.traces) {
     const pts = t.trace?.nominal?.points || null;
@@ -39,7 +39,7 @@ function previewDrawing(result, bounds) {
 export function circuitImportSection({ partSelect, getPart, onDone }) {
   const file = el("input", { type: "file", id: "circuit-file", multiple: true, "aria-label": "circuit files (KiCad, Gerber, Excellon, DXF, SVG)",
     accept: ".kicad_pcb,.gbr,.ger,.gtl,.gbl,.drl,.xln,.dxf,.svg" });
-  const num = (id, value) => el("input", { type: "number", step: "any", id, value, style: "width:6em" });
+  const num = (id, value) => el("input", { type: "number", step: "any", id, value, class: "narrow" });
   const inputs = {
     ox: num("circuit-origin-x", 0), oy: num("circuit-origin-y", 0), rot: num("circuit-rotation", 0),
     mirror: el("input", { type: "checkbox", id: "circuit-mirror" }),

@@ -146,7 +146,7 @@ function statusCell(job) {
 }
 
 function row(job) {
-  return el("tr", { "data-id": job.id, onclick: () => openJob(job.id), style: "cursor:pointer" },
+  return el("tr", { "data-id": job.id, onclick: () => openJob(job.id), class: "clickable" },
     el("td", {}, el("strong", {}, job.kind), el("div", { class: "small mono" }, job.id)),
     el("td", { class: "status" }, statusCell(job)),
     el("td", {}, el("progress", { max: 1, value: job.progress })),

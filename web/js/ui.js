@@ -192,6 +192,11 @@ export function viewerPanel(container) {
   const caption = el("div", { class: "viewer-caption", id: "viewer-caption" }, "Open a part or a job to see it in 3D.");
   container.append(el("h2", {}, "3D view"), caption, frameBox);
 
+  let viewId = null;
+
+  // The view needs a short-lived token from the API (any key may view); the token rides in
+  // the websocket URL that viser's client opens (?websocket=...), and names this page's
+  // own view, whose focus no other page changes.
   async function ensureFrame() {
     if (!viewerInfo) viewerInfo = await get("viewer");
     if (!viewerInfo.enabled) {
@@ -199,16 +204,22 @@ export function viewerPanel(container) {
       return false;
     }
     if (!frameBox.querySelector("iframe")) {
-      const src = `${location.protocol}//${location.hostname}:${viewerInfo.port}/`;
+      const grant = await post("viewer/token", viewId ? { view_id: viewId } : {});
+      viewId = grant.view_id;
+      container.dataset.view = viewId;
+      const origin = `${location.protocol}//${location.hostname}:${grant.port}`;
+      const ws = `${location.protocol === "https:" ? "wss:" : "ws:"}//${location.hostname}:${grant.port}/?token=${encodeURIComponent(grant.token)}`;
+      const src = `${origin}/?websocket=${encodeURIComponent(ws)}`;
       frameBox.append(el("iframe", { id: "viewer-iframe", src, title: "3D view", loading: "eager" }));
-      frameBox.append(el("a", { href: src, target: "_blank", rel: "noopener", class: "small" }, "open the 3D view in its own tab"));
+      frameBox.append(el("a", { href: src, target: "_blank", rel: "noopener noreferrer", class: "small" },
+        "open the 3D view in its own tab"));
     }
     return true;
   }
 
   async function show(target) {
     if (!(await ensureFrame())) return null;
-    const scene = await post("viewer/focus", target);
+    const scene = await post("viewer/focus", { ...target, view_id: viewId });
     const nodes = Object.values(scene.nodes || {});
     const plots = Object.keys(scene.plots || {}).length;
     caption.textContent = `Showing ${target.job_id ? `job ${target.job_id}` : `part ${target.part_id}`}: ` +

@@ -5,6 +5,11 @@ from __future__ import annotations
 
 from app.reference.s1 import s1_mesh
 from tests.api.test_circuits import GERBER_MM
+try:
+    from playwright.sync_api import expect
+except ImportError:  # the tests fail or skip in conftest; the module must still import
+    expect = None  # type: ignore[assignment]
+
 from tests.e2e.browser.conftest import screenshot
 
 
@@ -23,7 +28,7 @@ def test_preview_then_accept_a_gerber(page, served, tmp_path):
     page.wait_for_selector("#circuit-preview polyline", state="attached")
     page.select_option("#circuit-mapping", "wrap")
     page.click("#circuit-preview-button")
-    page.wait_for_function("document.querySelector('#circuit-result table').innerText.includes('1.0000')")
+    page.wait_for_selector("#circuit-result table >> text=1.0000")   # selectors: the pages' CSP forbids eval
     assert page.locator("#circuit-preview polyline").count() == 2
     assert page.locator("#circuit-preview polygon").count() == 1            # the flashed pad
     assert "1.0000" in page.inner_text("#circuit-result table")             # stretch of a wrapped trace
@@ -31,7 +36,7 @@ def test_preview_then_accept_a_gerber(page, served, tmp_path):
     page.locator("#circuit-preview").scroll_into_view_if_needed()
     screenshot(page, "circuit-preview")
     page.click("#circuit-accept")
-    page.wait_for_function("document.querySelectorAll('#traces-body tr[data-id]').length === 2")
+    expect(page.locator("#traces-body tr[data-id]")).to_have_count(2)
     traces = api.get(f"/api/v1/parts/{part['id']}/traces").json()["items"]
     assert {t["source"]["file"] for t in traces} == {"top.gbr"}
     svg = tmp_path / "art.svg"
@@ -39,7 +44,7 @@ def test_preview_then_accept_a_gerber(page, served, tmp_path):
                    '<g transform="translate(10,5)"><path d="M 0 0 L 20 0" stroke-width="0.2"/></g></svg>')
     page.set_input_files("#import-file", str(svg))
     page.click("#import-button")
-    page.wait_for_function("document.querySelectorAll('#traces-body tr[data-id]').length === 3")
+    expect(page.locator("#traces-body tr[data-id]")).to_have_count(3)
     items = api.get(f"/api/v1/parts/{part['id']}/traces").json()["items"]
     line = next(t for t in items if t["source"]["file"] == "art.svg")
     start = line["nominal"]["points"][0]

@@ -52,7 +52,9 @@ def submit_job_form(page, kind: str, values: dict[str, str]) -> str:
     for name, value in values.items():
         page.fill(f"#param-{name}", value)
     page.click("#submit-job")
-    page.wait_for_function("(b) => (document.querySelector('#job-detail').dataset.jobId || null) !== b", arg=before)
+    # selectors, not wait_for_function: the pages' CSP forbids the eval that the latter needs
+    changed = f':not([data-job-id="{before}"])' if before else ""
+    page.wait_for_selector(f"#job-detail[data-job-id]{changed}", state="attached")
     return page.get_attribute("#job-detail", "data-job-id")
 
 
@@ -107,8 +109,9 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
 
     # -- 3D view: the job's scene pushed, the canvas drawn, the deviation plot's data
     page.click("#open-3d")
-    page.wait_for_function("document.querySelector('#viewer-panel').dataset.generation !== undefined")
-    scene = api.get("/api/v1/viewer/scene").json()
+    page.wait_for_selector("#viewer-panel[data-generation]", state="attached")
+    view_id = page.get_attribute("#viewer-panel", "data-view")  # the page's own view (token-opened)
+    scene = api.get("/api/v1/viewer/scene", params={"view_id": view_id}).json()
     assert scene["focus"] == {"job_id": rec_id, "part_id": part_id}
     nodes = scene["nodes"]
     assert nodes["/focus/part"]["count"] == 5400
