@@ -4,7 +4,6 @@ throttled failed keys, a bounded key cache, security headers."""
 
 from __future__ import annotations
 
-import json
 import re
 from urllib.parse import unquote
 

@@ -87,8 +87,8 @@ def test_delete_part_racing_create_trace(racer):  # type: ignore[no-untyped-def]
     for _ in range(ROUNDS):
         part_id = _part(racer)
         delete, create = _together(
-            lambda: racer.delete(f"/api/v1/parts/{part_id}", headers=OP).status_code,
-            lambda: racer.post(f"/api/v1/parts/{part_id}/traces", json=LINE, headers=OP).status_code)
+            lambda: racer.delete(f"/api/v1/parts/{part_id}", headers=OP).status_code,  # noqa: B023 (run at once)
+            lambda: racer.post(f"/api/v1/parts/{part_id}/traces", json=LINE, headers=OP).status_code)  # noqa: B023 (run at once)
         outcomes[(delete, create)] += 1
         assert delete == 204 and create in (201, 404), (delete, create)
     assert _dangling(racer) == []
@@ -101,8 +101,8 @@ def test_delete_part_racing_submit_job(racer):  # type: ignore[no-untyped-def]
         part_id = _part(racer)
         trace_id = _trace(racer, part_id)
         delete, submit = _together(
-            lambda: racer.delete(f"/api/v1/parts/{part_id}", headers=OP).status_code,
-            lambda: racer.post("/api/v1/jobs", json=_plan(trace_id), headers=OP).status_code)
+            lambda: racer.delete(f"/api/v1/parts/{part_id}", headers=OP).status_code,  # noqa: B023 (run at once)
+            lambda: racer.post("/api/v1/jobs", json=_plan(trace_id), headers=OP).status_code)  # noqa: B023 (run at once)
         outcomes[(delete, submit)] += 1
         # exactly one wins: the job (then the part is referenced: 409) or the delete (404/422 for the job)
         assert (delete, submit) in {(409, 202), (204, 404), (204, 422)}, (delete, submit)
@@ -116,8 +116,8 @@ def test_delete_trace_racing_submit_job(racer):  # type: ignore[no-untyped-def]
     for _ in range(ROUNDS):
         trace_id = _trace(racer, part_id)
         delete, submit = _together(
-            lambda: racer.delete(f"/api/v1/traces/{trace_id}", headers=OP).status_code,
-            lambda: racer.post("/api/v1/jobs", json=_plan(trace_id), headers=OP).status_code)
+            lambda: racer.delete(f"/api/v1/traces/{trace_id}", headers=OP).status_code,  # noqa: B023 (run at once)
+            lambda: racer.post("/api/v1/jobs", json=_plan(trace_id), headers=OP).status_code)  # noqa: B023 (run at once)
         outcomes[(delete, submit)] += 1
         assert (delete, submit) in {(409, 202), (204, 404), (204, 422)}, (delete, submit)
     assert _dangling(racer) == []
