@@ -1,0 +1,138 @@
+"""One fitted field per probe run, evaluated along every trace (reconstruction ``"field"``).
+
+The stations of a field plan (:func:`app.probing.field.plan_field`) measure the deviation
+dz = measured z - nominal z at their xy.  :func:`fit_field` conditions the deviation prior
+(band-limited machining error + rigid placement) on all of them ONCE: one factorisation of
+the stations' covariance, alpha = K^-1 dz.  :func:`trace_reconstruction` then evaluates the
+posterior mean along one trace (K(trace points, stations) @ alpha: no refit), so a board of
+any number of traces costs one fit plus one matrix-vector product per trace.
+
+Outliers (chip, dust, probe bounce) are found by the exact leave-one-out residuals of the
+GP, r_i = alpha_i / Q_ii with Q = K^-1 (each station predicted from all the others): the
+worst station whose |r_i| exceeds ``max(k_sigma * sd_i, floor)`` (sd_i = 1 / sqrt(Q_ii)) is
+dropped and the fit repeated.
+
+Pure: numpy/scipy.  Units: mm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, path_sites,
+                                         prior_covariance)
+from app.probing.nominal import NominalPath
+from app.reconstruction.preprocess import CleanPoints, ReconstructionError
+from app.reconstruction.reconstruct import ReconstructParams, Reconstruction, result_curve
+
+MAX_OFFSET_MM = 0.5
+OUTLIER_K_SIGMA = 6.0
+OUTLIER_FLOOR_MM = 0.03
+MAX_OUTLIER_SHARE = 0.1
+
+
+@dataclass(frozen=True, eq=False)
+class FieldFit:
+    """The fitted field of one probe run.
+
+    posterior: the deviation posterior (mean/sd at any sites).  stations: Sites (n,) of
+    every planned station; dz (n,) measured deviation mm; kept (n,) bool; outliers: indices
+    of rejected stations; trace (n,) / s_mm (n,) the station's trace and arc length (-1 /
+    NaN off the traces).
+    """
+
+    posterior: DeviationPosterior
+    stations: Sites
+    dz: np.ndarray
+    kept: np.ndarray
+    outliers: tuple[int, ...]
+    trace: np.ndarray
+    s_mm: np.ndarray
+
+    def deviation(self, sites: Sites) -> np.ndarray:
+        """Posterior mean deviation (m,) mm at ``sites``."""
+        return self.posterior.mean(sites)
+
+
+def _loo(k: np.ndarray, dz: np.ndarray, jitter: float) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-out residuals (n,) mm and their sd (n,) mm of a GP with covariance k."""
+    q = np.linalg.inv(k + jitter * np.eye(len(k)))
+    alpha = q @ dz
+    d = np.diag(q)
+    return alpha / d, 1.0 / np.sqrt(d)
+
+
+def fit_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, measured: np.ndarray,
+              center: np.ndarray, trace: np.ndarray | None = None, s_mm: np.ndarray | None = None,
+              field: str = "points") -> FieldFit:
+    """Fit the field once.  stations: the planned Sites (n,); nominal_z (n,) mm their
+    nominal heights; measured (n, 3) mm the probe results in station order (each within
+    MAX_OFFSET_MM of its station in xy); center (2,) mm the plan's placement centre.
+    Raises ReconstructionError (422) naming ``field`` for bad input."""
+    pts = np.asarray(measured, dtype=float)
+    n = len(stations.xy)
+    if pts.shape != (n, 3):
+        raise ReconstructionError(f"{field}: expected {n} measured points [x, y, z] (one per station), "
+                                  f"got shape {list(pts.shape)}", field=field, value=list(pts.shape))
+    bad = ~np.isfinite(pts).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ReconstructionError(f"{field}.{i} is not finite", field=f"{field}.{i}", value=pts[i].tolist())
+    off = np.linalg.norm(pts[:, :2] - stations.xy, axis=1)
+    if off.max() > MAX_OFFSET_MM:
+        i = int(np.argmax(off))
+        raise ReconstructionError(f"{field}.{i} lies {off[i]:.3f} mm from its station (limit {MAX_OFFSET_MM} mm)",
+                                  field=f"{field}.{i}", value=pts[i].tolist())
+    if n < 2:
+        raise ReconstructionError("a field needs at least 2 stations", field=field, value=n)
+    dz = pts[:, 2] - np.asarray(nominal_z, dtype=float)
+    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    k_all = prior_covariance(prior, stations, stations, center)
+    kept = np.ones(n, dtype=bool)
+    outliers: list[int] = []
+    while len(outliers) < MAX_OUTLIER_SHARE * n:
+        idx = np.flatnonzero(kept)
+        resid, sd = _loo(k_all[np.ix_(idx, idx)], dz[idx], jitter)
+        excess = np.abs(resid) / np.maximum(OUTLIER_K_SIGMA * sd, OUTLIER_FLOOR_MM)
+        worst = int(np.argmax(excess))
+        if excess[worst] <= 1.0:
+            break
+        kept[idx[worst]] = False
+        outliers.append(int(idx[worst]))
+    idx = np.flatnonzero(kept)
+    factor = cho_factor(k_all[np.ix_(idx, idx)] + jitter * np.eye(len(idx)), lower=True)
+    posterior = DeviationPosterior(prior, np.asarray(center, dtype=float), stations.take(idx),
+                                   cho_solve(factor, dz[idx]), factor)
+    return FieldFit(posterior, stations, dz, kept, tuple(sorted(outliers)),
+                    np.full(n, -1) if trace is None else np.asarray(trace, dtype=int),
+                    np.full(n, np.nan) if s_mm is None else np.asarray(s_mm, dtype=float))
+
+
+def trace_reconstruction(fit: FieldFit, path: NominalPath, trace_index: int,
+                         params: ReconstructParams | None = None) -> Reconstruction:
+    """The real trace ``path`` (the plan's trace number ``trace_index``) from the fitted
+    field: nominal + posterior mean, valid over the whole trace (the plan's posterior sd
+    says how well).  samples: this trace's own kept stations [s, dz]; max_mm / rms_mm: of
+    the reconstructed deviation along the trace (every ``profile_step_mm``)."""
+    params = params or ReconstructParams()
+
+    def height(s: np.ndarray) -> np.ndarray:
+        return path.z_at(s) + fit.deviation(path_sites(path, s))
+
+    own = np.flatnonzero((fit.trace == trace_index) & fit.kept)
+    own = own[np.argsort(fit.s_mm[own])]
+    s_own = fit.s_mm[own]
+    pts = path.at(s_own) if len(own) else np.zeros((0, 3))
+    pts[:, 2] += fit.dz[own]
+    clean = CleanPoints(pts, s_own, fit.dz[own], tuple(int(i) for i in np.flatnonzero(
+        (fit.trace == trace_index) & ~fit.kept)), 0)
+    s_prof = np.linspace(0.0, path.length_mm, max(2, int(math.ceil(path.length_mm / params.profile_step_mm)) + 1))
+    dev = height(s_prof) - path.z_at(s_prof)
+    return Reconstruction(method="field", curve=result_curve(path, height, params), clean=clean,
+                          samples=np.stack([s_own, fit.dz[own]], axis=1), max_mm=float(np.abs(dev).max()),
+                          rms_mm=float(np.sqrt(np.mean(dev ** 2))), nominal=path, _height_s=height,
+                          span_mm=(0.0, float(path.length_mm)))
