@@ -249,3 +249,46 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     return FieldPlan(station_sites.xy, z, station_sites.grad, trace, s_mm, region.center,
                      float(sd.max()), per_trace, region.dof, region.area_mm2, stations,
                      np.argsort(order))
+
+
+def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict:
+    """JSON form of a field plan: what the reconstruction and the viewer read back.
+
+    ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the
+    traces); ``prior``: the deviation prior the design used (the reconstruction must use it).
+    """
+    return {
+        "stations_mode": plan.stations_mode,
+        "center": plan.center.tolist(),
+        "dof": plan.dof,
+        "area_mm2": plan.area_mm2,
+        "max_sd_mm": plan.max_sd_mm,
+        "prior": {k: float(v) for k, v in prior.__dict__.items()},
+        "stations": [{"xy": [float(a), float(b)], "z": float(z), "grad": [float(g), float(h)], "trace": int(t),
+                      "s_mm": None if math.isnan(s) else float(s)}
+                     for (a, b), z, (g, h), t, s in zip(plan.xy, plan.z, plan.grad, plan.trace, plan.s_mm)],
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class StoredField:
+    """A field plan read back from :func:`field_result`: prior, center (2,), stations Sites
+    (n,), nominal z (n,), trace (n,), s_mm (n,)."""
+
+    prior: DeviationPrior
+    center: np.ndarray
+    stations: Sites
+    z: np.ndarray
+    trace: np.ndarray
+    s_mm: np.ndarray
+
+
+def stored_field(result: dict) -> StoredField:
+    """Inverse of :func:`field_result` (its ``field`` entry)."""
+    rows = result["stations"]
+    return StoredField(
+        DeviationPrior(**result["prior"]), np.asarray(result["center"], dtype=float),
+        Sites(np.array([r["xy"] for r in rows], dtype=float).reshape(-1, 2),
+              np.array([r["grad"] for r in rows], dtype=float).reshape(-1, 2)),
+        np.array([r["z"] for r in rows], dtype=float), np.array([r["trace"] for r in rows], dtype=int),
+        np.array([np.nan if r["s_mm"] is None else r["s_mm"] for r in rows], dtype=float))

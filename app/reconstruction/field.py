@@ -136,3 +136,9 @@ def trace_reconstruction(fit: FieldFit, path: NominalPath, trace_index: int,
                           samples=np.stack([s_own, fit.dz[own]], axis=1), max_mm=float(np.abs(dev).max()),
                           rms_mm=float(np.sqrt(np.mean(dev ** 2))), nominal=path, _height_s=height,
                           span_mm=(0.0, float(path.length_mm)))
+
+
+def fit_bytes(fit: FieldFit) -> int:
+    """Memory held by a fit (bytes): its factor and station arrays."""
+    low = fit.posterior.factor[0]
+    return int(low.nbytes + fit.stations.xy.nbytes * 4 + fit.dz.nbytes * 4)
