@@ -106,7 +106,8 @@ def mesh_bytes(mesh: trimesh.Trimesh) -> int:
     cache = getattr(mesh, "_cache", None)
     values = dict(getattr(cache, "cache", {}) or {})
     total += sum(_nbytes(v) for v in values.values())
-    if "ray" in values:
+    ray_cache = getattr(getattr(getattr(mesh, "ray", None), "_cache", None), "cache", None) or {}
+    if ray_cache.get("_scene") is not None:  # embree's scene, built on the first ray query
         total += EMBREE_BYTES_PER_FACE * len(mesh.faces)
     return total
 

@@ -34,6 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from app.probing.deviation_prior import Sites, path_gradient
+from app.probing.joint import joint_center
 from app.probing.nominal import NominalPath
 
 SAMPLES_PER_WAVELENGTH = 16
@@ -118,10 +119,10 @@ def degrees_of_freedom(area_mm2: float, wavelength_mm: float) -> float:
 class FieldRegion:
     """What the field planner works on (see the module doc).
 
-    samples, targets: :class:`TracePoints`.  candidates: Sites (c,) of free stations with
-    their nominal z (c,) (empty unless ``anywhere_on_top``).  area_mm2, dof: the covered
-    area and its degrees of freedom.  center (2,) mm: the placement terms' rotation/tilt
-    centre (the targets' mean).
+    samples, targets: :class:`TracePoints`.  free: Sites (c,) of free stations with their
+    nominal z (c,) (empty unless ``anywhere_on_top``).  area_mm2, dof: the covered area and
+    its degrees of freedom.  center (2,) mm: the placement terms' rotation/tilt centre (the
+    traces' length-weighted mean point, as the joint planner's).
     """
 
     samples: TracePoints
@@ -163,4 +164,4 @@ def field_region(paths: Sequence[NominalPath], wavelength_mm: float,
         free, free_z = free_candidates(targets, cell, REACH_PER_WAVELENGTH * wavelength_mm, top)
     area = covered_area_mm2(samples.sites.xy, wavelength_mm)
     return FieldRegion(samples, targets, free, free_z, area, degrees_of_freedom(area, wavelength_mm),
-                       targets.sites.xy.mean(axis=0))
+                       joint_center(paths))

@@ -8,9 +8,10 @@ posterior mean along one trace (K(trace points, stations) @ alpha: no refit), so
 any number of traces costs one fit plus one matrix-vector product per trace.
 
 Outliers (chip, dust, probe bounce) are found by the exact leave-one-out residuals of the
-GP, r_i = alpha_i / Q_ii with Q = K^-1 (each station predicted from all the others): the
-worst station whose |r_i| exceeds ``max(k_sigma * sd_i, floor)`` (sd_i = 1 / sqrt(Q_ii)) is
-dropped and the fit repeated.
+GP, r_i = alpha_i / Q_ii with Q = K^-1 (each station predicted from all the others), sd_i =
+1 / sqrt(Q_ii): among the stations whose |r_i| exceeds ``max(k_sigma * sd_i, floor)`` the
+least consistent one (largest |r_i| / sd_i) is dropped and the fit repeated (a spike also
+disturbs its neighbours' residuals, but less in units of their sd).
 
 Pure: numpy/scipy.  Units: mm.
 """
@@ -97,10 +98,10 @@ def fit_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, mea
     while len(outliers) < MAX_OUTLIER_SHARE * n:
         idx = np.flatnonzero(kept)
         resid, sd = _loo(k_all[np.ix_(idx, idx)], dz[idx], jitter)
-        excess = np.abs(resid) / np.maximum(OUTLIER_K_SIGMA * sd, OUTLIER_FLOOR_MM)
-        worst = int(np.argmax(excess))
-        if excess[worst] <= 1.0:
+        over = np.abs(resid) > np.maximum(OUTLIER_K_SIGMA * sd, OUTLIER_FLOOR_MM)
+        if not over.any():
             break
+        worst = int(np.argmax(np.where(over, np.abs(resid) / sd, -1.0)))  # the least consistent
         kept[idx[worst]] = False
         outliers.append(int(idx[worst]))
     idx = np.flatnonzero(kept)
