@@ -49,3 +49,39 @@ def mesh_top_sampler(mesh: trimesh.Trimesh):
         return TopSample(z[0], np.where(ok[:, None], grad, 0.0), ok)
 
     return sample
+
+
+def field_sd_surface(mesh: trimesh.Trimesh, stations: "Sites", center: np.ndarray, prior: "DeviationPrior",
+                     margin_mm: float, max_points: int = 20_000, lift_mm: float = 0.02
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The field's posterior sd over the part's top around the stations, for a colour map.
+
+    A regular grid over the stations' xy box widened by ``margin_mm`` (at most ``max_points``
+    nodes), heights from downward rays (lifted ``lift_mm`` so the map sits on the part),
+    slopes by central differences.  Returns vertices (v, 3) mm, faces (f, 3) (cells whose
+    four corners hit the part) and sd (v,) mm at the vertices.
+    """
+    from app.probing.deviation_prior import Sites
+    from app.probing.field import posterior_sd
+
+    lo = stations.xy.min(axis=0) - margin_mm
+    hi = stations.xy.max(axis=0) + margin_mm
+    step = max(float(np.sqrt(np.prod(hi - lo) / max_points)), 1e-3)
+    gx = np.arange(lo[0], hi[0] + step / 2, step)
+    gy = np.arange(lo[1], hi[1] + step / 2, step)
+    xx, yy = np.meshgrid(gx, gy, indexing="ij")
+    xy = np.column_stack([xx.ravel(), yy.ravel()])
+    sample = mesh_top_sampler(mesh)(xy)
+    ok = sample.ok
+    sd = np.full(len(xy), np.nan)
+    if ok.any():
+        sd[ok] = posterior_sd(prior, stations, Sites(xy[ok], sample.grad[ok]), center)
+    idx = np.arange(len(xy)).reshape(len(gx), len(gy))
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    cell_ok = ok[a] & ok[b] & ok[c] & ok[d]
+    faces = np.concatenate([np.column_stack([a, b, c])[cell_ok], np.column_stack([a, c, d])[cell_ok]])
+    vertices = np.column_stack([xy, np.where(ok, sample.z, 0.0) + lift_mm])
+    used = np.unique(faces)
+    remap = np.full(len(xy), -1)
+    remap[used] = np.arange(len(used))
+    return vertices[used], remap[faces], sd[used]

@@ -7,10 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.probing.field_top import first_hit_z
+from app.probing.deviation_prior import Sites
+from app.probing.field import posterior_sd, stored_field
+from app.probing.field_top import first_hit_z, mesh_top_sampler
 from app.records import FIELD_FITS
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
+from app.viewer.loaders import load_focus
 from tests.jobs.test_jobs_api import wait_for
 
 OP = auth("operator")
@@ -102,3 +105,23 @@ def test_reconstruct_method_must_match_a_field_run(client, meshes):
     ok = job(client, "reconstruct", {"trace_id": setup["trace_ids"][1], "probe_run_job_id": run["id"],
                                      "method": "field"})
     assert ok["result"]["method"] == "field"
+
+
+def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client, meshes):
+    setup = board(client, meshes)
+    plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], **PROCESS})
+    scene = load_focus(client.app.state.runtime, job_id=plan["id"])
+    [stations] = scene.probes
+    assert np.allclose(stations.planned, plan["result"]["points"])
+    assert len(scene.polylines) == len(TRACES)
+    [sd_map] = scene.scalar_surfaces
+    field = stored_field(plan["result"]["field"])
+    # the colours are the field's posterior sd at the map's vertices (an independent fresh solve)
+    grad = np.array([mesh_top_sampler(meshes[0])(sd_map.vertices[i:i + 1, :2]).grad[0]
+                     for i in range(0, len(sd_map.vertices), 997)])
+    sites = Sites(sd_map.vertices[::997, :2], grad)
+    assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations, sites, field.center), atol=1e-12)
+    # low at the stations, high far from them
+    near = np.linalg.norm(sd_map.vertices[:, None, :2] - field.stations.xy[None], axis=2).min(axis=1)
+    assert sd_map.values[near < 0.3].max() < sd_map.values[near > 5].min()
+    assert sd_map.hi == pytest.approx(sd_map.values.max())
