@@ -22,18 +22,23 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 from scipy.linalg import cho_factor, cho_solve
 
-from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, path_sites,
-                                         prior_covariance)
+from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel,
+                                         path_sites, placement_basis, prior_covariance)
 from app.probing.nominal import NominalPath
 from app.reconstruction.preprocess import CleanPoints, ReconstructionError
-from app.reconstruction.reconstruct import ReconstructParams, Reconstruction, result_curve
+from app.geometry.fitting import interpolate_curve
+from app.reconstruction.reconstruct import ReconstructParams, Reconstruction
 
 MAX_OFFSET_MM = 0.5
 OUTLIER_K_SIGMA = 6.0
 OUTLIER_FLOOR_MM = 0.03
 MAX_OUTLIER_SHARE = 0.1
+CURVE_STEP_MM = 0.1  # stations of the result NURBS (cubic through the real trace)
+DENSE_STEP_MM = 0.05  # the placement part's spline step: the CAD slopes' features are ~0.25 mm wide
+COARSE_PER_WAVELENGTH = 60  # the machining part's spline step lambda / 60: cubic error ~1e-5 of it
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,6 +62,20 @@ class FieldFit:
     def deviation(self, sites: Sites) -> np.ndarray:
         """Posterior mean deviation (m,) mm at ``sites``."""
         return self.posterior.mean(sites)
+
+    def machining(self, xy: np.ndarray) -> np.ndarray:
+        """The machining-error part (m,) mm of the posterior mean at xy (m, 2) (band-limited:
+        smooth on the scale of lambda)."""
+        prior = self.posterior.prior
+        return prior.rms_mm ** 2 * jinc_kernel(xy, self.posterior.probes.xy, prior.wavelength_mm) @ self.posterior.alpha
+
+    def placement(self, sites: Sites) -> np.ndarray:
+        """The placement part (m,) mm of the posterior mean at ``sites``: B(sites) theta, with
+        theta (6,) the posterior mean of (dz, dx, dy, rz, tx, ty); deviation = machining + this."""
+        prior = self.posterior.prior
+        probes = placement_basis(self.posterior.probes, self.posterior.center)
+        theta = prior.basis_sd ** 2 * (probes.T @ self.posterior.alpha)
+        return placement_basis(sites, self.posterior.center) @ theta
 
 
 def _loo(k: np.ndarray, dz: np.ndarray, jitter: float) -> tuple[np.ndarray, np.ndarray]:
@@ -116,13 +135,23 @@ def fit_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, mea
 def trace_reconstruction(fit: FieldFit, path: NominalPath, trace_index: int,
                          params: ReconstructParams | None = None) -> Reconstruction:
     """The real trace ``path`` (the plan's trace number ``trace_index``) from the fitted
-    field: nominal + posterior mean, valid over the whole trace (the plan's posterior sd
-    says how well).  samples: this trace's own kept stations [s, dz]; max_mm / rms_mm: of
+    field: nominal + posterior mean (evaluated every DENSE_STEP_MM and interpolated by a cubic
+    spline), valid over the whole trace (the plan's posterior sd says how well).  The result
+    curve interpolates the real trace every CURVE_STEP_MM (compensation reads the heights,
+    not the curve).  samples: this trace's own kept stations [s, dz]; max_mm / rms_mm: of
     the reconstructed deviation along the trace (every ``profile_step_mm``)."""
     params = params or ReconstructParams()
+    # the posterior mean once along the trace, then cubic splines (compensation queries
+    # heights thousands of times per trace): the band-limited machining part every
+    # lambda / COARSE_PER_WAVELENGTH, the placement part (it follows the CAD slope) every DENSE_STEP_MM
+    coarse = fit.posterior.prior.wavelength_mm / COARSE_PER_WAVELENGTH
+    s_coarse = np.linspace(0.0, path.length_mm, max(4, int(math.ceil(path.length_mm / coarse)) + 1))
+    s_dense = np.linspace(0.0, path.length_mm, max(4, int(math.ceil(path.length_mm / DENSE_STEP_MM)) + 1))
+    machining = make_interp_spline(s_coarse, fit.machining(path.at(s_coarse)[:, :2]), k=3)
+    placement = make_interp_spline(s_dense, fit.placement(path_sites(path, s_dense)), k=3)
 
     def height(s: np.ndarray) -> np.ndarray:
-        return path.z_at(s) + fit.deviation(path_sites(path, s))
+        return path.z_at(s) + machining(s) + placement(s)
 
     own = np.flatnonzero((fit.trace == trace_index) & fit.kept)
     own = own[np.argsort(fit.s_mm[own])]
@@ -133,7 +162,11 @@ def trace_reconstruction(fit: FieldFit, path: NominalPath, trace_index: int,
         (fit.trace == trace_index) & ~fit.kept)), 0)
     s_prof = np.linspace(0.0, path.length_mm, max(2, int(math.ceil(path.length_mm / params.profile_step_mm)) + 1))
     dev = height(s_prof) - path.z_at(s_prof)
-    return Reconstruction(method="field", curve=result_curve(path, height, params), clean=clean,
+    s_curve = np.linspace(0.0, path.length_mm, max(params.degree + 1,
+                                                   int(math.ceil(path.length_mm / CURVE_STEP_MM)) + 1))
+    curve_pts = path.at(s_curve)
+    curve_pts[:, 2] = height(s_curve)
+    return Reconstruction(method="field", curve=interpolate_curve(curve_pts, params.degree), clean=clean,
                           samples=np.stack([s_own, fit.dz[own]], axis=1), max_mm=float(np.abs(dev).max()),
                           rms_mm=float(np.sqrt(np.mean(dev ** 2))), nominal=path, _height_s=height,
                           span_mm=(0.0, float(path.length_mm)))
