@@ -23,8 +23,16 @@ PROCESS = {"deviation_amplitude_mm": 0.15, "deviation_wavelength_mm": 15.0}
 
 @pytest.fixture(scope="module")
 def meshes():
+    """Nominal mesh and the as-made part's STL, fine enough for the closed loop's standoff check."""
     truth = as_made(seed=11, amplitude_mm=0.15)
     return s1_mesh(grid_mm=0.3), truth.mesh(grid_mm=0.3).export(file_type="stl")
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    """The same, coarser: for the checks that do not measure the standoff."""
+    truth = as_made(seed=11, amplitude_mm=0.15)
+    return s1_mesh(grid_mm=0.6), truth.mesh(grid_mm=0.6).export(file_type="stl")
 
 
 def submit(client, kind: str, params: dict):
@@ -79,20 +87,20 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     assert any(key[0] == run_id for key in FIELD_FITS._items)  # fitted once, read by every trace
 
 
-def test_field_stations_anywhere_on_top_sit_on_the_part(client, meshes):
-    setup = board(client, meshes)
+def test_field_stations_anywhere_on_top_sit_on_the_part(client, coarse):
+    setup = board(client, coarse)
     plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "stations": "anywhere_on_top", **PROCESS})
     stations = plan["result"]["field"]["stations"]
     xy = np.array([s["xy"] for s in stations])
     z = np.array([s["z"] for s in stations])
-    assert np.allclose(z, first_hit_z(meshes[0], xy), atol=1e-9)
+    assert np.allclose(z, first_hit_z(coarse[0], xy), atol=1e-9)
     assert all(s["s_mm"] is None for s in stations if s["trace"] == -1)
     assert all(s["s_mm"] is not None for s in stations if s["trace"] >= 0)
     assert 3 * plan["result"]["field"]["max_sd_mm"] <= 0.005 + 1e-9
 
 
-def test_reconstruct_method_must_match_a_field_run(client, meshes):
-    setup = board(client, meshes)
+def test_reconstruct_method_must_match_a_field_run(client, coarse):
+    setup = board(client, coarse)
     plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})
     assert plan["result"]["count"] == 12
     run = job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": setup["machine_id"]})
@@ -107,8 +115,8 @@ def test_reconstruct_method_must_match_a_field_run(client, meshes):
     assert ok["result"]["method"] == "field"
 
 
-def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client, meshes):
-    setup = board(client, meshes)
+def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client, coarse):
+    setup = board(client, coarse)
     plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], **PROCESS})
     scene = load_focus(client.app.state.runtime, job_id=plan["id"])
     [stations] = scene.probes
@@ -117,7 +125,7 @@ def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client,
     [sd_map] = scene.scalar_surfaces
     field = stored_field(plan["result"]["field"])
     # the colours are the field's posterior sd at the map's vertices (an independent fresh solve)
-    grad = np.array([mesh_top_sampler(meshes[0])(sd_map.vertices[i:i + 1, :2]).grad[0]
+    grad = np.array([mesh_top_sampler(coarse[0])(sd_map.vertices[i:i + 1, :2]).grad[0]
                      for i in range(0, len(sd_map.vertices), 997)])
     sites = Sites(sd_map.vertices[::997, :2], grad)
     assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations, sites, field.center), atol=1e-12)
