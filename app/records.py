@@ -6,10 +6,12 @@ process and cached by content hash.
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import OrderedDict
 from typing import Any, BinaryIO, TypeVar
 
+import numpy as np
 import trimesh
 from sqlmodel import Session, SQLModel
 
@@ -34,31 +36,153 @@ def get_or_404(session: Session, model: type[T], record_id: str, *, field: str |
     return record
 
 
-class MeshCache:
-    """Parsed meshes by sha256 (least recently used first out)."""
+class ByteLru:
+    """A thread-safe least-recently-used map bounded by the BYTES its values hold.
 
-    def __init__(self, blobs: BlobStore, capacity: int = 8) -> None:
-        self.blobs = blobs
-        self.capacity = capacity
-        self._items: OrderedDict[str, trimesh.Trimesh] = OrderedDict()
+    ``put(key, value, nbytes)``; ``get(key)`` (None when absent) marks it used;
+    ``resize(key, nbytes)`` re-states an entry's size (e.g. after derived structures were
+    built on it).  Entries are dropped oldest first while the total exceeds ``max_bytes``;
+    the newest entry always stays, even alone over the bound.
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = int(max_bytes)
+        self._items: OrderedDict[Any, tuple[Any, int]] = OrderedDict()
         self._lock = threading.Lock()
 
-    def put(self, sha256: str, mesh: trimesh.Trimesh) -> None:
+    @property
+    def bytes(self) -> int:
         with self._lock:
-            self._items[sha256] = mesh
-            self._items.move_to_end(sha256)
-            while len(self._items) > self.capacity:
-                self._items.popitem(last=False)
+            return sum(n for _, n in self._items.values())
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __contains__(self, key: Any) -> bool:
+        return key in self._items
+
+    def get(self, key: Any) -> Any:
+        with self._lock:
+            item = self._items.get(key)
+            if item is None:
+                return None
+            self._items.move_to_end(key)
+            return item[0]
+
+    def put(self, key: Any, value: Any, nbytes: int) -> None:
+        with self._lock:
+            self._items[key] = (value, int(nbytes))
+            self._items.move_to_end(key)
+            self._evict()
+
+    def resize(self, key: Any, nbytes: int) -> None:
+        with self._lock:
+            if key in self._items:
+                self._items[key] = (self._items[key][0], int(nbytes))
+                self._evict()
+
+    def _evict(self) -> None:
+        total = sum(n for _, n in self._items.values())
+        while total > self.max_bytes and len(self._items) > 1:
+            _, (_, n) = self._items.popitem(last=False)
+            total -= n
+
+
+EMBREE_BYTES_PER_FACE = 160  # embree BVH + its float32 copy of the triangles (measured ~120-160)
+
+
+def _nbytes(value: Any) -> int:
+    if isinstance(value, np.ndarray):
+        return int(value.nbytes)
+    if isinstance(value, tuple):  # NamedTuples of arrays (the edge grid)
+        return sum(_nbytes(v) for v in value)
+    return 0
+
+
+def mesh_bytes(mesh: trimesh.Trimesh) -> int:
+    """Memory (bytes) a parsed mesh holds with what has been built on it: vertex and face
+    arrays, trimesh's cached arrays (normals, edges, ...), the edge grid, and the ray
+    intersector (estimated per face once built)."""
+    total = int(mesh.vertices.nbytes + mesh.faces.nbytes)
+    cache = getattr(mesh, "_cache", None)
+    values = dict(getattr(cache, "cache", {}) or {})
+    total += sum(_nbytes(v) for v in values.values())
+    ray_cache = getattr(getattr(getattr(mesh, "ray", None), "_cache", None), "cache", None) or {}
+    if ray_cache.get("_scene") is not None:  # embree's scene, built on the first ray query
+        total += EMBREE_BYTES_PER_FACE * len(mesh.faces)
+    return total
+
+
+class MeshCache:
+    """Parsed meshes by sha256, with what jobs build on them (the ray-casting structure and
+    the edge grid live on the trimesh object), bounded by BYTES (least recently used out).
+
+    A job that needs the part placed in machine coordinates gets a cached placed copy
+    (:meth:`placed`), so its ray structure is built once per part and placement too.
+    ``max_bytes``: the bound (default ``CONFORMA_MESH_CACHE_MB`` MiB, else 1 GiB); each
+    access re-measures the entry, since structures are built lazily after it was stored.
+    """
+
+    def __init__(self, blobs: BlobStore, max_bytes: int | None = None) -> None:
+        self.blobs = blobs
+        if max_bytes is None:
+            max_bytes = int(float(os.environ.get("CONFORMA_MESH_CACHE_MB", "1024")) * 2 ** 20)
+        self._items = ByteLru(max_bytes)
+        self._parse_lock = threading.Lock()
+
+    @property
+    def max_bytes(self) -> int:
+        return self._items.max_bytes
+
+    @property
+    def bytes(self) -> int:
+        """Bytes held now (re-measured)."""
+        for key in list(self._items._items):
+            mesh = self._items._items.get(key, (None, 0))[0]
+            if mesh is not None:
+                self._items.resize(key, mesh_bytes(mesh))
+        return self._items.bytes
+
+    def put(self, sha256: str, mesh: trimesh.Trimesh) -> None:
+        self._items.put(sha256, mesh, mesh_bytes(mesh))
+
+    def cached(self, key: Any) -> trimesh.Trimesh | None:
+        """The cached mesh under ``key`` (a sha256, or (sha256, placement matrix bytes)) or None."""
+        mesh = self._items.get(key)
+        if mesh is not None:
+            self._items.resize(key, mesh_bytes(mesh))
+        return mesh
 
     def mesh(self, part: Part) -> trimesh.Trimesh:
-        with self._lock:
+        cached = self.cached(part.sha256)
+        if cached is not None:
+            return cached
+        with self._parse_lock:  # one parse per part, even when jobs ask at once
             cached = self._items.get(part.sha256)
             if cached is not None:
-                self._items.move_to_end(part.sha256)
                 return cached
-        mesh = parse_mesh(self.blobs.read(part.sha256), part.format, max_unzipped_bytes=2**40)
-        self.put(part.sha256, mesh)
+            mesh = parse_mesh(self.blobs.read(part.sha256), part.format, max_unzipped_bytes=2**40)
+            self.put(part.sha256, mesh)
         return mesh
+
+    def placed(self, part: Part, placement: Any) -> trimesh.Trimesh:
+        """The part's mesh moved by ``placement`` (anything with ``matrix()`` -> 4 x 4; the
+        mesh itself for None), cached per part and placement."""
+        mesh = self.mesh(part)
+        if placement is None:
+            return mesh
+        matrix = placement.matrix()
+        key = (part.sha256, np.asarray(matrix, dtype=float).round(12).tobytes())
+        cached = self.cached(key)
+        if cached is None:
+            cached = mesh.copy()
+            cached.apply_transform(matrix)
+            self._items.put(key, cached, mesh_bytes(cached))
+        return cached
+
+
+FIELD_FITS = ByteLru(64 * 2 ** 20)
+"""Fitted fields of field-plan probe runs by (run id, sigma): fitted once per process."""
 
 
 def add_artifact(
@@ -140,7 +264,8 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
 
 def joint_trace_ranges(plan: Job) -> dict[str, tuple[int, int]] | None:
     """{trace id: [first, stop) point indices} of a joint probe plan (``probe_plan`` with
-    ``trace_ids``; the same indices hold in its probe runs); None for a one-trace plan."""
-    if not (plan.params or {}).get("trace_ids"):
+    ``trace_ids``; the same indices hold in its probe runs); None for a one-trace plan and
+    for a field plan (its stations are shared by the traces, see ``reconstruct`` method field)."""
+    if not (plan.params or {}).get("trace_ids") or (plan.result or {}).get("field"):
         return None
     return {t["trace_id"]: (t["first"], t["first"] + t["count"]) for t in (plan.result or {}).get("traces", [])}

@@ -110,8 +110,22 @@ def segment_top_max(top: Any, a: np.ndarray, b: np.ndarray, sample_mm: float) ->
     return float(z.max()) if len(z) else -math.inf
 
 
+_FACE_BOXES = "conforma_face_xy_boxes"
+
+
+def _face_boxes(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Top-view bounding boxes of every face: lo (F, 2), hi (F, 2) mm (cached on the mesh)."""
+    cached = mesh._cache[_FACE_BOXES]
+    if cached is None:
+        xy = mesh.triangles[:, :, :2]
+        cached = (xy.min(axis=1), xy.max(axis=1))
+        mesh._cache[_FACE_BOXES] = cached
+    return cached
+
+
 def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
-    """Exact highest point of a triangle mesh above the xy segment a-b."""
+    """Exact highest point of a triangle mesh above the xy segment a-b.  Only faces whose
+    top-view box meets the segment's box are cut (the others cannot lie above it)."""
     import trimesh
 
     d = b - a
@@ -122,7 +136,11 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
         return float(loc[:, 2].max()) if len(loc) else -math.inf
     u = d / length
     normal = np.array([-u[1], u[0], 0.0])
-    segs = trimesh.intersections.mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]))
+    lo, hi = _face_boxes(mesh)
+    near = np.flatnonzero(np.all(hi >= np.minimum(a, b), axis=1) & np.all(lo <= np.maximum(a, b), axis=1))
+    if len(near) == 0:
+        return -math.inf
+    segs = trimesh.intersections.mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]), local_faces=near)
     if len(segs) == 0:
         return -math.inf
     t = (segs[:, :, :2] - a) @ u  # (n, 2) position along the segment

@@ -205,7 +205,7 @@ def _deviation_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
         # outside the probed span the deviation is held at its end value (no extrapolation)
         return path.z_at(s) + spline(np.clip(s, lo, hi))
 
-    return _result_curve(path, height, params), height
+    return result_curve(path, height, params), height
 
 
 def _context_trace(index: int, nominal: Any, measured: Any,
@@ -229,10 +229,10 @@ def _kriging_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
     def height(s: np.ndarray) -> np.ndarray:
         return path.z_at(s) + posterior.mean(path_sites(path, s))
 
-    return _result_curve(path, height, params), height
+    return result_curve(path, height, params), height
 
 
-def _result_curve(path: NominalPath, height: Callable[[np.ndarray], np.ndarray],
+def result_curve(path: NominalPath, height: Callable[[np.ndarray], np.ndarray],
                   params: ReconstructParams) -> NurbsCurve:
     """Cubic interpolation of the real trace through the nominal's CL stations."""
     idx = chord_height_select(path.points, params.cl_tolerance_mm)

@@ -20,6 +20,8 @@ from app.errors import NotFound
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
+from app.probing.field import stored_field
+from app.probing.field_top import field_sd_surface
 from app.records import get_or_404, joint_trace_ranges
 from app.viewer.offload import ParsePool
 from app.viewer.scene_data import (
@@ -30,12 +32,14 @@ from app.viewer.scene_data import (
     LayerStack,
     Polyline,
     ProbeSet,
+    ScalarSurface,
     SurfaceMesh,
     Toolpath,
 )
 from app.viewer.trace_math import project_onto_polyline, rings_to_segments
 
 CURVE_SAMPLES = 400
+MAX_FIELD_POLYLINES = 200
 
 
 class TraceRange(NamedTuple):
@@ -170,10 +174,38 @@ class Loader:
 
     def _probe_plan(self, session: Session, job: Job) -> FocusScene:
         planned = np.asarray(job.result.get("points", []), float).reshape(-1, 3)
+        if job.result.get("field"):
+            return self._field_plan(session, job, planned)
         ranges = self._joint_ranges(session, job)
         if ranges is not None:
             return self._joint_scene(ranges, planned, None)
         return self._with_trace(session, job, probes=(ProbeSet("plan", planned=planned),))
+
+    def _field_plan(self, session: Session, job: Job, planned: np.ndarray) -> FocusScene:
+        """A field plan: the traces, the stations and the field's posterior sd as a colour map
+        on the part's top (the sd does not depend on what the probes will read)."""
+        stored = stored_field(job.result["field"])
+        trace_ids = job.params.get("trace_ids") or [job.params.get("trace_id")]
+        lines = []
+        for trace_id in trace_ids[:MAX_FIELD_POLYLINES]:
+            trace = self._trace(session, trace_id)
+            if trace is not None:
+                lines.append(Polyline(trace.name, np.asarray(trace.nominal["points"], float)))
+        notes = [f"{len(planned)} stations for {len(trace_ids)} traces; field degrees of freedom "
+                 f"{job.result['field']['dof']:.0f}; largest sd on the traces "
+                 f"{job.result['field']['max_sd_mm'] * 1000:.2f} um"]
+        if len(trace_ids) > MAX_FIELD_POLYLINES:
+            notes.append(f"first {MAX_FIELD_POLYLINES} of {len(trace_ids)} traces drawn")
+        part = self._part_of(session, job)
+        maps: tuple[ScalarSurface, ...] = ()
+        if part is not None and len(planned):
+            vertices, faces, sd = field_sd_surface(self.runtime.meshes.mesh(part), stored.stations, stored.center,
+                                                   stored.prior, stored.prior.wavelength_mm / 4)
+            if len(faces):
+                maps = (ScalarSurface("posterior sd", vertices, faces, sd, 0.0, float(np.nanmax(sd))),)
+                notes.append(f"colour: posterior sd 0 .. {float(np.nanmax(sd)) * 1000:.1f} um")
+        return FocusScene({}, "", polylines=tuple(lines), probes=(ProbeSet("stations", planned=planned),),
+                          scalar_surfaces=maps, notes=tuple(notes))
 
     def _measured_probes(self, trace: Trace | None, measured: np.ndarray, label: str,
                          planned: np.ndarray | None = None) -> tuple[ProbeSet, DeviationPlot | None]:
@@ -239,7 +271,8 @@ class Loader:
             owner = f"{trace.name} {trace.id}" if trace is not None else child.id
             merged = replace(merged, **{key: getattr(merged, key) + tuple(
                 replace(item, name=f"{child.kind}:{owner}:{item.name}") for item in getattr(scene, key))
-                for key in ("polylines", "probes", "toolpaths", "layers", "axes", "heights", "surfaces", "plots")})
+                for key in ("polylines", "probes", "toolpaths", "layers", "axes", "heights", "surfaces", "plots",
+                            "scalar_surfaces")})
         return merged
 
     def _surface_fit(self, session: Session, job: Job) -> FocusScene:

@@ -81,6 +81,20 @@ class SurfaceMesh:
 
 
 @dataclass(frozen=True)
+class ScalarSurface:
+    """A triangle surface coloured by a value per vertex (e.g. a field's posterior sd):
+    vertices (v, 3) mm, faces (f, 3), values (v,) in ``unit``, coloured from lo to hi."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    values: np.ndarray
+    lo: float
+    hi: float
+    unit: str = "mm"
+
+
+@dataclass(frozen=True)
 class DeviationPlot:
     """Measured minus nominal height along a trace: s_mm (n,) arc length, dz_mm (n,)."""
 
@@ -106,6 +120,7 @@ class FocusScene:
     heights: tuple[HeightStack, ...] = ()
     surfaces: tuple[SurfaceMesh, ...] = ()
     plots: tuple[DeviationPlot, ...] = ()
+    scalar_surfaces: tuple[ScalarSurface, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def bounds(self) -> np.ndarray | None:
@@ -115,6 +130,7 @@ class FocusScene:
         chunks += [a for p in self.probes for a in (p.planned, p.measured) if a is not None]
         chunks += [t.segments.ends for t in self.toolpaths]
         chunks += [s.vertices for s in self.surfaces]
+        chunks += [s.vertices for s in self.scalar_surfaces]
         chunks += [a.positions for a in self.axes]
         for h in self.heights:
             _k, rows, cols = h.heights.shape

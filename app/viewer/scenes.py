@@ -19,7 +19,7 @@ import trimesh
 
 from app.viewer.colors import PALETTE, Palette, deviation_colors, height_colors
 from app.viewer.registry import NodeInfo, SceneRegistry
-from app.viewer.scene_data import FocusScene, HeightStack, LayerStack, Toolpath
+from app.viewer.scene_data import FocusScene, HeightStack, LayerStack, ScalarSurface, Toolpath
 
 ROOT = "/focus"
 
@@ -139,6 +139,8 @@ class SceneBuilder:
                                              np.asarray(surface.faces, np.uint32), color=self.palette.compensated,
                                              opacity=0.6, side="double")
                 self._add(name, "surfaces", handle, "mesh", len(surface.faces))
+            for scalar in scene.scalar_surfaces:
+                self._scalar_surface(scalar)
             for glyphs in scene.axes:
                 self._axes(glyphs)
             for stack in scene.layers:
@@ -233,6 +235,17 @@ class SceneBuilder:
                                                              thickness_units="screen")
                 self._add(name, "layers", handle, "segments", len(segs), layer=index, label=stack.labels[index])
             return index
+
+    def _scalar_surface(self, surface: ScalarSurface) -> None:
+        """A surface coloured by its per-vertex values (the field's posterior sd map)."""
+        name = f"{ROOT}/fields/{_slug(surface.name)}"
+        colors = np.column_stack([height_colors(surface.values, surface.lo, surface.hi),
+                                  np.full(len(surface.values), 255, np.uint8)])
+        mesh = trimesh.Trimesh(np.asarray(surface.vertices, float), np.asarray(surface.faces, np.int64),
+                               vertex_colors=colors, process=False)
+        handle = self.server.scene.add_mesh_trimesh(name, mesh)
+        self._add(name, "surfaces", handle, "surface", len(mesh.faces), value_range=[surface.lo, surface.hi],
+                  unit=surface.unit)
 
     def _height_stack(self, stack: HeightStack) -> None:
         cells = self.params.max_height_cells

@@ -32,7 +32,7 @@ from sqlmodel import Session, select
 from app.compensation.evaluation import predicted_width, table_row
 from app.errors import Cancelled, ConformaError, InvalidInput
 from app.jobs.context import JobContext
-from app.jobs.kinds.probe_plan import ProbePlanParams
+from app.jobs.kinds.probe_plan import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams
 from app.jobs.kinds.register import RegisterParams
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, get_kind, job_kind
@@ -45,10 +45,11 @@ STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
 
 class ClosedLoopParams(JobParams):
     part_id: str
-    trace_ids: list[str] = Field(min_length=1, max_length=200)
+    trace_ids: list[str] = Field(min_length=1, max_length=MAX_FIELD_TRACES)
     machine_id: str
-    probe: dict[str, Any] = Field(default_factory=lambda: {"method": "deviation"},
-                                  description="probe_plan parameters (without trace_id); dialect comes from the machine")
+    probe: dict[str, Any] = Field(default_factory=dict,
+                                  description="probe_plan parameters (without trace_id); dialect comes from the machine; "
+                                  "method defaults to deviation per trace and to field with joint_probing")
     reconstruct_method: Literal["interpolate", "approximate", "deviation", "kriging"] = "deviation"
     sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma) for the reconstruction")
     chord_error_mm: float = Field(0.002, gt=0, le=1)
@@ -60,9 +61,12 @@ class ClosedLoopParams(JobParams):
                                "work in machine coordinates")
     registration_params: dict[str, Any] = Field(default_factory=dict,
                                      description="register parameters (without part_id and machine_id)")
-    joint_probing: bool = Field(False, description="one plan and one probe run for all traces; with the kriging "
-                                "planner the stations are designed together and each trace's reconstruction uses "
-                                "every trace's probes (with reconstruct_method kriging); trace_ids must be distinct")
+    joint_probing: bool = Field(False, description="one plan and one probe run for all traces; with the field "
+                                "planner (the default here) stations are chosen over the region the traces cover and "
+                                "every trace is rebuilt from the one field fitted to the run (reconstruct method field, "
+                                "automatic); with kriging the stations are designed per trace together and each "
+                                "trace's reconstruction uses every trace's probes (with reconstruct_method kriging); "
+                                "trace_ids must be distinct")
 
     @field_validator("probe")
     @classmethod
@@ -71,6 +75,14 @@ class ClosedLoopParams(JobParams):
             raise ValueError("probe parameters apply to every trace: leave out trace_id and trace_ids")
         ProbePlanParams.model_validate({**value, "trace_id": "x"})
         return value
+
+    @model_validator(mode="after")
+    def _field_is_joint(self) -> "ClosedLoopParams":
+        if self.probe.get("method") == "field" and not self.joint_probing:
+            raise ValueError("the field planner probes all traces together: set joint_probing")
+        if len(self.trace_ids) > MAX_TRACES and not (self.joint_probing and self.probe.get("method", "field") == "field"):
+            raise ValueError(f"more than {MAX_TRACES} traces need joint_probing with the field planner")
+        return self
 
     @field_validator("registration_params")
     @classmethod
@@ -157,9 +169,10 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                                                 ((index + 0.25) / total, f"trace {index + 1}/{total}: probing"))
         count = _probe_count(plan, trace_id)
         prior = {k: params.probe[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in params.probe}
+        method = "field" if (plan.result or {}).get("field") else params.reconstruct_method
         rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
                                             "trace_id": trace_id, "probe_run_job_id": probe.id,
-                                            "method": params.reconstruct_method, "sigma_mm": params.sigma_mm}, trace_id)
+                                            "method": method, "sigma_mm": params.sigma_mm}, trace_id)
         ctx.progress((index + 0.5) / total, f"trace {index + 1}/{total}: compensating")
         compensated = steps.run("compensate", {"trace_id": trace_id, "reconstruct_job_id": rebuilt.id,
                                                "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
@@ -186,7 +199,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
             entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id,
                                                  "artifact": "print.gcode"}, trace_id).id
         per_trace.append(entry)
-        ctx.progress((index + 1) / total, f"trace {index + 1}/{total} done")
+        ctx.progress((index + 1) / total, f"{index + 1}/{total} traces done")
     result: dict[str, Any] = {"traces": per_trace, "table": rows}
     if registration is not None:
         result["registration"] = {"job_id": registration.id, **{
@@ -200,17 +213,19 @@ def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, A
     trace of the loop together (joint probing); ``progress`` is reported between them (a
     cancel that came during planning stops the loop before the machine is used)."""
     target: dict[str, Any] = {"trace_ids": params.trace_ids} if trace_id is None else {"trace_id": trace_id}
-    plan = steps.run("probe_plan", {**params.probe, **placed, **target, "dialect": dialect}, trace_id)
+    default = {} if trace_id is None else {"method": "deviation"}  # joint: the planner's default (field)
+    plan = steps.run("probe_plan", {**default, **params.probe, **placed, **target, "dialect": dialect}, trace_id)
     steps.ctx.progress(*progress)
     probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id}, trace_id)
     return plan, probe
 
 
 def _probe_count(plan: Job, trace_id: str) -> int:
-    """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's)."""
+    """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's; a field
+    plan's stations on that trace)."""
     for entry in plan.result.get("traces", ()):
         if entry["trace_id"] == trace_id:
-            return int(entry["count"])
+            return int(entry["stations"] if "stations" in entry else entry["count"])
     return int(plan.result["count"])
 
 

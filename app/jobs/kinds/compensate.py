@@ -19,7 +19,7 @@ from app.compensation.standoff import CompensationParams, compensate_trace
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.kinds.reconstruct import ReconstructJobParams, rebuild
-from app.jobs.kinds.register import placed_mesh, placement_from
+from app.jobs.kinds.register import placement_from
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Machine
 from app.records import get_or_404
@@ -69,7 +69,7 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         machine: Machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
     placement = placement_from(ctx, rebuilt_params)  # the reconstruction's frame (machine, when placed)
-    mesh = placed_mesh(ctx.mesh(trace.part_id), placement)
+    mesh = ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
         standoff_mm=params.standoff_mm or trace.standoff_mm,
         feed_mm_min=params.feed_mm_min or trace.feed_mm_min or 300.0,

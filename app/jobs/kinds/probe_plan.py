@@ -8,7 +8,13 @@ it really sits; without, the part frame is the machine frame (unchanged behaviou
 With ``trace_ids`` (part-level probing) one program touches every trace in the given
 order; with the ``kriging`` planner the stations of all traces are designed together
 (:func:`app.probing.joint.plan_joint`).  The result's ``traces`` give each trace's range
-``[first, first + count)`` in ``points`` / ``records`` (and so in the probe run's points)."""
+``[first, first + count)`` in ``points`` / ``records`` (and so in the probe run's points).
+
+The ``field`` planner (the default with ``trace_ids``) designs stations over the region the
+traces cover, as one field (:func:`app.probing.field.plan_field`): its result's ``field``
+lists the stations in probing order with the trace each lies on (-1: off the traces), and
+``traces`` gives per trace its station count and predicted sd (no ranges: stations are
+shared).  Reconstruct each trace with ``method: "field"`` from the run."""
 
 from __future__ import annotations
 
@@ -26,7 +32,6 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.kinds.register import (
     PlacedParams,
     check_registration,
-    placed_mesh,
     placement_from,
     registration_reference,
 )
@@ -34,25 +39,37 @@ from app.jobs.registry import job_kind
 from app.models import Trace
 from app.probing import (NominalPath, PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams,
                          build_probe_program, plan_probes)
+from app.probing.field import field_result, plan_field
+from app.probing.field_top import mesh_top_sampler
 from app.probing.joint import plan_joint
 from app.probing.nominal import as_nominal_path
+
+MAX_TRACES = 200
+MAX_FIELD_TRACES = 5000
 
 
 class ProbePlanParams(PlacedParams):
     trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)")
     trace_ids: list[str] | None = Field(
-        None, min_length=1, max_length=200,
+        None, min_length=1, max_length=MAX_FIELD_TRACES,
         description="part-level probing (instead of trace_id): several distinct traces of ONE part, probed by "
         "one program in this order; with the kriging planner their stations are designed together (fewer "
         "probes per trace when each trace is rebuilt from every trace's probes, see reconstruct). The result's "
         "traces list each trace's range [first, first + count) in points / records")
-    method: Literal["adaptive", "uniform", "deviation", "kriging"] = Field(
-        "adaptive", description="adaptive: the seed's chord-height rule; uniform: even arc length; "
-        "deviation: spacing from the expected deviation of the real part from CAD; kriging: stations that "
-        "minimise the largest predicted error of the deviation (machining error + placement), fewest probes")
+    method: Literal["adaptive", "uniform", "deviation", "kriging", "field"] | None = Field(
+        None, description="adaptive (default with trace_id): the seed's chord-height rule; uniform: even arc "
+        "length; deviation: spacing from the expected deviation of the real part from CAD; kriging: stations "
+        "that minimise the largest predicted error of the deviation (machining error + placement), per trace "
+        "or jointly; field (default with trace_ids): stations over the whole region the traces cover, one "
+        "field for any number of traces, the fewest probes for a board")
+    stations: Literal["on_traces", "anywhere_on_top"] = Field(
+        "on_traces", description="field planner: stations on the traces, or anywhere on the part's top the probe "
+        "reaches (within a quarter wavelength of a trace)")
     chord_error_mm: float = Field(0.005, gt=0, le=10)
     count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation; per trace "
-                              "with trace_ids)")
+                              "with trace_ids; field: for the whole board)")
+    coverage: float = Field(3.0, gt=0, le=10, description="kriging/field: coverage x largest predicted sd <= "
+                            "target_error_mm")
     capability_k: float | None = Field(None, gt=0, lt=1, description="seed eq. 1: process capability K")
     confidence: float | None = Field(None, gt=0.5, lt=1, description="seed eq. 1: confidence gamma")
     cl_tolerance_mm: float = Field(0.001, gt=0, le=1)
@@ -73,7 +90,14 @@ class ProbePlanParams(PlacedParams):
             raise ValueError("capability_k and confidence go together (seed eq. 1)")
         if (self.trace_id is None) == (self.trace_ids is None):
             raise ValueError("give exactly one of trace_id or trace_ids")
+        if self.trace_ids is not None and len(self.trace_ids) > MAX_TRACES and self.planner != "field":
+            raise ValueError(f"more than {MAX_TRACES} traces are planned by the field planner only")
         return self
+
+    @property
+    def planner(self) -> str:
+        """The method given, else field for part-level plans (trace_ids), adaptive for one trace."""
+        return self.method or ("field" if self.trace_ids is not None else "adaptive")
 
 
 @dataclass(frozen=True)
@@ -133,7 +157,7 @@ def _plan_params(params: ProbePlanParams) -> PlanParams:
         chord_error_mm=params.chord_error_mm, cl_tolerance_mm=params.cl_tolerance_mm, count=params.count,
         capability_k=params.capability_k, confidence=params.confidence,
         deviation_amplitude_mm=params.deviation_amplitude_mm, deviation_wavelength_mm=params.deviation_wavelength_mm,
-        target_error_mm=params.target_error_mm, probe_sigma_mm=params.probe_sigma_mm,
+        target_error_mm=params.target_error_mm, probe_sigma_mm=params.probe_sigma_mm, coverage=params.coverage,
     )
 
 
@@ -154,13 +178,15 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
     """Plan probe points on a trace or on several traces of one part, and write the probe program.
 
     The traces are placed into machine coordinates first when asked."""
+    if params.planner == "field":
+        return _run_field(ctx, params, params.trace_ids or [str(params.trace_id)])
     if params.trace_ids is not None:
         return _run_joint(ctx, params, params.trace_ids)
     trace = ctx.trace(str(params.trace_id))
     placement = placement_from(ctx, params)
-    mesh = placed_mesh(ctx.mesh(trace.part_id), placement)
+    mesh = ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement)
     ctx.progress(0.1, "planning probe points")
-    plan = plan_probes(placed_nominal(trace, placement), params.method, _plan_params(params))
+    plan = plan_probes(placed_nominal(trace, placement), params.planner, _plan_params(params))
     ctx.progress(0.5, f"{plan.count} probe points; writing the program")
     program, meta = _program(ctx, params, plan, mesh)
     result = {
@@ -185,22 +211,22 @@ def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     """Part-level plan: stations per trace (jointly for kriging), one program in trace order."""
     traces = [ctx.trace(t) for t in trace_ids]
     placement = placement_from(ctx, params)
-    mesh = placed_mesh(ctx.mesh(traces[0].part_id), placement)
+    mesh = ctx.runtime.meshes.placed(ctx.part(traces[0].part_id), placement)
     nominals = [placed_nominal(trace, placement) for trace in traces]
     ctx.progress(0.1, f"planning probe points on {len(traces)} traces")
-    if params.method == "kriging":
+    if params.planner == "kriging":
         plans = plan_joint(nominals, _plan_params(params))
     else:
-        plans = tuple(plan_probes(nominal, params.method, _plan_params(params)) for nominal in nominals)
+        plans = tuple(plan_probes(nominal, params.planner, _plan_params(params)) for nominal in nominals)
     normals = None if any(p.normals is None for p in plans) else np.concatenate([p.normals for p in plans])
-    combined = ProbePlan(params.method, np.concatenate([p.s_mm for p in plans]),
+    combined = ProbePlan(params.planner, np.concatenate([p.s_mm for p in plans]),
                          np.concatenate([p.points for p in plans]), normals)
     ctx.progress(0.5, f"{combined.count} probe points on {len(traces)} traces; writing the program")
     program, meta = _program(ctx, params, combined, mesh)
     firsts = np.concatenate([[0], np.cumsum([p.count for p in plans])[:-1]])
     result = {
         "count": combined.count,
-        "method": params.method,
+        "method": params.planner,
         "points": combined.points.tolist(),
         "s_mm": combined.s_mm.tolist(),
         "records": [r.to_dict() for r in program.records],
@@ -208,6 +234,37 @@ def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
         "traces": [{"trace_id": trace.id, "first": int(first), "count": plan.count, "s_mm": plan.s_mm.tolist(),
                     "trace_length_mm": trace.length_mm, "predicted_sd_mm": plan.predicted_sd_mm}
                    for trace, plan, first in zip(traces, plans, firsts)],
+    }
+    if placement is not None:
+        result["placement"] = placement.to_dict()
+    return result
+
+
+def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
+    """Board plan: stations over the region the traces cover, one program in probing order."""
+    traces = [ctx.trace(t) for t in trace_ids]
+    placement = placement_from(ctx, params)
+    mesh = ctx.runtime.meshes.placed(ctx.part(traces[0].part_id), placement)
+    nominals = [placed_nominal(trace, placement) for trace in traces]
+    ctx.progress(0.1, f"planning field stations over {len(traces)} traces")
+    plan_params = _plan_params(params)
+    top = mesh_top_sampler(mesh) if params.stations == "anywhere_on_top" else None
+    plan = plan_field(nominals, plan_params, params.stations, top)
+    s_mm = np.where(np.isnan(plan.s_mm), -1.0, plan.s_mm)
+    ctx.progress(0.5, f"{plan.count} stations for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
+                 "freedom); writing the program")
+    program, meta = _program(ctx, params, ProbePlan("field", s_mm, plan.points, plan.normals), mesh)
+    counts = np.bincount(plan.trace[plan.trace >= 0], minlength=len(traces))
+    result = {
+        "count": plan.count,
+        "method": "field",
+        "points": plan.points.tolist(),
+        "s_mm": [None if np.isnan(s) else float(s) for s in plan.s_mm],
+        "records": [r.to_dict() for r in program.records],
+        "program": meta,
+        "field": field_result(plan, plan_params.prior()),
+        "traces": [{"trace_id": trace.id, "index": i, "stations": int(counts[i]), "trace_length_mm": trace.length_mm,
+                    "predicted_sd_mm": float(plan.trace_sd_mm[i])} for i, trace in enumerate(traces)],
     }
     if placement is not None:
         result["placement"] = placement.to_dict()

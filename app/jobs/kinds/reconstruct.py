@@ -11,6 +11,7 @@ the part).  With ``points``, ``context`` gives the other traces' probes explicit
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -26,7 +27,9 @@ from app.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
-from app.records import get_or_404, joint_trace_ranges
+from app.probing.field import stored_field
+from app.reconstruction.field import fit_bytes, fit_field, trace_reconstruction
+from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
 
 DEGREE = 3
 
@@ -55,10 +58,12 @@ class ReconstructJobParams(PlacedParams):
         None, min_length=1, max_length=199,
         description="kriging with points only: measured points of OTHER traces of the same part (same frame); "
         "they join this trace's in one posterior over the part (pair with a joint kriging plan)")
-    method: Literal["interpolate", "approximate", "deviation", "kriging"] = Field(
+    method: Literal["interpolate", "approximate", "deviation", "kriging", "field"] = Field(
         "interpolate", description="interpolate: the seed's cubic NURBS through the points; approximate: "
         "least squares; deviation: nominal + smoothed deviation (noise-aware); kriging: nominal + the "
-        "best estimate of the deviation under the process model below (pair with the kriging planner)")
+        "best estimate of the deviation under the process model below (pair with the kriging planner); "
+        "field: nominal + the field fitted once to every station of a field plan's probe run (required "
+        "for, and only for, runs of field plans)")
     sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma)")
     deviation_amplitude_mm: float = Field(0.2, gt=0, le=10, description="kriging: expected machining error amplitude")
     deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
@@ -68,6 +73,8 @@ class ReconstructJobParams(PlacedParams):
     def _one_source(self) -> "ReconstructJobParams":
         if (self.probe_run_job_id is None) == (self.points is None):
             raise ValueError("give exactly one of probe_run_job_id or points")
+        if self.method == "field" and self.probe_run_job_id is None:
+            raise ValueError("method field rebuilds from a field plan's probe run: give probe_run_job_id")
         return self
 
 
@@ -121,11 +128,19 @@ def _check_context(params: ReconstructJobParams, trace: Trace, placement: Placem
 
 
 def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
-    """A run of a joint plan must have probed trace_id (422 ``params.trace_id``)."""
+    """A run of a joint plan must have probed trace_id (422 ``params.trace_id``); method field
+    goes with runs of field plans and only with them (422 ``params.method``)."""
     run = session.get(Job, params.probe_run_job_id)
     plan = session.get(Job, (run.params or {}).get("plan_job_id")) if run is not None and run.kind == "probe_run" \
         else None
+    is_field = plan is not None and bool((plan.result or {}).get("field"))
+    if plan is not None and is_field != (params.method == "field"):
+        raise InvalidInput(f"probe run {run.id!r} comes from a {'field' if is_field else plan.params.get('method')!r} "
+                           f"plan: reconstruct it with method {'field' if is_field else 'other than field'!r}, not "
+                           f"{params.method!r}", field="params.method", value=params.method)
     trace_ids = (plan.params or {}).get("trace_ids") if plan is not None else None
+    if is_field and trace_ids is None:
+        trace_ids = [plan.params.get("trace_id")]
     if trace_ids is not None and params.trace_id not in trace_ids:
         raise InvalidInput(f"trace {params.trace_id!r} is not one of the traces probed by probe run "
                            f"{run.id!r} (plan {plan.id!r})", field="params.trace_id", value=params.trace_id)
@@ -143,6 +158,8 @@ def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
     ``compensate`` job rebuilds it from the stored parameters instead of storing objects)."""
     trace = ctx.trace(params.trace_id)
     placement = placement_from(ctx, params)
+    if params.method == "field":
+        return _field_rebuild(ctx, params, placed_nominal(trace, placement))
     context: list[tuple[Any, Any]] = []
     if params.points is not None:
         measured: Any = params.points
@@ -173,3 +190,28 @@ def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dic
     by_trace = {t: [p["measured"] for p in rows if lo <= p["index"] < hi] for t, (lo, hi) in ranges.items()}
     own = by_trace.pop(params.trace_id)
     return own, by_trace
+
+
+def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) -> Reconstruction:
+    """The trace from its run's fitted field (fitted once per run and sigma, cached)."""
+    probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
+    plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
+    stored = (plan.result or {}).get("field")
+    if not stored:
+        raise InvalidInput(f"probe run {probe_run.id!r} is not a run of a field plan", field="params.method",
+                           value=params.method)
+    trace_ids = plan.params.get("trace_ids") or [plan.params.get("trace_id")]
+    if params.trace_id not in trace_ids:
+        raise InvalidInput(f"trace {params.trace_id!r} is not one of the traces of field plan {plan.id!r}",
+                           field="params.trace_id", value=params.trace_id)
+    key = (probe_run.id, params.sigma_mm)
+    fit = FIELD_FITS.get(key)
+    if fit is None:
+        field = stored_field(stored)
+        prior = field.prior if params.sigma_mm is None else replace(field.prior, sigma_mm=params.sigma_mm)
+        rows = sorted(probe_run.result["points"], key=lambda p: p["index"])
+        fit = fit_field(prior, field.stations, field.z, [p["measured"] for p in rows], field.center,
+                        field.trace, field.s_mm, field="probe run points")
+        FIELD_FITS.put(key, fit, fit_bytes(fit))
+    return trace_reconstruction(fit, nominal, trace_ids.index(params.trace_id),
+                                ReconstructParams(prior=fit.posterior.prior))

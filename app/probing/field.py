@@ -1,0 +1,294 @@
+"""The field probe planner (``probe_plan`` method ``"field"``): stations for a whole board.
+
+The real part's deviation from CAD is ONE field over the part — a band-limited machining
+error plus one rigid placement (:mod:`app.probing.deviation_prior`) — however many traces
+lie on it.  This planner chooses stations over the region the traces cover
+(:mod:`app.probing.field_region`) so that the largest posterior sd of the field over every
+point of every trace meets the target (``coverage`` x sd <= ``target_error_mm``), with the
+fewest stations the design rule finds (or a given count).  Stations lie on the traces
+(``stations="on_traces"``) or anywhere on the part's top the probe reaches
+(``"anywhere_on_top"``).
+
+Algorithm (cost set by the covered area and lambda, not by the number of traces): greedy
+sequential design over a bounded set U of candidate/target points (one per lambda / 8
+cell).  Each step adds the candidate with the largest posterior variance; the posterior is
+kept as the rows ``R = L^-1 K(S, U)`` of the stations' Cholesky factor L (K(S, S) + noise =
+L L'), extended by ONE row per added station (a rank-one update: ``r = (K(j, U) - R[:, j]' R)
+/ sqrt(var_j + sigma^2)``, ``var -= r^2``), so n stations cost O(n^2 |U|) in all instead of a
+factorisation per step.  The automatic count is the first prefix of the greedy sequence
+that meets the target (so one fewer station of that sequence does not).  Finally the
+largest sd is evaluated on every trace sample (spacing lambda / 16) from a fresh
+factorisation, and reported per trace.
+
+Pure: numpy/scipy.  Units: mm.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.linalg import solve_triangular
+from scipy.special import j1
+from threadpoolctl import threadpool_limits
+
+from app.probing.deviation_prior import (DeviationPrior, Sites, placement_basis, prior_covariance,
+                                         prior_variance)
+from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
+from app.probing.nominal import as_nominal_path
+from app.probing.selection import PlanError, PlanParams
+
+StationMode = Literal["on_traces", "anywhere_on_top"]
+STATION_MODES: tuple[str, ...] = ("on_traces", "anywhere_on_top")
+MAX_FIELD_PROBES = 4000
+SD_CHUNK = 4096
+
+
+class GreedyField:
+    """Posterior of the field over sites U (N,) as stations are added one at a time.
+
+    rows: (n, N) = L^-1 K(S, U) for the n stations S so far; var: (N,) posterior variance
+    mm^2 (noise-free field); chosen: (n,) indices into U in the order added.
+    """
+
+    def __init__(self, prior: DeviationPrior, sites: Sites, center: np.ndarray) -> None:
+        self.prior = prior
+        self.sites = sites
+        self.basis = placement_basis(sites, center) * prior.basis_sd        # (N, 6)
+        self.prior_var = prior.rms_mm ** 2 + np.sum(self.basis ** 2, axis=1)
+        self.var = self.prior_var.copy()
+        self.jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+        self.rows = np.empty((16, len(self.var)))
+        self.chosen: list[int] = []
+        self._k = 2.0 * math.pi / prior.wavelength_mm
+
+    def kernel_row(self, j: int) -> np.ndarray:
+        """Prior covariance (N,) mm^2 between site j and every site."""
+        r = np.linalg.norm(self.sites.xy - self.sites.xy[j], axis=1)
+        x = np.maximum(self._k * r, 1e-12)
+        jinc = np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
+        return self.prior.rms_mm ** 2 * jinc + self.basis @ self.basis[j]
+
+    def gain_for(self, t: int, candidates: np.ndarray) -> np.ndarray:
+        """Variance drop (c,) mm^2 at site t if a station were added at each candidate."""
+        n = len(self.chosen)
+        cov = self.kernel_row(t)[candidates]
+        if n:
+            cov -= self.rows[:n, t] @ self.rows[:n][:, candidates]
+        return cov * cov / (self.var[candidates] + self.jitter)
+
+    def add(self, j: int) -> None:
+        """Add a station at site j: one new row of R, variance downdated."""
+        n = len(self.chosen)
+        if n == len(self.rows):
+            self.rows = np.concatenate([self.rows, np.empty_like(self.rows)])
+        row = self.kernel_row(j)
+        if n:
+            row -= self.rows[:n, j] @ self.rows[:n]
+        row /= math.sqrt(max(self.var[j], 0.0) + self.jitter)
+        self.rows[n] = row
+        self.var = np.maximum(self.var - row * row, 0.0)
+        self.chosen.append(int(j))
+
+
+def greedy_sequence(greedy: GreedyField, candidates: np.ndarray, targets: np.ndarray,
+                    count: int | None, target_var: float, min_count: int) -> int:
+    """Run the greedy design: ``count`` stations in all, or (count None) until the largest
+    variance over ``targets`` (indices into U) is <= target_var with >= min_count stations.
+
+    Each step finds the worst target t and adds the candidate j that lowers its variance
+    most, ``cov(j, t)^2 / (var_j + sigma^2)`` (the posterior covariance column of t costs
+    O(n N)).  On traces this picks the worst point itself or a neighbour; with free
+    candidates it avoids points off the traces whose own variance is large but irrelevant.
+    Returns the number of stations chosen."""
+    most = min(MAX_FIELD_PROBES, len(candidates)) if count is None else int(count)
+    while len(greedy.chosen) < most:
+        worst = int(targets[np.argmax(greedy.var[targets])])
+        if count is None and len(greedy.chosen) >= min_count and greedy.var[worst] <= target_var:
+            break
+        greedy.add(int(candidates[np.argmax(greedy.gain_for(worst, candidates))]))
+    return len(greedy.chosen)
+
+
+def posterior_sd(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray) -> np.ndarray:
+    """Posterior sd (m,) mm of the field at ``where`` given stations (fresh factorisation)."""
+    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    k = prior_covariance(prior, stations, stations, center)
+    low = np.linalg.cholesky(k + jitter * np.eye(len(k)))
+    out = np.empty(len(where.xy))
+    for lo in range(0, len(out), SD_CHUNK):
+        part = where.take(np.arange(lo, min(lo + SD_CHUNK, len(out))))
+        a = solve_triangular(low, prior_covariance(prior, stations, part, center), lower=True)
+        out[lo:lo + len(part.xy)] = prior_variance(prior, part, center) - np.sum(a * a, axis=0)
+    return np.sqrt(np.maximum(out, 0.0))
+
+
+@dataclass(frozen=True, eq=False)
+class FieldPlan:
+    """Stations of a board in probing order.
+
+    xy (n, 2), z (n,) nominal top, grad (n, 2) nominal slope, normals (n, 3);
+    trace (n,) index of the trace a station lies on (-1: off the traces), s_mm (n,) its
+    arc length there (NaN off the traces).  center (2,) mm: the placement terms' centre.
+    max_sd_mm: largest posterior sd over every trace sample; trace_sd_mm (T,) per trace.
+    dof: the region's degrees of freedom; area_mm2: its covered area.  order: (n,) the
+    greedy order (index into the stations) — its prefixes are the smaller designs.
+    """
+
+    xy: np.ndarray
+    z: np.ndarray
+    grad: np.ndarray
+    trace: np.ndarray
+    s_mm: np.ndarray
+    center: np.ndarray
+    max_sd_mm: float
+    trace_sd_mm: np.ndarray
+    dof: float
+    area_mm2: float
+    stations_mode: str
+    order: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(len(self.xy))
+
+    @property
+    def normals(self) -> np.ndarray:
+        n = np.column_stack([-self.grad, np.ones(len(self.grad))])
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    @property
+    def points(self) -> np.ndarray:
+        return np.column_stack([self.xy, self.z])
+
+    @property
+    def sites(self) -> Sites:
+        return Sites(self.xy, self.grad)
+
+
+def travel_order(xy: np.ndarray, band_mm: float) -> np.ndarray:
+    """Serpentine visiting order (n,) of points (n, 2): bands of ``band_mm`` in y, x up then down."""
+    band = np.floor((xy[:, 1] - xy[:, 1].min()) / band_mm).astype(int)
+    key_x = np.where(band % 2 == 0, xy[:, 0], -xy[:, 0])
+    return np.lexsort((key_x, band))
+
+
+def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
+               stations: str = "on_traces", top: TopSampler | None = None) -> FieldPlan:
+    """Field stations for every trace in ``nominals`` (NominalPath-like, one frame).
+
+    params: the deviation prior, ``target_error_mm``, ``coverage``, ``min_count`` and an
+    optional total ``count``.  stations: "on_traces" or "anywhere_on_top" (needs ``top``,
+    the part's nominal top).  Raises PlanError for bad input.
+    """
+    params = params or PlanParams()
+    if stations not in STATION_MODES:
+        raise PlanError(f"stations must be one of {list(STATION_MODES)}", field="stations", value=stations)
+    if stations == "anywhere_on_top" and top is None:
+        raise PlanError("anywhere_on_top needs the part's top surface", field="stations", value=stations)
+    if len(nominals) == 0:
+        raise PlanError("the field planner needs at least one trace", field="traces", value=0)
+    paths = [as_nominal_path(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
+    prior = params.prior()
+    region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _design(region, prior, params, stations)
+
+
+MAX_REFINE_ROUNDS = 6
+
+
+def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stations: str) -> FieldPlan:
+    """Greedy design on the thinned targets; then (automatic count) every trace sample is
+    checked and the ones still over the target join the targets (and, on traces, the
+    candidates) and the greedy sequence continues, until every sample meets it."""
+    pool: TracePoints = region.targets
+    samples = region.samples
+    target_var = (params.target_error_mm / params.coverage) ** 2
+    count = None if params.count is None else int(params.count)
+    chosen: list[int] = []
+    for _ in range(MAX_REFINE_ROUNDS):
+        sites = Sites(np.concatenate([pool.sites.xy, region.free.xy]),
+                      np.concatenate([pool.sites.grad, region.free.grad]))
+        if count is not None and count > len(sites.xy):
+            raise PlanError(f"count {count} exceeds the {len(sites.xy)} candidate stations of this board",
+                            field="count", value=count)
+        greedy = GreedyField(prior, sites, region.center)
+        for j in chosen:
+            greedy.add(j)
+        greedy_sequence(greedy, np.arange(len(sites.xy)), np.arange(len(pool)), count, target_var,
+                        max(2, params.min_count))
+        chosen = greedy.chosen
+        sd = posterior_sd(prior, sites.take(np.array(chosen)), samples.sites, region.center)
+        over = np.flatnonzero(sd * sd > target_var * (1 + 1e-9))
+        if count is not None or len(over) == 0:
+            break
+        n_pool = len(pool)
+        pool = TracePoints(Sites(np.concatenate([pool.sites.xy, samples.sites.xy[over]]),
+                                 np.concatenate([pool.sites.grad, samples.sites.grad[over]])),
+                           np.concatenate([pool.trace, samples.trace[over]]),
+                           np.concatenate([pool.s, samples.s[over]]), np.concatenate([pool.z, samples.z[over]]))
+        # free candidates sit after the pool in the joint index: shift the chosen ones
+        chosen = [j if j < n_pool else j + len(over) for j in chosen]
+    chosen_arr = np.array(chosen)
+    order = travel_order(sites.xy[chosen_arr], prior.wavelength_mm / 2)
+    picked = chosen_arr[order]
+    n_t = len(pool)
+    on = picked < n_t
+    trace = np.full(len(picked), -1)
+    s_mm = np.full(len(picked), np.nan)
+    trace[on] = pool.trace[picked[on]]
+    s_mm[on] = pool.s[picked[on]]
+    z = np.concatenate([pool.z, region.free_z])[picked]
+    station_sites = sites.take(picked)
+    per_trace = np.zeros(int(samples.trace.max()) + 1)
+    np.maximum.at(per_trace, samples.trace, sd)
+    return FieldPlan(station_sites.xy, z, station_sites.grad, trace, s_mm, region.center,
+                     float(sd.max()), per_trace, region.dof, region.area_mm2, stations,
+                     np.argsort(order))
+
+
+def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict:
+    """JSON form of a field plan: what the reconstruction and the viewer read back.
+
+    ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the
+    traces); ``prior``: the deviation prior the design used (the reconstruction must use it).
+    """
+    return {
+        "stations_mode": plan.stations_mode,
+        "center": plan.center.tolist(),
+        "dof": plan.dof,
+        "area_mm2": plan.area_mm2,
+        "max_sd_mm": plan.max_sd_mm,
+        "prior": {k: float(v) for k, v in prior.__dict__.items()},
+        "stations": [{"xy": [float(a), float(b)], "z": float(z), "grad": [float(g), float(h)], "trace": int(t),
+                      "s_mm": None if math.isnan(s) else float(s)}
+                     for (a, b), z, (g, h), t, s in zip(plan.xy, plan.z, plan.grad, plan.trace, plan.s_mm)],
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class StoredField:
+    """A field plan read back from :func:`field_result`: prior, center (2,), stations Sites
+    (n,), nominal z (n,), trace (n,), s_mm (n,)."""
+
+    prior: DeviationPrior
+    center: np.ndarray
+    stations: Sites
+    z: np.ndarray
+    trace: np.ndarray
+    s_mm: np.ndarray
+
+
+def stored_field(result: dict) -> StoredField:
+    """Inverse of :func:`field_result` (its ``field`` entry)."""
+    rows = result["stations"]
+    return StoredField(
+        DeviationPrior(**result["prior"]), np.asarray(result["center"], dtype=float),
+        Sites(np.array([r["xy"] for r in rows], dtype=float).reshape(-1, 2),
+              np.array([r["grad"] for r in rows], dtype=float).reshape(-1, 2)),
+        np.array([r["z"] for r in rows], dtype=float), np.array([r["trace"] for r in rows], dtype=int),
+        np.array([np.nan if r["s_mm"] is None else r["s_mm"] for r in rows], dtype=float))

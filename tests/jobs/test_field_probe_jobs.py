@@ -1,0 +1,135 @@
+"""The field planner through the API: one board plan (default for trace_ids), one probe run,
+every trace rebuilt from the ONE field fitted to the run, and the closed loop on a mock
+machine holding an as-made S1 part."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.probing.deviation_prior import Sites
+from app.probing.field import posterior_sd, stored_field
+from app.probing.field_top import first_hit_z, mesh_top_sampler
+from app.records import FIELD_FITS
+from app.reference.s1 import as_made, s1_mesh, s1_traces
+from tests.conftest import auth
+from app.viewer.loaders import load_focus
+from tests.jobs.test_jobs_api import wait_for
+
+OP = auth("operator")
+TRACES = (0, 4, 8)  # S1 traces 1, 5, 9: a line, an arc and a NURBS curve, 16 mm apart
+PROCESS = {"deviation_amplitude_mm": 0.15, "deviation_wavelength_mm": 15.0}
+
+
+@pytest.fixture(scope="module")
+def meshes():
+    """Nominal mesh and the as-made part's STL, fine enough for the closed loop's standoff check."""
+    truth = as_made(seed=11, amplitude_mm=0.15)
+    return s1_mesh(grid_mm=0.3), truth.mesh(grid_mm=0.3).export(file_type="stl")
+
+
+@pytest.fixture(scope="module")
+def coarse():
+    """The same, coarser: for the checks that do not measure the standoff."""
+    truth = as_made(seed=11, amplitude_mm=0.15)
+    return s1_mesh(grid_mm=0.6), truth.mesh(grid_mm=0.6).export(file_type="stl")
+
+
+def submit(client, kind: str, params: dict):
+    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
+
+
+def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
+    response = submit(client, kind, params)
+    assert response.status_code == 202, response.text
+    done = wait_for(client, response.json()["id"], timeout=timeout)
+    assert done["status"] == "succeeded", done["error"]
+    return done
+
+
+def board(client, meshes) -> dict:
+    nominal, true_stl = meshes
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
+                       headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
+    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
+                         json=[s1_traces()[i].to_api() for i in TRACES], headers=OP).json()["items"]
+    machine = client.post("/api/v1/machines", json={
+        "name": "sim", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
+        headers=OP).json()
+    return {"part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"]}
+
+
+def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(client, meshes):
+    setup = board(client, meshes)
+    done = job(client, "closed_loop", {**setup, "joint_probing": True, "probe": PROCESS, "sigma_mm": 0.001,
+                                       "evaluate": True}, timeout=300)
+    assert done["message"] == f"{len(TRACES)}/{len(TRACES)} traces done"
+    entries, table = done["result"]["traces"], done["result"]["table"]
+    assert len(table) == len(TRACES)
+    for row in table:
+        assert row["standoff_max_after_um"] <= 10.0, row
+        assert row["standoff_max_before_um"] >= 50.0, row
+    plan = client.get(f"/api/v1/jobs/{entries[0]['probe_plan']}", headers=OP).json()
+    assert plan["params"]["method"] is None and plan["result"]["method"] == "field"  # the default for boards
+    field = plan["result"]["field"]
+    assert len(field["stations"]) == plan["result"]["count"] == len(plan["result"]["records"])
+    assert field["max_sd_mm"] * 3 <= 0.005 + 1e-9
+    on = [s for s in field["stations"] if s["trace"] >= 0]
+    assert len(on) == len(field["stations"])  # on_traces by default
+    per_trace = [e["stations"] for e in plan["result"]["traces"]]
+    assert [e["probes"] for e in entries] == per_trace and sum(per_trace) == plan["result"]["count"]
+    for entry in entries:
+        rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
+        assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
+    run_id = entries[0]["probe_run"]
+    assert any(key[0] == run_id for key in FIELD_FITS._items)  # fitted once, read by every trace
+
+
+def test_field_stations_anywhere_on_top_sit_on_the_part(client, coarse):
+    setup = board(client, coarse)
+    plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "stations": "anywhere_on_top", **PROCESS})
+    stations = plan["result"]["field"]["stations"]
+    xy = np.array([s["xy"] for s in stations])
+    z = np.array([s["z"] for s in stations])
+    assert np.allclose(z, first_hit_z(coarse[0], xy), atol=1e-9)
+    assert all(s["s_mm"] is None for s in stations if s["trace"] == -1)
+    assert all(s["s_mm"] is not None for s in stations if s["trace"] >= 0)
+    assert 3 * plan["result"]["field"]["max_sd_mm"] <= 0.005 + 1e-9
+
+
+def test_reconstruct_method_must_match_a_field_run(client, coarse):
+    setup = board(client, coarse)
+    plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})
+    assert plan["result"]["count"] == 12
+    run = job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": setup["machine_id"]})
+    wrong = submit(client, "reconstruct", {"trace_id": setup["trace_ids"][0], "probe_run_job_id": run["id"],
+                                           "method": "kriging"})
+    assert wrong.status_code == 422 and wrong.json()["errors"][0]["loc"][:2] == ["params", "method"], wrong.text
+    points = submit(client, "reconstruct", {"trace_id": setup["trace_ids"][0], "points": [[6, 4, 9]] * 4,
+                                            "method": "field"})
+    assert points.status_code == 422, points.text
+    ok = job(client, "reconstruct", {"trace_id": setup["trace_ids"][1], "probe_run_job_id": run["id"],
+                                     "method": "field"})
+    assert ok["result"]["method"] == "field"
+
+
+def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client, coarse):
+    setup = board(client, coarse)
+    plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], **PROCESS})
+    scene = load_focus(client.app.state.runtime, job_id=plan["id"])
+    [stations] = scene.probes
+    assert np.allclose(stations.planned, plan["result"]["points"])
+    assert len(scene.polylines) == len(TRACES)
+    [sd_map] = scene.scalar_surfaces
+    field = stored_field(plan["result"]["field"])
+    # the colours are the field's posterior sd at the map's vertices (an independent fresh solve)
+    grad = np.array([mesh_top_sampler(coarse[0])(sd_map.vertices[i:i + 1, :2]).grad[0]
+                     for i in range(0, len(sd_map.vertices), 997)])
+    sites = Sites(sd_map.vertices[::997, :2], grad)
+    assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations, sites, field.center), atol=1e-12)
+    # low at the stations, high far from them
+    near = np.linalg.norm(sd_map.vertices[:, None, :2] - field.stations.xy[None], axis=2).min(axis=1)
+    assert sd_map.values[near < 0.3].max() < sd_map.values[near > 5].min()
+    assert sd_map.hi == pytest.approx(sd_map.values.max())
