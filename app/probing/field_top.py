@@ -9,10 +9,15 @@ Uses the mesh's cached ray intersector (embree when installed).  Units: mm.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import trimesh
 
 from app.probing.field_region import TopSample
+
+if TYPE_CHECKING:
+    from app.probing.deviation_prior import DeviationPrior, Sites
 
 SLOPE_STEP_MM = 0.25
 
