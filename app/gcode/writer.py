@@ -23,7 +23,7 @@ from typing import Literal
 
 from app.errors import InvalidInput
 
-DialectName = Literal["marlin", "grbl"]
+DialectName = Literal["marlin", "grbl", "linuxcnc"]
 ProbeStyle = Literal["g38", "g30"]
 
 
@@ -51,6 +51,10 @@ DIALECTS: dict[str, Dialect] = {
     "grbl": Dialect("grbl", probe_styles=("g38",), wait_for_moves="G4 P0", program_end="M2"),
     "marlin": Dialect("marlin", probe_styles=("g30", "g38"), wait_for_moves="M400",
                       program_end=None),
+    # LinuxCNC: a program file must end in M2/M30; G4 P0 ends blending (waits for moves);
+    # its dispense outputs are M64/M65 P<n> (machine profile), not M106/M107 or M8/M9
+    "linuxcnc": Dialect("linuxcnc", probe_styles=("g38",), wait_for_moves="G4 P0",
+                        program_end="M2"),
 }
 
 _AXIS_RE = re.compile(r"^[ABCEUVW]$")
@@ -72,7 +76,7 @@ class ProgramBuilder:
 
     Parameters
     ----------
-    dialect : "marlin" | "grbl"
+    dialect : "marlin" | "grbl" | "linuxcnc"
     kind : str
         Job kind written into the header (e.g. ``"probe_plan"``); no whitespace.
     job_id : str | None
@@ -177,7 +181,7 @@ class ProgramBuilder:
         return self
 
     def end(self) -> "ProgramBuilder":
-        """Program end marker where the dialect has one (grbl ``M2``)."""
+        """Program end marker where the dialect has one (grbl and LinuxCNC ``M2``)."""
         if self.dialect.program_end:
             self._lines.append(self.dialect.program_end)
         return self

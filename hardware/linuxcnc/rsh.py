@@ -16,7 +16,10 @@ Protocol facts this module relies on (linuxcncrsh of LinuxCNC 2.9, measured):
 * Only the session that enabled itself last may ``set`` (a later ``set enable`` on another
   session silently takes control): the emergency-stop session enables itself right
   before it stops.
-* ``get`` now and then answers ``GET NAK`` (status read raced an update): retried.
+* ``get`` now and then answers ``GET NAK`` (status read raced an update), and sessions
+  that talk at the same moment sometimes receive each other's replies: ``get`` retries,
+  ``set`` skips lines that are not its own ACK/NAK.  Keep concurrent sessions rare (the
+  machine polls on one session; the stop session speaks only to stop).
 * ``get error`` returns the oldest unread controller error once (then ``OK``).
 * ``set timeout`` (``set_timeout`` in the manual): any value > 0 makes every wait fail
   at once in this build, so waits are bounded by the socket timeout instead.
@@ -47,7 +50,7 @@ class RshSession:
     def __init__(self, sock: socket.socket, timeout_s: float) -> None:
         self._sock = sock
         self._buffer = b""
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self.timeout_s = timeout_s
         self.healthy = True
         self.server = ""
@@ -120,28 +123,43 @@ class RshSession:
 
     # ------------------------------------------------------------------ commands
     def get(self, name: str, *args: str, retries: int = 5) -> str:
-        """``get name args`` -> the value part of ``NAME value``.  A bare ``GET NAK`` is
-        retried: linuxcncrsh answers it when its status read races the controller's
-        status update (measured: a few in 10,000 polls)."""
+        """``get name args`` -> the value part of ``NAME value``.  A ``GET NAK`` or a reply
+        to another request is retried (``get`` has no side effects): linuxcncrsh answers
+        NAK when its status read races an update, and while sessions talk concurrently it
+        now and then hands one session's reply to another (measured in 2.9)."""
         for attempt in range(retries + 1):
             reply = self.request(" ".join(["get", name, *args]))
             head, _, value = reply.partition(" ")
             if head.upper() == name.upper():
                 return value.strip()
-            if not reply.upper().endswith("NAK"):
-                raise LinkError(f"unexpected reply to 'get {name}': {reply[:80]!r}", field="port")
             time.sleep(0.002 * (attempt + 1))
-        raise RshRejected(f"linuxcncrsh rejected 'get {name}' {retries + 1} times", command=f"get {name}")
+        raise RshRejected(f"linuxcncrsh answered 'get {name}' with {reply[:60]!r} {retries + 1} "
+                          "times", command=f"get {name}")
 
     def set(self, name: str, *args: str, timeout_s: float | None = None) -> None:
-        """``set name args``; ``RshRejected`` (with the controller's error) on NAK."""
+        """``set name args``; ``RshRejected`` (with the controller's error) on NAK.  Lines
+        that are not this command's ACK/NAK (another session's misrouted reply) are
+        skipped."""
         command = " ".join(["set", name, *args])
-        reply = self.request(command, timeout_s).upper()
-        if reply.endswith("ACK") and not reply.endswith("NAK"):
+        expected = f"SET {name.upper()} "
+        with self._lock:
+            reply = self.request(command, timeout_s).upper()
+            while not reply.startswith(expected):
+                reply = self._next_line(command, timeout_s).upper()
+        if reply.endswith(" ACK"):
             return
-        reason = self.pop_error() if reply.endswith("NAK") else None
+        reason = self.pop_error()
         raise RshRejected(f"LinuxCNC rejected {command!r}" + (f": {reason}" if reason else ""),
                           command=command)
+
+    def _next_line(self, command: str, timeout_s: float | None) -> str:
+        try:
+            return self._read_line(self.timeout_s if timeout_s is None else timeout_s)
+        except (OSError, ConnectionError) as exc:
+            self.healthy = False
+            self._close_socket()
+            raise LinkError(f"linuxcncrsh session lost waiting for {command!r}: {exc}",
+                            field="port") from exc
 
     def enable(self, enable_pw: str) -> None:
         """Take control of the machine for this session."""

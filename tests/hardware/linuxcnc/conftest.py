@@ -22,6 +22,7 @@ PROFILE = MachineProfile(dispense_on="M64 P0", dispense_off="M65 P0", probe_comm
                          probe_z_min=-10.0)
 # the simulated probe surface of sim/*.ini ([CONFORMA] SURFACE_Z, SURFACE_SLOPE_X)
 SURFACE_Z, SURFACE_SLOPE_X = -2.0, 0.01
+TRT_PIVOT = (5.0, -3.0, -20.0)  # the five-axis simulator's xyzac-trt rot-point (mm)
 
 
 class _OneSimulator:
@@ -39,7 +40,7 @@ class _OneSimulator:
             if os.environ.get("CI") == "true":
                 pytest.fail(message)
             pytest.skip(message)
-        sim = SimController(config)
+        sim = SimController(config, pivot_mm=TRT_PIVOT)
         try:
             sim.start()
         except SimUnavailable as exc:
