@@ -6,7 +6,8 @@ Every Conforma program starts with the same header::
     G21
     G90
 
-and then consists of moves written with a fixed number of decimals (never ``-0.0000``).
+(LinuxCNC adds ``G64 P0.001``, a 1 um blending bound) and then consists of moves
+written with a fixed number of decimals (never ``-0.0000``).
 Dialect knowledge (probe commands, "wait for moves", program end) lives in the one
 table :data:`DIALECTS`; callers ask the builder, never spell dialect commands themselves.
 
@@ -45,6 +46,7 @@ class Dialect:
     probe_styles: tuple[str, ...]
     wait_for_moves: str
     program_end: str | None
+    preamble: tuple[str, ...] = ()   # lines after the standard header
 
 
 DIALECTS: dict[str, Dialect] = {
@@ -53,8 +55,9 @@ DIALECTS: dict[str, Dialect] = {
                       program_end=None),
     # LinuxCNC: a program file must end in M2/M30; G4 P0 ends blending (waits for moves);
     # its dispense outputs are M64/M65 P<n> (machine profile), not M106/M107 or M8/M9
+    # G64 P0.001: LinuxCNC blends corners within 1 um (its default G64 has no bound)
     "linuxcnc": Dialect("linuxcnc", probe_styles=("g38",), wait_for_moves="G4 P0",
-                        program_end="M2"),
+                        program_end="M2", preamble=("G64 P0.001",)),
 }
 
 _AXIS_RE = re.compile(r"^[ABCEUVW]$")
@@ -102,7 +105,7 @@ class ProgramBuilder:
         self.decimals = int(decimals)
         self.feed_decimals = int(feed_decimals)
         self._lines: list[str] = [f"; conforma job={job_id or '-'} kind={kind} units=mm",
-                                  "G21", "G90"]
+                                  "G21", "G90", *self.dialect.preamble]
 
     # -- formatting ---------------------------------------------------------------
     def _coord(self, axis: str, value: float) -> str:

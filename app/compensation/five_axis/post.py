@@ -24,8 +24,8 @@
     linearly *in workpiece coordinates*, so the tip follows the planned chord (no swing
     between lines).  Feed: ``G93`` (each line takes its planned time), or
     ``feed_mode="tcp"``: ``G94`` with F = the tip's workpiece-coordinate speed, which is
-    what LinuxCNC feeds in TCP mode.  ``G64 P<blend_mm>`` bounds corner blending;
-    ``M429`` restores identity kinematics before the program end.
+    what LinuxCNC feeds in TCP mode.  The ``linuxcnc`` dialect's ``G64 P0.001`` bounds
+    corner blending to 1 um; ``M429`` restores identity kinematics before the end.
 
 A program written for TCP mode and run without ``M428`` is *accepted silently* by
 LinuxCNC and lands millimetres off (measured: 7.5 mm, 46.8 deg): never mix the two.
@@ -45,7 +45,6 @@ __all__ = ["POSTS", "PostName", "linuxcnc_trt_program", "linuxcnc_trt_setup"]
 
 PostName = Literal["conforma", "linuxcnc_xyzac_trt"]
 POSTS: tuple[str, ...] = ("conforma", "linuxcnc_xyzac_trt")
-BLEND_TOLERANCE_MM = 0.001
 
 
 def linuxcnc_trt_setup(pivot_mm: tuple[float, float, float]) -> list[str]:
@@ -72,7 +71,6 @@ def linuxcnc_trt_program(tip_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarra
     b.comment("LinuxCNC xyzac-trt TCP [M428]: X Y Z = nozzle tip in workpiece coordinates; "
               "A about X, C about Z [table rotations]")
     b.comment("expects: " + "; ".join(linuxcnc_trt_setup(pivot_mm)))
-    b.raw(f"G64 P{BLEND_TOLERANCE_MM:g}")
     b.raw("M428")
     b.raw("G94")
     approach(b, style, tip_mm[0], {"a": float(a_deg[0]), "c": float(c_deg[0])})
