@@ -9,7 +9,8 @@ from pydantic import BaseModel, Field, field_validator
 
 from app.api.schemas import Finite, Strict, UtcDatetime
 
-_PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*)$")
+_PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*"
+                   r"|linuxcnc://[A-Za-z0-9.\-]+:\d{1,5}(\?joints=\d)?)$")
 Rate = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 
 
@@ -56,7 +57,7 @@ class MachineCreate(Strict):
     name: str = Field(min_length=1, max_length=200)
     port: str = Field(description='"mock://", "socket://host:port" or a device such as "/dev/ttyUSB0"')
     baudrate: int = Field(115200, ge=300, le=4_000_000)
-    dialect: Literal["marlin", "grbl"] = "marlin"
+    dialect: Literal["marlin", "grbl", "linuxcnc"] = "marlin"
     profile: Profile = Field(default_factory=Profile)
     mock: MockSettings | None = None
 
@@ -64,7 +65,7 @@ class MachineCreate(Strict):
     @classmethod
     def _port(cls, value: str) -> str:
         if not _PORT.match(value):
-            raise ValueError("expected mock://..., socket://host:port or a serial device path")
+            raise ValueError("expected mock://..., socket://host:port, linuxcnc://host:port or a serial device path")
         return value
 
 

@@ -8,7 +8,9 @@ Passwords are never part of a stored URL: they come from the constructor, else f
 environment (``CONFORMA_LINUXCNC_CONNECTPW`` / ``CONFORMA_LINUXCNC_ENABLEPW``), else
 linuxcncrsh's defaults (``EMC`` / ``EMCTOO``).  ``programs`` is a directory the controller
 can read under the same path (the controller's own disk, or a shared mount): linuxcncrsh
-opens programs by path and cannot receive a file.
+opens programs by path and cannot receive a file.  Default: ``CONFORMA_LINUXCNC_PROGRAMS``,
+else ``<tmp>/conforma-linuxcnc`` (the service's API accepts ``linuxcnc://host:port`` and
+``?joints=N`` only, so an API caller cannot pick a directory to write to).
 """
 
 from __future__ import annotations
@@ -52,7 +54,9 @@ def parse_url(url: str) -> LinuxCNCAddress:
     unknown = sorted(set(query) - _OPTIONS)
     if unknown:
         raise InvalidConfig(f"unknown linuxcnc:// option {unknown[0]!r}", field="port", value=url)
-    program_dir = query.get("programs", [os.path.join(tempfile.gettempdir(), "conforma-linuxcnc")])[0]
+    default_dir = (os.environ.get("CONFORMA_LINUXCNC_PROGRAMS")
+                   or os.path.join(tempfile.gettempdir(), "conforma-linuxcnc"))
+    program_dir = query.get("programs", [default_dir])[0]
     if not os.path.isabs(program_dir):
         raise InvalidConfig("programs must be an absolute directory", field="port", value=url)
     joints = query.get("joints", [None])[0]
