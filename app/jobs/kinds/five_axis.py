@@ -97,6 +97,11 @@ class FiveAxisJobParams(JobParams):
                              description="command that starts dispensing (after the approach)")
     dispense_off: str = Field("M9", max_length=40, pattern=_DISPENSE_COMMAND,
                               description="command that stops dispensing (after the last move)")
+    post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
+        "conforma", description="conforma: X Y Z = tip in machine coordinates (any controller; LinuxCNC "
+        "xyzac-trt in identity mode); linuxcnc_xyzac_trt: M428 TCP, X Y Z = tip in workpiece coordinates")
+    program_end: str | None = Field(None, max_length=40, pattern=_DISPENSE_COMMAND,
+                                    description="the machine's program end, e.g. M2; default: the dialect's")
     fit_grid: list[Annotated[int, Field(ge=4, le=100)]] = Field(
         [20, 20], min_length=2, max_length=2, description="without surface_fit_job_id: grid [nu, nv] "
         "of the nominal top fit")
@@ -129,7 +134,7 @@ class FiveAxisJobParams(JobParams):
             midpoint_tol_mm=self.midpoint_tol_mm, on_surface_tol_mm=self.on_surface_tol_mm,
             feed_mode=self.feed_mode, job_id=job_id, decimals=self.decimals, safe_z_mm=self.safe_z_mm,
             approach_feed_mm_min=self.approach_feed_mm_min, dispense_on=self.dispense_on,
-            dispense_off=self.dispense_off)
+            dispense_off=self.dispense_off, program_end=self.program_end, post=self.post)
 
 
 def _in_params(exc: FiveAxisError) -> FiveAxisError:
