@@ -23,6 +23,13 @@ class Profile(Strict):
     clearance_z: Finite = Field(5.0, gt=-1000, le=1000, description="safe Z for travel, mm")
     probe_z_min: Finite = Field(-10.0, gt=-1000, le=1000, description="lowest Z a probe may reach, mm")
     probe_command: Literal["G30", "G38.2"] | None = None
+    program_end: str | None = Field(None, min_length=1, max_length=40, pattern=r"^[A-Za-z0-9 .\-]+$",
+                                    description="program end, e.g. M2 (LinuxCNC); default: the dialect's")
+    pivot_mm: list[Finite] | None = Field(None, min_length=3, max_length=3,
+                                          description="five-axis table pivot [x, y, z] mm (LinuxCNC xyzac-trt "
+                                          "x/y/z-rot-point); five_axis jobs with machine_id use it")
+    five_axis_post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
+        "conforma", description="how five_axis jobs with machine_id write X Y Z A C (see the README)")
 
 
 class MockPlacement(Strict):
