@@ -25,8 +25,6 @@ Probe results are the G38.2 result parameters, read back with a ``(DEBUG,...)`` 
 
 from __future__ import annotations
 
-import hashlib
-import os
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -41,7 +39,6 @@ from .url import parse_url, passwords
 __all__ = ["LinuxCNCMachine"]
 
 _NO_CONTACT = "without making contact"
-_PROGRAM_ENDS = ("M2", "M30")
 
 
 class LinuxCNCMachine:
@@ -289,24 +286,11 @@ class LinuxCNCMachine:
         return tuple(float(w) for w in words[1:])  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ programs
-    def _write_program(self, commands: list[str]) -> str:
-        if commands[-1].split()[0].upper() not in _PROGRAM_ENDS:
-            commands = [*commands, "M2"]
-        text = "\n".join(commands) + "\n"
-        digest = hashlib.sha256(text.encode()).hexdigest()[:20]
-        os.makedirs(self.address.program_dir, exist_ok=True)
-        path = os.path.join(self.address.program_dir, f"conforma-{digest}.ngc")
-        tmp = f"{path}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-        return path
-
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
                start_line: int = 0) -> StreamReport:
         """Run the program from command ``start_line`` on the controller (see the module
         docstring); returns when it ended or was cancelled (``set abort``)."""
-        from .program_run import run_program
+        from .program_run import run_program, write_program
 
         commands = validate_program(lines)
         total = len(commands)
@@ -323,7 +307,7 @@ class LinuxCNCMachine:
             if start_line == total:
                 executed, cancelled = total, False
             else:
-                path = self._write_program(commands[start_line:])
+                path = write_program(self.address.program_dir, commands[start_line:])
                 executed, cancelled = run_program(self, path, start_line, total, on_progress)
         except LinkError as exc:
             executed = self.progress[0]

@@ -1,4 +1,4 @@
-"""Run one program file on LinuxCNC and follow it (the loop behind ``LinuxCNCMachine.stream``).
+"""Write a program file and run it on LinuxCNC, following it (``LinuxCNCMachine.stream``).
 
 The controller reads the file itself; the host opens it (``set mode auto``, ``set open``,
 ``set run``) and polls ``program_status`` / ``program_line`` / ``error`` every
@@ -9,6 +9,8 @@ records what is known executed).
 
 from __future__ import annotations
 
+import hashlib
+import os
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
@@ -18,9 +20,26 @@ from ..errors import FirmwareError, LinkError
 if TYPE_CHECKING:
     from .machine import LinuxCNCMachine
 
-__all__ = ["run_program"]
+__all__ = ["run_program", "write_program"]
 
 _START_GRACE_S = 1.0  # IDLE right after "set run" may mean "not started yet"
+_PROGRAM_ENDS = ("M2", "M30")
+
+
+def write_program(directory: str, commands: list[str]) -> str:
+    """Write ``commands`` (plus ``M2`` when they have no program end) to
+    ``<directory>/conforma-<sha>.ngc`` atomically; returns the absolute path."""
+    if commands[-1].split()[0].upper() not in _PROGRAM_ENDS:
+        commands = [*commands, "M2"]
+    text = "\n".join(commands) + "\n"
+    digest = hashlib.sha256(text.encode()).hexdigest()[:20]
+    os.makedirs(directory, exist_ok=True)
+    path = os.path.join(directory, f"conforma-{digest}.ngc")
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w", encoding="utf-8") as handle:
+        handle.write(text)
+    os.replace(tmp, path)
+    return path
 
 
 def run_program(machine: "LinuxCNCMachine", path: str, start_line: int, total: int,
