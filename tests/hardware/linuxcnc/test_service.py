@@ -1,13 +1,18 @@
-"""A linuxcnc:// machine through the service's API: register, connect, print, stop.
+"""A linuxcnc:// machine through the service's API: register, connect, print, probe_run, stop.
 
 The same endpoints and the same ``print`` job as for serial machines; the controller is
 Conforma's three-axis LinuxCNC simulator."""
 
 from __future__ import annotations
 
+import subprocess
+
+import numpy as np
 import pytest
 
+from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
+from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
 from tests.jobs.test_jobs_api import wait_for
 
 OP = auth("operator")
@@ -52,3 +57,43 @@ def test_print_job_runs_a_program_on_linuxcnc(client, lcnc_env):
 def register_bad(client):
     body = {"name": "x", "port": "linuxcnc://127.0.0.1:5007?programs=/etc", "dialect": "linuxcnc"}
     return client.post("/api/v1/machines", json=body, headers=OP)
+
+
+def _halcmd(*args: str) -> str:
+    return subprocess.run(["halcmd", *args], capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+
+
+def test_probe_run_job_touches_the_simulated_surface(client, lcnc_env):
+    """A probe plan of a reference trace, run by the probe_run job on LinuxCNC: every touch
+    lands on the simulator's probe plane z = z0 + 0.01 x (z0 moved under the trace via HAL)."""
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_mesh(grid_mm=0.5).export(file_type="stl"))},
+                       headers=OP).json()
+    trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[3].to_api(), headers=OP).json()
+    plan = wait_for(client, client.post("/api/v1/jobs", json={"kind": "probe_plan", "params": {
+        "trace_id": trace["id"], "method": "uniform", "count": 5}}, headers=OP).json()["id"])
+    assert plan["status"] == "succeeded", plan["error"]
+    records = plan["result"]["records"]
+    nominal = np.array([r["nominal"] for r in records])
+    z0 = float(np.median(nominal[:, 2] - SURFACE_SLOPE_X * nominal[:, 0]))
+    plane = z0 + SURFACE_SLOPE_X * nominal[:, 0]
+    assert all(r["target_z_mm"] < z < r["safe_z_mm"] for r, z in zip(records, plane))  # reachable
+    _halcmd("setp", "conforma-surface.offset", repr(z0))
+    try:
+        body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{lcnc_env.port}?joints=3", "dialect": "linuxcnc",
+                "profile": PROFILE}
+        machine_id = client.post("/api/v1/machines", json=body, headers=OP).json()["id"]
+        client.post(f"/api/v1/machines/{machine_id}/connect", headers=OP)
+        client.app.state.runtime.machines.get(machine_id).home()
+        run = client.post("/api/v1/jobs", json={"kind": "probe_run", "params": {
+            "plan_job_id": plan["id"], "machine_id": machine_id, "probe_feed_mm_min": 200}}, headers=OP)
+        assert run.status_code == 202, run.text
+        done = wait_for(client, run.json()["id"], timeout=120)
+    finally:
+        _halcmd("setp", "conforma-surface.offset", repr(SURFACE_Z))
+    assert done["status"] == "succeeded", done["error"]
+    measured = np.array([p["measured"] for p in done["result"]["points"]])
+    assert measured[:, :2] == pytest.approx(nominal[:, :2], abs=1e-4)
+    # the trip is seen at most two 1 ms servo periods late (sampling + the sim's one-period
+    # feedback lag): 6.7 um at 200 mm/min, always below the surface
+    late = 2 * 200 / 60 * 0.001
+    assert np.all(measured[:, 2] <= plane + 1e-4) and np.all(measured[:, 2] >= plane - late - 1e-4)
