@@ -139,8 +139,13 @@ class MachineManager:
                 with hardware_errors():
                     if urlsplit(row.port).scheme == "mock" and self.world(row) is None:
                         self._build_world(row)
-                    machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
-                                      boot_wait_s=0.0 if row.port.startswith("mock://") else 2.0)
+                    if urlsplit(row.port).scheme == "linuxcnc":  # LinuxCNC over linuxcncrsh
+                        from hardware.linuxcnc import LinuxCNCMachine
+
+                        machine = LinuxCNCMachine(row.port, profile_of(row))
+                    else:
+                        machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
+                                          boot_wait_s=0.0 if row.port.startswith("mock://") else 2.0)
                 self._machines[row.id] = machine
         with hardware_errors():
             machine.connect()

@@ -9,7 +9,8 @@ from pydantic import BaseModel, Field, field_validator
 
 from app.api.schemas import Finite, Strict, UtcDatetime
 
-_PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*)$")
+_PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*"
+                   r"|linuxcnc://[A-Za-z0-9.\-]+:\d{1,5}(\?joints=\d)?)$")
 Rate = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 
 
@@ -39,6 +40,13 @@ class Profile(Strict):
     probe_command: Literal["G30", "G38.2"] | None = None
     volume_mm: TravelVolume | None = Field(None, description="the machine's travel limits (real-parts: programs "
                                            "from a part in its own frame are placed inside and refused beyond)")
+    program_end: str | None = Field(None, min_length=1, max_length=40, pattern=r"^[A-Za-z0-9 .\-]+$",
+                                    description="program end, e.g. M2 (LinuxCNC); default: the dialect's")
+    pivot_mm: list[Finite] | None = Field(None, min_length=3, max_length=3,
+                                          description="five-axis table pivot [x, y, z] mm (LinuxCNC xyzac-trt "
+                                          "x/y/z-rot-point); five_axis jobs with machine_id use it")
+    five_axis_post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
+        "conforma", description="how five_axis jobs with machine_id write X Y Z A C (see the README)")
 
 
 class MockPlacement(Strict):
@@ -73,7 +81,7 @@ class MachineCreate(Strict):
     name: str = Field(min_length=1, max_length=200)
     port: str = Field(description='"mock://", "socket://host:port" or a device such as "/dev/ttyUSB0"')
     baudrate: int = Field(115200, ge=300, le=4_000_000)
-    dialect: Literal["marlin", "grbl"] = "marlin"
+    dialect: Literal["marlin", "grbl", "linuxcnc"] = "marlin"
     profile: Profile = Field(default_factory=Profile)
     mock: MockSettings | None = None
 
@@ -81,7 +89,7 @@ class MachineCreate(Strict):
     @classmethod
     def _port(cls, value: str) -> str:
         if not _PORT.match(value):
-            raise ValueError("expected mock://..., socket://host:port or a serial device path")
+            raise ValueError("expected mock://..., socket://host:port, linuxcnc://host:port or a serial device path")
         return value
 
 

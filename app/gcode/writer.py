@@ -6,7 +6,8 @@ Every Conforma program starts with the same header::
     G21
     G90
 
-and then consists of moves written with a fixed number of decimals (never ``-0.0000``).
+(LinuxCNC adds ``G64 P0.001``, a 1 um blending bound) and then consists of moves
+written with a fixed number of decimals (never ``-0.0000``).
 Dialect knowledge (probe commands, "wait for moves", program end) lives in the one
 table :data:`DIALECTS`; callers ask the builder, never spell dialect commands themselves.
 
@@ -23,7 +24,7 @@ from typing import Literal
 
 from app.errors import InvalidInput
 
-DialectName = Literal["marlin", "grbl"]
+DialectName = Literal["marlin", "grbl", "linuxcnc"]
 ProbeStyle = Literal["g38", "g30"]
 
 
@@ -45,12 +46,18 @@ class Dialect:
     probe_styles: tuple[str, ...]
     wait_for_moves: str
     program_end: str | None
+    preamble: tuple[str, ...] = ()   # lines after the standard header
 
 
 DIALECTS: dict[str, Dialect] = {
     "grbl": Dialect("grbl", probe_styles=("g38",), wait_for_moves="G4 P0", program_end="M2"),
     "marlin": Dialect("marlin", probe_styles=("g30", "g38"), wait_for_moves="M400",
                       program_end=None),
+    # LinuxCNC: a program file must end in M2/M30; G4 P0 ends blending (waits for moves);
+    # its dispense outputs are M64/M65 P<n> (machine profile), not M106/M107 or M8/M9
+    # G64 P0.001: LinuxCNC blends corners within 1 um (its default G64 has no bound)
+    "linuxcnc": Dialect("linuxcnc", probe_styles=("g38",), wait_for_moves="G4 P0",
+                        program_end="M2", preamble=("G64 P0.001",)),
 }
 
 _AXIS_RE = re.compile(r"^[ABCEUVW]$")
@@ -72,7 +79,7 @@ class ProgramBuilder:
 
     Parameters
     ----------
-    dialect : "marlin" | "grbl"
+    dialect : "marlin" | "grbl" | "linuxcnc"
     kind : str
         Job kind written into the header (e.g. ``"probe_plan"``); no whitespace.
     job_id : str | None
@@ -98,7 +105,7 @@ class ProgramBuilder:
         self.decimals = int(decimals)
         self.feed_decimals = int(feed_decimals)
         self._lines: list[str] = [f"; conforma job={job_id or '-'} kind={kind} units=mm",
-                                  "G21", "G90"]
+                                  "G21", "G90", *self.dialect.preamble]
 
     # -- formatting ---------------------------------------------------------------
     def _coord(self, axis: str, value: float) -> str:
@@ -177,7 +184,7 @@ class ProgramBuilder:
         return self
 
     def end(self) -> "ProgramBuilder":
-        """Program end marker where the dialect has one (grbl ``M2``)."""
+        """Program end marker where the dialect has one (grbl and LinuxCNC ``M2``)."""
         if self.dialect.program_end:
             self._lines.append(self.dialect.program_end)
         return self

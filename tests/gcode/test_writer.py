@@ -48,7 +48,11 @@ def test_probe_commands_per_dialect():
     ProgramBuilder("marlin", "probe_plan").probe("g38", z=0, feed_mm_min=50)
     with pytest.raises(GcodeError):
         ProgramBuilder("grbl", "probe_plan").probe("g30", x=0, y=0)
-    assert set(DIALECTS) == {"grbl", "marlin"}
+    assert set(DIALECTS) == {"grbl", "marlin", "linuxcnc"}
+    lc = ProgramBuilder("linuxcnc", "probe_plan").probe("g38", z=-2, feed_mm_min=100).end()
+    assert lc.lines[-2:] == ("G38.2 Z-2.0000 F100.0", "M2")  # LinuxCNC needs a program end
+    with pytest.raises(GcodeError):
+        ProgramBuilder("linuxcnc", "probe_plan").probe("g30", x=0, y=0)
 
 
 def test_bad_inputs_are_typed():

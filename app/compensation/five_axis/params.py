@@ -9,6 +9,7 @@ from app.checks import require_positive
 from app.compensation.five_axis.contact import NormalSide, NormalSource
 from app.compensation.five_axis.errors import FiveAxisError
 from app.compensation.five_axis.kinematics import MachineConfig
+from app.compensation.five_axis.post import POSTS, PostName
 from app.compensation.five_axis.program import FeedMode, ProgramStyle
 
 __all__ = ["FiveAxisParams"]
@@ -43,7 +44,11 @@ class FiveAxisParams:
     feed_mode: "inverse_time" (G93) or "tcp" (G94), see :mod:`.program`.
     dialect, job_id, decimals, safe_z_mm, approach_feed_mm_min: program formatting.
     dispense_on / dispense_off: commands (one line each, or None) written after the
-    approach move and after the last print move.
+    approach move and after the last print move.  program_end: the machine's program end
+    (None: the dialect's).
+    post: "conforma" (X Y Z = tip in machine coordinates, the project's convention) or
+    "linuxcnc_xyzac_trt" (LinuxCNC TCP mode: M428, X Y Z = tip in workpiece
+    coordinates), see :mod:`.post`.
     """
 
     standoff_mm: float = 0.5
@@ -68,6 +73,8 @@ class FiveAxisParams:
     approach_feed_mm_min: float = 300.0
     dispense_on: str | None = None
     dispense_off: str | None = None
+    program_end: str | None = None
+    post: PostName = "conforma"
 
     def __post_init__(self) -> None:
         positive = ("standoff_mm", "feed_mm_min", "servo_period_s", "segment_mm",
@@ -80,7 +87,10 @@ class FiveAxisParams:
                 <= _MAX_SPLIT_ROUNDS):
             raise FiveAxisError(f"max_split_rounds must be an integer in [0, {_MAX_SPLIT_ROUNDS}]",
                                 field="params.max_split_rounds", value=self.max_split_rounds)
-        for name in ("dispense_on", "dispense_off"):
+        if self.post not in POSTS:
+            raise FiveAxisError(f"post must be one of {list(POSTS)}", field="params.post",
+                                value=self.post)
+        for name in ("dispense_on", "dispense_off", "program_end"):
             command = getattr(self, name)
             if command is not None and not (isinstance(command, str) and command.strip()
                                             and "\n" not in command and "\r" not in command):
@@ -120,4 +130,5 @@ class FiveAxisParams:
         return ProgramStyle(dialect=self.dialect, job_id=self.job_id, decimals=self.decimals,
                             safe_z_mm=self.safe_z_mm,
                             approach_feed_mm_min=self.approach_feed_mm_min,
-                            dispense_on=self.dispense_on, dispense_off=self.dispense_off)
+                            dispense_on=self.dispense_on, dispense_off=self.dispense_off,
+                            program_end=self.program_end)

@@ -45,6 +45,7 @@ from app.compensation.five_axis.kinematics import (
     workpiece_to_machine,
 )
 from app.compensation.five_axis.params import FiveAxisParams
+from app.compensation.five_axis.post import linuxcnc_trt_program
 from app.compensation.five_axis.program import five_axis_program, nominal_program
 from app.geometry.fitting import interpolate_curve
 from app.geometry.nurbs import NurbsCurve
@@ -255,8 +256,9 @@ def plan_five_axis(surface: NurbsSurface, trace: NurbsCurve,
     nominal_xyz = frames.contact + h * _Z
     nominal_standoff_err = np.abs(surface.invert(nominal_xyz).distance - h)
 
+    frame = "workpiece" if params.post == "linuxcnc_xyzac_trt" else "machine"
     feed_words = ("[G93, F = 1/minutes per line]" if params.feed_mode == "inverse_time"
-                  else "[G94, F = tip mm/min in machine coordinates]")
+                  else f"[G94, F = tip mm/min in {frame} coordinates]")
     header = [
         (f"five-axis table-tilting A[about X]/C[about Z], pivot {list(machine.pivot_mm)} mm,"
          " X Y Z = nozzle tip in machine coordinates"),
@@ -265,8 +267,13 @@ def plan_five_axis(surface: NurbsSurface, trace: NurbsCurve,
         f"feed mode: {params.feed_mode} {feed_words}, trace feed {params.feed_mm_min} mm/min",
         f"servo period {params.servo_period_s} s, second-order Taylor parameter update",
     ]
-    program = five_axis_program(xyz, a_deg, c_deg, durations, params.feed_mode,
-                                params.feed_mm_min, params.style(), header)
+    if params.post == "linuxcnc_xyzac_trt":
+        program = linuxcnc_trt_program(tip_wp, a_deg, c_deg, durations, params.feed_mode,
+                                       params.feed_mm_min, params.style(), header[1:],
+                                       machine.pivot_mm)
+    else:
+        program = five_axis_program(xyz, a_deg, c_deg, durations, params.feed_mode,
+                                    params.feed_mm_min, params.style(), header)
     nominal = nominal_program(nominal_xyz, params.feed_mm_min, params.style(),
                               [(f"nominal three-axis traverse, nozzle {h} mm straight above "
                                 "the contact points, no tilt")])

@@ -27,7 +27,8 @@ import numpy as np
 
 from app.gcode.writer import ProgramBuilder, format_number
 
-__all__ = ["FeedMode", "ProgramStyle", "five_axis_program", "nominal_program"]
+__all__ = ["FeedMode", "ProgramStyle", "approach", "dispense", "end_program", "five_axis_program",
+           "nominal_program"]
 
 FeedMode = Literal["inverse_time", "tcp"]
 
@@ -39,8 +40,10 @@ class ProgramStyle:
     dialect: G-code dialect of :mod:`app.gcode.writer`; job_id: header id; decimals:
     digits for mm and degrees; safe_z_mm: machine Z for the approach rapids (None: no
     rapids, the first line moves straight to the start pose at approach_feed_mm_min).
-    dispense_on / dispense_off: one G-code line each (e.g. ``"M8"`` / ``"M9"``) written
-    after the approach move / after the last print move; None: not written.
+    dispense_on / dispense_off: one G-code line each (e.g. ``"M8"`` / ``"M9"``, LinuxCNC
+    ``"M64 P0"`` / ``"M65 P0"``) written after the approach move / after the last print
+    move; None: not written.  program_end: the machine's program end (e.g. ``"M2"``);
+    None: the dialect's (grbl and linuxcnc ``M2``, Marlin none).
     """
 
     dialect: str = "grbl"
@@ -50,14 +53,24 @@ class ProgramStyle:
     approach_feed_mm_min: float = 300.0
     dispense_on: str | None = None
     dispense_off: str | None = None
+    program_end: str | None = None
 
 
-def _dispense(b: ProgramBuilder, command: str | None) -> None:
+def end_program(b: ProgramBuilder, style: ProgramStyle) -> None:
+    """The profile's program end, else the dialect's."""
+    if style.program_end is not None:
+        b.raw(style.program_end.strip())
+    else:
+        b.end()
+
+
+def dispense(b: ProgramBuilder, command: str | None) -> None:
+    """Write one dispense command line (nothing for None)."""
     if command is not None:
         b.raw(command.strip())
 
 
-def _approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
+def approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
               rotary: dict[str, float]) -> None:
     if style.safe_z_mm is not None:
         b.rapid(z=style.safe_z_mm)
@@ -82,8 +95,8 @@ def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
     for line in header:
         b.comment(line)
     b.raw("G94")
-    _approach(b, style, xyz_mm[0], {"a": float(a_deg[0]), "c": float(c_deg[0])})
-    _dispense(b, style.dispense_on)
+    approach(b, style, xyz_mm[0], {"a": float(a_deg[0]), "c": float(c_deg[0])})
+    dispense(b, style.dispense_on)
     b.raw("G93" if feed_mode == "inverse_time" else "G94")
     seg_len = np.linalg.norm(np.diff(xyz_mm, axis=0), axis=1)
     for j in range(1, xyz_mm.shape[0]):
@@ -94,9 +107,9 @@ def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
             feed = seg_len[j - 1] / dt * 60.0 if seg_len[j - 1] > 1e-9 else nominal_feed_mm_min
         b.move(x=xyz_mm[j, 0], y=xyz_mm[j, 1], z=xyz_mm[j, 2], feed_mm_min=feed,
                a=float(a_deg[j]), c=float(c_deg[j]))
-    _dispense(b, style.dispense_off)
+    dispense(b, style.dispense_off)
     b.raw("G94")
-    b.end()
+    end_program(b, style)
     return b.text()
 
 
@@ -109,10 +122,10 @@ def nominal_program(xyz_mm: np.ndarray, feed_mm_min: float, style: ProgramStyle,
     for line in header:
         b.comment(line)
     b.raw("G94")
-    _approach(b, style, xyz_mm[0], {})
-    _dispense(b, style.dispense_on)
+    approach(b, style, xyz_mm[0], {})
+    dispense(b, style.dispense_on)
     for j in range(1, xyz_mm.shape[0]):
         b.move(x=xyz_mm[j, 0], y=xyz_mm[j, 1], z=xyz_mm[j, 2], feed_mm_min=feed_mm_min)
-    _dispense(b, style.dispense_off)
-    b.end()
+    dispense(b, style.dispense_off)
+    end_program(b, style)
     return b.text()

@@ -19,6 +19,12 @@
   move to the first pose and ``dispense_off`` the last move, so every G1 between them
   dispenses.
 
+* Post-processor ``post``: ``conforma`` (X Y Z = tip in machine coordinates) or
+  ``linuxcnc_xyzac_trt`` (LinuxCNC TCP, ``M428``, X Y Z = tip in workpiece coordinates),
+  see :mod:`app.compensation.five_axis.post`.  With ``machine_id`` the machine profile's
+  dispense codes, program end, ``five_axis_post``, ``pivot_mm`` and the machine's dialect
+  replace the job's own fields.
+
 A pose needing A beyond ``a_limits_deg`` fails the job with a 422 problem naming
 ``params.a_limits_deg``.  Units: mm, mm/min and degrees at this boundary.
 """
@@ -42,7 +48,7 @@ from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.kinds.surface_fit import fit_part_top
 from app.jobs.registry import JobParams, job_kind
-from app.models import Job, Part, Trace
+from app.models import Job, Machine, Part, Trace
 from app.records import get_or_404
 
 DEFAULT_FEED_MM_MIN = 600.0
@@ -97,6 +103,14 @@ class FiveAxisJobParams(JobParams):
                              description="command that starts dispensing (after the approach)")
     dispense_off: str = Field("M9", max_length=40, pattern=_DISPENSE_COMMAND,
                               description="command that stops dispensing (after the last move)")
+    post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
+        "conforma", description="conforma: X Y Z = tip in machine coordinates (any controller; LinuxCNC "
+        "xyzac-trt in identity mode); linuxcnc_xyzac_trt: M428 TCP, X Y Z = tip in workpiece coordinates")
+    program_end: str | None = Field(None, max_length=40, pattern=_DISPENSE_COMMAND,
+                                    description="the machine's program end, e.g. M2; default: the dialect's")
+    dialect: Literal["grbl", "marlin", "linuxcnc"] = Field("grbl", description="G-code dialect of the program")
+    machine_id: str | None = Field(None, description="take the dialect, dispense codes, program end, post and "
+                                   "pivot (when set) from this machine's profile instead of the fields above")
     fit_grid: list[Annotated[int, Field(ge=4, le=100)]] = Field(
         [20, 20], min_length=2, max_length=2, description="without surface_fit_job_id: grid [nu, nv] "
         "of the nominal top fit")
@@ -129,7 +143,24 @@ class FiveAxisJobParams(JobParams):
             midpoint_tol_mm=self.midpoint_tol_mm, on_surface_tol_mm=self.on_surface_tol_mm,
             feed_mode=self.feed_mode, job_id=job_id, decimals=self.decimals, safe_z_mm=self.safe_z_mm,
             approach_feed_mm_min=self.approach_feed_mm_min, dispense_on=self.dispense_on,
-            dispense_off=self.dispense_off)
+            dispense_off=self.dispense_off, program_end=self.program_end, post=self.post,
+            dialect=self.dialect)
+
+
+_DIALECTS = ("grbl", "marlin", "linuxcnc")
+
+
+def with_machine(params: FiveAxisJobParams, machine: Machine) -> FiveAxisJobParams:
+    """The parameters with the machine profile's program settings filled in."""
+    profile = machine.profile or {}
+    update: dict[str, Any] = {key: profile[key] for key in ("dispense_on", "dispense_off", "program_end")
+                              if profile.get(key)}
+    update["post"] = profile.get("five_axis_post") or "conforma"
+    if profile.get("pivot_mm") is not None:
+        update["pivot"] = [float(v) for v in profile["pivot_mm"]]
+    if machine.dialect in _DIALECTS:
+        update["dialect"] = machine.dialect
+    return params.model_copy(update=update)
 
 
 def _in_params(exc: FiveAxisError) -> FiveAxisError:
@@ -159,6 +190,8 @@ def _check(params: FiveAxisJobParams, session: Session) -> None:
     """At submission: the trace belongs to the part, the surface_fit job is a succeeded fit
     of the same part, and the trace lies over its surface."""
     trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
+    if params.machine_id is not None:
+        params = with_machine(params, get_or_404(session, Machine, params.machine_id, field="params.machine_id"))
     if trace.part_id != params.part_id:
         raise InvalidInput(f"trace {trace.id!r} belongs to part {trace.part_id!r}, not {params.part_id!r}",
                            field="params.trace_id", value=params.trace_id)
@@ -214,10 +247,13 @@ def _surface(ctx: JobContext, params: FiveAxisJobParams, xy: np.ndarray) -> Chos
 
 
 @job_kind("five_axis", FiveAxisJobParams, check=_check, references=lambda p: [
-    ("part", p.part_id), ("trace", p.trace_id), *([("job", p.surface_fit_job_id)] if p.surface_fit_job_id else [])])
+    ("part", p.part_id), ("trace", p.trace_id), *([("job", p.surface_fit_job_id)] if p.surface_fit_job_id else []),
+    *([("machine", p.machine_id)] if p.machine_id else [])])
 def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
     """Plan a nozzle-normal five-axis (X Y Z A C) traverse of a trace and write its program."""
     trace = ctx.trace(params.trace_id)
+    if params.machine_id is not None:
+        params = with_machine(params, ctx.machine(params.machine_id))
     plan_params = params.plan_params(trace, ctx.job_id)
     xy = trace_xy(trace)
     ctx.progress(0.05, "loading the surface")
@@ -236,6 +272,7 @@ def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
         **path.summary(),
         "dispense_on": params.dispense_on,
         "dispense_off": params.dispense_off,
+        "post": params.post,
         "feed_fluctuation": path.feed.max_rel,
         "feed_fluctuation_first_order": path.feed_first_order.max_rel,
         "standoff_mm": plan_params.standoff_mm,

@@ -1,0 +1,86 @@
+"""Write a program file and run it on LinuxCNC, following it (``LinuxCNCMachine.stream``).
+
+The controller reads the file itself; the host opens it (``set mode auto``, ``set open``,
+``set run``) and polls ``program_status`` / ``program_line`` / ``error`` every
+``poll_s``.  A cancel request becomes ``set abort``; an emergency stop or a controller
+error ends the run with ``FirmwareError``; a lost session raises ``LinkError`` (the caller
+records what is known executed).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from ..errors import FirmwareError, LinkError
+
+if TYPE_CHECKING:
+    from .machine import LinuxCNCMachine
+
+__all__ = ["run_program", "write_program"]
+
+_START_GRACE_S = 1.0  # IDLE right after "set run" may mean "not started yet"
+_PROGRAM_ENDS = ("M2", "M30")
+
+
+def write_program(directory: str, commands: list[str]) -> str:
+    """Write ``commands`` (plus ``M2`` when they have no program end) to
+    ``<directory>/conforma-<sha>.ngc`` atomically; returns the absolute path."""
+    if commands[-1].split()[0].upper() not in _PROGRAM_ENDS:
+        commands = [*commands, "M2"]
+    text = "\n".join(commands) + "\n"
+    digest = hashlib.sha256(text.encode()).hexdigest()[:20]
+    os.makedirs(directory, exist_ok=True)
+    path = os.path.join(directory, f"conforma-{digest}.ngc")
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w", encoding="utf-8") as handle:
+        handle.write(text)
+    os.replace(tmp, path)
+    return path
+
+
+def run_program(machine: "LinuxCNCMachine", path: str, start_line: int, total: int,
+                on_progress: Callable[[int, int], None] | None) -> tuple[int, bool]:
+    """Run ``path`` (its line n is command ``start_line + n - 1``); returns (executed,
+    cancelled).  ``machine.progress`` is kept current."""
+    link = machine.link
+    count = total - start_line
+    link.set("mode", "auto")
+    link.pop_error()
+    link.set("open", path)
+    link.set("run")
+    started = time.monotonic()
+    seen_running = False
+    executed = start_line
+    while True:
+        if machine._estopped:
+            raise FirmwareError("emergency stop: the program was stopped", command="estop")
+        if machine._cancel:
+            link.set("abort")
+            return executed, True
+        status = link.get("program_status").upper()
+        line = int(float(link.get("program_line") or 0))
+        error = link.pop_error()
+        if error is not None:
+            link.set("abort")
+            raise FirmwareError(f"LinuxCNC stopped the program at line {line}: {error}",
+                                command=f"line {line}")
+        if status in ("RUNNING", "PAUSED"):
+            seen_running = True
+            if line > 0:
+                executed = max(executed, start_line + min(line - 1, count))
+        elif seen_running or time.monotonic() - started > _START_GRACE_S:
+            executed = total
+        if machine._state in ("printing", "paused"):
+            machine._state = "paused" if status == "PAUSED" else "printing"
+        machine.progress = (executed, total)
+        if on_progress is not None:
+            on_progress(executed, total)
+        if executed == total:
+            return executed, False
+        if time.monotonic() - started > machine.motion_timeout_s:
+            raise LinkError("the program did not finish in time", field="program")
+        time.sleep(machine.poll_s)

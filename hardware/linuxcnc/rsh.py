@@ -1,0 +1,198 @@
+"""One linuxcncrsh session: a TCP text conversation with LinuxCNC's remote shell.
+
+    session = RshSession.open("127.0.0.1", 5007, connect_pw="EMC", timeout_s=5.0)
+    session.enable("EMCTOO")                 # this session may now command the machine
+    session.set("mode", "mdi")               # "SET MODE ACK" or RshRejected
+    session.get("joint_pos")                 # "0.000000 5.000000 ..." (the value part)
+
+Protocol facts this module relies on (linuxcncrsh of LinuxCNC 2.9, measured):
+
+* ``hello <pw> <client> <version>`` answers ``HELLO ACK <server> <version>`` / ``HELLO NAK``;
+  echo starts ON (``set echo off`` is answered by its own echo), verbose starts OFF (with
+  ``set verbose on`` every ``set`` answers ``SET <NAME> ACK`` or ``SET <NAME> NAK``).
+* ``get <name>`` answers ``<NAME> <value>``; replies end in ``\\r\\n`` (ACKs in ``\\n\\r``).
+* A ``set`` that reaches the controller is answered only after the controller received
+  it (about 100-200 ms); ``get`` answers at once, also while another session waits.
+* Only the session that enabled itself last may ``set`` (a later ``set enable`` on another
+  session silently takes control): the emergency-stop session enables itself right
+  before it stops.
+* ``get`` now and then answers ``GET NAK`` (status read raced an update), and sessions
+  that talk at the same moment sometimes receive each other's replies: ``get`` retries,
+  ``set`` skips lines that are not its own ACK/NAK.  Keep concurrent sessions rare (the
+  machine polls on one session; the stop session speaks only to stop).
+* ``get error`` returns the oldest unread controller error once (then ``OK``).
+* ``set timeout`` (``set_timeout`` in the manual): any value > 0 makes every wait fail
+  at once in this build, so waits are bounded by the socket timeout instead.
+
+Every request holds the session lock, so pause/resume from another thread interleave
+with a polling loop but never inside one request.  Errors: ``LinkError`` when the socket
+fails or times out (the session is then dead), ``RshRejected`` for a NAK.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+from ..errors import FirmwareError, LinkError
+
+__all__ = ["RshRejected", "RshSession"]
+
+
+class RshRejected(FirmwareError):
+    """linuxcncrsh answered NAK (``reason`` is the controller's error text, if any)."""
+
+
+class RshSession:
+    """A line-based linuxcncrsh conversation (see the module docstring)."""
+
+    def __init__(self, sock: socket.socket, timeout_s: float) -> None:
+        self._sock = sock
+        self._buffer = b""
+        self._lock = threading.RLock()
+        self.timeout_s = timeout_s
+        self.healthy = True
+        self.server = ""
+
+    @classmethod
+    def open(cls, host: str, port: int, connect_pw: str, *, timeout_s: float = 5.0,
+             client: str = "conforma") -> "RshSession":
+        """Connect, say hello, turn echo off and verbose on."""
+        try:
+            sock = socket.create_connection((host, port), timeout=timeout_s)
+        except OSError as exc:
+            raise LinkError(f"cannot reach linuxcncrsh at {host}:{port}: {exc}", field="port",
+                            value=f"{host}:{port}") from exc
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        session = cls(sock, timeout_s)
+        try:
+            hello = session.request(f"hello {connect_pw} {client} 1.0")
+            if not hello.upper().startswith("HELLO ACK"):
+                raise LinkError("linuxcncrsh refused the connect password", field="connect_pw")
+            session.server = hello[len("HELLO ACK"):].strip()
+            session.request("set echo off")       # answered by its echo
+            session.set("verbose", "on")
+        except Exception:
+            session.close()
+            raise
+        return session
+
+    # ------------------------------------------------------------------ transport
+    def _read_line(self, timeout_s: float) -> str:
+        self._sock.settimeout(timeout_s)
+        while True:
+            cut = min((i for i in (self._buffer.find(b"\n"), self._buffer.find(b"\r")) if i >= 0),
+                      default=-1)
+            if cut >= 0:
+                line, self._buffer = self._buffer[:cut], self._buffer[cut + 1:]
+                text = line.decode("utf-8", "replace").strip()
+                if text:
+                    return text
+                continue
+            chunk = self._sock.recv(4096)
+            if not chunk:
+                raise ConnectionError("linuxcncrsh closed the connection")
+            self._buffer += chunk
+
+    def request(self, line: str, timeout_s: float | None = None) -> str:
+        """Send one request line and return the first non-empty reply line."""
+        if "\n" in line or "\r" in line:
+            raise ValueError("one request per line")
+        with self._lock:
+            if not self.healthy:
+                raise LinkError("the linuxcncrsh session is closed", field="port")
+            try:
+                self._sock.sendall(line.encode("utf-8") + b"\r\n")
+                return self._read_line(self.timeout_s if timeout_s is None else timeout_s)
+            except (OSError, ConnectionError) as exc:
+                self.healthy = False
+                self._close_socket()
+                raise LinkError(f"linuxcncrsh session lost during {line.split(' ')[0]!r} "
+                                f"{line.split(' ')[1] if ' ' in line else ''}: {exc}",
+                                field="port") from exc
+
+    def send_only(self, line: str) -> None:
+        """Send a request that gets no reply (``shutdown``)."""
+        with self._lock:
+            try:
+                self._sock.sendall(line.encode("utf-8") + b"\r\n")
+            except OSError as exc:
+                self.healthy = False
+                raise LinkError(f"linuxcncrsh session lost: {exc}", field="port") from exc
+
+    # ------------------------------------------------------------------ commands
+    def get(self, name: str, *args: str, retries: int = 5) -> str:
+        """``get name args`` -> the value part of ``NAME value``.  A ``GET NAK`` or a reply
+        to another request is retried (``get`` has no side effects): linuxcncrsh answers
+        NAK when its status read races an update, and while sessions talk concurrently it
+        now and then hands one session's reply to another (measured in 2.9)."""
+        for attempt in range(retries + 1):
+            reply = self.request(" ".join(["get", name, *args]))
+            head, _, value = reply.partition(" ")
+            if head.upper() == name.upper():
+                return value.strip()
+            time.sleep(0.002 * (attempt + 1))
+        raise RshRejected(f"linuxcncrsh answered 'get {name}' with {reply[:60]!r} {retries + 1} "
+                          "times", command=f"get {name}")
+
+    def set(self, name: str, *args: str, timeout_s: float | None = None) -> None:
+        """``set name args``; ``RshRejected`` (with the controller's error) on NAK.  Lines
+        that are not this command's ACK/NAK (another session's misrouted reply) are
+        skipped."""
+        command = " ".join(["set", name, *args])
+        expected = f"SET {name.upper()} "
+        with self._lock:
+            reply = self.request(command, timeout_s).upper()
+            while not reply.startswith(expected):
+                reply = self._next_line(command, timeout_s).upper()
+        if reply.endswith(" ACK"):
+            return
+        reason = self.pop_error()
+        raise RshRejected(f"LinuxCNC rejected {command!r}" + (f": {reason}" if reason else ""),
+                          command=command)
+
+    def _next_line(self, command: str, timeout_s: float | None) -> str:
+        try:
+            return self._read_line(self.timeout_s if timeout_s is None else timeout_s)
+        except (OSError, ConnectionError) as exc:
+            self.healthy = False
+            self._close_socket()
+            raise LinkError(f"linuxcncrsh session lost waiting for {command!r}: {exc}",
+                            field="port") from exc
+
+    def enable(self, enable_pw: str) -> None:
+        """Take control of the machine for this session."""
+        try:
+            self.set("enable", enable_pw)
+        except RshRejected as exc:
+            raise LinkError("linuxcncrsh refused the enable password", field="enable_pw") from exc
+
+    def pop_error(self) -> str | None:
+        """The controller's oldest unread error text, or None."""
+        text = self.get("error")
+        return None if text.upper() == "OK" else text
+
+    def close(self) -> None:
+        """Say quit (best effort) and close the socket."""
+        with self._lock:
+            if self.healthy:
+                try:
+                    self._sock.sendall(b"quit\r\n")
+                except OSError:
+                    pass
+            self.healthy = False
+            self._close_socket()
+
+    def _close_socket(self) -> None:
+        try:
+            self._sock.close()
+        except OSError:
+            pass
+
+    def sever(self) -> None:
+        """Cut the TCP connection abruptly (tests: a lost link)."""
+        try:
+            self._sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass

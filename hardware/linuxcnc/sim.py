@@ -1,0 +1,237 @@
+"""Start and stop Conforma's headless LinuxCNC simulators (``sim/xyz.ini``, ``sim/xyzac-trt.ini``).
+
+    with SimController("xyzac-trt", pivot_mm=(0, 0, 0)) as sim:
+        machine = sim.machine()              # a LinuxCNCMachine on sim.url
+        ...
+
+Only one LinuxCNC may run per host, and LinuxCNC's own clean-up ends processes *by
+name*: a ``SimController`` holds an exclusive lock (``/tmp/conforma-linuxcnc.lock``) from
+start to stop, so two of them (two test processes) wait for each other instead of killing
+each other's controller.
+
+Each start copies the config into a fresh directory (LinuxCNC writes its parameter file
+and a HAL dump next to the INI), fills in a free port and fresh random linuxcncrsh
+passwords, and runs ``linuxcnc <ini>`` in its own process group.  As root, LinuxCNC's
+uspace realtime needs ``RTAPI_UID`` (an unprivileged uid: ``CONFORMA_RTAPI_UID`` or
+``nobody``) and ``RTAPI_FIFO_PATH`` in a directory that uid owns; both are set here.
+linuxcncrsh listens on every interface (it has no bind option): the random passwords and
+a port chosen per run are the only guard here; firewall the port on shared hosts.
+
+Stop: ``shutdown`` over linuxcncrsh (about 3 s), then SIGTERM / SIGKILL to the process
+group this object started (never to processes found by name).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import pwd
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from ..errors import HardwareError, LinkError
+from ..machine_types import MachineProfile
+from .machine import LinuxCNCMachine
+from .rsh import RshSession
+
+__all__ = ["CONFIGS", "SimController", "SimUnavailable", "linuxcnc_available"]
+
+SIM_DIR = Path(__file__).with_name("sim")
+CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
+LOCK_PATH = os.path.join(tempfile.gettempdir(), "conforma-linuxcnc.lock")
+
+
+class SimUnavailable(HardwareError):
+    """LinuxCNC is not installed, or the simulator did not come up."""
+
+    status = 503
+
+
+def linuxcnc_available() -> bool:
+    """True when the ``linuxcnc`` launcher and ``linuxcncrsh`` are on PATH."""
+    return shutil.which("linuxcnc") is not None and shutil.which("linuxcncrsh") is not None
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _rtapi_uid() -> int:
+    value = os.environ.get("CONFORMA_RTAPI_UID")
+    return int(value) if value else pwd.getpwnam("nobody").pw_uid
+
+
+class SimController:
+    """One simulator run (see the module docstring).  ``pivot_mm`` is the xyzac-trt table
+    pivot (ignored by the three-axis config)."""
+
+    def __init__(self, config: str = "xyz", *, pivot_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 lock_timeout_s: float = 600.0) -> None:
+        if config not in CONFIGS:
+            raise ValueError(f"unknown simulator config {config!r}; expected one of {sorted(CONFIGS)}")
+        self.config = config
+        self.pivot_mm = tuple(float(v) for v in pivot_mm)
+        self.lock_timeout_s = lock_timeout_s
+        self.port = 0
+        self.connect_pw = secrets.token_hex(7)  # linuxcncrsh keeps 15 characters
+        self.enable_pw = secrets.token_hex(7)
+        self.workdir: Path | None = None
+        self.startup_s: float | None = None
+        self._process: subprocess.Popen | None = None
+        self._lock_file = None
+
+    # ------------------------------------------------------------------ public
+    @property
+    def url(self) -> str:
+        """``linuxcnc://127.0.0.1:<port>?programs=<workdir>/programs&joints=<n>``."""
+        joints = 5 if self.config == "xyzac-trt" else 3
+        return f"linuxcnc://127.0.0.1:{self.port}?programs={self.workdir}/programs&joints={joints}"
+
+    def machine(self, profile: MachineProfile | None = None, **kwargs) -> LinuxCNCMachine:
+        """A (not yet connected) machine on this simulator."""
+        return LinuxCNCMachine(self.url, profile, connect_pw=self.connect_pw,
+                               enable_pw=self.enable_pw, **kwargs)
+
+    def session(self, enable: bool = False) -> RshSession:
+        """A raw linuxcncrsh session (tests: an independent observer)."""
+        session = RshSession.open("127.0.0.1", self.port, self.connect_pw, client="observer")
+        if enable:
+            session.enable(self.enable_pw)
+        return session
+
+    @property
+    def running(self) -> bool:
+        return self._process is not None and self._process.poll() is None
+
+    def __enter__(self) -> "SimController":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ start
+    def _lock(self) -> None:
+        self._lock_file = open(LOCK_PATH, "a+")
+        deadline = time.monotonic() + self.lock_timeout_s
+        while True:
+            try:
+                fcntl.flock(self._lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    self._unlock()
+                    raise SimUnavailable("another LinuxCNC simulator holds the lock", field="lock",
+                                         value=LOCK_PATH)
+                time.sleep(0.2)
+
+    def _unlock(self) -> None:
+        if self._lock_file is not None:
+            fcntl.flock(self._lock_file, fcntl.LOCK_UN)
+            self._lock_file.close()
+            self._lock_file = None
+
+    def _prepare(self) -> tuple[Path, dict[str, str]]:
+        workdir = Path(tempfile.mkdtemp(prefix=f"conforma-lcnc-{self.config}-"))
+        shutil.copytree(SIM_DIR, workdir, dirs_exist_ok=True)
+        (workdir / "programs").mkdir()
+        fields = {"PORT": str(self.port), "CONNECTPW": self.connect_pw, "ENABLEPW": self.enable_pw,
+                  "PIVOT_X": repr(self.pivot_mm[0]), "PIVOT_Y": repr(self.pivot_mm[1]),
+                  "PIVOT_Z": repr(self.pivot_mm[2])}
+        ini = workdir / CONFIGS[self.config]
+        text = ini.read_text()
+        for key, value in fields.items():
+            text = text.replace(f"@{key}@", value)
+        ini.write_text(text)
+        ini.chmod(0o600)       # it holds the linuxcncrsh passwords
+        workdir.chmod(0o711)   # the realtime process (RTAPI_UID) must reach rtapi/
+        env = dict(os.environ)
+        env.pop("DISPLAY", None)
+        if os.geteuid() == 0:
+            uid = _rtapi_uid()
+            fifo_dir = workdir / "rtapi"
+            fifo_dir.mkdir()
+            os.chown(fifo_dir, uid, -1)
+            env["RTAPI_UID"] = str(uid)
+            env["RTAPI_FIFO_PATH"] = str(fifo_dir / "rtapi_fifo")
+        return workdir, env
+
+    def start(self, timeout_s: float = 60.0) -> None:
+        """Start LinuxCNC and wait until linuxcncrsh answers ``hello``."""
+        if not linuxcnc_available():
+            raise SimUnavailable("LinuxCNC is not installed (Debian: apt-get install linuxcnc-uspace)",
+                                 field="linuxcnc")
+        self._lock()
+        started = time.monotonic()
+        try:
+            self.port = _free_port()
+            self.workdir, env = self._prepare()
+            log = open(self.workdir / "linuxcnc.log", "wb")
+            self._process = subprocess.Popen(["linuxcnc", CONFIGS[self.config]], cwd=self.workdir,
+                                             env=env, stdout=log, stderr=subprocess.STDOUT,
+                                             stdin=subprocess.DEVNULL, start_new_session=True)
+            log.close()
+            self._await_hello(started + timeout_s)
+        except BaseException:
+            self.stop()
+            raise
+        self.startup_s = time.monotonic() - started
+
+    def _await_hello(self, deadline: float) -> None:
+        while time.monotonic() < deadline:
+            if self._process.poll() is not None:
+                raise SimUnavailable(f"LinuxCNC exited with {self._process.returncode}: "
+                                     f"{self.log_tail()}", field="linuxcnc")
+            try:
+                self.session().close()
+                return
+            except LinkError:
+                time.sleep(0.25)
+        raise SimUnavailable(f"linuxcncrsh did not answer in time: {self.log_tail()}", field="linuxcnc")
+
+    def log_tail(self, chars: int = 600) -> str:
+        """The end of LinuxCNC's console output."""
+        try:
+            return (self.workdir / "linuxcnc.log").read_text(errors="replace")[-chars:]
+        except (OSError, TypeError):
+            return ""
+
+    # ------------------------------------------------------------------ stop
+    def stop(self, timeout_s: float = 20.0) -> None:
+        """Shut LinuxCNC down (``shutdown``, then signals to our own process group)."""
+        process, self._process = self._process, None
+        try:
+            if process is not None and process.poll() is None:
+                try:
+                    session = self.session(enable=True)
+                    session.send_only("shutdown")
+                    session.close()
+                except (HardwareError, OSError):
+                    pass
+                self._wait_or_signal(process, timeout_s)
+        finally:
+            if self.workdir is not None:
+                shutil.rmtree(self.workdir, ignore_errors=True)
+            self._unlock()
+
+    @staticmethod
+    def _wait_or_signal(process: subprocess.Popen, timeout_s: float) -> None:
+        for sig in (None, signal.SIGTERM, signal.SIGKILL):
+            if sig is not None:
+                try:
+                    os.killpg(process.pid, sig)
+                except ProcessLookupError:
+                    return
+            try:
+                process.wait(timeout=timeout_s)
+                return
+            except subprocess.TimeoutExpired:
+                continue

@@ -1,0 +1,99 @@
+"""A linuxcnc:// machine through the service's API: register, connect, print, probe_run, stop.
+
+The same endpoints and the same ``print`` job as for serial machines; the controller is
+Conforma's three-axis LinuxCNC simulator."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from app.reference.s1 import s1_mesh, s1_traces
+from tests.conftest import auth
+from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
+from tests.jobs.test_jobs_api import wait_for
+
+OP = auth("operator")
+PROFILE = {"dispense_on": "M64 P0", "dispense_off": "M65 P0", "probe_command": "G38.2"}
+
+
+@pytest.fixture
+def lcnc_env(lcnc_xyz, monkeypatch):
+    """The service finds the simulator's passwords and program directory in its environment."""
+    monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", lcnc_xyz.connect_pw)
+    monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", lcnc_xyz.enable_pw)
+    monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(lcnc_xyz.workdir / "programs"))
+    return lcnc_xyz
+
+
+def test_print_job_runs_a_program_on_linuxcnc(client, lcnc_env):
+    body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{lcnc_env.port}?joints=3", "dialect": "linuxcnc",
+            "profile": PROFILE}
+    machine = client.post("/api/v1/machines", json=body, headers=OP)
+    assert machine.status_code == 201, machine.text
+    machine_id = machine.json()["id"]
+    connected = client.post(f"/api/v1/machines/{machine_id}/connect", headers=OP).json()
+    assert connected["state"] == "idle" and connected["firmware"].startswith("LinuxCNC")
+    client.app.state.runtime.machines.get(machine_id).home()  # no home endpoint: LinuxCNC runs programs homed
+    lines = ["G21", "G90", "G1 X0 Y0 Z2 F6000", "M64 P0"]
+    lines += [f"G1 X{(i % 20) * 0.5:.2f} Y{(i // 20) * 0.5:.2f} F6000" for i in range(200)]
+    lines += ["M65 P0", "G0 Z5"]
+    program = client.post("/api/v1/programs", files={"file": ("p.ngc", ("\n".join(lines) + "\n").encode())},
+                          headers=OP).json()
+    job = client.post(f"/api/v1/machines/{machine_id}/print", json={"program_id": program["id"]}, headers=OP)
+    assert job.status_code == 202
+    done = wait_for(client, job.json()["id"], timeout=90)
+    assert done["status"] == "succeeded", done["error"]
+    assert done["result"]["executed"] == done["result"]["total"] == program["commands"]
+    status = client.get(f"/api/v1/machines/{machine_id}", headers=OP).json()
+    assert status["state"] == "idle" and status["position"] == pytest.approx([9.5, 4.5, 5.0], abs=1e-6)
+    stop = client.post(f"/api/v1/machines/{machine_id}/stop", headers=OP)
+    assert stop.status_code == 409  # nothing runs: stop sends nothing
+    assert register_bad(client).status_code == 422
+
+
+def register_bad(client):
+    body = {"name": "x", "port": "linuxcnc://127.0.0.1:5007?programs=/etc", "dialect": "linuxcnc"}
+    return client.post("/api/v1/machines", json=body, headers=OP)
+
+
+def _halcmd(*args: str) -> str:
+    return subprocess.run(["halcmd", *args], capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+
+
+def test_probe_run_job_touches_the_simulated_surface(client, lcnc_env):
+    """A probe plan of a reference trace, run by the probe_run job on LinuxCNC: every touch
+    lands on the simulator's probe plane z = z0 + 0.01 x (z0 moved under the trace via HAL)."""
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_mesh(grid_mm=0.5).export(file_type="stl"))},
+                       headers=OP).json()
+    trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[3].to_api(), headers=OP).json()
+    plan = wait_for(client, client.post("/api/v1/jobs", json={"kind": "probe_plan", "params": {
+        "trace_id": trace["id"], "method": "uniform", "count": 5}}, headers=OP).json()["id"])
+    assert plan["status"] == "succeeded", plan["error"]
+    records = plan["result"]["records"]
+    nominal = np.array([r["nominal"] for r in records])
+    z0 = float(np.median(nominal[:, 2] - SURFACE_SLOPE_X * nominal[:, 0]))
+    plane = z0 + SURFACE_SLOPE_X * nominal[:, 0]
+    assert all(r["target_z_mm"] < z < r["safe_z_mm"] for r, z in zip(records, plane))  # reachable
+    _halcmd("setp", "conforma-surface.offset", repr(z0))
+    try:
+        body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{lcnc_env.port}?joints=3", "dialect": "linuxcnc",
+                "profile": PROFILE}
+        machine_id = client.post("/api/v1/machines", json=body, headers=OP).json()["id"]
+        client.post(f"/api/v1/machines/{machine_id}/connect", headers=OP)
+        client.app.state.runtime.machines.get(machine_id).home()
+        run = client.post("/api/v1/jobs", json={"kind": "probe_run", "params": {
+            "plan_job_id": plan["id"], "machine_id": machine_id, "probe_feed_mm_min": 200}}, headers=OP)
+        assert run.status_code == 202, run.text
+        done = wait_for(client, run.json()["id"], timeout=120)
+    finally:
+        _halcmd("setp", "conforma-surface.offset", repr(SURFACE_Z))
+    assert done["status"] == "succeeded", done["error"]
+    measured = np.array([p["measured"] for p in done["result"]["points"]])
+    assert measured[:, :2] == pytest.approx(nominal[:, :2], abs=1e-4)
+    # the trip is seen at most two 1 ms servo periods late (sampling + the sim's one-period
+    # feedback lag): 6.7 um at 200 mm/min, always below the surface
+    late = 2 * 200 / 60 * 0.001
+    assert np.all(measured[:, 2] <= plane + 1e-4) and np.all(measured[:, 2] >= plane - late - 1e-4)
