@@ -130,7 +130,7 @@ class SimController:
                 if time.monotonic() > deadline:
                     self._unlock()
                     raise SimUnavailable("another LinuxCNC simulator holds the lock", field="lock",
-                                         value=LOCK_PATH)
+                                         value=LOCK_PATH) from None
                 time.sleep(0.2)
 
     def _unlock(self) -> None:
