@@ -8,7 +8,8 @@ URL form (every option optional)::
 
     mock://NAME?dialect=marlin&time_scale=0&seed=1&probe_noise_mm=0.01
         &checksum_rate=0.01&drop_ok_rate=0&duplicate_ok_rate=0&resend_rate=0
-        &garbage_rate=0&busy_rate=0&slow_rate=0&disconnect_at_line=500&reset_at_line=900
+        &garbage_rate=0&busy_rate=0&slow_rate=0&line_number_rate=0
+        &disconnect_at_line=500&reset_at_line=900
         &advanced_ok=1&latency_ms=1&rx_buffer=128&command_buffer=4&planner_blocks=16
 
 ``NAME`` selects a world registered with ``register_world``; an unknown name creates (and
@@ -20,7 +21,8 @@ Fault semantics (per received command line, probabilities 0..1, deterministic by
 lose / repeat the ``ok``; ``resend_rate`` emits a spurious ``Resend:`` for a line already
 accepted (Marlin); ``garbage_rate`` puts a line of random bytes before a reply;
 ``busy_rate`` emits a burst of ``echo:busy: processing`` (Marlin); ``slow_rate`` makes the
-command take 2.5 s (times ``time_scale``).  ``disconnect_at_line=N`` drops the link right
+command take 2.5 s (times ``time_scale``); ``line_number_rate`` damages a numbered line's
+``N`` word on the wire (Marlin answers "Line Number is not Last Line Number+1").  ``disconnect_at_line=N`` drops the link right
 after the firmware executed its N-th recorded command (before its ``ok``): Marlin keeps
 running and keeps its line number; grbl resets (Arduino boards reset on re-enumeration)
 and loses its receive buffer.  ``reset_at_line=N`` restarts the controller instead of
@@ -54,6 +56,7 @@ class FaultConfig:
     garbage_rate: float = 0.0
     busy_rate: float = 0.0
     slow_rate: float = 0.0
+    line_number_rate: float = 0.0
     disconnect_at_line: int | None = None
     reset_at_line: int | None = None
     seed: int = 0
