@@ -104,6 +104,18 @@ class Transcript:
         if self.keep:
             self.commands.append(command)
 
+    def truncate(self, count: int) -> None:
+        """Keep only the first ``count`` commands (a controller reset lost the rest before
+        they moved).  Needs ``keep``; without the texts the digest cannot be rebuilt."""
+        if count >= self.executed_count:
+            return
+        if not self.keep:
+            raise RuntimeError("cannot truncate a transcript that keeps no commands")
+        kept = self.commands[:count]
+        self.reset()
+        for command in kept:
+            self.record(command)
+
     def reset(self) -> None:
         """Forget everything recorded so far."""
         self.commands = []
@@ -130,6 +142,7 @@ class MockStats:
     starved_s: float = 0.0
     rx_overflows: int = 0
     blocks: int = 0
+    lines_received: int = 0
     faults: dict[str, int] = field(default_factory=dict)
 
 
@@ -155,6 +168,13 @@ class MockWorld:
     probe_z_min: float = -20.0
     rapid_feed_mm_min: float = 6000.0
     keep_transcript: bool = True
+    # grbl: homing enabled ($22, boots in Alarm), a failing homing cycle, a fresh EEPROM
+    # (boot error:7), bootloader time before the banner (model s), line-number reports (Ln:)
+    homing: bool = False
+    homing_fails: bool = False
+    fresh_eeprom: bool = False
+    boot_s: float = 0.5
+    line_numbers: bool = False
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
@@ -195,7 +215,8 @@ _WORLD_KEYS = {"dialect": str, "time_scale": float, "seed": int, "probe_noise_mm
                "advanced_ok": bool, "latency_ms": float, "rx_buffer": int,
                "command_buffer": int, "planner_blocks": int, "bed_z": float,
                "probe_z_min": float, "dispense_on": str, "dispense_off": str,
-               "keep_transcript": bool}
+               "keep_transcript": bool, "homing": bool, "homing_fails": bool,
+               "fresh_eeprom": bool, "boot_s": float, "line_numbers": bool}
 
 
 def register_world(name: str, world: MockWorld) -> MockWorld:
@@ -258,7 +279,7 @@ def parse_mock_options(query: str) -> dict[str, object]:
         if key.endswith("_rate") and not 0.0 <= value <= 1.0:
             raise InvalidConfig(f"mock option {key} must be within 0..1", field=f"port.{key}",
                                 value=value)
-        if key in ("time_scale", "latency_ms", "probe_noise_mm") and value < 0:
+        if key in ("time_scale", "latency_ms", "probe_noise_mm", "boot_s") and value < 0:
             raise InvalidConfig(f"mock option {key} must be >= 0", field=f"port.{key}", value=value)
         if key in ("rx_buffer", "command_buffer", "planner_blocks") and value < 1:
             raise InvalidConfig(f"mock option {key} must be >= 1", field=f"port.{key}", value=value)
