@@ -101,6 +101,7 @@ class Link(ReplyHandling):
         self._rtt = 0.002
         self._poke_s = poke_s
         self._pokes_in_row = 0
+        self._grbl_state_init()
         self._reader = threading.Thread(target=self._read_loop, daemon=True, name="link-reader")
         self._reader.start()
 
@@ -162,6 +163,8 @@ class Link(ReplyHandling):
     def _window_open(self, nbytes: int) -> bool:
         if self._fatal is not None:
             return True
+        if self._awaiting_reset():
+            return False  # grbl announced a reset: what we sent now would be lost
         if self._replay or self._replay_inflight is not None:
             return False  # recovering from a resend request
         outstanding = self._outstanding
@@ -175,6 +178,36 @@ class Link(ReplyHandling):
         # Marlin: free command slots, and never more bytes than its RX buffer holds (it
         # stops reading serial while a command blocks, e.g. on a full planner)
         return len(outstanding) < self.command_buffer and in_flight + nbytes <= self.rx_buffer - 1
+
+    # ------------------------------------------------------------------ grbl specifics
+    def _grbl_state_init(self) -> None:
+        self.status_marks: deque[tuple[StatusReport, int, float]] = deque(maxlen=64)
+        self._completed = 0  # commands answered so far (PendingCommand.seq)
+        self._last_answer = time.monotonic()
+        self._expect_banner_until: float | None = None
+
+    def _awaiting_reset(self) -> bool:
+        until = self._expect_banner_until
+        if until is not None and time.monotonic() > until:
+            self._expect_banner_until = until = None  # it never came: carry on
+        return until is not None
+
+    def wait_room(self, command: str) -> None:
+        """Block until ``command`` would be sent at once (window open), without sending:
+        a streamer checks the answers so far before committing the next line."""
+        text = normalize_command(command) or ""
+        nbytes = len(text) + 1 if self.dialect == "grbl" else len(text) + 16
+        with self._cond:
+            while not self._window_open(nbytes):
+                self._check_fatal()
+                self._cond.wait(0.05)
+            self._check_fatal()
+
+    def set_rx_buffer(self, size: int) -> None:
+        """Use the receive-buffer size the controller reported (grbl ``[OPT:..,..,N]``)."""
+        if size >= 16:
+            with self._cond:
+                self.rx_buffer = size
 
     def _transmit_new(self, text: str, internal: bool = False) -> PendingCommand:
         if self.dialect == "marlin":
