@@ -124,6 +124,7 @@ class TcpMockServer:
             except OSError:
                 return
             with conn:
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # a line at a time
                 self._session(conn)
 
     def _session(self, conn: socket.socket) -> None:
