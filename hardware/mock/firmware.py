@@ -182,7 +182,7 @@ class FirmwareCore:
         if waiting[0] == "until":
             return waiting[1] <= now
         if waiting[0] == "slot":
-            return len(self.planner) < self.world.planner_blocks
+            return len(self.planner) < self.block_capacity()
         return not self.planner  # "drain"
 
     def _next_time(self) -> float | None:
@@ -249,7 +249,7 @@ class FirmwareCore:
     def plan_move(self, target: list[float], feed_mm_min: float, now: float
                   ) -> Generator[Wait, None, None]:
         """Wait for a free planner block, then plan a straight move to ``target``."""
-        if len(self.planner) >= self.world.planner_blocks:
+        if len(self.planner) >= self.block_capacity():
             yield ("slot",)
         start = tuple(self.position)
         length = math.dist(target, start)
@@ -311,6 +311,10 @@ class FirmwareCore:
         transcript ends at the last command whose motion completed (when it keeps texts)."""
         if self.world.transcript.keep:
             self.world.transcript.truncate(self.done_count())
+
+    def block_capacity(self) -> int:
+        """Planner blocks that can hold motion at once (grbl keeps one ring slot free)."""
+        return self.world.planner_blocks
 
     def clock(self) -> float:
         """Current time (generators resume later than they started)."""

@@ -96,6 +96,9 @@ class GrblFirmware(GrblSystem, FirmwareCore):
                 kept.append(byte)
         return bytes(kept)
 
+    def block_capacity(self) -> int:
+        return self.world.planner_blocks - 1  # BLOCK_BUFFER_SIZE 16 holds 15 blocks
+
     def state_name(self, now: float) -> str:
         """grbl's machine state as the status report names it."""
         if self.homing_until is not None:
