@@ -28,8 +28,19 @@ What "known executed" means (``resume_line``):
   the firmware accepts it or answers ``Resend: L+1`` — every line up to L was accepted and
   Marlin executes every accepted line, so lines <= L count as executed.
 * Marlin after a reset (banner seen, or L went backwards), and grbl always (a disconnect
-  resets an Arduino-based controller and flushes its buffer): only acknowledged lines.
-  The controller lost its position: home before continuing.
+  resets an Arduino-based controller and flushes its buffer): ``ok`` means *planned*, so
+  up to a planner's worth of acknowledged moves (grbl: 15, from ``[OPT:]``; Marlin: 16)
+  may never have run.  The bound walks back that many planner blocks from the last
+  acknowledged command, tightened by the last grbl status report (Idle: nothing planned;
+  ``Bf:`` free blocks); a few moves may run twice, none is skipped.  The controller lost
+  its position: home before continuing.
+* After a rejected line (``FirmwareError``, ``exc.line_index``) the controller still runs
+  the lines it already held (grbl: up to a buffer's worth); ``stream`` waits for them and
+  ``resume_line()`` is the index after them (``rejected_lines`` lists the rejected ones).
+
+``stream(start_line=n)`` first replays the modal state the skipped commands left (units,
+coordinate system, motion mode, feed, the start point at clearance height, G90/G91, the
+dispenser; ``hardware.resume.modal_preamble``; ``last_preamble`` shows it).
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ URL form (every option optional)::
         &garbage_rate=0&busy_rate=0&slow_rate=0&line_number_rate=0
         &disconnect_at_line=500&reset_at_line=900
         &advanced_ok=1&latency_ms=1&rx_buffer=128&command_buffer=4&planner_blocks=16
+        &homing=0&homing_fails=0&fresh_eeprom=0&boot_s=0.5&line_numbers=0   (grbl)
 
 ``NAME`` selects a world registered with ``register_world``; an unknown name creates (and
 registers) a fresh world from the options.  Options given for an existing world update
