@@ -9,7 +9,6 @@ import time
 import pytest
 
 from hardware.errors import FirmwareError, ProbeFailed
-from hardware.events import StartBanner, StatusReport
 from hardware.link import Link
 from hardware.machine import Machine, MachineProfile
 from hardware.protocol import normalized_commands

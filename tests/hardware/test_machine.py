@@ -16,7 +16,7 @@ from hardware.errors import (InvalidConfig, LinkError, MachineBusy, MachineState
                              ProbeFailed)
 from hardware.machine import Machine, MachineProfile
 from hardware.mock import FaultConfig, Placement
-from hardware.protocol import commands_sha256, normalized_commands
+from hardware.protocol import normalized_commands
 
 GRBL_PROFILE = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
 
