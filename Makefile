@@ -11,6 +11,9 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
+	# Printrun's printcore (a reference host the hardware tests drive): needs only pyserial;
+	# --no-deps keeps its GUI dependencies (wxPython...) out
+	$(BIN)/python -m pip install -q --no-deps 'printrun==2.2.0'
 	touch $(STAMP)
 
 install: $(STAMP)

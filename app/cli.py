@@ -1,4 +1,4 @@
-"""``conforma`` command line: serve, worker, migrate, keys, demo."""
+"""``conforma`` command line: serve, worker, migrate, keys, demo, mock-printer."""
 
 from __future__ import annotations
 
@@ -111,6 +111,55 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_mock_printer(args: argparse.Namespace) -> int:
+    """The mock firmware on a pseudo-terminal and/or a TCP port until interrupted."""
+    from urllib.parse import urlencode
+
+    from hardware.errors import InvalidConfig
+    from hardware.mock import parse_mock_options, unregister_world
+    from hardware.mock.expose import PtyBridge, TcpMockServer
+
+    if not args.pty and args.tcp is None:
+        print("mock-printer: give --pty and/or --tcp PORT", file=sys.stderr)
+        return 2
+    pairs = [("dialect", args.dialect), ("time_scale", str(args.time_scale))]
+    for item in args.set or []:
+        key, sep, value = item.partition("=")
+        if not sep:
+            print(f"mock-printer: --set needs KEY=VALUE, got {item!r}", file=sys.stderr)
+            return 2
+        pairs.append((key.strip(), value.strip()))
+    query = urlencode(pairs)
+    try:
+        parse_mock_options(query)
+    except InvalidConfig as exc:
+        print(f"mock-printer: {exc.message}", file=sys.stderr)
+        return 2
+    url = f"mock://{args.name}?{query}"
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    exposed: list = []
+    try:
+        if args.pty:
+            exposed.append(PtyBridge(url, baudrate=args.baud))
+            print(f"pty {exposed[-1].path}", flush=True)
+        if args.tcp is not None:
+            exposed.append(TcpMockServer(url, port=args.tcp, host=args.host, baudrate=args.baud))
+            host, port = exposed[-1].address
+            print(f"tcp {host}:{port}", flush=True)
+        stop.wait(args.seconds)
+    finally:
+        for item in exposed:
+            item.close()
+    from hardware.mock import get_world
+
+    digest = get_world(args.name).transcript.digest()
+    print(f"executed {digest.count} commands sha256 {digest.sha256}", flush=True)
+    unregister_world(args.name)
+    return 0
+
+
 START_HERE = """start here:
   conforma demo     seed S1's closed loop on the mock printer: probes, compensates and prints
                     nine traces and prints the before/after table (about 10 s)
@@ -155,6 +204,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_arguments(demo)
     demo.set_defaults(func=cmd_demo)
+
+    mock = sub.add_parser("mock-printer", help="the mock firmware on a pty or TCP port for any host")
+    mock.add_argument("--pty", action="store_true", help="open a pseudo-terminal and print its path")
+    mock.add_argument("--tcp", type=int, default=None, metavar="PORT", help="listen on PORT (0: any)")
+    mock.add_argument("--host", default="127.0.0.1", help="TCP address (default loopback only)")
+    mock.add_argument("--dialect", choices=("marlin", "grbl"), default="marlin")
+    mock.add_argument("--time-scale", type=float, default=0.0,
+                      help="1 = real-time firmware timing, 0 = as fast as possible")
+    mock.add_argument("--baud", type=int, default=115200)
+    mock.add_argument("--name", default="mock-printer", help="mock world name")
+    mock.add_argument("--set", action="append", metavar="KEY=VALUE",
+                      help="mock world or fault option, e.g. checksum_rate=0.01, seed=3, "
+                           "probe_noise_mm=0.01, homing=1 (see hardware/mock/world.py)")
+    mock.add_argument("--seconds", type=float, default=None, help="stop after this many seconds")
+    mock.set_defaults(func=cmd_mock_printer)
 
     keys = sub.add_parser("keys", help="manage API keys")
     data_dir(keys)

@@ -74,22 +74,29 @@ class FirmwareError(HardwareError):
     status = 502
 
     def __init__(self, message: str, *, code: int | None = None, command: str | None = None,
-                 field: str | None = None, value: Any = None) -> None:
+                 field: str | None = None, value: Any = None,
+                 reply_lines: tuple[str, ...] = ()) -> None:
         super().__init__(message, field=field, value=value)
         self.code = code
         self.command = command
+        self.reply_lines = reply_lines  # what the controller answered (ALARM:9, ok ...)
+        self.line_index: int | None = None  # stream(): index of the rejected command
 
 
 class ProbeFailed(HardwareError):
-    """The probe travelled to its lower limit without triggering (nothing was hit)."""
+    """The probe found no surface.  ``reason``: ``no_contact`` (it travelled to its lower
+    limit without triggering) or ``triggered_before_motion`` (grbl ``ALARM:4``: the probe
+    was already triggered, so nothing was measured — check the probe and its wiring)."""
 
     status = 422
 
     def __init__(self, message: str, *, x: float | None = None, y: float | None = None,
-                 field: str | None = None, value: Any = None) -> None:
+                 field: str | None = None, value: Any = None,
+                 reason: str = "no_contact") -> None:
         super().__init__(message, field=field, value=value)
         self.x = x
         self.y = y
+        self.reason = reason
 
 
 class MachineBusy(HardwareError):

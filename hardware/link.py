@@ -17,9 +17,9 @@ processes in order), so dropped or duplicated ``ok``s cannot desynchronise the h
 
 Flow control: ``pingpong`` keeps one command in flight; ``windowed`` keeps up to
 ``command_buffer`` numbered lines in flight (Marlin) or fills grbl's ``rx_buffer`` bytes
-by character counting.  The link falls back to ping-pong (``link.fallbacks`` says why)
-when Marlin answers without ``ok N`` (no ADVANCED_OK), when grbl rejects a line, or after
-repeated stalls.
+by character counting (``rx_buffer``; ``Machine`` sets it from grbl's ``[OPT:..,..,N]``).
+The link falls back to ping-pong (``link.fallbacks`` says why) when Marlin answers
+without ``ok N`` (no ADVANCED_OK) or after repeated Marlin stalls.
 
 Reply handling lives in ``hardware.replies`` (a mixin of ``Link``).
 
@@ -30,17 +30,22 @@ stall (no acknowledgement for ``poke_s``, default 2.5 s: longer than Marlin's 2 
 keepalive; use ~0.02 s against a mock with ``time_scale=0``) pokes the firmware: Marlin
 gets the oldest unacknowledged lines again (line numbers make that safe: an accepted line
 is answered with ``Resend: last+1``, and when every line in flight is known accepted a
-numbered ``M114`` collects the missing ``ok N``), grbl gets ``?`` and, when its status
-shows an empty RX buffer and an idle machine, the lost ``ok``s are taken as received
-(status ``assumed``).  Busy keepalives (``echo:busy``) and every parsed reply (not line
-noise) count as life; ``timeout_s`` of silence with commands in flight raises
+numbered ``M114`` collects the missing ``ok N``), grbl gets ``?`` (it answers even while
+dwelling or homing: a sign of life) and one ``$G`` marker once its buffer surely has
+room; grbl answers in order, so the marker's ``[GC:...]`` proves every earlier line was
+answered and their lost ``ok``s are taken as received (status ``assumed``).  Pokes back
+off but never wait longer than ``timeout_s / 3``.  Busy keepalives (``echo:busy``) and
+every parsed reply (not line noise) count as life; ``timeout_s`` of silence with commands in flight raises
 ``LinkError``.  A start banner after the first answer means the controller restarted:
 commands in flight fail with ``FirmwareReset`` and the link refuses further sends.
 
-Limits, honestly: grbl has no line numbers, so a line it rejects while others are
-already queued behind it cannot be re-sent in order; the link then reports the
-``FirmwareError`` and falls back to ping-pong (where a damaged line, ``error:1``/``2``,
-is re-sent: grbl discards a rejected line whole).
+grbl resets itself after ``$C`` leaves check mode and after a homing alarm: the link
+expects that banner and sends nothing until it came.
+
+Limits, honestly: grbl has no line numbers or checksums: a line damaged on the wire is
+the parser's ``error:1``/``2`` (reported, never re-sent) or, worse, a different valid
+line; a lost ``ok`` shifts the replies of the lines sent meanwhile to their neighbours
+until the ``$G`` marker resynchronises.
 """
 
 from __future__ import annotations
@@ -101,6 +106,7 @@ class Link(ReplyHandling):
         self._rtt = 0.002
         self._poke_s = poke_s
         self._pokes_in_row = 0
+        self._grbl_state_init()
         self._reader = threading.Thread(target=self._read_loop, daemon=True, name="link-reader")
         self._reader.start()
 
@@ -162,6 +168,8 @@ class Link(ReplyHandling):
     def _window_open(self, nbytes: int) -> bool:
         if self._fatal is not None:
             return True
+        if self._awaiting_reset():
+            return False  # grbl announced a reset: what we sent now would be lost
         if self._replay or self._replay_inflight is not None:
             return False  # recovering from a resend request
         outstanding = self._outstanding
@@ -175,6 +183,36 @@ class Link(ReplyHandling):
         # Marlin: free command slots, and never more bytes than its RX buffer holds (it
         # stops reading serial while a command blocks, e.g. on a full planner)
         return len(outstanding) < self.command_buffer and in_flight + nbytes <= self.rx_buffer - 1
+
+    # ------------------------------------------------------------------ grbl specifics
+    def _grbl_state_init(self) -> None:
+        self.status_marks: deque[tuple[StatusReport, int, float]] = deque(maxlen=64)
+        self._completed = 0  # commands answered so far (PendingCommand.seq)
+        self._last_answer = time.monotonic()
+        self._expect_banner_until: float | None = None
+
+    def _awaiting_reset(self) -> bool:
+        until = self._expect_banner_until
+        if until is not None and time.monotonic() > until:
+            self._expect_banner_until = until = None  # it never came: carry on
+        return until is not None
+
+    def wait_room(self, command: str) -> None:
+        """Block until ``command`` would be sent at once (window open), without sending:
+        a streamer checks the answers so far before committing the next line."""
+        text = normalize_command(command) or ""
+        nbytes = len(text) + 1 if self.dialect == "grbl" else len(text) + 16
+        with self._cond:
+            while not self._window_open(nbytes):
+                self._check_fatal()
+                self._cond.wait(0.05)
+            self._check_fatal()
+
+    def set_rx_buffer(self, size: int) -> None:
+        """Use the receive-buffer size the controller reported (grbl ``[OPT:..,..,N]``)."""
+        if size >= 16:
+            with self._cond:
+                self.rx_buffer = size
 
     def _transmit_new(self, text: str, internal: bool = False) -> PendingCommand:
         if self.dialect == "marlin":

@@ -28,8 +28,19 @@ What "known executed" means (``resume_line``):
   the firmware accepts it or answers ``Resend: L+1`` — every line up to L was accepted and
   Marlin executes every accepted line, so lines <= L count as executed.
 * Marlin after a reset (banner seen, or L went backwards), and grbl always (a disconnect
-  resets an Arduino-based controller and flushes its buffer): only acknowledged lines.
-  The controller lost its position: home before continuing.
+  resets an Arduino-based controller and flushes its buffer): ``ok`` means *planned*, so
+  up to a planner's worth of acknowledged moves (grbl: 15, from ``[OPT:]``; Marlin: 16)
+  may never have run.  The bound walks back that many planner blocks from the last
+  acknowledged command, tightened by the last grbl status report (Idle: nothing planned;
+  ``Bf:`` free blocks); a few moves may run twice, none is skipped.  The controller lost
+  its position: home before continuing.
+* After a rejected line (``FirmwareError``, ``exc.line_index``) the controller still runs
+  the lines it already held (grbl: up to a buffer's worth); ``stream`` waits for them and
+  ``resume_line()`` is the index after them (``rejected_lines`` lists the rejected ones).
+
+``stream(start_line=n)`` first replays the modal state the skipped commands left (units,
+coordinate system, motion mode, feed, the start point at clearance height, G90/G91, the
+dispenser; ``hardware.resume.modal_preamble``; ``last_preamble`` shows it).
 """
 
 from __future__ import annotations
@@ -43,13 +54,17 @@ from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig,
                      MachineBusy, MachineStateError, ProbeFailed)
 from .events import Capability, FirmwareInfo, PositionReport, ProbeReport, StartBanner
 from .link import CommandResult, Link, PendingCommand
+from .machine_grbl import GrblOperations
+from .machine_resume import ResumeOperations
 from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
                             _Interrupted)
 from .protocol import check_dialect, validate_program
 
+STATUS_POLL_S = 0.25  # grbl: a status report this often while streaming
+
 __all__ = ["STATES", "Identity", "Machine", "MachineProfile", "ProbeResult", "StreamReport"]
 
-class Machine:
+class Machine(GrblOperations, ResumeOperations):
     """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
     for a second caller); pause/resume/cancel/stop/status work from any thread."""
 
@@ -76,6 +91,9 @@ class Machine:
         self._cancel = False
         self._interrupted: _Interrupted | None = None
         self._estopped = False
+        self.planner_blocks = 16  # Marlin BLOCK_BUFFER_SIZE; grbl: from [OPT:..] (15)
+        self.last_preamble: list[str] = []  # modal replay sent by the last resumed stream
+        self.rejected_lines: list[int] = []  # command indices the controller rejected
 
     # ------------------------------------------------------------------ state
     @property
@@ -119,7 +137,7 @@ class Machine:
         self._state = "busy"
         self._estopped = False
         try:
-            banner = self._await_quiet()
+            banner = self._await_boot() if self.dialect == "grbl" else self._await_quiet()
             reset = any(isinstance(e, StartBanner) for e in banner)
             if self._interrupted is not None and reset:
                 self._interrupted.reset = True
@@ -158,7 +176,11 @@ class Machine:
                 fields.update(event.fields)
             elif isinstance(event, Capability):
                 caps[event.name] = event.enabled
-        name = (fields.get("FIRMWARE_NAME") or ("grbl " + fields.get("VER", ""))).strip()
+        fields.update(self._build_fields(result.events))
+        if self.dialect == "grbl":
+            self._apply_build_info(fields)
+        version = fields.get("VER", "").split(":")[0]  # [VER:1.1h.20190830:user string]
+        name = (fields.get("FIRMWARE_NAME") or ("grbl " + version)).strip()
         return Identity(self.dialect, name, fields, caps, tuple(e.raw for e in banner), reset)
 
     def disconnect(self) -> None:
@@ -187,7 +209,14 @@ class Machine:
         command = self.profile.home_command or ("G28" if self.dialect == "marlin" else "$H")
         self._claim("busy")
         try:
-            self._run([command])
+            try:
+                self._run([command])
+            except FirmwareError as exc:
+                if self.dialect == "grbl" and exc.code == 5:
+                    raise MachineStateError("homing is disabled on this controller ($22=0): "
+                                            "unlock instead, or enable homing", field="home",
+                                            value=command) from exc
+                raise
             return self._position()
         finally:
             self._release()
@@ -204,6 +233,8 @@ class Machine:
             raise InvalidConfig("move needs at least one of x, y, z", field="move")
         self._claim("busy")
         try:
+            if self.dialect == "grbl":
+                self._wait_not_jogging()  # G-code during a jog is error:9
             self._run(["G90", f"G1{words} F{feed:.1f}", self._wait_motion()])
             return self._position()
         finally:
@@ -249,6 +280,11 @@ class Machine:
                 result = self.link.send(command, self.timeout_s * 10)
             except FirmwareError as exc:
                 self._recover_after_probe(z_start)
+                if any(line.strip() == "ALARM:4" for line in exc.reply_lines):
+                    raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) was already triggered "
+                                      "before it moved (grbl ALARM:4): check the probe",
+                                      x=x, y=y, field="probe", value=[x, y],
+                                      reason="triggered_before_motion") from exc
                 raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
                                   f"z={z_min:.3f}: {exc.message}", x=x, y=y, field="probe",
                                   value=[x, y]) from exc
@@ -260,7 +296,7 @@ class Machine:
                 self._recover_after_probe(z_start)
                 raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
                                   f"z={z_min:.3f}", x=x, y=y, field="probe", value=[x, y])
-            self._run([f"G1 Z{z_start:.4f} F{travel:.1f}"])
+            self._run([f"G1 Z{z_start:.4f} F{travel:.1f}", self._wait_motion()])
             return ProbeResult(report.x, report.y, report.z)
         finally:
             self._release()
@@ -268,7 +304,8 @@ class Machine:
     def _recover_after_probe(self, z_start: float) -> None:
         if self.dialect == "grbl":
             self.link.send("$X", self.timeout_s)
-        self._run([f"G1 Z{z_start:.4f} F{self.profile.travel_feed_mm_min:.1f}"])
+        self._run([f"G1 Z{z_start:.4f} F{self.profile.travel_feed_mm_min:.1f}",
+                   self._wait_motion()])
 
     # ------------------------------------------------------------------ programs
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
@@ -294,6 +331,13 @@ class Machine:
         executed = start_line
         acked_line: int | None = None
         self.progress = (executed, total)
+        seqs: dict[int, int] = {}  # command index -> completion order (Link.status_marks)
+        try:
+            self._replay_modes(commands, start_line)
+        except HardwareError:
+            self._release("error" if not link.healthy else "idle")
+            raise
+        polled = time.monotonic()
 
         def retire_oldest() -> None:
             """Wait for the oldest in-flight command (its LinkError propagates, leaving it
@@ -302,6 +346,7 @@ class Machine:
             index_done, pending = inflight[0]
             outcome = pending.result()
             inflight.popleft()
+            seqs[index_done] = pending.seq
             executed, acked_line = index_done + 1, outcome.line_no
             self.progress = (executed, total)
             if on_progress is not None:
@@ -309,6 +354,9 @@ class Machine:
 
         try:
             for index in range(start_line, total):
+                link.wait_room(commands[index])  # see every answer before the next line
+                while inflight and inflight[0][1].done():
+                    retire_oldest()
                 if not self._resume_event.is_set():
                     self._state = "paused"
                     self._resume_event.wait()
@@ -316,8 +364,9 @@ class Machine:
                 if self._cancel:
                     break
                 inflight.append((index, link.send_async(commands[index])))
-                while inflight and inflight[0][1].done():
-                    retire_oldest()
+                if self.dialect == "grbl" and time.monotonic() - polled > STATUS_POLL_S:
+                    link.realtime(b"?")  # where motion really is (see resume_line)
+                    polled = time.monotonic()
             while inflight:
                 retire_oldest()
         except LinkError as exc:
@@ -325,12 +374,20 @@ class Machine:
                     and inflight[0][1].outcome.status != "error":
                 index_done, pending = inflight.popleft()  # answered before the failure
                 executed, acked_line = index_done + 1, pending.outcome.line_no
+                seqs[index_done] = pending.seq
             self.progress = (executed, total)
             self._interrupted = _Interrupted(total, executed, acked_line,
                                              [(p.line_no, i) for i, p in inflight],
-                                             isinstance(exc, FirmwareReset))
+                                             isinstance(exc, FirmwareReset),
+                                             self._moved_bound(commands, executed, seqs))
             self._release("error")
             exc.resume_line = executed  # lower bound; resume_line() refines it
+            raise
+        except FirmwareError as exc:
+            executed = self._drain_after_rejection(exc, inflight, executed)
+            self.progress = (executed, total)
+            self._interrupted = _Interrupted(total, executed, acked_line, [], False, executed)
+            self._release("error" if not link.healthy or self._estopped else "idle")
             raise
         except HardwareError:
             self._interrupted = _Interrupted(total, executed, acked_line, [], True)
@@ -348,7 +405,9 @@ class Machine:
             raise MachineStateError("no interrupted program to resume", field="state")
         if self.link is None:
             raise MachineStateError("connect before resuming", field="state", value="disconnected")
-        if self.dialect == "grbl" or gap.reset or not gap.inflight:
+        if self.dialect == "grbl" or gap.reset:
+            return gap.moved_index if gap.moved_index is not None else gap.acked_index
+        if not gap.inflight:
             return gap.acked_index
         first_line = gap.inflight[0][0]
         last = self.link.sync_line_number(first_line)
@@ -364,6 +423,8 @@ class Machine:
             raise MachineStateError(f"cannot pause while {self.state}", field="state",
                                     value=self.state)
         self._resume_event.clear()
+        if self.dialect == "grbl" and self.link is not None:
+            self.link.realtime(b"!")  # feed hold: motion already planned stops too
         self._state = "paused"
 
     def resume(self) -> None:
@@ -371,6 +432,8 @@ class Machine:
         if self._state != "paused":
             raise MachineStateError(f"cannot resume while {self.state}", field="state",
                                     value=self.state)
+        if self.dialect == "grbl" and self.link is not None:
+            self.link.realtime(b"~")  # cycle start after the feed hold
         self._state = "printing"
         self._resume_event.set()
 
@@ -410,4 +473,5 @@ class Machine:
                 "program": None if self.progress is None or self.state not in ("printing", "paused")
                 else {"line": executed, "total": total},
                 "link": dict(self.link.stats) if self.link else None,
+                "controller": self.last_controller_state(),
                 "fallbacks": list(self.link.fallbacks) if self.link else []}

@@ -75,3 +75,4 @@ class _Interrupted:
     acked_line_no: int | None
     inflight: list[tuple[int | None, int]]  # (line number, command index)
     reset: bool
+    moved_index: int | None = None        # commands [0, moved_index) known to have moved

@@ -47,6 +47,8 @@ class PendingCommand:
         self.resends = 0
         self.accepted = False
         self.sync = False
+        self.marker = False  # grbl $G sent by the link to find lost oks
+        self.seq: int | None = None  # completion order (see Link.status_marks)
         self.error_event: ReplyEvent | None = None
         self.outcome: CommandResult | None = None
         self.failure: HardwareError | None = None
@@ -79,7 +81,8 @@ class PendingCommand:
         if check and outcome.status == "error":
             event = outcome.error
             raise FirmwareError(f"{self.command!r} failed: {getattr(event, 'message', event.raw)}",
-                                code=getattr(event, "code", None), command=self.command)
+                                code=getattr(event, "code", None), command=self.command,
+                                reply_lines=outcome.reply_lines)
         return outcome
 
 

@@ -83,7 +83,7 @@ def frame(line_no: int, command: str) -> str:
 
 
 _PAREN_COMMENT = re.compile(r"\([^)]*\)")
-_LINE_NUMBER = re.compile(r"^[Nn]\d+\s*")
+_LINE_NUMBER = re.compile(r"^[Nn]-?\d+\s*")
 _CHECKSUM = re.compile(r"\*\d*\s*$")
 
 

@@ -10,8 +10,8 @@ import time
 from collections import deque
 
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
-from .events import (Alarm, Busy, FirmwareErrorEvent, Halted, Ok, ReplyEvent, Resend,
-                     StartBanner, StatusReport, Unknown)
+from .events import (Alarm, Busy, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
+                     ReplyEvent, Resend, StartBanner, StatusReport, Unknown)
 from .protocol import parse_reply
 
 
@@ -54,7 +54,11 @@ class ReplyHandling:
             self._on_banner(event)
         elif isinstance(event, StatusReport):
             self._on_status(event)
+        elif self.dialect == "grbl" and isinstance(event, Feedback) and event.tag == "GC":
+            self._on_parser_state(event)
         elif self._outstanding:
+            if isinstance(event, Message) and self.dialect == "grbl":
+                self._expect_reset_after(event)
             self._outstanding[0].replies.append(event)
         elif event.raw.strip():
             self.unsolicited.append(event)
@@ -63,6 +67,8 @@ class ReplyHandling:
         pending = self._outstanding.popleft()
         if pending.error_event is not None and status == "ok":
             status, error = "error", pending.error_event
+        self._completed += 1
+        pending.seq = self._completed
         pending.finish(status, error)
         if self._replay_inflight is not None and pending.line_no is not None \
                 and pending.line_no >= self._replay_inflight:
@@ -70,6 +76,7 @@ class ReplyHandling:
             self._pump_replay()
         self._rtt = 0.9 * self._rtt + 0.1 * max(now - pending.t_sent, 1e-5)
         self._last_ack = now
+        self._last_answer = now
         self._pokes_in_row = 0
 
     def _on_ok(self, event: Ok, now: float, swallow: bool = False) -> None:
@@ -160,13 +167,8 @@ class ReplyHandling:
         if self.dialect == "marlin":
             head.error_event = event  # Marlin still sends ok for this command
             return
-        if self.mode == "windowed" and len(self._outstanding) > 1:
-            self._fallback(f"grbl rejected a streamed line ({event.raw})")
-        elif event.code in (1, 2) and head.resends < 2 and self.mode == "pingpong":
-            head.resends += 1  # damaged line: nothing ran, so sending it again is safe
-            self.stats["retries"] += 1
-            self._write(head.data)
-            return
+        # grbl answers every line once, in order: a rejected line desynchronises nothing.
+        # error:1/2 are the parser's verdict on the line as received: never re-sent.
         self._complete_head("error", now, event)
 
     def _on_alarm(self, event: Alarm) -> None:
@@ -176,6 +178,8 @@ class ReplyHandling:
             head = self._outstanding[0]
             head.replies.append(event)
             head.error_event = event
+            if event.code in (6, 7, 8, 9) and head.command.upper().startswith("$H"):
+                self._expect_banner_until = time.monotonic() + 5.0  # grbl resets itself
         else:
             self.unsolicited.append(event)
 
@@ -185,6 +189,10 @@ class ReplyHandling:
         self._guard = None
         self._replay.clear()
         self._replay_inflight = None
+        if self._expect_banner_until is not None:  # the reset grbl announced ($C, homing)
+            self._expect_banner_until = None
+            self.unsolicited.append(event)
+            return
         if self._outstanding and self._answered:  # a restart, not the boot banner of open()
             # poison the link: nothing may be sent into the new session
             self._set_fatal(FirmwareReset("the controller restarted with commands in flight",
@@ -195,17 +203,66 @@ class ReplyHandling:
         self._status_seq += 1
         self._last_status = event
         self.unsolicited.append(event)
-        if self.dialect != "grbl" or not self._outstanding:
+        # which commands were answered when grbl made this report (see Link.status_marks)
+        self.status_marks.append((event, self._completed, time.monotonic()))
+        # No lost-ok inference here: grbl reports Idle with an empty RX buffer while it
+        # dwells, so only the $G marker (below) proves that answers were lost.
+
+    def _expect_reset_after(self, event: Message) -> None:
+        """``[MSG:Disabled]`` answers a ``$C`` that leaves check mode: grbl resets next."""
+        head = self._outstanding[0]
+        if event.text.strip() == "Disabled" and head.command.upper().replace(" ", "") == "$C":
+            self._expect_banner_until = time.monotonic() + 5.0
+
+    def _on_parser_state(self, event: ReplyEvent) -> None:
+        """grbl prints ``[GC:...]`` when it executes a ``$G``; it answers in order, so every
+        command sent before the oldest outstanding ``$G`` was answered: their lost oks
+        are taken as received (status ``assumed``)."""
+        marker = next((p for p in self._outstanding if not _has_parser_state(p)
+                       and p.command.upper().replace(" ", "") == "$G"), None)
+        now = time.monotonic()
+        while marker is not None and self._outstanding and self._outstanding[0] is not marker:
+            self.stats["assumed_ok"] += 1
+            error = self._outstanding[0].error_event
+            self._complete_head("error" if error else "assumed", now, error)
+        if marker is not None:
+            marker.replies.append(event)
+
+    def _grbl_poke(self, now: float) -> None:
+        """A stalled grbl link: ask for a status (a sign of life; grbl answers ``?`` even
+        while dwelling or homing) and, when its receive buffer surely has room, send one
+        ``$G`` marker whose ``[GC:]`` answer settles any lost ``ok``."""
+        self._write(b"?")
+        if any(p.marker and not _has_parser_state(p) for p in self._outstanding) \
+                or self._fatal is not None:  # one unanswered marker at a time
             return
-        free = event.fields.get("Bf", "")
-        rx_free = int(free.split(",")[1]) if "," in free else None
-        if event.state.split(":")[0] in ("Idle", "Alarm") and rx_free is not None \
-                and rx_free >= self.rx_buffer - 1:
-            now = time.monotonic()  # everything sent was parsed: the answers were lost
-            while self._outstanding:
-                self.stats["assumed_ok"] += 1
-                error = self._outstanding[0].error_event
-                self._complete_head("error" if error else "assumed", now, error)
+        in_flight = sum(len(p.data) for p in self._outstanding)
+        room = in_flight + 3 <= self.rx_buffer - 1
+        if not room and self.status_marks:
+            status, _, seen_at = self.status_marks[-1]
+            free = status.fields.get("Bf", "")
+            if "," in free:
+                room = int(free.split(",")[1]) >= 3
+            elif status.state.split(":")[0] in ("Idle", "Alarm", "Check"):
+                # not moving and not parsing: after every outstanding dwell has surely
+                # ended, nothing can be left unread in its buffer
+                room = now - self._last_answer > self._dwell_budget_s() + 4 * self._poke_s \
+                    and seen_at > self._last_answer
+        if room:
+            marker = self._transmit_new("$G", internal=True)
+            marker.marker = True
+
+    def _dwell_budget_s(self) -> float:
+        """Seconds of ``G4`` dwell among the outstanding commands (grbl P is seconds)."""
+        total = 0.0
+        for pending in self._outstanding:
+            words = pending.command.upper().replace(" ", "")
+            if words.startswith("G4P"):
+                try:
+                    total += float(words[3:])
+                except ValueError:
+                    total += 60.0
+        return total
 
     # ------------------------------------------------------------------ stalls / failures
     def _check_stall(self) -> None:
@@ -217,15 +274,16 @@ class ReplyHandling:
                                       last_line=self.last_acked_line()))
             return
         limit = max(self._poke_s, min(20 * self._rtt, 2.0)) * (2 ** min(self._pokes_in_row, 5))
+        limit = min(limit, max(self.timeout_s / 3, self._poke_s))  # a sign of life in time
         if now - self._last_ack < limit:
             return
         self._last_ack = now
         self._pokes_in_row += 1
         self.stats["pokes"] += 1
-        if self._pokes_in_row >= 3 and self.mode == "windowed":
+        if self._pokes_in_row >= 3 and self.mode == "windowed" and self.dialect == "marlin":
             self._fallback("repeated stalls")
         if self.dialect == "grbl":
-            self._write(b"?")
+            self._grbl_poke(now)
             return
         if all(p.accepted for p in self._outstanding):
             self._transmit_new("M114", internal=True)
@@ -255,3 +313,7 @@ class ReplyHandling:
         if self._closed:
             raise LinkError("link is closed", field="port")
 
+
+def _has_parser_state(pending: object) -> bool:
+    """True once a ``$G`` got its ``[GC:...]`` line (its ``ok`` may still be lost)."""
+    return any(isinstance(e, Feedback) and e.tag == "GC" for e in pending.replies)

@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 
 KEYS = {"viewer": "viewer-key-123", "operator": "operator-key-123", "admin": "admin-key-123"}
-# Tests must not inherit a developer's configuration.
-for _name in [n for n in os.environ if n.startswith("CONFORMA_") and n not in {"CONFORMA_TEST_PORT"}]:
+# Tests must not inherit a developer's configuration; CONFORMA_TEST_* select the real
+# hardware the contract suite runs against (tests/hardware/test_contract.py) and stay.
+for _name in [n for n in os.environ if n.startswith("CONFORMA_") and not n.startswith("CONFORMA_TEST_")]:
     os.environ.pop(_name)
 
 

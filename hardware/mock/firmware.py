@@ -85,9 +85,14 @@ class FirmwareCore:
         self.waiting: Wait | None = None
         self.keepalive_at = float("inf")
         self.planner: deque[float] = deque()  # end times of planned blocks
+        # per planned block: (transcript index of its command, N word, start time, start, end)
+        self.blocks: deque[tuple[int, int | None, float, tuple, tuple]] = deque()
+        self.held_since: float | None = None  # feed hold: the planner is frozen
         self.motion_end = 0.0
         self.position = [0.0, 0.0, 0.0]
         self.absolute = True
+        self.inches = False
+        self.line_n: int | None = None  # N word of the command being planned
         self.feed = 1000.0
         self.dispensing = False
         self.homed = False
@@ -156,8 +161,9 @@ class FirmwareCore:
                     data = data[:max(room, 0)]
                 self.rx += data
                 progressed = True
-            while self.planner and self.planner[0] <= now:
+            while self.planner and self.planner[0] <= now and self.held_since is None:
                 self.planner.popleft()
+                self.blocks.popleft()
             if self.current is not None:
                 if self._ready(self.waiting, now):
                     progressed = True
@@ -176,7 +182,7 @@ class FirmwareCore:
         if waiting[0] == "until":
             return waiting[1] <= now
         if waiting[0] == "slot":
-            return len(self.planner) < self.world.planner_blocks
+            return len(self.planner) < self.block_capacity()
         return not self.planner  # "drain"
 
     def _next_time(self) -> float | None:
@@ -186,7 +192,7 @@ class FirmwareCore:
         if self.current is not None:
             if self.waiting and self.waiting[0] == "until":
                 times.append(self.waiting[1])
-            elif self.planner:
+            elif self.planner and self.held_since is None:
                 times.append(self.planner[0])
             if self.keepalive_at != float("inf"):
                 times.append(self.keepalive_at)
@@ -243,7 +249,7 @@ class FirmwareCore:
     def plan_move(self, target: list[float], feed_mm_min: float, now: float
                   ) -> Generator[Wait, None, None]:
         """Wait for a free planner block, then plan a straight move to ``target``."""
-        if len(self.planner) >= self.world.planner_blocks:
+        if len(self.planner) >= self.block_capacity():
             yield ("slot",)
         start = tuple(self.position)
         length = math.dist(target, start)
@@ -264,6 +270,51 @@ class FirmwareCore:
             begin = max(now, self.motion_end)
             self.motion_end = begin + duration
             self.planner.append(self.motion_end)
+            self.blocks.append((self.world.transcript.executed_count, self.line_n, begin, start,
+                                tuple(target)))
+
+    def hold(self, now: float) -> None:
+        """Feed hold: planned motion stops where it is (deceleration not modelled)."""
+        if self.held_since is None:
+            self.held_since = now
+
+    def cycle_start(self, now: float) -> None:
+        """Resume after a feed hold: every planned block moves later by the hold time."""
+        if self.held_since is None:
+            return
+        shift = max(now - self.held_since, 0.0)
+        self.held_since = None
+        self.planner = deque(t + shift for t in self.planner)
+        self.blocks = deque((i, n, t + shift, a, b) for i, n, t, a, b in self.blocks)
+        self.motion_end += shift
+
+    def machine_position(self, now: float) -> tuple[float, float, float]:
+        """Where the tool really is (mm): inside the running block, not the planned end."""
+        if not self.blocks:
+            return tuple(self.position)
+        _, _, begin, start, end = self.blocks[0]
+        t = self.held_since if self.held_since is not None else now
+        span = self.planner[0] - begin
+        f = 1.0 if span <= 0 else min(max((t - begin) / span, 0.0), 1.0)
+        return tuple(a + (b - a) * f for a, b in zip(start, end))
+
+    def moving(self) -> bool:
+        """True while planned motion remains (also while held)."""
+        return bool(self.planner)
+
+    def done_count(self) -> int:
+        """Recorded commands whose motion is complete: the ones before the running block."""
+        return self.blocks[0][0] if self.blocks else self.world.transcript.executed_count
+
+    def lose_planned_motion(self) -> None:
+        """A reset or power loss: planned but unexecuted commands never ran, so the
+        transcript ends at the last command whose motion completed (when it keeps texts)."""
+        if self.world.transcript.keep:
+            self.world.transcript.truncate(self.done_count())
+
+    def block_capacity(self) -> int:
+        """Planner blocks that can hold motion at once (grbl keeps one ring slot free)."""
+        return self.world.planner_blocks
 
     def clock(self) -> float:
         """Current time (generators resume later than they started)."""
@@ -272,9 +323,11 @@ class FirmwareCore:
     def target_of(self, params: dict[str, float]) -> list[float]:
         """Move target from X/Y/Z words (absolute or relative mode)."""
         target = list(self.position)
+        unit = 25.4 if self.inches else 1.0
         for i, axis in enumerate("XYZ"):
             if axis in params:
-                target[i] = params[axis] if self.absolute else target[i] + params[axis]
+                value = params[axis] * unit
+                target[i] = value if self.absolute else target[i] + value
         return target
 
     def dwell(self, seconds: float, now: float) -> Generator[Wait, None, None]:
@@ -297,7 +350,7 @@ class FirmwareCore:
     def run_shared(self, command: str, head: str, params: dict[str, float]
                    ) -> Generator[Wait, None, bool]:
         """Run a command both dialects treat alike (the world's dispense on/off commands,
-        G90, G91, G92); False, doing nothing, for any other command."""
+        G20, G21, G90, G91, G92); False, doing nothing, for any other command."""
         dispense_on, dispense_off = self.world.dispense_commands
         if command == dispense_on or head == dispense_on.split(" ")[0]:
             yield ("drain",)
@@ -305,6 +358,8 @@ class FirmwareCore:
         elif command == dispense_off or head == dispense_off.split(" ")[0]:
             yield ("drain",)
             self.dispensing = False
+        elif head in ("G20", "G21"):
+            self.inches = head == "G20"
         elif head == "G90":
             self.absolute = True
         elif head == "G91":

@@ -1,53 +1,94 @@
-"""grbl 1.1 personality of the mock firmware (after grbl ``protocol.c``/``report.c``).
+"""grbl 1.1h personality of the mock firmware (after grbl's ``protocol.c``, ``system.c``,
+``report.c``, ``motion_control.c`` and the "Grbl v1.1 Interface" document).
 
 * No line numbers or checksums; one ``ok`` or ``error:N`` per line, sent once the line is
-  parsed and its motion planned (the planner has ``planner_blocks`` blocks); the RX buffer
-  (``rx_buffer``, 128 bytes) is what a character-counting host fills.
-* Real-time bytes are taken out of the stream on arrival: ``?`` status report
-  (``<Idle|MPos:x,y,z|Bf:blocks,bytes|FS:f,0>``), ``!`` hold, ``~`` resume, ``0x18``
-  soft reset (``ALARM:3`` if moving, then the banner).
+  parsed and its motion *planned* (the planner has ``planner_blocks`` - 1 usable blocks);
+  the RX buffer (``rx_buffer``, 128 bytes) is what a character-counting host fills.
+  ``error:1`` (no command letter) and ``error:2`` (bad number) come from the parser.
+* Real-time bytes are taken out of the stream on arrival: ``?`` status report, ``!`` feed
+  hold (planned motion freezes: ``Hold:0``; lines are still parsed until the planner is
+  full), ``~`` cycle start, ``0x18`` soft reset (``ALARM:3`` if moving, then the banner).
+* Status ``<State|MPos:x,y,z|Bf:blocks,bytes|FS:f,s>``: the state is Run only while
+  motion is planned — a ``G4`` dwell reports Idle, as grbl does; ``$10`` is the report
+  mask (bit 0: MPos, else WPos; bit 1: the ``Bf:`` buffer field, off by default); the
+  position is where the tool is inside the running block, not the planned end.
+  ``Ln:`` (the N word of the running block) only with the ``line_numbers`` compile option.
+* Power-up (opening the port resets an Arduino): the bootloader swallows input for
+  ``boot_s`` (times ``time_scale``), then the banner; on a fresh EEPROM ``error:7`` and the
+  default settings come first.  With homing enabled (``homing``, ``$22=1``) grbl boots in
+  Alarm (``[MSG:'$H'|'$X' to unlock]``); ``$H`` with homing disabled is ``error:5``; a
+  failing homing cycle (``homing_fails``) prints ``ALARM:9``, ``ok`` and resets itself.
+* ``$C`` toggles check mode (lines parsed, nothing moves or runs); leaving it soft-resets.
+* ``$J=...`` jogs (state Jog; G-code lines meanwhile get ``error:9``).
 * ``G38.2 Z.. F..`` probes down: ``[PRB:x,y,z:1]`` then ``ok``; no contact: ``ALARM:5``,
-  ``[PRB:x,y,z:0]``, ``ok`` (grbl 1.1 ``mc_probe_cycle``); starting inside the part:
-  ``ALARM:4``, ``ok``.  The alarm locks G-code (``error:9``) until ``$X`` or ``$H``.
+  ``[PRB:x,y,z:0]``, ``ok``; starting inside the part: ``ALARM:4``, ``ok`` and no motion.
+  The alarm locks G-code (``error:9``) until ``$X`` or ``$H``.
 * A damaged line (``checksum_rate``) is rejected with ``error:2`` and not executed.
-* Opening the port resets the controller (DTR), and so does a disconnect.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Generator
 
 from .firmware import SLOW_S, FirmwareCore, Wait, normalized, split_words
+from .grbl_system import GrblSystem
 
-_MODAL = {"G17", "G21", "G90", "G91", "G94", "G54", "M9", "M8", "M7", "G40", "G49", "G80", "G4"}
-_STATUS = ord("?")
+_MODAL = {"G17", "G21", "G20", "G90", "G91", "G94", "G54", "G55", "G56", "G57", "G58", "G59",
+          "M9", "M8", "M7", "G40", "G49", "G80", "G4", "M2", "M30"}
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
+RESET_S = 0.02  # model seconds grbl needs to re-initialise after a soft reset
+_LINE_N = re.compile(r"^[Nn]\s*(\d+)")
 
 
-class GrblFirmware(FirmwareCore):
+def syntax_error(command: str) -> int | None:
+    """grbl's first parser check of a line: 1 when a word has no letter, 2 when a letter
+    has no valid number (``gc_execute_line``); None when the words are well formed."""
+    text = command.replace(" ", "").upper()
+    i = 0
+    while i < len(text):
+        if not text[i].isalpha():
+            return 1
+        match = _NUMBER.match(text, i + 1)
+        if match is None:
+            return 2
+        i = match.end()
+    return None
+
+
+class GrblFirmware(GrblSystem, FirmwareCore):
     """grbl behaviour; see module docstring."""
 
     dialect = "grbl"
 
     def cold_start(self) -> None:
         super().cold_start()
-        self.alarm = False
-        self.hold = False
+        self.feed = 0.0  # grbl boots with no feed rate: G1 without F is error:22
+        self.alarm = getattr(self, "alarm", False)
+        self.check_mode = False
+        self.jogging = False
+        self.homing_until: float | None = None
         self.booting_until = float("-inf")
+        self.wcs = "G54"
+        self.first_report = True
+        self.load_eeprom()
 
     # ------------------------------------------------------------------ receive path
     def realtime(self, data: bytes, now: float) -> bytes:
         if now < self.booting_until:
+            self.count_fault("lost_in_bootloader")
             return b""
         if not any(b in data for b in (b"?", b"!", b"~", b"\x18")):
             return data
         kept = bytearray()
         for byte in data:
-            if byte == _STATUS:
+            if byte == ord("?"):
                 self.status(now)
             elif byte == ord("!"):
-                self.hold = True
+                if not self.alarm and not self.check_mode:
+                    self.hold(now)
             elif byte == ord("~"):
-                self.hold = False
+                self.cycle_start(now)
             elif byte == 0x18:
                 self.soft_reset(now)
                 kept.clear()
@@ -55,38 +96,67 @@ class GrblFirmware(FirmwareCore):
                 kept.append(byte)
         return bytes(kept)
 
-    def status(self, now: float) -> None:
+    def block_capacity(self) -> int:
+        return self.world.planner_blocks - 1  # BLOCK_BUFFER_SIZE 16 holds 15 blocks
+
+    def state_name(self, now: float) -> str:
+        """grbl's machine state as the status report names it."""
+        if self.homing_until is not None:
+            return "Home"
         if self.alarm:
-            state = "Alarm"
-        elif self.hold:
-            state = "Hold:0"
-        else:
-            state = "Run" if (self.planner or self.current is not None) else "Idle"
-        x, y, z = self.position
-        free_blocks = self.world.planner_blocks - 1 - len(self.planner)
-        free_bytes = self.world.rx_buffer - 1 - len(self.rx) - sum(len(d) for _, d in self.wire)
-        self.emit(f"<{state}|MPos:{x:.3f},{y:.3f},{z:.3f}|Bf:{free_blocks},{free_bytes}"
-                  f"|FS:{self.feed:.0f},0>", now)
+            return "Alarm"
+        if self.held_since is not None:
+            return "Hold:0"
+        if self.check_mode:
+            return "Check"
+        if self.moving():
+            return "Jog" if self.jogging else "Run"
+        return "Idle"  # also while a G4 dwell blocks the parser
+
+    def status(self, now: float) -> None:
+        mask = int(self.settings[10])
+        x, y, z = self.machine_position(now)
+        kind = "MPos" if mask & 1 else "WPos"
+        fields = [self.state_name(now), f"{kind}:{x:.3f},{y:.3f},{z:.3f}"]
+        if mask & 2:
+            free_blocks = self.world.planner_blocks - 1 - len(self.planner)
+            queued = len(self.rx) + sum(len(d) for _, d in self.wire)
+            fields.append(f"Bf:{free_blocks},{self.world.rx_buffer - 1 - queued}")
+        if self.world.line_numbers and self.blocks and self.blocks[0][1]:
+            fields.append(f"Ln:{self.blocks[0][1]}")
+        fields.append(f"FS:{self.feed:.0f},0")
+        if self.first_report:
+            fields.append("WCO:0.000,0.000,0.000")
+            self.first_report = False
+        self.emit("<" + "|".join(fields) + ">", now)
 
     def soft_reset(self, now: float) -> None:
-        moving = bool(self.planner) or self.current is not None
-        position = list(self.position)
+        """Ctrl-X: motion stops at once (position kept, planned motion lost), banner."""
+        moving = self.moving() or self.homing_until is not None
+        position = list(self.machine_position(now))
+        self.lose_planned_motion()
         self.wire.clear()
         if moving:
             self.emit("ALARM:3", now)
+        alarm = self.alarm or moving
         self.cold_start()
         self.position = position
-        self.alarm = moving
+        self.alarm = alarm
+        # re-initialising takes a moment; serial_reset_read_buffer drops what arrives meanwhile
+        self.booting_until = now + RESET_S * self.scale if self.scale else float("-inf")
+        self.out_free_at = max(self.out_free_at, now + RESET_S * self.scale)
         self.banner(now)
 
     def pump(self, now: float) -> bool:
-        if self.current is not None or self.hold:
+        if self.current is not None or self.homing_until is not None:
             return False
         raw = self.take_line()
         if raw is None:
             return False
+        self.world.stats.lines_received += 1
         text = raw.decode("latin-1").strip()
         if text and self.due("reset", text):
+            self.lose_planned_motion()
             self.cold_start()
             self.banner(now)
             # bootloader: input is lost for ~1 s (with time_scale 0: until the port reopens)
@@ -98,14 +168,19 @@ class GrblFirmware(FirmwareCore):
         if text and self.chance(self.faults.checksum_rate, "checksum"):
             self.reply("error:2", now)
             return True
+        number = _LINE_N.match(text)
+        self.line_n = int(number.group(1)) if number else None
         command = normalized(text) if text else None
         if command is None:
             self.reply("ok", now)
         elif command.startswith("$"):
             self.system_command(command, now)
-        elif self.alarm:
+        elif syntax_error(command) is not None:
+            self.reply(f"error:{syntax_error(command)}", now)
+        elif self.alarm or (self.jogging and self.moving()):
             self.reply("error:9", now)
         else:
+            self.jogging = False
             self.start(None, command, now)
         return True
 
@@ -117,29 +192,6 @@ class GrblFirmware(FirmwareCore):
         if text == "ok" and self.chance(self.faults.duplicate_ok_rate, "duplicate_ok"):
             self.emit(text, now)
 
-    def system_command(self, command: str, now: float) -> None:
-        upper = command.upper()
-        if upper == "$X":
-            self.alarm = False
-            self.emit("[MSG:Caution: Unlocked]", now)
-        elif upper == "$H":
-            self.position = [0.0, 0.0, 0.0]
-            self.homed, self.alarm = True, False
-        elif upper == "$I":
-            self.emit("[VER:1.1h.20190830:]", now)
-            self.emit(f"[OPT:V,{self.world.planner_blocks - 1},{self.world.rx_buffer}]", now)
-        elif upper == "$G":
-            mode = "G90" if self.absolute else "G91"
-            self.emit(f"[GC:G0 G54 G17 G21 {mode} G94 M5 M9 T0 F{self.feed:.0f} S0]", now)
-        elif upper == "$$":
-            for key, value in (("0", "10"), ("10", "1"), ("110", "500.000")):
-                self.emit(f"${key}={value}", now)
-        else:
-            self.reply("error:3", now)
-            return
-        self.record(upper, now)
-        self.reply("ok", now)
-
     # ------------------------------------------------------------------ execution
     def run(self, line_no: int | None, command: str, now: float) -> Generator[Wait, None, None]:
         head, params = split_words(command)
@@ -147,17 +199,25 @@ class GrblFirmware(FirmwareCore):
             yield from self.dwell(SLOW_S, now)
         if head in ("G0", "G1"):
             if "F" in params:
-                self.feed = params["F"]
+                self.feed = params["F"] * (25.4 if self.inches else 1.0)
             if head == "G1" and self.feed <= 0:
                 self.reply("error:22", now)
                 return
-            feed = self.world.rapid_feed_mm_min if head == "G0" else self.feed
-            yield from self.plan_move(self.target_of(params), feed, now)
+            if not self.check_mode:
+                feed = self.world.rapid_feed_mm_min if head == "G0" else self.feed
+                yield from self.plan_move(self.target_of(params), feed, now)
+        elif head in ("G54", "G55", "G56", "G57", "G58", "G59"):
+            self.wcs = head
+        elif self.check_mode and head in ("G4", "G28", "G30", "G38.2", "G38.3"):
+            pass  # check mode: parsed, nothing runs
         elif (yield from self.run_shared(command, head, params)):
-            pass  # dispense on/off, G90, G91, G92
+            pass  # dispense on/off, G20, G21, G90, G91, G92
         elif head == "G4":
+            if "P" not in params:
+                self.reply("error:28", now)
+                return
             yield ("drain",)
-            yield from self.dwell(params.get("P", 0.0), now)
+            yield from self.dwell(params["P"], now)
         elif head in ("G28", "G30"):
             yield from self.plan_move([0.0, 0.0, 0.0], self.world.rapid_feed_mm_min, now)
         elif head in ("G38.2", "G38.3"):
@@ -167,13 +227,17 @@ class GrblFirmware(FirmwareCore):
         elif head not in _MODAL:
             self.reply("error:20", now)
             return
-        self.record(command, now)
+        if not self.check_mode:
+            self.record(command, now)
         self.reply("ok", now)
 
     def g38(self, head: str, params: dict[str, float], now: float
             ) -> Generator[Wait, None, bool]:
         if "F" in params:
             self.feed = params["F"]
+        if self.feed <= 0:
+            self.reply("error:22", now)
+            return False
         if "Z" not in params or any(a in params and abs(params[a] - self.position[i]) > 1e-9
                                     for i, a in enumerate("XY")):
             self.reply("error:33", now)
@@ -198,23 +262,3 @@ class GrblFirmware(FirmwareCore):
         """Probe alarm (not critical): report it and lock G-code until ``$X``/``$H``."""
         self.emit(f"ALARM:{code}", now)
         self.alarm = True
-
-    # ------------------------------------------------------------------ resets
-    def banner(self, now: float) -> None:
-        self.emit("", now)
-        self.emit("Grbl 1.1h ['$' for help]", now)
-        if self.alarm:
-            self.emit("[MSG:'$H'|'$X' to unlock]", now)
-
-    def on_attach(self, now: float, first: bool) -> None:
-        position = list(self.position)
-        self.cold_start()  # DTR reset; also ends a bootloader pause
-        if not first:
-            self.position = position
-        self.banner(now)
-
-    def disconnect(self, now: float) -> None:
-        super().disconnect(now)
-        position = list(self.position)
-        self.cold_start()
-        self.position = position

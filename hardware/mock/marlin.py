@@ -90,10 +90,17 @@ class MarlinFirmware(FirmwareCore):
             return
         match = _NUMBERED.match(text)
         star_at = text.rfind("*")
-        if match and star_at > match.end() and self.chance(self.faults.checksum_rate, "checksum"):
+        faulty = match is not None and "M110" not in text  # a lost M110 cannot be resent
+        if faulty and star_at > match.end() and self.chance(self.faults.checksum_rate, "checksum"):
             i = self.rng.randrange(match.end(), star_at)
             flipped = chr(ord(text[i]) ^ 0x01)
             text = text[:i] + (flipped if flipped not in "*\r\n;(" else "#") + text[i + 1:]
+        if faulty and self.chance(self.faults.line_number_rate, "line_number"):
+            digits = match.group(1)
+            i = self.rng.randrange(len(digits)) if digits[0] != "-" else len(digits) - 1
+            wrong = str((int(digits[i]) + 1 + self.rng.randrange(8)) % 10)
+            text = f"N{digits[:i]}{wrong}{digits[i + 1:]}" + text[match.end(1):]
+            match = _NUMBERED.match(text)
         line_no = None
         if match:
             line_no = int(match.group(1))

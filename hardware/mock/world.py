@@ -8,8 +8,10 @@ URL form (every option optional)::
 
     mock://NAME?dialect=marlin&time_scale=0&seed=1&probe_noise_mm=0.01
         &checksum_rate=0.01&drop_ok_rate=0&duplicate_ok_rate=0&resend_rate=0
-        &garbage_rate=0&busy_rate=0&slow_rate=0&disconnect_at_line=500&reset_at_line=900
+        &garbage_rate=0&busy_rate=0&slow_rate=0&line_number_rate=0
+        &disconnect_at_line=500&reset_at_line=900
         &advanced_ok=1&latency_ms=1&rx_buffer=128&command_buffer=4&planner_blocks=16
+        &homing=0&homing_fails=0&fresh_eeprom=0&boot_s=0.5&line_numbers=0   (grbl)
 
 ``NAME`` selects a world registered with ``register_world``; an unknown name creates (and
 registers) a fresh world from the options.  Options given for an existing world update
@@ -20,7 +22,8 @@ Fault semantics (per received command line, probabilities 0..1, deterministic by
 lose / repeat the ``ok``; ``resend_rate`` emits a spurious ``Resend:`` for a line already
 accepted (Marlin); ``garbage_rate`` puts a line of random bytes before a reply;
 ``busy_rate`` emits a burst of ``echo:busy: processing`` (Marlin); ``slow_rate`` makes the
-command take 2.5 s (times ``time_scale``).  ``disconnect_at_line=N`` drops the link right
+command take 2.5 s (times ``time_scale``); ``line_number_rate`` damages a numbered line's
+``N`` word on the wire (Marlin answers "Line Number is not Last Line Number+1").  ``disconnect_at_line=N`` drops the link right
 after the firmware executed its N-th recorded command (before its ``ok``): Marlin keeps
 running and keeps its line number; grbl resets (Arduino boards reset on re-enumeration)
 and loses its receive buffer.  ``reset_at_line=N`` restarts the controller instead of
@@ -54,6 +57,7 @@ class FaultConfig:
     garbage_rate: float = 0.0
     busy_rate: float = 0.0
     slow_rate: float = 0.0
+    line_number_rate: float = 0.0
     disconnect_at_line: int | None = None
     reset_at_line: int | None = None
     seed: int = 0
@@ -101,6 +105,18 @@ class Transcript:
         if self.keep:
             self.commands.append(command)
 
+    def truncate(self, count: int) -> None:
+        """Keep only the first ``count`` commands (a controller reset lost the rest before
+        they moved).  Needs ``keep``; without the texts the digest cannot be rebuilt."""
+        if count >= self.executed_count:
+            return
+        if not self.keep:
+            raise RuntimeError("cannot truncate a transcript that keeps no commands")
+        kept = self.commands[:count]
+        self.reset()
+        for command in kept:
+            self.record(command)
+
     def reset(self) -> None:
         """Forget everything recorded so far."""
         self.commands = []
@@ -127,6 +143,7 @@ class MockStats:
     starved_s: float = 0.0
     rx_overflows: int = 0
     blocks: int = 0
+    lines_received: int = 0
     faults: dict[str, int] = field(default_factory=dict)
 
 
@@ -152,6 +169,13 @@ class MockWorld:
     probe_z_min: float = -20.0
     rapid_feed_mm_min: float = 6000.0
     keep_transcript: bool = True
+    # grbl: homing enabled ($22, boots in Alarm), a failing homing cycle, a fresh EEPROM
+    # (boot error:7), bootloader time before the banner (model s), line-number reports (Ln:)
+    homing: bool = False
+    homing_fails: bool = False
+    fresh_eeprom: bool = False
+    boot_s: float = 0.5
+    line_numbers: bool = False
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
@@ -192,7 +216,8 @@ _WORLD_KEYS = {"dialect": str, "time_scale": float, "seed": int, "probe_noise_mm
                "advanced_ok": bool, "latency_ms": float, "rx_buffer": int,
                "command_buffer": int, "planner_blocks": int, "bed_z": float,
                "probe_z_min": float, "dispense_on": str, "dispense_off": str,
-               "keep_transcript": bool}
+               "keep_transcript": bool, "homing": bool, "homing_fails": bool,
+               "fresh_eeprom": bool, "boot_s": float, "line_numbers": bool}
 
 
 def register_world(name: str, world: MockWorld) -> MockWorld:
@@ -255,7 +280,7 @@ def parse_mock_options(query: str) -> dict[str, object]:
         if key.endswith("_rate") and not 0.0 <= value <= 1.0:
             raise InvalidConfig(f"mock option {key} must be within 0..1", field=f"port.{key}",
                                 value=value)
-        if key in ("time_scale", "latency_ms", "probe_noise_mm") and value < 0:
+        if key in ("time_scale", "latency_ms", "probe_noise_mm", "boot_s") and value < 0:
             raise InvalidConfig(f"mock option {key} must be >= 0", field=f"port.{key}", value=value)
         if key in ("rx_buffer", "command_buffer", "planner_blocks") and value < 1:
             raise InvalidConfig(f"mock option {key} must be >= 1", field=f"port.{key}", value=value)

@@ -18,7 +18,18 @@ from hardware.mock import MockWorld, register_world, unregister_world
 from hardware.protocol import commands_sha256
 
 REAL_PORT = os.environ.get("CONFORMA_TEST_PORT")
-TARGETS = ["mock-marlin", "mock-grbl", "real"]
+# mock-grbl-homing: $22=1, grbl boots locked in Alarm until homed
+TARGETS = ["mock-marlin", "mock-grbl", "mock-grbl-homing", "real"]
+
+
+def ready(machine: Machine) -> None:
+    """What an operator does after connecting: a grbl that boots locked (homing enabled)
+    is homed; one in Alarm without homing is unlocked."""
+    if machine.dialect == "grbl" and machine.last_controller_state() == "Alarm":
+        if machine.can_home():
+            machine.home()
+        else:
+            machine.unlock()
 
 
 @pytest.fixture(params=TARGETS)
@@ -31,18 +42,36 @@ def target(request):
         machine = Machine(REAL_PORT, dialect, baudrate=int(os.environ.get("CONFORMA_TEST_BAUD",
                                                                           "115200")))
         world, motion = None, os.environ.get("CONFORMA_TEST_MOTION") == "1"
+        name = None
     else:
         dialect = request.param.split("-")[1]
-        name = f"contract-{dialect}"
-        world = register_world(name, MockWorld(dialect=dialect))
+        name = f"contract-{request.param}"
+        world = register_world(name, MockWorld(dialect=dialect,
+                                               homing=request.param.endswith("homing")))
         profile = MachineProfile() if dialect == "marlin" else MachineProfile("M3 S1000", "M5")
         machine = Machine(f"mock://{name}", dialect, profile, boot_quiet_s=0.01, poke_s=0.02)
         motion = True
     machine.connect()
+    ready(machine)
     yield machine, world, motion
     machine.disconnect()
-    if world is not None:
-        unregister_world(f"contract-{machine.dialect}")
+    if name is not None:
+        unregister_world(name)
+
+
+def test_environment_reaches_the_suite():
+    """tests/conftest.py must leave CONFORMA_TEST_* alone (it once stripped them)."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "CONFORMA_TEST_DIALECT": "grbl", "CONFORMA_TEST_MOTION": "1",
+           "CONFORMA_TEST_BAUD": "250000", "CONFORMA_DATA_DIR": "/nonexistent"}
+    code = ("import os, tests.conftest; print(os.environ.get('CONFORMA_TEST_DIALECT'), "
+            "os.environ.get('CONFORMA_TEST_MOTION'), os.environ.get('CONFORMA_TEST_BAUD'), "
+            "os.environ.get('CONFORMA_DATA_DIR'))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["grbl", "1", "250000", "None"]
 
 
 def test_identifies_itself(target):
@@ -91,7 +120,8 @@ def test_moves_and_probes(target):
     machine, _, motion = target
     if not motion:
         pytest.skip("motion on real hardware needs CONFORMA_TEST_MOTION=1")
-    machine.home()
+    if machine.can_home():  # grbl with $22=0 cannot home: it starts unlocked at 0,0,0
+        machine.home()
     assert machine.move(5.0, 5.0, 5.0) == pytest.approx((5.0, 5.0, 5.0), abs=0.01)
     point = machine.probe(5.0, 5.0, z_start=5.0, z_min=-2.0)
     assert (point.x, point.y) == pytest.approx((5.0, 5.0), abs=0.01)

@@ -52,12 +52,14 @@ def test_soak_marlin_pingpong_every_fault_class(make_world):
 
 
 def test_soak_grbl_pingpong_faults(make_world):
-    # grbl has no resend protocol: "resend" and "busy" do not exist there
-    world, link, program = _soak(make_world, "grbl", "pingpong", 2_000,
-                                 FaultConfig.uniform(0.01, seed=13))
+    # grbl has no resend protocol ("resend", "busy") and no checksum: a line damaged on the
+    # wire is the parser's error:1/2 (never re-sent, see test_grbl_host 6.5)
+    faults = FaultConfig(drop_ok_rate=0.01, duplicate_ok_rate=0.01, garbage_rate=0.01,
+                         slow_rate=0.01, seed=13)
+    world, link, program = _soak(make_world, "grbl", "pingpong", 2_000, faults)
     assert world.transcript.digest() == commands_sha256(program)
-    assert set(world.stats.faults) == ALL_CLASSES - {"resend", "busy"}
-    assert link.stats["retries"] > 0 and link.stats["assumed_ok"] > 0
+    assert set(world.stats.faults) == {"drop_ok", "duplicate_ok", "garbage", "slow"}
+    assert link.stats["retries"] == 0 and link.stats["assumed_ok"] > 0
 
 
 def test_soak_grbl_windowed_recoverable_faults(make_world):
@@ -67,7 +69,7 @@ def test_soak_grbl_windowed_recoverable_faults(make_world):
     assert link.mode == "windowed" and world.stats.rx_overflows == 0
 
 
-def test_grbl_windowed_rejected_line_falls_back_and_reports(make_world):
+def test_grbl_windowed_rejected_line_is_reported_on_its_own_line(make_world):
     url, world = make_world(dialect="grbl")
     link = Link.open(url, dialect="grbl", window="windowed", poke_s=0.02)
     try:

@@ -134,3 +134,69 @@ def test_baud_rate_timing_at_real_time_scale(make_world):
     elapsed = time.monotonic() - start
     # 96 bytes in + 3 bytes out at 10 bits per byte
     assert 99 * 10 / 9600 * 0.95 < elapsed < 0.5, elapsed
+
+
+def test_grbl_status_report_follows_the_10_mask_and_states(make_world):
+    url, world = make_world(dialect="grbl", line_numbers=True)
+    port = _open(url)
+    port.read(4096)
+
+    def status():
+        port.write(b"?")
+        return parse_reply(port.read(4096).decode().strip(), "grbl")
+
+    first = status()  # stock $10=1: machine position, no buffer field; WCO after a reset
+    assert first.state == "Idle" and first.mpos == (0.0, 0.0, 0.0)
+    assert "Bf" not in first.fields and "WCO" in first.fields
+    assert "WCO" not in status().fields
+    assert isinstance(_exchange(port, "$10=2", "grbl")[-1], events.Ok)
+    second = status()
+    assert second.wpos == (0.0, 0.0, 0.0) and second.fields["Bf"] == "15,127"
+    reply = _exchange(port, "$I", "grbl")
+    assert reply[0] == events.FirmwareInfo({"VER": "1.1h.20190830:"}, raw="[VER:1.1h.20190830:]")
+    assert reply[1].raw == "[OPT:VN,15,128]"
+    # G-code during a jog is locked; a line number shows in Ln: while its block runs
+    assert _exchange(port, "G1 XA", "grbl")[0].code == 2
+    assert _exchange(port, "1G", "grbl")[0].code == 1
+    assert _exchange(port, "G1 X1", "grbl")[0].code == 22  # grbl boots with no feed rate
+    port.write(b"!")
+    assert status().state == "Hold:0"
+    port.write(b"~")
+    assert status().state == "Idle"
+
+
+def test_grbl_boot_messages_and_check_mode(make_world):
+    url, world = make_world(dialect="grbl", fresh_eeprom=True, homing=True)
+    port = _open(url)
+    boot = port.read(8192).decode().splitlines()
+    assert boot[0] == "error:7" and "$22=1" in boot  # EEPROM restored, settings printed
+    assert boot[-2:] == ["Grbl 1.1h ['$' for help]", "[MSG:'$H'|'$X' to unlock]"]
+    assert _exchange(port, "G0 X1", "grbl")[0].code == 9  # locked until homed
+    assert isinstance(_exchange(port, "$H", "grbl")[-1], events.Ok)
+    assert [e.raw for e in _exchange(port, "$C", "grbl")] == ["[MSG:Enabled]", "ok"]
+    _exchange(port, "G1 X5 F100", "grbl")
+    reply = [e.raw for e in _exchange(port, "$C", "grbl")]
+    assert reply[:2] == ["[MSG:Disabled]", "ok"] and "Grbl 1.1h ['$' for help]" in reply
+    assert world.transcript.commands == []  # nothing ran in check mode
+    again = serial.serial_for_url(url, timeout=0.05)  # re-opening: EEPROM kept, no error:7
+    assert "error:7" not in again.read(4096).decode()
+
+
+def test_marlin_replies_as_documented(make_world):
+    url, world = make_world(dialect="marlin", time_scale=1.0, latency_ms=0.0)
+    port = serial.serial_for_url(url, baudrate=115200, timeout=3.0)
+    time.sleep(0.1)
+    port.read(port.in_waiting)  # the boot banner
+    port.write(b"M105\n")  # temperatures on the ok line, no ADVANCED_OK fields
+    line = port.readline().decode().strip()
+    assert line.startswith("ok T:") and isinstance(parse_reply(line[2:].strip()), events.TemperatureReport)
+    port.write((frame(1, "M110 N0") + "\n").encode())
+    port.readline()
+    port.write((frame(1, "G1 X30 F1800") + "\n").encode())  # 1 s of motion
+    assert port.readline().decode().strip() == "ok N1 P15 B3"  # planned, not moved
+    start = time.monotonic()
+    port.write((frame(2, "M400") + "\n").encode())
+    assert port.readline().decode().strip().startswith("ok N2")
+    assert time.monotonic() - start > 0.8  # M400 waited for the move to finish
+    port.write((frame(3, "M114") + "\n").encode())
+    assert parse_reply(port.readline().decode()).axes["X"] == 30.0

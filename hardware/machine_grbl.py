@@ -1,0 +1,122 @@
+"""grbl-specific operations of ``hardware.machine.Machine`` (a mixin): waiting for the boot
+banner, build info (``[OPT:...]``), the controller's own state (Idle, Run, Hold, Jog, Alarm,
+Check, Home), unlock, feed hold / cycle start, jogging and homing availability."""
+
+from __future__ import annotations
+
+import time
+
+from .errors import LinkError, MachineStateError
+from .events import Feedback, StartBanner
+
+JOG_POLL_S = 0.05
+
+
+class GrblOperations:
+    """Mixin of ``Machine``; every method expects a connected grbl machine."""
+
+    def _await_boot(self) -> list:
+        """Opening the port resets an Arduino: its bootloader swallows whatever is sent for
+        up to ~2 s, then grbl prints (on a fresh EEPROM ``error:7`` and its settings, then)
+        the banner.  Wait for the banner, up to ``boot_wait_s``, then for ``boot_quiet_s``
+        of silence; a board that did not reset (no banner) must answer a status query."""
+        link = self.link
+        deadline = time.monotonic() + self.boot_wait_s
+        banner_at = None
+        seen = 0
+        quiet_since = time.monotonic()
+        while time.monotonic() < deadline:
+            time.sleep(min(0.02, max(self.boot_quiet_s / 2, 0.001)))
+            events = list(link.unsolicited)
+            if banner_at is None and any(isinstance(e, StartBanner) for e in events):
+                banner_at = time.monotonic()
+            if len(events) != seen:
+                seen, quiet_since = len(events), time.monotonic()
+            elif banner_at is not None and time.monotonic() - quiet_since > self.boot_quiet_s:
+                break
+        events = list(link.unsolicited)
+        link.unsolicited.clear()
+        # the controller's state (Alarm when it boots locked); LinkError if nothing answers
+        link.query_status(timeout_s=2.0)
+        return events
+
+    def _apply_build_info(self, fields: dict[str, str]) -> None:
+        """``[OPT:V,15,128]``: the planner's usable blocks and the RX buffer in bytes."""
+        parts = fields.get("OPT", "").split(",")
+        if len(parts) >= 3 and parts[1].isdigit() and parts[2].isdigit():
+            self.planner_blocks = int(parts[1])
+            self.link.set_rx_buffer(int(parts[2]))
+
+    @staticmethod
+    def _build_fields(events: tuple) -> dict[str, str]:
+        return {e.tag: e.value for e in events if isinstance(e, Feedback) and e.tag == "OPT"}
+
+    def controller_state(self) -> str:
+        """grbl's own state from a fresh status report (``Idle``, ``Run``, ``Hold:0``,
+        ``Jog``, ``Alarm``, ``Check``, ``Home``...)."""
+        if self.link is None:
+            raise MachineStateError("machine is not connected", field="state", value="disconnected")
+        return self.link.query_status().state
+
+    def last_controller_state(self) -> str | None:
+        """The state in the last status report seen (no query), or None."""
+        if self.link is None or not self.link.status_marks:
+            return None
+        return self.link.status_marks[-1][0].state
+
+    def unlock(self) -> None:
+        """``$X``: leave grbl's Alarm lock (the position may be wrong: home when you can)."""
+        self._claim("busy")
+        try:
+            self.link.send("$X", self.timeout_s)
+        finally:
+            self._release()
+
+    def feed_hold(self) -> None:
+        """grbl ``!``: decelerate and hold planned motion (works from any thread)."""
+        self._require_grbl_link().realtime(b"!")
+
+    def cycle_start(self) -> None:
+        """grbl ``~``: resume after a feed hold."""
+        self._require_grbl_link().realtime(b"~")
+
+    def _require_grbl_link(self):  # type: ignore[no-untyped-def]
+        if self.link is None:
+            raise MachineStateError("machine is not connected", field="state", value="disconnected")
+        if self.dialect != "grbl":
+            raise MachineStateError("feed hold and cycle start are grbl real-time commands",
+                                    field="dialect", value=self.dialect)
+        return self.link
+
+    def jog(self, x: float = 0.0, y: float = 0.0, z: float = 0.0,
+            feed_mm_min: float | None = None) -> tuple[float, float, float]:
+        """Relative ``$J=`` jog; returns the position once the jog has finished (G-code is
+        locked with ``error:9`` while grbl jogs)."""
+        feed = feed_mm_min or self.profile.travel_feed_mm_min
+        words = "".join(f" {a}{v:.4f}" for a, v in zip("XYZ", (x, y, z)) if v)
+        self._claim("busy")
+        try:
+            self.link.send(f"$J=G91{words} F{feed:.1f}", self.timeout_s)
+            self._wait_not_jogging()
+            return self._position()
+        finally:
+            self._release()
+
+    def _wait_not_jogging(self) -> None:
+        """Poll grbl's status until it no longer jogs."""
+        deadline = time.monotonic() + self.timeout_s * 10
+        while self.link.query_status().state == "Jog":
+            if time.monotonic() > deadline:
+                raise LinkError("jog did not finish", field="timeout_s")
+            time.sleep(JOG_POLL_S)
+
+    def can_home(self) -> bool:
+        """grbl: homing cycle enabled (``$22=1``); Marlin: always."""
+        if self.dialect != "grbl":
+            return True
+        self._claim("busy")
+        try:
+            result = self.link.send("$$", self.timeout_s)
+        finally:
+            self._release()
+        return any(line.strip() == "$22=1" for line in result.reply_lines)
