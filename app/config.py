@@ -49,6 +49,9 @@ class Settings(BaseSettings):
     max_json_mb: float = Field(20.0, gt=0, le=10_000)
     max_unzipped_mb: float = Field(1000.0, gt=0, le=100_000)
     job_plugins: str = Field("", description="comma-separated modules that register extra job kinds")
+    socket_hosts: str = Field("127.0.0.1,localhost,::1",
+                              description="hosts a machine's socket://host:port may name (comma-separated)")
+    sse_streams_per_key: int = Field(20, ge=1, le=10_000, description="open progress streams one API key may hold")
     db_pool_size: int = Field(40, ge=1, le=1000)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
@@ -80,6 +83,10 @@ class Settings(BaseSettings):
     @property
     def blob_dir(self) -> Path:
         return self.data_dir / "blobs"
+
+    @property
+    def socket_host_list(self) -> tuple[str, ...]:
+        return tuple(h.strip() for h in self.socket_hosts.split(",") if h.strip())
 
     def static_keys(self) -> dict[str, str]:
         """``{key: role}`` from ``api_keys``."""

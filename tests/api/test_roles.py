@@ -30,6 +30,8 @@ ROLES = {
     ("GET", "/api/v1/jobs"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}"): "viewer",
     ("POST", "/api/v1/jobs/{job_id}/cancel"): "operator",
+    ("POST", "/api/v1/jobs/{job_id}/resume"): "operator",
+    ("POST", "/api/v1/jobs/{job_id}/abandon"): "operator",
     ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/events"): "viewer",
     ("POST", "/api/v1/programs"): "operator",
