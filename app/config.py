@@ -51,7 +51,7 @@ class Settings(BaseSettings):
     job_plugins: str = Field("", description="comma-separated modules that register extra job kinds")
     socket_hosts: str = Field("127.0.0.1,localhost,::1",
                               description="hosts a machine's socket://host:port may name (comma-separated)")
-    sse_streams_per_key: int = Field(20, ge=1, le=10_000, description="open progress streams one API key may hold")
+    sse_streams_per_key: int = Field(64, ge=1, le=10_000, description="open progress streams one API key may hold")
     db_pool_size: int = Field(40, ge=1, le=1000)
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

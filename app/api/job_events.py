@@ -16,7 +16,6 @@ import json
 import threading
 import time
 from collections.abc import AsyncIterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,7 +49,6 @@ class JobWatch:
         self.engine = engine
         self.per_key = per_key
         self.poll_s = poll_s
-        self.lookups = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sse-lookup")
         self._subscribers: set[_Subscriber] = set()
         self._per_key: dict[str, int] = {}
         self._lock = threading.Lock()
@@ -82,20 +80,35 @@ class JobWatch:
         with self._lock:
             return len(self._subscribers)
 
-    def exists(self, job_id: str) -> bool:
-        with self.engine.connect() as conn:
-            return bool(conn.execute(_SNAPSHOTS, {"ids": [job_id]}).first())
-
     # streaming -----------------------------------------------------------------------
-    async def events(self, job_id: str, last_event_id: str | None, key: str) -> AsyncIterator[str]:
-        """The SSE text of ``job_id``: ``status`` on each change of status, ``progress``
-        otherwise, keepalive comments; ends when the job finishes (or disappears)."""
-        seen = int(last_event_id) if last_event_id and last_event_id.isdigit() else -1
-        last_status = None
+    async def subscribe(self, job_id: str) -> _Subscriber | None:
+        """Watch ``job_id``; None when it does not exist.  The answer comes from the
+        poller's next round (one query for every stream opened meanwhile): no thread is
+        taken per request."""
         subscriber = _Subscriber(job_id, asyncio.get_running_loop())
         with self._lock:
             self._subscribers.add(subscriber)
             self._active.set()
+        try:
+            await subscriber.wake.wait()  # left set: the stream sends this first snapshot
+        except BaseException:
+            self._drop(subscriber)
+            raise
+        if subscriber.missing:
+            self._drop(subscriber)
+            return None
+        return subscriber
+
+    def _drop(self, subscriber: _Subscriber) -> None:
+        with self._lock:
+            self._subscribers.discard(subscriber)
+
+    async def events(self, subscriber: _Subscriber, last_event_id: str | None, key: str) -> AsyncIterator[str]:
+        """The SSE text of the subscriber's job: ``status`` on each change of status,
+        ``progress`` otherwise, keepalive comments; ends when the job finishes (or
+        disappears).  Releases the subscription and the key's slot at the end."""
+        seen = int(last_event_id) if last_event_id and last_event_id.isdigit() else -1
+        last_status = None
         try:
             while True:
                 try:
@@ -118,8 +131,7 @@ class JobWatch:
                 if job["status"] in TERMINAL_STATES:
                     return
         finally:
-            with self._lock:
-                self._subscribers.discard(subscriber)
+            self._drop(subscriber)
             self.release(key)
 
     def _poll_forever(self) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, Request, Response
@@ -162,12 +161,12 @@ async def job_events(job_id: str, request: Request, runtime: RuntimeDep,
         return JSONResponse(problem(429, "Too many streams", str(exc)), status_code=429,
                             media_type=PROBLEM_MEDIA_TYPE, headers={"Retry-After": str(SSE_RETRY_AFTER_S)})
     try:
-        found = await asyncio.get_running_loop().run_in_executor(watch.lookups, watch.exists, job_id)
+        subscriber = await watch.subscribe(job_id)
     except BaseException:
         watch.release(key)
         raise
-    if not found:
+    if subscriber is None:
         watch.release(key)
         raise NotFound(f"job {job_id!r} does not exist", field="job_id", value=job_id)
-    return StreamingResponse(watch.events(job_id, last_event_id, key), media_type="text/event-stream",
+    return StreamingResponse(watch.events(subscriber, last_event_id, key), media_type="text/event-stream",
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
