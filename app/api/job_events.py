@@ -126,8 +126,7 @@ class JobWatch:
                     seen = job["revision"]
                     event = "status" if job["status"] != last_status else "progress"
                     last_status = job["status"]
-                    payload = {k: job[k] for k in ("id", "status", "progress", "message")}
-                    yield f"id: {seen}\nevent: {event}\ndata: {json.dumps(payload)}\n\n"
+                    yield f"id: {seen}\nevent: {event}\ndata: {job['data']}\n\n"
                 if job["status"] in TERMINAL_STATES:
                     return
         finally:
@@ -152,6 +151,8 @@ class JobWatch:
         ids = sorted({s.job_id for s in subscribers})
         with self.engine.connect() as conn:
             rows = {r.id: dict(r._mapping) for r in conn.execute(_SNAPSHOTS, {"ids": ids})}
+        for row in rows.values():  # serialised once for every stream of the job
+            row["data"] = json.dumps({k: row[k] for k in ("id", "status", "progress", "message")})
         for subscriber in subscribers:
             row = rows.get(subscriber.job_id)
             old = subscriber.snapshot
