@@ -127,7 +127,10 @@ class Link(ReplyHandling):
             raise InvalidConfig("timeout_s, history, command_buffer or rx_buffer out of range",
                                 field="link", value=[timeout_s, history, command_buffer, rx_buffer])
         try:
-            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.01, write_timeout=5)
+            # exclusive: a device is one machine; a second opener (another record, another
+            # process) is refused instead of interleaving its bytes (POSIX flock)
+            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.01, write_timeout=5,
+                                         exclusive=True)
         except InvalidConfig:
             raise
         except (serial.SerialException, OSError, ValueError) as exc:

@@ -71,7 +71,7 @@ def connected_machine(ctx: JobContext, machine_id: str) -> Machine:
     and an operator asked to resume)."""
     machines = ctx.runtime.machines
     machine = machines.get(machine_id)
-    if machine is None or machine.state == "disconnected" or machine.link_lost or machine.state == "error":
+    if machine is None or machine.state == "disconnected" or machine.link_lost:  # never after an e-stop
         machine = machines.connect(ctx.machine(machine_id))
     return machine
 
