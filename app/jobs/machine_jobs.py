@@ -77,11 +77,12 @@ def connected_machine(ctx: JobContext, machine_id: str) -> Machine:
 
 
 def resume_request(ctx: JobContext) -> dict[str, Any] | None:
-    """The program state of this job when an operator asked to resume it, else None."""
+    """The program state of this job when an operator asked to resume it after it had
+    started, else None (a job interrupted before it started simply starts)."""
     with ctx.session() as session:
         job = session.get(Job, ctx.job_id)
     state = job.program_state if job is not None else None
-    return state if state and state.get("resume_requested") else None
+    return state if state and state.get("resume_requested") and "total" in state else None
 
 
 def stopped_by_operator(ctx: JobContext, machine: Machine | None) -> bool:

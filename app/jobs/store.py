@@ -188,7 +188,8 @@ class JobStore:
 
     def interrupt_orphans(self, worker_prefix: str) -> list[str]:
         """At start-up of the process that owns the machines: machine jobs still marked
-        running by an earlier process (it died) become interrupted at once."""
+        running by an earlier process (it died), or queued before this process started
+        (an operator asked then, not now), become interrupted at once."""
         rows = self._run(
             update(Job)
             .where(and_(Job.status == "running", Job.kind.in_(OPERATOR_RESUMED_KINDS),
@@ -196,7 +197,13 @@ class JobStore:
             .values(status="interrupted", lease_until=None, worker=None, revision=Job.revision + 1,
                     message="interrupted: the server stopped while it ran; resume or abandon it")
             .returning(Job.id))
-        return [r[0] for r in rows]
+        waiting = self._run(
+            update(Job)
+            .where(and_(Job.status == "queued", Job.kind.in_(OPERATOR_RESUMED_KINDS)))
+            .values(status="interrupted", revision=Job.revision + 1,
+                    message="interrupted: the server restarted before it started; resume or abandon it")
+            .returning(Job.id))
+        return [r[0] for r in rows] + [r[0] for r in waiting]
 
     def resume(self, job_id: str, state: dict[str, Any], revision: int) -> bool:
         """interrupted -> queued with ``state`` (carrying the operator's resume request),

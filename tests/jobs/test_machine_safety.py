@@ -185,3 +185,24 @@ def test_emergency_stop_through_the_api_ends_the_print_at_the_stop(client, diale
     time.sleep(0.5)
     assert executed(client, machine) == at_stop  # nothing ran after the stop
     assert client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["state"] == "error"
+
+
+def test_row1_a_print_queued_before_a_restart_waits_for_the_operator(client):
+    machine = make_machine(client)
+    prog = upload(client, program(5))
+    runtime = client.app.state.runtime
+    job = runtime.submit("print", {"machine_id": machine["id"], "program_id": prog["id"]})
+    wait_for(client, job.id)
+    with runtime.engine.begin() as conn:  # as if the server died before the job started
+        conn.execute(update(Job).where(Job.id == job.id).values(status="queued", worker=None, finished_at=None,
+                                                                result=None, program_state=None))
+    before = executed(client, machine)
+    assert runtime.store.interrupt_orphans(f"{runtime.worker_id}:") == [job.id]
+    runtime.enqueue(job.id, "machine")  # a stale queue message must not start it either
+    time.sleep(0.3)
+    assert client.get(f"/api/v1/jobs/{job.id}", headers=OP).json()["status"] == "interrupted"
+    assert executed(client, machine) == before
+    assert client.post(f"/api/v1/jobs/{job.id}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    done = wait_for(client, job.id)
+    assert done["status"] == "succeeded" and done["result"]["start_line"] == 0 and done["result"]["resumes"] == 0
+    assert executed(client, machine) == before + 7

@@ -142,7 +142,7 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
     plan = plan_datum_probes(mesh, "sides" if params.mode == "edges" else "z_only", count=params.count,
                              margin_mm=params.margin_mm, seed=params.seed, sigma_mm=params.sigma_mm)
     resume = resume_request(ctx)
-    state = {"touches": 0, "resumes": (resume or {}).get("resumes", 0)}
+    state = {"total": None, "touches": 0, "resumes": (resume or {}).get("resumes", 0)}
     machine = None
     try:  # a resume re-homes and touches every datum again (touches are idempotent)
         machine = connected_machine(ctx, params.machine_id)
