@@ -21,7 +21,6 @@ from sqlmodel import Session, select
 from app.errors import Cancelled, Conflict, ConformaError
 from app.jobs.context import JobContext
 from app.models import Job, JobReference, utcnow
-from hardware.errors import HardwareError, LinkError
 from hardware.machine import Machine
 
 if TYPE_CHECKING:
@@ -139,12 +138,6 @@ def request_resume(store: "JobStore", job: Job) -> bool:
 
 def machine_id_of(ctx: JobContext) -> str:
     return str(ctx.claim.params.get("machine_id"))
-
-
-def is_link_failure(exc: BaseException) -> bool:
-    """A hardware error that means the link (or the controller) went away mid-job."""
-    cause = exc.__cause__ if not isinstance(exc, HardwareError) else exc
-    return isinstance(cause, LinkError)
 
 
 class MachineThreads:
