@@ -52,6 +52,9 @@ class Settings(BaseSettings):
     max_json_mb: float = Field(20.0, gt=0, le=10_000)
     max_unzipped_mb: float = Field(1000.0, gt=0, le=100_000)
     job_plugins: str = Field("", description="comma-separated modules that register extra job kinds")
+    socket_hosts: str = Field("127.0.0.1,localhost,::1",
+                              description="hosts a machine's socket://host:port may name (comma-separated)")
+    sse_streams_per_key: int = Field(64, ge=1, le=10_000, description="open progress streams one API key may hold")
     db_pool_size: int = Field(40, ge=1, le=1000)
     max_active_requests: int = Field(24, ge=1, le=1000, description="API requests served at once (admission)")
     max_waiting_requests: int = Field(2000, ge=0, le=100_000, description="requests queued beyond; more get 503")
@@ -86,6 +89,10 @@ class Settings(BaseSettings):
     @property
     def blob_dir(self) -> Path:
         return self.data_dir / "blobs"
+
+    @property
+    def socket_host_list(self) -> tuple[str, ...]:
+        return tuple(h.strip() for h in self.socket_hosts.split(",") if h.strip())
 
     def static_keys(self) -> dict[str, str]:
         """``{key: role}`` from ``api_keys``."""

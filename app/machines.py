@@ -9,7 +9,10 @@ service's error family here, so routers and jobs only see :mod:`app.errors`.
 
 from __future__ import annotations
 
+import os
+import re
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
@@ -82,6 +85,42 @@ def port_url(row: MachineRow) -> str:
     return row.port
 
 
+def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
+    """The physical port a record names, normalised so that two records can never name
+    one controller (stored under a unique constraint); ``InvalidInput`` naming ``port``.
+
+    Devices: the real path (symlinks and ``..`` resolved), which must stay under /dev.
+    ``socket://host:port``: the host must be in ``socket_hosts`` (settings), lower-cased.
+    ``mock://``: one mock world per record, so the key is the record's own."""
+    parts = urlsplit(port)
+    if parts.scheme == "mock":
+        return f"mock:{machine_id}"
+    if parts.scheme == "socket":
+        host = (parts.hostname or "").lower()
+        try:
+            number = parts.port
+        except ValueError:
+            number = None
+        if not host or number is None or not 0 < number < 65536 or parts.path not in ("", "/") or parts.query:
+            raise InvalidInput(f"expected socket://host:port, got {port!r}", field="port", value=port)
+        allowed = {h.lower() for h in socket_hosts}
+        if host not in allowed:
+            raise InvalidInput(f"socket host {host!r} is not in the allow-list (CONFORMA_SOCKET_HOSTS: "
+                               f"{', '.join(sorted(allowed)) or 'empty'})", field="port", value=port)
+        return f"socket://{host}:{number}"
+    if parts.scheme == "loop":
+        return f"loop:{machine_id}"
+    if port.startswith("/dev/"):
+        real = os.path.realpath(port)
+        if not real.startswith("/dev/") or real == "/dev/":
+            raise InvalidInput(f"device {port!r} resolves to {real!r}, which is not under /dev", field="port",
+                               value=port)
+        return real
+    if re.fullmatch(r"COM\d+", port):
+        return port.upper()
+    raise InvalidInput("expected mock://..., socket://host:port or a device under /dev", field="port", value=port)
+
+
 class MachineManager:
     """Machine objects by id; builds mock worlds; one lock per registry change."""
 
@@ -90,6 +129,8 @@ class MachineManager:
         self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it
         self._lock = threading.Lock()
         self._load_mesh = load_mesh  # part_id -> trimesh
+        # emergency stops write through these threads: never the request thread pool
+        self.stop_pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="estop")
 
     def get(self, machine_id: str) -> Machine | None:
         with self._lock:
@@ -100,6 +141,18 @@ class MachineManager:
         if machine is None or machine.state == "disconnected":
             raise Conflict(f"machine {machine_id!r} is not connected", field="machine_id", value=machine_id)
         return machine
+
+    def world_by_id(self, machine_id: str) -> MockWorld | None:
+        """The mock world of a connected mock machine, by id (None otherwise)."""
+        machine = self.get(machine_id)
+        if machine is None or not machine.url.startswith("mock://"):
+            return None
+        from hardware.mock import get_world
+
+        try:
+            return get_world(machine_id)
+        except KeyError:
+            return None
 
     def world(self, row: MachineRow) -> MockWorld | None:
         """The mock world of a mock machine (None for real ports)."""
@@ -131,8 +184,8 @@ class MachineManager:
         )
         register_world(row.id, world)
 
-    def connect(self, row: MachineRow) -> Machine:
-        """Connect (again) and identify; the mock world is kept across reconnects."""
+    def build(self, row: MachineRow) -> Machine:
+        """The machine object of ``row`` (made, not connected, on first use)."""
         with self._lock:
             machine = self._machines.get(row.id)
             if machine is None:
@@ -147,6 +200,11 @@ class MachineManager:
                         machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
                                           boot_wait_s=0.0 if row.port.startswith("mock://") else 2.0)
                 self._machines[row.id] = machine
+        return machine
+
+    def connect(self, row: MachineRow) -> Machine:
+        """Connect (again) and identify; the mock world is kept across reconnects."""
+        machine = self.build(row)
         with hardware_errors():
             machine.connect()
         return machine

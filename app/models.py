@@ -10,7 +10,7 @@ from __future__ import annotations
 import secrets
 from datetime import datetime, timezone
 
-from sqlalchemy import JSON, Column, DateTime, Index, UniqueConstraint
+from sqlalchemy import JSON, Column, DateTime, Index, UniqueConstraint, text
 from sqlmodel import Field, SQLModel
 
 # Constraint names are deterministic so that batch migrations on SQLite can find them.
@@ -22,8 +22,13 @@ SQLModel.metadata.naming_convention = {
     "pk": "pk_%(table_name)s",
 }
 
-JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
+JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled", "interrupted")
 TERMINAL_STATES = ("succeeded", "failed", "cancelled")
+# A machine job in these states holds its machine: at most one per machine (a unique
+# partial index, so that concurrent submissions cannot both win).  ``interrupted`` waits
+# for an operator to resume or abandon it.
+MACHINE_HOLDING_STATES = ("queued", "running", "interrupted")
+_HOLDING_SQL = "machine_id IS NOT NULL AND status IN ('queued', 'running', 'interrupted')"
 
 def new_id(prefix: str) -> str:
     """A random, URL-safe id such as ``job_4f3a9c1e0b7d2a65``."""
@@ -82,7 +87,9 @@ class Trace(SQLModel, table=True):
 
 class Job(SQLModel, table=True):
     __tablename__ = "jobs"
-    __table_args__ = (Index("ix_jobs_status_lease", "status", "lease_until"),)
+    __table_args__ = (Index("ix_jobs_status_lease", "status", "lease_until"),
+                      Index("uq_jobs_active_machine", "machine_id", unique=True,
+                            sqlite_where=text(_HOLDING_SQL), postgresql_where=text(_HOLDING_SQL)))
     id: str = Field(primary_key=True, max_length=40)
     kind: str = Field(max_length=40, index=True)
     status: str = Field(default="queued", max_length=12, index=True)
@@ -105,6 +112,10 @@ class Job(SQLModel, table=True):
     enqueued_at: float | None = None
     started_at: datetime | None = Field(default=None, sa_column=Column(DateTime(timezone=True)))
     finished_at: datetime | None = Field(default=None, sa_column=Column(DateTime(timezone=True)))
+    # machine jobs (print, probe_run, register): the machine they drive, and where the
+    # program stands (last executed / acknowledged command, interruption, resume)
+    machine_id: str | None = Field(default=None, max_length=40)
+    program_state: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 class JobReference(SQLModel, table=True):
     """Which stored records a job reads (parts, traces, other jobs): guards deletion."""
@@ -131,6 +142,9 @@ class Machine(SQLModel, table=True):
     id: str = Field(primary_key=True, max_length=40)
     name: str = Field(max_length=200)
     port: str = Field(max_length=500)
+    # the physical port, normalised (real path of a device, lower-case socket host):
+    # unique, so two records can never drive one controller
+    port_key: str | None = Field(default=None, max_length=500, unique=True)
     baudrate: int = 115200
     dialect: str = Field(max_length=10)
     profile: dict = Field(default_factory=dict, sa_column=Column(JSON, nullable=False))

@@ -133,7 +133,10 @@ class Link(ReplyHandling):
             raise InvalidConfig("timeout_s, history, command_buffer or rx_buffer out of range",
                                 field="link", value=[timeout_s, history, command_buffer, rx_buffer])
         try:
-            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.01, write_timeout=5)
+            # exclusive: a device is one machine; a second opener (another record, another
+            # process) is refused instead of interleaving its bytes (POSIX flock)
+            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.01, write_timeout=5,
+                                         exclusive=True)
         except InvalidConfig:
             raise
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -254,21 +257,31 @@ class Link(ReplyHandling):
 
     def emergency_stop(self) -> None:
         """Out of band: Marlin ``M112`` (emergency parser), grbl soft reset 0x18.  Every
-        command in flight fails with ``FirmwareError``."""
+        command in flight fails with ``FirmwareError``.
+
+        Terminal: under the link's lock the link first becomes fatal (every later write,
+        program line, resend or poke, is refused by ``_write``, which checks it under the
+        same lock), then the stop byte is written, so not one byte of the program follows
+        it on the wire.  Sent whatever state the link is in (the firmware decides); only a
+        dead port makes it fail (``LinkError``).  Reconnect to talk to the machine again."""
         data = b"M112\n" if self.dialect == "marlin" else b"\x18"
-        try:
-            self.port.write(data)
-        except (serial.SerialException, OSError) as exc:
-            raise LinkError(f"emergency stop could not be written: {exc}", field="port") from exc
         with self._cond:
-            self._fail_all(FirmwareError("emergency stop", command="emergency_stop"))
+            self._set_fatal(FirmwareError("emergency stop", command="emergency_stop"))
+            self.stats["emergency_stops"] = self.stats.get("emergency_stops", 0) + 1
+            try:
+                self.port.write(data)
+            except (serial.SerialException, OSError) as exc:
+                raise LinkError(f"emergency stop could not be written: {exc}", field="port") from exc
 
     def realtime(self, byte: bytes) -> None:
-        """Write a grbl real-time byte (``?``, ``!``, ``~``) outside the queue."""
-        try:
-            self.port.write(byte)
-        except (serial.SerialException, OSError) as exc:
-            raise LinkError(f"write failed: {exc}", field="port") from exc
+        """Write a grbl real-time byte (``?``, ``!``, ``~``) outside the queue (refused,
+        like every write, once the link failed or was emergency-stopped)."""
+        with self._cond:
+            self._check_fatal()
+            try:
+                self.port.write(byte)
+            except (serial.SerialException, OSError) as exc:
+                raise LinkError(f"write failed: {exc}", field="port") from exc
 
     def reset_line_numbers(self, next_line: int = 1) -> CommandResult | None:
         """Marlin: ``M110 N<next_line-1>`` so numbering restarts (no-op for grbl)."""

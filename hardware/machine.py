@@ -84,6 +84,7 @@ class Machine(GrblOperations, ResumeOperations):
         self.link: Link | None = None
         self.identity: Identity | None = None
         self.progress: tuple[int, int] | None = None  # (executed, total) of the running program
+        self.acked_line_no: int | None = None  # firmware line number of the last acknowledged command
         self._state = "disconnected"
         self._hold = threading.Lock()
         self._resume_event = threading.Event()
@@ -349,6 +350,7 @@ class Machine(GrblOperations, ResumeOperations):
             seqs[index_done] = pending.seq
             executed, acked_line = index_done + 1, outcome.line_no
             self.progress = (executed, total)
+            self.acked_line_no = acked_line
             if on_progress is not None:
                 on_progress(executed, total)
 
@@ -416,6 +418,30 @@ class Machine(GrblOperations, ResumeOperations):
             return gap.acked_index
         done = [index + 1 for number, index in gap.inflight if number is not None and number <= last]
         return max([gap.acked_index, *done])
+
+    @property
+    def estopped(self) -> bool:
+        """True after an emergency stop, until the next ``connect``."""
+        return self._estopped
+
+    @property
+    def interrupted_program(self) -> _Interrupted | None:
+        """What is known of a program that stopped on a link failure (``resume_line``)."""
+        return self._interrupted
+
+    def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None:
+        """Before ``connect`` in a new host process: take over what an earlier process
+        recorded of an interrupted program (commands [0, acked_index) acknowledged, the
+        last of them numbered ``acked_line_no``; later commands were numbered on from
+        it), so that ``connect`` keeps the firmware's line numbering and ``resume_line``
+        can ask the firmware which of the later lines it accepted."""
+        if self.link is not None:
+            raise MachineStateError("adopt an interrupted program before connecting", field="state",
+                                    value=self.state)
+        inflight = [] if acked_line_no is None else \
+            [(acked_line_no + 1 + k, acked_index + k) for k in range(total - acked_index)]
+        self._interrupted = _Interrupted(total, acked_index, acked_line_no, inflight,
+                                         reset=acked_line_no is None)
 
     def pause(self) -> None:
         """Stop sending program lines (commands already sent still run)."""

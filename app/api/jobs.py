@@ -2,33 +2,33 @@
 
 from __future__ import annotations
 
-import json
-import time
 from datetime import datetime, timezone
-from collections.abc import Iterator
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, Query, Request, Response
-from fastapi.responses import StreamingResponse
+from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy import bindparam, func
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
-from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page
-from app.errors import Conflict, NotFound
-from app.models import TERMINAL_STATES, Artifact, Job, JobReference, Trace
+from app.api.job_events import JobWatch, TooManyStreams
+from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
+from app.errors import Conflict, InvalidInput, NotFound
+from app.jobs.machine_jobs import request_resume
+from app.models import Artifact, Job, JobReference, Trace
+from app.problems import PROBLEM_MEDIA_TYPE, problem
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
-JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled", "interrupted"]
 SSE_POLL_S = 0.1
 # Built once: the statements' compiled forms are cached, so a poll pays for execution only.
 _JOB_BY_ID = Job.__table__.select().where(Job.__table__.c.id == bindparam("job_id"))
 _ARTIFACTS_OF_JOB = (Artifact.__table__.select().where(Artifact.__table__.c.job_id == bindparam("job_id"))
                      .order_by(Artifact.__table__.c.id))
-SSE_KEEPALIVE_S = 15.0
+SSE_RETRY_AFTER_S = 5
 
 
 def job_out(job: Job, artifacts: list[Artifact]) -> JobOut:
@@ -125,7 +125,8 @@ def get_job(job_id: str, runtime: RuntimeDep) -> Response:
 
 @router.post("/{job_id}/cancel", status_code=202, dependencies=[Operator])
 def cancel_job(job_id: str, runtime: RuntimeDep, session: SessionDep) -> JobOut:
-    """Cancel a queued job at once or ask a running one to stop; 409 if it already finished."""
+    """Cancel a queued job at once, ask a running one to stop, or abandon an interrupted one;
+    409 if it already finished."""
     job = get_or_404(session, Job, job_id)
     if runtime.store.request_cancel(job_id) is None:
         session.refresh(job)
@@ -154,35 +155,68 @@ def get_artifact(job_id: str, name: str, runtime: RuntimeDep, session: SessionDe
                     headers={"Content-Disposition": f'attachment; filename="{name}"', "ETag": f'"{artifact.sha256}"'})
 
 
+@router.post("/{job_id}/resume", status_code=202, dependencies=[Operator],
+             responses={409: {"description": "the job is not interrupted"}, 422: {"description": "no confirmation"}})
+def resume_job(job_id: str, body: ResumeRequest, runtime: RuntimeDep, session: SessionDep) -> JobOut:
+    """Resume an ``interrupted`` machine job: it reconnects, asks the machine which command
+    is known executed, re-homes and continues from there.  The machine moves: the body
+    must say ``{"confirm": true}``."""
+    if body.confirm is not True:
+        raise InvalidInput("resuming moves the machine: send {\"confirm\": true}", field="confirm",
+                           value=body.confirm)
+    job = get_or_404(session, Job, job_id)
+    if job.status != "interrupted" or not request_resume(runtime.store, job):
+        session.refresh(job)
+        raise Conflict(f"job {job_id!r} is {job.status}, not interrupted: nothing to resume", field="job_id",
+                       value=job_id)
+    runtime.enqueue(job_id, job.queue)
+    session.expire_all()
+    return load_job_out(session, job_id)
+
+
+@router.post("/{job_id}/abandon", dependencies=[Operator],
+             responses={409: {"description": "the job is not interrupted"}})
+def abandon_job(job_id: str, runtime: RuntimeDep, session: SessionDep) -> JobOut:
+    """Give up an ``interrupted`` machine job (it becomes cancelled; the machine is free)."""
+    job = get_or_404(session, Job, job_id)
+    if runtime.store.abandon(job_id) is None:
+        raise Conflict(f"job {job_id!r} is {job.status}, not interrupted: nothing to abandon", field="job_id",
+                       value=job_id)
+    session.expire_all()
+    return load_job_out(session, job_id)
+
+
+def _watch(request: Request, runtime) -> JobWatch:  # type: ignore[no-untyped-def]
+    watch = getattr(request.app.state, "job_watch", None)
+    if watch is None:  # made on the event loop thread: no race
+        watch = JobWatch(runtime.engine, per_key=runtime.settings.sse_streams_per_key, poll_s=SSE_POLL_S)
+        request.app.state.job_watch = watch
+    return watch
+
+
 @router.get("/{job_id}/events", dependencies=[Viewer],
-            responses={200: {"content": {"text/event-stream": {}}, "description": "progress and status events"}})
-def job_events(job_id: str, runtime: RuntimeDep, session: SessionDep,
-               last_event_id: Annotated[str | None, Header()] = None) -> StreamingResponse:
-    """Server-Sent Events: ``progress`` while it runs and ``status`` on each change; ends when finished."""
-    get_or_404(session, Job, job_id)
-    return StreamingResponse(_event_stream(runtime.engine, job_id, last_event_id), media_type="text/event-stream",
+            responses={200: {"content": {"text/event-stream": {}}, "description": "progress and status events"},
+                       429: {"description": "this key holds too many open streams (Retry-After)"}})
+async def job_events(job_id: str, request: Request, runtime: RuntimeDep,
+                     last_event_id: Annotated[str | None, Header()] = None) -> Response:
+    """Server-Sent Events: ``progress`` while it runs and ``status`` on each change; ends when
+    finished.  Async, fed by one poller for all streams; capped per API key (429)."""
+    watch = _watch(request, runtime)
+    credential = request.headers.get("authorization", "").removeprefix("Bearer ").strip() \
+        or request.headers.get("x-api-key")
+    key = watch.key_of(credential)
+    try:
+        watch.admit(key)
+    except TooManyStreams as exc:
+        return JSONResponse(problem(429, "Too many streams", str(exc)), status_code=429,
+                            media_type=PROBLEM_MEDIA_TYPE, headers={"Retry-After": str(SSE_RETRY_AFTER_S)})
+    try:
+        subscriber = await watch.subscribe(job_id)
+    except BaseException:
+        watch.release(key)
+        raise
+    if subscriber is None:
+        watch.release(key)
+        raise NotFound(f"job {job_id!r} does not exist", field="job_id", value=job_id)
+    return StreamingResponse(watch.events(subscriber, last_event_id, key), media_type="text/event-stream",
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
-
-
-def _event_stream(engine, job_id: str, last_event_id: str | None) -> Iterator[str]:  # type: ignore[no-untyped-def]
-    seen_revision = int(last_event_id) if last_event_id and last_event_id.isdigit() else -1
-    last_status = None
-    last_sent = time.monotonic()
-    while True:
-        with Session(engine) as session:
-            job = session.get(Job, job_id)
-        if job is None:
-            return
-        if job.revision != seen_revision:
-            seen_revision = job.revision
-            event = "status" if job.status != last_status else "progress"
-            last_status = job.status
-            payload = {"id": job.id, "status": job.status, "progress": job.progress, "message": job.message}
-            yield f"id: {job.revision}\nevent: {event}\ndata: {json.dumps(payload)}\n\n"
-            last_sent = time.monotonic()
-        if job.status in TERMINAL_STATES:
-            return
-        if time.monotonic() - last_sent > SSE_KEEPALIVE_S:
-            yield ": keepalive\n\n"
-            last_sent = time.monotonic()
-        time.sleep(SSE_POLL_S)

@@ -93,6 +93,17 @@ class MachineCreate(Strict):
         return value
 
 
+class StopOut(BaseModel):
+    """The answer to an emergency stop (the machine's full record: GET /machines/{id})."""
+
+    id: str
+    state: str
+    stop_sent: bool
+    elapsed_ms: float = Field(description="time from the request to the stop byte written")
+    position: list[float] | None = None
+    program: None = None
+
+
 class ProgramState(BaseModel):
     job_id: str | None
     line: int | None

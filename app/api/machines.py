@@ -1,23 +1,29 @@
 """Machines: register, connect, status, pause/resume, emergency stop, print.
 
-The API process owns the serial ports (and runs the single-thread ``machine`` queue), so
+The API process owns the serial ports (and runs one execution thread per machine), so
 these endpoints act on the live connection directly.  Nothing here waits behind a
-running program: pause/resume/stop go straight to the machine (stop is out of band).
+running program: pause/resume go straight to the machine; stop is an async route with
+its own threads and its own write to the link (out of band, never queued).
 """
 
 from __future__ import annotations
 
+import asyncio
+import time
+
 from fastapi import APIRouter, Request
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
 from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.jobs import load_job_out
-from app.api.machine_schemas import MachineCreate, MachineOut, MockSettings, PrintRequest, ProgramState
+from app.api.machine_schemas import MachineCreate, MachineOut, MockSettings, PrintRequest, ProgramState, StopOut
 from app.api.schemas import JobOut, Page
-from app.errors import InvalidInput
+from app.errors import Conflict, InvalidInput, NotFound
 from app.jobs.runtime import Runtime
-from app.machines import hardware_errors
+from app.machines import hardware_errors, port_key, translate
+from hardware.errors import HardwareError
 from hardware.mock import parse_mock_options
 from app.models import Machine, Part, new_id, utcnow
 from app.records import get_or_404
@@ -52,7 +58,8 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
 @router.post("", status_code=201, dependencies=[Operator])
 def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionDep, request: Request,
                      idempotency_key: idempotency.IdempotencyKey = None) -> MachineOut:
-    """Register a machine (a real port, socket:// or the mock firmware)."""
+    """Register a machine (a device under /dev, socket:// to an allowed host, or the mock
+    firmware).  A port is one machine: a second record on the same physical port is a 409."""
     claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
     if (replayed := idempotency.replay(session, claim)) is not None:
         return replayed  # type: ignore[return-value]
@@ -66,13 +73,24 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
     if is_mock:
         with hardware_errors():
             parse_mock_options(body.port.split("?", 1)[1] if "?" in body.port else "")
+    machine_id = new_id("mach")
+    key = port_key(body.port, machine_id, runtime.settings.socket_host_list)
+    taken = session.exec(select(Machine.id).where(Machine.port_key == key)).first()
+    if taken is not None:
+        raise Conflict(f"port {body.port!r} is already machine {taken!r}: one record per physical port",
+                       field="port", value=body.port)
     mock = body.mock.model_dump() if body.mock else (MockSettings().model_dump() if is_mock else None)
-    row = Machine(id=new_id("mach"), name=body.name, port=body.port, baudrate=body.baudrate, dialect=body.dialect,
-                  profile=body.profile.model_dump(), mock=mock, created_at=utcnow())
+    row = Machine(id=machine_id, name=body.name, port=body.port, port_key=key, baudrate=body.baudrate,
+                  dialect=body.dialect, profile=body.profile.model_dump(), mock=mock, created_at=utcnow())
     session.add(row)
     out = machine_out(runtime, row)
     idempotency.remember(session, claim, 201, out)
-    return idempotency.commit(session, claim) or out  # type: ignore[return-value]
+    try:
+        return idempotency.commit(session, claim) or out  # type: ignore[return-value]
+    except IntegrityError:  # a concurrent registration of the same port won
+        session.rollback()
+        raise Conflict(f"port {body.port!r} is already registered: one record per physical port",
+                       field="port", value=body.port) from None
 
 
 @router.get("", dependencies=[Viewer])
@@ -86,17 +104,27 @@ def get_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> Ma
     return machine_out(runtime, get_or_404(session, Machine, machine_id))
 
 
+def _cancel_what_runs(runtime: Runtime, machine_id: str) -> None:
+    """An operator's connect/disconnect ends the program on the machine (cancelled, not
+    interrupted): ask its job to cancel before the link goes."""
+    for job_id in runtime.store.jobs_on_machine(machine_id, ("queued", "running")):
+        runtime.store.request_cancel(job_id)
+
+
 @router.post("/{machine_id}/connect", dependencies=[Operator])
 def connect_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
-    """Open the port and identify the firmware (503 if unreachable)."""
+    """Open the port and identify the firmware (503 if unreachable); cancels what runs."""
     row = get_or_404(session, Machine, machine_id)
+    _cancel_what_runs(runtime, machine_id)
     runtime.machines.connect(row)
     return machine_out(runtime, row)
 
 
 @router.post("/{machine_id}/disconnect", dependencies=[Operator])
 def disconnect_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Close the port; the program running on it is cancelled."""
     row = get_or_404(session, Machine, machine_id)
+    _cancel_what_runs(runtime, machine_id)
     runtime.machines.disconnect(machine_id)
     return machine_out(runtime, row)
 
@@ -120,10 +148,33 @@ def resume_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) ->
     return _act(runtime, session, machine_id, "resume")
 
 
-@router.post("/{machine_id}/stop", dependencies=[Operator])
-def stop_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
-    """Emergency stop, out of band (M112 / grbl 0x18); 409 when nothing runs."""
-    return _act(runtime, session, machine_id, "stop")
+def _exists(runtime: Runtime, machine_id: str) -> bool:
+    with Session(runtime.engine) as session:
+        return session.get(Machine, machine_id) is not None
+
+
+@router.post("/{machine_id}/stop", dependencies=[Operator], response_model=StopOut,
+             responses={404: {"description": "no such machine"}, 409: {"description": "not connected"}})
+async def stop_machine(machine_id: str, runtime: RuntimeDep) -> StopOut:
+    """Emergency stop (M112 / grbl 0x18), always sent while connected, whatever runs (the
+    firmware decides).  An async route: it never waits on the request thread pool, the
+    database or a job; the write goes through the stop threads to the link, which becomes
+    terminal first (no program byte follows the stop).  The running job ends cancelled."""
+    started = time.perf_counter()
+    machines = runtime.machines
+    machine = machines.get(machine_id)
+    if machine is None or machine.link is None:
+        exists = await asyncio.get_running_loop().run_in_executor(machines.stop_pool, _exists, runtime, machine_id)
+        if not exists:
+            raise NotFound(f"machine {machine_id!r} does not exist", field="machine_id", value=machine_id)
+        raise Conflict(f"machine {machine_id!r} is not connected: nothing to send the stop to",
+                       field="state", value="disconnected")
+    try:
+        await asyncio.get_running_loop().run_in_executor(machines.stop_pool, machine.emergency_stop)
+    except HardwareError as exc:
+        raise translate(exc) from exc
+    return StopOut(id=machine_id, state=machine.state, stop_sent=True,
+                   elapsed_ms=(time.perf_counter() - started) * 1000)
 
 
 @router.post("/{machine_id}/print", status_code=202, dependencies=[Operator])

@@ -138,10 +138,14 @@ class ArtifactOut(BaseModel):
     meta: dict[str, Any] = Field(default_factory=dict)
 
 
+class ResumeRequest(Strict):
+    confirm: bool = Field(description="true: the operator knows the machine will re-home and move")
+
+
 class JobOut(BaseModel):
     id: str
     kind: str
-    status: Literal["queued", "running", "succeeded", "failed", "cancelled"]
+    status: Literal["queued", "running", "succeeded", "failed", "cancelled", "interrupted"]
     progress: float
     message: str
     params: dict[str, Any]
@@ -156,6 +160,9 @@ class JobOut(BaseModel):
     input_hashes: dict[str, str]
     software_version: str
     artifacts: list[ArtifactOut]
+    program_state: dict[str, Any] | None = Field(
+        None, description="machine jobs: commands executed (known) and total, last acknowledged firmware line, "
+        "and once interrupted: when, why, the position if known; resumes and the resume preamble")
 
 
 class JobKindOut(BaseModel):

@@ -1,26 +1,62 @@
-"""What the machine job kinds share: one program per machine, and a connected machine."""
+"""What the machine job kinds share: one program per machine (held by the database), one
+execution thread per machine, a connected machine, and the operator-only recovery.
+
+Recovery rule (issue 13): nothing moves a machine without an operator's request.  When a
+machine job's link drops, or its process dies, the job becomes ``interrupted`` with
+where its program stands (``program_state``); it is never requeued automatically.  The
+operator resumes it (``POST /jobs/{id}/resume``: reconnect, ask the machine which command
+is known executed, re-home, continue from there) or abandons it.  An operator's
+disconnect/connect of the machine, or an emergency stop, cancels what runs on it.
+"""
 
 from __future__ import annotations
 
+import logging
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any
+
 from sqlmodel import Session, select
 
-from app.errors import Conflict
+from app.errors import Cancelled, Conflict, ConformaError
 from app.jobs.context import JobContext
-from app.models import Job, JobReference
+from app.models import Job, JobReference, utcnow
 from hardware.machine import Machine
 
+if TYPE_CHECKING:
+    from app.jobs.runtime import Runtime
+    from app.jobs.store import JobStore
+
+log = logging.getLogger("conforma.machines")
 MACHINE_KINDS = ("print", "probe_run", "register")  # jobs that drive a machine themselves
 WORKFLOW_KINDS = ("closed_loop",)  # parents that hold a machine between their children's steps
 
 
+class Interrupted(ConformaError):
+    """The job stopped mid-program and waits for an operator (recorded, not an error)."""
+
+    status = 409
+    title = "Interrupted"
+
+
+def machine_slot(kind: str, params: dict[str, Any]) -> str | None:
+    """The machine a job of ``kind`` holds while queued, running or interrupted (the
+    ``jobs.machine_id`` column under a unique partial index), or None."""
+    if kind in MACHINE_KINDS:
+        return params.get("machine_id")
+    return None
+
+
 def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
-    """409 when another machine job, or a workflow holding the machine, is queued or running
-    on ``machine_id``.  A workflow's own children (``session.info["parent_id"]``, set at
-    submission) may use the machine it holds."""
+    """409 when another machine job, or a workflow holding the machine, is queued, running
+    or interrupted on ``machine_id``.  A friendly early answer only: the unique index on
+    ``jobs.machine_id`` is what makes two concurrent submissions impossible.  A workflow's
+    own children (``session.info["parent_id"]``) may use the machine it holds."""
     parent_id = session.info.get("parent_id")
     query = (select(Job.id, Job.kind).join(JobReference, JobReference.job_id == Job.id)
              .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
-                    Job.status.in_(("queued", "running")), Job.kind.in_(MACHINE_KINDS + WORKFLOW_KINDS)))
+                    Job.status.in_(("queued", "running", "interrupted")),
+                    Job.kind.in_(MACHINE_KINDS + WORKFLOW_KINDS)))
     if parent_id is not None:
         query = query.where(Job.id != parent_id)
     busy = session.exec(query).first()
@@ -30,9 +66,108 @@ def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
 
 
 def connected_machine(ctx: JobContext, machine_id: str) -> Machine:
-    """The live machine, connected now if it was not (or reconnected if its link dropped)."""
+    """The live machine, connected now if it was not (or reconnected if its link dropped
+    and an operator asked to resume)."""
     machines = ctx.runtime.machines
     machine = machines.get(machine_id)
-    if machine is None or machine.state == "disconnected" or machine.link_lost:
+    if machine is None or machine.state == "disconnected" or machine.link_lost:  # never after an e-stop
         machine = machines.connect(ctx.machine(machine_id))
     return machine
+
+
+def resume_request(ctx: JobContext) -> dict[str, Any] | None:
+    """The program state of this job when an operator asked to resume it after it had
+    started, else None (a job interrupted before it started simply starts)."""
+    with ctx.session() as session:
+        job = session.get(Job, ctx.job_id)
+    state = job.program_state if job is not None else None
+    return state if state and state.get("resume_requested") and "total" in state else None
+
+
+def stopped_by_operator(ctx: JobContext, machine: Machine | None) -> bool:
+    """True when the machine was disconnected, reconnected or emergency-stopped by an
+    operator (the job was asked to cancel first), as opposed to a link that dropped."""
+    return ctx.runtime.store.cancel_requested(ctx.job_id) or (machine is not None and machine.estopped)
+
+
+def interrupt(ctx: JobContext, machine: Machine | None, exc: Exception, state: dict[str, Any]) -> ConformaError:
+    """Record the job as interrupted (or Cancelled when an operator stopped it) and return
+    the exception the kind raises to end its attempt."""
+    if stopped_by_operator(ctx, machine):
+        reason = "emergency stop" if machine is not None and machine.estopped else \
+            "the operator disconnected or reconnected the machine"
+        return Cancelled(f"{reason}; the program stopped at command {state.get('executed')}",
+                         field="job_id", value=ctx.job_id)
+    world = ctx.runtime.machines.world_by_id(machine_id_of(ctx))
+    state = {**state, "resume_requested": False, "interrupted_at": utcnow().isoformat(),
+             "reason": f"{type(exc).__name__}: {exc}"[:300],
+             "position": list(world.position) if world is not None else None}
+    message = (f"interrupted at command {state.get('executed')} of {state.get('total')} "
+               f"({type(exc).__name__}); an operator must resume or abandon it")
+    ctx.runtime.store.interrupt(ctx.claim, state, message)
+    return Interrupted(message, field="job_id", value=ctx.job_id)
+
+
+def machine_for_job(ctx: JobContext, machine_id: str, resume: dict[str, Any] | None) -> Machine:
+    """The connected machine of a job.  On an operator's resume in a process that does not
+    know the interrupted program (the server restarted), the machine first adopts what
+    the job recorded, so that connecting keeps the firmware's line numbering."""
+    machines = ctx.runtime.machines
+    if resume is not None:
+        machine = machines.get(machine_id) or machines.build(ctx.machine(machine_id))
+        if machine.interrupted_program is None and machine.link is None:
+            machine.adopt_interrupted(int(resume["total"]), int(resume["executed"]), resume.get("acked_line_no"))
+    return connected_machine(ctx, machine_id)
+
+
+def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[str]]:
+    """Where a resumed program continues and what was sent before it: the first command
+    not known to be executed (the machine's ``resume_line``; the recorded count when the
+    machine no longer knows the program), then the machine is re-homed."""
+    start = machine.resume_line() if machine.interrupted_program is not None else int(resume["executed"])
+    home = machine.profile.home_command or ("G28" if machine.dialect == "marlin" else "$H")
+    machine.home()
+    return start, [home]
+
+
+def request_resume(store: "JobStore", job: Job) -> bool:
+    """interrupted -> queued with the operator's request recorded in ``program_state``."""
+    state = {**(job.program_state or {}), "resume_requested": True, "resume_requested_at": utcnow().isoformat()}
+    return store.resume(job.id, state, job.revision)
+
+
+def machine_id_of(ctx: JobContext) -> str:
+    return str(ctx.claim.params.get("machine_id"))
+
+
+class MachineThreads:
+    """One execution thread per machine: a job on machine B never waits for machine A.
+
+    The ``machine`` queue's consumer only hands each job id to the thread of the job's
+    machine (``jobs.machine_id``) and returns at once; the job is claimed and run there."""
+
+    def __init__(self, runtime: "Runtime") -> None:
+        self.runtime = runtime
+        self._threads: dict[str, ThreadPoolExecutor] = {}
+        self._lock = threading.Lock()
+
+    def dispatch(self, job_id: str) -> None:
+        machine_id = self.runtime.store.machine_of(job_id) or "unbound"
+        with self._lock:
+            executor = self._threads.get(machine_id)
+            if executor is None:
+                executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"machine-{machine_id}")
+                self._threads[machine_id] = executor
+        executor.submit(self._run, job_id)
+
+    def _run(self, job_id: str) -> None:
+        try:
+            self.runtime.execute(job_id)
+        except Exception:  # execute records failures itself; never kill the thread
+            log.exception("machine job %s crashed its thread", job_id)
+
+    def shutdown(self) -> None:
+        with self._lock:
+            executors, self._threads = list(self._threads.values()), {}
+        for executor in executors:
+            executor.shutdown(wait=False, cancel_futures=True)

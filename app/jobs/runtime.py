@@ -23,14 +23,16 @@ from huey import RedisHuey, SqliteHuey
 from huey.consumer import Consumer
 from huey.storage import SqliteStorage
 from pydantic import ValidationError
+from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
 import app
 from app.blobs import BlobStore
 from app.config import Settings
 from app.db import existing_locked, make_engine
-from app.errors import Cancelled, ConformaError, InvalidInput, NotFound
+from app.errors import Cancelled, Conflict, ConformaError, InvalidInput, NotFound
 from app.jobs.context import JobContext
+from app.jobs.machine_jobs import MachineThreads, machine_slot
 from app.jobs.registry import JobKind, get_kind, load_kinds
 from app.jobs.store import JobStore
 from app.machines import MachineManager
@@ -123,7 +125,9 @@ class Runtime:
         self.worker_id = f"{socket.gethostname()}:{os.getpid()}"
         self.kinds = load_kinds(settings.job_plugins.split(","))
         self.queues = {name: make_queue(settings, name) for name in QUEUES}
-        self.tasks = {name: huey.task(name="run_job")(self.execute) for name, huey in self.queues.items()}
+        self.machine_threads = MachineThreads(self)  # one execution thread per machine
+        self.tasks = {name: huey.task(name="run_job")(self.machine_threads.dispatch if name == "machine" else self.execute)
+                      for name, huey in self.queues.items()}
         self._consumers: list[Consumer] = []
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -182,16 +186,24 @@ class Runtime:
                 id=new_id("job"), kind=kind.name, params=validated.model_dump(mode="json"),
                 parent_id=parent_id, queue=kind.queue, max_attempts=self.settings.max_attempts,
                 input_hashes=hashes, software_version=app.__version__, created_at=utcnow(),
+                machine_id=(slot := machine_slot(kind.name, validated.model_dump(mode="json"))),
             )
             session.add(job)
-            session.flush()
-            for ref_kind, ref_id in dict.fromkeys(references):
-                session.add(JobReference(job_id=job.id, ref_kind=ref_kind, ref_id=ref_id))
-            session.flush()
-            _recheck_references(session, references, validated)
-            if before_commit is not None:
-                before_commit(session, job)
-            session.commit()
+            try:
+                session.flush()
+                for ref_kind, ref_id in dict.fromkeys(references):
+                    session.add(JobReference(job_id=job.id, ref_kind=ref_kind, ref_id=ref_id))
+                session.flush()
+                _recheck_references(session, references, validated)
+                if before_commit is not None:
+                    before_commit(session, job)
+                session.commit()
+            except IntegrityError as exc:  # the unique index: another program holds the machine
+                session.rollback()
+                if slot is None or not any(n in str(exc.orig) for n in ("jobs.machine_id", "uq_jobs_active_machine")):
+                    raise
+                raise Conflict(f"machine {slot!r} already has a program queued, running or interrupted; "
+                               "one program at a time", field="params.machine_id", value=slot) from exc
         self.enqueue(job.id, job.queue)
         return job
 
@@ -251,6 +263,8 @@ class Runtime:
             )
             consumer.start()
             self._consumers.append(consumer)
+        if "machine" in queues:  # this process owns the machines: an earlier one's jobs are orphans
+            self.store.interrupt_orphans(f"{self.worker_id}:")
         reaper = threading.Thread(target=self._reap_forever, daemon=True, name="reaper")
         reaper.start()
         self._threads.append(reaper)
@@ -274,6 +288,7 @@ class Runtime:
     def stop(self) -> None:
         self._stop.set()
         self.machines.close_all()
+        self.machine_threads.shutdown()
         for consumer in self._consumers:
             consumer.stop(graceful=False)
         self._consumers.clear()

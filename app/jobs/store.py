@@ -16,6 +16,10 @@ from sqlalchemy import Engine, and_, or_, select, update
 
 from app.models import TERMINAL_STATES, Job, utcnow
 
+# Jobs that move a machine: when their process dies or their link drops they become
+# ``interrupted`` and wait for an operator (never requeued by the reaper).
+OPERATOR_RESUMED_KINDS = ("print", "probe_run", "register", "closed_loop")
+
 
 @dataclass(frozen=True)
 class Claim:
@@ -112,7 +116,7 @@ class JobStore:
             .returning(Job.status)
         )
         if not rows:
-            return None
+            return self.abandon(job_id)
         self._run(
             update(Job)
             .where(and_(Job.id == job_id, Job.status == "queued"))
@@ -129,6 +133,12 @@ class JobStore:
         """
         now = time.time()
         expired = and_(Job.status == "running", Job.lease_until < now)
+        self._run(
+            update(Job)
+            .where(and_(expired, Job.kind.in_(OPERATOR_RESUMED_KINDS)))
+            .values(status="interrupted", lease_until=None, worker=None, revision=Job.revision + 1,
+                    message="interrupted: its process stopped reporting; resume or abandon it")
+        )
         requeued = self._run(
             update(Job)
             .where(and_(expired, Job.attempts < Job.max_attempts, Job.cancel_requested.is_(False)))
@@ -160,3 +170,70 @@ class JobStore:
     def status(self, job_id: str) -> tuple[str, int] | None:
         rows = self._run(select(Job.status, Job.revision).where(Job.id == job_id))
         return (rows[0][0], rows[0][1]) if rows else None
+
+    # machine jobs: program state, interruption, resume ------------------------------
+    def save_program_state(self, claim: Claim, state: dict[str, Any]) -> bool:
+        """Record where the program stands (while ``claim`` owns the job)."""
+        return bool(self._run(update(Job).where(self._owned(claim)).values(program_state=state).returning(Job.id)))
+
+    def interrupt(self, claim: Claim, state: dict[str, Any], message: str) -> bool:
+        """running -> interrupted: the job stops and waits for an operator's resume or
+        abandon; ``state`` says where the program stands."""
+        rows = self._run(
+            update(Job).where(self._owned(claim))
+            .values(status="interrupted", program_state=state, message=message[:500], lease_until=None,
+                    worker=None, revision=Job.revision + 1)
+            .returning(Job.id))
+        return bool(rows)
+
+    def interrupt_orphans(self, worker_prefix: str) -> list[str]:
+        """At start-up of the process that owns the machines: machine jobs still marked
+        running by an earlier process (it died), or queued before this process started
+        (an operator asked then, not now), become interrupted at once."""
+        rows = self._run(
+            update(Job)
+            .where(and_(Job.status == "running", Job.kind.in_(OPERATOR_RESUMED_KINDS),
+                        or_(Job.worker.is_(None), ~Job.worker.startswith(worker_prefix))))
+            .values(status="interrupted", lease_until=None, worker=None, revision=Job.revision + 1,
+                    message="interrupted: the server stopped while it ran; resume or abandon it")
+            .returning(Job.id))
+        waiting = self._run(
+            update(Job)
+            .where(and_(Job.status == "queued", Job.kind.in_(OPERATOR_RESUMED_KINDS)))
+            .values(status="interrupted", revision=Job.revision + 1,
+                    message="interrupted: the server restarted before it started; resume or abandon it")
+            .returning(Job.id))
+        return [r[0] for r in rows] + [r[0] for r in waiting]
+
+    def resume(self, job_id: str, state: dict[str, Any], revision: int) -> bool:
+        """interrupted -> queued with ``state`` (carrying the operator's resume request),
+        only if nobody changed the job since ``revision`` was read."""
+        rows = self._run(
+            update(Job)
+            .where(and_(Job.id == job_id, Job.status == "interrupted", Job.revision == revision))
+            .values(status="queued", program_state=state, cancel_requested=False, enqueued_at=time.time(),
+                    message="resume requested by an operator", revision=Job.revision + 1)
+            .returning(Job.id))
+        return bool(rows)
+
+    def abandon(self, job_id: str) -> str | None:
+        """interrupted -> cancelled (the operator gives the program up); None otherwise."""
+        rows = self._run(
+            update(Job)
+            .where(and_(Job.id == job_id, Job.status == "interrupted"))
+            .values(status="cancelled", finished_at=utcnow(), message="abandoned by an operator",
+                    revision=Job.revision + 1)
+            .returning(Job.id))
+        return "cancelled" if rows else None
+
+    def cancel_requested(self, job_id: str) -> bool:
+        rows = self._run(select(Job.cancel_requested).where(Job.id == job_id))
+        return bool(rows and rows[0][0])
+
+    def machine_of(self, job_id: str) -> str | None:
+        rows = self._run(select(Job.machine_id).where(Job.id == job_id))
+        return rows[0][0] if rows else None
+
+    def jobs_on_machine(self, machine_id: str, statuses: tuple[str, ...]) -> list[str]:
+        rows = self._run(select(Job.id).where(and_(Job.machine_id == machine_id, Job.status.in_(statuses))))
+        return [r[0] for r in rows]

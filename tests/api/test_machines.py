@@ -82,9 +82,10 @@ def test_machine_bad_input_and_safe_states(client):
     machine = register(client).json()
     assert client.post(f"/api/v1/machines/{machine['id']}/stop", headers=OP).status_code == 409  # not connected
     client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP)
-    idle_stop = client.post(f"/api/v1/machines/{machine['id']}/stop", headers=OP)
-    assert idle_stop.status_code == 409 and "nothing to stop" in idle_stop.json()["detail"]
-    assert client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["state"] == "idle"
+    idle_stop = client.post(f"/api/v1/machines/{machine['id']}/stop", headers=OP)  # sent even when idle
+    assert idle_stop.status_code == 200 and idle_stop.json()["stop_sent"] is True
+    assert client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["state"] == "error"  # M112 halts
+    assert client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP).json()["state"] == "idle"
     job = client.post("/api/v1/jobs", json={"kind": "test_sleep", "params": {"seconds": 0, "artifact": True}},
                       headers=OP).json()
     wait_for(client, job["id"])

@@ -32,6 +32,8 @@ ROLES = {
     ("POST", "/api/v1/jobs/{job_id}/cancel"): "operator",
     ("GET", "/api/v1/jobs/{job_id}/artifacts"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/report"): "viewer",
+    ("POST", "/api/v1/jobs/{job_id}/resume"): "operator",
+    ("POST", "/api/v1/jobs/{job_id}/abandon"): "operator",
     ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/events"): "viewer",
     ("POST", "/api/v1/programs"): "operator",

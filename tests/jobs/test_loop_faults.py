@@ -3,6 +3,8 @@ no compensated program is ever made from bad data."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from sqlalchemy import update
@@ -57,18 +59,32 @@ def test_a_probe_that_does_not_trigger_fails_the_run_and_the_loop_makes_no_progr
     assert "compensate" not in kinds and "reconstruct" not in kinds
 
 
-def test_a_disconnect_mid_probe_run_reconnects_and_finishes(client, setup):
+def test_a_disconnect_mid_probe_run_waits_for_the_operator_then_resumes(client, setup):
     _part, real, trace = setup
     flaky = machine(client, true_part_id=real["id"], faults={"disconnect_at_line": 12})
     clean = machine(client, true_part_id=real["id"])
     probe_plan = plan(client, trace)
-    interrupted = job(client, "probe_run", {"plan_job_id": probe_plan["id"], "machine_id": flaky["id"]})
+    run = client.post("/api/v1/jobs", json={"kind": "probe_run", "params": {
+        "plan_job_id": probe_plan["id"], "machine_id": flaky["id"]}}, headers=OP).json()
+    interrupted = wait_for(client, run["id"], states=("interrupted", "succeeded", "failed"))
+    assert interrupted["status"] == "interrupted", interrupted
+    state = interrupted["program_state"]
+    assert 0 < state["executed"] < 8 and len(state["points"]) == state["executed"] and state["reason"]
+    executed = client.get(f"/api/v1/machines/{flaky['id']}", headers=OP).json()["mock"]["executed_commands"]
+    time.sleep(0.5)  # nobody asked: nothing moves
+    assert client.get(f"/api/v1/machines/{flaky['id']}", headers=OP).json()["mock"]["executed_commands"] == executed
+    assert client.get(f"/api/v1/jobs/{run['id']}", headers=OP).json()["status"] == "interrupted"
+    refused = client.post(f"/api/v1/jobs/{run['id']}/resume", json={"confirm": False}, headers=OP)
+    assert refused.status_code == 422 and refused.json()["errors"][0]["loc"] == ["confirm"]
+    assert client.post(f"/api/v1/jobs/{run['id']}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    resumed = wait_for(client, run["id"], timeout=60)
     reference = job(client, "probe_run", {"plan_job_id": probe_plan["id"], "machine_id": clean["id"]})
-    assert interrupted["status"] == "succeeded", interrupted["error"]
-    assert interrupted["result"]["reconnects"] >= 1
-    got = np.array([p["measured"] for p in interrupted["result"]["points"]])
+    assert resumed["status"] == "succeeded", resumed["error"]
+    assert resumed["result"]["resumes"] == 1
+    got = np.array([p["measured"] for p in resumed["result"]["points"]])
     want = np.array([p["measured"] for p in reference["result"]["points"]])
     assert got.shape == want.shape == (8, 3) and np.allclose(got, want, atol=1e-9)  # noise-free mock
+    assert client.post(f"/api/v1/jobs/{run['id']}/resume", json={"confirm": True}, headers=OP).status_code == 409
 
 
 def test_a_far_off_measurement_is_rejected_as_an_outlier(client, setup):

@@ -222,6 +222,25 @@ function deviationPlot(samples, title) {
   return el("div", { class: "plot", id: "deviation-plot", "data-samples": JSON.stringify(samples) }, svg);
 }
 
+// A machine job that stopped on a dropped link or a dead server waits for the operator:
+// resume (re-homes, then continues from the first command not known executed) or abandon.
+function interruptedPanel(job) {
+  const st = job.program_state || {};
+  const where = `stopped at command ${st.executed ?? "?"} of ${st.total ?? "?"}` +
+    (st.acked_line_no != null ? ` (firmware line ${st.acked_line_no} acknowledged)` : "") +
+    (st.position ? `, position ${st.position.map((v) => Number(v).toFixed(3)).join(", ")}` : ", position unknown");
+  return el("div", { class: "msg error", id: "interrupted" },
+    el("p", {}, `Interrupted: ${where}. ${st.reason || ""}`),
+    el("div", { class: "row" },
+      el("button", { id: "resume-job", onclick: () => guarded("Resume", async () => {
+        if (!window.confirm("Resume: the machine re-homes and moves. Is it clear?")) return;
+        renderDetail(await post(`jobs/${job.id}/resume`, { confirm: true })); follow(job);
+      }) }, "Resume (re-homes)"),
+      el("button", { class: "danger", id: "abandon-job", onclick: () => guarded("Abandon", async () => {
+        renderDetail(await post(`jobs/${job.id}/abandon`));
+      }) }, "Abandon")));
+}
+
 function renderDetail(job) {
   const canCancel = !TERMINAL.has(job.status);
   const parts = [
@@ -237,6 +256,7 @@ function renderDetail(job) {
       el("button", { id: "edit-rerun", onclick: () => editCopy(job) }, "Edit a copy")),
     el("p", { class: "small" }, `created ${fmt.time(job.created_at)} · started ${fmt.time(job.started_at)} · finished ${fmt.time(job.finished_at)}`),
   ];
+  if (job.status === "interrupted") parts.push(interruptedPanel(job));
   if (job.error) parts.push(el("div", { class: "msg error", id: "job-error" }, `${job.error.title}: ${job.error.detail}`));
   const samples = job.result?.deviation?.samples;
   if (Array.isArray(samples) && samples.length > 1) {

@@ -1,8 +1,10 @@
 """Job ``print``: stream an uploaded program or a job's G-code artifact to a machine.
 
 Cancel ends the program after the commands in flight; pause/resume act on the machine.
-When the link drops mid-program the job reconnects (up to ``reconnect_attempts``) and
-resumes from the first command not known to be executed (``Machine.resume_line``).
+When the link drops mid-program (or the server dies) the job becomes ``interrupted`` and
+waits: ``POST /jobs/{id}/resume`` reconnects, takes the first command not known to be
+executed (``Machine.resume_line``), re-homes and streams on from there
+(``app.jobs.machine_jobs``).  ``program_state`` in the job record shows where it stands.
 """
 
 from __future__ import annotations
@@ -16,13 +18,15 @@ from sqlmodel import Session, select
 from app.errors import Cancelled, InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import check_gcode, gcode_meta
-from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
+from app.jobs.machine_jobs import (connected_machine, interrupt, machine_for_job, refuse_if_machine_busy, resume_point,
+                                   resume_request, stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
-from app.machines import MachineUnavailable, hardware_errors
 from app.gcode.placement import check_inside, profile_volume
+from app.machines import MachineFault, MachineUnavailable, hardware_errors, translate
 from app.models import Artifact, Machine, Program
 from app.records import get_or_404
-from hardware.errors import LinkError
+from hardware.errors import HardwareError, LinkError
+from hardware.protocol import validate_program
 
 PROGRESS_INTERVAL_S = 0.25
 GCODE_MEDIA_TYPE = "text/x-gcode"
@@ -33,7 +37,6 @@ class PrintParams(JobParams):
     program_id: str | None = None
     job_id: str | None = None
     artifact: str | None = Field(None, description="artifact of job_id to print, e.g. print.gcode")
-    reconnect_attempts: int = Field(3, ge=0, le=20)
 
     @model_validator(mode="after")
     def _one_source(self) -> "PrintParams":
@@ -93,10 +96,30 @@ def _program_text(ctx: JobContext, params: PrintParams) -> str:
 
 @job_kind("print", PrintParams, queue="machine", check=_check, references=_references)
 def run(ctx: JobContext, params: PrintParams) -> dict:
-    """Stream a program to the machine with progress, cancel, and resume after a disconnect."""
+    """Stream a program to the machine with progress and cancel; a dropped link interrupts
+    the job, and only an operator's resume continues it (from the first command not known
+    executed, after re-homing)."""
     lines = _program_text(ctx, params).splitlines()
     meta = gcode_meta("\n".join(lines))
-    machine = connected_machine(ctx, params.machine_id)
+    resume = resume_request(ctx)
+    total = len(validate_program(lines))
+    state: dict = {"total": total, "executed": 0, "acked_line_no": None, "start_line": 0,
+                   "resumes": (resume or {}).get("resumes", 0)}
+    preamble: list[str] = []
+    if resume is None:
+        machine = connected_machine(ctx, params.machine_id)
+    else:
+        state.update({k: resume[k] for k in ("executed", "acked_line_no") if k in resume})
+        machine = None
+        try:  # a failure before the program moves anything leaves the job interrupted as it was
+            machine = machine_for_job(ctx, params.machine_id, resume)
+            with hardware_errors():
+                state["start_line"], preamble = resume_point(machine, resume)
+        except (HardwareError, MachineUnavailable, MachineFault) as exc:
+            raise interrupt(ctx, machine, exc, state) from exc
+        state.update(executed=state["start_line"], acked_line_no=None, resumes=state["resumes"] + 1,
+                     resume_preamble=preamble, resumed_from=state["start_line"])
+        ctx.runtime.store.save_program_state(ctx.claim, state)
     ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
     last_report = 0.0
     cancelled = False
@@ -107,6 +130,8 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
         if now - last_report < PROGRESS_INTERVAL_S and executed < total:
             return
         last_report = now
+        state.update(executed=executed, acked_line_no=machine.acked_line_no)
+        ctx.runtime.store.save_program_state(ctx.claim, dict(state))
         try:
             ctx.progress(executed / max(total, 1), f"{executed}/{total} commands")
         except Cancelled:
@@ -114,31 +139,20 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
                 cancelled = True
                 machine.cancel()
 
-    start_line, reconnects = 0, 0
     try:
-        while True:
-            try:
-                with hardware_errors():
-                    report = machine.stream(lines, on_progress=on_progress, start_line=start_line)
-                break
-            except MachineUnavailable as exc:
-                if not isinstance(exc.__cause__, LinkError) or reconnects >= params.reconnect_attempts:
-                    raise
-                reconnects += 1
-                ctx.progress(ctx_fraction(machine), f"link lost; reconnecting ({reconnects})")
-                time.sleep(0.2 * reconnects)
-                machine = connected_machine(ctx, params.machine_id)
-                with hardware_errors():
-                    start_line = machine.resume_line()
+        report = machine.stream(lines, on_progress=on_progress, start_line=state["start_line"])
+    except HardwareError as exc:
+        gap = machine.interrupted_program  # consistent (command, line number) pair
+        if gap is not None:
+            state.update(executed=gap.acked_index, acked_line_no=gap.acked_line_no)
+        if isinstance(exc, LinkError) or stopped_by_operator(ctx, machine):
+            raise interrupt(ctx, machine, exc, state) from exc
+        raise translate(exc) from exc
     finally:
         ctx.runtime.machines.running_job.pop(params.machine_id, None)
     if cancelled or report.cancelled:
         raise Cancelled(f"print cancelled after {report.executed} of {report.total} commands",
                         field="job_id", value=ctx.job_id)
-    return {"executed": report.executed, "total": report.total, "reconnects": reconnects,
+    return {"executed": report.executed, "total": report.total, "start_line": report.start_line,
+            "resumes": state["resumes"], "resume_preamble": preamble,
             "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
-
-
-def ctx_fraction(machine) -> float:  # type: ignore[no-untyped-def]
-    executed, total = machine.progress or (0, 1)
-    return executed / max(total, 1)

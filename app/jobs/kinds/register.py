@@ -27,9 +27,11 @@ from app.compensation.datum_plan import DatumProbeParams, plan_datum_probes, reg
 from app.compensation.registration import Placement
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
-from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
+from app.jobs.machine_jobs import (connected_machine, interrupt, refuse_if_machine_busy, resume_request,
+                                   stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
-from app.machines import hardware_errors
+from app.machines import MachineFault, MachineUnavailable, hardware_errors, translate
+from hardware.errors import HardwareError, LinkError
 from app.models import Job, Part
 from app.records import get_or_404
 
@@ -139,7 +141,17 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
     ctx.progress(0.05, "planning datum touches")
     plan = plan_datum_probes(mesh, "sides" if params.mode == "edges" else "z_only", count=params.count,
                              margin_mm=params.margin_mm, seed=params.seed, sigma_mm=params.sigma_mm)
-    machine = connected_machine(ctx, params.machine_id)
+    resume = resume_request(ctx)
+    state = {"total": None, "touches": 0, "resumes": (resume or {}).get("resumes", 0)}
+    machine = None
+    try:  # a resume re-homes and touches every datum again (touches are idempotent)
+        machine = connected_machine(ctx, params.machine_id)
+        if resume is not None:
+            with hardware_errors():
+                machine.home()
+            state["resumes"] += 1
+    except (HardwareError, MachineUnavailable, MachineFault) as exc:
+        raise interrupt(ctx, machine, exc, state) from exc
     z_bottom, z_top = mesh.bounds[:, 2]
     z_start, z_min = float(z_top) + params.clearance_mm, float(z_bottom) - params.overtravel_mm
     feed = params.probe_feed_mm_min
@@ -147,8 +159,13 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
 
     def probe_z(x: float, y: float) -> float:
         nonlocal touches
-        with hardware_errors():
+        try:
             touch = machine.probe(x, y, z_start=z_start, z_min=z_min, feed_mm_min=feed)
+        except HardwareError as exc:
+            state["touches"] = touches
+            if isinstance(exc, LinkError) or stopped_by_operator(ctx, machine):
+                raise interrupt(ctx, machine, exc, state) from exc
+            raise translate(exc) from exc
         touches += 1
         if touches % 10 == 0:
             ctx.progress(min(0.9, 0.1 + touches / 100), f"{touches} datum touches")
