@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import pkgutil
 import signal
 import threading
 import time
@@ -41,7 +42,7 @@ log = logging.getLogger("conforma.jobs.process")
 POLL_S = 0.1
 KILL_WAIT_S = 5.0
 # Imported once by the fork server, so that every child starts with the compute core loaded.
-PRELOAD = ["app.jobs.compute_child", "app.jobs.kinds"]
+PRELOAD = ["app.jobs.compute_child"]
 _context_lock = threading.Lock()
 _context: multiprocessing.context.BaseContext | None = None
 
@@ -51,8 +52,11 @@ def _mp_context() -> multiprocessing.context.BaseContext:
     global _context
     with _context_lock:
         if _context is None:
+            import app.jobs.kinds as kinds_package
+
             context = multiprocessing.get_context("forkserver")
-            context.set_forkserver_preload(PRELOAD)
+            kinds = [f"{kinds_package.__name__}.{info.name}" for info in pkgutil.iter_modules(kinds_package.__path__)]
+            context.set_forkserver_preload(PRELOAD + kinds)
             _context = context
         return _context
 
