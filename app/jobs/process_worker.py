@@ -25,12 +25,14 @@ import pkgutil
 import signal
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
 from sqlalchemy import select
 
 from app.jobs.compute_child import run_child
-from app.jobs.store import Claim
+from app.jobs.store import Claim, JobStore
 from app.models import Job
 from app.errors import Cancelled
 from app.problems import from_error, problem
@@ -83,6 +85,33 @@ def time_limit_problem(limit_s: float) -> dict:
                    "reduce its parameters")
 
 
+@contextmanager
+def _lease_kept(store: JobStore, claim: Claim, every_s: float) -> Iterator[None]:
+    """Renew ``claim``'s lease from a thread while the body blocks."""
+    done = threading.Event()
+
+    def renew() -> None:
+        while not done.wait(every_s):
+            store.heartbeat(claim)
+
+    thread = threading.Thread(target=renew, daemon=True, name=f"lease-{claim.job_id}")
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
+def warm_up() -> None:
+    """Start the fork server now (it imports the compute core: seconds), not at the first job."""
+    _mp_context().Process(target=_noop).start()
+
+
+def _noop() -> None:
+    return None
+
+
 class ProcessSupervisor:
     """Runs claimed compute jobs in child processes for one :class:`Runtime`."""
 
@@ -112,7 +141,8 @@ class ProcessSupervisor:
         store = self.runtime.store
         child = _mp_context().Process(target=run_child, args=(self.settings, claim),
                                       name=f"conforma-job-{claim.job_id}")
-        child.start()
+        with _lease_kept(store, claim, self.settings.lease_s / 3):
+            child.start()  # the first start waits for the fork server to import the compute core
         started = time.monotonic()
         renew_every = self.settings.lease_s / 3
         renewed = started

@@ -31,7 +31,7 @@ from app.db import make_engine
 from app.errors import Cancelled, ConformaError, InvalidInput, NotFound
 from app.jobs.context import JobContext
 from app.jobs.cost import check_cost
-from app.jobs.process_worker import ProcessSupervisor
+from app.jobs.process_worker import ProcessSupervisor, warm_up
 from app.jobs.registry import JobKind, get_kind, load_kinds
 from app.jobs.store import JobStore
 from app.machines import MachineManager
@@ -225,6 +225,8 @@ class Runtime:
     # workers and reaper ----------------------------------------------------------
     def start_workers(self, queues: tuple[str, ...] = QUEUES) -> None:
         """Start consumer threads for ``queues`` plus the reaper (idempotent per process)."""
+        if "default" in queues and self.settings.compute_isolation == "process":
+            threading.Thread(target=warm_up, daemon=True, name="forkserver-warm-up").start()
         for name in queues:
             threads = _THREADS.get(name, self.settings.worker_threads)
             consumer = _EmbeddedConsumer(
