@@ -44,7 +44,7 @@ class Settings(BaseSettings):
     compute_isolation: Literal["process", "thread"] = Field(
         "process", description="process: each compute job in a child process with memory/time limits and a "
         "hard cancel (the default); thread: in a worker thread, without limits (debugging only)")
-    job_memory_mb: float = Field(2048.0, ge=64, le=1_000_000,
+    job_memory_mb: float = Field(1024.0, ge=64, le=1_000_000,
                                  description="memory a compute job may use (address space above the worker's)")
     job_time_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-clock limit of a compute job")
     lease_s: float = Field(30.0, gt=0.5, le=3600)
