@@ -15,6 +15,7 @@ from sqlmodel import select
 
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Page, UtcDatetime
+from app.array_files import check_upload
 from app.errors import InvalidInput
 from app.models import UploadedFile, new_id, utcnow
 from app.records import get_or_404
@@ -58,6 +59,7 @@ def upload_file(runtime: RuntimeDep, session: SessionDep, file: Annotated[Upload
     data = file.file.read()
     name = (file.filename or "file").rsplit("/", 1)[-1][:200]
     media = media_type_of(name, data)
+    check_upload(media, data, int(runtime.settings.max_upload_mb * 2**20))  # NPY/NPZ headers, before storing
     row = UploadedFile(id=new_id("file"), name=name, media_type=media, bytes=len(data),
                        sha256=runtime.blobs.put(session, data), created_at=utcnow())
     session.add(row)
