@@ -296,8 +296,8 @@ def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:
         "params.control_points": (fit_mb, fit_s * max(1, searched // 4)),
     }
     field = max(terms, key=lambda f: terms[f])
-    if field == "params.control_points" and params.control_points is None:
-        field = "params.grid"  # the searched nets grow with the grid
+    if field == "params.control_points" and params.control_points is None:  # the searched nets grow with
+        field = "params.densify_factor" if grid_fitted and params.densify_factor > 1 else "params.grid"  # the data
     value = {"params.grid": params.grid, "params.densify_factor": params.densify_factor,
              "params.control_points": params.control_points}.get(field, measured)
     memory = BASE_MB + point_mb + fit_mb + (POINT_MB * measured if params.remove_bad_points else 0.0)
