@@ -22,7 +22,6 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
-import os
 import resource
 import signal
 from typing import Any
@@ -39,7 +38,6 @@ from app.records import MeshCache
 
 log = logging.getLogger("conforma.jobs.child")
 _PR_SET_PDEATHSIG = 1
-EXIT_OK = 0
 
 
 def _vm_size_bytes() -> int:

@@ -263,13 +263,14 @@ def _json_z(values: np.ndarray) -> list[float | None]:
 # the sparse least-squares solve of N unknowns peaked at 468 MiB / 61 s for N = 40,000 (net
 # 200 x 200), 132 MiB / 5 s at 14,400 -> FIT_MB * N^1.5, FIT_S * N^1.5; each fitted point (design
 # rows, surface inversion for the residuals) ~2 KiB; the bad-point test per 600-point tile
-# ~0.4 ms per point, bounded memory; the GCV net search repeats the fit for every net size up to
-# about sqrt(points / 3) per direction.
+# ~2.5 ms per point on a loaded 2-core machine (40,000 points: 98 s), ~65 MiB whatever the
+# count; the GCV net search repeats the fit for every net size up to about sqrt(points / 3)
+# per direction.
 FIT_MB_PER_N15 = 6e-5
 FIT_S_PER_N15 = 8e-6
 POINT_MB = 2 / 1024
-BAD_POINT_S = 0.5e-3
-BASE_MB = 50.0
+BAD_POINT_S = 2.5e-3
+BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh process
 
 
 def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:

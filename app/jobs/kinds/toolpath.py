@@ -144,7 +144,7 @@ CELL_BYTES = 500.0
 CELL_S = 80e-6
 LINE_VERTEX_BYTES = 300.0
 LINE_VERTEX_S = 50e-6
-BASE_MB = 50.0
+BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh process
 
 
 def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
