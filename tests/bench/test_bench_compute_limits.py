@@ -2,7 +2,7 @@
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_compute_limits.py -s -o addopts="" -q
 
-Each case runs in a fresh process (peak RSS ``ru_maxrss`` minus the RSS before the work,
+Each case runs in a fresh process (peak RSS ``VmHWM`` minus the RSS before the work,
 so one case never hides another) and grows the work by 4x per step, printing measured / predicted ratios and
 the growth against the first step measured in the same run:
 
@@ -37,11 +37,13 @@ UPLOAD_LIMIT_MB = 200.0
 _PRELUDE = """
 import json, resource, time
 import numpy as np
-base = int(next(l for l in open("/proc/self/status") if l.startswith("VmRSS:")).split()[1])  # KiB, now
+def status_kib(key):
+    return int(next(l for l in open("/proc/self/status") if l.startswith(key)).split()[1])
+base = status_kib("VmRSS:")  # KiB, now (ru_maxrss would carry the forking parent's peak across exec)
 started = time.perf_counter()
 """
 _REPORT = """
-print(json.dumps({"peak_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024,
+print(json.dumps({"peak_mb": (status_kib("VmHWM:") - base) / 1024,
                   "s": time.perf_counter() - started}))
 """
 
