@@ -30,7 +30,7 @@ def test_oversized_traces_are_refused_at_once_naming_the_field(geometry, field):
     with pytest.raises(GeometryError) as refused:
         trace_curve(geometry, tolerance=Tolerance(chord_mm=1e-5))
     assert refused.value.field == field
-    assert time.perf_counter() - started < 1.0
+    assert time.perf_counter() - started < 5.0  # generous for a loaded machine; was 20-78 s
 
 
 @pytest.mark.parametrize("radius", [1.0, 30.0, 500.0])
