@@ -141,8 +141,13 @@ class ProcessSupervisor:
         store = self.runtime.store
         child = _mp_context().Process(target=run_child, args=(self.settings, claim),
                                       name=f"conforma-job-{claim.job_id}")
-        with _lease_kept(store, claim, self.settings.lease_s / 3):
-            child.start()  # the first start waits for the fork server to import the compute core
+        try:
+            with _lease_kept(store, claim, self.settings.lease_s / 3):
+                child.start()  # the first start waits for the fork server to import the compute core
+        except Exception as exc:  # no process, no job: say so rather than leave it running
+            log.exception("could not start a process for job %s", claim.job_id)
+            store.finish(claim, "failed", error=problem(500, "Job could not start", f"{type(exc).__name__}: {exc}"[:500]))
+            return
         started = time.monotonic()
         renew_every = self.settings.lease_s / 3
         renewed = started
@@ -151,17 +156,13 @@ class ProcessSupervisor:
             child.join(POLL_S)
             if child.exitcode is not None:
                 break
-            now = time.monotonic()
-            if self.stopping.is_set():
-                verdict = "stop"
-            elif now - started > self.settings.job_time_s:
-                verdict = "time"
-            elif self._cancel_requested(claim.job_id):
-                verdict = "cancel"
-            elif now - renewed >= renew_every:
-                renewed = now
-                if store.heartbeat(claim) is None:
-                    verdict = "lost"
+            try:
+                verdict = self._verdict(claim, started, renewed)
+            except Exception:  # a database hiccup must not leave the child unwatched: ask again
+                log.exception("supervising job %s", claim.job_id)
+                continue
+            if verdict is None and time.monotonic() - renewed >= renew_every:
+                renewed = time.monotonic()
         if verdict is not None:
             child.kill()
             child.join(KILL_WAIT_S)
@@ -169,6 +170,20 @@ class ProcessSupervisor:
         if exitcode is not None:
             child.close()
         self._record(claim, verdict, exitcode)
+
+    def _verdict(self, claim: Claim, started: float, renewed: float) -> str | None:
+        """Why the running child must end now (stop, time, cancel, lost), or None; renews
+        the lease when it is due."""
+        now = time.monotonic()
+        if self.stopping.is_set():
+            return "stop"
+        if now - started > self.settings.job_time_s:
+            return "time"
+        if self._cancel_requested(claim.job_id):
+            return "cancel"
+        if now - renewed >= self.settings.lease_s / 3 and self.runtime.store.heartbeat(claim) is None:
+            return "lost"
+        return None
 
     def _record(self, claim: Claim, verdict: str | None, exitcode: int | None) -> None:
         """The outcome the child could not record itself (each transition is conditional on
