@@ -44,6 +44,12 @@ class Settings(BaseSettings):
     viewer_secret: str | None = Field(None, min_length=16, description="view token key; default <data_dir>/viewer.secret")
     embedded_worker: bool = True
     worker_threads: int = Field(2, ge=1, le=64)
+    compute_isolation: Literal["process", "thread"] = Field(
+        "process", description="process: each compute job in a child process with memory/time limits and a "
+        "hard cancel (the default); thread: in a worker thread, without limits (debugging only)")
+    job_memory_mb: float = Field(1024.0, ge=64, le=1_000_000,
+                                 description="memory a compute job may use (address space above the worker's)")
+    job_time_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-clock limit of a compute job")
     lease_s: float = Field(30.0, gt=0.5, le=3600)
     max_attempts: int = Field(3, ge=1, le=100)
     reaper_interval_s: float = Field(1.0, gt=0.01, le=600)

@@ -17,6 +17,7 @@ from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.downloads import attachment
 from app.api.schemas import Page, UtcDatetime
+from app.array_files import check_upload
 from app.errors import InvalidInput
 from app.models import UploadedFile, new_id, utcnow
 from app.records import get_or_404
@@ -65,6 +66,7 @@ def upload_file(runtime: RuntimeDep, session: SessionDep, request: Request, file
         return replayed  # type: ignore[return-value]
     name = (file.filename or "file").rsplit("/", 1)[-1][:200]
     media = media_type_of(name, data)
+    check_upload(media, data, int(runtime.settings.max_upload_mb * 2**20))  # NPY/NPZ headers, before storing
     row = UploadedFile(id=new_id("file"), name=name, media_type=media, bytes=len(data),
                        sha256=runtime.blobs.put(session, data), created_at=utcnow())
     session.add(row)

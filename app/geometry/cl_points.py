@@ -112,8 +112,12 @@ def cl_points(curve: NurbsCurve, chord_mm: float) -> CLPoints:
     if not (isinstance(chord_mm, (int, float)) and np.isfinite(chord_mm) and chord_mm > 0):
         raise GeometryError("chord tolerance must be positive and finite", field="chord_mm", value=chord_mm)
     params = [np.array([curve.domain[0]])]
-    for a, b in _pieces(curve):
-        params.append(_equidistributed(curve, a, b, chord_mm)[1:])
+    pieces = _pieces(curve)
+    if curve.degree == 1 and not curve.is_rational:  # straight pieces: exactly their ends, in one step
+        params.append(np.array([b for _, b in pieces]))
+    else:
+        for a, b in pieces:
+            params.append(_equidistributed(curve, a, b, chord_mm)[1:])
     u = np.unique(np.concatenate(params))
     sag = segment_sagitta(curve, u)
     for _ in range(60):

@@ -18,6 +18,7 @@ import numpy as np
 
 from app.geometry.errors import DegenerateGeometryError, GeometryError
 from app.geometry.nurbs import NurbsCurve
+from app.geometry.shapes_limits import check_curve_size, check_shape_size
 from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
 from app.geometry.validation import as_points, check_distinct_consecutive
 
@@ -102,11 +103,13 @@ def trace_curve(geometry: Mapping[str, Any], *, field: str = "geometry",
     """The API's geometry dict -> NurbsCurve (2-D or 3-D control points).
 
     Raises GeometryError subclasses naming the field (e.g. ``geometry.knots``) and value.
-    Degenerate (zero-length) traces raise DegenerateGeometryError.
+    Degenerate (zero-length) traces raise DegenerateGeometryError; traces beyond the size
+    limits of :mod:`app.geometry.shapes_limits` (points, radius, length, sampling) a GeometryError.
     """
     if not isinstance(geometry, Mapping):
         raise GeometryError(f"{field} must be an object", field=field, value=str(type(geometry).__name__))
     kind = _require(geometry, "type", field)
+    check_shape_size(geometry, field)  # counts and radius before any array is built
     if kind == "line":
         start = as_points([_require(geometry, "start", field)], f"{field}.start")[0]
         end = as_points([_require(geometry, "end", field)], f"{field}.end")[0]
@@ -121,6 +124,7 @@ def trace_curve(geometry: Mapping[str, Any], *, field: str = "geometry",
     else:
         raise GeometryError(f"{field}.type must be one of {', '.join(SHAPE_TYPES)}", field=f"{field}.type",
                             value=kind)
+    check_curve_size(curve, tolerance.chord_mm, field)  # length and sampling work bounded
     if curve.length <= tolerance.dedup_mm:
         raise DegenerateGeometryError(f"{field}: the trace has zero length", field=field, value=curve.length)
     return curve

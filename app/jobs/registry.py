@@ -7,6 +7,9 @@ that those cannot be deleted from under it).  An optional ``check(params, sessio
 runs content checks that need stored records (e.g. measured points against the trace)
 at submission, so that bad input is a 422 then and never a failed job later; the session's
 ``info`` carries ``parent_id`` (of a child job) and ``read_blob(sha256) -> bytes``.
+An optional ``estimate(params, session) -> Cost`` predicts the job's peak memory and time
+from its parameters (:mod:`app.jobs.cost`): a job predicted beyond the compute limits is a
+422 naming the parameter that drives the cost, before anything is queued.
 
 Example (a module in ``app/jobs/kinds/``)::
 
@@ -49,6 +52,8 @@ class JobKind:
     references: Callable[[Any], list[Reference]] = field(default=lambda _params: [])
     check: Callable[[Any, Any], None] | None = None  # (params, session): raise InvalidInput at submission
     description: str = ""
+    # (params, session) -> app.jobs.cost.Cost: memory and time predicted at submission
+    estimate: Callable[[Any, Any], Any] | None = None
 
 
 _KINDS: dict[str, JobKind] = {}
@@ -61,6 +66,7 @@ def job_kind(
     queue: str = "default",
     references: Callable[[Any], list[Reference]] | None = None,
     check: Callable[[Any, Any], None] | None = None,
+    estimate: Callable[[Any, Any], Any] | None = None,
 ) -> Callable[[Callable[["JobContext", Any], dict]], Callable[["JobContext", Any], dict]]:
     """Register the decorated function as the runner of job kind ``name``."""
 
@@ -74,6 +80,7 @@ def job_kind(
             queue=queue,
             references=references or (lambda _params: []),
             check=check,
+            estimate=estimate,
             description=(run.__doc__ or "").strip().split("\n")[0],
         )
         return run

@@ -33,6 +33,8 @@ from app.db import existing_locked, make_engine
 from app.errors import Cancelled, Conflict, ConformaError, InvalidInput, NotFound
 from app.jobs.context import JobContext
 from app.jobs.machine_jobs import MachineThreads, machine_slot
+from app.jobs.cost import check_cost
+from app.jobs.process_worker import ProcessSupervisor, warm_up
 from app.jobs.registry import JobKind, get_kind, load_kinds
 from app.jobs.store import JobStore
 from app.machines import MachineManager
@@ -131,6 +133,7 @@ class Runtime:
         self._consumers: list[Consumer] = []
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+        self.supervisor = ProcessSupervisor(self)
 
     def _part_mesh(self, part_id: str) -> Any:
         with Session(self.engine) as session:
@@ -182,6 +185,7 @@ class Runtime:
                 session.info["parent_id"] = parent_id  # checks may need to know whose child this is
                 session.info["read_blob"] = self.blobs.read  # ...and to read stored files
                 kind.check(validated, session)
+            check_cost(kind, validated, session, self.settings)  # hopeless parameters: 422 naming them
             job = Job(
                 id=new_id("job"), kind=kind.name, params=validated.model_dump(mode="json"),
                 parent_id=parent_id, queue=kind.queue, max_attempts=self.settings.max_attempts,
@@ -224,6 +228,9 @@ class Runtime:
         if kind is None:
             self.store.finish(claim, "failed", error=problem(422, "Unknown job kind", f"no worker kind {claim.kind!r}"))
             return
+        if kind.queue == "default" and self.settings.compute_isolation == "process":
+            self.supervisor.run(claim)  # in a child process: memory/time limits, hard cancel
+            return
         ctx = JobContext(self, claim)
         done = threading.Event()
         threading.Thread(target=self._heartbeat, args=(ctx, done), daemon=True, name=f"lease-{job_id}").start()
@@ -254,6 +261,8 @@ class Runtime:
     # workers and reaper ----------------------------------------------------------
     def start_workers(self, queues: tuple[str, ...] = QUEUES) -> None:
         """Start consumer threads for ``queues`` plus the reaper (idempotent per process)."""
+        if "default" in queues and self.settings.compute_isolation == "process":
+            threading.Thread(target=warm_up, daemon=True, name="forkserver-warm-up").start()
         for name in queues:
             threads = _THREADS.get(name, self.settings.worker_threads)
             consumer = _EmbeddedConsumer(
@@ -270,6 +279,8 @@ class Runtime:
         self._threads.append(reaper)
 
     def reap_once(self) -> list[str]:
+        for job_id in self.store.quarantine_lost_compute_jobs():
+            log.warning("job %s quarantined: its worker was lost twice while running it", job_id)
         ids = self.store.reap(stale_enqueue_s=max(2 * self.settings.lease_s, 5.0))
         for job_id in ids:
             with Session(self.engine) as session:
@@ -287,6 +298,7 @@ class Runtime:
 
     def stop(self) -> None:
         self._stop.set()
+        self.supervisor.stop()  # kills running compute children; their jobs go back to the queue
         self.machines.close_all()
         self.machine_threads.shutdown()
         for consumer in self._consumers:

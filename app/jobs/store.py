@@ -237,3 +237,33 @@ class JobStore:
     def jobs_on_machine(self, machine_id: str, statuses: tuple[str, ...]) -> list[str]:
         rows = self._run(select(Job.id).where(and_(Job.machine_id == machine_id, Job.status.in_(statuses))))
         return [r[0] for r in rows]
+
+    # compute jobs in processes (app.jobs.process_worker) ---------------------------------
+    def release(self, claim: Claim, message: str) -> bool:
+        """running -> queued for a job whose worker stops (not a crash): it runs again later."""
+        rows = self._run(
+            update(Job).where(self._owned(claim))
+            .values(status="queued", worker=None, lease_until=None, enqueued_at=None, message=message[:500],
+                    attempts=Job.attempts - 1, revision=Job.revision + 1)
+            .returning(Job.id))
+        return bool(rows)
+
+    def quarantine_lost_compute_jobs(self, compute_queue: str = "default", max_lost: int = 2) -> list[str]:
+        """Fail (quarantine) compute jobs whose lease expired for the ``max_lost``-th time.
+
+        A compute job's own crash is caught by its supervisor (the job runs in a child
+        process); a lease that expires means the supervising worker itself died.  Once is a
+        restart; twice, the job is suspected of taking its worker down, and it is failed with
+        the reason instead of being claimed again.  Run before :meth:`reap`.
+        """
+        rows = self._run(
+            update(Job)
+            .where(and_(Job.status == "running", Job.lease_until < time.time(), Job.queue == compute_queue,
+                        Job.attempts >= max_lost))
+            .values(
+                status="failed", finished_at=utcnow(), lease_until=None, revision=Job.revision + 1,
+                error={"type": "about:blank#quarantined", "title": "Job quarantined", "status": 500,
+                       "detail": f"its worker was lost {max_lost} times while running it; the job is "
+                                 "failed instead of being claimed again"})
+            .returning(Job.id))
+        return [r[0] for r in rows]

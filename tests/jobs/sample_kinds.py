@@ -36,3 +36,45 @@ class FailParams(JobParams):
 def run_fail(ctx: JobContext, params: FailParams) -> dict:
     """Fail with a domain error."""
     raise InvalidInput(params.message, field="params.message", value=params.message)
+
+
+class HogParams(JobParams):
+    mb: int = Field(100, ge=1, le=1_000_000)
+    hold_s: float = Field(0.0, ge=0, le=120)
+
+
+@job_kind("test_hog", HogParams)
+def run_hog(ctx: JobContext, params: HogParams) -> dict:
+    """Allocate and touch ``mb`` MiB in 16 MiB blocks (never reporting progress), then hold it."""
+    import numpy as np
+
+    blocks = [np.ones(2**21) for _ in range(max(1, params.mb // 16))]
+    time.sleep(params.hold_s)
+    return {"allocated_mb": 16 * len(blocks)}
+
+
+class CrashParams(JobParams):
+    signal: int = Field(9, ge=1, le=31)
+
+
+@job_kind("test_crash", CrashParams)
+def run_crash(ctx: JobContext, params: CrashParams) -> dict:
+    """Kill the process running the job with a signal (a segfault, the OOM killer...)."""
+    import os
+
+    os.kill(os.getpid(), params.signal)
+    time.sleep(10)
+    return {}
+
+
+class SpinParams(JobParams):
+    seconds: float = Field(30, ge=0, le=600)
+
+
+@job_kind("test_spin", SpinParams)
+def run_spin(ctx: JobContext, params: SpinParams) -> dict:
+    """Busy-loop without ever checking for cancel (a long native loop)."""
+    deadline = time.monotonic() + params.seconds
+    while time.monotonic() < deadline:
+        pass
+    return {}

@@ -1,7 +1,8 @@
 """Preprocessing of measured points as in the patent (seed S3, step 1b).
 
 1. bad-point removal: each point is compared with a least-squares cubic B-spline height
-   surface (net by GCV, leave-one-out residuals); points whose residual exceeds ``k_sigma`` robust standard
+   surface (net by GCV, leave-one-out residuals; above 2,000 points one surface per
+   k-d-tree neighbourhood tile of 600 points, so memory stays bounded); points whose residual exceeds ``k_sigma`` robust standard
    deviations (1.4826 MAD), and at least ``min_mm``, are removed and the surface refitted
    (dominant ones first, until stable).  A local quadratic through the nearest neighbours was tried first: its
    model error on steep, strongly curved parts (a cylinder's flanks) exceeded 10 um and
@@ -33,6 +34,7 @@ from scipy.interpolate import (
 
 from app.compensation.surface_fit.errors import SurfaceFitError
 from app.compensation.surface_fit.grid import HeightGrid
+from app.compensation.surface_fit.tiles import neighbourhood_tiles
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
 from app.geometry.tolerance import DEFAULT_TOLERANCE
@@ -45,6 +47,12 @@ __all__ = ["BadPointResult", "PointSpread", "check_point_spread", "find_bad_poin
 _MAD_TO_SIGMA = 1.4826
 _LINE_REL = 1e-9  # second/first singular value of the centred (x, y) below this: one line
 _ROUNDS = 30
+# Above TILE_ABOVE points the bad-point test runs per neighbourhood tile of TILE_CORE points
+# (a global dense fit needs k * k/3 * 8 bytes: 4 GB at 40,000 points), each tile's net at
+# most TILE_MAX_NET per direction (a tile is a small part of the region).
+TILE_ABOVE = 2000
+TILE_CORE = 600
+TILE_MAX_NET = 12
 _FILL_NEIGHBOURS = 40
 
 # five-point cubic smoothing (least-squares cubic through 5 consecutive samples)
@@ -164,20 +172,46 @@ def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float =
     pts = np.asarray(points, dtype=float)
     check_point_spread(pts, 2 * (degree + 1) ** 2, field=field)
     try:
+        if pts.shape[0] > TILE_ABOVE:
+            return _find_bad_points_tiled(pts, k_sigma, min_mm, degree)
         return _find_bad_points(pts, k_sigma, min_mm, degree)
     except np.linalg.LinAlgError as exc:
         raise _solve_failed(exc, "the bad-point height fit", field, pts.shape[0]) from None
 
 
+def _find_bad_points_tiled(pts: np.ndarray, k_sigma: float, min_mm: float,
+                           degree: int) -> BadPointResult:
+    """The same test per neighbourhood tile (:mod:`.tiles`): memory bounded by the tile,
+    time linear in the points.  A tile too degenerate to fit (its points on a line) keeps
+    its points.  threshold_mm: the largest cut of any tile."""
+    bad = np.zeros(pts.shape[0], dtype=bool)
+    deleted, threshold = np.zeros(pts.shape[0]), float(min_mm)
+    for tile in neighbourhood_tiles(pts[:, :2], TILE_CORE):
+        local = pts[tile.neighbourhood]
+        try:
+            check_point_spread(local, 2 * (degree + 1) ** 2, field="points")
+            result = _find_bad_points(local, k_sigma, min_mm, degree, max_net=TILE_MAX_NET)
+        except (SurfaceFitError, np.linalg.LinAlgError):
+            continue
+        judged = slice(0, tile.core.size)  # the core comes first in the neighbourhood
+        bad[tile.core] = result.bad[judged]
+        deleted[tile.core] = result.residual_mm[judged]
+        threshold = max(threshold, result.threshold_mm)
+    return BadPointResult(bad=bad, residual_mm=deleted, threshold_mm=threshold)
+
+
 def _find_bad_points(pts: np.ndarray, k_sigma: float, min_mm: float,
-                     degree: int) -> BadPointResult:
+                     degree: int, max_net: int | None = None) -> BadPointResult:
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     uv = (pts[:, :2] - lo) / np.maximum(hi - lo, 1e-12)
     bad = np.zeros(pts.shape[0], dtype=bool)
     deleted, threshold = np.zeros(pts.shape[0]), float(min_mm)
     for _ in range(_ROUNDS):
         kept = ~bad
-        size = choose_control_count(pts[kept], degree, 0.0, square_shape(int(kept.sum())))
+        shape = square_shape(int(kept.sum()))
+        if max_net is not None:
+            shape = (min(shape[0], max_net), min(shape[1], max_net))
+        size = choose_control_count(pts[kept], degree, 0.0, shape)
         design = _height_design(uv, size, degree)
         q, r = np.linalg.qr(design[kept])
         coef = np.linalg.solve(r, q.T @ pts[kept, 2])

@@ -45,6 +45,7 @@ from app.errors import InvalidInput
 from app.geometry.nurbs_surface import NurbsSurface
 from app.geometry.tolerance import DEFAULT_TOLERANCE
 from app.jobs.context import JobContext
+from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.kinds.surface_fit import fit_part_top
 from app.jobs.registry import JobParams, job_kind
@@ -246,7 +247,37 @@ def _surface(ctx: JobContext, params: FiveAxisJobParams, xy: np.ndarray) -> Chos
         "residual": {"max_mm": fit.residual_max_mm, "rms_mm": fit.residual_rms_mm}})
 
 
-@job_kind("five_axis", FiveAxisJobParams, check=_check, references=lambda p: [
+# Cost model: the interpolation keeps every servo sample (length / (feed T)) with its parameter,
+# position, derivatives and the quadrature of the feed fluctuation, ~SAMPLE_BYTES each; program
+# lines (length / segment_mm) with their contact, normal and angles ~LINE_BYTES each.
+SAMPLE_BYTES = 600.0
+SAMPLE_S = 20e-6
+LINE_BYTES = 2000.0
+LINE_S = 200e-6
+BASE_MB = 60.0
+
+
+def _estimate(params: FiveAxisJobParams, session: Session) -> Cost | None:
+    """Predicted memory and time from the trace length, the feed, the servo period and the
+    line spacing; names params.period_s (or params.segment_mm, params.feed_mm_min)."""
+    trace = session.get(Trace, params.trace_id)
+    if trace is None:
+        return None
+    feed = params.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN
+    samples = trace.length_mm / (feed / 60.0) / params.period_s
+    lines = trace.length_mm / params.segment_mm
+    sample_mb, line_mb = SAMPLE_BYTES * samples / 2**20, LINE_BYTES * lines / 2**20
+    if sample_mb >= line_mb:
+        field, value = (("params.period_s", params.period_s) if params.feed_mm_min is None
+                        or params.period_s < 1e-3 else ("params.feed_mm_min", params.feed_mm_min))
+    else:
+        field, value = "params.segment_mm", params.segment_mm
+    return Cost(memory_mb=BASE_MB + sample_mb + line_mb, time_s=SAMPLE_S * samples + LINE_S * lines,
+                field=field, value=value,
+                basis=f"{samples:,.0f} servo samples and {lines:,.0f} program lines over {trace.length_mm:g} mm")
+
+
+@job_kind("five_axis", FiveAxisJobParams, check=_check, estimate=_estimate, references=lambda p: [
     ("part", p.part_id), ("trace", p.trace_id), *([("job", p.surface_fit_job_id)] if p.surface_fit_job_id else []),
     *([("machine", p.machine_id)] if p.machine_id else [])])
 def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:

@@ -40,6 +40,7 @@ from app.compensation.jetting import (
     target_from_spec,
 )
 from app.jobs.context import JobContext
+from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
 from app.models import Artifact, Job, Part
 from app.slicing import SlicingError
@@ -365,14 +366,34 @@ def target_references(spec: TargetParams) -> list[tuple[str, str]]:
 
 # the job -------------------------------------------------------------------------------
 def _check(params: JettingJobParams, session: Session) -> None:
-    check_target(params.target, params.core(), session)
+    session.info["jetting_grid"] = check_target(params.target, params.core(), session)
+
+
+# Time model: a layer costs ~CELL_LAYER_S per cell and horizon step (FISTA solve, flow sub-steps,
+# greedy flips; FIELD_NOTES: 118 x 118, m = 1 in 5-7 ms); memory is the core's estimate_bytes.
+CELL_LAYER_S = 2e-6
+
+
+def _estimate(params: JettingJobParams, session: Session) -> Cost | None:
+    """Predicted memory (the core's own estimate) and time of the run; names params.dpi
+    (or params.layers when the layer count is what makes it long)."""
+    shape = session.info.get("jetting_grid")
+    if shape is None:
+        return None
+    core = params.core()
+    cells = int(shape[0]) * int(shape[1])
+    seconds = CELL_LAYER_S * cells * params.layers * params.horizon * (1 + params.flow_steps / 10)
+    field, value = ("params.layers", params.layers) if params.layers > 1000 else ("params.dpi", params.dpi)
+    return Cost(memory_mb=estimate_bytes(tuple(shape), core) / 2**20, time_s=seconds, field=field, value=value,
+                basis=f"a {shape[0]} x {shape[1]} grid for {params.layers} layers")
 
 
 def npz_meta(**shapes: object) -> dict:
     return {"format": "npz", "arrays": shapes}
 
 
-@job_kind("jetting", JettingJobParams, references=lambda p: target_references(p.target), check=_check)
+@job_kind("jetting", JettingJobParams, references=lambda p: target_references(p.target), check=_check,
+          estimate=_estimate)
 def run(ctx: JobContext, params: JettingJobParams) -> dict:
     """Simulate droplet jetting layer by layer (open loop or the seed's MPC) and measure the surface."""
     core = params.core()

@@ -17,6 +17,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session
 
+from app.array_files import load_npz
 from app.compensation.jetting import (
     JettingError,
     next_layer,
@@ -146,7 +147,9 @@ def measured_heights_mm(ctx: JobContext, measured: MeasuredSource) -> tuple[np.n
     if measured.heights_um is not None:
         return np.asarray(measured.heights_um, dtype=float) / UM_PER_MM, None
     if measured.file_id is not None:
-        arrays = npz_arrays(ctx.file_bytes(measured.file_id, field="params.measured.file_id"))
+        # an upload: inflated under a hard cap, whatever its zip directory says
+        arrays = load_npz(ctx.file_bytes(measured.file_id, field="params.measured.file_id"),
+                          int(ctx.runtime.settings.max_upload_mb * 2**20), field="params.measured.file_id")
         if arrays.get("heights") is not None and arrays["heights"].ndim == 2:
             return np.asarray(arrays["heights"], dtype=float), None
     else:

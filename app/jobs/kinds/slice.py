@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
 from app.jobs.context import JobContext
+from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
 from app.models import Part
 from app.records import get_or_404
@@ -189,7 +190,33 @@ def _layer_row(layer, beam_offset_mm: float | None) -> dict:
     return row
 
 
-@job_kind("slice", SliceJobParams, references=lambda p: [("part", p.part_id)], check=_check)
+# Cost model: every layer holds its contours (a ring crosses ~sqrt(faces) facets) and their
+# SLC / CLI / JSON text, ~LAYER_VERTEX_BYTES per vertex; the mesh itself ~FACE_BYTES per face
+# (trimesh caches, the vectorised slicer's edge arrays).  Adaptive modes are counted at their
+# thinnest layer (the worst case).
+LAYER_VERTEX_BYTES = 400.0
+LAYER_S = 2e-3
+FACE_BYTES = 600.0
+BASE_MB = 60.0
+
+
+def _estimate(params: SliceJobParams, session: Session) -> Cost | None:
+    """Predicted memory and time from the part's height and faces and the layer thickness;
+    names params.layer_mm (uniform) or params.l_min (adaptive)."""
+    part = session.get(Part, params.part_id)
+    if part is None:
+        return None
+    height = float(part.bounds[1][2] - part.bounds[0][2])
+    field, thickness = (("params.layer_mm", params.layer_mm) if params.mode == "uniform"
+                        else ("params.l_min", params.l_min))
+    layers = math.ceil(max(height, 0.0) / thickness) + 1
+    vertices = 8 * math.sqrt(max(part.faces, 1))
+    memory = BASE_MB + (FACE_BYTES * part.faces + LAYER_VERTEX_BYTES * vertices * layers) / 2**20
+    return Cost(memory_mb=memory, time_s=LAYER_S * layers * (1 + vertices / 1000), field=field, value=thickness,
+                basis=f"{layers:,} layers of ~{vertices:,.0f} contour vertices, {part.faces:,} faces")
+
+
+@job_kind("slice", SliceJobParams, references=lambda p: [("part", p.part_id)], check=_check, estimate=_estimate)
 def run(ctx: JobContext, params: SliceJobParams) -> dict:
     """Slice a part into layers (uniform, S4 area / multi-cavity adaptive, or cusp) and export them."""
     mesh = ctx.mesh(params.part_id)

@@ -40,6 +40,7 @@ from app.compensation.surface_fit import (
 )
 from app.geometry.drape import top_surface_z
 from app.jobs.context import JobContext
+from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
 from app.models import Part
 from app.records import get_or_404
@@ -258,7 +259,56 @@ def _json_z(values: np.ndarray) -> list[float | None]:
     return [float(v) if np.isfinite(v) else None for v in values]
 
 
-@job_kind("surface_fit", SurfaceFitJobParams, references=lambda p: [("part", p.part_id)], check=_check)
+# Cost model (MiB, s), calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py):
+# the sparse least-squares solve of N unknowns peaked at 468 MiB / 61 s for N = 40,000 (net
+# 200 x 200), 132 MiB / 5 s at 14,400 -> FIT_MB * N^1.5, FIT_S * N^1.5; each fitted point (design
+# rows, surface inversion for the residuals) ~2 KiB; the bad-point test per 600-point tile
+# ~2.5 ms per point on a loaded 2-core machine (40,000 points: 98 s), ~65 MiB whatever the
+# count; the GCV net search repeats the fit for every net size up to about sqrt(points / 3)
+# per direction.
+FIT_MB_PER_N15 = 6e-5
+FIT_S_PER_N15 = 8e-6
+POINT_MB = 2 / 1024
+BAD_POINT_S = 2.5e-3
+BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh process
+
+
+def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:
+    """Predicted peak memory and time of the fit (see the model above), naming the parameter
+    that drives it: the grid, the point count, the densification or the control net."""
+    measured = (len(params.points) if params.points is not None
+                else params.points_csv.count("\n") + 1 if params.points_csv is not None
+                else params.grid[0] * params.grid[1])
+    grid_fitted = not params.has_points or params.resample_to_grid
+    fitted = (math.prod((n - 1) * params.densify_factor + 1 for n in params.grid) if grid_fitted else measured)
+    if params.method == "interpolate":
+        unknowns, searched = 0, 0
+    elif params.control_points is not None:
+        unknowns, searched = math.prod(params.control_points), 0
+    else:  # GCV: about a quarter of the sizes up to fitted/3 are tried, each a full fit
+        unknowns = fitted / 3
+        searched = int(math.sqrt(unknowns))
+    fit_mb, fit_s = FIT_MB_PER_N15 * unknowns**1.5, FIT_S_PER_N15 * unknowns**1.5
+    point_mb = POINT_MB * fitted
+    terms = {  # field -> (memory, time) it brings
+        params.points_field if params.has_points else "params.grid": (POINT_MB * measured,
+                                                                      BAD_POINT_S * measured),
+        "params.densify_factor": (point_mb - POINT_MB * measured if grid_fitted else 0.0, 0.0),
+        "params.control_points": (fit_mb, fit_s * max(1, searched // 4)),
+    }
+    field = max(terms, key=lambda f: terms[f])
+    if field == "params.control_points" and params.control_points is None:  # the searched nets grow with
+        field = "params.densify_factor" if grid_fitted and params.densify_factor > 1 else "params.grid"  # the data
+    value = {"params.grid": params.grid, "params.densify_factor": params.densify_factor,
+             "params.control_points": params.control_points}.get(field, measured)
+    memory = BASE_MB + point_mb + fit_mb + (POINT_MB * measured if params.remove_bad_points else 0.0)
+    seconds = sum(t for _, t in terms.values())
+    return Cost(memory_mb=memory, time_s=seconds, field=field, value=value,
+                basis=f"{measured} measured points, {fitted} fitted, {int(unknowns)} unknowns")
+
+
+@job_kind("surface_fit", SurfaceFitJobParams, references=lambda p: [("part", p.part_id)], check=_check,
+          estimate=_estimate)
 def run(ctx: JobContext, params: SurfaceFitJobParams) -> dict:
     """Fit a NURBS surface to measured points or the sampled nominal grid of a part region."""
     mesh = ctx.mesh(params.part_id)

@@ -21,9 +21,10 @@ from app.gcode.estimator import MachineLimits, estimate_gcode
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_gcode
 from app.gcode.placement import MachineVolume, Placement, check_inside, placement_shift
 from app.jobs.context import JobContext
+from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
-from app.models import Job, Machine
+from app.models import Job, Machine, Part
 from app.records import get_or_404
 from app.slicing import SlicingError, ToolpathParams, plan_toolpath
 from app.slicing.export import from_json
@@ -205,7 +206,45 @@ def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
     return [("job", params.slice_job_id)] + ([("machine", params.machine_id)] if params.machine_id else [])
 
 
-@job_kind("toolpath", ToolpathJobParams, references=_references, check=_check)
+# Cost model, calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py): the
+# fractal fills build a grid of cells at the pitch line_width / infill over each layer's
+# footprint; hilbert_merged peaked at ~440 bytes and 40-80 us per cell (0.1 mm: 160,000 cells,
+# 71 MiB, 5.8 s; 0.05 mm: 640,000 cells, 279 MiB, 51 s); plain hilbert ~360 bytes, 70 us.  The
+# scan-line fills keep ~2 vertices per line at ~300 bytes and ~50 us each, all layers held.
+CELL_BYTES = 500.0
+CELL_S = 80e-6
+LINE_VERTEX_BYTES = 300.0
+LINE_VERTEX_S = 50e-6
+BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh process
+
+
+def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
+    """Predicted peak memory and time of the fill from the slice job's layers and the part's
+    footprint; names params.line_width_mm (or params.infill when that is what shrinks the pitch)."""
+    job = session.get(Job, params.slice_job_id)
+    part = session.get(Part, (job.params or {}).get("part_id")) if job is not None else None
+    if job is None or part is None or not job.result:
+        return None
+    (x0, y0, _), (x1, y1, _) = part.bounds
+    pitch = params.line_width_mm / params.infill
+    layers = max(1, int(job.result.get("layer_count", 1)))
+    cols, rows = (x1 - x0) / pitch + 2, (y1 - y0) / pitch + 2
+    if params.pattern in ("hilbert", "hilbert_merged"):
+        cells = cols * rows
+        memory_mb = BASE_MB + CELL_BYTES * cells / 2**20
+        seconds = CELL_S * cells * layers
+        basis = f"{cells:,.0f} fill cells per layer at pitch {pitch:g} mm, {layers} layers"
+    else:  # scan lines (or contour rings) across the larger side, both ends a vertex
+        vertices = 2 * max(cols, rows) * layers * (1 + params.perimeters)
+        memory_mb = BASE_MB + LINE_VERTEX_BYTES * vertices / 2**20
+        seconds = LINE_VERTEX_S * vertices
+        basis = f"{vertices:,.0f} path vertices at pitch {pitch:g} mm, {layers} layers"
+    field, value = (("params.infill", params.infill) if params.infill < 0.5
+                    else ("params.line_width_mm", params.line_width_mm))
+    return Cost(memory_mb=memory_mb, time_s=seconds, field=field, value=value, basis=basis)
+
+
+@job_kind("toolpath", ToolpathJobParams, references=_references, check=_check, estimate=_estimate)
 def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
     slice_job = ctx.job(params.slice_job_id, kind="slice", field="params.slice_job_id")

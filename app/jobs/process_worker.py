@@ -1,0 +1,209 @@
+"""Compute jobs in processes of their own: supervised, limited, killed hard, quarantined.
+
+The process that owns the serial ports (``conforma serve``) must survive whatever a
+compute job does.  So a worker thread of the ``default`` queue (in ``serve`` or in a
+``conforma worker``) claims the job and then only *supervises* it: the job runs in a child
+process (:mod:`app.jobs.compute_child`) with a memory limit, while the thread
+
+* renews the job's lease and polls its cancel flag every ``POLL_S`` (0.1 s): a cancel is
+  a ``SIGKILL`` of the child, recorded as ``cancelled`` well within 1 s, whatever loop the
+  job is in;
+* kills the child after ``CONFORMA_JOB_TIME_S`` wall-clock seconds (failed, with the limit);
+* when the child dies without recording an outcome (a signal: the OOM killer, a segfault,
+  an abort in native code), **quarantines** the job: failed with the reason, never re-claimed;
+* when its own runtime stops, kills the child and puts the job back in the queue
+  (``released``), so that a normal restart runs it again.
+
+Machine and workflow jobs stay in threads of the ``serve`` process (they need its ports).
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import pkgutil
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING
+
+from sqlalchemy import select
+
+from app.jobs.compute_child import run_child
+from app.jobs.store import Claim, JobStore
+from app.models import Job
+from app.errors import Cancelled
+from app.problems import from_error, problem
+
+if TYPE_CHECKING:
+    from app.jobs.runtime import Runtime
+
+log = logging.getLogger("conforma.jobs.process")
+POLL_S = 0.1
+KILL_WAIT_S = 5.0
+# Imported once by the fork server, so that every child starts with the compute core loaded.
+PRELOAD = ["app.jobs.compute_child"]
+_context_lock = threading.Lock()
+_context: multiprocessing.context.BaseContext | None = None
+
+
+def _mp_context() -> multiprocessing.context.BaseContext:
+    """The forkserver context (started once per process, preloading the compute core)."""
+    global _context
+    with _context_lock:
+        if _context is None:
+            import app.jobs.kinds as kinds_package
+
+            context = multiprocessing.get_context("forkserver")
+            kinds = [f"{kinds_package.__name__}.{info.name}" for info in pkgutil.iter_modules(kinds_package.__path__)]
+            context.set_forkserver_preload(PRELOAD + kinds)
+            _context = context
+        return _context
+
+
+def _signal_name(exitcode: int) -> str:
+    try:
+        return signal.Signals(-exitcode).name
+    except ValueError:
+        return f"signal {-exitcode}"
+
+
+def quarantine_problem(exitcode: int) -> dict:
+    """The error recorded for a job whose process died without reporting an outcome."""
+    how = (f"was killed by {_signal_name(exitcode)}" if exitcode < 0 else f"exited with status {exitcode}")
+    hint = " (the kernel's OOM killer sends SIGKILL: the job likely ran out of memory)" if exitcode == -9 else ""
+    return problem(500, "Job process crashed",
+                   f"the job's process {how}{hint}; the job is quarantined (failed, not retried) so that it "
+                   "cannot take a worker down again")
+
+
+def time_limit_problem(limit_s: float) -> dict:
+    return problem(422, "Job exceeded its time limit",
+                   f"the job ran longer than its limit of {limit_s:g} s (CONFORMA_JOB_TIME_S) and was killed; "
+                   "reduce its parameters")
+
+
+@contextmanager
+def _lease_kept(store: JobStore, claim: Claim, every_s: float) -> Iterator[None]:
+    """Renew ``claim``'s lease from a thread while the body blocks."""
+    done = threading.Event()
+
+    def renew() -> None:
+        while not done.wait(every_s):
+            store.heartbeat(claim)
+
+    thread = threading.Thread(target=renew, daemon=True, name=f"lease-{claim.job_id}")
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
+def warm_up() -> None:
+    """Start the fork server now (it imports the compute core: seconds), not at the first job."""
+    _mp_context().Process(target=_noop).start()
+
+
+def _noop() -> None:
+    return None
+
+
+class ProcessSupervisor:
+    """Runs claimed compute jobs in child processes for one :class:`Runtime`."""
+
+    def __init__(self, runtime: "Runtime") -> None:
+        self.runtime = runtime
+        self.settings = runtime.settings
+        self.stopping = threading.Event()
+        self._idle = threading.Condition()
+        self._active = 0
+
+    def _cancel_requested(self, job_id: str) -> bool:
+        with self.runtime.engine.connect() as conn:
+            return bool(conn.execute(select(Job.cancel_requested).where(Job.id == job_id)).scalar())
+
+    def run(self, claim: Claim) -> None:
+        """Run ``claim``'s job in a child process and see it to an outcome (blocks)."""
+        with self._idle:
+            self._active += 1
+        try:
+            self._supervise(claim)
+        finally:
+            with self._idle:
+                self._active -= 1
+                self._idle.notify_all()
+
+    def _supervise(self, claim: Claim) -> None:
+        store = self.runtime.store
+        child = _mp_context().Process(target=run_child, args=(self.settings, claim),
+                                      name=f"conforma-job-{claim.job_id}")
+        try:
+            with _lease_kept(store, claim, self.settings.lease_s / 3):
+                child.start()  # the first start waits for the fork server to import the compute core
+        except Exception as exc:  # no process, no job: say so rather than leave it running
+            log.exception("could not start a process for job %s", claim.job_id)
+            store.finish(claim, "failed", error=problem(500, "Job could not start", f"{type(exc).__name__}: {exc}"[:500]))
+            return
+        started = time.monotonic()
+        renew_every = self.settings.lease_s / 3
+        renewed = started
+        verdict: str | None = None  # why the supervisor ended it: cancel, time, lost, stop
+        while verdict is None:
+            child.join(POLL_S)
+            if child.exitcode is not None:
+                break
+            try:
+                verdict = self._verdict(claim, started, renewed)
+            except Exception:  # a database hiccup must not leave the child unwatched: ask again
+                log.exception("supervising job %s", claim.job_id)
+                continue
+            if verdict is None and time.monotonic() - renewed >= renew_every:
+                renewed = time.monotonic()
+        if verdict is not None:
+            child.kill()
+            child.join(KILL_WAIT_S)
+        exitcode = child.exitcode
+        if exitcode is not None:
+            child.close()
+        self._record(claim, verdict, exitcode)
+
+    def _verdict(self, claim: Claim, started: float, renewed: float) -> str | None:
+        """Why the running child must end now (stop, time, cancel, lost), or None; renews
+        the lease when it is due."""
+        now = time.monotonic()
+        if self.stopping.is_set():
+            return "stop"
+        if now - started > self.settings.job_time_s:
+            return "time"
+        if self._cancel_requested(claim.job_id):
+            return "cancel"
+        if now - renewed >= self.settings.lease_s / 3 and self.runtime.store.heartbeat(claim) is None:
+            return "lost"
+        return None
+
+    def _record(self, claim: Claim, verdict: str | None, exitcode: int | None) -> None:
+        """The outcome the child could not record itself (each transition is conditional on
+        ``claim`` still owning a running job, so a result the child wrote first stands)."""
+        store = self.runtime.store
+        if verdict == "cancel":
+            cancelled = Cancelled("the job was cancelled (its process was killed)", field="job_id", value=claim.job_id)
+            store.finish(claim, "cancelled", error=from_error(cancelled))
+        elif verdict == "time":
+            store.finish(claim, "failed", error=time_limit_problem(self.settings.job_time_s))
+        elif verdict == "stop":
+            store.release(claim, "released by a stopping worker")
+        elif verdict is None and exitcode not in (0, None):
+            if store.finish(claim, "failed", error=quarantine_problem(exitcode)):
+                log.warning("job %s (%s) quarantined: its process ended with %s", claim.job_id, claim.kind, exitcode)
+        elif verdict is None:  # exited cleanly without an outcome: a bug, not a retry
+            store.finish(claim, "failed", error=problem(500, "Job crashed", "the job's process ended without a result"))
+
+    def stop(self, timeout_s: float = 3.0) -> None:
+        """Kill running children and wait (up to ``timeout_s``) until their jobs are released."""
+        self.stopping.set()
+        with self._idle:
+            self._idle.wait_for(lambda: self._active == 0, timeout_s)

@@ -1,0 +1,125 @@
+"""Compute jobs in child processes: memory and time limits, hard cancel, crash quarantine,
+and a print on the mock (in the serve process) that none of it can stop."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from app.db import migrate
+from app.jobs.runtime import Runtime
+from tests.api.test_machines import program_text, register, upload_program
+from tests.conftest import auth
+from tests.jobs.test_jobs_api import wait_for
+
+OP = auth("operator")
+
+
+def submit(client, kind: str, **params) -> dict:
+    response = client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
+    assert response.status_code == 202, response.text
+    return response.json()
+
+
+@pytest.fixture
+def limited_client(settings_factory):
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+
+    settings = settings_factory(job_memory_mb=256, job_time_s=2.0)
+    with TestClient(create_app(settings), raise_server_exceptions=False) as client:
+        yield client
+
+
+def test_out_of_memory_and_crashing_jobs_fail_alone_while_a_print_runs_to_its_last_line(limited_client):
+    client = limited_client
+    machine = register(client, time_scale=1.0).json()
+    assert client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP).json()["state"] == "idle"
+    program = upload_program(client, program_text(300)).json()
+    printing = client.post(f"/api/v1/machines/{machine['id']}/print", json={"program_id": program["id"]},
+                           headers=OP).json()
+    wait_for(client, printing["id"], states=("running",))
+    hog = submit(client, "test_hog", mb=4096)  # 16x its 256 MiB budget
+    crash = submit(client, "test_crash", signal=9)  # as the OOM killer would
+    hog_done, crash_done = wait_for(client, hog["id"]), wait_for(client, crash["id"])
+    # both ended while the print was still streaming...
+    assert client.get(f"/api/v1/jobs/{printing['id']}", headers=OP).json()["status"] == "running"
+    assert hog_done["status"] == "failed" and hog_done["error"]["title"] == "Job exceeded its memory limit"
+    assert "256 MiB" in hog_done["error"]["detail"]
+    assert crash_done["status"] == "failed" and "SIGKILL" in crash_done["error"]["detail"]
+    # ...and the print ran to its last line, every command exactly once
+    done = wait_for(client, printing["id"], timeout=60)
+    assert done["status"] == "succeeded", done["error"]
+    status = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()
+    assert status["mock"]["executed_commands"] == program["commands"]
+    assert status["mock"]["executed_sha256"] == program["commands_sha256"]
+
+
+def test_cancel_kills_a_loop_that_never_checks_within_a_second(client):
+    job = submit(client, "test_spin", seconds=60)
+    wait_for(client, job["id"], states=("running",))
+    time.sleep(0.3)  # well inside the loop
+    asked = time.monotonic()
+    assert client.post(f"/api/v1/jobs/{job['id']}/cancel", headers=OP).status_code == 202
+    done = wait_for(client, job["id"], timeout=5)
+    assert done["status"] == "cancelled"
+    assert time.monotonic() - asked < 1.0
+
+
+def test_a_job_past_its_time_limit_is_killed_and_failed(limited_client):
+    job = submit(limited_client, "test_spin", seconds=60)
+    done = wait_for(limited_client, job["id"], timeout=10)
+    assert done["status"] == "failed" and done["error"]["title"] == "Job exceeded its time limit"
+    assert "2 s" in done["error"]["detail"]
+
+
+def test_a_job_that_kills_its_process_is_quarantined_after_one_crash(client):
+    job = submit(client, "test_crash", signal=11)
+    done = wait_for(client, job["id"])
+    assert done["status"] == "failed" and done["attempts"] == 1
+    assert "SIGSEGV" in done["error"]["detail"] and "quarantined" in done["error"]["detail"]
+    time.sleep(1.0)  # five reaper passes (reaper_interval_s 0.2): never claimed again
+    again = client.get(f"/api/v1/jobs/{job['id']}", headers=OP).json()
+    assert again["status"] == "failed" and again["attempts"] == 1
+
+
+@pytest.fixture
+def runtime(settings_factory):
+    settings = settings_factory(lease_s=1.0, max_attempts=5)
+    migrate(settings)
+    runtime = Runtime(settings)
+    yield runtime
+    runtime.stop()
+
+
+def test_a_compute_job_whose_worker_is_lost_twice_is_quarantined(runtime):
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    runtime.store.claim(job.id, "dead-worker-1")
+    time.sleep(1.1)
+    assert runtime.store.quarantine_lost_compute_jobs() == []  # once: a restart, requeued
+    assert job.id in runtime.store.reap(stale_enqueue_s=60)
+    assert runtime.store.claim(job.id, "dead-worker-2").attempt == 2
+    time.sleep(1.1)
+    assert runtime.store.quarantine_lost_compute_jobs() == [job.id]  # twice: suspected, not re-claimed
+    runtime.store.reap(stale_enqueue_s=60)
+    assert runtime.store.status(job.id)[0] == "failed"
+    assert runtime.store.claim(job.id, "w3") is None
+
+
+def test_a_stopping_worker_kills_its_child_and_puts_the_job_back(runtime):
+    job = runtime.submit("test_spin", {"seconds": 60})
+    runtime.start_workers(("default",))
+    deadline = time.monotonic() + 20
+    while runtime.store.status(job.id)[0] != "running":
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    runtime.stop()
+    from sqlmodel import Session
+
+    from app.models import Job
+
+    with Session(runtime.engine) as session:
+        row = session.get(Job, job.id)
+    assert row.status == "queued" and row.attempts == 0 and row.message == "released by a stopping worker"
