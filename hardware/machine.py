@@ -51,10 +51,11 @@ from collections import deque
 from collections.abc import Callable, Iterable
 
 from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
-                     MachineBusy, MachineStateError, ProbeFailed)
-from .events import Capability, FirmwareInfo, PositionReport, ProbeReport, StartBanner
+                     MachineBusy, MachineStateError)
+from .events import Capability, FirmwareInfo, PositionReport, StartBanner
 from .link import CommandResult, Link, PendingCommand
 from .machine_grbl import GrblOperations
+from .machine_probe import ProbeOperations
 from .machine_resume import ResumeOperations
 from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
                             _Interrupted)
@@ -64,7 +65,7 @@ STATUS_POLL_S = 0.25  # grbl: a status report this often while streaming
 
 __all__ = ["STATES", "Identity", "Machine", "MachineProfile", "ProbeResult", "StreamReport"]
 
-class Machine(GrblOperations, ResumeOperations):
+class Machine(GrblOperations, ResumeOperations, ProbeOperations):
     """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
     for a second caller); pause/resume/cancel/stop/status work from any thread."""
 
@@ -258,55 +259,6 @@ class Machine(GrblOperations, ResumeOperations):
         if not isinstance(report, PositionReport):
             raise FirmwareError("M114 returned no position", command="M114")
         return (report.axes.get("X", 0.0), report.axes.get("Y", 0.0), report.axes.get("Z", 0.0))
-
-    def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
-              feed_mm_min: float | None = None) -> ProbeResult:
-        """Travel to (x, y) at ``z_start`` (default clearance), probe down to ``z_min``,
-        retract; ``ProbeFailed`` when nothing is hit (the machine is left idle, unlocked
-        and retracted)."""
-        p = self.profile
-        z_start = p.clearance_z if z_start is None else z_start
-        z_min = p.probe_z_min if z_min is None else z_min
-        feed = feed_mm_min or p.probe_feed_mm_min
-        if z_min >= z_start:
-            raise InvalidConfig("z_min must be below z_start", field="z_min", value=z_min)
-        kind = p.probe_command or ("G30" if self.dialect == "marlin" else "G38.2")
-        travel = p.travel_feed_mm_min
-        self._claim("busy")
-        try:
-            self._run(["G90", f"G1 Z{z_start:.4f} F{travel:.1f}",
-                       f"G1 X{x:.4f} Y{y:.4f} F{travel:.1f}"])
-            command = f"G30 X{x:.4f} Y{y:.4f}" if kind == "G30" else f"G38.2 Z{z_min:.4f} F{feed:.1f}"
-            try:
-                result = self.link.send(command, self.timeout_s * 10)
-            except FirmwareError as exc:
-                self._recover_after_probe(z_start)
-                if any(line.strip() == "ALARM:4" for line in exc.reply_lines):
-                    raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) was already triggered "
-                                      "before it moved (grbl ALARM:4): check the probe",
-                                      x=x, y=y, field="probe", value=[x, y],
-                                      reason="triggered_before_motion") from exc
-                raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
-                                  f"z={z_min:.3f}: {exc.message}", x=x, y=y, field="probe",
-                                  value=[x, y]) from exc
-            if kind == "G30" or self.dialect == "grbl":
-                report = result.payload  # "Bed X: .. Y: .. Z: .." / "[PRB:x,y,z:1]"
-            else:  # Marlin G38.2 prints nothing: it stopped at the contact point
-                report = ProbeReport(*self._position())
-            if not isinstance(report, ProbeReport) or not report.triggered or report.z < z_min:
-                self._recover_after_probe(z_start)
-                raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
-                                  f"z={z_min:.3f}", x=x, y=y, field="probe", value=[x, y])
-            self._run([f"G1 Z{z_start:.4f} F{travel:.1f}", self._wait_motion()])
-            return ProbeResult(report.x, report.y, report.z)
-        finally:
-            self._release()
-
-    def _recover_after_probe(self, z_start: float) -> None:
-        if self.dialect == "grbl":
-            self.link.send("$X", self.timeout_s)
-        self._run([f"G1 Z{z_start:.4f} F{self.profile.travel_feed_mm_min:.1f}",
-                   self._wait_motion()])
 
     # ------------------------------------------------------------------ programs
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
