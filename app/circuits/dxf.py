@@ -87,16 +87,18 @@ def _ellipse(e, scale: float) -> NurbsCurve:
     return NurbsCurve(spline.degree, np.asarray(spline.knots(), float), pts, np.asarray(spline.weights(), float))
 
 
-def _entities(layout, parent_layer: str | None = None):
-    """(entity, effective layer) for every drawable entity, block references expanded (nested)."""
+def _entities(layout, parent_layer: str | None = None, path: str = ""):
+    """(entity, effective layer, its INSERT path) for every drawable entity, block references
+    expanded (nested, each with its transform)."""
     for e in layout:
         layer = e.dxf.get("layer", "0")
         if parent_layer is not None and layer == "0":
             layer = parent_layer
         if e.dxftype() == "INSERT":
-            yield from _entities(e.virtual_entities(), layer)
+            label = f"{path}INSERT {e.dxf.get('name', '?')} #{e.dxf.get('handle') or '-'} > "
+            yield from _entities(e.virtual_entities(), layer, label)
         else:
-            yield e, layer
+            yield e, layer, path
 
 
 def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
@@ -117,18 +119,19 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
     if code == 0:
         out.notes.append("$INSUNITS is 0 (unitless): read as mm")
     items = list(_entities(doc.modelspace()))
-    present = sorted({layer for _, layer in items})
+    present = sorted({layer for _, layer, _ in items})
     out.layers = tuple(present)
     if layers:
         missing = [lay for lay in layers if lay not in present]
         if missing:
             raise CircuitFileError(f"layer {missing[0]!r} has no entities (the drawing's layers: {', '.join(present)})",
                                    file=name, where=f"layer {missing[0]}", field="layers")
-    for e, layer in items:
+    for e, layer, path in items:
         if layers and layer not in layers:
             continue
         kind = e.dxftype()
-        entity = f"{kind} #{e.dxf.get('handle', '?')} on layer {layer}"
+        handle = e.dxf.get("handle") or "-"
+        entity = f"{path}{kind} #{handle} on layer {layer}"
         try:
             if kind == "LINE":
                 p0, p1 = _xy(e.dxf.start, scale), _xy(e.dxf.end, scale)
