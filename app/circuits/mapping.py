@@ -76,8 +76,25 @@ class MappedLayout:
     warnings: list[dict] = field(default_factory=list)
 
 
+def _distinct(points: np.ndarray, min_gap_mm: float = 1e-5) -> np.ndarray:
+    """Drop points closer than ``min_gap_mm`` to their predecessor (the last point is kept)."""
+    gap = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    keep = np.concatenate([[True], gap > min_gap_mm])
+    if not keep[-1]:                       # the end is exact: it replaces its near-duplicate predecessor
+        kept = np.flatnonzero(keep)
+        keep[-1] = True
+        if len(kept) > 1:
+            keep[kept[-1]] = False
+    return points[keep]
+
+
 def _layout_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
-    """Layout points (k, 2): the curve's chord-verified CL points plus one every step_mm."""
+    """Layout points (k, 2): the curve's chord-verified CL points plus one every step_mm
+    (consecutive points at least 10 nm apart)."""
+    return _distinct(_raw_samples(trace, opts))
+
+
+def _raw_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
     curve = trace.curve
     if curve.degree == 1:                          # straight spans: exact at the breakpoints, then every step
         pts = curve.control_points
