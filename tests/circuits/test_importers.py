@@ -68,6 +68,10 @@ KICAD = """(kicad_pcb (version 20221018) (generator pcbnew)
   (segment (start 10 10) (end 30 10) (width 0.25) (layer "F.Cu") (net 1))
   (segment (start 0 0) (end 3 4) (width 0.5) (layer "B.Cu") (net 2))
   (arc (start 30 10) (mid 35 5) (end 30 0) (width 0.3) (layer "F.Cu") (net 2))
+  (zone (net 1) (net_name "VCC") (layer "F.Cu") (hatch edge 0.5)
+    (connect_pads (clearance 0.5)) (min_thickness 0.25)
+    (fill yes (thermal_gap 0.5) (thermal_bridge_width 0.5))
+    (polygon (pts (xy 40 0) (xy 50 0) (xy 50 5) (xy 40 5))))
 )
 """
 
@@ -115,6 +119,10 @@ def test_kicad_tracks_pads_nets_and_layer_with_y_flipped():
     # the rect pad 1.2 x 1.4 turned 90 deg: 1.4 wide in x, 1.2 in y
     np.testing.assert_allclose(p1.exterior.max(0) - p1.exterior.min(0), [1.4, 1.2], atol=UM)
     assert p1.source.net == "VCC" and p1.name == "R1.1"
+    (zone,) = layout.areas                     # a copper pour (its outline: the file has no fill)
+    assert zone.source.net == "VCC"
+    np.testing.assert_allclose(zone.exterior.min(0), [40, -5], atol=UM)
+    np.testing.assert_allclose(zone.exterior.max(0), [50, 0], atol=UM)
     back = read_layout(KICAD.encode(), "board.kicad_pcb", layers=["B.Cu"])
     assert len(back.traces) == 1 and back.traces[0].curve.length == pytest.approx(5.0, abs=UM)
 
