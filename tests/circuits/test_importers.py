@@ -97,6 +97,12 @@ def test_gerber_inch_draws_arcs_flashes_and_regions_in_exact_mm():
     np.testing.assert_allclose(area.exterior.max(0), [25.4, 76.2], atol=UM)
 
 
+def test_gerber_x2_net_attributes_become_nets():
+    text = GERBER_INCH.replace("D10*\nG01*\n", "D10*\nG01*\n%TO.N,VCC*%\n", 1).replace("G75*", "%TD*%\nG75*")
+    layout = read_layout(text.encode(), "top.gbr")
+    assert [t.source.net for t in layout.traces] == ["VCC", ""]
+
+
 def test_excellon_hits_are_round_pads_of_their_tool():
     layout = read_layout(EXCELLON_MM.encode(), "holes.drl")
     assert [p.center.tolist() for p in layout.pads] == [[10, 5], [12.5, 5], [20, 7.5]]
