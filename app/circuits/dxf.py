@@ -1,4 +1,4 @@
-"""DXF drawings (ezdxf): LINE, ARC, CIRCLE, LWPOLYLINE (with bulges), SPLINE (exact NURBS),
+"""DXF drawings (ezdxf): LINE, ARC, CIRCLE, LWPOLYLINE and 2-D POLYLINE (with bulges), SPLINE (exact NURBS),
 ELLIPSE (exact rational spline) and blocks placed by INSERT (nested, with their transforms).
 
 Units come from the header's ``$INSUNITS`` (inch = 25.4 mm exactly; unitless files are read
@@ -43,13 +43,24 @@ def _width(entity, scale: float) -> float:
 
 
 def _lwpolyline(e, scale: float) -> NurbsCurve | None:
+    raw = [(x, y, b) for x, y, *_, b in e.get_points("xyseb")]
+    return _bulge_path(e, raw, float(e.dxf.get("elevation", 0.0)), bool(e.closed), scale)
+
+
+def _polyline2d(e, scale: float) -> NurbsCurve | None:
+    """An old-style 2-D POLYLINE (its VERTEX entities with bulges)."""
+    raw = [(v.dxf.location[0], v.dxf.location[1], float(v.dxf.get("bulge", 0.0))) for v in e.vertices]
+    elevation = float(e.dxf.get("elevation", (0.0, 0.0, 0.0))[2])
+    return _bulge_path(e, raw, elevation, bool(e.is_closed), scale)
+
+
+def _bulge_path(e, raw: list, elevation: float, closed: bool, scale: float) -> NurbsCurve | None:
+    """Vertices (x, y, bulge) in the entity's OCS -> one exact curve (lines and arcs) in mm."""
     ocs = e.ocs()
     flip = e.dxf.extrusion[2] < 0
-    elevation = float(e.dxf.get("elevation", 0.0))
-    raw = [(x, y, b) for x, y, *_, b in e.get_points("xyseb")]
     pts = [np.array(tuple(ocs.to_wcs((x, y, elevation)))[:2], float) * scale for x, y, _ in raw]
     bulges = [(-b if flip else b) for _, _, b in raw]
-    if e.closed:
+    if closed:
         pts.append(pts[0])
         bulges.append(0.0)
     pieces = []
@@ -140,6 +151,8 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
                 curve = _arc(e, scale, full=kind == "CIRCLE")
             elif kind == "LWPOLYLINE":
                 curve = _lwpolyline(e, scale)
+            elif kind == "POLYLINE" and e.is_2d_polyline:
+                curve = _polyline2d(e, scale)
             elif kind == "SPLINE":
                 curve = _spline(e, scale)
             elif kind == "ELLIPSE":

@@ -176,6 +176,20 @@ def test_dxf_inch_lines_bulges_circles_arcs_splines_and_nested_blocks():
     assert nested.source.layer == "CU"           # block entities on layer 0 take the INSERT's layer
 
 
+def test_dxf_old_style_polyline_with_bulge():
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 4
+    poly = doc.modelspace().add_polyline2d([(0, 0), (10, 0), (10, 10)], dxfattribs={"layer": "CU"})
+    poly.vertices[0].dxf.bulge = 1.0                       # a half circle of diameter 10 (CCW)
+    out = io.StringIO()
+    doc.write(out)
+    (trace,) = read_layout(out.getvalue().encode(), "p.dxf").traces
+    assert trace.curve.length == pytest.approx(np.pi * 5 + 10, abs=UM)
+    # CCW from (0,0) to (10,0): the half circle passes below the chord, through (5, -5)
+    samples = trace.curve.evaluate(np.linspace(*trace.curve.domain, 2001))
+    assert samples[:, 1].min() == pytest.approx(-5.0, abs=UM)
+
+
 def test_dxf_mm_units_are_mm():
     layout = read_layout(_dxf(4).encode(), "a.dxf", layers=["SILK"])
     assert layout.units == "mm" and layout.traces[0].curve.length == pytest.approx(1.0, abs=UM)
