@@ -1,4 +1,4 @@
-"""DXF drawings (ezdxf): LINE, ARC, CIRCLE, LWPOLYLINE (with bulges), SPLINE (exact NURBS),
+"""DXF drawings (ezdxf): LINE, ARC, CIRCLE, LWPOLYLINE and 2-D POLYLINE (with bulges), SPLINE (exact NURBS),
 ELLIPSE (exact rational spline) and blocks placed by INSERT (nested, with their transforms).
 
 Units come from the header's ``$INSUNITS`` (inch = 25.4 mm exactly; unitless files are read
@@ -43,13 +43,24 @@ def _width(entity, scale: float) -> float:
 
 
 def _lwpolyline(e, scale: float) -> NurbsCurve | None:
+    raw = [(x, y, b) for x, y, *_, b in e.get_points("xyseb")]
+    return _bulge_path(e, raw, float(e.dxf.get("elevation", 0.0)), bool(e.closed), scale)
+
+
+def _polyline2d(e, scale: float) -> NurbsCurve | None:
+    """An old-style 2-D POLYLINE (its VERTEX entities with bulges)."""
+    raw = [(v.dxf.location[0], v.dxf.location[1], float(v.dxf.get("bulge", 0.0))) for v in e.vertices]
+    elevation = float(e.dxf.get("elevation", (0.0, 0.0, 0.0))[2])
+    return _bulge_path(e, raw, elevation, bool(e.is_closed), scale)
+
+
+def _bulge_path(e, raw: list, elevation: float, closed: bool, scale: float) -> NurbsCurve | None:
+    """Vertices (x, y, bulge) in the entity's OCS -> one exact curve (lines and arcs) in mm."""
     ocs = e.ocs()
     flip = e.dxf.extrusion[2] < 0
-    elevation = float(e.dxf.get("elevation", 0.0))
-    raw = [(x, y, b) for x, y, *_, b in e.get_points("xyseb")]
     pts = [np.array(tuple(ocs.to_wcs((x, y, elevation)))[:2], float) * scale for x, y, _ in raw]
     bulges = [(-b if flip else b) for _, _, b in raw]
-    if e.closed:
+    if closed:
         pts.append(pts[0])
         bulges.append(0.0)
     pieces = []
@@ -87,16 +98,18 @@ def _ellipse(e, scale: float) -> NurbsCurve:
     return NurbsCurve(spline.degree, np.asarray(spline.knots(), float), pts, np.asarray(spline.weights(), float))
 
 
-def _entities(layout, parent_layer: str | None = None):
-    """(entity, effective layer) for every drawable entity, block references expanded (nested)."""
+def _entities(layout, parent_layer: str | None = None, path: str = ""):
+    """(entity, effective layer, its INSERT path) for every drawable entity, block references
+    expanded (nested, each with its transform)."""
     for e in layout:
         layer = e.dxf.get("layer", "0")
         if parent_layer is not None and layer == "0":
             layer = parent_layer
         if e.dxftype() == "INSERT":
-            yield from _entities(e.virtual_entities(), layer)
+            label = f"{path}INSERT {e.dxf.get('name', '?')} #{e.dxf.get('handle') or '-'} > "
+            yield from _entities(e.virtual_entities(), layer, label)
         else:
-            yield e, layer
+            yield e, layer, path
 
 
 def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
@@ -117,18 +130,19 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
     if code == 0:
         out.notes.append("$INSUNITS is 0 (unitless): read as mm")
     items = list(_entities(doc.modelspace()))
-    present = sorted({layer for _, layer in items})
+    present = sorted({layer for _, layer, _ in items})
     out.layers = tuple(present)
     if layers:
         missing = [lay for lay in layers if lay not in present]
         if missing:
             raise CircuitFileError(f"layer {missing[0]!r} has no entities (the drawing's layers: {', '.join(present)})",
                                    file=name, where=f"layer {missing[0]}", field="layers")
-    for e, layer in items:
+    for e, layer, path in items:
         if layers and layer not in layers:
             continue
         kind = e.dxftype()
-        entity = f"{kind} #{e.dxf.get('handle', '?')} on layer {layer}"
+        handle = e.dxf.get("handle") or "-"
+        entity = f"{path}{kind} #{handle} on layer {layer}"
         try:
             if kind == "LINE":
                 p0, p1 = _xy(e.dxf.start, scale), _xy(e.dxf.end, scale)
@@ -137,6 +151,8 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
                 curve = _arc(e, scale, full=kind == "CIRCLE")
             elif kind == "LWPOLYLINE":
                 curve = _lwpolyline(e, scale)
+            elif kind == "POLYLINE" and e.is_2d_polyline:
+                curve = _polyline2d(e, scale)
             elif kind == "SPLINE":
                 curve = _spline(e, scale)
             elif kind == "ELLIPSE":

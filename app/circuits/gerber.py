@@ -129,6 +129,14 @@ def _draw_curve(obj):
     return line(p0, p1)
 
 
+def _net(obj) -> str:
+    """The Gerber X2 net name (%TO.N%) of an object, "" when absent."""
+    value = (getattr(obj, "attrs", None) or {}).get(".N")
+    if isinstance(value, (list, tuple)):
+        value = ",".join(str(v) for v in value)
+    return str(value or "")
+
+
 def _layer_name(gerber, name: str) -> str:
     attrs = getattr(gerber, "file_attrs", None) or {}
     function = attrs.get(".FileFunction") if isinstance(attrs, dict) else None
@@ -153,7 +161,7 @@ def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
             draws += 1
             width = _draw_width(obj, name, draws)
             curve = _draw_curve(obj)
-            src = Source(name, layer_name, "", width, f"draw {draws} (D{obj.aperture.original_number})")
+            src = Source(name, layer_name, _net(obj), width, f"draw {draws} (D{obj.aperture.original_number})")
             if curve is None:   # a zero-length draw stamps its aperture: a round pad
                 flash = go.Flash(obj.x1, obj.y1, obj.aperture, unit=obj.unit)
                 out.pads.append(_flash_pad(flash, src, draws))
@@ -164,7 +172,7 @@ def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
             out.traces.append(LayoutTrace(curve, src))
         elif isinstance(obj, go.Flash):
             flashes += 1
-            src = Source(name, layer_name, "", 0.0, f"flash {flashes} (D{obj.aperture.original_number})")
+            src = Source(name, layer_name, _net(obj), 0.0, f"flash {flashes} (D{obj.aperture.original_number})")
             out.pads.append(_flash_pad(obj, src, flashes))
         elif isinstance(obj, go.Region):
             f = MM.convert_from(obj.unit, 1.0)

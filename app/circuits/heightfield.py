@@ -26,19 +26,17 @@ __all__ = ["HeightField"]
 
 def _cell_bound(spline: RectBivariateSpline, nu: int, nv: int, cells_x: np.ndarray, cells_y: np.ndarray) -> np.ndarray:
     """Max |coefficient| of a derivative spline active on each knot cell (cx, cy)."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
     d = spline.partial_derivative(nu, nv)
     tx, ty, c = d.tck
     kx, ky = d.degrees
     coef = np.abs(np.asarray(c)).reshape(len(tx) - kx - 1, len(ty) - ky - 1)
-    out = np.empty((len(cells_x), len(cells_y)))
-    # cell i of the original knots lies in span j of the derived knots where tx[j] <= x < tx[j+1]
-    for a, x0 in enumerate(cells_x):
-        jx = int(np.clip(np.searchsorted(tx, x0, side="right") - 1, kx, len(tx) - kx - 2))
-        row = coef[jx - kx: jx + 1]
-        for b, y0 in enumerate(cells_y):
-            jy = int(np.clip(np.searchsorted(ty, y0, side="right") - 1, ky, len(ty) - ky - 2))
-            out[a, b] = row[:, jy - ky: jy + 1].max()
-    return out
+    window = sliding_window_view(coef, (kx + 1, ky + 1)).max(axis=(-2, -1))   # [j - k] -> span j
+    # cell [x0, next knot) lies in span j of the derived knots where tx[j] <= x0 < tx[j + 1]
+    jx = np.clip(np.searchsorted(tx, cells_x, side="right") - 1, kx, len(tx) - kx - 2) - kx
+    jy = np.clip(np.searchsorted(ty, cells_y, side="right") - 1, ky, len(ty) - ky - 2) - ky
+    return window[np.ix_(jx, jy)]
 
 
 @dataclass

@@ -15,7 +15,7 @@ from kiutils.utils import sexpr
 
 from app.circuits.curves import arc_three_points, line
 from app.circuits.errors import CircuitFileError
-from app.circuits.layout import Layout, LayoutTrace, Pad, Source
+from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source
 from app.circuits.shapes import pad_outline, rotate
 
 __all__ = ["read_kicad"]
@@ -114,4 +114,16 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
             net = pad.net.name if pad.net is not None else ""
             src = Source(name, layer, net, 0.0, f"pad {ref}.{pad.number}")
             out.pads.append(Pad(pad.shape, center, rotate(outline, angle) + center, src, f"{ref}.{pad.number}"))
+    for k, zone in enumerate(board.zones):
+        if layer not in (zone.layers or []) or zone.keepoutSettings is not None:
+            continue
+        filled = [fp for fp in zone.filledPolygons if fp.layer == layer]
+        rings = [fp.coordinates for fp in filled] or [zp.coordinates for zp in zone.polygons]
+        for ring in rings:
+            pts = np.array([[float(p.X), -float(p.Y)] for p in ring])
+            if len(pts) >= 3:
+                area2 = float(np.dot(pts[:, 0], np.roll(pts[:, 1], -1)) - np.dot(np.roll(pts[:, 0], -1), pts[:, 1]))
+                src = Source(name, layer, zone.netName or nets.get(zone.net, ""), 0.0,
+                             f"zone {k} ({'filled' if filled else 'outline'})")
+                out.areas.append(Area(pts if area2 >= 0 else pts[::-1], (), src))
     return out

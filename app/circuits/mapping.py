@@ -17,6 +17,7 @@ from typing import Literal
 
 import numpy as np
 import trimesh
+import shapely
 from shapely import STRtree
 from shapely.geometry import LineString
 
@@ -75,9 +76,33 @@ class MappedLayout:
     warnings: list[dict] = field(default_factory=list)
 
 
+def _distinct(points: np.ndarray, min_gap_mm: float = 1e-5) -> np.ndarray:
+    """Drop points closer than ``min_gap_mm`` to their predecessor (the last point is kept)."""
+    gap = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    keep = np.concatenate([[True], gap > min_gap_mm])
+    if not keep[-1]:                       # the end is exact: it replaces its near-duplicate predecessor
+        kept = np.flatnonzero(keep)
+        keep[-1] = True
+        if len(kept) > 1:
+            keep[kept[-1]] = False
+    return points[keep]
+
+
 def _layout_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
-    """Layout points (k, 2): the curve's chord-verified CL points plus one every step_mm."""
+    """Layout points (k, 2): the curve's chord-verified CL points plus one every step_mm
+    (consecutive points at least 10 nm apart)."""
+    return _distinct(_raw_samples(trace, opts))
+
+
+def _raw_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
     curve = trace.curve
+    if curve.degree == 1:                          # straight spans: exact at the breakpoints, then every step
+        pts = curve.control_points
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        n = np.maximum(1, np.ceil(seg / opts.step_mm)).astype(int)
+        parts = [pts[i] + np.linspace(0.0, 1.0, n[i], endpoint=False)[:, None] * (pts[i + 1] - pts[i])
+                 for i in range(len(seg)) if seg[i] > 0]
+        return np.vstack(parts + [pts[-1:]])
     u_cl = cl_points(curve, opts.chord_mm).u
     n = max(2, int(np.ceil(curve.length / opts.step_mm)) + 1)
     u_step = curve.param_at_length(np.linspace(0.0, curve.length, n))
@@ -90,28 +115,25 @@ def _length(points: np.ndarray) -> float:
 
 
 def _spacing_warnings(traces: list[MappedTrace], widths: list[float], nets: list[str]) -> list[dict]:
-    """Pairs of traces of different (or no) nets closer than their half widths, not touching at ends."""
-    lines = [LineString(t.top_view) for t in traces]
-    tree = STRtree(lines)
-    out = []
-    reach = max(widths, default=0.0)
-    for i, line in enumerate(lines):
-        for j in tree.query(line.buffer(reach)):
-            j = int(j)
-            if j <= i or (nets[i] and nets[i] == nets[j]):
-                continue
-            need = 0.5 * (widths[i] + widths[j])
-            if need <= 0:
-                continue
-            gap = line.distance(lines[j])
-            ends_i = np.array(line.coords)[[0, -1]]
-            ends_j = np.array(lines[j].coords)[[0, -1]]
-            touching = np.min(np.linalg.norm(ends_i[:, None] - ends_j[None], axis=2)) <= need
-            if gap < need and not touching:
-                out.append({"kind": "spacing", "traces": [traces[i].index, traces[j].index],
-                            "message": f"traces {traces[i].index} and {traces[j].index} are {gap:.4f} mm apart, "
-                                       f"closer than their half widths ({need:.4f} mm)", "value": round(gap, 6)})
-    return out
+    """Pairs of traces of different (or no) nets closer than their half widths, not touching at
+    their ends (top view); candidate pairs from one STRtree query, distances vectorised."""
+    if len(traces) < 2:
+        return []
+    lines = np.array([LineString(t.top_view) for t in traces], dtype=object)
+    w = np.asarray(widths, float)
+    net = np.asarray(nets, dtype=object)
+    i, j = STRtree(lines).query(lines, predicate="dwithin", distance=float(w.max(initial=0.0)))
+    keep = (j > i) & ((net[i] == "") | (net[i] != net[j]))
+    i, j = i[keep], j[keep]
+    need = 0.5 * (w[i] + w[j])
+    gap = shapely.distance(lines[i], lines[j])
+    ends = np.array([[t.top_view[0], t.top_view[-1]] for t in traces])           # (n, 2, 2)
+    end_gap = np.linalg.norm(ends[i][:, :, None, :] - ends[j][:, None, :, :], axis=3).min(axis=(1, 2))
+    close = (need > 0) & (gap < need) & (end_gap > need)
+    return [{"kind": "spacing", "traces": [traces[a].index, traces[b].index], "value": round(float(g), 6),
+             "message": f"traces {traces[a].index} and {traces[b].index} are {g:.4f} mm apart, closer than "
+                        f"their half widths ({n:.4f} mm)"}
+            for a, b, g, n in zip(i[close], j[close], gap[close], need[close])]
 
 
 def map_layout(layout: Layout, placement: Placement, mesh: trimesh.Trimesh,

@@ -2,7 +2,7 @@
 that keeps travel short, each printed between the dispense codes, travel at a safe height.
 
 Ordering: greedy nearest neighbour from the machine origin over the strokes' two ends (a
-stroke may be printed backwards), then 2-opt-free; the result reports the travel length
+stroke may be printed backwards; no 2-opt); the result reports the travel length
 against the input order.
 """
 

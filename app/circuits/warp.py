@@ -11,13 +11,16 @@ shared out along the pieces (absolute or relative).  Travel moves run at
 ``safe_z_mm`` (default: the surface's highest point + ``clearance_mm``): a lift before the
 first travel move after printing, a descent to the next print's start.  A printing move
 outside the measured region is refused (WarpError naming the line) unless
-``allow_outside`` (the edge height is then held).  Arcs (G2/G3) are refused (line named).
+``allow_outside`` (the edge height is then held).  Arcs (G2/G3, XY plane) are first split
+into chords within ``arc_chord_mm`` of the arc (top view), then warped like lines.
 Output: absolute mm (``G21``, ``G90``) whatever the input's units and modes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import math
 
 import numpy as np
 
@@ -36,6 +39,7 @@ class WarpOptions:
     standoff_mm: float | None = None
     chord_error_mm: float = 0.002
     clearance_mm: float = 2.0
+    arc_chord_mm: float = 0.001
     safe_z_mm: float | None = None
     allow_outside: bool = False
     decimals: int = 4
@@ -65,12 +69,63 @@ def _refuse(ln, message: str) -> WarpError:
                      value={"line": ln.number, "text": ln.text.strip()[:80]})
 
 
-def _scan(text: str):
+def _arc_points(ln, start: list, end: list, values: dict, scale: float, clockwise: bool,
+                arc_chord_mm: float) -> list[list[float]]:
+    """End points [x, y, z, e] of the chords of a G2/G3 arc in the XY plane (I, J offsets from
+    the start, or R: positive the shorter arc), each chord's sagitta <= ``arc_chord_mm``;
+    z and e are shared out along the angle (helix)."""
+    sx, sy, ex, ey = start[0], start[1], end[0], end[1]
+    if "I" in values or "J" in values:
+        cx, cy = sx + values.get("I", 0.0) * scale, sy + values.get("J", 0.0) * scale
+    elif "R" in values:
+        r = values["R"] * scale
+        dx, dy = ex - sx, ey - sy
+        chord = math.hypot(dx, dy)
+        if chord == 0.0 or abs(r) < chord / 2 - 1e-9:
+            raise _refuse(ln, f"the arc's radius {abs(r):g} mm cannot join its ends {chord:g} mm apart")
+        h = math.sqrt(max(r * r - chord * chord / 4, 0.0)) * (1 if (r > 0) != clockwise else -1)
+        cx, cy = sx + dx / 2 - h * dy / chord, sy + dy / 2 + h * dx / chord
+    else:
+        raise _refuse(ln, "an arc needs I/J or R")
+    radius = math.hypot(sx - cx, sy - cy)
+    if radius <= 0.0:
+        raise _refuse(ln, "the arc has zero radius")
+    a0, a1 = math.atan2(sy - cy, sx - cx), math.atan2(ey - cy, ex - cx)
+    ccw = (a1 - a0) % (2 * math.pi)
+    if abs(ex - sx) + abs(ey - sy) <= 1e-12:
+        ccw = 2 * math.pi
+    sweep = -(2 * math.pi - ccw if ccw < 2 * math.pi else 2 * math.pi) if clockwise else (ccw or 2 * math.pi)
+    step = 2 * math.acos(max(-1.0, 1 - arc_chord_mm / radius)) if arc_chord_mm < radius else math.pi / 2
+    n = max(1, math.ceil(abs(sweep) / step))
+    out = []
+    for k in range(1, n + 1):
+        t = k / n
+        a = a0 + sweep * t
+        out.append([cx + radius * math.cos(a), cy + radius * math.sin(a), start[2] + t * (end[2] - start[2]),
+                    start[3] + t * (end[3] - start[3])])
+    out[-1][:2] = [ex, ey]
+    return out
+
+
+def _kind(g0: float, start: list, end: list, dispensing: bool) -> str:
+    moved_xy = end[0] != start[0] or end[1] != start[1]
+    de = end[3] - start[3]
+    if moved_xy and g0 != 0.0 and (de > 0 or dispensing):
+        return "print"
+    if moved_xy:
+        return "travel"
+    if end[2] != start[2]:
+        return "zonly"
+    return "eonly" if de != 0 else "other"
+
+
+def _scan(text: str, arc_chord_mm: float = 0.001):
     """First pass: modal interpretation.  Returns per-line records
     (kind, line, start [x, y, z, e], end [x, y, z, e], feed mm/min, e absolute) with kind in
-    print / travel / zonly / eonly / mode / other (start, end None for the last two)."""
+    print / travel / zonly / eonly / mode / other (start, end None for the last two).  Arcs
+    (G2/G3, XY plane) become several records of their line, chords within ``arc_chord_mm``."""
     pos = [0.0, 0.0, 0.0, 0.0]
-    absolute, e_abs, scale, dispensing, feed = True, True, 1.0, False, None
+    absolute, e_abs, scale, dispensing, feed, plane = True, True, 1.0, False, None, 17.0
     recs = []
     axes = (("X", 0), ("Y", 1), ("Z", 2), ("E", 3))
     for ln in read_lines(text):
@@ -85,8 +140,8 @@ def _scan(text: str):
                 e_abs = True
             if "M83" in m:
                 e_abs = False
-        if g and (g[0] in (0.0, 1.0)) and len(g) == 1 and ("X" in values or "Y" in values or "Z" in values
-                                                              or "E" in values):
+        if g and (g[0] in (0.0, 1.0, 2.0, 3.0)) and len(g) == 1 and (
+                "X" in values or "Y" in values or "Z" in values or "E" in values or "I" in values or "J" in values):
             if "F" in values:
                 feed = values["F"] * scale
             start = pos[:]
@@ -96,21 +151,20 @@ def _scan(text: str):
                     continue
                 rel = (not absolute) if i < 3 else (not e_abs)
                 pos[i] = pos[i] + v * scale if rel else v * scale
-            moved_xy = pos[0] != start[0] or pos[1] != start[1]
-            de = pos[3] - start[3]
-            if moved_xy and g[0] == 1.0 and (de > 0 or dispensing):
-                kind = "print"
-            elif moved_xy:
-                kind = "travel"
-            elif pos[2] != start[2]:
-                kind = "zonly"
-            else:
-                kind = "eonly" if de != 0 else "other"
-            recs.append((kind, ln, start, pos[:], feed, e_abs))
+            if g[0] in (2.0, 3.0):
+                if plane != 17.0:
+                    raise _refuse(ln, "arcs are warped in the XY plane (G17) only")
+                prev = start
+                for point in _arc_points(ln, start, pos, values, scale, g[0] == 2.0, arc_chord_mm):
+                    recs.append((_kind(g[0], prev, point, dispensing), ln, prev, point, feed, e_abs))
+                    prev = point
+                pos = prev[:]
+                continue
+            recs.append((_kind(g[0], start, pos, dispensing), ln, start, pos[:], feed, e_abs))
             continue
         for code in g:
-            if code in (2.0, 3.0):
-                raise _refuse(ln, "arcs (G2/G3) are not warped; linearise them first")
+            if code in (17.0, 18.0, 19.0):
+                plane = code
             if code == 92.0:
                 raise _refuse(ln, "G92 (set position) is not supported by the warp")
             if code == 20.0:
@@ -121,7 +175,7 @@ def _scan(text: str):
                 absolute = True
             elif code == 91.0:
                 absolute = False
-        kind = "mode" if g and all(c in (20.0, 21.0, 90.0, 91.0) for c in g) else "other"
+        kind = "mode" if g and all(c in (17.0, 20.0, 21.0, 90.0, 91.0) for c in g) else "other"
         recs.append((kind, ln, None, None, None, e_abs))
     return recs
 
@@ -134,7 +188,9 @@ def _piece_lines(prints, n: np.ndarray, pts: np.ndarray, z: np.ndarray, d: int) 
     e0 = np.array([r[2][3] for r in prints])[seg]
     e1 = np.array([r[3][3] for r in prints])[seg]
     e_abs = np.array([r[5] for r in prints])[seg]
-    share = np.round(k / n[seg] * (e1 - e0), 5) - np.round((k - 1) / n[seg] * (e1 - e0), 5)  # sums exactly
+    # relative E: rounding the running total (not each share) keeps the program's total exact
+    total = np.cumsum(np.where(e_abs, 0.0, (e1 - e0) / n[seg]))
+    share = np.round(total, 5) - np.round(np.concatenate([[0.0], total[:-1]]), 5)
     e = np.where(e_abs, e0 + k / n[seg] * (e1 - e0), share)
     has_e = e1 != e0
     xyz = f"G1 X{{:.{d}f}} Y{{:.{d}f}} Z{{:.{d}f}}".format
@@ -171,7 +227,7 @@ def _refuse_outside(prints: list, surface: HeightField) -> None:
 
 def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOptions()) -> WarpResult:
     """The warped program (see the module doc); WarpError names a refused line."""
-    recs = _scan(text)
+    recs = _scan(text, opts.arc_chord_mm)
     prints = [r for r in recs if r[0] == "print"]
     p0 = np.array([r[2] for r in prints]).reshape(-1, 4)
     p1 = np.array([r[3] for r in prints]).reshape(-1, 4)

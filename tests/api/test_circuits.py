@@ -32,7 +32,7 @@ M02*
 
 @pytest.fixture(scope="module")
 def s1_stl() -> bytes:
-    return s1_mesh(grid_mm=0.5).export(file_type="stl")
+    return s1_mesh(grid_mm=1.0).export(file_type="stl")
 
 
 @pytest.fixture

@@ -68,6 +68,10 @@ KICAD = """(kicad_pcb (version 20221018) (generator pcbnew)
   (segment (start 10 10) (end 30 10) (width 0.25) (layer "F.Cu") (net 1))
   (segment (start 0 0) (end 3 4) (width 0.5) (layer "B.Cu") (net 2))
   (arc (start 30 10) (mid 35 5) (end 30 0) (width 0.3) (layer "F.Cu") (net 2))
+  (zone (net 1) (net_name "VCC") (layer "F.Cu") (hatch edge 0.5)
+    (connect_pads (clearance 0.5)) (min_thickness 0.25)
+    (fill yes (thermal_gap 0.5) (thermal_bridge_width 0.5))
+    (polygon (pts (xy 40 0) (xy 50 0) (xy 50 5) (xy 40 5))))
 )
 """
 
@@ -93,6 +97,12 @@ def test_gerber_inch_draws_arcs_flashes_and_regions_in_exact_mm():
     np.testing.assert_allclose(area.exterior.max(0), [25.4, 76.2], atol=UM)
 
 
+def test_gerber_x2_net_attributes_become_nets():
+    text = GERBER_INCH.replace("D10*\nG01*\n", "D10*\nG01*\n%TO.N,VCC*%\n", 1).replace("G75*", "%TD*%\nG75*")
+    layout = read_layout(text.encode(), "top.gbr")
+    assert [t.source.net for t in layout.traces] == ["VCC", ""]
+
+
 def test_excellon_hits_are_round_pads_of_their_tool():
     layout = read_layout(EXCELLON_MM.encode(), "holes.drl")
     assert [p.center.tolist() for p in layout.pads] == [[10, 5], [12.5, 5], [20, 7.5]]
@@ -115,6 +125,10 @@ def test_kicad_tracks_pads_nets_and_layer_with_y_flipped():
     # the rect pad 1.2 x 1.4 turned 90 deg: 1.4 wide in x, 1.2 in y
     np.testing.assert_allclose(p1.exterior.max(0) - p1.exterior.min(0), [1.4, 1.2], atol=UM)
     assert p1.source.net == "VCC" and p1.name == "R1.1"
+    (zone,) = layout.areas                     # a copper pour (its outline: the file has no fill)
+    assert zone.source.net == "VCC"
+    np.testing.assert_allclose(zone.exterior.min(0), [40, -5], atol=UM)
+    np.testing.assert_allclose(zone.exterior.max(0), [50, 0], atol=UM)
     back = read_layout(KICAD.encode(), "board.kicad_pcb", layers=["B.Cu"])
     assert len(back.traces) == 1 and back.traces[0].curve.length == pytest.approx(5.0, abs=UM)
 
@@ -160,6 +174,20 @@ def test_dxf_inch_lines_bulges_circles_arcs_splines_and_nested_blocks():
     # block B (line (0,0)-(1,0)) rotated 90 at (0,1) inside C, C scaled 2 at (10,0): (10,2)-(10,4) in
     np.testing.assert_allclose(nested.curve.evaluate([0.0, 1.0]), np.array([[10, 2], [10, 4]]) * 25.4, atol=UM)
     assert nested.source.layer == "CU"           # block entities on layer 0 take the INSERT's layer
+
+
+def test_dxf_old_style_polyline_with_bulge():
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 4
+    poly = doc.modelspace().add_polyline2d([(0, 0), (10, 0), (10, 10)], dxfattribs={"layer": "CU"})
+    poly.vertices[0].dxf.bulge = 1.0                       # a half circle of diameter 10 (CCW)
+    out = io.StringIO()
+    doc.write(out)
+    (trace,) = read_layout(out.getvalue().encode(), "p.dxf").traces
+    assert trace.curve.length == pytest.approx(np.pi * 5 + 10, abs=UM)
+    # CCW from (0,0) to (10,0): the half circle passes below the chord, through (5, -5)
+    samples = trace.curve.evaluate(np.linspace(*trace.curve.domain, 2001))
+    assert samples[:, 1].min() == pytest.approx(-5.0, abs=UM)
 
 
 def test_dxf_mm_units_are_mm():

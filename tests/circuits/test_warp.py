@@ -78,9 +78,29 @@ def test_a_move_outside_the_probed_area_is_refused_naming_its_line(surface):
     assert allowed.printing_moves == 4
 
 
-def test_arcs_are_refused_naming_the_line(surface):
-    with pytest.raises(WarpError, match="line 2"):
-        warp_program("G1 X1 Y1\nG2 X2 Y2 I1 J0 E1\n", surface)
+def test_arcs_are_split_within_their_chord_and_warped(surface):
+    # a CW half circle about (30, 20), radius 10, by I/J; then a CCW quarter by R; extruding
+    program = "G21\nG90\nM83\nG0 X20 Y20\nG2 X40 Y20 I10 J0 E2.0 F600\nG3 X30 Y30 R10 E1.0\n"
+    result = warp_program(program, surface, WarpOptions(standoff_mm=0.1, arc_chord_mm=0.001))
+    moves = [m for m in _moves(result.text) if m[0] == 1.0 and m[3] is not None]
+    assert sum(m[3] for m in moves) == pytest.approx(3.0, abs=1e-4)
+    ends = np.array([m[2] for m in moves])
+    first = ends[np.linalg.norm(ends[:, :2] - [40, 20], axis=1).argmin() + 1:]
+    half = ends[: len(ends) - len(first)]
+    # the half circle passes above the centre (CW from the left end): y >= 20; every vertex on the circle
+    assert half[:, 1].min() >= 20 - 1e-6 and half[:, 1].max() == pytest.approx(30, abs=0.01)
+    np.testing.assert_allclose(np.hypot(half[:, 0] - 30, half[:, 1] - 20), 10, atol=1e-4)
+    # the R arc from (40, 20) to (30, 30), CCW, shorter: centre (30, 20)
+    np.testing.assert_allclose(np.hypot(first[:, 0] - 30, first[:, 1] - 20), 10, atol=1e-4)
+    np.testing.assert_allclose(ends[:, 2], h(ends[:, 0], ends[:, 1]) + 0.1, atol=1e-4)
+    # chords of the arc: sagitta <= arc_chord_mm, so vertices are at most 2 * sqrt(2 r d) apart
+    gaps = np.linalg.norm(np.diff(ends[:, :2], axis=0), axis=1)
+    assert gaps.max() <= 2 * np.sqrt(2 * 10 * 0.001) + 1e-6
+
+
+def test_arcs_outside_the_xy_plane_are_refused_naming_the_line(surface):
+    with pytest.raises(WarpError, match="line 3"):
+        warp_program("G1 X10 Y10\nG18\nG2 X20 Y10 I5 K0 E1\n", surface)
 
 
 def test_fixed_length_split_leaves_a_larger_error_than_ours(surface):

@@ -28,6 +28,7 @@ class WarpProgramParams(JobParams):
     standoff_mm: float | None = Field(None, gt=0, le=50, description="printing moves at the surface + this; "
                                       "default: the program's z + the surface height")
     chord_error_mm: float = Field(0.002, gt=0, le=1, description="proved bound per emitted piece")
+    arc_chord_mm: float = Field(0.001, gt=0, le=1, description="G2/G3 arcs: largest top-view chord sagitta")
     clearance_mm: float = Field(2.0, gt=0, le=100, description="travel height above the surface's top")
     allow_outside: bool = Field(False, description="hold the edge height outside the measured region")
     grid_mm: float = Field(1.0, gt=0.05, le=20, description="height-field grid spacing")
@@ -76,7 +77,8 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
                                      params.grid_mm)
     ctx.progress(0.2, "warping")
     result = warp_program(text, field, WarpOptions(params.standoff_mm, params.chord_error_mm, params.clearance_mm,
-                                                   allow_outside=params.allow_outside))
+                                                   allow_outside=params.allow_outside,
+                                                   arc_chord_mm=params.arc_chord_mm))
     ctx.artifact("warped.gcode", result.text.encode(), "text/x-gcode", gcode_meta(result.text))
     pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
     return {"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
