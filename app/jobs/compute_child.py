@@ -20,7 +20,6 @@ is the supervisor's business (:mod:`app.jobs.process_worker`).
 from __future__ import annotations
 
 import ctypes
-import json
 import logging
 import resource
 import signal
@@ -32,7 +31,7 @@ from app.db import make_engine
 from app.errors import Cancelled, ConformaError
 from app.jobs.context import JobContext
 from app.jobs.registry import get_kind, load_kinds
-from app.jobs.store import Claim, JobStore
+from app.jobs.store import Claim, JobStore, json_result
 from app.problems import from_error, problem
 from app.records import MeshCache
 
@@ -83,13 +82,6 @@ class ChildRuntime:
                             field="kind", value=kind_name)
 
 
-def _json_default(value: Any) -> Any:
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    if hasattr(value, "item"):
-        return value.item()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
 
 def memory_problem(memory_mb: float) -> dict:
     return problem(422, "Job exceeded its memory limit",
@@ -111,7 +103,7 @@ def run_child(settings: Settings, claim: Claim) -> None:
         ctx = JobContext(runtime, claim)  # type: ignore[arg-type]
         try:
             result = kind.run(ctx, kind.params.model_validate(claim.params))
-            encoded = json.loads(json.dumps(result or {}, default=_json_default))
+            encoded = json_result(result)
             runtime.store.finish(claim, "succeeded", result=encoded)
         except Cancelled as exc:
             runtime.store.finish(claim, "cancelled", error=from_error(exc))

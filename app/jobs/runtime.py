@@ -36,7 +36,7 @@ from app.jobs.machine_jobs import MachineThreads, machine_slot
 from app.jobs.cost import check_cost
 from app.jobs.process_worker import ProcessSupervisor, warm_up
 from app.jobs.registry import JobKind, get_kind, load_kinds
-from app.jobs.store import JobStore
+from app.jobs.store import JobStore, json_result
 from app.machines import MachineManager
 from app.models import Job, JobReference, Part, Trace, new_id, utcnow
 from app.models import Machine as MachineRow
@@ -237,7 +237,7 @@ class Runtime:
         try:
             params = kind.params.model_validate(claim.params)
             result = kind.run(ctx, params)
-            self.store.finish(claim, "succeeded", result=json.loads(json.dumps(result or {}, default=_json_default)))
+            self.store.finish(claim, "succeeded", result=json_result(result))
         except Cancelled as exc:
             self.store.finish(claim, "cancelled", error=from_error(exc))
         except ConformaError as exc:
@@ -311,10 +311,3 @@ class Runtime:
                 pass
         self.engine.dispose()
 
-
-def _json_default(value: Any) -> Any:
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    if hasattr(value, "item"):
-        return value.item()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

@@ -8,6 +8,8 @@ that watchers (SSE) can tell that something changed.
 
 from __future__ import annotations
 
+import json
+
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -267,3 +269,16 @@ class JobStore:
                                  "failed instead of being claimed again"})
             .returning(Job.id))
         return [r[0] for r in rows]
+
+
+def json_result(result: Any) -> dict:
+    """A job's result as plain JSON (numpy arrays and scalars converted), as it is stored."""
+    return json.loads(json.dumps(result or {}, default=_json_default))
+
+
+def _json_default(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if hasattr(value, "item"):
+        return value.item()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

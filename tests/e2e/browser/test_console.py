@@ -16,19 +16,10 @@ except ImportError:  # the tests fail or skip in conftest; the module must still
     expect = None  # type: ignore[assignment]
 
 from tests.e2e.browser.conftest import screenshot
+from tests.e2e.browser.test_operator_flow import wait_job
 
 PAGES = ["index.html", "parts.html", "traces.html", "jobs.html", "machines.html"]
 SLOW_PROGRAM = "G21\nG90\nG1 X1 Y0 Z5 F600\n" + "".join(f"G1 X{10 + i} Y{i % 7} F30\n" for i in range(60))
-
-
-def _wait(api, job_id: str, timeout: float = 60.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = api.get(f"/api/v1/jobs/{job_id}").json()
-        if job["status"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not finish")
 
 
 @pytest.fixture(scope="module")
@@ -40,10 +31,10 @@ def sliced(served) -> dict:
     mesh.apply_translation([10, 10, 2.5])
     mesh.export(buffer, file_type="stl")
     part = api.post("/api/v1/parts", files={"file": ("console-box.stl", buffer.getvalue())}).json()
-    sliced = _wait(api, api.post("/api/v1/jobs", json={"kind": "slice", "params": {"part_id": part["id"]}}).json()["id"])
+    sliced = wait_job(api, api.post("/api/v1/jobs", json={"kind": "slice", "params": {"part_id": part["id"]}}).json()["id"], 90)
     assert sliced["status"] == "succeeded", sliced
-    toolpath = _wait(api, api.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
-        "slice_job_id": sliced["id"], "pattern": "lines"}}).json()["id"])
+    toolpath = wait_job(api, api.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
+        "slice_job_id": sliced["id"], "pattern": "lines"}}).json()["id"], 90)
     assert toolpath["status"] == "succeeded", toolpath
     return {"part": part, "slice": sliced, "toolpath": toolpath}
 
