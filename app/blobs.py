@@ -44,12 +44,7 @@ class BlobStore:
             except BaseException:
                 Path(tmp).unlink(missing_ok=True)
                 raise
-        dialect = session.get_bind().dialect.name
-        insert = pg_insert if dialect == "postgresql" else sqlite_insert
-        session.exec(  # type: ignore[call-overload]
-            insert(Blob).values(sha256=digest, bytes=len(data), created_at=utcnow()).on_conflict_do_nothing()
-        )
-        return digest
+        return _record(session, digest, len(data))
 
     def put_file(self, session: Session, handle: BinaryIO, chunk: int = 1 << 20) -> str:
         """Store the rest of the open binary file ``handle`` from its start (idempotent),
@@ -76,12 +71,16 @@ class BlobStore:
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-        dialect = session.get_bind().dialect.name
-        insert = pg_insert if dialect == "postgresql" else sqlite_insert
-        session.exec(  # type: ignore[call-overload]
-            insert(Blob).values(sha256=sha, bytes=size, created_at=utcnow()).on_conflict_do_nothing()
-        )
-        return sha
+        return _record(session, sha, size)
 
     def read(self, sha256: str) -> bytes:
         return self.path(sha256).read_bytes()
+
+
+def _record(session: Session, sha: str, size: int) -> str:
+    """Insert the blob's row unless it exists (the file is already in place); its sha256."""
+    insert = pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert
+    session.exec(  # type: ignore[call-overload]
+        insert(Blob).values(sha256=sha, bytes=size, created_at=utcnow()).on_conflict_do_nothing()
+    )
+    return sha
