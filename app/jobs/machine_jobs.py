@@ -21,6 +21,8 @@ from sqlmodel import Session, select
 from app.errors import Cancelled, Conflict, ConformaError
 from app.jobs.context import JobContext
 from app.models import Job, JobReference, utcnow
+from app.machines import MachineFault, MachineUnavailable, hardware_errors
+from hardware.errors import HardwareError
 from hardware.machine import Machine
 
 if TYPE_CHECKING:
@@ -118,6 +120,23 @@ def machine_for_job(ctx: JobContext, machine_id: str, resume: dict[str, Any] | N
         if machine.interrupted_program is None and machine.link is None:
             machine.adopt_interrupted(int(resume["total"]), int(resume["executed"]), resume.get("acked_line_no"))
     return connected_machine(ctx, machine_id)
+
+
+def rehomed_machine(ctx: JobContext, machine_id: str, resume: dict[str, Any] | None,
+                    state: dict[str, Any]) -> Machine:
+    """The connected machine of a touching job (``probe_run``, ``register``): an operator's
+    resume re-homes it first (touches are idempotent) and counts the resume in ``state``;
+    a failure to reach it interrupts the job (raised)."""
+    machine = None
+    try:
+        machine = connected_machine(ctx, machine_id)
+        if resume is not None:
+            with hardware_errors():
+                machine.home()
+            state["resumes"] += 1
+    except (HardwareError, MachineUnavailable, MachineFault) as exc:
+        raise interrupt(ctx, machine, exc, state) from exc
+    return machine
 
 
 def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[str]]:

@@ -14,10 +14,10 @@ from pydantic import Field
 from sqlmodel import Session
 
 from app.jobs.context import JobContext
-from app.jobs.machine_jobs import (connected_machine, interrupt, refuse_if_machine_busy,
+from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_machine,
                                    resume_request, stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
-from app.machines import MachineFault, MachineUnavailable, hardware_errors, translate
+from app.machines import translate
 from hardware.errors import HardwareError, LinkError
 
 
@@ -42,15 +42,7 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
     points: list[dict] = list((resume or {}).get("points", []))
     state: dict = {"total": len(records), "executed": len(points), "points": points,
                    "resumes": (resume or {}).get("resumes", 0)}
-    machine = None
-    try:
-        machine = connected_machine(ctx, params.machine_id)
-        if resume is not None:
-            with hardware_errors():
-                machine.home()
-            state["resumes"] += 1
-    except (HardwareError, MachineUnavailable, MachineFault) as exc:
-        raise interrupt(ctx, machine, exc, state) from exc
+    machine = rehomed_machine(ctx, params.machine_id, resume, state)
     ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
     try:
         for index in range(len(points), len(records)):

@@ -27,10 +27,10 @@ from app.compensation.datum_plan import DatumProbeParams, plan_datum_probes, reg
 from app.compensation.registration import Placement
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
-from app.jobs.machine_jobs import (connected_machine, interrupt, refuse_if_machine_busy, resume_request,
+from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_machine, resume_request,
                                    stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
-from app.machines import MachineFault, MachineUnavailable, hardware_errors, translate
+from app.machines import translate
 from hardware.errors import HardwareError, LinkError
 from app.models import Job, Part
 from app.records import get_or_404
@@ -143,15 +143,7 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
                              margin_mm=params.margin_mm, seed=params.seed, sigma_mm=params.sigma_mm)
     resume = resume_request(ctx)
     state = {"total": None, "touches": 0, "resumes": (resume or {}).get("resumes", 0)}
-    machine = None
-    try:  # a resume re-homes and touches every datum again (touches are idempotent)
-        machine = connected_machine(ctx, params.machine_id)
-        if resume is not None:
-            with hardware_errors():
-                machine.home()
-            state["resumes"] += 1
-    except (HardwareError, MachineUnavailable, MachineFault) as exc:
-        raise interrupt(ctx, machine, exc, state) from exc
+    machine = rehomed_machine(ctx, params.machine_id, resume, state)
     z_bottom, z_top = mesh.bounds[:, 2]
     z_start, z_min = float(z_top) + params.clearance_mm, float(z_bottom) - params.overtravel_mm
     feed = params.probe_feed_mm_min
