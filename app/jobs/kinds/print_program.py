@@ -153,6 +153,8 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
     if cancelled or report.cancelled:
         raise Cancelled(f"print cancelled after {report.executed} of {report.total} commands",
                         field="job_id", value=ctx.job_id)
+    if resume is not None:  # the re-homing, then the modal state the skipped commands left
+        preamble = preamble + list(machine.last_preamble)
     return {"executed": report.executed, "total": report.total, "start_line": report.start_line,
             "resumes": state["resumes"], "resume_preamble": preamble,
             "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
