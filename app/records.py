@@ -6,7 +6,6 @@ process and cached by content hash.
 
 from __future__ import annotations
 
-import os
 import threading
 from collections import OrderedDict
 from typing import Any, BinaryIO, TypeVar
@@ -88,6 +87,7 @@ class ByteLru:
             total -= n
 
 
+MESH_CACHE_BYTES = 2 ** 30  # default bound of a process's mesh cache
 EMBREE_BYTES_PER_FACE = 160  # embree BVH + its float32 copy of the triangles (measured ~120-160)
 
 
@@ -119,15 +119,13 @@ class MeshCache:
 
     A job that needs the part placed in machine coordinates gets a cached placed copy
     (:meth:`placed`), so its ray structure is built once per part and placement too.
-    ``max_bytes``: the bound (default ``CONFORMA_MESH_CACHE_MB`` MiB, else 1 GiB); each
-    access re-measures the entry, since structures are built lazily after it was stored.
+    ``max_bytes``: the bound (default ``MESH_CACHE_BYTES``, 1 GiB); each access re-measures
+    the entry, since structures are built lazily after it was stored.
     """
 
     def __init__(self, blobs: BlobStore, max_bytes: int | None = None) -> None:
         self.blobs = blobs
-        if max_bytes is None:
-            max_bytes = int(float(os.environ.get("CONFORMA_MESH_CACHE_MB", "1024")) * 2 ** 20)
-        self._items = ByteLru(max_bytes)
+        self._items = ByteLru(MESH_CACHE_BYTES if max_bytes is None else max_bytes)
         self._parse_lock = threading.Lock()
 
     @property

@@ -50,7 +50,8 @@ LIMIT_MM = 0.005
 SIGMA_MM = 0.001
 SIZES = (9, 81, 300, 1000)
 HOLDOUT = tuple(range(300, 320))
-COMPENSATED_PARTS = {9: 20, 81: 20, 300: 3, 1000: 2}  # full compensation of every trace on this many parts
+# full compensation of every trace on this many of the held-out parts (time budget: ~10 min on 2 cores)
+COMPENSATED_PARTS = {"S1": {9: 20, 81: 20, 300: 3, 1000: 2}, "dome": {9: 20, 81: 20, 300: 2, 1000: 1}}
 BASELINE_MAX = 300
 BASELINE_PARTS = 3
 PROCESS = dict(deviation_amplitude_mm=0.15, deviation_wavelength_mm=15.0)
@@ -95,10 +96,12 @@ def field_board(part, n: int) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     plan = plan_field(paths, PARAMS)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    tracemalloc.start()
-    plan_field(paths, PARAMS)
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
+    peak = 0
+    if n == max(SIZES):  # memory where it is asked: the largest board
+        tracemalloc.start()
+        plan_field(paths, PARAMS)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
     rec_err = np.zeros(len(paths))
     comp_err = np.zeros(len(paths))
     comp_time = None
@@ -108,7 +111,7 @@ def field_board(part, n: int) -> dict:
         measured[:, 2] = measure(plan.xy, made, seed)
         t0, c0 = time.perf_counter(), time.process_time()
         fit = fit_field(PRIOR, plan.sites, plan.z, measured, plan.center, plan.trace, plan.s_mm)
-        if k < COMPENSATED_PARTS[n]:  # what the reconstruct and compensate jobs of every trace do
+        if k < COMPENSATED_PARTS[part.name][n]:  # what the reconstruct and compensate jobs of every trace do
             for i, path in enumerate(paths):
                 printed = compensate_trace(trace_reconstruction(fit, path, i, REC),
                                            CompensationParams(standoff_mm=STANDOFF_MM, chord_error_mm=CHORD_MM))
@@ -151,7 +154,7 @@ def baseline(paths, part, method: str) -> tuple[int, float, float]:
     return sum(p.count for p in plans), worst, plan_time
 
 
-@pytest.mark.timeout(900)
+@pytest.mark.timeout(1800)
 @pytest.mark.parametrize("part", [s1_part(), dome_part()], ids=["S1", "dome"])
 def test_field_planner_on_boards(part):
     rows, table = [], []
@@ -173,7 +176,7 @@ def test_field_planner_on_boards(part):
         plan = r["plan"]
         print(f"{n:>6} {plan.count:>8} {plan.dof:>6.1f} {plan.count / plan.dof:>6.2f} {r['wall']:>7.2f} "
               f"{r['cpu']:>6.2f} {r['peak'] / 2**20:>8.1f} {plan.max_sd_mm * 1e3:>9.2f} "
-              f"{r['rec_err'].max() * 1e3:>10.2f} {r['comp_err'].max() * 1e3:>11.2f} {COMPENSATED_PARTS[n]:>10} "
+              f"{r['rec_err'].max() * 1e3:>10.2f} {r['comp_err'].max() * 1e3:>11.2f} {COMPENSATED_PARTS[part.name][n]:>10} "
               f"{r['comp_time'][0]:>10.2f} {r['comp_time'][1]:>6.2f}")
     print(f"\nComparison (probes / worst error over {BASELINE_PARTS} held-out parts for the per-trace methods, "
           f"{len(HOLDOUT)} for the field / plan time s):")
