@@ -189,6 +189,9 @@ def parse_mesh(data: bytes, fmt: str, *, max_unzipped_bytes: int) -> trimesh.Tri
     return read_mesh(data, fmt, max_unzipped_bytes=max_unzipped_bytes).mesh
 
 
+RAW_COORDINATE_LIMIT = 1e9  # file units, before unit conversion (app.api.part_checks bounds the mm)
+
+
 def check_mesh(mesh: trimesh.Trimesh, merged: bool = False) -> trimesh.Trimesh:
     """Refuse meshes with no faces or non-finite vertices; merge duplicate vertices (unless
     ``merged``) and drop faces that repeat a vertex."""
@@ -204,6 +207,11 @@ def check_mesh(mesh: trimesh.Trimesh, merged: bool = False) -> trimesh.Trimesh:
             field="file",
             value={"vertex": index},
         )
+    worst = float(np.abs(vertices).max())
+    if worst > RAW_COORDINATE_LIMIT:  # before merging: at 1e200 every vertex rounds together
+        raise MeshError(f"the mesh's coordinates reach {worst:.6g} (file units); they must be within "
+                        f"±{RAW_COORDINATE_LIMIT:g} (1 km in µm) — and within ±1e6 mm once in mm",
+                        field="file", value=worst)
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise MeshError("the mesh has faces that index missing vertices", field="file")
     if not merged:
