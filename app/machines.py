@@ -90,24 +90,26 @@ def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
     one controller (stored under a unique constraint); ``InvalidInput`` naming ``port``.
 
     Devices: the real path (symlinks and ``..`` resolved), which must stay under /dev.
-    ``socket://host:port``: the host must be in ``socket_hosts`` (settings), lower-cased.
+    ``socket://host:port`` and ``linuxcnc://host:port[?joints=N]``: the host must be in
+    ``socket_hosts`` (settings), lower-cased.
     ``mock://``: one mock world per record, so the key is the record's own."""
     parts = urlsplit(port)
     if parts.scheme == "mock":
         return f"mock:{machine_id}"
-    if parts.scheme == "socket":
+    if parts.scheme in ("socket", "linuxcnc"):  # a TCP controller: linuxcncrsh, a serial bridge
         host = (parts.hostname or "").lower()
         try:
             number = parts.port
         except ValueError:
             number = None
-        if not host or number is None or not 0 < number < 65536 or parts.path not in ("", "/") or parts.query:
-            raise InvalidInput(f"expected socket://host:port, got {port!r}", field="port", value=port)
+        query_ok = not parts.query or (parts.scheme == "linuxcnc" and re.fullmatch(r"joints=\d", parts.query))
+        if not host or number is None or not 0 < number < 65536 or parts.path not in ("", "/") or not query_ok:
+            raise InvalidInput(f"expected {parts.scheme}://host:port, got {port!r}", field="port", value=port)
         allowed = {h.lower() for h in socket_hosts}
         if host not in allowed:
-            raise InvalidInput(f"socket host {host!r} is not in the allow-list (CONFORMA_SOCKET_HOSTS: "
+            raise InvalidInput(f"{parts.scheme} host {host!r} is not in the allow-list (CONFORMA_SOCKET_HOSTS: "
                                f"{', '.join(sorted(allowed)) or 'empty'})", field="port", value=port)
-        return f"socket://{host}:{number}"
+        return f"{parts.scheme}://{host}:{number}"
     if parts.scheme == "loop":
         return f"loop:{machine_id}"
     if port.startswith("/dev/"):
@@ -118,7 +120,8 @@ def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
         return real
     if re.fullmatch(r"COM\d+", port):
         return port.upper()
-    raise InvalidInput("expected mock://..., socket://host:port or a device under /dev", field="port", value=port)
+    raise InvalidInput("expected mock://..., socket://host:port, linuxcnc://host:port or a device under /dev",
+                       field="port", value=port)
 
 
 class MachineManager:
