@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable
 
 from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineBusy,
                       MachineStateError, ProbeFailed)
-from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport
+from ..machine_types import _Interrupted, Identity, MachineProfile, ProbeResult, StreamReport
 from ..protocol import validate_program
 from .rsh import RshRejected, RshSession
 from .url import parse_url, passwords
@@ -70,6 +70,7 @@ class LinuxCNCMachine:
         self._estopped = False
         self._interrupted: tuple[int, int] | None = None   # (total, executed) at the loss
         self._probe_seq = 0
+        self.last_preamble: list[str] = []  # no modal replay: LinuxCNC resumes with its own state
 
     # ------------------------------------------------------------------ state
     @property
@@ -321,6 +322,30 @@ class LinuxCNCMachine:
             raise
         self._release("idle")
         return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started, {})
+
+    # ------------------------------------------------------------------ interruption (the
+    # same calls as hardware.machine.Machine: the service's interrupted/resume workflow)
+    @property
+    def estopped(self) -> bool:
+        """True after an emergency stop until the next connect."""
+        return self._estopped
+
+    @property
+    def acked_line_no(self) -> None:
+        """LinuxCNC numbers no lines on the wire (progress is its ``program_line``)."""
+        return None
+
+    @property
+    def interrupted_program(self) -> _Interrupted | None:
+        """What is known of a program whose link was lost: commands [0, acked_index) done."""
+        if self._interrupted is None:
+            return None
+        total, executed = self._interrupted
+        return _Interrupted(total, executed, None, [], False, executed)
+
+    def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None:
+        """A new process resumes a program an earlier one recorded (before connecting)."""
+        self._interrupted = (int(total), int(acked_index))
 
     def resume_line(self) -> int:
         """After reconnecting: the first command not known to be executed.  A program the
