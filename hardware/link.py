@@ -342,16 +342,23 @@ class Link(ReplyHandling):
                 best = pending.line_no
         return best
 
-    def query_status(self, timeout_s: float = 2.0) -> StatusReport:
-        """grbl: write ``?`` and wait for the next status report."""
+    def query_status(self, timeout_s: float = 2.0, repeat_s: float = 0.25) -> StatusReport:
+        """grbl: write ``?`` and wait for the next status report, asking again every
+        ``repeat_s`` (a bootloader swallows what arrives while it runs; ``?`` is real-time,
+        so an extra one only brings an extra report)."""
         with self._cond:
             seen = self._status_seq
             self._write(b"?")
-            deadline = time.monotonic() + timeout_s
+            start = time.monotonic()
+            asked = start
             while self._status_seq == seen:
                 self._check_fatal()
-                if time.monotonic() > deadline:
+                now = time.monotonic()
+                if now - start > timeout_s:
                     raise LinkError("no status report", field="timeout_s")
+                if now - asked > repeat_s:
+                    self._write(b"?")
+                    asked = now
                 self._cond.wait(0.05)
             return self._last_status
 
