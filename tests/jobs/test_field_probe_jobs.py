@@ -10,7 +10,6 @@ import pytest
 from app.probing.deviation_prior import Sites
 from app.probing.field import posterior_sd, stored_field
 from app.probing.field_top import first_hit_z, mesh_top_sampler
-from app.records import FIELD_FITS
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
 from app.viewer.loaders import load_focus
@@ -83,8 +82,8 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     for entry in entries:
         rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
         assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
-    run_id = entries[0]["probe_run"]
-    assert any(key[0] == run_id for key in FIELD_FITS._items)  # fitted once, read by every trace
+    # (the fit is cached per process: with compute jobs in child processes, issue 13, each
+    # reconstruct job fits the run's field again — the same fit, see tests/reconstruction)
 
 
 def test_field_stations_anywhere_on_top_sit_on_the_part(client, coarse):
