@@ -142,3 +142,28 @@ class ProgramOut(BaseModel):
     bounds: list[list[float]] | None
     sha256: str
     created_at: UtcDatetime
+
+
+class JogRequest(BaseModel):
+    """A relative move of the tool from where it is (mm); at least one axis."""
+
+    model_config = {"extra": "forbid"}
+    dx_mm: float = Field(0.0, ge=-100.0, le=100.0, allow_inf_nan=False)
+    dy_mm: float = Field(0.0, ge=-100.0, le=100.0, allow_inf_nan=False)
+    dz_mm: float = Field(0.0, ge=-100.0, le=100.0, allow_inf_nan=False)
+    feed_mm_min: float | None = Field(None, gt=0, le=10_000, allow_inf_nan=False,
+                                      description="default: the profile's travel feed")
+
+
+class ConsoleRequest(BaseModel):
+    """One G-code or firmware command, as typed at a printer's console."""
+
+    model_config = {"extra": "forbid"}
+    command: str = Field(min_length=1, max_length=96, pattern=r"^[ -~]+$",
+                         description="one line of printable ASCII (no line breaks)")
+
+
+class ConsoleOut(BaseModel):
+    command: str
+    reply: list[str]
+    machine: MachineOut

@@ -1,4 +1,5 @@
-"""Machines: register, connect, status, pause/resume, emergency stop, print.
+"""Machines: register, connect, status, pause/resume, emergency stop, print; manual
+control (home, jog, a console line) and removal.
 
 The API process owns the serial ports (and runs one execution thread per machine), so
 these endpoints act on the live connection directly.  Nothing here waits behind a
@@ -11,21 +12,26 @@ from __future__ import annotations
 import asyncio
 import time
 
-from fastapi import APIRouter, Request
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, Request
+from sqlalchemy import delete
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
 
 from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.jobs import load_job_out
-from app.api.machine_schemas import MachineCreate, MachineOut, MockSettings, PrintRequest, ProgramState, StopOut
+from app.api.machine_schemas import (ConsoleOut, ConsoleRequest, JogRequest, MachineCreate, MachineOut, MockSettings,
+                                     PrintRequest, ProgramState, StopOut)
 from app.api.schemas import JobOut, Page
 from app.errors import Conflict, InvalidInput, NotFound
 from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, translate
 from hardware.errors import HardwareError
 from hardware.mock import parse_mock_options
-from app.models import Machine, Part, new_id, utcnow
+from app.db import lock_for_delete
+from app.models import JobReference, Machine, Part, new_id, utcnow
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/machines", tags=["machines"])
@@ -184,3 +190,79 @@ def print_on_machine(machine_id: str, body: PrintRequest, runtime: RuntimeDep, s
     params = {"machine_id": machine_id, **body.model_dump(exclude_none=True)}
     job = runtime.submit("print", params)
     return load_job_out(session, job.id)
+
+
+# ---- manual control: an operator's explicit requests, never while a program holds the machine
+HOLDING = ("queued", "running", "interrupted")
+
+
+def _free(runtime: Runtime, machine_id: str) -> None:
+    """409 while a program holds the machine."""
+    holding = runtime.store.jobs_on_machine(machine_id, HOLDING)
+    if holding:
+        raise Conflict(f"machine {machine_id!r} is held by job {holding[0]}: manual control waits until it ends "
+                       "(or abandon it)", field="machine_id", value=machine_id)
+
+
+@router.post("/{machine_id}/home", dependencies=[Operator])
+def home_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Home every axis (the profile's home command, else G28 / $H); 409 while a program holds
+    the machine or it is not connected."""
+    row = get_or_404(session, Machine, machine_id)
+    _free(runtime, machine_id)
+    machine = runtime.machines.require(machine_id)
+    with hardware_errors():
+        machine.home()
+    return machine_out(runtime, row)
+
+
+@router.post("/{machine_id}/jog", dependencies=[Operator])
+def jog_machine(machine_id: str, body: JogRequest, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Move the tool by (dx, dy, dz) mm from where it is, then report where it is."""
+    if not (body.dx_mm or body.dy_mm or body.dz_mm):
+        raise InvalidInput("a jog needs a non-zero dx_mm, dy_mm or dz_mm", field="dx_mm", value=0.0)
+    row = get_or_404(session, Machine, machine_id)
+    _free(runtime, machine_id)
+    machine = runtime.machines.require(machine_id)
+    with hardware_errors():
+        x, y, z = machine.position()
+        machine.move(x + body.dx_mm, y + body.dy_mm, z + body.dz_mm, feed_mm_min=body.feed_mm_min)
+    return machine_out(runtime, row)
+
+
+@router.post("/{machine_id}/command", dependencies=[Operator])
+def console_command(machine_id: str, body: ConsoleRequest, runtime: RuntimeDep, session: SessionDep) -> ConsoleOut:
+    """Send one command and return the firmware's reply lines (502 when it rejects it)."""
+    row = get_or_404(session, Machine, machine_id)
+    _free(runtime, machine_id)
+    machine = runtime.machines.require(machine_id)
+    with hardware_errors():
+        result = machine.send(body.command.strip())
+    lines = getattr(result, "reply_lines", None)
+    reply = [str(line) for line in lines] if lines is not None else [str(result)]
+    return ConsoleOut(command=body.command.strip(), reply=reply, machine=machine_out(runtime, row))
+
+
+@router.delete("/{machine_id}", status_code=204)
+def delete_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep, role: str = Operator,
+                   force: Annotated[bool, Query(description="admin only: delete even if jobs reference it")] = False,
+                   ) -> None:
+    """Remove a machine record (disconnecting it); 409 while any job references it unless
+    ``force`` (admin), and always while a program holds it."""
+    if force and role != "admin":
+        raise HTTPException(403, "force=true needs the admin role")
+    if not lock_for_delete(session, Machine, [machine_id]):
+        session.rollback()
+        raise NotFound(f"machine {machine_id!r} does not exist", field="machine_id", value=machine_id)
+    _free(runtime, machine_id)
+    refs = session.exec(select(JobReference.job_id).where(JobReference.ref_kind == "machine",
+                                                          JobReference.ref_id == machine_id)).all()
+    if refs and not force:
+        session.rollback()
+        raise Conflict(f"machine {machine_id!r} is referenced by {len(set(refs))} job(s), e.g. {sorted(set(refs))[0]}",
+                       field="machine_id", value=machine_id)
+    runtime.machines.forget(machine_id)
+    session.exec(delete(JobReference).where(JobReference.ref_kind == "machine",  # type: ignore[call-overload]
+                                            JobReference.ref_id == machine_id))
+    session.delete(get_or_404(session, Machine, machine_id))
+    session.commit()
