@@ -43,7 +43,9 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
     position = None
     program = None
     world = runtime.machines.world(row)
-    if world is not None:
+    if state == "error":
+        pass  # after an emergency stop or a fault the controller's position is not known: home first
+    elif world is not None:
         position = list(world.position)
     elif live is not None and state == "idle":
         with hardware_errors():

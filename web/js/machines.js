@@ -1,6 +1,6 @@
 // Machines: register (mock or real port), connect, live state and position, pause /
 // resume, and a big emergency stop.  The page polls the machines' status once a second.
-import { ApiError, get, post } from "./api.js";
+import { ApiError, del, get, post } from "./api.js";
 import { el, guarded, initPage, markReady, showError, showInfo } from "./ui.js";
 
 const POLL_MS = 1000;
@@ -49,6 +49,7 @@ async function onRegister(event) {
 const cards = new Map();
 
 function position(m) {
+  if (!m.position && m.state === "error") return "position unknown — after an emergency stop or a fault: Connect, then Home";
   if (!m.position) return "position unknown";
   return ["X", "Y", "Z"].map((a, i) => `${a} ${Number(m.position[i] ?? 0).toFixed(3)}`).join("   ") +
     (m.position.length > 3 ? `   ${m.position.slice(3).map((v) => Number(v).toFixed(2)).join(" ")}` : "");
@@ -76,10 +77,50 @@ function card(m) {
     el("h2", {}, m.name, " ", state), el("div", { class: "small mono" }, `${m.id} · ${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
     pos, prog,
     el("div", { class: "row" }, act(m, "connect", "Connect"), act(m, "disconnect", "Disconnect"), act(m, "pause", "Pause"), act(m, "resume", "Resume")),
+    manualControls(m),
     el("p", {}), estop);
   cards.set(m.id, { node, state, pos, prog });
   update(m);
   return node;
+}
+
+// Manual control: home, jog by a chosen step, one console line with the firmware's reply,
+// and removing the machine.  The server refuses all of it while a program holds the machine.
+function manualControls(m) {
+  const step = el("select", { class: "jog-step", "aria-label": `jog step for ${m.name}` },
+    ["0.1", "1", "10"].map((v) => el("option", { value: v, selected: v === "1" }, `${v} mm`)));
+  const jog = (axis, sign) => el("button", { type: "button", class: `jog jog-${axis}${sign > 0 ? "p" : "m"}`,
+    "aria-label": `jog ${axis.toUpperCase()} ${sign > 0 ? "+" : "-"}`,
+    onclick: () => guarded(`Jog ${m.name}`, async () => {
+      update(await post(`machines/${m.id}/jog`, { [`d${axis}_mm`]: sign * Number(step.value) }));
+    }) }, `${axis.toUpperCase()}${sign > 0 ? "+" : "−"}`);
+  const home = el("button", { type: "button", class: "act-home", onclick: () => guarded(`Home ${m.name}`, async () => {
+    if (!window.confirm(`Home ${m.name}? Every axis moves to its end stops.`)) return;
+    update(await post(`machines/${m.id}/home`));
+  }) }, "Home");
+  const log = el("pre", { class: "console-log", "aria-live": "polite" });
+  const line = el("input", { class: "console-line", "aria-label": `console command for ${m.name}`, placeholder: "M114", maxlength: 96 });
+  const consoleForm = el("form", { class: "console", onsubmit: (e) => {
+    e.preventDefault();
+    const command = line.value.trim();
+    if (!command) return;
+    guarded(`Console ${m.name}`, async () => {
+      const answer = await post(`machines/${m.id}/command`, { command });
+      log.textContent = `${log.textContent}> ${answer.command}\n${answer.reply.join("\n")}\n`.split("\n").slice(-40).join("\n");
+      line.value = "";
+      update(answer.machine);
+    });
+  } }, line, el("button", { type: "submit" }, "Send"));
+  const remove = el("button", { type: "button", class: "danger act-delete", onclick: () => guarded(`Remove ${m.name}`, async () => {
+    if (!window.confirm(`Remove the machine record ${m.name}? (Jobs that used it keep their records.)`)) return;
+    await del(`machines/${m.id}`);
+    cards.get(m.id)?.node.remove();
+    cards.delete(m.id);
+    showInfo(`Machine ${m.name} removed.`);
+  }) }, "Remove");
+  return el("details", { class: "manual" }, el("summary", {}, "Manual control"),
+    el("div", { class: "row" }, home, step, jog("x", -1), jog("x", 1), jog("y", -1), jog("y", 1), jog("z", -1), jog("z", 1)),
+    consoleForm, log, el("div", { class: "row" }, remove));
 }
 
 function update(m) {

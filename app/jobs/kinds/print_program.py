@@ -151,7 +151,8 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
     finally:
         ctx.runtime.machines.running_job.pop(params.machine_id, None)
     if cancelled or report.cancelled:
-        raise Cancelled(f"print cancelled after {report.executed} of {report.total} commands",
+        why = "emergency stop; " if machine.estopped else ""
+        raise Cancelled(f"{why}print cancelled after {report.executed} of {report.total} commands",
                         field="job_id", value=ctx.job_id)
     if resume is not None:  # the re-homing, then the modal state the skipped commands left
         preamble = preamble + list(machine.last_preamble)

@@ -145,3 +145,30 @@ def test_slice_and_toolpath_results_draw_their_layer_curves(page, sliced):
         points = page.get_attribute("figure.chart polyline", "points").split()
         assert len(points) == len(job["result"]["layers"])
     assert page.js_errors == []
+
+
+def test_machines_page_jogs_homes_and_talks_to_the_firmware(page, served):
+    api = served.api()
+    machine = api.post("/api/v1/machines", json={"name": "manual-mock", "port": "mock://"}).json()
+    spare = api.post("/api/v1/machines", json={"name": "spare-mock", "port": "mock://"}).json()
+    assert api.post(f"/api/v1/machines/{machine['id']}/connect").status_code == 200
+    page.on("dialog", lambda dialog: dialog.accept())
+    page.goto("/machines.html")
+    card = f'.machine-card[data-id="{machine["id"]}"]'
+    page.wait_for_selector(f"{card} [data-state='idle']")
+    page.click(f"{card} details.manual summary")
+    page.click(f"{card} .act-home")
+    page.select_option(f"{card} .jog-step", "10")
+    page.click(f"{card} .jog-xp")
+    page.click(f"{card} .jog-zp")
+    expect(page.locator(f"{card} .pos")).to_contain_text("Z 10.000")
+    assert api.get(f"/api/v1/machines/{machine['id']}").json()["position"][:3] == pytest.approx([10, 0, 10], abs=1e-3)
+    page.fill(f"{card} .console-line", "M114")
+    page.click(f"{card} form.console button")
+    expect(page.locator(f"{card} pre.console-log")).to_contain_text("X:10")
+    page.click(f'.machine-card[data-id="{spare["id"]}"] details.manual summary')
+    page.click(f'.machine-card[data-id="{spare["id"]}"] .act-delete')
+    expect(page.locator(f'.machine-card[data-id="{spare["id"]}"]')).to_have_count(0)
+    assert api.get(f"/api/v1/machines/{spare['id']}").status_code == 404
+    screenshot(page, "machines-manual")
+    assert page.js_errors == []
