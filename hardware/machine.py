@@ -51,11 +51,12 @@ from collections import deque
 from collections.abc import Callable, Iterable
 
 from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
-                     MachineBusy, MachineStateError)
+                     MachineStateError)
 from .events import Capability, FirmwareInfo, PositionReport, StartBanner
 from .link import CommandResult, Link, PendingCommand
 from .machine_grbl import GrblOperations
 from .machine_probe import ProbeOperations
+from .machine_state import ClaimedOperations
 from .machine_resume import ResumeOperations
 from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
                             _Interrupted)
@@ -65,7 +66,7 @@ STATUS_POLL_S = 0.25  # grbl: a status report this often while streaming
 
 __all__ = ["STATES", "Identity", "Machine", "MachineProfile", "ProbeResult", "StreamReport"]
 
-class Machine(GrblOperations, ResumeOperations, ProbeOperations):
+class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperations):
     """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
     for a second caller); pause/resume/cancel/stop/status work from any thread."""
 
@@ -112,21 +113,6 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations):
         if not self.link.healthy and self._state in ("idle", "busy"):
             return "error"
         return self._state
-
-    def _claim(self, state: str) -> None:
-        if self.link is None:
-            raise MachineStateError("machine is not connected", field="state", value="disconnected")
-        if not self._hold.acquire(blocking=False):
-            raise MachineBusy(f"machine is {self._state}", field="state", value=self._state)
-        if self.state == "error":
-            self._hold.release()
-            raise MachineStateError("machine is in error state: reconnect first", field="state",
-                                    value="error")
-        self._state = state
-
-    def _release(self, state: str = "idle") -> None:
-        self._state = state
-        self._hold.release()
 
     # ------------------------------------------------------------------ connection
     def connect(self) -> Identity:

@@ -29,8 +29,8 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 
-from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineBusy,
-                      MachineStateError, ProbeFailed)
+from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
+from ..machine_state import ClaimedOperations
 from ..machine_types import _Interrupted, Identity, MachineProfile, ProbeResult, StreamReport
 from ..protocol import validate_program
 from .rsh import RshRejected, RshSession
@@ -41,7 +41,7 @@ __all__ = ["LinuxCNCMachine"]
 _NO_CONTACT = "without making contact"
 
 
-class LinuxCNCMachine:
+class LinuxCNCMachine(ClaimedOperations):
     """See the module docstring.  Blocking calls hold the machine (``MachineBusy`` for a
     second caller); pause/resume/cancel/stop/status work from any thread."""
 
@@ -86,21 +86,6 @@ class LinuxCNCMachine:
         if not self.link.healthy and self._state in ("idle", "busy", "printing", "paused"):
             return "error"
         return self._state
-
-    def _claim(self, state: str) -> None:
-        if self.link is None:
-            raise MachineStateError("machine is not connected", field="state", value="disconnected")
-        if not self._hold.acquire(blocking=False):
-            raise MachineBusy(f"machine is {self._state}", field="state", value=self._state)
-        if self.state == "error":
-            self._hold.release()
-            raise MachineStateError("machine is in error state: reconnect first", field="state",
-                                    value="error")
-        self._state = state
-
-    def _release(self, state: str = "idle") -> None:
-        self._state = state
-        self._hold.release()
 
     def _fail_state(self) -> str:
         return "error" if self._estopped or self.link is None or not self.link.healthy else "idle"
