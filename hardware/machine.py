@@ -56,7 +56,7 @@ from .events import Capability, FirmwareInfo, PositionReport, StartBanner
 from .link import CommandResult, Link, PendingCommand
 from .machine_grbl import GrblOperations
 from .machine_probe import ProbeOperations
-from .machine_state import ClaimedOperations
+from .machine_state import ClaimedOperations, axis_words
 from .machine_resume import ResumeOperations
 from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
                             _Interrupted)
@@ -216,9 +216,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
         """Absolute straight move; returns once the motion is finished."""
         feed = feed_mm_min or self.profile.travel_feed_mm_min
-        words = "".join(f" {a}{v:.4f}" for a, v in zip("XYZ", (x, y, z)) if v is not None)
-        if not words:
-            raise InvalidConfig("move needs at least one of x, y, z", field="move")
+        words = axis_words(x, y, z)
         self._claim("busy")
         try:
             if self.dialect == "grbl":

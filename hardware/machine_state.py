@@ -4,7 +4,7 @@ is disconnected or in error) and releases it with the state it leaves."""
 
 from __future__ import annotations
 
-from .errors import MachineBusy, MachineStateError
+from .errors import InvalidConfig, MachineBusy, MachineStateError
 
 
 class ClaimedOperations:
@@ -24,3 +24,11 @@ class ClaimedOperations:
     def _release(self, state: str = "idle") -> None:
         self._state = state
         self._hold.release()
+
+
+def axis_words(x: float | None, y: float | None, z: float | None) -> str:
+    """`` X.. Y.. Z..`` (mm, 4 decimals) of the axes given; ``InvalidConfig`` when none is."""
+    words = "".join(f" {a}{v:.4f}" for a, v in zip("XYZ", (x, y, z)) if v is not None)
+    if not words:
+        raise InvalidConfig("move needs at least one of x, y, z", field="move")
+    return words

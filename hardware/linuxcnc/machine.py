@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Iterable
 
 from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
-from ..machine_state import ClaimedOperations
+from ..machine_state import ClaimedOperations, axis_words
 from ..machine_types import _Interrupted, Identity, MachineProfile, ProbeResult, StreamReport
 from ..protocol import validate_program
 from .rsh import RshRejected, RshSession
@@ -201,9 +201,7 @@ class LinuxCNCMachine(ClaimedOperations):
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
         """Absolute straight move (G90 G1); returns once the motion is finished."""
         feed = feed_mm_min or self.profile.travel_feed_mm_min
-        words = "".join(f" {a}{v:.4f}" for a, v in zip("XYZ", (x, y, z)) if v is not None)
-        if not words:
-            raise InvalidConfig("move needs at least one of x, y, z", field="move")
+        words = axis_words(x, y, z)
         self._claim("busy")
         try:
             self._mdi([f"G90 G1{words} F{feed:.1f}"])

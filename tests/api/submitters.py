@@ -6,7 +6,10 @@ from __future__ import annotations
 import asyncio
 import time
 from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import httpx
 
@@ -66,3 +69,20 @@ def count_jobs(base: str, key: str) -> int:
     response = httpx.get(f"{base}/api/v1/jobs", params={"kind": "test_sleep", "limit": 1},
                          headers={"Authorization": f"Bearer {key}"}, timeout=60)
     return response.json()["total"]
+
+
+@contextmanager
+def capacity_server(data_dir: Path, log: Path, key: str) -> Iterator[str]:
+    """A real ``conforma serve`` (no embedded worker) accepting ``key`` as an operator: its URL."""
+    from tests.e2e.test_serve import env_for, free_port, start, stop, wait_healthy
+
+    port = free_port()
+    proc = start(["serve", "--port", str(port)],
+                 env_for(data_dir, CONFORMA_API_KEYS=f"{key}:operator", CONFORMA_LOG_LEVEL="warning",
+                         CONFORMA_EMBEDDED_WORKER="false"), log)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        wait_healthy(base, proc)
+        yield base
+    finally:
+        stop(proc)

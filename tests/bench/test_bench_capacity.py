@@ -8,23 +8,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.api.submitters import count_jobs, submit_all
-from tests.e2e.test_serve import env_for, free_port, start, stop, wait_healthy
+from tests.api.submitters import capacity_server, count_jobs, submit_all
 
 KEY = "bench-capacity-key"
 
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):  # type: ignore[no-untyped-def]
-    port = free_port()
-    proc = start(["serve", "--port", str(port)],
-                 env_for(tmp_path_factory.mktemp("bench-capacity") / "data", CONFORMA_API_KEYS=f"{KEY}:operator",
-                         CONFORMA_LOG_LEVEL="warning", CONFORMA_EMBEDDED_WORKER="false"),
-                 tmp_path_factory.mktemp("logs") / "serve.log")
-    base = f"http://127.0.0.1:{port}"
-    wait_healthy(base, proc)
-    yield base
-    stop(proc)
+    with capacity_server(tmp_path_factory.mktemp("bench-capacity") / "data", tmp_path_factory.mktemp("logs") / "serve.log",
+                         KEY) as base:
+        yield base
 
 
 def test_submitters_scale_without_server_errors(server):  # type: ignore[no-untyped-def]

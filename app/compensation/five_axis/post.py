@@ -37,7 +37,7 @@ from typing import Literal
 
 import numpy as np
 
-from app.compensation.five_axis.program import (FeedMode, ProgramStyle, approach, dispense,
+from app.compensation.five_axis.program import (FeedMode, ProgramStyle, dispensed_path,
                                                 end_program)
 from app.gcode.writer import ProgramBuilder
 
@@ -72,21 +72,7 @@ def linuxcnc_trt_program(tip_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarra
               "A about X, C about Z [table rotations]")
     b.comment("expects: " + "; ".join(linuxcnc_trt_setup(pivot_mm)))
     b.raw("M428")
-    b.raw("G94")
-    approach(b, style, tip_mm[0], {"a": float(a_deg[0]), "c": float(c_deg[0])})
-    dispense(b, style.dispense_on)
-    b.raw("G93" if feed_mode == "inverse_time" else "G94")
-    seg_len = np.linalg.norm(np.diff(tip_mm, axis=0), axis=1)
-    for j in range(1, tip_mm.shape[0]):
-        dt = float(durations_s[j - 1])
-        if feed_mode == "inverse_time":
-            feed = 60.0 / dt
-        else:
-            feed = seg_len[j - 1] / dt * 60.0 if seg_len[j - 1] > 1e-9 else nominal_feed_mm_min
-        b.move(x=tip_mm[j, 0], y=tip_mm[j, 1], z=tip_mm[j, 2], feed_mm_min=feed,
-               a=float(a_deg[j]), c=float(c_deg[j]))
-    dispense(b, style.dispense_off)
-    b.raw("G94")
+    dispensed_path(b, tip_mm, a_deg, c_deg, durations_s, feed_mode, nominal_feed_mm_min, style)
     b.raw("M429")
     end_program(b, style)
     return b.text()

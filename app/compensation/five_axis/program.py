@@ -81,19 +81,12 @@ def approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
     b.move(x=xyz[0], y=xyz[1], z=xyz[2], feed_mm_min=style.approach_feed_mm_min, **rotary)
 
 
-def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
-                      durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
-                      style: ProgramStyle, header: list[str]) -> str:
-    """Program text: approach to pose 0, dispense on, one ``G1 X Y Z A C F`` per later
-    pose, dispense off.
-
-    xyz_mm (k,3) machine tip positions; a_deg, c_deg (k,); durations_s (k-1,) segment
-    times; header: comment lines written after the standard header.
-    """
-    b = ProgramBuilder(style.dialect, "five_axis", style.job_id, decimals=style.decimals,
-                       feed_decimals=3)
-    for line in header:
-        b.comment(line)
+def dispensed_path(b: ProgramBuilder, xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
+                   durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
+                   style: ProgramStyle) -> None:
+    """Approach pose 0, dispense on, one ``G1 X Y Z A C F`` per later pose (inverse-time or
+    tip feed), dispense off, back to G94.  xyz_mm (k,3) mm in the program's frame; a_deg,
+    c_deg (k,) degrees; durations_s (k-1,) segment times (s)."""
     b.raw("G94")
     approach(b, style, xyz_mm[0], {"a": float(a_deg[0]), "c": float(c_deg[0])})
     dispense(b, style.dispense_on)
@@ -109,6 +102,22 @@ def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
                a=float(a_deg[j]), c=float(c_deg[j]))
     dispense(b, style.dispense_off)
     b.raw("G94")
+
+
+def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
+                      durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
+                      style: ProgramStyle, header: list[str]) -> str:
+    """Program text: approach to pose 0, dispense on, one ``G1 X Y Z A C F`` per later
+    pose, dispense off.
+
+    xyz_mm (k,3) machine tip positions; a_deg, c_deg (k,); durations_s (k-1,) segment
+    times; header: comment lines written after the standard header.
+    """
+    b = ProgramBuilder(style.dialect, "five_axis", style.job_id, decimals=style.decimals,
+                       feed_decimals=3)
+    for line in header:
+        b.comment(line)
+    dispensed_path(b, xyz_mm, a_deg, c_deg, durations_s, feed_mode, nominal_feed_mm_min, style)
     end_program(b, style)
     return b.text()
 

@@ -5,11 +5,11 @@ Under ``CI=true`` a missing Printrun is a failure, never a skip."""
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 
-import pytest
+
+from tests.real_components import missing
 
 
 def load_printcore():  # type: ignore[no-untyped-def]
@@ -18,10 +18,7 @@ def load_printcore():  # type: ignore[no-untyped-def]
         from printrun import gcoder
         from printrun.printcore import printcore
     except ImportError as exc:
-        message = f"Printrun's printcore is not installed ({exc}); make install adds it"
-        if os.environ.get("CI") == "true":
-            pytest.fail(message)
-        pytest.skip(message)
+        missing("Printrun's printcore", f"not installed ({exc}); make install adds it")
     return printcore, gcoder
 
 
