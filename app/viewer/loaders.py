@@ -289,7 +289,7 @@ class Loader:
             SurfaceMesh("fitted surface", np.asarray(mesh.vertices), np.asarray(mesh.faces)),))
 
     def _five_axis(self, session: Session, job: Job) -> FocusScene:
-        from app.compensation.five_axis.kinematics import (
+        from app.five_axis.kinematics import (
             machine_to_workpiece,
             tool_axis_from_angles,
         )

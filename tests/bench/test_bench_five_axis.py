@@ -10,8 +10,8 @@ import time
 
 import numpy as np
 
-from app.compensation.five_axis import FiveAxisParams, plan_five_axis
-from app.compensation.five_axis.trace import trace_over_xy
+from app.five_axis import FiveAxisParams, plan_five_axis
+from app.five_axis.trace import trace_over_xy
 from app.compensation.surface_fit import (
     ProbeRegion,
     SurfaceFitParams,

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from app.compensation.jetting import (
+from app.jetting import (
     ControllerParams,
     DropParams,
     JettingParams,
@@ -27,10 +27,10 @@ from app.compensation.jetting import (
     surface_metrics,
     target_from_spec,
 )
-from app.compensation.jetting.controller import build_qp, mpc_layer
-from app.compensation.jetting.flow import mobility_map
-from app.compensation.jetting.plant import Plant
-from app.compensation.jetting.qp import solve_fista, solve_lbfgsb
+from app.jetting.controller import build_qp, mpc_layer
+from app.jetting.flow import mobility_map
+from app.jetting.plant import Plant
+from app.jetting.qp import solve_fista, solve_lbfgsb
 
 SEEDS = range(5)
 SPREADS = (0.02, 0.06)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app.compensation.jetting import DropParams, TargetSpec, target_from_spec
+from app.jetting import DropParams, TargetSpec, target_from_spec
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from sqlmodel import Session
 
-from app.compensation.five_axis.kinematics import (
+from app.five_axis.kinematics import (
     tool_axis_from_angles,
     workpiece_to_machine,
 )

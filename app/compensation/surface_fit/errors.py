@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.compensation.five_axis.errors import short
+from app.five_axis.errors import short
 from app.errors import InvalidInput
 
 __all__ = ["SurfaceFitError", "GridHoleError"]

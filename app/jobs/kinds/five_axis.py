@@ -5,8 +5,8 @@
   ``fit_margin_mm``, clipped to the part's footprint, sampled on a ``fit_grid`` grid,
   missing heights filled) — the result's ``surface_source`` says which.
 * Trace: its stored nominal points' top view (x, y), draped onto that surface
-  (:func:`app.compensation.five_axis.trace.trace_over_xy`).
-* Plan: :func:`app.compensation.five_axis.plan_five_axis` — constant feed with the
+  (:func:`app.five_axis.trace.trace_over_xy`).
+* Plan: :func:`app.five_axis.plan_five_axis` — constant feed with the
   second-order Taylor parameter update at ``period_s`` (first order measured beside it),
   nozzle along the surface normal (or the patent's principal normal, ``normal``), a
   table-tilting A (about X) / C (about Z) machine with the table pivot ``pivot``; X Y Z are
@@ -21,7 +21,7 @@
 
 * Post-processor ``post``: ``conforma`` (X Y Z = tip in machine coordinates) or
   ``linuxcnc_xyzac_trt`` (LinuxCNC TCP, ``M428``, X Y Z = tip in workpiece coordinates),
-  see :mod:`app.compensation.five_axis.post`.  With ``machine_id`` the machine profile's
+  see :mod:`app.five_axis.post`.  With ``machine_id`` the machine profile's
   dispense codes, program end, ``five_axis_post``, ``pivot_mm`` and the machine's dialect
   replace the job's own fields.
 
@@ -37,9 +37,9 @@ import numpy as np
 from pydantic import Field, field_validator
 from sqlmodel import Session
 
-from app.compensation.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
-from app.compensation.five_axis.errors import TraceOffSurfaceError
-from app.compensation.five_axis.trace import trace_over_xy, uv_over_xy
+from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
+from app.five_axis.errors import TraceOffSurfaceError
+from app.five_axis.trace import trace_over_xy, uv_over_xy
 from app.compensation.surface_fit import ProbeRegion, SurfaceFitParams, plan_probe_grid
 from app.errors import InvalidInput
 from app.geometry.nurbs_surface import NurbsSurface

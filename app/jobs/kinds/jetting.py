@@ -1,6 +1,6 @@
 """Job ``jetting``: the simulated droplet-jetting closed loop of seed S2 (open loop or MPC).
 
-Thin adapter over :mod:`app.compensation.jetting`: the target (the seed's square with a
+Thin adapter over :mod:`app.jetting`: the target (the seed's square with a
 square hole, a 1-bit PNG mask, or one layer of a slice job) and every model, plant and
 controller knob are validated at submission, including the grid's memory need, so bad
 input is a 422 naming ``params.<field>`` before anything is queued.  Artifacts:
@@ -23,7 +23,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
-from app.compensation.jetting import (
+from app.jetting import (
     ControllerParams,
     DropParams,
     FlowParams,

@@ -18,7 +18,7 @@ from pydantic import Field, model_validator
 from sqlmodel import Session
 
 from app.array_files import load_npz
-from app.compensation.jetting import (
+from app.jetting import (
     JettingError,
     next_layer,
     npz_arrays,

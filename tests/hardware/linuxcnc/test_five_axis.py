@@ -25,11 +25,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from app.compensation.five_axis import FiveAxisParams, plan_five_axis
-from app.compensation.five_axis.contact import contact_frames
-from app.compensation.five_axis.trace import trace_over_xy
+from app.five_axis import FiveAxisParams, plan_five_axis
+from app.five_axis.contact import contact_frames
+from app.five_axis.trace import trace_over_xy
 from hardware.protocol import validate_program
-from tests.compensation.five_axis.conftest import sphere_cap
+from tests.five_axis.conftest import sphere_cap
 from tests.gcode_words import g1_rows
 from tests.hardware.linuxcnc.conftest import PROFILE, TRT_PIVOT
 

@@ -6,11 +6,11 @@ import math
 from dataclasses import dataclass
 
 from app.checks import require_positive
-from app.compensation.five_axis.contact import NormalSide, NormalSource
-from app.compensation.five_axis.errors import FiveAxisError
-from app.compensation.five_axis.kinematics import MachineConfig
-from app.compensation.five_axis.post import POSTS, PostName
-from app.compensation.five_axis.program import FeedMode, ProgramStyle
+from app.five_axis.contact import NormalSide, NormalSource
+from app.five_axis.errors import FiveAxisError
+from app.five_axis.kinematics import MachineConfig
+from app.five_axis.post import POSTS, PostName
+from app.five_axis.program import FeedMode, ProgramStyle
 
 __all__ = ["FiveAxisParams"]
 

@@ -19,7 +19,7 @@ from typing import Literal
 
 import numpy as np
 
-from app.compensation.five_axis.errors import DegenerateTraceError, TraceOffSurfaceError
+from app.five_axis.errors import DegenerateTraceError, TraceOffSurfaceError
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
 

@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from app.compensation.five_axis.errors import DegenerateTraceError
+from app.five_axis.errors import DegenerateTraceError
 from app.geometry.nurbs import NurbsCurve
 
 __all__ = ["ServoSchedule", "FeedFluctuation", "interpolate_parameters", "feed_fluctuation",

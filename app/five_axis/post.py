@@ -37,7 +37,7 @@ from typing import Literal
 
 import numpy as np
 
-from app.compensation.five_axis.program import (FeedMode, ProgramStyle, dispensed_path,
+from app.five_axis.program import (FeedMode, ProgramStyle, dispensed_path,
                                                 end_program)
 from app.gcode.writer import ProgramBuilder
 

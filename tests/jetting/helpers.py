@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from app.compensation.jetting.controller import build_qp
-from app.compensation.jetting.flow import mobility_map
-from app.compensation.jetting.kernel import drop_kernel
-from app.compensation.jetting.params import ControllerParams, DropParams, FlowParams
-from app.compensation.jetting.targets import target_from_mask
+from app.jetting.controller import build_qp
+from app.jetting.flow import mobility_map
+from app.jetting.kernel import drop_kernel
+from app.jetting.params import ControllerParams, DropParams, FlowParams
+from app.jetting.targets import target_from_mask
 
 
 def small_qp(dpi=600.0, horizon=1, seed=0, model="transport", size=14, steps=2):

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.compensation.five_axis.errors import TraceOffSurfaceError
+from app.five_axis.errors import TraceOffSurfaceError
 from app.geometry.fitting import interpolate_curve
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface

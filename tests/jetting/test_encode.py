@@ -3,7 +3,7 @@ import io
 import numpy as np
 from PIL import Image
 
-from app.compensation.jetting.encode import (
+from app.jetting.encode import (
     npz_arrays,
     npz_bytes,
     pattern_png,
@@ -33,7 +33,7 @@ def test_npz_round_trip():
 def test_npz_bytes_are_reproducible_and_simulation_artifacts_round_trip():
     import time
 
-    from app.compensation.jetting import JettingParams, TargetSpec, simulate
+    from app.jetting import JettingParams, TargetSpec, simulate
 
     first = npz_bytes(a=np.arange(5))
     time.sleep(1.1)  # zip timestamps have 2 s resolution; a clock-based one would differ

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.compensation.five_axis.kinematics import (
+from app.five_axis.kinematics import (
     AxisPose,
     MachineConfig,
     ToolPose,

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from app.compensation.jetting import (
+from app.jetting import (
     ControllerParams,
     DropParams,
     JettingError,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.compensation.five_axis import (
+from app.five_axis import (
     AxisLimitError,
     DegenerateTraceError,
     FiveAxisError,
@@ -13,14 +13,14 @@ from app.compensation.five_axis import (
     TraceOffSurfaceError,
     plan_five_axis,
 )
-from app.compensation.five_axis.kinematics import (
+from app.five_axis.kinematics import (
     machine_to_workpiece,
     rotation_matrices,
 )
-from app.compensation.five_axis.trace import trace_over_xy
+from app.five_axis.trace import trace_over_xy
 from app.geometry.fitting import fit_surface
 from app.geometry.nurbs_surface import NurbsSurface
-from tests.compensation.five_axis.conftest import SPHERE_R
+from tests.five_axis.conftest import SPHERE_R
 from tests.gcode_words import g1_rows
 
 H = 0.5

@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from app.compensation.jetting.errors import JettingError
-from app.compensation.jetting.kernel import drop_kernel
-from app.compensation.jetting.params import DropParams, FlowParams, PlantParams
-from app.compensation.jetting.plant import Plant
+from app.jetting.errors import JettingError
+from app.jetting.kernel import drop_kernel
+from app.jetting.params import DropParams, FlowParams, PlantParams
+from app.jetting.plant import Plant
 
 DROP = DropParams()
 SHAPE = (10, 40)

@@ -3,13 +3,13 @@ import itertools
 import numpy as np
 import pytest
 
-from app.compensation.jetting.binarize import (
+from app.jetting.binarize import (
     binarize,
     error_diffusion_pattern,
     greedy_pattern,
     threshold_pattern,
 )
-from app.compensation.jetting.qp import solve_fista
+from app.jetting.qp import solve_fista
 
 from .helpers import small_qp
 
@@ -66,7 +66,7 @@ def test_error_diffusion_keeps_the_drop_count():
 
 @pytest.mark.parametrize("radius", [0, 1, 2, 3])
 def test_lee_colours_keep_same_colour_cells_apart(radius):
-    from app.compensation.jetting.binarize import lee_colours
+    from app.jetting.binarize import lee_colours
 
     colours, count = lee_colours((30, 30), radius)
     assert set(np.unique(colours)) == set(range(count))

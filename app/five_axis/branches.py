@@ -28,8 +28,8 @@ from itertools import pairwise
 
 import numpy as np
 
-from app.compensation.five_axis.errors import AxisLimitError
-from app.compensation.five_axis.kinematics import MachineConfig, angles_for_normal
+from app.five_axis.errors import AxisLimitError
+from app.five_axis.kinematics import MachineConfig, angles_for_normal
 
 __all__ = ["BranchChoice", "choose_axes", "wrap_angle", "best_tilt"]
 

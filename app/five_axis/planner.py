@@ -29,14 +29,14 @@ from typing import Any
 
 import numpy as np
 
-from app.compensation.five_axis.branches import choose_axes
-from app.compensation.five_axis.contact import ContactFrames, contact_frames
-from app.compensation.five_axis.interpolation import (
+from app.five_axis.branches import choose_axes
+from app.five_axis.contact import ContactFrames, contact_frames
+from app.five_axis.interpolation import (
     FeedFluctuation,
     feed_fluctuation,
     interpolate_parameters,
 )
-from app.compensation.five_axis.kinematics import (
+from app.five_axis.kinematics import (
     AxisPose,
     MachineConfig,
     machine_to_workpiece,
@@ -44,9 +44,9 @@ from app.compensation.five_axis.kinematics import (
     tool_axis_from_angles,
     workpiece_to_machine,
 )
-from app.compensation.five_axis.params import FiveAxisParams
-from app.compensation.five_axis.post import linuxcnc_trt_program
-from app.compensation.five_axis.program import five_axis_program, nominal_program
+from app.five_axis.params import FiveAxisParams
+from app.five_axis.post import linuxcnc_trt_program
+from app.five_axis.program import five_axis_program, nominal_program
 from app.geometry.fitting import interpolate_curve
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface

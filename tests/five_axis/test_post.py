@@ -7,9 +7,9 @@ import re
 import numpy as np
 import pytest
 
-from app.compensation.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
-from app.compensation.five_axis.kinematics import machine_to_workpiece
-from app.compensation.five_axis.trace import trace_over_xy
+from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
+from app.five_axis.kinematics import machine_to_workpiece
+from app.five_axis.trace import trace_over_xy
 
 PIVOT = (2.0, -1.0, -15.0)
 MOVE = re.compile(r"^G1 X(\S+) Y(\S+) Z(\S+) A(\S+) C(\S+) F")

@@ -1,23 +1,23 @@
 """Five-axis conformal paths (seed S3): nozzle-normal traverses on a measured surface for a
 table-tilting A/C machine, with constant-feed Taylor interpolation and G-code output."""
 
-from app.compensation.five_axis.branches import BranchChoice, choose_axes
-from app.compensation.five_axis.errors import (
+from app.five_axis.branches import BranchChoice, choose_axes
+from app.five_axis.errors import (
     AxisLimitError,
     DegenerateTraceError,
     FiveAxisError,
     TraceOffSurfaceError,
 )
-from app.compensation.five_axis.kinematics import (
+from app.five_axis.kinematics import (
     AxisPose,
     MachineConfig,
     ToolPose,
     forward_kinematics,
     inverse_kinematics,
 )
-from app.compensation.five_axis.params import FiveAxisParams
-from app.compensation.five_axis.planner import FiveAxisPath, plan_five_axis
-from app.compensation.five_axis.trace import trace_on_surface
+from app.five_axis.params import FiveAxisParams
+from app.five_axis.planner import FiveAxisPath, plan_five_axis
+from app.five_axis.trace import trace_on_surface
 
 __all__ = [
     "AxisLimitError", "AxisPose", "BranchChoice", "DegenerateTraceError", "FiveAxisError",

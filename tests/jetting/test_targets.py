@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app.compensation.jetting.errors import JettingError
-from app.compensation.jetting.params import DropParams, TargetSpec
-from app.compensation.jetting.targets import (
+from app.jetting.errors import JettingError
+from app.jetting.params import DropParams, TargetSpec
+from app.jetting.targets import (
     target_from_mask,
     target_from_png,
     target_from_rings,

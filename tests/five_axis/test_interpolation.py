@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.compensation.five_axis.errors import DegenerateTraceError
-from app.compensation.five_axis.interpolation import (
+from app.five_axis.errors import DegenerateTraceError
+from app.five_axis.interpolation import (
     feed_fluctuation,
     interpolate_parameters,
     segment_arc_lengths,

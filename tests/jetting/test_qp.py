@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from app.compensation.jetting.qp import solve_fista, solve_lbfgsb
+from app.jetting.qp import solve_fista, solve_lbfgsb
 
 from .helpers import small_qp
 

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.compensation.five_axis.branches import choose_axes
-from app.compensation.five_axis.errors import AxisLimitError
-from app.compensation.five_axis.kinematics import MachineConfig, rotation_matrices
+from app.five_axis.branches import choose_axes
+from app.five_axis.errors import AxisLimitError
+from app.five_axis.kinematics import MachineConfig, rotation_matrices
 
 
 def _tilted(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:

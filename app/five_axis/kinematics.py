@@ -152,7 +152,7 @@ def inverse_kinematics(pose: ToolPose, config: MachineConfig, branch: int = 1,
     Where the axis is vertical within ``singular_rho`` (= sin A) C is undefined and
     ``c_hold_rad`` is used; A is then chosen to best align the axis for that C.
     The tip (k,3, mm) maps with the rotation: X = R (tip - o) + o.  Continuous branch
-    choice along a path is :func:`app.compensation.five_axis.branches.choose_axes`.
+    choice along a path is :func:`app.five_axis.branches.choose_axes`.
     """
     cand = angles_for_normal(pose.axis)
     if branch not in (1, -1):

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from app.compensation.jetting.metrics import surface_metrics
-from app.compensation.jetting.params import DropParams
-from app.compensation.jetting.targets import target_from_mask
+from app.jetting.metrics import surface_metrics
+from app.jetting.params import DropParams
+from app.jetting.targets import target_from_mask
 
 
 def test_flat_part_has_zero_roughness_and_no_collapse():

@@ -3,13 +3,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.compensation.jetting.kernel import (
+from app.jetting.kernel import (
     cap_height,
     deposit,
     deposit_adjoint,
     drop_kernel,
 )
-from app.compensation.jetting.params import DropParams
+from app.jetting.params import DropParams
 
 
 @settings(max_examples=25, deadline=None)

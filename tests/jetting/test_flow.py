@@ -3,8 +3,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.compensation.jetting.flow import flow_layer, mobility_map, substrate_tilt
-from app.compensation.jetting.params import FlowParams
+from app.jetting.flow import flow_layer, mobility_map, substrate_tilt
+from app.jetting.params import FlowParams
 
 
 def random_layer(seed, shape=(12, 14)):
