@@ -1,7 +1,7 @@
 """The domain's small exception family.
 
-Every layer raises one of these (or a subclass of its own); the API turns them into
-RFC 9457 problem details.  Each error may name the offending input ``field`` (a dotted
+Every layer raises one of these (or a subclass of its own); the API edge
+(``app.problems``) maps each class to an HTTP status and turns it into RFC 9457 problem details.  Each error may name the offending input ``field`` (a dotted
 path such as ``"geometry.knots"``) and ``value`` so that the client sees exactly what
 was wrong.  This module is pure: the compute core may import it.
 """
@@ -12,10 +12,8 @@ from typing import Any
 
 
 class ConformaError(Exception):
-    """Base of all expected errors.  ``status`` is the HTTP status it maps to."""
-
-    status: int = 400
-    title: str = "Bad request"
+    """Base of all expected errors.  The core knows nothing of HTTP: the API edge maps each
+    class to its status and title (``app.problems.http_status``)."""
 
     def __init__(self, message: str, *, field: str | None = None, value: Any = None) -> None:
         super().__init__(message)
@@ -27,33 +25,18 @@ class ConformaError(Exception):
 class InvalidInput(ConformaError):
     """The input is well-formed but its content cannot be used (422)."""
 
-    status = 422
-    title = "Unprocessable input"
-
 
 class NotFound(ConformaError):
     """A referenced record does not exist (404)."""
-
-    status = 404
-    title = "Not found"
 
 
 class Conflict(ConformaError):
     """The request conflicts with the current state of a record (409)."""
 
-    status = 409
-    title = "Conflict"
-
 
 class TooLarge(ConformaError):
     """The request or an upload exceeds a configured limit (413)."""
 
-    status = 413
-    title = "Payload too large"
-
 
 class Cancelled(ConformaError):
     """A job observed its cancel request and stopped cooperatively."""
-
-    status = 409
-    title = "Cancelled"

@@ -6,7 +6,7 @@ import json
 import math
 from typing import Any
 
-from app.errors import ConformaError
+from app.errors import Cancelled, Conflict, ConformaError, InvalidInput, NotFound, TooLarge
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 
@@ -37,6 +37,30 @@ def problem(status: int, title: str, detail: str, *, errors: list[dict[str, Any]
     return body
 
 
+# The HTTP meaning of the domain's exception family, kept at the edge (the core raises
+# these without knowing HTTP).  Service-side classes outside the core (machines, machine
+# jobs) declare their own ``status`` and ``title`` attributes.
+_STATUS: dict[type, tuple[int, str]] = {
+    InvalidInput: (422, "Unprocessable input"),
+    NotFound: (404, "Not found"),
+    Conflict: (409, "Conflict"),
+    TooLarge: (413, "Payload too large"),
+    Cancelled: (409, "Cancelled"),
+    ConformaError: (400, "Bad request"),
+}
+
+
+def http_status(exc: ConformaError) -> tuple[int, str]:
+    """(status, title) of one of our exceptions: the nearest class in its MRO that the table
+    above names or that declares its own ``status``."""
+    for cls in type(exc).__mro__:
+        if "status" in cls.__dict__:
+            return int(cls.__dict__["status"]), str(cls.__dict__.get("title", _STATUS[ConformaError][1]))
+        if cls in _STATUS:
+            return _STATUS[cls]
+    return _STATUS[ConformaError]
+
+
 def from_error(exc: ConformaError) -> dict[str, Any]:
     """The problem document for one of our exceptions (names field and value)."""
     errors = None
@@ -45,5 +69,6 @@ def from_error(exc: ConformaError) -> dict[str, Any]:
         if exc.value is not None:
             entry["value"] = _short(exc.value)
         errors = [entry]
-    return problem(exc.status, exc.title, exc.message, errors=errors,
+    status, title = http_status(exc)
+    return problem(status, title, exc.message, errors=errors,
                    type_=f"https://conforma.dev/problems/{type(exc).__name__}")

@@ -10,6 +10,7 @@ import pytest
 
 from app.checks import is_finite_number, require_non_negative, require_positive
 from app.errors import InvalidInput
+from app.problems import http_status
 
 
 class SampleError(InvalidInput):
@@ -50,4 +51,4 @@ def test_non_negative_message_field_and_value():
         require_non_negative(Sample(b=-0.5), ("a", "b"), SampleError)
     err = info.value
     assert (err.field, err.value, err.message) == ("b", -0.5, "b must be a finite number >= 0")
-    assert err.status == 422
+    assert http_status(err)[0] == 422

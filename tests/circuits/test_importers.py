@@ -9,6 +9,7 @@ import ezdxf
 import numpy as np
 import pytest
 
+from app.problems import http_status
 from app.circuits.errors import CircuitFileError
 from app.circuits.formats import detect_format, read_layout
 
@@ -221,7 +222,7 @@ def test_svg_units_viewbox_and_nested_transforms():
 def test_bad_files_name_their_line(name, data, where):
     with pytest.raises(CircuitFileError) as info:
         read_layout(data.encode(), name)
-    assert where in info.value.message and info.value.status == 422
+    assert where in info.value.message and http_status(info.value)[0] == 422
 
 
 def test_wrong_layer_names_the_layer():

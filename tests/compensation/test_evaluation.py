@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.problems import http_status
 from app.compensation.evaluation import (
     EvaluationError,
     LineWidthModel,
@@ -99,7 +100,7 @@ def test_width_model_shape():
 def test_width_model_validation(bad):
     with pytest.raises(EvaluationError) as info:
         LineWidthModel(**bad)
-    assert info.value.status == 422
+    assert http_status(info.value)[0] == 422
 
 
 def test_perfect_standoff_gives_nominal_width_and_process_scatter():

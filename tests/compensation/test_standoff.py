@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.problems import http_status
 from app.compensation.print_path import SegmentationError, segment_adaptive
 from app.compensation.standoff import (
     CompensationError,
@@ -155,7 +156,7 @@ def test_outside_probed_span_is_refused_then_held_when_allowed():
     rec = AnalyticReconstruction(PATH, real, np.linspace(2.0, L - 3.0, 10))
     with pytest.raises(OutsideProbedSpanError) as info:
         compensate_trace(rec, CompensationParams())
-    assert info.value.status == 422 and info.value.field == "span"
+    assert http_status(info.value)[0] == 422 and info.value.field == "span"
     assert info.value.value["probed_mm"] == [2.0, round(L - 3.0, 4)]
     assert info.value.value["trace_mm"][1] == pytest.approx(L, abs=1e-4)
     with pytest.raises(OutsideProbedSpanError):

@@ -8,6 +8,7 @@ from geomdl import NURBS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.problems import http_status
 from app.geometry.errors import DegenerateGeometryError, GeometryError, KnotVectorError, WeightError
 from app.geometry.nurbs import NurbsCurve
 
@@ -124,7 +125,7 @@ def test_bad_input_names_field_and_value(data: dict, error: type, field: str, va
         NurbsCurve.from_dict(data)
     assert info.value.field == field
     assert info.value.value == value
-    assert info.value.status == 422
+    assert http_status(info.value)[0] == 422
 
 
 def test_parameters_outside_domain_are_rejected() -> None:

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from app.problems import http_status
 from app.jetting.errors import JettingError
 from app.jetting.params import DropParams, TargetSpec
 from app.jetting.targets import (
@@ -60,7 +61,7 @@ def test_png_mask_round_trip():
 def test_bad_mask_bytes(data, field):
     with pytest.raises(JettingError) as err:
         target_from_png(data, DROP)
-    assert err.value.field == field and err.value.status == 422
+    assert err.value.field == field and http_status(err.value)[0] == 422
 
 
 def test_all_black_mask_is_rejected():

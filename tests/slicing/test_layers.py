@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from app.problems import http_status
 from app.slicing.errors import MeshError, SlicingError
 from app.slicing.layers import SliceParams, slice_mesh
 from app.slicing.rings import signed_area
@@ -65,7 +66,7 @@ def test_bad_parameters_are_named():
     cyl = trimesh.creation.cylinder(radius=1.0, height=1.0)
     with pytest.raises(SlicingError) as e:
         slice_mesh(cyl, SliceParams(mode="area", l_min=0.2, l_max=0.1))
-    assert e.value.field == "params.l_min" and e.value.status == 422
+    assert e.value.field == "params.l_min" and http_status(e.value)[0] == 422
     with pytest.raises(SlicingError) as e:
         slice_mesh(cyl, SliceParams(layer_mm=0.0))
     assert e.value.field == "params.layer_mm"
