@@ -50,6 +50,8 @@ class Settings(BaseSettings):
     job_memory_mb: float = Field(1024.0, ge=64, le=1_000_000,
                                  description="memory a compute job may use (address space above the worker's)")
     job_time_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-clock limit of a compute job")
+    blas_threads: int = Field(1, ge=1, le=64, description="BLAS/OpenMP threads of a process that runs compute jobs, "
+                              "set once when it starts (the planners' many small solves run fastest on one)")
     lease_s: float = Field(30.0, gt=0.5, le=3600)
     max_attempts: int = Field(3, ge=1, le=100)
     reaper_interval_s: float = Field(1.0, gt=0.01, le=600)

@@ -8,6 +8,12 @@ from pathlib import Path
 
 import pytest
 
+from threadpoolctl import threadpool_limits
+
+# Tests and benchmarks call the core directly: run it as a job process does, with
+# CONFORMA_BLAS_THREADS's default of one BLAS thread (set once per process, never in the core).
+threadpool_limits(limits=1)
+
 KEYS = {"viewer": "viewer-key-123", "operator": "operator-key-123", "admin": "admin-key-123"}
 # Tests must not inherit a developer's configuration; CONFORMA_TEST_* select the real
 # hardware the contract suite runs against (tests/hardware/test_contract.py) and stay.

@@ -32,6 +32,8 @@ from app.errors import Cancelled, ConformaError
 from app.jobs.context import JobContext
 from app.jobs.registry import get_kind, load_kinds
 from app.jobs.store import Claim, JobStore, json_result
+from threadpoolctl import threadpool_limits
+
 from app.problems import from_error, problem
 from app.records import MeshCache
 
@@ -92,6 +94,7 @@ def memory_problem(memory_mb: float) -> dict:
 def run_child(settings: Settings, claim: Claim) -> None:
     """Entry point of the child process: limits, then run ``claim``'s job to an outcome."""
     apply_limits(int(settings.job_memory_mb * 2**20))
+    threadpool_limits(limits=settings.blas_threads)  # once per job process, never inside the core
     load_kinds(settings.job_plugins.split(","))
     runtime = ChildRuntime(settings)
     kind = get_kind(claim.kind)

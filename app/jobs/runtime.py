@@ -35,6 +35,7 @@ from app.jobs.context import JobContext
 from app.jobs.machine_jobs import MachineThreads, machine_slot
 from app.jobs.cost import check_cost
 from app.jobs.process_worker import ProcessSupervisor, warm_up
+from threadpoolctl import threadpool_limits
 from app.jobs.registry import JobKind, get_kind, load_kinds
 from app.jobs.store import JobStore, json_result
 from app.machines import MachineManager
@@ -263,6 +264,8 @@ class Runtime:
         """Start consumer threads for ``queues`` plus the reaper (idempotent per process)."""
         if "default" in queues and self.settings.compute_isolation == "process":
             threading.Thread(target=warm_up, daemon=True, name="forkserver-warm-up").start()
+        elif "default" in queues:  # compute jobs in this process's threads: its BLAS limit, set once here
+            threadpool_limits(limits=self.settings.blas_threads)
         for name in queues:
             threads = _THREADS.get(name, self.settings.worker_threads)
             consumer = _EmbeddedConsumer(

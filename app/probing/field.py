@@ -33,7 +33,6 @@ from typing import Literal
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.special import j1
-from threadpoolctl import threadpool_limits
 
 from app.probing.deviation_prior import (DeviationPrior, Sites, placement_basis, prior_covariance,
                                          prior_variance)
@@ -194,8 +193,7 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
     paths = [as_nominal_path(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     prior = params.prior()
     region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _design(region, prior, params, stations)
+    return _design(region, prior, params, stations)
 
 
 MAX_REFINE_ROUNDS = 6

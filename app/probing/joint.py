@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from threadpoolctl import threadpool_limits
 
 from app.probing.deviation_prior import (DeviationPrior, Sites, path_sites, prior_covariance,
                                          prior_variance)
@@ -203,14 +202,14 @@ def plan_joint(nominals: Sequence[object], params: PlanParams | None = None) -> 
         raise PlanError("joint planning needs at least one trace", field="traces", value=0)
     paths = [as_nominal_path(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     # the exchange does thousands of small factorisations and solves: one BLAS thread is
-    # ~10x faster than several on this size (thread start-up dominates)
-    with threadpool_limits(limits=1, user_api="blas"):
-        grid = joint_grid(paths, params.prior())
-        if params.count is not None:
-            count = int(params.count)
-        else:
-            count = auto_joint_count(grid, params.target_error_mm, params.coverage, params.min_count)
-        design = design_joint(grid, count)
+    # ~10x faster than several on this size (thread start-up dominates); job processes run
+    # with CONFORMA_BLAS_THREADS (default 1), set once when they start
+    grid = joint_grid(paths, params.prior())
+    if params.count is not None:
+        count = int(params.count)
+    else:
+        count = auto_joint_count(grid, params.target_error_mm, params.coverage, params.min_count)
+    design = design_joint(grid, count)
     sd = None if math.isnan(design.max_sd_mm) else design.max_sd_mm
     return tuple(ProbePlan("kriging", s, path.at(s), path.normals_at(s), predicted_sd_mm=sd)
                  for path, s in zip(paths, design.s_mm))

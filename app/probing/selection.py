@@ -46,7 +46,6 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
@@ -266,13 +265,12 @@ def plan_probes(nominal: Any, method: str = "adaptive",
 
 
 def _kriging_plan(path: NominalPath, params: PlanParams) -> ProbePlan:
-    with threadpool_limits(limits=1, user_api="blas"):  # many small solves: one thread is faster
-        grid = design_grid(path, params.prior())
-        if params.count is not None:
-            count = int(params.count)
-        else:
-            count = auto_count(grid, params.target_error_mm, params.coverage, params.min_count)
-        design = design_stations(grid, count)
+    grid = design_grid(path, params.prior())
+    if params.count is not None:
+        count = int(params.count)
+    else:
+        count = auto_count(grid, params.target_error_mm, params.coverage, params.min_count)
+    design = design_stations(grid, count)
     s = design.s_mm
     sd = None if math.isnan(design.max_sd_mm) else design.max_sd_mm
     return ProbePlan("kriging", s, path.at(s), path.normals_at(s), predicted_sd_mm=sd)

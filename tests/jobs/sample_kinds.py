@@ -78,3 +78,15 @@ def run_spin(ctx: JobContext, params: SpinParams) -> dict:
     while time.monotonic() < deadline:
         pass
     return {}
+
+
+class BlasParams(JobParams):
+    pass
+
+
+@job_kind("test_blas_threads", BlasParams)
+def run_blas_threads(ctx: JobContext, params: BlasParams) -> dict:
+    """The BLAS/OpenMP thread counts the job's process runs with (threadpoolctl's view)."""
+    from threadpoolctl import threadpool_info
+
+    return {"num_threads": sorted({int(pool["num_threads"]) for pool in threadpool_info()})}
