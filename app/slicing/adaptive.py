@@ -22,29 +22,11 @@ import math
 
 import numpy as np
 
+from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
-from app.slicing.rings import SectionStats
+from app.slicing.layers import make_layer
 
 _STEP_EPS = 1e-9  # mm; float slack when comparing accumulated steps
-
-
-def theta(sigma: float, sigma0: float, rule: str) -> int:
-    """Seed S4 discriminant theta: 1 when the section is cavity-rich, else 0.
-
-    ``rule="indicator"``: sigma >= sigma0.  ``rule="printed"``: int(ln(sigma - sigma0 + 55)
-    / 4) evaluated literally (0 when the logarithm's argument is not positive).
-    """
-    if rule == "indicator":
-        return 1 if sigma >= sigma0 else 0
-    arg = sigma - sigma0 + 55.0
-    return int(math.log(arg) / 4.0) if arg > 0 else 0
-
-
-def cavity_mu(st: SectionStats, params) -> float:
-    """mu = theta * (1/n) * sum(A_in) / A_out (0 without inner rings)."""
-    if st.inner_ring_count == 0:
-        return 0.0
-    return theta(st.sigma, params.sigma0, params.theta_rule) * st.mean_inner_ratio
 
 
 def _check_count(n: int, params) -> None:
@@ -77,8 +59,6 @@ def uniform_plan(height: float, layer_mm: float, remainder: str, z_tol: float) -
 def uniform_layers(sampler, params):
     """Slabs of ``layer_mm`` with the remainder distributed or merged (no sliver), sampled
     mid-height."""
-    from app.slicing.layers import make_layer
-
     z0, z1 = sampler.prepared.z_min, sampler.prepared.z_max
     plan = uniform_plan(z1 - z0, params.layer_mm, params.remainder, params.z_tol)
     _check_count(len(plan), params)
@@ -116,8 +96,6 @@ def _no_sliver(z: float, step: float, z_max: float, params) -> float:
 
 def area_layers(sampler, params):
     """Seed S4 area-deviation rule, plus step 9 (multi-cavity) in ``cavity`` mode."""
-    from app.slicing.layers import make_layer
-
     z_min, z_max = sampler.prepared.z_min, sampler.prepared.z_max
     z = z_min
     _, st_i = sampler.section(z)
@@ -207,8 +185,6 @@ def cusp_layers(sampler, params):
     Facets with |n_z| > 1 - 1e-9 (horizontal) are excluded and their heights become snap
     levels: a slab is cut at a flat face when that keeps it at least ``l_min`` thick.
     """
-    from app.slicing.layers import make_layer
-
     pm = sampler.prepared
     z_min, z_max = pm.z_min, pm.z_max
     nz = np.abs(pm.normals_z)

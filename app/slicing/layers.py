@@ -24,11 +24,11 @@ from typing import Literal
 
 import manifold3d
 import numpy as np
-import trimesh
 
 from app.checks import require_non_negative, require_positive
+from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
-from app.slicing.mesh_prep import PreparedMesh, prepare_mesh
+from app.slicing.mesh_prep import PreparedMesh
 from app.slicing.rings import Island, SectionStats, oriented, section_stats
 
 SliceMode = Literal["uniform", "area", "cavity", "cusp"]
@@ -199,8 +199,6 @@ def make_layer(index: int, z_bottom: float, z_top: float, z_sample: float,
                sampler: Sampler, prev_area: float | None, reason: str,
                params: SliceParams) -> Layer:
     """Build a :class:`Layer`; raises :class:`SlicingError` when the section is empty."""
-    from app.slicing.adaptive import cavity_mu
-
     if not z_top - z_bottom > 0:
         raise SlicingError(f"layer {index} has zero thickness at z={z_top:.6g} mm",
                            field="params", value=float(z_top - z_bottom))
@@ -213,29 +211,6 @@ def make_layer(index: int, z_bottom: float, z_top: float, z_sample: float,
                  z_sample=float(sampler.clamp(z_sample)), islands=islands, area=st.area,
                  ring_count=st.ring_count, inner_ring_count=st.inner_ring_count,
                  sigma=st.sigma, mu=cavity_mu(st, params), eps=float(eps), reason=reason)
-
-
-def slice_mesh(mesh: trimesh.Trimesh | PreparedMesh, params: SliceParams) -> SliceResult:
-    """Slice ``mesh`` (a trimesh or an already prepared mesh) into layers.
-
-    Raises :class:`SlicingError` for bad parameters, an unusable mesh, a layer with no
-    area, or more than ``params.max_layers`` layers.
-    """
-    from app.slicing import adaptive
-
-    params.validate()
-    prepared = mesh if isinstance(mesh, PreparedMesh) else prepare_mesh(mesh, params.repair, params.max_hole_mm)
-    height = prepared.z_max - prepared.z_min
-    if not height > 2 * params.z_tol:
-        raise SlicingError(f"part height {height:.6g} mm is too small to slice",
-                           field="mesh", value=float(height))
-    sampler = Sampler(prepared, params.z_tol)
-    planner = {"uniform": adaptive.uniform_layers, "area": adaptive.area_layers,
-               "cavity": adaptive.area_layers, "cusp": adaptive.cusp_layers}[params.mode]
-    layers, notes = planner(sampler, params)
-    return SliceResult(layers=tuple(layers), params=params, z_min=prepared.z_min,
-                       z_max=prepared.z_max, bounds=prepared.bounds, volume=prepared.volume,
-                       repairs=prepared.repairs, notes=tuple(notes))
 
 
 def translated(result: SliceResult, shift: np.ndarray) -> SliceResult:

@@ -19,7 +19,7 @@ import pytest
 
 from app.mesh_intake import intake
 from app.slicing.export import to_cli, to_json, to_slc
-from app.slicing.layers import SliceParams, slice_mesh
+from app.slicing import SliceParams, slice_mesh
 from app.slicing.mesh_prep import prepare_mesh
 from tests.bench.test_bench_slicing import _table
 from tests.real_parts import cad_part

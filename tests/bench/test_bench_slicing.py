@@ -25,7 +25,8 @@ import trimesh
 
 from app.gcode.estimator import MachineLimits, estimate_gcode
 from app.gcode.fdm import FdmParams, write_fdm_gcode
-from app.slicing.layers import Sampler, SliceParams, slice_mesh
+from app.slicing import SliceParams, slice_mesh
+from app.slicing.layers import Sampler
 from app.slicing.mesh_prep import prepare_mesh
 from app.slicing.toolpath import ToolpathParams, plan_toolpath
 from tests.slicing.conftest import cavity_block, channel_block

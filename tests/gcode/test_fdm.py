@@ -11,7 +11,7 @@ import trimesh
 from app.gcode.estimator import estimate_gcode
 from app.gcode.fdm import FdmParams, write_fdm_gcode
 from app.gcode.writer import GcodeError
-from app.slicing.layers import SliceParams, slice_mesh
+from app.slicing import SliceParams, slice_mesh
 from app.slicing.toolpath import ToolpathParams, plan_toolpath
 
 

@@ -10,7 +10,7 @@ import trimesh
 
 from app.problems import http_status
 from app.slicing.errors import MeshError, SlicingError
-from app.slicing.layers import SliceParams, slice_mesh
+from app.slicing import SliceParams, slice_mesh
 from app.slicing.rings import signed_area
 from tests.slicing.conftest import cavity_block
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 from shapely.geometry import Polygon
 
 from app.slicing.errors import SlicingError
-from app.slicing.layers import SliceParams, slice_mesh
+from app.slicing import SliceParams, slice_mesh
 from app.slicing.offset import SEED_HAZ_TABLE, BeamWidthTable, compensate_beam, offset_islands
 from app.slicing.rings import Island, signed_area
 from tests.slicing.conftest import cavity_block
