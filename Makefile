@@ -33,6 +33,7 @@ screenshots: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check app hardware tests
+	$(BIN)/python -m mypy  # the pure core: packages listed in pyproject's [tool.mypy]
 
 clean-data:
 	rm -rf data

@@ -85,6 +85,7 @@ class StandoffReport:
 
 def _as_moves(deposited_moves: Any) -> np.ndarray:
     """(n, 2, 3) array from an array or a sequence of objects with ``.start``/``.end``."""
+    raw: Any
     if isinstance(deposited_moves, np.ndarray):
         raw = deposited_moves
     else:

@@ -120,9 +120,11 @@ class FiveAxisParams:
 
     def machine(self) -> MachineConfig:
         """The machine description in internal units (rad)."""
-        c_lim = None if self.c_limits_deg is None else tuple(map(math.radians, self.c_limits_deg))
-        return MachineConfig(pivot_mm=tuple(map(float, self.pivot_mm)),
-                             a_limits_rad=tuple(map(math.radians, self.a_limits_deg)),
+        c_lim = None if self.c_limits_deg is None else (math.radians(self.c_limits_deg[0]),
+                                                        math.radians(self.c_limits_deg[1]))
+        px, py, pz = (float(v) for v in self.pivot_mm)
+        return MachineConfig(pivot_mm=(px, py, pz),
+                             a_limits_rad=(math.radians(self.a_limits_deg[0]), math.radians(self.a_limits_deg[1])),
                              c_limits_rad=c_lim)
 
     def style(self) -> ProgramStyle:

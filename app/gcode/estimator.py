@@ -168,7 +168,7 @@ def _apply_limit_commands(limits: MachineLimits,
             for i, ax in enumerate("XYZE"):
                 if ax in w:
                     cur[i] = w[ax]
-            limits = replace(limits, **{attr: tuple(cur)})
+            limits = replace(limits, **{attr: tuple(cur)})  # type: ignore[arg-type]  # attr names a tuple field
     return limits
 
 
@@ -189,7 +189,7 @@ def estimate_gcode(text: str, limits: MachineLimits = MachineLimits()) -> TimeEs
     d = np.diff(rows, axis=0)
     printing = d[:, 3] > 1e-12
     lay = np.asarray(layers)
-    layer_times = ()
+    layer_times: tuple[float, ...] = ()
     if len(lay) and lay.max() >= 0:
         sums = np.bincount(lay[lay >= 0], weights=t[lay >= 0])
         layer_times = tuple(float(s) for s in sums)

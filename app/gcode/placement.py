@@ -92,5 +92,5 @@ def profile_volume(profile: dict | None, label: str) -> MachineVolume | None:
     given = (profile or {}).get("volume_mm")
     if not given:
         return None
-    return MachineVolume(tuple(given["x"]), tuple(given["y"]), tuple(given["z"]),  # type: ignore[arg-type]
+    return MachineVolume(tuple(given["x"]), tuple(given["y"]), tuple(given["z"]),
                          f"{label} profile.volume_mm")

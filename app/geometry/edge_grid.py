@@ -31,7 +31,7 @@ class EdgeGrid(NamedTuple):
     edges: np.ndarray
 
 
-def _expand_ranges(starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _expand_ranges(starts: np.ndarray | None, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For ranges (start, count): (owner index, position within range) of every element."""
     owner = np.repeat(np.arange(counts.size), counts)
     offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)

@@ -54,7 +54,7 @@ class NurbsCurve:
     degree: int
     knots: np.ndarray
     control_points: np.ndarray
-    weights: np.ndarray | None = None
+    weights: np.ndarray | None = None  # None given -> ones (set in __post_init__; read it as ``w``)
 
     def __post_init__(self) -> None:
         degree, knots, points, weights = _validated(
@@ -66,6 +66,13 @@ class NurbsCurve:
         object.__setattr__(self, "weights", _frozen(weights))
 
     # ------------------------------------------------------------------ basics
+
+    @property
+    def w(self) -> np.ndarray:
+        """The weights (never None after construction)."""
+        assert self.weights is not None
+        return self.weights
+
     @property
     def dimension(self) -> int:
         """Number of coordinates per point (2 or 3)."""
@@ -80,11 +87,11 @@ class NurbsCurve:
     @property
     def is_rational(self) -> bool:
         """True if the weights are not all equal."""
-        return bool(np.ptp(self.weights) > 0)
+        return bool(np.ptp(self.w) > 0)
 
     @cached_property
     def _homogeneous(self) -> BSpline:
-        w = self.weights[:, None]
+        w = self.w[:, None]
         c = np.hstack([self.control_points * w, w])
         return BSpline(self.knots, c, self.degree, extrapolate=True)
 
@@ -224,17 +231,14 @@ class NurbsCurve:
         us, tree = self._samples
         _, idx = tree.query(pts, k=min(2, us.size))
         idx = np.atleast_2d(idx.T).reshape(-1, pts.shape[0]) if idx.ndim > 1 else idx[None, :]
-        best_u = None
-        best_d = None
+        best_u = np.full(pts.shape[0], np.nan)
+        best_d = np.full(pts.shape[0], np.inf)
         for starts in idx:
             u = self._newton(us[starts], pts, tolerance)
             d = np.linalg.norm(self.evaluate(u) - pts, axis=1)
-            if best_u is None:
-                best_u, best_d = u, d
-            else:
-                better = d < best_d
-                best_u = np.where(better, u, best_u)
-                best_d = np.where(better, d, best_d)
+            better = d < best_d
+            best_u = np.where(better, u, best_u)
+            best_d = np.where(better, d, best_d)
         closest = self.evaluate(best_u)
         return CurveInversion(best_u, closest, np.linalg.norm(closest - pts, axis=1))
 
@@ -263,7 +267,7 @@ class NurbsCurve:
             "degree": self.degree,
             "knots": self.knots.tolist(),
             "control_points": self.control_points.tolist(),
-            "weights": self.weights.tolist(),
+            "weights": self.w.tolist(),
         }
 
     @classmethod
@@ -288,7 +292,7 @@ class NurbsCurve:
 
         c = NURBS.Curve()
         c.degree = self.degree
-        w = self.weights[:, None]
+        w = self.w[:, None]
         c.ctrlptsw = np.hstack([self.control_points * w, w]).tolist()
         c.knotvector = self.knots.tolist()
         return c

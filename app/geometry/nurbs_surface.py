@@ -40,9 +40,9 @@ class SurfacePartials:
     ``p[0][0]`` is the point, ``p[1][0]`` = S_u, ``p[0][1]`` = S_v (entries with i + j > order are None).
     """
 
-    d: list[list[np.ndarray | None]]
+    d: list[list[Any]]  # np.ndarray, or None where i + j > order
 
-    def __getitem__(self, i: int) -> list[np.ndarray | None]:
+    def __getitem__(self, i: int) -> list[np.ndarray]:
         return self.d[i]
 
 
@@ -68,21 +68,28 @@ class NurbsSurface:
     knots_u: np.ndarray
     knots_v: np.ndarray
     control_points: np.ndarray
-    weights: np.ndarray | None = None
+    weights: np.ndarray | None = None  # None given -> ones (set in __post_init__; read it as ``w``)
 
     def __post_init__(self) -> None:
         vals = _validated(
             self.degree_u, self.degree_v, self.knots_u, self.knots_v, self.control_points, self.weights, "surface"
         )
-        for name, value in zip(("degree_u", "degree_v"), vals[:2]):
-            object.__setattr__(self, name, value)
-        for name, value in zip(("knots_u", "knots_v", "control_points", "weights"), vals[2:]):
-            object.__setattr__(self, name, _frozen(value))
+        for name, degree in zip(("degree_u", "degree_v"), vals[:2]):
+            object.__setattr__(self, name, degree)
+        for name, array in zip(("knots_u", "knots_v", "control_points", "weights"), vals[2:]):
+            object.__setattr__(self, name, _frozen(array))
+
+
+    @property
+    def w(self) -> np.ndarray:
+        """The weights (never None after construction)."""
+        assert self.weights is not None
+        return self.weights
 
     @property
     def domain(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """((u0, u1), (v0, v1))."""
-        nu, nv = self.weights.shape
+        nu, nv = self.w.shape
         return (
             (float(self.knots_u[self.degree_u]), float(self.knots_u[nu])),
             (float(self.knots_v[self.degree_v]), float(self.knots_v[nv])),
@@ -90,7 +97,7 @@ class NurbsSurface:
 
     @cached_property
     def _homogeneous(self) -> NdBSpline:
-        w = self.weights[..., None]
+        w = self.w[..., None]
         c = np.concatenate([self.control_points * w, w], axis=-1)
         return NdBSpline((self.knots_u, self.knots_v), c, (self.degree_u, self.degree_v), extrapolate=True)
 
@@ -118,8 +125,9 @@ class NurbsSurface:
     def derivatives(self, u: ArrayLike, v: ArrayLike, order: int = 1) -> SurfacePartials:
         """Rational partials S_(i,j) for i + j <= order (NURBS Book A4.4), each (k, 3) mm."""
         uv = self._params(u, v)
-        hom = [[self._hom(uv, i, j) if i + j <= order else None for j in range(order + 1)] for i in range(order + 1)]
-        w = [[h[:, 3:] if h is not None else None for h in row] for row in hom]
+        hom: list[list[Any]] = [[self._hom(uv, i, j) if i + j <= order else None for j in range(order + 1)]
+                                for i in range(order + 1)]
+        w: list[list[Any]] = [[h[:, 3:] if h is not None else None for h in row] for row in hom]
         s: list[list[Any]] = [[None] * (order + 1) for _ in range(order + 1)]
         for k in range(order + 1):
             for l in range(order - k + 1):
@@ -217,7 +225,7 @@ class NurbsSurface:
             "knots_u": self.knots_u.tolist(),
             "knots_v": self.knots_v.tolist(),
             "control_points": self.control_points.tolist(),
-            "weights": self.weights.tolist(),
+            "weights": self.w.tolist(),
         }
 
     @classmethod
@@ -238,10 +246,10 @@ class NurbsSurface:
         """A ``geomdl.NURBS.Surface`` (control points ordered with v varying fastest)."""
         from geomdl import NURBS
 
-        nu, nv = self.weights.shape
+        nu, nv = self.w.shape
         s = NURBS.Surface()
         s.degree_u, s.degree_v = self.degree_u, self.degree_v
-        w = self.weights[..., None]
+        w = self.w[..., None]
         s.set_ctrlpts(np.concatenate([self.control_points * w, w], axis=-1).reshape(-1, 4).tolist(), nu, nv)
         s.knotvector_u, s.knotvector_v = self.knots_u.tolist(), self.knots_v.tolist()
         return s

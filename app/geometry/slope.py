@@ -82,7 +82,7 @@ def check_slope(points: np.ndarray, normals: np.ndarray, policy: SlopePolicy = S
             f"nozzle (a {policy.xy_uncertainty_mm} mm lateral error is {error:.4f} mm of standoff there); print it "
             f"with a five_axis job (nozzle along the surface normal) or raise slope_max_deg",
             field=field, value=round(worst, 3))
-    warnings = ()
+    warnings: tuple[str, ...] = ()
     if worst > policy.warn_deg:
         warnings = (f"steep: the trace crosses a {worst:.1f} deg slope at {where} (warning above "
                     f"{policy.warn_deg:g} deg); a vertical nozzle's standoff there moves {error:.4f} mm per "

@@ -29,7 +29,7 @@ def png_pattern(data: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(data)).convert("1"), dtype=bool)
 
 
-def npz_bytes(**arrays: np.ndarray) -> bytes:
+def npz_bytes(**arrays: np.ndarray | np.generic) -> bytes:
     """Compressed NPZ (readable by ``numpy.load``) of the named arrays, as bytes."""
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as archive:

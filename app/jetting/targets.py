@@ -44,7 +44,7 @@ class Target:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.mask.shape  # type: ignore[return-value]
+        return self.mask.shape
 
 
 def target_from_mask(mask: np.ndarray, drop: DropParams, margin_mm: float = 0.25,

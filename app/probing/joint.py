@@ -99,7 +99,7 @@ def joint_grid(paths: Sequence[NominalPath], prior: DeviationPrior) -> JointGrid
     return JointGrid(s, offsets, cov, prior_var, jitter, center)
 
 
-def power_mean(var: np.ndarray) -> float:
+def power_mean(var: np.ndarray) -> np.ndarray:
     """Power mean (p = POWER) of variances (..., G) over the last axis, mm^2."""
     top = np.max(var, axis=-1, keepdims=True)
     safe = np.where(top > 0, top, 1.0)
@@ -141,7 +141,7 @@ def move_variances(grid: JointGrid, chosen: np.ndarray, k: int, cand: np.ndarray
 def joint_exchange(grid: JointGrid, chosen: np.ndarray) -> np.ndarray:
     """Coordinate exchange of joint indices (n,) (sorted, per trace) on the power mean."""
     chosen = np.array(sorted(chosen), dtype=int)
-    best = power_mean(grid.posterior_var(chosen))
+    best = float(power_mean(grid.posterior_var(chosen)))
     for _ in range(MAX_SWEEPS):
         moved = False
         for k in range(len(chosen)):

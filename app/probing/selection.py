@@ -248,7 +248,7 @@ def plan_probes(nominal: Any, method: str = "adaptive",
     if params.count is not None:
         count = int(params.count)
     elif method == "uniform":
-        if params.capability_k is None:
+        if params.capability_k is None or params.confidence is None:
             raise PlanError("uniform planning needs count or capability_k + confidence",
                             field="count", value=None)
         point_count = seed_point_count(params.capability_k, params.confidence)

@@ -24,7 +24,7 @@ import numpy as np
 
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
-from app.slicing.layers import make_layer
+from app.slicing.layers import Layer, make_layer
 
 _STEP_EPS = 1e-9  # mm; float slack when comparing accumulated steps
 
@@ -103,7 +103,7 @@ def area_layers(sampler, params):
         raise SlicingError(f"the section at z_min={z_min:.6g} mm has no area", field="mesh",
                            value=z_min)
     a_i = st_i.area
-    layers = []
+    layers: list[Layer] = []
     notes = ["seed S4 stops when Z + l_max > z_max; the last step is capped at the "
              "remaining height instead so the whole part is sliced"]
     if params.mode == "cavity":
@@ -197,7 +197,8 @@ def cusp_layers(sampler, params):
     rmq = _RangeMax(lo, hi, nz[~flat], n_bins)
     flats = np.unique(np.round(pm.face_z[flat, 0], 9))
     flats = flats[(flats > z_min + params.z_tol) & (flats < z_max - params.z_tol)]
-    layers, z = [], z_min
+    layers: list[Layer] = []
+    z = z_min
     while z_max - z > params.z_tol:
         t = min(params.l_max, z_max - z)
         reason = "l_max" if t >= params.l_max - _STEP_EPS else "top: remaining height"

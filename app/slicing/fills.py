@@ -137,7 +137,7 @@ def contour_fill(islands, pitch: float, max_rings: int = 100_000):
 
     Returns closed polylines (first vertex repeated at the end), outermost first.
     """
-    out = []
+    out: list[np.ndarray] = []
     current = offset_islands(islands, -0.5 * pitch)
     while current and len(out) < max_rings:
         for isl in current:

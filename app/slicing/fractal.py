@@ -19,6 +19,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -175,7 +177,8 @@ def _splice_free_cells(edges, free: set[int], ny: int, ok) -> None:
                         edges.discard(key)
                         for a, b in ((u, c1), (c1, c2), (c2, v)):
                             edges.add((a, b) if a < b else (b, a))
-                        free.discard(c1), free.discard(c2)
+                        free.discard(c1)
+                        free.discard(c2)
                         progress = True
                         break
                 if c1 not in free:
@@ -217,18 +220,19 @@ def merged_fractal_fill(islands, pitch: float, along_x: bool = True,
     if not islands:
         return []
     region = region_geometry(islands)
-    best = None
+    best: tuple[int, Any, int, int, np.ndarray, np.ndarray] | None = None
     for phase in ((0, 0), (1, 0), (0, 1), (1, 1)):
         origin, n = _grid(islands, pitch, phase)
         nx, ny = int(n[0]) + (int(n[0]) % 2), int(n[1]) + (int(n[1]) % 2)
         ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
         inside = _inside(region, _centres(origin, np.stack([ii.ravel(), jj.ravel()], 1),
                                           pitch)).reshape(nx, ny)
-        blk = inside.reshape(nx // 2, 2, ny // 2, 2).all(axis=(1, 3))
+        blk: np.ndarray = np.asarray(inside.reshape(nx // 2, 2, ny // 2, 2).all(axis=(1, 3)))
         centre = _centres(origin, np.argwhere(blk) * 2 + 0.5, pitch)
         blk[blk] = _inside(region, centre) if len(centre) else blk[blk]
         if best is None or blk.sum() > best[0]:
             best = (int(blk.sum()), origin, nx, ny, inside, blk)
+    assert best is not None  # four phases were tried
     _, origin, nx, ny, inside, full = best
     edges = _cycle_edges(full, nx, ny, weights, along_x)
 

@@ -41,11 +41,11 @@ def order_paths(paths: list[np.ndarray], start: np.ndarray) -> tuple[list[np.nda
         # closed loops: any vertex may be the start; use the nearest one (cheap bound first)
         k_h, k_t = int(np.argmin(dh)), int(np.argmin(dt))
         best_closed, best_d, best_v = -1, np.inf, 0
-        for k in np.nonzero(alive & closed)[0]:
-            d = np.hypot(*(remaining[k][:-1] - pos).T)
+        for loop in np.nonzero(alive & closed)[0]:
+            d = np.hypot(*(remaining[loop][:-1] - pos).T)
             v = int(np.argmin(d))
             if d[v] < best_d:
-                best_closed, best_d, best_v = int(k), float(d[v]), v
+                best_closed, best_d, best_v = int(loop), float(d[v]), v
         cands = [(dh[k_h], k_h, "head"), (dt[k_t], k_t, "tail"),
                  (best_d, best_closed, "loop")]
         d, k, how = min(cands, key=lambda c: (c[0], c[1]))

@@ -156,7 +156,7 @@ def infill_paths(islands, params: ToolpathParams, layer_index: int) -> list[np.n
 
 def perimeter_paths(islands, params: ToolpathParams) -> list[np.ndarray]:
     """Closed perimeter loops (first vertex repeated), outermost first."""
-    out = []
+    out: list[np.ndarray] = []
     for k in range(params.perimeters):
         for isl in offset_islands(islands, -(params.line_width_mm * (0.5 + k))):
             out.extend(np.vstack([r, r[:1]]) for r in isl.rings())
@@ -197,7 +197,8 @@ def plan_toolpath(slice_result, params: ToolpathParams = ToolpathParams()) -> To
         gaps = [np.hypot(*(b.points[0] - a.points[-1])) for a, b in zip(pieces, pieces[1:])]
         first = np.hypot(*(pieces[0].points[0] - pos)) if pieces else 0.0
         moves = _layer_moves(pieces, pos, lay.z_top, e_per_mm, params)
-        t = estimate_moves(*moves[:2], params.limits, moves[2]) if len(moves[1]) else [0.0]
+        positions, feeds, stops = moves
+        t = estimate_moves(positions, feeds, params.limits, stops) if len(feeds) else [0.0]
         stats = LayerStats(path_mm=path_mm, travel_mm=float(first + sum(gaps)),
                            turns=sum(count_turns(p.points, thr) for p in pieces),
                            jumps=int(sum(1 for g in gaps if g > 1e-9)),

@@ -5,6 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.problems import http_status
 from app.probing.nominal import as_nominal_path
 from app.probing.selection import (PlanError, PlanParams, chord_height_select, chord_heights,
                                    deviation_spacing, deviation_stations, plan_probes)
@@ -99,4 +100,4 @@ def test_bad_parameters():
         deviation_spacing(PlanParams(target_error_mm=0.002, probe_sigma_mm=0.001))
     with pytest.raises(Exception) as info:
         plan_probes(np.zeros((5, 3)), "uniform", PlanParams(count=4))
-    assert getattr(info.value, "status", None) == 422
+    assert http_status(info.value)[0] == 422
