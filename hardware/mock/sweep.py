@@ -67,7 +67,7 @@ def sweep_ball_triangles(origin: np.ndarray, direction: np.ndarray, length: floa
         n, fa, fb, fc = n[approaching], fa[approaching], fb[approaching], fc[approaching]
         s = (dist0[approaching] - r) / -v[approaching]
         q = p0 + s[:, None] * d - r * n
-        inside = _in_triangles(q, fa, fb, fc)
+        inside = in_triangles(q, fa, fb, fc)
         exiting = (dist0[approaching] + r) / -v[approaching]  # the whole ball past the plane
         keep = inside & (s <= length + tol) & (exiting > 0.0)
         if keep.any():
@@ -79,7 +79,7 @@ def sweep_ball_triangles(origin: np.ndarray, direction: np.ndarray, length: floa
     return _first(found)
 
 
-def _in_triangles(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+def in_triangles(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
                   tol: float = 1e-9) -> np.ndarray:
     """Barycentric inside test of points q (k,3) in their triangles (k,3) x 3 (on plane)."""
     v0, v1, v2 = b - a, c - a, q - a
