@@ -9,7 +9,7 @@ from app.calibration import (CalibrationError, NozzleCalibration, PretravelModel
                              fit_nozzle_offset, fit_qualification, plan_nozzle_calibration, plan_qualification)
 from tests.calibration.forward import TrueProbe, nozzle_pad_reading, nozzle_side_reading, sphere_reading
 
-SPHERE = (100.31, 49.62, 10.4)          # true centre (probe frame)
+SPHERE = (100.25, 49.7, 10.3)           # true centre (probe frame), 0.49 mm off its nominal place
 DIAMETER = 10.0
 PAD_Z = 2.3                            # true pad top
 PAD_NOMINAL = (80.0, 50.0, 2.0)
