@@ -49,10 +49,11 @@ def test_the_plan_orders_probe_pad_nozzle_pad_and_four_sides():
     cal = ProbeCalibration(0.5, PretravelModel(0.015), SPHERE, PAD_Z + 0.5 - 0.015)
     touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL)
     kinds = [t.kind for t in touches]
-    assert kinds == ["pad"] * 3 + ["nozzle_pad"] * 3 + ["nozzle_side"] * 8
+    assert kinds == ["pad", "nozzle_pad", "nozzle_pad", "pad", "pad", "nozzle_pad"] + ["nozzle_side"] * 8
     # the nozzle's pad spots are the probe's, through the nominal offset
-    for probe_t, nozzle_t in zip(touches[:3], touches[3:6], strict=True):
-        assert np.add(nozzle_t.start_mm[:2], O_NOMINAL[:2]) == pytest.approx(probe_t.start_mm[:2])
+    probe_spots = [t.start_mm[:2] for t in touches if t.kind == "pad"]
+    nozzle_spots = [np.add(t.start_mm[:2], O_NOMINAL[:2]) for t in touches if t.kind == "nozzle_pad"]
+    assert np.array(nozzle_spots) == pytest.approx(np.array(probe_spots))
     for t in touches[6:]:
         tip = np.add(t.start_mm, O_NOMINAL)
         assert tip[2] == pytest.approx(SPHERE[2] - 0.3 * DIAMETER / 2)
