@@ -125,8 +125,14 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
     return tuple(touches)
 
 
-def check_readings(touches: Sequence[Touch], readings: Any) -> np.ndarray:
-    """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target."""
+def check_readings(touches: Sequence[Touch], readings: Any, *, project: bool = True) -> np.ndarray:
+    """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target.
+
+    Returns them projected onto their moves' lines (``project``): the carriage moves along the
+    commanded line, so a reading's offset from it is the firmware's report rounding (Marlin
+    ``M114 D`` and grbl ``PRB`` print 1 um), which the projection removes.  Left in, the rounding
+    of a ring of stations that happen to share a rounding direction biases r by a micron.
+    """
     p = np.asarray(readings, dtype=float)
     if p.ndim != 2 or p.shape != (len(touches), 3):
         raise CalibrationError(f"readings must have shape ({len(touches)}, 3), one per touch", field="readings",
@@ -142,7 +148,10 @@ def check_readings(touches: Sequence[Touch], readings: Any) -> np.ndarray:
             raise CalibrationError(f"readings[{i}] ({t.kind} touch) is {off:.3f} mm off its move and "
                                    f"{along:.3f} mm along it (length {length:.3f} mm): not a reading of that touch",
                                    field=f"readings[{i}]", value=q)
-    return p
+    if not project:
+        return p
+    return np.array([np.asarray(t.start_mm) + float(np.dot(q - t.start_mm, t.direction)) * t.direction
+                     for t, q in zip(touches, p, strict=True)])
 
 
 def _normals_delta(p: np.ndarray, d: np.ndarray, c: np.ndarray, model: np.ndarray, lobing: bool):
