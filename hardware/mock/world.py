@@ -369,6 +369,8 @@ def world_from_url(url: str) -> MockWorld:
             continue
         if key in _FAULT_KEYS:
             setattr(world.faults, key, value)
+            if key == "seed":  # one seed for the fault plan and the physics' noise and scatter
+                world.seed = int(value)  # type: ignore[call-overload]
         elif key == "keep_transcript":
             world.transcript.keep = bool(value)
         else:

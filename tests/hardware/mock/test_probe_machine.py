@@ -193,3 +193,25 @@ def test_a_nozzle_moved_into_the_part_counts_a_collision(make_world):
         assert world.stats.collisions == 2
     finally:
         machine.disconnect()
+
+
+def test_the_url_seed_seeds_the_physics_noise_too():
+    """``mock://NAME?seed=S`` seeds the pre-travel scatter and probe noise as well as the fault
+    plan: two worlds with one seed read alike, another seed reads differently."""
+    from hardware.mock import unregister_world
+
+    def pad_readings(name: str, seed: int) -> list[float]:
+        url = (f"mock://{name}?seed={seed}&pretravel_mm=0.015&pretravel_sd_mm=0.002&probe_noise_mm=0.001"
+               "&pad=50,10,5,20")
+        machine = Machine(url, "marlin", MachineProfile(), boot_wait_s=0.5, boot_quiet_s=0.01, poke_s=0.02,
+                          timeout_s=10)
+        machine.connect()
+        try:
+            return [machine.probe_toward((52.0, 11.0, 10.0), (52.0, 11.0, 0.0)).z for _ in range(4)]
+        finally:
+            machine.disconnect()
+            unregister_world(name)
+
+    first, again, other = pad_readings("seed-a", 3), pad_readings("seed-b", 3), pad_readings("seed-c", 4)
+    assert first == again
+    assert first != other
