@@ -167,16 +167,25 @@ def _solve_normal(design: sp.sparray, rhs: np.ndarray, field: str, penalty: sp.s
     return x
 
 
-def _solve_banded_spd(a: sp.sparray, rhs: np.ndarray, field: str) -> np.ndarray:
-    """Solve a @ x = rhs for a symmetric positive definite sparse a (n, n) of small bandwidth
-    w (max |i - j| of its non-zeros) by a banded Cholesky: (w + 1) n doubles, n w^2 flops.
-    rhs (n,) or (n, d).  Raises DegenerateGeometryError when a is not positive definite."""
-    coo = sp.coo_array(a)
-    upper = coo.row <= coo.col
-    rows, cols, data = coo.row[upper], coo.col[upper], coo.data[upper]
-    width = int((cols - rows).max(initial=0))
-    ab = np.zeros((width + 1, a.shape[0]))
-    np.add.at(ab, (width + rows - cols, cols), data)
+def _banded_upper(a: sp.sparray) -> np.ndarray:
+    """LAPACK upper band storage (w + 1, n), Fortran order, of a symmetric sparse a (n, n)
+    whose non-zeros lie within w of the diagonal: ab[w + i - j, j] = a[i, j], i <= j."""
+    a = sp.csr_array(a)
+    rows = np.repeat(np.arange(a.shape[0]), np.diff(a.indptr))
+    width = int((a.indices - rows).max(initial=0))
+    del rows
+    ab = np.zeros((width + 1, a.shape[0]), order="F")  # LAPACK's layout: solved in place, no copy
+    for k in range(width + 1):
+        ab[width - k, k:] = a.diagonal(k)
+    return ab
+
+
+def _solve_banded_spd(a: sp.sparray | np.ndarray, rhs: np.ndarray, field: str) -> np.ndarray:
+    """Solve a @ x = rhs for a symmetric positive definite a (n, n) of small bandwidth w
+    (sparse, or already in :func:`_banded_upper` storage) by a banded Cholesky: (w + 1) n
+    doubles, n w^2 flops.  rhs (n,) or (n, d).  Raises DegenerateGeometryError when a is not
+    positive definite."""
+    ab = a if isinstance(a, np.ndarray) else _banded_upper(a)
     try:
         x = solveh_banded(ab, rhs, overwrite_ab=True, check_finite=False)
     except (np.linalg.LinAlgError, ValueError) as exc:
@@ -340,8 +349,13 @@ def _solve_net(design: sp.sparray, pts: np.ndarray, n_u: int, n_v: int, smoothin
         pen = sp.csr_array(du.T @ du + dv.T @ dv)[order][:, order]
         scale = (design.multiply(design)).sum() / max(pen.diagonal().sum(), 1e-300)
         a = a + smoothing * scale * pen
+        del pen
+    rhs = design.T @ pts
+    del design
+    ab = _banded_upper(a)
+    del a  # only the band is kept while LAPACK factors it
     ctrl = np.empty((n_u * n_v, pts.shape[1]))
-    ctrl[order] = _solve_banded_spd(a, design.T @ pts, field)
+    ctrl[order] = _solve_banded_spd(ab, rhs, field)
     return ctrl
 
 
@@ -393,8 +407,8 @@ def fit_surface(
     if arr.ndim == 3 and smoothing == 0:  # a grid: the fit separates by direction
         ctrl = _solve_tensor_grid(BSpline.design_matrix(u, tu, pu), BSpline.design_matrix(v, tv, pv), g, field)
     else:
-        design = _row_kron(BSpline.design_matrix(uv[:, 0], tu, pu), BSpline.design_matrix(uv[:, 1], tv, pv))
-        ctrl = _solve_net(design, pts, n_ctrl_u, n_ctrl_v, smoothing, field)
+        ctrl = _solve_net(_row_kron(BSpline.design_matrix(uv[:, 0], tu, pu), BSpline.design_matrix(uv[:, 1], tv, pv)),
+                          pts, n_ctrl_u, n_ctrl_v, smoothing, field)
     surface = NurbsSurface(pu, pv, tu, tv, ctrl.reshape(n_ctrl_u, n_ctrl_v, 3), None)
     residual = np.linalg.norm(surface.evaluate(uv[:, 0], uv[:, 1]) - pts, axis=1)
     return SurfaceFit(surface, uv, residual)
