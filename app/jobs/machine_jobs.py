@@ -150,7 +150,21 @@ def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[st
 
 
 def request_resume(store: "JobStore", job: Job) -> bool:
-    """interrupted -> queued with the operator's request recorded in ``program_state``."""
+    """interrupted -> queued with the operator's request recorded in ``program_state``.
+
+    A workflow (``closed_loop``) whose current child is itself interrupted is refused (409
+    naming the child): the child holds the machine and the probes it already made, so the
+    operator resumes the child first (its program continues where it stopped; the loop, if
+    still waiting, continues with it), or abandons it, and then resumes the loop, which
+    reuses every child that succeeded and never probes a finished trace again."""
+    if job.kind in WORKFLOW_KINDS:
+        with Session(store.engine) as session:
+            child = session.exec(select(Job.id, Job.kind).where(Job.parent_id == job.id,
+                                                                 Job.status == "interrupted")).first()
+        if child is not None:
+            raise Conflict(f"{job.kind} {job.id} waits for its interrupted {child[1]} job {child[0]}: resume that "
+                           "job first (its program continues where it stopped) or abandon it, then resume this one",
+                           field="job_id", value=child[0])
     state = {**(job.program_state or {}), "resume_requested": True, "resume_requested_at": utcnow().isoformat()}
     return store.resume(job.id, state, job.revision)
 
