@@ -141,9 +141,22 @@ def rehomed_machine(ctx: JobContext, machine_id: str, resume: dict[str, Any] | N
 
 def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[str]]:
     """Where a resumed program continues and what was sent before it: the first command
-    not known to be executed (the machine's ``resume_line``; the recorded count when the
-    machine no longer knows the program), then the machine is re-homed."""
-    start = machine.resume_line() if machine.interrupted_program is not None else int(resume["executed"])
+    not known to be executed, then the machine is re-homed.
+
+    Before re-homing, the machine is asked where its tool stands (``locate_resume``): after a
+    link drop with the position kept, the program continues at the first command not
+    completed (no move runs twice); otherwise by line numbers (Marlin that kept running) or
+    the planner bound (a reset: up to a planner's worth of short moves may run twice).  The
+    evidence is ``machine.last_resume`` (logged).  A machine that no longer knows the program
+    (another process) continues from the recorded count."""
+    if machine.interrupted_program is None:
+        start = int(resume["executed"])
+    elif hasattr(machine, "locate_resume"):
+        located = machine.locate_resume()
+        start = located.start
+        log.info("resuming at command %d (%s: %s)", located.start, located.basis, located.detail)
+    else:
+        start = machine.resume_line()
     home = machine.profile.home_command or ("G28" if machine.dialect == "marlin" else "$H")
     machine.home()
     return start, [home]
