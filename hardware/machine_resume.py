@@ -7,7 +7,9 @@ from __future__ import annotations
 from collections import deque
 
 from .errors import FirmwareError, HardwareError
-from .resume import executed_bound, modal_preamble, planner_blocks
+from .events import PositionReport
+from .resume import (ResumeLocation, end_positions, executed_bound, locate_by_position, modal_preamble,
+                     planner_blocks)
 
 
 class ResumeOperations:
@@ -31,6 +33,7 @@ class ResumeOperations:
         capacity, tightened by the last grbl status report (Idle: nothing planned; ``Bf:``
         free blocks) that came after some of the acknowledgements."""
         p = self.profile
+        self._resume_commands = list(commands)  # for locate_resume after the reconnect
         blocks = planner_blocks(commands, p.dispense_on, p.dispense_off)
         bound = executed_bound(blocks, acked, self.planner_blocks)
         marks = list(self.link.status_marks) if self.link is not None else []
@@ -47,6 +50,62 @@ class ResumeOperations:
                 pending = self.planner_blocks
             return max(bound, executed_bound(blocks, max(done) + 1, pending))
         return bound
+
+    def locate_resume(self) -> ResumeLocation:
+        """After reconnecting: where the interrupted program continues, and on what evidence.
+
+        Marlin that kept running answers by line numbers (exact).  After a controller reset
+        (grbl always: its board resets on reconnect), ``resume_line()`` is the planner bound:
+        up to a planner's worth of acknowledged short moves may have been lost.  Then the
+        controller is asked where the tool stands (grbl status, Marlin ``M114``); when that
+        position is believable (not the power-on origin) and lies on exactly
+        one place of the program between the bound and the last command sent (a controller that
+        lost its position reports something else: it is believed only on the path), the program
+        continues there: at the move the tool stopped in, or after the move it finished
+        (:func:`hardware.resume.locate_by_position`).  Otherwise the bound stands, and
+        ``detail`` says why.  Must run before re-homing.  Sets ``last_resume``."""
+        bound = self.resume_line()
+        gap = self._interrupted
+        if self.dialect == "marlin" and not gap.reset:
+            found = ResumeLocation(bound, "line numbers", "the controller kept running and numbering lines")
+        else:
+            found = self._locate_by_position(bound, gap.acked_index, gap.acked_index + len(gap.inflight), gap.total)
+        self.last_resume = found
+        return found
+
+    def _locate_by_position(self, bound: int, acked: int, sent: int, total: int) -> ResumeLocation:
+        commands = getattr(self, "_resume_commands", None)
+        fallback = "planner bound"
+        if commands is None or len(commands) != total:
+            return ResumeLocation(bound, fallback, "the program is not known to this process")
+        self._claim("busy")
+        try:
+            if self.dialect == "grbl":
+                # an Alarm at boot (homing required) is no evidence either way: a board whose
+                # reset zeroed its position reports the origin, refused below
+                status = self.link.query_status()
+                position = status.wpos or status.mpos
+            else:
+                report = self.link.send("M114", self.timeout_s).payload
+                position = (tuple(report.axes.get(a, 0.0) for a in "XYZ")
+                            if isinstance(report, PositionReport) else None)
+        finally:
+            self._release("idle")
+        if position is None:
+            return ResumeLocation(bound, fallback, "the controller reported no position")
+        position = tuple(float(v) for v in position[:3])
+        if all(abs(v) < 1e-9 for v in position):
+            return ResumeLocation(bound, fallback, "the controller reports the power-on origin: its position "
+                                                   "was lost with the reset")
+        p = self.profile
+        start = locate_by_position(end_positions(commands, p.dispense_on, p.dispense_off), position, bound,
+                                   max(sent, bound), acked=acked)
+        where = "(" + ", ".join(f"{v:.3f}" for v in position) + ")"
+        if start is None:
+            return ResumeLocation(bound, fallback, f"the tool at {where} is not at one place of commands "
+                                                   f"{bound}..{max(sent, bound)}")
+        return ResumeLocation(start, "position", f"the tool stood at {where}: command {start} is the first "
+                                                 "not completed")
 
     def _drain_after_rejection(self, exc: FirmwareError, inflight: deque, executed: int) -> int:
         """A line was rejected: the controller still runs the lines it already holds

@@ -129,3 +129,98 @@ def modal_preamble(commands: list[str], start: int, *, dispense_on: str, dispens
     if state.dispensing:
         out.append(dispense_on)
     return out
+
+
+POSITION_TOLERANCE_MM = 0.01  # a reported position this close to the programmed path is on it
+
+
+@dataclass(frozen=True)
+class ResumeLocation:
+    """Where a resumed program starts and why.
+
+    start: first command to send; basis: "line numbers" (Marlin kept running and counting:
+    exact), "position" (the controller kept its position and it lies on exactly one place
+    of the path: at most the move it was cut in runs again) or "planner bound" (nothing
+    better is known: up to a planner's worth of short moves may run twice); detail: the
+    evidence, for the operator."""
+
+    start: int
+    basis: str
+    detail: str
+
+    def as_dict(self) -> dict:
+        return {"start": self.start, "basis": self.basis, "detail": self.detail}
+
+
+def end_positions(commands: list[str], dispense_on: str = "", dispense_off: str = ""
+                  ) -> list[tuple[float, float, float] | None]:
+    """Per command, the tool's programmed position after it (x, y, z) in mm (the program's
+    frame), or None where it is not known (before every axis was set absolutely, after G28,
+    G30, G38.x, G53 or G10, and from a G92 frame shift on)."""
+    state = ModalState()
+    out: list[tuple[float, float, float] | None] = []
+    for command in commands:
+        before_inches = state.inches
+        state.update(command, dispense_on, dispense_off)
+        if state.inches != before_inches and any(v is not None for v in state.position):
+            state.position = [None, None, None]  # earlier coordinates were in the other unit
+        x, y, z = state.position
+        if state.g92 or x is None or y is None or z is None:
+            out.append(None)
+            continue
+        scale = 25.4 if state.inches else 1.0
+        out.append((x * scale, y * scale, z * scale))
+    return out
+
+
+def _distance_to_segment(p: tuple[float, ...], a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    ab = [bi - ai for ai, bi in zip(a, b)]
+    length2 = sum(c * c for c in ab)
+    t = 0.0 if length2 == 0 else max(0.0, min(1.0, sum((pi - ai) * c for pi, ai, c in zip(p, a, ab)) / length2))
+    return math.dist(p, [ai + t * c for ai, c in zip(a, ab)])
+
+
+def locate_by_position(ends: list[tuple[float, float, float] | None], position: tuple[float, float, float],
+                       lo: int, hi: int, tolerance_mm: float = POSITION_TOLERANCE_MM,
+                       acked: int = 0) -> int | None:
+    """First command not completed when the tool stands still at ``position`` (mm), knowing
+    that commands [0, lo) completed and commands [hi, ...) never reached the controller;
+    ``ends`` from :func:`end_positions`.  None when that is not one answer.
+
+    The tool at the end of move k (the position after command k) means k completed: the
+    answer is k + 1, or later over the commands after k that do not move (a dispenser
+    switch, a dwell) and were acknowledged (``acked``: commands [0, acked) were; such a
+    command ran when it was answered); the others are sent again rather than skipped.  The tool strictly inside move k's straight segment means k
+    was cut: the answer is k (the resume's modal replay goes back to k's start point; the
+    move runs again whole).  Arcs (G2/G3) and moves from an unknown start are only
+    recognised at their ends; the program's opening before its first fully known position
+    (units, modes, a first move naming only some axes) cannot be placed and is passed over.
+    Places of the window [lo - 1, hi) that the path visits more than once, an unknown
+    position after a known one (G28, G92 ...), or no place at all give None."""
+    lo, hi = max(lo, 0), min(hi, len(ends))
+    if lo > hi:
+        return None
+    answers: set[int] = set()
+    previous = ends[lo - 1] if lo > 0 else None
+    if lo > 0 and previous is not None and math.dist(previous, position) <= tolerance_mm:
+        answers.add(lo)  # nothing of the window moved yet
+    known = any(e is not None for e in ends[:lo])
+    for k in range(lo, hi):
+        end = ends[k]
+        if end is None:
+            if known:
+                return None  # the path is not known here: the tool could be anywhere on it
+            continue  # the program's opening, before its first known position: not placeable
+        known = True
+        if math.dist(end, position) <= tolerance_mm:
+            answers.add(k + 1)
+        elif previous is not None and _distance_to_segment(position, previous, end) <= tolerance_mm:
+            answers.add(k)
+        previous = end
+    if not answers:
+        return None
+    first, last = min(answers), max(answers)
+    moved = any(ends[k] != ends[k - 1] for k in range(max(first, 1), last))
+    if moved:
+        return None  # two places of the path
+    return max(first, min(acked, last))  # one place: a run of commands that do not move

@@ -141,16 +141,43 @@ def rehomed_machine(ctx: JobContext, machine_id: str, resume: dict[str, Any] | N
 
 def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[str]]:
     """Where a resumed program continues and what was sent before it: the first command
-    not known to be executed (the machine's ``resume_line``; the recorded count when the
-    machine no longer knows the program), then the machine is re-homed."""
-    start = machine.resume_line() if machine.interrupted_program is not None else int(resume["executed"])
+    not known to be executed, then the machine is re-homed.
+
+    Before re-homing, the machine is asked where its tool stands (``locate_resume``): after a
+    link drop with the position kept, the program continues at the first command not
+    completed (no move runs twice); otherwise by line numbers (Marlin that kept running) or
+    the planner bound (a reset: up to a planner's worth of short moves may run twice).  The
+    evidence is ``machine.last_resume`` (logged).  A machine that no longer knows the program
+    (another process) continues from the recorded count."""
+    if machine.interrupted_program is None:
+        start = int(resume["executed"])
+    elif hasattr(machine, "locate_resume"):
+        located = machine.locate_resume()
+        start = located.start
+        log.info("resuming at command %d (%s: %s)", located.start, located.basis, located.detail)
+    else:
+        start = machine.resume_line()
     home = machine.profile.home_command or ("G28" if machine.dialect == "marlin" else "$H")
     machine.home()
     return start, [home]
 
 
 def request_resume(store: "JobStore", job: Job) -> bool:
-    """interrupted -> queued with the operator's request recorded in ``program_state``."""
+    """interrupted -> queued with the operator's request recorded in ``program_state``.
+
+    A workflow (``closed_loop``) whose current child is itself interrupted is refused (409
+    naming the child): the child holds the machine and the probes it already made, so the
+    operator resumes the child first (its program continues where it stopped; the loop, if
+    still waiting, continues with it), or abandons it, and then resumes the loop, which
+    reuses every child that succeeded and never probes a finished trace again."""
+    if job.kind in WORKFLOW_KINDS:
+        with Session(store.engine) as session:
+            child = session.exec(select(Job.id, Job.kind).where(Job.parent_id == job.id,
+                                                                 Job.status == "interrupted")).first()
+        if child is not None:
+            raise Conflict(f"{job.kind} {job.id} waits for its interrupted {child[1]} job {child[0]}: resume that "
+                           "job first (its program continues where it stopped) or abandon it, then resume this one",
+                           field="job_id", value=child[0])
     state = {**(job.program_state or {}), "resume_requested": True, "resume_requested_at": utcnow().isoformat()}
     return store.resume(job.id, state, job.revision)
 

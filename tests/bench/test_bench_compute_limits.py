@@ -8,8 +8,11 @@ the growth against the first step measured in the same run:
 
 * the surface-fit bad-point test over 2,500 .. 40,000 points (was quadratic: ~4 GB at 40,000;
   now per k-d-tree tile: memory flat, time linear);
-* surface_fit jobs' core on grids 50 .. 200 with a net of half the grid (the final sparse
-  least-squares solve), against ``app.jobs.kinds.surface_fit._estimate``;
+* surface_fit jobs' core on grids 50 .. 200 with a net of half and of all the grid, against
+  ``app.jobs.kinds.surface_fit._estimate`` (and below 2x the upload limit);
+* the surface least-squares solve alone, old (SuperLU on the N-unknown normal equations: 468
+  MiB / 61 s at a 200 x 200 net) against new (tensor-product grid solve; banded Cholesky with a
+  penalty), same knots;
 * toolpath hilbert_merged at line widths 0.4 .. 0.1 mm on a 40 mm square (fill cells x4 per
   step), against ``app.jobs.kinds.toolpath._estimate``;
 * the 0.8 MB NPZ holding 800 MiB: refused by its header, peak growth near zero.
@@ -74,13 +77,15 @@ def test_bad_point_test_memory_is_flat_and_time_linear_in_points():
         assert got["peak_mb"] < 2 * UPLOAD_LIMIT_MB
 
 
-def test_surface_fit_peak_memory_against_the_cost_model():
-    print("\nsurface_fit core, grid n x n, net n/2 x n/2 (bad points removed)")
+@pytest.mark.parametrize("net_of_grid", [0.5, 1.0])
+def test_surface_fit_peak_memory_against_the_cost_model(net_of_grid):
+    print(f"\nsurface_fit core (job defaults, bad points removed), grid n x n, net {net_of_grid:g} n")
     for n in (50, 100, 200):
+        m = int(n * net_of_grid)
         params = SurfaceFitJobParams(part_id="p", region={"x": [0, 40], "y": [0, 40]}, grid=[n, n],
-                                     control_points=[n // 2, n // 2])
+                                     control_points=[m, m])
         predicted = surface_fit_estimate(params, None)
-        got = measure("fit_surface(HeightGrid(x, x, z), SurfaceFitParams(control_points=(%d, %d)))" % (n // 2, n // 2),
+        got = measure(f"fit = fit_surface(HeightGrid(x, x, z), SurfaceFitParams(control_points=({m}, {m})))",
                       setup=f"""
             import numpy as np
             from app.compensation.surface_fit import SurfaceFitParams, fit_surface
@@ -93,6 +98,54 @@ def test_surface_fit_peak_memory_against_the_cost_model():
               f"(measured/predicted {got['peak_mb'] / predicted.memory_mb:4.2f}); {got['s']:6.1f} s, predicted "
               f"{predicted.time_s:6.1f} s")
         assert got["peak_mb"] <= predicted.memory_mb  # the model is an upper bound
+        assert got["peak_mb"] < 2 * UPLOAD_LIMIT_MB  # issue 13's Show: bounded below 2x the upload limit
+
+
+_SOLVE_SETUP = """
+    import numpy as np
+    import scipy.sparse as sp
+    from scipy.interpolate import BSpline
+    from app.geometry import fitting as F
+    n, m, smoothing = {n}, {m}, {smoothing}
+    x = np.linspace(0, 40, n)
+    xx, yy = np.meshgrid(x, x, indexing="ij")
+    grid = np.stack([xx, yy, 5 + 0.1 * np.sin(xx / 5) * np.cos(yy / 7)], axis=-1)
+    u = F.grid_parameters(grid, 0, F.DEFAULT_TOLERANCE, "grid")
+    t = F.grid_knots(u, m, 3)
+    uu, vv = np.meshgrid(u, u, indexing="ij")
+    bu, bv = BSpline.design_matrix(u, t, 3), BSpline.design_matrix(u, t, 3)
+"""
+_OLD_SOLVE = """
+    design = F._row_kron(BSpline.design_matrix(uu.ravel(), t, 3), BSpline.design_matrix(vv.ravel(), t, 3)).tocsc()
+    penalty = None
+    if smoothing:
+        du = sp.kron(F._second_difference(m), sp.eye(m))
+        dv = sp.kron(sp.eye(m), F._second_difference(m))
+        pen = (du.T @ du + dv.T @ dv).tocsc()
+        penalty = smoothing * (design.multiply(design)).sum() / pen.diagonal().sum() * pen
+    ctrl = F._solve_normal(design, grid.reshape(-1, 3), "grid", penalty)  # SuperLU, as before issue 13's fix
+"""
+_NEW_SOLVE = """
+    if smoothing:
+        design = F._row_kron(BSpline.design_matrix(uu.ravel(), t, 3), BSpline.design_matrix(vv.ravel(), t, 3))
+        ctrl = F._solve_net(design, grid.reshape(-1, 3), m, m, smoothing, "grid")
+    else:
+        ctrl = F._solve_tensor_grid(bu, bv, grid, "grid")
+"""
+
+
+def test_surface_least_squares_solve_old_against_new():
+    """The solve alone (same knots, same answer): the old sparse normal equations (SuperLU)
+    against the tensor-product grid solve (no penalty) and the banded Cholesky (penalty)."""
+    print("\nsurface least-squares solve, grid n x n, net m x m: old SuperLU -> new")
+    for n, m, smoothing in ((100, 50, 0.0), (100, 100, 0.0), (200, 100, 0.0), (200, 200, 0.0),
+                            (200, 200, 0.01)):
+        setup = _SOLVE_SETUP.format(n=n, m=m, smoothing=smoothing)
+        old = measure(_OLD_SOLVE, setup=setup)
+        new = measure(_NEW_SOLVE, setup=setup)
+        print(f"  n={n:>3} m={m:>3} penalty {smoothing:<4g}: peak +{old['peak_mb']:6.1f} -> +{new['peak_mb']:6.1f} MiB, "
+              f"{old['s']:6.2f} -> {new['s']:6.2f} s ({'tensor grid' if not smoothing else 'banded Cholesky'})")
+        assert new["peak_mb"] < old["peak_mb"] or new["peak_mb"] < 5
 
 
 def test_toolpath_hilbert_merged_peak_memory_against_the_cost_model():

@@ -3,13 +3,16 @@ no compensated program is ever made from bad data."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
 import pytest
 from sqlalchemy import update
 
+from app.errors import Cancelled
 from app.models import Job
+from hardware.mock import get_world
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
@@ -153,3 +156,130 @@ def test_a_running_loop_holds_its_machine_against_other_programs(client, setup):
     allowed = client.post(f"/api/v1/machines/{slow['id']}/print", json={"program_id": program["id"]}, headers=OP)
     assert allowed.status_code == 202
     assert wait_for(client, allowed.json()["id"])["status"] == "succeeded"
+
+
+# --- a closed loop whose probe_run child is interrupted (issue 13) -------------------------------
+
+def touches(machine_id: str) -> list[str]:
+    """The probe commands the mock firmware executed (Marlin G30 / G38.2), in order."""
+    return [c for c in get_world(machine_id).transcript.commands if c.split(" ")[0] in ("G30", "G38.2")]
+
+
+def children(client, loop_id: str, kind: str | None = None) -> list[dict]:
+    items = client.get(f"/api/v1/jobs?parent_id={loop_id}", headers=OP).json()["items"]
+    return [c for c in items if kind is None or c["kind"] == kind]
+
+
+def wait_interrupted_child(client, loop_id: str, timeout: float = 90) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        stuck = [c for c in children(client, loop_id, "probe_run") if c["status"] == "interrupted"]
+        if stuck:
+            return stuck[0]
+        assert client.get(f"/api/v1/jobs/{loop_id}", headers=OP).json()["status"] in ("queued", "running")
+        time.sleep(0.05)
+    raise AssertionError("no probe_run child was interrupted")
+
+
+@pytest.fixture
+def two_traces(client, stls, setup):
+    part, real, first = setup
+    second = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[2].to_api(), headers=OP).json()
+    probe = {"method": "uniform", "count": 8}
+    # the commands the loop's first probe run executes, counted on a clean machine
+    clean = machine(client, true_part_id=real["id"])
+    alone = job(client, "closed_loop", {"part_id": part["id"], "trace_ids": [first["id"]], "machine_id": clean["id"],
+                                        "probe": probe})
+    assert alone["status"] == "succeeded", alone["error"]
+    first_run = get_world(clean["id"]).transcript.executed_count
+    flaky = machine(client, true_part_id=real["id"], faults={"disconnect_at_line": first_run + 7})
+    params = {"part_id": part["id"], "trace_ids": [first["id"], second["id"]], "machine_id": flaky["id"],
+              "probe": probe}
+    return params, flaky, clean
+
+
+def reference_points(client, plan_id: str, clean: dict) -> np.ndarray:
+    reference = job(client, "probe_run", {"plan_job_id": plan_id, "machine_id": clean["id"]})
+    return np.array([p["measured"] for p in reference["result"]["points"]])
+
+
+def test_a_loop_waits_while_its_probe_run_is_interrupted_and_continues_when_the_operator_resumes_it(
+        client, two_traces):
+    params, flaky, clean = two_traces
+    loop_id = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": params}, headers=OP).json()["id"]
+    child = wait_interrupted_child(client, loop_id)
+    finished = [c for c in children(client, loop_id, "probe_run") if c["status"] == "succeeded"]
+    assert len(finished) == 1 and child["params"]["plan_job_id"] != finished[0]["params"]["plan_job_id"]
+    frozen = len(get_world(flaky["id"]).transcript.commands)
+    assert 0 < child["program_state"]["executed"] < 8
+    time.sleep(0.6)  # nobody asked: nothing moves, the loop only waits
+    assert len(get_world(flaky["id"]).transcript.commands) == frozen
+    assert client.get(f"/api/v1/jobs/{loop_id}", headers=OP).json()["status"] == "running"
+    # the loop itself is not interrupted: resuming it is refused; the operator resumes the step that stopped
+    assert client.post(f"/api/v1/jobs/{loop_id}/resume", json={"confirm": True}, headers=OP).status_code == 409
+    assert client.post(f"/api/v1/jobs/{child['id']}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    done = wait_for(client, loop_id, timeout=120)
+    assert done["status"] == "succeeded", done["error"]
+    runs = children(client, loop_id, "probe_run")
+    assert len(runs) == 2 and {r["status"] for r in runs} == {"succeeded"}  # the same child, resumed
+    resumed = client.get(f"/api/v1/jobs/{child['id']}", headers=OP).json()
+    assert resumed["result"]["resumes"] == 1 and done["result"]["traces"][1]["probe_run"] == child["id"]
+    got = np.array([p["measured"] for p in resumed["result"]["points"]])
+    assert np.allclose(got, reference_points(client, child["params"]["plan_job_id"], clean), atol=1e-9)
+    # 16 probes, the one cut by the disconnect touched again (a touch is idempotent), nothing re-probed
+    assert len(touches(flaky["id"])) <= 16 + 1
+
+
+def test_a_loop_and_its_probe_run_both_interrupted_resume_child_first_then_the_loop(client, two_traces, monkeypatch):
+    """The server dies while the loop waits for its interrupted probe run: after the restart
+    both are interrupted.  Resuming the loop first is refused naming the child; the child
+    resumes its probes where they stopped; the loop stays interrupted until the operator
+    resumes it, then reuses every finished child and probes nothing again."""
+    from app.jobs.context import JobContext
+
+    params, flaky, clean = two_traces
+    dead: set[str] = set()
+    gone = threading.Event()
+    check = JobContext.check_cancelled
+
+    def dead_check(self: JobContext) -> None:  # the loop's first attempt died with its server
+        if self.job_id in dead and self.claim.attempt == 1:
+            gone.wait()
+            raise Cancelled("the process of this attempt is gone", field="job_id", value=self.job_id)
+        check(self)
+
+    monkeypatch.setattr(JobContext, "check_cancelled", dead_check)
+    loop_id = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": params}, headers=OP).json()["id"]
+    child = wait_interrupted_child(client, loop_id)
+    dead.add(loop_id)  # from now on its thread does nothing, like a process that is gone
+    time.sleep(0.2)
+    runtime = client.app.state.runtime
+    try:
+        assert runtime.store.interrupt_orphans("the-restarted-server:") == [loop_id]  # the restart's sweep
+        loop = client.get(f"/api/v1/jobs/{loop_id}", headers=OP).json()
+        assert loop["status"] == "interrupted"
+        frozen = len(get_world(flaky["id"]).transcript.commands)
+        refused = client.post(f"/api/v1/jobs/{loop_id}/resume", json={"confirm": True}, headers=OP)
+        assert refused.status_code == 409 and child["id"] in refused.json()["detail"]
+        time.sleep(0.5)
+        assert len(get_world(flaky["id"]).transcript.commands) == frozen  # a refused resume moves nothing
+        assert client.post(f"/api/v1/jobs/{child['id']}/resume", json={"confirm": True}, headers=OP).status_code == 202
+        resumed = wait_for(client, child["id"], timeout=60)
+        assert resumed["status"] == "succeeded", resumed["error"]
+        probed = len(touches(flaky["id"]))
+        time.sleep(0.3)
+        assert client.get(f"/api/v1/jobs/{loop_id}", headers=OP).json()["status"] == "interrupted"
+        before = {c["id"] for c in children(client, loop_id)}
+        assert client.post(f"/api/v1/jobs/{loop_id}/resume", json={"confirm": True}, headers=OP).status_code == 202
+        done = wait_for(client, loop_id, timeout=120)
+        assert done["status"] == "succeeded", done["error"]
+        assert done["attempts"] == 2 and [t["probe_run"] for t in done["result"]["traces"]][1] == child["id"]
+        runs = children(client, loop_id, "probe_run")
+        assert len(runs) == 2  # no probe run submitted again: finished traces are never re-probed
+        assert len(touches(flaky["id"])) == probed <= 16 + 1  # the loop's resume touched nothing
+        new = [c["kind"] for c in children(client, loop_id) if c["id"] not in before]
+        assert sorted(new) == ["compensate", "reconstruct"]  # only the second trace's remaining steps
+        got = np.array([p["measured"] for p in resumed["result"]["points"]])
+        assert np.allclose(got, reference_points(client, child["params"]["plan_job_id"], clean), atol=1e-9)
+    finally:
+        gone.set()

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from app.compensation.surface_fit.errors import GridHoleError, SurfaceFitError
 from app.compensation.surface_fit.grid import HeightGrid
@@ -183,7 +184,8 @@ def fit_surface(data: HeightGrid | np.ndarray, params: SurfaceFitParams) -> Surf
     with ``resample_shape``, a net larger than the data or a singular fit).
     """
     try:
-        return _fit_surface(data, params)
+        with threadpool_limits(limits=1, user_api="blas"):  # many small solves: one thread is faster
+            return _fit_surface(data, params)
     except GeometryError as exc:  # the geometry core's fits: report as this package's error
         field = exc.field or "points"
         if field.startswith("n_ctrl"):

@@ -259,18 +259,42 @@ def _json_z(values: np.ndarray) -> list[float | None]:
     return [float(v) if np.isfinite(v) else None for v in values]
 
 
-# Cost model (MiB, s), calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py):
-# the sparse least-squares solve of N unknowns peaked at 468 MiB / 61 s for N = 40,000 (net
-# 200 x 200), 132 MiB / 5 s at 14,400 -> FIT_MB * N^1.5, FIT_S * N^1.5; each fitted point (design
-# rows, surface inversion for the residuals) ~2 KiB; the bad-point test per 600-point tile
-# ~2.5 ms per point on a loaded 2-core machine (40,000 points: 98 s), ~65 MiB whatever the
-# count; the GCV net search repeats the fit for every net size up to about sqrt(points / 3)
-# per direction.
-FIT_MB_PER_N15 = 6e-5
-FIT_S_PER_N15 = 8e-6
+# Cost model (MiB, s), calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py).
+# The peak is the base, the fitted points (design rows, grids, ~2 KiB each) and the largest of
+# the stages, which run one after the other:
+# * the bad-point test: per 600-point k-d-tree tile, ~20 MiB whatever the count, ~2.5 ms per
+#   point on a loaded 2-core machine (40,000 points: 40-98 s);
+# * the least-squares solve: a grid without penalty separates by direction (two 1-D banded
+#   solves: memory O(grid), 0.05 s at 200 x 200 / net 200 x 200, where the old 40,000-unknown
+#   sparse solve peaked at 468 MiB / 61 s); a penalty or scattered points need the banded
+#   normal equations: 8 (w + 1) N bytes for N unknowns of bandwidth w = degree min(n_u, n_v)
+#   (+ degree), N w^2 flops (200 x 200 net: 193 MiB band, 231 MiB measured, 10-17 s);
+# * the residuals: the surface inversion samples the surface 2 degree times per knot span in
+#   each direction (~100 bytes per sample: 128 MiB at a 200 x 200 net) and runs Newton per
+#   measured point (~0.2 ms each);
+# * the GCV net search (no control_points) repeats the fit for every net size up to about
+#   sqrt(points / 3) per direction.
 POINT_MB = 2 / 1024
+BAD_POINT_MB = 20.0
 BAD_POINT_S = 2.5e-3
+SAMPLE_MB = 100 / 2**20
+NEWTON_S = 2.5e-4
+EVAL_S = 5e-6  # per fitted point and net tried by the GCV search (evaluation, residuals)
+FLOP_S = 4e-9  # banded Cholesky (58 s for 1.5e10 flops on a loaded 2-core machine)
+BAND_OVERHEAD = 1.25  # the band plus the right-hand sides and the design while it is built
 BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh process
+
+
+def _net_cost(net: tuple[float, float], degree: int, separable: bool) -> tuple[float, float, float]:
+    """(solve MiB, solve s, inversion MiB) of one fit with a net (n_u, n_v)."""
+    unknowns = net[0] * net[1]
+    width = degree * min(net) + degree
+    per = max(4, 2 * degree)
+    samples = (per * max(net[0] - degree, 1) + 1) * (per * max(net[1] - degree, 1) + 1)
+    if separable:
+        return 0.0, 0.0, SAMPLE_MB * samples
+    return (BAND_OVERHEAD * 8 * unknowns * (width + 1) / 2**20, FLOP_S * unknowns * width**2,
+            SAMPLE_MB * samples)
 
 
 def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:
@@ -280,31 +304,43 @@ def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:
                 else params.points_csv.count("\n") + 1 if params.points_csv is not None
                 else params.grid[0] * params.grid[1])
     grid_fitted = not params.has_points or params.resample_to_grid
-    fitted = (math.prod((n - 1) * params.densify_factor + 1 for n in params.grid) if grid_fitted else measured)
+    shape = ([(n - 1) * params.densify_factor + 1 for n in params.grid] if grid_fitted
+             else [math.isqrt(measured)] * 2)
+    fitted = math.prod(shape) if grid_fitted else measured
+    separable = grid_fitted and params.penalty == 0
+    searched = 0
     if params.method == "interpolate":
-        unknowns, searched = 0, 0
+        net: tuple[float, float] = (shape[0], shape[1])
+        separable = True
     elif params.control_points is not None:
-        unknowns, searched = math.prod(params.control_points), 0
-    else:  # GCV: about a quarter of the sizes up to fitted/3 are tried, each a full fit
-        unknowns = fitted / 3
-        searched = int(math.sqrt(unknowns))
-    fit_mb, fit_s = FIT_MB_PER_N15 * unknowns**1.5, FIT_S_PER_N15 * unknowns**1.5
+        net = (params.control_points[0], params.control_points[1])
+    else:  # GCV: nets of the data's aspect up to fitted / 3 unknowns, each a full fit
+        side = math.sqrt(fitted / 3 / max(shape[0] * shape[1], 1))
+        net = (max(shape[0] * side, 1.0), max(shape[1] * side, 1.0))
+        searched = int(max(net))
+    solve_mb, solve_s, inversion_mb = _net_cost(net, params.degree, separable)
+    if searched:  # sum over the nets tried: N w^2 grows as m^4, so ~ m / 5 times the last
+        solve_s = solve_s * searched / 5 + EVAL_S * fitted * searched
     point_mb = POINT_MB * fitted
+    bad_mb = BAD_POINT_MB if params.remove_bad_points else 0.0
     terms = {  # field -> (memory, time) it brings
-        params.points_field if params.has_points else "params.grid": (POINT_MB * measured,
-                                                                      BAD_POINT_S * measured),
+        params.points_field if params.has_points else "params.grid": (
+            POINT_MB * measured + bad_mb, (BAD_POINT_S if params.remove_bad_points else 0.0) * measured
+            + NEWTON_S * measured),
         "params.densify_factor": (point_mb - POINT_MB * measured if grid_fitted else 0.0, 0.0),
-        "params.control_points": (fit_mb, fit_s * max(1, searched // 4)),
+        "params.control_points": (max(solve_mb, inversion_mb), solve_s),
     }
     field = max(terms, key=lambda f: terms[f])
     if field == "params.control_points" and params.control_points is None:  # the searched nets grow with
         field = "params.densify_factor" if grid_fitted and params.densify_factor > 1 else "params.grid"  # the data
     value = {"params.grid": params.grid, "params.densify_factor": params.densify_factor,
              "params.control_points": params.control_points}.get(field, measured)
-    memory = BASE_MB + point_mb + fit_mb + (POINT_MB * measured if params.remove_bad_points else 0.0)
+    memory = BASE_MB + point_mb + max(solve_mb, inversion_mb, bad_mb)
     seconds = sum(t for _, t in terms.values())
+    unknowns = int(net[0] * net[1])
     return Cost(memory_mb=memory, time_s=seconds, field=field, value=value,
-                basis=f"{measured} measured points, {fitted} fitted, {int(unknowns)} unknowns")
+                basis=f"{measured} measured points, {fitted} fitted, {unknowns} unknowns"
+                + ("" if separable else ", banded normal equations"))
 
 
 @job_kind("surface_fit", SurfaceFitJobParams, references=lambda p: [("part", p.part_id)], check=_check,
