@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from app.compensation.surface_fit.errors import GridHoleError, SurfaceFitError
 from app.compensation.surface_fit.grid import HeightGrid
@@ -184,8 +183,7 @@ def fit_surface(data: HeightGrid | np.ndarray, params: SurfaceFitParams) -> Surf
     with ``resample_shape``, a net larger than the data or a singular fit).
     """
     try:
-        with threadpool_limits(limits=1, user_api="blas"):  # many small solves: one thread is faster
-            return _fit_surface(data, params)
+        return _fit_surface(data, params)  # one BLAS thread: set once per job process (CONFORMA_BLAS_THREADS)
     except GeometryError as exc:  # the geometry core's fits: report as this package's error
         field = exc.field or "points"
         if field.startswith("n_ctrl"):
