@@ -105,7 +105,9 @@ class JobContext:
         return self.runtime.submit(kind, params, parent_id=self.job_id).id
 
     def wait_for(self, job_ids: list[str], *, poll_s: float = 0.05) -> list[Job]:
-        """Block until every job in ``job_ids`` is finished; cancels them if this job is cancelled."""
+        """Block until every job in ``job_ids`` is finished.  An operator's cancel of this job
+        cancels them too; a lost lease does not (another attempt of this job takes over and
+        reuses them: an interrupted child keeps its measured points for the operator's resume)."""
         while True:
             with self.session() as session:
                 jobs = [session.get(Job, job_id) for job_id in job_ids]
@@ -114,7 +116,8 @@ class JobContext:
             try:
                 self.check_cancelled()
             except Cancelled:
-                for job_id in job_ids:
-                    self.runtime.store.request_cancel(job_id)
+                if not self.lost_event.is_set():
+                    for job_id in job_ids:
+                        self.runtime.store.request_cancel(job_id)
                 raise
             time.sleep(poll_s)

@@ -137,3 +137,31 @@ def test_a_compute_process_runs_with_the_configured_blas_threads(settings_factor
         done = wait_for(client, submit(client, "test_blas_threads")["id"], timeout=60)
     assert done["status"] == "succeeded", done
     assert done["result"]["num_threads"] == [threads]
+
+
+def test_a_parent_that_loses_its_lease_leaves_its_children_alone(runtime):
+    """Only an operator's cancel reaches a workflow's children: an attempt that lost its lease
+    (another attempt takes over and reuses them) must not cancel a child, e.g. an interrupted
+    probe run that holds measured points waiting for the operator's resume."""
+    from sqlmodel import Session
+
+    from app.errors import Cancelled
+    from app.jobs.context import JobContext
+    from app.models import Job
+
+    parent = runtime.submit("test_sleep", {"seconds": 0})
+    claim = runtime.store.claim(parent.id, "w1")
+    children = [runtime.submit("test_sleep", {"seconds": 0}, parent_id=parent.id) for _ in range(2)]
+    ctx = JobContext(runtime, claim)
+    ctx.lost_event.set()
+    with pytest.raises(Cancelled):
+        ctx.wait_for([c.id for c in children], poll_s=0.01)
+    with Session(runtime.engine) as session:
+        assert [session.get(Job, c.id).cancel_requested for c in children] == [False, False]
+        assert [session.get(Job, c.id).status for c in children] == ["queued", "queued"]
+    ctx.lost_event.clear()
+    ctx.cancel_event.set()  # the operator's cancel does reach them
+    with pytest.raises(Cancelled):
+        ctx.wait_for([c.id for c in children], poll_s=0.01)
+    with Session(runtime.engine) as session:
+        assert [session.get(Job, c.id).status for c in children] == ["cancelled", "cancelled"]
