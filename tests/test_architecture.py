@@ -16,7 +16,7 @@ import networkx as nx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-CORE = ("geometry", "probing", "reconstruction", "compensation", "slicing", "gcode", "reference")
+CORE = ("geometry", "probing", "reconstruction", "compensation", "slicing", "gcode", "reference", "calibration")
 FORBIDDEN_IN_CORE = ("fastapi", "starlette", "sqlmodel", "sqlalchemy", "viser", "hardware", "huey", "uvicorn",
                      "app.api", "app.jobs", "app.viewer", "app.db", "app.models", "app.main")
 MAX_MODULE_LINES = 500
