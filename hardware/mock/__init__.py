@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import serial
 
+from .artifacts import MockPad, MockSphere, MockTool
 from .world import (HOST_QUERIES, DepositedMove, FaultConfig, MockStats, MockWorld, Placement,
                     Transcript, get_world, parse_mock_options, register_world,
                     unregister_world, world_from_url)
@@ -28,6 +29,7 @@ def register_protocol_handler() -> None:
 
 register_protocol_handler()
 
-__all__ = ["HOST_QUERIES", "DepositedMove", "FaultConfig", "MockStats", "MockWorld",
+__all__ = ["HOST_QUERIES", "DepositedMove", "FaultConfig", "MockPad", "MockSphere", "MockStats",
+           "MockTool", "MockWorld",
            "Placement", "Transcript", "get_world", "parse_mock_options", "register_world",
            "register_protocol_handler", "unregister_world", "world_from_url"]

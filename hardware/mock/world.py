@@ -12,6 +12,13 @@ URL form (every option optional)::
         &disconnect_at_line=500&reset_at_line=900
         &advanced_ok=1&latency_ms=1&rx_buffer=128&command_buffer=4&planner_blocks=16
         &homing=0&homing_fails=0&fresh_eeprom=0&boot_s=0.5&line_numbers=0   (grbl)
+        &stylus_radius_mm=0.5&pretravel_mm=0.015&pretravel_sd_mm=0.002
+        &pretravel_lobing_mm=0.003&drift_mm_per_min=0.001&touchoff_sd_mm=0.001
+        &tool1=12.3,-4.1,-8.7,0.8&pad=100,10,5,20&sphere=120,10,12,25.4   (probe physics)
+
+The probe physics options (see ``hardware.mock.physics`` and ``artifacts``) all default to
+today's ideal probe: a point that reads the surface exactly, no pre-travel, no drift, no
+tools beyond T0 and no reference artifacts.
 
 ``NAME`` selects a world registered with ``register_world``; an unknown name creates (and
 registers) a fresh world from the options.  Options given for an existing world update
@@ -39,6 +46,8 @@ from urllib.parse import parse_qsl, urlsplit
 
 from ..errors import InvalidConfig
 from ..protocol import DIALECTS, CommandHasher, CommandDigest
+from .artifacts import (PHYSICS_LIMITS, MockPad, MockSphere, MockTool, check_physics_value,
+                        merge_tools, parse_artifact_option, tool_number)
 
 #: Host queries that do not change the machine; the transcript leaves them out so the
 #: executed digest compares directly with the program's ``commands_sha256``.
@@ -145,6 +154,12 @@ class MockStats:
     blocks: int = 0
     lines_received: int = 0
     faults: dict[str, int] = field(default_factory=dict)
+    #: the machine clock: modelled seconds of motion (length / feed, probing moves up to
+    #: the trigger) and dwell since the world was made, whatever ``time_scale`` is
+    machine_time_s: float = 0.0
+    #: probing moves that drove a nozzle (T>=1) into the part (it does not trigger there)
+    collisions: int = 0
+    touches: int = 0
 
 
 @dataclass
@@ -176,11 +191,33 @@ class MockWorld:
     fresh_eeprom: bool = False
     boot_s: float = 0.5
     line_numbers: bool = False
+    # probe physics (hardware.mock.physics): ball stylus of T0, pre-travel (mean, scatter,
+    # 3-lobed direction dependence), Z drift, nozzle touch-off scatter, tools, artifacts
+    stylus_radius_mm: float = 0.0
+    pretravel_mm: float = 0.0
+    pretravel_sd_mm: float = 0.0
+    pretravel_lobing_mm: float = 0.0
+    drift_mm_per_min: float = 0.0
+    touchoff_sd_mm: float = 0.0
+    tools: tuple[MockTool, ...] = ()      # T1..Tn
+    pad: MockPad | None = None
+    sphere: MockSphere | None = None
 
     def __post_init__(self) -> None:
         if self.dialect not in DIALECTS:
             raise InvalidConfig(f"unknown dialect {self.dialect!r}", field="dialect",
                                 value=str(self.dialect)[:40])
+        for name in PHYSICS_LIMITS:
+            setattr(self, name, check_physics_value(name, getattr(self, name), name))
+        self.tools = tuple(self.tools)
+        if len(self.tools) > 8 or not all(isinstance(t, MockTool) for t in self.tools):
+            raise InvalidConfig("tools must be at most 8 MockTool values", field="tools",
+                                value=len(self.tools))
+        if self.pad is not None and not isinstance(self.pad, MockPad):
+            raise InvalidConfig("pad must be a MockPad", field="pad", value=str(self.pad)[:40])
+        if self.sphere is not None and not isinstance(self.sphere, MockSphere):
+            raise InvalidConfig("sphere must be a MockSphere", field="sphere",
+                                value=str(self.sphere)[:40])
         self.lock = threading.RLock()
         self.cond = threading.Condition(self.lock)
         self.transcript = Transcript(self.keep_transcript)
@@ -198,6 +235,16 @@ class MockWorld:
         """Planned tool position (mm); (0, 0, 0) before the first connection."""
         fw = self.firmware
         return tuple(fw.position) if fw is not None else (0.0, 0.0, 0.0)
+
+    @property
+    def active_tool(self) -> int:
+        """The selected tool: 0 = the touch probe, k >= 1 = ``tools[k - 1]``."""
+        fw = self.firmware
+        return int(getattr(fw, "active_tool", 0)) if fw is not None else 0
+
+    def drift_mm(self) -> float:
+        """Z drift now (mm): actual tool Z = commanded Z + this (machine clock based)."""
+        return self.drift_mm_per_min * self.stats.machine_time_s / 60.0
 
     @property
     def executed_count(self) -> int:
@@ -271,6 +318,14 @@ def parse_mock_options(query: str) -> dict[str, object]:
         raise InvalidConfig(f"malformed mock options {query!r}", field="port",
                             value=query[:80]) from None
     for key, text in pairs:
+        artifact = parse_artifact_option(key, text)
+        if artifact is not None:
+            options[key] = artifact
+            continue
+        if key in PHYSICS_LIMITS:
+            value = _convert(key, text, float)
+            options[key] = check_physics_value(key, value, f"port.{key}")
+            continue
         if key in _FAULT_KEYS:
             value = _convert(key, text, _FAULT_KEYS[key])
         elif key in _WORLD_KEYS:
@@ -306,7 +361,12 @@ def world_from_url(url: str) -> MockWorld:
     if "dialect" in options and options["dialect"] != world.dialect:
         raise InvalidConfig(f"mock world {name!r} speaks {world.dialect}, not {options['dialect']}",
                             field="dialect", value=options["dialect"])
+    tools = {tool_number(k): v for k, v in options.items() if tool_number(k) is not None}
+    if tools:
+        world.tools = merge_tools(world.tools, tools)
     for key, value in options.items():
+        if tool_number(key) is not None:
+            continue
         if key in _FAULT_KEYS:
             setattr(world.faults, key, value)
         elif key == "keep_transcript":
