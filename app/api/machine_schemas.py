@@ -29,6 +29,77 @@ class TravelVolume(Strict):
         return value
 
 
+Coordinate = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
+Point3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+
+
+class ProbeTool(Strict):
+    """The touch probe, tool T0: its stylus ball and its (definitional) zero offset."""
+
+    ball_radius_mm: Finite = Field(0.0, ge=0, le=10, description="nominal stylus ball radius, mm")
+    offset_mm: Point3 = Field(default_factory=lambda: [0.0, 0.0, 0.0],
+                              description="T0's offset: [0, 0, 0] (machine coordinates are the ball centre's)")
+
+    @field_validator("offset_mm")
+    @classmethod
+    def _zero(cls, value: list[float]) -> list[float]:
+        if any(v != 0 for v in value):
+            raise ValueError("the probe (T0) defines the machine frame: its offset must be [0, 0, 0]")
+        return value
+
+
+class NozzleTool(Strict):
+    """A dispensing nozzle T<tool>: tip = carriage + offset (nominal until calibrated)."""
+
+    tool: int = Field(ge=1, le=8, description="tool number (T1..T8)")
+    name: str = Field("", max_length=80)
+    outer_diameter_mm: Finite = Field(gt=0, le=20, description="outer diameter of the nozzle body, mm")
+    offset_mm: Point3 = Field(description="nominal [x, y, z] offset of the tip from the probe's ball centre, mm")
+    dispense_on: str | None = Field(None, min_length=1, max_length=80, description="default: the profile's")
+    dispense_off: str | None = Field(None, min_length=1, max_length=80, description="default: the profile's")
+
+    @field_validator("offset_mm")
+    @classmethod
+    def _reach(cls, value: list[float]) -> list[float]:
+        if max(abs(v) for v in value) > 500:
+            raise ValueError("a tool offset is within +-500 mm of the probe")
+        return value
+
+
+class Tools(Strict):
+    probe: ProbeTool = Field(default_factory=ProbeTool)
+    nozzles: list[NozzleTool] = Field(default_factory=list, max_length=8)
+
+    @field_validator("nozzles")
+    @classmethod
+    def _unique(cls, value: list[NozzleTool]) -> list[NozzleTool]:
+        numbers = [n.tool for n in value]
+        if len(set(numbers)) != len(numbers):
+            raise ValueError(f"tool numbers must be unique, got {numbers}")
+        return value
+
+
+class ReferencePad(Strict):
+    """A flat conductive contact pad: square, top face at centre_mm's z (nominal place)."""
+
+    centre_mm: Point3
+    size_mm: Finite = Field(gt=0, le=200, description="side of the square top face, mm")
+
+
+class ReferenceSphere(Strict):
+    """The datum sphere on its stem (nominal place)."""
+
+    centre_mm: Point3
+    diameter_mm: Finite = Field(gt=0, le=100)
+
+
+class Reference(Strict):
+    """Reference artifacts on the table (nominal places, machine coordinates, mm)."""
+
+    pad: ReferencePad | None = None
+    sphere: ReferenceSphere | None = None
+
+
 class Profile(Strict):
     dispense_on: str = Field("M106", min_length=1, max_length=80, description="G-code that starts dispensing")
     dispense_off: str = Field("M107", min_length=1, max_length=80, description="G-code that stops dispensing")
@@ -47,6 +118,10 @@ class Profile(Strict):
                                           "x/y/z-rot-point); five_axis jobs with machine_id use it")
     five_axis_post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
         "conforma", description="how five_axis jobs with machine_id write X Y Z A C (see the README)")
+    tools: Tools | None = Field(None, description="T0 = the touch probe, T1..T8 = nozzles (nominal offsets)")
+    reference: Reference | None = Field(None, description="reference pad and sphere for the calibration jobs")
+    calibration_max_age_h: Finite = Field(24.0, gt=0, le=24 * 365,
+                                          description="a calibration older than this is flagged stale")
 
 
 class MockPlacement(Strict):

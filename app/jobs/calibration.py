@@ -1,0 +1,197 @@
+"""A machine's current calibration: the latest succeeded ``calibrate_probe`` job and, per
+nozzle, the latest succeeded ``calibrate_nozzle`` job, with what an operator must know
+about them (``flags``): too old, a re-check that disagrees with the calibration before it,
+a nozzle calibrated against an earlier probe calibration (a nozzle's Z offset rests on the
+probe's ball radius and pre-travel).
+
+Not a job kind: the calibration kinds and every job that uses a calibration (probe runs,
+compensation, prints) import it.  Values are mm and seconds inside; the API summary
+(:func:`calibration_summary`) reports standard deviations in micrometres (``_um``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any
+
+from sqlmodel import Session, select
+
+from app.api.machine_schemas import Profile
+from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
+from app.errors import InvalidInput
+from app.models import Job, Machine
+from app.records import get_or_404
+
+KINDS = ("calibrate_probe", "calibrate_nozzle")
+
+
+@dataclass
+class MachineCalibration:
+    """What a machine is calibrated with now (None / empty where it is not).
+
+    ``probe_at`` / ``nozzle_at``: when the calibration job finished (UTC).  ``flags``: one
+    readable sentence per problem, e.g. "probe calibration is 30.1 h old (max 24 h)"."""
+
+    probe: ProbeCalibration | None = None
+    probe_job_id: str | None = None
+    probe_at: datetime | None = None
+    nozzles: dict[int, NozzleCalibration] = field(default_factory=dict)
+    nozzle_job_ids: dict[int, str] = field(default_factory=dict)
+    nozzle_at: dict[int, datetime] = field(default_factory=dict)
+    flags: list[str] = field(default_factory=list)
+    max_age_h: float = 24.0
+    probe_result: dict[str, Any] | None = None  # the probe job's stored result (agreement, readings)
+    nozzle_results: dict[int, dict[str, Any]] = field(default_factory=dict)
+    now: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
+
+    def age_h(self, at: datetime | None) -> float | None:
+        return None if at is None else (self.now - _utc(at)).total_seconds() / 3600.0
+
+    def stale(self, at: datetime | None) -> bool:
+        age = self.age_h(at)
+        return age is not None and age > self.max_age_h
+
+
+def _utc(moment: datetime) -> datetime:
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=timezone.utc)
+
+
+def _done_at(job: Job) -> datetime:
+    return _utc(job.finished_at or job.created_at)
+
+
+def machine_profile(row: Machine) -> Profile:
+    """The stored profile of ``row`` (profiles stored before issue 16 get the defaults)."""
+    return Profile.model_validate(row.profile or {})
+
+
+def probe_from(result: dict[str, Any]) -> ProbeCalibration:
+    """The probe calibration stored in a ``calibrate_probe`` job's result."""
+    return ProbeCalibration.from_dict(result)
+
+
+def nozzle_from(result: dict[str, Any]) -> NozzleCalibration:
+    """The nozzle calibration stored in a ``calibrate_nozzle`` job's result."""
+    return NozzleCalibration.from_dict(result)
+
+
+def calibration_jobs(session: Session, machine_id: str) -> list[Job]:
+    """Succeeded calibration jobs of ``machine_id``, newest first."""
+    rows = session.exec(select(Job).where(Job.machine_id == machine_id, Job.kind.in_(KINDS),
+                                          Job.status == "succeeded")).all()
+    return sorted(rows, key=_done_at, reverse=True)
+
+
+def latest_calibration_job(session: Session, machine_id: str, kind: str, tool: int | None = None) -> Job | None:
+    """The newest succeeded ``kind`` job of the machine (of nozzle ``tool``), or None."""
+    for job in calibration_jobs(session, machine_id):
+        if job.kind == kind and (tool is None or int(job.params.get("tool", -1)) == tool):
+            return job
+    return None
+
+
+def current_calibration(session: Session, machine_id: str, *, now: datetime | None = None) -> MachineCalibration:
+    """The machine's current calibration with its flags (NotFound for an unknown machine)."""
+    row = get_or_404(session, Machine, machine_id, field="machine_id")
+    profile = machine_profile(row)
+    cal = MachineCalibration(max_age_h=float(profile.calibration_max_age_h),
+                             now=_utc(now) if now is not None else datetime.now(timezone.utc))
+    for job in calibration_jobs(session, machine_id):
+        result = job.result or {}
+        if job.kind == "calibrate_probe" and cal.probe is None:
+            cal.probe, cal.probe_job_id, cal.probe_at = probe_from(result), job.id, _done_at(job)
+            cal.probe_result = result
+        elif job.kind == "calibrate_nozzle":
+            tool = int(job.params["tool"])
+            if tool not in cal.nozzles:
+                cal.nozzles[tool], cal.nozzle_job_ids[tool] = nozzle_from(result), job.id
+                cal.nozzle_at[tool], cal.nozzle_results[tool] = _done_at(job), result
+    cal.flags = _flags(cal)
+    return cal
+
+
+def _flags(cal: MachineCalibration) -> list[str]:
+    flags: list[str] = []
+    if cal.probe is not None:
+        if cal.stale(cal.probe_at):
+            flags.append(f"probe calibration is {cal.age_h(cal.probe_at):.1f} h old (max {cal.max_age_h:g} h)")
+        flags += _disagreement_flags("probe", cal.probe_result)
+    for tool in sorted(cal.nozzles):
+        at = cal.nozzle_at[tool]
+        if cal.stale(at):
+            flags.append(f"nozzle T{tool} calibration is {cal.age_h(at):.1f} h old (max {cal.max_age_h:g} h)")
+        result = cal.nozzle_results[tool]
+        flags += _disagreement_flags(f"nozzle T{tool}", result)
+        used = result.get("probe_job_id")
+        if cal.probe_job_id is not None and used != cal.probe_job_id and \
+                (used is not None or cal.probe_at is None or cal.probe_at > at):
+            flags.append(f"nozzle T{tool} was calibrated against probe calibration {used} but the probe was "
+                         f"re-calibrated since ({cal.probe_job_id}): re-calibrate T{tool} (its Z offset rests on "
+                         "the probe's ball radius and pre-travel)")
+    return flags
+
+
+def _disagreement_flags(what: str, result: dict[str, Any] | None) -> list[str]:
+    agreement = (result or {}).get("agreement") or {}
+    names = agreement.get("disagrees") or []
+    if not names:
+        return []
+    differences = agreement.get("differences_mm") or {}
+    changes = ", ".join(f"{name} by {differences.get(name, float('nan')) * 1000:+.1f} um" for name in names)
+    return [f"{what} re-check disagrees with the calibration before it (job {agreement.get('previous_job_id')}): "
+            f"{changes}"]
+
+
+# ---- named values and their uncertainties (what agreement compares) -------------------------
+def probe_values(cal: ProbeCalibration) -> tuple[dict[str, float], dict[str, float]]:
+    """({name: value mm}, {name: std mm}) of a probe calibration's physical parameters."""
+    values = {"ball_radius_mm": cal.ball_radius_mm, "pretravel_mm": cal.pretravel.p0_mm,
+              "lobing_cos3_mm": cal.pretravel.cos3_mm, "lobing_sin3_mm": cal.pretravel.sin3_mm}
+    std = {name: _std_of(cal.std, name) for name in values}
+    return values, std
+
+
+def _std_of(std: dict[str, float], name: str) -> float:
+    """The standard deviation of ``name`` from a core ``std`` dict (keys with or without
+    the ``_mm`` suffix; the core's pre-travel names); 0 when the core gives none."""
+    aliases = {"pretravel_mm": ("pretravel_mm", "pretravel_p0_mm", "p0_mm", "pretravel", "p0"),
+               "lobing_cos3_mm": ("lobing_cos3_mm", "cos3_mm", "pretravel_cos3_mm", "cos3"),
+               "lobing_sin3_mm": ("lobing_sin3_mm", "sin3_mm", "pretravel_sin3_mm", "sin3"),
+               "ball_radius_mm": ("ball_radius_mm", "ball_radius", "radius_mm", "r")}
+    for key in aliases.get(name, (name,)):
+        if key in std and std[key] is not None and math.isfinite(std[key]):
+            return float(std[key])
+    return 0.0
+
+
+def nozzle_values(cal: NozzleCalibration) -> tuple[dict[str, float], dict[str, float]]:
+    """({offset_x_mm, offset_y_mm, offset_z_mm}, their std mm) of a nozzle calibration."""
+    names = ("offset_x_mm", "offset_y_mm", "offset_z_mm")
+    return ({n: float(v) for n, v in zip(names, cal.offset_mm, strict=True)},
+            {n: float(s) for n, s in zip(names, cal.std_mm, strict=True)})
+
+
+def agreement(previous: Job | None, values: dict[str, float], std: dict[str, float]) -> dict[str, Any]:
+    """How a new calibration compares with ``previous`` (a succeeded job of the same
+    machine, kind and tool): ``{previous_job_id, differences_mm: {name: new - old},
+    disagrees: [names beyond 3 sigma of the combined uncertainty + 2 um]}``."""
+    if previous is None:
+        return {"previous_job_id": None, "differences_mm": {}, "disagrees": []}
+    if previous.kind == "calibrate_probe":
+        old, old_std = probe_values(probe_from(previous.result or {}))
+    else:
+        old, old_std = nozzle_values(nozzle_from(previous.result or {}))
+    bad = disagreements(old, values, old_std, std)
+    return {"previous_job_id": previous.id, "differences_mm": {k: values[k] - old[k] for k in values if k in old},
+            "disagrees": sorted(bad)}
+
+
+def require_probe_calibration(session: Session, machine_id: str) -> MachineCalibration:
+    """The machine's calibration; 422 when it has no probe calibration yet."""
+    cal = current_calibration(session, machine_id)
+    if cal.probe is None:
+        raise InvalidInput(f"machine {machine_id!r} has no probe calibration: calibrate the probe first "
+                           "(job calibrate_probe)", field="params.machine_id", value=machine_id)
+    return cal
