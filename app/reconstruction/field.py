@@ -78,6 +78,19 @@ class FieldFit:
         return placement_basis(sites, self.posterior.center) @ theta
 
 
+def field_gradient(fit: "FieldFit", sites: Sites, step_mm: float = 0.05) -> np.ndarray:
+    """Top-view gradient (m, 2) of the fitted deviation at ``sites`` (central differences
+    over ``step_mm``, the nominal slope of each site held)."""
+    out = np.zeros((len(sites.xy), 2))
+    for axis in range(2):
+        shift = np.zeros(2)
+        shift[axis] = step_mm
+        up = fit.deviation(Sites(sites.xy + shift, sites.grad))
+        down = fit.deviation(Sites(sites.xy - shift, sites.grad))
+        out[:, axis] = (up - down) / (2 * step_mm)
+    return out
+
+
 def _loo(k: np.ndarray, dz: np.ndarray, jitter: float) -> tuple[np.ndarray, np.ndarray]:
     """Leave-one-out residuals (n,) mm and their sd (n,) mm of a GP with covariance k."""
     q = np.linalg.inv(k + jitter * np.eye(len(k)))
