@@ -197,6 +197,8 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
     s2 = float(res @ res) / dof if dof > 0 else 0.0
     cov = np.linalg.inv(jac.T @ jac) * s2
     std = {name: float(math.sqrt(max(cov[k, k], 0.0))) for k, name in enumerate(PARAMS[:n_par])}
+    # delta(+Z) - r = p0 - r turns a vertical pad reading into the pad surface; r and p0 correlate
+    std["p0_minus_radius_mm"] = float(math.sqrt(max(cov[4, 4] + cov[3, 3] - 2 * cov[3, 4], 0.0)))
     x = fit.x
     pad = np.flatnonzero(kinds == "pad")
     pad_z = None

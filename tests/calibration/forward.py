@@ -56,3 +56,36 @@ def plane_reading(x0, y0, h0, slope_deg, azimuth_deg, probe: TrueProbe, rng=None
     # the ball centre sits r along n from the tangent point; its height over the station: h0 + r / n_z
     z = h0 + probe.r / n[2] - probe.delta(n, rng)
     return np.array([x0, y0, z]), n
+
+
+def cylinder_gap(point, axis_xy, radius, tip_z):
+    """Distance from a point to a vertical solid cylinder (axis axis_xy, radius, from tip_z upward)."""
+    h = math.hypot(point[0] - axis_xy[0], point[1] - axis_xy[1])
+    radial = max(h - radius, 0.0)
+    if point[2] >= tip_z:
+        return radial
+    return math.hypot(radial, tip_z - point[2])
+
+
+def nozzle_side_reading(start, target, offset, diameter, centre, sphere_radius, noise=0.0, rng=None):
+    """Carriage position when the nozzle body (tip = carriage + offset) first touches the sphere (bisection)."""
+    start, target, offset = (np.asarray(v, float) for v in (start, target, offset))
+
+    def gap(s):
+        tip = start + s * (target - start) + offset
+        return cylinder_gap(centre, tip[:2], diameter / 2, tip[2]) - sphere_radius
+
+    lo, hi = 0.0, 1.0
+    assert gap(lo) > 0 > gap(hi), "the move does not reach the sphere"
+    for _ in range(200):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if gap(mid) > 0 else (lo, mid)
+    d = (target - start) / np.linalg.norm(target - start)
+    extra = rng.normal(0, noise) if rng is not None else 0.0
+    return start + lo * (target - start) + extra * d
+
+
+def nozzle_pad_reading(start, offset, pad_z, noise=0.0, rng=None):
+    """Carriage position when the flat end (tip = carriage + offset) reaches a flat pad at pad_z (vertical move)."""
+    extra = rng.normal(0, noise) if rng is not None else 0.0
+    return np.array([start[0], start[1], pad_z - offset[2] - extra])
