@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
+from pydantic import ValidationError
 from sqlmodel import Session, select
 
 from app.api.machine_schemas import Profile
@@ -63,8 +64,15 @@ def _done_at(job: Job) -> datetime:
 
 
 def machine_profile(row: Machine) -> Profile:
-    """The stored profile of ``row`` (profiles stored before issue 16 get the defaults)."""
-    return Profile.model_validate(row.profile or {})
+    """The stored profile of ``row`` (profiles stored before issue 16 get the defaults;
+    keys this service does not know are left to the hardware layer)."""
+    known = {k: v for k, v in (row.profile or {}).items() if k in Profile.model_fields}
+    try:
+        return Profile.model_validate(known)
+    except ValidationError as exc:
+        where = ".".join(str(p) for p in exc.errors()[0]["loc"])
+        raise InvalidInput(f"machine {row.id!r} has a stored profile this service cannot read at profile.{where}: "
+                           f"{exc.errors()[0]['msg']}", field=f"profile.{where}", value=row.id) from exc
 
 
 def probe_from(result: dict[str, Any]) -> ProbeCalibration:
