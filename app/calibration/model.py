@@ -108,7 +108,8 @@ class ProbeCalibration:
     pad_reading_z_mm: mean vertical reading on the reference pad (the drift / offset
     reference), None without a pad.  std: 1-sigma of each fitted parameter, keys
     ``ball_radius_mm, p0_mm, cos3_mm, sin3_mm, centre_x_mm, centre_y_mm, centre_z_mm,
-    pad_reading_z_mm`` (those fitted).  residual_rms_mm: RMS of the sphere residuals.
+    pad_reading_z_mm`` (those fitted) and ``p0_minus_radius_mm`` (the correlated combination
+    that turns a vertical reading into a surface height).  residual_rms_mm: RMS of the sphere residuals.
     touches: number of touches used.
     """
 

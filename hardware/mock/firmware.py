@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..protocol import normalize_command
+from .physics import ProbePhysics, Touch
 from .surface import PlacedSurface
 from .world import HOST_QUERIES, DepositedMove, MockWorld
 
@@ -68,6 +69,7 @@ class FirmwareCore:
         self.rng = random.Random(world.faults.seed)
         self.noise = np.random.default_rng(world.seed)
         self.surface = PlacedSurface(world.true_part, world.placement, world.bed_z)
+        self.physics = ProbePhysics(world, self.surface, self.noise)
         self.port: Any = None
         self.wire: deque[tuple[float, bytes]] = deque()
         self.wire_free_at = 0.0
@@ -97,6 +99,7 @@ class FirmwareCore:
         self.dispensing = False
         self.homed = False
         self.halted = False
+        self.active_tool = 0  # T0: the touch probe; k >= 1: world.tools[k - 1]
 
     # ------------------------------------------------------------------ I/O
     def receive(self, data: bytes, now: float) -> None:
@@ -253,8 +256,12 @@ class FirmwareCore:
             yield ("slot",)
         start = tuple(self.position)
         length = math.dist(target, start)
+        drift_before = self.world.drift_mm()
+        if length > 0:
+            self.advance_clock(length / max(feed_mm_min, 1e-9) * 60.0)
         if self.dispensing and length > 0:
-            self.world.deposition_log.append(DepositedMove(start, tuple(target), feed_mm_min))
+            self.world.deposition_log.append(DepositedMove(
+                *self.tip_path(start, tuple(target), drift_before), feed_mm_min))
         self.position = list(target)
         if length == 0.0:
             return
@@ -272,6 +279,39 @@ class FirmwareCore:
             self.planner.append(self.motion_end)
             self.blocks.append((self.world.transcript.executed_count, self.line_n, begin, start,
                                 tuple(target)))
+
+    def advance_clock(self, seconds: float) -> None:
+        """The machine clock: modelled (unscaled) seconds of motion and dwell."""
+        self.world.stats.machine_time_s += max(float(seconds), 0.0)
+
+    def tip_path(self, start: tuple, end: tuple, drift_before: float) -> tuple[tuple, tuple]:
+        """Where the active tool's tip really went: carriage + tool offset + Z drift (the
+        drift at the start and at the end of the move); T0 without drift: the carriage."""
+        spec = self.tool_spec()
+        drift_after = self.world.drift_mm()
+        if spec is None and drift_before == 0.0 and drift_after == 0.0:
+            return start, end
+        offset = spec.offset_mm if spec is not None else (0.0, 0.0, 0.0)
+        a = tuple(float(v + o) for v, o in zip(start, offset))
+        b = tuple(float(v + o) for v, o in zip(end, offset))
+        return (a[0], a[1], a[2] + drift_before), (b[0], b[1], b[2] + drift_after)
+
+    def tool_spec(self):  # type: ignore[no-untyped-def]
+        """The active nozzle's ``MockTool`` (None for T0 or a tool the world lacks)."""
+        tools = self.world.tools
+        return tools[self.active_tool - 1] if 1 <= self.active_tool <= len(tools) else None
+
+    def touch(self, start: tuple, target: tuple, feed_mm_min: float) -> Touch:
+        """A probing move with the active tool (see ``hardware.mock.physics``); advances
+        the machine clock by the travel up to the trigger (or the whole move)."""
+        tool = self.active_tool
+        if tool != 0 and self.tool_spec() is None:  # a tool the mock does not know: touches nothing
+            length = math.dist(start, target)
+            self.advance_clock(length / max(feed_mm_min, 1e-9) * 60.0)
+            return Touch("miss", tuple(target), length, None)
+        result = self.physics.touch(start, target, tool)
+        self.advance_clock(result.travel_mm / max(feed_mm_min, 1e-9) * 60.0)
+        return result
 
     def hold(self, now: float) -> None:
         """Feed hold: planned motion stops where it is (deceleration not modelled)."""
@@ -335,17 +375,12 @@ class FirmwareCore:
         if seconds > 0 and self.scale:
             yield ("until", self.clock() + seconds * self.scale)
 
-    def probe_down(self, z_min: float) -> float | None | str:
-        """Probe straight down from the current position; z, None (no contact) or
-        ``"inside"`` when the probe starts inside the part."""
-        x, y, z = self.position
-        hit = self.surface.probe(x, y, z, z_min)
-        if hit.started_inside:
-            return "inside"
-        if hit.z is None:
-            return None
-        noise = self.world.probe_noise_mm
-        return hit.z + (float(self.noise.normal(0.0, noise)) if noise > 0 else 0.0)
+    def select_tool(self, number: int) -> bool:
+        """``T<number>``: True when the tool exists (0, or 1..len(world.tools))."""
+        if 0 <= number <= len(self.world.tools):
+            self.active_tool = number
+            return True
+        return False
 
     def run_shared(self, command: str, head: str, params: dict[str, float]
                    ) -> Generator[Wait, None, bool]:

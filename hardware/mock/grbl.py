@@ -20,8 +20,13 @@
   failing homing cycle (``homing_fails``) prints ``ALARM:9``, ``ok`` and resets itself.
 * ``$C`` toggles check mode (lines parsed, nothing moves or runs); leaving it soft-resets.
 * ``$J=...`` jogs (state Jog; G-code lines meanwhile get ``error:9``).
-* ``G38.2 Z.. F..`` probes down: ``[PRB:x,y,z:1]`` then ``ok``; no contact: ``ALARM:5``,
-  ``[PRB:x,y,z:0]``, ``ok``; starting inside the part: ``ALARM:4``, ``ok`` and no motion.
+* ``G38.2 X.. Y.. Z.. F..`` probes toward the target (any direction; no axis word:
+  ``error:26``, the target where it is: ``error:33``): ``[PRB:x,y,z:1]`` then ``ok``; no
+  contact: ``ALARM:5``, ``[PRB:x,y,z:0]``, ``ok``; starting inside the part (the probe
+  already triggered): ``ALARM:4``, ``ok`` and no motion.  Contacts and readings follow
+  ``hardware.mock.physics``.
+* ``T<n>`` (a T word alone) selects tool n, as grbl's parser keeps it (n > 255:
+  ``error:38``); ``M6`` stays unsupported (``error:20``).
   The alarm locks G-code (``error:9``) until ``$X`` or ``$H``.
 * A damaged line (``checksum_rate``) is rejected with ``error:2`` and not executed.
 """
@@ -39,6 +44,8 @@ _MODAL = {"G17", "G21", "G20", "G90", "G91", "G94", "G54", "G55", "G56", "G57", 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
 RESET_S = 0.02  # model seconds grbl needs to re-initialise after a soft reset
 _LINE_N = re.compile(r"^[Nn]\s*(\d+)")
+_TOOL = re.compile(r"^T\d+$")
+MAX_TOOL_NUMBER = 255
 
 
 def syntax_error(command: str) -> int | None:
@@ -217,7 +224,14 @@ class GrblFirmware(GrblSystem, FirmwareCore):
                 self.reply("error:28", now)
                 return
             yield ("drain",)
+            self.advance_clock(params["P"])
             yield from self.dwell(params["P"], now)
+        elif _TOOL.match(head):
+            if int(head[1:]) > MAX_TOOL_NUMBER:
+                self.reply("error:38", now)  # STATUS_GCODE_MAX_VALUE_EXCEEDED
+                return
+            yield ("drain",)
+            self.active_tool = int(head[1:])  # kept even when the mock has no such nozzle
         elif head in ("G28", "G30"):
             yield from self.plan_move([0.0, 0.0, 0.0], self.world.rapid_feed_mm_min, now)
         elif head in ("G38.2", "G38.3"):
@@ -238,24 +252,25 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         if self.feed <= 0:
             self.reply("error:22", now)
             return False
-        if "Z" not in params or any(a in params and abs(params[a] - self.position[i]) > 1e-9
-                                    for i, a in enumerate("XY")):
-            self.reply("error:33", now)
+        if not any(a in params for a in "XYZ"):
+            self.reply("error:26", now)  # STATUS_GCODE_NO_AXIS_WORDS
+            return False
+        target = self.target_of(params)
+        if all(abs(t - p) <= 1e-9 for t, p in zip(target, self.position)):
+            self.reply("error:33", now)  # STATUS_GCODE_INVALID_TARGET
             return False
         yield ("drain",)
-        z_target = params["Z"] if self.absolute else self.position[2] + params["Z"]
-        z = self.probe_down(z_target)
-        if z == "inside":  # grbl 1.1 mc_probe_cycle: alarm, no motion, the line still gets ok
+        touch = self.touch(tuple(self.position), tuple(target), self.feed)
+        if touch.status == "inside":  # grbl 1.1 mc_probe_cycle: alarm, no motion, the line still gets ok
             self.raise_alarm(4, now)
             return True
-        end = z if isinstance(z, float) else z_target
-        yield from self.dwell(abs(self.position[2] - end) / max(self.feed, 1e-9) * 60.0, now)
-        self.position[2] = end
-        x, y, _ = self.position
-        if not isinstance(z, float) and head == "G38.2":
+        yield from self.dwell(touch.travel_mm / max(self.feed, 1e-9) * 60.0, now)
+        self.position = list(touch.reading)
+        x, y, z = self.position
+        if touch.status != "hit" and head == "G38.2":
             self.raise_alarm(5, now)  # then [PRB:..:0] and ok, like grbl 1.1
-        flag = 1 if isinstance(z, float) else 0
-        self.emit(f"[PRB:{x:.3f},{y:.3f},{end:.3f}:{flag}]", now)
+        flag = 1 if touch.status == "hit" else 0
+        self.emit(f"[PRB:{x:.3f},{y:.3f},{z:.3f}:{flag}]", now)
         return True
 
     def raise_alarm(self, code: int, now: float) -> None:

@@ -10,8 +10,12 @@
 * ``M112`` is caught by the emergency parser on arrival: ``Error:Printer halted. kill()
   called!`` and nothing more until the port is reopened (reset).
 * ``G30 [X Y]`` probes down and prints ``Bed X: x Y: y Z: z``; a miss prints
-  ``Error:Probing Failed``.  ``G38.2 Z.. F..`` stops at contact (miss: ``Error:Failed to
-  reach target``).  ``M114`` prints the planned position.
+  ``Error:Probing Failed``.  ``G38.2 X.. Y.. Z.. F..`` probes toward the target in any
+  direction and stops at the trigger (miss: ``Error:Failed to reach target``).  ``M114``
+  prints the planned position (2 decimals; ``M114 D`` adds ``Logical: X: Y: Z:`` with 3).
+  Contacts and readings follow ``hardware.mock.physics`` (ball stylus, pre-travel, drift).
+* ``T<n>`` selects tool n (T0 the probe, T1.. the world's nozzles; waits for the moves
+  before it); an unknown tool prints ``echo:T<n> Invalid extruder`` then ``ok``.
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from ..protocol import checksum
 from .firmware import SLOW_S, FirmwareCore, Wait, normalized, split_words
 
 _NUMBERED = re.compile(r"^N(-?\d+)\s*")
+_TOOL = re.compile(r"^T\d+$")
+G30_FEED_MM_MIN = 300.0  # the mock's G30 probing speed (5 mm/s)
 _SILENT = {"G21", "G90", "G91", "G92", "M82", "M83", "M84", "M17", "M18", "M104", "M140",
            "M106", "M107", "M117", "M400", "G4", "M110", "T0", "M211", "M220", "M221"}
 
@@ -165,7 +171,13 @@ class MarlinFirmware(FirmwareCore):
             self.homed = True
         elif head in ("M400", "G4"):
             yield ("drain",)
-            yield from self.dwell(params.get("P", 0.0) / 1000.0 + params.get("S", 0.0), now)
+            seconds = params.get("P", 0.0) / 1000.0 + params.get("S", 0.0)
+            self.advance_clock(seconds)
+            yield from self.dwell(seconds, now)
+        elif _TOOL.match(head):
+            yield ("drain",)  # a tool change waits for the moves before it
+            if not self.select_tool(int(head[1:])):
+                self.emit(f"echo:{head} Invalid extruder", now)
         elif head == "G30":
             yield from self.g30(params, now)
         elif head == "G38.2" or head == "G38.3":
@@ -174,6 +186,8 @@ class MarlinFirmware(FirmwareCore):
             x, y, z = self.position
             self.emit(f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:0.00 Count X:{round(x * 80)} "
                       f"Y:{round(y * 80)} Z:{round(z * 400)}", now)
+            if "D" in command.split()[1:]:  # M114 D: the detailed report, 3 decimals
+                self.emit(f"Logical: X:{x:.3f} Y:{y:.3f} Z:{z:.3f}", now)
         elif head == "M115":
             self.identify(now)
         elif head == "M105":
@@ -186,37 +200,41 @@ class MarlinFirmware(FirmwareCore):
         self.ok(line_no, now)
 
     def g30(self, params: dict[str, float], now: float) -> Generator[Wait, None, None]:
+        """Probe straight down at X Y from the current height (5 mm/s down, and as much
+        back up on the machine clock: the carriage ends where it started)."""
         x = params.get("X", self.position[0])
         y = params.get("Y", self.position[1])
         z_start = self.position[2]
         yield from self.plan_move([x, y, z_start], self.world.rapid_feed_mm_min, now)
         yield ("drain",)
-        z = self.probe_down(self.world.probe_z_min)
-        travel = z_start - (z if isinstance(z, float) else self.world.probe_z_min)
+        touch = self.touch((x, y, z_start), (x, y, self.world.probe_z_min), G30_FEED_MM_MIN)
+        travel = touch.travel_mm if touch.status != "inside" else z_start - self.world.probe_z_min
+        self.advance_clock(touch.travel_mm / G30_FEED_MM_MIN * 60.0)  # back up
         yield from self.dwell(max(travel, 0.0) / 5.0, now)  # 5 mm/s probing speed
-        if isinstance(z, float):
-            self.emit(f"Bed X: {x:.3f} Y: {y:.3f} Z: {z:.3f}", now)
+        if touch.status == "hit":
+            rx, ry, rz = touch.reading
+            self.emit(f"Bed X: {rx:.3f} Y: {ry:.3f} Z: {rz:.3f}", now)
         else:
             self.emit("Error:Probing Failed", now)
 
     def g38(self, head: str, params: dict[str, float], now: float
             ) -> Generator[Wait, None, None]:
+        """Probe toward X Y Z (any direction): the carriage stops at the trigger (read it
+        with M114); no contact: the target, and ``Error:Failed to reach target`` (G38.2)."""
         yield ("drain",)
-        z_target = params.get("Z", self.position[2])
+        target = self.target_of(params)
         feed = params.get("F", self.feed)
-        z = self.probe_down(z_target)
-        end = z if isinstance(z, float) else z_target
-        if z == "inside":
-            end = self.position[2]
-        yield from self.dwell(abs(self.position[2] - end) / max(feed, 1e-9) * 60.0, now)
-        self.position[2] = end
-        if not isinstance(z, float) and head == "G38.2":
+        touch = self.touch(tuple(self.position), tuple(target), feed)
+        yield from self.dwell(touch.travel_mm / max(feed, 1e-9) * 60.0, now)
+        if touch.status != "inside":
+            self.position = list(touch.reading)
+        if touch.status != "hit" and head == "G38.2":
             self.emit("Error:Failed to reach target", now)
 
     def identify(self, now: float) -> None:
         self.emit("FIRMWARE_NAME:Marlin 2.1.2.1 (mock) SOURCE_CODE_URL:github.com/MarlinFirmware/"
                   "Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:Conforma mock KINEMATICS:Cartesian "
-                  "EXTRUDER_COUNT:1 UUID:00000000-0000-0000-0000-000000000000", now)
+                  f"EXTRUDER_COUNT:{max(1, len(self.world.tools))} UUID:00000000-0000-0000-0000-000000000000", now)
         caps = {"SERIAL_XON_XOFF": 0, "EEPROM": 0, "AUTOREPORT_TEMP": 0, "EMERGENCY_PARSER": 1,
                 "Z_PROBE": 1, "ADVANCED_OK": int(self.world.advanced_ok)}
         for name, flag in caps.items():

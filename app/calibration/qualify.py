@@ -1,0 +1,211 @@
+"""Probe qualification on the reference sphere: plan the touches, fit radius and pre-travel.
+
+Plan (``plan_qualification``), from the NOMINAL sphere and pad places (the true ones may
+differ by up to ``approach_mm`` in any direction):
+
+* "cap" touches: vertical moves down onto the sphere, contact polar angles ``cap_rings_deg``
+  (ring 0 deg = one touch at the top), ``per_ring`` azimuths evenly spaced per ring;
+* "equator" touches: horizontal radial moves toward the centre at the nominal centre height,
+  ``equator`` azimuths evenly spaced (offset half a step from the cap azimuths);
+* "pad" touches: vertical moves onto the pad centre, spread 0.5 mm apart along x.
+
+Every start lies at least ``approach_mm`` outside the ball-swept sphere (radius R + r) even
+when the sphere is ``approach_mm`` off its nominal place, so the caller may reach it by going
+up to a clearance height, across, then down.
+
+Fit (``fit_qualification``): a reading P (ball centre at trigger) of a move in direction d
+is ``delta(n)`` past first contact, where the contact ball centre lies on the sphere of
+radius R + r about the sphere centre c and n = unit(contact centre - c):
+
+    residual_i = |P_i - delta(n_i) d_i - c| - (R + r),   delta(n) = p0 + sin(theta)(a cos 3phi + b sin 3phi)
+
+solved by ``scipy.optimize.least_squares`` for c (3), r, p0 (and a, b with ``lobing``).
+Vertical cap touches at several polar angles fix R + r through the curvature of the reading
+surface (their pre-travel only shifts it along z, like c_z); horizontal equator touches fix
+R + r - delta.  Together they separate r from p0 (caps alone cannot: the fit refuses).
+Standard deviations come from the Jacobian: cov = (J^T J)^-1 * sum(res^2) / (m - p).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from app.calibration.errors import CalibrationError
+from app.calibration.model import PretravelModel, ProbeCalibration, Touch, _vec3
+
+__all__ = ["plan_qualification", "fit_qualification", "check_readings", "OFF_LINE_MM", "ABSURD_MM"]
+
+OFF_LINE_MM = 0.25     # a reading farther than this from its move's straight line is not a reading of it
+ABSURD_MM = 2.0        # a sphere reading farther than this from the sphere of the others is refused
+OUTLIER_MM = 0.05      # after the fit: a residual beyond this is a bad touch (dust, a bounce), not scatter
+PAD_SPACING_MM = 0.5
+PARAMS = ("centre_x_mm", "centre_y_mm", "centre_z_mm", "ball_radius_mm", "p0_mm", "cos3_mm", "sin3_mm")
+
+
+def _positive(value: float, name: str, *, zero_ok: bool = False) -> float:
+    v = float(value)
+    if not math.isfinite(v) or v < 0 or (v == 0 and not zero_ok):
+        raise CalibrationError(f"{name} must be a finite number {'>=' if zero_ok else '>'} 0", field=name, value=value)
+    return v
+
+
+def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_radius_mm: float,
+                       pad_centre_mm: Any | None, *, cap_rings_deg: Sequence[float] = (0, 20, 35, 50, 60),
+                       per_ring: int = 8, equator: int = 16, pad_touches: int = 3, approach_mm: float = 1.0,
+                       overtravel_mm: float = 1.0) -> tuple[Touch, ...]:
+    """Touches (pad first, then caps ring by ring, then the equator) in machine coordinates (mm).
+
+    sphere_centre_mm (3,), pad_centre_mm (3,) (top face centre) or None: nominal places.
+    ball_radius_mm: nominal stylus ball radius.  approach_mm: free travel before the
+    expected contact (also the place uncertainty the starts are safe for).  overtravel_mm:
+    how far past the lowest expected contact the move may go before it counts as a miss.
+    """
+    c = np.array(_vec3(sphere_centre_mm, "sphere_centre_mm"))
+    big_r = _positive(sphere_diameter_mm, "sphere_diameter_mm") / 2
+    r = _positive(ball_radius_mm, "ball_radius_mm", zero_ok=True)
+    u = _positive(approach_mm, "approach_mm")
+    over = _positive(overtravel_mm, "overtravel_mm")
+    if per_ring < 3 or equator < 7:
+        raise CalibrationError("need per_ring >= 3 and equator >= 7 (the 3-lobe term needs 7 azimuths)",
+                               field="equator" if equator < 7 else "per_ring", value=min(per_ring, equator))
+    rings = [float(a) for a in cap_rings_deg]
+    if len(rings) < 2 or any(not 0 <= a <= 75 for a in rings):
+        raise CalibrationError("cap_rings_deg: at least two polar angles in [0, 75] deg (the curvature fixes r)",
+                               field="cap_rings_deg", value=rings)
+    rho_s = big_r + r                                  # the ball-centre sphere
+    touches: list[Touch] = []
+    if pad_centre_mm is not None:
+        pad = np.array(_vec3(pad_centre_mm, "pad_centre_mm"))
+        for k in range(int(pad_touches)):
+            x = pad[0] + (k - (pad_touches - 1) / 2) * PAD_SPACING_MM
+            touches.append(Touch((x, pad[1], pad[2] + r + 2 * u), (x, pad[1], pad[2] + r - u - over), "pad"))
+    top = c[2] + rho_s
+    for ring in rings:
+        theta = math.radians(ring)
+        count = 1 if ring == 0 else int(per_ring)
+        rho = rho_s * math.sin(theta)                  # station distance from the axis
+        # highest contact when the sphere is u closer, lowest when u farther (and u higher / lower)
+        high = top if rho <= u else c[2] + math.sqrt(max(rho_s ** 2 - (rho - u) ** 2, 0.0))
+        low = c[2] + math.sqrt(max(rho_s ** 2 - (rho + u) ** 2, 0.0))
+        for k in range(count):
+            phi = 2 * math.pi * k / count
+            x, y = c[0] + rho * math.cos(phi), c[1] + rho * math.sin(phi)
+            touches.append(Touch((x, y, min(high, top) + 2 * u), (x, y, low - u - over), "cap"))
+    for k in range(int(equator)):
+        phi = 2 * math.pi * (k + 0.5) / equator
+        e = np.array([math.cos(phi), math.sin(phi), 0.0])
+        touches.append(Touch(tuple(c + (rho_s + 2 * u) * e), tuple(c + (rho_s - u - over) * e), "equator"))
+    return tuple(touches)
+
+
+def check_readings(touches: Sequence[Touch], readings: Any) -> np.ndarray:
+    """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target."""
+    p = np.asarray(readings, dtype=float)
+    if p.ndim != 2 or p.shape != (len(touches), 3):
+        raise CalibrationError(f"readings must have shape ({len(touches)}, 3), one per touch", field="readings",
+                               value=list(p.shape))
+    for i, (t, q) in enumerate(zip(touches, p, strict=True)):
+        if not np.isfinite(q).all():
+            raise CalibrationError(f"readings[{i}] is not finite", field=f"readings[{i}]", value=q)
+        s = np.asarray(t.start_mm)
+        length = float(np.linalg.norm(np.subtract(t.target_mm, s)))
+        along = float(np.dot(q - s, t.direction))
+        off = float(np.linalg.norm(q - s - along * t.direction))
+        if off > OFF_LINE_MM or along < -OFF_LINE_MM or along > length + OFF_LINE_MM:
+            raise CalibrationError(f"readings[{i}] ({t.kind} touch) is {off:.3f} mm off its move and "
+                                   f"{along:.3f} mm along it (length {length:.3f} mm): not a reading of that touch",
+                                   field=f"readings[{i}]", value=q)
+    return p
+
+
+def _normals_delta(p: np.ndarray, d: np.ndarray, c: np.ndarray, model: np.ndarray, lobing: bool):
+    """Contact normals (m, 3) and pre-travel (m,) by fixed-point iteration n = unit(P - delta(n) d - c)."""
+    delta = np.full(len(p), model[0])
+    for _ in range(4 if lobing else 1):
+        v = p - delta[:, None] * d - c
+        n = v / np.linalg.norm(v, axis=1)[:, None]
+        if lobing:
+            rho = np.hypot(n[:, 0], n[:, 1])
+            phi = np.arctan2(n[:, 1], n[:, 0])
+            delta = model[0] + rho * (model[1] * np.cos(3 * phi) + model[2] * np.sin(3 * phi))
+    return n, delta
+
+
+def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_mm: float, *,
+                      lobing: bool = True, outlier_mm: float = OUTLIER_MM) -> ProbeCalibration:
+    """Fit ball radius, pre-travel (and lobing) and the sphere centre from cap / equator / pad readings.
+
+    touches: the plan (``plan_qualification`` or any vertical caps at >= 2 polar angles plus
+    >= 3 horizontal equator touches).  readings (n, 3) mm: ball centre at trigger, one per touch.
+    Raises CalibrationError naming the touch for a reading off its move, farther than
+    ``ABSURD_MM`` from the sphere or (after the fit) more than ``outlier_mm`` off it, and for
+    a plan that cannot separate r from p0.
+    """
+    big_r = _positive(sphere_diameter_mm, "sphere_diameter_mm") / 2
+    p_all = check_readings(touches, readings)
+    kinds = np.array([t.kind for t in touches])
+    sphere = np.flatnonzero((kinds == "cap") | (kinds == "equator"))
+    n_par = 7 if lobing else 5
+    if (kinds == "equator").sum() < (7 if lobing else 3) or (kinds == "cap").sum() < 3 or len(sphere) <= n_par:
+        raise CalibrationError("qualification needs >= 3 cap touches and >= 3 equator touches (>= 7 with "
+                               "lobing): caps alone cannot separate the ball radius from the pre-travel",
+                               field="touches", value={k: int((kinds == k).sum()) for k in ("cap", "equator")})
+    p = p_all[sphere]
+    d = np.array([touches[i].direction for i in sphere])
+    # initial guess: algebraic sphere |P|^2 = 2 P.c + k
+    a = np.column_stack([2 * p, np.ones(len(p))])
+    sol, *_ = np.linalg.lstsq(a, (p ** 2).sum(axis=1), rcond=None)
+    c0 = sol[:3]
+    rho0 = math.sqrt(max(sol[3] + c0 @ c0, 0.0))
+    dist = np.linalg.norm(p - c0, axis=1)
+    far = np.abs(dist - np.median(dist)) > ABSURD_MM
+    if far.any():
+        i = int(sphere[np.flatnonzero(far)[0]])
+        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {abs(dist[far][0] - np.median(dist)):.3f}"
+                               " mm off the sphere the other readings describe", field=f"readings[{i}]",
+                               value=p_all[i])
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        c, r = x[:3], x[3]
+        model = x[4:] if lobing else np.array([x[4], 0.0, 0.0])
+        _, delta = _normals_delta(p, d, c, model, lobing)
+        return np.linalg.norm(p - delta[:, None] * d - c, axis=1) - (big_r + r)
+
+    x0 = np.concatenate([c0, [rho0 - big_r, 0.0], [0.0, 0.0] if lobing else []])
+    # a robust pass first, so that one bad touch shows its own size instead of bending the fit
+    robust = least_squares(residuals, x0, loss="soft_l1", f_scale=outlier_mm / 10, max_nfev=200 * n_par)
+    worst = int(np.argmax(np.abs(robust.fun)))
+    if abs(robust.fun[worst]) > outlier_mm:
+        i = int(sphere[worst])
+        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm off the "
+                               "sphere the other readings describe (a bad touch: dust on the sphere or a bounce?)",
+                               field=f"readings[{i}]", value=p_all[i])
+    fit = least_squares(residuals, robust.x, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * n_par)
+    res = fit.fun
+    jac = fit.jac
+    sv = np.linalg.svd(jac, compute_uv=False)
+    if sv[-1] < 1e-9 * sv[0]:
+        raise CalibrationError("the touches cannot separate the ball radius from the pre-travel (singular fit):"
+                               " add equator touches and caps at several polar angles", field="touches",
+                               value=len(sphere))
+    dof = len(res) - n_par
+    s2 = float(res @ res) / dof if dof > 0 else 0.0
+    cov = np.linalg.inv(jac.T @ jac) * s2
+    std = {name: float(math.sqrt(max(cov[k, k], 0.0))) for k, name in enumerate(PARAMS[:n_par])}
+    # delta(+Z) - r = p0 - r turns a vertical pad reading into the pad surface; r and p0 correlate
+    std["p0_minus_radius_mm"] = float(math.sqrt(max(cov[4, 4] + cov[3, 3] - 2 * cov[3, 4], 0.0)))
+    x = fit.x
+    pad = np.flatnonzero(kinds == "pad")
+    pad_z = None
+    if len(pad):
+        pad_z = float(p_all[pad, 2].mean())
+        std["pad_reading_z_mm"] = float(p_all[pad, 2].std(ddof=1) / math.sqrt(len(pad))) if len(pad) > 1 else 0.0
+    pretravel = PretravelModel(float(x[4]), float(x[5]) if lobing else 0.0, float(x[6]) if lobing else 0.0)
+    return ProbeCalibration(ball_radius_mm=float(x[3]), pretravel=pretravel,
+                            sphere_centre_mm=(float(x[0]), float(x[1]), float(x[2])), pad_reading_z_mm=pad_z,
+                            std=std, residual_rms_mm=float(math.sqrt(np.mean(res ** 2))), touches=len(sphere) + len(pad))

@@ -1,0 +1,250 @@
+"""Probe physics of the mock printer: what a probing move touches and what it reads.
+
+A probing move (``G38.2``/``G38.3`` to X Y Z, Marlin ``G30 X Y`` = straight down) starts at
+the carriage position ``start`` and heads for ``target`` (commanded coordinates, mm).  The
+machine really is ``e(t) = drift_mm_per_min * t / 60`` higher in Z (``t`` = the machine
+clock), so the geometry is met by the actual body:
+
+* tool T0, the touch probe: a ball of ``stylus_radius_mm`` centred on the carriage, against
+  the part mesh (exact swept-ball contact with its faces, edges and vertices), the bed
+  plane, the reference pad (a box) and the datum sphere (analytic);
+* tool T>=1, a nozzle: a flat-ended vertical cylinder of its outer diameter with its tip
+  at carriage + offset; it triggers only on the conductive artifacts (pad, sphere: the
+  flat end or the side).  Driven into the part (its tip path meets the mesh before an
+  artifact) it does not trigger and ``stats.collisions`` counts it.
+
+The probe triggers ``delta`` further along the move than the first contact:
+``delta(n) = pretravel + lobing * sin(theta) * cos(3 phi) + N(0, pretravel_sd)`` with ``n``
+the unit contact normal (ball centre minus contact point, over r), theta its angle from
++Z, phi = atan2(n_y, n_x); a nozzle has no pre-travel, only ``N(0, touchoff_sd)``.  No
+trigger when that passes the move's end.  The reading is the commanded carriage position
+at the trigger plus ``probe_noise_mm`` scatter along the move (against its direction, so
+a downward touch reads z + noise as before).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .artifacts import PAD_DEPTH_MM
+from .surface import PlacedSurface
+from .sweep import (Contact, sweep_ball_plane, sweep_ball_sphere, sweep_ball_triangles,
+                    sweep_nozzle_box, sweep_nozzle_sphere)
+from .world import MockWorld
+
+_VERTICAL = np.array([0.0, 0.0, -1.0])
+
+
+class Touch(NamedTuple):
+    """Outcome of a probing move: ``status`` "hit", "miss" or "inside" (touching before it
+    moved); ``reading`` (3,) commanded mm where it stopped (the trigger, or the target on
+    a miss, or the start when inside); ``travel_mm`` moved; ``what`` was touched."""
+
+    status: str
+    reading: tuple[float, float, float]
+    travel_mm: float
+    what: str | None
+
+
+class MeshIndex:
+    """The placed part's triangles with their bounding boxes, sorted by x-min, so a
+    swept body's candidate triangles come from a strip search plus a box filter."""
+
+    def __init__(self, mesh: object) -> None:
+        tris = np.asarray(mesh.triangles, dtype=float)
+        lo, hi = tris.min(axis=1), tris.max(axis=1)
+        order = np.argsort(lo[:, 0], kind="stable")
+        self.tris, self.lo, self.hi = tris[order], lo[order], hi[order]
+        self.width = float((hi[:, 0] - lo[:, 0]).max()) if len(tris) else 0.0
+
+    def near(self, start: np.ndarray, end: np.ndarray, radius: float) -> np.ndarray:
+        """Triangles (k, 3, 3) whose boxes meet the box of the segment grown by ``radius``."""
+        box_lo = np.minimum(start, end) - radius
+        box_hi = np.maximum(start, end) + radius
+        first = int(np.searchsorted(self.lo[:, 0], box_lo[0] - self.width, side="left"))
+        last = int(np.searchsorted(self.lo[:, 0], box_hi[0], side="right"))
+        lo, hi = self.lo[first:last], self.hi[first:last]
+        keep = np.all(lo <= box_hi, axis=1) & np.all(hi >= box_lo, axis=1)
+        return self.tris[first:last][keep]
+
+
+def pad_triangles(centre: tuple[float, float, float], size: float, bed_z: float) -> np.ndarray:
+    """The pad as a closed box of 12 triangles (12, 3, 3): top face at the centre's z, down
+    to the bed (or ``PAD_DEPTH_MM`` deep when the top is not above the bed)."""
+    lo, hi = box_bounds(centre, size, bed_z)
+    corners = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1])
+                        for x in (lo[0], hi[0])])
+    quads = [(0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5)]
+    tris = []
+    for a, b, c, d in quads:
+        tris += [corners[[a, b, c]], corners[[a, c, d]]]
+    return np.array(tris)
+
+
+def box_bounds(centre: tuple[float, float, float], size: float, bed_z: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corners (3,) of the pad block."""
+    cx, cy, top = centre
+    bottom = bed_z if top > bed_z else top - PAD_DEPTH_MM
+    half = size / 2.0
+    return np.array([cx - half, cy - half, bottom]), np.array([cx + half, cy + half, top])
+
+
+class ProbePhysics:
+    """Contact and trigger model of one firmware instance (see module docstring)."""
+
+    def __init__(self, world: MockWorld, surface: PlacedSurface, rng: np.random.Generator) -> None:
+        self.world = world
+        self.surface = surface
+        self.rng = rng
+        self._index: MeshIndex | None = None
+
+    @property
+    def index(self) -> MeshIndex | None:
+        """The mesh index, built on first use (only physics-enabled touches need it)."""
+        if self._index is None and self.surface.mesh is not None:
+            self._index = MeshIndex(self.surface.mesh)
+        return self._index
+
+    # ------------------------------------------------------------------ contacts
+    def _part_contact(self, start: np.ndarray, direction: np.ndarray, length: float,
+                      radius: float) -> Contact | None:
+        if self.surface.mesh is None:
+            return None
+        vertical = bool(np.allclose(direction, _VERTICAL))
+        if radius == 0.0 and vertical and self.world.pretravel_lobing_mm == 0.0:
+            # the ideal probe: the same vertical ray cast as ever (exactly today's numbers)
+            hits = [z for z in self.surface._hits(float(start[0]), float(start[1]))
+                    if z <= start[2] + 1e-9]
+            if not hits or start[2] - max(hits) > length + 1e-9:
+                return None
+            z = max(hits)
+            return Contact(float(start[2] - z), np.array([start[0], start[1], z]),
+                           np.array([0.0, 0.0, 1.0]))
+        index = self.index
+        end = start + direction * length
+        return sweep_ball_triangles(start, direction, length, radius,
+                                    index.near(start, end, radius))
+
+    def _ball_contacts(self, start: np.ndarray, direction: np.ndarray, length: float
+                       ) -> list[tuple[Contact, str]]:
+        world, r = self.world, self.world.stylus_radius_mm
+        found: list[tuple[Contact, str]] = []
+        part = self._part_contact(start, direction, length, r)
+        if part is not None:
+            found.append((part, "part"))
+        bed = sweep_ball_plane(start, direction, length, r, world.bed_z)
+        if bed is not None:
+            found.append((bed, "bed"))
+        if world.pad is not None:
+            tris = pad_triangles(world.pad.centre_mm, world.pad.size_mm, world.bed_z)
+            pad = sweep_ball_triangles(start, direction, length, r, tris)
+            if pad is not None:
+                found.append((pad, "pad"))
+        if world.sphere is not None:
+            sphere = sweep_ball_sphere(start, direction, length, r, np.array(world.sphere.centre_mm),
+                                       world.sphere.diameter_mm / 2.0)
+            if sphere is not None:
+                found.append((sphere, "sphere"))
+        return found
+
+    def started_inside(self, start: np.ndarray) -> bool:
+        """The ideal probe's old test: the axis starts inside the part or under the bed."""
+        hits = self.surface._hits(float(start[0]), float(start[1])) if self.surface.mesh is not None else []
+        above = [z for z in hits if z > start[2] + 1e-9]
+        return len(above) % 2 == 1 or start[2] < self.world.bed_z - 1e-9
+
+    # ------------------------------------------------------------------ a probing move
+    def touch(self, start: tuple[float, float, float], target: tuple[float, float, float],
+              tool: int) -> Touch:
+        """Run one probing move from ``start`` to ``target`` (commanded mm) with ``tool``."""
+        world = self.world
+        start_c = np.asarray(start, float)
+        offset = np.array([0.0, 0.0, world.drift_mm()])
+        chord = np.asarray(target, float) - start_c
+        length = float(np.linalg.norm(chord))
+        if length <= 0.0:
+            return Touch("miss", tuple(start), 0.0, None)
+        direction = chord / length
+        world.stats.touches += 1
+        if tool == 0:
+            actual = start_c + offset
+            if self.started_inside(actual):
+                return Touch("inside", tuple(start), 0.0, None)
+            found = self._ball_contacts(actual, direction, length)
+            if not found:
+                return Touch("miss", tuple(float(v) for v in target), length, None)
+            contact, what = min(found, key=lambda f: f[0].s)
+            if contact.s < -1e-9:
+                return Touch("inside", tuple(start), 0.0, what)
+            delta = self.pretravel(contact.normal)
+        else:
+            tool_spec = world.tools[tool - 1]
+            tip = start_c + offset + np.asarray(tool_spec.offset_mm)
+            contact_s, what = self._nozzle_contact(tip, direction, length,
+                                                   tool_spec.outer_diameter_mm)
+            self._count_collision(tip, direction, length if contact_s is None else max(contact_s, 0.0))
+            if contact_s is None:
+                return Touch("miss", tuple(float(v) for v in target), length, None)
+            if contact_s < 0.0:
+                return Touch("inside", tuple(start), 0.0, what)
+            contact = Contact(contact_s, tip + contact_s * direction, -direction)
+            sd = world.touchoff_sd_mm
+            delta = float(self.rng.normal(0.0, sd)) if sd > 0 else 0.0
+        travel = max(contact.s + delta, 0.0)
+        if travel > length + 1e-12:
+            return Touch("miss", tuple(float(v) for v in target), length, what)
+        reading = start_c + travel * direction
+        noise = world.probe_noise_mm
+        if noise > 0:
+            reading = reading - float(self.noise_draw(noise)) * direction
+        return Touch("hit", tuple(float(v) for v in reading), travel, what)
+
+    def noise_draw(self, sd: float) -> float:
+        return float(self.rng.normal(0.0, sd))
+
+    def pretravel(self, normal: np.ndarray) -> float:
+        """delta(n) mm: mean + 3-lobed direction term + scatter (see module docstring)."""
+        world = self.world
+        delta = world.pretravel_mm
+        if world.pretravel_lobing_mm:
+            nz = float(np.clip(normal[2], -1.0, 1.0))
+            theta = math.acos(nz)
+            phi = math.atan2(float(normal[1]), float(normal[0]))
+            delta += world.pretravel_lobing_mm * math.sin(theta) * math.cos(3.0 * phi)
+        if world.pretravel_sd_mm:
+            delta += float(self.rng.normal(0.0, world.pretravel_sd_mm))
+        return delta
+
+    def _nozzle_contact(self, tip: np.ndarray, direction: np.ndarray, length: float,
+                        diameter: float) -> tuple[float | None, str | None]:
+        world = self.world
+        found: list[tuple[float, str]] = []
+        if world.pad is not None:
+            lo, hi = box_bounds(world.pad.centre_mm, world.pad.size_mm, world.bed_z)
+            s = sweep_nozzle_box(tip, direction, length, diameter, lo, hi)
+            if s is not None:
+                found.append((s, "pad"))
+        if world.sphere is not None:
+            s = sweep_nozzle_sphere(tip, direction, length, diameter, np.array(world.sphere.centre_mm),
+                                    world.sphere.diameter_mm / 2.0)
+            if s is not None:
+                found.append((s, "sphere"))
+        if not found:
+            return None, None
+        return min(found)
+
+    def _count_collision(self, tip: np.ndarray, direction: np.ndarray, length: float) -> None:
+        """A nozzle's tip path entering the part (or the bed) counts one collision."""
+        if length <= 0.0:
+            return
+        hit = None
+        if self.surface.mesh is not None:
+            hit = sweep_ball_triangles(tip, direction, length, 0.0,
+                                       self.index.near(tip, tip + direction * length, 0.0))
+        bed = sweep_ball_plane(tip, direction, length, 0.0, self.world.bed_z)
+        if (hit is not None and hit.s >= 0.0) or (bed is not None and bed.s >= 0.0):
+            self.world.stats.collisions += 1

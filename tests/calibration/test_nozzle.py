@@ -1,0 +1,110 @@
+"""Nozzle offsets: Z on the pad against the probe, XY from opposite body touches on the sphere."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.calibration import (CalibrationError, NozzleCalibration, PretravelModel, ProbeCalibration,
+                             fit_nozzle_offset, fit_qualification, plan_nozzle_calibration, plan_qualification)
+from tests.calibration.forward import TrueProbe, nozzle_pad_reading, nozzle_side_reading, sphere_reading
+
+SPHERE = (100.31, 49.62, 10.4)          # true centre (probe frame)
+DIAMETER = 10.0
+PAD_Z = 2.3                            # true pad top
+PAD_NOMINAL = (80.0, 50.0, 2.0)
+O_TRUE = (12.3, -4.1, -8.7)
+O_NOMINAL = (12.0, -4.0, -8.5)
+NOZZLE_D = 0.8
+
+
+def probe_readings(touches, probe: TrueProbe, rng=None):
+    out = []
+    for t in touches:
+        if t.kind == "pad":
+            out.append([t.start_mm[0], t.start_mm[1], PAD_Z + probe.r - probe.delta((0.0, 0.0, 1.0), rng)])
+        else:
+            out.append(sphere_reading(t.start_mm, t.target_mm, SPHERE, DIAMETER / 2, probe, rng))
+    return np.array(out)
+
+
+def nozzle_readings(touches, probe: TrueProbe, offset=O_TRUE, noise=0.0, rng=None):
+    out = []
+    for t in touches:
+        if t.kind == "pad":
+            out.append(probe_readings([t], probe, rng)[0])
+        elif t.kind == "nozzle_pad":
+            out.append(nozzle_pad_reading(t.start_mm, offset, PAD_Z, noise, rng))
+        else:
+            out.append(nozzle_side_reading(t.start_mm, t.target_mm, offset, NOZZLE_D, SPHERE, DIAMETER / 2, noise, rng))
+    return np.array(out)
+
+
+def qualified(probe: TrueProbe, rng=None) -> ProbeCalibration:
+    touches = plan_qualification((100, 50, 10), DIAMETER, 0.5, PAD_NOMINAL)
+    return fit_qualification(touches, probe_readings(touches, probe, rng), DIAMETER)
+
+
+def test_the_plan_orders_probe_pad_nozzle_pad_and_four_sides():
+    cal = ProbeCalibration(0.5, PretravelModel(0.015), SPHERE, PAD_Z + 0.5 - 0.015)
+    touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL)
+    kinds = [t.kind for t in touches]
+    assert kinds == ["pad"] * 3 + ["nozzle_pad"] * 3 + ["nozzle_side"] * 8
+    # the nozzle's pad spots are the probe's, through the nominal offset
+    for probe_t, nozzle_t in zip(touches[:3], touches[3:6], strict=True):
+        assert np.add(nozzle_t.start_mm[:2], O_NOMINAL[:2]) == pytest.approx(probe_t.start_mm[:2])
+    for t in touches[6:]:
+        tip = np.add(t.start_mm, O_NOMINAL)
+        assert tip[2] == pytest.approx(SPHERE[2] - 0.3 * DIAMETER / 2)
+        # the body starts clearance_mm outside the sphere
+        assert np.hypot(*(tip[:2] - np.array(SPHERE[:2]))) == pytest.approx(DIAMETER / 2 + NOZZLE_D / 2 + 2.0)
+
+
+def test_offsets_are_recovered_exactly_without_noise():
+    probe = TrueProbe(r=0.5, p0=0.015, a=0.002)
+    cal = qualified(probe)
+    touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL)
+    nozzle = fit_nozzle_offset(1, touches, nozzle_readings(touches, probe), cal, NOZZLE_D, DIAMETER)
+    assert nozzle.offset_mm == pytest.approx(O_TRUE, abs=1e-6)
+    assert nozzle.tool == 1 and nozzle.touches == 14 and nozzle.outer_diameter_mm == NOZZLE_D
+    assert NozzleCalibration.from_dict(nozzle.to_dict()) == nozzle
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13, 14])
+def test_offsets_are_recovered_within_a_micron_with_half_a_micron_noise(seed):
+    rng = np.random.default_rng(seed)
+    probe = TrueProbe(r=0.5, p0=0.015, scatter=0.0005, noise=0.0005)
+    cal = qualified(probe, rng)
+    touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL, pad_touches=8,
+                                     side_touches=3)
+    nozzle = fit_nozzle_offset(2, touches, nozzle_readings(touches, probe, noise=0.0005, rng=rng), cal, NOZZLE_D,
+                               DIAMETER)
+    error = np.subtract(nozzle.offset_mm, O_TRUE)
+    assert np.abs(error).max() < 0.001
+    assert all(0 < s < 0.001 for s in nozzle.std_mm)
+    assert np.all(np.abs(error) < 4 * np.array(nozzle.std_mm))
+
+
+def test_radius_and_diameter_cancel_in_xy():
+    """A wrong sphere diameter or body diameter in the fit changes nothing in XY (only the sanity bound)."""
+    probe = TrueProbe(r=0.5, p0=0.015)
+    cal = qualified(probe)
+    touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL)
+    readings = nozzle_readings(touches, probe)
+    a = fit_nozzle_offset(1, touches, readings, cal, NOZZLE_D, DIAMETER)
+    b = fit_nozzle_offset(1, touches, readings, cal, 1.2, DIAMETER + 1)
+    assert a.offset_mm == pytest.approx(b.offset_mm, abs=1e-12)
+
+
+def test_a_missing_side_and_an_absurd_pair_are_refused():
+    probe = TrueProbe()
+    cal = qualified(probe)
+    touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL)
+    readings = nozzle_readings(touches, probe)
+    keep = [i for i, t in enumerate(touches) if not (t.kind == "nozzle_side" and t.direction[1] > 0.5)]
+    with pytest.raises(CalibrationError) as err:
+        fit_nozzle_offset(1, [touches[i] for i in keep], readings[keep], cal, NOZZLE_D, DIAMETER)
+    assert err.value.value == ["-y"]
+    with pytest.raises(CalibrationError) as err:      # a 3 mm sphere: the pair is 4 mm too far apart
+        fit_nozzle_offset(1, touches, readings, cal, NOZZLE_D, 3.0)
+    assert err.value.field.startswith("readings[")

@@ -1,0 +1,155 @@
+"""Probe qualification: recover r, p0, lobing and the sphere centre from an independent forward model."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from app.calibration import CalibrationError, ProbeCalibration, Touch, fit_qualification, plan_qualification
+from tests.calibration.forward import TrueProbe, sphere_reading
+
+NOMINAL = (100.0, 50.0, 10.0)
+TRUE = (100.31, 49.62, 10.4)     # off its nominal place by ~0.6 mm
+DIAMETER = 10.0
+PAD_NOMINAL = (80.0, 50.0, 2.0)
+PAD_TRUE_Z = 2.3
+
+
+def readings_for(touches, probe: TrueProbe, rng=None, centre=TRUE):
+    out = []
+    for t in touches:
+        if t.kind == "pad":
+            out.append([t.start_mm[0], t.start_mm[1],
+                        PAD_TRUE_Z + probe.r - probe.delta((0.0, 0.0, 1.0), rng)])
+        else:
+            hit = sphere_reading(t.start_mm, t.target_mm, centre, DIAMETER / 2, probe, rng)
+            assert hit is not None, f"the plan missed the sphere: {t}"
+            out.append(hit)
+    return np.array(out)
+
+
+def plan(r=0.5):
+    return plan_qualification(NOMINAL, DIAMETER, r, PAD_NOMINAL)
+
+
+def test_the_plan_has_the_requested_touches_and_safe_starts():
+    touches = plan()
+    kinds = [t.kind for t in touches]
+    assert kinds.count("pad") == 3 and kinds.count("equator") == 16
+    assert kinds.count("cap") == 1 + 4 * 8
+    for t in touches:
+        if t.kind == "cap":
+            assert t.direction == pytest.approx([0, 0, -1])
+        if t.kind == "equator":
+            assert t.direction[2] == 0 and t.start_mm[2] == NOMINAL[2]
+            # radial: the move points at the nominal centre
+            to_c = np.subtract(NOMINAL, t.start_mm)
+            assert np.cross(to_c, t.direction) == pytest.approx([0, 0, 0], abs=1e-12)
+        if t.kind in ("cap", "equator"):
+            # start outside the ball-swept sphere by >= 1 mm for a sphere up to 1 mm off its place
+            for dx in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0), (0, -1, 0), (0, 0, -1)):
+                c = np.add(NOMINAL, dx) if t.kind == "cap" else np.add(NOMINAL, np.multiply(dx, 0.999))
+                assert np.linalg.norm(np.subtract(t.start_mm, c)) >= DIAMETER / 2 + 0.5 + (0.999 if
+                                                                                          t.kind == "cap" else 0)
+
+
+def test_zero_noise_recovers_everything_exactly():
+    probe = TrueProbe(r=0.5, p0=0.015)
+    touches = plan()
+    cal = fit_qualification(touches, readings_for(touches, probe), DIAMETER)
+    assert cal.ball_radius_mm == pytest.approx(0.5, abs=1e-6)
+    assert cal.pretravel.p0_mm == pytest.approx(0.015, abs=1e-6)
+    assert cal.pretravel.lobing_mm < 1e-6
+    assert cal.sphere_centre_mm == pytest.approx(TRUE, abs=1e-6)
+    assert cal.pad_reading_z_mm == pytest.approx(PAD_TRUE_Z + 0.5 - 0.015, abs=1e-9)
+    assert cal.pad_surface_z_mm() == pytest.approx(PAD_TRUE_Z, abs=1e-6)
+    assert cal.residual_rms_mm < 1e-8
+    assert cal.touches == len(touches)
+
+
+def test_lobing_is_recovered():
+    probe = TrueProbe(r=0.75, p0=0.012, a=0.004, b=-0.003)
+    touches = plan(0.75)
+    cal = fit_qualification(touches, readings_for(touches, probe), DIAMETER)
+    assert cal.ball_radius_mm == pytest.approx(0.75, abs=1e-6)
+    assert (cal.pretravel.p0_mm, cal.pretravel.cos3_mm, cal.pretravel.sin3_mm) == pytest.approx(
+        (0.012, 0.004, -0.003), abs=1e-6)
+    assert cal.pretravel.lobing_mm == pytest.approx(0.005, abs=1e-6)
+
+
+def test_radius_and_pretravel_are_separable_only_with_both_kinds_of_touch():
+    """Two probes with the same R + r - p0 (the equator sees only that) differ on the caps, and back."""
+    touches = plan()
+    one, two = TrueProbe(r=0.5, p0=0.015), TrueProbe(r=0.53, p0=0.045)
+    a, b = (fit_qualification(touches, readings_for(touches, p), DIAMETER, lobing=False) for p in (one, two))
+    assert a.ball_radius_mm == pytest.approx(0.5, abs=1e-6) and b.ball_radius_mm == pytest.approx(0.53, abs=1e-6)
+    assert a.pretravel.p0_mm == pytest.approx(0.015, abs=1e-6) and b.pretravel.p0_mm == pytest.approx(0.045, abs=1e-6)
+    # on a sphere at its nominal place the equator readings of the two probes coincide: radial
+    # horizontal touches see only R + r - p0
+    eq = [i for i, t in enumerate(touches) if t.kind == "equator"]
+    at_nominal = [readings_for(touches, p, centre=NOMINAL)[eq] for p in (one, two)]
+    assert at_nominal[0] == pytest.approx(at_nominal[1], abs=1e-12)
+    # caps alone: radius and pre-travel trade against the centre height -> refused
+    caps = [t for t in touches if t.kind == "cap"]
+    with pytest.raises(CalibrationError) as err:
+        fit_qualification(caps, readings_for(caps, one), DIAMETER, lobing=False)
+    assert err.value.field == "touches"
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_noisy_recovery_lies_within_three_sigma(seed):
+    rng = np.random.default_rng(seed)
+    probe = TrueProbe(r=0.5, p0=0.015, a=0.002, b=0.001, scatter=0.002, noise=0.001)
+    touches = plan_qualification(NOMINAL, DIAMETER, 0.5, PAD_NOMINAL, per_ring=12, equator=24)
+    cal = fit_qualification(touches, readings_for(touches, probe, rng), DIAMETER)
+    sigma = math.hypot(0.002, 0.001)
+    assert cal.residual_rms_mm == pytest.approx(sigma, rel=0.4)
+    truth = {"ball_radius_mm": 0.5, "p0_mm": 0.015, "cos3_mm": 0.002, "sin3_mm": 0.001}
+    got = {"ball_radius_mm": cal.ball_radius_mm, "p0_mm": cal.pretravel.p0_mm,
+           "cos3_mm": cal.pretravel.cos3_mm, "sin3_mm": cal.pretravel.sin3_mm}
+    for key, value in truth.items():
+        assert 0 < cal.std[key] < 0.003
+        assert abs(got[key] - value) < 3 * cal.std[key] + 1e-7, key
+    for k in range(3):
+        assert abs(cal.sphere_centre_mm[k] - TRUE[k]) < 3 * cal.std[f"centre_{'xyz'[k]}_mm"] + 1e-7
+
+
+def test_the_reported_std_matches_the_scatter_of_repeated_calibrations():
+    probe = TrueProbe(r=0.5, p0=0.015, scatter=0.002, noise=0.001)
+    touches = plan()
+    rng = np.random.default_rng(7)
+    fits = [fit_qualification(touches, readings_for(touches, probe, rng), DIAMETER, lobing=False) for _ in range(40)]
+    radii = np.array([f.ball_radius_mm for f in fits])
+    reported = np.median([f.std["ball_radius_mm"] for f in fits])
+    assert radii.std(ddof=1) == pytest.approx(reported, rel=0.4)
+    assert abs(radii.mean() - 0.5) < 3 * reported / math.sqrt(len(fits)) + 1e-7
+
+
+def test_an_absurd_reading_is_refused_naming_the_touch():
+    touches = plan()
+    readings = readings_for(touches, TrueProbe())
+    bad = 9
+    readings[bad] -= 0.2 * touches[bad].direction      # on its line, 0.2 mm early (dust on the sphere)
+    with pytest.raises(CalibrationError) as err:
+        fit_qualification(touches, readings, DIAMETER)
+    assert err.value.field == f"readings[{bad}]"
+    assert "0.188 mm" in err.value.message     # 0.2 mm along the vertical = 0.2 cos(20 deg) radially
+    off = readings_for(touches, TrueProbe())
+    off[12] += (3.0, 0.0, 0.0)
+    with pytest.raises(CalibrationError) as err:
+        fit_qualification(touches, off, DIAMETER)
+    assert err.value.field == "readings[12]"
+
+
+def test_calibrations_round_trip_through_json():
+    import json
+    touches = plan()
+    cal = fit_qualification(touches, readings_for(touches, TrueProbe(a=0.001)), DIAMETER)
+    again = ProbeCalibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    assert again == cal
+    assert Touch.from_dict(touches[5].to_dict()) == touches[5]
+    with pytest.raises(CalibrationError) as err:
+        ProbeCalibration.from_dict({"ball_radius_mm": "x", "pretravel": {"p0_mm": 0}, "sphere_centre_mm": [0, 0, 0]})
+    assert err.value.field == "ball_radius_mm"
