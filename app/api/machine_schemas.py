@@ -242,3 +242,56 @@ class ConsoleOut(BaseModel):
     command: str
     reply: list[str]
     machine: MachineOut
+
+
+class ProbeCalibrationOut(BaseModel):
+    """The current probe calibration: values mm, 1-sigma uncertainties um."""
+
+    job_id: str
+    calibrated_at: UtcDatetime
+    age_h: float
+    stale: bool = Field(description="older than the profile's calibration_max_age_h")
+    ball_radius_mm: float
+    ball_radius_std_um: float
+    pretravel_mm: float = Field(description="isotropic pre-travel p0")
+    pretravel_std_um: float
+    lobing_cos3_mm: float = Field(description="pre-travel lobing: + sin(theta) (cos3 cos 3phi + sin3 sin 3phi)")
+    lobing_cos3_std_um: float
+    lobing_sin3_mm: float
+    lobing_sin3_std_um: float
+    sphere_centre_mm: list[float]
+    pad_reading_z_mm: float | None
+    residual_rms_um: float
+    touches: int
+    disagrees: list[str] = Field(description="what differs from the calibration before it (beyond 3 sigma + 2 um)")
+
+
+class NozzleCalibrationOut(BaseModel):
+    """A profile nozzle and, when calibrated, its current offset (tip = carriage + offset)."""
+
+    tool: int
+    name: str
+    outer_diameter_mm: float
+    nominal_offset_mm: list[float]
+    calibrated: bool
+    job_id: str | None = None
+    calibrated_at: UtcDatetime | None = None
+    age_h: float | None = None
+    stale: bool | None = None
+    offset_mm: list[float] | None = None
+    offset_std_um: list[float] | None = None
+    nominal_difference_mm: list[float] | None = Field(None, description="calibrated - nominal offset")
+    probe_job_id: str | None = Field(None, description="the probe calibration this offset rests on")
+    touches: int | None = None
+    disagrees: list[str] | None = None
+
+
+class CalibrationOut(BaseModel):
+    """A machine's current calibration (latest succeeded calibrate_probe / calibrate_nozzle jobs)."""
+
+    machine_id: str
+    max_age_h: float
+    probe: ProbeCalibrationOut | None
+    nozzles: list[NozzleCalibrationOut]
+    flags: list[str] = Field(description="stale calibrations, re-checks that disagree, nozzles calibrated "
+                             "against an earlier probe calibration")

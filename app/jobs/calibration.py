@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
+from pydantic import ValidationError
 from sqlmodel import Session, select
 
 from app.api.machine_schemas import Profile
@@ -63,8 +64,15 @@ def _done_at(job: Job) -> datetime:
 
 
 def machine_profile(row: Machine) -> Profile:
-    """The stored profile of ``row`` (profiles stored before issue 16 get the defaults)."""
-    return Profile.model_validate(row.profile or {})
+    """The stored profile of ``row`` (profiles stored before issue 16 get the defaults;
+    keys this service does not know are left to the hardware layer)."""
+    known = {k: v for k, v in (row.profile or {}).items() if k in Profile.model_fields}
+    try:
+        return Profile.model_validate(known)
+    except ValidationError as exc:
+        where = ".".join(str(p) for p in exc.errors()[0]["loc"])
+        raise InvalidInput(f"machine {row.id!r} has a stored profile this service cannot read at profile.{where}: "
+                           f"{exc.errors()[0]['msg']}", field=f"profile.{where}", value=row.id) from exc
 
 
 def probe_from(result: dict[str, Any]) -> ProbeCalibration:
@@ -195,3 +203,36 @@ def require_probe_calibration(session: Session, machine_id: str) -> MachineCalib
         raise InvalidInput(f"machine {machine_id!r} has no probe calibration: calibrate the probe first "
                            "(job calibrate_probe)", field="params.machine_id", value=machine_id)
     return cal
+
+
+# ---- the operator's summary (GET /machines/{id}/calibration) --------------------------------
+def _um(value_mm: float | None) -> float | None:
+    return None if value_mm is None else round(float(value_mm) * 1000.0, 3)
+
+
+def calibration_summary(machine_id: str, cal: MachineCalibration, profile: Profile) -> dict[str, Any]:
+    """Values in mm, standard deviations and residuals in um (``_um``), ages in hours,
+    the job ids and flags; every nozzle of the profile (``calibrated: false`` when not)."""
+    probe = None
+    if cal.probe is not None:
+        values, std = probe_values(cal.probe)
+        probe = {"job_id": cal.probe_job_id, "calibrated_at": cal.probe_at, "age_h": cal.age_h(cal.probe_at),
+                 "stale": cal.stale(cal.probe_at), **values, **{f"{k[:-3]}_std_um": _um(v) for k, v in std.items()},
+                 "sphere_centre_mm": list(cal.probe.sphere_centre_mm), "pad_reading_z_mm": cal.probe.pad_reading_z_mm,
+                 "residual_rms_um": _um(cal.probe.residual_rms_mm), "touches": cal.probe.touches,
+                 "disagrees": list(((cal.probe_result or {}).get("agreement") or {}).get("disagrees") or [])}
+    nozzles = []
+    for nozzle in (profile.tools.nozzles if profile.tools is not None else []):
+        entry: dict[str, Any] = {"tool": nozzle.tool, "name": nozzle.name, "outer_diameter_mm": nozzle.outer_diameter_mm,
+                                 "nominal_offset_mm": list(nozzle.offset_mm), "calibrated": nozzle.tool in cal.nozzles}
+        if nozzle.tool in cal.nozzles:
+            found, at, result = cal.nozzles[nozzle.tool], cal.nozzle_at[nozzle.tool], cal.nozzle_results[nozzle.tool]
+            entry.update(job_id=cal.nozzle_job_ids[nozzle.tool], calibrated_at=at, age_h=cal.age_h(at),
+                         stale=cal.stale(at), offset_mm=list(found.offset_mm),
+                         offset_std_um=[_um(s) for s in found.std_mm],
+                         nominal_difference_mm=[c - n for c, n in zip(found.offset_mm, nozzle.offset_mm, strict=True)],
+                         probe_job_id=result.get("probe_job_id"), touches=found.touches,
+                         disagrees=list((result.get("agreement") or {}).get("disagrees") or []))
+        nozzles.append(entry)
+    return {"machine_id": machine_id, "max_age_h": cal.max_age_h, "probe": probe, "nozzles": nozzles,
+            "flags": list(cal.flags)}

@@ -1,0 +1,98 @@
+"""calibrate_probe / calibrate_nozzle through the API on a mock machine with probe physics:
+the recovered ball radius, pre-travel and nozzle offset against the mock's truth, the
+repeatability of a calibration, a re-check that disagrees, the machine left retracted at T0."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hardware.mock import MockTool, get_world
+from tests.conftest import auth
+from tests.jobs.test_jobs_api import wait_for
+
+OP = auth("operator")
+# the mock's truth (hidden from the machine) ...
+BALL_MM, PRETRAVEL_MM = 0.5, 0.015
+TOOL1_MM = (12.3, -4.1, -8.7)
+SPHERE_MM, SPHERE_D_MM = (60.3, 40.2, 10.25), 10.0
+PAD_MM = (20.2, 40.3, 4.8)
+# ... and what the machine's profile knows (nominal places ~0.3 mm off)
+PROFILE = {
+    "tools": {"probe": {"ball_radius_mm": 0.5},
+              "nozzles": [{"tool": 1, "name": "silver", "outer_diameter_mm": 0.8, "offset_mm": [12.0, -4.0, -8.5]}]},
+    "reference": {"pad": {"centre_mm": [20.0, 40.0, 5.0], "size_mm": 20.0},
+                  "sphere": {"centre_mm": [60.0, 40.0, 10.0], "diameter_mm": SPHERE_D_MM}},
+}
+PHYSICS = (f"stylus_radius_mm={BALL_MM}&pretravel_mm={PRETRAVEL_MM}&pretravel_sd_mm=0.002"
+           f"&tool1={','.join(map(str, TOOL1_MM))},0.8&pad={','.join(map(str, PAD_MM))},20"
+           f"&sphere={','.join(map(str, SPHERE_MM))},{SPHERE_D_MM}")
+
+
+def physics_machine(client, profile: dict | None = None, physics: str = PHYSICS, seed: int = 0) -> dict:
+    """A registered mock machine with probe physics and 1 um probe noise."""
+    body = {"name": "calib", "port": f"mock://?{physics}", "dialect": "marlin",
+            "profile": PROFILE if profile is None else profile,
+            "mock": {"probe_noise_mm": 0.001, "faults": {"seed": seed}}}
+    response = client.post("/api/v1/machines", json=body, headers=OP)
+    assert response.status_code == 201, response.text
+    return response.json()
+
+
+def calibrate(client, kind: str, params: dict) -> dict:
+    response = client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
+    assert response.status_code == 202, response.text
+    job = wait_for(client, response.json()["id"], timeout=180)
+    assert job["status"] == "succeeded", job["error"]
+    return job
+
+
+def calibration(client, machine: dict) -> dict:
+    response = client.get(f"/api/v1/machines/{machine['id']}/calibration", headers=auth("viewer"))
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def test_calibration_recovers_the_truth_repeats_and_flags_what_changed(client):
+    machine = physics_machine(client)
+    mid = machine["id"]
+    probe1 = calibrate(client, "calibrate_probe", {"machine_id": mid})["result"]
+    assert abs(probe1["ball_radius_mm"] - BALL_MM) <= 0.003, probe1["ball_radius_mm"]
+    assert abs(probe1["pretravel"]["p0_mm"] - PRETRAVEL_MM) <= 0.003, probe1["pretravel"]
+    assert np.allclose(probe1["sphere_centre_mm"], SPHERE_MM, atol=0.005)  # the ball-centre frame = machine's
+    assert probe1["agreement"] == {"previous_job_id": None, "differences_mm": {}, "disagrees": []}
+    world = get_world(mid)
+    assert world.active_tool == 0 and world.stats.collisions == 0
+
+    nozzle1_job = calibrate(client, "calibrate_nozzle", {"machine_id": mid, "tool": 1})
+    nozzle1 = nozzle1_job["result"]
+    assert np.allclose(nozzle1["offset_mm"], TOOL1_MM, atol=0.005), nozzle1["offset_mm"]
+    assert np.allclose(nozzle1["nominal_difference_mm"], np.subtract(nozzle1["offset_mm"], [12.0, -4.0, -8.5]))
+    # left retracted with the probe selected
+    assert world.active_tool == 0 and world.stats.collisions == 0
+    assert world.position[2] >= PROFILE["reference"]["sphere"]["centre_mm"][2] + SPHERE_D_MM / 2 + 2
+
+    # repeatability: a second run agrees with the first within 2 um
+    probe2_job = calibrate(client, "calibrate_probe", {"machine_id": mid})
+    probe2 = probe2_job["result"]
+    assert abs(probe2["ball_radius_mm"] - probe1["ball_radius_mm"]) <= 0.002
+    assert probe2["agreement"]["previous_job_id"] and probe2["agreement"]["disagrees"] == []
+    # the nozzle was calibrated against the first probe calibration: flagged until re-done
+    flags = calibration(client, machine)["flags"]
+    assert any("T1 was calibrated against probe calibration" in f for f in flags), flags
+    nozzle2 = calibrate(client, "calibrate_nozzle", {"machine_id": mid, "tool": 1})["result"]
+    assert np.abs(np.subtract(nozzle2["offset_mm"], nozzle1["offset_mm"])).max() <= 0.002
+    assert nozzle2["agreement"]["disagrees"] == [] and nozzle2["probe_job_id"] == probe2_job["id"]
+    summary = calibration(client, machine)
+    assert summary["flags"] == [], summary["flags"]
+    assert summary["probe"]["job_id"] == probe2_job["id"] and not summary["probe"]["stale"]
+    assert summary["nozzles"][0]["calibrated"] and summary["nozzles"][0]["offset_std_um"][0] > 0
+
+    # a needle change moved the tip by 20 um in x: the re-check disagrees and says so
+    world.tools = (MockTool((TOOL1_MM[0] + 0.02, TOOL1_MM[1], TOOL1_MM[2]), 0.8),)
+    nozzle3 = calibrate(client, "calibrate_nozzle", {"machine_id": mid, "tool": 1})["result"]
+    assert abs(nozzle3["offset_mm"][0] - (TOOL1_MM[0] + 0.02)) <= 0.005
+    assert nozzle3["agreement"]["disagrees"] == ["offset_x_mm"], nozzle3["agreement"]
+    assert abs(nozzle3["agreement"]["differences_mm"]["offset_x_mm"] - 0.02) <= 0.004
+    flags = calibration(client, machine)["flags"]
+    assert any("re-check disagrees" in f and "offset_x_mm" in f for f in flags), flags
+    assert world.active_tool == 0 and world.stats.collisions == 0
