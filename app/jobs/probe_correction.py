@@ -72,11 +72,17 @@ def station_normals(normals: list[Any], count: int) -> np.ndarray:
 def corrected_heights(readings: np.ndarray, normals: np.ndarray, drift_mm: np.ndarray,
                       probe: ProbeCalibration | None, corrections: Corrections) -> np.ndarray:
     """Station-equivalent heights (n,) mm of vertical readings (n, 3) with outward normals
-    (n, 3) and drift offsets (n,) mm to add (zeros when drift is not corrected)."""
+    (n, 3) and drift offsets (n,) mm to add (zeros when drift is not corrected).
+
+    ``corrections.radius`` False takes the ball radius off vertically (as on a flat surface,
+    which is how the pad-referenced nozzle offset sees it) instead of along the normal: the
+    error left is ``r (1 / n_z - 1)``, what radius compensation buys on slopes."""
     shifted = np.array(readings, dtype=float)
     shifted[:, 2] += drift_mm
-    return surface_heights(shifted, normals, probe, radius=corrections.radius,
-                           pretravel=corrections.pretravel).z_mm
+    z = surface_heights(shifted, normals, probe, radius=corrections.radius, pretravel=corrections.pretravel).z_mm
+    if probe is not None and not corrections.radius:
+        z = z - probe.ball_radius_mm
+    return z
 
 
 REFINE_PASSES = 2  # rebuild -> real normals -> heights again; the second pass changes < 0.1 um on S1

@@ -28,6 +28,7 @@ from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
 from app.probing.field import stored_field
+from app.probing.field_top import mesh_top_sampler
 from app.reconstruction.field import field_gradient, fit_bytes, fit_field, trace_reconstruction
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
@@ -253,7 +254,10 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
         refinement = None
         if calibration is not None:
             stations = field.stations
-            fit, refinement = refined(fit, rows, calibration, lambda f, _xy: field_gradient(f, stations), fit_of)
+            trace = ctx.trace(params.trace_id)
+            top = mesh_top_sampler(ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement_from(ctx, params)))
+            fit, refinement = refined(fit, rows, calibration, lambda f, _xy: field_gradient(
+                f, stations, slope_at=lambda xy: top(xy).grad), fit_of)
         cached = (fit, refinement)
         FIELD_FITS.put(key, cached, fit_bytes(fit))
     fit, refinement = cached

@@ -1,0 +1,196 @@
+"""Probe readings become true surface points (issue 16, the measuring side) through the API.
+
+The mock probes with a ball stylus (radius 0.5 mm), 15 um pre-travel, 1 um/min Z drift and
+1 um noise, with a reference pad beside the part.  The machine's probe calibration is a
+``calibrate_probe`` result holding the mock's truth (ball 0.5 mm, pre-travel 15 um, the pad
+reading of the undrifted machine), so these tests check the corrections alone, against the
+known true surface: the raw readings sit r / n_z - delta above it (485..530 um on S1's
+slopes), the corrected points within a few um; each correction switched off leaves its
+own error (radius: r (1 / n_z - 1); pre-travel: 15 um; drift: growing with machine time).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sqlmodel import Session
+
+from app.calibration import PretravelModel, ProbeCalibration
+from app.models import Job, new_id, utcnow
+from app.reference.s1 import as_made, nominal_height, s1_mesh, s1_traces
+from tests.conftest import auth
+from tests.jobs.test_jobs_api import wait_for
+
+OP = auth("operator")
+BALL_MM = 0.5
+PRETRAVEL_MM = 0.015
+DRIFT_MM_PER_MIN = 0.001
+PAD = (80.0, 20.0, 5.0, 20.0)  # x, y, z top, size (mm): beside the part (x 0..60, y 0..40)
+PHYSICS = (f"stylus_radius_mm={BALL_MM}&pretravel_mm={PRETRAVEL_MM}&drift_mm_per_min={DRIFT_MM_PER_MIN}"
+           f"&pad={','.join(str(v) for v in PAD)}")
+
+
+@pytest.fixture(scope="module")
+def meshes() -> dict[str, bytes]:
+    return {"nominal": s1_mesh(grid_mm=0.5).export(file_type="stl"),
+            "true": s1_mesh(grid_mm=0.15).export(file_type="stl"),
+            "as_made": as_made(seed=4, amplitude_mm=0.15).mesh(grid_mm=0.15).export(file_type="stl")}
+
+
+def submit(client, kind: str, params: dict) -> dict:
+    response = client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
+    assert response.status_code == 202, response.text
+    job = wait_for(client, response.json()["id"], timeout=300)
+    assert job["status"] == "succeeded", job["error"]
+    return job
+
+
+def upload(client, stl: bytes, name: str) -> dict:
+    return client.post("/api/v1/parts", files={"file": (name, stl)}, headers=OP).json()
+
+
+def machine(client, true_part_id: str, *, calibrated: bool = True, physics: str = PHYSICS) -> dict:
+    """A mock Marlin machine with probe physics holding ``true_part_id`` in place, a
+    reference pad in its profile, and (``calibrated``) a probe calibration with the truth."""
+    row = client.post("/api/v1/machines", json={
+        "name": new_id("sim"), "port": f"mock://?{physics}", "dialect": "marlin",
+        "profile": {"reference": {"pad": {"centre_mm": list(PAD[:3]), "size_mm": PAD[3]}}},
+        "mock": {"true_part_id": true_part_id, "probe_noise_mm": 0.001, "faults": {"seed": 2}}}, headers=OP)
+    assert row.status_code == 201, row.text
+    if calibrated:
+        calibrate(client, row.json()["id"])
+    return row.json()
+
+
+def calibrate(client, machine_id: str, ball_mm: float = BALL_MM, pretravel_mm: float = PRETRAVEL_MM) -> str:
+    """A succeeded calibrate_probe job with a known result (the pad read by the undrifted probe)."""
+    cal = ProbeCalibration(ball_radius_mm=ball_mm, pretravel=PretravelModel(pretravel_mm),
+                           sphere_centre_mm=(0.0, 0.0, 0.0), pad_reading_z_mm=PAD[2] + ball_mm - pretravel_mm,
+                           std={"ball_radius_mm": 0.0005}, residual_rms_mm=0.001, touches=40)
+    with Session(client.app.state.runtime.engine) as session:
+        job = Job(id=new_id("job"), kind="calibrate_probe", status="succeeded", progress=1.0,
+                  params={"machine_id": machine_id}, result=cal.to_dict(), machine_id=machine_id,
+                  created_at=utcnow(), finished_at=utcnow())
+        session.add(job)
+        session.commit()
+        return job.id
+
+
+def trace_on(client, part_id: str, index: int = 6) -> dict:
+    return client.post(f"/api/v1/parts/{part_id}/traces", json=s1_traces()[index].to_api(), headers=OP).json()
+
+
+def plan_on(client, trace_id: str, count: int = 16) -> dict:
+    return submit(client, "probe_plan", {"trace_id": trace_id, "method": "deviation", "count": count})
+
+
+def run(client, plan_id: str, machine_id: str, **params) -> dict:
+    """The succeeded probe_run job."""
+    return submit(client, "probe_run", {"plan_job_id": plan_id, "machine_id": machine_id, **params})
+
+
+def errors(result: dict, truth=nominal_height) -> np.ndarray:
+    """measured z - true height at each station (mm)."""
+    measured = np.array([p["measured"] for p in result["points"]])
+    return measured[:, 2] - truth(measured[:, :2])
+
+
+def slopes(result: dict) -> np.ndarray:
+    return np.array([p["normal"][2] for p in result["points"]])
+
+
+def test_plan_records_carry_the_unit_normal(client, meshes):
+    part = upload(client, meshes["nominal"], "s1.stl")
+    plan = plan_on(client, trace_on(client, part["id"])["id"])["result"]
+    normals = np.array([r["normal"] for r in plan["records"]])
+    assert normals.shape == (plan["count"], 3)
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0) and (normals[:, 2] > 0).all()
+    # the S1 top is analytic: the normal is unit(-grad h, 1); the trace's draped normals are it
+    from app.reference.s1 import nominal_gradient
+
+    g = nominal_gradient(np.array(plan["points"])[:, :2])
+    truth = np.column_stack([-g, np.ones(len(g))])
+    truth /= np.linalg.norm(truth, axis=1, keepdims=True)
+    assert np.degrees(np.arccos(np.clip(np.sum(normals * truth, axis=1), -1, 1))).max() < 1.0
+
+
+def test_calibrated_run_measures_the_true_surface(client, meshes):
+    part = upload(client, meshes["nominal"], "s1.stl")
+    true = upload(client, meshes["true"], "s1-true.stl")
+    sim = machine(client, true["id"])
+    plan = plan_on(client, trace_on(client, part["id"])["id"])
+    result = run(client, plan["id"], sim["id"], drift_interval_s=20)["result"]
+    err = errors(result)
+    assert np.abs(err).max() < 0.004, err
+    # the raw readings sit r / n_z - delta (minus the drift so far) above the surface
+    reading = np.array([p["reading"] for p in result["points"]])
+    raw = reading[:, 2] - nominal_height(reading[:, :2])
+    expected = BALL_MM / slopes(result) - PRETRAVEL_MM
+    assert raw.min() > 0.47 and np.abs(raw - expected).max() < 0.006, (raw, expected)
+    assert (slopes(result) < 0.99).any(), "the trace must cross slopes for this test to mean anything"
+    cal = result["calibration"]
+    assert cal["corrections"] == {"radius": True, "pretravel": True, "drift": True}
+    drift = cal["drift"]
+    assert len(drift["times_s"]) >= 3 and np.all(np.diff(drift["times_s"]) > 0)
+    # the pad readings fall with the drift (1 um/min of machine time)
+    assert drift["pad_z_mm"][-1] < drift["pad_z_mm"][0]
+    times = np.array([p["t_s"] for p in result["points"]])
+    assert np.all(np.diff(times) > 0)
+
+
+@pytest.mark.parametrize("off", ["radius", "pretravel", "drift"])
+def test_each_correction_switched_off_shows_its_error(client, meshes, off):
+    part = upload(client, meshes["nominal"], "s1.stl")
+    true = upload(client, meshes["true"], "s1-true.stl")
+    sim = machine(client, true["id"])
+    plan = plan_on(client, trace_on(client, part["id"])["id"])
+    result = run(client, plan["id"], sim["id"], corrections={off: False}, drift_interval_s=20)["result"]
+    err = errors(result)
+    nz = slopes(result)
+    if off == "radius":  # left: r (1 / n_z - 1) on the slopes
+        assert np.abs(err - BALL_MM * (1 / nz - 1)).max() < 0.004
+        assert err.max() > 0.010
+    elif off == "pretravel":  # the probe triggered delta late: everything 15 um low
+        assert np.abs(err + PRETRAVEL_MM).max() < 0.004
+    else:  # the drift so far: readings low by the machine clock x 1 um/min
+        world = client.app.state.runtime.machines.world_by_id(sim["id"])
+        total = DRIFT_MM_PER_MIN * world.stats.machine_time_s / 60.0
+        assert err[-1] < err[0] - 0.0005 and -total - 0.003 < err.min() < -0.001
+        assert result["calibration"]["drift"] is None
+
+
+def test_uncalibrated_machine_keeps_todays_readings(client, meshes):
+    part = upload(client, meshes["nominal"], "s1.stl")
+    true = upload(client, meshes["true"], "s1-true.stl")
+    sim = machine(client, true["id"], calibrated=False)
+    plan = plan_on(client, trace_on(client, part["id"])["id"])
+    result = run(client, plan["id"], sim["id"])["result"]
+    assert "calibration" not in result and "reading" not in result["points"][0]
+    assert errors(result).min() > 0.47  # the ball's raw readings
+
+
+def _station_truth_error(job: dict, plan: dict, truth) -> np.ndarray:
+    samples = np.array(job["result"]["deviation"]["samples"])
+    points = np.array(plan["result"]["points"])
+    s = np.array(plan["result"]["s_mm"])
+    assert np.allclose(samples[:, 0], s, atol=1e-3)
+    return points[:, 2] + samples[:, 1] - truth(points[:, :2])
+
+
+def test_reconstruct_iterates_the_normal_where_the_deviation_slopes(client, meshes):
+    truth = as_made(seed=4, amplitude_mm=0.15)
+    part = upload(client, meshes["nominal"], "s1.stl")
+    real = upload(client, meshes["as_made"], "s1-as-made.stl")
+    sim = machine(client, real["id"])
+    trace = trace_on(client, part["id"])
+    plan = plan_on(client, trace["id"], count=24)
+    probe_run = run(client, plan["id"], sim["id"])
+    first = errors(probe_run["result"], truth.true_height)  # nominal normals only
+    job = submit(client, "reconstruct", {"trace_id": trace["id"], "probe_run_job_id": probe_run["id"],
+                                         "method": "deviation", "sigma_mm": 0.0})
+    iteration = job["result"]["normal_iteration"]
+    assert iteration["passes"] == 2 and iteration["max_change_mm"][1] < 0.25 * iteration["max_change_mm"][0]
+    after = _station_truth_error(job, plan, truth.true_height)
+    assert np.abs(first).max() > 0.006, first  # the deviation's slope matters here
+    assert np.abs(after).max() < 0.5 * np.abs(first).max() and np.abs(after).max() < 0.004, (first, after)
+
