@@ -352,14 +352,15 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
 
 
 def real_surface_height(nominal_height: Callable[[np.ndarray], np.ndarray], reconstruction: Any,
-                        span: tuple[float, float], step_mm: float = 0.05) -> Callable[[np.ndarray], np.ndarray]:
+                        span: tuple[float, float], floor_mm: float,
+                        step_mm: float = 0.05) -> Callable[[np.ndarray], np.ndarray]:
     """The real surface near a trace: xy (k, 2) mm -> height (k,) mm.
 
     ``nominal_height`` is the placed nominal (CAD) top, NaN off the part; the real surface
     adds the reconstructed deviation d(s) = h_real(s) - z_nom(s) of the trace's station
     nearest in top view (stations every ``step_mm``; beyond the probed ``span`` the end
-    deviation is held, as :func:`tip_path` does).  Off the part the height is -inf (nothing
-    there to touch).
+    deviation is held, as :func:`tip_path` does).  Off the part the height is
+    ``floor_mm``, e.g. the part's bottom: nothing higher to touch there).
     """
     nominal = reconstruction.nominal
     length = float(nominal.length_mm)
@@ -371,6 +372,6 @@ def real_surface_height(nominal_height: Callable[[np.ndarray], np.ndarray], reco
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         _, nearest = tree.query(xy)
         z = np.asarray(nominal_height(xy), dtype=float) + deviation[nearest]
-        return np.where(np.isfinite(z), z, -np.inf)
+        return np.where(np.isfinite(z), z, float(floor_mm))
 
     return height

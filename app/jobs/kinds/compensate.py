@@ -205,7 +205,8 @@ def _clearance(trace: Any, reconstruction: Any, path: Any, mesh: Any, diameter_m
     length = float(reconstruction.nominal.length_mm)
     s = np.linspace(0.0, length, max(2, int(np.ceil(length / CLEARANCE_STEP_MM)) + 1))
     tips = tip_path(reconstruction, s, path.standoff_mm, path.span)
-    height = real_surface_height(lambda xy: top_surface_z(mesh, xy).z, reconstruction, path.span)
+    height = real_surface_height(lambda xy: top_surface_z(mesh, xy).z, reconstruction, path.span,
+                                 floor_mm=float(mesh.bounds[0][2]))
     found = nozzle_clearance(tips, height, diameter_mm)
     at = float(s[found.index])
     point = [round(float(v), 4) for v in found.point_mm]
