@@ -11,8 +11,9 @@ differ by up to ``approach_mm`` in any direction):
   and again last (so that a Z drift during the qualification shows, see below).
 
 Every start lies at least ``approach_mm`` outside the ball-swept sphere (radius R + r) even
-when the sphere is ``approach_mm`` off its nominal place, so the caller may reach it by going
-up to a clearance height, across, then down.
+when the sphere is up to ``place_tolerance_mm`` off its nominal place, so the caller
+may reach it by going up to a clearance height, across, then down; every move reaches
+``overtravel_mm`` past the latest possible contact.
 
 Fit (``fit_qualification``): a reading P (ball centre at trigger) of a move in direction d
 is ``delta(n)`` past first contact, where the contact ball centre lies on the sphere of
@@ -20,7 +21,9 @@ radius R + r about the sphere centre c and n = unit(contact centre - c):
 
     residual_i = |P_i - delta(n_i) d_i - c| - (R + r),   delta(n) = p0 + sin(theta)(a cos 3phi + b sin 3phi)
 
-solved by ``scipy.optimize.least_squares`` for c (3), r, p0 (and a, b with ``lobing``).
+solved by ``scipy.optimize.least_squares`` for c (3), r, p0 (and a, b with ``lobing``), each
+residual divided by |n_i . d_i| (the reading scatters along the move, so a radial miss of e
+is a miss of e / cos along it: the weighted fit is the maximum-likelihood one and its std honest).
 Vertical cap touches at several polar angles fix R + r through the curvature of the reading
 surface (their pre-travel only shifts it along z, like c_z); horizontal equator touches fix
 R + r - delta.  Together they separate r from p0 (caps alone cannot: the fit refuses).
@@ -65,19 +68,23 @@ def _positive(value: float, name: str, *, zero_ok: bool = False) -> float:
 def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_radius_mm: float,
                        pad_centre_mm: Any | None, *, cap_rings_deg: Sequence[float] = (0, 20, 35, 50, 60),
                        per_ring: int = 8, equator: int = 16, pad_touches: int = 3, approach_mm: float = 1.0,
-                       overtravel_mm: float = 1.0) -> tuple[Touch, ...]:
+                       overtravel_mm: float = 1.0, place_tolerance_mm: float = 0.5) -> tuple[Touch, ...]:
     """Touches in machine coordinates (mm): the pad, caps ring by ring, the equator, the pad again.
 
     sphere_centre_mm (3,), pad_centre_mm (3,) (top face centre) or None: nominal places.
-    ball_radius_mm: nominal stylus ball radius.  approach_mm: free travel before the
-    expected contact (also the place uncertainty the starts are safe for).  overtravel_mm:
-    how far past the lowest expected contact the move may go before it counts as a miss.
+    ball_radius_mm: nominal stylus ball radius.  place_tolerance_mm: how far the true
+    sphere / pad may sit from its nominal place: every start is safe and every move
+    still meets the artifact within it.  approach_mm: free travel before the earliest
+    possible contact.  overtravel_mm: travel past the latest possible contact before the
+    move counts as a miss.  A cap ring so steep that a sphere ``place_tolerance_mm`` off
+    could be missed is refused (field ``cap_rings_deg``).
     """
     c = np.array(_vec3(sphere_centre_mm, "sphere_centre_mm"))
     big_r = _positive(sphere_diameter_mm, "sphere_diameter_mm") / 2
     r = _positive(ball_radius_mm, "ball_radius_mm", zero_ok=True)
-    u = _positive(approach_mm, "approach_mm")
+    approach = _positive(approach_mm, "approach_mm")
     over = _positive(overtravel_mm, "overtravel_mm")
+    u = _positive(place_tolerance_mm, "place_tolerance_mm", zero_ok=True)
     if per_ring < 3 or equator < 7:
         raise CalibrationError("need per_ring >= 3 and equator >= 7 (the 3-lobe term needs 7 azimuths)",
                                field="equator" if equator < 7 else "per_ring", value=min(per_ring, equator))
@@ -86,30 +93,34 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
         raise CalibrationError("cap_rings_deg: at least two polar angles in [0, 75] deg (the curvature fixes r)",
                                field="cap_rings_deg", value=rings)
     rho_s = big_r + r                                  # the ball-centre sphere
+    steep = [a for a in rings if rho_s * math.sin(math.radians(a)) + u >= rho_s * 0.98]
+    if steep:
+        raise CalibrationError(f"cap ring at {steep[0]:g} deg could miss a sphere {u:g} mm off its nominal place",
+                               field="cap_rings_deg", value=steep)
     touches: list[Touch] = []
     pads: list[Touch] = []
     if pad_centre_mm is not None:
         pad = np.array(_vec3(pad_centre_mm, "pad_centre_mm"))
         for k in range(int(pad_touches)):
             x = pad[0] + (k - (pad_touches - 1) / 2) * PAD_SPACING_MM
-            pads.append(Touch((x, pad[1], pad[2] + r + 2 * u), (x, pad[1], pad[2] + r - u - over), "pad"))
+            pads.append(Touch((x, pad[1], pad[2] + r + u + approach), (x, pad[1], pad[2] + r - u - over), "pad"))
     touches.extend(pads)
     top = c[2] + rho_s
     for ring in rings:
         theta = math.radians(ring)
         count = 1 if ring == 0 else int(per_ring)
         rho = rho_s * math.sin(theta)                  # station distance from the axis
-        # highest contact when the sphere is u closer, lowest when u farther (and u higher / lower)
+        # highest contact when the sphere is u closer, lowest when u farther; and u higher / lower
         high = top if rho <= u else c[2] + math.sqrt(max(rho_s ** 2 - (rho - u) ** 2, 0.0))
         low = c[2] + math.sqrt(max(rho_s ** 2 - (rho + u) ** 2, 0.0))
         for k in range(count):
             phi = 2 * math.pi * k / count
             x, y = c[0] + rho * math.cos(phi), c[1] + rho * math.sin(phi)
-            touches.append(Touch((x, y, min(high, top) + 2 * u), (x, y, low - u - over), "cap"))
+            touches.append(Touch((x, y, high + u + approach), (x, y, low - u - over), "cap"))
     for k in range(int(equator)):
         phi = 2 * math.pi * (k + 0.5) / equator
         e = np.array([math.cos(phi), math.sin(phi), 0.0])
-        touches.append(Touch(tuple(c + (rho_s + 2 * u) * e), tuple(c + (rho_s - u - over) * e), "equator"))
+        touches.append(Touch(tuple(c + (rho_s + u + approach) * e), tuple(c + (rho_s - u - over) * e), "equator"))
     touches.extend(pads)          # the pad again at the end: with touch times, a Z drift is measured
     return tuple(touches)
 
@@ -195,8 +206,9 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
         if drift:   # raise every reading by the drift since t_0; the pad readings share one height
             q = p.copy()
             q[:, 2] += x[-2] * t_rel[sphere]
-        _, delta = _normals_delta(q, d, c, model, lobing)
-        res = np.linalg.norm(q - delta[:, None] * d - c, axis=1) - (big_r + r)
+        n, delta = _normals_delta(q, d, c, model, lobing)
+        # the scatter is along the move: divide the radial miss by cos(angle(n, -d)) to put it there
+        res = (np.linalg.norm(q - delta[:, None] * d - c, axis=1) - (big_r + r)) / np.abs((n * d).sum(axis=1))
         if drift:
             res = np.concatenate([res, p_all[pad, 2] + x[-2] * t_rel[pad] - x[-1]])
         return res
@@ -213,8 +225,8 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
     worst = int(np.argmax(np.abs(robust.fun)))
     if abs(robust.fun[worst]) > outlier_mm:
         i = int(used[worst])
-        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm off the "
-                               "sphere the other readings describe (a bad touch: dust on the sphere or a bounce?)",
+        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm (along its move) "
+                               "off what the other readings describe (a bad touch: dust or a bounce?)",
                                field=f"readings[{i}]", value=p_all[i])
     fit = least_squares(residuals, robust.x, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * n_par)
     res = fit.fun
