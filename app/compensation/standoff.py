@@ -360,7 +360,7 @@ def real_surface_height(nominal_height: Callable[[np.ndarray], np.ndarray], reco
     adds the reconstructed deviation d(s) = h_real(s) - z_nom(s) of the trace's station
     nearest in top view (stations every ``step_mm``; beyond the probed ``span`` the end
     deviation is held, as :func:`tip_path` does).  Off the part the height is
-    ``floor_mm``, e.g. the part's bottom: nothing higher to touch there).
+    ``floor_mm`` (e.g. the part's bottom: nothing higher to touch there).
     """
     nominal = reconstruction.nominal
     length = float(nominal.length_mm)
