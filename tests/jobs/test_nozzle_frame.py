@@ -162,3 +162,46 @@ def test_a_nozzle_body_that_would_touch_the_part_is_refused(client, rebuilt):
     assert "s = " in detail and f"by {by:.4f} mm" in detail
     assert not any(a["name"] == "print.gcode" for a in client.get(f"/api/v1/jobs/{done['id']}", headers=OP)
                    .json().get("artifacts", []))
+
+
+def test_a_print_on_a_calibrated_machine_is_shifted_by_the_drift_since_calibration(client):
+    """10 min of dwell after the probe calibration at 10 um/min of drift: the print's pad touch
+    finds the pad ~100 um lower, the program streamed is the artifact with every absolute Z
+    shifted by that (what the firmware executed is exactly the shifted program), and what it
+    deposits lands where the calibration's frame says — not 100 um off."""
+    from hardware.mock import get_world
+    from hardware.protocol import commands_sha256, normalized_commands
+    from tests.e2e.test_probe_physics_loop import PHYSICS, PROFILE
+
+    rate = 0.01  # mm/min
+    machine = client.post("/api/v1/machines", json={
+        "name": "drifting", "port": "mock://", "dialect": "marlin", "profile": PROFILE,
+        "mock": {"probe_noise_mm": 0.001, "physics": {**PHYSICS, "drift_mm_per_min": rate}}}, headers=OP).json()
+    probe = _job(client, "calibrate_probe", {"machine_id": machine["id"]}, timeout=300)
+    assert probe["status"] == "succeeded", probe["error"]
+    world = get_world(machine["id"])
+    calibrated_by = world.stats.machine_time_s  # the calibration's pad reading refers to a time before this
+    dwell = client.post("/api/v1/programs", files={"file": ("dwell.gcode", b"G4 S600\n")}, headers=OP).json()
+    waited = _job(client, "print", {"machine_id": machine["id"], "program_id": dwell["id"], "drift_reference": False})
+    assert waited["status"] == "succeeded" and "drift" not in waited["result"]
+    text = "G21\nG90\nG0 Z20\nG0 X40 Y20\nG1 Z10 F300\nM106\nG1 X45 Z10.5\nM107\nG91\nG0 Z5\nG90\n"
+    program = client.post("/api/v1/programs", files={"file": ("p.gcode", text.encode())}, headers=OP).json()
+    start, deposits = world.stats.machine_time_s, len(world.deposition_log)
+    done = _job(client, "print", {"machine_id": machine["id"], "program_id": program["id"]})
+    assert done["status"] == "succeeded", done["error"]
+    drift = done["result"]["drift"]
+    assert drift["probe_job_id"] == probe["id"]
+    # the mock drifted rate x t since the calibration's pad reading (taken during the calibration)
+    per_s = rate / 60
+    assert -per_s * world.stats.machine_time_s - 0.004 <= drift["dz_mm"] <= -per_s * (start - calibrated_by) + 0.004
+    assert drift["dz_mm"] < -0.09
+    streamed = world.transcript.commands[-len(normalized_commands(text.splitlines())):]
+    shifted = [f"G0 Z{20 + drift['dz_mm']:.4f}", "G0 X40 Y20", f"G1 Z{10 + drift['dz_mm']:.4f} F300", "M106",
+               f"G1 X45 Z{10.5 + drift['dz_mm']:.4f}", "M107", "G91", "G0 Z5", "G90"]
+    assert streamed == ["G21", "G90", *shifted]
+    assert done["result"]["program"]["commands_sha256"] == commands_sha256(streamed).sha256
+    assert done["result"]["source_program"]["commands_sha256"] == program["commands_sha256"]
+    [move] = world.deposition_log[deposits:]
+    # where the calibration's frame says (its drift then, at most per_s x calibrated_by); unshifted it
+    # would land ~0.1 mm higher
+    assert 10.5 - 0.004 <= move.end[2] <= 10.5 + per_s * calibrated_by + 0.004
