@@ -205,3 +205,42 @@ def test_a_print_on_a_calibrated_machine_is_shifted_by_the_drift_since_calibrati
     # where the calibration's frame says (its drift then, at most per_s x calibrated_by); unshifted it
     # would land ~0.1 mm higher
     assert 10.5 - 0.004 <= move.end[2] <= 10.5 + per_s * calibrated_by + 0.004
+
+
+def test_a_shifted_print_interrupted_mid_program_resumes_the_same_shifted_program(client):
+    """The link drops mid-program: the operator's resume does not touch the pad again; it
+    streams on from the resume point with the shift recorded before the interruption, so
+    the firmware executed the SHIFTED program exactly once around the re-homing."""
+    from hardware.mock import get_world
+    from hardware.protocol import normalized_commands
+    from tests.e2e.test_probe_physics_loop import PHYSICS, PROFILE
+
+    machine = client.post("/api/v1/machines", json={
+        "name": "dropping", "port": "mock://", "dialect": "marlin", "profile": PROFILE,
+        "mock": {"physics": {**PHYSICS, "drift_mm_per_min": 0.01}}}, headers=OP).json()
+    assert _job(client, "calibrate_probe", {"machine_id": machine["id"]}, timeout=300)["status"] == "succeeded"
+    text = "G21\nG90\n" + "".join(f"G1 X{40 + (i % 20) * 0.5:.2f} Y{20 + (i // 20) * 0.5:.2f} Z{12 + i * 0.001:.4f} "
+                                  f"F3000\n" for i in range(200))
+    program = client.post("/api/v1/programs", files={"file": ("p.gcode", text.encode())}, headers=OP).json()
+    world = get_world(machine["id"])
+    base = world.transcript.executed_count
+    world.faults.disconnect_at_line = base + 120  # the pad touch, then about a hundred program lines
+    response = client.post("/api/v1/jobs", json={"kind": "print", "params": {
+        "machine_id": machine["id"], "program_id": program["id"]}}, headers=OP)
+    interrupted = wait_for(client, response.json()["id"], states=("interrupted", "succeeded", "failed"), timeout=120)
+    assert interrupted["status"] == "interrupted", interrupted
+    recorded = interrupted["program_state"]["drift"]
+    assert recorded["dz_mm"] < 0
+    touches = world.stats.machine_time_s
+    assert client.post(f"/api/v1/jobs/{interrupted['id']}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    done = wait_for(client, interrupted["id"], timeout=120)
+    assert done["status"] == "succeeded", done["error"]
+    assert done["result"]["drift"] == recorded and world.stats.machine_time_s > touches
+    start, preamble = done["result"]["start_line"], done["result"]["resume_preamble"]
+    dz = recorded["dz_mm"]
+    shifted = normalized_commands([line.replace(f"Z{z}", f"Z{float(z) + dz:.4f}") if (z := line.split("Z")[-1].split()[0])
+                                   and line.startswith("G1") else line for line in text.splitlines()])
+    executed = world.transcript.commands[base:]
+    assert executed[-(len(shifted) - start + len(preamble)):] == preamble + shifted[start:]
+    before = executed[:-(len(shifted) - start + len(preamble))]
+    assert before[-start:] == shifted[:start] and "G38.2" not in " ".join(executed[-(len(shifted) - start):])
