@@ -59,17 +59,18 @@ def job(client, kind: str, params: dict, timeout: float = 300) -> dict:
 
 
 def calibrated_machine(client, true_stl: bytes, name: str, seed: int, physics: dict | None = None,
-                       placement: dict | None = None) -> tuple[dict, dict, dict]:
-    """A physics mock holding ``true_stl`` (+20 um in z), calibrated: (machine, probe job, nozzle job)."""
+                       placement: dict | None = None, profile: dict | None = None) -> tuple[dict, dict, dict]:
+    """A physics mock holding ``true_stl`` (+20 um in z), calibrated: (machine, probe job, nozzle
+    job; the nozzle's Z from 6 pad touches of each tool, its XY from 2 pairs of side touches)."""
     real = client.post("/api/v1/parts", files={"file": (f"{name}.stl", true_stl)}, headers=OP).json()
     machine = client.post("/api/v1/machines", json={
-        "name": name, "port": "mock://", "dialect": "marlin", "profile": PROFILE,
+        "name": name, "port": "mock://", "dialect": "marlin", "profile": {**PROFILE, **(profile or {})},
         "mock": {"true_part_id": real["id"], "placement": placement or {"dz": 0.02}, "probe_noise_mm": 0.001,
                  "faults": {"seed": seed}, "physics": physics or PHYSICS}}, headers=OP)
     assert machine.status_code == 201, machine.text
     machine = machine.json()
     probe = job(client, "calibrate_probe", {"machine_id": machine["id"]})
-    nozzle = job(client, "calibrate_nozzle", {"machine_id": machine["id"], "tool": 1})
+    nozzle = job(client, "calibrate_nozzle", {"machine_id": machine["id"], "tool": 1, "pad_touches": 6})
     return machine, probe, nozzle
 
 

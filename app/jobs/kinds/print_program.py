@@ -46,6 +46,8 @@ PROGRESS_INTERVAL_S = 0.25
 GCODE_MEDIA_TYPE = "text/x-gcode"
 PAD_APPROACH_MM = 1.5   # the pad touch starts this far above the pad's nominal top (+ the ball radius)
 PAD_OVERTRAVEL_MM = 1.5  # and may go this far below it (the nominal place is known to ~0.3 mm)
+PAD_TOUCHES = 5          # averaged: one touch scatters by the probe's noise and pre-travel scatter
+PAD_SPACING_MM = 0.5     # apart along x around the pad's nominal centre (as the qualification)
 
 
 class PrintParams(JobParams):
@@ -226,22 +228,28 @@ def _drift_reference(ctx: JobContext, params: PrintParams) -> dict | None:
 
 
 def _touch_pad(ctx: JobContext, machine: LiveMachine, machine_id: str, reference: dict) -> dict:
-    """Touch the pad's nominal centre with the probe (T0), straight down, back to the travel
-    height: ``{dz_mm, pad_reading_z_mm, reference_z_mm, probe_job_id}`` (mm; dz = the reading
-    now - the reading at calibration, the shift the program's Z gets)."""
-    x, y, z = reference["pad_mm"]
+    """Touch the pad with the probe (T0) PAD_TOUCHES times around its nominal centre, straight
+    down, back to the travel height: ``{dz_mm, pad_reading_z_mm (their mean), readings_z_mm,
+    reference_z_mm, probe_job_id}`` (mm; dz = the reading now - the reading at calibration,
+    the shift the program's Z gets)."""
+    x0, y, z = reference["pad_mm"]
     travel, start = reference["travel_z_mm"], z + reference["ball_radius_mm"] + PAD_APPROACH_MM
     ctx.progress(0.0, "touching the reference pad (drift since calibration)")
     ctx.runtime.machines.running_job[machine_id] = ctx.job_id
+    readings = []
     try:
         machine.move(z=travel)
         machine.select_tool(0)
-        machine.move(x=x, y=y)
-        machine.move(z=start)
-        hit = machine.probe_toward((x, y, start), (x, y, z - PAD_OVERTRAVEL_MM), feed_mm_min=reference["feed_mm_min"])
+        for k in range(PAD_TOUCHES):
+            x = x0 + (k - (PAD_TOUCHES - 1) / 2) * PAD_SPACING_MM
+            machine.move(x=x, y=y)
+            machine.move(z=start)
+            hit = machine.probe_toward((x, y, start), (x, y, z - PAD_OVERTRAVEL_MM),
+                                       feed_mm_min=reference["feed_mm_min"])
+            readings.append(float(hit.z))
         machine.move(z=travel)
     finally:
         ctx.runtime.machines.running_job.pop(machine_id, None)
-    reading = float(hit.z)
-    return {"dz_mm": reading - reference["reference_z_mm"], "pad_reading_z_mm": reading,
+    reading = sum(readings) / len(readings)
+    return {"dz_mm": reading - reference["reference_z_mm"], "pad_reading_z_mm": reading, "readings_z_mm": readings,
             "reference_z_mm": reference["reference_z_mm"], "probe_job_id": reference["probe_job_id"]}
