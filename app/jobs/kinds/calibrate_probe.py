@@ -27,6 +27,8 @@ from app.records import get_or_404
 
 
 CAP_RINGS_DEG = (0.0, 30.0, 50.0, 65.0, 75.0)
+PLACE_TOLERANCE_MM = 1.0     # the sphere may sit this far from its nominal place (profile)
+LOCATED_TOLERANCE_MM = 0.05  # ... and this far from where the locating touches found it
 
 
 class CalibrateProbeParams(JobParams):
@@ -64,7 +66,7 @@ def run(ctx: JobContext, params: CalibrateProbeParams) -> dict:
     # locate the sphere first (it may sit ~1 mm off its nominal place): the steep cap rings
     # that separate the radius from the pre-travel are planned around the located centre
     locate = plan_qualification(tuple(sphere.centre_mm), sphere.diameter_mm, radius, None, cap_rings_deg=(0, 30),
-                                per_ring=4, equator=8)
+                                per_ring=4, equator=8, place_tolerance_mm=PLACE_TOLERANCE_MM)
     ctx.progress(0.02, f"locating the reference sphere ({len(locate)} touches)")
     with TouchRun(ctx, params.machine_id, travel_z=travel_height(profile, radius), feed_mm_min=feed) as touching:
         located = touching.touch([Step(t, 0) for t in locate], "locate", "locating the sphere", (0.02, 0.2))
@@ -72,7 +74,8 @@ def run(ctx: JobContext, params: CalibrateProbeParams) -> dict:
         touches = plan_qualification(rough.sphere_centre_mm, sphere.diameter_mm, radius,
                                      tuple(pad.centre_mm) if pad is not None and params.pad_touches else None,
                                      cap_rings_deg=tuple(params.cap_rings_deg), per_ring=params.per_ring,
-                                     equator=params.equator, pad_touches=params.pad_touches or 3)
+                                     equator=params.equator, pad_touches=params.pad_touches or 3,
+                                     place_tolerance_mm=LOCATED_TOLERANCE_MM)
         readings = touching.touch([Step(t, 0) for t in touches], "qualify", "qualification", (0.2, 0.9))
         touching.park()
     ctx.progress(0.92, "fitting radius and pre-travel")
