@@ -4,7 +4,9 @@ Plan (``plan_qualification``), from the NOMINAL sphere and pad places (the true 
 differ by up to ``approach_mm`` in any direction):
 
 * "cap" touches: vertical moves down onto the sphere, contact polar angles ``cap_rings_deg``
-  (ring 0 deg = one touch at the top), ``per_ring`` azimuths evenly spaced per ring;
+  (ring 0 deg = one touch at the top, made twice), ``per_ring`` azimuths evenly spaced per
+  ring, in a palindromic order (up the rings, the equator, down the rings) so that a linear
+  drift is centred on every ring alike;
 * "equator" touches: horizontal radial moves toward the centre at the nominal centre height,
   ``equator`` azimuths evenly spaced (offset half a step from the cap azimuths);
 * "pad" touches: vertical moves onto the pad centre, spread 0.5 mm apart along x, first
@@ -69,7 +71,8 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
                        pad_centre_mm: Any | None, *, cap_rings_deg: Sequence[float] = (0, 20, 35, 50, 60),
                        per_ring: int = 8, equator: int = 16, pad_touches: int = 3, approach_mm: float = 1.0,
                        overtravel_mm: float = 1.0, place_tolerance_mm: float = 0.5) -> tuple[Touch, ...]:
-    """Touches in machine coordinates (mm): the pad, caps ring by ring, the equator, the pad again.
+    """Touches in machine coordinates (mm): the pad, caps up the rings (even azimuths), the
+    equator, caps down the rings (odd azimuths, the top again), the pad again.
 
     sphere_centre_mm (3,), pad_centre_mm (3,) (top face centre) or None: nominal places.
     ball_radius_mm: nominal stylus ball radius.  place_tolerance_mm: how far the true
@@ -106,6 +109,7 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
             pads.append(Touch((x, pad[1], pad[2] + r + u + approach), (x, pad[1], pad[2] + r - u - over), "pad"))
     touches.extend(pads)
     top = c[2] + rho_s
+    ring_touches: list[list[Touch]] = []
     for ring in rings:
         theta = math.radians(ring)
         count = 1 if ring == 0 else int(per_ring)
@@ -113,20 +117,34 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
         # highest contact when the sphere is u closer, lowest when u farther; and u higher / lower
         high = top if rho <= u else c[2] + math.sqrt(max(rho_s ** 2 - (rho - u) ** 2, 0.0))
         low = c[2] + math.sqrt(max(rho_s ** 2 - (rho + u) ** 2, 0.0))
+        ring_touches.append([])
         for k in range(count):
             phi = 2 * math.pi * k / count
             x, y = c[0] + rho * math.cos(phi), c[1] + rho * math.sin(phi)
-            touches.append(Touch((x, y, high + u + approach), (x, y, low - u - over), "cap"))
+            ring_touches[-1].append(Touch((x, y, high + u + approach), (x, y, low - u - over), "cap"))
+    # palindromic order: up the rings (every other azimuth), the equator, down the rings (the
+    # rest; a single top touch is repeated) -- every ring's touches are centred on the same
+    # time, so a linear drift does not bend the curvature that fixes r
+    for ring in ring_touches:
+        touches.extend(ring[0::2])
     for k in range(int(equator)):
         phi = 2 * math.pi * (k + 0.5) / equator
         e = np.array([math.cos(phi), math.sin(phi), 0.0])
         touches.append(Touch(tuple(c + (rho_s + u + approach) * e), tuple(c + (rho_s - u - over) * e), "equator"))
+    for ring in reversed(ring_touches):
+        touches.extend(ring[1::2] if len(ring) > 1 else ring)
     touches.extend(pads)          # the pad again at the end: with touch times, a Z drift is measured
     return tuple(touches)
 
 
-def check_readings(touches: Sequence[Touch], readings: Any) -> np.ndarray:
-    """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target."""
+def check_readings(touches: Sequence[Touch], readings: Any, *, project: bool = True) -> np.ndarray:
+    """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target.
+
+    Returns them projected onto their moves' lines (``project``): the carriage moves along the
+    commanded line, so a reading's offset from it is the firmware's report rounding (Marlin
+    ``M114 D`` and grbl ``PRB`` print 1 um), which the projection removes.  Left in, the rounding
+    of a ring of stations that happen to share a rounding direction biases r by a micron.
+    """
     p = np.asarray(readings, dtype=float)
     if p.ndim != 2 or p.shape != (len(touches), 3):
         raise CalibrationError(f"readings must have shape ({len(touches)}, 3), one per touch", field="readings",
@@ -142,7 +160,10 @@ def check_readings(touches: Sequence[Touch], readings: Any) -> np.ndarray:
             raise CalibrationError(f"readings[{i}] ({t.kind} touch) is {off:.3f} mm off its move and "
                                    f"{along:.3f} mm along it (length {length:.3f} mm): not a reading of that touch",
                                    field=f"readings[{i}]", value=q)
-    return p
+    if not project:
+        return p
+    return np.array([np.asarray(t.start_mm) + float(np.dot(q - t.start_mm, t.direction)) * t.direction
+                     for t, q in zip(touches, p, strict=True)])
 
 
 def _normals_delta(p: np.ndarray, d: np.ndarray, c: np.ndarray, model: np.ndarray, lobing: bool):

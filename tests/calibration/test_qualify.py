@@ -43,7 +43,9 @@ def test_the_plan_has_the_requested_touches_and_safe_starts():
     rng = np.random.default_rng(0)
     kinds = [t.kind for t in touches]
     assert kinds[:3] == kinds[-3:] == ["pad"] * 3 and kinds.count("pad") == 6 and kinds.count("equator") == 16
-    assert kinds.count("cap") == 1 + 4 * 8
+    assert kinds.count("cap") == 2 + 4 * 8          # the top twice: first and last of the caps
+    caps = [t for t in touches if t.kind == "cap"]
+    assert caps[0] == caps[-1] and len({t.start_mm for t in caps}) == 1 + 4 * 8
     for t in touches:
         if t.kind == "cap":
             assert t.direction == pytest.approx([0, 0, -1])
@@ -144,7 +146,7 @@ def test_an_absurd_reading_is_refused_naming_the_touch():
         fit_qualification(touches, readings, DIAMETER)
     assert err.value.field == f"readings[{bad}]"
     off = float(re.search(r"is (-?[0-9.]+) mm", err.value.message).group(1))
-    assert abs(off) == pytest.approx(0.2, abs=0.002)           # reported along the move
+    assert abs(off) == pytest.approx(0.2, abs=0.005)           # reported along the move (to first order)
     off = readings_for(touches, TrueProbe())
     off[12] += (3.0, 0.0, 0.0)
     with pytest.raises(CalibrationError) as err:
@@ -171,10 +173,16 @@ def test_a_drift_during_the_qualification_is_fitted_from_the_touch_times():
     times = np.cumsum(rng.uniform(2.0, 4.0, len(touches))) + 100.0      # ~3 s a touch, s
     rate = 0.001 / 60                                                    # 1 um/min
     readings = readings_for(touches, probe, drift=(times, rate))
+    # without the times: the palindromic order keeps r and p0 within a fraction of a micron
     blind = fit_qualification(touches, readings, DIAMETER)
-    # without the times the trend bends the rings: r and p0 move by microns (in step)
-    assert abs(blind.ball_radius_mm - 0.5) > 0.001
-    assert (blind.ball_radius_mm - 0.5) == pytest.approx(blind.pretravel.p0_mm - 0.015, abs=0.0003)
+    assert abs(blind.ball_radius_mm - 0.5) < 0.0003 and abs(blind.pretravel.p0_mm - 0.015) < 0.0003
+    # ... where touching ring after ring bends the curvature: r and p0 move by microns (in step)
+    by_ring = sorted(range(len(touches)), key=lambda i: (touches[i].kind != "pad", touches[i].kind == "equator",
+                                                          -touches[i].start_mm[2]))
+    ringwise = [touches[i] for i in by_ring]
+    skewed = fit_qualification(ringwise, readings_for(ringwise, probe, drift=(times, rate)), DIAMETER)
+    assert abs(skewed.ball_radius_mm - 0.5) > 0.001
+    assert (skewed.ball_radius_mm - 0.5) == pytest.approx(skewed.pretravel.p0_mm - 0.015, abs=0.0003)
     cal = fit_qualification(touches, readings, DIAMETER, times_s=times)
     assert cal.ball_radius_mm == pytest.approx(0.5, abs=1e-6)
     assert cal.pretravel.p0_mm == pytest.approx(0.015, abs=1e-6)
