@@ -31,7 +31,7 @@ import numpy as np
 
 from .artifacts import PAD_DEPTH_MM
 from .surface import PlacedSurface
-from .sweep import (Contact, sweep_ball_plane, sweep_ball_sphere, sweep_ball_triangles,
+from .sweep import (Contact, in_triangles, sweep_ball_plane, sweep_ball_sphere, sweep_ball_triangles,
                     sweep_nozzle_box, sweep_nozzle_sphere)
 from .world import MockWorld
 
@@ -274,14 +274,33 @@ class ProbePhysics:
             return None, None
         return min(found)
 
+    def nozzle_move(self, start_tip: tuple, end_tip: tuple) -> None:
+        """A plain move (G0/G1) of a nozzle: its tip path crossing the part's surface (or
+        reaching the bed) counts one collision (the body beside the tip is not checked)."""
+        a = np.asarray(start_tip, float)
+        chord = np.asarray(end_tip, float) - a
+        length = float(np.linalg.norm(chord))
+        if length > 0.0:
+            self._count_collision(a, chord / length, length)
+
     def _count_collision(self, tip: np.ndarray, direction: np.ndarray, length: float) -> None:
-        """A nozzle's tip path entering the part (or the bed) counts one collision."""
+        """A nozzle's tip path entering the part (crossing a face against its outward
+        normal) or going below the bed counts one collision; leaving does not count."""
         if length <= 0.0:
             return
-        hit = None
+        entered = False
         if self.surface.mesh is not None:
-            hit = sweep_ball_triangles(tip, direction, length, 0.0,
-                                       self.index.near(tip, tip + direction * length, 0.0))
-        bed = sweep_ball_plane(tip, direction, length, 0.0, self.world.bed_z)
-        if (hit is not None and hit.s >= 0.0) or (bed is not None and bed.s >= 0.0):
+            tris = self.index.near(tip, tip + direction * length, 0.0)
+            if len(tris):
+                a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+                n = np.cross(b - a, c - a)  # outward for a consistently wound (trimesh) part
+                v = n @ direction
+                going_in = v < -1e-15
+                if going_in.any():
+                    n, a, b, c, v = n[going_in], a[going_in], b[going_in], c[going_in], v[going_in]
+                    s = np.einsum("ij,ij->i", a - tip, n) / v
+                    q = tip + s[:, None] * direction
+                    entered = bool(np.any((s >= 0.0) & (s <= length) & in_triangles(q, a, b, c)))
+        end_z = tip[2] + direction[2] * length
+        if entered or (tip[2] >= self.world.bed_z > end_z):
             self.world.stats.collisions += 1

@@ -67,7 +67,10 @@ def sweep_ball_triangles(origin: np.ndarray, direction: np.ndarray, length: floa
         n, fa, fb, fc = n[approaching], fa[approaching], fb[approaching], fc[approaching]
         s = (dist0[approaching] - r) / -v[approaching]
         q = p0 + s[:, None] * d - r * n
-        inside = _in_triangles(q, fa, fb, fc)
+        # entered before the start: only an overlap NOW counts (the foot of the start on
+        # the plane inside the triangle), not where the contact would have been
+        q_now = np.where((s < 0.0)[:, None], p0 - dist0[approaching][:, None] * n, q)
+        inside = in_triangles(q_now, fa, fb, fc)
         exiting = (dist0[approaching] + r) / -v[approaching]  # the whole ball past the plane
         keep = inside & (s <= length + tol) & (exiting > 0.0)
         if keep.any():
@@ -79,7 +82,7 @@ def sweep_ball_triangles(origin: np.ndarray, direction: np.ndarray, length: floa
     return _first(found)
 
 
-def _in_triangles(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+def in_triangles(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
                   tol: float = 1e-9) -> np.ndarray:
     """Barycentric inside test of points q (k,3) in their triangles (k,3) x 3 (on plane)."""
     v0, v1, v2 = b - a, c - a, q - a
@@ -116,7 +119,7 @@ def _edges(p0: np.ndarray, d: np.ndarray, length: float, r: float, tris: np.ndar
     root = np.sqrt(disc[ok])
     s_in = (-qb[ok] - root) / qa[ok]
     s_out = (-qb[ok] + root) / qa[ok]
-    foot = np.einsum("ij,ij->i", w0[ok] + s_in[:, None] * d, axis[ok])
+    foot = np.einsum("ij,ij->i", w0[ok] + np.maximum(s_in, 0.0)[:, None] * d, axis[ok])
     keep = (s_out > 0.0) & (s_in <= length + tol) & (foot >= 0.0) & (foot <= span[ok])
     if not keep.any():
         return []

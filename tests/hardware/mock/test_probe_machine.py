@@ -173,3 +173,23 @@ def test_machine_clock_counts_moves_and_dwell(make_world, dialect):
         assert world.stats.machine_time_s == pytest.approx(50.0 / 600.0 * 60.0 + 2.0)
     finally:
         machine.disconnect()
+
+
+def test_a_nozzle_moved_into_the_part_counts_a_collision(make_world):
+    import trimesh
+
+    part = trimesh.creation.box((20.0, 20.0, 6.0))  # top face at z = 3
+    machine, world = _connect(make_world, "marlin", true_part=part, tools=(MockTool(OFFSET, 0.8),))
+    try:
+        o = np.array(OFFSET)
+        machine.stream([f"G1 X{-o[0]:.4f} Y{-o[1]:.4f} Z{10 - o[2]:.4f} F3000"])   # with T0, up and over
+        machine.select_tool(1)
+        machine.stream([f"G1 Z{3.2 - o[2]:.4f}"])                                   # tip 0.2 mm above: fine
+        assert world.stats.collisions == 0
+        machine.stream([f"G1 Z{2.9 - o[2]:.4f}"])                                   # tip into the top face
+        assert world.stats.collisions == 1
+        with pytest.raises(ProbeFailed):  # a nozzle probing the (non-conductive) part never triggers
+            machine.probe_toward(tuple((0, 0, 5) - o), tuple((0, 0, 1) - o))
+        assert world.stats.collisions == 2
+    finally:
+        machine.disconnect()
