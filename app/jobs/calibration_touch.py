@@ -73,6 +73,11 @@ class TouchRun:
         self.state: dict[str, Any] = {"total": 0, "executed": 0, "stages": dict((resume or {}).get("stages", {})),
                                       "resumes": (resume or {}).get("resumes", 0)}
         self.machine = rehomed_machine(ctx, machine_id, resume, self.state)
+        try:  # where the touches start from: the origin of the touches' estimated machine times
+            with hardware_errors():
+                self.origin = tuple(float(v) for v in self.machine.position())
+        except ConformaError as exc:
+            raise interrupt(ctx, self.machine, exc.__cause__ or exc, self.state) from exc
         self.tool: int | None = None  # unknown after a connect or a resume: select before the first touch
 
     def __enter__(self) -> "TouchRun":
