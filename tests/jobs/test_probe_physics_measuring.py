@@ -26,8 +26,12 @@ BALL_MM = 0.5
 PRETRAVEL_MM = 0.015
 DRIFT_MM_PER_MIN = 0.001
 PAD = (80.0, 20.0, 5.0, 20.0)  # x, y, z top, size (mm): beside the part (x 0..60, y 0..40)
-PHYSICS = (f"stylus_radius_mm={BALL_MM}&pretravel_mm={PRETRAVEL_MM}&drift_mm_per_min={DRIFT_MM_PER_MIN}"
-           f"&pad={','.join(str(v) for v in PAD)}")
+FAST_DRIFT_MM_PER_MIN = 0.02  # the drift tests: a short run drifts visibly (1 um/min ~ 1 um per run here)
+
+
+def physics(drift_mm_per_min: float = DRIFT_MM_PER_MIN) -> str:
+    return (f"stylus_radius_mm={BALL_MM}&pretravel_mm={PRETRAVEL_MM}&drift_mm_per_min={drift_mm_per_min}"
+            f"&pad={','.join(str(v) for v in PAD)}")
 
 
 @pytest.fixture(scope="module")
@@ -49,11 +53,12 @@ def upload(client, stl: bytes, name: str) -> dict:
     return client.post("/api/v1/parts", files={"file": (name, stl)}, headers=OP).json()
 
 
-def machine(client, true_part_id: str, *, calibrated: bool = True, physics: str = PHYSICS) -> dict:
+def machine(client, true_part_id: str, *, calibrated: bool = True,
+            drift_mm_per_min: float = DRIFT_MM_PER_MIN, dialect: str = "marlin") -> dict:
     """A mock Marlin machine with probe physics holding ``true_part_id`` in place, a
     reference pad in its profile, and (``calibrated``) a probe calibration with the truth."""
     row = client.post("/api/v1/machines", json={
-        "name": new_id("sim"), "port": f"mock://?{physics}", "dialect": "marlin",
+        "name": new_id("sim"), "port": f"mock://?{physics(drift_mm_per_min)}", "dialect": dialect,
         "profile": {"reference": {"pad": {"centre_mm": list(PAD[:3]), "size_mm": PAD[3]}}},
         "mock": {"true_part_id": true_part_id, "probe_noise_mm": 0.001, "faults": {"seed": 2}}}, headers=OP)
     assert row.status_code == 201, row.text
@@ -111,7 +116,8 @@ def test_plan_records_carry_the_unit_normal(client, meshes):
     g = nominal_gradient(np.array(plan["points"])[:, :2])
     truth = np.column_stack([-g, np.ones(len(g))])
     truth /= np.linalg.norm(truth, axis=1, keepdims=True)
-    assert np.degrees(np.arccos(np.clip(np.sum(normals * truth, axis=1), -1, 1))).max() < 1.0
+    # within the faceting of the 0.5 mm nominal mesh the trace was draped on
+    assert np.degrees(np.arccos(np.clip(np.sum(normals * truth, axis=1), -1, 1))).max() < 1.5
 
 
 def test_calibrated_run_measures_the_true_surface(client, meshes):
@@ -119,7 +125,7 @@ def test_calibrated_run_measures_the_true_surface(client, meshes):
     true = upload(client, meshes["true"], "s1-true.stl")
     sim = machine(client, true["id"])
     plan = plan_on(client, trace_on(client, part["id"])["id"])
-    result = run(client, plan["id"], sim["id"], drift_interval_s=20)["result"]
+    result = run(client, plan["id"], sim["id"], drift_interval_s=8)["result"]
     err = errors(result)
     assert np.abs(err).max() < 0.004, err
     # the raw readings sit r / n_z - delta (minus the drift so far) above the surface
@@ -132,31 +138,44 @@ def test_calibrated_run_measures_the_true_surface(client, meshes):
     assert cal["corrections"] == {"radius": True, "pretravel": True, "drift": True}
     drift = cal["drift"]
     assert len(drift["times_s"]) >= 3 and np.all(np.diff(drift["times_s"]) > 0)
-    # the pad readings fall with the drift (1 um/min of machine time)
-    assert drift["pad_z_mm"][-1] < drift["pad_z_mm"][0]
     times = np.array([p["t_s"] for p in result["points"]])
-    assert np.all(np.diff(times) > 0)
+    assert np.all(np.diff(times) > 0) and drift["times_s"][0] < times[0] and drift["times_s"][-1] > times[-1]
 
 
-@pytest.mark.parametrize("off", ["radius", "pretravel", "drift"])
+def test_drift_is_tracked_by_pad_retouches(client, meshes):
+    """20 um/min: the pad readings fall with machine time; the corrected points stay on the
+    surface while the uncorrected ones sink with the clock.  grbl: its G38.2 probes at the
+    plan's feed, so the estimated touch times follow the machine clock (Marlin's G30 probes
+    at the firmware's own feed, which the estimate does not know: see the README)."""
+    part = upload(client, meshes["nominal"], "s1.stl")
+    true = upload(client, meshes["true"], "s1-true.stl")
+    plan = plan_on(client, trace_on(client, part["id"])["id"])
+    runs = {}
+    for drift in (True, False):
+        sim = machine(client, true["id"], drift_mm_per_min=FAST_DRIFT_MM_PER_MIN, dialect="grbl")
+        runs[drift] = run(client, plan["id"], sim["id"], drift_interval_s=8, corrections={"drift": drift})["result"]
+    track = runs[True]["calibration"]["drift"]
+    slope = np.polyfit(track["times_s"], track["pad_z_mm"], 1)[0] * 60
+    assert -0.025 < slope < -0.015, slope  # mm/min: the pad sees the drift
+    assert np.abs(errors(runs[True])).max() < 0.004
+    lost = errors(runs[False])
+    assert lost[-1] < lost[0] - 0.004 and lost.max() < -0.002, lost
+
+
+@pytest.mark.parametrize("off", ["radius", "pretravel"])
 def test_each_correction_switched_off_shows_its_error(client, meshes, off):
     part = upload(client, meshes["nominal"], "s1.stl")
     true = upload(client, meshes["true"], "s1-true.stl")
     sim = machine(client, true["id"])
     plan = plan_on(client, trace_on(client, part["id"])["id"])
-    result = run(client, plan["id"], sim["id"], corrections={off: False}, drift_interval_s=20)["result"]
+    result = run(client, plan["id"], sim["id"], corrections={off: False}, drift_interval_s=8)["result"]
     err = errors(result)
     nz = slopes(result)
     if off == "radius":  # left: r (1 / n_z - 1) on the slopes
         assert np.abs(err - BALL_MM * (1 / nz - 1)).max() < 0.004
         assert err.max() > 0.010
-    elif off == "pretravel":  # the probe triggered delta late: everything 15 um low
+    else:  # the probe triggered delta late: everything 15 um low
         assert np.abs(err + PRETRAVEL_MM).max() < 0.004
-    else:  # the drift so far: readings low by the machine clock x 1 um/min
-        world = client.app.state.runtime.machines.world_by_id(sim["id"])
-        total = DRIFT_MM_PER_MIN * world.stats.machine_time_s / 60.0
-        assert err[-1] < err[0] - 0.0005 and -total - 0.003 < err.min() < -0.001
-        assert result["calibration"]["drift"] is None
 
 
 def test_uncalibrated_machine_keeps_todays_readings(client, meshes):
