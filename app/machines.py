@@ -19,7 +19,8 @@ from urllib.parse import urlsplit
 
 from hardware.errors import HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
 from hardware.machine import Machine, MachineProfile
-from hardware.mock import FaultConfig, MockWorld, Placement, register_world, unregister_world
+from hardware.mock import (FaultConfig, MockPad, MockSphere, MockTool, MockWorld, Placement,
+                           register_world, unregister_world)
 
 from app.errors import Conflict, ConformaError, InvalidInput
 from app.models import Machine as MachineRow
@@ -184,6 +185,7 @@ class MachineManager:
             faults=FaultConfig(**faults),
             dispense_on=profile.get("dispense_on"),
             dispense_off=profile.get("dispense_off"),
+            **physics_kwargs(mock.get("physics")),
         )
         register_world(row.id, world)
 
@@ -235,3 +237,19 @@ class MachineManager:
             except HardwareError:
                 pass
 
+
+
+def physics_kwargs(physics: dict | None) -> dict:
+    """``MockWorld`` keyword arguments from a stored ``mock.physics`` (``MockPhysics``) dict."""
+    if not physics:
+        return {}
+    kwargs = {name: float(physics.get(name, 0.0)) for name in (
+        "stylus_radius_mm", "pretravel_mm", "pretravel_sd_mm", "pretravel_lobing_mm",
+        "drift_mm_per_min", "touchoff_sd_mm")}
+    kwargs["tools"] = tuple(MockTool(tuple(t["offset_mm"]), t["outer_diameter_mm"])
+                            for t in physics.get("tools") or ())
+    if physics.get("pad"):
+        kwargs["pad"] = MockPad(tuple(physics["pad"]["centre_mm"]), physics["pad"]["size_mm"])
+    if physics.get("sphere"):
+        kwargs["sphere"] = MockSphere(tuple(physics["sphere"]["centre_mm"]), physics["sphere"]["diameter_mm"])
+    return kwargs

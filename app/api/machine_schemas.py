@@ -144,12 +144,52 @@ class MockFaults(Strict):
     seed: int = Field(0, ge=0, le=2**31)
 
 
+Coord = Annotated[float, Field(ge=-10_000, le=10_000, allow_inf_nan=False)]
+
+
+class MockToolSettings(Strict):
+    """A nozzle T1..Tn of the mock: its tip is at carriage + offset_mm."""
+
+    offset_mm: list[Coord] = Field(min_length=3, max_length=3, description="[x, y, z] tip - carriage, mm")
+    outer_diameter_mm: Finite = Field(gt=0, le=50, description="the nozzle body's outer diameter, mm")
+
+
+class MockPadSettings(Strict):
+    """The conductive reference pad: a square block, top face centred at centre_mm."""
+
+    centre_mm: list[Coord] = Field(min_length=3, max_length=3, description="[x, y, z top] mm")
+    size_mm: Finite = Field(gt=0, le=500)
+
+
+class MockSphereSettings(Strict):
+    """The conductive datum sphere (on a thin stem)."""
+
+    centre_mm: list[Coord] = Field(min_length=3, max_length=3, description="[x, y, z] mm")
+    diameter_mm: Finite = Field(gt=0, le=500)
+
+
+class MockPhysics(Strict):
+    """The mock's probe physics (hidden truth; defaults = the ideal point probe)."""
+
+    stylus_radius_mm: Finite = Field(0.0, ge=0, le=10, description="T0's ball radius, mm")
+    pretravel_mm: Finite = Field(0.0, ge=0, le=5, description="mean trigger pre-travel, mm")
+    pretravel_sd_mm: Finite = Field(0.0, ge=0, le=1, description="pre-travel scatter per touch, mm")
+    pretravel_lobing_mm: Finite = Field(0.0, ge=0, le=1, description="amplitude of sin(theta) cos(3 phi), mm")
+    drift_mm_per_min: Finite = Field(0.0, ge=0, le=1, description="Z drift per minute of machine time, mm")
+    touchoff_sd_mm: Finite = Field(0.0, ge=0, le=1, description="nozzle touch-off scatter, mm")
+    tools: list[MockToolSettings] = Field(default_factory=list, max_length=8, description="T1..Tn")
+    pad: MockPadSettings | None = None
+    sphere: MockSphereSettings | None = None
+
+
 class MockSettings(Strict):
     true_part_id: str | None = Field(None, description="the as-made part the mock probes against")
     placement: MockPlacement = Field(default_factory=MockPlacement)
     probe_noise_mm: Finite = Field(0.0, ge=0, le=1)
     time_scale: Finite = Field(0.0, ge=0, le=10, description="1 = real time, 0 = as fast as possible")
     faults: MockFaults = Field(default_factory=MockFaults)
+    physics: MockPhysics | None = Field(None, description="probe physics (ball stylus, pre-travel, drift, tools, "
+                                        "reference pad and sphere); none: the ideal probe")
 
 
 class MachineCreate(Strict):

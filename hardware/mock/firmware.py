@@ -259,9 +259,12 @@ class FirmwareCore:
         drift_before = self.world.drift_mm()
         if length > 0:
             self.advance_clock(length / max(feed_mm_min, 1e-9) * 60.0)
-        if self.dispensing and length > 0:
-            self.world.deposition_log.append(DepositedMove(
-                *self.tip_path(start, tuple(target), drift_before), feed_mm_min))
+        if length > 0 and (self.dispensing or self.active_tool):
+            tip_start, tip_end = self.tip_path(start, tuple(target), drift_before)
+            if self.dispensing:
+                self.world.deposition_log.append(DepositedMove(tip_start, tip_end, feed_mm_min))
+            if self.tool_spec() is not None:
+                self.physics.nozzle_move(tip_start, tip_end)
         self.position = list(target)
         if length == 0.0:
             return

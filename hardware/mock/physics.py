@@ -31,7 +31,7 @@ import numpy as np
 
 from .artifacts import PAD_DEPTH_MM
 from .surface import PlacedSurface
-from .sweep import (Contact, sweep_ball_plane, sweep_ball_sphere, sweep_ball_triangles,
+from .sweep import (Contact, in_triangles, sweep_ball_plane, sweep_ball_sphere, sweep_ball_triangles,
                     sweep_nozzle_box, sweep_nozzle_sphere)
 from .world import MockWorld
 
@@ -54,11 +54,12 @@ class MeshIndex:
     swept body's candidate triangles come from a strip search plus a box filter."""
 
     def __init__(self, mesh: object) -> None:
-        tris = np.asarray(mesh.triangles, dtype=float)
+        tris = np.asarray(mesh.vertices, dtype=float)[np.asarray(mesh.faces)]
         lo, hi = tris.min(axis=1), tris.max(axis=1)
         order = np.argsort(lo[:, 0], kind="stable")
         self.tris, self.lo, self.hi = tris[order], lo[order], hi[order]
         self.width = float((hi[:, 0] - lo[:, 0]).max()) if len(tris) else 0.0
+        self.top = float(hi[:, 2].max()) + 1.0 if len(tris) else 0.0
 
     def near(self, start: np.ndarray, end: np.ndarray, radius: float) -> np.ndarray:
         """Triangles (k, 3, 3) whose boxes meet the box of the segment grown by ``radius``."""
@@ -69,6 +70,30 @@ class MeshIndex:
         lo, hi = self.lo[first:last], self.hi[first:last]
         keep = np.all(lo <= box_hi, axis=1) & np.all(hi >= box_lo, axis=1)
         return self.tris[first:last][keep]
+
+    def crossings_above(self, point: np.ndarray) -> int:
+        """How many faces a vertical ray up from ``point`` crosses (odd: inside the part)."""
+        top = np.array([point[0], point[1], max(self.top, float(point[2]) + 1.0)])
+        tris = self.near(point, top, 0.0)
+        if len(tris) == 0:
+            return 0
+        a, b, c = tris[:, 0, :2], tris[:, 1, :2], tris[:, 2, :2]
+        p = np.asarray(point[:2], float)
+
+        def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            return u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+
+        w1, w2, w3 = cross(b - a, p - a), cross(c - b, p - b), cross(a - c, p - c)
+        inside = ((w1 >= 0) & (w2 >= 0) & (w3 >= 0)) | ((w1 <= 0) & (w2 <= 0) & (w3 <= 0))
+        area = cross(b - a, c - a)
+        inside &= np.abs(area) > 1e-15
+        if not inside.any():
+            return 0
+        t = tris[inside]
+        area, w1, w2, w3 = area[inside], w1[inside], w2[inside], w3[inside]
+        z = (w2 * t[:, 0, 2] + w3 * t[:, 1, 2] + w1 * t[:, 2, 2]) / area
+        heights = np.unique(np.round(z[z > point[2] + 1e-9], 9))  # a ray through an edge counts once
+        return int(len(heights))
 
 
 def pad_triangles(centre: tuple[float, float, float], size: float, bed_z: float) -> np.ndarray:
@@ -151,11 +176,18 @@ class ProbePhysics:
                 found.append((sphere, "sphere"))
         return found
 
-    def started_inside(self, start: np.ndarray) -> bool:
-        """The ideal probe's old test: the axis starts inside the part or under the bed."""
-        hits = self.surface._hits(float(start[0]), float(start[1])) if self.surface.mesh is not None else []
-        above = [z for z in hits if z > start[2] + 1e-9]
-        return len(above) % 2 == 1 or start[2] < self.world.bed_z - 1e-9
+    def started_inside(self, start: np.ndarray, exact_old: bool) -> bool:
+        """The probe's axis starts inside the part (odd crossings above) or under the bed;
+        ``exact_old``: with the ideal probe's ray cast, as the mock always did."""
+        if start[2] < self.world.bed_z - 1e-9:
+            return True
+        if self.surface.mesh is None:
+            return False
+        if exact_old:
+            above = [z for z in self.surface._hits(float(start[0]), float(start[1]))
+                     if z > start[2] + 1e-9]
+            return len(above) % 2 == 1
+        return self.index.crossings_above(start) % 2 == 1
 
     # ------------------------------------------------------------------ a probing move
     def touch(self, start: tuple[float, float, float], target: tuple[float, float, float],
@@ -172,7 +204,9 @@ class ProbePhysics:
         world.stats.touches += 1
         if tool == 0:
             actual = start_c + offset
-            if self.started_inside(actual):
+            ideal = world.stylus_radius_mm == 0.0 and world.pretravel_lobing_mm == 0.0 \
+                and bool(np.allclose(direction, _VERTICAL))
+            if self.started_inside(actual, exact_old=ideal):
                 return Touch("inside", tuple(start), 0.0, None)
             found = self._ball_contacts(actual, direction, length)
             if not found:
@@ -181,6 +215,8 @@ class ProbePhysics:
             if contact.s < -1e-9:
                 return Touch("inside", tuple(start), 0.0, what)
             delta = self.pretravel(contact.normal)
+            # the ball centre at contact, back in commanded coordinates (bit-exact for r = 0)
+            at_contact = contact.point + world.stylus_radius_mm * contact.normal - offset
         else:
             tool_spec = world.tools[tool - 1]
             tip = start_c + offset + np.asarray(tool_spec.offset_mm)
@@ -192,12 +228,13 @@ class ProbePhysics:
             if contact_s < 0.0:
                 return Touch("inside", tuple(start), 0.0, what)
             contact = Contact(contact_s, tip + contact_s * direction, -direction)
+            at_contact = start_c + contact_s * direction
             sd = world.touchoff_sd_mm
             delta = float(self.rng.normal(0.0, sd)) if sd > 0 else 0.0
         travel = max(contact.s + delta, 0.0)
         if travel > length + 1e-12:
             return Touch("miss", tuple(float(v) for v in target), length, what)
-        reading = start_c + travel * direction
+        reading = at_contact + delta * direction if travel > 0.0 else start_c
         noise = world.probe_noise_mm
         if noise > 0:
             reading = reading - float(self.noise_draw(noise)) * direction
@@ -237,14 +274,33 @@ class ProbePhysics:
             return None, None
         return min(found)
 
+    def nozzle_move(self, start_tip: tuple, end_tip: tuple) -> None:
+        """A plain move (G0/G1) of a nozzle: its tip path crossing the part's surface (or
+        reaching the bed) counts one collision (the body beside the tip is not checked)."""
+        a = np.asarray(start_tip, float)
+        chord = np.asarray(end_tip, float) - a
+        length = float(np.linalg.norm(chord))
+        if length > 0.0:
+            self._count_collision(a, chord / length, length)
+
     def _count_collision(self, tip: np.ndarray, direction: np.ndarray, length: float) -> None:
-        """A nozzle's tip path entering the part (or the bed) counts one collision."""
+        """A nozzle's tip path entering the part (crossing a face against its outward
+        normal) or going below the bed counts one collision; leaving does not count."""
         if length <= 0.0:
             return
-        hit = None
+        entered = False
         if self.surface.mesh is not None:
-            hit = sweep_ball_triangles(tip, direction, length, 0.0,
-                                       self.index.near(tip, tip + direction * length, 0.0))
-        bed = sweep_ball_plane(tip, direction, length, 0.0, self.world.bed_z)
-        if (hit is not None and hit.s >= 0.0) or (bed is not None and bed.s >= 0.0):
+            tris = self.index.near(tip, tip + direction * length, 0.0)
+            if len(tris):
+                a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+                n = np.cross(b - a, c - a)  # outward for a consistently wound (trimesh) part
+                v = n @ direction
+                going_in = v < -1e-15
+                if going_in.any():
+                    n, a, b, c, v = n[going_in], a[going_in], b[going_in], c[going_in], v[going_in]
+                    s = np.einsum("ij,ij->i", a - tip, n) / v
+                    q = tip + s[:, None] * direction
+                    entered = bool(np.any((s >= 0.0) & (s <= length) & in_triangles(q, a, b, c)))
+        end_z = tip[2] + direction[2] * length
+        if entered or (tip[2] >= self.world.bed_z > end_z):
             self.world.stats.collisions += 1

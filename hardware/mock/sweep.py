@@ -67,18 +67,22 @@ def sweep_ball_triangles(origin: np.ndarray, direction: np.ndarray, length: floa
         n, fa, fb, fc = n[approaching], fa[approaching], fb[approaching], fc[approaching]
         s = (dist0[approaching] - r) / -v[approaching]
         q = p0 + s[:, None] * d - r * n
-        inside = _in_triangles(q, fa, fb, fc)
+        # entered before the start: only an overlap NOW counts (the foot of the start on
+        # the plane inside the triangle), not where the contact would have been
+        q_now = np.where((s < 0.0)[:, None], p0 - dist0[approaching][:, None] * n, q)
+        inside = in_triangles(q_now, fa, fb, fc)
         exiting = (dist0[approaching] + r) / -v[approaching]  # the whole ball past the plane
         keep = inside & (s <= length + tol) & (exiting > 0.0)
-        for i in np.flatnonzero(keep):
+        if keep.any():
+            i = int(np.flatnonzero(keep)[np.argmin(s[keep])])
             found.append(Contact(float(s[i]), q[i], n[i]))
     if r > 0.0:
         found += _edges(p0, d, length, r, tris, tol)
-        found += _vertices(p0, d, length, r, tris.reshape(-1, 3), tol)
+        found += _vertices(p0, d, length, r, np.unique(tris.reshape(-1, 3), axis=0), tol)
     return _first(found)
 
 
-def _in_triangles(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+def in_triangles(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
                   tol: float = 1e-9) -> np.ndarray:
     """Barycentric inside test of points q (k,3) in their triangles (k,3) x 3 (on plane)."""
     v0, v1, v2 = b - a, c - a, q - a
@@ -115,14 +119,14 @@ def _edges(p0: np.ndarray, d: np.ndarray, length: float, r: float, tris: np.ndar
     root = np.sqrt(disc[ok])
     s_in = (-qb[ok] - root) / qa[ok]
     s_out = (-qb[ok] + root) / qa[ok]
-    foot = np.einsum("ij,ij->i", w0[ok] + s_in[:, None] * d, axis[ok])
+    foot = np.einsum("ij,ij->i", w0[ok] + np.maximum(s_in, 0.0)[:, None] * d, axis[ok])
     keep = (s_out > 0.0) & (s_in <= length + tol) & (foot >= 0.0) & (foot <= span[ok])
-    out = []
-    for i in np.flatnonzero(keep):
-        point = starts[ok][i] + foot[i] * axis[ok][i]
-        centre = p0 + s_in[i] * d
-        out.append(Contact(float(s_in[i]), point, (centre - point) / r))
-    return out
+    if not keep.any():
+        return []
+    i = int(np.flatnonzero(keep)[np.argmin(s_in[keep])])
+    point = starts[ok][i] + foot[i] * axis[ok][i]
+    centre = p0 + s_in[i] * d
+    return [Contact(float(s_in[i]), point, (centre - point) / r)]
 
 
 def _vertices(p0: np.ndarray, d: np.ndarray, length: float, r: float, points: np.ndarray,
@@ -136,12 +140,12 @@ def _vertices(p0: np.ndarray, d: np.ndarray, length: float, r: float, points: np
     root = np.sqrt(disc[ok])
     s_in, s_out = -half_b[ok] - root, -half_b[ok] + root
     keep = (s_out > 0.0) & (s_in <= length + tol)
-    out = []
-    for i in np.flatnonzero(keep):
-        point = points[ok][i]
-        centre = p0 + s_in[i] * d
-        out.append(Contact(float(s_in[i]), point, (centre - point) / r))
-    return out
+    if not keep.any():
+        return []
+    i = int(np.flatnonzero(keep)[np.argmin(s_in[keep])])
+    point = points[ok][i]
+    centre = p0 + s_in[i] * d
+    return [Contact(float(s_in[i]), point, (centre - point) / r)]
 
 
 def sweep_ball_plane(origin: np.ndarray, direction: np.ndarray, length: float, radius: float,
