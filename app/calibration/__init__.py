@@ -4,7 +4,7 @@ nozzle clearance (pure: numpy/scipy only).  The physical conventions are in mode
 from app.calibration.agreement import disagreements
 from app.calibration.clearance import Clearance, nozzle_clearance
 from app.calibration.correct import SurfaceReadings, surface_heights, tilted_normals
-from app.calibration.drift import DriftTrack, drift_offsets, retouch_schedule, touch_times
+from app.calibration.drift import DriftTrack, drift_offsets, plan_times, retouch_schedule, touch_times
 from app.calibration.errors import CalibrationError
 from app.calibration.model import NozzleCalibration, PretravelModel, ProbeCalibration, Touch
 from app.calibration.nozzle import fit_nozzle_offset, plan_nozzle_calibration
@@ -13,6 +13,6 @@ from app.calibration.qualify import fit_qualification, plan_qualification
 __all__ = [
     "CalibrationError", "NozzleCalibration", "PretravelModel", "ProbeCalibration", "Touch",
     "SurfaceReadings", "surface_heights", "tilted_normals", "plan_qualification", "fit_qualification",
-    "plan_nozzle_calibration", "fit_nozzle_offset", "touch_times", "DriftTrack", "drift_offsets",
+    "plan_nozzle_calibration", "fit_nozzle_offset", "touch_times", "plan_times", "DriftTrack", "drift_offsets",
     "retouch_schedule", "Clearance", "nozzle_clearance", "disagreements",
 ]

@@ -13,6 +13,11 @@ the travel feed, probe down at the probe feed to the contact, retract to the saf
 the travel feed.  The contact height is the station's expected z (its nominal surface), bounded
 by the move (between target_z and safe_z): the estimate assumes the part is where the plan says
 (a 0.1 mm miss shifts a touch by 0.1 mm / probe feed, 0.06 s at 100 mm/min).
+
+``plan_times`` replays a calibration run instead (planned ``Touch`` moves in any direction,
+executed as the calibration jobs do: up to the travel height, across, down to the start,
+probe toward the target until the trigger, back to the start) from the readings it produced,
+so its times are exact for the mock's clock; they feed ``fit_qualification(times_s=...)``.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import numpy as np
 
 from app.calibration.errors import CalibrationError
 
-__all__ = ["touch_times", "DriftTrack", "drift_offsets", "retouch_schedule"]
+__all__ = ["touch_times", "plan_times", "DriftTrack", "drift_offsets", "retouch_schedule"]
 
 
 def _array(value: Any, name: str, shape_tail: tuple[int, ...] = ()) -> np.ndarray:
@@ -70,6 +75,40 @@ def touch_times(points: Any, safe_z: Any, target_z: Any, travel_feed: float, pro
         out[i] = t
         t += (safe[i] - contact[i]) / travel
         x, y, z = p[i, 0], p[i, 1], safe[i]
+    return out
+
+
+def plan_times(touches: Any, readings: Any, *, travel_z: float, travel_feed: float, probe_feed: float,
+               start_mm: Any) -> np.ndarray:
+    """Machine seconds (n,) from ``start_mm`` (3,) to each planned touch's trigger.
+
+    touches: ``Touch`` (n); readings (n, 3) mm, the carriage at each trigger.  Per touch:
+    Z to ``travel_z``, XY to the start, Z down to the start (travel feed), probe from the start
+    to the reading (probe feed), back to the start (travel feed).  Feeds in mm/min.
+    """
+    touches = list(touches)
+    p = _array(readings, "readings", (3,))
+    if len(p) != len(touches):
+        raise CalibrationError(f"readings must have shape ({len(touches)}, 3)", field="readings",
+                               value=list(p.shape))
+    for name, feed in (("travel_feed", travel_feed), ("probe_feed", probe_feed)):
+        if not np.isfinite(feed) or feed <= 0:
+            raise CalibrationError(f"{name} must be > 0 (mm/min)", field=name, value=feed)
+    travel, probe = float(travel_feed) / 60.0, float(probe_feed) / 60.0
+    here = _array(start_mm, "start_mm")
+    if here.shape != (3,):
+        raise CalibrationError("start_mm must be three numbers (mm)", field="start_mm", value=list(here.shape))
+    out = np.empty(len(touches))
+    t = 0.0
+    x, y, z = here
+    for i, touch in enumerate(touches):
+        sx, sy, sz = touch.start_mm
+        t += (abs(travel_z - z) + float(np.hypot(sx - x, sy - y)) + abs(travel_z - sz)) / travel
+        run = float(np.linalg.norm(p[i] - touch.start_mm))
+        t += run / probe
+        out[i] = t
+        t += run / travel
+        x, y, z = sx, sy, sz
     return out
 
 

@@ -110,7 +110,8 @@ class ProbeCalibration:
     ``ball_radius_mm, p0_mm, cos3_mm, sin3_mm, centre_x_mm, centre_y_mm, centre_z_mm,
     pad_reading_z_mm`` (those fitted) and ``p0_minus_radius_mm`` (the correlated combination
     that turns a vertical reading into a surface height).  residual_rms_mm: RMS of the sphere residuals.
-    touches: number of touches used.
+    touches: number of touches used.  drift_mm_per_min: the Z drift rate fitted during the
+    qualification (when the touch times were given; None otherwise), mm/min.
     """
 
     ball_radius_mm: float
@@ -120,6 +121,7 @@ class ProbeCalibration:
     std: dict[str, float] = field(default_factory=dict)
     residual_rms_mm: float = 0.0
     touches: int = 0
+    drift_mm_per_min: float | None = None
 
     def pad_surface_z_mm(self) -> float | None:
         """Pad top surface z in the probe frame: pad reading + delta(+Z) - r (None without a pad)."""
@@ -131,7 +133,7 @@ class ProbeCalibration:
         return {"ball_radius_mm": self.ball_radius_mm, "pretravel": self.pretravel.to_dict(),
                 "sphere_centre_mm": list(self.sphere_centre_mm), "pad_reading_z_mm": self.pad_reading_z_mm,
                 "std": {k: float(v) for k, v in self.std.items()}, "residual_rms_mm": self.residual_rms_mm,
-                "touches": self.touches}
+                "touches": self.touches, "drift_mm_per_min": self.drift_mm_per_min}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> ProbeCalibration:
@@ -145,7 +147,9 @@ class ProbeCalibration:
                    pad_reading_z_mm=None if pad is None else _finite(pad, "pad_reading_z_mm"),
                    std={str(k): _finite(v, f"std.{k}", minimum=0.0) for k, v in std.items()},
                    residual_rms_mm=_finite(d.get("residual_rms_mm", 0.0), "residual_rms_mm", minimum=0.0),
-                   touches=int(_finite(d.get("touches", 0), "touches", minimum=0)))
+                   touches=int(_finite(d.get("touches", 0), "touches", minimum=0)),
+                   drift_mm_per_min=None if d.get("drift_mm_per_min") is None
+                   else _finite(d["drift_mm_per_min"], "drift_mm_per_min"))
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,9 @@ Z, on the reference pad (``pad_touches`` spots 0.5 mm apart around the pad centr
   2. the nozzle touches the SAME spots (carriage placed with the nominal offset so that its
      tip is over the spot), flat end down: at contact tip_z = pad_z, so
      ``o_z = pad_z - mean(carriage z at contact)``.
-  Touching the same spots cancels pad flatness; the probe and nozzle touches follow each
-  other, so Z drift between them is negligible (1 um/min over a few seconds).
+  Touching the same spots cancels pad flatness; the probe and nozzle touches alternate in an
+  A B B A order (probe, nozzle, nozzle, probe, ...), so a linear Z drift cancels between
+  their means (exactly for an even number of spots, to a third of a touch for three).
 
 XY, on the reference sphere (centre c known in the probe frame from the qualification):
   3. the nozzle, tip ~0.3 R below the sphere's centre height (so its cylindrical side meets
@@ -60,7 +61,8 @@ def _pad_spots(pad: np.ndarray, count: int) -> list[tuple[float, float]]:
 def plan_nozzle_calibration(probe: ProbeCalibration, nominal_offset_mm: Any, outer_diameter_mm: float,
                             sphere_diameter_mm: float, pad_centre_mm: Any, *, pad_touches: int = 3,
                             side_touches: int = 2, clearance_mm: float = 2.0) -> tuple[Touch, ...]:
-    """Touches in carriage coordinates (mm): "pad" (probe T0), "nozzle_pad", "nozzle_side" (in that order).
+    """Touches in carriage coordinates (mm): "pad" (probe T0) and "nozzle_pad" alternating per spot
+    (P N, N P, P N, ...), then the "nozzle_side" touches (+X, -X, +Y, -Y).
 
     probe: the current probe qualification (its sphere centre places the side touches; its
     pad reading, when there is one, the pad heights).  nominal_offset_mm (3,): the nozzle's
@@ -83,11 +85,11 @@ def plan_nozzle_calibration(probe: ProbeCalibration, nominal_offset_mm: Any, out
     r = probe.ball_radius_mm
     touches: list[Touch] = []
     spots = _pad_spots(pad, int(pad_touches))
-    for x, y in spots:
-        touches.append(Touch((x, y, pad_z + r + gap), (x, y, pad_z + r - OVERTRAVEL_MM), "pad"))
-    for x, y in spots:                      # tip over the same spot: carriage = tip - o
-        start = np.array([x, y, pad_z + gap]) - o
-        touches.append(Touch(tuple(start), tuple(start - (0, 0, gap + OVERTRAVEL_MM)), "nozzle_pad"))
+    for k, (x, y) in enumerate(spots):       # probe, nozzle, nozzle, probe, ...: a linear drift cancels
+        probe_touch = Touch((x, y, pad_z + r + gap), (x, y, pad_z + r - OVERTRAVEL_MM), "pad")
+        start = np.array([x, y, pad_z + gap]) - o      # the tip over the same spot: carriage = tip - o
+        nozzle_touch = Touch(tuple(start), tuple(start - (0, 0, gap + OVERTRAVEL_MM)), "nozzle_pad")
+        touches.extend([probe_touch, nozzle_touch] if k % 2 == 0 else [nozzle_touch, probe_touch])
     c = np.array(probe.sphere_centre_mm)
     tip_z = c[2] - TIP_BELOW_EQUATOR * big_r
     for ux, uy in SIDES.values():

@@ -4,14 +4,18 @@ Plan (``plan_qualification``), from the NOMINAL sphere and pad places (the true 
 differ by up to ``approach_mm`` in any direction):
 
 * "cap" touches: vertical moves down onto the sphere, contact polar angles ``cap_rings_deg``
-  (ring 0 deg = one touch at the top), ``per_ring`` azimuths evenly spaced per ring;
+  (ring 0 deg = one touch at the top, made twice), ``per_ring`` azimuths evenly spaced per
+  ring, in a palindromic order (up the rings, the equator, down the rings) so that a linear
+  drift is centred on every ring alike;
 * "equator" touches: horizontal radial moves toward the centre at the nominal centre height,
   ``equator`` azimuths evenly spaced (offset half a step from the cap azimuths);
-* "pad" touches: vertical moves onto the pad centre, spread 0.5 mm apart along x.
+* "pad" touches: vertical moves onto the pad centre, spread 0.5 mm apart along x, first
+  and again last (so that a Z drift during the qualification shows, see below).
 
 Every start lies at least ``approach_mm`` outside the ball-swept sphere (radius R + r) even
-when the sphere is ``approach_mm`` off its nominal place, so the caller may reach it by going
-up to a clearance height, across, then down.
+when the sphere is up to ``place_tolerance_mm`` off its nominal place, so the caller
+may reach it by going up to a clearance height, across, then down; every move reaches
+``overtravel_mm`` past the latest possible contact.
 
 Fit (``fit_qualification``): a reading P (ball centre at trigger) of a move in direction d
 is ``delta(n)`` past first contact, where the contact ball centre lies on the sphere of
@@ -19,11 +23,20 @@ radius R + r about the sphere centre c and n = unit(contact centre - c):
 
     residual_i = |P_i - delta(n_i) d_i - c| - (R + r),   delta(n) = p0 + sin(theta)(a cos 3phi + b sin 3phi)
 
-solved by ``scipy.optimize.least_squares`` for c (3), r, p0 (and a, b with ``lobing``).
+solved by ``scipy.optimize.least_squares`` for c (3), r, p0 (and a, b with ``lobing``), each
+residual divided by |n_i . d_i| (the reading scatters along the move, so a radial miss of e
+is a miss of e / cos along it: the weighted fit is the maximum-likelihood one and its std honest).
 Vertical cap touches at several polar angles fix R + r through the curvature of the reading
 surface (their pre-travel only shifts it along z, like c_z); horizontal equator touches fix
 R + r - delta.  Together they separate r from p0 (caps alone cannot: the fit refuses).
 Standard deviations come from the Jacobian: cov = (J^T J)^-1 * sum(res^2) / (m - p).
+
+Drift: Z drifts (actual = commanded + e(t)), so a reading taken at machine time t is low by
+e(t).  Over a qualification of a few minutes that trend would bend the caps' curvature (the
+rings are touched one after the other) and bias r and p0 by microns.  Given the touches'
+machine times ``times_s``, the fit adds a linear drift rate k (mm/s): every reading is
+raised by k (t - t_0) (t_0 = the first touch), with k fixed mostly by the pad touches at
+both ends; ``pad_reading_z_mm`` and the centre then refer to the drift at t_0.
 """
 
 from __future__ import annotations
@@ -57,19 +70,24 @@ def _positive(value: float, name: str, *, zero_ok: bool = False) -> float:
 def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_radius_mm: float,
                        pad_centre_mm: Any | None, *, cap_rings_deg: Sequence[float] = (0, 20, 35, 50, 60),
                        per_ring: int = 8, equator: int = 16, pad_touches: int = 3, approach_mm: float = 1.0,
-                       overtravel_mm: float = 1.0) -> tuple[Touch, ...]:
-    """Touches (pad first, then caps ring by ring, then the equator) in machine coordinates (mm).
+                       overtravel_mm: float = 1.0, place_tolerance_mm: float = 0.5) -> tuple[Touch, ...]:
+    """Touches in machine coordinates (mm): the pad, caps up the rings (even azimuths), the
+    equator, caps down the rings (odd azimuths, the top again), the pad again.
 
     sphere_centre_mm (3,), pad_centre_mm (3,) (top face centre) or None: nominal places.
-    ball_radius_mm: nominal stylus ball radius.  approach_mm: free travel before the
-    expected contact (also the place uncertainty the starts are safe for).  overtravel_mm:
-    how far past the lowest expected contact the move may go before it counts as a miss.
+    ball_radius_mm: nominal stylus ball radius.  place_tolerance_mm: how far the true
+    sphere / pad may sit from its nominal place: every start is safe and every move
+    still meets the artifact within it.  approach_mm: free travel before the earliest
+    possible contact.  overtravel_mm: travel past the latest possible contact before the
+    move counts as a miss.  A cap ring so steep that a sphere ``place_tolerance_mm`` off
+    could be missed is refused (field ``cap_rings_deg``).
     """
     c = np.array(_vec3(sphere_centre_mm, "sphere_centre_mm"))
     big_r = _positive(sphere_diameter_mm, "sphere_diameter_mm") / 2
     r = _positive(ball_radius_mm, "ball_radius_mm", zero_ok=True)
-    u = _positive(approach_mm, "approach_mm")
+    approach = _positive(approach_mm, "approach_mm")
     over = _positive(overtravel_mm, "overtravel_mm")
+    u = _positive(place_tolerance_mm, "place_tolerance_mm", zero_ok=True)
     if per_ring < 3 or equator < 7:
         raise CalibrationError("need per_ring >= 3 and equator >= 7 (the 3-lobe term needs 7 azimuths)",
                                field="equator" if equator < 7 else "per_ring", value=min(per_ring, equator))
@@ -78,33 +96,55 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
         raise CalibrationError("cap_rings_deg: at least two polar angles in [0, 75] deg (the curvature fixes r)",
                                field="cap_rings_deg", value=rings)
     rho_s = big_r + r                                  # the ball-centre sphere
+    steep = [a for a in rings if rho_s * math.sin(math.radians(a)) + u >= rho_s * 0.98]
+    if steep:
+        raise CalibrationError(f"cap ring at {steep[0]:g} deg could miss a sphere {u:g} mm off its nominal place",
+                               field="cap_rings_deg", value=steep)
     touches: list[Touch] = []
+    pads: list[Touch] = []
     if pad_centre_mm is not None:
         pad = np.array(_vec3(pad_centre_mm, "pad_centre_mm"))
         for k in range(int(pad_touches)):
             x = pad[0] + (k - (pad_touches - 1) / 2) * PAD_SPACING_MM
-            touches.append(Touch((x, pad[1], pad[2] + r + 2 * u), (x, pad[1], pad[2] + r - u - over), "pad"))
+            pads.append(Touch((x, pad[1], pad[2] + r + u + approach), (x, pad[1], pad[2] + r - u - over), "pad"))
+    touches.extend(pads)
     top = c[2] + rho_s
+    ring_touches: list[list[Touch]] = []
     for ring in rings:
         theta = math.radians(ring)
         count = 1 if ring == 0 else int(per_ring)
         rho = rho_s * math.sin(theta)                  # station distance from the axis
-        # highest contact when the sphere is u closer, lowest when u farther (and u higher / lower)
+        # highest contact when the sphere is u closer, lowest when u farther; and u higher / lower
         high = top if rho <= u else c[2] + math.sqrt(max(rho_s ** 2 - (rho - u) ** 2, 0.0))
         low = c[2] + math.sqrt(max(rho_s ** 2 - (rho + u) ** 2, 0.0))
+        ring_touches.append([])
         for k in range(count):
             phi = 2 * math.pi * k / count
             x, y = c[0] + rho * math.cos(phi), c[1] + rho * math.sin(phi)
-            touches.append(Touch((x, y, min(high, top) + 2 * u), (x, y, low - u - over), "cap"))
+            ring_touches[-1].append(Touch((x, y, high + u + approach), (x, y, low - u - over), "cap"))
+    # palindromic order: up the rings (every other azimuth), the equator, down the rings (the
+    # rest; a single top touch is repeated) -- every ring's touches are centred on the same
+    # time, so a linear drift does not bend the curvature that fixes r
+    for ring in ring_touches:
+        touches.extend(ring[0::2])
     for k in range(int(equator)):
         phi = 2 * math.pi * (k + 0.5) / equator
         e = np.array([math.cos(phi), math.sin(phi), 0.0])
-        touches.append(Touch(tuple(c + (rho_s + 2 * u) * e), tuple(c + (rho_s - u - over) * e), "equator"))
+        touches.append(Touch(tuple(c + (rho_s + u + approach) * e), tuple(c + (rho_s - u - over) * e), "equator"))
+    for ring in reversed(ring_touches):
+        touches.extend(ring[1::2] if len(ring) > 1 else ring)
+    touches.extend(pads)          # the pad again at the end: with touch times, a Z drift is measured
     return tuple(touches)
 
 
-def check_readings(touches: Sequence[Touch], readings: Any) -> np.ndarray:
-    """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target."""
+def check_readings(touches: Sequence[Touch], readings: Any, *, project: bool = True) -> np.ndarray:
+    """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target.
+
+    Returns them projected onto their moves' lines (``project``): the carriage moves along the
+    commanded line, so a reading's offset from it is the firmware's report rounding (Marlin
+    ``M114 D`` and grbl ``PRB`` print 1 um), which the projection removes.  Left in, the rounding
+    of a ring of stations that happen to share a rounding direction biases r by a micron.
+    """
     p = np.asarray(readings, dtype=float)
     if p.ndim != 2 or p.shape != (len(touches), 3):
         raise CalibrationError(f"readings must have shape ({len(touches)}, 3), one per touch", field="readings",
@@ -120,7 +160,10 @@ def check_readings(touches: Sequence[Touch], readings: Any) -> np.ndarray:
             raise CalibrationError(f"readings[{i}] ({t.kind} touch) is {off:.3f} mm off its move and "
                                    f"{along:.3f} mm along it (length {length:.3f} mm): not a reading of that touch",
                                    field=f"readings[{i}]", value=q)
-    return p
+    if not project:
+        return p
+    return np.array([np.asarray(t.start_mm) + float(np.dot(q - t.start_mm, t.direction)) * t.direction
+                     for t, q in zip(touches, p, strict=True)])
 
 
 def _normals_delta(p: np.ndarray, d: np.ndarray, c: np.ndarray, model: np.ndarray, lobing: bool):
@@ -137,24 +180,31 @@ def _normals_delta(p: np.ndarray, d: np.ndarray, c: np.ndarray, model: np.ndarra
 
 
 def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_mm: float, *,
-                      lobing: bool = True, outlier_mm: float = OUTLIER_MM) -> ProbeCalibration:
+                      lobing: bool = True, outlier_mm: float = OUTLIER_MM,
+                      times_s: Any | None = None) -> ProbeCalibration:
     """Fit ball radius, pre-travel (and lobing) and the sphere centre from cap / equator / pad readings.
 
     touches: the plan (``plan_qualification`` or any vertical caps at >= 2 polar angles plus
     >= 3 horizontal equator touches).  readings (n, 3) mm: ball centre at trigger, one per touch.
     Raises CalibrationError naming the touch for a reading off its move, farther than
     ``ABSURD_MM`` from the sphere or (after the fit) more than ``outlier_mm`` off it, and for
-    a plan that cannot separate r from p0.
+    a plan that cannot separate r from p0.  times_s (n,): machine seconds of each touch
+    (``touch_times`` or the machine's clock); given, a linear Z drift is fitted too
+    (``ProbeCalibration.drift_mm_per_min``; needs pad touches at both ends or caps spread in time).
     """
     big_r = _positive(sphere_diameter_mm, "sphere_diameter_mm") / 2
-    p_all = check_readings(touches, readings)
+    p_all = check_readings(touches, readings).copy()
     kinds = np.array([t.kind for t in touches])
+    t_rel = _times(times_s, len(touches))
     sphere = np.flatnonzero((kinds == "cap") | (kinds == "equator"))
     n_par = 7 if lobing else 5
     if (kinds == "equator").sum() < (7 if lobing else 3) or (kinds == "cap").sum() < 3 or len(sphere) <= n_par:
         raise CalibrationError("qualification needs >= 3 cap touches and >= 3 equator touches (>= 7 with "
                                "lobing): caps alone cannot separate the ball radius from the pre-travel",
                                field="touches", value={k: int((kinds == k).sum()) for k in ("cap", "equator")})
+    pad = np.flatnonzero(kinds == "pad")
+    drift = t_rel is not None
+    used = np.concatenate([sphere, pad]) if drift else sphere
     p = p_all[sphere]
     d = np.array([touches[i].direction for i in sphere])
     # initial guess: algebraic sphere |P|^2 = 2 P.c + k
@@ -172,18 +222,32 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
 
     def residuals(x: np.ndarray) -> np.ndarray:
         c, r = x[:3], x[3]
-        model = x[4:] if lobing else np.array([x[4], 0.0, 0.0])
-        _, delta = _normals_delta(p, d, c, model, lobing)
-        return np.linalg.norm(p - delta[:, None] * d - c, axis=1) - (big_r + r)
+        model = x[4:7] if lobing else np.array([x[4], 0.0, 0.0])
+        q = p
+        if drift:   # raise every reading by the drift since t_0; the pad readings share one height
+            q = p.copy()
+            q[:, 2] += x[-2] * t_rel[sphere]
+        n, delta = _normals_delta(q, d, c, model, lobing)
+        # the scatter is along the move: divide the radial miss by cos(angle(n, -d)) to put it there
+        res = (np.linalg.norm(q - delta[:, None] * d - c, axis=1) - (big_r + r)) / np.abs((n * d).sum(axis=1))
+        if drift:
+            res = np.concatenate([res, p_all[pad, 2] + x[-2] * t_rel[pad] - x[-1]])
+        return res
 
     x0 = np.concatenate([c0, [rho0 - big_r, 0.0], [0.0, 0.0] if lobing else []])
+    if drift:
+        if len(pad) < 2:
+            raise CalibrationError("fitting a drift needs at least two pad touches", field="times_s",
+                                   value=int(len(pad)))
+        n_par += 2
+        x0 = np.concatenate([x0, [0.0, float(p_all[pad, 2].mean())]])
     # a robust pass first, so that one bad touch shows its own size instead of bending the fit
     robust = least_squares(residuals, x0, loss="soft_l1", f_scale=outlier_mm / 10, max_nfev=200 * n_par)
     worst = int(np.argmax(np.abs(robust.fun)))
     if abs(robust.fun[worst]) > outlier_mm:
-        i = int(sphere[worst])
-        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm off the "
-                               "sphere the other readings describe (a bad touch: dust on the sphere or a bounce?)",
+        i = int(used[worst])
+        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm (along its move) "
+                               "off what the other readings describe (a bad touch: dust or a bounce?)",
                                field=f"readings[{i}]", value=p_all[i])
     fit = least_squares(residuals, robust.x, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * n_par)
     res = fit.fun
@@ -196,16 +260,33 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
     dof = len(res) - n_par
     s2 = float(res @ res) / dof if dof > 0 else 0.0
     cov = np.linalg.inv(jac.T @ jac) * s2
-    std = {name: float(math.sqrt(max(cov[k, k], 0.0))) for k, name in enumerate(PARAMS[:n_par])}
+    names = [*PARAMS[:5], *(PARAMS[5:] if lobing else ())]
+    std = {name: float(math.sqrt(max(cov[k, k], 0.0))) for k, name in enumerate(names)}
     # delta(+Z) - r = p0 - r turns a vertical pad reading into the pad surface; r and p0 correlate
     std["p0_minus_radius_mm"] = float(math.sqrt(max(cov[4, 4] + cov[3, 3] - 2 * cov[3, 4], 0.0)))
     x = fit.x
-    pad = np.flatnonzero(kinds == "pad")
-    pad_z = None
-    if len(pad):
+    pad_z, rate = None, None
+    if drift:
+        pad_z = float(x[-1])
+        rate = float(x[-2]) * 60.0
+        std["pad_reading_z_mm"] = float(math.sqrt(max(cov[-1, -1], 0.0)))
+        std["drift_mm_per_min"] = float(math.sqrt(max(cov[-2, -2], 0.0))) * 60.0
+    elif len(pad):
         pad_z = float(p_all[pad, 2].mean())
         std["pad_reading_z_mm"] = float(p_all[pad, 2].std(ddof=1) / math.sqrt(len(pad))) if len(pad) > 1 else 0.0
     pretravel = PretravelModel(float(x[4]), float(x[5]) if lobing else 0.0, float(x[6]) if lobing else 0.0)
     return ProbeCalibration(ball_radius_mm=float(x[3]), pretravel=pretravel,
                             sphere_centre_mm=(float(x[0]), float(x[1]), float(x[2])), pad_reading_z_mm=pad_z,
-                            std=std, residual_rms_mm=float(math.sqrt(np.mean(res ** 2))), touches=len(sphere) + len(pad))
+                            std=std, residual_rms_mm=float(math.sqrt(np.mean(res[:len(sphere)] ** 2))),
+                            touches=len(sphere) + len(pad), drift_mm_per_min=rate)
+
+
+def _times(times_s: Any | None, n: int) -> np.ndarray | None:
+    """Touch times relative to the first (n,) s, or None."""
+    if times_s is None:
+        return None
+    t = np.asarray(times_s, dtype=float)
+    if t.shape != (n,) or not np.isfinite(t).all():
+        raise CalibrationError(f"times_s must be {n} finite machine times (s), one per touch", field="times_s",
+                               value=list(t.shape))
+    return t - t[0]

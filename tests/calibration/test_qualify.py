@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -11,20 +12,23 @@ from app.calibration import CalibrationError, ProbeCalibration, Touch, fit_quali
 from tests.calibration.forward import TrueProbe, sphere_reading
 
 NOMINAL = (100.0, 50.0, 10.0)
-TRUE = (100.31, 49.62, 10.4)     # off its nominal place by ~0.6 mm
+TRUE = (100.25, 49.7, 10.3)      # off its nominal place by 0.49 mm (the plan allows 0.5)
 DIAMETER = 10.0
 PAD_NOMINAL = (80.0, 50.0, 2.0)
 PAD_TRUE_Z = 2.3
 
 
-def readings_for(touches, probe: TrueProbe, rng=None, centre=TRUE):
+def readings_for(touches, probe: TrueProbe, rng=None, centre=TRUE, drift=None):
+    """drift: (times (n,) s, rate mm/s): the machine is rate * t higher than commanded, so
+    the geometry sits rate * t lower in commanded coordinates."""
     out = []
-    for t in touches:
+    for k, t in enumerate(touches):
+        e = 0.0 if drift is None else drift[1] * drift[0][k]
         if t.kind == "pad":
             out.append([t.start_mm[0], t.start_mm[1],
-                        PAD_TRUE_Z + probe.r - probe.delta((0.0, 0.0, 1.0), rng)])
+                        PAD_TRUE_Z - e + probe.r - probe.delta((0.0, 0.0, 1.0), rng)])
         else:
-            hit = sphere_reading(t.start_mm, t.target_mm, centre, DIAMETER / 2, probe, rng)
+            hit = sphere_reading(t.start_mm, t.target_mm, np.subtract(centre, (0, 0, e)), DIAMETER / 2, probe, rng)
             assert hit is not None, f"the plan missed the sphere: {t}"
             out.append(hit)
     return np.array(out)
@@ -36,9 +40,12 @@ def plan(r=0.5):
 
 def test_the_plan_has_the_requested_touches_and_safe_starts():
     touches = plan()
+    rng = np.random.default_rng(0)
     kinds = [t.kind for t in touches]
-    assert kinds.count("pad") == 3 and kinds.count("equator") == 16
-    assert kinds.count("cap") == 1 + 4 * 8
+    assert kinds[:3] == kinds[-3:] == ["pad"] * 3 and kinds.count("pad") == 6 and kinds.count("equator") == 16
+    assert kinds.count("cap") == 2 + 4 * 8          # the top twice: first and last of the caps
+    caps = [t for t in touches if t.kind == "cap"]
+    assert caps[0] == caps[-1] and len({t.start_mm for t in caps}) == 1 + 4 * 8
     for t in touches:
         if t.kind == "cap":
             assert t.direction == pytest.approx([0, 0, -1])
@@ -48,11 +55,14 @@ def test_the_plan_has_the_requested_touches_and_safe_starts():
             to_c = np.subtract(NOMINAL, t.start_mm)
             assert np.cross(to_c, t.direction) == pytest.approx([0, 0, 0], abs=1e-12)
         if t.kind in ("cap", "equator"):
-            # start outside the ball-swept sphere by >= 1 mm for a sphere up to 1 mm off its place
-            for dx in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0), (0, -1, 0), (0, 0, -1)):
-                c = np.add(NOMINAL, dx) if t.kind == "cap" else np.add(NOMINAL, np.multiply(dx, 0.999))
-                assert np.linalg.norm(np.subtract(t.start_mm, c)) >= DIAMETER / 2 + 0.5 + (0.999 if
-                                                                                          t.kind == "cap" else 0)
+            # for a sphere up to 0.5 mm off its place in any direction: the start is outside the
+            # ball-swept sphere, the move travels >= approach (1 mm) before it touches, and it
+            # touches before its end
+            for v in rng.normal(size=(200, 3)):
+                c = np.add(NOMINAL, 0.5 * v / np.linalg.norm(v))
+                assert np.linalg.norm(np.subtract(t.start_mm, c)) > DIAMETER / 2 + 0.5
+                hit = sphere_reading(t.start_mm, t.target_mm, c, DIAMETER / 2, TrueProbe(p0=0.0))
+                assert hit is not None and np.linalg.norm(hit - t.start_mm) >= 1.0 - 1e-9
 
 
 def test_zero_noise_recovers_everything_exactly():
@@ -135,7 +145,8 @@ def test_an_absurd_reading_is_refused_naming_the_touch():
     with pytest.raises(CalibrationError) as err:
         fit_qualification(touches, readings, DIAMETER)
     assert err.value.field == f"readings[{bad}]"
-    assert "0.188 mm" in err.value.message     # 0.2 mm along the vertical = 0.2 cos(20 deg) radially
+    off = float(re.search(r"is (-?[0-9.]+) mm", err.value.message).group(1))
+    assert abs(off) == pytest.approx(0.2, abs=0.005)           # reported along the move (to first order)
     off = readings_for(touches, TrueProbe())
     off[12] += (3.0, 0.0, 0.0)
     with pytest.raises(CalibrationError) as err:
@@ -153,3 +164,39 @@ def test_calibrations_round_trip_through_json():
     with pytest.raises(CalibrationError) as err:
         ProbeCalibration.from_dict({"ball_radius_mm": "x", "pretravel": {"p0_mm": 0}, "sphere_centre_mm": [0, 0, 0]})
     assert err.value.field == "ball_radius_mm"
+
+
+def test_a_drift_during_the_qualification_is_fitted_from_the_touch_times():
+    probe = TrueProbe(r=0.5, p0=0.015, a=0.003)
+    touches = plan()
+    rng = np.random.default_rng(5)
+    times = np.cumsum(rng.uniform(2.0, 4.0, len(touches))) + 100.0      # ~3 s a touch, s
+    rate = 0.001 / 60                                                    # 1 um/min
+    readings = readings_for(touches, probe, drift=(times, rate))
+    # without the times: the palindromic order keeps r and p0 within a fraction of a micron
+    blind = fit_qualification(touches, readings, DIAMETER)
+    assert abs(blind.ball_radius_mm - 0.5) < 0.0003 and abs(blind.pretravel.p0_mm - 0.015) < 0.0003
+    # ... where touching ring after ring bends the curvature: r and p0 move by microns (in step)
+    by_ring = sorted(range(len(touches)), key=lambda i: (touches[i].kind != "pad", touches[i].kind == "equator",
+                                                          -touches[i].start_mm[2]))
+    ringwise = [touches[i] for i in by_ring]
+    skewed = fit_qualification(ringwise, readings_for(ringwise, probe, drift=(times, rate)), DIAMETER)
+    assert abs(skewed.ball_radius_mm - 0.5) > 0.001
+    assert (skewed.ball_radius_mm - 0.5) == pytest.approx(skewed.pretravel.p0_mm - 0.015, abs=0.0003)
+    cal = fit_qualification(touches, readings, DIAMETER, times_s=times)
+    assert cal.ball_radius_mm == pytest.approx(0.5, abs=1e-6)
+    assert cal.pretravel.p0_mm == pytest.approx(0.015, abs=1e-6)
+    assert cal.pretravel.cos3_mm == pytest.approx(0.003, abs=1e-6)
+    assert cal.drift_mm_per_min == pytest.approx(0.001, abs=1e-7)
+    # the centre and the pad reading refer to the first touch's drift
+    e0 = rate * times[0]
+    assert cal.sphere_centre_mm == pytest.approx(np.subtract(TRUE, (0, 0, e0)), abs=1e-6)
+    assert cal.pad_reading_z_mm == pytest.approx(PAD_TRUE_Z - e0 + 0.5 - 0.015, abs=1e-6)
+    assert ProbeCalibration.from_dict(cal.to_dict()) == cal
+
+
+def test_a_ring_that_could_miss_the_sphere_is_refused():
+    with pytest.raises(CalibrationError) as err:
+        plan_qualification(NOMINAL, DIAMETER, 0.5, None, cap_rings_deg=(0, 30, 70))
+    assert err.value.field == "cap_rings_deg" and err.value.value == [70.0]
+    assert plan_qualification(NOMINAL, 25.4, 0.5, None, cap_rings_deg=(0, 30, 70))   # a bigger sphere allows it
