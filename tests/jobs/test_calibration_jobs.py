@@ -96,3 +96,38 @@ def test_calibration_recovers_the_truth_repeats_and_flags_what_changed(client):
     flags = calibration(client, machine)["flags"]
     assert any("re-check disagrees" in f and "offset_x_mm" in f for f in flags), flags
     assert world.active_tool == 0 and world.stats.collisions == 0
+
+
+def test_a_failed_nozzle_touch_fails_the_job_and_leaves_the_machine_retracted_at_t0(client):
+    machine = physics_machine(client)
+    calibrate(client, "calibrate_probe", {"machine_id": machine["id"], "per_ring": 4, "equator": 8})
+    world = get_world(machine["id"])
+    world.tools = (MockTool((TOOL1_MM[0], TOOL1_MM[1], TOOL1_MM[2] + 3.0), 0.8),)  # 3 mm shorter than nominal
+    response = client.post("/api/v1/jobs", json={"kind": "calibrate_nozzle",
+                                                 "params": {"machine_id": machine["id"], "tool": 1}}, headers=OP)
+    job = wait_for(client, response.json()["id"], timeout=120)
+    assert job["status"] == "failed" and job["error"]["status"] == 422, job
+    assert "touched nothing" in job["error"]["detail"] or "no surface" in job["error"]["detail"], job["error"]
+    sphere_top = PROFILE["reference"]["sphere"]["centre_mm"][2] + SPHERE_D_MM / 2
+    assert world.active_tool == 0 and world.position[2] >= sphere_top + 2 and world.stats.collisions == 0
+
+
+def test_a_dropped_link_interrupts_the_calibration_and_the_operator_resumes_it(client):
+    machine = physics_machine(client, seed=3)
+    body = {"name": "flaky", "port": f"mock://?{PHYSICS}", "profile": PROFILE,
+            "mock": {"probe_noise_mm": 0.001, "faults": {"disconnect_at_line": 120}}}
+    flaky = client.post("/api/v1/machines", json=body, headers=OP).json()
+    params = {"per_ring": 4, "equator": 8, "pad_touches": 3}
+    run = client.post("/api/v1/jobs", json={"kind": "calibrate_probe", "params": {"machine_id": flaky["id"], **params}},
+                      headers=OP).json()
+    interrupted = wait_for(client, run["id"], states=("interrupted", "succeeded", "failed"), timeout=120)
+    assert interrupted["status"] == "interrupted", interrupted
+    state = interrupted["program_state"]
+    assert 0 < state["executed"] < 13 and len(state["stages"]["locate"]) == state["executed"]
+    assert client.post(f"/api/v1/jobs/{run['id']}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    resumed = wait_for(client, run["id"], timeout=120)
+    assert resumed["status"] == "succeeded", resumed["error"]
+    reference = calibrate(client, "calibrate_probe", {"machine_id": machine["id"], **params})["result"]
+    assert len(resumed["result"]["readings"]) == len(reference["readings"]) == resumed["result"]["touches"]
+    assert abs(resumed["result"]["ball_radius_mm"] - BALL_MM) <= 0.005
+    assert get_world(flaky["id"]).active_tool == 0

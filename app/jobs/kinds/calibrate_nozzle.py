@@ -23,7 +23,7 @@ from app.calibration import fit_nozzle_offset, plan_nozzle_calibration
 from app.errors import InvalidInput
 from app.jobs.calibration import (agreement, latest_calibration_job, machine_profile, nozzle_values,
                                   require_probe_calibration)
-from app.jobs.calibration_touch import Step, run_steps, travel_height
+from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
 from app.jobs.context import JobContext
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, job_kind
@@ -34,7 +34,8 @@ from app.records import get_or_404
 class CalibrateNozzleParams(JobParams):
     machine_id: str
     tool: int = Field(ge=1, le=8, description="the nozzle's tool number (T1..T8, in the machine profile)")
-    pad_touches: int = Field(3, ge=1, le=20, description="touches on the pad with the probe and with the nozzle")
+    pad_touches: int = Field(24, ge=1, le=40, description="spots on the pad (0.5 mm apart along x) touched by the "
+                             "probe and by the nozzle: the Z offset's uncertainty falls with their number")
     side_touches: int = Field(2, ge=1, le=8, description="pairs of opposite side touches of the nozzle on the sphere")
     probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's")
 
@@ -58,6 +59,7 @@ def _check(params: CalibrateNozzleParams, session: Session) -> None:
             raise InvalidInput(f"machine {params.machine_id!r} has no reference {name} in its profile "
                                f"(profile.reference.{name}): nozzle offsets are measured on the pad and sphere",
                                field=f"profile.reference.{name}", value=params.machine_id)
+    check_pad_room(profile.reference.pad.size_mm, params.pad_touches)  # type: ignore[union-attr]
     require_probe_calibration(session, params.machine_id)
     refuse_if_machine_busy(params.machine_id, session)
 
@@ -78,9 +80,10 @@ def run(ctx: JobContext, params: CalibrateNozzleParams) -> dict:
                                       side_touches=params.side_touches)
     steps = [Step(t, 0 if t.kind == "pad" else params.tool) for t in touches]
     ctx.progress(0.02, f"{len(steps)} touches planned for T{params.tool}")
-    readings = run_steps(ctx, params.machine_id, steps, travel_z=travel_height(profile, probe.ball_radius_mm),
-                         feed_mm_min=params.probe_feed_mm_min or profile.probe_feed_mm_min,
-                         label=f"T{params.tool} offset")
+    with TouchRun(ctx, params.machine_id, travel_z=travel_height(profile, probe.ball_radius_mm),
+                  feed_mm_min=params.probe_feed_mm_min or profile.probe_feed_mm_min) as touching:
+        readings = touching.touch(steps, "offset", f"T{params.tool} offset")
+        touching.park()
     ctx.progress(0.92, f"fitting T{params.tool}'s offset")
     calibration = fit_nozzle_offset(params.tool, touches, np.asarray(readings, dtype=float), probe,
                                     nozzle.outer_diameter_mm, sphere.diameter_mm)
