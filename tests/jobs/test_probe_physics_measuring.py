@@ -298,3 +298,30 @@ def test_field_plan_run_gets_corrected_points_and_the_field_iterates(client, mes
         z = np.array([p["nominal"][2] for p in rows]) + samples[:, 1]
         after = z - truth.true_height(xy)
         assert np.abs(after).max() < 0.005, after
+
+
+def test_probe_calibrated_through_the_api_then_measured(client, meshes):
+    """calibrate_probe on the datum sphere and the pad (nominal places ~0.3 mm off, pre-travel
+    scatter 2 um), then a probe run: the points sit on the true surface within the touch's own
+    scatter (2 um pre-travel + 1 um noise: 2.2 um rms, 3.5 sigma = 8 um; they are in the
+    calibration's frame: low by the drift at calibration time, ~1 um here)."""
+    part = upload(client, meshes["nominal"], "s1.stl")
+    true = upload(client, meshes["true"], "s1-true.stl")
+    sphere = (75.3, 45.2, 10.25)
+    row = client.post("/api/v1/machines", json={
+        "name": "qualified", "port": f"mock://?{physics()}&pretravel_sd_mm=0.002&sphere={','.join(map(str, sphere))},10",
+        "dialect": "marlin",
+        "profile": {"tools": {"probe": {"ball_radius_mm": 0.5}},
+                    "reference": {"pad": {"centre_mm": [80.2, 19.8, 5.0], "size_mm": PAD[3]},
+                                  "sphere": {"centre_mm": [75.0, 45.0, 10.0], "diameter_mm": 10.0}}},
+        "mock": {"true_part_id": true["id"], "probe_noise_mm": 0.001, "faults": {"seed": 4}}}, headers=OP)
+    assert row.status_code == 201, row.text
+    sim = row.json()
+    cal = submit(client, "calibrate_probe", {"machine_id": sim["id"]})
+    assert abs(cal["result"]["ball_radius_mm"] - BALL_MM) < 0.003
+    plan = plan_on(client, trace_on(client, part["id"])["id"])
+    result = run(client, plan["id"], sim["id"])["result"]
+    assert result["calibration"]["probe_job_id"] == cal["id"]
+    err = errors(result)
+    print(f"API-calibrated probe run: max |e| {np.abs(err).max() * 1e3:.1f} um, mean {err.mean() * 1e3:.1f} um")
+    assert np.abs(err).max() < 0.008 and np.sqrt(np.mean(err ** 2)) < 0.003 and abs(err.mean()) < 0.002, err
