@@ -384,7 +384,7 @@ def register_with_z_probe(plan: DatumPlan, probe_z: ProbeZ, floor_z_mm: float,
     for i in np.flatnonzero(vertical):
         at = apply_placement(plan.points[i][None, :2], first.placement)[0]
         heights.append(DatumTouch(plan.faces[i], plan.points[i].copy(), np.array([0.0, 0.0, 1.0]),
-                                  np.array([at[0], at[1], height(at[0], at[1], np.array([0.0, 0.0, 1.0]))]),
+                                  np.array([at[0], at[1], height(at[0], at[1], plan.normals[i])]),
                                   plan.directions[i].copy(), 1))
     if heights:
         # heights in the frame of fit 1: only dz is left (a z shift commutes with it)

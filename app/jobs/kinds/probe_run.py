@@ -13,8 +13,9 @@ corrected along the station's nominal normal for the ball radius and the calibra
 pre-travel, and for Z drift.  Drift: when the calibration has a pad reading and the
 machine profile a reference pad, the pad is touched first, again before every touch that
 comes ``drift_interval_s`` (estimated machine time) after the last pad touch, and last;
-the readings between two pad touches are shifted by the pad's change since calibration,
-interpolated in time (:mod:`app.calibration.drift`).  ``corrections`` switches each part
+the readings between two pad visits are shifted by the pad's change since calibration,
+interpolated in estimated machine time (:mod:`app.calibration.drift`); a visit is
+PAD_TOUCHES touches, averaged.  ``corrections`` switches each part
 off (ablation).  Without a calibration nothing changes: ``measured`` is the reading.
 """
 
@@ -26,6 +27,7 @@ import numpy as np
 from pydantic import Field
 from sqlmodel import Session
 
+from app.calibration import DriftTrack, drift_offsets, retouch_schedule, touch_times
 from app.jobs.context import JobContext
 from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_machine,
                                    resume_request, stopped_by_operator)
@@ -35,7 +37,8 @@ from app.jobs.registry import JobParams, job_kind
 from app.machines import profile_of, translate
 from hardware.errors import HardwareError, LinkError
 
-PAD = -1  # the op index of a pad touch
+PAD = -1  # the op index of a pad visit
+PAD_TOUCHES = 3  # touches per pad visit, averaged (the pad reading's noise is shared by every point near it)
 
 
 class ProbeRunParams(JobParams):
@@ -59,24 +62,32 @@ class TouchSequence:
 
     def __init__(self, records: list[dict], probe: MachineProbe | None, drift: bool, interval_s: float,
                  travel_feed: float, probe_feed: float, start: tuple[float, float, float]) -> None:
-        from app.calibration.drift import retouch_schedule, touch_times  # TEMP until core16's drift lands
-
         xyz = np.array([r["nominal"] for r in records], dtype=float)
         safe = np.array([r["safe_z_mm"] for r in records], dtype=float)
+        target = np.array([r["target_z_mm"] for r in records], dtype=float)
+        ball = probe.calibration.ball_radius_mm if probe is not None else 0.0
+        contact = xyz + [0.0, 0.0, ball]  # the ball centre meets a flat top r above it
         self.pad = probe.pad_mm if probe is not None and drift else None
         high = float(safe.max()) if self.pad is None else max(float(safe.max()), self.pad[2] + PAD_CLEARANCE_MM)
         self.high_z = high
+        start_mm = np.asarray(start, dtype=float)
         ops = list(range(len(records)))
         if self.pad is not None:
-            t0 = touch_times(xyz, safe, xyz[:, 2], travel_feed, probe_feed, np.asarray(start, dtype=float))
-            before = set(retouch_schedule(t0, interval_s))
-            ops = [PAD] + [o for i in range(len(records)) for o in ([PAD, i] if i in before and i > 0 else [i])]
-            ops.append(PAD)
+            before = set(retouch_schedule(touch_times(contact, safe, target, travel_feed, probe_feed, start_mm),
+                                          interval_s))
+            ops = [o for i in range(len(records)) for o in ([PAD, i] if i in before else [i])]
+            ops += [PAD] if len(records) in before else []
         self.ops = ops
-        pts = np.array([self.pad if o == PAD else xyz[o] for o in ops], dtype=float)
+        pad = None if self.pad is None else np.array(self.pad) + [0.0, 0.0, ball]
         self.start_z = np.array([high if o == PAD or (k > 0 and ops[k - 1] == PAD) else safe[o]
                                  for k, o in enumerate(ops)], dtype=float)
-        self.t_s = touch_times(pts, self.start_z, pts[:, 2], travel_feed, probe_feed, np.asarray(start, dtype=float))
+        # every touch in order (a pad visit is PAD_TOUCHES touches); an op's time is its touches' mean
+        owner = np.repeat(np.arange(len(ops)), [PAD_TOUCHES if o == PAD else 1 for o in ops])
+        pts = np.array([pad if ops[k] == PAD else contact[ops[k]] for k in owner], dtype=float)
+        low = np.array([self.pad[2] - PAD_OVERTRAVEL_MM if ops[k] == PAD else target[ops[k]]  # type: ignore[index]
+                        for k in owner])
+        each = touch_times(pts, self.start_z[owner], low, travel_feed, probe_feed, start_mm)
+        self.t_s = np.bincount(owner, weights=each, minlength=len(ops)) / np.bincount(owner, minlength=len(ops))
 
 
 @job_kind("probe_run", ProbeRunParams, queue="machine", check=_check,
@@ -153,19 +164,18 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
 
 
 def _touch_pad(touch: Any, sequence: TouchSequence, track: dict[str, list[float]], t_s: float) -> None:
-    """Touch the reference pad's centre vertically from above every travel height."""
+    """Touch the reference pad's centre vertically from above every travel height,
+    PAD_TOUCHES times; record the mean reading at the visit's estimated time."""
     x, y, z = sequence.pad  # type: ignore[misc]
-    reading = touch(x, y, sequence.high_z, z - PAD_OVERTRAVEL_MM)
+    readings = [touch(x, y, sequence.high_z, z - PAD_OVERTRAVEL_MM).z for _ in range(PAD_TOUCHES)]
     track["times_s"].append(t_s)
-    track["pad_z_mm"].append(float(reading.z))
+    track["pad_z_mm"].append(float(np.mean(readings)))
 
 
 def _correct(points: list[dict], probe: MachineProbe, params: ProbeRunParams,
              track: dict[str, list[float]] | None) -> dict[str, Any]:
     """Fill each point's ``measured``, ``drift_mm`` and ``correction_mm``; the result's
     ``calibration`` record."""
-    from app.calibration.drift import DriftTrack, drift_offsets  # TEMP until core16's drift lands
-
     readings = np.array([p["reading"] for p in points], dtype=float)
     times = np.array([p["t_s"] for p in points], dtype=float)
     normals = station_normals([p.get("normal") for p in points], len(points))
