@@ -6,9 +6,10 @@ Run: .venv/bin/python -m pytest tests/bench/test_bench_probe_physics.py -s -o ad
 The machine of tests/e2e/test_probe_physics_loop.py (0.5 mm ball, 15 +- 2 um pre-travel,
 1 um/min Z drift, 1 um noise, nozzle T1 at (12.3, -4.1, -8.7) known as (12, -4, -8.5)),
 S1 as made (seed 11, +-0.15 mm), three traces.  The loop's probe runs touch down with
-G38.2 at a slow feed (PROBE_FEED; the profile's ``probe_command``, Marlin's G30 would use
-its own speed) so that a run lasts about ten minutes of machine time and the drift between
-probing a point and printing over it matters.  After one calibration (calibrate_probe, calibrate_nozzle) the
+G38.2 at a slow feed (PROBE_FEED; the profile's ``probe_command``: Marlin's G30 would use
+its own speed) at PROBES uniform stations per trace, so that a run lasts about ten
+minutes of machine time and the drift between probing a point and printing over it
+matters.  After one calibration (calibrate_probe, calibrate_nozzle) the
 closed loop with evaluation runs once with every correction and once with each switched
 off: the stylus radius, the pre-travel, the calibrated nozzle offset (nominal instead),
 the drift (no pad re-touches, no pad touch before printing).  Each row: the standoff error
@@ -22,7 +23,8 @@ import numpy as np
 
 from tests.e2e.test_probe_physics_loop import calibrated_machine, closed_loop, nominal_part, true_part_stl
 
-PROBE_FEED = 1.5  # mm/min: slow touches (~1 mm each), so that a probe run lasts ~10 min of machine time
+PROBE_FEED = 10.0  # mm/min: slow touches (~1 mm each) ...
+PROBES = 48        # ... and many, so that a probe run lasts ~10 min of machine time
 GOAL_UM = 10.0
 ROWS = (("all corrections", {}),
         ("without radius compensation", {"radius": False}),
@@ -46,7 +48,7 @@ def test_bench_probe_physics_ablation(client):
     results = {}
     for name, corrections in ROWS:
         loop = closed_loop(client, part, traces, machine, corrections=corrections,
-                           probe={"method": "deviation", "probe_feed_mm_min": PROBE_FEED})
+                           probe={"method": "uniform", "count": PROBES, "probe_feed_mm_min": PROBE_FEED})
         results[name] = _row(loop)
         print(name, loop["result"]["table"])
     print(f"\ncalibration: ball radius {probe['result']['ball_radius_mm'] * 1000:.1f} um, pre-travel "
