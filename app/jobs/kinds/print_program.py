@@ -128,10 +128,13 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
     state: dict = {"total": total, "executed": 0, "acked_line_no": None, "start_line": 0,
                    "resumes": (resume or {}).get("resumes", 0)}
     preamble: list[str] = []
-    reference = _drift_reference(ctx, params)
     drift = (resume or {}).get("drift")
-    if resume is None or (drift is None and reference is not None and not resume.get("executed")):
-        machine = connected_machine(ctx, params.machine_id)
+    reference = None  # interrupted before its pad touch ended: start afresh (nothing of the program ran)
+    if resume is not None and drift is None and not resume.get("executed"):
+        reference = _drift_reference(ctx, params)
+    if resume is None or reference is not None:
+        machine = connected_machine(ctx, params.machine_id)  # connect first: the machine shows it at once
+        reference = reference or _drift_reference(ctx, params)
         if reference is not None:  # touched before anything of the program moved
             try:
                 if resume is not None:  # interrupted during the touch: the position may be lost
