@@ -131,12 +131,12 @@ def _flags(cal: MachineCalibration) -> list[str]:
     flags: list[str] = []
     if cal.probe is not None:
         if cal.stale(cal.probe_at):
-            flags.append(f"probe calibration is {cal.age_h(cal.probe_at):.1f} h old (max {cal.max_age_h:g} h)")
+            flags.append(f"probe calibration is {_age_text(cal.age_h(cal.probe_at))} old (max {cal.max_age_h:g} h)")
         flags += _disagreement_flags("probe", cal.probe_result)
     for tool in sorted(cal.nozzles):
         at = cal.nozzle_at[tool]
         if cal.stale(at):
-            flags.append(f"nozzle T{tool} calibration is {cal.age_h(at):.1f} h old (max {cal.max_age_h:g} h)")
+            flags.append(f"nozzle T{tool} calibration is {_age_text(cal.age_h(at))} old (max {cal.max_age_h:g} h)")
         result = cal.nozzle_results[tool]
         flags += _disagreement_flags(f"nozzle T{tool}", result)
         used = result.get("probe_job_id")
@@ -146,6 +146,14 @@ def _flags(cal: MachineCalibration) -> list[str]:
                          f"re-calibrated since ({cal.probe_job_id}): re-calibrate T{tool} (its Z offset rests on "
                          "the probe's ball radius and pre-travel)")
     return flags
+
+
+def _age_text(hours: float | None) -> str:
+    """"30.1 h", "12 min", "40 s"."""
+    hours = hours or 0.0
+    if hours >= 1:
+        return f"{hours:.1f} h"
+    return f"{hours * 60:.0f} min" if hours * 60 >= 1 else f"{hours * 3600:.0f} s"
 
 
 def _disagreement_flags(what: str, result: dict[str, Any] | None) -> list[str]:
