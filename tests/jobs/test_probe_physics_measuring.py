@@ -61,13 +61,13 @@ def upload(client, stl: bytes, name: str) -> dict:
 
 def machine(client, true_part_id: str, *, calibrated: bool = True,
             drift_mm_per_min: float = DRIFT_MM_PER_MIN, dialect: str = "marlin",
-            placement: dict | None = None) -> dict:
+            placement: dict | None = None, faults: dict | None = None, options: str = "") -> dict:
     """A mock Marlin machine with probe physics holding ``true_part_id`` in place, a
     reference pad in its profile, and (``calibrated``) a probe calibration with the truth."""
     row = client.post("/api/v1/machines", json={
-        "name": new_id("sim"), "port": f"mock://?{physics(drift_mm_per_min)}", "dialect": dialect,
+        "name": new_id("sim"), "port": f"mock://?{physics(drift_mm_per_min)}{options}", "dialect": dialect,
         "profile": {"reference": {"pad": {"centre_mm": list(PAD[:3]), "size_mm": PAD[3]}}},
-        "mock": {"true_part_id": true_part_id, "probe_noise_mm": 0.001, "faults": {"seed": 2},
+        "mock": {"true_part_id": true_part_id, "probe_noise_mm": 0.001, "faults": {"seed": 2, **(faults or {})},
                  "placement": placement or {}}}, headers=OP)
     assert row.status_code == 201, row.text
     if calibrated:
@@ -325,3 +325,26 @@ def test_probe_calibrated_through_the_api_then_measured(client, meshes):
     err = errors(result)
     print(f"API-calibrated probe run: max |e| {np.abs(err).max() * 1e3:.1f} um, mean {err.mean() * 1e3:.1f} um")
     assert np.abs(err).max() < 0.008 and np.sqrt(np.mean(err ** 2)) < 0.003 and abs(err.mean()) < 0.002, err
+
+
+def test_an_interrupted_calibrated_run_resumes_with_its_drift_track(client, meshes):
+    part = upload(client, meshes["nominal"], "s1.stl")
+    true = upload(client, meshes["true"], "s1-true.stl")
+    sim = machine(client, true["id"], faults={"disconnect_at_line": 60})
+    plan = plan_on(client, trace_on(client, part["id"])["id"])
+    response = client.post("/api/v1/jobs", json={"kind": "probe_run", "params": {
+        "plan_job_id": plan["id"], "machine_id": sim["id"], "drift_interval_s": 8}}, headers=OP)
+    interrupted = wait_for(client, response.json()["id"], states=("interrupted", "succeeded", "failed"))
+    assert interrupted["status"] == "interrupted", interrupted["error"]
+    state = interrupted["program_state"]
+    assert 0 < state["executed"] < plan["result"]["count"] and len(state["drift"]["times_s"]) >= 1
+    before = len(state["drift"]["times_s"])
+    assert client.post(f"/api/v1/jobs/{interrupted['id']}/resume", json={"confirm": True},
+                       headers=OP).status_code == 202
+    resumed = wait_for(client, interrupted["id"], timeout=120)
+    assert resumed["status"] == "succeeded", resumed["error"]
+    result = resumed["result"]
+    assert result["resumes"] == 1 and [p["index"] for p in result["points"]] == list(range(plan["result"]["count"]))
+    track = result["calibration"]["drift"]
+    assert len(track["times_s"]) > before and track["times_s"][:before] == state["drift"]["times_s"]
+    assert np.abs(errors(result)).max() < 0.004
