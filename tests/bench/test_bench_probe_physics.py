@@ -50,7 +50,6 @@ def test_bench_probe_physics_ablation(client):
         loop = closed_loop(client, part, traces, machine, corrections=corrections,
                            probe={"method": "uniform", "count": PROBES, "probe_feed_mm_min": PROBE_FEED})
         results[name] = _row(loop)
-        print(name, loop["result"]["table"])
     print(f"\ncalibration: ball radius {probe['result']['ball_radius_mm'] * 1000:.1f} um, pre-travel "
           f"{probe['result']['pretravel']['p0_mm'] * 1000:.1f} um, T1 offset "
           f"{[round(v, 4) for v in nozzle['result']['offset_mm']]} mm")
