@@ -132,6 +132,12 @@ def test_the_program_is_written_from_the_calibrated_offset(client, rebuilt):
     assert tool["tool"] == 1 and tool["offset_source"] == "calibrated" and tool["calibration_job_id"] == latest
     assert tool["offset_mm"] == list(CALIBRATED_T1)
     _assert_in_frame(client, done, 1, CALIBRATED_T1)
+    # the 3-D view draws the nozzle's tip, not the carriage the program moves
+    from app.viewer.loaders import load_focus
+
+    [drawn] = [t for t in load_focus(client.app.state.runtime, job_id=done["id"]).toolpaths if t.role == "compensated"]
+    printed = drawn.segments.ends[drawn.segments.dispense]
+    assert np.abs(printed - np.asarray(done["result"]["points"])[1:]).max() <= 6e-5
     # the tips stand at the standoff above the real (20 um high) plane, whatever the frame
     tips = np.asarray(done["result"]["points"])
     assert np.abs(tips[:, 2] - (_wedge(tips[:, :2]) + 0.02 + STANDOFF)).max() <= 0.002
