@@ -9,6 +9,7 @@ up to a travel height, across, down to the start, ``probe_toward`` the target.
 from __future__ import annotations
 
 import itertools
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -27,9 +28,9 @@ PAD_TRUE, PAD_NOMINAL = (100.0, 10.0, 5.2), (100.0, 10.0, 5.0)
 TRAVEL_Z = 50.0
 
 
-@pytest.fixture
-def machine(request):
-    dialect, seed = request.param if isinstance(request.param, tuple) else (request.param, 3)
+@contextmanager
+def mock_machine(dialect: str = "marlin", seed: int = 3):
+    """A connected ``Machine`` on a fresh mock world with the issue's physics (``.world_name`` set)."""
     name = f"core16-{next(_names)}"
     # the URL's seed= seeds the fault plan only; the physics' random draws follow the world's seed
     register_world(name, MockWorld(dialect=dialect, seed=seed))
@@ -40,11 +41,19 @@ def machine(request):
     profile = MachineProfile() if dialect == "marlin" else MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
     m = Machine(f"mock://{name}?{options}", dialect, profile, boot_wait_s=0.5, boot_quiet_s=0.01, poke_s=0.02,
                 timeout_s=10)
-    m.connect()
-    m.world_name = name
-    yield m
-    m.disconnect()
-    unregister_world(name)
+    try:
+        m.connect()
+        m.world_name = name
+        yield m
+    finally:
+        m.disconnect()
+        unregister_world(name)
+
+
+@pytest.fixture
+def machine(request):
+    with mock_machine(request.param) as m:
+        yield m
 
 
 def run(machine: Machine, touches, tools) -> tuple[np.ndarray, np.ndarray]:

@@ -7,6 +7,8 @@ import re
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from app.calibration import CalibrationError, ProbeCalibration, Touch, fit_qualification, plan_qualification
 from tests.calibration.forward import TrueProbe, sphere_reading
@@ -200,3 +202,17 @@ def test_a_ring_that_could_miss_the_sphere_is_refused():
         plan_qualification(NOMINAL, DIAMETER, 0.5, None, cap_rings_deg=(0, 30, 70))
     assert err.value.field == "cap_rings_deg" and err.value.value == [70.0]
     assert plan_qualification(NOMINAL, 25.4, 0.5, None, cap_rings_deg=(0, 30, 70))   # a bigger sphere allows it
+
+
+@settings(max_examples=25, deadline=None)
+@given(r=st.floats(0.25, 1.0), p0=st.floats(0.0, 0.05), a=st.floats(-0.01, 0.01), b=st.floats(-0.01, 0.01),
+       offset=st.tuples(*[st.floats(-0.28, 0.28)] * 3), diameter=st.sampled_from([8.0, 10.0, 25.4]))
+def test_qualification_inverts_the_forward_model(r, p0, a, b, offset, diameter):
+    centre = np.add(NOMINAL, offset)               # up to 0.49 mm off its nominal place
+    touches = plan_qualification(NOMINAL, diameter, r, None, cap_rings_deg=(0, 20, 35, 50))
+    readings = [sphere_reading(t.start_mm, t.target_mm, centre, diameter / 2, TrueProbe(r=r, p0=p0, a=a, b=b))
+                for t in touches]
+    cal = fit_qualification(touches, np.array(readings), diameter)
+    assert (cal.ball_radius_mm, cal.pretravel.p0_mm, cal.pretravel.cos3_mm, cal.pretravel.sin3_mm) == \
+        pytest.approx((r, p0, a, b), abs=1e-7)
+    assert cal.sphere_centre_mm == pytest.approx(centre, abs=1e-7)
