@@ -85,19 +85,24 @@ def nozzle_from(result: dict[str, Any]) -> NozzleCalibration:
     return NozzleCalibration.from_dict(result)
 
 
-def calibration_jobs(session: Session, machine_id: str) -> list[Job]:
-    """Succeeded calibration jobs of ``machine_id``, newest first."""
-    rows = session.exec(select(Job).where(Job.machine_id == machine_id, Job.kind.in_(KINDS),
-                                          Job.status == "succeeded")).all()
-    return sorted(rows, key=_done_at, reverse=True)
+def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None], str]:
+    """{(kind, tool or None): job id} of the newest succeeded calibration job of each kind
+    and tool of ``machine_id`` (reads ids and times only, not the stored results)."""
+    rows = session.exec(select(Job.id, Job.kind, Job.params, Job.finished_at, Job.created_at).where(
+        Job.machine_id == machine_id, Job.kind.in_(KINDS), Job.status == "succeeded")).all()
+    latest: dict[tuple[str, int | None], tuple[datetime, str]] = {}
+    for job_id, kind, params, finished, created in rows:
+        key = (kind, int(params["tool"]) if kind == "calibrate_nozzle" else None)
+        at = _utc(finished or created)
+        if key not in latest or at > latest[key][0]:
+            latest[key] = (at, job_id)
+    return {key: job_id for key, (_at, job_id) in latest.items()}
 
 
 def latest_calibration_job(session: Session, machine_id: str, kind: str, tool: int | None = None) -> Job | None:
     """The newest succeeded ``kind`` job of the machine (of nozzle ``tool``), or None."""
-    for job in calibration_jobs(session, machine_id):
-        if job.kind == kind and (tool is None or int(job.params.get("tool", -1)) == tool):
-            return job
-    return None
+    job_id = _latest_ids(session, machine_id).get((kind, tool if kind == "calibrate_nozzle" else None))
+    return None if job_id is None else session.get(Job, job_id)
 
 
 def current_calibration(session: Session, machine_id: str, *, now: datetime | None = None) -> MachineCalibration:
@@ -106,16 +111,18 @@ def current_calibration(session: Session, machine_id: str, *, now: datetime | No
     profile = machine_profile(row)
     cal = MachineCalibration(max_age_h=float(profile.calibration_max_age_h),
                              now=_utc(now) if now is not None else datetime.now(timezone.utc))
-    for job in calibration_jobs(session, machine_id):
+    for (kind, tool), job_id in _latest_ids(session, machine_id).items():
+        job = session.get(Job, job_id)
+        if job is None:  # deleted meanwhile
+            continue
         result = job.result or {}
-        if job.kind == "calibrate_probe" and cal.probe is None:
-            cal.probe, cal.probe_job_id, cal.probe_at = probe_from(result), job.id, _done_at(job)
+        if kind == "calibrate_probe":
+            cal.probe, cal.probe_job_id, cal.probe_at = probe_from(result), job_id, _done_at(job)
             cal.probe_result = result
-        elif job.kind == "calibrate_nozzle":
-            tool = int(job.params["tool"])
-            if tool not in cal.nozzles:
-                cal.nozzles[tool], cal.nozzle_job_ids[tool] = nozzle_from(result), job.id
-                cal.nozzle_at[tool], cal.nozzle_results[tool] = _done_at(job), result
+        elif tool is not None:
+            cal.nozzles[tool], cal.nozzle_job_ids[tool] = nozzle_from(result), job_id
+            cal.nozzle_at[tool], cal.nozzle_results[tool] = _done_at(job), result
+    cal.nozzles = dict(sorted(cal.nozzles.items()))
     cal.flags = _flags(cal)
     return cal
 
@@ -124,12 +131,12 @@ def _flags(cal: MachineCalibration) -> list[str]:
     flags: list[str] = []
     if cal.probe is not None:
         if cal.stale(cal.probe_at):
-            flags.append(f"probe calibration is {cal.age_h(cal.probe_at):.1f} h old (max {cal.max_age_h:g} h)")
+            flags.append(f"probe calibration is {_age_text(cal.age_h(cal.probe_at))} old (max {cal.max_age_h:g} h)")
         flags += _disagreement_flags("probe", cal.probe_result)
     for tool in sorted(cal.nozzles):
         at = cal.nozzle_at[tool]
         if cal.stale(at):
-            flags.append(f"nozzle T{tool} calibration is {cal.age_h(at):.1f} h old (max {cal.max_age_h:g} h)")
+            flags.append(f"nozzle T{tool} calibration is {_age_text(cal.age_h(at))} old (max {cal.max_age_h:g} h)")
         result = cal.nozzle_results[tool]
         flags += _disagreement_flags(f"nozzle T{tool}", result)
         used = result.get("probe_job_id")
@@ -139,6 +146,14 @@ def _flags(cal: MachineCalibration) -> list[str]:
                          f"re-calibrated since ({cal.probe_job_id}): re-calibrate T{tool} (its Z offset rests on "
                          "the probe's ball radius and pre-travel)")
     return flags
+
+
+def _age_text(hours: float | None) -> str:
+    """"30.1 h", "12 min", "40 s"."""
+    hours = hours or 0.0
+    if hours >= 1:
+        return f"{hours:.1f} h"
+    return f"{hours * 60:.0f} min" if hours * 60 >= 1 else f"{hours * 3600:.0f} s"
 
 
 def _disagreement_flags(what: str, result: dict[str, Any] | None) -> list[str]:

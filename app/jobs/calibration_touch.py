@@ -15,10 +15,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from app.calibration import Touch
-from app.jobs.context import JobContext
-from app.jobs.machine_jobs import (interrupt, rehomed_machine, resume_request, stopped_by_operator)
 from app.calibration.qualify import PAD_SPACING_MM
 from app.errors import ConformaError, InvalidInput
+from app.jobs.context import JobContext
+from app.jobs.machine_jobs import interrupt, rehomed_machine, resume_request, stopped_by_operator
 from app.machines import hardware_errors, translate
 from hardware.errors import HardwareError, LinkError
 from hardware.machine import Machine
@@ -65,7 +65,8 @@ class TouchRun:
     """The touching part of one calibration job, in named stages (e.g. "locate", then
     "qualify"): ``with TouchRun(...) as run: readings = run.touch(steps, "qualify", label)``.
     Readings of every stage are kept in ``program_state`` so that a resumed job skips the
-    touches it already made; leaving the block parks the machine (travel height, T0)."""
+    touches it already made; the job ends with ``run.park()`` (travel height, T0), a failed
+    touch parks by itself.  The block marks the machine's running job."""
 
     def __init__(self, ctx: JobContext, machine_id: str, *, travel_z: float, feed_mm_min: float) -> None:
         self.ctx, self.machine_id, self.travel_z, self.feed = ctx, machine_id, travel_z, feed_mm_min
@@ -73,6 +74,11 @@ class TouchRun:
         self.state: dict[str, Any] = {"total": 0, "executed": 0, "stages": dict((resume or {}).get("stages", {})),
                                       "resumes": (resume or {}).get("resumes", 0)}
         self.machine = rehomed_machine(ctx, machine_id, resume, self.state)
+        try:  # where the touches start from: the origin of the touches' estimated machine times
+            with hardware_errors():
+                self.origin = tuple(float(v) for v in self.machine.position())
+        except ConformaError as exc:
+            raise interrupt(ctx, self.machine, exc.__cause__ or exc, self.state) from exc
         self.tool: int | None = None  # unknown after a connect or a resume: select before the first touch
 
     def __enter__(self) -> "TouchRun":

@@ -131,3 +131,18 @@ def test_a_dropped_link_interrupts_the_calibration_and_the_operator_resumes_it(c
     assert len(resumed["result"]["readings"]) == len(reference["readings"]) == resumed["result"]["touches"]
     assert abs(resumed["result"]["ball_radius_mm"] - BALL_MM) <= 0.005
     assert get_world(flaky["id"]).active_tool == 0
+
+
+def test_a_slow_z_drift_during_the_calibration_does_not_bias_it(client):
+    """1 um/min of Z drift over a qualification of minutes (machine time): fitted out."""
+    machine = physics_machine(client, physics=f"{PHYSICS}&drift_mm_per_min=0.001")
+    client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP)
+    clock = get_world(machine["id"]).stats.machine_time_s
+    probe = calibrate(client, "calibrate_probe", {"machine_id": machine["id"]})["result"]
+    elapsed = get_world(machine["id"]).stats.machine_time_s - clock
+    last = probe["readings"][-1]["t_s"]  # the touches' estimated machine times follow the mock's clock
+    assert last > 180 and last <= elapsed <= last + 30, (last, elapsed)  # minutes: several um of drift
+    assert abs(probe["ball_radius_mm"] - BALL_MM) <= 0.003 and abs(probe["pretravel"]["p0_mm"] - PRETRAVEL_MM) <= 0.003
+    assert abs(probe["drift_mm_per_min"] - 0.001) <= 0.0003, probe["drift_mm_per_min"]
+    nozzle = calibrate(client, "calibrate_nozzle", {"machine_id": machine["id"], "tool": 1})["result"]
+    assert np.allclose(nozzle["offset_mm"], TOOL1_MM, atol=0.005), nozzle["offset_mm"]

@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import Field
 from sqlmodel import Session
 
-from app.calibration import fit_qualification, plan_qualification
+from app.calibration import fit_qualification, plan_qualification, plan_times
 from app.errors import InvalidInput
 from app.jobs.calibration import agreement, latest_calibration_job, machine_profile, probe_values
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
@@ -79,11 +79,16 @@ def run(ctx: JobContext, params: CalibrateProbeParams) -> dict:
         readings = touching.touch([Step(t, 0) for t in touches], "qualify", "qualification", (0.2, 0.9))
         touching.park()
     ctx.progress(0.92, "fitting radius and pre-travel")
-    every = (*locate, *touches)
-    calibration = fit_qualification(every, np.asarray(located + readings, dtype=float), sphere.diameter_mm)
+    every, all_readings = (*locate, *touches), np.asarray(located + readings, dtype=float)
+    times = None  # with pad touches at both ends, a linear Z drift during the run is fitted too
+    if pad is not None and params.pad_touches >= 1:
+        times = plan_times(every, all_readings, travel_z=touching.travel_z, travel_feed=profile.travel_feed_mm_min,
+                           probe_feed=feed, start_mm=touching.origin)
+    calibration = fit_qualification(every, all_readings, sphere.diameter_mm, times_s=times)
     with ctx.session() as session:
         previous = latest_calibration_job(session, params.machine_id, "calibrate_probe")
     values, std = probe_values(calibration)
     return {**calibration.to_dict(), "agreement": agreement(previous, values, std),
             "nominal_ball_radius_mm": radius,
-            "readings": [{**t.to_dict(), "reading_mm": r} for t, r in zip(every, located + readings, strict=True)]}
+            "readings": [{**t.to_dict(), "reading_mm": r, **({"t_s": float(times[i])} if times is not None else {})}
+                         for i, (t, r) in enumerate(zip(every, located + readings, strict=True))]}
