@@ -131,8 +131,10 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
             except HardwareError as exc:
                 failure = interrupt(ctx, machine, exc, state) if isinstance(exc, LinkError) else translate(exc)
                 raise failure from exc
+        from_pad = False  # a resume's extra pad visit: the next station is reached from the high travel height
         if drift and resume is not None and 0 < state["ops_done"] < len(sequence.ops):
             _touch_pad(touch, sequence, track, float(sequence.t_s[state["ops_done"]]) - 1e-3)
+            from_pad = True
         for k in range(state["ops_done"], len(sequence.ops)):
             index = sequence.ops[k]
             if index == PAD:
@@ -140,7 +142,9 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
             else:
                 record = records[index]
                 x, y, z_nominal = record["nominal"]
-                reading = touch(x, y, float(sequence.start_z[k]), record["target_z_mm"])
+                start_z = sequence.high_z if from_pad else float(sequence.start_z[k])
+                from_pad = False
+                reading = touch(x, y, start_z, record["target_z_mm"])
                 row: dict[str, Any] = {"index": index, "nominal": [x, y, z_nominal],
                                        "measured": [reading.x, reading.y, reading.z],
                                        "deviation_mm": reading.z - z_nominal}
