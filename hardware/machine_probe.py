@@ -51,8 +51,8 @@ class ProbeOperations:
                                   value=[x, y]) from exc
             if kind == "G30" or self.dialect == "grbl":
                 report = result.payload  # "Bed X: .. Y: .. Z: .." / "[PRB:x,y,z:1]"
-            else:  # Marlin G38.2 prints nothing: it stopped at the contact point
-                report = ProbeReport(*self._position())
+            else:  # Marlin G38.2 prints nothing: it stopped at the contact point (M114 D: 3 decimals)
+                report = self._precise_position()
             if not isinstance(report, ProbeReport) or not report.triggered or report.z < z_min:
                 self._recover_after_probe(z_start)
                 raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "

@@ -29,6 +29,77 @@ class TravelVolume(Strict):
         return value
 
 
+Coordinate = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
+Point3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+
+
+class ProbeTool(Strict):
+    """The touch probe, tool T0: its stylus ball and its (definitional) zero offset."""
+
+    ball_radius_mm: Finite = Field(0.0, ge=0, le=10, description="nominal stylus ball radius, mm")
+    offset_mm: Point3 = Field(default_factory=lambda: [0.0, 0.0, 0.0],
+                              description="T0's offset: [0, 0, 0] (machine coordinates are the ball centre's)")
+
+    @field_validator("offset_mm")
+    @classmethod
+    def _zero(cls, value: list[float]) -> list[float]:
+        if any(v != 0 for v in value):
+            raise ValueError("the probe (T0) defines the machine frame: its offset must be [0, 0, 0]")
+        return value
+
+
+class NozzleTool(Strict):
+    """A dispensing nozzle T<tool>: tip = carriage + offset (nominal until calibrated)."""
+
+    tool: int = Field(ge=1, le=8, description="tool number (T1..T8)")
+    name: str = Field("", max_length=80)
+    outer_diameter_mm: Finite = Field(gt=0, le=20, description="outer diameter of the nozzle body, mm")
+    offset_mm: Point3 = Field(description="nominal [x, y, z] offset of the tip from the probe's ball centre, mm")
+    dispense_on: str | None = Field(None, min_length=1, max_length=80, description="default: the profile's")
+    dispense_off: str | None = Field(None, min_length=1, max_length=80, description="default: the profile's")
+
+    @field_validator("offset_mm")
+    @classmethod
+    def _reach(cls, value: list[float]) -> list[float]:
+        if max(abs(v) for v in value) > 500:
+            raise ValueError("a tool offset is within +-500 mm of the probe")
+        return value
+
+
+class Tools(Strict):
+    probe: ProbeTool = Field(default_factory=ProbeTool)
+    nozzles: list[NozzleTool] = Field(default_factory=list, max_length=8)
+
+    @field_validator("nozzles")
+    @classmethod
+    def _unique(cls, value: list[NozzleTool]) -> list[NozzleTool]:
+        numbers = [n.tool for n in value]
+        if len(set(numbers)) != len(numbers):
+            raise ValueError(f"tool numbers must be unique, got {numbers}")
+        return value
+
+
+class ReferencePad(Strict):
+    """A flat conductive contact pad: square, top face at centre_mm's z (nominal place)."""
+
+    centre_mm: Point3
+    size_mm: Finite = Field(gt=0, le=200, description="side of the square top face, mm")
+
+
+class ReferenceSphere(Strict):
+    """The datum sphere on its stem (nominal place)."""
+
+    centre_mm: Point3
+    diameter_mm: Finite = Field(gt=0, le=100)
+
+
+class Reference(Strict):
+    """Reference artifacts on the table (nominal places, machine coordinates, mm)."""
+
+    pad: ReferencePad | None = None
+    sphere: ReferenceSphere | None = None
+
+
 class Profile(Strict):
     dispense_on: str = Field("M106", min_length=1, max_length=80, description="G-code that starts dispensing")
     dispense_off: str = Field("M107", min_length=1, max_length=80, description="G-code that stops dispensing")
@@ -47,6 +118,10 @@ class Profile(Strict):
                                           "x/y/z-rot-point); five_axis jobs with machine_id use it")
     five_axis_post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
         "conforma", description="how five_axis jobs with machine_id write X Y Z A C (see the README)")
+    tools: Tools | None = Field(None, description="T0 = the touch probe, T1..T8 = nozzles (nominal offsets)")
+    reference: Reference | None = Field(None, description="reference pad and sphere for the calibration jobs")
+    calibration_max_age_h: Finite = Field(24.0, gt=0, le=24 * 365,
+                                          description="a calibration older than this is flagged stale")
 
 
 class MockPlacement(Strict):
@@ -207,3 +282,56 @@ class ConsoleOut(BaseModel):
     command: str
     reply: list[str]
     machine: MachineOut
+
+
+class ProbeCalibrationOut(BaseModel):
+    """The current probe calibration: values mm, 1-sigma uncertainties um."""
+
+    job_id: str
+    calibrated_at: UtcDatetime
+    age_h: float
+    stale: bool = Field(description="older than the profile's calibration_max_age_h")
+    ball_radius_mm: float
+    ball_radius_std_um: float
+    pretravel_mm: float = Field(description="isotropic pre-travel p0")
+    pretravel_std_um: float
+    lobing_cos3_mm: float = Field(description="pre-travel lobing: + sin(theta) (cos3 cos 3phi + sin3 sin 3phi)")
+    lobing_cos3_std_um: float
+    lobing_sin3_mm: float
+    lobing_sin3_std_um: float
+    sphere_centre_mm: list[float]
+    pad_reading_z_mm: float | None
+    residual_rms_um: float
+    touches: int
+    disagrees: list[str] = Field(description="what differs from the calibration before it (beyond 3 sigma + 2 um)")
+
+
+class NozzleCalibrationOut(BaseModel):
+    """A profile nozzle and, when calibrated, its current offset (tip = carriage + offset)."""
+
+    tool: int
+    name: str
+    outer_diameter_mm: float
+    nominal_offset_mm: list[float]
+    calibrated: bool
+    job_id: str | None = None
+    calibrated_at: UtcDatetime | None = None
+    age_h: float | None = None
+    stale: bool | None = None
+    offset_mm: list[float] | None = None
+    offset_std_um: list[float] | None = None
+    nominal_difference_mm: list[float] | None = Field(None, description="calibrated - nominal offset")
+    probe_job_id: str | None = Field(None, description="the probe calibration this offset rests on")
+    touches: int | None = None
+    disagrees: list[str] | None = None
+
+
+class CalibrationOut(BaseModel):
+    """A machine's current calibration (latest succeeded calibrate_probe / calibrate_nozzle jobs)."""
+
+    machine_id: str
+    max_age_h: float
+    probe: ProbeCalibrationOut | None
+    nozzles: list[NozzleCalibrationOut]
+    flags: list[str] = Field(description="stale calibrations, re-checks that disagree, nozzles calibrated "
+                             "against an earlier probe calibration")

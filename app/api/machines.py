@@ -22,10 +22,11 @@ from sqlmodel import Session, select
 from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.jobs import load_job_out
-from app.api.machine_schemas import (ConsoleOut, ConsoleRequest, JogRequest, MachineCreate, MachineOut, MockSettings,
-                                     PrintRequest, ProgramState, StopOut)
+from app.api.machine_schemas import (CalibrationOut, ConsoleOut, ConsoleRequest, JogRequest, MachineCreate, MachineOut,
+                                     MockSettings, PrintRequest, ProgramState, StopOut)
 from app.api.schemas import JobOut, Page
 from app.errors import Conflict, InvalidInput, NotFound
+from app.jobs.calibration import calibration_summary, current_calibration, machine_profile
 from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, translate
 from hardware.errors import HardwareError
@@ -110,6 +111,15 @@ def list_machines(runtime: RuntimeDep, session: SessionDep) -> Page[MachineOut]:
 @router.get("/{machine_id}", dependencies=[Viewer])
 def get_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
     return machine_out(runtime, get_or_404(session, Machine, machine_id))
+
+
+@router.get("/{machine_id}/calibration", dependencies=[Viewer], responses={404: {"description": "no such machine"}})
+def get_calibration(machine_id: str, session: SessionDep) -> CalibrationOut:
+    """The machine's current calibration (probe radius and pre-travel, nozzle offsets) with
+    uncertainties, ages, the jobs that measured them and flags (stale, disagreeing re-check)."""
+    row = get_or_404(session, Machine, machine_id)
+    return CalibrationOut.model_validate(calibration_summary(machine_id, current_calibration(session, machine_id),
+                                                             machine_profile(row)))
 
 
 def _cancel_what_runs(runtime: Runtime, machine_id: str) -> None:

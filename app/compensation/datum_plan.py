@@ -342,7 +342,8 @@ def _combine(parts: list[tuple[str, Registration, tuple[str, ...]]], pivot: tupl
 
 
 def register_with_z_probe(plan: DatumPlan, probe_z: ProbeZ, floor_z_mm: float,
-                          params: DatumProbeParams | None = None) -> DatumRegistration:
+                          params: DatumProbeParams | None = None,
+                          surface_z: Callable[[float, np.ndarray], float] | None = None) -> DatumRegistration:
     """Touch ``plan`` with -Z probes only and fit the placement (mm, machine frame).
 
     probe_z(x, y) -> z: one -Z touch (machine frame); beside the part it meets the floor
@@ -354,16 +355,24 @@ def register_with_z_probe(plan: DatumPlan, probe_z: ProbeZ, floor_z_mm: float,
     dz only).  The two fits share no parameter; their covariances form the blocks of
     ``covariance``.  ``mode="z_only"`` plans: one fit of the observable parameters from
     touches at the nominal xy (planar faces at the touch points; see the registration
-    module doc for the bias of free-form tops).  Raises RegistrationError /
+    module doc for the bias of free-form tops).  ``surface_z(z_read, normal (3,))`` turns a
+    height touch's reading into the surface height under it, given the outward normal of the
+    touched face (a calibrated ball probe: radius along the normal, pre-travel); None: the
+    reading is the surface (an ideal point probe).  Raises RegistrationError /
     DegenerateDatumError naming what cannot be determined.
     """
     params = params or DatumProbeParams()
     pivot = (float(params.pivot_xy[0]), float(params.pivot_xy[1]))
+
+    def height(x: float, y: float, normal: np.ndarray) -> float:
+        z = probe_z(x, y)
+        return z if surface_z is None else float(surface_z(z, normal))
+
     vertical = np.abs(plan.directions[:, 2]) > 0.5
     if plan.mode == "z_only" or vertical.all():
         names = tuple(p for p in PARAMETERS if p not in plan.unobservable)
         touches = [DatumTouch(plan.faces[i], plan.points[i].copy(), plan.normals[i].copy(),
-                              np.array([*plan.points[i][:2], probe_z(*plan.points[i][:2])]),
+                              np.array([*plan.points[i][:2], height(*plan.points[i][:2], plan.normals[i])]),
                               plan.directions[i].copy(), 1) for i in range(len(plan.points))]
         reg = _fit(touches, names, pivot, params)
         return _combine([("z_only", reg, names)], pivot, tuple(plan.unobservable), touches)
@@ -375,7 +384,8 @@ def register_with_z_probe(plan: DatumPlan, probe_z: ProbeZ, floor_z_mm: float,
     for i in np.flatnonzero(vertical):
         at = apply_placement(plan.points[i][None, :2], first.placement)[0]
         heights.append(DatumTouch(plan.faces[i], plan.points[i].copy(), np.array([0.0, 0.0, 1.0]),
-                                  np.array([at[0], at[1], probe_z(*at)]), plan.directions[i].copy(), 1))
+                                  np.array([at[0], at[1], height(at[0], at[1], plan.normals[i])]),
+                                  plan.directions[i].copy(), 1))
     if heights:
         # heights in the frame of fit 1: only dz is left (a z shift commutes with it)
         level = [DatumTouch(t.face, t.nominal, t.normal,

@@ -36,9 +36,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from app.checks import require_non_negative, require_positive
 from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
@@ -52,6 +54,7 @@ __all__ = [
     "CompensationParams",
     "OutsideProbedSpanError",
     "compensate_trace",
+    "real_surface_height",
     "tip_path",
 ]
 
@@ -82,6 +85,10 @@ class CompensationParams:
         estimated |d''| of the gap bound.  decimals: G-code coordinate decimals.
         xy_uncertainty_mm: lateral error of machine and placement assumed by the slope term
         of the error model (a vertical nozzle's standoff errs by xy x tan(slope)).
+        tool: the nozzle (``T<tool>``, >= 1) the program selects first; None writes the
+        probe-frame program of before (no tool line, carriage = tip).
+        tool_offset_mm: (3,) that nozzle's offset o (tip = carriage + o); the programs are
+        written in carriage coordinates, carriage = tip - o (points stay tips).
     """
 
     standoff_mm: float = 0.10
@@ -102,6 +109,8 @@ class CompensationParams:
     curvature_safety: float = 2.0
     decimals: int = 4
     xy_uncertainty_mm: float = 0.01
+    tool: int | None = None
+    tool_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         positive = ("standoff_mm", "feed_mm_min", "chord_error_mm", "clearance_mm",
@@ -121,6 +130,14 @@ class CompensationParams:
             if not isinstance(text, str) or not text.strip() or "\n" in text or "\r" in text:
                 raise CompensationError(f"{name} must be one non-empty G-code line",
                                         field=name, value=str(text)[:40])
+        offset = np.asarray(self.tool_offset_mm, dtype=float)
+        if offset.shape != (3,) or not np.isfinite(offset).all():
+            raise CompensationError("tool_offset_mm must be three finite mm", field="tool_offset_mm",
+                                    value=str(self.tool_offset_mm)[:60])
+        if self.tool is None and np.any(offset != 0.0):
+            raise CompensationError("a tool offset needs its tool", field="tool", value=None)
+        if self.tool is not None and not (0 <= int(self.tool) <= 99):
+            raise CompensationError("tool must be 0..99", field="tool", value=self.tool)
         if self.verify_step_mm > self.chord_error_mm * 50:
             raise CompensationError("verify_step_mm must be <= 50 x chord_error_mm",
                                     field="verify_step_mm", value=self.verify_step_mm)
@@ -241,13 +258,21 @@ def _gap_bound(s: np.ndarray, dev: np.ndarray, safety: float) -> np.ndarray:
 
 def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
              notes: list[str]) -> str:
+    """The program of tip ``points`` (k, 3) mm; with a tool: ``T<tool>`` first and every
+    coordinate in carriage terms (tip - offset)."""
     b = ProgramBuilder(params.dialect, "compensate", job_id, decimals=params.decimals)
     for note in notes:
         b.comment(note)
     top = float(points[:, 2].max())
     if params.part_max_z_mm is not None:
         top = max(top, float(params.part_max_z_mm))
-    travel_z = top + params.clearance_mm
+    offset = np.asarray(params.tool_offset_mm, dtype=float)
+    if params.tool is not None:
+        b.comment(f"tool T{params.tool}: offset {offset.round(4).tolist()} mm, coordinates are the "
+                  f"carriage = tip - offset")
+        b.raw(f"T{int(params.tool)}")
+    points = np.asarray(points, dtype=float) - offset
+    travel_z = top + params.clearance_mm - offset[2]
     x0, y0, z0 = points[0]
     b.rapid(z=travel_z).rapid(x=x0, y=y0).rapid(z=z0 + params.approach_mm)
     b.move(z=z0, feed_mm_min=params.plunge_feed_mm_min)
@@ -324,3 +349,29 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
         standoff_mm=float(params.standoff_mm), dispense_on=params.dispense_on.strip(),
         dispense_off=params.dispense_off.strip(), method=method,
         slope=slope_error_model(nominal, seg.s, params))
+
+
+def real_surface_height(nominal_height: Callable[[np.ndarray], np.ndarray], reconstruction: Any,
+                        span: tuple[float, float], floor_mm: float,
+                        step_mm: float = 0.05) -> Callable[[np.ndarray], np.ndarray]:
+    """The real surface near a trace: xy (k, 2) mm -> height (k,) mm.
+
+    ``nominal_height`` is the placed nominal (CAD) top, NaN off the part; the real surface
+    adds the reconstructed deviation d(s) = h_real(s) - z_nom(s) of the trace's station
+    nearest in top view (stations every ``step_mm``; beyond the probed ``span`` the end
+    deviation is held, as :func:`tip_path` does).  Off the part the height is
+    ``floor_mm`` (e.g. the part's bottom: nothing higher to touch there).
+    """
+    nominal = reconstruction.nominal
+    length = float(nominal.length_mm)
+    s = np.linspace(0.0, length, max(2, int(np.ceil(length / step_mm)) + 1))
+    deviation = tip_path(reconstruction, s, 0.0, span)[:, 2] - nominal.z_at(s)
+    tree = cKDTree(nominal.at(s)[:, :2])
+
+    def height(xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        _, nearest = tree.query(xy)
+        z = np.asarray(nominal_height(xy), dtype=float) + deviation[nearest]
+        return np.where(np.isfinite(z), z, float(floor_mm))
+
+    return height

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from app.jobs.store import JobStore
 
 log = logging.getLogger("conforma.machines")
-MACHINE_KINDS = ("print", "probe_run", "register")  # jobs that drive a machine themselves
+MACHINE_KINDS = ("print", "probe_run", "register", "calibrate_probe", "calibrate_nozzle")  # drive a machine themselves
 WORKFLOW_KINDS = ("closed_loop",)  # parents that hold a machine between their children's steps
 
 

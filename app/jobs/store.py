@@ -20,7 +20,7 @@ from app.models import TERMINAL_STATES, Job, utcnow
 
 # Jobs that move a machine: when their process dies or their link drops they become
 # ``interrupted`` and wait for an operator (never requeued by the reaper).
-OPERATOR_RESUMED_KINDS = ("print", "probe_run", "register", "closed_loop")
+OPERATOR_RESUMED_KINDS = ("print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle")
 
 
 @dataclass(frozen=True)

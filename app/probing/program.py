@@ -71,7 +71,11 @@ class ProbeProgramParams:
 
 @dataclass(frozen=True)
 class ProbeRecord:
-    """Plan record of one probe point (mm)."""
+    """Plan record of one probe point (mm).
+
+    normal: the nominal outward unit surface normal at the station (placed frame, n_z > 0),
+    which turns a ball-centre reading into a surface height (``app.calibration``); None
+    when the plan has none."""
 
     index: int
     s_mm: float
@@ -80,10 +84,12 @@ class ProbeRecord:
     approach_z_mm: float
     target_z_mm: float
     expected_trigger_z_mm: float
+    normal: tuple[float, float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["nominal"] = list(self.nominal)
+        d["normal"] = None if self.normal is None else list(self.normal)
         return d
 
 
@@ -161,6 +167,40 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
     return float(max(z_at(lo)[ok].max(), z_at(hi)[ok].max()))
 
 
+def upward_normals(normals: np.ndarray | None, count: int) -> np.ndarray | None:
+    """Unit normals (count, 3) turned to point up (n_z >= 0: a top surface probed along -Z),
+    or None when ``normals`` is None or not (count, 3) finite and non-zero."""
+    if normals is None:
+        return None
+    n = np.asarray(normals, dtype=float)
+    if n.shape != (count, 3) or not np.isfinite(n).all():
+        return None
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    if (length < 1e-12).any():
+        return None
+    n = n / length
+    return np.where(n[:, 2:3] < 0, -n, n)
+
+
+def mesh_station_normals(mesh: Any, xy: np.ndarray) -> np.ndarray | None:
+    """Outward unit normals (m, 3) of the mesh's top face straight below each station xy
+    (m, 2) mm (the highest face a downward ray meets); None when a station misses the mesh."""
+    q = np.atleast_2d(np.asarray(xy, dtype=float))[:, :2]
+    origins = np.column_stack([q, np.full(len(q), float(mesh.bounds[1][2]) + 1.0)])
+    dirs = np.tile([0.0, 0.0, -1.0], (len(q), 1))
+    loc, ray, tri = mesh.ray.intersects_location(origins, dirs, multiple_hits=True)
+    if len(loc) == 0:
+        return None
+    best = np.full(len(q), -1)
+    top = np.full(len(q), -np.inf)
+    for k in range(len(ray)):
+        if loc[k, 2] > top[ray[k]]:
+            top[ray[k]], best[ray[k]] = loc[k, 2], tri[k]
+    if (best < 0).any():
+        return None
+    return upward_normals(np.asarray(mesh.face_normals)[best], len(q))
+
+
 def build_probe_program(plan: ProbePlan, top: Any, params: ProbeProgramParams | None = None,
                         *, job_id: str | None = None) -> ProbeProgram:
     """Probe program for ``plan`` over a part whose top is ``top`` (trimesh or callable).
@@ -188,6 +228,7 @@ def build_probe_program(plan: ProbePlan, top: Any, params: ProbeProgramParams | 
     b.rapid(z=start_z)
     moves: list[tuple[float, float, float]] = []
     records = []
+    normals = upward_normals(plan.normals, len(pts))
     for i, (x, y, z) in enumerate(pts):
         if i == 0:
             b.rapid(x=x, y=y)
@@ -208,8 +249,9 @@ def build_probe_program(plan: ProbePlan, top: Any, params: ProbeProgramParams | 
         else:
             b.probe("g30", x=x, y=y)
         moves.append((x, y, z))
+        normal = None if normals is None else (float(normals[i, 0]), float(normals[i, 1]), float(normals[i, 2]))
         records.append(ProbeRecord(i, float(plan.s_mm[i]), (float(x), float(y), float(z)),
-                                   float(safe[i]), float(approach[i]), float(target), float(z)))
+                                   float(safe[i]), float(approach[i]), float(target), float(z), normal))
     end_z = max(segment_top_max(top, xy[-1], xy[-1], p.sample_mm), pts[-1, 2]) + p.clearance_mm
     b.rapid(z=end_z)
     moves.append((pts[-1, 0], pts[-1, 1], end_z))

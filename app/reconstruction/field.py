@@ -19,6 +19,7 @@ Pure: numpy/scipy.  Units: mm.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,6 +77,24 @@ class FieldFit:
         probes = placement_basis(self.posterior.probes, self.posterior.center)
         theta = prior.basis_sd ** 2 * (probes.T @ self.posterior.alpha)
         return placement_basis(sites, self.posterior.center) @ theta
+
+
+def field_gradient(fit: "FieldFit", sites: Sites, step_mm: float = 0.05,
+                   slope_at: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+    """Top-view gradient (m, 2) of the fitted deviation at ``sites`` by central differences
+    over ``step_mm``.  ``slope_at(xy (k, 2)) -> (k, 2)``: the nominal slope at the shifted
+    points (the placement part of the deviation follows it: -grad h . displacement); None
+    holds each site's own slope (exact for the machining part and on planar stretches)."""
+    out = np.zeros((len(sites.xy), 2))
+    for axis in range(2):
+        shift = np.zeros(2)
+        shift[axis] = step_mm
+        ends = []
+        for xy in (sites.xy + shift, sites.xy - shift):
+            grad = sites.grad if slope_at is None else np.asarray(slope_at(xy), dtype=float)
+            ends.append(fit.deviation(Sites(xy, grad)))
+        out[:, axis] = (ends[0] - ends[1]) / (2 * step_mm)
+    return out
 
 
 def _loo(k: np.ndarray, dz: np.ndarray, jitter: float) -> tuple[np.ndarray, np.ndarray]:

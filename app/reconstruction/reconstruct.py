@@ -89,6 +89,7 @@ class Reconstruction:
     nominal: NominalPath
     _height_s: Callable[[np.ndarray], np.ndarray]
     span_mm: tuple[float, float] = (0.0, 0.0)
+    refinement: dict[str, Any] | None = None
 
     def height_at_s(self, s: Any) -> np.ndarray:
         """Real surface height (m,) mm along the trace at nominal arc lengths ``s`` (m,)."""
@@ -114,7 +115,24 @@ class Reconstruction:
             "points_used": int(len(self.clean.s)),
             "outliers": list(self.clean.outliers),
             "merged_duplicates": self.clean.merged,
+            **({} if self.refinement is None else {"normal_iteration": self.refinement}),
         }
+
+    def deviation_gradient_xy(self, xy: Any, step_mm: float = 0.05) -> np.ndarray:
+        """Top-view gradient (m, 2) of the reconstructed deviation at points ``xy`` (m, 2) mm
+        on the trace: the along-trace derivative d dev / ds (central difference over
+        ``step_mm``) along the trace's top-view direction, d dev / d s_xy = (d dev / ds) /
+        |t_xy| with t the 3-D unit tangent; the across-trace part is taken as zero (the
+        surface's across slope is the nominal's)."""
+        s = self.nominal.project_xy(np.atleast_2d(np.asarray(xy, dtype=float))).s
+        lo = np.clip(s - step_mm, 0.0, self.nominal.length_mm)
+        hi = np.clip(s + step_mm, 0.0, self.nominal.length_mm)
+        ds = np.maximum(hi - lo, 1e-12)
+        slope = (self.deviation_at_s(hi) - self.deviation_at_s(lo)) / ds
+        tangent = (self.nominal.at(hi) - self.nominal.at(lo)) / ds[:, None]
+        txy = tangent[:, :2]
+        norm2 = np.maximum(np.sum(txy * txy, axis=1), 1e-12)
+        return slope[:, None] * txy / norm2[:, None]
 
 
 def fit_deviation(s: np.ndarray, dz: np.ndarray, sigma_mm: float, degree: int = 3):

@@ -257,6 +257,10 @@ class Loader:
 
     def _compensate(self, session: Session, job: Job) -> FocusScene:
         paths = self._gcode(session, job, "nominal.gcode", "nominal") + self._gcode(session, job, "print.gcode", "compensated")
+        offset = np.asarray(((job.result or {}).get("tool") or {}).get("offset_mm") or (0.0, 0.0, 0.0), float)
+        if offset.any():  # a nozzle's programs are carriage positions: draw its tip (carriage + offset)
+            paths = tuple(replace(p, segments=replace(p.segments, starts=p.segments.starts + offset,
+                                                      ends=p.segments.ends + offset)) for p in paths)
         return self._with_trace(session, job, toolpaths=paths)
 
     def _closed_loop(self, session: Session, job: Job) -> FocusScene:

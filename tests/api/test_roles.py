@@ -43,6 +43,7 @@ ROLES = {
     ("POST", "/api/v1/machines"): "operator",
     ("GET", "/api/v1/machines"): "viewer",
     ("GET", "/api/v1/machines/{machine_id}"): "viewer",
+    ("GET", "/api/v1/machines/{machine_id}/calibration"): "viewer",
     ("POST", "/api/v1/machines/{machine_id}/connect"): "operator",
     ("POST", "/api/v1/machines/{machine_id}/disconnect"): "operator",
     ("POST", "/api/v1/machines/{machine_id}/pause"): "operator",

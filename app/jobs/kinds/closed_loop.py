@@ -19,6 +19,13 @@ restarted loop continues where it stopped instead of probing again.
 the compensated one on the mock and compare the standoff along what was really deposited
 (the mock's deposition log) with the truth — the seed's Table 1, in simulation — and the
 top-view (XY) distance of the printed path from the design at the part's true placement.
+
+Probe physics (issue 16): ``corrections`` switches each calibrated correction (all on by
+default; off = left out, for the ablation bench): ``radius`` and ``pretravel`` go to the
+probe_run (and reconstruct) children, ``drift`` to the probe_run children and to the print
+children (their pad touch before streaming, ``drift_reference``), ``offsets`` to the
+compensate children (calibrated nozzle offset, or the profile's nominal).  ``tool`` names
+the nozzle the compensate children write for (default: the profile's first).
 """
 
 from __future__ import annotations
@@ -26,7 +33,7 @@ from __future__ import annotations
 import json
 from typing import Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from sqlmodel import Session, select
 
 from app.compensation.evaluation import predicted_width, table_row
@@ -41,6 +48,16 @@ from app.models import Job, Machine, Trace
 from app.records import get_or_404
 
 STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
+
+
+class LoopCorrections(BaseModel):
+    """The calibrated corrections the loop applies (false: left out, for ablation)."""
+
+    model_config = ConfigDict(extra="forbid")
+    radius: bool = Field(True, description="stylus ball radius along the surface normal")
+    pretravel: bool = Field(True, description="the probe's calibrated pre-travel")
+    drift: bool = Field(True, description="pad re-touches during probe runs and before each print")
+    offsets: bool = Field(True, description="the nozzle's calibrated offset (false: the profile's nominal)")
 
 
 class ClosedLoopParams(JobParams):
@@ -61,6 +78,9 @@ class ClosedLoopParams(JobParams):
                                "work in machine coordinates")
     registration_params: dict[str, Any] = Field(default_factory=dict,
                                      description="register parameters (without part_id and machine_id)")
+    corrections: LoopCorrections = Field(default_factory=LoopCorrections)
+    tool: int | None = Field(None, ge=0, le=8, description="the nozzle the programs are written for (compensate's "
+                             "tool; default: the machine profile's first nozzle)")
     joint_probing: bool = Field(False, description="one plan and one probe run for all traces; with the field "
                                 "planner (the default here) stations are chosen over the region the traces cover and "
                                 "every trace is rebuilt from the one field fitted to the run (reconstruct method field, "
@@ -172,11 +192,12 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         method = "field" if (plan.result or {}).get("field") else params.reconstruct_method
         rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
                                             "trace_id": trace_id, "probe_run_job_id": probe.id,
-                                            "method": method, "sigma_mm": params.sigma_mm}, trace_id)
+                                            "method": method, "sigma_mm": params.sigma_mm,
+                                            **_corrections_for("reconstruct", params)}, trace_id)
         ctx.progress((index + 0.5) / total, f"trace {index + 1}/{total}: compensating")
         compensated = steps.run("compensate", {"trace_id": trace_id, "reconstruct_job_id": rebuilt.id,
                                                "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
-                                               "hold_mm": params.hold_mm}, trace_id)
+                                               "hold_mm": params.hold_mm, **_tool_of(params)}, trace_id)
         entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
                  "compensate": compensated.id, "probes": count,
                  "deviation_max_mm": rebuilt.result["deviation"]["max_mm"]}
@@ -185,8 +206,8 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
             reports = {}
             for artifact in ("nominal.gcode", "print.gcode"):
                 start = len(world.deposition_log)
-                steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id, "artifact": artifact},
-                          trace_id)
+                steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id, "artifact": artifact,
+                                    "drift_reference": params.corrections.drift}, trace_id)
                 reports[artifact] = (evaluate_print(world, start, trace.standoff_mm),
                                      xy_error(world, start, trace.nominal["points"]))
             (before, xy_before), (after, xy_after) = reports["nominal.gcode"], reports["print.gcode"]
@@ -197,7 +218,8 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
             entry["evaluation"] = {"nominal": _report(before, xy_before), "compensated": _report(after, xy_after)}
         elif params.print:
             entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id,
-                                                 "artifact": "print.gcode"}, trace_id).id
+                                                 "artifact": "print.gcode",
+                                                 "drift_reference": params.corrections.drift}, trace_id).id
         per_trace.append(entry)
         ctx.progress((index + 1) / total, f"{index + 1}/{total} traces done")
     result: dict[str, Any] = {"traces": per_trace, "table": rows}
@@ -216,8 +238,29 @@ def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, A
     default = {} if trace_id is None else {"method": "deviation"}  # joint: the planner's default (field)
     plan = steps.run("probe_plan", {**default, **params.probe, **placed, **target, "dialect": dialect}, trace_id)
     steps.ctx.progress(*progress)
-    probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id}, trace_id)
+    probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id,
+                                    **_corrections_for("probe_run", params)}, trace_id)
     return plan, probe
+
+
+def _corrections_for(kind: str, params: ClosedLoopParams) -> dict[str, Any]:
+    """The measuring corrections (radius, pretravel, drift) a child kind takes, as its
+    ``corrections`` parameter lists them (nothing for a kind without one)."""
+    fields = get_kind(kind).params.model_fields
+    if "corrections" not in fields:
+        return {}
+    wanted = params.corrections.model_dump()
+    annotation = fields["corrections"].annotation
+    names = getattr(annotation, "model_fields", None)
+    return {"corrections": {k: v for k, v in wanted.items() if names is None or k in names}}
+
+
+def _tool_of(params: ClosedLoopParams) -> dict[str, Any]:
+    """compensate's tool and offsets correction (defaults left out: the child's own)."""
+    out: dict[str, Any] = {} if params.tool is None else {"tool": params.tool}
+    if not params.corrections.offsets:
+        out["corrections"] = {"offsets": False}
+    return out
 
 
 def _probe_count(plan: Job, trace_id: str) -> int:

@@ -6,16 +6,37 @@ coordinates.
 
 Policy outside the probed span: refused (422) unless ``hold_mm`` allows holding the end
 deviation over a short gap; see :mod:`app.compensation.standoff`.
+
+Tool frame (issue 16): on a machine whose profile has nozzles the programs are written for
+a nozzle (``tool``, default the profile's first): ``T<tool>`` first, every coordinate the
+carriage's = desired tip - the nozzle's CALIBRATED offset (the latest ``calibrate_nozzle``
+job, :func:`app.jobs.calibration.current_calibration`).  An uncalibrated nozzle is refused
+(422 ``params.tool``) unless ``allow_uncalibrated`` (nominal offset, with a warning);
+``corrections.offsets: false`` uses the nominal offset on purpose (ablation).  The result's
+``tool`` names the nozzle, the offset used and the calibration job.
+
+Nozzle clearance: the nozzle body (a flat-ended cylinder of the profile's outer diameter)
+is checked along the compensated path against the real surface (the placed nominal mesh +
+the reconstructed deviation at the trace's nearest station); ``clearance`` reports the
+smallest gap, and a body that would touch the part refuses the program (422 ``params.tool``
+naming the trace, where and by how much).
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
-from pydantic import Field
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 from sqlmodel import Session
 
-from app.compensation.standoff import CompensationParams, compensate_trace
+from app.calibration.clearance import nozzle_clearance
+from app.compensation.standoff import CompensationError, CompensationParams, compensate_trace, real_surface_height, \
+    tip_path
+from app.errors import InvalidInput
+from app.geometry.drape import top_surface_z
+from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.kinds.reconstruct import ReconstructJobParams, rebuild
@@ -23,6 +44,17 @@ from app.jobs.kinds.register import placement_from
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Machine
 from app.records import get_or_404
+
+
+CLEARANCE_STEP_MM = 0.05  # tip stations of the nozzle-body check along the path
+
+
+class CompensateCorrections(BaseModel):
+    """Which calibrations the program uses (false: that correction left out, for ablation)."""
+
+    model_config = ConfigDict(extra="forbid")
+    offsets: bool = Field(True, description="false: the nozzle's NOMINAL offset (the profile's) instead of "
+                          "the calibrated one")
 
 
 class CompensateParams(JobParams):
@@ -38,15 +70,86 @@ class CompensateParams(JobParams):
     hold_mm: float = Field(0.0, ge=0, le=5, description="hold the end deviation over gaps to the probed span "
                            "up to this length (0: refuse moves outside the probed span)")
     clearance_mm: float = Field(2.0, gt=0, le=100)
+    tool: int | None = Field(None, ge=0, le=8, description="the nozzle T<tool> the programs are written for "
+                             "(default: the machine profile's first nozzle; none: the probe frame); 0 = the "
+                             "probe's frame with T0")
+    allow_uncalibrated: bool = Field(False, description="write for a nozzle without calibration, at its "
+                                     "nominal offset (a warning in the result)")
+    corrections: CompensateCorrections = Field(default_factory=CompensateCorrections)
+
+
+@dataclass
+class ToolChoice:
+    """The frame the programs are written in: ``tool`` None = the probe frame of before.
+
+    offset_mm (3,) mm, source "calibrated" | "nominal" | "probe"; outer_diameter_mm None
+    skips the body check."""
+
+    tool: int | None = None
+    name: str = ""
+    offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    source: str = "probe"
+    calibration_job_id: str | None = None
+    outer_diameter_mm: float | None = None
+    dispense_on: str | None = None
+    dispense_off: str | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def to_result(self) -> dict[str, Any]:
+        return {"tool": self.tool, "name": self.name, "offset_mm": [round(v, 6) for v in self.offset_mm],
+                "offset_source": self.source, "calibration_job_id": self.calibration_job_id,
+                "outer_diameter_mm": self.outer_diameter_mm}
+
+
+def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
+    """The tool and offset of the programs (422 ``params.tool`` for a tool the machine does
+    not have or an uncalibrated nozzle without ``allow_uncalibrated``)."""
+    if params.machine_id is None:
+        if params.tool not in (None, 0):
+            raise InvalidInput(f"tool {params.tool} needs machine_id (its offset is the machine's)",
+                               field="params.tool", value=params.tool)
+        return ToolChoice(tool=params.tool)
+    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    tools = machine_profile(row).tools
+    nozzles = {n.tool: n for n in (tools.nozzles if tools else [])}
+    tool = params.tool if params.tool is not None else next(iter(nozzles), None)  # the profile's first
+    if tool in (None, 0):
+        return ToolChoice(tool=tool)
+    if tool not in nozzles:
+        raise InvalidInput(f"machine {row.id!r} has no nozzle T{tool} (its nozzles: "
+                           f"{sorted(nozzles) or 'none'})", field="params.tool", value=tool)
+    nozzle = nozzles[tool]
+    choice = ToolChoice(tool=tool, name=nozzle.name, offset_mm=tuple(float(v) for v in nozzle.offset_mm),
+                        source="nominal", outer_diameter_mm=float(nozzle.outer_diameter_mm),
+                        dispense_on=nozzle.dispense_on, dispense_off=nozzle.dispense_off)
+    if not params.corrections.offsets:
+        choice.warnings.append(f"T{tool} at its NOMINAL offset {list(choice.offset_mm)} mm "
+                               "(corrections.offsets is false)")
+        return choice
+    calibration = current_calibration(session, row.id)
+    calibrated = calibration.nozzles.get(tool)
+    if calibrated is None:
+        if not params.allow_uncalibrated:
+            raise InvalidInput(f"nozzle T{tool} of machine {row.id!r} has no calibration: run calibrate_nozzle "
+                               f"with tool {tool} first, or set allow_uncalibrated to print at its nominal "
+                               f"offset {list(choice.offset_mm)} mm", field="params.tool", value=tool)
+        choice.warnings.append(f"T{tool} is not calibrated: its NOMINAL offset {list(choice.offset_mm)} mm "
+                               "is used (allow_uncalibrated)")
+        return choice
+    choice.offset_mm = tuple(float(v) for v in calibrated.offset_mm)
+    choice.source, choice.calibration_job_id = "calibrated", calibration.nozzle_job_ids[tool]
+    if calibrated.outer_diameter_mm:
+        choice.outer_diameter_mm = float(calibrated.outer_diameter_mm)
+    choice.warnings += [f for f in calibration.flags if f"T{tool}" in f]
+    return choice
 
 
 def _check(params: CompensateParams, session: Session) -> None:
     job = get_or_404(session, Job, params.reconstruct_job_id, field="params.reconstruct_job_id")
     if job.kind != "reconstruct" or job.status != "succeeded" or job.params.get("trace_id") != params.trace_id:
-        from app.errors import InvalidInput
-
         raise InvalidInput(f"job {job.id!r} is not a succeeded reconstruct job of trace {params.trace_id!r}",
                            field="params.reconstruct_job_id", value=job.id)
+    choose_tool(params, session)
 
 
 def _references(params: CompensateParams) -> list[tuple[str, str]]:
@@ -64,10 +167,13 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     rebuilt_params = ReconstructJobParams.model_validate(source.params)
     reconstruction = rebuild(ctx, rebuilt_params)
     ctx.progress(0.3, "segmenting the compensated path")
+    with ctx.session() as session:
+        choice = choose_tool(params, session)
     dialect, on, off = params.dialect, params.dispense_on, params.dispense_off
     if params.machine_id:
         machine: Machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
+        on, off = choice.dispense_on or on, choice.dispense_off or off
     placement = placement_from(ctx, rebuilt_params)  # the reconstruction's frame (machine, when placed)
     mesh = ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
@@ -75,10 +181,42 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         feed_mm_min=params.feed_mm_min or trace.feed_mm_min or 300.0,
         chord_error_mm=params.chord_error_mm, dispense_on=on, dispense_off=off, dialect=dialect,
         clearance_mm=params.clearance_mm, part_max_z_mm=float(mesh.bounds[1][2]), hold_mm=params.hold_mm,
+        tool=choice.tool, tool_offset_mm=choice.offset_mm,
     ), job_id=ctx.job_id)
+    clearance = None
+    if choice.tool and choice.outer_diameter_mm:
+        ctx.progress(0.7, "checking the nozzle body's clearance")
+        clearance = _clearance(trace, reconstruction, path, mesh, choice.outer_diameter_mm)
     ctx.artifact("print.gcode", path.program.encode(), "text/x-gcode", gcode_meta(path.program))
     ctx.artifact("nominal.gcode", path.nominal_program.encode(), "text/x-gcode", gcode_meta(path.nominal_program))
-    result = {**path.to_result(), "points": path.points.tolist()}
+    result = {**path.to_result(), "points": path.points.tolist(), "tool": choice.to_result(),
+              "warnings": choice.warnings}
+    if clearance is not None:
+        result["clearance"] = clearance
     if placement is not None:
         result["placement"] = placement.to_dict()
     return result
+
+
+def _clearance(trace: Any, reconstruction: Any, path: Any, mesh: Any, diameter_mm: float) -> dict[str, Any]:
+    """``{min_mm, s_mm, point_mm, outer_diameter_mm}`` of the nozzle body along the compensated
+    tip path (stations every CLEARANCE_STEP_MM); CompensationError (422 ``params.tool``) when
+    the body would touch the part."""
+    length = float(reconstruction.nominal.length_mm)
+    s = np.linspace(0.0, length, max(2, int(np.ceil(length / CLEARANCE_STEP_MM)) + 1))
+    tips = tip_path(reconstruction, s, path.standoff_mm, path.span)
+    height = real_surface_height(lambda xy: top_surface_z(mesh, xy).z, reconstruction, path.span,
+                                 floor_mm=float(mesh.bounds[0][2]))
+    found = nozzle_clearance(tips, height, diameter_mm)
+    at = float(s[found.index])
+    point = [round(float(v), 4) for v in found.point_mm]
+    report = {"min_mm": round(float(found.min_mm), 6), "s_mm": round(at, 4), "point_mm": point,
+              "outer_diameter_mm": diameter_mm}
+    if found.min_mm <= 0.0:
+        raise CompensationError(
+            f"trace {trace.name} ({trace.id}): the nozzle body (outer diameter {diameter_mm:g} mm) would touch "
+            f"the part at s = {at:.3f} mm ({point[0]:.3f}, {point[1]:.3f}, {point[2]:.3f}) by "
+            f"{-found.min_mm:.4f} mm; no program produced (a thinner nozzle, a larger standoff, or a flatter "
+            f"path)", field="params.tool", value={"trace_id": trace.id, "trace": trace.name, "s_mm": round(at, 4),
+                                                    "point_mm": point, "by_mm": round(-float(found.min_mm), 6)})
+    return report

@@ -5,6 +5,16 @@ When the link drops mid-program (or the server dies) the job becomes ``interrupt
 waits: ``POST /jobs/{id}/resume`` reconnects, takes the first command not known to be
 executed (``Machine.resume_line``), re-homes and streams on from there
 (``app.jobs.machine_jobs``).  ``program_state`` in the job record shows where it stands.
+
+Drift reference (issue 16, ``drift_reference``, default on): on a machine whose probe
+calibration has a pad reading and whose profile has a reference pad, the probe (T0)
+touches the pad right before streaming and the program's absolute Z is shifted by the
+reading now minus the reading at calibration (:func:`app.gcode.shift.shift_z`): the Z the
+machine drifted since the calibration the program's frame rests on.  The SHIFTED program is
+what is streamed, recorded (``program``: its lines, commands and ``commands_sha256``, the
+artifact's as ``source_program``) and, on a resume, rebuilt with the recorded shift, so the
+executed stream and the resume point refer to what was really sent.  The program's own
+``T<tool>`` line selects its tool again.  Machines without such a calibration: unchanged.
 """
 
 from __future__ import annotations
@@ -16,6 +26,9 @@ from pydantic import Field, model_validator
 from sqlmodel import Session, select
 
 from app.errors import Cancelled, InvalidInput
+from app.gcode.shift import shift_z
+from app.jobs.calibration import current_calibration, machine_profile
+from app.jobs.calibration_touch import travel_height
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import check_gcode, gcode_meta
 from app.jobs.machine_jobs import (connected_machine, interrupt, machine_for_job, refuse_if_machine_busy, resume_point,
@@ -26,10 +39,15 @@ from app.machines import MachineFault, MachineUnavailable, hardware_errors, tran
 from app.models import Artifact, Machine, Program
 from app.records import get_or_404
 from hardware.errors import HardwareError, LinkError
+from hardware.machine import Machine as LiveMachine
 from hardware.protocol import validate_program
 
 PROGRESS_INTERVAL_S = 0.25
 GCODE_MEDIA_TYPE = "text/x-gcode"
+PAD_APPROACH_MM = 1.5   # the pad touch starts this far above the pad's nominal top (+ the ball radius)
+PAD_OVERTRAVEL_MM = 1.5  # and may go this far below it (the nominal place is known to ~0.3 mm)
+PAD_TOUCHES = 5          # averaged: one touch scatters by the probe's noise and pre-travel scatter
+PAD_SPACING_MM = 0.5     # apart along x around the pad's nominal centre (as the qualification)
 
 
 class PrintParams(JobParams):
@@ -37,6 +55,9 @@ class PrintParams(JobParams):
     program_id: str | None = None
     job_id: str | None = None
     artifact: str | None = Field(None, description="artifact of job_id to print, e.g. print.gcode")
+    drift_reference: bool = Field(True, description="touch the reference pad with the probe first and shift the "
+                                  "program's Z by the drift since the probe calibration (machines with a "
+                                  "calibrated pad reading and a profile reference pad; others: no effect)")
 
     @model_validator(mode="after")
     def _one_source(self) -> "PrintParams":
@@ -99,15 +120,33 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
     """Stream a program to the machine with progress and cancel; a dropped link interrupts
     the job, and only an operator's resume continues it (from the first command not known
     executed, after re-homing)."""
-    lines = _program_text(ctx, params).splitlines()
-    meta = gcode_meta("\n".join(lines))
+    text = _program_text(ctx, params)
+    lines = text.splitlines()
+    source_meta = gcode_meta("\n".join(lines))
     resume = resume_request(ctx)
     total = len(validate_program(lines))
     state: dict = {"total": total, "executed": 0, "acked_line_no": None, "start_line": 0,
                    "resumes": (resume or {}).get("resumes", 0)}
     preamble: list[str] = []
-    if resume is None:
-        machine = connected_machine(ctx, params.machine_id)
+    drift = (resume or {}).get("drift")
+    reference = None  # interrupted before its pad touch ended: start afresh (nothing of the program ran)
+    if resume is not None and drift is None and not resume.get("executed"):
+        reference = _drift_reference(ctx, params)
+    if resume is None or reference is not None:
+        machine = connected_machine(ctx, params.machine_id)  # connect first: the machine shows it at once
+        reference = reference or _drift_reference(ctx, params)
+        if reference is not None:  # touched before anything of the program moved
+            try:
+                if resume is not None:  # interrupted during the touch: the position may be lost
+                    machine.home()
+                drift = _touch_pad(ctx, machine, params.machine_id, reference)
+            except HardwareError as exc:  # a dropped link waits for an operator; a missed pad fails
+                if isinstance(exc, LinkError) or stopped_by_operator(ctx, machine):
+                    raise interrupt(ctx, machine, exc, state) from exc
+                raise translate(exc) from exc
+            state["drift"] = drift
+            ctx.runtime.store.save_program_state(ctx.claim, state)
+        resume = None
     else:
         state.update({k: resume[k] for k in ("executed", "acked_line_no") if k in resume})
         machine = None
@@ -119,7 +158,13 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
             raise interrupt(ctx, machine, exc, state) from exc
         state.update(executed=state["start_line"], acked_line_no=None, resumes=state["resumes"] + 1,
                      resume_preamble=preamble, resumed_from=state["start_line"])
+        if drift is not None:
+            state["drift"] = drift
         ctx.runtime.store.save_program_state(ctx.claim, state)
+    meta = source_meta
+    if drift is not None:  # what is streamed (and resumed) is the shifted program
+        lines = shift_z(text, drift["dz_mm"]).text.splitlines()
+        meta = gcode_meta("\n".join(lines))
     ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
     last_report = 0.0
     cancelled = False
@@ -156,6 +201,58 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
                         field="job_id", value=ctx.job_id)
     if resume is not None:  # the re-homing, then the modal state the skipped commands left
         preamble = preamble + list(machine.last_preamble)
-    return {"executed": report.executed, "total": report.total, "start_line": report.start_line,
-            "resumes": state["resumes"], "resume_preamble": preamble,
-            "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
+    result = {"executed": report.executed, "total": report.total, "start_line": report.start_line,
+              "resumes": state["resumes"], "resume_preamble": preamble,
+              "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
+    if drift is not None:
+        result |= {"source_program": source_meta, "drift": drift}
+    return result
+
+
+def _drift_reference(ctx: JobContext, params: PrintParams) -> dict | None:
+    """What the pad touch needs (pad place, ball radius, the calibration's pad reading and
+    its job, the travel height), or None when the drift reference does not apply."""
+    if not params.drift_reference:
+        return None
+    with ctx.session() as session:
+        row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+        profile = machine_profile(row)
+        pad = profile.reference.pad if profile.reference is not None else None
+        if pad is None:
+            return None
+        calibration = current_calibration(session, params.machine_id)
+    probe = calibration.probe
+    if probe is None or probe.pad_reading_z_mm is None:
+        return None
+    return {"pad_mm": [float(v) for v in pad.centre_mm], "ball_radius_mm": float(probe.ball_radius_mm),
+            "reference_z_mm": float(probe.pad_reading_z_mm), "probe_job_id": calibration.probe_job_id,
+            "travel_z_mm": travel_height(profile, float(probe.ball_radius_mm)),
+            "feed_mm_min": float(profile.probe_feed_mm_min)}
+
+
+def _touch_pad(ctx: JobContext, machine: LiveMachine, machine_id: str, reference: dict) -> dict:
+    """Touch the pad with the probe (T0) PAD_TOUCHES times around its nominal centre, straight
+    down, back to the travel height: ``{dz_mm, pad_reading_z_mm (their mean), readings_z_mm,
+    reference_z_mm, probe_job_id}`` (mm; dz = the reading now - the reading at calibration,
+    the shift the program's Z gets)."""
+    x0, y, z = reference["pad_mm"]
+    travel, start = reference["travel_z_mm"], z + reference["ball_radius_mm"] + PAD_APPROACH_MM
+    ctx.progress(0.0, "touching the reference pad (drift since calibration)")
+    ctx.runtime.machines.running_job[machine_id] = ctx.job_id
+    readings = []
+    try:
+        machine.move(z=travel)
+        machine.select_tool(0)
+        for k in range(PAD_TOUCHES):
+            x = x0 + (k - (PAD_TOUCHES - 1) / 2) * PAD_SPACING_MM
+            machine.move(x=x, y=y)
+            machine.move(z=start)
+            hit = machine.probe_toward((x, y, start), (x, y, z - PAD_OVERTRAVEL_MM),
+                                       feed_mm_min=reference["feed_mm_min"])
+            readings.append(float(hit.z))
+        machine.move(z=travel)
+    finally:
+        ctx.runtime.machines.running_job.pop(machine_id, None)
+    reading = sum(readings) / len(readings)
+    return {"dz_mm": reading - reference["reference_z_mm"], "pad_reading_z_mm": reading, "readings_z_mm": readings,
+            "reference_z_mm": reference["reference_z_mm"], "probe_job_id": reference["probe_job_id"]}

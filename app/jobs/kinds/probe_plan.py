@@ -18,7 +18,7 @@ shared).  Reconstruct each trace with ``method: "field"`` from the run."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -43,6 +43,7 @@ from app.probing.field import field_result, plan_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.joint import plan_joint
 from app.probing.nominal import as_nominal_path
+from app.probing.program import mesh_station_normals
 
 MAX_TRACES = 200
 MAX_FIELD_TRACES = 5000
@@ -162,7 +163,10 @@ def _plan_params(params: ProbePlanParams) -> PlanParams:
 
 
 def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: Any) -> tuple[ProbeProgram, dict]:
-    """Build the probe program of ``plan`` over ``mesh``, store it; (program, its G-code meta)."""
+    """Build the probe program of ``plan`` over ``mesh``, store it; (program, its G-code meta).
+    Stations without a planned normal take the placed mesh's face normal below them."""
+    if plan.normals is None:
+        plan = replace(plan, normals=mesh_station_normals(mesh, plan.points[:, :2]))
     program = build_probe_program(plan, mesh, ProbeProgramParams(
         dialect=params.dialect, probe_style=params.probe_style, clearance_mm=params.clearance_mm,
         approach_mm=params.approach_mm, overtravel_mm=params.overtravel_mm,

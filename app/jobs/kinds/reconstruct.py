@@ -28,7 +28,9 @@ from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
 from app.probing.field import stored_field
-from app.reconstruction.field import fit_bytes, fit_field, trace_reconstruction
+from app.probing.field_top import mesh_top_sampler
+from app.reconstruction.field import field_gradient, fit_bytes, fit_field, trace_reconstruction
+from app.jobs.probe_correction import refined, run_probe_calibration
 from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
 
 DEGREE = 3
@@ -155,12 +157,19 @@ def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
 
 def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
     """The reconstruction a ``reconstruct`` job with ``params`` makes (deterministic, so the
-    ``compensate`` job rebuilds it from the stored parameters instead of storing objects)."""
+    ``compensate`` job rebuilds it from the stored parameters instead of storing objects).
+
+    From a probe run on a calibrated machine with radius correction, the readings are
+    turned into surface heights again along the normal of the REAL surface (the nominal's
+    tilted by the reconstructed deviation's gradient) and the trace rebuilt, twice
+    (:func:`refined`)."""
     trace = ctx.trace(params.trace_id)
     placement = placement_from(ctx, params)
     if params.method == "field":
         return _field_rebuild(ctx, params, placed_nominal(trace, placement))
     context: list[tuple[Any, Any]] = []
+    rows: list[dict] = []
+    calibration = None
     if params.points is not None:
         measured: Any = params.points
         context = [(placed_nominal(ctx.trace(c.trace_id), placement), c.points) for c in params.context or ()]
@@ -168,11 +177,36 @@ def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
         measured, others = run_points(ctx, params)
         if params.method == "kriging":
             context = [(placed_nominal(ctx.trace(t), placement), pts) for t, pts in others.items()]
+        calibration, rows = run_calibration(ctx, params)
     nominal = placed_nominal(trace, placement)
     prior = PlanParams(deviation_amplitude_mm=params.deviation_amplitude_mm,
                        deviation_wavelength_mm=params.deviation_wavelength_mm).prior()
-    return reconstruct(nominal, measured, params.method, sigma_mm=params.sigma_mm,
-                       params=ReconstructParams(prior=prior), context=context)
+
+    def build(points: Any) -> Reconstruction:
+        return reconstruct(nominal, points, params.method, sigma_mm=params.sigma_mm,
+                           params=ReconstructParams(prior=prior), context=context)
+
+    result = build(measured)
+    if calibration is None:
+        return result
+    result, refinement = refined(result, rows, calibration, lambda r, xy: r.deviation_gradient_xy(xy), build)
+    return replace(result, refinement=refinement)
+
+
+def run_calibration(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any, list[dict]]:
+    """(RunCalibration, this trace's rows of the run) when the run's points carry readings of a
+    calibrated probe with radius correction, else (None, [])."""
+    probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
+    calibration = run_probe_calibration(probe_run.result)
+    if calibration is None:
+        return None, []
+    plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
+    ranges = joint_trace_ranges(plan)
+    rows = probe_run.result["points"]
+    if ranges is not None:
+        lo, hi = ranges[params.trace_id]
+        rows = [p for p in rows if lo <= p["index"] < hi]
+    return calibration, rows
 
 
 def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dict[str, list]]:
@@ -205,13 +239,28 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
         raise InvalidInput(f"trace {params.trace_id!r} is not one of the traces of field plan {plan.id!r}",
                            field="params.trace_id", value=params.trace_id)
     key = (probe_run.id, params.sigma_mm)
-    fit = FIELD_FITS.get(key)
-    if fit is None:
+    cached = FIELD_FITS.get(key)
+    if cached is None:
         field = stored_field(stored)
         prior = field.prior if params.sigma_mm is None else replace(field.prior, sigma_mm=params.sigma_mm)
         rows = sorted(probe_run.result["points"], key=lambda p: p["index"])
-        fit = fit_field(prior, field.stations, field.z, [p["measured"] for p in rows], field.center,
-                        field.trace, field.s_mm, field="probe run points")
-        FIELD_FITS.put(key, fit, fit_bytes(fit))
-    return trace_reconstruction(fit, nominal, trace_ids.index(params.trace_id),
-                                ReconstructParams(prior=fit.posterior.prior))
+
+        def fit_of(points: Any) -> Any:
+            return fit_field(prior, field.stations, field.z, points, field.center, field.trace, field.s_mm,
+                             field="probe run points")
+
+        fit = fit_of([p["measured"] for p in rows])
+        calibration = run_probe_calibration(probe_run.result)
+        refinement = None
+        if calibration is not None:
+            stations = field.stations
+            trace = ctx.trace(params.trace_id)
+            top = mesh_top_sampler(ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement_from(ctx, params)))
+            fit, refinement = refined(fit, rows, calibration, lambda f, _xy: field_gradient(
+                f, stations, slope_at=lambda xy: top(xy).grad), fit_of)
+        cached = (fit, refinement)
+        FIELD_FITS.put(key, cached, fit_bytes(fit))
+    fit, refinement = cached
+    rec = trace_reconstruction(fit, nominal, trace_ids.index(params.trace_id),
+                               ReconstructParams(prior=fit.posterior.prior))
+    return rec if refinement is None else replace(rec, refinement=refinement)

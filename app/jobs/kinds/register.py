@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import trimesh
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
@@ -30,7 +31,9 @@ from app.jobs.context import JobContext
 from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_machine, resume_request,
                                    stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
-from app.machines import translate
+from app.calibration import surface_heights
+from app.jobs.probe_correction import machine_probe
+from app.machines import hardware_errors, translate
 from hardware.errors import HardwareError, LinkError
 from app.models import Job, Part
 from app.records import get_or_404
@@ -112,7 +115,8 @@ class RegisterParams(JobParams):
     search_mm: float = Field(1.5, gt=0, le=20, description="edge search half-width: the largest placement "
                              "error the edge search finds; below margin_mm")
     resolution_mm: float = Field(0.001, gt=0, le=1, description="edge bisection stops at this bracket")
-    tip_radius_mm: float = Field(0.0, ge=0, le=5, description="probe ball radius (the top edge is caught early)")
+    tip_radius_mm: float | None = Field(None, ge=0, le=5, description="probe ball radius (the top edge is caught "
+                                        "early); default: the machine's calibrated ball radius, else 0")
     margin_mm: float = Field(2.0, gt=0, le=50, description="datum touches keep this far from face edges")
     pivot_xy: list[Finite] = Field(default_factory=lambda: [0.0, 0.0], min_length=2, max_length=2,
                                    description="rotation axis of the reported placement (machine x, y) mm")
@@ -144,6 +148,17 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
     resume = resume_request(ctx)
     state = {"total": None, "touches": 0, "resumes": (resume or {}).get("resumes", 0)}
     machine = rehomed_machine(ctx, params.machine_id, resume, state)
+    probe = machine_probe(ctx, params.machine_id)
+    tip_radius = params.tip_radius_mm if params.tip_radius_mm is not None else \
+        (probe.calibration.ball_radius_mm if probe is not None else 0.0)
+    surface_z = None
+    if probe is not None:
+        with hardware_errors():
+            machine.select_tool(0)
+        calibration = probe.calibration
+
+        def surface_z(z_read: float, normal: np.ndarray) -> float:
+            return float(surface_heights([[0.0, 0.0, z_read]], [normal], calibration).z_mm[0])
     z_bottom, z_top = mesh.bounds[:, 2]
     z_start, z_min = float(z_top) + params.clearance_mm, float(z_bottom) - params.overtravel_mm
     feed = params.probe_feed_mm_min
@@ -166,12 +181,14 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
     ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
     try:
         fitted = register_with_z_probe(plan, probe_z, float(z_bottom), DatumProbeParams(
-            search_mm=params.search_mm, resolution_mm=params.resolution_mm, tip_radius_mm=params.tip_radius_mm,
-            sigma_mm=params.sigma_mm, pivot_xy=(params.pivot_xy[0], params.pivot_xy[1])))
+            search_mm=params.search_mm, resolution_mm=params.resolution_mm, tip_radius_mm=tip_radius,
+            sigma_mm=params.sigma_mm, pivot_xy=(params.pivot_xy[0], params.pivot_xy[1])), surface_z=surface_z)
     finally:
         ctx.runtime.machines.running_job.pop(params.machine_id, None)
     ctx.progress(0.95, f"placement fitted from {fitted.probe_count} touches")
-    return {**fitted.to_result(), "mode": params.mode,
+    calibrated = {} if probe is None else {"calibration": {"probe_job_id": probe.job_id, "tip_radius_mm": tip_radius,
+                                                            "probe": probe.calibration.to_dict()}}
+    return {**fitted.to_result(), "mode": params.mode, **calibrated,
             "plan": {"faces": list(plan.faces), "predicted_std": {
                 "rz_deg" if k == "rz" else f"{k}_mm": math.degrees(v) if k == "rz" else v
                 for k, v in plan.predicted_std.items()}}}

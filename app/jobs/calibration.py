@@ -1,0 +1,253 @@
+"""A machine's current calibration: the latest succeeded ``calibrate_probe`` job and, per
+nozzle, the latest succeeded ``calibrate_nozzle`` job, with what an operator must know
+about them (``flags``): too old, a re-check that disagrees with the calibration before it,
+a nozzle calibrated against an earlier probe calibration (a nozzle's Z offset rests on the
+probe's ball radius and pre-travel).
+
+Not a job kind: the calibration kinds and every job that uses a calibration (probe runs,
+compensation, prints) import it.  Values are mm and seconds inside; the API summary
+(:func:`calibration_summary`) reports standard deviations in micrometres (``_um``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any
+
+from pydantic import ValidationError
+from sqlmodel import Session, select
+
+from app.api.machine_schemas import Profile
+from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
+from app.errors import InvalidInput
+from app.models import Job, Machine
+from app.records import get_or_404
+
+KINDS = ("calibrate_probe", "calibrate_nozzle")
+
+
+@dataclass
+class MachineCalibration:
+    """What a machine is calibrated with now (None / empty where it is not).
+
+    ``probe_at`` / ``nozzle_at``: when the calibration job finished (UTC).  ``flags``: one
+    readable sentence per problem, e.g. "probe calibration is 30.1 h old (max 24 h)"."""
+
+    probe: ProbeCalibration | None = None
+    probe_job_id: str | None = None
+    probe_at: datetime | None = None
+    nozzles: dict[int, NozzleCalibration] = field(default_factory=dict)
+    nozzle_job_ids: dict[int, str] = field(default_factory=dict)
+    nozzle_at: dict[int, datetime] = field(default_factory=dict)
+    flags: list[str] = field(default_factory=list)
+    max_age_h: float = 24.0
+    probe_result: dict[str, Any] | None = None  # the probe job's stored result (agreement, readings)
+    nozzle_results: dict[int, dict[str, Any]] = field(default_factory=dict)
+    now: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
+
+    def age_h(self, at: datetime | None) -> float | None:
+        return None if at is None else (self.now - _utc(at)).total_seconds() / 3600.0
+
+    def stale(self, at: datetime | None) -> bool:
+        age = self.age_h(at)
+        return age is not None and age > self.max_age_h
+
+
+def _utc(moment: datetime) -> datetime:
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=timezone.utc)
+
+
+def _done_at(job: Job) -> datetime:
+    return _utc(job.finished_at or job.created_at)
+
+
+def machine_profile(row: Machine) -> Profile:
+    """The stored profile of ``row`` (profiles stored before issue 16 get the defaults;
+    keys this service does not know are left to the hardware layer)."""
+    known = {k: v for k, v in (row.profile or {}).items() if k in Profile.model_fields}
+    try:
+        return Profile.model_validate(known)
+    except ValidationError as exc:
+        where = ".".join(str(p) for p in exc.errors()[0]["loc"])
+        raise InvalidInput(f"machine {row.id!r} has a stored profile this service cannot read at profile.{where}: "
+                           f"{exc.errors()[0]['msg']}", field=f"profile.{where}", value=row.id) from exc
+
+
+def probe_from(result: dict[str, Any]) -> ProbeCalibration:
+    """The probe calibration stored in a ``calibrate_probe`` job's result."""
+    return ProbeCalibration.from_dict(result)
+
+
+def nozzle_from(result: dict[str, Any]) -> NozzleCalibration:
+    """The nozzle calibration stored in a ``calibrate_nozzle`` job's result."""
+    return NozzleCalibration.from_dict(result)
+
+
+def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None], str]:
+    """{(kind, tool or None): job id} of the newest succeeded calibration job of each kind
+    and tool of ``machine_id`` (reads ids and times only, not the stored results)."""
+    rows = session.exec(select(Job.id, Job.kind, Job.params, Job.finished_at, Job.created_at).where(
+        Job.machine_id == machine_id, Job.kind.in_(KINDS), Job.status == "succeeded")).all()
+    latest: dict[tuple[str, int | None], tuple[datetime, str]] = {}
+    for job_id, kind, params, finished, created in rows:
+        key = (kind, int(params["tool"]) if kind == "calibrate_nozzle" else None)
+        at = _utc(finished or created)
+        if key not in latest or at > latest[key][0]:
+            latest[key] = (at, job_id)
+    return {key: job_id for key, (_at, job_id) in latest.items()}
+
+
+def latest_calibration_job(session: Session, machine_id: str, kind: str, tool: int | None = None) -> Job | None:
+    """The newest succeeded ``kind`` job of the machine (of nozzle ``tool``), or None."""
+    job_id = _latest_ids(session, machine_id).get((kind, tool if kind == "calibrate_nozzle" else None))
+    return None if job_id is None else session.get(Job, job_id)
+
+
+def current_calibration(session: Session, machine_id: str, *, now: datetime | None = None) -> MachineCalibration:
+    """The machine's current calibration with its flags (NotFound for an unknown machine)."""
+    row = get_or_404(session, Machine, machine_id, field="machine_id")
+    profile = machine_profile(row)
+    cal = MachineCalibration(max_age_h=float(profile.calibration_max_age_h),
+                             now=_utc(now) if now is not None else datetime.now(timezone.utc))
+    for (kind, tool), job_id in _latest_ids(session, machine_id).items():
+        job = session.get(Job, job_id)
+        if job is None:  # deleted meanwhile
+            continue
+        result = job.result or {}
+        if kind == "calibrate_probe":
+            cal.probe, cal.probe_job_id, cal.probe_at = probe_from(result), job_id, _done_at(job)
+            cal.probe_result = result
+        elif tool is not None:
+            cal.nozzles[tool], cal.nozzle_job_ids[tool] = nozzle_from(result), job_id
+            cal.nozzle_at[tool], cal.nozzle_results[tool] = _done_at(job), result
+    cal.nozzles = dict(sorted(cal.nozzles.items()))
+    cal.flags = _flags(cal)
+    return cal
+
+
+def _flags(cal: MachineCalibration) -> list[str]:
+    flags: list[str] = []
+    if cal.probe is not None:
+        if cal.stale(cal.probe_at):
+            flags.append(f"probe calibration is {_age_text(cal.age_h(cal.probe_at))} old (max {cal.max_age_h:g} h)")
+        flags += _disagreement_flags("probe", cal.probe_result)
+    for tool in sorted(cal.nozzles):
+        at = cal.nozzle_at[tool]
+        if cal.stale(at):
+            flags.append(f"nozzle T{tool} calibration is {_age_text(cal.age_h(at))} old (max {cal.max_age_h:g} h)")
+        result = cal.nozzle_results[tool]
+        flags += _disagreement_flags(f"nozzle T{tool}", result)
+        used = result.get("probe_job_id")
+        if cal.probe_job_id is not None and used != cal.probe_job_id and \
+                (used is not None or cal.probe_at is None or cal.probe_at > at):
+            flags.append(f"nozzle T{tool} was calibrated against probe calibration {used} but the probe was "
+                         f"re-calibrated since ({cal.probe_job_id}): re-calibrate T{tool} (its Z offset rests on "
+                         "the probe's ball radius and pre-travel)")
+    return flags
+
+
+def _age_text(hours: float | None) -> str:
+    """"30.1 h", "12 min", "40 s"."""
+    hours = hours or 0.0
+    if hours >= 1:
+        return f"{hours:.1f} h"
+    return f"{hours * 60:.0f} min" if hours * 60 >= 1 else f"{hours * 3600:.0f} s"
+
+
+def _disagreement_flags(what: str, result: dict[str, Any] | None) -> list[str]:
+    agreement = (result or {}).get("agreement") or {}
+    names = agreement.get("disagrees") or []
+    if not names:
+        return []
+    differences = agreement.get("differences_mm") or {}
+    changes = ", ".join(f"{name} by {differences.get(name, float('nan')) * 1000:+.1f} um" for name in names)
+    return [f"{what} re-check disagrees with the calibration before it (job {agreement.get('previous_job_id')}): "
+            f"{changes}"]
+
+
+# ---- named values and their uncertainties (what agreement compares) -------------------------
+def probe_values(cal: ProbeCalibration) -> tuple[dict[str, float], dict[str, float]]:
+    """({name: value mm}, {name: std mm}) of a probe calibration's physical parameters."""
+    values = {"ball_radius_mm": cal.ball_radius_mm, "pretravel_mm": cal.pretravel.p0_mm,
+              "lobing_cos3_mm": cal.pretravel.cos3_mm, "lobing_sin3_mm": cal.pretravel.sin3_mm}
+    std = {name: _std_of(cal.std, name) for name in values}
+    return values, std
+
+
+def _std_of(std: dict[str, float], name: str) -> float:
+    """The standard deviation of ``name`` from a core ``std`` dict (keys with or without
+    the ``_mm`` suffix; the core's pre-travel names); 0 when the core gives none."""
+    aliases = {"pretravel_mm": ("pretravel_mm", "pretravel_p0_mm", "p0_mm", "pretravel", "p0"),
+               "lobing_cos3_mm": ("lobing_cos3_mm", "cos3_mm", "pretravel_cos3_mm", "cos3"),
+               "lobing_sin3_mm": ("lobing_sin3_mm", "sin3_mm", "pretravel_sin3_mm", "sin3"),
+               "ball_radius_mm": ("ball_radius_mm", "ball_radius", "radius_mm", "r")}
+    for key in aliases.get(name, (name,)):
+        if key in std and std[key] is not None and math.isfinite(std[key]):
+            return float(std[key])
+    return 0.0
+
+
+def nozzle_values(cal: NozzleCalibration) -> tuple[dict[str, float], dict[str, float]]:
+    """({offset_x_mm, offset_y_mm, offset_z_mm}, their std mm) of a nozzle calibration."""
+    names = ("offset_x_mm", "offset_y_mm", "offset_z_mm")
+    return ({n: float(v) for n, v in zip(names, cal.offset_mm, strict=True)},
+            {n: float(s) for n, s in zip(names, cal.std_mm, strict=True)})
+
+
+def agreement(previous: Job | None, values: dict[str, float], std: dict[str, float]) -> dict[str, Any]:
+    """How a new calibration compares with ``previous`` (a succeeded job of the same
+    machine, kind and tool): ``{previous_job_id, differences_mm: {name: new - old},
+    disagrees: [names beyond 3 sigma of the combined uncertainty + 2 um]}``."""
+    if previous is None:
+        return {"previous_job_id": None, "differences_mm": {}, "disagrees": []}
+    if previous.kind == "calibrate_probe":
+        old, old_std = probe_values(probe_from(previous.result or {}))
+    else:
+        old, old_std = nozzle_values(nozzle_from(previous.result or {}))
+    bad = disagreements(old, values, old_std, std)
+    return {"previous_job_id": previous.id, "differences_mm": {k: values[k] - old[k] for k in values if k in old},
+            "disagrees": sorted(bad)}
+
+
+def require_probe_calibration(session: Session, machine_id: str) -> MachineCalibration:
+    """The machine's calibration; 422 when it has no probe calibration yet."""
+    cal = current_calibration(session, machine_id)
+    if cal.probe is None:
+        raise InvalidInput(f"machine {machine_id!r} has no probe calibration: calibrate the probe first "
+                           "(job calibrate_probe)", field="params.machine_id", value=machine_id)
+    return cal
+
+
+# ---- the operator's summary (GET /machines/{id}/calibration) --------------------------------
+def _um(value_mm: float | None) -> float | None:
+    return None if value_mm is None else round(float(value_mm) * 1000.0, 3)
+
+
+def calibration_summary(machine_id: str, cal: MachineCalibration, profile: Profile) -> dict[str, Any]:
+    """Values in mm, standard deviations and residuals in um (``_um``), ages in hours,
+    the job ids and flags; every nozzle of the profile (``calibrated: false`` when not)."""
+    probe = None
+    if cal.probe is not None:
+        values, std = probe_values(cal.probe)
+        probe = {"job_id": cal.probe_job_id, "calibrated_at": cal.probe_at, "age_h": cal.age_h(cal.probe_at),
+                 "stale": cal.stale(cal.probe_at), **values, **{f"{k[:-3]}_std_um": _um(v) for k, v in std.items()},
+                 "sphere_centre_mm": list(cal.probe.sphere_centre_mm), "pad_reading_z_mm": cal.probe.pad_reading_z_mm,
+                 "residual_rms_um": _um(cal.probe.residual_rms_mm), "touches": cal.probe.touches,
+                 "disagrees": list(((cal.probe_result or {}).get("agreement") or {}).get("disagrees") or [])}
+    nozzles = []
+    for nozzle in (profile.tools.nozzles if profile.tools is not None else []):
+        entry: dict[str, Any] = {"tool": nozzle.tool, "name": nozzle.name, "outer_diameter_mm": nozzle.outer_diameter_mm,
+                                 "nominal_offset_mm": list(nozzle.offset_mm), "calibrated": nozzle.tool in cal.nozzles}
+        if nozzle.tool in cal.nozzles:
+            found, at, result = cal.nozzles[nozzle.tool], cal.nozzle_at[nozzle.tool], cal.nozzle_results[nozzle.tool]
+            entry.update(job_id=cal.nozzle_job_ids[nozzle.tool], calibrated_at=at, age_h=cal.age_h(at),
+                         stale=cal.stale(at), offset_mm=list(found.offset_mm),
+                         offset_std_um=[_um(s) for s in found.std_mm],
+                         nominal_difference_mm=[c - n for c, n in zip(found.offset_mm, nozzle.offset_mm, strict=True)],
+                         probe_job_id=result.get("probe_job_id"), touches=found.touches,
+                         disagrees=list((result.get("agreement") or {}).get("disagrees") or []))
+        nozzles.append(entry)
+    return {"machine_id": machine_id, "max_age_h": cal.max_age_h, "probe": probe, "nozzles": nozzles,
+            "flags": list(cal.flags)}
