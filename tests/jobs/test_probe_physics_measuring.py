@@ -303,7 +303,7 @@ def test_field_plan_run_gets_corrected_points_and_the_field_iterates(client, mes
 def test_probe_calibrated_through_the_api_then_measured(client, meshes):
     """calibrate_probe on the datum sphere and the pad (nominal places ~0.3 mm off, pre-travel
     scatter 2 um), then a probe run: the points sit on the true surface within the touch's own
-    scatter (2 um pre-travel + 1 um noise: 2.2 um rms, 3.5 sigma = 8 um; they are in the
+    scatter (2 um pre-travel + 1 um noise: 2.2 um rms, 4 sigma = 9 um; they are in the
     calibration's frame: low by the drift at calibration time, ~1 um here)."""
     part = upload(client, meshes["nominal"], "s1.stl")
     true = upload(client, meshes["true"], "s1-true.stl")
@@ -324,7 +324,7 @@ def test_probe_calibrated_through_the_api_then_measured(client, meshes):
     assert result["calibration"]["probe_job_id"] == cal["id"]
     err = errors(result)
     print(f"API-calibrated probe run: max |e| {np.abs(err).max() * 1e3:.1f} um, mean {err.mean() * 1e3:.1f} um")
-    assert np.abs(err).max() < 0.008 and np.sqrt(np.mean(err ** 2)) < 0.003 and abs(err.mean()) < 0.002, err
+    assert np.abs(err).max() < 0.009 and np.sqrt(np.mean(err ** 2)) < 0.003 and abs(err.mean()) < 0.002, err
 
 
 def test_an_interrupted_calibrated_run_resumes_with_its_drift_track(client, meshes):
