@@ -144,8 +144,8 @@ def fit_nozzle_offset(tool: int, touches: Any, readings: Any, probe: ProbeCalibr
         var_probe_z = probe.std.get("ball_radius_mm", 0.0) ** 2 + probe.std.get("p0_mm", 0.0) ** 2
     if len(probe_pad):
         pad_z = float(p[probe_pad, 2].mean()) + delta_up - probe.ball_radius_mm
-    elif probe.pad_reading_z_mm is not None:
-        pad_z = float(probe.pad_surface_z_mm())
+    elif (surface := probe.pad_surface_z_mm()) is not None:
+        pad_z = surface
         var_probe_z += probe.std.get("pad_reading_z_mm", 0.0) ** 2
     else:
         raise CalibrationError("no probe pad reading: touch the pad with the probe too", field="touches")
@@ -170,14 +170,14 @@ def fit_nozzle_offset(tool: int, touches: Any, readings: Any, probe: ProbeCalibr
         plus, minus = p[sides[f"+{name}"], axis], p[sides[f"-{name}"], axis]
         span = float(plus.mean() - minus.mean())
         if abs(span / 2 - (big_r + half_d)) > 0.5 * (big_r + half_d) or span <= 0:
-            i = sides[f"+{name}"][0]
+            first = int(sides[f"+{name}"][0])
             raise CalibrationError(f"nozzle side touches along {name} are {span:.3f} mm apart; a body of "
                                    f"{2 * half_d:.3f} mm on a {2 * big_r:.3f} mm sphere gives about "
-                                   f"{2 * (big_r + half_d):.3f} mm", field=f"readings[{i}]", value=p[i])
+                                   f"{2 * (big_r + half_d):.3f} mm", field=f"readings[{first}]", value=p[first])
         offset_xy.append(float(c[axis] - (plus.mean() + minus.mean()) / 2))
         s2 = _pooled_var([plus, minus])
         var_xy.append(s2 / 4 * (1 / len(plus) + 1 / len(minus)) + probe.std.get(f"centre_{name}_mm", 0.0) ** 2)
-    std = tuple(float(math.sqrt(v)) for v in (*var_xy, var_z))
+    std = (math.sqrt(var_xy[0]), math.sqrt(var_xy[1]), math.sqrt(var_z))
     used = len(probe_pad) + len(nozzle_pad) + sum(len(v) for v in sides.values())
     return NozzleCalibration(tool=int(tool), offset_mm=(offset_xy[0], offset_xy[1], o_z), std_mm=std,
                              outer_diameter_mm=2 * half_d, touches=used)

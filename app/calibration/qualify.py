@@ -110,9 +110,9 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
     touches.extend(pads)
     top = c[2] + rho_s
     ring_touches: list[list[Touch]] = []
-    for ring in rings:
-        theta = math.radians(ring)
-        count = 1 if ring == 0 else int(per_ring)
+    for ring_deg in rings:
+        theta = math.radians(ring_deg)
+        count = 1 if ring_deg == 0 else int(per_ring)
         rho = rho_s * math.sin(theta)                  # station distance from the axis
         # highest contact when the sphere is u closer, lowest when u farther; and u higher / lower
         high = top if rho <= u else c[2] + math.sqrt(max(rho_s ** 2 - (rho - u) ** 2, 0.0))
@@ -206,7 +206,7 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
     drift = t_rel is not None
     used = np.concatenate([sphere, pad]) if drift else sphere
     p = p_all[sphere]
-    d = np.array([touches[i].direction for i in sphere])
+    d = np.array([touches[int(i)].direction for i in sphere])
     # initial guess: algebraic sphere |P|^2 = 2 P.c + k
     a = np.column_stack([2 * p, np.ones(len(p))])
     sol, *_ = np.linalg.lstsq(a, (p ** 2).sum(axis=1), rcond=None)
@@ -224,13 +224,13 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
         c, r = x[:3], x[3]
         model = x[4:7] if lobing else np.array([x[4], 0.0, 0.0])
         q = p
-        if drift:   # raise every reading by the drift since t_0; the pad readings share one height
+        if t_rel is not None:   # raise every reading by the drift since t_0; the pad readings share one height
             q = p.copy()
             q[:, 2] += x[-2] * t_rel[sphere]
         n, delta = _normals_delta(q, d, c, model, lobing)
         # the scatter is along the move: divide the radial miss by cos(angle(n, -d)) to put it there
         res = (np.linalg.norm(q - delta[:, None] * d - c, axis=1) - (big_r + r)) / np.abs((n * d).sum(axis=1))
-        if drift:
+        if t_rel is not None:
             res = np.concatenate([res, p_all[pad, 2] + x[-2] * t_rel[pad] - x[-1]])
         return res
 

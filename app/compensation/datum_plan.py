@@ -143,7 +143,8 @@ def plan_datum_probes(mesh: trimesh.Trimesh, mode: str = "sides", count: int | N
     if count < 1:
         raise RegistrationError("count must be >= 1", field="count", value=count)
     if pivot_xy is None:
-        pivot_xy = tuple(float(v) for v in mesh.bounds.mean(axis=0)[:2])
+        centre = mesh.bounds.mean(axis=0)
+        pivot_xy = (float(centre[0]), float(centre[1]))
     pts, nrm, dirs, side = _candidates(mesh, mode, candidates, seed, min_top_nz, margin_mm,
                                        approach_mm)
     if len(pts) == 0:
@@ -336,7 +337,8 @@ def _combine(parts: list[tuple[str, Registration, tuple[str, ...]]], pivot: tupl
         theta[idx] = [values[k] for k in idx]
         cov[np.ix_(idx, idx)] = reg.covariance
         std.update(reg.std)
-    return DatumRegistration(Placement(*theta, pivot[0], pivot[1]), std, cov, unobservable,
+    return DatumRegistration(Placement(float(theta[0]), float(theta[1]), float(theta[2]), float(theta[3]),
+                                       pivot[0], pivot[1]), std, cov, unobservable,
                              tuple(touches), tuple(r for _, r, _ in parts),
                              tuple(n for n, _, _ in parts))
 
@@ -372,14 +374,15 @@ def register_with_z_probe(plan: DatumPlan, probe_z: ProbeZ, floor_z_mm: float,
     if plan.mode == "z_only" or vertical.all():
         names = tuple(p for p in PARAMETERS if p not in plan.unobservable)
         touches = [DatumTouch(plan.faces[i], plan.points[i].copy(), plan.normals[i].copy(),
-                              np.array([*plan.points[i][:2], height(*plan.points[i][:2], plan.normals[i])]),
+                              np.array([*plan.points[i][:2], height(float(plan.points[i][0]), float(plan.points[i][1]),
+                                                                      plan.normals[i])]),
                               plan.directions[i].copy(), 1) for i in range(len(plan.points))]
         reg = _fit(touches, names, pivot, params)
         return _combine([("z_only", reg, names)], pivot, tuple(plan.unobservable), touches)
-    edges = [_edge_touch(plan, i, probe_z, floor_z_mm, params) for i in np.flatnonzero(~vertical)]
+    edges = [_edge_touch(plan, int(i), probe_z, floor_z_mm, params) for i in np.flatnonzero(~vertical)]
     xy_names = ("dx", "dy", "rz")
     first = _fit(edges, xy_names, pivot, params)
-    parts = [("edges", first, xy_names)]
+    parts: list[tuple[str, Registration, tuple[str, ...]]] = [("edges", first, xy_names)]
     heights: list[DatumTouch] = []
     for i in np.flatnonzero(vertical):
         at = apply_placement(plan.points[i][None, :2], first.placement)[0]

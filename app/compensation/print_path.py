@@ -53,7 +53,7 @@ class SegmentedPath(NamedTuple):
     distance between each segment and the curve it replaces.  max_error_mm: the largest.
     """
 
-    index: np.ndarray
+    index: np.ndarray  # type: ignore[assignment]  # the field shadows tuple.index by design
     s: np.ndarray
     points: np.ndarray
     segment_error_mm: np.ndarray
@@ -149,9 +149,9 @@ def segment_adaptive(s: np.ndarray, points: np.ndarray, chord_error_mm: float,
         raise SegmentationError("need (N >= 2, 3) samples with (N,) stations",
                                 field="points", value=list(points.shape))
     if not (np.isfinite(points).all() and np.isfinite(s).all()):
-        bad = int(np.argmax(~np.isfinite(points).all(axis=1)))
-        raise SegmentationError(f"tool path sample {bad} is not finite (s = {s[bad]:.4f} mm)",
-                                field="path", value=float(s[bad]))
+        first = int(np.argmax(~np.isfinite(points).all(axis=1)))
+        raise SegmentationError(f"tool path sample {first} is not finite (s = {s[first]:.4f} mm)",
+                                field="path", value=float(s[first]))
     gap = np.broadcast_to(np.asarray(gap_bound_mm, dtype=float), (len(s) - 1,))
     gap = np.concatenate([gap, [0.0]])  # pad: reduceat reads gap[index[i]..index[i+1]-1]
     if gap.max() >= chord_error_mm:

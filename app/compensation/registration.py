@@ -107,7 +107,7 @@ class Placement:
         out[:3, 3] = pivot - rot @ pivot + np.array([self.dx, self.dy, self.dz])
         return out
 
-    def to_dict(self) -> dict[str, float]:
+    def to_dict(self) -> dict[str, Any]:
         return {"dx": self.dx, "dy": self.dy, "dz": self.dz, "rz_deg": self.rz_deg,
                 "pivot": [self.pivot_x, self.pivot_y]}
 
@@ -250,7 +250,7 @@ def fit_placement(nominal_points: Any, normals: Any, measured: Any,
     theta = np.zeros(4)
     foot, nrm = q, n
     for iteration in range(1, params.max_iterations + 1):
-        pl = Placement(*theta, pivot[0], pivot[1])
+        pl = Placement(float(theta[0]), float(theta[1]), float(theta[2]), float(theta[3]), float(pivot[0]), float(pivot[1]))
         p_part = remove_placement(m, pl)
         if surface is not None:
             foot, nrm = (np.asarray(a, dtype=float) for a in surface(p_part))
@@ -277,7 +277,7 @@ def fit_placement(nominal_points: Any, normals: Any, measured: Any,
             f"the datum touches do not determine {weak} (their normals/lever arms leave that "
             f"motion unseen; e.g. all touches on one face): add touches on faces that see it "
             f"or estimate fewer parameters", field="measured", value=weak)
-    pl = Placement(*theta, pivot[0], pivot[1])
+    pl = Placement(float(theta[0]), float(theta[1]), float(theta[2]), float(theta[3]), float(pivot[0]), float(pivot[1]))
     p_part = remove_placement(m, pl)
     if surface is not None:
         foot, nrm = (np.asarray(a, dtype=float) for a in surface(p_part))

@@ -226,6 +226,7 @@ def _fit_surface(data: HeightGrid | np.ndarray, params: SurfaceFitParams) -> Sur
                 z[(xx == p[0]) & (yy == p[1])] = np.nan
             base = HeightGrid(grid.x, grid.y, z)
         else:
+            assert params.resample_shape is not None  # the branch's condition
             nx, ny = params.resample_shape
             lo, hi = measured[:, :2].min(axis=0), measured[:, :2].max(axis=0)
             base = HeightGrid(np.linspace(lo[0], hi[0], nx), np.linspace(lo[1], hi[1], ny),
