@@ -12,7 +12,7 @@ from app.circuits.heightfield import HeightField
 from app.circuits.mapping import MappingOptions, map_layout
 from app.circuits.placement import Placement
 from app.circuits.warp import WarpOptions, fixed_split_error, warp_program
-from app.gcode.estimator import estimate_gcode
+from app.gcode.lines import read_lines
 from app.reference.s1 import s1_mesh
 
 
@@ -71,16 +71,19 @@ def test_warp_scaling_and_fixed_split_comparison():
         ours = warp_program(text, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
         elapsed = time.perf_counter() - t0
         t1 = time.perf_counter()
-        estimate_gcode(text)                    # reference: one plain pass over the same program
+        read_lines(text)                    # reference: the house tokenizer's plain pass over the same program
         reference = time.perf_counter() - t1
-        pieces, worst = fixed_split_error(text, surface, 5.0, 0.1)
-        pieces1, worst1 = fixed_split_error(text, surface, 1.0, 0.1)
-        print(f"warp {lines:6d} lines: {elapsed:.3f} s (time estimator's pass {reference:.3f} s, ratio "
-              f"{elapsed / reference:.2f}); ours {ours.pieces} pieces, proved max "
-              f"{ours.max_bound_mm * 1000:.2f} um; fixed 5 mm split {pieces} pieces, worst {worst * 1000:.2f} um; "
-              f"fixed 1 mm split {pieces1} pieces, worst {worst1 * 1000:.2f} um")
+        for split in (5.0, 1.0):
+            pieces, worst = fixed_split_error(text, surface, split, 0.1)
+            # the fixed split's program: the same travel and other lines, its own printing pieces
+            print(f"  fixed {split:g} mm split: {ours.lines_out - ours.pieces + pieces} lines, {pieces} pieces, "
+                  f"worst {worst * 1000:.2f} um")
+        print(f"warp {lines:6d} lines: {elapsed:.3f} s; reference (read_lines pass) {reference:.3f} s, ratio "
+              f"{elapsed / reference:.2f}; ours {ours.lines_out} lines, {ours.pieces} pieces, proved max "
+              f"{ours.max_bound_mm * 1000:.2f} um")
         assert ours.max_bound_mm <= 0.002
         if lines == 100_000:
-            # the goal is 2 s; this shared machine is often many times slower than idle, so the
-            # check also accepts 3x the reference pass (one plain read of the program) of the same run
-            assert elapsed <= 2.0 or elapsed <= 3.0 * reference
+            # the goal is 2 s.  This machine is shared (often 5x slower than idle), so the same run's
+            # reference pass measures the load: under load the warp must take at most half of one
+            # plain tokenizer pass over its program (idle, that pass takes about 1.5 s)
+            assert elapsed <= 2.0 or elapsed <= 0.5 * reference, (elapsed, reference)
