@@ -81,8 +81,11 @@ def check_region(recs: Records, inside, bounds: tuple[float, float, float, float
     k = int(np.argmin(ok))
     where = "" if bounds is None else (f" (x {bounds[0]:.3f}..{bounds[1]:.3f}, y {bounds[2]:.3f}.."
                                        f"{bounds[3]:.3f})")
-    raise recs.refuse(int(k_print[k]), f"the printing move from x={p0[k, 0]:.4f}, y={p0[k, 1]:.4f} to "
+    err = recs.refuse(int(k_print[k]), f"the printing move from x={p0[k, 0]:.4f}, y={p0[k, 1]:.4f} to "
                       f"x={p1[k, 0]:.4f}, y={p1[k, 1]:.4f} leaves the measured region{where}")
+    err.value.update({"from_xy": [round(float(v), 4) for v in p0[k, :2]],
+                      "to_xy": [round(float(v), 4) for v in p1[k, :2]]})
+    raise err
 
 
 def _refuse_outside(recs: Records, surface: HeightField) -> None:
