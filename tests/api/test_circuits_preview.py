@@ -40,6 +40,8 @@ def test_the_dry_run_is_drawn_on_the_part_in_the_view(vclient):
     view = vclient.post("/api/v1/viewer/token", json={}, headers=OP).json()["view_id"]
     # two traces 5 mm apart (widths 0.2) and a third crossing the first: a "too close" warning
     close = GERBER_MM.replace("X0Y5000000D02*", "X10000000Y-3000000D02*\nX10000000Y3000000D01*\nX0Y5000000D02*")
+    wrapped = _dry(vclient, part["id"], GERBER_MM, origin_mm=[5, 10], mapping="wrap", view_id=view)
+    assert wrapped.status_code == 201 and wrapped.json()["preview"]["drawn"], wrapped.text
     response = _dry(vclient, part["id"], close, origin_mm=[5, 10], view_id=view)
     assert response.status_code == 201, response.text
     body = response.json()
