@@ -86,7 +86,7 @@ const num = (id, value, extra = {}) => el("input", { type: "number", step: "any"
 const standoff = num("warp-standoff", 0.1, { min: 0 });
 const chord = num("warp-chord", 0.002, { min: 0 });
 const outside = el("input", { type: "checkbox", id: "warp-allow-outside" });
-const progress = el("progress", { id: "warp-progress", max: 1, value: 0 });
+const progress = el("progress", { id: "warp-progress", max: 1, value: 0, "aria-label": "warp progress" });
 const output = el("div", { id: "warp-result" });
 right.append(el("h2", {}, "Warp onto the probed part"),
   el("p", { class: "small" }, "Every printing move is moved onto the measured surface at the standoff and split so "

@@ -85,3 +85,14 @@ def test_the_programs_page_warps_onto_the_probed_part(page, served, tmp_path):
     assert page.get_attribute("#warp-refused", "data-line") == "5"
     assert "x=58.0000" in page.inner_text("#warp-refused")
     assert page.js_errors == []
+
+
+def test_the_programs_page_has_no_serious_accessibility_violations(page):
+    from axe_playwright_python.sync_playwright import Axe
+
+    page.goto("/programs.html")
+    page.wait_for_selector('body[data-ready="1"]')
+    violations = Axe().run(page).response["violations"]
+    serious = [(v["id"], v["impact"], [n["target"] for n in v["nodes"]][:3]) for v in violations
+               if v["impact"] in ("serious", "critical")]
+    assert serious == [], serious
