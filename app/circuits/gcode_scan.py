@@ -238,9 +238,11 @@ def _scan_fast(text: str) -> Records | None:
     body = _COMMENT.sub("", text).encode("ascii")
     if _EXPONENT.search(body):
         return None                                   # "X1E5": the line-by-line reader decides
-    value = np.fromstring(body.translate(_LETTERS_TO_BLANK), sep=" ")   # every word's number, in order
     marks = np.frombuffer(body, np.uint8)
     marks = marks[_KEEP[marks]]                       # every word's letter, and the line breaks
+    words = int(np.count_nonzero(marks != 10))
+    # every word's number, in order (no words: nothing to parse, fromstring would invent one)
+    value = np.fromstring(body.translate(_LETTERS_TO_BLANK), sep=" ") if words else np.zeros(0)
     is_nl = marks == 10
     tok_line = (np.cumsum(is_nl) - is_nl)[~is_nl]
     code = marks[~is_nl].astype(np.int64)

@@ -101,7 +101,7 @@ def _pieces(p0: np.ndarray, p1: np.ndarray, surface: HeightField, opts: WarpOpti
     n = np.maximum(n, 1).astype(np.int64)
     piece_bound = (length / n) ** 2 / 8.0 * bound
     seg = np.repeat(np.arange(len(p0)), n)
-    first = np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64)
+    first = (np.cumsum(n) - n).astype(np.int64)
     k = np.arange(n.sum()) - first[seg] + 1
     t = k / n[seg]
     pts = p0[seg] + t[:, None] * (p1 - p0)[seg]

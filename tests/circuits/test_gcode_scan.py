@@ -60,7 +60,8 @@ def _same(a, b) -> None:
     assert a.lines == b.lines
 
 
-@pytest.mark.parametrize("text", [MODAL, MODAL.replace("\n", "\r\n"), MODAL.rstrip("\n"), "G1 X1 Y1 E1\n"])
+@pytest.mark.parametrize("text", [MODAL, MODAL.replace("\n", "\r\n"), MODAL.rstrip("\n"), "G1 X1 Y1 E1\n", "",
+                                  "; only a comment\n", "\n\n", "G21\nG0 X1 Y1\n"])
 def test_the_vectorised_reader_gives_the_line_readers_records(text):
     fast = _scan_fast(text)
     assert fast is not None
@@ -102,3 +103,12 @@ def test_g92_is_refused_naming_its_line():
     with pytest.raises(WarpError) as err:
         scan_program("G1 X1 Y1 E1\nG92 E0\n")
     assert err.value.value["line"] == 2
+
+
+def test_programs_without_printing_moves_are_warped_too():
+    from app.circuits.heightfield import HeightField
+    from app.circuits.warp import warp_program
+
+    x = np.linspace(0, 10, 5)
+    out = warp_program("; nothing\nG21\nG0 X1 Y1\n", HeightField(x, x, np.zeros((5, 5))))
+    assert out.pieces == 0 and out.text.splitlines()[-2:] == ["G0 Z2", "G0 X1 Y1"]
