@@ -71,6 +71,9 @@ export function circuitImportSection({ partSelect, getPart, onDone, viewer, view
     }
   }
 
+  // Open the 3-D view as soon as files are chosen, so it is connected when the preview draws.
+  file.addEventListener("change", () => { viewId(); });
+
   async function send(dryRun) {
     if (!file.files.length) throw new Error("choose one or more circuit files");
     if (!partSelect.value) throw new Error("upload a part first");
