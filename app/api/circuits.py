@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, File, Form, UploadFile
+from fastapi import APIRouter, File, Form, Request, UploadFile
 from pydantic import BaseModel, Field, ValidationError
 
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
@@ -19,9 +19,11 @@ from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
 from app.circuits.formats import read_layout
 from app.circuits.mapping import MappingOptions, map_layout
+from app.circuits.pad_probes import probe_ring
 from app.circuits.placement import Placement
 from app.errors import ConformaError, InvalidInput
-from app.models import CircuitImport, Part, new_id, utcnow
+from app.jobs.kinds.circuit_program import import_probe_trace_ids
+from app.models import CircuitImport, Part, Trace, new_id, utcnow
 from app.records import build_trace, get_or_404
 
 router = APIRouter(prefix="/api/v1", tags=["circuits"])
@@ -45,6 +47,9 @@ class CircuitImportOptions(Strict):
     standoff_mm: Finite = Field(0.10, gt=0, le=50)
     feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
     dry_run: bool = False
+    view_id: str | None = Field(None, min_length=1, max_length=40, pattern=r"^[A-Za-z0-9_-]+$",
+                                description="with dry_run: draw the mapped circuit on the part in this 3-D view "
+                                            "(from POST /viewer/token) before accepting")
 
 
 class ImportedFile(BaseModel):
@@ -76,6 +81,7 @@ class ImportedPad(BaseModel):
     center_mm: list[float | None]
     outline_xy_mm: list[list[float]]
     on_part: bool
+    probe_trace_id: str | None = Field(None, description="the trace whose probes cover this pad")
 
 
 class CircuitImportOut(BaseModel):
@@ -85,7 +91,14 @@ class CircuitImportOut(BaseModel):
     traces: list[ImportedTrace]
     pads: list[ImportedPad]
     areas: list[list[list[float]]]
+    probe_paths: list[dict[str, Any]] = Field(default_factory=list, description=(
+        "a closed probe ring inside every on-part pad and area (stored as traces with source.role "
+        "pad_probe): give probe_trace_ids to the closed loop with the import's traces so the fills "
+        "are compensated from stations on them"))
+    probe_trace_ids: list[str] = Field(default_factory=list)
     warnings: list[dict[str, Any]]
+    preview: dict[str, Any] | None = Field(None, description="with dry_run and view_id: the 3-D view drawn "
+                                           "(view_id, generation, nodes) or why it could not be")
 
 
 class CircuitImportRecord(BaseModel):
@@ -96,6 +109,7 @@ class CircuitImportRecord(BaseModel):
     trace_ids: list[str]
     pads: list[dict[str, Any]]
     areas: list[list[list[float]]]
+    probe_trace_ids: list[str] = Field(default_factory=list, description="the pads' and areas' probe rings")
     created_at: UtcDatetime
 
 
@@ -116,7 +130,7 @@ def _finite(v: float) -> float | None:
 
 
 @router.post("/parts/{part_id}/circuits:import", status_code=201, dependencies=[Operator])
-def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep,
+def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, request: Request,
                    files: Annotated[list[UploadFile], File(description="circuit files (KiCad, Gerber, Excellon, "
                                                                        "DXF, SVG)")],
                    options: Annotated[str, Form(description="CircuitImportOptions as JSON")] = "{}",
@@ -133,7 +147,8 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep,
     import_id = new_id("cimp")
     out = CircuitImportOut(import_id=import_id, dry_run=opts.dry_run, files=[], traces=[], pads=[], areas=[],
                            warnings=[])
-    records = []
+    records: list = []
+    pad_records: list = []
     for upload in files:
         name = (upload.filename or "circuit").rsplit("/", 1)[-1]
         layout = read_layout(upload.file.read(), name, opts.format, opts.layers)
@@ -177,6 +192,14 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep,
                                         center_mm=[_finite(v) for v in p.center],
                                         outline_xy_mm=p.outline_xy.round(6).tolist(), on_part=p.on_part))
         out.areas += [a.round(6).tolist() for a in mapped.areas_xy]
+        first_area = len(out.areas) - len(mapped.areas_xy)
+        rings = [(out.pads[len(out.pads) - len(mapped.pads) + i], p.name, p.outline_xy)
+                 for i, p in enumerate(mapped.pads) if p.on_part]
+        rings += [(None, f"area {first_area + i}", a) for i, a in enumerate(mapped.areas_xy)]
+        for pad, what, outline in rings:
+            probe = _probe_trace(runtime, part, outline, f"{name}:{what}", opts, import_id, out, records)
+            if pad is not None and probe is not None:
+                pad_records.append((pad, probe))
     if not opts.dry_run:
         off = [t for t in out.traces if not t.on_part]
         if off:
@@ -184,19 +207,60 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep,
             raise InvalidInput(f"{first.name}: the trace leaves the part's upper surface (use a dry run to see "
                                "every warning)", field=f"traces.{first.index}", value=first.source.get("entity"))
         session.add_all([trace for _, trace in records])
+        for pad, trace in pad_records:
+            pad.probe_trace_id = trace.id
+        out.probe_trace_ids = [t.id for item, t in records if item is None]
         session.add(CircuitImport(
             id=import_id, part_id=part.id, files=[f.model_dump() for f in out.files],
-            options=opts.model_dump(), trace_ids=[trace.id for _, trace in records],
+            options=opts.model_dump(), trace_ids=[trace.id for item, trace in records if item is not None],
             pads=[p.model_dump() for p in out.pads], areas=out.areas, created_at=utcnow()))
         session.commit()
     for item, trace in records:
+        if item is None:
+            continue
         item.trace = trace_out(trace).model_dump(mode="json") if not opts.dry_run else {
             "id": None, "name": trace.name, "length_mm": trace.length_mm, "z_range": [trace.z_min, trace.z_max],
             "width_mm": trace.width_mm, "geometry": trace.geometry, "nominal": {"points": trace.nominal["points"]}}
+    if opts.dry_run and opts.view_id:
+        out.preview = _preview(request, part, mesh, out, opts.view_id)
     return out
+
+
+def _preview(request: Request, part: Part, mesh, out: CircuitImportOut, view_id: str) -> dict[str, Any]:
+    """Draw the dry run in the 3-D view ``view_id`` (see :mod:`app.viewer.circuit_preview`)."""
+    viewer = getattr(request.app.state, "viewer", None)
+    if viewer is None:
+        return {"view_id": view_id, "drawn": False, "reason": "the 3D view is off on this server"}
+    from app.viewer.circuit_preview import circuit_preview_scene
+
+    snapshot = viewer.show(circuit_preview_scene(part.id, mesh, out.model_dump(mode="json")), view_id)
+    return {"view_id": view_id, "drawn": True, "generation": snapshot["generation"], "nodes": snapshot["nodes"],
+            "notes": snapshot["notes"]}
+
+
+def _probe_trace(runtime, part: Part, outline, label: str, opts: CircuitImportOptions, import_id: str,
+                 out: CircuitImportOut, records: list) -> Trace | None:
+    """The probe ring of a pad or area as a trace (records gets (None, trace)); a ring the part
+    cannot carry is a warning, the pad is then filled from the stations around it."""
+    ring = probe_ring(outline)
+    if ring is None:
+        return None
+    body = TraceCreate(name=f"{label} (pad probe)"[:200], geometry={"type": "polyline", "points": ring.tolist()},
+                       frame="xy", standoff_mm=opts.standoff_mm)
+    try:
+        trace = build_trace(runtime.meshes, part, body, field_prefix="probe_paths")
+    except ConformaError as exc:
+        out.warnings.append({"kind": "pad_not_probed", "pad": label, "message": exc.message})
+        return None
+    trace.source = {"role": "pad_probe", "import_id": import_id, "pad": label}
+    out.probe_paths.append({"pad": label, "ring_xy_mm": ring.round(6).tolist(),
+                            "points": trace.nominal["points"]})
+    records.append((None, trace))
+    return trace
 
 
 @router.get("/circuit-imports/{import_id}", dependencies=[Viewer])
 def get_circuit_import(import_id: str, session: SessionDep) -> CircuitImportRecord:
-    """A committed import: its files, options, trace ids, and mapped pads and areas."""
-    return CircuitImportRecord(**get_or_404(session, CircuitImport, import_id, field="import_id").model_dump())
+    """A committed import: its files, options, trace ids, mapped pads and areas, and their probe traces."""
+    imp = get_or_404(session, CircuitImport, import_id, field="import_id")
+    return CircuitImportRecord(**imp.model_dump(), probe_trace_ids=import_probe_trace_ids(session, imp))

@@ -109,12 +109,7 @@ class HeightField:
         return out
 
 
-def height_field_from_points(points: np.ndarray, spacing_mm: float = 1.0) -> HeightField:
-    """A height field from scattered surface points (n, 3) mm (probe touches, a fitted surface's
-    samples): C1 Clough-Tocher interpolation onto a grid of ``spacing_mm`` over their bounding
-    box; the measured region is their convex hull (grid nodes outside it take the nearest value)."""
-    from scipy.interpolate import CloughTocher2DInterpolator, NearestNDInterpolator
-
+def _checked_points(points: np.ndarray) -> np.ndarray:
     pts = np.asarray(points, float)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4 or not np.isfinite(pts).all():
         raise WarpError("a surface needs at least 4 finite (x, y, z) points", field="surface",
@@ -122,6 +117,32 @@ def height_field_from_points(points: np.ndarray, spacing_mm: float = 1.0) -> Hei
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     if (hi - lo).min() <= 0:
         raise WarpError("the surface points span no area", field="surface", value=[lo.tolist(), hi.tolist()])
+    return pts
+
+
+def points_region(points: np.ndarray):
+    """The measured region of scattered surface points (n, 3) mm, as :func:`height_field_from_points`
+    defines it (their convex hull), without building the field: (inside(x (m,), y (m,)) -> (m,)
+    bool, bounds (x0, x1, y0, y1) mm)."""
+    pts = _checked_points(points)
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    hull = Delaunay(pts[:, :2])
+
+    def inside(x: np.ndarray, y: np.ndarray, slack: float = 1e-9) -> np.ndarray:
+        ok = (x >= lo[0] - slack) & (x <= hi[0] + slack) & (y >= lo[1] - slack) & (y <= hi[1] + slack)
+        return ok & (hull.find_simplex(np.column_stack([x, y]), tol=1e-9) >= 0)
+
+    return inside, (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+
+
+def height_field_from_points(points: np.ndarray, spacing_mm: float = 1.0) -> HeightField:
+    """A height field from scattered surface points (n, 3) mm (probe touches, a fitted surface's
+    samples): C1 Clough-Tocher interpolation onto a grid of ``spacing_mm`` over their bounding
+    box; the measured region is their convex hull (grid nodes outside it take the nearest value)."""
+    from scipy.interpolate import CloughTocher2DInterpolator, NearestNDInterpolator
+
+    pts = _checked_points(points)
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     nx = max(4, int(np.ceil((hi[0] - lo[0]) / spacing_mm)) + 1)
     ny = max(4, int(np.ceil((hi[1] - lo[1]) / spacing_mm)) + 1)
     x, y = np.linspace(lo[0], hi[0], nx), np.linspace(lo[1], hi[1], ny)

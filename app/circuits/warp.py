@@ -20,18 +20,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import math
-
 import numpy as np
 
-from app.circuits.errors import WarpError
+from app.circuits.gcode_scan import EONLY, OTHER, PRINT, TRAVEL, ZONLY, MODE, Records, scan_program
 from app.circuits.heightfield import HeightField
-from app.gcode.lines import read_lines
 
-__all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "fixed_split_error"]
-
-DISPENSE_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
-DISPENSE_OFF = frozenset({"M107", "M9", "M5"})
+__all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "check_region", "fixed_split_error"]
 
 
 @dataclass(frozen=True)
@@ -47,8 +41,9 @@ class WarpOptions:
 
 @dataclass(frozen=True)
 class WarpResult:
-    """text: the warped program; lines_in / lines_out; printing_moves; pieces (emitted printing
-    segments); max_bound_mm: the largest proved chord bound of an emitted piece (<= chord_error_mm)."""
+    """text: the warped program; lines_in (records read: a source line, or an arc's chord) /
+    lines_out; printing_moves; pieces (emitted printing segments); max_bound_mm: the largest
+    proved chord bound of an emitted piece (<= chord_error_mm)."""
 
     text: str
     lines_in: int
@@ -64,230 +59,141 @@ def _fmt(v: float, d: int) -> str:
     return "0" if s in ("-0", "") else s
 
 
-def _refuse(ln, message: str) -> WarpError:
-    return WarpError(f"line {ln.number}: {message}", field="file",
-                     value={"line": ln.number, "text": ln.text.strip()[:80]})
+def check_program(text: str, surface: HeightField, allow_outside: bool = False) -> int:
+    """Raise WarpError naming the first refused line (arcs outside XY, G92, a printing move
+    outside the measured region unless allowed); returns the number of printing moves."""
+    recs = scan_program(text)
+    if not allow_outside:
+        check_region(recs, surface.inside)
+    return int(np.count_nonzero(recs.kind == PRINT))
 
 
-def _arc_points(ln, start: list, end: list, values: dict, scale: float, clockwise: bool,
-                arc_chord_mm: float) -> list[list[float]]:
-    """End points [x, y, z, e] of the chords of a G2/G3 arc in the XY plane (I, J offsets from
-    the start, or R: positive the shorter arc), each chord's sagitta <= ``arc_chord_mm``;
-    z and e are shared out along the angle (helix)."""
-    sx, sy, ex, ey = start[0], start[1], end[0], end[1]
-    if "I" in values or "J" in values:
-        cx, cy = sx + values.get("I", 0.0) * scale, sy + values.get("J", 0.0) * scale
-    elif "R" in values:
-        r = values["R"] * scale
-        dx, dy = ex - sx, ey - sy
-        chord = math.hypot(dx, dy)
-        if chord == 0.0 or abs(r) < chord / 2 - 1e-9:
-            raise _refuse(ln, f"the arc's radius {abs(r):g} mm cannot join its ends {chord:g} mm apart")
-        h = math.sqrt(max(r * r - chord * chord / 4, 0.0)) * (1 if (r > 0) != clockwise else -1)
-        cx, cy = sx + dx / 2 - h * dy / chord, sy + dy / 2 + h * dx / chord
-    else:
-        raise _refuse(ln, "an arc needs I/J or R")
-    radius = math.hypot(sx - cx, sy - cy)
-    if radius <= 0.0:
-        raise _refuse(ln, "the arc has zero radius")
-    a0, a1 = math.atan2(sy - cy, sx - cx), math.atan2(ey - cy, ex - cx)
-    ccw = (a1 - a0) % (2 * math.pi)
-    if abs(ex - sx) + abs(ey - sy) <= 1e-12:
-        ccw = 2 * math.pi
-    sweep = -(2 * math.pi - ccw if ccw < 2 * math.pi else 2 * math.pi) if clockwise else (ccw or 2 * math.pi)
-    step = 2 * math.acos(max(-1.0, 1 - arc_chord_mm / radius)) if arc_chord_mm < radius else math.pi / 2
-    n = max(1, math.ceil(abs(sweep) / step))
-    out = []
-    for k in range(1, n + 1):
-        t = k / n
-        a = a0 + sweep * t
-        out.append([cx + radius * math.cos(a), cy + radius * math.sin(a), start[2] + t * (end[2] - start[2]),
-                    start[3] + t * (end[3] - start[3])])
-    out[-1][:2] = [ex, ey]
-    return out
+def check_region(recs: Records, inside, bounds: tuple[float, float, float, float] | None = None) -> None:
+    """WarpError naming the first printing move with an end where ``inside(x (n,), y (n,)) -> (n,)
+    bool`` is False (``bounds`` (x0, x1, y0, y1) mm named in the message when given)."""
+    k_print = np.flatnonzero(recs.kind == PRINT)
+    if not len(k_print):
+        return
+    p0, p1 = recs.start[k_print], recs.end[k_print]
+    ok = inside(p0[:, 0], p0[:, 1]) & inside(p1[:, 0], p1[:, 1])
+    if ok.all():
+        return
+    k = int(np.argmin(ok))
+    where = "" if bounds is None else (f" (x {bounds[0]:.3f}..{bounds[1]:.3f}, y {bounds[2]:.3f}.."
+                                       f"{bounds[3]:.3f})")
+    err = recs.refuse(int(k_print[k]), f"the printing move from x={p0[k, 0]:.4f}, y={p0[k, 1]:.4f} to "
+                      f"x={p1[k, 0]:.4f}, y={p1[k, 1]:.4f} leaves the measured region{where}")
+    err.value.update({"from_xy": [round(float(v), 4) for v in p0[k, :2]],
+                      "to_xy": [round(float(v), 4) for v in p1[k, :2]]})
+    raise err
 
 
-def _kind(g0: float, start: list, end: list, dispensing: bool) -> str:
-    moved_xy = end[0] != start[0] or end[1] != start[1]
-    de = end[3] - start[3]
-    if moved_xy and g0 != 0.0 and (de > 0 or dispensing):
-        return "print"
-    if moved_xy:
-        return "travel"
-    if end[2] != start[2]:
-        return "zonly"
-    return "eonly" if de != 0 else "other"
+def _refuse_outside(recs: Records, surface: HeightField) -> None:
+    check_region(recs, surface.inside, (surface.x[0], surface.x[-1], surface.y[0], surface.y[-1]))
 
 
-def _scan(text: str, arc_chord_mm: float = 0.001):
-    """First pass: modal interpretation.  Returns per-line records
-    (kind, line, start [x, y, z, e], end [x, y, z, e], feed mm/min, e absolute) with kind in
-    print / travel / zonly / eonly / mode / other (start, end None for the last two).  Arcs
-    (G2/G3, XY plane) become several records of their line, chords within ``arc_chord_mm``."""
-    pos = [0.0, 0.0, 0.0, 0.0]
-    absolute, e_abs, scale, dispensing, feed, plane = True, True, 1.0, False, None, 17.0
-    recs = []
-    axes = (("X", 0), ("Y", 1), ("Z", 2), ("E", 3))
-    for ln in read_lines(text):
-        g, values = ln.g, ln.values
-        if ln.m:
-            m = {f"M{int(v)}" for v in ln.m}
-            if m & DISPENSE_ON:
-                dispensing = True
-            if m & DISPENSE_OFF:
-                dispensing = False
-            if "M82" in m:
-                e_abs = True
-            if "M83" in m:
-                e_abs = False
-        if g and (g[0] in (0.0, 1.0, 2.0, 3.0)) and len(g) == 1 and (
-                "X" in values or "Y" in values or "Z" in values or "E" in values or "I" in values or "J" in values):
-            if "F" in values:
-                feed = values["F"] * scale
-            start = pos[:]
-            for ax, i in axes:
-                v = values.get(ax)
-                if v is None:
-                    continue
-                rel = (not absolute) if i < 3 else (not e_abs)
-                pos[i] = pos[i] + v * scale if rel else v * scale
-            if g[0] in (2.0, 3.0):
-                if plane != 17.0:
-                    raise _refuse(ln, "arcs are warped in the XY plane (G17) only")
-                prev = start
-                for point in _arc_points(ln, start, pos, values, scale, g[0] == 2.0, arc_chord_mm):
-                    recs.append((_kind(g[0], prev, point, dispensing), ln, prev, point, feed, e_abs))
-                    prev = point
-                pos = prev[:]
-                continue
-            recs.append((_kind(g[0], start, pos, dispensing), ln, start, pos[:], feed, e_abs))
-            continue
-        for code in g:
-            if code in (17.0, 18.0, 19.0):
-                plane = code
-            if code == 92.0:
-                raise _refuse(ln, "G92 (set position) is not supported by the warp")
-            if code == 20.0:
-                scale = 25.4
-            elif code == 21.0:
-                scale = 1.0
-            elif code == 90.0:
-                absolute = True
-            elif code == 91.0:
-                absolute = False
-        kind = "mode" if g and all(c in (17.0, 20.0, 21.0, 90.0, 91.0) for c in g) else "other"
-        recs.append((kind, ln, None, None, None, e_abs))
-    return recs
-
-
-def _piece_lines(prints, n: np.ndarray, pts: np.ndarray, z: np.ndarray, d: int) -> list[str]:
-    """The G1 line of every emitted piece (vectorised formatting; E shared out, F on the first piece)."""
-    seg = np.repeat(np.arange(len(prints)), n)
-    first = np.concatenate([[0], np.cumsum(n)[:-1]])
+def _pieces(p0: np.ndarray, p1: np.ndarray, surface: HeightField, opts: WarpOptions):
+    """Per printing move (m,): piece count n, proved piece bound; every piece end (N, 4) and its z (N,)."""
+    length = np.hypot(p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1])
+    bound = surface.curvature_bound(p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1]) if len(p0) else np.zeros(0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        n = np.where(bound > 0, np.ceil(length * np.sqrt(bound / (8.0 * opts.chord_error_mm))), 1.0)
+    n = np.maximum(n, 1).astype(np.int64)
+    piece_bound = (length / n) ** 2 / 8.0 * bound
+    seg = np.repeat(np.arange(len(p0)), n)
+    first = (np.cumsum(n) - n).astype(np.int64)
     k = np.arange(n.sum()) - first[seg] + 1
-    e0 = np.array([r[2][3] for r in prints])[seg]
-    e1 = np.array([r[3][3] for r in prints])[seg]
-    e_abs = np.array([r[5] for r in prints])[seg]
+    t = k / n[seg]
+    pts = p0[seg] + t[:, None] * (p1 - p0)[seg]
+    h = surface.height(pts[:, 0], pts[:, 1]) if len(pts) else np.zeros(0)
+    z = h + opts.standoff_mm if opts.standoff_mm is not None else pts[:, 2] + h
+    return n, piece_bound, seg, first, k, pts, z
+
+
+def _piece_template(recs: Records, k_print: np.ndarray, n, seg, first, k, pts, z, d: int) -> tuple[np.ndarray, list]:
+    """Each piece's line as a %-template (N,) and all their values in order (vectorised: E
+    shared out absolute or relative, F on a move's first piece)."""
+    e0, e1 = recs.start[k_print, 3][seg], recs.end[k_print, 3][seg]
+    e_abs = recs.e_abs[k_print][seg]
     # relative E: rounding the running total (not each share) keeps the program's total exact
     total = np.cumsum(np.where(e_abs, 0.0, (e1 - e0) / n[seg]))
     share = np.round(total, 5) - np.round(np.concatenate([[0.0], total[:-1]]), 5)
     e = np.where(e_abs, e0 + k / n[seg] * (e1 - e0), share)
+    feed = recs.feed[k_print]
+    has_f = np.zeros(len(seg), bool)
+    has_f[first] = np.isfinite(feed) & (feed != 0)
     has_e = e1 != e0
-    xyz = f"G1 X{{:.{d}f}} Y{{:.{d}f}} Z{{:.{d}f}}".format
-    lines = list(map(xyz, pts[:, 0], pts[:, 1], z))
-    for j in np.flatnonzero(has_e):
-        lines[j] += f" E{e[j]:.5f}"
-    for i, r in enumerate(prints):
-        if r[4]:
-            lines[first[i]] += f" F{r[4]:.1f}"
-    return lines
-
-
-def check_program(text: str, surface: HeightField, allow_outside: bool = False) -> int:
-    """Raise WarpError naming the first refused line (arcs, G92, a printing move outside the
-    measured region unless allowed); returns the number of printing moves."""
-    recs = _scan(text)
-    if not allow_outside:
-        _refuse_outside([r for r in recs if r[0] == "print"], surface)
-    return sum(1 for r in recs if r[0] == "print")
-
-
-def _refuse_outside(prints: list, surface: HeightField) -> None:
-    if not prints:
-        return
-    p0 = np.array([r[2] for r in prints])
-    p1 = np.array([r[3] for r in prints])
-    inside = surface.inside(p0[:, 0], p0[:, 1]) & surface.inside(p1[:, 0], p1[:, 1])
-    if not inside.all():
-        k = int(np.argmin(inside))
-        raise _refuse(prints[k][1], f"the printing move from x={p0[k, 0]:.4f}, y={p0[k, 1]:.4f} to "
-                      f"x={p1[k, 0]:.4f}, y={p1[k, 1]:.4f} leaves the measured region (x {surface.x[0]:.3f}.."
-                      f"{surface.x[-1]:.3f}, y {surface.y[0]:.3f}..{surface.y[-1]:.3f})")
+    values = np.column_stack([pts[:, 0], pts[:, 1], z, e, np.repeat(np.nan_to_num(feed), n)])
+    mask = np.column_stack([np.ones((len(seg), 3), bool), has_e, has_f])
+    base = f"G1 X%.{d}f Y%.{d}f Z%.{d}f"
+    templates = np.array([base + "\n", base + " F%.1f\n", base + " E%.5f\n", base + " E%.5f F%.1f\n"], object)
+    return templates[has_e * 2 + has_f], values[mask].tolist()
 
 
 def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOptions()) -> WarpResult:
     """The warped program (see the module doc); WarpError names a refused line."""
-    recs = _scan(text, opts.arc_chord_mm)
-    prints = [r for r in recs if r[0] == "print"]
-    p0 = np.array([r[2] for r in prints]).reshape(-1, 4)
-    p1 = np.array([r[3] for r in prints]).reshape(-1, 4)
+    recs = scan_program(text, opts.arc_chord_mm)
+    kind, start, end = recs.kind, recs.start, recs.end
+    k_print = np.flatnonzero(kind == PRINT)
     if not opts.allow_outside:
-        _refuse_outside(prints, surface)
-    if len(prints):
-        length = np.hypot(p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1])
-        bound = surface.curvature_bound(p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1])
-        with np.errstate(divide="ignore"):
-            n = np.where(bound > 0, np.ceil(length * np.sqrt(bound / (8.0 * opts.chord_error_mm))), 1.0)
-        n = np.maximum(n, 1).astype(np.int64)
-        piece_bound = (length / n) ** 2 / 8.0 * bound
-        # all piece end points at once
-        seg = np.repeat(np.arange(len(prints)), n)
-        first = np.concatenate([[0], np.cumsum(n)[:-1]])
-        t = (np.arange(n.sum()) - first[seg] + 1) / n[seg]
-        pts = p0[seg] + t[:, None] * (p1 - p0)[seg]
-        h = surface.height(pts[:, 0], pts[:, 1])
-        z = h + opts.standoff_mm if opts.standoff_mm is not None else pts[:, 2] + h
-        h_start = surface.height(p0[:, 0], p0[:, 1])
-        z_start = h_start + opts.standoff_mm if opts.standoff_mm is not None else p0[:, 2] + h_start
-    else:
-        n = np.zeros(0, dtype=np.int64)
-        piece_bound = np.zeros(0)
-        first = np.zeros(0, dtype=np.int64)
-    grid_top = float(surface.z.max())
-    program_top = max((r[3][2] for r in recs if r[3] is not None), default=0.0)
-    safe_z = opts.safe_z_mm if opts.safe_z_mm is not None else grid_top + opts.clearance_mm + (
-        0.0 if opts.standoff_mm is not None else max(program_top, 0.0))
+        _refuse_outside(recs, surface)
     d = opts.decimals
-    piece_lines = _piece_lines(prints, n, pts, z, d) if len(prints) else []
-    out = ["; warped onto a measured surface by conforma (absolute mm)", "G21", "G90"]
-    lifted, k_print, at = False, 0, None
-    for kind, ln, start, end, feed, e_abs in recs:
-        if kind == "print":
-            k = k_print
-            k_print += 1
-            moved = at is None or abs(at[0] - start[0]) + abs(at[1] - start[1]) > 1e-9
-            if moved:
-                out.append(f"G0 X{_fmt(start[0], d)} Y{_fmt(start[1], d)}")
-            if lifted or moved:
-                out.append(f"G1 Z{_fmt(z_start[k], d)}" + (f" F{_fmt(feed, 1)}" if feed else ""))
-                lifted = False
-            out.extend(piece_lines[first[k]: first[k] + n[k]])
-            at = end
-        elif kind == "travel":
-            if not lifted:
-                out.append(f"G0 Z{_fmt(safe_z, d)}")
-                lifted = True
-            out.append(f"G0 X{_fmt(end[0], d)} Y{_fmt(end[1], d)}" + (f" E{_fmt(end[3], 5)}" if end[3] != start[3]
-                                                                         and e_abs else ""))
-            at = end
-        elif kind in ("zonly", "mode"):
-            out.append(f"; {ln.text.strip()}  (the warp sets Z and absolute mm)")
-        elif kind == "eonly":
-            out.append(f"G1 E{_fmt(end[3] if e_abs else end[3] - start[3], 5)}" + (f" F{_fmt(feed, 1)}" if feed else ""))
+    p0, p1 = start[k_print], end[k_print]
+    n, piece_bound, seg, first, k, pts, z = _pieces(p0, p1, surface, opts)
+    h_start = surface.height(p0[:, 0], p0[:, 1]) if len(p0) else np.zeros(0)
+    z_start = h_start + opts.standoff_mm if opts.standoff_mm is not None else p0[:, 2] + h_start
+    tops = end[:, 2][np.isfinite(end[:, 2])]
+    program_top = float(tops.max()) if len(tops) else 0.0
+    safe_z = opts.safe_z_mm if opts.safe_z_mm is not None else float(surface.z.max()) + opts.clearance_mm + (
+        0.0 if opts.standoff_mm is not None else max(program_top, 0.0))
+    # where the pen is before each print / travel record, and whether it is lifted
+    moving = np.flatnonzero((kind == PRINT) | (kind == TRAVEL))
+    prev = np.concatenate([[-1], moving[:-1]])
+    after_travel = np.concatenate([[False], kind[moving[:-1]] == TRAVEL])
+    at = end[np.maximum(prev, 0)]
+    moved = (prev < 0) | (np.abs(at[:, 0] - start[moving, 0]) + np.abs(at[:, 1] - start[moving, 1]) > 1e-9)
+    is_print = kind[moving] == PRINT
+    p_moved, p_lift = moved[is_print], (after_travel | moved)[is_print]
+    t_lift = ~after_travel[~is_print]
+    count = np.ones(len(kind), np.int64)
+    count[k_print] = p_moved.astype(np.int64) + p_lift + n
+    count[moving[~is_print]] = 1 + t_lift
+    slot = np.concatenate([[0], np.cumsum(count)[:-1]])
+    out = np.empty(int(count.sum()), dtype=object)
+    templates, values = _piece_template(recs, k_print, n, seg, first, k, pts, z, d)
+    out[np.repeat(slot[k_print] + p_moved + p_lift, n) + k - 1] = templates
+
+    def esc(line: str) -> str:
+        return line.replace("%", "%%") + "\n"
+
+    feed = recs.feed
+    for j in np.flatnonzero(p_moved | p_lift):                     # a print's approach lines
+        i, s = k_print[j], slot[k_print[j]]
+        if p_moved[j]:
+            out[s] = esc(f"G0 X{_fmt(start[i, 0], d)} Y{_fmt(start[i, 1], d)}")
+        f = feed[i]
+        out[s + p_moved[j]] = esc(f"G1 Z{_fmt(z_start[j], d)}" + (f" F{_fmt(f, 1)}" if f == f and f else ""))
+    travel = moving[~is_print]
+    for j, i in enumerate(travel):
+        s = slot[i]
+        if t_lift[j]:
+            out[s] = esc(f"G0 Z{_fmt(safe_z, d)}")
+        e_word = f" E{_fmt(end[i, 3], 5)}" if end[i, 3] != start[i, 3] and recs.e_abs[i] else ""
+        out[s + t_lift[j]] = esc(f"G0 X{_fmt(end[i, 0], d)} Y{_fmt(end[i, 1], d)}" + e_word)
+    for i in np.flatnonzero((kind != PRINT) & (kind != TRAVEL)):
+        line = recs.lines[recs.line[i]]
+        if kind[i] in (ZONLY, MODE):
+            out[slot[i]] = esc(f"; {line.strip()}  (the warp sets Z and absolute mm)")
+        elif kind[i] == EONLY:
+            e_val = end[i, 3] if recs.e_abs[i] else end[i, 3] - start[i, 3]
+            f = feed[i]
+            out[slot[i]] = esc(f"G1 E{_fmt(e_val, 5)}" + (f" F{_fmt(f, 1)}" if f == f and f else ""))
         else:
-            out.append(ln.text.rstrip())
-    text_out = "\n".join(out) + "\n"
-    return WarpResult(text_out, len(recs), len(out), len(prints), int(n.sum()),
+            assert kind[i] == OTHER
+            out[slot[i]] = esc(line.rstrip())
+    text_out = "; warped onto a measured surface by conforma (absolute mm)\nG21\nG90\n" + \
+        "".join(out.tolist()) % tuple(values)
+    return WarpResult(text_out, len(kind), len(out) + 3, len(k_print), int(n.sum()),
                       float(piece_bound.max(initial=0.0)), float(safe_z))
 
 
@@ -295,14 +201,14 @@ def fixed_split_error(text: str, surface: HeightField, split_mm: float, standoff
                       samples_per_piece: int = 16) -> tuple[int, float]:
     """(printing pieces, worst |z error| mm) when printing moves are split every ``split_mm``
     (Klipper's bed mesh / bCNC), measured against the surface at ``samples_per_piece`` points per piece."""
-    recs = [r for r in _scan(text) if r[0] == "print"]
-    if not recs:
+    recs = scan_program(text)
+    k_print = np.flatnonzero(recs.kind == PRINT)
+    if not len(k_print):
         return 0, 0.0
-    p0 = np.array([r[2] for r in recs])
-    p1 = np.array([r[3] for r in recs])
+    p0, p1 = recs.start[k_print], recs.end[k_print]
     length = np.hypot(p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1])
     n = np.maximum(1, np.ceil(length / split_mm)).astype(np.int64)
-    seg = np.repeat(np.arange(len(recs)), n)
+    seg = np.repeat(np.arange(len(k_print)), n)
     first = np.concatenate([[0], np.cumsum(n)[:-1]])
     k = np.arange(n.sum()) - first[seg]
     ta, tb = k / n[seg], (k + 1) / n[seg]

@@ -61,7 +61,15 @@ def test_gerber_dry_run_then_import_with_sources(client, part):
     done = _import(client, part, "top.gbr", GERBER_MM, origin_mm=[5, 10], standoff_mm=0.08)
     assert done.status_code == 201, done.text
     stored = done.json()["traces"]
-    assert _count(client, part) == 2
+    assert _count(client, part) == 3                          # two traces and the pad's probe ring
+    ring_id = done.json()["pads"][0]["probe_trace_id"]
+    assert done.json()["probe_trace_ids"] == [ring_id]
+    ring = client.get(f"/api/v1/traces/{ring_id}", headers=OP).json()
+    assert ring["source"]["role"] == "pad_probe"
+    radius = np.linalg.norm(np.array(ring["nominal"]["points"])[:, :2] - [30.0, 12.5], axis=1)
+    assert radius.max() < 0.5 and radius.min() > 0.1         # inside the 1 mm pad, half way in
+    record = client.get(f"/api/v1/circuit-imports/{done.json()['import_id']}", headers=OP).json()
+    assert record["probe_trace_ids"] == [ring_id] and len(record["trace_ids"]) == 2
     first = client.get(f"/api/v1/traces/{stored[0]['trace']['id']}", headers=OP).json()
     assert first["source"]["file"] == "top.gbr" and first["source"]["width_mm"] == pytest.approx(0.2)
     assert first["width_mm"] == pytest.approx(0.2) and first["standoff_mm"] == 0.08

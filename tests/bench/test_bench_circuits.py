@@ -12,7 +12,7 @@ from app.circuits.heightfield import HeightField
 from app.circuits.mapping import MappingOptions, map_layout
 from app.circuits.placement import Placement
 from app.circuits.warp import WarpOptions, fixed_split_error, warp_program
-from app.gcode.estimator import estimate_gcode
+from app.gcode.lines import read_lines
 from app.reference.s1 import s1_mesh
 
 
@@ -34,16 +34,18 @@ def test_kicad_board_dry_run_scaling():
     print()
     for tracks in (20, 200, 2000):
         text = _board(tracks).encode()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         layout = read_layout(text, "board.kicad_pcb")
         t1 = time.perf_counter()
         mapped = map_layout(layout, Placement((0.0, 0.0)), mesh, MappingOptions("project"))
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), time.process_time()
         print(f"kicad {tracks:5d} tracks: read {t1 - t0:.3f} s, project + checks {t2 - t1:.3f} s, "
-              f"total {t2 - t0:.3f} s, warnings {len(mapped.warnings)}")
+              f"total {t2 - t0:.3f} s wall, {c2 - c0:.3f} s CPU, warnings {len(mapped.warnings)}")
         assert len(layout.traces) == tracks
         if tracks == 200:
-            assert t2 - t0 <= 2.0
+            # 2 s on an idle machine: the wall time, or on this shared box the process's CPU time
+            # (what the wall time is when nothing else runs; the code is single-threaded)
+            assert t2 - t0 <= 2.0 or c2 - c0 <= 1.0, (t2 - t0, c2 - c0)
 
 
 def _program(lines: int, rng) -> str:
@@ -67,20 +69,23 @@ def test_warp_scaling_and_fixed_split_comparison():
     print()
     for lines in (1_000, 10_000, 100_000):
         text = _program(lines, rng)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         ours = warp_program(text, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
-        elapsed = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        estimate_gcode(text)                    # reference: one plain pass over the same program
-        reference = time.perf_counter() - t1
-        pieces, worst = fixed_split_error(text, surface, 5.0, 0.1)
-        pieces1, worst1 = fixed_split_error(text, surface, 1.0, 0.1)
-        print(f"warp {lines:6d} lines: {elapsed:.3f} s (time estimator's pass {reference:.3f} s, ratio "
-              f"{elapsed / reference:.2f}); ours {ours.pieces} pieces, proved max "
-              f"{ours.max_bound_mm * 1000:.2f} um; fixed 5 mm split {pieces} pieces, worst {worst * 1000:.2f} um; "
-              f"fixed 1 mm split {pieces1} pieces, worst {worst1 * 1000:.2f} um")
+        elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
+        t1, c1 = time.perf_counter(), time.process_time()
+        read_lines(text)                    # reference: the house tokenizer's plain pass over the same program
+        reference, reference_cpu = time.perf_counter() - t1, time.process_time() - c1
+        for split in (5.0, 1.0):
+            pieces, worst = fixed_split_error(text, surface, split, 0.1)
+            # the fixed split's program: the same travel and other lines, its own printing pieces
+            print(f"  fixed {split:g} mm split: {ours.lines_out - ours.pieces + pieces} lines, {pieces} pieces, "
+                  f"worst {worst * 1000:.2f} um")
+        print(f"warp {lines:6d} lines: {elapsed:.3f} s wall, {cpu:.3f} s CPU; reference (read_lines pass) "
+              f"{reference:.3f} s wall, {reference_cpu:.3f} s CPU, ratio {elapsed / reference:.2f}; ours "
+              f"{ours.lines_out} lines, {ours.pieces} pieces, proved max {ours.max_bound_mm * 1000:.2f} um")
         assert ours.max_bound_mm <= 0.002
         if lines == 100_000:
-            # the goal is 2 s; this shared machine is often many times slower than idle, so the
-            # check also accepts 3x the reference pass (one plain read of the program) of the same run
-            assert elapsed <= 2.0 or elapsed <= 3.0 * reference
+            # the goal is 2 s on an idle machine.  This one is shared (often 5-10x slower than idle):
+            # then the process's CPU time (the wall time when nothing else runs) must be within half
+            # the goal, and the warp must beat half of one plain tokenizer pass measured in the same run
+            assert elapsed <= 2.0 or (cpu <= 1.0 and elapsed <= 0.5 * reference), (elapsed, cpu, reference)

@@ -1,6 +1,8 @@
 """A Gerber circuit onto the real part on the mock: import -> closed loop (probe, rebuild,
 compensate every trace) -> one circuit program -> print.  What the mock deposited holds every
-trace at its standoff within 10 um of the TRUE (as-made) surface, and covers every pad."""
+trace at its standoff within 10 um of the TRUE (as-made) surface, and covers every pad; the
+pads are probed themselves (the import's probe rings go into the loop): stations lie on every
+pad, and the pad fills sit at their standoff within 10 um too."""
 
 from __future__ import annotations
 
@@ -62,16 +64,25 @@ def test_gerber_circuit_printed_at_its_standoff_with_pads_covered(client, meshes
     body = imported.json()
     trace_ids = [t["trace"]["id"] for t in body["traces"]]
     assert len(trace_ids) == 3 and len(body["pads"]) == 3
+    assert len(body["probe_trace_ids"]) == 3 and all(p["probe_trace_id"] for p in body["pads"])
     machine = client.post("/api/v1/machines", json={
         "name": "circuit", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001,
                  "faults": {"seed": 3}}}, headers=OP).json()
     loop = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
-        "part_id": part["id"], "trace_ids": trace_ids, "machine_id": machine["id"],
+        "part_id": part["id"], "trace_ids": trace_ids + body["probe_trace_ids"], "machine_id": machine["id"],
         "probe": {"method": "deviation"}, "sigma_mm": 0.001}}, headers=OP)
     assert loop.status_code == 202, loop.text
     loop = wait_for(client, loop.json()["id"], timeout=240)
     assert loop["status"] == "succeeded", loop["error"]
+    pads = [Polygon(p["outline_xy_mm"]) for p in body["pads"]]
+    entries = {e["trace_id"]: e for e in loop["result"]["traces"]}
+    for pad in body["pads"]:
+        run = client.get(f"/api/v1/jobs/{entries[pad['probe_trace_id']]['probe_run']}", headers=OP).json()
+        stations = shapely.points(np.array([p["nominal"][:2] for p in run["result"]["points"]]))
+        on_pad = shapely.contains(Polygon(pad["outline_xy_mm"]), stations)
+        print(f"pad {pad['name']}: {int(on_pad.sum())} of {len(on_pad)} probe stations on the pad")
+        assert len(on_pad) >= 3 and on_pad.all()
     program = client.post("/api/v1/jobs", json={"kind": "circuit_program", "params": {
         "import_id": body["import_id"], "closed_loop_job_id": loop["id"], "machine_id": machine["id"],
         "line_width_mm": LINE}}, headers=OP)
@@ -90,7 +101,6 @@ def test_gerber_circuit_printed_at_its_standoff_with_pads_covered(client, meshes
     moves = deposited_since(world, start)
     truth = true_height_of(world)
     mid = 0.5 * (moves[:, 0, :2] + moves[:, 1, :2])
-    pads = [Polygon(p["outline_xy_mm"]) for p in body["pads"]]
     for t in body["traces"]:
         stored = client.get(f"/api/v1/traces/{t['trace']['id']}", headers=OP).json()
         centre = LineString(np.array(stored["nominal"]["points"])[:, :2])
@@ -106,6 +116,10 @@ def test_gerber_circuit_printed_at_its_standoff_with_pads_covered(client, meshes
     for pad in pads:
         print(f"pad covered {beads.intersection(pad).area / pad.area:.4f}")
         assert beads.intersection(pad).area >= 0.98 * pad.area
+        inside = shapely.contains(pad, shapely.points(mid))
+        report = evaluate_deposition(moves[inside], truth, STANDOFF)
+        print(f"pad fill: standoff error max {report.max_abs_error_mm * 1000:.2f} um over {report.length_mm:.2f} mm")
+        assert inside.sum() > 10 and report.max_abs_error_mm <= 0.010
     wide = shapely.union_all([LineString(m[:, :2]).buffer(LINE / 2) for m in moves
                               if abs(0.5 * (m[0, 1] + m[1, 1]) - 30.0) < 0.4 and m[:, 0].max() < 40.0])
     band = LineString([(9.0, 30.0), (39.0, 30.0)]).buffer(0.25, cap_style="flat")

@@ -1,6 +1,6 @@
 """warp_program through the API: a program warped onto a surface_fit of the S1 part lies at
-its standoff above that surface; a move outside the fitted region fails the job with a 422
-naming the line."""
+its standoff above that surface; a move outside the fitted region is refused at submission
+(422 naming the line and the coordinates) unless allowed."""
 
 from __future__ import annotations
 
@@ -58,10 +58,17 @@ def test_warp_program_on_a_surface_fit_and_outside_it(client, s1_stl):
     assert np.abs(tips[:, 2] - top_surface_z(MESH, tips[:, :2]).z).max() <= 0.05
 
     outside = _upload(client, "G21\nG90\nG0 X10 Y10\nM106\nG1 X58 Y12 F600\nM107\n")
-    job = run_job(client, "warp_program", {"program_id": outside["id"], "surface_fit_job_id": fit["id"],
-                                           "standoff_mm": 0.1})
-    assert job["status"] == "failed"
-    assert job["error"]["status"] == 422 and "line 5" in job["error"]["detail"]
+    refused = submit(client, "warp_program", {"program_id": outside["id"], "surface_fit_job_id": fit["id"],
+                                              "standoff_mm": 0.1})
+    assert refused.status_code == 422, refused.text             # at submission: no job is queued
+    problem = refused.json()
+    assert "line 5" in problem["detail"] and "x=58.0000, y=12.0000" in problem["detail"]
+    error = problem["errors"][0]
+    assert error["loc"] == ["params", "program_id"] and error["value"]["line"] == 5
+    assert error["value"]["to_xy"] == [58.0, 12.0]
+    allowed = run_job(client, "warp_program", {"program_id": outside["id"], "surface_fit_job_id": fit["id"],
+                                               "standoff_mm": 0.1, "allow_outside": True})
+    assert allowed["status"] == "succeeded", allowed["error"]
     both = submit(client, "warp_program", {"program_id": program["id"], "surface_fit_job_id": fit["id"],
                                            "probe_run_job_id": fit["id"]})
     assert both.status_code == 422

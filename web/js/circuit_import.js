@@ -1,6 +1,8 @@
 // Circuit import (KiCad, Gerber, Excellon, DXF, SVG): preview with a dry run, then accept.
-// The preview draws the mapped circuit in top view over the part's outline and lists each
-// trace's length, stretch and the warnings; nothing is stored until "Accept".
+// The preview draws the mapped circuit in 3-D on the part (the page's viewer: draped traces,
+// warned traces in red, pads and areas as patches, the pads' probe rings) and in top view
+// over the part's outline, and lists each trace's length, stretch and the warnings; nothing
+// is stored until "Accept".
 import { upload } from "./api.js";
 import { el, fmt, guarded, showError, showInfo } from "./ui.js";
 
@@ -36,7 +38,8 @@ function previewDrawing(result, bounds) {
 }
 
 // A section for the traces page: partSelect gives the part; onDone(result) after an accepted import.
-export function circuitImportSection({ partSelect, getPart, onDone }) {
+// viewer / viewerBox (optional): the page's viewerPanel and its container (its view id).
+export function circuitImportSection({ partSelect, getPart, onDone, viewer, viewerBox }) {
   const file = el("input", { type: "file", id: "circuit-file", multiple: true, "aria-label": "circuit files (KiCad, Gerber, Excellon, DXF, SVG)",
     accept: ".kicad_pcb,.gbr,.ger,.gtl,.gbl,.drl,.xln,.dxf,.svg" });
   const num = (id, value) => el("input", { type: "number", step: "any", id, value, class: "narrow" });
@@ -51,31 +54,53 @@ export function circuitImportSection({ partSelect, getPart, onDone }) {
   const output = el("div", { id: "circuit-result" });
   const accept = el("button", { type: "button", id: "circuit-accept", disabled: true }, "Accept (store the traces)");
 
-  function options(dryRun) {
+  function options(dryRun, viewId) {
     const layers = inputs.layers.value.split(",").map((s) => s.trim()).filter(Boolean);
     return { origin_mm: [Number(inputs.ox.value), Number(inputs.oy.value)], rotation_deg: Number(inputs.rot.value),
       mirror: inputs.mirror.checked, mapping: inputs.mapping.value, standoff_mm: Number(inputs.standoff.value),
-      layers: layers.length ? layers : null, dry_run: dryRun };
+      layers: layers.length ? layers : null, dry_run: dryRun, ...(dryRun && viewId ? { view_id: viewId } : {}) };
   }
+
+  // The page's 3-D view (opened on demand): its view id, or null when the view is off.
+  async function viewId() {
+    if (!viewer || !viewerBox) return null;
+    try {
+      return (await viewer.ensureFrame()) ? viewerBox.dataset.view || null : null;
+    } catch {
+      return null;
+    }
+  }
+
+  // Open the 3-D view as soon as files are chosen, so it is connected when the preview draws.
+  file.addEventListener("change", () => { viewId(); });
 
   async function send(dryRun) {
     if (!file.files.length) throw new Error("choose one or more circuit files");
     if (!partSelect.value) throw new Error("upload a part first");
     const form = new FormData();
     for (const f of file.files) form.append("files", f, f.name);
-    form.append("options", JSON.stringify(options(dryRun)));
+    form.append("options", JSON.stringify(options(dryRun, dryRun ? await viewId() : null)));
     return upload(`parts/${partSelect.value}/circuits:import`, form);
   }
 
   function show(result, part) {
+    const warned = new Set(result.warnings.flatMap((w) => w.traces || []));
     const rows = result.traces.map((t) => el("tr", {},
       el("td", { class: "small" }, t.name), el("td", {}, t.source.net || "—"), el("td", {}, fmt.mm(t.source.width_mm, 3)),
-      el("td", {}, fmt.mm(t.layout_length_mm, 3)), el("td", {}, fmt.num(t.stretch, 5)), el("td", {}, t.on_part ? "yes" : "NO")));
+      el("td", {}, fmt.mm(t.layout_length_mm, 3)), el("td", {}, fmt.num(t.stretch, 5)), el("td", {}, t.on_part ? "yes" : "NO"),
+      el("td", {}, warned.has(t.index) ? "warning" : "")));
+    const drawn = result.preview?.drawn;
+    const in3d = el("p", { id: "circuit-preview-3d", class: "small", "data-drawn": drawn ? "yes" : "no" }, drawn
+      ? `3-D preview in the view on the right: ${result.traces.filter((t) => t.trace).length} traces draped on the part `
+        + `(blue; ${warned.size} named by a warning drawn in red), ${result.pads.length} pads and ${result.areas.length} `
+        + `areas as patches (red: off the part), ${result.probe_paths.length} probe rings (grey points).`
+      : `No 3-D preview: ${result.preview?.reason || "the 3D view is not open"} (the top view below still shows it).`);
     output.replaceChildren(
+      in3d,
       el("p", { class: "small" }, result.files.map((f) => `${f.file}: ${f.format}, ${f.units}, ${f.traces} traces, ${f.pads} pads, ${f.areas} areas`).join("; ")),
       previewDrawing(result, part ? part.bounds.map((b) => b.slice(0, 2)) : [[0, 0], [100, 100]]),
       el("ul", { id: "circuit-warnings" }, result.warnings.map((w) => el("li", { class: "small" }, `${w.kind}: ${w.message}`))),
-      el("table", {}, el("thead", {}, el("tr", {}, ["trace", "net", "width", "layout length", "stretch", "on part"].map((h) => el("th", {}, h)))),
+      el("table", {}, el("thead", {}, el("tr", {}, ["trace", "net", "width", "layout length", "stretch", "on part", "3-D"].map((h) => el("th", {}, h)))),
         el("tbody", {}, rows)));
   }
 
@@ -84,6 +109,7 @@ export function circuitImportSection({ partSelect, getPart, onDone }) {
     await guarded("Circuit preview", async () => {
       const result = await send(true);
       show(result, getPart ? await getPart(partSelect.value) : null);
+      if (viewerBox && result.preview?.drawn) viewerBox.dataset.generation = result.preview.generation;
       accept.disabled = false;
       showInfo(`Preview: ${result.traces.length} traces, ${result.pads.length} pads, ${result.warnings.length} warning(s).`);
     });

@@ -156,7 +156,8 @@ async function onImport(event) {
 
 // ---- list ---------------------------------------------------------------------------
 const tbody = el("tbody", { id: "traces-body" });
-left.append(circuitImportSection({ partSelect, getPart: (id) => get(`parts/${id}`), onDone: () => refresh() }));
+left.append(circuitImportSection({ partSelect, getPart: (id) => get(`parts/${id}`), onDone: () => refresh(),
+  viewer, viewerBox: right }));
 
 left.append(el("section", {}, el("h2", {}, "Traces on this part"),
   el("table", { id: "traces-table" }, el("thead", {}, el("tr", {},

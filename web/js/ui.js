@@ -4,7 +4,7 @@ import { ApiError, get, getKey, post, setKey, verifyKey } from "./api.js";
 
 const PAGES = [
   ["index.html", "Home"], ["loop.html", "Closed loop"], ["parts.html", "Parts"], ["traces.html", "Traces"],
-  ["jobs.html", "Jobs"], ["machines.html", "Machines"],
+  ["jobs.html", "Jobs"], ["programs.html", "Programs"], ["machines.html", "Machines"],
 ];
 
 // el("div", {class: "x", onclick: f}, child, "text", ...)

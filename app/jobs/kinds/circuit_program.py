@@ -3,14 +3,17 @@
 Traces come compensated from a ``closed_loop`` over the import's traces (each trace's
 ``compensate`` child; the per-trace programs stay available there); pads and areas are
 filled (contour + raster at ``line_width_mm``) on the nominal surface lifted by the
-deviation that loop's probes measured.  Strokes are ordered for short travel.
+deviation that loop's probes measured.  The import stores a probe ring inside every pad and
+area (traces with ``source.role`` ``pad_probe``); the loop must include them (when pads are
+filled), so every fill is compensated from stations on its own pad, not extrapolated.
+Strokes are ordered for short travel.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from pydantic import Field
-from sqlmodel import Session
+from sqlmodel import Session, select
 
 from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import deviation_field, fill_tip_strokes, trace_passes
@@ -19,7 +22,7 @@ from app.geometry.drape import drape_polyline, top_surface_z
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
-from app.models import CircuitImport, Job
+from app.models import CircuitImport, Job, Trace
 from app.records import get_or_404
 
 
@@ -38,6 +41,13 @@ def _loop_entries(loop: Job) -> dict[str, dict]:
     return {e["trace_id"]: e for e in (loop.result or {}).get("traces", [])}
 
 
+def import_probe_trace_ids(session: Session, imp: CircuitImport) -> list[str]:
+    """The import's pad / area probe rings (traces with source.role pad_probe), oldest first."""
+    rows = session.exec(select(Trace).where(Trace.part_id == imp.part_id)).all()
+    return [t.id for t in sorted(rows, key=lambda t: (t.created_at, t.id))
+            if (t.source or {}).get("import_id") == imp.id and (t.source or {}).get("role") == "pad_probe"]
+
+
 def _check(params: CircuitProgramParams, session: Session) -> None:
     imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
     loop = get_or_404(session, Job, params.closed_loop_job_id, field="params.closed_loop_job_id")
@@ -48,6 +58,11 @@ def _check(params: CircuitProgramParams, session: Session) -> None:
     if missing:
         raise InvalidInput(f"the closed loop did not compensate trace {missing[0]!r} of the import",
                            field="params.closed_loop_job_id", value=missing[0])
+    unprobed = [t for t in import_probe_trace_ids(session, imp) if t not in _loop_entries(loop)] if params.pads else []
+    if unprobed:
+        raise InvalidInput(f"the closed loop did not probe the pad ring {unprobed[0]!r} of the import: give it the "
+                           "import's probe_trace_ids too (or pads=false)", field="params.closed_loop_job_id",
+                           value=unprobed[0])
 
 
 @job_kind("circuit_program", CircuitProgramParams, check=_check,
@@ -56,6 +71,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     """One program for the whole circuit; artifact ``circuit.gcode``."""
     with ctx.session() as session:
         imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
+        probe_ids = import_probe_trace_ids(session, imp) if params.pads else []
     loop = ctx.job(params.closed_loop_job_id, kind="closed_loop", field="params.closed_loop_job_id")
     entries = _loop_entries(loop)
     mesh = ctx.mesh(imp.part_id)
@@ -65,6 +81,11 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
 
     strokes: list[Stroke] = []
     stations, deviations = [], []
+    for trace_id in probe_ids:                 # the pads' own stations
+        probe = ctx.job(entries[trace_id]["probe_run"], kind="probe_run", field="params.closed_loop_job_id")
+        for pt in probe.result["points"]:
+            stations.append(pt["nominal"][:2])
+            deviations.append(pt["measured"][2] - pt["nominal"][2])
     for trace_id in imp.trace_ids:
         trace = ctx.trace(trace_id)
         comp = ctx.job(entries[trace_id]["compensate"], kind="compensate", field="params.closed_loop_job_id")
@@ -102,5 +123,6 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                                     job_id=ctx.job_id)
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
     return {"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
+            "pad_probe_traces": probe_ids, "stations": len(stations),
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
             "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off}

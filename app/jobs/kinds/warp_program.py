@@ -10,8 +10,10 @@ import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session
 
-from app.circuits.heightfield import height_field_from_points
-from app.circuits.warp import WarpOptions, fixed_split_error, warp_program
+from app.circuits.errors import WarpError
+from app.circuits.gcode_scan import scan_program
+from app.circuits.heightfield import height_field_from_points, points_region
+from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
 from app.errors import InvalidInput
 from app.geometry.nurbs_surface import NurbsSurface
 from app.jobs.context import JobContext
@@ -48,12 +50,27 @@ def _surface_job(params: WarpProgramParams) -> tuple[str, str]:
 
 
 def _check(params: WarpProgramParams, session: Session) -> None:
-    get_or_404(session, Program, params.program_id, field="params.program_id")
+    """The program must be readable and (unless ``allow_outside``) print only inside the
+    surface's measured region: a 422 naming the line and its coordinates before any job runs."""
+    program = get_or_404(session, Program, params.program_id, field="params.program_id")
     kind, job_id = _surface_job(params)
     job = get_or_404(session, Job, job_id, field=f"params.{kind}_job_id")
     if job.kind != kind or job.status != "succeeded":
         raise InvalidInput(f"job {job_id!r} is not a succeeded {kind} job", field=f"params.{kind}_job_id",
                            value=job_id)
+    read_blob = session.info.get("read_blob")
+    if read_blob is None:                     # a check without the store (never in the service)
+        return
+    try:
+        recs = scan_program(read_blob(program.sha256).decode("utf-8"), params.arc_chord_mm)
+        if not params.allow_outside:
+            inside, bounds = points_region(_surface_points(job))
+            check_region(recs, inside, bounds)
+    except UnicodeDecodeError:
+        raise InvalidInput("the program is not UTF-8 text", field="params.program_id", value=program.id) from None
+    except WarpError as exc:
+        raise InvalidInput(f"program {program.name!r} {exc.message}", field="params.program_id",
+                           value=exc.value) from None
 
 
 def _surface_points(job: Job) -> np.ndarray:
