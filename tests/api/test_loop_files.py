@@ -76,3 +76,10 @@ def test_a_closed_loop_lists_its_summary_and_a_whole_part_program(client, meshes
     assert jumps.any() and np.all(program.start[jumps, 2] >= info["safe_z_mm"] - 1e-6)
     assert info["safe_z_mm"] > program.end[program.dispense, 2].max()
     assert "M2" not in whole.splitlines()  # Marlin: no grbl program end
+
+    # what the machines page's Print confirmation reads: lines and the estimated time
+    summary = client.get(f"/api/v1/jobs/{done['id']}/artifacts/whole_part.gcode/summary", headers=OP)
+    assert summary.status_code == 200, summary.text
+    assert summary.json()["lines"] == info["lines"] and summary.json()["time_s"] == pytest.approx(info["time_s"])
+    refused = client.get(f"/api/v1/jobs/{done['id']}/artifacts/loop_summary.json/summary", headers=OP)
+    assert refused.status_code == 422 and refused.json()["errors"][0]["loc"][-1] == "name"
