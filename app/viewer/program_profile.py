@@ -18,7 +18,7 @@ import numpy as np
 
 from app.gcode.estimator import estimate_gcode
 from app.gcode.lines import read_lines
-from app.gcode.reader import ReadOptions, read_program
+from app.gcode.reader import read_program
 from hardware.protocol import normalized_commands
 
 MAX_POINTS = 600
