@@ -172,12 +172,13 @@ def artifact_summary(job_id: str, name: str, runtime: RuntimeDep, session: Sessi
     result = job.result or {}
     pivot = result.get("pivot") or [0.0, 0.0, 0.0]
     tcp = result.get("post") == "linuxcnc_xyzac_trt"
-    key = (artifact.sha256, tuple(pivot), tcp)
+    dispense = (result.get("dispense_on"), result.get("dispense_off"))
+    key = (artifact.sha256, tuple(pivot), tcp, dispense)
     if key not in _SUMMARIES:
         text = runtime.blobs.read(artifact.sha256).decode("utf-8", errors="replace")
         while len(_SUMMARIES) >= 64:
             _SUMMARIES.pop(next(iter(_SUMMARIES)))
-        _SUMMARIES[key] = program_summary(text, pivot, tcp)
+        _SUMMARIES[key] = program_summary(text, pivot, tcp, *dispense)
     return {"job_id": job_id, "name": name, "kind": job.kind, "sha256": artifact.sha256, **_SUMMARIES[key]}
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from app.gcode.estimator import estimate_gcode
 from app.gcode.lines import read_lines
-from app.gcode.reader import read_program
+from app.gcode.reader import ReadOptions, read_program
 from hardware.protocol import normalized_commands
 
 MAX_POINTS = 600
@@ -44,18 +44,23 @@ def _thin(n: int, limit: int) -> np.ndarray:
 
 
 def rotary_profile(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False,
-                   max_points: int = MAX_POINTS) -> dict[str, Any] | None:
+                   max_points: int = MAX_POINTS, options: ReadOptions = ReadOptions()) -> dict[str, Any] | None:
     """Along the feed moves of a five-axis program: s_mm (cumulative tip path), a_deg, c_deg,
-    tip_speed_mm_s (each (k,), k <= ``max_points``) and time_s (all feed lines); None for a
+    tip_speed_mm_s (each (k,), k <= ``max_points``) and time_s (every feed line); None for a
     program without A/C motion.  ``tcp``: X Y Z are already the tip in workpiece coordinates
-    (LinuxCNC TCP mode); otherwise machine coordinates about ``pivot_mm``."""
+    (LinuxCNC TCP mode); otherwise machine coordinates about ``pivot_mm``.  With the
+    program's dispense commands in ``options``, only the dispensing moves count (the path,
+    not the approach)."""
     from app.compensation.five_axis.kinematics import machine_to_workpiece
 
-    program = read_program(text)
+    program = read_program(text, options)
     if program.count == 0 or not np.any(np.abs(program.rotary) > 1e-12):
         return None
     feed = program.motion != RAPID
     feed &= ~program.home
+    every_feed = feed.copy()
+    if (feed & program.dispense).any():
+        feed &= program.dispense
     if not feed.any():
         return None
     ends, starts = program.end[:, :3], program.start[:, :3]
@@ -78,14 +83,16 @@ def rotary_profile(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False
     keep = _thin(len(idx), max_points)
     return {"s_mm": s[keep].tolist(), "a_deg": program.rotary[idx[keep], 0].tolist(),
             "c_deg": program.rotary[idx[keep], 1].tolist(), "tip_speed_mm_s": speed[keep].tolist(),
-            "time_s": float(dt[idx].sum()), "points": int(len(idx)),
+            "time_s": float(dt[every_feed].sum()), "points": int(len(idx)),
             "tip_speed_max_mm_s": float(speed.max()) if len(speed) else 0.0}
 
 
-def program_summary(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False) -> dict[str, Any]:
-    """``{lines, commands, time_s, timing, rotary}`` of a G-code text (see the module doc)."""
+def program_summary(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False,
+                    dispense_on: str | None = None, dispense_off: str | None = None) -> dict[str, Any]:
+    """``{lines, commands, time_s, timing, rotary}`` of a G-code text (see the module doc);
+    ``time_s`` of a five-axis program counts every feed line, its profile the dispensing ones."""
     lines = text.splitlines()
-    rotary = rotary_profile(text, pivot_mm, tcp)
+    rotary = rotary_profile(text, pivot_mm, tcp, options=ReadOptions(dispense_on=dispense_on, dispense_off=dispense_off))
     if rotary is not None:
         time_s, timing = rotary["time_s"], "five-axis feed lines (G93 inverse time / G94 feed), rapids not counted"
     else:

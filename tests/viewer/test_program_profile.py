@@ -50,3 +50,20 @@ def test_five_axis_profile_gives_the_tip_speed_and_angles_in_workpiece_coordinat
     # read in the wrong frame (no pivot) the tip speed is not constant: the frame matters
     wrong = program_summary(text)["rotary"]["tip_speed_mm_s"]
     assert np.ptp(wrong) > 0.1
+
+
+def test_the_profile_follows_the_dispensing_path_not_the_approach():
+    pivot = np.array([0.0, 0.0, -10.0])
+    text, tip, _angles = five_axis_program(5.0, pivot)
+    lines = text.splitlines()
+    g93 = lines.index("G93")
+    far = "G1 X60 Y60 Z30 F2"  # a slow approach far away, before the path, in inverse time
+    with_approach = "\n".join(lines[:g93 + 1] + [far, lines[2].replace("G0", "G1") + " F20", "M106"]
+                              + lines[g93 + 1:-1] + ["M107", "G94"]) + "\n"
+    summary = program_summary(with_approach, pivot, dispense_on="M106", dispense_off="M107")
+    rotary = summary["rotary"]
+    assert rotary["points"] == len(tip) - 1
+    assert rotary["s_mm"][-1] == pytest.approx(np.linalg.norm(tip[-1] - tip[0]), rel=1e-5)
+    assert np.allclose(rotary["tip_speed_mm_s"], 5.0, rtol=1e-4)
+    # the time counts every feed line: the path, plus 1/2 min and 1/20 min for the two approach lines
+    assert summary["time_s"] == pytest.approx(np.linalg.norm(tip[-1] - tip[0]) / 5.0 + 30.0 + 3.0, rel=1e-4)
