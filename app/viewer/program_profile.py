@@ -44,7 +44,7 @@ def _thin(n: int, limit: int) -> np.ndarray:
 
 
 def rotary_profile(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False,
-                   max_points: int = MAX_POINTS, options: ReadOptions = ReadOptions()) -> dict[str, Any] | None:
+                   max_points: int = MAX_POINTS, options: ReadOptions | None = None) -> dict[str, Any] | None:
     """Along the feed moves of a five-axis program: s_mm (cumulative tip path), a_deg, c_deg,
     tip_speed_mm_s (each (k,), k <= ``max_points``) and time_s (every feed line); None for a
     program without A/C motion.  ``tcp``: X Y Z are already the tip in workpiece coordinates
@@ -53,7 +53,7 @@ def rotary_profile(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False
     not the approach)."""
     from app.compensation.five_axis.kinematics import machine_to_workpiece
 
-    program = read_program(text, options)
+    program = read_program(text, options or ReadOptions())
     if program.count == 0 or not np.any(np.abs(program.rotary) > 1e-12):
         return None
     feed = program.motion != RAPID
