@@ -158,7 +158,7 @@ def get_artifact(job_id: str, name: str, runtime: RuntimeDep, session: SessionDe
 @router.get("/{job_id}/artifacts/{name}/summary", dependencies=[Viewer],
             responses={422: {"description": "the artifact is not a G-code program"}})
 def artifact_summary(job_id: str, name: str, runtime: RuntimeDep, session: SessionDep) -> dict:
-    """A G-code artifact as an operator reads it before printing: lines, commands, the
+    """A G-code artifact as an operator reads it before printing: its lines, the
     estimated time (s) and, for a five-axis program, its A/C angles and tip speed along the
     path (``rotary``: s_mm, a_deg, c_deg, tip_speed_mm_s; see app.viewer.program_profile)."""
     from app.viewer.program_profile import program_summary

@@ -1,5 +1,5 @@
 """What an operator reads about a G-code program before printing it and on its result page:
-line and command counts, the estimated run time, and for five-axis programs the A/C angles
+its line count, the estimated run time, and for five-axis programs the A/C angles
 and the nozzle tip's speed along the path (workpiece coordinates).
 
 Read through the one G-code reader (:mod:`app.gcode.reader`).  Three-axis programs are
@@ -19,7 +19,6 @@ import numpy as np
 from app.gcode.estimator import estimate_gcode
 from app.gcode.lines import read_lines
 from app.gcode.reader import ReadOptions, read_program
-from hardware.protocol import normalized_commands
 
 MAX_POINTS = 600
 RAPID = 0
@@ -89,7 +88,7 @@ def rotary_profile(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False
 
 def program_summary(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False,
                     dispense_on: str | None = None, dispense_off: str | None = None) -> dict[str, Any]:
-    """``{lines, commands, time_s, timing, rotary}`` of a G-code text (see the module doc);
+    """``{lines, time_s, timing, rotary}`` of a G-code text (see the module doc);
     ``time_s`` of a five-axis program counts every feed line, its profile the dispensing ones."""
     lines = text.splitlines()
     rotary = rotary_profile(text, pivot_mm, tcp, options=ReadOptions(dispense_on=dispense_on, dispense_off=dispense_off))
@@ -97,5 +96,5 @@ def program_summary(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = Fals
         time_s, timing = rotary["time_s"], "five-axis feed lines (G93 inverse time / G94 feed), rapids not counted"
     else:
         time_s, timing = estimate_gcode(text).total_s, "app.gcode.estimator (trapezoids, junction deviation)"
-    return {"lines": len(lines), "commands": len(normalized_commands(lines)), "time_s": float(time_s),
+    return {"lines": len(lines), "time_s": float(time_s),
             "timing": timing, "rotary": rotary}
