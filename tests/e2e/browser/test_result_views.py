@@ -181,3 +181,28 @@ def test_declining_the_confirmation_prints_nothing(page, served, jobs):
     row.query_selector("button.print-program").click()
     page.wait_for_timeout(1500)
     assert api.get(f"/api/v1/jobs?kind=print&machine_id={machine['id']}").json()["total"] == 0
+
+
+def test_3d_view_of_a_compensation_shows_the_deviation_standoff_errors_and_a_legend(page, served, jobs):
+    api = served.api()
+    job, rebuilt = jobs["compensate"], jobs["rebuilt"]
+    page.goto(f"/jobs.html?job={job['id']}")
+    page.click("#open-3d")
+    page.wait_for_selector("#viewer-panel[data-generation]", state="attached")
+    view_id = page.get_attribute("#viewer-panel", "data-view")
+    scene = api.get("/api/v1/viewer/scene", params={"view_id": view_id}).json()
+    assert scene["focus"]["job_id"] == job["id"]
+    ribbons = [n for n in scene["nodes"].values() if n["group"] == "deviation"]
+    assert len(ribbons) == 1 and ribbons[0]["signed"]
+    colored = {k: v for k, v in scene["nodes"].items() if v.get("colored_by") == "standoff_error"}
+    assert {v["role"] for v in colored.values()} == {"nominal", "compensated"}
+    [legend] = scene["legends"]
+    worst = max(abs(d) for _s, d in rebuilt["result"]["deviation"]["samples"]) * 1000
+    assert legend["unit"] == "µm" and legend["hi"] == pytest.approx(-legend["lo"])
+    # the scale's end is the largest value drawn: the deviation read at the trace's points (within 2 %
+    # of the rebuilt samples' worst), and never a clipped colour
+    assert legend["hi"] == pytest.approx(worst, rel=0.02)
+    assert legend["hi"] == pytest.approx(max(abs(legend["data_min"]), legend["data_max"]))
+    # (what the browser's own viser panel shows is not asserted here: in headless Chromium under
+    # load the per-client panel of this scene did not always appear; see the note)
+    assert page.js_errors == []
