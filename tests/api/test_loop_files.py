@@ -83,3 +83,19 @@ def test_a_closed_loop_lists_its_summary_and_a_whole_part_program(client, meshes
     assert summary.json()["lines"] == info["lines"] and summary.json()["time_s"] == pytest.approx(info["time_s"])
     refused = client.get(f"/api/v1/jobs/{done['id']}/artifacts/loop_summary.json/summary", headers=OP)
     assert refused.status_code == 422 and refused.json()["errors"][0]["loc"][-1] == "name"
+
+    # the loop's 3-D scene: one deviation ribbon per trace (none duplicated by its compensate
+    # step), and every program coloured by its standoff error over the rebuilt surface: the
+    # nominal programs far off (>= 50 um somewhere), the compensated ones within 10 um (their
+    # chord error plus the nominal polyline's own sampling between its points)
+    from app.viewer.deviation_map import scene_legends
+    from app.viewer.loaders import load_focus
+
+    scene = load_focus(client.app.state.runtime, job_id=done["id"])
+    assert len([s for s in scene.scalar_surfaces if s.signed]) == len(traces)
+    errors = {role: np.concatenate([t.standoff_error_mm[np.isfinite(t.standoff_error_mm)]
+                                    for t in scene.toolpaths if t.role == role and t.standoff_error_mm is not None])
+              for role in ("nominal", "compensated")}
+    assert np.abs(errors["compensated"]).max() < 0.010 and np.abs(errors["nominal"]).max() >= 0.050
+    [legend] = scene_legends(scene)
+    assert legend.hi_um == pytest.approx(max(abs(legend.data_min_um), legend.data_max_um))
