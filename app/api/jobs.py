@@ -155,6 +155,36 @@ def get_artifact(job_id: str, name: str, runtime: RuntimeDep, session: SessionDe
                     headers={"Content-Disposition": f'attachment; filename="{name}"', "ETag": f'"{artifact.sha256}"'})
 
 
+@router.get("/{job_id}/artifacts/{name}/summary", dependencies=[Viewer],
+            responses={422: {"description": "the artifact is not a G-code program"}})
+def artifact_summary(job_id: str, name: str, runtime: RuntimeDep, session: SessionDep) -> dict:
+    """A G-code artifact as an operator reads it before printing: its lines, the
+    estimated time (s) and, for a five-axis program, its A/C angles and tip speed along the
+    path (``rotary``: s_mm, a_deg, c_deg, tip_speed_mm_s; see app.viewer.program_profile)."""
+    from app.viewer.program_profile import program_summary
+
+    job = get_or_404(session, Job, job_id)
+    artifact = session.exec(select(Artifact).where(Artifact.job_id == job_id, Artifact.name == name)).first()
+    if artifact is None:
+        raise NotFound(f"job {job_id!r} has no artifact {name!r}", field="name", value=name)
+    if artifact.media_type != "text/x-gcode":
+        raise InvalidInput(f"artifact {name!r} is {artifact.media_type}, not a G-code program", field="name", value=name)
+    result = job.result or {}
+    pivot = result.get("pivot") or [0.0, 0.0, 0.0]
+    tcp = result.get("post") == "linuxcnc_xyzac_trt"
+    dispense = (result.get("dispense_on"), result.get("dispense_off"))
+    key = (artifact.sha256, tuple(pivot), tcp, dispense)
+    if key not in _SUMMARIES:
+        text = runtime.blobs.read(artifact.sha256).decode("utf-8", errors="replace")
+        while len(_SUMMARIES) >= 64:
+            _SUMMARIES.pop(next(iter(_SUMMARIES)))
+        _SUMMARIES[key] = program_summary(text, pivot, tcp, *dispense)
+    return {"job_id": job_id, "name": name, "kind": job.kind, "sha256": artifact.sha256, **_SUMMARIES[key]}
+
+
+_SUMMARIES: dict[tuple, dict] = {}  # by content (and frame): a program's summary never changes
+
+
 @router.post("/{job_id}/resume", status_code=202, dependencies=[Operator],
              responses={409: {"description": "the job is not interrupted"}, 422: {"description": "no confirmation"}})
 def resume_job(job_id: str, body: ResumeRequest, runtime: RuntimeDep, session: SessionDep) -> JobOut:

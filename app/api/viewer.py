@@ -64,6 +64,8 @@ class SceneOut(BaseModel):
     plots: dict[str, dict[str, Any]] = Field(description="deviation plots: title, x (mm along the trace), y (dz mm)")
     sliders: dict[str, dict[str, Any]] = Field(description="layer sliders: min, max, value, labels")
     notes: list[str]
+    legends: list[dict[str, Any]] = Field(default_factory=list, description="colour scales of what is drawn: "
+                                          "name, title, unit (µm), lo, hi, data_min, data_max, stops")
 
 
 def _viewer(request: Request) -> Any:

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Engine, and_, or_, select, update
+from sqlalchemy import Engine, and_, case, literal, or_, select, update
 
 from app.models import TERMINAL_STATES, Job, utcnow
 
@@ -102,6 +102,7 @@ class JobStore:
         }
         if status == "succeeded":
             values["progress"] = 1.0
+        values["message"] = final_message(status, error)
         rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(Job.id))
         return bool(rows)
 
@@ -155,7 +156,7 @@ class JobStore:
                 status="failed",
                 finished_at=utcnow(),
                 lease_until=None,
-                revision=Job.revision + 1,
+                revision=Job.revision + 1, message="failed: the worker stopped reporting and no attempts are left",
                 error={"type": "about:blank#lease-expired", "title": "Worker lost", "status": 500,
                        "detail": "the worker stopped reporting and no attempts are left"},
             )
@@ -264,11 +265,26 @@ class JobStore:
                         Job.attempts >= max_lost))
             .values(
                 status="failed", finished_at=utcnow(), lease_until=None, revision=Job.revision + 1,
+                message=f"failed: quarantined after its worker was lost {max_lost} times",
                 error={"type": "about:blank#quarantined", "title": "Job quarantined", "status": 500,
                        "detail": f"its worker was lost {max_lost} times while running it; the job is "
                                  "failed instead of being claimed again"})
             .returning(Job.id))
         return [r[0] for r in rows]
+
+
+def final_message(status: str, error: dict | None) -> Any:
+    """The message a job keeps once it finished, never the last progress line of a run that
+    did not get to its end ("probing 3/17" on a failed job reads as if it still probed).
+
+    succeeded: the kind's own closing words when it reported them at progress 1 (e.g.
+    "9/9 traces done"), else "done"; failed / cancelled: the status and the error's detail.
+    Returns a SQL expression for :meth:`JobStore.finish`'s conditional UPDATE."""
+    if status == "succeeded":
+        return case((and_(Job.progress >= 1.0, Job.message.is_not(None), Job.message != ""), Job.message),
+                    else_=literal("done"))
+    detail = (error or {}).get("detail") or (error or {}).get("title") or ""
+    return literal(f"{status}: {detail}"[:500] if detail else status)
 
 
 def json_result(result: Any) -> dict:

@@ -17,7 +17,7 @@ RGB = tuple[int, int, int]
 class Palette:
     """Colours of the scene elements (RGB 0..255)."""
 
-    mesh: RGB = (176, 186, 198)
+    mesh: RGB = (104, 118, 138)  # slate: shaded contrast against the white grid (was a pale (176, 186, 198))
     nominal: RGB = (40, 120, 220)
     reconstructed: RGB = (230, 120, 20)
     planned: RGB = (60, 60, 70)
@@ -34,6 +34,16 @@ PALETTE = Palette()
 # Anchor colours of the maps (positions 0..1).
 _DIVERGING = np.array([[33, 102, 172], [247, 247, 247], [178, 24, 43]], dtype=float)
 _RAMP = np.array([[48, 18, 59], [40, 110, 200], [30, 190, 150], [190, 220, 60], [250, 240, 30]], dtype=float)
+
+
+def _stops(anchors: np.ndarray) -> tuple[tuple[float, str], ...]:
+    """The anchors as legend gradient stops [(position 0..1, "#rrggbb")]."""
+    grid = np.linspace(0.0, 1.0, len(anchors))
+    return tuple((float(t), "#{:02x}{:02x}{:02x}".format(*(int(round(c)) for c in rgb))) for t, rgb in zip(grid, anchors))
+
+
+DIVERGING_STOPS = _stops(_DIVERGING)
+RAMP_STOPS = _stops(_RAMP)
 
 
 def _interpolate(anchors: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from html import escape
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,7 @@ from app.viewer.scene_data import FocusScene
 from app.viewer.scenes import SceneBuilder
 
 log = logging.getLogger("conforma.viewer")
-GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "layers", "axes", "heights", "surfaces")
+GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces")
 NO_JOB = "(none)"
 
 
@@ -44,6 +45,7 @@ class ViewerPanel:
             self.refresh_button = gui.add_button("Refresh list", icon=None)
         with gui.add_folder("Show"):
             self.toggles = {g: gui.add_checkbox(g.capitalize(), True, visible=False) for g in GROUPS}
+        self.legend_folder = gui.add_folder("Colour scale", visible=False)
         self.layer_folder = gui.add_folder("Layers", visible=False)
         self.plot_folder = gui.add_folder("Deviation", visible=False)
         self._dynamic: list[Any] = []
@@ -92,6 +94,11 @@ class ViewerPanel:
         for group, box in self.toggles.items():
             box.visible = group in present
         self.title.content = f"**{scene.title}**" + "".join(f"\n\n_{n}_" for n in scene.notes)
+        legends = self.registry.legends()
+        self.legend_folder.visible = bool(legends)
+        with self.legend_folder:
+            for legend in legends:
+                self._dynamic.append(gui.add_html(legend_html(legend)))
         self.layer_folder.visible = bool(self.builder.layer_stacks or self.builder.height_stacks)
         with self.layer_folder:
             for name, stack in self.builder.layer_stacks.items():
@@ -133,3 +140,16 @@ class ViewerPanel:
         self.registry.add_plot(f"deviation/{plot.name}", plot.title, s.tolist(), dz.tolist(),
                                "mm along the trace", "dz (mm)")
         self._dynamic.append(handle)
+
+
+def legend_html(legend: dict[str, Any]) -> str:
+    """A legend as a gradient bar with its title, unit and the ends of the scale, plus the
+    range the data really spans (``legend`` as :meth:`Legend.to_dict` gives it)."""
+    stops = ", ".join(f"{color} {position * 100:.0f}%" for position, color in legend["stops"])
+    lo, hi, unit = legend["lo"], legend["hi"], legend["unit"]
+    mid = f"<span>{(lo + hi) / 2:.3g}</span>" if lo < 0 < hi else ""
+    return (f'<div class="conforma-legend" data-name="{escape(legend["name"])}" style="font-size:12px;margin:4px 0">'
+            f'<div><b>{escape(legend["title"])}</b> ({escape(unit)})</div>'
+            f'<div style="height:12px;border:1px solid #555;background:linear-gradient(to right, {stops})"></div>'
+            f'<div style="display:flex;justify-content:space-between"><span>{lo:.3g}</span>{mid}<span>{hi:.3g}</span></div>'
+            f'<div style="color:#555">data {legend["data_min"]:.3g} .. {legend["data_max"]:.3g} {escape(unit)}</div></div>')

@@ -23,6 +23,7 @@ from app.models import Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
 from app.records import get_or_404, joint_trace_ranges
+from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.offload import ParsePool
 from app.viewer.scene_data import (
     AxisGlyphs,
@@ -40,6 +41,18 @@ from app.viewer.trace_math import project_onto_polyline, rings_to_segments
 
 CURVE_SAMPLES = 400
 MAX_FIELD_POLYLINES = 200
+MAX_COLORED_MOVES = 200_000  # programs longer than this are drawn in their role's colour only
+
+
+def _ribbon(trace: Trace | None, samples: np.ndarray, label: str) -> tuple[ScalarSurface, ...]:
+    """The rebuilt deviation of ``trace`` (samples (n, 2): s mm, dz mm) as a ribbon on the part:
+    about 4 % of the trace's extent wide (0.5..4 mm), lifted 10 um off the nominal top."""
+    if trace is None or len(samples) < 2:
+        return ()
+    nominal = np.asarray(trace.nominal["points"], float)
+    width = float(np.clip(0.04 * np.ptp(nominal[:, :2], axis=0).max(), 0.5, 4.0))
+    surface = ribbon_surface(f"{label} deviation", nominal, samples[:, 0], samples[:, 1], width, 0.01)
+    return (surface,) if surface is not None else ()
 
 
 class TraceRange(NamedTuple):
@@ -247,7 +260,8 @@ class Loader:
         samples = np.asarray(job.result.get("deviation", {}).get("samples", []), float).reshape(-1, 2)
         name = trace.name if trace else job.id
         plot = DeviationPlot(name, f"{name}: reconstructed - nominal", samples[:, 0], samples[:, 1])
-        return self._with_trace(session, job, polylines=(rebuilt,), probes=(probes,), plots=(plot,))
+        return self._with_trace(session, job, polylines=(rebuilt,), probes=(probes,), plots=(plot,),
+                                scalar_surfaces=_ribbon(trace, samples, name))
 
     def _gcode(self, session: Session, job: Job, name: str, role: str, label: str | None = None) -> tuple[Toolpath, ...]:
         segments = self._program(session, job, name)
@@ -256,12 +270,25 @@ class Loader:
         return (Toolpath(label or name.rsplit(".", 1)[0], segments, role),)
 
     def _compensate(self, session: Session, job: Job) -> FocusScene:
+        """Both programs, each dispensed move coloured by its standoff error over the rebuilt
+        surface (the nominal program's is minus the deviation), and the deviation ribbon."""
         paths = self._gcode(session, job, "nominal.gcode", "nominal") + self._gcode(session, job, "print.gcode", "compensated")
         offset = np.asarray(((job.result or {}).get("tool") or {}).get("offset_mm") or (0.0, 0.0, 0.0), float)
         if offset.any():  # a nozzle's programs are carriage positions: draw its tip (carriage + offset)
             paths = tuple(replace(p, segments=replace(p.segments, starts=p.segments.starts + offset,
                                                       ends=p.segments.ends + offset)) for p in paths)
-        return self._with_trace(session, job, toolpaths=paths)
+        trace = self._trace_of(session, job)
+        rebuilt = session.get(Job, job.params.get("reconstruct_job_id") or "")
+        samples = np.asarray(((rebuilt.result or {}) if rebuilt else {}).get("deviation", {}).get("samples", []),
+                             float).reshape(-1, 2)
+        if trace is None or len(samples) < 2:
+            return self._with_trace(session, job, toolpaths=paths)
+        nominal = np.asarray(trace.nominal["points"], float)
+        standoff = float((job.result or {}).get("standoff_mm", trace.standoff_mm))
+        colored = tuple(replace(p, standoff_error_mm=standoff_errors(
+            p.segments.starts, p.segments.ends, p.segments.dispense, nominal, samples[:, 0], samples[:, 1], standoff))
+            if len(p.segments.starts) <= MAX_COLORED_MOVES else p for p in paths)
+        return self._with_trace(session, job, toolpaths=colored, scalar_surfaces=_ribbon(trace, samples, trace.name))
 
     def _closed_loop(self, session: Session, job: Job) -> FocusScene:
         children = session.exec(select(Job).where(Job.parent_id == job.id, Job.status == "succeeded")
@@ -273,6 +300,8 @@ class Loader:
             # probe runs must not overwrite each other's "probe_run:run" node
             trace = self._trace(session, (child.params or {}).get("trace_id") or "")
             owner = f"{trace.name} {trace.id}" if trace is not None else child.id
+            if child.kind == "compensate":  # its deviation ribbon is its reconstruct child's
+                scene = replace(scene, scalar_surfaces=tuple(s for s in scene.scalar_surfaces if not s.signed))
             merged = replace(merged, **{key: getattr(merged, key) + tuple(
                 replace(item, name=f"{child.kind}:{owner}:{item.name}") for item in getattr(scene, key))
                 for key in ("polylines", "probes", "toolpaths", "layers", "axes", "heights", "surfaces", "plots",

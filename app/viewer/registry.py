@@ -35,6 +35,7 @@ class SceneRegistry:
         self._plots: dict[str, dict[str, Any]] = {}
         self._sliders: dict[str, dict[str, Any]] = {}
         self._notes: list[str] = []
+        self._legends: list[dict[str, Any]] = []
         self.generation = 0
 
     def reset(self, focus: dict[str, Any]) -> None:
@@ -44,6 +45,7 @@ class SceneRegistry:
             self._plots.clear()
             self._sliders.clear()
             self._notes.clear()
+            self._legends = []
             self.generation += 1
 
     def add_node(self, name: str, info: NodeInfo) -> None:
@@ -70,6 +72,15 @@ class SceneRegistry:
         with self._lock:
             self._sliders[name] = {"min": minimum, "max": maximum, "value": value, "labels": labels or []}
 
+    def set_legends(self, legends: list[dict[str, Any]]) -> None:
+        """The colour scales of what is drawn (see :class:`app.viewer.deviation_map.Legend`)."""
+        with self._lock:
+            self._legends = copy.deepcopy(legends)
+
+    def legends(self) -> list[dict[str, Any]]:
+        with self._lock:
+            return copy.deepcopy(self._legends)
+
     def note(self, text: str) -> None:
         with self._lock:
             self._notes.append(text)
@@ -87,4 +98,5 @@ class SceneRegistry:
             groups = {g: g not in self._hidden_groups for g in sorted({n.group for n in self._nodes.values()})}
             return {"generation": self.generation, "focus": dict(self._focus), "nodes": nodes,
                     "groups": groups, "plots": copy.deepcopy(self._plots),
-                    "sliders": copy.deepcopy(self._sliders), "notes": list(self._notes)}
+                    "sliders": copy.deepcopy(self._sliders), "notes": list(self._notes),
+                    "legends": copy.deepcopy(self._legends)}

@@ -33,11 +33,14 @@ class ProbeSet:
 
 @dataclass(frozen=True)
 class Toolpath:
-    """A program's moves; role "nominal" or "compensated"."""
+    """A program's moves; role "nominal" or "compensated".  ``standoff_error_mm`` (m,), one
+    per move (NaN where unknown, e.g. travel): the tip's height above the real (rebuilt)
+    surface minus the set standoff; the dispensed moves are then coloured by it."""
 
     name: str
     segments: ToolpathSegments
     role: str = "nominal"
+    standoff_error_mm: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -82,8 +85,10 @@ class SurfaceMesh:
 
 @dataclass(frozen=True)
 class ScalarSurface:
-    """A triangle surface coloured by a value per vertex (e.g. a field's posterior sd):
-    vertices (v, 3) mm, faces (f, 3), values (v,) in ``unit``, coloured from lo to hi."""
+    """A triangle surface coloured by a value per vertex (a field's posterior sd; or, with
+    ``signed``, the rebuilt deviation as a ribbon on the part along a trace): vertices (v, 3)
+    mm, faces (f, 3), values (v,) in ``unit``, coloured from lo to hi (signed: one symmetric
+    scale shared with the scene's other signed values)."""
 
     name: str
     vertices: np.ndarray
@@ -92,6 +97,7 @@ class ScalarSurface:
     lo: float
     hi: float
     unit: str = "mm"
+    signed: bool = False  # a signed deviation (diverging colours about 0) rather than a magnitude
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 
 from app.viewer.colors import PALETTE, Palette, deviation_colors, height_colors
+from app.viewer.deviation_map import scene_legends, signed_limit_mm
 from app.viewer.registry import NodeInfo, SceneRegistry
 from app.viewer.scene_data import FocusScene, HeightStack, LayerStack, ScalarSurface, Toolpath
 
@@ -63,6 +64,16 @@ def height_surface(heights: np.ndarray, pitch_mm: float, origin_xy: tuple[float,
     return trimesh.Trimesh(vertices, faces, vertex_colors=colors, process=False)
 
 
+def scalar_surface_mesh(surface: ScalarSurface, signed_limit_mm: float) -> trimesh.Trimesh:
+    """A value-per-vertex surface as a vertex-coloured mesh: signed values on the diverging
+    scale symmetric about 0 up to ``signed_limit_mm``, others on the ramp from lo to hi."""
+    rgb = (deviation_colors(surface.values, signed_limit_mm) if surface.signed
+           else height_colors(surface.values, surface.lo, surface.hi))
+    colors = np.column_stack([rgb, np.full(len(surface.values), 255, np.uint8)])
+    return trimesh.Trimesh(np.asarray(surface.vertices, float), np.asarray(surface.faces, np.int64),
+                           vertex_colors=colors, process=False)
+
+
 class SceneBuilder:
     """Owns the nodes under ``/focus``: draws a scene, swaps slider layers, toggles groups."""
 
@@ -77,6 +88,7 @@ class SceneBuilder:
         self._heights: dict[str, HeightStack] = {}
         self._height_range: dict[str, tuple[float, float]] = {}
         self._point_size = 0.5
+        self._signed_limit = 0.0  # mm: the symmetric scale shared by the scene's signed values
         self._lock = threading.RLock()
 
     # bookkeeping -------------------------------------------------------------------
@@ -121,11 +133,13 @@ class SceneBuilder:
             bounds = scene.bounds()
             diag = float(np.linalg.norm(bounds[1] - bounds[0])) if bounds is not None else 100.0
             self._point_size = max(diag * self.params.point_size_frac, 0.05)
+            self._signed_limit = signed_limit_mm(scene)
+            self.registry.set_legends([legend.to_dict() for legend in scene_legends(scene)])
             scn = self.server.scene
             if scene.mesh_vertices is not None and scene.mesh_faces is not None:
                 handle = scn.add_mesh_simple(f"{ROOT}/part", np.asarray(scene.mesh_vertices, np.float32),
                                              np.asarray(scene.mesh_faces, np.uint32), color=self.palette.mesh,
-                                             opacity=0.85, side="double", flat_shading=False)
+                                             opacity=0.9, side="double", flat_shading=False)
                 self._add(f"{ROOT}/part", "part", handle, "mesh", len(scene.mesh_faces))
             for line in scene.polylines:
                 self._polyline(line.name, line.points, line.role)
@@ -171,7 +185,7 @@ class SceneBuilder:
             name = f"{ROOT}/probes/{_slug(probes.name)}/measured"
             pts = np.asarray(probes.measured, np.float32)
             dev = np.zeros(len(pts)) if probes.deviation_mm is None else np.asarray(probes.deviation_mm, float)
-            limit = float(np.max(np.abs(dev))) if len(dev) else 0.0
+            limit = self._signed_limit
             handle = self.server.scene.add_point_cloud(name, pts, deviation_colors(dev, limit), point_size=size * 1.3,
                                                        point_shape="circle", precision="float32")
             self._add(name, "probes", handle, "points", len(pts), role="measured", deviation_limit_mm=limit)
@@ -181,17 +195,23 @@ class SceneBuilder:
         both = np.stack([seg.starts, seg.ends], axis=1).astype(np.float32)
         colors = {"dispense": self.palette.compensated if toolpath.role == "compensated" else self.palette.dispense,
                   "travel": self.palette.travel}
+        errors = toolpath.standoff_error_mm
         for move, mask in (("dispense", seg.dispense), ("travel", ~seg.dispense)):
             chosen = both[mask]
+            per_move = None
+            if move == "dispense" and errors is not None:  # coloured by standoff error, on the scene's scale
+                values = np.asarray(errors, float)[mask]
+                per_move = np.repeat(deviation_colors(np.nan_to_num(values, nan=0.0), self._signed_limit)[:, None], 2, 1)
             step = self.params.max_segments_per_node
             for part, start in enumerate(range(0, len(chosen), step)):
                 suffix = "" if len(chosen) <= step else f"_{part}"
                 name = f"{ROOT}/toolpaths/{_slug(toolpath.name)}/{move}{suffix}"
                 chunk = chosen[start:start + step]
-                handle = self.server.scene.add_line_segments(
-                    name, chunk, colors[move], thickness=self.params.toolpath_px * (1.0 if move == "dispense" else 0.6),
-                    thickness_units="screen")
-                self._add(name, "toolpaths", handle, "segments", len(chunk), role=toolpath.role, move=move)
+                color = colors[move] if per_move is None else per_move[start:start + step]
+                width = self.params.toolpath_px * (1.0 if move == "dispense" else 0.6) * (2.0 if per_move is not None else 1.0)
+                handle = self.server.scene.add_line_segments(name, chunk, color, thickness=width, thickness_units="screen")
+                meta = {} if per_move is None else {"colored_by": "standoff_error", "signed_limit_mm": self._signed_limit}
+                self._add(name, "toolpaths", handle, "segments", len(chunk), role=toolpath.role, move=move, **meta)
 
     def _axes(self, glyphs: Any) -> None:
         pos = np.asarray(glyphs.positions, float)
@@ -239,13 +259,10 @@ class SceneBuilder:
     def _scalar_surface(self, surface: ScalarSurface) -> None:
         """A surface coloured by its per-vertex values (the field's posterior sd map)."""
         name = f"{ROOT}/fields/{_slug(surface.name)}"
-        colors = np.column_stack([height_colors(surface.values, surface.lo, surface.hi),
-                                  np.full(len(surface.values), 255, np.uint8)])
-        mesh = trimesh.Trimesh(np.asarray(surface.vertices, float), np.asarray(surface.faces, np.int64),
-                               vertex_colors=colors, process=False)
+        mesh = scalar_surface_mesh(surface, self._signed_limit)
         handle = self.server.scene.add_mesh_trimesh(name, mesh)
-        self._add(name, "surfaces", handle, "surface", len(mesh.faces), value_range=[surface.lo, surface.hi],
-                  unit=surface.unit)
+        self._add(name, "deviation" if surface.signed else "surfaces", handle, "surface", len(mesh.faces),
+                  value_range=[surface.lo, surface.hi], unit=surface.unit, signed=surface.signed)
 
     def _height_stack(self, stack: HeightStack) -> None:
         cells = self.params.max_height_cells

@@ -74,6 +74,7 @@ class Viewer:
         self.parser = ParsePool()
         self._views: dict[str, View] = {}
         self._client_views: dict[int, str] = {}
+        self._pending: dict[int, Any] = {}  # clients ready before their view was known
         if guard is not None:
             server._websock_server.on_client_connect(self._on_socket)
         server.on_client_connect(self._on_client)
@@ -132,12 +133,16 @@ class Viewer:
             return
         with self._lock:
             self._client_views[conn.client_id] = view_id
+            waiting = self._pending.pop(conn.client_id, None)
+        if waiting is not None:  # the browser was ready before its handshake was noted: draw now
+            self._on_client(waiting)
 
     def _on_client(self, client: Any) -> None:
         """A browser is ready: give it its own panel and draw its view's focus."""
         with self._lock:
             view_id = self._client_views.get(client.client_id, None if self.guard is not None else DEFAULT_VIEW)
-            if view_id is None:
+            if view_id is None:  # viser may report the client before the handshake callback ran
+                self._pending[client.client_id] = client
                 return
             view = self.view(view_id)
             drawer = self._drawer(client, view.registry, view_id)
@@ -149,6 +154,7 @@ class Viewer:
 
     def _on_client_gone(self, client: Any) -> None:
         with self._lock:
+            self._pending.pop(client.client_id, None)
             view_id = self._client_views.pop(client.client_id, DEFAULT_VIEW)
             view = self._views.get(view_id)
             if view is not None:

@@ -35,6 +35,7 @@ ROLES = {
     ("POST", "/api/v1/jobs/{job_id}/resume"): "operator",
     ("POST", "/api/v1/jobs/{job_id}/abandon"): "operator",
     ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}"): "viewer",
+    ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}/summary"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/events"): "viewer",
     ("POST", "/api/v1/programs"): "operator",
     ("GET", "/api/v1/programs"): "viewer",

@@ -104,13 +104,20 @@ def test_part_probe_plan_and_reconstruction_scenes(vclient, part_and_trace):
     shown = focus(vclient, job_id=rec["id"])
     node = shown["nodes"]["/focus/probes/measured/measured"]
     assert node["count"] == 9
-    # the colour scale is the largest |measured - nominal| (planned points lie on the nominal)
-    assert node["deviation_limit_mm"] == pytest.approx(np.abs(measured[:, 2] - planned[:, 2]).max(), abs=2e-3)
+    # one colour scale for the probes and the deviation ribbon on the part: the largest
+    # |measured - nominal| or |rebuilt deviation| (planned points lie on the nominal)
+    rebuilt = np.abs(np.asarray(rec["result"]["deviation"]["samples"])[:, 1]).max()
+    limit = max(np.abs(measured[:, 2] - planned[:, 2]).max(), rebuilt)
+    assert node["deviation_limit_mm"] == pytest.approx(limit, abs=2e-3)
+    ribbon = shown["nodes"]["/focus/fields/S1-trace-7_deviation"]
+    assert ribbon["group"] == "deviation" and ribbon["signed"] is True
+    [legend] = shown["legends"]
+    assert legend["unit"] == "µm" and legend["hi"] == pytest.approx(node["deviation_limit_mm"] * 1000)
     assert shown["nodes"]["/focus/curves/S1-trace-7_reconstructed"]["role"] == "reconstructed"
     plot = shown["plots"]["deviation/S1-trace-7"]
     samples = np.asarray(rec["result"]["deviation"]["samples"])
     assert plot["x"] == pytest.approx(samples[:, 0].tolist()) and plot["y"] == pytest.approx(samples[:, 1].tolist())
-    assert set(shown["groups"]) == {"part", "traces", "probes", "curves"}
+    assert set(shown["groups"]) == {"part", "traces", "probes", "curves", "deviation"}
 
 
 def test_slice_layers_and_jetting_heights_get_sliders(vclient, part_and_trace):

@@ -1,9 +1,11 @@
 // Machines: register (mock or real port), connect, live state and position, pause /
 // resume, and a big emergency stop.  The page polls the machines' status once a second.
 import { ApiError, del, get, post } from "./api.js";
+import { loadPrograms, programList } from "./machine_programs.js";
 import { el, guarded, initPage, markReady, showError, showInfo } from "./ui.js";
 
 const POLL_MS = 1000;
+const PROGRAMS_MS = 15000;
 const main = initPage("machines.html");
 const unavailable = el("section", { id: "machines-unavailable", hidden: true });
 const list = el("div", { id: "machines-list" });
@@ -73,13 +75,15 @@ function card(m) {
       update(fresh);
       showInfo(`EMERGENCY STOP sent to ${m.name}: state ${fresh.state}.`, 10000);
     }) }, "■ Emergency stop");
+  const bar = el("progress", { class: "print-progress", max: 1, value: 0, hidden: true, "aria-label": `print progress on ${m.name}` });
+  const programs = el("div", { class: "programs-body" }, programList(m, shownPrograms, () => refresh()));
   const node = el("section", { class: "machine-card", "data-id": m.id },
     el("h2", {}, m.name, " ", state), el("div", { class: "small mono" }, `${m.id} · ${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
-    pos, prog,
+    pos, prog, bar, estop,
     el("div", { class: "row" }, act(m, "connect", "Connect"), act(m, "disconnect", "Disconnect"), act(m, "pause", "Pause"), act(m, "resume", "Resume")),
-    manualControls(m),
-    el("p", {}), estop);
-  cards.set(m.id, { node, state, pos, prog });
+    el("details", { class: "programs", open: true }, el("summary", {}, "Programs"), programs),
+    manualControls(m));
+  cards.set(m.id, { node, state, pos, prog, bar, programs, machine: m });
   update(m);
   return node;
 }
@@ -130,7 +134,24 @@ function update(m) {
   c.state.dataset.state = m.state;
   c.state.textContent = m.state;
   c.pos.textContent = position(m);
-  c.prog.textContent = m.program ? `program ${m.program.job_id || ""}: line ${m.program.line ?? "?"} of ${m.program.total ?? "?"}` : "no program running";
+  const p = m.program;
+  const line = p ? (p.executed ?? p.line) : null;
+  c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
+    (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") : "no program running";
+  c.bar.hidden = !(p && p.total);
+  if (p && p.total) c.bar.value = (line ?? 0) / p.total;
+}
+
+// ---- the program list (shared by every card, reloaded every PROGRAMS_MS) ----------------
+let shownPrograms = [];
+async function refreshPrograms() {
+  try {
+    shownPrograms = await loadPrograms();
+  } catch (err) {
+    if (!err.offline) showError(err, "Programs");
+    return;
+  }
+  for (const c of cards.values()) c.programs.replaceChildren(programList(c.machine, shownPrograms, () => refresh()));
 }
 
 let available = true;
@@ -168,9 +189,11 @@ async function loadParts() {
   });
 }
 
-document.addEventListener("conforma:key", () => refresh());
+document.addEventListener("conforma:key", () => { refresh(); refreshPrograms(); });
 await loadParts();
+await refreshPrograms();
 await refresh();
 markReady();
 setInterval(() => { if (available) refresh(); }, POLL_MS);
+setInterval(() => { if (available) refreshPrograms(); }, PROGRAMS_MS);
 

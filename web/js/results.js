@@ -2,10 +2,12 @@
 // (_mm, _um, _s, _ms, _deg, _mm_min, _mm3, _mm2), durations as "2 h 18 min", lengths in
 // µm when they are below a millimetre, and lists summarised by their length.  The raw
 // JSON stays one click away on the job page.
+import { VIEWS } from "./result_views.js";
 import { el } from "./ui.js";
 
 const UNITS = [
   ["_mm_min", (v) => `${round(v, 4)} mm/min`],
+  ["_mm_s", (v) => `${round(v, 4)} mm/s`],
   ["_mm3", (v) => `${round(v, 4)} mm³`],
   ["_mm2", (v) => `${round(v, 4)} mm²`],
   ["_um", (v) => `${round(v, 3)} µm`],
@@ -58,7 +60,7 @@ export function formatValue(name, value) {
 }
 
 function label(name) {
-  const text = name.replace(/_(mm_min|mm3|mm2|um|mm|ms|s|deg|c)$/, "").replace(/_/g, " ");
+  const text = name.replace(/_(mm_min|mm_s|mm3|mm2|um|mm|ms|s|deg|c)$/, "").replace(/_/g, " ");
   return text.charAt(0).toUpperCase() + text.slice(1);
 }
 
@@ -107,7 +109,7 @@ const COLORS = ["#cf222e", "#1a7f37", "#1f6feb", "#9a6700"];
 
 function unitOf(name) {
   const unit = UNITS.find(([suffix]) => name.endsWith(suffix));
-  return unit ? unit[0].slice(1).replace("um", "µm").replace("deg", "°") : "";
+  return unit ? unit[0].slice(1).replace("mm_s", "mm/s").replace("um", "µm").replace("deg", "°") : "";
 }
 
 // An SVG chart of `rows` (objects): axes with min/max ticks, a legend with units.
@@ -158,7 +160,7 @@ export function chart(rows, { x, ys, type = "line", title = "", xUnit = "", yUni
         fill: "none", stroke: color, "stroke-width": 2 });
     }
     mk("rect", { x: left + 8 + s * 190, y: 6, width: 10, height: 10, fill: color });
-    mk("text", { x: left + 22 + s * 190, y: 15, "font-size": 11 }, key.replace(/_(um|mm|s|ms)$/, "").replace(/_/g, " "));
+    mk("text", { x: left + 22 + s * 190, y: 15, "font-size": 11 }, key.replace(/_(mm_s|um|mm|s|ms|deg)$/, "").replace(/_/g, " "));
   });
   return el("figure", { class: "chart", "data-rows": rows.length, "data-series": series.join(",") },
     svg, el("figcaption", { class: "small" }, title));
@@ -185,5 +187,6 @@ export function kindView(job) {
     if (figure) out.push(figure);
     if (job.kind === "closed_loop") out.push(recordsTable(job.result.table, 50));
   }
+  if (VIEWS[job.kind] && job.status === "succeeded" && job.result) out.push(VIEWS[job.kind](job));
   return out;
 }

@@ -226,6 +226,9 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     if registration is not None:
         result["registration"] = {"job_id": registration.id, **{
             k: registration.result[k] for k in ("placement", "std", "covariance", "unobservable", "probe_count")}}
+    from app.jobs.loop_files import write_loop_files  # the loop's own files (issue 19), kept out of this module
+
+    result["files"] = write_loop_files(ctx, params.machine_id, result)
     return result
 
 

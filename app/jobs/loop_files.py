@@ -1,0 +1,89 @@
+"""A closed loop's own files (issue 19): what an operator downloads from the loop itself
+instead of digging through each trace's compensate job.
+
+- ``loop_summary.json`` / ``loop_summary.csv``: one row per trace with its figures (probes,
+  model deviation, the compensated program's lines and hash, and with ``evaluate`` the
+  standoff and XY errors of the nominal vs the compensated print, µm);
+- ``whole_part.gcode``: every trace's compensated program joined in a short-travel order
+  with safe lifts between traces, in the machine's dialect (:func:`app.gcode.concat.join_programs`).
+
+Thin: the joining is in :mod:`app.gcode.concat`; this module only reads the children's
+artifacts and writes the parent's.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from typing import Any
+
+from app.gcode.concat import join_programs
+from app.gcode.estimator import estimate_gcode
+from app.jobs.context import JobContext
+from app.jobs.gcode_meta import gcode_meta
+
+SUMMARY_COLUMNS = ("index", "trace_id", "name", "probes", "deviation_max_um", "compensate_job", "program_lines",
+                   "program_sha256", "standoff_max_before_um", "standoff_max_after_um", "standoff_rms_before_um",
+                   "standoff_rms_after_um", "xy_max_before_um", "xy_max_after_um")
+CLEARANCE_MM = 2.0
+
+
+def _um(value: Any) -> float | None:
+    return None if value is None else round(float(value) * 1000.0, 3)
+
+
+def summary_rows(ctx: JobContext, result: dict[str, Any], programs: dict[str, str]) -> list[dict[str, Any]]:
+    """One row per trace of a closed loop's ``result`` (lengths µm); ``programs``: compensate
+    job id -> its print.gcode text."""
+    rows = []
+    for index, entry in enumerate(result.get("traces", []), start=1):
+        text = programs[entry["compensate"]]
+        meta = gcode_meta(text)
+        evaluation = entry.get("evaluation") or {}
+        before, after = evaluation.get("nominal") or {}, evaluation.get("compensated") or {}
+        rows.append({
+            "index": index, "trace_id": entry["trace_id"], "name": ctx.trace(entry["trace_id"]).name,
+            "probes": entry.get("probes"), "deviation_max_um": _um(entry.get("deviation_max_mm")),
+            "compensate_job": entry["compensate"], "program_lines": meta["lines"],
+            "program_sha256": meta["commands_sha256"],
+            "standoff_max_before_um": _um(before.get("standoff_error_max_mm")),
+            "standoff_max_after_um": _um(after.get("standoff_error_max_mm")),
+            "standoff_rms_before_um": _um(before.get("standoff_error_rms_mm")),
+            "standoff_rms_after_um": _um(after.get("standoff_error_rms_mm")),
+            "xy_max_before_um": _um(before.get("xy_error_max_mm")),
+            "xy_max_after_um": _um(after.get("xy_error_max_mm")),
+        })
+    return rows
+
+
+def _csv(rows: list[dict[str, Any]]) -> bytes:
+    out = io.StringIO()
+    writer = csv.DictWriter(out, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: "" if row[k] is None else row[k] for k in SUMMARY_COLUMNS})
+    return out.getvalue().encode()
+
+
+def write_loop_files(ctx: JobContext, machine_id: str, result: dict[str, Any]) -> dict[str, Any]:
+    """Write the loop's summary and whole-part program as the running job's artifacts;
+    returns what the result records about them (names, program lines, order, time)."""
+    dialect = ctx.machine(machine_id).dialect
+    programs = {e["compensate"]: ctx.artifact_bytes(e["compensate"], "print.gcode").decode()
+                for e in result.get("traces", [])}
+    rows = summary_rows(ctx, result, programs)
+    ctx.artifact("loop_summary.json", json.dumps({"traces": rows}, indent=1).encode(), "application/json")
+    ctx.artifact("loop_summary.csv", _csv(rows), "text/csv")
+    files: dict[str, Any] = {"summary": ["loop_summary.json", "loop_summary.csv"]}
+    if rows:
+        joined = join_programs([(f"{r['name']} {r['trace_id']}", programs[r["compensate_job"]]) for r in rows],
+                               dialect, clearance_mm=CLEARANCE_MM, job_id=ctx.job_id)
+        meta = gcode_meta(joined.text)
+        time_s = estimate_gcode(joined.text).total_s
+        ctx.artifact("whole_part.gcode", joined.text.encode(), "text/x-gcode", {**meta, "time_s": time_s})
+        files["whole_part"] = {"artifact": "whole_part.gcode", "lines": meta["lines"], "time_s": time_s,
+                               "order": [rows[i]["trace_id"] for i in joined.order],
+                               "safe_z_mm": joined.safe_z_mm, "travel_xy_mm": joined.travel_xy_mm,
+                               "dialect": dialect}
+    return files

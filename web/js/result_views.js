@@ -1,0 +1,140 @@
+// Result views that need more than the job's own record: the probe plan's stations drawn
+// on the part (top view, with the traces), compensation's standoff along the trace
+// (nominal program vs compensated) with the program's time, and a five-axis program's A/C
+// angles and tip speed along the path.  Each returns a container at once and fills it
+// when its reads answer (the raw JSON stays one click away on the job page).
+import { get } from "./api.js";
+import { chart, duration, length, round } from "./results.js";
+import { el } from "./ui.js";
+
+const NS = "http://www.w3.org/2000/svg";
+
+function box(id, title) {
+  const body = el("div", { class: "view-body" }, el("p", { class: "small" }, "loading…"));
+  return { node: el("section", { class: "result-view", id }, el("h3", {}, title), body), body };
+}
+
+function figureList(rows) {
+  return el("table", { class: "figures" }, el("tbody", {}, rows.filter(Boolean).map(([name, value, key]) =>
+    el("tr", { "data-key": key }, el("th", { scope: "row" }, name), el("td", {}, value)))));
+}
+
+async function fill(body, build) {
+  try {
+    body.replaceChildren(...(await build()).filter(Boolean));
+  } catch (err) {
+    body.replaceChildren(el("p", { class: "small" }, `could not load this view: ${err.message || err}`));
+  }
+}
+
+// ---- probe plan: stations on the part (top view) ---------------------------------------
+export function topView({ bounds, traces, stations, title }) {
+  const w = 640, h = 420, pad = 24;
+  const xy = [...traces.flatMap((t) => t.points), ...stations];
+  const lo = bounds ? bounds[0] : [Math.min(...xy.map((p) => p[0])), Math.min(...xy.map((p) => p[1]))];
+  const hi = bounds ? bounds[1] : [Math.max(...xy.map((p) => p[0])), Math.max(...xy.map((p) => p[1]))];
+  const span = Math.max(hi[0] - lo[0], hi[1] - lo[1], 1e-6);
+  const k = Math.min((w - 2 * pad) / Math.max(hi[0] - lo[0], span * 0.05), (h - 2 * pad) / Math.max(hi[1] - lo[1], span * 0.05));
+  const X = (x) => pad + (x - lo[0]) * k;
+  const Y = (y) => h - pad - (y - lo[1]) * k;  // +Y up, as seen from above
+  const svg = document.createElementNS(NS, "svg");
+  svg.setAttribute("viewBox", `0 0 ${w} ${h}`);
+  svg.setAttribute("role", "img");
+  svg.setAttribute("aria-label", title);
+  const mk = (tag, attrs, text) => {
+    const n = document.createElementNS(NS, tag);
+    for (const [a, v] of Object.entries(attrs)) n.setAttribute(a, v);
+    if (text !== undefined) n.textContent = text;
+    svg.append(n);
+    return n;
+  };
+  if (bounds) mk("rect", { class: "part-outline", x: X(lo[0]), y: Y(hi[1]), width: (hi[0] - lo[0]) * k, height: (hi[1] - lo[1]) * k,
+    fill: "#d0d7de", stroke: "#57606a", "stroke-width": 1 });
+  for (const t of traces) {
+    mk("polyline", { class: "trace", points: t.points.map((p) => `${X(p[0]).toFixed(1)},${Y(p[1]).toFixed(1)}`).join(" "),
+      fill: "none", stroke: "#0550ae", "stroke-width": 2 });
+  }
+  for (const p of stations) mk("circle", { class: "station", cx: X(p[0]).toFixed(1), cy: Y(p[1]).toFixed(1), r: 4, fill: "#cf222e", stroke: "#fff" });
+  mk("text", { x: pad, y: 14, "font-size": 12 }, `top view · ${stations.length} stations (red) · traces (blue) · part (grey)`);
+  mk("text", { x: w - pad, y: h - 6, "font-size": 11, "text-anchor": "end" },
+    `${round(hi[0] - lo[0], 4)} × ${round(hi[1] - lo[1], 4)} mm`);
+  return el("figure", { class: "chart top-view", "data-stations": stations.length, "data-traces": traces.length }, svg,
+    el("figcaption", { class: "small" }, title));
+}
+
+function planView(job) {
+  const { node, body } = box("plan-view", "Probe stations on the part");
+  const r = job.result;
+  fill(body, async () => {
+    const ids = job.params.trace_ids || (job.params.trace_id ? [job.params.trace_id] : []);
+    const traces = (await Promise.all(ids.slice(0, 200).map((id) => get(`traces/${id}`).catch(() => null)))).filter(Boolean);
+    const part = traces.length ? await get(`parts/${traces[0].part_id}`).catch(() => null) : null;
+    const sds = (r.traces || []).map((t) => t.predicted_sd_mm).filter(Number.isFinite);
+    const worstSd = r.field?.max_sd_mm ?? (sds.length ? Math.max(...sds) : null);
+    const rows = [["Stations", String(r.count), "count"], ["Method", r.method, "method"],
+      ["Traces", String(ids.length), "traces"],
+      worstSd !== null ? ["Predicted sd (worst trace)", length(worstSd), "predicted_sd_mm"] : null,
+      r.spacing_mm ? ["Spacing", length(r.spacing_mm), "spacing_mm"] : null];
+    const perTrace = (r.traces || []).map((t, i) => ({ trace: traces.find((x) => x.id === t.trace_id)?.name || t.trace_id,
+      stations: t.stations ?? t.count, predicted_sd_um: Number.isFinite(t.predicted_sd_mm) ? t.predicted_sd_mm * 1000 : null, index: i }));
+    const drawn = topView({ bounds: part?.bounds ? [part.bounds[0], part.bounds[1]] : null,
+      traces: traces.map((t) => ({ points: t.nominal.points })), stations: r.points || [],
+      title: `${r.count} probe stations${worstSd !== null ? `, predicted sd ≤ ${length(worstSd)}` : ""}` });
+    const sdChart = perTrace.length > 1 && perTrace.every((t) => t.predicted_sd_um !== null)
+      ? chart(perTrace, { x: "index", ys: ["predicted_sd_um"], type: "bars", title: "Predicted sd of the rebuilt deviation per trace" }) : null;
+    return [figureList(rows), drawn, sdChart];
+  });
+  return node;
+}
+
+// ---- compensation: standoff along the trace, chord error, segments, time ---------------
+function compensateView(job) {
+  const { node, body } = box("compensate-view", "Nominal program vs compensated");
+  const r = job.result;
+  fill(body, async () => {
+    const [program, nominal, rebuilt] = await Promise.all([
+      get(`jobs/${job.id}/artifacts/print.gcode/summary`).catch(() => null),
+      get(`jobs/${job.id}/artifacts/nominal.gcode/summary`).catch(() => null),
+      job.params.reconstruct_job_id ? get(`jobs/${job.params.reconstruct_job_id}`).catch(() => null) : null]);
+    const standoff = r.standoff_mm;
+    const samples = rebuilt?.result?.deviation?.samples || [];
+    const rows = samples.map(([s, dz]) => ({ s_mm: s, nominal_program_um: (standoff - dz) * 1000, compensated_um: standoff * 1000 }));
+    const worst = samples.length ? Math.max(...samples.map(([, dz]) => Math.abs(dz))) : null;
+    const figures = figureList([
+      ["Set standoff", length(standoff), "standoff_mm"],
+      worst !== null ? ["Nominal program: worst standoff error (model)", length(worst), "nominal_error_mm"] : null,
+      ["Compensated: chord error (proved per segment)", `≤ ${length(r.max_chord_error_mm)}`, "max_chord_error_mm"],
+      ["Segments", `${r.segments} (nominal ${r.nominal_segments})`, "segments"],
+      ["Length", length(r.length_mm), "length_mm"],
+      program ? ["Program time (estimated)", duration(program.time_s), "time_s"] : null,
+      program ? ["Program lines", String(program.lines), "lines"] : null,
+      nominal ? ["Nominal program time", duration(nominal.time_s), "nominal_time_s"] : null]);
+    const plot = rows.length > 1 ? chart(rows, { x: "s_mm", ys: ["nominal_program_um", "compensated_um"],
+      title: `Standoff along the trace from the reconstructed surface: the nominal program vs the compensated one (± ${length(r.max_chord_error_mm)} chord error)`,
+      xUnit: "mm", yUnit: "µm" }) : el("p", { class: "small" }, "no reconstruction samples to compare with");
+    if (plot.tagName === "FIGURE") plot.id = "standoff-plot";
+    return [figures, plot];
+  });
+  return node;
+}
+
+// ---- five-axis: A/C and tip speed along the path -----------------------------------------
+function fiveAxisView(job) {
+  const { node, body } = box("five-axis-view", "Five-axis program along the path");
+  fill(body, async () => {
+    const summary = await get(`jobs/${job.id}/artifacts/five_axis.gcode/summary`);
+    const p = summary.rotary;
+    if (!p) return [el("p", { class: "small" }, "the program has no A/C motion")];
+    const rows = p.s_mm.map((s, i) => ({ s_mm: s, a_deg: p.a_deg[i], c_deg: p.c_deg[i], tip_speed_mm_s: p.tip_speed_mm_s[i] }));
+    const angles = chart(rows, { x: "s_mm", ys: ["a_deg", "c_deg"], title: "A and C angles along the path", xUnit: "mm", yUnit: "°" });
+    const speed = chart(rows, { x: "s_mm", ys: ["tip_speed_mm_s"], title: "Nozzle tip speed along the path (workpiece coordinates)", xUnit: "mm", yUnit: "mm/s" });
+    if (angles) angles.id = "angles-plot";
+    if (speed) speed.id = "tip-speed-plot";
+    return [figureList([["Program time (feed lines)", duration(summary.time_s), "time_s"], ["Program lines", String(summary.lines), "lines"],
+      ["Path length", length(p.s_mm[p.s_mm.length - 1]), "path_mm"], ["Top tip speed", `${round(p.tip_speed_max_mm_s, 4)} mm/s`, "tip_speed_max"]]),
+    angles, speed];
+  });
+  return node;
+}
+
+export const VIEWS = { probe_plan: planView, compensate: compensateView, five_axis: fiveAxisView };
