@@ -1,0 +1,126 @@
+"""The per-part cache on disk (app.part_cache): round trips, corruption, eviction, and the
+service's second compute job loading what the first one built (in process isolation)."""
+
+from __future__ import annotations
+
+import os
+import numpy as np
+import pytest
+
+from app.geometry.drape import drape_polyline
+from app.geometry.edge_grid import cached_edge_grid, edge_grid
+from app.part_cache import MeshStore, PartCache, journal, mesh_key
+from app.reference.s1 import s1_mesh, s1_traces
+from tests.conftest import auth
+
+OP = auth("operator")
+
+
+def arrays(seed: int, n: int = 1000) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return {"x": rng.normal(size=(n, 3)), "i": rng.integers(0, 99, size=n, dtype=np.int32),
+            "flag": rng.random(n) > 0.5, "empty": np.zeros((0, 2))}
+
+
+def test_round_trip_is_exact_and_memory_mapped(tmp_path):
+    cache = PartCache(tmp_path, 2 ** 24)
+    stored = arrays(1)
+    assert cache.store("k", "key-1", stored, {"note": "n"})
+    loaded, meta = cache.load("k", "key-1")
+    assert meta == {"note": "n"}
+    for name, value in stored.items():
+        assert loaded[name].dtype == value.dtype and np.array_equal(loaded[name], value)
+    assert isinstance(loaded["x"], np.memmap)
+    assert cache.load("k", "key-2") is None and cache.load("other", "key-1") is None
+    assert cache.stats.hits == {"k": 1} and cache.stats.misses == {"k": 1, "other": 1}
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "garbage", "empty"])
+def test_a_partial_or_corrupt_file_is_a_miss_and_is_rebuilt(tmp_path, damage):
+    cache = PartCache(tmp_path, 2 ** 24)
+    cache.store("k", "key", arrays(2))
+    path = cache.path("k", "key")
+    data = bytearray(path.read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) - 100]
+    elif damage == "flip":
+        data[-50] ^= 0xFF  # inside the last array's bytes
+    elif damage == "garbage":
+        data[20:40] = b"x" * 20  # inside the JSON header
+    else:
+        data = bytearray()
+    path.write_bytes(bytes(data))
+    assert cache.load("k", "key") is None
+    assert cache.stats.rejected == {"k": 1} and not path.exists()
+    assert cache.store("k", "key", arrays(2))  # rebuilt
+    assert np.array_equal(cache.load("k", "key")[0]["x"], arrays(2)["x"])
+
+
+def test_eviction_keeps_the_bound_and_drops_the_least_recently_used(tmp_path):
+    one = PartCache(tmp_path / "probe", 2 ** 30)
+    one.store("k", "size", arrays(0))
+    size = one.path("k", "size").stat().st_size
+    cache = PartCache(tmp_path / "c", 3 * size + size // 2)  # room for three entries
+    for i, key in enumerate(["a", "b", "c"]):
+        cache.store("k", key, arrays(i))
+        os.utime(cache.path("k", key), ns=(10**18 + i * 10**9,) * 2)  # a, b, c: oldest first
+    assert cache.load("k", "a") is not None  # a is used again: b is now the oldest
+    cache.store("k", "d", arrays(3))
+    assert cache.bytes <= cache.max_bytes
+    assert {key for key in "abcd" if cache.path("k", key).exists()} == {"a", "c", "d"}
+    assert not cache.store("k", "huge", {"x": np.zeros(cache.max_bytes // 8 + 1)})  # alone over the bound
+    assert not cache.path("k", "huge").exists() and cache.path("k", "d").exists()
+
+
+def test_a_stored_edge_grid_drapes_exactly_like_a_fresh_one(tmp_path):
+    cache = PartCache(tmp_path, 2 ** 28)
+    store = MeshStore(cache)
+    mesh = s1_mesh(grid_mm=1.0)
+    xy = np.array([[5.0, 5.0], [30.0, 22.0], [55.0, 35.0]])  # across many facets of the S1 top
+    fresh = drape_polyline(mesh, xy).points
+    key = mesh_key("sha", np.eye(4))
+    store.save_mesh("sha", mesh)
+    assert store.persist(key, mesh) and not store.persist(key, mesh)  # once: nothing new the second time
+    other = MeshStore(cache).load_mesh("sha")  # "another process"
+    assert other is not mesh and np.array_equal(other.faces, mesh.faces)
+    assert cached_edge_grid(other) is None
+    assert MeshStore(cache).attach(key, other) == ["face_normals", "edge_grid"]
+    grid = cached_edge_grid(other)
+    assert grid is not None and edge_grid(other) is grid  # the core uses it, no rebuild
+    assert np.array_equal(drape_polyline(other, xy).points, fresh)
+    assert MeshStore(cache).attach(mesh_key("sha", 2 * np.eye(4)), other) == []  # another placement: a miss
+
+
+def test_a_derived_entry_of_another_mesh_is_refused(tmp_path):
+    cache = PartCache(tmp_path, 2 ** 28)
+    coarse, fine = s1_mesh(grid_mm=2.0), s1_mesh(grid_mm=1.0)
+    edge_grid(coarse)
+    MeshStore(cache).persist("k", coarse)
+    assert MeshStore(cache).attach("k", fine) == [] and cached_edge_grid(fine) is None
+    assert not cache.path("derived", "k").exists()
+
+
+def _job(client, kind: str, params: dict, timeout: float = 120) -> dict:
+    from tests.jobs.test_jobs_api import wait_for
+
+    response = client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
+    assert response.status_code == 202, response.text
+    done = wait_for(client, response.json()["id"], timeout=timeout)
+    assert done["status"] == "succeeded", done["error"]
+    return done
+
+
+def test_the_second_compute_job_on_a_part_loads_what_the_first_built(client, settings):
+    assert settings.compute_isolation == "process" and settings.cache_mb > 0
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_mesh(grid_mm=1.0).export(file_type="stl"))},
+                       headers=OP).json()
+    trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[4].to_api(), headers=OP).json()
+    params = {"trace_id": trace["id"], "method": "uniform", "count": 8}
+    first = _job(client, "probe_plan", params)
+    second = _job(client, "probe_plan", params)
+    entries = {e["job_id"]: e for e in journal(settings.data_dir / "part-cache")}
+    one, two = entries[first["id"]], entries[second["id"]]
+    assert one["misses"].get("mesh") == 1 and one["writes"].get("mesh") == 1 and not one["hits"]
+    assert two["hits"].get("mesh") == 1 and not two["misses"].get("mesh") and not two["writes"].get("mesh")
+    assert first["result"]["points"] == second["result"]["points"]  # same answer from the cached mesh
+    assert one["pid"] != two["pid"]  # two processes
