@@ -245,14 +245,19 @@ def mesh_key(sha256: str, matrix: np.ndarray | None = None) -> str:
     return f"{sha256}@{hashlib.sha256(np.asarray(matrix, dtype=float).round(12).tobytes()).hexdigest()[:32]}"
 
 
+FACE_BOXES = "conforma_face_xy_boxes"  # app.probing.program's cache key of the faces' top-view boxes
+
+
 class MeshStore:
     """Meshes and their per-mesh precomputations in a :class:`PartCache`.
 
     * ``"mesh"``: a part's parsed vertices (V, 3) float64 mm and faces (F, 3) int64,
       keyed by the file's sha256 (parsing + merging a 1M-face STL costs seconds);
-    * ``"derived"``: per (placed) mesh, what jobs built on it: face normals (F, 3) and the
-      edge grid of exact draping (:mod:`app.geometry.edge_grid`), attached to the next
-      process's mesh before the core asks for them.
+    * ``"derived"``: per (placed) mesh, what jobs built on it: face normals (F, 3), the
+      faces' top-view boxes of the probe program's travel check (F, 2) x 2
+      (:mod:`app.probing.program`) and the edge grid of exact draping
+      (:mod:`app.geometry.edge_grid`), attached to the next process's mesh before the
+      core asks for them.
 
     The ray-casting structure (embree's BVH) is not stored: embree cannot serialise it,
     and its numpy preparation (float32 vertices, int32 faces) is a small part of its build.
@@ -298,6 +303,11 @@ class MeshStore:
                     raise ValueError("face normals of another shape")
                 mesh._cache["face_normals"] = arrays["face_normals"]
                 attached.append("face_normals")
+            if "box_lo" in arrays:
+                if arrays["box_lo"].shape != (len(mesh.faces), 2) or arrays["box_hi"].shape != (len(mesh.faces), 2):
+                    raise ValueError("face boxes of another shape")
+                mesh._cache[FACE_BOXES] = (arrays["box_lo"], arrays["box_hi"])
+                attached.append("face_boxes")
             if "a" in arrays:
                 attach_edge_grid(mesh, edge_grid_from_arrays(arrays))
                 attached.append("edge_grid")
@@ -317,11 +327,14 @@ class MeshStore:
         normals = mesh._cache["face_normals"]
         if normals is not None and np.shape(normals) == mesh.faces.shape:
             arrays["face_normals"] = np.asarray(normals)
+        boxes = mesh._cache[FACE_BOXES]
+        if isinstance(boxes, tuple) and len(boxes) == 2:
+            arrays["box_lo"], arrays["box_hi"] = np.asarray(boxes[0]), np.asarray(boxes[1])
         grid = cached_edge_grid(mesh)
         if grid is not None:
             arrays.update(edge_grid_arrays(grid))
-        names = frozenset(["face_normals"] if "face_normals" in arrays else []) | (
-            frozenset(["edge_grid"]) if grid is not None else frozenset())
+        names = frozenset(name for name, array in (("face_normals", "face_normals"), ("face_boxes", "box_lo"),
+                                                   ("edge_grid", "a")) if array in arrays)
         with self._lock:
             if not names or names <= self._have.get(key, frozenset()):
                 return False

@@ -91,6 +91,23 @@ def test_a_stored_edge_grid_drapes_exactly_like_a_fresh_one(tmp_path):
     assert MeshStore(cache).attach(mesh_key("sha", 2 * np.eye(4)), other) == []  # another placement: a miss
 
 
+def test_the_probe_programs_face_boxes_travel_with_the_mesh(tmp_path):
+    from app.part_cache import FACE_BOXES
+    from app.probing import program
+
+    assert FACE_BOXES == program._FACE_BOXES  # the key the probe program caches its boxes under
+    mesh = s1_mesh(grid_mm=2.0)
+    a, b = np.array([3.0, 4.0]), np.array([50.0, 30.0])
+    top = program.segment_top_max(mesh, a, b, 0.1)
+    MeshStore(PartCache(tmp_path, 2 ** 26)).persist("k", mesh)
+    other = MeshStore(PartCache(tmp_path, 2 ** 26))
+    copy = s1_mesh(grid_mm=2.0)  # the same part, parsed by another process
+    assert other.attach("k", copy) == ["face_boxes"]
+    lo, hi = copy._cache[FACE_BOXES]
+    assert np.array_equal(lo, mesh._cache[FACE_BOXES][0]) and np.array_equal(hi, mesh._cache[FACE_BOXES][1])
+    assert program.segment_top_max(copy, a, b, 0.1) == top
+
+
 def test_a_derived_entry_of_another_mesh_is_refused(tmp_path):
     cache = PartCache(tmp_path, 2 ** 28)
     coarse, fine = s1_mesh(grid_mm=2.0), s1_mesh(grid_mm=1.0)
@@ -122,5 +139,27 @@ def test_the_second_compute_job_on_a_part_loads_what_the_first_built(client, set
     one, two = entries[first["id"]], entries[second["id"]]
     assert one["misses"].get("mesh") == 1 and one["writes"].get("mesh") == 1 and not one["hits"]
     assert two["hits"].get("mesh") == 1 and not two["misses"].get("mesh") and not two["writes"].get("mesh")
+    assert one["writes"].get("derived") == 1 and two["hits"].get("derived") == 1  # face boxes, normals
     assert first["result"]["points"] == second["result"]["points"]  # same answer from the cached mesh
     assert one["pid"] != two["pid"]  # two processes
+
+
+def test_a_probe_runs_field_is_fitted_once_for_the_service(client, settings):
+    from app.reference.s1 import as_made
+    from tests.jobs.test_field_probe_jobs import PROCESS, board
+
+    truth = as_made(seed=11, amplitude_mm=0.15)
+    setup = board(client, (s1_mesh(grid_mm=0.6), truth.mesh(grid_mm=0.6).export(file_type="stl")))
+    plan = _job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})
+    run = _job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": setup["machine_id"]})
+
+    def rebuild(index: int) -> dict:
+        return _job(client, "reconstruct", {"trace_id": setup["trace_ids"][index], "probe_run_job_id": run["id"],
+                                            "method": "field"})
+
+    first, other, again = rebuild(0), rebuild(1), rebuild(0)
+    entries = {e["job_id"]: e for e in journal(settings.data_dir / "part-cache")}
+    assert entries[first["id"]]["misses"].get("field") == 1 and entries[first["id"]]["writes"].get("field") == 1
+    for done in (other, again):
+        assert entries[done["id"]]["hits"].get("field") == 1 and not entries[done["id"]]["writes"].get("field")
+    assert again["result"] == first["result"]  # the stored fit is the fit: same reconstruction
