@@ -114,18 +114,21 @@ class PartCache:
     def load(self, kind: str, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]] | None:
         """(arrays memory-mapped copy-on-write, meta) of ``(kind, key)``, or None (a miss).
 
-        A file that fails any check is removed and reported as a miss."""
+        A file that fails any check is removed (unless another process replaced it
+        meanwhile) and reported as a miss."""
         t0 = time.perf_counter()
         path = self.path(kind, key)
+        found = None
         try:
-            found = self._read(path, kind, key)
+            with open(path, "rb") as handle:  # one open file: header and arrays of the same inode
+                try:
+                    found = self._read(handle, kind, key)
+                except (OSError, ValueError, KeyError, TypeError, struct.error) as exc:
+                    log.warning("part cache: ignoring %s (%s: %s); it will be rebuilt", path, type(exc).__name__, exc)
+                    self.stats.count(self.stats.rejected, kind)
+                    self._unlink_if_same(path, os.fstat(handle.fileno()).st_ino)
         except FileNotFoundError:
-            found = None
-        except (OSError, ValueError, KeyError, TypeError, struct.error) as exc:
-            log.warning("part cache: ignoring %s (%s: %s); it will be rebuilt", path, type(exc).__name__, exc)
-            self.stats.count(self.stats.rejected, kind)
-            path.unlink(missing_ok=True)
-            found = None
+            pass
         self.stats.load_s += time.perf_counter() - t0
         self.stats.count(self.stats.misses if found is None else self.stats.hits, kind)
         if found is not None:
@@ -135,16 +138,23 @@ class PartCache:
                 pass
         return found
 
-    def _read(self, path: Path, kind: str, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        size = path.stat().st_size
-        with open(path, "rb") as handle:
-            head = handle.read(16)
-            if len(head) < 16 or head[:8] != MAGIC:
-                raise ValueError("not a part cache file")
-            (header_len,) = struct.unpack("<Q", head[8:])
-            if header_len > min(size, 2 ** 24):
-                raise ValueError(f"header length {header_len} beyond the file")
-            header = json.loads(handle.read(header_len))
+    @staticmethod
+    def _unlink_if_same(path: Path, inode: int) -> None:
+        try:
+            if os.stat(path).st_ino == inode:
+                path.unlink(missing_ok=True)
+        except FileNotFoundError:
+            pass
+
+    def _read(self, handle: Any, kind: str, key: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        size = os.fstat(handle.fileno()).st_size
+        head = handle.read(16)
+        if len(head) < 16 or head[:8] != MAGIC:
+            raise ValueError("not a part cache file")
+        (header_len,) = struct.unpack("<Q", head[8:])
+        if header_len > min(size, 2 ** 24):
+            raise ValueError(f"header length {header_len} beyond the file")
+        header = json.loads(handle.read(header_len))
         if header["version"] != FORMAT_VERSION or header["kind"] != kind or header["key"] != key:
             raise ValueError("another version, kind or key")
         if header["total"] != size:
@@ -155,7 +165,9 @@ class PartCache:
             if item["nbytes"] == 0:
                 arrays[item["name"]] = np.zeros(shape, dtype=dtype)
                 continue
-            array = np.memmap(path, dtype=dtype, mode="c", offset=item["offset"], shape=shape)
+            if item["offset"] + item["nbytes"] > size or dtype.itemsize * int(np.prod(shape)) != item["nbytes"]:
+                raise ValueError(f"array {item['name']!r} does not fit the file")
+            array = np.memmap(handle, dtype=dtype, mode="c", offset=item["offset"], shape=shape)
             if _crc(array) != item["crc32"]:
                 raise ValueError(f"array {item['name']!r} fails its checksum (corrupt)")
             arrays[item["name"]] = array

@@ -72,6 +72,40 @@ def test_eviction_keeps_the_bound_and_drops_the_least_recently_used(tmp_path):
     assert not cache.path("k", "huge").exists() and cache.path("k", "d").exists()
 
 
+def _hammer(root: str, seed: int, rounds: int, queue) -> None:  # type: ignore[no-untyped-def]
+    """One process: store and load entries of a small store (others evict them meanwhile);
+    puts the number of loads that came back wrong (not None and not the stored arrays)."""
+    cache = PartCache(root, 5 * 40_000)  # room for about five of the ~33 kB entries
+    wrong = 0
+    for i in range(rounds):
+        key = f"key-{(seed + i) % 8}"
+        expected = arrays((seed + i) % 8, n=1500)
+        cache.store("k", key, expected)
+        for other in range(8):
+            found = cache.load("k", f"key-{other}")
+            if found is not None and not np.array_equal(found[0]["x"], arrays(other, n=1500)["x"]):
+                wrong += 1
+    queue.put(wrong)
+
+
+def test_several_processes_share_the_store_without_locks(tmp_path):
+    import multiprocessing
+
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    workers = [context.Process(target=_hammer, args=(str(tmp_path), seed, 40, queue)) for seed in range(4)]
+    for worker in workers:
+        worker.start()
+    results = [queue.get(timeout=120) for _ in workers]
+    for worker in workers:
+        worker.join(timeout=30)
+        assert worker.exitcode == 0
+    assert results == [0, 0, 0, 0]
+    cache = PartCache(tmp_path, 5 * 40_000)
+    assert cache.bytes <= cache.max_bytes + 40_000  # the bound (+ the one entry a writer keeps)
+    assert not [p for p in cache.directory.glob("*/.tmp-*")]  # no temporary file left behind
+
+
 def test_a_stored_edge_grid_drapes_exactly_like_a_fresh_one(tmp_path):
     cache = PartCache(tmp_path, 2 ** 28)
     store = MeshStore(cache)
