@@ -197,3 +197,35 @@ def test_a_probe_runs_field_is_fitted_once_for_the_service(client, settings):
     for done in (other, again):
         assert entries[done["id"]]["hits"].get("field") == 1 and not entries[done["id"]]["writes"].get("field")
     assert again["result"] == first["result"]  # the stored fit is the fit: same reconstruction
+
+
+def test_the_mesh_cache_of_a_new_process_gets_the_placed_meshs_grid(tmp_path):
+    import hashlib
+    from types import SimpleNamespace
+
+    from app.blobs import BlobStore
+    from app.records import MeshCache
+
+    data = s1_mesh(grid_mm=2.0).export(file_type="stl")
+    blobs = BlobStore(tmp_path / "blobs")
+    sha = hashlib.sha256(data).hexdigest()
+    blobs.path(sha).parent.mkdir(parents=True)
+    blobs.path(sha).write_bytes(data)
+    part = SimpleNamespace(sha256=sha, format="stl")
+    matrix = np.eye(4)
+    matrix[:3, 3] = [10.0, -5.0, 2.0]
+    placement = SimpleNamespace(matrix=lambda: matrix)
+    cache = PartCache(tmp_path / "cache", 2 ** 28)
+
+    first = MeshCache(blobs, store=MeshStore(cache))
+    grid = edge_grid(first.placed(part, placement))
+    assert first.persist() == 1  # the placed mesh's normals + grid (nothing was built on the unplaced one)
+    assert first.persist() == 0  # nothing new
+
+    later = MeshCache(blobs, store=MeshStore(cache))  # the next job's process
+    placed = later.placed(part, placement)
+    assert cache.stats.hits["mesh"] == 1
+    again = cached_edge_grid(placed)
+    assert again is not None and all(np.array_equal(x, y) for x, y in zip(again, grid))
+    assert np.array_equal(placed.vertices, first.placed(part, placement).vertices)
+    assert cached_edge_grid(later.mesh(part)) is None  # the unplaced mesh has its own (absent) entry
