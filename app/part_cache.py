@@ -13,7 +13,8 @@ the build.
 * **Written atomically.**  A temporary file in the same directory, fsynced, renamed into
   place: readers see a whole file or none, never a partial one; no locks.  When two
   processes build the same entry, the last rename wins with identical content.
-* **Checked when read.**  Magic, header, key, total length and a CRC-32 of every array;
+* **Checked when read.**  Magic, header, key, the software version that wrote it, total
+  length and a CRC-32 of every array;
   anything wrong (truncated, corrupt, another key) is a miss, the file is removed and the
   caller rebuilds.
 * **Bounded.**  After each write the directory is trimmed to ``max_bytes``, least
@@ -50,6 +51,13 @@ _ALIGN = 64
 
 def _aligned(n: int) -> int:
     return (n + _ALIGN - 1) // _ALIGN * _ALIGN
+
+
+def _software() -> str:
+    """The software version: a parser or builder of another version may give other arrays."""
+    import app
+
+    return str(app.__version__)
 
 
 def _crc(array: np.ndarray) -> int:
@@ -157,6 +165,8 @@ class PartCache:
         header = json.loads(handle.read(header_len))
         if header["version"] != FORMAT_VERSION or header["kind"] != kind or header["key"] != key:
             raise ValueError("another version, kind or key")
+        if header.get("software") != _software():
+            raise ValueError(f"written by Conforma {header.get('software')!r}, this is {_software()!r}")
         if header["total"] != size:
             raise ValueError(f"file is {size} bytes, its header says {header['total']} (partial)")
         arrays: dict[str, np.ndarray] = {}
@@ -186,7 +196,8 @@ class PartCache:
                 raise TypeError(f"array {name!r} holds Python objects")
             items.append({"name": name, "dtype": array.dtype.str, "shape": list(array.shape),
                           "nbytes": int(array.nbytes), "crc32": _crc(array), "offset": 0})
-        header: dict[str, Any] = {"version": FORMAT_VERSION, "kind": kind, "key": key, "meta": meta or {},
+        header: dict[str, Any] = {"version": FORMAT_VERSION, "software": _software(), "kind": kind, "key": key,
+                                  "meta": meta or {},
                                   "arrays": items, "total": 0}
         text, start = b"", -1
         while _aligned(16 + len(text)) != start:  # offsets change the header's length: settle

@@ -229,3 +229,13 @@ def test_the_mesh_cache_of_a_new_process_gets_the_placed_meshs_grid(tmp_path):
     assert again is not None and all(np.array_equal(x, y) for x, y in zip(again, grid))
     assert np.array_equal(placed.vertices, first.placed(part, placement).vertices)
     assert cached_edge_grid(later.mesh(part)) is None  # the unplaced mesh has its own (absent) entry
+
+
+def test_an_entry_written_by_another_software_version_is_rebuilt(tmp_path, monkeypatch):
+    import app
+
+    cache = PartCache(tmp_path, 2 ** 24)
+    cache.store("k", "key", arrays(5))
+    monkeypatch.setattr(app, "__version__", app.__version__ + ".next")
+    assert cache.load("k", "key") is None and cache.stats.rejected == {"k": 1}
+    assert cache.store("k", "key", arrays(5)) and cache.load("k", "key") is not None
