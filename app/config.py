@@ -52,6 +52,10 @@ class Settings(BaseSettings):
     job_time_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-clock limit of a compute job")
     blas_threads: int = Field(1, ge=1, le=64, description="BLAS/OpenMP threads of a process that runs compute jobs, "
                               "set once when it starts (the planners' many small solves run fastest on one)")
+    cache_mb: float = Field(512.0, ge=0, le=1_000_000,
+                            description="disk bound of the per-part cache (<data_dir>/part-cache: parsed meshes, "
+                            "edge grids, fitted fields) shared by compute processes, least recently used out; "
+                            "0 turns it off")
     lease_s: float = Field(30.0, gt=0.5, le=3600)
     max_attempts: int = Field(3, ge=1, le=100)
     reaper_interval_s: float = Field(1.0, gt=0.01, le=600)

@@ -121,12 +121,18 @@ class MeshCache:
     (:meth:`placed`), so its ray structure is built once per part and placement too.
     ``max_bytes``: the bound (default ``MESH_CACHE_BYTES``, 1 GiB); each access re-measures
     the entry, since structures are built lazily after it was stored.
+
+    ``store`` (optional, :class:`app.part_cache.MeshStore`): a disk tier shared by
+    processes: a parsed mesh is read from it instead of parsing, what was built on a mesh
+    (face normals, edge grid) is attached from it, and :meth:`persist` writes it back.
     """
 
-    def __init__(self, blobs: BlobStore, max_bytes: int | None = None) -> None:
+    def __init__(self, blobs: BlobStore, max_bytes: int | None = None, store: Any = None) -> None:
         self.blobs = blobs
+        self.store = store
         self._items = ByteLru(MESH_CACHE_BYTES if max_bytes is None else max_bytes)
         self._parse_lock = threading.Lock()
+        self._keys: dict[Any, str] = {}  # memory key -> disk key, for persist()
 
     @property
     def max_bytes(self) -> int:
@@ -159,7 +165,14 @@ class MeshCache:
             cached = self._items.get(part.sha256)
             if cached is not None:
                 return cached
-            mesh = parse_mesh(self.blobs.read(part.sha256), part.format, max_unzipped_bytes=2**40)
+            mesh = self.store.load_mesh(part.sha256) if self.store is not None else None
+            if mesh is None:
+                mesh = parse_mesh(self.blobs.read(part.sha256), part.format, max_unzipped_bytes=2**40)
+                if self.store is not None:
+                    self.store.save_mesh(part.sha256, mesh)
+            if self.store is not None:
+                self._keys[part.sha256] = part.sha256
+                self.store.attach(part.sha256, mesh)
             self.put(part.sha256, mesh)
         return mesh
 
@@ -175,12 +188,55 @@ class MeshCache:
         if cached is None:
             cached = mesh.copy()
             cached.apply_transform(matrix)
+            if self.store is not None:
+                from app.part_cache import mesh_key
+
+                self._keys[key] = mesh_key(part.sha256, matrix)
+                self.store.attach(self._keys[key], cached)
             self._items.put(key, cached, mesh_bytes(cached))
         return cached
 
+    def persist(self) -> int:
+        """Write what jobs built on the held meshes to ``store`` (when it has more than
+        the stored entry); returns the number of entries written."""
+        if self.store is None:
+            return 0
+        written = 0
+        for key, disk_key in list(self._keys.items()):
+            mesh = self._items.get(key)
+            if mesh is not None:
+                written += bool(self.store.persist(disk_key, mesh))
+        return written
 
-FIELD_FITS = ByteLru(64 * 2 ** 20)
-"""Fitted fields of field-plan probe runs by (run id, sigma): fitted once per process."""
+
+class BackedLru(ByteLru):
+    """A :class:`ByteLru` over an optional disk tier ``backing`` (an object with
+    ``load(key) -> (value, nbytes) | None`` and ``store(key, value)``, e.g.
+    :class:`app.part_cache.FieldFitStore`): a miss in memory asks the backing; a put writes
+    through to it.  Without a backing it is a plain ByteLru."""
+
+    def __init__(self, max_bytes: int, backing: Any = None) -> None:
+        super().__init__(max_bytes)
+        self.backing = backing
+
+    def get(self, key: Any) -> Any:
+        value = super().get(key)
+        if value is None and self.backing is not None:
+            loaded = self.backing.load(key)
+            if loaded is not None:
+                super().put(key, loaded[0], loaded[1])
+                value = loaded[0]
+        return value
+
+    def put(self, key: Any, value: Any, nbytes: int) -> None:
+        super().put(key, value, nbytes)
+        if self.backing is not None:
+            self.backing.store(key, value)
+
+
+FIELD_FITS = BackedLru(64 * 2 ** 20)
+"""Fitted fields of field-plan probe runs by (run id, sigma): fitted once per process, and
+once per service when a compute process gives it a disk tier (``FIELD_FITS.backing``)."""
 
 
 def add_artifact(

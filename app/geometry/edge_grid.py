@@ -2,7 +2,9 @@
 
 The grid finds, for each segment of a top-view polyline, every mesh edge whose XY
 projection it crosses.  Built once per mesh (cached on the trimesh object, invalidated by
-trimesh when the mesh changes).  Lengths in mm.
+trimesh when the mesh changes).  A service may persist a grid (:func:`edge_grid_arrays`)
+and give it back to a later process's mesh (:func:`edge_grid_from_arrays`,
+:func:`attach_edge_grid`) instead of rebuilding it.  Lengths in mm.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ from typing import NamedTuple
 import numpy as np
 import trimesh
 
-__all__ = ["EdgeGrid", "edge_grid", "segment_edge_crossings"]
+__all__ = ["EdgeGrid", "attach_edge_grid", "cached_edge_grid", "edge_grid", "edge_grid_arrays",
+           "edge_grid_from_arrays", "segment_edge_crossings"]
 
 _CACHE_KEY = "conforma_edge_grid"
 _MAX_CELLS = 4_000_000
@@ -20,7 +23,8 @@ _MAX_ENTRIES = 40_000_000
 
 
 class EdgeGrid(NamedTuple):
-    """a, b: (E, 2) projected edge ends; origin (2,), cell (mm), shape (nx, ny); CSR cell -> edges."""
+    """a, b: (E, 2) projected edge ends; origin (2,), cell (mm), shape (nx, ny); CSR cell -> edges
+    (indptr (nx * ny + 1,) and edges (entries,), int32: entries <= _MAX_ENTRIES < 2**31)."""
 
     a: np.ndarray
     b: np.ndarray
@@ -40,8 +44,8 @@ def _expand_ranges(starts: np.ndarray | None, counts: np.ndarray) -> tuple[np.nd
 
 def edge_grid(mesh: trimesh.Trimesh) -> EdgeGrid:
     """The (cached) grid of the projected edges of every non-vertical face of ``mesh``."""
-    cached = mesh._cache[_CACHE_KEY]  # trimesh's cache returns None for a missing key
-    if isinstance(cached, EdgeGrid):
+    cached = cached_edge_grid(mesh)
+    if cached is not None:
         return cached
     faces = mesh.faces[np.abs(mesh.face_normals[:, 2]) > 1e-12]
     pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1).astype(np.int64)
@@ -71,9 +75,40 @@ def edge_grid(mesh: trimesh.Trimesh) -> EdgeGrid:
     cell_id = ci * shape[1] + cj
     order = np.argsort(cell_id, kind="stable")
     indptr = np.concatenate([[0], np.cumsum(np.bincount(cell_id, minlength=shape[0] * shape[1]))])
-    grid = EdgeGrid(a, b, lo, cell, shape, indptr, owner[order])
-    mesh._cache[_CACHE_KEY] = grid
+    grid = EdgeGrid(a, b, lo, cell, shape, indptr.astype(np.int32), owner[order].astype(np.int32))
+    attach_edge_grid(mesh, grid)
     return grid
+
+
+def cached_edge_grid(mesh: trimesh.Trimesh) -> EdgeGrid | None:
+    """The grid already built on (or attached to) ``mesh``, else None."""
+    cached = mesh._cache[_CACHE_KEY]  # trimesh's cache returns None for a missing key
+    return cached if isinstance(cached, EdgeGrid) else None
+
+
+def attach_edge_grid(mesh: trimesh.Trimesh, grid: EdgeGrid) -> None:
+    """Give ``mesh`` its grid (built by :func:`edge_grid` on this very mesh, possibly in
+    another process); trimesh drops it when the mesh changes."""
+    mesh._cache[_CACHE_KEY] = grid
+
+
+def edge_grid_arrays(grid: EdgeGrid) -> dict[str, np.ndarray]:
+    """The grid as named arrays (to store): a, b (E, 2), origin (2,), cell (1,), shape (2,),
+    indptr, edges."""
+    return {"a": grid.a, "b": grid.b, "origin": np.asarray(grid.origin, dtype=float),
+            "cell": np.array([grid.cell]), "shape": np.array(grid.shape, dtype=np.int64),
+            "indptr": grid.indptr, "edges": grid.edges}
+
+
+def edge_grid_from_arrays(arrays: dict[str, np.ndarray]) -> EdgeGrid:
+    """The grid from :func:`edge_grid_arrays`'s output.  Raises ValueError when the arrays
+    do not form a grid (wrong shapes or an index out of range)."""
+    a, b, indptr, edges = arrays["a"], arrays["b"], arrays["indptr"], arrays["edges"]
+    shape = (int(arrays["shape"][0]), int(arrays["shape"][1]))
+    if (a.ndim != 2 or a.shape[1] != 2 or b.shape != a.shape or indptr.shape != (shape[0] * shape[1] + 1,)
+            or int(indptr[-1]) != len(edges) or (len(edges) and int(edges.max()) >= len(a))):
+        raise ValueError("the arrays do not form an edge grid")
+    return EdgeGrid(a, b, np.asarray(arrays["origin"], dtype=float), float(arrays["cell"][0]), shape, indptr, edges)
 
 
 def segment_edge_crossings(grid: EdgeGrid, p0: np.ndarray, p1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

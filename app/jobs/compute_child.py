@@ -34,8 +34,9 @@ from app.jobs.registry import get_kind, load_kinds
 from app.jobs.store import Claim, JobStore, json_result
 from threadpoolctl import threadpool_limits
 
+from app.part_cache import FieldFitStore, MeshStore, part_cache_for, record_job
 from app.problems import from_error, problem
-from app.records import MeshCache
+from app.records import FIELD_FITS, MeshCache
 
 log = logging.getLogger("conforma.jobs.child")
 _PR_SET_PDEATHSIG = 1
@@ -76,8 +77,23 @@ class ChildRuntime:
         self.settings = settings
         self.engine = make_engine(settings)
         self.blobs = BlobStore(settings.blob_dir)
-        self.meshes = MeshCache(self.blobs)
+        # the per-part cache on disk: what an earlier job's process built on a part (parsed
+        # mesh, face normals, edge grid) or fitted to a probe run is loaded, not rebuilt
+        self.part_cache = part_cache_for(settings)
+        self.meshes = MeshCache(self.blobs, store=MeshStore(self.part_cache) if self.part_cache else None)
+        FIELD_FITS.backing = FieldFitStore(self.part_cache) if self.part_cache else None
         self.store = JobStore(self.engine, settings.lease_s)
+
+    def persist_caches(self, claim: Claim) -> None:
+        """Store what this job built for the next process; journal the cache's use.  Never
+        fails the job (a full disk only costs the next job the rebuild)."""
+        if self.part_cache is None:
+            return
+        try:
+            self.meshes.persist()
+        except Exception:
+            log.exception("part cache: persisting after job %s failed", claim.job_id)
+        record_job(self.part_cache, claim.job_id, claim.kind)
 
     def submit(self, kind_name: str, params: dict[str, Any], *, parent_id: str | None = None) -> Any:
         raise ConformaError("compute jobs cannot submit child jobs (use a workflow kind)",
@@ -107,6 +123,7 @@ def run_child(settings: Settings, claim: Claim) -> None:
         try:
             result = kind.run(ctx, kind.params.model_validate(claim.params))
             encoded = json_result(result)
+            runtime.persist_caches(claim)  # before the outcome: the next job may start at once
             runtime.store.finish(claim, "succeeded", result=encoded)
         except Cancelled as exc:
             runtime.store.finish(claim, "cancelled", error=from_error(exc))
