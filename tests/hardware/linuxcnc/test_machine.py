@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from hardware.errors import FirmwareError, LinkError, MachineStateError, ProbeFailed
+from hardware.errors import FirmwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
 from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
 
 SQUARE = ["G21 G90 G64 P0.001", "G1 X0 Y0 Z5 F6000"] + [
@@ -176,3 +176,24 @@ def test_lost_connection_aborts_and_resumes(machine, lcnc_xyz):
     report = machine.stream(SQUARE, start_line=start)
     assert report.executed == len(SQUARE) and report.start_line == start
     assert _joints(observer) == pytest.approx([0.0, 0.0, 5.0], abs=1e-6)
+
+
+def test_probe_toward_and_select_tool(machine, lcnc_xyz):
+    """G38.2 toward any point (here down and sideways onto the plane z = -2 + 0.01 x) and
+    T<n> M6: the calibration jobs' host calls."""
+    observer = lcnc_xyz.session()
+    start, target = (10.0, 5.0, -1.0), (14.0, 5.0, -9.0)  # x = 10 + (z_start - z) / 2 on the way
+    touch = machine.probe_toward(start, target, feed_mm_min=100.0)
+    # on the line: x = 10 + (-1 - z) / 2; on the plane: z = -2 + 0.01 x  => z = -1.8955, x = 10.4478
+    z = (-2 + 0.095) / 1.005
+    assert touch.z == pytest.approx(z, abs=0.005) and touch.x == pytest.approx(10 + (-1 - touch.z) / 2, abs=1e-4)
+    assert touch.y == pytest.approx(5.0, abs=1e-6)
+    assert _joints(observer) == pytest.approx(list(start), abs=1e-6)  # back at the start
+    with pytest.raises(ProbeFailed):
+        machine.probe_toward((0.0, 0.0, -0.5), (0.0, 0.0, -1.5))
+    assert _joints(observer) == pytest.approx([0.0, 0.0, -0.5], abs=1e-6)
+    machine.select_tool(2)
+    assert observer.get("tool").split()[-1] == "2"
+    with pytest.raises(InvalidConfig):
+        machine.select_tool(True)
+    assert machine.state == "idle"
