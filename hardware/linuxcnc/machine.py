@@ -70,7 +70,7 @@ class LinuxCNCMachine(ClaimedOperations):
         self._estopped = False
         self._interrupted: tuple[int, int] | None = None   # (total, executed) at the loss
         self._probe_seq = 0
-        self.last_preamble: list[str] = []  # no modal replay: LinuxCNC resumes with its own state
+        self.last_preamble: list[str] = []  # the modal replay written before a resumed program
 
     # ------------------------------------------------------------------ state
     @property
@@ -342,8 +342,10 @@ class LinuxCNCMachine(ClaimedOperations):
             if start_line == total:
                 executed, cancelled = total, False
             else:
-                path = write_program(self.address.program_dir, commands[start_line:])
-                executed, cancelled = run_program(self, path, start_line, total, on_progress)
+                preamble = self._resume_preamble(commands, start_line)
+                path = write_program(self.address.program_dir, preamble + commands[start_line:])
+                executed, cancelled = run_program(self, path, start_line, total, on_progress,
+                                                  skip=len(preamble))
         except LinkError as exc:
             executed = self.progress[0]
             self._interrupted = (total, executed)
@@ -356,6 +358,20 @@ class LinuxCNCMachine(ClaimedOperations):
             raise
         self._release("idle")
         return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started, {})
+
+    def _resume_preamble(self, commands: list[str], start_line: int) -> list[str]:
+        """Resuming mid-program: the commands that restore units, work offsets, motion mode,
+        feed, the start point, distance mode and the dispenser as the skipped commands left
+        them (``hardware.resume.modal_preamble``), written at the top of the program file."""
+        from ..resume import modal_preamble
+
+        self.last_preamble = []
+        if start_line == 0:
+            return []
+        p = self.profile
+        self.last_preamble = modal_preamble(commands, start_line, dispense_on=p.dispense_on,
+                                            dispense_off=p.dispense_off, clearance_z=p.clearance_z)
+        return list(self.last_preamble)
 
     # ------------------------------------------------------------------ interruption (the
     # same calls as hardware.machine.Machine: the service's interrupted/resume workflow)

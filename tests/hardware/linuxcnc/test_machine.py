@@ -197,3 +197,30 @@ def test_probe_toward_and_select_tool(machine, lcnc_xyz):
     with pytest.raises(InvalidConfig):
         machine.select_tool(True)
     assert machine.state == "idle"
+
+
+INCH_RELATIVE = ["G20 G90 G64 P0.0001", "G1 X0 Y0 Z0.2 F240", "G91"] + [
+    f"G1 X{dx:.2f} Y{dy:.2f}" for _ in range(2) for dx, dy in ((0.8, 0), (0, 0.8), (-0.4, 0), (0, -0.4))]
+
+
+def test_a_resumed_program_replays_its_modal_state(machine, lcnc_xyz):
+    """Inches, relative moves and a feed set once: interrupted, then the operator's MDI in
+    mm / absolute, then resumed; it ends where the uninterrupted program ends."""
+    observer = lcnc_xyz.session()
+    machine.stream(INCH_RELATIVE)
+    uninterrupted = _joints(observer)
+    machine.send("G21 G90")
+    machine.move(x=0, y=0, z=5)
+    thread, outcome = _run_in_thread(machine, INCH_RELATIVE)
+    assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 5, timeout_s=20)
+    machine.link.sever()
+    thread.join(10)
+    assert isinstance(outcome.get("error"), LinkError)
+    machine.connect()
+    start = machine.resume_line()
+    machine.send("G21 G90 G1 F6000")  # the operator leaves mm / absolute / another feed
+    machine.move(z=10.0)
+    report = machine.stream(INCH_RELATIVE, start_line=start)
+    assert 3 <= start < len(INCH_RELATIVE) and report.executed == len(INCH_RELATIVE)
+    assert machine.last_preamble[:2] == ["M65 P0", "G20"] and "G91" in machine.last_preamble
+    assert _joints(observer) == pytest.approx(uninterrupted, abs=1e-6)
