@@ -70,7 +70,7 @@ class LinuxCNCMachine(ClaimedOperations):
         self._estopped = False
         self._interrupted: tuple[int, int] | None = None   # (total, executed) at the loss
         self._probe_seq = 0
-        self.last_preamble: list[str] = []  # no modal replay: LinuxCNC resumes with its own state
+        self.last_preamble: list[str] = []  # the modal replay written before a resumed program
 
     # ------------------------------------------------------------------ state
     @property
@@ -269,6 +269,57 @@ class LinuxCNCMachine(ClaimedOperations):
                                 command="G38.2")
         return tuple(float(w) for w in words[1:])  # type: ignore[return-value]
 
+    def select_tool(self, tool: int) -> None:
+        """``T<tool> M6`` by MDI (no ``G43``: no tool-length offset is applied, programs stay
+        in carriage coordinates as on serial machines).  LinuxCNC's T0 means "no tool"; the
+        tool must be in the controller's tool table, else ``InvalidConfig`` (field ``tool``)."""
+        if isinstance(tool, bool) or not isinstance(tool, int) or not 0 <= tool <= 99:
+            raise InvalidConfig("tool must be an integer 0..99", field="tool", value=tool)
+        self._claim("busy")
+        try:
+            try:
+                self._mdi([f"T{tool} M6"])
+            except FirmwareError as exc:
+                raise InvalidConfig(f"LinuxCNC refused tool T{tool}: {exc.message}", field="tool",
+                                    value=tool) from exc
+        finally:
+            self._release(self._fail_state())
+
+    def probe_toward(self, start: tuple[float, float, float], target: tuple[float, float, float],
+                     feed_mm_min: float | None = None) -> ProbeResult:
+        """Travel to ``start`` (Z up first, then XY, then Z down), ``G38.2`` toward ``target``
+        (any direction), read #5061-#5063, go straight back to ``start``.  ``ProbeFailed``
+        when nothing is touched (the machine is back at ``start``)."""
+        sx, sy, sz = (float(v) for v in start)
+        tx, ty, tz = (float(v) for v in target)
+        if max(abs(sx - tx), abs(sy - ty), abs(sz - tz)) < 1e-6:
+            raise InvalidConfig("probe target equals its start", field="target", value=[tx, ty, tz])
+        p = self.profile
+        feed = feed_mm_min or p.probe_feed_mm_min
+        travel = p.travel_feed_mm_min
+        back = f"G90 G1 X{sx:.4f} Y{sy:.4f} Z{sz:.4f} F{travel:.1f}"
+        where = [round(tx, 4), round(ty, 4), round(tz, 4)]
+        self._claim("busy")
+        try:
+            here = self._position()
+            self._mdi([f"G90 G1 Z{max(here[2], sz):.4f} F{travel:.1f}", f"G1 X{sx:.4f} Y{sy:.4f} F{travel:.1f}",
+                       f"G1 Z{sz:.4f} F{travel:.1f}"])
+            try:
+                self._mdi([f"G38.2 X{tx:.4f} Y{ty:.4f} Z{tz:.4f} F{feed:.1f}"])
+            except FirmwareError as exc:
+                if _NO_CONTACT not in exc.message:
+                    raise
+                self._mdi([back])
+                raise ProbeFailed(f"probe from {[sx, sy, sz]} toward {where} touched nothing", x=tx, y=ty,
+                                  field="probe", value=where) from exc
+            px, py, pz, tripped = self._probe_parameters()
+            self._mdi([back])
+            if tripped != 1.0:
+                raise ProbeFailed(f"probe toward {where} did not trip", x=tx, y=ty, field="probe", value=where)
+            return ProbeResult(px, py, pz)
+        finally:
+            self._release(self._fail_state())
+
     # ------------------------------------------------------------------ programs
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
                start_line: int = 0) -> StreamReport:
@@ -291,8 +342,10 @@ class LinuxCNCMachine(ClaimedOperations):
             if start_line == total:
                 executed, cancelled = total, False
             else:
-                path = write_program(self.address.program_dir, commands[start_line:])
-                executed, cancelled = run_program(self, path, start_line, total, on_progress)
+                preamble = self._resume_preamble(commands, start_line)
+                path = write_program(self.address.program_dir, preamble + commands[start_line:])
+                executed, cancelled = run_program(self, path, start_line, total, on_progress,
+                                                  skip=len(preamble))
         except LinkError as exc:
             executed = self.progress[0]
             self._interrupted = (total, executed)
@@ -305,6 +358,20 @@ class LinuxCNCMachine(ClaimedOperations):
             raise
         self._release("idle")
         return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started, {})
+
+    def _resume_preamble(self, commands: list[str], start_line: int) -> list[str]:
+        """Resuming mid-program: the commands that restore units, work offsets, motion mode,
+        feed, the start point, distance mode and the dispenser as the skipped commands left
+        them (``hardware.resume.modal_preamble``), written at the top of the program file."""
+        from ..resume import modal_preamble
+
+        self.last_preamble = []
+        if start_line == 0:
+            return []
+        p = self.profile
+        self.last_preamble = modal_preamble(commands, start_line, dispense_on=p.dispense_on,
+                                            dispense_off=p.dispense_off, clearance_z=p.clearance_z)
+        return list(self.last_preamble)
 
     # ------------------------------------------------------------------ interruption (the
     # same calls as hardware.machine.Machine: the service's interrupted/resume workflow)

@@ -43,9 +43,10 @@ def write_program(directory: str, commands: list[str]) -> str:
 
 
 def run_program(machine: "LinuxCNCMachine", path: str, start_line: int, total: int,
-                on_progress: Callable[[int, int], None] | None) -> tuple[int, bool]:
-    """Run ``path`` (its line n is command ``start_line + n - 1``); returns (executed,
-    cancelled).  ``machine.progress`` is kept current."""
+                on_progress: Callable[[int, int], None] | None, skip: int = 0) -> tuple[int, bool]:
+    """Run ``path`` (its first ``skip`` lines are a modal preamble, then line n is command
+    ``start_line + n - 1 - skip``); returns (executed, cancelled).  ``machine.progress``
+    is kept current."""
     link = machine.link
     count = total - start_line
     link.set("mode", "auto")
@@ -70,8 +71,8 @@ def run_program(machine: "LinuxCNCMachine", path: str, start_line: int, total: i
                                 command=f"line {line}")
         if status in ("RUNNING", "PAUSED"):
             seen_running = True
-            if line > 0:
-                executed = max(executed, start_line + min(line - 1, count))
+            if line > skip:
+                executed = max(executed, start_line + min(line - 1 - skip, count))
         elif seen_running or time.monotonic() - started > _START_GRACE_S:
             executed = total
         if machine._state in ("printing", "paused"):

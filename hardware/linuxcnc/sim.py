@@ -39,8 +39,9 @@ from ..errors import HardwareError, LinkError
 from ..machine_types import MachineProfile
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
+from .sim_surface import SimBlock
 
-__all__ = ["CONFIGS", "SimController", "SimUnavailable", "linuxcnc_available"]
+__all__ = ["CONFIGS", "SimBlock", "SimController", "SimUnavailable", "linuxcnc_available"]
 
 SIM_DIR = Path(__file__).with_name("sim")
 CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
@@ -86,6 +87,7 @@ class SimController:
         self.workdir: Path | None = None
         self.startup_s: float | None = None
         self._process: subprocess.Popen | None = None
+        self._env: dict[str, str] | None = None
         self._lock_file = None
 
     # ------------------------------------------------------------------ public
@@ -106,6 +108,18 @@ class SimController:
         if enable:
             session.enable(self.enable_pw)
         return session
+
+    def set_surface(self, surface: SimBlock) -> None:
+        """Make the simulated probe touch ``surface`` (``halcmd setp`` on the running
+        simulator; see :mod:`hardware.linuxcnc.sim_surface`)."""
+        if not self.running:
+            raise SimUnavailable("the simulator is not running", field="linuxcnc")
+        for name, value in surface.setp_values().items():
+            done = subprocess.run(["halcmd", "setp", name, repr(float(value))], capture_output=True,
+                                  text=True, timeout=10, env=self._env)
+            if done.returncode != 0:
+                raise SimUnavailable(f"halcmd setp {name} failed: {done.stderr.strip()[:200]}",
+                                     field="halcmd", value=name)
 
     @property
     def running(self) -> bool:
@@ -174,6 +188,7 @@ class SimController:
         try:
             self.port = _free_port()
             self.workdir, env = self._prepare()
+            self._env = env
             log = open(self.workdir / "linuxcnc.log", "wb")
             self._process = subprocess.Popen(["linuxcnc", CONFIGS[self.config]], cwd=self.workdir,
                                              env=env, stdout=log, stderr=subprocess.STDOUT,

@@ -76,6 +76,15 @@ def lcnc_trt(_one_simulator) -> SimController:
 
 
 @pytest.fixture
+def lcnc_env(lcnc_xyz, monkeypatch):
+    """The service finds the simulator's passwords and program directory in its environment."""
+    monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", lcnc_xyz.connect_pw)
+    monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", lcnc_xyz.enable_pw)
+    monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(lcnc_xyz.workdir / "programs"))
+    return lcnc_xyz
+
+
+@pytest.fixture
 def machine(lcnc_xyz):
     """A connected, homed three-axis LinuxCNC machine; disconnected afterwards."""
     m = lcnc_xyz.machine(PROFILE)

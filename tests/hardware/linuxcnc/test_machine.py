@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from hardware.errors import FirmwareError, LinkError, MachineStateError, ProbeFailed
+from hardware.errors import FirmwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
 from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
 
 SQUARE = ["G21 G90 G64 P0.001", "G1 X0 Y0 Z5 F6000"] + [
@@ -176,3 +176,51 @@ def test_lost_connection_aborts_and_resumes(machine, lcnc_xyz):
     report = machine.stream(SQUARE, start_line=start)
     assert report.executed == len(SQUARE) and report.start_line == start
     assert _joints(observer) == pytest.approx([0.0, 0.0, 5.0], abs=1e-6)
+
+
+def test_probe_toward_and_select_tool(machine, lcnc_xyz):
+    """G38.2 toward any point (here down and sideways onto the plane z = -2 + 0.01 x) and
+    T<n> M6: the calibration jobs' host calls."""
+    observer = lcnc_xyz.session()
+    start, target = (10.0, 5.0, -1.0), (14.0, 5.0, -9.0)  # x = 10 + (z_start - z) / 2 on the way
+    touch = machine.probe_toward(start, target, feed_mm_min=100.0)
+    # on the line: x = 10 + (-1 - z) / 2; on the plane: z = -2 + 0.01 x  => z = -1.8955, x = 10.4478
+    z = (-2 + 0.095) / 1.005
+    assert touch.z == pytest.approx(z, abs=0.005) and touch.x == pytest.approx(10 + (-1 - touch.z) / 2, abs=1e-4)
+    assert touch.y == pytest.approx(5.0, abs=1e-6)
+    assert _joints(observer) == pytest.approx(list(start), abs=1e-6)  # back at the start
+    with pytest.raises(ProbeFailed):
+        machine.probe_toward((0.0, 0.0, -0.5), (0.0, 0.0, -1.5))
+    assert _joints(observer) == pytest.approx([0.0, 0.0, -0.5], abs=1e-6)
+    machine.select_tool(2)
+    assert observer.get("tool").split()[-1] == "2"
+    with pytest.raises(InvalidConfig):
+        machine.select_tool(True)
+    assert machine.state == "idle"
+
+
+INCH_RELATIVE = ["G20 G90 G64 P0.0001", "G1 X0 Y0 Z0.2 F240", "G91"] + [
+    f"G1 X{dx:.2f} Y{dy:.2f}" for _ in range(2) for dx, dy in ((0.8, 0), (0, 0.8), (-0.4, 0), (0, -0.4))]
+
+
+def test_a_resumed_program_replays_its_modal_state(machine, lcnc_xyz):
+    """Inches, relative moves and a feed set once: interrupted, then the operator's MDI in
+    mm / absolute, then resumed; it ends where the uninterrupted program ends."""
+    observer = lcnc_xyz.session()
+    machine.stream(INCH_RELATIVE)
+    uninterrupted = _joints(observer)
+    machine.send("G21 G90")
+    machine.move(x=0, y=0, z=5)
+    thread, outcome = _run_in_thread(machine, INCH_RELATIVE)
+    assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 5, timeout_s=20)
+    machine.link.sever()
+    thread.join(10)
+    assert isinstance(outcome.get("error"), LinkError)
+    machine.connect()
+    start = machine.resume_line()
+    machine.send("G21 G90 G1 F6000")  # the operator leaves mm / absolute / another feed
+    machine.move(z=10.0)
+    report = machine.stream(INCH_RELATIVE, start_line=start)
+    assert 3 <= start < len(INCH_RELATIVE) and report.executed == len(INCH_RELATIVE)
+    assert machine.last_preamble[:2] == ["M65 P0", "G20"] and "G91" in machine.last_preamble
+    assert _joints(observer) == pytest.approx(uninterrupted, abs=1e-6)

@@ -19,15 +19,6 @@ OP = auth("operator")
 PROFILE = {"dispense_on": "M64 P0", "dispense_off": "M65 P0", "probe_command": "G38.2"}
 
 
-@pytest.fixture
-def lcnc_env(lcnc_xyz, monkeypatch):
-    """The service finds the simulator's passwords and program directory in its environment."""
-    monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", lcnc_xyz.connect_pw)
-    monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", lcnc_xyz.enable_pw)
-    monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(lcnc_xyz.workdir / "programs"))
-    return lcnc_xyz
-
-
 def test_print_job_runs_a_program_on_linuxcnc(client, lcnc_env):
     body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{lcnc_env.port}?joints=3", "dialect": "linuxcnc",
             "profile": PROFILE}

@@ -1,0 +1,79 @@
+"""The simulated probe surface of Conforma's LinuxCNC simulators (``sim/probe.hal``).
+
+A :class:`SimBlock` is a block placed on the bed: in its own (part) frame its footprint is
+``0 <= u <= length_mm``, ``0 <= v <= width_mm``, its bottom is at z = 0 and its top is the
+plane ``z = height_mm + slope_x * u``.  It sits on the machine with the rigid placement
+Conforma's ``register`` job reports: rotation ``rz_deg`` about the vertical axis through
+the machine origin, then (dx, dy, dz).  The probe touches the block's top inside its
+footprint and the bed (z = dz, the block's bottom) outside it.
+
+    block = SimBlock(20, 14, 1.0, 0.01, dx=0.4, dy=-0.3, dz=0.05, rz_deg=0.5)
+    sim.set_surface(block)        # halcmd setp ... on the running simulator
+    block.top_z(x, y)             # the truth (machine coordinates, mm)
+
+``SimBlock.plane(z0, slope_x)`` is the start-up surface: the endless plane
+z = z0 + slope_x * x.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["SimBlock"]
+
+_ENDLESS = 1e9
+
+
+@dataclass(frozen=True)
+class SimBlock:
+    """A placed block (mm, degrees); see the module docstring."""
+
+    length_mm: float
+    width_mm: float
+    height_mm: float
+    slope_x: float = 0.0
+    dx: float = 0.0
+    dy: float = 0.0
+    dz: float = 0.0
+    rz_deg: float = 0.0
+    endless: bool = False
+
+    @classmethod
+    def plane(cls, z0: float, slope_x: float) -> "SimBlock":
+        """The endless plane z = z0 + slope_x * x (the simulators' start-up surface)."""
+        return cls(0.0, 0.0, z0, slope_x, endless=True)
+
+    def part_uv(self, x: float, y: float) -> tuple[float, float]:
+        """Machine (x, y) -> part-frame (u, v): the inverse of the placement."""
+        c, s = math.cos(math.radians(self.rz_deg)), math.sin(math.radians(self.rz_deg))
+        return c * (x - self.dx) + s * (y - self.dy), -s * (x - self.dx) + c * (y - self.dy)
+
+    def inside(self, x: float, y: float) -> bool:
+        """True when machine (x, y) is over the block's footprint."""
+        if self.endless:
+            return True
+        u, v = self.part_uv(x, y)
+        return 0.0 < u < self.length_mm and 0.0 < v < self.width_mm
+
+    def top_z(self, x: float, y: float) -> float:
+        """The surface height the probe touches at machine (x, y), mm."""
+        u, _ = self.part_uv(x, y)
+        if not self.inside(x, y):
+            return self.dz
+        return self.dz + self.height_mm + self.slope_x * u
+
+    def setp_values(self) -> dict[str, float]:
+        """HAL pin/parameter values of ``sim/probe.hal`` for this surface."""
+        c, s = math.cos(math.radians(self.rz_deg)), math.sin(math.radians(self.rz_deg))
+        u_max, v_max = (_ENDLESS, _ENDLESS) if self.endless else (self.length_mm, self.width_mm)
+        low = -_ENDLESS if self.endless else 0.0
+        return {"conforma-u.gain0": c, "conforma-u.gain1": s,
+                "conforma-u.offset": -(c * self.dx + s * self.dy),
+                "conforma-v.gain0": -s, "conforma-v.gain1": c,
+                "conforma-v.offset": s * self.dx - c * self.dy,
+                "conforma-inside-u.min": low, "conforma-inside-u.max": u_max,
+                "conforma-inside-v.min": low, "conforma-inside-v.max": v_max,
+                "conforma-surface.gain0": self.slope_x,
+                "conforma-surface.offset": self.dz + self.height_mm,
+                "conforma-bed.in1": -_ENDLESS if self.endless else self.dz}
