@@ -82,7 +82,7 @@ class ProbePlanParams(PlacedParams):
     approach_mm: float = Field(1.0, gt=0, le=50)
     overtravel_mm: float = Field(1.0, gt=0, le=50)
     probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000)
-    dialect: Literal["grbl", "marlin"] = "grbl"
+    dialect: Literal["grbl", "marlin", "linuxcnc"] = "grbl"
     probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin")
 
     @model_validator(mode="after")

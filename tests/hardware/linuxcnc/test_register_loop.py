@@ -141,9 +141,6 @@ def _sample_joints(sim, stop: threading.Event, samples: list) -> None:
         observer.close()
 
 
-@pytest.mark.xfail(strict=True, reason="closed_loop hands probe_plan the machine's dialect 'linuxcnc', which "
-                   "ProbePlanParams.dialect (app/jobs/kinds/probe_plan.py) refuses; with 'linuxcnc' added to that "
-                   "Literal this test passes (cnc18 note): then remove this marker")
 def test_closed_loop_prints_at_the_standoff_above_the_simulated_surface(client, lcnc_env):
     truth = SimBlock(LENGTH, WIDTH, HEIGHT, TRUE_SLOPE, **TRUE)
     lcnc_env.set_surface(truth)
