@@ -283,7 +283,7 @@ function renderDetail(job) {
 
 // Run a job again with exactly its parameters (a machine job asks first: it moves a machine).
 async function rerun(job) {
-  const moves = ["print", "probe_run", "register", "closed_loop"].includes(job.kind);
+  const moves = ["print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle"].includes(job.kind);
   if (moves && !window.confirm(`Run ${job.kind} again? It will move the machine.`)) return;
   await guarded("Run again", async () => {
     const copy = await post("jobs", { kind: job.kind, params: job.params });
