@@ -10,6 +10,7 @@ import hashlib
 import os
 import tempfile
 from pathlib import Path
+from collections.abc import Callable
 from typing import BinaryIO
 
 from sqlalchemy.dialects.postgresql import insert as pg_insert
@@ -18,6 +19,22 @@ from sqlmodel import Session
 
 from app.models import Blob, utcnow
 
+
+
+def write_atomically(target: Path, write: Callable[[BinaryIO], None]) -> None:
+    """Write ``target`` whole or not at all: ``write`` fills a temporary file beside it, which
+    is fsynced and renamed over ``target`` (a reader sees the old file, the new one, or none)."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            write(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 class BlobStore:
     """Bytes in, sha256 out; files are immutable once written."""
@@ -33,17 +50,7 @@ class BlobStore:
         digest = hashlib.sha256(data).hexdigest()
         target = self.path(digest)
         if not target.exists():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-")
-            try:
-                with os.fdopen(fd, "wb") as handle:
-                    handle.write(data)
-                    handle.flush()
-                    os.fsync(handle.fileno())
-                os.replace(tmp, target)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            write_atomically(target, lambda handle: handle.write(data))
         return _record(session, digest, len(data))
 
     def put_file(self, session: Session, handle: BinaryIO, chunk: int = 1 << 20) -> str:

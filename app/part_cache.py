@@ -33,14 +33,15 @@ import json
 import logging
 import os
 import struct
-import tempfile
 import threading
 import time
 import zlib
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
+
+from app.blobs import write_atomically
 
 log = logging.getLogger("conforma.part_cache")
 FORMAT_VERSION = 1
@@ -212,21 +213,14 @@ class PartCache:
             return False
         target = self.path(kind, key)
         try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-")
-            try:
-                with os.fdopen(fd, "wb") as handle:
-                    handle.write(MAGIC + struct.pack("<Q", len(text)) + text)
-                    for item, array in zip(items, prepared.values()):
-                        handle.seek(item["offset"])
-                        handle.write(memoryview(array).cast("B") if array.nbytes else b"")
-                    handle.truncate(offset)
-                    handle.flush()
-                    os.fsync(handle.fileno())
-                os.replace(tmp, target)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            def write(handle: BinaryIO) -> None:
+                handle.write(MAGIC + struct.pack("<Q", len(text)) + text)
+                for item, array in zip(items, prepared.values()):
+                    handle.seek(item["offset"])
+                    handle.write(memoryview(array).cast("B") if array.nbytes else b"")
+                handle.truncate(offset)
+
+            write_atomically(target, write)
         except OSError as exc:
             log.warning("part cache: could not write %s: %s", target, exc)
             return False
@@ -406,17 +400,23 @@ class FieldFitStore:
             log.warning("part cache: field entry %s unusable (%s); refitting", key, exc)
             self.cache.path("field", self._key(key)).unlink(missing_ok=True)
             return None
+        if meta.get("pair"):  # (fit, its normal-iteration report): see reconstruct's field rebuild
+            return (fit, meta.get("refinement")), fit_bytes(fit)
         return fit, fit_bytes(fit)
 
-    def store(self, key: Any, fit: Any) -> bool:
+    def store(self, key: Any, value: Any) -> bool:
+        """Store a fitted field, or a (fit, refinement report or None) pair."""
         from dataclasses import asdict
 
+        pair = isinstance(value, tuple)
+        fit, refinement = value if pair else (value, None)
         post = fit.posterior
         return self.cache.store("field", self._key(key), {
             "xy": fit.stations.xy, "grad": fit.stations.grad, "dz": fit.dz, "kept": fit.kept,
             "outliers": np.asarray(fit.outliers, dtype=np.int64), "trace": np.asarray(fit.trace, dtype=np.int64),
             "s_mm": fit.s_mm, "center": post.center, "alpha": post.alpha, "factor": post.factor[0],
-        }, {"prior": asdict(post.prior), "lower": bool(post.factor[1])})
+        }, {"prior": asdict(post.prior), "lower": bool(post.factor[1]), "pair": pair,
+            "refinement": json.loads(json.dumps(refinement, default=float))})
 
 
 def part_cache_for(settings: Any) -> PartCache | None:

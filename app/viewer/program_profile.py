@@ -50,7 +50,7 @@ def rotary_profile(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False
     (LinuxCNC TCP mode); otherwise machine coordinates about ``pivot_mm``.  With the
     program's dispense commands in ``options``, only the dispensing moves count (the path,
     not the approach)."""
-    from app.compensation.five_axis.kinematics import machine_to_workpiece
+    from app.five_axis.kinematics import machine_to_workpiece
 
     program = read_program(text, options or ReadOptions())
     if program.count == 0 or not np.any(np.abs(program.rotary) > 1e-12):

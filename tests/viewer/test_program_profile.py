@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.compensation.five_axis.kinematics import workpiece_to_machine
+from app.five_axis.kinematics import workpiece_to_machine
 from app.gcode.estimator import estimate_gcode
 from app.viewer.program_profile import program_summary
 
