@@ -14,7 +14,6 @@ container.replaceChildren(el("h2", {}, "Calibration"),
   el("p", { class: "small" }, "Probe qualification on the reference sphere (ball radius, pre-travel) and nozzle offsets " +
     "(Z by touch-off on the pad, XY on the sphere). Every job on a machine uses its latest calibration."));
 const panels = new Map();
-const WARN = "color: var(--bad); font-weight: 600"; // stale / disagreeing rows
 
 const um = (v) => (v === null || v === undefined ? "—" : `${Number(v).toFixed(1)} µm`);
 const mm = (v, d = 4) => (v === null || v === undefined ? "—" : `${Number(v).toFixed(d)} mm`);
@@ -22,7 +21,7 @@ const age = (h) => (h === null || h === undefined ? "—" : h < 1 ? `${Math.roun
 const vec = (v, d = 4) => (v ? `(${v.map((x) => Number(x).toFixed(d)).join(", ")})` : "—");
 
 function row(label, value, cls = "") {
-  return el("tr", { class: cls, style: cls ? WARN : null }, el("th", { scope: "row" }, label), el("td", { class: "mono" }, value));
+  return el("tr", { class: cls }, el("th", { scope: "row" }, label), el("td", { class: "mono" }, value));
 }
 
 function probeTable(p) {
@@ -41,8 +40,7 @@ function probeTable(p) {
 function nozzleTable(nozzles) {
   if (!nozzles.length) return el("p", { class: "small" }, "No nozzles in this machine's profile (profile.tools.nozzles).");
   const head = el("tr", {}, ...["tool", "nominal offset", "calibrated offset", "± (µm)", "calibrated − nominal", "measured"].map((t) => el("th", {}, t)));
-  const rows = nozzles.map((n) => el("tr", { class: `${n.stale ? "stale" : ""} ${n.disagrees?.length ? "disagrees" : ""}`.trim(), "data-tool": n.tool,
-    style: n.stale || n.disagrees?.length ? WARN : null },
+  const rows = nozzles.map((n) => el("tr", { class: `${n.stale ? "stale" : ""} ${n.disagrees?.length ? "disagrees" : ""}`.trim(), "data-tool": n.tool },
     el("td", {}, `T${n.tool}${n.name ? ` ${n.name}` : ""}`), el("td", { class: "mono" }, vec(n.nominal_offset_mm, 3)),
     el("td", { class: "mono" }, n.calibrated ? vec(n.offset_mm) : "not calibrated"),
     el("td", { class: "mono" }, n.calibrated ? n.offset_std_um.map((s) => Number(s).toFixed(1)).join(" / ") : "—"),
