@@ -8,29 +8,15 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from app.errors import InvalidInput
+from app.geometry.errors import short_value as _short
 
 __all__ = ["CalibrationError", "short_value"]
 
 
 def short_value(value: Any, limit: int = 8) -> Any:
-    """Make ``value`` JSON-friendly and short: arrays become (clipped) lists of rounded floats."""
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
-    if isinstance(value, (np.floating, np.integer)):
-        value = value.item()
-    if isinstance(value, float):
-        return round(value, 6) if np.isfinite(value) else str(value)
-    if isinstance(value, (list, tuple)):
-        items = [short_value(v, limit) for v in list(value)[:limit]]
-        if len(value) > limit:
-            items.append(f"... ({len(value)} items)")
-        return items
-    if isinstance(value, (int, str, bool)) or value is None:
-        return value
-    return str(value)[:80]
+    """The geometry core's short JSON-friendly value, floats rounded to 6 decimals (1 nm)."""
+    return _short(value, limit, digits=6)
 
 
 class CalibrationError(InvalidInput, ValueError):

@@ -22,16 +22,19 @@ __all__ = [
 ]
 
 
-def short_value(value: Any, limit: int = 8) -> Any:
-    """Make ``value`` JSON-friendly and short: arrays become (clipped) lists of floats."""
+def short_value(value: Any, limit: int = 8, digits: int | None = None) -> Any:
+    """Make ``value`` JSON-friendly and short: arrays become (clipped) lists of floats, rounded
+    to ``digits`` decimals when given."""
     if isinstance(value, np.ndarray):
         value = value.tolist()
     if isinstance(value, (np.floating, np.integer)):
-        return value.item()
+        value = value.item()
     if isinstance(value, float):
-        return value if np.isfinite(value) else str(value)
+        if not np.isfinite(value):
+            return str(value)
+        return value if digits is None else round(value, digits)
     if isinstance(value, (list, tuple)):
-        items = [short_value(v, limit) for v in list(value)[:limit]]
+        items = [short_value(v, limit, digits) for v in list(value)[:limit]]
         if len(value) > limit:
             items.append(f"... ({len(value)} items)")
         return items
