@@ -19,6 +19,7 @@ from app.errors import ConformaError, NotFound
 from app.geometry.slope import SlopePolicy, check_slope
 from app.geometry.tolerance import Tolerance
 from app.geometry.traces import build_nominal_trace
+from app.jobs.results import ProbePlanResult
 from app.mesh_intake import intake, parse_mesh
 from app.models import Artifact, Job, Machine, Part, Trace, new_id, utcnow
 
@@ -320,6 +321,6 @@ def joint_trace_ranges(plan: Job) -> dict[str, tuple[int, int]] | None:
     """{trace id: [first, stop) point indices} of a joint probe plan (``probe_plan`` with
     ``trace_ids``; the same indices hold in its probe runs); None for a one-trace plan and
     for a field plan (its stations are shared by the traces, see ``reconstruct`` method field)."""
-    if not (plan.params or {}).get("trace_ids") or (plan.result or {}).get("field"):
+    if not (plan.params or {}).get("trace_ids"):
         return None
-    return {t["trace_id"]: (t["first"], t["first"] + t["count"]) for t in (plan.result or {}).get("traces", [])}
+    return ProbePlanResult.of(plan).joint_ranges()

@@ -14,6 +14,7 @@ import trimesh
 from sqlmodel import Session
 
 from app.errors import Cancelled, ConformaError
+from app.jobs.inputs import succeeded_job
 from app.jobs.store import Claim
 from app.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile
 from app.records import add_artifact, get_or_404
@@ -70,14 +71,9 @@ class JobContext:
     def job(self, job_id: str, *, kind: str | None = None, field: str = "job_id") -> Job:
         """Another job's record; with ``kind``, it must be of that kind and have succeeded."""
         with self.session() as session:
-            job = get_or_404(session, Job, job_id, field=field)
-        if kind is not None and (job.kind != kind or job.status != "succeeded"):
-            raise ConformaError(
-                f"job {job_id!r} is a {job.status} {job.kind} job; a succeeded {kind} job is needed",
-                field=field,
-                value=job_id,
-            )
-        return job
+            if kind is None:
+                return get_or_404(session, Job, job_id, field=field)
+            return succeeded_job(session, job_id, kind, field, error=ConformaError)
 
     def artifact_bytes(self, job_id: str, name: str) -> bytes:
         with self.session() as session:

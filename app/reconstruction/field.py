@@ -29,6 +29,7 @@ from scipy.linalg import cho_factor, cho_solve
 from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel,
                                          path_sites, placement_basis, prior_covariance)
 from app.probing.nominal import NominalPath
+from app.reconstruction.heights import FieldHeight
 from app.reconstruction.preprocess import CleanPoints, ReconstructionError
 from app.geometry.fitting import interpolate_curve
 from app.reconstruction.reconstruct import ReconstructParams, Reconstruction
@@ -169,9 +170,7 @@ def trace_reconstruction(fit: FieldFit, path: NominalPath, trace_index: int,
     machining = make_interp_spline(s_coarse, fit.machining(path.at(s_coarse)[:, :2]), k=3)
     placement = make_interp_spline(s_dense, fit.placement(path_sites(path, s_dense)), k=3)
 
-    def height(s: np.ndarray) -> np.ndarray:
-        return path.z_at(s) + machining(s) + placement(s)
-
+    height = FieldHeight(path, machining, placement)
     own = np.flatnonzero((fit.trace == trace_index) & fit.kept)
     own = own[np.argsort(fit.s_mm[own])]
     s_own = fit.s_mm[own]

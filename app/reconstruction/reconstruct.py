@@ -39,10 +39,11 @@ from app.geometry.errors import GeometryError
 from app.geometry.fitting import interpolate_curve, smooth_curve
 from app.geometry.nurbs import NurbsCurve
 from app.probing.deviation_prior import (DeviationPrior, Sites, fit_posterior, path_center,
-                                         path_gradient, path_sites)
+                                         path_gradient)
 from app.probing.joint import joint_center
 from app.probing.nominal import NominalPath, as_nominal_path
 from app.probing.selection import chord_height_select
+from app.reconstruction.heights import CurveHeight, HeightModel, KrigingHeight, SplineHeight
 from app.reconstruction.preprocess import (CleanPoints, PreprocessParams, ReconstructionError,
                                            preprocess)
 
@@ -87,7 +88,7 @@ class Reconstruction:
     max_mm: float
     rms_mm: float
     nominal: NominalPath
-    _height_s: Callable[[np.ndarray], np.ndarray]
+    _height_s: HeightModel
     span_mm: tuple[float, float] = (0.0, 0.0)
     refinement: dict[str, Any] | None = None
 
@@ -95,6 +96,11 @@ class Reconstruction:
         """Real surface height (m,) mm along the trace at nominal arc lengths ``s`` (m,)."""
         s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.nominal.length_mm)
         return self._height_s(s)
+
+    @property
+    def height_model(self) -> HeightModel:
+        """The height along the trace as data (:mod:`app.reconstruction.heights`)."""
+        return self._height_s
 
     def height_at_xy(self, xy: Any) -> np.ndarray:
         """Real height (m,) mm at top-view points ``xy`` (m, 2) on (or next to) the trace."""
@@ -144,16 +150,6 @@ def fit_deviation(s: np.ndarray, dz: np.ndarray, sigma_mm: float, degree: int = 
     return make_splrep(s, dz, k=k, s=len(s) * sigma_mm ** 2)
 
 
-def _curve_height(curve: NurbsCurve, path: NominalPath) -> Callable[[np.ndarray], np.ndarray]:
-    top = NurbsCurve(curve.degree, curve.knots, curve.control_points[:, :2], curve.weights)
-
-    def height(s: np.ndarray) -> np.ndarray:
-        inv = top.invert(path.at(s)[:, :2])
-        return curve.evaluate(inv.u)[:, 2]
-
-    return height
-
-
 def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
                 sigma_mm: float | None = None,
                 params: ReconstructParams | None = None,
@@ -191,6 +187,7 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
             f"degree {params.degree} needs at least {need} distinct measured points, got "
             f"{len(clean.s)} after removing duplicates and outliers", field="points",
             value=len(clean.s))
+    height: HeightModel
     try:
         if method == "deviation":
             curve, height = _deviation_model(path, clean, pre.sigma_mm, params)
@@ -201,7 +198,7 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
                 curve = interpolate_curve(clean.points, params.degree)
             else:
                 curve = smooth_curve(clean.points, pre.sigma_mm, params.degree)
-            height = _curve_height(curve, path)
+            height = CurveHeight(curve, path)
     except GeometryError as exc:
         raise ReconstructionError(f"reconstruction failed: {exc.message}", field="points",
                                   value=exc.value) from exc
@@ -217,12 +214,7 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
 def _deviation_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
                      params: ReconstructParams):
     spline = fit_deviation(clean.s, clean.dz, sigma_mm, params.degree)
-    lo, hi = float(clean.s[0]), float(clean.s[-1])
-
-    def height(s: np.ndarray) -> np.ndarray:
-        # outside the probed span the deviation is held at its end value (no extrapolation)
-        return path.z_at(s) + spline(np.clip(s, lo, hi))
-
+    height = SplineHeight(path, spline, float(clean.s[0]), float(clean.s[-1]))
     return result_curve(path, height, params), height
 
 
@@ -243,10 +235,7 @@ def _kriging_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
     center = joint_center([p for p, _ in traces]) if neighbours else path_center(path)
     posterior = fit_posterior(prior, probes, np.concatenate([c.dz for _, c in traces]),
                               center=center)
-
-    def height(s: np.ndarray) -> np.ndarray:
-        return path.z_at(s) + posterior.mean(path_sites(path, s))
-
+    height = KrigingHeight(path, posterior.prior, posterior.center, posterior.probes, posterior.alpha)
     return result_curve(path, height, params), height
 
 

@@ -22,6 +22,7 @@ from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
+from app.jobs.results import ProbePlanResult
 from app.records import get_or_404, joint_trace_ranges
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.offload import ParsePool
@@ -186,8 +187,9 @@ class Loader:
         return FocusScene({}, "", polylines=tuple(lines), probes=tuple(probes), plots=tuple(plots))
 
     def _probe_plan(self, session: Session, job: Job) -> FocusScene:
-        planned = np.asarray(job.result.get("points", []), float).reshape(-1, 3)
-        if job.result.get("field"):
+        plan = ProbePlanResult.of(job)
+        planned = np.asarray(plan.points, float).reshape(-1, 3)
+        if plan.field:
             return self._field_plan(session, job, planned)
         ranges = self._joint_ranges(session, job)
         if ranges is not None:

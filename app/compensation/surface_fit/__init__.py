@@ -10,8 +10,10 @@ from app.compensation.surface_fit.grid import (
     grid_from_plan,
     plan_probe_grid,
 )
+from app.compensation.surface_fit.part_top import fit_part_top, sample_nominal_grid
 
 __all__ = [
     "GridHoleError", "HeightGrid", "ProbeGridPlan", "ProbeRegion", "SurfaceFit",
-    "SurfaceFitError", "SurfaceFitParams", "fit_surface", "grid_from_plan", "plan_probe_grid",
+    "SurfaceFitError", "SurfaceFitParams", "fit_part_top", "fit_surface", "grid_from_plan", "plan_probe_grid",
+    "sample_nominal_grid",
 ]

@@ -23,6 +23,8 @@ from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import CircuitImport, Job, Trace
+from app.jobs.inputs import succeeded_job
+from app.jobs.results import CompensateResult, ProbeRunResult
 from app.records import get_or_404
 
 
@@ -50,10 +52,7 @@ def import_probe_trace_ids(session: Session, imp: CircuitImport) -> list[str]:
 
 def _check(params: CircuitProgramParams, session: Session) -> None:
     imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
-    loop = get_or_404(session, Job, params.closed_loop_job_id, field="params.closed_loop_job_id")
-    if loop.kind != "closed_loop" or loop.status != "succeeded":
-        raise InvalidInput(f"job {loop.id!r} is not a succeeded closed_loop job", field="params.closed_loop_job_id",
-                           value=loop.id)
+    loop = succeeded_job(session, params.closed_loop_job_id, "closed_loop", "params.closed_loop_job_id")
     missing = [t for t in imp.trace_ids if t not in _loop_entries(loop)]
     if missing:
         raise InvalidInput(f"the closed loop did not compensate trace {missing[0]!r} of the import",
@@ -83,20 +82,20 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     stations, deviations = [], []
     for trace_id in probe_ids:                 # the pads' own stations
         probe = ctx.job(entries[trace_id]["probe_run"], kind="probe_run", field="params.closed_loop_job_id")
-        for pt in probe.result["points"]:
-            stations.append(pt["nominal"][:2])
-            deviations.append(pt["measured"][2] - pt["nominal"][2])
+        for pt in ProbeRunResult.of(probe).points:
+            stations.append(pt.nominal[:2])
+            deviations.append(pt.measured[2] - pt.nominal[2])
     for trace_id in imp.trace_ids:
         trace = ctx.trace(trace_id)
         comp = ctx.job(entries[trace_id]["compensate"], kind="compensate", field="params.closed_loop_job_id")
-        tip = np.asarray(comp.result["points"], float)
+        tip = np.asarray(CompensateResult.of(comp).points, float)
         for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
                                            nominal_top)):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
         probe = ctx.job(entries[trace_id]["probe_run"], kind="probe_run", field="params.closed_loop_job_id")
-        for pt in probe.result["points"]:
-            stations.append(pt["nominal"][:2])
-            deviations.append(pt["measured"][2] - pt["nominal"][2])
+        for pt in ProbeRunResult.of(probe).points:
+            stations.append(pt.nominal[:2])
+            deviations.append(pt.measured[2] - pt.nominal[2])
     ctx.progress(0.5, "filling pads and areas")
     fills = 0
     if params.pads and (imp.pads or imp.areas):

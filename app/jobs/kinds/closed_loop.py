@@ -39,10 +39,10 @@ from sqlmodel import Session, select
 from app.compensation.evaluation import predicted_width, table_row
 from app.errors import Cancelled, ConformaError, InvalidInput
 from app.jobs.context import JobContext
-from app.jobs.kinds.probe_plan import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams
-from app.jobs.kinds.register import RegisterParams
+from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, get_kind, job_kind
+from app.jobs.results import ProbePlanResult, ReconstructResult
 from app.jobs.simulation import evaluate_print, xy_error
 from app.models import Job, Machine, Trace
 from app.records import get_or_404
@@ -189,7 +189,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                                                 ((index + 0.25) / total, f"trace {index + 1}/{total}: probing"))
         count = _probe_count(plan, trace_id)
         prior = {k: params.probe[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in params.probe}
-        method = "field" if (plan.result or {}).get("field") else params.reconstruct_method
+        method = "field" if ProbePlanResult.of(plan).field else params.reconstruct_method
         rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
                                             "trace_id": trace_id, "probe_run_job_id": probe.id,
                                             "method": method, "sigma_mm": params.sigma_mm,
@@ -200,7 +200,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                                                "hold_mm": params.hold_mm, **_tool_of(params)}, trace_id)
         entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
                  "compensate": compensated.id, "probes": count,
-                 "deviation_max_mm": rebuilt.result["deviation"]["max_mm"]}
+                 "deviation_max_mm": ReconstructResult.of(rebuilt).deviation.max_mm}
         if params.evaluate:
             world = ctx.runtime.machines.world(machine)  # built when the probe run connected
             reports = {}
@@ -269,10 +269,11 @@ def _tool_of(params: ClosedLoopParams) -> dict[str, Any]:
 def _probe_count(plan: Job, trace_id: str) -> int:
     """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's; a field
     plan's stations on that trace)."""
-    for entry in plan.result.get("traces", ()):
-        if entry["trace_id"] == trace_id:
-            return int(entry["stations"] if "stations" in entry else entry["count"])
-    return int(plan.result["count"])
+    result = ProbePlanResult.of(plan)
+    for entry in result.traces or ():
+        if entry.trace_id == trace_id:
+            return int(entry.stations if entry.stations is not None else entry.count or 0)
+    return result.count
 
 
 def _placement_of(probe: dict[str, Any]) -> dict[str, Any]:

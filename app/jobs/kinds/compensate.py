@@ -1,6 +1,7 @@
 """Job ``compensate``: the print program at the trace's standoff above the REAL surface.
 
-Frame: the reconstruction's (rebuilt from the reconstruct job's parameters): when that
+Frame: the reconstruction's (read back from the reconstruct job's stored
+``reconstruction.npz``, over the trace's nominal placed as that job placed it): when that
 job mapped the trace with a placement / registration, the programs are in machine
 coordinates.
 
@@ -29,7 +30,7 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from sqlmodel import Session
+from sqlmodel import Session, select
 
 from app.calibration.clearance import nozzle_clearance
 from app.compensation.standoff import CompensationError, CompensationParams, compensate_trace, real_surface_height, \
@@ -39,10 +40,11 @@ from app.geometry.drape import top_surface_z
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.kinds.reconstruct import ReconstructJobParams, rebuild
-from app.jobs.kinds.register import placement_from
+from app.jobs.inputs import placed_nominal, placed_params_of, placement_from, succeeded_job
 from app.jobs.registry import JobParams, job_kind
-from app.models import Job, Machine
+from app.jobs.results import CompensateResult
+from app.models import Artifact, Machine
+from app.reconstruction.stored import STORED, read_reconstruction
 from app.records import get_or_404
 
 
@@ -145,9 +147,13 @@ def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
 
 
 def _check(params: CompensateParams, session: Session) -> None:
-    job = get_or_404(session, Job, params.reconstruct_job_id, field="params.reconstruct_job_id")
-    if job.kind != "reconstruct" or job.status != "succeeded" or job.params.get("trace_id") != params.trace_id:
+    job = succeeded_job(session, params.reconstruct_job_id, "reconstruct", "params.reconstruct_job_id")
+    if job.params.get("trace_id") != params.trace_id:
         raise InvalidInput(f"job {job.id!r} is not a succeeded reconstruct job of trace {params.trace_id!r}",
+                           field="params.reconstruct_job_id", value=job.id)
+    if session.exec(select(Artifact).where(Artifact.job_id == job.id, Artifact.name == STORED)).first() is None:
+        raise InvalidInput(f"reconstruct job {job.id!r} has no stored reconstruction ({STORED}: it ran before "
+                           "reconstructions were stored); run the reconstruction again",
                            field="params.reconstruct_job_id", value=job.id)
     choose_tool(params, session)
 
@@ -164,8 +170,8 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     """Regenerate the trace's print program above the reconstructed real surface."""
     trace = ctx.trace(params.trace_id)
     source = ctx.job(params.reconstruct_job_id, kind="reconstruct", field="params.reconstruct_job_id")
-    rebuilt_params = ReconstructJobParams.model_validate(source.params)
-    reconstruction = rebuild(ctx, rebuilt_params)
+    placement = placement_from(ctx, placed_params_of(source))  # the reconstruction's frame (machine, when placed)
+    reconstruction = read_reconstruction(ctx.artifact_bytes(source.id, STORED), placed_nominal(trace, placement))
     ctx.progress(0.3, "segmenting the compensated path")
     with ctx.session() as session:
         choice = choose_tool(params, session)
@@ -174,7 +180,6 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         machine: Machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
         on, off = choice.dispense_on or on, choice.dispense_off or off
-    placement = placement_from(ctx, rebuilt_params)  # the reconstruction's frame (machine, when placed)
     mesh = ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
         standoff_mm=params.standoff_mm or trace.standoff_mm,
@@ -195,7 +200,7 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         result["clearance"] = clearance
     if placement is not None:
         result["placement"] = placement.to_dict()
-    return result
+    return CompensateResult.written(result)
 
 
 def _clearance(trace: Any, reconstruction: Any, path: Any, mesh: Any, diameter_mm: float) -> dict[str, Any]:

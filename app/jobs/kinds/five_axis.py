@@ -40,16 +40,16 @@ from sqlmodel import Session
 from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
 from app.five_axis.errors import TraceOffSurfaceError
 from app.five_axis.trace import trace_over_xy, uv_over_xy
-from app.compensation.surface_fit import ProbeRegion, SurfaceFitParams, plan_probe_grid
+from app.compensation.surface_fit import ProbeRegion, SurfaceFitParams, fit_part_top, plan_probe_grid
 from app.errors import InvalidInput
 from app.geometry.nurbs_surface import NurbsSurface
 from app.geometry.tolerance import DEFAULT_TOLERANCE
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.kinds.surface_fit import fit_part_top
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Machine, Part, Trace
+from app.jobs.inputs import succeeded_job
 from app.records import get_or_404
 
 DEFAULT_FEED_MM_MIN = 600.0
@@ -203,10 +203,7 @@ def _check(params: FiveAxisJobParams, session: Session) -> None:
     if params.surface_fit_job_id is None:
         return
     field = "params.surface_fit_job_id"
-    job = get_or_404(session, Job, params.surface_fit_job_id, field=field)
-    if job.kind != "surface_fit" or job.status != "succeeded":
-        raise InvalidInput(f"job {job.id!r} is a {job.status} {job.kind} job; a succeeded surface_fit job "
-                           "is needed", field=field, value=job.id)
+    job = succeeded_job(session, params.surface_fit_job_id, "surface_fit", field)
     if job.params.get("part_id") != params.part_id:
         raise InvalidInput(f"surface_fit job {job.id!r} fitted part {job.params.get('part_id')!r}, "
                            f"not {params.part_id!r}", field=field, value=job.id)

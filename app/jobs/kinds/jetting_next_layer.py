@@ -27,7 +27,7 @@ from app.jetting import (
     png_pattern,
 )
 from app.jobs.context import JobContext
-from app.jobs.kinds.jetting import (
+from app.jobs.jetting_inputs import (
     NPZ_MEDIA_TYPE,
     PrintModelParams,
     StrictModel,

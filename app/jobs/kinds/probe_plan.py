@@ -18,110 +18,26 @@ shared).  Reconstruct each trace with ``method: "field"`` from the run."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any, Literal
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
-from pydantic import Field, model_validator
 from sqlmodel import Session
 
-from app.compensation.registration import Placement, place_path
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.kinds.register import (
-    PlacedParams,
-    check_registration,
-    placement_from,
-    registration_reference,
-)
+from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
+from app.jobs.params import ProbePlanParams
 from app.jobs.registry import job_kind
+from app.jobs.results import ProbePlanResult
 from app.models import Trace
-from app.probing import (NominalPath, PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams,
+from app.probing import (PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams,
                          build_probe_program, plan_probes)
 from app.probing.field import field_result, plan_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.joint import plan_joint
-from app.probing.nominal import as_nominal_path
 from app.probing.program import mesh_station_normals
-
-MAX_TRACES = 200
-MAX_FIELD_TRACES = 5000
-
-
-class ProbePlanParams(PlacedParams):
-    trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)")
-    trace_ids: list[str] | None = Field(
-        None, min_length=1, max_length=MAX_FIELD_TRACES,
-        description="part-level probing (instead of trace_id): several distinct traces of ONE part, probed by "
-        "one program in this order; with the kriging planner their stations are designed together (fewer "
-        "probes per trace when each trace is rebuilt from every trace's probes, see reconstruct). The result's "
-        "traces list each trace's range [first, first + count) in points / records")
-    method: Literal["adaptive", "uniform", "deviation", "kriging", "field"] | None = Field(
-        None, description="adaptive (default with trace_id): the seed's chord-height rule; uniform: even arc "
-        "length; deviation: spacing from the expected deviation of the real part from CAD; kriging: stations "
-        "that minimise the largest predicted error of the deviation (machining error + placement), per trace "
-        "or jointly; field (default with trace_ids): stations over the whole region the traces cover, one "
-        "field for any number of traces, the fewest probes for a board")
-    stations: Literal["on_traces", "anywhere_on_top"] = Field(
-        "on_traces", description="field planner: stations on the traces, or anywhere on the part's top the probe "
-        "reaches (within a quarter wavelength of a trace)")
-    chord_error_mm: float = Field(0.005, gt=0, le=10)
-    count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation; per trace "
-                              "with trace_ids; field: for the whole board)")
-    coverage: float = Field(3.0, gt=0, le=10, description="kriging/field: coverage x largest predicted sd <= "
-                            "target_error_mm")
-    capability_k: float | None = Field(None, gt=0, lt=1, description="seed eq. 1: process capability K")
-    confidence: float | None = Field(None, gt=0.5, lt=1, description="seed eq. 1: confidence gamma")
-    cl_tolerance_mm: float = Field(0.001, gt=0, le=1)
-    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10)
-    deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000)
-    target_error_mm: float = Field(0.005, gt=0, le=10)
-    probe_sigma_mm: float = Field(0.001, ge=0, le=1)
-    clearance_mm: float = Field(2.0, gt=0, le=100)
-    approach_mm: float = Field(1.0, gt=0, le=50)
-    overtravel_mm: float = Field(1.0, gt=0, le=50)
-    probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000)
-    dialect: Literal["grbl", "marlin", "linuxcnc"] = "grbl"
-    probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin")
-
-    @model_validator(mode="after")
-    def _both_or_neither(self) -> "ProbePlanParams":
-        if (self.capability_k is None) != (self.confidence is None):
-            raise ValueError("capability_k and confidence go together (seed eq. 1)")
-        if (self.trace_id is None) == (self.trace_ids is None):
-            raise ValueError("give exactly one of trace_id or trace_ids")
-        if self.trace_ids is not None and len(self.trace_ids) > MAX_TRACES and self.planner != "field":
-            raise ValueError(f"more than {MAX_TRACES} traces are planned by the field planner only")
-        return self
-
-    @property
-    def planner(self) -> str:
-        """The method given, else field for part-level plans (trace_ids), adaptive for one trace."""
-        return self.method or ("field" if self.trace_ids is not None else "adaptive")
-
-
-@dataclass(frozen=True)
-class StoredNominal:
-    """A trace's stored draped polyline: points (k, 3) mm and unit normals (k, 3)."""
-
-    points: np.ndarray
-    normals: np.ndarray | None
-
-
-def nominal_of(trace: Trace) -> NominalPath:
-    """The stored draped nominal polyline of a trace as the planners' NominalPath."""
-    normals = trace.nominal.get("normals")
-    stored = StoredNominal(np.asarray(trace.nominal["points"], dtype=float),
-                           None if normals is None else np.asarray(normals, dtype=float))
-    return as_nominal_path(stored, field="trace.nominal")
-
-
-def placed_nominal(trace: Trace, placement: Placement | None) -> NominalPath:
-    """The trace's nominal in machine coordinates (unchanged without a placement)."""
-    nominal = nominal_of(trace)
-    return nominal if placement is None else place_path(nominal, placement)
-
 
 def check_same_part(session: Session, trace_ids: list[str], field: str) -> None:
     """Submission check: the traces exist, are distinct and all lie on the first one's part;
@@ -208,7 +124,7 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
     if plan.point_count is not None:
         result["point_count"] = {"count": plan.point_count.count, "n_exact": plan.point_count.n_exact,
                                  "z_gamma": plan.point_count.z_gamma}
-    return result
+    return ProbePlanResult.written(result)
 
 
 def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
@@ -241,7 +157,7 @@ def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     }
     if placement is not None:
         result["placement"] = placement.to_dict()
-    return result
+    return ProbePlanResult.written(result)
 
 
 def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
@@ -272,4 +188,4 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     }
     if placement is not None:
         result["placement"] = placement.to_dict()
-    return result
+    return ProbePlanResult.written(result)

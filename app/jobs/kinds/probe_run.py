@@ -34,6 +34,7 @@ from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_ma
 from app.jobs.probe_correction import (PAD_CLEARANCE_MM, PAD_OVERTRAVEL_MM, Corrections, MachineProbe,
                                        corrected_heights, machine_probe, station_normals)
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import ProbePlanResult, ProbeRunResult
 from app.machines import profile_of, translate
 from hardware.errors import HardwareError, LinkError
 
@@ -95,7 +96,7 @@ class TouchSequence:
 def run(ctx: JobContext, params: ProbeRunParams) -> dict:
     """Touch every planned point (travel at its safe height, probe down to its target)."""
     plan = ctx.job(params.plan_job_id, kind="probe_plan", field="params.plan_job_id")
-    records = plan.result["records"]
+    records = ProbePlanResult.of(plan).records
     feed = params.probe_feed_mm_min or plan.params.get("probe_feed_mm_min", 100.0)
     probe = machine_probe(ctx, params.machine_id)
     drift = probe is not None and params.corrections.drift and probe.pad_mm is not None \
@@ -164,7 +165,7 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
     deviations = np.array([p["deviation_mm"] for p in points])
     result["stats"] = {"count": len(points), "max_abs_mm": float(np.abs(deviations).max()),
                        "mean_mm": float(deviations.mean()), "rms_mm": float(np.sqrt(np.mean(deviations ** 2)))}
-    return result
+    return ProbeRunResult.written(result)
 
 
 def _touch_pad(touch: Any, sequence: TouchSequence, track: dict[str, list[float]], t_s: float) -> None:

@@ -2,7 +2,9 @@
 
 With ``placement`` or ``registration_job_id`` the trace's nominal is mapped into machine
 coordinates first (as the probe plan that measured the points did); the reconstruction,
-and so the ``compensate`` job that rebuilds it, is then in machine coordinates.
+and so the ``compensate`` job that reads it, is then in machine coordinates.  The whole
+reconstruction is stored as the artifact ``reconstruction.npz``
+(:mod:`app.reconstruction.stored`): ``compensate`` reads it back bit for bit.
 
 Part-level probing: from a probe run of a JOINT plan (``probe_plan`` with ``trace_ids``)
 the trace's own points are its range of the run; with ``method: "kriging"`` every other
@@ -20,9 +22,10 @@ from sqlmodel import Session
 from app.compensation.registration import Placement
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
-from app.jobs.kinds.probe_plan import placed_nominal
-from app.jobs.kinds.register import PlacedParams, check_registration, placement_from, registration_reference
+from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
+from app.jobs.params import PlacedParams
 from app.jobs.registry import job_kind
+from app.jobs.results import ProbePlanResult, ProbeRunResult, ReconstructResult
 from app.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
@@ -30,10 +33,12 @@ from app.reconstruction import (PreprocessParams, Reconstruction, Reconstruction
 from app.probing.field import stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.reconstruction.field import field_gradient, fit_bytes, fit_field, trace_reconstruction
+from app.reconstruction.stored import STORED, reconstruction_npz
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
 
 DEGREE = 3
+NPZ_MEDIA_TYPE = "application/zip"  # an NPZ is a zip of .npy members
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Points = list[Annotated[list[Finite], Field(min_length=3, max_length=3)]]
@@ -135,7 +140,7 @@ def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
     run = session.get(Job, params.probe_run_job_id)
     plan = session.get(Job, (run.params or {}).get("plan_job_id")) if run is not None and run.kind == "probe_run" \
         else None
-    is_field = plan is not None and bool((plan.result or {}).get("field"))
+    is_field = plan is not None and bool(ProbePlanResult.of(plan).field)
     if plan is not None and is_field != (params.method == "field"):
         raise InvalidInput(f"probe run {run.id!r} comes from a {'field' if is_field else plan.params.get('method')!r} "
                            f"plan: reconstruct it with method {'field' if is_field else 'other than field'!r}, not "
@@ -152,12 +157,15 @@ def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
 def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
     """Rebuild the real trace from measured points (outliers rejected, duplicates merged)."""
     ctx.progress(0.2, "reconstructing")
-    return rebuild(ctx, params).to_result()
+    reconstruction = rebuild(ctx, params)
+    ctx.artifact(STORED, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
+                 {"format": "npz", "height_model": reconstruction.height_model.kind})
+    return ReconstructResult.written(reconstruction.to_result())
 
 
 def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
-    """The reconstruction a ``reconstruct`` job with ``params`` makes (deterministic, so the
-    ``compensate`` job rebuilds it from the stored parameters instead of storing objects).
+    """The reconstruction a ``reconstruct`` job with ``params`` makes (stored as the artifact
+    ``reconstruction.npz``, which ``compensate`` reads back exactly).
 
     From a probe run on a calibrated machine with radius correction, the readings are
     turned into surface heights again along the normal of the REAL surface (the nominal's
@@ -202,7 +210,7 @@ def run_calibration(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any,
         return None, []
     plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
     ranges = joint_trace_ranges(plan)
-    rows = probe_run.result["points"]
+    rows = ProbeRunResult.of(probe_run).rows()
     if ranges is not None:
         lo, hi = ranges[params.trace_id]
         rows = [p for p in rows if lo <= p["index"] < hi]
@@ -213,7 +221,7 @@ def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dic
     """Measured points of the probe run: (this trace's, {other trace: its points}); the
     others are empty unless the run's plan probed several traces."""
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
-    rows = probe_run.result["points"]
+    rows = ProbeRunResult.of(probe_run).rows()
     plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
     ranges = joint_trace_ranges(plan)
     if ranges is None:
@@ -230,7 +238,7 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
     """The trace from its run's fitted field (fitted once per run and sigma, cached)."""
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
     plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
-    stored = (plan.result or {}).get("field")
+    stored = ProbePlanResult.of(plan).field
     if not stored:
         raise InvalidInput(f"probe run {probe_run.id!r} is not a run of a field plan", field="params.method",
                            value=params.method)
@@ -243,7 +251,7 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
     if cached is None:
         field = stored_field(stored)
         prior = field.prior if params.sigma_mm is None else replace(field.prior, sigma_mm=params.sigma_mm)
-        rows = sorted(probe_run.result["points"], key=lambda p: p["index"])
+        rows = sorted(ProbeRunResult.of(probe_run).rows(), key=lambda p: p["index"])
 
         def fit_of(points: Any) -> Any:
             return fit_field(prior, field.stations, field.z, points, field.center, field.trace, field.s_mm,

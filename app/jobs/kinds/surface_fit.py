@@ -23,22 +23,19 @@ import re
 from typing import Annotated, Any, Literal
 
 import numpy as np
-import trimesh
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from sqlmodel import Session
 
 from app.compensation.surface_fit import (
     GridHoleError,
-    ProbeGridPlan,
     ProbeRegion,
-    SurfaceFit,
     SurfaceFitError,
     SurfaceFitParams,
     fit_surface,
     grid_from_plan,
     plan_probe_grid,
+    sample_nominal_grid,
 )
-from app.geometry.drape import top_surface_z
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
@@ -242,17 +239,6 @@ def _in_params(exc: SurfaceFitError, params: SurfaceFitJobParams) -> SurfaceFitE
     elif not params.has_points and field == "grid.z":  # e.g. the heights found lie on one line
         message, field = f"the part's top sampled over params.region: {message}", "params.region"
     return type(exc)(message, field=field, value=exc.value)
-
-
-def sample_nominal_grid(mesh: trimesh.Trimesh, plan: ProbeGridPlan) -> np.ndarray:
-    """Nominal heights (nu*nv,) of the plan's probe points on the part's top, probing order
-    (NaN where a vertical ray misses the part)."""
-    return top_surface_z(mesh, plan.points_xy).z
-
-
-def fit_part_top(mesh: trimesh.Trimesh, plan: ProbeGridPlan, fit_params: SurfaceFitParams) -> SurfaceFit:
-    """Fit the part's nominal top surface sampled at the plan's grid."""
-    return fit_surface(grid_from_plan(plan, sample_nominal_grid(mesh, plan)), fit_params)
 
 
 def _json_z(values: np.ndarray) -> list[float | None]:

@@ -25,6 +25,7 @@ from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Machine, Part
+from app.jobs.inputs import succeeded_job
 from app.records import get_or_404
 from app.slicing import SlicingError, ToolpathParams, plan_toolpath
 from app.slicing.export import from_json
@@ -163,11 +164,8 @@ class ToolpathJobParams(JobParams):
 
 def _check(params: ToolpathJobParams, session: Session) -> None:
     """The slice job must be a succeeded slice job; extrusion needs the marlin dialect."""
-    job = get_or_404(session, Job, params.slice_job_id, field="params.slice_job_id")
-    if job.kind != "slice" or job.status != "succeeded":
-        raise SlicingError(f"job {job.id!r} is a {job.status} {job.kind} job; a succeeded slice job is needed "
-                           f"(submit the toolpath once the slice has succeeded)",
-                           field="params.slice_job_id", value=job.id)
+    job = succeeded_job(session, params.slice_job_id, "slice", "params.slice_job_id", error=SlicingError,
+                        hint=" (submit the toolpath once the slice has succeeded)")
     if params.mode == "extrude" and params.dialect != "marlin":
         raise SlicingError("extrusion (E axis) output needs the marlin dialect; use mode: dispense on grbl",
                            field="params.dialect", value=params.dialect)

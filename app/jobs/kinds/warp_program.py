@@ -20,6 +20,8 @@ from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Program
+from app.jobs.inputs import succeeded_job
+from app.jobs.results import ProbeRunResult
 from app.records import get_or_404
 
 
@@ -54,10 +56,7 @@ def _check(params: WarpProgramParams, session: Session) -> None:
     surface's measured region: a 422 naming the line and its coordinates before any job runs."""
     program = get_or_404(session, Program, params.program_id, field="params.program_id")
     kind, job_id = _surface_job(params)
-    job = get_or_404(session, Job, job_id, field=f"params.{kind}_job_id")
-    if job.kind != kind or job.status != "succeeded":
-        raise InvalidInput(f"job {job_id!r} is not a succeeded {kind} job", field=f"params.{kind}_job_id",
-                           value=job_id)
+    job = succeeded_job(session, job_id, kind, f"params.{kind}_job_id")
     read_blob = session.info.get("read_blob")
     if read_blob is None:                     # a check without the store (never in the service)
         return
@@ -79,7 +78,7 @@ def _surface_points(job: Job) -> np.ndarray:
         (u0, u1), (v0, v1) = surface.domain
         u, v = np.meshgrid(np.linspace(u0, u1, 60), np.linspace(v0, v1, 60), indexing="ij")
         return surface.evaluate(u.ravel(), v.ravel())
-    return np.array([p["measured"] for p in job.result["points"]], float)
+    return np.array([p.measured for p in ProbeRunResult.of(job).points], float)
 
 
 @job_kind("warp_program", WarpProgramParams, check=_check,

@@ -1,0 +1,96 @@
+"""Loading what job parameters point to, shared by the job kinds (a kind never imports another).
+
+* :func:`succeeded_job`: THE check "job ``job_id`` is a succeeded job of kind K" at
+  submission (and, through :meth:`app.jobs.context.JobContext.job`, when a job runs);
+* placements: :func:`check_registration` (submission), :func:`placement_from` (run),
+  :func:`registration_reference`, :func:`placed_params_of` (what a stored job was placed by);
+* a trace's stored nominal polyline: :func:`nominal_of`, :func:`placed_nominal`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from sqlmodel import Session
+
+from app.compensation.registration import Placement, place_path
+from app.errors import ConformaError, InvalidInput, NotFound
+from app.jobs.params import PlacedParams, PlacementParams
+from app.models import Job, Trace
+from app.probing import NominalPath
+from app.probing.nominal import as_nominal_path
+
+if TYPE_CHECKING:
+    from app.jobs.context import JobContext
+
+
+def succeeded_job(session: Session, job_id: str, kind: str | None, field: str, *,
+                  error: type[ConformaError] = InvalidInput, missing_is_invalid: bool = False,
+                  hint: str = "") -> Job:
+    """The job ``job_id`` when it succeeded (and is of ``kind``, unless None).
+
+    A missing job is a NotFound (404) naming ``field``, or with ``missing_is_invalid`` an
+    ``error``; a job of another kind or state is an ``error`` (InvalidInput: 422) naming
+    ``field`` and the job id; ``hint`` is appended to its message."""
+    needed = f"a succeeded {kind} job" if kind else "a succeeded job"
+    job = session.get(Job, job_id)
+    if job is None:
+        if missing_is_invalid:
+            raise error(f"{field}: job {job_id!r} does not exist; {needed} is needed{hint}", field=field, value=job_id)
+        raise NotFound(f"job {job_id!r} does not exist", field=field, value=job_id)
+    if job.status != "succeeded" or (kind is not None and job.kind != kind):
+        raise error(f"job {job_id!r} is a {job.status} {job.kind} job; {needed} is needed{hint}",
+                    field=field, value=job_id)
+    return job
+
+
+# placements -------------------------------------------------------------------------------
+def registration_reference(params: PlacedParams) -> list[tuple[str, str]]:
+    return [("job", params.registration_job_id)] if params.registration_job_id else []
+
+
+def check_registration(params: PlacedParams, session: Session) -> Placement | None:
+    """Submission check: the referenced job is a succeeded register job; its placement."""
+    if params.registration_job_id is None:
+        return None if params.placement is None else params.placement.to_placement()
+    job = succeeded_job(session, params.registration_job_id, "register", "params.registration_job_id")
+    return PlacementParams.model_validate(job.result["placement"]).to_placement()
+
+
+def placed_params_of(job: Job) -> PlacedParams:
+    """The placement part (``placement`` / ``registration_job_id``) of a job's stored parameters."""
+    return PlacedParams.model_validate({k: job.params[k] for k in ("placement", "registration_job_id")
+                                        if job.params.get(k) is not None})
+
+
+def placement_from(ctx: "JobContext", params: PlacedParams) -> Placement | None:
+    """The placement ``params`` asks for (explicit, or a register job's), else None."""
+    if params.registration_job_id is not None:
+        job = ctx.job(params.registration_job_id, kind="register", field="params.registration_job_id")
+        return PlacementParams.model_validate(job.result["placement"]).to_placement()
+    return None if params.placement is None else params.placement.to_placement()
+
+
+# nominal traces ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StoredNominal:
+    """A trace's stored draped polyline: points (k, 3) mm and unit normals (k, 3)."""
+
+    points: np.ndarray
+    normals: np.ndarray | None
+
+
+def nominal_of(trace: Trace) -> NominalPath:
+    """The stored draped nominal polyline of a trace as the planners' NominalPath."""
+    normals = trace.nominal.get("normals")
+    stored = StoredNominal(np.asarray(trace.nominal["points"], dtype=float),
+                           None if normals is None else np.asarray(normals, dtype=float))
+    return as_nominal_path(stored, field="trace.nominal")
+
+
+def placed_nominal(trace: Trace, placement: Placement | None) -> NominalPath:
+    """The trace's nominal in machine coordinates (unchanged without a placement)."""
+    nominal = nominal_of(trace)
+    return nominal if placement is None else place_path(nominal, placement)

@@ -1,0 +1,304 @@
+"""The jetting kinds' shared inputs: the print-model parameters, the target and stored
+height maps, and the core's errors named as API parameters (``jetting`` and
+``jetting_next_layer`` both use them; a kind never imports another kind).
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from sqlmodel import Session
+
+from app.jetting import (
+    ControllerParams,
+    DropParams,
+    FlowParams,
+    JettingError,
+    JettingParams,
+    Target,
+    TargetSpec,
+    estimate_bytes,
+    target_from_png,
+    target_from_rings,
+    target_from_spec,
+)
+from app.jobs.inputs import succeeded_job
+from app.jobs.registry import JobParams
+from app.models import Artifact, Part
+from app.slicing import SlicingError
+from app.slicing.export import from_json
+
+MEMORY_LIMIT_BYTES = 2 * 1024**3  # one run's working set (patterns, snapshots, solver temporaries)
+MAX_MASK_BASE64 = 4_000_000       # inline mask PNG, base64 characters
+NPZ_MEDIA_TYPE = "application/zip"  # an NPZ is a zip of .npy members (numpy.load reads it)
+_CORE_FIELDS = {  # core error fields -> the API's parameter names
+    "drop.dpi": "params.dpi", "drop.drop_diameter_um": "params.drop_diameter_um",
+    "target.mask": "params.target.mask", "target.rings": "params.target.slice",
+    "target.shape": "params.target.shape", "target.hole_mm": "params.target.hole_mm",
+    "controller.kind": "params.controller", "measured_height": "params.measured",
+    "layers.json": "params.target.slice",
+}
+_D, _F, _C, _T = DropParams(), FlowParams(), ControllerParams(), TargetSpec()
+
+
+class StrictModel(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class MaskSource(StrictModel):
+    """A part mask image: one pixel per print cell at ``dpi``, luminance >= 128 is part."""
+
+    job_id: str | None = Field(None, description="a succeeded job holding the PNG as an artifact")
+    artifact: str | None = Field(None, min_length=1, max_length=200,
+                                 description="that job's artifact name, e.g. pattern_0001.png")
+    png_base64: str | None = Field(None, max_length=MAX_MASK_BASE64,
+                                   description="or the PNG itself, base64 (no data: prefix)")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> MaskSource:
+        if (self.job_id is None) != (self.artifact is None) or (self.job_id is None) == (self.png_base64 is None):
+            raise ValueError("give either job_id and artifact, or png_base64")
+        return self
+
+
+class SliceSource(StrictModel):
+    """One layer of a slice job's ``layers.json`` (its contours; holes are inner rings)."""
+
+    slice_job_id: str = Field(description="a succeeded slice job")
+    layer: int = Field(0, ge=0, le=1_000_000, description="layer index in that job's layers")
+
+
+class TargetParams(StrictModel):
+    """The part to print: the seed's parametric square with a centred square hole
+    (default), or a mask image, or a slice layer (give at most one of mask / slice)."""
+
+    shape: Literal["square_with_hole"] | None = Field(None, description="parametric shape (the default)")
+    size_mm: float | None = Field(None, gt=0, le=500, allow_inf_nan=False,
+                                  description=f"square side, mm (default {_T.size_mm:g})")
+    hole_mm: float | None = Field(None, ge=0, le=500, allow_inf_nan=False,
+                                  description=f"hole side, mm (default {_T.hole_mm:g}; 0: no hole)")
+    mask: MaskSource | None = Field(None, description="part mask image instead of the square")
+    slice: SliceSource | None = Field(None, description="slice layer instead of the square")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> TargetParams:
+        parametric = [name for name in ("shape", "size_mm", "hole_mm") if getattr(self, name) is not None]
+        if self.mask is not None and self.slice is not None:
+            raise ValueError("give mask or slice, not both")
+        if (self.mask is not None or self.slice is not None) and parametric:
+            raise ValueError(f"{parametric} describe the parametric square; not with mask or slice")
+        spec = self.spec()
+        if spec.hole_mm >= spec.size_mm:
+            raise ValueError("hole_mm must be smaller than size_mm")
+        return self
+
+    def spec(self) -> TargetSpec:
+        """The parametric square with the defaults filled in."""
+        return TargetSpec(shape=self.shape or _T.shape, size_mm=_T.size_mm if self.size_mm is None else self.size_mm,
+                          hole_mm=_T.hole_mm if self.hole_mm is None else self.hole_mm)
+
+
+class PrintModelParams(JobParams):
+    """The print grid, droplet, threshold flow and MPC settings (shared by both jetting kinds)."""
+
+    target: TargetParams = Field(default_factory=TargetParams, description="the part to print")
+    dpi: float = Field(_D.dpi, ge=25, le=2400, allow_inf_nan=False, description="print resolution, dots per inch")
+    drop_diameter_um: float = Field(_D.drop_diameter_um, gt=0, le=2000, allow_inf_nan=False,
+                                    description="spread (landed) droplet diameter, um")
+    drop_volume_pl: float = Field(_D.drop_volume_pl, gt=0, le=10_000, allow_inf_nan=False,
+                                  description="nominal droplet volume, pL")
+    margin_mm: float = Field(0.25, ge=0, le=10, allow_inf_nan=False, description="empty border around the part, mm")
+    threshold_um: float = Field(_F.threshold_um, ge=0, le=1000, allow_inf_nan=False,
+                                description="seed eq. 7: ink flows between neighbours only above this step, um")
+    mobility: float = Field(_F.mobility, ge=0, le=1, allow_inf_nan=False,
+                            description="flow mobility (2/pi) eta_s on a flat substrate, 0..1")
+    flow_steps: int = Field(_F.steps, ge=0, le=50, description="flow sub-steps per layer before cure")
+    horizon: int = Field(_C.horizon, ge=1, le=10, description="MPC horizon m, layers")
+    q_weight: float = Field(_C.q_weight, ge=0, le=1e6, allow_inf_nan=False, description="MPC stage weight Q")
+    r_weight: float = Field(_C.r_weight, ge=0, le=1e6, allow_inf_nan=False, description="MPC input weight R")
+    f_weight: float = Field(_C.f_weight, gt=0, le=1e6, allow_inf_nan=False, description="MPC terminal weight F")
+    outside_weight: float = Field(_C.outside_weight, ge=0, le=1e6, allow_inf_nan=False,
+                                  description="weight of cells off the part relative to part cells")
+    fill: float = Field(_C.fill, gt=0, le=1, allow_inf_nan=False,
+                        description="MPC reference rise per layer in nominal layer heights")
+    model: Literal["transport", "seed_diagonal"] = Field(
+        _C.model, description="seed_diagonal: the seed's (I + Dg) B; transport: mass-conserving flow operator")
+    solver: Literal["fista", "lbfgsb"] = Field(_C.solver, description="fista (fast) or lbfgsb (reference)")
+    binarize: Literal["greedy", "threshold", "error_diffusion"] = Field(
+        _C.binarize, description="relaxed -> 0/1 drops: greedy flips on the model's QP, threshold, error diffusion")
+    max_iter: int = Field(_C.max_iter, ge=1, le=100_000, description="solver iteration cap per layer")
+    tol: float = Field(_C.tol, gt=0, le=1, allow_inf_nan=False, description="solver tolerance (relative)")
+    greedy_rounds: int = Field(_C.greedy_rounds, ge=0, le=50, description="greedy flip sweeps")
+
+    def drop(self) -> DropParams:
+        return DropParams(dpi=self.dpi, drop_diameter_um=self.drop_diameter_um, drop_volume_pl=self.drop_volume_pl)
+
+    def flow(self) -> FlowParams:
+        return FlowParams(threshold_um=self.threshold_um, mobility=self.mobility, steps=self.flow_steps)
+
+    def controller_params(self, kind: str = "mpc") -> ControllerParams:
+        return ControllerParams(kind=kind, horizon=self.horizon, q_weight=self.q_weight, r_weight=self.r_weight,
+                                f_weight=self.f_weight, outside_weight=self.outside_weight, fill=self.fill,
+                                model=self.model, solver=self.solver, binarize=self.binarize,
+                                max_iter=self.max_iter, tol=self.tol, greedy_rounds=self.greedy_rounds)
+
+    def core(self) -> JettingParams:
+        """The pure core's parameters (``layers`` 1: the next-layer kind plans one layer)."""
+        return JettingParams(drop=self.drop(), flow=self.flow(), controller=self.controller_params(),
+                             target=self.target_spec(), layers=1, margin_mm=self.margin_mm,
+                             memory_limit_bytes=MEMORY_LIMIT_BYTES)
+
+    def target_spec(self) -> TargetSpec:
+        return self.target.spec()
+
+
+# errors and limits ---------------------------------------------------------------------
+def api_field(field: str | None) -> str:
+    """The API parameter a core error field names (``drop.dpi`` -> ``params.dpi``)."""
+    if not field:
+        return "params"
+    if field.startswith("params"):
+        return field
+    if field in _CORE_FIELDS:
+        return _CORE_FIELDS[field]
+    head, _, rest = field.partition(".")
+    return f"params.{rest}" if rest and head in ("drop", "flow", "plant", "controller") else f"params.{field}"
+
+
+@contextmanager
+def core_errors() -> Iterator[None]:
+    """Re-raise the core's JettingError / SlicingError naming the API parameter."""
+    try:
+        yield
+    except (JettingError, SlicingError) as exc:
+        field = api_field(exc.field)
+        message = exc.message if exc.message.startswith(field) else f"{field}: {exc.message}"
+        raise JettingError(message, field=field, value=exc.value) from None
+
+
+def max_cells(core: JettingParams) -> int:
+    """The largest grid the memory limit allows (checked before a grid is allocated)."""
+    return max(1, core.memory_limit_bytes // estimate_bytes((1, 1), core))
+
+
+def check_grid(shape: tuple[int, int], core: JettingParams) -> None:
+    """422 naming ``params.dpi`` when a grid of ``shape`` needs more than the memory limit."""
+    need = estimate_bytes(shape, core)
+    if need > core.memory_limit_bytes:
+        raise JettingError(f"params.dpi: a {shape[0]} x {shape[1]} grid at {core.drop.dpi:g} dpi for "
+                           f"{core.layers} layers needs ~{need / 2**20:.0f} MiB, over the "
+                           f"{core.memory_limit_bytes / 2**20:.0f} MiB limit", field="params.dpi",
+                           value=core.drop.dpi)
+
+
+def _mask_bytes(source: MaskSource) -> bytes:
+    try:
+        return base64.b64decode(source.png_base64 or "", validate=True)
+    except (binascii.Error, ValueError) as exc:
+        raise JettingError(f"params.target.mask.png_base64: not base64 ({exc})",
+                           field="params.target.mask.png_base64", value=len(source.png_base64 or "")) from None
+
+
+# targets ---------------------------------------------------------------------------------
+ArtifactReader = Callable[[str, str], bytes]  # (job_id, artifact name) -> bytes
+
+
+def target_of(spec: TargetParams, core: JettingParams, read: ArtifactReader) -> Target:
+    """The print target on its grid; ``read(job_id, name)`` returns an artifact's bytes."""
+    limit = max_cells(core)
+    with core_errors():
+        if spec.mask is not None:
+            data = _mask_bytes(spec.mask) if spec.mask.png_base64 is not None else \
+                read(spec.mask.job_id or "", spec.mask.artifact or "")
+            target = target_from_png(data, core.drop, core.margin_mm, limit)
+        elif spec.slice is not None:
+            layers = from_json(read(spec.slice.slice_job_id, "layers.json")).layers
+            if spec.slice.layer >= len(layers):
+                raise JettingError(f"layer {spec.slice.layer} does not exist ({len(layers)} layers)",
+                                   field="params.target.slice.layer", value=spec.slice.layer)
+            rings = [ring for island in layers[spec.slice.layer].islands for ring in island.rings()]
+            target = target_from_rings(rings, core.drop, core.margin_mm, limit)
+        else:
+            target = target_from_spec(core.target, core.drop, core.margin_mm, limit)
+    check_grid(target.shape, core)
+    return target
+
+
+def stored_artifact(session: Session, job_id: str, name: str, field: str, media_type: str) -> Artifact:
+    """The artifact row of a succeeded job with the expected media type, or a 422 naming ``field``."""
+    succeeded_job(session, job_id, None, field, error=JettingError, missing_is_invalid=True)
+    row = session.query(Artifact).filter(Artifact.job_id == job_id, Artifact.name == name).one_or_none()
+    if row is None or row.media_type != media_type or row.bytes == 0:
+        what = "does not exist" if row is None else f"is an empty or {row.media_type} file"
+        raise JettingError(f"{field}: artifact {name!r} of job {job_id!r} {what}; a {media_type} is needed",
+                           field=field, value=name)
+    return row
+
+
+def check_target(spec: TargetParams, core: JettingParams, session: Session) -> tuple[int, int] | None:
+    """Submission-time checks of the target: the grid's memory need, the mask artifact's
+    type and part cells, the slice layer's existence and the sliced part's extent; when the
+    session can read stored files (as it can at submission), the target is built and fully
+    validated now.  Returns the grid shape when it is known."""
+    reader = _stored_reader(session)
+    if spec.mask is not None and spec.mask.job_id is not None:
+        row = stored_artifact(session, spec.mask.job_id, spec.mask.artifact or "", "params.target.mask", "image/png")
+        if row.meta.get("drops") == 0:
+            raise JettingError("params.target.mask: the mask image is all black (no part cells)",
+                               field="params.target.mask", value=spec.mask.artifact)
+        if "shape" in row.meta:
+            drop = core.drop
+            pad = 2 * (math.ceil(core.margin_mm / drop.pitch_mm) + math.ceil(drop.radius_mm / drop.pitch_mm) + 3)
+            check_grid((int(row.meta["shape"][0]) + pad, int(row.meta["shape"][1]) + pad), core)
+        return target_of(spec, core, reader).shape if reader is not None else None
+    if spec.slice is not None:
+        job = succeeded_job(session, spec.slice.slice_job_id, "slice", "params.target.slice.slice_job_id",
+                            error=JettingError, missing_is_invalid=True)
+        count = int((job.result or {}).get("layer_count", 0))
+        if spec.slice.layer >= count:
+            raise JettingError(f"params.target.slice.layer: layer {spec.slice.layer} does not exist "
+                               f"({count} layers)", field="params.target.slice.layer", value=spec.slice.layer)
+        part = session.get(Part, job.params.get("part_id", ""))
+        if part is not None:
+            extent = np.ptp(np.asarray(part.bounds, dtype=float)[:, :2], axis=0) + 2 * core.margin_mm
+            cells = [math.ceil(e / core.drop.pitch_mm) + 1 for e in extent]
+            check_grid((cells[0], cells[1]), core)
+        return target_of(spec, core, reader).shape if reader is not None else None
+    return target_of(spec, core, _no_reader).shape  # parametric or inline mask: built now
+
+
+def _stored_reader(session: Session) -> ArtifactReader | None:
+    """Reads a stored artifact's bytes during a submission check (the runtime puts a blob
+    reader in ``session.info``), so stored masks and slices are fully checked up front."""
+    read_blob = session.info.get("read_blob")
+    if read_blob is None:
+        return None
+
+    def read(job_id: str, name: str) -> bytes:
+        row = session.query(Artifact).filter(Artifact.job_id == job_id, Artifact.name == name).one()
+        return read_blob(row.sha256)
+
+    return read
+
+
+def _no_reader(job_id: str, name: str) -> bytes:  # parametric and inline targets read no artifacts
+    raise AssertionError(f"unexpected read of {job_id}/{name}")
+
+
+def target_references(spec: TargetParams) -> list[tuple[str, str]]:
+    if spec.mask is not None and spec.mask.job_id is not None:
+        return [("job", spec.mask.job_id)]
+    if spec.slice is not None:
+        return [("job", spec.slice.slice_job_id)]
+    return []
+
+
+def npz_meta(**shapes: object) -> dict:
+    return {"format": "npz", "arrays": shapes}

@@ -1,0 +1,138 @@
+"""Parameter models that more than one job kind uses (a kind never imports another kind).
+
+* :class:`PlacementParams` / :class:`PlacedParams`: a rigid placement of the part on the
+  machine, explicit or a ``register`` job's (probe_plan and reconstruct take it; closed_loop
+  passes it on);
+* :class:`RegisterParams`: the ``register`` kind's parameters (closed_loop validates its
+  ``registration_params`` with them);
+* :class:`ProbePlanParams`: the ``probe_plan`` kind's parameters (closed_loop validates its
+  ``probe`` with them).
+
+Loading what the parameters point to (placements, nominals, succeeded jobs) is in
+:mod:`app.jobs.inputs`.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from app.compensation.registration import Placement
+from app.jobs.registry import JobParams
+
+Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
+
+MAX_TRACES = 200
+MAX_FIELD_TRACES = 5000
+
+
+class PlacementParams(BaseModel):
+    """A rigid placement of the part on the machine (what a ``register`` job reports)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    dx: float = Field(0.0, ge=-1000, le=1000, description="x translation, mm")
+    dy: float = Field(0.0, ge=-1000, le=1000, description="y translation, mm")
+    dz: float = Field(0.0, ge=-1000, le=1000, description="z translation, mm")
+    rz_deg: float = Field(0.0, ge=-180, le=180, description="rotation about the vertical axis through pivot, degrees")
+    pivot: list[Finite] = Field(default_factory=lambda: [0.0, 0.0], min_length=2, max_length=2,
+                                description="rotation axis (machine x, y) mm")
+
+    def to_placement(self) -> Placement:
+        return Placement.from_deg(self.dx, self.dy, self.dz, self.rz_deg, (self.pivot[0], self.pivot[1]))
+
+
+class PlacedParams(JobParams):
+    """Parameters of jobs that can work in machine coordinates (a placed trace)."""
+
+    placement: PlacementParams | None = Field(
+        None, description="map the trace into machine coordinates with this placement before use")
+    registration_job_id: str | None = Field(
+        None, description="a succeeded register job whose placement maps the trace into machine coordinates")
+
+    @model_validator(mode="after")
+    def _one_placement(self) -> "PlacedParams":
+        if self.placement is not None and self.registration_job_id is not None:
+            raise ValueError("give at most one of placement or registration_job_id")
+        return self
+
+
+class RegisterParams(JobParams):
+    part_id: str
+    machine_id: str
+    mode: Literal["edges", "z_only"] = Field(
+        "edges", description="edges: side faces found by -Z bisection across each wall + top heights "
+        "(dx, dy, rz from planar walls); z_only: -Z touches on the top only")
+    count: int | None = Field(None, ge=1, le=50, description="datum features to touch (default 6 edges, 8 z_only)")
+    sigma_mm: float = Field(0.001, gt=0, le=1, description="probe repeatability (1 sigma)")
+    search_mm: float = Field(1.5, gt=0, le=20, description="edge search half-width: the largest placement "
+                             "error the edge search finds; below margin_mm")
+    resolution_mm: float = Field(0.001, gt=0, le=1, description="edge bisection stops at this bracket")
+    tip_radius_mm: float | None = Field(None, ge=0, le=5, description="probe ball radius (the top edge is caught "
+                                        "early); default: the machine's calibrated ball radius, else 0")
+    margin_mm: float = Field(2.0, gt=0, le=50, description="datum touches keep this far from face edges")
+    pivot_xy: list[Finite] = Field(default_factory=lambda: [0.0, 0.0], min_length=2, max_length=2,
+                                   description="rotation axis of the reported placement (machine x, y) mm")
+    clearance_mm: float = Field(2.0, gt=0, le=100, description="travel height above the part's top")
+    overtravel_mm: float = Field(1.0, gt=0, le=50, description="probe down to this far below the part's bottom")
+    probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's")
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the candidate sampling (plans are deterministic)")
+
+    @model_validator(mode="after")
+    def _search_within_margin(self) -> "RegisterParams":
+        if self.mode == "edges" and self.search_mm >= self.margin_mm:
+            raise ValueError("search_mm must be below margin_mm (the edge search starts over the part)")
+        return self
+
+
+class ProbePlanParams(PlacedParams):
+    trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)")
+    trace_ids: list[str] | None = Field(
+        None, min_length=1, max_length=MAX_FIELD_TRACES,
+        description="part-level probing (instead of trace_id): several distinct traces of ONE part, probed by "
+        "one program in this order; with the kriging planner their stations are designed together (fewer "
+        "probes per trace when each trace is rebuilt from every trace's probes, see reconstruct). The result's "
+        "traces list each trace's range [first, first + count) in points / records")
+    method: Literal["adaptive", "uniform", "deviation", "kriging", "field"] | None = Field(
+        None, description="adaptive (default with trace_id): the seed's chord-height rule; uniform: even arc "
+        "length; deviation: spacing from the expected deviation of the real part from CAD; kriging: stations "
+        "that minimise the largest predicted error of the deviation (machining error + placement), per trace "
+        "or jointly; field (default with trace_ids): stations over the whole region the traces cover, one "
+        "field for any number of traces, the fewest probes for a board")
+    stations: Literal["on_traces", "anywhere_on_top"] = Field(
+        "on_traces", description="field planner: stations on the traces, or anywhere on the part's top the probe "
+        "reaches (within a quarter wavelength of a trace)")
+    chord_error_mm: float = Field(0.005, gt=0, le=10)
+    count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation; per trace "
+                              "with trace_ids; field: for the whole board)")
+    coverage: float = Field(3.0, gt=0, le=10, description="kriging/field: coverage x largest predicted sd <= "
+                            "target_error_mm")
+    capability_k: float | None = Field(None, gt=0, lt=1, description="seed eq. 1: process capability K")
+    confidence: float | None = Field(None, gt=0.5, lt=1, description="seed eq. 1: confidence gamma")
+    cl_tolerance_mm: float = Field(0.001, gt=0, le=1)
+    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10)
+    deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000)
+    target_error_mm: float = Field(0.005, gt=0, le=10)
+    probe_sigma_mm: float = Field(0.001, ge=0, le=1)
+    clearance_mm: float = Field(2.0, gt=0, le=100)
+    approach_mm: float = Field(1.0, gt=0, le=50)
+    overtravel_mm: float = Field(1.0, gt=0, le=50)
+    probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000)
+    dialect: Literal["grbl", "marlin", "linuxcnc"] = "grbl"
+    probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin")
+
+    @model_validator(mode="after")
+    def _both_or_neither(self) -> "ProbePlanParams":
+        if (self.capability_k is None) != (self.confidence is None):
+            raise ValueError("capability_k and confidence go together (seed eq. 1)")
+        if (self.trace_id is None) == (self.trace_ids is None):
+            raise ValueError("give exactly one of trace_id or trace_ids")
+        if self.trace_ids is not None and len(self.trace_ids) > MAX_TRACES and self.planner != "field":
+            raise ValueError(f"more than {MAX_TRACES} traces are planned by the field planner only")
+        return self
+
+    @property
+    def planner(self) -> str:
+        """The method given, else field for part-level plans (trace_ids), adaptive for one trace."""
+        return self.method or ("field" if self.trace_ids is not None else "adaptive")

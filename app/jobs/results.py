@@ -1,0 +1,158 @@
+"""Typed results of the job kinds whose results other code reads back (probe_plan,
+probe_run, reconstruct, compensate).
+
+A kind writes its result through its model (:meth:`KindResult.written`: a key the model does
+not know, or a missing required one, fails the job instead of storing a result nobody can
+read) and every reader reads it through the same model (:meth:`KindResult.of`), by
+attribute: a renamed field fails loudly in both places instead of reading as an empty
+default (``.get("points", [])``).  The stored JSON is what the kind wrote (only the keys it
+set are dumped), so the API's results are unchanged.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, TypeVar
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from app.errors import ConformaError
+from app.models import Job
+
+R = TypeVar("R", bound="KindResult")
+
+
+class StoredResultError(ConformaError):
+    """A stored result that does not match its kind's result model (a defect, not bad input)."""
+
+
+class KindResult(BaseModel):
+    """Base of the result models: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: ClassVar[str] = ""
+
+    @classmethod
+    def of(cls: type[R], job: Job) -> R:
+        """The stored result of ``job`` (a job of this model's kind) read through the model."""
+        if job.kind != cls.kind:
+            raise StoredResultError(f"job {job.id!r} is a {job.kind} job, not a {cls.kind} job", field="kind",
+                                    value=job.kind)
+        try:
+            return cls.model_validate(job.result or {})
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise StoredResultError(f"the result of {cls.kind} job {job.id!r} does not match {cls.__name__}: "
+                                    f"{where}: {first['msg']}", field=f"result.{where}", value=job.id) from None
+
+    @classmethod
+    def written(cls, result: dict[str, Any]) -> dict[str, Any]:
+        """``result`` checked against the model; what is stored (the keys given, as given)."""
+        return cls.model_validate(result).model_dump(exclude_unset=True)
+
+
+# probe_plan -------------------------------------------------------------------------------
+class PlannedTrace(BaseModel):
+    """One trace of a part-level plan: its range ``[first, first + count)`` of the points (joint
+    plans), or its ``index`` and ``stations`` (field plans)."""
+
+    model_config = ConfigDict(extra="forbid")
+    trace_id: str
+    trace_length_mm: float
+    predicted_sd_mm: float | None = None
+    first: int | None = None
+    count: int | None = None
+    s_mm: list[float] | None = None
+    index: int | None = None
+    stations: int | None = None
+
+
+class ProbePlanResult(KindResult):
+    kind: ClassVar[str] = "probe_plan"
+    count: int
+    method: str
+    points: list[list[float]]
+    s_mm: list[float | None]
+    records: list[dict[str, Any]]
+    program: dict[str, Any]
+    spacing_mm: float | None = None
+    trace_length_mm: float | None = None
+    placement: dict[str, Any] | None = None
+    point_count: dict[str, Any] | None = None
+    traces: list[PlannedTrace] | None = None
+    field: dict[str, Any] | None = None
+
+    def joint_ranges(self) -> dict[str, tuple[int, int]] | None:
+        """Each trace's range of the points of a joint (not field) plan, else None."""
+        if self.field or self.traces is None:
+            return None
+        return {t.trace_id: (int(t.first or 0), int(t.first or 0) + int(t.count or 0)) for t in self.traces}
+
+
+# probe_run --------------------------------------------------------------------------------
+class ProbedPoint(BaseModel):
+    """One probed station: ``measured`` is the surface point (corrected on a calibrated probe)."""
+
+    model_config = ConfigDict(extra="forbid")
+    index: int
+    nominal: list[float]
+    measured: list[float]
+    deviation_mm: float
+    reading: list[float] | None = None
+    t_s: float | None = None
+    normal: list[float] | None = None
+    drift_mm: float | None = None
+    correction_mm: float | None = None
+
+
+class ProbeRunResult(KindResult):
+    kind: ClassVar[str] = "probe_run"
+    points: list[ProbedPoint]
+    resumes: int
+    stats: dict[str, Any]
+    calibration: dict[str, Any] | None = None
+
+    def rows(self) -> list[dict[str, Any]]:
+        """The points as stored (dicts), for the probe corrections."""
+        return [p.model_dump(exclude_unset=True) for p in self.points]
+
+
+# reconstruct ------------------------------------------------------------------------------
+class DeviationSummary(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    max_mm: float
+    rms_mm: float
+    samples: list[list[float]]
+
+
+class ReconstructResult(KindResult):
+    kind: ClassVar[str] = "reconstruct"
+    method: str
+    curve: dict[str, Any]
+    deviation: DeviationSummary
+    points_used: int
+    outliers: list[int]
+    merged_duplicates: int
+    normal_iteration: dict[str, Any] | None = None
+
+
+# compensate -------------------------------------------------------------------------------
+class CompensateResult(KindResult):
+    kind: ClassVar[str] = "compensate"
+    dispense_on: str
+    dispense_off: str
+    segments: int
+    length_mm: float
+    max_chord_error_mm: float
+    standoff_mm: float
+    method: str
+    span_mm: list[float]
+    trace_extent_mm: list[float]
+    extension_mm: list[float]
+    nominal_segments: int
+    slope: dict[str, Any] | None
+    points: list[list[float]]
+    tool: dict[str, Any]
+    warnings: list[str]
+    clearance: dict[str, Any] | None = None
+    placement: dict[str, Any] | None = None

@@ -1,0 +1,93 @@
+"""A reconstruction stored as arrays (an NPZ) and read back exactly.
+
+``compensate`` reads the reconstruction a ``reconstruct`` job stored instead of building it
+again: :func:`reconstruction_npz` writes everything a :class:`Reconstruction` holds except
+its nominal (the trace's polyline, which the reader supplies), :func:`read_reconstruction`
+gives the same reconstruction back: same curve, samples and cleaned points, and a height
+along the trace that is bit for bit the one the job computed
+(:mod:`app.reconstruction.heights`).
+
+Pure: numpy.  Units: mm.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from typing import Any
+
+import numpy as np
+
+from app.geometry.nurbs import NurbsCurve
+from app.probing.nominal import NominalPath
+from app.reconstruction.heights import height_model
+from app.reconstruction.preprocess import CleanPoints, ReconstructionError
+from app.reconstruction.reconstruct import Reconstruction
+
+FORMAT = 1
+STORED = "reconstruction.npz"  # the artifact name a reconstruct job stores it under
+_HEIGHT = "height."
+
+
+def reconstruction_arrays(rec: Reconstruction) -> dict[str, np.ndarray]:
+    """Every number of ``rec`` but its nominal, as named arrays."""
+    curve = rec.curve
+    out = {
+        "format": np.asarray(FORMAT), "method": np.asarray(rec.method), "height_kind": np.asarray(rec.height_model.kind),
+        "curve_degree": np.asarray(curve.degree), "curve_knots": curve.knots, "curve_control_points": curve.control_points,
+        "curve_weights": curve.w, "samples": np.asarray(rec.samples, dtype=float).reshape(-1, 2),
+        "max_mm": np.asarray(rec.max_mm), "rms_mm": np.asarray(rec.rms_mm), "span_mm": np.asarray(rec.span_mm),
+        "clean_points": np.asarray(rec.clean.points, dtype=float).reshape(-1, 3), "clean_s": rec.clean.s,
+        "clean_dz": rec.clean.dz, "clean_outliers": np.asarray(rec.clean.outliers, dtype=np.int64),
+        "clean_merged": np.asarray(rec.clean.merged), "refinement": np.asarray(json.dumps(rec.refinement)),
+        "nominal_length_mm": np.asarray(rec.nominal.length_mm),
+    }
+    out.update({_HEIGHT + k: np.asarray(v) for k, v in rec.height_model.arrays().items()})
+    return out
+
+
+def reconstruction_from_arrays(arrays: dict[str, np.ndarray], nominal: NominalPath) -> Reconstruction:
+    """The reconstruction ``arrays`` hold, over ``nominal`` (the trace's polyline in the same
+    frame).  ReconstructionError (422, field ``reconstruction``) when the arrays are of another
+    format or the nominal is not the one the reconstruction was made on."""
+    try:
+        if int(arrays["format"]) != FORMAT:
+            raise ReconstructionError(f"stored reconstruction format {int(arrays['format'])}, expected {FORMAT}",
+                                      field="reconstruction", value=int(arrays["format"]))
+        length = float(arrays["nominal_length_mm"])
+        if not np.isclose(length, nominal.length_mm, rtol=0.0, atol=1e-9):
+            raise ReconstructionError(f"the stored reconstruction was made on a {length:.6f} mm nominal, not on "
+                                      f"this {nominal.length_mm:.6f} mm one", field="reconstruction", value=length)
+        curve = NurbsCurve(int(arrays["curve_degree"]), arrays["curve_knots"], arrays["curve_control_points"],
+                           arrays["curve_weights"])
+        height = height_model(str(arrays["height_kind"]), nominal,
+                              {k[len(_HEIGHT):]: v for k, v in arrays.items() if k.startswith(_HEIGHT)}, curve)
+        clean = CleanPoints(arrays["clean_points"], arrays["clean_s"], arrays["clean_dz"],
+                            tuple(int(i) for i in arrays["clean_outliers"]), int(arrays["clean_merged"]))
+        refinement: Any = json.loads(str(arrays["refinement"]))
+        s0, s1 = (float(v) for v in arrays["span_mm"])
+        return Reconstruction(method=str(arrays["method"]), curve=curve, clean=clean, samples=arrays["samples"],
+                              max_mm=float(arrays["max_mm"]), rms_mm=float(arrays["rms_mm"]), nominal=nominal,
+                              _height_s=height, span_mm=(s0, s1), refinement=refinement)
+    except KeyError as exc:
+        raise ReconstructionError(f"the stored reconstruction lacks {exc}", field="reconstruction",
+                                  value=str(exc)) from None
+
+
+def reconstruction_npz(rec: Reconstruction) -> bytes:
+    """``rec`` as NPZ bytes (no pickles)."""
+    out = io.BytesIO()
+    np.savez_compressed(out, **reconstruction_arrays(rec))  # type: ignore[arg-type]
+    return out.getvalue()
+
+
+def read_reconstruction(data: bytes, nominal: NominalPath) -> Reconstruction:
+    """Inverse of :func:`reconstruction_npz` over ``nominal``."""
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+            arrays = {name: archive[name] for name in archive.files}
+    except (ValueError, OSError, zipfile.BadZipFile) as exc:
+        raise ReconstructionError(f"the stored reconstruction is not a readable NPZ ({exc})",
+                                  field="reconstruction", value=len(data)) from None
+    return reconstruction_from_arrays(arrays, nominal)

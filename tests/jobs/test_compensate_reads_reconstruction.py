@@ -1,0 +1,62 @@
+"""``compensate`` reads the reconstruction its ``reconstruct`` job stored instead of building it
+again, and writes the very program the old way (rebuilding the reconstruction from the
+reconstruct job's parameters) wrote: compared byte for byte with that rebuild here."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+import trimesh
+
+from app.compensation.standoff import CompensationParams, compensate_trace
+from app.probing import PlanParams, as_nominal_path
+from app.reconstruction import ReconstructParams, reconstruct
+from app.reference.s1 import as_made, s1_mesh, s1_traces
+from tests.conftest import auth
+from tests.jobs.test_jobs_api import wait_for
+
+OP = auth("operator")
+
+
+@pytest.fixture(scope="module")
+def s1_stl() -> bytes:
+    return s1_mesh(grid_mm=0.5).export(file_type="stl")
+
+
+def _submit(client, kind: str, params: dict) -> dict:
+    answer = client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
+    assert answer.status_code in (200, 201, 202), answer.text
+    return wait_for(client, answer.json()["id"], timeout=120.0)
+
+
+@pytest.mark.parametrize("method", ["interpolate", "deviation", "kriging"])
+def test_the_program_from_the_stored_reconstruction_is_the_rebuilt_ones(client, s1_stl, method):
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_stl)}, headers=OP).json()
+    trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[6].to_api(), headers=OP).json()
+    plan = _submit(client, "probe_plan", {"trace_id": trace["id"], "method": "deviation"})
+    xy = np.array(plan["result"]["points"])[:, :2]
+    measured = np.column_stack([xy, as_made(seed=3, amplitude_mm=0.15).true_height(xy)])
+    rec = _submit(client, "reconstruct", {"trace_id": trace["id"], "points": measured.tolist(), "method": method,
+                                          "sigma_mm": 0.001})
+    assert rec["status"] == "succeeded", rec["error"]
+    assert "reconstruction.npz" in [a["name"] for a in rec["artifacts"]]
+    job = _submit(client, "compensate", {"trace_id": trace["id"], "reconstruct_job_id": rec["id"]})
+    assert job["status"] == "succeeded", job["error"]
+    url = next(a["url"] for a in job["artifacts"] if a["name"] == "print.gcode")
+    stored_program = client.get(url, headers=OP).content
+
+    # the old way: the reconstruction built again from the reconstruct job's parameters
+    nominal = as_nominal_path(np.array(trace["nominal"]["points"]))
+    rebuilt = reconstruct(nominal, measured.tolist(), method, sigma_mm=0.001,
+                          params=ReconstructParams(prior=PlanParams(deviation_amplitude_mm=0.2,
+                                                                    deviation_wavelength_mm=20.0).prior()))
+    assert rebuilt.to_result() == rec["result"]
+    mesh = trimesh.load(io.BytesIO(s1_stl), file_type="stl")
+    path = compensate_trace(rebuilt, CompensationParams(
+        standoff_mm=trace["standoff_mm"], feed_mm_min=trace.get("feed_mm_min") or 300.0, chord_error_mm=0.002,
+        dispense_on="M106", dispense_off="M107", dialect="marlin", clearance_mm=2.0,
+        part_max_z_mm=float(mesh.bounds[1][2]), hold_mm=0.0, tool=None, tool_offset_mm=(0.0, 0.0, 0.0)),
+        job_id=job["id"])
+    assert stored_program == path.program.encode()
