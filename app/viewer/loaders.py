@@ -22,7 +22,7 @@ from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
-from app.jobs.results import ProbePlanResult
+from app.jobs.results import CompensateResult, ProbePlanResult, ProbeRunResult, ReconstructResult
 from app.records import get_or_404, joint_trace_ranges
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.offload import ParsePool
@@ -199,7 +199,8 @@ class Loader:
     def _field_plan(self, session: Session, job: Job, planned: np.ndarray) -> FocusScene:
         """A field plan: the traces, the stations and the field's posterior sd as a colour map
         on the part's top (the sd does not depend on what the probes will read)."""
-        stored = stored_field(job.result["field"])
+        field = ProbePlanResult.of(job).field or {}
+        stored = stored_field(field)
         trace_ids = job.params.get("trace_ids") or [job.params.get("trace_id")]
         lines = []
         for trace_id in trace_ids[:MAX_FIELD_POLYLINES]:
@@ -207,8 +208,8 @@ class Loader:
             if trace is not None:
                 lines.append(Polyline(trace.name, np.asarray(trace.nominal["points"], float)))
         notes = [f"{len(planned)} stations for {len(trace_ids)} traces; field degrees of freedom "
-                 f"{job.result['field']['dof']:.0f}; largest sd on the traces "
-                 f"{job.result['field']['max_sd_mm'] * 1000:.2f} um"]
+                 f"{field['dof']:.0f}; largest sd on the traces "
+                 f"{field['max_sd_mm'] * 1000:.2f} um"]
         if len(trace_ids) > MAX_FIELD_POLYLINES:
             notes.append(f"first {MAX_FIELD_POLYLINES} of {len(trace_ids)} traces drawn")
         part = self._part_of(session, job)
@@ -233,9 +234,9 @@ class Loader:
         return ProbeSet(label, planned=planned, measured=measured, deviation_mm=dz), plot
 
     def _probe_run(self, session: Session, job: Job) -> FocusScene:
-        rows = job.result.get("points", [])
-        nominal = np.asarray([r["nominal"] for r in rows], float).reshape(-1, 3)
-        measured = np.asarray([r["measured"] for r in rows], float).reshape(-1, 3)
+        rows = ProbeRunResult.of(job).points
+        nominal = np.asarray([r.nominal for r in rows], float).reshape(-1, 3)
+        measured = np.asarray([r.measured for r in rows], float).reshape(-1, 3)
         ranges = self._joint_ranges(session, session.get(Job, job.params.get("plan_job_id", "")))
         if ranges is not None:
             return self._joint_scene(ranges, nominal, measured)
@@ -248,18 +249,19 @@ class Loader:
             measured = np.asarray(job.params["points"], float).reshape(-1, 3)
         else:
             run = session.get(Job, job.params.get("probe_run_job_id"))
-            rows = (run.result or {}).get("points", []) if run else []
+            rows = ProbeRunResult.of(run).points if run else []
             plan = session.get(Job, run.params.get("plan_job_id", "")) if run else None
             own = (joint_trace_ranges(plan) or {}).get(job.params.get("trace_id")) if plan else None
             if own:  # a joint run: only this trace's own probes (the others are context)
-                rows = [row for row in rows if own[0] <= row["index"] < own[1]]
-            measured = np.asarray([r["measured"] for r in rows], float).reshape(-1, 3)
+                rows = [row for row in rows if own[0] <= row.index < own[1]]
+            measured = np.asarray([r.measured for r in rows], float).reshape(-1, 3)
         probes, _ = self._measured_probes(trace, measured, "measured")
-        curve = NurbsCurve.from_dict(job.result["curve"])
+        result = ReconstructResult.of(job)
+        curve = NurbsCurve.from_dict(result.curve)
         lo, hi = curve.domain
         rebuilt = Polyline(f"{trace.name if trace else 'trace'} reconstructed",
                            curve.evaluate(np.linspace(lo, hi, CURVE_SAMPLES)), role="reconstructed")
-        samples = np.asarray(job.result.get("deviation", {}).get("samples", []), float).reshape(-1, 2)
+        samples = np.asarray(result.deviation.samples, float).reshape(-1, 2)
         name = trace.name if trace else job.id
         plot = DeviationPlot(name, f"{name}: reconstructed - nominal", samples[:, 0], samples[:, 1])
         return self._with_trace(session, job, polylines=(rebuilt,), probes=(probes,), plots=(plot,),
@@ -275,18 +277,18 @@ class Loader:
         """Both programs, each dispensed move coloured by its standoff error over the rebuilt
         surface (the nominal program's is minus the deviation), and the deviation ribbon."""
         paths = self._gcode(session, job, "nominal.gcode", "nominal") + self._gcode(session, job, "print.gcode", "compensated")
-        offset = np.asarray(((job.result or {}).get("tool") or {}).get("offset_mm") or (0.0, 0.0, 0.0), float)
+        result = CompensateResult.of(job)
+        offset = np.asarray(result.tool.get("offset_mm") or (0.0, 0.0, 0.0), float)
         if offset.any():  # a nozzle's programs are carriage positions: draw its tip (carriage + offset)
             paths = tuple(replace(p, segments=replace(p.segments, starts=p.segments.starts + offset,
                                                       ends=p.segments.ends + offset)) for p in paths)
         trace = self._trace_of(session, job)
         rebuilt = session.get(Job, job.params.get("reconstruct_job_id") or "")
-        samples = np.asarray(((rebuilt.result or {}) if rebuilt else {}).get("deviation", {}).get("samples", []),
-                             float).reshape(-1, 2)
+        samples = np.asarray(ReconstructResult.of(rebuilt).deviation.samples if rebuilt else [], float).reshape(-1, 2)
         if trace is None or len(samples) < 2:
             return self._with_trace(session, job, toolpaths=paths)
         nominal = np.asarray(trace.nominal["points"], float)
-        standoff = float((job.result or {}).get("standoff_mm", trace.standoff_mm))
+        standoff = float(result.standoff_mm)
         colored = tuple(replace(p, standoff_error_mm=standoff_errors(
             p.segments.starts, p.segments.ends, p.segments.dispense, nominal, samples[:, 0], samples[:, 1], standoff))
             if len(p.segments.starts) <= MAX_COLORED_MOVES else p for p in paths)
