@@ -35,7 +35,7 @@ def reversed_curve(curve: NurbsCurve) -> NurbsCurve:
     """The same curve traversed the other way (knots mirrored in the domain)."""
     a, b = curve.domain
     knots = (a + b) - curve.knots[::-1]
-    return NurbsCurve(curve.degree, knots, curve.control_points[::-1], curve.weights[::-1])
+    return NurbsCurve(curve.degree, knots, curve.control_points[::-1], curve.w[::-1])
 
 
 def arc_ccw(center, radius: float, start_rad: float, sweep_rad: float) -> NurbsCurve:
@@ -124,14 +124,14 @@ def concatenated(curves: list[NurbsCurve]) -> NurbsCurve:
     p = curves[0].degree
     knots = [curves[0].knots[: -1].tolist()]
     pts = [curves[0].control_points]
-    wts = [curves[0].weights]
+    wts = [curves[0].w]
     offset = curves[0].domain[1]
     for c in curves[1:]:
         a, b = c.domain
         t = c.knots - a + offset
         knots.append(t[p + 1: -1].tolist())
         pts.append(c.control_points[1:])
-        wts.append(c.weights[1:])
+        wts.append(c.w[1:])
         offset = offset + (b - a)
     allk = np.concatenate([np.asarray(k, float) for k in knots] + [[offset]])
     return NurbsCurve(p, allk, np.vstack(pts), np.concatenate(wts))

@@ -142,8 +142,12 @@ def scan_lines(text: str, arc_chord_mm: float = 0.001) -> Records:
     parsed = read_lines(text)
 
     def add(kind: int, number: int, start: list, end: list) -> None:
-        kinds.append(kind), where.append(number - 1), starts.append(start), ends.append(end)
-        feeds.append(feed), eabs.append(e_abs)
+        kinds.append(kind)
+        where.append(number - 1)
+        starts.append(start)
+        ends.append(end)
+        feeds.append(feed)
+        eabs.append(e_abs)
 
     for ln in parsed:
         g, values = ln.g, ln.values

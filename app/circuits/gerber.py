@@ -96,7 +96,8 @@ def _signed_sweep(p0, p1, center, clockwise: bool) -> float:
 
 
 def _flash_pad(obj, source: Source, k: int) -> Pad:
-    dark, clear = [], []
+    dark: list = []
+    clear: list = []
     for prim in obj.to_primitives(unit=MM):
         (dark if getattr(prim, "polarity_dark", True) else clear).append(_primitive_geometry(prim))
     shape = unary_union(dark)

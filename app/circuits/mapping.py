@@ -150,7 +150,8 @@ def map_layout(layout: Layout, placement: Placement, mesh: trimesh.Trimesh,
         top = top_surface_z(mesh, points)
         return np.column_stack([points, np.where(top.hit, top.z, np.nan)])
 
-    traces, warnings = [], []
+    traces: list[MappedTrace] = []
+    warnings: list[dict] = []
     for i, t in enumerate(placed.traces):
         samples = _layout_samples(t, opts)
         surface = to_surface(samples)

@@ -48,6 +48,7 @@ def _elliptic_arc(seg: Arc) -> NurbsCurve:
         err = np.linalg.norm(c + frame @ [np.cos(tm), np.sin(tm)] - [mid.x, mid.y])
         if best is None or err < best[0]:
             best = (err, sweep)
+    assert best is not None  # two sweeps tried
     return transformed(arc_ccw(np.zeros(2), 1.0, t0, best[1]), frame, c)
 
 

@@ -174,12 +174,12 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
         f = feed[i]
         out[s + p_moved[j]] = esc(f"G1 Z{_fmt(z_start[j], d)}" + (f" F{_fmt(f, 1)}" if f == f and f else ""))
     travel = moving[~is_print]
-    for j, i in enumerate(travel):
+    for t, i in enumerate(travel):
         s = slot[i]
-        if t_lift[j]:
+        if t_lift[t]:
             out[s] = esc(f"G0 Z{_fmt(safe_z, d)}")
         e_word = f" E{_fmt(end[i, 3], 5)}" if end[i, 3] != start[i, 3] and recs.e_abs[i] else ""
-        out[s + t_lift[j]] = esc(f"G0 X{_fmt(end[i, 0], d)} Y{_fmt(end[i, 1], d)}" + e_word)
+        out[s + t_lift[t]] = esc(f"G0 X{_fmt(end[i, 0], d)} Y{_fmt(end[i, 1], d)}" + e_word)
     for i in np.flatnonzero((kind != PRINT) & (kind != TRAVEL)):
         line = recs.lines[recs.line[i]]
         if kind[i] in (ZONLY, MODE):

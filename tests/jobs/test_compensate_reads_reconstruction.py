@@ -5,6 +5,7 @@ reconstruct job's parameters) wrote: compared byte for byte with that rebuild he
 from __future__ import annotations
 
 import io
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -48,7 +49,9 @@ def test_the_program_from_the_stored_reconstruction_is_the_rebuilt_ones(client, 
     stored_program = client.get(url, headers=OP).content
 
     # the old way: the reconstruction built again from the reconstruct job's parameters
-    nominal = as_nominal_path(np.array(trace["nominal"]["points"]))
+    normals = trace["nominal"].get("normals")
+    nominal = as_nominal_path(SimpleNamespace(points=np.array(trace["nominal"]["points"]),
+                                              normals=None if normals is None else np.array(normals)))
     rebuilt = reconstruct(nominal, measured.tolist(), method, sigma_mm=0.001,
                           params=ReconstructParams(prior=PlanParams(deviation_amplitude_mm=0.2,
                                                                     deviation_wavelength_mm=20.0).prior()))
