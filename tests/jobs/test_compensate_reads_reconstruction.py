@@ -63,3 +63,27 @@ def test_the_program_from_the_stored_reconstruction_is_the_rebuilt_ones(client, 
         part_max_z_mm=float(mesh.bounds[1][2]), hold_mm=0.0, tool=None, tool_offset_mm=(0.0, 0.0, 0.0)),
         job_id=job["id"])
     assert stored_program == path.program.encode()
+
+
+def test_a_reconstruct_job_without_its_stored_reconstruction_is_refused(client, s1_stl):
+    """A reconstruct job from before reconstructions were stored has no reconstruction.npz:
+    compensate is a 422 naming params.reconstruct_job_id, not a rebuild behind the user's back."""
+    from sqlmodel import Session, select
+
+    from app.models import Artifact
+
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_stl)}, headers=OP).json()
+    trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[6].to_api(), headers=OP).json()
+    nominal = np.array(trace["nominal"]["points"])
+    points = nominal[np.linspace(0, len(nominal) - 1, 8).astype(int)] + [0.0, 0.0, 0.01]
+    rec = _submit(client, "reconstruct", {"trace_id": trace["id"], "points": points.tolist(), "method": "deviation"})
+    assert rec["status"] == "succeeded", rec["error"]
+    with Session(client.app.state.runtime.engine) as session:
+        session.delete(session.exec(select(Artifact).where(Artifact.job_id == rec["id"],
+                                                           Artifact.name == "reconstruction.npz")).one())
+        session.commit()
+    answer = client.post("/api/v1/jobs", json={"kind": "compensate", "params": {
+        "trace_id": trace["id"], "reconstruct_job_id": rec["id"]}}, headers=OP)
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["errors"][0]["loc"] == ["params", "reconstruct_job_id"]
+    assert "no stored reconstruction" in answer.json()["detail"]
