@@ -174,7 +174,12 @@ def test_compensation_toolpaths_and_unfinished_jobs(vclient, part_and_trace):
     part, _ = part_and_trace
     nominal = "G21\nG90\nG0 X0 Y0 Z5\nM106\nG1 X10 Z1\nG1 X20\nM107\nG0 Z5\n"
     printed = "G21\nG90\nG0 X0 Y0 Z5\nM106\nG1 X10 Z1.1\nG1 X20 Z1.05\nM107\nG0 Z5\n"
-    job_id = stored_job(vclient, "compensate", part["id"], {}, {"dispense_on": "M106", "dispense_off": "M107"},
+    result = {"dispense_on": "M106", "dispense_off": "M107", "segments": 2, "length_mm": 20.0,
+              "max_chord_error_mm": 0.0, "standoff_mm": 0.1, "method": "deviation", "span_mm": [0.0, 20.0],
+              "trace_extent_mm": [0.0, 20.0], "extension_mm": [0.0, 0.0], "nominal_segments": 2, "slope": None,
+              "points": [[0.0, 0.0, 1.0], [10.0, 0.0, 1.1], [20.0, 0.0, 1.05]], "tool": {"tool": None},
+              "warnings": []}  # a whole compensate result (the viewer reads it through CompensateResult)
+    job_id = stored_job(vclient, "compensate", part["id"], {}, result,
                         {"nominal.gcode": nominal.encode(), "print.gcode": printed.encode()})
     nodes = focus(vclient, job_id=job_id)["nodes"]
     assert nodes["/focus/toolpaths/nominal/dispense"]["role"] == "nominal"
