@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from scipy import integrate, stats
 
 from app.calibration import fit_qualification, plan_qualification
@@ -43,6 +44,7 @@ LIMIT_UM = 2.0
 Q_UM = 1.0 / math.sqrt(12.0)
 S_PROBE_UM = math.sqrt(2.0 ** 2 + 1.0 ** 2 + Q_UM ** 2)
 S_NOZZLE_UM = math.sqrt(1.0 ** 2 + Q_UM ** 2)
+pytestmark = pytest.mark.timeout(3600)     # 20 calibration pairs: minutes each under load
 NAMES = ("radius", "pre-travel p0", "T1 offset x", "T1 offset y", "T1 offset z")
 
 

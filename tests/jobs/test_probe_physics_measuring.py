@@ -106,11 +106,13 @@ def machine(client, true_part_id: str, *, calibrated: bool = True,
     return row.json()
 
 
-def calibrate(client, machine_id: str, ball_mm: float = BALL_MM, pretravel_mm: float = PRETRAVEL_MM) -> str:
-    """A succeeded calibrate_probe job with a known result (the pad read by the undrifted probe)."""
+def calibrate(client, machine_id: str, ball_mm: float = BALL_MM, pretravel_mm: float = PRETRAVEL_MM,
+              scatter_mm: float = 0.001) -> str:
+    """A succeeded calibrate_probe job with a known result (the pad read by the undrifted probe;
+    ``scatter_mm``: the qualification's residual rms, a touch's measured scatter)."""
     cal = ProbeCalibration(ball_radius_mm=ball_mm, pretravel=PretravelModel(pretravel_mm),
                            sphere_centre_mm=(0.0, 0.0, 0.0), pad_reading_z_mm=PAD[2] + ball_mm - pretravel_mm,
-                           std={"ball_radius_mm": 0.0005}, residual_rms_mm=0.001, touches=40)
+                           std={"ball_radius_mm": 0.0005}, residual_rms_mm=scatter_mm, touches=40)
     with Session(client.app.state.runtime.engine) as session:
         job = Job(id=new_id("job"), kind="calibrate_probe", status="succeeded", progress=1.0,
                   params={"machine_id": machine_id}, result=cal.to_dict(), machine_id=machine_id,
@@ -366,3 +368,25 @@ def test_an_interrupted_calibrated_run_resumes_with_its_drift_track(client, mesh
     track = result["calibration"]["drift"]
     assert len(track["times_s"]) > before and track["times_s"][:before] == state["drift"]["times_s"]
     assert np.abs(errors(result)).max() < 0.004
+
+
+def test_reconstruct_takes_its_probe_noise_from_the_calibration(client, meshes, trace7, plan7):
+    """sigma_mm left out: a run on a calibrated machine is reconstructed with the calibration's measured
+    scatter (stated in the result), exactly as with that sigma given; an uncalibrated run keeps the
+    method's default."""
+    sim = machine(client, meshes["true"]["id"], calibrated=False)
+    cal_id = calibrate(client, sim["id"], scatter_mm=0.004)
+    probe_run = run(client, plan7["id"], sim["id"])
+    base = {"trace_id": trace7["id"], "probe_run_job_id": probe_run["id"], "method": "deviation"}
+    default = submit(client, "reconstruct", base)["result"]
+    assert default["sigma"] == {"sigma_mm": 0.004, "source": "calibration: the probe qualification's residual rms",
+                                "probe_job_id": cal_id}
+    given = submit(client, "reconstruct", {**base, "sigma_mm": 0.004})["result"]
+    assert given["sigma"] == {"sigma_mm": 0.004, "source": "params"}
+    assert default["deviation"]["samples"] == given["deviation"]["samples"]
+    other = submit(client, "reconstruct", {**base, "sigma_mm": 0.0005})["result"]
+    assert other["deviation"]["samples"] != default["deviation"]["samples"]   # the noise level matters here
+    bare = machine(client, meshes["true"]["id"], calibrated=False)
+    uncalibrated = submit(client, "reconstruct", {**base, "probe_run_job_id": run(client, plan7["id"], bare["id"])["id"]})
+    assert uncalibrated["result"]["sigma"]["sigma_mm"] is None
+    assert uncalibrated["result"]["sigma"]["source"].startswith("default")
