@@ -6,15 +6,23 @@ closes a contact when its metal body touches a conductive reference artifact (th
 sphere), with no pre-travel (touch-off scatter only).  The nozzle body is a vertical
 flat-ended cylinder of outer diameter D with its tip at the bottom.
 
-Z, on the reference pad (``pad_touches`` spots 0.5 mm apart around the pad centre):
+Z, on the reference pad (``pad_touches`` spots on a 2-D grid 0.5 mm apart around the pad centre,
+``pad_grid``; the pad is a flat square, e.g. 20 mm):
   1. the probe (T0) touches each spot vertically: the pad surface in the probe frame is
      ``pad_z = mean(z_read) + delta(+Z) - r`` (the calibrated pre-travel and radius);
   2. the nozzle touches the SAME spots (carriage placed with the nominal offset so that its
      tip is over the spot), flat end down: at contact tip_z = pad_z, so
      ``o_z = pad_z - mean(carriage z at contact)``.
-  Touching the same spots cancels pad flatness; the probe and nozzle touches alternate in an
-  A B B A order (probe, nozzle, nozzle, probe, ...), so a linear Z drift cancels between
-  their means (exactly for an even number of spots, to a third of a touch for three).
+  Touching the same spots cancels pad flatness; the touches run in four blocks, the probe on
+  the first half of the spots, the nozzle on the first half, the nozzle on the second half,
+  the probe on the second half (P N N P: three tool changes), so the probe's and the nozzle's
+  touches have the same mean time and a linear Z drift cancels between their means whatever
+  each tool's touch takes.  Within a block the next spot is reached by a hop at the start
+  height (``Touch.local``).
+  Uncertainty: o_z's variance is var(p0 - r) (the qualification) + s_p^2 / N + s_n^2 / N for N
+  spots, s_p and s_n a probe and a nozzle touch's scatter: with the mock's 2 um pre-travel
+  scatter, 1 um noise and 1 um reports (s_p 2.26 um, s_n 1.04 um) and the default qualification
+  (sd(p0 - r) ~0.17 um), N = 144 gives 0.27 um (24 spots gave 0.6 um).
 
 XY, on the reference sphere (centre c known in the probe frame from the qualification):
   3. the nozzle, tip ~0.3 R below the sphere's centre height (so its cylindrical side meets
@@ -24,6 +32,11 @@ XY, on the reference sphere (centre c known in the probe frame from the qualific
      ``c_x +- sqrt((R + D/2)^2 - e_y^2)`` (e_y = the y error of the aim), so the midpoint
      of the two carriage readings is c_x - o_x whatever R, D and e_y are:
      ``o_x = c_x - (mean(x_+) + mean(x_-)) / 2`` and likewise o_y.
+  With ``side_touches`` = n per side the touch term is s_n / 2 * sqrt(2 / n): 0.21 um for n = 12,
+  in quadrature with the sphere centre's ~0.1 um.
+The calibration job runs this plan twice: once with one spot and one touch per side at the
+full ``clearance_mm`` (the nominal offset is known to +-0.2 mm), then the full plan from the
+located offset and pad height with a short approach (0.3 mm).
 Standard deviations: the spread of the repeated touches (pooled per group) propagated to the
 means, in quadrature with the probe calibration's uncertainty (sphere centre for XY; for Z
 the std of p0 - r from the qualification's covariance).

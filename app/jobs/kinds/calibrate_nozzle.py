@@ -6,6 +6,9 @@ calibrated pre-travel - ball radius) minus the nozzle's pad reading.  XY: the no
 side touches the reference sphere from opposite directions; the sphere centre known in the
 probe frame (from the current probe calibration) minus the midpoint of those readings
 (:func:`app.calibration.plan_nozzle_calibration`, :func:`app.calibration.fit_nozzle_offset`).
+Two stages: "locate" (one pad spot, one side touch each way, the full approach for the
+nominal offset's doubt) gives a rough offset and pad height; "offset" (the full 2-D pad grid
+and the side touches) then starts every touch ``LOCATED_CLEARANCE_MM`` from its contact.
 Needs a current probe calibration (422 "calibrate the probe first"), the tool in the
 profile's nozzles and the reference pad and sphere.  The result is the
 :class:`NozzleCalibration` dict plus ``nominal_difference_mm`` (calibrated - nominal),
