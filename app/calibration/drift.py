@@ -15,8 +15,9 @@ by the move (between target_z and safe_z): the estimate assumes the part is wher
 (a 0.1 mm miss shifts a touch by 0.1 mm / probe feed, 0.06 s at 100 mm/min).
 
 ``plan_times`` replays a calibration run instead (planned ``Touch`` moves in any direction,
-executed as the calibration jobs do: up to the travel height, across, down to the start,
-probe toward the target until the trigger, back to the start) from the readings it produced,
+executed as the calibration jobs do: up to the travel height -- or a short hop for a
+``local`` touch --, across, down to the start, probe toward the target until the trigger,
+back to the start) from the readings it produced,
 so its times are exact for the mock's clock; they feed ``fit_qualification(times_s=...)``.
 """
 
@@ -28,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from app.calibration.errors import CalibrationError
+from app.calibration.model import hops
 
 __all__ = ["touch_times", "plan_times", "DriftTrack", "drift_offsets", "retouch_schedule"]
 
@@ -82,9 +84,12 @@ def plan_times(touches: Any, readings: Any, *, travel_z: float, travel_feed: flo
                start_mm: Any) -> np.ndarray:
     """Machine seconds (n,) from ``start_mm`` (3,) to each planned touch's trigger.
 
-    touches: ``Touch`` (n); readings (n, 3) mm, the carriage at each trigger.  Per touch:
-    Z to ``travel_z``, XY to the start, Z down to the start (travel feed), probe from the start
-    to the reading (probe feed), back to the start (travel feed).  Feeds in mm/min.
+    touches: ``Touch`` (n); readings (n, 3) mm, the carriage at each trigger.  Per touch, from
+    the previous touch's start (``start_mm`` for the first): Z to ``travel_z``, XY to the start,
+    Z down to the start (travel feed), probe from the start to the reading (probe feed), back
+    to the start (travel feed).  A ``local`` touch right after one of its kind hops instead:
+    Z to max(here, start), XY, Z to the start (``Touch.local``, as
+    ``app.jobs.calibration_touch`` runs it).  Feeds in mm/min.
     """
     touches = list(touches)
     p = _array(readings, "readings", (3,))
@@ -103,11 +108,12 @@ def plan_times(touches: Any, readings: Any, *, travel_z: float, travel_feed: flo
     x, y, z = here
     for i, touch in enumerate(touches):
         sx, sy, sz = touch.start_mm
-        t += (abs(travel_z - z) + float(np.hypot(sx - x, sy - y)) + abs(travel_z - sz)) / travel
+        hop = max(z, sz) if hops(touches[i - 1] if i else None, touch) else travel_z
+        t += (abs(hop - z) + float(np.hypot(sx - x, sy - y)) + abs(hop - sz)) / travel
         run = float(np.linalg.norm(p[i] - touch.start_mm))
         t += run / probe
         out[i] = t
-        t += run / travel
+        t += run / travel                     # back to the start
         x, y, z = sx, sy, sz
     return out
 

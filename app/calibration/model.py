@@ -22,7 +22,7 @@ import numpy as np
 
 from app.calibration.errors import CalibrationError
 
-__all__ = ["PretravelModel", "ProbeCalibration", "NozzleCalibration", "Touch", "TOUCH_KINDS", "as_normals"]
+__all__ = ["PretravelModel", "ProbeCalibration", "NozzleCalibration", "Touch", "TOUCH_KINDS", "as_normals", "hops"]
 
 TOUCH_KINDS = ("cap", "equator", "pad", "nozzle_pad", "nozzle_side")
 
@@ -183,12 +183,18 @@ class Touch:
     kind: "cap" / "equator" (probe on the sphere), "pad" (probe on the pad), "nozzle_pad"
     (nozzle flat end on the pad), "nozzle_side" (nozzle body side against the sphere).
     The caller reaches ``start_mm`` safely (up to a clearance height, across, down) and probes
-    toward ``target_mm``; the reading is the carriage position at trigger.
+    toward ``target_mm``; the reading is the carriage position at trigger.  ``local``: the
+    planner vouches that, straight after the previous touch of the same tool and kind, the
+    start is reached safely by a short hop near the artifact: up (or down) to
+    ``max(trigger z, start z)``, straight across, then to the start -- no trip to the
+    clearance height (pad spots at one height, neighbouring equator touches, a repeated
+    side touch).
     """
 
     start_mm: tuple[float, float, float]
     target_mm: tuple[float, float, float]
     kind: str
+    local: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in TOUCH_KINDS:
@@ -207,9 +213,17 @@ class Touch:
         return d / np.linalg.norm(d)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"start_mm": list(self.start_mm), "target_mm": list(self.target_mm), "kind": self.kind}
+        return {"start_mm": list(self.start_mm), "target_mm": list(self.target_mm), "kind": self.kind,
+                **({"local": True} if self.local else {})}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Touch:
         return cls(start_mm=_get(d, "start_mm", "touch"), target_mm=_get(d, "target_mm", "touch"),
-                   kind=str(_get(d, "kind", "touch")))
+                   kind=str(_get(d, "kind", "touch")), local=bool(d.get("local", False)))
+
+
+def hops(previous: Touch | None, touch: Touch) -> bool:
+    """Whether ``touch`` is reached by a local hop after ``previous`` (None: the first touch of
+    a run, or the first after a resume): it is ``local`` and follows a touch of its kind (the
+    same tool)."""
+    return previous is not None and touch.local and previous.kind == touch.kind

@@ -6,15 +6,23 @@ closes a contact when its metal body touches a conductive reference artifact (th
 sphere), with no pre-travel (touch-off scatter only).  The nozzle body is a vertical
 flat-ended cylinder of outer diameter D with its tip at the bottom.
 
-Z, on the reference pad (``pad_touches`` spots 0.5 mm apart around the pad centre):
+Z, on the reference pad (``pad_touches`` spots on a 2-D grid 0.5 mm apart around the pad centre,
+``pad_grid``; the pad is a flat square, e.g. 20 mm):
   1. the probe (T0) touches each spot vertically: the pad surface in the probe frame is
      ``pad_z = mean(z_read) + delta(+Z) - r`` (the calibrated pre-travel and radius);
   2. the nozzle touches the SAME spots (carriage placed with the nominal offset so that its
      tip is over the spot), flat end down: at contact tip_z = pad_z, so
      ``o_z = pad_z - mean(carriage z at contact)``.
-  Touching the same spots cancels pad flatness; the probe and nozzle touches alternate in an
-  A B B A order (probe, nozzle, nozzle, probe, ...), so a linear Z drift cancels between
-  their means (exactly for an even number of spots, to a third of a touch for three).
+  Touching the same spots cancels pad flatness; the touches run in four blocks, the probe on
+  the first half of the spots, the nozzle on the first half, the nozzle on the second half,
+  the probe on the second half (P N N P: three tool changes), so the probe's and the nozzle's
+  touches have the same mean time and a linear Z drift cancels between their means whatever
+  each tool's touch takes.  Within a block the next spot is reached by a hop at the start
+  height (``Touch.local``).
+  Uncertainty: o_z's variance is var(p0 - r) (the qualification) + s_p^2 / N + s_n^2 / N for N
+  spots, s_p and s_n a probe and a nozzle touch's scatter: with the mock's 2 um pre-travel
+  scatter, 1 um noise and 1 um reports (s_p 2.26 um, s_n 1.04 um) and the default qualification
+  (sd(p0 - r) ~0.17 um), N = 144 gives 0.27 um (24 spots gave 0.6 um).
 
 XY, on the reference sphere (centre c known in the probe frame from the qualification):
   3. the nozzle, tip ~0.3 R below the sphere's centre height (so its cylindrical side meets
@@ -24,6 +32,11 @@ XY, on the reference sphere (centre c known in the probe frame from the qualific
      ``c_x +- sqrt((R + D/2)^2 - e_y^2)`` (e_y = the y error of the aim), so the midpoint
      of the two carriage readings is c_x - o_x whatever R, D and e_y are:
      ``o_x = c_x - (mean(x_+) + mean(x_-)) / 2`` and likewise o_y.
+  With ``side_touches`` = n per side the touch term is s_n / 2 * sqrt(2 / n): 0.21 um for n = 12,
+  in quadrature with the sphere centre's ~0.1 um.
+The calibration job runs this plan twice: once with one spot and one touch per side at the
+full ``clearance_mm`` (the nominal offset is known to +-0.2 mm), then the full plan from the
+located offset and pad height with a short approach (0.3 mm).
 Standard deviations: the spread of the repeated touches (pooled per group) propagated to the
 means, in quadrature with the probe calibration's uncertainty (sphere centre for XY; for Z
 the std of p0 - r from the qualification's covariance).
@@ -40,7 +53,7 @@ from app.calibration.errors import CalibrationError
 from app.calibration.model import NozzleCalibration, ProbeCalibration, Touch, _vec3
 from app.calibration.qualify import PAD_SPACING_MM, check_readings
 
-__all__ = ["plan_nozzle_calibration", "fit_nozzle_offset", "TIP_BELOW_EQUATOR", "SIDES"]
+__all__ = ["plan_nozzle_calibration", "fit_nozzle_offset", "pad_grid", "TIP_BELOW_EQUATOR", "SIDES"]
 
 TIP_BELOW_EQUATOR = 0.3          # tip height below the sphere centre, in sphere radii
 OVERTRAVEL_MM = 1.0
@@ -54,22 +67,42 @@ def _positive(value: float, name: str) -> float:
     return v
 
 
+def pad_grid(count: int) -> tuple[int, int]:
+    """Columns and rows of the square-ish grid of ``count`` pad spots (``PAD_SPACING_MM`` apart)."""
+    cols = max(1, math.ceil(math.sqrt(count)))
+    return cols, math.ceil(count / cols)
+
+
 def _pad_spots(pad: np.ndarray, count: int) -> list[tuple[float, float]]:
-    return [(pad[0] + (k - (count - 1) / 2) * PAD_SPACING_MM, pad[1]) for k in range(count)]
+    """``count`` spots on a 2-D grid centred on the pad, row by row in serpentine order."""
+    cols, rows = pad_grid(count)
+    spots = []
+    for k in range(count):
+        row, col = divmod(k, cols)
+        if row % 2:
+            col = cols - 1 - col
+        spots.append((pad[0] + (col - (cols - 1) / 2) * PAD_SPACING_MM, pad[1] + (row - (rows - 1) / 2) * PAD_SPACING_MM))
+    return spots
 
 
 def plan_nozzle_calibration(probe: ProbeCalibration, nominal_offset_mm: Any, outer_diameter_mm: float,
                             sphere_diameter_mm: float, pad_centre_mm: Any, *, pad_touches: int = 3,
-                            side_touches: int = 2, clearance_mm: float = 2.0) -> tuple[Touch, ...]:
-    """Touches in carriage coordinates (mm): "pad" (probe T0) and "nozzle_pad" alternating per spot
-    (P N, N P, P N, ...), then the "nozzle_side" touches (+X, -X, +Y, -Y).
+                            side_touches: int = 2, clearance_mm: float = 2.0,
+                            pad_z_mm: float | None = None) -> tuple[Touch, ...]:
+    """Touches in carriage coordinates (mm): the pad spots in four blocks, "pad" (probe T0) on
+    the first half, "nozzle_pad" on the first half, "nozzle_pad" on the second half, "pad" on
+    the second half (P N N P), then the "nozzle_side" touches (+X, -X, +Y, -Y).
 
     probe: the current probe qualification (its sphere centre places the side touches; its
     pad reading, when there is one, the pad heights).  nominal_offset_mm (3,): the nozzle's
-    nominal offset.  pad_centre_mm (3,): the pad's nominal top-face centre.  clearance_mm:
-    free travel before every expected contact; it must exceed the offset's uncertainty.
-    Side starts are ``clearance_mm`` outside the sphere (body edge to sphere) so the caller
-    may reach them going up, across, then down.
+    nominal offset (or one located by a first, coarse run).  pad_centre_mm (3,): the pad's
+    nominal top-face centre.  pad_touches: spots on a 2-D grid (``pad_grid``), each touched
+    by the probe and by the nozzle.  clearance_mm: free travel before every expected contact;
+    it must exceed the offset's uncertainty (and the pad height's, with the drift since it was
+    measured).  pad_z_mm: the pad surface in the probe frame when known better than from
+    ``probe`` (a located run).  Side starts are ``clearance_mm`` outside the sphere (body
+    edge to sphere) so the caller may reach them going up, across, then down.  Within a block
+    and along a side the touches after the first are ``local`` (a hop near the artifact).
     """
     o = np.array(_vec3(nominal_offset_mm, "nominal_offset_mm"))
     half_d = _positive(outer_diameter_mm, "outer_diameter_mm") / 2
@@ -80,25 +113,34 @@ def plan_nozzle_calibration(probe: ProbeCalibration, nominal_offset_mm: Any, out
                                field="pad_touches" if pad_touches < 1 else "side_touches",
                                value=min(pad_touches, side_touches))
     pad = np.array(_vec3(pad_centre_mm, "pad_centre_mm"))
-    surface = probe.pad_surface_z_mm()
+    surface = probe.pad_surface_z_mm() if pad_z_mm is None else float(pad_z_mm)
     pad_z = pad[2] if surface is None else surface
     r = probe.ball_radius_mm
-    touches: list[Touch] = []
     spots = _pad_spots(pad, int(pad_touches))
-    for k, (x, y) in enumerate(spots):       # probe, nozzle, nozzle, probe, ...: a linear drift cancels
-        probe_touch = Touch((x, y, pad_z + r + gap), (x, y, pad_z + r - OVERTRAVEL_MM), "pad")
-        start = np.array([x, y, pad_z + gap]) - o      # the tip over the same spot: carriage = tip - o
-        nozzle_touch = Touch(tuple(start), tuple(start - (0, 0, gap + OVERTRAVEL_MM)), "nozzle_pad")
-        touches.extend([probe_touch, nozzle_touch] if k % 2 == 0 else [nozzle_touch, probe_touch])
+    half = (len(spots) + 1) // 2
+
+    def probe_touch(x: float, y: float, local: bool) -> Touch:
+        return Touch((x, y, pad_z + r + gap), (x, y, pad_z + r - OVERTRAVEL_MM), "pad", local=local)
+
+    def nozzle_touch(x: float, y: float, local: bool) -> Touch:
+        start = np.array([x, y, pad_z + gap]) - o      # the tip over the spot: carriage = tip - o
+        return Touch(tuple(start), tuple(start - (0, 0, gap + OVERTRAVEL_MM)), "nozzle_pad", local=local)
+
+    # P N N P blocks: the probe's and the nozzle's touches have the same mean time (a linear drift
+    # cancels) and the same spots (the pad's flatness cancels)
+    touches: list[Touch] = []
+    for block, make in ((spots[:half], probe_touch), (spots[:half], nozzle_touch), (spots[half:], nozzle_touch),
+                        (spots[half:], probe_touch)):
+        touches.extend(make(x, y, k > 0) for k, (x, y) in enumerate(block))
     c = np.array(probe.sphere_centre_mm)
     tip_z = c[2] - TIP_BELOW_EQUATOR * big_r
     for ux, uy in SIDES.values():
         u = np.array([ux, uy, 0.0])
-        for _ in range(int(side_touches)):
+        for k in range(int(side_touches)):
             tip_start = c + (big_r + half_d + gap) * u
             tip_target = c + (big_r + half_d - OVERTRAVEL_MM) * u
             tip_start[2] = tip_target[2] = tip_z
-            touches.append(Touch(tuple(tip_start - o), tuple(tip_target - o), "nozzle_side"))
+            touches.append(Touch(tuple(tip_start - o), tuple(tip_target - o), "nozzle_side", local=k > 0))
     return tuple(touches)
 
 

@@ -15,7 +15,10 @@ differ by up to ``approach_mm`` in any direction):
 Every start lies at least ``approach_mm`` outside the ball-swept sphere (radius R + r) even
 when the sphere is up to ``place_tolerance_mm`` off its nominal place, so the caller
 may reach it by going up to a clearance height, across, then down; every move reaches
-``overtravel_mm`` past the latest possible contact.
+``overtravel_mm`` past the latest possible contact.  Consecutive pad spots and equator
+touches and the touches of one pass round a cap ring are ``local`` (``Touch.local``): the
+next start is reached by a hop at the start height (the hop's chord keeps at least half the
+approach clear of the sphere wherever within ``place_tolerance_mm`` it is).
 
 Fit (``fit_qualification``): a reading P (ball centre at trigger) of a move in direction d
 is ``delta(n)`` past first contact, where the contact ball centre lies on the sphere of
@@ -43,6 +46,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -106,7 +110,8 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
         pad = np.array(_vec3(pad_centre_mm, "pad_centre_mm"))
         for k in range(int(pad_touches)):
             x = pad[0] + (k - (pad_touches - 1) / 2) * PAD_SPACING_MM
-            pads.append(Touch((x, pad[1], pad[2] + r + u + approach), (x, pad[1], pad[2] + r - u - over), "pad"))
+            pads.append(Touch((x, pad[1], pad[2] + r + u + approach), (x, pad[1], pad[2] + r - u - over), "pad",
+                              local=k > 0))      # the next spot along the pad, at the same height
     touches.extend(pads)
     top = c[2] + rho_s
     ring_touches: list[list[Touch]] = []
@@ -125,14 +130,31 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
     # palindromic order: up the rings (every other azimuth), the equator, down the rings (the
     # rest; a single top touch is repeated) -- every ring's touches are centred on the same
     # time, so a linear drift does not bend the curvature that fixes r
-    for ring in ring_touches:
-        touches.extend(ring[0::2])
+    def hop_clear(ring_deg: float, count: int, stride: int) -> bool:
+        """A straight hop between stations ``stride`` azimuth steps apart on the ring, at the start
+        height, keeps half the approach above the highest the ball-centre sphere can be there."""
+        rho = rho_s * math.sin(math.radians(ring_deg))
+        mid = max(rho * math.cos(math.pi * stride / count) - u, 0.0)
+        start_z = (top if rho <= u else c[2] + math.sqrt(max(rho_s ** 2 - (rho - u) ** 2, 0.0))) + u + approach
+        return start_z - (c[2] + u + math.sqrt(max(rho_s ** 2 - mid ** 2, 0.0))) >= approach / 2
+
+    def ring_pass(ring: list[Touch], ring_deg: float, half: int) -> list[Touch]:
+        """Every other station of the ring, from station ``half`` (0 or 1)."""
+        local = len(ring) > 2 and bool(hop_clear(ring_deg, len(ring), 2))
+        return [replace(t, local=local and k > 0) for k, t in enumerate(ring[half::2])]
+
+    for ring, ring_deg in zip(ring_touches, rings, strict=True):
+        touches.extend(ring_pass(ring, ring_deg, 0))
+    # from one equator start straight to the next: the chord's middle stays half the approach
+    # outside the farthest the ball-centre sphere can reach
+    hop = bool((rho_s + u + approach) * math.cos(math.pi / equator) >= rho_s + u + approach / 2)
     for k in range(int(equator)):
         phi = 2 * math.pi * (k + 0.5) / equator
         e = np.array([math.cos(phi), math.sin(phi), 0.0])
-        touches.append(Touch(tuple(c + (rho_s + u + approach) * e), tuple(c + (rho_s - u - over) * e), "equator"))
-    for ring in reversed(ring_touches):
-        touches.extend(ring[1::2] if len(ring) > 1 else ring)
+        touches.append(Touch(tuple(c + (rho_s + u + approach) * e), tuple(c + (rho_s - u - over) * e), "equator",
+                             local=hop and k > 0))
+    for ring, ring_deg in reversed(list(zip(ring_touches, rings, strict=True))):
+        touches.extend(ring_pass(ring, ring_deg, 1) if len(ring) > 1 else ring)
     touches.extend(pads)          # the pad again at the end: with touch times, a Z drift is measured
     return tuple(touches)
 

@@ -1,7 +1,8 @@
 """Executing planned calibration touches on a machine (shared by ``calibrate_probe`` and
 ``calibrate_nozzle``): select each touch's tool, travel at the safe height, go down to the
 touch's start, probe toward its target, record the reading (the carriage position at the
-trigger, mm).  Ends retracted with the probe (T0) selected, also when a touch fails.
+trigger, mm).  A ``local`` touch right after one of its kind and tool hops there instead
+(``Touch.local``: up to the start's height, across, down; no trip to the travel height).  Ends retracted with the probe (T0) selected, also when a touch fails.
 
 Recovery follows ``probe_run``: a dropped link interrupts the job with the readings so far
 in ``program_state``; an operator's resume re-homes and touches the interrupted one again
@@ -14,7 +15,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from app.calibration import Touch
+from app.calibration import Touch, hops
+from app.calibration.nozzle import pad_grid
 from app.calibration.qualify import PAD_SPACING_MM
 from app.errors import ConformaError, InvalidInput
 from app.jobs.context import JobContext
@@ -52,12 +54,15 @@ def travel_height(profile: Any, ball_radius_mm: float) -> float:
     return max(heights)
 
 
-def check_pad_room(size_mm: float, touches: int) -> None:
-    """422 (``params.pad_touches``) when the pad spots (0.5 mm apart along x) do not fit on
-    the pad with ``OFFSET_DOUBT_MM`` to spare on each side."""
-    span = (touches - 1) * PAD_SPACING_MM
+def check_pad_room(size_mm: float, touches: int, *, grid: bool = False) -> None:
+    """422 (``params.pad_touches``) when the pad spots (0.5 mm apart along x, or on the 2-D
+    grid of ``app.calibration.nozzle.pad_grid``) do not fit on the pad with ``OFFSET_DOUBT_MM``
+    to spare on each side."""
+    cols, rows = pad_grid(touches) if grid else (touches, 1)
+    span = (max(cols, rows) - 1) * PAD_SPACING_MM
     if span + 2 * OFFSET_DOUBT_MM > size_mm:
-        raise InvalidInput(f"{touches} pad touches span {span:.1f} mm: too many for a {size_mm:g} mm pad "
+        shape = f"a {cols} x {rows} grid" if grid else "a row"
+        raise InvalidInput(f"{touches} pad touches ({shape}) span {span:.1f} mm: too many for a {size_mm:g} mm pad "
                            f"({OFFSET_DOUBT_MM:g} mm to spare on each side)", field="params.pad_touches", value=touches)
 
 
@@ -80,6 +85,9 @@ class TouchRun:
         except ConformaError as exc:
             raise interrupt(ctx, self.machine, exc.__cause__ or exc, self.state) from exc
         self.tool: int | None = None  # unknown after a connect or a resume: select before the first touch
+        # the touch just made and where it left the carriage (its start): a ``local`` touch of its kind hops from there
+        self.previous: Step | None = None
+        self.here: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __enter__(self) -> "TouchRun":
         self.ctx.runtime.machines.running_job[self.machine_id] = self.ctx.job_id
@@ -101,15 +109,21 @@ class TouchRun:
                 step = steps[index]
                 if machine.link_lost:  # the link dropped after the previous touch
                     raise LinkError("link lost", field="port")
-                machine.move(z=self.travel_z)
+                x, y, z = (float(v) for v in step.touch.start_mm)
+                previous = self.previous
+                if previous is not None and step.tool == previous.tool and hops(previous.touch, step.touch):
+                    machine.move(z=max(self.here[2], z))   # a hop near the artifact (the planner's word)
+                else:
+                    machine.move(z=self.travel_z)
                 if step.tool != self.tool:
                     machine.select_tool(step.tool)
                     self.tool = step.tool
-                x, y, z = (float(v) for v in step.touch.start_mm)
                 machine.move(x=x, y=y)
                 machine.move(z=z)
                 tx, ty, tz = (float(v) for v in step.touch.target_mm)
+                self.previous = None             # until the touch is made: an error leaves the position unknown
                 hit = machine.probe_toward((x, y, z), (tx, ty, tz), feed_mm_min=self.feed)
+                self.previous, self.here = step, (x, y, z)   # probe_toward ends back at the start
                 readings.append([float(hit.x), float(hit.y), float(hit.z)])
                 state["executed"] = sum(len(v) for v in state["stages"].values())
                 self.ctx.runtime.store.save_program_state(self.ctx.claim, state)
@@ -126,6 +140,7 @@ class TouchRun:
 
     def park(self) -> None:
         """Up to the travel height with the probe (T0) selected (the end of every job)."""
+        self.previous = None
         try:
             with hardware_errors():
                 _park(self.machine, self.travel_z)

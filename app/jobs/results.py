@@ -134,6 +134,7 @@ class ReconstructResult(KindResult):
     outliers: list[int]
     merged_duplicates: int
     normal_iteration: dict[str, Any] | None = None
+    sigma: dict[str, Any] | None = None  # the probe noise used: given, the calibration's, or the default
 
 
 # compensate -------------------------------------------------------------------------------

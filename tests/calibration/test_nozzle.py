@@ -7,6 +7,7 @@ import pytest
 
 from app.calibration import (CalibrationError, NozzleCalibration, PretravelModel, ProbeCalibration,
                              fit_nozzle_offset, fit_qualification, plan_nozzle_calibration, plan_qualification)
+from app.calibration.nozzle import pad_grid
 from tests.calibration.forward import TrueProbe, nozzle_pad_reading, nozzle_side_reading, sphere_reading
 
 SPHERE = (100.25, 49.7, 10.3)           # true centre (probe frame), 0.49 mm off its nominal place
@@ -49,16 +50,37 @@ def test_the_plan_orders_probe_pad_nozzle_pad_and_four_sides():
     cal = ProbeCalibration(0.5, PretravelModel(0.015), SPHERE, PAD_Z + 0.5 - 0.015)
     touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL)
     kinds = [t.kind for t in touches]
-    assert kinds == ["pad", "nozzle_pad", "nozzle_pad", "pad", "pad", "nozzle_pad"] + ["nozzle_side"] * 8
+    # P N N P blocks over the two halves of the spots: probe and nozzle touches share their mean time
+    assert kinds == ["pad", "pad", "nozzle_pad", "nozzle_pad", "nozzle_pad", "pad"] + ["nozzle_side"] * 8
     # the nozzle's pad spots are the probe's, through the nominal offset
     probe_spots = [t.start_mm[:2] for t in touches if t.kind == "pad"]
     nozzle_spots = [np.add(t.start_mm[:2], O_NOMINAL[:2]) for t in touches if t.kind == "nozzle_pad"]
     assert np.array(nozzle_spots) == pytest.approx(np.array(probe_spots))
+    # within a block and along a side every touch after the first hops locally
+    assert [t.local for t in touches] == [False, True, False, True, False, False] + [False, True] * 4
     for t in touches[6:]:
         tip = np.add(t.start_mm, O_NOMINAL)
         assert tip[2] == pytest.approx(SPHERE[2] - 0.3 * DIAMETER / 2)
         # the body starts clearance_mm outside the sphere
         assert np.hypot(*(tip[:2] - np.array(SPHERE[:2]))) == pytest.approx(DIAMETER / 2 + NOZZLE_D / 2 + 2.0)
+
+
+def test_the_pad_spots_form_a_2d_grid_half_a_millimetre_apart():
+    cal = ProbeCalibration(0.5, PretravelModel(0.015), SPHERE, PAD_Z + 0.5 - 0.015)
+    touches = plan_nozzle_calibration(cal, O_NOMINAL, NOZZLE_D, DIAMETER, PAD_NOMINAL, pad_touches=144,
+                                      side_touches=1, clearance_mm=0.3, pad_z_mm=PAD_Z)
+    probe = np.array([t.start_mm for t in touches if t.kind == "pad"])
+    nozzle = np.array([t.start_mm for t in touches if t.kind == "nozzle_pad"])
+    assert len(probe) == len(nozzle) == 144 and pad_grid(144) == (12, 12)
+    assert len({(round(x, 6), round(y, 6)) for x, y, _ in probe}) == 144       # 144 distinct spots
+    assert np.ptp(probe[:, 0]) == pytest.approx(5.5) and np.ptp(probe[:, 1]) == pytest.approx(5.5)
+    assert probe[:, :2].mean(axis=0) == pytest.approx(PAD_NOMINAL[:2])
+    # the same spots for both tools (the pad's flatness cancels), starting clearance_mm above the given pad
+    assert sorted(map(tuple, (nozzle[:, :2] + O_NOMINAL[:2]).round(6))) == sorted(map(tuple, probe[:, :2].round(6)))
+    assert probe[:, 2] == pytest.approx(PAD_Z + 0.5 + 0.3) and nozzle[:, 2] == pytest.approx(PAD_Z + 0.3 - O_NOMINAL[2])
+    # consecutive spots of a block are neighbours (serpentine): every hop is 0.5 mm
+    steps = np.linalg.norm(np.diff(probe[:72, :2], axis=0), axis=1)
+    assert steps == pytest.approx(0.5)
 
 
 def test_offsets_are_recovered_exactly_without_noise():

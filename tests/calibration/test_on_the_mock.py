@@ -14,8 +14,8 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from app.calibration import (fit_nozzle_offset, fit_qualification, plan_nozzle_calibration, plan_qualification,
-                             plan_times)
+from app.calibration import (fit_nozzle_offset, fit_qualification, hops, plan_nozzle_calibration,
+                             plan_qualification, plan_times)
 from hardware.machine import Machine, MachineProfile
 from hardware.mock import MockWorld, register_world, unregister_world
 from hardware.mock.world import get_world
@@ -58,22 +58,24 @@ def machine(request):
 
 def run(machine: Machine, touches, tools) -> tuple[np.ndarray, np.ndarray]:
     """Execute touches as the calibration jobs do; readings (n, 3) and the mock's clock (n,) s
-    at each trigger (the clock after the touch less its return to the start)."""
+    at each trigger."""
     world = get_world(machine.world_name)
     out, clock = [], []
-    current = None
+    current, previous = None, None
     for touch, tool in zip(touches, tools, strict=True):
-        machine.move(z=TRAVEL_Z)
+        x, y, z = touch.start_mm
+        # a local touch after one of its kind hops near the artifact, else up to the travel height
+        machine.move(z=max(previous.start_mm[2], z) if hops(previous, touch) else TRAVEL_Z)
         if tool != current:
             machine.select_tool(tool)
             current = tool
-        x, y, z = touch.start_mm
         machine.move(x=x, y=y)
         machine.move(z=z)
         hit = machine.probe_toward(touch.start_mm, touch.target_mm)
         out.append([hit.x, hit.y, hit.z])
         back = float(np.linalg.norm(np.subtract(out[-1], touch.start_mm))) / 3000.0 * 60.0
-        clock.append(world.stats.machine_time_s - back)
+        clock.append(world.stats.machine_time_s - back)      # probe_toward ends back at the start
+        previous = touch
     machine.move(z=TRAVEL_Z)
     machine.select_tool(0)
     return np.array(out), np.array(clock)

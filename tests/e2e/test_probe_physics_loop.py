@@ -60,8 +60,8 @@ def job(client, kind: str, params: dict, timeout: float = 300) -> dict:
 
 def calibrated_machine(client, true_stl: bytes, name: str, seed: int, physics: dict | None = None,
                        placement: dict | None = None, profile: dict | None = None) -> tuple[dict, dict, dict]:
-    """A physics mock holding ``true_stl`` (+20 um in z), calibrated: (machine, probe job, nozzle
-    job; the nozzle's Z from 6 pad touches of each tool, its XY from 2 pairs of side touches)."""
+    """A physics mock holding ``true_stl`` (+20 um in z), calibrated with the default procedure:
+    (machine, probe job, nozzle job)."""
     real = client.post("/api/v1/parts", files={"file": (f"{name}.stl", true_stl)}, headers=OP).json()
     machine = client.post("/api/v1/machines", json={
         "name": name, "port": "mock://", "dialect": "marlin", "profile": {**PROFILE, **(profile or {})},
@@ -70,7 +70,7 @@ def calibrated_machine(client, true_stl: bytes, name: str, seed: int, physics: d
     assert machine.status_code == 201, machine.text
     machine = machine.json()
     probe = job(client, "calibrate_probe", {"machine_id": machine["id"]})
-    nozzle = job(client, "calibrate_nozzle", {"machine_id": machine["id"], "tool": 1, "pad_touches": 6})
+    nozzle = job(client, "calibrate_nozzle", {"machine_id": machine["id"], "tool": 1})
     return machine, probe, nozzle
 
 
@@ -86,7 +86,7 @@ def nominal_part(client) -> tuple[dict, list[dict]]:
 def closed_loop(client, part: dict, traces: list[dict], machine: dict, **extra) -> dict:
     return job(client, "closed_loop", {
         "part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"],
-        "probe": {"method": "deviation"}, "sigma_mm": 0.001, "evaluate": True, **extra}, timeout=900)
+        "probe": {"method": "deviation"}, "evaluate": True, **extra}, timeout=900)
 
 
 @pytest.fixture(scope="module")

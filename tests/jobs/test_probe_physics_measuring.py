@@ -11,6 +11,8 @@ own error (radius: r (1 / n_z - 1); pre-travel: 15 um; drift: growing with machi
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import pytest
 from sqlmodel import Session
@@ -18,7 +20,7 @@ from sqlmodel import Session
 from app.calibration import PretravelModel, ProbeCalibration
 from app.models import Job, new_id, utcnow
 from app.reference.s1 import as_made, nominal_height, s1_mesh, s1_traces
-from tests.conftest import auth
+from tests.conftest import KEYS, auth
 from tests.jobs.test_jobs_api import wait_for
 
 OP = auth("operator")
@@ -35,10 +37,39 @@ def physics(drift_mm_per_min: float = DRIFT_MM_PER_MIN) -> str:
 
 
 @pytest.fixture(scope="module")
-def meshes() -> dict[str, bytes]:
-    return {"nominal": s1_mesh(grid_mm=0.5).export(file_type="stl"),
+def client(tmp_path_factory) -> Iterator:
+    """One service for the module (its parts, plans and machines are independent of one another):
+    the meshes are uploaded and parsed once, not once per test."""
+    from fastapi.testclient import TestClient
+
+    from app.config import load_settings
+    from app.main import create_app
+
+    settings = load_settings({}, data_dir=tmp_path_factory.mktemp("measuring") / "data",
+                             api_keys=",".join(f"{k}:{r}" for r, k in KEYS.items()), viewer=False, lease_s=5.0,
+                             reaper_interval_s=0.2, job_plugins="tests.jobs.sample_kinds")
+    with TestClient(create_app(settings), raise_server_exceptions=False) as test_client:
+        yield test_client
+
+
+@pytest.fixture(scope="module")
+def meshes(client) -> dict[str, dict]:
+    """The uploaded parts: the nominal S1 (0.5 mm grid), S1 as true part (0.15 mm) and the steep as-made S1."""
+    stls = {"nominal": s1_mesh(grid_mm=0.5).export(file_type="stl"),
             "true": s1_mesh(grid_mm=0.15).export(file_type="stl"),
             "as_made": steep_as_made().mesh(grid_mm=0.15).export(file_type="stl")}
+    return {name: upload(client, stl, f"s1-{name}.stl") for name, stl in stls.items()}
+
+
+@pytest.fixture(scope="module")
+def trace7(client, meshes) -> dict:
+    return trace_on(client, meshes["nominal"]["id"])
+
+
+@pytest.fixture(scope="module")
+def plan7(client, trace7) -> dict:
+    """The 16-station deviation plan on S1 trace 7 that the probe-run tests share."""
+    return plan_on(client, trace7["id"])
 
 
 def steep_as_made():
@@ -75,11 +106,13 @@ def machine(client, true_part_id: str, *, calibrated: bool = True,
     return row.json()
 
 
-def calibrate(client, machine_id: str, ball_mm: float = BALL_MM, pretravel_mm: float = PRETRAVEL_MM) -> str:
-    """A succeeded calibrate_probe job with a known result (the pad read by the undrifted probe)."""
+def calibrate(client, machine_id: str, ball_mm: float = BALL_MM, pretravel_mm: float = PRETRAVEL_MM,
+              scatter_mm: float = 0.001) -> str:
+    """A succeeded calibrate_probe job with a known result (the pad read by the undrifted probe;
+    ``scatter_mm``: the qualification's residual rms, a touch's measured scatter)."""
     cal = ProbeCalibration(ball_radius_mm=ball_mm, pretravel=PretravelModel(pretravel_mm),
                            sphere_centre_mm=(0.0, 0.0, 0.0), pad_reading_z_mm=PAD[2] + ball_mm - pretravel_mm,
-                           std={"ball_radius_mm": 0.0005}, residual_rms_mm=0.001, touches=40)
+                           std={"ball_radius_mm": 0.0005}, residual_rms_mm=scatter_mm, touches=40)
     with Session(client.app.state.runtime.engine) as session:
         job = Job(id=new_id("job"), kind="calibrate_probe", status="succeeded", progress=1.0,
                   params={"machine_id": machine_id}, result=cal.to_dict(), machine_id=machine_id,
@@ -112,9 +145,8 @@ def slopes(result: dict) -> np.ndarray:
     return np.array([p["normal"][2] for p in result["points"]])
 
 
-def test_plan_records_carry_the_unit_normal(client, meshes):
-    part = upload(client, meshes["nominal"], "s1.stl")
-    plan = plan_on(client, trace_on(client, part["id"])["id"])["result"]
+def test_plan_records_carry_the_unit_normal(plan7):
+    plan = plan7["result"]
     normals = np.array([r["normal"] for r in plan["records"]])
     assert normals.shape == (plan["count"], 3)
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0) and (normals[:, 2] > 0).all()
@@ -128,12 +160,29 @@ def test_plan_records_carry_the_unit_normal(client, meshes):
     assert np.degrees(np.arccos(np.clip(np.sum(normals * truth, axis=1), -1, 1))).max() < 1.5
 
 
-def test_calibrated_run_measures_the_true_surface(client, meshes):
-    part = upload(client, meshes["nominal"], "s1.stl")
-    true = upload(client, meshes["true"], "s1-true.stl")
-    sim = machine(client, true["id"])
-    plan = plan_on(client, trace_on(client, part["id"])["id"])
-    result = run(client, plan["id"], sim["id"], drift_interval_s=8)["result"]
+def test_drift_is_tracked_by_pad_retouches(client, meshes, plan7):
+    """20 um/min: the pad readings fall with machine time; the corrected points stay on the
+    surface while the uncorrected ones sink with the clock.  grbl: its G38.2 probes at the
+    plan's feed, so the estimated touch times follow the machine clock (Marlin's G30 probes
+    at the firmware's own feed, which the estimate does not know: see the README)."""
+    true, plan = meshes["true"], plan7
+    runs = {}
+    for drift in (True, False):
+        sim = machine(client, true["id"], drift_mm_per_min=FAST_DRIFT_MM_PER_MIN, dialect="grbl")
+        runs[drift] = run(client, plan["id"], sim["id"], drift_interval_s=8, corrections={"drift": drift})["result"]
+    track = runs[True]["calibration"]["drift"]
+    slope = np.polyfit(track["times_s"], track["pad_z_mm"], 1)[0] * 60
+    assert -0.025 < slope < -0.015, slope  # mm/min: the pad sees the drift
+    assert np.abs(errors(runs[True])).max() < 0.004
+    lost = errors(runs[False])
+    times = np.array([p["t_s"] for p in runs[False]["points"]])
+    sink = np.polyfit(times, lost, 1)[0] * 60  # mm/min
+    assert -0.03 < sink < -0.01 and lost.mean() < -0.002, (sink, lost)
+
+
+def _calibrated_run_measures_the_true_surface(result: dict) -> None:
+    """The run with every correction: the points on the true surface, the raw readings r / n_z - delta
+    above it, the drift track bracketing the stations."""
     err = errors(result)
     assert np.abs(err).max() < 0.004, err
     # the raw readings sit r / n_z - delta (minus the drift so far) above the surface
@@ -150,34 +199,10 @@ def test_calibrated_run_measures_the_true_surface(client, meshes):
     assert np.all(np.diff(times) > 0) and drift["times_s"][0] < times[0] and drift["times_s"][-1] > times[-1]
 
 
-def test_drift_is_tracked_by_pad_retouches(client, meshes):
-    """20 um/min: the pad readings fall with machine time; the corrected points stay on the
-    surface while the uncorrected ones sink with the clock.  grbl: its G38.2 probes at the
-    plan's feed, so the estimated touch times follow the machine clock (Marlin's G30 probes
-    at the firmware's own feed, which the estimate does not know: see the README)."""
-    part = upload(client, meshes["nominal"], "s1.stl")
-    true = upload(client, meshes["true"], "s1-true.stl")
-    plan = plan_on(client, trace_on(client, part["id"])["id"])
-    runs = {}
-    for drift in (True, False):
-        sim = machine(client, true["id"], drift_mm_per_min=FAST_DRIFT_MM_PER_MIN, dialect="grbl")
-        runs[drift] = run(client, plan["id"], sim["id"], drift_interval_s=8, corrections={"drift": drift})["result"]
-    track = runs[True]["calibration"]["drift"]
-    slope = np.polyfit(track["times_s"], track["pad_z_mm"], 1)[0] * 60
-    assert -0.025 < slope < -0.015, slope  # mm/min: the pad sees the drift
-    assert np.abs(errors(runs[True])).max() < 0.004
-    lost = errors(runs[False])
-    times = np.array([p["t_s"] for p in runs[False]["points"]])
-    sink = np.polyfit(times, lost, 1)[0] * 60  # mm/min
-    assert -0.03 < sink < -0.01 and lost.mean() < -0.002, (sink, lost)
-
-
-def test_each_correction_switched_off_shows_its_error(client, meshes):
-    """The ablation table on S1 trace 7 (16 stations): all corrections, then each one off
-    (printed with -s: the figures in the README)."""
-    part = upload(client, meshes["nominal"], "s1.stl")
-    true = upload(client, meshes["true"], "s1-true.stl")
-    plan = plan_on(client, trace_on(client, part["id"])["id"])
+def test_each_correction_switched_off_shows_its_error(client, meshes, plan7):
+    """The ablation table on S1 trace 7 (16 stations): all corrections (the calibrated run measures
+    the true surface), then each one off (printed with -s: the figures in the README)."""
+    true, plan = meshes["true"], plan7
     table = {}
     for off in (None, "radius", "pretravel", "drift"):
         sim = machine(client, true["id"])
@@ -187,6 +212,8 @@ def test_each_correction_switched_off_shows_its_error(client, meshes):
         table[off] = err
         print(f"corrections off: {off or 'none':9s} error max |e| {np.abs(err).max() * 1e3:6.1f} um, "
               f"mean {err.mean() * 1e3:6.1f} um")
+        if off is None:
+            _calibrated_run_measures_the_true_surface(result)
         if off == "radius":
             nz = slopes(result)
     raw = np.array([p["reading"][2] for p in result["points"]]) - nominal_height(
@@ -201,11 +228,9 @@ def test_each_correction_switched_off_shows_its_error(client, meshes):
     assert -0.004 < table["drift"].mean() < 0.001
 
 
-def test_uncalibrated_machine_keeps_todays_readings(client, meshes):
-    part = upload(client, meshes["nominal"], "s1.stl")
-    true = upload(client, meshes["true"], "s1-true.stl")
+def test_uncalibrated_machine_keeps_todays_readings(client, meshes, plan7):
+    true, plan = meshes["true"], plan7
     sim = machine(client, true["id"], calibrated=False)
-    plan = plan_on(client, trace_on(client, part["id"])["id"])
     result = run(client, plan["id"], sim["id"])["result"]
     assert "calibration" not in result and "reading" not in result["points"][0]
     assert errors(result).min() > 0.47  # the ball's raw readings
@@ -219,12 +244,10 @@ def _station_truth_error(job: dict, plan: dict, truth) -> np.ndarray:
     return points[:, 2] + samples[:, 1] - truth(points[:, :2])
 
 
-def test_reconstruct_iterates_the_normal_where_the_deviation_slopes(client, meshes):
+def test_reconstruct_iterates_the_normal_where_the_deviation_slopes(client, meshes, trace7):
     truth = steep_as_made()
-    part = upload(client, meshes["nominal"], "s1.stl")
-    real = upload(client, meshes["as_made"], "s1-as-made.stl")
+    real, trace = meshes["as_made"], trace7
     sim = machine(client, real["id"])
-    trace = trace_on(client, part["id"])
     plan = plan_on(client, trace["id"], count=24)
     probe_run = run(client, plan["id"], sim["id"])
     first = errors(probe_run["result"], truth.true_height)  # nominal normals only
@@ -252,7 +275,7 @@ def test_registration_corrects_the_datum_touches(client, meshes, mode):
     top; z_only: the slopes), the walls found by the ball's edge catch (the calibrated
     radius): the placement within 3 sigma and dz within a few um; the same machine without
     its calibration puts dz off by the ball's r - delta."""
-    part = upload(client, meshes["nominal"], "s1.stl")
+    part = meshes["nominal"]
     found = {}
     for calibrated in (True, False):
         sim = machine(client, part["id"], calibrated=calibrated, placement=PLACED)
@@ -271,8 +294,7 @@ def test_registration_corrects_the_datum_touches(client, meshes, mode):
 
 def test_field_plan_run_gets_corrected_points_and_the_field_iterates(client, meshes):
     truth = steep_as_made()
-    part = upload(client, meshes["nominal"], "s1.stl")
-    real = upload(client, meshes["as_made"], "s1-as-made.stl")
+    part, real = meshes["nominal"], meshes["as_made"]
     traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
                          json=[s1_traces()[i].to_api() for i in (0, 6)], headers=OP).json()["items"]
     sim = machine(client, real["id"])
@@ -300,13 +322,12 @@ def test_field_plan_run_gets_corrected_points_and_the_field_iterates(client, mes
         assert np.abs(after).max() < 0.005, after
 
 
-def test_probe_calibrated_through_the_api_then_measured(client, meshes):
+def test_probe_calibrated_through_the_api_then_measured(client, meshes, plan7):
     """calibrate_probe on the datum sphere and the pad (nominal places ~0.3 mm off, pre-travel
     scatter 2 um), then a probe run: the points sit on the true surface within the touch's own
     scatter (2 um pre-travel + 1 um noise: 2.2 um rms, 4 sigma = 9 um; they are in the
     calibration's frame: low by the drift at calibration time, ~1 um here)."""
-    part = upload(client, meshes["nominal"], "s1.stl")
-    true = upload(client, meshes["true"], "s1-true.stl")
+    true = meshes["true"]
     sphere = (75.3, 45.2, 10.25)
     row = client.post("/api/v1/machines", json={
         "name": "qualified", "port": f"mock://?{physics()}&pretravel_sd_mm=0.002&sphere={','.join(map(str, sphere))},10",
@@ -317,9 +338,10 @@ def test_probe_calibrated_through_the_api_then_measured(client, meshes):
         "mock": {"true_part_id": true["id"], "probe_noise_mm": 0.001, "faults": {"seed": 4}}}, headers=OP)
     assert row.status_code == 201, row.text
     sim = row.json()
-    cal = submit(client, "calibrate_probe", {"machine_id": sim["id"]})
+    # a lighter qualification than the default (its repeatability is tests/jobs/test_calibration_jobs.py's)
+    cal = submit(client, "calibrate_probe", {"machine_id": sim["id"], "per_ring": 24, "equator": 48})
     assert abs(cal["result"]["ball_radius_mm"] - BALL_MM) < 0.003
-    plan = plan_on(client, trace_on(client, part["id"])["id"])
+    plan = plan7
     result = run(client, plan["id"], sim["id"])["result"]
     assert result["calibration"]["probe_job_id"] == cal["id"]
     err = errors(result)
@@ -327,11 +349,9 @@ def test_probe_calibrated_through_the_api_then_measured(client, meshes):
     assert np.abs(err).max() < 0.009 and np.sqrt(np.mean(err ** 2)) < 0.003 and abs(err.mean()) < 0.002, err
 
 
-def test_an_interrupted_calibrated_run_resumes_with_its_drift_track(client, meshes):
-    part = upload(client, meshes["nominal"], "s1.stl")
-    true = upload(client, meshes["true"], "s1-true.stl")
+def test_an_interrupted_calibrated_run_resumes_with_its_drift_track(client, meshes, plan7):
+    true, plan = meshes["true"], plan7
     sim = machine(client, true["id"], faults={"disconnect_at_line": 60})
-    plan = plan_on(client, trace_on(client, part["id"])["id"])
     response = client.post("/api/v1/jobs", json={"kind": "probe_run", "params": {
         "plan_job_id": plan["id"], "machine_id": sim["id"], "drift_interval_s": 8}}, headers=OP)
     interrupted = wait_for(client, response.json()["id"], states=("interrupted", "succeeded", "failed"))
@@ -348,3 +368,25 @@ def test_an_interrupted_calibrated_run_resumes_with_its_drift_track(client, mesh
     track = result["calibration"]["drift"]
     assert len(track["times_s"]) > before and track["times_s"][:before] == state["drift"]["times_s"]
     assert np.abs(errors(result)).max() < 0.004
+
+
+def test_reconstruct_takes_its_probe_noise_from_the_calibration(client, meshes, trace7, plan7):
+    """sigma_mm left out: a run on a calibrated machine is reconstructed with the calibration's measured
+    scatter (stated in the result), exactly as with that sigma given; an uncalibrated run keeps the
+    method's default."""
+    sim = machine(client, meshes["true"]["id"], calibrated=False)
+    cal_id = calibrate(client, sim["id"], scatter_mm=0.004)
+    probe_run = run(client, plan7["id"], sim["id"])
+    base = {"trace_id": trace7["id"], "probe_run_job_id": probe_run["id"], "method": "deviation"}
+    default = submit(client, "reconstruct", base)["result"]
+    assert default["sigma"] == {"sigma_mm": 0.004, "source": "calibration: the probe qualification's residual rms",
+                                "probe_job_id": cal_id}
+    given = submit(client, "reconstruct", {**base, "sigma_mm": 0.004})["result"]
+    assert given["sigma"] == {"sigma_mm": 0.004, "source": "params"}
+    assert default["deviation"]["samples"] == given["deviation"]["samples"]
+    other = submit(client, "reconstruct", {**base, "sigma_mm": 0.0005})["result"]
+    assert other["deviation"]["samples"] != default["deviation"]["samples"]   # the noise level matters here
+    bare = machine(client, meshes["true"]["id"], calibrated=False)
+    uncalibrated = submit(client, "reconstruct", {**base, "probe_run_job_id": run(client, plan7["id"], bare["id"])["id"]})
+    assert uncalibrated["result"]["sigma"]["sigma_mm"] is None
+    assert uncalibrated["result"]["sigma"]["source"].startswith("default")

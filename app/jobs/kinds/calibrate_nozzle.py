@@ -6,6 +6,9 @@ calibrated pre-travel - ball radius) minus the nozzle's pad reading.  XY: the no
 side touches the reference sphere from opposite directions; the sphere centre known in the
 probe frame (from the current probe calibration) minus the midpoint of those readings
 (:func:`app.calibration.plan_nozzle_calibration`, :func:`app.calibration.fit_nozzle_offset`).
+Two stages: "locate" (one pad spot, one side touch each way, the full approach for the
+nominal offset's doubt) gives a rough offset and pad height; "offset" (the full 2-D pad grid
+and the side touches) then starts every touch ``LOCATED_CLEARANCE_MM`` from its contact.
 Needs a current probe calibration (422 "calibrate the probe first"), the tool in the
 profile's nozzles and the reference pad and sphere.  The result is the
 :class:`NozzleCalibration` dict plus ``nominal_difference_mm`` (calibrated - nominal),
@@ -31,12 +34,15 @@ from app.models import Machine
 from app.records import get_or_404
 
 
+LOCATED_CLEARANCE_MM = 0.3   # approach after locating: the located offset is good to microns, the pad flat
+
 class CalibrateNozzleParams(JobParams):
     machine_id: str
     tool: int = Field(ge=1, le=8, description="the nozzle's tool number (T1..T8, in the machine profile)")
-    pad_touches: int = Field(24, ge=1, le=40, description="spots on the pad (0.5 mm apart along x) touched by the "
-                             "probe and by the nozzle: the Z offset's uncertainty falls with their number")
-    side_touches: int = Field(2, ge=1, le=8, description="pairs of opposite side touches of the nozzle on the sphere")
+    pad_touches: int = Field(144, ge=1, le=400, description="spots on the pad (a 2-D grid 0.5 mm apart) touched by "
+                             "the probe and by the nozzle: the Z offset's uncertainty falls with their number")
+    side_touches: int = Field(12, ge=1, le=32, description="pairs of opposite side touches of the nozzle on the "
+                              "sphere: the XY offset's uncertainty falls with their number")
     probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's")
 
 
@@ -59,7 +65,7 @@ def _check(params: CalibrateNozzleParams, session: Session) -> None:
             raise InvalidInput(f"machine {params.machine_id!r} has no reference {name} in its profile "
                                f"(profile.reference.{name}): nozzle offsets are measured on the pad and sphere",
                                field=f"profile.reference.{name}", value=params.machine_id)
-    check_pad_room(profile.reference.pad.size_mm, params.pad_touches)  # type: ignore[union-attr]
+    check_pad_room(profile.reference.pad.size_mm, params.pad_touches, grid=True)  # type: ignore[union-attr]
     require_probe_calibration(session, params.machine_id)
     refuse_if_machine_busy(params.machine_id, session)
 
@@ -75,14 +81,24 @@ def run(ctx: JobContext, params: CalibrateNozzleParams) -> dict:
         current = require_probe_calibration(session, params.machine_id)
     probe = current.probe
     assert probe is not None  # require_probe_calibration
-    touches = plan_nozzle_calibration(probe, tuple(nozzle.offset_mm), nozzle.outer_diameter_mm, sphere.diameter_mm,
-                                      tuple(pad.centre_mm), pad_touches=params.pad_touches,
-                                      side_touches=params.side_touches)
-    steps = [Step(t, 0 if t.kind == "pad" else params.tool) for t in touches]
-    ctx.progress(0.02, f"{len(steps)} touches planned for T{params.tool}")
+    # locate first (one pad spot, one touch per side, the full clearance for the nominal offset's doubt),
+    # then the many touches with a short approach from the located offset and pad height
+    locate = plan_nozzle_calibration(probe, tuple(nozzle.offset_mm), nozzle.outer_diameter_mm, sphere.diameter_mm,
+                                     tuple(pad.centre_mm), pad_touches=1, side_touches=1)
+    ctx.progress(0.02, f"locating T{params.tool} ({len(locate)} touches)")
     with TouchRun(ctx, params.machine_id, travel_z=travel_height(profile, probe.ball_radius_mm),
                   feed_mm_min=params.probe_feed_mm_min or profile.probe_feed_mm_min) as touching:
-        readings = touching.touch(steps, "offset", f"T{params.tool} offset")
+        located = touching.touch([Step(t, 0 if t.kind == "pad" else params.tool) for t in locate], "locate",
+                                 f"locating T{params.tool}", (0.02, 0.1))
+        rough = fit_nozzle_offset(params.tool, locate, np.asarray(located, dtype=float), probe,
+                                  nozzle.outer_diameter_mm, sphere.diameter_mm)
+        pad_z = located[0][2] + float(probe.pretravel.at([[0.0, 0.0, 1.0]])[0]) - probe.ball_radius_mm
+        touches = plan_nozzle_calibration(probe, rough.offset_mm, nozzle.outer_diameter_mm, sphere.diameter_mm,
+                                          tuple(pad.centre_mm), pad_touches=params.pad_touches,
+                                          side_touches=params.side_touches, clearance_mm=LOCATED_CLEARANCE_MM,
+                                          pad_z_mm=pad_z)
+        steps = [Step(t, 0 if t.kind == "pad" else params.tool) for t in touches]
+        readings = touching.touch(steps, "offset", f"T{params.tool} offset", (0.1, 0.9))
         touching.park()
     ctx.progress(0.92, f"fitting T{params.tool}'s offset")
     calibration = fit_nozzle_offset(params.tool, touches, np.asarray(readings, dtype=float), probe,

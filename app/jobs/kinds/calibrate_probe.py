@@ -36,8 +36,9 @@ class CalibrateProbeParams(JobParams):
     cap_rings_deg: list[float] = Field(default_factory=lambda: list(CAP_RINGS_DEG), min_length=2, max_length=10,
                                        description="polar angles of the cap rings (0..75 deg): the steep rings "
                                        "separate the ball radius from the pre-travel")
-    per_ring: int = Field(24, ge=3, le=72, description="vertical touches per cap ring of the sphere")
-    equator: int = Field(48, ge=7, le=144, description="horizontal touches around the sphere's equator")
+    per_ring: int = Field(36, ge=3, le=72, description="vertical touches per cap ring of the sphere")
+    equator: int = Field(192, ge=7, le=360, description="horizontal touches around the sphere's equator: they fix "
+                         "r - p0, the term a vertical reading needs (its uncertainty falls as 1/sqrt(equator))")
     pad_touches: int = Field(8, ge=0, le=40, description="vertical touches on the reference pad (0: none), "
                              "0.5 mm apart along x")
     probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's")

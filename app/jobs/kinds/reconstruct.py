@@ -71,7 +71,8 @@ class ReconstructJobParams(PlacedParams):
         "best estimate of the deviation under the process model below (pair with the kriging planner); "
         "field: nominal + the field fitted once to every station of a field plan's probe run (required "
         "for, and only for, runs of field plans)")
-    sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma)")
+    sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma); default: on a calibrated "
+                                   "machine the probe calibration's measured scatter, else the method's own")
     deviation_amplitude_mm: float = Field(0.2, gt=0, le=10, description="kriging: expected machining error amplitude")
     deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
                                            description="kriging: shortest wavelength of the machining error")
@@ -157,10 +158,33 @@ def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
 def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
     """Rebuild the real trace from measured points (outliers rejected, duplicates merged)."""
     ctx.progress(0.2, "reconstructing")
+    calibrated = calibrated_sigma(ctx, params)
     reconstruction = rebuild(ctx, params)
     ctx.artifact(STORED, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
                  {"format": "npz", "height_model": reconstruction.height_model.kind})
-    return ReconstructResult.written(reconstruction.to_result())
+    result = reconstruction.to_result()
+    if params.sigma_mm is not None:
+        result["sigma"] = {"sigma_mm": params.sigma_mm, "source": "params"}
+    elif calibrated is not None:
+        result["sigma"] = calibrated
+    else:
+        result["sigma"] = {"sigma_mm": None, "source": "default: the method's own (uncalibrated machine)"}
+    return ReconstructResult.written(result)
+
+
+def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str, Any] | None:
+    """Without ``sigma_mm``, a probe run on a calibrated machine sets it: the probe qualification's
+    measured scatter of a touch along its move (``residual_rms_mm``: pre-travel scatter and noise).
+    Returns {sigma_mm, source, probe_job_id}, or None (sigma_mm given, points given, or no calibration)."""
+    if params.sigma_mm is not None or params.probe_run_job_id is None:
+        return None
+    probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
+    stored = ProbeRunResult.of(probe_run).calibration or {}
+    scatter = float((stored.get("probe") or {}).get("residual_rms_mm") or 0.0)
+    if not scatter > 0:
+        return None
+    return {"sigma_mm": scatter, "source": "calibration: the probe qualification's residual rms",
+            "probe_job_id": stored.get("probe_job_id")}
 
 
 def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
@@ -170,7 +194,11 @@ def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
     From a probe run on a calibrated machine with radius correction, the readings are
     turned into surface heights again along the normal of the REAL surface (the nominal's
     tilted by the reconstructed deviation's gradient) and the trace rebuilt, twice
-    (:func:`refined`)."""
+    (:func:`refined`).  Without ``sigma_mm`` a calibrated machine's run uses the calibration's
+    measured scatter (:func:`calibrated_sigma`)."""
+    calibrated = calibrated_sigma(ctx, params)
+    if calibrated is not None:
+        params = params.model_copy(update={"sigma_mm": calibrated["sigma_mm"]})
     trace = ctx.trace(params.trace_id)
     placement = placement_from(ctx, params)
     if params.method == "field":
