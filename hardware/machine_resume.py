@@ -4,12 +4,14 @@ planned), and draining the lines a controller still runs after it rejected one."
 
 from __future__ import annotations
 
+import time
 from collections import deque
 
-from .errors import FirmwareError, HardwareError
+from .errors import FirmwareError, FirmwareReset, HardwareError
 from .events import PositionReport
-from .resume import (ResumeLocation, end_positions, executed_bound, locate_by_position, modal_preamble,
-                     planner_blocks)
+from .machine_types import ReportEvidence
+from .resume import (ResumeLocation, command_feeds, end_positions, executed_bound, locate_by_position,
+                     locate_by_report, modal_preamble, planner_blocks)
 
 
 class ResumeOperations:
@@ -51,6 +53,18 @@ class ResumeOperations:
             return max(bound, executed_bound(blocks, max(done) + 1, pending))
         return bound
 
+    def _report_evidence(self, seqs: dict[int, int], start_line: int, exc: Exception) -> ReportEvidence | None:
+        """The last real position reported before the link failed (``hardware.reports``),
+        with the commands acknowledged when it arrived; None when there was none."""
+        marks = list(self.link.position_marks) if self.link is not None else []
+        if not marks:
+            return None
+        mark = marks[-1]
+        done = [i for i, seq in seqs.items() if seq is not None and seq <= mark.completed]
+        acked = max(done) + 1 if done else start_line
+        stopped = self.link.failed_at if isinstance(exc, FirmwareReset) else None
+        return ReportEvidence(mark.position, max(acked, start_line), mark.asked_at, stopped)
+
     def locate_resume(self) -> ResumeLocation:
         """After reconnecting: where the interrupted program continues, and on what evidence.
 
@@ -69,9 +83,43 @@ class ResumeOperations:
         if self.dialect == "marlin" and not gap.reset:
             found = ResumeLocation(bound, "line numbers", "the controller kept running and numbering lines")
         else:
-            found = self._locate_by_position(bound, gap.acked_index, gap.acked_index + len(gap.inflight), gap.total)
+            sent = gap.acked_index + len(gap.inflight)
+            found = self._locate_by_position(bound, gap.acked_index, sent, gap.total)
+            if found.basis == "planner bound" and gap.report is not None:
+                found = self._locate_by_report(found, gap.report, sent, gap.total)
         self.last_resume = found
         return found
+
+    def _locate_by_report(self, fallback: ResumeLocation, report: ReportEvidence, sent: int,
+                          total: int) -> ResumeLocation:
+        """The controller lost its position: place the last position it reported while
+        streaming on the program (``hardware.resume.locate_by_report``); the start is never
+        before the planner bound (both are sound: the later one wins)."""
+        commands = getattr(self, "_resume_commands", None)
+        if commands is None or len(commands) != total:
+            return fallback
+        p = self.profile
+        blocks = planner_blocks(commands, p.dispense_on, p.dispense_off)
+        lo = executed_bound(blocks, report.acked_index, self.planner_blocks)
+        stopped = report.stopped_at if report.stopped_at is not None else getattr(self, "_connected_at", time.monotonic())
+        seconds = max(stopped - report.asked_at, 0.0)
+        found = locate_by_report(end_positions(commands, p.dispense_on, p.dispense_off),
+                                 command_feeds(commands, p.dispense_on, p.dispense_off), report.position,
+                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index)
+        where = "(" + ", ".join(f"{v:.3f}" for v in report.position) + ")"
+        if found is None:
+            return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
+                                  f"{where} is not at one place of commands {lo}..{max(sent, fallback.start)}")
+        if found.start < fallback.start:
+            return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
+                                  f"{where} (command {found.start}) is older than the planner bound")
+        mm = "the path up to the last command sent" if found.after_mm is None else f"{found.after_mm:.3f} mm"
+        total_mm = "" if found.bound_mm is None else f"{found.bound_mm:.3f} mm, "
+        detail = (f"the controller reset; {seconds * 1000:.0f} ms before it stopped the tool was reported at "
+                  f"{where}, in command {found.start}: at most {total_mm}{found.bound_lines} commands may run "
+                  f"twice ({found.before_mm:.3f} mm of command {found.start} before that point, then at most "
+                  f"{mm} of motion up to the reset); the planner bound was command {fallback.start}")
+        return ResumeLocation(found.start, "reported position", detail, found.bound_mm, found.bound_lines)
 
     def _locate_by_position(self, bound: int, acked: int, sent: int, total: int) -> ResumeLocation:
         commands = getattr(self, "_resume_commands", None)

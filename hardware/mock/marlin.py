@@ -44,6 +44,14 @@ class MarlinFirmware(FirmwareCore):
 
     # ------------------------------------------------------------------ receive path
     def realtime(self, data: bytes, now: float) -> bytes:
+        """The emergency parser sees every byte on arrival: ``M112`` kills (the line goes no
+        further); with ``realtime_reports`` an ``S000`` line is answered at once with the
+        real stepper position (``report_current_position_moving``) and still goes on to
+        the command queue, which acknowledges it in turn (a plain ``ok``)."""
+        if self.world.realtime_reports and b"S000" in data:
+            for line in data.split(b"\n"):
+                if (normalized(line.decode("latin-1")) or "").upper() == "S000":
+                    self.report_moving(now)
         if b"M112" not in data:
             return data
         kept = []
@@ -54,6 +62,15 @@ class MarlinFirmware(FirmwareCore):
             else:
                 kept.append(line)
         return b"\n".join(kept)
+
+    def report_moving(self, now: float) -> None:
+        """Marlin's ``report_current_position_moving``: the position from the steppers
+        (where the tool is inside the running block), then the grbl-like state
+        (``S_XYZ:5`` running, ``S_XYZ:3`` idle)."""
+        x, y, z = self.machine_position(now)
+        self.emit(f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:0.00 Count X:{round(x * 80)} "
+                  f"Y:{round(y * 80)} Z:{round(z * 400)}", now)
+        self.emit(f"S_XYZ:{5 if self.moving() else 3}", now)
 
     def kill(self, now: float) -> None:
         """Emergency stop: halt everything; only a reset (reopen) brings it back."""
@@ -194,6 +211,8 @@ class MarlinFirmware(FirmwareCore):
             self.record(command, now)
             self.emit("ok T:21.50 /0.00 B:21.20 /0.00 @:0 B@:0", now)
             return
+        elif head == "S000" and self.world.realtime_reports:
+            pass  # answered by the emergency parser on arrival; the queue only acknowledges it
         elif head not in _SILENT:
             self.emit(f'echo:Unknown command: "{command}"', now)
         self.record(command, now)
@@ -247,9 +266,12 @@ class MarlinFirmware(FirmwareCore):
         self.emit("echo: Last Updated: 2024-01-01 | Author: (conforma mock)", now)
 
     def reset(self, now: float) -> None:
-        """Controller restart: buffers and line number lost, banner printed."""
+        """Controller restart: buffers, planned motion and line number lost, banner printed."""
+        self.lose_planned_motion(now)
         self.cold_start()
         self.banner(now)
+
+    hard_reset = reset
 
     def on_attach(self, now: float, first: bool) -> None:
         if first or self.halted:

@@ -1,0 +1,141 @@
+"""Resuming after a controller RESET from the last real position reported while streaming.
+
+A reset zeroes the controller's position, and ``ok`` means *planned*: without more, up to a
+planner's worth of moves may run twice (the planner bound).  While a program streams, the
+host now asks where the tool really is ten times a second (grbl ``?``; Marlin ``S000``,
+REALTIME_REPORTING_COMMANDS) and, after a reset, resumes at the command the last report
+places the tool in.  The mock's firmware reports where the tool is inside the moving block
+at the moment it is asked, and a reset keeps only the commands whose motion completed: the
+truth these tests compare with.  A reset is pressed at several moments of a program of many
+short moves and of one of a few long moves; each time the executed stream is the program
+with at most the stated bound repeated (lines and mm), nothing skipped, and strictly fewer
+repeats than the planner bound.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import pytest
+
+from hardware.errors import LinkError
+from hardware.machine import Machine, MachineProfile
+from hardware.protocol import normalized_commands
+from hardware.resume import end_positions
+
+PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
+SYNC = {"marlin": "M400", "grbl": "G4 P0"}  # the program ends when its motion has ended
+
+
+def short_moves(dialect: str, moves: int = 40) -> list[str]:
+    """0.58 mm moves at 10 mm/s (58 ms each), x always increasing: no place is visited twice."""
+    on, off = PROFILES[dialect].dispense_on, PROFILES[dialect].dispense_off
+    lines = ["G21", "G90", "G1 X0 Y0 Z1 F600"]
+    for i in range(1, moves + 1):
+        lines.append(f"G1 X{i * 0.5:.1f} Y{0.3 * (i % 2):.1f}")
+        if i % 10 == 3:
+            lines.append(on)
+        elif i % 10 == 8:
+            lines.append(off)
+    return lines + [SYNC[dialect]]
+
+
+def long_moves(dialect: str) -> list[str]:
+    """Five 6-8 mm moves at 20 mm/s (0.3-0.4 s each), an open spiral."""
+    return ["G21", "G90", "G1 X0 Y0 Z1 F1200", "G1 X8 Y0", "G1 X8 Y8", "G1 X0 Y8", "G1 X0 Y2",
+            "G1 X6 Y2", SYNC[dialect]]
+
+
+def machine(url: str, dialect: str) -> Machine:
+    return Machine(url, dialect, PROFILES[dialect], timeout_s=10, boot_wait_s=0.5, boot_quiet_s=0.01, poke_s=0.5)
+
+
+def path_mm(ends, start: int, ran: int, where) -> float:
+    """Length of the program's path from the start point of command ``start`` to ``where``
+    inside command ``ran`` (what really ran twice)."""
+    total, cursor = 0.0, ends[start - 1]
+    for k in range(start, ran):
+        total += math.dist(cursor, ends[k])
+        cursor = ends[k]
+    return total + math.dist(cursor, where)
+
+
+def reset_and_resume(make_world, dialect: str, lines: list[str], reset_after_s: float, **world):
+    url, w = make_world(dialect=dialect, time_scale=1.0, boot_s=0.05, **world)
+    m = machine(url, dialect)
+    m.connect()
+    if dialect == "marlin":
+        m.home()
+    w.transcript.reset()
+    truth: dict = {}
+    timer = threading.Timer(reset_after_s, lambda: truth.setdefault("where", w.reset_controller()))
+    timer.start()
+    try:
+        with pytest.raises(LinkError):
+            m.stream(lines)
+    finally:
+        timer.cancel()
+    m.connect()
+    ran = len(w.transcript.commands)  # commands whose motion completed before the reset
+    bound = m.resume_line()
+    found = m.locate_resume()
+    assert m.last_resume == found
+    if dialect == "marlin":
+        m.home()
+    report = m.stream(lines, start_line=found.start)
+    assert report.executed == report.total == len(lines)
+    commands = normalized_commands(lines)
+    home = ["G28"] if dialect == "marlin" else []  # grbl: the reset board needs no homing here (homing off)
+    executed = list(w.transcript.commands)
+    m.disconnect()
+    expected = commands[:ran] + home + m.last_preamble + commands[found.start:]
+    return found, bound, ran, truth["where"], executed, expected, commands
+
+
+def check(found, bound, ran, where, executed, expected, commands, profile):
+    assert found.basis == "reported position", found
+    assert found.start <= ran, found  # nothing skipped
+    assert ran - found.start < found.repeat_bound_lines, (ran, found)  # at most the stated bound runs twice
+    ends = end_positions(commands, profile.dispense_on, profile.dispense_off)
+    assert path_mm(ends, found.start, ran, where) <= found.repeat_bound_mm + 0.01, (where, found)
+    assert ran - found.start < ran - bound, (found.start, bound)  # strictly fewer repeats than the planner bound
+    assert executed == expected
+
+
+@pytest.mark.parametrize("dialect", ["grbl", "marlin"])
+@pytest.mark.parametrize("reset_after_s", [0.7, 1.5])
+def test_a_reset_during_many_short_moves_repeats_at_most_the_stated_bound(make_world, dialect, reset_after_s):
+    outcome = reset_and_resume(make_world, dialect, short_moves(dialect), reset_after_s,
+                               realtime_reports=dialect == "marlin")
+    check(*outcome, PROFILES[dialect])
+
+
+@pytest.mark.parametrize("dialect", ["grbl", "marlin"])
+@pytest.mark.parametrize("reset_after_s", [0.55, 1.15])
+def test_a_reset_during_a_long_move_repeats_only_that_move(make_world, dialect, reset_after_s):
+    found, *rest = reset_and_resume(make_world, dialect, long_moves(dialect), reset_after_s,
+                                    realtime_reports=dialect == "marlin")
+    check(found, *rest, PROFILES[dialect])
+    assert found.repeat_bound_lines <= 2  # the move in progress, and the next one at most
+
+
+def test_marlin_without_realtime_reports_keeps_the_planner_bound(make_world):
+    """Marlin's default build answers ``S000`` with ``Unknown command``: nothing reports the
+    real position while streaming (M154 and plain M114 print the *planned* one), so the
+    planner bound stands and says why."""
+    found, bound, ran, _, executed, expected, _ = reset_and_resume(make_world, "marlin", short_moves("marlin"), 1.0)
+    assert found.basis == "planner bound" and "origin" in found.detail and found.start == bound <= ran
+    assert executed == expected
+
+
+def test_the_connect_probe_finds_realtime_reports_only_where_the_firmware_has_them(make_world):
+    for enabled in (True, False):
+        url, _ = make_world(dialect="marlin", realtime_reports=enabled)
+        m = machine(url, "marlin")
+        identity = m.connect()
+        assert identity.capabilities["REALTIME_REPORTING_COMMANDS"] is enabled
+        assert m.link.realtime_reports is enabled
+        m.home()  # the probe's plain ok did not shift any later answer
+        assert m.position() == (0.0, 0.0, 0.0)
+        m.disconnect()
