@@ -86,6 +86,8 @@ class FirmwareCore:
         self.current: Generator[Wait, None, None] | None = None
         self.waiting: Wait | None = None
         self.keepalive_at = float("inf")
+        self.auto_report_s = 0.0  # Marlin M154: position auto-report interval (0: off)
+        self.auto_report_at = float("inf")
         self.planner: deque[float] = deque()  # end times of planned blocks
         # per planned block: (transcript index of its command, N word, start time, start, end)
         self.blocks: deque[tuple[int, int | None, float, tuple, tuple]] = deque()
@@ -176,6 +178,9 @@ class FirmwareCore:
                     self.keepalive_at = now + KEEPALIVE_S * self.scale
             if not self.halted:
                 progressed = self.pump(now) or progressed
+            if self.auto_report_at <= now and not self.halted:
+                self.auto_report(now)
+                self.auto_report_at = now + self.auto_report_s * self.scale
             if not progressed:
                 return self._next_time()
 
@@ -189,7 +194,7 @@ class FirmwareCore:
         return not self.planner  # "drain"
 
     def _next_time(self) -> float | None:
-        times = []
+        times = [self.auto_report_at] if self.auto_report_at != float("inf") else []
         if self.wire:
             times.append(self.wire[0][0])
         if self.current is not None:
@@ -433,6 +438,9 @@ class FirmwareCore:
 
     def keepalive(self, now: float) -> None:
         """Dialect hook: what to print while a command runs long."""
+
+    def auto_report(self, now: float) -> None:
+        """Dialect hook: a periodic report (Marlin ``M154``)."""
 
     def banner(self, now: float) -> None:
         raise NotImplementedError

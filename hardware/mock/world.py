@@ -53,7 +53,7 @@ from .artifacts import (PHYSICS_LIMITS, MockPad, MockSphere, MockTool, check_phy
 #: Host queries that do not change the machine; the transcript leaves them out so the
 #: executed digest compares directly with the program's ``commands_sha256``.
 HOST_QUERIES = frozenset({"M105", "M110", "M114", "M115", "M119", "M503", "$I", "$$", "$#",
-                          "$G", "$N", "$X", "S000"})
+                          "$G", "$N", "$X", "S000", "M154"})
 
 
 @dataclass

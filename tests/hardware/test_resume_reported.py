@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 
 import pytest
 
 from hardware.errors import LinkError
+from hardware.events import PositionReport
 from hardware.machine import Machine, MachineProfile
 from hardware.protocol import normalized_commands
 from hardware.resume import end_positions
@@ -139,3 +141,59 @@ def test_the_connect_probe_finds_realtime_reports_only_where_the_firmware_has_th
         m.home()  # the probe's plain ok did not shift any later answer
         assert m.position() == (0.0, 0.0, 0.0)
         m.disconnect()
+
+
+@pytest.mark.parametrize("dialect", ["grbl", "marlin"])
+def test_reports_never_follow_or_delay_an_emergency_stop(make_world, dialect):
+    """Reports are asked for by the reader thread under the link's lock, and refused once the
+    link is terminal: the wire still ends at the stop byte, and the stop is written at once."""
+    url, w = make_world(dialect=dialect, time_scale=1.0, boot_s=0.05, realtime_reports=True)
+    m = machine(url, dialect)
+    m.connect()
+    wire: list[bytes] = []
+    port, write = m.link.port, m.link.port.write
+    port.write = lambda data: (wire.append(bytes(data)), write(data))[1]
+    errors: list[Exception] = []
+    streamer = threading.Thread(target=lambda: _stream_catching(m, short_moves(dialect), errors))
+    streamer.start()
+    request = b"?" if dialect == "grbl" else b"S000\n"
+    deadline = time.monotonic() + 10
+    while wire.count(request) < 5:  # reports are flowing while the program streams
+        assert time.monotonic() < deadline, wire[-5:]
+        time.sleep(0.01)
+    started = time.monotonic()
+    m.emergency_stop()
+    elapsed = time.monotonic() - started
+    streamer.join(10)
+    time.sleep(0.3)  # three report intervals: none may follow the stop
+    stop = b"M112\n" if dialect == "marlin" else b"\x18"
+    assert wire[-1] == stop and wire.count(stop) == 1, wire[-4:]
+    assert errors and elapsed < 0.25, elapsed
+    m.disconnect()
+
+
+def _stream_catching(m: Machine, lines: list[str], errors: list) -> None:
+    try:
+        m.stream(lines)
+    except Exception as exc:  # the stop ends the stream with FirmwareError
+        errors.append(exc)
+
+
+def test_marlin_auto_report_is_the_planned_position_not_the_real_one(make_world):
+    """``M154`` (Cap:AUTOREPORT_POS) prints ``report_current_position_projected`` in Marlin
+    2.0.9-2.1.2: during a long move it already shows the move's end, while ``S000`` shows
+    where the tool is.  So the host never takes an auto-report as evidence of motion."""
+    url, w = make_world(dialect="marlin", time_scale=1.0, realtime_reports=True)
+    m = machine(url, "marlin")
+    identity = m.connect()
+    assert identity.capabilities["AUTOREPORT_POS"] is True
+    m.send("M154 S1")
+    m.send("G1 X20 F600")  # 2 s; acknowledged once planned
+    time.sleep(1.2)  # an auto-report came during the move
+    auto = [e for e in list(m.link.unsolicited) if isinstance(e, PositionReport)]
+    m.link.probe_realtime_reports()
+    real = m.link.position_marks[-1].position
+    assert auto and auto[-1].axes["X"] == 20.0  # the planned end
+    assert 8.0 < real[0] < 16.0  # the tool is half way
+    m.send("M154 S0")
+    m.disconnect()
