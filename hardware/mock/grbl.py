@@ -191,6 +191,7 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         """The board restarts: planned motion lost, position zeroed, banner, then the
         bootloader ignores input for ~1 s (with time_scale 0: until the port reopens)."""
         self.lose_planned_motion(now)
+        self.wire.clear()  # bytes arriving while the board restarts are lost
         self.cold_start()
         self.banner(now)
         self.booting_until = now + 1.0 * self.scale if self.scale else float("inf")

@@ -282,8 +282,10 @@ class MarlinFirmware(FirmwareCore):
         self.emit("echo: Last Updated: 2024-01-01 | Author: (conforma mock)", now)
 
     def reset(self, now: float) -> None:
-        """Controller restart: buffers, planned motion and line number lost, banner printed."""
+        """Controller restart: buffers, planned motion, bytes on their way and the line
+        number lost, banner printed."""
         self.lose_planned_motion(now)
+        self.wire.clear()
         self.cold_start()
         self.banner(now)
 
