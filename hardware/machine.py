@@ -274,6 +274,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         acked_line: int | None = None
         self.progress = (executed, total)
         seqs: dict[int, int] = {}  # command index -> completion order (Link.status_marks)
+        self._note_stream_start(start_line)  # where the tool stands, for reports (hardware.reports)
         try:
             self._replay_modes(commands, start_line)
         except HardwareError:

@@ -53,17 +53,41 @@ class ResumeOperations:
             return max(bound, executed_bound(blocks, max(done) + 1, pending))
         return bound
 
+    def _note_stream_start(self, start_line: int) -> None:
+        """Before a stream: only reports asked for from now on are evidence about it, and
+        (a stream from its first command) where the tool stands still, so that the
+        program's opening move, from wherever the tool was, is placeable too."""
+        self._stream_started = time.monotonic()
+        self._stream_origin: tuple[float, float, float] | None = None
+        link = self.link
+        if start_line != 0 or link is None:
+            return
+        try:
+            if self.dialect == "grbl":
+                link.query_status()
+            elif not (link.realtime_reports and link.probe_realtime_reports(min(1.0, self.timeout_s))):
+                return
+        except HardwareError:
+            return
+        mark = link.position_marks[-1] if link.position_marks else None
+        if mark is not None and mark.moving is False and mark.asked_at >= self._stream_started:
+            self._stream_origin = mark.position
+
     def _report_evidence(self, seqs: dict[int, int], start_line: int, exc: Exception) -> ReportEvidence | None:
-        """The last real position reported before the link failed (``hardware.reports``),
-        with the commands acknowledged when it arrived; None when there was none."""
-        marks = list(self.link.position_marks) if self.link is not None else []
+        """The last real position reported during the stream, before the link failed
+        (``hardware.reports``), with the commands acknowledged when it arrived; None when
+        there was none."""
+        started = getattr(self, "_stream_started", None)
+        marks = [m for m in (self.link.position_marks if self.link is not None else [])
+                 if started is not None and m.asked_at >= started]
         if not marks:
             return None
         mark = marks[-1]
         done = [i for i, seq in seqs.items() if seq is not None and seq <= mark.completed]
         acked = max(done) + 1 if done else start_line
         stopped = self.link.failed_at if isinstance(exc, FirmwareReset) else None
-        return ReportEvidence(mark.position, max(acked, start_line), mark.asked_at, stopped)
+        return ReportEvidence(mark.position, max(acked, start_line), mark.asked_at, stopped,
+                              getattr(self, "_stream_origin", None))
 
     def locate_resume(self) -> ResumeLocation:
         """After reconnecting: where the interrupted program continues, and on what evidence.
@@ -103,10 +127,16 @@ class ResumeOperations:
         lo = executed_bound(blocks, report.acked_index, self.planner_blocks)
         stopped = report.stopped_at if report.stopped_at is not None else getattr(self, "_connected_at", time.monotonic())
         seconds = max(stopped - report.asked_at, 0.0)
-        found = locate_by_report(end_positions(commands, p.dispense_on, p.dispense_off),
-                                 command_feeds(commands, p.dispense_on, p.dispense_off), report.position,
-                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index)
+        ends = end_positions(commands, p.dispense_on, p.dispense_off, start=report.origin)
+        opening = next((k for k, end in enumerate(ends) if end is not None), len(ends))
         where = "(" + ", ".join(f"{v:.3f}" for v in report.position) + ")"
+        if report.origin is None and lo <= opening:
+            # the tool may still have been on the opening move, from a place the program does not
+            # give: a point there could also lie on a later part of the path
+            return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
+                                  f"{where} may lie on the program's opening move, whose start is not known")
+        found = locate_by_report(ends, command_feeds(commands, p.dispense_on, p.dispense_off), report.position,
+                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index)
         if found is None:
             return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
                                   f"{where} is not at one place of commands {lo}..{max(sent, fallback.start)}")

@@ -85,9 +85,12 @@ class ReportEvidence:
     ``position`` (mm, work frame), commands ``[0, acked_index)`` acknowledged when it arrived,
     ``asked_at`` (host time at or before it was made) and
     ``stopped_at`` (host time the controller surely stopped moving: the reset seen on the
-    link; None when the link died without one: the reconnect stops it at the latest)."""
+    link; None when the link died without one: the reconnect stops it at the latest) and
+    ``origin``, the reported position of the tool standing still before the first command
+    (None: unknown, or a resumed stream whose start point the modal replay set)."""
 
     position: tuple[float, float, float]
     acked_index: int
     asked_at: float
     stopped_at: float | None
+    origin: tuple[float, float, float] | None = None  # where the tool stood (still) before the stream

@@ -45,6 +45,7 @@ class PositionMark:
     completed: int
     asked_at: float
     received_at: float
+    moving: bool | None = None  # the controller's state said so (grbl Run/Jog/Home, Marlin S_XYZ:5)
 
 
 class PositionReports:
@@ -114,7 +115,8 @@ class PositionReports:
             position = tuple(m - o for m, o in zip(event.mpos, offset))
         else:
             return
-        self._mark(position)
+        state = event.state.split(":")[0]
+        self._mark(position, state != "Idle")
 
     def _on_position_line(self, event: ReplyEvent) -> bool:
         """Marlin: remember a position line (it may be an S000 answer, confirmed by the
@@ -127,13 +129,14 @@ class PositionReports:
             return False
         candidate, self._candidate = self._candidate, None
         self._reported += 1
+        state = event.raw[len("S_XYZ:"):].strip()
         if candidate is not None:
             report, replies = candidate
             if replies is not None and report in replies:
                 replies.remove(report)  # not the answer of the command in flight
             axes = report.axes
-            if all(a in axes for a in "XYZ"):
-                self._mark((axes["X"], axes["Y"], axes["Z"]))
+            if all(a in axes for a in "XYZ"):  # M_IDLE 3; anything else may move
+                self._mark((axes["X"], axes["Y"], axes["Z"]), state != "3")
         return True
 
     def _on_plain_ok(self, extra: str) -> None:
@@ -141,11 +144,11 @@ class PositionReports:
         if self._rt_pending > 0 and not extra.startswith("T:"):
             self._rt_pending -= 1
 
-    def _mark(self, position: tuple[float, ...]) -> None:
+    def _mark(self, position: tuple[float, ...], moving: bool | None = None) -> None:
         xyz = tuple(float(v) for v in position[:3])
         if len(xyz) == 3:
-            self.position_marks.append(PositionMark(xyz, self._completed, self._report_asked_at(),
-                                                    time.monotonic()))
+            self.position_marks.append(PositionMark(xyz, self._completed, self._report_asked_at(),  # type: ignore[arg-type]
+                                                    time.monotonic(), moving))
 
     # ------------------------------------------------------------------ connect-time probe
     def probe_realtime_reports(self, timeout_s: float = 1.0) -> bool:

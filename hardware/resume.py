@@ -159,12 +159,15 @@ class ResumeLocation:
         return out
 
 
-def end_positions(commands: list[str], dispense_on: str = "", dispense_off: str = ""
-                  ) -> list[tuple[float, float, float] | None]:
+def end_positions(commands: list[str], dispense_on: str = "", dispense_off: str = "",
+                  start: tuple[float, float, float] | None = None) -> list[tuple[float, float, float] | None]:
     """Per command, the tool's programmed position after it (x, y, z) in mm (the program's
     frame), or None where it is not known (before every axis was set absolutely, after G28,
-    G30, G38.x, G53 or G10, and from a G92 frame shift on)."""
+    G30, G38.x, G53 or G10, and from a G92 frame shift on).  ``start``: where the tool stood
+    before the first command (mm), when known (then the opening is known too)."""
     state = ModalState()
+    if start is not None:
+        state.position = [float(v) for v in start]
     out: list[tuple[float, float, float] | None] = []
     for command in commands:
         before_inches = state.inches

@@ -24,7 +24,9 @@ from hardware.errors import LinkError
 from hardware.events import PositionReport
 from hardware.machine import Machine, MachineProfile
 from hardware.protocol import normalized_commands
-from hardware.resume import end_positions
+from hardware.machine_types import ReportEvidence
+from hardware.reports import PositionMark
+from hardware.resume import ResumeLocation, command_feeds, end_positions, locate_by_report
 
 PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
 SYNC = {"marlin": "M400", "grbl": "G4 P0"}  # the program ends when its motion has ended
@@ -196,4 +198,43 @@ def test_marlin_auto_report_is_the_planned_position_not_the_real_one(make_world)
     assert auto and auto[-1].axes["X"] == 20.0  # the planned end
     assert 8.0 < real[0] < 16.0  # the tool is half way
     m.send("M154 S0")
+    m.disconnect()
+
+
+# --- the pure locator and the evidence rules ----------------------------------------------------
+
+SQUARE = ["G21", "G90", "G1 X0 Y0 Z0 F600", "G1 X10", "G1 X10 Y10", "G1 X0 Y10"]
+
+
+@pytest.mark.parametrize(("seconds", "lines", "mm"), [
+    (0.5, 1, 4 + 5),     # 10 mm/s for 0.5 s: still inside the move the report was in
+    (1.0, 2, 4 + 10),    # 6 mm to its end, then 4 mm of the next move
+    (9.0, 3, 4 + 26),    # longer than the path sent: the path up to the last command sent
+])
+def test_locate_by_report_bounds_what_runs_twice(seconds, lines, mm):
+    ends = end_positions(SQUARE)
+    found = locate_by_report(ends, command_feeds(SQUARE), (4.0, 0.0, 0.0), 3, 6, seconds)
+    assert (found.start, found.bound_lines) == (3, lines) and found.bound_mm == pytest.approx(mm)
+    assert found.before_mm == pytest.approx(4.0)
+
+
+def test_a_rapid_in_the_window_bounds_by_the_path_not_by_time():
+    program = SQUARE[:4] + ["G0 X10 Y10", "G1 X0 Y10"]  # G0: the controller's own rate
+    found = locate_by_report(end_positions(program), command_feeds(program), (4.0, 0.0, 0.0), 3, 6, 0.1)
+    assert found.after_mm is None and found.bound_lines == 3 and found.bound_mm == pytest.approx(30.0)
+
+
+def test_only_reports_of_this_stream_count_and_an_unknown_opening_is_not_placed(make_world):
+    url, _ = make_world(dialect="grbl")
+    m = machine(url, "grbl")
+    m.connect()
+    m._note_stream_start(5)  # a resumed stream: no origin query
+    m.link.position_marks.append(PositionMark((10.0, 0.0, 0.0), 0, m._stream_started - 1.0, m._stream_started))
+    assert m._report_evidence({}, 5, LinkError("gone")) is None  # asked before the stream: stale
+    m._resume_commands = ["G21", "G90", "G1 X10 F600", "G1 Y5", "G1 X0", "G1 Y0"]  # opening from nowhere known
+    fallback = ResumeLocation(0, "planner bound", "the controller reports the power-on origin")
+    found = m._locate_by_report(fallback, ReportEvidence((10.0, 0.0, 0.0), 2, 0.0, 0.5), 6, 6)
+    assert found.basis == "planner bound" and "opening" in found.detail
+    placed = m._locate_by_report(fallback, ReportEvidence((10.0, 2.0, 0.0), 2, 0.0, 0.5, origin=(0.0, 0.0, 0.0)), 6, 6)
+    assert placed.basis == "reported position" and placed.start == 3  # the origin makes the opening known
     m.disconnect()
