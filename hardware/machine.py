@@ -34,6 +34,9 @@ What "known executed" means (``resume_line``):
   acknowledged command, tightened by the last grbl status report (Idle: nothing planned;
   ``Bf:`` free blocks); a few moves may run twice, none is skipped.  The controller lost
   its position: home before continuing.
+* While a program streams the controller reports where the tool really is, ten times a
+  second (grbl ``?``, Marlin ``S000``; ``hardware.reports``): after a reset
+  ``locate_resume()`` resumes from the last report instead of the planner bound.
 * After a rejected line (``FirmwareError``, ``exc.line_index``) the controller still runs
   the lines it already held (grbl: up to a buffer's worth); ``stream`` waits for them and
   ``resume_line()`` is the index after them (``rejected_lines`` lists the rejected ones).

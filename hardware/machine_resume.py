@@ -100,8 +100,11 @@ class ResumeOperations:
         one place of the program between the bound and the last command sent (a controller that
         lost its position reports something else: it is believed only on the path), the program
         continues there: at the move the tool stopped in, or after the move it finished
-        (:func:`hardware.resume.locate_by_position`).  Otherwise the bound stands, and
-        ``detail`` says why.  Must run before re-homing.  Sets ``last_resume``."""
+        (:func:`hardware.resume.locate_by_position`).  A controller that lost its position
+        (a reset) is placed by the last real position it *reported while streaming*
+        (``hardware.reports``; basis ``reported position``, with the bound on what may run
+        twice).  Otherwise the bound stands, and ``detail`` says why.  Must run before
+        re-homing.  Sets ``last_resume``."""
         bound = self.resume_line()
         gap = self._interrupted
         if self.dialect == "marlin" and not gap.reset:
