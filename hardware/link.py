@@ -63,12 +63,13 @@ from .events import ReplyEvent, StatusReport
 from .pending import CommandResult, PendingCommand
 from .protocol import check_dialect, frame, normalize_command
 from .replies import ReplyHandling
+from .reports import PositionReports
 
 WINDOWS = ("pingpong", "windowed")
 __all__ = ["WINDOWS", "CommandResult", "Link", "PendingCommand"]
 
 
-class Link(ReplyHandling):
+class Link(ReplyHandling, PositionReports):
     """A connection to one controller; see the module docstring.  Thread-safe."""
 
     def __init__(self, port: serial.SerialBase, *, dialect: str, timeout_s: float, window: str,
@@ -107,6 +108,7 @@ class Link(ReplyHandling):
         self._poke_s = poke_s
         self._pokes_in_row = 0
         self._grbl_state_init()
+        self._reports_init()
         self._reader = threading.Thread(target=self._read_loop, daemon=True, name="link-reader")
         self._reader.start()
 
@@ -185,7 +187,8 @@ class Link(ReplyHandling):
             return in_flight + nbytes <= self.rx_buffer - 1
         # Marlin: free command slots, and never more bytes than its RX buffer holds (it
         # stops reading serial while a command blocks, e.g. on a full planner)
-        return len(outstanding) < self.command_buffer and in_flight + nbytes <= self.rx_buffer - 1
+        return len(outstanding) < self.command_buffer \
+            and in_flight + nbytes + self._reserved_bytes() <= self.rx_buffer - 1
 
     # ------------------------------------------------------------------ grbl specifics
     def _grbl_state_init(self) -> None:
@@ -330,9 +333,12 @@ class Link(ReplyHandling):
                         for line in lines:
                             self._handle(line.decode("utf-8", errors="replace"))
                         self._cond.notify_all()
+                with self._cond:
+                    self._poll_reports()
             else:
                 with self._cond:
                     self._check_stall()
+                    self._poll_reports()
 
     def last_acked_line(self) -> int | None:
         """Highest line number acknowledged as processed (Marlin), else None."""
@@ -348,6 +354,7 @@ class Link(ReplyHandling):
         so an extra one only brings an extra report)."""
         with self._cond:
             seen = self._status_seq
+            self._note_ask()
             self._write(b"?")
             start = time.monotonic()
             asked = start
@@ -357,6 +364,7 @@ class Link(ReplyHandling):
                 if now - start > timeout_s:
                     raise LinkError("no status report", field="timeout_s")
                 if now - asked > repeat_s:
+                    self._note_ask()
                     self._write(b"?")
                     asked = now
                 self._cond.wait(0.05)

@@ -34,6 +34,9 @@ What "known executed" means (``resume_line``):
   acknowledged command, tightened by the last grbl status report (Idle: nothing planned;
   ``Bf:`` free blocks); a few moves may run twice, none is skipped.  The controller lost
   its position: home before continuing.
+* While a program streams the controller reports where the tool really is, ten times a
+  second (grbl ``?``, Marlin ``S000``; ``hardware.reports``): after a reset
+  ``locate_resume()`` resumes from the last report instead of the planner bound.
 * After a rejected line (``FirmwareError``, ``exc.line_index``) the controller still runs
   the lines it already held (grbl: up to a buffer's worth); ``stream`` waits for them and
   ``resume_line()`` is the index after them (``rejected_lines`` lists the rejected ones).
@@ -62,7 +65,7 @@ from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, Strea
                             _Interrupted)
 from .protocol import check_dialect, validate_program
 
-STATUS_POLL_S = 0.25  # grbl: a status report this often while streaming
+REPORT_INTERVAL_S = 0.1  # while streaming: a real-position report this often (hardware.reports)
 
 __all__ = ["STATES", "Identity", "Machine", "MachineProfile", "ProbeResult", "StreamReport"]
 
@@ -120,6 +123,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         unless an interrupted program waits for ``resume_line``) and identify."""
         if self.link is not None:
             self.disconnect()
+        self._connected_at = time.monotonic()  # a controller that kept running stopped by now at the latest
         self.link = Link.open(self.url, baudrate=self.baudrate, dialect=self.dialect,
                               timeout_s=self.timeout_s, window=self.window, poke_s=self.poke_s)
         self._state = "busy"
@@ -167,6 +171,10 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         fields.update(self._build_fields(result.events))
         if self.dialect == "grbl":
             self._apply_build_info(fields)
+        elif caps.get("EMERGENCY_PARSER") and self.link.mode == "windowed" and self.link._n_ok:
+            # S000 answered with the steppers' position (REALTIME_REPORTING_COMMANDS): nothing
+            # in M115 says so; its plain ok needs ADVANCED_OK to stay apart from the others
+            caps["REALTIME_REPORTING_COMMANDS"] = self.link.probe_realtime_reports(min(1.0, self.timeout_s))
         version = fields.get("VER", "").split(":")[0]  # [VER:1.1h.20190830:user string]
         name = (fields.get("FIRMWARE_NAME") or ("grbl " + version)).strip()
         return Identity(self.dialect, name, fields, caps, tuple(e.raw for e in banner), reset)
@@ -269,12 +277,12 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         acked_line: int | None = None
         self.progress = (executed, total)
         seqs: dict[int, int] = {}  # command index -> completion order (Link.status_marks)
+        self._note_stream_start(start_line)  # where the tool stands, for reports (hardware.reports)
         try:
             self._replay_modes(commands, start_line)
         except HardwareError:
             self._release("error" if not link.healthy else "idle")
             raise
-        polled = time.monotonic()
 
         def retire_oldest() -> None:
             """Wait for the oldest in-flight command (its LinkError propagates, leaving it
@@ -290,6 +298,8 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             if on_progress is not None:
                 on_progress(executed, total)
 
+        if self.dialect == "grbl" or link.realtime_reports:
+            link.report_interval_s = REPORT_INTERVAL_S  # the reader asks; the stream never waits for it
         try:
             for index in range(start_line, total):
                 link.wait_room(commands[index])  # see every answer before the next line
@@ -302,9 +312,6 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
                 if self._cancel:
                     break
                 inflight.append((index, link.send_async(commands[index])))
-                if self.dialect == "grbl" and time.monotonic() - polled > STATUS_POLL_S:
-                    link.realtime(b"?")  # where motion really is (see resume_line)
-                    polled = time.monotonic()
             while inflight:
                 retire_oldest()
         except LinkError as exc:
@@ -317,7 +324,8 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             self._interrupted = _Interrupted(total, executed, acked_line,
                                              [(p.line_no, i) for i, p in inflight],
                                              isinstance(exc, FirmwareReset),
-                                             self._moved_bound(commands, executed, seqs))
+                                             self._moved_bound(commands, executed, seqs),
+                                             report=self._report_evidence(seqs, start_line, exc))
             self._release("error")
             exc.resume_line = executed  # lower bound; resume_line() refines it
             raise
@@ -331,6 +339,8 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             self._interrupted = _Interrupted(total, executed, acked_line, [], True)
             self._release("error" if not link.healthy or self._estopped else "idle")
             raise
+        finally:
+            link.report_interval_s = 0.0
         cancelled = self._cancel
         self._release("idle")
         return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started,

@@ -4,12 +4,14 @@ planned), and draining the lines a controller still runs after it rejected one."
 
 from __future__ import annotations
 
+import time
 from collections import deque
 
-from .errors import FirmwareError, HardwareError
+from .errors import FirmwareError, FirmwareReset, HardwareError
 from .events import PositionReport
-from .resume import (ResumeLocation, end_positions, executed_bound, locate_by_position, modal_preamble,
-                     planner_blocks)
+from .machine_types import ReportEvidence
+from .resume import (ResumeLocation, command_feeds, end_positions, executed_bound, locate_by_position,
+                     locate_by_report, modal_preamble, planner_blocks)
 
 
 class ResumeOperations:
@@ -51,6 +53,42 @@ class ResumeOperations:
             return max(bound, executed_bound(blocks, max(done) + 1, pending))
         return bound
 
+    def _note_stream_start(self, start_line: int) -> None:
+        """Before a stream: only reports asked for from now on are evidence about it, and
+        (a stream from its first command) where the tool stands still, so that the
+        program's opening move, from wherever the tool was, is placeable too."""
+        self._stream_started = time.monotonic()
+        self._stream_origin: tuple[float, float, float] | None = None
+        link = self.link
+        if start_line != 0 or link is None:
+            return
+        try:
+            if self.dialect == "grbl":
+                link.query_status()
+            elif not (link.realtime_reports and link.probe_realtime_reports(min(1.0, self.timeout_s))):
+                return
+        except HardwareError:
+            return
+        mark = link.position_marks[-1] if link.position_marks else None
+        if mark is not None and mark.moving is False and mark.asked_at >= self._stream_started:
+            self._stream_origin = mark.position
+
+    def _report_evidence(self, seqs: dict[int, int], start_line: int, exc: Exception) -> ReportEvidence | None:
+        """The last real position reported during the stream, before the link failed
+        (``hardware.reports``), with the commands acknowledged when it arrived; None when
+        there was none."""
+        started = getattr(self, "_stream_started", None)
+        marks = [m for m in (self.link.position_marks if self.link is not None else [])
+                 if started is not None and m.asked_at >= started]
+        if not marks:
+            return None
+        mark = marks[-1]
+        done = [i for i, seq in seqs.items() if seq is not None and seq <= mark.completed]
+        acked = max(done) + 1 if done else start_line
+        stopped = self.link.failed_at if isinstance(exc, FirmwareReset) else None
+        return ReportEvidence(mark.position, max(acked, start_line), mark.asked_at, stopped,
+                              getattr(self, "_stream_origin", None))
+
     def locate_resume(self) -> ResumeLocation:
         """After reconnecting: where the interrupted program continues, and on what evidence.
 
@@ -62,16 +100,59 @@ class ResumeOperations:
         one place of the program between the bound and the last command sent (a controller that
         lost its position reports something else: it is believed only on the path), the program
         continues there: at the move the tool stopped in, or after the move it finished
-        (:func:`hardware.resume.locate_by_position`).  Otherwise the bound stands, and
-        ``detail`` says why.  Must run before re-homing.  Sets ``last_resume``."""
+        (:func:`hardware.resume.locate_by_position`).  A controller that lost its position
+        (a reset) is placed by the last real position it *reported while streaming*
+        (``hardware.reports``; basis ``reported position``, with the bound on what may run
+        twice).  Otherwise the bound stands, and ``detail`` says why.  Must run before
+        re-homing.  Sets ``last_resume``."""
         bound = self.resume_line()
         gap = self._interrupted
         if self.dialect == "marlin" and not gap.reset:
             found = ResumeLocation(bound, "line numbers", "the controller kept running and numbering lines")
         else:
-            found = self._locate_by_position(bound, gap.acked_index, gap.acked_index + len(gap.inflight), gap.total)
+            sent = gap.acked_index + len(gap.inflight)
+            found = self._locate_by_position(bound, gap.acked_index, sent, gap.total)
+            if found.basis == "planner bound" and gap.report is not None:
+                found = self._locate_by_report(found, gap.report, sent, gap.total)
         self.last_resume = found
         return found
+
+    def _locate_by_report(self, fallback: ResumeLocation, report: ReportEvidence, sent: int,
+                          total: int) -> ResumeLocation:
+        """The controller lost its position: place the last position it reported while
+        streaming on the program (``hardware.resume.locate_by_report``); the start is never
+        before the planner bound (both are sound: the later one wins)."""
+        commands = getattr(self, "_resume_commands", None)
+        if commands is None or len(commands) != total:
+            return fallback
+        p = self.profile
+        blocks = planner_blocks(commands, p.dispense_on, p.dispense_off)
+        lo = executed_bound(blocks, report.acked_index, self.planner_blocks)
+        stopped = report.stopped_at if report.stopped_at is not None else getattr(self, "_connected_at", time.monotonic())
+        seconds = max(stopped - report.asked_at, 0.0)
+        ends = end_positions(commands, p.dispense_on, p.dispense_off, start=report.origin)
+        opening = next((k for k, end in enumerate(ends) if end is not None), len(ends))
+        where = "(" + ", ".join(f"{v:.3f}" for v in report.position) + ")"
+        if report.origin is None and lo <= opening:
+            # the tool may still have been on the opening move, from a place the program does not
+            # give: a point there could also lie on a later part of the path
+            return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
+                                  f"{where} may lie on the program's opening move, whose start is not known")
+        found = locate_by_report(ends, command_feeds(commands, p.dispense_on, p.dispense_off), report.position,
+                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index)
+        if found is None:
+            return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
+                                  f"{where} is not at one place of commands {lo}..{max(sent, fallback.start)}")
+        if found.start < fallback.start:
+            return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
+                                  f"{where} (command {found.start}) is older than the planner bound")
+        mm = "the path up to the last command sent" if found.after_mm is None else f"{found.after_mm:.3f} mm"
+        total_mm = "" if found.bound_mm is None else f"{found.bound_mm:.3f} mm, "
+        detail = (f"the controller reset; {seconds * 1000:.0f} ms before it stopped the tool was reported at "
+                  f"{where}, in command {found.start}: at most {total_mm}{found.bound_lines} commands may run "
+                  f"twice ({found.before_mm:.3f} mm of command {found.start} before that point, then at most "
+                  f"{mm} of motion up to the reset); the planner bound was command {fallback.start}")
+        return ResumeLocation(found.start, "reported position", detail, found.bound_mm, found.bound_lines)
 
     def _locate_by_position(self, bound: int, acked: int, sent: int, total: int) -> ResumeLocation:
         commands = getattr(self, "_resume_commands", None)

@@ -76,3 +76,21 @@ class _Interrupted:
     inflight: list[tuple[int | None, int]]  # (line number, command index)
     reset: bool
     moved_index: int | None = None        # commands [0, moved_index) known to have moved
+    report: ReportEvidence | None = None  # the last real position reported before the failure
+
+
+@dataclass(frozen=True)
+class ReportEvidence:
+    """The last real position the controller reported while streaming (``hardware.reports``):
+    ``position`` (mm, work frame), commands ``[0, acked_index)`` acknowledged when it arrived,
+    ``asked_at`` (host time at or before it was made) and
+    ``stopped_at`` (host time the controller surely stopped moving: the reset seen on the
+    link; None when the link died without one: the reconnect stops it at the latest) and
+    ``origin``, the reported position of the tool standing still before the first command
+    (None: unknown, or a resumed stream whose start point the modal replay set)."""
+
+    position: tuple[float, float, float]
+    acked_index: int
+    asked_at: float
+    stopped_at: float | None
+    origin: tuple[float, float, float] | None = None  # where the tool stood (still) before the stream

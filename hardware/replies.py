@@ -31,6 +31,8 @@ class ReplyHandling:
                 self.on_event(event)
             except Exception:  # an observer must never break the link
                 pass
+        if self.dialect == "marlin" and self._on_position_line(event):
+            return  # the S_XYZ line after an S000 answer (hardware.reports)
         if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
             self._answered = True
         swallow, self._swallow = self._swallow, False
@@ -93,6 +95,8 @@ class ReplyHandling:
             return
         if swallow:  # Marlin 1.x/2.1 follow "Resend: n" with an ok (2.0.x does not)
             return
+        if self.dialect == "marlin":
+            self._on_plain_ok(event.extra)
         if not self._outstanding:
             self.unsolicited.append(event)
             return
@@ -106,6 +110,7 @@ class ReplyHandling:
 
     def _on_resend(self, line: int) -> None:
         self._swallow = True
+        self._rt_pending = 0  # Marlin flushed its receive buffer, S000 lines with it (hardware.reports)
         head = self._outstanding[0] if self._outstanding else None
         if head is not None and head.sync:
             # sync probe answered "Line Number is not Last Line Number+1": adopt the number
@@ -205,6 +210,7 @@ class ReplyHandling:
         self.unsolicited.append(event)
         # which commands were answered when grbl made this report (see Link.status_marks)
         self.status_marks.append((event, self._completed, time.monotonic()))
+        self._on_status_position(event)
         # No lost-ok inference here: grbl reports Idle with an empty RX buffer while it
         # dwells, so only the $G marker (below) proves that answers were lost.
 
@@ -232,6 +238,7 @@ class ReplyHandling:
         """A stalled grbl link: ask for a status (a sign of life; grbl answers ``?`` even
         while dwelling or homing) and, when its receive buffer surely has room, send one
         ``$G`` marker whose ``[GC:]`` answer settles any lost ``ok``."""
+        self._note_ask()
         self._write(b"?")
         if any(p.marker and not _has_parser_state(p) for p in self._outstanding) \
                 or self._fatal is not None:  # one unanswered marker at a time
@@ -305,6 +312,7 @@ class ReplyHandling:
     def _set_fatal(self, failure: HardwareError) -> None:
         if self._fatal is None:
             self._fatal = failure
+            self.failed_at = time.monotonic()
         self._fail_all(failure)
 
     def _check_fatal(self) -> None:

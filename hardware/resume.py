@@ -140,24 +140,34 @@ class ResumeLocation:
 
     start: first command to send; basis: "line numbers" (Marlin kept running and counting:
     exact), "position" (the controller kept its position and it lies on exactly one place
-    of the path: at most the move it was cut in runs again) or "planner bound" (nothing
-    better is known: up to a planner's worth of short moves may run twice); detail: the
-    evidence, for the operator."""
+    of the path: at most the move it was cut in runs again), "reported position" (the
+    controller reset; the last real position it reported while streaming lies on one place
+    of the path: what may run twice is bounded by ``repeat_bound_mm`` / ``repeat_bound_lines``)
+    or "planner bound" (nothing better is known: up to a planner's worth of short moves may
+    run twice); detail: the evidence, for the operator."""
 
     start: int
     basis: str
     detail: str
+    repeat_bound_mm: float | None = None  # "reported position": what may run twice, mm ...
+    repeat_bound_lines: int | None = None  # ... and commands (whole or in part)
 
     def as_dict(self) -> dict:
-        return {"start": self.start, "basis": self.basis, "detail": self.detail}
+        out: dict = {"start": self.start, "basis": self.basis, "detail": self.detail}
+        if self.basis == "reported position":
+            out |= {"repeat_bound_mm": self.repeat_bound_mm, "repeat_bound_lines": self.repeat_bound_lines}
+        return out
 
 
-def end_positions(commands: list[str], dispense_on: str = "", dispense_off: str = ""
-                  ) -> list[tuple[float, float, float] | None]:
+def end_positions(commands: list[str], dispense_on: str = "", dispense_off: str = "",
+                  start: tuple[float, float, float] | None = None) -> list[tuple[float, float, float] | None]:
     """Per command, the tool's programmed position after it (x, y, z) in mm (the program's
     frame), or None where it is not known (before every axis was set absolutely, after G28,
-    G30, G38.x, G53 or G10, and from a G92 frame shift on)."""
+    G30, G38.x, G53 or G10, and from a G92 frame shift on).  ``start``: where the tool stood
+    before the first command (mm), when known (then the opening is known too)."""
     state = ModalState()
+    if start is not None:
+        state.position = [float(v) for v in start]
     out: list[tuple[float, float, float] | None] = []
     for command in commands:
         before_inches = state.inches
@@ -224,3 +234,74 @@ def locate_by_position(ends: list[tuple[float, float, float] | None], position: 
     if moved:
         return None  # two places of the path
     return max(first, min(acked, last))  # one place: a run of commands that do not move
+
+
+def command_feeds(commands: list[str], dispense_on: str = "", dispense_off: str = "") -> list[float | None]:
+    """Per command, the programmed feed of its motion in mm/min: G1/G2/G3 the modal ``F``;
+    None for a rapid (G0: the controller's own rate) or before any ``F``."""
+    state = ModalState()
+    out: list[float | None] = []
+    for command in commands:
+        state.update(command, dispense_on, dispense_off)
+        scale = 25.4 if state.inches else 1.0
+        out.append(state.feed * scale if state.motion in ("G1", "G2", "G3") and state.feed else None)
+    return out
+
+
+@dataclass(frozen=True)
+class ReportedResume:
+    """Where a resume located by a reported position starts, and what may run twice: the
+    part of command ``start`` before the reported point plus the motion after the report
+    (``bound_mm``; None: not bounded by time, the path up to the last command sent), over
+    ``bound_lines`` commands (``start`` and those after it that the tool may have reached)."""
+
+    start: int
+    bound_mm: float | None
+    bound_lines: int
+    before_mm: float
+    after_mm: float | None
+
+
+def locate_by_report(ends: list[tuple[float, float, float] | None], feeds: list[float | None],
+                     position: tuple[float, float, float], lo: int, hi: int, seconds: float,
+                     acked: int = 0, tolerance_mm: float = POSITION_TOLERANCE_MM) -> ReportedResume | None:
+    """The tool was at ``position`` (a real-position report) when commands [0, lo) had
+    surely completed and commands [hi, ...) were not sent; it then moved for at most
+    ``seconds`` (until the controller reset) along the program.  Resuming at the command
+    the report places it in (:func:`locate_by_position`) skips nothing: the tool was there
+    or before.  What runs twice is bounded by the motion at the fastest programmed feed of
+    the commands from there to ``hi`` during ``seconds`` (a rapid in between: unbounded by
+    time, the path up to ``hi``), walked along the path.  None when the position is not on
+    exactly one place of the window."""
+    start = locate_by_position(ends, position, lo, hi, tolerance_mm, acked=acked)
+    if start is None:
+        return None
+    hi = min(hi, len(ends))
+    origin = ends[start - 1] if start > 0 else None
+    before = math.dist(origin, position) if origin is not None else 0.0
+    speeds = []
+    cursor = tuple(position)
+    for k in range(start, hi):
+        end = ends[k]
+        if end is not None and math.dist(cursor, end) > 0:
+            speeds.append(feeds[k])
+        cursor = end if end is not None else cursor
+    after = None if not speeds or None in speeds else max(s for s in speeds if s) / 60.0 * max(seconds, 0.0)
+    remaining = math.inf if after is None else after
+    walked, last, cursor = 0.0, start, tuple(position)
+    for k in range(start, hi):
+        end = ends[k]
+        if end is None:
+            last, remaining = hi - 1, 0.0
+            walked = math.inf
+            break
+        step = math.dist(cursor, end)
+        last = k
+        if step >= remaining:
+            walked += remaining
+            break
+        walked += step
+        remaining -= step
+        cursor = end
+    bound_mm = None if math.isinf(walked) else before + walked
+    return ReportedResume(start, bound_mm, max(last, start) - start + 1, before, after)

@@ -146,9 +146,13 @@ def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[st
     Before re-homing, the machine is asked where its tool stands (``locate_resume``): after a
     link drop with the position kept, the program continues at the first command not
     completed (no move runs twice); otherwise by line numbers (Marlin that kept running) or
-    the planner bound (a reset: up to a planner's worth of short moves may run twice).  The
-    evidence is ``machine.last_resume`` (logged).  A machine that no longer knows the program
+    the position the controller reported last while streaming (a reset: what may run twice
+    is bounded by the motion of one report interval plus the move in progress), or the
+    planner bound (a reset without reports: up to a planner's worth of short moves may run
+    twice).  The evidence is ``machine.last_resume`` (logged; the print job records it as
+    ``resume_location``).  A machine that no longer knows the program
     (another process) continues from the recorded count."""
+    machine.last_resume = None  # what this resume found (the job records it), nothing older
     if machine.interrupted_program is None:
         start = int(resume["executed"])
     elif hasattr(machine, "locate_resume"):

@@ -86,6 +86,8 @@ class FirmwareCore:
         self.current: Generator[Wait, None, None] | None = None
         self.waiting: Wait | None = None
         self.keepalive_at = float("inf")
+        self.auto_report_s = 0.0  # Marlin M154: position auto-report interval (0: off)
+        self.auto_report_at = float("inf")
         self.planner: deque[float] = deque()  # end times of planned blocks
         # per planned block: (transcript index of its command, N word, start time, start, end)
         self.blocks: deque[tuple[int, int | None, float, tuple, tuple]] = deque()
@@ -176,6 +178,9 @@ class FirmwareCore:
                     self.keepalive_at = now + KEEPALIVE_S * self.scale
             if not self.halted:
                 progressed = self.pump(now) or progressed
+            if self.auto_report_at <= now and not self.halted:
+                self.auto_report(now)
+                self.auto_report_at = now + self.auto_report_s * self.scale
             if not progressed:
                 return self._next_time()
 
@@ -189,7 +194,7 @@ class FirmwareCore:
         return not self.planner  # "drain"
 
     def _next_time(self) -> float | None:
-        times = []
+        times = [self.auto_report_at] if self.auto_report_at != float("inf") else []
         if self.wire:
             times.append(self.wire[0][0])
         if self.current is not None:
@@ -331,13 +336,24 @@ class FirmwareCore:
         self.blocks = deque((i, n, t + shift, a, b) for i, n, t, a, b in self.blocks)
         self.motion_end += shift
 
-    def machine_position(self, now: float) -> tuple[float, float, float]:
-        """Where the tool really is (mm): inside the running block, not the planned end."""
-        if not self.blocks:
-            return tuple(self.position)
-        _, _, begin, start, end = self.blocks[0]
+    def _running(self, now: float) -> int | None:
+        """Index (in ``blocks``) of the block moving at ``now`` (the driver may not have
+        retired the finished ones yet), or None when every planned block has ended."""
         t = self.held_since if self.held_since is not None else now
-        span = self.planner[0] - begin
+        for i, end_at in enumerate(self.planner):
+            if end_at > t:
+                return i
+        return None
+
+    def machine_position(self, now: float) -> tuple[float, float, float]:
+        """Where the tool really is (mm) at ``now``: inside the block moving then, not the
+        planned end (also between two advances of the event loop)."""
+        i = self._running(now) if self.blocks else None
+        if i is None:
+            return tuple(self.position)
+        _, _, begin, start, end = self.blocks[i]
+        t = self.held_since if self.held_since is not None else now
+        span = self.planner[i] - begin
         f = 1.0 if span <= 0 else min(max((t - begin) / span, 0.0), 1.0)
         return tuple(a + (b - a) * f for a, b in zip(start, end))
 
@@ -345,15 +361,17 @@ class FirmwareCore:
         """True while planned motion remains (also while held)."""
         return bool(self.planner)
 
-    def done_count(self) -> int:
-        """Recorded commands whose motion is complete: the ones before the running block."""
-        return self.blocks[0][0] if self.blocks else self.world.transcript.executed_count
+    def done_count(self, now: float | None = None) -> int:
+        """Recorded commands whose motion is complete (at ``now``; default: the event
+        loop's time): the ones before the running block."""
+        i = self._running(self.now if now is None else now) if self.blocks else None
+        return self.blocks[i][0] if i is not None else self.world.transcript.executed_count
 
-    def lose_planned_motion(self) -> None:
+    def lose_planned_motion(self, now: float | None = None) -> None:
         """A reset or power loss: planned but unexecuted commands never ran, so the
         transcript ends at the last command whose motion completed (when it keeps texts)."""
         if self.world.transcript.keep:
-            self.world.transcript.truncate(self.done_count())
+            self.world.transcript.truncate(self.done_count(now))
 
     def block_capacity(self) -> int:
         """Planner blocks that can hold motion at once (grbl keeps one ring slot free)."""
@@ -420,6 +438,9 @@ class FirmwareCore:
 
     def keepalive(self, now: float) -> None:
         """Dialect hook: what to print while a command runs long."""
+
+    def auto_report(self, now: float) -> None:
+        """Dialect hook: a periodic report (Marlin ``M154``)."""
 
     def banner(self, now: float) -> None:
         raise NotImplementedError

@@ -141,7 +141,7 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         """Ctrl-X: motion stops at once (position kept, planned motion lost), banner."""
         moving = self.moving() or self.homing_until is not None
         position = list(self.machine_position(now))
-        self.lose_planned_motion()
+        self.lose_planned_motion(now)
         self.wire.clear()
         if moving:
             self.emit("ALARM:3", now)
@@ -163,11 +163,7 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         self.world.stats.lines_received += 1
         text = raw.decode("latin-1").strip()
         if text and self.due("reset", text):
-            self.lose_planned_motion()
-            self.cold_start()
-            self.banner(now)
-            # bootloader: input is lost for ~1 s (with time_scale 0: until the port reopens)
-            self.booting_until = now + 1.0 * self.scale if self.scale else float("inf")
+            self.hard_reset(now)
             return True
         if text and self.due("disconnect", text):
             self.disconnect(now)  # the line is lost with the receive buffer
@@ -190,6 +186,15 @@ class GrblFirmware(GrblSystem, FirmwareCore):
             self.jogging = False
             self.start(None, command, now)
         return True
+
+    def hard_reset(self, now: float) -> None:
+        """The board restarts: planned motion lost, position zeroed, banner, then the
+        bootloader ignores input for ~1 s (with time_scale 0: until the port reopens)."""
+        self.lose_planned_motion(now)
+        self.wire.clear()  # bytes arriving while the board restarts are lost
+        self.cold_start()
+        self.banner(now)
+        self.booting_until = now + 1.0 * self.scale if self.scale else float("inf")
 
     def reply(self, text: str, now: float) -> None:
         """Send ``ok``/``error:N`` (with the ok faults)."""

@@ -43,7 +43,7 @@ class GrblSystem:
 
     def power_up(self, now: float, position: list[float] | None) -> None:
         """DTR reset: the bootloader swallows input for ``boot_s``, then grbl starts."""
-        self.lose_planned_motion()
+        self.lose_planned_motion(now)
         self.alarm = False
         self.cold_start()
         if position is not None:
@@ -66,7 +66,7 @@ class GrblSystem:
     def disconnect(self, now: float) -> None:
         """USB drop: the board resets when it re-enumerates; planned motion is lost."""
         position = list(self.machine_position(now))
-        self.lose_planned_motion()
+        self.lose_planned_motion(now)
         super().disconnect(now)
         self.cold_start()
         self.position = position

@@ -13,6 +13,11 @@
   ``Error:Probing Failed``.  ``G38.2 X.. Y.. Z.. F..`` probes toward the target in any
   direction and stops at the trigger (miss: ``Error:Failed to reach target``).  ``M114``
   prints the planned position (2 decimals; ``M114 D`` adds ``Logical: X: Y: Z:`` with 3).
+* ``M154 S<s>`` (AUTO_REPORT_POSITION, ``Cap:AUTOREPORT_POS:1``) prints the same *planned*
+  position every s seconds (``report_current_position_projected``, Marlin 2.0.9-2.1.2).
+* With ``realtime_reports`` (REALTIME_REPORTING_COMMANDS) the emergency parser answers
+  ``S000`` on arrival with the position from the steppers and ``S_XYZ:<state>``; the line
+  then reaches the queue and gets a plain ``ok``.  Without it: ``Unknown command``, ``ok``.
   Contacts and readings follow ``hardware.mock.physics`` (ball stylus, pre-travel, drift).
 * ``T<n>`` selects tool n (T0 the probe, T1.. the world's nozzles; waits for the moves
   before it); an unknown tool prints ``echo:T<n> Invalid extruder`` then ``ok``.
@@ -44,6 +49,14 @@ class MarlinFirmware(FirmwareCore):
 
     # ------------------------------------------------------------------ receive path
     def realtime(self, data: bytes, now: float) -> bytes:
+        """The emergency parser sees every byte on arrival: ``M112`` kills (the line goes no
+        further); with ``realtime_reports`` an ``S000`` line is answered at once with the
+        real stepper position (``report_current_position_moving``) and still goes on to
+        the command queue, which acknowledges it in turn (a plain ``ok``)."""
+        if self.world.realtime_reports and b"S000" in data:
+            for line in data.split(b"\n"):
+                if (normalized(line.decode("latin-1")) or "").upper() == "S000":
+                    self.report_moving(now)
         if b"M112" not in data:
             return data
         kept = []
@@ -54,6 +67,22 @@ class MarlinFirmware(FirmwareCore):
             else:
                 kept.append(line)
         return b"\n".join(kept)
+
+    def auto_report(self, now: float) -> None:
+        """``M154``'s report is ``report_current_position_projected``: the position of the
+        last G-code *planned* (and the planner's step counts), not where the tool is."""
+        x, y, z = self.position
+        self.emit(f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:0.00 Count X:{round(x * 80)} "
+                  f"Y:{round(y * 80)} Z:{round(z * 400)}", now)
+
+    def report_moving(self, now: float) -> None:
+        """Marlin's ``report_current_position_moving``: the position from the steppers
+        (where the tool is inside the running block), then the grbl-like state
+        (``S_XYZ:5`` running, ``S_XYZ:3`` idle)."""
+        x, y, z = self.machine_position(now)
+        self.emit(f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:0.00 Count X:{round(x * 80)} "
+                  f"Y:{round(y * 80)} Z:{round(z * 400)}", now)
+        self.emit(f"S_XYZ:{5 if self.moving() else 3}", now)
 
     def kill(self, now: float) -> None:
         """Emergency stop: halt everything; only a reset (reopen) brings it back."""
@@ -190,10 +219,16 @@ class MarlinFirmware(FirmwareCore):
                 self.emit(f"Logical: X:{x:.3f} Y:{y:.3f} Z:{z:.3f}", now)
         elif head == "M115":
             self.identify(now)
+        elif head == "M154":  # AUTO_REPORT_POSITION: S<seconds> (a byte), 0 = off
+            self.auto_report_s = float(max(0, min(255, int(params.get("S", 0)))))
+            self.auto_report_at = now + self.auto_report_s * self.scale \
+                if self.auto_report_s and self.scale else float("inf")
         elif head == "M105":
             self.record(command, now)
             self.emit("ok T:21.50 /0.00 B:21.20 /0.00 @:0 B@:0", now)
             return
+        elif head == "S000" and self.world.realtime_reports:
+            pass  # answered by the emergency parser on arrival; the queue only acknowledges it
         elif head not in _SILENT:
             self.emit(f'echo:Unknown command: "{command}"', now)
         self.record(command, now)
@@ -235,7 +270,7 @@ class MarlinFirmware(FirmwareCore):
         self.emit("FIRMWARE_NAME:Marlin 2.1.2.1 (mock) SOURCE_CODE_URL:github.com/MarlinFirmware/"
                   "Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:Conforma mock KINEMATICS:Cartesian "
                   f"EXTRUDER_COUNT:{max(1, len(self.world.tools))} UUID:00000000-0000-0000-0000-000000000000", now)
-        caps = {"SERIAL_XON_XOFF": 0, "EEPROM": 0, "AUTOREPORT_TEMP": 0, "EMERGENCY_PARSER": 1,
+        caps = {"SERIAL_XON_XOFF": 0, "EEPROM": 0, "AUTOREPORT_POS": 1, "AUTOREPORT_TEMP": 0, "EMERGENCY_PARSER": 1,
                 "Z_PROBE": 1, "ADVANCED_OK": int(self.world.advanced_ok)}
         for name, flag in caps.items():
             self.emit(f"Cap:{name}:{flag}", now)
@@ -247,9 +282,14 @@ class MarlinFirmware(FirmwareCore):
         self.emit("echo: Last Updated: 2024-01-01 | Author: (conforma mock)", now)
 
     def reset(self, now: float) -> None:
-        """Controller restart: buffers and line number lost, banner printed."""
+        """Controller restart: buffers, planned motion, bytes on their way and the line
+        number lost, banner printed."""
+        self.lose_planned_motion(now)
+        self.wire.clear()
         self.cold_start()
         self.banner(now)
+
+    hard_reset = reset
 
     def on_attach(self, now: float, first: bool) -> None:
         if first or self.halted:

@@ -41,6 +41,7 @@ bootloader then ignores input for 1 s, or until the port is reopened with time_s
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass, field, fields
 from urllib.parse import parse_qsl, urlsplit
 
@@ -52,7 +53,7 @@ from .artifacts import (PHYSICS_LIMITS, MockPad, MockSphere, MockTool, check_phy
 #: Host queries that do not change the machine; the transcript leaves them out so the
 #: executed digest compares directly with the program's ``commands_sha256``.
 HOST_QUERIES = frozenset({"M105", "M110", "M114", "M115", "M119", "M503", "$I", "$$", "$#",
-                          "$G", "$N", "$X"})
+                          "$G", "$N", "$X", "S000", "M154"})
 
 
 @dataclass
@@ -191,6 +192,9 @@ class MockWorld:
     fresh_eeprom: bool = False
     boot_s: float = 0.5
     line_numbers: bool = False
+    # Marlin: REALTIME_REPORTING_COMMANDS (needs EMERGENCY_PARSER; off in Marlin's default
+    # configuration): "S000" answered on arrival with the real stepper position
+    realtime_reports: bool = False
     # probe physics (hardware.mock.physics): ball stylus of T0, pre-travel (mean, scatter,
     # 3-lobed direction dependence), Z drift, nozzle touch-off scatter, tools, artifacts
     stylus_radius_mm: float = 0.0
@@ -242,6 +246,21 @@ class MockWorld:
         fw = self.firmware
         return int(getattr(fw, "active_tool", 0)) if fw is not None else 0
 
+    def reset_controller(self) -> tuple[float, float, float] | None:
+        """The controller restarts now (a reset button, a brown-out, a watchdog): what was
+        planned and not yet moved is lost, the position is the power-on origin and the
+        banner goes to the host (grbl's bootloader then ignores input for about a second).
+        Returns where the tool really was (mm), the truth a test compares with."""
+        with self.cond:
+            firmware = self.firmware
+            if firmware is None:
+                return None
+            now = 0.0 if self.time_scale == 0 else time.monotonic()
+            where = tuple(float(v) for v in firmware.machine_position(now))
+            firmware.hard_reset(now)
+            self.cond.notify_all()
+            return where  # type: ignore[return-value]
+
     def drift_mm(self) -> float:
         """Z drift now (mm): actual tool Z = commanded Z + this (machine clock based)."""
         return self.drift_mm_per_min * self.stats.machine_time_s / 60.0
@@ -264,7 +283,8 @@ _WORLD_KEYS = {"dialect": str, "time_scale": float, "seed": int, "probe_noise_mm
                "command_buffer": int, "planner_blocks": int, "bed_z": float,
                "probe_z_min": float, "dispense_on": str, "dispense_off": str,
                "keep_transcript": bool, "homing": bool, "homing_fails": bool,
-               "fresh_eeprom": bool, "boot_s": float, "line_numbers": bool}
+               "fresh_eeprom": bool, "boot_s": float, "line_numbers": bool,
+               "realtime_reports": bool}
 
 
 def register_world(name: str, world: MockWorld) -> MockWorld:

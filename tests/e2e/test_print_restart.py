@@ -100,6 +100,8 @@ def test_server_killed_mid_print_waits_for_the_operator_and_resumes_exactly_once
         start_line, preamble = done["result"]["start_line"], done["result"]["resume_preamble"]
         print(f"persisted executed {state['executed']}, drained {drained}, resumed from {start_line}")
         assert start_line == drained  # the firmware's line number says exactly where it stopped
+        assert done["result"]["resume_location"]["basis"] == "line numbers"  # the evidence, in the record
+        assert done["result"]["resume_location"]["start"] == start_line
         commands = normalized_commands(PROGRAM.splitlines())
         assert status(status_port)["commands"] == commands[:start_line] + preamble + commands[start_line:]
     finally:

@@ -156,8 +156,12 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
                 state["start_line"], preamble = resume_point(machine, resume)
         except (HardwareError, MachineUnavailable, MachineFault) as exc:
             raise interrupt(ctx, machine, exc, state) from exc
+        located = getattr(machine, "last_resume", None)
         state.update(executed=state["start_line"], acked_line_no=None, resumes=state["resumes"] + 1,
-                     resume_preamble=preamble, resumed_from=state["start_line"])
+                     resume_preamble=preamble, resumed_from=state["start_line"],
+                     resume_location=located.as_dict() if located is not None else
+                     {"start": state["start_line"], "basis": "recorded count",
+                      "detail": "this process does not know the interrupted program: the recorded count"})
         if drift is not None:
             state["drift"] = drift
         ctx.runtime.store.save_program_state(ctx.claim, state)
@@ -203,6 +207,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
         preamble = preamble + list(machine.last_preamble)
     result = {"executed": report.executed, "total": report.total, "start_line": report.start_line,
               "resumes": state["resumes"], "resume_preamble": preamble,
+              **({"resume_location": state["resume_location"]} if "resume_location" in state else {}),
               "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
     if drift is not None:
         result |= {"source_program": source_meta, "drift": drift}
