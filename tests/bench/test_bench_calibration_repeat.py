@@ -32,9 +32,10 @@ from scipy import integrate, stats
 
 from app.calibration import fit_qualification, plan_qualification
 from app.jobs.kinds.calibrate_nozzle import CalibrateNozzleParams
-from app.jobs.kinds.calibrate_probe import CalibrateProbeParams
+from app.jobs.kinds.calibrate_probe import LOCATED_TOLERANCE_MM, CalibrateProbeParams
 from hardware.mock import get_world
 from tests.calibration.forward import TrueProbe
+from tests.calibration.test_qualify import TRUE as TRUE_CENTRE
 from tests.calibration.test_qualify import readings_for
 from tests.jobs import test_calibration_jobs as T
 
@@ -51,10 +52,10 @@ NAMES = ("radius", "pre-travel p0", "T1 offset x", "T1 offset y", "T1 offset z")
 def predicted_sd_um(reps: int = 60) -> dict[str, float]:
     """1-sigma of each quantity from the noise model (see the module docstring)."""
     probe_params, nozzle_params = CalibrateProbeParams(machine_id="x"), CalibrateNozzleParams(machine_id="x", tool=1)
-    touches = plan_qualification((100.0, 50.0, 10.0), 10.0, 0.5, (80.0, 50.0, 2.0),
+    touches = plan_qualification(TRUE_CENTRE, 10.0, 0.5, (80.0, 50.0, 2.0),
                                  cap_rings_deg=tuple(probe_params.cap_rings_deg), per_ring=probe_params.per_ring,
                                  equator=probe_params.equator, pad_touches=probe_params.pad_touches,
-                                 place_tolerance_mm=0.5)
+                                 place_tolerance_mm=LOCATED_TOLERANCE_MM)   # planned around the located sphere
     truth = TrueProbe(r=0.5, p0=0.015, scatter=S_PROBE_UM / 1000, noise=0.0)
     fits = []
     for k in range(reps):

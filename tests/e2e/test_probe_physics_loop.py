@@ -86,7 +86,7 @@ def nominal_part(client) -> tuple[dict, list[dict]]:
 def closed_loop(client, part: dict, traces: list[dict], machine: dict, **extra) -> dict:
     return job(client, "closed_loop", {
         "part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"],
-        "probe": {"method": "deviation"}, "evaluate": True, **extra}, timeout=900)
+        "probe": {"method": "deviation"}, "sigma_mm": 0.001, "evaluate": True, **extra}, timeout=900)
 
 
 @pytest.fixture(scope="module")

@@ -370,23 +370,24 @@ def test_an_interrupted_calibrated_run_resumes_with_its_drift_track(client, mesh
     assert np.abs(errors(result)).max() < 0.004
 
 
-def test_reconstruct_takes_its_probe_noise_from_the_calibration(client, meshes, trace7, plan7):
-    """sigma_mm left out: a run on a calibrated machine is reconstructed with the calibration's measured
-    scatter (stated in the result), exactly as with that sigma given; an uncalibrated run keeps the
-    method's default."""
+def test_reconstruct_takes_its_probe_noise_from_the_calibration_when_asked(client, meshes, trace7, plan7):
+    """sigma_from_calibration without sigma_mm: a run on a calibrated machine is reconstructed with the
+    calibration's measured scatter (stated in the result), exactly as with that sigma given; by default,
+    and on an uncalibrated machine, the method's own."""
     sim = machine(client, meshes["true"]["id"], calibrated=False)
     cal_id = calibrate(client, sim["id"], scatter_mm=0.004)
     probe_run = run(client, plan7["id"], sim["id"])
     base = {"trace_id": trace7["id"], "probe_run_job_id": probe_run["id"], "method": "deviation"}
-    default = submit(client, "reconstruct", base)["result"]
-    assert default["sigma"] == {"sigma_mm": 0.004, "source": "calibration: the probe qualification's residual rms",
-                                "probe_job_id": cal_id}
+    asked = submit(client, "reconstruct", {**base, "sigma_from_calibration": True})["result"]
+    assert asked["sigma"] == {"sigma_mm": 0.004, "source": "calibration: the probe qualification's residual rms",
+                              "probe_job_id": cal_id}
     given = submit(client, "reconstruct", {**base, "sigma_mm": 0.004})["result"]
     assert given["sigma"] == {"sigma_mm": 0.004, "source": "params"}
-    assert default["deviation"]["samples"] == given["deviation"]["samples"]
-    other = submit(client, "reconstruct", {**base, "sigma_mm": 0.0005})["result"]
-    assert other["deviation"]["samples"] != default["deviation"]["samples"]   # the noise level matters here
+    assert asked["deviation"]["samples"] == given["deviation"]["samples"]
+    default = submit(client, "reconstruct", base)["result"]
+    assert default["sigma"] == {"sigma_mm": None, "source": "default: the method's own"}
+    assert default["deviation"]["samples"] != asked["deviation"]["samples"]   # the noise level matters here
     bare = machine(client, meshes["true"]["id"], calibrated=False)
-    uncalibrated = submit(client, "reconstruct", {**base, "probe_run_job_id": run(client, plan7["id"], bare["id"])["id"]})
-    assert uncalibrated["result"]["sigma"]["sigma_mm"] is None
-    assert uncalibrated["result"]["sigma"]["source"].startswith("default")
+    uncalibrated = submit(client, "reconstruct", {**base, "sigma_from_calibration": True,
+                                                  "probe_run_job_id": run(client, plan7["id"], bare["id"])["id"]})
+    assert uncalibrated["result"]["sigma"] == {"sigma_mm": None, "source": "default: the method's own"}

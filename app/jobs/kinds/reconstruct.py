@@ -71,8 +71,12 @@ class ReconstructJobParams(PlacedParams):
         "best estimate of the deviation under the process model below (pair with the kriging planner); "
         "field: nominal + the field fitted once to every station of a field plan's probe run (required "
         "for, and only for, runs of field plans)")
-    sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma); default: on a calibrated "
-                                   "machine the probe calibration's measured scatter, else the method's own")
+    sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma); default: the method's own "
+                                   "(or the calibration's with sigma_from_calibration)")
+    sigma_from_calibration: bool = Field(
+        False, description="without sigma_mm, on a calibrated machine's probe run: the probe calibration's measured "
+        "scatter of a touch (its residual rms).  Off by default: with method deviation on sparse stations it "
+        "smooths the real deviation away (the closed loop measured 1-1.7 um worse, see the README)")
     deviation_amplitude_mm: float = Field(0.2, gt=0, le=10, description="kriging: expected machining error amplitude")
     deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
                                            description="kriging: shortest wavelength of the machining error")
@@ -168,15 +172,16 @@ def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
     elif calibrated is not None:
         result["sigma"] = calibrated
     else:
-        result["sigma"] = {"sigma_mm": None, "source": "default: the method's own (uncalibrated machine)"}
+        result["sigma"] = {"sigma_mm": None, "source": "default: the method's own"}
     return ReconstructResult.written(result)
 
 
 def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str, Any] | None:
-    """Without ``sigma_mm``, a probe run on a calibrated machine sets it: the probe qualification's
-    measured scatter of a touch along its move (``residual_rms_mm``: pre-travel scatter and noise).
-    Returns {sigma_mm, source, probe_job_id}, or None (sigma_mm given, points given, or no calibration)."""
-    if params.sigma_mm is not None or params.probe_run_job_id is None:
+    """With ``sigma_from_calibration`` and without ``sigma_mm``, a probe run on a calibrated machine
+    sets it: the probe qualification's measured scatter of a touch along its move
+    (``residual_rms_mm``: pre-travel scatter and noise).  Returns {sigma_mm, source,
+    probe_job_id}, or None (not asked, sigma_mm given, points given, or no calibration)."""
+    if not params.sigma_from_calibration or params.sigma_mm is not None or params.probe_run_job_id is None:
         return None
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
     stored = ProbeRunResult.of(probe_run).calibration or {}
@@ -194,8 +199,8 @@ def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
     From a probe run on a calibrated machine with radius correction, the readings are
     turned into surface heights again along the normal of the REAL surface (the nominal's
     tilted by the reconstructed deviation's gradient) and the trace rebuilt, twice
-    (:func:`refined`).  Without ``sigma_mm`` a calibrated machine's run uses the calibration's
-    measured scatter (:func:`calibrated_sigma`)."""
+    (:func:`refined`).  With ``sigma_from_calibration`` (and no ``sigma_mm``) a calibrated
+    machine's run uses the calibration's measured scatter (:func:`calibrated_sigma`)."""
     calibrated = calibrated_sigma(ctx, params)
     if calibrated is not None:
         params = params.model_copy(update={"sigma_mm": calibrated["sigma_mm"]})
