@@ -71,6 +71,12 @@ def test_calibration_jobs_refuse_what_they_cannot_do(client):
     refused = client.post("/api/v1/jobs", json={"kind": "calibrate_nozzle",
                                                 "params": {"machine_id": no_pad["id"], "tool": 1}}, headers=OP)
     assert refused.status_code == 422 and loc(refused) == "profile.reference.pad"
+    small_pad = {**PROFILE["reference"]["pad"], "size_mm": 6.0}    # the default 12 x 12 grid spans 5.5 mm
+    small = register(client, {**PROFILE, "reference": {**PROFILE["reference"], "pad": small_pad}}).json()
+    crowded = client.post("/api/v1/jobs", json={"kind": "calibrate_nozzle",
+                                                "params": {"machine_id": small["id"], "tool": 1}}, headers=OP)
+    assert crowded.status_code == 422 and loc(crowded) == "params.pad_touches", crowded.text
+    assert "12 x 12 grid" in crowded.json()["detail"] and "6 mm pad" in crowded.json()["detail"], crowded.text
     viewer = client.post("/api/v1/jobs", json={"kind": "calibrate_probe", "params": {"machine_id": machine["id"]}},
                          headers=auth("viewer"))
     assert viewer.status_code == 403  # nothing moves without an operator

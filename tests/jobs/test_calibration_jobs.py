@@ -146,11 +146,13 @@ def test_a_slow_z_drift_during_the_calibration_does_not_bias_it(client):
     machine = physics_machine(client, physics=f"{PHYSICS}&drift_mm_per_min=0.001")
     client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP)
     clock = get_world(machine["id"]).stats.machine_time_s
-    probe = calibrate(client, "calibrate_probe", {"machine_id": machine["id"]})["result"]
+    # a lighter procedure than the default (the drift, not the repeatability, is the point here)
+    probe = calibrate(client, "calibrate_probe", {"machine_id": machine["id"], "per_ring": 24, "equator": 48})["result"]
     elapsed = get_world(machine["id"]).stats.machine_time_s - clock
     last = probe["readings"][-1]["t_s"]  # the touches' estimated machine times follow the mock's clock
-    assert last > 180 and last <= elapsed <= last + 30, (last, elapsed)  # minutes: several um of drift
+    assert last > 150 and last <= elapsed <= last + 30, (last, elapsed)  # minutes: several um of drift
     assert abs(probe["ball_radius_mm"] - BALL_MM) <= 0.003 and abs(probe["pretravel"]["p0_mm"] - PRETRAVEL_MM) <= 0.003
     assert abs(probe["drift_mm_per_min"] - 0.001) <= 0.0003, probe["drift_mm_per_min"]
-    nozzle = calibrate(client, "calibrate_nozzle", {"machine_id": machine["id"], "tool": 1})["result"]
+    nozzle = calibrate(client, "calibrate_nozzle", {"machine_id": machine["id"], "tool": 1, "pad_touches": 24,
+                                                    "side_touches": 2})["result"]
     assert np.allclose(nozzle["offset_mm"], TOOL1_MM, atol=0.005), nozzle["offset_mm"]
