@@ -199,7 +199,11 @@ class Viewer:
                 look_at, position, near, far = view.camera
                 camera = drawer.target.camera
                 camera.far, camera.near = far, near
-                camera.look_at, camera.position = look_at, position
+                # position FIRST: viser's position setter moves look_at along with the
+                # camera (keeping its orientation), so a look_at set before it is shifted
+                # away and the camera stares past the part at an empty canvas
+                camera.position = position
+                camera.look_at = look_at
         except Exception:  # a browser disconnecting meanwhile
             if drawer is view.headless:
                 raise
@@ -266,6 +270,9 @@ def start_viewer(settings: Settings, runtime: Any) -> Viewer:
                                "access check could not be installed, so the view is not served")
     origins.set_port(int(server.get_port()))
     server.scene.set_up_direction("+z")
+    server.scene.configure_environment_map(None)
+    server.scene.configure_default_lights(True, cast_shadow=False)
+    server.scene.add_light_ambient("/ambient", intensity=1.0)
     server.scene.add_grid("/grid", width=200.0, height=200.0, cell_size=10.0)
     viewer = Viewer(server, runtime, host=settings.viewer_host, guard=guard)
     log.info("viewer on http://%s:%d (tokens required)", settings.viewer_host, viewer.port)
