@@ -227,10 +227,16 @@ class Viewer:
 
 
 def _camera_for(scene: FocusScene) -> tuple[np.ndarray, np.ndarray, float, float] | None:
-    """(look_at, position, near, far) framing the scene's bounds, or None without bounds."""
+    """(look_at, position, near, far) framing the scene, or None without bounds: what is shown
+    on the part (a trace, a program, a circuit) with at least 40 % of the whole scene's extent
+    around it for context; the whole part when nothing else is shown."""
     bounds = scene.bounds()
     if bounds is None:
         return None
+    shown = scene.bounds(include_part=False)
+    if shown is not None:
+        half = np.maximum((shown[1] - shown[0]) / 2, 0.2 * (bounds[1] - bounds[0]))
+        bounds = np.stack([shown.mean(axis=0) - half, shown.mean(axis=0) + half])
     centre = bounds.mean(axis=0)
     size = float(max(np.linalg.norm(bounds[1] - bounds[0]), 1.0))
     return centre, centre + size * np.array([0.6, -0.9, 0.8]), max(size * 1e-3, 0.01), max(10.0 * size, 1000.0)
