@@ -209,7 +209,9 @@ class SceneBuilder:
                 name = f"{ROOT}/toolpaths/{_slug(toolpath.name)}/{move}{suffix}"
                 chunk = chosen[start:start + step]
                 color = colors[move] if per_move is None else per_move[start:start + step]
-                width = self.params.toolpath_px * (1.0 if move == "dispense" else 0.6) * (2.0 if per_move is not None else 1.0)
+                width = self.params.toolpath_px * (1.0 if move == "dispense" else 0.6)
+                if per_move is not None:  # the nominal program wider: its error colours frame the compensated line
+                    width = self.params.toolpath_px * (3.5 if toolpath.role == "nominal" else 1.6)
                 if toolpath.role == "warning":  # over the traces' lines (line_px * 1.5), visibly wider
                     width = self.params.line_px * 2.5
                 handle = self.server.scene.add_line_segments(name, chunk, color, thickness=width, thickness_units="screen")

@@ -118,3 +118,20 @@ def wait_for_view(page, drawn: Callable[[Counts], bool], exact: tuple[tuple[int,
         if drawn(counts) or time.monotonic() > deadline:
             return counts, img
         page.wait_for_timeout(500)
+
+
+def save_view_panel(page, path) -> None:  # type: ignore[no-untyped-def]
+    """Save the page's 3-D view section (caption, canvas, viser's panel with its legend) for the
+    README, without viser's software-WebGL notice (not for operators with a GPU)."""
+    close = page.frame_locator("#viewer-iframe").locator(".mantine-Notification-root button")
+    try:
+        if close.count():
+            close.first.click(timeout=2000)
+    except PlaywrightError:
+        pass
+    section = page.locator("#viewer-panel")
+    section.scroll_into_view_if_needed()
+    page.wait_for_timeout(1000)   # a frame or two after the notice went
+    box = section.bounding_box()
+    if box is not None:
+        page.screenshot(path=str(path), clip=box, animations="disabled")

@@ -9,15 +9,10 @@ import time
 import numpy as np
 import pytest
 
-try:
-    from playwright.sync_api import Error as PlaywrightError
-except ImportError:  # the tests skip (see conftest); the module must still import
-    PlaywrightError = Exception  # type: ignore[misc,assignment]
-
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from app.viewer.colors import PALETTE
 from tests.e2e.browser.conftest import screenshot, screenshot_path
-from tests.e2e.browser.pixels import wait_for_view
+from tests.e2e.browser.pixels import save_view_panel, wait_for_view
 
 TRACE = s1_traces()[6].to_api()  # a cubic NURBS across the S1 part
 CURVE_ORANGE = PALETTE.reconstructed
@@ -120,7 +115,6 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
     assert plot["x_label"] == "mm along the trace"
 
     frame = page.frame_locator("#viewer-iframe")
-    frame.locator("canvas").first.wait_for(state="visible", timeout=20_000)
     # the canvas itself (viser's panel masked): the slate part and the rebuilt curve's orange
     counts, _img = wait_for_view(page, lambda c: c.slate > 0.02 * c.total and c.exact[CURVE_ORANGE] >= 20,
                                  exact=(CURVE_ORANGE,))
@@ -133,12 +127,5 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
     while not plot_shown() and time.monotonic() < deadline:
         page.wait_for_timeout(250)
     assert plot_shown()
-    close = frame.locator("[class*='Notification'] button")  # viser's SwiftShader notice: not for the README
-    if close.count():
-        try:
-            close.first.click(timeout=2000)
-        except PlaywrightError:
-            pass
-    page.locator("#viewer-panel").scroll_into_view_if_needed()
-    page.locator("#viewer-panel").screenshot(path=str(screenshot_path("view3d")))
+    save_view_panel(page, screenshot_path("view3d"))
     assert page.js_errors == []

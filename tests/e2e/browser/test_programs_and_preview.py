@@ -12,7 +12,7 @@ from app.reference.s1 import s1_mesh
 from app.viewer.colors import PALETTE
 from tests.api.test_circuits import GERBER_MM
 from tests.e2e.browser.conftest import screenshot, screenshot_path
-from tests.e2e.browser.pixels import wait_for_view
+from tests.e2e.browser.pixels import save_view_panel, wait_for_view
 from tests.e2e.browser.test_operator_flow import wait_job
 
 TRACE_BLUE, WARNING_RED = PALETTE.nominal, PALETTE.dispense   # app/viewer/circuit_preview.py
@@ -27,7 +27,7 @@ def test_the_dry_run_in_3d_before_accepting(page, served, tmp_path):
     page.goto(f"/traces.html?part={part['id']}")
     page.set_input_files("#circuit-file", str(gerber))       # opens the page's 3-D view
     frame = page.frame_locator("#viewer-iframe")
-    frame.locator("canvas").first.wait_for(state="visible", timeout=30_000)
+    frame.locator(".mantine-Paper-root").first.wait_for(state="attached", timeout=60_000)   # the view is up
     page.fill("#circuit-origin-x", "5")
     page.fill("#circuit-origin-y", "10")
     page.click("#circuit-preview-button")
@@ -51,7 +51,7 @@ def test_the_dry_run_in_3d_before_accepting(page, served, tmp_path):
     assert counts.slate > 0.02 * counts.total, f"the part is not on the canvas: {counts}"
     assert counts.exact[TRACE_BLUE] >= 20, f"no draped traces on the canvas: {counts}"
     assert counts.exact[WARNING_RED] >= 20, f"the warned trace is not drawn in red: {counts}"
-    screenshot(page, "circuit-preview-3d")
+    save_view_panel(page, screenshot_path("circuit-preview-3d"))
     assert page.js_errors == []
 
 

@@ -14,7 +14,7 @@ from PIL import Image
 
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.e2e.browser.conftest import screenshot, screenshot_path
-from tests.e2e.browser.pixels import wait_for_view
+from tests.e2e.browser.pixels import save_view_panel, wait_for_view
 from tests.e2e.browser.test_operator_flow import wait_job
 
 TRACES = (0, 6)  # a line and a NURBS
@@ -215,4 +215,5 @@ def test_3d_view_of_a_compensation_shows_the_deviation_standoff_errors_and_a_leg
     frame = page.frame_locator("#viewer-iframe")
     frame.locator(".conforma-legend").first.wait_for(state="attached", timeout=30_000)
     assert "µm" in frame.locator(".conforma-legend").first.inner_text()
+    save_view_panel(page, screenshot_path("view3d-compensate"))
     assert page.js_errors == []
