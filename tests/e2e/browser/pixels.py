@@ -123,7 +123,7 @@ def wait_for_view(page, drawn: Callable[[Counts], bool], exact: tuple[tuple[int,
 def save_view_panel(page, path) -> None:  # type: ignore[no-untyped-def]
     """Save the page's 3-D view section (caption, canvas, viser's panel with its legend) for the
     README, without viser's software-WebGL notice (not for operators with a GPU)."""
-    close = page.frame_locator("#viewer-iframe").locator(".mantine-Notification-root button")
+    close = page.frame_locator("#viewer-iframe").locator("[class*='Notification'] button")
     try:
         if close.count():
             close.first.click(timeout=2000)
@@ -131,6 +131,8 @@ def save_view_panel(page, path) -> None:  # type: ignore[no-untyped-def]
         pass
     section = page.locator("#viewer-panel")
     section.scroll_into_view_if_needed()
+    # below the sticky page header
+    section.evaluate("el => window.scrollTo(0, el.getBoundingClientRect().top + window.scrollY - 90)")
     page.wait_for_timeout(1000)   # a frame or two after the notice went
     box = section.bounding_box()
     if box is not None:

@@ -185,6 +185,7 @@ def test_declining_the_confirmation_prints_nothing(page, served, jobs):
     assert api.get(f"/api/v1/jobs?kind=print&machine_id={machine['id']}").json()["total"] == 0
 
 
+@pytest.mark.timeout(900)   # the module's jobs, then software GL drawing beside them on a loaded host
 def test_3d_view_of_a_compensation_shows_the_deviation_standoff_errors_and_a_legend(page, served, jobs):
     api = served.api()
     job, rebuilt = jobs["compensate"], jobs["rebuilt"]
