@@ -8,7 +8,7 @@ anything is stored.  What it shows (names under ``/focus``):
 * ``traces/...``: every mapped trace on the part, draped (the nominal path the trace would
   get), blue;
 * ``toolpaths/warnings/dispense``: the traces a warning names (stretch above the limit,
-  closer than their widths, leaving the part), red, over their blue lines;
+  closer than their widths, leaving the part), red, wider than their blue lines under them;
 * ``fields/pads``: pads and areas as draped patches coloured by state (0: on the part,
   0.5: an area, 1: off the part or named by a warning);
 * ``probes/pad probe rings``: the stations' path inside every pad and area (planned points).
@@ -76,7 +76,7 @@ def circuit_preview_scene(part_id: str, mesh: trimesh.Trimesh, dry_run: dict[str
         a, b = np.concatenate(red_a), np.concatenate(red_b)
         m = len(a)
         toolpaths.append(Toolpath("warnings", ToolpathSegments(a, b, np.ones(m, bool), np.full(m, -1, np.int64),
-                                                               np.zeros(m), np.zeros(m)), "nominal"))
+                                                               np.zeros(m), np.zeros(m)), "warning"))
     verts, faces, values = [], [], []
     outlines = [(p["outline_xy_mm"], 0.0 if p["on_part"] else 1.0) for p in dry_run.get("pads", [])]
     outlines += [(a, 0.5) for a in dry_run.get("areas", [])]

@@ -37,7 +37,7 @@ class ViewerPanel:
         self._list_jobs = list_jobs
         self._choices: dict[str, tuple[str | None, str | None]] = {}
         gui = server.gui
-        gui.configure_theme(control_layout="collapsible", control_width="medium", show_logo=False,
+        gui.configure_theme(control_layout="collapsible", control_width="small", show_logo=False,
                             show_share_button=False)
         self.title = gui.add_markdown("**Conforma** (view only): open a part or a job in the web pages.")
         with gui.add_folder("Focus"):

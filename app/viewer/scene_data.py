@@ -33,7 +33,8 @@ class ProbeSet:
 
 @dataclass(frozen=True)
 class Toolpath:
-    """A program's moves; role "nominal" or "compensated".  ``standoff_error_mm`` (m,), one
+    """A program's moves; role "nominal", "compensated" or "warning" (moves to point out: drawn
+    red, wider than the traces under them).  ``standoff_error_mm`` (m,), one
     per move (NaN where unknown, e.g. travel): the tip's height above the real (rebuilt)
     surface minus the set standoff; the dispensed moves are then coloured by it."""
 
@@ -129,9 +130,10 @@ class FocusScene:
     scalar_surfaces: tuple[ScalarSurface, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
 
-    def bounds(self) -> np.ndarray | None:
-        """(2, 3) min/max corner of everything in the scene (mm), or None when empty."""
-        chunks = [self.mesh_vertices] if self.mesh_vertices is not None else []
+    def bounds(self, include_part: bool = True) -> np.ndarray | None:
+        """(2, 3) min/max corner of everything in the scene (mm), or None when empty; with
+        ``include_part=False`` of what is shown on the part only (traces, probes, programs...)."""
+        chunks = [self.mesh_vertices] if (self.mesh_vertices is not None and include_part) else []
         chunks += [p.points for p in self.polylines]
         chunks += [a for p in self.probes for a in (p.planned, p.measured) if a is not None]
         chunks += [t.segments.ends for t in self.toolpaths]

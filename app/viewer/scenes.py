@@ -137,9 +137,10 @@ class SceneBuilder:
             self.registry.set_legends([legend.to_dict() for legend in scene_legends(scene)])
             scn = self.server.scene
             if scene.mesh_vertices is not None and scene.mesh_faces is not None:
+                # opaque: a translucent part showed its bottom face's triangle fan through the top
                 handle = scn.add_mesh_simple(f"{ROOT}/part", np.asarray(scene.mesh_vertices, np.float32),
                                              np.asarray(scene.mesh_faces, np.uint32), color=self.palette.mesh,
-                                             opacity=0.9, side="double", flat_shading=False)
+                                             opacity=1.0, side="double", flat_shading=False)
                 self._add(f"{ROOT}/part", "part", handle, "mesh", len(scene.mesh_faces))
             for line in scene.polylines:
                 self._polyline(line.name, line.points, line.role)
@@ -208,7 +209,11 @@ class SceneBuilder:
                 name = f"{ROOT}/toolpaths/{_slug(toolpath.name)}/{move}{suffix}"
                 chunk = chosen[start:start + step]
                 color = colors[move] if per_move is None else per_move[start:start + step]
-                width = self.params.toolpath_px * (1.0 if move == "dispense" else 0.6) * (2.0 if per_move is not None else 1.0)
+                width = self.params.toolpath_px * (1.0 if move == "dispense" else 0.6)
+                if per_move is not None:  # the nominal program wider: its error colours frame the compensated line
+                    width = self.params.toolpath_px * (3.5 if toolpath.role == "nominal" else 1.6)
+                if toolpath.role == "warning":  # over the traces' lines (line_px * 1.5), visibly wider
+                    width = self.params.line_px * 2.5
                 handle = self.server.scene.add_line_segments(name, chunk, color, thickness=width, thickness_units="screen")
                 meta = {} if per_move is None else {"colored_by": "standoff_error", "signed_limit_mm": self._signed_limit}
                 self._add(name, "toolpaths", handle, "segments", len(chunk), role=toolpath.role, move=move, **meta)

@@ -199,7 +199,11 @@ class Viewer:
                 look_at, position, near, far = view.camera
                 camera = drawer.target.camera
                 camera.far, camera.near = far, near
-                camera.look_at, camera.position = look_at, position
+                # position FIRST: viser's position setter moves look_at along with the
+                # camera (keeping its orientation), so a look_at set before it is shifted
+                # away and the camera stares past the part at an empty canvas
+                camera.position = position
+                camera.look_at = look_at
         except Exception:  # a browser disconnecting meanwhile
             if drawer is view.headless:
                 raise
@@ -223,13 +227,21 @@ class Viewer:
 
 
 def _camera_for(scene: FocusScene) -> tuple[np.ndarray, np.ndarray, float, float] | None:
-    """(look_at, position, near, far) framing the scene's bounds, or None without bounds."""
+    """(look_at, position, near, far) framing the scene, or None without bounds: what is shown
+    on the part (a trace, a program, a circuit) with at least 40 % of the whole scene's extent
+    around it for context; the whole part when nothing else is shown."""
     bounds = scene.bounds()
     if bounds is None:
         return None
+    shown = scene.bounds(include_part=False)
+    if shown is not None:
+        half = np.maximum((shown[1] - shown[0]) / 2, 0.2 * (bounds[1] - bounds[0]))
+        bounds = np.stack([shown.mean(axis=0) - half, shown.mean(axis=0) + half])
     centre = bounds.mean(axis=0)
     size = float(max(np.linalg.norm(bounds[1] - bounds[0]), 1.0))
-    return centre, centre + size * np.array([0.6, -0.9, 0.8]), max(size * 1e-3, 0.01), max(10.0 * size, 1000.0)
+    # near at 1 % of the framed size: depth steps stay ~1 um at the framed distance, so a deviation
+    # ribbon 10 um above the part does not z-fight with it
+    return centre, centre + size * np.array([0.6, -0.9, 0.8]), max(size * 1e-2, 0.01), max(20.0 * size, 500.0)
 
 
 class OriginPolicy:
@@ -266,6 +278,9 @@ def start_viewer(settings: Settings, runtime: Any) -> Viewer:
                                "access check could not be installed, so the view is not served")
     origins.set_port(int(server.get_port()))
     server.scene.set_up_direction("+z")
+    server.scene.configure_environment_map(None)
+    server.scene.configure_default_lights(True, cast_shadow=False)
+    server.scene.add_light_ambient("/ambient", intensity=1.0)
     server.scene.add_grid("/grid", width=200.0, height=200.0, cell_size=10.0)
     viewer = Viewer(server, runtime, host=settings.viewer_host, guard=guard)
     log.info("viewer on http://%s:%d (tokens required)", settings.viewer_host, viewer.port)

@@ -10,6 +10,7 @@ import time
 from urllib.parse import parse_qs, urlsplit
 
 import msgspec
+import numpy as np
 import pytest
 import viser
 from websockets.asyncio.client import connect
@@ -159,3 +160,47 @@ def test_token_travels_in_the_websocket_url_the_page_builds():
     src = "/?websocket=" + "ws%3A%2F%2F127.0.0.1%3A8080%2F%3Ftoken%3Dv.1.abc"
     ws_url = parse_qs(urlsplit(src).query)["websocket"][0]
     assert token_from_path(urlsplit(ws_url).path + "?" + urlsplit(ws_url).query) == "v.1.abc"
+
+
+def test_a_browser_camera_is_aimed_at_what_the_view_shows(served):  # type: ignore[no-untyped-def]
+    """The camera a connected browser gets looks from the framing position at the scene: viser's
+    position setter drags look_at along (orientation kept), so setting look_at first left every
+    browser staring past the part at an empty canvas (issues 17 and 19)."""
+    viewer = served.app.state.viewer
+    port = _port(served)
+    part = served.post("/api/v1/parts", files={"file": ("cam.stl", s1_mesh(grid_mm=4.0).export(file_type="stl"))},
+                       headers=OP).json()
+    grant = _token(served)
+
+    async def browser() -> None:
+        origin = f"http://127.0.0.1:{port}"
+        async with connect(f"ws://127.0.0.1:{port}/?token={grant['token']}", origin=origin,
+                           subprotocols=[SUBPROTOCOL]) as ws:
+            await ws.send(_camera_message())   # a browser's camera at (0, 0, 100) looking at the origin
+            for _ in range(100):
+                if viewer.view(grant["view_id"]).clients:
+                    break
+                await asyncio.sleep(0.05)
+            shown = await asyncio.to_thread(served.post, "/api/v1/viewer/focus",
+                                            json={"part_id": part["id"], "view_id": grant["view_id"]}, headers=OP)
+            assert shown.status_code == 200
+            look_at, position, _near, _far = viewer.view(grant["view_id"]).camera
+            (drawer,) = viewer.view(grant["view_id"]).clients.values()
+            camera = drawer.target.camera
+            assert np.allclose(camera.position, position) and np.allclose(camera.look_at, look_at)
+            lo, hi = np.asarray(part["bounds"], float)
+            assert np.all(camera.look_at >= lo - 1e-9) and np.all(camera.look_at <= hi + 1e-9)   # at the part
+            assert np.linalg.norm(camera.position - camera.look_at) > np.linalg.norm(hi - lo) / 2  # from outside it
+
+    run_async(browser)
+
+
+def test_the_view_loads_no_environment_map(served):  # type: ignore[no-untyped-def]
+    """viser fades its canvas in from 5 % opacity only once its HDR environment map is decoded
+    and pre-filtered, which takes tens of seconds under software GL (a lab PC without a GPU,
+    headless Chromium): what every browser is sent switches the map off and lights the scene."""
+    buffer = served.app.state.viewer.server._websock_server._broadcast_buffer
+    sent = list(buffer.message_from_id.values())
+    maps = [m for m in sent if type(m).__name__ == "EnvironmentMapMessage"]
+    assert maps and all(m.hdri_data is None for m in maps)
+    assert any(type(m).__name__ == "AmbientLightMessage" for m in sent)

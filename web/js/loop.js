@@ -9,7 +9,9 @@ import { el, guarded, initPage, markReady, showInfo, viewerPanel } from "./ui.js
 
 const main = initPage("loop.html");
 const TERMINAL = new Set(["succeeded", "failed", "cancelled", "interrupted"]);
-const state = { part: null, traces: [], machine: null, plan: null, run: null, rows: [] };
+// traces: the part's printable traces; rings: its circuit imports' pad / area probe rings
+// (traces with source.role "pad_probe"), probed with the import's traces, never printed.
+const state = { part: null, traces: [], rings: [], machine: null, plan: null, run: null, rows: [] };
 
 function step(id, title, ...body) {
   return el("section", { id, class: "wizard-step", "data-done": "0", "aria-labelledby": `${id}-h` },
@@ -18,6 +20,7 @@ function step(id, title, ...body) {
 
 const partSelect = el("select", { id: "wz-part", "aria-label": "part" });
 const traceList = el("div", { id: "wz-traces", role: "group", "aria-label": "traces to print" });
+const ringNote = el("p", { id: "wz-pad-rings", class: "small", "data-rings": "0" });
 const machineSelect = el("select", { id: "wz-machine", "aria-label": "machine" });
 const machineState = el("span", { id: "wz-machine-state", class: "small" });
 const planOut = el("div", { id: "wz-plan-out" });
@@ -38,7 +41,7 @@ main.append(el("h1", {}, "Closed loop"),
   el("div", { class: "layout" },
     el("div", {},
       step("wz-1", "1 · Part", partSelect),
-      step("wz-2", "2 · Traces", traceList),
+      step("wz-2", "2 · Traces", traceList, ringNote),
       step("wz-3", "3 · Machine", machineSelect, " ", buttons.connect, " ", machineState),
       step("wz-4", "4 · Plan", el("p", { class: "small" }, "How many touches, and the error they leave, before anything moves."),
         buttons.plan, planOut),
@@ -70,15 +73,38 @@ async function loadParts() {
   partSelect.replaceChildren(el("option", { value: "" }, "choose a part…"), ...parts.map((p) => el("option", { value: p.id }, p.name)));
 }
 
+const isRing = (t) => (t.source || {}).role === "pad_probe";
+
 async function loadTraces() {
   state.part = partSelect.value || null;
-  state.traces = state.part ? (await get(`parts/${state.part}/traces?limit=1000`)).items : [];
+  const all = state.part ? (await get(`parts/${state.part}/traces?limit=1000`)).items : [];
+  state.traces = all.filter((t) => !isRing(t));
+  state.rings = all.filter(isRing);
   traceList.replaceChildren(...(state.traces.length ? state.traces.map((t) => el("label", { class: "inline" },
     el("input", { type: "checkbox", value: t.id, checked: true }), ` ${t.name} (${length(t.length_mm)})`))
     : [el("p", { class: "small" }, state.part ? "This part has no traces: add some on the Traces page." : "Choose a part first.")]));
+  showRings();
   if (state.part) { done("wz-1"); viewer.show({ part_id: state.part }); }
   if (state.traces.length) done("wz-2");
 }
+
+// The pad / area probe rings of the circuit imports the chosen traces come from: probed with
+// them (so that the pads are measured where they will be filled), never printed.
+function padRings() {
+  const imports = new Set(chosenTraces().map((id) => state.traces.find((t) => t.id === id))
+    .map((t) => (t?.source || {}).import_id).filter(Boolean));
+  return state.rings.filter((r) => imports.has(r.source.import_id));
+}
+
+function showRings() {
+  const rings = padRings();
+  ringNote.dataset.rings = String(rings.length);
+  ringNote.textContent = rings.length
+    ? `+ ${rings.length} pad probe ring(s) of the imported circuit, probed with these traces (not printed): `
+      + rings.map((r) => r.source.pad || r.name).join(", ")
+    : "";
+}
+traceList.addEventListener("change", showRings);
 
 async function loadMachines() {
   const machines = (await get("machines")).items;
@@ -111,16 +137,19 @@ async function plan() {
   await guarded("Plan", async () => {
     const traceIds = chosenTraces();
     if (!traceIds.length) throw new Error("choose at least one trace");
+    const rings = padRings().map((r) => r.id);
     buttons.plan.disabled = true;
     planOut.textContent = "planning…";
-    const job = await waitJob(await post("jobs", { kind: "probe_plan", params: { trace_ids: traceIds, method: "kriging" } }));
+    const job = await waitJob(await post("jobs", { kind: "probe_plan",
+      params: { trace_ids: [...traceIds, ...rings], method: "kriging" } }));
     if (job.status !== "succeeded") failed(job, "probe plan");
     state.plan = job;
     const sds = (job.result.traces || []).map((t) => t.predicted_sd_mm).filter(Number.isFinite);
     const worst = sds.length ? Math.max(...sds) : null;
     planOut.replaceChildren(el("p", { id: "wz-plan-summary" },
       el("strong", { class: "figure", "data-touches": job.result.count }, `${job.result.count} touches`),
-      ` on ${traceIds.length} trace(s)`, worst !== null ? ` · predicted error (3σ) ≤ ${length(3 * worst)}` : ""));
+      ` on ${traceIds.length} trace(s)`, rings.length ? el("span", { id: "wz-plan-rings", "data-rings": rings.length },
+        ` and ${rings.length} pad probe ring(s)`) : "", worst !== null ? ` · predicted error (3σ) ≤ ${length(3 * worst)}` : ""));
     done("wz-4");
     buttons.probe.disabled = !state.machine;
     viewer.show({ job_id: job.id });

@@ -71,7 +71,7 @@ def served(tmp_path_factory) -> Iterator[Served]:  # type: ignore[no-untyped-def
                             start_new_session=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        wait_healthy(base, proc, log=data / "serve.log")
+        wait_healthy(base, proc, timeout=180.0, log=data / "serve.log")  # a loaded 2-core host starts slowly
         info = httpx.get(f"{base}/api/v1/viewer", headers={"Authorization": f"Bearer {KEY}"}).json()
         yield Served(base, KEY, int(info["port"]), data)
     finally:

@@ -3,23 +3,19 @@ reconstruct from measured points, follow the jobs live, and check the 3D view.""
 
 from __future__ import annotations
 
-import io
 import json
 import time
 
 import numpy as np
 import pytest
-from PIL import Image
-
-try:
-    from playwright.sync_api import Error as PlaywrightError
-except ImportError:  # the tests skip (see conftest); the module must still import
-    PlaywrightError = Exception  # type: ignore[misc,assignment]
 
 from app.reference.s1 import as_made, s1_mesh, s1_traces
+from app.viewer.colors import PALETTE
 from tests.e2e.browser.conftest import screenshot, screenshot_path
+from tests.e2e.browser.pixels import save_view_panel, wait_for_view
 
 TRACE = s1_traces()[6].to_api()  # a cubic NURBS across the S1 part
+CURVE_ORANGE = PALETTE.reconstructed
 
 
 @pytest.fixture(scope="module")
@@ -37,12 +33,6 @@ def wait_job(api, job_id: str, timeout: float = 30.0) -> dict:
             return job
         time.sleep(0.05)
     raise AssertionError(f"job {job_id} did not finish")
-
-
-def canvas_is_drawn(png: bytes) -> float:
-    """Standard deviation of the grey levels of a screenshot (0 for a blank canvas)."""
-    grey = np.asarray(Image.open(io.BytesIO(png)).convert("L"), dtype=float)
-    return float(grey.std())
 
 
 def submit_job_form(page, kind: str, values: dict[str, str]) -> str:
@@ -125,12 +115,10 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
     assert plot["x_label"] == "mm along the trace"
 
     frame = page.frame_locator("#viewer-iframe")
-    frame.locator("canvas").first.wait_for(state="visible", timeout=20_000)
-    deadline, spread = time.monotonic() + 20, 0.0
-    while spread <= 5.0 and time.monotonic() < deadline:  # SwiftShader needs a few frames
-        page.wait_for_timeout(300)
-        spread = canvas_is_drawn(page.locator("#viewer-iframe").screenshot())
-    assert spread > 5.0, f"the 3D view looks blank (grey-level std {spread:.2f})"
+    # the canvas itself (viser's panel masked): the slate part and the rebuilt curve's orange
+    counts, _img = wait_for_view(page, lambda c: c.slate > 0.02 * c.total and c.exact[CURVE_ORANGE] >= 20,
+                                 exact=(CURVE_ORANGE,))
+    assert counts.slate > 0.02 * counts.total and counts.exact[CURVE_ORANGE] >= 20, f"the 3D view looks blank: {counts}"
     # viser's own panel shows the uPlot deviation plot (it renders a little after the canvas)
     def plot_shown() -> bool:
         return frame.locator(".uplot").count() >= 1 or frame.get_by_text("Deviation").count() >= 1
@@ -139,12 +127,5 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
     while not plot_shown() and time.monotonic() < deadline:
         page.wait_for_timeout(250)
     assert plot_shown()
-    close = frame.locator("[class*='Notification'] button")  # viser's SwiftShader notice: not for the README
-    if close.count():
-        try:
-            close.first.click(timeout=2000)
-        except PlaywrightError:
-            pass
-    page.locator("#viewer-panel").scroll_into_view_if_needed()
-    page.locator("#viewer-panel").screenshot(path=str(screenshot_path("view3d")))
+    save_view_panel(page, screenshot_path("view3d"))
     assert page.js_errors == []

@@ -6,10 +6,16 @@ area refused at submission naming its line."""
 
 from __future__ import annotations
 
+from PIL import Image
+
 from app.reference.s1 import s1_mesh
+from app.viewer.colors import PALETTE
 from tests.api.test_circuits import GERBER_MM
-from tests.e2e.browser.conftest import screenshot
+from tests.e2e.browser.conftest import screenshot, screenshot_path
+from tests.e2e.browser.pixels import save_view_panel, wait_for_view
 from tests.e2e.browser.test_operator_flow import wait_job
+
+TRACE_BLUE, WARNING_RED = PALETTE.nominal, PALETTE.dispense   # app/viewer/circuit_preview.py
 
 
 def test_the_dry_run_in_3d_before_accepting(page, served, tmp_path):
@@ -21,7 +27,7 @@ def test_the_dry_run_in_3d_before_accepting(page, served, tmp_path):
     page.goto(f"/traces.html?part={part['id']}")
     page.set_input_files("#circuit-file", str(gerber))       # opens the page's 3-D view
     frame = page.frame_locator("#viewer-iframe")
-    frame.locator("canvas").first.wait_for(state="visible", timeout=30_000)
+    frame.locator(".mantine-Paper-root").first.wait_for(state="attached", timeout=60_000)   # the view is up
     page.fill("#circuit-origin-x", "5")
     page.fill("#circuit-origin-y", "10")
     page.click("#circuit-preview-button")
@@ -37,12 +43,15 @@ def test_the_dry_run_in_3d_before_accepting(page, served, tmp_path):
     assert api.get(f"/api/v1/parts/{part['id']}/traces").json()["total"] == 0          # nothing stored
     assert "warning" in page.inner_text("#circuit-result table")
     page.locator("#viewer-panel").scroll_into_view_if_needed()
-    # the page's view is connected (its canvas on screen) and holds the preview's nodes above.
-    # NOT asserted: pixels.  In headless Chromium (SwiftShader) the canvas stayed blank after
-    # this draw in every run here, while a POST /viewer/focus of the part rendered it (see the
-    # closing note of issue 17): a viewer problem to settle on its own.
-    assert frame.locator("canvas").first.is_visible()
-    screenshot(page, "circuit-preview-3d")
+    # the browser draws the preview: the slate part framed in the canvas, the draped traces in
+    # their blue, the warned trace over them in red (unlit lines: their own RGB)
+    counts, img = wait_for_view(page, lambda c: c.slate > 0.02 * c.total and c.exact[TRACE_BLUE] >= 20
+                                and c.exact[WARNING_RED] >= 20, exact=(TRACE_BLUE, WARNING_RED))
+    Image.fromarray(img).save(screenshot_path("circuit-preview-3d-canvas"))
+    assert counts.slate > 0.02 * counts.total, f"the part is not on the canvas: {counts}"
+    assert counts.exact[TRACE_BLUE] >= 20, f"no draped traces on the canvas: {counts}"
+    assert counts.exact[WARNING_RED] >= 20, f"the warned trace is not drawn in red: {counts}"
+    save_view_panel(page, screenshot_path("circuit-preview-3d"))
     assert page.js_errors == []
 
 

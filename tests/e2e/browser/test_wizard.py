@@ -4,6 +4,7 @@ print, report — asserting what the operator sees against what the jobs and the
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from app.reference.s1 import as_made, s1_mesh, s1_traces
@@ -85,4 +86,60 @@ def test_wizard_walks_plan_probe_review_print_report(page, served, loop_setup):
     with page.expect_download() as info:
         page.click("#wz-report-open")
     assert info.value.suggested_filename == f"run-report-{run['id']}.html"
+    assert page.js_errors == []
+
+
+def test_wizard_probes_the_pads_of_an_imported_circuit_by_itself(page, served):
+    """Traces from an imported circuit with pads: the loop page adds the import's pad probe rings
+    to the plan by itself (the API's closed loop needs them given), probes the pads, and neither
+    lists nor prints the rings as traces."""
+    import json
+
+    import shapely
+    from shapely.geometry import Polygon
+
+    from tests.api.test_circuits import GERBER_MM
+
+    api = served.api()
+    nominal = s1_mesh(grid_mm=1.0).export(file_type="stl")
+    truth = as_made(seed=13, amplitude_mm=0.1).mesh(grid_mm=1.0).export(file_type="stl")
+    part = api.post("/api/v1/parts", files={"file": ("wizard-circuit.stl", nominal)}).json()
+    real = api.post("/api/v1/parts", files={"file": ("wizard-circuit-as-made.stl", truth)}).json()
+    imported = api.post(f"/api/v1/parts/{part['id']}/circuits:import", files=[("files", ("top.gbr", GERBER_MM.encode()))],
+                        data={"options": json.dumps({"origin_mm": [5, 10], "standoff_mm": 0.08})})
+    assert imported.status_code == 201, imported.text
+    body = imported.json()
+    traces = [t["trace"]["id"] for t in body["traces"]]
+    [ring] = body["probe_trace_ids"]
+    machine = api.post("/api/v1/machines", json={
+        "name": "wizard-circuit-mock", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001}}).json()
+    page.set_default_timeout(90_000)
+    page.on("dialog", lambda dialog: dialog.accept())
+    page.goto("/loop.html")
+    page.wait_for_selector('body[data-ready="1"]')
+    page.select_option("#wz-part", part["id"])
+    page.wait_for_selector(f'#wz-traces input[value="{traces[-1]}"]')
+    listed = page.eval_on_selector_all("#wz-traces input", "boxes => boxes.map(b => b.value)")
+    assert sorted(listed) == sorted(traces)                          # the ring is not offered for printing
+    assert page.get_attribute("#wz-pad-rings", "data-rings") == "1"
+    assert "pad probe ring" in page.inner_text("#wz-pad-rings")
+    page.select_option("#wz-machine", machine["id"])
+    page.click("#wz-connect")
+    page.wait_for_selector('#wz-3[data-done="1"]')
+
+    page.click("#wz-plan")
+    page.wait_for_selector('#wz-4[data-done="1"]', timeout=60_000)
+    plan = api.get("/api/v1/jobs?kind=probe_plan&limit=1").json()["items"][0]
+    assert sorted(plan["params"]["trace_ids"]) == sorted(traces + [ring])   # added by the page itself
+    assert page.get_attribute("#wz-plan-rings", "data-rings") == "1"
+
+    page.click("#wz-probe")
+    page.wait_for_selector('#wz-6[data-done="1"]', timeout=180_000)
+    run = api.get("/api/v1/jobs?kind=probe_run&limit=1").json()["items"][0]
+    stations = shapely.points(np.array([p["nominal"][:2] for p in run["result"]["points"]]))
+    on_pad = shapely.contains(Polygon(body["pads"][0]["outline_xy_mm"]), stations)
+    assert on_pad.sum() >= 1, f"no station on the pad ({len(on_pad)} stations)"   # the pad was probed
+    rows = page.eval_on_selector_all("#wz-review tbody tr", "rows => rows.map(r => r.dataset.trace)")
+    assert sorted(rows) == sorted(traces)                             # reviewed (and printable): the traces only
     assert page.js_errors == []
