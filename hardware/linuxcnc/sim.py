@@ -40,9 +40,9 @@ from ..errors import HardwareError, LinkError
 from ..machine_types import MachineProfile
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
-from .sim_surface import SimBlock
+from .sim_surface import SimBlock, SimSphere
 
-__all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimUnavailable", "linuxcnc_available"]
+__all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSphere", "SimUnavailable", "linuxcnc_available"]
 
 SIM_DIR = Path(__file__).with_name("sim")
 CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
@@ -110,9 +110,10 @@ class SimController:
             session.enable(self.enable_pw)
         return session
 
-    def set_surface(self, surface: SimBlock) -> None:
-        """Make the simulated probe touch ``surface`` (``halcmd setp`` on the running
-        simulator; see :mod:`hardware.linuxcnc.sim_surface`)."""
+    def set_surface(self, surface: SimBlock | SimSphere) -> None:
+        """Make the simulated probe touch ``surface`` (a block or plane, or the reference
+        sphere beside it; ``halcmd setp`` on the running simulator; see
+        :mod:`hardware.linuxcnc.sim_surface`)."""
         if not self.running:
             raise SimUnavailable("the simulator is not running", field="linuxcnc")
         for name, value in surface.setp_values().items():

@@ -57,8 +57,8 @@ def add_machine(client, sim) -> str:
     machine_id = response.json()["id"]
     assert client.post(f"/api/v1/machines/{machine_id}/connect", headers=OP).json()["state"] == "idle"
     homed = client.post(f"/api/v1/machines/{machine_id}/home", headers=OP)
-    # the simulator homes Z up to its switch at 10 mm, above any surface (sim/home.hal)
-    assert homed.status_code == 200 and homed.json()["position"] == pytest.approx([0, 0, 10], abs=1e-6), homed.text
+    # the simulator homes Z up to its switch at 30 mm, above any surface (sim/home.hal)
+    assert homed.status_code == 200 and homed.json()["position"] == pytest.approx([0, 0, 30], abs=1e-6), homed.text
     return machine_id
 
 
