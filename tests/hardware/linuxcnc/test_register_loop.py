@@ -10,7 +10,13 @@ simulator places it with a known rigid placement, so the truth of every job is k
   within the simulator's trip lateness, see ``LATE_MM``);
 * ``closed_loop`` (probe -> reconstruct -> compensate -> print) must make the controller
   hold the nozzle at the standoff above the simulator's surface: checked on the program
-  file the controller ran and on joint positions sampled from the controller while it ran.
+  file the controller ran and on the motor positions sampled from HAL (``HalWatch``)
+  while its dispense output was on; also when the link drops mid-probe-run or mid-print
+  and the operator resumes the interrupted step.
+
+The simulator homes to switches (Z up to 30 mm first), so homing never drives the probe
+into a placed part and a resume's re-homing comes back to the same frame; homing in place
+(before) could put the new origin inside the part ("Probe tripped during homing motion").
 """
 
 from __future__ import annotations
