@@ -161,7 +161,7 @@ def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[st
         log.info("resuming at command %d (%s: %s)", located.start, located.basis, located.detail)
     else:
         start = machine.resume_line()
-    home = machine.profile.home_command or ("G28" if machine.dialect == "marlin" else "$H")
+    home = machine.profile.home_command or {"marlin": "G28", "grbl": "$H"}.get(machine.dialect, "set home -1")
     machine.home()
     return start, [home]
 

@@ -150,10 +150,16 @@ class LinuxCNCMachine(ClaimedOperations):
                 raise MachineStateError("emergency stop: reconnect first", field="state", value="error")
             self.link.pop_error()
             try:
-                self.link.set("mdi", command, timeout_s=self.motion_timeout_s)
+                # "set mdi" is answered once the controller received it (not after the
+                # motion): a reply lost by linuxcncrsh becomes a LinkError after timeout_s
+                # instead of an hour-long hang; "wait done" waits for the motion
+                self.link.set("mdi", command)
                 self.link.set("wait", "done", timeout_s=self.motion_timeout_s)
             except RshRejected as exc:
                 raise FirmwareError(exc.message, command=command) from exc
+            except LinkError:  # no watchdog on the controller: the move must not go on unsupervised
+                self._abort_best_effort()
+                raise
             error = self.link.pop_error()
             if error is not None:
                 raise FirmwareError(f"LinuxCNC: {error}", command=command)

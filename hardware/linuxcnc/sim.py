@@ -32,6 +32,7 @@ import signal
 import socket
 import subprocess
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -39,9 +40,9 @@ from ..errors import HardwareError, LinkError
 from ..machine_types import MachineProfile
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
-from .sim_surface import SimBlock
+from .sim_surface import SimBlock, SimSphere
 
-__all__ = ["CONFIGS", "SimBlock", "SimController", "SimUnavailable", "linuxcnc_available"]
+__all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSphere", "SimUnavailable", "linuxcnc_available"]
 
 SIM_DIR = Path(__file__).with_name("sim")
 CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
@@ -109,9 +110,10 @@ class SimController:
             session.enable(self.enable_pw)
         return session
 
-    def set_surface(self, surface: SimBlock) -> None:
-        """Make the simulated probe touch ``surface`` (``halcmd setp`` on the running
-        simulator; see :mod:`hardware.linuxcnc.sim_surface`)."""
+    def set_surface(self, surface: SimBlock | SimSphere) -> None:
+        """Make the simulated probe touch ``surface`` (a block or plane, or the reference
+        sphere beside it; ``halcmd setp`` on the running simulator; see
+        :mod:`hardware.linuxcnc.sim_surface`)."""
         if not self.running:
             raise SimUnavailable("the simulator is not running", field="linuxcnc")
         for name, value in surface.setp_values().items():
@@ -120,6 +122,13 @@ class SimController:
             if done.returncode != 0:
                 raise SimUnavailable(f"halcmd setp {name} failed: {done.stderr.strip()[:200]}",
                                      field="halcmd", value=name)
+
+    def watch(self, names: list[str], period_s: float = 0.0005, max_s: float = 300.0) -> "HalWatch":
+        """Start sampling HAL pins / ``task_state`` at the controller (``hal_watch.py``
+        under the system Python); use as a context manager, samples in ``.samples``."""
+        if not self.running:
+            raise SimUnavailable("the simulator is not running", field="linuxcnc")
+        return HalWatch(names, self._env, period_s, max_s)
 
     @property
     def running(self) -> bool:
@@ -250,3 +259,61 @@ class SimController:
                 return
             except subprocess.TimeoutExpired:
                 continue
+
+
+class HalWatch:
+    """A running ``hal_watch.py`` (see :meth:`SimController.watch`): ``samples`` is the
+    list of ``(t_ns, values)`` it printed, ``t_ns`` on the host's CLOCK_MONOTONIC (the
+    clock of ``time.monotonic_ns()``), one entry each time a value changed."""
+
+    SCRIPT = Path(__file__).with_name("hal_watch.py")
+
+    def __init__(self, names: list[str], env: dict[str, str] | None, period_s: float, max_s: float) -> None:
+        self.names = list(names)
+        self.samples: list[tuple[int, list[float]]] = []
+        self._ready = threading.Event()
+        python = shutil.which("python3", path="/usr/bin:/bin") or "python3"
+        self._process = subprocess.Popen([python, str(self.SCRIPT), repr(period_s), repr(max_s), *self.names],
+                                         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        if not self._ready.wait(15.0):
+            self.close()
+            raise SimUnavailable(f"hal_watch did not start: {self._process.stderr.read()[:300] if self._process.stderr else ''}",
+                                 field="hal_watch")
+
+    def _read(self) -> None:
+        assert self._process.stdout is not None
+        for line in self._process.stdout:
+            if line.startswith("ready"):
+                self._ready.set()
+                continue
+            words = line.split()
+            self.samples.append((int(words[0]), [float(w) for w in words[1:]]))
+        self._ready.set()
+
+    def first(self, name: str, predicate, after_ns: int = 0) -> int | None:
+        """The time (ns) of the first sample at or after ``after_ns`` whose ``name`` value
+        satisfies ``predicate`` (None if none)."""
+        k = self.names.index(name)
+        for t_ns, values in list(self.samples):
+            if t_ns >= after_ns and predicate(values[k]):
+                return t_ns
+        return None
+
+    def close(self) -> None:
+        """Stop the sampler (SIGTERM to the process this object started) and collect the rest."""
+        if self._process.poll() is None:
+            self._process.terminate()
+            try:
+                self._process.wait(5)
+            except subprocess.TimeoutExpired:
+                self._process.kill()
+                self._process.wait(5)
+        self._reader.join(5)
+
+    def __enter__(self) -> "HalWatch":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

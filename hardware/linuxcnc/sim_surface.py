@@ -13,6 +13,12 @@ footprint and the bed (z = dz, the block's bottom) outside it.
 
 ``SimBlock.plane(z0, slope_x)`` is the start-up surface: the endless plane
 z = z0 + slope_x * x.
+
+A :class:`SimSphere` is a reference sphere beside it (``calibrate_probe``): the probe
+trips where the tip, which stands for the ball's centre, is within ``radius_mm`` (the
+sphere's radius plus the ball's) of ``centre_mm``.  ``SimSphere.none()`` removes it.
+
+    sim.set_surface(SimSphere((30.3, 20.2, 3.1), 5.0 + 0.5))
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["SimBlock"]
+__all__ = ["SimBlock", "SimSphere"]
 
 _ENDLESS = 1e9
 
@@ -77,3 +83,22 @@ class SimBlock:
                 "conforma-surface.gain0": self.slope_x,
                 "conforma-surface.offset": self.dz + self.height_mm,
                 "conforma-bed.in1": -_ENDLESS if self.endless else self.dz}
+
+
+@dataclass(frozen=True)
+class SimSphere:
+    """A reference sphere of the simulated probe (mm); see the module docstring."""
+
+    centre_mm: tuple[float, float, float]
+    radius_mm: float
+
+    @classmethod
+    def none(cls) -> "SimSphere":
+        """No sphere (the start-up state)."""
+        return cls((0.0, 0.0, 0.0), 0.0)
+
+    def setp_values(self) -> dict[str, float]:
+        """HAL values of ``sim/probe.hal``'s sphere for this one."""
+        cx, cy, cz = (float(v) for v in self.centre_mm)
+        return {"conforma-dx.offset": -cx, "conforma-dy.offset": -cy, "conforma-dz.offset": -cz,
+                "conforma-sphere.in1": float(self.radius_mm) ** 2}

@@ -119,40 +119,108 @@ def test_cancel_aborts_the_program(machine, lcnc_xyz):
     assert machine.state == "idle"
 
 
-def _estop_latency(machine, observer) -> float:
-    """Seconds from emergency_stop() until the controller reports its e-stop state."""
-    thread, outcome = _run_in_thread(machine, SQUARE)
-    assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 3)
-    started = time.monotonic()
-    stopper = threading.Thread(target=machine.emergency_stop)
-    stopper.start()
-    assert _wait_for(lambda: observer.get("estop") == "ON", timeout_s=3.0)
-    latency = time.monotonic() - started
-    stopper.join(5)
-    thread.join(10)
-    assert isinstance(outcome.get("error"), FirmwareError)  # the program ended with the stop
-    return latency
+ESTOP_STATE = 1  # linuxcnc.STATE_ESTOP: the controller's task state while in e-stop
+# watched at the controller (HAL, hardware.linuxcnc.HalWatch): the state the controller
+# reports, its e-stop output (what a machine's e-stop chain / amplifier enable follows) and
+# the motion controller's enable
+ESTOP_SIGNALS = {"reported": ("task_state", lambda v: v == ESTOP_STATE),
+                 "output": ("iocontrol.0.user-enable-out", lambda v: v == 0),
+                 "motion": ("motion.motion-enabled", lambda v: v == 0)}
 
 
-def test_emergency_stop_reaches_the_controller_within_100_ms(machine, lcnc_xyz):
-    observer = lcnc_xyz.session()
-    latencies = []
-    for _ in range(5):  # shared 2-core CI box: the best of five is the controller's latency
-        latencies.append(_estop_latency(machine, observer))
-        assert machine.state == "error"
-        frozen = _joints(observer)
-        time.sleep(0.2)
-        assert _joints(observer) == pytest.approx(frozen, abs=1e-9)
-        with pytest.raises(MachineStateError):  # nothing is sent until reconnected
-            machine.move(x=1.0)
-        assert observer.get("estop") == "ON"
-        machine.connect()
-        assert observer.get("estop") == "OFF" and machine.state == "idle"
-        machine.home()
-        if min(latencies) < 0.1:
-            break
-    print(f"e-stop latencies (s): {[round(v, 3) for v in latencies]}")
-    assert min(latencies) < 0.1
+def measure_estops(machine, sim, n: int) -> dict[str, list[float]]:
+    """Emergency-stop ``n`` times, each while a program runs.  Per stop, milliseconds from
+    the operator's stop (the call to ``emergency_stop``) until the controller itself shows
+    it, sampled from HAL every 0.5 ms on the host's monotonic clock (a sampling delay only
+    makes a figure larger).  Also checks, every time, that the program ended with the stop,
+    nothing moves afterwards and nothing is sent until reconnected."""
+    observer = sim.session()
+    names = [name for name, _ in ESTOP_SIGNALS.values()]
+    figures: dict[str, list[float]] = {key: [] for key in (*ESTOP_SIGNALS, "call")}
+    try:
+        for _ in range(n):
+            if "NO" in observer.get("joint_homed").upper().split()[:3]:
+                machine.home()
+            with sim.watch(names) as watch:
+                thread, outcome = _run_in_thread(machine, SQUARE)
+                assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 3)
+                issued = time.monotonic_ns()
+                machine.emergency_stop()
+                figures["call"].append((time.monotonic_ns() - issued) / 1e6)
+                seen: dict[str, int | None] = {key: None for key in ESTOP_SIGNALS}
+                assert _wait_for(lambda seen=seen, watch=watch, issued=issued: _all_seen(seen, watch, issued),
+                                 timeout_s=5.0), seen
+            for key, t_ns in seen.items():
+                figures[key].append((t_ns - issued) / 1e6)
+            thread.join(10)
+            assert isinstance(outcome.get("error"), FirmwareError)  # the program ended with the stop
+            assert machine.state == "error" and observer.get("estop") == "ON"
+            frozen = _joints(observer)
+            time.sleep(0.1)
+            assert _joints(observer) == pytest.approx(frozen, abs=1e-9)
+            with pytest.raises(MachineStateError):  # nothing is sent until reconnected
+                machine.move(x=1.0)
+            machine.connect()
+            assert observer.get("estop") == "OFF" and machine.state == "idle"
+    finally:
+        observer.close()
+    return figures
+
+
+def _all_seen(seen: dict, watch, issued: int) -> bool:
+    """Fill in the first time each e-stop signal showed the stop (at or after ``issued``)."""
+    for key, (name, test) in ESTOP_SIGNALS.items():
+        seen[key] = seen[key] or watch.first(name, test, issued)
+    return all(seen.values())
+
+
+def estop_summary(figures: dict[str, list[float]]) -> str:
+    import numpy as np
+
+    rows = []
+    for key, values in figures.items():
+        v = np.array(values)
+        rows.append(f"  {key:9s} min {v.min():6.1f}  median {np.median(v):6.1f}  p95 {np.percentile(v, 95):6.1f}  "
+                    f"max {v.max():6.1f} ms  all: {' '.join(f'{x:.0f}' for x in values)}")
+    return "\n".join(rows)
+
+
+ESTOP_STOPS = 10
+ESTOP_BOUND_MS = 2000.0  # every stop, whatever the box's load (see check_estop_figures)
+
+
+def check_estop_figures(figures: dict[str, list[float]], *, p95: bool = False) -> None:
+    """What is asserted about a series of stops (``figures``: ms per stop, from the call):
+
+    * every stop reaches the controller: its e-stop output (``iocontrol.0.user-enable-out``,
+      what the machine's e-stop chain and amplifier enables follow), its motion enable and
+      the state its task reports (``get estop``, every GUI) all show it within 2 s;
+    * the e-stop output and the motion enable drop within 100 ms in the median, and, with
+      ``p95`` (the bench's 30 stops), at the 95th percentile.
+
+    Why not every stop < 100 ms: the simulator's processes are ordinary user processes on a
+    2-core box shared with other suites (load 10-20 while this was written, no real-time
+    kernel).  A quiet stop takes 20-30 ms to the output and 60-75 ms to the reported state
+    (the task reports after aborting the running program); a stop that waits for a CPU
+    shows up as 120-900 ms on 1-3 stops of 10 at load 17.  The task's reported state is
+    printed, not held to 100 ms: it trails the output by 35-45 ms even when quiet."""
+    import numpy as np
+
+    for key in ("output", "motion", "reported"):
+        assert max(figures[key]) < ESTOP_BOUND_MS, (key, figures[key])
+    for key in ("output", "motion"):
+        assert np.median(figures[key]) < 100.0, (key, figures[key])
+        if p95:
+            assert np.percentile(figures[key], 95) < 100.0, (key, figures[key])
+
+
+def test_every_emergency_stop_reaches_the_controller(machine, lcnc_xyz):
+    """10 stops, each while a program runs, every one timed at the controller (HAL, sampled
+    every 0.5 ms), not by our bookkeeping; see :func:`check_estop_figures`.  ``make bench``
+    (tests/bench/test_bench_linuxcnc_estop.py) runs 30 and holds the p95 to 100 ms."""
+    figures = measure_estops(machine, lcnc_xyz, ESTOP_STOPS)
+    print(f"e-stop, {ESTOP_STOPS} stops while a program runs, ms from the call:\n{estop_summary(figures)}")
+    check_estop_figures(figures)
 
 
 def test_lost_connection_aborts_and_resumes(machine, lcnc_xyz):
