@@ -31,6 +31,7 @@ import gc
 import logging
 import resource
 import signal
+import time
 from typing import Any
 
 from app.blobs import BlobStore
@@ -168,10 +169,12 @@ def run_job(runtime: ChildRuntime, claim: Claim) -> bool:
         return True
     ctx = JobContext(runtime, claim)  # type: ignore[arg-type]
     job_limit(int(settings.job_memory_mb * MIB))
+    wall, cpu = time.perf_counter(), time.process_time()
     try:
         result = kind.run(ctx, kind.params.model_validate(claim.params))
         encoded = json_result(result)
         lift_job_limit()
+        start.update(wall_s=round(time.perf_counter() - wall, 4), cpu_s=round(time.process_time() - cpu, 4))
         runtime.persist_caches(claim, start)  # before the outcome: the next job may start at once
         runtime.store.finish(claim, "succeeded", result=encoded)
     except Cancelled as exc:

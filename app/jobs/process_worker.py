@@ -163,6 +163,9 @@ class ProcessSupervisor:
             with _lease_kept(store, claim, self.settings.lease_s / 3):
                 member = self._start(claim)
         except Exception as exc:  # no process, no job: say so rather than leave it running
+            if self.stopping.is_set():  # the pool closed while the job waited for a process
+                store.release(claim, "released by a stopping worker")
+                return
             log.exception("could not start a process for job %s", claim.job_id)
             store.finish(claim, "failed", error=problem(500, "Job could not start", f"{type(exc).__name__}: {exc}"[:500]))
             return
