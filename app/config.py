@@ -56,6 +56,15 @@ class Settings(BaseSettings):
                             description="disk bound of the per-part cache (<data_dir>/part-cache: parsed meshes, "
                             "edge grids, fitted fields) shared by compute processes, least recently used out; "
                             "0 turns it off")
+    compute_cache_mb: float = Field(1024.0, ge=0, le=1_000_000,
+                                    description="in-memory cache of each long-lived compute process (parsed meshes "
+                                    "with their ray-casting structure and edge grid), least recently used out")
+    compute_recycle_jobs: int = Field(200, ge=1, le=1_000_000,
+                                      description="a compute process is replaced after this many jobs "
+                                      "(1: a fresh process for every job)")
+    compute_recycle_mb: float = Field(3072.0, ge=64, le=1_000_000,
+                                      description="a compute process is replaced after a job that leaves its resident "
+                                      "memory (or its address space's growth) above this")
     lease_s: float = Field(30.0, gt=0.5, le=3600)
     max_attempts: int = Field(3, ge=1, le=100)
     reaper_interval_s: float = Field(1.0, gt=0.01, le=600)

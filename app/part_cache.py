@@ -430,11 +430,14 @@ JOURNAL = "journal.jsonl"
 JOURNAL_MAX_BYTES = 2 ** 20
 
 
-def record_job(cache: PartCache, job_id: str, kind: str) -> None:
+def record_job(cache: PartCache, job_id: str, kind: str, memory: dict[str, Any] | None = None) -> None:
     """Append what this process's store did for job ``job_id`` to ``<root>/journal.jsonl``
-    (one JSON line; the file is rotated to ``journal.1.jsonl`` past 1 MiB)."""
+    (one JSON line; the file is rotated to ``journal.1.jsonl`` past 1 MiB).  ``memory``:
+    what the process's in-memory cache did (``mesh_hits`` ..., ``process_job``: the how
+    many-th job of the process, ``held``: the parts it held when the job started)."""
     path = cache.root / JOURNAL
-    line = json.dumps({"job_id": job_id, "kind": kind, "pid": os.getpid(), **cache.stats.to_dict()}) + "\n"
+    line = json.dumps({"job_id": job_id, "kind": kind, "pid": os.getpid(), **cache.stats.to_dict(),
+                       "memory": memory or {}}) + "\n"
     try:
         cache.root.mkdir(parents=True, exist_ok=True)
         if path.exists() and path.stat().st_size > JOURNAL_MAX_BYTES:

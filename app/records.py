@@ -134,6 +134,8 @@ class MeshCache:
         self._items = ByteLru(MESH_CACHE_BYTES if max_bytes is None else max_bytes)
         self._parse_lock = threading.Lock()
         self._keys: dict[Any, str] = {}  # memory key -> disk key, for persist()
+        # lookups answered from memory or not, by mesh (parsed) and placed copy
+        self.counts = {"mesh_hits": 0, "mesh_misses": 0, "placed_hits": 0, "placed_misses": 0}
 
     @property
     def max_bytes(self) -> int:
@@ -151,6 +153,13 @@ class MeshCache:
     def put(self, sha256: str, mesh: trimesh.Trimesh) -> None:
         self._items.put(sha256, mesh, mesh_bytes(mesh))
 
+    def parts(self) -> set[str]:
+        """The sha256 of every part held (parsed, or placed)."""
+        return {key if isinstance(key, str) else key[0] for key in list(self._items._items)}
+
+    def _count(self, name: str) -> None:
+        self.counts[name] = self.counts.get(name, 0) + 1
+
     def cached(self, key: Any) -> trimesh.Trimesh | None:
         """The cached mesh under ``key`` (a sha256, or (sha256, placement matrix bytes)) or None."""
         mesh = self._items.get(key)
@@ -161,11 +170,14 @@ class MeshCache:
     def mesh(self, part: Part) -> trimesh.Trimesh:
         cached = self.cached(part.sha256)
         if cached is not None:
+            self._count("mesh_hits")
             return cached
         with self._parse_lock:  # one parse per part, even when jobs ask at once
             cached = self._items.get(part.sha256)
             if cached is not None:
+                self._count("mesh_hits")
                 return cached
+            self._count("mesh_misses")
             mesh = self.store.load_mesh(part.sha256) if self.store is not None else None
             if mesh is None:
                 mesh = parse_mesh(self.blobs.read(part.sha256), part.format, max_unzipped_bytes=2**40)
@@ -186,6 +198,7 @@ class MeshCache:
         matrix = placement.matrix()
         key = (part.sha256, np.asarray(matrix, dtype=float).round(12).tobytes())
         cached = self.cached(key)
+        self._count("placed_misses" if cached is None else "placed_hits")
         if cached is None:
             cached = mesh.copy()
             cached.apply_transform(matrix)

@@ -1,28 +1,37 @@
-"""The body of a compute job's own process: limits first, then the job.
+"""The body of a long-lived compute process: limits first, then one job at a time.
 
-A child is forked from a clean, single-threaded fork server (``multiprocessing``'s
-"forkserver" context) that has imported the compute core once, so a job starts in tens of
+A compute process is forked from a clean, single-threaded fork server (``multiprocessing``'s
+"forkserver" context) that has imported the compute core once, so it starts in tens of
 milliseconds and never shares the threads, locks or serial ports of the process that
-supervises it.  Before the job runs, the child
+supervises it (:mod:`app.jobs.compute_pool`).  It then serves jobs, one at a time, that
+its supervisor sends through a pipe, and keeps what jobs built on a part (the parsed mesh
+with its ray-casting structure and edge grid, fitted fields) in memory for the next job,
+bounded by ``CONFORMA_COMPUTE_CACHE_MB`` (least recently used out).  Limits:
 
-* caps its address space (``RLIMIT_AS``) at its size at start plus
-  ``CONFORMA_JOB_MEMORY_MB``, so an allocation beyond the budget is a ``MemoryError`` in
-  the job (failed with the reason), never the kernel's OOM killer choosing a victim;
-* asks to be the OOM killer's first choice (``oom_score_adj`` 1000) should memory run out
-  anyway, and to die with its fork server (``PR_SET_PDEATHSIG``) when the service dies;
-* opens its own database engine and blob store (nothing is inherited).
+* its address space is capped (``RLIMIT_AS``): the hard limit at its size at start plus
+  ``CONFORMA_JOB_MEMORY_MB`` plus ``CONFORMA_COMPUTE_RECYCLE_MB``, and before each job the
+  soft limit at its size then plus ``CONFORMA_JOB_MEMORY_MB``, so each job may add exactly
+  its budget to the warm process; an allocation beyond it is a ``MemoryError`` in the job
+  (failed with the reason), never the kernel's OOM killer choosing a victim;
+* it asks to be the OOM killer's first choice (``oom_score_adj`` 1000) should memory run
+  out anyway, and to die with its fork server (``PR_SET_PDEATHSIG``) when the service dies;
+* it opens its own database engine and blob store (nothing is inherited).
 
 Outcomes the job itself decides (succeeded, failed, cancelled) are written here, with the
-same conditional transitions as a thread worker; what it cannot report (a crash, a kill)
-is the supervisor's business (:mod:`app.jobs.process_worker`).
+same conditional transitions as a thread worker; what it cannot report (a crash, a kill, a
+time limit) is the supervisor's business (:mod:`app.jobs.process_worker`).  After each job
+the process reports its memory and the parts it holds; the supervisor decides whether it is
+reused or replaced.
 """
 
 from __future__ import annotations
 
 import ctypes
+import gc
 import logging
 import resource
 import signal
+import time
 from typing import Any
 
 from app.blobs import BlobStore
@@ -34,31 +43,36 @@ from app.jobs.registry import get_kind, load_kinds
 from app.jobs.store import Claim, JobStore, json_result
 from threadpoolctl import threadpool_limits
 
-from app.part_cache import FieldFitStore, MeshStore, part_cache_for, record_job
+from app.part_cache import CacheStats, FieldFitStore, MeshStore, part_cache_for, record_job
 from app.problems import from_error, problem
 from app.records import FIELD_FITS, MeshCache
 
 log = logging.getLogger("conforma.jobs.child")
 _PR_SET_PDEATHSIG = 1
+MIB = 2 ** 20
 
 
-def _vm_size_bytes() -> int:
-    """This process's current virtual size (VmSize), bytes; 0 when /proc is unavailable."""
+def _status_bytes(field: str) -> int:
+    """A size field of /proc/self/status (``VmSize``, ``VmRSS``), bytes; 0 when unavailable."""
     try:
         with open("/proc/self/status") as status:
             for line in status:
-                if line.startswith("VmSize:"):
+                if line.startswith(field + ":"):
                     return int(line.split()[1]) * 1024
     except OSError:
         pass
     return 0
 
 
-def apply_limits(memory_bytes: int) -> None:
-    """Cap the address space at the current size + ``memory_bytes``; volunteer for the OOM
+def _vm_size_bytes() -> int:
+    """This process's current virtual size (VmSize), bytes; 0 when /proc is unavailable."""
+    return _status_bytes("VmSize")
+
+
+def process_limits(hard_bytes: int) -> None:
+    """Cap the address space at ``hard_bytes`` (soft and hard); volunteer for the OOM
     killer; die with the parent.  Best effort where the platform lacks a mechanism."""
-    limit = _vm_size_bytes() + memory_bytes
-    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    resource.setrlimit(resource.RLIMIT_AS, (hard_bytes, hard_bytes))
     try:
         with open("/proc/self/oom_score_adj", "w") as adj:
             adj.write("1000")
@@ -70,8 +84,26 @@ def apply_limits(memory_bytes: int) -> None:
         pass
 
 
+def job_limit(memory_bytes: int) -> int:
+    """Set the soft address-space limit at the current size + ``memory_bytes`` (never above
+    the hard limit); returns the soft limit set."""
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    soft = _vm_size_bytes() + memory_bytes
+    if hard != resource.RLIM_INFINITY:
+        soft = min(soft, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+    return soft
+
+
+def lift_job_limit() -> None:
+    """Between jobs: the soft limit back at the hard one (the process's own bookkeeping)."""
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    resource.setrlimit(resource.RLIMIT_AS, (hard, hard))
+
+
 class ChildRuntime:
-    """What :class:`JobContext` needs from a runtime, opened fresh in the child."""
+    """What :class:`JobContext` needs from a runtime, opened fresh in the child and kept
+    for every job the process serves."""
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
@@ -80,11 +112,23 @@ class ChildRuntime:
         # the per-part cache on disk: what an earlier job's process built on a part (parsed
         # mesh, face normals, edge grid) or fitted to a probe run is loaded, not rebuilt
         self.part_cache = part_cache_for(settings)
-        self.meshes = MeshCache(self.blobs, store=MeshStore(self.part_cache) if self.part_cache else None)
+        # ...and in memory, for the next job of this process: the mesh objects themselves,
+        # with what is built on them (embree's ray structure cannot be stored on disk)
+        self.meshes = MeshCache(self.blobs, max_bytes=int(settings.compute_cache_mb * MIB),
+                                store=MeshStore(self.part_cache) if self.part_cache else None)
         FIELD_FITS.backing = FieldFitStore(self.part_cache) if self.part_cache else None
         self.store = JobStore(self.engine, settings.lease_s)
+        self.served = 0
 
-    def persist_caches(self, claim: Claim) -> None:
+    def begin_job(self) -> dict[str, Any]:
+        """Before each job: per-job cache counters; returns what the process held then."""
+        self.served += 1
+        if self.part_cache is not None:
+            self.part_cache.stats = CacheStats()
+        self.meshes.counts = dict.fromkeys(self.meshes.counts, 0)
+        return {"process_job": self.served, "held": sorted(self.meshes.parts())}
+
+    def persist_caches(self, claim: Claim, start: dict[str, Any]) -> None:
         """Store what this job built for the next process; journal the cache's use.  Never
         fails the job (a full disk only costs the next job the rebuild)."""
         if self.part_cache is None:
@@ -93,12 +137,19 @@ class ChildRuntime:
             self.meshes.persist()
         except Exception:
             log.exception("part cache: persisting after job %s failed", claim.job_id)
-        record_job(self.part_cache, claim.job_id, claim.kind)
+        record_job(self.part_cache, claim.job_id, claim.kind,
+                   memory={**self.meshes.counts, **start})
+
+    def report(self) -> dict[str, Any]:
+        """After a job: memory and the parts held (the supervisor's reuse and affinity)."""
+        cache_bytes = self.meshes.bytes  # re-measured: evicts down to the bound
+        gc.collect()  # trimesh objects hold cycles: an evicted mesh is freed now
+        return {"served": self.served, "rss_bytes": _status_bytes("VmRSS"), "vm_bytes": _vm_size_bytes(),
+                "cache_bytes": cache_bytes, "held": sorted(self.meshes.parts())}
 
     def submit(self, kind_name: str, params: dict[str, Any], *, parent_id: str | None = None) -> Any:
         raise ConformaError("compute jobs cannot submit child jobs (use a workflow kind)",
                             field="kind", value=kind_name)
-
 
 
 def memory_problem(memory_mb: float) -> dict:
@@ -107,33 +158,61 @@ def memory_problem(memory_mb: float) -> dict:
                    "(CONFORMA_JOB_MEMORY_MB); reduce its parameters")
 
 
-def run_child(settings: Settings, claim: Claim) -> None:
-    """Entry point of the child process: limits, then run ``claim``'s job to an outcome."""
-    apply_limits(int(settings.job_memory_mb * 2**20))
-    threadpool_limits(limits=settings.blas_threads)  # once per job process, never inside the core
+def run_job(runtime: ChildRuntime, claim: Claim) -> bool:
+    """Run ``claim``'s job to an outcome in this process; True when the process is fit for
+    another job (False after a MemoryError or a crash: its state may be half built)."""
+    settings = runtime.settings
+    start = runtime.begin_job()
+    kind = get_kind(claim.kind)
+    if kind is None:
+        runtime.store.finish(claim, "failed", error=problem(422, "Unknown job kind", f"no worker kind {claim.kind!r}"))
+        return True
+    ctx = JobContext(runtime, claim)  # type: ignore[arg-type]
+    job_limit(int(settings.job_memory_mb * MIB))
+    wall, cpu = time.perf_counter(), time.process_time()
+    try:
+        result = kind.run(ctx, kind.params.model_validate(claim.params))
+        encoded = json_result(result)
+        lift_job_limit()
+        start.update(wall_s=round(time.perf_counter() - wall, 4), cpu_s=round(time.process_time() - cpu, 4))
+        runtime.persist_caches(claim, start)  # before the outcome: the next job may start at once
+        runtime.store.finish(claim, "succeeded", result=encoded)
+    except Cancelled as exc:
+        lift_job_limit()
+        runtime.store.finish(claim, "cancelled", error=from_error(exc))
+    except ConformaError as exc:
+        lift_job_limit()
+        runtime.store.finish(claim, "failed", error=from_error(exc))
+    except MemoryError:
+        lift_job_limit()
+        runtime.store.finish(claim, "failed", error=memory_problem(settings.job_memory_mb))
+        return False
+    except Exception as exc:  # a bug: record it without a stack trace for clients
+        lift_job_limit()
+        log.exception("job %s (%s) crashed", claim.job_id, claim.kind)
+        runtime.store.finish(claim, "failed", error=problem(500, "Job crashed", f"{type(exc).__name__}: {exc}"[:500]))
+        return False
+    return True
+
+
+def serve_jobs(settings: Settings, conn: Any) -> None:
+    """Entry point of a compute process: limits, then jobs from ``conn`` (a pipe end) until
+    it sends None or closes.  After each job it sends its report (:meth:`ChildRuntime.report`
+    plus ``fit``: False when it should not serve another job)."""
+    process_limits(_vm_size_bytes() + int((settings.job_memory_mb + settings.compute_recycle_mb) * MIB))
+    threadpool_limits(limits=settings.blas_threads)  # once per process, never inside the core
     load_kinds(settings.job_plugins.split(","))
     runtime = ChildRuntime(settings)
-    kind = get_kind(claim.kind)
     try:
-        if kind is None:
-            runtime.store.finish(claim, "failed", error=problem(422, "Unknown job kind",
-                                                                f"no worker kind {claim.kind!r}"))
-            return
-        ctx = JobContext(runtime, claim)  # type: ignore[arg-type]
-        try:
-            result = kind.run(ctx, kind.params.model_validate(claim.params))
-            encoded = json_result(result)
-            runtime.persist_caches(claim)  # before the outcome: the next job may start at once
-            runtime.store.finish(claim, "succeeded", result=encoded)
-        except Cancelled as exc:
-            runtime.store.finish(claim, "cancelled", error=from_error(exc))
-        except ConformaError as exc:
-            runtime.store.finish(claim, "failed", error=from_error(exc))
-        except MemoryError:
-            runtime.store.finish(claim, "failed", error=memory_problem(settings.job_memory_mb))
-        except Exception as exc:  # a bug: record it without a stack trace for clients
-            log.exception("job %s (%s) crashed", claim.job_id, claim.kind)
-            runtime.store.finish(claim, "failed",
-                                 error=problem(500, "Job crashed", f"{type(exc).__name__}: {exc}"[:500]))
+        while True:
+            try:
+                claim = conn.recv()
+            except (EOFError, OSError):
+                return
+            if claim is None:
+                return
+            fit = run_job(runtime, claim)
+            conn.send({**runtime.report(), "job_id": claim.job_id, "fit": fit,
+                       "hard_bytes": resource.getrlimit(resource.RLIMIT_AS)[1]})
     finally:
         runtime.engine.dispose()

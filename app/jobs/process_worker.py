@@ -2,16 +2,20 @@
 
 The process that owns the serial ports (``conforma serve``) must survive whatever a
 compute job does.  So a worker thread of the ``default`` queue (in ``serve`` or in a
-``conforma worker``) claims the job and then only *supervises* it: the job runs in a child
-process (:mod:`app.jobs.compute_child`) with a memory limit, while the thread
+``conforma worker``) claims the job and then only *supervises* it: the job runs in a
+long-lived compute process of the runtime's :class:`~app.jobs.compute_pool.ComputePool`
+(one job at a time, reused for later jobs so that what a job built on its part stays warm;
+it prefers a process that already holds the job's part), while the thread
 
 * renews the job's lease and polls its cancel flag every ``POLL_S`` (0.1 s): a cancel is
-  a ``SIGKILL`` of the child, recorded as ``cancelled`` well within 1 s, whatever loop the
-  job is in;
-* kills the child after ``CONFORMA_JOB_TIME_S`` wall-clock seconds (failed, with the limit);
-* when the child dies without recording an outcome (a signal: the OOM killer, a segfault,
-  an abort in native code), **quarantines** the job: failed with the reason, never re-claimed;
-* when its own runtime stops, kills the child and puts the job back in the queue
+  a ``SIGKILL`` of the job's process, recorded as ``cancelled`` well within 1 s, whatever
+  loop the job is in; a fresh process takes the killed one's place;
+* kills the process after ``CONFORMA_JOB_TIME_S`` wall-clock seconds of the job (failed,
+  with the limit);
+* when the process dies without reporting the job's end (a signal: the OOM killer, a
+  segfault, an abort in native code), **quarantines** the job: failed with the reason, never
+  re-claimed; the process is replaced;
+* when its own runtime stops, kills the process and puts the job back in the queue
   (``released``), so that a normal restart runs it again.
 
 Machine and workflow jobs stay in threads of the ``serve`` process (they need its ports).
@@ -20,20 +24,18 @@ Machine and workflow jobs stay in threads of the ``serve`` process (they need it
 from __future__ import annotations
 
 import logging
-import multiprocessing
-import pkgutil
 import signal
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import select
 
-from app.jobs.compute_child import run_child
+from app.jobs.compute_pool import ComputePool, Member, mp_context
 from app.jobs.store import Claim, JobStore
-from app.models import Job
+from app.models import Job, JobReference, Part, Trace
 from app.errors import Cancelled
 from app.problems import from_error, problem
 
@@ -43,24 +45,6 @@ if TYPE_CHECKING:
 log = logging.getLogger("conforma.jobs.process")
 POLL_S = 0.1
 KILL_WAIT_S = 5.0
-# Imported once by the fork server, so that every child starts with the compute core loaded.
-PRELOAD = ["app.jobs.compute_child"]
-_context_lock = threading.Lock()
-_context: multiprocessing.context.BaseContext | None = None
-
-
-def _mp_context() -> multiprocessing.context.BaseContext:
-    """The forkserver context (started once per process, preloading the compute core)."""
-    global _context
-    with _context_lock:
-        if _context is None:
-            import app.jobs.kinds as kinds_package
-
-            context = multiprocessing.get_context("forkserver")
-            kinds = [f"{kinds_package.__name__}.{info.name}" for info in pkgutil.iter_modules(kinds_package.__path__)]
-            context.set_forkserver_preload(PRELOAD + kinds)
-            _context = context
-        return _context
 
 
 def _signal_name(exitcode: int) -> str:
@@ -103,9 +87,13 @@ def _lease_kept(store: JobStore, claim: Claim, every_s: float) -> Iterator[None]
         thread.join()
 
 
-def warm_up() -> None:
-    """Start the fork server now (it imports the compute core: seconds), not at the first job."""
-    _mp_context().Process(target=_noop).start()
+def warm_up(pool: ComputePool | None = None) -> None:
+    """Start the fork server now (it imports the compute core: seconds), not at the first
+    job; with ``pool``, start its processes too."""
+    if pool is not None:
+        pool.replenish()
+    else:
+        mp_context().Process(target=_noop).start()
 
 
 def _noop() -> None:
@@ -113,11 +101,12 @@ def _noop() -> None:
 
 
 class ProcessSupervisor:
-    """Runs claimed compute jobs in child processes for one :class:`Runtime`."""
+    """Runs claimed compute jobs in the processes of a :class:`ComputePool`, one :class:`Runtime`'s."""
 
     def __init__(self, runtime: "Runtime") -> None:
         self.runtime = runtime
         self.settings = runtime.settings
+        self.pool = ComputePool(runtime.settings)
         self.stopping = threading.Event()
         self._idle = threading.Condition()
         self._active = 0
@@ -126,8 +115,21 @@ class ProcessSupervisor:
         with self.runtime.engine.connect() as conn:
             return bool(conn.execute(select(Job.cancel_requested).where(Job.id == job_id)).scalar())
 
+    def parts_of(self, job_id: str) -> set[str]:
+        """The mesh sha256 of every part the job reads (directly, or through its traces)."""
+        with self.runtime.engine.connect() as conn:
+            refs = conn.execute(select(JobReference.ref_kind, JobReference.ref_id)
+                                .where(JobReference.job_id == job_id)).all()
+            part_ids = {ref_id for kind, ref_id in refs if kind == "part"}
+            trace_ids = [ref_id for kind, ref_id in refs if kind == "trace"]
+            if trace_ids:
+                part_ids |= set(conn.execute(select(Trace.part_id).where(Trace.id.in_(trace_ids))).scalars())  # type: ignore[attr-defined]
+            if not part_ids:
+                return set()
+            return set(conn.execute(select(Part.sha256).where(Part.id.in_(part_ids))).scalars())  # type: ignore[attr-defined]
+
     def run(self, claim: Claim) -> None:
-        """Run ``claim``'s job in a child process and see it to an outcome (blocks)."""
+        """Run ``claim``'s job in a compute process and see it to an outcome (blocks)."""
         with self._idle:
             self._active += 1
         try:
@@ -137,14 +139,33 @@ class ProcessSupervisor:
                 self._active -= 1
                 self._idle.notify_all()
 
+    def _start(self, claim: Claim) -> Member:
+        """A pool process that has received ``claim`` (a process that died idle is replaced)."""
+        try:
+            parts = self.parts_of(claim.job_id)
+        except Exception:  # affinity is an optimisation: never a reason to fail the job
+            log.exception("could not read the parts of job %s", claim.job_id)
+            parts = set()
+        for attempt in range(3):
+            member = self.pool.acquire(parts)
+            try:
+                member.conn.send(claim)
+                return member
+            except (OSError, ValueError):  # it died while idle: another one
+                self.pool.discard(member)
+                if attempt == 2:
+                    raise
+        raise AssertionError("unreachable")
+
     def _supervise(self, claim: Claim) -> None:
         store = self.runtime.store
-        child = _mp_context().Process(target=run_child, args=(self.settings, claim),
-                                      name=f"conforma-job-{claim.job_id}")
         try:
             with _lease_kept(store, claim, self.settings.lease_s / 3):
-                child.start()  # the first start waits for the fork server to import the compute core
+                member = self._start(claim)
         except Exception as exc:  # no process, no job: say so rather than leave it running
+            if self.stopping.is_set():  # the pool closed while the job waited for a process
+                store.release(claim, "released by a stopping worker")
+                return
             log.exception("could not start a process for job %s", claim.job_id)
             store.finish(claim, "failed", error=problem(500, "Job could not start", f"{type(exc).__name__}: {exc}"[:500]))
             return
@@ -152,28 +173,31 @@ class ProcessSupervisor:
         renew_every = self.settings.lease_s / 3
         renewed = started
         verdict: str | None = None  # why the supervisor ended it: cancel, time, lost, stop
+        report: dict[str, Any] | None = None
         while verdict is None:
-            child.join(POLL_S)
-            if child.exitcode is not None:
+            if member.conn.poll(POLL_S):  # the job's end, or EOF: the process died
+                try:
+                    report = member.conn.recv()
+                except (EOFError, OSError):
+                    pass
                 break
             try:
                 verdict = self._verdict(claim, started, renewed)
-            except Exception:  # a database hiccup must not leave the child unwatched: ask again
+            except Exception:  # a database hiccup must not leave the process unwatched: ask again
                 log.exception("supervising job %s", claim.job_id)
                 continue
             if verdict is None and time.monotonic() - renewed >= renew_every:
                 renewed = time.monotonic()
-        if verdict is not None:
-            child.kill()
-            child.join(KILL_WAIT_S)
-        exitcode = child.exitcode
-        if exitcode is not None:
-            child.close()
+        if report is not None:
+            self.pool.release(member, report)
+            return
+        exitcode = self.pool.discard(member, KILL_WAIT_S)
         self._record(claim, verdict, exitcode)
+        self.pool.replenish()  # after the outcome: a cancel is recorded first
 
     def _verdict(self, claim: Claim, started: float, renewed: float) -> str | None:
-        """Why the running child must end now (stop, time, cancel, lost), or None; renews
-        the lease when it is due."""
+        """Why the running job's process must end now (stop, time, cancel, lost), or None;
+        renews the lease when it is due."""
         now = time.monotonic()
         if self.stopping.is_set():
             return "stop"
@@ -186,8 +210,8 @@ class ProcessSupervisor:
         return None
 
     def _record(self, claim: Claim, verdict: str | None, exitcode: int | None) -> None:
-        """The outcome the child could not record itself (each transition is conditional on
-        ``claim`` still owning a running job, so a result the child wrote first stands)."""
+        """The outcome the process could not record itself (each transition is conditional on
+        ``claim`` still owning a running job, so a result the process wrote first stands)."""
         store = self.runtime.store
         if verdict == "cancel":
             cancelled = Cancelled("the job was cancelled (its process was killed)", field="job_id", value=claim.job_id)
@@ -199,11 +223,14 @@ class ProcessSupervisor:
         elif verdict is None and exitcode not in (0, None):
             if store.finish(claim, "failed", error=quarantine_problem(exitcode)):
                 log.warning("job %s (%s) quarantined: its process ended with %s", claim.job_id, claim.kind, exitcode)
-        elif verdict is None:  # exited cleanly without an outcome: a bug, not a retry
+        elif verdict is None:  # exited without an outcome: a bug, not a retry
             store.finish(claim, "failed", error=problem(500, "Job crashed", "the job's process ended without a result"))
 
     def stop(self, timeout_s: float = 3.0) -> None:
-        """Kill running children and wait (up to ``timeout_s``) until their jobs are released."""
+        """Kill running jobs' processes and wait (up to ``timeout_s``) until their jobs are
+        released; end the idle processes."""
         self.stopping.set()
+        self.pool.close()
         with self._idle:
             self._idle.wait_for(lambda: self._active == 0, timeout_s)
+        self.pool.close()  # the processes of jobs released meanwhile

@@ -90,3 +90,26 @@ def run_blas_threads(ctx: JobContext, params: BlasParams) -> dict:
     from threadpoolctl import threadpool_info
 
     return {"num_threads": sorted({int(pool["num_threads"]) for pool in threadpool_info()})}
+
+
+class DrapeParams(JobParams):
+    part_id: str
+    xy: list[list[float]] = Field(min_length=2, max_length=1000)
+
+
+@job_kind("test_drape", DrapeParams, references=lambda p: [("part", p.part_id)])
+def run_drape(ctx: JobContext, params: DrapeParams) -> dict:
+    """Drape a top-view polyline onto a part (edge grid) and cast rays down onto it (embree):
+    the per-part precomputations a warm compute process keeps."""
+    import hashlib
+
+    import numpy as np
+
+    from app.geometry.drape import drape_polyline, top_surface_z
+
+    mesh = ctx.mesh(params.part_id)
+    xy = np.asarray(params.xy, dtype=float)
+    points = drape_polyline(mesh, xy).points
+    top = top_surface_z(mesh, xy).z
+    return {"points": points.tolist(), "top_z": top.tolist(),
+            "sha256": hashlib.sha256(points.tobytes() + np.asarray(top).tobytes()).hexdigest()}

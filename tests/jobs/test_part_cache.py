@@ -161,7 +161,20 @@ def _job(client, kind: str, params: dict, timeout: float = 120) -> dict:
     return done
 
 
-def test_the_second_compute_job_on_a_part_loads_what_the_first_built(client, settings):
+@pytest.fixture
+def fresh_process_client(settings_factory):  # type: ignore[no-untyped-def]
+    """A service whose compute processes each serve one job (the disk tier between processes)."""
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+
+    settings = settings_factory(compute_recycle_jobs=1)
+    with TestClient(create_app(settings), raise_server_exceptions=False) as client:
+        yield client, settings
+
+
+def test_the_second_compute_job_on_a_part_loads_what_the_first_built(fresh_process_client):
+    client, settings = fresh_process_client
     assert settings.compute_isolation == "process" and settings.cache_mb > 0
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_mesh(grid_mm=1.0).export(file_type="stl"))},
                        headers=OP).json()
@@ -178,7 +191,8 @@ def test_the_second_compute_job_on_a_part_loads_what_the_first_built(client, set
     assert one["pid"] != two["pid"]  # two processes
 
 
-def test_a_probe_runs_field_is_fitted_once_for_the_service(client, settings):
+def test_a_probe_runs_field_is_fitted_once_for_the_service(fresh_process_client):
+    client, settings = fresh_process_client
     from app.reference.s1 import as_made
     from tests.jobs.test_field_probe_jobs import PROCESS, board
 
