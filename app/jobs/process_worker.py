@@ -35,7 +35,7 @@ from sqlalchemy import select
 
 from app.jobs.compute_pool import ComputePool, Member, mp_context
 from app.jobs.store import Claim, JobStore
-from app.models import Job, JobReference, Part, Trace
+from app.models import TERMINAL_STATES, Job, JobReference, Part, Trace
 from app.errors import Cancelled
 from app.problems import from_error, problem
 
@@ -176,10 +176,7 @@ class ProcessSupervisor:
         report: dict[str, Any] | None = None
         while verdict is None:
             if member.conn.poll(POLL_S):  # the job's end, or EOF: the process died
-                try:
-                    report = member.conn.recv()
-                except (EOFError, OSError):
-                    pass
+                report = self._receive(member)
                 break
             try:
                 verdict = self._verdict(claim, started, renewed)
@@ -188,12 +185,31 @@ class ProcessSupervisor:
                 continue
             if verdict is None and time.monotonic() - renewed >= renew_every:
                 renewed = time.monotonic()
+        if report is None and verdict in ("cancel", "time", "lost") and self._recorded(claim) and member.conn.poll(KILL_WAIT_S):
+            report = self._receive(member)  # the job recorded its own end first: let it report
         if report is not None:
             self.pool.release(member, report)
             return
         exitcode = self.pool.discard(member, KILL_WAIT_S)
         self._record(claim, verdict, exitcode)
         self.pool.replenish()  # after the outcome: a cancel is recorded first
+
+    @staticmethod
+    def _receive(member: Member) -> dict[str, Any] | None:
+        """The process's report, or None when it died (EOF)."""
+        try:
+            report = member.conn.recv()
+        except (EOFError, OSError):
+            return None
+        return report if isinstance(report, dict) else None
+
+    def _recorded(self, claim: Claim) -> bool:
+        """Whether the job has an outcome already (written by its process just now)."""
+        try:
+            status = self.runtime.store.status(claim.job_id)
+        except Exception:
+            return False
+        return status is not None and status[0] in TERMINAL_STATES
 
     def _verdict(self, claim: Claim, started: float, renewed: float) -> str | None:
         """Why the running job's process must end now (stop, time, cancel, lost), or None;

@@ -20,6 +20,8 @@ import statistics
 from datetime import datetime
 from typing import Any
 
+import pytest
+
 from app.part_cache import journal
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
@@ -47,7 +49,7 @@ def _service(settings_factory, name: str, **overrides: Any):  # type: ignore[no-
 
     from app.main import create_app
 
-    settings = settings_factory(worker_threads=1, job_time_s=3600, job_memory_mb=4096, **overrides,
+    settings = settings_factory(worker_threads=1, job_time_s=3600, job_memory_mb=4096, lease_s=30.0, **overrides,
                                 data_dir=settings_factory().data_dir.parent / name)
     return TestClient(create_app(settings), raise_server_exceptions=False), settings
 
@@ -69,6 +71,7 @@ def _jobs_on_the_big_part(settings_factory, name: str, data: bytes, **overrides:
     return [{"kind": kind, "job": job, "entry": entries[job["id"]]} for kind, job in done]
 
 
+@pytest.mark.timeout(3600)
 def test_second_and_third_jobs_on_a_1m_face_part_cold_vs_warm(settings_factory):
     data = s1_mesh(grid_mm=GRID_MM).export(file_type="stl")
     fresh = _jobs_on_the_big_part(settings_factory, "fresh", data, compute_recycle_jobs=1)
