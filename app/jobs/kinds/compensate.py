@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
 from app.calibration.clearance import nozzle_clearance
@@ -39,7 +39,7 @@ from app.geometry.drape import top_surface_z
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.kinds.reconstruct import ReconstructJobParams, rebuild
+from app.jobs.kinds.reconstruct import MAX_FIELD_TRACES, ReconstructJobParams, rebuild, rebuild_board
 from app.jobs.kinds.register import placement_from
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Machine
@@ -58,8 +58,14 @@ class CompensateCorrections(BaseModel):
 
 
 class CompensateParams(JobParams):
-    trace_id: str
-    reconstruct_job_id: str = Field(description="a succeeded reconstruct job of this trace")
+    trace_id: str | None = Field(None, description="the trace (or trace_ids)")
+    trace_ids: list[str] | None = Field(
+        None, min_length=1, max_length=MAX_FIELD_TRACES,
+        description="board mode: compensate these traces in ONE job from a board reconstruct job (reconstruct "
+        "with trace_ids); each trace's programs are the artifacts print.<trace_id>.gcode and "
+        "nominal.<trace_id>.gcode, the result's traces lists each trace's figures in this order")
+    reconstruct_job_id: str = Field(description="a succeeded reconstruct job of this trace (board mode: of these "
+                                    "traces)")
     standoff_mm: float | None = Field(None, gt=0, le=50, description="default: the trace's standoff")
     feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="default: the trace's, else 300")
     chord_error_mm: float = Field(0.002, gt=0, le=1, description="largest polyline-to-curve distance, proved per segment")
@@ -76,6 +82,19 @@ class CompensateParams(JobParams):
     allow_uncalibrated: bool = Field(False, description="write for a nozzle without calibration, at its "
                                      "nominal offset (a warning in the result)")
     corrections: CompensateCorrections = Field(default_factory=CompensateCorrections)
+
+    @model_validator(mode="after")
+    def _one_target(self) -> "CompensateParams":
+        if (self.trace_id is None) == (self.trace_ids is None):
+            raise ValueError("give exactly one of trace_id or trace_ids")
+        if self.trace_ids is not None and len(set(self.trace_ids)) != len(self.trace_ids):
+            raise ValueError("trace_ids lists a trace twice")
+        return self
+
+
+def board_artifacts(trace_id: str) -> tuple[str, str]:
+    """(print, nominal) artifact names of one trace of a board compensate job."""
+    return f"print.{trace_id}.gcode", f"nominal.{trace_id}.gcode"
 
 
 @dataclass
@@ -146,14 +165,20 @@ def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
 
 def _check(params: CompensateParams, session: Session) -> None:
     job = get_or_404(session, Job, params.reconstruct_job_id, field="params.reconstruct_job_id")
-    if job.kind != "reconstruct" or job.status != "succeeded" or job.params.get("trace_id") != params.trace_id:
+    if params.trace_ids is not None:
+        rebuilt = set(job.params.get("trace_ids") or ()) if job.kind == "reconstruct" else set()
+        missing = [t for t in params.trace_ids if t not in rebuilt]
+        if job.status != "succeeded" or missing:
+            raise InvalidInput(f"job {job.id!r} is not a succeeded board reconstruct job (trace_ids) of trace "
+                               f"{(missing or params.trace_ids)[0]!r}", field="params.reconstruct_job_id", value=job.id)
+    elif job.kind != "reconstruct" or job.status != "succeeded" or job.params.get("trace_id") != params.trace_id:
         raise InvalidInput(f"job {job.id!r} is not a succeeded reconstruct job of trace {params.trace_id!r}",
                            field="params.reconstruct_job_id", value=job.id)
     choose_tool(params, session)
 
 
 def _references(params: CompensateParams) -> list[tuple[str, str]]:
-    refs = [("trace", params.trace_id), ("job", params.reconstruct_job_id)]
+    refs = [*(("trace", t) for t in (params.trace_ids or [str(params.trace_id)])), ("job", params.reconstruct_job_id)]
     if params.machine_id:
         refs.append(("machine", params.machine_id))
     return refs
@@ -161,20 +186,44 @@ def _references(params: CompensateParams) -> list[tuple[str, str]]:
 
 @job_kind("compensate", CompensateParams, check=_check, references=_references)
 def run(ctx: JobContext, params: CompensateParams) -> dict:
-    """Regenerate the trace's print program above the reconstructed real surface."""
-    trace = ctx.trace(params.trace_id)
+    """Regenerate the trace's print program above the reconstructed real surface (board
+    mode: every listed trace's, from the board reconstruct's one field)."""
     source = ctx.job(params.reconstruct_job_id, kind="reconstruct", field="params.reconstruct_job_id")
     rebuilt_params = ReconstructJobParams.model_validate(source.params)
-    reconstruction = rebuild(ctx, rebuilt_params)
-    ctx.progress(0.3, "segmenting the compensated path")
     with ctx.session() as session:
         choice = choose_tool(params, session)
+    placement = placement_from(ctx, rebuilt_params)  # the reconstruction's frame (machine, when placed)
+    if params.trace_ids is None:
+        trace = ctx.trace(str(params.trace_id))
+        reconstruction = rebuild(ctx, rebuilt_params)
+        ctx.progress(0.3, "segmenting the compensated path")
+        result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement)
+        ctx.artifact("print.gcode", program.encode(), "text/x-gcode", gcode_meta(program))
+        ctx.artifact("nominal.gcode", nominal.encode(), "text/x-gcode", gcode_meta(nominal))
+        return result
+    board = rebuilt_params.model_copy(update={"trace_ids": list(params.trace_ids)})
+    rows = []
+    total = len(params.trace_ids)
+    for index, (trace_id, reconstruction) in enumerate(zip(params.trace_ids, rebuild_board(ctx, board))):
+        result, program, nominal = _program(ctx, params, choice, ctx.trace(trace_id), reconstruction, placement)
+        printed, plain = board_artifacts(trace_id)
+        ctx.artifact(printed, program.encode(), "text/x-gcode", gcode_meta(program))
+        ctx.artifact(plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))
+        result.pop("points")  # in the program; a board's would make the result huge
+        rows.append({"trace_id": trace_id, "print_artifact": printed, "nominal_artifact": plain, **result})
+        if index % 25 == 24 or index + 1 == total:
+            ctx.progress((index + 1) / total, f"{index + 1}/{total} traces compensated")
+    return {"board": True, "traces": rows}
+
+
+def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, reconstruction: Any,
+             placement: Any) -> tuple[dict[str, Any], str, str]:
+    """(result, print program, nominal program) of one trace."""
     dialect, on, off = params.dialect, params.dispense_on, params.dispense_off
     if params.machine_id:
         machine: Machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
         on, off = choice.dispense_on or on, choice.dispense_off or off
-    placement = placement_from(ctx, rebuilt_params)  # the reconstruction's frame (machine, when placed)
     mesh = ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
         standoff_mm=params.standoff_mm or trace.standoff_mm,
@@ -185,17 +234,16 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     ), job_id=ctx.job_id)
     clearance = None
     if choice.tool and choice.outer_diameter_mm:
-        ctx.progress(0.7, "checking the nozzle body's clearance")
+        if params.trace_ids is None:
+            ctx.progress(0.7, "checking the nozzle body's clearance")
         clearance = _clearance(trace, reconstruction, path, mesh, choice.outer_diameter_mm)
-    ctx.artifact("print.gcode", path.program.encode(), "text/x-gcode", gcode_meta(path.program))
-    ctx.artifact("nominal.gcode", path.nominal_program.encode(), "text/x-gcode", gcode_meta(path.nominal_program))
     result = {**path.to_result(), "points": path.points.tolist(), "tool": choice.to_result(),
               "warnings": choice.warnings}
     if clearance is not None:
         result["clearance"] = clearance
     if placement is not None:
         result["placement"] = placement.to_dict()
-    return result
+    return result, path.program, path.nominal_program
 
 
 def _clearance(trace: Any, reconstruction: Any, path: Any, mesh: Any, diameter_mm: float) -> dict[str, Any]:
