@@ -44,6 +44,9 @@ MAX_FIELD_POLYLINES = 200
 MAX_COLORED_MOVES = 200_000  # programs longer than this are drawn in their role's colour only
 
 
+BOARD_DRAWN = 100  # traces of a board reconstruct / compensate job drawn in the 3-D view
+
+
 def _ribbon(trace: Trace | None, samples: np.ndarray, label: str) -> tuple[ScalarSurface, ...]:
     """The rebuilt deviation of ``trace`` (samples (n, 2): s mm, dz mm) as a ribbon on the part:
     about 4 % of the trace's extent wide (0.5..4 mm), lifted 10 um off the nominal top."""
@@ -240,7 +243,31 @@ class Loader:
         probes, plot = self._measured_probes(self._trace_of(session, job), measured, "run", planned=nominal)
         return self._with_trace(session, job, probes=(probes,), plots=(plot,) if plot else ())
 
+    def _board(self, session: Session, job: Job) -> FocusScene:
+        """A board reconstruct / compensate job (``trace_ids``): each trace's nominal and
+        rebuilt-deviation ribbon, and for compensate its compensated program (the first
+        BOARD_DRAWN traces)."""
+        rows = (job.result or {}).get("traces", [])
+        source = job if job.kind == "reconstruct" else session.get(Job, job.params.get("reconstruct_job_id") or "")
+        samples_of = {r["trace_id"]: r.get("deviation", {}).get("samples", [])
+                      for r in ((source.result or {}) if source else {}).get("traces", [])}
+        lines, ribbons, paths = [], [], []
+        for row in rows[:BOARD_DRAWN]:
+            trace = self._trace(session, row["trace_id"])
+            if trace is None:
+                continue
+            lines.append(Polyline(trace.name, np.asarray(trace.nominal["points"], float)))
+            samples = np.asarray(samples_of.get(row["trace_id"], []), float).reshape(-1, 2)
+            ribbons.extend(_ribbon(trace, samples, f"{trace.name} {trace.id}"))
+            if job.kind == "compensate":
+                paths.extend(self._gcode(session, job, row["print_artifact"], "compensated", f"{trace.name} compensated"))
+        notes = (f"{len(rows) - BOARD_DRAWN} more traces not drawn",) if len(rows) > BOARD_DRAWN else ()
+        return FocusScene({}, "", polylines=tuple(lines), toolpaths=tuple(paths), scalar_surfaces=tuple(ribbons),
+                          notes=notes)
+
     def _reconstruct(self, session: Session, job: Job) -> FocusScene:
+        if job.params.get("trace_ids"):
+            return self._board(session, job)
         trace = self._trace_of(session, job)
         if job.params.get("points") is not None:
             measured = np.asarray(job.params["points"], float).reshape(-1, 3)
@@ -272,6 +299,8 @@ class Loader:
     def _compensate(self, session: Session, job: Job) -> FocusScene:
         """Both programs, each dispensed move coloured by its standoff error over the rebuilt
         surface (the nominal program's is minus the deviation), and the deviation ribbon."""
+        if job.params.get("trace_ids"):
+            return self._board(session, job)
         paths = self._gcode(session, job, "nominal.gcode", "nominal") + self._gcode(session, job, "print.gcode", "compensated")
         offset = np.asarray(((job.result or {}).get("tool") or {}).get("offset_mm") or (0.0, 0.0, 0.0), float)
         if offset.any():  # a nozzle's programs are carriage positions: draw its tip (carriage + offset)

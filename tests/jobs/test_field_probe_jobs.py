@@ -188,3 +188,7 @@ def test_board_reconstruct_and_compensate_refuse_what_they_cannot_do(client, coa
     assert single.status_code == 422, single.text
     done = job(client, "compensate", {"trace_ids": setup["trace_ids"][:2], "reconstruct_job_id": rebuilt["id"]})
     assert [r["trace_id"] for r in done["result"]["traces"]] == setup["trace_ids"][:2]
+    # the 3-D view draws every trace of the board jobs
+    scene = load_focus(client.app.state.runtime, job_id=done["id"])
+    assert len(scene.polylines) == 2 and len(scene.toolpaths) == 2
+    assert len(load_focus(client.app.state.runtime, job_id=rebuilt["id"]).polylines) == 2
