@@ -165,6 +165,9 @@ def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(c
         assert entry["trace_id"] in rebuilt["params"]["trace_ids"] and rebuilt["params"]["method"] == "field"
     whole = client.get(f"/api/v1/jobs/{loop['id']}/artifacts/whole_part.gcode", headers=OP).text
     assert whole.count("G1") > 0
+    # the run report lists every trace with its board program's hash
+    report = client.get(f"/api/v1/jobs/{loop['id']}/report", headers=OP)
+    assert report.status_code == 200 and all(row["program_sha256"] in report.text for row in summary)
 
 
 def test_board_reconstruct_and_compensate_refuse_what_they_cannot_do(client, coarse):
