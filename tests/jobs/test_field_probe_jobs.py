@@ -168,6 +168,24 @@ def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(c
     # the run report lists every trace with its board program's hash
     report = client.get(f"/api/v1/jobs/{loop['id']}/report", headers=OP)
     assert report.status_code == 200 and all(row["program_sha256"] in report.text for row in summary)
+    # resume: the parent's worker "died" after the first batch; the retried loop reuses the
+    # plan, the run and every finished batch job and only redoes the unfinished one
+    from sqlalchemy import update
+
+    from app.models import Job
+
+    before = client.get(f"/api/v1/jobs?parent_id={loop['id']}", headers=OP).json()["total"]
+    runtime = client.app.state.runtime
+    with runtime.engine.begin() as conn:
+        conn.execute(update(Job).where(Job.id == entries[-1]["compensate"]).values(status="failed"))
+        conn.execute(update(Job).where(Job.id == loop["id"]).values(status="queued", result=None, finished_at=None))
+    runtime.enqueue(loop["id"], "workflow")
+    again = wait_for(client, loop["id"], timeout=300)
+    assert again["status"] == "succeeded" and again["attempts"] == 2
+    assert client.get(f"/api/v1/jobs?parent_id={loop['id']}", headers=OP).json()["total"] == before + 1
+    redone = again["result"]["traces"]
+    assert [e["compensate"] for e in redone[:2]] == [e["compensate"] for e in entries[:2]]
+    assert redone[2]["compensate"] != entries[2]["compensate"] and redone[2]["reconstruct"] == entries[2]["reconstruct"]
 
 
 def test_board_reconstruct_and_compensate_refuse_what_they_cannot_do(client, coarse):
