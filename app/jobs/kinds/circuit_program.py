@@ -89,7 +89,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     for trace_id in imp.trace_ids:
         trace = ctx.trace(trace_id)
         comp = ctx.job(entries[trace_id]["compensate"], kind="compensate", field="params.closed_loop_job_id")
-        tip = np.asarray(comp.result["points"], float)
+        own = next((r for r in comp.result.get("traces", ()) if r["trace_id"] == trace_id), comp.result)  # board job
+        tip = np.asarray(own["points"], float)
         for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
                                            nominal_top)):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))

@@ -209,7 +209,6 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         printed, plain = board_artifacts(trace_id)
         ctx.artifact(printed, program.encode(), "text/x-gcode", gcode_meta(program))
         ctx.artifact(plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))
-        result.pop("points")  # in the program; a board's would make the result huge
         rows.append({"trace_id": trace_id, "print_artifact": printed, "nominal_artifact": plain, **result})
         if index % 25 == 24 or index + 1 == total:
             ctx.progress((index + 1) / total, f"{index + 1}/{total} traces compensated")
