@@ -34,11 +34,11 @@ def _um(value: Any) -> float | None:
 
 
 def summary_rows(ctx: JobContext, result: dict[str, Any], programs: dict[str, str]) -> list[dict[str, Any]]:
-    """One row per trace of a closed loop's ``result`` (lengths µm); ``programs``: compensate
-    job id -> its print.gcode text."""
+    """One row per trace of a closed loop's ``result`` (lengths µm); ``programs``: trace id ->
+    its compensated program's text."""
     rows = []
     for index, entry in enumerate(result.get("traces", []), start=1):
-        text = programs[entry["compensate"]]
+        text = programs[entry["trace_id"]]
         meta = gcode_meta(text)
         evaluation = entry.get("evaluation") or {}
         before, after = evaluation.get("nominal") or {}, evaluation.get("compensated") or {}
@@ -70,14 +70,15 @@ def write_loop_files(ctx: JobContext, machine_id: str, result: dict[str, Any]) -
     """Write the loop's summary and whole-part program as the running job's artifacts;
     returns what the result records about them (names, program lines, order, time)."""
     dialect = ctx.machine(machine_id).dialect
-    programs = {e["compensate"]: ctx.artifact_bytes(e["compensate"], "print.gcode").decode()
+    # a board compensate job holds every trace's program as print.<trace_id>.gcode (the entry names it)
+    programs = {e["trace_id"]: ctx.artifact_bytes(e["compensate"], e.get("print_artifact", "print.gcode")).decode()
                 for e in result.get("traces", [])}
     rows = summary_rows(ctx, result, programs)
     ctx.artifact("loop_summary.json", json.dumps({"traces": rows}, indent=1).encode(), "application/json")
     ctx.artifact("loop_summary.csv", _csv(rows), "text/csv")
     files: dict[str, Any] = {"summary": ["loop_summary.json", "loop_summary.csv"]}
     if rows:
-        joined = join_programs([(f"{r['name']} {r['trace_id']}", programs[r["compensate_job"]]) for r in rows],
+        joined = join_programs([(f"{r['name']} {r['trace_id']}", programs[r["trace_id"]]) for r in rows],
                                dialect, clearance_mm=CLEARANCE_MM, job_id=ctx.job_id)
         meta = gcode_meta(joined.text)
         time_s = estimate_gcode(joined.text).total_s

@@ -1,6 +1,11 @@
 """Typed results of the job kinds whose results other code reads back (probe_plan,
 probe_run, reconstruct, compensate).
 
+A board job (``reconstruct`` / ``compensate`` with ``trace_ids``) has its own model
+(:class:`ReconstructBoardResult`, :class:`CompensateBoardResult`: one row per trace);
+:func:`reconstruct_rows` / :func:`compensate_rows` read either form as trace id -> that
+trace's typed row.
+
 A kind writes its result through its model (:meth:`KindResult.written`: a key the model does
 not know, or a missing required one, fails the job instead of storing a result nobody can
 read) and every reader reads it through the same model (:meth:`KindResult.of`), by
@@ -11,7 +16,7 @@ set are dumped), so the API's results are unchanged.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -137,6 +142,53 @@ class ReconstructResult(KindResult):
     sigma: dict[str, Any] | None = None  # the probe noise used: given, the calibration's, or the default
 
 
+class BoardDeviation(BaseModel):
+    """The largest of a board's traces' deviation figures."""
+
+    model_config = ConfigDict(extra="forbid")
+    max_mm: float
+    rms_mm: float
+
+
+class ReconstructBoardTrace(BaseModel):
+    """One trace of a board reconstruct: what a one-trace job's result says but the curve
+    (its reconstruction is stored as the artifact ``reconstruction``, see
+    :func:`app.reconstruction.stored.stored_name`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    trace_id: str
+    reconstruction: str
+    method: str
+    deviation: DeviationSummary
+    points_used: int
+    outliers: list[int]
+    merged_duplicates: int
+    normal_iteration: dict[str, Any] | None = None
+
+
+class ReconstructBoardResult(KindResult):
+    """A board reconstruct job (``trace_ids``): every trace from one fitted field."""
+
+    kind: ClassVar[str] = "reconstruct"
+    method: str
+    board: Literal[True]
+    traces: list[ReconstructBoardTrace]
+    deviation: BoardDeviation
+    sigma: dict[str, Any] | None = None
+
+
+def is_board(job: Job) -> bool:
+    """A board job: ``reconstruct`` / ``compensate`` with ``trace_ids``."""
+    return bool((job.params or {}).get("trace_ids"))
+
+
+def reconstruct_rows(job: Job) -> dict[str, ReconstructResult | ReconstructBoardTrace]:
+    """trace id -> the typed result of that trace, of a one-trace or a board reconstruct job."""
+    if is_board(job):
+        return {row.trace_id: row for row in ReconstructBoardResult.of(job).traces}
+    return {str(job.params.get("trace_id")): ReconstructResult.of(job)}
+
+
 # compensate -------------------------------------------------------------------------------
 class CompensateResult(KindResult):
     kind: ClassVar[str] = "compensate"
@@ -157,3 +209,35 @@ class CompensateResult(KindResult):
     warnings: list[str]
     clearance: dict[str, Any] | None = None
     placement: dict[str, Any] | None = None
+
+
+class CompensateBoardTrace(CompensateResult):
+    """One trace of a board compensate job: a one-trace job's figures, and the names of its
+    programs (``print.<trace_id>.gcode`` / ``nominal.<trace_id>.gcode``)."""
+
+    trace_id: str
+    print_artifact: str
+    nominal_artifact: str
+
+
+class CompensateBoardResult(KindResult):
+    """A board compensate job (``trace_ids``): each trace's programs from its stored reconstruction."""
+
+    kind: ClassVar[str] = "compensate"
+    board: Literal[True]
+    traces: list[CompensateBoardTrace]
+
+
+def compensate_rows(job: Job) -> dict[str, CompensateResult]:
+    """trace id -> the typed result of that trace, of a one-trace or a board compensate job
+    (a board row is a :class:`CompensateBoardTrace`, which names the trace's programs)."""
+    if is_board(job):
+        return {row.trace_id: row for row in CompensateBoardResult.of(job).traces}
+    return {str(job.params.get("trace_id")): CompensateResult.of(job)}
+
+
+def program_artifacts(row: CompensateResult) -> tuple[str, str]:
+    """(print, nominal) artifact names of one trace's row of a compensate job."""
+    if isinstance(row, CompensateBoardTrace):
+        return row.print_artifact, row.nominal_artifact
+    return "print.gcode", "nominal.gcode"

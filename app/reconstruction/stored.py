@@ -30,6 +30,13 @@ STORED = "reconstruction.npz"  # the artifact name a reconstruct job stores it u
 _HEIGHT = "height."
 
 
+def stored_name(trace_id: str | None = None) -> str:
+    """The artifact name of a stored reconstruction: :data:`STORED` for a one-trace
+    ``reconstruct`` job, ``reconstruction.<trace_id>.npz`` for each trace of a board job
+    (``trace_ids``).  The one place both the writer and the readers take the name from."""
+    return STORED if trace_id is None else f"reconstruction.{trace_id}.npz"
+
+
 def reconstruction_arrays(rec: Reconstruction) -> dict[str, np.ndarray]:
     """Every number of ``rec`` but its nominal, as named arrays."""
     curve = rec.curve

@@ -63,10 +63,25 @@ def _artifact_hash(records: RunRecords, job_id: str, name: str) -> str | None:
     return None
 
 
+def _per_trace(jobs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """trace id -> {id, result} of the succeeded jobs; a board job (``trace_ids``) stands for
+    each of its traces with that trace's entry of its result's ``traces``."""
+    out: dict[str, dict[str, Any]] = {}
+    for job in jobs:
+        if job["status"] != "succeeded":
+            continue
+        if job["params"].get("trace_ids") is None:
+            out[job["params"].get("trace_id")] = job
+            continue
+        for row in (job.get("result") or {}).get("traces", []):
+            out[row["trace_id"]] = {"id": job["id"], "params": job["params"], "result": row}
+    return out
+
+
 def _trace_rows(records: RunRecords) -> tuple[list[list[Any]], list[str]]:
     """One row per trace: probes, how far the model was off, the compensated program, its print."""
-    reconstructions = {j["params"].get("trace_id"): j for j in records.of_kind("reconstruct") if j["status"] == "succeeded"}
-    compensations = {j["params"].get("trace_id"): j for j in records.of_kind("compensate") if j["status"] == "succeeded"}
+    reconstructions = _per_trace(records.of_kind("reconstruct"))
+    compensations = _per_trace(records.of_kind("compensate"))
     prints: dict[str, list[dict[str, Any]]] = {}
     for job in records.of_kind("print"):
         prints.setdefault(job["params"].get("job_id") or "", []).append(job)
@@ -75,12 +90,14 @@ def _trace_rows(records: RunRecords) -> tuple[list[list[Any]], list[str]]:
         rec, comp = reconstructions.get(trace_id), compensations.get(trace_id)
         deviation = ((rec or {}).get("result") or {}).get("deviation") or {}
         comp_result = (comp or {}).get("result") or {}
-        printed = [p for p in prints.get((comp or {}).get("id", ""), []) if p["params"].get("artifact") in (None, "print.gcode")]
+        program = comp_result.get("print_artifact", "print.gcode")
+        printed = [p for p in prints.get((comp or {}).get("id", ""), [])
+                   if p["params"].get("artifact") in (None, program)]
         print_state = ", ".join(f"{p['status']} ({(p.get('result') or {}).get('executed', '—')}/"
                                 f"{(p.get('result') or {}).get('total', '—')})" for p in printed) or "not printed"
         rows.append([trace["name"], _um(deviation.get("max_mm")), _um(deviation.get("rms_mm")),
                      comp_result.get("segments"), _um(comp_result.get("max_chord_error_mm")),
-                     _artifact_hash(records, comp["id"], "print.gcode") if comp else None, print_state])
+                     _artifact_hash(records, comp["id"], program) if comp else None, print_state])
         if deviation.get("samples"):
             plots.append(_plot(deviation["samples"], f"{trace['name']}: real surface − model along the trace"))
     return rows, plots

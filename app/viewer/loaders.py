@@ -22,7 +22,8 @@ from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
-from app.jobs.results import CompensateResult, ProbePlanResult, ProbeRunResult, ReconstructResult
+from app.jobs.results import (CompensateResult, ProbePlanResult, ProbeRunResult, ReconstructResult, compensate_rows,
+                              program_artifacts, reconstruct_rows)
 from app.records import get_or_404, joint_trace_ranges
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.offload import ParsePool
@@ -43,6 +44,9 @@ from app.viewer.trace_math import project_onto_polyline, rings_to_segments
 CURVE_SAMPLES = 400
 MAX_FIELD_POLYLINES = 200
 MAX_COLORED_MOVES = 200_000  # programs longer than this are drawn in their role's colour only
+
+
+BOARD_DRAWN = 100  # traces of a board reconstruct / compensate job drawn in the 3-D view
 
 
 def _ribbon(trace: Trace | None, samples: np.ndarray, label: str) -> tuple[ScalarSurface, ...]:
@@ -243,7 +247,32 @@ class Loader:
         probes, plot = self._measured_probes(self._trace_of(session, job), measured, "run", planned=nominal)
         return self._with_trace(session, job, probes=(probes,), plots=(plot,) if plot else ())
 
+    def _board(self, session: Session, job: Job) -> FocusScene:
+        """A board reconstruct / compensate job (``trace_ids``): each trace's nominal and
+        rebuilt-deviation ribbon, and for compensate its compensated program (the first
+        BOARD_DRAWN traces)."""
+        rows = list(reconstruct_rows(job).items()) if job.kind == "reconstruct" else \
+            list(compensate_rows(job).items())
+        source = job if job.kind == "reconstruct" else session.get(Job, job.params.get("reconstruct_job_id") or "")
+        samples_of = {t: r.deviation.samples for t, r in reconstruct_rows(source).items()} if source else {}
+        lines, ribbons, paths = [], [], []
+        for trace_id, row in rows[:BOARD_DRAWN]:
+            trace = self._trace(session, trace_id)
+            if trace is None:
+                continue
+            lines.append(Polyline(trace.name, np.asarray(trace.nominal["points"], float)))
+            samples = np.asarray(samples_of.get(trace_id, []), float).reshape(-1, 2)
+            ribbons.extend(_ribbon(trace, samples, f"{trace.name} {trace.id}"))
+            if isinstance(row, CompensateResult):
+                printed, _ = program_artifacts(row)
+                paths.extend(self._gcode(session, job, printed, "compensated", f"{trace.name} compensated"))
+        notes = (f"{len(rows) - BOARD_DRAWN} more traces not drawn",) if len(rows) > BOARD_DRAWN else ()
+        return FocusScene({}, "", polylines=tuple(lines), toolpaths=tuple(paths), scalar_surfaces=tuple(ribbons),
+                          notes=notes)
+
     def _reconstruct(self, session: Session, job: Job) -> FocusScene:
+        if job.params.get("trace_ids"):
+            return self._board(session, job)
         trace = self._trace_of(session, job)
         if job.params.get("points") is not None:
             measured = np.asarray(job.params["points"], float).reshape(-1, 3)
@@ -276,6 +305,8 @@ class Loader:
     def _compensate(self, session: Session, job: Job) -> FocusScene:
         """Both programs, each dispensed move coloured by its standoff error over the rebuilt
         surface (the nominal program's is minus the deviation), and the deviation ribbon."""
+        if job.params.get("trace_ids"):
+            return self._board(session, job)
         paths = self._gcode(session, job, "nominal.gcode", "nominal") + self._gcode(session, job, "print.gcode", "compensated")
         result = CompensateResult.of(job)
         offset = np.asarray(result.tool.get("offset_mm") or (0.0, 0.0, 0.0), float)

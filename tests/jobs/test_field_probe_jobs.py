@@ -132,3 +132,126 @@ def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client,
     near = np.linalg.norm(sd_map.vertices[:, None, :2] - field.stations.xy[None], axis=2).min(axis=1)
     assert sd_map.values[near < 0.3].max() < sd_map.values[near > 5].min()
     assert sd_map.hi == pytest.approx(sd_map.values.max())
+
+
+def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(client, coarse):
+    from app.jobs.gcode_meta import gcode_meta
+
+    setup = board(client, coarse)
+    n = len(setup["trace_ids"])
+    loop = job(client, "closed_loop", {**setup, "joint_probing": True, "probe": PROCESS, "sigma_mm": 0.001,
+                                       "board_batch": 2}, timeout=300)
+    assert loop["message"] == f"{n}/{n} traces done"
+    entries = loop["result"]["traces"]
+    assert [e["trace_id"] for e in entries] == setup["trace_ids"]
+    # 3 traces in batches of 2: two reconstruct and two compensate jobs, not six
+    assert len({e["reconstruct"] for e in entries}) == 2 and len({e["compensate"] for e in entries}) == 2
+    summary = client.get(f"/api/v1/jobs/{loop['id']}/artifacts/loop_summary.json", headers=OP).json()["traces"]
+    for entry, row in zip(entries, summary):
+        # the same trace rebuilt and compensated by per-trace jobs from the same probe run
+        one = job(client, "reconstruct", {"trace_id": entry["trace_id"], "probe_run_job_id": entry["probe_run"],
+                                          "method": "field", "sigma_mm": 0.001})
+        assert entry["deviation_max_mm"] == pytest.approx(one["result"]["deviation"]["max_mm"], abs=1e-12)
+        comp = job(client, "compensate", {"trace_id": entry["trace_id"], "reconstruct_job_id": one["id"],
+                                          "machine_id": setup["machine_id"]})
+        alone = client.get(f"/api/v1/jobs/{comp['id']}/artifacts/print.gcode", headers=OP).text
+        assert entry["print_artifact"] == f"print.{entry['trace_id']}.gcode"
+        board_text = client.get(f"/api/v1/jobs/{entry['compensate']}/artifacts/{entry['print_artifact']}",
+                                headers=OP).text
+        assert gcode_meta(board_text)["commands_sha256"] == gcode_meta(alone)["commands_sha256"]
+        # the loop's own summary reads the board program the same way
+        assert row["program_sha256"] == gcode_meta(alone)["commands_sha256"] and row["compensate_job"] == entry["compensate"]
+        rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
+        assert entry["trace_id"] in rebuilt["params"]["trace_ids"] and rebuilt["params"]["method"] == "field"
+    whole = client.get(f"/api/v1/jobs/{loop['id']}/artifacts/whole_part.gcode", headers=OP).text
+    assert whole.count("G1") > 0
+    # the run report lists every trace with its board program's hash
+    report = client.get(f"/api/v1/jobs/{loop['id']}/report", headers=OP)
+    assert report.status_code == 200 and all(row["program_sha256"] in report.text for row in summary)
+    # resume: the parent's worker "died" after the first batch; the retried loop reuses the
+    # plan, the run and every finished batch job and only redoes the unfinished one
+    from sqlalchemy import update
+
+    from app.models import Job
+
+    before = client.get(f"/api/v1/jobs?parent_id={loop['id']}", headers=OP).json()["total"]
+    runtime = client.app.state.runtime
+    with runtime.engine.begin() as conn:
+        conn.execute(update(Job).where(Job.id == entries[-1]["compensate"]).values(status="failed"))
+        conn.execute(update(Job).where(Job.id == loop["id"]).values(status="queued", result=None, finished_at=None))
+    runtime.enqueue(loop["id"], "workflow")
+    again = wait_for(client, loop["id"], timeout=300)
+    assert again["status"] == "succeeded" and again["attempts"] == 2
+    assert client.get(f"/api/v1/jobs?parent_id={loop['id']}", headers=OP).json()["total"] == before + 1
+    redone = again["result"]["traces"]
+    assert [e["compensate"] for e in redone[:2]] == [e["compensate"] for e in entries[:2]]
+    assert redone[2]["compensate"] != entries[2]["compensate"] and redone[2]["reconstruct"] == entries[2]["reconstruct"]
+
+
+def test_board_reconstruct_and_compensate_refuse_what_they_cannot_do(client, coarse):
+    setup = board(client, coarse)
+    plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})
+    run = job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": setup["machine_id"]})
+    bad = submit(client, "reconstruct", {"trace_ids": setup["trace_ids"], "probe_run_job_id": run["id"],
+                                         "method": "kriging"})
+    assert bad.status_code == 422, bad.text
+    both = submit(client, "reconstruct", {"trace_id": setup["trace_ids"][0], "trace_ids": setup["trace_ids"],
+                                          "probe_run_job_id": run["id"], "method": "field"})
+    assert both.status_code == 422, both.text
+    rebuilt = job(client, "reconstruct", {"trace_ids": setup["trace_ids"][:2], "probe_run_job_id": run["id"],
+                                          "method": "field"})
+    one = job(client, "reconstruct", {"trace_id": setup["trace_ids"][1], "probe_run_job_id": run["id"],
+                                      "method": "field"})
+    assert rebuilt["result"]["traces"][1]["deviation"] == one["result"]["deviation"]
+    outside = submit(client, "compensate", {"trace_ids": setup["trace_ids"], "reconstruct_job_id": rebuilt["id"]})
+    assert outside.status_code == 422 and outside.json()["errors"][0]["loc"][:2] == ["params", "reconstruct_job_id"]
+    single = submit(client, "compensate", {"trace_id": setup["trace_ids"][0], "reconstruct_job_id": rebuilt["id"]})
+    assert single.status_code == 422, single.text
+    done = job(client, "compensate", {"trace_ids": setup["trace_ids"][:2], "reconstruct_job_id": rebuilt["id"]})
+    assert [r["trace_id"] for r in done["result"]["traces"]] == setup["trace_ids"][:2]
+    # the 3-D view draws every trace of the board jobs
+    scene = load_focus(client.app.state.runtime, job_id=done["id"])
+    assert len(scene.polylines) == 2 and len(scene.toolpaths) == 2
+    assert len(load_focus(client.app.state.runtime, job_id=rebuilt["id"]).polylines) == 2
+
+
+def test_a_board_reconstruct_stores_each_traces_reconstruction_and_compensate_reads_it(client, coarse):
+    """Board reconstruct stores each trace's whole reconstruction as its own artifact (the name
+    from stored_name), the same arrays a one-trace job of that trace stores; board compensate
+    writes from those (its program is the one-trace compensate's); both results read through
+    their board models."""
+    import io
+
+    from app.jobs.results import CompensateBoardResult, ReconstructBoardResult
+    from app.models import Job
+    from app.reconstruction.stored import stored_name
+
+    setup = board(client, coarse)
+    plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})
+    run = job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": setup["machine_id"]})
+    ids = setup["trace_ids"]
+    rebuilt = job(client, "reconstruct", {"trace_ids": ids, "probe_run_job_id": run["id"], "method": "field"})
+    names = {a["name"]: a["url"] for a in rebuilt["artifacts"]}
+    assert sorted(n for n in names if n.endswith(".npz")) == sorted(stored_name(t) for t in ids)
+    assert stored_name(None) not in names
+    typed = ReconstructBoardResult.of(Job(id=rebuilt["id"], kind="reconstruct", params=rebuilt["params"],
+                                          result=rebuilt["result"]))
+    assert [(r.trace_id, r.reconstruction) for r in typed.traces] == [(t, stored_name(t)) for t in ids]
+    one = job(client, "reconstruct", {"trace_id": ids[2], "probe_run_job_id": run["id"], "method": "field"})
+    alone_url = next(a["url"] for a in one["artifacts"] if a["name"] == stored_name())
+    with np.load(io.BytesIO(client.get(names[stored_name(ids[2])], headers=OP).content)) as a, \
+            np.load(io.BytesIO(client.get(alone_url, headers=OP).content)) as b:
+        assert sorted(a.files) == sorted(b.files)
+        for key in a.files:
+            assert np.array_equal(a[key], b[key]), key
+    comp = job(client, "compensate", {"trace_ids": ids, "reconstruct_job_id": rebuilt["id"]})
+    rows = CompensateBoardResult.of(Job(id=comp["id"], kind="compensate", params=comp["params"],
+                                        result=comp["result"])).traces
+    alone = job(client, "compensate", {"trace_id": ids[2], "reconstruct_job_id": one["id"]})
+
+    def program(done: dict, name: str) -> bytes:
+        return client.get(next(a["url"] for a in done["artifacts"] if a["name"] == name), headers=OP).content
+
+    assert program(comp, rows[2].print_artifact) == program(alone, "print.gcode").replace(
+        alone["id"].encode(), comp["id"].encode())
+    assert rows[2].points == alone["result"]["points"]

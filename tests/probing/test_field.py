@@ -10,7 +10,8 @@ import pytest
 from scipy.linalg import solve_triangular
 
 from app.probing.deviation_prior import Sites, prior_covariance, prior_variance
-from app.probing.field import GreedyField, PlanError, plan_field, posterior_sd
+from app.probing.field import (GreedyField, PlanError, eliminate_redundant, plan_field, posterior_parts,
+                               posterior_sd)
 from app.probing.field_region import covered_area_mm2, field_region, sample_traces
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.field import fit_field, trace_reconstruction
@@ -45,15 +46,16 @@ def test_rank_one_rows_equal_a_fresh_cholesky_factorisation(nine):
     assert np.allclose(greedy.prior_var, prior_variance(PRIOR, sites, region.center))
 
 
-def test_the_automatic_count_is_the_fewest_of_the_greedy_sequence_that_meets_the_target(nine):
+def test_the_automatic_count_meets_the_target_and_no_station_can_be_dropped(nine):
     plan = plan_field(nine, PARAMS)
     target_sd = PARAMS.target_error_mm / PARAMS.coverage
     samples = sample_traces(nine, 15.0 / 16).sites
-    in_order = plan.sites.take(plan.order)  # the stations in the order the greedy added them
-    full = posterior_sd(PRIOR, in_order, samples, plan.center)
-    one_fewer = posterior_sd(PRIOR, in_order.take(np.arange(plan.count - 1)), samples, plan.center)
-    assert full.max() <= target_sd * (1 + 1e-9) and math.isclose(full.max(), plan.max_sd_mm, rel_tol=1e-9)
-    assert one_fewer.max() > target_sd
+    full = posterior_sd(PRIOR, plan.sites, samples, plan.center)  # a fresh factorisation
+    assert full.max() <= target_sd * (1 + 1e-9) and math.isclose(full.max(), plan.max_sd_mm, rel_tol=1e-7)
+    # backward elimination left a minimal design: without any one station some point fails
+    for j in range(plan.count):
+        without = plan.sites.take(np.delete(np.arange(plan.count), j))
+        assert posterior_sd(PRIOR, without, samples, plan.center).max() > target_sd, j
     # every station lies on its trace at its arc length
     for xy, t, s in zip(plan.xy, plan.trace, plan.s_mm):
         assert np.allclose(nine[t].at(np.array([s]))[0, :2], xy, atol=1e-12)
@@ -62,6 +64,23 @@ def test_the_automatic_count_is_the_fewest_of_the_greedy_sequence_that_meets_the
     assert plan.count < sum(plan_probes(p, "kriging", PARAMS).count for p in nine)
     assert plan_field(nine, PlanParams(count=20, **{k: getattr(PARAMS, k) for k in (
         "deviation_amplitude_mm", "deviation_wavelength_mm")})).count == 20
+
+
+def test_elimination_downdates_equal_a_fresh_posterior_and_drop_only_what_keeps_the_target(nine):
+    region = field_region(nine[:4], 15.0)
+    sites = region.targets.sites
+    rng = np.random.default_rng(5)
+    stations = sites.take(rng.choice(len(sites.xy), 60, replace=False))  # far more than needed
+    where = region.samples.sites
+    start = posterior_parts(PRIOR, stations, where, region.center)
+    target_var = (start.var.max() * 1.5)
+    kept = eliminate_redundant(start, target_var, 4)
+    assert 4 <= len(kept.keep) < 60
+    fresh = posterior_sd(PRIOR, stations.take(kept.keep), where, region.center) ** 2
+    assert np.allclose(kept.var, fresh, atol=1e-13) and fresh.max() <= target_var
+    jitter = PRIOR.sigma_mm ** 2
+    k = prior_covariance(PRIOR, stations.take(kept.keep), stations.take(kept.keep), region.center)
+    assert np.allclose(kept.precision, np.linalg.inv(k + jitter * np.eye(len(k))), rtol=1e-6, atol=1e-6 * abs(kept.precision).max())
 
 
 def test_the_design_depends_on_the_region_not_on_the_number_of_traces(nine):

@@ -24,7 +24,7 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import CircuitImport, Job, Trace
 from app.jobs.inputs import succeeded_job
-from app.jobs.results import CompensateResult, ProbeRunResult
+from app.jobs.results import ProbeRunResult, compensate_rows
 from app.records import get_or_404
 
 
@@ -88,7 +88,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     for trace_id in imp.trace_ids:
         trace = ctx.trace(trace_id)
         comp = ctx.job(entries[trace_id]["compensate"], kind="compensate", field="params.closed_loop_job_id")
-        tip = np.asarray(CompensateResult.of(comp).points, float)
+        tip = np.asarray(compensate_rows(comp)[trace_id].points, float)  # one-trace or board job
         for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
                                            nominal_top)):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))

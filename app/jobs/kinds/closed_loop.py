@@ -42,7 +42,8 @@ from app.jobs.context import JobContext
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, get_kind, job_kind
-from app.jobs.results import ProbePlanResult, ReconstructResult
+from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
+                              program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
 from app.models import Job, Machine, Trace
 from app.records import get_or_404
@@ -87,6 +88,13 @@ class ClosedLoopParams(JobParams):
                                 "automatic); with kriging the stations are designed per trace together and each "
                                 "trace's reconstruction uses every trace's probes (with reconstruct_method kriging); "
                                 "trace_ids must be distinct")
+    board_jobs: bool = Field(True, description="with joint_probing and a field plan: rebuild and compensate the "
+                             "traces in board jobs (one reconstruct and one compensate job per batch of board_batch "
+                             "traces, from the one fitted field) instead of two child jobs per trace; each trace's "
+                             "programs are then the compensate job's print.<trace_id>.gcode / nominal.<trace_id>.gcode "
+                             "(the result's traces name them)")
+    board_batch: int = Field(250, ge=1, le=MAX_FIELD_TRACES, description="traces per board reconstruct / compensate "
+                             "job (a resumed loop reuses every finished batch)")
 
     @field_validator("probe")
     @classmethod
@@ -183,45 +191,24 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     shared = None
     if params.joint_probing:
         shared = _plan_and_probe(steps, params, placed, machine.dialect, None, (0.0, f"probing all {total} traces"))
-    for index, trace_id in enumerate(params.trace_ids):
-        trace = ctx.trace(trace_id)
-        plan, probe = shared or _plan_and_probe(steps, params, placed, machine.dialect, trace_id,
-                                                ((index + 0.25) / total, f"trace {index + 1}/{total}: probing"))
-        count = _probe_count(plan, trace_id)
-        prior = {k: params.probe[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in params.probe}
-        method = "field" if ProbePlanResult.of(plan).field else params.reconstruct_method
-        rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
-                                            "trace_id": trace_id, "probe_run_job_id": probe.id,
-                                            "method": method, "sigma_mm": params.sigma_mm,
-                                            **_corrections_for("reconstruct", params)}, trace_id)
-        ctx.progress((index + 0.5) / total, f"trace {index + 1}/{total}: compensating")
-        compensated = steps.run("compensate", {"trace_id": trace_id, "reconstruct_job_id": rebuilt.id,
-                                               "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
-                                               "hold_mm": params.hold_mm, **_tool_of(params)}, trace_id)
-        entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
-                 "compensate": compensated.id, "probes": count,
-                 "deviation_max_mm": ReconstructResult.of(rebuilt).deviation.max_mm}
-        if params.evaluate:
-            world = ctx.runtime.machines.world(machine)  # built when the probe run connected
-            reports = {}
-            for artifact in ("nominal.gcode", "print.gcode"):
-                start = len(world.deposition_log)
-                steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id, "artifact": artifact,
-                                    "drift_reference": params.corrections.drift}, trace_id)
-                reports[artifact] = (evaluate_print(world, start, trace.standoff_mm),
-                                     xy_error(world, start, trace.nominal["points"]))
-            (before, xy_before), (after, xy_after) = reports["nominal.gcode"], reports["print.gcode"]
-            row = table_row(index + 1, before, after, count)
-            rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name,
-                                         "xy_max_before_um": round(xy_before.max_mm * 1000, 2),
-                                         "xy_max_after_um": round(xy_after.max_mm * 1000, 2)})
-            entry["evaluation"] = {"nominal": _report(before, xy_before), "compensated": _report(after, xy_after)}
-        elif params.print:
-            entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": compensated.id,
-                                                 "artifact": "print.gcode",
-                                                 "drift_reference": params.corrections.drift}, trace_id).id
-        per_trace.append(entry)
-        ctx.progress((index + 1) / total, f"{index + 1}/{total} traces done")
+    board = shared is not None and params.board_jobs and bool(ProbePlanResult.of(shared[0]).field)
+    batch = params.board_batch if board else 1
+    for lo in range(0, total, batch):
+        if board:
+            assert shared is not None
+            done = _board_batch(steps, params, placed, shared, params.trace_ids[lo:lo + batch],
+                                (lo / total, f"traces {lo + 1}-{min(lo + batch, total)}/{total}: rebuilding and compensating"))
+        else:
+            done = [_trace_children(steps, params, placed, machine.dialect, shared, lo, total)]
+        for index, (trace_id, plan, probe, rebuilt, compensated, deviation, (printed, plain)) in enumerate(done, lo):
+            entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
+                     "compensate": compensated.id, "probes": _probe_count(plan, trace_id),
+                     "deviation_max_mm": deviation}
+            if board:
+                entry |= {"print_artifact": printed, "nominal_artifact": plain}
+            _print_trace(ctx, steps, params, machine, index, entry, rows)
+            per_trace.append(entry)
+            ctx.progress((index + 1) / total, f"{index + 1}/{total} traces done")
     result: dict[str, Any] = {"traces": per_trace, "table": rows}
     if registration is not None:
         result["registration"] = {"job_id": registration.id, **{
@@ -230,6 +217,75 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
 
     result["files"] = write_loop_files(ctx, params.machine_id, result)
     return result
+
+
+Done = tuple[str, Job, Job, Job, Job, float, tuple[str, str]]
+"""One trace's children: (trace_id, plan, probe run, reconstruct, compensate, deviation max mm,
+(print artifact, nominal artifact))."""
+
+
+def _trace_children(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any], dialect: str,
+                    shared: tuple[Job, Job] | None, index: int, total: int) -> Done:
+    """A reconstruct and a compensate child of one trace (and its own plan and run unless shared)."""
+    trace_id = params.trace_ids[index]
+    plan, probe = shared or _plan_and_probe(steps, params, placed, dialect, trace_id,
+                                            ((index + 0.25) / total, f"trace {index + 1}/{total}: probing"))
+    prior = {k: params.probe[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in params.probe}
+    method = "field" if ProbePlanResult.of(plan).field else params.reconstruct_method
+    rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
+                                        "trace_id": trace_id, "probe_run_job_id": probe.id,
+                                        "method": method, "sigma_mm": params.sigma_mm,
+                                        **_corrections_for("reconstruct", params)}, trace_id)
+    steps.ctx.progress((index + 0.5) / total, f"trace {index + 1}/{total}: compensating")
+    compensated = steps.run("compensate", {"trace_id": trace_id, "reconstruct_job_id": rebuilt.id,
+                                           "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
+                                           "hold_mm": params.hold_mm, **_tool_of(params)}, trace_id)
+    return (trace_id, plan, probe, rebuilt, compensated, ReconstructResult.of(rebuilt).deviation.max_mm,
+            program_artifacts(CompensateResult.of(compensated)))
+
+
+def _board_batch(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any], shared: tuple[Job, Job],
+                 trace_ids: list[str], progress: tuple[float, str]) -> list[Done]:
+    """ONE reconstruct and ONE compensate child for a batch of a field plan's traces."""
+    plan, probe = shared
+    steps.ctx.progress(*progress)
+    rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, "trace_ids": trace_ids,
+                                        "probe_run_job_id": probe.id, "method": "field", "sigma_mm": params.sigma_mm,
+                                        **_corrections_for("reconstruct", params)}, None)
+    compensated = steps.run("compensate", {"trace_ids": trace_ids, "reconstruct_job_id": rebuilt.id,
+                                           "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
+                                           "hold_mm": params.hold_mm, **_tool_of(params)}, None)
+    deviations = {t: row.deviation.max_mm for t, row in reconstruct_rows(rebuilt).items()}
+    return [(r.trace_id, plan, probe, rebuilt, compensated, deviations[r.trace_id], program_artifacts(r))
+            for r in CompensateBoardResult.of(compensated).traces]
+
+
+def _print_trace(ctx: JobContext, steps: _Steps, params: ClosedLoopParams, machine: Machine, index: int,
+                 entry: dict[str, Any], rows: list[dict[str, Any]]) -> None:
+    """Print (or, with ``evaluate``, print both programs of and measure) one compensated trace."""
+    trace_id = entry["trace_id"]
+    artifacts = {"nominal.gcode": entry.get("nominal_artifact", "nominal.gcode"),
+                 "print.gcode": entry.get("print_artifact", "print.gcode")}
+    if params.evaluate:
+        trace = ctx.trace(trace_id)
+        world = ctx.runtime.machines.world(machine)  # built when the probe run connected
+        reports = {}
+        for artifact in ("nominal.gcode", "print.gcode"):
+            start = len(world.deposition_log)
+            steps.run("print", {"machine_id": params.machine_id, "job_id": entry["compensate"],
+                                "artifact": artifacts[artifact], "drift_reference": params.corrections.drift}, trace_id)
+            reports[artifact] = (evaluate_print(world, start, trace.standoff_mm),
+                                 xy_error(world, start, trace.nominal["points"]))
+        (before, xy_before), (after, xy_after) = reports["nominal.gcode"], reports["print.gcode"]
+        row = table_row(index + 1, before, after, entry["probes"])
+        rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name,
+                                     "xy_max_before_um": round(xy_before.max_mm * 1000, 2),
+                                     "xy_max_after_um": round(xy_after.max_mm * 1000, 2)})
+        entry["evaluation"] = {"nominal": _report(before, xy_before), "compensated": _report(after, xy_after)}
+    elif params.print:
+        entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": entry["compensate"],
+                                             "artifact": artifacts["print.gcode"],
+                                             "drift_reference": params.corrections.drift}, trace_id).id
 
 
 def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any], dialect: str,

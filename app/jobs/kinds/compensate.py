@@ -3,7 +3,10 @@
 Frame: the reconstruction's (read back from the reconstruct job's stored
 ``reconstruction.npz``, over the trace's nominal placed as that job placed it): when that
 job mapped the trace with a placement / registration, the programs are in machine
-coordinates.
+coordinates.  Board mode (``trace_ids``, from a board reconstruct job): each trace's
+reconstruction is read back from its own artifact (``reconstruction.<trace_id>.npz``,
+:func:`app.reconstruction.stored.stored_name`), nothing is rebuilt; each trace's programs
+are ``print.<trace_id>.gcode`` / ``nominal.<trace_id>.gcode``.
 
 Policy outside the probed span: refused (422) unless ``hold_mm`` allows holding the end
 deviation over a short gap; see :mod:`app.compensation.standoff`.
@@ -29,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session, select
 
 from app.calibration.clearance import nozzle_clearance
@@ -41,10 +44,11 @@ from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import placed_nominal, placed_params_of, placement_from, succeeded_job
+from app.jobs.params import MAX_FIELD_TRACES
 from app.jobs.registry import JobParams, job_kind
-from app.jobs.results import CompensateResult
+from app.jobs.results import CompensateBoardResult, CompensateResult
 from app.models import Artifact, Machine
-from app.reconstruction.stored import STORED, read_reconstruction
+from app.reconstruction.stored import read_reconstruction, stored_name
 from app.records import get_or_404
 
 
@@ -60,8 +64,14 @@ class CompensateCorrections(BaseModel):
 
 
 class CompensateParams(JobParams):
-    trace_id: str
-    reconstruct_job_id: str = Field(description="a succeeded reconstruct job of this trace")
+    trace_id: str | None = Field(None, description="the trace (or trace_ids)")
+    trace_ids: list[str] | None = Field(
+        None, min_length=1, max_length=MAX_FIELD_TRACES,
+        description="board mode: compensate these traces in ONE job from a board reconstruct job (reconstruct "
+        "with trace_ids); each trace's programs are the artifacts print.<trace_id>.gcode and "
+        "nominal.<trace_id>.gcode, the result's traces lists each trace's figures in this order")
+    reconstruct_job_id: str = Field(description="a succeeded reconstruct job of this trace (board mode: of these "
+                                    "traces)")
     standoff_mm: float | None = Field(None, gt=0, le=50, description="default: the trace's standoff")
     feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="default: the trace's, else 300")
     chord_error_mm: float = Field(0.002, gt=0, le=1, description="largest polyline-to-curve distance, proved per segment")
@@ -78,6 +88,19 @@ class CompensateParams(JobParams):
     allow_uncalibrated: bool = Field(False, description="write for a nozzle without calibration, at its "
                                      "nominal offset (a warning in the result)")
     corrections: CompensateCorrections = Field(default_factory=CompensateCorrections)
+
+    @model_validator(mode="after")
+    def _one_target(self) -> "CompensateParams":
+        if (self.trace_id is None) == (self.trace_ids is None):
+            raise ValueError("give exactly one of trace_id or trace_ids")
+        if self.trace_ids is not None and len(set(self.trace_ids)) != len(self.trace_ids):
+            raise ValueError("trace_ids lists a trace twice")
+        return self
+
+
+def board_artifacts(trace_id: str) -> tuple[str, str]:
+    """(print, nominal) artifact names of one trace of a board compensate job."""
+    return f"print.{trace_id}.gcode", f"nominal.{trace_id}.gcode"
 
 
 @dataclass
@@ -148,18 +171,28 @@ def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
 
 def _check(params: CompensateParams, session: Session) -> None:
     job = succeeded_job(session, params.reconstruct_job_id, "reconstruct", "params.reconstruct_job_id")
-    if job.params.get("trace_id") != params.trace_id:
+    if params.trace_ids is not None:
+        rebuilt = set(job.params.get("trace_ids") or ())
+        missing = [t for t in params.trace_ids if t not in rebuilt]
+        if missing:
+            raise InvalidInput(f"job {job.id!r} is not a board reconstruct job (trace_ids) of trace {missing[0]!r}",
+                               field="params.reconstruct_job_id", value=job.id)
+    elif job.params.get("trace_id") != params.trace_id:
         raise InvalidInput(f"job {job.id!r} is not a succeeded reconstruct job of trace {params.trace_id!r}",
                            field="params.reconstruct_job_id", value=job.id)
-    if session.exec(select(Artifact).where(Artifact.job_id == job.id, Artifact.name == STORED)).first() is None:
-        raise InvalidInput(f"reconstruct job {job.id!r} has no stored reconstruction ({STORED}: it ran before "
+    names = [stored_name(t) for t in params.trace_ids] if params.trace_ids is not None else [stored_name()]
+    stored = set(session.exec(select(Artifact.name).where(Artifact.job_id == job.id,
+                                                          Artifact.name.in_(names))).all())  # type: ignore[attr-defined]
+    lacking = next((name for name in names if name not in stored), None)
+    if lacking is not None:
+        raise InvalidInput(f"reconstruct job {job.id!r} has no stored reconstruction ({lacking}: it ran before "
                            "reconstructions were stored); run the reconstruction again",
                            field="params.reconstruct_job_id", value=job.id)
     choose_tool(params, session)
 
 
 def _references(params: CompensateParams) -> list[tuple[str, str]]:
-    refs = [("trace", params.trace_id), ("job", params.reconstruct_job_id)]
+    refs = [*(("trace", t) for t in (params.trace_ids or [str(params.trace_id)])), ("job", params.reconstruct_job_id)]
     if params.machine_id:
         refs.append(("machine", params.machine_id))
     return refs
@@ -167,14 +200,40 @@ def _references(params: CompensateParams) -> list[tuple[str, str]]:
 
 @job_kind("compensate", CompensateParams, check=_check, references=_references)
 def run(ctx: JobContext, params: CompensateParams) -> dict:
-    """Regenerate the trace's print program above the reconstructed real surface."""
-    trace = ctx.trace(params.trace_id)
+    """Regenerate the trace's print program above the reconstructed real surface (board
+    mode: every listed trace's, each from its reconstruction the board reconstruct stored)."""
     source = ctx.job(params.reconstruct_job_id, kind="reconstruct", field="params.reconstruct_job_id")
     placement = placement_from(ctx, placed_params_of(source))  # the reconstruction's frame (machine, when placed)
-    reconstruction = read_reconstruction(ctx.artifact_bytes(source.id, STORED), placed_nominal(trace, placement))
-    ctx.progress(0.3, "segmenting the compensated path")
     with ctx.session() as session:
         choice = choose_tool(params, session)
+    if params.trace_ids is None:
+        trace = ctx.trace(str(params.trace_id))
+        reconstruction = read_reconstruction(ctx.artifact_bytes(source.id, stored_name()),
+                                             placed_nominal(trace, placement))
+        ctx.progress(0.3, "segmenting the compensated path")
+        result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement)
+        ctx.artifact("print.gcode", program.encode(), "text/x-gcode", gcode_meta(program))
+        ctx.artifact("nominal.gcode", nominal.encode(), "text/x-gcode", gcode_meta(nominal))
+        return CompensateResult.written(result)
+    rows = []
+    total = len(params.trace_ids)
+    for index, trace_id in enumerate(params.trace_ids):
+        trace = ctx.trace(trace_id)
+        reconstruction = read_reconstruction(ctx.artifact_bytes(source.id, stored_name(trace_id)),
+                                             placed_nominal(trace, placement))
+        result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement)
+        printed, plain = board_artifacts(trace_id)
+        ctx.artifact(printed, program.encode(), "text/x-gcode", gcode_meta(program))
+        ctx.artifact(plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))
+        rows.append({"trace_id": trace_id, "print_artifact": printed, "nominal_artifact": plain, **result})
+        if index % 25 == 24 or index + 1 == total:
+            ctx.progress((index + 1) / total, f"{index + 1}/{total} traces compensated")
+    return CompensateBoardResult.written({"board": True, "traces": rows})
+
+
+def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, reconstruction: Any,
+             placement: Any) -> tuple[dict[str, Any], str, str]:
+    """(result, print program, nominal program) of one trace."""
     dialect, on, off = params.dialect, params.dispense_on, params.dispense_off
     if params.machine_id:
         machine: Machine = ctx.machine(params.machine_id)
@@ -190,17 +249,16 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     ), job_id=ctx.job_id)
     clearance = None
     if choice.tool and choice.outer_diameter_mm:
-        ctx.progress(0.7, "checking the nozzle body's clearance")
+        if params.trace_ids is None:
+            ctx.progress(0.7, "checking the nozzle body's clearance")
         clearance = _clearance(trace, reconstruction, path, mesh, choice.outer_diameter_mm)
-    ctx.artifact("print.gcode", path.program.encode(), "text/x-gcode", gcode_meta(path.program))
-    ctx.artifact("nominal.gcode", path.nominal_program.encode(), "text/x-gcode", gcode_meta(path.nominal_program))
     result = {**path.to_result(), "points": path.points.tolist(), "tool": choice.to_result(),
               "warnings": choice.warnings}
     if clearance is not None:
         result["clearance"] = clearance
     if placement is not None:
         result["placement"] = placement.to_dict()
-    return CompensateResult.written(result)
+    return result, path.program, path.nominal_program
 
 
 def _clearance(trace: Any, reconstruction: Any, path: Any, mesh: Any, diameter_mm: float) -> dict[str, Any]:

@@ -23,9 +23,9 @@ from app.compensation.registration import Placement
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
-from app.jobs.params import PlacedParams
+from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
 from app.jobs.registry import job_kind
-from app.jobs.results import ProbePlanResult, ProbeRunResult, ReconstructResult
+from app.jobs.results import ProbePlanResult, ProbeRunResult, ReconstructBoardResult, ReconstructResult
 from app.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
@@ -33,7 +33,7 @@ from app.reconstruction import (PreprocessParams, Reconstruction, Reconstruction
 from app.probing.field import stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.reconstruction.field import field_gradient, fit_bytes, fit_field, trace_reconstruction
-from app.reconstruction.stored import STORED, reconstruction_npz
+from app.reconstruction.stored import reconstruction_npz, stored_name
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
 
@@ -54,7 +54,11 @@ class ContextTrace(BaseModel):
 
 
 class ReconstructJobParams(PlacedParams):
-    trace_id: str
+    trace_id: str | None = Field(None, description="the trace to rebuild (or trace_ids)")
+    trace_ids: list[str] | None = Field(
+        None, min_length=1, max_length=MAX_FIELD_TRACES,
+        description="board mode (method field, from a field plan's probe run): rebuild these traces in ONE job "
+        "from the one fitted field; the result's traces lists each trace's reconstruction in this order")
     probe_run_job_id: str | None = Field(
         None, description="a succeeded probe_run; when its plan probed several traces (trace_ids), trace_id must "
         "be one of them and its own range of the run is used, with method kriging every other trace's range too "
@@ -87,11 +91,23 @@ class ReconstructJobParams(PlacedParams):
             raise ValueError("give exactly one of probe_run_job_id or points")
         if self.method == "field" and self.probe_run_job_id is None:
             raise ValueError("method field rebuilds from a field plan's probe run: give probe_run_job_id")
+        if (self.trace_id is None) == (self.trace_ids is None):
+            raise ValueError("give exactly one of trace_id or trace_ids")
+        if self.trace_ids is not None:
+            if self.method != "field":
+                raise ValueError("trace_ids (board mode) rebuilds from one fitted field: method must be field")
+            if len(set(self.trace_ids)) != len(self.trace_ids):
+                raise ValueError("trace_ids lists a trace twice")
         return self
+
+    @property
+    def traces(self) -> list[str]:
+        """The traces this job rebuilds (one, or the board's)."""
+        return list(self.trace_ids) if self.trace_ids is not None else [str(self.trace_id)]
 
 
 def _references(params: ReconstructJobParams) -> list[tuple[str, str]]:
-    refs = [("trace", params.trace_id), *registration_reference(params)]
+    refs = [*(("trace", t) for t in params.traces), *registration_reference(params)]
     if params.probe_run_job_id:
         refs.append(("job", params.probe_run_job_id))
     refs.extend(("trace", c.trace_id) for c in params.context or ())
@@ -103,6 +119,16 @@ def _check(params: ReconstructJobParams, session: Session) -> None:
     cleaning; context only for kriging, on other traces of the same part; a joint probe run
     must have probed the trace."""
     placement = check_registration(params, session)
+    if params.trace_ids is not None:
+        part_id = None
+        for index, trace_id in enumerate(params.trace_ids):
+            row = get_or_404(session, Trace, trace_id, field=f"params.trace_ids.{index}")
+            if part_id is not None and row.part_id != part_id:
+                raise InvalidInput(f"trace {trace_id!r} is on part {row.part_id!r}, not on part {part_id!r} of the "
+                                   "first trace", field=f"params.trace_ids.{index}", value=trace_id)
+            part_id = row.part_id
+        _check_joint_run(params, session)
+        return
     trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
     if params.probe_run_job_id is not None:
         _check_joint_run(params, session)
@@ -153,27 +179,47 @@ def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
     trace_ids = (plan.params or {}).get("trace_ids") if plan is not None else None
     if is_field and trace_ids is None:
         trace_ids = [plan.params.get("trace_id")]
-    if trace_ids is not None and params.trace_id not in trace_ids:
-        raise InvalidInput(f"trace {params.trace_id!r} is not one of the traces probed by probe run "
-                           f"{run.id!r} (plan {plan.id!r})", field="params.trace_id", value=params.trace_id)
+    if trace_ids is None:
+        return
+    probed = set(trace_ids)
+    for index, trace_id in enumerate(params.traces):
+        if trace_id not in probed:
+            field = "params.trace_id" if params.trace_ids is None else f"params.trace_ids.{index}"
+            raise InvalidInput(f"trace {trace_id!r} is not one of the traces probed by probe run "
+                               f"{run.id!r} (plan {plan.id!r})", field=field, value=trace_id)
 
 
 @job_kind("reconstruct", ReconstructJobParams, references=_references, check=_check)
 def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
-    """Rebuild the real trace from measured points (outliers rejected, duplicates merged)."""
+    """Rebuild the real trace from measured points (outliers rejected, duplicates merged);
+    board mode (``trace_ids``): every listed trace from the one fitted field."""
     ctx.progress(0.2, "reconstructing")
     calibrated = calibrated_sigma(ctx, params)
-    reconstruction = rebuild(ctx, params)
-    ctx.artifact(STORED, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
-                 {"format": "npz", "height_model": reconstruction.height_model.kind})
-    result = reconstruction.to_result()
     if params.sigma_mm is not None:
-        result["sigma"] = {"sigma_mm": params.sigma_mm, "source": "params"}
+        sigma = {"sigma_mm": params.sigma_mm, "source": "params"}
     elif calibrated is not None:
-        result["sigma"] = calibrated
+        sigma = calibrated
     else:
-        result["sigma"] = {"sigma_mm": None, "source": "default: the method's own"}
-    return ReconstructResult.written(result)
+        sigma = {"sigma_mm": None, "source": "default: the method's own"}
+    if params.trace_ids is None:
+        reconstruction = rebuild(ctx, params)
+        _store(ctx, reconstruction, stored_name())
+        return ReconstructResult.written({**reconstruction.to_result(), "sigma": sigma})
+    rows = []
+    for trace_id, rec in zip(params.trace_ids, rebuild_board(ctx, params)):
+        name = stored_name(trace_id)
+        _store(ctx, rec, name)
+        rows.append({"trace_id": trace_id, "reconstruction": name, **board_entry(rec)})
+    return ReconstructBoardResult.written({
+        "method": "field", "board": True, "traces": rows, "sigma": sigma,
+        "deviation": {"max_mm": max(r["deviation"]["max_mm"] for r in rows),
+                      "rms_mm": max(r["deviation"]["rms_mm"] for r in rows)}})
+
+
+def _store(ctx: JobContext, reconstruction: Reconstruction, name: str) -> None:
+    """Store ``reconstruction`` as the artifact ``name`` (``compensate`` reads it back exactly)."""
+    ctx.artifact(name, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
+                 {"format": "npz", "height_model": reconstruction.height_model.kind})
 
 
 def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str, Any] | None:
@@ -190,6 +236,30 @@ def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str,
         return None
     return {"sigma_mm": scatter, "source": "calibration: the probe qualification's residual rms",
             "probe_job_id": stored.get("probe_job_id")}
+
+
+def board_entry(rec: Reconstruction) -> dict[str, Any]:
+    """One trace of a board reconstruct's result: what a one-trace job's result says, without
+    the curve (the trace's reconstruction is stored whole as its own artifact)."""
+    return {k: v for k, v in rec.to_result().items() if k != "curve"}
+
+
+def rebuild_board(ctx: JobContext, params: ReconstructJobParams) -> list[Reconstruction]:
+    """The reconstructions (in ``params.traces`` order) a board reconstruct makes: one field
+    fit (cached per run, as for one trace) evaluated along each trace (the probe noise as for
+    one trace: :func:`calibrated_sigma`)."""
+    calibrated = calibrated_sigma(ctx, params)
+    if calibrated is not None:
+        params = params.model_copy(update={"sigma_mm": calibrated["sigma_mm"]})
+    placement = placement_from(ctx, params)
+    fit, refinement, plan_traces = _run_field(ctx, params)
+    where = {t: i for i, t in enumerate(plan_traces)}
+    out = []
+    for index, trace_id in enumerate(params.traces):
+        out.append(_field_trace(fit, refinement, placed_nominal(ctx.trace(trace_id), placement), where[trace_id]))
+        if index % 50 == 49:
+            ctx.progress(0.2 + 0.7 * (index + 1) / len(params.traces), f"{index + 1}/{len(params.traces)} traces rebuilt")
+    return out
 
 
 def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
@@ -269,6 +339,18 @@ def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dic
 
 def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) -> Reconstruction:
     """The trace from its run's fitted field (fitted once per run and sigma, cached)."""
+    fit, refinement, trace_ids = _run_field(ctx, params)
+    return _field_trace(fit, refinement, nominal, trace_ids.index(params.trace_id))
+
+
+def _field_trace(fit: Any, refinement: Any, nominal: Any, index: int) -> Reconstruction:
+    rec = trace_reconstruction(fit, nominal, index, ReconstructParams(prior=fit.posterior.prior))
+    return rec if refinement is None else replace(rec, refinement=refinement)
+
+
+def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any, Any, list[str]]:
+    """(fit, normal-iteration report or None, the plan's trace ids) of the run's field; every
+    trace of ``params`` must be one of the plan's (422 otherwise)."""
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
     plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
     stored = ProbePlanResult.of(plan).field
@@ -276,9 +358,12 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
         raise InvalidInput(f"probe run {probe_run.id!r} is not a run of a field plan", field="params.method",
                            value=params.method)
     trace_ids = plan.params.get("trace_ids") or [plan.params.get("trace_id")]
-    if params.trace_id not in trace_ids:
-        raise InvalidInput(f"trace {params.trace_id!r} is not one of the traces of field plan {plan.id!r}",
-                           field="params.trace_id", value=params.trace_id)
+    missing = set(params.traces) - set(trace_ids)
+    if missing:
+        trace_id = next(t for t in params.traces if t in missing)
+        raise InvalidInput(f"trace {trace_id!r} is not one of the traces of field plan {plan.id!r}",
+                           field="params.trace_id" if params.trace_ids is None else "params.trace_ids",
+                           value=trace_id)
     key = (probe_run.id, params.sigma_mm)
     cached = FIELD_FITS.get(key)
     if cached is None:
@@ -295,13 +380,11 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
         refinement = None
         if calibration is not None:
             stations = field.stations
-            trace = ctx.trace(params.trace_id)
+            trace = ctx.trace(params.traces[0])
             top = mesh_top_sampler(ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement_from(ctx, params)))
             fit, refinement = refined(fit, rows, calibration, lambda f, _xy: field_gradient(
                 f, stations, slope_at=lambda xy: top(xy).grad), fit_of)
         cached = (fit, refinement)
         FIELD_FITS.put(key, cached, fit_bytes(fit))
     fit, refinement = cached
-    rec = trace_reconstruction(fit, nominal, trace_ids.index(params.trace_id),
-                               ReconstructParams(prior=fit.posterior.prior))
-    return rec if refinement is None else replace(rec, refinement=refinement)
+    return fit, refinement, trace_ids
