@@ -11,6 +11,8 @@ they fail (CI installs ``linuxcnc-uspace``).
 from __future__ import annotations
 
 
+import time
+
 import pytest
 
 from hardware.linuxcnc import SimController, SimUnavailable, linuxcnc_available
@@ -93,3 +95,28 @@ def machine(lcnc_xyz):
     yield m
     if m.state != "disconnected":
         m.disconnect()
+
+
+def wait_until(predicate, timeout_s: float = 5.0) -> bool:
+    """True as soon as ``predicate()`` holds (polled every 10 ms), False after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def add_sim_machine(client, sim: SimController, profile: dict, headers: dict) -> str:
+    """A three-axis ``linuxcnc://`` machine on ``sim`` through the API, connected and homed
+    (the simulator homes Z up to its switch at 30 mm, above any surface: sim/home.hal)."""
+    body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{sim.port}?joints=3", "dialect": "linuxcnc",
+            "profile": profile}
+    response = client.post("/api/v1/machines", json=body, headers=headers)
+    assert response.status_code == 201, response.text
+    machine_id = response.json()["id"]
+    assert client.post(f"/api/v1/machines/{machine_id}/connect", headers=headers).json()["state"] == "idle"
+    homed = client.post(f"/api/v1/machines/{machine_id}/home", headers=headers)
+    assert homed.status_code == 200 and homed.json()["position"] == pytest.approx([0, 0, 30], abs=1e-6), homed.text
+    return machine_id
+

@@ -18,7 +18,7 @@ import pytest
 
 from hardware.linuxcnc import SimBlock, SimSphere
 from tests.conftest import auth
-from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
+from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, add_sim_machine
 from tests.jobs.test_jobs_api import wait_for
 
 OP = auth("operator")
@@ -44,13 +44,7 @@ def reference_sphere(lcnc_env):
 
 def test_calibrate_probe_on_linuxcnc_finds_the_simulated_sphere_ball_and_pad(client, reference_sphere):
     sim = reference_sphere
-    body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{sim.port}?joints=3", "dialect": "linuxcnc",
-            "profile": PROFILE}
-    response = client.post("/api/v1/machines", json=body, headers=OP)
-    assert response.status_code == 201, response.text
-    machine_id = response.json()["id"]
-    assert client.post(f"/api/v1/machines/{machine_id}/connect", headers=OP).json()["state"] == "idle"
-    assert client.post(f"/api/v1/machines/{machine_id}/home", headers=OP).status_code == 200
+    machine_id = add_sim_machine(client, sim, PROFILE, OP)
     response = client.post("/api/v1/jobs", json={"kind": "calibrate_probe", "params": {
         "machine_id": machine_id, "cap_rings_deg": [0, 60], "per_ring": 3, "equator": 7, "pad_touches": 3}},
         headers=OP)

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from hardware.errors import FirmwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
-from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
+from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, wait_until
 
 SQUARE = ["G21 G90 G64 P0.001", "G1 X0 Y0 Z5 F6000"] + [
     f"G1 X{x:.1f} Y{y:.1f} F2400" for _ in range(2) for x, y in ((20, 0), (20, 20), (0, 20), (0, 0))]
@@ -35,14 +35,6 @@ def _run_in_thread(machine, lines):
     thread.start()
     return thread, outcome
 
-
-def _wait_for(predicate, timeout_s: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_connect_home_and_mdi_moves(machine, lcnc_xyz):
@@ -92,9 +84,9 @@ def test_stream_10000_lines_runs_to_the_last_point(machine, lcnc_xyz):
 def test_pause_holds_and_resume_finishes(machine, lcnc_xyz):
     observer = lcnc_xyz.session()
     thread, outcome = _run_in_thread(machine, SQUARE)
-    assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 3)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3)
     machine.pause()
-    assert _wait_for(lambda: observer.get("program_status") == "PAUSED")
+    assert wait_until(lambda: observer.get("program_status") == "PAUSED")
     held = _joints(observer)
     time.sleep(0.3)
     assert _joints(observer) == pytest.approx(held, abs=1e-9) and machine.state == "paused"
@@ -107,12 +99,12 @@ def test_pause_holds_and_resume_finishes(machine, lcnc_xyz):
 def test_cancel_aborts_the_program(machine, lcnc_xyz):
     observer = lcnc_xyz.session()
     thread, outcome = _run_in_thread(machine, SQUARE)
-    assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 3)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3)
     machine.cancel()
     thread.join(10)
     report = outcome["report"]
     assert report.cancelled and 3 <= report.executed < report.total
-    assert _wait_for(lambda: observer.get("program_status") == "IDLE")
+    assert wait_until(lambda: observer.get("program_status") == "IDLE")
     stopped = _joints(observer)
     time.sleep(0.2)
     assert _joints(observer) == pytest.approx(stopped, abs=1e-9)  # nothing moves after abort
@@ -143,12 +135,12 @@ def measure_estops(machine, sim, n: int) -> dict[str, list[float]]:
                 machine.home()
             with sim.watch(names) as watch:
                 thread, outcome = _run_in_thread(machine, SQUARE)
-                assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 3)
+                assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3)
                 issued = time.monotonic_ns()
                 machine.emergency_stop()
                 figures["call"].append((time.monotonic_ns() - issued) / 1e6)
                 seen: dict[str, int | None] = {key: None for key in ESTOP_SIGNALS}
-                assert _wait_for(lambda seen=seen, watch=watch, issued=issued: _all_seen(seen, watch, issued),
+                assert wait_until(lambda seen=seen, watch=watch, issued=issued: _all_seen(seen, watch, issued),
                                  timeout_s=5.0), seen
             for key, t_ns in seen.items():
                 figures[key].append((t_ns - issued) / 1e6)
@@ -226,13 +218,13 @@ def test_every_emergency_stop_reaches_the_controller(machine, lcnc_xyz):
 def test_lost_connection_aborts_and_resumes(machine, lcnc_xyz):
     observer = lcnc_xyz.session()
     thread, outcome = _run_in_thread(machine, SQUARE)
-    assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 4)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 4)
     machine.link.sever()
     thread.join(10)
     assert isinstance(outcome.get("error"), LinkError)
     assert machine.link_lost and machine.state == "error"
     # the stop session aborted the program: it does not run on unsupervised
-    assert _wait_for(lambda: observer.get("program_status") == "IDLE")
+    assert wait_until(lambda: observer.get("program_status") == "IDLE")
     stopped = _joints(observer)
     time.sleep(0.2)
     assert _joints(observer) == pytest.approx(stopped, abs=1e-9)
@@ -280,7 +272,7 @@ def test_a_resumed_program_replays_its_modal_state(machine, lcnc_xyz):
     machine.send("G21 G90")
     machine.move(x=0, y=0, z=5)
     thread, outcome = _run_in_thread(machine, INCH_RELATIVE)
-    assert _wait_for(lambda: machine.state == "printing" and machine.progress[0] >= 5, timeout_s=20)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 5, timeout_s=20)
     machine.link.sever()
     thread.join(10)
     assert isinstance(outcome.get("error"), LinkError)

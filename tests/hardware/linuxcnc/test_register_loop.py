@@ -30,7 +30,7 @@ import trimesh
 
 from hardware.linuxcnc import SimBlock
 from tests.conftest import auth
-from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
+from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, add_sim_machine, wait_until
 from tests.jobs.test_jobs_api import wait_for
 
 OP = auth("operator")
@@ -56,16 +56,7 @@ def block_mesh() -> trimesh.Trimesh:
 
 
 def add_machine(client, sim) -> str:
-    body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{sim.port}?joints=3", "dialect": "linuxcnc",
-            "profile": PROFILE}
-    response = client.post("/api/v1/machines", json=body, headers=OP)
-    assert response.status_code == 201, response.text
-    machine_id = response.json()["id"]
-    assert client.post(f"/api/v1/machines/{machine_id}/connect", headers=OP).json()["state"] == "idle"
-    homed = client.post(f"/api/v1/machines/{machine_id}/home", headers=OP)
-    # the simulator homes Z up to its switch at 30 mm, above any surface (sim/home.hal)
-    assert homed.status_code == 200 and homed.json()["position"] == pytest.approx([0, 0, 30], abs=1e-6), homed.text
-    return machine_id
+    return add_sim_machine(client, sim, PROFILE, OP)
 
 
 def upload_block(client) -> dict:
@@ -228,16 +219,16 @@ def test_a_closed_loop_whose_link_drops_waits_for_the_operator_and_resumes_to_th
             machine = client.app.state.runtime.machines.get(machine_id)
             _wait_child(client, loop_id, cut_during, ("running",))
             if cut_during == "print":
-                assert _wait(lambda: machine.state == "printing" and machine.progress
-                             and machine.progress[0] >= max(1, machine.progress[1] // 3))
+                assert wait_until(lambda: machine.state == "printing" and machine.progress
+                             and machine.progress[0] >= max(1, machine.progress[1] // 3), 60.0)
             else:  # two touches made: each probe descends, touches, retracts
-                assert _wait(lambda: _touches(watch) >= 2 and machine.state == "busy")
+                assert wait_until(lambda: _touches(watch) >= 2 and machine.state == "busy", 60.0)
             machine.link.sever()
             child = _wait_child(client, loop_id, cut_during, ("interrupted", "failed", "succeeded"))
             assert child["status"] == "interrupted", child["error"]
             assert child["program_state"]["reason"].startswith("LinkError")
             assert client.get(f"/api/v1/jobs/{loop_id}", headers=OP).json()["status"] == "running"  # it waits
-            assert _wait(lambda: observer.get("program_status") == "IDLE")
+            assert wait_until(lambda: observer.get("program_status") == "IDLE", 60.0)
             time.sleep(0.3)  # the abort's deceleration
             frozen, count = watch.samples[-1], len(watch.samples)
             time.sleep(1.0)  # nobody resumed: nothing moves, the dispenser stays as it was left
@@ -253,14 +244,6 @@ def test_a_closed_loop_whose_link_drops_waits_for_the_operator_and_resumes_to_th
     _check_printed(client, lcnc_env, truth, loop, watch.samples, time.monotonic() - started,
                    f"closed loop cut during {cut_during}, resumed")
 
-
-def _wait(predicate, timeout_s: float = 60.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def _touches(watch) -> int:
