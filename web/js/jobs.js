@@ -28,18 +28,19 @@ let current = null;
 
 async function suggestions() {
   const out = { part_id: [], trace_id: [], machine_id: [] };
-  const [parts, jobs] = await Promise.all([get("parts?limit=50"), get("jobs?limit=200")]);
+  // every request at once: one after another, 20 parts' traces alone cost most of a second
+  const [parts, jobs, machines, programs] = await Promise.all([get("parts?limit=50"), get("jobs?limit=200"),
+    get("machines").catch(() => null), get("programs?limit=200").catch(() => null)]);
   out.part_id = parts.items.map((p) => [p.id, p.name]);
-  for (const p of parts.items.slice(0, 20)) {
-    const traces = await get(`parts/${p.id}/traces?limit=200`);
-    out.trace_id.push(...traces.items.map((t) => [t.id, `${t.name} on ${p.name}`]));
-  }
+  const shown = parts.items.slice(0, 20);
+  const traceLists = await Promise.all(shown.map((p) => get(`parts/${p.id}/traces?limit=200`)));
+  shown.forEach((p, i) => out.trace_id.push(...traceLists[i].items.map((t) => [t.id, `${t.name} on ${p.name}`])));
   const byKind = (k) => jobs.items.filter((j) => j.kind === k && j.status === "succeeded").map((j) => [j.id, `${j.kind} ${fmt.time(j.created_at)}`]);
   Object.assign(out, { plan_job_id: byKind("probe_plan"), probe_run_job_id: byKind("probe_run"),
     reconstruct_job_id: byKind("reconstruct"), slice_job_id: byKind("slice"), surface_fit_job_id: byKind("surface_fit") });
-  try { out.machine_id = (await get("machines")).items.map((m) => [m.id, m.name]); } catch { /* no machines API */ }
+  if (machines) out.machine_id = machines.items.map((m) => [m.id, m.name]);
   out.closed_loop_job_id = byKind("closed_loop");
-  try { out.program_id = (await get("programs?limit=200")).items.map((p) => [p.id, `${p.name} (${p.lines} lines)`]); } catch { /* none */ }
+  if (programs) out.program_id = programs.items.map((p) => [p.id, `${p.name} (${p.lines} lines)`]);
   return out;
 }
 
