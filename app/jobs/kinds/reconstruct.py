@@ -199,6 +199,7 @@ def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
         sigma = {"sigma_mm": params.sigma_mm, "source": "params"}
     elif calibrated is not None:
         sigma = calibrated
+        params = params.model_copy(update={"sigma_mm": calibrated["sigma_mm"]})  # what the rebuild uses
     else:
         sigma = {"sigma_mm": None, "source": "default: the method's own"}
     if params.trace_ids is None:
@@ -247,10 +248,7 @@ def board_entry(rec: Reconstruction) -> dict[str, Any]:
 def rebuild_board(ctx: JobContext, params: ReconstructJobParams) -> list[Reconstruction]:
     """The reconstructions (in ``params.traces`` order) a board reconstruct makes: one field
     fit (cached per run, as for one trace) evaluated along each trace (the probe noise as for
-    one trace: :func:`calibrated_sigma`)."""
-    calibrated = calibrated_sigma(ctx, params)
-    if calibrated is not None:
-        params = params.model_copy(update={"sigma_mm": calibrated["sigma_mm"]})
+    one trace: ``params.sigma_mm``, resolved by :func:`run`)."""
     placement = placement_from(ctx, params)
     fit, refinement, plan_traces = _run_field(ctx, params)
     where = {t: i for i, t in enumerate(plan_traces)}
@@ -269,11 +267,8 @@ def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
     From a probe run on a calibrated machine with radius correction, the readings are
     turned into surface heights again along the normal of the REAL surface (the nominal's
     tilted by the reconstructed deviation's gradient) and the trace rebuilt, twice
-    (:func:`refined`).  With ``sigma_from_calibration`` (and no ``sigma_mm``) a calibrated
-    machine's run uses the calibration's measured scatter (:func:`calibrated_sigma`)."""
-    calibrated = calibrated_sigma(ctx, params)
-    if calibrated is not None:
-        params = params.model_copy(update={"sigma_mm": calibrated["sigma_mm"]})
+    (:func:`refined`).  The probe noise is ``params.sigma_mm`` as :func:`run` resolved it
+    (given, or the calibration's measured scatter with ``sigma_from_calibration``)."""
     trace = ctx.trace(params.trace_id)
     placement = placement_from(ctx, params)
     if params.method == "field":
