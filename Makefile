@@ -21,8 +21,10 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/conforma serve
 
+# both cores; tests that share one real resource of the host (LinuxCNC, Redis, the browser)
+# stay on one worker (tests/conftest.py, SHARED_RESOURCE_GROUPS)
 test: $(STAMP)
-	$(PYTEST)
+	$(PYTEST) -n 2 --dist loadgroup
 
 bench: $(STAMP)
 	$(PYTEST) tests/bench -o addopts="" -s -q -p no:cacheprovider

@@ -57,3 +57,24 @@ def client(settings) -> Iterator:  # type: ignore[no-untyped-def]
 
     with TestClient(create_app(settings), raise_server_exceptions=False) as test_client:
         yield test_client
+
+
+# ---- running on both cores (pytest-xdist, `make test` runs `-n 2 --dist loadgroup`) -------
+# Tests that share one real resource of the host run on ONE worker, one after another:
+# the LinuxCNC simulator (one HAL / linuxcncrsh per host), the Redis database and the
+# PostgreSQL databases of the scale-out tests (keys and databases deleted per fixture), and
+# the browser tests (one served instance and one Chromium per session).
+SHARED_RESOURCE_GROUPS = {
+    "tests/hardware/linuxcnc/": "linuxcnc",
+    "tests/jobs/test_scale_out.py": "redis-postgresql",
+    "tests/e2e/browser/": "browser",
+}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    root = Path(__file__).resolve().parent.parent
+    for item in items:
+        where = item.path.resolve().relative_to(root).as_posix()
+        for prefix, group in SHARED_RESOURCE_GROUPS.items():
+            if where.startswith(prefix):
+                item.add_marker(pytest.mark.xdist_group(group))

@@ -26,20 +26,31 @@ left.append(el("section", {}, el("h2", {}, "New job"), kindSelect, kindDescripti
 let kinds = [];
 let current = null;
 
-async function suggestions() {
-  const out = { part_id: [], trace_id: [], machine_id: [] };
-  // every request at once: one after another, 20 parts' traces alone cost most of a second
-  const [parts, jobs, machines, programs] = await Promise.all([get("parts?limit=50"), get("jobs?limit=200"),
-    get("machines").catch(() => null), get("programs?limit=200").catch(() => null)]);
-  out.part_id = parts.items.map((p) => [p.id, p.name]);
-  const shown = parts.items.slice(0, 20);
-  const traceLists = await Promise.all(shown.map((p) => get(`parts/${p.id}/traces?limit=200`)));
-  shown.forEach((p, i) => out.trace_id.push(...traceLists[i].items.map((t) => [t.id, `${t.name} on ${p.name}`])));
-  const byKind = (k) => jobs.items.filter((j) => j.kind === k && j.status === "succeeded").map((j) => [j.id, `${j.kind} ${fmt.time(j.created_at)}`]);
-  Object.assign(out, { plan_job_id: byKind("probe_plan"), probe_run_job_id: byKind("probe_run"),
-    reconstruct_job_id: byKind("reconstruct"), slice_job_id: byKind("slice"), surface_fit_job_id: byKind("surface_fit") });
+const JOB_SUGGESTIONS = { plan_job_id: "probe_plan", probe_run_job_id: "probe_run", reconstruct_job_id: "reconstruct",
+  slice_job_id: "slice", surface_fit_job_id: "surface_fit", closed_loop_job_id: "closed_loop" };
+
+// Suggestions (datalists) for the id fields THIS kind's form has; only what it uses is fetched,
+// all at once (one part's traces after another cost most of a second with 100 parts stored).
+async function suggestions(kind) {
+  const want = new Set(Object.keys(kind.params_schema?.properties || {}));
+  const jobKeys = Object.keys(JOB_SUGGESTIONS).filter((k) => want.has(k));
+  const [parts, jobs, machines, programs] = await Promise.all([
+    want.has("part_id") || want.has("trace_id") ? get("parts?limit=50") : null,
+    jobKeys.length ? get("jobs?limit=200") : null,
+    want.has("machine_id") ? get("machines").catch(() => null) : null,
+    want.has("program_id") ? get("programs?limit=200").catch(() => null) : null]);
+  const out = {};
+  if (parts) out.part_id = parts.items.map((p) => [p.id, p.name]);
+  if (parts && want.has("trace_id")) {
+    const shown = parts.items.slice(0, 20);
+    const traceLists = await Promise.all(shown.map((p) => get(`parts/${p.id}/traces?limit=200`)));
+    out.trace_id = shown.flatMap((p, i) => traceLists[i].items.map((t) => [t.id, `${t.name} on ${p.name}`]));
+  }
+  for (const key of jobKeys) {
+    out[key] = jobs.items.filter((j) => j.kind === JOB_SUGGESTIONS[key] && j.status === "succeeded")
+      .map((j) => [j.id, `${j.kind} ${fmt.time(j.created_at)}`]);
+  }
   if (machines) out.machine_id = machines.items.map((m) => [m.id, m.name]);
-  out.closed_loop_job_id = byKind("closed_loop");
   if (programs) out.program_id = programs.items.map((p) => [p.id, `${p.name} (${p.lines} lines)`]);
   return out;
 }
@@ -48,7 +59,7 @@ async function buildForm(prefill = {}) {
   const kind = kinds.find((k) => k.name === kindSelect.value);
   if (!kind) return;
   kindDescription.textContent = kind.description || "";
-  const hints = await suggestions().catch(() => ({}));
+  const hints = await suggestions(kind).catch(() => ({}));
   current = schemaForm(kind.params_schema, { suggestions: hints, prefill });
   formBody.replaceChildren(current.node);
   formBody.dataset.kind = kind.name;
@@ -59,6 +70,7 @@ async function loadKinds() {
     kinds = await get("job-kinds");
     const wanted = query("kind");
     kindSelect.replaceChildren(...kinds.map((k) => el("option", { value: k.name, selected: k.name === wanted }, k.name)));
+    filterKind.replaceChildren(el("option", { value: "" }, "any kind"), ...kinds.map((k) => el("option", { value: k.name }, k.name)));
     const prefill = Object.fromEntries([...new URLSearchParams(location.search)].filter(([k]) => k !== "kind"));
     await buildForm(prefill);
   });
@@ -136,7 +148,6 @@ async function loadFilterChoices() {
     const [parts, machines] = await Promise.all([get("parts?limit=200"), get("machines").catch(() => ({ items: [] }))]);
     filterPart.replaceChildren(el("option", { value: "" }, "any part"), ...parts.items.map((p) => el("option", { value: p.id }, p.name)));
     filterMachine.replaceChildren(el("option", { value: "" }, "any machine"), ...machines.items.map((m) => el("option", { value: m.id }, m.name)));
-    filterKind.replaceChildren(el("option", { value: "" }, "any kind"), ...kinds.map((k) => el("option", { value: k.name }, k.name)));
     if (query("part_id")) filterPart.value = query("part_id");
     if (query("machine_id")) filterMachine.value = query("machine_id");
   });
@@ -312,9 +323,10 @@ async function openJob(jobId) {
   });
 }
 
-document.addEventListener("conforma:key", async () => { await loadKinds(); await loadFilterChoices(); await refresh(); });
-await loadKinds();
-await loadFilterChoices();
-await refresh();
+// The form (job kinds + suggestions) and the history (filters, then the page of jobs the
+// filters select) load side by side: one after the other they cost twice the time.
+const loadAll = () => Promise.all([loadKinds(), loadFilterChoices().then(refresh)]);
+document.addEventListener("conforma:key", loadAll);
+await loadAll();
 if (query("job")) await openJob(query("job"));
 markReady();

@@ -90,15 +90,20 @@ function card(m) {
 
 // Manual control: home, jog by a chosen step, one console line with the firmware's reply,
 // and removing the machine.  The server refuses all of it while a program holds the machine.
+// The machine's manual actions go out one after another, in the order they were clicked (two
+// quick clicks, Home then X+, must not reach the server as X+ then Home); STOP is not one of
+// them and never waits.
 function manualControls(m) {
+  let last = Promise.resolve();
+  const inOrder = (label, action) => { last = last.then(() => guarded(label, action)); return last; };
   const step = el("select", { class: "jog-step", "aria-label": `jog step for ${m.name}` },
     ["0.1", "1", "10"].map((v) => el("option", { value: v, selected: v === "1" }, `${v} mm`)));
   const jog = (axis, sign) => el("button", { type: "button", class: `jog jog-${axis}${sign > 0 ? "p" : "m"}`,
     "aria-label": `jog ${axis.toUpperCase()} ${sign > 0 ? "+" : "-"}`,
-    onclick: () => guarded(`Jog ${m.name}`, async () => {
+    onclick: () => inOrder(`Jog ${m.name}`, async () => {
       update(await post(`machines/${m.id}/jog`, { [`d${axis}_mm`]: sign * Number(step.value) }));
     }) }, `${axis.toUpperCase()}${sign > 0 ? "+" : "−"}`);
-  const home = el("button", { type: "button", class: "act-home", onclick: () => guarded(`Home ${m.name}`, async () => {
+  const home = el("button", { type: "button", class: "act-home", onclick: () => inOrder(`Home ${m.name}`, async () => {
     if (!window.confirm(`Home ${m.name}? Every axis moves to its end stops.`)) return;
     update(await post(`machines/${m.id}/home`));
   }) }, "Home");
@@ -108,7 +113,7 @@ function manualControls(m) {
     e.preventDefault();
     const command = line.value.trim();
     if (!command) return;
-    guarded(`Console ${m.name}`, async () => {
+    inOrder(`Console ${m.name}`, async () => {
       const answer = await post(`machines/${m.id}/command`, { command });
       log.textContent = `${log.textContent}> ${answer.command}\n${answer.reply.join("\n")}\n`.split("\n").slice(-40).join("\n");
       line.value = "";

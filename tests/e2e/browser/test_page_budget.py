@@ -56,11 +56,19 @@ def stored_history(served) -> None:
 
 @pytest.mark.parametrize("name", PAGES)
 def test_every_page_is_interactive_within_a_second(page, stored_history, name):
+    """Timed by the browser: from the navigation's start (the HTML requested) to the page's
+    ``conforma:ready`` mark (its first data shown).  The harness's own wall clock (which adds
+    the test driver's round trips to the browser) is printed beside it."""
     timings: list[float] = []
+    harness: list[float] = []
     while len(timings) < 5 and (not timings or min(timings) >= BUDGET_S):   # best of up to five: a shared machine
         start = time.perf_counter()
         page.goto(f"/{name}")
         page.wait_for_selector('body[data-ready="1"]', timeout=30_000)
-        timings.append(time.perf_counter() - start)
-    print(f"{name}: best {min(timings) * 1000:.0f} ms of {[round(t * 1000) for t in timings]}")
+        harness.append(time.perf_counter() - start)
+        ready_ms = page.evaluate("performance.getEntriesByName('conforma:ready')[0]?.startTime ?? null")
+        assert ready_ms is not None, f"{name} marked itself ready without the conforma:ready mark"
+        timings.append(ready_ms / 1000)
+    print(f"{name}: best {min(timings) * 1000:.0f} ms of {[round(t * 1000) for t in timings]} "
+          f"(harness wall clock {[round(t * 1000) for t in harness]} ms)")
     assert min(timings) < BUDGET_S, (name, timings)
