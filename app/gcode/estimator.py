@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from app.errors import InvalidInput
 from app.gcode.reader import ReadOptions, read_program
@@ -75,11 +76,14 @@ class TimeEstimate:
     travel_s: float
     dwell_s: float
     moves: int
-    block_times: np.ndarray
+    block_times: npt.NDArray[np.float64]
     layer_times: tuple[float, ...]
 
 
-def _trapezoid_times(L, vi, vf, vn, a):
+def _trapezoid_times(L: npt.NDArray[np.float64], vi: npt.NDArray[np.float64], vf: npt.NDArray[np.float64], vn: npt.NDArray[np.float64], a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """(N,) times (s) of blocks of length ``L`` (mm) entered at ``vi``, left at ``vf``, with
+    nominal speed ``vn`` (mm/s) and acceleration ``a`` (mm/s^2): trapezoid, or triangle when
+    ``vn`` is out of reach."""
     d_acc = (vn ** 2 - vi ** 2) / (2 * a)
     d_dec = (vn ** 2 - vf ** 2) / (2 * a)
     cruise = L - d_acc - d_dec
@@ -88,12 +92,13 @@ def _trapezoid_times(L, vi, vf, vn, a):
         vp = np.sqrt(np.maximum((2 * a * L + vi ** 2 + vf ** 2) / 2, 0.0))
         vp = np.maximum(vp, np.maximum(vi, vf))
         t_tri = (vp - vi) / a + (vp - vf) / a
-    return np.where(cruise >= 0, t_trap, t_tri)
+    times: npt.NDArray[np.float64] = np.where(cruise >= 0, t_trap, t_tri)
+    return times
 
 
-def estimate_moves(positions: np.ndarray, feed_mm_s: np.ndarray, limits: MachineLimits,
-                   stops: np.ndarray | None = None,
-                   jumps: np.ndarray | None = None) -> np.ndarray:
+def estimate_moves(positions: npt.ArrayLike, feed_mm_s: npt.ArrayLike, limits: MachineLimits,
+                   stops: npt.ArrayLike | None = None,
+                   jumps: npt.ArrayLike | None = None) -> npt.NDArray[np.float64]:
     """Per-move times (s) of the moves between ``positions`` (N+1, 4) [x, y, z, e] mm.
 
     ``feed_mm_s`` (N,) requested feed; ``stops`` (N+1,) bool forces a full stop at a
@@ -148,7 +153,8 @@ def estimate_moves(positions: np.ndarray, feed_mm_s: np.ndarray, limits: Machine
     v = np.sqrt(np.maximum(w, 0.0))
     vi, vf = np.minimum(v[:-1], vn), np.minimum(v[1:], vn)
     t = _trapezoid_times(L, vi, vf, vn, a)
-    return np.where(valid, t, 0.0)
+    times: npt.NDArray[np.float64] = np.where(valid, t, 0.0)
+    return times
 
 
 def _apply_limit_commands(limits: MachineLimits,
