@@ -76,7 +76,8 @@ def _limit_error(i: int, a_pos: float, lim: tuple[float, float], n: npt.NDArray[
                             "a_limits_deg": np.degrees(np.asarray(lim))})
 
 
-def _viterbi(free: npt.NDArray[np.int64], n: npt.NDArray[np.float64], a_pos: npt.NDArray[np.float64], c_pos: npt.NDArray[np.float64],
+def _viterbi(free: npt.NDArray[np.int64], n: npt.NDArray[np.float64], a_pos: npt.NDArray[np.float64],
+             c_pos: npt.NDArray[np.float64],
              lim: tuple[float, float], c_start: float, c_weight: float,
              field: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Branch choice over the points ``free`` (outside pole windows): (A, wrapped C)."""

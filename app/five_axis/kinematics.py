@@ -103,7 +103,8 @@ def rotation_matrices(a_rad: npt.NDArray[np.float64], c_rad: npt.NDArray[np.floa
     return m
 
 
-def workpiece_to_machine(points_mm: npt.NDArray[np.float64], a_rad: npt.NDArray[np.float64], c_rad: npt.NDArray[np.float64],
+def workpiece_to_machine(points_mm: npt.NDArray[np.float64], a_rad: npt.NDArray[np.float64],
+                         c_rad: npt.NDArray[np.float64],
                          pivot_mm: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Map workpiece points (k,3) to machine points (k,3): R (p - o) + o (mm)."""
     r = rotation_matrices(a_rad, c_rad)
@@ -112,7 +113,8 @@ def workpiece_to_machine(points_mm: npt.NDArray[np.float64], a_rad: npt.NDArray[
     return machine
 
 
-def machine_to_workpiece(points_mm: npt.NDArray[np.float64], a_rad: npt.NDArray[np.float64], c_rad: npt.NDArray[np.float64],
+def machine_to_workpiece(points_mm: npt.NDArray[np.float64], a_rad: npt.NDArray[np.float64],
+                         c_rad: npt.NDArray[np.float64],
                          pivot_mm: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Inverse of :func:`workpiece_to_machine`: R^T (m - o) + o, (k,3) -> (k,3) mm."""
     r = rotation_matrices(a_rad, c_rad)

@@ -56,7 +56,8 @@ def linuxcnc_trt_setup(pivot_mm: tuple[float, float, float]) -> list[str]:
             "setp xyzac-trt-kins.z-offset 0"]
 
 
-def linuxcnc_trt_program(tip_mm: npt.NDArray[np.float64], a_deg: npt.NDArray[np.float64], c_deg: npt.NDArray[np.float64],
+def linuxcnc_trt_program(tip_mm: npt.NDArray[np.float64], a_deg: npt.NDArray[np.float64],
+                         c_deg: npt.NDArray[np.float64],
                          durations_s: npt.NDArray[np.float64], feed_mode: FeedMode, nominal_feed_mm_min: float,
                          style: ProgramStyle, header: list[str],
                          pivot_mm: tuple[float, float, float]) -> str:

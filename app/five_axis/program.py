@@ -82,7 +82,8 @@ def approach(b: ProgramBuilder, style: ProgramStyle, xyz: npt.NDArray[np.float64
     b.move(x=xyz[0], y=xyz[1], z=xyz[2], feed_mm_min=style.approach_feed_mm_min, **rotary)
 
 
-def dispensed_path(b: ProgramBuilder, xyz_mm: npt.NDArray[np.float64], a_deg: npt.NDArray[np.float64], c_deg: npt.NDArray[np.float64],
+def dispensed_path(b: ProgramBuilder, xyz_mm: npt.NDArray[np.float64], a_deg: npt.NDArray[np.float64],
+                   c_deg: npt.NDArray[np.float64],
                    durations_s: npt.NDArray[np.float64], feed_mode: FeedMode, nominal_feed_mm_min: float,
                    style: ProgramStyle) -> None:
     """Approach pose 0, dispense on, one ``G1 X Y Z A C F`` per later pose (inverse-time or

@@ -80,7 +80,8 @@ class TimeEstimate:
     layer_times: tuple[float, ...]
 
 
-def _trapezoid_times(L: npt.NDArray[np.float64], vi: npt.NDArray[np.float64], vf: npt.NDArray[np.float64], vn: npt.NDArray[np.float64], a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+def _trapezoid_times(L: npt.NDArray[np.float64], vi: npt.NDArray[np.float64], vf: npt.NDArray[np.float64],
+                     vn: npt.NDArray[np.float64], a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """(N,) times (s) of blocks of length ``L`` (mm) entered at ``vi``, left at ``vf``, with
     nominal speed ``vn`` (mm/s) and acceleration ``a`` (mm/s^2): trapezoid, or triangle when
     ``vn`` is out of reach."""

@@ -180,7 +180,8 @@ class _Reader:
         self.limits: list[tuple[str, dict[str, float]]] = []
         self.text = ""  # the current line, stripped
 
-    def emit(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], motion: int, number: int, extrudes: bool) -> None:
+    def emit(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], motion: int, number: int,
+             extrudes: bool) -> None:
         """Record a move from ``start`` to ``end`` (4,) mm under the current modal state."""
         s = self.state
         dispense = motion in (FEED, ARC_CW, ARC_CCW) and (s.dispensing or extrudes)
@@ -304,7 +305,8 @@ class _Reader:
             self.emit(start, end, s.motion if s.motion is not None else FEED, number, extrudes)
         s.pos = end
 
-    def arc_points(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], values: dict[str, float], number: int) -> npt.NDArray[np.float64]:
+    def arc_points(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], values: dict[str, float],
+                   number: int) -> npt.NDArray[np.float64]:
         """(k + 1, 4) chord points of an XY arc from ``start`` to ``end`` (helical Z, linear E)."""
         s = self.state
         clockwise = s.motion == ARC_CW
