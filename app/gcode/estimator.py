@@ -39,6 +39,9 @@ class EstimatorError(InvalidInput):
     """Bad machine limits or unparsable G-code numbers."""
 
 
+Axes4 = tuple[float, float, float, float]  # one value per axis X, Y, Z, E
+
+
 @dataclass(frozen=True)
 class MachineLimits:
     """Planner limits (mm, s).  ``max_feed_mm_s`` / ``max_accel_mm_s2`` per axis X, Y, Z, E."""
@@ -47,8 +50,8 @@ class MachineLimits:
     travel_accel_mm_s2: float = 1500.0
     retract_accel_mm_s2: float = 1500.0
     junction_deviation_mm: float = 0.013
-    max_feed_mm_s: tuple[float, float, float, float] = (300.0, 300.0, 10.0, 60.0)
-    max_accel_mm_s2: tuple[float, float, float, float] = (5000.0, 5000.0, 200.0, 5000.0)
+    max_feed_mm_s: Axes4 = (300.0, 300.0, 10.0, 60.0)
+    max_accel_mm_s2: Axes4 = (5000.0, 5000.0, 200.0, 5000.0)
 
     def validate(self) -> None:
         """Raise :class:`EstimatorError` for non-positive limits."""
@@ -158,6 +161,12 @@ def estimate_moves(positions: npt.ArrayLike, feed_mm_s: npt.ArrayLike, limits: M
     return times
 
 
+def _per_axis(current: Axes4, words: dict[str, float]) -> Axes4:
+    """``current`` with the axes an M201/M203 command names (X Y Z E words) replaced."""
+    x, y, z, e = (words.get(axis, value) for axis, value in zip("XYZE", current))
+    return (x, y, z, e)
+
+
 def _apply_limit_commands(limits: MachineLimits,
                           commands: tuple[tuple[str, dict[str, float]], ...]) -> MachineLimits:
     """``limits`` after the program's M201/M203/M204/M205 commands, in order."""
@@ -169,13 +178,10 @@ def _apply_limit_commands(limits: MachineLimits,
                              retract_accel_mm_s2=w.get("R", limits.retract_accel_mm_s2))
         elif code == "M205" and "J" in w:
             limits = replace(limits, junction_deviation_mm=w["J"])
-        elif code in ("M203", "M201"):
-            attr = "max_feed_mm_s" if code == "M203" else "max_accel_mm_s2"
-            cur = list(getattr(limits, attr))
-            for i, ax in enumerate("XYZE"):
-                if ax in w:
-                    cur[i] = w[ax]
-            limits = replace(limits, **{attr: tuple(cur)})  # type: ignore[arg-type]  # attr names a tuple field
+        elif code == "M203":
+            limits = replace(limits, max_feed_mm_s=_per_axis(limits.max_feed_mm_s, w))
+        elif code == "M201":
+            limits = replace(limits, max_accel_mm_s2=_per_axis(limits.max_accel_mm_s2, w))
     return limits
 
 
