@@ -79,20 +79,20 @@ def arc_three_points(start: npt.ArrayLike, mid: npt.ArrayLike, end: npt.ArrayLik
     return arc_center(p1, p3, center, clockwise=cross < 0)
 
 
-def bulge_arc(start: npt.ArrayLike, end: npt.ArrayLike, bulge: float) -> NurbsCurve:
-    """DXF bulge segment start -> end: bulge = tan(sweep / 4), positive CCW; 0 is a line."""
-    p0, p1 = np.asarray(start, float), np.asarray(end, float)
+def bulge_arc(p0: npt.ArrayLike, p1: npt.ArrayLike, bulge: float) -> NurbsCurve:
+    """DXF bulge segment p0 -> p1 (2,) mm: bulge = tan(sweep / 4), positive CCW; 0 is a line."""
+    a, b = np.asarray(p0, float), np.asarray(p1, float)
     if abs(bulge) < 1e-15:
-        return line(p0, p1)
+        return line(a, b)
     sweep = 4.0 * float(np.arctan(bulge))
-    chord = p1 - p0
+    chord = b - a
     c = float(np.linalg.norm(chord))
     r = c / (2.0 * abs(np.sin(sweep / 2)))
-    mid = 0.5 * (p0 + p1)
+    mid = 0.5 * (a + b)
     normal = np.array([-chord[1], chord[0]]) / c   # left of the chord
     h = r * np.cos(sweep / 2)                      # centre distance from the chord midpoint
     center = mid + np.sign(bulge) * h * normal    # h < 0 for sweeps over 180 degrees: the other side
-    a0 = float(np.arctan2(*(p0 - center)[::-1]))
+    a0 = float(np.arctan2(*(a - center)[::-1]))
     return arc_ccw(center, r, a0, sweep)
 
 
