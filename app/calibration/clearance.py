@@ -20,9 +20,9 @@ from __future__ import annotations
 from collections.abc import Callable
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from app.calibration.errors import CalibrationError
 
@@ -38,10 +38,11 @@ class Clearance:
     min_mm: float
     index: int
     point_mm: tuple[float, float, float]
-    per_point_mm: np.ndarray
+    per_point_mm: npt.NDArray[np.float64]
 
 
-def nozzle_clearance(tips: Any, height_at: Callable[[np.ndarray], np.ndarray], outer_diameter_mm: float, *,
+def nozzle_clearance(tips: npt.ArrayLike, height_at: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]],
+                     outer_diameter_mm: float, *,
                      rings: int = 3, per_ring: int = 16) -> Clearance:
     """Clearance of the nozzle body at tip positions (n, 3) mm over the surface ``height_at``.
 
@@ -91,8 +92,9 @@ def nozzle_clearance(tips: Any, height_at: Callable[[np.ndarray], np.ndarray], o
                      per_point_mm=per_point)
 
 
-def _climb(height_at: Callable[[np.ndarray], np.ndarray], centres: np.ndarray, xy: np.ndarray, top: np.ndarray,
-           radius: float, step: float, iterations: int = 14) -> tuple[np.ndarray, np.ndarray]:
+def _climb(height_at: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], centres: npt.NDArray[np.float64],
+           xy: npt.NDArray[np.float64], top: npt.NDArray[np.float64],
+           radius: float, step: float, iterations: int = 14) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Compass search for each disc's highest point from its best sample, kept inside the disc."""
     n = len(xy)
     compass = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [1, -1], [-1, 1], [-1, -1]]) / np.array(
@@ -112,7 +114,8 @@ def _climb(height_at: Callable[[np.ndarray], np.ndarray], centres: np.ndarray, x
     return xy, top
 
 
-def _heights(height_at: Callable[[np.ndarray], np.ndarray], xy: np.ndarray, n: int) -> np.ndarray:
+def _heights(height_at: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], xy: npt.NDArray[np.float64],
+             n: int) -> npt.NDArray[np.float64]:
     flat = xy.reshape(-1, 2)
     z = np.asarray(height_at(flat), dtype=float).reshape(-1)
     if z.shape != (len(flat),):

@@ -19,9 +19,9 @@ nominal surface plus a reconstructed deviation field, so the caller can iterate.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from app.calibration.errors import CalibrationError
 from app.calibration.model import ProbeCalibration, as_normals
@@ -39,12 +39,12 @@ class SurfaceReadings:
     touched the surface (mm).  correction_mm (n,): z_mm - reading z (mm, to add to a reading).
     """
 
-    z_mm: np.ndarray
-    contact_mm: np.ndarray
-    correction_mm: np.ndarray
+    z_mm: npt.NDArray[np.float64]
+    contact_mm: npt.NDArray[np.float64]
+    correction_mm: npt.NDArray[np.float64]
 
 
-def _readings(readings: Any) -> np.ndarray:
+def _readings(readings: npt.ArrayLike) -> npt.NDArray[np.float64]:
     arr = np.asarray(readings, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise CalibrationError("readings must have shape (n, 3) (mm)", field="readings", value=list(arr.shape))
@@ -55,7 +55,8 @@ def _readings(readings: Any) -> np.ndarray:
     return arr
 
 
-def surface_heights(readings: Any, normals: Any, probe: ProbeCalibration | None, *, radius: bool = True,
+def surface_heights(readings: npt.ArrayLike, normals: npt.ArrayLike, probe: ProbeCalibration | None, *,
+                    radius: bool = True,
                     pretravel: bool = True) -> SurfaceReadings:
     """Station-equivalent heights of vertical readings (n, 3) mm with outward normals (n, 3).
 
@@ -82,7 +83,7 @@ def surface_heights(readings: Any, normals: Any, probe: ProbeCalibration | None,
     return SurfaceReadings(z_mm=p[:, 2] + correction, contact_mm=centre - r * n, correction_mm=correction)
 
 
-def tilted_normals(nominal_normals: Any, deviation_gradient: Any) -> np.ndarray:
+def tilted_normals(nominal_normals: npt.ArrayLike, deviation_gradient: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Unit normals (n, 3) of the nominal surface plus a deviation field.
 
     nominal_normals (n, 3): outward normals of the nominal surface (n_z > 0).
@@ -105,4 +106,5 @@ def tilted_normals(nominal_normals: Any, deviation_gradient: Any) -> np.ndarray:
     gx = -n[:, 0] / n[:, 2] + g[:, 0]
     gy = -n[:, 1] / n[:, 2] + g[:, 1]
     out = np.stack([-gx, -gy, np.ones(len(n))], axis=1)
-    return out / np.linalg.norm(out, axis=1)[:, None]
+    unit: npt.NDArray[np.float64] = out / np.linalg.norm(out, axis=1)[:, None]
+    return unit

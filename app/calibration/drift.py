@@ -23,18 +23,19 @@ so its times are exact for the mock's clock; they feed ``fit_qualification(times
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from app.calibration.errors import CalibrationError
-from app.calibration.model import hops
+from app.calibration.model import Touch, hops
 
 __all__ = ["touch_times", "plan_times", "DriftTrack", "drift_offsets", "retouch_schedule"]
 
 
-def _array(value: Any, name: str, shape_tail: tuple[int, ...] = ()) -> np.ndarray:
+def _array(value: npt.ArrayLike, name: str, shape_tail: tuple[int, ...] = ()) -> npt.NDArray[np.float64]:
     arr = np.asarray(value, dtype=float)
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
         want = "(n" + "".join(f", {k}" for k in shape_tail) + ")"
@@ -44,8 +45,9 @@ def _array(value: Any, name: str, shape_tail: tuple[int, ...] = ()) -> np.ndarra
     return arr
 
 
-def touch_times(points: Any, safe_z: Any, target_z: Any, travel_feed: float, probe_feed: float,
-                start_mm: Any) -> np.ndarray:
+def touch_times(points: npt.ArrayLike, safe_z: npt.ArrayLike, target_z: npt.ArrayLike, travel_feed: float,
+                probe_feed: float,
+                start_mm: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Machine seconds (n,) from ``start_mm`` (3,) to each touch's trigger.
 
     points (n, 3): stations with their expected contact z (mm).  safe_z (n,), target_z (n,):
@@ -80,8 +82,9 @@ def touch_times(points: Any, safe_z: Any, target_z: Any, travel_feed: float, pro
     return out
 
 
-def plan_times(touches: Any, readings: Any, *, travel_z: float, travel_feed: float, probe_feed: float,
-               start_mm: Any) -> np.ndarray:
+def plan_times(touches: Iterable[Touch], readings: npt.ArrayLike, *, travel_z: float, travel_feed: float,
+               probe_feed: float,
+               start_mm: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Machine seconds (n,) from ``start_mm`` (3,) to each planned touch's trigger.
 
     touches: ``Touch`` (n); readings (n, 3) mm, the carriage at each trigger.  Per touch, from
@@ -141,7 +144,7 @@ class DriftTrack:
         return {"times_s": list(self.times_s), "pad_z_mm": list(self.pad_z_mm)}
 
 
-def drift_offsets(track: DriftTrack, times_s: Any, reference_z_mm: float) -> np.ndarray:
+def drift_offsets(track: DriftTrack, times_s: npt.ArrayLike, reference_z_mm: float) -> npt.NDArray[np.float64]:
     """Offsets (n,) mm to ADD to readings taken at ``times_s`` (n,) machine seconds.
 
     reference_z_mm: the pad reading that means "no drift" (the first re-touch of the run, or
@@ -153,7 +156,7 @@ def drift_offsets(track: DriftTrack, times_s: Any, reference_z_mm: float) -> np.
     return float(reference_z_mm) - np.interp(t, track.times_s, track.pad_z_mm)
 
 
-def retouch_schedule(times_s: Any, interval_s: float) -> list[int]:
+def retouch_schedule(times_s: npt.ArrayLike, interval_s: float) -> list[int]:
     """Indices before which the pad is (re-)touched: 0, then every touch whose time is more than
     ``interval_s`` after the previous pad touch, and n (= after the last touch)."""
     t = _array(times_s, "times_s")

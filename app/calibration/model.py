@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from app.calibration.errors import CalibrationError
 
@@ -54,7 +55,7 @@ def _get(d: Mapping[str, Any], key: str, where: str) -> Any:
     return d[key]
 
 
-def as_normals(normals: Any, name: str = "normals") -> np.ndarray:
+def as_normals(normals: npt.ArrayLike, name: str = "normals") -> npt.NDArray[np.float64]:
     """Validate and normalise outward normals: (n, 3) finite, non-zero -> (n, 3) unit vectors."""
     arr = np.asarray(normals, dtype=float)
     if arr.ndim == 1 and arr.shape == (3,):
@@ -66,7 +67,8 @@ def as_normals(normals: Any, name: str = "normals") -> np.ndarray:
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise CalibrationError(f"{name}[{i}] is not a finite non-zero vector", field=f"{name}[{i}]", value=arr[i])
-    return arr / length[:, None]
+    unit: npt.NDArray[np.float64] = arr / length[:, None]
+    return unit
 
 
 @dataclass(frozen=True)
@@ -77,12 +79,14 @@ class PretravelModel:
     cos3_mm: float = 0.0
     sin3_mm: float = 0.0
 
-    def at(self, normals: Any) -> np.ndarray:
+    def at(self, normals: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Pre-travel (n,) mm at outward contact normals (n, 3) (normalised here)."""
         n = as_normals(normals)
         rho = np.hypot(n[:, 0], n[:, 1])                       # sin(theta)
         phi = np.arctan2(n[:, 1], n[:, 0])
-        return self.p0_mm + rho * (self.cos3_mm * np.cos(3 * phi) + self.sin3_mm * np.sin(3 * phi))
+        lobes = self.cos3_mm * np.cos(3 * phi) + self.sin3_mm * np.sin(3 * phi)
+        pretravel: npt.NDArray[np.float64] = self.p0_mm + rho * lobes
+        return pretravel
 
     @property
     def lobing_mm(self) -> float:
@@ -207,10 +211,11 @@ class Touch:
                                    value=self.target_mm)
 
     @property
-    def direction(self) -> np.ndarray:
+    def direction(self) -> npt.NDArray[np.float64]:
         """Unit move direction (3,) = unit(target - start)."""
         d = np.subtract(self.target_mm, self.start_mm)
-        return d / np.linalg.norm(d)
+        unit: npt.NDArray[np.float64] = d / np.linalg.norm(d)
+        return unit
 
     def to_dict(self) -> dict[str, Any]:
         return {"start_mm": list(self.start_mm), "target_mm": list(self.target_mm), "kind": self.kind,

@@ -45,9 +45,10 @@ the std of p0 - r from the qualification's covariance).
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Iterable
 
 import numpy as np
+import numpy.typing as npt
 
 from app.calibration.errors import CalibrationError
 from app.calibration.model import NozzleCalibration, ProbeCalibration, Touch, _vec3
@@ -73,7 +74,7 @@ def pad_grid(count: int) -> tuple[int, int]:
     return cols, math.ceil(count / cols)
 
 
-def _pad_spots(pad: np.ndarray, count: int) -> list[tuple[float, float]]:
+def _pad_spots(pad: npt.NDArray[np.float64], count: int) -> list[tuple[float, float]]:
     """``count`` spots on a 2-D grid centred on the pad, row by row in serpentine order."""
     cols, rows = pad_grid(count)
     spots = []
@@ -81,12 +82,13 @@ def _pad_spots(pad: np.ndarray, count: int) -> list[tuple[float, float]]:
         row, col = divmod(k, cols)
         if row % 2:
             col = cols - 1 - col
-        spots.append((pad[0] + (col - (cols - 1) / 2) * PAD_SPACING_MM, pad[1] + (row - (rows - 1) / 2) * PAD_SPACING_MM))
+        spots.append((pad[0] + (col - (cols - 1) / 2) * PAD_SPACING_MM,
+                     pad[1] + (row - (rows - 1) / 2) * PAD_SPACING_MM))
     return spots
 
 
-def plan_nozzle_calibration(probe: ProbeCalibration, nominal_offset_mm: Any, outer_diameter_mm: float,
-                            sphere_diameter_mm: float, pad_centre_mm: Any, *, pad_touches: int = 3,
+def plan_nozzle_calibration(probe: ProbeCalibration, nominal_offset_mm: npt.ArrayLike, outer_diameter_mm: float,
+                            sphere_diameter_mm: float, pad_centre_mm: npt.ArrayLike, *, pad_touches: int = 3,
                             side_touches: int = 2, clearance_mm: float = 2.0,
                             pad_z_mm: float | None = None) -> tuple[Touch, ...]:
     """Touches in carriage coordinates (mm): the pad spots in four blocks, "pad" (probe T0) on
@@ -154,7 +156,7 @@ def _side_of(t: Touch) -> str:
     return ("+" if d[axis] < 0 else "-") + "xy"[axis]
 
 
-def _pooled_var(groups: list[np.ndarray]) -> float:
+def _pooled_var(groups: list[npt.NDArray[np.float64]]) -> float:
     """Pooled variance of repeated readings (0 when no group has a repeat)."""
     dof = sum(len(g) - 1 for g in groups)
     if dof <= 0:
@@ -162,7 +164,8 @@ def _pooled_var(groups: list[np.ndarray]) -> float:
     return float(sum(((g - g.mean()) ** 2).sum() for g in groups) / dof)
 
 
-def fit_nozzle_offset(tool: int, touches: Any, readings: Any, probe: ProbeCalibration, outer_diameter_mm: float,
+def fit_nozzle_offset(tool: int, touches: Iterable[Touch], readings: npt.ArrayLike, probe: ProbeCalibration,
+                      outer_diameter_mm: float,
                       sphere_diameter_mm: float) -> NozzleCalibration:
     """The nozzle's offset o (tip = carriage + o) from a ``plan_nozzle_calibration`` run (mm).
 

@@ -47,9 +47,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from app.calibration.errors import CalibrationError
@@ -71,8 +71,8 @@ def _positive(value: float, name: str, *, zero_ok: bool = False) -> float:
     return v
 
 
-def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_radius_mm: float,
-                       pad_centre_mm: Any | None, *, cap_rings_deg: Sequence[float] = (0, 20, 35, 50, 60),
+def plan_qualification(sphere_centre_mm: npt.ArrayLike, sphere_diameter_mm: float, ball_radius_mm: float,
+                       pad_centre_mm: npt.ArrayLike | None, *, cap_rings_deg: Sequence[float] = (0, 20, 35, 50, 60),
                        per_ring: int = 8, equator: int = 16, pad_touches: int = 3, approach_mm: float = 1.0,
                        overtravel_mm: float = 1.0, place_tolerance_mm: float = 0.5) -> tuple[Touch, ...]:
     """Touches in machine coordinates (mm): the pad, caps up the rings (even azimuths), the
@@ -136,7 +136,7 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
         rho = rho_s * math.sin(math.radians(ring_deg))
         mid = max(rho * math.cos(math.pi * stride / count) - u, 0.0)
         start_z = (top if rho <= u else c[2] + math.sqrt(max(rho_s ** 2 - (rho - u) ** 2, 0.0))) + u + approach
-        return start_z - (c[2] + u + math.sqrt(max(rho_s ** 2 - mid ** 2, 0.0))) >= approach / 2
+        return bool(start_z - (c[2] + u + math.sqrt(max(rho_s ** 2 - mid ** 2, 0.0))) >= approach / 2)
 
     def ring_pass(ring: list[Touch], ring_deg: float, half: int) -> list[Touch]:
         """Every other station of the ring, from station ``half`` (0 or 1)."""
@@ -159,7 +159,8 @@ def plan_qualification(sphere_centre_mm: Any, sphere_diameter_mm: float, ball_ra
     return tuple(touches)
 
 
-def check_readings(touches: Sequence[Touch], readings: Any, *, project: bool = True) -> np.ndarray:
+def check_readings(touches: Sequence[Touch], readings: npt.ArrayLike, *,
+                   project: bool = True) -> npt.NDArray[np.float64]:
     """Validate readings (n, 3) against their touches: finite, on the move's line, between start and target.
 
     Returns them projected onto their moves' lines (``project``): the carriage moves along the
@@ -188,7 +189,9 @@ def check_readings(touches: Sequence[Touch], readings: Any, *, project: bool = T
                      for t, q in zip(touches, p, strict=True)])
 
 
-def _normals_delta(p: np.ndarray, d: np.ndarray, c: np.ndarray, model: np.ndarray, lobing: bool):
+def _normals_delta(p: npt.NDArray[np.float64], d: npt.NDArray[np.float64], c: npt.NDArray[np.float64],
+                   model: npt.NDArray[np.float64], lobing: bool
+                   ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Contact normals (m, 3) and pre-travel (m,) by fixed-point iteration n = unit(P - delta(n) d - c)."""
     delta = np.full(len(p), model[0])
     for _ in range(4 if lobing else 1):
@@ -201,9 +204,9 @@ def _normals_delta(p: np.ndarray, d: np.ndarray, c: np.ndarray, model: np.ndarra
     return n, delta
 
 
-def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_mm: float, *,
+def fit_qualification(touches: Sequence[Touch], readings: npt.ArrayLike, sphere_diameter_mm: float, *,
                       lobing: bool = True, outlier_mm: float = OUTLIER_MM,
-                      times_s: Any | None = None) -> ProbeCalibration:
+                      times_s: npt.ArrayLike | None = None) -> ProbeCalibration:
     """Fit ball radius, pre-travel (and lobing) and the sphere centre from cap / equator / pad readings.
 
     touches: the plan (``plan_qualification`` or any vertical caps at >= 2 polar angles plus
@@ -242,7 +245,7 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
                                " mm off the sphere the other readings describe", field=f"readings[{i}]",
                                value=p_all[i])
 
-    def residuals(x: np.ndarray) -> np.ndarray:
+    def residuals(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         c, r = x[:3], x[3]
         model = x[4:7] if lobing else np.array([x[4], 0.0, 0.0])
         q = p
@@ -254,7 +257,8 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
         res = (np.linalg.norm(q - delta[:, None] * d - c, axis=1) - (big_r + r)) / np.abs((n * d).sum(axis=1))
         if t_rel is not None:
             res = np.concatenate([res, p_all[pad, 2] + x[-2] * t_rel[pad] - x[-1]])
-        return res
+        out: npt.NDArray[np.float64] = res
+        return out
 
     x0 = np.concatenate([c0, [rho0 - big_r, 0.0], [0.0, 0.0] if lobing else []])
     if drift:
@@ -268,8 +272,8 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
     worst = int(np.argmax(np.abs(robust.fun)))
     if abs(robust.fun[worst]) > outlier_mm:
         i = int(used[worst])
-        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm (along its move) "
-                               "off what the other readings describe (a bad touch: dust or a bounce?)",
+        raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm "
+                               "(along its move) off what the other readings describe (a bad touch: dust or a bounce?)",
                                field=f"readings[{i}]", value=p_all[i])
     fit = least_squares(residuals, robust.x, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * n_par)
     res = fit.fun
@@ -303,7 +307,7 @@ def fit_qualification(touches: Sequence[Touch], readings: Any, sphere_diameter_m
                             touches=len(sphere) + len(pad), drift_mm_per_min=rate)
 
 
-def _times(times_s: Any | None, n: int) -> np.ndarray | None:
+def _times(times_s: npt.ArrayLike | None, n: int) -> npt.NDArray[np.float64] | None:
     """Touch times relative to the first (n,) s, or None."""
     if times_s is None:
         return None
@@ -311,4 +315,5 @@ def _times(times_s: Any | None, n: int) -> np.ndarray | None:
     if t.shape != (n,) or not np.isfinite(t).all():
         raise CalibrationError(f"times_s must be {n} finite machine times (s), one per touch", field="times_s",
                                value=list(t.shape))
-    return t - t[0]
+    relative: npt.NDArray[np.float64] = t - t[0]
+    return relative

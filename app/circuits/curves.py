@@ -5,6 +5,7 @@ curve exactly)."""
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.shapes import arc_curve
@@ -15,12 +16,12 @@ __all__ = ["line", "polyline", "arc_ccw", "arc_center", "arc_three_points", "bul
 _EPS = 1e-12
 
 
-def line(p0, p1) -> NurbsCurve:
+def line(p0: npt.ArrayLike, p1: npt.ArrayLike) -> NurbsCurve:
     """Straight segment p0 -> p1 (2,) mm, degree 1 on [0, 1]."""
     return NurbsCurve(1, np.array([0.0, 0.0, 1.0, 1.0]), np.vstack([p0, p1]).astype(float), None)
 
 
-def polyline(points) -> NurbsCurve:
+def polyline(points: npt.ArrayLike) -> NurbsCurve:
     """Degree-1 curve through points (k, 2) mm (consecutive duplicates dropped), chord-length knots."""
     pts = np.asarray(points, float)
     keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
@@ -38,7 +39,7 @@ def reversed_curve(curve: NurbsCurve) -> NurbsCurve:
     return NurbsCurve(curve.degree, knots, curve.control_points[::-1], curve.w[::-1])
 
 
-def arc_ccw(center, radius: float, start_rad: float, sweep_rad: float) -> NurbsCurve:
+def arc_ccw(center: npt.ArrayLike, radius: float, start_rad: float, sweep_rad: float) -> NurbsCurve:
     """Circular arc with a signed sweep (positive CCW, negative CW), |sweep| in (0, 2*pi]."""
     if sweep_rad > 0:
         return arc_curve(np.asarray(center, float), float(radius), float(start_rad), float(sweep_rad))
@@ -46,23 +47,23 @@ def arc_ccw(center, radius: float, start_rad: float, sweep_rad: float) -> NurbsC
     return reversed_curve(arc_curve(np.asarray(center, float), float(radius), float(end), float(-sweep_rad)))
 
 
-def arc_center(start, end, center, clockwise: bool) -> NurbsCurve:
+def arc_center(start: npt.ArrayLike, end: npt.ArrayLike, center: npt.ArrayLike, clockwise: bool) -> NurbsCurve:
     """Arc from ``start`` to ``end`` around ``center`` (absolute, mm); start == end is a full circle.
     The radius is the start's distance (an inconsistent end is reached by the angle only)."""
-    start, end, center = (np.asarray(v, float) for v in (start, end, center))
-    r = float(np.linalg.norm(start - center))
-    a0 = np.arctan2(*(start - center)[::-1])
-    a1 = np.arctan2(*(end - center)[::-1])
+    p0, p1, c = (np.asarray(v, float) for v in (start, end, center))
+    r = float(np.linalg.norm(p0 - c))
+    a0 = float(np.arctan2(*(p0 - c)[::-1]))
+    a1 = float(np.arctan2(*(p1 - c)[::-1]))
     ccw = (a1 - a0) % (2 * np.pi)
-    if np.linalg.norm(end - start) <= 1e-9 * max(r, 1.0):
+    if np.linalg.norm(p1 - p0) <= 1e-9 * max(r, 1.0):
         ccw = 2 * np.pi
     sweep = -((2 * np.pi - ccw) if ccw < 2 * np.pi else 2 * np.pi) if clockwise else ccw
     if clockwise and ccw == 2 * np.pi:
         sweep = -2 * np.pi
-    return arc_ccw(center, r, a0, sweep)
+    return arc_ccw(c, r, a0, sweep)
 
 
-def arc_three_points(start, mid, end) -> NurbsCurve:
+def arc_three_points(start: npt.ArrayLike, mid: npt.ArrayLike, end: npt.ArrayLike) -> NurbsCurve:
     """The circular arc through start, mid, end (KiCad's form); a straight line if collinear."""
     p1, p2, p3 = (np.asarray(v, float) for v in (start, mid, end))
     d = 2.0 * ((p1[0] - p3[0]) * (p2[1] - p3[1]) - (p2[0] - p3[0]) * (p1[1] - p3[1]))
@@ -78,24 +79,24 @@ def arc_three_points(start, mid, end) -> NurbsCurve:
     return arc_center(p1, p3, center, clockwise=cross < 0)
 
 
-def bulge_arc(p0, p1, bulge: float) -> NurbsCurve:
-    """DXF bulge segment p0 -> p1: bulge = tan(sweep / 4), positive CCW; 0 is a line."""
-    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+def bulge_arc(p0: npt.ArrayLike, p1: npt.ArrayLike, bulge: float) -> NurbsCurve:
+    """DXF bulge segment p0 -> p1 (2,) mm: bulge = tan(sweep / 4), positive CCW; 0 is a line."""
+    a, b = np.asarray(p0, float), np.asarray(p1, float)
     if abs(bulge) < 1e-15:
-        return line(p0, p1)
-    sweep = 4.0 * np.arctan(bulge)
-    chord = p1 - p0
+        return line(a, b)
+    sweep = 4.0 * float(np.arctan(bulge))
+    chord = b - a
     c = float(np.linalg.norm(chord))
     r = c / (2.0 * abs(np.sin(sweep / 2)))
-    mid = 0.5 * (p0 + p1)
+    mid = 0.5 * (a + b)
     normal = np.array([-chord[1], chord[0]]) / c   # left of the chord
     h = r * np.cos(sweep / 2)                      # centre distance from the chord midpoint
     center = mid + np.sign(bulge) * h * normal    # h < 0 for sweeps over 180 degrees: the other side
-    a0 = np.arctan2(*(p0 - center)[::-1])
+    a0 = float(np.arctan2(*(a - center)[::-1]))
     return arc_ccw(center, r, a0, sweep)
 
 
-def transformed(curve: NurbsCurve, matrix: np.ndarray, offset: np.ndarray) -> NurbsCurve:
+def transformed(curve: NurbsCurve, matrix: npt.NDArray[np.float64], offset: npt.NDArray[np.float64]) -> NurbsCurve:
     """The curve under x -> matrix @ x + offset (matrix (2, 2), offset (2,)): exact."""
     pts = curve.control_points @ np.asarray(matrix, float).T + np.asarray(offset, float)
     return NurbsCurve(curve.degree, curve.knots, pts, curve.weights)

@@ -10,9 +10,21 @@ on layer "0" take the layer of the INSERT that places them (DXF's BYBLOCK rule).
 from __future__ import annotations
 
 import io
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
-import ezdxf
+import numpy.typing as npt
+from ezdxf.entities.arc import Arc
+from ezdxf.entities.circle import Circle
+from ezdxf.entities.dxfgfx import DXFGraphic
+from ezdxf.entities.ellipse import Ellipse
+from ezdxf.entities.insert import Insert
+from ezdxf.entities.line import Line
+from ezdxf.entities.lwpolyline import LWPolyline
+from ezdxf.entities.polyline import Polyline
+from ezdxf.entities.spline import Spline
+from ezdxf.filemanagement import read as read_dxf_stream
+from ezdxf.lldxf.const import DXFError
 from ezdxf.math import rational_bspline_from_ellipse
 
 from app.circuits.curves import arc_center, bulge_arc, concatenated, line
@@ -30,11 +42,13 @@ _NAMES = {0: "unitless", 1: "inch", 2: "foot", 4: "mm", 5: "cm", 6: "m", 8: "mic
           13: "micron", 14: "decimetre"}
 
 
-def _xy(v, scale: float) -> np.ndarray:
+def _xy(v: Sequence[float], scale: float) -> npt.NDArray[np.float64]:
+    """The XY of a DXF point, in mm."""
     return np.array([float(v[0]), float(v[1])]) * scale
 
 
-def _width(entity, scale: float) -> float:
+def _width(entity: DXFGraphic, scale: float) -> float:
+    """The entity's drawn width in mm: LWPOLYLINE constant width, else its lineweight (0: none)."""
     const = float(entity.dxf.get("const_width", 0.0) or 0.0) if entity.dxftype() == "LWPOLYLINE" else 0.0
     if const > 0:
         return const * scale
@@ -42,19 +56,21 @@ def _width(entity, scale: float) -> float:
     return lw / 100.0 if lw > 0 else 0.0
 
 
-def _lwpolyline(e, scale: float) -> NurbsCurve | None:
+def _lwpolyline(e: LWPolyline, scale: float) -> NurbsCurve | None:
+    """A light-weight polyline (with bulges) as one exact curve in mm."""
     raw = [(x, y, b) for x, y, *_, b in e.get_points("xyseb")]
     return _bulge_path(e, raw, float(e.dxf.get("elevation", 0.0)), bool(e.closed), scale)
 
 
-def _polyline2d(e, scale: float) -> NurbsCurve | None:
+def _polyline2d(e: Polyline, scale: float) -> NurbsCurve | None:
     """An old-style 2-D POLYLINE (its VERTEX entities with bulges)."""
     raw = [(v.dxf.location[0], v.dxf.location[1], float(v.dxf.get("bulge", 0.0))) for v in e.vertices]
     elevation = float(e.dxf.get("elevation", (0.0, 0.0, 0.0))[2])
     return _bulge_path(e, raw, elevation, bool(e.is_closed), scale)
 
 
-def _bulge_path(e, raw: list, elevation: float, closed: bool, scale: float) -> NurbsCurve | None:
+def _bulge_path(e: LWPolyline | Polyline, raw: list[tuple[float, float, float]], elevation: float, closed: bool,
+                scale: float) -> NurbsCurve | None:
     """Vertices (x, y, bulge) in the entity's OCS -> one exact curve (lines and arcs) in mm."""
     ocs = e.ocs()
     flip = e.dxf.extrusion[2] < 0
@@ -63,7 +79,7 @@ def _bulge_path(e, raw: list, elevation: float, closed: bool, scale: float) -> N
     if closed:
         pts.append(pts[0])
         bulges.append(0.0)
-    pieces = []
+    pieces: list[NurbsCurve] = []
     for i in range(len(pts) - 1):
         if np.linalg.norm(pts[i + 1] - pts[i]) <= 1e-9:
             continue
@@ -71,17 +87,19 @@ def _bulge_path(e, raw: list, elevation: float, closed: bool, scale: float) -> N
     return concatenated(pieces) if pieces else None
 
 
-def _arc(e, scale: float, full: bool) -> NurbsCurve:
+def _arc(e: Circle, scale: float) -> NurbsCurve:
+    """An ARC, or a CIRCLE as a full circle, in mm (a mirrored OCS turns it clockwise)."""
     ocs = e.ocs()
     center = np.array(tuple(ocs.to_wcs(e.dxf.center))[:2], float) * scale
-    if full:
-        start = end = center + [float(e.dxf.radius) * scale * (-1.0 if e.dxf.extrusion[2] < 0 else 1.0), 0.0]
-    else:
+    if isinstance(e, Arc):
         start, end = _xy(e.start_point, scale), _xy(e.end_point, scale)
+    else:
+        start = end = center + [float(e.dxf.radius) * scale * (-1.0 if e.dxf.extrusion[2] < 0 else 1.0), 0.0]
     return arc_center(start, end, center, clockwise=e.dxf.extrusion[2] < 0)
 
 
-def _spline(e, scale: float) -> NurbsCurve:
+def _spline(e: Spline, scale: float) -> NurbsCurve:
+    """A SPLINE (control points, or fit points through ezdxf's interpolation) in mm."""
     if e.control_point_count() == 0:
         tool = e.construction_tool()     # fit points only: ezdxf's interpolating B-spline
         cps, knots, weights, degree = tool.control_points, tool.knots(), tool.weights(), tool.degree
@@ -92,20 +110,22 @@ def _spline(e, scale: float) -> NurbsCurve:
     return NurbsCurve(int(degree), np.asarray(knots, float), pts, w)
 
 
-def _ellipse(e, scale: float) -> NurbsCurve:
+def _ellipse(e: Ellipse, scale: float) -> NurbsCurve:
+    """An ELLIPSE as ezdxf's exact rational B-spline, in mm."""
     spline = rational_bspline_from_ellipse(e.construction_tool())
     pts = np.array([[p[0], p[1]] for p in spline.control_points], float) * scale
     return NurbsCurve(spline.degree, np.asarray(spline.knots(), float), pts, np.asarray(spline.weights(), float))
 
 
-def _entities(layout, parent_layer: str | None = None, path: str = ""):
+def _entities(layout: Iterable[DXFGraphic], parent_layer: str | None = None,
+              path: str = "") -> Iterator[tuple[DXFGraphic, str, str]]:
     """(entity, effective layer, its INSERT path) for every drawable entity, block references
     expanded (nested, each with its transform)."""
     for e in layout:
         layer = e.dxf.get("layer", "0")
         if parent_layer is not None and layer == "0":
             layer = parent_layer
-        if e.dxftype() == "INSERT":
+        if e.dxftype() == "INSERT" and isinstance(e, Insert):
             label = f"{path}INSERT {e.dxf.get('name', '?')} #{e.dxf.get('handle') or '-'} > "
             yield from _entities(e.virtual_entities(), layer, label)
         else:
@@ -118,8 +138,8 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
         raise CircuitFileError("the file ends without its EOF marker: truncated", file=name,
                                where=f"line {len(text.splitlines())}")
     try:
-        doc = ezdxf.read(io.StringIO(text))
-    except (ezdxf.DXFError, ValueError, KeyError, IndexError) as exc:
+        doc = read_dxf_stream(io.StringIO(text))
+    except (DXFError, ValueError, KeyError, IndexError) as exc:
         raise CircuitFileError(f"not a readable DXF: {exc}", file=name) from exc
     code = int(doc.header.get("$INSUNITS", 0))
     if code not in INSUNITS_MM:
@@ -144,22 +164,24 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
         handle = e.dxf.get("handle") or "-"
         entity = f"{path}{kind} #{handle} on layer {layer}"
         try:
-            if kind == "LINE":
+            # the type name picks the reader (a HELIX is a Spline subclass, not read); isinstance types it
+            curve: NurbsCurve | None
+            if kind == "LINE" and isinstance(e, Line):
                 p0, p1 = _xy(e.dxf.start, scale), _xy(e.dxf.end, scale)
                 curve = line(p0, p1) if np.linalg.norm(p1 - p0) > 1e-9 else None
-            elif kind in ("ARC", "CIRCLE"):
-                curve = _arc(e, scale, full=kind == "CIRCLE")
-            elif kind == "LWPOLYLINE":
+            elif kind in ("ARC", "CIRCLE") and isinstance(e, Circle):  # an Arc is a Circle
+                curve = _arc(e, scale)
+            elif kind == "LWPOLYLINE" and isinstance(e, LWPolyline):
                 curve = _lwpolyline(e, scale)
-            elif kind == "POLYLINE" and e.is_2d_polyline:
+            elif kind == "POLYLINE" and isinstance(e, Polyline) and e.is_2d_polyline:
                 curve = _polyline2d(e, scale)
-            elif kind == "SPLINE":
+            elif kind == "SPLINE" and isinstance(e, Spline):
                 curve = _spline(e, scale)
-            elif kind == "ELLIPSE":
+            elif kind == "ELLIPSE" and isinstance(e, Ellipse):
                 curve = _ellipse(e, scale)
             else:
                 continue
-        except (GeometryError, ValueError, ZeroDivisionError, ezdxf.DXFError) as exc:
+        except (GeometryError, ValueError, ZeroDivisionError, DXFError) as exc:
             raise CircuitFileError(f"cannot use this entity: {getattr(exc, 'message', exc)}", file=name,
                                    where=entity) from exc
         if curve is None:

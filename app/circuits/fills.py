@@ -8,13 +8,18 @@ printed as ``ceil(width / line)`` parallel passes centred on the trace.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+import numpy.typing as npt
 from shapely.geometry import LineString, MultiLineString, Polygon
+from shapely.geometry.base import BaseGeometry
 
 __all__ = ["fill_strokes", "pass_offsets", "offset_polyline"]
 
 
-def _lines_of(geom) -> list[np.ndarray]:
+def _lines_of(geom: BaseGeometry) -> list[npt.NDArray[np.float64]]:
+    """The line strings (k, 2) mm of an intersection result (empty for anything else)."""
     if geom.is_empty:
         return []
     if isinstance(geom, LineString):
@@ -24,14 +29,15 @@ def _lines_of(geom) -> list[np.ndarray]:
     return []
 
 
-def fill_strokes(exterior: np.ndarray, holes: list[np.ndarray] | tuple = (), line_width_mm: float = 0.2,
-                 angle_deg: float = 0.0) -> list[np.ndarray]:
+def fill_strokes(exterior: npt.NDArray[np.float64], holes: Sequence[npt.NDArray[np.float64]] = (),
+                 line_width_mm: float = 0.2,
+                 angle_deg: float = 0.0) -> list[npt.NDArray[np.float64]]:
     """Strokes (each (k, 2) mm) that fill the polygon: contours first, then raster lines
     (alternating direction).  A region thinner than one line gets its centre line only."""
     w = float(line_width_mm)
     poly = Polygon(exterior, list(holes)).buffer(0)
     contour_region = poly.buffer(-w / 2, join_style="mitre")
-    strokes: list[np.ndarray] = []
+    strokes: list[npt.NDArray[np.float64]] = []
     if contour_region.is_empty:                    # thinner than a line: one pass along its long axis
         rect = poly.minimum_rotated_rectangle
         c = np.asarray(rect.exterior.coords)[:4]
@@ -63,16 +69,17 @@ def fill_strokes(exterior: np.ndarray, holes: list[np.ndarray] | tuple = (), lin
     return strokes
 
 
-def pass_offsets(width_mm: float, line_width_mm: float) -> np.ndarray:
+def pass_offsets(width_mm: float, line_width_mm: float) -> npt.NDArray[np.float64]:
     """Lateral offsets (n,) mm of the passes of a trace of ``width_mm`` (n = ceil(width / line))."""
     n = max(1, int(np.ceil(width_mm / line_width_mm - 1e-9)))
     if n == 1:
         return np.zeros(1)
     pitch = (width_mm - line_width_mm) / (n - 1)
-    return (np.arange(n) - (n - 1) / 2) * pitch
+    offsets = (np.arange(n, dtype=np.float64) - (n - 1) / 2) * pitch
+    return offsets
 
 
-def offset_polyline(xy: np.ndarray, distance_mm: float) -> np.ndarray:
+def offset_polyline(xy: npt.NDArray[np.float64], distance_mm: float) -> npt.NDArray[np.float64]:
     """The polyline (k, 2) moved sideways by ``distance_mm`` (left positive), vertex by vertex
     along the mitred normal of its neighbouring segments."""
     xy = np.asarray(xy, float)

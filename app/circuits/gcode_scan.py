@@ -27,9 +27,10 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from app.circuits.errors import WarpError
-from app.gcode.lines import read_lines
+from app.gcode.lines import GcodeLine, read_lines
 
 __all__ = ["Records", "scan_program", "scan_lines", "PRINT", "TRAVEL", "ZONLY", "EONLY", "MODE", "OTHER"]
 
@@ -58,12 +59,12 @@ class Records:
     mm (NaN for non-motion lines); feed (n,) mm/min (NaN: none yet); e_abs (n,) bool;
     lines: the source lines (``text.splitlines()``)."""
 
-    kind: np.ndarray
-    line: np.ndarray
-    start: np.ndarray
-    end: np.ndarray
-    feed: np.ndarray
-    e_abs: np.ndarray
+    kind: npt.NDArray[np.int8]
+    line: npt.NDArray[np.int64]
+    start: npt.NDArray[np.float64]
+    end: npt.NDArray[np.float64]
+    feed: npt.NDArray[np.float64]
+    e_abs: npt.NDArray[np.bool_]
     lines: list[str]
 
     def refuse(self, i: int, message: str) -> WarpError:
@@ -72,6 +73,7 @@ class Records:
 
 
 def refuse_line(number: int, text: str, message: str) -> WarpError:
+    """A WarpError naming source line ``number`` (1-based) and its text."""
     return WarpError(f"line {number}: {message}", field="file", value={"line": number, "text": text.strip()[:80]})
 
 
@@ -81,7 +83,8 @@ def scan_program(text: str, arc_chord_mm: float = 0.001) -> Records:
     return fast if fast is not None else scan_lines(text, arc_chord_mm)
 
 
-def _kind(g0: float, start: list, end: list, dispensing: bool) -> int:
+def _kind(g0: float, start: list[float], end: list[float], dispensing: bool) -> int:
+    """The record kind (PRINT ...) of a motion from ``start`` to ``end`` [x, y, z, e]."""
     moved_xy = end[0] != start[0] or end[1] != start[1]
     de = end[3] - start[3]
     if moved_xy and g0 != 0.0 and (de > 0 or dispensing):
@@ -93,7 +96,8 @@ def _kind(g0: float, start: list, end: list, dispensing: bool) -> int:
     return EONLY if de != 0 else OTHER
 
 
-def _arc_points(ln, start: list, end: list, values: dict, scale: float, clockwise: bool,
+def _arc_points(ln: GcodeLine, start: list[float], end: list[float], values: dict[str, float], scale: float,
+                clockwise: bool,
                 arc_chord_mm: float) -> list[list[float]]:
     """End points [x, y, z, e] of the chords of a G2/G3 arc in the XY plane (I, J offsets from
     the start, or R: positive the shorter arc), each chord's sagitta <= ``arc_chord_mm``;
@@ -122,7 +126,7 @@ def _arc_points(ln, start: list, end: list, values: dict, scale: float, clockwis
     sweep = -(2 * math.pi - ccw if ccw < 2 * math.pi else 2 * math.pi) if clockwise else (ccw or 2 * math.pi)
     step = 2 * math.acos(max(-1.0, 1 - arc_chord_mm / radius)) if arc_chord_mm < radius else math.pi / 2
     n = max(1, math.ceil(abs(sweep) / step))
-    out = []
+    out: list[list[float]] = []
     for k in range(1, n + 1):
         t = k / n
         a = a0 + sweep * t
@@ -136,12 +140,17 @@ def scan_lines(text: str, arc_chord_mm: float = 0.001) -> Records:
     """The line-by-line reader (every feature; WarpError names a refused line)."""
     pos = [0.0, 0.0, 0.0, 0.0]
     absolute, e_abs, scale, dispensing, feed, plane = True, True, 1.0, False, math.nan, 17.0
-    kinds, where, starts, ends, feeds, eabs = [], [], [], [], [], []
+    kinds: list[int] = []
+    where: list[int] = []
+    starts: list[list[float]] = []
+    ends: list[list[float]] = []
+    feeds: list[float] = []
+    eabs: list[bool] = []
     nan4 = [math.nan] * 4
     axes = (("X", 0), ("Y", 1), ("Z", 2), ("E", 3))
     parsed = read_lines(text)
 
-    def add(kind: int, number: int, start: list, end: list) -> None:
+    def add(kind: int, number: int, start: list[float], end: list[float]) -> None:
         kinds.append(kind)
         where.append(number - 1)
         starts.append(start)
@@ -191,15 +200,16 @@ def scan_lines(text: str, arc_chord_mm: float = 0.001) -> Records:
                    np.array(feeds, float), np.array(eabs, bool), [ln.text for ln in parsed])
 
 
-def _ffill(values: np.ndarray, is_set: np.ndarray, initial: float) -> np.ndarray:
+def _ffill(values: npt.NDArray[np.float64], is_set: npt.NDArray[np.bool_], initial: float) -> npt.NDArray[np.float64]:
     """values where is_set, else the last set value before (``initial`` before the first)."""
     idx = np.where(is_set, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     return np.where(idx >= 0, values[np.maximum(idx, 0)], initial)
 
 
-def _first_per_line(letter_mask: np.ndarray, tok_line: np.ndarray, tok_val: np.ndarray,
-                    n_lines: int) -> tuple[np.ndarray, np.ndarray]:
+def _first_per_line(letter_mask: npt.NDArray[np.bool_], tok_line: npt.NDArray[np.int64],
+                    tok_val: npt.NDArray[np.float64],
+                    n_lines: int) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
     """(has (n_lines,) bool, first value (n_lines,)) of one letter's words."""
     lines, vals = tok_line[letter_mask], tok_val[letter_mask]
     has, first = np.zeros(n_lines, bool), np.zeros(n_lines)
@@ -208,7 +218,8 @@ def _first_per_line(letter_mask: np.ndarray, tok_line: np.ndarray, tok_val: np.n
     return has, first
 
 
-def _axis(reset: np.ndarray, step: np.ndarray, v: np.ndarray) -> np.ndarray:
+def _axis(reset: npt.NDArray[np.bool_], step: npt.NDArray[np.bool_],
+          v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """One axis's position after each motion line (m,): ``reset`` lines set it to v, ``step``
     lines add v; summed in program order exactly as the line-by-line reader does."""
     if not step.any():
@@ -257,7 +268,8 @@ def _scan_fast(text: str) -> Records | None:
     if np.isin(value[g_tok], (2.0, 3.0, 92.0)).any():
         return None                                         # arcs and G92: the line-by-line reader
     g_count = np.bincount(tok_line[g_tok], minlength=n_lines)
-    has, first = {}, {}
+    has: dict[str, npt.NDArray[np.bool_]] = {}
+    first: dict[str, npt.NDArray[np.float64]] = {}
     for ch in "XYZEFIJ":
         has[ch], first[ch] = _first_per_line(code == ord(ch), tok_line, value, n_lines)
     g_has, g_first = _first_per_line(g_tok, tok_line, value, n_lines)
@@ -307,4 +319,4 @@ def _scan_fast(text: str) -> Records | None:
     feed_line = np.zeros(n_lines, bool)
     feed_line[mv[has["F"][mv]]] = True
     feeds = _ffill(first["F"] * scale, feed_line, math.nan)
-    return Records(kind, np.arange(n_lines), start, end, feeds, e_abs, lines)
+    return Records(kind, np.arange(n_lines, dtype=np.int64), start, end, feeds, e_abs, lines)

@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Callable, Sequence
+from typing import TypeVar
 
 import numpy as np
+import numpy.typing as npt
 from gerbonara import ExcellonFile, GerberFile
 from gerbonara import graphic_objects as go
 from gerbonara import graphic_primitives as gp
@@ -24,15 +27,18 @@ from app.circuits.curves import arc_center, line
 from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, arc_points
 from app.circuits.shapes import CHORD_MM, ring_of, rotate
+from app.geometry.nurbs import NurbsCurve
 
 __all__ = ["read_gerber", "read_excellon"]
 
 _WHERE = re.compile(r'^.*?:(\d+)\s+"(.*?)":\s*(.*)$', re.S)
+_Parsed = TypeVar("_Parsed")  # what a gerbonara loader returns (GerberFile, ExcellonFile): untyped library
+_ArcCentre = tuple[bool, tuple[float, float]] | None  # gerbonara's (clockwise, centre) per outline segment
 _SHAPES = {"CircleAperture": "circle", "RectangleAperture": "rect", "ObroundAperture": "oval",
            "PolygonAperture": "polygon", "ExcellonTool": "circle"}
 
 
-def _parse(loader, text: str, name: str):
+def _parse(loader: Callable[..., _Parsed], text: str, name: str) -> _Parsed:
     """Run a gerbonara parser; its SyntaxErrors name the line; a missing end marker is a truncation."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -54,7 +60,8 @@ def _parse(loader, text: str, name: str):
     return parsed
 
 
-def _primitive_geometry(prim) -> Polygon:
+def _primitive_geometry(prim: gp.GraphicPrimitive) -> Polygon:
+    """A gerbonara primitive (mm) as a shapely polygon (empty for what has no area)."""
     if isinstance(prim, gp.Circle):
         r = prim.r
         return Point(prim.x, prim.y).buffer(r, quad_segs=max(8, int(np.ceil(np.pi / 2 / (2 * np.arccos(
@@ -69,7 +76,8 @@ def _primitive_geometry(prim) -> Polygon:
     return Polygon()
 
 
-def _outline_points(outline, arc_centers) -> np.ndarray:
+def _outline_points(outline: Sequence[tuple[float, float]],
+                    arc_centers: Sequence[_ArcCentre] | None) -> npt.NDArray[np.float64]:
     """A closed outline with optional arc segments, arcs sampled within CHORD_MM."""
     pts = [np.asarray(outline[0], float)]
     for i in range(1, len(outline)):
@@ -86,7 +94,9 @@ def _outline_points(outline, arc_centers) -> np.ndarray:
     return np.array(pts)
 
 
-def _signed_sweep(p0, p1, center, clockwise: bool) -> float:
+def _signed_sweep(p0: npt.NDArray[np.float64], p1: npt.NDArray[np.float64], center: npt.NDArray[np.float64],
+                  clockwise: bool) -> float:
+    """Sweep (rad, negative clockwise) from p0 to p1 around ``center``; equal ends: a full turn."""
     a0 = np.arctan2(*(p0 - center)[::-1])
     a1 = np.arctan2(*(p1 - center)[::-1])
     ccw = (a1 - a0) % (2 * np.pi)
@@ -95,9 +105,10 @@ def _signed_sweep(p0, p1, center, clockwise: bool) -> float:
     return -(2 * np.pi - ccw if ccw < 2 * np.pi else 2 * np.pi) if clockwise else ccw
 
 
-def _flash_pad(obj, source: Source, k: int) -> Pad:
-    dark: list = []
-    clear: list = []
+def _flash_pad(obj: go.Flash, source: Source, k: int) -> Pad:
+    """The pad a flash stamps: its aperture's outline (dark minus clear primitives), mm."""
+    dark: list[Polygon] = []
+    clear: list[Polygon] = []
     for prim in obj.to_primitives(unit=MM):
         (dark if getattr(prim, "polarity_dark", True) else clear).append(_primitive_geometry(prim))
     shape = unary_union(dark)
@@ -111,7 +122,8 @@ def _flash_pad(obj, source: Source, k: int) -> Pad:
     return Pad(kind, center, ring_of(shape), source, f"flash {k}")
 
 
-def _draw_width(obj, name: str, k: int) -> float:
+def _draw_width(obj: go.Line | go.Arc, name: str, k: int) -> float:
+    """The width (mm) a draw's circular aperture gives its line."""
     try:
         return float(obj.aperture.equivalent_width(MM))
     except ValueError as exc:
@@ -120,7 +132,8 @@ def _draw_width(obj, name: str, k: int) -> float:
                                where=f"draw {k}, aperture D{obj.aperture.original_number}") from exc
 
 
-def _draw_curve(obj):
+def _draw_curve(obj: go.Line | go.Arc) -> NurbsCurve | None:
+    """A draw as an exact curve in mm, None for a zero-length line."""
     o = obj.converted(MM)
     p0, p1 = np.array([o.x1, o.y1]), np.array([o.x2, o.y2])
     if isinstance(o, go.Arc):
@@ -130,7 +143,7 @@ def _draw_curve(obj):
     return line(p0, p1)
 
 
-def _net(obj) -> str:
+def _net(obj: go.GraphicObject) -> str:
     """The Gerber X2 net name (%TO.N%) of an object, "" when absent."""
     value = (getattr(obj, "attrs", None) or {}).get(".N")
     if isinstance(value, (list, tuple)):
@@ -138,7 +151,8 @@ def _net(obj) -> str:
     return str(value or "")
 
 
-def _layer_name(gerber, name: str) -> str:
+def _layer_name(gerber: GerberFile, name: str) -> str:
+    """The X2 file function (%TF.FileFunction%) of a Gerber file, else the file name."""
     attrs = getattr(gerber, "file_attrs", None) or {}
     function = attrs.get(".FileFunction") if isinstance(attrs, dict) else None
     if function:

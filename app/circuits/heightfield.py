@@ -13,18 +13,32 @@ L^2 / 8 * max over the cells the segment's bounding box touches (2-D sparse-tabl
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 from scipy.interpolate import RectBivariateSpline
 from scipy.spatial import Delaunay
 
 from app.circuits.errors import WarpError
 
-__all__ = ["HeightField"]
+__all__ = ["HeightField", "Inside", "Region"]
+
+#: ``inside(x (n,), y (n,)) -> (n,) bool``: whether points (mm) lie in a measured region
+Inside = Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.bool_]]
 
 
-def _cell_bound(spline: RectBivariateSpline, nu: int, nv: int, cells_x: np.ndarray, cells_y: np.ndarray) -> np.ndarray:
+class Region(NamedTuple):
+    """A measured region: its membership test and its bounds (x0, x1, y0, y1) mm."""
+
+    inside: Inside
+    bounds: tuple[float, float, float, float]
+
+
+def _cell_bound(spline: RectBivariateSpline, nu: int, nv: int, cells_x: npt.NDArray[np.float64],
+                cells_y: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Max |coefficient| of a derivative spline active on each knot cell (cx, cy)."""
     from numpy.lib.stride_tricks import sliding_window_view
 
@@ -36,7 +50,8 @@ def _cell_bound(spline: RectBivariateSpline, nu: int, nv: int, cells_x: np.ndarr
     # cell [x0, next knot) lies in span j of the derived knots where tx[j] <= x0 < tx[j + 1]
     jx = np.clip(np.searchsorted(tx, cells_x, side="right") - 1, kx, len(tx) - kx - 2) - kx
     jy = np.clip(np.searchsorted(ty, cells_y, side="right") - 1, ky, len(ty) - ky - 2) - ky
-    return window[np.ix_(jx, jy)]
+    bound: npt.NDArray[np.float64] = window[np.ix_(jx, jy)]
+    return bound
 
 
 @dataclass
@@ -44,10 +59,10 @@ class HeightField:
     """z (nx, ny) mm on the grid x (nx,), y (ny,) (increasing); optional ``hull`` (k, 2) points
     whose convex hull is the measured region (defaults to the grid's rectangle)."""
 
-    x: np.ndarray
-    y: np.ndarray
-    z: np.ndarray
-    hull_points: np.ndarray | None = None
+    x: npt.NDArray[np.float64]
+    y: npt.NDArray[np.float64]
+    z: npt.NDArray[np.float64]
+    hull_points: npt.NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         self.x, self.y, self.z = (np.asarray(a, float) for a in (self.x, self.y, self.z))
@@ -72,20 +87,24 @@ class HeightField:
             self._table.append(nxt)
         self._hull = Delaunay(self.hull_points) if self.hull_points is not None else None
 
-    def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def height(self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """h at points (n,) mm (clamped to the grid outside it)."""
         xc = np.clip(x, self.x[0], self.x[-1])
         yc = np.clip(y, self.y[0], self.y[-1])
-        return self.spline.ev(xc, yc)
+        h: npt.NDArray[np.float64] = self.spline.ev(xc, yc)  # scipy: untyped
+        return h
 
-    def inside(self, x: np.ndarray, y: np.ndarray, slack: float = 1e-9) -> np.ndarray:
+    def inside(self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64],
+               slack: float = 1e-9) -> npt.NDArray[np.bool_]:
         """True where (x, y) is in the measured region."""
-        ok = (x >= self.x[0] - slack) & (x <= self.x[-1] + slack) & (y >= self.y[0] - slack) & (y <= self.y[-1] + slack)
+        ok: npt.NDArray[np.bool_] = ((x >= self.x[0] - slack) & (x <= self.x[-1] + slack)
+                   & (y >= self.y[0] - slack) & (y <= self.y[-1] + slack))
         if self._hull is not None:
             ok &= self._hull.find_simplex(np.column_stack([x, y]), tol=1e-9) >= 0
         return ok
 
-    def curvature_bound(self, x0, y0, x1, y1) -> np.ndarray:
+    def curvature_bound(self, x0: npt.NDArray[np.float64], y0: npt.NDArray[np.float64], x1: npt.NDArray[np.float64],
+                        y1: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """Proved bound (n,) 1/mm on |d^2 h / ds^2| along each segment (x0, y0) -> (x1, y1)."""
         ncx, ncy = self._table[0].shape
         ix0 = np.clip(np.searchsorted(self._tx, np.minimum(x0, x1), side="right") - 1, 0, ncx - 1)
@@ -109,7 +128,8 @@ class HeightField:
         return out
 
 
-def _checked_points(points: np.ndarray) -> np.ndarray:
+def _checked_points(points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """``points`` as (n, 3) finite mm, at least 4 spanning an area (else WarpError)."""
     pts = np.asarray(points, float)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4 or not np.isfinite(pts).all():
         raise WarpError("a surface needs at least 4 finite (x, y, z) points", field="surface",
@@ -120,22 +140,24 @@ def _checked_points(points: np.ndarray) -> np.ndarray:
     return pts
 
 
-def points_region(points: np.ndarray):
+def points_region(points: npt.ArrayLike) -> Region:
     """The measured region of scattered surface points (n, 3) mm, as :func:`height_field_from_points`
-    defines it (their convex hull), without building the field: (inside(x (m,), y (m,)) -> (m,)
-    bool, bounds (x0, x1, y0, y1) mm)."""
+    defines it (their convex hull), without building the field: :class:`Region` (inside(x (m,), y (m,))
+    -> (m,) bool, bounds (x0, x1, y0, y1) mm)."""
     pts = _checked_points(points)
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     hull = Delaunay(pts[:, :2])
 
-    def inside(x: np.ndarray, y: np.ndarray, slack: float = 1e-9) -> np.ndarray:
-        ok = (x >= lo[0] - slack) & (x <= hi[0] + slack) & (y >= lo[1] - slack) & (y <= hi[1] + slack)
-        return ok & (hull.find_simplex(np.column_stack([x, y]), tol=1e-9) >= 0)
+    def inside(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64], slack: float = 1e-9) -> npt.NDArray[np.bool_]:
+        """True where (x, y) mm is in the points' convex hull."""
+        box = (x >= lo[0] - slack) & (x <= hi[0] + slack) & (y >= lo[1] - slack) & (y <= hi[1] + slack)
+        ok: npt.NDArray[np.bool_] = box & (hull.find_simplex(np.column_stack([x, y]), tol=1e-9) >= 0)  # scipy: untyped
+        return ok
 
-    return inside, (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+    return Region(inside, (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])))
 
 
-def height_field_from_points(points: np.ndarray, spacing_mm: float = 1.0) -> HeightField:
+def height_field_from_points(points: npt.ArrayLike, spacing_mm: float = 1.0) -> HeightField:
     """A height field from scattered surface points (n, 3) mm (probe touches, a fitted surface's
     samples): C1 Clough-Tocher interpolation onto a grid of ``spacing_mm`` over their bounding
     box; the measured region is their convex hull (grid nodes outside it take the nearest value)."""

@@ -10,7 +10,10 @@ from __future__ import annotations
 import re
 
 import numpy as np
+import numpy.typing as npt
 from kiutils.board import Board
+from kiutils.footprint import Footprint
+from kiutils.items.common import Position
 from kiutils.utils import sexpr
 
 from app.circuits.curves import arc_three_points, line
@@ -46,17 +49,20 @@ def _check_brackets(text: str, name: str) -> None:
                                where=f"line {opened[-1]}")
 
 
-def _up(pos) -> np.ndarray:
+def _up(pos: Position) -> npt.NDArray[np.float64]:
+    """A KiCad position (mm, y down) as XY mm with y up."""
     return np.array([float(pos.X), -float(pos.Y)])
 
 
 def _on_layer(pad_layers: list[str], layer: str) -> bool:
+    """Whether a pad on ``pad_layers`` (with wildcards like ``*.Cu``, ``F&B.Cu``) is on ``layer``."""
     side = layer.split(".", 1)[0]
     return any(pl == layer or pl == "*.Cu" or (pl.endswith(".Cu") and side in pl.split(".", 1)[0].split("&"))
                for pl in pad_layers)
 
 
-def _reference(fp) -> str:
+def _reference(fp: Footprint) -> str:
+    """A footprint's reference designator (else its library id)."""
     props = getattr(fp, "properties", None) or {}
     if isinstance(props, dict) and props.get("Reference"):
         return str(props["Reference"])

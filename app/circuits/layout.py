@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from app.geometry.nurbs import NurbsCurve
 
@@ -27,7 +28,8 @@ class Source:
     width_mm: float = 0.0
     entity: str = ""
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, str | float]:
+        """API form (JSON values)."""
         return {"file": self.file, "layer": self.layer, "net": self.net, "width_mm": self.width_mm,
                 "entity": self.entity}
 
@@ -50,8 +52,8 @@ class Pad:
     ``exterior`` (k, 2) mm polygon of its outline."""
 
     shape: str
-    center: np.ndarray
-    exterior: np.ndarray
+    center: npt.NDArray[np.float64]
+    exterior: npt.NDArray[np.float64]
     source: Source
     name: str = ""
 
@@ -60,8 +62,8 @@ class Pad:
 class Area:
     """A filled region (copper pour, Gerber region, closed DXF/SVG shape with fill)."""
 
-    exterior: np.ndarray
-    holes: tuple[np.ndarray, ...]
+    exterior: npt.NDArray[np.float64]
+    holes: tuple[npt.NDArray[np.float64], ...]
     source: Source
 
 
@@ -78,7 +80,7 @@ class Layout:
     layers: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)
 
-    def bounds(self) -> np.ndarray:
+    def bounds(self) -> npt.NDArray[np.float64]:
         """[[xmin, ymin], [xmax, ymax]] mm over trace control points and pad/area outlines."""
         pts = [t.curve.control_points for t in self.traces] + [p.exterior for p in self.pads]
         pts += [a.exterior for a in self.areas]
@@ -88,7 +90,8 @@ class Layout:
         return np.array([allp.min(axis=0), allp.max(axis=0)])
 
 
-def arc_points(center: np.ndarray, radius: float, a0: float, sweep: float, chord_mm: float) -> np.ndarray:
+def arc_points(center: npt.NDArray[np.float64], radius: float, a0: float, sweep: float,
+               chord_mm: float) -> npt.NDArray[np.float64]:
     """Points (k, 2) on a circular arc from angle a0 by ``sweep`` rad (signed), every chord's
     sagitta <= chord_mm; endpoints included."""
     if radius <= 0:
@@ -99,6 +102,6 @@ def arc_points(center: np.ndarray, radius: float, a0: float, sweep: float, chord
     return np.asarray(center, float) + radius * np.column_stack([np.cos(ang), np.sin(ang)])
 
 
-def circle_ring(center: np.ndarray, radius: float, chord_mm: float = 0.001) -> np.ndarray:
+def circle_ring(center: npt.NDArray[np.float64], radius: float, chord_mm: float = 0.001) -> npt.NDArray[np.float64]:
     """A full circle as a CCW polygon (k, 2) without the repeated first point."""
     return arc_points(center, radius, 0.0, 2 * np.pi, chord_mm)[:-1]

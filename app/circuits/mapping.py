@@ -13,9 +13,10 @@ different nets closer than their half widths (top view).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
+import numpy.typing as npt
 import trimesh
 import shapely
 from shapely import STRtree
@@ -46,14 +47,14 @@ class MappedTrace:
     layout_length_mm; length_mm on the surface; stretch = length / layout length."""
 
     index: int
-    source: dict
-    geometry: dict
-    surface_points: np.ndarray
+    source: dict[str, Any]
+    geometry: dict[str, Any]
+    surface_points: npt.NDArray[np.float64]
     layout_length_mm: float
     length_mm: float
     stretch: float
     on_part: bool
-    top_view: np.ndarray
+    top_view: npt.NDArray[np.float64]
 
 
 @dataclass
@@ -62,9 +63,9 @@ class MappedPad:
 
     name: str
     shape: str
-    source: dict
-    center: np.ndarray
-    outline_xy: np.ndarray
+    source: dict[str, Any]
+    center: npt.NDArray[np.float64]
+    outline_xy: npt.NDArray[np.float64]
     on_part: bool
 
 
@@ -72,11 +73,11 @@ class MappedPad:
 class MappedLayout:
     traces: list[MappedTrace]
     pads: list[MappedPad]
-    areas_xy: list[np.ndarray]
-    warnings: list[dict] = field(default_factory=list)
+    areas_xy: list[npt.NDArray[np.float64]]
+    warnings: list[dict[str, Any]] = field(default_factory=list)
 
 
-def _distinct(points: np.ndarray, min_gap_mm: float = 1e-5) -> np.ndarray:
+def _distinct(points: npt.NDArray[np.float64], min_gap_mm: float = 1e-5) -> npt.NDArray[np.float64]:
     """Drop points closer than ``min_gap_mm`` to their predecessor (the last point is kept)."""
     gap = np.linalg.norm(np.diff(points, axis=0), axis=1)
     keep = np.concatenate([[True], gap > min_gap_mm])
@@ -85,16 +86,18 @@ def _distinct(points: np.ndarray, min_gap_mm: float = 1e-5) -> np.ndarray:
         keep[-1] = True
         if len(kept) > 1:
             keep[kept[-1]] = False
-    return points[keep]
+    kept_points: npt.NDArray[np.float64] = points[keep]
+    return kept_points
 
 
-def _layout_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
+def _layout_samples(trace: LayoutTrace, opts: MappingOptions) -> npt.NDArray[np.float64]:
     """Layout points (k, 2): the curve's chord-verified CL points plus one every step_mm
     (consecutive points at least 10 nm apart)."""
     return _distinct(_raw_samples(trace, opts))
 
 
-def _raw_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
+def _raw_samples(trace: LayoutTrace, opts: MappingOptions) -> npt.NDArray[np.float64]:
+    """Layout points (k, 2) before near-duplicates are dropped."""
     curve = trace.curve
     if curve.degree == 1:                          # straight spans: exact at the breakpoints, then every step
         pts = curve.control_points
@@ -107,14 +110,16 @@ def _raw_samples(trace: LayoutTrace, opts: MappingOptions) -> np.ndarray:
     n = max(2, int(np.ceil(curve.length / opts.step_mm)) + 1)
     u_step = curve.param_at_length(np.linspace(0.0, curve.length, n))
     u = np.unique(np.concatenate([u_cl, u_step]))
-    return curve.evaluate(u)
+    samples: npt.NDArray[np.float64] = curve.evaluate(u)
+    return samples
 
 
-def _length(points: np.ndarray) -> float:
+def _length(points: npt.NDArray[np.float64]) -> float:
+    """Polyline length (mm) of points (k, d)."""
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
 
 
-def _spacing_warnings(traces: list[MappedTrace], widths: list[float], nets: list[str]) -> list[dict]:
+def _spacing_warnings(traces: list[MappedTrace], widths: list[float], nets: list[str]) -> list[dict[str, Any]]:
     """Pairs of traces of different (or no) nets closer than their half widths, not touching at
     their ends (top view); candidate pairs from one STRtree query, distances vectorised."""
     if len(traces) < 2:
@@ -143,7 +148,7 @@ def map_layout(layout: Layout, placement: Placement, mesh: trimesh.Trimesh,
     placed = place_layout(layout, placement, relative=opts.mapping == "wrap")
     walker = SurfaceWalker(mesh) if opts.mapping == "wrap" else None
 
-    def to_surface(points: np.ndarray) -> np.ndarray:
+    def to_surface(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """Placed points (k, 2) -> surface points (k, 3) (NaN off the part)."""
         if walker is not None:
             return walker.exp_map(origin, points).points
@@ -151,7 +156,7 @@ def map_layout(layout: Layout, placement: Placement, mesh: trimesh.Trimesh,
         return np.column_stack([points, np.where(top.hit, top.z, np.nan)])
 
     traces: list[MappedTrace] = []
-    warnings: list[dict] = []
+    warnings: list[dict[str, Any]] = []
     for i, t in enumerate(placed.traces):
         samples = _layout_samples(t, opts)
         surface = to_surface(samples)

@@ -14,6 +14,7 @@ Units: mm, top view.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from shapely.geometry import Polygon
 
 __all__ = ["probe_ring"]
@@ -21,7 +22,8 @@ __all__ = ["probe_ring"]
 MIN_RING_MM = 0.02
 
 
-def probe_ring(outline_xy: np.ndarray, holes: list[np.ndarray] | None = None) -> np.ndarray | None:
+def probe_ring(outline_xy: npt.NDArray[np.float64],
+               holes: list[npt.NDArray[np.float64]] | None = None) -> npt.NDArray[np.float64] | None:
     """The ring (k, 2) mm inside the outline (n, 2) mm, half way in from its rim, open by its
     closing segment (see the module doc); None when the outline encloses no area."""
     poly = Polygon(np.asarray(outline_xy, float), [np.asarray(h, float) for h in holes or []])

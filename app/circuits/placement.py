@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from app.circuits.curves import transformed
 from app.circuits.layout import Area, Layout, LayoutTrace, Pad
@@ -25,18 +26,19 @@ class Placement:
     mirror: bool = False
 
     @property
-    def matrix(self) -> np.ndarray:
+    def matrix(self) -> npt.NDArray[np.float64]:
         """The linear part (2, 2): rotation after mirror."""
         a = np.radians(self.rotation_deg)
         rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
         return rot @ np.diag([-1.0 if self.mirror else 1.0, 1.0])
 
-    def apply(self, points: np.ndarray) -> np.ndarray:
+    def apply(self, points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """Points (k, 2) layout mm -> top view mm."""
-        return np.asarray(points, float) @ self.matrix.T + np.asarray(self.origin_mm, float)
+        top: npt.NDArray[np.float64] = np.asarray(points, float) @ self.matrix.T + np.asarray(self.origin_mm, float)
+        return top
 
 
-def _ccw(ring: np.ndarray) -> np.ndarray:
+def _ccw(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     x, y = ring[:, 0], ring[:, 1]
     area2 = float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
     return ring if area2 >= 0 else ring[::-1]

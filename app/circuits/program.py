@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from app.gcode.writer import ProgramBuilder
 
@@ -21,7 +22,7 @@ __all__ = ["Stroke", "CircuitProgram", "order_strokes", "write_circuit_program"]
 class Stroke:
     """points (k, 3) mm of the nozzle tip; kind: trace / pass / pad / area; name: its source."""
 
-    points: np.ndarray
+    points: npt.NDArray[np.float64]
     kind: str
     name: str
     feed_mm_min: float
@@ -36,7 +37,7 @@ class CircuitProgram:
     strokes: int
 
 
-def _travel(starts: np.ndarray, ends: np.ndarray) -> float:
+def _travel(starts: npt.NDArray[np.float64], ends: npt.NDArray[np.float64]) -> float:
     return float(np.linalg.norm(starts[1:, :2] - ends[:-1, :2], axis=1).sum() + np.linalg.norm(starts[0, :2]))
 
 

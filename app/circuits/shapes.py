@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from shapely.geometry import LineString, Polygon, box
 
 from app.circuits.layout import circle_ring
@@ -12,13 +13,14 @@ __all__ = ["pad_outline", "rotate", "ring_of"]
 CHORD_MM = 0.001
 
 
-def rotate(points: np.ndarray, angle_rad: float) -> np.ndarray:
+def rotate(points: npt.NDArray[np.float64], angle_rad: float) -> npt.NDArray[np.float64]:
     """Points (k, 2) rotated CCW about the origin by ``angle_rad``."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)
-    return np.asarray(points, float) @ np.array([[c, s], [-s, c]])
+    turned: npt.NDArray[np.float64] = np.asarray(points, float) @ np.array([[c, s], [-s, c]])
+    return turned
 
 
-def ring_of(polygon: Polygon) -> np.ndarray:
+def ring_of(polygon: Polygon) -> npt.NDArray[np.float64]:
     """The exterior of a shapely polygon as (k, 2) CCW without the closing point."""
     from shapely.geometry.polygon import orient
 
@@ -34,7 +36,7 @@ def _quad_segs(radius: float) -> int:
     return max(1, int(np.ceil((np.pi / 2) / step)))
 
 
-def pad_outline(shape: str, width: float, height: float, *, corner_radius: float = 0.0) -> np.ndarray:
+def pad_outline(shape: str, width: float, height: float, *, corner_radius: float = 0.0) -> npt.NDArray[np.float64]:
     """Outline (k, 2) mm of a pad centred at the origin, unrotated.
 
     shape: ``circle`` (diameter = width), ``rect``, ``oval`` (stadium: the short side is round),

@@ -12,23 +12,24 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 
 from app.circuits.fills import fill_strokes, offset_polyline, pass_offsets
 
 __all__ = ["deviation_field", "trace_passes", "fill_tip_strokes", "densify"]
 
-HeightFn = Callable[[np.ndarray], np.ndarray]      # xy (m, 2) -> z (m,)
+HeightFn = Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]      # xy (m, 2) -> z (m,)
 
 
-def deviation_field(stations_xy: np.ndarray, deviation_mm: np.ndarray) -> HeightFn:
+def deviation_field(stations_xy: npt.NDArray[np.float64], deviation_mm: npt.NDArray[np.float64]) -> HeightFn:
     """Measured - nominal height at probe stations (n, 2) -> a function of xy (m, 2)."""
     xy = np.asarray(stations_xy, float)
     dz = np.asarray(deviation_mm, float)
     nearest = NearestNDInterpolator(xy, dz)
     linear = LinearNDInterpolator(xy, dz) if len(xy) >= 3 and np.linalg.matrix_rank(xy - xy.mean(0)) == 2 else None
 
-    def field(q: np.ndarray) -> np.ndarray:
+    def field(q: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         q = np.asarray(q, float)
         out = linear(q) if linear is not None else np.full(len(q), np.nan)
         miss = ~np.isfinite(out)
@@ -39,7 +40,7 @@ def deviation_field(stations_xy: np.ndarray, deviation_mm: np.ndarray) -> Height
     return field
 
 
-def densify(xy: np.ndarray, step_mm: float) -> np.ndarray:
+def densify(xy: npt.NDArray[np.float64], step_mm: float) -> npt.NDArray[np.float64]:
     """The polyline (k, 2) with extra vertices so no segment is longer than ``step_mm``."""
     xy = np.asarray(xy, float)
     seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
@@ -48,7 +49,8 @@ def densify(xy: np.ndarray, step_mm: float) -> np.ndarray:
     return np.vstack(parts + [xy[-1:]])
 
 
-def trace_passes(tip: np.ndarray, width_mm: float, line_width_mm: float, nominal_top: HeightFn) -> list[np.ndarray]:
+def trace_passes(tip: npt.NDArray[np.float64], width_mm: float, line_width_mm: float,
+                 nominal_top: HeightFn) -> list[npt.NDArray[np.float64]]:
     """Passes (each (k, 3)) of a compensated trace tip path (k, 3): the centre line itself when
     the trace is no wider than the line, else ceil(width / line) parallel passes."""
     tip = np.asarray(tip, float)
@@ -63,9 +65,10 @@ def trace_passes(tip: np.ndarray, width_mm: float, line_width_mm: float, nominal
     return out
 
 
-def fill_tip_strokes(exterior: np.ndarray, holes: list[np.ndarray], line_width_mm: float,
-                     drape: Callable[[np.ndarray], np.ndarray], deviation: HeightFn, standoff_mm: float,
-                     step_mm: float = 0.25) -> list[np.ndarray]:
+def fill_tip_strokes(exterior: npt.NDArray[np.float64], holes: list[npt.NDArray[np.float64]], line_width_mm: float,
+                     drape: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], deviation: HeightFn,
+                     standoff_mm: float,
+                     step_mm: float = 0.25) -> list[npt.NDArray[np.float64]]:
     """Tip strokes (k, 3) filling a pad or area: top-view fill strokes, densified to ``step_mm``,
     draped on the nominal surface (``drape``: xy (k, 2) -> points (m, 3)), lifted by the measured
     deviation and the standoff."""

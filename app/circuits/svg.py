@@ -17,6 +17,8 @@ import io
 import numpy as np
 import re
 
+from collections.abc import Iterable, Iterator
+
 from svgelements import SVG, Arc, Close, CubicBezier, Group, Line, Move, Path, QuadraticBezier, Shape
 
 from app.circuits.curves import arc_ccw, concatenated, line, transformed
@@ -29,12 +31,14 @@ __all__ = ["read_svg", "PX_MM"]
 PX_MM = 25.4 / 96.0
 
 
-def _bezier(points: list) -> NurbsCurve:
+def _bezier(points: list[list[float]]) -> NurbsCurve:
+    """The Bezier curve of control points (p + 1, 2) as a NURBS of degree p on [0, 1]."""
     p = len(points) - 1
     return NurbsCurve(p, np.array([0.0] * (p + 1) + [1.0] * (p + 1)), np.array(points, float), None)
 
 
 def _elliptic_arc(seg: Arc) -> NurbsCurve:
+    """An SVG elliptical arc exactly: the unit circle's arc under the ellipse's affine frame."""
     c = np.array([seg.center.x, seg.center.y])
     frame = np.column_stack([[seg.prx.x - c[0], seg.prx.y - c[1]], [seg.pry.x - c[0], seg.pry.y - c[1]]])
     inv = np.linalg.inv(frame)
@@ -42,17 +46,18 @@ def _elliptic_arc(seg: Arc) -> NurbsCurve:
     t1 = np.arctan2(*(inv @ (np.array([seg.end.x, seg.end.y]) - c))[::-1])
     ccw = (t1 - t0) % (2 * np.pi) or 2 * np.pi
     mid = seg.point(0.5)
-    best = None
+    best: tuple[float, float] | None = None
     for sweep in (ccw, ccw - 2 * np.pi):
         tm = t0 + sweep / 2
-        err = np.linalg.norm(c + frame @ [np.cos(tm), np.sin(tm)] - [mid.x, mid.y])
+        err = float(np.linalg.norm(c + frame @ [np.cos(tm), np.sin(tm)] - [mid.x, mid.y]))
         if best is None or err < best[0]:
             best = (err, sweep)
     assert best is not None  # two sweeps tried
     return transformed(arc_ccw(np.zeros(2), 1.0, t0, best[1]), frame, c)
 
 
-def _segment(seg) -> NurbsCurve | None:
+def _segment(seg: object) -> NurbsCurve | None:
+    """One path segment (svgelements, px) as an exact curve; None for a move or a zero-length piece."""
     if isinstance(seg, (Line, Close)):
         a, b = np.array([seg.start.x, seg.start.y]), np.array([seg.end.x, seg.end.y])
         return line(a, b) if np.linalg.norm(b - a) > 1e-9 else None
@@ -86,7 +91,7 @@ def _to_layout_frame(curve: NurbsCurve, page_height_px: float, mm_px: float) -> 
     return transformed(curve, np.diag([mm_px, -mm_px]), np.array([0.0, page_height_px * mm_px]))
 
 
-def _shapes(node, groups: tuple[str, ...] = ()):
+def _shapes(node: Iterable[object], groups: tuple[str, ...] = ()) -> Iterator[tuple[Shape, set[str]]]:
     """(shape, names of it and its enclosing groups) depth first."""
     for child in node:
         if isinstance(child, Shape):
@@ -142,8 +147,9 @@ def read_svg(data: bytes, name: str, layers: list[str] | None = None) -> Layout:
     return out
 
 
-def _group_names(e) -> set[str]:
-    names = set()
+def _group_names(e: Shape | Group) -> set[str]:
+    """The id and inkscape label of an element."""
+    names: set[str] = set()
     if getattr(e, "id", None):
         names.add(str(e.id))
     for key in ("inkscape:label", "{http://www.inkscape.org/namespaces/inkscape}label"):

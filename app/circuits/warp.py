@@ -19,11 +19,13 @@ Output: absolute mm (``G21``, ``G90``) whatever the input's units and modes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from app.circuits.gcode_scan import EONLY, OTHER, PRINT, TRAVEL, ZONLY, MODE, Records, scan_program
-from app.circuits.heightfield import HeightField
+from app.circuits.heightfield import HeightField, Inside
 
 __all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "check_region", "fixed_split_error"]
 
@@ -68,7 +70,7 @@ def check_program(text: str, surface: HeightField, allow_outside: bool = False) 
     return int(np.count_nonzero(recs.kind == PRINT))
 
 
-def check_region(recs: Records, inside, bounds: tuple[float, float, float, float] | None = None) -> None:
+def check_region(recs: Records, inside: Inside, bounds: tuple[float, float, float, float] | None = None) -> None:
     """WarpError naming the first printing move with an end where ``inside(x (n,), y (n,)) -> (n,)
     bool`` is False (``bounds`` (x0, x1, y0, y1) mm named in the message when given)."""
     k_print = np.flatnonzero(recs.kind == PRINT)
@@ -89,10 +91,27 @@ def check_region(recs: Records, inside, bounds: tuple[float, float, float, float
 
 
 def _refuse_outside(recs: Records, surface: HeightField) -> None:
+    """WarpError for the first printing move leaving the height field's measured region."""
     check_region(recs, surface.inside, (surface.x[0], surface.x[-1], surface.y[0], surface.y[-1]))
 
 
-def _pieces(p0: np.ndarray, p1: np.ndarray, surface: HeightField, opts: WarpOptions):
+class _Pieces(NamedTuple):
+    """The printing moves (m,) cut into N pieces: ``n`` (m,) pieces per move, ``piece_bound`` (m,) mm
+    the proved chord error of each of its pieces; per piece: ``seg`` (N,) its move, ``k`` (N,) its
+    1-based index in the move, ``pts`` (N, 4) its end, ``z`` (N,) mm its warped height;
+    ``first`` (m,) the index of each move's first piece."""
+
+    n: npt.NDArray[np.int64]
+    piece_bound: npt.NDArray[np.float64]
+    seg: npt.NDArray[np.int64]
+    first: npt.NDArray[np.int64]
+    k: npt.NDArray[np.int64]
+    pts: npt.NDArray[np.float64]
+    z: npt.NDArray[np.float64]
+
+
+def _pieces(p0: npt.NDArray[np.float64], p1: npt.NDArray[np.float64], surface: HeightField,
+            opts: WarpOptions) -> _Pieces:
     """Per printing move (m,): piece count n, proved piece bound; every piece end (N, 4) and its z (N,)."""
     length = np.hypot(p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1])
     bound = surface.curvature_bound(p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1]) if len(p0) else np.zeros(0)
@@ -100,19 +119,21 @@ def _pieces(p0: np.ndarray, p1: np.ndarray, surface: HeightField, opts: WarpOpti
         n = np.where(bound > 0, np.ceil(length * np.sqrt(bound / (8.0 * opts.chord_error_mm))), 1.0)
     n = np.maximum(n, 1).astype(np.int64)
     piece_bound = (length / n) ** 2 / 8.0 * bound
-    seg = np.repeat(np.arange(len(p0)), n)
+    seg = np.repeat(np.arange(len(p0), dtype=np.int64), n)
     first = (np.cumsum(n) - n).astype(np.int64)
-    k = np.arange(n.sum()) - first[seg] + 1
+    k = np.arange(n.sum(), dtype=np.int64) - first[seg] + 1
     t = k / n[seg]
     pts = p0[seg] + t[:, None] * (p1 - p0)[seg]
     h = surface.height(pts[:, 0], pts[:, 1]) if len(pts) else np.zeros(0)
     z = h + opts.standoff_mm if opts.standoff_mm is not None else pts[:, 2] + h
-    return n, piece_bound, seg, first, k, pts, z
+    return _Pieces(n, piece_bound, seg, first, k, pts, z)
 
 
-def _piece_template(recs: Records, k_print: np.ndarray, n, seg, first, k, pts, z, d: int) -> tuple[np.ndarray, list]:
+def _piece_template(recs: Records, k_print: npt.NDArray[np.int64], pieces: _Pieces,
+                    d: int) -> tuple[npt.NDArray[np.object_], list[float]]:
     """Each piece's line as a %-template (N,) and all their values in order (vectorised: E
     shared out absolute or relative, F on a move's first piece)."""
+    n, seg, first, k, pts, z = pieces.n, pieces.seg, pieces.first, pieces.k, pieces.pts, pieces.z
     e0, e1 = recs.start[k_print, 3][seg], recs.end[k_print, 3][seg]
     e_abs = recs.e_abs[k_print][seg]
     # relative E: rounding the running total (not each share) keeps the program's total exact
@@ -127,7 +148,8 @@ def _piece_template(recs: Records, k_print: np.ndarray, n, seg, first, k, pts, z
     mask = np.column_stack([np.ones((len(seg), 3), bool), has_e, has_f])
     base = f"G1 X%.{d}f Y%.{d}f Z%.{d}f"
     templates = np.array([base + "\n", base + " F%.1f\n", base + " E%.5f\n", base + " E%.5f F%.1f\n"], object)
-    return templates[has_e * 2 + has_f], values[mask].tolist()
+    chosen: npt.NDArray[np.object_] = templates[has_e * 2 + has_f]
+    return chosen, values[mask].tolist()
 
 
 def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOptions()) -> WarpResult:
@@ -139,7 +161,8 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
         _refuse_outside(recs, surface)
     d = opts.decimals
     p0, p1 = start[k_print], end[k_print]
-    n, piece_bound, seg, first, k, pts, z = _pieces(p0, p1, surface, opts)
+    pieces = _pieces(p0, p1, surface, opts)
+    n, piece_bound, seg, first, k, pts, z = pieces
     h_start = surface.height(p0[:, 0], p0[:, 1]) if len(p0) else np.zeros(0)
     z_start = h_start + opts.standoff_mm if opts.standoff_mm is not None else p0[:, 2] + h_start
     tops = end[:, 2][np.isfinite(end[:, 2])]
@@ -160,7 +183,7 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
     count[moving[~is_print]] = 1 + t_lift
     slot = np.concatenate([[0], np.cumsum(count)[:-1]])
     out = np.empty(int(count.sum()), dtype=object)
-    templates, values = _piece_template(recs, k_print, n, seg, first, k, pts, z, d)
+    templates, values = _piece_template(recs, k_print, pieces, d)
     out[np.repeat(slot[k_print] + p_moved + p_lift, n) + k - 1] = templates
 
     def esc(line: str) -> str:

@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import trimesh
 
 from app.circuits.errors import LayoutError
@@ -31,8 +32,8 @@ __all__ = ["SurfaceWalker", "ExpMapResult"]
 class ExpMapResult:
     """points (n, 3) mm on the surface (NaN where the geodesic left the part); on_part (n,) bool."""
 
-    points: np.ndarray
-    on_part: np.ndarray
+    points: npt.NDArray[np.float64]
+    on_part: npt.NDArray[np.bool_]
 
 
 class SurfaceWalker:
@@ -61,7 +62,7 @@ class SurfaceWalker:
         self._neighbors = self._neighbor_table(mesh, faces)
 
     @staticmethod
-    def _neighbor_table(mesh: trimesh.Trimesh, faces: np.ndarray) -> list[list[int]]:
+    def _neighbor_table(mesh: trimesh.Trimesh, faces: npt.NDArray[np.int64]) -> list[list[int]]:
         """(F, 3) face across local edge j (vertices j, j+1), -1 at a rim."""
         table = -np.ones((len(faces), 3), dtype=np.int64)
         pairs = np.asarray(mesh.face_adjacency)
@@ -75,7 +76,7 @@ class SurfaceWalker:
                 table[f[match], j] = other[match]
         return table.tolist()
 
-    def locate(self, xy: np.ndarray) -> tuple[int, np.ndarray]:
+    def locate(self, xy: npt.NDArray[np.float64]) -> tuple[int, npt.NDArray[np.float64]]:
         """The upper-surface facet above xy (2,) and the surface point; LayoutError if none."""
         top = float(self.mesh.bounds[1, 2]) + 1.0
         face = int(self.mesh.ray.intersects_first([[xy[0], xy[1], top]], [[0.0, 0.0, -1.0]])[0])
@@ -87,14 +88,15 @@ class SurfaceWalker:
         z = v0[2] - (n[0] * (xy[0] - v0[0]) + n[1] * (xy[1] - v0[1])) / n[2]
         return face, np.array([xy[0], xy[1], z])
 
-    def frame(self, face: int) -> tuple[np.ndarray, np.ndarray]:
+    def frame(self, face: int) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Tangent frame at a facet: e1 = +x projected into the facet, e2 = n x e1 (both unit)."""
         n = np.asarray(self._normals[face])
         e1 = np.array([1.0, 0.0, 0.0]) - n[0] * n
         e1 /= np.linalg.norm(e1)
         return e1, np.cross(n, e1)
 
-    def shoot(self, face: int, start: np.ndarray, direction: np.ndarray, length: float) -> np.ndarray | None:
+    def shoot(self, face: int, start: npt.NDArray[np.float64], direction: npt.NDArray[np.float64],
+              length: float) -> npt.NDArray[np.float64] | None:
         """End point (3,) of the geodesic from ``start`` on ``face`` along the unit tangent
         ``direction`` (3,) for ``length`` mm; None if it leaves the upper surface."""
         o, e1, e2 = self._origin[face], self._e1[face], self._e2[face]
@@ -157,7 +159,7 @@ class SurfaceWalker:
             dx, dy = dx / norm, dy / norm
         return None
 
-    def exp_map(self, anchor_xy: np.ndarray, vectors: np.ndarray) -> ExpMapResult:
+    def exp_map(self, anchor_xy: npt.NDArray[np.float64], vectors: npt.NDArray[np.float64]) -> ExpMapResult:
         """Surface points for layout vectors (n, 2) mm from the anchor (top view xy (2,))."""
         face, start = self.locate(np.asarray(anchor_xy, float))
         e1, e2 = self.frame(face)

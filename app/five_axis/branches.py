@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
+import numpy.typing as npt
 
 from app.five_axis.errors import AxisLimitError
 from app.five_axis.kinematics import MachineConfig, angles_for_normal
@@ -45,18 +46,18 @@ class BranchChoice:
     held: (k,) bool, True inside a pole window (C blended or held, not from the normal).
     """
 
-    a_rad: np.ndarray
-    c_rad: np.ndarray
-    branch: np.ndarray
-    held: np.ndarray
+    a_rad: npt.NDArray[np.float64]
+    c_rad: npt.NDArray[np.float64]
+    branch: npt.NDArray[np.int64]
+    held: npt.NDArray[np.bool_]
 
 
-def wrap_angle(x: np.ndarray | float) -> np.ndarray:
+def wrap_angle(x: npt.NDArray[np.float64] | float) -> npt.NDArray[np.float64]:
     """Wrap angles (rad) into [-pi, pi)."""
     return (np.asarray(x, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def best_tilt(normals: np.ndarray, c_rad: np.ndarray) -> np.ndarray:
+def best_tilt(normals: npt.NDArray[np.float64], c_rad: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """A (k,) rad that best aligns the tool axis with unit normals (k,3) for given C (k,)."""
     n = np.atleast_2d(normals)
     return np.arctan2(n[:, 0] * np.sin(c_rad) + n[:, 1] * np.cos(c_rad), n[:, 2])
@@ -66,7 +67,7 @@ def _a_feasible(a: float, limits: tuple[float, float]) -> bool:
     return limits[0] - _LIMIT_SLACK_RAD <= a <= limits[1] + _LIMIT_SLACK_RAD
 
 
-def _limit_error(i: int, a_pos: float, lim: tuple[float, float], n: np.ndarray,
+def _limit_error(i: int, a_pos: float, lim: tuple[float, float], n: npt.NDArray[np.float64],
                  field: str) -> AxisLimitError:
     return AxisLimitError(
         f"point {i}: the normal needs A = {np.degrees(a_pos):.3f} or {-np.degrees(a_pos):.3f} "
@@ -75,9 +76,10 @@ def _limit_error(i: int, a_pos: float, lim: tuple[float, float], n: np.ndarray,
                             "a_limits_deg": np.degrees(np.asarray(lim))})
 
 
-def _viterbi(free: np.ndarray, n: np.ndarray, a_pos: np.ndarray, c_pos: np.ndarray,
+def _viterbi(free: npt.NDArray[np.int64], n: npt.NDArray[np.float64], a_pos: npt.NDArray[np.float64],
+             c_pos: npt.NDArray[np.float64],
              lim: tuple[float, float], c_start: float, c_weight: float,
-             field: str) -> tuple[np.ndarray, np.ndarray]:
+             field: str) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Branch choice over the points ``free`` (outside pole windows): (A, wrapped C)."""
     m = free.size
     a_state, c_state = np.zeros((m, 2)), np.zeros((m, 2))
@@ -106,7 +108,7 @@ def _viterbi(free: np.ndarray, n: np.ndarray, a_pos: np.ndarray, c_pos: np.ndarr
     return a_state[idx, states], c_state[idx, states]
 
 
-def _fill_pole_windows(c_wrapped: np.ndarray, pole: np.ndarray, arc: np.ndarray,
+def _fill_pole_windows(c_wrapped: npt.NDArray[np.float64], pole: npt.NDArray[np.bool_], arc: npt.NDArray[np.float64],
                        c_start: float) -> None:
     """C inside pole windows (in place): blended between the window's neighbours, held
     at a path end, ``c_start`` if there is no point outside the windows."""
@@ -125,8 +127,8 @@ def _fill_pole_windows(c_wrapped: np.ndarray, pole: np.ndarray, arc: np.ndarray,
         c_wrapped[j0 + 1:j1] = c_wrapped[j0] + w * float(wrap_angle(c_wrapped[j1] - c_wrapped[j0]))
 
 
-def choose_axes(normals: np.ndarray, config: MachineConfig, *, c_start_rad: float = 0.0,
-                pole_tilt_rad: float = 1e-6, arc_mm: np.ndarray | None = None,
+def choose_axes(normals: npt.NDArray[np.float64], config: MachineConfig, *, c_start_rad: float = 0.0,
+                pole_tilt_rad: float = 1e-6, arc_mm: npt.NDArray[np.float64] | None = None,
                 c_weight: float = 1.0, field: str = "params.a_limits_deg") -> BranchChoice:
     """Rotary angles bringing each unit normal (k,3) to +Z, branches chosen continuously.
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from app.five_axis.errors import DegenerateTraceError, TraceOffSurfaceError
 from app.geometry.nurbs import NurbsCurve
@@ -42,13 +43,13 @@ class ContactFrames:
     trace_deviation_mm: (k,) |p(u) - contact|; normal_source: which direction was used.
     """
 
-    u: np.ndarray
-    trace_points: np.ndarray
-    contact: np.ndarray
-    uv: np.ndarray
-    surface_normal: np.ndarray
-    direction: np.ndarray
-    trace_deviation_mm: np.ndarray
+    u: npt.NDArray[np.float64]
+    trace_points: npt.NDArray[np.float64]
+    contact: npt.NDArray[np.float64]
+    uv: npt.NDArray[np.float64]
+    surface_normal: npt.NDArray[np.float64]
+    direction: npt.NDArray[np.float64]
+    trace_deviation_mm: npt.NDArray[np.float64]
     normal_source: NormalSource
 
 
@@ -64,7 +65,7 @@ def surface_orientation(surface: NurbsSurface, side: NormalSide) -> float:
     return 1.0 if n[2] >= 0 else -1.0
 
 
-def _principal_normals(trace: NurbsCurve, u: np.ndarray) -> np.ndarray:
+def _principal_normals(trace: NurbsCurve, u: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     d = trace.derivatives(u, 2)
     d1, d2 = d[1], d[2]
     t = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
@@ -77,10 +78,11 @@ def _principal_normals(trace: NurbsCurve, u: np.ndarray) -> np.ndarray:
             f"the trace is straight at u = {u[j]:.6g}: its principal normal is undefined; "
             "use normal_source='surface'", field="params.normal_source",
             value={"u": u[j], "curvature_per_mm": kappa[j]})
-    return perp / np.linalg.norm(perp, axis=1, keepdims=True)
+    unit: npt.NDArray[np.float64] = perp / np.linalg.norm(perp, axis=1, keepdims=True)
+    return unit
 
 
-def contact_frames(surface: NurbsSurface, trace: NurbsCurve, u: np.ndarray, *,
+def contact_frames(surface: NurbsSurface, trace: NurbsCurve, u: npt.NDArray[np.float64], *,
                    on_surface_tol_mm: float, normal_source: NormalSource = "surface",
                    normal_side: NormalSide = "up") -> ContactFrames:
     """Project trace samples p(u), u (k,), onto the surface and build the nozzle frames.

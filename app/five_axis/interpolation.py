@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from app.five_axis.errors import DegenerateTraceError
 from app.geometry.nurbs import NurbsCurve
@@ -35,7 +36,7 @@ class ServoSchedule:
     order: 1 or 2 (Taylor order of the update).
     """
 
-    u: np.ndarray
+    u: npt.NDArray[np.float64]
     step_mm: float
     order: int
 
@@ -100,14 +101,15 @@ def interpolate_parameters(curve: NurbsCurve, feed_mm_s: float, period_s: float,
     return ServoSchedule(u=np.asarray(u_values), step_mm=ds, order=order)
 
 
-def segment_arc_lengths(curve: NurbsCurve, u: np.ndarray) -> np.ndarray:
+def segment_arc_lengths(curve: NurbsCurve, u: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Arc length (mm) between consecutive parameters u (n,) -> (n-1,), 8-point Gauss per
     interval (intervals are a servo period long, far below a knot span)."""
     lo, hi = u[:-1], u[1:]
     half = 0.5 * (hi - lo)
     nodes = (0.5 * (hi + lo))[:, None] + half[:, None] * _GAUSS_X[None, :]
     speed = np.linalg.norm(curve.derivatives(nodes.ravel(), 1)[1], axis=1).reshape(nodes.shape)
-    return half * (speed @ _GAUSS_W)
+    lengths: npt.NDArray[np.float64] = half * (speed @ _GAUSS_W)
+    return lengths
 
 
 def feed_fluctuation(curve: NurbsCurve, schedule: ServoSchedule) -> FeedFluctuation:

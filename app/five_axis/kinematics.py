@@ -37,6 +37,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     "MachineConfig",
@@ -66,7 +67,7 @@ class MachineConfig:
     c_limits_rad: tuple[float, float] | None = None
 
     @property
-    def pivot(self) -> np.ndarray:
+    def pivot(self) -> npt.NDArray[np.float64]:
         """Pivot as a (3,) float array (mm)."""
         return np.asarray(self.pivot_mm, dtype=float)
 
@@ -76,9 +77,9 @@ class AxisPose:
     """Machine axes for k poses: xyz_mm (k,3) nozzle tip in machine coordinates; a_rad,
     c_rad (k,) rotary angles."""
 
-    xyz_mm: np.ndarray
-    a_rad: np.ndarray
-    c_rad: np.ndarray
+    xyz_mm: npt.NDArray[np.float64]
+    a_rad: npt.NDArray[np.float64]
+    c_rad: npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -86,11 +87,11 @@ class ToolPose:
     """k tool poses in workpiece coordinates: tip_mm (k,3) nozzle tip; axis (k,3) unit
     tool axis (pointing from the surface to the nozzle)."""
 
-    tip_mm: np.ndarray
-    axis: np.ndarray
+    tip_mm: npt.NDArray[np.float64]
+    axis: npt.NDArray[np.float64]
 
 
-def rotation_matrices(a_rad: np.ndarray, c_rad: np.ndarray) -> np.ndarray:
+def rotation_matrices(a_rad: npt.NDArray[np.float64], c_rad: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Rx(A) @ Rz(C) for each pose: (k,) x (k,) -> (k,3,3)."""
     a = np.atleast_1d(np.asarray(a_rad, dtype=float))
     c = np.atleast_1d(np.asarray(c_rad, dtype=float))
@@ -102,23 +103,27 @@ def rotation_matrices(a_rad: np.ndarray, c_rad: np.ndarray) -> np.ndarray:
     return m
 
 
-def workpiece_to_machine(points_mm: np.ndarray, a_rad: np.ndarray, c_rad: np.ndarray,
-                         pivot_mm: np.ndarray) -> np.ndarray:
+def workpiece_to_machine(points_mm: npt.NDArray[np.float64], a_rad: npt.NDArray[np.float64],
+                         c_rad: npt.NDArray[np.float64],
+                         pivot_mm: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Map workpiece points (k,3) to machine points (k,3): R (p - o) + o (mm)."""
     r = rotation_matrices(a_rad, c_rad)
     o = np.asarray(pivot_mm, dtype=float)
-    return np.einsum("kij,kj->ki", r, np.asarray(points_mm, dtype=float) - o) + o
+    machine: npt.NDArray[np.float64] = np.einsum("kij,kj->ki", r, np.asarray(points_mm, dtype=float) - o) + o
+    return machine
 
 
-def machine_to_workpiece(points_mm: np.ndarray, a_rad: np.ndarray, c_rad: np.ndarray,
-                         pivot_mm: np.ndarray) -> np.ndarray:
+def machine_to_workpiece(points_mm: npt.NDArray[np.float64], a_rad: npt.NDArray[np.float64],
+                         c_rad: npt.NDArray[np.float64],
+                         pivot_mm: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Inverse of :func:`workpiece_to_machine`: R^T (m - o) + o, (k,3) -> (k,3) mm."""
     r = rotation_matrices(a_rad, c_rad)
     o = np.asarray(pivot_mm, dtype=float)
-    return np.einsum("kji,kj->ki", r, np.asarray(points_mm, dtype=float) - o) + o
+    workpiece: npt.NDArray[np.float64] = np.einsum("kji,kj->ki", r, np.asarray(points_mm, dtype=float) - o) + o
+    return workpiece
 
 
-def tool_axis_from_angles(a_rad: np.ndarray, c_rad: np.ndarray) -> np.ndarray:
+def tool_axis_from_angles(a_rad: npt.NDArray[np.float64], c_rad: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Tool axis (machine +Z) seen in workpiece coordinates: (sinA sinC, sinA cosC, cosA),
     (k,) -> (k,3) unit vectors."""
     a = np.atleast_1d(np.asarray(a_rad, dtype=float))
@@ -131,12 +136,12 @@ class AngleCandidates:
     """Both inverse solutions for k normals (rad): branch +1 (a_pos, c_pos, A >= 0) and
     branch -1 (-a_pos, c_pos + pi).  ``rho`` (k,) = sin|A|, the horizontal part of n."""
 
-    a_pos: np.ndarray
-    c_pos: np.ndarray
-    rho: np.ndarray
+    a_pos: npt.NDArray[np.float64]
+    c_pos: npt.NDArray[np.float64]
+    rho: npt.NDArray[np.float64]
 
 
-def angles_for_normal(normals: np.ndarray) -> AngleCandidates:
+def angles_for_normal(normals: npt.NDArray[np.float64]) -> AngleCandidates:
     """Both (A, C) solutions that bring each unit normal (k,3) to +Z (see module doc)."""
     n = np.atleast_2d(np.asarray(normals, dtype=float))
     n = n / np.linalg.norm(n, axis=1, keepdims=True)

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from app.five_axis.branches import choose_axes
 from app.five_axis.contact import ContactFrames, contact_frames
@@ -85,9 +86,9 @@ class FiveAxisPath:
     program: str
     nominal_program: str
     axes: AxisPose
-    u: np.ndarray
+    u: npt.NDArray[np.float64]
     frames: ContactFrames
-    durations_s: np.ndarray
+    durations_s: npt.NDArray[np.float64]
     offset_curve: NurbsCurve
     normal_source: str
     max_normal_error_deg: float
@@ -142,25 +143,28 @@ class FiveAxisPath:
         }
 
 
-def line_indices(n_samples: int, stride: int) -> np.ndarray:
+def line_indices(n_samples: int, stride: int) -> npt.NDArray[np.int64]:
     """Indices of the servo samples written as lines: every stride-th, plus the last."""
-    idx = np.arange(0, n_samples, max(1, stride))
+    idx = np.arange(0, n_samples, max(1, stride), dtype=np.int64)
     return idx if idx[-1] == n_samples - 1 else np.append(idx, n_samples - 1)
 
 
-def servo_times(n_samples: int, period_s: float, last_fraction: float) -> np.ndarray:
+def servo_times(n_samples: int, period_s: float, last_fraction: float) -> npt.NDArray[np.float64]:
     """Time (s) at each of n servo samples: whole periods, the final one partial."""
     per = np.full(n_samples - 1, period_s)
     per[-1] = period_s * last_fraction
     return np.concatenate([[0.0], np.cumsum(per)])
 
 
-def _angle_to_z_deg(directions: np.ndarray) -> np.ndarray:
+def _angle_to_z_deg(directions: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """(k,) angle (deg) between each direction (k, 3) and +Z."""
     d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    return np.degrees(np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2]))
+    angle: npt.NDArray[np.float64] = np.degrees(np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2]))
+    return angle
 
 
-def _take(frames: ContactFrames, idx: np.ndarray) -> ContactFrames:
+def _take(frames: ContactFrames, idx: npt.NDArray[np.int64]) -> ContactFrames:
+    """The frames at indices ``idx``."""
     return ContactFrames(u=frames.u[idx], trace_points=frames.trace_points[idx],
                          contact=frames.contact[idx], uv=frames.uv[idx],
                          surface_normal=frames.surface_normal[idx],
@@ -175,17 +179,17 @@ class _Poses:
 
     frames: ContactFrames  # the lines'
     axes: AxisPose  # the lines' (angles rounded as written)
-    a_deg: np.ndarray
-    c_deg: np.ndarray
-    pole: np.ndarray  # (k,) lines in the pole window
-    times_s: np.ndarray  # (k,)
-    mid_u: np.ndarray  # (k-1,)
-    midpoint_error_mm: np.ndarray  # (k-1,)
+    a_deg: npt.NDArray[np.float64]
+    c_deg: npt.NDArray[np.float64]
+    pole: npt.NDArray[np.bool_]  # (k,) lines in the pole window
+    times_s: npt.NDArray[np.float64]  # (k,)
+    mid_u: npt.NDArray[np.float64]  # (k-1,)
+    midpoint_error_mm: npt.NDArray[np.float64]  # (k-1,)
 
 
-def _plan_poses(surface: NurbsSurface, trace: NurbsCurve, u_lines: np.ndarray,
-                params: FiveAxisParams, machine: MachineConfig, servo_u: np.ndarray,
-                servo_t: np.ndarray) -> _Poses:
+def _plan_poses(surface: NurbsSurface, trace: NurbsCurve, u_lines: npt.NDArray[np.float64],
+                params: FiveAxisParams, machine: MachineConfig, servo_u: npt.NDArray[np.float64],
+                servo_t: npt.NDArray[np.float64]) -> _Poses:
     """Axes for lines at trace parameters u_lines (k,), and their midpoint tip errors."""
     h = params.standoff_mm
     t_lines = np.interp(u_lines, servo_u, servo_t)
@@ -198,8 +202,8 @@ def _plan_poses(surface: NurbsSurface, trace: NurbsCurve, u_lines: np.ndarray,
     choice = choose_axes(frames.direction, machine, c_start_rad=np.radians(params.c_start_deg),
                          pole_tilt_rad=np.radians(params.pole_window_deg),
                          arc_mm=params.feed_mm_s * np.interp(u_all, servo_u, servo_t))
-    a_deg = np.round(np.degrees(choice.a_rad[0::2]), params.decimals)
-    c_deg = np.round(np.degrees(choice.c_rad[0::2]), params.decimals)
+    a_deg: npt.NDArray[np.float64] = np.degrees(choice.a_rad[0::2]).round(params.decimals)
+    c_deg: npt.NDArray[np.float64] = np.degrees(choice.c_rad[0::2]).round(params.decimals)
     a, c = np.radians(a_deg), np.radians(c_deg)
     pivot = machine.pivot
     xyz = workpiece_to_machine(frames.contact[0::2], a, c, pivot) + h * _Z
@@ -207,13 +211,13 @@ def _plan_poses(surface: NurbsSurface, trace: NurbsCurve, u_lines: np.ndarray,
                                                                     choice.c_rad[1::2])
     moved_mid = machine_to_workpiece(0.5 * (xyz[1:] + xyz[:-1]), 0.5 * (a[1:] + a[:-1]),
                                      0.5 * (c[1:] + c[:-1]), pivot)
-    return _Poses(frames=_take(frames, np.arange(0, 2 * k - 1, 2)),
+    return _Poses(frames=_take(frames, np.arange(0, 2 * k - 1, 2, dtype=np.int64)),
                   axes=AxisPose(xyz_mm=xyz, a_rad=a, c_rad=c), a_deg=a_deg, c_deg=c_deg,
                   pole=choice.held[0::2], times_s=t_lines, mid_u=mid_u,
                   midpoint_error_mm=np.linalg.norm(moved_mid - planned_mid, axis=1))
 
 
-def _max_speed(step_deg: np.ndarray, durations_s: np.ndarray) -> float:
+def _max_speed(step_deg: npt.NDArray[np.float64], durations_s: npt.NDArray[np.float64]) -> float:
     ok = durations_s > 0
     return float((np.abs(step_deg[ok]) / durations_s[ok]).max(initial=0.0))
 

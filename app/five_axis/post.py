@@ -36,6 +36,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from app.five_axis.program import (FeedMode, ProgramStyle, dispensed_path,
                                                 end_program)
@@ -55,8 +56,9 @@ def linuxcnc_trt_setup(pivot_mm: tuple[float, float, float]) -> list[str]:
             "setp xyzac-trt-kins.z-offset 0"]
 
 
-def linuxcnc_trt_program(tip_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
-                         durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
+def linuxcnc_trt_program(tip_mm: npt.NDArray[np.float64], a_deg: npt.NDArray[np.float64],
+                         c_deg: npt.NDArray[np.float64],
+                         durations_s: npt.NDArray[np.float64], feed_mode: FeedMode, nominal_feed_mm_min: float,
                          style: ProgramStyle, header: list[str],
                          pivot_mm: tuple[float, float, float]) -> str:
     """LinuxCNC xyzac-trt TCP program (see the module doc).

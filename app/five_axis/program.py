@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from app.gcode.writer import ProgramBuilder, format_number
 
@@ -70,7 +71,7 @@ def dispense(b: ProgramBuilder, command: str | None) -> None:
         b.raw(command.strip())
 
 
-def approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
+def approach(b: ProgramBuilder, style: ProgramStyle, xyz: npt.NDArray[np.float64],
               rotary: dict[str, float]) -> None:
     if style.safe_z_mm is not None:
         b.rapid(z=style.safe_z_mm)
@@ -81,8 +82,9 @@ def approach(b: ProgramBuilder, style: ProgramStyle, xyz: np.ndarray,
     b.move(x=xyz[0], y=xyz[1], z=xyz[2], feed_mm_min=style.approach_feed_mm_min, **rotary)
 
 
-def dispensed_path(b: ProgramBuilder, xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
-                   durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
+def dispensed_path(b: ProgramBuilder, xyz_mm: npt.NDArray[np.float64], a_deg: npt.NDArray[np.float64],
+                   c_deg: npt.NDArray[np.float64],
+                   durations_s: npt.NDArray[np.float64], feed_mode: FeedMode, nominal_feed_mm_min: float,
                    style: ProgramStyle) -> None:
     """Approach pose 0, dispense on, one ``G1 X Y Z A C F`` per later pose (inverse-time or
     tip feed), dispense off, back to G94.  xyz_mm (k,3) mm in the program's frame; a_deg,
@@ -104,8 +106,8 @@ def dispensed_path(b: ProgramBuilder, xyz_mm: np.ndarray, a_deg: np.ndarray, c_d
     b.raw("G94")
 
 
-def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
-                      durations_s: np.ndarray, feed_mode: FeedMode, nominal_feed_mm_min: float,
+def five_axis_program(xyz_mm: npt.NDArray[np.float64], a_deg: npt.NDArray[np.float64], c_deg: npt.NDArray[np.float64],
+                      durations_s: npt.NDArray[np.float64], feed_mode: FeedMode, nominal_feed_mm_min: float,
                       style: ProgramStyle, header: list[str]) -> str:
     """Program text: approach to pose 0, dispense on, one ``G1 X Y Z A C F`` per later
     pose, dispense off.
@@ -122,7 +124,7 @@ def five_axis_program(xyz_mm: np.ndarray, a_deg: np.ndarray, c_deg: np.ndarray,
     return b.text()
 
 
-def nominal_program(xyz_mm: np.ndarray, feed_mm_min: float, style: ProgramStyle,
+def nominal_program(xyz_mm: npt.NDArray[np.float64], feed_mm_min: float, style: ProgramStyle,
                     header: list[str]) -> str:
     """Three-axis comparison program: approach, dispense on, ``G1 X Y Z F`` through the
     tip positions (k,3) mm, dispense off."""

@@ -10,6 +10,7 @@ from the surface by the chordal sag of the sampling, which the planner reports.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from app.five_axis.errors import TraceOffSurfaceError
 from app.geometry.fitting import interpolate_curve
@@ -22,13 +23,13 @@ _NEWTON_STEPS = 30
 _SEED_GRID = 41
 
 
-def trace_on_surface(surface: NurbsSurface, uv: np.ndarray, degree: int = 3) -> NurbsCurve:
+def trace_on_surface(surface: NurbsSurface, uv: npt.NDArray[np.float64], degree: int = 3) -> NurbsCurve:
     """Cubic interpolation of S(u_i, v_i) for uv (k,2) inside the domain -> NurbsCurve (mm)."""
     uv = np.asarray(uv, dtype=float)
     return interpolate_curve(surface.evaluate(uv[:, 0], uv[:, 1]), degree, field="trace.uv")
 
 
-def uv_over_xy(surface: NurbsSurface, xy: np.ndarray, tol_mm: float = 1e-9) -> np.ndarray:
+def uv_over_xy(surface: NurbsSurface, xy: npt.NDArray[np.float64], tol_mm: float = 1e-9) -> npt.NDArray[np.float64]:
     """Surface parameters (k,2) whose points lie over the plan-view points xy (k,2) mm.
 
     Newton on S_xy(u, v) = (x, y) from the nearest of a 41 x 41 parameter sample.
@@ -41,7 +42,7 @@ def uv_over_xy(surface: NurbsSurface, xy: np.ndarray, tol_mm: float = 1e-9) -> n
     seeds = np.column_stack([gu.ravel(), gv.ravel()])
     sample_xy = surface.evaluate(seeds[:, 0], seeds[:, 1])[:, :2]
     nearest = np.argmin(((xy[:, None, :] - sample_xy[None, :, :]) ** 2).sum(-1), axis=1)
-    uv = seeds[nearest].copy()
+    uv: npt.NDArray[np.float64] = seeds[nearest].copy()
     lo, hi = np.array([u0, v0]), np.array([u1, v1])
     for _ in range(_NEWTON_STEPS):
         d = surface.derivatives(uv[:, 0], uv[:, 1], 1)
@@ -65,6 +66,6 @@ def uv_over_xy(surface: NurbsSurface, xy: np.ndarray, tol_mm: float = 1e-9) -> n
     return uv
 
 
-def trace_over_xy(surface: NurbsSurface, xy: np.ndarray, degree: int = 3) -> NurbsCurve:
+def trace_over_xy(surface: NurbsSurface, xy: npt.NDArray[np.float64], degree: int = 3) -> NurbsCurve:
     """Drape a plan-view polyline xy (k,2) mm onto a height-field surface -> NurbsCurve."""
     return trace_on_surface(surface, uv_over_xy(surface, xy), degree)

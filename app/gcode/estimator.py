@@ -29,6 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from app.errors import InvalidInput
 from app.gcode.reader import ReadOptions, read_program
@@ -36,6 +37,9 @@ from app.gcode.reader import ReadOptions, read_program
 
 class EstimatorError(InvalidInput):
     """Bad machine limits or unparsable G-code numbers."""
+
+
+Axes4 = tuple[float, float, float, float]  # one value per axis X, Y, Z, E
 
 
 @dataclass(frozen=True)
@@ -46,8 +50,8 @@ class MachineLimits:
     travel_accel_mm_s2: float = 1500.0
     retract_accel_mm_s2: float = 1500.0
     junction_deviation_mm: float = 0.013
-    max_feed_mm_s: tuple[float, float, float, float] = (300.0, 300.0, 10.0, 60.0)
-    max_accel_mm_s2: tuple[float, float, float, float] = (5000.0, 5000.0, 200.0, 5000.0)
+    max_feed_mm_s: Axes4 = (300.0, 300.0, 10.0, 60.0)
+    max_accel_mm_s2: Axes4 = (5000.0, 5000.0, 200.0, 5000.0)
 
     def validate(self) -> None:
         """Raise :class:`EstimatorError` for non-positive limits."""
@@ -75,11 +79,15 @@ class TimeEstimate:
     travel_s: float
     dwell_s: float
     moves: int
-    block_times: np.ndarray
+    block_times: npt.NDArray[np.float64]
     layer_times: tuple[float, ...]
 
 
-def _trapezoid_times(L, vi, vf, vn, a):
+def _trapezoid_times(L: npt.NDArray[np.float64], vi: npt.NDArray[np.float64], vf: npt.NDArray[np.float64],
+                     vn: npt.NDArray[np.float64], a: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """(N,) times (s) of blocks of length ``L`` (mm) entered at ``vi``, left at ``vf``, with
+    nominal speed ``vn`` (mm/s) and acceleration ``a`` (mm/s^2): trapezoid, or triangle when
+    ``vn`` is out of reach."""
     d_acc = (vn ** 2 - vi ** 2) / (2 * a)
     d_dec = (vn ** 2 - vf ** 2) / (2 * a)
     cruise = L - d_acc - d_dec
@@ -88,12 +96,13 @@ def _trapezoid_times(L, vi, vf, vn, a):
         vp = np.sqrt(np.maximum((2 * a * L + vi ** 2 + vf ** 2) / 2, 0.0))
         vp = np.maximum(vp, np.maximum(vi, vf))
         t_tri = (vp - vi) / a + (vp - vf) / a
-    return np.where(cruise >= 0, t_trap, t_tri)
+    times: npt.NDArray[np.float64] = np.where(cruise >= 0, t_trap, t_tri)
+    return times
 
 
-def estimate_moves(positions: np.ndarray, feed_mm_s: np.ndarray, limits: MachineLimits,
-                   stops: np.ndarray | None = None,
-                   jumps: np.ndarray | None = None) -> np.ndarray:
+def estimate_moves(positions: npt.ArrayLike, feed_mm_s: npt.ArrayLike, limits: MachineLimits,
+                   stops: npt.ArrayLike | None = None,
+                   jumps: npt.ArrayLike | None = None) -> npt.NDArray[np.float64]:
     """Per-move times (s) of the moves between ``positions`` (N+1, 4) [x, y, z, e] mm.
 
     ``feed_mm_s`` (N,) requested feed; ``stops`` (N+1,) bool forces a full stop at a
@@ -148,7 +157,14 @@ def estimate_moves(positions: np.ndarray, feed_mm_s: np.ndarray, limits: Machine
     v = np.sqrt(np.maximum(w, 0.0))
     vi, vf = np.minimum(v[:-1], vn), np.minimum(v[1:], vn)
     t = _trapezoid_times(L, vi, vf, vn, a)
-    return np.where(valid, t, 0.0)
+    times: npt.NDArray[np.float64] = np.where(valid, t, 0.0)
+    return times
+
+
+def _per_axis(current: Axes4, words: dict[str, float]) -> Axes4:
+    """``current`` with the axes an M201/M203 command names (X Y Z E words) replaced."""
+    x, y, z, e = (words.get(axis, value) for axis, value in zip("XYZE", current))
+    return (x, y, z, e)
 
 
 def _apply_limit_commands(limits: MachineLimits,
@@ -162,13 +178,10 @@ def _apply_limit_commands(limits: MachineLimits,
                              retract_accel_mm_s2=w.get("R", limits.retract_accel_mm_s2))
         elif code == "M205" and "J" in w:
             limits = replace(limits, junction_deviation_mm=w["J"])
-        elif code in ("M203", "M201"):
-            attr = "max_feed_mm_s" if code == "M203" else "max_accel_mm_s2"
-            cur = list(getattr(limits, attr))
-            for i, ax in enumerate("XYZE"):
-                if ax in w:
-                    cur[i] = w[ax]
-            limits = replace(limits, **{attr: tuple(cur)})  # type: ignore[arg-type]  # attr names a tuple field
+        elif code == "M203":
+            limits = replace(limits, max_feed_mm_s=_per_axis(limits.max_feed_mm_s, w))
+        elif code == "M201":
+            limits = replace(limits, max_accel_mm_s2=_per_axis(limits.max_accel_mm_s2, w))
     return limits
 
 

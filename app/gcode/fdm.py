@@ -18,9 +18,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+import numpy.typing as npt
 
 from app.gcode.writer import GcodeError, ProgramBuilder
+
+if TYPE_CHECKING:  # the slicer imports this writer; the toolpath type is needed only here
+    from app.slicing.toolpath import Toolpath
 
 _DISPENSE = {"marlin": ("M106 S255", "M107"), "grbl": ("M8", "M9")}
 END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
@@ -54,7 +60,8 @@ class FdmParams:
     dispense_off: str | None = None
 
 
-def _start(b: ProgramBuilder, tp, p: FdmParams) -> None:
+def _start(b: ProgramBuilder, tp: Toolpath, p: FdmParams) -> None:
+    """The start section: limits, heating, E mode, homing."""
     lim = tp.params.limits
     b.comment("start")
     if p.dialect == "marlin":
@@ -72,6 +79,7 @@ def _start(b: ProgramBuilder, tp, p: FdmParams) -> None:
 
 
 def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str) -> None:
+    """The end section from the last layer's height ``z`` (mm)."""
     b.comment("end")
     if p.mode == "dispense":
         b.raw(off)
@@ -83,7 +91,7 @@ def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str) -> None:
     b.end()
 
 
-def write_fdm_gcode(toolpath, params: FdmParams = FdmParams()) -> str:
+def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
     """G-code text of ``toolpath`` (a :class:`~app.slicing.toolpath.Toolpath`)."""
     if params.mode not in ("extrude", "dispense"):
         raise GcodeError(f"unknown mode {params.mode!r}", field="mode", value=params.mode)
@@ -98,7 +106,7 @@ def write_fdm_gcode(toolpath, params: FdmParams = FdmParams()) -> str:
     _start(b, toolpath, params)
     b.comment("process")
     e, retracted, extruded = 0.0, False, False
-    pos = None
+    pos: npt.NDArray[np.float64] | None = None
     travel = tpp.travel_feed_mm_s * 60.0
     z = 0.0
     for lay in toolpath.layers:

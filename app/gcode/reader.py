@@ -34,8 +34,10 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
 
@@ -79,28 +81,30 @@ class Program:
     M201/M203/M204/M205 commands in order as (code, {letter: value}).
     """
 
-    start: np.ndarray
-    end: np.ndarray
-    rotary: np.ndarray
-    feed_mm_s: np.ndarray
-    motion: np.ndarray
-    dispense: np.ndarray
-    layer: np.ndarray
-    line: np.ndarray
-    stop_before: np.ndarray
+    start: npt.NDArray[np.float64]
+    end: npt.NDArray[np.float64]
+    rotary: npt.NDArray[np.float64]
+    feed_mm_s: npt.NDArray[np.float64]
+    motion: npt.NDArray[np.int8]
+    dispense: npt.NDArray[np.bool_]
+    layer: npt.NDArray[np.int64]
+    line: npt.NDArray[np.int64]
+    stop_before: npt.NDArray[np.bool_]
     dwell_s: float
     limits: tuple[tuple[str, dict[str, float]], ...]
 
     @property
     def count(self) -> int:
+        """The number of moves m."""
         return len(self.start)
 
     @property
-    def home(self) -> np.ndarray:
+    def home(self) -> npt.NDArray[np.bool_]:
         """(m,) bool: homing moves (they take no planned time)."""
-        return self.motion == HOME
+        home: npt.NDArray[np.bool_] = self.motion == HOME
+        return home
 
-    def bounds(self) -> np.ndarray | None:
+    def bounds(self) -> npt.NDArray[np.float64] | None:
         """(2, 3) lowest and highest XYZ the program commands (mm), None without moves.
         Homing moves do not count (home is the machine's own place, inside its volume by
         definition), nor does the position before the first move (never commanded)."""
@@ -114,9 +118,9 @@ class Program:
 class _State:
     """The modal state while reading (machine frame unless named otherwise)."""
 
-    pos: np.ndarray = field(default_factory=lambda: np.zeros(4))
-    shift: np.ndarray = field(default_factory=lambda: np.zeros(4))  # machine - program (G92)
-    rot: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    pos: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros(4))
+    shift: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros(4))  # machine - program (G92)
+    rot: npt.NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))
     scale: float = 1.0
     relative: bool = False
     relative_e: bool = False
@@ -149,25 +153,44 @@ def _strip(raw: str) -> str:
     return " ".join(line.split())
 
 
+class _Row(NamedTuple):
+    """One move as the reader emits it (the fields of :class:`Program`, one entry each)."""
+
+    start: npt.NDArray[np.float64]
+    end: npt.NDArray[np.float64]
+    rotary: npt.NDArray[np.float64]
+    feed_mm_s: float
+    motion: int
+    dispense: bool
+    layer: int
+    line: int
+    stop_before: bool
+
+
 class _Reader:
+    """The modal interpreter: fed line by line, it collects moves, dwells and limits."""
+
     def __init__(self, options: ReadOptions) -> None:
         self.options = options
         self.on_line = _normalise(options.dispense_on)
         self.off_line = _normalise(options.dispense_off)
         self.state = _State(feed=options.feed_mm_s)
-        self.rows: list[tuple] = []
+        self.rows: list[_Row] = []
         self.dwell = 0.0
         self.limits: list[tuple[str, dict[str, float]]] = []
         self.text = ""  # the current line, stripped
 
-    def emit(self, start: np.ndarray, end: np.ndarray, motion: int, number: int, extrudes: bool) -> None:
+    def emit(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], motion: int, number: int,
+             extrudes: bool) -> None:
+        """Record a move from ``start`` to ``end`` (4,) mm under the current modal state."""
         s = self.state
         dispense = motion in (FEED, ARC_CW, ARC_CCW) and (s.dispensing or extrudes)
-        self.rows.append((start.copy(), end.copy(), s.rot.copy(), s.feed, motion, dispense, s.layer, number,
-                          s.stop_pending))
+        self.rows.append(_Row(start.copy(), end.copy(), s.rot.copy(), s.feed, motion, dispense, s.layer, number,
+                              s.stop_pending))
         s.stop_pending = False
 
     def line(self, parsed: GcodeLine) -> None:
+        """Interpret one tokenized line."""
         s, number = self.state, parsed.number
         tag = _LAYER.search(parsed.text)
         if tag:
@@ -250,7 +273,8 @@ class _Reader:
             return True  # G10, G53, G38.x...: axis words are not a move of ours
         return False
 
-    def target(self, values: dict[str, float]) -> np.ndarray:
+    def target(self, values: dict[str, float]) -> npt.NDArray[np.float64]:
+        """The machine position (4,) mm that the axis words ``values`` command (updates A/C)."""
         s = self.state
         target = s.pos.copy()
         for i, axis in enumerate(_AXES):
@@ -267,6 +291,7 @@ class _Reader:
         return target
 
     def move(self, values: dict[str, float], number: int) -> None:
+        """Emit the move (or arc chords) that the axis words ``values`` command."""
         s = self.state
         start = s.pos.copy()
         rotated = "A" in values or "C" in values
@@ -280,7 +305,8 @@ class _Reader:
             self.emit(start, end, s.motion if s.motion is not None else FEED, number, extrudes)
         s.pos = end
 
-    def arc_points(self, start: np.ndarray, end: np.ndarray, values: dict[str, float], number: int) -> np.ndarray:
+    def arc_points(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], values: dict[str, float],
+                   number: int) -> npt.NDArray[np.float64]:
         """(k + 1, 4) chord points of an XY arc from ``start`` to ``end`` (helical Z, linear E)."""
         s = self.state
         clockwise = s.motion == ARC_CW
@@ -328,6 +354,7 @@ class _Reader:
         return points
 
     def program(self) -> Program:
+        """Everything read so far as a :class:`Program`."""
         m = len(self.rows)
         if m == 0:
             empty = np.zeros((0, 4))

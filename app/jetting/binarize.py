@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 
 from .errors import JettingError
@@ -32,18 +33,19 @@ DIFFUSION_WEIGHTS = np.array([0.25, 0.5, 0.25])
 class BinaryPattern:
     """pattern: (L, W) bool drops of the first layer; objective J at it; integer_gap."""
 
-    pattern: np.ndarray
+    pattern: npt.NDArray[np.bool_]
     objective: float
     integer_gap: float
     flips: int
 
 
-def threshold_pattern(relaxed: np.ndarray, free: np.ndarray) -> np.ndarray:
+def threshold_pattern(relaxed: npt.NDArray[np.float64], free: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
     """(L, W) bool: relaxed >= 1/2 on free cells."""
-    return (relaxed >= 0.5) & free
+    pattern: npt.NDArray[np.bool_] = (relaxed >= 0.5) & free
+    return pattern
 
 
-def error_diffusion_pattern(relaxed: np.ndarray, free: np.ndarray) -> np.ndarray:
+def error_diffusion_pattern(relaxed: npt.NDArray[np.float64], free: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
     """(L, W) bool by row-wise error diffusion of the relaxed drop map."""
     out = np.zeros(relaxed.shape, dtype=bool)
     carry = np.zeros(relaxed.shape[1])
@@ -55,14 +57,14 @@ def error_diffusion_pattern(relaxed: np.ndarray, free: np.ndarray) -> np.ndarray
     return out
 
 
-def lee_colours(shape: tuple[int, int], radius: int) -> tuple[np.ndarray, int]:
+def lee_colours(shape: tuple[int, int], radius: int) -> tuple[npt.NDArray[np.int64], int]:
     """(L, W) colour per cell and the colour count; same colours are >= 2R+1 apart in L1."""
-    i, j = np.indices(shape)
+    i, j = np.indices(shape, dtype=np.int64)
     count = 2 * radius * radius + 2 * radius + 1
     return (i + (2 * radius + 1) * j) % count, count
 
 
-def first_stage_hessian_diagonal(qp: LayerQP, cells: np.ndarray) -> np.ndarray:
+def first_stage_hessian_diagonal(qp: LayerQP, cells: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
     """diag of d^2 J / d f_l^2 at ``cells`` (L, W) by probing G with spaced unit drops."""
     radius = qp.model.support_radius()
     colours, count = lee_colours(qp.h0.shape, radius)
@@ -79,14 +81,15 @@ def first_stage_hessian_diagonal(qp: LayerQP, cells: np.ndarray) -> np.ndarray:
     return 2.0 * total_w * diag + 2.0 * qp.rho
 
 
-def _with_first(x: np.ndarray, first: np.ndarray) -> np.ndarray:
+def _with_first(x: npt.NDArray[np.float64], first: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``x`` (m, L, W) with its first layer replaced by ``first`` (L, W)."""
     out = x.copy()
     out[0] = first
     return out
 
 
-def greedy_pattern(qp: LayerQP, x: np.ndarray, start: np.ndarray,
-                   rounds: int) -> tuple[np.ndarray, int]:
+def greedy_pattern(qp: LayerQP, x: npt.NDArray[np.float64], start: npt.NDArray[np.bool_],
+                   rounds: int) -> tuple[npt.NDArray[np.bool_], int]:
     """Improve the 0/1 first layer ``start`` (L, W) by exact single-drop flips.
 
     x: (m, L, W) relaxed solution (later layers stay relaxed). Returns (pattern, flips).
@@ -116,7 +119,7 @@ def greedy_pattern(qp: LayerQP, x: np.ndarray, start: np.ndarray,
     return pattern > 0.5, flips
 
 
-def binarize(qp: LayerQP, x: np.ndarray, relaxed_objective: float, method: str,
+def binarize(qp: LayerQP, x: npt.NDArray[np.float64], relaxed_objective: float, method: str,
              rounds: int = 3) -> BinaryPattern:
     """0/1 first-layer pattern from the relaxed solution x (m, L, W) by ``method``."""
     if method not in BINARIZE_METHODS:

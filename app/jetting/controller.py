@@ -11,6 +11,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .binarize import BINARIZE_METHODS, binarize
 from .errors import JettingError
@@ -31,8 +32,8 @@ class LayerDecision:
     solve_ms (model + QP + binarization, wall clock), solve_cpu_ms (its CPU time), flips
     (greedy), reference_mm: (L, W) r_(l+1)."""
 
-    pattern: np.ndarray
-    relaxed: np.ndarray
+    pattern: npt.NDArray[np.bool_]
+    relaxed: npt.NDArray[np.float64]
     objective_relaxed: float
     objective_binary: float
     integer_gap: float
@@ -41,7 +42,7 @@ class LayerDecision:
     solve_ms: float
     solve_cpu_ms: float
     flips: int
-    reference_mm: np.ndarray
+    reference_mm: npt.NDArray[np.float64]
 
 
 def validate_controller(ctrl: ControllerParams) -> None:
@@ -63,14 +64,15 @@ def validate_controller(ctrl: ControllerParams) -> None:
             raise JettingError(f"invalid {name}", field=name, value=value)
 
 
-def references(target: Target, drop: DropParams, ctrl: ControllerParams, layer: int) -> np.ndarray:
+def references(target: Target, drop: DropParams, ctrl: ControllerParams, layer: int) -> npt.NDArray[np.float64]:
     """(m, L, W) reference heights r_(l+1..l+m), mm, after ``layer`` printed layers."""
     steps = layer + np.arange(1, ctrl.horizon + 1)
-    return steps[:, None, None] * (ctrl.fill * drop.layer_mm) * target.mask[None].astype(float)
+    refs: npt.NDArray[np.float64] = steps[:, None, None] * (ctrl.fill * drop.layer_mm) * target.mask[None].astype(float)
+    return refs
 
 
-def build_qp(measured_mm: np.ndarray, target: Target, guess: np.ndarray, kernel: DropKernel,
-             drop: DropParams, flow: FlowParams, mobility: np.ndarray, ctrl: ControllerParams,
+def build_qp(measured_mm: npt.NDArray[np.float64], target: Target, guess: npt.NDArray[np.float64], kernel: DropKernel,
+             drop: DropParams, flow: FlowParams, mobility: npt.NDArray[np.float64], ctrl: ControllerParams,
              layer: int) -> LayerQP:
     """The layer's QP with G frozen at the predicted flow of ``guess`` (L, W)."""
     model = build_layer_model(measured_mm, guess, kernel, flow, mobility, ctrl.model)
@@ -83,16 +85,17 @@ def build_qp(measured_mm: np.ndarray, target: Target, guess: np.ndarray, kernel:
                    rho=ctrl.r_weight, scale_mm=drop.layer_mm)
 
 
-def solve_qp(qp: LayerQP, ctrl: ControllerParams, warm: np.ndarray | None = None) -> QPSolution:
+def solve_qp(qp: LayerQP, ctrl: ControllerParams, warm: npt.NDArray[np.float64] | None = None) -> QPSolution:
     """Solve with the configured solver (FISTA or the L-BFGS-B reference)."""
     if ctrl.solver == "lbfgsb":
         return solve_lbfgsb(qp, warm)
     return solve_fista(qp, warm, ctrl.max_iter, ctrl.tol)
 
 
-def mpc_layer(measured_mm: np.ndarray, target: Target, kernel: DropKernel, drop: DropParams,
-              flow: FlowParams, mobility: np.ndarray, ctrl: ControllerParams, layer: int,
-              guess: np.ndarray | None = None, warm: np.ndarray | None = None) -> LayerDecision:
+def mpc_layer(measured_mm: npt.NDArray[np.float64], target: Target, kernel: DropKernel, drop: DropParams,
+              flow: FlowParams, mobility: npt.NDArray[np.float64], ctrl: ControllerParams, layer: int,
+              guess: npt.NDArray[np.float64] | None = None,
+              warm: npt.NDArray[np.float64] | None = None) -> LayerDecision:
     """Next layer's 0/1 pattern from the measured heights (L, W), mm, after ``layer`` layers.
 
     guess: (L, W) pattern the flow is frozen at (default: ``fill`` on the part);
@@ -100,7 +103,7 @@ def mpc_layer(measured_mm: np.ndarray, target: Target, kernel: DropKernel, drop:
     """
     start, start_cpu = time.perf_counter(), time.thread_time()
     if guess is None:
-        guess = ctrl.fill * target.mask
+        guess = ctrl.fill * target.mask.astype(np.float64)
     qp = build_qp(measured_mm, target, guess, kernel, drop, flow, mobility, ctrl, layer)
     solution = solve_qp(qp, ctrl, warm)
     binary = binarize(qp, solution.x, solution.objective, ctrl.binarize, ctrl.greedy_rounds)

@@ -10,12 +10,13 @@ import io
 import zipfile
 
 import numpy as np
+import numpy.typing as npt
 from PIL import Image
 
 FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
-def pattern_png(pattern: np.ndarray, dpi: float | None = None) -> bytes:
+def pattern_png(pattern: npt.NDArray[np.bool_], dpi: float | None = None) -> bytes:
     """(L, W) bool drop pattern -> 1-bit PNG bytes (white = drop), one pixel per cell."""
     image = Image.fromarray(np.asarray(pattern, dtype=bool))
     out = io.BytesIO()
@@ -24,12 +25,12 @@ def pattern_png(pattern: np.ndarray, dpi: float | None = None) -> bytes:
     return out.getvalue()
 
 
-def png_pattern(data: bytes) -> np.ndarray:
+def png_pattern(data: bytes) -> npt.NDArray[np.bool_]:
     """Inverse of ``pattern_png``: (L, W) bool."""
     return np.asarray(Image.open(io.BytesIO(data)).convert("1"), dtype=bool)
 
 
-def npz_bytes(**arrays: np.ndarray | np.generic) -> bytes:
+def npz_bytes(**arrays: npt.NDArray[np.generic] | np.generic) -> bytes:
     """Compressed NPZ (readable by ``numpy.load``) of the named arrays, as bytes."""
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as archive:
@@ -42,7 +43,7 @@ def npz_bytes(**arrays: np.ndarray | np.generic) -> bytes:
     return out.getvalue()
 
 
-def npz_arrays(data: bytes) -> dict[str, np.ndarray]:
+def npz_arrays(data: bytes) -> dict[str, npt.NDArray[np.generic]]:
     """Inverse of ``npz_bytes`` (any NPZ without pickled objects)."""
     with np.load(io.BytesIO(data), allow_pickle=False) as archive:
         return {name: archive[name] for name in archive.files}

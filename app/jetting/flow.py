@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .params import FlowParams
 
@@ -29,7 +30,7 @@ EDGE_WEIGHT = 1.0 / 8.0  # 1 / (2 |M|), |M| = 4 neighbours
 class FlowResult:
     """``surface``: (L, W) heights after flow, mm; ``transport``: the frozen operator."""
 
-    surface: np.ndarray
+    surface: npt.NDArray[np.float64]
     transport: TransportOperator
 
 
@@ -41,20 +42,22 @@ class TransportOperator:
     exact transpose. Columns sum to 1 (mass conserving), entries are >= 0.
     """
 
-    right: np.ndarray
-    left: np.ndarray
-    down: np.ndarray
-    up: np.ndarray
+    right: npt.NDArray[np.float64]
+    left: npt.NDArray[np.float64]
+    down: npt.NDArray[np.float64]
+    up: npt.NDArray[np.float64]
     moving: tuple[bool, ...]
 
     @property
     def steps(self) -> int:
         return int(self.right.shape[0])
 
-    def _stay(self, s: int) -> np.ndarray:
-        return 1.0 - self.right[s] - self.left[s] - self.down[s] - self.up[s]
+    def _stay(self, s: int) -> npt.NDArray[np.float64]:
+        """(L, W) fraction of each cell's liquid that stays put in step ``s``."""
+        stay: npt.NDArray[np.float64] = 1.0 - self.right[s] - self.left[s] - self.down[s] - self.up[s]
+        return stay
 
-    def apply(self, d: np.ndarray) -> np.ndarray:
+    def apply(self, d: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         x = np.asarray(d, dtype=float)
         for s in range(self.steps):
             if not self.moving[s]:
@@ -68,7 +71,7 @@ class TransportOperator:
             x = y
         return x
 
-    def adjoint(self, y: np.ndarray) -> np.ndarray:
+    def adjoint(self, y: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         g = np.asarray(y, dtype=float)
         for s in reversed(range(self.steps)):
             if not self.moving[s]:
@@ -82,7 +85,7 @@ class TransportOperator:
             g = out
         return g
 
-    def diagonal_gain(self, deposit: np.ndarray) -> np.ndarray:
+    def diagonal_gain(self, deposit: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """The seed's 1 + d_ii = (P d)_i / d_i (1 where nothing was deposited), (L, W)."""
         moved = self.apply(deposit)
         safe = np.where(deposit > 0.0, deposit, 1.0)
@@ -102,25 +105,26 @@ class TransportOperator:
         return bound
 
 
-def substrate_tilt(substrate_mm: np.ndarray | None, shape: tuple[int, int],
-                   pitch_mm: float) -> np.ndarray:
+def substrate_tilt(substrate_mm: npt.NDArray[np.float64] | None, shape: tuple[int, int],
+                   pitch_mm: float) -> npt.NDArray[np.float64]:
     """k_i of eq. 6 for the surface z - z_sub(x, y) = 0: arctan |grad z_sub|, rad, (L, W)."""
     if substrate_mm is None:
         return np.zeros(shape)
     gy, gx = np.gradient(np.asarray(substrate_mm, dtype=float), pitch_mm)
-    return np.arctan(np.hypot(gx, gy))
+    tilt: npt.NDArray[np.float64] = np.arctan(np.hypot(gx, gy))
+    return tilt
 
 
-def mobility_map(tilt_rad: np.ndarray, flow: FlowParams, factor: float = 1.0) -> np.ndarray:
+def mobility_map(tilt_rad: npt.NDArray[np.float64], flow: FlowParams, factor: float = 1.0) -> npt.NDArray[np.float64]:
     """(2/pi) eta_s(k_i, lambda) per cell, clipped to [0, 1]: flat value, rising above lambda."""
     excess = np.maximum(tilt_rad - flow.slope_lambda_rad, 0.0)
     return np.clip(flow.mobility * factor * (1.0 + flow.slope_gain * excess), 0.0, 1.0)
 
 
 def flow_layer(
-    surface: np.ndarray,
-    liquid: np.ndarray,
-    mobility: np.ndarray,
+    surface: npt.NDArray[np.float64],
+    liquid: npt.NDArray[np.float64],
+    mobility: npt.NDArray[np.float64],
     flow: FlowParams,
     threshold_factor: float = 1.0,
 ) -> FlowResult:

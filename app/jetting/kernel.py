@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 
 from .errors import JettingError
@@ -22,14 +23,15 @@ class DropKernel:
     """``heights_mm``: (2k+1, 2k+1) height added around the landing cell by one drop, mm;
     ``pitch_mm``: cell size; ``volume_mm3``: drop volume; ``cap_height_mm``: cap apex."""
 
-    heights_mm: np.ndarray
+    heights_mm: npt.NDArray[np.float64]
     pitch_mm: float
     volume_mm3: float
     cap_height_mm: float
 
     @property
     def radius_cells(self) -> int:
-        return self.heights_mm.shape[0] // 2
+        """Half the kernel's side, cells."""
+        return int(self.heights_mm.shape[0]) // 2
 
     @property
     def l1_radius(self) -> int:
@@ -85,7 +87,7 @@ def drop_kernel(drop: DropParams) -> DropKernel:
     return DropKernel(heights_mm=heights, pitch_mm=pitch, volume_mm3=vol, cap_height_mm=hc)
 
 
-def deposit(drops: np.ndarray, kernel: DropKernel) -> np.ndarray:
+def deposit(drops: npt.NDArray[np.float64], kernel: DropKernel) -> npt.NDArray[np.float64]:
     """B f: heights (L, W) mm added by drops (L, W) (0/1 or per-drop volume factors).
 
     Drops within ``radius_cells`` of the grid border lose the part of the kernel that
@@ -93,13 +95,17 @@ def deposit(drops: np.ndarray, kernel: DropKernel) -> np.ndarray:
     """
     k = kernel.heights_mm
     if k.shape == (1, 1):
-        return drops * k[0, 0]
-    return ndimage.convolve(np.asarray(drops, dtype=float), k, mode="constant", cval=0.0)
+        return drops * float(k[0, 0])
+    heights: npt.NDArray[np.float64] = ndimage.convolve(np.asarray(drops, dtype=float), k,  # scipy: untyped
+                                    mode="constant", cval=0.0)
+    return heights
 
 
-def deposit_adjoint(heights: np.ndarray, kernel: DropKernel) -> np.ndarray:
+def deposit_adjoint(heights: npt.NDArray[np.float64], kernel: DropKernel) -> npt.NDArray[np.float64]:
     """B^T y for y (L, W): correlation with the kernel (the exact transpose of ``deposit``)."""
     k = kernel.heights_mm
     if k.shape == (1, 1):
-        return heights * k[0, 0]
-    return ndimage.correlate(np.asarray(heights, dtype=float), k, mode="constant", cval=0.0)
+        return heights * float(k[0, 0])
+    drops: npt.NDArray[np.float64] = ndimage.correlate(np.asarray(heights, dtype=float), k,  # scipy: untyped
+                                   mode="constant", cval=0.0)
+    return drops

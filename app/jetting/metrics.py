@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .targets import Target
 
@@ -35,11 +36,12 @@ class SurfaceMetrics:
         return {k: float(v) for k, v in self.__dict__.items()}
 
 
-def _collapse(heights: np.ndarray, interior_mean: float, edge: np.ndarray) -> float:
+def _collapse(heights: npt.NDArray[np.float64], interior_mean: float, edge: npt.NDArray[np.bool_]) -> float:
+    """Interior mean height minus the mean over the ``edge`` cells (0 without any), mm."""
     return float(interior_mean - heights[edge].mean()) if edge.any() else 0.0
 
 
-def surface_metrics(heights_mm: np.ndarray, target: Target,
+def surface_metrics(heights_mm: npt.NDArray[np.float64], target: Target,
                     target_height_mm: float) -> SurfaceMetrics:
     """Metrics of heights (L, W) mm over ``target.mask``; ``target_height_mm`` is the reference."""
     h = np.asarray(heights_mm, dtype=float)

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 
 from .errors import JettingError
@@ -30,16 +31,16 @@ class LayerModel:
 
     kernel: DropKernel
     transport: TransportOperator | None = None
-    gain: np.ndarray | None = None
+    gain: npt.NDArray[np.float64] | None = None
 
-    def apply(self, drops: np.ndarray) -> np.ndarray:
+    def apply(self, drops: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """G f: heights (L, W) mm added by drops (L, W)."""
         d = deposit(drops, self.kernel)
         if self.transport is not None:
             return self.transport.apply(d)
         return d if self.gain is None else self.gain * d
 
-    def adjoint(self, heights: np.ndarray) -> np.ndarray:
+    def adjoint(self, heights: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """G^T y for y (L, W)."""
         if self.transport is not None:
             y = self.transport.adjoint(heights)
@@ -59,7 +60,7 @@ class LayerModel:
         steps = sum(self.transport.moving) if self.transport is not None else 0
         return self.kernel.l1_radius + steps
 
-    def coupled_cells(self, shape: tuple[int, int]) -> np.ndarray:
+    def coupled_cells(self, shape: tuple[int, int]) -> npt.NDArray[np.bool_]:
         """(L, W) bool: cells whose drop interacts with a neighbour's in G^T G.
 
         Cells elsewhere are decoupled: their QP is separable and rounding is exact there.
@@ -70,17 +71,19 @@ class LayerModel:
             return np.zeros(shape, dtype=bool)
         t = self.transport
         active = (t.right + t.left + t.down + t.up).sum(axis=0) > 0.0
-        return ndimage.binary_dilation(active, structure=diamond(2 * self.support_radius()))
+        footprint = diamond(2 * self.support_radius())
+        coupled: npt.NDArray[np.bool_] = ndimage.binary_dilation(active, structure=footprint)  # scipy: untyped
+        return coupled
 
 
-def diamond(radius: int) -> np.ndarray:
+def diamond(radius: int) -> npt.NDArray[np.bool_]:
     """(2r+1, 2r+1) bool footprint of the L1 ball of ``radius``."""
     i, j = np.indices((2 * radius + 1, 2 * radius + 1)) - radius
     return (np.abs(i) + np.abs(j)) <= radius
 
 
-def build_layer_model(measured_mm: np.ndarray, guess: np.ndarray, kernel: DropKernel,
-                      flow: FlowParams, mobility: np.ndarray, kind: str) -> LayerModel:
+def build_layer_model(measured_mm: npt.NDArray[np.float64], guess: npt.NDArray[np.float64], kernel: DropKernel,
+                      flow: FlowParams, mobility: npt.NDArray[np.float64], kind: str) -> LayerModel:
     """Freeze the flow of ``guess`` (L, W drops, may be fractional) printed on ``measured_mm``."""
     if kind not in MODEL_KINDS:
         raise JettingError("unknown controller model", field="controller.model", value=kind)

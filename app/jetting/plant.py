@@ -9,6 +9,7 @@ Grid rows are the scan direction; column j is printed by nozzle ``j % n_nozzles`
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import JettingError
 from .flow import flow_layer, mobility_map
@@ -20,7 +21,7 @@ class Plant:
     """A simulated jetting printer holding the true height map (L, W), mm."""
 
     def __init__(self, shape: tuple[int, int], kernel: DropKernel, flow: FlowParams,
-                 plant: PlantParams, tilt_rad: np.ndarray | None = None) -> None:
+                 plant: PlantParams, tilt_rad: npt.NDArray[np.float64] | None = None) -> None:
         if plant.nozzle_spread < 0 or plant.drop_noise < 0 or plant.sensor_noise_um < 0:
             raise JettingError("noise levels must be >= 0", field="plant",
                                value=[plant.nozzle_spread, plant.drop_noise, plant.sensor_noise_um])
@@ -41,7 +42,7 @@ class Plant:
         self.mobility = mobility_map(tilt, flow, plant.mobility_factor)
         self.heights = np.zeros(shape)
 
-    def print_layer(self, pattern: np.ndarray) -> np.ndarray:
+    def print_layer(self, pattern: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
         """Jet the 0/1 ``pattern`` (L, W), let the ink flow, cure; returns true heights, mm."""
         drops = np.asarray(pattern, dtype=float)
         noise = 1.0 + self.params.drop_noise * self.rng.standard_normal(drops.shape)
@@ -52,7 +53,7 @@ class Plant:
         self.heights = result.surface
         return self.heights
 
-    def measure(self) -> np.ndarray:
+    def measure(self) -> npt.NDArray[np.float64]:
         """The height sensor's reading of the whole grid (true heights + noise), mm."""
         sigma = self.params.sensor_noise_um * MM_PER_UM
         return self.heights + sigma * self.rng.standard_normal(self.heights.shape)

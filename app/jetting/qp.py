@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy import optimize
 
 from .model import LayerModel
@@ -33,11 +34,11 @@ class LayerQP:
     scale_mm: nominal layer height t."""
 
     model: LayerModel
-    h0: np.ndarray
-    references: np.ndarray
-    free: np.ndarray
-    stage_weights: np.ndarray
-    cell_weight: np.ndarray
+    h0: npt.NDArray[np.float64]
+    references: npt.NDArray[np.float64]
+    free: npt.NDArray[np.bool_]
+    stage_weights: npt.NDArray[np.float64]
+    cell_weight: npt.NDArray[np.float64]
     rho: float
     scale_mm: float
 
@@ -45,7 +46,7 @@ class LayerQP:
     def horizon(self) -> int:
         return int(self.references.shape[0])
 
-    def residuals(self, x: np.ndarray) -> np.ndarray:
+    def residuals(self, x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """(m, L, W) errors (h_(l+i) - r_(l+i)) / t for decision x (m, L, W)."""
         cumulative = x if self.horizon == 1 else np.cumsum(x, axis=0)
         out = np.empty(x.shape)
@@ -53,11 +54,11 @@ class LayerQP:
             out[i] = (self.h0 - self.references[i] + self.model.apply(c)) / self.scale_mm
         return out
 
-    def objective(self, x: np.ndarray) -> float:
+    def objective(self, x: npt.NDArray[np.float64]) -> float:
         return self.objective_and_gradient(x, need_gradient=False)[0]
 
-    def objective_and_gradient(self, x: np.ndarray,
-                               need_gradient: bool = True) -> tuple[float, np.ndarray]:
+    def objective_and_gradient(self, x: npt.NDArray[np.float64],
+                               need_gradient: bool = True) -> tuple[float, npt.NDArray[np.float64]]:
         """J(x) and its gradient (m, L, W) (zero on fixed cells)."""
         e = self.residuals(x)
         value = self.rho * float(np.sum(x * x))
@@ -81,10 +82,10 @@ class LayerQP:
         g = self.model.norm_bound() / self.scale_mm
         return 2.0 * stage * float(self.cell_weight.max()) * g * g + 2.0 * self.rho
 
-    def project(self, x: np.ndarray) -> np.ndarray:
+    def project(self, x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         return np.clip(x, 0.0, 1.0) * self.free[None]
 
-    def kkt_residual(self, x: np.ndarray, grad: np.ndarray | None = None) -> float:
+    def kkt_residual(self, x: npt.NDArray[np.float64], grad: npt.NDArray[np.float64] | None = None) -> float:
         """max |projected gradient| over the free cells (0 at a KKT point)."""
         if grad is None:
             grad = self.objective_and_gradient(x)[1]
@@ -98,14 +99,14 @@ class LayerQP:
 class QPSolution:
     """x: (m, L, W) relaxed optimum; objective; iterations; kkt_residual; seconds."""
 
-    x: np.ndarray
+    x: npt.NDArray[np.float64]
     objective: float
     iterations: int
     kkt_residual: float
     seconds: float
 
 
-def solve_fista(qp: LayerQP, x0: np.ndarray | None = None, max_iter: int = 300,
+def solve_fista(qp: LayerQP, x0: npt.NDArray[np.float64] | None = None, max_iter: int = 300,
                 tol: float = 1e-4) -> QPSolution:
     """Projected FISTA with gradient-based adaptive restart; stops when the gradient
     mapping L |y - x_new|_inf <= tol (units: objective per drop)."""
@@ -132,7 +133,7 @@ def solve_fista(qp: LayerQP, x0: np.ndarray | None = None, max_iter: int = 300,
                       kkt_residual=qp.kkt_residual(x, grad), seconds=time.perf_counter() - start)
 
 
-def solve_lbfgsb(qp: LayerQP, x0: np.ndarray | None = None, max_iter: int = 2000,
+def solve_lbfgsb(qp: LayerQP, x0: npt.NDArray[np.float64] | None = None, max_iter: int = 2000,
                  tol: float = 1e-10) -> QPSolution:
     """Reference solve with scipy's L-BFGS-B on the free cells (bounds [0, 1])."""
     start = time.perf_counter()
@@ -141,7 +142,7 @@ def solve_lbfgsb(qp: LayerQP, x0: np.ndarray | None = None, max_iter: int = 2000
     full = np.zeros(shape)
     start_x = qp.project(np.zeros(shape) if x0 is None else x0)[free]
 
-    def fun(v: np.ndarray) -> tuple[float, np.ndarray]:
+    def fun(v: npt.NDArray[np.float64]) -> tuple[float, npt.NDArray[np.float64]]:
         full[free] = v
         value, grad = qp.objective_and_gradient(full)
         return value, grad[free]

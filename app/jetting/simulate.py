@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .controller import LayerDecision, mpc_layer, validate_controller
 from .encode import npz_bytes
@@ -49,10 +50,10 @@ class SimulationResult:
     (L, W) mm; target: the grid and part."""
 
     layers: tuple[LayerRecord, ...]
-    patterns: np.ndarray
-    heights: np.ndarray
+    patterns: npt.NDArray[np.bool_]
+    heights: npt.NDArray[np.float32]
     snapshot_layers: tuple[int, ...]
-    final_heights: np.ndarray
+    final_heights: npt.NDArray[np.float64]
     target: Target
 
     @property
@@ -104,7 +105,7 @@ def _validate(params: JettingParams) -> None:
 
 
 def simulate(params: JettingParams, target: Target | None = None,
-             substrate_mm: np.ndarray | None = None,
+             substrate_mm: npt.NDArray[np.float64] | None = None,
              progress: Callable[[int, int], None] | None = None) -> SimulationResult:
     """Print ``params.layers`` layers on the simulated plant, open loop or with the MPC.
 
@@ -127,7 +128,7 @@ def simulate(params: JettingParams, target: Target | None = None,
     model_mobility = mobility_map(tilt, params.flow)
     fill = ctrl.fill if ctrl.kind == "mpc" else 1.0
     patterns = np.zeros((params.layers,) + target.shape, dtype=bool)
-    snaps: list[np.ndarray] = []
+    snaps: list[npt.NDArray[np.float32]] = []
     snap_layers: list[int] = []
     records: list[LayerRecord] = []
     guess, warm = None, None
@@ -166,9 +167,9 @@ def simulate(params: JettingParams, target: Target | None = None,
                             target=target)
 
 
-def next_layer(measured_height_mm: np.ndarray, target: Target, params: JettingParams,
-               layer: int | None = None, previous_pattern: np.ndarray | None = None,
-               substrate_mm: np.ndarray | None = None) -> LayerDecision:
+def next_layer(measured_height_mm: npt.NDArray[np.float64], target: Target, params: JettingParams,
+               layer: int | None = None, previous_pattern: npt.NDArray[np.bool_] | None = None,
+               substrate_mm: npt.NDArray[np.float64] | None = None) -> LayerDecision:
     """The next layer's 0/1 pattern for a real printer from a measured height map.
 
     measured_height_mm: (L, W) heights on the target's grid, mm; layer: layers printed so

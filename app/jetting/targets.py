@@ -11,6 +11,7 @@ import io
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import shapely
 from PIL import Image, UnidentifiedImageError
 from scipy import ndimage
@@ -36,10 +37,10 @@ class Target:
     ``interior``: (L, W) bool part cells farther than ``interior_mm`` from any edge;
     ``pitch_mm``: cell size."""
 
-    mask: np.ndarray
-    outer_edge: np.ndarray
-    hole_edge: np.ndarray
-    interior: np.ndarray
+    mask: npt.NDArray[np.bool_]
+    outer_edge: npt.NDArray[np.bool_]
+    hole_edge: npt.NDArray[np.bool_]
+    interior: npt.NDArray[np.bool_]
     pitch_mm: float
 
     @property
@@ -47,7 +48,7 @@ class Target:
         return self.mask.shape
 
 
-def target_from_mask(mask: np.ndarray, drop: DropParams, margin_mm: float = 0.25,
+def target_from_mask(mask: npt.ArrayLike, drop: DropParams, margin_mm: float = 0.25,
                      interior_mm: float = 0.5, field: str = "target.mask") -> Target:
     """Target from a boolean (L, W) part mask at the print pitch; pads ``margin_mm``."""
     part = np.asarray(mask, dtype=bool)
@@ -97,7 +98,7 @@ def target_from_png(data: bytes, drop: DropParams, margin_mm: float = 0.25,
     return target_from_mask(grey >= 128, drop, margin_mm)
 
 
-def target_from_rings(rings: list[np.ndarray], drop: DropParams, margin_mm: float = 0.25,
+def target_from_rings(rings: list[npt.NDArray[np.float64]], drop: DropParams, margin_mm: float = 0.25,
                       max_cells: int = DEFAULT_MAX_CELLS) -> Target:
     """Target from polygon rings ((n_i, 2) arrays, mm; even-odd rule: inner rings are holes).
 

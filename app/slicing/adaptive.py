@@ -1,7 +1,7 @@
 """Layer-thickness planners: uniform, the seed S4 rules (area, multi-cavity), cusp.
 
 Each planner takes a :class:`~app.slicing.layers.Sampler` (sections by height) and
-:class:`~app.slicing.layers.SliceParams` and returns ``(layers, notes)``.
+:class:`~app.slicing.layers.SliceParams` and returns a :class:`LayerPlan` ``(layers, notes)``.
 
 Seed S4, steps 1-11 as published (``area`` mode = steps without step 9):
   3-4  slice at Z = z_min, store rings, A_i and the inner-ring count n;
@@ -19,17 +19,26 @@ leaves the top unsliced; we cap the step at the remaining height so the part is 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
-from app.slicing.layers import Layer, make_layer
+from app.slicing.layers import Layer, Sampler, SliceParams, make_layer
 
 _STEP_EPS = 1e-9  # mm; float slack when comparing accumulated steps
 
 
-def _check_count(n: int, params) -> None:
+class LayerPlan(NamedTuple):
+    """A planner's result: the layers bottom to top and remarks on how the rule was read."""
+
+    layers: list[Layer]
+    notes: list[str]
+
+
+def _check_count(n: int, params: SliceParams) -> None:
     if n > params.max_layers:
         raise SlicingError(f"more than {params.max_layers} layers needed", field="params",
                            value=n)
@@ -56,7 +65,7 @@ def uniform_plan(height: float, layer_mm: float, remainder: str, z_tol: float) -
     return [layer_mm] * full + [rest]
 
 
-def uniform_layers(sampler, params):
+def uniform_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
     """Slabs of ``layer_mm`` with the remainder distributed or merged (no sliver), sampled
     mid-height."""
     z0, z1 = sampler.prepared.z_min, sampler.prepared.z_max
@@ -64,7 +73,8 @@ def uniform_layers(sampler, params):
     _check_count(len(plan), params)
     bounds = z0 + np.concatenate([[0.0], np.cumsum(plan)])
     bounds[-1] = z1
-    layers, prev = [], None
+    layers: list[Layer] = []
+    prev: float | None = None
     for k in range(len(plan)):
         bottom, top = float(bounds[k]), float(bounds[k + 1])
         off = abs(top - bottom - params.layer_mm)
@@ -75,15 +85,15 @@ def uniform_layers(sampler, params):
         lay = make_layer(k, bottom, top, 0.5 * (bottom + top), sampler, prev, reason, params)
         layers.append(lay)
         prev = lay.area
-    notes = []
+    notes: list[str] = []
     if len(plan) and abs(plan[-1] - params.layer_mm) > 1e-9:
         notes.append(f"the part's height {z1 - z0:.6g} mm is not a multiple of {params.layer_mm} mm: "
                      + (f"{len(plan)} layers of {plan[0]:.6g} mm" if params.remainder == "distribute"
                         else f"last layer {plan[-1]:.6g} mm"))
-    return layers, notes
+    return LayerPlan(layers, notes)
 
 
-def _no_sliver(z: float, step: float, z_max: float, params) -> float:
+def _no_sliver(z: float, step: float, z_max: float, params: SliceParams) -> float:
     """The slab top after ``z + step``: a rest under ``l_min`` above it is merged into this
     slab (or, when that would pass ``l_max``, the two are split evenly)."""
     rest = z_max - (z + step)
@@ -94,7 +104,7 @@ def _no_sliver(z: float, step: float, z_max: float, params) -> float:
     return z + step
 
 
-def area_layers(sampler, params):
+def area_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
     """Seed S4 area-deviation rule, plus step 9 (multi-cavity) in ``cavity`` mode."""
     z_min, z_max = sampler.prepared.z_min, sampler.prepared.z_max
     z = z_min
@@ -129,7 +139,7 @@ def area_layers(sampler, params):
             eps = abs(st.area - a_i) / a_i
             reason = f"area change: eps {eps:.3g} <= eps0 at {step:.6g} mm"
         if not floor_hit and params.mode == "cavity":               # step 9
-            mu = cavity_mu(st_i, params)
+            mu = cavity_mu(st_i, params.sigma0, params.theta_rule)
             if params.mu0 <= mu <= params.mu1:
                 step = min(params.l_min, remaining)
                 reason = f"multi-cavity: mu {mu:.4g} in [mu0, mu1], sigma {st_i.sigma:.3g}"
@@ -144,14 +154,15 @@ def area_layers(sampler, params):
         _check_count(len(layers), params)
         _, st_i = sampler.section(top)
         a_i, z = st_i.area, top
-    return layers, notes
+    return LayerPlan(layers, notes)
 
 
 class _RangeMax:
     """Max of per-facet values over z bins: range-max painting + O(1) range queries."""
 
-    def __init__(self, lo_bin: np.ndarray, hi_bin: np.ndarray, values: np.ndarray,
+    def __init__(self, lo_bin: npt.NDArray[np.int64], hi_bin: npt.NDArray[np.int64], values: npt.NDArray[np.float64],
                  n_bins: int) -> None:
+        """Facet k spans bins ``lo_bin[k]..hi_bin[k]`` (inclusive) with value ``values[k]``."""
         levels = max(1, int(np.ceil(np.log2(max(n_bins, 2)))) + 1)
         paint = np.zeros((levels, n_bins + 1))
         length = hi_bin - lo_bin + 1
@@ -179,7 +190,7 @@ class _RangeMax:
         return float(max(t[i0], t[i1 - (1 << k) + 1]))
 
 
-def cusp_layers(sampler, params):
+def cusp_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
     """Cusp-height rule: t = clamp(cusp_mm / max|n_z|, l_min, l_max) over the slab's facets.
 
     Facets with |n_z| > 1 - 1e-9 (horizontal) are excluded and their heights become snap
@@ -192,8 +203,8 @@ def cusp_layers(sampler, params):
     bin_mm = min(params.l_min, params.cusp_mm) / 4.0
     n_bins = max(1, int(math.ceil((z_max - z_min) / bin_mm)))
     _check_count(int((z_max - z_min) / params.l_min), params)
-    lo = np.clip(((pm.face_z[~flat, 0] - z_min) / bin_mm).astype(int), 0, n_bins - 1)
-    hi = np.clip(((pm.face_z[~flat, 1] - z_min) / bin_mm).astype(int), 0, n_bins - 1)
+    lo = np.clip(((pm.face_z[~flat, 0] - z_min) / bin_mm).astype(np.int64), 0, n_bins - 1)
+    hi = np.clip(((pm.face_z[~flat, 1] - z_min) / bin_mm).astype(np.int64), 0, n_bins - 1)
     rmq = _RangeMax(lo, hi, nz[~flat], n_bins)
     flats = np.unique(np.round(pm.face_z[flat, 0], 9))
     flats = flats[(flats > z_min + params.z_tol) & (flats < z_max - params.z_tol)]
@@ -226,4 +237,4 @@ def cusp_layers(sampler, params):
         layers.append(lay)
         _check_count(len(layers), params)
         z = top
-    return layers, [f"cusp height {params.cusp_mm} mm; z bins of {bin_mm:.4g} mm"]
+    return LayerPlan(layers, [f"cusp height {params.cusp_mm} mm; z bins of {bin_mm:.4g} mm"])

@@ -22,8 +22,9 @@ def theta(sigma: float, sigma0: float, rule: str) -> int:
     return int(math.log(arg) / 4.0) if arg > 0 else 0
 
 
-def cavity_mu(st: SectionStats, params) -> float:
-    """mu = theta * (1/n) * sum(A_in) / A_out (0 without inner rings)."""
+def cavity_mu(st: SectionStats, sigma0: float, theta_rule: str) -> float:
+    """mu = theta * (1/n) * sum(A_in) / A_out (0 without inner rings); ``sigma0`` and
+    ``theta_rule`` as in :class:`~app.slicing.layers.SliceParams`."""
     if st.inner_ring_count == 0:
         return 0.0
-    return theta(st.sigma, params.sigma0, params.theta_rule) * st.mean_inner_ratio
+    return theta(st.sigma, sigma0, theta_rule) * st.mean_inner_ratio

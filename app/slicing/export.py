@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from app.slicing.errors import SlicingError
 from app.slicing.layers import Layer, SliceParams, SliceResult
@@ -52,16 +53,17 @@ class SlcOptions:
     label: str = "CONFORMA"
 
 
-def _closed(ring: np.ndarray) -> np.ndarray:
+def _closed(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``ring`` (n, 2) with its first vertex repeated at the end (n + 1, 2)."""
     return np.vstack([ring, ring[:1]])
 
 
-def _quantised_boundaries(result, q: float) -> np.ndarray:
+def _quantised_boundaries(result: SliceResult, q: float) -> npt.NDArray[np.float64]:
     """Layer boundaries (L+1,): each layer's true top (the running sum of thicknesses)
     rounded to the ``q`` grid above the first bottom, so rounding never accumulates."""
     z0 = result.layers[0].z_bottom
     tops = np.array([lay.z_top for lay in result.layers])
-    zq = z0 + np.concatenate([[0.0], np.round((tops - z0) / q) * q])
+    zq: npt.NDArray[np.float64] = z0 + np.concatenate([[0.0], np.round((tops - z0) / q) * q])
     thin = np.flatnonzero(np.diff(zq) <= 0)
     if len(thin):
         k = int(thin[0])
@@ -70,10 +72,12 @@ def _quantised_boundaries(result, q: float) -> np.ndarray:
     return zq
 
 
-def _sampling_table(zq: np.ndarray, comp: float, notes: list[str]):
+def _sampling_table(zq: npt.NDArray[np.float64], comp: float,
+                    notes: list[str]) -> tuple[tuple[float, float, float], ...]:
+    """SLC sampling-table rows (min_z mm, thickness mm, compensation mm), at most 255."""
     t = np.round(np.diff(zq), 9)
     starts = [0] + [i for i in range(1, len(t)) if t[i] != t[i - 1]]
-    runs = [[zq[s], t[s], (starts + [len(t)])[k + 1] - s] for k, s in enumerate(starts)]
+    runs: list[list[float]] = [[zq[s], t[s], (starts + [len(t)])[k + 1] - s] for k, s in enumerate(starts)]
     if len(runs) > 255:
         notes.append(f"{len(runs)} runs of equal thickness merged into 255 sampling-table "
                      f"entries (entry thickness = the run's most common one); each layer's "
@@ -86,7 +90,7 @@ def _sampling_table(zq: np.ndarray, comp: float, notes: list[str]):
     return tuple((float(r[0]), float(r[1]), comp) for r in runs)
 
 
-def to_slc(result, options: SlcOptions = SlcOptions()) -> SlcExport:
+def to_slc(result: SliceResult, options: SlcOptions = SlcOptions()) -> SlcExport:
     """Encode ``result`` (a SliceResult) as SLC bytes; see the module docstring."""
     if not result.layers:
         raise SlicingError("no layers to export", field="layers", value=0)
@@ -122,7 +126,7 @@ def to_slc(result, options: SlcOptions = SlcOptions()) -> SlcExport:
     return SlcExport(b"".join(out), table, tuple(notes))
 
 
-def _joined(values: np.ndarray, decimals: int, sep: str = ",") -> str:
+def _joined(values: npt.NDArray[np.float64], decimals: int, sep: str = ",") -> str:
     """Fixed-decimal numbers of ``values`` (flattened) joined by ``sep``, formatted in C
     (printf), never ``-0.000...``."""
     flat = np.asarray(values, dtype=np.float64).ravel() + 0.0
@@ -130,7 +134,7 @@ def _joined(values: np.ndarray, decimals: int, sep: str = ",") -> str:
     return (sep.join([f"%.{decimals}f"] * len(flat))) % tuple(flat.tolist())
 
 
-def _points_json(ring: np.ndarray, decimals: int) -> str:
+def _points_json(ring: npt.NDArray[np.float64], decimals: int) -> str:
     """A ring (n, 2) as JSON text ``[[x,y],...]`` at ``decimals`` (formatted in C)."""
     flat = np.asarray(ring, dtype=np.float64).ravel() + 0.0
     flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
@@ -138,7 +142,7 @@ def _points_json(ring: np.ndarray, decimals: int) -> str:
     return "[" + ",".join([pair] * (len(flat) // 2)) % tuple(flat.tolist()) + "]"
 
 
-def to_cli(result, hatches: dict[int, np.ndarray] | None = None, label: str = "part",
+def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | None = None, label: str = "part",
            decimals: int = 6) -> str:
     """Encode ``result`` as ASCII CLI text; ``hatches[layer_index]``: (k, 4) x1,y1,x2,y2 mm."""
     if not result.layers:
@@ -168,7 +172,7 @@ def _island_json(isl: Island, decimals: int) -> str:
     return f'{{"outer":{_points_json(isl.outer, decimals)},"holes":[{holes}]}}'
 
 
-def to_json(result, decimals: int = 6) -> str:
+def to_json(result: SliceResult, decimals: int = 6) -> str:
     """Per-layer contours and statistics as JSON text (mm, mm^2)."""
     layers = [{"index": lay.index, "z_bottom": round(lay.z_bottom, 9),
                "z_top": round(lay.z_top, 9), "z_sample": round(lay.z_sample, 9),
@@ -188,7 +192,7 @@ def to_json(result, decimals: int = 6) -> str:
     return head + "[" + ",".join(rows) + "]}"
 
 
-def _ring(points, where: str) -> np.ndarray:
+def _ring(points: npt.ArrayLike, where: str) -> npt.NDArray[np.float64]:
     ring = np.asarray(points, dtype=np.float64)
     if ring.ndim != 2 or ring.shape[1] != 2 or len(ring) < 3 or not np.all(np.isfinite(ring)):
         raise SlicingError(f"{where}: a ring needs >= 3 finite [x, y] points", field=where,
@@ -207,7 +211,7 @@ def from_json(text: str | bytes) -> SliceResult:
         doc = json.loads(text)
         params = SliceParams(**doc["params"]) if "params" in doc else SliceParams(mode=doc["mode"])
         rows = doc["layers"]
-        layers = []
+        layers: list[Layer] = []
         for k, row in enumerate(rows):
             where = f"layers[{k}]"
             islands = tuple(
@@ -241,7 +245,7 @@ def from_json(text: str | bytes) -> SliceResult:
                        bounds=bounds, volume=volume, repairs=repairs, notes=notes)
 
 
-def layer_svg(result, index: int, paths: list[np.ndarray] | None = None,
+def layer_svg(result: SliceResult, index: int, paths: list[npt.NDArray[np.float64]] | None = None,
               size_px: int = 600) -> str:
     """SVG of layer ``index``: material filled (even-odd), optional (n, 2) polylines on top."""
     if not 0 <= index < len(result.layers):
@@ -252,7 +256,7 @@ def layer_svg(result, index: int, paths: list[np.ndarray] | None = None,
     w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
     pad = 0.02 * max(w, h)
 
-    def pts(a: np.ndarray) -> str:
+    def pts(a: npt.NDArray[np.float64]) -> str:
         return " ".join(f"{x:.4f},{y0 + y1 - y:.4f}" for x, y in a)   # flip y (SVG is y-down)
 
     d = " ".join(f"M {pts(r)} Z" for isl in lay.islands for r in isl.rings())

@@ -9,9 +9,13 @@ region's extent, so a 100 % fill of pitch = line width covers the region edge to
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+import numpy.typing as npt
 import shapely
 from shapely.geometry import MultiPolygon, Polygon
+from shapely.geometry.base import BaseGeometry
 
 from app.slicing.offset import offset_islands
 from app.slicing.rings import Island
@@ -22,15 +26,23 @@ def region_geometry(islands: tuple[Island, ...]) -> MultiPolygon:
     return MultiPolygon([Polygon(i.outer, list(i.holes)) for i in islands])
 
 
-def _rotation(angle: float) -> np.ndarray:
+def _rotation(angle: float) -> npt.NDArray[np.float64]:
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s], [s, c]])
 
 
-def scan_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0):
+class ScanIntervals(NamedTuple):
+    """Scan lines of a region in the frame rotated by ``-angle``: ``ys`` (K,) scan heights
+    (mm) and ``rows[k]`` the (m, 2) [x_start, x_end] material intervals (mm) on line k."""
+
+    ys: npt.NDArray[np.float64]
+    rows: list[npt.NDArray[np.float64]]
+
+
+def scan_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> ScanIntervals:
     """Scan-line intersections of the region.
 
-    Returns ``(ys, rows)`` in the frame rotated by ``-angle``: ``ys`` (K,) scan heights and
+    Returns ``(ys, rows)`` (:class:`ScanIntervals`) in the frame rotated by ``-angle``: ``ys`` (K,) scan heights and
     ``rows[k]`` an (m, 2) array of [x_start, x_end] material intervals, sorted by x.
     """
     rot = _rotation(-angle)
@@ -40,7 +52,7 @@ def scan_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0
             r = ring @ rot.T
             edges.append(np.stack([r, np.roll(r, -1, axis=0)], axis=1))
     if not edges:
-        return np.zeros(0), []
+        return ScanIntervals(np.zeros(0), [])
     e = np.concatenate(edges)                                   # (E, 2, 2)
     y_lo, y_hi = e[:, :, 1].min(), e[:, :, 1].max()
     n = int(np.floor((y_hi - y_lo) / pitch))
@@ -50,28 +62,29 @@ def scan_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0
         ys = np.array([0.5 * (y_lo + y_hi)])
     y0, y1 = e[:, 0, 1], e[:, 1, 1]
     x0, x1 = e[:, 0, 0], e[:, 1, 0]
-    rows = []
+    rows: list[npt.NDArray[np.float64]] = []
     for y in ys:
         hit = (y0 <= y) != (y1 <= y)
         t = (y - y0[hit]) / (y1[hit] - y0[hit])
         xs = np.sort(x0[hit] + t * (x1[hit] - x0[hit]))
         rows.append(xs[: len(xs) // 2 * 2].reshape(-1, 2))
-    return ys, rows
+    return ScanIntervals(ys, rows)
 
 
-def _to_world(points: np.ndarray, angle: float) -> np.ndarray:
+def _to_world(points: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
     return points @ _rotation(angle).T
 
 
-def _link_ok(region, a: np.ndarray, b: np.ndarray, max_len: float) -> bool:
+def _link_ok(region: BaseGeometry, a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], max_len: float) -> bool:
     if np.hypot(*(b - a)) > max_len:
         return False
     return bool(region.covers(shapely.LineString([a, b])))
 
 
-def _chain(segments: list[np.ndarray], region, max_link: float) -> list[np.ndarray]:
+def _chain(segments: list[npt.NDArray[np.float64]], region: BaseGeometry,
+           max_link: float) -> list[npt.NDArray[np.float64]]:
     """Join consecutive (2, 2) world segments into polylines when the link stays inside."""
-    out: list[list[np.ndarray]] = []
+    out: list[list[npt.NDArray[np.float64]]] = []
     for seg in segments:
         if out and _link_ok(region, out[-1][-1][-1], seg[0], max_link):
             out[-1].append(seg)
@@ -80,7 +93,8 @@ def _chain(segments: list[np.ndarray], region, max_link: float) -> list[np.ndarr
     return [np.vstack(parts) for parts in out]
 
 
-def raster_fill(islands, pitch: float, angle: float = 0.0, zigzag: bool = True):
+def raster_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0,
+                zigzag: bool = True) -> list[npt.NDArray[np.float64]]:
     """Direct raster: row after row across the whole layer, alternating direction.
 
     ``zigzag`` joins a row's last segment to the next row's first one with an extruded
@@ -88,7 +102,7 @@ def raster_fill(islands, pitch: float, angle: float = 0.0, zigzag: bool = True):
     nozzle jumps (the seed's "many jumps at cavities").
     """
     ys, rows = scan_intervals(islands, pitch, angle)
-    segs = []
+    segs: list[npt.NDArray[np.float64]] = []
     for k, (y, iv) in enumerate(zip(ys, rows)):
         order = iv if k % 2 == 0 else iv[::-1, ::-1]
         for x0, x1 in order:
@@ -98,14 +112,14 @@ def raster_fill(islands, pitch: float, angle: float = 0.0, zigzag: bool = True):
     return _chain(segs, region_geometry(islands).buffer(1e-9), 3 * pitch)
 
 
-def zone_fill(islands, pitch: float, angle: float = 0.0):
+def zone_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> list[npt.NDArray[np.float64]]:
     """Partition (zone) scanning: split the scan intervals into monotone zones (a new zone
     starts wherever the interval structure splits or merges), zigzag each zone."""
     ys, rows = scan_intervals(islands, pitch, angle)
     zones: list[list[tuple[float, float, float]]] = []
     prev_zone: list[int] = []
     for k, (y, iv) in enumerate(zip(ys, rows)):
-        cur_zone = []
+        cur_zone: list[int] = []
         prev_iv = rows[k - 1] if k else np.zeros((0, 2))
         for a, b in iv:
             over = np.nonzero((prev_iv[:, 0] < b) & (prev_iv[:, 1] > a))[0]
@@ -122,9 +136,9 @@ def zone_fill(islands, pitch: float, angle: float = 0.0):
             cur_zone.append(zid)
         prev_zone = cur_zone
     region = region_geometry(islands).buffer(1e-9)
-    out = []
+    out: list[npt.NDArray[np.float64]] = []
     for zone in zones:
-        segs = []
+        segs: list[npt.NDArray[np.float64]] = []
         for j, (y, a, b) in enumerate(zone):
             xs = (a, b) if j % 2 == 0 else (b, a)
             segs.append(_to_world(np.array([[xs[0], y], [xs[1], y]]), angle))
@@ -132,12 +146,12 @@ def zone_fill(islands, pitch: float, angle: float = 0.0):
     return out
 
 
-def contour_fill(islands, pitch: float, max_rings: int = 100_000):
+def contour_fill(islands: tuple[Island, ...], pitch: float, max_rings: int = 100_000) -> list[npt.NDArray[np.float64]]:
     """Contour-offset fill: rings at -pitch/2, -3 pitch/2, ... until the region vanishes.
 
     Returns closed polylines (first vertex repeated at the end), outermost first.
     """
-    out: list[np.ndarray] = []
+    out: list[npt.NDArray[np.float64]] = []
     current = offset_islands(islands, -0.5 * pitch)
     while current and len(out) < max_rings:
         for isl in current:

@@ -17,17 +17,22 @@ Both place cells of side ``p`` over the region; cell centres are path vertices.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-
-from typing import Any
+from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
 from scipy.sparse.csgraph import minimum_spanning_tree
 from shapely import contains_xy
-from shapely.geometry import MultiLineString
+from shapely.geometry import MultiLineString, MultiPolygon
 
 from app.slicing.fills import region_geometry
+from app.slicing.rings import Island
+
+IntArray = npt.NDArray[np.int64]
+Edges = set[tuple[int, int]]
 
 
 @dataclass(frozen=True)
@@ -38,7 +43,7 @@ class MergeWeights:
     across: float = 2.0
 
 
-def hilbert_d2xy(order: int, d: np.ndarray) -> np.ndarray:
+def hilbert_d2xy(order: int, d: npt.ArrayLike) -> IntArray:
     """Hilbert index ``d`` (N,) -> integer cell coordinates (N, 2) on a 2^order grid."""
     d = np.asarray(d, dtype=np.int64).copy()
     x = np.zeros_like(d)
@@ -59,23 +64,34 @@ def hilbert_d2xy(order: int, d: np.ndarray) -> np.ndarray:
     return np.stack([x, y], axis=1)
 
 
-def _grid(islands, pitch: float, phase=(0, 0)):
+class _Grid(NamedTuple):
+    """A cell grid over islands: ``origin`` (2,) mm, the first cell's centre; ``n`` (2,)
+    cell counts along x and y."""
+
+    origin: npt.NDArray[np.float64]
+    n: IntArray
+
+
+def _grid(islands: tuple[Island, ...], pitch: float, phase: tuple[int, int] = (0, 0)) -> _Grid:
     lo = np.min([i.outer.min(axis=0) for i in islands], axis=0)
     hi = np.max([i.outer.max(axis=0) for i in islands], axis=0)
-    origin = lo + pitch * (0.5 - np.asarray(phase, dtype=float))
-    n = np.ceil((hi - origin) / pitch).astype(int) + 1
-    return origin, n
+    origin = lo + pitch * (0.5 - np.asarray(phase, dtype=np.float64))
+    n = np.ceil((hi - origin) / pitch).astype(np.int64) + 1
+    return _Grid(origin, n)
 
 
-def _centres(origin, ij, pitch):
-    return origin + pitch * np.asarray(ij, dtype=float)
+def _centres(origin: npt.NDArray[np.float64], ij: npt.ArrayLike, pitch: float) -> npt.NDArray[np.float64]:
+    """Cell indices ``ij`` (n, 2) (or one (2,)) -> cell centres in mm, same shape."""
+    return origin + pitch * np.asarray(ij, dtype=np.float64)
 
 
-def _inside(region, pts: np.ndarray) -> np.ndarray:
-    return contains_xy(region, pts[:, 0], pts[:, 1])
+def _inside(region: MultiPolygon, pts: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+    """(n,) whether each point of ``pts`` (n, 2) mm lies inside ``region``."""
+    inside: npt.NDArray[np.bool_] = contains_xy(region, pts[:, 0], pts[:, 1])  # shapely: untyped
+    return inside
 
 
-def simplify_collinear(path: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+def simplify_collinear(path: npt.NDArray[np.float64], tol: float = 1e-9) -> npt.NDArray[np.float64]:
     """Drop vertices where the polyline (n, 2) goes straight on (keeps the ends)."""
     if len(path) < 3:
         return path
@@ -88,7 +104,7 @@ def simplify_collinear(path: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     return path[keep]
 
 
-def hilbert_fill(islands, pitch: float) -> list[np.ndarray]:
+def hilbert_fill(islands: tuple[Island, ...], pitch: float) -> list[npt.NDArray[np.float64]]:
     """Plain Hilbert-curve fill at ``pitch`` (mm): the curve over the region's bounding
     grid clipped to the region (as the reference slicers do); polylines (n, 2) in mm."""
     if not islands:
@@ -108,34 +124,40 @@ def hilbert_fill(islands, pitch: float) -> list[np.ndarray]:
             if g.geom_type == "LineString" and g.length > 1e-9]
 
 
-def _cycle_edges(full: np.ndarray, nx: int, ny: int, weights: MergeWeights, along_x: bool):
-    """Edges (set of (a, b) cell ids, a < b) of the merged circuits over full blocks."""
+def _cycle_edges(full: npt.NDArray[np.bool_], ny: int, weights: MergeWeights, along_x: bool) -> Edges:
+    """Edges (set of (a, b) cell ids, a < b) of the merged circuits over the full 2 x 2 blocks
+    ``full`` (bx, by); cell (i, j) has id ``i * ny + j``."""
     bx, by = full.shape
-    cid = lambda i, j: int(i) * ny + int(j)            # noqa: E731
-    edges: set[tuple[int, int]] = set()
+    edges: Edges = set()
 
-    def add(a, b):
+    def cid(i: int | np.integer, j: int | np.integer) -> int:
+        return int(i) * ny + int(j)
+
+    def add(a: int, b: int) -> None:
         edges.add((a, b) if a < b else (b, a))
 
-    def rem(a, b):
+    def rem(a: int, b: int) -> None:
         edges.discard((a, b) if a < b else (b, a))
 
     blocks = np.argwhere(full)
     for bi, bj in blocks:
         c00, c10 = cid(2 * bi, 2 * bj), cid(2 * bi + 1, 2 * bj)
         c01, c11 = cid(2 * bi, 2 * bj + 1), cid(2 * bi + 1, 2 * bj + 1)
-        add(c00, c10), add(c10, c11), add(c11, c01), add(c01, c00)
+        for e0, e1 in ((c00, c10), (c10, c11), (c11, c01), (c01, c00)):
+            add(e0, e1)
     bid = -np.ones(full.shape, dtype=np.int64)
     bid[full] = np.arange(len(blocks))
-    rows, cols, vals = [], [], []
+    rows: list[IntArray] = []
+    cols: list[IntArray] = []
+    vals: list[npt.NDArray[np.float64]] = []
     w_x, w_y = (weights.along, weights.across) if along_x else (weights.across, weights.along)
     for di, dj, w in ((1, 0, w_x), (0, 1, w_y)):
-        a = full[: bx - di, : by - dj] & full[di:, dj:]
-        ai, aj = np.nonzero(a)
+        pair = full[: bx - di, : by - dj] & full[di:, dj:]
+        ai, aj = np.nonzero(pair)
         rows.append(bid[ai, aj])
         cols.append(bid[ai + di, aj + dj])
         vals.append(np.full(len(ai), w))
-    r, c, v = (np.concatenate(x) for x in (rows, cols, vals))
+    r, c, v = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
     if len(blocks) > 1 and len(r):
         tree = minimum_spanning_tree(sp.coo_matrix((v, (r, c)), shape=(len(blocks),) * 2))
         tr, tc = tree.nonzero()
@@ -156,7 +178,7 @@ def _cycle_edges(full: np.ndarray, nx: int, ny: int, weights: MergeWeights, alon
     return edges
 
 
-def _splice_free_cells(edges, free: set[int], ny: int, ok) -> None:
+def _splice_free_cells(edges: Edges, free: set[int], ny: int, ok: Callable[[int, int], bool]) -> None:
     """Insert pairs of free neighbouring cells into cycle edges next to them (in place)."""
     progress = True
     while progress and free:
@@ -185,17 +207,17 @@ def _splice_free_cells(edges, free: set[int], ny: int, ok) -> None:
                     break
 
 
-def _walk_cycles(edges) -> list[list[int]]:
+def _walk_cycles(edges: Edges) -> list[list[int]]:
     adj: dict[int, list[int]] = {}
     for a, b in sorted(edges):
         adj.setdefault(a, []).append(b)
         adj.setdefault(b, []).append(a)
     seen: set[int] = set()
-    cycles = []
+    cycles: list[list[int]] = []
     for start in sorted(adj):
         if start in seen:
             continue
-        cyc, prev, cur = [start], None, start
+        cyc, prev, cur = [start], -1, start
         seen.add(start)
         while True:
             nxt = [n for n in adj[cur] if n != prev]
@@ -211,8 +233,8 @@ def _walk_cycles(edges) -> list[list[int]]:
     return cycles
 
 
-def merged_fractal_fill(islands, pitch: float, along_x: bool = True,
-                        weights: MergeWeights = MergeWeights()) -> list[np.ndarray]:
+def merged_fractal_fill(islands: tuple[Island, ...], pitch: float, along_x: bool = True,
+                        weights: MergeWeights = MergeWeights()) -> list[npt.NDArray[np.float64]]:
     """Seed S5 improved fractal fill: one closed circuit per connected region.
 
     Returns closed polylines (n, 2) mm (first vertex repeated at the end).
@@ -220,21 +242,21 @@ def merged_fractal_fill(islands, pitch: float, along_x: bool = True,
     if not islands:
         return []
     region = region_geometry(islands)
-    best: tuple[int, Any, int, int, np.ndarray, np.ndarray] | None = None
+    best: tuple[int, npt.NDArray[np.float64], int, int, npt.NDArray[np.bool_], npt.NDArray[np.bool_]] | None = None
     for phase in ((0, 0), (1, 0), (0, 1), (1, 1)):
         origin, n = _grid(islands, pitch, phase)
         nx, ny = int(n[0]) + (int(n[0]) % 2), int(n[1]) + (int(n[1]) % 2)
         ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
         inside = _inside(region, _centres(origin, np.stack([ii.ravel(), jj.ravel()], 1),
                                           pitch)).reshape(nx, ny)
-        blk: np.ndarray = np.asarray(inside.reshape(nx // 2, 2, ny // 2, 2).all(axis=(1, 3)))
+        blk: npt.NDArray[np.bool_] = np.asarray(inside.reshape(nx // 2, 2, ny // 2, 2).all(axis=(1, 3)))
         centre = _centres(origin, np.argwhere(blk) * 2 + 0.5, pitch)
         blk[blk] = _inside(region, centre) if len(centre) else blk[blk]
         if best is None or blk.sum() > best[0]:
             best = (int(blk.sum()), origin, nx, ny, inside, blk)
     assert best is not None  # four phases were tried
     _, origin, nx, ny, inside, full = best
-    edges = _cycle_edges(full, nx, ny, weights, along_x)
+    edges = _cycle_edges(full, ny, weights, along_x)
 
     def ok(a: int, b: int) -> bool:
         pa = _centres(origin, divmod(a, ny), pitch)
@@ -246,7 +268,7 @@ def merged_fractal_fill(islands, pitch: float, along_x: bool = True,
         used[np.array(sorted({c for e in edges for c in e}))] = True
     free = set(np.nonzero(inside.ravel() & ~used)[0].tolist())
     _splice_free_cells(edges, free, ny, ok)
-    out = []
+    out: list[npt.NDArray[np.float64]] = []
     for cyc in _walk_cycles(edges):
         ij = np.array([divmod(c, ny) for c in cyc], dtype=float)
         pts = _centres(origin, ij, pitch)

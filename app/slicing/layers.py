@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import manifold3d
 import numpy as np
+import numpy.typing as npt
 
 from app.checks import require_non_negative, require_positive
 from app.slicing.cavity import cavity_mu
@@ -145,13 +146,13 @@ class SliceResult:
     params: SliceParams
     z_min: float
     z_max: float
-    bounds: np.ndarray
+    bounds: npt.NDArray[np.float64]
     volume: float
     repairs: tuple[str, ...]
     notes: tuple[str, ...] = ()
 
     @property
-    def thicknesses(self) -> np.ndarray:
+    def thicknesses(self) -> npt.NDArray[np.float64]:
         """(L,) slab thicknesses, mm."""
         return np.array([lay.thickness for lay in self.layers])
 
@@ -172,13 +173,20 @@ def section_at(solid: manifold3d.Manifold, z: float) -> tuple[Island, ...]:
     return tuple(islands)
 
 
+class Section(NamedTuple):
+    """One cross-section: its islands and their seed S4 statistics."""
+
+    islands: tuple[Island, ...]
+    stats: SectionStats
+
+
 class Sampler:
     """Caches sections of one prepared mesh by height (planes nudged into the part)."""
 
     def __init__(self, prepared: PreparedMesh, z_tol: float) -> None:
         self.prepared = prepared
         self.z_tol = z_tol
-        self._cache: dict[float, tuple[tuple[Island, ...], SectionStats]] = {}
+        self._cache: dict[float, Section] = {}
 
     def clamp(self, z: float) -> float:
         """``z`` moved inside ``[z_min + z_tol, z_max - z_tol]``."""
@@ -186,12 +194,12 @@ class Sampler:
         hi = self.prepared.z_max - self.z_tol
         return min(max(z, lo), hi)
 
-    def section(self, z: float) -> tuple[tuple[Island, ...], SectionStats]:
-        """(islands, stats) of the section at ``clamp(z)``."""
+    def section(self, z: float) -> Section:
+        """The section (islands, stats) at ``clamp(z)``."""
         key = round(self.clamp(z), 12)
         if key not in self._cache:
             islands = section_at(self.prepared.solid, key)
-            self._cache[key] = (islands, section_stats(islands))
+            self._cache[key] = Section(islands, section_stats(islands))
         return self._cache[key]
 
 
@@ -210,10 +218,10 @@ def make_layer(index: int, z_bottom: float, z_top: float, z_sample: float,
     return Layer(index=index, z_bottom=float(z_bottom), z_top=float(z_top),
                  z_sample=float(sampler.clamp(z_sample)), islands=islands, area=st.area,
                  ring_count=st.ring_count, inner_ring_count=st.inner_ring_count,
-                 sigma=st.sigma, mu=cavity_mu(st, params), eps=float(eps), reason=reason)
+                 sigma=st.sigma, mu=cavity_mu(st, params.sigma0, params.theta_rule), eps=float(eps), reason=reason)
 
 
-def translated(result: SliceResult, shift: np.ndarray) -> SliceResult:
+def translated(result: SliceResult, shift: npt.NDArray[np.float64]) -> SliceResult:
     """``result`` moved by ``shift`` (3,) mm: every ring, every z and the bounds (the machine
     placement of a part sliced in its own frame)."""
     dx, dz = np.asarray(shift[:2], dtype=np.float64), float(shift[2])

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import manifold3d
 import numpy as np
+import numpy.typing as npt
 import trimesh
 
 from app.slicing.errors import MeshError
@@ -37,9 +38,9 @@ class PreparedMesh:
     solid: manifold3d.Manifold
     z_min: float
     z_max: float
-    bounds: np.ndarray
-    normals_z: np.ndarray
-    face_z: np.ndarray
+    bounds: npt.NDArray[np.float64]
+    normals_z: npt.NDArray[np.float64]
+    face_z: npt.NDArray[np.float64]
     volume: float
     repairs: tuple[str, ...]
 
@@ -52,7 +53,7 @@ def _open_edge_count(mesh: trimesh.Trimesh) -> int:
     return int(np.sum(counts != 2))
 
 
-def default_max_hole_mm(mesh_or_bounds: trimesh.Trimesh | np.ndarray) -> float:
+def default_max_hole_mm(mesh_or_bounds: trimesh.Trimesh | npt.NDArray[np.float64]) -> float:
     """The longest hole boundary repair fills by default: the perimeter of the bounding box's
     largest face (plus 1 %) - a hole may be as large as the part's outline, no larger.
     Takes a mesh or its (2, 3) bounds (mm)."""

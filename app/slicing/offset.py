@@ -11,9 +11,11 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import pyclipr
 
 from app.slicing.errors import SlicingError
+from app.slicing.layers import Layer, SliceResult
 from app.slicing.rings import Island, oriented, section_stats
 
 CLIPPER_SCALE = 1_000_000  # integer units per mm inside Clipper2 (1 nm)
@@ -22,9 +24,10 @@ _JOINS = {"miter": pyclipr.JoinType.Miter, "round": pyclipr.JoinType.Round,
           "square": pyclipr.JoinType.Square}
 
 
-def _tree_to_islands(node, out: list[Island]) -> None:
+def _tree_to_islands(node: pyclipr.PolyTreeD, out: list[Island]) -> None:
+    """Append the islands under ``node`` (Clipper's PolyTree, in mm) to ``out``."""
     for child in node.children:          # children of the root / of a hole are outers
-        holes = []
+        holes: list[npt.NDArray[np.float64]] = []
         for hole in child.children:
             holes.append(oriented(np.asarray(hole.polygon, dtype=np.float64), ccw=False))
             _tree_to_islands(hole, out)
@@ -77,8 +80,8 @@ SEED_HAZ_TABLE = BeamWidthTable(thickness_mm=(0.020, 0.025, 0.030, 0.035, 0.040)
                                 width_mm=(0.021, 0.023, 0.024, 0.0255, 0.028))
 
 
-def compensate_beam(result, table: BeamWidthTable | float = SEED_HAZ_TABLE,
-                    join: str = "miter"):
+def compensate_beam(result: SliceResult, table: BeamWidthTable | float = SEED_HAZ_TABLE,
+                    join: str = "miter") -> SliceResult:
     """Offset every layer's rings inward by the table width for its thickness (or by a
     constant width in mm when ``table`` is a number, e.g. the API's ``offset_mm``).
 
@@ -91,7 +94,7 @@ def compensate_beam(result, table: BeamWidthTable | float = SEED_HAZ_TABLE,
             raise SlicingError(f"beam offset must be >= 0 mm, got {table!r}",
                                field="offset_mm", value=table)
         table = BeamWidthTable((1.0,), (float(table),))
-    layers = []
+    layers: list[Layer] = []
     for lay in result.layers:
         w = table.width(lay.thickness)
         islands = offset_islands(lay.islands, -w, join)

@@ -8,29 +8,39 @@ per cent of optimal for fill polylines that already come in scan order.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+import numpy.typing as npt
 
 
-def _is_closed(p: np.ndarray) -> bool:
+def _is_closed(p: npt.NDArray[np.float64]) -> bool:
     return len(p) > 2 and bool(np.allclose(p[0], p[-1]))
 
 
-def _rotate_closed(p: np.ndarray, k: int) -> np.ndarray:
+def _rotate_closed(p: npt.NDArray[np.float64], k: int) -> npt.NDArray[np.float64]:
     body = p[:-1]
     body = np.roll(body, -k, axis=0)
     return np.vstack([body, body[:1]])
 
 
-def order_paths(paths: list[np.ndarray], start: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+class OrderedPaths(NamedTuple):
+    """Polylines (n, 2) mm in print order and orientation, and the nozzle's final position (2,) mm."""
+
+    paths: list[npt.NDArray[np.float64]]
+    end: npt.NDArray[np.float64]
+
+
+def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.float64]) -> OrderedPaths:
     """Order (and orient) ``paths`` (list of (n, 2) mm) starting at ``start`` (2,).
 
-    Returns the re-ordered polylines and the final nozzle position (2,).
+    Returns the re-ordered polylines and the final nozzle position (2,) (:class:`OrderedPaths`).
     """
     remaining = [np.asarray(p, dtype=float) for p in paths if len(p) >= 2]
-    out: list[np.ndarray] = []
+    out: list[npt.NDArray[np.float64]] = []
     pos = np.asarray(start, dtype=float)
     if not remaining:
-        return out, pos
+        return OrderedPaths(out, pos)
     closed = np.array([_is_closed(p) for p in remaining])
     heads = np.array([p[0] for p in remaining])
     tails = np.array([p[-1] for p in remaining])
@@ -57,4 +67,4 @@ def order_paths(paths: list[np.ndarray], start: np.ndarray) -> tuple[list[np.nda
         out.append(p)
         alive[k] = False
         pos = p[-1]
-    return out, pos
+    return OrderedPaths(out, pos)

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import trimesh
 
 from app.slicing.errors import MeshError
@@ -35,12 +36,12 @@ def _edge_use(mesh: trimesh.Trimesh) -> tuple[int, int]:
     return int(np.sum(counts == 1)), int(np.sum(counts > 2))
 
 
-def _boundary_loops(mesh: trimesh.Trimesh) -> list[np.ndarray]:
+def _boundary_loops(mesh: trimesh.Trimesh) -> list[npt.NDArray[np.int64]]:
     """Closed boundary loops as vertex index arrays (first != last)."""
     outline = mesh.outline()
-    loops = []
+    loops: list[npt.NDArray[np.int64]] = []
     for entity in outline.entities:
-        points = np.asarray(entity.points)
+        points = np.asarray(entity.points, dtype=np.int64)
         if len(points) < 4 or points[0] != points[-1]:
             raise MeshError("mesh cannot be made watertight: an open boundary does not close into a loop "
                             f"(vertices {points[:4].tolist()}...)", field="mesh", value="open boundary")
@@ -98,7 +99,7 @@ def repair_mesh(mesh: trimesh.Trimesh, max_hole_mm: float = float("inf")) -> Rep
         m = _fill_holes(m, max_hole_mm, changes)
     before = m.faces.copy()
     signed_before = m.volume
-    trimesh.repair.fix_normals(m, multibody=True)
+    trimesh.repair.fix_normals(m, multibody=True)  # type: ignore[no-untyped-call]  # trimesh: unannotated
     same = np.all(np.sort(m.faces, axis=1) == np.sort(before, axis=1), axis=1)
     flipped = int(np.sum(same & ~np.all(m.faces == before, axis=1)))
     if flipped:

@@ -11,16 +11,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 
-def signed_area(ring: np.ndarray) -> float:
+def signed_area(ring: npt.NDArray[np.float64]) -> float:
     """Shoelace signed area of a closed ring ``(n, 2)`` in mm^2 (CCW positive)."""
     x = ring[:, 0]
     y = ring[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
-def oriented(ring: np.ndarray, ccw: bool) -> np.ndarray:
+def oriented(ring: npt.NDArray[np.float64], ccw: bool) -> npt.NDArray[np.float64]:
     """``ring`` reversed if needed so that it runs anticlockwise (``ccw``) or clockwise."""
     a = signed_area(ring)
     if (a > 0) != ccw and a != 0.0:
@@ -35,8 +36,8 @@ class Island:
     ``outer``: (n, 2) mm; ``holes``: tuple of (m, 2) mm.
     """
 
-    outer: np.ndarray
-    holes: tuple[np.ndarray, ...] = ()
+    outer: npt.NDArray[np.float64]
+    holes: tuple[npt.NDArray[np.float64], ...] = ()
 
     @property
     def outer_area(self) -> float:
@@ -53,7 +54,7 @@ class Island:
         """Net material area (outer minus holes), mm^2."""
         return self.outer_area - sum(self.hole_areas)
 
-    def rings(self) -> tuple[np.ndarray, ...]:
+    def rings(self) -> tuple[npt.NDArray[np.float64], ...]:
         """Outer ring first, then the holes."""
         return (self.outer, *self.holes)
 
@@ -88,7 +89,7 @@ def section_stats(islands: tuple[Island, ...]) -> SectionStats:
                         sigma=sigma, mean_inner_ratio=mu)
 
 
-def islands_from_polygons(polygons: list[np.ndarray]) -> tuple[Island, ...]:
+def islands_from_polygons(polygons: list[npt.NDArray[np.float64]]) -> tuple[Island, ...]:
     """Group rings (any orientation, non-crossing, even-odd nesting) into islands.
 
     A ring at even nesting depth is an outer boundary, at odd depth a hole of the
@@ -114,7 +115,7 @@ def islands_from_polygons(polygons: list[np.ndarray]) -> tuple[Island, ...]:
                 depth[k] = depth[j] + 1
                 parent[k] = j
                 break
-    outers: dict[int, list[np.ndarray]] = {}
+    outers: dict[int, list[npt.NDArray[np.float64]]] = {}
     for k in range(len(order)):
         if depth[k] % 2 == 0:
             outers[k] = []

@@ -26,7 +26,7 @@ def slice_mesh(mesh: trimesh.Trimesh | PreparedMesh, params: SliceParams) -> Sli
     sampler = Sampler(prepared, params.z_tol)
     planner = {"uniform": adaptive.uniform_layers, "area": adaptive.area_layers,
                "cavity": adaptive.area_layers, "cusp": adaptive.cusp_layers}[params.mode]
-    layers, notes = planner(sampler, params)
-    return SliceResult(layers=tuple(layers), params=params, z_min=prepared.z_min,
+    plan = planner(sampler, params)
+    return SliceResult(layers=tuple(plan.layers), params=params, z_min=prepared.z_min,
                        z_max=prepared.z_max, bounds=prepared.bounds, volume=prepared.volume,
-                       repairs=prepared.repairs, notes=tuple(notes))
+                       repairs=prepared.repairs, notes=tuple(plan.notes))

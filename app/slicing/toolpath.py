@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from app.checks import require_positive
 from app.gcode.estimator import MachineLimits, estimate_moves
@@ -23,8 +24,10 @@ from app.gcode.fdm import bead_area_mm2
 from app.slicing.errors import SlicingError
 from app.slicing.fills import contour_fill, raster_fill, zone_fill
 from app.slicing.fractal import MergeWeights, hilbert_fill, merged_fractal_fill
+from app.slicing.layers import SliceResult
 from app.slicing.offset import offset_islands
 from app.slicing.ordering import order_paths
+from app.slicing.rings import Island
 
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
 PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
@@ -80,7 +83,7 @@ class PathPiece:
     """One extruded polyline: ``points`` (n, 2) mm; ``kind`` perimeter | infill."""
 
     kind: str
-    points: np.ndarray
+    points: npt.NDArray[np.float64]
     feed_mm_s: float
 
 
@@ -116,7 +119,7 @@ class Toolpath:
     estimator: str
 
 
-def count_turns(points: np.ndarray, threshold_rad: float) -> int:
+def count_turns(points: npt.NDArray[np.float64], threshold_rad: float) -> int:
     """Direction changes above ``threshold_rad`` along a polyline (n, 2) (a closed one,
     first == last, also counts the closing junction)."""
     d = np.diff(points, axis=0)
@@ -130,7 +133,8 @@ def count_turns(points: np.ndarray, threshold_rad: float) -> int:
     return int(np.count_nonzero(turn > threshold_rad))
 
 
-def infill_paths(islands, params: ToolpathParams, layer_index: int) -> list[np.ndarray]:
+def infill_paths(islands: tuple[Island, ...], params: ToolpathParams,
+                 layer_index: int) -> list[npt.NDArray[np.float64]]:
     """Infill polylines of one section (unordered), pattern per ``params``."""
     w = params.line_width_mm
     region = offset_islands(islands, -(params.perimeters * w if params.perimeters else w / 2))
@@ -154,17 +158,31 @@ def infill_paths(islands, params: ToolpathParams, layer_index: int) -> list[np.n
                                weights=params.merge_weights)
 
 
-def perimeter_paths(islands, params: ToolpathParams) -> list[np.ndarray]:
+def perimeter_paths(islands: tuple[Island, ...], params: ToolpathParams) -> list[npt.NDArray[np.float64]]:
     """Closed perimeter loops (first vertex repeated), outermost first."""
-    out: list[np.ndarray] = []
+    out: list[npt.NDArray[np.float64]] = []
     for k in range(params.perimeters):
         for isl in offset_islands(islands, -(params.line_width_mm * (0.5 + k))):
             out.extend(np.vstack([r, r[:1]]) for r in isl.rings())
     return out
 
 
-def _layer_moves(pieces, start, z, e_per_mm, params):
-    pos, feeds, stops = [np.array([*start, z, 0.0])], [], [True]
+class _Moves(NamedTuple):
+    """A layer as planner moves: ``positions`` (m, 4) x, y, z mm and E (mm of filament),
+    ``feeds`` (m - 1,) mm/s into each position after the first, ``stops`` (m,) full stops."""
+
+    positions: npt.NDArray[np.float64]
+    feeds: npt.NDArray[np.float64]
+    stops: npt.NDArray[np.bool_]
+
+
+def _layer_moves(pieces: tuple[PathPiece, ...], start: npt.NDArray[np.float64], z: float, e_per_mm: float,
+                 params: ToolpathParams) -> _Moves:
+    """Travel to each piece then along it from ``start`` (2,) mm at height ``z`` mm,
+    extruding ``e_per_mm`` mm of filament per mm of path."""
+    pos: list[npt.NDArray[np.float64]] = [np.array([*start, z, 0.0])]
+    feeds: list[float] = []
+    stops = [True]
     e = 0.0
     for piece in pieces:
         pos.append(np.array([*piece.points[0], z, e]))
@@ -177,15 +195,16 @@ def _layer_moves(pieces, start, z, e_per_mm, params):
         stops.extend([False] * len(seg))
         e = float(es[-1]) if len(es) else e
     stops[-1] = True
-    return np.array(pos), np.array(feeds), np.array(stops)
+    return _Moves(np.array(pos), np.array(feeds, dtype=np.float64), np.array(stops))
 
 
-def plan_toolpath(slice_result, params: ToolpathParams = ToolpathParams()) -> Toolpath:
+def plan_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathParams()) -> Toolpath:
     """Perimeters + infill + travel ordering + statistics for every layer."""
     params.validate()
     thr = math.radians(params.turn_threshold_deg)
     fil_area = math.pi * (params.filament_mm / 2) ** 2
-    layers, pos = [], np.zeros(2)
+    layers: list[LayerToolpath] = []
+    pos = np.zeros(2)
     for lay in slice_result.layers:
         h = params.layer_height_mm or lay.thickness
         e_per_mm = bead_area_mm2(params.line_width_mm, h) / fil_area

@@ -86,6 +86,16 @@ def test_axis_feed_limit_and_layers():
     assert t.layer_times[1] == pytest.approx(trapezoid(10, 10, 0, 100, 1000))
 
 
+
+def test_m203_and_m201_set_the_named_axes_only():
+    # the program caps X at 20 mm/s and 50 mm/s^2; Y, Z, E keep LIM's values
+    head = "M203 X20\nM201 X50\n"
+    along_x = estimate_gcode(head + "G1 X100 E1 F6000\n", LIM).total_s
+    assert along_x == pytest.approx(trapezoid(100, 0, 0, 20, 50))
+    along_y = estimate_gcode(head + "G1 Y100 E1 F6000\n", LIM).total_s
+    assert along_y == pytest.approx(trapezoid(100, 0, 0, 100, 1000))
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=2, max_size=30),
        st.floats(5, 200))
