@@ -31,6 +31,7 @@ from app.jetting import (
 )
 from app.jobs.inputs import succeeded_job
 from app.jobs.registry import JobParams
+from app.jobs.results import SliceResult
 from app.models import Artifact, Part
 from app.slicing import SlicingError
 from app.slicing.export import from_json
@@ -261,7 +262,7 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
     if spec.slice is not None:
         job = succeeded_job(session, spec.slice.slice_job_id, "slice", "params.target.slice.slice_job_id",
                             error=JettingError, missing_is_invalid=True)
-        count = int((job.result or {}).get("layer_count", 0))
+        count = SliceResult.of(job).layer_count
         if spec.slice.layer >= count:
             raise JettingError(f"params.target.slice.layer: layer {spec.slice.layer} does not exist "
                                f"({count} layers)", field="params.target.slice.layer", value=spec.slice.layer)

@@ -48,6 +48,7 @@ from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import SurfaceFitResult
 from app.models import Job, Machine, Part, Trace
 from app.jobs.inputs import succeeded_job
 from app.records import get_or_404
@@ -184,7 +185,7 @@ def trace_xy(trace: Trace) -> np.ndarray:
 
 
 def _fitted_surface(job: Job, field: str) -> NurbsSurface:
-    return NurbsSurface.from_dict((job.result or {}).get("surface"), field=field)
+    return NurbsSurface.from_dict(SurfaceFitResult.of(job).surface, field=field)
 
 
 def _check(params: FiveAxisJobParams, session: Session) -> None:
