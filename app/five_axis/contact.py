@@ -75,7 +75,7 @@ def _principal_normals(trace: NurbsCurve, u: np.ndarray) -> np.ndarray:
         j = int(straight[0])
         raise DegenerateTraceError(
             f"the trace is straight at u = {u[j]:.6g}: its principal normal is undefined; "
-            "use normal_source='surface'", field="params.normal_source",
+            "use normal='surface'", field="params.normal",
             value={"u": u[j], "curvature_per_mm": kappa[j]})
     return perp / np.linalg.norm(perp, axis=1, keepdims=True)
 
@@ -111,8 +111,8 @@ def contact_frames(surface: NurbsSurface, trace: NurbsCurve, u: np.ndarray, *,
         pn = _principal_normals(trace, u)
         direction = np.where((np.einsum("ij,ij->i", pn, n_surf) < 0)[:, None], -pn, pn)
     else:
-        raise DegenerateTraceError("normal_source must be 'surface' or 'principal'",
-                                   field="params.normal_source", value=str(normal_source))
+        raise DegenerateTraceError("normal must be 'surface' or 'principal'",
+                                   field="params.normal", value=str(normal_source))
     return ContactFrames(u=u, trace_points=pts, contact=inv.closest,
                          uv=np.column_stack([inv.u, inv.v]), surface_normal=n_surf,
                          direction=direction, trace_deviation_mm=inv.distance,
