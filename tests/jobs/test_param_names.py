@@ -10,6 +10,7 @@ import io
 import numpy as np
 import pytest
 
+from app.compensation.surface_fit import SurfaceFitParams
 from app.five_axis import FiveAxisParams
 from app.jetting import ControllerParams, DropParams, FlowParams, JettingError, JettingParams, PlantParams, TargetSpec
 from app.jetting.controller import validate_controller
@@ -20,6 +21,13 @@ from app.jobs.jetting_inputs import (FLAT_GROUPS, PrintModelParams, SliceSource,
 from app.jobs.kinds.five_axis import CORE_ONLY as FIVE_AXIS_CORE_ONLY
 from app.jobs.kinds.five_axis import FiveAxisJobParams
 from app.jobs.kinds.jetting import JettingJobParams
+from app.jobs.kinds.slice import SliceJobParams
+from app.jobs.kinds.surface_fit import SurfaceFitJobParams
+from app.jobs.kinds.toolpath import ToolpathJobParams
+from app.jobs.params import ProbePlanParams
+from app.probing import PlanParams
+from app.probing.program import ProbeProgramParams
+from app.slicing import SliceParams, ToolpathParams
 from tests.jobs.test_five_axis_jobs import add_trace
 from tests.jobs.test_jetting_jobs import error_field, small_target, submit, wait_for
 from tests.conftest import auth
@@ -96,3 +104,24 @@ def test_a_straight_trace_with_the_principal_normal_is_a_422_naming_params_norma
     assert done["error"]["errors"][0]["loc"] == ["params", "normal"] and "straight" in done["error"]["detail"]
     refused = submit(client, "five_axis", {"part_id": part, "trace_id": trace["id"], "period_s": 0})
     assert refused.status_code == 422 and error_field(refused) == "params.period_s"
+
+
+# the other kinds whose parameters build a core dataclass: every core field is the API's
+# parameter of the same name, except these (the core's defaults, or derived: feeds in mm/s
+# from the API's mm/min, the machine limits, the placement prior of a registration)
+OTHER_CORE_ONLY = {
+    "slice": (SliceParams, SliceJobParams, {"max_layers", "z_tol"}),
+    "surface_fit": (SurfaceFitParams, SurfaceFitJobParams, {"resample_shape"}),
+    "probe_plan": (PlanParams, ProbePlanParams, {"end_ratio", "min_count", "peak_factor", "placement_rz_deg",
+                                                 "placement_xy_mm", "placement_z_mm", "tilt_rad"}),
+    "probe_program": (ProbeProgramParams, ProbePlanParams, {"decimals", "part_max_z_mm", "sample_mm"}),
+    "toolpath": (ToolpathParams, ToolpathJobParams, {"limits", "merge_weights", "perimeter_feed_mm_s",
+                                                     "print_feed_mm_s", "travel_feed_mm_s"}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(OTHER_CORE_ONLY))
+def test_other_kinds_parameters_have_the_core_names(name):
+    core, api, core_only = OTHER_CORE_ONLY[name]
+    assert _names(core) - core_only <= set(api.model_fields), _names(core) - core_only - set(api.model_fields)
+    assert core_only <= _names(core) and not core_only & set(api.model_fields)
