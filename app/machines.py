@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import re
 import threading
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
@@ -130,7 +131,7 @@ class MachineManager:
 
     def __init__(self, load_mesh: Any) -> None:
         self._machines: dict[str, Machine] = {}
-        self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it
+        self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it (read-only: use lease)
         self._lock = threading.Lock()
         self._load_mesh = load_mesh  # part_id -> trimesh
         # emergency stops write through these threads: never the request thread pool
@@ -139,6 +140,31 @@ class MachineManager:
     def get(self, machine_id: str) -> Machine | None:
         with self._lock:
             return self._machines.get(machine_id)
+
+    @contextmanager
+    def lease(self, machine_id: str, job_id: str) -> Iterator[None]:
+        """Job ``job_id`` drives machine ``machine_id`` inside the ``with`` block.
+
+        Records the job in :attr:`running_job` (what the machines page shows as the
+        program's job), refuses a machine leased by another job (409 Conflict naming
+        ``params.machine_id``) and always releases it on exit, whether the block ends, raises
+        or is cancelled: what a failed or interrupted job does next (it stops and waits for
+        an operator) is the job's recovery, not the lease's.  Re-entrant for the same job:
+        an inner lease of a machine the job already holds leaves the outer one in place.
+        """
+        with self._lock:
+            holder = self.running_job.get(machine_id)
+            if holder is not None and holder != job_id:
+                raise Conflict(f"machine {machine_id!r} is busy with job {holder}; one program at a time",
+                               field="params.machine_id", value=machine_id)
+            self.running_job[machine_id] = job_id
+        try:
+            yield
+        finally:
+            if holder is None:
+                with self._lock:
+                    if self.running_job.get(machine_id) == job_id:
+                        del self.running_job[machine_id]
 
     def require(self, machine_id: str) -> Machine:
         machine = self.get(machine_id)

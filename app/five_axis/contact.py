@@ -76,7 +76,7 @@ def _principal_normals(trace: NurbsCurve, u: npt.NDArray[np.float64]) -> npt.NDA
         j = int(straight[0])
         raise DegenerateTraceError(
             f"the trace is straight at u = {u[j]:.6g}: its principal normal is undefined; "
-            "use normal_source='surface'", field="params.normal_source",
+            "use normal='surface'", field="params.normal",
             value={"u": u[j], "curvature_per_mm": kappa[j]})
     unit: npt.NDArray[np.float64] = perp / np.linalg.norm(perp, axis=1, keepdims=True)
     return unit
@@ -113,8 +113,8 @@ def contact_frames(surface: NurbsSurface, trace: NurbsCurve, u: npt.NDArray[np.f
         pn = _principal_normals(trace, u)
         direction = np.where((np.einsum("ij,ij->i", pn, n_surf) < 0)[:, None], -pn, pn)
     else:
-        raise DegenerateTraceError("normal_source must be 'surface' or 'principal'",
-                                   field="params.normal_source", value=str(normal_source))
+        raise DegenerateTraceError("normal must be 'surface' or 'principal'",
+                                   field="params.normal", value=str(normal_source))
     return ContactFrames(u=u, trace_points=pts, contact=inv.closest,
                          uv=np.column_stack([inv.u, inv.v]), surface_normal=n_surf,
                          direction=direction, trace_deviation_mm=inv.distance,

@@ -74,7 +74,7 @@ def interpolate_parameters(curve: NurbsCurve, feed_mm_s: float, period_s: float,
     if expected > max_steps:
         raise DegenerateTraceError(
             f"{expected} servo periods exceed the limit {max_steps}; raise the feed or period",
-            field="params.servo_period_s", value=period_s)
+            field="params.period_s", value=period_s)
     u_values = [u0]
     u = u0
     for _ in range(4 * expected + 16):

@@ -24,11 +24,11 @@ class FiveAxisParams:
 
     standoff_mm: nozzle height h above the contact point along the nozzle direction.
     feed_mm_min: print speed of the contact point along the trace.
-    servo_period_s: interpolation period T of the Taylor update.
+    period_s: servo (interpolation) period T of the Taylor update.
     segment_mm: program line spacing along the trace (a multiple of v T, >= one period).
-    normal_source: "surface" (nozzle along the surface normal) or "principal" (patent).
+    normal: "surface" (nozzle along the surface normal) or "principal" (patent).
     normal_side: which side of the surface is "up" ("up": the +Z side at its centre).
-    pivot_mm: table pivot (x0, y0, z0) in workpiece coordinates at A = C = 0.
+    pivot: table pivot (x0, y0, z0) mm in workpiece coordinates at A = C = 0.
     a_limits_deg: (min, max) table tilt; c_limits_deg: (min, max) or None = endless C.
     c_start_deg: C before the path (biases the first branch; held if the whole path is
     in the pole window).
@@ -53,11 +53,11 @@ class FiveAxisParams:
 
     standoff_mm: float = 0.5
     feed_mm_min: float = 600.0
-    servo_period_s: float = 0.001
+    period_s: float = 0.001
     segment_mm: float = 0.5
-    normal_source: NormalSource = "surface"
+    normal: NormalSource = "surface"
     normal_side: NormalSide = "up"
-    pivot_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    pivot: tuple[float, float, float] = (0.0, 0.0, 0.0)
     a_limits_deg: tuple[float, float] = (-90.0, 90.0)
     c_limits_deg: tuple[float, float] | None = None
     c_start_deg: float = 0.0
@@ -77,7 +77,7 @@ class FiveAxisParams:
     post: PostName = "conforma"
 
     def __post_init__(self) -> None:
-        positive = ("standoff_mm", "feed_mm_min", "servo_period_s", "segment_mm",
+        positive = ("standoff_mm", "feed_mm_min", "period_s", "segment_mm",
                     "on_surface_tol_mm", "approach_feed_mm_min", "midpoint_tol_mm")
         require_positive(self, positive, FiveAxisError, prefix="params.")
         if not (0 <= self.pole_window_deg <= _MAX_POLE_WINDOW_DEG):
@@ -106,9 +106,9 @@ class FiveAxisParams:
         if self.feed_mode not in ("inverse_time", "tcp"):
             raise FiveAxisError("feed_mode must be 'inverse_time' or 'tcp'",
                                 field="params.feed_mode", value=self.feed_mode)
-        if self.normal_source not in ("surface", "principal"):
-            raise FiveAxisError("normal_source must be 'surface' or 'principal'",
-                                field="params.normal_source", value=self.normal_source)
+        if self.normal not in ("surface", "principal"):
+            raise FiveAxisError("normal must be 'surface' or 'principal'",
+                                field="params.normal", value=self.normal)
         if self.normal_side not in ("up", "as_is", "flipped"):
             raise FiveAxisError("normal_side must be 'up', 'as_is' or 'flipped'",
                                 field="params.normal_side", value=self.normal_side)
@@ -122,7 +122,7 @@ class FiveAxisParams:
         """The machine description in internal units (rad)."""
         c_lim = None if self.c_limits_deg is None else (math.radians(self.c_limits_deg[0]),
                                                         math.radians(self.c_limits_deg[1]))
-        px, py, pz = (float(v) for v in self.pivot_mm)
+        px, py, pz = (float(v) for v in self.pivot)
         return MachineConfig(pivot_mm=(px, py, pz),
                              a_limits_rad=(math.radians(self.a_limits_deg[0]), math.radians(self.a_limits_deg[1])),
                              c_limits_rad=c_lim)

@@ -198,7 +198,7 @@ def _plan_poses(surface: NurbsSurface, trace: NurbsCurve, u_lines: npt.NDArray[n
     u_all = np.empty(2 * k - 1)
     u_all[0::2], u_all[1::2] = u_lines, mid_u
     frames = contact_frames(surface, trace, u_all, on_surface_tol_mm=params.on_surface_tol_mm,
-                            normal_source=params.normal_source, normal_side=params.normal_side)
+                            normal_source=params.normal, normal_side=params.normal_side)
     choice = choose_axes(frames.direction, machine, c_start_rad=np.radians(params.c_start_deg),
                          pole_tilt_rad=np.radians(params.pole_window_deg),
                          arc_mm=params.feed_mm_s * np.interp(u_all, servo_u, servo_t))
@@ -232,11 +232,11 @@ def plan_five_axis(surface: NurbsSurface, trace: NurbsCurve,
     """
     h = params.standoff_mm
     machine = params.machine()
-    sched = interpolate_parameters(trace, params.feed_mm_s, params.servo_period_s, order=2)
-    sched1 = interpolate_parameters(trace, params.feed_mm_s, params.servo_period_s, order=1)
+    sched = interpolate_parameters(trace, params.feed_mm_s, params.period_s, order=2)
+    sched1 = interpolate_parameters(trace, params.feed_mm_s, params.period_s, order=1)
     fluct2, fluct1 = feed_fluctuation(trace, sched), feed_fluctuation(trace, sched1)
     n = sched.u.size
-    servo_t = servo_times(n, params.servo_period_s, fluct2.last_step_mm / sched.step_mm)
+    servo_t = servo_times(n, params.period_s, fluct2.last_step_mm / sched.step_mm)
     stride = int(round(params.segment_mm / sched.step_mm))
     u_lines = sched.u[line_indices(n, stride)]
     first_count = u_lines.size
@@ -269,7 +269,7 @@ def plan_five_axis(surface: NurbsSurface, trace: NurbsCurve,
         (f"nozzle direction: {frames.normal_source} normal, standoff {h} mm; within "
          f"{params.pole_window_deg} deg of A = 0 C is blended [pole window]"),
         f"feed mode: {params.feed_mode} {feed_words}, trace feed {params.feed_mm_min} mm/min",
-        f"servo period {params.servo_period_s} s, second-order Taylor parameter update",
+        f"servo period {params.period_s} s, second-order Taylor parameter update",
     ]
     if params.post == "linuxcnc_xyzac_trt":
         program = linuxcnc_trt_program(tip_wp, a_deg, c_deg, durations, params.feed_mode,

@@ -48,7 +48,7 @@ class LayerDecision:
 def validate_controller(ctrl: ControllerParams) -> None:
     """Raise ``JettingError`` for controller settings that cannot be used."""
     checks = [
-        (ctrl.kind in CONTROLLER_KINDS, "controller.kind", ctrl.kind),
+        (ctrl.kind in CONTROLLER_KINDS, "controller", ctrl.kind),  # the controller chosen (its kind)
         (ctrl.model in MODEL_KINDS, "controller.model", ctrl.model),
         (ctrl.solver in SOLVERS, "controller.solver", ctrl.solver),
         (ctrl.binarize in BINARIZE_METHODS, "controller.binarize", ctrl.binarize),

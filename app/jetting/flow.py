@@ -128,7 +128,7 @@ def flow_layer(
     flow: FlowParams,
     threshold_factor: float = 1.0,
 ) -> FlowResult:
-    """Run ``flow.steps`` threshold-flow sub-steps on one freshly printed layer.
+    """Run ``flow.flow_steps`` threshold-flow sub-steps on one freshly printed layer.
 
     surface: (L, W) heights including the liquid, mm; liquid: (L, W) liquid thickness on
     top (the layer's deposit), mm; mobility: (L, W) per-cell mobility in [0, 1].
@@ -139,7 +139,7 @@ def flow_layer(
     tau = flow.threshold_mm * threshold_factor
     wx = EDGE_WEIGHT * 0.5 * (mobility[:, :-1] + mobility[:, 1:])
     wy = EDGE_WEIGHT * 0.5 * (mobility[:-1, :] + mobility[1:, :])
-    n = max(int(flow.steps), 0)
+    n = max(int(flow.flow_steps), 0)
     frac = np.zeros((4, n) + s.shape)  # right, left, down, up
     for step in range(n):
         dx = s[:, :-1] - s[:, 1:]

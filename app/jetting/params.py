@@ -50,14 +50,14 @@ class FlowParams:
     """Seed S2 eq. 7 threshold flow: ink moves between 4-neighbours i, j only when
     |h_i - h_j| > threshold; the edge's mobility (2/pi) eta_s(k, lambda) in [0, 1] is
     ``mobility`` on a flat substrate and grows by ``slope_gain`` per radian of substrate
-    tilt k above ``slope_lambda_rad``. ``steps`` explicit sub-steps per layer (how far the
+    tilt k above ``slope_lambda_rad``. ``flow_steps`` explicit sub-steps per layer (how far the
     liquid travels before UV cure)."""
 
     threshold_um: float = 3.0
     mobility: float = 0.5
     slope_lambda_rad: float = 0.2
     slope_gain: float = 1.0
-    steps: int = 1
+    flow_steps: int = 1
 
     @property
     def threshold_mm(self) -> float:

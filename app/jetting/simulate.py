@@ -78,7 +78,7 @@ class SimulationResult:
 def estimate_bytes(shape: tuple[int, int], params: JettingParams) -> int:
     """Memory a run needs: working arrays, packed patterns and float32 snapshots."""
     cells = int(shape[0]) * int(shape[1])
-    per_layer = WORK_ARRAYS_PER_CELL + 4 * params.flow.steps + 3 * params.controller.horizon
+    per_layer = WORK_ARRAYS_PER_CELL + 4 * params.flow.flow_steps + 3 * params.controller.horizon
     snaps = 1 + (params.layers // params.snapshot_every if params.snapshot_every > 0 else 0)
     return cells * (8 * per_layer + params.layers + 4 * snaps)
 
@@ -97,9 +97,9 @@ def check_memory(shape: tuple[int, int], params: JettingParams) -> None:
 def _validate(params: JettingParams) -> None:
     if not 1 <= params.layers <= 100_000:
         raise JettingError("layers must be in 1..100000", field="layers", value=params.layers)
-    if params.flow.steps < 0 or params.flow.threshold_um < 0 or not 0 <= params.flow.mobility <= 1:
+    if params.flow.flow_steps < 0 or params.flow.threshold_um < 0 or not 0 <= params.flow.mobility <= 1:
         raise JettingError("invalid flow parameters", field="flow",
-                           value=[params.flow.steps, params.flow.threshold_um,
+                           value=[params.flow.flow_steps, params.flow.threshold_um,
                                   params.flow.mobility])
     validate_controller(params.controller)
 
@@ -172,7 +172,7 @@ def next_layer(measured_height_mm: npt.NDArray[np.float64], target: Target, para
                substrate_mm: npt.NDArray[np.float64] | None = None) -> LayerDecision:
     """The next layer's 0/1 pattern for a real printer from a measured height map.
 
-    measured_height_mm: (L, W) heights on the target's grid, mm; layer: layers printed so
+    measured_height_mm: (L, W) heights on the target's grid, mm (errors name it ``measured``); layer: layers printed so
     far (default: the measured mean part height in reference layers, rounded);
     previous_pattern: (L, W) last printed pattern (freezes the flow prediction; default
     ``fill`` everywhere on the part). Uses ``params.controller`` as an MPC.
@@ -180,10 +180,10 @@ def next_layer(measured_height_mm: npt.NDArray[np.float64], target: Target, para
     validate_controller(params.controller)
     h = np.asarray(measured_height_mm, dtype=float)
     if h.shape != target.shape:
-        raise JettingError("height map must match the target grid", field="measured_height",
+        raise JettingError("height map must match the target grid", field="measured",
                            value=[list(h.shape), list(target.shape)])
     if not np.isfinite(h).all():
-        raise JettingError("height map has non-finite values", field="measured_height",
+        raise JettingError("height map has non-finite values", field="measured",
                            value=int((~np.isfinite(h)).sum()))
     check_memory(target.shape, params)
     kernel = drop_kernel(params.drop)

@@ -99,23 +99,24 @@ def target_from_png(data: bytes, drop: DropParams, margin_mm: float = 0.25,
 
 
 def target_from_rings(rings: list[npt.NDArray[np.float64]], drop: DropParams, margin_mm: float = 0.25,
-                      max_cells: int = DEFAULT_MAX_CELLS) -> Target:
+                      max_cells: int = DEFAULT_MAX_CELLS, field: str = "target.rings") -> Target:
     """Target from polygon rings ((n_i, 2) arrays, mm; even-odd rule: inner rings are holes).
 
-    A cell belongs to the part when its centre lies inside the even-odd region.
+    A cell belongs to the part when its centre lies inside the even-odd region.  ``field``
+    names the rings in errors (the caller's name for where they came from).
     """
     if not rings:
-        raise JettingError("no rings given", field="target.rings", value=0)
+        raise JettingError("no rings given", field=field, value=0)
     region = shapely.Polygon()
     for index, ring in enumerate(rings):
         pts = np.asarray(ring, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3 or not np.isfinite(pts).all():
             raise JettingError("a ring must be an (n >= 3, 2) array of finite mm coordinates",
-                               field=f"target.rings[{index}]", value=list(pts.shape))
+                               field=f"{field}[{index}]", value=list(pts.shape))
         poly = shapely.make_valid(shapely.Polygon(pts))
         region = shapely.symmetric_difference(region, poly)
     if region.is_empty or region.area <= 0.0:
-        raise JettingError("rings enclose no area", field="target.rings", value=len(rings))
+        raise JettingError("rings enclose no area", field=field, value=len(rings))
     x0, y0, x1, y1 = region.bounds
     p = drop.pitch_mm
     nx, ny = max(int(np.ceil((x1 - x0) / p)), 1), max(int(np.ceil((y1 - y0) / p)), 1)
@@ -125,7 +126,7 @@ def target_from_rings(rings: list[npt.NDArray[np.float64]], drop: DropParams, ma
     gx, gy = np.meshgrid(xs, ys, indexing="xy")  # rows = y, columns = x
     shapely.prepare(region)
     mask = shapely.contains_xy(region, gx, gy)
-    return target_from_mask(mask, drop, margin_mm, field="target.rings")
+    return target_from_mask(mask, drop, margin_mm, field=field)
 
 
 def target_from_spec(spec: TargetSpec, drop: DropParams, margin_mm: float = 0.25,
@@ -139,4 +140,4 @@ def target_from_spec(spec: TargetSpec, drop: DropParams, margin_mm: float = 0.25
     half, hole = spec.size_mm / 2.0, spec.hole_mm / 2.0
     outer = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
     rings = [outer] if hole == 0 else [outer, outer * (hole / half)]
-    return target_from_rings(rings, drop, margin_mm, max_cells)
+    return target_from_rings(rings, drop, margin_mm, max_cells, field="target")

@@ -22,6 +22,7 @@ from sqlmodel import Session, select
 from app.api.machine_schemas import Profile
 from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
 from app.errors import InvalidInput
+from app.jobs.calibration_results import CalibrateNozzleResult, CalibrateProbeResult
 from app.models import Job, Machine
 from app.records import get_or_404
 
@@ -43,8 +44,8 @@ class MachineCalibration:
     nozzle_at: dict[int, datetime] = field(default_factory=dict)
     flags: list[str] = field(default_factory=list)
     max_age_h: float = 24.0
-    probe_result: dict[str, Any] | None = None  # the probe job's stored result (agreement, readings)
-    nozzle_results: dict[int, dict[str, Any]] = field(default_factory=dict)
+    probe_result: CalibrateProbeResult | None = None  # the probe job's stored result (agreement, readings)
+    nozzle_results: dict[int, CalibrateNozzleResult] = field(default_factory=dict)
     now: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
 
     def age_h(self, at: datetime | None) -> float | None:
@@ -73,16 +74,6 @@ def machine_profile(row: Machine) -> Profile:
         where = ".".join(str(p) for p in exc.errors()[0]["loc"])
         raise InvalidInput(f"machine {row.id!r} has a stored profile this service cannot read at profile.{where}: "
                            f"{exc.errors()[0]['msg']}", field=f"profile.{where}", value=row.id) from exc
-
-
-def probe_from(result: dict[str, Any]) -> ProbeCalibration:
-    """The probe calibration stored in a ``calibrate_probe`` job's result."""
-    return ProbeCalibration.from_dict(result)
-
-
-def nozzle_from(result: dict[str, Any]) -> NozzleCalibration:
-    """The nozzle calibration stored in a ``calibrate_nozzle`` job's result."""
-    return NozzleCalibration.from_dict(result)
 
 
 def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None], str]:
@@ -115,13 +106,13 @@ def current_calibration(session: Session, machine_id: str, *, now: datetime | No
         job = session.get(Job, job_id)
         if job is None:  # deleted meanwhile
             continue
-        result = job.result or {}
         if kind == "calibrate_probe":
-            cal.probe, cal.probe_job_id, cal.probe_at = probe_from(result), job_id, _done_at(job)
-            cal.probe_result = result
+            cal.probe_result = CalibrateProbeResult.of(job)
+            cal.probe, cal.probe_job_id, cal.probe_at = cal.probe_result.calibration(), job_id, _done_at(job)
         elif tool is not None:
-            cal.nozzles[tool], cal.nozzle_job_ids[tool] = nozzle_from(result), job_id
-            cal.nozzle_at[tool], cal.nozzle_results[tool] = _done_at(job), result
+            nozzle = CalibrateNozzleResult.of(job)
+            cal.nozzles[tool], cal.nozzle_job_ids[tool] = nozzle.calibration(), job_id
+            cal.nozzle_at[tool], cal.nozzle_results[tool] = _done_at(job), nozzle
     cal.nozzles = dict(sorted(cal.nozzles.items()))
     cal.flags = _flags(cal)
     return cal
@@ -139,7 +130,7 @@ def _flags(cal: MachineCalibration) -> list[str]:
             flags.append(f"nozzle T{tool} calibration is {_age_text(cal.age_h(at))} old (max {cal.max_age_h:g} h)")
         result = cal.nozzle_results[tool]
         flags += _disagreement_flags(f"nozzle T{tool}", result)
-        used = result.get("probe_job_id")
+        used = result.probe_job_id
         if cal.probe_job_id is not None and used != cal.probe_job_id and \
                 (used is not None or cal.probe_at is None or cal.probe_at > at):
             flags.append(f"nozzle T{tool} was calibrated against probe calibration {used} but the probe was "
@@ -156,14 +147,13 @@ def _age_text(hours: float | None) -> str:
     return f"{hours * 60:.0f} min" if hours * 60 >= 1 else f"{hours * 3600:.0f} s"
 
 
-def _disagreement_flags(what: str, result: dict[str, Any] | None) -> list[str]:
-    agreement = (result or {}).get("agreement") or {}
-    names = agreement.get("disagrees") or []
-    if not names:
+def _disagreement_flags(what: str, result: CalibrateProbeResult | CalibrateNozzleResult | None) -> list[str]:
+    if result is None or not result.agreement.disagrees:
         return []
-    differences = agreement.get("differences_mm") or {}
-    changes = ", ".join(f"{name} by {differences.get(name, float('nan')) * 1000:+.1f} um" for name in names)
-    return [f"{what} re-check disagrees with the calibration before it (job {agreement.get('previous_job_id')}): "
+    agreement = result.agreement
+    changes = ", ".join(f"{name} by {agreement.differences_mm.get(name, float('nan')) * 1000:+.1f} um"
+                        for name in agreement.disagrees)
+    return [f"{what} re-check disagrees with the calibration before it (job {agreement.previous_job_id}): "
             f"{changes}"]
 
 
@@ -203,9 +193,9 @@ def agreement(previous: Job | None, values: dict[str, float], std: dict[str, flo
     if previous is None:
         return {"previous_job_id": None, "differences_mm": {}, "disagrees": []}
     if previous.kind == "calibrate_probe":
-        old, old_std = probe_values(probe_from(previous.result or {}))
+        old, old_std = probe_values(CalibrateProbeResult.of(previous).calibration())
     else:
-        old, old_std = nozzle_values(nozzle_from(previous.result or {}))
+        old, old_std = nozzle_values(CalibrateNozzleResult.of(previous).calibration())
     bad = disagreements(old, values, old_std, std)
     return {"previous_job_id": previous.id, "differences_mm": {k: values[k] - old[k] for k in values if k in old},
             "disagrees": sorted(bad)}
@@ -235,7 +225,7 @@ def calibration_summary(machine_id: str, cal: MachineCalibration, profile: Profi
                  "stale": cal.stale(cal.probe_at), **values, **{f"{k[:-3]}_std_um": _um(v) for k, v in std.items()},
                  "sphere_centre_mm": list(cal.probe.sphere_centre_mm), "pad_reading_z_mm": cal.probe.pad_reading_z_mm,
                  "residual_rms_um": _um(cal.probe.residual_rms_mm), "touches": cal.probe.touches,
-                 "disagrees": list(((cal.probe_result or {}).get("agreement") or {}).get("disagrees") or [])}
+                 "disagrees": list(cal.probe_result.agreement.disagrees) if cal.probe_result is not None else []}
     nozzles = []
     for nozzle in (profile.tools.nozzles if profile.tools is not None else []):
         entry: dict[str, Any] = {"tool": nozzle.tool, "name": nozzle.name, "outer_diameter_mm": nozzle.outer_diameter_mm,
@@ -246,8 +236,8 @@ def calibration_summary(machine_id: str, cal: MachineCalibration, profile: Profi
                          stale=cal.stale(at), offset_mm=list(found.offset_mm),
                          offset_std_um=[_um(s) for s in found.std_mm],
                          nominal_difference_mm=[c - n for c, n in zip(found.offset_mm, nozzle.offset_mm, strict=True)],
-                         probe_job_id=result.get("probe_job_id"), touches=found.touches,
-                         disagrees=list((result.get("agreement") or {}).get("disagrees") or []))
+                         probe_job_id=result.probe_job_id, touches=found.touches,
+                         disagrees=list(result.agreement.disagrees))
         nozzles.append(entry)
     return {"machine_id": machine_id, "max_age_h": cal.max_age_h, "probe": probe, "nozzles": nozzles,
             "flags": list(cal.flags)}

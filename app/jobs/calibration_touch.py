@@ -90,11 +90,12 @@ class TouchRun:
         self.here: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __enter__(self) -> "TouchRun":
-        self.ctx.runtime.machines.running_job[self.machine_id] = self.ctx.job_id
+        self._lease = self.ctx.runtime.machines.lease(self.machine_id, self.ctx.job_id)
+        self._lease.__enter__()
         return self
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: Any) -> None:
-        self.ctx.runtime.machines.running_job.pop(self.machine_id, None)
+        self._lease.__exit__(kind, exc, tb)
 
     def touch(self, steps: Sequence[Step], stage: str, label: str, span: tuple[float, float] = (0.05, 0.9),
               ) -> list[list[float]]:

@@ -1,16 +1,22 @@
 """The jetting kinds' shared inputs: the print-model parameters, the target and stored
 height maps, and the core's errors named as API parameters (``jetting`` and
 ``jetting_next_layer`` both use them; a kind never imports another kind).
+
+Parameters are named once: the API's flat print-model parameters carry the names of the
+core's ``DropParams`` / ``FlowParams`` / ``ControllerParams`` fields (the core objects are
+built from them by name), so a core error ``drop.dpi`` names ``params.dpi`` and ``target.X``
+names ``params.target.X`` by one rule (:func:`api_field`), without a rename table.
 """
 
 from __future__ import annotations
 
 import base64
 import binascii
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -31,6 +37,7 @@ from app.jetting import (
 )
 from app.jobs.inputs import succeeded_job
 from app.jobs.registry import JobParams
+from app.jobs.results import SliceResult
 from app.models import Artifact, Part
 from app.slicing import SlicingError
 from app.slicing.export import from_json
@@ -38,13 +45,10 @@ from app.slicing.export import from_json
 MEMORY_LIMIT_BYTES = 2 * 1024**3  # one run's working set (patterns, snapshots, solver temporaries)
 MAX_MASK_BASE64 = 4_000_000       # inline mask PNG, base64 characters
 NPZ_MEDIA_TYPE = "application/zip"  # an NPZ is a zip of .npy members (numpy.load reads it)
-_CORE_FIELDS = {  # core error fields -> the API's parameter names
-    "drop.dpi": "params.dpi", "drop.drop_diameter_um": "params.drop_diameter_um",
-    "target.mask": "params.target.mask", "target.rings": "params.target.slice",
-    "target.shape": "params.target.shape", "target.hole_mm": "params.target.hole_mm",
-    "controller.kind": "params.controller", "measured_height": "params.measured",
-    "layers.json": "params.target.slice",
-}
+FLAT_GROUPS = ("drop", "flow", "plant", "controller")  # the core's parameter groups, flat in the API
+# core fields the API does not expose (the core's defaults): DropParams.supersample, the slope
+# response of the flow, and the controller's kind (``controller`` of the jetting kind; next-layer is MPC)
+CORE_ONLY = frozenset({"supersample", "slope_lambda_rad", "slope_gain", "kind"})
 _D, _F, _C, _T = DropParams(), FlowParams(), ControllerParams(), TargetSpec()
 
 
@@ -119,7 +123,7 @@ class PrintModelParams(JobParams):
                                 description="seed eq. 7: ink flows between neighbours only above this step, um")
     mobility: float = Field(_F.mobility, ge=0, le=1, allow_inf_nan=False,
                             description="flow mobility (2/pi) eta_s on a flat substrate, 0..1")
-    flow_steps: int = Field(_F.steps, ge=0, le=50, description="flow sub-steps per layer before cure")
+    flow_steps: int = Field(_F.flow_steps, ge=0, le=50, description="flow sub-steps per layer before cure")
     horizon: int = Field(_C.horizon, ge=1, le=10, description="MPC horizon m, layers")
     q_weight: float = Field(_C.q_weight, ge=0, le=1e6, allow_inf_nan=False, description="MPC stage weight Q")
     r_weight: float = Field(_C.r_weight, ge=0, le=1e6, allow_inf_nan=False, description="MPC input weight R")
@@ -137,17 +141,18 @@ class PrintModelParams(JobParams):
     tol: float = Field(_C.tol, gt=0, le=1, allow_inf_nan=False, description="solver tolerance (relative)")
     greedy_rounds: int = Field(_C.greedy_rounds, ge=0, le=50, description="greedy flip sweeps")
 
+    def named(self, core: type[Any]) -> dict[str, Any]:
+        """This model's values of the ``core`` dataclass's fields, by the same names."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(core) if f.name not in CORE_ONLY}
+
     def drop(self) -> DropParams:
-        return DropParams(dpi=self.dpi, drop_diameter_um=self.drop_diameter_um, drop_volume_pl=self.drop_volume_pl)
+        return DropParams(**self.named(DropParams))
 
     def flow(self) -> FlowParams:
-        return FlowParams(threshold_um=self.threshold_um, mobility=self.mobility, steps=self.flow_steps)
+        return FlowParams(**self.named(FlowParams))
 
     def controller_params(self, kind: str = "mpc") -> ControllerParams:
-        return ControllerParams(kind=kind, horizon=self.horizon, q_weight=self.q_weight, r_weight=self.r_weight,
-                                f_weight=self.f_weight, outside_weight=self.outside_weight, fill=self.fill,
-                                model=self.model, solver=self.solver, binarize=self.binarize,
-                                max_iter=self.max_iter, tol=self.tol, greedy_rounds=self.greedy_rounds)
+        return ControllerParams(kind=kind, **self.named(ControllerParams))
 
     def core(self) -> JettingParams:
         """The pure core's parameters (``layers`` 1: the next-layer kind plans one layer)."""
@@ -161,15 +166,15 @@ class PrintModelParams(JobParams):
 
 # errors and limits ---------------------------------------------------------------------
 def api_field(field: str | None) -> str:
-    """The API parameter a core error field names (``drop.dpi`` -> ``params.dpi``)."""
+    """The API parameter a core error field names: a field of a flat group by its own name
+    (``drop.dpi`` -> ``params.dpi``), anything else under ``params`` (``target.mask`` ->
+    ``params.target.mask``, ``measured`` -> ``params.measured``)."""
     if not field:
         return "params"
     if field.startswith("params"):
         return field
-    if field in _CORE_FIELDS:
-        return _CORE_FIELDS[field]
     head, _, rest = field.partition(".")
-    return f"params.{rest}" if rest and head in ("drop", "flow", "plant", "controller") else f"params.{field}"
+    return f"params.{rest}" if rest and head in FLAT_GROUPS else f"params.{field}"
 
 
 @contextmanager
@@ -219,16 +224,26 @@ def target_of(spec: TargetParams, core: JettingParams, read: ArtifactReader) -> 
                 read(spec.mask.job_id or "", spec.mask.artifact or "")
             target = target_from_png(data, core.drop, core.margin_mm, limit)
         elif spec.slice is not None:
-            layers = from_json(read(spec.slice.slice_job_id, "layers.json")).layers
+            layers = _slice_layers(read(spec.slice.slice_job_id, "layers.json"))
             if spec.slice.layer >= len(layers):
                 raise JettingError(f"layer {spec.slice.layer} does not exist ({len(layers)} layers)",
                                    field="params.target.slice.layer", value=spec.slice.layer)
             rings = [ring for island in layers[spec.slice.layer].islands for ring in island.rings()]
-            target = target_from_rings(rings, core.drop, core.margin_mm, limit)
+            target = target_from_rings(rings, core.drop, core.margin_mm, limit, field="target.slice")
         else:
             target = target_from_spec(core.target, core.drop, core.margin_mm, limit)
     check_grid(target.shape, core)
     return target
+
+
+def _slice_layers(data: bytes) -> list[Any]:
+    """The layers of a slice job's stored ``layers.json``; a file that does not read is the
+    slice the target names (``params.target.slice``)."""
+    try:
+        return list(from_json(data).layers)
+    except SlicingError as exc:
+        raise JettingError(f"the slice's layers.json: {exc.message}", field="params.target.slice",
+                           value=exc.value) from None
 
 
 def stored_artifact(session: Session, job_id: str, name: str, field: str, media_type: str) -> Artifact:
@@ -261,7 +276,7 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
     if spec.slice is not None:
         job = succeeded_job(session, spec.slice.slice_job_id, "slice", "params.target.slice.slice_job_id",
                             error=JettingError, missing_is_invalid=True)
-        count = int((job.result or {}).get("layer_count", 0))
+        count = SliceResult.of(job).layer_count
         if spec.slice.layer >= count:
             raise JettingError(f"params.target.slice.layer: layer {spec.slice.layer} does not exist "
                                f"({count} layers)", field="params.target.slice.layer", value=spec.slice.layer)

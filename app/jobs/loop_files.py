@@ -22,6 +22,7 @@ from app.gcode.concat import join_programs
 from app.gcode.estimator import estimate_gcode
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
+from app.jobs.loop_results import ClosedLoopResult, LoopTrace, PrintReport
 
 SUMMARY_COLUMNS = ("index", "trace_id", "name", "probes", "deviation_max_um", "compensate_job", "program_lines",
                    "program_sha256", "standoff_max_before_um", "standoff_max_after_um", "standoff_rms_before_um",
@@ -33,26 +34,32 @@ def _um(value: Any) -> float | None:
     return None if value is None else round(float(value) * 1000.0, 3)
 
 
-def summary_rows(ctx: JobContext, result: dict[str, Any], programs: dict[str, str]) -> list[dict[str, Any]]:
-    """One row per trace of a closed loop's ``result`` (lengths µm); ``programs``: trace id ->
+def _measured(report: PrintReport | None, name: str) -> float | None:
+    """One figure (µm) of a printed program's measurement, None when it was not measured."""
+    return None if report is None else _um(getattr(report, name))
+
+
+def summary_rows(ctx: JobContext, traces: list[LoopTrace], programs: dict[str, str]) -> list[dict[str, Any]]:
+    """One row per trace of a closed loop's result (lengths µm); ``programs``: trace id ->
     its compensated program's text."""
     rows = []
-    for index, entry in enumerate(result.get("traces", []), start=1):
-        text = programs[entry["trace_id"]]
+    for index, entry in enumerate(traces, start=1):
+        text = programs[entry.trace_id]
         meta = gcode_meta(text)
-        evaluation = entry.get("evaluation") or {}
-        before, after = evaluation.get("nominal") or {}, evaluation.get("compensated") or {}
+        evaluation = entry.evaluation
+        before = evaluation.nominal if evaluation is not None else None
+        after = evaluation.compensated if evaluation is not None else None
         rows.append({
-            "index": index, "trace_id": entry["trace_id"], "name": ctx.trace(entry["trace_id"]).name,
-            "probes": entry.get("probes"), "deviation_max_um": _um(entry.get("deviation_max_mm")),
-            "compensate_job": entry["compensate"], "program_lines": meta["lines"],
+            "index": index, "trace_id": entry.trace_id, "name": ctx.trace(entry.trace_id).name,
+            "probes": entry.probes, "deviation_max_um": _um(entry.deviation_max_mm),
+            "compensate_job": entry.compensate, "program_lines": meta["lines"],
             "program_sha256": meta["commands_sha256"],
-            "standoff_max_before_um": _um(before.get("standoff_error_max_mm")),
-            "standoff_max_after_um": _um(after.get("standoff_error_max_mm")),
-            "standoff_rms_before_um": _um(before.get("standoff_error_rms_mm")),
-            "standoff_rms_after_um": _um(after.get("standoff_error_rms_mm")),
-            "xy_max_before_um": _um(before.get("xy_error_max_mm")),
-            "xy_max_after_um": _um(after.get("xy_error_max_mm")),
+            "standoff_max_before_um": _measured(before, "standoff_error_max_mm"),
+            "standoff_max_after_um": _measured(after, "standoff_error_max_mm"),
+            "standoff_rms_before_um": _measured(before, "standoff_error_rms_mm"),
+            "standoff_rms_after_um": _measured(after, "standoff_error_rms_mm"),
+            "xy_max_before_um": _measured(before, "xy_error_max_mm"),
+            "xy_max_after_um": _measured(after, "xy_error_max_mm"),
         })
     return rows
 
@@ -68,12 +75,13 @@ def _csv(rows: list[dict[str, Any]]) -> bytes:
 
 def write_loop_files(ctx: JobContext, machine_id: str, result: dict[str, Any]) -> dict[str, Any]:
     """Write the loop's summary and whole-part program as the running job's artifacts;
-    returns what the result records about them (names, program lines, order, time)."""
+    returns what the result records about them (names, program lines, order, time).
+    ``result``: the loop's result so far (read through :class:`ClosedLoopResult`)."""
     dialect = ctx.machine(machine_id).dialect
+    traces = ClosedLoopResult.model_validate(result).traces
     # a board compensate job holds every trace's program as print.<trace_id>.gcode (the entry names it)
-    programs = {e["trace_id"]: ctx.artifact_bytes(e["compensate"], e.get("print_artifact", "print.gcode")).decode()
-                for e in result.get("traces", [])}
-    rows = summary_rows(ctx, result, programs)
+    programs = {e.trace_id: ctx.artifact_bytes(e.compensate, e.program).decode() for e in traces}
+    rows = summary_rows(ctx, traces, programs)
     ctx.artifact("loop_summary.json", json.dumps({"traces": rows}, indent=1).encode(), "application/json")
     ctx.artifact("loop_summary.csv", _csv(rows), "text/csv")
     files: dict[str, Any] = {"summary": ["loop_summary.json", "loop_summary.csv"]}

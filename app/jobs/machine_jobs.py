@@ -20,6 +20,7 @@ from sqlmodel import Session, select
 
 from app.errors import Cancelled, Conflict, ConformaError
 from app.jobs.context import JobContext
+from app.jobs.registry import machine_kinds
 from app.models import Job, JobReference, utcnow
 from app.machines import MachineFault, MachineUnavailable, hardware_errors
 from hardware.errors import HardwareError
@@ -30,7 +31,6 @@ if TYPE_CHECKING:
     from app.jobs.store import JobStore
 
 log = logging.getLogger("conforma.machines")
-MACHINE_KINDS = ("print", "probe_run", "register", "calibrate_probe", "calibrate_nozzle")  # drive a machine themselves
 WORKFLOW_KINDS = ("closed_loop",)  # parents that hold a machine between their children's steps
 
 
@@ -44,7 +44,7 @@ class Interrupted(ConformaError):
 def machine_slot(kind: str, params: dict[str, Any]) -> str | None:
     """The machine a job of ``kind`` holds while queued, running or interrupted (the
     ``jobs.machine_id`` column under a unique partial index), or None."""
-    if kind in MACHINE_KINDS:
+    if kind in machine_kinds():
         return params.get("machine_id")
     return None
 
@@ -58,7 +58,7 @@ def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
     query = (select(Job.id, Job.kind).join(JobReference, JobReference.job_id == Job.id)
              .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
                     Job.status.in_(("queued", "running", "interrupted")),
-                    Job.kind.in_(MACHINE_KINDS + WORKFLOW_KINDS)))
+                    Job.kind.in_(machine_kinds() + WORKFLOW_KINDS)))
     if parent_id is not None:
         query = query.where(Job.id != parent_id)
     busy = session.exec(query).first()

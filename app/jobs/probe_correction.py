@@ -21,6 +21,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from app.calibration import ProbeCalibration, surface_heights, tilted_normals
 from app.jobs.calibration import current_calibration
 from app.jobs.context import JobContext
+from app.jobs.results import ProbeRunResult
+from app.models import Job
 
 PAD_CLEARANCE_MM = 2.0   # the pad touch starts this far above the pad's top
 PAD_OVERTRAVEL_MM = 1.0  # ... and may go this far below it
@@ -96,16 +98,16 @@ class RunCalibration:
     corrections: Corrections
 
 
-def run_probe_calibration(result: dict[str, Any] | None) -> RunCalibration | None:
+def run_probe_calibration(probe_run: Job) -> RunCalibration | None:
     """The calibration stored in a probe run's result when its points can be refined along
     the real surface normal (readings of a calibrated probe, radius corrected), else None."""
-    stored = (result or {}).get("calibration") or {}
-    if not stored.get("probe"):
+    stored = ProbeRunResult.of(probe_run).calibration
+    if stored is None or not stored.probe:
         return None
-    corrections = Corrections.model_validate(stored.get("corrections") or {})
+    corrections = Corrections.model_validate(stored.corrections)
     if not corrections.radius:
         return None
-    return RunCalibration(ProbeCalibration.from_dict(stored["probe"]), corrections)
+    return RunCalibration(ProbeCalibration.from_dict(stored.probe), corrections)
 
 
 def refined(model: Any, rows: list[dict], calibration: RunCalibration,

@@ -2,7 +2,8 @@
 
 A kind names its parameter model (validated at submission, so bad parameters are a 422
 before anything is queued), the function that runs it, the queue it belongs on
-(``"machine"`` for jobs that own a serial port), and what stored records it reads (so
+(``"machine"`` for jobs that own a serial port: :func:`machine_kinds`, each leasing its
+machine through ``ctx.runtime.machines.lease`` while it moves it), and what stored records it reads (so
 that those cannot be deleted from under it).  An optional ``check(params, session)``
 runs content checks that need stored records (e.g. measured points against the trace)
 at submission, so that bad input is a 422 then and never a failed job later; the session's
@@ -41,6 +42,7 @@ class JobParams(BaseModel):
 
 
 Reference = tuple[str, str]  # ("part" | "trace" | "job" | "machine", id)
+MACHINE_QUEUE = "machine"  # the queue of the kinds that drive a machine (one thread per machine)
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,12 @@ class JobKind:
     description: str = ""
     # (params, session) -> app.jobs.cost.Cost: memory and time predicted at submission
     estimate: Callable[[Any, Any], Any] | None = None
+
+    @property
+    def drives_machine(self) -> bool:
+        """A kind that drives a machine itself (one program per machine, leased while it
+        moves): the kinds on the ``machine`` queue."""
+        return self.queue == MACHINE_QUEUE
 
 
 _KINDS: dict[str, JobKind] = {}
@@ -95,6 +103,11 @@ def kinds() -> dict[str, JobKind]:
 
 def get_kind(name: str) -> JobKind | None:
     return _KINDS.get(name)
+
+
+def machine_kinds() -> tuple[str, ...]:
+    """The names of the registered kinds that drive a machine (:attr:`JobKind.drives_machine`)."""
+    return tuple(sorted(name for name, kind in _KINDS.items() if kind.drives_machine))
 
 
 def load_kinds(plugins: Iterable[str] = ()) -> dict[str, JobKind]:

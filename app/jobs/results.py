@@ -1,5 +1,6 @@
 """Typed results of the job kinds whose results other code reads back (probe_plan,
-probe_run, reconstruct, compensate).
+probe_run, reconstruct, compensate, slice, surface_fit, print; closed_loop's in
+:mod:`app.jobs.loop_results`, the calibrations' in :mod:`app.jobs.calibration_results`).
 
 A board job (``reconstruct`` / ``compensate`` with ``trace_ids``) has its own model
 (:class:`ReconstructBoardResult`, :class:`CompensateBoardResult`: one row per trace);
@@ -16,6 +17,7 @@ set are dumped), so the API's results are unchanged.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, ClassVar, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
@@ -39,16 +41,25 @@ class KindResult(BaseModel):
     @classmethod
     def of(cls: type[R], job: Job) -> R:
         """The stored result of ``job`` (a job of this model's kind) read through the model."""
-        if job.kind != cls.kind:
-            raise StoredResultError(f"job {job.id!r} is a {job.kind} job, not a {cls.kind} job", field="kind",
-                                    value=job.kind)
+        return cls._read(job.id, job.kind, job.result)
+
+    @classmethod
+    def of_record(cls: type[R], record: Mapping[str, Any]) -> R:
+        """The same for a job as a plain dict (``Job.model_dump``: ``id``, ``kind``, ``result``)."""
+        return cls._read(str(record.get("id")), str(record.get("kind")), record.get("result"))
+
+    @classmethod
+    def _read(cls: type[R], job_id: str, kind: str, result: Mapping[str, Any] | None) -> R:
+        if kind != cls.kind:
+            raise StoredResultError(f"job {job_id!r} is a {kind} job, not a {cls.kind} job", field="kind",
+                                    value=kind)
         try:
-            return cls.model_validate(job.result or {})
+            return cls.model_validate(result or {})
         except ValidationError as exc:
             first = exc.errors()[0]
             where = ".".join(str(p) for p in first["loc"])
-            raise StoredResultError(f"the result of {cls.kind} job {job.id!r} does not match {cls.__name__}: "
-                                    f"{where}: {first['msg']}", field=f"result.{where}", value=job.id) from None
+            raise StoredResultError(f"the result of {cls.kind} job {job_id!r} does not match {cls.__name__}: "
+                                    f"{where}: {first['msg']}", field=f"result.{where}", value=job_id) from None
 
     @classmethod
     def written(cls, result: dict[str, Any]) -> dict[str, Any]:
@@ -110,12 +121,34 @@ class ProbedPoint(BaseModel):
     correction_mm: float | None = None
 
 
+class ProbeRunCalibration(BaseModel):
+    """The probe calibration a probe run applied: its job, the corrections (radius,
+    pre-travel, drift) and the calibration itself (``ProbeCalibration.to_dict``), the pad
+    re-touches (``drift``: times_s, pad_z_mm, interval_s) when drift was tracked."""
+
+    model_config = ConfigDict(extra="forbid")
+    probe_job_id: str | None = None
+    corrections: dict[str, Any]
+    probe: dict[str, Any]
+    drift: dict[str, Any] | None = None
+
+
+class ProbeStats(BaseModel):
+    """The run's measured - nominal heights: count, largest |d|, mean and rms (mm)."""
+
+    model_config = ConfigDict(extra="forbid")
+    count: int
+    max_abs_mm: float
+    mean_mm: float
+    rms_mm: float
+
+
 class ProbeRunResult(KindResult):
     kind: ClassVar[str] = "probe_run"
     points: list[ProbedPoint]
     resumes: int
-    stats: dict[str, Any]
-    calibration: dict[str, Any] | None = None
+    stats: ProbeStats
+    calibration: ProbeRunCalibration | None = None
 
     def rows(self) -> list[dict[str, Any]]:
         """The points as stored (dicts), for the probe corrections."""
@@ -241,3 +274,70 @@ def program_artifacts(row: CompensateResult) -> tuple[str, str]:
     if isinstance(row, CompensateBoardTrace):
         return row.print_artifact, row.nominal_artifact
     return "print.gcode", "nominal.gcode"
+
+
+# slice ------------------------------------------------------------------------------------
+class SliceResult(KindResult):
+    """A slice job: the layers' figures (``layers``: one row per layer) and where the part lies
+    in its own frame (``bounds`` [[x, y, z] min, max] mm)."""
+
+    kind: ClassVar[str] = "slice"
+    mode: str
+    layer_count: int
+    z_min: float
+    z_max: float
+    bounds: list[list[float]]
+    frame: str
+    volume_mm3: float
+    repairs: list[Any]
+    notes: list[str]
+    beam: dict[str, Any]
+    slc: dict[str, Any]
+    svg: dict[str, Any]
+    layers: list[dict[str, Any]]
+
+
+# surface_fit ------------------------------------------------------------------------------
+class ProbeGrid(BaseModel):
+    """The planned probe grid of a surface fit: ``points`` [x, y, z or None] mm."""
+
+    model_config = ConfigDict(extra="forbid")
+    shape: list[int]
+    x: list[float]
+    y: list[float]
+    index: list[Any]
+    points: list[list[float | None]]
+
+
+class SurfaceFitResult(KindResult):
+    """A surface_fit job: ``surface`` is :meth:`app.geometry.nurbs_surface.NurbsSurface.to_dict`."""
+
+    kind: ClassVar[str] = "surface_fit"
+    source: str
+    surface: dict[str, Any]
+    residual: dict[str, Any]
+    probe_grid: ProbeGrid
+    removed_points: list[list[float]]
+    filled_holes: int
+    method: str
+    smoothing: str
+    control_net: list[int]
+    region: dict[str, Any]
+
+
+# print ------------------------------------------------------------------------------------
+class PrintResult(KindResult):
+    """A print job: how much of the program ran (``executed`` of ``total`` commands)."""
+
+    kind: ClassVar[str] = "print"
+    executed: int
+    total: int
+    start_line: int
+    resumes: int
+    resume_preamble: list[str]
+    elapsed_s: float
+    program: dict[str, Any]
+    link: dict[str, Any]
+    resume_location: dict[str, Any] | None = None
+    source_program: dict[str, Any] | None = None
+    drift: dict[str, Any] | None = None

@@ -8,6 +8,9 @@ import html
 from datetime import datetime, timezone
 from typing import Any
 
+from app.jobs.loop_results import ClosedLoopResult
+from app.jobs.results import (CompensateBoardResult, CompensateResult, PrintResult, ProbePlanResult, ProbeRunResult,
+                              ReconstructBoardResult, ReconstructBoardTrace, ReconstructResult, program_artifacts)
 from app.reporting.collect import RunRecords
 
 _CSS = """body{font:14px/1.45 system-ui,sans-serif;color:#1d2430;max-width:1000px;margin:1.5rem auto;padding:0 1rem}
@@ -63,43 +66,61 @@ def _artifact_hash(records: RunRecords, job_id: str, name: str) -> str | None:
     return None
 
 
-def _per_trace(jobs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """trace id -> {id, result} of the succeeded jobs; a board job (``trace_ids``) stands for
-    each of its traces with that trace's entry of its result's ``traces``."""
-    out: dict[str, dict[str, Any]] = {}
-    for job in jobs:
-        if job["status"] != "succeeded":
-            continue
-        if job["params"].get("trace_ids") is None:
-            out[job["params"].get("trace_id")] = job
-            continue
-        for row in (job.get("result") or {}).get("traces", []):
-            out[row["trace_id"]] = {"id": job["id"], "params": job["params"], "result": row}
+def _is_board(job: dict[str, Any]) -> bool:
+    return job["params"].get("trace_ids") is not None
+
+
+def _reconstructions(jobs: list[dict[str, Any]]) -> dict[str, ReconstructResult | ReconstructBoardTrace]:
+    """trace id -> the typed result of its succeeded reconstruct job (a board job's row)."""
+    out: dict[str, ReconstructResult | ReconstructBoardTrace] = {}
+    for job in (j for j in jobs if j["status"] == "succeeded"):
+        if _is_board(job):
+            out |= {row.trace_id: row for row in ReconstructBoardResult.of_record(job).traces}
+        else:
+            out[job["params"].get("trace_id")] = ReconstructResult.of_record(job)
     return out
+
+
+def _compensations(jobs: list[dict[str, Any]]) -> dict[str, tuple[str, CompensateResult]]:
+    """trace id -> (job id, typed result) of its succeeded compensate job (a board job's row,
+    which names the trace's programs)."""
+    out: dict[str, tuple[str, CompensateResult]] = {}
+    for job in (j for j in jobs if j["status"] == "succeeded"):
+        if _is_board(job):
+            out |= {row.trace_id: (job["id"], row) for row in CompensateBoardResult.of_record(job).traces}
+        else:
+            out[job["params"].get("trace_id")] = (job["id"], CompensateResult.of_record(job))
+    return out
+
+
+def _print_state(job: dict[str, Any]) -> str:
+    """``status (executed/total)`` of a print job (the counts of a finished one)."""
+    if job["result"] is None:
+        return f"{job['status']} (—/—)"
+    done = PrintResult.of_record(job)
+    return f"{job['status']} ({done.executed}/{done.total})"
 
 
 def _trace_rows(records: RunRecords) -> tuple[list[list[Any]], list[str]]:
     """One row per trace: probes, how far the model was off, the compensated program, its print."""
-    reconstructions = _per_trace(records.of_kind("reconstruct"))
-    compensations = _per_trace(records.of_kind("compensate"))
+    reconstructions = _reconstructions(records.of_kind("reconstruct"))
+    compensations = _compensations(records.of_kind("compensate"))
     prints: dict[str, list[dict[str, Any]]] = {}
     for job in records.of_kind("print"):
         prints.setdefault(job["params"].get("job_id") or "", []).append(job)
     rows, plots = [], []
     for trace_id, trace in records.traces.items():
-        rec, comp = reconstructions.get(trace_id), compensations.get(trace_id)
-        deviation = ((rec or {}).get("result") or {}).get("deviation") or {}
-        comp_result = (comp or {}).get("result") or {}
-        program = comp_result.get("print_artifact", "print.gcode")
-        printed = [p for p in prints.get((comp or {}).get("id", ""), [])
-                   if p["params"].get("artifact") in (None, program)]
-        print_state = ", ".join(f"{p['status']} ({(p.get('result') or {}).get('executed', '—')}/"
-                                f"{(p.get('result') or {}).get('total', '—')})" for p in printed) or "not printed"
-        rows.append([trace["name"], _um(deviation.get("max_mm")), _um(deviation.get("rms_mm")),
-                     comp_result.get("segments"), _um(comp_result.get("max_chord_error_mm")),
-                     _artifact_hash(records, comp["id"], program) if comp else None, print_state])
-        if deviation.get("samples"):
-            plots.append(_plot(deviation["samples"], f"{trace['name']}: real surface − model along the trace"))
+        rec, (comp_id, comp) = reconstructions.get(trace_id), compensations.get(trace_id, ("", None))
+        deviation = rec.deviation if rec is not None else None
+        program = program_artifacts(comp)[0] if comp is not None else "print.gcode"
+        printed = [p for p in prints.get(comp_id, []) if p["params"].get("artifact") in (None, program)]
+        print_state = ", ".join(_print_state(p) for p in printed) or "not printed"
+        rows.append([trace["name"], _um(deviation.max_mm if deviation else None),
+                     _um(deviation.rms_mm if deviation else None), comp.segments if comp else None,
+                     _um(comp.max_chord_error_mm if comp else None),
+                     _artifact_hash(records, comp_id, program) if comp else None, print_state])
+        if deviation is not None and deviation.samples:
+            plots.append(_plot(deviation.samples, f"{trace['name']}: real surface − model along the trace"))
     return rows, plots
 
 
@@ -110,8 +131,8 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
     part, machine = records.part or {}, records.machine or {}
     plan = next((j for j in records.of_kind("probe_plan") if j["status"] == "succeeded"), None)
     run = next((j for j in records.of_kind("probe_run")), None)
-    run_result = (run or {}).get("result") or {}
-    stats = run_result.get("stats") or {}
+    stats = ProbeRunResult.of_record(run).stats if run is not None and run["result"] is not None else None
+    planned = ProbePlanResult.of_record(plan) if plan is not None else None
     body = [f"<h1>Run report — {_e(root['kind'])} {_e(root['id'])}</h1>",
             f'<p class="muted">status {_e(root["status"])} · created {_e(root["created_at"])} · finished '
             f'{_e(root["finished_at"])} · generated {now} by Conforma {_e(software_version)}</p>',
@@ -124,18 +145,18 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
                     ("calibration", machine.get("calibration") or "none recorded for this machine")]),
             "<h2>Probing</h2>",
             _facts([("plan job", (plan or {}).get("id")),
-                    ("method", ((plan or {}).get("params") or {}).get("method") or ((plan or {}).get("result") or {}).get("method")),
-                    ("probes planned", ((plan or {}).get("result") or {}).get("count")),
+                    ("method", ((plan or {}).get("params") or {}).get("method") or (planned.method if planned else None)),
+                    ("probes planned", planned.count if planned else None),
                     ("probe program (commands sha256)", _artifact_hash(records, plan["id"], "probe.gcode") if plan else None),
                     ("probe run job", (run or {}).get("id")), ("run status", (run or {}).get("status")),
-                    ("probes measured", stats.get("count")),
-                    ("largest |measured − model| (µm)", _um(stats.get("max_abs_mm"))),
-                    ("rms measured − model (µm)", _um(stats.get("rms_mm")))])]
+                    ("probes measured", stats.count if stats else None),
+                    ("largest |measured − model| (µm)", _um(stats.max_abs_mm if stats else None)),
+                    ("rms measured − model (µm)", _um(stats.rms_mm if stats else None))])]
     rows, plots = _trace_rows(records)
     body += ["<h2>Traces</h2>",
              _table(["trace", "model off by, max (µm)", "rms (µm)", "segments", "chord error (µm)",
                      "compensated program (commands sha256)", "print"], rows, numeric={1, 2, 3, 4})]
-    table = (root.get("result") or {}).get("table") or []
+    table = ClosedLoopResult.of_record(root).table if root["kind"] == "closed_loop" and root["result"] else []
     if table:
         body += ["<h2>Deposited standoff: nominal program vs compensated (measured on the machine)</h2>",
                  _table(["trace", "probes", "max before (µm)", "max after (µm)", "rms before (µm)", "rms after (µm)"],

@@ -150,7 +150,10 @@ def test_surface_least_squares_solve_old_against_new():
 
 def test_toolpath_hilbert_merged_peak_memory_against_the_cost_model():
     print("\ntoolpath hilbert_merged on a 40 x 40 mm square, one layer")
-    job = SimpleNamespace(params={"part_id": "p"}, result={"layer_count": 1})
+    job = SimpleNamespace(id="s", kind="slice", status="succeeded", params={"part_id": "p"}, result={
+        "mode": "uniform", "layer_count": 1, "z_min": 0.0, "z_max": 1.0, "bounds": [[0, 0, 0], [40, 40, 1]],
+        "frame": "part", "volume_mm3": 1600.0, "repairs": [], "notes": [], "beam": {}, "slc": {}, "svg": {},
+        "layers": []})
     part = SimpleNamespace(bounds=[[0, 0, 0], [40, 40, 1]])
     session = SimpleNamespace(get=lambda model, key: job if model.__name__ == "Job" else part)
     first = None

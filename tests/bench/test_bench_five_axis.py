@@ -114,7 +114,7 @@ def test_bench_five_axis_plan() -> None:
     for feed, period in ((600.0, 0.001), (3000.0, 0.001), (3000.0, 0.004)):
         t0 = time.perf_counter()
         path = plan_five_axis(surface, trace, FiveAxisParams(
-            feed_mm_min=feed, servo_period_s=period, segment_mm=0.5, pivot_mm=(0, 0, -30)))
+            feed_mm_min=feed, period_s=period, segment_mm=0.5, pivot=(0, 0, -30)))
         elapsed = time.perf_counter() - t0
         f2, f1 = path.feed.max_rel, path.feed_first_order.max_rel
         print(f"{feed:11.0f} {period * 1e3:5.1f} {path.servo_periods:8d} {100 * f2:12.2e} "

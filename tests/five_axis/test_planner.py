@@ -53,8 +53,8 @@ def _check_program(surface: NurbsSurface, text: str, h: float, pivot: tuple) -> 
 
 def test_program_brings_normal_to_z_at_standoff(sphere: NurbsSurface) -> None:
     trace = trace_over_xy(sphere, _ellipse_xy(4.0, 2.0, 14.0, 9.0))
-    params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, servo_period_s=0.002,
-                            segment_mm=1.0, pivot_mm=PIVOT)
+    params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, period_s=0.002,
+                            segment_mm=1.0, pivot=PIVOT)
     path = plan_five_axis(sphere, trace, params)
     rows = _check_program(sphere, path.program, H, PIVOT)
     assert rows.shape[0] == path.u.size
@@ -84,7 +84,7 @@ def test_path_over_the_apex_holds_c_and_never_flips(sphere: NurbsSurface) -> Non
     xy = np.column_stack([np.linspace(-15, 15, 31), np.zeros(31)])
     trace = trace_over_xy(sphere, xy)
     path = plan_five_axis(sphere, trace, FiveAxisParams(
-        standoff_mm=H, feed_mm_min=1200, servo_period_s=0.002, segment_mm=1.0, pivot_mm=PIVOT))
+        standoff_mm=H, feed_mm_min=1200, period_s=0.002, segment_mm=1.0, pivot=PIVOT))
     rows = _check_program(sphere, path.program, H, PIVOT)
     assert np.abs(np.diff(rows[:, 4])).max() < 1.0  # C stays put
     assert rows[0, 3] * rows[-1, 3] < 0  # A changes sign through the singularity
@@ -93,7 +93,7 @@ def test_path_over_the_apex_holds_c_and_never_flips(sphere: NurbsSurface) -> Non
 def test_circle_around_the_apex_turns_c_continuously(sphere: NurbsSurface) -> None:
     trace = trace_over_xy(sphere, _ellipse_xy(0.0, 0.0, 10.0, 10.0, 60))
     path = plan_five_axis(sphere, trace, FiveAxisParams(
-        standoff_mm=H, feed_mm_min=1200, servo_period_s=0.002, segment_mm=1.0, pivot_mm=PIVOT))
+        standoff_mm=H, feed_mm_min=1200, period_s=0.002, segment_mm=1.0, pivot=PIVOT))
     rows = _check_program(sphere, path.program, H, PIVOT)
     step = np.abs(np.diff(rows[:, 4]))
     assert step.max() < 10.0
@@ -104,8 +104,8 @@ def test_principal_normal_option(sphere: NurbsSurface) -> None:
     """On a great circle the patent's principal normal is the surface normal; on the
     parallel plane section y = 10 it points to that circle's centre (0, 10, 0) and misses
     the surface normal by asin(10 / R): the planner reports which one it used."""
-    params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, servo_period_s=0.002,
-                            segment_mm=2.0, normal_source="principal")
+    params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, period_s=0.002,
+                            segment_mm=2.0, normal="principal")
     for y, expected in ((0.0, 0.0), (10.0, np.degrees(np.arcsin(10.0 / 40.0)))):
         xy = np.column_stack([np.linspace(-15, 15, 31), np.full(31, y)])
         path = plan_five_axis(sphere, trace_over_xy(sphere, xy), params)
@@ -119,9 +119,9 @@ def test_principal_normal_on_straight_trace_is_an_error(sphere: NurbsSurface) ->
     z = np.sqrt(40.0**2 - 2.0**2)
     line = NurbsCurve(1, np.array([0, 0, 1, 1.0]), np.array([[0, -2, z], [0, 2, z]]))
     with pytest.raises((DegenerateTraceError, TraceOffSurfaceError)) as info:
-        plan_five_axis(sphere, line, FiveAxisParams(normal_source="principal",
+        plan_five_axis(sphere, line, FiveAxisParams(normal="principal",
                                                     on_surface_tol_mm=0.1))
-    assert info.value.field in ("params.normal_source", "trace")
+    assert info.value.field in ("params.normal", "trace")
 
 
 def test_a_limit_exceeded_is_a_typed_error(sphere: NurbsSurface) -> None:
@@ -196,8 +196,8 @@ def test_straight_trace_over_the_apex_keeps_the_tip_on_the_path(
     10 um; at every line it is h +- 1 um above the surface."""
     surface = sphere if surface_kind == "sphere" else _measured_sphere()
     xy, across = _line_over_apex(offset_mm, angle_deg, half=12.0, k=25)
-    params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, servo_period_s=0.002,
-                            segment_mm=0.5, pivot_mm=PIVOT, pole_window_deg=0.5)  # the wide window
+    params = FiveAxisParams(standoff_mm=H, feed_mm_min=1200, period_s=0.002,
+                            segment_mm=0.5, pivot=PIVOT, pole_window_deg=0.5)  # the wide window
     path = plan_five_axis(surface, trace_over_xy(surface, xy), params)
     rows = g1_rows(path.program)
     inv = surface.invert(_midpoint_tips(path.program, PIVOT))
@@ -221,8 +221,8 @@ def test_exact_normals_beside_the_apex_are_kept_by_splitting_lines(sphere: Nurbs
     pole are split until the midpoint tip error is below the tolerance."""
     xy, across = _line_over_apex(0.1)
     trace = trace_over_xy(sphere, xy)
-    base = {"standoff_mm": H, "feed_mm_min": 1200, "servo_period_s": 0.002, "segment_mm": 1.0,
-            "pivot_mm": PIVOT, "pole_window_deg": 0.0}
+    base = {"standoff_mm": H, "feed_mm_min": 1200, "period_s": 0.002, "segment_mm": 1.0,
+            "pivot": PIVOT, "pole_window_deg": 0.0}
     path = plan_five_axis(sphere, trace, FiveAxisParams(**base))
     unsplit = plan_five_axis(sphere, trace, FiveAxisParams(**base, max_split_rounds=0))
     assert unsplit.max_midpoint_error_mm > 0.1 and unsplit.split_lines == 0
@@ -245,7 +245,7 @@ def test_exact_normals_beside_the_apex_are_kept_by_splitting_lines(sphere: Nurbs
 
 def test_dispense_commands_follow_the_approach_and_the_last_move(sphere: NurbsSurface) -> None:
     trace = trace_over_xy(sphere, _ellipse_xy(4.0, 2.0, 14.0, 9.0))
-    fast = {"feed_mm_min": 1200, "servo_period_s": 0.002, "segment_mm": 2.0, "safe_z_mm": 80.0}
+    fast = {"feed_mm_min": 1200, "period_s": 0.002, "segment_mm": 2.0, "safe_z_mm": 80.0}
     params = FiveAxisParams(**fast, dispense_on="M106 S255", dispense_off="M107")
     path = plan_five_axis(sphere, trace, params)
     for text in (path.program, path.nominal_program):

@@ -23,7 +23,7 @@ def _plan(sphere, post: str):
     t = np.linspace(0.0, 1.5, 40)
     trace = trace_over_xy(sphere, np.stack([15 * np.cos(t), 15 * np.sin(t)], -1))
     return plan_five_axis(sphere, trace, FiveAxisParams(
-        pivot_mm=PIVOT, post=post, dialect="linuxcnc", dispense_on="M64 P0", dispense_off="M65 P0"))
+        pivot=PIVOT, post=post, dialect="linuxcnc", dispense_on="M64 P0", dispense_off="M65 P0"))
 
 
 def test_linuxcnc_post_writes_workpiece_tips_between_m428_and_m429(sphere):

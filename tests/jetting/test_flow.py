@@ -19,7 +19,7 @@ def random_layer(seed, shape=(12, 14)):
        mobility=st.floats(0, 1))
 def test_flow_conserves_mass_and_only_moves_liquid(seed, steps, tau, mobility):
     base, liquid = random_layer(seed)
-    flow = FlowParams(threshold_um=tau, mobility=mobility, steps=steps)
+    flow = FlowParams(threshold_um=tau, mobility=mobility, flow_steps=steps)
     result = flow_layer(base + liquid, liquid, np.full(base.shape, mobility), flow)
     assert result.surface.sum() == pytest.approx((base + liquid).sum(), rel=1e-12, abs=1e-15)
     assert np.all(result.surface >= base - 1e-15)  # cured material never flows
@@ -29,7 +29,7 @@ def test_flow_conserves_mass_and_only_moves_liquid(seed, steps, tau, mobility):
 @given(seed=st.integers(0, 10_000), steps=st.integers(1, 3))
 def test_transport_operator_reproduces_flow_and_is_column_stochastic(seed, steps):
     base, liquid = random_layer(seed)
-    flow = FlowParams(threshold_um=1.0, mobility=0.8, steps=steps)
+    flow = FlowParams(threshold_um=1.0, mobility=0.8, flow_steps=steps)
     result = flow_layer(base + liquid, liquid, np.full(base.shape, 0.8), flow)
     op = result.transport
     np.testing.assert_allclose(base + op.apply(liquid), result.surface, atol=1e-15)
@@ -47,7 +47,7 @@ def test_no_flow_below_threshold_and_flow_above():
     liquid[2, 2] = 0.002  # 2 um bump
     below = flow_layer(base + liquid, liquid, np.full((5, 5), 1.0), FlowParams(threshold_um=3.0))
     np.testing.assert_array_equal(below.surface, base + liquid)
-    above = flow_layer(base + liquid, liquid, np.full((5, 5), 1.0), FlowParams(threshold_um=1.0, steps=1))
+    above = flow_layer(base + liquid, liquid, np.full((5, 5), 1.0), FlowParams(threshold_um=1.0, flow_steps=1))
     # full mobility: 1/8 of the 2 um difference to each of the 4 neighbours
     assert above.surface[2, 2] == pytest.approx(0.002 * 0.5)
     assert above.surface[1, 2] == pytest.approx(0.002 / 8)

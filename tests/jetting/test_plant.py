@@ -36,7 +36,7 @@ def test_noise_free_plant_deposits_exactly_the_jetted_volume():
 
 
 def test_dead_nozzle_leaves_its_column_empty_without_flow():
-    plant, _ = run(PlantParams(dead_nozzles=(5,), n_nozzles=16), flow=FlowParams(steps=0))
+    plant, _ = run(PlantParams(dead_nozzles=(5,), n_nozzles=16), flow=FlowParams(flow_steps=0))
     assert not plant.heights[:, 5].any() and not plant.heights[:, 21].any()  # 21 % 16 == 5
     assert plant.heights[4, 6] > 0
 

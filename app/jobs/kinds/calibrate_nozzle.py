@@ -27,6 +27,7 @@ from app.errors import InvalidInput
 from app.jobs.calibration import (agreement, latest_calibration_job, machine_profile, nozzle_values,
                                   require_probe_calibration)
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
+from app.jobs.calibration_results import CalibrateNozzleResult
 from app.jobs.context import JobContext
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, job_kind
@@ -106,10 +107,10 @@ def run(ctx: JobContext, params: CalibrateNozzleParams) -> dict:
     with ctx.session() as session:
         previous = latest_calibration_job(session, params.machine_id, "calibrate_nozzle", params.tool)
     values, std = nozzle_values(calibration)
-    return {**calibration.to_dict(), "agreement": agreement(previous, values, std),
+    return CalibrateNozzleResult.written({**calibration.to_dict(), "agreement": agreement(previous, values, std),
             "nominal_offset_mm": list(nozzle.offset_mm),
             "nominal_difference_mm": [float(c - n) for c, n in zip(calibration.offset_mm, nozzle.offset_mm,
                                                                    strict=True)],
             "probe_job_id": current.probe_job_id,
             "readings": [{**t.to_dict(), "tool": s.tool, "reading_mm": r}
-                         for t, s, r in zip(touches, steps, readings, strict=True)]}
+                         for t, s, r in zip(touches, steps, readings, strict=True)]})

@@ -19,6 +19,7 @@ from app.calibration import fit_qualification, plan_qualification, plan_times
 from app.errors import InvalidInput
 from app.jobs.calibration import agreement, latest_calibration_job, machine_profile, probe_values
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
+from app.jobs.calibration_results import CalibrateProbeResult
 from app.jobs.context import JobContext
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, job_kind
@@ -89,7 +90,7 @@ def run(ctx: JobContext, params: CalibrateProbeParams) -> dict:
     with ctx.session() as session:
         previous = latest_calibration_job(session, params.machine_id, "calibrate_probe")
     values, std = probe_values(calibration)
-    return {**calibration.to_dict(), "agreement": agreement(previous, values, std),
+    return CalibrateProbeResult.written({**calibration.to_dict(), "agreement": agreement(previous, values, std),
             "nominal_ball_radius_mm": radius,
             "readings": [{**t.to_dict(), "reading_mm": r, **({"t_s": float(times[i])} if times is not None else {})}
-                         for i, (t, r) in enumerate(zip(every, located + readings, strict=True))]}
+                         for i, (t, r) in enumerate(zip(every, located + readings, strict=True))]})

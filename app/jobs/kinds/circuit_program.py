@@ -24,6 +24,7 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import CircuitImport, Job, Trace
 from app.jobs.inputs import succeeded_job
+from app.jobs.loop_results import ClosedLoopResult, LoopTrace
 from app.jobs.results import ProbeRunResult, compensate_rows
 from app.records import get_or_404
 
@@ -39,8 +40,8 @@ class CircuitProgramParams(JobParams):
     pads: bool = Field(True, description="fill pads and areas")
 
 
-def _loop_entries(loop: Job) -> dict[str, dict]:
-    return {e["trace_id"]: e for e in (loop.result or {}).get("traces", [])}
+def _loop_entries(loop: Job) -> dict[str, LoopTrace]:
+    return ClosedLoopResult.of(loop).by_trace()
 
 
 def import_probe_trace_ids(session: Session, imp: CircuitImport) -> list[str]:
@@ -81,18 +82,18 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     strokes: list[Stroke] = []
     stations, deviations = [], []
     for trace_id in probe_ids:                 # the pads' own stations
-        probe = ctx.job(entries[trace_id]["probe_run"], kind="probe_run", field="params.closed_loop_job_id")
+        probe = ctx.job(entries[trace_id].probe_run, kind="probe_run", field="params.closed_loop_job_id")
         for pt in ProbeRunResult.of(probe).points:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])
     for trace_id in imp.trace_ids:
         trace = ctx.trace(trace_id)
-        comp = ctx.job(entries[trace_id]["compensate"], kind="compensate", field="params.closed_loop_job_id")
+        comp = ctx.job(entries[trace_id].compensate, kind="compensate", field="params.closed_loop_job_id")
         tip = np.asarray(compensate_rows(comp)[trace_id].points, float)  # one-trace or board job
         for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
                                            nominal_top)):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
-        probe = ctx.job(entries[trace_id]["probe_run"], kind="probe_run", field="params.closed_loop_job_id")
+        probe = ctx.job(entries[trace_id].probe_run, kind="probe_run", field="params.closed_loop_job_id")
         for pt in ProbeRunResult.of(probe).points:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])

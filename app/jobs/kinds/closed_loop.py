@@ -42,6 +42,7 @@ from app.jobs.context import JobContext
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, get_kind, job_kind
+from app.jobs.loop_results import ClosedLoopResult
 from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
                               program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
@@ -216,7 +217,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     from app.jobs.loop_files import write_loop_files  # the loop's own files (issue 19), kept out of this module
 
     result["files"] = write_loop_files(ctx, params.machine_id, result)
-    return result
+    return ClosedLoopResult.written(result)
 
 
 Done = tuple[str, Job, Job, Job, Job, float, tuple[str, str]]

@@ -31,6 +31,7 @@ A pose needing A beyond ``a_limits_deg`` fails the job with a 422 problem naming
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
@@ -48,6 +49,7 @@ from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import SurfaceFitResult
 from app.models import Job, Machine, Part, Trace
 from app.jobs.inputs import succeeded_job
 from app.records import get_or_404
@@ -55,12 +57,9 @@ from app.records import get_or_404
 DEFAULT_FEED_MM_MIN = 600.0
 MIN_TRACE_POINTS = 4  # a cubic trace curve interpolates at least degree + 1 points
 _DISPENSE_COMMAND = r"^[A-Z][0-9]+(\.[0-9]+)?( [A-Z]-?[0-9]+(\.[0-9]+)?)*$"
-# core parameter names -> this job's parameter names
-_FIELDS = {
-    "params.normal_source": "params.normal", "params.servo_period_s": "params.period_s",
-    "params.pivot_mm": "params.pivot", "trace": "params.trace_id", "trace.xy": "params.trace_id",
-    "trace.control_points": "params.trace_id",
-}
+# FiveAxisParams fields this job does not expose (the core's defaults); every other core field
+# has this job's parameter's name, so a core error's ``params.<name>`` is this job's parameter
+CORE_ONLY = frozenset({"normal_side", "max_split_rounds", "job_id"})
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Angle = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
@@ -133,19 +132,13 @@ class FiveAxisJobParams(JobParams):
         return value
 
     def plan_params(self, trace: Trace, job_id: str | None) -> FiveAxisParams:
-        """The core's parameters; standoff and feed default to the trace's."""
-        return FiveAxisParams(
-            standoff_mm=self.standoff_mm or trace.standoff_mm,
-            feed_mm_min=self.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN,
-            servo_period_s=self.period_s, segment_mm=self.segment_mm, normal_source=self.normal,
-            pivot_mm=tuple(self.pivot), a_limits_deg=tuple(self.a_limits_deg),
-            c_limits_deg=None if self.c_limits_deg is None else tuple(self.c_limits_deg),
-            c_start_deg=self.c_start_deg, pole_window_deg=self.pole_window_deg,
-            midpoint_tol_mm=self.midpoint_tol_mm, on_surface_tol_mm=self.on_surface_tol_mm,
-            feed_mode=self.feed_mode, job_id=job_id, decimals=self.decimals, safe_z_mm=self.safe_z_mm,
-            approach_feed_mm_min=self.approach_feed_mm_min, dispense_on=self.dispense_on,
-            dispense_off=self.dispense_off, program_end=self.program_end, post=self.post,
-            dialect=self.dialect)
+        """The core's parameters, field by field of the same name (lists as tuples); standoff
+        and feed default to the trace's."""
+        given = {f.name: getattr(self, f.name) for f in dataclasses.fields(FiveAxisParams) if f.name not in CORE_ONLY}
+        given = {name: tuple(value) if isinstance(value, list) else value for name, value in given.items()}
+        return FiveAxisParams(**{
+            **given, "job_id": job_id, "standoff_mm": self.standoff_mm or trace.standoff_mm,
+            "feed_mm_min": self.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN})
 
 
 _DIALECTS = ("grbl", "marlin", "linuxcnc")
@@ -165,8 +158,13 @@ def with_machine(params: FiveAxisJobParams, machine: Machine) -> FiveAxisJobPara
 
 
 def _in_params(exc: FiveAxisError) -> FiveAxisError:
-    """The core's error with its field named as this job's parameter."""
-    return type(exc)(exc.message, field=_FIELDS.get(exc.field or "", exc.field), value=exc.value)
+    """The core's error naming this job's input: ``params.<name>`` is this job's parameter of the
+    same name already; the core's ``trace`` input (and its parts, ``trace.xy``...) is the trace
+    of ``params.trace_id``."""
+    field = exc.field or ""
+    if field == "trace" or field.startswith("trace."):
+        return type(exc)(exc.message, field="params.trace_id", value=exc.value)
+    return exc
 
 
 def trace_xy(trace: Trace) -> np.ndarray:
@@ -184,7 +182,7 @@ def trace_xy(trace: Trace) -> np.ndarray:
 
 
 def _fitted_surface(job: Job, field: str) -> NurbsSurface:
-    return NurbsSurface.from_dict((job.result or {}).get("surface"), field=field)
+    return NurbsSurface.from_dict(SurfaceFitResult.of(job).surface, field=field)
 
 
 def _check(params: FiveAxisJobParams, session: Session) -> None:
@@ -306,7 +304,7 @@ def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
         "standoff_mm": plan_params.standoff_mm,
         "feed_mm_min": plan_params.feed_mm_min,
         "feed_mode": plan_params.feed_mode,
-        "pivot": list(plan_params.pivot_mm),
+        "pivot": list(plan_params.pivot),
         "surface_source": source,
         "surface": surface.to_dict(),
         "offset_curve": path.offset_curve.to_dict(),

@@ -72,10 +72,7 @@ class JettingJobParams(PrintModelParams):
         return self
 
     def core(self) -> JettingParams:
-        plant = PlantParams(nozzle_spread=self.nozzle_spread, drop_noise=self.drop_noise,
-                            volume_bias=self.volume_bias, mobility_factor=self.mobility_factor,
-                            threshold_factor=self.threshold_factor, dead_nozzles=tuple(self.dead_nozzles),
-                            n_nozzles=self.n_nozzles, sensor_noise_um=self.sensor_noise_um, seed=self.seed)
+        plant = PlantParams(**{**self.named(PlantParams), "dead_nozzles": tuple(self.dead_nozzles)})
         return JettingParams(drop=self.drop(), flow=self.flow(), plant=plant,
                              controller=self.controller_params(self.controller), target=self.target_spec(),
                              layers=self.layers, margin_mm=self.margin_mm, snapshot_every=self.snapshot_every,

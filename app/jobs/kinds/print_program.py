@@ -169,7 +169,6 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
     if drift is not None:  # what is streamed (and resumed) is the shifted program
         lines = shift_z(text, drift["dz_mm"]).text.splitlines()
         meta = gcode_meta("\n".join(lines))
-    ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
     last_report = 0.0
     cancelled = False
 
@@ -188,17 +187,16 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
                 cancelled = True
                 machine.cancel()
 
-    try:
-        report = machine.stream(lines, on_progress=on_progress, start_line=state["start_line"])
-    except HardwareError as exc:
-        gap = machine.interrupted_program  # consistent (command, line number) pair
-        if gap is not None:
-            state.update(executed=gap.acked_index, acked_line_no=gap.acked_line_no)
-        if isinstance(exc, LinkError) or stopped_by_operator(ctx, machine):
-            raise interrupt(ctx, machine, exc, state) from exc
-        raise translate(exc) from exc
-    finally:
-        ctx.runtime.machines.running_job.pop(params.machine_id, None)
+    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
+        try:
+            report = machine.stream(lines, on_progress=on_progress, start_line=state["start_line"])
+        except HardwareError as exc:
+            gap = machine.interrupted_program  # consistent (command, line number) pair
+            if gap is not None:
+                state.update(executed=gap.acked_index, acked_line_no=gap.acked_line_no)
+            if isinstance(exc, LinkError) or stopped_by_operator(ctx, machine):
+                raise interrupt(ctx, machine, exc, state) from exc
+            raise translate(exc) from exc
     if cancelled or report.cancelled:
         why = "emergency stop; " if machine.estopped else ""
         raise Cancelled(f"{why}print cancelled after {report.executed} of {report.total} commands",
@@ -243,9 +241,8 @@ def _touch_pad(ctx: JobContext, machine: LiveMachine, machine_id: str, reference
     x0, y, z = reference["pad_mm"]
     travel, start = reference["travel_z_mm"], z + reference["ball_radius_mm"] + PAD_APPROACH_MM
     ctx.progress(0.0, "touching the reference pad (drift since calibration)")
-    ctx.runtime.machines.running_job[machine_id] = ctx.job_id
     readings = []
-    try:
+    with ctx.runtime.machines.lease(machine_id, ctx.job_id):
         machine.move(z=travel)
         machine.select_tool(0)
         for k in range(PAD_TOUCHES):
@@ -256,8 +253,6 @@ def _touch_pad(ctx: JobContext, machine: LiveMachine, machine_id: str, reference
                                        feed_mm_min=reference["feed_mm_min"])
             readings.append(float(hit.z))
         machine.move(z=travel)
-    finally:
-        ctx.runtime.machines.running_job.pop(machine_id, None)
     reading = sum(readings) / len(readings)
     return {"dz_mm": reading - reference["reference_z_mm"], "pad_reading_z_mm": reading, "readings_z_mm": readings,
             "reference_z_mm": reference["reference_z_mm"], "probe_job_id": reference["probe_job_id"]}

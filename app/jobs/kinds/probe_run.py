@@ -111,7 +111,6 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
     profile = profile_of(ctx.machine(params.machine_id))
     sequence = TouchSequence(records, probe, drift, params.drift_interval_s, profile.travel_feed_mm_min, feed,
                              (0.0, 0.0, profile.clearance_z))
-    ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
 
     def touch(x: float, y: float, z_start: float, z_min: float) -> Any:
         try:
@@ -125,7 +124,7 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
                 raise interrupt(ctx, machine, exc, state) from exc
             raise translate(exc) from exc
 
-    try:
+    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
         if probe is not None:
             try:
                 machine.select_tool(0)
@@ -157,8 +156,6 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
                 ctx.progress(len(points) / len(records), f"probed {len(points)}/{len(records)}")
             state["ops_done"] = k + 1
             ctx.runtime.store.save_program_state(ctx.claim, state)
-    finally:
-        ctx.runtime.machines.running_job.pop(params.machine_id, None)
     result: dict[str, Any] = {"points": points, "resumes": state["resumes"]}
     if probe is not None:
         result["calibration"] = _correct(points, probe, params, track if drift else None)

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
+from app.calibration import ProbeCalibration
 from app.compensation.registration import Placement
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
@@ -231,12 +232,12 @@ def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str,
     if not params.sigma_from_calibration or params.sigma_mm is not None or params.probe_run_job_id is None:
         return None
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
-    stored = ProbeRunResult.of(probe_run).calibration or {}
-    scatter = float((stored.get("probe") or {}).get("residual_rms_mm") or 0.0)
-    if not scatter > 0:
+    stored = ProbeRunResult.of(probe_run).calibration
+    scatter = 0.0 if stored is None else ProbeCalibration.from_dict(stored.probe).residual_rms_mm
+    if stored is None or not scatter > 0:
         return None
     return {"sigma_mm": scatter, "source": "calibration: the probe qualification's residual rms",
-            "probe_job_id": stored.get("probe_job_id")}
+            "probe_job_id": stored.probe_job_id}
 
 
 def board_entry(rec: Reconstruction) -> dict[str, Any]:
@@ -303,7 +304,7 @@ def run_calibration(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any,
     """(RunCalibration, this trace's rows of the run) when the run's points carry readings of a
     calibrated probe with radius correction, else (None, [])."""
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
-    calibration = run_probe_calibration(probe_run.result)
+    calibration = run_probe_calibration(probe_run)
     if calibration is None:
         return None, []
     plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
@@ -371,7 +372,7 @@ def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any, Any,
                              field="probe run points")
 
         fit = fit_of([p["measured"] for p in rows])
-        calibration = run_probe_calibration(probe_run.result)
+        calibration = run_probe_calibration(probe_run)
         refinement = None
         if calibration is not None:
             stations = field.stations

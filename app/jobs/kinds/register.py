@@ -82,13 +82,10 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
             ctx.progress(min(0.9, 0.1 + touches / 100), f"{touches} datum touches")
         return touch.z
 
-    ctx.runtime.machines.running_job[params.machine_id] = ctx.job_id
-    try:
+    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
         fitted = register_with_z_probe(plan, probe_z, float(z_bottom), DatumProbeParams(
             search_mm=params.search_mm, resolution_mm=params.resolution_mm, tip_radius_mm=tip_radius,
             sigma_mm=params.sigma_mm, pivot_xy=(params.pivot_xy[0], params.pivot_xy[1])), surface_z=surface_z)
-    finally:
-        ctx.runtime.machines.running_job.pop(params.machine_id, None)
     ctx.progress(0.95, f"placement fitted from {fitted.probe_count} touches")
     calibrated = {} if probe is None else {"calibration": {"probe_job_id": probe.job_id, "tip_radius_mm": tip_radius,
                                                             "probe": probe.calibration.to_dict()}}

@@ -20,6 +20,7 @@ from sqlmodel import Session
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import SliceResult
 from app.models import Part
 from app.records import get_or_404
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
@@ -243,7 +244,7 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
     chosen = sliced.layers[svg_index]
     ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml",
                  {"layer": svg_index, "z": chosen.z_top})
-    return {
+    return SliceResult.written({
         "mode": params.mode,
         "layer_count": len(sliced.layers),
         "z_min": sliced.z_min,
@@ -258,4 +259,4 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         "slc": {"quantum_mm": params.slc_quantum_mm, "sampling_table": [list(row) for row in slc.table]},
         "svg": {"layer": svg_index, "z": chosen.z_top, "artifact": "layer.svg"},
         "layers": [_layer_row(layer, w) for layer, w in zip(sliced.layers, widths)],
-    }
+    })

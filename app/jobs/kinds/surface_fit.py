@@ -39,6 +39,7 @@ from app.compensation.surface_fit import (
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import SurfaceFitResult
 from app.models import Part
 from app.records import get_or_404
 
@@ -348,7 +349,7 @@ def run(ctx: JobContext, params: SurfaceFitJobParams) -> dict:
     ctx.artifact("surface.json", json.dumps(surface, sort_keys=True).encode(), "application/json",
                  {"degree_u": fit.surface.degree_u, "degree_v": fit.surface.degree_v,
                   "control_points": list(fit.control_points)})
-    return {
+    return SurfaceFitResult.written({
         "source": "nominal_grid" if points is None else "points",
         "surface": surface,
         "residual": {"max_mm": fit.residual_max_mm, "rms_mm": fit.residual_rms_mm,
@@ -364,4 +365,4 @@ def run(ctx: JobContext, params: SurfaceFitJobParams) -> dict:
         "smoothing": fit.smoothing,
         "control_net": list(fit.control_points),
         "region": params.region.model_dump(),
-    }
+    })

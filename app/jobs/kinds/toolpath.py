@@ -24,6 +24,7 @@ from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import SliceResult
 from app.models import Job, Machine, Part
 from app.jobs.inputs import succeeded_job
 from app.records import get_or_404
@@ -171,8 +172,8 @@ def _check(params: ToolpathJobParams, session: Session) -> None:
                            field="params.dialect", value=params.dialect)
     params.fill().validate()
     volume = machine_volume(params, session)
-    bounds = job.result.get("bounds") if job.result else None
-    if bounds is not None:
+    bounds = SliceResult.of(job).bounds
+    if bounds:
         placed = np.asarray(bounds, dtype=float) + placement_shift(np.asarray(bounds), params.placement.core(), volume)
         check_inside(placed + [[0, 0, 0], [0, 0, END_LIFT_MM + params.z_lift_mm]], volume,
                      what="the part (with the program's end lift), placed on the bed,")
@@ -221,11 +222,11 @@ def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
     footprint; names params.line_width_mm (or params.infill when that is what shrinks the pitch)."""
     job = session.get(Job, params.slice_job_id)
     part = session.get(Part, (job.params or {}).get("part_id")) if job is not None else None
-    if job is None or part is None or not job.result:
+    if job is None or part is None or job.kind != "slice" or job.status != "succeeded":
         return None
     (x0, y0, _), (x1, y1, _) = part.bounds
     pitch = params.line_width_mm / params.infill
-    layers = max(1, int(job.result.get("layer_count", 1)))
+    layers = max(1, SliceResult.of(job).layer_count)
     cols, rows = (x1 - x0) / pitch + 2, (y1 - y0) / pitch + 2
     if params.pattern in ("hilbert", "hilbert_merged"):
         cells = cols * rows

@@ -21,7 +21,7 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Program
 from app.jobs.inputs import succeeded_job
-from app.jobs.results import ProbeRunResult
+from app.jobs.results import ProbeRunResult, SurfaceFitResult
 from app.records import get_or_404
 
 
@@ -74,7 +74,7 @@ def _check(params: WarpProgramParams, session: Session) -> None:
 
 def _surface_points(job: Job) -> np.ndarray:
     if job.kind == "surface_fit":
-        surface = NurbsSurface.from_dict(job.result["surface"], field="surface")
+        surface = NurbsSurface.from_dict(SurfaceFitResult.of(job).surface, field="surface")
         (u0, u1), (v0, v1) = surface.domain
         u, v = np.meshgrid(np.linspace(u0, u1, 60), np.linspace(v0, v1, 60), indexing="ij")
         return surface.evaluate(u.ravel(), v.ravel())

@@ -75,7 +75,7 @@ def planned():
 
 def _plan(surface, trace, post: str):
     return plan_five_axis(surface, trace, FiveAxisParams(
-        standoff_mm=STANDOFF, feed_mm_min=1500.0, segment_mm=0.5, pivot_mm=PIVOT,
+        standoff_mm=STANDOFF, feed_mm_min=1500.0, segment_mm=0.5, pivot=PIVOT,
         a_limits_deg=(-90.0, 90.0), midpoint_tol_mm=0.002, dialect="linuxcnc", post=post,
         dispense_on=PROFILE.dispense_on, dispense_off=PROFILE.dispense_off, program_end="M2",
         approach_feed_mm_min=6000.0))

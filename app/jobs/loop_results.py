@@ -1,0 +1,68 @@
+"""The typed result of a ``closed_loop`` job (written and read through one model, see
+:mod:`app.jobs.results`): one row per trace naming its children, the measured standoff
+table with ``evaluate``, the registration it used and the loop's own files."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict
+
+from app.jobs.results import KindResult
+
+
+class PrintReport(BaseModel):
+    """How one printed program lay on the part (mm), measured on the machine."""
+
+    model_config = ConfigDict(extra="forbid")
+    standoff_error_max_mm: float
+    standoff_error_rms_mm: float
+    width_mean_mm: float
+    width_std_mm: float
+    length_mm: float
+    xy_error_max_mm: float | None = None
+    xy_error_rms_mm: float | None = None
+
+
+class LoopEvaluation(BaseModel):
+    """The nominal and the compensated program of one trace, both printed and measured."""
+
+    model_config = ConfigDict(extra="forbid")
+    nominal: PrintReport
+    compensated: PrintReport
+
+
+class LoopTrace(BaseModel):
+    """One trace of a closed loop: its children's job ids, its probes, the model's largest
+    deviation (mm); a board compensate child names the trace's programs
+    (``print_artifact`` / ``nominal_artifact``, else ``print.gcode`` / ``nominal.gcode``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    trace_id: str
+    probe_plan: str
+    probe_run: str
+    reconstruct: str
+    compensate: str
+    probes: int
+    deviation_max_mm: float
+    print_artifact: str | None = None
+    nominal_artifact: str | None = None
+    evaluation: LoopEvaluation | None = None
+    print: str | None = None  # the print child's job id (print without evaluate)
+
+    @property
+    def program(self) -> str:
+        """The compensated program's artifact name in the compensate job."""
+        return self.print_artifact or "print.gcode"
+
+
+class ClosedLoopResult(KindResult):
+    kind: ClassVar[str] = "closed_loop"
+    traces: list[LoopTrace]
+    table: list[dict[str, Any]]
+    registration: dict[str, Any] | None = None
+    files: dict[str, Any] | None = None  # set last (app.jobs.loop_files), from the rows above
+
+    def by_trace(self) -> dict[str, LoopTrace]:
+        """trace id -> its row."""
+        return {row.trace_id: row for row in self.traces}
