@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from sqlmodel import Session
 
-from app.compensation.registration import Placement, place_path
+from app.geometry.placement import Placement
+from app.registration.registration import place_path
 from app.errors import ConformaError, InvalidInput, NotFound
 from app.jobs.params import PlacedParams, PlacementParams
 from app.models import Job, Trace

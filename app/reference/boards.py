@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from app.geometry.placement import Placement
 from app.probing.nominal import NominalPath
 from app.reference import s1
 
@@ -130,28 +131,25 @@ def board_path(part: BoardPart, geometry: dict, step_mm: float = 0.05) -> Nomina
 @dataclass(frozen=True, eq=False)
 class AsMadeBoard:
     """A seeded as-made part: waves (M, 4) rows (kx, ky, phase, amplitude) in part
-    coordinates; placement (dx, dy, dz mm, rz deg) about the part centre."""
+    coordinates; placement: the rigid placement part -> machine (about the part centre)."""
 
     part: BoardPart
     seed: int
     waves: np.ndarray
-    placement: tuple[float, float, float, float]
+    placement: Placement
 
     def machining_error(self, xy_part: Any) -> np.ndarray:
         p = np.atleast_2d(np.asarray(xy_part, dtype=float))
         return np.cos(p @ self.waves[:, :2].T + self.waves[:, 2]) @ self.waves[:, 3]
 
     def to_part(self, xy_machine: Any) -> np.ndarray:
-        dx, dy, _, rz = self.placement
-        q = np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2] - self.part.center - np.array([dx, dy])
-        a = -math.radians(rz)
-        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        return q @ rot.T + self.part.center
+        """Machine xy (m, 2) -> part xy (m, 2) (inverse placement)."""
+        return self.placement.remove(np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2])
 
     def true_height(self, xy_machine: Any) -> np.ndarray:
         """TRUE top height (m,) mm at machine xy (m, 2)."""
         p = self.to_part(xy_machine)
-        return self.part.height(p) + self.machining_error(p) + self.placement[2]
+        return self.part.height(p) + self.machining_error(p) + self.placement.dz
 
 
 def as_made_board(part: BoardPart, seed: int, amplitude_mm: float = 0.15, min_wavelength_mm: float = 15.0,
@@ -162,8 +160,10 @@ def as_made_board(part: BoardPart, seed: int, amplitude_mm: float = 0.15, min_wa
     ang = rng.uniform(0, 2 * math.pi, n_waves)
     k = (2 * math.pi / lam)[:, None] * np.stack([np.cos(ang), np.sin(ang)], axis=1)
     waves = np.column_stack([k, rng.uniform(0, 2 * math.pi, n_waves), rng.uniform(0.5, 1.0, n_waves)])
-    placement = (*rng.uniform(-0.1, 0.1, 2), rng.uniform(-0.05, 0.05), rng.uniform(-0.2, 0.2))
-    made = AsMadeBoard(part, seed, waves, tuple(float(v) for v in placement))
+    dx, dy = rng.uniform(-0.1, 0.1, 2)
+    placement = Placement.from_deg(float(dx), float(dy), float(rng.uniform(-0.05, 0.05)), float(rng.uniform(-0.2, 0.2)),
+                                   (float(part.center[0]), float(part.center[1])))
+    made = AsMadeBoard(part, seed, waves, placement)
     gx, gy = np.meshgrid(np.linspace(0, part.size[0], 121), np.linspace(0, part.size[1], 81))
     peak = np.abs(made.machining_error(np.column_stack([gx.ravel(), gy.ravel()]))).max()
     waves[:, 3] *= amplitude_mm / peak

@@ -16,7 +16,8 @@ x = 30, 34, 38.  Standoffs: traces 1, 4, 7 -> 0.08 mm; 2, 5, 8 -> 0.10; 3, 6, 9 
 
 As-made variants (:func:`as_made`): a smooth machining error field (seeded sum of plane
 waves, wavelengths >= ``min_wavelength_mm``, scaled to ``amplitude_mm`` peak) on the top,
-and a placement error (dx, dy, dz, rz about the part centre): the TRUE part in machine
+and a placement error (dx, dy, dz, rz about the part centre, :func:`centred_placement`,
+an :class:`app.geometry.placement.Placement`): the TRUE part in machine
 coordinates, as an analytic height function and as a watertight mesh.
 """
 
@@ -30,6 +31,7 @@ import numpy as np
 import trimesh
 from scipy.interpolate import BSpline, NdBSpline
 
+from app.geometry.placement import Placement
 from app.probing.nominal import NominalPath
 
 LENGTH_X_MM = 60.0
@@ -215,15 +217,10 @@ def nominal_path(trace: ReferenceTrace, step_mm: float = 0.05) -> NominalPath:
     return NominalPath(points=points, s=s, normals=normals)
 
 
-@dataclass(frozen=True)
-class Placement:
+def centred_placement(dx: float = 0.0, dy: float = 0.0, dz: float = 0.0, rz_deg: float = 0.0) -> Placement:
     """Where the real part sits relative to its nominal place: mm and degrees about the
     part centre (rz counter-clockwise seen from +z)."""
-
-    dx: float = 0.0
-    dy: float = 0.0
-    dz: float = 0.0
-    rz_deg: float = 0.0
+    return Placement.from_deg(dx, dy, dz, rz_deg, (float(CENTER[0]), float(CENTER[1])))
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,18 +244,11 @@ class AsMadePart:
 
     def to_part(self, xy_machine: Any) -> np.ndarray:
         """Machine xy (m, 2) -> part xy (m, 2) (inverse placement)."""
-        q = np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2]
-        q = q - CENTER - np.array([self.placement.dx, self.placement.dy])
-        a = -math.radians(self.placement.rz_deg)
-        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        return q @ rot.T + CENTER
+        return self.placement.remove(np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2])
 
     def to_machine(self, xy_part: Any) -> np.ndarray:
         """Part xy (m, 2) -> machine xy (m, 2) (placement)."""
-        p = np.atleast_2d(np.asarray(xy_part, dtype=float))[:, :2] - CENTER
-        a = math.radians(self.placement.rz_deg)
-        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        return p @ rot.T + CENTER + np.array([self.placement.dx, self.placement.dy])
+        return self.placement.apply(np.atleast_2d(np.asarray(xy_part, dtype=float))[:, :2])
 
     def true_height(self, xy_machine: Any) -> np.ndarray:
         """TRUE top height (m,) mm at machine xy (m, 2); NaN off the part."""
@@ -287,8 +277,9 @@ def as_made(seed: int = 0, amplitude_mm: float = 0.15, min_wavelength_mm: float 
     waves = np.column_stack([k, rng.uniform(0, 2 * math.pi, n_waves),
                              rng.uniform(0.5, 1.0, n_waves)])
     if placement is None:
-        placement = Placement(*rng.uniform(-0.1, 0.1, 2), rng.uniform(-0.05, 0.05),
-                              rng.uniform(-0.2, 0.2))
+        dx, dy = rng.uniform(-0.1, 0.1, 2)
+        placement = centred_placement(float(dx), float(dy), float(rng.uniform(-0.05, 0.05)),
+                                      float(rng.uniform(-0.2, 0.2)))
     part = AsMadePart(seed, amplitude_mm, min_wavelength_mm, placement, waves)
     gx, gy = np.meshgrid(np.linspace(0, LENGTH_X_MM, 121), np.linspace(0, WIDTH_Y_MM, 81))
     peak = np.abs(part.machining_error(np.column_stack([gx.ravel(), gy.ravel()]))).max()

@@ -272,7 +272,7 @@ def test_s1_trace_compensated_from_probes_holds_10um():
     """End to end on S1 trace 5: deviation planner, reconstruction, compensation."""
     from app.probing import PlanParams, plan_probes
 
-    part = s1.as_made(seed=3, amplitude_mm=0.15, placement=s1.Placement(dz=0.03))
+    part = s1.as_made(seed=3, amplitude_mm=0.15, placement=s1.centred_placement(dz=0.03))
     trace = s1.s1_traces()[4]
     nominal = s1.nominal_path(trace)
     plan = plan_probes(nominal, "deviation", PlanParams())

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from sqlalchemy import update
 
-from app.compensation.registration import Placement, apply_placement
+from app.geometry.placement import Placement, apply_placement
 from app.geometry.nurbs import NurbsCurve
 from app.models import Job
 from app.probing import as_nominal_path, segment_top_max

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.compensation.registration import Placement, apply_placement
+from app.geometry.placement import Placement, apply_placement
 from app.probing import as_nominal_path
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth

@@ -11,7 +11,7 @@ from app.probing.deviation_prior import (DeviationPrior, PriorError, Sites, fit_
                                          placement_basis, prior_covariance)
 from app.probing.nominal import as_nominal_path
 from app.probing.selection import PlanParams
-from app.reference.s1 import Placement, as_made, nominal_gradient, nominal_path, s1_traces
+from app.reference.s1 import as_made, centred_placement, nominal_gradient, nominal_path, s1_traces
 
 
 def test_jinc_is_the_disk_spectrum_average_of_plane_waves():
@@ -41,7 +41,7 @@ def test_prior_covariance_is_positive_semidefinite():
 
 def test_placement_basis_is_the_first_order_height_change():
     # a placed part with no machining error: true - nominal = B @ (dz, dx, dy, rz, 0, 0)
-    pl = Placement(dx=0.08, dy=-0.06, dz=0.03, rz_deg=0.15)
+    pl = centred_placement(dx=0.08, dy=-0.06, dz=0.03, rz_deg=0.15)
     part = as_made(5, amplitude_mm=1e-12, placement=pl)
     path = nominal_path(s1_traces()[4], 0.1)
     s = np.linspace(0, path.length_mm, 50)

@@ -19,7 +19,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
-from app.compensation.registration import Placement
+from app.geometry.placement import Placement
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference

@@ -32,9 +32,9 @@ from scipy.interpolate import (
     make_smoothing_spline,
 )
 
-from app.compensation.surface_fit.errors import SurfaceFitError
-from app.compensation.surface_fit.grid import HeightGrid
-from app.compensation.surface_fit.tiles import neighbourhood_tiles
+from app.reconstruction.surface_fit.errors import SurfaceFitError
+from app.reconstruction.surface_fit.grid import HeightGrid
+from app.reconstruction.surface_fit.tiles import neighbourhood_tiles
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
 from app.geometry.tolerance import DEFAULT_TOLERANCE

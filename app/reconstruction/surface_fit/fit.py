@@ -25,9 +25,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.compensation.surface_fit.errors import GridHoleError, SurfaceFitError
-from app.compensation.surface_fit.grid import HeightGrid
-from app.compensation.surface_fit.preprocess import (
+from app.reconstruction.surface_fit.errors import GridHoleError, SurfaceFitError
+from app.reconstruction.surface_fit.grid import HeightGrid
+from app.reconstruction.surface_fit.preprocess import (
     check_point_spread,
     choose_control_count,
     densify_grid,
