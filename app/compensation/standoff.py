@@ -299,7 +299,7 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
                      job_id: str | None = None) -> CompensatedPath:
     """Print path at ``params.standoff_mm`` above the reconstructed real surface.
 
-    reconstruction: a Reconstruction (``.nominal`` NominalPath, ``.span_mm`` the stretch its
+    reconstruction: a Reconstruction (``.nominal`` TracePolyline, ``.span_mm`` the stretch its
     heights stand for, ``.height_at_s``, ``.method``).  Returns a :class:`CompensatedPath` with the
     compensated and nominal G-code.  Raises OutsideProbedSpanError when the trace leaves
     the probed span beyond the policy, CompensationError for a reconstruction departing

@@ -6,7 +6,12 @@ from dataclasses import dataclass
 
 from app.checks import require_positive
 
-__all__ = ["Tolerance", "DEFAULT_TOLERANCE"]
+__all__ = ["Tolerance", "DEFAULT_TOLERANCE", "DUPLICATE_POINT_MM", "STORED_DECIMALS"]
+
+#: two consecutive polyline points closer than this (mm) are one point (a zero-length step)
+DUPLICATE_POINT_MM = 1e-9
+#: stored coordinates (a trace's nominal polyline) are rounded to this many decimals of a mm
+STORED_DECIMALS = 6
 
 
 @dataclass(frozen=True)

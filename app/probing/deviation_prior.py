@@ -37,7 +37,7 @@ from scipy.special import j1
 
 from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 
 
 class PriorError(InvalidInput):
@@ -96,10 +96,10 @@ class Sites:
 
 SLOPE_SMOOTHING_MM = 0.25   # Gaussian sigma (arc length) of the slope the placement term uses
 SLOPE_SAMPLE_MM = 0.02
-_SMOOTH_SLOPES: "weakref.WeakKeyDictionary[NominalPath, BSpline]" = weakref.WeakKeyDictionary()
+_SMOOTH_SLOPES: "weakref.WeakKeyDictionary[TracePolyline, BSpline]" = weakref.WeakKeyDictionary()
 
 
-def raw_path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
+def raw_path_gradient(path: TracePolyline, s: np.ndarray) -> np.ndarray:
     """Nominal slope (m, 2) at arc lengths ``s`` (m,) as the polyline states it: from the
     normals when the path has them (n = (-hx, -hy, 1)/|.|), else only its along-trace part
     dz/ds_xy * tangent_xy.  Piecewise: it jumps wherever a faceted nominal changes face."""
@@ -116,7 +116,7 @@ def raw_path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
     return slope[:, None] * d[seg, :2] / safe[:, None]
 
 
-def path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
+def path_gradient(path: TracePolyline, s: np.ndarray) -> np.ndarray:
     """Smoothed nominal slope (m, 2) at arc lengths ``s`` (m,): :func:`raw_path_gradient`
     sampled every SLOPE_SAMPLE_MM, Gaussian-filtered along the trace (sigma
     SLOPE_SMOOTHING_MM) and interpolated by a cubic spline (cached per path).
@@ -145,13 +145,13 @@ def path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
     return spline(s)
 
 
-def path_sites(path: NominalPath, s: np.ndarray) -> Sites:
+def path_sites(path: TracePolyline, s: np.ndarray) -> Sites:
     """Sites on the nominal at arc lengths ``s`` (m,) mm."""
     s = np.asarray(s, dtype=float)
     return Sites(path.at(s)[:, :2], path_gradient(path, s))
 
 
-def path_center(path: NominalPath) -> np.ndarray:
+def path_center(path: TracePolyline) -> np.ndarray:
     """Rotation/tilt centre (2,) mm of a trace: mean top-view point, even in arc length."""
     return path.at(np.linspace(0.0, path.length_mm, 65))[:, :2].mean(axis=0)
 

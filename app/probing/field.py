@@ -39,7 +39,7 @@ from scipy.special import j1
 from app.probing.deviation_prior import (DeviationPrior, Sites, placement_basis, prior_covariance,
                                          prior_variance)
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams
 
 StationMode = Literal["on_traces", "anywhere_on_top"]
@@ -240,7 +240,7 @@ def travel_order(xy: np.ndarray, band_mm: float) -> np.ndarray:
 
 def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
                stations: str = "on_traces", top: TopSampler | None = None) -> FieldPlan:
-    """Field stations for every trace in ``nominals`` (NominalPath-like, one frame).
+    """Field stations for every trace in ``nominals`` (TracePolyline-like, one frame).
 
     params: the deviation prior, ``target_error_mm``, ``coverage``, ``min_count`` and an
     optional total ``count``.  stations: "on_traces" or "anywhere_on_top" (needs ``top``,
@@ -253,7 +253,7 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
         raise PlanError("anywhere_on_top needs the part's top surface", field="stations", value=stations)
     if len(nominals) == 0:
         raise PlanError("the field planner needs at least one trace", field="traces", value=0)
-    paths = [as_nominal_path(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
+    paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     prior = params.prior()
     region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
     return _design(region, prior, params, stations)

@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from app.probing.deviation_prior import Sites, path_gradient
 from app.probing.joint import joint_center
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 
 SAMPLES_PER_WAVELENGTH = 16
 CELLS_PER_WAVELENGTH = 8
@@ -74,7 +74,7 @@ class TracePoints:
         return TracePoints(self.sites.take(idx), self.trace[idx], self.s[idx], self.z[idx])
 
 
-def sample_traces(paths: Sequence[NominalPath], step_mm: float) -> TracePoints:
+def sample_traces(paths: Sequence[TracePolyline], step_mm: float) -> TracePoints:
     """Every path sampled about every ``step_mm`` of arc length, both ends included."""
     xy, grad, trace, s_all, z = [], [], [], [], []
     for i, path in enumerate(paths):
@@ -152,7 +152,7 @@ def free_candidates(targets: TracePoints, cell_mm: float, reach_mm: float,
     return Sites(grid[ok], np.asarray(found.grad)[ok]), np.asarray(found.z)[ok]
 
 
-def field_region(paths: Sequence[NominalPath], wavelength_mm: float,
+def field_region(paths: Sequence[TracePolyline], wavelength_mm: float,
                  top: TopSampler | None = None) -> FieldRegion:
     """The region of ``paths`` (all in one frame); with ``top``, free candidates too."""
     samples = sample_traces(paths, wavelength_mm / SAMPLES_PER_WAVELENGTH)

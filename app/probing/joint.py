@@ -35,7 +35,7 @@ from scipy.linalg import solve_triangular
 from app.probing.deviation_prior import (DeviationPrior, Sites, path_sites, prior_covariance,
                                          prior_variance)
 from app.probing.minimax import even_indices, fewest_probes
-from app.probing.nominal import NominalPath, as_nominal_path
+from app.geometry.traces import TracePolyline, as_trace_polyline
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
 POWER_LOG2 = 4
@@ -48,7 +48,7 @@ MIN_GAIN = 1e-6  # relative criterion gain a move must bring
 MAX_AUTO_COUNT = 60
 
 
-def joint_center(paths: Sequence[NominalPath]) -> np.ndarray:
+def joint_center(paths: Sequence[TracePolyline]) -> np.ndarray:
     """Rotation/tilt centre (2,) mm of a set of traces: mean top-view point, each trace
     weighted by its length (65 samples per trace, even in arc length)."""
     pts = [p.at(np.linspace(0.0, p.length_mm, 65))[:, :2] for p in paths]
@@ -83,7 +83,7 @@ class JointGrid:
         return np.maximum(self.prior_var - np.sum(a * a, axis=0), 0.0)
 
 
-def joint_grid(paths: Sequence[NominalPath], prior: DeviationPrior) -> JointGrid:
+def joint_grid(paths: Sequence[TracePolyline], prior: DeviationPrior) -> JointGrid:
     """The joint target grid of ``paths`` (see the module doc); at most ``MAX_GRID`` stations."""
     lengths = np.array([p.length_mm for p in paths])
     step = max(prior.wavelength_mm / GRID_PER_WAVELENGTH, lengths.sum() / MAX_GRID)
@@ -191,7 +191,7 @@ def auto_joint_count(grid: JointGrid, target_mm: float, coverage: float, min_cou
 def plan_joint(nominals: Sequence[object], params: PlanParams | None = None) -> tuple[ProbePlan, ...]:
     """Plan the "kriging" stations of several traces of one part together.
 
-    nominals: the traces' nominals (NominalPath / NominalTrace-like / (k, 3)), all in one
+    nominals: the traces' nominals (TracePolyline / ``.points`` (k, 3) / (k, 3)), all in one
     frame.  params: as for ``plan_probes(..., "kriging")``; ``count`` is per trace.
     Returns one :class:`ProbePlan` per trace (same order), each with the joint design's
     largest posterior sd as ``predicted_sd_mm`` — valid when the reconstruction of each
@@ -200,7 +200,7 @@ def plan_joint(nominals: Sequence[object], params: PlanParams | None = None) -> 
     params = params or PlanParams()
     if len(nominals) == 0:
         raise PlanError("joint planning needs at least one trace", field="traces", value=0)
-    paths = [as_nominal_path(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
+    paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     # the exchange does thousands of small factorisations and solves: one BLAS thread is
     # ~10x faster than several on this size (thread start-up dominates); job processes run
     # with CONFORMA_BLAS_THREADS (default 1), set once when they start

@@ -28,7 +28,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel,
                                          path_sites, placement_basis, prior_covariance)
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 from app.reconstruction.heights import FieldHeight
 from app.reconstruction.preprocess import CleanPoints, ReconstructionError
 from app.geometry.fitting import interpolate_curve
@@ -152,7 +152,7 @@ def fit_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, mea
                     np.full(n, np.nan) if s_mm is None else np.asarray(s_mm, dtype=float))
 
 
-def trace_reconstruction(fit: FieldFit, path: NominalPath, trace_index: int,
+def trace_reconstruction(fit: FieldFit, path: TracePolyline, trace_index: int,
                          params: ReconstructParams | None = None) -> Reconstruction:
     """The real trace ``path`` (the plan's trace number ``trace_index``) from the fitted
     field: nominal + posterior mean (evaluated every DENSE_STEP_MM and interpolated by a cubic

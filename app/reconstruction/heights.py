@@ -2,7 +2,7 @@
 read back exactly, instead of being rebuilt from its probes).
 
 Each model is ``height(s (m,)) -> (m,)`` mm at nominal arc lengths ``s`` over a
-:class:`~app.probing.nominal.NominalPath`, and :meth:`arrays` gives the numbers it is made
+:class:`~app.geometry.traces.TracePolyline`, and :meth:`arrays` gives the numbers it is made
 of; :func:`height_model` builds it again from them, bit for bit the same function:
 
 * :class:`CurveHeight` (``interpolate``, ``approximate``): the curve's z where its top view
@@ -27,7 +27,7 @@ from scipy.interpolate import BSpline
 
 from app.geometry.nurbs import NurbsCurve
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites, prior_covariance
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 from app.reconstruction.preprocess import ReconstructionError
 
 
@@ -43,7 +43,7 @@ class HeightModel(Protocol):
 @dataclass(frozen=True, eq=False)
 class CurveHeight:
     curve: NurbsCurve
-    path: NominalPath
+    path: TracePolyline
     kind: str = "curve"
     _top: NurbsCurve = field(init=False, repr=False)
 
@@ -71,7 +71,7 @@ def _spline(name: str, arrays: dict[str, np.ndarray]) -> BSpline:
 
 @dataclass(frozen=True, eq=False)
 class SplineHeight:
-    path: NominalPath
+    path: TracePolyline
     spline: BSpline
     lo: float
     hi: float
@@ -87,7 +87,7 @@ class SplineHeight:
 
 @dataclass(frozen=True, eq=False)
 class KrigingHeight:
-    path: NominalPath
+    path: TracePolyline
     prior: DeviationPrior
     center: np.ndarray
     probes: Sites
@@ -111,7 +111,7 @@ _PRIOR_FIELDS = ("amplitude_mm", "wavelength_mm", "peak_factor", "placement_xy_m
 
 @dataclass(frozen=True, eq=False)
 class FieldHeight:
-    path: NominalPath
+    path: TracePolyline
     machining: BSpline
     placement: BSpline
     kind: str = "field"
@@ -123,7 +123,7 @@ class FieldHeight:
         return {**_spline_arrays("machining", self.machining), **_spline_arrays("placement", self.placement)}
 
 
-def height_model(kind: str, path: NominalPath, arrays: dict[str, np.ndarray], curve: NurbsCurve) -> HeightModel:
+def height_model(kind: str, path: TracePolyline, arrays: dict[str, np.ndarray], curve: NurbsCurve) -> HeightModel:
     """The model ``kind`` over ``path`` from its :meth:`arrays` (``curve``: the reconstruction's)."""
     try:
         if kind == "curve":

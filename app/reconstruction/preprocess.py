@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import InvalidInput
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 
 
 class ReconstructionError(InvalidInput):
@@ -120,7 +120,7 @@ def reject_outliers(s: np.ndarray, dz: np.ndarray, params: PreprocessParams) -> 
     return keep
 
 
-def preprocess(path: NominalPath, measured: Any, params: PreprocessParams,
+def preprocess(path: TracePolyline, measured: Any, params: PreprocessParams,
                field: str = "points") -> CleanPoints:
     """Clean measured points (k, 3) against the nominal ``path`` (see module doc)."""
     pts = validate_measured(measured, field)

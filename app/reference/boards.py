@@ -25,7 +25,7 @@ import numpy as np
 import trimesh
 
 from app.geometry.placement import Placement
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 from app.reference import s1
 
 MARGIN_MM = 4.0
@@ -117,15 +117,15 @@ def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict]:
     return out
 
 
-def board_path(part: BoardPart, geometry: dict, step_mm: float = 0.05) -> NominalPath:
-    """The trace draped on the part's analytic top: dense NominalPath with normals."""
+def board_path(part: BoardPart, geometry: dict, step_mm: float = 0.05) -> TracePolyline:
+    """The trace draped on the part's analytic top: dense TracePolyline with normals."""
     xy = s1.trace_xy(geometry, step_mm)
     g = part.gradient(xy)
     normals = np.stack([-g[:, 0], -g[:, 1], np.ones(len(xy))], axis=1)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     points = np.column_stack([xy, part.height(xy)])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return NominalPath(points=points, s=s, normals=normals)
+    return TracePolyline(points=points, s=s, normals=normals)
 
 
 @dataclass(frozen=True, eq=False)

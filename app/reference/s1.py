@@ -32,7 +32,7 @@ import trimesh
 from scipy.interpolate import BSpline, NdBSpline
 
 from app.geometry.placement import Placement
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 
 LENGTH_X_MM = 60.0
 WIDTH_Y_MM = 40.0
@@ -205,8 +205,8 @@ def trace_xy(geometry: dict, step_mm: float = 0.05) -> np.ndarray:
     return np.stack([np.interp(ss, s, pts[:, 0]), np.interp(ss, s, pts[:, 1])], axis=1)
 
 
-def nominal_path(trace: ReferenceTrace, step_mm: float = 0.05) -> NominalPath:
-    """The trace draped on the analytic nominal top: dense NominalPath with normals."""
+def nominal_path(trace: ReferenceTrace, step_mm: float = 0.05) -> TracePolyline:
+    """The trace draped on the analytic nominal top: dense TracePolyline with normals."""
     xy = trace_xy(trace.geometry, step_mm)
     z = nominal_height(xy)
     g = nominal_gradient(xy)
@@ -214,7 +214,7 @@ def nominal_path(trace: ReferenceTrace, step_mm: float = 0.05) -> NominalPath:
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     points = np.column_stack([xy, z])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return NominalPath(points=points, s=s, normals=normals)
+    return TracePolyline(points=points, s=s, normals=normals)
 
 
 def centred_placement(dx: float = 0.0, dy: float = 0.0, dz: float = 0.0, rz_deg: float = 0.0) -> Placement:

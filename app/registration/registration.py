@@ -47,7 +47,7 @@ import numpy as np
 from app.checks import require_positive
 from app.errors import InvalidInput
 from app.geometry.placement import Placement, remove_placement
-from app.probing.nominal import NominalPath, as_nominal_path
+from app.geometry.traces import TracePolyline, as_trace_polyline
 
 __all__ = [
     "PARAMETERS",
@@ -84,13 +84,14 @@ def _as_points(points: Any, field: str) -> np.ndarray:
     return p
 
 
-def place_path(nominal: Any, placement: Placement) -> NominalPath:
-    """A nominal trace (NominalPath / ``.points`` (k, 3) / array) moved into the machine
-    frame: points placed, normals rotated, arc lengths unchanged (rigid motion)."""
-    path = as_nominal_path(nominal)
+def place_path(nominal: Any, placement: Placement) -> TracePolyline:
+    """A nominal trace (TracePolyline / ``.points`` (k, 3) / array) moved into the machine
+    frame: points placed, normals rotated, arc lengths and slope stretch unchanged (rigid
+    motion); the slope summary (part-frame coordinates) is not carried."""
+    path = as_trace_polyline(nominal)
     normals = None if path.normals is None else placement.rotate(path.normals)
-    return NominalPath(points=placement.apply(path.points), s=path.s.copy(),
-                       normals=normals)
+    return TracePolyline(points=placement.apply(path.points), s=path.s.copy(), normals=normals,
+                         slope_stretch=path.slope_stretch)
 
 
 @dataclass(frozen=True)

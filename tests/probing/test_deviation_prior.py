@@ -9,7 +9,7 @@ from app.problems import http_status
 from app.probing.deviation_prior import (DeviationPrior, PriorError, Sites, fit_posterior,
                                          jinc_kernel, path_center, path_gradient, path_sites,
                                          placement_basis, prior_covariance)
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanParams
 from app.reference.s1 import as_made, centred_placement, nominal_gradient, nominal_path, s1_traces
 
@@ -58,7 +58,7 @@ def test_gradient_from_normals_and_fallback():
     s = np.linspace(1, path.length_mm - 1, 20)
     g = path_gradient(path, s)
     assert np.abs(g - nominal_gradient(path.at(s)[:, :2])).max() < 2e-3
-    bare = as_nominal_path(path.points)  # no normals: only the along-trace slope
+    bare = as_trace_polyline(path.points)  # no normals: only the along-trace slope
     gb = path_gradient(bare, s)
     tan = path.at(s + 0.01)[:, :2] - path.at(s - 0.01)[:, :2]
     tan /= np.linalg.norm(tan, axis=1, keepdims=True)
