@@ -20,6 +20,7 @@ import numpy as np
 
 from app.errors import InvalidInput
 from app.geometry.placement import Placement
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 AXES = "xyz"
 
@@ -85,7 +86,7 @@ def check_inside(bounds: np.ndarray, volume: MachineVolume, field: str = "params
     for k, axis in enumerate(AXES):
         below = limits[0, k] - lo[k]
         above = hi[k] - limits[1, k]
-        if below > 1e-9 or above > 1e-9:
+        if below > LENGTH_EPS_MM or above > LENGTH_EPS_MM:
             side, amount, edge = ("below", below, limits[0, k]) if below > above else ("beyond", above, limits[1, k])
             raise PlacementError(
                 f"{what} leaves the machine's volume on {axis.upper()}: it reaches "

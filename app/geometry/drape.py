@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 
 from app.geometry.edge_grid import edge_grid, segment_edge_crossings
 from app.geometry.errors import DegenerateGeometryError, OffSurfaceError
-from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, LENGTH_EPS_MM, VERTICAL_NZ, Tolerance
 from app.geometry.validation import as_points
 
 __all__ = ["DrapedPath", "TopSurface", "SnappedPoints", "top_surface_z", "drape_polyline", "snap_to_surface"]
@@ -101,7 +101,7 @@ def _plane_z(m: _MeshArrays, faces: np.ndarray, xy: np.ndarray) -> np.ndarray:
     n = m.normals[faces]
     with np.errstate(divide="ignore", invalid="ignore"):
         z = v0[:, 2] - (n[:, 0] * (xy[:, 0] - v0[:, 0]) + n[:, 1] * (xy[:, 1] - v0[:, 1])) / n[:, 2]
-    vertical = np.abs(n[:, 2]) <= 1e-12
+    vertical = np.abs(n[:, 2]) <= VERTICAL_NZ
     if vertical.any():
         z[vertical] = m.vertices[m.faces[faces[vertical]], 2].max(axis=1)
     return z
@@ -161,7 +161,7 @@ def drape_polyline(mesh: trimesh.Trimesh, xy: ArrayLike, tolerance: Tolerance = 
     seg_id, tt = seg_id[order], tt[order]
     q = p0[seg_id] + tt[:, None] * (p1 - p0)[seg_id]
     step = np.linalg.norm(np.diff(q, axis=0), axis=1)
-    distinct = np.concatenate([[True], step > 1e-9])
+    distinct = np.concatenate([[True], step > LENGTH_EPS_MM])
     q, seg_id = q[distinct], seg_id[distinct]
     q[-1] = pts[-1]
     mids = 0.5 * (q[:-1] + q[1:])

@@ -19,7 +19,7 @@ from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
 from app.geometry.errors import GeometryError
-from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, DIVISION_FLOOR, DOMAIN_SLACK_REL, Tolerance
 from app.geometry.validation import as_degree, as_points, check_knots, check_weights
 
 __all__ = ["NurbsCurve", "CurveInversion"]
@@ -98,7 +98,7 @@ class NurbsCurve:
     def _params(self, u: ArrayLike, field: str = "u") -> np.ndarray:
         arr = np.atleast_1d(np.asarray(u, dtype=float)).ravel()
         a, b = self.domain
-        slack = 1e-9 * max(b - a, 1.0)
+        slack = DOMAIN_SLACK_REL * max(b - a, 1.0)
         if not np.isfinite(arr).all() or (arr.size and (arr.min() < a - slack or arr.max() > b + slack)):
             raise GeometryError(
                 f"parameter outside the curve's domain [{a}, {b}] or not finite", field=field, value=arr
@@ -187,7 +187,7 @@ class NurbsCurve:
         edges, cum = self._length_table
         total = cum[-1]
         ss = np.atleast_1d(np.asarray(s, dtype=float)).ravel()
-        slack = 1e-9 * max(total, 1.0)
+        slack = DOMAIN_SLACK_REL * max(total, 1.0)
         if not np.isfinite(ss).all() or (ss.size and (ss.min() < -slack or ss.max() > total + slack)):
             raise GeometryError(f"arc length outside [0, {total}] mm", field="s", value=ss)
         ss = np.clip(ss, 0.0, total)
@@ -197,7 +197,7 @@ class NurbsCurve:
         with np.errstate(divide="ignore", invalid="ignore"):
             frac = np.where(seg > 0, (ss - cum[j]) / seg, 0.0)
         u = lo + frac * (hi - lo)
-        goal = tolerance.length_rel * max(total, 1e-300)
+        goal = tolerance.length_rel * max(total, DIVISION_FLOOR)
         for _ in range(60):
             f = self._length_to(u) - ss
             done = np.abs(f) <= goal
@@ -251,7 +251,7 @@ class NurbsCurve:
             f = np.einsum("ij,ij->i", d[1], r)
             s2 = np.einsum("ij,ij->i", d[1], d[1])
             fp = np.einsum("ij,ij->i", d[2], r) + s2
-            denom = np.where(fp > 0, fp, s2 + 1e-300)
+            denom = np.where(fp > 0, fp, s2 + DIVISION_FLOOR)
             step = np.where(s2 > 0, f / denom, 0.0)
             u_new = np.clip(u - step, a, b)
             moved = np.abs(u_new - u)

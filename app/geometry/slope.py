@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.geometry.errors import GeometryError
+from app.geometry.tolerance import DIVISION_FLOOR
 
 DEFAULT_WARN_DEG = 30.0
 DEFAULT_MAX_DEG = 60.0
@@ -57,7 +58,7 @@ class SlopeReport:
 def surface_slopes_deg(normals: np.ndarray) -> np.ndarray:
     """(k,) slope in degrees of the surface whose unit normals are ``normals`` (k, 3)."""
     n = np.asarray(normals, dtype=float)
-    nz = np.abs(n[:, 2]) / np.maximum(np.linalg.norm(n, axis=1), 1e-300)
+    nz = np.abs(n[:, 2]) / np.maximum(np.linalg.norm(n, axis=1), DIVISION_FLOOR)
     return np.degrees(np.arccos(np.clip(nz, 0.0, 1.0)))
 
 

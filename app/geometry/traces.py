@@ -30,7 +30,7 @@ from app.geometry.cl_points import cl_points
 from app.geometry.drape import drape_polyline, snap_to_surface
 from app.geometry.errors import DegenerateGeometryError, GeometryError
 from app.geometry.shapes import trace_curve
-from app.geometry.tolerance import DEFAULT_TOLERANCE, DUPLICATE_POINT_MM, STORED_DECIMALS, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, LENGTH_EPS_MM, STORED_DECIMALS, Tolerance
 
 __all__ = ["TracePolyline", "TracePolylineError", "XYProjection", "as_trace_polyline", "build_nominal_trace"]
 
@@ -75,7 +75,7 @@ class TracePolyline:
                     slope_stretch: float | None = None, slope: dict[str, Any] | None = None,
                     renormalise: bool = True) -> TracePolyline:
         """Validate ``points`` (k >= 2, 3) mm, drop consecutive duplicates (closer than
-        :data:`~app.geometry.tolerance.DUPLICATE_POINT_MM`) and measure ``s``.
+        :data:`~app.geometry.tolerance.LENGTH_EPS_MM`) and measure ``s``.
 
         ``normals`` (k, 3) are kept (renormalised unless ``renormalise`` is False) when
         finite and of the points' shape, else dropped.  Raises :class:`TracePolylineError`
@@ -93,14 +93,14 @@ class TracePolyline:
             raise TracePolylineError(f"{field}.points[{i}] is not finite",
                                      field=f"{field}.points[{i}]", value=str(pts[i].tolist()))
         step = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        keep = np.concatenate([[True], step > DUPLICATE_POINT_MM])
+        keep = np.concatenate([[True], step > LENGTH_EPS_MM])
         unit = None
         if normals is not None:
             n = np.asarray(normals, dtype=float)
             if n.shape == pts.shape and np.isfinite(n).all():
                 unit = n[keep] / np.linalg.norm(n[keep], axis=1, keepdims=True) if renormalise else n[keep]
         pts = pts[keep]
-        s = np.concatenate([[0.0], np.cumsum(step[step > DUPLICATE_POINT_MM])])
+        s = np.concatenate([[0.0], np.cumsum(step[step > LENGTH_EPS_MM])])
         if len(pts) < 2 or s[-1] <= 0:
             raise TracePolylineError(f"{field} has zero length", field=f"{field}.points", value=float(s[-1]))
         return cls(points=pts, s=s, normals=unit, slope_stretch=slope_stretch, slope=slope)

@@ -37,6 +37,7 @@ from scipy.special import j1
 
 from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
+from app.geometry.tolerance import COVARIANCE_JITTER_REL, DEGENERATE_LENGTH_MM
 from app.geometry.traces import TracePolyline
 
 
@@ -111,8 +112,8 @@ def raw_path_gradient(path: TracePolyline, s: np.ndarray) -> np.ndarray:
     d = np.diff(path.points, axis=0)
     dxy = np.linalg.norm(d[:, :2], axis=1)
     seg = np.clip(np.searchsorted(path.s, s, side="right") - 1, 0, len(d) - 1)
-    safe = np.where(dxy[seg] > 1e-12, dxy[seg], 1.0)
-    slope = np.where(dxy[seg] > 1e-12, d[seg, 2] / safe, 0.0)
+    safe = np.where(dxy[seg] > DEGENERATE_LENGTH_MM, dxy[seg], 1.0)
+    slope = np.where(dxy[seg] > DEGENERATE_LENGTH_MM, d[seg, 2] / safe, 0.0)
     return slope[:, None] * d[seg, :2] / safe[:, None]
 
 
@@ -186,7 +187,7 @@ def prior_variance(prior: DeviationPrior, sites: Sites, center: np.ndarray) -> n
 
 
 def _factor(k: np.ndarray, sigma_mm: float, scale: float):
-    jitter = max(sigma_mm ** 2, 1e-10 * scale)
+    jitter = max(sigma_mm ** 2, COVARIANCE_JITTER_REL * scale)
     return cho_factor(k + jitter * np.eye(len(k)), lower=True)
 
 

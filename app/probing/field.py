@@ -36,6 +36,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.special import j1
 
+from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, placement_basis, prior_covariance,
                                          prior_variance)
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
@@ -61,7 +62,7 @@ class GreedyField:
         self.basis = placement_basis(sites, center) * prior.basis_sd        # (N, 6)
         self.prior_var = prior.rms_mm ** 2 + np.sum(self.basis ** 2, axis=1)
         self.var = self.prior_var.copy()
-        self.jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+        self.jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
         self.rows = np.empty((16, len(self.var)))
         self.chosen: list[int] = []
         self._k = 2.0 * math.pi / prior.wavelength_mm
@@ -129,7 +130,7 @@ class PosteriorParts:
 def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray) -> PosteriorParts:
     """:class:`PosteriorParts` from one factorisation (cost O(n^2 N))."""
     n = len(stations.xy)
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     precision = np.linalg.inv(prior_covariance(prior, stations, stations, center) + jitter * np.eye(n))
     precision = (precision + precision.T) / 2
     var = prior_variance(prior, where, center)
@@ -176,7 +177,7 @@ def eliminate_redundant(parts: PosteriorParts, target_var: float, keep_at_least:
 
 def posterior_sd(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray) -> np.ndarray:
     """Posterior sd (m,) mm of the field at ``where`` given stations (fresh factorisation)."""
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     k = prior_covariance(prior, stations, stations, center)
     low = np.linalg.cholesky(k + jitter * np.eye(len(k)))
     out = np.empty(len(where.xy))

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from app.geometry.tolerance import LENGTH_EPS_MM
 from app.probing.deviation_prior import Sites, path_gradient
 from app.probing.joint import joint_center
 from app.geometry.traces import TracePolyline
@@ -140,8 +141,8 @@ def free_candidates(targets: TracePoints, cell_mm: float, reach_mm: float,
     xy = targets.sites.xy
     lo = np.floor((xy.min(axis=0) - reach_mm) / cell_mm) * cell_mm
     hi = xy.max(axis=0) + reach_mm
-    gx = np.arange(lo[0], hi[0] + 1e-9, cell_mm)
-    gy = np.arange(lo[1], hi[1] + 1e-9, cell_mm)
+    gx = np.arange(lo[0], hi[0] + LENGTH_EPS_MM, cell_mm)
+    gy = np.arange(lo[1], hi[1] + LENGTH_EPS_MM, cell_mm)
     grid = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
     dist, _ = cKDTree(xy).query(grid, distance_upper_bound=reach_mm)
     grid = grid[np.isfinite(dist)]

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_triangular
 
+from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, path_sites, prior_covariance,
                                          prior_variance)
 from app.probing.minimax import even_indices, fewest_probes
@@ -95,7 +96,7 @@ def joint_grid(paths: Sequence[TracePolyline], prior: DeviationPrior) -> JointGr
     center = joint_center(paths)
     cov = prior_covariance(prior, sites, sites, center)
     prior_var = prior_variance(prior, sites, center)
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     return JointGrid(s, offsets, cov, prior_var, jitter, center)
 
 

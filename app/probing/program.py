@@ -26,6 +26,7 @@ import numpy as np
 
 from app.checks import require_positive
 from app.gcode.writer import DIALECTS, ProgramBuilder
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 from app.probing.selection import PlanError, ProbePlan
 
 TopHeight = Callable[[np.ndarray], np.ndarray]
@@ -136,7 +137,7 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
 
     d = b - a
     length = float(np.linalg.norm(d))
-    if length < 1e-12:
+    if length < DEGENERATE_LENGTH_MM:
         origin = np.array([[a[0], a[1], mesh.bounds[1][2] + 1.0]])
         loc, _, _ = mesh.ray.intersects_location(origin, np.array([[0.0, 0.0, -1.0]]))
         return float(loc[:, 2].max()) if len(loc) else -math.inf
@@ -176,7 +177,7 @@ def upward_normals(normals: np.ndarray | None, count: int) -> np.ndarray | None:
     if n.shape != (count, 3) or not np.isfinite(n).all():
         return None
     length = np.linalg.norm(n, axis=1, keepdims=True)
-    if (length < 1e-12).any():
+    if (length < DEGENERATE_LENGTH_MM).any():
         return None
     n = n / length
     return np.where(n[:, 2:3] < 0, -n, n)

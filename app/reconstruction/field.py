@@ -26,6 +26,7 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 from scipy.linalg import cho_factor, cho_solve
 
+from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel,
                                          path_sites, placement_basis, prior_covariance)
 from app.geometry.traces import TracePolyline
@@ -130,7 +131,7 @@ def fit_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, mea
     if n < 2:
         raise ReconstructionError("a field needs at least 2 stations", field=field, value=n)
     dz = pts[:, 2] - np.asarray(nominal_z, dtype=float)
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     k_all = prior_covariance(prior, stations, stations, center)
     kept = np.ones(n, dtype=bool)
     outliers: list[int] = []

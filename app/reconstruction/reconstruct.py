@@ -38,6 +38,7 @@ from scipy.interpolate import make_interp_spline, make_splrep
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import interpolate_curve, smooth_curve
 from app.geometry.nurbs import NurbsCurve
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 from app.probing.deviation_prior import (DeviationPrior, Sites, fit_posterior, path_center,
                                          path_gradient)
 from app.probing.joint import joint_center
@@ -133,7 +134,7 @@ class Reconstruction:
         s = self.nominal.project_xy(np.atleast_2d(np.asarray(xy, dtype=float))).s
         lo = np.clip(s - step_mm, 0.0, self.nominal.length_mm)
         hi = np.clip(s + step_mm, 0.0, self.nominal.length_mm)
-        ds = np.maximum(hi - lo, 1e-12)
+        ds = np.maximum(hi - lo, DEGENERATE_LENGTH_MM)
         slope = (self.deviation_at_s(hi) - self.deviation_at_s(lo)) / ds
         tangent = (self.nominal.at(hi) - self.nominal.at(lo)) / ds[:, None]
         txy = tangent[:, :2]

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from app.geometry.nurbs import NurbsCurve
+from app.geometry.tolerance import LENGTH_EPS_MM
 from app.geometry.traces import TracePolyline
 from app.reconstruction.heights import height_model
 from app.reconstruction.preprocess import CleanPoints, ReconstructionError
@@ -63,7 +64,7 @@ def reconstruction_from_arrays(arrays: dict[str, np.ndarray], nominal: TracePoly
             raise ReconstructionError(f"stored reconstruction format {int(arrays['format'])}, expected {FORMAT}",
                                       field="reconstruction", value=int(arrays["format"]))
         length = float(arrays["nominal_length_mm"])
-        if not np.isclose(length, nominal.length_mm, rtol=0.0, atol=1e-9):
+        if not np.isclose(length, nominal.length_mm, rtol=0.0, atol=LENGTH_EPS_MM):
             raise ReconstructionError(f"the stored reconstruction was made on a {length:.6f} mm nominal, not on "
                                       f"this {nominal.length_mm:.6f} mm one", field="reconstruction", value=length)
         curve = NurbsCurve(int(arrays["curve_degree"]), arrays["curve_knots"], arrays["curve_control_points"],

@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 
 from app.geometry.placement import Placement
+from app.geometry.tolerance import ROUNDOFF_SLACK
 from app.geometry.traces import TracePolyline
 from app.reference import s1
 
@@ -64,7 +65,7 @@ DOME_BASE_MM, DOME_RISE_MM, DOME_RIPPLE_MM = 10.0, 6.0, 1.0
 def _dome_height(xy: Any) -> np.ndarray:
     p = np.atleast_2d(np.asarray(xy, dtype=float))
     u, v = p[:, 0] / DOME_SIZE[0] * 2 - 1, p[:, 1] / DOME_SIZE[1] * 2 - 1
-    inside = (np.abs(u) <= 1 + 1e-12) & (np.abs(v) <= 1 + 1e-12)
+    inside = (np.abs(u) <= 1 + ROUNDOFF_SLACK) & (np.abs(v) <= 1 + ROUNDOFF_SLACK)
     h = (DOME_BASE_MM + DOME_RISE_MM * (1 - u * u) * (1 - 0.5 * v * v)
          + DOME_RIPPLE_MM * np.sin(2 * math.pi * p[:, 0] / 60.0) * np.cos(2 * math.pi * p[:, 1] / 50.0))
     return np.where(inside, h, np.nan)

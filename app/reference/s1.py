@@ -32,6 +32,7 @@ import trimesh
 from scipy.interpolate import BSpline, NdBSpline
 
 from app.geometry.placement import Placement
+from app.geometry.tolerance import ROUNDOFF_SLACK
 from app.geometry.traces import TracePolyline
 
 LENGTH_X_MM = 60.0
@@ -83,7 +84,7 @@ def s1_surface():
 def _uv(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     xy = np.atleast_2d(np.asarray(xy, dtype=float))
     uv = xy[:, :2] / np.array([LENGTH_X_MM, WIDTH_Y_MM])
-    inside = np.all((uv >= -1e-12) & (uv <= 1 + 1e-12), axis=1)
+    inside = np.all((uv >= -ROUNDOFF_SLACK) & (uv <= 1 + ROUNDOFF_SLACK), axis=1)
     return np.clip(uv, 0.0, 1.0), inside
 
 

@@ -37,7 +37,7 @@ from app.reconstruction.surface_fit.grid import HeightGrid
 from app.reconstruction.surface_fit.tiles import neighbourhood_tiles
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
-from app.geometry.tolerance import DEFAULT_TOLERANCE
+from app.geometry.tolerance import DEFAULT_TOLERANCE, DEGENERATE_LENGTH_MM, DIVISION_FLOOR
 
 __all__ = ["BadPointResult", "PointSpread", "check_point_spread", "find_bad_points",
            "choose_control_count", "square_shape",
@@ -98,7 +98,7 @@ def check_point_spread(points: np.ndarray, needed: int, *, field: str,
                               value={"distinct": distinct, "needed": needed})
     centred = xy - xy.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
-    if sv[1] <= _LINE_REL * max(sv[0], 1e-300):
+    if sv[1] <= _LINE_REL * max(sv[0], DIVISION_FLOOR):
         raise SurfaceFitError("the points lie on one line in (x, y): they span no area to "
                               "fit a surface over", field=field,
                               value={"first": xy[0], "last": xy[-1]})
@@ -203,7 +203,7 @@ def _find_bad_points_tiled(pts: np.ndarray, k_sigma: float, min_mm: float,
 def _find_bad_points(pts: np.ndarray, k_sigma: float, min_mm: float,
                      degree: int, max_net: int | None = None) -> BadPointResult:
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
-    uv = (pts[:, :2] - lo) / np.maximum(hi - lo, 1e-12)
+    uv = (pts[:, :2] - lo) / np.maximum(hi - lo, DEGENERATE_LENGTH_MM)
     bad = np.zeros(pts.shape[0], dtype=bool)
     deleted, threshold = np.zeros(pts.shape[0]), float(min_mm)
     for _ in range(_ROUNDS):
@@ -241,7 +241,7 @@ def height_surface_values(points: np.ndarray, query_xy: np.ndarray, degree: int 
     through points (k,3) (query points inside the points' bounding box).
     Raises SurfaceFitError (``field``) when the fit is singular for these points."""
     lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
-    scale = np.maximum(hi - lo, 1e-12)
+    scale = np.maximum(hi - lo, DEGENERATE_LENGTH_MM)
     try:
         size = choose_control_count(points, degree, 0.0, square_shape(points.shape[0]))
         design = _height_design((points[:, :2] - lo) / scale, size, degree)
@@ -296,7 +296,7 @@ def _cubic_determined(points: np.ndarray) -> bool:
     """True when the (x, y) positions determine a cubic polynomial (its 10 monomials are
     independent on them; not so on a circle, two lines, a conic...)."""
     xy = points[:, :2] - points[:, :2].mean(axis=0)
-    xy = xy / max(float(np.abs(xy).max()), 1e-300)
+    xy = xy / max(float(np.abs(xy).max()), DIVISION_FLOOR)
     x, y = xy[:, 0], xy[:, 1]
     monomials = np.column_stack([x**i * y**j for i in range(4) for j in range(4 - i)])
     return bool(np.linalg.matrix_rank(monomials, tol=_LINE_REL ** 0.5) == monomials.shape[1])
