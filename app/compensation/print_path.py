@@ -73,7 +73,8 @@ def dense_stations(s0: float, s1: float, step_mm: float, required: np.ndarray) -
     keep = np.concatenate([[True], np.diff(merged) > LENGTH_EPS_MM])
     merged = merged[keep]
     merged[-1] = s1
-    return merged
+    out: np.ndarray = merged
+    return out
 
 
 def chord_distances(points: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -90,7 +91,8 @@ def chord_distances(points: np.ndarray, index: np.ndarray) -> np.ndarray:
     ll = np.einsum("ij,ij->i", ab, ab)
     t = np.einsum("ij,ij->i", points - a, ab) / np.where(ll > 0, ll, 1.0)
     t = np.clip(np.where(ll > 0, t, 0.0), 0.0, 1.0)
-    return np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
+    out: np.ndarray = np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
+    return out
 
 
 def segment_errors(points: np.ndarray, index: np.ndarray,
@@ -120,7 +122,8 @@ def _curvature(s: np.ndarray, points: np.ndarray) -> np.ndarray:
     denom = (np.linalg.norm(ab, axis=1) * np.linalg.norm(bc, axis=1)
              * np.linalg.norm(ac, axis=1))
     k = np.where(denom > 0, 2.0 * cross / np.where(denom > 0, denom, 1.0), 0.0)
-    return np.interp(s, s[j], k)
+    out: np.ndarray = np.interp(s, s[j], k)
+    return out
 
 
 def _initial_vertices(s: np.ndarray, points: np.ndarray, chord_error_mm: float) -> np.ndarray:

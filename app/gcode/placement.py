@@ -14,7 +14,7 @@ refuses anything that leaves it, naming the axis and by how much.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -43,7 +43,7 @@ class MachineVolume:
         """(2, 3) [[xmin, ymin, zmin], [xmax, ymax, zmax]] mm."""
         return np.array([[self.x[0], self.y[0], self.z[0]], [self.x[1], self.y[1], self.z[1]]], dtype=float)
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return {"x": list(self.x), "y": list(self.y), "z": list(self.z), "source": self.source}
 
 
@@ -96,7 +96,7 @@ def check_inside(bounds: np.ndarray, volume: MachineVolume, field: str = "params
                                     "limit_mm": float(edge)})
 
 
-def profile_volume(profile: dict | None, label: str) -> MachineVolume | None:
+def profile_volume(profile: dict[str, Any] | None, label: str) -> MachineVolume | None:
     """The travel limits in a machine profile's ``volume_mm`` ({x: [min, max], y, z}), or None."""
     given = (profile or {}).get("volume_mm")
     if not given:

@@ -11,6 +11,7 @@ Lengths in mm.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -21,6 +22,11 @@ from app.geometry.edge_grid import edge_grid, segment_edge_crossings
 from app.geometry.errors import DegenerateGeometryError, OffSurfaceError
 from app.geometry.tolerance import DEFAULT_TOLERANCE, LENGTH_EPS_MM, VERTICAL_NZ, Tolerance
 from app.geometry.validation import as_points
+
+# trimesh is untyped: its closest-point query with the types it returns (points (n, 3),
+# distances (n,), face indices (n,))
+_closest_point: Callable[[trimesh.Trimesh, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]] = \
+    trimesh.proximity.closest_point
 
 __all__ = ["DrapedPath", "TopSurface", "SnappedPoints", "top_surface_z", "drape_polyline", "snap_to_surface"]
 
@@ -72,7 +78,8 @@ def _arrays(mesh: trimesh.Trimesh) -> _MeshArrays:
 
 def _upward_normals(m: _MeshArrays, faces: np.ndarray) -> np.ndarray:
     n = m.normals[faces]
-    return np.where(n[:, 2:3] < 0, -n, n)
+    out: np.ndarray = np.where(n[:, 2:3] < 0, -n, n)
+    return out
 
 
 def _top_faces(m: _MeshArrays, xy: np.ndarray) -> np.ndarray:
@@ -104,7 +111,8 @@ def _plane_z(m: _MeshArrays, faces: np.ndarray, xy: np.ndarray) -> np.ndarray:
     vertical = np.abs(n[:, 2]) <= VERTICAL_NZ
     if vertical.any():
         z[vertical] = m.vertices[m.faces[faces[vertical]], 2].max(axis=1)
-    return z
+    out: np.ndarray = z
+    return out
 
 
 def top_surface_z(mesh: trimesh.Trimesh, xy: ArrayLike) -> TopSurface:
@@ -208,7 +216,7 @@ def snap_to_surface(
     than ``max_distance_mm``.  Normals are the closest facets' normals, oriented upward."""
     pts = as_points(points, "points", dims=(3,))
     m = _arrays(mesh)
-    closest, distance, faces = trimesh.proximity.closest_point(mesh, pts)
+    closest, distance, faces = _closest_point(mesh, pts)
     far = distance > max_distance_mm
     if far.any():
         k = int(np.argmax(far))

@@ -61,7 +61,8 @@ def curve_parameters(
         raise GeometryError("parametrization must be 'chord' or 'centripetal'", field="parametrization",
                             value=parametrization)
     u = np.concatenate([[0.0], np.cumsum(seg)])
-    return u / u[-1]
+    out: np.ndarray = u / u[-1]
+    return out
 
 
 def averaged_knots(params: np.ndarray, degree: int) -> np.ndarray:
@@ -194,7 +195,8 @@ def _solve_banded_spd(a: sp.sparray | np.ndarray, rhs: np.ndarray, field: str) -
         ) from exc
     if not np.isfinite(x).all():
         raise DegenerateGeometryError(f"{field}: the fit is singular", field=field, value=None)
-    return x
+    out: np.ndarray = x
+    return out
 
 
 def _solve_tensor_grid(bu: sp.sparray, bv: sp.sparray, grid: np.ndarray, field: str) -> np.ndarray:
@@ -258,7 +260,8 @@ def grid_parameters(grid: np.ndarray, axis: int, tolerance: Tolerance, field: st
     if np.any(np.diff(u) <= 0):
         raise DegenerateGeometryError(f"{field}: duplicate grid rows along axis {axis}", field=field, value=axis)
     u[-1] = 1.0
-    return u
+    out: np.ndarray = u
+    return out
 
 
 def _as_grid(grid: ArrayLike, field: str) -> np.ndarray:

@@ -103,13 +103,15 @@ class NurbsCurve:
             raise GeometryError(
                 f"parameter outside the curve's domain [{a}, {b}] or not finite", field=field, value=arr
             )
-        return np.clip(arr, a, b)
+        out: np.ndarray = np.clip(arr, a, b)
+        return out
 
     # -------------------------------------------------------------- evaluation
     def evaluate(self, u: ArrayLike) -> np.ndarray:
         """Points at parameters ``u`` (k,) -> (k, d) mm."""
         h = self._homogeneous(self._params(u))
-        return h[:, :-1] / h[:, -1:]
+        out: np.ndarray = h[:, :-1] / h[:, -1:]
+        return out
 
     def derivatives(self, u: ArrayLike, order: int = 2) -> np.ndarray:
         """Rational derivatives d^i C / du^i for i = 0..order at ``u`` (k,) -> (order+1, k, d)."""
@@ -127,7 +129,8 @@ class NurbsCurve:
     def _hom_derivative(self, u: np.ndarray, nu: int) -> np.ndarray:
         if nu > self.degree:
             return np.zeros((u.size, self.dimension + 1))
-        return self._homogeneous(u, nu=nu)
+        out: np.ndarray = self._homogeneous(u, nu=nu)
+        return out
 
     def curvature(self, u: ArrayLike) -> np.ndarray:
         """Curvature |C' x C''| / |C'|^3 at ``u`` (k,) -> (k,) in 1/mm (0 where C' = 0)."""
@@ -144,7 +147,8 @@ class NurbsCurve:
 
     def speed(self, u: ArrayLike) -> np.ndarray:
         """|dC/du| at ``u`` (k,) -> (k,) mm per unit parameter."""
-        return np.linalg.norm(self.derivatives(u, 1)[1], axis=1)
+        out: np.ndarray = np.linalg.norm(self.derivatives(u, 1)[1], axis=1)
+        return out
 
     # -------------------------------------------------------------- arc length
     @cached_property
@@ -160,12 +164,14 @@ class NurbsCurve:
         half = 0.5 * (hi - lo)
         nodes = (0.5 * (hi + lo))[:, None] + half[:, None] * _GAUSS_X[None, :]
         speed = self.speed(nodes.ravel()).reshape(nodes.shape)
-        return half * (speed @ _GAUSS_W)
+        out: np.ndarray = half * (speed @ _GAUSS_W)
+        return out
 
     def _length_to(self, u: np.ndarray) -> np.ndarray:
         edges, cum = self._length_table
         j = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, edges.size - 2)
-        return cum[j] + self._gauss_length(edges[j], u)
+        out: np.ndarray = cum[j] + self._gauss_length(edges[j], u)
+        return out
 
     @property
     def length(self) -> float:
@@ -210,7 +216,8 @@ class NurbsCurve:
                 step = u - f / sp
             bad = ~np.isfinite(step) | (step <= lo) | (step >= hi)
             u = np.where(done, u, np.where(bad, 0.5 * (lo + hi), step))
-        return u
+        out: np.ndarray = u
+        return out
 
     # ---------------------------------------------------------------- inversion
     @cached_property

@@ -115,12 +115,14 @@ class NurbsSurface:
     def _hom(self, uv: np.ndarray, i: int, j: int) -> np.ndarray:
         if i > self.degree_u or j > self.degree_v:
             return np.zeros((uv.shape[0], 4))
-        return self._homogeneous(uv, nu=(i, j))
+        out: np.ndarray = self._homogeneous(uv, nu=(i, j))
+        return out
 
     def evaluate(self, u: ArrayLike, v: ArrayLike) -> np.ndarray:
         """Points at (u, v) (broadcast to k) -> (k, 3) mm."""
         h = self._hom(self._params(u, v), 0, 0)
-        return h[:, :3] / h[:, 3:]
+        out: np.ndarray = h[:, :3] / h[:, 3:]
+        return out
 
     def derivatives(self, u: ArrayLike, v: ArrayLike, order: int = 1) -> SurfacePartials:
         """Rational partials S_(i,j) for i + j <= order (NURBS Book A4.4), each (k, 3) mm."""
@@ -157,7 +159,8 @@ class NurbsSurface:
             dd = self.derivatives(nudged[:, 0], nudged[:, 1], 1)
             n[bad] = np.cross(dd[1][0], dd[0][1])
             norm = np.linalg.norm(n, axis=1)
-        return n / norm[:, None]
+        out: np.ndarray = n / norm[:, None]
+        return out
 
     # ---------------------------------------------------------------- inversion
     @cached_property

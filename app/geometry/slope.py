@@ -12,6 +12,7 @@ warning.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +50,7 @@ class SlopeReport:
     height_error_mm: float
     warnings: tuple[str, ...]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {"max_slope_deg": round(self.max_slope_deg, 4), "at": np.round(self.point, 4).tolist(),
                 "height_error_mm_per_xy_error": round(float(np.tan(np.radians(min(self.max_slope_deg, 89.999)))), 6),
                 "height_error_mm": round(self.height_error_mm, 6), "warnings": list(self.warnings)}
@@ -59,7 +60,8 @@ def surface_slopes_deg(normals: np.ndarray) -> np.ndarray:
     """(k,) slope in degrees of the surface whose unit normals are ``normals`` (k, 3)."""
     n = np.asarray(normals, dtype=float)
     nz = np.abs(n[:, 2]) / np.maximum(np.linalg.norm(n, axis=1), DIVISION_FLOOR)
-    return np.degrees(np.arccos(np.clip(nz, 0.0, 1.0)))
+    out: np.ndarray = np.degrees(np.arccos(np.clip(nz, 0.0, 1.0)))
+    return out
 
 
 def height_error_mm(slope_deg: np.ndarray | float, xy_uncertainty_mm: float) -> np.ndarray | float:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -72,7 +72,8 @@ class GreedyField:
         r = np.linalg.norm(self.sites.xy - self.sites.xy[j], axis=1)
         x = np.maximum(self._k * r, 1e-12)
         jinc = np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
-        return self.prior.rms_mm ** 2 * jinc + self.basis @ self.basis[j]
+        out: np.ndarray = self.prior.rms_mm ** 2 * jinc + self.basis @ self.basis[j]
+        return out
 
     def gain_for(self, t: int, candidates: np.ndarray) -> np.ndarray:
         """Variance drop (c,) mm^2 at site t if a station were added at each candidate."""
@@ -80,7 +81,8 @@ class GreedyField:
         cov = self.kernel_row(t)[candidates]
         if n:
             cov -= self.rows[:n, t] @ self.rows[:n][:, candidates]
-        return cov * cov / (self.var[candidates] + self.jitter)
+        out: np.ndarray = cov * cov / (self.var[candidates] + self.jitter)
+        return out
 
     def add(self, j: int) -> None:
         """Add a station at site j: one new row of R, variance downdated."""
@@ -221,7 +223,8 @@ class FieldPlan:
     @property
     def normals(self) -> np.ndarray:
         n = np.column_stack([-self.grad, np.ones(len(self.grad))])
-        return n / np.linalg.norm(n, axis=1, keepdims=True)
+        out: np.ndarray = n / np.linalg.norm(n, axis=1, keepdims=True)
+        return out
 
     @property
     def points(self) -> np.ndarray:
@@ -316,7 +319,7 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
                      np.argsort(order))
 
 
-def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict:
+def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict[str, Any]:
     """JSON form of a field plan: what the reconstruction and the viewer read back.
 
     ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the
@@ -348,7 +351,7 @@ class StoredField:
     s_mm: np.ndarray
 
 
-def stored_field(result: dict) -> StoredField:
+def stored_field(result: dict[str, Any]) -> StoredField:
     """Inverse of :func:`field_result` (its ``field`` entry)."""
     rows = result["stations"]
     return StoredField(

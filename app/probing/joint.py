@@ -54,7 +54,8 @@ def joint_center(paths: Sequence[TracePolyline]) -> np.ndarray:
     weighted by its length (65 samples per trace, even in arc length)."""
     pts = [p.at(np.linspace(0.0, p.length_mm, 65))[:, :2] for p in paths]
     weights = np.array([p.length_mm for p in paths])
-    return np.sum([w * q.mean(axis=0) for w, q in zip(weights, pts)], axis=0) / weights.sum()
+    out: np.ndarray = np.sum([w * q.mean(axis=0) for w, q in zip(weights, pts)], axis=0) / weights.sum()
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,7 +82,8 @@ class JointGrid:
         chosen = np.asarray(chosen, dtype=int)
         low = np.linalg.cholesky(self.cov[np.ix_(chosen, chosen)] + self.jitter * np.eye(len(chosen)))
         a = solve_triangular(low, self.cov[chosen], lower=True)
-        return np.maximum(self.prior_var - np.sum(a * a, axis=0), 0.0)
+        out: np.ndarray = np.maximum(self.prior_var - np.sum(a * a, axis=0), 0.0)
+        return out
 
 
 def joint_grid(paths: Sequence[TracePolyline], prior: DeviationPrior) -> JointGrid:
@@ -107,7 +109,8 @@ def power_mean(var: np.ndarray) -> np.ndarray:
     x = var / safe
     for _ in range(POWER_LOG2):  # x ** POWER by squaring (much faster than a float power)
         x = x * x
-    return top[..., 0] * np.mean(x, axis=-1) ** (1.0 / POWER)
+    out: np.ndarray = top[..., 0] * np.mean(x, axis=-1) ** (1.0 / POWER)
+    return out
 
 
 def even_joint_indices(grid: JointGrid, count: int) -> np.ndarray:
@@ -136,7 +139,8 @@ def move_variances(grid: JointGrid, chosen: np.ndarray, k: int, cand: np.ndarray
     var_rest = np.maximum(grid.prior_var - np.sum(a * a, axis=0), 0.0)
     c = grid.cov[cand] - a[:, cand].T @ a                              # (m, G) posterior cov
     denom = c[np.arange(len(cand)), cand] + grid.jitter
-    return np.maximum(var_rest - c * c / denom[:, None], 0.0)
+    out: np.ndarray = np.maximum(var_rest - c * c / denom[:, None], 0.0)
+    return out
 
 
 def joint_exchange(grid: JointGrid, chosen: np.ndarray) -> np.ndarray:

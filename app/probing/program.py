@@ -122,7 +122,7 @@ _FACE_BOXES = "conforma_face_xy_boxes"
 
 def _face_boxes(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
     """Top-view bounding boxes of every face: lo (F, 2), hi (F, 2) mm (cached on the mesh)."""
-    cached = mesh._cache[_FACE_BOXES]
+    cached: tuple[np.ndarray, np.ndarray] | None = mesh._cache[_FACE_BOXES]
     if cached is None:
         xy = mesh.triangles[:, :, :2]
         cached = (xy.min(axis=1), xy.max(axis=1))
@@ -135,6 +135,8 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
     top-view box meets the segment's box are cut (the others cannot lie above it)."""
     import trimesh
 
+    # trimesh is untyped: the plane cut returns segments (m, 2, 3)
+    mesh_plane: Callable[..., np.ndarray] = trimesh.intersections.mesh_plane
     d = b - a
     length = float(np.linalg.norm(d))
     if length < DEGENERATE_LENGTH_MM:
@@ -147,7 +149,7 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
     near = np.flatnonzero(np.all(hi >= np.minimum(a, b), axis=1) & np.all(lo <= np.maximum(a, b), axis=1))
     if len(near) == 0:
         return -math.inf
-    segs = trimesh.intersections.mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]), local_faces=near)
+    segs = mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]), local_faces=near)
     if len(segs) == 0:
         return -math.inf
     t = (segs[:, :, :2] - a) @ u  # (n, 2) position along the segment
@@ -163,7 +165,8 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
     def z_at(tt: np.ndarray) -> np.ndarray:
         w = np.where(np.abs(t1 - t0) > 1e-15, (tt - t0) / span, 0.0)
         flat = np.maximum(z0, z1)
-        return np.where(np.abs(t1 - t0) > 1e-15, z0 + w * (z1 - z0), flat)
+        out: np.ndarray = np.where(np.abs(t1 - t0) > 1e-15, z0 + w * (z1 - z0), flat)
+        return out
 
     return float(max(z_at(lo)[ok].max(), z_at(hi)[ok].max()))
 
@@ -180,7 +183,8 @@ def upward_normals(normals: np.ndarray | None, count: int) -> np.ndarray | None:
     if (length < DEGENERATE_LENGTH_MM).any():
         return None
     n = n / length
-    return np.where(n[:, 2:3] < 0, -n, n)
+    out: np.ndarray | None = np.where(n[:, 2:3] < 0, -n, n)
+    return out
 
 
 def mesh_station_normals(mesh: Any, xy: np.ndarray) -> np.ndarray | None:

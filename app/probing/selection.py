@@ -204,7 +204,8 @@ def deviation_spacing(params: PlanParams) -> float:
         raise PlanError("target_error_mm must exceed 2 * probe_sigma_mm",
                         field="target_error_mm", value=params.target_error_mm)
     d4 = params.deviation_amplitude_mm * (2 * math.pi / params.deviation_wavelength_mm) ** 4
-    return (384.0 / 5.0 * budget / d4) ** 0.25
+    out: float = (384.0 / 5.0 * budget / d4) ** 0.25
+    return out
 
 
 def deviation_stations(length_mm: float, count: int, end_ratio: float) -> np.ndarray:

@@ -70,7 +70,8 @@ class FieldFit:
         """The machining-error part (m,) mm of the posterior mean at xy (m, 2) (band-limited:
         smooth on the scale of lambda)."""
         prior = self.posterior.prior
-        return prior.rms_mm ** 2 * jinc_kernel(xy, self.posterior.probes.xy, prior.wavelength_mm) @ self.posterior.alpha
+        out: np.ndarray = prior.rms_mm ** 2 * jinc_kernel(xy, self.posterior.probes.xy, prior.wavelength_mm) @ self.posterior.alpha
+        return out
 
     def placement(self, sites: Sites) -> np.ndarray:
         """The placement part (m,) mm of the posterior mean at ``sites``: B(sites) theta, with
@@ -78,7 +79,8 @@ class FieldFit:
         prior = self.posterior.prior
         probes = placement_basis(self.posterior.probes, self.posterior.center)
         theta = prior.basis_sd ** 2 * (probes.T @ self.posterior.alpha)
-        return placement_basis(sites, self.posterior.center) @ theta
+        out: np.ndarray = placement_basis(sites, self.posterior.center) @ theta
+        return out
 
 
 def field_gradient(fit: "FieldFit", sites: Sites, step_mm: float = 0.05,

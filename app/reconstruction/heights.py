@@ -79,7 +79,8 @@ class SplineHeight:
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
         # outside the probed span the deviation is held at its end value (no extrapolation)
-        return self.path.z_at(s) + self.spline(np.clip(s, self.lo, self.hi))
+        out: np.ndarray = self.path.z_at(s) + self.spline(np.clip(s, self.lo, self.hi))
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {**_spline_arrays("dz", self.spline), "span": np.array([self.lo, self.hi])}
@@ -96,8 +97,9 @@ class KrigingHeight:
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
         # the posterior mean (DeviationPosterior.mean) at the trace's sites
-        return self.path.z_at(s) + prior_covariance(self.prior, path_sites(self.path, s), self.probes,
-                                                    self.center) @ self.alpha
+        out: np.ndarray = self.path.z_at(s) + prior_covariance(self.prior, path_sites(self.path, s), self.probes,
+                                                               self.center) @ self.alpha
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {"prior": np.array([getattr(self.prior, k) for k in _PRIOR_FIELDS]),
@@ -117,7 +119,8 @@ class FieldHeight:
     kind: str = "field"
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
-        return self.path.z_at(s) + self.machining(s) + self.placement(s)
+        out: np.ndarray = self.path.z_at(s) + self.machining(s) + self.placement(s)
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {**_spline_arrays("machining", self.machining), **_spline_arrays("placement", self.placement)}

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from typing import Any, Callable
 
 import numpy as np
-from scipy.interpolate import make_interp_spline, make_splrep
+from scipy.interpolate import BSpline, make_interp_spline, make_splrep
 
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import interpolate_curve, smooth_curve
@@ -110,7 +110,8 @@ class Reconstruction:
     def deviation_at_s(self, s: Any) -> np.ndarray:
         """Reconstructed deviation real - nominal (m,) mm at arc lengths ``s``."""
         s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.nominal.length_mm)
-        return self.height_at_s(s) - self.nominal.z_at(s)
+        out: np.ndarray = self.height_at_s(s) - self.nominal.z_at(s)
+        return out
 
     def to_result(self) -> dict[str, Any]:
         """API form: ``{method, curve, deviation: {max_mm, rms_mm, samples}, ...}``."""
@@ -139,10 +140,11 @@ class Reconstruction:
         tangent = (self.nominal.at(hi) - self.nominal.at(lo)) / ds[:, None]
         txy = tangent[:, :2]
         norm2 = np.maximum(np.sum(txy * txy, axis=1), 1e-12)
-        return slope[:, None] * txy / norm2[:, None]
+        out: np.ndarray = slope[:, None] * txy / norm2[:, None]
+        return out
 
 
-def fit_deviation(s: np.ndarray, dz: np.ndarray, sigma_mm: float, degree: int = 3):
+def fit_deviation(s: np.ndarray, dz: np.ndarray, sigma_mm: float, degree: int = 3) -> BSpline:
     """Spline dz(s) (scipy BSpline) through (n,) samples: interpolating when sigma = 0 or
     n <= degree + 1, else the smoothing spline with residual sum n * sigma^2."""
     k = int(min(degree, len(s) - 1))
@@ -213,7 +215,7 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
 
 
 def _deviation_model(path: TracePolyline, clean: CleanPoints, sigma_mm: float,
-                     params: ReconstructParams):
+                     params: ReconstructParams) -> tuple[NurbsCurve, SplineHeight]:
     spline = fit_deviation(clean.s, clean.dz, sigma_mm, params.degree)
     height = SplineHeight(path, spline, float(clean.s[0]), float(clean.s[-1]))
     return result_curve(path, height, params), height
@@ -228,7 +230,7 @@ def _context_trace(index: int, nominal: Any, measured: Any,
 
 def _kriging_model(path: TracePolyline, clean: CleanPoints, sigma_mm: float,
                    params: ReconstructParams,
-                   neighbours: Sequence[tuple[TracePolyline, CleanPoints]] = ()):
+                   neighbours: Sequence[tuple[TracePolyline, CleanPoints]] = ()) -> tuple[NurbsCurve, KrigingHeight]:
     prior = DeviationPrior(**{**params.prior.__dict__, "sigma_mm": float(sigma_mm)})
     traces = [(path, clean), *neighbours]
     probes = Sites(np.concatenate([c.points[:, :2] for _, c in traces]),

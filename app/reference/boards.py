@@ -86,7 +86,7 @@ def dome_part() -> BoardPart:
     return BoardPart("dome", DOME_SIZE.copy(), _dome_height, _dome_gradient)
 
 
-def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict]:
+def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict[str, Any]]:
     """``count`` trace geometries (API dicts) on ``part`` (see the module doc)."""
     if part.name == "S1" and count == 9:
         return [t.geometry for t in s1.s1_traces()]
@@ -95,7 +95,7 @@ def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict]:
     nx = int(math.ceil(math.sqrt(count * w / h)))
     ny = int(math.ceil(count / nx))
     cw, ch = w / nx, h / ny
-    out = []
+    out: list[dict[str, Any]] = []
     for i in range(count):
         x0 = MARGIN_MM + (i % nx) * cw
         y0 = MARGIN_MM + (i // nx) * ch
@@ -118,7 +118,7 @@ def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict]:
     return out
 
 
-def board_path(part: BoardPart, geometry: dict, step_mm: float = 0.05) -> TracePolyline:
+def board_path(part: BoardPart, geometry: dict[str, Any], step_mm: float = 0.05) -> TracePolyline:
     """The trace draped on the part's analytic top: dense TracePolyline with normals."""
     xy = s1.trace_xy(geometry, step_mm)
     g = part.gradient(xy)
@@ -141,7 +141,8 @@ class AsMadeBoard:
 
     def machining_error(self, xy_part: Any) -> np.ndarray:
         p = np.atleast_2d(np.asarray(xy_part, dtype=float))
-        return np.cos(p @ self.waves[:, :2].T + self.waves[:, 2]) @ self.waves[:, 3]
+        out: np.ndarray = np.cos(p @ self.waves[:, :2].T + self.waves[:, 2]) @ self.waves[:, 3]
+        return out
 
     def to_part(self, xy_machine: Any) -> np.ndarray:
         """Machine xy (m, 2) -> part xy (m, 2) (inverse placement)."""
@@ -150,7 +151,8 @@ class AsMadeBoard:
     def true_height(self, xy_machine: Any) -> np.ndarray:
         """TRUE top height (m,) mm at machine xy (m, 2)."""
         p = self.to_part(xy_machine)
-        return self.part.height(p) + self.machining_error(p) + self.placement.dz
+        out: np.ndarray = self.part.height(p) + self.machining_error(p) + self.placement.dz
+        return out
 
 
 def as_made_board(part: BoardPart, seed: int, amplitude_mm: float = 0.15, min_wavelength_mm: float = 15.0,

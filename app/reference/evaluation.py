@@ -202,7 +202,8 @@ class LineWidthModel:
         drawn = self._mild(hs) * np.sqrt(np.clip((hb - h) / (hb - hs), 0.0, 1.0))
         w = np.where(h < hp, np.minimum(squeezed, self.max_width_mm),
                      np.where(h > hs, drawn, mild))
-        return w
+        out: np.ndarray = w
+        return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -24,8 +24,9 @@ coordinates, as an analytic height function and as a watertight mesh.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
@@ -34,6 +35,9 @@ from scipy.interpolate import BSpline, NdBSpline
 from app.geometry.placement import Placement
 from app.geometry.tolerance import ROUNDOFF_SLACK
 from app.geometry.traces import TracePolyline
+
+if TYPE_CHECKING:
+    from app.geometry.nurbs_surface import NurbsSurface
 
 LENGTH_X_MM = 60.0
 WIDTH_Y_MM = 40.0
@@ -70,7 +74,7 @@ _KV = _clamped_knots(RELIEF_MM.shape[1])
 _HEIGHT = NdBSpline((_KU, _KV), BASE_Z_MM + RELIEF_MM, (DEGREE, DEGREE))
 
 
-def s1_surface():
+def s1_surface() -> NurbsSurface:
     """The top face as the geometry core's NurbsSurface (control points (6, 5, 3) mm)."""
     from app.geometry.nurbs_surface import NurbsSurface
 
@@ -101,7 +105,7 @@ def nominal_gradient(xy: Any) -> np.ndarray:
                      _HEIGHT(uv, nu=(0, 1)) / WIDTH_Y_MM], axis=1)
 
 
-def height_field_mesh(height, grid_mm: float = 0.15) -> trimesh.Trimesh:
+def height_field_mesh(height: Callable[[np.ndarray], np.ndarray], grid_mm: float = 0.15) -> trimesh.Trimesh:
     """Watertight block over [0, 60] x [0, 40]: top z = height(xy) on a grid of about
     ``grid_mm`` (two triangles per cell), planar sides, planar bottom z = 0 (fan)."""
     nx = int(math.ceil(LENGTH_X_MM / grid_mm))
@@ -142,7 +146,7 @@ class ReferenceTrace:
 
     number: int
     kind: str
-    geometry: dict
+    geometry: dict[str, Any]
     standoff_mm: float
     frame: str = "xy"
 
@@ -162,12 +166,12 @@ def s1_traces() -> tuple[ReferenceTrace, ...]:
     half = (y1 - y0) / 2
     sweep = math.degrees(math.asin(half / ARC_RADIUS_MM))
     sag_to_centre = math.sqrt(ARC_RADIUS_MM ** 2 - half ** 2)
-    out = []
+    out: list[ReferenceTrace] = []
     for i in range(9):
         x0 = 6.0 + 4.0 * i
         standoff = STANDOFFS_MM[i % 3]
         if i < 3:
-            geom = {"type": "line", "start": [x0, y0], "end": [x0, y1]}
+            geom: dict[str, Any] = {"type": "line", "start": [x0, y0], "end": [x0, y1]}
             kind = "line"
         elif i < 6:
             geom = {"type": "arc", "center": [x0 - sag_to_centre, (y0 + y1) / 2],
@@ -183,7 +187,7 @@ def s1_traces() -> tuple[ReferenceTrace, ...]:
     return tuple(out)
 
 
-def trace_xy(geometry: dict, step_mm: float = 0.05) -> np.ndarray:
+def trace_xy(geometry: dict[str, Any], step_mm: float = 0.05) -> np.ndarray:
     """Top-view points (k, 2) mm of a reference trace, evenly spaced ~step_mm along it."""
     t = np.linspace(0.0, 1.0, 4001)
     kind = geometry["type"]
@@ -241,7 +245,8 @@ class AsMadePart:
         """Machining error (m,) mm of the top at part coordinates (m, 2)."""
         p = np.atleast_2d(np.asarray(xy_part, dtype=float))[:, :2]
         k, phase, amp = self.waves[:, :2], self.waves[:, 2], self.waves[:, 3]
-        return np.cos(p @ k.T + phase) @ amp
+        out: np.ndarray = np.cos(p @ k.T + phase) @ amp
+        return out
 
     def to_part(self, xy_machine: Any) -> np.ndarray:
         """Machine xy (m, 2) -> part xy (m, 2) (inverse placement)."""
@@ -254,7 +259,8 @@ class AsMadePart:
     def true_height(self, xy_machine: Any) -> np.ndarray:
         """TRUE top height (m,) mm at machine xy (m, 2); NaN off the part."""
         p = self.to_part(xy_machine)
-        return nominal_height(p) + self.machining_error(p) + self.placement.dz
+        out: np.ndarray = nominal_height(p) + self.machining_error(p) + self.placement.dz
+        return out
 
     def mesh(self, grid_mm: float = 0.15) -> trimesh.Trimesh:
         """The TRUE part as a watertight mesh in machine coordinates."""

@@ -152,7 +152,8 @@ def _height_design(uv: np.ndarray, size: tuple[int, int], degree: int) -> np.nda
         knots = np.concatenate([np.zeros(degree), np.linspace(0, 1, n - degree + 1),
                                 np.ones(degree)])
         mats.append(BSpline.design_matrix(np.clip(col, 0, 1), knots, degree).toarray())
-    return (mats[0][:, :, None] * mats[1][:, None, :]).reshape(uv.shape[0], -1)
+    out: np.ndarray = (mats[0][:, :, None] * mats[1][:, None, :]).reshape(uv.shape[0], -1)
+    return out
 
 
 def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float = 0.01,
@@ -250,7 +251,8 @@ def height_surface_values(points: np.ndarray, query_xy: np.ndarray, degree: int 
         raise _solve_failed(exc, "the height surface fit", field, points.shape[0]) from None
     except GeometryError as exc:
         raise SurfaceFitError(exc.message, field=field, value=exc.value) from None
-    return _height_design((query_xy - lo) / scale, size, degree) @ coef
+    out: np.ndarray = _height_design((query_xy - lo) / scale, size, degree) @ coef
+    return out
 
 
 def fill_holes(grid: HeightGrid, degree: int = 3) -> HeightGrid:
@@ -286,7 +288,8 @@ def interpolate_heights(points: np.ndarray, query_xy: np.ndarray, *,
         try:
             rbf = RBFInterpolator(points[:, :2], points[:, 2], kernel="thin_plate_spline",
                                   degree=degree, neighbors=min(_FILL_NEIGHBOURS, n))
-            return rbf(query_xy)
+            out: np.ndarray = rbf(query_xy)
+            return out
         except np.linalg.LinAlgError as exc:
             failure = exc  # points on a cubic curve (a circle, two lines): retry linear
     raise _solve_failed(failure, "the thin-plate interpolation", field, n) from None
@@ -356,7 +359,8 @@ def spline_smooth(coords: np.ndarray, values: np.ndarray, axis: int = 0,
     if coords.size < 5:
         raise SurfaceFitError("spline smoothing needs at least 5 points per line",
                               field="params.smoothing", value=int(coords.size))
-    return make_smoothing_spline(coords, values, lam=lam, axis=axis)(coords)
+    out: np.ndarray = make_smoothing_spline(coords, values, lam=lam, axis=axis)(coords)
+    return out
 
 
 def smooth_grid(grid: HeightGrid, method: str, *, window: int = 3, passes: int = 1,
