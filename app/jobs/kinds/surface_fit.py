@@ -26,10 +26,6 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from sqlmodel import Session
 
-from app.jobs.context import JobContext
-from app.jobs.cost import Cost
-from app.jobs.registry import JobParams, job_kind
-from app.models import Part
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import (
     GridHoleError,
@@ -39,6 +35,10 @@ from app.reconstruction.surface_fit import (
     grid_from_plan,
     sample_nominal_grid,
 )
+from app.jobs.context import JobContext
+from app.jobs.cost import Cost
+from app.jobs.registry import JobParams, job_kind
+from app.models import Part
 from app.records import get_or_404
 
 MAX_POINTS = 100_000
