@@ -18,7 +18,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 CORE = ("geometry", "probing", "reconstruction", "registration", "compensation", "jetting", "five_axis", "slicing",
-        "gcode", "reference", "calibration")
+        "gcode", "reference", "calibration", "circuits")
 FORBIDDEN_IN_CORE = ("fastapi", "starlette", "sqlmodel", "sqlalchemy", "viser", "hardware", "huey", "uvicorn",
                      "app.api", "app.jobs", "app.viewer", "app.db", "app.models", "app.main")
 MAX_MODULE_LINES = 500
