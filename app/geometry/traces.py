@@ -58,7 +58,7 @@ class TracePolyline:
 
     points: (k, 3) mm, consecutive duplicates removed (by :meth:`from_points`).
     s: (k,) cumulative 3-D arc length, mm, s[0] = 0.
-    normals: (k, 3) unit surface normals (upward; read back from storage: unit to 1e-6) or None.
+    normals: (k, 3) unit surface normals (upward) or None.
     slope_stretch: 3-D length / top-view length, or None (not known).
     slope: the stored slope summary (:meth:`app.geometry.slope.SlopeReport.to_json`) or None.
     """
@@ -72,14 +72,12 @@ class TracePolyline:
     # construction -------------------------------------------------------------------------
     @classmethod
     def from_points(cls, points: Any, normals: Any = None, *, field: str = "nominal",
-                    slope_stretch: float | None = None, slope: dict[str, Any] | None = None,
-                    renormalise: bool = True) -> TracePolyline:
+                    slope_stretch: float | None = None, slope: dict[str, Any] | None = None) -> TracePolyline:
         """Validate ``points`` (k >= 2, 3) mm, drop consecutive duplicates (closer than
         :data:`~app.geometry.tolerance.LENGTH_EPS_MM`) and measure ``s``.
 
-        ``normals`` (k, 3) are kept (renormalised unless ``renormalise`` is False) when
-        finite and of the points' shape, else dropped.  Raises :class:`TracePolylineError`
-        naming ``field``."""
+        ``normals`` (k, 3) are kept (renormalised) when finite and of the points' shape, else
+        dropped.  Raises :class:`TracePolylineError` naming ``field``."""
         try:
             pts = np.asarray(points, dtype=float)
         except (TypeError, ValueError) as exc:
@@ -98,7 +96,7 @@ class TracePolyline:
         if normals is not None:
             n = np.asarray(normals, dtype=float)
             if n.shape == pts.shape and np.isfinite(n).all():
-                unit = n[keep] / np.linalg.norm(n[keep], axis=1, keepdims=True) if renormalise else n[keep]
+                unit = n[keep] / np.linalg.norm(n[keep], axis=1, keepdims=True)
         pts = pts[keep]
         s = np.concatenate([[0.0], np.cumsum(step[step > LENGTH_EPS_MM])])
         if len(pts) < 2 or s[-1] <= 0:
@@ -109,15 +107,16 @@ class TracePolyline:
     def from_dict(cls, stored: Mapping[str, Any], field: str = "trace.nominal") -> TracePolyline:
         """The stored JSON form (``Trace.nominal``, see the module doc) -> polyline.
 
-        Stored normals are unit to their 1e-6 rounding and kept as stored, so that
-        ``from_dict(d).to_dict() == d`` (consecutive duplicate points would be dropped: the
-        service never stores them)."""
+        ``from_dict(d).to_dict()`` gives ``d`` back: points, slope stretch and slope exactly,
+        normals to their stored rounding (they are renormalised when read, as the planners
+        need unit normals; a stored normal is unit only to 1e-6), and consecutive duplicate
+        points would be dropped (the service never stores them)."""
         if "points" not in stored:
             raise TracePolylineError(f"{field} has no points", field=f"{field}.points", value=sorted(stored))
         stretch = stored.get("slope_stretch")
         return cls.from_points(stored["points"], stored.get("normals"), field=field,
                                slope_stretch=None if stretch is None else float(stretch),
-                               slope=stored.get("slope"), renormalise=False)
+                               slope=stored.get("slope"))
 
     def to_dict(self) -> dict[str, Any]:
         """The stored JSON form: points and normals rounded to 1e-6 mm; keys whose value is
