@@ -17,7 +17,7 @@ import time
 from sqlmodel import Session
 
 from app.api.schemas import TraceCreate
-from app.compensation.evaluation import Table1Row, format_table
+from app.reference.evaluation import Table1Row, format_table
 from app.config import Settings
 from app.db import migrate
 from app.jobs.runtime import QUEUES, Runtime

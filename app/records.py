@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from dataclasses import replace
 from typing import Any, BinaryIO, TypeVar
 
 import numpy as np
@@ -320,12 +321,7 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
         id=new_id("trace"), part_id=part.id, name=body.name, frame=body.frame, geometry=geometry,
         standoff_mm=body.standoff_mm, width_mm=body.width_mm, feed_mm_min=body.feed_mm_min,
         length_mm=float(nominal.length_mm), z_min=float(nominal.z_range[0]), z_max=float(nominal.z_range[1]),
-        nominal={
-            "points": [[round(float(v), 6) for v in p] for p in nominal.points],
-            "normals": [[round(float(v), 6) for v in n] for n in nominal.normals],
-            "slope_stretch": float(nominal.slope_stretch),
-            "slope": slope.to_json(),
-        },
+        nominal=replace(nominal, slope=slope.to_json()).to_dict(),
         created_at=utcnow(),
     )
 

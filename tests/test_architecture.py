@@ -17,8 +17,8 @@ import networkx as nx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-CORE = ("geometry", "probing", "reconstruction", "compensation", "jetting", "five_axis", "slicing", "gcode",
-        "reference", "calibration")
+CORE = ("geometry", "probing", "reconstruction", "registration", "compensation", "jetting", "five_axis", "slicing",
+        "gcode", "reference", "calibration", "circuits")
 FORBIDDEN_IN_CORE = ("fastapi", "starlette", "sqlmodel", "sqlalchemy", "viser", "hardware", "huey", "uvicorn",
                      "app.api", "app.jobs", "app.viewer", "app.db", "app.models", "app.main")
 MAX_MODULE_LINES = 500

@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 
 from app.blobs import BlobStore
-from app.compensation.registration import Placement
+from app.geometry.placement import Placement
 from app.geometry.edge_grid import edge_grid
 from app.records import ByteLru, MeshCache, mesh_bytes
 

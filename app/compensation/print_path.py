@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from app.errors import InvalidInput
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 
 __all__ = [
     "SegmentationError",
@@ -68,11 +69,12 @@ def dense_stations(s0: float, s1: float, step_mm: float, required: np.ndarray) -
     req = np.asarray(required, dtype=float)
     req = req[(req > s0) & (req < s1)]
     merged = np.unique(np.concatenate([grid, req]))
-    # drop stations closer than 1e-9 mm to a neighbour (keeps both ends)
-    keep = np.concatenate([[True], np.diff(merged) > 1e-9])
+    # drop stations closer than LENGTH_EPS_MM to a neighbour (keeps both ends)
+    keep = np.concatenate([[True], np.diff(merged) > LENGTH_EPS_MM])
     merged = merged[keep]
     merged[-1] = s1
-    return merged
+    out: np.ndarray = merged
+    return out
 
 
 def chord_distances(points: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -89,7 +91,8 @@ def chord_distances(points: np.ndarray, index: np.ndarray) -> np.ndarray:
     ll = np.einsum("ij,ij->i", ab, ab)
     t = np.einsum("ij,ij->i", points - a, ab) / np.where(ll > 0, ll, 1.0)
     t = np.clip(np.where(ll > 0, t, 0.0), 0.0, 1.0)
-    return np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
+    out: np.ndarray = np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
+    return out
 
 
 def segment_errors(points: np.ndarray, index: np.ndarray,
@@ -106,7 +109,7 @@ def segment_errors(points: np.ndarray, index: np.ndarray,
 def _curvature(s: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Curvature (N,) 1/mm from three-point circles on a sub-grid of ~_KAPPA_SCALE_MM."""
     n = len(s)
-    spacing = max((s[-1] - s[0]) / max(n - 1, 1), 1e-12)
+    spacing = max((s[-1] - s[0]) / max(n - 1, 1), DEGENERATE_LENGTH_MM)
     w = int(max(1, round(_KAPPA_SCALE_MM / spacing)))
     if n < 2 * w + 1:
         w = max(1, (n - 1) // 2)
@@ -119,7 +122,8 @@ def _curvature(s: np.ndarray, points: np.ndarray) -> np.ndarray:
     denom = (np.linalg.norm(ab, axis=1) * np.linalg.norm(bc, axis=1)
              * np.linalg.norm(ac, axis=1))
     k = np.where(denom > 0, 2.0 * cross / np.where(denom > 0, denom, 1.0), 0.0)
-    return np.interp(s, s[j], k)
+    out: np.ndarray = np.interp(s, s[j], k)
+    return out
 
 
 def _initial_vertices(s: np.ndarray, points: np.ndarray, chord_error_mm: float) -> np.ndarray:

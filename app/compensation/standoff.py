@@ -240,7 +240,8 @@ def tip_path(reconstruction: Any, s: np.ndarray, standoff_mm: float,
         out = s[~inside]
         h[~inside] = nominal.z_at(out) + np.where(out < s0, dev_end[0], dev_end[1])
     pts[:, 2] = h + standoff_mm
-    return pts
+    placed: np.ndarray = pts
+    return placed
 
 
 def _gap_bound(s: np.ndarray, dev: np.ndarray, safety: float) -> np.ndarray:
@@ -253,7 +254,8 @@ def _gap_bound(s: np.ndarray, dev: np.ndarray, safety: float) -> np.ndarray:
         d2[1:-1] = 2.0 * np.diff(slope) / (h[1:] + h[:-1])
         d2[0], d2[-1] = d2[1], d2[-2]
     worst = np.maximum(np.abs(d2[:-1]), np.abs(d2[1:]))
-    return safety * worst * h ** 2 / 8.0
+    out: np.ndarray = safety * worst * h ** 2 / 8.0
+    return out
 
 
 def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
@@ -299,7 +301,7 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
                      job_id: str | None = None) -> CompensatedPath:
     """Print path at ``params.standoff_mm`` above the reconstructed real surface.
 
-    reconstruction: a Reconstruction (``.nominal`` NominalPath, ``.span_mm`` the stretch its
+    reconstruction: a Reconstruction (``.nominal`` TracePolyline, ``.span_mm`` the stretch its
     heights stand for, ``.height_at_s``, ``.method``).  Returns a :class:`CompensatedPath` with the
     compensated and nominal G-code.  Raises OutsideProbedSpanError when the trace leaves
     the probed span beyond the policy, CompensationError for a reconstruction departing

@@ -1,7 +1,9 @@
 """Where a part sits on the machine, and whether a program stays inside the machine (pure).
 
-A part is modelled in its own frame; a printer moves in its own.  A :class:`Placement`
-says how the part's frame maps into the machine's by a translation: ``drop_to_bed`` puts
+A part is modelled in its own frame; a printer moves in its own.  A :class:`BedPlacement`
+is the rule that puts the part on the bed; :func:`bed_placement` turns it into the rigid
+:class:`app.geometry.placement.Placement` (a translation) from the part's frame into the
+machine's: ``drop_to_bed`` puts
 the part's lowest point on the bed (z = the volume's z minimum), ``xy: "center"`` centres
 its bounding box on the bed, ``xy: "offset"`` puts its bounding box's minimum corner at
 ``offset_mm`` (bed coordinates), ``xy: "as_is"`` keeps the part's x, y.  A
@@ -12,11 +14,13 @@ refuses anything that leaves it, naming the axis and by how much.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from app.errors import InvalidInput
+from app.geometry.placement import Placement
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 AXES = "xyz"
 
@@ -39,33 +43,38 @@ class MachineVolume:
         """(2, 3) [[xmin, ymin, zmin], [xmax, ymax, zmax]] mm."""
         return np.array([[self.x[0], self.y[0], self.z[0]], [self.x[1], self.y[1], self.z[1]]], dtype=float)
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return {"x": list(self.x), "y": list(self.y), "z": list(self.z), "source": self.source}
 
 
 @dataclass(frozen=True)
-class Placement:
-    """How the part goes onto the bed (see the module docstring)."""
+class BedPlacement:
+    """How the part goes onto the bed (see the module docstring): a rule, not a transform."""
 
     xy: Literal["center", "offset", "as_is"] = "center"
     offset_mm: tuple[float, float] = (0.0, 0.0)
     drop_to_bed: bool = True
 
 
-def placement_shift(part_bounds: np.ndarray, placement: Placement, volume: MachineVolume) -> np.ndarray:
-    """(3,) translation (mm) from the part's frame into the machine's.
+def bed_placement(part_bounds: np.ndarray, rule: BedPlacement, volume: MachineVolume) -> Placement:
+    """The placement (a translation, mm) from the part's frame into the machine's.
 
     ``part_bounds``: (2, 3) the part's (or its layers') bounding box in its own frame."""
     lo, hi = np.asarray(part_bounds, dtype=float)
     bed = volume.limits()
     shift = np.zeros(3)
-    if placement.xy == "center":
+    if rule.xy == "center":
         shift[:2] = 0.5 * (bed[0, :2] + bed[1, :2]) - 0.5 * (lo[:2] + hi[:2])
-    elif placement.xy == "offset":
-        shift[:2] = np.asarray(placement.offset_mm, dtype=float) - lo[:2]
-    if placement.drop_to_bed:
+    elif rule.xy == "offset":
+        shift[:2] = np.asarray(rule.offset_mm, dtype=float) - lo[:2]
+    if rule.drop_to_bed:
         shift[2] = bed[0, 2] - lo[2]
-    return shift
+    return Placement.translation_by(shift)
+
+
+def placement_shift(part_bounds: np.ndarray, rule: BedPlacement, volume: MachineVolume) -> np.ndarray:
+    """(3,) translation (mm) of :func:`bed_placement` (what is added to part coordinates)."""
+    return bed_placement(part_bounds, rule, volume).translation()
 
 
 def check_inside(bounds: np.ndarray, volume: MachineVolume, field: str = "params.placement",
@@ -77,7 +86,7 @@ def check_inside(bounds: np.ndarray, volume: MachineVolume, field: str = "params
     for k, axis in enumerate(AXES):
         below = limits[0, k] - lo[k]
         above = hi[k] - limits[1, k]
-        if below > 1e-9 or above > 1e-9:
+        if below > LENGTH_EPS_MM or above > LENGTH_EPS_MM:
             side, amount, edge = ("below", below, limits[0, k]) if below > above else ("beyond", above, limits[1, k])
             raise PlacementError(
                 f"{what} leaves the machine's volume on {axis.upper()}: it reaches "
@@ -87,7 +96,7 @@ def check_inside(bounds: np.ndarray, volume: MachineVolume, field: str = "params
                                     "limit_mm": float(edge)})
 
 
-def profile_volume(profile: dict | None, label: str) -> MachineVolume | None:
+def profile_volume(profile: dict[str, Any] | None, label: str) -> MachineVolume | None:
     """The travel limits in a machine profile's ``volume_mm`` ({x: [min, max], y, z}), or None."""
     given = (profile or {}).get("volume_mm")
     if not given:

@@ -6,6 +6,10 @@
 - ``shapes``: API geometry dicts (line, arc, polyline, nurbs) -> NurbsCurve
 - ``cl_points``: tool-location points within a verified chordal tolerance
 - ``drape`` / ``edge_grid``: exact draping onto a faceted mesh's upper surface, snapping
-- ``traces``: build_nominal_trace, what the service calls to create a trace
-- ``tolerance``, ``errors``, ``validation``: the one Tolerance object, typed 422 errors, input checks
+- ``traces``: TracePolyline, the one trace polyline (and its stored JSON form), and
+  build_nominal_trace, what the service calls to create a trace
+- ``placement``: Placement, the one rigid placement part -> machine (apply, inverse, compose)
+- ``slope``: surface slope under a trace and what a vertical nozzle can print
+- ``tolerance``, ``errors``, ``validation``: the one tolerance home (Tolerance and the named
+  thresholds), typed 422 errors, input checks
 """

@@ -39,7 +39,8 @@ def _distance_to_chords(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(ll[:, None] > 0, np.einsum("isj,ij->is", p - a[:, None], ab) / ll[:, None], 0.0)
     foot = a[:, None] + np.clip(t, 0.0, 1.0)[..., None] * ab[:, None]
-    return np.linalg.norm(p - foot, axis=-1)
+    out: np.ndarray = np.linalg.norm(p - foot, axis=-1)
+    return out
 
 
 def segment_sagitta(curve: NurbsCurve, u: np.ndarray) -> np.ndarray:
@@ -75,7 +76,8 @@ def segment_sagitta(curve: NurbsCurve, u: np.ndarray) -> np.ndarray:
         fx = dist(np.where(left, x1, x2))
         f1, f2 = np.where(left, fx, f2), np.where(left, f1, fx)
         best = np.maximum(best, np.maximum(f1, f2))
-    return best
+    out: np.ndarray = best
+    return out
 
 
 def _pieces(curve: NurbsCurve) -> list[tuple[float, float]]:

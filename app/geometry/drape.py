@@ -11,6 +11,7 @@ Lengths in mm.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -19,8 +20,13 @@ from numpy.typing import ArrayLike
 
 from app.geometry.edge_grid import edge_grid, segment_edge_crossings
 from app.geometry.errors import DegenerateGeometryError, OffSurfaceError
-from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, LENGTH_EPS_MM, VERTICAL_NZ, Tolerance
 from app.geometry.validation import as_points
+
+# trimesh is untyped: its closest-point query with the types it returns (points (n, 3),
+# distances (n,), face indices (n,))
+_closest_point: Callable[[trimesh.Trimesh, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]] = \
+    trimesh.proximity.closest_point
 
 __all__ = ["DrapedPath", "TopSurface", "SnappedPoints", "top_surface_z", "drape_polyline", "snap_to_surface"]
 
@@ -72,7 +78,8 @@ def _arrays(mesh: trimesh.Trimesh) -> _MeshArrays:
 
 def _upward_normals(m: _MeshArrays, faces: np.ndarray) -> np.ndarray:
     n = m.normals[faces]
-    return np.where(n[:, 2:3] < 0, -n, n)
+    out: np.ndarray = np.where(n[:, 2:3] < 0, -n, n)
+    return out
 
 
 def _top_faces(m: _MeshArrays, xy: np.ndarray) -> np.ndarray:
@@ -101,10 +108,11 @@ def _plane_z(m: _MeshArrays, faces: np.ndarray, xy: np.ndarray) -> np.ndarray:
     n = m.normals[faces]
     with np.errstate(divide="ignore", invalid="ignore"):
         z = v0[:, 2] - (n[:, 0] * (xy[:, 0] - v0[:, 0]) + n[:, 1] * (xy[:, 1] - v0[:, 1])) / n[:, 2]
-    vertical = np.abs(n[:, 2]) <= 1e-12
+    vertical = np.abs(n[:, 2]) <= VERTICAL_NZ
     if vertical.any():
         z[vertical] = m.vertices[m.faces[faces[vertical]], 2].max(axis=1)
-    return z
+    out: np.ndarray = z
+    return out
 
 
 def top_surface_z(mesh: trimesh.Trimesh, xy: ArrayLike) -> TopSurface:
@@ -161,7 +169,7 @@ def drape_polyline(mesh: trimesh.Trimesh, xy: ArrayLike, tolerance: Tolerance = 
     seg_id, tt = seg_id[order], tt[order]
     q = p0[seg_id] + tt[:, None] * (p1 - p0)[seg_id]
     step = np.linalg.norm(np.diff(q, axis=0), axis=1)
-    distinct = np.concatenate([[True], step > 1e-9])
+    distinct = np.concatenate([[True], step > LENGTH_EPS_MM])
     q, seg_id = q[distinct], seg_id[distinct]
     q[-1] = pts[-1]
     mids = 0.5 * (q[:-1] + q[1:])
@@ -208,7 +216,7 @@ def snap_to_surface(
     than ``max_distance_mm``.  Normals are the closest facets' normals, oriented upward."""
     pts = as_points(points, "points", dims=(3,))
     m = _arrays(mesh)
-    closest, distance, faces = trimesh.proximity.closest_point(mesh, pts)
+    closest, distance, faces = _closest_point(mesh, pts)
     far = distance > max_distance_mm
     if far.any():
         k = int(np.argmax(far))

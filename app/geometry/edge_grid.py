@@ -14,6 +14,8 @@ from typing import NamedTuple
 import numpy as np
 import trimesh
 
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM, ROUNDOFF_REL, ROUNDOFF_SLACK, VERTICAL_NZ
+
 __all__ = ["EdgeGrid", "attach_edge_grid", "cached_edge_grid", "edge_grid", "edge_grid_arrays",
            "edge_grid_from_arrays", "segment_edge_crossings"]
 
@@ -47,17 +49,17 @@ def edge_grid(mesh: trimesh.Trimesh) -> EdgeGrid:
     cached = cached_edge_grid(mesh)
     if cached is not None:
         return cached
-    faces = mesh.faces[np.abs(mesh.face_normals[:, 2]) > 1e-12]
+    faces = mesh.faces[np.abs(mesh.face_normals[:, 2]) > VERTICAL_NZ]
     pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1).astype(np.int64)
     keys = np.sort(pairs[:, 0] * len(mesh.vertices) + pairs[:, 1])
     keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])]  # shared edges once
     v0, v1 = keys // len(mesh.vertices), keys % len(mesh.vertices)
     a, b = mesh.vertices[v0, :2], mesh.vertices[v1, :2]
-    keep = np.linalg.norm(b - a, axis=1) > 1e-12
+    keep = np.linalg.norm(b - a, axis=1) > DEGENERATE_LENGTH_MM
     a, b = a[keep], b[keep]
     lo = np.minimum(a, b).min(axis=0) if a.size else np.zeros(2)
     hi = np.maximum(a, b).max(axis=0) if a.size else np.ones(2)
-    extent = np.maximum(hi - lo, 1e-9)
+    extent = np.maximum(hi - lo, LENGTH_EPS_MM)
     mean_len = float(np.linalg.norm(b - a, axis=1).mean()) if a.size else float(extent.max())
     cell = max(mean_len, float(np.sqrt(extent.prod() / _MAX_CELLS)), float(extent.max()) / 4096)
     while True:
@@ -140,9 +142,9 @@ def segment_edge_crossings(grid: EdgeGrid, p0: np.ndarray, p1: np.ndarray) -> tu
     e = grid.b[e_idx] - grid.a[e_idx]
     qp = grid.a[e_idx] - p0[s_idx]
     denom = r[:, 0] * e[:, 1] - r[:, 1] * e[:, 0]
-    ok = np.abs(denom) > 1e-14 * np.linalg.norm(r, axis=1) * np.linalg.norm(e, axis=1)
+    ok = np.abs(denom) > ROUNDOFF_REL * np.linalg.norm(r, axis=1) * np.linalg.norm(e, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (qp[:, 0] * e[:, 1] - qp[:, 1] * e[:, 0]) / denom
         s = (qp[:, 0] * r[:, 1] - qp[:, 1] * r[:, 0]) / denom
-    ok &= (t > 0) & (t < 1) & (s >= -1e-12) & (s <= 1 + 1e-12)
+    ok &= (t > 0) & (t < 1) & (s >= -ROUNDOFF_SLACK) & (s <= 1 + ROUNDOFF_SLACK)
     return s_idx[ok], t[ok]

@@ -23,7 +23,7 @@ from scipy.sparse.linalg import MatrixRankWarning, spsolve
 from app.geometry.errors import DegenerateGeometryError, GeometryError
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
-from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, DIVISION_FLOOR, DOMAIN_SLACK_REL, Tolerance
 from app.geometry.validation import as_degree, as_points, check_distinct_consecutive
 
 __all__ = [
@@ -61,7 +61,8 @@ def curve_parameters(
         raise GeometryError("parametrization must be 'chord' or 'centripetal'", field="parametrization",
                             value=parametrization)
     u = np.concatenate([[0.0], np.cumsum(seg)])
-    return u / u[-1]
+    out: np.ndarray = u / u[-1]
+    return out
 
 
 def averaged_knots(params: np.ndarray, degree: int) -> np.ndarray:
@@ -194,7 +195,8 @@ def _solve_banded_spd(a: sp.sparray | np.ndarray, rhs: np.ndarray, field: str) -
         ) from exc
     if not np.isfinite(x).all():
         raise DegenerateGeometryError(f"{field}: the fit is singular", field=field, value=None)
-    return x
+    out: np.ndarray = x
+    return out
 
 
 def _solve_tensor_grid(bu: sp.sparray, bv: sp.sparray, grid: np.ndarray, field: str) -> np.ndarray:
@@ -258,7 +260,8 @@ def grid_parameters(grid: np.ndarray, axis: int, tolerance: Tolerance, field: st
     if np.any(np.diff(u) <= 0):
         raise DegenerateGeometryError(f"{field}: duplicate grid rows along axis {axis}", field=field, value=axis)
     u[-1] = 1.0
-    return u
+    out: np.ndarray = u
+    return out
 
 
 def _as_grid(grid: ArrayLike, field: str) -> np.ndarray:
@@ -347,7 +350,7 @@ def _solve_net(design: sp.sparray, pts: np.ndarray, n_u: int, n_v: int, smoothin
         du = sp.kron(_second_difference(n_u), sp.eye(n_v))
         dv = sp.kron(sp.eye(n_u), _second_difference(n_v))
         pen = sp.csr_array(du.T @ du + dv.T @ dv)[order][:, order]
-        scale = (design.multiply(design)).sum() / max(pen.diagonal().sum(), 1e-300)
+        scale = (design.multiply(design)).sum() / max(pen.diagonal().sum(), DIVISION_FLOOR)
         a = a + smoothing * scale * pen
         del pen
     rhs = design.T @ pts
@@ -399,7 +402,7 @@ def fit_surface(
             raise DegenerateGeometryError(f"{field}: the points span no area in x and y", field=field,
                                           value=[x0, x1, y0, y1])
         uv = np.column_stack([(pts[:, 0] - x0) / (x1 - x0), (pts[:, 1] - y0) / (y1 - y0)])
-        if uv.min() < -1e-9 or uv.max() > 1 + 1e-9:
+        if uv.min() < -DOMAIN_SLACK_REL or uv.max() > 1 + DOMAIN_SLACK_REL:
             raise GeometryError(f"{field}: points outside the fit region", field="bounds", value=list(bounds or ()))
         uv = np.clip(uv, 0.0, 1.0)
         tu = np.concatenate([np.zeros(pu), np.linspace(0, 1, n_ctrl_u - pu + 1), np.ones(pu)])

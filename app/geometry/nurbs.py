@@ -19,7 +19,7 @@ from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
 from app.geometry.errors import GeometryError
-from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, DIVISION_FLOOR, DOMAIN_SLACK_REL, Tolerance
 from app.geometry.validation import as_degree, as_points, check_knots, check_weights
 
 __all__ = ["NurbsCurve", "CurveInversion"]
@@ -98,18 +98,20 @@ class NurbsCurve:
     def _params(self, u: ArrayLike, field: str = "u") -> np.ndarray:
         arr = np.atleast_1d(np.asarray(u, dtype=float)).ravel()
         a, b = self.domain
-        slack = 1e-9 * max(b - a, 1.0)
+        slack = DOMAIN_SLACK_REL * max(b - a, 1.0)
         if not np.isfinite(arr).all() or (arr.size and (arr.min() < a - slack or arr.max() > b + slack)):
             raise GeometryError(
                 f"parameter outside the curve's domain [{a}, {b}] or not finite", field=field, value=arr
             )
-        return np.clip(arr, a, b)
+        out: np.ndarray = np.clip(arr, a, b)
+        return out
 
     # -------------------------------------------------------------- evaluation
     def evaluate(self, u: ArrayLike) -> np.ndarray:
         """Points at parameters ``u`` (k,) -> (k, d) mm."""
         h = self._homogeneous(self._params(u))
-        return h[:, :-1] / h[:, -1:]
+        out: np.ndarray = h[:, :-1] / h[:, -1:]
+        return out
 
     def derivatives(self, u: ArrayLike, order: int = 2) -> np.ndarray:
         """Rational derivatives d^i C / du^i for i = 0..order at ``u`` (k,) -> (order+1, k, d)."""
@@ -127,7 +129,8 @@ class NurbsCurve:
     def _hom_derivative(self, u: np.ndarray, nu: int) -> np.ndarray:
         if nu > self.degree:
             return np.zeros((u.size, self.dimension + 1))
-        return self._homogeneous(u, nu=nu)
+        out: np.ndarray = self._homogeneous(u, nu=nu)
+        return out
 
     def curvature(self, u: ArrayLike) -> np.ndarray:
         """Curvature |C' x C''| / |C'|^3 at ``u`` (k,) -> (k,) in 1/mm (0 where C' = 0)."""
@@ -144,7 +147,8 @@ class NurbsCurve:
 
     def speed(self, u: ArrayLike) -> np.ndarray:
         """|dC/du| at ``u`` (k,) -> (k,) mm per unit parameter."""
-        return np.linalg.norm(self.derivatives(u, 1)[1], axis=1)
+        out: np.ndarray = np.linalg.norm(self.derivatives(u, 1)[1], axis=1)
+        return out
 
     # -------------------------------------------------------------- arc length
     @cached_property
@@ -160,12 +164,14 @@ class NurbsCurve:
         half = 0.5 * (hi - lo)
         nodes = (0.5 * (hi + lo))[:, None] + half[:, None] * _GAUSS_X[None, :]
         speed = self.speed(nodes.ravel()).reshape(nodes.shape)
-        return half * (speed @ _GAUSS_W)
+        out: np.ndarray = half * (speed @ _GAUSS_W)
+        return out
 
     def _length_to(self, u: np.ndarray) -> np.ndarray:
         edges, cum = self._length_table
         j = np.clip(np.searchsorted(edges, u, side="right") - 1, 0, edges.size - 2)
-        return cum[j] + self._gauss_length(edges[j], u)
+        out: np.ndarray = cum[j] + self._gauss_length(edges[j], u)
+        return out
 
     @property
     def length(self) -> float:
@@ -187,7 +193,7 @@ class NurbsCurve:
         edges, cum = self._length_table
         total = cum[-1]
         ss = np.atleast_1d(np.asarray(s, dtype=float)).ravel()
-        slack = 1e-9 * max(total, 1.0)
+        slack = DOMAIN_SLACK_REL * max(total, 1.0)
         if not np.isfinite(ss).all() or (ss.size and (ss.min() < -slack or ss.max() > total + slack)):
             raise GeometryError(f"arc length outside [0, {total}] mm", field="s", value=ss)
         ss = np.clip(ss, 0.0, total)
@@ -197,7 +203,7 @@ class NurbsCurve:
         with np.errstate(divide="ignore", invalid="ignore"):
             frac = np.where(seg > 0, (ss - cum[j]) / seg, 0.0)
         u = lo + frac * (hi - lo)
-        goal = tolerance.length_rel * max(total, 1e-300)
+        goal = tolerance.length_rel * max(total, DIVISION_FLOOR)
         for _ in range(60):
             f = self._length_to(u) - ss
             done = np.abs(f) <= goal
@@ -210,7 +216,8 @@ class NurbsCurve:
                 step = u - f / sp
             bad = ~np.isfinite(step) | (step <= lo) | (step >= hi)
             u = np.where(done, u, np.where(bad, 0.5 * (lo + hi), step))
-        return u
+        out: np.ndarray = u
+        return out
 
     # ---------------------------------------------------------------- inversion
     @cached_property
@@ -251,7 +258,7 @@ class NurbsCurve:
             f = np.einsum("ij,ij->i", d[1], r)
             s2 = np.einsum("ij,ij->i", d[1], d[1])
             fp = np.einsum("ij,ij->i", d[2], r) + s2
-            denom = np.where(fp > 0, fp, s2 + 1e-300)
+            denom = np.where(fp > 0, fp, s2 + DIVISION_FLOOR)
             step = np.where(s2 > 0, f / denom, 0.0)
             u_new = np.clip(u - step, a, b)
             moved = np.abs(u_new - u)

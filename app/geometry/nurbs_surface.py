@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from app.geometry.errors import GeometryError
 from app.geometry.nurbs import _frozen
-from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, DIVISION_FLOOR, DOMAIN_SLACK_REL, ROUNDOFF_REL, Tolerance
 from app.geometry.validation import (
     as_degree,
     as_points,
@@ -106,7 +106,7 @@ class NurbsSurface:
         uv = np.column_stack([uu.ravel(), vv.ravel()])
         for axis, (a, b), name in zip((0, 1), self.domain, ("u", "v")):
             col = uv[:, axis]
-            slack = 1e-9 * max(b - a, 1.0)
+            slack = DOMAIN_SLACK_REL * max(b - a, 1.0)
             if not np.isfinite(col).all() or (col.size and (col.min() < a - slack or col.max() > b + slack)):
                 raise GeometryError(f"{name} outside the surface's domain [{a}, {b}]", field=name, value=col)
             uv[:, axis] = np.clip(col, a, b)
@@ -115,12 +115,14 @@ class NurbsSurface:
     def _hom(self, uv: np.ndarray, i: int, j: int) -> np.ndarray:
         if i > self.degree_u or j > self.degree_v:
             return np.zeros((uv.shape[0], 4))
-        return self._homogeneous(uv, nu=(i, j))
+        out: np.ndarray = self._homogeneous(uv, nu=(i, j))
+        return out
 
     def evaluate(self, u: ArrayLike, v: ArrayLike) -> np.ndarray:
         """Points at (u, v) (broadcast to k) -> (k, 3) mm."""
         h = self._hom(self._params(u, v), 0, 0)
-        return h[:, :3] / h[:, 3:]
+        out: np.ndarray = h[:, :3] / h[:, 3:]
+        return out
 
     def derivatives(self, u: ArrayLike, v: ArrayLike, order: int = 1) -> SurfacePartials:
         """Rational partials S_(i,j) for i + j <= order (NURBS Book A4.4), each (k, 3) mm."""
@@ -149,7 +151,7 @@ class NurbsSurface:
         d = self.derivatives(uv[:, 0], uv[:, 1], 1)
         n = np.cross(d[1][0], d[0][1])
         norm = np.linalg.norm(n, axis=1)
-        bad = norm <= 1e-14 * np.maximum(1.0, np.abs(d[0][0]).max(axis=1))
+        bad = norm <= ROUNDOFF_REL * np.maximum(1.0, np.abs(d[0][0]).max(axis=1))
         if bad.any():
             (u0, u1), (v0, v1) = self.domain
             centre = np.array([(u0 + u1) / 2, (v0 + v1) / 2])
@@ -157,7 +159,8 @@ class NurbsSurface:
             dd = self.derivatives(nudged[:, 0], nudged[:, 1], 1)
             n[bad] = np.cross(dd[1][0], dd[0][1])
             norm = np.linalg.norm(n, axis=1)
-        return n / norm[:, None]
+        out: np.ndarray = n / norm[:, None]
+        return out
 
     # ---------------------------------------------------------------- inversion
     @cached_property
@@ -193,7 +196,7 @@ class NurbsSurface:
             with np.errstate(divide="ignore", invalid="ignore"):
                 step = np.column_stack([(c * g[:, 0] - b * g[:, 1]) / det, (a * g[:, 1] - b * g[:, 0]) / det])
                 # fall back to a scaled gradient step where the Hessian is not positive definite
-                gd = g / np.maximum(np.column_stack([np.einsum("ij,ij->i", su, su), np.einsum("ij,ij->i", sv, sv)]), 1e-300)
+                gd = g / np.maximum(np.column_stack([np.einsum("ij,ij->i", su, su), np.einsum("ij,ij->i", sv, sv)]), DIVISION_FLOOR)
             step = np.where(ok[:, None], step, gd)
             step = np.where(np.isfinite(step), step, 0.0)
             new = np.clip(uv - step, lo, hi)

@@ -19,7 +19,7 @@ import numpy as np
 from app.geometry.errors import DegenerateGeometryError, GeometryError
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.shapes_limits import check_curve_size, check_shape_size
-from app.geometry.tolerance import DEFAULT_TOLERANCE, Tolerance
+from app.geometry.tolerance import DEFAULT_TOLERANCE, ROUNDOFF_SLACK, Tolerance
 from app.geometry.validation import as_points, check_distinct_consecutive
 
 __all__ = ["trace_curve", "line_curve", "arc_curve", "polyline_curve", "SHAPE_TYPES"]
@@ -56,7 +56,7 @@ def arc_curve(center: np.ndarray, radius: float, start_rad: float, sweep_rad: fl
     center (2,) mm, radius mm -> rational quadratic, pieces of <= 90 deg with middle weights
     cos(half piece angle), domain [0, 1] with one knot pair per piece boundary.
     """
-    pieces = max(1, int(np.ceil(sweep_rad / (np.pi / 2) - 1e-12)))
+    pieces = max(1, int(np.ceil(sweep_rad / (np.pi / 2) - ROUNDOFF_SLACK)))
     dtheta = sweep_rad / pieces
     angles = start_rad + dtheta * np.arange(pieces + 1)
     ends = center + radius * np.column_stack([np.cos(angles), np.sin(angles)])

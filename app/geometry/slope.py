@@ -12,10 +12,12 @@ warning.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from app.geometry.errors import GeometryError
+from app.geometry.tolerance import DIVISION_FLOOR
 
 DEFAULT_WARN_DEG = 30.0
 DEFAULT_MAX_DEG = 60.0
@@ -48,7 +50,7 @@ class SlopeReport:
     height_error_mm: float
     warnings: tuple[str, ...]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {"max_slope_deg": round(self.max_slope_deg, 4), "at": np.round(self.point, 4).tolist(),
                 "height_error_mm_per_xy_error": round(float(np.tan(np.radians(min(self.max_slope_deg, 89.999)))), 6),
                 "height_error_mm": round(self.height_error_mm, 6), "warnings": list(self.warnings)}
@@ -57,8 +59,9 @@ class SlopeReport:
 def surface_slopes_deg(normals: np.ndarray) -> np.ndarray:
     """(k,) slope in degrees of the surface whose unit normals are ``normals`` (k, 3)."""
     n = np.asarray(normals, dtype=float)
-    nz = np.abs(n[:, 2]) / np.maximum(np.linalg.norm(n, axis=1), 1e-300)
-    return np.degrees(np.arccos(np.clip(nz, 0.0, 1.0)))
+    nz = np.abs(n[:, 2]) / np.maximum(np.linalg.norm(n, axis=1), DIVISION_FLOOR)
+    out: np.ndarray = np.degrees(np.arccos(np.clip(nz, 0.0, 1.0)))
+    return out
 
 
 def height_error_mm(slope_deg: np.ndarray | float, xy_uncertainty_mm: float) -> np.ndarray | float:

@@ -117,7 +117,8 @@ def check_distinct_consecutive(points: np.ndarray, dedup_mm: float, field: str) 
             field=f"{field}[{i + 1}]",
             value=points[i + 1],
         )
-    return seg
+    out: np.ndarray = seg
+    return out
 
 
 def clamped_uniform_knots(n_ctrl: int, degree: int) -> np.ndarray:

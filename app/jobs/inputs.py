@@ -9,18 +9,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numpy as np
 from sqlmodel import Session
 
-from app.compensation.registration import Placement, place_path
 from app.errors import ConformaError, InvalidInput, NotFound
+from app.geometry.placement import Placement
+from app.geometry.traces import TracePolyline
 from app.jobs.params import PlacedParams, PlacementParams
 from app.models import Job, Trace
-from app.probing import NominalPath
-from app.probing.nominal import as_nominal_path
+from app.registration.registration import place_path
 
 if TYPE_CHECKING:
     from app.jobs.context import JobContext
@@ -74,23 +72,12 @@ def placement_from(ctx: "JobContext", params: PlacedParams) -> Placement | None:
 
 
 # nominal traces ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class StoredNominal:
-    """A trace's stored draped polyline: points (k, 3) mm and unit normals (k, 3)."""
-
-    points: np.ndarray
-    normals: np.ndarray | None
+def nominal_of(trace: Trace) -> TracePolyline:
+    """The stored draped nominal polyline of a trace (``Trace.nominal``, the stored JSON)."""
+    return TracePolyline.from_dict(trace.nominal, field="trace.nominal")
 
 
-def nominal_of(trace: Trace) -> NominalPath:
-    """The stored draped nominal polyline of a trace as the planners' NominalPath."""
-    normals = trace.nominal.get("normals")
-    stored = StoredNominal(np.asarray(trace.nominal["points"], dtype=float),
-                           None if normals is None else np.asarray(normals, dtype=float))
-    return as_nominal_path(stored, field="trace.nominal")
-
-
-def placed_nominal(trace: Trace, placement: Placement | None) -> NominalPath:
+def placed_nominal(trace: Trace, placement: Placement | None) -> TracePolyline:
     """The trace's nominal in machine coordinates (unchanged without a placement)."""
     nominal = nominal_of(trace)
     return nominal if placement is None else place_path(nominal, placement)

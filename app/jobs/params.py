@@ -18,7 +18,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from app.compensation.registration import Placement
+from app.geometry.placement import Placement
 from app.jobs.registry import JobParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]

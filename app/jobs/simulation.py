@@ -2,7 +2,7 @@
 
 The mock firmware logs every move made with the dispenser on; the as-made part at its
 placement is the truth.  The standoff along the printed path follows from both
-(:func:`app.compensation.evaluation.evaluate_deposition`).  The XY error of the printed
+(:func:`app.reference.evaluation.evaluate_deposition`).  The XY error of the printed
 path is its distance, in top view, from the designed trace moved by the mock's TRUE
 placement (rotation about the machine origin, then translation; a true-part mesh is
 taken as made in the part frame, its placement being the mock's).
@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import shapely
 
-from app.compensation.evaluation import StandoffReport, evaluate_deposition
-from app.compensation.registration import Placement, apply_placement
+from app.reference.evaluation import StandoffReport, evaluate_deposition
+from app.geometry.placement import Placement, apply_placement
 from app.geometry.drape import top_surface_z
 from hardware.mock import MockWorld
 from hardware.mock.surface import placement_matrix

@@ -37,7 +37,8 @@ from scipy.special import j1
 
 from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
-from app.probing.nominal import NominalPath
+from app.geometry.tolerance import COVARIANCE_JITTER_REL, DEGENERATE_LENGTH_MM
+from app.geometry.traces import TracePolyline
 
 
 class PriorError(InvalidInput):
@@ -96,10 +97,10 @@ class Sites:
 
 SLOPE_SMOOTHING_MM = 0.25   # Gaussian sigma (arc length) of the slope the placement term uses
 SLOPE_SAMPLE_MM = 0.02
-_SMOOTH_SLOPES: "weakref.WeakKeyDictionary[NominalPath, BSpline]" = weakref.WeakKeyDictionary()
+_SMOOTH_SLOPES: "weakref.WeakKeyDictionary[TracePolyline, BSpline]" = weakref.WeakKeyDictionary()
 
 
-def raw_path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
+def raw_path_gradient(path: TracePolyline, s: np.ndarray) -> np.ndarray:
     """Nominal slope (m, 2) at arc lengths ``s`` (m,) as the polyline states it: from the
     normals when the path has them (n = (-hx, -hy, 1)/|.|), else only its along-trace part
     dz/ds_xy * tangent_xy.  Piecewise: it jumps wherever a faceted nominal changes face."""
@@ -111,12 +112,12 @@ def raw_path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
     d = np.diff(path.points, axis=0)
     dxy = np.linalg.norm(d[:, :2], axis=1)
     seg = np.clip(np.searchsorted(path.s, s, side="right") - 1, 0, len(d) - 1)
-    safe = np.where(dxy[seg] > 1e-12, dxy[seg], 1.0)
-    slope = np.where(dxy[seg] > 1e-12, d[seg, 2] / safe, 0.0)
+    safe = np.where(dxy[seg] > DEGENERATE_LENGTH_MM, dxy[seg], 1.0)
+    slope = np.where(dxy[seg] > DEGENERATE_LENGTH_MM, d[seg, 2] / safe, 0.0)
     return slope[:, None] * d[seg, :2] / safe[:, None]
 
 
-def path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
+def path_gradient(path: TracePolyline, s: np.ndarray) -> np.ndarray:
     """Smoothed nominal slope (m, 2) at arc lengths ``s`` (m,): :func:`raw_path_gradient`
     sampled every SLOPE_SAMPLE_MM, Gaussian-filtered along the trace (sigma
     SLOPE_SMOOTHING_MM) and interpolated by a cubic spline (cached per path).
@@ -142,18 +143,20 @@ def path_gradient(path: NominalPath, s: np.ndarray) -> np.ndarray:
         smooth = gaussian_filter1d(padded, sigma, axis=0, mode="nearest")[pad:pad + len(grid)]
         spline = make_interp_spline(grid, smooth, k=3)
         _SMOOTH_SLOPES[path] = spline
-    return spline(s)
+    out: np.ndarray = spline(s)
+    return out
 
 
-def path_sites(path: NominalPath, s: np.ndarray) -> Sites:
+def path_sites(path: TracePolyline, s: np.ndarray) -> Sites:
     """Sites on the nominal at arc lengths ``s`` (m,) mm."""
     s = np.asarray(s, dtype=float)
     return Sites(path.at(s)[:, :2], path_gradient(path, s))
 
 
-def path_center(path: NominalPath) -> np.ndarray:
+def path_center(path: TracePolyline) -> np.ndarray:
     """Rotation/tilt centre (2,) mm of a trace: mean top-view point, even in arc length."""
-    return path.at(np.linspace(0.0, path.length_mm, 65))[:, :2].mean(axis=0)
+    out: np.ndarray = path.at(np.linspace(0.0, path.length_mm, 65))[:, :2].mean(axis=0)
+    return out
 
 
 def placement_basis(sites: Sites, center: np.ndarray) -> np.ndarray:
@@ -168,7 +171,8 @@ def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float) -> np.ndarra
     """Unit-variance band-limited isotropic kernel (m, k) between points a (m, 2), b (k, 2)."""
     r = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
     x = np.maximum(2.0 * math.pi / wavelength_mm * r, 1e-12)
-    return np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
+    out: np.ndarray = np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
+    return out
 
 
 def prior_covariance(prior: DeviationPrior, a: Sites, b: Sites,
@@ -177,17 +181,20 @@ def prior_covariance(prior: DeviationPrior, a: Sites, b: Sites,
     sd = prior.basis_sd
     ba = placement_basis(a, center) * sd
     bb = placement_basis(b, center) * sd
-    return prior.rms_mm ** 2 * jinc_kernel(a.xy, b.xy, prior.wavelength_mm) + ba @ bb.T
+    out: np.ndarray = prior.rms_mm ** 2 * jinc_kernel(a.xy, b.xy, prior.wavelength_mm) + ba @ bb.T
+    return out
 
 
 def prior_variance(prior: DeviationPrior, sites: Sites, center: np.ndarray) -> np.ndarray:
     """Prior variance (m,) mm^2 of the deviation at ``sites`` (the covariance's diagonal)."""
-    return prior.rms_mm ** 2 + np.sum((placement_basis(sites, center) * prior.basis_sd) ** 2, axis=1)
+    out: np.ndarray = prior.rms_mm ** 2 + np.sum((placement_basis(sites, center) * prior.basis_sd) ** 2, axis=1)
+    return out
 
 
-def _factor(k: np.ndarray, sigma_mm: float, scale: float):
-    jitter = max(sigma_mm ** 2, 1e-10 * scale)
-    return cho_factor(k + jitter * np.eye(len(k)), lower=True)
+def _factor(k: np.ndarray, sigma_mm: float, scale: float) -> tuple[np.ndarray, bool]:
+    jitter = max(sigma_mm ** 2, COVARIANCE_JITTER_REL * scale)
+    factor: tuple[np.ndarray, bool] = cho_factor(k + jitter * np.eye(len(k)), lower=True)
+    return factor
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,18 +208,20 @@ class DeviationPosterior:
     center: np.ndarray
     probes: Sites
     alpha: np.ndarray
-    factor: tuple
+    factor: tuple[np.ndarray, bool]
 
     def mean(self, sites: Sites) -> np.ndarray:
         """Posterior mean deviation (q,) mm at ``sites``."""
-        return prior_covariance(self.prior, sites, self.probes, self.center) @ self.alpha
+        out: np.ndarray = prior_covariance(self.prior, sites, self.probes, self.center) @ self.alpha
+        return out
 
     def sd(self, sites: Sites) -> np.ndarray:
         """Posterior standard deviation (q,) mm at ``sites``."""
         kq = prior_covariance(self.prior, sites, self.probes, self.center)
         prior_var = prior_variance(self.prior, sites, self.center)
         v = prior_var - np.sum(kq.T * cho_solve(self.factor, kq.T), axis=0)
-        return np.sqrt(np.maximum(v, 0.0))
+        out: np.ndarray = np.sqrt(np.maximum(v, 0.0))
+        return out
 
 
 def fit_posterior(prior: DeviationPrior, probes: Sites, dz: np.ndarray,

@@ -30,16 +30,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.special import j1
 
+from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, placement_basis, prior_covariance,
                                          prior_variance)
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams
 
 StationMode = Literal["on_traces", "anywhere_on_top"]
@@ -61,7 +62,7 @@ class GreedyField:
         self.basis = placement_basis(sites, center) * prior.basis_sd        # (N, 6)
         self.prior_var = prior.rms_mm ** 2 + np.sum(self.basis ** 2, axis=1)
         self.var = self.prior_var.copy()
-        self.jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+        self.jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
         self.rows = np.empty((16, len(self.var)))
         self.chosen: list[int] = []
         self._k = 2.0 * math.pi / prior.wavelength_mm
@@ -71,7 +72,8 @@ class GreedyField:
         r = np.linalg.norm(self.sites.xy - self.sites.xy[j], axis=1)
         x = np.maximum(self._k * r, 1e-12)
         jinc = np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
-        return self.prior.rms_mm ** 2 * jinc + self.basis @ self.basis[j]
+        out: np.ndarray = self.prior.rms_mm ** 2 * jinc + self.basis @ self.basis[j]
+        return out
 
     def gain_for(self, t: int, candidates: np.ndarray) -> np.ndarray:
         """Variance drop (c,) mm^2 at site t if a station were added at each candidate."""
@@ -79,7 +81,8 @@ class GreedyField:
         cov = self.kernel_row(t)[candidates]
         if n:
             cov -= self.rows[:n, t] @ self.rows[:n][:, candidates]
-        return cov * cov / (self.var[candidates] + self.jitter)
+        out: np.ndarray = cov * cov / (self.var[candidates] + self.jitter)
+        return out
 
     def add(self, j: int) -> None:
         """Add a station at site j: one new row of R, variance downdated."""
@@ -129,7 +132,7 @@ class PosteriorParts:
 def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray) -> PosteriorParts:
     """:class:`PosteriorParts` from one factorisation (cost O(n^2 N))."""
     n = len(stations.xy)
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     precision = np.linalg.inv(prior_covariance(prior, stations, stations, center) + jitter * np.eye(n))
     precision = (precision + precision.T) / 2
     var = prior_variance(prior, where, center)
@@ -176,7 +179,7 @@ def eliminate_redundant(parts: PosteriorParts, target_var: float, keep_at_least:
 
 def posterior_sd(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray) -> np.ndarray:
     """Posterior sd (m,) mm of the field at ``where`` given stations (fresh factorisation)."""
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     k = prior_covariance(prior, stations, stations, center)
     low = np.linalg.cholesky(k + jitter * np.eye(len(k)))
     out = np.empty(len(where.xy))
@@ -220,7 +223,8 @@ class FieldPlan:
     @property
     def normals(self) -> np.ndarray:
         n = np.column_stack([-self.grad, np.ones(len(self.grad))])
-        return n / np.linalg.norm(n, axis=1, keepdims=True)
+        out: np.ndarray = n / np.linalg.norm(n, axis=1, keepdims=True)
+        return out
 
     @property
     def points(self) -> np.ndarray:
@@ -240,7 +244,7 @@ def travel_order(xy: np.ndarray, band_mm: float) -> np.ndarray:
 
 def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
                stations: str = "on_traces", top: TopSampler | None = None) -> FieldPlan:
-    """Field stations for every trace in ``nominals`` (NominalPath-like, one frame).
+    """Field stations for every trace in ``nominals`` (TracePolyline-like, one frame).
 
     params: the deviation prior, ``target_error_mm``, ``coverage``, ``min_count`` and an
     optional total ``count``.  stations: "on_traces" or "anywhere_on_top" (needs ``top``,
@@ -253,7 +257,7 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
         raise PlanError("anywhere_on_top needs the part's top surface", field="stations", value=stations)
     if len(nominals) == 0:
         raise PlanError("the field planner needs at least one trace", field="traces", value=0)
-    paths = [as_nominal_path(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
+    paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     prior = params.prior()
     region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
     return _design(region, prior, params, stations)
@@ -315,7 +319,7 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
                      np.argsort(order))
 
 
-def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict:
+def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict[str, Any]:
     """JSON form of a field plan: what the reconstruction and the viewer read back.
 
     ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the
@@ -347,7 +351,7 @@ class StoredField:
     s_mm: np.ndarray
 
 
-def stored_field(result: dict) -> StoredField:
+def stored_field(result: dict[str, Any]) -> StoredField:
     """Inverse of :func:`field_result` (its ``field`` entry)."""
     rows = result["stations"]
     return StoredField(

@@ -33,9 +33,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from app.geometry.tolerance import LENGTH_EPS_MM
 from app.probing.deviation_prior import Sites, path_gradient
 from app.probing.joint import joint_center
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 
 SAMPLES_PER_WAVELENGTH = 16
 CELLS_PER_WAVELENGTH = 8
@@ -74,7 +75,7 @@ class TracePoints:
         return TracePoints(self.sites.take(idx), self.trace[idx], self.s[idx], self.z[idx])
 
 
-def sample_traces(paths: Sequence[NominalPath], step_mm: float) -> TracePoints:
+def sample_traces(paths: Sequence[TracePolyline], step_mm: float) -> TracePoints:
     """Every path sampled about every ``step_mm`` of arc length, both ends included."""
     xy, grad, trace, s_all, z = [], [], [], [], []
     for i, path in enumerate(paths):
@@ -140,8 +141,8 @@ def free_candidates(targets: TracePoints, cell_mm: float, reach_mm: float,
     xy = targets.sites.xy
     lo = np.floor((xy.min(axis=0) - reach_mm) / cell_mm) * cell_mm
     hi = xy.max(axis=0) + reach_mm
-    gx = np.arange(lo[0], hi[0] + 1e-9, cell_mm)
-    gy = np.arange(lo[1], hi[1] + 1e-9, cell_mm)
+    gx = np.arange(lo[0], hi[0] + LENGTH_EPS_MM, cell_mm)
+    gy = np.arange(lo[1], hi[1] + LENGTH_EPS_MM, cell_mm)
     grid = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
     dist, _ = cKDTree(xy).query(grid, distance_upper_bound=reach_mm)
     grid = grid[np.isfinite(dist)]
@@ -152,7 +153,7 @@ def free_candidates(targets: TracePoints, cell_mm: float, reach_mm: float,
     return Sites(grid[ok], np.asarray(found.grad)[ok]), np.asarray(found.z)[ok]
 
 
-def field_region(paths: Sequence[NominalPath], wavelength_mm: float,
+def field_region(paths: Sequence[TracePolyline], wavelength_mm: float,
                  top: TopSampler | None = None) -> FieldRegion:
     """The region of ``paths`` (all in one frame); with ``top``, free candidates too."""
     samples = sample_traces(paths, wavelength_mm / SAMPLES_PER_WAVELENGTH)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 
-from app.probing.field_region import TopSample
+from app.probing.field_region import TopSample, TopSampler
 
 if TYPE_CHECKING:
     from app.probing.deviation_prior import DeviationPrior, Sites
@@ -41,7 +41,7 @@ def first_hit_z(mesh: trimesh.Trimesh, xy: np.ndarray) -> np.ndarray:
     return z
 
 
-def mesh_top_sampler(mesh: trimesh.Trimesh):
+def mesh_top_sampler(mesh: trimesh.Trimesh) -> TopSampler:
     """A :data:`app.probing.field_region.TopSampler` over ``mesh``'s upper surface."""
 
     def sample(xy: np.ndarray) -> TopSample:

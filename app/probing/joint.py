@@ -32,10 +32,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_triangular
 
+from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, path_sites, prior_covariance,
                                          prior_variance)
 from app.probing.minimax import even_indices, fewest_probes
-from app.probing.nominal import NominalPath, as_nominal_path
+from app.geometry.traces import TracePolyline, as_trace_polyline
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
 POWER_LOG2 = 4
@@ -48,12 +49,13 @@ MIN_GAIN = 1e-6  # relative criterion gain a move must bring
 MAX_AUTO_COUNT = 60
 
 
-def joint_center(paths: Sequence[NominalPath]) -> np.ndarray:
+def joint_center(paths: Sequence[TracePolyline]) -> np.ndarray:
     """Rotation/tilt centre (2,) mm of a set of traces: mean top-view point, each trace
     weighted by its length (65 samples per trace, even in arc length)."""
     pts = [p.at(np.linspace(0.0, p.length_mm, 65))[:, :2] for p in paths]
     weights = np.array([p.length_mm for p in paths])
-    return np.sum([w * q.mean(axis=0) for w, q in zip(weights, pts)], axis=0) / weights.sum()
+    out: np.ndarray = np.sum([w * q.mean(axis=0) for w, q in zip(weights, pts)], axis=0) / weights.sum()
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,10 +82,11 @@ class JointGrid:
         chosen = np.asarray(chosen, dtype=int)
         low = np.linalg.cholesky(self.cov[np.ix_(chosen, chosen)] + self.jitter * np.eye(len(chosen)))
         a = solve_triangular(low, self.cov[chosen], lower=True)
-        return np.maximum(self.prior_var - np.sum(a * a, axis=0), 0.0)
+        out: np.ndarray = np.maximum(self.prior_var - np.sum(a * a, axis=0), 0.0)
+        return out
 
 
-def joint_grid(paths: Sequence[NominalPath], prior: DeviationPrior) -> JointGrid:
+def joint_grid(paths: Sequence[TracePolyline], prior: DeviationPrior) -> JointGrid:
     """The joint target grid of ``paths`` (see the module doc); at most ``MAX_GRID`` stations."""
     lengths = np.array([p.length_mm for p in paths])
     step = max(prior.wavelength_mm / GRID_PER_WAVELENGTH, lengths.sum() / MAX_GRID)
@@ -95,7 +98,7 @@ def joint_grid(paths: Sequence[NominalPath], prior: DeviationPrior) -> JointGrid
     center = joint_center(paths)
     cov = prior_covariance(prior, sites, sites, center)
     prior_var = prior_variance(prior, sites, center)
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     return JointGrid(s, offsets, cov, prior_var, jitter, center)
 
 
@@ -106,7 +109,8 @@ def power_mean(var: np.ndarray) -> np.ndarray:
     x = var / safe
     for _ in range(POWER_LOG2):  # x ** POWER by squaring (much faster than a float power)
         x = x * x
-    return top[..., 0] * np.mean(x, axis=-1) ** (1.0 / POWER)
+    out: np.ndarray = top[..., 0] * np.mean(x, axis=-1) ** (1.0 / POWER)
+    return out
 
 
 def even_joint_indices(grid: JointGrid, count: int) -> np.ndarray:
@@ -135,7 +139,8 @@ def move_variances(grid: JointGrid, chosen: np.ndarray, k: int, cand: np.ndarray
     var_rest = np.maximum(grid.prior_var - np.sum(a * a, axis=0), 0.0)
     c = grid.cov[cand] - a[:, cand].T @ a                              # (m, G) posterior cov
     denom = c[np.arange(len(cand)), cand] + grid.jitter
-    return np.maximum(var_rest - c * c / denom[:, None], 0.0)
+    out: np.ndarray = np.maximum(var_rest - c * c / denom[:, None], 0.0)
+    return out
 
 
 def joint_exchange(grid: JointGrid, chosen: np.ndarray) -> np.ndarray:
@@ -191,7 +196,7 @@ def auto_joint_count(grid: JointGrid, target_mm: float, coverage: float, min_cou
 def plan_joint(nominals: Sequence[object], params: PlanParams | None = None) -> tuple[ProbePlan, ...]:
     """Plan the "kriging" stations of several traces of one part together.
 
-    nominals: the traces' nominals (NominalPath / NominalTrace-like / (k, 3)), all in one
+    nominals: the traces' nominals (TracePolyline / ``.points`` (k, 3) / (k, 3)), all in one
     frame.  params: as for ``plan_probes(..., "kriging")``; ``count`` is per trace.
     Returns one :class:`ProbePlan` per trace (same order), each with the joint design's
     largest posterior sd as ``predicted_sd_mm`` — valid when the reconstruction of each
@@ -200,7 +205,7 @@ def plan_joint(nominals: Sequence[object], params: PlanParams | None = None) -> 
     params = params or PlanParams()
     if len(nominals) == 0:
         raise PlanError("joint planning needs at least one trace", field="traces", value=0)
-    paths = [as_nominal_path(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
+    paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     # the exchange does thousands of small factorisations and solves: one BLAS thread is
     # ~10x faster than several on this size (thread start-up dominates); job processes run
     # with CONFORMA_BLAS_THREADS (default 1), set once when they start

@@ -24,7 +24,7 @@ import numpy as np
 
 from app.probing.deviation_prior import (DeviationPrior, max_posterior_sd, path_center,
                                          path_sites, prior_covariance, prior_variance)
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 
 MAX_GRID = 401
 MIN_GRID = 33
@@ -57,7 +57,7 @@ class StationDesign:
     max_sd_mm: float
 
 
-def design_grid(path: NominalPath, prior: DeviationPrior) -> DesignGrid:
+def design_grid(path: TracePolyline, prior: DeviationPrior) -> DesignGrid:
     """The target grid of a trace (see the module doc)."""
     length = path.length_mm
     g = int(math.ceil(length / (prior.wavelength_mm / GRID_PER_WAVELENGTH))) + 1

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from scipy.stats import norm
 
 from app.errors import InvalidInput
+from app.geometry.tolerance import ROUNDOFF_SLACK
 
 
 class PointCountError(InvalidInput):
@@ -69,6 +70,6 @@ def seed_point_count(capability_k: float, confidence: float) -> PointCount:
     n = 0.5 * (factor * z) ** 2
     dfactor_dk = 2.0 / (1.0 - k) ** 2
     dn_dk = factor * dfactor_dk * z * z
-    count = max(2, int(math.ceil(n - 1e-12)))
+    count = max(2, int(math.ceil(n - ROUNDOFF_SLACK)))
     return PointCount(count=count, n_exact=n, z_gamma=z, capability_k=k, confidence=g,
                       dn_dk=dn_dk)

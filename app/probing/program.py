@@ -26,6 +26,7 @@ import numpy as np
 
 from app.checks import require_positive
 from app.gcode.writer import DIALECTS, ProgramBuilder
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 from app.probing.selection import PlanError, ProbePlan
 
 TopHeight = Callable[[np.ndarray], np.ndarray]
@@ -121,7 +122,7 @@ _FACE_BOXES = "conforma_face_xy_boxes"
 
 def _face_boxes(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
     """Top-view bounding boxes of every face: lo (F, 2), hi (F, 2) mm (cached on the mesh)."""
-    cached = mesh._cache[_FACE_BOXES]
+    cached: tuple[np.ndarray, np.ndarray] | None = mesh._cache[_FACE_BOXES]
     if cached is None:
         xy = mesh.triangles[:, :, :2]
         cached = (xy.min(axis=1), xy.max(axis=1))
@@ -134,9 +135,11 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
     top-view box meets the segment's box are cut (the others cannot lie above it)."""
     import trimesh
 
+    # trimesh is untyped: the plane cut returns segments (m, 2, 3)
+    mesh_plane: Callable[..., np.ndarray] = trimesh.intersections.mesh_plane
     d = b - a
     length = float(np.linalg.norm(d))
-    if length < 1e-12:
+    if length < DEGENERATE_LENGTH_MM:
         origin = np.array([[a[0], a[1], mesh.bounds[1][2] + 1.0]])
         loc, _, _ = mesh.ray.intersects_location(origin, np.array([[0.0, 0.0, -1.0]]))
         return float(loc[:, 2].max()) if len(loc) else -math.inf
@@ -146,7 +149,7 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
     near = np.flatnonzero(np.all(hi >= np.minimum(a, b), axis=1) & np.all(lo <= np.maximum(a, b), axis=1))
     if len(near) == 0:
         return -math.inf
-    segs = trimesh.intersections.mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]), local_faces=near)
+    segs = mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]), local_faces=near)
     if len(segs) == 0:
         return -math.inf
     t = (segs[:, :, :2] - a) @ u  # (n, 2) position along the segment
@@ -162,7 +165,8 @@ def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
     def z_at(tt: np.ndarray) -> np.ndarray:
         w = np.where(np.abs(t1 - t0) > 1e-15, (tt - t0) / span, 0.0)
         flat = np.maximum(z0, z1)
-        return np.where(np.abs(t1 - t0) > 1e-15, z0 + w * (z1 - z0), flat)
+        out: np.ndarray = np.where(np.abs(t1 - t0) > 1e-15, z0 + w * (z1 - z0), flat)
+        return out
 
     return float(max(z_at(lo)[ok].max(), z_at(hi)[ok].max()))
 
@@ -176,10 +180,11 @@ def upward_normals(normals: np.ndarray | None, count: int) -> np.ndarray | None:
     if n.shape != (count, 3) or not np.isfinite(n).all():
         return None
     length = np.linalg.norm(n, axis=1, keepdims=True)
-    if (length < 1e-12).any():
+    if (length < DEGENERATE_LENGTH_MM).any():
         return None
     n = n / length
-    return np.where(n[:, 2:3] < 0, -n, n)
+    out: np.ndarray | None = np.where(n[:, 2:3] < 0, -n, n)
+    return out
 
 
 def mesh_station_normals(mesh: Any, xy: np.ndarray) -> np.ndarray | None:

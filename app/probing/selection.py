@@ -51,7 +51,7 @@ from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
 from app.probing.deviation_prior import DeviationPrior
 from app.probing.minimax import auto_count, design_grid, design_stations
-from app.probing.nominal import NominalPath, as_nominal_path
+from app.geometry.traces import TracePolyline, as_trace_polyline
 from app.probing.point_count import PointCount, seed_point_count
 
 Method = Literal["adaptive", "uniform", "deviation", "kriging"]
@@ -204,7 +204,8 @@ def deviation_spacing(params: PlanParams) -> float:
         raise PlanError("target_error_mm must exceed 2 * probe_sigma_mm",
                         field="target_error_mm", value=params.target_error_mm)
     d4 = params.deviation_amplitude_mm * (2 * math.pi / params.deviation_wavelength_mm) ** 4
-    return (384.0 / 5.0 * budget / d4) ** 0.25
+    out: float = (384.0 / 5.0 * budget / d4) ** 0.25
+    return out
 
 
 def deviation_stations(length_mm: float, count: int, end_ratio: float) -> np.ndarray:
@@ -217,7 +218,7 @@ def deviation_stations(length_mm: float, count: int, end_ratio: float) -> np.nda
     return np.concatenate([[0.0], interior, [length_mm]])
 
 
-def _cl_points(path: NominalPath, tol: float) -> tuple[np.ndarray, np.ndarray]:
+def _cl_points(path: TracePolyline, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """CL points (n, 3) and their s (n,) from the dense nominal at chordal tolerance tol."""
     idx = chord_height_select(path.points, tol)
     return path.points[idx], path.s[idx]
@@ -227,11 +228,11 @@ def plan_probes(nominal: Any, method: str = "adaptive",
                 params: PlanParams | None = None) -> ProbePlan:
     """Plan probe points on a nominal trace (see the module doc for which method when).
 
-    nominal: NominalPath, NominalTrace-like (``.points`` (k, 3)[, ``.normals``]) or (k, 3).
+    nominal: TracePolyline, anything with ``.points`` (k, 3)[, ``.normals``] or (k, 3).
     Returns a :class:`ProbePlan` ordered by arc length.
     """
     params = params or PlanParams()
-    path = as_nominal_path(nominal)
+    path = as_trace_polyline(nominal)
     if method not in METHODS:
         raise PlanError(f"unknown probe planning method {method!r}; expected one of "
                         f"{list(METHODS)}", field="method", value=method)
@@ -264,7 +265,7 @@ def plan_probes(nominal: Any, method: str = "adaptive",
                      spacing_mm=spacing)
 
 
-def _kriging_plan(path: NominalPath, params: PlanParams) -> ProbePlan:
+def _kriging_plan(path: TracePolyline, params: PlanParams) -> ProbePlan:
     grid = design_grid(path, params.prior())
     if params.count is not None:
         count = int(params.count)

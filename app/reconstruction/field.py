@@ -26,9 +26,10 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 from scipy.linalg import cho_factor, cho_solve
 
+from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel,
                                          path_sites, placement_basis, prior_covariance)
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 from app.reconstruction.heights import FieldHeight
 from app.reconstruction.preprocess import CleanPoints, ReconstructionError
 from app.geometry.fitting import interpolate_curve
@@ -69,7 +70,8 @@ class FieldFit:
         """The machining-error part (m,) mm of the posterior mean at xy (m, 2) (band-limited:
         smooth on the scale of lambda)."""
         prior = self.posterior.prior
-        return prior.rms_mm ** 2 * jinc_kernel(xy, self.posterior.probes.xy, prior.wavelength_mm) @ self.posterior.alpha
+        out: np.ndarray = prior.rms_mm ** 2 * jinc_kernel(xy, self.posterior.probes.xy, prior.wavelength_mm) @ self.posterior.alpha
+        return out
 
     def placement(self, sites: Sites) -> np.ndarray:
         """The placement part (m,) mm of the posterior mean at ``sites``: B(sites) theta, with
@@ -77,7 +79,8 @@ class FieldFit:
         prior = self.posterior.prior
         probes = placement_basis(self.posterior.probes, self.posterior.center)
         theta = prior.basis_sd ** 2 * (probes.T @ self.posterior.alpha)
-        return placement_basis(sites, self.posterior.center) @ theta
+        out: np.ndarray = placement_basis(sites, self.posterior.center) @ theta
+        return out
 
 
 def field_gradient(fit: "FieldFit", sites: Sites, step_mm: float = 0.05,
@@ -130,7 +133,7 @@ def fit_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, mea
     if n < 2:
         raise ReconstructionError("a field needs at least 2 stations", field=field, value=n)
     dz = pts[:, 2] - np.asarray(nominal_z, dtype=float)
-    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     k_all = prior_covariance(prior, stations, stations, center)
     kept = np.ones(n, dtype=bool)
     outliers: list[int] = []
@@ -152,7 +155,7 @@ def fit_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, mea
                     np.full(n, np.nan) if s_mm is None else np.asarray(s_mm, dtype=float))
 
 
-def trace_reconstruction(fit: FieldFit, path: NominalPath, trace_index: int,
+def trace_reconstruction(fit: FieldFit, path: TracePolyline, trace_index: int,
                          params: ReconstructParams | None = None) -> Reconstruction:
     """The real trace ``path`` (the plan's trace number ``trace_index``) from the fitted
     field: nominal + posterior mean (evaluated every DENSE_STEP_MM and interpolated by a cubic

@@ -2,7 +2,7 @@
 read back exactly, instead of being rebuilt from its probes).
 
 Each model is ``height(s (m,)) -> (m,)`` mm at nominal arc lengths ``s`` over a
-:class:`~app.probing.nominal.NominalPath`, and :meth:`arrays` gives the numbers it is made
+:class:`~app.geometry.traces.TracePolyline`, and :meth:`arrays` gives the numbers it is made
 of; :func:`height_model` builds it again from them, bit for bit the same function:
 
 * :class:`CurveHeight` (``interpolate``, ``approximate``): the curve's z where its top view
@@ -27,7 +27,7 @@ from scipy.interpolate import BSpline
 
 from app.geometry.nurbs import NurbsCurve
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites, prior_covariance
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 from app.reconstruction.preprocess import ReconstructionError
 
 
@@ -43,7 +43,7 @@ class HeightModel(Protocol):
 @dataclass(frozen=True, eq=False)
 class CurveHeight:
     curve: NurbsCurve
-    path: NominalPath
+    path: TracePolyline
     kind: str = "curve"
     _top: NurbsCurve = field(init=False, repr=False)
 
@@ -71,7 +71,7 @@ def _spline(name: str, arrays: dict[str, np.ndarray]) -> BSpline:
 
 @dataclass(frozen=True, eq=False)
 class SplineHeight:
-    path: NominalPath
+    path: TracePolyline
     spline: BSpline
     lo: float
     hi: float
@@ -79,7 +79,8 @@ class SplineHeight:
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
         # outside the probed span the deviation is held at its end value (no extrapolation)
-        return self.path.z_at(s) + self.spline(np.clip(s, self.lo, self.hi))
+        out: np.ndarray = self.path.z_at(s) + self.spline(np.clip(s, self.lo, self.hi))
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {**_spline_arrays("dz", self.spline), "span": np.array([self.lo, self.hi])}
@@ -87,7 +88,7 @@ class SplineHeight:
 
 @dataclass(frozen=True, eq=False)
 class KrigingHeight:
-    path: NominalPath
+    path: TracePolyline
     prior: DeviationPrior
     center: np.ndarray
     probes: Sites
@@ -96,8 +97,9 @@ class KrigingHeight:
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
         # the posterior mean (DeviationPosterior.mean) at the trace's sites
-        return self.path.z_at(s) + prior_covariance(self.prior, path_sites(self.path, s), self.probes,
-                                                    self.center) @ self.alpha
+        out: np.ndarray = self.path.z_at(s) + prior_covariance(self.prior, path_sites(self.path, s), self.probes,
+                                                               self.center) @ self.alpha
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {"prior": np.array([getattr(self.prior, k) for k in _PRIOR_FIELDS]),
@@ -111,19 +113,20 @@ _PRIOR_FIELDS = ("amplitude_mm", "wavelength_mm", "peak_factor", "placement_xy_m
 
 @dataclass(frozen=True, eq=False)
 class FieldHeight:
-    path: NominalPath
+    path: TracePolyline
     machining: BSpline
     placement: BSpline
     kind: str = "field"
 
     def __call__(self, s: np.ndarray) -> np.ndarray:
-        return self.path.z_at(s) + self.machining(s) + self.placement(s)
+        out: np.ndarray = self.path.z_at(s) + self.machining(s) + self.placement(s)
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {**_spline_arrays("machining", self.machining), **_spline_arrays("placement", self.placement)}
 
 
-def height_model(kind: str, path: NominalPath, arrays: dict[str, np.ndarray], curve: NurbsCurve) -> HeightModel:
+def height_model(kind: str, path: TracePolyline, arrays: dict[str, np.ndarray], curve: NurbsCurve) -> HeightModel:
     """The model ``kind`` over ``path`` from its :meth:`arrays` (``curve``: the reconstruction's)."""
     try:
         if kind == "curve":

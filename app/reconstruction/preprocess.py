@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from app.errors import InvalidInput
-from app.probing.nominal import NominalPath
+from app.geometry.tolerance import LENGTH_EPS_MM
+from app.geometry.traces import TracePolyline
 
 
 class ReconstructionError(InvalidInput):
@@ -94,7 +95,7 @@ def loo_residuals(s: np.ndarray, dz: np.ndarray) -> np.ndarray:
             lo, hi = (lo - 1, hi) if lo > 0 and (hi >= n or i - lo <= hi - i) else (lo, hi + 1)
         idx = np.array([j for j in range(lo, hi) if j != i])
         deg = min(2, len(idx) - 1)
-        scale = max(np.ptp(s[idx]), 1e-9)
+        scale = max(np.ptp(s[idx]), LENGTH_EPS_MM)
         coef = np.polyfit((s[idx] - s[i]) / scale, dz[idx], deg)
         out[i] = dz[i] - coef[-1]
     return out
@@ -120,7 +121,7 @@ def reject_outliers(s: np.ndarray, dz: np.ndarray, params: PreprocessParams) -> 
     return keep
 
 
-def preprocess(path: NominalPath, measured: Any, params: PreprocessParams,
+def preprocess(path: TracePolyline, measured: Any, params: PreprocessParams,
                field: str = "points") -> CleanPoints:
     """Clean measured points (k, 3) against the nominal ``path`` (see module doc)."""
     pts = validate_measured(measured, field)

@@ -33,15 +33,16 @@ from collections.abc import Sequence
 from typing import Any, Callable
 
 import numpy as np
-from scipy.interpolate import make_interp_spline, make_splrep
+from scipy.interpolate import BSpline, make_interp_spline, make_splrep
 
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import interpolate_curve, smooth_curve
 from app.geometry.nurbs import NurbsCurve
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 from app.probing.deviation_prior import (DeviationPrior, Sites, fit_posterior, path_center,
                                          path_gradient)
 from app.probing.joint import joint_center
-from app.probing.nominal import NominalPath, as_nominal_path
+from app.geometry.traces import TracePolyline, as_trace_polyline
 from app.probing.selection import chord_height_select
 from app.reconstruction.heights import CurveHeight, HeightModel, KrigingHeight, SplineHeight
 from app.reconstruction.preprocess import (CleanPoints, PreprocessParams, ReconstructionError,
@@ -87,7 +88,7 @@ class Reconstruction:
     samples: np.ndarray
     max_mm: float
     rms_mm: float
-    nominal: NominalPath
+    nominal: TracePolyline
     _height_s: HeightModel
     span_mm: tuple[float, float] = (0.0, 0.0)
     refinement: dict[str, Any] | None = None
@@ -109,7 +110,8 @@ class Reconstruction:
     def deviation_at_s(self, s: Any) -> np.ndarray:
         """Reconstructed deviation real - nominal (m,) mm at arc lengths ``s``."""
         s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.nominal.length_mm)
-        return self.height_at_s(s) - self.nominal.z_at(s)
+        out: np.ndarray = self.height_at_s(s) - self.nominal.z_at(s)
+        return out
 
     def to_result(self) -> dict[str, Any]:
         """API form: ``{method, curve, deviation: {max_mm, rms_mm, samples}, ...}``."""
@@ -133,15 +135,16 @@ class Reconstruction:
         s = self.nominal.project_xy(np.atleast_2d(np.asarray(xy, dtype=float))).s
         lo = np.clip(s - step_mm, 0.0, self.nominal.length_mm)
         hi = np.clip(s + step_mm, 0.0, self.nominal.length_mm)
-        ds = np.maximum(hi - lo, 1e-12)
+        ds = np.maximum(hi - lo, DEGENERATE_LENGTH_MM)
         slope = (self.deviation_at_s(hi) - self.deviation_at_s(lo)) / ds
         tangent = (self.nominal.at(hi) - self.nominal.at(lo)) / ds[:, None]
         txy = tangent[:, :2]
         norm2 = np.maximum(np.sum(txy * txy, axis=1), 1e-12)
-        return slope[:, None] * txy / norm2[:, None]
+        out: np.ndarray = slope[:, None] * txy / norm2[:, None]
+        return out
 
 
-def fit_deviation(s: np.ndarray, dz: np.ndarray, sigma_mm: float, degree: int = 3):
+def fit_deviation(s: np.ndarray, dz: np.ndarray, sigma_mm: float, degree: int = 3) -> BSpline:
     """Spline dz(s) (scipy BSpline) through (n,) samples: interpolating when sigma = 0 or
     n <= degree + 1, else the smoothing spline with residual sum n * sigma^2."""
     k = int(min(degree, len(s) - 1))
@@ -156,7 +159,7 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
                 context: Sequence[tuple[Any, Any]] = ()) -> Reconstruction:
     """Reconstruct the real trace from measured probe points.
 
-    nominal: NominalPath / NominalTrace-like / (k, 3) dense nominal polyline (mm).
+    nominal: TracePolyline / ``.points`` (k, 3) / (k, 3) dense nominal polyline (mm).
     measured: (m, 3) probe results (mm), any order.  method: "interpolate" (seed),
     "approximate", "deviation" or "kriging".  sigma_mm overrides
     ``params.preprocess.sigma_mm``.  context ("kriging" only): (nominal, measured) pairs
@@ -178,7 +181,7 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
     if context and method != "kriging":
         raise ReconstructionError("probes of other traces (context) are only used by the kriging "
                                   "method", field="context", value=len(context))
-    path = as_nominal_path(nominal)
+    path = as_trace_polyline(nominal)
     clean = preprocess(path, measured, pre)
     neighbours = [_context_trace(i, other, points, pre) for i, (other, points) in enumerate(context)]
     need = params.degree + 1
@@ -211,23 +214,23 @@ def reconstruct(nominal: Any, measured: Any, method: str = "interpolate",
                           nominal=path, _height_s=height, span_mm=span)
 
 
-def _deviation_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
-                     params: ReconstructParams):
+def _deviation_model(path: TracePolyline, clean: CleanPoints, sigma_mm: float,
+                     params: ReconstructParams) -> tuple[NurbsCurve, SplineHeight]:
     spline = fit_deviation(clean.s, clean.dz, sigma_mm, params.degree)
     height = SplineHeight(path, spline, float(clean.s[0]), float(clean.s[-1]))
     return result_curve(path, height, params), height
 
 
 def _context_trace(index: int, nominal: Any, measured: Any,
-                   pre: PreprocessParams) -> tuple[NominalPath, CleanPoints]:
+                   pre: PreprocessParams) -> tuple[TracePolyline, CleanPoints]:
     """Another trace's nominal and cleaned probes, errors named ``context[index]...``."""
-    path = as_nominal_path(nominal, field=f"context[{index}].nominal")
+    path = as_trace_polyline(nominal, field=f"context[{index}].nominal")
     return path, preprocess(path, measured, pre, field=f"context[{index}].points")
 
 
-def _kriging_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
+def _kriging_model(path: TracePolyline, clean: CleanPoints, sigma_mm: float,
                    params: ReconstructParams,
-                   neighbours: Sequence[tuple[NominalPath, CleanPoints]] = ()):
+                   neighbours: Sequence[tuple[TracePolyline, CleanPoints]] = ()) -> tuple[NurbsCurve, KrigingHeight]:
     prior = DeviationPrior(**{**params.prior.__dict__, "sigma_mm": float(sigma_mm)})
     traces = [(path, clean), *neighbours]
     probes = Sites(np.concatenate([c.points[:, :2] for _, c in traces]),
@@ -239,7 +242,7 @@ def _kriging_model(path: NominalPath, clean: CleanPoints, sigma_mm: float,
     return result_curve(path, height, params), height
 
 
-def result_curve(path: NominalPath, height: Callable[[np.ndarray], np.ndarray],
+def result_curve(path: TracePolyline, height: Callable[[np.ndarray], np.ndarray],
                   params: ReconstructParams) -> NurbsCurve:
     """Cubic interpolation of the real trace through the nominal's CL stations."""
     idx = chord_height_select(path.points, params.cl_tolerance_mm)

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from app.geometry.nurbs import NurbsCurve
-from app.probing.nominal import NominalPath
+from app.geometry.tolerance import LENGTH_EPS_MM
+from app.geometry.traces import TracePolyline
 from app.reconstruction.heights import height_model
 from app.reconstruction.preprocess import CleanPoints, ReconstructionError
 from app.reconstruction.reconstruct import Reconstruction
@@ -54,7 +55,7 @@ def reconstruction_arrays(rec: Reconstruction) -> dict[str, np.ndarray]:
     return out
 
 
-def reconstruction_from_arrays(arrays: dict[str, np.ndarray], nominal: NominalPath) -> Reconstruction:
+def reconstruction_from_arrays(arrays: dict[str, np.ndarray], nominal: TracePolyline) -> Reconstruction:
     """The reconstruction ``arrays`` hold, over ``nominal`` (the trace's polyline in the same
     frame).  ReconstructionError (422, field ``reconstruction``) when the arrays are of another
     format or the nominal is not the one the reconstruction was made on."""
@@ -63,7 +64,7 @@ def reconstruction_from_arrays(arrays: dict[str, np.ndarray], nominal: NominalPa
             raise ReconstructionError(f"stored reconstruction format {int(arrays['format'])}, expected {FORMAT}",
                                       field="reconstruction", value=int(arrays["format"]))
         length = float(arrays["nominal_length_mm"])
-        if not np.isclose(length, nominal.length_mm, rtol=0.0, atol=1e-9):
+        if not np.isclose(length, nominal.length_mm, rtol=0.0, atol=LENGTH_EPS_MM):
             raise ReconstructionError(f"the stored reconstruction was made on a {length:.6f} mm nominal, not on "
                                       f"this {nominal.length_mm:.6f} mm one", field="reconstruction", value=length)
         curve = NurbsCurve(int(arrays["curve_degree"]), arrays["curve_knots"], arrays["curve_control_points"],
@@ -89,7 +90,7 @@ def reconstruction_npz(rec: Reconstruction) -> bytes:
     return out.getvalue()
 
 
-def read_reconstruction(data: bytes, nominal: NominalPath) -> Reconstruction:
+def read_reconstruction(data: bytes, nominal: TracePolyline) -> Reconstruction:
     """Inverse of :func:`reconstruction_npz` over ``nominal``."""
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as archive:

@@ -24,7 +24,9 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from app.probing.nominal import NominalPath
+from app.geometry.placement import Placement
+from app.geometry.tolerance import ROUNDOFF_SLACK
+from app.geometry.traces import TracePolyline
 from app.reference import s1
 
 MARGIN_MM = 4.0
@@ -63,7 +65,7 @@ DOME_BASE_MM, DOME_RISE_MM, DOME_RIPPLE_MM = 10.0, 6.0, 1.0
 def _dome_height(xy: Any) -> np.ndarray:
     p = np.atleast_2d(np.asarray(xy, dtype=float))
     u, v = p[:, 0] / DOME_SIZE[0] * 2 - 1, p[:, 1] / DOME_SIZE[1] * 2 - 1
-    inside = (np.abs(u) <= 1 + 1e-12) & (np.abs(v) <= 1 + 1e-12)
+    inside = (np.abs(u) <= 1 + ROUNDOFF_SLACK) & (np.abs(v) <= 1 + ROUNDOFF_SLACK)
     h = (DOME_BASE_MM + DOME_RISE_MM * (1 - u * u) * (1 - 0.5 * v * v)
          + DOME_RIPPLE_MM * np.sin(2 * math.pi * p[:, 0] / 60.0) * np.cos(2 * math.pi * p[:, 1] / 50.0))
     return np.where(inside, h, np.nan)
@@ -84,7 +86,7 @@ def dome_part() -> BoardPart:
     return BoardPart("dome", DOME_SIZE.copy(), _dome_height, _dome_gradient)
 
 
-def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict]:
+def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict[str, Any]]:
     """``count`` trace geometries (API dicts) on ``part`` (see the module doc)."""
     if part.name == "S1" and count == 9:
         return [t.geometry for t in s1.s1_traces()]
@@ -93,7 +95,7 @@ def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict]:
     nx = int(math.ceil(math.sqrt(count * w / h)))
     ny = int(math.ceil(count / nx))
     cw, ch = w / nx, h / ny
-    out = []
+    out: list[dict[str, Any]] = []
     for i in range(count):
         x0 = MARGIN_MM + (i % nx) * cw
         y0 = MARGIN_MM + (i // nx) * ch
@@ -116,42 +118,41 @@ def board_traces(part: BoardPart, count: int, seed: int = 0) -> list[dict]:
     return out
 
 
-def board_path(part: BoardPart, geometry: dict, step_mm: float = 0.05) -> NominalPath:
-    """The trace draped on the part's analytic top: dense NominalPath with normals."""
+def board_path(part: BoardPart, geometry: dict[str, Any], step_mm: float = 0.05) -> TracePolyline:
+    """The trace draped on the part's analytic top: dense TracePolyline with normals."""
     xy = s1.trace_xy(geometry, step_mm)
     g = part.gradient(xy)
     normals = np.stack([-g[:, 0], -g[:, 1], np.ones(len(xy))], axis=1)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     points = np.column_stack([xy, part.height(xy)])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return NominalPath(points=points, s=s, normals=normals)
+    return TracePolyline(points=points, s=s, normals=normals)
 
 
 @dataclass(frozen=True, eq=False)
 class AsMadeBoard:
     """A seeded as-made part: waves (M, 4) rows (kx, ky, phase, amplitude) in part
-    coordinates; placement (dx, dy, dz mm, rz deg) about the part centre."""
+    coordinates; placement: the rigid placement part -> machine (about the part centre)."""
 
     part: BoardPart
     seed: int
     waves: np.ndarray
-    placement: tuple[float, float, float, float]
+    placement: Placement
 
     def machining_error(self, xy_part: Any) -> np.ndarray:
         p = np.atleast_2d(np.asarray(xy_part, dtype=float))
-        return np.cos(p @ self.waves[:, :2].T + self.waves[:, 2]) @ self.waves[:, 3]
+        out: np.ndarray = np.cos(p @ self.waves[:, :2].T + self.waves[:, 2]) @ self.waves[:, 3]
+        return out
 
     def to_part(self, xy_machine: Any) -> np.ndarray:
-        dx, dy, _, rz = self.placement
-        q = np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2] - self.part.center - np.array([dx, dy])
-        a = -math.radians(rz)
-        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        return q @ rot.T + self.part.center
+        """Machine xy (m, 2) -> part xy (m, 2) (inverse placement)."""
+        return self.placement.remove(np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2])
 
     def true_height(self, xy_machine: Any) -> np.ndarray:
         """TRUE top height (m,) mm at machine xy (m, 2)."""
         p = self.to_part(xy_machine)
-        return self.part.height(p) + self.machining_error(p) + self.placement[2]
+        out: np.ndarray = self.part.height(p) + self.machining_error(p) + self.placement.dz
+        return out
 
 
 def as_made_board(part: BoardPart, seed: int, amplitude_mm: float = 0.15, min_wavelength_mm: float = 15.0,
@@ -162,8 +163,10 @@ def as_made_board(part: BoardPart, seed: int, amplitude_mm: float = 0.15, min_wa
     ang = rng.uniform(0, 2 * math.pi, n_waves)
     k = (2 * math.pi / lam)[:, None] * np.stack([np.cos(ang), np.sin(ang)], axis=1)
     waves = np.column_stack([k, rng.uniform(0, 2 * math.pi, n_waves), rng.uniform(0.5, 1.0, n_waves)])
-    placement = (*rng.uniform(-0.1, 0.1, 2), rng.uniform(-0.05, 0.05), rng.uniform(-0.2, 0.2))
-    made = AsMadeBoard(part, seed, waves, tuple(float(v) for v in placement))
+    dx, dy = rng.uniform(-0.1, 0.1, 2)
+    placement = Placement.from_deg(float(dx), float(dy), float(rng.uniform(-0.05, 0.05)), float(rng.uniform(-0.2, 0.2)),
+                                   (float(part.center[0]), float(part.center[1])))
+    made = AsMadeBoard(part, seed, waves, placement)
     gx, gy = np.meshgrid(np.linspace(0, part.size[0], 121), np.linspace(0, part.size[1], 81))
     peak = np.abs(made.machining_error(np.column_stack([gx.ravel(), gy.ravel()]))).max()
     waves[:, 3] *= amplitude_mm / peak

@@ -16,21 +16,28 @@ x = 30, 34, 38.  Standoffs: traces 1, 4, 7 -> 0.08 mm; 2, 5, 8 -> 0.10; 3, 6, 9 
 
 As-made variants (:func:`as_made`): a smooth machining error field (seeded sum of plane
 waves, wavelengths >= ``min_wavelength_mm``, scaled to ``amplitude_mm`` peak) on the top,
-and a placement error (dx, dy, dz, rz about the part centre): the TRUE part in machine
+and a placement error (dx, dy, dz, rz about the part centre, :func:`centred_placement`,
+an :class:`app.geometry.placement.Placement`): the TRUE part in machine
 coordinates, as an analytic height function and as a watertight mesh.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import trimesh
 from scipy.interpolate import BSpline, NdBSpline
 
-from app.probing.nominal import NominalPath
+from app.geometry.placement import Placement
+from app.geometry.tolerance import ROUNDOFF_SLACK
+from app.geometry.traces import TracePolyline
+
+if TYPE_CHECKING:
+    from app.geometry.nurbs_surface import NurbsSurface
 
 LENGTH_X_MM = 60.0
 WIDTH_Y_MM = 40.0
@@ -67,7 +74,7 @@ _KV = _clamped_knots(RELIEF_MM.shape[1])
 _HEIGHT = NdBSpline((_KU, _KV), BASE_Z_MM + RELIEF_MM, (DEGREE, DEGREE))
 
 
-def s1_surface():
+def s1_surface() -> NurbsSurface:
     """The top face as the geometry core's NurbsSurface (control points (6, 5, 3) mm)."""
     from app.geometry.nurbs_surface import NurbsSurface
 
@@ -81,7 +88,7 @@ def s1_surface():
 def _uv(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     xy = np.atleast_2d(np.asarray(xy, dtype=float))
     uv = xy[:, :2] / np.array([LENGTH_X_MM, WIDTH_Y_MM])
-    inside = np.all((uv >= -1e-12) & (uv <= 1 + 1e-12), axis=1)
+    inside = np.all((uv >= -ROUNDOFF_SLACK) & (uv <= 1 + ROUNDOFF_SLACK), axis=1)
     return np.clip(uv, 0.0, 1.0), inside
 
 
@@ -98,7 +105,7 @@ def nominal_gradient(xy: Any) -> np.ndarray:
                      _HEIGHT(uv, nu=(0, 1)) / WIDTH_Y_MM], axis=1)
 
 
-def height_field_mesh(height, grid_mm: float = 0.15) -> trimesh.Trimesh:
+def height_field_mesh(height: Callable[[np.ndarray], np.ndarray], grid_mm: float = 0.15) -> trimesh.Trimesh:
     """Watertight block over [0, 60] x [0, 40]: top z = height(xy) on a grid of about
     ``grid_mm`` (two triangles per cell), planar sides, planar bottom z = 0 (fan)."""
     nx = int(math.ceil(LENGTH_X_MM / grid_mm))
@@ -139,7 +146,7 @@ class ReferenceTrace:
 
     number: int
     kind: str
-    geometry: dict
+    geometry: dict[str, Any]
     standoff_mm: float
     frame: str = "xy"
 
@@ -159,12 +166,12 @@ def s1_traces() -> tuple[ReferenceTrace, ...]:
     half = (y1 - y0) / 2
     sweep = math.degrees(math.asin(half / ARC_RADIUS_MM))
     sag_to_centre = math.sqrt(ARC_RADIUS_MM ** 2 - half ** 2)
-    out = []
+    out: list[ReferenceTrace] = []
     for i in range(9):
         x0 = 6.0 + 4.0 * i
         standoff = STANDOFFS_MM[i % 3]
         if i < 3:
-            geom = {"type": "line", "start": [x0, y0], "end": [x0, y1]}
+            geom: dict[str, Any] = {"type": "line", "start": [x0, y0], "end": [x0, y1]}
             kind = "line"
         elif i < 6:
             geom = {"type": "arc", "center": [x0 - sag_to_centre, (y0 + y1) / 2],
@@ -180,7 +187,7 @@ def s1_traces() -> tuple[ReferenceTrace, ...]:
     return tuple(out)
 
 
-def trace_xy(geometry: dict, step_mm: float = 0.05) -> np.ndarray:
+def trace_xy(geometry: dict[str, Any], step_mm: float = 0.05) -> np.ndarray:
     """Top-view points (k, 2) mm of a reference trace, evenly spaced ~step_mm along it."""
     t = np.linspace(0.0, 1.0, 4001)
     kind = geometry["type"]
@@ -203,8 +210,8 @@ def trace_xy(geometry: dict, step_mm: float = 0.05) -> np.ndarray:
     return np.stack([np.interp(ss, s, pts[:, 0]), np.interp(ss, s, pts[:, 1])], axis=1)
 
 
-def nominal_path(trace: ReferenceTrace, step_mm: float = 0.05) -> NominalPath:
-    """The trace draped on the analytic nominal top: dense NominalPath with normals."""
+def nominal_path(trace: ReferenceTrace, step_mm: float = 0.05) -> TracePolyline:
+    """The trace draped on the analytic nominal top: dense TracePolyline with normals."""
     xy = trace_xy(trace.geometry, step_mm)
     z = nominal_height(xy)
     g = nominal_gradient(xy)
@@ -212,18 +219,13 @@ def nominal_path(trace: ReferenceTrace, step_mm: float = 0.05) -> NominalPath:
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     points = np.column_stack([xy, z])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    return NominalPath(points=points, s=s, normals=normals)
+    return TracePolyline(points=points, s=s, normals=normals)
 
 
-@dataclass(frozen=True)
-class Placement:
+def centred_placement(dx: float = 0.0, dy: float = 0.0, dz: float = 0.0, rz_deg: float = 0.0) -> Placement:
     """Where the real part sits relative to its nominal place: mm and degrees about the
     part centre (rz counter-clockwise seen from +z)."""
-
-    dx: float = 0.0
-    dy: float = 0.0
-    dz: float = 0.0
-    rz_deg: float = 0.0
+    return Placement.from_deg(dx, dy, dz, rz_deg, (float(CENTER[0]), float(CENTER[1])))
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,27 +245,22 @@ class AsMadePart:
         """Machining error (m,) mm of the top at part coordinates (m, 2)."""
         p = np.atleast_2d(np.asarray(xy_part, dtype=float))[:, :2]
         k, phase, amp = self.waves[:, :2], self.waves[:, 2], self.waves[:, 3]
-        return np.cos(p @ k.T + phase) @ amp
+        out: np.ndarray = np.cos(p @ k.T + phase) @ amp
+        return out
 
     def to_part(self, xy_machine: Any) -> np.ndarray:
         """Machine xy (m, 2) -> part xy (m, 2) (inverse placement)."""
-        q = np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2]
-        q = q - CENTER - np.array([self.placement.dx, self.placement.dy])
-        a = -math.radians(self.placement.rz_deg)
-        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        return q @ rot.T + CENTER
+        return self.placement.remove(np.atleast_2d(np.asarray(xy_machine, dtype=float))[:, :2])
 
     def to_machine(self, xy_part: Any) -> np.ndarray:
         """Part xy (m, 2) -> machine xy (m, 2) (placement)."""
-        p = np.atleast_2d(np.asarray(xy_part, dtype=float))[:, :2] - CENTER
-        a = math.radians(self.placement.rz_deg)
-        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-        return p @ rot.T + CENTER + np.array([self.placement.dx, self.placement.dy])
+        return self.placement.apply(np.atleast_2d(np.asarray(xy_part, dtype=float))[:, :2])
 
     def true_height(self, xy_machine: Any) -> np.ndarray:
         """TRUE top height (m,) mm at machine xy (m, 2); NaN off the part."""
         p = self.to_part(xy_machine)
-        return nominal_height(p) + self.machining_error(p) + self.placement.dz
+        out: np.ndarray = nominal_height(p) + self.machining_error(p) + self.placement.dz
+        return out
 
     def mesh(self, grid_mm: float = 0.15) -> trimesh.Trimesh:
         """The TRUE part as a watertight mesh in machine coordinates."""
@@ -287,8 +284,9 @@ def as_made(seed: int = 0, amplitude_mm: float = 0.15, min_wavelength_mm: float 
     waves = np.column_stack([k, rng.uniform(0, 2 * math.pi, n_waves),
                              rng.uniform(0.5, 1.0, n_waves)])
     if placement is None:
-        placement = Placement(*rng.uniform(-0.1, 0.1, 2), rng.uniform(-0.05, 0.05),
-                              rng.uniform(-0.2, 0.2))
+        dx, dy = rng.uniform(-0.1, 0.1, 2)
+        placement = centred_placement(float(dx), float(dy), float(rng.uniform(-0.05, 0.05)),
+                                      float(rng.uniform(-0.2, 0.2)))
     part = AsMadePart(seed, amplitude_mm, min_wavelength_mm, placement, waves)
     gx, gy = np.meshgrid(np.linspace(0, LENGTH_X_MM, 121), np.linspace(0, WIDTH_Y_MM, 81))
     peak = np.abs(part.machining_error(np.column_stack([gx.ravel(), gy.ravel()]))).max()

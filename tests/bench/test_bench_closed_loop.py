@@ -21,15 +21,15 @@ import time
 
 import numpy as np
 
-from app.compensation.evaluation import evaluate_deposition, format_table, table_row
+from app.reference.evaluation import evaluate_deposition, format_table, table_row
 from app.compensation.standoff import CompensationParams, compensate_trace
 from app.probing.joint import plan_joint
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
-from app.reference.s1 import Placement, as_made, nominal_path, s1_traces
+from app.reference.s1 import as_made, centred_placement, nominal_path, s1_traces
 
 SIGMA_MM = 0.001
-PART = as_made(seed=0, amplitude_mm=0.15, placement=Placement(dz=0.03))
+PART = as_made(seed=0, amplitude_mm=0.15, placement=centred_placement(dz=0.03))
 GOAL_COMPENSATED_MM = 0.010
 GOAL_NOMINAL_MM = 0.100
 GOAL_TIME_S = 1.0

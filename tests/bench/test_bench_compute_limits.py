@@ -64,7 +64,7 @@ def test_bad_point_test_memory_is_flat_and_time_linear_in_points():
     for n in (2_500, 10_000, 40_000):
         got = measure("find_bad_points(pts)", setup=f"""
             import numpy as np
-            from app.compensation.surface_fit.preprocess import find_bad_points
+            from app.reconstruction.surface_fit.preprocess import find_bad_points
             rng = np.random.default_rng(0)
             xy = rng.uniform(0, 40, ({n}, 2))
             z = 5 + 0.1 * np.sin(xy[:, 0] / 5) * np.cos(xy[:, 1] / 7) + rng.normal(0, 0.001, {n})
@@ -88,8 +88,8 @@ def test_surface_fit_peak_memory_against_the_cost_model(net_of_grid):
         got = measure(f"fit = fit_surface(HeightGrid(x, x, z), SurfaceFitParams(control_points=({m}, {m})))",
                       setup=f"""
             import numpy as np
-            from app.compensation.surface_fit import SurfaceFitParams, fit_surface
-            from app.compensation.surface_fit.grid import HeightGrid
+            from app.reconstruction.surface_fit import SurfaceFitParams, fit_surface
+            from app.reconstruction.surface_fit.grid import HeightGrid
             x = np.linspace(0, 40, {n})
             xx, yy = np.meshgrid(x, x, indexing="ij")
             z = 5 + 0.1 * np.sin(xx / 5) * np.cos(yy / 7)

@@ -12,14 +12,9 @@ import numpy as np
 
 from app.five_axis import FiveAxisParams, plan_five_axis
 from app.five_axis.trace import trace_over_xy
-from app.compensation.surface_fit import (
-    ProbeRegion,
-    SurfaceFitParams,
-    fit_surface,
-    grid_from_plan,
-    plan_probe_grid,
-)
 from app.geometry.nurbs_surface import NurbsSurface
+from app.probing.grid import ProbeRegion, plan_probe_grid
+from app.reconstruction.surface_fit import SurfaceFitParams, fit_surface, grid_from_plan
 
 NOISE_MM = 0.005
 SEEDS = range(5)

@@ -21,7 +21,7 @@ from app.compensation.standoff import (
     OutsideProbedSpanError,
     compensate_trace,
 )
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 from app.reconstruction.reconstruct import reconstruct
 from app.reference import s1
 
@@ -40,14 +40,14 @@ def make_real(amp: float = 0.12, wavelength: float = 13.0, phase: float = 0.0,
     return real
 
 
-def arc_path(step: float = 0.05) -> NominalPath:
+def arc_path(step: float = 0.05) -> TracePolyline:
     """Arc of radius 20 mm (0.2..1.3 rad) draped on the nominal surface."""
     n = int(np.ceil(20 * 1.1 / step)) + 1
     a = np.linspace(0.2, 1.3, n)
     xy = 20.0 * np.stack([np.cos(a), np.sin(a)], axis=1)
     pts = np.column_stack([xy, nominal_surface(xy)])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
-    return NominalPath(points=pts, s=s)
+    return TracePolyline(points=pts, s=s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,7 +55,7 @@ class AnalyticReconstruction:
     """A reconstruction that knows the truth: height_at_s is the real surface under the
     nominal's xy; probes 'kept' at the given stations."""
 
-    nominal: NominalPath
+    nominal: TracePolyline
     real: object
     probe_s: np.ndarray
     method: str = "analytic"
@@ -272,7 +272,7 @@ def test_s1_trace_compensated_from_probes_holds_10um():
     """End to end on S1 trace 5: deviation planner, reconstruction, compensation."""
     from app.probing import PlanParams, plan_probes
 
-    part = s1.as_made(seed=3, amplitude_mm=0.15, placement=s1.Placement(dz=0.03))
+    part = s1.as_made(seed=3, amplitude_mm=0.15, placement=s1.centred_placement(dz=0.03))
     trace = s1.s1_traces()[4]
     nominal = s1.nominal_path(trace)
     plan = plan_probes(nominal, "deviation", PlanParams())

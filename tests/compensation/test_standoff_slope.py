@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from app.compensation.standoff import CompensationParams, compensate_trace
-from app.probing.nominal import NominalPath
+from app.geometry.traces import TracePolyline
 from tests.compensation.test_standoff import AnalyticReconstruction
 
 R = 20.0
@@ -20,7 +20,7 @@ def test_slope_term_predicts_the_standoff_error_of_a_lateral_shift():
     x = np.linspace(0.0, 15.0, 1501)                      # up to asin(15 / 20) = 48.6 deg
     pts = np.column_stack([x, np.zeros_like(x), sphere_z(np.column_stack([x, 0 * x]))])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
-    path = NominalPath(points=pts, s=s, normals=pts / R)
+    path = TracePolyline(points=pts, s=s, normals=pts / R)
     rec = AnalyticReconstruction(path, lambda xy: sphere_z(xy), np.linspace(0.0, s[-1], 12))
     delta = 0.01
     cp = compensate_trace(rec, CompensationParams(standoff_mm=0.1, xy_uncertainty_mm=delta))
@@ -30,6 +30,6 @@ def test_slope_term_predicts_the_standoff_error_of_a_lateral_shift():
     actual = np.abs(cp.points[:, 2] - sphere_z(cp.points[:, :2], dx=delta) - 0.1).max()
     assert slope["max_height_error_mm"] == pytest.approx(actual, rel=0.05)
     flat = compensate_trace(AnalyticReconstruction(
-        NominalPath(points=np.column_stack([x, 0 * x, 0 * x + 5.0]), s=x, normals=np.tile([0.0, 0, 1], (len(x), 1))),
+        TracePolyline(points=np.column_stack([x, 0 * x, 0 * x + 5.0]), s=x, normals=np.tile([0.0, 0, 1], (len(x), 1))),
         lambda xy: np.full(len(xy), 5.0), np.linspace(0.0, 15.0, 12)), CompensationParams())
     assert flat.to_result()["slope"]["max_height_error_mm"] == 0.0

@@ -14,7 +14,7 @@ import shapely
 from shapely.geometry import LineString, Polygon
 
 from app.jobs.simulation import deposited_since, true_height_of
-from app.compensation.evaluation import evaluate_deposition
+from app.reference.evaluation import evaluate_deposition
 from app.reference.s1 import as_made, s1_mesh
 from hardware.mock import get_world
 from tests.conftest import auth

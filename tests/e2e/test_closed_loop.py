@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.compensation.registration import Placement, apply_placement
-from app.reference.s1 import Placement as PartPlacement
+from app.geometry.placement import Placement, apply_placement
+from app.reference.s1 import centred_placement
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from app.viewer.loaders import load_focus
 from tests.conftest import auth
@@ -112,7 +112,7 @@ PLACED = {"dx": 0.2, "dy": -0.15, "dz": 0.03, "rz_deg": 0.3}
 
 def test_registration_puts_the_print_on_the_part_where_it_really_sits(client, meshes):
     nominal_stl = meshes[0]
-    true_stl = as_made(seed=11, amplitude_mm=0.15, placement=PartPlacement()).mesh(grid_mm=0.3).export(
+    true_stl = as_made(seed=11, amplitude_mm=0.15, placement=centred_placement()).mesh(grid_mm=0.3).export(
         file_type="stl")  # as made, in the part frame: the mock applies the placement
     part, traces, machine = _mock_setup(client, nominal_stl, true_stl, "placed", PLACED, seed=7)
     base = {"part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"],

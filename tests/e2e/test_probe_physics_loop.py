@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.reference.s1 import Placement as PartPlacement
+from app.reference.s1 import centred_placement
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
@@ -46,7 +46,7 @@ PROFILE = {"clearance_z": 25.0,
 
 def true_part_stl(seed: int, amplitude_mm: float) -> bytes:
     """An as-made S1 in its own frame (the mock places it)."""
-    return as_made(seed=seed, amplitude_mm=amplitude_mm, placement=PartPlacement()).mesh(grid_mm=0.3).export(
+    return as_made(seed=seed, amplitude_mm=amplitude_mm, placement=centred_placement()).mesh(grid_mm=0.3).export(
         file_type="stl")
 
 

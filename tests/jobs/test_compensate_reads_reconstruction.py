@@ -12,7 +12,8 @@ import pytest
 import trimesh
 
 from app.compensation.standoff import CompensationParams, compensate_trace
-from app.probing import PlanParams, as_nominal_path
+from app.geometry.traces import as_trace_polyline
+from app.probing import PlanParams
 from app.reconstruction import ReconstructParams, reconstruct
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
@@ -50,7 +51,7 @@ def test_the_program_from_the_stored_reconstruction_is_the_rebuilt_ones(client, 
 
     # the old way: the reconstruction built again from the reconstruct job's parameters
     normals = trace["nominal"].get("normals")
-    nominal = as_nominal_path(SimpleNamespace(points=np.array(trace["nominal"]["points"]),
+    nominal = as_trace_polyline(SimpleNamespace(points=np.array(trace["nominal"]["points"]),
                                               normals=None if normals is None else np.array(normals)))
     rebuilt = reconstruct(nominal, measured.tolist(), method, sigma_mm=0.001,
                           params=ReconstructParams(prior=PlanParams(deviation_amplitude_mm=0.2,

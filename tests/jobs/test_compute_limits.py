@@ -136,8 +136,8 @@ def test_the_200_grid_200_net_surface_fit_is_accepted_and_peaks_below_twice_the_
     code = textwrap.dedent("""
         import json, time
         import numpy as np
-        from app.compensation.surface_fit import SurfaceFitParams, fit_surface
-        from app.compensation.surface_fit.grid import HeightGrid
+        from app.reconstruction.surface_fit import SurfaceFitParams, fit_surface
+        from app.reconstruction.surface_fit.grid import HeightGrid
         def kib(key):
             return int(next(l for l in open("/proc/self/status") if l.startswith(key)).split()[1])
         x = np.linspace(1, 39, 200)

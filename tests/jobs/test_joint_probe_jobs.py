@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from sqlalchemy import update
 
-from app.compensation.registration import Placement, apply_placement
+from app.geometry.placement import Placement, apply_placement
 from app.geometry.nurbs import NurbsCurve
 from app.models import Job
-from app.probing import as_nominal_path, segment_top_max
+from app.geometry.traces import as_trace_polyline
+from app.probing import segment_top_max
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from app.viewer.gcode_paths import parse_toolpath
 from app.viewer.loaders import load_focus
@@ -85,7 +86,7 @@ def test_joint_kriging_plan_partitions_the_points_on_their_traces_with_one_safe_
     assert [r["index"] for r in result["records"]] == list(range(18))
     assert result["s_mm"] == [s for e in entries for s in e["s_mm"]]
     for entry, trace in zip(entries, traces):
-        path = as_nominal_path(np.array(trace["nominal"]["points"]))
+        path = as_trace_polyline(np.array(trace["nominal"]["points"]))
         own = points[entry["first"]:entry["first"] + entry["count"]]
         s = np.array(entry["s_mm"])
         assert np.all(np.diff(s) > 0) and 0 <= s[0] and s[-1] <= path.length_mm + 1e-9
@@ -118,7 +119,7 @@ def test_other_methods_plan_per_trace_in_one_program_with_every_trace_placed(cli
     assert [(e["count"], e["first"]) for e in entries] == [(5, 0), (5, 5)] and plan["result"]["count"] == 10
     assert plan["result"]["placement"]["dx"] == pytest.approx(0.2)
     for entry, trace in zip(entries, traces):  # uniform: even arc length, ends included
-        path = as_nominal_path(np.array(trace["nominal"]["points"]))
+        path = as_trace_polyline(np.array(trace["nominal"]["points"]))
         assert np.allclose(entry["s_mm"], np.linspace(0.0, path.length_mm, 5), atol=1e-6)
         assert entry["predicted_sd_mm"] is None
         at = apply_placement(path.at(np.array(entry["s_mm"])), Placement.from_deg(**placed))

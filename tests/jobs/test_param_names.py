@@ -10,7 +10,7 @@ import io
 import numpy as np
 import pytest
 
-from app.compensation.surface_fit import SurfaceFitParams
+from app.reconstruction.surface_fit import SurfaceFitParams
 from app.five_axis import FiveAxisParams
 from app.jetting import ControllerParams, DropParams, FlowParams, JettingError, JettingParams, PlantParams, TargetSpec
 from app.jetting.controller import validate_controller

@@ -45,9 +45,9 @@ def test_probe_plan_writes_a_safe_program(client, trace, method):
 
     assert meta["commands_sha256"] == commands_sha256(gcode.splitlines()).sha256
     # every probe target lies on the nominal trace, in order along it
-    from app.probing import as_nominal_path
+    from app.geometry.traces import as_trace_polyline
 
-    path = as_nominal_path(np.array(trace["nominal"]["points"]))
+    path = as_trace_polyline(np.array(trace["nominal"]["points"]))
     points = np.array(result["points"])
     assert np.all(np.diff(result["s_mm"]) > 0)
     assert np.allclose(path.at(np.array(result["s_mm"])), points, atol=1e-6)

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.compensation.registration import Placement, apply_placement
-from app.probing import as_nominal_path
+from app.geometry.placement import Placement, apply_placement
+from app.geometry.traces import as_trace_polyline
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
@@ -86,7 +86,7 @@ def test_probe_plan_and_reconstruct_use_the_registration(client, registered):
     trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[3].to_api(), headers=OP).json()
     est = job["result"]["placement"]
     placement = Placement.from_deg(est["dx"], est["dy"], est["dz"], est["rz_deg"], tuple(est["pivot"]))
-    path = as_nominal_path(np.array(trace["nominal"]["points"]))
+    path = as_trace_polyline(np.array(trace["nominal"]["points"]))
     plans = {}
     for how in ("registration_job_id", "placement", None):
         extra = {"registration_job_id": job["id"]} if how == "registration_job_id" else (

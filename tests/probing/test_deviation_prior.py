@@ -9,9 +9,9 @@ from app.problems import http_status
 from app.probing.deviation_prior import (DeviationPrior, PriorError, Sites, fit_posterior,
                                          jinc_kernel, path_center, path_gradient, path_sites,
                                          placement_basis, prior_covariance)
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanParams
-from app.reference.s1 import Placement, as_made, nominal_gradient, nominal_path, s1_traces
+from app.reference.s1 import as_made, centred_placement, nominal_gradient, nominal_path, s1_traces
 
 
 def test_jinc_is_the_disk_spectrum_average_of_plane_waves():
@@ -41,7 +41,7 @@ def test_prior_covariance_is_positive_semidefinite():
 
 def test_placement_basis_is_the_first_order_height_change():
     # a placed part with no machining error: true - nominal = B @ (dz, dx, dy, rz, 0, 0)
-    pl = Placement(dx=0.08, dy=-0.06, dz=0.03, rz_deg=0.15)
+    pl = centred_placement(dx=0.08, dy=-0.06, dz=0.03, rz_deg=0.15)
     part = as_made(5, amplitude_mm=1e-12, placement=pl)
     path = nominal_path(s1_traces()[4], 0.1)
     s = np.linspace(0, path.length_mm, 50)
@@ -58,7 +58,7 @@ def test_gradient_from_normals_and_fallback():
     s = np.linspace(1, path.length_mm - 1, 20)
     g = path_gradient(path, s)
     assert np.abs(g - nominal_gradient(path.at(s)[:, :2])).max() < 2e-3
-    bare = as_nominal_path(path.points)  # no normals: only the along-trace slope
+    bare = as_trace_polyline(path.points)  # no normals: only the along-trace slope
     gb = path_gradient(bare, s)
     tan = path.at(s + 0.01)[:, :2] - path.at(s - 0.01)[:, :2]
     tan /= np.linalg.norm(tan, axis=1, keepdims=True)

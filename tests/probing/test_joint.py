@@ -8,7 +8,7 @@ from app.probing.deviation_prior import Sites, fit_posterior, path_sites
 from app.probing.joint import (JointGrid, auto_joint_count, design_joint, even_joint_indices,
                                joint_center, joint_exchange, joint_grid, move_variances,
                                plan_joint, power_mean)
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams
 from app.reconstruction.preprocess import ReconstructionError
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
@@ -103,8 +103,8 @@ def test_plan_joint_returns_one_plan_per_trace_on_its_nominal(paths):
 
 
 def test_joint_center_weights_traces_by_length():
-    a = as_nominal_path(np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]]))
-    b = as_nominal_path(np.array([[0.0, 10.0, 0.0], [30.0, 10.0, 0.0]]))
+    a = as_trace_polyline(np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]]))
+    b = as_trace_polyline(np.array([[0.0, 10.0, 0.0], [30.0, 10.0, 0.0]]))
     assert np.allclose(joint_center([a, b]), [(10 * 5 + 30 * 15) / 40, (0 + 30 * 10) / 40])
 
 
@@ -146,7 +146,7 @@ def test_crossing_traces_rebuilt_from_the_same_probes_agree_where_they_cross():
 
     g = nominal_gradient(xy)
     normals = np.stack([-g[:, 0], -g[:, 1], np.ones(len(xy))], axis=1)
-    cross = as_nominal_path(type("T", (), {"points": np.column_stack([xy, nominal_height(xy)]),
+    cross = as_trace_polyline(type("T", (), {"points": np.column_stack([xy, nominal_height(xy)]),
                                            "normals": normals})())
     part = as_made(5)
     plans = plan_joint([base, cross], PlanParams(count=6, **PROCESS))

@@ -5,7 +5,7 @@ import pytest
 
 from app.probing.deviation_prior import fit_posterior, path_center, path_sites
 from app.probing.minimax import auto_count, design_grid, design_stations, even_indices
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
 from app.reference.s1 import as_made, nominal_path, s1_traces
@@ -46,7 +46,7 @@ def test_auto_count_is_the_fewest_that_meet_the_target(grid):
 def test_mirrored_design_on_a_flat_straight_trace_is_equally_good():
     pts = np.column_stack([np.zeros(301), np.linspace(0, 30, 301), np.full(301, 5.0)])
     normals = np.tile([0.0, 0.0, 1.0], (301, 1))
-    flat = as_nominal_path(type("T", (), {"points": pts, "normals": normals})())
+    flat = as_trace_polyline(type("T", (), {"points": pts, "normals": normals})())
     g = design_grid(flat, PlanParams(**PROCESS).prior())
     design = design_stations(g, 6)
     idx = np.searchsorted(g.s, design.s_mm)

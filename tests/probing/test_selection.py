@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.problems import http_status
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import (PlanError, PlanParams, chord_height_select, chord_heights,
                                    deviation_spacing, deviation_stations, plan_probes)
 
@@ -46,7 +46,7 @@ def test_circle_spacing_matches_sagitta():
 
 
 def test_uniform_and_eq1():
-    path = as_nominal_path(wavy_curve(1.0, 0.5, 0.3, 0.2))
+    path = as_trace_polyline(wavy_curve(1.0, 0.5, 0.3, 0.2))
     plan = plan_probes(path, "uniform", PlanParams(count=9))
     assert plan.count == 9
     assert np.allclose(np.diff(plan.s_mm), path.length_mm / 8)
@@ -65,14 +65,14 @@ def test_deviation_stations_and_spacing():
     h = deviation_spacing(p)
     # the bound it is built on holds with equality
     assert 5 / 384 * h ** 4 * 0.2 * (2 * np.pi / 20.0) ** 4 == pytest.approx(0.003)
-    path = as_nominal_path(wavy_curve(1.0, 0.5, 0.3, 0.2))
+    path = as_trace_polyline(wavy_curve(1.0, 0.5, 0.3, 0.2))
     plan = plan_probes(path, "deviation", p)
     assert plan.count == max(4, int(np.ceil(path.length_mm / h)) + 1)
     assert plan.spacing_mm == pytest.approx(h)
 
 
 def test_adaptive_plan_uses_cl_points():
-    path = as_nominal_path(wavy_curve(2.0, 1.0, 0.4, 0.3, n=3000))
+    path = as_trace_polyline(wavy_curve(2.0, 1.0, 0.4, 0.3, n=3000))
     plan = plan_probes(path, "adaptive", PlanParams(chord_error_mm=0.01, cl_tolerance_mm=0.001))
     cl = plan.cl_points
     # CL points honour their own tolerance against the dense nominal
@@ -85,7 +85,7 @@ def test_adaptive_plan_uses_cl_points():
 
 
 def test_bad_parameters():
-    path = as_nominal_path(wavy_curve(1, 1, 0.1, 0.1))
+    path = as_trace_polyline(wavy_curve(1, 1, 0.1, 0.1))
     with pytest.raises(PlanError):
         plan_probes(path, "random")
     with pytest.raises(PlanError):

@@ -7,7 +7,7 @@ import pytest
 from app.compensation.standoff import CompensationParams, compensate_trace
 from app.geometry.drape import drape_polyline
 from app.probing.deviation_prior import path_gradient, raw_path_gradient
-from app.probing.nominal import as_nominal_path
+from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
 from app.reference.s1 import as_made, s1_mesh, s1_traces, trace_xy
@@ -19,7 +19,7 @@ PROCESS = dict(deviation_amplitude_mm=0.15, deviation_wavelength_mm=15.0)
 def draped():
     """S1 trace 6 (an arc) draped on the 0.5 mm-grid mesh, as the service stores it."""
     d = drape_polyline(s1_mesh(grid_mm=0.5), trace_xy(s1_traces()[5].geometry, 0.5))
-    return as_nominal_path(d)
+    return as_trace_polyline(d)
 
 
 def test_smoothed_slope_is_continuous_where_the_faceted_one_jumps(draped):

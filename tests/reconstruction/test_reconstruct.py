@@ -135,7 +135,7 @@ def test_api_result_round_trips(path):
 
 
 def test_kriging_passes_through_noise_free_points_and_recovers_placement(path):
-    from app.reference.s1 import Placement
+    from app.reference.s1 import centred_placement
     s = np.linspace(0, path.length_mm, 8)
     pts = measure(path, s, cubic_dz)
     rec = reconstruct(path, pts, "kriging", sigma_mm=0.0)
@@ -143,7 +143,7 @@ def test_kriging_passes_through_noise_free_points_and_recovers_placement(path):
     assert np.abs(rec.height_at_xy(pts[:, :2]) - pts[:, 2]).max() < 1e-5
     assert rec.to_result()["curve"]["degree"] == 3
     # a placed part without machining error: the CAD slopes carry the whole deviation
-    part = as_made(4, amplitude_mm=1e-12, placement=Placement(0.09, -0.07, 0.02, 0.18))
+    part = as_made(4, amplitude_mm=1e-12, placement=centred_placement(0.09, -0.07, 0.02, 0.18))
     s = np.linspace(0, path.length_mm, 6)
     pts = path.at(s)
     pts[:, 2] = part.true_height(pts[:, :2])

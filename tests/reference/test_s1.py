@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from app.reference.s1 import (Placement, as_made, nominal_height, nominal_path, s1_mesh,
+from app.reference.s1 import (as_made, centred_placement, nominal_height, nominal_path, s1_mesh,
                               s1_surface, s1_traces, trace_xy)
 
 
@@ -69,7 +69,7 @@ def test_nine_traces_in_the_paper_layout():
 
 
 def test_as_made_part_is_consistent_and_seeded():
-    part = as_made(5, amplitude_mm=0.15, placement=Placement(0.1, -0.05, 0.02, 0.3))
+    part = as_made(5, amplitude_mm=0.15, placement=centred_placement(0.1, -0.05, 0.02, 0.3))
     assert as_made(5).waves.tolist() == as_made(5).waves.tolist()
     assert as_made(5).waves.tolist() != as_made(6).waves.tolist()
     rng = np.random.default_rng(0)
@@ -108,7 +108,7 @@ def test_end_to_end_with_the_geometry_core():
     plan = plan_probes(nominal, "deviation", PlanParams(count=12))
     prog = build_probe_program(plan, mesh)
     assert prog.gcode.count("G38.2") == 12
-    part = as_made(7, placement=Placement())
+    part = as_made(7, placement=centred_placement())
     pts = plan.points.copy()
     pts[:, 2] = part.true_height(pts[:, :2])
     rec = reconstruct(nominal, pts, "deviation", sigma_mm=0.0)

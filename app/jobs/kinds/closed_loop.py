@@ -36,7 +36,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from sqlmodel import Session, select
 
-from app.compensation.evaluation import predicted_width, table_row
+from app.reference.evaluation import predicted_width, table_row
 from app.errors import Cancelled, ConformaError, InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams

@@ -41,7 +41,8 @@ from sqlmodel import Session
 from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
 from app.five_axis.errors import TraceOffSurfaceError
 from app.five_axis.trace import trace_over_xy, uv_over_xy
-from app.compensation.surface_fit import ProbeRegion, SurfaceFitParams, fit_part_top, plan_probe_grid
+from app.probing.grid import ProbeRegion, plan_probe_grid
+from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top
 from app.errors import InvalidInput
 from app.geometry.nurbs_surface import NurbsSurface
 from app.geometry.tolerance import DEFAULT_TOLERANCE

@@ -20,8 +20,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
 from app.calibration import ProbeCalibration
-from app.compensation.registration import Placement
 from app.errors import InvalidInput
+from app.geometry.placement import Placement
 from app.jobs.context import JobContext
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams

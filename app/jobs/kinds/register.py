@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from sqlmodel import Session
 
-from app.compensation.datum_plan import DatumProbeParams, plan_datum_probes, register_with_z_probe
+from app.registration.datum_plan import DatumProbeParams, plan_datum_probes, register_with_z_probe
 from app.jobs.context import JobContext
 from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_machine, resume_request,
                                    stopped_by_operator)

@@ -9,7 +9,7 @@ Where the heights come from:
   nominal part: vertical rays).  Probing the grid on a machine (``machine_id``) comes with
   the hardware issue; until then measured heights arrive as ``points``.
 
-Preprocessing and fit are :func:`app.compensation.surface_fit.fit_surface` (bad points,
+Preprocessing and fit are :func:`app.reconstruction.surface_fit.fit_surface` (bad points,
 holes, densification, smoothing, interpolating or least-squares NURBS).  The result's
 ``surface`` is the "real surface" a ``five_axis`` job uses via ``surface_fit_job_id``; the
 same surface is stored as the artifact ``surface.json``.  Units: mm.
@@ -26,14 +26,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from sqlmodel import Session
 
-from app.compensation.surface_fit import (
+from app.probing.grid import ProbeRegion, plan_probe_grid
+from app.reconstruction.surface_fit import (
     GridHoleError,
-    ProbeRegion,
     SurfaceFitError,
     SurfaceFitParams,
     fit_surface,
     grid_from_plan,
-    plan_probe_grid,
     sample_nominal_grid,
 )
 from app.jobs.context import JobContext

@@ -19,7 +19,7 @@ from sqlmodel import Session
 
 from app.gcode.estimator import MachineLimits, estimate_gcode
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_gcode
-from app.gcode.placement import MachineVolume, Placement, check_inside, placement_shift
+from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
@@ -83,8 +83,8 @@ class PlacementIn(BaseModel):
                                              "minimum x, y corner, mm")
     drop_to_bed: bool = Field(True, description="put the part's lowest point on the bed (the volume's z minimum)")
 
-    def core(self) -> Placement:
-        return Placement(self.xy, tuple(self.offset_mm), self.drop_to_bed)  # type: ignore[arg-type]
+    def core(self) -> BedPlacement:
+        return BedPlacement(self.xy, tuple(self.offset_mm), self.drop_to_bed)  # type: ignore[arg-type]
 
 
 class ToolpathJobParams(JobParams):

@@ -16,7 +16,7 @@ placement fit (each pick maximises the variance it removes, r M^-1 r^T), at leas
 point over the part and one beside it (a touch higher than ``part_threshold_z`` is on the
 part), to ``resolution_mm``.  A ball tip of radius r catches the top edge up to r beyond
 the wall, which is corrected.  The wall point it returns (machine frame) is a side datum
-for :func:`~app.compensation.registration.fit_placement`.
+for :func:`~app.registration.registration.fit_placement`.
 
 :func:`register_with_z_probe` runs a plan with a -Z probe callable (edges, then heights
 at the placed points) and returns the placement with its covariance.  Lengths in mm.
@@ -33,18 +33,16 @@ import numpy as np
 import trimesh
 
 from app.checks import require_positive
-from app.compensation.registration import (
+from app.geometry.placement import Placement, apply_placement, remove_placement
+from app.registration.registration import (
     PARAMETERS,
     DegenerateDatumError,
-    Placement,
     Registration,
     RegistrationError,
     RegistrationParams,
     _unobservable,
-    apply_placement,
     fit_placement,
     information_rows,
-    remove_placement,
 )
 
 __all__ = ["DatumPlan", "DatumProbeParams", "DatumRegistration", "DatumTouch", "EdgeFind",

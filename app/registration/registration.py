@@ -1,7 +1,8 @@
 """Part registration: where the part really sits (dx, dy, dz, rz) from datum touches.
 
-Beyond the seed (which only corrects height).  Model: a rigid placement of the part, a
-rotation ``rz`` about the vertical axis through ``pivot`` then a translation,
+Beyond the seed (which only corrects height).  Model: a rigid placement of the part
+(:class:`app.geometry.placement.Placement`), a rotation ``rz`` about the vertical axis
+through ``pivot`` then a translation,
 
     machine = R(rz) (part - pivot) + pivot + (dx, dy, dz).
 
@@ -30,7 +31,7 @@ Observability (say which touches determine what):
   (0.15 mm over slopes ~0.3 -> ~0.5 mm): use planar features.  ``plan_datum_probes``
   with ``mode="z_only"`` therefore prefers sloped faces and reports the predicted
   uncertainties; side faces can also be located with -Z touches by edge finding
-  (:func:`app.compensation.datum_plan.find_edge`): the way to register on the mock.
+  (:func:`app.registration.datum_plan.find_edge`): the way to register on the mock.
 Lengths mm, angles rad inside (``rz_deg`` at the boundary).
 """
 
@@ -45,20 +46,18 @@ import numpy as np
 
 from app.checks import require_positive
 from app.errors import InvalidInput
-from app.probing.nominal import NominalPath, as_nominal_path
+from app.geometry.placement import Placement, remove_placement
+from app.geometry.traces import TracePolyline, as_trace_polyline
 
 __all__ = [
     "PARAMETERS",
     "DegenerateDatumError",
-    "Placement",
     "Registration",
     "RegistrationError",
     "RegistrationParams",
-    "apply_placement",
     "fit_placement",
     "information_rows",
     "place_path",
-    "remove_placement",
 ]
 
 PARAMETERS: tuple[str, ...] = ("dx", "dy", "dz", "rz")
@@ -73,45 +72,6 @@ class DegenerateDatumError(RegistrationError):
     """The touches do not determine some placement parameter (e.g. all on one face)."""
 
 
-@dataclass(frozen=True)
-class Placement:
-    """Rigid placement: rotation rz_rad about the vertical axis through (pivot_x,
-    pivot_y), then translation (dx, dy, dz); mm and rad."""
-
-    dx: float = 0.0
-    dy: float = 0.0
-    dz: float = 0.0
-    rz_rad: float = 0.0
-    pivot_x: float = 0.0
-    pivot_y: float = 0.0
-
-    @property
-    def rz_deg(self) -> float:
-        return math.degrees(self.rz_rad)
-
-    @classmethod
-    def from_deg(cls, dx: float = 0.0, dy: float = 0.0, dz: float = 0.0, rz_deg: float = 0.0,
-                 pivot_xy: tuple[float, float] = (0.0, 0.0)) -> Placement:
-        return cls(dx, dy, dz, math.radians(rz_deg), float(pivot_xy[0]), float(pivot_xy[1]))
-
-    def rotation(self) -> np.ndarray:
-        c, s = math.cos(self.rz_rad), math.sin(self.rz_rad)
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-    def matrix(self) -> np.ndarray:
-        """4x4 homogeneous part -> machine transform."""
-        rot = self.rotation()
-        pivot = np.array([self.pivot_x, self.pivot_y, 0.0])
-        out = np.eye(4)
-        out[:3, :3] = rot
-        out[:3, 3] = pivot - rot @ pivot + np.array([self.dx, self.dy, self.dz])
-        return out
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"dx": self.dx, "dy": self.dy, "dz": self.dz, "rz_deg": self.rz_deg,
-                "pivot": [self.pivot_x, self.pivot_y]}
-
-
 def _as_points(points: Any, field: str) -> np.ndarray:
     try:
         p = np.asarray(points, dtype=float)
@@ -124,33 +84,14 @@ def _as_points(points: Any, field: str) -> np.ndarray:
     return p
 
 
-def apply_placement(points: Any, placement: Placement) -> np.ndarray:
-    """Part-frame points (n, 2|3) -> machine frame (same shape); xy-only input ignores dz."""
-    p = _as_points(points, "points")
-    full = np.column_stack([p, np.zeros(len(p))]) if p.shape[1] == 2 else p
-    m = placement.matrix()
-    out = full @ m[:3, :3].T + m[:3, 3]
-    return out[:, :p.shape[1]]
-
-
-def remove_placement(points: Any, placement: Placement) -> np.ndarray:
-    """Machine-frame points (n, 2|3) -> part frame (inverse of :func:`apply_placement`)."""
-    p = _as_points(points, "points")
-    full = np.column_stack([p, np.zeros(len(p))]) if p.shape[1] == 2 else p
-    m = placement.matrix()
-    out = (full - m[:3, 3]) @ m[:3, :3]
-    if p.shape[1] == 2:
-        out[:, 2] = 0.0
-    return out[:, :p.shape[1]]
-
-
-def place_path(nominal: Any, placement: Placement) -> NominalPath:
-    """A nominal trace (NominalPath / ``.points`` (k, 3) / array) moved into the machine
-    frame: points placed, normals rotated, arc lengths unchanged (rigid motion)."""
-    path = as_nominal_path(nominal)
-    normals = None if path.normals is None else path.normals @ placement.rotation().T
-    return NominalPath(points=apply_placement(path.points, placement), s=path.s.copy(),
-                       normals=normals)
+def place_path(nominal: Any, placement: Placement) -> TracePolyline:
+    """A nominal trace (TracePolyline / ``.points`` (k, 3) / array) moved into the machine
+    frame: points placed, normals rotated, arc lengths and slope stretch unchanged (rigid
+    motion); the slope summary (part-frame coordinates) is not carried."""
+    path = as_trace_polyline(nominal)
+    normals = None if path.normals is None else placement.rotate(path.normals)
+    return TracePolyline(points=placement.apply(path.points), s=path.s.copy(), normals=normals,
+                         slope_stretch=path.slope_stretch)
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from app.compensation.surface_fit import (ProbeRegion, SurfaceFitParams, fit_part_top, plan_probe_grid,
-                                          sample_nominal_grid)
+from app.probing.grid import ProbeRegion, plan_probe_grid
+from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top, sample_nominal_grid
 
 
 def _plane(x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -25,9 +25,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.compensation.surface_fit.errors import GridHoleError, SurfaceFitError
-from app.compensation.surface_fit.grid import HeightGrid
-from app.compensation.surface_fit.preprocess import (
+from app.reconstruction.surface_fit.errors import GridHoleError, SurfaceFitError
+from app.reconstruction.surface_fit.grid import HeightGrid
+from app.reconstruction.surface_fit.preprocess import (
     check_point_spread,
     choose_control_count,
     densify_grid,
@@ -145,7 +145,8 @@ def _signed_residuals(surface: NurbsSurface, points: np.ndarray) -> np.ndarray:
     n = surface.normal(inv.u, inv.v)
     n *= np.where(n[:, 2:3] < 0, -1.0, 1.0)
     side = np.sign(np.einsum("ij,ij->i", points - inv.closest, n))
-    return np.where(side == 0, 1.0, side) * inv.distance
+    out: np.ndarray = np.where(side == 0, 1.0, side) * inv.distance
+    return out
 
 
 def _fit_grid(grid: HeightGrid, params: SurfaceFitParams) -> tuple[NurbsSurface, tuple[int, int]]:

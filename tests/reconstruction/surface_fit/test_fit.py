@@ -7,15 +7,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.compensation.surface_fit import (
+from app.probing.grid import ProbeRegion, plan_probe_grid
+from app.reconstruction.surface_fit import (
     GridHoleError,
     HeightGrid,
-    ProbeRegion,
     SurfaceFitError,
     SurfaceFitParams,
     fit_surface,
     grid_from_plan,
-    plan_probe_grid,
 )
 from app.geometry.nurbs_surface import NurbsSurface
 

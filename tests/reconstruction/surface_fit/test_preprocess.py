@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.compensation.surface_fit.errors import SurfaceFitError
-from app.compensation.surface_fit.grid import HeightGrid
-from app.compensation.surface_fit.preprocess import (
+from app.reconstruction.surface_fit.errors import SurfaceFitError
+from app.reconstruction.surface_fit.grid import HeightGrid
+from app.reconstruction.surface_fit.preprocess import (
     densify_grid,
     fill_holes,
     find_bad_points,

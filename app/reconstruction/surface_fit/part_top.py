@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from app.compensation.surface_fit.fit import SurfaceFit, SurfaceFitParams, fit_surface
-from app.compensation.surface_fit.grid import ProbeGridPlan, grid_from_plan
 from app.geometry.drape import top_surface_z
+from app.probing.grid import ProbeGridPlan
+from app.reconstruction.surface_fit.fit import SurfaceFit, SurfaceFitParams, fit_surface
+from app.reconstruction.surface_fit.grid import grid_from_plan
 
 
 def sample_nominal_grid(mesh: trimesh.Trimesh, plan: ProbeGridPlan) -> np.ndarray:

@@ -1,8 +1,9 @@
-"""Measurement grids: the probing plan over a region and the measured height grid.
+"""Measured height grids (surface fitting's input).
 
 Layout convention: ``z[i, j]`` is the height at ``(x[i], y[j])`` (``indexing="ij"``), so
 axis 0 runs along x (the surface's u direction) and axis 1 along y (v).  Missing
-measurements are NaN.  Units: mm.
+measurements are NaN.  Units: mm.  The grid of probes that measures one is planned by
+:func:`app.probing.grid.plan_probe_grid`.
 """
 
 from __future__ import annotations
@@ -11,41 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.compensation.surface_fit.errors import SurfaceFitError
+from app.probing.grid import ProbeGridPlan
+from app.reconstruction.surface_fit.errors import SurfaceFitError
 
-__all__ = ["ProbeRegion", "ProbeGridPlan", "HeightGrid", "plan_probe_grid", "grid_from_plan"]
-
-
-@dataclass(frozen=True)
-class ProbeRegion:
-    """Axis-aligned rectangle of the part to measure (mm)."""
-
-    x_min: float
-    x_max: float
-    y_min: float
-    y_max: float
-
-    def __post_init__(self) -> None:
-        vals = (self.x_min, self.x_max, self.y_min, self.y_max)
-        if not all(np.isfinite(v) for v in vals) or not (
-                self.x_max > self.x_min and self.y_max > self.y_min):
-            raise SurfaceFitError("region needs finite x_min < x_max and y_min < y_max",
-                                  field="region", value=list(vals))
-
-
-@dataclass(frozen=True)
-class ProbeGridPlan:
-    """An nx x ny probing grid.
-
-    x: (nx,), y: (ny,) grid lines (mm); points_xy: (nx*ny, 2) probe positions in probing
-    order (serpentine: every other x column runs backwards, so travel is short);
-    index: (nx*ny, 2) the (i, j) grid cell of each probe.
-    """
-
-    x: np.ndarray
-    y: np.ndarray
-    points_xy: np.ndarray
-    index: np.ndarray
+__all__ = ["HeightGrid", "grid_from_plan"]
 
 
 @dataclass(frozen=True)
@@ -92,20 +62,6 @@ class HeightGrid:
         """(nx, ny, 3) grid of points (requires no holes)."""
         xx, yy = np.meshgrid(self.x, self.y, indexing="ij")
         return np.stack([xx, yy, self.z], axis=-1)
-
-
-def plan_probe_grid(region: ProbeRegion, nx: int, ny: int) -> ProbeGridPlan:
-    """Evenly spaced nx x ny probe grid over ``region`` (edges included), serpentine order."""
-    for name, n in (("nx", nx), ("ny", ny)):
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= 1000:
-            raise SurfaceFitError(f"{name} must be an integer in [2, 1000]",
-                                  field=f"params.{name}", value=n)
-    x = np.linspace(region.x_min, region.x_max, nx)
-    y = np.linspace(region.y_min, region.y_max, ny)
-    order = [(i, j) for i in range(nx) for j in (range(ny) if i % 2 == 0 else range(ny - 1, -1, -1))]
-    index = np.array(order, dtype=int)
-    return ProbeGridPlan(x=x, y=y, points_xy=np.column_stack([x[index[:, 0]], y[index[:, 1]]]),
-                         index=index)
 
 
 def grid_from_plan(plan: ProbeGridPlan, z_measured: np.ndarray) -> HeightGrid:

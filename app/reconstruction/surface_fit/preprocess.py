@@ -32,12 +32,12 @@ from scipy.interpolate import (
     make_smoothing_spline,
 )
 
-from app.compensation.surface_fit.errors import SurfaceFitError
-from app.compensation.surface_fit.grid import HeightGrid
-from app.compensation.surface_fit.tiles import neighbourhood_tiles
+from app.reconstruction.surface_fit.errors import SurfaceFitError
+from app.reconstruction.surface_fit.grid import HeightGrid
+from app.reconstruction.surface_fit.tiles import neighbourhood_tiles
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
-from app.geometry.tolerance import DEFAULT_TOLERANCE
+from app.geometry.tolerance import DEFAULT_TOLERANCE, DEGENERATE_LENGTH_MM, DIVISION_FLOOR
 
 __all__ = ["BadPointResult", "PointSpread", "check_point_spread", "find_bad_points",
            "choose_control_count", "square_shape",
@@ -98,7 +98,7 @@ def check_point_spread(points: np.ndarray, needed: int, *, field: str,
                               value={"distinct": distinct, "needed": needed})
     centred = xy - xy.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
-    if sv[1] <= _LINE_REL * max(sv[0], 1e-300):
+    if sv[1] <= _LINE_REL * max(sv[0], DIVISION_FLOOR):
         raise SurfaceFitError("the points lie on one line in (x, y): they span no area to "
                               "fit a surface over", field=field,
                               value={"first": xy[0], "last": xy[-1]})
@@ -152,7 +152,8 @@ def _height_design(uv: np.ndarray, size: tuple[int, int], degree: int) -> np.nda
         knots = np.concatenate([np.zeros(degree), np.linspace(0, 1, n - degree + 1),
                                 np.ones(degree)])
         mats.append(BSpline.design_matrix(np.clip(col, 0, 1), knots, degree).toarray())
-    return (mats[0][:, :, None] * mats[1][:, None, :]).reshape(uv.shape[0], -1)
+    out: np.ndarray = (mats[0][:, :, None] * mats[1][:, None, :]).reshape(uv.shape[0], -1)
+    return out
 
 
 def find_bad_points(points: np.ndarray, *, k_sigma: float = 5.0, min_mm: float = 0.01,
@@ -203,7 +204,7 @@ def _find_bad_points_tiled(pts: np.ndarray, k_sigma: float, min_mm: float,
 def _find_bad_points(pts: np.ndarray, k_sigma: float, min_mm: float,
                      degree: int, max_net: int | None = None) -> BadPointResult:
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
-    uv = (pts[:, :2] - lo) / np.maximum(hi - lo, 1e-12)
+    uv = (pts[:, :2] - lo) / np.maximum(hi - lo, DEGENERATE_LENGTH_MM)
     bad = np.zeros(pts.shape[0], dtype=bool)
     deleted, threshold = np.zeros(pts.shape[0]), float(min_mm)
     for _ in range(_ROUNDS):
@@ -241,7 +242,7 @@ def height_surface_values(points: np.ndarray, query_xy: np.ndarray, degree: int 
     through points (k,3) (query points inside the points' bounding box).
     Raises SurfaceFitError (``field``) when the fit is singular for these points."""
     lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
-    scale = np.maximum(hi - lo, 1e-12)
+    scale = np.maximum(hi - lo, DEGENERATE_LENGTH_MM)
     try:
         size = choose_control_count(points, degree, 0.0, square_shape(points.shape[0]))
         design = _height_design((points[:, :2] - lo) / scale, size, degree)
@@ -250,7 +251,8 @@ def height_surface_values(points: np.ndarray, query_xy: np.ndarray, degree: int 
         raise _solve_failed(exc, "the height surface fit", field, points.shape[0]) from None
     except GeometryError as exc:
         raise SurfaceFitError(exc.message, field=field, value=exc.value) from None
-    return _height_design((query_xy - lo) / scale, size, degree) @ coef
+    out: np.ndarray = _height_design((query_xy - lo) / scale, size, degree) @ coef
+    return out
 
 
 def fill_holes(grid: HeightGrid, degree: int = 3) -> HeightGrid:
@@ -286,7 +288,8 @@ def interpolate_heights(points: np.ndarray, query_xy: np.ndarray, *,
         try:
             rbf = RBFInterpolator(points[:, :2], points[:, 2], kernel="thin_plate_spline",
                                   degree=degree, neighbors=min(_FILL_NEIGHBOURS, n))
-            return rbf(query_xy)
+            out: np.ndarray = rbf(query_xy)
+            return out
         except np.linalg.LinAlgError as exc:
             failure = exc  # points on a cubic curve (a circle, two lines): retry linear
     raise _solve_failed(failure, "the thin-plate interpolation", field, n) from None
@@ -296,7 +299,7 @@ def _cubic_determined(points: np.ndarray) -> bool:
     """True when the (x, y) positions determine a cubic polynomial (its 10 monomials are
     independent on them; not so on a circle, two lines, a conic...)."""
     xy = points[:, :2] - points[:, :2].mean(axis=0)
-    xy = xy / max(float(np.abs(xy).max()), 1e-300)
+    xy = xy / max(float(np.abs(xy).max()), DIVISION_FLOOR)
     x, y = xy[:, 0], xy[:, 1]
     monomials = np.column_stack([x**i * y**j for i in range(4) for j in range(4 - i)])
     return bool(np.linalg.matrix_rank(monomials, tol=_LINE_REL ** 0.5) == monomials.shape[1])
@@ -356,7 +359,8 @@ def spline_smooth(coords: np.ndarray, values: np.ndarray, axis: int = 0,
     if coords.size < 5:
         raise SurfaceFitError("spline smoothing needs at least 5 points per line",
                               field="params.smoothing", value=int(coords.size))
-    return make_smoothing_spline(coords, values, lam=lam, axis=axis)(coords)
+    out: np.ndarray = make_smoothing_spline(coords, values, lam=lam, axis=axis)(coords)
+    return out
 
 
 def smooth_grid(grid: HeightGrid, method: str, *, window: int = 3, passes: int = 1,

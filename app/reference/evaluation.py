@@ -39,6 +39,7 @@ import numpy as np
 
 from app.checks import require_non_negative, require_positive
 from app.errors import InvalidInput
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = [
     "EvaluationError",
@@ -197,11 +198,12 @@ class LineWidthModel:
         h = np.atleast_1d(np.asarray(standoff_mm, dtype=float))
         hp, hs, hb = self.pile_standoff_mm, self.stretch_standoff_mm, self.break_standoff_mm
         mild = self._mild(np.clip(h, hp, hs))
-        squeezed = self._mild(hp) * hp / np.maximum(h, 1e-9)
+        squeezed = self._mild(hp) * hp / np.maximum(h, LENGTH_EPS_MM)
         drawn = self._mild(hs) * np.sqrt(np.clip((hb - h) / (hb - hs), 0.0, 1.0))
         w = np.where(h < hp, np.minimum(squeezed, self.max_width_mm),
                      np.where(h > hs, drawn, mild))
-        return w
+        out: np.ndarray = w
+        return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.problems import http_status
-from app.compensation.evaluation import (
+from app.reference.evaluation import (
     EvaluationError,
     LineWidthModel,
     evaluate_deposition,
@@ -123,7 +123,7 @@ def nominal_report(part, trace, offset_mm: float = 0.0):
 
 def test_calibration_matches_seed_table1_magnitudes():
     """Uncompensated S1 prints (+-0.15 mm machining, 0.03 mm z): widths in the seed's band."""
-    part = s1.as_made(seed=0, amplitude_mm=0.15, placement=s1.Placement(dz=0.03))
+    part = s1.as_made(seed=0, amplitude_mm=0.15, placement=s1.centred_placement(dz=0.03))
     preds = [predicted_width(nominal_report(part, t)) for t in s1.s1_traces()]
     means = np.array([p.mean_mm for p in preds]) * 1000
     stds = np.array([p.std_mm for p in preds]) * 1000
@@ -132,7 +132,7 @@ def test_calibration_matches_seed_table1_magnitudes():
 
 
 def test_table_row_and_format():
-    part = s1.as_made(seed=0, amplitude_mm=0.15, placement=s1.Placement(dz=0.03))
+    part = s1.as_made(seed=0, amplitude_mm=0.15, placement=s1.centred_placement(dz=0.03))
     trace = s1.s1_traces()[0]
     before = nominal_report(part, trace)
     flat = np.array([[[0, 0, 0.08], [32, 0, 0.08]]], float)

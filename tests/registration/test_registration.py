@@ -13,21 +13,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.problems import http_status
-from app.compensation.datum_plan import (
+from app.registration.datum_plan import (
     DatumProbeParams,
     find_edge,
     plan_datum_probes,
     register_with_z_probe,
 )
-from app.compensation.registration import (
+from app.geometry.placement import Placement, apply_placement, remove_placement
+from app.registration.registration import (
     DegenerateDatumError,
-    Placement,
     RegistrationError,
     RegistrationParams,
-    apply_placement,
     fit_placement,
     place_path,
-    remove_placement,
 )
 from app.reference import s1
 
@@ -52,13 +50,13 @@ def test_apply_remove_round_trip(dx, dy, dz, rz, px, py):
 
 
 def test_placement_matches_reference_part_convention():
-    part = s1.as_made(seed=0, placement=s1.Placement(0.08, -0.05, 0.03, 0.15))
+    part = s1.as_made(seed=0, placement=s1.centred_placement(0.08, -0.05, 0.03, 0.15))
     xy = np.random.default_rng(1).uniform(0, 40, (5, 2))
     np.testing.assert_allclose(apply_placement(xy, TRUE), part.to_machine(xy), atol=1e-12)
 
 
 def test_place_path_moves_trace_into_machine_frame():
-    part = s1.as_made(seed=0, placement=s1.Placement(0.08, -0.05, 0.03, 0.15))
+    part = s1.as_made(seed=0, placement=s1.centred_placement(0.08, -0.05, 0.03, 0.15))
     path = s1.nominal_path(s1.s1_traces()[6], 0.2)
     placed = place_path(path, TRUE)
     np.testing.assert_allclose(placed.points[:, :2], part.to_machine(path.points[:, :2]),
@@ -240,7 +238,7 @@ def test_side_faces_found_with_z_touches_recover_xy_and_rz():
     """The mock's path: edges by -Z bisection + top touches; dx, dy, rz are exact to the
     resolution although the free-form top carries +-0.15 mm machining error."""
     part = s1.as_made(seed=2, amplitude_mm=0.15,
-                      placement=s1.Placement(0.08, -0.05, 0.03, 0.15))
+                      placement=s1.centred_placement(0.08, -0.05, 0.03, 0.15))
     probe = placed_probe(part)
     edges = [find_edge(probe, (1.0, y), (-1.0, y), 4.0, resolution_mm=0.0005)
              for y in (8.0, 32.0)]
@@ -259,7 +257,7 @@ def test_side_faces_found_with_z_touches_recover_xy_and_rz():
 
 
 def test_find_edge_refuses_ends_that_do_not_straddle():
-    part = s1.as_made(seed=2, placement=s1.Placement())
+    part = s1.as_made(seed=2, placement=s1.centred_placement())
     with pytest.raises(RegistrationError):
         find_edge(placed_probe(part), (5.0, 5.0), (6.0, 5.0), 4.0)
 
@@ -305,7 +303,7 @@ def test_register_with_z_probe_within_three_sigma_with_machining_error(s1_part_m
     """1 um noise, +-0.15 mm machining error on the top: dx, dy, rz within 3 sigma (the
     walls are planar); dz within the machining error."""
     part = s1.as_made(seed=seed + 4, amplitude_mm=0.15,
-                      placement=s1.Placement(0.12, 0.09, 0.03, -0.25))
+                      placement=s1.centred_placement(0.12, 0.09, 0.03, -0.25))
     rng = np.random.default_rng(seed)
 
     def probe(x, y):
