@@ -8,7 +8,7 @@ control, resends, keepalive-aware timeouts, out-of-band emergency stop.
     link.close()
 
 Transport: ``serial.serial_for_url`` — device paths, ``socket://host:port``, ``loop://``
-and ``mock://`` (registered by ``hardware.mock``).
+and ``mock://`` (registered lazily by ``hardware.transport.open_port``).
 
 Correlation: replies between two acknowledgements belong to the oldest unacknowledged
 command.  Marlin lines are numbered and checksummed (``N<n> cmd*<xor>``); with
@@ -57,13 +57,14 @@ from collections.abc import Callable
 
 import serial
 
-from . import mock as _mock  # noqa: F401  (registers the mock:// handler)
 from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError
 from .events import ReplyEvent, StatusReport
 from .pending import CommandResult, PendingCommand
-from .protocol import check_dialect, frame, normalize_command
+from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
+from .protocol import frame, normalize_command
 from .replies import ReplyHandling
 from .reports import PositionReports
+from .transport import open_port
 
 WINDOWS = ("pingpong", "windowed")
 __all__ = ["WINDOWS", "CommandResult", "Link", "PendingCommand"]
@@ -76,7 +77,8 @@ class Link(ReplyHandling, PositionReports):
                  history: int, command_buffer: int, rx_buffer: int, poke_s: float,
                  on_event: Callable[[ReplyEvent], None] | None) -> None:
         self.port = port
-        self.dialect = dialect
+        self.rules = dialect_rules(dialect)  # what this firmware does (hardware.dialects)
+        self.dialect = self.rules.name
         self.timeout_s = timeout_s
         self.window = window
         self.mode = window
@@ -114,7 +116,7 @@ class Link(ReplyHandling, PositionReports):
 
     # ------------------------------------------------------------------ opening
     @classmethod
-    def open(cls, url: str, *, baudrate: int = 115200, dialect: str = "marlin",
+    def open(cls, url: str, *, baudrate: int = 115200, dialect: str = DEFAULT_DIALECT,
              timeout_s: float = 30.0, window: str = "windowed", history: int = 1024,
              command_buffer: int = 4, rx_buffer: int = 128, poke_s: float = 2.5,
              on_event: Callable[[ReplyEvent], None] | None = None) -> Link:
@@ -125,7 +127,7 @@ class Link(ReplyHandling, PositionReports):
         and receive buffer in bytes, the windowed limits.  ``on_event(event)`` sees every
         parsed reply on the reader thread with the link locked: keep it quick and never
         call the link from it."""
-        check_dialect(dialect)
+        dialect_rules(dialect)
         if window not in WINDOWS:
             raise InvalidConfig(f"unknown window mode {window!r}; expected pingpong or windowed",
                                 field="window", value=str(window)[:40])
@@ -137,7 +139,7 @@ class Link(ReplyHandling, PositionReports):
         try:
             # exclusive: a device is one machine; a second opener (another record, another
             # process) is refused instead of interleaving its bytes (POSIX flock)
-            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.01, write_timeout=5,
+            port = open_port(url, baudrate=baudrate, timeout=0.01, write_timeout=5,
                                          exclusive=True)
         except InvalidConfig:
             raise
@@ -160,7 +162,7 @@ class Link(ReplyHandling, PositionReports):
         if text is None:
             raise InvalidConfig("empty command", field="command", value=command[:60])
         with self._cond:
-            nbytes = len(text) + 1 if self.dialect == "grbl" else len(text) + 16
+            nbytes = self.rules.line_bytes(text)
             if nbytes > self.rx_buffer - 1:
                 raise InvalidConfig(f"line longer than the controller's {self.rx_buffer}-byte "
                                     "buffer", field="command", value=text[:60])
@@ -183,7 +185,7 @@ class Link(ReplyHandling, PositionReports):
         if self.mode == "pingpong":
             return False
         in_flight = sum(len(p.data) for p in outstanding)
-        if self.dialect == "grbl":
+        if self.rules.window == "bytes":  # grbl: character counting
             return in_flight + nbytes <= self.rx_buffer - 1
         # Marlin: free command slots, and never more bytes than its RX buffer holds (it
         # stops reading serial while a command blocks, e.g. on a full planner)
@@ -207,7 +209,7 @@ class Link(ReplyHandling, PositionReports):
         """Block until ``command`` would be sent at once (window open), without sending:
         a streamer checks the answers so far before committing the next line."""
         text = normalize_command(command) or ""
-        nbytes = len(text) + 1 if self.dialect == "grbl" else len(text) + 16
+        nbytes = self.rules.line_bytes(text)
         with self._cond:
             while not self._window_open(nbytes):
                 self._check_fatal()
@@ -221,7 +223,7 @@ class Link(ReplyHandling, PositionReports):
                 self.rx_buffer = size
 
     def _transmit_new(self, text: str, internal: bool = False) -> PendingCommand:
-        if self.dialect == "marlin":
+        if self.rules.line_numbers:
             line_no = self._next_line
             self._next_line += 1
             data = (frame(line_no, text) + "\n").encode("utf-8")
@@ -267,7 +269,7 @@ class Link(ReplyHandling, PositionReports):
         same lock), then the stop byte is written, so not one byte of the program follows
         it on the wire.  Sent whatever state the link is in (the firmware decides); only a
         dead port makes it fail (``LinkError``).  Reconnect to talk to the machine again."""
-        data = b"M112\n" if self.dialect == "marlin" else b"\x18"
+        data = self.rules.estop_bytes
         with self._cond:
             self._set_fatal(FirmwareError("emergency stop", command="emergency_stop"))
             self.stats["emergency_stops"] = self.stats.get("emergency_stops", 0) + 1
@@ -288,7 +290,7 @@ class Link(ReplyHandling, PositionReports):
 
     def reset_line_numbers(self, next_line: int = 1) -> CommandResult | None:
         """Marlin: ``M110 N<next_line-1>`` so numbering restarts (no-op for grbl)."""
-        if self.dialect != "marlin":
+        if not self.rules.line_numbers:
             return None
         with self._cond:
             while self._outstanding and self._fatal is None:

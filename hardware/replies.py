@@ -19,7 +19,7 @@ class ReplyHandling:
     """Mixin: the reader side of the link (state lives in ``Link.__init__``)."""
 
     def _handle(self, line: str) -> None:
-        event = parse_reply(line, self.dialect)
+        event = parse_reply(line, self.rules.name)
         now = time.monotonic()
         if not isinstance(event, Unknown):  # noise and echoes are no sign of life
             self._last_rx = now
@@ -31,7 +31,7 @@ class ReplyHandling:
                 self.on_event(event)
             except Exception:  # an observer must never break the link
                 pass
-        if self.dialect == "marlin" and self._on_position_line(event):
+        if self.rules.request_queued and self._on_position_line(event):
             return  # the S_XYZ line after an S000 answer (hardware.reports)
         if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
             self._answered = True
@@ -56,10 +56,10 @@ class ReplyHandling:
             self._on_banner(event)
         elif isinstance(event, StatusReport):
             self._on_status(event)
-        elif self.dialect == "grbl" and isinstance(event, Feedback) and event.tag == "GC":
+        elif self.rules.parser_marker and isinstance(event, Feedback) and event.tag == "GC":
             self._on_parser_state(event)
         elif self._outstanding:
-            if isinstance(event, Message) and self.dialect == "grbl":
+            if isinstance(event, Message) and self.rules.announced_resets:
                 self._expect_reset_after(event)
             self._outstanding[0].replies.append(event)
         elif event.raw.strip():
@@ -95,14 +95,14 @@ class ReplyHandling:
             return
         if swallow:  # Marlin 1.x/2.1 follow "Resend: n" with an ok (2.0.x does not)
             return
-        if self.dialect == "marlin":
+        if self.rules.request_queued:
             self._on_plain_ok(event.extra)
         if not self._outstanding:
             self.unsolicited.append(event)
             return
-        if self.dialect == "marlin" and self._n_ok and self._outstanding[0].command != "M105":
+        if self.rules.line_numbers and self._n_ok and self._outstanding[0].command != "M105":
             return  # stray plain ok while the firmware speaks ADVANCED_OK
-        if self.dialect == "marlin" and not self._n_ok and self.mode == "windowed" \
+        if self.rules.line_numbers and not self._n_ok and self.mode == "windowed" \
                 and len(self._outstanding) > 1:
             self._fallback("firmware acknowledges without line numbers (no ADVANCED_OK)")
         self._outstanding[0].replies.append(event)
@@ -169,7 +169,7 @@ class ReplyHandling:
             return
         head = self._outstanding[0]
         head.replies.append(event)
-        if self.dialect == "marlin":
+        if self.rules.ok_after_error:
             head.error_event = event  # Marlin still sends ok for this command
             return
         # grbl answers every line once, in order: a rejected line desynchronises nothing.
@@ -225,7 +225,7 @@ class ReplyHandling:
         command sent before the oldest outstanding ``$G`` was answered: their lost oks
         are taken as received (status ``assumed``)."""
         marker = next((p for p in self._outstanding if not _has_parser_state(p)
-                       and p.command.upper().replace(" ", "") == "$G"), None)
+                       and p.command.upper().replace(" ", "") == self.rules.parser_marker), None)
         now = time.monotonic()
         while marker is not None and self._outstanding and self._outstanding[0] is not marker:
             self.stats["assumed_ok"] += 1
@@ -256,7 +256,7 @@ class ReplyHandling:
                 room = now - self._last_answer > self._dwell_budget_s() + 4 * self._poke_s \
                     and seen_at > self._last_answer
         if room:
-            marker = self._transmit_new("$G", internal=True)
+            marker = self._transmit_new(self.rules.parser_marker, internal=True)
             marker.marker = True
 
     def _dwell_budget_s(self) -> float:
@@ -287,9 +287,9 @@ class ReplyHandling:
         self._last_ack = now
         self._pokes_in_row += 1
         self.stats["pokes"] += 1
-        if self._pokes_in_row >= 3 and self.mode == "windowed" and self.dialect == "marlin":
+        if self._pokes_in_row >= 3 and self.mode == "windowed" and self.rules.line_numbers:
             self._fallback("repeated stalls")
-        if self.dialect == "grbl":
+        if self.rules.parser_marker is not None:
             self._grbl_poke(now)
             return
         if all(p.accepted for p in self._outstanding):

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 from .events import PositionReport, ReplyEvent, StatusReport
 
-MARLIN_REQUEST = b"S000\n"
 MARLIN_MAX_PENDING = 16  # S000 lines that may wait in Marlin's receive buffer at once
 
 
@@ -84,19 +83,20 @@ class PositionReports:
             return
         if time.monotonic() - self._last_ask < self.report_interval_s:
             return
-        if self.dialect == "grbl":
+        request = self.rules.position_request
+        if not self.rules.request_queued:  # a real-time byte (grbl ?): always answered
             self._note_ask()
-            self._write(b"?")
+            self._write(request)
         elif self.realtime_reports and self._rt_pending < MARLIN_MAX_PENDING \
                 and sum(len(p.data) for p in self._outstanding) + self._reserved_bytes() \
-                + len(MARLIN_REQUEST) <= self.rx_buffer - 1:
+                + len(request) <= self.rx_buffer - 1:
             self._note_ask()
             self._rt_pending += 1
-            self._write(MARLIN_REQUEST)
+            self._write(request)
 
     def _reserved_bytes(self) -> int:
         """Marlin receive-buffer bytes taken by S000 lines not yet acknowledged."""
-        return len(MARLIN_REQUEST) * self._rt_pending
+        return len(self.rules.position_request) * self._rt_pending
 
     # ------------------------------------------------------------------ replies
     def _on_status_position(self, event: StatusReport) -> None:
@@ -156,14 +156,14 @@ class PositionReports:
         ``ok``; True when the firmware answered with a position (REALTIME_REPORTING_COMMANDS).
         A firmware without it answers ``Unknown command`` and ``ok``.  Not locked by the
         caller."""
-        if self.dialect != "marlin":
+        if not self.rules.request_queued:
             return False
         with self._cond:
             self._check_fatal()
             before = self._reported
             self._note_ask()
             self._rt_pending += 1
-            self._write(MARLIN_REQUEST)
+            self._write(self.rules.position_request)
             deadline = time.monotonic() + timeout_s
             while (self._rt_pending > 0 or self._reported == before) and time.monotonic() < deadline:
                 self._check_fatal()
