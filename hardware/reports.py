@@ -1,5 +1,6 @@
-"""Position reports during streaming (a mixin of ``hardware.link.Link``): where motion
-really is, asked for at a bounded rate by the reader thread, so that after a controller
+"""Position reports during streaming (a mixin of ``hardware.session.ReplySession``, pure:
+every method takes ``now``): where motion really is, asked for at a bounded rate while the
+reader thread ticks the session, so that after a controller
 reset the host knows how far the tool got (``hardware.resume.locate_by_report``).
 
 * grbl: the real-time ``?`` status report (``MPos`` or ``WPos`` per ``$10``; ``WCO`` turns
@@ -17,19 +18,19 @@ reset the host knows how far the tool got (``hardware.resume.locate_by_report``)
   (``report_current_position_projected``): evidence of planning, like ``ok``, not of
   motion, so they are not used.
 
-Every request is a real-time write under the link's lock, refused once the link failed or
-was emergency-stopped (``_write``): a report never follows the stop on the wire, and the
+Every request is a ``Write`` action the link applies under its lock, never emitted once the
+session failed or was emergency-stopped (``_write``): a report never follows the stop on the wire, and the
 stop never waits for more than one such write.  Requests and reports are counted: the
 n-th report answers the n-th request or a later one (a request lost on the wire is never
 answered), so ``asked_at`` of a report is a time at or before the moment it was made."""
 
 from __future__ import annotations
 
-import time
 from collections import deque
 from dataclasses import dataclass
 
 from .events import PositionReport, ReplyEvent, StatusReport
+from .session_types import Position
 
 MARLIN_MAX_PENDING = 16  # S000 lines that may wait in Marlin's receive buffer at once
 
@@ -48,60 +49,72 @@ class PositionMark:
 
 
 class PositionReports:
-    """Mixin of ``Link``; every method runs with the link's condition held unless said."""
+    """Mixin of ``ReplySession``; pure (times are the ``now`` arguments)."""
 
     def _reports_init(self) -> None:
         self.position_marks: deque[PositionMark] = deque(maxlen=64)
         self.report_interval_s = 0.0  # > 0: the reader asks this often (Machine.stream sets it)
-        self.realtime_reports = False  # Marlin: S000 answered (probe_realtime_reports)
-        self.failed_at: float | None = None  # host time the link became fatal
+        self.realtime_reports = False  # Marlin: S000 answered (Link.probe_realtime_reports)
         self._asks: deque[float] = deque(maxlen=4096)
         self._asked = 0  # requests written since the link opened
-        self._reported = 0  # reports received
+        self.reported = 0  # reports received
         self._last_ask = 0.0
-        self._rt_pending = 0  # Marlin S000 lines not yet acknowledged by the queue
+        self.rt_pending = 0  # Marlin S000 lines not yet acknowledged by the queue
         self._wco: tuple[float, ...] | None = None
         self._candidate: tuple[PositionReport, list | None] | None = None
 
-    def _note_ask(self) -> None:
-        now = time.monotonic()
+    def _note_ask(self, now: float) -> None:
         self._asked += 1
         self._asks.append(now)
         self._last_ask = now
 
-    def _report_asked_at(self) -> float:
+    def _report_asked_at(self, now: float) -> float:
         """A time at or before the report being received now was made (see module)."""
         lost = self._asked - len(self._asks)  # requests older than the kept times
-        index = self._reported - 1 - lost
+        index = self.reported - 1 - lost
         if 0 <= index < len(self._asks):
             return self._asks[index]
-        return self._asks[0] if self._asks else time.monotonic()
+        return self._asks[0] if self._asks else now
 
-    def _poll_reports(self) -> None:
-        """Reader thread: ask for a position when the interval has passed."""
-        if self.report_interval_s <= 0 or self._fatal is not None or self._closed:
-            return
-        if time.monotonic() - self._last_ask < self.report_interval_s:
-            return
+    def ask_status(self, now: float) -> list:
+        """Ask for one real-time report (grbl ``?``; dialects whose request is not queued)."""
+        self._note_ask(now)
+        self._write(self.rules.position_request, "report")
+        return self._take()
+
+    def ask_queued_report(self, now: float) -> list:
+        """Marlin: one ``S000`` (it is also acknowledged by a plain ``ok``)."""
+        self._note_ask(now)
+        self.rt_pending += 1
+        self._write(self.rules.position_request, "report")
+        return self._take()
+
+    def poll_reports(self, now: float) -> list:
+        """Reader tick: ask for a position when ``report_interval_s`` has passed."""
+        if self.report_interval_s <= 0 or self.fatal is not None:
+            return self._take()
+        if now - self._last_ask < self.report_interval_s:
+            return self._take()
         request = self.rules.position_request
         if not self.rules.request_queued:  # a real-time byte (grbl ?): always answered
-            self._note_ask()
-            self._write(request)
-        elif self.realtime_reports and self._rt_pending < MARLIN_MAX_PENDING \
-                and sum(len(p.data) for p in self._outstanding) + self._reserved_bytes() \
+            self._note_ask(now)
+            self._write(request, "report")
+        elif self.realtime_reports and self.rt_pending < MARLIN_MAX_PENDING \
+                and sum(len(p.data) for p in self.outstanding) + self._reserved_bytes() \
                 + len(request) <= self.rx_buffer - 1:
-            self._note_ask()
-            self._rt_pending += 1
-            self._write(request)
+            self._note_ask(now)
+            self.rt_pending += 1
+            self._write(request, "report")
+        return self._take()
 
     def _reserved_bytes(self) -> int:
         """Marlin receive-buffer bytes taken by S000 lines not yet acknowledged."""
-        return len(self.rules.position_request) * self._rt_pending
+        return len(self.rules.position_request) * self.rt_pending
 
     # ------------------------------------------------------------------ replies
-    def _on_status_position(self, event: StatusReport) -> None:
+    def _on_status_position(self, event: StatusReport, now: float) -> None:
         """grbl: a status report is a position report (WPos, or MPos - WCO)."""
-        self._reported += 1
+        self.reported += 1
         wco = event.fields.get("WCO")
         if wco:
             try:
@@ -116,19 +129,19 @@ class PositionReports:
         else:
             return
         state = event.state.split(":")[0]
-        self._mark(position, state != "Idle")
+        self._mark(position, now, state != "Idle")
 
-    def _on_position_line(self, event: ReplyEvent) -> bool:
+    def _on_position_line(self, event: ReplyEvent, now: float) -> bool:
         """Marlin: remember a position line (it may be an S000 answer, confirmed by the
         ``S_XYZ:`` line after it); True when ``event`` was that confirmation (consumed)."""
         if isinstance(event, PositionReport):
-            head = self._outstanding[0].replies if self._outstanding else None
+            head = self.outstanding[0].replies if self.outstanding else None
             self._candidate = (event, head)
             return False
         if not event.raw.startswith("S_XYZ:"):
             return False
         candidate, self._candidate = self._candidate, None
-        self._reported += 1
+        self.reported += 1
         state = event.raw[len("S_XYZ:"):].strip()
         if candidate is not None:
             report, replies = candidate
@@ -136,39 +149,17 @@ class PositionReports:
                 replies.remove(report)  # not the answer of the command in flight
             axes = report.axes
             if all(a in axes for a in "XYZ"):  # M_IDLE 3; anything else may move
-                self._mark((axes["X"], axes["Y"], axes["Z"]), state != "3")
+                self._mark((axes["X"], axes["Y"], axes["Z"]), now, state != "3")
         return True
 
     def _on_plain_ok(self, extra: str) -> None:
         """Marlin: a plain ``ok`` (no line number) may acknowledge an S000 line."""
-        if self._rt_pending > 0 and not extra.startswith("T:"):
-            self._rt_pending -= 1
+        if self.rt_pending > 0 and not extra.startswith("T:"):
+            self.rt_pending -= 1
 
-    def _mark(self, position: tuple[float, ...], moving: bool | None = None) -> None:
+    def _mark(self, position: tuple[float, ...], now: float, moving: bool | None = None) -> None:
         xyz = tuple(float(v) for v in position[:3])
         if len(xyz) == 3:
-            self.position_marks.append(PositionMark(xyz, self._completed, self._report_asked_at(),  # type: ignore[arg-type]
-                                                    time.monotonic(), moving))
-
-    # ------------------------------------------------------------------ connect-time probe
-    def probe_realtime_reports(self, timeout_s: float = 1.0) -> bool:
-        """Marlin, idle, after ``M115``: send one ``S000`` and wait for its answer and its
-        ``ok``; True when the firmware answered with a position (REALTIME_REPORTING_COMMANDS).
-        A firmware without it answers ``Unknown command`` and ``ok``.  Not locked by the
-        caller."""
-        if not self.rules.request_queued:
-            return False
-        with self._cond:
-            self._check_fatal()
-            before = self._reported
-            self._note_ask()
-            self._rt_pending += 1
-            self._write(self.rules.position_request)
-            deadline = time.monotonic() + timeout_s
-            while (self._rt_pending > 0 or self._reported == before) and time.monotonic() < deadline:
-                self._check_fatal()
-                if self._rt_pending == 0 and self._reported == before:
-                    break  # acknowledged without an answer: not supported
-                self._cond.wait(0.02)
-            self.realtime_reports = self._reported > before
-            return self.realtime_reports
+            mark = PositionMark(xyz, self.completed, self._report_asked_at(now), now, moving)  # type: ignore[arg-type]
+            self.position_marks.append(mark)
+            self._actions.append(Position(mark))
