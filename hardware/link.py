@@ -61,7 +61,7 @@ from collections.abc import Callable
 import serial
 
 from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
-from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError
+from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError, ProtocolError
 from .events import ReplyEvent, StatusReport
 from .pending import CommandResult, PendingCommand
 from .protocol import normalize_command
@@ -165,20 +165,20 @@ class Link:
 
     @property
     def position_marks(self) -> deque[PositionMark]:
-        return self.session.position_marks
+        return self.session.reports.marks
 
     @property
     def report_interval_s(self) -> float:
-        return self.session.report_interval_s
+        return self.session.reports.interval_s
 
     @report_interval_s.setter
     def report_interval_s(self, value: float) -> None:
         with self._cond:
-            self.session.report_interval_s = value
+            self.session.reports.interval_s = value
 
     @property
     def realtime_reports(self) -> bool:
-        return self.session.realtime_reports
+        return self.session.reports.realtime
 
     @property
     def failed_at(self) -> float | None:
@@ -330,6 +330,9 @@ class Link:
             self.session.next_line = expected_next
             pending = self._submit("M114", internal=True, sync=True)
         outcome = pending.result(self.timeout_s)
+        if outcome.line_no is None:
+            raise ProtocolError("the line-number query came back without a line number",
+                                field="line_no")
         return outcome.line_no - 1
 
     # ------------------------------------------------------------------ reader
@@ -399,19 +402,19 @@ class Link:
         ``hardware.reports``).  A firmware without it answers ``Unknown command`` and ``ok``."""
         if not self.rules.request_queued:
             return False
-        session = self.session
+        reports = self.session.reports
         with self._cond:
             self._check_fatal()
-            before = session.reported
-            self._apply(session.ask_queued_report(time.monotonic()))
+            before = reports.reported
+            self._apply(self.session.ask_queued_report(time.monotonic()))
             deadline = time.monotonic() + timeout_s
-            while (session.rt_pending > 0 or session.reported == before) and time.monotonic() < deadline:
+            while (reports.rt_pending > 0 or reports.reported == before) and time.monotonic() < deadline:
                 self._check_fatal()
-                if session.rt_pending == 0 and session.reported == before:
+                if reports.rt_pending == 0 and reports.reported == before:
                     break  # acknowledged without an answer: not supported
                 self._cond.wait(0.02)
-            session.realtime_reports = session.reported > before
-            return session.realtime_reports
+            reports.realtime = reports.reported > before
+            return reports.realtime
 
     # ------------------------------------------------------------------ misc
     @property

@@ -202,9 +202,14 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
     def _run(self, commands: Iterable[str]) -> list[CommandResult]:
         return [self.link.send(c, self.timeout_s * 10) for c in commands]
 
+    @property
+    def home_command(self) -> str:
+        """What ``home`` sends: the profile's command, else the dialect's (G28 / $H)."""
+        return self.profile.home_command or self.rules.home_command
+
     def home(self) -> tuple[float, float, float]:
         """Home all axes; returns the position afterwards."""
-        command = self.profile.home_command or self.rules.home_command
+        command = self.home_command
         self._claim("busy")
         try:
             try:

@@ -1,5 +1,5 @@
-"""Position reports during streaming (a mixin of ``hardware.session.ReplySession``, pure:
-every method takes ``now``): where motion really is, asked for at a bounded rate while the
+"""Position reports during streaming (``PositionTracker``, owned by
+``hardware.session.ReplySession``; pure: every method takes ``now``): where motion really is, asked for at a bounded rate while the
 reader thread ticks the session, so that after a controller
 reset the host knows how far the tool got (``hardware.resume.locate_by_report``).
 
@@ -29,8 +29,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+from .dialects import Dialect
 from .events import PositionReport, ReplyEvent, StatusReport
-from .session_types import Position
 
 MARLIN_MAX_PENDING = 16  # S000 lines that may wait in Marlin's receive buffer at once
 
@@ -48,27 +48,58 @@ class PositionMark:
     moving: bool | None = None  # the controller's state said so (grbl Run/Jog/Home, Marlin S_XYZ:5)
 
 
-class PositionReports:
-    """Mixin of ``ReplySession``; pure (times are the ``now`` arguments)."""
+class PositionTracker:
+    """Requests and reports of the real position (see module).  ``marks``: the last 64
+    reports; ``interval_s`` > 0: ``poll`` asks this often (``Machine.stream`` sets it);
+    ``realtime``: Marlin answered ``S000`` (``Link.probe_realtime_reports``); ``reported``:
+    reports received; ``rt_pending``: Marlin ``S000`` lines not yet acknowledged."""
 
-    def _reports_init(self) -> None:
-        self.position_marks: deque[PositionMark] = deque(maxlen=64)
-        self.report_interval_s = 0.0  # > 0: the reader asks this often (Machine.stream sets it)
-        self.realtime_reports = False  # Marlin: S000 answered (Link.probe_realtime_reports)
+    def __init__(self, rules: Dialect) -> None:
+        self.rules = rules
+        self.marks: deque[PositionMark] = deque(maxlen=64)
+        self.interval_s = 0.0
+        self.realtime = False
+        self.reported = 0
+        self.rt_pending = 0
         self._asks: deque[float] = deque(maxlen=4096)
         self._asked = 0  # requests written since the link opened
-        self.reported = 0  # reports received
         self._last_ask = 0.0
-        self.rt_pending = 0  # Marlin S000 lines not yet acknowledged by the queue
         self._wco: tuple[float, ...] | None = None
-        self._candidate: tuple[PositionReport, list | None] | None = None
+        self._candidate: tuple[PositionReport, list[ReplyEvent] | None] | None = None
 
-    def _note_ask(self, now: float) -> None:
+    # ------------------------------------------------------------------ requests
+    def ask(self, now: float, *, queued: bool = False) -> bytes:
+        """Note a request made at ``now`` and return its bytes (``queued``: Marlin
+        ``S000``, which its queue acknowledges later with a plain ``ok``)."""
         self._asked += 1
         self._asks.append(now)
         self._last_ask = now
+        if queued:
+            self.rt_pending += 1
+        return self.rules.position_request
 
-    def _report_asked_at(self, now: float) -> float:
+    def poll(self, now: float, in_flight_bytes: int, rx_buffer: int) -> bytes | None:
+        """The request to write now (``interval_s`` has passed and, for a queued request,
+        its bytes fit the controller's receive buffer beside ``in_flight_bytes``), or None."""
+        if self.interval_s <= 0 or now - self._last_ask < self.interval_s:
+            return None
+        request = self.rules.position_request
+        if not self.rules.request_queued:  # a real-time byte (grbl ?): always answered
+            return self.ask(now)
+        if self.realtime and self.rt_pending < MARLIN_MAX_PENDING \
+                and in_flight_bytes + self.reserved_bytes() + len(request) <= rx_buffer - 1:
+            return self.ask(now, queued=True)
+        return None
+
+    def reserved_bytes(self) -> int:
+        """Marlin receive-buffer bytes taken by S000 lines not yet acknowledged."""
+        return len(self.rules.position_request) * self.rt_pending if self.rules.request_queued else 0
+
+    def flushed(self) -> None:
+        """Marlin answered ``Resend``: it flushed its receive buffer, S000 lines with it."""
+        self.rt_pending = 0
+
+    def _asked_at(self, now: float) -> float:
         """A time at or before the report being received now was made (see module)."""
         lost = self._asked - len(self._asks)  # requests older than the kept times
         index = self.reported - 1 - lost
@@ -76,43 +107,8 @@ class PositionReports:
             return self._asks[index]
         return self._asks[0] if self._asks else now
 
-    def ask_status(self, now: float) -> list:
-        """Ask for one real-time report (grbl ``?``; dialects whose request is not queued)."""
-        self._note_ask(now)
-        self._write(self.rules.position_request, "report")
-        return self._take()
-
-    def ask_queued_report(self, now: float) -> list:
-        """Marlin: one ``S000`` (it is also acknowledged by a plain ``ok``)."""
-        self._note_ask(now)
-        self.rt_pending += 1
-        self._write(self.rules.position_request, "report")
-        return self._take()
-
-    def poll_reports(self, now: float) -> list:
-        """Reader tick: ask for a position when ``report_interval_s`` has passed."""
-        if self.report_interval_s <= 0 or self.fatal is not None:
-            return self._take()
-        if now - self._last_ask < self.report_interval_s:
-            return self._take()
-        request = self.rules.position_request
-        if not self.rules.request_queued:  # a real-time byte (grbl ?): always answered
-            self._note_ask(now)
-            self._write(request, "report")
-        elif self.realtime_reports and self.rt_pending < MARLIN_MAX_PENDING \
-                and sum(len(p.data) for p in self.outstanding) + self._reserved_bytes() \
-                + len(request) <= self.rx_buffer - 1:
-            self._note_ask(now)
-            self.rt_pending += 1
-            self._write(request, "report")
-        return self._take()
-
-    def _reserved_bytes(self) -> int:
-        """Marlin receive-buffer bytes taken by S000 lines not yet acknowledged."""
-        return len(self.rules.position_request) * self.rt_pending
-
     # ------------------------------------------------------------------ replies
-    def _on_status_position(self, event: StatusReport, now: float) -> None:
+    def on_status(self, event: StatusReport, now: float, completed: int) -> PositionMark | None:
         """grbl: a status report is a position report (WPos, or MPos - WCO)."""
         self.reported += 1
         wco = event.fields.get("WCO")
@@ -122,44 +118,49 @@ class PositionReports:
             except ValueError:
                 pass
         if event.wpos is not None:
-            position = event.wpos
+            position: tuple[float, ...] = tuple(event.wpos)
         elif event.mpos is not None:
             offset = self._wco or (0.0, 0.0, 0.0)
             position = tuple(m - o for m, o in zip(event.mpos, offset))
         else:
-            return
+            return None
         state = event.state.split(":")[0]
-        self._mark(position, now, state != "Idle")
+        return self._mark(position, now, completed, state != "Idle")
 
-    def _on_position_line(self, event: ReplyEvent, now: float) -> bool:
+    def on_position_line(self, event: ReplyEvent, now: float, head: list[ReplyEvent] | None,
+                         completed: int) -> tuple[bool, PositionMark | None]:
         """Marlin: remember a position line (it may be an S000 answer, confirmed by the
-        ``S_XYZ:`` line after it); True when ``event`` was that confirmation (consumed)."""
+        ``S_XYZ:`` line after it; ``head``: the replies of the command in flight, where
+        the line went meanwhile).  Returns (consumed, mark): consumed when ``event`` was
+        that confirmation."""
         if isinstance(event, PositionReport):
-            head = self.outstanding[0].replies if self.outstanding else None
             self._candidate = (event, head)
-            return False
+            return False, None
         if not event.raw.startswith("S_XYZ:"):
-            return False
+            return False, None
         candidate, self._candidate = self._candidate, None
         self.reported += 1
         state = event.raw[len("S_XYZ:"):].strip()
-        if candidate is not None:
-            report, replies = candidate
-            if replies is not None and report in replies:
-                replies.remove(report)  # not the answer of the command in flight
-            axes = report.axes
-            if all(a in axes for a in "XYZ"):  # M_IDLE 3; anything else may move
-                self._mark((axes["X"], axes["Y"], axes["Z"]), now, state != "3")
-        return True
+        if candidate is None:
+            return True, None
+        report, replies = candidate
+        if replies is not None and report in replies:
+            replies.remove(report)  # not the answer of the command in flight
+        axes = report.axes
+        if not all(a in axes for a in "XYZ"):
+            return True, None
+        return True, self._mark((axes["X"], axes["Y"], axes["Z"]), now, completed, state != "3")  # M_IDLE 3
 
-    def _on_plain_ok(self, extra: str) -> None:
+    def on_plain_ok(self, extra: str) -> None:
         """Marlin: a plain ``ok`` (no line number) may acknowledge an S000 line."""
         if self.rt_pending > 0 and not extra.startswith("T:"):
             self.rt_pending -= 1
 
-    def _mark(self, position: tuple[float, ...], now: float, moving: bool | None = None) -> None:
-        xyz = tuple(float(v) for v in position[:3])
-        if len(xyz) == 3:
-            mark = PositionMark(xyz, self.completed, self._report_asked_at(now), now, moving)  # type: ignore[arg-type]
-            self.position_marks.append(mark)
-            self._actions.append(Position(mark))
+    def _mark(self, position: tuple[float, ...], now: float, completed: int,
+              moving: bool | None) -> PositionMark | None:
+        if len(position) < 3:
+            return None
+        x, y, z = (float(v) for v in position[:3])
+        mark = PositionMark((x, y, z), completed, self._asked_at(now), now, moving)
+        self.marks.append(mark)
+        return mark

@@ -26,14 +26,14 @@ from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, Prot
 from .events import (Alarm, Busy, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
                      ReplyEvent, Resend, StartBanner, StatusReport, Unknown)
 from .protocol import frame, parse_reply
-from .reports import PositionReports
-from .session_types import Action, Command, Complete, Halt, Observed, Write
+from .reports import PositionMark, PositionTracker
+from .session_types import Action, Command, Complete, Halt, Observed, Position, Write
 
 WINDOWS = ("pingpong", "windowed")
 RESET_BANNER_WAIT_S = 5.0  # how long an announced grbl reset may take to show its banner
 
 
-class ReplySession(PositionReports):
+class ReplySession:
     """See the module docstring.  ``window``: ``pingpong`` or ``windowed``; ``history``:
     numbered lines kept for resends; ``command_buffer``/``rx_buffer``: the controller's
     command slots and receive bytes; ``poke_s``: the first stall poke (s); ``timeout_s``:
@@ -76,7 +76,7 @@ class ReplySession(PositionReports):
         self._pokes_in_row = 0
         self._expect_banner_until: float | None = None
         self._actions: list[Action] = []
-        self._reports_init()
+        self.reports = PositionTracker(rules)
 
     # ------------------------------------------------------------------ actions
     def _take(self) -> list[Action]:
@@ -150,7 +150,7 @@ class ReplySession(PositionReports):
         # Marlin: free command slots, and never more bytes than its RX buffer holds (it
         # stops reading serial while a command blocks, e.g. on a full planner)
         return len(outstanding) < self.command_buffer \
-            and in_flight + nbytes + self._reserved_bytes() <= self.rx_buffer - 1
+            and in_flight + nbytes + self.reports.reserved_bytes() <= self.rx_buffer - 1
 
     def awaiting_reset(self, now: float) -> bool:
         """True while a reset the firmware announced has not shown its banner yet."""
@@ -188,8 +188,12 @@ class ReplySession(PositionReports):
             self.unsolicited.append(event)
             return self._take()
         self._actions.append(Observed(event))
-        if self.rules.request_queued and self._on_position_line(event, now):
-            return self._take()  # the S_XYZ line after an S000 answer (hardware.reports)
+        if self.rules.request_queued:
+            head = self.outstanding[0].replies if self.outstanding else None
+            consumed, mark = self.reports.on_position_line(event, now, head, self.completed)
+            self._positioned(mark)
+            if consumed:
+                return self._take()  # the S_XYZ line after an S000 answer (hardware.reports)
         if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
             self._answered = True
         swallow, self._swallow = self._swallow, False
@@ -255,7 +259,7 @@ class ReplySession(PositionReports):
         if swallow:  # Marlin 1.x/2.1 follow "Resend: n" with an ok (2.0.x does not)
             return
         if self.rules.request_queued:
-            self._on_plain_ok(event.extra)
+            self.reports.on_plain_ok(event.extra)
         if not self.outstanding:
             self.unsolicited.append(event)
             return
@@ -269,7 +273,7 @@ class ReplySession(PositionReports):
 
     def _on_resend(self, line: int, now: float) -> None:
         self._swallow = True
-        self.rt_pending = 0  # Marlin flushed its receive buffer, S000 lines with it (hardware.reports)
+        self.reports.flushed()
         head = self.outstanding[0] if self.outstanding else None
         if head is not None and head.sync:
             # sync probe answered "Line Number is not Last Line Number+1": adopt the number
@@ -369,7 +373,7 @@ class ReplySession(PositionReports):
         self.unsolicited.append(event)
         # which commands were answered when grbl made this report (see Link.status_marks)
         self.status_marks.append((event, self.completed, now))
-        self._on_status_position(event, now)
+        self._positioned(self.reports.on_status(event, now, self.completed))
         # No lost-ok inference here: grbl reports Idle with an empty RX buffer while it
         # dwells, so only the $G marker (below) proves that answers were lost.
 
@@ -391,6 +395,29 @@ class ReplySession(PositionReports):
             self._complete_head("error" if error else "assumed", now, error)
         if marker is not None:
             marker.replies.append(event)
+
+    # ------------------------------------------------------------------ position reports
+    def _positioned(self, mark: PositionMark | None) -> None:
+        if mark is not None:
+            self._actions.append(Position(mark))
+
+    def ask_status(self, now: float) -> list[Action]:
+        """Ask for one real-time report (grbl ``?``; dialects whose request is not queued)."""
+        self._write(self.reports.ask(now), "report")
+        return self._take()
+
+    def ask_queued_report(self, now: float) -> list[Action]:
+        """Marlin: one ``S000`` (also acknowledged later by a plain ``ok``)."""
+        self._write(self.reports.ask(now, queued=True), "report")
+        return self._take()
+
+    def poll_reports(self, now: float) -> list[Action]:
+        """Reader tick: ask for a position when ``reports.interval_s`` has passed."""
+        if self.fatal is None:
+            request = self.reports.poll(now, sum(len(p.data) for p in self.outstanding), self.rx_buffer)
+            if request is not None:
+                self._write(request, "report")
+        return self._take()
 
     # ------------------------------------------------------------------ stalls
     def timeout(self, now: float) -> list[Action]:
@@ -425,8 +452,7 @@ class ReplySession(PositionReports):
         """A stalled grbl link: ask for a status (a sign of life; grbl answers ``?`` even
         while dwelling or homing) and, when its receive buffer surely has room, send one
         ``$G`` marker whose ``[GC:]`` answer settles any lost ``ok``."""
-        self._note_ask(now)
-        self._write(self.rules.position_request, "poke")
+        self._write(self.reports.ask(now), "poke")
         if any(p.marker and not p.has_parser_state() for p in self.outstanding) \
                 or self.fatal is not None:  # one unanswered marker at a time
             return

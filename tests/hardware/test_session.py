@@ -210,18 +210,18 @@ def test_marlin_s000_position_report_is_consumed_and_marked():
     s = marlin()
     send(s, "M110 N0")
     s.feed(okn(1), 0.05)  # S000 is used with ADVANCED_OK only (its plain ok stays apart)
-    s.realtime_reports = True
-    s.report_interval_s = 0.1
+    s.reports.realtime = True
+    s.reports.interval_s = 0.1
     (command,) = send(s, "G1 X50")
     asked = s.poll_reports(1.0)
-    assert writes(asked) == [(b"S000\n", "report")] and s.rt_pending == 1
+    assert writes(asked) == [(b"S000\n", "report")] and s.reports.rt_pending == 1
     s.feed(line("marlin", r"^X:50\.00 Y:50\.00"), 1.01)
     consumed = s.feed("S_XYZ:5", 1.02)
     marks = [a.mark for a in consumed if isinstance(a, Position)]
     assert [m.position for m in marks] == [(50.0, 50.0, 15.0)] and marks[0].moving is True
     assert marks[0].asked_at == 1.0 and command.replies == []  # not the command's answer
     s.feed("ok", 1.03)  # the S000 line's own plain ok
-    assert s.rt_pending == 0 and command in s.outstanding
+    assert s.reports.rt_pending == 0 and command in s.outstanding
 
 
 # ------------------------------------------------------------------ grbl
