@@ -9,6 +9,9 @@ firmware (RepRapFirmware, a LinuxCNC serial front end...) is one more record::
     rules.line_bytes("G1 X1")  # 6: what the line takes in the controller's RX buffer
     dialect("smoothie")        # UnknownDialect (an InvalidConfig, field "dialect")
 
+Comments are the same in both (``;`` to the end of the line and ``( )``) and never reach the
+wire: ``hardware.protocol.normalize_command`` strips them before a line is framed.
+
 Pure: no I/O.  Byte counts are bytes on the wire; times are not kept here.
 """
 
@@ -100,7 +103,6 @@ class Dialect:
     announced_resets: bool
     resets_on_connect: bool
     mock_dispense: tuple[str, str]
-    comment_prefix: str = ";"
 
     def line_bytes(self, text: str) -> int:
         """Bytes a normalised command ``text`` occupies in the controller's RX buffer
