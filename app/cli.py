@@ -11,6 +11,7 @@ from pathlib import Path
 
 from app.config import ROLES, Settings, SettingsError, load_settings
 from app.ownership import MachineOwnerLock
+from hardware.dialects import DEFAULT_DIALECT, DIALECTS
 
 
 def _settings(args: argparse.Namespace, **extra: object) -> Settings:
@@ -209,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     mock.add_argument("--pty", action="store_true", help="open a pseudo-terminal and print its path")
     mock.add_argument("--tcp", type=int, default=None, metavar="PORT", help="listen on PORT (0: any)")
     mock.add_argument("--host", default="127.0.0.1", help="TCP address (default loopback only)")
-    mock.add_argument("--dialect", choices=("marlin", "grbl"), default="marlin")
+    mock.add_argument("--dialect", choices=tuple(DIALECTS), default=DEFAULT_DIALECT)
     mock.add_argument("--time-scale", type=float, default=0.0,
                       help="1 = real-time firmware timing, 0 = as fast as possible")
     mock.add_argument("--baud", type=int, default=115200)

@@ -5,8 +5,14 @@ Usable without the ``app`` package.  Layers (each usable alone):
 * ``hardware.protocol`` (pure) — framing ``frame``/``checksum``, ``normalize_command``,
   ``commands_sha256`` (API.md digest), ``validate_program``, ``parse_reply`` -> typed
   events of ``hardware.events``.
+* ``hardware.dialects`` (pure) — one frozen record per firmware dialect (``marlin``,
+  ``grbl``): identify, home, wait, probe, position requests, e-stop bytes, line numbers,
+  flow-control accounting, resend and error rules; ``dialect(name)``.
+* ``hardware.session.ReplySession`` (pure) — the reply handling: ``feed(line, now)``,
+  ``submit``, ``timeout(now)`` return actions (``hardware.session_types``).
 * ``hardware.link.Link`` — one serial connection by URL (device, ``socket://``,
-  ``mock://``): reader thread, per-command ``CommandResult``, ping-pong or windowed flow
+  ``mock://``, registered lazily by ``hardware.transport``): the port, the reader thread and the lock
+  applying the session's actions, per-command ``CommandResult``, ping-pong or windowed flow
   control, resends, keepalive-aware stall detection, out-of-band emergency stop.
 * ``hardware.machine.Machine`` — connect/identify, home, move, position, probe,
   stream with pause/resume/cancel, stop, resume after a disconnect (``resume_line``).

@@ -8,7 +8,7 @@ control, resends, keepalive-aware timeouts, out-of-band emergency stop.
     link.close()
 
 Transport: ``serial.serial_for_url`` — device paths, ``socket://host:port``, ``loop://``
-and ``mock://`` (registered by ``hardware.mock``).
+and ``mock://`` (registered lazily by ``hardware.transport.open_port``).
 
 Correlation: replies between two acknowledgements belong to the oldest unacknowledged
 command.  Marlin lines are numbered and checksummed (``N<n> cmd*<xor>``); with
@@ -21,7 +21,10 @@ by character counting (``rx_buffer``; ``Machine`` sets it from grbl's ``[OPT:..,
 The link falls back to ping-pong (``link.fallbacks`` says why) when Marlin answers
 without ``ok N`` (no ADVANCED_OK) or after repeated Marlin stalls.
 
-Reply handling lives in ``hardware.replies`` (a mixin of ``Link``).
+Reply handling lives in ``hardware.session.ReplySession``, a pure state machine fed with
+``(line, now)`` that returns actions (write, complete, halt...); the link keeps the port,
+the reader thread and the lock, and applies the actions in order.  Dialect differences are
+the fields of ``hardware.dialects``.
 
 Resends: ``Resend: r`` retransmits lines r.. from a bounded history (``history`` lines);
 repeated requests caused by lines already in flight are ignored, and the requested lines
@@ -52,69 +55,47 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Callable
 
 import serial
 
-from . import mock as _mock  # noqa: F401  (registers the mock:// handler)
-from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError
+from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
+from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError, ProtocolError
 from .events import ReplyEvent, StatusReport
 from .pending import CommandResult, PendingCommand
-from .protocol import check_dialect, frame, normalize_command
-from .replies import ReplyHandling
-from .reports import PositionReports
+from .protocol import normalize_command
+from .reports import PositionMark
+from .session import WINDOWS, ReplySession
+from .session_types import Action, Complete, Halt, Observed, Write
+from .transport import open_port
 
-WINDOWS = ("pingpong", "windowed")
 __all__ = ["WINDOWS", "CommandResult", "Link", "PendingCommand"]
 
 
-class Link(ReplyHandling, PositionReports):
+class Link:
     """A connection to one controller; see the module docstring.  Thread-safe."""
 
     def __init__(self, port: serial.SerialBase, *, dialect: str, timeout_s: float, window: str,
                  history: int, command_buffer: int, rx_buffer: int, poke_s: float,
                  on_event: Callable[[ReplyEvent], None] | None) -> None:
         self.port = port
-        self.dialect = dialect
-        self.timeout_s = timeout_s
-        self.window = window
-        self.mode = window
-        self.history_size = history
-        self.command_buffer = command_buffer
-        self.rx_buffer = rx_buffer
+        self.rules = dialect_rules(dialect)  # what this firmware does (hardware.dialects)
+        self.dialect = self.rules.name
         self.on_event = on_event
-        self.fallbacks: list[str] = []
-        self.stats = {"sent": 0, "resends": 0, "pokes": 0, "ignored_resends": 0,
-                      "assumed_ok": 0, "retries": 0}
-        self.unsolicited: deque[ReplyEvent] = deque(maxlen=200)
+        self.session = ReplySession(self.rules, now=time.monotonic(), window=window,
+                                    timeout_s=timeout_s, history=history,
+                                    command_buffer=command_buffer, rx_buffer=rx_buffer,
+                                    poke_s=poke_s)
         self._cond = threading.Condition()
-        self._outstanding: deque[PendingCommand] = deque()
-        self._history: OrderedDict[int, PendingCommand] = OrderedDict()
-        self._next_line = 1
-        self._swallow = False  # the plain ok right after a Resend belongs to the request
-        self._guard: list[int] | None = None
-        self._replay: deque[int] = deque()
-        self._replay_inflight: int | None = None
-        self._n_ok = False
-        self._fatal: HardwareError | None = None
-        self._answered = False
-        self._status_seq = 0
-        self._last_status: StatusReport | None = None
         self._closed = False
-        self._last_rx = time.monotonic()
-        self._last_ack = time.monotonic()
-        self._rtt = 0.002
-        self._poke_s = poke_s
-        self._pokes_in_row = 0
-        self._grbl_state_init()
-        self._reports_init()
+        self._halted = False  # the session failed: not one more byte of the program goes out
         self._reader = threading.Thread(target=self._read_loop, daemon=True, name="link-reader")
         self._reader.start()
 
     # ------------------------------------------------------------------ opening
     @classmethod
-    def open(cls, url: str, *, baudrate: int = 115200, dialect: str = "marlin",
+    def open(cls, url: str, *, baudrate: int = 115200, dialect: str = DEFAULT_DIALECT,
              timeout_s: float = 30.0, window: str = "windowed", history: int = 1024,
              command_buffer: int = 4, rx_buffer: int = 128, poke_s: float = 2.5,
              on_event: Callable[[ReplyEvent], None] | None = None) -> Link:
@@ -125,7 +106,7 @@ class Link(ReplyHandling, PositionReports):
         and receive buffer in bytes, the windowed limits.  ``on_event(event)`` sees every
         parsed reply on the reader thread with the link locked: keep it quick and never
         call the link from it."""
-        check_dialect(dialect)
+        dialect_rules(dialect)
         if window not in WINDOWS:
             raise InvalidConfig(f"unknown window mode {window!r}; expected pingpong or windowed",
                                 field="window", value=str(window)[:40])
@@ -137,8 +118,8 @@ class Link(ReplyHandling, PositionReports):
         try:
             # exclusive: a device is one machine; a second opener (another record, another
             # process) is refused instead of interleaving its bytes (POSIX flock)
-            port = serial.serial_for_url(url, baudrate=baudrate, timeout=0.01, write_timeout=5,
-                                         exclusive=True)
+            port = open_port(url, baudrate=baudrate, timeout=0.01, write_timeout=5,
+                             exclusive=True)
         except InvalidConfig:
             raise
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -146,6 +127,68 @@ class Link(ReplyHandling, PositionReports):
         return cls(port, dialect=dialect, timeout_s=timeout_s, window=window, history=history,
                    command_buffer=command_buffer, rx_buffer=rx_buffer, poke_s=poke_s,
                    on_event=on_event)
+
+    # ------------------------------------------------------------------ the session's state
+    @property
+    def timeout_s(self) -> float:
+        return self.session.timeout_s
+
+    @property
+    def window(self) -> str:
+        return self.session.window
+
+    @property
+    def mode(self) -> str:
+        """``pingpong`` or ``windowed`` (after a fallback: ``pingpong``, see ``fallbacks``)."""
+        return self.session.mode
+
+    @property
+    def fallbacks(self) -> list[str]:
+        return self.session.fallbacks
+
+    @property
+    def stats(self) -> dict[str, int]:
+        return self.session.stats
+
+    @property
+    def unsolicited(self) -> deque[ReplyEvent]:
+        return self.session.unsolicited
+
+    @property
+    def rx_buffer(self) -> int:
+        return self.session.rx_buffer
+
+    @property
+    def status_marks(self) -> deque[tuple[StatusReport, int, float]]:
+        """grbl status reports with the completion count when they arrived and their time."""
+        return self.session.status_marks
+
+    @property
+    def position_marks(self) -> deque[PositionMark]:
+        return self.session.reports.marks
+
+    @property
+    def report_interval_s(self) -> float:
+        return self.session.reports.interval_s
+
+    @report_interval_s.setter
+    def report_interval_s(self, value: float) -> None:
+        with self._cond:
+            self.session.reports.interval_s = value
+
+    @property
+    def realtime_reports(self) -> bool:
+        return self.session.reports.realtime
+
+    @property
+    def failed_at(self) -> float | None:
+        """Host time the link became fatal, or None."""
+        return self.session.failed_at
+
+    @property
+    def advanced_ok(self) -> bool:
+        """The firmware acknowledges with ``ok N<n>`` (Marlin ADVANCED_OK)."""
+        return self.session.n_ok
 
     # ------------------------------------------------------------------ sending
     def send(self, command: str, timeout_s: float | None = None, *, check: bool = True
@@ -160,88 +203,63 @@ class Link(ReplyHandling, PositionReports):
         if text is None:
             raise InvalidConfig("empty command", field="command", value=command[:60])
         with self._cond:
-            nbytes = len(text) + 1 if self.dialect == "grbl" else len(text) + 16
-            if nbytes > self.rx_buffer - 1:
-                raise InvalidConfig(f"line longer than the controller's {self.rx_buffer}-byte "
+            nbytes = self.rules.line_bytes(text)
+            if nbytes > self.session.rx_buffer - 1:
+                raise InvalidConfig(f"line longer than the controller's {self.session.rx_buffer}-byte "
                                     "buffer", field="command", value=text[:60])
-            while not self._window_open(nbytes):
-                self._check_fatal()
-                self._cond.wait(0.05)
+            self._wait_window(nbytes)
+            return self._submit(text)
+
+    def _wait_window(self, nbytes: int) -> None:
+        while not self.session.window_open(nbytes, time.monotonic()):
             self._check_fatal()
-            return self._transmit_new(text)
-
-    def _window_open(self, nbytes: int) -> bool:
-        if self._fatal is not None:
-            return True
-        if self._awaiting_reset():
-            return False  # grbl announced a reset: what we sent now would be lost
-        if self._replay or self._replay_inflight is not None:
-            return False  # recovering from a resend request
-        outstanding = self._outstanding
-        if not outstanding:
-            return True
-        if self.mode == "pingpong":
-            return False
-        in_flight = sum(len(p.data) for p in outstanding)
-        if self.dialect == "grbl":
-            return in_flight + nbytes <= self.rx_buffer - 1
-        # Marlin: free command slots, and never more bytes than its RX buffer holds (it
-        # stops reading serial while a command blocks, e.g. on a full planner)
-        return len(outstanding) < self.command_buffer \
-            and in_flight + nbytes + self._reserved_bytes() <= self.rx_buffer - 1
-
-    # ------------------------------------------------------------------ grbl specifics
-    def _grbl_state_init(self) -> None:
-        self.status_marks: deque[tuple[StatusReport, int, float]] = deque(maxlen=64)
-        self._completed = 0  # commands answered so far (PendingCommand.seq)
-        self._last_answer = time.monotonic()
-        self._expect_banner_until: float | None = None
-
-    def _awaiting_reset(self) -> bool:
-        until = self._expect_banner_until
-        if until is not None and time.monotonic() > until:
-            self._expect_banner_until = until = None  # it never came: carry on
-        return until is not None
+            self._cond.wait(0.05)
+        self._check_fatal()
 
     def wait_room(self, command: str) -> None:
         """Block until ``command`` would be sent at once (window open), without sending:
         a streamer checks the answers so far before committing the next line."""
         text = normalize_command(command) or ""
-        nbytes = len(text) + 1 if self.dialect == "grbl" else len(text) + 16
         with self._cond:
-            while not self._window_open(nbytes):
-                self._check_fatal()
-                self._cond.wait(0.05)
-            self._check_fatal()
+            self._wait_window(self.rules.line_bytes(text))
 
     def set_rx_buffer(self, size: int) -> None:
         """Use the receive-buffer size the controller reported (grbl ``[OPT:..,..,N]``)."""
         if size >= 16:
             with self._cond:
-                self.rx_buffer = size
+                self.session.rx_buffer = size
 
-    def _transmit_new(self, text: str, internal: bool = False) -> PendingCommand:
-        if self.dialect == "marlin":
-            line_no = self._next_line
-            self._next_line += 1
-            data = (frame(line_no, text) + "\n").encode("utf-8")
-        else:
-            line_no = None
-            data = (text + "\n").encode("utf-8")
-        pending = PendingCommand(self, text, line_no, data, internal)
-        if not self._outstanding:
-            self._last_ack = time.monotonic()
-        self._outstanding.append(pending)
-        if line_no is not None:
-            self._history[line_no] = pending
-            while len(self._history) > self.history_size:
-                self._history.popitem(last=False)
-        self.stats["sent"] += 1
-        self._write(data)
+    def _submit(self, text: str, *, internal: bool = False, sync: bool = False) -> PendingCommand:
+        entry, actions = self.session.submit(text, time.monotonic(), internal=internal, sync=sync)
+        pending = PendingCommand(self, text, entry.line_no, entry.data, internal, entry=entry)
+        self._apply(actions)
         return pending
 
+    # ------------------------------------------------------------------ applying actions
+    def _apply(self, actions: list[Action]) -> None:
+        """Carry out the session's actions in order (the lock is held)."""
+        for action in actions:
+            if isinstance(action, Write):
+                self._write(action.data)
+            elif isinstance(action, Observed):
+                if self.on_event is not None:
+                    try:
+                        self.on_event(action.event)
+                    except Exception:  # an observer must never break the link
+                        pass
+            elif isinstance(action, Complete):
+                if action.command.owner is not None:
+                    action.command.owner.finish(action.status, action.error)
+            elif isinstance(action, Halt):
+                if self.session.fatal is not None:
+                    self._halted = True
+                for command in action.commands:
+                    if command.owner is not None:
+                        command.owner.fail(action.error)
+                self._cond.notify_all()
+
     def _write(self, data: bytes) -> None:
-        if self._fatal is not None:
+        if self._halted:
             return
         try:
             self.port.write(data)
@@ -253,24 +271,27 @@ class Link(ReplyHandling, PositionReports):
         buffered: let the reader drain them (it fails the link when the port is empty), so
         that every acknowledgement the firmware managed to send is counted."""
         if threading.current_thread() is not self._reader:
-            self._cond.wait_for(lambda: self._fatal is not None or not self._reader.is_alive(),
+            self._cond.wait_for(lambda: self.session.fatal is not None or not self._reader.is_alive(),
                                 timeout=2.0)
-            self._set_fatal(LinkError(f"write failed: {exc}", field="port",
-                                      last_line=self.last_acked_line()))
+            self._apply(self.session.halt(LinkError(f"write failed: {exc}", field="port",
+                                                    last_line=self.session.last_acked_line()),
+                                          time.monotonic()))
 
     def emergency_stop(self) -> None:
-        """Out of band: Marlin ``M112`` (emergency parser), grbl soft reset 0x18.  Every
-        command in flight fails with ``FirmwareError``.
+        """Out of band: the dialect's ``estop_bytes`` (Marlin ``M112`` through its emergency
+        parser, grbl soft reset 0x18).  Every command in flight fails with ``FirmwareError``.
 
-        Terminal: under the link's lock the link first becomes fatal (every later write,
-        program line, resend or poke, is refused by ``_write``, which checks it under the
-        same lock), then the stop byte is written, so not one byte of the program follows
-        it on the wire.  Sent whatever state the link is in (the firmware decides); only a
+        Terminal: under the link's lock the session first fails (every later write, program
+        line, resend, poke or report, is refused by ``_write``, which checks it under the
+        same lock), then the stop bytes are written, so not one byte of the program follows
+        them on the wire.  Sent whatever state the link is in (the firmware decides); only a
         dead port makes it fail (``LinkError``).  Reconnect to talk to the machine again."""
-        data = b"M112\n" if self.dialect == "marlin" else b"\x18"
+        data = self.rules.estop_bytes
         with self._cond:
-            self._set_fatal(FirmwareError("emergency stop", command="emergency_stop"))
-            self.stats["emergency_stops"] = self.stats.get("emergency_stops", 0) + 1
+            self._apply(self.session.halt(FirmwareError("emergency stop", command="emergency_stop"),
+                                          time.monotonic()))
+            self._halted = True
+            self.session.stats["emergency_stops"] = self.session.stats.get("emergency_stops", 0) + 1
             try:
                 self.port.write(data)
             except (serial.SerialException, OSError) as exc:
@@ -287,14 +308,14 @@ class Link(ReplyHandling, PositionReports):
                 raise LinkError(f"write failed: {exc}", field="port") from exc
 
     def reset_line_numbers(self, next_line: int = 1) -> CommandResult | None:
-        """Marlin: ``M110 N<next_line-1>`` so numbering restarts (no-op for grbl)."""
-        if self.dialect != "marlin":
+        """Marlin: ``M110 N<next_line-1>`` so numbering restarts (no-op without line numbers)."""
+        if not self.rules.line_numbers:
             return None
         with self._cond:
-            while self._outstanding and self._fatal is None:
+            while self.session.outstanding and self.session.fatal is None:
                 self._cond.wait(0.05)
-            self._next_line = next_line - 1
-            pending = self._transmit_new(f"M110 N{next_line - 1}")
+            self.session.next_line = next_line - 1
+            pending = self._submit(f"M110 N{next_line - 1}")
         return pending.result()
 
     def sync_line_number(self, expected_next: int) -> int:
@@ -303,16 +324,22 @@ class Link(ReplyHandling, PositionReports):
         it (so lines up to the returned number will run) and continues numbering after
         whatever the firmware holds.  ``FirmwareReset`` if the firmware restarted."""
         with self._cond:
-            while self._outstanding and self._fatal is None:
+            while self.session.outstanding and self.session.fatal is None:
                 self._cond.wait(0.05)
             self._check_fatal()
-            self._next_line = expected_next
-            pending = self._transmit_new("M114", internal=True)
-            pending.sync = True
+            self.session.next_line = expected_next
+            pending = self._submit("M114", internal=True, sync=True)
         outcome = pending.result(self.timeout_s)
+        if outcome.line_no is None:
+            raise ProtocolError("the line-number query came back without a line number",
+                                field="line_no")
         return outcome.line_no - 1
 
     # ------------------------------------------------------------------ reader
+    def _handle(self, line: str) -> None:
+        """One received line (the lock is held)."""
+        self._apply(self.session.feed(line, time.monotonic()))
+
     def _read_loop(self) -> None:
         buf = b""
         while not self._closed:
@@ -322,8 +349,9 @@ class Link(ReplyHandling, PositionReports):
             except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
                 if not self._closed:
                     with self._cond:
-                        self._set_fatal(LinkError(f"device disconnected: {exc}", field="port",
-                                                  last_line=self.last_acked_line()))
+                        self._apply(self.session.halt(
+                            LinkError(f"device disconnected: {exc}", field="port",
+                                      last_line=self.session.last_acked_line()), time.monotonic()))
                 return
             if data:
                 buf += data
@@ -337,50 +365,68 @@ class Link(ReplyHandling, PositionReports):
                     self._poll_reports()
             else:
                 with self._cond:
-                    self._check_stall()
+                    self._apply(self.session.timeout(time.monotonic()))
                     self._poll_reports()
+
+    def _poll_reports(self) -> None:
+        if not self._closed:
+            self._apply(self.session.poll_reports(time.monotonic()))
 
     def last_acked_line(self) -> int | None:
         """Highest line number acknowledged as processed (Marlin), else None."""
-        best = None
-        for pending in self._history.values():
-            if pending.outcome is not None and pending.outcome.status != "error":
-                best = pending.line_no
-        return best
+        return self.session.last_acked_line()
 
     def query_status(self, timeout_s: float = 2.0, repeat_s: float = 0.25) -> StatusReport:
         """grbl: write ``?`` and wait for the next status report, asking again every
         ``repeat_s`` (a bootloader swallows what arrives while it runs; ``?`` is real-time,
         so an extra one only brings an extra report)."""
         with self._cond:
-            seen = self._status_seq
-            self._note_ask()
-            self._write(b"?")
+            seen = self.session.status_seq
             start = time.monotonic()
+            self._apply(self.session.ask_status(start))
             asked = start
-            while self._status_seq == seen:
+            while self.session.status_seq == seen:
                 self._check_fatal()
                 now = time.monotonic()
                 if now - start > timeout_s:
                     raise LinkError("no status report", field="timeout_s")
                 if now - asked > repeat_s:
-                    self._note_ask()
-                    self._write(b"?")
+                    self._apply(self.session.ask_status(now))
                     asked = now
                 self._cond.wait(0.05)
-            return self._last_status
+            return self.session.last_status  # type: ignore[return-value]
+
+    def probe_realtime_reports(self, timeout_s: float = 1.0) -> bool:
+        """Marlin, idle, after ``M115``: send one ``S000`` and wait for its answer and its
+        ``ok``; True when the firmware answered with a position (REALTIME_REPORTING_COMMANDS,
+        ``hardware.reports``).  A firmware without it answers ``Unknown command`` and ``ok``."""
+        if not self.rules.request_queued:
+            return False
+        reports = self.session.reports
+        with self._cond:
+            self._check_fatal()
+            before = reports.reported
+            self._apply(self.session.ask_queued_report(time.monotonic()))
+            deadline = time.monotonic() + timeout_s
+            while (reports.rt_pending > 0 or reports.reported == before) and time.monotonic() < deadline:
+                self._check_fatal()
+                if reports.rt_pending == 0 and reports.reported == before:
+                    break  # acknowledged without an answer: not supported
+                self._cond.wait(0.02)
+            reports.realtime = reports.reported > before
+            return reports.realtime
 
     # ------------------------------------------------------------------ misc
     @property
     def in_flight(self) -> int:
         """Commands sent and not yet answered."""
-        return len(self._outstanding)
+        return len(self.session.outstanding)
 
     def wait_idle(self, timeout_s: float | None = None) -> None:
         """Block until nothing is in flight (raises the link's failure)."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         with self._cond:
-            while self._outstanding:
+            while self.session.outstanding:
                 self._check_fatal()
                 if deadline is not None and time.monotonic() > deadline:
                     raise LinkError("commands still in flight", field="timeout_s")
@@ -389,16 +435,23 @@ class Link(ReplyHandling, PositionReports):
 
     @property
     def healthy(self) -> bool:
-        return self._fatal is None and not self._closed
+        return self.session.fatal is None and not self._closed
 
     def close(self) -> None:
         """Stop the reader and close the port (commands in flight fail)."""
         with self._cond:
             self._closed = True
-            self._fail_all(LinkError("link closed", field="port"))
+            self._apply(self.session.close(LinkError("link closed", field="port")))
         try:
             self.port.close()
         except (serial.SerialException, OSError):
             pass
         if threading.current_thread() is not self._reader:
             self._reader.join(timeout=1.0)
+
+    def _check_fatal(self) -> None:
+        fatal: HardwareError | None = self.session.fatal
+        if fatal is not None:
+            raise fatal
+        if self._closed:
+            raise LinkError("link is closed", field="port")

@@ -63,7 +63,8 @@ from .machine_state import ClaimedOperations, axis_words
 from .machine_resume import ResumeOperations
 from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
                             _Interrupted)
-from .protocol import check_dialect, validate_program
+from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
+from .protocol import validate_program
 
 REPORT_INTERVAL_S = 0.1  # while streaming: a real-position report this often (hardware.reports)
 
@@ -73,12 +74,13 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
     """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
     for a second caller); pause/resume/cancel/stop/status work from any thread."""
 
-    def __init__(self, url: str, dialect: str = "marlin", profile: MachineProfile | None = None,
+    def __init__(self, url: str, dialect: str = DEFAULT_DIALECT, profile: MachineProfile | None = None,
                  *, baudrate: int = 115200, window: str = "windowed", timeout_s: float = 30.0,
                  boot_wait_s: float = 2.0, boot_quiet_s: float = 0.1, poke_s: float = 2.5
                  ) -> None:
         self.url = url
-        self.dialect = check_dialect(dialect)
+        self.rules = dialect_rules(dialect)  # what this firmware does (hardware.dialects)
+        self.dialect = self.rules.name
         self.profile = profile or MachineProfile()
         self.baudrate = baudrate
         self.window = window
@@ -129,11 +131,11 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         self._state = "busy"
         self._estopped = False
         try:
-            banner = self._await_boot() if self.dialect == "grbl" else self._await_quiet()
+            banner = self._await_boot() if self.rules.boot_banner else self._await_quiet()
             reset = any(isinstance(e, StartBanner) for e in banner)
             if self._interrupted is not None and reset:
                 self._interrupted.reset = True
-            if self.dialect == "marlin" and (self._interrupted is None or self._interrupted.reset):
+            if self.rules.line_numbers and (self._interrupted is None or self._interrupted.reset):
                 self.link.reset_line_numbers(1)
             self.identity = self._identify(banner, reset)
         except HardwareError:
@@ -159,7 +161,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         return events
 
     def _identify(self, banner: list, reset: bool) -> Identity:
-        command = "M115" if self.dialect == "marlin" else "$I"
+        command = self.rules.identify_command
         result = self.link.send(command, self.timeout_s)
         fields: dict[str, str] = {}
         caps: dict[str, bool] = {}
@@ -169,9 +171,9 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             elif isinstance(event, Capability):
                 caps[event.name] = event.enabled
         fields.update(self._build_fields(result.events))
-        if self.dialect == "grbl":
+        if self.rules.build_info:
             self._apply_build_info(fields)
-        elif caps.get("EMERGENCY_PARSER") and self.link.mode == "windowed" and self.link._n_ok:
+        elif self.rules.request_queued and caps.get("EMERGENCY_PARSER") and self.link.mode == "windowed" and self.link.advanced_ok:
             # S000 answered with the steppers' position (REALTIME_REPORTING_COMMANDS): nothing
             # in M115 says so; its plain ok needs ADVANCED_OK to stay apart from the others
             caps["REALTIME_REPORTING_COMMANDS"] = self.link.probe_realtime_reports(min(1.0, self.timeout_s))
@@ -200,15 +202,20 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
     def _run(self, commands: Iterable[str]) -> list[CommandResult]:
         return [self.link.send(c, self.timeout_s * 10) for c in commands]
 
+    @property
+    def home_command(self) -> str:
+        """What ``home`` sends: the profile's command, else the dialect's (G28 / $H)."""
+        return self.profile.home_command or self.rules.home_command
+
     def home(self) -> tuple[float, float, float]:
         """Home all axes; returns the position afterwards."""
-        command = self.profile.home_command or ("G28" if self.dialect == "marlin" else "$H")
+        command = self.home_command
         self._claim("busy")
         try:
             try:
                 self._run([command])
             except FirmwareError as exc:
-                if self.dialect == "grbl" and exc.code == 5:
+                if self.rules.homing_disabled_error is not None and exc.code == self.rules.homing_disabled_error:
                     raise MachineStateError("homing is disabled on this controller ($22=0): "
                                             "unlock instead, or enable homing", field="home",
                                             value=command) from exc
@@ -218,7 +225,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             self._release()
 
     def _wait_motion(self) -> str:
-        return "M400" if self.dialect == "marlin" else "G4 P0"
+        return self.rules.wait_moves
 
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
@@ -227,7 +234,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         words = axis_words(x, y, z)
         self._claim("busy")
         try:
-            if self.dialect == "grbl":
+            if self.rules.jog_locks_gcode:
                 self._wait_not_jogging()  # G-code during a jog is error:9
             self._run(["G90", f"G1{words} F{feed:.1f}", self._wait_motion()])
             return self._position()
@@ -243,7 +250,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             self._release()
 
     def _position(self) -> tuple[float, float, float]:
-        if self.dialect == "grbl":
+        if self.rules.position_by_status:
             status = self.link.query_status()
             return tuple(status.mpos[:3]) if status.mpos else (0.0, 0.0, 0.0)
         result = self.link.send("M114", self.timeout_s)
@@ -298,7 +305,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             if on_progress is not None:
                 on_progress(executed, total)
 
-        if self.dialect == "grbl" or link.realtime_reports:
+        if not self.rules.request_queued or link.realtime_reports:
             link.report_interval_s = REPORT_INTERVAL_S  # the reader asks; the stream never waits for it
         try:
             for index in range(start_line, total):
@@ -353,7 +360,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             raise MachineStateError("no interrupted program to resume", field="state")
         if self.link is None:
             raise MachineStateError("connect before resuming", field="state", value="disconnected")
-        if self.dialect == "grbl" or gap.reset:
+        if self.rules.resets_on_connect or gap.reset:
             return gap.moved_index if gap.moved_index is not None else gap.acked_index
         if not gap.inflight:
             return gap.acked_index
@@ -395,8 +402,8 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             raise MachineStateError(f"cannot pause while {self.state}", field="state",
                                     value=self.state)
         self._resume_event.clear()
-        if self.dialect == "grbl" and self.link is not None:
-            self.link.realtime(b"!")  # feed hold: motion already planned stops too
+        if self.rules.feed_hold is not None and self.link is not None:
+            self.link.realtime(self.rules.feed_hold)  # feed hold: motion already planned stops too
         self._state = "paused"
 
     def resume(self) -> None:
@@ -404,8 +411,8 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         if self._state != "paused":
             raise MachineStateError(f"cannot resume while {self.state}", field="state",
                                     value=self.state)
-        if self.dialect == "grbl" and self.link is not None:
-            self.link.realtime(b"~")  # cycle start after the feed hold
+        if self.rules.cycle_start is not None and self.link is not None:
+            self.link.realtime(self.rules.cycle_start)  # cycle start after the feed hold
         self._state = "printing"
         self._resume_event.set()
 

@@ -74,16 +74,16 @@ class GrblOperations:
 
     def feed_hold(self) -> None:
         """grbl ``!``: decelerate and hold planned motion (works from any thread)."""
-        self._require_grbl_link().realtime(b"!")
+        self._require_grbl_link().realtime(self.rules.feed_hold)
 
     def cycle_start(self) -> None:
         """grbl ``~``: resume after a feed hold."""
-        self._require_grbl_link().realtime(b"~")
+        self._require_grbl_link().realtime(self.rules.cycle_start)
 
     def _require_grbl_link(self):  # type: ignore[no-untyped-def]
         if self.link is None:
             raise MachineStateError("machine is not connected", field="state", value="disconnected")
-        if self.dialect != "grbl":
+        if self.rules.feed_hold is None or self.rules.cycle_start is None:
             raise MachineStateError("feed hold and cycle start are grbl real-time commands",
                                     field="dialect", value=self.dialect)
         return self.link
@@ -112,11 +112,11 @@ class GrblOperations:
 
     def can_home(self) -> bool:
         """grbl: homing cycle enabled (``$22=1``); Marlin: always."""
-        if self.dialect != "grbl":
+        if self.rules.homing_setting is None:
             return True
         self._claim("busy")
         try:
             result = self.link.send("$$", self.timeout_s)
         finally:
             self._release()
-        return any(line.strip() == "$22=1" for line in result.reply_lines)
+        return any(line.strip() == self.rules.homing_setting for line in result.reply_lines)

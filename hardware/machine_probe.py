@@ -30,7 +30,7 @@ class ProbeOperations:
         feed = feed_mm_min or p.probe_feed_mm_min
         if z_min >= z_start:
             raise InvalidConfig("z_min must be below z_start", field="z_min", value=z_min)
-        kind = p.probe_command or ("G30" if self.dialect == "marlin" else "G38.2")
+        kind = p.probe_command or self.rules.probe_command
         travel = p.travel_feed_mm_min
         self._claim("busy")
         try:
@@ -49,7 +49,7 @@ class ProbeOperations:
                 raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
                                   f"z={z_min:.3f}: {exc.message}", x=x, y=y, field="probe",
                                   value=[x, y]) from exc
-            if kind == "G30" or self.dialect == "grbl":
+            if kind == "G30" or self.rules.probe_reports_contact:
                 report = result.payload  # "Bed X: .. Y: .. Z: .." / "[PRB:x,y,z:1]"
             else:  # Marlin G38.2 prints nothing: it stopped at the contact point (M114 D: 3 decimals)
                 report = self._precise_position()
@@ -118,7 +118,7 @@ class ProbeOperations:
                                       reason="triggered_before_motion") from exc
                 raise ProbeFailed(f"probe from {list(start)} toward {where} touched nothing: "
                                   f"{exc.message}", x=tx, y=ty, field="probe", value=where) from exc
-            report = result.payload if self.dialect == "grbl" else self._precise_position()
+            report = result.payload if self.rules.probe_reports_contact else self._precise_position()
             if not isinstance(report, ProbeReport) or not report.triggered:
                 self._recover_toward(back)
                 raise ProbeFailed(f"probe from {list(start)} toward {where} touched nothing",
@@ -138,13 +138,13 @@ class ProbeOperations:
         return ProbeReport(*self._position())
 
     def _recover_toward(self, back: str) -> None:
-        if self.dialect == "grbl":
-            self.link.send("$X", self.timeout_s)
+        if self.rules.unlock_command is not None:
+            self.link.send(self.rules.unlock_command, self.timeout_s)
         self._run([back, self._wait_motion()])
 
     def _recover_after_probe(self, z_start: float) -> None:
-        if self.dialect == "grbl":
-            self.link.send("$X", self.timeout_s)
+        if self.rules.unlock_command is not None:
+            self.link.send(self.rules.unlock_command, self.timeout_s)
         self._run([f"G1 Z{z_start:.4f} F{self.profile.travel_feed_mm_min:.1f}",
                    self._wait_motion()])
 

@@ -63,7 +63,7 @@ class ResumeOperations:
         if start_line != 0 or link is None:
             return
         try:
-            if self.dialect == "grbl":
+            if not self.rules.request_queued:  # a real-time status (grbl): always available
                 link.query_status()
             elif not (link.realtime_reports and link.probe_realtime_reports(min(1.0, self.timeout_s))):
                 return
@@ -107,7 +107,7 @@ class ResumeOperations:
         re-homing.  Sets ``last_resume``."""
         bound = self.resume_line()
         gap = self._interrupted
-        if self.dialect == "marlin" and not gap.reset:
+        if not self.rules.resets_on_connect and not gap.reset:
             found = ResumeLocation(bound, "line numbers", "the controller kept running and numbering lines")
         else:
             sent = gap.acked_index + len(gap.inflight)
@@ -161,7 +161,7 @@ class ResumeOperations:
             return ResumeLocation(bound, fallback, "the program is not known to this process")
         self._claim("busy")
         try:
-            if self.dialect == "grbl":
+            if self.rules.position_by_status:
                 # an Alarm at boot (homing required) is no evidence either way: a board whose
                 # reset zeroed its position reports the origin, refused below
                 status = self.link.query_status()

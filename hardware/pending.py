@@ -9,6 +9,7 @@ from typing import Any
 
 from .errors import FirmwareError, HardwareError, LinkError
 from .events import ReplyEvent
+from .session_types import Command
 
 _PAYLOAD_TYPES = ("ProbeReport", "PositionReport", "FirmwareInfo", "StatusReport",
                   "TemperatureReport")
@@ -32,24 +33,37 @@ class CommandResult:
     resends: int
 
 
+def _shared(name: str) -> property:
+    """A field of the session's ``Command`` record, read and written through the pending."""
+    return property(lambda self: getattr(self.entry, name),
+                     lambda self, value: setattr(self.entry, name, value))
+
+
 class PendingCommand:
-    """A command in flight; ``result()`` blocks until it is answered."""
+    """A command in flight; ``result()`` blocks until it is answered.  Its protocol state
+    is the session's ``Command`` record (``entry``, ``hardware.session_types``); the pending
+    adds the waiting.  ``PendingCommand(link, command, line_no, data)`` makes its own
+    record (tests, tools); the link wraps the session's with ``entry=``."""
+
+    command = _shared("command")
+    line_no = _shared("line_no")
+    data = _shared("data")
+    internal = _shared("internal")
+    t_sent = _shared("t_sent")
+    replies = _shared("replies")
+    resends = _shared("resends")
+    accepted = _shared("accepted")
+    sync = _shared("sync")
+    marker = _shared("marker")  # grbl $G sent by the link to find lost oks
+    seq = _shared("seq")  # completion order (see Link.status_marks)
+    error_event = _shared("error_event")
 
     def __init__(self, link: Any, command: str, line_no: int | None, data: bytes,
-                 internal: bool = False) -> None:
+                 internal: bool = False, *, entry: Command | None = None) -> None:
         self.link = link
-        self.command = command
-        self.line_no = line_no
-        self.data = data
-        self.internal = internal
-        self.t_sent = time.monotonic()
-        self.replies: list[ReplyEvent] = []
-        self.resends = 0
-        self.accepted = False
-        self.sync = False
-        self.marker = False  # grbl $G sent by the link to find lost oks
-        self.seq: int | None = None  # completion order (see Link.status_marks)
-        self.error_event: ReplyEvent | None = None
+        self.entry = entry if entry is not None else \
+            Command(command, line_no, data, internal, t_sent=time.monotonic())
+        self.entry.owner = self
         self.outcome: CommandResult | None = None
         self.failure: HardwareError | None = None
         self._done = threading.Event()

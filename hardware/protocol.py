@@ -17,13 +17,13 @@ import re
 from collections.abc import Iterable
 from typing import NamedTuple
 
+from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
 from .errors import InvalidConfig
 from .events import (Alarm, Busy, Capability, Echo, Feedback, FirmwareErrorEvent,
                      FirmwareInfo, Halted, HostAction, Message, Ok, PositionReport,
                      ProbeReport, ReplyEvent, Resend, Setting, StartBanner, StatusReport,
                      TemperatureReport, Unknown, Wait)
 
-DIALECTS = ("marlin", "grbl")
 
 GRBL_ERRORS = {
     1: "Expected command letter", 2: "Bad number format", 3: "Invalid statement",
@@ -57,11 +57,9 @@ class CommandDigest(NamedTuple):
 
 
 def check_dialect(dialect: str) -> str:
-    """Return ``dialect`` if known, else raise ``InvalidConfig`` naming the choices."""
-    if dialect not in DIALECTS:
-        raise InvalidConfig(f"unknown dialect {dialect!r}; expected one of {', '.join(DIALECTS)}",
-                            field="dialect", value=str(dialect)[:40])
-    return dialect
+    """Return ``dialect`` if known, else raise ``UnknownDialect`` (an ``InvalidConfig``)
+    naming the choices (``hardware.dialects``)."""
+    return dialect_rules(dialect).name
 
 
 def checksum(text: str) -> int:
@@ -276,13 +274,13 @@ def _parse_m115(raw: str, text: str) -> ReplyEvent:
     return FirmwareInfo(fields, raw=raw)
 
 
-def parse_reply(line: str, dialect: str = "marlin") -> ReplyEvent:
+def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:
     """Parse one reply line (terminator optional) into a typed event.
 
     Both dialects' forms are recognised whatever ``dialect`` says (grbl error texts are
     looked up for ``error:N``); ``dialect`` is validated (``InvalidConfig`` if unknown) and
-    decides ambiguous words (``start`` is a banner only for Marlin)."""
-    check_dialect(dialect)
+    decides ambiguous words (``start`` is a banner only for Marlin: ``banner_words``)."""
+    rules = dialect_rules(dialect)
     raw = line.rstrip("\r\n")
     text = raw.strip()
     if not text:
@@ -336,8 +334,8 @@ def parse_reply(line: str, dialect: str = "marlin") -> ReplyEvent:
         return HostAction(text[9:].strip(), raw=raw)
     if text.startswith("echo:"):
         return Echo(text[5:].strip(), raw=raw)
-    if dialect == "marlin" and text == "start":
-        return StartBanner("marlin", text, raw=raw)
+    if rules.is_banner_word(text):
+        return StartBanner(rules.name, text, raw=raw)
     if _GRBL_BANNER.match(text):
         return StartBanner("grbl", text, raw=raw)
     if text.startswith(("T:", "T0:", "B:")) and _TEMP.match(text):

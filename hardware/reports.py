@@ -1,5 +1,6 @@
-"""Position reports during streaming (a mixin of ``hardware.link.Link``): where motion
-really is, asked for at a bounded rate by the reader thread, so that after a controller
+"""Position reports during streaming (``PositionTracker``, owned by
+``hardware.session.ReplySession``; pure: every method takes ``now``): where motion really is, asked for at a bounded rate while the
+reader thread ticks the session, so that after a controller
 reset the host knows how far the tool got (``hardware.resume.locate_by_report``).
 
 * grbl: the real-time ``?`` status report (``MPos`` or ``WPos`` per ``$10``; ``WCO`` turns
@@ -17,21 +18,20 @@ reset the host knows how far the tool got (``hardware.resume.locate_by_report``)
   (``report_current_position_projected``): evidence of planning, like ``ok``, not of
   motion, so they are not used.
 
-Every request is a real-time write under the link's lock, refused once the link failed or
-was emergency-stopped (``_write``): a report never follows the stop on the wire, and the
+Every request is a ``Write`` action the link applies under its lock, never emitted once the
+session failed or was emergency-stopped (``_write``): a report never follows the stop on the wire, and the
 stop never waits for more than one such write.  Requests and reports are counted: the
 n-th report answers the n-th request or a later one (a request lost on the wire is never
 answered), so ``asked_at`` of a report is a time at or before the moment it was made."""
 
 from __future__ import annotations
 
-import time
 from collections import deque
 from dataclasses import dataclass
 
+from .dialects import Dialect
 from .events import PositionReport, ReplyEvent, StatusReport
 
-MARLIN_REQUEST = b"S000\n"
 MARLIN_MAX_PENDING = 16  # S000 lines that may wait in Marlin's receive buffer at once
 
 
@@ -48,60 +48,69 @@ class PositionMark:
     moving: bool | None = None  # the controller's state said so (grbl Run/Jog/Home, Marlin S_XYZ:5)
 
 
-class PositionReports:
-    """Mixin of ``Link``; every method runs with the link's condition held unless said."""
+class PositionTracker:
+    """Requests and reports of the real position (see module).  ``marks``: the last 64
+    reports; ``interval_s`` > 0: ``poll`` asks this often (``Machine.stream`` sets it);
+    ``realtime``: Marlin answered ``S000`` (``Link.probe_realtime_reports``); ``reported``:
+    reports received; ``rt_pending``: Marlin ``S000`` lines not yet acknowledged."""
 
-    def _reports_init(self) -> None:
-        self.position_marks: deque[PositionMark] = deque(maxlen=64)
-        self.report_interval_s = 0.0  # > 0: the reader asks this often (Machine.stream sets it)
-        self.realtime_reports = False  # Marlin: S000 answered (probe_realtime_reports)
-        self.failed_at: float | None = None  # host time the link became fatal
+    def __init__(self, rules: Dialect) -> None:
+        self.rules = rules
+        self.marks: deque[PositionMark] = deque(maxlen=64)
+        self.interval_s = 0.0
+        self.realtime = False
+        self.reported = 0
+        self.rt_pending = 0
         self._asks: deque[float] = deque(maxlen=4096)
         self._asked = 0  # requests written since the link opened
-        self._reported = 0  # reports received
         self._last_ask = 0.0
-        self._rt_pending = 0  # Marlin S000 lines not yet acknowledged by the queue
         self._wco: tuple[float, ...] | None = None
-        self._candidate: tuple[PositionReport, list | None] | None = None
+        self._candidate: tuple[PositionReport, list[ReplyEvent] | None] | None = None
 
-    def _note_ask(self) -> None:
-        now = time.monotonic()
+    # ------------------------------------------------------------------ requests
+    def ask(self, now: float, *, queued: bool = False) -> bytes:
+        """Note a request made at ``now`` and return its bytes (``queued``: Marlin
+        ``S000``, which its queue acknowledges later with a plain ``ok``)."""
         self._asked += 1
         self._asks.append(now)
         self._last_ask = now
+        if queued:
+            self.rt_pending += 1
+        return self.rules.position_request
 
-    def _report_asked_at(self) -> float:
+    def poll(self, now: float, in_flight_bytes: int, rx_buffer: int) -> bytes | None:
+        """The request to write now (``interval_s`` has passed and, for a queued request,
+        its bytes fit the controller's receive buffer beside ``in_flight_bytes``), or None."""
+        if self.interval_s <= 0 or now - self._last_ask < self.interval_s:
+            return None
+        request = self.rules.position_request
+        if not self.rules.request_queued:  # a real-time byte (grbl ?): always answered
+            return self.ask(now)
+        if self.realtime and self.rt_pending < MARLIN_MAX_PENDING \
+                and in_flight_bytes + self.reserved_bytes() + len(request) <= rx_buffer - 1:
+            return self.ask(now, queued=True)
+        return None
+
+    def reserved_bytes(self) -> int:
+        """Marlin receive-buffer bytes taken by S000 lines not yet acknowledged."""
+        return len(self.rules.position_request) * self.rt_pending if self.rules.request_queued else 0
+
+    def flushed(self) -> None:
+        """Marlin answered ``Resend``: it flushed its receive buffer, S000 lines with it."""
+        self.rt_pending = 0
+
+    def _asked_at(self, now: float) -> float:
         """A time at or before the report being received now was made (see module)."""
         lost = self._asked - len(self._asks)  # requests older than the kept times
-        index = self._reported - 1 - lost
+        index = self.reported - 1 - lost
         if 0 <= index < len(self._asks):
             return self._asks[index]
-        return self._asks[0] if self._asks else time.monotonic()
-
-    def _poll_reports(self) -> None:
-        """Reader thread: ask for a position when the interval has passed."""
-        if self.report_interval_s <= 0 or self._fatal is not None or self._closed:
-            return
-        if time.monotonic() - self._last_ask < self.report_interval_s:
-            return
-        if self.dialect == "grbl":
-            self._note_ask()
-            self._write(b"?")
-        elif self.realtime_reports and self._rt_pending < MARLIN_MAX_PENDING \
-                and sum(len(p.data) for p in self._outstanding) + self._reserved_bytes() \
-                + len(MARLIN_REQUEST) <= self.rx_buffer - 1:
-            self._note_ask()
-            self._rt_pending += 1
-            self._write(MARLIN_REQUEST)
-
-    def _reserved_bytes(self) -> int:
-        """Marlin receive-buffer bytes taken by S000 lines not yet acknowledged."""
-        return len(MARLIN_REQUEST) * self._rt_pending
+        return self._asks[0] if self._asks else now
 
     # ------------------------------------------------------------------ replies
-    def _on_status_position(self, event: StatusReport) -> None:
+    def on_status(self, event: StatusReport, now: float, completed: int) -> PositionMark | None:
         """grbl: a status report is a position report (WPos, or MPos - WCO)."""
-        self._reported += 1
+        self.reported += 1
         wco = event.fields.get("WCO")
         if wco:
             try:
@@ -109,66 +118,49 @@ class PositionReports:
             except ValueError:
                 pass
         if event.wpos is not None:
-            position = event.wpos
+            position: tuple[float, ...] = tuple(event.wpos)
         elif event.mpos is not None:
             offset = self._wco or (0.0, 0.0, 0.0)
             position = tuple(m - o for m, o in zip(event.mpos, offset))
         else:
-            return
+            return None
         state = event.state.split(":")[0]
-        self._mark(position, state != "Idle")
+        return self._mark(position, now, completed, state != "Idle")
 
-    def _on_position_line(self, event: ReplyEvent) -> bool:
+    def on_position_line(self, event: ReplyEvent, now: float, head: list[ReplyEvent] | None,
+                         completed: int) -> tuple[bool, PositionMark | None]:
         """Marlin: remember a position line (it may be an S000 answer, confirmed by the
-        ``S_XYZ:`` line after it); True when ``event`` was that confirmation (consumed)."""
+        ``S_XYZ:`` line after it; ``head``: the replies of the command in flight, where
+        the line went meanwhile).  Returns (consumed, mark): consumed when ``event`` was
+        that confirmation."""
         if isinstance(event, PositionReport):
-            head = self._outstanding[0].replies if self._outstanding else None
             self._candidate = (event, head)
-            return False
+            return False, None
         if not event.raw.startswith("S_XYZ:"):
-            return False
+            return False, None
         candidate, self._candidate = self._candidate, None
-        self._reported += 1
+        self.reported += 1
         state = event.raw[len("S_XYZ:"):].strip()
-        if candidate is not None:
-            report, replies = candidate
-            if replies is not None and report in replies:
-                replies.remove(report)  # not the answer of the command in flight
-            axes = report.axes
-            if all(a in axes for a in "XYZ"):  # M_IDLE 3; anything else may move
-                self._mark((axes["X"], axes["Y"], axes["Z"]), state != "3")
-        return True
+        if candidate is None:
+            return True, None
+        report, replies = candidate
+        if replies is not None and report in replies:
+            replies.remove(report)  # not the answer of the command in flight
+        axes = report.axes
+        if not all(a in axes for a in "XYZ"):
+            return True, None
+        return True, self._mark((axes["X"], axes["Y"], axes["Z"]), now, completed, state != "3")  # M_IDLE 3
 
-    def _on_plain_ok(self, extra: str) -> None:
+    def on_plain_ok(self, extra: str) -> None:
         """Marlin: a plain ``ok`` (no line number) may acknowledge an S000 line."""
-        if self._rt_pending > 0 and not extra.startswith("T:"):
-            self._rt_pending -= 1
+        if self.rt_pending > 0 and not extra.startswith("T:"):
+            self.rt_pending -= 1
 
-    def _mark(self, position: tuple[float, ...], moving: bool | None = None) -> None:
-        xyz = tuple(float(v) for v in position[:3])
-        if len(xyz) == 3:
-            self.position_marks.append(PositionMark(xyz, self._completed, self._report_asked_at(),  # type: ignore[arg-type]
-                                                    time.monotonic(), moving))
-
-    # ------------------------------------------------------------------ connect-time probe
-    def probe_realtime_reports(self, timeout_s: float = 1.0) -> bool:
-        """Marlin, idle, after ``M115``: send one ``S000`` and wait for its answer and its
-        ``ok``; True when the firmware answered with a position (REALTIME_REPORTING_COMMANDS).
-        A firmware without it answers ``Unknown command`` and ``ok``.  Not locked by the
-        caller."""
-        if self.dialect != "marlin":
-            return False
-        with self._cond:
-            self._check_fatal()
-            before = self._reported
-            self._note_ask()
-            self._rt_pending += 1
-            self._write(MARLIN_REQUEST)
-            deadline = time.monotonic() + timeout_s
-            while (self._rt_pending > 0 or self._reported == before) and time.monotonic() < deadline:
-                self._check_fatal()
-                if self._rt_pending == 0 and self._reported == before:
-                    break  # acknowledged without an answer: not supported
-                self._cond.wait(0.02)
-            self.realtime_reports = self._reported > before
-            return self.realtime_reports
+    def _mark(self, position: tuple[float, ...], now: float, completed: int,
+              moving: bool | None) -> PositionMark | None:
+        if len(position) < 3:
+            return None
+        x, y, z = (float(v) for v in position[:3])
+        mark = PositionMark((x, y, z), completed, self._asked_at(now), now, moving)
+        self.marks.append(mark)
+        return mark

@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, Field, field_validator
 
 from app.api.schemas import Finite, Strict, UtcDatetime
+from hardware.dialects import DEFAULT_DIALECT
 
 _PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*"
                    r"|linuxcnc://[A-Za-z0-9.\-]+:\d{1,5}(\?joints=\d)?)$")
@@ -196,7 +197,7 @@ class MachineCreate(Strict):
     name: str = Field(min_length=1, max_length=200)
     port: str = Field(description='"mock://", "socket://host:port" or a device such as "/dev/ttyUSB0"')
     baudrate: int = Field(115200, ge=300, le=4_000_000)
-    dialect: Literal["marlin", "grbl", "linuxcnc"] = "marlin"
+    dialect: Literal["marlin", "grbl", "linuxcnc"] = DEFAULT_DIALECT
     profile: Profile = Field(default_factory=Profile)
     mock: MockSettings | None = None
 

@@ -46,7 +46,7 @@ from app.checks import require_non_negative, require_positive
 from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
 from app.errors import InvalidInput
 from app.geometry.slope import height_error_mm, surface_slopes_deg
-from app.gcode.writer import DIALECTS, ProgramBuilder
+from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, ProgramBuilder
 
 __all__ = [
     "CompensatedPath",
@@ -96,7 +96,7 @@ class CompensationParams:
     chord_error_mm: float = 0.002
     dispense_on: str = "M106"
     dispense_off: str = "M107"
-    dialect: str = "marlin"
+    dialect: str = DEFAULT_DIALECT
     clearance_mm: float = 2.0
     part_max_z_mm: float | None = None
     approach_mm: float = 0.5
@@ -280,8 +280,7 @@ def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
     b.move(z=z0, feed_mm_min=params.plunge_feed_mm_min)
     b.raw(params.dispense_on.strip())
     if params.dwell_s > 0:
-        b.raw(f"G4 P{round(params.dwell_s * 1000)}" if params.dialect == "marlin"
-              else f"G4 P{params.dwell_s:.3f}")
+        b.raw(b.dialect.dwell(params.dwell_s))
     for i, (x, y, z) in enumerate(points[1:]):
         b.move(x=x, y=y, z=z, feed_mm_min=params.feed_mm_min if i == 0 else None)
     b.raw(params.dispense_off.strip())

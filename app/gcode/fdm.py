@@ -23,12 +23,11 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
-from app.gcode.writer import GcodeError, ProgramBuilder
+from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
 
 if TYPE_CHECKING:  # the slicer imports this writer; the toolpath type is needed only here
     from app.slicing.toolpath import Toolpath
 
-_DISPENSE = {"marlin": ("M106 S255", "M107"), "grbl": ("M8", "M9")}
 END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
 
 
@@ -46,7 +45,7 @@ def bead_area_mm2(width_mm: float, height_mm: float) -> float:
 class FdmParams:
     """G-code output options (mm, mm/s, deg C)."""
 
-    dialect: str = "marlin"
+    dialect: str = DEFAULT_DIALECT
     mode: Literal["extrude", "dispense"] = "extrude"
     job_id: str | None = None
     nozzle_temp_c: float = 210.0
@@ -60,34 +59,34 @@ class FdmParams:
     dispense_off: str | None = None
 
 
-def _start(b: ProgramBuilder, tp: Toolpath, p: FdmParams) -> None:
+def _start(b: ProgramBuilder, tp: Toolpath, p: FdmParams, rules: Dialect) -> None:
     """The start section: limits, heating, E mode, homing."""
     lim = tp.params.limits
     b.comment("start")
-    if p.dialect == "marlin":
+    if rules.machine_limits:
         b.raw(f"M204 P{lim.accel_mm_s2:g} T{lim.travel_accel_mm_s2:g} "
               f"R{lim.retract_accel_mm_s2:g}")
         b.raw(f"M205 J{lim.junction_deviation_mm:g}")
-        if p.mode == "extrude":
-            b.raw(f"M140 S{p.bed_temp_c:g}").raw(f"M104 S{p.nozzle_temp_c:g}")
-            b.raw(f"M190 S{p.bed_temp_c:g}").raw(f"M109 S{p.nozzle_temp_c:g}")
-            b.raw("M82")
+    if rules.extrusion and p.mode == "extrude":
+        b.raw(f"M140 S{p.bed_temp_c:g}").raw(f"M104 S{p.nozzle_temp_c:g}")
+        b.raw(f"M190 S{p.bed_temp_c:g}").raw(f"M109 S{p.nozzle_temp_c:g}")
+        b.raw("M82")
     if p.home:
         b.raw("G28")
     if p.mode == "extrude":
         b.raw("G92 E0")
 
 
-def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str) -> None:
+def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str, rules: Dialect) -> None:
     """The end section from the last layer's height ``z`` (mm)."""
     b.comment("end")
     if p.mode == "dispense":
         b.raw(off)
     b.move(z=z + END_LIFT_MM, feed_mm_min=600.0)
-    if p.dialect == "marlin":
-        if p.mode == "extrude":
-            b.raw("M104 S0").raw("M140 S0")
-        b.raw("M84")
+    if rules.extrusion and p.mode == "extrude":
+        b.raw("M104 S0").raw("M140 S0")
+    if rules.motors_off:
+        b.raw(rules.motors_off)
     b.end()
 
 
@@ -95,15 +94,17 @@ def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
     """G-code text of ``toolpath`` (a :class:`~app.slicing.toolpath.Toolpath`)."""
     if params.mode not in ("extrude", "dispense"):
         raise GcodeError(f"unknown mode {params.mode!r}", field="mode", value=params.mode)
-    if params.mode == "extrude" and params.dialect != "marlin":
+    rules = DIALECTS.get(params.dialect)
+    if params.mode == "extrude" and not (rules is not None and rules.extrusion):
         raise GcodeError("extrusion (E axis) output needs the marlin dialect", field="dialect",
                          value=params.dialect)
-    b = ProgramBuilder(params.dialect, "toolpath", params.job_id)
-    on, off = _DISPENSE.get(params.dialect, ("M106 S255", "M107"))
+    b = ProgramBuilder(params.dialect, "toolpath", params.job_id)  # GcodeError: unknown dialect
+    rules = b.dialect
+    on, off = rules.dispense
     on, off = params.dispense_on or on, params.dispense_off or off
     tpp = toolpath.params
     fil_area = math.pi * (tpp.filament_mm / 2) ** 2
-    _start(b, toolpath, params)
+    _start(b, toolpath, params, rules)
     b.comment("process")
     e, retracted, extruded = 0.0, False, False
     pos: npt.NDArray[np.float64] | None = None
@@ -151,5 +152,5 @@ def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
             pos = piece.points[-1]
             if params.z_lift_mm:
                 b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
-    _end(b, params, z, off)
+    _end(b, params, z, off, rules)
     return b.text()

@@ -25,6 +25,9 @@ from typing import Literal
 from app.errors import InvalidInput
 
 DialectName = Literal["marlin", "grbl", "linuxcnc"]
+DEFAULT_DIALECT: DialectName = "marlin"  # programs for a printer (FDM, compensated traces, circuits, machines)
+# probing and five-axis programs default to grbl (their API defaults since they were written)
+DEFAULT_PROBING_DIALECT: DialectName = "grbl"
 ProbeStyle = Literal["g38", "g30"]
 
 
@@ -40,6 +43,11 @@ class Dialect:
     ``G38.2`` (probe toward a target along an axis, stop on trigger; grbl, LinuxCNC, and
     Marlin built with ``G38_PROBE_TARGET``), ``"g30"`` is Marlin's single-point ``G30``
     (probe straight down at X/Y; the firmware chooses the probing feed and lift).
+    ``extrusion``: an E axis with heaters (FDM extrusion output; M104/M140/M82);
+    ``machine_limits``: the program sets acceleration and junction deviation
+    (``M204``/``M205``); ``motors_off``: the end section's motors-off command;
+    ``dispense``: the default dispenser on/off commands (a machine profile overrides them);
+    ``dwell_ms``: ``G4 P`` counts milliseconds (Marlin) rather than seconds.
     """
 
     name: str
@@ -47,12 +55,26 @@ class Dialect:
     wait_for_moves: str
     program_end: str | None
     preamble: tuple[str, ...] = ()   # lines after the standard header
+    extrusion: bool = False
+    machine_limits: bool = False
+    motors_off: str | None = None
+    dispense: tuple[str, str] = ("M106 S255", "M107")
+    dwell_ms: bool = False
+
+    def dwell(self, seconds: float) -> str:
+        """``G4`` dwell of ``seconds`` (s) in this dialect's unit: Marlin ``G4 P<ms>``
+        (integer milliseconds), grbl/LinuxCNC ``G4 P<s>`` (3 decimals)."""
+        if self.dwell_ms:
+            return f"G4 P{round(seconds * 1000)}"
+        return f"G4 P{seconds:.3f}"
 
 
 DIALECTS: dict[str, Dialect] = {
-    "grbl": Dialect("grbl", probe_styles=("g38",), wait_for_moves="G4 P0", program_end="M2"),
+    "grbl": Dialect("grbl", probe_styles=("g38",), wait_for_moves="G4 P0", program_end="M2",
+                    dispense=("M8", "M9")),
     "marlin": Dialect("marlin", probe_styles=("g30", "g38"), wait_for_moves="M400",
-                      program_end=None),
+                      program_end=None, extrusion=True, machine_limits=True, motors_off="M84",
+                      dwell_ms=True),
     # LinuxCNC: a program file must end in M2/M30; G4 P0 ends blending (waits for moves);
     # its dispense outputs are M64/M65 P<n> (machine profile), not M106/M107 or M8/M9
     # G64 P0.001: LinuxCNC blends corners within 1 um (its default G64 has no bound)

@@ -161,7 +161,7 @@ def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[st
         log.info("resuming at command %d (%s: %s)", located.start, located.basis, located.detail)
     else:
         start = machine.resume_line()
-    home = machine.profile.home_command or {"marlin": "G28", "grbl": "$H"}.get(machine.dialect, "set home -1")
+    home = machine.home_command  # the profile's, else the dialect's (hardware.dialects)
     machine.home()
     return start, [home]
 

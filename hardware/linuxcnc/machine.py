@@ -175,6 +175,11 @@ class LinuxCNCMachine(ClaimedOperations):
         finally:
             self._release(self._fail_state())
 
+    @property
+    def home_command(self) -> str:
+        """What homing is recorded as: the profile's command, else ``set home -1``."""
+        return self.profile.home_command or "set home -1"
+
     def home(self) -> tuple[float, float, float]:
         """Home all joints (``set home -1``) and wait until every joint reports homed."""
         self._claim("busy")

@@ -1,6 +1,8 @@
 """Mock printer firmware behind ``mock://`` URLs (Marlin and grbl personalities).
 
-Importing this package registers it with pyserial (``serial.protocol_handler_packages``),
+Importing this package registers it with pyserial (``serial.protocol_handler_packages``,
+via ``hardware.transport.register_mock_scheme``; the link registers it on its first
+``mock://`` URL without importing this package),
 so ``serial.serial_for_url("mock://name?dialect=grbl")`` returns a port whose other end is
 the firmware of the ``MockWorld`` registered under ``name`` (created on first use).
 
@@ -13,8 +15,7 @@ the firmware of the ``MockWorld`` registered under ``name`` (created on first us
 
 from __future__ import annotations
 
-import serial
-
+from ..transport import register_mock_scheme
 from .artifacts import MockPad, MockSphere, MockTool
 from .world import (HOST_QUERIES, DepositedMove, FaultConfig, MockStats, MockWorld, Placement,
                     Transcript, get_world, parse_mock_options, register_world,
@@ -23,8 +24,7 @@ from .world import (HOST_QUERIES, DepositedMove, FaultConfig, MockStats, MockWor
 
 def register_protocol_handler() -> None:
     """Make ``mock://`` known to ``serial.serial_for_url`` (idempotent)."""
-    if __name__ not in serial.protocol_handler_packages:
-        serial.protocol_handler_packages.append(__name__)
+    register_mock_scheme()
 
 
 register_protocol_handler()

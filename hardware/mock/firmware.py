@@ -59,6 +59,9 @@ class FirmwareCore:
     """State and timing common to both dialects (see module docstring)."""
 
     dialect = "base"
+    # disconnect_at_line fires when the N-th command is recorded (Marlin); grbl fires it
+    # in its own receive path (hardware.mock.grbl)
+    DISCONNECT_WHEN_RECORDED = False
 
     def __init__(self, world: MockWorld, baudrate: int) -> None:
         self.world = world
@@ -228,7 +231,7 @@ class FirmwareCore:
             return
         transcript = self.world.transcript
         transcript.record(command)
-        if self.dialect == "marlin" and self.faults.disconnect_at_line == transcript.executed_count \
+        if self.DISCONNECT_WHEN_RECORDED and self.faults.disconnect_at_line == transcript.executed_count \
                 and "disconnect" not in self.fired:
             self.fired.add("disconnect")
             self.disconnect(now)

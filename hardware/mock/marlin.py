@@ -42,6 +42,7 @@ class MarlinFirmware(FirmwareCore):
     """Marlin 2 behaviour; see module docstring."""
 
     dialect = "marlin"
+    DISCONNECT_WHEN_RECORDED = True
 
     def cold_start(self) -> None:
         super().cold_start()

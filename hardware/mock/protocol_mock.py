@@ -39,10 +39,13 @@ def _drive(world: MockWorld, firmware: object) -> None:
                 world.cond.wait(timeout if timeout is not None else 0.5)
 
 
+FIRMWARES = {"marlin": MarlinFirmware, "grbl": GrblFirmware}  # the mock firmware per dialect
+
+
 def _firmware_for(world: MockWorld, baudrate: int) -> tuple[object, bool]:
     if world.firmware is not None:
         return world.firmware, False
-    kind = MarlinFirmware if world.dialect == "marlin" else GrblFirmware
+    kind = FIRMWARES[world.dialect]
     firmware = kind(world, baudrate)
     world.firmware = firmware
     if world.time_scale > 0:

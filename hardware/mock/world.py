@@ -46,7 +46,8 @@ from dataclasses import dataclass, field, fields
 from urllib.parse import parse_qsl, urlsplit
 
 from ..errors import InvalidConfig
-from ..protocol import DIALECTS, CommandHasher, CommandDigest
+from ..dialects import DEFAULT_DIALECT, DIALECTS, dialect
+from ..protocol import CommandHasher, CommandDigest
 from .artifacts import (PHYSICS_LIMITS, MockPad, MockSphere, MockTool, check_physics_value,
                         merge_tools, parse_artifact_option, tool_number)
 
@@ -171,7 +172,7 @@ class MockWorld:
     placement: Placement = field(default_factory=Placement)
     probe_noise_mm: float = 0.0
     seed: int = 0
-    dialect: str = "marlin"
+    dialect: str = DEFAULT_DIALECT
     time_scale: float = 0.0
     faults: FaultConfig = field(default_factory=FaultConfig)
     dispense_on: str | None = None   # None: "M106" (marlin) / "M3" (grbl)
@@ -231,7 +232,7 @@ class MockWorld:
 
     @property
     def dispense_commands(self) -> tuple[str, str]:
-        default = ("M106", "M107") if self.dialect == "marlin" else ("M3", "M5")
+        default = dialect(self.dialect).mock_dispense
         return (self.dispense_on or default[0], self.dispense_off or default[1])
 
     @property
@@ -376,7 +377,7 @@ def world_from_url(url: str) -> MockWorld:
     with _REGISTRY_LOCK:
         world = _REGISTRY.get(name)
         if world is None:
-            world = MockWorld(dialect=str(options.get("dialect", "marlin")))
+            world = MockWorld(dialect=str(options.get("dialect", DEFAULT_DIALECT)))
             _REGISTRY[name] = world
     if "dialect" in options and options["dialect"] != world.dialect:
         raise InvalidConfig(f"mock world {name!r} speaks {world.dialect}, not {options['dialect']}",

@@ -44,6 +44,7 @@ from app.five_axis.trace import trace_over_xy, uv_over_xy
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top
 from app.errors import InvalidInput
+from app.gcode.writer import DEFAULT_PROBING_DIALECT, DIALECTS as GCODE_DIALECTS
 from app.geometry.nurbs_surface import NurbsSurface
 from app.geometry.tolerance import DEFAULT_TOLERANCE
 from app.jobs.context import JobContext
@@ -109,7 +110,7 @@ class FiveAxisJobParams(JobParams):
         "xyzac-trt in identity mode); linuxcnc_xyzac_trt: M428 TCP, X Y Z = tip in workpiece coordinates")
     program_end: str | None = Field(None, max_length=40, pattern=_DISPENSE_COMMAND,
                                     description="the machine's program end, e.g. M2; default: the dialect's")
-    dialect: Literal["grbl", "marlin", "linuxcnc"] = Field("grbl", description="G-code dialect of the program")
+    dialect: Literal["grbl", "marlin", "linuxcnc"] = Field(DEFAULT_PROBING_DIALECT, description="G-code dialect of the program")
     machine_id: str | None = Field(None, description="take the dialect, dispense codes, program end, post and "
                                    "pivot (when set) from this machine's profile instead of the fields above")
     fit_grid: list[Annotated[int, Field(ge=4, le=100)]] = Field(
@@ -142,9 +143,6 @@ class FiveAxisJobParams(JobParams):
             "feed_mm_min": self.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN})
 
 
-_DIALECTS = ("grbl", "marlin", "linuxcnc")
-
-
 def with_machine(params: FiveAxisJobParams, machine: Machine) -> FiveAxisJobParams:
     """The parameters with the machine profile's program settings filled in."""
     profile = machine.profile or {}
@@ -153,8 +151,9 @@ def with_machine(params: FiveAxisJobParams, machine: Machine) -> FiveAxisJobPara
     update["post"] = profile.get("five_axis_post") or "conforma"
     if profile.get("pivot_mm") is not None:
         update["pivot"] = [float(v) for v in profile["pivot_mm"]]
-    if machine.dialect in _DIALECTS:
-        update["dialect"] = machine.dialect
+    known = GCODE_DIALECTS.get(machine.dialect)  # a dialect the program writer knows
+    if known is not None:
+        update["dialect"] = known.name
     return params.model_copy(update=update)
 
 

@@ -20,6 +20,7 @@ from sqlmodel import Session
 from app.gcode.estimator import MachineLimits, estimate_gcode
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_gcode
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
+from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
@@ -167,7 +168,7 @@ def _check(params: ToolpathJobParams, session: Session) -> None:
     """The slice job must be a succeeded slice job; extrusion needs the marlin dialect."""
     job = succeeded_job(session, params.slice_job_id, "slice", "params.slice_job_id", error=SlicingError,
                         hint=" (submit the toolpath once the slice has succeeded)")
-    if params.mode == "extrude" and params.dialect != "marlin":
+    if params.mode == "extrude" and not GCODE_DIALECTS[params.dialect].extrusion:
         raise SlicingError("extrusion (E axis) output needs the marlin dialect; use mode: dispense on grbl",
                            field="params.dialect", value=params.dialect)
     params.fill().validate()
