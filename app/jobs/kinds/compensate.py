@@ -231,10 +231,11 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         row = checkpoints.reusable(trace_id, inputs)
         if row is None:
             row = _board_trace(ctx, params, choice, trace, source.id, placement)
-            checkpoints.record(trace_id, inputs, row.pop("stored"), row)
+            checkpoints.done(trace_id, inputs, row.pop("stored"), row)
         rows.append(row)
         if index % 25 == 24 or index + 1 == total:
             ctx.progress((index + 1) / total, f"{index + 1}/{total} traces compensated{checkpoints.note()}")
+    checkpoints.flush()
     return CompensateBoardResult.written({"board": True, "traces": rows})
 
 

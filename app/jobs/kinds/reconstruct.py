@@ -237,8 +237,9 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     for trace_id, rec in zip(left, rebuild_board(ctx, params, left) if left else ()):
         name = stored_name(trace_id)
         row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec)}
-        checkpoints.record(trace_id, keys[trace_id], {name: _store(ctx, rec, name)}, row)
+        checkpoints.done(trace_id, keys[trace_id], {name: _store(ctx, rec, name)}, row)
         done[trace_id] = row
+    checkpoints.flush()
     total = len(params.traces)
     ctx.progress(1.0, f"{total}/{total} traces rebuilt{checkpoints.note()}")
     return [row for t in params.traces if (row := done[t]) is not None]
