@@ -249,7 +249,7 @@ def _store(ctx: JobContext, reconstruction: Reconstruction, name: str) -> str:
     """Store ``reconstruction`` as the artifact ``name`` (``compensate`` reads it back exactly);
     its sha256."""
     return ctx.artifact(name, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
-                 {"format": "npz", "height_model": reconstruction.height_model.kind})
+                        {"format": "npz", "height_model": reconstruction.height_model.kind})
 
 
 def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str, Any] | None:
