@@ -1,6 +1,7 @@
 // Result views that need more than the job's own record: the probe plan's stations drawn
 // on the part (top view, with the traces), compensation's standoff along the trace
-// (nominal program vs compensated) with the program's time, and a five-axis program's A/C
+// (nominal program vs compensated) with the program's time (a board compensation: its
+// traces worst first, web/js/board_view.js), and a five-axis program's A/C
 // angles and tip speed along the path.  Each returns a container at once and fills it
 // when its reads answer (the raw JSON stays one click away on the job page).
 import { get } from "./api.js";
@@ -137,4 +138,12 @@ function fiveAxisView(job) {
   return node;
 }
 
-export const VIEWS = { probe_plan: planView, compensate: compensateView, five_axis: fiveAxisView };
+// ---- board compensation: every trace, worst first (web/js/board_view.js, loaded on use) ----
+function boardCompensateView(job) {
+  const { node, body } = box("compensate-board-view", `Board: ${job.result.traces.length} traces, nominal program vs compensated`);
+  fill(body, async () => (await import("./board_view.js")).boardCompensateContents(job));
+  return node;
+}
+
+export const VIEWS = { probe_plan: planView, five_axis: fiveAxisView,
+  compensate: (job) => (job.result.board ? boardCompensateView(job) : compensateView(job)) };

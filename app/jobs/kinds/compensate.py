@@ -40,6 +40,7 @@ from app.compensation.standoff import CompensationError, CompensationParams, com
     tip_path
 from app.errors import InvalidInput
 from app.geometry.drape import top_surface_z
+from app.jobs.board_checkpoints import TraceCheckpoints, artifact_shas, inputs_sha256, trace_inputs
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
@@ -217,18 +218,55 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         return CompensateResult.written(result)
     rows = []
     total = len(params.trace_ids)
+    checkpoints = TraceCheckpoints(ctx)
+    shared = inputs_sha256(_board_inputs(ctx, params, choice, source.id, placement))
+    reconstructions = artifact_shas(ctx, source.id)
+    parts: dict[str, str] = {}
     for index, trace_id in enumerate(params.trace_ids):
         trace = ctx.trace(trace_id)
-        reconstruction = read_reconstruction(ctx.artifact_bytes(source.id, stored_name(trace_id)),
-                                             placed_nominal(trace, placement))
-        result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement)
-        printed, plain = board_artifacts(trace_id)
-        ctx.artifact(printed, program.encode(), "text/x-gcode", gcode_meta(program))
-        ctx.artifact(plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))
-        rows.append({"trace_id": trace_id, "print_artifact": printed, "nominal_artifact": plain, **result})
+        if trace.part_id not in parts:
+            parts[trace.part_id] = ctx.part(trace.part_id).sha256
+        inputs = inputs_sha256(shared, trace_inputs(trace, parts[trace.part_id]),
+                               reconstructions.get(stored_name(trace_id)))
+        row = checkpoints.reusable(trace_id, inputs)
+        if row is None:
+            row = _board_trace(ctx, params, choice, trace, source.id, placement)
+            checkpoints.done(trace_id, inputs, row.pop("stored"), row)
+        rows.append(row)
         if index % 25 == 24 or index + 1 == total:
-            ctx.progress((index + 1) / total, f"{index + 1}/{total} traces compensated")
+            ctx.progress((index + 1) / total, f"{index + 1}/{total} traces compensated{checkpoints.note()}")
+    checkpoints.flush()
     return CompensateBoardResult.written({"board": True, "traces": rows})
+
+
+def _board_inputs(ctx: JobContext, params: CompensateParams, choice: ToolChoice, source_id: str,
+                  placement: Any) -> dict[str, Any]:
+    """What every trace's programs of a board job are made from besides the trace itself (the
+    per-trace checkpoints' inputs, :mod:`app.jobs.board_checkpoints`): the parameters, the
+    tool, the machine's dialect and dispense commands, the placement (each trace adds its
+    record and its stored reconstruction's sha256)."""
+    machine = None
+    if params.machine_id:
+        row = ctx.machine(params.machine_id)
+        machine = {"dialect": row.dialect, "dispense_on": row.profile.get("dispense_on"),
+                   "dispense_off": row.profile.get("dispense_off")}
+    return {"kind": "compensate", "params": params.model_dump(mode="json", exclude={"trace_ids"}),
+            "tool": choice.to_result(), "warnings": choice.warnings, "dispense": [choice.dispense_on, choice.dispense_off],
+            "machine": machine, "placement": None if placement is None else placement.to_dict(),
+            "reconstruct_job_id": source_id}
+
+
+def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, source_id: str,
+                 placement: Any) -> dict[str, Any]:
+    """Compensate one trace of a board job and store its programs; its result row, with
+    ``stored``: {artifact name: sha256} of the programs."""
+    reconstruction = read_reconstruction(ctx.artifact_bytes(source_id, stored_name(trace.id)),
+                                         placed_nominal(trace, placement))
+    result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement)
+    printed, plain = board_artifacts(trace.id)
+    stored = {printed: ctx.artifact(printed, program.encode(), "text/x-gcode", gcode_meta(program)),
+              plain: ctx.artifact(plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))}
+    return {"trace_id": trace.id, "print_artifact": printed, "nominal_artifact": plain, **result, "stored": stored}
 
 
 def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, reconstruction: Any,

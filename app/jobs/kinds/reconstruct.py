@@ -14,6 +14,7 @@ the part).  With ``points``, ``context`` gives the other traces' probes explicit
 from __future__ import annotations
 
 from dataclasses import replace
+from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -22,6 +23,7 @@ from sqlmodel import Session
 from app.calibration import ProbeCalibration
 from app.errors import InvalidInput
 from app.geometry.placement import Placement
+from app.jobs.board_checkpoints import TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.context import JobContext
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
@@ -207,21 +209,48 @@ def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
         reconstruction = rebuild(ctx, params)
         _store(ctx, reconstruction, stored_name())
         return ReconstructResult.written({**reconstruction.to_result(), "sigma": sigma})
-    rows = []
-    for trace_id, rec in zip(params.trace_ids, rebuild_board(ctx, params)):
-        name = stored_name(trace_id)
-        _store(ctx, rec, name)
-        rows.append({"trace_id": trace_id, "reconstruction": name, **board_entry(rec)})
+    rows = _board_rows(ctx, params, sigma)
     return ReconstructBoardResult.written({
         "method": "field", "board": True, "traces": rows, "sigma": sigma,
         "deviation": {"max_mm": max(r["deviation"]["max_mm"] for r in rows),
                       "rms_mm": max(r["deviation"]["rms_mm"] for r in rows)}})
 
 
-def _store(ctx: JobContext, reconstruction: Reconstruction, name: str) -> None:
-    """Store ``reconstruction`` as the artifact ``name`` (``compensate`` reads it back exactly)."""
-    ctx.artifact(name, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
-                 {"format": "npz", "height_model": reconstruction.height_model.kind})
+def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, Any]) -> list[dict[str, Any]]:
+    """The board result's rows (``params.traces`` order), each trace's reconstruction stored
+    as it is made; a trace an earlier attempt of this job finished from the same inputs is
+    reused (:mod:`app.jobs.board_checkpoints`), and the field is fitted only if a trace is left."""
+    checkpoints = TraceCheckpoints(ctx)
+    shared = inputs_sha256({"kind": "reconstruct", "params": params.model_dump(mode="json", exclude={"trace_ids"}),
+                            "sigma": sigma})
+    parts: dict[str, str] = {}
+    keys: dict[str, str] = {}
+    done: dict[str, dict[str, Any] | None] = {}
+    for trace_id in params.traces:
+        trace = ctx.trace(trace_id)
+        if trace.part_id not in parts:
+            parts[trace.part_id] = ctx.part(trace.part_id).sha256
+        keys[trace_id] = inputs_sha256(shared, trace_inputs(trace, parts[trace.part_id]))
+        done[trace_id] = checkpoints.reusable(trace_id, keys[trace_id])
+    left = [t for t in params.traces if done[t] is None]
+    if checkpoints.reused:
+        ctx.progress(0.2, f"{checkpoints.reused}/{len(params.traces)} traces reused from an earlier attempt")
+    for trace_id, rec in zip(left, rebuild_board(ctx, params, left) if left else ()):
+        name = stored_name(trace_id)
+        row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec)}
+        checkpoints.done(trace_id, keys[trace_id], {name: _store(ctx, rec, name)}, row)
+        done[trace_id] = row
+    checkpoints.flush()
+    total = len(params.traces)
+    ctx.progress(1.0, f"{total}/{total} traces rebuilt{checkpoints.note()}")
+    return [row for t in params.traces if (row := done[t]) is not None]
+
+
+def _store(ctx: JobContext, reconstruction: Reconstruction, name: str) -> str:
+    """Store ``reconstruction`` as the artifact ``name`` (``compensate`` reads it back exactly);
+    its sha256."""
+    return ctx.artifact(name, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
+                        {"format": "npz", "height_model": reconstruction.height_model.kind})
 
 
 def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str, Any] | None:
@@ -246,19 +275,20 @@ def board_entry(rec: Reconstruction) -> dict[str, Any]:
     return {k: v for k, v in rec.to_result().items() if k != "curve"}
 
 
-def rebuild_board(ctx: JobContext, params: ReconstructJobParams) -> list[Reconstruction]:
-    """The reconstructions (in ``params.traces`` order) a board reconstruct makes: one field
-    fit (cached per run, as for one trace) evaluated along each trace (the probe noise as for
-    one trace: ``params.sigma_mm``, resolved by :func:`run`)."""
+def rebuild_board(ctx: JobContext, params: ReconstructJobParams,
+                  trace_ids: list[str] | None = None) -> Iterator[Reconstruction]:
+    """The reconstructions a board reconstruct makes, one after the other (in ``trace_ids``
+    order, default ``params.traces``): one field fit (cached per run, as for one trace)
+    evaluated along each trace (the probe noise as for one trace: ``params.sigma_mm``,
+    resolved by :func:`run`)."""
     placement = placement_from(ctx, params)
     fit, refinement, plan_traces = _run_field(ctx, params)
     where = {t: i for i, t in enumerate(plan_traces)}
-    out = []
-    for index, trace_id in enumerate(params.traces):
-        out.append(_field_trace(fit, refinement, placed_nominal(ctx.trace(trace_id), placement), where[trace_id]))
+    wanted = params.traces if trace_ids is None else trace_ids
+    for index, trace_id in enumerate(wanted):
+        yield _field_trace(fit, refinement, placed_nominal(ctx.trace(trace_id), placement), where[trace_id])
         if index % 50 == 49:
-            ctx.progress(0.2 + 0.7 * (index + 1) / len(params.traces), f"{index + 1}/{len(params.traces)} traces rebuilt")
-    return out
+            ctx.progress(0.2 + 0.7 * (index + 1) / len(wanted), f"{index + 1}/{len(wanted)} traces rebuilt")
 
 
 def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
