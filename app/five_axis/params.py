@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from app.gcode.writer import DEFAULT_PROBING_DIALECT
 from app.checks import require_positive
 from app.five_axis.contact import NormalSide, NormalSource
 from app.five_axis.errors import FiveAxisError
@@ -66,7 +67,7 @@ class FiveAxisParams:
     max_split_rounds: int = 10
     on_surface_tol_mm: float = 0.05
     feed_mode: FeedMode = "inverse_time"
-    dialect: str = "grbl"
+    dialect: str = DEFAULT_PROBING_DIALECT
     job_id: str | None = None
     decimals: int = 4
     safe_z_mm: float | None = None

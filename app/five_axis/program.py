@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from app.gcode.writer import ProgramBuilder, format_number
+from app.gcode.writer import DEFAULT_PROBING_DIALECT, ProgramBuilder, format_number
 
 __all__ = ["FeedMode", "ProgramStyle", "approach", "dispense", "end_program", "five_axis_program",
            "nominal_program"]
@@ -47,7 +47,7 @@ class ProgramStyle:
     None: the dialect's (grbl and linuxcnc ``M2``, Marlin none).
     """
 
-    dialect: str = "grbl"
+    dialect: str = DEFAULT_PROBING_DIALECT
     job_id: str | None = None
     decimals: int = 4
     safe_z_mm: float | None = None

@@ -18,6 +18,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from app.gcode.writer import DEFAULT_PROBING_DIALECT
 from app.geometry.placement import Placement
 from app.jobs.registry import JobParams
 
@@ -119,7 +120,7 @@ class ProbePlanParams(PlacedParams):
     approach_mm: float = Field(1.0, gt=0, le=50)
     overtravel_mm: float = Field(1.0, gt=0, le=50)
     probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000)
-    dialect: Literal["grbl", "marlin", "linuxcnc"] = "grbl"
+    dialect: Literal["grbl", "marlin", "linuxcnc"] = DEFAULT_PROBING_DIALECT
     probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin")
 
     @model_validator(mode="after")

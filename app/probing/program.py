@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from app.checks import require_positive
-from app.gcode.writer import DIALECTS, ProgramBuilder
+from app.gcode.writer import DEFAULT_PROBING_DIALECT, DIALECTS, ProgramBuilder
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 from app.probing.selection import PlanError, ProbePlan
 
@@ -43,7 +43,7 @@ class ProbeProgramParams:
         raises Z to max(this, every travel height) + clearance before any X/Y move.
     """
 
-    dialect: str = "grbl"
+    dialect: str = DEFAULT_PROBING_DIALECT
     probe_style: str | None = None
     clearance_mm: float = 2.0
     approach_mm: float = 1.0

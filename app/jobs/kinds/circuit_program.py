@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import Field
 from sqlmodel import Session, select
 
+from app.gcode.writer import DEFAULT_DIALECT
 from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import deviation_field, fill_tip_strokes, trace_passes
 from app.errors import InvalidInput
@@ -114,7 +115,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                 fills += 1
     if not strokes:
         raise InvalidInput("the import has nothing to print", field="params.import_id", value=params.import_id)
-    dialect, on, off = "marlin", "M106", "M107"
+    dialect, on, off = DEFAULT_DIALECT, "M106", "M107"
     if params.machine_id:
         machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]

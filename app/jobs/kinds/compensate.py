@@ -35,6 +35,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session, select
 
+from app.gcode.writer import DEFAULT_DIALECT
 from app.calibration.clearance import nozzle_clearance
 from app.compensation.standoff import CompensationError, CompensationParams, compensate_trace, real_surface_height, \
     tip_path
@@ -77,7 +78,7 @@ class CompensateParams(JobParams):
     feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="default: the trace's, else 300")
     chord_error_mm: float = Field(0.002, gt=0, le=1, description="largest polyline-to-curve distance, proved per segment")
     machine_id: str | None = Field(None, description="take dialect and dispense commands from this machine's profile")
-    dialect: Literal["marlin", "grbl"] = "marlin"
+    dialect: Literal["marlin", "grbl"] = DEFAULT_DIALECT
     dispense_on: str = Field("M106", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$")
     dispense_off: str = Field("M107", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$")
     hold_mm: float = Field(0.0, ge=0, le=5, description="hold the end deviation over gaps to the probed span "
