@@ -22,6 +22,7 @@ from app.circuits.mapping import MappingOptions, map_layout
 from app.circuits.pad_probes import probe_ring
 from app.circuits.placement import Placement
 from app.errors import ConformaError, InvalidInput
+from app.geometry.traces import TracePolyline
 from app.jobs.kinds.circuit_program import import_probe_trace_ids
 from app.models import CircuitImport, Part, Trace, new_id, utcnow
 from app.records import build_trace, get_or_404
@@ -220,10 +221,16 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
             continue
         item.trace = trace_out(trace).model_dump(mode="json") if not opts.dry_run else {
             "id": None, "name": trace.name, "length_mm": trace.length_mm, "z_range": [trace.z_min, trace.z_max],
-            "width_mm": trace.width_mm, "geometry": trace.geometry, "nominal": {"points": trace.nominal["points"]}}
+            "width_mm": trace.width_mm, "geometry": trace.geometry, "nominal": {"points": _nominal_points(trace)}}
     if opts.dry_run and opts.view_id:
         out.preview = _preview(request, part, mesh, out, opts.view_id)
     return out
+
+
+def _nominal_points(trace: Trace) -> list[list[float]]:
+    """The trace's stored nominal points [[x, y, z]] mm, read through :class:`TracePolyline`."""
+    points: list[list[float]] = TracePolyline.from_dict(trace.nominal).to_dict()["points"]
+    return points
 
 
 def _preview(request: Request, part: Part, mesh, out: CircuitImportOut, view_id: str) -> dict[str, Any]:
@@ -254,7 +261,7 @@ def _probe_trace(runtime, part: Part, outline, label: str, opts: CircuitImportOp
         return None
     trace.source = {"role": "pad_probe", "import_id": import_id, "pad": label}
     out.probe_paths.append({"pad": label, "ring_xy_mm": ring.round(6).tolist(),
-                            "points": trace.nominal["points"]})
+                            "points": _nominal_points(trace)})
     records.append((None, trace))
     return trace
 

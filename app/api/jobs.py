@@ -15,6 +15,7 @@ from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.job_events import JobWatch, TooManyStreams
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
+from app.jobs.results import ProgramEcho
 from app.errors import Conflict, InvalidInput, NotFound
 from app.jobs.machine_jobs import request_resume
 from app.models import Artifact, Job, JobReference, Trace
@@ -169,10 +170,10 @@ def artifact_summary(job_id: str, name: str, runtime: RuntimeDep, session: Sessi
         raise NotFound(f"job {job_id!r} has no artifact {name!r}", field="name", value=name)
     if artifact.media_type != "text/x-gcode":
         raise InvalidInput(f"artifact {name!r} is {artifact.media_type}, not a G-code program", field="name", value=name)
-    result = job.result or {}
-    pivot = result.get("pivot") or [0.0, 0.0, 0.0]
-    tcp = result.get("post") == "linuxcnc_xyzac_trt"
-    dispense = (result.get("dispense_on"), result.get("dispense_off"))
+    echo = ProgramEcho.of_any(job)
+    pivot = echo.pivot or [0.0, 0.0, 0.0]
+    tcp = echo.post == "linuxcnc_xyzac_trt"
+    dispense = (echo.dispense_on, echo.dispense_off)
     key = (artifact.sha256, tuple(pivot), tcp, dispense)
     if key not in _SUMMARIES:
         text = runtime.blobs.read(artifact.sha256).decode("utf-8", errors="replace")

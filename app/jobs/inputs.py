@@ -17,6 +17,7 @@ from app.errors import ConformaError, InvalidInput, NotFound
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
 from app.jobs.params import PlacedParams, PlacementParams
+from app.jobs.results import RegisterResult
 from app.models import Job, Trace
 from app.registration.registration import place_path
 
@@ -54,7 +55,7 @@ def check_registration(params: PlacedParams, session: Session) -> Placement | No
     if params.registration_job_id is None:
         return None if params.placement is None else params.placement.to_placement()
     job = succeeded_job(session, params.registration_job_id, "register", "params.registration_job_id")
-    return PlacementParams.model_validate(job.result["placement"]).to_placement()
+    return PlacementParams.model_validate(RegisterResult.of(job).placement).to_placement()
 
 
 def placed_params_of(job: Job) -> PlacedParams:
@@ -67,7 +68,7 @@ def placement_from(ctx: "JobContext", params: PlacedParams) -> Placement | None:
     """The placement ``params`` asks for (explicit, or a register job's), else None."""
     if params.registration_job_id is not None:
         job = ctx.job(params.registration_job_id, kind="register", field="params.registration_job_id")
-        return PlacementParams.model_validate(job.result["placement"]).to_placement()
+        return PlacementParams.model_validate(RegisterResult.of(job).placement).to_placement()
     return None if params.placement is None else params.placement.to_placement()
 
 

@@ -1,11 +1,12 @@
 """Typed results of the job kinds whose results other code reads back (probe_plan,
-probe_run, reconstruct, compensate, slice, surface_fit, print; closed_loop's in
+probe_run, reconstruct, compensate, slice, surface_fit, print, five_axis, register; closed_loop's in
 :mod:`app.jobs.loop_results`, the calibrations' in :mod:`app.jobs.calibration_results`).
 
 A board job (``reconstruct`` / ``compensate`` with ``trace_ids``) has its own model
 (:class:`ReconstructBoardResult`, :class:`CompensateBoardResult`: one row per trace);
 :func:`reconstruct_rows` / :func:`compensate_rows` read either form as trace id -> that
-trace's typed row.
+trace's typed row.  :class:`ProgramEcho` reads what any job's result echoes about its
+programs (dispense lines, a five-axis frame).
 
 A kind writes its result through its model (:meth:`KindResult.written`: a key the model does
 not know, or a missing required one, fails the job instead of storing a result nobody can
@@ -341,3 +342,100 @@ class PrintResult(KindResult):
     resume_location: dict[str, Any] | None = None
     source_program: dict[str, Any] | None = None
     drift: dict[str, Any] | None = None
+
+
+# five_axis --------------------------------------------------------------------------------
+class FiveAxisResult(KindResult):
+    """A five_axis job: the path's figures (:meth:`app.five_axis.planner.FiveAxisPath.summary`:
+    degrees, mm, percent), the program's frame (``pivot`` [x0, y0, z0] mm, ``post``) and
+    dispense codes, the surface it was planned on (``surface``:
+    :meth:`~app.geometry.nurbs_surface.NurbsSurface.to_dict`, ``surface_source`` says which),
+    the nozzle tips' curve (``offset_curve``) and both programs' G-code summaries."""
+
+    kind: ClassVar[str] = "five_axis"
+    normal_source: str
+    lines: int
+    servo_periods: int
+    duration_s: float
+    max_normal_error_deg: float
+    max_standoff_error_mm: float
+    max_midpoint_error_mm: float
+    nominal_max_normal_error_deg: float
+    nominal_max_standoff_error_mm: float
+    feed_fluctuation_pct: float
+    feed_fluctuation_rms_pct: float
+    feed_fluctuation_first_order_pct: float
+    feed_fluctuation_first_order_rms_pct: float
+    max_c_step_deg: float
+    max_a_step_deg: float
+    max_c_speed_deg_s: float
+    max_a_speed_deg_s: float
+    pole_lines: int
+    split_lines: int
+    split_rounds: int
+    a_range_deg: list[float]
+    max_trace_deviation_mm: float
+    dispense_on: str
+    dispense_off: str
+    post: str
+    feed_fluctuation: float
+    feed_fluctuation_first_order: float
+    standoff_mm: float
+    feed_mm_min: float
+    feed_mode: str
+    pivot: list[float]
+    surface_source: dict[str, Any]
+    surface: dict[str, Any]
+    offset_curve: dict[str, Any]
+    program: dict[str, Any]
+    nominal_program: dict[str, Any]
+
+
+# register ---------------------------------------------------------------------------------
+class RegisterResult(KindResult):
+    """A register job: the fitted ``placement`` (:meth:`app.geometry.placement.Placement.to_dict`
+    form: dx, dy, dz mm, rz_deg, pivot), its ``std`` / ``covariance`` (mm and degrees), the
+    parameters the touches could not see (``unobservable``), each face fit's rms (mm), the
+    touches, the datum plan and the probe calibration applied (when the machine has one)."""
+
+    kind: ClassVar[str] = "register"
+    placement: dict[str, Any]
+    std: dict[str, float]
+    covariance: dict[str, Any]
+    unobservable: list[str]
+    rms_mm: dict[str, float]
+    probe_count: int
+    touches: list[dict[str, Any]]
+    mode: str
+    plan: dict[str, Any]
+    calibration: dict[str, Any] | None = None
+
+    def echo(self) -> dict[str, Any]:
+        """What a closed loop echoes of its registration: placement, std, covariance,
+        unobservable, probe_count (as stored)."""
+        return self.model_dump(include={"placement", "std", "covariance", "unobservable", "probe_count"})
+
+
+# any job's program echo -------------------------------------------------------------------
+class ProgramEcho(BaseModel):
+    """What a job's result may echo about the programs it wrote (any kind; every field
+    optional): the dispense on/off lines, and a five-axis program's frame (``pivot``
+    [x0, y0, z0] mm, ``post``).  Keys of the kind's own result are ignored."""
+
+    model_config = ConfigDict(extra="ignore")
+    dispense_on: str | None = None
+    dispense_off: str | None = None
+    pivot: list[float] | None = None
+    post: str | None = None
+
+    @classmethod
+    def of_any(cls, job: Job) -> ProgramEcho:
+        """The echo in ``job``'s result (all None without a result); a present field of the
+        wrong type is a :class:`StoredResultError` naming ``result.<field>``."""
+        try:
+            return cls.model_validate(job.result or {})
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise StoredResultError(f"the result of {job.kind} job {job.id!r} echoes a bad {where}: {first['msg']}",
+                                    field=f"result.{where}", value=job.id) from None

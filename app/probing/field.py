@@ -34,10 +34,9 @@ from typing import Any, Literal
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.special import j1
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
-from app.probing.deviation_prior import (DeviationPrior, Sites, placement_basis, prior_covariance,
+from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
                                          prior_variance)
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
 from app.geometry.traces import as_trace_polyline
@@ -65,13 +64,10 @@ class GreedyField:
         self.jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
         self.rows = np.empty((16, len(self.var)))
         self.chosen: list[int] = []
-        self._k = 2.0 * math.pi / prior.wavelength_mm
 
     def kernel_row(self, j: int) -> np.ndarray:
         """Prior covariance (N,) mm^2 between site j and every site."""
-        r = np.linalg.norm(self.sites.xy - self.sites.xy[j], axis=1)
-        x = np.maximum(self._k * r, 1e-12)
-        jinc = np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
+        jinc = jinc_kernel(self.sites.xy[j:j + 1], self.sites.xy, self.prior.wavelength_mm)[0]
         out: np.ndarray = self.prior.rms_mm ** 2 * jinc + self.basis @ self.basis[j]
         return out
 

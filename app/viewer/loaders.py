@@ -22,8 +22,9 @@ from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
-from app.jobs.results import (CompensateResult, ProbePlanResult, ProbeRunResult, ReconstructResult, compensate_rows,
-                              program_artifacts, reconstruct_rows)
+from app.jobs.inputs import nominal_of
+from app.jobs.results import (CompensateResult, ProbePlanResult, ProbeRunResult, ProgramEcho, ReconstructResult,
+                              SurfaceFitResult, compensate_rows, program_artifacts, reconstruct_rows)
 from app.records import get_or_404, joint_trace_ranges
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.offload import ParsePool
@@ -54,7 +55,7 @@ def _ribbon(trace: Trace | None, samples: np.ndarray, label: str) -> tuple[Scala
     about 4 % of the trace's extent wide (0.5..4 mm), lifted 10 um off the nominal top."""
     if trace is None or len(samples) < 2:
         return ()
-    nominal = np.asarray(trace.nominal["points"], float)
+    nominal = nominal_of(trace).points
     width = float(np.clip(0.04 * np.ptp(nominal[:, :2], axis=0).max(), 0.5, 4.0))
     surface = ribbon_surface(f"{label} deviation", nominal, samples[:, 0], samples[:, 1], width, 0.01)
     return (surface,) if surface is not None else ()
@@ -83,7 +84,7 @@ class Loader:
             part = get_or_404(session, Part, part_id)
             traces = session.exec(select(Trace).where(Trace.part_id == part_id).order_by(Trace.created_at)).all()
             vertices, faces = self._mesh(part)
-            lines = tuple(Polyline(t.name, np.asarray(t.nominal["points"], float)) for t in traces)
+            lines = tuple(Polyline(t.name, nominal_of(t).points) for t in traces)
         return FocusScene({"part_id": part_id}, f"part {part.name}", vertices, faces, polylines=lines)
 
     def job_scene(self, job_id: str) -> FocusScene:
@@ -161,7 +162,7 @@ class Loader:
 
     def _with_trace(self, session: Session, job: Job, **parts: Any) -> FocusScene:
         trace = self._trace_of(session, job)
-        lines = (Polyline(trace.name, np.asarray(trace.nominal["points"], float)),) if trace else ()
+        lines = (Polyline(trace.name, nominal_of(trace).points),) if trace else ()
         return FocusScene({}, "", polylines=lines + tuple(parts.pop("polylines", ())), **parts)
 
     def _joint_ranges(self, session: Session, plan: Job | None) -> list[TraceRange] | None:
@@ -181,7 +182,7 @@ class Loader:
         lines, probes, plots = [], [], []
         for _, trace, name, lo, hi in ranges:
             if trace is not None:
-                lines.append(Polyline(name, np.asarray(trace.nominal["points"], float)))
+                lines.append(Polyline(name, nominal_of(trace).points))
             if measured is None:
                 probes.append(ProbeSet(name, planned=planned[lo:hi]))
                 continue
@@ -210,7 +211,7 @@ class Loader:
         for trace_id in trace_ids[:MAX_FIELD_POLYLINES]:
             trace = self._trace(session, trace_id)
             if trace is not None:
-                lines.append(Polyline(trace.name, np.asarray(trace.nominal["points"], float)))
+                lines.append(Polyline(trace.name, nominal_of(trace).points))
         notes = [f"{len(planned)} stations for {len(trace_ids)} traces; field degrees of freedom "
                  f"{field['dof']:.0f}; largest sd on the traces "
                  f"{field['max_sd_mm'] * 1000:.2f} um"]
@@ -231,7 +232,7 @@ class Loader:
                          planned: np.ndarray | None = None) -> tuple[ProbeSet, DeviationPlot | None]:
         if trace is None or not len(measured):
             return ProbeSet(label, planned=planned, measured=measured), None
-        proj = project_onto_polyline(measured, np.asarray(trace.nominal["points"], float))
+        proj = project_onto_polyline(measured, nominal_of(trace).points)
         dz = measured[:, 2] - proj.nominal[:, 2]
         order = np.argsort(proj.s_mm)
         plot = DeviationPlot(trace.name, f"{trace.name}: measured - nominal (probes)", proj.s_mm[order], dz[order])
@@ -260,7 +261,7 @@ class Loader:
             trace = self._trace(session, trace_id)
             if trace is None:
                 continue
-            lines.append(Polyline(trace.name, np.asarray(trace.nominal["points"], float)))
+            lines.append(Polyline(trace.name, nominal_of(trace).points))
             samples = np.asarray(samples_of.get(trace_id, []), float).reshape(-1, 2)
             ribbons.extend(_ribbon(trace, samples, f"{trace.name} {trace.id}"))
             if isinstance(row, CompensateResult):
@@ -318,7 +319,7 @@ class Loader:
         samples = np.asarray(ReconstructResult.of(rebuilt).deviation.samples if rebuilt else [], float).reshape(-1, 2)
         if trace is None or len(samples) < 2:
             return self._with_trace(session, job, toolpaths=paths)
-        nominal = np.asarray(trace.nominal["points"], float)
+        nominal = nominal_of(trace).points
         standoff = float(result.standoff_mm)
         colored = tuple(replace(p, standoff_error_mm=standoff_errors(
             p.segments.starts, p.segments.ends, p.segments.dispense, nominal, samples[:, 0], samples[:, 1], standoff))
@@ -344,14 +345,9 @@ class Loader:
         return merged
 
     def _surface_fit(self, session: Session, job: Job) -> FocusScene:
-        stored = job.result.get("surface")
-        if stored is None:
-            data = self._artifact(session, job.id, "surface.json")
-            stored = json.loads(data) if data else None
-        if stored is None:
-            return FocusScene({}, "", notes=("surface_fit job has no surface",))
-        mesh = NurbsSurface.from_dict(stored).to_mesh(60, 60)
-        grid = [p for p in job.result.get("probe_grid", {}).get("points", []) if p[2] is not None]
+        fit = SurfaceFitResult.of(job)
+        mesh = NurbsSurface.from_dict(fit.surface).to_mesh(60, 60)
+        grid = [p for p in fit.probe_grid.points if p[2] is not None]
         probes = (ProbeSet("probe grid", planned=np.asarray(grid, float).reshape(-1, 3)),) if grid else ()
         return FocusScene({}, "", probes=probes, surfaces=(
             SurfaceMesh("fitted surface", np.asarray(mesh.vertices), np.asarray(mesh.faces)),))
@@ -430,9 +426,8 @@ class Loader:
 
 def _dispense_lines(job: Job) -> tuple[str | None, str | None]:
     """The program's dispense on/off lines as the job echoes them (result, else params)."""
-    result, params = job.result or {}, job.params or {}
-    return (result.get("dispense_on") or params.get("dispense_on"),
-            result.get("dispense_off") or params.get("dispense_off"))
+    echo, params = ProgramEcho.of_any(job), job.params or {}
+    return (echo.dispense_on or params.get("dispense_on"), echo.dispense_off or params.get("dispense_off"))
 
 
 def load_focus(runtime: Any, part_id: str | None = None, job_id: str | None = None,

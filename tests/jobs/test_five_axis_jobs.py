@@ -15,6 +15,8 @@ import pytest
 import trimesh
 
 from app.geometry.nurbs_surface import NurbsSurface
+from app.jobs.results import FiveAxisResult, ProgramEcho, StoredResultError
+from app.models import Job
 from hardware.protocol import commands_sha256
 from tests.conftest import auth
 from tests.gcode_words import g1_lines_missing, g1_rows
@@ -226,6 +228,17 @@ def test_five_axis_on_a_surface_fit(client, cap_stl):
     assert all(" A" not in line and " C" not in line for line in response.text.splitlines())
     np.testing.assert_allclose(nominal[:, 2], sphere_z(nominal[:, 0], nominal[:, 1]) + H, atol=5e-3)
     assert result["nominal_max_normal_error_deg"] > 10
+    # the stored result reads back through the five_axis model, by attribute
+    typed = FiveAxisResult.of_record(job)
+    assert typed.pivot == PIVOT and typed.post == "conforma" and typed.lines == result["lines"]
+    assert typed.surface_source == {"kind": "surface_fit", "job_id": fit["id"]}
+    assert typed.model_dump(exclude_unset=True) == result
+    echo = ProgramEcho.of_any(Job(id=job["id"], kind=job["kind"], params=job["params"], result=result))
+    assert (echo.pivot, echo.post, echo.dispense_on, echo.dispense_off) == (PIVOT, "conforma", "M8", "M9")
+    for key in ("pivot", "surface", "max_standoff_error_mm"):
+        with pytest.raises(StoredResultError) as caught:
+            FiveAxisResult.of_record({**job, "result": {k: v for k, v in result.items() if k != key}})
+        assert caught.value.field == f"result.{key}"
 
 
 def test_five_axis_default_surface_is_deterministic(client, cap_stl):

@@ -16,6 +16,7 @@ import trimesh
 
 from app.geometry.placement import Placement, apply_placement
 from app.geometry.traces import as_trace_polyline
+from app.jobs.results import RegisterResult, StoredResultError
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
@@ -79,6 +80,15 @@ def test_register_recovers_the_mock_placement_within_three_sigma(registered):
         nominal_wall = np.dot(t["normal"], t["nominal"])
         in_part = np.linalg.inv(truth.matrix()) @ np.array([*t["measured"], 1.0])
         assert abs(np.dot(t["normal"], in_part[:3]) - nominal_wall) < 0.002
+    # the stored result reads back through the register model, by attribute
+    typed = RegisterResult.of_record(job)
+    assert typed.placement == est and typed.probe_count == result["probe_count"] and typed.mode == "edges"
+    assert typed.model_dump(exclude_unset=True) == result
+    assert typed.echo() == {k: result[k] for k in ("placement", "std", "covariance", "unobservable", "probe_count")}
+    for key in ("placement", "std", "probe_count"):
+        with pytest.raises(StoredResultError) as caught:
+            RegisterResult.of_record({**job, "result": {k: v for k, v in result.items() if k != key}})
+        assert caught.value.field == f"result.{key}"
 
 
 def test_probe_plan_and_reconstruct_use_the_registration(client, registered):

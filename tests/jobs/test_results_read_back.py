@@ -10,7 +10,8 @@ from sqlmodel import Session
 
 from app.jobs.calibration_results import CalibrateNozzleResult, CalibrateProbeResult
 from app.jobs.loop_results import ClosedLoopResult
-from app.jobs.results import PrintResult, SliceResult, StoredResultError, SurfaceFitResult
+from app.jobs.results import (FiveAxisResult, PrintResult, ProgramEcho, RegisterResult, SliceResult, StoredResultError,
+                              SurfaceFitResult)
 from app.models import Job, new_id, utcnow
 from app.problems import http_status
 from app.reporting.collect import RunRecords
@@ -110,3 +111,35 @@ def test_through_the_api_a_broken_stored_slice_is_a_problem_naming_the_field(cli
     assert response.status_code == 400, response.text
     problem = response.json()
     assert problem["errors"][0]["loc"] == ["result", "bounds"] and "SliceResult" in problem["detail"]
+
+
+REGISTER = {"placement": {"dx": 1.0, "dy": -2.0, "dz": 0.1, "rz_deg": 0.5, "pivot": [0.0, 0.0]},
+            "std": {"dx_mm": 0.001, "dy_mm": 0.001, "dz_mm": 0.001, "rz_deg": 0.002},
+            "covariance": {"parameters": ["dx_mm"], "matrix": [[1e-6]]}, "unobservable": [],
+            "rms_mm": {"top": 0.001}, "probe_count": 30, "touches": [], "mode": "edges",
+            "plan": {"faces": ["+z"], "predicted_std": {}}}
+
+
+@pytest.mark.parametrize("key", ["placement", "covariance", "probe_count", "mode"])
+def test_a_register_result_missing_a_field_names_it(key):
+    error = _missing(RegisterResult, "register", REGISTER, key)
+    assert error.field == f"result.{key}" and "RegisterResult" in error.message
+
+
+def test_a_five_axis_result_missing_a_field_names_it():
+    with pytest.raises(StoredResultError) as caught:
+        FiveAxisResult.of(_job("five_axis", {"lines": 3}))
+    assert caught.value.field.startswith("result.") and caught.value.field != "result.lines"
+    with pytest.raises(StoredResultError, match="not a five_axis job"):
+        FiveAxisResult.of(_job("register", REGISTER))
+
+
+def test_the_program_echo_of_any_job():
+    """Any kind's result: the dispense lines and five-axis frame it echoes, None when absent."""
+    echo = ProgramEcho.of_any(_job("compensate", {"dispense_on": "M3 S1", "dispense_off": "M5", "segments": 4}))
+    assert (echo.dispense_on, echo.dispense_off, echo.pivot, echo.post) == ("M3 S1", "M5", None, None)
+    empty = ProgramEcho.of_any(_job("print", None, status="running"))
+    assert empty == ProgramEcho()
+    with pytest.raises(StoredResultError) as caught:
+        ProgramEcho.of_any(_job("five_axis", {"pivot": "origin", "post": "conforma"}))
+    assert caught.value.field == "result.pivot" and http_status(caught.value)[0] == 400

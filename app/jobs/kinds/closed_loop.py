@@ -43,8 +43,9 @@ from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, Regis
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.registry import JobParams, get_kind, job_kind
 from app.jobs.loop_results import ClosedLoopResult
+from app.jobs.inputs import nominal_of
 from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
-                              program_artifacts, reconstruct_rows)
+                              RegisterResult, program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
 from app.models import Job, Machine, Trace
 from app.records import get_or_404
@@ -212,8 +213,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
             ctx.progress((index + 1) / total, f"{index + 1}/{total} traces done")
     result: dict[str, Any] = {"traces": per_trace, "table": rows}
     if registration is not None:
-        result["registration"] = {"job_id": registration.id, **{
-            k: registration.result[k] for k in ("placement", "std", "covariance", "unobservable", "probe_count")}}
+        result["registration"] = {"job_id": registration.id, **RegisterResult.of(registration).echo()}
     from app.jobs.loop_files import write_loop_files  # the loop's own files (issue 19), kept out of this module
 
     result["files"] = write_loop_files(ctx, params.machine_id, result)
@@ -276,7 +276,7 @@ def _print_trace(ctx: JobContext, steps: _Steps, params: ClosedLoopParams, machi
             steps.run("print", {"machine_id": params.machine_id, "job_id": entry["compensate"],
                                 "artifact": artifacts[artifact], "drift_reference": params.corrections.drift}, trace_id)
             reports[artifact] = (evaluate_print(world, start, trace.standoff_mm),
-                                 xy_error(world, start, trace.nominal["points"]))
+                                 xy_error(world, start, nominal_of(trace).points))
         (before, xy_before), (after, xy_after) = reports["nominal.gcode"], reports["print.gcode"]
         row = table_row(index + 1, before, after, entry["probes"])
         rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name,

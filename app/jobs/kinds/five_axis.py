@@ -51,9 +51,9 @@ from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
-from app.jobs.results import SurfaceFitResult
+from app.jobs.results import FiveAxisResult, SurfaceFitResult
 from app.models import Job, Machine, Part, Trace
-from app.jobs.inputs import succeeded_job
+from app.jobs.inputs import nominal_of, succeeded_job
 from app.records import get_or_404
 
 DEFAULT_FEED_MM_MIN = 600.0
@@ -172,7 +172,7 @@ def trace_xy(trace: Trace) -> np.ndarray:
     (vertical steps of the draped polyline) dropped.  A polyline of fewer than
     MIN_TRACE_POINTS points (a straight trace over one facet) gets the midpoints of its
     longest segments (the cubic through a straight trace stays that straight line)."""
-    xy = np.asarray(trace.nominal["points"], dtype=float)[:, :2]
+    xy = nominal_of(trace).points[:, :2]
     keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=1) > DEFAULT_TOLERANCE.dedup_mm])
     xy = xy[keep]
     while 2 <= xy.shape[0] < MIN_TRACE_POINTS:
@@ -294,7 +294,7 @@ def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
     for name, text in (("five_axis.gcode", path.program), ("nominal.gcode", path.nominal_program)):
         metas[name] = gcode_meta(text)
         ctx.artifact(name, text.encode(), "text/x-gcode", metas[name])
-    return {
+    return FiveAxisResult.written({
         **path.summary(),
         "dispense_on": params.dispense_on,
         "dispense_off": params.dispense_off,
@@ -310,4 +310,4 @@ def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
         "offset_curve": path.offset_curve.to_dict(),
         "program": metas["five_axis.gcode"],
         "nominal_program": metas["nominal.gcode"],
-    }
+    })

@@ -29,6 +29,7 @@ from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_ma
                                    stopped_by_operator)
 from app.jobs.params import RegisterParams
 from app.jobs.registry import job_kind
+from app.jobs.results import RegisterResult
 from app.calibration import surface_heights
 from app.jobs.probe_correction import machine_probe
 from app.machines import hardware_errors, translate
@@ -89,7 +90,7 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
     ctx.progress(0.95, f"placement fitted from {fitted.probe_count} touches")
     calibrated = {} if probe is None else {"calibration": {"probe_job_id": probe.job_id, "tip_radius_mm": tip_radius,
                                                             "probe": probe.calibration.to_dict()}}
-    return {**fitted.to_result(), "mode": params.mode, **calibrated,
-            "plan": {"faces": list(plan.faces), "predicted_std": {
-                "rz_deg" if k == "rz" else f"{k}_mm": math.degrees(v) if k == "rz" else v
-                for k, v in plan.predicted_std.items()}}}
+    return RegisterResult.written({**fitted.to_result(), "mode": params.mode, **calibrated,
+                                   "plan": {"faces": list(plan.faces), "predicted_std": {
+                                       "rz_deg" if k == "rz" else f"{k}_mm": math.degrees(v) if k == "rz" else v
+                                       for k, v in plan.predicted_std.items()}}})
