@@ -20,7 +20,7 @@ from app.api.traces import trace_out
 from app.circuits.formats import read_layout
 from app.circuits.mapping import MappingOptions, map_layout
 from app.circuits.pad_probes import probe_ring
-from app.circuits.placement import Placement
+from app.circuits.placement import LayoutPlacement
 from app.errors import ConformaError, InvalidInput
 from app.geometry.traces import TracePolyline
 from app.jobs.kinds.circuit_program import import_probe_trace_ids
@@ -142,7 +142,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     part = get_or_404(session, Part, part_id)
     if len(files) > MAX_FILES:
         raise InvalidInput(f"at most {MAX_FILES} files per import", field="files", value=len(files))
-    placement = Placement(tuple(opts.origin_mm), opts.rotation_deg, opts.mirror)
+    placement = LayoutPlacement(tuple(opts.origin_mm), opts.rotation_deg, opts.mirror)
     mesh = runtime.meshes.mesh(part)
     mapping = MappingOptions(opts.mapping, opts.max_stretch)
     import_id = new_id("cimp")

@@ -23,7 +23,7 @@ from shapely import STRtree
 from shapely.geometry import LineString
 
 from app.circuits.layout import Layout, LayoutTrace
-from app.circuits.placement import Placement, place_layout
+from app.circuits.placement import LayoutPlacement, place_layout
 from app.circuits.wrap import SurfaceWalker
 from app.geometry.cl_points import cl_points
 from app.geometry.drape import top_surface_z
@@ -141,7 +141,7 @@ def _spacing_warnings(traces: list[MappedTrace], widths: list[float], nets: list
             for a, b, g, n in zip(i[close], j[close], gap[close], need[close])]
 
 
-def map_layout(layout: Layout, placement: Placement, mesh: trimesh.Trimesh,
+def map_layout(layout: Layout, placement: LayoutPlacement, mesh: trimesh.Trimesh,
                opts: MappingOptions = MappingOptions()) -> MappedLayout:
     """Place and map every trace and pad of ``layout`` onto ``mesh``'s upper surface."""
     origin = np.asarray(placement.origin_mm, float)

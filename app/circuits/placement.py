@@ -14,12 +14,14 @@ import numpy.typing as npt
 from app.circuits.curves import transformed
 from app.circuits.layout import Area, Layout, LayoutTrace, Pad
 
-__all__ = ["Placement", "place_layout"]
+__all__ = ["LayoutPlacement", "place_layout"]
 
 
 @dataclass(frozen=True)
-class Placement:
-    """origin_mm: where the layout's (0, 0) lands (top view, mm); rotation_deg CCW; mirror x."""
+class LayoutPlacement:
+    """Where a flat layout lies in the part's top view (2-D, may mirror: not the rigid 3-D
+    :class:`app.geometry.placement.Placement`).  origin_mm: where the layout's (0, 0) lands
+    (top view, mm); rotation_deg CCW; mirror x."""
 
     origin_mm: tuple[float, float] = (0.0, 0.0)
     rotation_deg: float = 0.0
@@ -44,7 +46,7 @@ def _ccw(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return ring if area2 >= 0 else ring[::-1]
 
 
-def place_layout(layout: Layout, placement: Placement, *, relative: bool = False) -> Layout:
+def place_layout(layout: Layout, placement: LayoutPlacement, *, relative: bool = False) -> Layout:
     """The layout moved by ``placement``; ``relative`` leaves out the origin (vectors from it)."""
     m = placement.matrix
     offset = np.zeros(2) if relative else np.asarray(placement.origin_mm, float)

@@ -10,7 +10,7 @@ import numpy as np
 from app.circuits.formats import read_layout
 from app.circuits.heightfield import HeightField
 from app.circuits.mapping import MappingOptions, map_layout
-from app.circuits.placement import Placement
+from app.circuits.placement import LayoutPlacement
 from app.circuits.warp import WarpOptions, fixed_split_error, warp_program
 from app.gcode.lines import read_lines
 from app.reference.s1 import s1_mesh
@@ -37,7 +37,7 @@ def test_kicad_board_dry_run_scaling():
         t0, c0 = time.perf_counter(), time.process_time()
         layout = read_layout(text, "board.kicad_pcb")
         t1 = time.perf_counter()
-        mapped = map_layout(layout, Placement((0.0, 0.0)), mesh, MappingOptions("project"))
+        mapped = map_layout(layout, LayoutPlacement((0.0, 0.0)), mesh, MappingOptions("project"))
         t2, c2 = time.perf_counter(), time.process_time()
         print(f"kicad {tracks:5d} tracks: read {t1 - t0:.3f} s, project + checks {t2 - t1:.3f} s, "
               f"total {t2 - t0:.3f} s wall, {c2 - c0:.3f} s CPU, warnings {len(mapped.warnings)}")

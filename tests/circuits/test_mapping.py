@@ -10,7 +10,7 @@ import trimesh
 from app.circuits.curves import arc_ccw, line
 from app.circuits.layout import Layout, LayoutTrace, Source
 from app.circuits.mapping import MappingOptions, _layout_samples, map_layout
-from app.circuits.placement import Placement
+from app.circuits.placement import LayoutPlacement
 
 R = 40.0
 
@@ -49,7 +49,7 @@ def _layout() -> Layout:
 
 def test_wrap_on_a_cylinder_matches_the_analytic_unrolling():
     layout = _layout()
-    mapped = map_layout(layout, Placement((0.0, 0.0)), _cylinder(), MappingOptions("wrap"))
+    mapped = map_layout(layout, LayoutPlacement((0.0, 0.0)), _cylinder(), MappingOptions("wrap"))
     for trace, source in zip(mapped.traces, layout.traces):
         assert trace.on_part
         # each mapped point comes from a layout point (u, v), which lies at (R sin(u/R), v, R cos(u/R))
@@ -69,7 +69,7 @@ def test_wrap_on_a_sphere_cap_reports_a_bounded_stretch():
     rs = 60.0
     mesh = _sheet(lambda x, y: np.sqrt(rs**2 - x**2 - y**2), half_x=30, half_y=30, n=120, m=120)
     layout = Layout("t", "test", "mm", traces=[LayoutTrace(line([-20, 15], [20, 15]), Source("t", "L", "", 0.2))])
-    mapped = map_layout(layout, Placement((0.0, 0.0)), mesh, MappingOptions("wrap", max_stretch=1.001))
+    mapped = map_layout(layout, LayoutPlacement((0.0, 0.0)), mesh, MappingOptions("wrap", max_stretch=1.001))
     (trace,) = mapped.traces
     # radial geodesics keep length; a chord 15 mm off the anchor is shortened on a sphere
     # (exp map: geodesic circles of radius r have circumference 2 pi Rs sin(r / Rs) < 2 pi r)
@@ -80,7 +80,7 @@ def test_wrap_on_a_sphere_cap_reports_a_bounded_stretch():
 def test_project_keeps_the_exact_curve_and_reports_the_slope_stretch():
     mesh = _sheet(lambda x, y: 0.1 * x, n=40, m=40)          # a plane of slope 0.1 in x
     layout = Layout("t", "test", "mm", traces=[LayoutTrace(line([0, 0], [10, 0]), Source("t", "L", "", 0.2))])
-    mapped = map_layout(layout, Placement((1.0, 2.0), rotation_deg=0.0), mesh, MappingOptions("project"))
+    mapped = map_layout(layout, LayoutPlacement((1.0, 2.0), rotation_deg=0.0), mesh, MappingOptions("project"))
     (trace,) = mapped.traces
     assert trace.geometry["type"] == "nurbs"
     np.testing.assert_allclose(trace.geometry["control_points"], [[1, 2], [11, 2]], atol=1e-12)
@@ -93,7 +93,7 @@ def test_placement_rotates_mirrors_and_warns_about_close_traces_and_leaving():
     layout = Layout("t", "test", "mm", traces=[
         LayoutTrace(line([0, 0], [10, 0]), src), LayoutTrace(line([1, 0.3], [9, 0.3]), src),
         LayoutTrace(line([0, 5], [40, 5]), src)])
-    mapped = map_layout(layout, Placement((0.0, 0.0), rotation_deg=90.0, mirror=True), mesh)
+    mapped = map_layout(layout, LayoutPlacement((0.0, 0.0), rotation_deg=90.0, mirror=True), mesh)
     # mirror x then rotate 90: (10, 0) -> (-10, 0) -> (0, -10)
     np.testing.assert_allclose(np.asarray(mapped.traces[0].geometry["control_points"])[1], [0, -10], atol=1e-12)
     kinds = sorted(w["kind"] for w in mapped.warnings)
