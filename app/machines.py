@@ -20,7 +20,7 @@ from urllib.parse import urlsplit
 
 from hardware.errors import HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
 from hardware.machine import Machine, MachineProfile
-from hardware.mock import (FaultConfig, MockPad, MockSphere, MockTool, MockWorld, Placement,
+from hardware.mock import (FaultConfig, MockPad, MockSphere, MockTool, MockWorld, TruePlacement,
                            register_world, unregister_world)
 
 from app.errors import Conflict, ConformaError, InvalidInput
@@ -203,7 +203,7 @@ class MachineManager:
         profile = row.profile or {}
         world = MockWorld(
             true_part=self._load_mesh(true_part_id) if true_part_id else None,
-            placement=Placement(**placement),
+            placement=TruePlacement(**placement),
             probe_noise_mm=float(mock.get("probe_noise_mm", 0.0)),
             seed=int(faults.get("seed", mock.get("seed", 0))),
             dialect=row.dialect,

@@ -1,6 +1,6 @@
 """Where the mock's probe meets the as-made part: vertical rays against a placed mesh.
 
-The true part (a ``trimesh.Trimesh``) is moved once by the world's ``Placement``
+The true part (a ``trimesh.Trimesh``) is moved once by the world's ``TruePlacement``
 (rotation about Z through the origin, then translation); the bed is the plane
 ``z = bed_z`` under it.  All lengths in mm."""
 
@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .world import Placement
+from .world import TruePlacement
 
 
 class ProbeHit(NamedTuple):
@@ -22,7 +22,7 @@ class ProbeHit(NamedTuple):
     started_inside: bool
 
 
-def placement_matrix(placement: Placement) -> np.ndarray:
+def placement_matrix(placement: TruePlacement) -> np.ndarray:
     """4x4 homogeneous transform of ``placement`` (rotation about Z, then translation)."""
     angle = math.radians(placement.rz_deg)
     c, s = math.cos(angle), math.sin(angle)
@@ -33,7 +33,7 @@ def placement_matrix(placement: Placement) -> np.ndarray:
 class PlacedSurface:
     """The as-made part at its placement, answering vertical probe queries."""
 
-    def __init__(self, mesh: object | None, placement: Placement, bed_z: float) -> None:
+    def __init__(self, mesh: object | None, placement: TruePlacement, bed_z: float) -> None:
         self.bed_z = float(bed_z)
         self.mesh = None
         if mesh is not None:

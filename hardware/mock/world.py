@@ -80,9 +80,10 @@ class FaultConfig:
 
 
 @dataclass(frozen=True)
-class Placement:
-    """Rigid offset of the as-made part: rotation ``rz_deg`` about the Z axis through the
-    origin, then translation (dx, dy, dz) in mm."""
+class TruePlacement:
+    """The as-made part's TRUE rigid offset on the mock's bed (what registration must find;
+    hardware never imports app, so this is not app.geometry's Placement): rotation ``rz_deg``
+    about the Z axis through the origin, then translation (dx, dy, dz) in mm."""
 
     dx: float = 0.0
     dy: float = 0.0
@@ -169,7 +170,7 @@ class MockWorld:
     """Everything the mock printer is: part, placement, noise, dialect, timing, faults."""
 
     true_part: object | None = None  # trimesh.Trimesh of the as-made part, or None (flat bed)
-    placement: Placement = field(default_factory=Placement)
+    placement: TruePlacement = field(default_factory=TruePlacement)
     probe_noise_mm: float = 0.0
     seed: int = 0
     dialect: str = DEFAULT_DIALECT

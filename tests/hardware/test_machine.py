@@ -15,7 +15,7 @@ import trimesh
 from hardware.errors import (InvalidConfig, LinkError, MachineBusy, MachineStateError,
                              ProbeFailed)
 from hardware.machine import Machine, MachineProfile
-from hardware.mock import FaultConfig, Placement
+from hardware.mock import FaultConfig, TruePlacement
 from hardware.protocol import normalized_commands
 
 GRBL_PROFILE = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
@@ -33,7 +33,7 @@ def test_probe_run_within_three_sigma_of_the_true_part(make_world, dialect):
     radius, sigma = 30.0, 0.01
     dome = trimesh.creation.icosphere(subdivisions=5, radius=radius)
     dome.apply_translation((0.0, 0.0, -20.0))  # a shallow cap above the bed
-    placement = Placement(dx=1.5, dy=-0.7, dz=0.3, rz_deg=12.0)
+    placement = TruePlacement(dx=1.5, dy=-0.7, dz=0.3, rz_deg=12.0)
     url, world = make_world(dialect=dialect, true_part=dome, placement=placement,
                             probe_noise_mm=sigma, seed=4, homing=dialect == "grbl")
     machine = _machine(url, dialect)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from hardware.mock import MockPad, MockSphere, MockTool, MockWorld, Placement
+from hardware.mock import MockPad, MockSphere, MockTool, MockWorld, TruePlacement
 from hardware.mock.physics import ProbePhysics
 from hardware.mock.surface import PlacedSurface
 
@@ -121,7 +121,7 @@ def test_sideways_touch_on_the_mesh_is_exact():
 def test_ideal_probe_reads_exactly_as_before():
     dome = trimesh.creation.icosphere(subdivisions=4, radius=20.0)
     dome.apply_translation((0.0, 0.0, -12.0))
-    world, physics = _physics(true_part=dome, placement=Placement(dx=0.5, rz_deg=7.0))
+    world, physics = _physics(true_part=dome, placement=TruePlacement(dx=0.5, rz_deg=7.0))
     rng = np.random.default_rng(3)
     for x, y in rng.uniform(-25, 25, size=(40, 2)):
         old = physics.surface.probe(float(x), float(y), 15.0, -5.0)

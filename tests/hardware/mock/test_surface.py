@@ -7,12 +7,12 @@ import math
 import numpy as np
 import trimesh
 
-from hardware.mock import Placement
+from hardware.mock import TruePlacement
 from hardware.mock.surface import PlacedSurface, placement_matrix
 
 
 def test_placement_matrix_rotates_then_translates():
-    matrix = placement_matrix(Placement(dx=1.0, dy=2.0, dz=3.0, rz_deg=90.0))
+    matrix = placement_matrix(TruePlacement(dx=1.0, dy=2.0, dz=3.0, rz_deg=90.0))
     point = matrix @ np.array([1.0, 0.0, 0.0, 1.0])
     assert np.allclose(point[:3], [1.0, 3.0, 3.0])
 
@@ -21,7 +21,7 @@ def test_probe_meets_sphere_top_bed_and_reports_inside():
     radius = 10.0
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=radius)
     sphere.apply_translation((5.0, 0.0, 0.0))
-    placement = Placement(dx=0.5, dy=-0.3, dz=0.2, rz_deg=30.0)
+    placement = TruePlacement(dx=0.5, dy=-0.3, dz=0.2, rz_deg=30.0)
     surface = PlacedSurface(sphere, placement, bed_z=-20.0)
     angle = math.radians(30.0)
     cx, cy, cz = 5.0 * math.cos(angle) + 0.5, 5.0 * math.sin(angle) - 0.3, 0.2
