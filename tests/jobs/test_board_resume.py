@@ -27,8 +27,9 @@ from app.jobs.registry import get_kind
 from app.jobs.store import Claim
 from app.models import Artifact, Job
 from app.reconstruction.stored import stored_name
-from app.reference.s1 import as_made, s1_mesh, s1_traces
+from app.reference.s1 import as_made, s1_mesh
 from tests.conftest import auth
+from tests.jobs.test_field_probe_jobs import board, job
 from tests.jobs.test_jobs_api import wait_for
 
 OP = auth("operator")
@@ -58,27 +59,10 @@ def meshes():
     return s1_mesh(grid_mm=0.6), truth.mesh(grid_mm=0.6).export(file_type="stl")
 
 
-def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
-    response = client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
-    assert response.status_code == 202, response.text
-    done = wait_for(client, response.json()["id"], timeout=timeout)
-    assert done["status"] == "succeeded", done["error"]
-    return done
-
-
 def probed_board(client, meshes) -> dict:
     """Part, traces, a mock machine holding the as-made part, a field plan and its probe run."""
-    nominal, true_stl = meshes
-    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
-                       headers=OP).json()
-    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
-    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
-                         json=[s1_traces()[i].to_api() for i in TRACES], headers=OP).json()["items"]
-    machine = client.post("/api/v1/machines", json={
-        "name": "sim", "port": "mock://", "dialect": "marlin",
-        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
-        headers=OP).json()
-    ids = [t["id"] for t in traces]
+    made = board(client, meshes, TRACES)
+    ids, machine = made["trace_ids"], {"id": made["machine_id"]}
     plan = job(client, "probe_plan", {"trace_ids": ids, "count": 14, **PROCESS})
     run = job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": machine["id"]})
     return {"trace_ids": ids, "run": run["id"], "machine_id": machine["id"]}

@@ -46,13 +46,14 @@ def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
     return done
 
 
-def board(client, meshes) -> dict:
+def board(client, meshes, traces: tuple[int, ...] = TRACES) -> dict:
+    """Part, S1 traces (by index), and a mock machine holding the as-made part."""
     nominal, true_stl = meshes
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
                        headers=OP).json()
     real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
     traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
-                         json=[s1_traces()[i].to_api() for i in TRACES], headers=OP).json()["items"]
+                         json=[s1_traces()[i].to_api() for i in traces], headers=OP).json()["items"]
     machine = client.post("/api/v1/machines", json={
         "name": "sim", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
