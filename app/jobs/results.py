@@ -1,6 +1,8 @@
 """Typed results of the job kinds whose results other code reads back (probe_plan,
 probe_run, reconstruct, compensate, slice, surface_fit, print, five_axis, register; closed_loop's in
-:mod:`app.jobs.loop_results`, the calibrations' in :mod:`app.jobs.calibration_results`).
+:mod:`app.jobs.loop_results`, the calibrations' in :mod:`app.jobs.calibration_results`,
+circuit_program / warp_program / toolpath's in :mod:`app.jobs.program_results`, the jetting
+kinds' in :mod:`app.jobs.jetting_results`).
 
 A board job (``reconstruct`` / ``compensate`` with ``trace_ids``) has its own model
 (:class:`ReconstructBoardResult`, :class:`CompensateBoardResult`: one row per trace);

@@ -16,9 +16,12 @@ from shapely.geometry import LineString, Polygon
 from app.jobs.simulation import deposited_since, true_height_of
 from app.reference.evaluation import evaluate_deposition
 from app.reference.s1 import as_made, s1_mesh
+from app.jobs.program_results import CircuitProgramResult
+from app.jobs.results import PrintResult
 from hardware.mock import get_world
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
+from tests.jobs.test_program_results import round_trips
 
 OP = auth("operator")
 STANDOFF = 0.08
@@ -91,6 +94,7 @@ def test_gerber_circuit_printed_at_its_standoff_with_pads_covered(client, meshes
     assert program["status"] == "succeeded", program["error"]
     result = program["result"]
     assert result["travel_mm"] <= result["travel_input_order_mm"] + 1e-9
+    assert round_trips(CircuitProgramResult, program).strokes == result["strokes"]
     world = get_world(machine["id"])
     start = len(world.deposition_log)
     printed = client.post(f"/api/v1/machines/{machine['id']}/print",
@@ -98,6 +102,7 @@ def test_gerber_circuit_printed_at_its_standoff_with_pads_covered(client, meshes
     assert printed.status_code == 202, printed.text
     printed = wait_for(client, printed.json()["id"], timeout=240)
     assert printed["status"] == "succeeded", printed["error"]
+    assert round_trips(PrintResult, printed).executed == printed["result"]["total"]
     moves = deposited_since(world, start)
     truth = true_height_of(world)
     mid = 0.5 * (moves[:, 0, :2] + moves[:, 1, :2])

@@ -11,8 +11,10 @@ from app.gcode.lines import read_lines
 from app.geometry.drape import top_surface_z
 from app.geometry.nurbs_surface import NurbsSurface
 from app.reference.s1 import s1_mesh
+from app.jobs.program_results import WarpProgramResult
 from tests.conftest import auth
 from tests.jobs.test_five_axis_jobs import artifact, run_job, submit
+from tests.jobs.test_program_results import round_trips
 
 OP = auth("operator")
 
@@ -43,6 +45,7 @@ def test_warp_program_on_a_surface_fit_and_outside_it(client, s1_stl):
     assert job["status"] == "succeeded", job["error"]
     result = job["result"]
     assert result["printing_moves"] == 3 and result["max_chord_bound_mm"] <= 0.002
+    assert round_trips(WarpProgramResult, job).fixed_split.split_mm == 5.0
     assert result["fixed_split"]["pieces"] > 0
     _, response = artifact(client, job, "warped.gcode")
     dispensing, tips = False, []

@@ -11,8 +11,10 @@ import pytest
 from PIL import Image
 
 from app.jetting import DropParams, TargetSpec, target_from_spec
+from app.jobs.jetting_results import JettingResult, NextLayerResult
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
+from tests.jobs.test_program_results import round_trips
 
 OP = auth("operator")
 SMALL = {"dpi": 150, "target": {"size_mm": 5, "hole_mm": 2}, "layers": 20, "nozzle_spread": 0.06, "png_every": 5}
@@ -69,6 +71,7 @@ def test_mpc_beats_open_loop_and_artifacts_decode(client):
     grid = small_target()
     for job in (open_loop, mpc):
         result = job["result"]
+        assert round_trips(JettingResult, job).final.layer == 20
         assert [row["layer"] for row in result["layers"]] == list(range(1, 21))
         assert result["final"] == result["layers"][-1]
         assert result["grid"]["shape"] == list(grid.shape)
@@ -168,7 +171,7 @@ def test_next_layer_from_a_jetting_snapshot(client):
         "measured": {"job_id": printed["id"], "layer": 10},
         "previous_pattern": {"job_id": printed["id"], "artifact": "pattern_0010.png"}})
     result, grid = job["result"], small_target()
-    assert result["measured_layer"] == 10
+    assert result["measured_layer"] == 10 and round_trips(NextLayerResult, job).measured_layer == 10
     assert result["reference_height_um"] == pytest.approx(11 * 0.8 * result["grid"]["layer_height_um"])
     assert 0 < result["drops"] <= grid.mask.sum() and result["integer_gap"] >= -1e-9
     arrays = npz(artifact(client, job, "next_pattern.npz")[0])

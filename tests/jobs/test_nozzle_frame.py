@@ -18,8 +18,10 @@ from sqlmodel import Session
 from app.gcode.reader import read_program
 from app.models import Job
 from app.reference.s1 import height_field_mesh
+from app.jobs.results import PrintResult
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
+from tests.jobs.test_program_results import round_trips
 
 OP = auth("operator")
 SLOPE = 0.2
@@ -190,12 +192,14 @@ def test_a_print_on_a_calibrated_machine_is_shifted_by_the_drift_since_calibrati
     dwell = client.post("/api/v1/programs", files={"file": ("dwell.gcode", b"G4 S600\n")}, headers=OP).json()
     waited = _job(client, "print", {"machine_id": machine["id"], "program_id": dwell["id"], "drift_reference": False})
     assert waited["status"] == "succeeded" and "drift" not in waited["result"]
+    assert round_trips(PrintResult, waited).drift is None
     text = "G21\nG90\nG0 Z20\nG0 X40 Y20\nG1 Z10 F300\nM106\nG1 X45 Z10.5\nM107\nG91\nG0 Z5\nG90\n"
     program = client.post("/api/v1/programs", files={"file": ("p.gcode", text.encode())}, headers=OP).json()
     start, deposits = world.stats.machine_time_s, len(world.deposition_log)
     done = _job(client, "print", {"machine_id": machine["id"], "program_id": program["id"]})
     assert done["status"] == "succeeded", done["error"]
     drift = done["result"]["drift"]
+    assert round_trips(PrintResult, done).source_program is not None
     assert drift["probe_job_id"] == probe["id"]
     # the mock drifted rate x t since the calibration's pad reading (taken during the calibration)
     per_s = rate / 60

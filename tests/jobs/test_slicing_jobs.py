@@ -15,8 +15,10 @@ from shapely.geometry import Polygon
 from app.gcode.estimator import MachineLimits, estimate_gcode
 from app.gcode.reader import read_program
 from hardware.protocol import commands_sha256
+from app.jobs.program_results import ToolpathResult
 from tests.conftest import auth
 from tests.jobs.test_jobs_api import wait_for
+from tests.jobs.test_program_results import round_trips
 from tests.slicing.conftest import to_trimesh
 from tests.slicing.readers import read_cli, read_slc
 
@@ -161,6 +163,7 @@ def test_toolpath_time_is_the_estimate_of_the_downloaded_program(client, part):
         job = run(client, "toolpath", {"slice_job_id": sliced["id"], "pattern": pattern, "line_width_mm": w,
                                        "print_feed_mm_min": 1800, "placement": {"xy": "as_is"}, **limits})
         result = job["result"]
+        assert round_trips(ToolpathResult, job).pattern == pattern
         (meta, gcode), = artifacts(client, job).values()
         assert meta["name"] == "print.gcode" and meta["media_type"] == "text/x-gcode"
         text = gcode.decode()

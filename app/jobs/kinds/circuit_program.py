@@ -25,6 +25,7 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import CircuitImport, Job, Trace
 from app.jobs.inputs import succeeded_job
+from app.jobs.program_results import CircuitProgramResult
 from app.jobs.loop_results import ClosedLoopResult, LoopTrace
 from app.jobs.results import ProbeRunResult, compensate_rows
 from app.records import get_or_404
@@ -123,7 +124,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                                     clearance_mm=params.clearance_mm, part_top_mm=float(mesh.bounds[1][2]),
                                     job_id=ctx.job_id)
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
-    return {"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
+    return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
             "pad_probe_traces": probe_ids, "stations": len(stations),
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
-            "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off}
+            "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off})

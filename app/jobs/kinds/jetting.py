@@ -32,6 +32,7 @@ from app.jobs.jetting_inputs import (
     target_of,
     target_references,
 )
+from app.jobs.jetting_results import JettingResult
 from app.jobs.registry import job_kind
 
 MAX_PNG_ARTIFACTS = 1000          # per-layer pattern PNGs one job may write
@@ -134,11 +135,11 @@ def run(ctx: JobContext, params: JettingJobParams) -> dict:
                      {"layer": layer, "drops": int(pattern.sum()), "shape": grid, "dpi": params.dpi})
     summary = result.summary()
     solve_ms = [row["solve_ms"] for row in summary["layers"]]  # type: ignore[union-attr]
-    return {
+    return JettingResult.written({
         **summary,
         "grid": {"shape": grid, "pitch_mm": target.pitch_mm, "part_cells": int(target.mask.sum()),
                  "layer_height_um": core.drop.layer_mm * 1e3},
         "controller": params.controller,
         "solve_ms_median": float(np.median(solve_ms)),
         "pattern_pngs": names,
-    }
+    })

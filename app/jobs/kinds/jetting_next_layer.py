@@ -38,6 +38,7 @@ from app.jobs.jetting_inputs import (
     target_of,
     target_references,
 )
+from app.jobs.jetting_results import NextLayerResult
 from app.models import UploadedFile
 from app.jobs.registry import job_kind
 
@@ -186,7 +187,7 @@ def run(ctx: JobContext, params: NextLayerParams) -> dict:
                            mask=target.mask, pitch_mm=np.float64(target.pitch_mm)),
                  NPZ_MEDIA_TYPE, npz_meta(pattern=grid, relaxed=list(decision.relaxed.shape), reference_mm=grid,
                                           mask=grid, pitch_mm=[]))
-    return {
+    return NextLayerResult.written({
         "drops": drops,
         "integer_gap": float(decision.integer_gap),
         "kkt_residual": float(decision.kkt_residual),
@@ -200,4 +201,4 @@ def run(ctx: JobContext, params: NextLayerParams) -> dict:
         "measured_layer": snapshot,
         "grid": {"shape": grid, "pitch_mm": target.pitch_mm, "part_cells": int(target.mask.sum()),
                  "layer_height_um": core.drop.layer_mm * UM_PER_MM},
-    }
+    })

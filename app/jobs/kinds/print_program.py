@@ -34,6 +34,7 @@ from app.jobs.gcode_meta import check_gcode, gcode_meta
 from app.jobs.machine_jobs import (connected_machine, interrupt, machine_for_job, refuse_if_machine_busy, resume_point,
                                    resume_request, stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import PrintResult
 from app.gcode.placement import check_inside, profile_volume
 from app.machines import MachineFault, MachineUnavailable, hardware_errors, translate
 from app.models import Artifact, Machine, Program
@@ -209,7 +210,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
               "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
     if drift is not None:
         result |= {"source_program": source_meta, "drift": drift}
-    return result
+    return PrintResult.written(result)
 
 
 def _drift_reference(ctx: JobContext, params: PrintParams) -> dict | None:

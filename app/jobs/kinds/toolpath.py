@@ -25,6 +25,7 @@ from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.program_results import ToolpathResult
 from app.jobs.results import SliceResult
 from app.models import Job, Machine, Part
 from app.jobs.inputs import succeeded_job
@@ -263,7 +264,7 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
         check_inside(np.asarray(meta["bounds"]), volume, what="print.gcode")
     ctx.artifact("print.gcode", gcode.encode(), "text/x-gcode", meta)
     totals = toolpath.totals
-    return {
+    return ToolpathResult.written({
         "time_s": estimate.total_s,
         "planner_time_s": totals.time_s,
         "estimator": {"name": "app.gcode.estimator.estimate_gcode (marlin-jd, full lookahead)",
@@ -279,4 +280,4 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
                       "volume_mm": volume.describe(),
                       "note": f"the part's frame moved by {np.round(shift, 6).tolist()} mm into the machine's"},
         "layers": _per_layer(toolpath, estimate.layer_times),
-    }
+    })

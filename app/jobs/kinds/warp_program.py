@@ -21,6 +21,7 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.models import Job, Program
 from app.jobs.inputs import succeeded_job
+from app.jobs.program_results import WarpProgramResult
 from app.jobs.results import ProbeRunResult, SurfaceFitResult
 from app.records import get_or_404
 
@@ -97,6 +98,6 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
                                                    arc_chord_mm=params.arc_chord_mm))
     ctx.artifact("warped.gcode", result.text.encode(), "text/x-gcode", gcode_meta(result.text))
     pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
-    return {"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
+    return WarpProgramResult.written({"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
             "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm, "safe_z_mm": result.safe_z_mm,
-            "fixed_split": {"split_mm": params.compare_split_mm, "pieces": pieces, "max_error_mm": worst}}
+            "fixed_split": {"split_mm": params.compare_split_mm, "pieces": pieces, "max_error_mm": worst}})
