@@ -35,6 +35,7 @@ from app.reconstruction.surface_fit import (
     sample_nominal_grid,
 )
 from app.reconstruction.surface_fit.points import check_points, parse_points_csv
+from app.reconstruction.surface_fit.work import work_estimate
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
@@ -230,15 +231,10 @@ BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh p
 
 
 def _net_cost(net: tuple[float, float], degree: int, separable: bool) -> tuple[float, float, float]:
-    """(solve MiB, solve s, inversion MiB) of one fit with a net (n_u, n_v)."""
-    unknowns = net[0] * net[1]
-    width = degree * min(net) + degree
-    per = max(4, 2 * degree)
-    samples = (per * max(net[0] - degree, 1) + 1) * (per * max(net[1] - degree, 1) + 1)
-    if separable:
-        return 0.0, 0.0, SAMPLE_MB * samples
-    return (BAND_OVERHEAD * 8 * unknowns * (width + 1) / 2**20, FLOP_S * unknowns * width**2,
-            SAMPLE_MB * samples)
+    """(solve MiB, solve s, inversion MiB) of one fit with a net (n_u, n_v): the core's
+    :func:`~app.reconstruction.surface_fit.work.work_estimate` at this machine's rates."""
+    work = work_estimate(net, degree, separable)
+    return BAND_OVERHEAD * work.band_bytes / 2**20, FLOP_S * work.flops, SAMPLE_MB * work.inversion_samples
 
 
 def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:
