@@ -2,7 +2,9 @@
 
 * :func:`trace_on_surface` — through surface points at given (u, v) parameters;
 * :func:`trace_over_xy` — a plan-view (x, y) polyline draped onto a surface that is a
-  height field over the XY plane (each point solved for S(u, v)_xy = (x, y)).
+  height field over the XY plane (each point solved for S(u, v)_xy = (x, y));
+* :func:`plan_view_points` — a trace polyline's top view made fit for that: consecutive
+  duplicates dropped, too short polylines subdivided.
 The curve interpolates the surface points (cubic, chord length); between them it deviates
 from the surface by the chordal sag of the sampling, which the planner reports.
 """
@@ -12,15 +14,49 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from app.five_axis.errors import TraceOffSurfaceError
+from app.five_axis.errors import DegenerateTraceError, TraceOffSurfaceError
 from app.geometry.fitting import interpolate_curve
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
+from app.geometry.tolerance import DEFAULT_TOLERANCE
 
-__all__ = ["trace_on_surface", "trace_over_xy", "uv_over_xy"]
+__all__ = ["MIN_TRACE_POINTS", "plan_view_points", "trace_on_surface", "trace_over_xy", "uv_over_xy"]
+
+MIN_TRACE_POINTS = 4  # a cubic trace curve interpolates at least degree + 1 points
 
 _NEWTON_STEPS = 30
 _SEED_GRID = 41
+
+
+def plan_view_points(xy: npt.NDArray[np.float64], min_points: int = MIN_TRACE_POINTS,
+                     dedup_mm: float = DEFAULT_TOLERANCE.dedup_mm) -> npt.NDArray[np.float64]:
+    """Plan-view polyline xy (n, 2) mm -> (k, 2) mm points to interpolate, k >= min_points.
+
+    A point within ``dedup_mm`` (mm, XY distance) of the point kept before it is dropped
+    (the vertical steps of a draped polyline project onto one plan-view point).  While
+    fewer than ``min_points`` points remain, the midpoint of the longest segment (the
+    first one on ties) is inserted, so a straight polyline stays that straight line.
+    Raises DegenerateTraceError (field ``trace.xy``) for xy that is not an (n, 2) array
+    of finite numbers, or that has fewer than two points ``dedup_mm`` apart.
+    """
+    pts = np.asarray(xy, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or not np.isfinite(pts).all():
+        raise DegenerateTraceError(f"plan-view points must be a finite (n, 2) array, got shape {pts.shape}",
+                                   field="trace.xy", value=pts)
+    if pts.shape[0] == 0:
+        raise DegenerateTraceError("the trace has no plan-view points", field="trace.xy", value=pts)
+    keep = [0]
+    for i in range(1, pts.shape[0]):
+        if float(np.linalg.norm(pts[i] - pts[keep[-1]])) > dedup_mm:
+            keep.append(i)
+    out: npt.NDArray[np.float64] = pts[keep]
+    if out.shape[0] < 2:
+        raise DegenerateTraceError(f"the trace's plan view is a single point (all {pts.shape[0]} points "
+                                   f"within {dedup_mm} mm of the first)", field="trace.xy", value=pts[0])
+    while out.shape[0] < min_points:
+        longest = int(np.argmax(np.linalg.norm(np.diff(out, axis=0), axis=1)))
+        out = np.insert(out, longest + 1, 0.5 * (out[longest] + out[longest + 1]), axis=0)
+    return out
 
 
 def trace_on_surface(surface: NurbsSurface, uv: npt.NDArray[np.float64], degree: int = 3) -> NurbsCurve:

@@ -48,6 +48,20 @@ class Target:
         return self.mask.shape
 
 
+def target_pad_cells(drop: DropParams, margin_mm: float) -> int:
+    """Empty cells padded on each side of a part's bounding box (cells): the margin
+    ``margin_mm`` (mm) at the print pitch, at least the drop kernel's radius plus 3."""
+    kernel_radius = int(np.ceil(drop.radius_mm / drop.pitch_mm + 0.5)) - 1
+    return max(int(np.ceil(margin_mm / drop.pitch_mm)), kernel_radius + 3)
+
+
+def target_shape(part_cells: tuple[int, int], drop: DropParams, margin_mm: float = 0.25) -> tuple[int, int]:
+    """Grid shape (L, W) cells of the target built around a part whose bounding box is
+    ``part_cells`` (L, W) cells: that box plus :func:`target_pad_cells` on every side."""
+    pad = 2 * target_pad_cells(drop, margin_mm)
+    return int(part_cells[0]) + pad, int(part_cells[1]) + pad
+
+
 def target_from_mask(mask: npt.ArrayLike, drop: DropParams, margin_mm: float = 0.25,
                      interior_mm: float = 0.5, field: str = "target.mask") -> Target:
     """Target from a boolean (L, W) part mask at the print pitch; pads ``margin_mm``."""
@@ -66,9 +80,7 @@ def target_from_mask(mask: npt.ArrayLike, drop: DropParams, margin_mm: float = 0
             f"drop diameter {drop.drop_diameter_um} um is larger than the part "
             f"({extent_mm * 1e3:.0f} um)",
             field="drop.drop_diameter_um", value=drop.drop_diameter_um)
-    kernel_radius = int(np.ceil(drop.radius_mm / drop.pitch_mm + 0.5)) - 1
-    pad = max(int(np.ceil(margin_mm / drop.pitch_mm)), kernel_radius + 3)
-    part = np.pad(part, pad)
+    part = np.pad(part, target_pad_cells(drop, margin_mm))
     labels, _ = ndimage.label(~part, structure=FOUR_NEIGHBOURS)
     outside = labels == labels[0, 0]
     holes = (~part) & ~outside
@@ -98,6 +110,12 @@ def target_from_png(data: bytes, drop: DropParams, margin_mm: float = 0.25,
     return target_from_mask(grey >= 128, drop, margin_mm)
 
 
+def rings_grid_cells(extent_mm: tuple[float, float], pitch_mm: float) -> tuple[int, int]:
+    """Cells (nx, ny) >= 1 that cover a region of ``extent_mm`` (width x, height y, mm) at
+    ``pitch_mm``: the grid :func:`target_from_rings` rasterises the rings on."""
+    return max(int(np.ceil(extent_mm[0] / pitch_mm)), 1), max(int(np.ceil(extent_mm[1] / pitch_mm)), 1)
+
+
 def target_from_rings(rings: list[npt.NDArray[np.float64]], drop: DropParams, margin_mm: float = 0.25,
                       max_cells: int = DEFAULT_MAX_CELLS, field: str = "target.rings") -> Target:
     """Target from polygon rings ((n_i, 2) arrays, mm; even-odd rule: inner rings are holes).
@@ -119,7 +137,7 @@ def target_from_rings(rings: list[npt.NDArray[np.float64]], drop: DropParams, ma
         raise JettingError("rings enclose no area", field=field, value=len(rings))
     x0, y0, x1, y1 = region.bounds
     p = drop.pitch_mm
-    nx, ny = max(int(np.ceil((x1 - x0) / p)), 1), max(int(np.ceil((y1 - y0) / p)), 1)
+    nx, ny = rings_grid_cells((x1 - x0, y1 - y0), p)
     check_cells(nx * ny, max_cells, drop)
     xs = x0 + (np.arange(nx) + 0.5) * p
     ys = y0 + (np.arange(ny) + 0.5) * p

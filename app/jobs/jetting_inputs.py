@@ -13,7 +13,6 @@ from __future__ import annotations
 import base64
 import binascii
 import dataclasses
-import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, Literal
@@ -35,6 +34,7 @@ from app.jetting import (
     target_from_rings,
     target_from_spec,
 )
+from app.jetting.targets import rings_grid_cells, target_shape
 from app.jobs.inputs import succeeded_job
 from app.jobs.registry import JobParams
 from app.jobs.results import SliceResult
@@ -268,10 +268,9 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
         if row.meta.get("drops") == 0:
             raise JettingError("params.target.mask: the mask image is all black (no part cells)",
                                field="params.target.mask", value=spec.mask.artifact)
-        if "shape" in row.meta:
-            drop = core.drop
-            pad = 2 * (math.ceil(core.margin_mm / drop.pitch_mm) + math.ceil(drop.radius_mm / drop.pitch_mm) + 3)
-            check_grid((int(row.meta["shape"][0]) + pad, int(row.meta["shape"][1]) + pad), core)
+        if "shape" in row.meta:  # the image bounds the part's box: the core's padding around it
+            image = (int(row.meta["shape"][0]), int(row.meta["shape"][1]))
+            check_grid(target_shape(image, core.drop, core.margin_mm), core)
         return target_of(spec, core, reader).shape if reader is not None else None
     if spec.slice is not None:
         job = succeeded_job(session, spec.slice.slice_job_id, "slice", "params.target.slice.slice_job_id",
@@ -282,9 +281,10 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
                                f"({count} layers)", field="params.target.slice.layer", value=spec.slice.layer)
         part = session.get(Part, job.params.get("part_id", ""))
         if part is not None:
-            extent = np.ptp(np.asarray(part.bounds, dtype=float)[:, :2], axis=0) + 2 * core.margin_mm
-            cells = [math.ceil(e / core.drop.pitch_mm) + 1 for e in extent]
-            check_grid((cells[0], cells[1]), core)
+            # a layer lies within the part's footprint: the core's grid of that footprint bounds it
+            extent = np.ptp(np.asarray(part.bounds, dtype=float)[:, :2], axis=0)
+            nx, ny = rings_grid_cells((float(extent[0]), float(extent[1])), core.drop.pitch_mm)
+            check_grid(target_shape((ny, nx), core.drop, core.margin_mm), core)
         return target_of(spec, core, reader).shape if reader is not None else None
     return target_of(spec, core, _no_reader).shape  # parametric or inline mask: built now
 

@@ -40,7 +40,7 @@ from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, pla
                                          prior_variance)
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
 from app.geometry.traces import as_trace_polyline
-from app.probing.selection import PlanError, PlanParams
+from app.probing.selection import PlanError, PlanParams, ProbePlan
 
 StationMode = Literal["on_traces", "anywhere_on_top"]
 STATION_MODES: tuple[str, ...] = ("on_traces", "anywhere_on_top")
@@ -229,6 +229,17 @@ class FieldPlan:
     @property
     def sites(self) -> Sites:
         return Sites(self.xy, self.grad)
+
+    @property
+    def stations_per_trace(self) -> np.ndarray:
+        """(T,) int: how many stations lie on each trace (off-trace stations count for none)."""
+        counts: np.ndarray = np.bincount(self.trace[self.trace >= 0], minlength=len(self.trace_sd_mm))
+        return counts
+
+    def probe_plan(self) -> ProbePlan:
+        """The stations as a ProbePlan "field" for the probe program, in probing order; an
+        off-trace station's arc length (NaN here) is -1 there."""
+        return ProbePlan("field", np.where(np.isnan(self.s_mm), -1.0, self.s_mm), self.points, self.normals)
 
 
 def travel_order(xy: np.ndarray, band_mm: float) -> np.ndarray:

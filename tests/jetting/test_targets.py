@@ -8,6 +8,9 @@ from app.problems import http_status
 from app.jetting.errors import JettingError
 from app.jetting.params import DropParams, TargetSpec
 from app.jetting.targets import (
+    rings_grid_cells,
+    target_pad_cells,
+    target_shape,
     target_from_mask,
     target_from_png,
     target_from_rings,
@@ -87,3 +90,28 @@ def test_bad_rings():
         target_from_rings([np.array([[0, 0], [1, 1]])], DROP)
     with pytest.raises(JettingError):
         target_from_rings([], DROP)
+
+
+@pytest.mark.parametrize(("dpi", "diameter_um", "margin_mm"), [
+    (300.0, 60.0, 0.25), (300.0, 60.0, 0.0), (600.0, 200.0, 0.05), (150.0, 300.0, 2.0)])
+def test_target_shape_is_the_shape_target_from_mask_builds(dpi: float, diameter_um: float, margin_mm: float) -> None:
+    drop = DropParams(dpi=dpi, drop_diameter_um=diameter_um)
+    mask = np.zeros((40, 30), dtype=bool)
+    mask[5:31, 3:25] = True  # a 26 x 22 cell part inside an empty border, which is cropped
+    pad = target_pad_cells(drop, margin_mm)
+    assert pad >= int(np.ceil(margin_mm / drop.pitch_mm))
+    assert pad >= int(np.ceil(drop.radius_mm / drop.pitch_mm + 0.5)) + 2  # kernel radius + 3
+    assert target_from_mask(mask, drop, margin_mm).shape == target_shape((26, 22), drop, margin_mm)
+    assert target_shape((26, 22), drop, margin_mm) == (26 + 2 * pad, 22 + 2 * pad)
+
+
+def test_rings_grid_cells_is_the_grid_target_from_rings_rasterises() -> None:
+    p = DROP.pitch_mm
+    assert rings_grid_cells((10 * p, 4.5 * p), p) == (10, 5)
+    assert rings_grid_cells((0.0, 0.1 * p), p) == (1, 1)
+    ring = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 2.0], [0.0, 2.0]])
+    nx, ny = rings_grid_cells((3.0, 2.0), p)
+    built = target_from_rings([ring], DROP, 0.25).shape
+    bound = target_shape((ny, nx), DROP, 0.25)  # rows are y
+    # the grid bounds the target; a last cell whose centre falls outside the rings is cropped
+    assert bound[0] - 1 <= built[0] <= bound[0] and bound[1] - 1 <= built[1] <= bound[1]

@@ -40,13 +40,12 @@ from sqlmodel import Session
 
 from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
 from app.five_axis.errors import TraceOffSurfaceError
-from app.five_axis.trace import trace_over_xy, uv_over_xy
+from app.five_axis.trace import plan_view_points, trace_over_xy, uv_over_xy
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top
 from app.errors import InvalidInput
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DIALECTS as GCODE_DIALECTS
 from app.geometry.nurbs_surface import NurbsSurface
-from app.geometry.tolerance import DEFAULT_TOLERANCE
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.gcode_meta import gcode_meta
@@ -57,7 +56,6 @@ from app.jobs.inputs import nominal_of, succeeded_job
 from app.records import get_or_404
 
 DEFAULT_FEED_MM_MIN = 600.0
-MIN_TRACE_POINTS = 4  # a cubic trace curve interpolates at least degree + 1 points
 _DISPENSE_COMMAND = r"^[A-Z][0-9]+(\.[0-9]+)?( [A-Z]-?[0-9]+(\.[0-9]+)?)*$"
 # FiveAxisParams fields this job does not expose (the core's defaults); every other core field
 # has this job's parameter's name, so a core error's ``params.<name>`` is this job's parameter
@@ -168,17 +166,12 @@ def _in_params(exc: FiveAxisError) -> FiveAxisError:
 
 
 def trace_xy(trace: Trace) -> np.ndarray:
-    """Top view (k, 2) mm of the trace's stored nominal points, consecutive duplicates
-    (vertical steps of the draped polyline) dropped.  A polyline of fewer than
-    MIN_TRACE_POINTS points (a straight trace over one facet) gets the midpoints of its
-    longest segments (the cubic through a straight trace stays that straight line)."""
-    xy = nominal_of(trace).points[:, :2]
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=1) > DEFAULT_TOLERANCE.dedup_mm])
-    xy = xy[keep]
-    while 2 <= xy.shape[0] < MIN_TRACE_POINTS:
-        longest = int(np.argmax(np.linalg.norm(np.diff(xy, axis=0), axis=1)))
-        xy = np.insert(xy, longest + 1, 0.5 * (xy[longest] + xy[longest + 1]), axis=0)
-    return xy
+    """Top view (k, 2) mm of the trace's stored nominal points, made fit for interpolation by
+    :func:`app.five_axis.trace.plan_view_points` (a degenerate top view names ``params.trace_id``)."""
+    try:
+        return plan_view_points(nominal_of(trace).points[:, :2])
+    except FiveAxisError as exc:
+        raise _in_params(exc) from None
 
 
 def _fitted_surface(job: Job, field: str) -> NurbsSurface:

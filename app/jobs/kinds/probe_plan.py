@@ -37,6 +37,7 @@ from app.probing import (PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams
 from app.probing.field import field_result, plan_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.joint import plan_joint
+from app.probing.merge import merge_plans
 from app.probing.program import mesh_station_normals
 
 def check_same_part(session: Session, trace_ids: list[str], field: str) -> None:
@@ -138,12 +139,9 @@ def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
         plans = plan_joint(nominals, _plan_params(params))
     else:
         plans = tuple(plan_probes(nominal, params.planner, _plan_params(params)) for nominal in nominals)
-    normals = None if any(p.normals is None for p in plans) else np.concatenate([p.normals for p in plans])
-    combined = ProbePlan(params.planner, np.concatenate([p.s_mm for p in plans]),
-                         np.concatenate([p.points for p in plans]), normals)
+    combined, firsts = merge_plans(plans, params.planner)
     ctx.progress(0.5, f"{combined.count} probe points on {len(traces)} traces; writing the program")
     program, meta = _program(ctx, params, combined, mesh)
-    firsts = np.concatenate([[0], np.cumsum([p.count for p in plans])[:-1]])
     result = {
         "count": combined.count,
         "method": params.planner,
@@ -170,11 +168,10 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     plan_params = _plan_params(params)
     top = mesh_top_sampler(mesh) if params.stations == "anywhere_on_top" else None
     plan = plan_field(nominals, plan_params, params.stations, top)
-    s_mm = np.where(np.isnan(plan.s_mm), -1.0, plan.s_mm)
     ctx.progress(0.5, f"{plan.count} stations for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
                  "freedom); writing the program")
-    program, meta = _program(ctx, params, ProbePlan("field", s_mm, plan.points, plan.normals), mesh)
-    counts = np.bincount(plan.trace[plan.trace >= 0], minlength=len(traces))
+    program, meta = _program(ctx, params, plan.probe_plan(), mesh)
+    counts = plan.stations_per_trace
     result = {
         "count": plan.count,
         "method": "field",

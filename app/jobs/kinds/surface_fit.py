@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -35,6 +34,8 @@ from app.reconstruction.surface_fit import (
     grid_from_plan,
     sample_nominal_grid,
 )
+from app.reconstruction.surface_fit.points import check_points, parse_points_csv
+from app.reconstruction.surface_fit.work import work_estimate
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
 from app.jobs.registry import JobParams, job_kind
@@ -44,40 +45,10 @@ from app.records import get_or_404
 
 MAX_POINTS = 100_000
 MAX_GRID = 200
-BAD_POINT_FACTOR = 2  # find_bad_points needs 2 (degree + 1)^2 points
-_CSV_SEPARATOR = re.compile(r"[,;\s]+")
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Interval = Annotated[list[Finite], Field(min_length=2, max_length=2)]
 Point = Annotated[list[Finite], Field(min_length=3, max_length=3)]
-
-
-def parse_points_csv(text: str) -> np.ndarray:
-    """CSV text -> points (k, 3) mm.  One ``x, y, z`` per line (separators ``,`` ``;`` or
-    blanks); blank lines and ``#`` comments are skipped, and so is one leading header line.
-    Raises ValueError naming the first bad line."""
-    rows: list[list[float]] = []
-    header_skipped = False
-    for number, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        cells = [cell for cell in _CSV_SEPARATOR.split(stripped) if cell]
-        try:
-            values = [float(cell) for cell in cells]
-        except ValueError:
-            if not rows and not header_skipped:
-                header_skipped = True
-                continue
-            raise ValueError(f"line {number}: {stripped[:60]!r} is not three numbers x, y, z") from None
-        if len(values) != 3 or not all(math.isfinite(v) for v in values):
-            raise ValueError(f"line {number}: {stripped[:60]!r} is not three finite numbers x, y, z")
-        rows.append(values)
-        if len(rows) > MAX_POINTS:
-            raise ValueError(f"more than {MAX_POINTS} points")
-    if not rows:
-        raise ValueError("no points (expected one 'x, y, z' per line)")
-    return np.array(rows, dtype=float)
 
 
 class Region(BaseModel):
@@ -141,7 +112,10 @@ class SurfaceFitJobParams(JobParams):
     @classmethod
     def _parses(cls, value: str | None) -> str | None:
         if value is not None:
-            parse_points_csv(value)
+            try:
+                parse_points_csv(value, MAX_POINTS)
+            except SurfaceFitError as exc:  # pydantic names the field: 422 at params.points_csv
+                raise ValueError(exc.message) from None
         return value
 
     @model_validator(mode="after")
@@ -155,7 +129,7 @@ class SurfaceFitJobParams(JobParams):
         if self.points is not None:
             return np.asarray(self.points, dtype=float)
         if self.points_csv is not None:
-            return parse_points_csv(self.points_csv)
+            return parse_points_csv(self.points_csv, MAX_POINTS)
         return None
 
     @property
@@ -196,7 +170,10 @@ def _check(params: SurfaceFitJobParams, session: Session) -> None:
                               f"{fit.degree + 1} points per direction", field="params.grid", value=params.grid)
     points = params.measured_points()
     if points is not None:
-        _check_points(points, fit, params.points_field)
+        try:
+            check_points(points, fit)
+        except SurfaceFitError as exc:
+            raise _in_params(exc, params) from None
     if fit.control_points is None or fit.method != "least_squares":
         return
     if grid_fitted:
@@ -208,24 +185,6 @@ def _check(params: SurfaceFitJobParams, session: Session) -> None:
         raise SurfaceFitError(f"params.control_points {list(fit.control_points)} need more than the "
                               f"{points.shape[0]} points given", field="params.control_points",
                               value=list(fit.control_points))
-
-
-def _check_points(points: np.ndarray, fit: SurfaceFitParams, field: str) -> None:
-    """Points (k, 3) must be enough distinct (x, y) positions spread over an area."""
-    xy = np.unique(points[:, :2], axis=0)
-    # the core's outlier detection fits a surface of its own: twice the unknowns of a patch
-    needed = (fit.degree + 1) ** 2 * (BAD_POINT_FACTOR if fit.remove_bad_points else 1)
-    if xy.shape[0] < needed:
-        raise SurfaceFitError(
-            f"{xy.shape[0]} distinct (x, y) positions; a degree-{fit.degree} surface needs at least {needed}"
-            + (" (with remove_bad_points)" if fit.remove_bad_points else ""), field=field, value=xy.shape[0])
-    if np.linalg.matrix_rank(xy - xy.mean(axis=0)) < 2:
-        raise SurfaceFitError("the points lie on one line in (x, y): they span no area", field=field,
-                              value=xy[:2])
-    if fit.resample_shape is not None and xy.shape[0] < points.shape[0]:
-        raise SurfaceFitError(f"{points.shape[0] - xy.shape[0]} points repeat an (x, y) position: "
-                              "resample_to_grid needs one height per position", field=field,
-                              value=points.shape[0] - xy.shape[0])
 
 
 def _in_params(exc: SurfaceFitError, params: SurfaceFitJobParams) -> SurfaceFitError:
@@ -272,15 +231,10 @@ BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh p
 
 
 def _net_cost(net: tuple[float, float], degree: int, separable: bool) -> tuple[float, float, float]:
-    """(solve MiB, solve s, inversion MiB) of one fit with a net (n_u, n_v)."""
-    unknowns = net[0] * net[1]
-    width = degree * min(net) + degree
-    per = max(4, 2 * degree)
-    samples = (per * max(net[0] - degree, 1) + 1) * (per * max(net[1] - degree, 1) + 1)
-    if separable:
-        return 0.0, 0.0, SAMPLE_MB * samples
-    return (BAND_OVERHEAD * 8 * unknowns * (width + 1) / 2**20, FLOP_S * unknowns * width**2,
-            SAMPLE_MB * samples)
+    """(solve MiB, solve s, inversion MiB) of one fit with a net (n_u, n_v): the core's
+    :func:`~app.reconstruction.surface_fit.work.work_estimate` at this machine's rates."""
+    work = work_estimate(net, degree, separable)
+    return BAND_OVERHEAD * work.band_bytes / 2**20, FLOP_S * work.flops, SAMPLE_MB * work.inversion_samples
 
 
 def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:
