@@ -24,11 +24,16 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
 from app.slicing.layers import Layer, Sampler, SliceParams, make_layer
 
-_STEP_EPS = 1e-9  # mm; float slack when comparing accumulated steps
+_STEP_EPS = LENGTH_EPS_MM  # mm; float slack when comparing accumulated steps
+#: a facet with |n_z| > 1 - this is horizontal (flat): its height is a snap level
+_FLAT_NZ_SLACK = 1e-9
+#: round-off slack (in bins) so that a slab ending exactly on a bin edge does not reach into the next bin
+_BIN_ROUNDOFF = 1e-9
 
 
 class LayerPlan(NamedTuple):
@@ -78,7 +83,7 @@ def uniform_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
     for k in range(len(plan)):
         bottom, top = float(bounds[k]), float(bounds[k + 1])
         off = abs(top - bottom - params.layer_mm)
-        reason = "uniform" if off < 1e-9 else (
+        reason = "uniform" if off < _STEP_EPS else (
             f"uniform: height / {len(plan)} layers (remainder distributed)" if params.remainder == "distribute"
             else "uniform (last layer: remainder merged)" if top - bottom > params.layer_mm
             else "uniform (last layer: remaining height >= half a layer)")
@@ -86,7 +91,7 @@ def uniform_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
         layers.append(lay)
         prev = lay.area
     notes: list[str] = []
-    if len(plan) and abs(plan[-1] - params.layer_mm) > 1e-9:
+    if len(plan) and abs(plan[-1] - params.layer_mm) > _STEP_EPS:
         notes.append(f"the part's height {z1 - z0:.6g} mm is not a multiple of {params.layer_mm} mm: "
                      + (f"{len(plan)} layers of {plan[0]:.6g} mm" if params.remainder == "distribute"
                         else f"last layer {plan[-1]:.6g} mm"))
@@ -193,13 +198,13 @@ class _RangeMax:
 def cusp_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
     """Cusp-height rule: t = clamp(cusp_mm / max|n_z|, l_min, l_max) over the slab's facets.
 
-    Facets with |n_z| > 1 - 1e-9 (horizontal) are excluded and their heights become snap
+    Facets with |n_z| > 1 - ``_FLAT_NZ_SLACK`` (horizontal) are excluded and their heights become snap
     levels: a slab is cut at a flat face when that keeps it at least ``l_min`` thick.
     """
     pm = sampler.prepared
     z_min, z_max = pm.z_min, pm.z_max
     nz = np.abs(pm.normals_z)
-    flat = nz > 1 - 1e-9
+    flat = nz > 1 - _FLAT_NZ_SLACK
     bin_mm = min(params.l_min, params.cusp_mm) / 4.0
     n_bins = max(1, int(math.ceil((z_max - z_min) / bin_mm)))
     _check_count(int((z_max - z_min) / params.l_min), params)
@@ -215,7 +220,7 @@ def cusp_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
         reason = "l_max" if t >= params.l_max - _STEP_EPS else "top: remaining height"
         while True:
             i0 = min(int((z - z_min) / bin_mm), n_bins - 1)
-            i1 = min(int((z + t - z_min) / bin_mm - 1e-9), n_bins - 1)
+            i1 = min(int((z + t - z_min) / bin_mm - _BIN_ROUNDOFF), n_bins - 1)
             m = rmq.query(i0, max(i0, i1))
             t_new = t if m <= 0 else min(t, max(params.l_min, params.cusp_mm / m))
             if t_new >= t - _STEP_EPS:

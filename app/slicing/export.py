@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.errors import SlicingError
 from app.slicing.layers import Layer, SliceParams, SliceResult
 from app.slicing.rings import Island, oriented
@@ -253,7 +254,7 @@ def layer_svg(result: SliceResult, index: int, paths: list[npt.NDArray[np.float6
                            field="layer", value=index)
     lay = result.layers[index]
     (x0, y0), (x1, y1) = result.bounds[0, :2], result.bounds[1, :2]
-    w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
+    w, h = max(x1 - x0, LENGTH_EPS_MM), max(y1 - y0, LENGTH_EPS_MM)
     pad = 0.02 * max(w, h)
 
     def pts(a: npt.NDArray[np.float64]) -> str:

@@ -17,6 +17,7 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
+from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.offset import offset_islands
 from app.slicing.rings import Island
 
@@ -109,7 +110,7 @@ def raster_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0,
             segs.append(_to_world(np.array([[x0, y], [x1, y]]), angle))
     if not zigzag:
         return segs
-    return _chain(segs, region_geometry(islands).buffer(1e-9), 3 * pitch)
+    return _chain(segs, region_geometry(islands).buffer(LENGTH_EPS_MM), 3 * pitch)
 
 
 def zone_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> list[npt.NDArray[np.float64]]:
@@ -135,7 +136,7 @@ def zone_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> 
             zones[zid].append((y, a, b))
             cur_zone.append(zid)
         prev_zone = cur_zone
-    region = region_geometry(islands).buffer(1e-9)
+    region = region_geometry(islands).buffer(LENGTH_EPS_MM)
     out: list[npt.NDArray[np.float64]] = []
     for zone in zones:
         segs: list[npt.NDArray[np.float64]] = []

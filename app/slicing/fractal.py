@@ -28,6 +28,7 @@ from scipy.sparse.csgraph import minimum_spanning_tree
 from shapely import contains_xy
 from shapely.geometry import MultiLineString, MultiPolygon
 
+from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.fills import region_geometry
 from app.slicing.rings import Island
 
@@ -91,7 +92,7 @@ def _inside(region: MultiPolygon, pts: npt.NDArray[np.float64]) -> npt.NDArray[n
     return inside
 
 
-def simplify_collinear(path: npt.NDArray[np.float64], tol: float = 1e-9) -> npt.NDArray[np.float64]:
+def simplify_collinear(path: npt.NDArray[np.float64], tol: float = LENGTH_EPS_MM) -> npt.NDArray[np.float64]:
     """Drop vertices where the polyline (n, 2) goes straight on (keeps the ends)."""
     if len(path) < 3:
         return path
@@ -121,7 +122,7 @@ def hilbert_fill(islands: tuple[Island, ...], pitch: float) -> list[npt.NDArray[
     clipped = region.intersection(MultiLineString(lines))
     geoms = getattr(clipped, "geoms", [clipped])
     return [np.asarray(g.coords) for g in geoms
-            if g.geom_type == "LineString" and g.length > 1e-9]
+            if g.geom_type == "LineString" and g.length > LENGTH_EPS_MM]
 
 
 def _cycle_edges(full: npt.NDArray[np.bool_], ny: int, weights: MergeWeights, along_x: bool) -> Edges:

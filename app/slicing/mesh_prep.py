@@ -25,6 +25,11 @@ import trimesh
 from app.slicing.errors import MeshError
 from app.slicing.repair import repair_mesh
 
+#: the parts overlap when their union's volume falls short of their summed volume by more
+#: than this relative slack plus :data:`_VOLUME_SLACK_MM3` (mm^3) of round-off
+_VOLUME_SLACK_REL = 1e-9
+_VOLUME_SLACK_MM3 = 1e-9
+
 
 @dataclass(frozen=True)
 class PreparedMesh:
@@ -113,7 +118,7 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, max_hole_mm: float 
     if len(parts) > 1:
         total = sum(p.volume() for p in parts)
         union = manifold3d.Manifold.batch_boolean(parts, manifold3d.OpType.Add)
-        if union.volume() < total * (1 - 1e-9) - 1e-9:
+        if union.volume() < total * (1 - _VOLUME_SLACK_REL) - _VOLUME_SLACK_MM3:
             if not repair:
                 raise MeshError(f"mesh is self-intersecting: {len(parts)} shells overlap "
                                 f"by {total - union.volume():.6g} mm^3", field="mesh",

@@ -21,6 +21,7 @@ import numpy.typing as npt
 from app.checks import require_positive
 from app.gcode.estimator import MachineLimits, estimate_moves
 from app.gcode.fdm import bead_area_mm2
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 from app.slicing.errors import SlicingError
 from app.slicing.fills import contour_fill, raster_fill, zone_fill
 from app.slicing.fractal import MergeWeights, hilbert_fill, merged_fractal_fill
@@ -123,7 +124,7 @@ def count_turns(points: npt.NDArray[np.float64], threshold_rad: float) -> int:
     """Direction changes above ``threshold_rad`` along a polyline (n, 2) (a closed one,
     first == last, also counts the closing junction)."""
     d = np.diff(points, axis=0)
-    d = d[np.hypot(d[:, 0], d[:, 1]) > 1e-12]
+    d = d[np.hypot(d[:, 0], d[:, 1]) > DEGENERATE_LENGTH_MM]
     if len(points) > 2 and np.allclose(points[0], points[-1]) and len(d) > 1:
         d = np.vstack([d, d[:1]])
     if len(d) < 2:
@@ -220,7 +221,7 @@ def plan_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathPa
         t = estimate_moves(positions, feeds, params.limits, stops) if len(feeds) else [0.0]
         stats = LayerStats(path_mm=path_mm, travel_mm=float(first + sum(gaps)),
                            turns=sum(count_turns(p.points, thr) for p in pieces),
-                           jumps=int(sum(1 for g in gaps if g > 1e-9)),
+                           jumps=int(sum(1 for g in gaps if g > LENGTH_EPS_MM)),
                            time_s=float(np.sum(t)))
         layers.append(LayerToolpath(lay.index, lay.z_top, lay.thickness, pieces, stats))
         pos = pos2 if len(inf) else pos1
