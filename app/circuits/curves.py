@@ -9,11 +9,16 @@ import numpy.typing as npt
 
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.shapes import arc_curve
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["line", "polyline", "arc_ccw", "arc_center", "arc_three_points", "bulge_arc", "reversed_curve",
            "transformed", "concatenated", "as_quadratic"]
 
+#: three points are collinear when their determinant is at or below this fraction of their
+#: squared scale (at least 1 mm^2)
 _EPS = 1e-12
+#: a DXF bulge below this is a straight segment
+_ZERO_BULGE = 1e-15
 
 
 def line(p0: npt.ArrayLike, p1: npt.ArrayLike) -> NurbsCurve:
@@ -24,7 +29,7 @@ def line(p0: npt.ArrayLike, p1: npt.ArrayLike) -> NurbsCurve:
 def polyline(points: npt.ArrayLike) -> NurbsCurve:
     """Degree-1 curve through points (k, 2) mm (consecutive duplicates dropped), chord-length knots."""
     pts = np.asarray(points, float)
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > LENGTH_EPS_MM])
     pts = pts[keep]
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     u = np.concatenate([[0.0], np.cumsum(seg)]) / seg.sum()
@@ -55,7 +60,7 @@ def arc_center(start: npt.ArrayLike, end: npt.ArrayLike, center: npt.ArrayLike, 
     a0 = float(np.arctan2(*(p0 - c)[::-1]))
     a1 = float(np.arctan2(*(p1 - c)[::-1]))
     ccw = (a1 - a0) % (2 * np.pi)
-    if np.linalg.norm(p1 - p0) <= 1e-9 * max(r, 1.0):
+    if np.linalg.norm(p1 - p0) <= LENGTH_EPS_MM * max(r, 1.0):
         ccw = 2 * np.pi
     sweep = -((2 * np.pi - ccw) if ccw < 2 * np.pi else 2 * np.pi) if clockwise else ccw
     if clockwise and ccw == 2 * np.pi:
@@ -82,7 +87,7 @@ def arc_three_points(start: npt.ArrayLike, mid: npt.ArrayLike, end: npt.ArrayLik
 def bulge_arc(p0: npt.ArrayLike, p1: npt.ArrayLike, bulge: float) -> NurbsCurve:
     """DXF bulge segment p0 -> p1 (2,) mm: bulge = tan(sweep / 4), positive CCW; 0 is a line."""
     a, b = np.asarray(p0, float), np.asarray(p1, float)
-    if abs(bulge) < 1e-15:
+    if abs(bulge) < _ZERO_BULGE:
         return line(a, b)
     sweep = 4.0 * float(np.arctan(bulge))
     chord = b - a

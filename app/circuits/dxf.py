@@ -32,6 +32,7 @@ from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Layout, LayoutTrace, Source
 from app.geometry.errors import GeometryError
 from app.geometry.nurbs import NurbsCurve
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["read_dxf", "INSUNITS_MM"]
 
@@ -81,7 +82,7 @@ def _bulge_path(e: LWPolyline | Polyline, raw: list[tuple[float, float, float]],
         bulges.append(0.0)
     pieces: list[NurbsCurve] = []
     for i in range(len(pts) - 1):
-        if np.linalg.norm(pts[i + 1] - pts[i]) <= 1e-9:
+        if np.linalg.norm(pts[i + 1] - pts[i]) <= LENGTH_EPS_MM:
             continue
         pieces.append(bulge_arc(pts[i], pts[i + 1], bulges[i]) if bulges[i] else line(pts[i], pts[i + 1]))
     return concatenated(pieces) if pieces else None
@@ -168,7 +169,7 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
             curve: NurbsCurve | None
             if kind == "LINE" and isinstance(e, Line):
                 p0, p1 = _xy(e.dxf.start, scale), _xy(e.dxf.end, scale)
-                curve = line(p0, p1) if np.linalg.norm(p1 - p0) > 1e-9 else None
+                curve = line(p0, p1) if np.linalg.norm(p1 - p0) > LENGTH_EPS_MM else None
             elif kind in ("ARC", "CIRCLE") and isinstance(e, Circle):  # an Arc is a Circle
                 curve = _arc(e, scale)
             elif kind == "LWPOLYLINE" and isinstance(e, LWPolyline):

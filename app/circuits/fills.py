@@ -15,6 +15,12 @@ import numpy.typing as npt
 from shapely.geometry import LineString, MultiLineString, Polygon
 from shapely.geometry.base import BaseGeometry
 
+from app.geometry.tolerance import LENGTH_EPS_MM
+
+#: round-off slack of ceil(width / line width) -> pass count (a width that is an exact
+#: multiple of the line width must not gain a pass)
+_PASS_COUNT_SLACK = 1e-9
+
 __all__ = ["fill_strokes", "pass_offsets", "offset_polyline"]
 
 
@@ -63,7 +69,7 @@ def fill_strokes(exterior: npt.NDArray[np.float64], holes: Sequence[npt.NDArray[
     for y in ys:
         ray = LineString((np.array([[x0, y], [x1, y]]) @ rot.T).tolist())
         for seg in _lines_of(raster_region.intersection(ray)):
-            if len(seg) >= 2 and np.linalg.norm(seg[-1] - seg[0]) > 1e-9:
+            if len(seg) >= 2 and np.linalg.norm(seg[-1] - seg[0]) > LENGTH_EPS_MM:
                 strokes.append(seg[::-1] if flip else seg)
         flip = not flip
     return strokes
@@ -71,7 +77,7 @@ def fill_strokes(exterior: npt.NDArray[np.float64], holes: Sequence[npt.NDArray[
 
 def pass_offsets(width_mm: float, line_width_mm: float) -> npt.NDArray[np.float64]:
     """Lateral offsets (n,) mm of the passes of a trace of ``width_mm`` (n = ceil(width / line))."""
-    n = max(1, int(np.ceil(width_mm / line_width_mm - 1e-9)))
+    n = max(1, int(np.ceil(width_mm / line_width_mm - _PASS_COUNT_SLACK)))
     if n == 1:
         return np.zeros(1)
     pitch = (width_mm - line_width_mm) / (n - 1)

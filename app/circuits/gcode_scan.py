@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from app.circuits.errors import WarpError
 from app.gcode.lines import GcodeLine, read_lines
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 
 __all__ = ["Records", "scan_program", "scan_lines", "PRINT", "TRAVEL", "ZONLY", "EONLY", "MODE", "OTHER"]
 
@@ -109,7 +110,7 @@ def _arc_points(ln: GcodeLine, start: list[float], end: list[float], values: dic
         r = values["R"] * scale
         dx, dy = ex - sx, ey - sy
         chord = math.hypot(dx, dy)
-        if chord == 0.0 or abs(r) < chord / 2 - 1e-9:
+        if chord == 0.0 or abs(r) < chord / 2 - LENGTH_EPS_MM:
             raise refuse_line(ln.number, ln.text, f"the arc's radius {abs(r):g} mm cannot join its ends "
                               f"{chord:g} mm apart")
         h = math.sqrt(max(r * r - chord * chord / 4, 0.0)) * (1 if (r > 0) != clockwise else -1)
@@ -121,7 +122,7 @@ def _arc_points(ln: GcodeLine, start: list[float], end: list[float], values: dic
         raise refuse_line(ln.number, ln.text, "the arc has zero radius")
     a0, a1 = math.atan2(sy - cy, sx - cx), math.atan2(ey - cy, ex - cx)
     ccw = (a1 - a0) % (2 * math.pi)
-    if abs(ex - sx) + abs(ey - sy) <= 1e-12:
+    if abs(ex - sx) + abs(ey - sy) <= DEGENERATE_LENGTH_MM:
         ccw = 2 * math.pi
     sweep = -(2 * math.pi - ccw if ccw < 2 * math.pi else 2 * math.pi) if clockwise else (ccw or 2 * math.pi)
     step = 2 * math.acos(max(-1.0, 1 - arc_chord_mm / radius)) if arc_chord_mm < radius else math.pi / 2

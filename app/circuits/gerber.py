@@ -28,6 +28,10 @@ from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, arc_points
 from app.circuits.shapes import CHORD_MM, ring_of, rotate
 from app.geometry.nurbs import NurbsCurve
+from app.geometry.tolerance import LENGTH_EPS_MM
+
+#: floor (rad) added to a circle's chord angle so that its segment count stays finite
+_MIN_CHORD_ANGLE_RAD = 1e-12
 
 __all__ = ["read_gerber", "read_excellon"]
 
@@ -65,7 +69,7 @@ def _primitive_geometry(prim: gp.GraphicPrimitive) -> Polygon:
     if isinstance(prim, gp.Circle):
         r = prim.r
         return Point(prim.x, prim.y).buffer(r, quad_segs=max(8, int(np.ceil(np.pi / 2 / (2 * np.arccos(
-            max(0.0, 1 - CHORD_MM / r)) + 1e-12))))) if r > 0 else Polygon()
+            max(0.0, 1 - CHORD_MM / r)) + _MIN_CHORD_ANGLE_RAD))))) if r > 0 else Polygon()
     if isinstance(prim, gp.Rectangle):
         corners = np.array([[-prim.w, -prim.h], [prim.w, -prim.h], [prim.w, prim.h], [-prim.w, prim.h]]) / 2
         return Polygon(rotate(corners, prim.rotation) + [prim.x, prim.y])
@@ -138,7 +142,7 @@ def _draw_curve(obj: go.Line | go.Arc) -> NurbsCurve | None:
     p0, p1 = np.array([o.x1, o.y1]), np.array([o.x2, o.y2])
     if isinstance(o, go.Arc):
         return arc_center(p0, p1, p0 + [o.cx, o.cy], bool(o.clockwise))
-    if np.linalg.norm(p1 - p0) <= 1e-9:
+    if np.linalg.norm(p1 - p0) <= LENGTH_EPS_MM:
         return None
     return line(p0, p1)
 

@@ -23,6 +23,11 @@ from scipy.interpolate import RectBivariateSpline
 from scipy.spatial import Delaunay
 
 from app.circuits.errors import WarpError
+from app.geometry.tolerance import LENGTH_EPS_MM
+
+#: scipy Delaunay.find_simplex tolerance (barycentric coordinates): a point this far
+#: outside the hull's edge still counts as inside
+_HULL_BARYCENTRIC_TOL = 1e-9
 
 __all__ = ["HeightField", "Inside", "Region"]
 
@@ -95,12 +100,12 @@ class HeightField:
         return h
 
     def inside(self, x: npt.NDArray[np.float64], y: npt.NDArray[np.float64],
-               slack: float = 1e-9) -> npt.NDArray[np.bool_]:
+               slack: float = LENGTH_EPS_MM) -> npt.NDArray[np.bool_]:
         """True where (x, y) is in the measured region."""
         ok: npt.NDArray[np.bool_] = ((x >= self.x[0] - slack) & (x <= self.x[-1] + slack)
                    & (y >= self.y[0] - slack) & (y <= self.y[-1] + slack))
         if self._hull is not None:
-            ok &= self._hull.find_simplex(np.column_stack([x, y]), tol=1e-9) >= 0
+            ok &= self._hull.find_simplex(np.column_stack([x, y]), tol=_HULL_BARYCENTRIC_TOL) >= 0
         return ok
 
     def curvature_bound(self, x0: npt.NDArray[np.float64], y0: npt.NDArray[np.float64], x1: npt.NDArray[np.float64],
@@ -148,10 +153,10 @@ def points_region(points: npt.ArrayLike) -> Region:
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     hull = Delaunay(pts[:, :2])
 
-    def inside(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64], slack: float = 1e-9) -> npt.NDArray[np.bool_]:
+    def inside(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64], slack: float = LENGTH_EPS_MM) -> npt.NDArray[np.bool_]:
         """True where (x, y) mm is in the points' convex hull."""
         box = (x >= lo[0] - slack) & (x <= hi[0] + slack) & (y >= lo[1] - slack) & (y <= hi[1] + slack)
-        ok: npt.NDArray[np.bool_] = box & (hull.find_simplex(np.column_stack([x, y]), tol=1e-9) >= 0)  # scipy: untyped
+        ok: npt.NDArray[np.bool_] = box & (hull.find_simplex(np.column_stack([x, y]), tol=_HULL_BARYCENTRIC_TOL) >= 0)  # scipy: untyped
         return ok
 
     return Region(inside, (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])))

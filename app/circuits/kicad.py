@@ -20,6 +20,7 @@ from app.circuits.curves import arc_three_points, line
 from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source
 from app.circuits.shapes import pad_outline, rotate
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["read_kicad"]
 
@@ -99,7 +100,7 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
         if not np.isfinite(width) or width <= 0:
             raise CircuitFileError(f"track width {width} must be positive", file=name, where=entity)
         start, end = _up(item.start), _up(item.end)
-        if np.linalg.norm(end - start) <= 1e-9 and kind == "Segment":
+        if np.linalg.norm(end - start) <= LENGTH_EPS_MM and kind == "Segment":
             continue
         curve = line(start, end) if kind == "Segment" else arc_three_points(start, _up(item.mid), end)
         src = Source(name, layer, nets.get(item.net, ""), width, entity)

@@ -15,6 +15,9 @@ import numpy.typing as npt
 
 from app.geometry.nurbs import NurbsCurve
 
+#: floor (rad) of an arc's angular step so that its point count stays finite
+_MIN_ARC_STEP_RAD = 1e-9
+
 __all__ = ["Source", "LayoutTrace", "Pad", "Area", "Layout", "circle_ring", "arc_points"]
 
 
@@ -97,7 +100,7 @@ def arc_points(center: npt.NDArray[np.float64], radius: float, a0: float, sweep:
     if radius <= 0:
         return np.asarray(center, float)[None, :]
     step = 2.0 * np.arccos(max(-1.0, 1.0 - chord_mm / radius)) if chord_mm < radius else np.pi / 2
-    n = max(2, int(np.ceil(abs(sweep) / max(step, 1e-9))) + 1)
+    n = max(2, int(np.ceil(abs(sweep) / max(step, _MIN_ARC_STEP_RAD))) + 1)
     ang = a0 + np.linspace(0.0, sweep, n)
     return np.asarray(center, float) + radius * np.column_stack([np.cos(ang), np.sin(ang)])
 

@@ -25,6 +25,7 @@ from app.circuits.curves import arc_ccw, concatenated, line, transformed
 from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Layout, LayoutTrace, Source
 from app.geometry.nurbs import NurbsCurve
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["read_svg", "PX_MM"]
 
@@ -60,13 +61,13 @@ def _segment(seg: object) -> NurbsCurve | None:
     """One path segment (svgelements, px) as an exact curve; None for a move or a zero-length piece."""
     if isinstance(seg, (Line, Close)):
         a, b = np.array([seg.start.x, seg.start.y]), np.array([seg.end.x, seg.end.y])
-        return line(a, b) if np.linalg.norm(b - a) > 1e-9 else None
+        return line(a, b) if np.linalg.norm(b - a) > LENGTH_EPS_MM else None
     if isinstance(seg, CubicBezier):
         return _bezier([[q.x, q.y] for q in (seg.start, seg.control1, seg.control2, seg.end)])
     if isinstance(seg, QuadraticBezier):
         return _bezier([[q.x, q.y] for q in (seg.start, seg.control, seg.end)])
     if isinstance(seg, Arc):
-        if np.hypot(seg.end.x - seg.start.x, seg.end.y - seg.start.y) <= 1e-9 and seg.sweep == 0:
+        if np.hypot(seg.end.x - seg.start.x, seg.end.y - seg.start.y) <= LENGTH_EPS_MM and seg.sweep == 0:
             return None
         return _elliptic_arc(seg)
     return None

@@ -26,6 +26,7 @@ import numpy.typing as npt
 
 from app.circuits.gcode_scan import EONLY, OTHER, PRINT, TRAVEL, ZONLY, MODE, Records, scan_program
 from app.circuits.heightfield import HeightField, Inside
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "check_region", "fixed_split_error"]
 
@@ -174,7 +175,7 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
     prev = np.concatenate([[-1], moving[:-1]])
     after_travel = np.concatenate([[False], kind[moving[:-1]] == TRAVEL])
     at = end[np.maximum(prev, 0)]
-    moved = (prev < 0) | (np.abs(at[:, 0] - start[moving, 0]) + np.abs(at[:, 1] - start[moving, 1]) > 1e-9)
+    moved = (prev < 0) | (np.abs(at[:, 0] - start[moving, 0]) + np.abs(at[:, 1] - start[moving, 1]) > LENGTH_EPS_MM)
     is_print = kind[moving] == PRINT
     p_moved, p_lift = moved[is_print], (after_travel | moved)[is_print]
     t_lift = ~after_travel[~is_print]

@@ -24,6 +24,11 @@ import numpy.typing as npt
 import trimesh
 
 from app.circuits.errors import LayoutError
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
+
+#: a ray whose exit rate through a triangle edge (outward normal . direction) is at or
+#: below this does not leave the triangle through that edge (parallel or inward)
+_LEAVE_RATE_FLOOR = 1e-15
 
 __all__ = ["SurfaceWalker", "ExpMapResult"]
 
@@ -118,7 +123,7 @@ class SurfaceWalker:
                 bx, by = tri[(j + 1) % 3]
                 nx, ny = orient * (by - ay), -orient * (bx - ax)      # outward edge normal
                 rate = nx * dx + ny * dy
-                if rate <= 1e-15:
+                if rate <= _LEAVE_RATE_FLOOR:
                     continue                                         # the ray does not leave here
                 t = (nx * (ax - px) + ny * (ay - py)) / rate
                 if t < best_t:
@@ -167,7 +172,7 @@ class SurfaceWalker:
         out = np.full((len(vec), 3), np.nan)
         for i, (u, v) in enumerate(vec):
             r = math.hypot(u, v)
-            if r < 1e-12:
+            if r < DEGENERATE_LENGTH_MM:
                 out[i] = start
                 continue
             end = self.shoot(face, start, (u * e1 + v * e2) / r, r)
