@@ -34,7 +34,10 @@ from app.five_axis.kinematics import MachineConfig, angles_for_normal
 
 __all__ = ["BranchChoice", "choose_axes", "wrap_angle", "best_tilt"]
 
+#: round-off slack (rad) of "this angle lies within the axis limits"
 _LIMIT_SLACK_RAD = 1e-12
+#: default half-angle (rad) of the pole window around +Z where C is held, not solved
+_POLE_TILT_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -128,7 +131,7 @@ def _fill_pole_windows(c_wrapped: npt.NDArray[np.float64], pole: npt.NDArray[np.
 
 
 def choose_axes(normals: npt.NDArray[np.float64], config: MachineConfig, *, c_start_rad: float = 0.0,
-                pole_tilt_rad: float = 1e-6, arc_mm: npt.NDArray[np.float64] | None = None,
+                pole_tilt_rad: float = _POLE_TILT_RAD, arc_mm: npt.NDArray[np.float64] | None = None,
                 c_weight: float = 1.0, field: str = "params.a_limits_deg") -> BranchChoice:
     """Rotary angles bringing each unit normal (k,3) to +Z, branches chosen continuously.
 

@@ -30,6 +30,7 @@ __all__ = ["NormalSource", "NormalSide", "ContactFrames", "surface_orientation",
 NormalSource = Literal["surface", "principal"]
 NormalSide = Literal["up", "as_is", "flipped"]
 
+#: a trace whose curvature (1/mm) is below this is straight there: its principal normal is undefined
 _STRAIGHT_CURVATURE_PER_MM = 1e-9
 
 

@@ -39,6 +39,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+#: default singularity threshold of the inverse kinematics: where rho = sin A is at or below
+#: this the rotary axis is vertical and C is held
+_SINGULAR_RHO = 1e-12
+
 __all__ = [
     "MachineConfig",
     "AxisPose",
@@ -151,7 +155,7 @@ def angles_for_normal(normals: npt.NDArray[np.float64]) -> AngleCandidates:
 
 
 def inverse_kinematics(pose: ToolPose, config: MachineConfig, branch: int = 1,
-                       c_hold_rad: float = 0.0, singular_rho: float = 1e-12) -> AxisPose:
+                       c_hold_rad: float = 0.0, singular_rho: float = _SINGULAR_RHO) -> AxisPose:
     """Machine axes for workpiece tool poses, one fixed branch (+1: A >= 0, -1: A <= 0).
 
     Where the axis is vertical within ``singular_rho`` (= sin A) C is undefined and

@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, ProgramBuilder, format_number
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["FeedMode", "ProgramStyle", "approach", "dispense", "end_program", "five_axis_program",
            "nominal_program"]
@@ -99,7 +100,7 @@ def dispensed_path(b: ProgramBuilder, xyz_mm: npt.NDArray[np.float64], a_deg: np
         if feed_mode == "inverse_time":
             feed = 60.0 / dt
         else:
-            feed = seg_len[j - 1] / dt * 60.0 if seg_len[j - 1] > 1e-9 else nominal_feed_mm_min
+            feed = seg_len[j - 1] / dt * 60.0 if seg_len[j - 1] > LENGTH_EPS_MM else nominal_feed_mm_min
         b.move(x=xyz_mm[j, 0], y=xyz_mm[j, 1], z=xyz_mm[j, 2], feed_mm_min=feed,
                a=float(a_deg[j]), c=float(c_deg[j]))
     dispense(b, style.dispense_off)

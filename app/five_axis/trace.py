@@ -26,6 +26,11 @@ MIN_TRACE_POINTS = 4  # a cubic trace curve interpolates at least degree + 1 poi
 
 _NEWTON_STEPS = 30
 _SEED_GRID = 41
+#: convergence (mm) of the plan-view inversion xy -> (u, v): Newton stops when every point's
+#: xy residual is at or below this
+_XY_INVERSION_TOL_MM = 1e-9
+#: a point whose converged xy still misses by more than max(1e3 * tol_mm, this) mm is off the surface
+_XY_MISS_FLOOR_MM = 1e-6
 
 
 def plan_view_points(xy: npt.NDArray[np.float64], min_points: int = MIN_TRACE_POINTS,
@@ -65,7 +70,7 @@ def trace_on_surface(surface: NurbsSurface, uv: npt.NDArray[np.float64], degree:
     return interpolate_curve(surface.evaluate(uv[:, 0], uv[:, 1]), degree, field="trace.uv")
 
 
-def uv_over_xy(surface: NurbsSurface, xy: npt.NDArray[np.float64], tol_mm: float = 1e-9) -> npt.NDArray[np.float64]:
+def uv_over_xy(surface: NurbsSurface, xy: npt.NDArray[np.float64], tol_mm: float = _XY_INVERSION_TOL_MM) -> npt.NDArray[np.float64]:
     """Surface parameters (k,2) whose points lie over the plan-view points xy (k,2) mm.
 
     Newton on S_xy(u, v) = (x, y) from the nearest of a 41 x 41 parameter sample.
@@ -92,7 +97,7 @@ def uv_over_xy(surface: NurbsSurface, xy: npt.NDArray[np.float64], tol_mm: float
         if np.abs(r).max(initial=0.0) <= tol_mm:
             break
     miss = np.linalg.norm(surface.evaluate(uv[:, 0], uv[:, 1])[:, :2] - xy, axis=1)
-    bad = np.flatnonzero(miss > max(1e3 * tol_mm, 1e-6))
+    bad = np.flatnonzero(miss > max(1e3 * tol_mm, _XY_MISS_FLOOR_MM))
     if bad.size:
         j = int(bad[0])
         raise TraceOffSurfaceError(
