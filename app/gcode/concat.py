@@ -19,6 +19,7 @@ import numpy as np
 
 from app.gcode.reader import read_program
 from app.gcode.writer import DIALECTS, GcodeError, ProgramBuilder, format_number
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,7 @@ def join_programs(programs: list[tuple[str, str]], dialect: str, *, clearance_mm
         if bounds is None:
             raise GcodeError(f"program {name!r} has no moves", field="programs", value=name)
         top = max(top, float(bounds[1][2]))
-        lateral = np.flatnonzero(np.linalg.norm(program.end[:, :2] - program.start[:, :2], axis=1) > 1e-9)
+        lateral = np.flatnonzero(np.linalg.norm(program.end[:, :2] - program.start[:, :2], axis=1) > LENGTH_EPS_MM)
         first = program.end[lateral[0] if len(lateral) else 0, :2]  # where the program's first sideways move goes
         starts.append(np.asarray(first, float))
     safe_z = top + clearance_mm

@@ -33,6 +33,11 @@ import numpy.typing as npt
 
 from app.errors import InvalidInput
 from app.gcode.reader import ReadOptions, read_program
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
+
+#: a junction with sin(theta / 2) >= 1 - this (theta: the angle between the moves' reversed
+#: and forward directions) is straight: it puts no junction-deviation limit on the speed
+_STRAIGHT_JUNCTION_SLACK = 1e-9
 
 
 class EstimatorError(InvalidInput):
@@ -116,9 +121,9 @@ def estimate_moves(positions: npt.ArrayLike, feed_mm_s: npt.ArrayLike, limits: M
     if n == 0:
         return np.zeros(0)
     xyz = np.linalg.norm(d[:, :3], axis=1)
-    e_only = (xyz <= 1e-12) & (np.abs(d[:, 3]) > 1e-12)
+    e_only = (xyz <= DEGENERATE_LENGTH_MM) & (np.abs(d[:, 3]) > DEGENERATE_LENGTH_MM)
     L = np.where(e_only, np.abs(d[:, 3]), xyz)
-    valid = L > 1e-12
+    valid = L > DEGENERATE_LENGTH_MM
     if jumps is not None:
         valid &= ~np.asarray(jumps, dtype=bool)
     Ls = np.where(valid, L, 1.0)
@@ -128,7 +133,7 @@ def estimate_moves(positions: npt.ArrayLike, feed_mm_s: npt.ArrayLike, limits: M
                        axis=1)
         a_cap = np.min(np.where(frac > 0, np.asarray(limits.max_accel_mm_s2) / frac, np.inf),
                        axis=1)
-    printing = (d[:, 3] > 1e-12) & ~e_only
+    printing = (d[:, 3] > DEGENERATE_LENGTH_MM) & ~e_only
     a = np.where(e_only, limits.retract_accel_mm_s2,
                  np.where(printing, limits.accel_mm_s2, limits.travel_accel_mm_s2))
     a = np.minimum(a, a_cap)
@@ -140,7 +145,7 @@ def estimate_moves(positions: npt.ArrayLike, feed_mm_s: npt.ArrayLike, limits: M
     cos_t = -np.einsum("ij,ij->i", u[:-1], u[1:])
     sin_h = np.sqrt(np.clip(0.5 * (1 - cos_t), 0.0, 1.0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        vj2 = np.where(sin_h < 1 - 1e-9,
+        vj2 = np.where(sin_h < 1 - _STRAIGHT_JUNCTION_SLACK,
                        a[1:] * limits.junction_deviation_mm * sin_h / (1 - sin_h), np.inf)
     vj2 = np.where(cos_t > 0.999999, 0.0, vj2)
     vmax = np.concatenate([[0.0], np.minimum(np.minimum(vn[:-1], vn[1:]) ** 2, vj2), [0.0]])
@@ -200,7 +205,7 @@ def estimate_gcode(text: str, limits: MachineLimits = MachineLimits()) -> TimeEs
     t = estimate_moves(rows, program.feed_mm_s, limits, stops, program.home)
     layers = program.layer
     d = np.diff(rows, axis=0)
-    printing = d[:, 3] > 1e-12
+    printing = d[:, 3] > DEGENERATE_LENGTH_MM
     lay = np.asarray(layers)
     layer_times: tuple[float, ...] = ()
     if len(lay) and lay.max() >= 0:

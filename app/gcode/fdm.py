@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
+from app.geometry.tolerance import LENGTH_EPS_MM
 
 if TYPE_CHECKING:  # the slicer imports this writer; the toolpath type is needed only here
     from app.slicing.toolpath import Toolpath
@@ -124,7 +125,7 @@ def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
                 e -= params.retract_mm
                 b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
                 retracted = True
-            if dist > 1e-9:
+            if dist > LENGTH_EPS_MM:
                 b.move(x=start[0], y=start[1], feed_mm_min=travel)
             if params.z_lift_mm:
                 b.move(z=z, feed_mm_min=travel)
@@ -138,7 +139,7 @@ def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
             first = True
             for a, c in zip(piece.points[:-1], piece.points[1:]):
                 seg = math.hypot(*(c - a))
-                if seg <= 1e-9:
+                if seg <= LENGTH_EPS_MM:
                     continue
                 if params.mode == "extrude":
                     e += seg * e_per_mm

@@ -40,6 +40,15 @@ import numpy as np
 import numpy.typing as npt
 
 from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
+
+#: an arc whose end angle is within this (rad) of its start angle, against its direction,
+#: sweeps a full circle
+_FULL_CIRCLE_SWEEP_RAD = 1e-12
+#: floor (mm) of the chord tolerance an arc is flattened with
+_MIN_ARC_TOLERANCE_MM = 1e-6
+#: floor (rad) of an arc's angular step so that its segment count stays finite
+_MIN_ARC_STEP_RAD = 1e-6
 
 INCH_MM = 25.4
 DEFAULT_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
@@ -296,7 +305,7 @@ class _Reader:
         start = s.pos.copy()
         rotated = "A" in values or "C" in values
         end = self.target(values)
-        extrudes = bool(end[3] > start[3] + 1e-12)
+        extrudes = bool(end[3] > start[3] + DEGENERATE_LENGTH_MM)
         if s.motion in (ARC_CW, ARC_CCW):
             points = self.arc_points(start, end, values, number)
             for a, b in zip(points[:-1], points[1:]):
@@ -314,7 +323,7 @@ class _Reader:
             radius = values["R"] * s.scale
             chord = end[:2] - start[:2]
             half = float(np.hypot(*chord)) / 2.0
-            if half < 1e-12 or abs(radius) < half - 1e-9:
+            if half < DEGENERATE_LENGTH_MM or abs(radius) < half - LENGTH_EPS_MM:
                 raise GcodeReadError(f"line {number}: arc radius {values['R']:g} cannot join its end points",
                                      field="gcode", value=number)
             offset = math.sqrt(max(radius * radius - half * half, 0.0))
@@ -329,19 +338,19 @@ class _Reader:
             raise GcodeReadError(f"line {number}: an arc needs I/J or R", field="gcode", value=number)
         r0 = float(np.hypot(*(start[:2] - centre)))
         r1 = float(np.hypot(*(end[:2] - centre)))
-        if r0 < 1e-9 or abs(r0 - r1) > max(0.005, 1e-3 * r0):
+        if r0 < LENGTH_EPS_MM or abs(r0 - r1) > max(0.005, 1e-3 * r0):
             raise GcodeReadError(f"line {number}: arc end is not on its circle (radius {r0:.4f} vs {r1:.4f} mm)",
                                  field="gcode", value=number)
         a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
         a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
         sweep = a1 - a0
         if clockwise:
-            sweep = sweep - 2 * math.pi if sweep >= -1e-12 else sweep
+            sweep = sweep - 2 * math.pi if sweep >= -_FULL_CIRCLE_SWEEP_RAD else sweep
         else:
-            sweep = sweep + 2 * math.pi if sweep <= 1e-12 else sweep
-        tol = max(self.options.arc_tolerance_mm, 1e-6)
+            sweep = sweep + 2 * math.pi if sweep <= _FULL_CIRCLE_SWEEP_RAD else sweep
+        tol = max(self.options.arc_tolerance_mm, _MIN_ARC_TOLERANCE_MM)
         step = 2.0 * math.acos(max(1.0 - tol / r0, -1.0)) if tol < r0 else math.pi / 2
-        count = max(1, int(math.ceil(abs(sweep) / max(step, 1e-6))))
+        count = max(1, int(math.ceil(abs(sweep) / max(step, _MIN_ARC_STEP_RAD))))
         t = np.linspace(0.0, 1.0, count + 1)
         angle = a0 + sweep * t
         radius_t = r0 + (r1 - r0) * t
