@@ -22,6 +22,10 @@ import numpy as np
 import numpy.typing as npt
 
 from app.calibration.errors import CalibrationError
+from app.geometry.tolerance import LENGTH_EPS_MM
+
+#: a normal vector shorter than this is zero: it has no direction to normalise
+_ZERO_NORMAL = 1e-12
 
 __all__ = ["PretravelModel", "ProbeCalibration", "NozzleCalibration", "Touch", "TOUCH_KINDS", "as_normals", "hops"]
 
@@ -63,7 +67,7 @@ def as_normals(normals: npt.ArrayLike, name: str = "normals") -> npt.NDArray[np.
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise CalibrationError(f"{name} must have shape (n, 3)", field=name, value=list(arr.shape))
     length = np.linalg.norm(arr, axis=1)
-    bad = ~np.isfinite(arr).all(axis=1) | (length < 1e-12)
+    bad = ~np.isfinite(arr).all(axis=1) | (length < _ZERO_NORMAL)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise CalibrationError(f"{name}[{i}] is not a finite non-zero vector", field=f"{name}[{i}]", value=arr[i])
@@ -206,7 +210,7 @@ class Touch:
                                    value=self.kind)
         object.__setattr__(self, "start_mm", _vec3(self.start_mm, "start_mm"))
         object.__setattr__(self, "target_mm", _vec3(self.target_mm, "target_mm"))
-        if math.dist(self.start_mm, self.target_mm) < 1e-9:
+        if math.dist(self.start_mm, self.target_mm) < LENGTH_EPS_MM:
             raise CalibrationError("a touch's target must differ from its start", field="target_mm",
                                    value=self.target_mm)
 

@@ -58,6 +58,8 @@ __all__ = ["plan_nozzle_calibration", "fit_nozzle_offset", "pad_grid", "TIP_BELO
 
 TIP_BELOW_EQUATOR = 0.3          # tip height below the sphere centre, in sphere radii
 OVERTRAVEL_MM = 1.0
+#: a side touch's unit direction may have components this large off its x or y axis
+_OFF_AXIS_SLACK = 1e-6
 SIDES = {"+x": (1.0, 0.0), "-x": (-1.0, 0.0), "+y": (0.0, 1.0), "-y": (0.0, -1.0)}
 
 
@@ -149,7 +151,7 @@ def plan_nozzle_calibration(probe: ProbeCalibration, nominal_offset_mm: npt.Arra
 def _side_of(t: Touch) -> str:
     d = t.direction
     axis = int(np.argmax(np.abs(d[:2])))
-    if abs(d[2]) > 1e-6 or abs(d[1 - axis]) > 1e-6:
+    if abs(d[2]) > _OFF_AXIS_SLACK or abs(d[1 - axis]) > _OFF_AXIS_SLACK:
         raise CalibrationError("a nozzle_side touch must move horizontally along x or y", field="touches",
                                value=t.to_dict())
     # approaching from +X moves toward -X

@@ -61,6 +61,8 @@ OFF_LINE_MM = 0.25     # a reading farther than this from its move's straight li
 ABSURD_MM = 2.0        # a sphere reading farther than this from the sphere of the others is refused
 OUTLIER_MM = 0.05      # after the fit: a residual beyond this is a bad touch (dust, a bounce), not scatter
 PAD_SPACING_MM = 0.5
+_LM_TOL = 1e-15        # the final Levenberg-Marquardt fit's xtol / ftol / gtol (converge to round-off)
+_SINGULAR_SV_REL = 1e-9  # the fit is singular when its Jacobian's smallest / largest singular value is below this
 PARAMS = ("centre_x_mm", "centre_y_mm", "centre_z_mm", "ball_radius_mm", "p0_mm", "cos3_mm", "sin3_mm")
 
 
@@ -275,11 +277,11 @@ def fit_qualification(touches: Sequence[Touch], readings: npt.ArrayLike, sphere_
         raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm "
                                "(along its move) off what the other readings describe (a bad touch: dust or a bounce?)",
                                field=f"readings[{i}]", value=p_all[i])
-    fit = least_squares(residuals, robust.x, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * n_par)
+    fit = least_squares(residuals, robust.x, method="lm", xtol=_LM_TOL, ftol=_LM_TOL, gtol=_LM_TOL, max_nfev=200 * n_par)
     res = fit.fun
     jac = fit.jac
     sv = np.linalg.svd(jac, compute_uv=False)
-    if sv[-1] < 1e-9 * sv[0]:
+    if sv[-1] < _SINGULAR_SV_REL * sv[0]:
         raise CalibrationError("the touches cannot separate the ball radius from the pre-travel (singular fit):"
                                " add equator touches and caps at several polar angles", field="touches",
                                value=len(sphere))

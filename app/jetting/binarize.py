@@ -26,6 +26,8 @@ from .model import diamond
 from .qp import LayerQP
 
 BINARIZE_METHODS = ("threshold", "error_diffusion", "greedy")
+#: a greedy flip is taken only when it lowers the objective by more than this (round-off)
+_MIN_FLIP_GAIN = 1e-12
 DIFFUSION_WEIGHTS = np.array([0.25, 0.5, 0.25])
 
 
@@ -107,7 +109,7 @@ def greedy_pattern(qp: LayerQP, x: npt.NDArray[np.float64], start: npt.NDArray[n
         for c in range(count):
             delta = 1.0 - 2.0 * pattern
             gain = delta * grad[0] + 0.5 * hdiag
-            flip = (colours == c) & cells & (gain < -1e-12)
+            flip = (colours == c) & cells & (gain < -_MIN_FLIP_GAIN)
             if not flip.any():
                 continue
             pattern = np.where(flip, 1.0 - pattern, pattern)

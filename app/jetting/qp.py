@@ -26,6 +26,9 @@ from scipy import optimize
 
 from .model import LayerModel
 
+#: default convergence tolerance of the L-BFGS-B reference solve (scipy ftol; gtol is 1e-2 of it)
+_LBFGSB_TOL = 1e-10
+
 
 @dataclass(frozen=True)
 class LayerQP:
@@ -134,7 +137,7 @@ def solve_fista(qp: LayerQP, x0: npt.NDArray[np.float64] | None = None, max_iter
 
 
 def solve_lbfgsb(qp: LayerQP, x0: npt.NDArray[np.float64] | None = None, max_iter: int = 2000,
-                 tol: float = 1e-10) -> QPSolution:
+                 tol: float = _LBFGSB_TOL) -> QPSolution:
     """Reference solve with scipy's L-BFGS-B on the free cells (bounds [0, 1])."""
     start = time.perf_counter()
     shape = qp.references.shape
