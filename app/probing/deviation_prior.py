@@ -169,9 +169,13 @@ def placement_basis(sites: Sites, center: np.ndarray) -> np.ndarray:
 
 def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float) -> np.ndarray:
     """Unit-variance band-limited isotropic kernel (m, k) between points a (m, 2), b (k, 2)."""
-    r = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
-    x = np.maximum(2.0 * math.pi / wavelength_mm * r, 1e-12)
-    out: np.ndarray = np.where(x < 1e-6, 1.0 - x * x / 8.0, 2.0 * j1(x) / x)
+    x = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
+    x *= 2.0 * math.pi / wavelength_mm
+    out: np.ndarray = j1(x)
+    out *= 2.0
+    small = x < 1e-6
+    np.divide(out, x, out=out, where=~small)
+    out[small] = 1.0 - x[small] ** 2 / 8.0
     return out
 
 

@@ -38,7 +38,7 @@ from scipy.linalg import solve_triangular
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
                                          prior_variance)
-from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
+from app.probing.field_region import FieldRegion, TopSampler, field_region
 from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
@@ -51,19 +51,43 @@ SD_CHUNK = 4096
 class GreedyField:
     """Posterior of the field over sites U (N,) as stations are added one at a time.
 
-    rows: (n, N) = L^-1 K(S, U) for the n stations S so far; var: (N,) posterior variance
-    mm^2 (noise-free field); chosen: (n,) indices into U in the order added.
+    rows: (n, N) = L^-1 K(S, U) for the n stations S so far, with L (n, n) the lower
+    Cholesky factor of K(S, S) + jitter I; var: (N,) posterior variance mm^2 (noise-free
+    field); chosen: (n,) indices into U in the order added.  :meth:`extend` appends sites
+    to U without refactorising (one triangular solve for the new columns).
     """
 
     def __init__(self, prior: DeviationPrior, sites: Sites, center: np.ndarray) -> None:
         self.prior = prior
-        self.sites = sites
-        self.basis = placement_basis(sites, center) * prior.basis_sd        # (N, 6)
-        self.prior_var = prior.rms_mm ** 2 + np.sum(self.basis ** 2, axis=1)
-        self.var = self.prior_var.copy()
+        self.center = center
         self.jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
-        self.rows = np.empty((16, len(self.var)))
+        self.sites = Sites(np.zeros((0, 2)), np.zeros((0, 2)))
+        self.basis = np.zeros((0, 6))
+        self.prior_var = np.zeros(0)
+        self.var = np.zeros(0)
+        self.rows = np.empty((16, 0))
+        self.low = np.zeros((16, 16))
         self.chosen: list[int] = []
+        self._column: tuple[int, int, np.ndarray] | None = None   # (t, n, posterior cov of t)
+        self.extend(sites)
+
+    def extend(self, sites: Sites) -> None:
+        """Append sites (m,) to U: their rows L^-1 K(S, new) and posterior variance."""
+        n = len(self.chosen)
+        basis = placement_basis(sites, self.center) * self.prior.basis_sd         # (m, 6)
+        prior_var = self.prior.rms_mm ** 2 + np.sum(basis ** 2, axis=1)
+        rows = np.empty((len(self.rows), len(prior_var)))
+        var = prior_var.copy()
+        if n:
+            stations = self.sites.take(np.array(self.chosen))
+            rows[:n] = solve_triangular(self.low[:n, :n],
+                                        prior_covariance(self.prior, stations, sites, self.center), lower=True)
+            var = np.maximum(var - np.sum(rows[:n] ** 2, axis=0), 0.0)
+        self.sites = Sites(np.concatenate([self.sites.xy, sites.xy]), np.concatenate([self.sites.grad, sites.grad]))
+        self.basis = np.concatenate([self.basis, basis])
+        self.prior_var = np.concatenate([self.prior_var, prior_var])
+        self.var = np.concatenate([self.var, var])
+        self.rows = np.concatenate([self.rows, rows], axis=1)
 
     def kernel_row(self, j: int) -> np.ndarray:
         """Prior covariance (N,) mm^2 between site j and every site."""
@@ -71,45 +95,60 @@ class GreedyField:
         out: np.ndarray = self.prior.rms_mm ** 2 * jinc + self.basis @ self.basis[j]
         return out
 
-    def gain_for(self, t: int, candidates: np.ndarray) -> np.ndarray:
-        """Variance drop (c,) mm^2 at site t if a station were added at each candidate."""
+    def posterior_cov(self, t: int) -> np.ndarray:
+        """Posterior covariance (N,) mm^2 between site t and every site: K(t, U) - R[:, t]' R.
+        The last one is kept: the greedy usually adds the very site it just scored for."""
         n = len(self.chosen)
-        cov = self.kernel_row(t)[candidates]
+        if self._column is not None and self._column[:2] == (t, n):
+            return self._column[2]
+        cov = self.kernel_row(t)
         if n:
-            cov -= self.rows[:n, t] @ self.rows[:n][:, candidates]
-        out: np.ndarray = cov * cov / (self.var[candidates] + self.jitter)
+            cov -= self.rows[:n, t] @ self.rows[:n]
+        self._column = (t, n, cov)
+        return cov
+
+    def gain_for(self, t: int) -> np.ndarray:
+        """Variance drop (N,) mm^2 at site t if a station were added at each site."""
+        cov = self.posterior_cov(t)
+        out: np.ndarray = cov * cov / (self.var + self.jitter)
         return out
 
     def add(self, j: int) -> None:
-        """Add a station at site j: one new row of R, variance downdated."""
+        """Add a station at site j: one new row of R and of L, variance downdated."""
         n = len(self.chosen)
         if n == len(self.rows):
             self.rows = np.concatenate([self.rows, np.empty_like(self.rows)])
-        row = self.kernel_row(j)
-        if n:
-            row -= self.rows[:n, j] @ self.rows[:n]
-        row /= math.sqrt(max(self.var[j], 0.0) + self.jitter)
+            low = np.zeros((2 * n, 2 * n))
+            low[:n, :n] = self.low[:n, :n]
+            self.low = low
+        row = self.posterior_cov(j) / 1.0   # a copy: the kept column stays as it was
+        pivot = math.sqrt(max(self.var[j], 0.0) + self.jitter)
+        self.low[n, :n] = self.rows[:n, j]
+        self.low[n, n] = pivot
+        row /= pivot
         self.rows[n] = row
+        self._column = None
         self.var = np.maximum(self.var - row * row, 0.0)
         self.chosen.append(int(j))
 
 
-def greedy_sequence(greedy: GreedyField, candidates: np.ndarray, targets: np.ndarray,
-                    count: int | None, target_var: float, min_count: int) -> int:
+def greedy_sequence(greedy: GreedyField, targets: np.ndarray, count: int | None, target_var: float,
+                    min_count: int) -> int:
     """Run the greedy design: ``count`` stations in all, or (count None) until the largest
     variance over ``targets`` (indices into U) is <= target_var with >= min_count stations.
+    Every site of U is a candidate.
 
     Each step finds the worst target t and adds the candidate j that lowers its variance
     most, ``cov(j, t)^2 / (var_j + sigma^2)`` (the posterior covariance column of t costs
     O(n N)).  On traces this picks the worst point itself or a neighbour; with free
     candidates it avoids points off the traces whose own variance is large but irrelevant.
     Returns the number of stations chosen."""
-    most = min(MAX_FIELD_PROBES, len(candidates)) if count is None else int(count)
+    most = min(MAX_FIELD_PROBES, len(greedy.var)) if count is None else int(count)
     while len(greedy.chosen) < most:
         worst = int(targets[np.argmax(greedy.var[targets])])
         if count is None and len(greedy.chosen) >= min_count and greedy.var[worst] <= target_var:
             break
-        greedy.add(int(candidates[np.argmax(greedy.gain_for(worst, candidates))]))
+        greedy.add(int(np.argmax(greedy.gain_for(worst))))
     return len(greedy.chosen)
 
 
@@ -274,55 +313,45 @@ MAX_REFINE_ROUNDS = 6
 
 
 def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stations: str) -> FieldPlan:
-    """Greedy design on the thinned targets; then (automatic count) every trace sample is
-    checked and the ones still over the target join the targets (and, on traces, the
-    candidates) and the greedy sequence continues, until every sample meets it."""
-    pool: TracePoints = region.targets
+    """Greedy design on the thinned targets (and the free candidates); then (automatic
+    count) every trace sample is checked, the ones still over the target join the sites
+    (appended: the greedy's factor is extended, not rebuilt) and the greedy sequence
+    continues, until every sample meets it; then backward elimination."""
     samples = region.samples
     target_var = (params.target_error_mm / params.coverage) ** 2
     count = None if params.count is None else int(params.count)
-    chosen: list[int] = []
+    pool = region.targets
+    if count is not None and count > len(pool) + len(region.free.xy):
+        raise PlanError(f"count {count} exceeds the {len(pool) + len(region.free.xy)} candidate stations "
+                        "of this board", field="count", value=count)
+    # per site of the greedy's U: trace index (-1 free), arc length (NaN free), nominal z
+    site_trace = np.concatenate([pool.trace, np.full(len(region.free_z), -1)])
+    site_s = np.concatenate([pool.s, np.full(len(region.free_z), np.nan)])
+    site_z = np.concatenate([pool.z, region.free_z])
+    greedy = GreedyField(prior, Sites(np.concatenate([pool.sites.xy, region.free.xy]),
+                                      np.concatenate([pool.sites.grad, region.free.grad])), region.center)
     for _ in range(MAX_REFINE_ROUNDS):
-        sites = Sites(np.concatenate([pool.sites.xy, region.free.xy]),
-                      np.concatenate([pool.sites.grad, region.free.grad]))
-        if count is not None and count > len(sites.xy):
-            raise PlanError(f"count {count} exceeds the {len(sites.xy)} candidate stations of this board",
-                            field="count", value=count)
-        greedy = GreedyField(prior, sites, region.center)
-        for j in chosen:
-            greedy.add(j)
-        greedy_sequence(greedy, np.arange(len(sites.xy)), np.arange(len(pool)), count, target_var,
-                        max(2, params.min_count))
-        chosen = greedy.chosen
-        parts = posterior_parts(prior, sites.take(np.array(chosen)), samples.sites, region.center)
+        greedy_sequence(greedy, np.flatnonzero(site_trace >= 0), count, target_var, max(2, params.min_count))
+        chosen = np.array(greedy.chosen)
+        parts = posterior_parts(prior, greedy.sites.take(chosen), samples.sites, region.center)
         over = np.flatnonzero(parts.var > target_var * (1 + 1e-9))
         if count is not None or len(over) == 0:
             break
-        n_pool = len(pool)
-        pool = TracePoints(Sites(np.concatenate([pool.sites.xy, samples.sites.xy[over]]),
-                                 np.concatenate([pool.sites.grad, samples.sites.grad[over]])),
-                           np.concatenate([pool.trace, samples.trace[over]]),
-                           np.concatenate([pool.s, samples.s[over]]), np.concatenate([pool.z, samples.z[over]]))
-        # free candidates sit after the pool in the joint index: shift the chosen ones
-        chosen = [j if j < n_pool else j + len(over) for j in chosen]
+        greedy.extend(samples.sites.take(over))
+        site_trace = np.concatenate([site_trace, samples.trace[over]])
+        site_s = np.concatenate([site_s, samples.s[over]])
+        site_z = np.concatenate([site_z, samples.z[over]])
     if count is None and len(over) == 0:  # drop what later stations made redundant
         parts = eliminate_redundant(parts, target_var, max(2, params.min_count))
-    chosen_arr = np.array(chosen)[parts.keep]
+    kept = chosen[parts.keep]
     sd = np.sqrt(parts.var)
-    order = travel_order(sites.xy[chosen_arr], prior.wavelength_mm / 2)
-    picked = chosen_arr[order]
-    n_t = len(pool)
-    on = picked < n_t
-    trace = np.full(len(picked), -1)
-    s_mm = np.full(len(picked), np.nan)
-    trace[on] = pool.trace[picked[on]]
-    s_mm[on] = pool.s[picked[on]]
-    z = np.concatenate([pool.z, region.free_z])[picked]
-    station_sites = sites.take(picked)
+    order = travel_order(greedy.sites.xy[kept], prior.wavelength_mm / 2)
+    picked = kept[order]
+    station_sites = greedy.sites.take(picked)
     per_trace = np.zeros(int(samples.trace.max()) + 1)
     np.maximum.at(per_trace, samples.trace, sd)
-    return FieldPlan(station_sites.xy, z, station_sites.grad, trace, s_mm, region.center,
-                     float(sd.max()), per_trace, region.dof, region.area_mm2, stations,
+    return FieldPlan(station_sites.xy, site_z[picked], station_sites.grad, site_trace[picked], site_s[picked],
+                     region.center, float(sd.max()), per_trace, region.dof, region.area_mm2, stations,
                      np.argsort(order))
 
 
