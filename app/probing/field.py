@@ -38,6 +38,7 @@ from scipy.linalg import solve_triangular
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
                                          prior_variance)
+from app.probing.field_exchange import exchange_stations, repair_stations
 from app.probing.field_region import FieldRegion, TopSampler, field_region
 from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams, ProbePlan
@@ -341,13 +342,40 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
         site_trace = np.concatenate([site_trace, samples.trace[over]])
         site_s = np.concatenate([site_s, samples.s[over]])
         site_z = np.concatenate([site_z, samples.z[over]])
+    kept, sites = chosen, greedy.sites
     if count is None and len(over) == 0:  # drop what later stations made redundant
         parts = eliminate_redundant(parts, target_var, max(2, params.min_count))
-    kept = chosen[parts.keep]
+        kept = chosen[parts.keep]
+        # exchange: fewer stations by local moves, verified on a fresh posterior over every sample
+        least = max(2, params.min_count)
+        trial = exchange_stations(prior, region.center, sites, site_trace >= 0, kept, target_var, least)
+        for _ in range(MAX_REFINE_ROUNDS):
+            if len(trial) >= len(kept):
+                break
+            fresh = posterior_parts(prior, sites.take(trial), samples.sites, region.center)
+            if fresh.var.max() <= target_var * (1 + 1e-9):
+                shorter = eliminate_redundant(fresh, target_var, least)
+                if len(shorter.keep) == len(trial):
+                    kept, parts = trial, fresh
+                    break
+                trial = trial[shorter.keep]
+                continue
+            added, precision, weights, var = repair_stations(
+                prior, region.center, sites.take(trial), samples.sites, fresh.precision, fresh.weights,
+                fresh.var, target_var)
+            repaired = PosteriorParts(precision, weights, var, np.arange(len(trial) + len(added)))
+            shorter = eliminate_redundant(repaired, target_var, least)
+            first = len(sites.xy)
+            sites = Sites(np.concatenate([sites.xy, samples.sites.xy[added]]),
+                          np.concatenate([sites.grad, samples.sites.grad[added]]))
+            site_trace = np.concatenate([site_trace, samples.trace[added]])
+            site_s = np.concatenate([site_s, samples.s[added]])
+            site_z = np.concatenate([site_z, samples.z[added]])
+            trial = np.concatenate([trial, first + np.arange(len(added))])[shorter.keep]
     sd = np.sqrt(parts.var)
-    order = travel_order(greedy.sites.xy[kept], prior.wavelength_mm / 2)
+    order = travel_order(sites.xy[kept], prior.wavelength_mm / 2)
     picked = kept[order]
-    station_sites = greedy.sites.take(picked)
+    station_sites = sites.take(picked)
     per_trace = np.zeros(int(samples.trace.max()) + 1)
     np.maximum.at(per_trace, samples.trace, sd)
     return FieldPlan(station_sites.xy, site_z[picked], station_sites.grad, site_trace[picked], site_s[picked],
