@@ -27,13 +27,12 @@ Deterministic: the moves' centres come from a generator with a fixed seed.  Unit
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.spatial import cKDTree
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
-from app.probing.deviation_prior import DeviationPrior, Sites, prior_covariance, prior_variance
+from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
+                                         prior_variance)
 
 CLUSTER = 3                 # stations dropped per move (the centre and its nearest neighbours)
 TARGET_REACH = 1.25         # x lambda: local targets around the dropped stations
@@ -46,158 +45,254 @@ SEED = 0
 PLATEAU = True             # keep moves that leave the count unchanged (they let the search drift)
 
 
-@dataclass
-class LocalPosterior:
-    """Posterior over local sites U (m,) given stations (n,), in precision form.
+PENDING = 32                # rank-one updates of the design's weights kept pending before one GEMM
 
-    stations: list of candidate indices; precision (n, n) mm^-2; weights (n, m) = P K(S, U);
-    var (m,) mm^2.  ``sites`` are the sites of U, ``cand`` (m,) their candidate indices."""
 
-    prior: DeviationPrior
-    center: np.ndarray
-    jitter: float
-    sites: Sites
-    cand: np.ndarray
-    stations: list[int]
-    station_sites: Sites
-    precision: np.ndarray
-    weights: np.ndarray
-    var: np.ndarray
+class DesignPosterior:
+    """Posterior of the field at every candidate (N,) given the design's stations, in
+    precision form, updated by rank-one adds and removals.
 
-    @classmethod
-    def build(cls, prior: DeviationPrior, center: np.ndarray, candidates: Sites, local: np.ndarray,
-              stations: np.ndarray) -> "LocalPosterior":
-        """From one factorisation: local sites = candidates[local], stations = candidates[stations]."""
-        jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
-        sites = candidates.take(local)
-        st = candidates.take(stations)
-        var = prior_variance(prior, sites, center)
-        n = len(stations)
-        if n:
-            precision = np.linalg.inv(prior_covariance(prior, st, st, center) + jitter * np.eye(n))
-            precision = (precision + precision.T) / 2
-            cov = prior_covariance(prior, st, sites, center)
-            weights = precision @ cov
-            var = np.maximum(var - np.einsum("ij,ij->j", cov, weights), 0.0)
-        else:
-            precision, weights = np.zeros((0, 0)), np.zeros((0, len(local)))
-        return cls(prior, center, jitter, sites, local, [int(s) for s in stations], st, precision, weights, var)
+    Stations live in slots (capacity c >= n): precision (c, c) mm^-2 = (K(S, S) +
+    sigma^2 I)^-1 on the used slots, zero rows/columns on free ones; var (N,) mm^2 exact;
+    the weights W = P K(S, U) (c, N) are ``stale' + x[:, :q] y[:, :q]'`` (stale (N, c): a
+    candidate's weights are contiguous; the last q rank-one updates pending, applied PENDING at
+    a time by one matrix product); slot_cand (c,) the candidate in each slot (-1 free).
+    """
 
-    def cov_with(self, site: Sites) -> np.ndarray:
-        """Posterior covariance (m,) mm^2 between one site and every local site."""
-        k = prior_covariance(self.prior, site, self.sites, self.center)[0]
-        if len(self.stations):
-            k -= prior_covariance(self.prior, site, self.station_sites, self.center)[0] @ self.weights
-        out: np.ndarray = k
+    def __init__(self, prior: DeviationPrior, center: np.ndarray, candidates: Sites, design: np.ndarray) -> None:
+        self.prior, self.center, self.candidates = prior, center, candidates
+        self.jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
+        self.rms2 = prior.rms_mm ** 2
+        self.basis = placement_basis(candidates, center) * prior.basis_sd          # (N, 6)
+        n, size = len(design), len(candidates.xy)
+        cap = n + 2 * (CLUSTER + EXTRA_ADDS) + 8
+        cov = self.kernel(design, np.arange(size))
+        self.precision = np.zeros((cap, cap))
+        p = np.linalg.inv(cov[:, design] + self.jitter * np.eye(n))
+        self.precision[:n, :n] = (p + p.T) / 2
+        weights = self.precision[:n, :n] @ cov
+        self.stale = np.zeros((size, cap))
+        self.stale[:, :n] = weights.T
+        self.var = np.maximum(self.rms2 + np.sum(self.basis ** 2, axis=1) - np.einsum("ij,ij->j", cov, weights), 0.0)
+        self.x = np.zeros((cap, PENDING))
+        self.y = np.zeros((size, PENDING))
+        self.q = 0
+        self.slot_cand = np.full(cap, -1, dtype=np.int64)
+        self.slot_cand[:n] = design
+        self.slot_xy = np.zeros((cap, 2))
+        self.slot_xy[:n] = candidates.xy[design]
+        self.slot_basis = np.zeros((cap, 6))
+        self.slot_basis[:n] = self.basis[design]
+
+    def kernel(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Prior covariance (len a, len b) mm^2 between candidates a and b."""
+        xy = self.candidates.xy
+        out: np.ndarray = self.rms2 * jinc_kernel(xy[a], xy[b], self.prior.wavelength_mm) + \
+            self.basis[a] @ self.basis[b].T
         return out
 
-    def add(self, u: int) -> None:
-        """Add a station at local site u (rank-one update of P, W, var)."""
-        cov = self.cov_with(self.sites.take(np.array([u])))
-        c = max(self.var[u], 0.0) + self.jitter
-        b = self.weights[:, u].copy()
-        n = len(self.stations)
-        precision = np.empty((n + 1, n + 1))
-        precision[:n, :n] = self.precision + np.outer(b, b) / c
-        precision[:n, n] = precision[n, :n] = -b / c
-        precision[n, n] = 1.0 / c
-        self.precision = precision
-        self.weights = np.vstack([self.weights - np.outer(b, cov / c), cov / c])
+    @property
+    def used(self) -> np.ndarray:
+        """(n,) the used slots."""
+        out: np.ndarray = np.flatnonzero(self.slot_cand >= 0)
+        return out
+
+    def columns(self, idx: np.ndarray) -> np.ndarray:
+        """Weights W[:, idx] (c, len idx)."""
+        out: np.ndarray = (self.stale[idx] + self.y[idx, :self.q] @ self.x[:, :self.q].T).T
+        return out
+
+    def _push(self, u: np.ndarray, v: np.ndarray) -> None:
+        """W += u v' (u (c,), v (N,)), kept pending."""
+        if self.q == PENDING:
+            self.stale += self.y @ self.x.T
+            self.q = 0
+        self.x[:, self.q] = u
+        self.y[:, self.q] = v
+        self.q += 1
+
+    def remove(self, cand: int) -> None:
+        s = int(np.flatnonzero(self.slot_cand == cand)[0])
+        d = self.precision[s, s]
+        pcol = self.precision[:, s].copy()
+        wrow = self.stale[:, s] + self.y[:, :self.q] @ self.x[s, :self.q]
+        self.var += wrow * wrow / d
+        self._push(-pcol / d, wrow)
+        self.precision -= np.outer(pcol, pcol) / d
+        self.precision[s, :] = 0.0
+        self.precision[:, s] = 0.0
+        self.slot_cand[s] = -1
+
+    def add(self, cand: int) -> None:
+        free = np.flatnonzero(self.slot_cand < 0)
+        if len(free) == 0:
+            self._grow()
+            free = np.flatnonzero(self.slot_cand < 0)
+        f = int(free[0])
+        ks = self.rms2 * jinc_kernel(self.candidates.xy[cand:cand + 1], self.slot_xy, self.prior.wavelength_mm)[0] + \
+            self.slot_basis @ self.basis[cand]
+        cov = self.kernel(np.array([cand]), np.arange(len(self.var)))[0] - self.stale @ ks - \
+            (ks @ self.x[:, :self.q]) @ self.y[:, :self.q].T
+        c = max(self.var[cand], 0.0) + self.jitter
+        b = self.columns(np.array([cand]))[:, 0]
+        self.precision += np.outer(b, b) / c
+        self.precision[:, f] = -b / c
+        self.precision[f, :] = -b / c
+        self.precision[f, f] = 1.0 / c
+        u = -b
+        u[f] = 1.0
+        self._push(u, cov / c)
         self.var = np.maximum(self.var - cov * cov / c, 0.0)
-        self.stations.append(int(self.cand[u]))
-        self.station_sites = Sites(np.vstack([self.station_sites.xy, self.sites.xy[u]]),
-                                   np.vstack([self.station_sites.grad, self.sites.grad[u]]))
+        self.slot_cand[f] = cand
+        self.slot_xy[f], self.slot_basis[f] = self.candidates.xy[cand], self.basis[cand]
 
-    def remove(self, i: int) -> None:
-        """Remove the i-th station (rank-one downdate of P, W, var)."""
-        d = self.precision[i, i]
-        self.var = self.var + self.weights[i] ** 2 / d
-        self.weights = self.weights - np.outer(self.precision[:, i] / d, self.weights[i])
-        self.precision = self.precision - np.outer(self.precision[:, i] / d, self.precision[i])
-        mask = np.ones(len(self.stations), dtype=bool)
-        mask[i] = False
-        self.weights, self.precision = self.weights[mask], self.precision[mask][:, mask]
-        del self.stations[i]
-        self.station_sites = self.station_sites.take(np.flatnonzero(mask))
-
-    def removal_worst(self, i: int, targets: np.ndarray) -> float:
-        """Largest variance mm^2 over ``targets`` (local indices) if station i were removed."""
-        w = self.weights[i, targets]
-        return float((w * w / self.precision[i, i] + self.var[targets]).max())
+    def _grow(self) -> None:
+        grow = len(self.slot_cand)
+        self.precision = np.pad(self.precision, ((0, grow), (0, grow)))
+        self.stale = np.concatenate([self.stale, np.zeros((self.stale.shape[0], grow))], axis=1)
+        self.x = np.concatenate([self.x, np.zeros((grow, PENDING))])
+        self.slot_cand = np.concatenate([self.slot_cand, np.full(grow, -1, dtype=np.int64)])
+        self.slot_xy = np.concatenate([self.slot_xy, np.zeros((grow, 2))])
+        self.slot_basis = np.concatenate([self.slot_basis, np.zeros((grow, 6))])
 
 
-def _local(post: LocalPosterior, local: np.ndarray) -> LocalPosterior:
-    """The posterior ``post`` (over every candidate, given every station) restricted to the
-    candidates ``local``: the same stations and precision, the weights' columns of ``local``."""
-    return LocalPosterior(post.prior, post.center, post.jitter, post.sites.take(local), post.cand[local],
-                          list(post.stations), post.station_sites, post.precision.copy(),
-                          post.weights[:, local].copy(), post.var[local].copy())
+class _Trial:
+    """One move's posterior over the local candidates U (m,), exact for the whole design:
+    the design's posterior covariance there plus the rank-one terms of the move's removals
+    (+) and additions (-); the kriging weights (r, m) and precision block (r, r) are kept
+    only for the stations the move may remove (r of them, ``cands``)."""
+
+    def __init__(self, design: DesignPosterior, local: np.ndarray, slots: np.ndarray) -> None:
+        self.design = design
+        self.local = local
+        self.wu = design.columns(local)                          # (c, m) the design's weights
+        self.var = design.var[local].copy()
+        self.xy = np.concatenate([design.candidates.xy[local], design.slot_xy])
+        self.basis = np.concatenate([design.basis[local], design.slot_basis])
+        self.base: dict[int, np.ndarray] = {}
+        self.terms: list[np.ndarray] = []                        # the rank-one vectors a
+        self.signs: list[float] = []
+        self.cands = [int(design.slot_cand[s]) for s in slots]
+        self.w = self.wu[slots]                                  # (r, m)
+        self.p = design.precision[np.ix_(slots, slots)]          # (r, r)
+
+    def column(self, u: int) -> np.ndarray:
+        """Posterior covariance (m,) mm^2 between local site u and every local site."""
+        base = self.base.get(u)
+        if base is None:
+            d, m = self.design, len(self.local)
+            k = d.rms2 * jinc_kernel(self.xy[u:u + 1], self.xy, d.prior.wavelength_mm)[0] + self.basis @ self.basis[u]
+            base = self.base[u] = k[:m] - k[m:] @ self.wu
+        col = base.copy()
+        for sign, a in zip(self.signs, self.terms):
+            col += sign * a[u] * a
+        return col
+
+    def remove(self, cand: int) -> None:
+        i = self.cands.index(cand)
+        d = self.p[i, i]
+        a = self.w[i] / math.sqrt(d)
+        self.var = self.var + a * a
+        self.terms.append(a)
+        self.signs.append(1.0)
+        self.w = self.w - np.outer(self.p[:, i] / d, self.w[i])
+        self.p = self.p - np.outer(self.p[:, i], self.p[i]) / d
+        keep = np.arange(len(self.cands)) != i
+        self.w, self.p = self.w[keep], self.p[keep][:, keep]
+        del self.cands[i]
+
+    def add(self, u: int) -> None:
+        cov = self.column(u)
+        c = max(self.var[u], 0.0) + self.design.jitter
+        b = self.w[:, u].copy()
+        a = cov / math.sqrt(c)
+        self.var = np.maximum(self.var - a * a, 0.0)
+        self.terms.append(a)
+        self.signs.append(-1.0)
+        r = len(self.cands)
+        p = np.empty((r + 1, r + 1))
+        p[:r, :r] = self.p + np.outer(b, b) / c
+        p[:r, r] = p[r, :r] = -b / c
+        p[r, r] = 1.0 / c
+        self.p = p
+        self.w = np.vstack([self.w - np.outer(b, cov / c), cov / c])
+        self.cands.append(int(self.local[u]))
+
+    def removal_worst(self, cand: int, targets: np.ndarray) -> float:
+        """Largest variance mm^2 over ``targets`` (local indices) without station ``cand``."""
+        i = self.cands.index(cand)
+        w = self.w[i, targets]
+        return float((w * w / self.p[i, i] + self.var[targets]).max())
 
 
-def _move(post: LocalPosterior, tree: cKDTree, on_trace: np.ndarray, drop: np.ndarray,
+def _move(design: DesignPosterior, tree: cKDTree, on_trace: np.ndarray, drop: np.ndarray,
           target_var: float) -> list[tuple[str, int]] | None:
-    """One exchange move on the posterior ``post`` (every candidate, every station): drop the
-    stations ``drop`` (positions in post.stations), refill with the worst-point greedy until
-    the local targets meet target_var, eliminate what became redundant.  Judged on the
-    candidates near the cluster only (exact there: the precision is the whole design's).
-    Returns the operations [("remove" | "add", candidate index)] if the move does not add
-    stations, else None."""
-    lam = post.prior.wavelength_mm
-    dropped_xy = post.station_sites.xy[drop]
+    """One exchange move: drop the stations in slots ``drop``, refill with the worst-point
+    greedy until the local targets meet target_var, eliminate what became redundant among
+    the new and the nearby old stations.  Judged on the candidates near the cluster (exact
+    there: conditioned on the whole design).  Returns the operations [("remove" | "add",
+    candidate index)] if the move does not add stations, else None."""
+    lam = design.prior.wavelength_mm
+    dropped_xy = design.slot_xy[drop]
     local = np.unique(np.concatenate([np.asarray(ix, dtype=np.int64) for ix in
                                       tree.query_ball_point(dropped_xy, TARGET_REACH * lam)]))
-    dist = np.min(np.linalg.norm(post.sites.xy[local][:, None, :] - dropped_xy[None], axis=2), axis=1)
+    dist = np.min(np.linalg.norm(design.candidates.xy[local][:, None, :] - dropped_xy[None], axis=2), axis=1)
     targets = np.flatnonzero(on_trace[local])
     movable = np.flatnonzero(dist <= CANDIDATE_REACH * lam)
     if len(targets) == 0 or len(movable) == 0:
         return None
-    sub = _local(post, local)
-    near = np.min(np.linalg.norm(post.station_sites.xy[:, None, :] - dropped_xy[None], axis=2), axis=1)
-    removable = {post.stations[i] for i in np.flatnonzero(near <= ELIMINATE_REACH * lam)}
+    used = design.used
+    near = np.min(np.linalg.norm(design.slot_xy[used][:, None, :] - dropped_xy[None], axis=2), axis=1)
+    slots = np.union1d(used[near <= ELIMINATE_REACH * lam], drop)
+    trial = _Trial(design, local, slots)
+    dropped = [int(design.slot_cand[s]) for s in drop]
     ops: list[tuple[str, int]] = []
-    for s in [post.stations[i] for i in drop]:
-        sub.remove(sub.stations.index(s))
-        removable.discard(s)
-        ops.append(("remove", s))
+    for cand in dropped:
+        trial.remove(cand)
+        ops.append(("remove", cand))
     added = 0
     while True:
-        t = int(targets[np.argmax(sub.var[targets])])
-        if sub.var[t] <= target_var:
+        t = int(targets[np.argmax(trial.var[targets])])
+        if trial.var[t] <= target_var:
             break
         if added == len(drop) + EXTRA_ADDS:
             return None
-        cov = sub.cov_with(sub.sites.take(np.array([t])))
-        gain = cov[movable] ** 2 / (sub.var[movable] + sub.jitter)
+        cov = trial.column(t)
+        gain = cov[movable] ** 2 / (trial.var[movable] + design.jitter)
         u = int(movable[np.argmax(gain)])
-        sub.add(u)
-        removable.add(int(sub.cand[u]))
-        ops.append(("add", int(sub.cand[u])))
+        trial.add(u)
+        ops.append(("add", int(local[u])))
         added += 1
     removed = 0
-    while removable:
-        best, best_s = math.inf, -1
-        for s in removable:
-            w = sub.removal_worst(sub.stations.index(s), targets)
-            if w < best:
-                best, best_s = w, s
-        if best > target_var:
+    while trial.cands:
+        worst = [trial.removal_worst(cand, targets) for cand in trial.cands]
+        i = int(np.argmin(worst))
+        if worst[i] > target_var:
             break
-        removable.discard(best_s)
-        sub.remove(sub.stations.index(best_s))
-        ops.append(("remove", best_s))
+        ops.append(("remove", trial.cands[i]))
+        trial.remove(trial.cands[i])
         removed += 1
     if added - removed > len(drop) - (0 if PLATEAU else 1):
         return None
     return ops
 
 
-def _apply(post: LocalPosterior, ops: list[tuple[str, int]]) -> None:
-    """Replay a move's operations on the whole posterior (candidate index = site index)."""
-    for op, s in ops:
-        if op == "remove":
-            post.remove(post.stations.index(s))
+def _net(ops: list[tuple[str, int]]) -> list[tuple[str, int]]:
+    """A move's net operations: the posterior depends on the final set of stations only, so a
+    station added and removed again (or removed and added again) needs no update."""
+    count: dict[int, int] = {}
+    for op, cand in ops:
+        count[cand] = count.get(cand, 0) + (1 if op == "add" else -1)
+    return [("remove", c) for c, k in count.items() if k < 0] + [("add", c) for c, k in count.items() if k > 0]
+
+
+def _apply(design: DesignPosterior, ops: list[tuple[str, int]], undo: bool = False) -> None:
+    """Apply a move's net operations to the design's posterior (or take them back)."""
+    for op, cand in (reversed(ops) if undo else ops):
+        if (op == "remove") != undo:
+            design.remove(cand)
         else:
-            post.add(s)
+            design.add(cand)
 
 
 def exchange_stations(prior: DeviationPrior, center: np.ndarray, candidates: Sites, on_trace: np.ndarray,
@@ -214,23 +309,24 @@ def exchange_stations(prior: DeviationPrior, center: np.ndarray, candidates: Sit
     if len(design) <= max(keep_at_least, CLUSTER) or total <= 0:
         return design
     tree = cKDTree(candidates.xy)
-    post = LocalPosterior.build(prior, center, candidates, np.arange(len(candidates.xy)), design)
+    post = DesignPosterior(prior, center, candidates, design)
     on = np.flatnonzero(on_trace)
     rng = np.random.default_rng(seed)
     for _ in range(total):
-        if len(post.stations) <= max(keep_at_least, CLUSTER):
+        used = post.used
+        if len(used) <= max(keep_at_least, CLUSTER):
             break
-        c0 = post.station_sites.xy[rng.integers(len(post.stations))]
-        d = np.linalg.norm(post.station_sites.xy - c0, axis=1)
-        drop = np.argsort(d, kind="stable")[:CLUSTER]
+        c0 = post.slot_xy[used[rng.integers(len(used))]]
+        d = np.linalg.norm(post.slot_xy[used] - c0, axis=1)
+        drop = used[np.argsort(d, kind="stable")[:CLUSTER]]
         ops = _move(post, tree, on_trace, drop, target_var)
         if ops is None:
             continue
-        saved = (list(post.stations), post.station_sites, post.precision, post.weights, post.var)
+        ops = _net(ops)
         _apply(post, ops)
-        if post.var[on].max() > target_var or len(post.stations) < keep_at_least:
-            post.stations, post.station_sites, post.precision, post.weights, post.var = saved
-    return np.array(post.stations, dtype=np.int64)
+        if post.var[on].max() > target_var or len(post.used) < keep_at_least:
+            _apply(post, ops, undo=True)
+    return np.sort(post.slot_cand[post.used])
 
 
 def repair_stations(prior: DeviationPrior, center: np.ndarray, stations: Sites, where: Sites,
