@@ -99,7 +99,9 @@ class DesignPosterior:
 
     def columns(self, idx: np.ndarray) -> np.ndarray:
         """Weights W[:, idx] (c, len idx)."""
-        out: np.ndarray = (self.stale[idx] + self.y[idx, :self.q] @ self.x[:, :self.q].T).T
+        out: np.ndarray = self.stale[idx].T
+        if self.q:
+            out += np.einsum("ck,mk->cm", self.x[:, :self.q], self.y[idx, :self.q])
         return out
 
     def _push(self, u: np.ndarray, v: np.ndarray) -> None:
@@ -131,8 +133,8 @@ class DesignPosterior:
         f = int(free[0])
         ks = self.rms2 * jinc_kernel(self.candidates.xy[cand:cand + 1], self.slot_xy, self.prior.wavelength_mm)[0] + \
             self.slot_basis @ self.basis[cand]
-        cov = self.kernel(np.array([cand]), np.arange(len(self.var)))[0] - self.stale @ ks - \
-            (ks @ self.x[:, :self.q]) @ self.y[:, :self.q].T
+        cov = self.kernel(np.array([cand]), np.arange(len(self.var)))[0] - np.einsum("nc,c->n", self.stale, ks) - \
+            self.y[:, :self.q] @ (ks @ self.x[:, :self.q])
         c = max(self.var[cand], 0.0) + self.jitter
         b = self.columns(np.array([cand]))[:, 0]
         self.precision += np.outer(b, b) / c
