@@ -39,7 +39,8 @@ TARGET_REACH = 1.25         # x lambda: local targets around the dropped station
 STATION_REACH = 2.0         # x lambda: stations the local posterior is conditioned on
 CANDIDATE_REACH = 0.75      # x lambda: where the refill may put stations
 ELIMINATE_REACH = 0.5       # x lambda: old stations the move may drop besides the cluster
-TRIALS_PER_STATION = 2      # moves per station of the starting design
+TRIALS_PER_STATION = 1      # moves per station of the starting design ...
+MIN_TRIALS = 200            # ... and at least this many (small designs are cheap)
 EXTRA_ADDS = 2              # a refill may add up to CLUSTER + EXTRA_ADDS stations
 SEED = 0
 PLATEAU = True             # keep moves that leave the count unchanged (they let the search drift)
@@ -133,7 +134,9 @@ class DesignPosterior:
         f = int(free[0])
         ks = self.rms2 * jinc_kernel(self.candidates.xy[cand:cand + 1], self.slot_xy, self.prior.wavelength_mm)[0] + \
             self.slot_basis @ self.basis[cand]
-        cov = self.kernel(np.array([cand]), np.arange(len(self.var)))[0] - np.einsum("nc,c->n", self.stale, ks) - \
+        k = self.rms2 * jinc_kernel(self.candidates.xy[cand:cand + 1], self.candidates.xy, self.prior.wavelength_mm)[0] + \
+            self.basis @ self.basis[cand]
+        cov = k - np.einsum("nc,c->n", self.stale, ks) - \
             self.y[:, :self.q] @ (ks @ self.x[:, :self.q])
         c = max(self.var[cand], 0.0) + self.jitter
         b = self.columns(np.array([cand]))[:, 0]
@@ -302,12 +305,13 @@ def exchange_stations(prior: DeviationPrior, center: np.ndarray, candidates: Sit
                       trials: int | None = None, seed: int = SEED) -> np.ndarray:
     """Exchange refinement of ``design`` (n,) indices into ``candidates`` (N,) (Sites; on_trace
     (N,) bool marks the ones on traces, the targets).  Runs ``trials`` moves (default
-    TRIALS_PER_STATION x n), each centred on a station drawn with a fixed seed, and keeps
+    max(MIN_TRIALS, TRIALS_PER_STATION x n); none if TRIALS_PER_STATION is 0), each centred on a station drawn with a fixed seed, and keeps
     every move that does not add stations and keeps every on-trace candidate within
     target_var.  Returns the new design's candidate indices (no more than n; the caller
     verifies it on every trace sample)."""
     design = np.asarray(design, dtype=np.int64)
-    total = int(TRIALS_PER_STATION * len(design)) if trials is None else int(trials)
+    total = int(max(MIN_TRIALS * (TRIALS_PER_STATION > 0), TRIALS_PER_STATION * len(design))) if trials is None \
+        else int(trials)
     if len(design) <= max(keep_at_least, CLUSTER) or total <= 0:
         return design
     tree = cKDTree(candidates.xy)
