@@ -7,19 +7,21 @@ worst-point greedy, then eliminating again, frequently ends with fewer stations 
 removed.  This module runs that move (an iterated local search, ``CLUSTER`` stations at a
 time) and keeps every move that does not add stations.
 
-A move is judged on a LOCAL sub-problem, so its cost does not grow with the board: the
-targets are the on-trace candidates within ``TARGET_REACH`` x lambda of the dropped
-stations, the stations the posterior is conditioned on are the design's stations within
-``STATION_REACH`` x lambda of them.  A posterior from a subset of the stations has at least
-the variance of the posterior from all of them, so a move that meets the target locally
-meets it at those targets globally; points farther away are not examined (the variance a
-dropped station leaves behind decays over ~0.6 lambda, the jinc kernel's first zero), so
-the caller verifies the final design on a fresh posterior over every trace sample and
-repairs it with :func:`repair_stations` if needed.
-
-The local posterior is kept in precision form: P = (K(S, S) + sigma^2 I)^-1 (n, n), the
-kriging weights W = P K(S, U) (n, m) over the local sites U and their variance var (m,);
-adding or removing a station is a rank-one update of all three (O(n m)).
+Each move is judged EXACTLY but locally.  The posterior of the whole design is kept over
+every candidate in precision form (:class:`DesignPosterior`: P = (K(S, S) + sigma^2 I)^-1,
+the kriging weights W = P K(S, U) and the variance; a station added or removed is a rank-one
+update).  A move only looks at the candidates within ``TARGET_REACH`` x lambda of the
+dropped stations (:class:`_Trial`): there the posterior after the move is the design's
+posterior plus one rank-one term per removal / addition, so its cost does not grow with
+the board (O(c m) per operation for c stations, m local candidates), and it is conditioned
+on every station, far ones included.  (Conditioning on the nearby stations only, the
+cheaper "conservative" sub-problem, is useless here: with the jinc kernel's long tails and
+a target sd of ~2.5 % of the prior, 2-3 lambda of neighbours leave 1.2-7x the target
+variance even for the unchanged design.)  A move that keeps every local target within
+target_var and does not add stations is applied to the whole design; if a candidate
+elsewhere then exceeds the target, it is taken back.  Trace samples that are not
+candidates are not examined: the caller verifies the final design on a fresh posterior
+over every trace sample and repairs it with :func:`repair_stations` if needed.
 
 Deterministic: the moves' centres come from a generator with a fixed seed.  Units: mm.
 """
@@ -27,25 +29,22 @@ Deterministic: the moves' centres come from a generator with a fixed seed.  Unit
 from __future__ import annotations
 
 import math
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
-from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
-                                         prior_variance)
+from app.probing.deviation_prior import DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance
 
 CLUSTER = 3                 # stations dropped per move (the centre and its nearest neighbours)
 TARGET_REACH = 1.25         # x lambda: local targets around the dropped stations
-STATION_REACH = 2.0         # x lambda: stations the local posterior is conditioned on
 CANDIDATE_REACH = 0.75      # x lambda: where the refill may put stations
 ELIMINATE_REACH = 0.5       # x lambda: old stations the move may drop besides the cluster
 TRIALS_PER_STATION = 1      # moves per station of the starting design ...
 MIN_TRIALS = 200            # ... and at least this many (small designs are cheap)
 EXTRA_ADDS = 2              # a refill may add up to CLUSTER + EXTRA_ADDS stations
 SEED = 0
-PLATEAU = True             # keep moves that leave the count unchanged (they let the search drift)
-
-
+PLATEAU = True              # keep moves that leave the count unchanged (they let the search drift)
 PENDING = 32                # rank-one updates of the design's weights kept pending before one GEMM
 
 
@@ -305,8 +304,8 @@ def exchange_stations(prior: DeviationPrior, center: np.ndarray, candidates: Sit
                       trials: int | None = None, seed: int = SEED) -> np.ndarray:
     """Exchange refinement of ``design`` (n,) indices into ``candidates`` (N,) (Sites; on_trace
     (N,) bool marks the ones on traces, the targets).  Runs ``trials`` moves (default
-    max(MIN_TRIALS, TRIALS_PER_STATION x n); none if TRIALS_PER_STATION is 0), each centred on a station drawn with a fixed seed, and keeps
-    every move that does not add stations and keeps every on-trace candidate within
+    max(MIN_TRIALS, TRIALS_PER_STATION x n); none if TRIALS_PER_STATION is 0), each centred
+    on a station drawn with a fixed seed, and keeps every move that does not add stations and keeps every on-trace candidate within
     target_var.  Returns the new design's candidate indices (no more than n; the caller
     verifies it on every trace sample)."""
     design = np.asarray(design, dtype=np.int64)
