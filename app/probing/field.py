@@ -38,7 +38,7 @@ from scipy.linalg import solve_triangular
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
                                          prior_variance)
-from app.probing.field_exchange import exchange_stations, repair_stations
+from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
 from app.probing.field_region import FieldRegion, TopSampler, field_region
 from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams, ProbePlan
@@ -348,6 +348,13 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
         kept = chosen[parts.keep]
         # exchange: fewer stations by local moves, verified on a fresh posterior over every sample
         least = max(2, params.min_count)
+        # the trace samples near the target join the moves' candidates (and targets): fewer repairs
+        tight = np.flatnonzero(parts.var > TIGHT_SAMPLE * target_var)
+        sites = Sites(np.concatenate([sites.xy, samples.sites.xy[tight]]),
+                      np.concatenate([sites.grad, samples.sites.grad[tight]]))
+        site_trace = np.concatenate([site_trace, samples.trace[tight]])
+        site_s = np.concatenate([site_s, samples.s[tight]])
+        site_z = np.concatenate([site_z, samples.z[tight]])
         trial = exchange_stations(prior, region.center, sites, site_trace >= 0, kept, target_var, least)
         for _ in range(MAX_REFINE_ROUNDS):
             if len(trial) >= len(kept):

@@ -45,6 +45,10 @@ MIN_TRIALS = 200            # ... and at least this many (small designs are chea
 EXTRA_ADDS = 2              # a refill may add up to CLUSTER + EXTRA_ADDS stations
 SEED = 0
 PLATEAU = True              # keep moves that leave the count unchanged (they let the search drift)
+# trace samples whose variance under the first design exceeds TIGHT_SAMPLE x target_var join the
+# moves' candidates and targets (1: none).  0.5 saves 2-4 more stations on S1's boards and avoids
+# the repairs, but costs ~1.5x the exchange's time on the 1000-trace dome (measured; see the report).
+TIGHT_SAMPLE = 1.0
 PENDING = 32                # rank-one updates of the design's weights kept pending before one GEMM
 
 
