@@ -317,7 +317,10 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     """Greedy design on the thinned targets (and the free candidates); then (automatic
     count) every trace sample is checked, the ones still over the target join the sites
     (appended: the greedy's factor is extended, not rebuilt) and the greedy sequence
-    continues, until every sample meets it; then backward elimination."""
+    continues, until every sample meets it; then backward elimination, then the exchange
+    refinement (:mod:`app.probing.field_exchange`): its design is kept only if it has fewer
+    stations, after a fresh posterior over every trace sample meets the target (samples still
+    over it are repaired by the greedy) and elimination drops nothing more."""
     samples = region.samples
     target_var = (params.target_error_mm / params.coverage) ** 2
     count = None if params.count is None else int(params.count)

@@ -152,3 +152,23 @@ def test_repair_adds_stations_until_every_point_meets_the_target(nine):
     assert np.allclose(var, fresh.var, atol=1e-12 * PRIOR.rms_mm ** 2)
     assert np.allclose(precision, fresh.precision, rtol=1e-6, atol=1e-6 * np.abs(fresh.precision).max())
     assert np.allclose(weights, fresh.weights, atol=1e-8)
+
+
+def test_exchange_with_free_stations_anywhere_on_top(monkeypatch):
+    from app.probing.field_top import mesh_top_sampler
+
+    part = s1_part()
+    paths = [board_path(part, g, 0.05) for g in board_traces(part, 9)]
+    top = mesh_top_sampler(part.mesh())
+    with monkeypatch.context() as m:
+        m.setattr(fx, "TRIALS_PER_STATION", 0)
+        base = plan_field(paths, PARAMS, "anywhere_on_top", top)
+    plan = plan_field(paths, PARAMS, "anywhere_on_top", top)
+    assert plan.count < base.count
+    samples = sample_traces(paths, 15.0 / 16).sites
+    assert posterior_sd(PRIOR, plan.sites, samples, plan.center).max() <= PARAMS.target_error_mm / PARAMS.coverage * (
+        1 + 1e-9)
+    free = plan.trace < 0
+    assert np.all(np.isnan(plan.s_mm[free])) and np.all(np.isfinite(plan.s_mm[~free]))
+    for xy, t, s in zip(plan.xy[~free], plan.trace[~free], plan.s_mm[~free]):
+        assert np.allclose(paths[t].at(np.array([s]))[0, :2], xy, atol=1e-12)
