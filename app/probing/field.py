@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -38,6 +38,7 @@ from scipy.linalg import solve_triangular
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
                                          prior_variance)
+from app.probing.field_dof import mode_variances, truncation_dof
 from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
 from app.probing.field_region import FieldRegion, TopSampler, field_region
 from app.geometry.traces import as_trace_polyline
@@ -234,7 +235,9 @@ class FieldPlan:
     trace (n,) index of the trace a station lies on (-1: off the traces), s_mm (n,) its
     arc length there (NaN off the traces).  center (2,) mm: the placement terms' centre.
     max_sd_mm: largest posterior sd over every trace sample; trace_sd_mm (T,) per trace.
-    dof: the region's degrees of freedom; area_mm2: its covered area.  order: (n,) the
+    dof: the field's degrees of freedom at the target (the truncation dimension,
+    :mod:`app.probing.field_dof`); nyquist_dof: the rule-of-thumb ``A / (lambda/2)^2 + 6``;
+    area_mm2: the covered area.  order: (n,) the
     order in which the greedy added them (index into the stations; with the automatic count
     the stations elimination dropped are not in it).
     """
@@ -251,6 +254,7 @@ class FieldPlan:
     area_mm2: float
     stations_mode: str
     order: np.ndarray
+    nyquist_dof: float = math.nan
 
     @property
     def count(self) -> int:
@@ -307,7 +311,10 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
     paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     prior = params.prior()
     region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
-    return _design(region, prior, params, stations)
+    plan = _design(region, prior, params, stations)
+    dof = truncation_dof(mode_variances(prior, region.samples, region.center),
+                         params.target_error_mm / params.coverage)
+    return replace(plan, dof=float(dof), nyquist_dof=region.nyquist_dof)
 
 
 MAX_REFINE_ROUNDS = 6
@@ -389,7 +396,7 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     per_trace = np.zeros(int(samples.trace.max()) + 1)
     np.maximum.at(per_trace, samples.trace, sd)
     return FieldPlan(station_sites.xy, site_z[picked], station_sites.grad, site_trace[picked], site_s[picked],
-                     region.center, float(sd.max()), per_trace, region.dof, region.area_mm2, stations,
+                     region.center, float(sd.max()), per_trace, region.nyquist_dof, region.area_mm2, stations,
                      np.argsort(order))
 
 
@@ -403,6 +410,7 @@ def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict[str, Any]:
         "stations_mode": plan.stations_mode,
         "center": plan.center.tolist(),
         "dof": plan.dof,
+        "nyquist_dof": plan.nyquist_dof,
         "area_mm2": plan.area_mm2,
         "max_sd_mm": plan.max_sd_mm,
         "prior": {k: float(v) for k, v in prior.__dict__.items()},

@@ -12,14 +12,12 @@ the shortest wavelength lambda only:
   kept point differ little); they are also the candidate stations of ``on_traces`` plans;
 * **candidates** anywhere on the top (``anywhere_on_top``): the nodes of the same cell grid
   within ``lambda / 4`` of a target where the part's top answers (a :data:`TopSampler`);
-* **degrees of freedom**: ``A / (lambda / 2)^2 + 6`` — the covered area A (every point
+* **the Nyquist count** ``A / (lambda / 2)^2 + 6`` — the covered area A (every point
   within lambda / 4 of a trace) in cells of a square lambda / 2 sampling lattice (the
   Nyquist spacing of a field with no wavelength shorter than lambda), plus the 6 placement
-  terms.  It is what a board costs before it is probed, whatever the number of traces.
-  (The Landau minimum for a disk spectrum, ``pi A / lambda^2``, is 0.785 of the area term;
-  reaching a posterior sd of a few % of the prior takes more than either near the region's
-  rim, where the field must be pinned down without neighbours outside: measured 1.3-1.5 x
-  on a 150 x 100 mm board, 1.6-1.9 x on S1's small 45 x 40 mm region, see the bench.)
+  terms: a rule of thumb, blind to the accuracy asked and to the region's rim.  The
+  degrees of freedom the planner reports are counted at the target accuracy
+  (:mod:`app.probing.field_dof`).
 
 Units: mm.  Shapes in the docstrings.
 """
@@ -111,8 +109,8 @@ def covered_area_mm2(xy: np.ndarray, wavelength_mm: float) -> float:
     return float(np.count_nonzero(np.isfinite(dist)) * step * step)
 
 
-def degrees_of_freedom(area_mm2: float, wavelength_mm: float) -> float:
-    """Degrees of freedom of the field over ``area_mm2``: A / (lambda / 2)^2 + placement terms."""
+def nyquist_dof(area_mm2: float, wavelength_mm: float) -> float:
+    """The Nyquist count over ``area_mm2``: A / (lambda / 2)^2 + the placement terms."""
     return area_mm2 / (wavelength_mm / 2.0) ** 2 + PLACEMENT_TERMS
 
 
@@ -121,8 +119,8 @@ class FieldRegion:
     """What the field planner works on (see the module doc).
 
     samples, targets: :class:`TracePoints`.  free: Sites (c,) of free stations with their
-    nominal z (c,) (empty unless ``anywhere_on_top``).  area_mm2, dof: the covered area and
-    its degrees of freedom.  center (2,) mm: the placement terms' rotation/tilt centre (the
+    nominal z (c,) (empty unless ``anywhere_on_top``).  area_mm2, nyquist_dof: the covered
+    area and its Nyquist count.  center (2,) mm: the placement terms' rotation/tilt centre (the
     traces' length-weighted mean point, as the joint planner's).
     """
 
@@ -131,7 +129,7 @@ class FieldRegion:
     free: Sites
     free_z: np.ndarray
     area_mm2: float
-    dof: float
+    nyquist_dof: float
     center: np.ndarray
 
 
@@ -164,5 +162,5 @@ def field_region(paths: Sequence[TracePolyline], wavelength_mm: float,
     else:
         free, free_z = free_candidates(targets, cell, REACH_PER_WAVELENGTH * wavelength_mm, top)
     area = covered_area_mm2(samples.sites.xy, wavelength_mm)
-    return FieldRegion(samples, targets, free, free_z, area, degrees_of_freedom(area, wavelength_mm),
+    return FieldRegion(samples, targets, free, free_z, area, nyquist_dof(area, wavelength_mm),
                        joint_center(paths))

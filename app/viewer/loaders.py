@@ -212,7 +212,7 @@ class Loader:
             trace = self._trace(session, trace_id)
             if trace is not None:
                 lines.append(Polyline(trace.name, nominal_of(trace).points))
-        notes = [f"{len(planned)} stations for {len(trace_ids)} traces; field degrees of freedom "
+        notes = [f"{len(planned)} stations for {len(trace_ids)} traces; field degrees of freedom at the target "
                  f"{field['dof']:.0f}; largest sd on the traces "
                  f"{field['max_sd_mm'] * 1000:.2f} um"]
         if len(trace_ids) > MAX_FIELD_POLYLINES:

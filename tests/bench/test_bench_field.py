@@ -11,7 +11,9 @@ with coverage 4 (3 is the default: over 20 parts x 1000 traces the worst point r
 while the planner was designed or tuned; tuning used seeds 100..110, 200..210, 2, 7, 8).
 
 Measured per board: field plan time (wall and CPU s) and peak traced memory; stations vs the
-field's degrees of freedom A / (lambda/2)^2 + 6 (A: the area within lambda/4 of a trace);
+field's degrees of freedom at the target (``dof``: the Karhunen-Loeve truncation dimension over
+the area within lambda/4 of a trace, :mod:`app.probing.field_dof`) and vs the Nyquist rule of
+thumb A / (lambda/2)^2 + 6;
 worst reconstruction error over every trace point (every 0.1 mm) on all 20 held-out parts;
 on COMPENSATED_PARTS of them the full reconstruct + compensate of every trace (timed on the
 first) and the worst standoff error along the emitted print path (its points and three points
@@ -170,11 +172,13 @@ def test_field_planner_on_boards(part):
                 table.append((n, label, count, err, secs))
     print(f"\n\nField planner on {part.name} ({part.size[0]:.0f} x {part.size[1]:.0f} mm), "
           f"held-out parts {HOLDOUT[0]}..{HOLDOUT[-1]}, sigma 1 um, target 5 um (coverage {COVERAGE})")
-    print(f"{'traces':>6} {'stations':>8} {'dof':>6} {'st/dof':>6} {'plan s':>7} {'cpu s':>6} {'peak MiB':>8} "
+    print(f"{'traces':>6} {'stations':>8} {'dof':>6} {'st/dof':>6} {'nyquist':>7} {'st/nyq':>6} {'plan s':>7} "
+          f"{'cpu s':>6} {'peak MiB':>8} "
           f"{'max sd um':>9} {'rec err um':>10} {'comp err um':>11} {'parts comp':>10} {'rec+comp s':>10} {'cpu s':>6}")
     for n, r in rows:
         plan = r["plan"]
-        print(f"{n:>6} {plan.count:>8} {plan.dof:>6.1f} {plan.count / plan.dof:>6.2f} {r['wall']:>7.2f} "
+        print(f"{n:>6} {plan.count:>8} {plan.dof:>6.0f} {plan.count / plan.dof:>6.2f} {plan.nyquist_dof:>7.1f} "
+              f"{plan.count / plan.nyquist_dof:>6.2f} {r['wall']:>7.2f} "
               f"{r['cpu']:>6.2f} {r['peak'] / 2**20:>8.1f} {plan.max_sd_mm * 1e3:>9.2f} "
               f"{r['rec_err'].max() * 1e3:>10.2f} {r['comp_err'].max() * 1e3:>11.2f} {COMPENSATED_PARTS[part.name][n]:>10} "
               f"{r['comp_time'][0]:>10.2f} {r['comp_time'][1]:>6.2f}")
@@ -191,6 +195,7 @@ def test_field_planner_on_boards(part):
         assert r["rec_err"].max() <= LIMIT_MM, (n, r["rec_err"].max())
         assert r["comp_err"].max() <= LIMIT_MM, (n, r["comp_err"].max())
         assert r["peak"] <= 2 ** 30
+        assert r["plan"].count <= 1.5 * r["plan"].dof, (n, r["plan"].count, r["plan"].dof)
     # CPU seconds of this process: the 2 cores are shared by several sessions (wall printed too)
     assert by_n[1000]["cpu"] <= 5.0 and by_n[1000]["comp_time"][1] <= 10.0
     if part.name == "S1":

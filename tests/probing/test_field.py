@@ -97,7 +97,7 @@ def test_covered_area_and_degrees_of_freedom_of_one_straight_trace():
     exact = 30.0 * 2 * reach + math.pi * reach ** 2  # a stadium
     assert covered_area_mm2(samples.sites.xy, 15.0) == pytest.approx(exact, rel=0.03)
     region = field_region([path], 15.0)
-    assert region.dof == pytest.approx(region.area_mm2 / 7.5 ** 2 + 6)
+    assert region.nyquist_dof == pytest.approx(region.area_mm2 / 7.5 ** 2 + 6)
 
 
 def test_bad_input_is_refused_naming_the_field(nine):

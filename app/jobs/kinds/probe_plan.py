@@ -169,7 +169,7 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     top = mesh_top_sampler(mesh) if params.stations == "anywhere_on_top" else None
     plan = plan_field(nominals, plan_params, params.stations, top)
     ctx.progress(0.5, f"{plan.count} stations for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
-                 "freedom); writing the program")
+                 f"freedom at the target, {plan.nyquist_dof:.0f} by the Nyquist rule); writing the program")
     program, meta = _program(ctx, params, plan.probe_plan(), mesh)
     counts = plan.stations_per_trace
     result = {
