@@ -109,6 +109,9 @@ class ProbePlanParams(PlacedParams):
                               "with trace_ids; field: for the whole board)")
     coverage: float = Field(3.0, gt=0, le=10, description="kriging/field: coverage x largest predicted sd <= "
                             "target_error_mm")
+    exchange: bool = Field(False, description="field planner, automatic count: refine the design by exchange "
+                           "moves (2-11 % fewer stations, about twice the planning time, less slack when a "
+                           "touch is rejected as an outlier)")
     capability_k: float | None = Field(None, gt=0, lt=1, description="seed eq. 1: process capability K")
     confidence: float | None = Field(None, gt=0.5, lt=1, description="seed eq. 1: confidence gamma")
     cl_tolerance_mm: float = Field(0.001, gt=0, le=1)

@@ -40,7 +40,7 @@ from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, pla
                                          prior_variance)
 from app.probing.field_dof import mode_variances, truncation_dof
 from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
-from app.probing.field_region import FieldRegion, TopSampler, field_region
+from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
 from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
@@ -320,14 +320,65 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
 MAX_REFINE_ROUNDS = 6
 
 
+@dataclass(frozen=True, eq=False)
+class _Designed:
+    """A design over candidate sites (N,): their trace index (-1 free), arc length (NaN
+    free) and nominal z; kept (n,) station indices into the sites; parts: the posterior
+    over every trace sample from a fresh factorisation."""
+
+    sites: Sites
+    trace: np.ndarray
+    s: np.ndarray
+    z: np.ndarray
+    kept: np.ndarray
+    parts: PosteriorParts
+
+    def with_samples(self, samples: TracePoints, idx: np.ndarray) -> "_Designed":
+        """The same design with the trace samples ``idx`` appended to the candidate sites."""
+        sites = Sites(np.concatenate([self.sites.xy, samples.sites.xy[idx]]),
+                      np.concatenate([self.sites.grad, samples.sites.grad[idx]]))
+        return _Designed(sites, np.concatenate([self.trace, samples.trace[idx]]),
+                         np.concatenate([self.s, samples.s[idx]]), np.concatenate([self.z, samples.z[idx]]),
+                         self.kept, self.parts)
+
+
+def _exchanged(design: _Designed, region: FieldRegion, prior: DeviationPrior, target_var: float,
+               least: int) -> _Designed:
+    """The exchange refinement (:mod:`app.probing.field_exchange`) of a minimal design.  Its
+    result is kept only if it has fewer stations, a fresh posterior over every trace sample
+    meets the target (samples still over it are repaired by the greedy) and elimination
+    drops nothing more; otherwise ``design`` is returned unchanged."""
+    samples = region.samples
+    # the trace samples near the target join the moves' candidates (and targets): fewer repairs
+    work = design.with_samples(samples, np.flatnonzero(design.parts.var > TIGHT_SAMPLE * target_var))
+    trial = exchange_stations(prior, region.center, work.sites, work.trace >= 0, design.kept, target_var, least)
+    for _ in range(MAX_REFINE_ROUNDS):
+        if len(trial) >= len(design.kept):
+            break
+        fresh = posterior_parts(prior, work.sites.take(trial), samples.sites, region.center)
+        if fresh.var.max() <= target_var * (1 + 1e-9):
+            shorter = eliminate_redundant(fresh, target_var, least)
+            if len(shorter.keep) == len(trial):
+                return _Designed(work.sites, work.trace, work.s, work.z, trial, fresh)
+            trial = trial[shorter.keep]
+            continue
+        added, precision, weights, var = repair_stations(
+            prior, region.center, work.sites.take(trial), samples.sites, fresh.precision, fresh.weights,
+            fresh.var, target_var)
+        shorter = eliminate_redundant(PosteriorParts(precision, weights, var, np.arange(len(trial) + len(added))),
+                                      target_var, least)
+        first = len(work.sites.xy)
+        work = work.with_samples(samples, np.asarray(added, dtype=int))
+        trial = np.concatenate([trial, first + np.arange(len(added))])[shorter.keep]
+    return design
+
+
 def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stations: str) -> FieldPlan:
     """Greedy design on the thinned targets (and the free candidates); then (automatic
     count) every trace sample is checked, the ones still over the target join the sites
     (appended: the greedy's factor is extended, not rebuilt) and the greedy sequence
-    continues, until every sample meets it; then backward elimination, then the exchange
-    refinement (:mod:`app.probing.field_exchange`): its design is kept only if it has fewer
-    stations, after a fresh posterior over every trace sample meets the target (samples still
-    over it are repaired by the greedy) and elimination drops nothing more."""
+    continues, until every sample meets it; then backward elimination and, with
+    ``params.exchange``, the exchange refinement (:func:`_exchanged`)."""
     samples = region.samples
     target_var = (params.target_error_mm / params.coverage) ** 2
     count = None if params.count is None else int(params.count)
@@ -352,43 +403,15 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
         site_trace = np.concatenate([site_trace, samples.trace[over]])
         site_s = np.concatenate([site_s, samples.s[over]])
         site_z = np.concatenate([site_z, samples.z[over]])
-    kept, sites = chosen, greedy.sites
+    kept = chosen
+    designed = _Designed(greedy.sites, site_trace, site_s, site_z, kept, parts)
     if count is None and len(over) == 0:  # drop what later stations made redundant
         parts = eliminate_redundant(parts, target_var, max(2, params.min_count))
-        kept = chosen[parts.keep]
-        # exchange: fewer stations by local moves, verified on a fresh posterior over every sample
-        least = max(2, params.min_count)
-        # the trace samples near the target join the moves' candidates (and targets): fewer repairs
-        tight = np.flatnonzero(parts.var > TIGHT_SAMPLE * target_var)
-        sites = Sites(np.concatenate([sites.xy, samples.sites.xy[tight]]),
-                      np.concatenate([sites.grad, samples.sites.grad[tight]]))
-        site_trace = np.concatenate([site_trace, samples.trace[tight]])
-        site_s = np.concatenate([site_s, samples.s[tight]])
-        site_z = np.concatenate([site_z, samples.z[tight]])
-        trial = exchange_stations(prior, region.center, sites, site_trace >= 0, kept, target_var, least)
-        for _ in range(MAX_REFINE_ROUNDS):
-            if len(trial) >= len(kept):
-                break
-            fresh = posterior_parts(prior, sites.take(trial), samples.sites, region.center)
-            if fresh.var.max() <= target_var * (1 + 1e-9):
-                shorter = eliminate_redundant(fresh, target_var, least)
-                if len(shorter.keep) == len(trial):
-                    kept, parts = trial, fresh
-                    break
-                trial = trial[shorter.keep]
-                continue
-            added, precision, weights, var = repair_stations(
-                prior, region.center, sites.take(trial), samples.sites, fresh.precision, fresh.weights,
-                fresh.var, target_var)
-            repaired = PosteriorParts(precision, weights, var, np.arange(len(trial) + len(added)))
-            shorter = eliminate_redundant(repaired, target_var, least)
-            first = len(sites.xy)
-            sites = Sites(np.concatenate([sites.xy, samples.sites.xy[added]]),
-                          np.concatenate([sites.grad, samples.sites.grad[added]]))
-            site_trace = np.concatenate([site_trace, samples.trace[added]])
-            site_s = np.concatenate([site_s, samples.s[added]])
-            site_z = np.concatenate([site_z, samples.z[added]])
-            trial = np.concatenate([trial, first + np.arange(len(added))])[shorter.keep]
+        designed = _Designed(greedy.sites, site_trace, site_s, site_z, chosen[parts.keep], parts)
+        if params.exchange:
+            designed = _exchanged(designed, region, prior, target_var, max(2, params.min_count))
+    sites, site_trace, site_s, site_z = designed.sites, designed.trace, designed.s, designed.z
+    kept, parts = designed.kept, designed.parts
     sd = np.sqrt(parts.var)
     order = travel_order(sites.xy[kept], prior.wavelength_mm / 2)
     picked = kept[order]

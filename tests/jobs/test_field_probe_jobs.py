@@ -99,6 +99,18 @@ def test_field_stations_anywhere_on_top_sit_on_the_part(client, coarse):
     assert 3 * plan["result"]["field"]["max_sd_mm"] <= 0.005 + 1e-9
 
 
+def test_the_exchange_switch_and_both_degree_of_freedom_counts_reach_the_result(client, coarse):
+    setup = board(client, coarse, traces=tuple(range(9)))
+    params = {"trace_ids": setup["trace_ids"], "coverage": 4.0, **PROCESS}
+    plain = job(client, "probe_plan", params)["result"]["field"]
+    exchanged = job(client, "probe_plan", {**params, "exchange": True})["result"]["field"]
+    assert len(exchanged["stations"]) < len(plain["stations"])      # S1's nine traces: 66 -> 63 in the bench
+    for field in (plain, exchanged):
+        assert 4 * field["max_sd_mm"] <= 0.005 + 1e-9
+        assert field["dof"] == plain["dof"] and field["nyquist_dof"] == pytest.approx(plain["nyquist_dof"])
+        assert len(field["stations"]) <= 1.5 * field["dof"]
+
+
 def test_reconstruct_method_must_match_a_field_run(client, coarse):
     setup = board(client, coarse)
     plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})

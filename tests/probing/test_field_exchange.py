@@ -4,6 +4,8 @@ never more stations than without it, deterministic, fewer stations on S1's board
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -15,7 +17,7 @@ from app.probing.selection import PlanParams
 from app.reference.boards import board_path, board_traces, s1_part
 from app.reference.s1 import nominal_path, s1_traces
 
-PARAMS = PlanParams(coverage=4.0, deviation_amplitude_mm=0.15, deviation_wavelength_mm=15.0)
+PARAMS = PlanParams(coverage=4.0, deviation_amplitude_mm=0.15, deviation_wavelength_mm=15.0, exchange=True)
 PRIOR = PARAMS.prior()
 TARGET_VAR = (PARAMS.target_error_mm / PARAMS.coverage) ** 2
 
@@ -32,9 +34,12 @@ def board81():
 
 
 def _without_exchange(paths, monkeypatch):  # type: ignore[no-untyped-def]
+    """The same plan with the exchange switched off (the default), and with no moves: equal."""
+    off = plan_field(paths, replace(PARAMS, exchange=False))
     with monkeypatch.context() as m:
         m.setattr(fx, "TRIALS_PER_STATION", 0)
-        return plan_field(paths, PARAMS)
+        assert plan_field(paths, PARAMS).count == off.count
+    return off
 
 
 def _fresh_weights(candidates: Sites, stations: np.ndarray, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

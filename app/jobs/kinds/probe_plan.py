@@ -76,6 +76,7 @@ def _plan_params(params: ProbePlanParams) -> PlanParams:
         capability_k=params.capability_k, confidence=params.confidence,
         deviation_amplitude_mm=params.deviation_amplitude_mm, deviation_wavelength_mm=params.deviation_wavelength_mm,
         target_error_mm=params.target_error_mm, probe_sigma_mm=params.probe_sigma_mm, coverage=params.coverage,
+        exchange=params.exchange,
     )
 
 
