@@ -29,6 +29,7 @@ import hashlib
 import math
 import time
 import tracemalloc
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -104,6 +105,9 @@ def field_board(part, n: int) -> dict:
         plan_field(paths, PARAMS)
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
+    t0 = time.perf_counter()
+    exchanged = plan_field(paths, replace(PARAMS, exchange=True))   # opt-in: counted and timed, not flown
+    exchange_wall = time.perf_counter() - t0
     rec_err = np.zeros(len(paths))
     comp_err = np.zeros(len(paths))
     comp_time = None
@@ -122,6 +126,7 @@ def field_board(part, n: int) -> dict:
                 comp_time = (time.perf_counter() - t0, time.process_time() - c0)
         rec_err = np.maximum(rec_err, board_truth_error(fit, paths, made))
     return {"paths": paths, "plan": plan, "wall": wall, "cpu": cpu, "peak": peak, "rec_err": rec_err,
+            "exchanged": exchanged, "exchange_wall": exchange_wall,
             "comp_err": comp_err, "comp_time": comp_time}
 
 
@@ -174,14 +179,16 @@ def test_field_planner_on_boards(part):
           f"held-out parts {HOLDOUT[0]}..{HOLDOUT[-1]}, sigma 1 um, target 5 um (coverage {COVERAGE})")
     print(f"{'traces':>6} {'stations':>8} {'dof':>6} {'st/dof':>6} {'nyquist':>7} {'st/nyq':>6} {'plan s':>7} "
           f"{'cpu s':>6} {'peak MiB':>8} "
-          f"{'max sd um':>9} {'rec err um':>10} {'comp err um':>11} {'parts comp':>10} {'rec+comp s':>10} {'cpu s':>6}")
+          f"{'max sd um':>9} {'rec err um':>10} {'comp err um':>11} {'parts comp':>10} {'rec+comp s':>10} {'cpu s':>6} "
+          f"{'exchange: stations':>18} {'plan s':>6}")
     for n, r in rows:
         plan = r["plan"]
         print(f"{n:>6} {plan.count:>8} {plan.dof:>6.0f} {plan.count / plan.dof:>6.2f} {plan.nyquist_dof:>7.1f} "
               f"{plan.count / plan.nyquist_dof:>6.2f} {r['wall']:>7.2f} "
               f"{r['cpu']:>6.2f} {r['peak'] / 2**20:>8.1f} {plan.max_sd_mm * 1e3:>9.2f} "
               f"{r['rec_err'].max() * 1e3:>10.2f} {r['comp_err'].max() * 1e3:>11.2f} {COMPENSATED_PARTS[part.name][n]:>10} "
-              f"{r['comp_time'][0]:>10.2f} {r['comp_time'][1]:>6.2f}")
+              f"{r['comp_time'][0]:>10.2f} {r['comp_time'][1]:>6.2f} {r['exchanged'].count:>18} "
+              f"{r['exchange_wall']:>6.2f}")
     print(f"\nComparison (probes / worst error over {BASELINE_PARTS} held-out parts for the per-trace methods, "
           f"{len(HOLDOUT)} for the field / plan time s):")
     print(f"{'traces':>6} {'method':<18} {'probes':>7} {'err um':>8} {'plan s':>8}")
@@ -196,6 +203,7 @@ def test_field_planner_on_boards(part):
         assert r["comp_err"].max() <= LIMIT_MM, (n, r["comp_err"].max())
         assert r["peak"] <= 2 ** 30
         assert r["plan"].count <= 1.5 * r["plan"].dof, (n, r["plan"].count, r["plan"].dof)
+        assert r["exchanged"].count <= r["plan"].count and r["exchanged"].max_sd_mm <= LIMIT_MM / COVERAGE * (1 + 1e-9)
     # CPU seconds of this process: the 2 cores are shared by several sessions (wall printed too)
     assert by_n[1000]["cpu"] <= 5.0 and by_n[1000]["comp_time"][1] <= 10.0
     if part.name == "S1":
