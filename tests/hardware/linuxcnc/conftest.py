@@ -36,6 +36,7 @@ PROFILE = MachineProfile(dispense_on="M64 P0", dispense_off="M65 P0", probe_comm
 SURFACE_Z, SURFACE_SLOPE_X = -2.0, 0.01
 TRT_PIVOT = (5.0, -3.0, -20.0)  # the five-axis simulator's xyzac-trt rot-point (mm)
 HERE = Path(__file__).resolve().parent
+RESET_SETTLE_S = 10.0  # how long a reset simulator may take to report its start-up state
 
 
 class _OneSimulator:
@@ -81,7 +82,11 @@ class _OneSimulator:
         """Reset ``sim``; restart it when its state still differs from the start-up state."""
         try:
             sim.reset()
-            state = sim.snapshot()
+            # the controller's status follows its commands a few task cycles late (longer
+            # on a loaded host): poll the snapshot until it matches, at most RESET_SETTLE_S
+            deadline = time.monotonic() + RESET_SETTLE_S
+            while (state := sim.snapshot()) != self.start_state and time.monotonic() < deadline:
+                time.sleep(0.1)
         except SimUnavailable as exc:
             state = {"reset failed": str(exc)}
         if state == self.start_state:
