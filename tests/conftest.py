@@ -71,10 +71,48 @@ SHARED_RESOURCE_GROUPS = {
 }
 
 
+def shared_resource_group(nodeid: str) -> str | None:
+    """The ``SHARED_RESOURCE_GROUPS`` group of a test node id (relative to the repository root)."""
+    for prefix, group in SHARED_RESOURCE_GROUPS.items():
+        if nodeid.startswith(prefix):
+            return group
+    return None
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):  # type: ignore[no-untyped-def]
+    """``--dist loadgroup`` with the groups taken from the node ids' paths.
+
+    pytest-xdist 3.8 schedules loadgroup by an ``@group`` suffix it writes into
+    ``item._nodeid``; pytest 9.2 reads node ids from ``item._id``, so that suffix is lost and
+    every test was scheduled on its own: the LinuxCNC modules ran on both workers (each
+    waiting up to 86 s for the other's simulator behind the file lock), and both workers
+    started a served instance and a Chromium.  Here one group is one work unit, on one
+    worker; with xdist's default ``--loadscope-reorder`` the groups (the largest units)
+    are handed out first, and the single tests balance the two workers after them."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedResourceScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return shared_resource_group(nodeid) or nodeid
+
+    return SharedResourceScheduling(config, log)
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     root = Path(__file__).resolve().parent.parent
-    for item in items:
+    linuxcnc: list[int] = []
+    for k, item in enumerate(items):
         where = item.path.resolve().relative_to(root).as_posix()
         for prefix, group in SHARED_RESOURCE_GROUPS.items():
             if where.startswith(prefix):
                 item.add_marker(pytest.mark.xdist_group(group))
+                if group == "linuxcnc":
+                    linuxcnc.append(k)
+    # the LinuxCNC tests of the five-axis simulator after all three-axis ones (a stable
+    # sort): one simulator serves many modules, and the config then switches once
+    ordered = sorted((items[k] for k in linuxcnc), key=lambda item: "lcnc_trt" in item.fixturenames)
+    for k, item in zip(linuxcnc, ordered):
+        items[k] = item

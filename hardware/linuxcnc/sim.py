@@ -66,6 +66,14 @@ def _free_port() -> int:
         return probe.getsockname()[1]
 
 
+def _number_or_text(value: str) -> float | str:
+    """A HAL value as a float when it is one (so -0 equals 0), else as printed (TRUE/FALSE)."""
+    try:
+        return float(value)
+    except ValueError:
+        return value
+
+
 def _rtapi_uid() -> int:
     value = os.environ.get("CONFORMA_RTAPI_UID")
     return int(value) if value else pwd.getpwnam("nobody").pw_uid
@@ -95,8 +103,7 @@ class SimController:
     @property
     def url(self) -> str:
         """``linuxcnc://127.0.0.1:<port>?programs=<workdir>/programs&joints=<n>``."""
-        joints = 5 if self.config == "xyzac-trt" else 3
-        return f"linuxcnc://127.0.0.1:{self.port}?programs={self.workdir}/programs&joints={joints}"
+        return f"linuxcnc://127.0.0.1:{self.port}?programs={self.workdir}/programs&joints={self.joints}"
 
     def machine(self, profile: MachineProfile | None = None, **kwargs) -> LinuxCNCMachine:
         """A (not yet connected) machine on this simulator."""
@@ -140,6 +147,108 @@ class SimController:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    # ------------------------------------------------------------------ reuse
+    # the HAL values :meth:`snapshot` reads: the probe surface and sphere (sim/probe.hal)
+    # and the dispense output (M64/M65 P0)
+    SNAPSHOT_HAL = (*SimBlock.plane(0.0, 0.0).setp_values(), *SimSphere.none().setp_values(),
+                    "motion.digital-out-00")
+    # (not "tool_offset": linuxcncrsh 2.9 answers it with an arbitrary integer, -1163042392
+    # after one start, 115 after another; the tests apply no tool-length offset, G43)
+    SNAPSHOT_RSH = ("estop", "machine", "mode", "joint_homed", "program_status", "program_codes",
+                    "program_units", "tool", "kinematics_type")
+
+    def snapshot(self) -> dict[str, float | str]:
+        """The controller's state a test could inherit, as the controller and HAL report it:
+        ``SNAPSHOT_RSH`` (linuxcncrsh ``get``: e-stop, power, task mode, homed joints,
+        program status, active G/M codes, units, tool, kinematics) and
+        ``SNAPSHOT_HAL`` (``halcmd getp``: the probe surface, the sphere, the dispense
+        output).  Joint positions are not part of it (every test homes first)."""
+        if not self.running:
+            raise SimUnavailable("the simulator is not running", field="linuxcnc")
+        session = self.session()
+        try:
+            state: dict[str, float | str] = {name: session.get(name) for name in self.SNAPSHOT_RSH}
+        finally:
+            session.close()
+        script = self.workdir / "snapshot.hal"
+        script.write_text("".join(f"getp {name}\n" for name in self.SNAPSHOT_HAL))
+        done = subprocess.run(["halcmd", "-f", str(script)], capture_output=True, text=True,
+                              timeout=10, env=self._env)
+        values = done.stdout.split()
+        if done.returncode != 0 or len(values) != len(self.SNAPSHOT_HAL):
+            raise SimUnavailable(f"halcmd getp failed: {done.stderr.strip()[:200]}", field="halcmd")
+        state.update(zip(self.SNAPSHOT_HAL, (_number_or_text(v) for v in values)))
+        return state
+
+    def reset(self, timeout_s: float = 30.0) -> None:
+        """Bring the running simulator back to its start-up state without a restart (a
+        restart costs 7 s on a quiet box, over a minute on a loaded one): abort whatever
+        runs, dispense output off and no tool (by MDI, when the joints are homed), the
+        interpreter re-initialised (``task_plan_init``: units, distance mode, offsets, as
+        at start-up), the controller's unread errors dropped, every joint un-homed
+        (``unhome`` through LinuxCNC's Python module under the system Python), the probe
+        surface and sphere of ``sim/probe.hal``'s start-up values, manual mode, e-stop on.
+        It does not move the joints.  Callers compare :meth:`snapshot` with the one taken
+        right after start (the test fixtures restart the simulator when they differ)."""
+        if not self.running:
+            raise SimUnavailable("the simulator is not running", field="linuxcnc")
+        z0, slope_x = self.start_surface()
+        self.set_surface(SimBlock.plane(z0, slope_x))
+        self.set_surface(SimSphere.none())
+        session = self.session(enable=True)
+        try:
+            session.set("estop", "off")
+            session.set("machine", "on")
+            session.set("abort")
+            session.set("wait", "done", timeout_s=timeout_s)
+            if all(h.upper() == "YES" for h in session.get("joint_homed").split()[:self.joints]):
+                session.set("mode", "mdi")
+                for command in ("M65 P0", "T0 M6"):
+                    session.set("mdi", command)
+                    session.set("wait", "done", timeout_s=timeout_s)
+            session.set("mode", "manual")
+            session.set("task_plan_init")
+            session.set("wait", "done", timeout_s=timeout_s)
+            self._unhome(timeout_s)
+            session.set("mode", "manual")
+            session.set("estop", "on")
+            for _ in range(100):
+                if session.pop_error() is None:
+                    break
+        finally:
+            session.close()
+
+    _UNHOME = ("import linuxcnc, sys\n"
+               "c = linuxcnc.command()\n"
+               "c.mode(linuxcnc.MODE_MANUAL); c.wait_complete()\n"
+               "c.teleop_enable(0); c.wait_complete()\n"
+               "c.unhome(-1); sys.exit(0 if c.wait_complete() != -1 else 1)\n")
+
+    def _unhome(self, timeout_s: float) -> None:
+        python = shutil.which("python3", path="/usr/bin:/bin") or "python3"
+        done = subprocess.run([python, "-c", self._UNHOME], capture_output=True, text=True,
+                              timeout=timeout_s, env=self._env)
+        if done.returncode != 0:
+            raise SimUnavailable(f"unhome failed: {done.stderr.strip()[-300:]}", field="linuxcnc")
+
+    def start_surface(self) -> tuple[float, float]:
+        """The start-up probe plane of this config, ``([CONFORMA] SURFACE_Z, SURFACE_SLOPE_X)``
+        of its INI (mm, mm/mm)."""
+        section, values = "", {}
+        for raw in (SIM_DIR / CONFIGS[self.config]).read_text().splitlines():
+            line = raw.strip()
+            if line.startswith("["):
+                section = line
+            elif section == "[CONFORMA]" and "=" in line and not line.startswith("#"):
+                key, _, value = line.partition("=")
+                values[key.strip()] = float(value)
+        return values["SURFACE_Z"], values["SURFACE_SLOPE_X"]
+
+    @property
+    def joints(self) -> int:
+        """Number of joints of this config."""
+        return 5 if self.config == "xyzac-trt" else 3
 
     # ------------------------------------------------------------------ start
     def _lock(self) -> None:
