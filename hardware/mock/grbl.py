@@ -142,6 +142,8 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         moving = self.moving() or self.homing_until is not None
         position = list(self.machine_position(now))
         self.lose_planned_motion(now)
+        self.world.stats.stops += 1
+        self.world.stats.executed_at_stop = self.world.transcript.executed_count
         self.wire.clear()
         if moving:
             self.emit("ALARM:3", now)

@@ -89,6 +89,8 @@ class MarlinFirmware(FirmwareCore):
         """Emergency stop: halt everything; only a reset (reopen) brings it back."""
         self.emit("Error:Printer halted. kill() called!", now)
         self.cold_start()
+        self.world.stats.stops += 1
+        self.world.stats.executed_at_stop = self.world.transcript.executed_count
         self.halted = True
 
     def pump(self, now: float) -> bool:

@@ -163,6 +163,10 @@ class MockStats:
     #: probing moves that drove a nozzle (T>=1) into the part (it does not trigger there)
     collisions: int = 0
     touches: int = 0
+    #: emergency stops the firmware has taken (grbl soft reset, Marlin kill) and the executed
+    #: command count at the last one: what ran before the stop reached the firmware
+    stops: int = 0
+    executed_at_stop: int = -1
 
 
 @dataclass

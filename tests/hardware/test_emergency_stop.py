@@ -51,8 +51,16 @@ def test_the_wire_ends_at_the_stop_byte(make_world, dialect, stop_after):
     streamer = threading.Thread(target=run)
     streamer.start()
     assert reached.wait(20), "the program never got going"
+    stops_before = world.stats.stops
     machine.emergency_stop()
-    executed_at_stop = world.executed_count
+    # what ran before the stop byte reached the firmware is the mock's truth (it takes the
+    # stop on arrival, after the wire's transit): nothing may run after it
+    deadline = time.monotonic() + 5
+    while world.stats.stops == stops_before and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert world.stats.stops == stops_before + 1
+    executed_at_stop = world.stats.executed_at_stop
+    assert 0 < executed_at_stop < len(program)
     streamer.join(10)
     assert not streamer.is_alive()
     assert errors and isinstance(errors[0], FirmwareError)
