@@ -47,12 +47,17 @@ def _fresh_weights(candidates: Sites, stations: np.ndarray, center: np.ndarray) 
     return parts.weights, parts.var
 
 
-def test_design_posterior_rank_one_updates_equal_a_fresh_factorisation(nine):
-    region = field_region(nine[:4], 15.0)
+def _random_design(paths, seed: int, size: int):  # type: ignore[no-untyped-def]
+    """(region, candidates, rng, start stations, their DesignPosterior) on four traces."""
+    region = field_region(paths[:4], 15.0)
     cand = region.targets.sites
-    rng = np.random.default_rng(7)
-    start = rng.choice(len(cand.xy), 40, replace=False)
-    post = fx.DesignPosterior(PRIOR, region.center, cand, start)
+    rng = np.random.default_rng(seed)
+    start = rng.choice(len(cand.xy), size, replace=False)
+    return region, cand, rng, start, fx.DesignPosterior(PRIOR, region.center, cand, start)
+
+
+def test_design_posterior_rank_one_updates_equal_a_fresh_factorisation(nine):
+    region, cand, rng, start, post = _random_design(nine, 7, 40)
     stations = list(start)
     free = [int(i) for i in range(len(cand.xy)) if i not in set(stations)]
     for step in range(3 * fx.PENDING):        # enough to flush the pending updates several times
@@ -75,11 +80,7 @@ def test_design_posterior_rank_one_updates_equal_a_fresh_factorisation(nine):
 
 
 def test_a_trial_posterior_equals_the_design_after_the_same_moves(nine):
-    region = field_region(nine[:4], 15.0)
-    cand = region.targets.sites
-    rng = np.random.default_rng(11)
-    start = rng.choice(len(cand.xy), 50, replace=False)
-    post = fx.DesignPosterior(PRIOR, region.center, cand, start)
+    region, cand, rng, start, post = _random_design(nine, 11, 50)
     local = np.arange(0, len(cand.xy), 2)
     slots = post.used[:6]
     trial = fx._Trial(post, local, slots)
