@@ -4,7 +4,7 @@
 import { ApiError, download, get, post, streamEvents } from "./api.js";
 import { schemaForm } from "./schema_form.js";
 import { figuresTable, kindView } from "./results.js";
-import { el, fmt, guarded, initPage, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
+import { el, fmt, guarded, initPage, latest, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
 
 const TERMINAL = new Set(["succeeded", "failed", "cancelled"]);
 const main = initPage("jobs.html");
@@ -190,9 +190,13 @@ function follow(job) {
   streams.set(job.id, ctrl);
 }
 
+const historyLatest = latest();  // filters changed quickly: only the newest query's answer is shown
+
 async function refresh() {
+  const current = historyLatest();
   await guarded("Jobs", async () => {
     const page = await get(`jobs?${historyQuery()}`);
+    if (!current()) return;
     tbody.replaceChildren(...page.items.map(row));
     if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 4, class: "small" }, offset ? "No older jobs." : "No jobs match.")));
     const last = Math.min(offset + page.items.length, page.total);

@@ -5,7 +5,7 @@
 // confirmation.
 import { download, get, post, streamEvents } from "./api.js";
 import { chart, length } from "./results.js";
-import { el, guarded, initPage, markReady, showInfo, viewerPanel } from "./ui.js";
+import { el, guarded, initPage, latest, markReady, showInfo, viewerPanel } from "./ui.js";
 
 const main = initPage("loop.html");
 const TERMINAL = new Set(["succeeded", "failed", "cancelled", "interrupted"]);
@@ -75,9 +75,14 @@ async function loadParts() {
 
 const isRing = (t) => (t.source || {}).role === "pad_probe";
 
+const tracesLatest = latest();  // the part changed quickly: never the traces of a part no longer chosen
+
 async function loadTraces() {
-  state.part = partSelect.value || null;
-  const all = state.part ? (await get(`parts/${state.part}/traces?limit=1000`)).items : [];
+  const current = tracesLatest();
+  const part = partSelect.value || null;
+  const all = part ? (await get(`parts/${part}/traces?limit=1000`)).items : [];
+  if (!current()) return;
+  state.part = part;
   state.traces = all.filter((t) => !isRing(t));
   state.rings = all.filter(isRing);
   traceList.replaceChildren(...(state.traces.length ? state.traces.map((t) => el("label", { class: "inline" },

@@ -1,7 +1,7 @@
 // Traces: create one from a form, import many (JSON array or SVG), list, open in 3D.
 import { del, get, post, upload } from "./api.js";
 import { circuitImportSection } from "./circuit_import.js";
-import { el, fmt, guarded, initPage, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
+import { el, fmt, guarded, initPage, latest, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
 
 const main = initPage("traces.html");
 const left = el("div");
@@ -187,10 +187,14 @@ async function loadParts() {
   });
 }
 
+const tracesLatest = latest();  // the part changed quickly: only the newest part's traces are shown
+
 async function refresh(highlight) {
+  const current = tracesLatest();
   if (!partSelect.value) { tbody.replaceChildren(); return; }
   await guarded("Traces", async () => {
     const page = await get(`parts/${partSelect.value}/traces?limit=1000`);
+    if (!current()) return;
     tbody.replaceChildren(...page.items.map(row));
     if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 5, class: "small" }, "No traces yet.")));
     if (highlight) tbody.querySelector(`tr[data-id="${highlight}"]`)?.classList.add("selected");

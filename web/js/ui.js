@@ -181,6 +181,17 @@ export function markReady() {
   document.body.dataset.ready = "1";
 }
 
+// A query repeated while its answer is on the way (a filter or a choice changed quickly) may
+// be answered out of order; only the newest answer may be shown. `const isLatest = latest();`
+// once, then per query `const current = isLatest();` and after the await `if (!current()) return;`.
+export function latest() {
+  let newest = 0;
+  return () => {
+    const mine = ++newest;
+    return () => mine === newest;
+  };
+}
+
 export function query(name) {
   return new URLSearchParams(location.search).get(name);
 }

@@ -110,6 +110,38 @@ def test_history_filters_by_kind_and_part_and_pages(page, served, sliced):
     assert page.js_errors == []
 
 
+def test_a_late_answer_to_an_older_filter_does_not_replace_the_newer_one(page, served, sliced):
+    """The history's answers may arrive out of order: the unfiltered query is held back until
+    the part filter's answer is shown, then let through; the page keeps the part filter's jobs."""
+    api = served.api()
+    expected = api.get(f"/api/v1/jobs?part_id={sliced['part']['id']}&top_level=true").json()["total"]
+    everything = api.get("/api/v1/jobs?top_level=true").json()["total"]
+    assert everything > expected
+    page.goto("/jobs.html")
+    page.wait_for_selector('body[data-ready="1"]')
+    held = []
+
+    def hold_unfiltered(route):
+        if "part_id" in route.request.url:
+            route.continue_()
+        else:
+            held.append(route)
+
+    page.route(re.compile(r".*/api/v1/jobs\?.*"), hold_unfiltered)
+    page.select_option("#filter-status", "succeeded")
+    page.select_option("#filter-status", "")            # an unfiltered query: held
+    page.select_option("#filter-part", sliced["part"]["id"])
+    expect(page.locator("#page-info")).to_have_text(re.compile(f"of {expected}$"))
+    assert held, "the unfiltered query was not sent"
+    with page.expect_response(lambda r: "/api/v1/jobs?" in r.url and "part_id" not in r.url):
+        for route in held:
+            route.continue_()
+    page.wait_for_timeout(300)                           # time to (wrongly) render the late answer
+    expect(page.locator("#page-info")).to_have_text(re.compile(f"of {expected}$"))
+    page.unroute(re.compile(r".*/api/v1/jobs\?.*"))
+    assert page.js_errors == []
+
+
 def test_first_run_without_a_key_shows_no_error_and_a_wrong_key_is_not_saved(browser, served):
     context = browser.new_context(viewport={"width": 1440, "height": 900}, base_url=served.base)
     page = context.new_page()
