@@ -83,6 +83,7 @@ export async function boardCompensateContents(job) {
   const state = { key: "nominal_error_um", descending: true, all: false, tolerance: NaN,
     selected: [...rows].sort(compare("nominal_error_um", true))[0] };
   const named = new Set(), timed = new Set();
+  let pending = 0;  // fetches of names and times in flight
   const summary = el("p", { id: "board-summary" });
   const table = el("table", { class: "records", id: "board-traces" });
   const more = el("button", { type: "button", id: "board-all" });
@@ -142,7 +143,13 @@ export async function boardCompensateContents(job) {
     more.textContent = state.all ? `show the worst ${LIMIT}` : `show all ${rows.length} traces`;
     chartBox.replaceChildren(standoffChart(state.selected));
     const missing = shown.filter((r) => !named.has(r.trace_id) || !timed.has(r.trace_id));
-    if (missing.length) details(missing).then(render);
+    if (missing.length) {
+      pending += 1;
+      details(missing).finally(() => { pending -= 1; render(); });
+    }
+    // "0" once every row on screen shows its name and time (until then a row shows its id and
+    // sorts by it): what a script reading the table waits for
+    table.dataset.pending = String(pending);
   }
 
   more.addEventListener("click", () => { state.all = !state.all; render(); });

@@ -88,7 +88,9 @@ def test_board_compensation_view_lists_the_worst_traces_first_with_their_program
     assert f"{float(f'{worst[order[0]]:.4g}'):g} µm" in text
     # all rows on request
     page.click("#board-all")
+    page.wait_for_selector('#board-traces[data-pending="0"]')  # every row's name and time fetched
     assert page.locator("#board-traces tbody tr").count() == n
+    assert {r["cells"]["trace"] for r in table_rows(page)} == {board["traces"][t]["name"] for t in order}
     # sorted by name, ascending
     page.click('#board-traces th[data-key="trace"] button')
     names = [r["cells"]["trace"] for r in table_rows(page)]
@@ -114,6 +116,7 @@ def test_the_selected_traces_chart_or_why_there_is_none(page, board):
     page.wait_for_selector("#board-traces tbody tr")
     assert table_rows(page)[0]["selected"] and table_rows(page)[0]["trace"] == worst  # the worst, at first
     page.click("#board-all")
+    page.wait_for_selector('#board-traces[data-pending="0"]')  # no re-render under the click
     page.click(f'#board-traces tr[data-trace="{with_chart}"] td[data-key="trace"]')
     figure = page.wait_for_selector(f'#standoff-plot[data-trace="{with_chart}"]')
     assert int(figure.get_attribute("data-rows")) == len(samples[with_chart])
