@@ -1,13 +1,13 @@
-"""Pick the importer for a file (by name, then by content) and run it."""
+"""Pick the importer for a file (by name, then by content) and run it.
+
+Each importer's module (and its ECAD library: kiutils, gerbonara, ezdxf, svgelements) is
+imported when a file of its format is read, not when the service starts: together they cost
+about a second of every server, worker and compute-process start."""
 
 from __future__ import annotations
 
-from app.circuits.dxf import read_dxf
 from app.circuits.errors import CircuitFileError
-from app.circuits.gerber import read_excellon, read_gerber
-from app.circuits.kicad import read_kicad
 from app.circuits.layout import Layout
-from app.circuits.svg import read_svg
 
 __all__ = ["FORMATS", "detect_format", "read_layout"]
 
@@ -59,15 +59,21 @@ def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str
     if not data.strip():
         raise CircuitFileError("the file is empty", file=name)
     if fmt == "svg":
+        from app.circuits.svg import read_svg
+
         return read_svg(data, name, layers)
     text = _text(data, name)
     if fmt == "kicad":
         if layers and len(layers) > 1:
             raise CircuitFileError("a KiCad import takes one copper layer", file=name, where=f"layer {layers[1]}",
                                    field="layers")
+        from app.circuits.kicad import read_kicad
+
         return read_kicad(text, name, layers[0] if layers else None)
-    if fmt == "gerber":
-        return read_gerber(text, name, layers[0] if layers else None)
-    if fmt == "excellon":
-        return read_excellon(text, name)
+    if fmt in ("gerber", "excellon"):
+        from app.circuits.gerber import read_excellon, read_gerber
+
+        return read_gerber(text, name, layers[0] if layers else None) if fmt == "gerber" else read_excellon(text, name)
+    from app.circuits.dxf import read_dxf
+
     return read_dxf(text, name, layers)

@@ -10,7 +10,6 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-import trimesh
 from sqlmodel import Session
 
 from app.errors import Cancelled, ConformaError
@@ -20,6 +19,7 @@ from app.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, Upl
 from app.records import add_artifact, get_or_404
 
 if TYPE_CHECKING:
+    import trimesh
     from app.jobs.runtime import Runtime
 
 
