@@ -25,8 +25,29 @@ def auth(role: str) -> dict[str, str]:
     return {"Authorization": f"Bearer {KEYS[role]}"}
 
 
+@pytest.fixture(scope="session")
+def migrated_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A SQLite database migrated to head once per test process (the real migrations, on a
+    fresh file).  Each test's data directory starts from a copy: migrating a fresh file costs
+    0.15-0.2 s of every test app's start, ~1,000 times a run; the app's start-up still runs
+    ``migrate``, which finds the copy at head."""
+    import sqlite3
+
+    from app.config import load_settings
+    from app.db import migrate
+
+    data_dir = tmp_path_factory.mktemp("migrated") / "data"
+    migrate(load_settings({}, data_dir=data_dir, api_keys=f"{KEYS['admin']}:admin", viewer=False))
+    database = data_dir / "conforma.db"
+    with sqlite3.connect(database) as connection:  # everything in the main file: it is copied alone
+        connection.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    return database
+
+
 @pytest.fixture
-def settings_factory(tmp_path: Path):  # type: ignore[no-untyped-def]
+def settings_factory(tmp_path: Path, migrated_database: Path):  # type: ignore[no-untyped-def]
+    import shutil
+
     from app.config import load_settings
 
     def make(**overrides: object):  # type: ignore[no-untyped-def]
@@ -39,7 +60,11 @@ def settings_factory(tmp_path: Path):  # type: ignore[no-untyped-def]
             "job_plugins": "tests.jobs.sample_kinds",
         }
         values.update(overrides)
-        return load_settings({}, **values)
+        settings = load_settings({}, **values)
+        if settings.is_sqlite and not (settings.data_dir / "conforma.db").exists():
+            settings.data_dir.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(migrated_database, settings.data_dir / "conforma.db")
+        return settings
 
     return make
 
