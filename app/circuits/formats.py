@@ -70,10 +70,14 @@ def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str
         from app.circuits.kicad import read_kicad
 
         return read_kicad(text, name, layers[0] if layers else None)
-    if fmt in ("gerber", "excellon"):
-        from app.circuits.gerber import read_excellon, read_gerber
+    if fmt == "gerber":
+        from app.circuits.gerber import read_gerber
 
-        return read_gerber(text, name, layers[0] if layers else None) if fmt == "gerber" else read_excellon(text, name)
+        return read_gerber(text, name, layers[0] if layers else None)
+    if fmt == "excellon":
+        from app.circuits.gerber import read_excellon
+
+        return read_excellon(text, name)
     from app.circuits.dxf import read_dxf
 
     return read_dxf(text, name, layers)
