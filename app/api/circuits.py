@@ -19,11 +19,12 @@ from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
 from app.circuits.formats import read_layout
 from app.circuits.mapping import MappingOptions, map_layout
+from app.circuits.nets import area_polygon
 from app.circuits.pad_probes import probe_ring
 from app.circuits.placement import LayoutPlacement
 from app.errors import ConformaError, InvalidInput
 from app.geometry.traces import TracePolyline
-from app.jobs.kinds.circuit_program import import_probe_trace_ids
+from app.jobs.kinds.circuit_program import import_probe_trace_ids, stored_areas
 from app.models import CircuitImport, Part, Trace, new_id, utcnow
 from app.records import build_trace, get_or_404
 
@@ -85,13 +86,23 @@ class ImportedPad(BaseModel):
     probe_trace_id: str | None = Field(None, description="the trace whose probes cover this pad")
 
 
+class ImportedArea(BaseModel):
+    name: str
+    source: dict[str, Any] = Field(default_factory=dict, description="file, layer, net (\"\" when the file "
+                                   "names none), entity")
+    exterior_xy_mm: list[list[float]]
+    holes_xy_mm: list[list[list[float]]] = Field(default_factory=list, description="rings inside the area that "
+                                                 "are not copper (around other nets' pads and tracks): never filled")
+    area_mm2: float = Field(0.0, description="the copper area (exterior minus holes, top view)")
+
+
 class CircuitImportOut(BaseModel):
     import_id: str
     dry_run: bool
     files: list[ImportedFile]
     traces: list[ImportedTrace]
     pads: list[ImportedPad]
-    areas: list[list[list[float]]]
+    areas: list[ImportedArea]
     probe_paths: list[dict[str, Any]] = Field(default_factory=list, description=(
         "a closed probe ring inside every on-part pad and area (stored as traces with source.role "
         "pad_probe): give probe_trace_ids to the closed loop with the import's traces so the fills "
@@ -109,7 +120,7 @@ class CircuitImportRecord(BaseModel):
     options: dict[str, Any]
     trace_ids: list[str]
     pads: list[dict[str, Any]]
-    areas: list[list[list[float]]]
+    areas: list[ImportedArea]
     probe_trace_ids: list[str] = Field(default_factory=list, description="the pads' and areas' probe rings")
     created_at: UtcDatetime
 
@@ -192,13 +203,17 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
             out.pads.append(ImportedPad(name=p.name, shape=p.shape, source=p.source,
                                         center_mm=[_finite(v) for v in p.center],
                                         outline_xy_mm=p.outline_xy.round(6).tolist(), on_part=p.on_part))
-        out.areas += [a.round(6).tolist() for a in mapped.areas_xy]
-        first_area = len(out.areas) - len(mapped.areas_xy)
-        rings = [(out.pads[len(out.pads) - len(mapped.pads) + i], p.name, p.outline_xy)
+        first_area = len(out.areas)
+        out.areas += [ImportedArea(name=f"area {first_area + i}", source=a.source,
+                                   exterior_xy_mm=a.exterior_xy.round(6).tolist(),
+                                   holes_xy_mm=[h.round(6).tolist() for h in a.holes_xy],
+                                   area_mm2=round(area_polygon(a.exterior_xy, a.holes_xy).area, 6))
+                      for i, a in enumerate(mapped.areas)]
+        rings = [(out.pads[len(out.pads) - len(mapped.pads) + i], p.name, p.outline_xy, [])
                  for i, p in enumerate(mapped.pads) if p.on_part]
-        rings += [(None, f"area {first_area + i}", a) for i, a in enumerate(mapped.areas_xy)]
-        for pad, what, outline in rings:
-            probe = _probe_trace(runtime, part, outline, f"{name}:{what}", opts, import_id, out, records)
+        rings += [(None, f"area {first_area + i}", a.exterior_xy, a.holes_xy) for i, a in enumerate(mapped.areas)]
+        for pad, what, outline, holes in rings:
+            probe = _probe_trace(runtime, part, outline, f"{name}:{what}", opts, import_id, out, records, holes)
             if pad is not None and probe is not None:
                 pad_records.append((pad, probe))
     if not opts.dry_run:
@@ -214,7 +229,8 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
         session.add(CircuitImport(
             id=import_id, part_id=part.id, files=[f.model_dump() for f in out.files],
             options=opts.model_dump(), trace_ids=[trace.id for item, trace in records if item is not None],
-            pads=[p.model_dump() for p in out.pads], areas=out.areas, created_at=utcnow()))
+            pads=[p.model_dump() for p in out.pads], areas=[a.model_dump() for a in out.areas],
+            created_at=utcnow()))
         session.commit()
     for item, trace in records:
         if item is None:
@@ -246,10 +262,10 @@ def _preview(request: Request, part: Part, mesh, out: CircuitImportOut, view_id:
 
 
 def _probe_trace(runtime, part: Part, outline, label: str, opts: CircuitImportOptions, import_id: str,
-                 out: CircuitImportOut, records: list) -> Trace | None:
+                 out: CircuitImportOut, records: list, holes=()) -> Trace | None:
     """The probe ring of a pad or area as a trace (records gets (None, trace)); a ring the part
     cannot carry is a warning, the pad is then filled from the stations around it."""
-    ring = probe_ring(outline)
+    ring = probe_ring(outline, list(holes))
     if ring is None:
         return None
     body = TraceCreate(name=f"{label} (pad probe)"[:200], geometry={"type": "polyline", "points": ring.tolist()},
@@ -270,4 +286,6 @@ def _probe_trace(runtime, part: Part, outline, label: str, opts: CircuitImportOp
 def get_circuit_import(import_id: str, session: SessionDep) -> CircuitImportRecord:
     """A committed import: its files, options, trace ids, mapped pads and areas, and their probe traces."""
     imp = get_or_404(session, CircuitImport, import_id, field="import_id")
-    return CircuitImportRecord(**imp.model_dump(), probe_trace_ids=import_probe_trace_ids(session, imp))
+    record = imp.model_dump()
+    record["areas"] = [ImportedArea(**a) for a in stored_areas(imp.areas)]
+    return CircuitImportRecord(**record, probe_trace_ids=import_probe_trace_ids(session, imp))

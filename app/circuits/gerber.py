@@ -19,6 +19,7 @@ import numpy.typing as npt
 from gerbonara import ExcellonFile, GerberFile
 from gerbonara import graphic_objects as go
 from gerbonara import graphic_primitives as gp
+from gerbonara.rs274x import GerberParser
 from gerbonara.utils import MM
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import unary_union
@@ -62,6 +63,28 @@ def _parse(loader: Callable[..., _Parsed], text: str, name: str) -> _Parsed:
             raise CircuitFileError("the file ends without its end marker (M02 / M30): truncated", file=name,
                                    where=f"line {last}")
     return parsed
+
+
+class _RegionAttributeParser(GerberParser):  # type: ignore[misc]
+    """gerbonara's parser, but each region (G36 ... G37) keeps the object attributes (%TO%, e.g.
+    the X2 net ``.N``) in effect at its end, as lines and flashes already do."""
+
+    def _parse_region_start(self, match: re.Match[str]) -> None:
+        self._region_first = len(self.target.objects)
+        super()._parse_region_start(match)
+
+    def _parse_region_end(self, match: re.Match[str]) -> None:
+        super()._parse_region_end(match)
+        for obj in self.target.objects[getattr(self, "_region_first", len(self.target.objects)):]:
+            if isinstance(obj, go.Region):
+                obj.attrs = dict(self.graphics_state.object_attrs)
+
+
+def _load_gerber(text: str, filename: str) -> GerberFile:
+    """A Gerber file parsed with region attributes kept (see :class:`_RegionAttributeParser`)."""
+    gerber = GerberFile()
+    _RegionAttributeParser(gerber).parse(text, filename=filename)
+    return gerber
 
 
 def _primitive_geometry(prim: gp.GraphicPrimitive) -> Polygon:
@@ -149,7 +172,8 @@ def _draw_curve(obj: go.Line | go.Arc) -> NurbsCurve | None:
 
 def _net(obj: go.GraphicObject) -> str:
     """The Gerber X2 net name (%TO.N%) of an object, "" when absent."""
-    value = (getattr(obj, "attrs", None) or {}).get(".N")
+    attrs = getattr(obj, "attrs", None)
+    value = attrs.get(".N") if isinstance(attrs, dict) else None
     if isinstance(value, (list, tuple)):
         value = ",".join(str(v) for v in value)
     return str(value or "")
@@ -166,7 +190,7 @@ def _layer_name(gerber: GerberFile, name: str) -> str:
 
 def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
     """Traces, pads and areas of one Gerber file (a Gerber file is one layer)."""
-    gerber = _parse(GerberFile.from_string, text, name)
+    gerber = _parse(_load_gerber, text, name)
     layer_name = _layer_name(gerber, name)
     if layer and layer not in (layer_name, name) and not layer_name.startswith(layer):
         raise CircuitFileError(f"layer {layer!r} is not this Gerber file's layer ({layer_name!r})", file=name,
@@ -205,7 +229,7 @@ def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
             geoms = getattr(poly, "geoms", [poly])
             for g in geoms:
                 holes = tuple(np.asarray(h.coords)[:-1] for h in g.interiors)
-                out.areas.append(Area(ring_of(g), holes, Source(name, layer_name, "", 0.0,
+                out.areas.append(Area(ring_of(g), holes, Source(name, layer_name, _net(obj), 0.0,
                                                                 f"region {len(out.areas) + 1}")))
     return out
 

@@ -15,11 +15,13 @@ from kiutils.board import Board
 from kiutils.footprint import Footprint
 from kiutils.items.common import Position
 from kiutils.utils import sexpr
+from shapely.geometry import Polygon
+from shapely.geometry.base import BaseGeometry
 
 from app.circuits.curves import arc_three_points, line
 from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source
-from app.circuits.shapes import pad_outline, rotate
+from app.circuits.shapes import pad_outline, ring_of, rotate
 from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["read_kicad"]
@@ -60,6 +62,11 @@ def _on_layer(pad_layers: list[str], layer: str) -> bool:
     side = layer.split(".", 1)[0]
     return any(pl == layer or pl == "*.Cu" or (pl.endswith(".Cu") and side in pl.split(".", 1)[0].split("&"))
                for pl in pad_layers)
+
+
+def _polygons(geom: BaseGeometry) -> list[Polygon]:
+    """The polygons (with area) of a shapely geometry."""
+    return [g for g in getattr(geom, "geoms", [geom]) if isinstance(g, Polygon) and g.area > 0]
 
 
 def _reference(fp: Footprint) -> str:
@@ -126,11 +133,11 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
             continue
         filled = [fp for fp in zone.filledPolygons if fp.layer == layer]
         rings = [fp.coordinates for fp in filled] or [zp.coordinates for zp in zone.polygons]
+        src = Source(name, layer, zone.netName or nets.get(zone.net, ""), 0.0,
+                     f"zone {k} ({'filled' if filled else 'outline'})")
         for ring in rings:
             pts = np.array([[float(p.X), -float(p.Y)] for p in ring])
-            if len(pts) >= 3:
-                area2 = float(np.dot(pts[:, 0], np.roll(pts[:, 1], -1)) - np.dot(np.roll(pts[:, 0], -1), pts[:, 1]))
-                src = Source(name, layer, zone.netName or nets.get(zone.net, ""), 0.0,
-                             f"zone {k} ({'filled' if filled else 'outline'})")
-                out.areas.append(Area(pts if area2 >= 0 else pts[::-1], (), src))
+            if len(pts) >= 3:         # a filled polygon is fractured (holes joined by slits): unfold it
+                out.areas += [Area(ring_of(g), tuple(np.asarray(h.coords)[:-1] for h in g.interiors), src)
+                              for g in _polygons(Polygon(pts).buffer(0))]
     return out

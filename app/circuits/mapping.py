@@ -28,7 +28,7 @@ from app.circuits.wrap import SurfaceWalker
 from app.geometry.cl_points import cl_points
 from app.geometry.drape import top_surface_z
 
-__all__ = ["MappedTrace", "MappedPad", "MappedLayout", "MappingOptions", "map_layout"]
+__all__ = ["MappedTrace", "MappedPad", "MappedArea", "MappedLayout", "MappingOptions", "map_layout"]
 
 Mapping = Literal["project", "wrap"]
 
@@ -70,10 +70,21 @@ class MappedPad:
 
 
 @dataclass
+class MappedArea:
+    """A filled area (a copper pour) in the top view: exterior (k, 2) mm and its holes (each
+    (m, 2) mm), which are not copper: the fill leaves them empty."""
+
+    name: str
+    source: dict[str, Any]
+    exterior_xy: npt.NDArray[np.float64]
+    holes_xy: list[npt.NDArray[np.float64]]
+
+
+@dataclass
 class MappedLayout:
     traces: list[MappedTrace]
     pads: list[MappedPad]
-    areas_xy: list[npt.NDArray[np.float64]]
+    areas: list[MappedArea]
     warnings: list[dict[str, Any]] = field(default_factory=list)
 
 
@@ -189,7 +200,8 @@ def map_layout(layout: Layout, placement: LayoutPlacement, mesh: trimesh.Trimesh
         if not ok:
             warnings.append({"kind": "leaves_part", "pads": [p.name], "value": p.name,
                              "message": f"pad {p.name} is not all on the part's upper surface"})
-    areas = [to_surface(a.exterior)[:, :2] for a in placed.areas]
+    areas = [MappedArea(a.source.entity, a.source.to_dict(), to_surface(a.exterior)[:, :2],
+                        [to_surface(h)[:, :2] for h in a.holes]) for a in placed.areas]
     widths = [t.source.width_mm for t in placed.traces]
     nets = [t.source.net for t in placed.traces]
     warnings += _spacing_warnings(traces, widths, nets)

@@ -34,9 +34,10 @@ __all__ = ["circuit_preview_scene"]
 LIFT_MM = 0.01          # patches drawn this far above the part so they do not flicker into it
 
 
-def _patch(outline: list, mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray] | None:
-    """An outline (k, 2) as a draped triangle patch: vertices (v, 3), faces (f, 3); None off the part."""
-    poly = Polygon(np.asarray(outline, float))
+def _patch(outline: list, mesh: trimesh.Trimesh, holes: list | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """An outline (k, 2) less its holes (each (m, 2)) as a draped triangle patch: vertices (v, 3),
+    faces (f, 3); None off the part."""
+    poly = Polygon(np.asarray(outline, float), [np.asarray(h, float) for h in holes or [] if len(h) >= 3])
     if not poly.is_valid:
         poly = poly.buffer(0)
     if poly.is_empty or poly.area <= 0:
@@ -78,11 +79,12 @@ def circuit_preview_scene(part_id: str, mesh: trimesh.Trimesh, dry_run: dict[str
         toolpaths.append(Toolpath("warnings", ToolpathSegments(a, b, np.ones(m, bool), np.full(m, -1, np.int64),
                                                                np.zeros(m), np.zeros(m)), "warning"))
     verts, faces, values = [], [], []
-    outlines = [(p["outline_xy_mm"], 0.0 if p["on_part"] else 1.0) for p in dry_run.get("pads", [])]
-    outlines += [(a, 0.5) for a in dry_run.get("areas", [])]
+    outlines = [(p["outline_xy_mm"], [], 0.0 if p["on_part"] else 1.0) for p in dry_run.get("pads", [])]
+    outlines += [(a["exterior_xy_mm"], a.get("holes_xy_mm") or [], 0.5) if isinstance(a, dict) else (a, [], 0.5)
+                 for a in dry_run.get("areas", [])]
     offset = 0
-    for outline, value in outlines:
-        patch = _patch(outline, mesh)
+    for outline, holes, value in outlines:
+        patch = _patch(outline, mesh, holes)
         if patch is None:
             continue
         verts.append(patch[0])

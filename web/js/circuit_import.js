@@ -32,7 +32,10 @@ function previewDrawing(result, bounds) {
       fill: p.on_part ? "#c60" : "#d00", "fill-opacity": 0.6 }));
   }
   for (const a of result.areas) {
-    svg.append(svgEl("polygon", { points: a.map(([x, y]) => `${x},${-y}`).join(" "), fill: "#c60", "fill-opacity": 0.3 }));
+    // the exterior and its holes as one path, filled even-odd: the holes stay empty
+    const rings = [a.exterior_xy_mm, ...(a.holes_xy_mm || [])];
+    const d = rings.map((r) => "M" + r.map(([x, y]) => `${x},${-y}`).join("L") + "Z").join(" ");
+    svg.append(svgEl("path", { d, fill: "#c60", "fill-opacity": 0.3, "fill-rule": "evenodd" }));
   }
   return svg;
 }

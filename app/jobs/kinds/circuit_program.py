@@ -6,6 +6,10 @@ filled (contour + raster at ``line_width_mm``) on the nominal surface lifted by 
 deviation that loop's probes measured.  The import stores a probe ring inside every pad and
 area (traces with ``source.role`` ``pad_probe``); the loop must include them (when pads are
 filled), so every fill is compensated from stations on its own pad, not extrapolated.
+Areas keep their holes (the rings around other nets' pads and tracks), and no fill covers
+them.  Before anything is written, the copper to print (traces at their width, pads, area
+fills) is checked against the netlist (:mod:`app.circuits.nets`): a program that would join
+two nets is refused at submission (422) naming both nets, the items and where they meet.
 Strokes are ordered for short travel.
 """
 
@@ -16,10 +20,12 @@ from pydantic import Field
 from sqlmodel import Session, select
 
 from app.gcode.writer import DEFAULT_DIALECT
+from app.circuits.nets import Copper, area_polygon, check_nets, trace_copper
 from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import deviation_field, fill_tip_strokes, trace_passes
 from app.errors import InvalidInput
 from app.geometry.drape import drape_polyline, top_surface_z
+from app.geometry.traces import TracePolyline
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
@@ -40,6 +46,8 @@ class CircuitProgramParams(JobParams):
     feed_mm_min: float = Field(300.0, gt=0, le=100_000)
     clearance_mm: float = Field(2.0, gt=0, le=100)
     pads: bool = Field(True, description="fill pads and areas")
+    net_clearance_mm: float = Field(0.0, ge=0, le=10, description="copper of different nets closer than this "
+                                    "(top view) counts as a short; 0: only touching copper")
 
 
 def _loop_entries(loop: Job) -> dict[str, LoopTrace]:
@@ -53,8 +61,38 @@ def import_probe_trace_ids(session: Session, imp: CircuitImport) -> list[str]:
             if (t.source or {}).get("import_id") == imp.id and (t.source or {}).get("role") == "pad_probe"]
 
 
+def stored_areas(areas: list) -> list[dict]:
+    """An import's stored areas as dicts (name, source, exterior_xy_mm, holes_xy_mm, area_mm2);
+    an area stored as its bare exterior ring (no holes, no source) is read as one."""
+    out = []
+    for i, a in enumerate(areas):
+        if isinstance(a, dict):
+            out.append(a)
+        else:
+            ring = a
+            out.append({"name": f"area {i}", "source": {}, "exterior_xy_mm": ring, "holes_xy_mm": [],
+                        "area_mm2": round(area_polygon(ring).area, 6)})
+    return out
+
+
+def import_copper(session: Session, imp: CircuitImport, pads: bool) -> list[Copper]:
+    """The copper a circuit program prints: the import's traces at their width, and (with
+    ``pads``) its on-part pads and its areas with their holes; top view, mm, with their nets."""
+    rows = session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()  # type: ignore[attr-defined]
+    copper = [Copper("trace", t.name, str((t.source or {}).get("net") or ""),
+                     trace_copper(TracePolyline.from_dict(t.nominal).points[:, :2], t.width_mm or 0.0))
+              for t in rows]
+    if pads:
+        copper += [Copper("pad", p["name"], str((p.get("source") or {}).get("net") or ""),
+                          area_polygon(p["outline_xy_mm"])) for p in imp.pads if p["on_part"]]
+        copper += [Copper("area", a["name"], str((a.get("source") or {}).get("net") or ""),
+                          area_polygon(a["exterior_xy_mm"], a["holes_xy_mm"])) for a in stored_areas(imp.areas)]
+    return copper
+
+
 def _check(params: CircuitProgramParams, session: Session) -> None:
     imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
+    check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
     loop = succeeded_job(session, params.closed_loop_job_id, "closed_loop", "params.closed_loop_job_id")
     missing = [t for t in imp.trace_ids if t not in _loop_entries(loop)]
     if missing:
@@ -74,6 +112,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     with ctx.session() as session:
         imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
         probe_ids = import_probe_trace_ids(session, imp) if params.pads else []
+        nets = check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
     loop = ctx.job(params.closed_loop_job_id, kind="closed_loop", field="params.closed_loop_job_id")
     entries = _loop_entries(loop)
     mesh = ctx.mesh(imp.part_id)
@@ -108,10 +147,11 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         def drape(xy: np.ndarray) -> np.ndarray:
             return drape_polyline(mesh, xy).points
 
-        outlines = [(p["outline_xy_mm"], p["name"], "pad") for p in imp.pads if p["on_part"]]
-        outlines += [(a, f"area {i}", "area") for i, a in enumerate(imp.areas)]
-        for ring, name, kind in outlines:
-            for s in fill_tip_strokes(np.asarray(ring, float), [], params.line_width_mm, drape, field, standoff):
+        outlines = [(p["outline_xy_mm"], [], p["name"], "pad") for p in imp.pads if p["on_part"]]
+        outlines += [(a["exterior_xy_mm"], a["holes_xy_mm"], a["name"], "area") for a in stored_areas(imp.areas)]
+        for ring, holes, name, kind in outlines:
+            for s in fill_tip_strokes(np.asarray(ring, float), [np.asarray(h, float) for h in holes],
+                                      params.line_width_mm, drape, field, standoff):
                 strokes.append(Stroke(s, kind, name, params.feed_mm_min))
                 fills += 1
     if not strokes:
@@ -125,6 +165,6 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                                     job_id=ctx.job_id)
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
     return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
-            "pad_probe_traces": probe_ids, "stations": len(stations),
+            "pad_probe_traces": probe_ids, "stations": len(stations), "nets_checked": nets,
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
             "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off})

@@ -1,0 +1,86 @@
+"""A pour with holes through the API: stored with its holes and net (and its copper area),
+and a circuit program over a solid pour that would short other nets' pads is refused at
+submission, naming the nets, the items and where."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import shapely
+from shapely.geometry import box
+
+from app.reference.s1 import s1_mesh
+from tests.circuits.boards import PourBoard, gerber_x2
+from tests.conftest import auth
+
+OP = auth("operator")
+BOARD = PourBoard()
+ORIGIN = (10.0, 10.0)
+
+
+@pytest.fixture(scope="module")
+def s1_stl() -> bytes:
+    return s1_mesh(grid_mm=1.0).export(file_type="stl")
+
+
+@pytest.fixture
+def part(client, s1_stl):
+    return client.post("/api/v1/parts", files={"file": ("s1.stl", s1_stl)}, headers=OP).json()
+
+
+def _import(client, part, text, **options):
+    return client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                       files=[("files", ("top.gbr", text.encode()))],
+                       data={"options": json.dumps({"origin_mm": list(ORIGIN), **options})})
+
+
+def test_pour_holes_are_stored_and_a_short_is_refused(client, part):
+    done = _import(client, part, gerber_x2(BOARD))
+    assert done.status_code == 201, done.text
+    (area,) = done.json()["areas"]
+    holes = [box(x - s / 2, y - s / 2, x + s / 2, y + s / 2) for x, y, s in BOARD.holes]
+    expected = shapely.affinity.translate(box(0, 0, BOARD.width, BOARD.height).difference(shapely.union_all(holes)),
+                                          *ORIGIN)
+    assert area["source"]["net"] == "GND" and len(area["holes_xy_mm"]) == 2
+    assert area["area_mm2"] == pytest.approx(expected.area, abs=1e-6)
+    record = client.get(f"/api/v1/circuit-imports/{done.json()['import_id']}", headers=OP).json()
+    assert record["areas"][0]["holes_xy_mm"] == area["holes_xy_mm"]
+    # any job stands in for the loop: the net check runs first, the loop's own check after it
+    other = client.post("/api/v1/jobs", headers=OP, json={"kind": "probe_plan", "params": {
+        "trace_ids": [done.json()["traces"][0]["trace"]["id"]]}})
+    assert other.status_code == 202, other.text
+    not_a_loop = other.json()["id"]
+    ok = client.post("/api/v1/jobs", headers=OP, json={"kind": "circuit_program", "params": {
+        "import_id": done.json()["import_id"], "closed_loop_job_id": not_a_loop}})
+    assert ok.status_code == 422 and "closed_loop" in ok.text and "short" not in ok.text
+
+    solid = _import(client, part, gerber_x2(BOARD, with_holes=False))
+    assert solid.status_code == 201, solid.text
+    refused = client.post("/api/v1/jobs", headers=OP, json={"kind": "circuit_program", "params": {
+        "import_id": solid.json()["import_id"], "closed_loop_job_id": not_a_loop}})
+    assert refused.status_code == 422, refused.text
+    problem = refused.json()
+    assert "the print would short nets" in problem["detail"] and "GND" in problem["detail"]
+    assert "area 0 (net GND)" in problem["detail"]
+    error = problem["errors"][0]
+    assert error["loc"] == ["params", "import_id"]
+    short = error["value"]
+    assert short["net_pairs"] == 2 and "GND" in short["nets"] and "area 0" in short["items"]
+    (x, y, _, net), = [p for p in BOARD.pads if p[3] in short["nets"] and p[3] != "GND"]
+    assert shapely.Point(short["at_mm"]).distance(shapely.Point(x + ORIGIN[0], y + ORIGIN[1])) <= 0.75 + 1e-6
+
+
+def test_the_preview_patch_leaves_the_holes_open():
+    import trimesh
+
+    from app.viewer.circuit_preview import _patch
+    from tests.circuits.boards import hole_polygons
+
+    flat = trimesh.creation.box(extents=[100, 100, 2])
+    outline = [[0, 0], [BOARD.width, 0], [BOARD.width, BOARD.height], [0, BOARD.height]]
+    verts, faces = _patch(outline, flat, [h.tolist() for h in hole_polygons(BOARD)])
+    tri = verts[faces][:, :, :2]
+    area = 0.5 * abs((tri[:, 1, 0] - tri[:, 0, 0]) * (tri[:, 2, 1] - tri[:, 0, 1])
+                     - (tri[:, 2, 0] - tri[:, 0, 0]) * (tri[:, 1, 1] - tri[:, 0, 1])).sum()
+    assert area == pytest.approx(BOARD.pour_area(), abs=1e-6)

@@ -1,0 +1,111 @@
+"""Boards generated for the tests (no real board files are shipped): Gerber X2 and KiCad text
+written from plain geometry, so that every count, area and net is known independently.
+
+A *pour board*: a ground pour (net GND) over a W x H rectangle with one square clearance hole
+around each other-net pad, the pads as round flashes (nets VCC, SIG) and one GND trace.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Gerber 4.6 mm coordinates: 1 unit = 1 nm
+_NM = 1_000_000
+
+
+def _xy(x: float, y: float) -> str:
+    return f"X{round(x * _NM)}Y{round(y * _NM)}"
+
+
+@dataclass
+class PourBoard:
+    """The board's plain geometry (mm, y up): pour rectangle, pads (x, y, diameter, net),
+    holes (x, y, side: squares centred on other-net pads) and GND traces ((x0, y0), (x1, y1), width)."""
+
+    width: float = 20.0
+    height: float = 10.0
+    pads: list[tuple[float, float, float, str]] = field(default_factory=lambda: [
+        (5.0, 5.0, 1.5, "VCC"), (15.0, 5.0, 1.5, "SIG"), (10.0, 8.0, 1.0, "GND")])
+    hole_side: float = 3.0
+    trace: tuple[tuple[float, float], tuple[float, float], float] = ((10.0, 8.0), (10.0, 12.0), 0.25)
+
+    @property
+    def holes(self) -> list[tuple[float, float, float]]:
+        return [(x, y, self.hole_side) for x, y, _, net in self.pads if net != "GND"]
+
+    def pour_area(self, with_holes: bool = True) -> float:
+        """The pour's copper area (mm^2), computed from the numbers."""
+        return self.width * self.height - (len(self.holes) * self.hole_side ** 2 if with_holes else 0.0)
+
+    def fractured_outline(self, with_holes: bool = True) -> list[tuple[float, float]]:
+        """The pour as ONE contour, each hole reached by a slit up from the bottom edge (as ECAD
+        plotters write pours with holes): CCW outside, CW around each hole, closed."""
+        w, h = self.width, self.height
+        pts = [(0.0, 0.0)]
+        for x, y, side in (sorted(self.holes) if with_holes else []):
+            a = side / 2
+            pts += [(x, 0.0), (x, y - a), (x - a, y - a), (x - a, y + a), (x + a, y + a), (x + a, y - a),
+                    (x, y - a), (x, 0.0)]
+        return pts + [(w, 0.0), (w, h), (0.0, h), (0.0, 0.0)]
+
+
+def gerber_x2(board: PourBoard, *, with_holes: bool = True, nets: bool = True, extra: str = "") -> str:
+    """The board's top copper as a Gerber X2 file (mm, 4.6), with %TO.N% nets when ``nets``."""
+    out = ["G04 generated pour board*", "%TF.FileFunction,Copper,L1,Top*%", "%FSLAX46Y46*%", "%MOMM*%",
+           "%TA.AperFunction,Conductor*%", f"%ADD10C,{board.trace[2]:.6f}*%", "%TD*%"]
+    diameters = sorted({d for _, _, d, _ in board.pads})
+    for k, d in enumerate(diameters):
+        out += ["%TA.AperFunction,SMDPad,CuDef*%", f"%ADD{11 + k}C,{d:.6f}*%", "%TD*%"]
+
+    def net(name: str) -> list[str]:
+        return [f"%TO.N,{name}*%"] if nets else []
+
+    out += net("GND") + ["G36*"]
+    outline = board.fractured_outline(with_holes)
+    out += [_xy(*outline[0]) + "D02*"] + [_xy(*p) + "D01*" for p in outline[1:]] + ["G37*", "%TD*%"]
+    (x0, y0), (x1, y1), _ = board.trace
+    out += net("GND") + ["D10*", "G01*", _xy(x0, y0) + "D02*", _xy(x1, y1) + "D01*", "%TD*%"]
+    for x, y, d, n in board.pads:
+        out += net(n) + [f"D{11 + diameters.index(d)}*", _xy(x, y) + "D03*", "%TD*%"]
+    return "\n".join(out) + "\n" + extra + "M02*\n"
+
+
+def kicad_board(board: PourBoard, *, with_fill: bool = True, version: int = 20221018,
+                extra: str = "") -> str:
+    """The board as a ``.kicad_pcb`` (KiCad 6+ s-expressions; KiCad's y axis points down, so
+    every y is written negated): the pour as a zone whose filled polygon is the fractured
+    outline (or, without ``with_fill``, the zone outline only), the pads in one footprint."""
+    netnames = ["", *sorted({n for *_, n in board.pads})]
+    number = {n: i for i, n in enumerate(netnames)}
+    pads = "\n".join(
+        f'    (pad "{k + 1}" smd circle (at {x} {-y}) (size {d} {d}) (layers "F.Cu") (net {number[n]} "{n}"))'
+        for k, (x, y, d, n) in enumerate(board.pads))
+    w, h = board.width, board.height
+    zone_pts = " ".join(f"(xy {x} {-y})" for x, y in [(0, 0), (w, 0), (w, h), (0, h)])
+    fill_pts = " ".join(f"(xy {x} {-y})" for x, y in board.fractured_outline()[:-1])
+    fill = f'\n    (filled_polygon (layer "F.Cu") (pts {fill_pts}))' if with_fill else ""
+    (x0, y0), (x1, y1), tw = board.trace
+    nets = "\n".join(f'  (net {i} "{n}")' for i, n in enumerate(netnames))
+    return f"""(kicad_pcb (version {version}) (generator pcbnew)
+  (general (thickness 1.6))
+  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))
+{nets}
+  (footprint "board" (layer "F.Cu") (at 0 0)
+    (property "Reference" "U1")
+{pads}
+  )
+  (segment (start {x0} {-y0}) (end {x1} {-y1}) (width {tw}) (layer "F.Cu") (net {number["GND"]}))
+  (zone (net {number["GND"]}) (net_name "GND") (layer "F.Cu") (hatch edge 0.5)
+    (connect_pads (clearance 0.5)) (min_thickness 0.25)
+    (fill yes (thermal_gap 0.5) (thermal_bridge_width 0.5))
+    (polygon (pts {zone_pts})){fill})
+{extra})
+"""
+
+
+def hole_polygons(board: PourBoard) -> list[np.ndarray]:
+    """The holes as (4, 2) squares (mm)."""
+    return [np.array([[x - s / 2, y - s / 2], [x + s / 2, y - s / 2], [x + s / 2, y + s / 2], [x - s / 2, y + s / 2]])
+            for x, y, s in board.holes]
