@@ -7,9 +7,13 @@ about a second of every server, worker and compute-process start."""
 from __future__ import annotations
 
 from app.circuits.errors import CircuitFileError
-from app.circuits.layout import Layout
+from app.circuits.layout import Layout, LayoutTrace
 
-__all__ = ["FORMATS", "detect_format", "read_layout"]
+__all__ = ["FORMATS", "MIN_TRACE_MM", "detect_format", "read_layout"]
+
+#: the shortest trace that is printed (mm): a piece shorter than this (real boards hold 1 nm
+#: segments from KiCad's editor, 1 um pieces in its DXF export) is below any printer's step
+MIN_TRACE_MM = 0.001
 
 FORMATS = ("kicad", "gerber", "excellon", "dxf", "svg")
 _SUFFIXES = {".kicad_pcb": "kicad", ".gbr": "gerber", ".ger": "gerber", ".gtl": "gerber", ".gbl": "gerber",
@@ -49,10 +53,32 @@ def _text(data: bytes, name: str) -> str:
                 from exc
 
 
+def _without_slivers(layout: Layout) -> Layout:
+    """The layout less its traces no longer than :data:`MIN_TRACE_MM`, each named in a note
+    (its neighbours meet within that length: nothing printable is lost)."""
+    keep: list[LayoutTrace] = []
+    dropped: list[LayoutTrace] = []
+    for t in layout.traces:
+        (keep if t.curve.length > MIN_TRACE_MM * (1 + 1e-6) else dropped).append(t)
+    for t in dropped[:20]:
+        layout.notes.append(f"{t.source.entity}: {t.curve.length:.3g} mm long, shorter than the {MIN_TRACE_MM} mm "
+                            "resolution: dropped")
+    if len(dropped) > 20:
+        layout.notes.append(f"{len(dropped) - 20} more traces shorter than {MIN_TRACE_MM} mm dropped")
+    layout.traces = keep
+    return layout
+
+
 def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str] | None = None) -> Layout:
     """A file's layout in mm (``fmt`` None = auto-detect).  ``layers``: KiCad copper layer (one),
     DXF layers, SVG group ids/labels, a Gerber file's function; None takes the default
-    (KiCad F.Cu, everything else all)."""
+    (KiCad F.Cu, everything else all).  Traces shorter than :data:`MIN_TRACE_MM` are dropped
+    with a note."""
+    return _without_slivers(_read(data, name, fmt, layers))
+
+
+def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> Layout:
+    """The importer's layout of the file, as it reads it."""
     fmt = fmt or detect_format(name, data)
     if fmt not in FORMATS:
         raise CircuitFileError(f"unknown format {fmt!r}; one of {', '.join(FORMATS)}", file=name, field="format")

@@ -84,3 +84,19 @@ def test_the_preview_patch_leaves_the_holes_open():
     area = 0.5 * abs((tri[:, 1, 0] - tri[:, 0, 0]) * (tri[:, 2, 1] - tri[:, 0, 1])
                      - (tri[:, 2, 0] - tri[:, 0, 0]) * (tri[:, 1, 1] - tri[:, 0, 1])).sum()
     assert area == pytest.approx(BOARD.pour_area(), abs=1e-6)
+
+
+@pytest.mark.parametrize("mapping", ["project", "wrap"])
+@pytest.mark.parametrize(("kind", "name"), [("kicad", "board.kicad_pcb"), ("gerber", "top.gbr"), ("dxf", "cu.dxf")])
+def test_a_board_with_a_sliver_imports_with_a_note(client, part, kind, name, mapping):
+    from tests.circuits.boards import sliver_tracks
+
+    done = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                       files=[("files", (name, sliver_tracks(kind).encode()))],
+                       data={"options": json.dumps({"origin_mm": [0, 0] if kind != "kicad" else [0, 20],
+                                                    "mapping": mapping})})
+    assert done.status_code == 201, done.text
+    body = done.json()
+    assert len(body["traces"]) == 2 and all(t["on_part"] for t in body["traces"])
+    assert not [w for w in body["warnings"] if w["kind"] == "leaves_part"]
+    assert any("shorter than" in n for n in body["files"][0]["notes"])

@@ -109,3 +109,35 @@ def hole_polygons(board: PourBoard) -> list[np.ndarray]:
     """The holes as (4, 2) squares (mm)."""
     return [np.array([[x - s / 2, y - s / 2], [x + s / 2, y - s / 2], [x + s / 2, y + s / 2], [x - s / 2, y + s / 2]])
             for x, y, s in board.holes]
+
+
+def sliver_tracks(kind: str) -> str:
+    """A 20 mm track broken by a piece shorter than the format's resolution (as real boards
+    hold them): KiCad and Gerber 1 nm, DXF 1 um, between two ordinary segments."""
+    tiny = 1e-6 if kind in ("kicad", "gerber") else 1e-3
+    pts = [(10.0, 10.0), (20.0, 10.0), (20.0 + tiny, 10.0), (30.0, 10.0)]
+    if kind == "kicad":
+        segs = "\n".join(f'  (segment (start {a[0]:.6f} {-a[1]:.6f}) (end {b[0]:.6f} {-b[1]:.6f}) (width 0.25) '
+                         f'(layer "F.Cu") (net 1))' for a, b in zip(pts, pts[1:]))
+        return f"""(kicad_pcb (version 20221018) (generator pcbnew)
+  (general (thickness 1.6))
+  (layers (0 "F.Cu" signal) (31 "B.Cu" signal))
+  (net 0 "")
+  (net 1 "SIG")
+{segs}
+)
+"""
+    if kind == "gerber":
+        draws = "\n".join(f"{_xy(*a)}D02*\n{_xy(*b)}D01*" for a, b in zip(pts, pts[1:]))
+        return f"%FSLAX46Y46*%\n%MOMM*%\n%ADD10C,0.250000*%\nD10*\nG01*\n{draws}\nM02*\n"
+    import io
+
+    import ezdxf
+
+    doc = ezdxf.new()
+    doc.header["$INSUNITS"] = 4
+    for a, b in zip(pts, pts[1:]):
+        doc.modelspace().add_line(a, b, dxfattribs={"layer": "CU", "lineweight": 25})
+    out = io.StringIO()
+    doc.write(out)
+    return out.getvalue()
