@@ -21,7 +21,7 @@ from app.circuits.formats import read_layout
 from app.circuits.mapping import MappingOptions, map_layout
 from app.circuits.nets import area_polygon
 from app.circuits.pad_probes import probe_ring
-from app.circuits.placement import LayoutPlacement
+from app.circuits.placement import LayoutPlacement, board_center
 from app.errors import ConformaError, InvalidInput
 from app.geometry.traces import TracePolyline
 from app.jobs.kinds.circuit_program import import_probe_trace_ids, stored_areas
@@ -40,8 +40,14 @@ class CircuitImportOptions(Strict):
         None, description="auto-detected from the name and content when omitted")
     layers: list[str] | None = Field(None, max_length=50, description="KiCad copper layer (one; default F.Cu), "
                                      "DXF layers, SVG group ids/labels; default all")
-    origin_mm: list[Finite] = Field([0.0, 0.0], min_length=2, max_length=2,
-                                    description="top-view point where the layout's (0, 0) lands; the wrap anchor")
+    origin_mm: list[Finite] | None = Field(None, min_length=2, max_length=2,
+                                           description="top-view point (mm) where the anchor lands, the wrap's "
+                                                       "centre; default: the middle of the part's top view "
+                                                       "(anchor board_center) or (0, 0) (file_origin)")
+    anchor: Literal["board_center", "file_origin"] | None = Field(
+        None, description="the layout point put on origin_mm: the board's centre (its outline's, else its "
+                          "copper's bounding box; the default without origin_mm) or the file's (0, 0) (the "
+                          "default with origin_mm)")
     rotation_deg: Finite = 0.0
     mirror: bool = Field(False, description="mirror the layout in x (bottom layers)")
     mapping: Literal["project", "wrap"] = "project"
@@ -63,6 +69,7 @@ class ImportedFile(BaseModel):
     traces: int
     pads: int
     areas: int
+    vias: int = Field(0, description="vias read (interconnect points; not pads, not filled)")
 
 
 class ImportedTrace(BaseModel):
@@ -108,7 +115,13 @@ class CircuitImportOut(BaseModel):
         "pad_probe): give probe_trace_ids to the closed loop with the import's traces so the fills "
         "are compensated from stations on them"))
     probe_trace_ids: list[str] = Field(default_factory=list)
+    vias: list[dict[str, Any]] = Field(default_factory=list, description="every via: center_mm on the part, "
+                                       "diameter_mm, drill_mm, net, layers, on_part, file")
+    outline: list[list[list[float]]] = Field(default_factory=list, description="the board's edge (KiCad "
+                                             "Edge.Cuts, a Gerber profile) as rings in the top view, mm")
     warnings: list[dict[str, Any]]
+    placement: dict[str, Any] = Field(default_factory=dict, description="where the layout landed: origin_mm "
+                                      "(top view), anchor and anchor_mm (the layout point put there)")
     preview: dict[str, Any] | None = Field(None, description="with dry_run and view_id: the 3-D view drawn "
                                            "(view_id, generation, nodes) or why it could not be")
 
@@ -137,6 +150,10 @@ def _options(raw: str) -> CircuitImportOptions:
         raise InvalidInput(f"{loc}: {err['msg']}", field=loc, value=err.get("input")) from None
 
 
+def _file_name(upload: UploadFile) -> str:
+    return (upload.filename or "circuit").rsplit("/", 1)[-1]
+
+
 def _finite(v: float) -> float | None:
     return None if v != v else round(float(v), 6)
 
@@ -153,23 +170,32 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     part = get_or_404(session, Part, part_id)
     if len(files) > MAX_FILES:
         raise InvalidInput(f"at most {MAX_FILES} files per import", field="files", value=len(files))
-    placement = LayoutPlacement(tuple(opts.origin_mm), opts.rotation_deg, opts.mirror)
     mesh = runtime.meshes.mesh(part)
+    layouts = [(name, read_layout(upload.file.read(), name, opts.format, opts.layers))
+               for name, upload in ((_file_name(u), u) for u in files)]
+    anchor = opts.anchor or ("file_origin" if opts.origin_mm is not None else "board_center")
+    origin = opts.origin_mm if opts.origin_mm is not None else (
+        mesh.bounds[:, :2].mean(axis=0).tolist() if anchor == "board_center" else [0.0, 0.0])
+    anchor_xy = board_center([lay for _, lay in layouts]) if anchor == "board_center" else (0.0, 0.0)
+    placement = LayoutPlacement((float(origin[0]), float(origin[1])), opts.rotation_deg, opts.mirror,
+                                (float(anchor_xy[0]), float(anchor_xy[1])))
     mapping = MappingOptions(opts.mapping, opts.max_stretch)
     import_id = new_id("cimp")
     out = CircuitImportOut(import_id=import_id, dry_run=opts.dry_run, files=[], traces=[], pads=[], areas=[],
                            warnings=[])
     records: list = []
     pad_records: list = []
-    for upload in files:
-        name = (upload.filename or "circuit").rsplit("/", 1)[-1]
-        layout = read_layout(upload.file.read(), name, opts.format, opts.layers)
+    out.placement = {"origin_mm": [round(float(v), 6) for v in placement.origin_mm], "anchor": anchor,
+                     "anchor_mm": [round(float(v), 6) for v in placement.anchor_mm]}
+    for name, layout in layouts:
         if len(out.traces) + len(layout.traces) > MAX_TRACES:
             raise InvalidInput(f"more than {MAX_TRACES} traces in one import", field="files", value=name)
         mapped = map_layout(layout, placement, mesh, mapping)
         out.files.append(ImportedFile(file=name, format=layout.format, units=layout.units,
                                       layers=list(layout.layers), notes=layout.notes, traces=len(layout.traces),
-                                      pads=len(layout.pads), areas=len(layout.areas)))
+                                      pads=len(layout.pads), areas=len(layout.areas), vias=len(layout.vias)))
+        out.vias += [dict(v, file=name) for v in mapped.vias]
+        out.outline += [r.round(6).tolist() for r in mapped.outline]
         base = len(out.traces)
         for w in mapped.warnings:
             w = dict(w, file=name)

@@ -26,15 +26,19 @@ from shapely.ops import unary_union
 
 from app.circuits.curves import arc_center, line
 from app.circuits.errors import CircuitFileError
-from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, arc_points
-from app.circuits.shapes import CHORD_MM, ring_of, rotate
+from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, Via, arc_points
+from app.circuits.shapes import CHORD_MM, outline_rings, ring_of, rotate
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.tolerance import LENGTH_EPS_MM
 
 #: floor (rad) added to a circle's chord angle so that its segment count stays finite
 _MIN_CHORD_ANGLE_RAD = 1e-12
 
-__all__ = ["read_gerber", "read_excellon"]
+__all__ = ["read_gerber", "read_excellon", "NOT_PRINTED"]
+
+#: X2 aperture functions of objects that are not conductors (graphics, copper text, the board
+#: profile): never printed; everything else (Conductor, the pads, no attribute at all) is
+NOT_PRINTED = frozenset({"NonConductor", "Profile", "Material", "Other"})
 
 _WHERE = re.compile(r'^.*?:(\d+)\s+"(.*?)":\s*(.*)$', re.S)
 _Parsed = TypeVar("_Parsed")  # what a gerbonara loader returns (GerberFile, ExcellonFile): untyped library
@@ -67,7 +71,8 @@ def _parse(loader: Callable[..., _Parsed], text: str, name: str) -> _Parsed:
 
 class _RegionAttributeParser(GerberParser):  # type: ignore[misc]
     """gerbonara's parser, but each region (G36 ... G37) keeps the object attributes (%TO%, e.g.
-    the X2 net ``.N``) in effect at its end, as lines and flashes already do."""
+    the X2 net ``.N``) and the aperture attributes (%TA%, e.g. ``.AperFunction``) in effect at
+    its end, as lines and flashes keep theirs."""
 
     def _parse_region_start(self, match: re.Match[str]) -> None:
         self._region_first = len(self.target.objects)
@@ -77,7 +82,7 @@ class _RegionAttributeParser(GerberParser):  # type: ignore[misc]
         super()._parse_region_end(match)
         for obj in self.target.objects[getattr(self, "_region_first", len(self.target.objects)):]:
             if isinstance(obj, go.Region):
-                obj.attrs = dict(self.graphics_state.object_attrs)
+                obj.attrs = {**self.aperture_attrs, **self.graphics_state.object_attrs}
 
 
 def _load_gerber(text: str, filename: str) -> GerberFile:
@@ -179,6 +184,18 @@ def _net(obj: go.GraphicObject) -> str:
     return str(value or "")
 
 
+def _function(obj: go.GraphicObject) -> str:
+    """The X2 aperture function (``.AperFunction``: Conductor, SMDPad, ViaPad, NonConductor,
+    Profile...) of a draw, flash or region; "" when the file does not say."""
+    attrs = getattr(obj, "attrs", None)
+    value = attrs.get(".AperFunction") if isinstance(attrs, dict) else None
+    if value is None and getattr(obj, "aperture", None) is not None:
+        value = dict(getattr(obj.aperture, "attrs", None) or ()).get(".AperFunction")
+    if isinstance(value, (list, tuple)):
+        value = value[0] if value else ""
+    return str(value or "")
+
+
 def _layer_name(gerber: GerberFile, name: str) -> str:
     """The X2 file function (%TF.FileFunction%) of a Gerber file, else the file name."""
     attrs = getattr(gerber, "file_attrs", None) or {}
@@ -199,7 +216,18 @@ def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
     out = Layout(file=name, format="gerber", units=getattr(unit, "name", "mm") if unit else "mm",
                  layers=(layer_name,))
     draws = flashes = 0
+    profile = layer_name.startswith("Profile")            # a whole file of board outline
+    edge: list[LineString] = []
+    skipped: dict[str, int] = {}
     for obj in gerber.objects:
+        function = "Profile" if profile else _function(obj)
+        if function in NOT_PRINTED:
+            if function == "Profile" and isinstance(obj, (go.Line, go.Arc)):
+                curve = _draw_curve(obj)
+                if curve is not None:
+                    edge.append(LineString(curve.evaluate(np.linspace(*curve.domain, 2 if curve.degree == 1 else 65))))
+            skipped[function] = skipped.get(function, 0) + 1
+            continue
         if isinstance(obj, (go.Line, go.Arc)):
             draws += 1
             width = _draw_width(obj, name, draws)
@@ -216,7 +244,12 @@ def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
         elif isinstance(obj, go.Flash):
             flashes += 1
             src = Source(name, layer_name, _net(obj), 0.0, f"flash {flashes} (D{obj.aperture.original_number})")
-            out.pads.append(_flash_pad(obj, src, flashes))
+            pad = _flash_pad(obj, src, flashes)
+            if function == "ViaPad":       # a via's land: an interconnect point, not a pad to fill
+                span = pad.exterior.max(axis=0) - pad.exterior.min(axis=0)
+                out.vias.append(Via(pad.center, float(span.max()), 0.0, src.net, (layer_name,)))
+                continue
+            out.pads.append(pad)
         elif isinstance(obj, go.Region):
             f = MM.convert_from(obj.unit, 1.0)
             outline = [(x * f, y * f) for x, y in obj.outline]
@@ -231,21 +264,31 @@ def read_gerber(text: str, name: str, layer: str | None = None) -> Layout:
                 holes = tuple(np.asarray(h.coords)[:-1] for h in g.interiors)
                 out.areas.append(Area(ring_of(g), holes, Source(name, layer_name, _net(obj), 0.0,
                                                                 f"region {len(out.areas) + 1}")))
+    out.outline = outline_rings(edge)
+    out.notes += [f"{n} {function} object(s) (X2 aperture function) are not conductors: not printed"
+                  + (" (the board outline: its boundary)" if function == "Profile" else "")
+                  for function, n in skipped.items()]
+    if out.vias:
+        out.notes.append(f"{len(out.vias)} via pad(s) read: reported as interconnect points, not filled as pads")
     return out
 
 
 def read_excellon(text: str, name: str, layer: str | None = None) -> Layout:
-    """Drill hits as round pads (tool diameter), routed slots as traces; mm."""
+    """Drill hits as holes (``vias``: where the layers join, tool diameter), never pads to fill;
+    routed slots are noted, not printed; mm."""
     drill = _parse(ExcellonFile.from_string, text, name)
     out = Layout(file=name, format="excellon", units="mm", layers=("drill",))
-    for k, obj in enumerate(drill.objects, start=1):
+    slots = 0
+    for obj in drill.objects:
         tool = obj.aperture
         dia = float(MM.convert_from(tool.unit, tool.diameter))
-        src = Source(name, "drill", "", dia, f"hit {k} (T{tool.original_number or ''})".replace(" ()", ""))
         if isinstance(obj, go.Flash):
-            out.pads.append(_flash_pad(obj, src, k))
-        elif isinstance(obj, (go.Line, go.Arc)):
-            curve = _draw_curve(obj)
-            if curve is not None:
-                out.traces.append(LayoutTrace(curve, src))
+            center = np.array([MM.convert_from(obj.unit, obj.x), MM.convert_from(obj.unit, obj.y)])
+            out.vias.append(Via(center, dia, dia, "", ("drill",)))
+        else:
+            slots += 1
+    if slots:
+        out.notes.append(f"{slots} routed slot(s) are holes, not conductors: not printed")
+    if out.vias:
+        out.notes.append(f"{len(out.vias)} drill hit(s) read as holes (vias), not pads to fill")
     return out

@@ -8,6 +8,7 @@ coordinate is (X, -Y) and KiCad's angles (counter-clockwise on screen) stay as t
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -15,16 +16,21 @@ from kiutils.board import Board
 from kiutils.footprint import Footprint
 from kiutils.items.common import Position
 from kiutils.utils import sexpr
-from shapely.geometry import Polygon
+from shapely.geometry import LineString, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from app.circuits.curves import arc_three_points, line
 from app.circuits.errors import CircuitFileError
-from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source
-from app.circuits.shapes import pad_outline, ring_of, rotate
+from app.circuits.kicad_pads import kicad_pad_outline
+from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, Via, circle_ring
+from app.circuits.shapes import CHORD_MM, outline_rings, ring_of, rotate
 from app.geometry.tolerance import LENGTH_EPS_MM
 
-__all__ = ["read_kicad"]
+__all__ = ["read_kicad", "OLDEST_VERSION"]
+
+#: the oldest board format read: KiCad 5's (its footprints are ``module`` items); KiCad 6, 7
+#: and 8 boards (20211014 .. 2024xxxx) have ``footprint`` items and arcs
+OLDEST_VERSION = 20171130
 
 _TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[()]|\n')
 
@@ -69,6 +75,55 @@ def _polygons(geom: BaseGeometry) -> list[Polygon]:
     return [g for g in getattr(geom, "geoms", [geom]) if isinstance(g, Polygon) and g.area > 0]
 
 
+def _version(tree: list[Any], name: str) -> int:
+    """The board's format version (a date, e.g. 20221018 for KiCad 7); CircuitFileError for one
+    older than KiCad 5's (KiCad 4 and before: version 3, 4) or a file that is no board."""
+    if not isinstance(tree, list) or not tree or tree[0] != "kicad_pcb":
+        raise CircuitFileError("not a KiCad board (it does not start with kicad_pcb)", file=name, where="line 1")
+    found = [item[1] for item in tree[1:] if isinstance(item, list) and len(item) > 1 and item[0] == "version"]
+    try:
+        version = int(found[0]) if found else 0
+    except (TypeError, ValueError):
+        version = 0
+    if version < OLDEST_VERSION:
+        raise CircuitFileError(f"KiCad board format version {found[0] if found else 'missing'} is older than "
+                               f"KiCad 5 ({OLDEST_VERSION}): open and save it in KiCad 5 or newer first",
+                               file=name, where=f"version {found[0] if found else 'missing'}")
+    return version
+
+
+def _rect_delta(pad: list[Any]) -> tuple[float, float] | None:
+    """A pad s-expression's ``rect_delta`` (dx, dy) mm (trapezoids; kiutils does not read it)."""
+    for item in pad:
+        if isinstance(item, list) and len(item) >= 3 and item[0] == "rect_delta":
+            return float(item[1]), float(item[2])
+    return None
+
+
+def _edge_rings(board: Board) -> list[npt.NDArray[np.float64]]:
+    """The board outline (Edge.Cuts lines, arcs, rectangles, circles, polygons) as closed rings
+    (k, 2) mm, y up, largest first."""
+    lines: list[LineString] = []
+    for item in board.graphicItems:
+        if getattr(item, "layer", None) != "Edge.Cuts":
+            continue
+        kind = type(item).__name__
+        if kind == "GrLine":
+            lines.append(LineString([_up(item.start), _up(item.end)]))
+        elif kind == "GrArc":
+            curve = arc_three_points(_up(item.start), _up(item.mid), _up(item.end))
+            lines.append(LineString(curve.evaluate(np.linspace(*curve.domain, 97))))
+        elif kind == "GrRect":
+            (x0, y0), (x1, y1) = _up(item.start), _up(item.end)
+            lines.append(LineString([(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)]))
+        elif kind == "GrCircle":
+            c = _up(item.center)
+            lines.append(Polygon(circle_ring(c, float(np.linalg.norm(_up(item.end) - c)), CHORD_MM)).exterior)
+        elif kind == "GrPoly":
+            lines.append(Polygon([_up(p) for p in item.coordinates]).exterior)
+    return outline_rings(lines)
+
+
 def _reference(fp: Footprint) -> str:
     """A footprint's reference designator (else its library id)."""
     props = getattr(fp, "properties", None) or {}
@@ -87,10 +142,16 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
     when it is not a copper layer of the board.
     """
     _check_brackets(text, name)
+    tree = sexpr.parse_sexp(text)
+    version = _version(tree, name)
     try:
-        board = Board.from_sexpr(sexpr.parse_sexp(text))
+        board = Board.from_sexpr(tree)
+        modules = [item for item in tree[1:] if isinstance(item, list) and item and item[0] in ("module", "footprint")]
+        if not board.footprints:       # KiCad 5 calls its footprints modules; kiutils reads them one by one
+            board.footprints = [Footprint.from_sexpr(item) for item in modules]
     except Exception as exc:   # kiutils raises bare Exceptions for bad structure
         raise CircuitFileError(f"not a KiCad board: {exc}", file=name, where="kicad_pcb") from exc
+    deltas = [[_rect_delta(p) for p in item if isinstance(p, list) and p and p[0] == "pad"] for item in modules]
     copper = tuple(lt.name for lt in board.layers if lt.name.endswith(".Cu"))
     layer = layer or "F.Cu"
     if copper and layer not in copper:
@@ -112,18 +173,22 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
         curve = line(start, end) if kind == "Segment" else arc_three_points(start, _up(item.mid), end)
         src = Source(name, layer, nets.get(item.net, ""), width, entity)
         out.traces.append(LayoutTrace(curve, src))
-    for fp in board.footprints:
+    holes = 0
+    for f, fp in enumerate(board.footprints):
         fp_xy = _up(fp.position)
         fp_angle = np.radians(float(fp.position.angle or 0.0))
         ref = _reference(fp)
-        for pad in fp.pads:
+        for j, pad in enumerate(fp.pads):
             if not _on_layer(list(pad.layers), layer):
+                continue
+            if pad.type == "np_thru_hole":       # a bare hole (mounting, tooling): no copper to print
+                holes += 1
                 continue
             local = np.array([float(pad.position.X), -float(pad.position.Y)])
             center = fp_xy + rotate(local[None, :], fp_angle)[0]
-            w, h = float(pad.size.X), float(pad.size.Y or pad.size.X)
-            radius = float(pad.roundrectRatio or 0.0) * min(w, h)
-            outline = pad_outline(pad.shape, w, h, corner_radius=radius)
+            delta = deltas[f][j] if f < len(deltas) and j < len(deltas[f]) else None
+            outline = kicad_pad_outline(pad, delta)
+            # a pad's angle in a file is absolute (footprint's included) in every version read
             angle = np.radians(float(pad.position.angle or 0.0))
             net = pad.net.name if pad.net is not None else ""
             src = Source(name, layer, net, 0.0, f"pad {ref}.{pad.number}")
@@ -131,7 +196,7 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
     for k, zone in enumerate(board.zones):
         if layer not in (zone.layers or []) or zone.keepoutSettings is not None:
             continue
-        filled = [fp for fp in zone.filledPolygons if fp.layer == layer]
+        filled = [fp for fp in zone.filledPolygons if fp.layer in (layer, None)]   # KiCad 5: no layer
         rings = [fp.coordinates for fp in filled] or [zp.coordinates for zp in zone.polygons]
         src = Source(name, layer, zone.netName or nets.get(zone.net, ""), 0.0,
                      f"zone {k} ({'filled' if filled else 'outline'})")
@@ -140,4 +205,16 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
             if len(pts) >= 3:         # a filled polygon is fractured (holes joined by slits): unfold it
                 out.areas += [Area(ring_of(g), tuple(np.asarray(h.coords)[:-1] for h in g.interiors), src)
                               for g in _polygons(Polygon(pts).buffer(0))]
+    for item in board.traceItems:
+        if type(item).__name__ == "Via" and ((item.type or "") not in ("blind", "micro") or layer in item.layers):
+            out.vias.append(Via(_up(item.position), float(item.size), float(item.drill or 0.0),
+                                nets.get(item.net, ""), tuple(item.layers)))
+    out.outline = _edge_rings(board)
+    if holes:
+        out.notes.append(f"{holes} non-plated hole(s) (mounting, tooling) are not copper: not printed")
+    if out.vias:
+        out.notes.append(f"{len(out.vias)} via(s) read: reported as interconnect points, not filled as pads")
+    if not (out.traces or out.pads or out.areas):
+        raise CircuitFileError(f"nothing to print on {layer}: no tracks, pads or zones on that layer (board format "
+                               f"{version})", file=name, where=f"layer {layer}", field="layers")
     return out

@@ -18,7 +18,7 @@ from app.geometry.nurbs import NurbsCurve
 #: floor (rad) of an arc's angular step so that its point count stays finite
 _MIN_ARC_STEP_RAD = 1e-9
 
-__all__ = ["Source", "LayoutTrace", "Pad", "Area", "Layout", "circle_ring", "arc_points"]
+__all__ = ["Source", "LayoutTrace", "Pad", "Area", "Via", "Layout", "circle_ring", "arc_points"]
 
 
 @dataclass(frozen=True)
@@ -70,9 +70,23 @@ class Area:
     source: Source
 
 
+@dataclass(frozen=True)
+class Via:
+    """A plated hole joining copper layers: ``center`` (2,) mm, copper ``diameter_mm``, ``drill_mm``
+    (0 when unknown), its net and the layers it joins.  Not a pad: it is reported, not filled."""
+
+    center: npt.NDArray[np.float64]
+    diameter_mm: float
+    drill_mm: float
+    net: str = ""
+    layers: tuple[str, ...] = ()
+
+
 @dataclass
 class Layout:
-    """Everything one file contributes; ``units`` names the file's own unit (converted to mm)."""
+    """Everything one file contributes; ``units`` names the file's own unit (converted to mm).
+    ``vias``: interconnect points (not printed as pads); ``outline``: the board's edge as
+    closed rings (k, 2) mm (KiCad Edge.Cuts, a Gerber profile): the boundary, not traces."""
 
     file: str
     format: str
@@ -80,6 +94,8 @@ class Layout:
     traces: list[LayoutTrace] = field(default_factory=list)
     pads: list[Pad] = field(default_factory=list)
     areas: list[Area] = field(default_factory=list)
+    vias: list[Via] = field(default_factory=list)
+    outline: list[npt.NDArray[np.float64]] = field(default_factory=list)
     layers: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)
 

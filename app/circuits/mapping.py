@@ -82,10 +82,15 @@ class MappedArea:
 
 @dataclass
 class MappedLayout:
+    """``vias``: API dicts (center_mm on the surface, NaN off the part; diameter_mm, drill_mm,
+    net, layers); ``outline``: the board's edge rings (k, 2) mm in the top view."""
+
     traces: list[MappedTrace]
     pads: list[MappedPad]
     areas: list[MappedArea]
     warnings: list[dict[str, Any]] = field(default_factory=list)
+    vias: list[dict[str, Any]] = field(default_factory=list)
+    outline: list[npt.NDArray[np.float64]] = field(default_factory=list)
 
 
 def _distinct(points: npt.NDArray[np.float64], min_gap_mm: float = 1e-5) -> npt.NDArray[np.float64]:
@@ -205,4 +210,12 @@ def map_layout(layout: Layout, placement: LayoutPlacement, mesh: trimesh.Trimesh
     widths = [t.source.width_mm for t in placed.traces]
     nets = [t.source.net for t in placed.traces]
     warnings += _spacing_warnings(traces, widths, nets)
-    return MappedLayout(traces, pads, areas, warnings)
+    via_points = to_surface(np.array([v.center for v in placed.vias])) if placed.vias else np.zeros((0, 3))
+    vias = [{"center_mm": [None if not np.isfinite(c) else round(float(c), 6) for c in p], "diameter_mm": v.diameter_mm,
+             "drill_mm": v.drill_mm, "net": v.net, "layers": list(v.layers), "on_part": bool(np.isfinite(p).all())}
+            for v, p in zip(placed.vias, via_points)]
+    outline = []
+    for r in placed.outline:             # an edge off the part (wrap) stays where the layout puts it
+        on = to_surface(r)[:, :2] if walker is not None else r
+        outline.append(np.where(np.isfinite(on), on, r + origin))
+    return MappedLayout(traces, pads, areas, warnings, vias, outline)

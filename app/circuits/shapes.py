@@ -8,7 +8,7 @@ from shapely.geometry import LineString, Polygon, box
 
 from app.circuits.layout import circle_ring
 
-__all__ = ["pad_outline", "rotate", "ring_of"]
+__all__ = ["pad_outline", "rotate", "ring_of", "outline_rings"]
 
 CHORD_MM = 0.001
 
@@ -56,3 +56,15 @@ def pad_outline(shape: str, width: float, height: float, *, corner_radius: float
         inner = box(-width / 2 + r, -height / 2 + r, width / 2 - r, height / 2 - r)
         return ring_of(inner.buffer(r, quad_segs=_quad_segs(r), join_style="round"))
     return ring_of(box(-width / 2, -height / 2, width / 2, height / 2))
+
+
+def outline_rings(lines: list[LineString]) -> list[npt.NDArray[np.float64]]:
+    """The closed rings (k, 2) mm, largest first, that a board outline's strokes enclose
+    (lines, sampled arcs, closed rings; in any order, noded where they meet)."""
+    import shapely
+
+    if not lines:
+        return []
+    faces = shapely.get_parts(shapely.polygonize(shapely.get_parts(shapely.union_all(lines))))
+    polys = [g for g in faces if isinstance(g, Polygon) and g.area > 0]
+    return [ring_of(g) for g in sorted(polys, key=lambda g: -g.area)]

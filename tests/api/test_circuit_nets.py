@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 import shapely
 from shapely.geometry import box
@@ -100,3 +101,36 @@ def test_a_board_with_a_sliver_imports_with_a_note(client, part, kind, name, map
     assert len(body["traces"]) == 2 and all(t["on_part"] for t in body["traces"])
     assert not [w for w in body["warnings"] if w["kind"] == "leaves_part"]
     assert any("shorter than" in n for n in body["files"][0]["notes"])
+
+
+def test_a_kicad_board_as_saved_lands_over_the_part_with_vias_and_outline(client, part):
+    """KiCad's page origin is far from the board: with no origin given, the board's centre (its
+    Edge.Cuts outline's) goes over the middle of the part; vias and the outline are reported."""
+    from tests.circuits.boards import kicad_pads_board
+
+    far = kicad_pads_board().replace("(at 40 20)", "(at 140 120)").replace("(start 30 30) (end 45 30)",
+                                                                             "(start 130 130) (end 145 130)")
+    far = far.replace("(via (at 45 30)", "(via (at 145 130)")
+    for a, b in (("(start 0 0)", "(start 100 100)"), ("(end 60 0)", "(end 160 100)"), ("(start 60 0)", "(start 160 100)"),
+                 ("(end 60 40)", "(end 160 140)"), ("(start 60 40)", "(start 160 140)"), ("(end 0 40)", "(end 100 140)"),
+                 ("(start 0 40)", "(start 100 140)"), ("(end 0 0)", "(end 100 100)")):
+        far = far.replace(a, b)
+    response = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                           files=[("files", ("board.kicad_pcb", far.encode()))],
+                           data={"options": json.dumps({"dry_run": True})})
+    assert response.status_code == 201, response.text
+    body = response.json()
+    mesh = s1_mesh(grid_mm=1.0)
+    middle = mesh.bounds[:, :2].mean(axis=0)
+    assert body["placement"]["anchor"] == "board_center"
+    assert body["placement"]["anchor_mm"] == pytest.approx([130, -120])      # KiCad (130, 120), y up
+    assert body["placement"]["origin_mm"] == pytest.approx(middle.tolist())
+    (edge,) = body["outline"]
+    edge = np.array(edge)
+    np.testing.assert_allclose(0.5 * (edge.min(0) + edge.max(0)), middle, atol=1e-6)
+    assert all(t["on_part"] for t in body["traces"]) and all(p["on_part"] for p in body["pads"])
+    (via,) = body["vias"]
+    # the via sits 15 mm right of and 10 mm below the board's centre (KiCad y down)
+    np.testing.assert_allclose(via["center_mm"][:2], middle + [15, -10], atol=1e-6)
+    assert via["on_part"] and via["net"] == "SIG" and body["files"][0]["vias"] == 1
+    assert len(body["traces"]) == 1                     # Edge.Cuts is the boundary, not four traces

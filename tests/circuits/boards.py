@@ -141,3 +141,59 @@ def sliver_tracks(kind: str) -> str:
     out = io.StringIO()
     doc.write(out)
     return out.getvalue()
+
+
+#: the special pads of :func:`kicad_pads_board`: name -> (centre in KiCad's frame (y down), area mm^2)
+SPECIAL_PADS = {
+    "U2.T": ((40.0, 20.0), 2.0),                                             # trapezoid 2 x 1, delta 0.5
+    "U2.C": ((45.0, 20.0), 4.0),                                             # custom: anchor + 2x2 polygon
+    "U2.R": ((50.0, 20.0), 2.0 - 2 * (1 - np.pi / 4) * 0.25 ** 2 - 2 * 0.2 ** 2 / 2),   # 2 round, 2 chamfered
+}
+
+
+def kicad_pads_board(version: int = 20221018) -> str:
+    """A board with the pads KiCad draws specially (a trapezoid, a custom pad, a chamfered
+    round-rect), a bare mounting hole (NPTH), a via, a track and an Edge.Cuts outline
+    (0..60 x 0..40 in KiCad's frame).  ``version`` < 20211014 writes KiCad 5's syntax
+    (``module``, the reference as fp_text)."""
+    kicad5 = version < 20211014
+    head = "module" if kicad5 else "footprint"
+    ref = '(fp_text reference "U2" (at 0 -3) (layer "F.SilkS"))' if kicad5 else '(property "Reference" "U2")'
+    return f"""(kicad_pcb (version {version}) (generator pcbnew)
+  (general (thickness 1.6))
+  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))
+  (net 0 "")
+  (net 1 "SIG")
+  ({head} "special" (layer "F.Cu") (at 40 20)
+    {ref}
+    (pad "T" smd trapezoid (at 0 0) (size 2 1) (rect_delta 0.5 0) (layers "F.Cu") (net 1 "SIG"))
+    (pad "C" smd custom (at 5 0) (size 0.5 0.5) (layers "F.Cu") (net 1 "SIG")
+      (options (clearance outline) (anchor circle))
+      (primitives (gr_poly (pts (xy -1 -1) (xy 1 -1) (xy 1 1) (xy -1 1)) (width 0))))
+    (pad "R" smd roundrect (at 10 0) (size 2 1) (layers "F.Cu") (roundrect_rratio 0.25)
+      (chamfer_ratio 0.2) (chamfer top_left bottom_right) (net 1 "SIG"))
+    (pad "" np_thru_hole circle (at 15 0) (size 4.3 4.3) (drill 4.3) (layers "*.Cu" "*.Mask"))
+  )
+  (segment (start 30 30) (end 45 30) (width 0.25) (layer "F.Cu") (net 1))
+  (via (at 45 30) (size 0.8) (drill 0.4) (layers "F.Cu" "B.Cu") (net 1))
+  (gr_line (start 0 0) (end 60 0) (layer "Edge.Cuts") (width 0.1))
+  (gr_line (start 60 0) (end 60 40) (layer "Edge.Cuts") (width 0.1))
+  (gr_line (start 60 40) (end 0 40) (layer "Edge.Cuts") (width 0.1))
+  (gr_line (start 0 40) (end 0 0) (layer "Edge.Cuts") (width 0.1))
+)
+"""
+
+
+def x2_graphics(board: PourBoard) -> str:
+    """What KiCad's Gerber X2 plot adds to a copper layer that is no conductor: copper text
+    (draws with aperture function NonConductor), the board profile (Profile draws around
+    -1..W+1 x -1..H+3) and a via's land (a ViaPad flash at (12, 2), 0.8 mm)."""
+    w, h = board.width + 1, board.height + 3
+    profile = [(-1.0, -1.0), (w, -1.0), (w, h), (-1.0, h), (-1.0, -1.0)]
+    lines = ["%TA.AperFunction,NonConductor*%", "%ADD50C,0.150000*%", "%TD*%",
+             "%TA.AperFunction,Profile*%", "%ADD51C,0.100000*%", "%TD*%",
+             "%TA.AperFunction,ViaPad*%", "%ADD52C,0.800000*%", "%TD*%",
+             "D50*", _xy(2, 2) + "D02*", _xy(3, 3) + "D01*", _xy(3, 2) + "D01*",
+             "D51*", _xy(*profile[0]) + "D02*"] + [_xy(*p) + "D01*" for p in profile[1:]]
+    lines += ["%TO.N,GND*%", "D52*", _xy(12, 2) + "D03*", "%TD*%"]
+    return "\n".join(lines) + "\n"

@@ -104,11 +104,11 @@ def test_gerber_x2_net_attributes_become_nets():
     assert [t.source.net for t in layout.traces] == ["VCC", ""]
 
 
-def test_excellon_hits_are_round_pads_of_their_tool():
+def test_excellon_hits_are_holes_of_their_tool_not_pads():
     layout = read_layout(EXCELLON_MM.encode(), "holes.drl")
-    assert [p.center.tolist() for p in layout.pads] == [[10, 5], [12.5, 5], [20, 7.5]]
-    widths = [p.exterior.max(0)[0] - p.exterior.min(0)[0] for p in layout.pads]
-    np.testing.assert_allclose(widths, [0.8, 0.8, 1.0], atol=UM)
+    assert layout.pads == [] and layout.traces == []
+    assert [v.center.tolist() for v in layout.vias] == [[10, 5], [12.5, 5], [20, 7.5]]
+    np.testing.assert_allclose([v.drill_mm for v in layout.vias], [0.8, 0.8, 1.0], atol=UM)
 
 
 def test_kicad_tracks_pads_nets_and_layer_with_y_flipped():

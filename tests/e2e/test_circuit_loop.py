@@ -62,7 +62,7 @@ def test_gerber_circuit_printed_at_its_standoff_with_pads_covered(client, meshes
     real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
     imported = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
                            files=[("files", ("top.gbr", GERBER.encode()))],
-                           data={"options": json.dumps({"standoff_mm": STANDOFF})})
+                           data={"options": json.dumps({"origin_mm": [0, 0], "standoff_mm": STANDOFF})})
     assert imported.status_code == 201, imported.text
     body = imported.json()
     trace_ids = [t["trace"]["id"] for t in body["traces"]]

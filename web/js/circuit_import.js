@@ -47,7 +47,9 @@ export function circuitImportSection({ partSelect, getPart, onDone, viewer, view
     accept: ".kicad_pcb,.gbr,.ger,.gtl,.gbl,.drl,.xln,.dxf,.svg" });
   const num = (id, value) => el("input", { type: "number", step: "any", id, value, class: "narrow" });
   const inputs = {
-    ox: num("circuit-origin-x", 0), oy: num("circuit-origin-y", 0), rot: num("circuit-rotation", 0),
+    // empty origin: the board's centre goes over the middle of the part (the server's default)
+    ox: Object.assign(num("circuit-origin-x", ""), { placeholder: "part centre" }),
+    oy: Object.assign(num("circuit-origin-y", ""), { placeholder: "part centre" }), rot: num("circuit-rotation", 0),
     mirror: el("input", { type: "checkbox", id: "circuit-mirror" }),
     mapping: el("select", { id: "circuit-mapping" }, el("option", { value: "project" }, "project (vertical)"),
       el("option", { value: "wrap" }, "wrap (length-preserving)")),
@@ -59,7 +61,9 @@ export function circuitImportSection({ partSelect, getPart, onDone, viewer, view
 
   function options(dryRun, viewId) {
     const layers = inputs.layers.value.split(",").map((s) => s.trim()).filter(Boolean);
-    return { origin_mm: [Number(inputs.ox.value), Number(inputs.oy.value)], rotation_deg: Number(inputs.rot.value),
+    const origin = inputs.ox.value !== "" && inputs.oy.value !== ""
+      ? { origin_mm: [Number(inputs.ox.value), Number(inputs.oy.value)] } : {};
+    return { ...origin, rotation_deg: Number(inputs.rot.value),
       mirror: inputs.mirror.checked, mapping: inputs.mapping.value, standoff_mm: Number(inputs.standoff.value),
       layers: layers.length ? layers : null, dry_run: dryRun, ...(dryRun && viewId ? { view_id: viewId } : {}) };
   }

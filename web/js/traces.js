@@ -129,7 +129,8 @@ async function onImport(event) {
     await guarded(`Import of ${file.name}`, async () => {
       const form = new FormData();
       form.append("files", file, file.name);
-      form.append("options", JSON.stringify({ format: "svg" }));
+      // a drawing in the part's own coordinates: its (0, 0) is the part's
+      form.append("options", JSON.stringify({ format: "svg", anchor: "file_origin" }));
       const result = await upload(`parts/${partSelect.value}/circuits:import`, form);
       showInfo(`${result.traces.length} trace(s) imported from ${file.name}.`);
       await refresh();
