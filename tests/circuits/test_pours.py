@@ -92,3 +92,4 @@ def test_unnamed_copper_that_bridges_two_nets_is_a_short():
     (short,) = find_shorts(pads + bridge)
     assert set(short.nets) == {"VCC", "SIG"} and short.via in ("trace t1", "trace t2")
     assert find_shorts(pads + bridge[:1]) == []
+

@@ -61,6 +61,12 @@ def import_probe_trace_ids(session: Session, imp: CircuitImport) -> list[str]:
             if (t.source or {}).get("import_id") == imp.id and (t.source or {}).get("role") == "pad_probe"]
 
 
+def station_runs(entries: dict[str, LoopTrace], trace_ids: list[str]) -> list[str]:
+    """The distinct probe runs (ids, first-seen order) behind ``trace_ids``: a joint loop probes
+    every trace in one run, whose stations then count once, not once per trace."""
+    return list(dict.fromkeys(entries[t].probe_run for t in trace_ids))
+
+
 def stored_areas(areas: list) -> list[dict]:
     """An import's stored areas as dicts (name, source, exterior_xy_mm, holes_xy_mm, area_mm2);
     an area stored as its bare exterior ring (no holes, no source) is read as one."""
@@ -122,8 +128,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
 
     strokes: list[Stroke] = []
     stations, deviations = [], []
-    for trace_id in probe_ids:                 # the pads' own stations
-        probe = ctx.job(entries[trace_id].probe_run, kind="probe_run", field="params.closed_loop_job_id")
+    for run_id in station_runs(entries, probe_ids + list(imp.trace_ids)):   # each probe run once
+        probe = ctx.job(run_id, kind="probe_run", field="params.closed_loop_job_id")
         for pt in ProbeRunResult.of(probe).points:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])
@@ -134,10 +140,6 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
                                            nominal_top)):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
-        probe = ctx.job(entries[trace_id].probe_run, kind="probe_run", field="params.closed_loop_job_id")
-        for pt in ProbeRunResult.of(probe).points:
-            stations.append(pt.nominal[:2])
-            deviations.append(pt.measured[2] - pt.nominal[2])
     ctx.progress(0.5, "filling pads and areas")
     fills = 0
     if params.pads and (imp.pads or imp.areas):
