@@ -32,18 +32,29 @@ from app.viewer.scene_data import FocusScene, Polyline, ProbeSet, ScalarSurface,
 __all__ = ["circuit_preview_scene"]
 
 LIFT_MM = 0.01          # patches drawn this far above the part so they do not flicker into it
+PATCH_CELLS = 40        # a patch's triangles: about 1/40 of its extent across,
+PATCH_STEP_MM = (0.5, 2.0)   # but no finer than 0.5 mm (small pads: a few triangles) and no coarser than 2 mm
 
 
 def _patch(outline: list, mesh: trimesh.Trimesh, holes: list | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """An outline (k, 2) less its holes (each (m, 2)) as a draped triangle patch: vertices (v, 3),
-    faces (f, 3); None off the part."""
+    faces (f, 3); None off the part.  Triangles are about 1/``PATCH_CELLS`` of the patch across,
+    within ``PATCH_STEP_MM`` (the outline segmentized, a grid inside), so a large pour follows a
+    curved part instead of cutting under it with a few long flat triangles."""
     poly = Polygon(np.asarray(outline, float), [np.asarray(h, float) for h in holes or [] if len(h) >= 3])
     if not poly.is_valid:
         poly = poly.buffer(0)
     if poly.is_empty or poly.area <= 0:
         return None
-    tris = [t for t in shapely.get_parts(shapely.delaunay_triangles(poly))
-            if poly.buffer(1e-9).contains(t.centroid)]
+    x0, y0, x1, y1 = poly.bounds
+    step = float(np.clip(max(x1 - x0, y1 - y0) / PATCH_CELLS, *PATCH_STEP_MM))
+    gx, gy = np.meshgrid(np.arange(x0 + step / 2, x1, step), np.arange(y0 + step / 2, y1, step))
+    inner = shapely.points(np.column_stack([gx.ravel(), gy.ravel()]))
+    inner = inner[shapely.contains(poly.buffer(-step / 4), inner)]
+    rim = shapely.get_coordinates(shapely.segmentize(poly, step))
+    sites = shapely.multipoints(np.vstack([rim, shapely.get_coordinates(inner)]))
+    inside = poly.buffer(1e-9)
+    tris = [t for t in shapely.get_parts(shapely.delaunay_triangles(sites)) if inside.contains(t.centroid)]
     if not tris:
         return None
     corners = np.array([np.asarray(t.exterior.coords)[:3] for t in tris]).reshape(-1, 2)

@@ -134,3 +134,21 @@ def test_a_kicad_board_as_saved_lands_over_the_part_with_vias_and_outline(client
     np.testing.assert_allclose(via["center_mm"][:2], middle + [15, -10], atol=1e-6)
     assert via["on_part"] and via["net"] == "SIG" and body["files"][0]["vias"] == 1
     assert len(body["traces"]) == 1                     # Edge.Cuts is the boundary, not four traces
+
+
+def test_a_pour_patch_follows_a_curved_part():
+    """A 20 x 10 mm pour on a dome of radius 150 mm: every triangle's middle lies on the part
+    (within 5 um), where a few long flat triangles cut up to 0.3 mm under it."""
+    import trimesh
+
+    from app.geometry.drape import top_surface_z
+    from app.viewer.circuit_preview import _patch
+    from tests.circuits.boards import hole_polygons
+
+    dome = trimesh.creation.icosphere(subdivisions=6, radius=150.0)
+    outline = np.array([[0, 0], [BOARD.width, 0], [BOARD.width, BOARD.height], [0, BOARD.height]]) - [10, 5]
+    holes = [h - [10, 5] for h in hole_polygons(BOARD)]
+    verts, faces = _patch(outline.tolist(), dome, [h.tolist() for h in holes])
+    middles = verts[faces].mean(axis=1)
+    surface = top_surface_z(dome, middles[:, :2]).z
+    assert (middles[:, 2] - surface).min() >= -0.005
