@@ -129,7 +129,8 @@ def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
 class MachineManager:
     """Machine objects by id; builds mock worlds; one lock per registry change."""
 
-    def __init__(self, load_mesh: Any) -> None:
+    def __init__(self, load_mesh: Any, linuxcnc: dict[str, str] | None = None) -> None:
+        self._linuxcnc = dict(linuxcnc or {})  # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
         self._machines: dict[str, Machine] = {}
         self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it (read-only: use lease)
         self._lock = threading.Lock()
@@ -226,7 +227,7 @@ class MachineManager:
                     if urlsplit(row.port).scheme == "linuxcnc":  # LinuxCNC over linuxcncrsh
                         from hardware.linuxcnc import LinuxCNCMachine
 
-                        machine = LinuxCNCMachine(row.port, profile_of(row))
+                        machine = LinuxCNCMachine(row.port, profile_of(row), **self._linuxcnc)
                     else:
                         machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
                                           boot_wait_s=0.0 if row.port.startswith("mock://") else 2.0)

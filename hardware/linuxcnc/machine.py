@@ -25,9 +25,11 @@ Probe results are the G38.2 result parameters, read back with a ``(DEBUG,...)`` 
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable, Iterable
+from urllib.parse import parse_qs, urlsplit
 
 from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
 from ..machine_state import ClaimedOperations, axis_words
@@ -48,11 +50,13 @@ class LinuxCNCMachine(ClaimedOperations):
     dialect = "linuxcnc"
 
     def __init__(self, url: str, profile: MachineProfile | None = None, *,
-                 connect_pw: str | None = None, enable_pw: str | None = None,
+                 connect_pw: str | None = None, enable_pw: str | None = None, program_dir: str | None = None,
                  timeout_s: float = 10.0, motion_timeout_s: float = 3600.0,
                  poll_s: float = 0.02) -> None:
         self.url = url
         self.address = parse_url(url)
+        if program_dir is not None and "programs" not in parse_qs(urlsplit(url).query):
+            self.address = dataclasses.replace(self.address, program_dir=program_dir)
         self.profile = profile or MachineProfile(dispense_on="M64 P0", dispense_off="M65 P0",
                                                  probe_command="G38.2")
         self._connect_pw, self._enable_pw = passwords(connect_pw, enable_pw)

@@ -8,7 +8,8 @@ Passwords are never part of a stored URL: they come from the constructor, else f
 environment (``CONFORMA_LINUXCNC_CONNECTPW`` / ``CONFORMA_LINUXCNC_ENABLEPW``), else
 linuxcncrsh's defaults (``EMC`` / ``EMCTOO``).  ``programs`` is a directory the controller
 can read under the same path (the controller's own disk, or a shared mount): linuxcncrsh
-opens programs by path and cannot receive a file.  Default: ``CONFORMA_LINUXCNC_PROGRAMS``,
+opens programs by path and cannot receive a file.  Default: the machine's ``program_dir``
+argument (the service passes its ``CONFORMA_LINUXCNC_PROGRAMS`` setting), else that variable,
 else ``<tmp>/conforma-linuxcnc`` (the service's API accepts ``linuxcnc://host:port`` and
 ``?joints=N`` only, so an API caller cannot pick a directory to write to).
 """
