@@ -16,6 +16,15 @@ is in ``error`` and sends nothing until :meth:`connect` (no automatic motion aft
 failure).  When the command session is lost while a program runs, the stop session aborts
 the program (best effort): LinuxCNC has no link watchdog and would go on unsupervised.
 
+Process outputs (the profile's ``safe_off``: ``dispense_off`` then ``outputs_off``): LinuxCNC
+stops the spindle and the coolant on an e-stop but keeps the motion digital outputs
+(``M64``/``M65``) as they were, and linuxcncrsh cannot set an output while the machine is in
+e-stop (MDI needs it on and homed).  So the controller's own ``[RS274NGC]ON_ABORT_COMMAND``
+switches them off on every abort and e-stop (``sim/remap/on_abort.ngc``), and the host sends
+``safe_off`` by MDI wherever it can: on connect (joints still homed), right after homing,
+before each program and on disconnect.  A program thus starts with every output off unless
+it turns one on.
+
 Programs: the commands (comments dropped) are written to ``<programs>/conforma-<sha>.ngc``
 with ``M2`` appended when the program has no end, opened by absolute path and run.  The
 progress is ``get program_line`` (file line n running => commands before it executed).
@@ -117,6 +126,8 @@ class LinuxCNCMachine(ClaimedOperations):
             self.link.set("machine", "on")
             homed = self.link.get("joint_homed")
             kins = self.link.get("kinematics_type")
+            if self._homed(homed) and self.link.get("program_status").upper() == "IDLE":
+                self._mdi(self.profile.safe_off)  # an output left on before this connection goes off
         except HardwareError:
             self._state = "error"
             raise
@@ -133,10 +144,23 @@ class LinuxCNCMachine(ClaimedOperations):
                 session.close()
         self.link, self._stop_link = None, None
 
+    def _homed(self, joint_homed: str) -> bool:
+        """True when ``get joint_homed`` says every joint this machine has is homed."""
+        flags = [h.upper() == "YES" for h in joint_homed.split()]
+        joints = self.address.joints
+        return all(flags[:joints]) if joints is not None else any(flags)
+
     def disconnect(self) -> None:
-        """Close both sessions; a running program is aborted first (never unsupervised)."""
+        """Close both sessions; a running program is aborted first (never unsupervised),
+        an idle machine gets ``safe_off`` first (best effort)."""
         if self._state in ("printing", "paused"):
             self._abort_best_effort()
+        elif self._state == "idle" and self.link is not None and self.link.healthy and not self._estopped:
+            try:
+                if self._homed(self.link.get("joint_homed")):
+                    self._mdi(self.profile.safe_off)
+            except HardwareError:
+                pass
         self._cancel = True
         self._close_sessions()
         self._state = "disconnected"
@@ -208,6 +232,7 @@ class LinuxCNCMachine(ClaimedOperations):
                 if now > deadline:
                     raise LinkError("homing did not finish in time", field="home")
                 time.sleep(self.poll_s)
+            self._mdi(self.profile.safe_off)  # first chance after a connect to an un-homed machine
             return self._position()
         finally:
             self._release(self._fail_state())
@@ -357,6 +382,7 @@ class LinuxCNCMachine(ClaimedOperations):
             if start_line == total:
                 executed, cancelled = total, False
             else:
+                self._mdi(self.profile.safe_off)  # the program starts with every output off
                 preamble = self._resume_preamble(commands, start_line)
                 path = write_program(self.address.program_dir, preamble + commands[start_line:])
                 executed, cancelled = run_program(self, path, start_line, total, on_progress,
