@@ -91,3 +91,39 @@ def test_the_host_switches_the_profiles_outputs_off(lcnc_xyz, when):
     assert _off(lcnc_xyz.outputs()) == ALL_OFF
     if machine.state != "disconnected":
         machine.disconnect()
+
+
+def test_through_the_api_stop_connect_and_a_travel_program_dispense_nothing(client, lcnc_env):
+    """The operator's sequence: a print with ``M64 P0`` on, ``POST /stop`` mid-line,
+    ``POST /connect``, then a travel-only print (two ``G0`` at Z25)."""
+    from tests.conftest import auth
+    from tests.hardware.linuxcnc.conftest import add_sim_machine
+    from tests.jobs.test_jobs_api import wait_for
+
+    op = auth("operator")
+    machine_id = add_sim_machine(client, lcnc_env, {"dispense_on": "M64 P0", "dispense_off": "M65 P0",
+                                                    "probe_command": "G38.2"}, op)
+    machine = client.app.state.runtime.machines.get(machine_id)
+
+    def upload(lines: list[str]) -> str:
+        text = ("\n".join(lines) + "\n").encode()
+        return client.post("/api/v1/programs", files={"file": ("p.ngc", text)}, headers=op).json()["id"]
+
+    printing = upload(["G21", "G90", "G0 X0 Y0 Z5", "M64 P0", "G1 X40 F300", "G1 Y40 F300", "M65 P0"])
+    job = client.post(f"/api/v1/machines/{machine_id}/print", json={"program_id": printing}, headers=op)
+    assert job.status_code == 202, job.text
+    assert wait_until(lambda: machine.progress is not None and machine.progress[0] >= 5, 60.0)
+    assert lcnc_env.outputs()["dout"][0] == 1
+    stop = client.post(f"/api/v1/machines/{machine_id}/stop", headers=op)
+    assert stop.status_code == 200 and stop.json()["stop_sent"] is True, stop.text
+    wait_for(client, job.json()["id"], timeout=60)
+    assert wait_until(lambda: _off(lcnc_env.outputs()) == ALL_OFF, 5.0), lcnc_env.outputs()
+    assert client.post(f"/api/v1/machines/{machine_id}/connect", headers=op).json()["state"] == "idle"
+    assert _off(lcnc_env.outputs()) == ALL_OFF
+    travel = upload(["G90", "G0 Z25", "G0 X10 Y10 Z25"])
+    with lcnc_env.watch(OUTPUTS, period_s=0.001) as watch:
+        job = client.post(f"/api/v1/machines/{machine_id}/print", json={"program_id": travel}, headers=op)
+        done = wait_for(client, job.json()["id"], timeout=60)
+    assert done["status"] == "succeeded", done["error"]
+    assert watch.samples and all(values == [0, 0, 0, 0] for _, values in watch.samples), watch.samples
+    client.post(f"/api/v1/machines/{machine_id}/disconnect", headers=op)
