@@ -16,14 +16,9 @@ is in ``error`` and sends nothing until :meth:`connect` (no automatic motion aft
 failure).  When the command session is lost while a program runs, the stop session aborts
 the program (best effort): LinuxCNC has no link watchdog and would go on unsupervised.
 
-Process outputs (the profile's ``safe_off``: ``dispense_off`` then ``outputs_off``): LinuxCNC
-stops the spindle and the coolant on an e-stop but keeps the motion digital outputs
-(``M64``/``M65``) as they were, and linuxcncrsh cannot set an output while the machine is in
-e-stop (MDI needs it on and homed).  So the controller's own ``[RS274NGC]ON_ABORT_COMMAND``
-switches them off on every abort and e-stop (``sim/remap/on_abort.ngc``), and the host sends
-``safe_off`` by MDI wherever it can: on connect (joints still homed), right after homing,
-before each program and on disconnect.  A program thus starts with every output off unless
-it turns one on.
+Process outputs: an e-stop keeps ``M64`` outputs on and MDI cannot run in e-stop, so the
+controller's ``ON_ABORT_COMMAND`` switches them off (``sim/remap/on_abort.ngc``); the host
+sends ``safe_off`` on connect (homed), after homing, before each program and on disconnect.
 
 Programs: the commands (comments dropped) are written to ``<programs>/conforma-<sha>.ngc``
 with ``M2`` appended when the program has no end, opened by absolute path and run.  The
@@ -34,11 +29,10 @@ Probe results are the G38.2 result parameters, read back with a ``(DEBUG,...)`` 
 
 from __future__ import annotations
 
-import dataclasses
+import contextlib
 import threading
 import time
 from collections.abc import Callable, Iterable
-from urllib.parse import parse_qs, urlsplit
 
 from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
 from ..machine_state import ClaimedOperations, axis_words
@@ -63,9 +57,7 @@ class LinuxCNCMachine(ClaimedOperations):
                  timeout_s: float = 10.0, motion_timeout_s: float = 3600.0,
                  poll_s: float = 0.02) -> None:
         self.url = url
-        self.address = parse_url(url)
-        if program_dir is not None and "programs" not in parse_qs(urlsplit(url).query):
-            self.address = dataclasses.replace(self.address, program_dir=program_dir)
+        self.address = parse_url(url, program_dir)
         self.profile = profile or MachineProfile(dispense_on="M64 P0", dispense_off="M65 P0",
                                                  probe_command="G38.2")
         self._connect_pw, self._enable_pw = passwords(connect_pw, enable_pw)
@@ -146,21 +138,18 @@ class LinuxCNCMachine(ClaimedOperations):
 
     def _homed(self, joint_homed: str) -> bool:
         """True when ``get joint_homed`` says every joint this machine has is homed."""
-        flags = [h.upper() == "YES" for h in joint_homed.split()]
-        joints = self.address.joints
+        flags, joints = [h.upper() == "YES" for h in joint_homed.split()], self.address.joints
         return all(flags[:joints]) if joints is not None else any(flags)
 
     def disconnect(self) -> None:
-        """Close both sessions; a running program is aborted first (never unsupervised),
-        an idle machine gets ``safe_off`` first (best effort)."""
+        """Close both sessions; a running program is aborted first (never unsupervised), an
+        idle machine gets ``safe_off`` first (best effort)."""
         if self._state in ("printing", "paused"):
             self._abort_best_effort()
         elif self._state == "idle" and self.link is not None and self.link.healthy and not self._estopped:
-            try:
+            with contextlib.suppress(HardwareError):
                 if self._homed(self.link.get("joint_homed")):
                     self._mdi(self.profile.safe_off)
-            except HardwareError:
-                pass
         self._cancel = True
         self._close_sessions()
         self._state = "disconnected"

@@ -38,10 +38,11 @@ class LinuxCNCAddress:
     joints: int | None = None
 
 
-def parse_url(url: str) -> LinuxCNCAddress:
+def parse_url(url: str, program_dir: str | None = None) -> LinuxCNCAddress:
     """Parse ``linuxcnc://host:port[?programs=DIR&joints=N]`` (``InvalidConfig`` naming the
-    part).  linuxcncrsh reports 6 joints whatever the machine has: without ``joints``,
-    homing counts as done when the homed flags stay unchanged for half a second."""
+    part); ``program_dir`` is the default of ``programs``.  linuxcncrsh reports 6 joints
+    whatever the machine has: without ``joints``, homing counts as done when the homed flags
+    stay unchanged for half a second."""
     parts = urlsplit(url)
     if parts.scheme != "linuxcnc":
         raise InvalidConfig("expected a linuxcnc://host:port URL", field="port", value=url)
@@ -55,7 +56,7 @@ def parse_url(url: str) -> LinuxCNCAddress:
     unknown = sorted(set(query) - _OPTIONS)
     if unknown:
         raise InvalidConfig(f"unknown linuxcnc:// option {unknown[0]!r}", field="port", value=url)
-    default_dir = (os.environ.get("CONFORMA_LINUXCNC_PROGRAMS")
+    default_dir = (program_dir or os.environ.get("CONFORMA_LINUXCNC_PROGRAMS")
                    or os.path.join(tempfile.gettempdir(), "conforma-linuxcnc"))
     program_dir = query.get("programs", [default_dir])[0]
     if not os.path.isabs(program_dir):
