@@ -7,6 +7,7 @@ tested apart from the controller's ``ON_ABORT_COMMAND``."""
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 
@@ -34,7 +35,13 @@ def test_stop_mid_print_and_reconnect_leave_every_output_off(lcnc_xyz):
     try:
         assert wait_until(lambda: machine.progress is not None and machine.progress[0] >= 5, 30.0)
         assert lcnc_xyz.outputs()["dout"][:3] == [1, 0, 1]        # dispensing, mid-line
-        machine.stop()
+        with lcnc_xyz.watch(OUTPUTS, period_s=0.0005) as watch:
+            stopped_ns = time.monotonic_ns()
+            machine.stop()
+            assert wait_until(lambda: watch.first("motion.digital-out-00", lambda v: v == 0, stopped_ns), 5.0)
+        off_ms = (watch.first("motion.digital-out-00", lambda v: v == 0, stopped_ns) - stopped_ns) / 1e6
+        print(f"dispense output off {off_ms:.1f} ms after the stop call (LinuxCNC's on-abort routine)")
+        assert off_ms < 2000.0
     finally:
         streamer.join(30)
     assert errors, "the stopped program reported success"
