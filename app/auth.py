@@ -5,7 +5,11 @@ few seconds per process in a bounded LRU (unknown keys too, so a flood of random
 costs one query each and a fixed amount of memory); revoking through this process clears
 the cache at once.  Failed attempts are counted per client address: after
 ``LoginThrottle.max_failures`` within ``window_s`` the address gets 429 until the window
-passes.
+passes, for wrong keys only: a valid key is always accepted, also from a throttled address
+(an operator's emergency stop is never held off by someone guessing keys beside them).
+A throttled address's keys are checked against a snapshot of every stored key's digest,
+read in one query at most every ``CACHE_TTL_S`` whatever arrives, so a flood of wrong keys
+from there costs no query each.
 """
 
 from __future__ import annotations
@@ -47,11 +51,13 @@ class KeyRing:
         self.engine = engine
         self._static = {hash_key(k): role for k, role in static_keys.items()}
         self._cache: OrderedDict[str, tuple[str | None, float]] = OrderedDict()
+        self._stored: tuple[dict[str, str], float] = ({}, float("-inf"))  # (digest -> role, valid until)
         self._lock = threading.Lock()
 
     def role_of(self, key: str, *, lookup: bool = True) -> str | None:
-        """The key's role, or None if unknown or revoked.  ``lookup=False`` answers from
-        the static keys and the cache only (no database query: for throttled clients)."""
+        """The key's role, or None if unknown or revoked.  ``lookup=False`` (throttled
+        clients) answers from the static keys, the cache and the snapshot of stored keys
+        (:meth:`stored_role`): no query per presented key."""
         digest = hash_key(key)
         for known, role in self._static.items():
             if hmac.compare_digest(known, digest):
@@ -64,7 +70,7 @@ class KeyRing:
         if cached is not None and cached[1] > now:
             return cached[0]
         if not lookup:
-            return None
+            return self.stored_role(digest)
         with Session(self.engine) as session:
             row = session.exec(select(ApiKey).where(ApiKey.key_sha256 == digest, ApiKey.revoked_at.is_(None))).first()
         role = row.role if row is not None else None
@@ -74,6 +80,20 @@ class KeyRing:
             while len(self._cache) > CACHE_MAX_ENTRIES:
                 self._cache.popitem(last=False)
         return role
+
+    def stored_role(self, digest: str) -> str | None:
+        """The role of the stored, unrevoked key with sha256 ``digest`` from a snapshot of all
+        of them (re-read in one query when older than ``CACHE_TTL_S``)."""
+        now = time.monotonic()
+        with self._lock:
+            stored, valid_until = self._stored
+        if valid_until <= now:
+            with Session(self.engine) as session:
+                rows = session.exec(select(ApiKey.key_sha256, ApiKey.role).where(ApiKey.revoked_at.is_(None))).all()
+            stored = {sha: role for sha, role in rows}
+            with self._lock:
+                self._stored = (stored, now + CACHE_TTL_S)
+        return stored.get(digest)
 
     @property
     def cache_size(self) -> int:
@@ -88,6 +108,8 @@ class KeyRing:
         with Session(self.engine, expire_on_commit=False) as session:
             session.add(record)
             session.commit()
+        with self._lock:
+            self._stored = ({}, float("-inf"))
         return record, key
 
     def revoke(self, key_id: str) -> bool:
@@ -98,6 +120,7 @@ class KeyRing:
             session.commit()
         with self._lock:
             self._cache.clear()
+            self._stored = ({}, float("-inf"))
         return bool(result.rowcount)
 
     def has_any(self) -> bool:

@@ -17,8 +17,10 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 ROLES = ("viewer", "operator", "admin")
 Role = Literal["viewer", "operator", "admin"]
 
-# Variables with the prefix that are read elsewhere (tests, hardware contract suite).
-_FOREIGN_VARIABLES = {"CONFORMA_TEST_PORT", "CONFORMA_TEST_DATABASE_URL", "CONFORMA_TEST_QUEUE_URL"}
+# Variables with the prefix that are read elsewhere (the tests, the hardware contract suite,
+# the LinuxCNC simulator): accepted at start-up, not settings of the service.
+_FOREIGN_VARIABLES = {"CONFORMA_TEST_PORT", "CONFORMA_TEST_DIALECT", "CONFORMA_TEST_BAUD", "CONFORMA_TEST_MOTION",
+                      "CONFORMA_TEST_DATABASE_URL", "CONFORMA_TEST_QUEUE_URL", "CONFORMA_RTAPI_UID"}
 
 
 class SettingsError(Exception):
@@ -81,6 +83,19 @@ class Settings(BaseSettings):
     max_waiting_requests: int = Field(2000, ge=0, le=100_000, description="requests queued beyond; more get 503")
     request_wait_s: float = Field(30.0, gt=0, le=600, description="longest wait for a request slot before 503")
     log_level: Literal["debug", "info", "warning", "error"] = "info"
+    linuxcnc_connectpw: str | None = Field(None, min_length=1, pattern=r"^\S+$",
+                                           description="linuxcncrsh connect password; default LinuxCNC's EMC")
+    linuxcnc_enablepw: str | None = Field(None, min_length=1, pattern=r"^\S+$",
+                                          description="linuxcncrsh enable password; default LinuxCNC's EMCTOO")
+    linuxcnc_programs: Path | None = Field(None, description="absolute directory LinuxCNC reads program files from "
+                                           "(same path on the controller); default <tmp>/conforma-linuxcnc")
+
+    @field_validator("linuxcnc_programs")
+    @classmethod
+    def _check_programs(cls, value: Path | None) -> Path | None:
+        if value is not None and not value.is_absolute():
+            raise ValueError("must be an absolute directory (the controller opens programs by this path)")
+        return value
 
     @field_validator("api_keys")
     @classmethod
@@ -124,14 +139,20 @@ class Settings(BaseSettings):
         return out
 
 
+def unknown_variables(environ: dict[str, str]) -> list[str]:
+    """The ``CONFORMA_*`` names in ``environ`` that are neither a setting nor a variable read
+    elsewhere (sorted): the start-up check refuses them."""
+    known = {f"CONFORMA_{name.upper()}" for name in Settings.model_fields} | _FOREIGN_VARIABLES
+    return sorted(k for k in environ if k.startswith("CONFORMA_") and k not in known)
+
+
 def load_settings(environ: dict[str, str] | None = None, **overrides: object) -> Settings:
     """Build settings from ``environ`` (default ``os.environ``) plus explicit overrides.
 
     Raises :class:`SettingsError` for unknown ``CONFORMA_*`` variables or bad values.
     """
     env = dict(os.environ if environ is None else environ)
-    known = {f"CONFORMA_{name.upper()}" for name in Settings.model_fields}
-    unknown = sorted(k for k in env if k.startswith("CONFORMA_") and k not in known | _FOREIGN_VARIABLES)
+    unknown = unknown_variables(env)
     if unknown:
         raise SettingsError(f"unknown setting(s): {', '.join(unknown)}")
     values: dict[str, object] = {

@@ -9,10 +9,12 @@ service's error family here, so routers and jobs only see :mod:`app.errors`.
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import re
+import socket
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
@@ -87,14 +89,26 @@ def port_url(row: MachineRow) -> str:
     return row.port
 
 
-def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
-    """The physical port a record names, normalised so that two records can never name
-    one controller (stored under a unique constraint); ``InvalidInput`` naming ``port``.
+def _tcp_host(host: str, port: str) -> str:
+    """The one name of a TCP host: ``loopback`` for any loopback address (``localhost``,
+    127.0.0.1, ::1 reach the same controller), else the lowest address it resolves to."""
+    try:
+        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise InvalidInput(f"host {host!r} does not resolve: {exc}", field="port", value=port) from None
+    addresses = sorted({ipaddress.ip_address(str(info[4][0]).split("%")[0]) for info in infos},
+                       key=lambda a: (a.version, int(a)))
+    if any(a.is_loopback for a in addresses):
+        return "loopback"
+    return str(addresses[0])
 
-    Devices: the real path (symlinks and ``..`` resolved), which must stay under /dev.
-    ``socket://host:port`` and ``linuxcnc://host:port[?joints=N]``: the host must be in
-    ``socket_hosts`` (settings), lower-cased.
-    ``mock://``: one mock world per record, so the key is the record's own."""
+
+def physical_port(port: str, machine_id: str) -> str:
+    """The physical port a record names, whatever spelling names it (``InvalidInput`` naming
+    ``port`` when it is none): devices by their real path (symlinks and ``..`` resolved, under
+    /dev); ``socket://`` and ``linuxcnc://`` as ``tcp://<host>:<port>`` with the host resolved
+    (every loopback name is ``loopback``; the scheme and ``?joints=`` do not name another
+    controller); ``mock://`` and ``loop://`` one per record."""
     parts = urlsplit(port)
     if parts.scheme == "mock":
         return f"mock:{machine_id}"
@@ -107,11 +121,7 @@ def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
         query_ok = not parts.query or (parts.scheme == "linuxcnc" and re.fullmatch(r"joints=\d", parts.query))
         if not host or number is None or not 0 < number < 65536 or parts.path not in ("", "/") or not query_ok:
             raise InvalidInput(f"expected {parts.scheme}://host:port, got {port!r}", field="port", value=port)
-        allowed = {h.lower() for h in socket_hosts}
-        if host not in allowed:
-            raise InvalidInput(f"{parts.scheme} host {host!r} is not in the allow-list (CONFORMA_SOCKET_HOSTS: "
-                               f"{', '.join(sorted(allowed)) or 'empty'})", field="port", value=port)
-        return f"{parts.scheme}://{host}:{number}"
+        return f"tcp://{_tcp_host(host, port)}:{number}"
     if parts.scheme == "loop":
         return f"loop:{machine_id}"
     if port.startswith("/dev/"):
@@ -120,16 +130,44 @@ def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
             raise InvalidInput(f"device {port!r} resolves to {real!r}, which is not under /dev", field="port",
                                value=port)
         return real
-    if re.fullmatch(r"COM\d+", port):
+    if re.fullmatch(r"COM\d+", port, flags=re.IGNORECASE):
         return port.upper()
     raise InvalidInput("expected mock://..., socket://host:port, linuxcnc://host:port or a device under /dev",
                        field="port", value=port)
 
 
+def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
+    """:func:`physical_port` of a new record (stored under a unique constraint, so that two
+    records can never name one controller); a ``socket://`` or ``linuxcnc://`` host must be
+    in ``socket_hosts`` (settings), compared lower-cased."""
+    parts = urlsplit(port)
+    key = physical_port(port, machine_id)
+    if parts.scheme in ("socket", "linuxcnc"):
+        host = (parts.hostname or "").lower()
+        allowed = {h.lower() for h in socket_hosts}
+        if host not in allowed:
+            raise InvalidInput(f"{parts.scheme} host {host!r} is not in the allow-list (CONFORMA_SOCKET_HOSTS: "
+                               f"{', '.join(sorted(allowed)) or 'empty'})", field="port", value=port)
+    return key
+
+
+def port_owner(key: str, records: Iterable[tuple[str, str]]) -> str | None:
+    """The id among ``records`` (id, port) whose port is the physical port ``key`` (records
+    stored before a spelling was normalised included), else None."""
+    for machine_id, port in records:
+        try:
+            if physical_port(port, machine_id) == key:
+                return machine_id
+        except InvalidInput:
+            continue
+    return None
+
+
 class MachineManager:
     """Machine objects by id; builds mock worlds; one lock per registry change."""
 
-    def __init__(self, load_mesh: Any) -> None:
+    def __init__(self, load_mesh: Any, linuxcnc: dict[str, str] | None = None) -> None:
+        self._linuxcnc = dict(linuxcnc or {})  # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
         self._machines: dict[str, Machine] = {}
         self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it (read-only: use lease)
         self._lock = threading.Lock()
@@ -226,7 +264,7 @@ class MachineManager:
                     if urlsplit(row.port).scheme == "linuxcnc":  # LinuxCNC over linuxcncrsh
                         from hardware.linuxcnc import LinuxCNCMachine
 
-                        machine = LinuxCNCMachine(row.port, profile_of(row))
+                        machine = LinuxCNCMachine(row.port, profile_of(row), **self._linuxcnc)
                     else:
                         machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
                                           boot_wait_s=0.0 if row.port.startswith("mock://") else 2.0)
@@ -234,7 +272,18 @@ class MachineManager:
         return machine
 
     def connect(self, row: MachineRow) -> Machine:
-        """Connect (again) and identify; the mock world is kept across reconnects."""
+        """Connect (again) and identify; the mock world is kept across reconnects.  A 409
+        naming the other record when another record's connection holds the same physical
+        port (records stored before their spellings were normalised)."""
+        key = physical_port(row.port, row.id)
+        with self._lock:
+            live = {machine_id: machine.url for machine_id, machine in self._machines.items()
+                    if machine_id != row.id and machine.state != "disconnected"}
+        holder = port_owner(key, live.items())
+        if holder is not None:
+            raise Conflict(f"port {row.port!r} is machine {holder!r}'s, which is connected: one machine per "
+                           "physical port (disconnect it, or delete the duplicate record)", field="port",
+                           value=row.port)
         machine = self.build(row)
         with hardware_errors():
             machine.connect()

@@ -21,6 +21,9 @@ class MachineProfile:
     probe_z_min: float = -10.0
     probe_command: str | None = None   # "G30" | "G38.2"; None: G30 (marlin), G38.2 (grbl)
     home_command: str | None = None    # None: "G28" (marlin), "$H" (grbl)
+    # commands that switch every other process output off (spindle, high voltage, heaters),
+    # sent with dispense_off wherever the machine makes its outputs safe (``safe_off``)
+    outputs_off: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.probe_command not in (None, "G30", "G38.2"):
@@ -32,6 +35,16 @@ class MachineProfile:
                                     value=getattr(self, name))
         if not self.dispense_on.strip() or not self.dispense_off.strip():
             raise InvalidConfig("dispense commands must not be empty", field="profile.dispense_on")
+        object.__setattr__(self, "outputs_off", tuple(self.outputs_off))
+        for k, command in enumerate(self.outputs_off):
+            if not isinstance(command, str) or not command.strip():
+                raise InvalidConfig("outputs_off commands must not be empty", field=f"profile.outputs_off.{k}",
+                                    value=command)
+
+    @property
+    def safe_off(self) -> tuple[str, ...]:
+        """Every process output off: ``dispense_off`` then ``outputs_off``."""
+        return (self.dispense_off, *self.outputs_off)
 
 
 @dataclass(frozen=True)

@@ -37,12 +37,13 @@ async def get_session(runtime: Annotated[Runtime, Depends(get_runtime)]) -> Asyn
 
 def authenticate(keyring: KeyRing, throttle: LoginThrottle, key: str | None, address: str) -> str:
     """The role of ``key``; 401 when missing or unknown, 429 (Retry-After) for an address
-    with too many recent failures (a valid key still works from it)."""
+    with too many recent failures: a wrong key from there is refused without a look-up, a
+    valid key (static or stored) always works from it."""
     if not key:
         raise HTTPException(401, "an API key is required (Authorization: Bearer <key> or X-API-Key)",
                             headers={"WWW-Authenticate": "Bearer"})
     wait = throttle.retry_after(address)
-    role = keyring.role_of(key, lookup=wait is None)  # static and cached keys: no I/O on the hot path
+    role = keyring.role_of(key, lookup=wait is None)  # throttled: the stored keys' snapshot, no query per key
     if role is None:
         if wait is not None:
             raise HTTPException(429, f"too many failed API key attempts from {address}; retry in {wait} s",

@@ -104,6 +104,11 @@ class Reference(Strict):
 class Profile(Strict):
     dispense_on: str = Field("M106", min_length=1, max_length=80, description="G-code that starts dispensing")
     dispense_off: str = Field("M107", min_length=1, max_length=80, description="G-code that stops dispensing")
+    outputs_off: list[Annotated[str, Field(min_length=1, max_length=80)]] = Field(
+        default_factory=list, max_length=16,
+        description="G-code that switches every other process output off (spindle, high voltage, heaters), sent "
+                    "after dispense_off wherever the machine makes its outputs safe (LinuxCNC: connect, home, "
+                    "each program's start, disconnect)")
     probe_feed_mm_min: Finite = Field(100.0, gt=0, le=10_000)
     travel_feed_mm_min: Finite = Field(3000.0, gt=0, le=100_000)
     print_feed_mm_min: Finite = Field(300.0, gt=0, le=100_000)

@@ -28,7 +28,7 @@ from app.api.schemas import JobOut, Page
 from app.errors import Conflict, InvalidInput, NotFound
 from app.jobs.calibration import calibration_summary, current_calibration, machine_profile
 from app.jobs.runtime import Runtime
-from app.machines import hardware_errors, port_key, translate
+from app.machines import hardware_errors, port_key, port_owner, translate
 from hardware.errors import HardwareError
 from hardware.mock import parse_mock_options
 from app.db import lock_for_delete
@@ -85,6 +85,8 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
     machine_id = new_id("mach")
     key = port_key(body.port, machine_id, runtime.settings.socket_host_list)
     taken = session.exec(select(Machine.id).where(Machine.port_key == key)).first()
+    if taken is None:  # records stored under an older spelling of their port
+        taken = port_owner(key, session.exec(select(Machine.id, Machine.port)).all())
     if taken is not None:
         raise Conflict(f"port {body.port!r} is already machine {taken!r}: one record per physical port",
                        field="port", value=body.port)

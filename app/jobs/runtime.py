@@ -115,6 +115,14 @@ def _canonical_hash(value: Any) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()
 
 
+def linuxcnc_options(settings: Settings) -> dict[str, str]:
+    """``LinuxCNCMachine`` keyword arguments from the ``CONFORMA_LINUXCNC_*`` settings (the
+    ones set: the others fall back to the environment, then to LinuxCNC's defaults)."""
+    given = {"connect_pw": settings.linuxcnc_connectpw, "enable_pw": settings.linuxcnc_enablepw,
+             "program_dir": str(settings.linuxcnc_programs) if settings.linuxcnc_programs else None}
+    return {name: value for name, value in given.items() if value is not None}
+
+
 class Runtime:
     """Engine, blobs, queues and workers of one process."""
 
@@ -124,7 +132,7 @@ class Runtime:
         self.blobs = BlobStore(settings.blob_dir)
         self.meshes = MeshCache(self.blobs)
         self.store = JobStore(self.engine, settings.lease_s)
-        self.machines = MachineManager(self._part_mesh)
+        self.machines = MachineManager(self._part_mesh, linuxcnc=linuxcnc_options(settings))
         self.worker_id = f"{socket.gethostname()}:{os.getpid()}"
         self.kinds = load_kinds(settings.job_plugins.split(","))
         self.queues = {name: make_queue(settings, name) for name in QUEUES}

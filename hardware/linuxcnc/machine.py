@@ -16,6 +16,10 @@ is in ``error`` and sends nothing until :meth:`connect` (no automatic motion aft
 failure).  When the command session is lost while a program runs, the stop session aborts
 the program (best effort): LinuxCNC has no link watchdog and would go on unsupervised.
 
+Process outputs: an e-stop keeps ``M64`` outputs on and MDI cannot run in e-stop, so the
+controller's ``ON_ABORT_COMMAND`` switches them off (``sim/remap/on_abort.ngc``); the host
+sends ``safe_off`` on connect (homed), after homing, before each program and on disconnect.
+
 Programs: the commands (comments dropped) are written to ``<programs>/conforma-<sha>.ngc``
 with ``M2`` appended when the program has no end, opened by absolute path and run.  The
 progress is ``get program_line`` (file line n running => commands before it executed).
@@ -25,6 +29,7 @@ Probe results are the G38.2 result parameters, read back with a ``(DEBUG,...)`` 
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -48,11 +53,11 @@ class LinuxCNCMachine(ClaimedOperations):
     dialect = "linuxcnc"
 
     def __init__(self, url: str, profile: MachineProfile | None = None, *,
-                 connect_pw: str | None = None, enable_pw: str | None = None,
+                 connect_pw: str | None = None, enable_pw: str | None = None, program_dir: str | None = None,
                  timeout_s: float = 10.0, motion_timeout_s: float = 3600.0,
                  poll_s: float = 0.02) -> None:
         self.url = url
-        self.address = parse_url(url)
+        self.address = parse_url(url, program_dir)
         self.profile = profile or MachineProfile(dispense_on="M64 P0", dispense_off="M65 P0",
                                                  probe_command="G38.2")
         self._connect_pw, self._enable_pw = passwords(connect_pw, enable_pw)
@@ -113,6 +118,8 @@ class LinuxCNCMachine(ClaimedOperations):
             self.link.set("machine", "on")
             homed = self.link.get("joint_homed")
             kins = self.link.get("kinematics_type")
+            if self._homed(homed) and self.link.get("program_status").upper() == "IDLE":
+                self._mdi(self.profile.safe_off)  # an output left on before this connection goes off
         except HardwareError:
             self._state = "error"
             raise
@@ -129,10 +136,20 @@ class LinuxCNCMachine(ClaimedOperations):
                 session.close()
         self.link, self._stop_link = None, None
 
+    def _homed(self, joint_homed: str) -> bool:
+        """True when ``get joint_homed`` says every joint this machine has is homed."""
+        flags, joints = [h.upper() == "YES" for h in joint_homed.split()], self.address.joints
+        return all(flags[:joints]) if joints is not None else any(flags)
+
     def disconnect(self) -> None:
-        """Close both sessions; a running program is aborted first (never unsupervised)."""
+        """Close both sessions; a running program is aborted first (never unsupervised), an
+        idle machine gets ``safe_off`` first (best effort)."""
         if self._state in ("printing", "paused"):
             self._abort_best_effort()
+        elif self._state == "idle" and self.link is not None and self.link.healthy and not self._estopped:
+            with contextlib.suppress(HardwareError):
+                if self._homed(self.link.get("joint_homed")):
+                    self._mdi(self.profile.safe_off)
         self._cancel = True
         self._close_sessions()
         self._state = "disconnected"
@@ -204,6 +221,7 @@ class LinuxCNCMachine(ClaimedOperations):
                 if now > deadline:
                     raise LinkError("homing did not finish in time", field="home")
                 time.sleep(self.poll_s)
+            self._mdi(self.profile.safe_off)  # first chance after a connect to an un-homed machine
             return self._position()
         finally:
             self._release(self._fail_state())
@@ -353,6 +371,7 @@ class LinuxCNCMachine(ClaimedOperations):
             if start_line == total:
                 executed, cancelled = total, False
             else:
+                self._mdi(self.profile.safe_off)  # the program starts with every output off
                 preamble = self._resume_preamble(commands, start_line)
                 path = write_program(self.address.program_dir, preamble + commands[start_line:])
                 executed, cancelled = run_program(self, path, start_line, total, on_progress,

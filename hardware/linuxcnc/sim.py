@@ -24,6 +24,7 @@ group this object started (never to processes found by name).
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import pwd
 import secrets
@@ -136,6 +137,24 @@ class SimController:
         if not self.running:
             raise SimUnavailable("the simulator is not running", field="linuxcnc")
         return HalWatch(names, self._env, period_s, max_s)
+
+    _OUTPUTS = ("import json, linuxcnc\n"
+                "s = linuxcnc.stat(); s.poll()\n"
+                "print(json.dumps({'dout': [int(v) for v in s.dout[:4]], 'spindle': int(s.spindle[0]['enabled']),\n"
+                "                  'mist': int(s.mist), 'flood': int(s.flood), 'task_state': s.task_state}))\n")
+
+    def outputs(self) -> dict:
+        """The process outputs by LinuxCNC's own status (``linuxcnc.stat()`` under the system
+        Python): ``{"dout": [4 motion digital outputs], "spindle", "mist", "flood"}`` as 0/1,
+        and ``task_state`` (1 = e-stop)."""
+        if not self.running:
+            raise SimUnavailable("the simulator is not running", field="linuxcnc")
+        python = shutil.which("python3", path="/usr/bin:/bin") or "python3"
+        done = subprocess.run([python, "-c", self._OUTPUTS], capture_output=True, text=True, timeout=20,
+                              env=self._env)
+        if done.returncode != 0:
+            raise SimUnavailable(f"reading linuxcnc.stat failed: {done.stderr.strip()[-300:]}", field="linuxcnc")
+        return json.loads(done.stdout)
 
     @property
     def running(self) -> bool:

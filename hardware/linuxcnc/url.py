@@ -8,7 +8,8 @@ Passwords are never part of a stored URL: they come from the constructor, else f
 environment (``CONFORMA_LINUXCNC_CONNECTPW`` / ``CONFORMA_LINUXCNC_ENABLEPW``), else
 linuxcncrsh's defaults (``EMC`` / ``EMCTOO``).  ``programs`` is a directory the controller
 can read under the same path (the controller's own disk, or a shared mount): linuxcncrsh
-opens programs by path and cannot receive a file.  Default: ``CONFORMA_LINUXCNC_PROGRAMS``,
+opens programs by path and cannot receive a file.  Default: the machine's ``program_dir``
+argument (the service passes its ``CONFORMA_LINUXCNC_PROGRAMS`` setting), else that variable,
 else ``<tmp>/conforma-linuxcnc`` (the service's API accepts ``linuxcnc://host:port`` and
 ``?joints=N`` only, so an API caller cannot pick a directory to write to).
 """
@@ -37,10 +38,11 @@ class LinuxCNCAddress:
     joints: int | None = None
 
 
-def parse_url(url: str) -> LinuxCNCAddress:
+def parse_url(url: str, program_dir: str | None = None) -> LinuxCNCAddress:
     """Parse ``linuxcnc://host:port[?programs=DIR&joints=N]`` (``InvalidConfig`` naming the
-    part).  linuxcncrsh reports 6 joints whatever the machine has: without ``joints``,
-    homing counts as done when the homed flags stay unchanged for half a second."""
+    part); ``program_dir`` is the default of ``programs``.  linuxcncrsh reports 6 joints
+    whatever the machine has: without ``joints``, homing counts as done when the homed flags
+    stay unchanged for half a second."""
     parts = urlsplit(url)
     if parts.scheme != "linuxcnc":
         raise InvalidConfig("expected a linuxcnc://host:port URL", field="port", value=url)
@@ -54,7 +56,7 @@ def parse_url(url: str) -> LinuxCNCAddress:
     unknown = sorted(set(query) - _OPTIONS)
     if unknown:
         raise InvalidConfig(f"unknown linuxcnc:// option {unknown[0]!r}", field="port", value=url)
-    default_dir = (os.environ.get("CONFORMA_LINUXCNC_PROGRAMS")
+    default_dir = (program_dir or os.environ.get("CONFORMA_LINUXCNC_PROGRAMS")
                    or os.path.join(tempfile.gettempdir(), "conforma-linuxcnc"))
     program_dir = query.get("programs", [default_dir])[0]
     if not os.path.isabs(program_dir):

@@ -337,3 +337,26 @@ def test_toolpath_is_placed_on_the_bed_and_refused_outside_the_machine(client, p
     error = problem["errors"][0]
     assert "placement" in str(error["loc"]) and "on X" in problem["detail"]
     assert "2.5" in problem["detail"]       # a 20 mm wide part centred on a 15 mm bed: 2.5 mm over each side
+
+
+def test_toolpath_on_a_registered_machine_uses_its_travel_limits(client, part):
+    volume = {"x": [-50, 10], "y": [-40, 20], "z": [0, 30]}
+    machine = client.post("/api/v1/machines", json={"name": "small bed", "port": "mock://small", "dialect": "marlin",
+                                                   "profile": {"volume_mm": volume}}, headers=OP)
+    assert machine.status_code == 201, machine.text
+    machine_id = machine.json()["id"]
+    sliced = run(client, "slice", {"part_id": part, "layer_mm": 1.5})
+    job = run(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0, "machine_id": machine_id})
+    assert machine_id in job["result"]["placement"]["volume_mm"]["source"]
+    (x0, y0, _), (x1, y1, _) = printed_bounds(client, job)
+    # centred on the machine's own bed (-50..10, -40..20), not on the default 200 x 200 bed
+    assert (x0 + x1) / 2 == pytest.approx(-20.0, abs=0.51) and (y0 + y1) / 2 == pytest.approx(-10.0, abs=0.51)
+    # a machine whose bed is too small: refused at submission, naming the machine's limits
+    small = client.post("/api/v1/machines", json={"name": "tiny bed", "port": "mock://tiny", "dialect": "marlin",
+                                                 "profile": {"volume_mm": {"x": [0, 15], "y": [0, 100],
+                                                                           "z": [0, 100]}}}, headers=OP)
+    refused = submit(client, "toolpath", {"slice_job_id": sliced["id"], "line_width_mm": 1.0,
+                                          "machine_id": small.json()["id"]})
+    assert refused.status_code == 422 and "on X" in refused.json()["detail"], refused.text
+    missing = submit(client, "toolpath", {"slice_job_id": sliced["id"], "machine_id": "mach_nope"})
+    assert missing.status_code in (404, 422) and "mach_nope" in missing.text

@@ -173,7 +173,10 @@ def _check(params: ToolpathJobParams, session: Session) -> None:
         raise SlicingError("extrusion (E axis) output needs the marlin dialect; use mode: dispense on grbl",
                            field="params.dialect", value=params.dialect)
     params.fill().validate()
-    volume = machine_volume(params, session)
+    machine = None
+    if params.machine_id is not None and params.volume_mm is None:
+        machine = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    volume = machine_volume(params, machine)
     bounds = SliceResult.of(job).bounds
     if bounds:
         placed = np.asarray(bounds, dtype=float) + placement_shift(np.asarray(bounds), params.placement.core(), volume)
@@ -181,12 +184,12 @@ def _check(params: ToolpathJobParams, session: Session) -> None:
                      what="the part (with the program's end lift), placed on the bed,")
 
 
-def machine_volume(params: ToolpathJobParams, session: Session) -> MachineVolume:
-    """The travel limits: the parameters', else the machine profile's, else the default bed."""
+def machine_volume(params: ToolpathJobParams, machine: Machine | None) -> MachineVolume:
+    """The travel limits: the parameters', else the profile's of ``machine`` (the record of
+    ``params.machine_id``), else the default bed."""
     if params.volume_mm is not None:
         return params.volume_mm.volume("params.volume_mm")
-    if params.machine_id is not None:
-        machine = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    if machine is not None:
         given = (machine.profile or {}).get("volume_mm")
         if given:
             return VolumeIn(**given).volume(f"machine {machine.id} profile.volume_mm")
@@ -250,7 +253,9 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
     slice_job = ctx.job(params.slice_job_id, kind="slice", field="params.slice_job_id")
     sliced = from_json(ctx.artifact_bytes(slice_job.id, "layers.json"))
-    volume = machine_volume(params, ctx.session)
+    machine = (ctx.machine(params.machine_id) if params.machine_id is not None and params.volume_mm is None
+               else None)
+    volume = machine_volume(params, machine)
     shift = placement_shift(sliced.bounds, params.placement.core(), volume)
     sliced = translated(sliced, shift)
     ctx.progress(0.1, f"filling {len(sliced.layers)} layers ({params.pattern})")

@@ -20,11 +20,17 @@ def test_reset_brings_back_the_start_up_state(lcnc_xyz, _one_simulator):
     machine.connect()
     machine.home()
     machine.select_tool(2)
-    machine.send("M64 P0")
     machine.send("G20 G91")
     lcnc_xyz.set_surface(SimBlock(20, 14, 1.0, 0.01, dx=0.4, dy=-0.3, dz=0.05, rz_deg=0.5))
     lcnc_xyz.set_surface(SimSphere((30.3, 20.2, 3.1), 5.5))
-    machine.disconnect()
+    machine.disconnect()  # (it switches the dispense output off: a raw session leaves it on)
+    session = lcnc_xyz.session(enable=True)
+    try:
+        session.set("mode", "mdi")
+        session.set("mdi", "M64 P0")
+        session.set("wait", "done", timeout_s=10)
+    finally:
+        session.close()
     dirty = lcnc_xyz.snapshot()
     # the check can fail: every leftover is visible in the snapshot
     assert {k for k in start if dirty[k] != start[k]} >= LEFTOVERS, dirty
