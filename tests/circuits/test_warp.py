@@ -99,7 +99,7 @@ def test_arcs_are_split_within_their_chord_and_warped(surface):
 
 
 def test_arcs_outside_the_xy_plane_are_refused_naming_the_line(surface):
-    with pytest.raises(WarpError, match="line 3"):
+    with pytest.raises(WarpError, match="line 2: G18"):
         warp_program("G1 X10 Y10\nG18\nG2 X20 Y10 I5 K0 E1\n", surface)
 
 
