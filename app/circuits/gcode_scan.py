@@ -40,7 +40,7 @@ from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
 from app.gcode.reader import HOME, ArcBudgetError, ModalReader, ReadOptions
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
-__all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_line", "PRINT", "TRAVEL", "ZONLY",
+__all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_line", "MIN_ARC_CHORD_MM", "PRINT", "TRAVEL", "ZONLY",
            "EONLY", "STILL", "HOME_KIND", "MODE", "OTHER", "KIND_NAMES"]
 
 PRINT, TRAVEL, ZONLY, EONLY, STILL, HOME_KIND, MODE, OTHER = range(8)
@@ -64,6 +64,8 @@ REWRITTEN_LETTERS = frozenset("GNXYZEIJRF")
 BASE_ARC_CHORDS = 10_000
 ARC_CHORDS_PER_BYTE = 2
 MAX_ARC_CHORDS = 1_000_000
+#: the smallest arc chord sagitta (mm) the warp accepts
+MIN_ARC_CHORD_MM = 1e-4
 
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _PAREN = re.compile(r"\([^()\n]*\)")

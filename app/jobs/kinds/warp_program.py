@@ -11,7 +11,7 @@ from pydantic import Field, model_validator
 from sqlmodel import Session
 
 from app.circuits.errors import WarpError
-from app.circuits.gcode_scan import scan_program
+from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, scan_program
 from app.circuits.heightfield import height_field_from_points, points_region
 from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
 from app.errors import InvalidInput
@@ -33,7 +33,9 @@ class WarpProgramParams(JobParams):
     standoff_mm: float | None = Field(None, gt=0, le=50, description="printing moves at the surface + this; "
                                       "default: the program's z + the surface height")
     chord_error_mm: float = Field(0.002, gt=0, le=1, description="proved bound per emitted piece")
-    arc_chord_mm: float = Field(0.001, gt=0, le=1, description="G2/G3 arcs: largest top-view chord sagitta")
+    arc_chord_mm: float = Field(0.001, ge=MIN_ARC_CHORD_MM, le=1,
+                                description="G2/G3 arcs: largest top-view chord sagitta (the chords of all arcs "
+                                            "together are bounded by the program's size)")
     clearance_mm: float = Field(2.0, gt=0, le=100, description="travel height above the surface's top")
     allow_outside: bool = Field(False, description="hold the edge height outside the measured region")
     grid_mm: float = Field(1.0, gt=0.05, le=20, description="height-field grid spacing")
@@ -69,8 +71,8 @@ def _check(params: WarpProgramParams, session: Session) -> None:
     except UnicodeDecodeError:
         raise InvalidInput("the program is not UTF-8 text", field="params.program_id", value=program.id) from None
     except WarpError as exc:
-        raise InvalidInput(f"program {program.name!r} {exc.message}", field="params.program_id",
-                           value=exc.value) from None
+        field = "params.arc_chord_mm" if exc.field == "arc_chord_mm" else "params.program_id"
+        raise InvalidInput(f"program {program.name!r} {exc.message}", field=field, value=exc.value) from None
 
 
 def _surface_points(job: Job) -> np.ndarray:
