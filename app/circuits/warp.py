@@ -208,15 +208,19 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
             z_move[k_z[unknown]] = np.maximum(z_move[k_z[unknown]], safe_z)
     templates, values = _piece_template(recs, k_print, pieces, d)
     z_end = pieces.z[pieces.first + n - 1] if len(n) else np.zeros(0)
-    parts, marks = _write(recs, z_move, z_start, z_end, safe_z, d)
+    parts, marks, run_first, run_last = _write(recs, z_move, z_start, z_end, safe_z, d)
+    # each run of printing moves: its pieces, contiguous, in place of its mark
+    piece_end = np.cumsum(n)
+    run_pieces = piece_end[run_last] - (piece_end[run_first] - n[run_first]) if len(marks) else np.zeros(0, np.int64)
     expand = np.ones(len(parts), np.int64)
-    expand[marks] = n
+    expand[marks] = run_pieces
     slot = np.cumsum(expand) - expand
     out = np.empty(int(expand.sum()), dtype=object)
     keep = np.ones(len(parts), bool)
     keep[marks] = False
     out[slot[keep]] = np.array(parts, dtype=object)[keep]
-    out[np.repeat(slot[marks], n) + pieces.k - 1] = templates
+    out[np.repeat(slot[marks] - np.concatenate([[0], np.cumsum(run_pieces)[:-1]]), run_pieces)
+        + np.arange(int(run_pieces.sum()))] = templates
     body: list[str] = out.tolist()
     text_out = "; warped onto a measured surface by conforma (absolute mm)\nG21\nG90\n" + \
         "".join(body) % tuple(values)
@@ -225,47 +229,61 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
 
 
 def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[np.float64],
-           z_end: npt.NDArray[np.float64], safe_z: float, d: int) -> tuple[list[str], npt.NDArray[np.int64]]:
-    """Every output line but the printing pieces (``%``-escaped), in order, and the index in it
-    of each printing move's mark (where its pieces go).  Walks the records once, keeping where
-    the tool is: a lift to ``safe_z`` before a travel or homing move from below it, a descent
-    to each printing move's start when the tool is not there (with the travel's own code and
-    feed after a travel), every Z-only and repeated move at its own place, code and feed."""
-    kind = recs.kind.tolist()
-    line = recs.line.tolist()
-    end = recs.end.tolist()
-    start = recs.start.tolist()
-    motion = recs.motion.tolist()
-    feed = recs.feed.tolist()
-    e_abs = recs.e_abs.tolist()
-    zm = z_move.tolist()
-    zs = z_start.tolist()
-    ze = z_end.tolist()
+           z_end: npt.NDArray[np.float64], safe_z: float,
+           d: int) -> tuple[list[str], npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Every output line but the printing pieces (``%``-escaped), in order; the index in it of
+    each run of printing moves' mark (where their pieces go) and the run's first and last
+    printing move.  Walks the records once (a run of printing moves that continue one another
+    as one step), keeping where the tool is: a lift to ``safe_z`` before a travel or homing
+    move from below it, a descent to a printing move's start when the tool is not there (with
+    the travel's own code and feed after a travel), every Z-only and repeated move at its own
+    place, code and feed."""
+    kind_a = recs.kind
+    tol = 0.5 * 10.0 ** -d
+    is_print = kind_a == PRINT
+    k_print = np.flatnonzero(is_print)
+    # a printing move continues the one before it: the record just before, ending where it starts
+    cont = np.zeros(len(k_print), bool)
+    if len(k_print) > 1:
+        cont[1:] = (np.diff(k_print) == 1) & (np.abs(z_start[1:] - z_end[:-1]) <= tol)
+    head = ~is_print
+    head[k_print[~cont]] = True
+    if recs.carried:                                      # a line with words to carry starts a step
+        has_words = np.zeros(len(recs.lines), bool)
+        has_words[list(recs.carried)] = True
+        first_of_line = np.concatenate([[True], recs.line[1:] != recs.line[:-1]])
+        head |= has_words[recs.line] & first_of_line
+    heads = np.flatnonzero(head).tolist()
+    print_index = np.cumsum(is_print) - 1                 # record -> its index among the printing moves
+    run_len = np.diff(np.concatenate([np.flatnonzero(head), [len(kind_a)]])).tolist()
+    kind, line, motion, feed, e_abs = (recs.kind.tolist(), recs.line.tolist(), recs.motion.tolist(),
+                                       recs.feed.tolist(), recs.e_abs.tolist())
+    x1, y1, e0, e1 = recs.end[:, 0].tolist(), recs.end[:, 1].tolist(), recs.start[:, 3].tolist(), recs.end[:, 3].tolist()
+    pidx = print_index.tolist()
+    zm, zs, ze = z_move.tolist(), z_start.tolist(), z_end.tolist()
     lines, carried = recs.lines, recs.carried
-    safe = _fmt(safe_z, d)
-    lift = f"G0 Z{safe}\n"
+    lift = f"G0 Z{_fmt(safe_z, d)}\n"
     parts: list[str] = []
     marks: list[int] = []
+    run_first: list[int] = []
+    run_last: list[int] = []
     z_now = math.nan                   # the tool's height in the output (NaN: unknown)
     xy_known = True
     after: tuple[int | None, float] = (None, math.nan)   # code and feed of a travel just made
     last_line = -1
-    j = 0                              # printing moves seen
-    tol = 0.5 * 10.0 ** -d
 
     def words(i: int) -> str:
         """The E and F words of record i (E in the output's mode, F for a feed move)."""
         out = ""
-        e0, e1 = start[i][3], end[i][3]
-        if e1 != e0:
-            out += f" E{_fmt(e1 if e_abs[i] else e1 - e0, 5)}"
+        if e1[i] != e0[i]:
+            out += f" E{_fmt(e1[i] if e_abs[i] else e1[i] - e0[i], 5)}"
         f = feed[i]
         if motion[i] != 0 and f == f and f:
             out += f" F{_fmt(f, 1)}"
         return out
 
-    for i, k in enumerate(kind):
-        ln = line[i]
+    for h_i, i in enumerate(heads):
+        k, ln = kind[i], line[i]
         if ln != last_line:
             last_line = ln
             extra = carried.get(ln)
@@ -278,21 +296,24 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
         elif k == PRINT:
             if not xy_known:
                 raise recs.refuse(i, "a printing move right after homing (G28): travel to its start first")
-            z0 = zs[j]
-            if not abs(z_now - z0) <= tol:
+            j = pidx[i]
+            if not abs(z_now - zs[j]) <= tol:
                 code, f = (after[0], after[1]) if after[0] is not None else (1, feed[i])
-                parts.append(f"G{code} Z{_fmt(z0, d)}" + (f" F{_fmt(f, 1)}" if code and f == f and f else "") + "\n")
+                parts.append(f"G{code} Z{_fmt(zs[j], d)}" + (f" F{_fmt(f, 1)}" if code and f == f and f else "") + "\n")
+            last = i + run_len[h_i] - 1
+            last_line = line[last]
             marks.append(len(parts))
             parts.append("")
-            z_now = ze[j]
-            j += 1
+            run_first.append(j)
+            run_last.append(pidx[last])
+            z_now = ze[pidx[last]]
             after = (None, math.nan)
         elif k == TRAVEL:
             if not z_now >= safe_z - tol:
                 parts.append(lift)
                 z_now = safe_z
             code = motion[i] if motion[i] in (0, 1) else 1
-            parts.append(f"G{code} X{_fmt(end[i][0], d)} Y{_fmt(end[i][1], d)}" + words(i) + "\n")
+            parts.append(f"G{code} X{_fmt(x1[i], d)} Y{_fmt(y1[i], d)}" + words(i) + "\n")
             xy_known = True
             after = (code, feed[i])
         elif k in (ZONLY, STILL):
@@ -312,7 +333,7 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
             parts.append(("G91 G28 " + " ".join(f"{ax}0" for ax in axes) + "\nG90\n") if axes else "G28\n")
             z_now, xy_known = math.nan, False
             after = (None, math.nan)
-    return parts, np.array(marks, np.int64)
+    return parts, np.array(marks, np.int64), np.array(run_first, np.int64), np.array(run_last, np.int64)
 
 
 def _named(text: str) -> set[str]:
