@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,18 +68,22 @@ MAX_ARC_CHORDS = 1_000_000
 #: the smallest arc chord sagitta (mm) the warp accepts
 MIN_ARC_CHORD_MM = 1e-4
 
-_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _PAREN = re.compile(r"\([^()\n]*\)")
 _TAPE = re.compile(r"^[ \t]*%[ \t]*$", re.MULTILINE)
 _COMMENT = re.compile(r";[^\n]*")
-_EXPONENT = re.compile(rb"[0-9.][eE][-+]?[0-9]")
 _LETTERS = bytes(range(65, 91)) + bytes(range(97, 123))
 _LETTERS_TO_BLANK = bytes.maketrans(_LETTERS, b" " * len(_LETTERS))
 _KEEP = np.zeros(256, bool)
 _KEEP[list(_LETTERS) + [10]] = True
-# words, blanks and line breaks only (possessive: no backtracking)
-_PLAIN = re.compile(rf"(?:[A-Za-z][ \t]*{_NUMBER}|[ \t\n]+)*+")
-_UNUSUAL = re.compile(r"[^\t\n\r\x20-\x7e]")
+_PRINTABLE = bytes(range(0x20, 0x7F)) + b"\t\n"
+_WORD_CHARS = _LETTERS + b"0123456789.+- \t\n"
+_NUMBER_CHAR = np.zeros(256, bool)
+_NUMBER_CHAR[list(b"0123456789.+-")] = True
+_DIGIT_OR_DOT = np.zeros(256, bool)
+_DIGIT_OR_DOT[list(b"0123456789.")] = True
+_LETTER = np.zeros(256, bool)
+_LETTER[list(_LETTERS)] = True
+_BLANKS = b" \t"
 _FAST_LETTERS = frozenset("GMXYZEFNST")
 _FAST_G = frozenset({0.0, 1.0, 17.0, 20.0, 21.0, 90.0, 91.0}) | PASSED_G
 
@@ -279,14 +284,38 @@ def _blank(match: re.Match[str]) -> str:
     return " " * len(match.group(0))
 
 
+def _word_values(body: bytes) -> npt.NDArray[np.float64] | None:
+    """Every word's number in order, or None unless ``body`` (letters, digits, ``.+-``, blanks,
+    line breaks) is words only: each letter followed on its line, after blanks, by exactly one
+    well-formed number, and no number without its letter."""
+    stream = np.frombuffer(body.translate(None, _BLANKS), np.uint8)
+    is_letter, is_number = _LETTER[stream], _NUMBER_CHAR[stream]
+    letters = int(np.count_nonzero(is_letter))
+    if letters == 0:
+        return np.zeros(0) if not is_number.any() else None
+    # every letter directly followed by a number (blanks removed), and as many numbers as letters
+    followed = np.zeros(len(stream), bool)
+    followed[:-1] = is_number[1:]
+    runs = int(np.count_nonzero(is_number[1:] & ~is_number[:-1])) + int(is_number[0])
+    if not followed[is_letter].all() or runs != letters:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                 # a malformed number ("1.2.3", "1-") is refused
+        try:
+            value = np.fromstring(body.translate(_LETTERS_TO_BLANK), sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    return value if len(value) == letters else None   # "X1 2": two numbers, one letter
+
+
 def _scan_fast(text: str) -> Records | None:
     """The vectorised reader, or None when the program needs the line-by-line one."""
     if "\r" in text:
         text = text.replace("\r\n", "\n")
         if "\r" in text:
             return None
-    if _UNUSUAL.search(text):
-        return None
+    if not text.isascii() or text.encode("ascii").translate(None, _PRINTABLE):
+        return None                                   # line breaks other than "\n", control bytes
     lines = text.splitlines()
     n_lines = len(lines)
     body_text = _COMMENT.sub("", text)
@@ -294,16 +323,18 @@ def _scan_fast(text: str) -> Records | None:
         body_text = _PAREN.sub(_blank, body_text)
     if "%" in body_text:
         body_text = _TAPE.sub("", body_text)
-    if not _PLAIN.fullmatch(body_text):
-        return None
     body = body_text.encode("ascii")
-    if _EXPONENT.search(body):
-        return None                                   # "X1E5": the reader decides
+    if body.translate(None, _WORD_CHARS):
+        return None                                   # not words only
+    raw = np.frombuffer(body, np.uint8)
+    is_e = (raw[1:] == 69) | (raw[1:] == 101)
+    if (is_e & _DIGIT_OR_DOT[raw[:-1]]).any():
+        return None                                   # "X1E5": an exponent or a word? the reader decides
+    value = _word_values(body)
+    if value is None:
+        return None
     marks = np.frombuffer(body, np.uint8)
     marks = marks[_KEEP[marks]]                       # every word's letter, and the line breaks
-    words = int(np.count_nonzero(marks != 10))
-    # every word's number, in order (no words: nothing to parse, fromstring would invent one)
-    value = np.fromstring(body.translate(_LETTERS_TO_BLANK), sep=" ") if words else np.zeros(0)
     is_nl = marks == 10
     tok_line = (np.cumsum(is_nl) - is_nl)[~is_nl]
     code = marks[~is_nl].astype(np.int64)

@@ -109,6 +109,8 @@ def test_the_modal_program_is_read_as_the_rules_say():
     "G1 X1 Y1 E1\nG2 X2 Y2 I0.5 J0.5 E2\n",          # an arc
     "G1 X1 Y1E1e0\n",                                  # an exponent
     "G28 G91 Z0\nG90\nG0 X1 Y1\n",                        # homing
+    "G1 X1 2\n", "G1 X\n", "G1 X1-2\n", "1 G1 X1\n", "G1 X1.2.3\n", "G1 X\n1\n", "G1 X+\n",  # not words
+    "G1 X1\x0bY1\n", "G1 X1 ; caf\u00e9\n",               # a line break splitlines() sees, not ASCII
     "G92 X1\nG0 X2 Y1\n",                               # a shift
     "G1 X1 Y1 E1*57\n",                                # a checksum
     "M117 hello\nG1 X1 Y1 E1\n",                       # text a plain reader cannot take
