@@ -253,14 +253,22 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
         has_words[list(recs.carried)] = True
         first_of_line = np.concatenate([[True], recs.line[1:] != recs.line[:-1]])
         head |= has_words[recs.line] & first_of_line
-    heads = np.flatnonzero(head).tolist()
+    hd = np.flatnonzero(head)
+    heads = hd.tolist()
     print_index = np.cumsum(is_print) - 1                 # record -> its index among the printing moves
-    run_len = np.diff(np.concatenate([np.flatnonzero(head), [len(kind_a)]])).tolist()
-    kind, line, motion, feed, e_abs = (recs.kind.tolist(), recs.line.tolist(), recs.motion.tolist(),
-                                       recs.feed.tolist(), recs.e_abs.tolist())
-    x1, y1, e0, e1 = recs.end[:, 0].tolist(), recs.end[:, 1].tolist(), recs.start[:, 3].tolist(), recs.end[:, 3].tolist()
-    pidx = print_index.tolist()
-    zm, zs, ze = z_move.tolist(), z_start.tolist(), z_end.tolist()
+    last_rec = np.concatenate([hd[1:], [len(kind_a)]]) - 1 if len(hd) else hd   # each step's last record
+    # every column at the steps only (a run of printing moves is one step)
+    kind, line, motion, feed, e_abs = (recs.kind[hd].tolist(), recs.line[hd].tolist(), recs.motion[hd].tolist(),
+                                       recs.feed[hd].tolist(), recs.e_abs[hd].tolist())
+    x1, y1 = recs.end[hd, 0].tolist(), recs.end[hd, 1].tolist()
+    e0, e1 = recs.start[hd, 3].tolist(), recs.end[hd, 3].tolist()
+    line_last = recs.line[last_rec].tolist()
+    p_first = np.maximum(print_index[hd], 0)
+    p_last = np.maximum(print_index[last_rec], 0)
+    pf, pl = p_first.tolist(), p_last.tolist()
+    zm = z_move[hd].tolist()
+    zs = z_start[p_first].tolist() if len(z_start) else [math.nan] * len(heads)
+    ze = z_end[p_last].tolist() if len(z_end) else [math.nan] * len(heads)
     lines, carried = recs.lines, recs.carried
     lift = f"G0 Z{_fmt(safe_z, d)}\n"
     parts: list[str] = []
@@ -282,7 +290,7 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
             out += f" F{_fmt(f, 1)}"
         return out
 
-    for h_i, i in enumerate(heads):
+    for i, rec in enumerate(heads):
         k, ln = kind[i], line[i]
         if ln != last_line:
             last_line = ln
@@ -295,18 +303,16 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
             parts.append(f"; {lines[ln].strip()}  (the warp writes absolute mm)".replace("%", "%%") + "\n")
         elif k == PRINT:
             if not xy_known:
-                raise recs.refuse(i, "a printing move right after homing (G28): travel to its start first")
-            j = pidx[i]
-            if not abs(z_now - zs[j]) <= tol:
+                raise recs.refuse(rec, "a printing move right after homing (G28): travel to its start first")
+            if not abs(z_now - zs[i]) <= tol:
                 code, f = (after[0], after[1]) if after[0] is not None else (1, feed[i])
-                parts.append(f"G{code} Z{_fmt(zs[j], d)}" + (f" F{_fmt(f, 1)}" if code and f == f and f else "") + "\n")
-            last = i + run_len[h_i] - 1
-            last_line = line[last]
+                parts.append(f"G{code} Z{_fmt(zs[i], d)}" + (f" F{_fmt(f, 1)}" if code and f == f and f else "") + "\n")
+            last_line = line_last[i]
             marks.append(len(parts))
             parts.append("")
-            run_first.append(j)
-            run_last.append(pidx[last])
-            z_now = ze[pidx[last]]
+            run_first.append(pf[i])
+            run_last.append(pl[i])
+            z_now = ze[i]
             after = (None, math.nan)
         elif k == TRAVEL:
             if not z_now >= safe_z - tol:
@@ -319,7 +325,7 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
         elif k in (ZONLY, STILL):
             z = zm[i]
             if not xy_known and not z >= safe_z - tol:
-                raise recs.refuse(i, "a move down right after homing (G28): travel to a place first")
+                raise recs.refuse(rec, "a move down right after homing (G28): travel to a place first")
             code = motion[i] if motion[i] in (0, 1) else 1
             parts.append(f"G{code} Z{_fmt(z, d)}" + words(i) + "\n")
             z_now = z
