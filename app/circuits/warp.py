@@ -1,19 +1,25 @@
-"""Warping an existing G-code program onto a measured surface (bed-mesh style, but proved).
+"""Warping an existing G-code program onto a measured surface (bed-mesh style, with a chord bound).
 
-Every printing move (a G0/G1 feed move that extrudes, or that runs while the dispenser is
-on) is moved onto the surface: z = h(x, y) + ``standoff_mm`` (or, without a standoff, the
-program's own z + h(x, y), Klipper's convention); it is split into n equal top-view pieces
-with n the smallest count for which the PROVED bound L^2 / (8 n^2) * K <= ``chord_error_mm``
-holds (K: the height field's curvature bound along the move, see
-:mod:`app.circuits.heightfield`).  Klipper's bed mesh and bCNC's autolevel split at a fixed
-length instead (:func:`fixed_split_error` measures what that leaves).  Extrusion (E) is
-shared out along the pieces (absolute or relative).  Travel moves run at
-``safe_z_mm`` (default: the surface's highest point + ``clearance_mm``): a lift before the
-first travel move after printing, a descent to the next print's start.  A printing move
-outside the measured region is refused (WarpError naming the line) unless
-``allow_outside`` (the edge height is then held).  Arcs (G2/G3, XY plane) are first split
-into chords within ``arc_chord_mm`` of the arc (top view), then warped like lines.
-Output: absolute mm (``G21``, ``G90``) whatever the input's units and modes.
+The program is read by :func:`app.circuits.gcode_scan.scan_program` (the one G-code reader's
+moves; what the warp does not model is refused naming the line).  Every printing move (a
+G1/G2/G3 move in x/y that extrudes, or that runs while the dispenser is on) is moved onto the
+surface: z = h(x, y) + ``standoff_mm`` (or, without a standoff, the program's own z + h(x, y),
+Klipper's convention); it is split into n equal top-view pieces with n the smallest count for
+which the bound L^2 / (8 n^2) * K <= ``chord_error_mm`` holds (K: the height field's curvature
+bound along the move, see :mod:`app.circuits.heightfield`).  Klipper's bed mesh and bCNC's
+autolevel split at a fixed length instead (:func:`fixed_split_error` measures what that
+leaves).  Extrusion (E) is shared out along the pieces (absolute or relative).
+
+Every other move keeps its place, code and feed, its z relative to the surface under it: a
+Z-only or repeated move goes to the program's z + h(x, y) (with a standoff, the printing height
++ the program's height above its next printing move's z).  Travel moves run at the safe height
+(``safe_z_mm``, at least the surface's highest point + ``clearance_mm``; by default that + the
+highest printing height above the surface): a lift before a travel or homing move from below
+it, a descent to a printing move's start when the tool is elsewhere (with the travel's code and
+feed after a travel).  Outside the measured region a printing move is refused (WarpError naming
+the line) and a Z-only move is held at the safe height, unless ``allow_outside`` (the edge
+height is then held).  Output: absolute mm (``G21``, ``G90``) in machine coordinates whatever
+the input's units, modes and ``G92`` shifts.
 """
 
 from __future__ import annotations
