@@ -16,7 +16,9 @@ Z-only or repeated move goes to the program's z + h(x, y) (with a standoff, the 
 (``safe_z_mm``, at least the surface's highest point + ``clearance_mm``; by default that + the
 highest printing height above the surface): a lift before a travel or homing move from below
 it, a descent to a printing move's start when the tool is elsewhere (with the travel's code and
-feed after a travel).  Outside the measured region a printing move is refused (WarpError naming
+feed after a travel).  Until the tool's x/y is known (the program's start, after a homing
+move) a Z-only move is held at least at the safe height and a printing move is approached
+from it.  Outside the measured region a printing move is refused (WarpError naming
 the line) and a Z-only move is held at the safe height, unless ``allow_outside`` (the edge
 height is then held).  Output: absolute mm (``G21``, ``G90``) in machine coordinates whatever
 the input's units, modes and ``G92`` shifts.
@@ -267,6 +269,7 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
     kind, line, motion, feed, e_abs = (recs.kind[hd].tolist(), recs.line[hd].tolist(), recs.motion[hd].tolist(),
                                        recs.feed[hd].tolist(), recs.e_abs[hd].tolist())
     x1, y1 = recs.end[hd, 0].tolist(), recs.end[hd, 1].tolist()
+    x0, y0 = recs.start[hd, 0].tolist(), recs.start[hd, 1].tolist()
     e0, e1 = recs.start[hd, 3].tolist(), recs.end[hd, 3].tolist()
     line_last = recs.line[last_rec].tolist()
     p_first = np.maximum(print_index[hd], 0)
@@ -282,7 +285,7 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
     run_first: list[int] = []
     run_last: list[int] = []
     z_now = math.nan                   # the tool's height in the output (NaN: unknown)
-    xy_known = True
+    xy_known = False                   # where the tool is in x/y (not before the first x/y move)
     after: tuple[int | None, float] = (None, math.nan)   # code and feed of a travel just made
     last_line = -1
 
@@ -296,7 +299,7 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
             out += f" F{_fmt(f, 1)}"
         return out
 
-    for i, rec in enumerate(heads):
+    for i in range(len(heads)):
         k, ln = kind[i], line[i]
         if ln != last_line:
             last_line = ln
@@ -308,8 +311,11 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
         elif k == MODE:
             parts.append(f"; {lines[ln].strip()}  (the warp writes absolute mm)".replace("%", "%%") + "\n")
         elif k == PRINT:
-            if not xy_known:
-                raise recs.refuse(rec, "a printing move right after homing (G28): travel to its start first")
+            if not xy_known:                   # the program's start or a homing: go to the print's start
+                if not z_now >= safe_z - tol:
+                    parts.append(lift)
+                parts.append(f"G0 X{_fmt(x0[i], d)} Y{_fmt(y0[i], d)}\n")
+                z_now, xy_known = safe_z, True
             if not abs(z_now - zs[i]) <= tol:
                 code, f = (after[0], after[1]) if after[0] is not None else (1, feed[i])
                 parts.append(f"G{code} Z{_fmt(zs[i], d)}" + (f" F{_fmt(f, 1)}" if code and f == f and f else "") + "\n")
@@ -329,9 +335,7 @@ def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[
             xy_known = True
             after = (code, feed[i])
         elif k in (ZONLY, STILL):
-            z = zm[i]
-            if not xy_known and not z >= safe_z - tol:
-                raise recs.refuse(rec, "a move down right after homing (G28): travel to a place first")
+            z = zm[i] if xy_known else max(zm[i], safe_z)     # where the tool is unknown: not below safe
             code = motion[i] if motion[i] in (0, 1) else 1
             parts.append(f"G{code} Z{_fmt(z, d)}" + words(i) + "\n")
             z_now = z
