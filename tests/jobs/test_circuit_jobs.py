@@ -46,6 +46,12 @@ def test_warp_program_on_a_surface_fit_and_outside_it(client, s1_stl):
     result = job["result"]
     assert result["printing_moves"] == 3 and result["max_chord_bound_mm"] <= 0.002
     assert round_trips(WarpProgramResult, job).fixed_split.split_mm == 5.0
+    # the fitted surface sampled on a grid of its parameters (x and y along them): the grid's own
+    # bicubic and Clough-Tocher compared by leaving grid rows out, the better one used
+    model = result["height_model"]
+    assert model["cv"] == "leave_one_row_out" and model["cv_max_mm"] > 0, model
+    assert model["alternatives"][model["kind"]] == min(model["alternatives"].values())
+    print("height model", model)
     assert result["fixed_split"]["pieces"] > 0
     _, response = artifact(client, job, "warped.gcode")
     dispensing, tips = False, []

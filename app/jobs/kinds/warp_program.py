@@ -6,13 +6,15 @@ measured points; see :mod:`app.circuits.warp` for what happens to each move.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session
 
 from app.circuits.errors import WarpError
 from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, scan_program
-from app.circuits.heightfield import height_field_from_points, points_region
+from app.circuits.heightfield import height_model_from_points, points_region
 from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
 from app.errors import InvalidInput
 from app.geometry.nurbs_surface import NurbsSurface
@@ -84,6 +86,10 @@ def _surface_points(job: Job) -> np.ndarray:
     return np.array([p.measured for p in ProbeRunResult.of(job).points], float)
 
 
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
 @job_kind("warp_program", WarpProgramParams, check=_check,
           references=lambda p: [("job", _surface_job(p)[1])])
 def run(ctx: JobContext, params: WarpProgramParams) -> dict:
@@ -92,8 +98,8 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
         program = get_or_404(session, Program, params.program_id, field="params.program_id")
     text = ctx.runtime.blobs.read(program.sha256).decode("utf-8")
     kind, job_id = _surface_job(params)
-    field = height_field_from_points(_surface_points(ctx.job(job_id, kind=kind, field=f"params.{kind}_job_id")),
-                                     params.grid_mm)
+    field, model = height_model_from_points(
+        _surface_points(ctx.job(job_id, kind=kind, field=f"params.{kind}_job_id")), params.grid_mm)
     ctx.progress(0.2, "warping")
     result = warp_program(text, field, WarpOptions(params.standoff_mm, params.chord_error_mm, params.clearance_mm,
                                                    allow_outside=params.allow_outside,
@@ -102,4 +108,7 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
     pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
     return WarpProgramResult.written({"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
             "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm, "safe_z_mm": result.safe_z_mm,
+            "height_model": {"kind": model.kind, "cv": model.cv, "cv_rms_mm": _finite(model.cv_rms_mm),
+                             "cv_max_mm": _finite(model.cv_max_mm),
+                             "alternatives": {k: _finite(v) for k, v in model.alternatives.items()}},
             "fixed_split": {"split_mm": params.compare_split_mm, "pieces": pieces, "max_error_mm": worst}})
