@@ -34,7 +34,7 @@ class WarpProgramParams(JobParams):
     probe_run_job_id: str | None = Field(None, description="a succeeded probe_run job (its measured points)")
     standoff_mm: float | None = Field(None, gt=0, le=50, description="printing moves at the surface + this; "
                                       "default: the program's z + the surface height")
-    chord_error_mm: float = Field(0.002, gt=0, le=1, description="proved bound per emitted piece")
+    chord_error_mm: float = Field(0.002, gt=0, le=1, description="bound per emitted piece against the height model")
     arc_chord_mm: float = Field(0.001, ge=MIN_ARC_CHORD_MM, le=1,
                                 description="G2/G3 arcs: largest top-view chord sagitta (the chords of all arcs "
                                             "together are bounded by the program's size)")
