@@ -1,81 +1,124 @@
-"""The program warp's first pass: a G-code program's modal interpretation as arrays (pure).
+"""The program warp's first pass: a G-code program's moves, line by line, as arrays (pure).
 
 :func:`scan_program` returns one record per source line (several for a G2/G3 arc, one per
-chord): its kind, its line, start and end ``[x, y, z, e]`` (absolute mm; NaN for lines that
-do not move), the modal feed (mm/min, NaN when none was set) and whether E was absolute.
+chord; one per move of a line): its kind, its line, start and end ``[x, y, z, e]`` (machine
+mm; NaN for lines that do not move), the motion code, the modal feed (mm/min, NaN before the
+first ``F``) and whether the output writes E absolute (``M82``/``M83``).
 
-Two readers with the same result: a vectorised one (one regular-expression pass over the
-whole text, the modal state carried by forward fills and cumulative sums) for programs of
-G0/G1 moves, modes (G20/G21/G90/G91/G17-G19), M codes, ``;`` comments and plain words; and
-the line-by-line reader (:func:`app.gcode.lines.read_lines`) for everything else (arcs, G92,
-parenthesised comments, checksums, stray text), which also names refused lines.  The test
-suite checks that both give identical records on programs using every supported feature.
+The moves are what the one G-code reader (:class:`app.gcode.reader.ModalReader`) reads:
+modal motion (axis words without a G word repeat the last of ``G0 G1 G2 G3``), several
+codes on a line acting in order (``G91 G0 Z2``, ``G28 G91 Z0``), inches, relative moves,
+``G92`` shifts, ``G28`` homing, arcs split into chords, line numbers, ``( )`` and ``;``
+comments, ``%`` tape marks.  Plain programs (G0/G1 moves, modes, M/S/T codes, comments,
+line numbers, tape marks) are read by a vectorised pass (one regular-expression check and
+array arithmetic) that gives the reader's records bit for bit; everything else goes through
+the reader line by line.  The test suite checks that both agree.
 
-Modal rules (both readers): a motion line is one with exactly one G code, 0-3, and an
-X/Y/Z/E/I/J word; only motion lines set the feed; M codes of a line take effect before its
-motion (M106/M8/M3/M4/M7 start dispensing, M107/M9/M5 stop it; M82/M83 absolute/relative E);
-G20/G21 and G90/G91 on other lines.  A move is ``print`` when it moves in x/y, is not G0 and
-extrudes or runs while dispensing; ``travel`` when it moves in x/y otherwise; ``zonly``,
-``eonly``; ``other`` for a motion line that changes nothing and for non-motion lines except
-``mode`` lines (only G17/G20/G21/G90/G91 codes).
+What the warp does not model is refused (:class:`WarpError` naming the line and its text),
+never passed through: G codes other than motion, dwell, homing, the modes it rewrites
+(G17 G20 G21 G90 G91 G92) and the harmless settings in :data:`PASSED_G`; rotary or extra
+axes (A B C U V W); axis words before any motion mode; a dwell sharing a line with a move.
+
+Record kinds: ``print`` (moves in x/y while dispensing or extruding, not G0), ``travel``
+(moves in x/y otherwise), ``zonly``, ``eonly``, ``still`` (a motion line that changes
+nothing, e.g. a repeated retract), ``home`` (G28), ``mode`` (a line of codes the warp
+rewrites: units, distance mode, plane, G92) and ``other`` (written unchanged: M/S/T codes,
+dwells, comments, settings).
 """
 
 from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from app.circuits.errors import WarpError
-from app.gcode.lines import GcodeLine, read_lines
-from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
+from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
+from app.gcode.reader import HOME, ArcBudgetError, ModalReader, ReadOptions
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
-__all__ = ["Records", "scan_program", "scan_lines", "PRINT", "TRAVEL", "ZONLY", "EONLY", "MODE", "OTHER"]
+__all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_line", "MIN_ARC_CHORD_MM", "PRINT", "TRAVEL", "ZONLY",
+           "EONLY", "STILL", "HOME_KIND", "MODE", "OTHER", "KIND_NAMES"]
 
-PRINT, TRAVEL, ZONLY, EONLY, MODE, OTHER = range(6)
-KIND_NAMES = ("print", "travel", "zonly", "eonly", "mode", "other")
+PRINT, TRAVEL, ZONLY, EONLY, STILL, HOME_KIND, MODE, OTHER = range(8)
+KIND_NAMES = ("print", "travel", "zonly", "eonly", "still", "home", "mode", "other")
 DISPENSE_ON = frozenset({106.0, 8.0, 3.0, 4.0, 7.0})
 DISPENSE_OFF = frozenset({107.0, 9.0, 5.0})
-MODE_CODES = frozenset({17.0, 20.0, 21.0, 90.0, 91.0})
+#: codes the warp rewrites: its output is absolute mm in the XY plane and machine coordinates
+REWRITTEN_G = frozenset({17.0, 20.0, 21.0, 90.0, 91.0, 92.0})
+#: settings written unchanged (feed per minute, cancels of cutter/length compensation and
+#: canned cycles, the first work offset, path control): none changes where a move goes
+PASSED_G = frozenset({40.0, 49.0, 54.0, 61.0, 64.0, 80.0, 94.0})
+MOTION_G = frozenset({0.0, 1.0, 2.0, 3.0})
+KNOWN_G = REWRITTEN_G | PASSED_G | MOTION_G | {4.0, 28.0}
+AXIS_LETTERS = frozenset("XYZE")
+UNMODELLED_AXES = frozenset("ABCUVW")
+#: letters a rewritten line may carry besides its moves and modes (written on a line before them)
+CARRIED_LETTERS = frozenset("MST")
+#: letters whose meaning the warp takes over on a rewritten line
+REWRITTEN_LETTERS = frozenset("GNXYZEIJRF")
+#: an arc budget: this many chords, plus ``ARC_CHORDS_PER_BYTE`` per byte of program, at most ``MAX_ARC_CHORDS``
+BASE_ARC_CHORDS = 10_000
+ARC_CHORDS_PER_BYTE = 2
+MAX_ARC_CHORDS = 1_000_000
+#: the smallest arc chord sagitta (mm) the warp accepts
+MIN_ARC_CHORD_MM = 1e-4
 
-_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-_WORD = re.compile(rf"([A-Za-z])[ \t]*({_NUMBER})")
+_PAREN = re.compile(r"\([^()\n]*\)")
+_TAPE = re.compile(r"^[ \t]*%[ \t]*$", re.MULTILINE)
 _COMMENT = re.compile(r";[^\n]*")
-_EXPONENT = re.compile(rb"[0-9.][eE][-+]?[0-9]")
 _LETTERS = bytes(range(65, 91)) + bytes(range(97, 123))
 _LETTERS_TO_BLANK = bytes.maketrans(_LETTERS, b" " * len(_LETTERS))
 _KEEP = np.zeros(256, bool)
 _KEEP[list(_LETTERS) + [10]] = True
-# words, blanks, line breaks and ; comments only (possessive: no backtracking)
-_PLAIN = re.compile(rf"(?:[A-Za-z][ \t]*{_NUMBER}|[ \t\n]+|;[^\n]*)*+")
-_UNUSUAL = re.compile(r"[^\t\n\r\x20-\x7e]")
+_PRINTABLE = bytes(range(0x20, 0x7F)) + b"\t\n"
+_WORD_CHARS = _LETTERS + b"0123456789.+- \t\n"
+_NUMBER_CHAR = np.zeros(256, bool)
+_NUMBER_CHAR[list(b"0123456789.+-")] = True
+_DIGIT_OR_DOT = np.zeros(256, bool)
+_DIGIT_OR_DOT[list(b"0123456789.")] = True
+_LETTER = np.zeros(256, bool)
+_LETTER[list(_LETTERS)] = True
+_BLANKS = b" \t"
+_FAST_LETTERS = frozenset("GMXYZEFNST")
+_FAST_G = frozenset({0.0, 1.0, 17.0, 20.0, 21.0, 90.0, 91.0}) | PASSED_G
 
 
 @dataclass(frozen=True, eq=False)
 class Records:
-    """kind (n,) int (PRINT ...); line (n,) 0-based source line; start, end (n, 4) [x, y, z, e]
-    mm (NaN for non-motion lines); feed (n,) mm/min (NaN: none yet); e_abs (n,) bool;
-    lines: the source lines (``text.splitlines()``)."""
+    """kind (n,) int8 (PRINT ...); line (n,) 0-based source line; start, end (n, 4) [x, y, z, e]
+    mm (NaN for lines that do not move); motion (n,) int8 G code of a move (0-3, 28 for a
+    homing move, -1 for lines that do not move); feed (n,) mm/min (NaN: none yet); e_abs (n,)
+    bool; lines: the source lines (``text.splitlines()``); carried: {0-based line: words} the
+    M/S/T words (and settings) of a line the warp rewrites, written before its moves."""
 
     kind: npt.NDArray[np.int8]
     line: npt.NDArray[np.int64]
     start: npt.NDArray[np.float64]
     end: npt.NDArray[np.float64]
+    motion: npt.NDArray[np.int8]
     feed: npt.NDArray[np.float64]
     e_abs: npt.NDArray[np.bool_]
     lines: list[str]
+    carried: dict[int, str]
 
     def refuse(self, i: int, message: str) -> WarpError:
         """A WarpError naming the source line of record ``i``."""
         return refuse_line(int(self.line[i]) + 1, self.lines[int(self.line[i])], message)
 
 
-def refuse_line(number: int, text: str, message: str) -> WarpError:
+def refuse_line(number: int, text: str, message: str, field: str = "file") -> WarpError:
     """A WarpError naming source line ``number`` (1-based) and its text."""
-    return WarpError(f"line {number}: {message}", field="file", value={"line": number, "text": text.strip()[:80]})
+    return WarpError(f"line {number}: {message}", field=field, value={"line": number, "text": text.strip()[:80]})
+
+
+def arc_chord_budget(text_bytes: int) -> int:
+    """The most arc chords a program of ``text_bytes`` bytes may be split into."""
+    return min(MAX_ARC_CHORDS, BASE_ARC_CHORDS + ARC_CHORDS_PER_BYTE * text_bytes)
 
 
 def scan_program(text: str, arc_chord_mm: float = 0.001) -> Records:
@@ -84,121 +127,110 @@ def scan_program(text: str, arc_chord_mm: float = 0.001) -> Records:
     return fast if fast is not None else scan_lines(text, arc_chord_mm)
 
 
-def _kind(g0: float, start: list[float], end: list[float], dispensing: bool) -> int:
-    """The record kind (PRINT ...) of a motion from ``start`` to ``end`` [x, y, z, e]."""
+def _fmt_word(letter: str, value: float) -> str:
+    return f"{letter}{value:g}"
+
+
+def _check_line(ln: GcodeLine, motion_set: bool) -> tuple[bool, str]:
+    """Refuse what the warp does not model on one line; (the line is rewritten, its carried words)."""
+    letters = {k for k, _ in ln.words}
+    odd = letters & UNMODELLED_AXES
+    if odd:
+        raise refuse_line(ln.number, ln.text, f"the warp moves X, Y, Z and E only, not {''.join(sorted(odd))}")
+    for code in ln.g:
+        if code not in KNOWN_G:
+            raise refuse_line(ln.number, ln.text, f"G{code:g} is not modelled by the warp")
+    has_axes = bool(letters & AXIS_LETTERS)
+    consumer = any(c in (4.0, 28.0, 92.0) for c in ln.g)
+    if has_axes and not consumer and not motion_set and not any(c in MOTION_G for c in ln.g):
+        raise refuse_line(ln.number, ln.text, "axis words before any motion mode (G0, G1, G2, G3)")
+    rewritten = bool(set(ln.g) & (REWRITTEN_G | MOTION_G | {28.0})) or has_axes
+    if not rewritten:
+        return False, ""
+    if 4.0 in ln.g:
+        raise refuse_line(ln.number, ln.text, "a dwell (G4) must have a line of its own")
+    extra = letters - REWRITTEN_LETTERS - CARRIED_LETTERS
+    if extra:
+        raise refuse_line(ln.number, ln.text, f"the warp rewrites this line and cannot carry its "
+                          f"{''.join(sorted(extra))} words")
+    carried = [_fmt_word(k, v) for k, v in ln.words if k in CARRIED_LETTERS or (k == "G" and v in PASSED_G)]
+    return True, " ".join(carried)
+
+
+def _row_kind(motion: int, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], dispense: bool) -> int:
+    if motion == HOME:
+        return HOME_KIND
     moved_xy = end[0] != start[0] or end[1] != start[1]
-    de = end[3] - start[3]
-    if moved_xy and g0 != 0.0 and (de > 0 or dispensing):
-        return PRINT
     if moved_xy:
-        return TRAVEL
+        return PRINT if dispense else TRAVEL
     if end[2] != start[2]:
         return ZONLY
-    return EONLY if de != 0 else OTHER
+    return EONLY if end[3] != start[3] else STILL
 
 
-def _arc_points(ln: GcodeLine, start: list[float], end: list[float], values: dict[str, float], scale: float,
-                clockwise: bool,
-                arc_chord_mm: float) -> list[list[float]]:
-    """End points [x, y, z, e] of the chords of a G2/G3 arc in the XY plane (I, J offsets from
-    the start, or R: positive the shorter arc), each chord's sagitta <= ``arc_chord_mm``;
-    z and e are shared out along the angle (helix)."""
-    sx, sy, ex, ey = start[0], start[1], end[0], end[1]
-    if "I" in values or "J" in values:
-        cx, cy = sx + values.get("I", 0.0) * scale, sy + values.get("J", 0.0) * scale
-    elif "R" in values:
-        r = values["R"] * scale
-        dx, dy = ex - sx, ey - sy
-        chord = math.hypot(dx, dy)
-        if chord == 0.0 or abs(r) < chord / 2 - LENGTH_EPS_MM:
-            raise refuse_line(ln.number, ln.text, f"the arc's radius {abs(r):g} mm cannot join its ends "
-                              f"{chord:g} mm apart")
-        h = math.sqrt(max(r * r - chord * chord / 4, 0.0)) * (1 if (r > 0) != clockwise else -1)
-        cx, cy = sx + dx / 2 - h * dy / chord, sy + dy / 2 + h * dx / chord
-    else:
-        raise refuse_line(ln.number, ln.text, "an arc needs I/J or R")
-    radius = math.hypot(sx - cx, sy - cy)
-    if radius <= 0.0:
-        raise refuse_line(ln.number, ln.text, "the arc has zero radius")
-    a0, a1 = math.atan2(sy - cy, sx - cx), math.atan2(ey - cy, ex - cx)
-    ccw = (a1 - a0) % (2 * math.pi)
-    if abs(ex - sx) + abs(ey - sy) <= DEGENERATE_LENGTH_MM:
-        ccw = 2 * math.pi
-    sweep = -(2 * math.pi - ccw if ccw < 2 * math.pi else 2 * math.pi) if clockwise else (ccw or 2 * math.pi)
-    step = 2 * math.acos(max(-1.0, 1 - arc_chord_mm / radius)) if arc_chord_mm < radius else math.pi / 2
-    n = max(1, math.ceil(abs(sweep) / step))
-    out: list[list[float]] = []
-    for k in range(1, n + 1):
-        t = k / n
-        a = a0 + sweep * t
-        out.append([cx + radius * math.cos(a), cy + radius * math.sin(a), start[2] + t * (end[2] - start[2]),
-                    start[3] + t * (end[3] - start[3])])
-    out[-1][:2] = [ex, ey]
-    return out
-
-
-def scan_lines(text: str, arc_chord_mm: float = 0.001) -> Records:
-    """The line-by-line reader (every feature; WarpError names a refused line)."""
-    pos = [0.0, 0.0, 0.0, 0.0]
-    absolute, e_abs, scale, dispensing, feed, plane = True, True, 1.0, False, math.nan, 17.0
+def scan_lines(text: str, arc_chord_mm: float = 0.001, max_arc_chords: int | None = None) -> Records:
+    """The line-by-line reader (every feature; WarpError names a refused line).  Arcs may need
+    at most ``max_arc_chords`` chords (default :func:`arc_chord_budget` of the text's size),
+    counted before any is expanded (WarpError, field ``arc_chord_mm``)."""
+    budget = arc_chord_budget(len(text)) if max_arc_chords is None else max_arc_chords
+    reader = ModalReader(ReadOptions(arc_tolerance_mm=arc_chord_mm, keep_still=True, max_arc_chords=budget))
+    try:
+        parsed = read_lines(text)
+    except GcodeReadError as exc:
+        raise WarpError(exc.message, field="file", value=exc.value) from None
     kinds: list[int] = []
     where: list[int] = []
-    starts: list[list[float]] = []
-    ends: list[list[float]] = []
+    starts: list[npt.NDArray[np.float64]] = []
+    ends: list[npt.NDArray[np.float64]] = []
+    motions: list[int] = []
     feeds: list[float] = []
     eabs: list[bool] = []
-    nan4 = [math.nan] * 4
-    axes = (("X", 0), ("Y", 1), ("Z", 2), ("E", 3))
-    parsed = read_lines(text)
-
-    def add(kind: int, number: int, start: list[float], end: list[float]) -> None:
-        kinds.append(kind)
-        where.append(number - 1)
-        starts.append(start)
-        ends.append(end)
-        feeds.append(feed)
-        eabs.append(e_abs)
-
+    carried: dict[int, str] = {}
+    nan4 = np.full(4, math.nan)
+    scale, feed, e_abs = 1.0, math.nan, True
     for ln in parsed:
-        g, values = ln.g, ln.values
-        if ln.m:
-            m = set(ln.m)
-            dispensing = False if m & DISPENSE_OFF else (True if m & DISPENSE_ON else dispensing)
-            e_abs = False if 83.0 in m else (True if 82.0 in m else e_abs)
-        if len(g) == 1 and g[0] in (0.0, 1.0, 2.0, 3.0) and any(a in values for a in "XYZEIJ"):
-            if "F" in values:
-                feed = values["F"] * scale
-            start = pos[:]
-            for ax, i in axes:
-                v = values.get(ax)
-                if v is not None:
-                    rel = (not absolute) if i < 3 else (not e_abs)
-                    pos[i] = pos[i] + v * scale if rel else v * scale
-            if g[0] in (2.0, 3.0):
-                if plane != 17.0:
-                    raise refuse_line(ln.number, ln.text, "arcs are warped in the XY plane (G17) only")
-                prev = start
-                for point in _arc_points(ln, start, pos, values, scale, g[0] == 2.0, arc_chord_mm):
-                    add(_kind(g[0], prev, point, dispensing), ln.number, prev, point)
-                    prev = point
-                pos = prev[:]
-                continue
-            add(_kind(g[0], start, pos, dispensing), ln.number, start, pos[:])
-            continue
-        for code in g:
-            if code in (17.0, 18.0, 19.0):
-                plane = code
-            if code == 92.0:
-                raise refuse_line(ln.number, ln.text, "G92 (set position) is not supported by the warp")
+        rewritten, words = _check_line(ln, reader.state.motion is not None)
+        for code in ln.g:
             if code in (20.0, 21.0):
                 scale = 25.4 if code == 20.0 else 1.0
-            elif code in (90.0, 91.0):
-                absolute = code == 90.0
-        add(MODE if g and all(c in MODE_CODES for c in g) else OTHER, ln.number, nan4, nan4)
+        if "F" in ln.values:
+            feed = ln.values["F"] * scale
+        for code in ln.m:
+            if code in (82.0, 83.0):
+                e_abs = code == 82.0
+        before = len(reader.rows)
+        try:
+            reader.line(ln)
+        except ArcBudgetError as exc:
+            raise refuse_line(ln.number, ln.text, exc.message.split(": ", 1)[-1], field="arc_chord_mm") from None
+        except GcodeReadError as exc:
+            raise refuse_line(ln.number, ln.text, exc.message.split(": ", 1)[-1]) from None
+        rows = reader.rows[before:]
+        if words:
+            carried[ln.number - 1] = words
+        if not rows:
+            kinds.append(MODE if rewritten else OTHER)
+            where.append(ln.number - 1)
+            starts.append(nan4)
+            ends.append(nan4)
+            motions.append(-1)
+            feeds.append(feed)
+            eabs.append(e_abs)
+            continue
+        for row in rows:
+            kinds.append(_row_kind(row.motion, row.start, row.end, row.dispense))
+            where.append(ln.number - 1)
+            starts.append(row.start)
+            ends.append(row.end)
+            motions.append(row.motion)
+            feeds.append(feed)
+            eabs.append(e_abs)
+        del reader.rows[before:]                      # the warp keeps its own records
     n = len(kinds)
     return Records(np.array(kinds, dtype=np.int8), np.array(where, dtype=np.int64),
                    np.array(starts, float).reshape(n, 4), np.array(ends, float).reshape(n, 4),
-                   np.array(feeds, float), np.array(eabs, bool), [ln.text for ln in parsed])
+                   np.array(motions, dtype=np.int8), np.array(feeds, float), np.array(eabs, bool),
+                   [ln.text for ln in parsed], carried)
 
 
 def _ffill(values: npt.NDArray[np.float64], is_set: npt.NDArray[np.bool_], initial: float) -> npt.NDArray[np.float64]:
@@ -206,6 +238,15 @@ def _ffill(values: npt.NDArray[np.float64], is_set: npt.NDArray[np.bool_], initi
     idx = np.where(is_set, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     return np.where(idx >= 0, values[np.maximum(idx, 0)], initial)
+
+
+def _last_per_line(mask: npt.NDArray[np.bool_], tok_line: npt.NDArray[np.int64], value: npt.NDArray[np.float64],
+                   n_lines: int) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
+    """(has (n_lines,) bool, last value (n_lines,)) of the selected tokens (fancy assignment: last wins)."""
+    has, last = np.zeros(n_lines, bool), np.zeros(n_lines)
+    has[tok_line[mask]] = True
+    last[tok_line[mask]] = value[mask]
+    return has, last
 
 
 def _first_per_line(letter_mask: npt.NDArray[np.bool_], tok_line: npt.NDArray[np.int64],
@@ -222,7 +263,7 @@ def _first_per_line(letter_mask: npt.NDArray[np.bool_], tok_line: npt.NDArray[np
 def _axis(reset: npt.NDArray[np.bool_], step: npt.NDArray[np.bool_],
           v: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """One axis's position after each motion line (m,): ``reset`` lines set it to v, ``step``
-    lines add v; summed in program order exactly as the line-by-line reader does."""
+    lines add v; summed in program order exactly as the reader does."""
     if not step.any():
         return _ffill(v, reset, 0.0)
     if not reset.any():
@@ -239,85 +280,119 @@ def _axis(reset: npt.NDArray[np.bool_], step: npt.NDArray[np.bool_],
     return out
 
 
+def _blank(match: re.Match[str]) -> str:
+    return " " * len(match.group(0))
+
+
+def _word_values(body: bytes) -> npt.NDArray[np.float64] | None:
+    """Every word's number in order, or None unless ``body`` (letters, digits, ``.+-``, blanks,
+    line breaks) is words only: each letter followed on its line, after blanks, by exactly one
+    well-formed number, and no number without its letter."""
+    stream = np.frombuffer(body.translate(None, _BLANKS), np.uint8)
+    is_letter, is_number = _LETTER[stream], _NUMBER_CHAR[stream]
+    letters = int(np.count_nonzero(is_letter))
+    if letters == 0:
+        return np.zeros(0) if not is_number.any() else None
+    # every letter directly followed by a number (blanks removed), and as many numbers as letters
+    followed = np.zeros(len(stream), bool)
+    followed[:-1] = is_number[1:]
+    runs = int(np.count_nonzero(is_number[1:] & ~is_number[:-1])) + int(is_number[0])
+    if not followed[is_letter].all() or runs != letters:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                 # a malformed number ("1.2.3", "1-") is refused
+        try:
+            value = np.fromstring(body.translate(_LETTERS_TO_BLANK), sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    return value if len(value) == letters else None   # "X1 2": two numbers, one letter
+
+
 def _scan_fast(text: str) -> Records | None:
     """The vectorised reader, or None when the program needs the line-by-line one."""
     if "\r" in text:
         text = text.replace("\r\n", "\n")
         if "\r" in text:
             return None
-    if _UNUSUAL.search(text):
-        return None
+    if not text.isascii() or text.encode("ascii").translate(None, _PRINTABLE):
+        return None                                   # line breaks other than "\n", control bytes
     lines = text.splitlines()
     n_lines = len(lines)
-    if not _PLAIN.fullmatch(text):
+    body_text = _COMMENT.sub("", text)
+    if "(" in body_text:
+        body_text = _PAREN.sub(_blank, body_text)
+    if "%" in body_text:
+        body_text = _TAPE.sub("", body_text)
+    body = body_text.encode("ascii")
+    if body.translate(None, _WORD_CHARS):
+        return None                                   # not words only
+    raw = np.frombuffer(body, np.uint8)
+    is_e = (raw[1:] == 69) | (raw[1:] == 101)
+    if (is_e & _DIGIT_OR_DOT[raw[:-1]]).any():
+        return None                                   # "X1E5": an exponent or a word? the reader decides
+    value = _word_values(body)
+    if value is None:
         return None
-    body = _COMMENT.sub("", text).encode("ascii")
-    if _EXPONENT.search(body):
-        return None                                   # "X1E5": the line-by-line reader decides
     marks = np.frombuffer(body, np.uint8)
     marks = marks[_KEEP[marks]]                       # every word's letter, and the line breaks
-    words = int(np.count_nonzero(marks != 10))
-    # every word's number, in order (no words: nothing to parse, fromstring would invent one)
-    value = np.fromstring(body.translate(_LETTERS_TO_BLANK), sep=" ") if words else np.zeros(0)
     is_nl = marks == 10
     tok_line = (np.cumsum(is_nl) - is_nl)[~is_nl]
     code = marks[~is_nl].astype(np.int64)
     code = np.where(code >= 97, code - 32, code)
-    if len(code) != len(value):
+    if len(code) != len(value) or not np.isin(code, [ord(c) for c in _FAST_LETTERS]).all():
         return None
     g_tok, m_tok = code == ord("G"), code == ord("M")
-    if np.isin(value[g_tok], (2.0, 3.0, 92.0)).any():
-        return None                                         # arcs and G92: the line-by-line reader
-    g_count = np.bincount(tok_line[g_tok], minlength=n_lines)
+    g_line, g_val = tok_line[g_tok], value[g_tok]
+    if not np.isin(g_val, list(_FAST_G)).all():
+        return None                                   # arcs, G92, G28, dwells...: the reader
     has: dict[str, npt.NDArray[np.bool_]] = {}
     first: dict[str, npt.NDArray[np.float64]] = {}
-    for ch in "XYZEFIJ":
+    for ch in "XYZEF":
         has[ch], first[ch] = _first_per_line(code == ord(ch), tok_line, value, n_lines)
-    g_has, g_first = _first_per_line(g_tok, tok_line, value, n_lines)
-    motion = (g_count == 1) & np.isin(g_first, (0.0, 1.0)) & (
-        has["X"] | has["Y"] | has["Z"] | has["E"] | has["I"] | has["J"])
-    # M codes: a line's events (stop beats start, M83 beats M82)
-    m_line, m_val = tok_line[m_tok], value[m_tok]
-    off = np.zeros(n_lines, bool)
-    on, rel_e, abs_e = off.copy(), off.copy(), off.copy()
-    off[m_line[np.isin(m_val, list(DISPENSE_OFF))]] = True
-    on[m_line[np.isin(m_val, list(DISPENSE_ON))]] = True
-    rel_e[m_line[m_val == 83.0]] = True
-    abs_e[m_line[m_val == 82.0]] = True
-    dispensing = _ffill(np.where(off, 0.0, 1.0), off | on, 0.0) > 0.5
-    e_abs = _ffill(np.where(rel_e, 0.0, 1.0), rel_e | abs_e, 1.0) > 0.5
-    # G modes on non-motion lines, the last code of a line winning (tokens in order)
-    g_line, g_val = tok_line[g_tok], value[g_tok]
-    mode_tok = ~motion[g_line]
-    unit = mode_tok & np.isin(g_val, (20.0, 21.0))
-    dist = mode_tok & np.isin(g_val, (90.0, 91.0))
-    scale_set, absolute_set = np.zeros(n_lines, bool), np.zeros(n_lines, bool)
-    scale_v, absolute_v = np.ones(n_lines), np.ones(n_lines)
-    scale_set[g_line[unit]] = True
-    scale_v[g_line[unit]] = np.where(g_val[unit] == 20.0, 25.4, 1.0)      # fancy assignment: last wins
-    absolute_set[g_line[dist]] = True
-    absolute_v[g_line[dist]] = np.where(g_val[dist] == 90.0, 1.0, 0.0)
-    scale = _ffill(scale_v, scale_set, 1.0)
-    absolute = _ffill(absolute_v, absolute_set, 1.0) > 0.5
-    mv = np.flatnonzero(motion)
+    axes = has["X"] | has["Y"] | has["Z"] | has["E"]
+    rewritten_g = np.zeros(n_lines, bool)
+    rewritten_g[g_line[np.isin(g_val, [0.0, 1.0, 17.0, 20.0, 21.0, 90.0, 91.0])]] = True
+    rewritten = rewritten_g | axes
+    carried_tok = np.isin(code, [ord("M"), ord("S"), ord("T")]) | (g_tok & np.isin(value, list(PASSED_G)))
+    carried: dict[int, list[str]] = {}
+    for t in np.flatnonzero(carried_tok & rewritten[tok_line]).tolist():     # few: a post's preamble
+        carried.setdefault(int(tok_line[t]), []).append(_fmt_word(chr(code[t]), float(value[t])))
+    # the motion mode: the last G0/G1 on or before each line
+    mo_has, mo_last = _last_per_line(g_tok & np.isin(value, (0.0, 1.0)), tok_line, value, n_lines)
+    motion_mode = _ffill(mo_last, mo_has, -1.0)
+    if (axes & (motion_mode < 0)).any():
+        return None                                   # axis words before any motion mode: refused by the reader
+    # M codes in order on a line, the last one winning
+    disp_tok = m_tok & np.isin(value, list(DISPENSE_ON | DISPENSE_OFF))
+    d_has, d_last = _last_per_line(disp_tok, tok_line, np.isin(value, list(DISPENSE_ON)).astype(float), n_lines)
+    dispensing = _ffill(d_last, d_has, 0.0) > 0.5
+    e_tok = m_tok & np.isin(value, (82.0, 83.0))
+    e_has, e_last = _last_per_line(e_tok, tok_line, (value == 82.0).astype(float), n_lines)
+    e_abs = _ffill(e_last, e_has, 1.0) > 0.5
+    u_has, u_last = _last_per_line(g_tok & np.isin(value, (20.0, 21.0)), tok_line,
+                                   np.where(value == 20.0, 25.4, 1.0), n_lines)
+    scale = _ffill(u_last, u_has, 1.0)
+    a_has, a_last = _last_per_line(g_tok & np.isin(value, (90.0, 91.0)), tok_line, (value == 90.0).astype(float),
+                                   n_lines)
+    absolute = _ffill(a_last, a_has, 1.0) > 0.5
+    mv = np.flatnonzero(axes)
     ends = np.empty((len(mv), 4))
     for i, ch in enumerate("XYZE"):
-        given, v = has[ch][mv], first[ch][mv] * scale[mv]
-        rel = ~(absolute[mv] if i < 3 else e_abs[mv])
+        given, v = has[ch][mv], first[ch][mv] * (scale[mv] if i < 3 else 1.0)   # E is never in inches
+        rel = ~absolute[mv] if i < 3 else ~(e_abs[mv] & absolute[mv])
         ends[:, i] = _axis(given & ~rel, given & rel, v)
     starts = np.vstack([np.zeros((1, 4)), ends[:-1]])
     moved_xy = (ends[:, 0] != starts[:, 0]) | (ends[:, 1] != starts[:, 1])
-    de = ends[:, 3] - starts[:, 3]
-    kind_mv = np.where(moved_xy & (g_first[mv] != 0.0) & ((de > 0) | dispensing[mv]), PRINT,
-                       np.where(moved_xy, TRAVEL, np.where(ends[:, 2] != starts[:, 2], ZONLY,
-                                                            np.where(de != 0, EONLY, OTHER))))
-    only_modes = np.ones(n_lines, bool)
-    only_modes[g_line[~np.isin(g_val, list(MODE_CODES))]] = False
-    kind = np.where(g_has & only_modes, MODE, OTHER).astype(np.int8)
+    motion = motion_mode[mv]
+    dispense = (motion != 0.0) & (dispensing[mv] | (ends[:, 3] > starts[:, 3] + DEGENERATE_LENGTH_MM))
+    kind_mv = np.where(moved_xy, np.where(dispense, PRINT, TRAVEL),
+                       np.where(ends[:, 2] != starts[:, 2], ZONLY, np.where(ends[:, 3] != starts[:, 3], EONLY, STILL)))
+    kind = np.where(rewritten, MODE, OTHER).astype(np.int8)
     kind[mv] = kind_mv
     start, end = np.full((n_lines, 4), math.nan), np.full((n_lines, 4), math.nan)
     start[mv], end[mv] = starts, ends
-    feed_line = np.zeros(n_lines, bool)
-    feed_line[mv[has["F"][mv]]] = True
-    feeds = _ffill(first["F"] * scale, feed_line, math.nan)
-    return Records(kind, np.arange(n_lines, dtype=np.int64), start, end, feeds, e_abs, lines)
+    motion_out = np.full(n_lines, -1, np.int8)
+    motion_out[mv] = motion
+    feeds = _ffill(first["F"] * scale, has["F"], math.nan)
+    return Records(kind, np.arange(n_lines, dtype=np.int64), start, end, motion_out, feeds, e_abs, lines,
+                   {k: " ".join(v) for k, v in carried.items()})

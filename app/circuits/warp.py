@@ -1,32 +1,42 @@
-"""Warping an existing G-code program onto a measured surface (bed-mesh style, but proved).
+"""Warping an existing G-code program onto a measured surface (bed-mesh style, with a chord bound).
 
-Every printing move (a G0/G1 feed move that extrudes, or that runs while the dispenser is
-on) is moved onto the surface: z = h(x, y) + ``standoff_mm`` (or, without a standoff, the
-program's own z + h(x, y), Klipper's convention); it is split into n equal top-view pieces
-with n the smallest count for which the PROVED bound L^2 / (8 n^2) * K <= ``chord_error_mm``
-holds (K: the height field's curvature bound along the move, see
-:mod:`app.circuits.heightfield`).  Klipper's bed mesh and bCNC's autolevel split at a fixed
-length instead (:func:`fixed_split_error` measures what that leaves).  Extrusion (E) is
-shared out along the pieces (absolute or relative).  Travel moves run at
-``safe_z_mm`` (default: the surface's highest point + ``clearance_mm``): a lift before the
-first travel move after printing, a descent to the next print's start.  A printing move
-outside the measured region is refused (WarpError naming the line) unless
-``allow_outside`` (the edge height is then held).  Arcs (G2/G3, XY plane) are first split
-into chords within ``arc_chord_mm`` of the arc (top view), then warped like lines.
-Output: absolute mm (``G21``, ``G90``) whatever the input's units and modes.
+The program is read by :func:`app.circuits.gcode_scan.scan_program` (the one G-code reader's
+moves; what the warp does not model is refused naming the line).  Every printing move (a
+G1/G2/G3 move in x/y that extrudes, or that runs while the dispenser is on) is moved onto the
+surface: z = h(x, y) + ``standoff_mm`` (or, without a standoff, the program's own z + h(x, y),
+Klipper's convention); it is split into n equal top-view pieces with n the smallest count for
+which the bound L^2 / (8 n^2) * K <= ``chord_error_mm`` holds (K: the height field's curvature
+bound along the move, see :mod:`app.circuits.heightfield`).  Klipper's bed mesh and bCNC's
+autolevel split at a fixed length instead (:func:`fixed_split_error` measures what that
+leaves).  Extrusion (E) is shared out along the pieces (absolute or relative).
+
+Every other move keeps its place, code and feed, its z relative to the surface under it: a
+Z-only or repeated move goes to the program's z + h(x, y) (with a standoff, the printing height
++ the program's height above its next printing move's z).  Travel moves run at the safe height
+(``safe_z_mm``, at least the surface's highest point + ``clearance_mm``; by default that + the
+highest printing height above the surface): a lift before a travel or homing move from below
+it, a descent to a printing move's start when the tool is elsewhere (with the travel's code and
+feed after a travel).  Until the tool's x/y is known (the program's start, after a homing
+move) a Z-only move is held at least at the safe height and a printing move is approached
+from it.  Outside the measured region a printing move is refused (WarpError naming
+the line) and a Z-only move is held at the safe height, unless ``allow_outside`` (the edge
+height is then held).  Output: absolute mm (``G21``, ``G90``) in machine coordinates whatever
+the input's units, modes and ``G92`` shifts.
 """
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from app.circuits.gcode_scan import EONLY, OTHER, PRINT, TRAVEL, ZONLY, MODE, Records, scan_program
+from app.circuits.gcode_scan import EONLY, MODE, OTHER, PRINT, STILL, TRAVEL, ZONLY, Records, scan_program
+from app.circuits.errors import WarpError
 from app.circuits.heightfield import HeightField, Inside
-from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "check_region", "fixed_split_error"]
 
@@ -153,6 +163,31 @@ def _piece_template(recs: Records, k_print: npt.NDArray[np.int64], pieces: _Piec
     return chosen, values[mask].tolist()
 
 
+def _z_work(recs: Records) -> npt.NDArray[np.float64]:
+    """(n,) mm: the program's z at the start of the next printing move (the last one's after
+    it, 0 without any): the program height the standoff replaces."""
+    k_print = np.flatnonzero(recs.kind == PRINT)
+    n = len(recs.kind)
+    if not len(k_print):
+        return np.zeros(n)
+    nxt = np.searchsorted(k_print, np.arange(n))
+    z: npt.NDArray[np.float64] = recs.start[k_print[np.minimum(nxt, len(k_print) - 1)], 2]
+    return z
+
+
+def _safe_z(surface: HeightField, print_rel: npt.NDArray[np.float64], opts: WarpOptions) -> float:
+    """The travel height (mm): above the part's highest measured point by ``clearance_mm`` plus
+    the highest printing height above the surface, or ``safe_z_mm`` when it is at least that."""
+    floor = float(surface.z.max()) + opts.clearance_mm
+    auto = floor + max(float(print_rel.max(initial=0.0)), 0.0)
+    if opts.safe_z_mm is None:
+        return auto
+    if not opts.safe_z_mm >= floor:
+        raise WarpError(f"safe_z_mm {opts.safe_z_mm:g} is below the part's highest point {surface.z.max():.4f} mm "
+                        f"+ clearance {opts.clearance_mm:g} mm", field="safe_z_mm", value=opts.safe_z_mm)
+    return float(opts.safe_z_mm)
+
+
 def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOptions()) -> WarpResult:
     """The warped program (see the module doc); WarpError names a refused line."""
     recs = scan_program(text, opts.arc_chord_mm)
@@ -163,62 +198,166 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
     d = opts.decimals
     p0, p1 = start[k_print], end[k_print]
     pieces = _pieces(p0, p1, surface, opts)
-    n, piece_bound, seg, first, k, pts, z = pieces
+    n, piece_bound = pieces.n, pieces.piece_bound
     h_start = surface.height(p0[:, 0], p0[:, 1]) if len(p0) else np.zeros(0)
     z_start = h_start + opts.standoff_mm if opts.standoff_mm is not None else p0[:, 2] + h_start
-    tops = end[:, 2][np.isfinite(end[:, 2])]
-    program_top = float(tops.max()) if len(tops) else 0.0
-    safe_z = opts.safe_z_mm if opts.safe_z_mm is not None else float(surface.z.max()) + opts.clearance_mm + (
-        0.0 if opts.standoff_mm is not None else max(program_top, 0.0))
-    # where the pen is before each print / travel record, and whether it is lifted
-    moving = np.flatnonzero((kind == PRINT) | (kind == TRAVEL))
-    prev = np.concatenate([[-1], moving[:-1]])
-    after_travel = np.concatenate([[False], kind[moving[:-1]] == TRAVEL])
-    at = end[np.maximum(prev, 0)]
-    moved = (prev < 0) | (np.abs(at[:, 0] - start[moving, 0]) + np.abs(at[:, 1] - start[moving, 1]) > LENGTH_EPS_MM)
-    is_print = kind[moving] == PRINT
-    p_moved, p_lift = moved[is_print], (after_travel | moved)[is_print]
-    t_lift = ~after_travel[~is_print]
-    count = np.ones(len(kind), np.int64)
-    count[k_print] = p_moved.astype(np.int64) + p_lift + n
-    count[moving[~is_print]] = 1 + t_lift
-    slot = np.concatenate([[0], np.cumsum(count)[:-1]])
-    out = np.empty(int(count.sum()), dtype=object)
+    # every other move's z: the program's, relative to the surface under it
+    delta = opts.standoff_mm - _z_work(recs) if opts.standoff_mm is not None else np.zeros(len(kind))
+    print_rel = np.full(len(k_print), float(opts.standoff_mm)) if opts.standoff_mm is not None else \
+        np.maximum(p0[:, 2], p1[:, 2])
+    safe_z = _safe_z(surface, print_rel, opts)
+    k_z = np.flatnonzero((kind == ZONLY) | (kind == STILL))
+    z_move = np.full(len(kind), np.nan)
+    if len(k_z):
+        xz, yz = end[k_z, 0], end[k_z, 1]
+        z_move[k_z] = surface.height(xz, yz) + end[k_z, 2] + delta[k_z]
+        if not opts.allow_outside:                # where the part is unknown, never below the safe height
+            unknown = ~surface.inside(xz, yz)
+            z_move[k_z[unknown]] = np.maximum(z_move[k_z[unknown]], safe_z)
     templates, values = _piece_template(recs, k_print, pieces, d)
-    out[np.repeat(slot[k_print] + p_moved + p_lift, n) + k - 1] = templates
-
-    def esc(line: str) -> str:
-        return line.replace("%", "%%") + "\n"
-
-    feed = recs.feed
-    for j in np.flatnonzero(p_moved | p_lift):                     # a print's approach lines
-        i, s = k_print[j], slot[k_print[j]]
-        if p_moved[j]:
-            out[s] = esc(f"G0 X{_fmt(start[i, 0], d)} Y{_fmt(start[i, 1], d)}")
-        f = feed[i]
-        out[s + p_moved[j]] = esc(f"G1 Z{_fmt(z_start[j], d)}" + (f" F{_fmt(f, 1)}" if f == f and f else ""))
-    travel = moving[~is_print]
-    for t, i in enumerate(travel):
-        s = slot[i]
-        if t_lift[t]:
-            out[s] = esc(f"G0 Z{_fmt(safe_z, d)}")
-        e_word = f" E{_fmt(end[i, 3], 5)}" if end[i, 3] != start[i, 3] and recs.e_abs[i] else ""
-        out[s + t_lift[t]] = esc(f"G0 X{_fmt(end[i, 0], d)} Y{_fmt(end[i, 1], d)}" + e_word)
-    for i in np.flatnonzero((kind != PRINT) & (kind != TRAVEL)):
-        line = recs.lines[recs.line[i]]
-        if kind[i] in (ZONLY, MODE):
-            out[slot[i]] = esc(f"; {line.strip()}  (the warp sets Z and absolute mm)")
-        elif kind[i] == EONLY:
-            e_val = end[i, 3] if recs.e_abs[i] else end[i, 3] - start[i, 3]
-            f = feed[i]
-            out[slot[i]] = esc(f"G1 E{_fmt(e_val, 5)}" + (f" F{_fmt(f, 1)}" if f == f and f else ""))
-        else:
-            assert kind[i] == OTHER
-            out[slot[i]] = esc(line.rstrip())
+    z_end = pieces.z[pieces.first + n - 1] if len(n) else np.zeros(0)
+    parts, marks, run_first, run_last = _write(recs, z_move, z_start, z_end, safe_z, d)
+    # each run of printing moves: its pieces, contiguous, in place of its mark
+    piece_end = np.cumsum(n)
+    run_pieces = piece_end[run_last] - (piece_end[run_first] - n[run_first]) if len(marks) else np.zeros(0, np.int64)
+    expand = np.ones(len(parts), np.int64)
+    expand[marks] = run_pieces
+    slot = np.cumsum(expand) - expand
+    out = np.empty(int(expand.sum()), dtype=object)
+    keep = np.ones(len(parts), bool)
+    keep[marks] = False
+    out[slot[keep]] = np.array(parts, dtype=object)[keep]
+    out[np.repeat(slot[marks] - np.concatenate([[0], np.cumsum(run_pieces)[:-1]]), run_pieces)
+        + np.arange(int(run_pieces.sum()))] = templates
+    body: list[str] = out.tolist()
     text_out = "; warped onto a measured surface by conforma (absolute mm)\nG21\nG90\n" + \
-        "".join(out.tolist()) % tuple(values)
+        "".join(body) % tuple(values)
     return WarpResult(text_out, len(kind), len(out) + 3, len(k_print), int(n.sum()),
                       float(piece_bound.max(initial=0.0)), float(safe_z))
+
+
+def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[np.float64],
+           z_end: npt.NDArray[np.float64], safe_z: float,
+           d: int) -> tuple[list[str], npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Every output line but the printing pieces (``%``-escaped), in order; the index in it of
+    each run of printing moves' mark (where their pieces go) and the run's first and last
+    printing move.  Walks the records once (a run of printing moves that continue one another
+    as one step), keeping where the tool is: a lift to ``safe_z`` before a travel or homing
+    move from below it, a descent to a printing move's start when the tool is not there (with
+    the travel's own code and feed after a travel), every Z-only and repeated move at its own
+    place, code and feed."""
+    kind_a = recs.kind
+    tol = 0.5 * 10.0 ** -d
+    is_print = kind_a == PRINT
+    k_print = np.flatnonzero(is_print)
+    # a printing move continues the one before it: the record just before, ending where it starts
+    cont = np.zeros(len(k_print), bool)
+    if len(k_print) > 1:
+        cont[1:] = (np.diff(k_print) == 1) & (np.abs(z_start[1:] - z_end[:-1]) <= tol)
+    head = ~is_print
+    head[k_print[~cont]] = True
+    if recs.carried:                                      # a line with words to carry starts a step
+        has_words = np.zeros(len(recs.lines), bool)
+        has_words[list(recs.carried)] = True
+        first_of_line = np.concatenate([[True], recs.line[1:] != recs.line[:-1]])
+        head |= has_words[recs.line] & first_of_line
+    hd = np.flatnonzero(head)
+    heads = hd.tolist()
+    print_index = np.cumsum(is_print) - 1                 # record -> its index among the printing moves
+    last_rec = np.concatenate([hd[1:], [len(kind_a)]]) - 1 if len(hd) else hd   # each step's last record
+    # every column at the steps only (a run of printing moves is one step)
+    kind, line, motion, feed, e_abs = (recs.kind[hd].tolist(), recs.line[hd].tolist(), recs.motion[hd].tolist(),
+                                       recs.feed[hd].tolist(), recs.e_abs[hd].tolist())
+    x1, y1 = recs.end[hd, 0].tolist(), recs.end[hd, 1].tolist()
+    x0, y0 = recs.start[hd, 0].tolist(), recs.start[hd, 1].tolist()
+    e0, e1 = recs.start[hd, 3].tolist(), recs.end[hd, 3].tolist()
+    line_last = recs.line[last_rec].tolist()
+    p_first = np.maximum(print_index[hd], 0)
+    p_last = np.maximum(print_index[last_rec], 0)
+    pf, pl = p_first.tolist(), p_last.tolist()
+    zm = z_move[hd].tolist()
+    zs = z_start[p_first].tolist() if len(z_start) else [math.nan] * len(heads)
+    ze = z_end[p_last].tolist() if len(z_end) else [math.nan] * len(heads)
+    lines, carried = recs.lines, recs.carried
+    lift = f"G0 Z{_fmt(safe_z, d)}\n"
+    parts: list[str] = []
+    marks: list[int] = []
+    run_first: list[int] = []
+    run_last: list[int] = []
+    z_now = math.nan                   # the tool's height in the output (NaN: unknown)
+    xy_known = False                   # where the tool is in x/y (not before the first x/y move)
+    after: tuple[int | None, float] = (None, math.nan)   # code and feed of a travel just made
+    last_line = -1
+
+    def words(i: int) -> str:
+        """The E and F words of record i (E in the output's mode, F for a feed move)."""
+        out = ""
+        if e1[i] != e0[i]:
+            out += f" E{_fmt(e1[i] if e_abs[i] else e1[i] - e0[i], 5)}"
+        f = feed[i]
+        if motion[i] != 0 and f == f and f:
+            out += f" F{_fmt(f, 1)}"
+        return out
+
+    for i in range(len(heads)):
+        k, ln = kind[i], line[i]
+        if ln != last_line:
+            last_line = ln
+            extra = carried.get(ln)
+            if extra:
+                parts.append(extra.replace("%", "%%") + "\n")
+        if k == OTHER:
+            parts.append(lines[ln].rstrip().replace("%", "%%") + "\n")
+        elif k == MODE:
+            parts.append(f"; {lines[ln].strip()}  (the warp writes absolute mm)".replace("%", "%%") + "\n")
+        elif k == PRINT:
+            if not xy_known:                   # the program's start or a homing: go to the print's start
+                if not z_now >= safe_z - tol:
+                    parts.append(lift)
+                parts.append(f"G0 X{_fmt(x0[i], d)} Y{_fmt(y0[i], d)}\n")
+                z_now, xy_known = safe_z, True
+            if not abs(z_now - zs[i]) <= tol:
+                code, f = (after[0], after[1]) if after[0] is not None else (1, feed[i])
+                parts.append(f"G{code} Z{_fmt(zs[i], d)}" + (f" F{_fmt(f, 1)}" if code and f == f and f else "") + "\n")
+            last_line = line_last[i]
+            marks.append(len(parts))
+            parts.append("")
+            run_first.append(pf[i])
+            run_last.append(pl[i])
+            z_now = ze[i]
+            after = (None, math.nan)
+        elif k == TRAVEL:
+            if not z_now >= safe_z - tol:
+                parts.append(lift)
+                z_now = safe_z
+            code = motion[i] if motion[i] in (0, 1) else 1
+            parts.append(f"G{code} X{_fmt(x1[i], d)} Y{_fmt(y1[i], d)}" + words(i) + "\n")
+            xy_known = True
+            after = (code, feed[i])
+        elif k in (ZONLY, STILL):
+            z = zm[i] if xy_known else max(zm[i], safe_z)     # where the tool is unknown: not below safe
+            code = motion[i] if motion[i] in (0, 1) else 1
+            parts.append(f"G{code} Z{_fmt(z, d)}" + words(i) + "\n")
+            z_now = z
+            after = (None, math.nan)
+        elif k == EONLY:
+            parts.append("G1" + words(i) + "\n")
+        else:                                                   # HOME_KIND
+            if not z_now >= safe_z - tol:
+                parts.append(lift)
+            axes = sorted(_named(lines[ln]))
+            parts.append(("G91 G28 " + " ".join(f"{ax}0" for ax in axes) + "\nG90\n") if axes else "G28\n")
+            z_now, xy_known = math.nan, False
+            after = (None, math.nan)
+    return parts, np.array(marks, np.int64), np.array(run_first, np.int64), np.array(run_last, np.int64)
+
+
+def _named(text: str) -> set[str]:
+    """The axes a G28 line names ("G28 X", "G28 Z0"; none: all)."""
+    body = text.split(";", 1)[0].upper()
+    body = re.sub(r"\([^)]*\)", " ", body)
+    body = re.sub(r"G\s*28(?![\d.])", " ", body)
+    return {ax for ax in "XYZ" if ax in body}
 
 
 def fixed_split_error(text: str, surface: HeightField, split_mm: float, standoff_mm: float,

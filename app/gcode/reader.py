@@ -23,6 +23,9 @@ Semantics (RS274/NGC as Marlin, grbl and LinuxCNC share them):
   centre offsets or ``R`` radius, helical in Z and linear in E, are split into chords whose
   sagitta is at most ``arc_tolerance_mm``;
 * ``G4 P<ms>`` / ``G4 S<s>`` dwell: the machine stops there;
+* axis words on a line with an M code and no G code are that code's arguments (``M92 X80``),
+  except beside the dispenser's and E mode's codes; G10, G53, G38.x... own their axis words too;
+  the settings :data:`SETTING_CODES` do not;
 * the dispenser is on between the profile's exact ``dispense_on`` and ``dispense_off`` lines
   when given, else between the command words ``M3 M4 M7 M8 M106`` and ``M5 M9 M107``;
 * ``;LAYER:n`` (or ``;LAYER n``) comments tag the following moves with layer ``n``;
@@ -54,6 +57,11 @@ INCH_MM = 25.4
 DEFAULT_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
 DEFAULT_OFF = frozenset({"M107", "M9", "M5"})
 LIMIT_CODES = frozenset({"M201", "M203", "M204", "M205"})
+#: G codes that set something without changing where a move goes (plane XY, feed per minute,
+#: compensation and canned-cycle cancels, the first work offset, path control)
+SETTING_CODES = frozenset({"G17", "G40", "G49", "G54", "G61", "G64", "G80", "G94"})
+#: M codes that may share a line with a modal move (dispenser, E mode)
+_MOVING_M = DEFAULT_ON | DEFAULT_OFF | {"M82", "M83"}
 RAPID, FEED, ARC_CW, ARC_CCW, HOME = 0, 1, 2, 3, 28
 
 _LAYER = re.compile(r";\s*LAYER[:\s]*(-?\d+)", re.IGNORECASE)
@@ -68,13 +76,23 @@ class ReadOptions:
 
     ``dispense_on``/``dispense_off``: the machine profile's exact lines (whitespace and case
     are normalised), replacing the default command words; ``arc_tolerance_mm``: the largest
-    sagitta of an arc's chords (mm); ``feed_mm_s``: the feed until the first ``F`` (mm/s).
+    sagitta of an arc's chords (mm); ``feed_mm_s``: the feed until the first ``F`` (mm/s);
+    ``keep_still``: a motion line that moves nothing (a repeated retract) is reported as a
+    zero-length move instead of left out; ``max_arc_chords``: the most chords all arcs
+    together may be split into, counted before any is expanded (:class:`ArcBudgetError`
+    beyond it; None: no limit).
     """
 
     dispense_on: str | None = None
     dispense_off: str | None = None
     arc_tolerance_mm: float = 0.002
     feed_mm_s: float = 25.0
+    keep_still: bool = False
+    max_arc_chords: int | None = None
+
+
+class ArcBudgetError(GcodeReadError):
+    """The program's arcs need more chords than :attr:`ReadOptions.max_arc_chords` allows."""
 
 
 @dataclass(frozen=True)
@@ -162,7 +180,7 @@ def _strip(raw: str) -> str:
     return " ".join(line.split())
 
 
-class _Row(NamedTuple):
+class MoveRow(NamedTuple):
     """One move as the reader emits it (the fields of :class:`Program`, one entry each)."""
 
     start: npt.NDArray[np.float64]
@@ -176,25 +194,27 @@ class _Row(NamedTuple):
     stop_before: bool
 
 
-class _Reader:
-    """The modal interpreter: fed line by line, it collects moves, dwells and limits."""
+class ModalReader:
+    """The modal interpreter: fed line by line (:meth:`line`), it collects moves (``rows``,
+    one :class:`MoveRow` per move or arc chord), dwells and limits; :meth:`program` gathers them."""
 
     def __init__(self, options: ReadOptions) -> None:
         self.options = options
         self.on_line = _normalise(options.dispense_on)
         self.off_line = _normalise(options.dispense_off)
         self.state = _State(feed=options.feed_mm_s)
-        self.rows: list[_Row] = []
+        self.rows: list[MoveRow] = []
         self.dwell = 0.0
         self.limits: list[tuple[str, dict[str, float]]] = []
         self.text = ""  # the current line, stripped
+        self.chords = 0  # arc chords emitted so far
 
     def emit(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], motion: int, number: int,
              extrudes: bool) -> None:
         """Record a move from ``start`` to ``end`` (4,) mm under the current modal state."""
         s = self.state
         dispense = motion in (FEED, ARC_CW, ARC_CCW) and (s.dispensing or extrudes)
-        self.rows.append(_Row(start.copy(), end.copy(), s.rot.copy(), s.feed, motion, dispense, s.layer, number,
+        self.rows.append(MoveRow(start.copy(), end.copy(), s.rot.copy(), s.feed, motion, dispense, s.layer, number,
                               s.stop_pending))
         s.stop_pending = False
 
@@ -217,7 +237,8 @@ class _Reader:
         codes = [f"{letter}{value:g}" for letter, value in parsed.words if letter in "GM"]
         values = {letter: value for letter, value in parsed.values.items() if letter not in "GMN"}
         motion_here: int | None = None
-        axis_consumer = False  # a non-motion code on this line owns the axis words
+        # a non-motion code on this line owns the axis words (an M code's arguments: M92 X80)
+        axis_consumer = not parsed.g and any(f"M{m:g}" not in _MOVING_M for m in parsed.m)
         for code in codes:
             axis_consumer |= self.modal(code, values, number)
             if code in ("G0", "G1", "G2", "G3"):
@@ -278,7 +299,7 @@ class _Reader:
         elif code in LIMIT_CODES:
             self.limits.append((code, dict(values)))
             return True
-        elif code.startswith("G") and code not in ("G0", "G1", "G2", "G3", "G17"):
+        elif code.startswith("G") and code not in ("G0", "G1", "G2", "G3") and code not in SETTING_CODES:
             return True  # G10, G53, G38.x...: axis words are not a move of ours
         return False
 
@@ -310,7 +331,7 @@ class _Reader:
             points = self.arc_points(start, end, values, number)
             for a, b in zip(points[:-1], points[1:]):
                 self.emit(a, b, s.motion, number, extrudes)
-        elif np.any(end != start) or rotated:
+        elif np.any(end != start) or rotated or self.options.keep_still:
             self.emit(start, end, s.motion if s.motion is not None else FEED, number, extrudes)
         s.pos = end
 
@@ -351,6 +372,12 @@ class _Reader:
         tol = max(self.options.arc_tolerance_mm, _MIN_ARC_TOLERANCE_MM)
         step = 2.0 * math.acos(max(1.0 - tol / r0, -1.0)) if tol < r0 else math.pi / 2
         count = max(1, int(math.ceil(abs(sweep) / max(step, _MIN_ARC_STEP_RAD))))
+        self.chords += count
+        budget = self.options.max_arc_chords
+        if budget is not None and self.chords > budget:
+            raise ArcBudgetError(f"line {number}: the arcs need more than {budget} chords at a chord "
+                                 f"tolerance of {tol:g} mm", field="arc_tolerance_mm",
+                                 value={"line": number, "max_chords": budget})
         t = np.linspace(0.0, 1.0, count + 1)
         angle = a0 + sweep * t
         radius_t = r0 + (r1 - r0) * t
@@ -388,7 +415,7 @@ def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Pro
             text = text.decode("utf-8")
         except UnicodeDecodeError as exc:
             raise GcodeReadError("the program is not UTF-8 text", field="gcode", value=str(exc)[:80]) from None
-    reader = _Reader(options)
+    reader = ModalReader(options)
     for parsed in read_lines(text, strict=False):
         reader.line(parsed)
     return reader.program()

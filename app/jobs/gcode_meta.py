@@ -14,7 +14,9 @@ from app.errors import InvalidInput
 from app.gcode.reader import read_program
 from hardware.protocol import commands_sha256, normalized_commands
 
-_WORD = re.compile(r"^([GMTFSXYZEIJKPRNABC]\s*-?\d|\$[A-Z#$]?|[~!?]$)", re.IGNORECASE)
+# a word, a grbl system command or real-time character, or a tape mark ("%", which
+# gcodetools and Fusion-style posts write around a program)
+_WORD = re.compile(r"^([GMTFSXYZEIJKOPRNABC]\s*[-+]?\.?\d|\$[A-Z#$]?|[~!?]$|%\s*$)", re.IGNORECASE)
 
 
 def gcode_meta(text: str) -> dict:

@@ -45,9 +45,23 @@ class FixedSplit(BaseModel):
     max_error_mm: float
 
 
+class WarpHeightModel(BaseModel):
+    """The height model the warp used, chosen by cross-validation on the surface's points: its
+    kind, the scheme, the prediction error (rms, max mm: the model's own uncertainty beside the
+    chord bound, which holds against the model) and every model's rms compared."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: str
+    cv: str
+    cv_rms_mm: float | None
+    cv_max_mm: float | None
+    alternatives: dict[str, float | None]
+
+
 class WarpProgramResult(KindResult):
-    """A warp_program job: lines in and out, printing moves, emitted pieces, the largest proved
-    chord bound (mm), the travel height (mm) and the fixed split compared."""
+    """A warp_program job: lines in and out, printing moves, emitted pieces, the largest chord
+    bound against the height model (mm), the travel height (mm), the height model and its
+    cross-validated error, and the fixed split compared."""
 
     kind: ClassVar[str] = "warp_program"
     lines_in: int
@@ -56,6 +70,7 @@ class WarpProgramResult(KindResult):
     pieces: int
     max_chord_bound_mm: float
     safe_z_mm: float
+    height_model: WarpHeightModel | None = None
     fixed_split: FixedSplit
 
 

@@ -99,7 +99,7 @@ def test_arcs_are_split_within_their_chord_and_warped(surface):
 
 
 def test_arcs_outside_the_xy_plane_are_refused_naming_the_line(surface):
-    with pytest.raises(WarpError, match="line 3"):
+    with pytest.raises(WarpError, match="line 2: G18"):
         warp_program("G1 X10 Y10\nG18\nG2 X20 Y10 I5 K0 E1\n", surface)
 
 
@@ -123,3 +123,24 @@ def test_curvature_bound_is_an_upper_bound(surface):
         z = h(x0[k] + t * d[0], y0[k] + t * d[1])
         second = np.gradient(np.gradient(z, s), s)[2:-2]
         assert np.abs(second).max() <= bound[k] * (1 + 1e-6) + 1e-9
+
+
+def test_arc_chords_beyond_the_programs_budget_are_refused_before_they_are_made(surface):
+    import time
+    import tracemalloc
+
+    circles = "G21\nG90\nG0 X30 Y20\n" + "G2 X30 Y20 I5 J0 E1 F600\n" * 4      # 4 full circles, ~120 bytes
+    opts = WarpOptions(standoff_mm=0.1, arc_chord_mm=1e-12)
+    c0 = time.process_time()
+    with pytest.raises(WarpError, match="line 6: the arcs need more than") as err:
+        warp_program(circles, surface, opts)
+    cpu = time.process_time() - c0
+    assert err.value.field == "arc_chord_mm" and err.value.value["line"] == 6      # the third circle
+    tracemalloc.start()
+    with pytest.raises(WarpError):
+        warp_program(circles, surface, opts)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert cpu < 1.0 and peak < 50e6, (cpu, peak)
+    # at a sensible sagitta the same circles are warped
+    assert warp_program(circles, surface, WarpOptions(standoff_mm=0.1, arc_chord_mm=1e-3)).printing_moves > 4

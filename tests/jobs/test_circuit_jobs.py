@@ -46,6 +46,12 @@ def test_warp_program_on_a_surface_fit_and_outside_it(client, s1_stl):
     result = job["result"]
     assert result["printing_moves"] == 3 and result["max_chord_bound_mm"] <= 0.002
     assert round_trips(WarpProgramResult, job).fixed_split.split_mm == 5.0
+    # the fitted surface sampled on a grid of its parameters (x and y along them): the grid's own
+    # bicubic and Clough-Tocher compared by leaving grid rows out, the better one used
+    model = result["height_model"]
+    assert model["cv"] == "leave_one_row_out" and model["cv_max_mm"] > 0, model
+    assert model["alternatives"][model["kind"]] == min(model["alternatives"].values())
+    print("height model", model)
     assert result["fixed_split"]["pieces"] > 0
     _, response = artifact(client, job, "warped.gcode")
     dispensing, tips = False, []
@@ -77,3 +83,37 @@ def test_warp_program_on_a_surface_fit_and_outside_it(client, s1_stl):
     assert both.status_code == 422
     wrong = submit(client, "warp_program", {"program_id": program["id"], "probe_run_job_id": fit["id"]})
     assert wrong.status_code == 422 and "probe_run" in wrong.json()["detail"]
+
+    # what posts write around a program: tape marks, a program number, line numbers, comments
+    post = _upload(client, "%\nO1001\n(ISOLATION)\nN10 G90 G94 G17 G21\nN20 G0 Z5.\nN30 M3 S1000\n"
+                           "N40 X10. Y10.\nN50 G1 Z-0.05 F60.\nN60 X20. F150.\nN70 G0 Z5.\nN80 M5\n%\n")
+    warped = run_job(client, "warp_program", {"program_id": post["id"], "surface_fit_job_id": fit["id"]})
+    assert warped["status"] == "succeeded", warped["error"]
+    # a line the warp does not model: refused at submission, naming it
+    offset = _upload(client, "G21\nG90\nG43 H1 Z15\nG0 X10 Y10\n")
+    refused = submit(client, "warp_program", {"program_id": offset["id"], "surface_fit_job_id": fit["id"]})
+    assert refused.status_code == 422 and "line 3: G43" in refused.json()["detail"]
+    assert refused.json()["errors"][0]["value"] == {"line": 3, "text": "G43 H1 Z15"}
+
+
+def test_arc_chords_are_bounded_before_they_are_expanded(client):
+    """Four full circles in 130 bytes: a chord sagitta below the floor is refused by the schema,
+    and at the floor a radius whose chords exceed the program's budget is refused at submission,
+    in milliseconds (the chords are counted, never made)."""
+    import time
+
+    circles = "G21\nG90\nG0 X10 Y10\n" + "G2 X10 Y10 I1000000 J0 F600\n" * 4
+    program = _upload(client, circles)
+    probe = {"program_id": program["id"], "probe_run_job_id": "job_none"}
+    tiny = submit(client, "warp_program", {**probe, "arc_chord_mm": 1e-12})
+    assert tiny.status_code == 422 and tiny.json()["errors"][0]["loc"][-1] == "arc_chord_mm"
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", MESH.export(file_type="stl"))}, headers=OP).json()
+    fit = run_job(client, "surface_fit", {"part_id": part["id"], "region": {"x": [5, 55], "y": [5, 35]},
+                                          "grid": [9, 7]})
+    t0 = time.perf_counter()
+    big = submit(client, "warp_program", {"program_id": program["id"], "surface_fit_job_id": fit["id"],
+                                          "arc_chord_mm": 1e-4})
+    elapsed = time.perf_counter() - t0
+    assert big.status_code == 422, big.text
+    assert big.json()["errors"][0]["loc"] == ["params", "arc_chord_mm"] and "line 4" in big.json()["detail"]
+    assert elapsed < 1.0

@@ -111,7 +111,10 @@ function showResult(job) {
   const warped = (job.artifacts || []).find((a) => a.name === "warped.gcode");
   output.replaceChildren(el("table", { id: "warp-figures" }, el("tbody", {},
     [["lines in / out", `${r.lines_in} / ${r.lines_out}`], ["printing moves", r.printing_moves],
-      ["pieces", r.pieces], ["worst chord error (proved)", `${fmt.num(r.max_chord_bound_mm * 1000, 3)} µm`],
+      ["pieces", r.pieces], ["worst chord error (against the height model)", `${fmt.num(r.max_chord_bound_mm * 1000, 3)} µm`],
+      ["height model", r.height_model ? `${r.height_model.kind.replace("_", " ")}, ${r.height_model.cv.replaceAll("_", " ")} `
+        + (r.height_model.cv_max_mm == null ? "not measurable" : `max ${fmt.num(r.height_model.cv_max_mm * 1000, 3)} µm, `
+        + `rms ${fmt.num(r.height_model.cv_rms_mm * 1000, 3)} µm`) : "—"],
       [`fixed ${fmt.num(r.fixed_split.split_mm, 3)} mm split`, `${r.fixed_split.pieces} pieces, worst `
         + `${fmt.num(r.fixed_split.max_error_mm * 1000, 3)} µm`], ["safe travel z", fmt.mm(r.safe_z_mm, 3)]]
       .map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", { "data-figure": k }, String(v)))))),

@@ -6,13 +6,15 @@ measured points; see :mod:`app.circuits.warp` for what happens to each move.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session
 
 from app.circuits.errors import WarpError
-from app.circuits.gcode_scan import scan_program
-from app.circuits.heightfield import height_field_from_points, points_region
+from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, scan_program
+from app.circuits.heightfield import height_model_from_points, points_region
 from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
 from app.errors import InvalidInput
 from app.geometry.nurbs_surface import NurbsSurface
@@ -32,8 +34,10 @@ class WarpProgramParams(JobParams):
     probe_run_job_id: str | None = Field(None, description="a succeeded probe_run job (its measured points)")
     standoff_mm: float | None = Field(None, gt=0, le=50, description="printing moves at the surface + this; "
                                       "default: the program's z + the surface height")
-    chord_error_mm: float = Field(0.002, gt=0, le=1, description="proved bound per emitted piece")
-    arc_chord_mm: float = Field(0.001, gt=0, le=1, description="G2/G3 arcs: largest top-view chord sagitta")
+    chord_error_mm: float = Field(0.002, gt=0, le=1, description="bound per emitted piece against the height model")
+    arc_chord_mm: float = Field(0.001, ge=MIN_ARC_CHORD_MM, le=1,
+                                description="G2/G3 arcs: largest top-view chord sagitta (the chords of all arcs "
+                                            "together are bounded by the program's size)")
     clearance_mm: float = Field(2.0, gt=0, le=100, description="travel height above the surface's top")
     allow_outside: bool = Field(False, description="hold the edge height outside the measured region")
     grid_mm: float = Field(1.0, gt=0.05, le=20, description="height-field grid spacing")
@@ -69,8 +73,8 @@ def _check(params: WarpProgramParams, session: Session) -> None:
     except UnicodeDecodeError:
         raise InvalidInput("the program is not UTF-8 text", field="params.program_id", value=program.id) from None
     except WarpError as exc:
-        raise InvalidInput(f"program {program.name!r} {exc.message}", field="params.program_id",
-                           value=exc.value) from None
+        field = "params.arc_chord_mm" if exc.field == "arc_chord_mm" else "params.program_id"
+        raise InvalidInput(f"program {program.name!r} {exc.message}", field=field, value=exc.value) from None
 
 
 def _surface_points(job: Job) -> np.ndarray:
@@ -82,6 +86,10 @@ def _surface_points(job: Job) -> np.ndarray:
     return np.array([p.measured for p in ProbeRunResult.of(job).points], float)
 
 
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
 @job_kind("warp_program", WarpProgramParams, check=_check,
           references=lambda p: [("job", _surface_job(p)[1])])
 def run(ctx: JobContext, params: WarpProgramParams) -> dict:
@@ -90,8 +98,8 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
         program = get_or_404(session, Program, params.program_id, field="params.program_id")
     text = ctx.runtime.blobs.read(program.sha256).decode("utf-8")
     kind, job_id = _surface_job(params)
-    field = height_field_from_points(_surface_points(ctx.job(job_id, kind=kind, field=f"params.{kind}_job_id")),
-                                     params.grid_mm)
+    field, model = height_model_from_points(
+        _surface_points(ctx.job(job_id, kind=kind, field=f"params.{kind}_job_id")), params.grid_mm)
     ctx.progress(0.2, "warping")
     result = warp_program(text, field, WarpOptions(params.standoff_mm, params.chord_error_mm, params.clearance_mm,
                                                    allow_outside=params.allow_outside,
@@ -100,4 +108,7 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
     pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
     return WarpProgramResult.written({"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
             "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm, "safe_z_mm": result.safe_z_mm,
+            "height_model": {"kind": model.kind, "cv": model.cv, "cv_rms_mm": _finite(model.cv_rms_mm),
+                             "cv_max_mm": _finite(model.cv_max_mm),
+                             "alternatives": {k: _finite(v) for k, v in model.alternatives.items()}},
             "fixed_split": {"split_mm": params.compare_split_mm, "pieces": pieces, "max_error_mm": worst}})
