@@ -2,27 +2,7 @@
 
 from __future__ import annotations
 
-import time
-
-from tests.conftest import auth
-
-OP = auth("operator")
-POLL_MIN_S, POLL_MAX_S = 0.02, 0.2
-
-
-def wait_for(client, job_id: str, states=("succeeded", "failed", "cancelled"), timeout: float = 20.0) -> dict:
-    """The job once its status is one of ``states``.  Polled every 20 ms at first, then ever
-    less often (every 5 % of the time waited so far, at most every 0.2 s): each poll is a
-    request through the whole app (~5 ms of CPU), which a 20 ms poll took from the job it
-    waits for for as long as the job ran."""
-    start = time.monotonic()
-    deadline = start + timeout
-    while time.monotonic() < deadline:
-        job = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
-        if job["status"] in states:
-            return job
-        time.sleep(min(POLL_MAX_S, max(POLL_MIN_S, (time.monotonic() - start) / 20)))
-    raise AssertionError(f"job {job_id} still {job['status']}")
+from tests.helpers.jobs import OP, wait_for
 
 
 def test_submit_runs_and_records_result_and_artifact(client):
