@@ -23,6 +23,9 @@ from app.config import Settings
 from app.db import migrate
 from app.jobs.runtime import QUEUES, Runtime
 
+# The API's routers, in the order their routes are matched
+ROUTERS = (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router,
+           files.router, viewer_api.router, reports.router, circuits.router)
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 log = logging.getLogger("conforma")
 
@@ -55,11 +58,15 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
                 viewer.stop()
             runtime.stop()
 
+    document_error_responses(ROUTERS)
     api = FastAPIOffline(  # /docs served from the package: no CDN, works offline
         title="Conforma",
         version=app_package.__version__,
         description="Plan, measure and compensate toolpaths for printing electronics onto curved parts.",
         lifespan=lifespan,
+        # the routers' own routes, built once when their modules were imported: an included
+        # router (``include_router``) is built again for every app, at its first request
+        routes=[route for router in ROUTERS for route in router.routes],
     )
     api.state.settings = settings
     install_error_handlers(api)
@@ -71,11 +78,6 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
     api.add_middleware(AdmissionMiddleware, max_active=min(settings.max_active_requests, settings.db_pool_size),
                        max_waiting=settings.max_waiting_requests, wait_s=settings.request_wait_s)
     api.add_middleware(SecurityHeadersMiddleware)
-    routers = (system.router, parts.router, traces.router, jobs.router, programs.router, machines.router,
-               files.router, viewer_api.router, reports.router, circuits.router)
-    document_error_responses(routers)
-    for router in routers:
-        api.include_router(router)
     if WEB_DIR.is_dir():
         api.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     return api

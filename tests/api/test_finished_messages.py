@@ -14,7 +14,7 @@ from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.registry import JobParams, job_kind
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

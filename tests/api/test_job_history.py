@@ -11,7 +11,7 @@ from sqlmodel import Session
 
 from app.models import JobReference
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

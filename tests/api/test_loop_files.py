@@ -16,7 +16,7 @@ from app.gcode.reader import ReadOptions, read_program
 from app.reference.s1 import as_made, s1_mesh
 from tests.conftest import auth
 from tests.e2e.test_closed_loop import _mock_setup
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

@@ -8,7 +8,7 @@ import pytest
 from hardware.mock import get_world
 from tests.api.test_machines import program_text, register, upload_program
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP, ADMIN = auth("operator"), auth("admin")
 

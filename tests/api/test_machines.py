@@ -8,7 +8,7 @@ import pytest
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from hardware.protocol import commands_sha256
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

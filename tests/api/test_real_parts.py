@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 from tests.real_parts import bolt, inch_3mf, metre_glb, metre_stl, teapot_like, two_body_badly_wound
 
 OP = auth("operator")

@@ -25,7 +25,7 @@ import pytest
 from app.reference.boards import board_traces, s1_part
 from app.reference.s1 import as_made, s1_mesh
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 PROCESS = {"deviation_amplitude_mm": 0.15, "deviation_wavelength_mm": 15.0}

@@ -25,7 +25,7 @@ import pytest
 from app.part_cache import journal
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 GRID_MM = 0.06  # S1 at 0.06 mm: 1,344,002 faces

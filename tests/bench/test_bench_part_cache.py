@@ -74,7 +74,7 @@ def _seconds(job: dict) -> float:
 
 
 def test_the_second_job_on_a_1m_face_part_loads_the_precomputation(client, settings):
-    from tests.jobs.test_jobs_api import wait_for
+    from tests.helpers.jobs import wait_for
 
     data = s1_mesh(grid_mm=GRID_MM).export(file_type="stl")
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", data)}, headers=OP)

@@ -20,7 +20,7 @@ from app.jobs.program_results import CircuitProgramResult
 from app.jobs.results import PrintResult
 from hardware.mock import get_world
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 from tests.jobs.test_program_results import round_trips
 
 OP = auth("operator")

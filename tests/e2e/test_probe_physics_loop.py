@@ -19,7 +19,7 @@ import pytest
 from app.reference.s1 import centred_placement
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 TRACES = (0, 3, 6)  # one line, one R40 arc, one NURBS

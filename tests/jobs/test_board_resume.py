@@ -30,7 +30,7 @@ from app.reconstruction.stored import stored_name
 from app.reference.s1 import as_made, s1_mesh
 from tests.conftest import auth
 from tests.jobs.test_field_probe_jobs import board, job
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 TRACES = (0, 2, 4, 6, 8)  # five S1 traces: lines, arcs and NURBS curves

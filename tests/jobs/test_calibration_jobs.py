@@ -8,7 +8,7 @@ import numpy as np
 
 from hardware.mock import MockTool, get_world
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 # the mock's truth (hidden from the machine) ...

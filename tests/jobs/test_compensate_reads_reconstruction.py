@@ -17,7 +17,7 @@ from app.probing import PlanParams
 from app.reconstruction import ReconstructParams, reconstruct
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

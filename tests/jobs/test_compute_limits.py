@@ -12,7 +12,7 @@ from app.config import load_settings
 from app.errors import InvalidInput
 from app.jobs.cost import Cost, check_cost
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
 
@@ -23,10 +23,6 @@ def upload_box(client, size=(40.0, 40.0, 10.0)) -> dict:
     response = client.post("/api/v1/parts", files={"file": ("box.stl", box.export(file_type="stl"))}, headers=OP)
     assert response.status_code == 201, response.text
     return response.json()
-
-
-def submit(client, kind: str, params: dict):
-    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
 def refused_field(response) -> str:

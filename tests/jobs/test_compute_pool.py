@@ -14,7 +14,7 @@ from app.jobs.compute_pool import ComputePool, Member, retire_reason
 from app.part_cache import journal
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 XY = [[3.0, 4.0], [20.0, 31.0], [41.5, 12.25], [57.0, 36.0]]

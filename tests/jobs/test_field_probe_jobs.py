@@ -13,7 +13,7 @@ from app.probing.field_top import first_hit_z, mesh_top_sampler
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
 from app.viewer.loaders import load_focus
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
 TRACES = (0, 4, 8)  # S1 traces 1, 5, 9: a line, an arc and a NURBS curve, 16 mm apart
@@ -32,10 +32,6 @@ def coarse():
     """The same, coarser: for the checks that do not measure the standoff."""
     truth = as_made(seed=11, amplitude_mm=0.15)
     return s1_mesh(grid_mm=0.6), truth.mesh(grid_mm=0.6).export(file_type="stl")
-
-
-def submit(client, kind: str, params: dict):
-    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
 def job(client, kind: str, params: dict, timeout: float = 120) -> dict:

@@ -20,7 +20,7 @@ from app.models import Job
 from hardware.protocol import commands_sha256
 from tests.conftest import auth
 from tests.gcode_words import g1_lines_missing, g1_rows
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
 R = 40.0  # sphere radius, mm
@@ -63,10 +63,6 @@ def add_trace(client, part_id: str, geometry: dict) -> dict:
                            json={"name": "t", "geometry": geometry, "frame": "xy", "standoff_mm": H})
     assert response.status_code == 201, response.text
     return response.json()
-
-
-def submit(client, kind: str, params: dict):
-    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
 def run_job(client, kind: str, params: dict) -> dict:

@@ -13,16 +13,12 @@ from PIL import Image
 from app.jetting import DropParams, TargetSpec, target_from_spec
 from app.jobs.jetting_results import JettingResult, NextLayerResult
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import submit, wait_for
 from tests.jobs.test_program_results import round_trips
 
 OP = auth("operator")
 SMALL = {"dpi": 150, "target": {"size_mm": 5, "hole_mm": 2}, "layers": 20, "nozzle_spread": 0.06, "png_every": 5}
 DROP_MM3 = 6e-6  # the default 6 pL drop
-
-
-def submit(client, kind: str, params: dict):
-    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
 def run_job(client, kind: str, params: dict) -> dict:

@@ -2,21 +2,7 @@
 
 from __future__ import annotations
 
-import time
-
-from tests.conftest import auth
-
-OP = auth("operator")
-
-
-def wait_for(client, job_id: str, states=("succeeded", "failed", "cancelled"), timeout: float = 20.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
-        if job["status"] in states:
-            return job
-        time.sleep(0.02)
-    raise AssertionError(f"job {job_id} still {job['status']}")
+from tests.helpers.jobs import OP, wait_for
 
 
 def test_submit_runs_and_records_result_and_artifact(client):

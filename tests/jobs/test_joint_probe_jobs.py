@@ -17,7 +17,7 @@ from app.reference.s1 import as_made, s1_mesh, s1_traces
 from app.viewer.gcode_paths import parse_toolpath
 from app.viewer.loaders import load_focus
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
 TRACES = (5, 6, 7)  # S1 traces 6-8: one R40 arc and two NURBS, 4 mm apart
@@ -47,10 +47,6 @@ def setup(client, meshes):
         "name": "m", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001}}, headers=OP).json()
     return part, traces, spare, foreign, machine
-
-
-def submit(client, kind: str, params: dict):
-    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
 def job(client, kind: str, params: dict, timeout: float = 60) -> dict:

@@ -15,7 +15,7 @@ from app.models import Job
 from hardware.mock import get_world
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

@@ -13,7 +13,7 @@ from app.models import Job
 from hardware.mock import get_world
 from hardware.protocol import normalized_commands
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

@@ -20,7 +20,7 @@ from app.models import Job
 from app.reference.s1 import height_field_mesh
 from app.jobs.results import PrintResult
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 from tests.jobs.test_program_results import round_trips
 
 OP = auth("operator")

@@ -152,7 +152,7 @@ def test_a_derived_entry_of_another_mesh_is_refused(tmp_path):
 
 
 def _job(client, kind: str, params: dict, timeout: float = 120) -> dict:
-    from tests.jobs.test_jobs_api import wait_for
+    from tests.helpers.jobs import wait_for
 
     response = client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
     assert response.status_code == 202, response.text

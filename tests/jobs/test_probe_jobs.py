@@ -7,7 +7,7 @@ import pytest
 
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
 
@@ -21,10 +21,6 @@ def s1_stl() -> bytes:
 def trace(client, s1_stl):
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_stl)}, headers=OP).json()
     return client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[6].to_api(), headers=OP).json()
-
-
-def submit(client, kind: str, params: dict):
-    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
 @pytest.mark.parametrize("method", ["adaptive", "uniform", "deviation", "kriging"])

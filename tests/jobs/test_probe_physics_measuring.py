@@ -21,7 +21,7 @@ from app.calibration import PretravelModel, ProbeCalibration
 from app.models import Job, new_id, utcnow
 from app.reference.s1 import as_made, nominal_height, s1_mesh, s1_traces
 from tests.conftest import KEYS, auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 BALL_MM = 0.5

@@ -12,7 +12,7 @@ from app.db import migrate
 from app.jobs.runtime import Runtime
 from tests.api.test_machines import program_text, register, upload_program
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 

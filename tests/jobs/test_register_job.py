@@ -19,7 +19,7 @@ from app.geometry.traces import as_trace_polyline
 from app.jobs.results import RegisterResult, StoredResultError
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
 TRUE = {"dx": 0.2, "dy": -0.15, "dz": 0.03, "rz_deg": 0.3}
@@ -28,10 +28,6 @@ TRUE = {"dx": 0.2, "dy": -0.15, "dz": 0.03, "rz_deg": 0.3}
 @pytest.fixture(scope="module")
 def s1_stl() -> bytes:
     return s1_mesh(grid_mm=0.5).export(file_type="stl")
-
-
-def submit(client, kind: str, params: dict):
-    return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
 def mock_machine(client, true_part_id: str, placement: dict, name: str = "sim") -> dict:

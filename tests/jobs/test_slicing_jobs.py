@@ -17,7 +17,7 @@ from app.gcode.reader import read_program
 from hardware.protocol import commands_sha256
 from app.jobs.program_results import ToolpathResult
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 from tests.jobs.test_program_results import round_trips
 from tests.slicing.conftest import to_trimesh
 from tests.slicing.readers import read_cli, read_slc

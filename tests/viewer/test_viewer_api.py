@@ -18,7 +18,7 @@ from app.models import Job, JobReference, new_id, utcnow
 from app.records import add_artifact
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 from tests.viewer.conftest import free_port
 
 OP = auth("operator")

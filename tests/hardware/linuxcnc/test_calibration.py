@@ -19,7 +19,7 @@ import pytest
 from hardware.linuxcnc import SimBlock, SimSphere
 from tests.conftest import auth
 from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, add_sim_machine
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 BALL_MM, SPHERE_D_MM = 0.5, 10.0

@@ -13,7 +13,7 @@ import pytest
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
-from tests.jobs.test_jobs_api import wait_for
+from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
 PROFILE = {"dispense_on": "M64 P0", "dispense_off": "M65 P0", "probe_command": "G38.2"}
