@@ -79,7 +79,8 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     on = [s for s in field["stations"] if s["trace"] >= 0]
     assert len(on) == len(field["stations"])  # on_traces by default
     per_trace = [e["stations"] for e in plan["result"]["traces"]]
-    assert [e["probes"] for e in entries] == per_trace and sum(per_trace) == plan["result"]["count"]
+    assert [e["probes"] for e in entries] == per_trace
+    assert sum(per_trace) + field["verify_count"] == plan["result"]["count"] and field["verify_count"] == 5
     for entry in entries:
         rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
         assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
@@ -114,7 +115,7 @@ def test_the_exchange_switch_and_both_degree_of_freedom_counts_reach_the_result(
 def test_reconstruct_method_must_match_a_field_run(client, coarse):
     setup = board(client, coarse)
     plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})
-    assert plan["result"]["count"] == 12
+    assert plan["result"]["count"] == 12 + plan["result"]["field"]["verify_count"]  # + the verification points
     run = job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": setup["machine_id"]})
     wrong = submit(client, "reconstruct", {"trace_id": setup["trace_ids"][0], "probe_run_job_id": run["id"],
                                            "method": "kriging"})
@@ -140,7 +141,7 @@ def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client,
     grad = np.array([mesh_top_sampler(coarse[0])(sd_map.vertices[i:i + 1, :2]).grad[0]
                      for i in range(0, len(sd_map.vertices), 997)])
     sites = Sites(sd_map.vertices[::997, :2], grad)
-    assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations, sites, field.center), atol=1e-12)
+    assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations.take(~field.verify), sites, field.center), atol=1e-12)
     # low at the stations, high far from them
     near = np.linalg.norm(sd_map.vertices[:, None, :2] - field.stations.xy[None], axis=2).min(axis=1)
     assert sd_map.values[near < 0.3].max() < sd_map.values[near > 5].min()

@@ -168,8 +168,9 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     ctx.progress(0.1, f"planning field stations over {len(traces)} traces")
     plan_params = _plan_params(params)
     top = mesh_top_sampler(mesh) if params.stations == "anywhere_on_top" else None
-    plan = plan_field(nominals, plan_params, params.stations, top)
-    ctx.progress(0.5, f"{plan.count} stations for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
+    plan = plan_field(nominals, plan_params, params.stations, top, verify_count=params.verify_count)
+    ctx.progress(0.5, f"{plan.count - int(plan.verify_mask.sum())} stations and {int(plan.verify_mask.sum())} "
+                 f"verification points for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
                  f"freedom at the target, {plan.nyquist_dof:.0f} by the Nyquist rule); writing the program")
     program, meta = _program(ctx, params, plan.probe_plan(), mesh)
     counts = plan.stations_per_trace
@@ -180,7 +181,8 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
         "s_mm": [None if np.isnan(s) else float(s) for s in plan.s_mm],
         "records": [r.to_dict() for r in program.records],
         "program": meta,
-        "field": field_result(plan, plan_params.prior()),
+        "field": {**field_result(plan, plan_params.prior()), "coverage": params.coverage,
+                  "target_error_mm": params.target_error_mm, "verify_count": int(plan.verify_mask.sum())},
         "traces": [{"trace_id": trace.id, "index": i, "stations": int(counts[i]), "trace_length_mm": trace.length_mm,
                     "predicted_sd_mm": float(plan.trace_sd_mm[i])} for i, trace in enumerate(traces)],
     }
