@@ -240,7 +240,8 @@ class FieldPlan:
     area_mm2: the covered area.  order: (n,) the
     order in which the greedy added them (index into the stations; with the automatic count
     the stations elimination dropped are not in it).  verify (n,) bool or None: the last
-    ``k`` points are verification points (:func:`with_verification`), not stations.
+    ``k`` points are verification points (:func:`app.probing.field_verify.with_verification`),
+    not stations.
     """
 
     xy: np.ndarray
@@ -304,14 +305,13 @@ def travel_order(xy: np.ndarray, band_mm: float) -> np.ndarray:
 
 
 def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
-               stations: str = "on_traces", top: TopSampler | None = None, verify_count: int = 0,
+               stations: str = "on_traces", top: TopSampler | None = None,
                fixed: Sites | None = None) -> FieldPlan:
     """Field stations for every trace in ``nominals`` (TracePolyline-like, one frame).
 
     params: the deviation prior, ``target_error_mm``, ``coverage``, ``min_count`` and an
     optional total ``count``.  stations: "on_traces" or "anywhere_on_top" (needs ``top``,
-    the part's nominal top).  verify_count: verification points appended after the stations
-    (:func:`with_verification`).  fixed: stations already touched (a sequential plan's
+    the part's nominal top).  fixed: stations already touched (a sequential plan's
     earlier rounds): the design starts from them and returns only the stations it adds
     (none when they already meet the target; its sd figures count them).  Raises PlanError
     for bad input.
@@ -329,41 +329,7 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
     plan = _design(region, prior, params, stations, fixed)
     dof = truncation_dof(mode_variances(prior, region.samples, region.center),
                          params.target_error_mm / params.coverage)
-    plan = replace(plan, dof=float(dof), nyquist_dof=region.nyquist_dof)
-    return with_verification(plan, region.samples, prior, verify_count) if verify_count > 0 else plan
-
-
-def verification_indices(prior: DeviationPrior, stations: Sites, samples: Sites, center: np.ndarray,
-                         count: int) -> np.ndarray:
-    """``count`` indices (k,) into ``samples`` (trace points) where the field given the
-    stations is least certain: each the sample of largest posterior variance once the
-    previous ones are (hypothetically) touched too, so they spread instead of clustering
-    at one worst spot.  Their sd does not depend on what the probes read."""
-    greedy = GreedyField(prior, Sites(np.concatenate([stations.xy, samples.xy]),
-                                      np.concatenate([stations.grad, samples.grad])), center)
-    n = len(stations.xy)
-    for j in range(n):
-        greedy.add(j)
-    picked: list[int] = []
-    for _ in range(min(count, len(samples.xy))):
-        var = greedy.var[n:].copy()
-        var[picked] = -1.0
-        j = int(np.argmax(var))
-        picked.append(j)
-        greedy.add(n + j)
-    return np.array(picked, dtype=int)
-
-
-def with_verification(plan: FieldPlan, samples: TracePoints, prior: DeviationPrior, count: int) -> FieldPlan:
-    """``plan`` with ``count`` verification points (:func:`verification_indices`) on the
-    traces appended after its stations (touched last; ``verify`` marks them)."""
-    idx = verification_indices(prior, plan.sites, samples.sites, plan.center, count)
-    n = plan.count
-    return replace(plan, xy=np.concatenate([plan.xy, samples.sites.xy[idx]]),
-                   z=np.concatenate([plan.z, samples.z[idx]]), grad=np.concatenate([plan.grad, samples.sites.grad[idx]]),
-                   trace=np.concatenate([plan.trace, samples.trace[idx]]),
-                   s_mm=np.concatenate([plan.s_mm, samples.s[idx]]),
-                   verify=np.concatenate([np.zeros(n, dtype=bool), np.ones(len(idx), dtype=bool)]))
+    return replace(plan, dof=float(dof), nyquist_dof=region.nyquist_dof)
 
 
 MAX_REFINE_ROUNDS = 6

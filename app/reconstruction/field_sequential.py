@@ -31,7 +31,8 @@ import numpy as np
 
 from app.geometry.traces import as_trace_polyline
 from app.probing.deviation_prior import Sites
-from app.probing.field import plan_field, verification_indices
+from app.probing.field import plan_field
+from app.probing.field_verify import verification_indices
 from app.probing.field_region import field_region
 from app.probing.selection import PlanParams
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior

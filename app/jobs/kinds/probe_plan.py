@@ -36,6 +36,7 @@ from app.probing import (PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams
                          build_probe_program, plan_probes)
 from app.probing.field import field_result, plan_field
 from app.probing.field_top import mesh_top_sampler
+from app.probing.field_verify import with_verification
 from app.probing.joint import plan_joint
 from app.probing.merge import merge_plans
 from app.probing.program import mesh_station_normals
@@ -168,7 +169,8 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     ctx.progress(0.1, f"planning field stations over {len(traces)} traces")
     plan_params = _plan_params(params)
     top = mesh_top_sampler(mesh) if params.stations == "anywhere_on_top" else None
-    plan = plan_field(nominals, plan_params, params.stations, top, verify_count=params.verify_count)
+    plan = with_verification(plan_field(nominals, plan_params, params.stations, top), nominals,
+                             plan_params.prior(), params.verify_count)
     ctx.progress(0.5, f"{plan.count - int(plan.verify_mask.sum())} stations and {int(plan.verify_mask.sum())} "
                  f"verification points for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
                  f"freedom at the target, {plan.nyquist_dof:.0f} by the Nyquist rule); writing the program")
