@@ -269,3 +269,30 @@ def test_a_board_reconstruct_stores_each_traces_reconstruction_and_compensate_re
     assert program(comp, rows[2].print_artifact) == program(alone, "print.gcode").replace(
         alone["id"].encode(), comp["id"].encode())
     assert rows[2].points == alone["result"]["points"]
+
+
+def test_a_loop_whose_field_check_fails_says_so_and_prints_nothing(client):
+    """The 14 mm part (0.12 sin(2 pi x/22) sin(2 pi y/18) + 0.05 cos(2 pi (x+y)/35) mm) with the
+    prior left at the default 20 mm: the learned prior says the default plan is too sparse, so
+    the loop ends with a verdict asking for attention and the print step is not run."""
+    from app.reference.s1 import AsMadePart, centred_placement
+
+    a, b, c = 2 * np.pi / 22, 2 * np.pi / 18, 2 * np.pi / 35
+    waves = np.array([[a, -b, 0.0, 0.06], [a, b, 0.0, -0.06], [c, c, 0.0, 0.05]])
+    made = AsMadePart(0, 0.17, 14.0, centred_placement(0.0, 0.0, 0.0, 0.0), waves)
+    xy = np.random.default_rng(0).uniform([0, 0], [60, 40], (50, 2))
+    x, y = xy[:, 0], xy[:, 1]
+    expected = 0.12 * np.sin(2 * np.pi * x / 22) * np.sin(2 * np.pi * y / 18) + 0.05 * np.cos(2 * np.pi * (x + y) / 35)
+    assert np.allclose(made.machining_error(xy), expected)      # the waves are the issue's field
+    setup = board(client, (s1_mesh(grid_mm=0.6), made.mesh(grid_mm=0.6).export(file_type="stl")))
+    done = job(client, "closed_loop", {**setup, "joint_probing": True, "sigma_mm": 0.001, "print": True},
+               timeout=300)
+    verdict = done["result"]["verdict"]
+    assert verdict["needs_attention"] and "NEEDS ATTENTION" in done["message"], verdict
+    assert verdict["printing_held"] and all("print" not in e for e in done["result"]["traces"])
+    assert verdict["verified"].startswith("verified at 5 points: max |residual| ")
+    assert 10.0 < verdict["learned"]["wavelength_mm"]["value"] < 17.0
+    assert verdict["suggested_probe"]["deviation_wavelength_mm"] == verdict["learned"]["wavelength_mm"]["value"]
+    assert all(e["bound_mm"] > 0 for e in done["result"]["traces"])
+    report = client.get(f"/api/v1/jobs/{done['id']}/report", headers=OP)
+    assert report.status_code == 200 and "NEEDS ATTENTION" in report.text and "Verification points" in report.text
