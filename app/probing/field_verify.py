@@ -59,3 +59,22 @@ def with_verification(plan: FieldPlan, nominals: Sequence[object], prior: Deviat
                    trace=np.concatenate([plan.trace, samples.trace[idx]]),
                    s_mm=np.concatenate([plan.s_mm, samples.s[idx]]),
                    verify=np.concatenate([np.zeros(n, dtype=bool), np.ones(len(idx), dtype=bool)]))
+
+
+def with_sequential_verification(plan: FieldPlan, touched: Sites, nominals: Sequence[object],
+                                 prior: DeviationPrior, count: int) -> FieldPlan:
+    """``plan`` (a sequential round's added stations, possibly none) with ``count``
+    verification points chosen given every station: the ``touched`` ones (earlier rounds)
+    and the plan's own."""
+    if count <= 0:
+        return plan
+    paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
+    samples = field_region(paths, prior.wavelength_mm).samples
+    every = Sites(np.concatenate([touched.xy, plan.xy]), np.concatenate([touched.grad, plan.grad]))
+    idx = verification_indices(prior, every, samples.sites, plan.center, count)
+    n = plan.count
+    return replace(plan, xy=np.concatenate([plan.xy, samples.sites.xy[idx]]),
+                   z=np.concatenate([plan.z, samples.z[idx]]), grad=np.concatenate([plan.grad, samples.sites.grad[idx]]),
+                   trace=np.concatenate([plan.trace, samples.trace[idx]]),
+                   s_mm=np.concatenate([plan.s_mm, samples.s[idx]]),
+                   verify=np.concatenate([np.zeros(n, dtype=bool), np.ones(len(idx), dtype=bool)]))

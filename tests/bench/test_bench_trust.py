@@ -24,6 +24,7 @@ import os
 import time
 
 import numpy as np
+import pytest
 
 from app.probing.deviation_prior import path_sites
 from app.probing.field import plan_field
@@ -50,6 +51,7 @@ def truth_of(seed: int, wavelength: float, amplitude: float, defects: bool):
     return field
 
 
+@pytest.mark.timeout(7200)
 def test_sequential_field_check_never_claims_more_than_it_delivers():
     paths = [nominal_path(t, 0.05) for t in s1_traces()[:7]]
     dense = [path_sites(p, p.s[::2]) for p in paths]

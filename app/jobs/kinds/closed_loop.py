@@ -105,6 +105,13 @@ class ClosedLoopParams(JobParams):
                              "traces, from the one fitted field) instead of two child jobs per trace; each trace's "
                              "programs are then the compensate job's print.<trace_id>.gcode / nominal.<trace_id>.gcode "
                              "(the result's traces name them)")
+    sequential: bool = Field(True, description="with joint_probing and the field planner: plan sequentially - a pilot "
+                             "plan for the given prior, then rounds that learn the prior from every touch so far and "
+                             "add the stations the fitted field still needs (probe_plan fixed_run_job_id), until it "
+                             "needs none, touch_budget is reached or max_rounds pass; then the verification points. "
+                             "false: one plan for the given prior (+ its verification points)")
+    touch_budget: int = Field(2000, ge=1, le=100_000, description="sequential planning: the most touches in all")
+    max_rounds: int = Field(4, ge=1, le=10, description="sequential planning: the most rounds after the pilot")
     board_batch: int = Field(250, ge=1, le=MAX_FIELD_TRACES, description="traces per board reconstruct / compensate "
                              "job (a resumed loop reuses every finished batch)")
 
@@ -358,10 +365,24 @@ def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, A
     cancel that came during planning stops the loop before the machine is used)."""
     target: dict[str, Any] = {"trace_ids": params.trace_ids} if trace_id is None else {"trace_id": trace_id}
     default = {} if trace_id is None else {"method": "deviation"}  # joint: the planner's default (field)
-    plan = steps.run("probe_plan", {**default, **params.probe, **placed, **target, "dialect": dialect}, trace_id)
+    sequential = trace_id is None and params.sequential and params.probe.get("method", "field") == "field"
+    pilot = {"verify_count": 0} if sequential else {}  # the last round touches the verification points
+    base = {**default, **params.probe, **placed, **target, "dialect": dialect}
+    plan = steps.run("probe_plan", {**base, **pilot}, trace_id)
     steps.ctx.progress(*progress)
-    probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id,
-                                    **_corrections_for("probe_run", params)}, trace_id)
+    run = {"machine_id": params.machine_id, **_corrections_for("probe_run", params)}
+    probe = steps.run("probe_run", {"plan_job_id": plan.id, **run}, trace_id)
+    for round_ in range(params.max_rounds if sequential else 0):
+        following = steps.run("probe_plan", {**base, "fixed_run_job_id": probe.id,
+                                             "touch_budget": params.touch_budget}, trace_id)
+        field = ProbePlanResult.of(following).field or {}
+        steps.ctx.progress(progress[0], f"sequential round {round_ + 1}: {field['sequential']['added']} stations "
+                           f"added, {ProbePlanResult.of(following).count} touches")
+        if ProbePlanResult.of(following).count == 0:
+            break
+        plan, probe = following, steps.run("probe_run", {"plan_job_id": following.id, **run}, trace_id)
+        if field["sequential"]["final"]:
+            break
     return plan, probe
 
 

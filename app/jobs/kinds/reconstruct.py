@@ -40,6 +40,7 @@ from app.probing.deviation_prior import path_sites
 from app.reconstruction.field import field_gradient, fit_bytes, trace_reconstruction
 from app.reconstruction.field_trust import FieldCheck, checked_field, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
+from app.jobs.field_runs import field_touches
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
 
@@ -421,7 +422,7 @@ def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[FieldChec
     if cached is None:
         field = stored_field(stored)
         prior = field.prior if params.sigma_mm is None else replace(field.prior, sigma_mm=params.sigma_mm)
-        rows = sorted(ProbeRunResult.of(probe_run).rows(), key=lambda p: p["index"])
+        rows = field_touches(ctx, probe_run)[1]  # with the stations earlier runs of a sequential plan touched
         plan_params = plan.params or {}
         coverage = float(stored.get("coverage", plan_params.get("coverage", 3.0)))
         target = float(stored.get("target_error_mm", plan_params.get("target_error_mm", 0.005)))
