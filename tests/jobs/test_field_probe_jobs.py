@@ -322,3 +322,34 @@ def test_a_loop_whose_field_check_fails_says_so_and_prints_nothing(client):
     assert all(e["bound_mm"] > 0 for e in done["result"]["traces"])
     report = client.get(f"/api/v1/jobs/{done['id']}/report", headers=OP)
     assert report.status_code == 200 and "NEEDS ATTENTION" in report.text and "Verification points" in report.text
+
+
+def test_a_suspected_outlier_is_touched_again_at_most_twice_before_it_may_be_excluded():
+    """The sequential round's re-touches: the station the fitted field would exclude (a 50 um
+    spike on a smooth field) is listed for a new touch, again after one disagreeing re-touch,
+    and not after two."""
+    from types import SimpleNamespace
+
+    from app.jobs.kinds.probe_plan import _retouches
+    from app.probing.deviation_prior import DeviationPrior, Sites as S
+
+    rng = np.random.default_rng(4)
+    xy = rng.uniform([0, 0], [40, 30], (60, 2))
+    sites = S(xy, np.zeros((60, 2)))
+    dz = 0.05 * np.sin(2 * np.pi * xy[:, 0] / 25) + rng.normal(0, 0.001, 60)
+    dz[17] += 0.05
+    field = SimpleNamespace(z=np.zeros(60), center=xy.mean(axis=0))
+    keep = np.ones(60, dtype=bool)
+    prior = DeviationPrior(amplitude_mm=0.15, wavelength_mm=15.0)
+    fixed = [{"xy": p.tolist()} for p in xy]
+    assert _retouches(prior, sites, dz, field, keep, fixed) == [17]
+    once = fixed + [{"xy": xy[17].tolist(), "retouch_of": 17}]
+    sites2 = S(np.concatenate([xy, xy[17:18]]), np.zeros((61, 2)))
+    dz2 = np.concatenate([dz, [dz[17] - 0.05]])             # the re-touch disagrees with the first touch
+    field2 = SimpleNamespace(z=np.zeros(61), center=field.center)
+    assert _retouches(prior, sites2, dz2, field2, np.ones(61, dtype=bool), once) == [17]
+    twice = once + [{"xy": xy[17].tolist(), "retouch_of": 17}]
+    sites3 = S(np.concatenate([sites2.xy, xy[17:18]]), np.zeros((62, 2)))
+    dz3 = np.concatenate([dz2, [dz[17] - 0.05]])
+    field3 = SimpleNamespace(z=np.zeros(62), center=field.center)
+    assert _retouches(prior, sites3, dz3, field3, np.ones(62, dtype=bool), twice) == []

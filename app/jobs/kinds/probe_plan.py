@@ -18,6 +18,7 @@ shared).  Reconstruct each trace with ``method: "field"`` from the run."""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import replace
 from typing import Any
 
@@ -39,6 +40,7 @@ from app.probing.field_top import mesh_top_sampler
 from app.probing.field_verify import with_sequential_verification, with_verification
 from app.jobs.field_runs import field_touches, measured_array, touched_stations
 from app.probing.field import stored_field
+from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import learn_prior
 from app.probing.joint import plan_joint
 from app.probing.merge import merge_plans
@@ -169,10 +171,33 @@ def _field_entry(plan: Any, plan_params: PlanParams, params: ProbePlanParams,
     entry = {**field_result(plan, plan_params.prior()), "coverage": params.coverage,
              "target_error_mm": params.target_error_mm, "verify_count": int(plan.verify_mask.sum())}
     if sequential is not None:
-        entry["stations"] = sequential.pop("fixed") + entry["stations"]
+        own = entry["stations"]
+        marks = sequential.get("retouch_of", [])
+        first = len(own) - int(plan.verify_mask.sum()) - len(marks)
+        for k, original in enumerate(marks):
+            own[first + k]["retouch_of"] = original
+        entry["stations"] = sequential.pop("fixed") + own
         entry["center"] = sequential.pop("center")
         entry["sequential"] = sequential
     return entry
+
+
+RETOUCHES = 2  # a suspected outlier is touched again, and once more if the two disagree
+
+
+def _retouches(prior: Any, sites: Any, dz: np.ndarray, field: Any, keep: np.ndarray,
+               fixed: list[dict[str, Any]]) -> list[int]:
+    """Indices into ``fixed`` of the touches the fitted field would exclude as outliers
+    (leave-one-out, :func:`app.reconstruction.field.fit_field`) that were not yet touched
+    again RETOUCHES times (a re-touch names its original in ``retouch_of``)."""
+    fit = fit_field(prior, sites, field.z[keep], np.column_stack([sites.xy, field.z[keep] + dz]), field.center)
+    again = Counter(int(st["retouch_of"]) for st in fixed if st.get("retouch_of") is not None)
+    out = []
+    for i in fit.outliers:
+        original = int(fixed[i].get("retouch_of", i))
+        if again[original] < RETOUCHES and original not in out:
+            out.append(original)
+    return out
 
 
 def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], plan_params: PlanParams,
@@ -197,9 +222,18 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
                              deviation_wavelength_mm=learned.prior.wavelength_mm,
                              probe_sigma_mm=max(learned.prior.sigma_mm, plan_params.probe_sigma_mm))
     more = plan_field(nominals, learned_params, params.stations, top, fixed=sites)
+    retouch = _retouches(learned.prior, sites, dz, field, keep, fixed)
     budget = params.touch_budget
-    over = budget is not None and len(fixed) + more.count + params.verify_count > budget
-    final = more.count == 0 or over
+    over = budget is not None and len(fixed) + more.count + len(retouch) + params.verify_count > budget
+    final = (more.count == 0 and not retouch) or over
+    if not final and retouch:  # a suspected outlier is touched again before the fit may exclude it
+        idx = np.flatnonzero(keep)[retouch]
+        more = replace(more, xy=np.concatenate([more.xy, field.stations.xy[idx]]),
+                       z=np.concatenate([more.z, field.z[idx]]),
+                       grad=np.concatenate([more.grad, field.stations.grad[idx]]),
+                       trace=np.concatenate([more.trace, field.trace[idx]]),
+                       s_mm=np.concatenate([more.s_mm, field.s_mm[idx]]),
+                       order=np.arange(more.count + len(idx)))
     if final:  # no stations: the verification points for every station touched so far
         more = replace(more, xy=more.xy[:0], z=more.z[:0], grad=more.grad[:0], trace=more.trace[:0],
                        s_mm=more.s_mm[:0], order=more.order[:0])
@@ -207,7 +241,8 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     return more, learned_params, {
         "round": int(plan_job.result.get("field", {}).get("sequential", {}).get("round", 0)) + 1,
         "final": final, "stopped": "budget" if over else ("bound holds" if final else None),
-        "added": 0 if final else more.count, "touched_before": len(fixed), "learned": learned.as_dict(),
+        "added": 0 if final else more.count - len(retouch), "touched_before": len(fixed),
+        "learned": learned.as_dict(), "retouch_of": [] if final else [int(i) for i in retouch],
         "fixed": fixed, "center": stored["center"]}
 
 
