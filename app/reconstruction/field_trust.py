@@ -13,7 +13,7 @@
 
 Verdict: the field is *verified* when the learned model fits (no LOO misfit), every
 verification residual lies within ``coverage`` x its predictive sd (posterior sd and probe
-noise) and the bound the model promises on the traces meets the target.  A verification point
+noise) and within the bound promised for the traces, and that bound meets the target.  A verification point
 where the compensated program would be off by more than the uncompensated one
 (|measured - predicted| >= |measured|: the correction does not help there) flags its trace as
 *worse than nominal*.  Anything else is ``needs_attention`` with the reasons.
@@ -122,6 +122,9 @@ class FieldCheck:
             out.append(f"{int((~v.within).sum())} of {len(v.xy)} verification points off the field by more than "
                        f"{self.coverage:g} sd (worst {v.residual_mm[i] * 1000:+.1f} um at "
                        f"[{v.xy[i, 0]:.2f}, {v.xy[i, 1]:.2f}] mm, limit {v.limit_mm[i] * 1000:.1f} um)")
+        if v is not None and len(v.xy) and math.isfinite(self.bound_mm) and v.max_abs_residual_mm > self.bound_mm:
+            out.append(f"a verification point is off the field by {v.max_abs_residual_mm * 1000:.1f} um, more than the "
+                       f"bound {self.bound_mm * 1000:.1f} um promised for the traces")
         if self.worse_traces:
             out.append(f"the correction makes trace(s) {list(self.worse_traces)} worse than the nominal program at a "
                        "verification point")

@@ -315,6 +315,10 @@ def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], pri
     line = ("not verified: no verification points were touched" if not points else
             f"verified at {len(points)} points: max |residual| "
             f"{max(abs(p['residual_mm']) for p in points) * 1000:.1f} um (bound {(bound or 0) * 1000:.1f} um)")
+    said = any("promised for the traces" in r for r in reasons)
+    if points and bound is not None and not said and max(abs(p["residual_mm"]) for p in points) > bound:
+        reasons.append(f"a verification point is off the field by more than the bound {bound * 1000:.1f} um "
+                       "promised for the traces")
     learned = first.get("learned")
     suggested = None if learned is None else {
         "deviation_amplitude_mm": learned["amplitude_mm"]["value"],
