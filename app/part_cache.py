@@ -400,6 +400,13 @@ class FieldFitStore:
             log.warning("part cache: field entry %s unusable (%s); refitting", key, exc)
             self.cache.path("field", self._key(key)).unlink(missing_ok=True)
             return None
+        if meta.get("check") is not None:  # a checked field (app.reconstruction.field_trust)
+            from app.reconstruction.field_trust import FieldCheck, Verification
+
+            c = meta["check"]
+            check = FieldCheck(fit, c["learned"], None if c["verification"] is None else
+                               Verification.from_arrays(c["verification"]), float(c["coverage"]), float(c["target_mm"]))
+            return (check, meta.get("refinement")), fit_bytes(fit)
         if meta.get("pair"):  # (fit, its normal-iteration report): see reconstruct's field rebuild
             return (fit, meta.get("refinement")), fit_bytes(fit)
         return fit, fit_bytes(fit)
@@ -410,13 +417,20 @@ class FieldFitStore:
 
         pair = isinstance(value, tuple)
         fit, refinement = value if pair else (value, None)
+        check = None
+        if hasattr(fit, "fit"):  # a checked field: its fit's arrays, the check's figures in the meta
+            v = fit.verification
+            check = {"learned": fit.learned, "verification": None if v is None else v.arrays(),
+                     "coverage": fit.coverage, "target_mm": fit.target_mm}
+            fit = fit.fit
         post = fit.posterior
         return self.cache.store("field", self._key(key), {
             "xy": fit.stations.xy, "grad": fit.stations.grad, "dz": fit.dz, "kept": fit.kept,
             "outliers": np.asarray(fit.outliers, dtype=np.int64), "trace": np.asarray(fit.trace, dtype=np.int64),
             "s_mm": fit.s_mm, "center": post.center, "alpha": post.alpha, "factor": post.factor[0],
         }, {"prior": asdict(post.prior), "lower": bool(post.factor[1]), "pair": pair,
-            "refinement": json.loads(json.dumps(refinement, default=float))})
+            "refinement": json.loads(json.dumps(refinement, default=float)),
+            "check": json.loads(json.dumps(check, default=float))})
 
 
 def part_cache_for(settings: Any) -> PartCache | None:

@@ -49,6 +49,8 @@ class LoopTrace(BaseModel):
     nominal_artifact: str | None = None
     evaluation: LoopEvaluation | None = None
     print: str | None = None  # the print child's job id (print without evaluate)
+    bound_mm: float | None = None  # field: coverage x the trace's largest posterior sd under the fitted model
+    worse_than_nominal: bool | None = None  # field: the correction did not help at a verification point
 
     @property
     def program(self) -> str:
@@ -61,6 +63,7 @@ class ClosedLoopResult(KindResult):
     traces: list[LoopTrace]
     table: list[dict[str, Any]]
     registration: dict[str, Any] | None = None
+    verdict: dict[str, Any] | None = None  # field: learned prior, verification, needs_attention and why
     files: dict[str, Any] | None = None  # set last (app.jobs.loop_files), from the rows above
 
     def by_trace(self) -> dict[str, LoopTrace]:

@@ -109,6 +109,16 @@ class ProbePlanParams(PlacedParams):
                               "with trace_ids; field: for the whole board)")
     coverage: float = Field(3.0, gt=0, le=10, description="kriging/field: coverage x largest predicted sd <= "
                             "target_error_mm")
+    verify_count: int = Field(5, ge=0, le=100, description="field planner: verification points touched after the "
+                              "stations where the traces' posterior is least certain; never used in the fit, they "
+                              "check it (reconstruct's field_check)")
+    fixed_run_job_id: str | None = Field(None, description="field planner, sequential round: a probe run of an "
+                                         "earlier field plan of the same traces; the prior is learned from every "
+                                         "station touched so far and the plan adds only the stations the fitted "
+                                         "field still needs (none: only the verification points)")
+    touch_budget: int | None = Field(None, ge=1, le=100_000, description="sequential round: the most touches in all "
+                                     "(stations so far + added + verification); a round that would pass it adds "
+                                     "no stations and says so")
     exchange: bool = Field(False, description="field planner, automatic count: refine the design by exchange "
                            "moves (2-11 % fewer stations, about twice the planning time, less slack when a "
                            "touch is rejected as an outlier)")

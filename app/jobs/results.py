@@ -176,6 +176,8 @@ class ReconstructResult(KindResult):
     merged_duplicates: int
     normal_iteration: dict[str, Any] | None = None
     sigma: dict[str, Any] | None = None  # the probe noise used: given, the calibration's, or the default
+    field_check: dict[str, Any] | None = None  # method field: learned prior, verification, verdict
+    bound_mm: float | None = None  # method field: coverage x the trace's largest posterior sd (fitted model)
 
 
 class BoardDeviation(BaseModel):
@@ -200,6 +202,7 @@ class ReconstructBoardTrace(BaseModel):
     outliers: list[int]
     merged_duplicates: int
     normal_iteration: dict[str, Any] | None = None
+    bound_mm: float | None = None  # coverage x the trace's largest posterior sd under the fitted model
 
 
 class ReconstructBoardResult(KindResult):
@@ -211,6 +214,7 @@ class ReconstructBoardResult(KindResult):
     traces: list[ReconstructBoardTrace]
     deviation: BoardDeviation
     sigma: dict[str, Any] | None = None
+    field_check: dict[str, Any] | None = None  # learned prior, verification, verdict (app.reconstruction.field_trust)
 
 
 def is_board(job: Job) -> bool:

@@ -239,7 +239,9 @@ class FieldPlan:
     :mod:`app.probing.field_dof`); nyquist_dof: the rule-of-thumb ``A / (lambda/2)^2 + 6``;
     area_mm2: the covered area.  order: (n,) the
     order in which the greedy added them (index into the stations; with the automatic count
-    the stations elimination dropped are not in it).
+    the stations elimination dropped are not in it).  verify (n,) bool or None: the last
+    ``k`` points are verification points (:func:`app.probing.field_verify.with_verification`),
+    not stations.
     """
 
     xy: np.ndarray
@@ -255,6 +257,12 @@ class FieldPlan:
     stations_mode: str
     order: np.ndarray
     nyquist_dof: float = math.nan
+    verify: np.ndarray | None = None
+
+    @property
+    def verify_mask(self) -> np.ndarray:
+        """(n,) bool: the verification points (touched last, never used in the fit)."""
+        return np.zeros(len(self.xy), dtype=bool) if self.verify is None else self.verify
 
     @property
     def count(self) -> int:
@@ -277,7 +285,8 @@ class FieldPlan:
     @property
     def stations_per_trace(self) -> np.ndarray:
         """(T,) int: how many stations lie on each trace (off-trace stations count for none)."""
-        counts: np.ndarray = np.bincount(self.trace[self.trace >= 0], minlength=len(self.trace_sd_mm))
+        on = (self.trace >= 0) & ~self.verify_mask
+        counts: np.ndarray = np.bincount(self.trace[on], minlength=len(self.trace_sd_mm))
         return counts
 
     def probe_plan(self) -> ProbePlan:
@@ -288,18 +297,24 @@ class FieldPlan:
 
 def travel_order(xy: np.ndarray, band_mm: float) -> np.ndarray:
     """Serpentine visiting order (n,) of points (n, 2): bands of ``band_mm`` in y, x up then down."""
+    if len(xy) == 0:
+        return np.zeros(0, dtype=int)
     band = np.floor((xy[:, 1] - xy[:, 1].min()) / band_mm).astype(int)
     key_x = np.where(band % 2 == 0, xy[:, 0], -xy[:, 0])
     return np.lexsort((key_x, band))
 
 
 def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
-               stations: str = "on_traces", top: TopSampler | None = None) -> FieldPlan:
+               stations: str = "on_traces", top: TopSampler | None = None,
+               fixed: Sites | None = None) -> FieldPlan:
     """Field stations for every trace in ``nominals`` (TracePolyline-like, one frame).
 
     params: the deviation prior, ``target_error_mm``, ``coverage``, ``min_count`` and an
     optional total ``count``.  stations: "on_traces" or "anywhere_on_top" (needs ``top``,
-    the part's nominal top).  Raises PlanError for bad input.
+    the part's nominal top).  fixed: stations already touched (a sequential plan's
+    earlier rounds): the design starts from them and returns only the stations it adds
+    (none when they already meet the target; its sd figures count them).  Raises PlanError
+    for bad input.
     """
     params = params or PlanParams()
     if stations not in STATION_MODES:
@@ -311,7 +326,7 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
     paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     prior = params.prior()
     region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
-    plan = _design(region, prior, params, stations)
+    plan = _design(region, prior, params, stations, fixed)
     dof = truncation_dof(mode_variances(prior, region.samples, region.center),
                          params.target_error_mm / params.coverage)
     return replace(plan, dof=float(dof), nyquist_dof=region.nyquist_dof)
@@ -373,7 +388,8 @@ def _exchanged(design: _Designed, region: FieldRegion, prior: DeviationPrior, ta
     return design
 
 
-def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stations: str) -> FieldPlan:
+def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stations: str,
+            fixed: Sites | None = None) -> FieldPlan:
     """Greedy design on the thinned targets (and the free candidates); then (automatic
     count) every trace sample is checked, the ones still over the target join the sites
     (appended: the greedy's factor is extended, not rebuilt) and the greedy sequence
@@ -387,11 +403,15 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
         raise PlanError(f"count {count} exceeds the {len(pool) + len(region.free.xy)} candidate stations "
                         "of this board", field="count", value=count)
     # per site of the greedy's U: trace index (-1 free), arc length (NaN free), nominal z
-    site_trace = np.concatenate([pool.trace, np.full(len(region.free_z), -1)])
-    site_s = np.concatenate([pool.s, np.full(len(region.free_z), np.nan)])
-    site_z = np.concatenate([pool.z, region.free_z])
-    greedy = GreedyField(prior, Sites(np.concatenate([pool.sites.xy, region.free.xy]),
-                                      np.concatenate([pool.sites.grad, region.free.grad])), region.center)
+    nf = 0 if fixed is None else len(fixed.xy)
+    fixed = fixed if fixed is not None else Sites(np.zeros((0, 2)), np.zeros((0, 2)))
+    site_trace = np.concatenate([np.full(nf, -2), pool.trace, np.full(len(region.free_z), -1)])
+    site_s = np.concatenate([np.full(nf, np.nan), pool.s, np.full(len(region.free_z), np.nan)])
+    site_z = np.concatenate([np.full(nf, np.nan), pool.z, region.free_z])
+    greedy = GreedyField(prior, Sites(np.concatenate([fixed.xy, pool.sites.xy, region.free.xy]),
+                                      np.concatenate([fixed.grad, pool.sites.grad, region.free.grad])), region.center)
+    for j in range(nf):  # the stations already touched come first
+        greedy.add(j)
     for _ in range(MAX_REFINE_ROUNDS):
         greedy_sequence(greedy, np.flatnonzero(site_trace >= 0), count, target_var, max(2, params.min_count))
         chosen = np.array(greedy.chosen)
@@ -405,7 +425,7 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
         site_z = np.concatenate([site_z, samples.z[over]])
     kept = chosen
     designed = _Designed(greedy.sites, site_trace, site_s, site_z, kept, parts)
-    if count is None and len(over) == 0:  # drop what later stations made redundant
+    if count is None and len(over) == 0 and nf == 0:  # drop what later stations made redundant
         parts = eliminate_redundant(parts, target_var, max(2, params.min_count))
         designed = _Designed(greedy.sites, site_trace, site_s, site_z, chosen[parts.keep], parts)
         if params.exchange:
@@ -413,6 +433,7 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     sites, site_trace, site_s, site_z = designed.sites, designed.trace, designed.s, designed.z
     kept, parts = designed.kept, designed.parts
     sd = np.sqrt(parts.var)
+    kept = kept[nf:]  # the fixed stations were added first and are not returned
     order = travel_order(sites.xy[kept], prior.wavelength_mm / 2)
     picked = kept[order]
     station_sites = sites.take(picked)
@@ -427,7 +448,7 @@ def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict[str, Any]:
     """JSON form of a field plan: what the reconstruction and the viewer read back.
 
     ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the
-    traces); ``prior``: the deviation prior the design used (the reconstruction must use it).
+    traces; a verification point has ``verify: true``); ``prior``: the deviation prior the design used (the reconstruction must use it).
     """
     return {
         "stations_mode": plan.stations_mode,
@@ -438,15 +459,16 @@ def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict[str, Any]:
         "max_sd_mm": plan.max_sd_mm,
         "prior": {k: float(v) for k, v in prior.__dict__.items()},
         "stations": [{"xy": [float(a), float(b)], "z": float(z), "grad": [float(g), float(h)], "trace": int(t),
-                      "s_mm": None if math.isnan(s) else float(s)}
-                     for (a, b), z, (g, h), t, s in zip(plan.xy, plan.z, plan.grad, plan.trace, plan.s_mm)],
+                      "s_mm": None if math.isnan(s) else float(s)} | ({"verify": True} if v else {})
+                     for (a, b), z, (g, h), t, s, v in zip(plan.xy, plan.z, plan.grad, plan.trace, plan.s_mm,
+                                                           plan.verify_mask)],
     }
 
 
 @dataclass(frozen=True, eq=False)
 class StoredField:
     """A field plan read back from :func:`field_result`: prior, center (2,), stations Sites
-    (n,), nominal z (n,), trace (n,), s_mm (n,)."""
+    (n,), nominal z (n,), trace (n,), s_mm (n,), verify (n,) bool (verification points)."""
 
     prior: DeviationPrior
     center: np.ndarray
@@ -454,6 +476,7 @@ class StoredField:
     z: np.ndarray
     trace: np.ndarray
     s_mm: np.ndarray
+    verify: np.ndarray
 
 
 def stored_field(result: dict[str, Any]) -> StoredField:
@@ -464,4 +487,5 @@ def stored_field(result: dict[str, Any]) -> StoredField:
         Sites(np.array([r["xy"] for r in rows], dtype=float).reshape(-1, 2),
               np.array([r["grad"] for r in rows], dtype=float).reshape(-1, 2)),
         np.array([r["z"] for r in rows], dtype=float), np.array([r["trace"] for r in rows], dtype=int),
-        np.array([np.nan if r["s_mm"] is None else r["s_mm"] for r in rows], dtype=float))
+        np.array([np.nan if r["s_mm"] is None else r["s_mm"] for r in rows], dtype=float),
+        np.array([bool(r.get("verify", False)) for r in rows], dtype=bool))

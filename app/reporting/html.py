@@ -124,6 +124,47 @@ def _trace_rows(records: RunRecords) -> tuple[list[list[Any]], list[str]]:
     return rows, plots
 
 
+def _verdict(verdict: dict[str, Any]) -> list[str]:
+    """The field check: verified or needs attention (and why, and what to do), the learned
+    prior against the one told, every verification point and every excluded touch."""
+    attention = verdict.get("needs_attention")
+    head = ("<p><strong>NEEDS ATTENTION</strong>: nothing was printed automatically.</p>" if attention
+            else "<p>verified: the field model fits the touches and the verification points.</p>")
+    out = ["<h2>Field check</h2>", head, _facts([("verification", verdict.get("verified")),
+                                                 ("bound on the traces (µm)", _um(verdict.get("bound_mm"))),
+                                                 ("traces worse than nominal at a verification point",
+                                                  ", ".join(verdict.get("worse_traces") or []) or "none")])]
+    if verdict.get("reasons"):
+        out.append("<ul>" + "".join(f"<li>{_e(r)}</li>" for r in verdict["reasons"]) + "</ul>")
+        out.append("<p>What to do: " + "; ".join(_e(a) for a in verdict.get("actions") or []) + ".</p>")
+    learned = verdict.get("learned")
+    if learned:
+        out += ["<h3>Prior learned from the touches (type-II maximum likelihood)</h3>",
+                _table(["parameter", "told", "learned", "relative sd", "at a bound"],
+                       [[name, learned[name]["prior"], learned[name]["value"], learned[name]["relative_sd"],
+                         learned[name]["at_bound"] or ""] for name in ("amplitude_mm", "wavelength_mm", "sigma_mm")],
+                       numeric={1, 2, 3}),
+                _facts([("touches", learned.get("touches")),
+                        ("LOO statistic mean z² (limit)", f"{learned['loo']['statistic']:.2f} "
+                                                         f"({learned['loo']['statistic_limit']:.2f})"),
+                        ("largest |z| (limit)", f"{learned['loo']['max_abs_z']:.2f} ({learned['loo']['z_limit']:.2f})")])]
+    points = verdict.get("verification") or []
+    if points:
+        out += ["<h3>Verification points (touched after the stations, never fitted)</h3>",
+                _table(["x (mm)", "y (mm)", "trace", "measured (µm)", "predicted (µm)", "residual (µm)", "limit (µm)",
+                        "within", "correction helps"],
+                       [[round(p["xy"][0], 2), round(p["xy"][1], 2), p["trace"], _um(p["measured_mm"]),
+                         _um(p["predicted_mm"]), _um(p["residual_mm"]), _um(p["limit_mm"]), p["within"],
+                         not p["worse"]] for p in points], numeric={0, 1, 3, 4, 5, 6})]
+    excluded = verdict.get("exclusions") or []
+    out += ["<h3>Excluded touches</h3>",
+            _table(["station", "x (mm)", "y (mm)", "trace", "deviation (µm)", "residual (µm)"],
+                   [[e["station"], round(e["xy"][0], 2), round(e["xy"][1], 2), e["trace"], _um(e["deviation_mm"]),
+                     _um(e["residual_mm"])] for e in excluded], numeric={1, 2, 4, 5})
+            if excluded else "<p>none</p>"]
+    return out
+
+
 def render_run_report(records: RunRecords, software_version: str) -> str:
     """The whole report as an HTML document."""
     root = records.root
@@ -156,7 +197,10 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
     body += ["<h2>Traces</h2>",
              _table(["trace", "model off by, max (µm)", "rms (µm)", "segments", "chord error (µm)",
                      "compensated program (commands sha256)", "print"], rows, numeric={1, 2, 3, 4})]
-    table = ClosedLoopResult.of_record(root).table if root["kind"] == "closed_loop" and root["result"] else []
+    loop = ClosedLoopResult.of_record(root) if root["kind"] == "closed_loop" and root["result"] else None
+    if loop is not None and loop.verdict is not None:
+        body += _verdict(loop.verdict)
+    table = loop.table if loop is not None else []
     if table:
         body += ["<h2>Deposited standoff: nominal program vs compensated (measured on the machine)</h2>",
                  _table(["trace", "probes", "max before (µm)", "max after (µm)", "rms before (µm)", "rms after (µm)"],

@@ -220,7 +220,7 @@ class Loader:
         part = self._part_of(session, job)
         maps: tuple[ScalarSurface, ...] = ()
         if part is not None and len(planned):
-            vertices, faces, sd = field_sd_surface(self.runtime.meshes.mesh(part), stored.stations, stored.center,
+            vertices, faces, sd = field_sd_surface(self.runtime.meshes.mesh(part), stored.stations.take(~stored.verify), stored.center,
                                                    stored.prior, stored.prior.wavelength_mm / 4)
             if len(faces):
                 maps = (ScalarSurface("posterior sd", vertices, faces, sd, 0.0, float(np.nanmax(sd))),)

@@ -69,13 +69,16 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
         assert row["standoff_max_before_um"] >= 50.0, row
     plan = client.get(f"/api/v1/jobs/{entries[0]['probe_plan']}", headers=OP).json()
     assert plan["params"]["method"] is None and plan["result"]["method"] == "field"  # the default for boards
-    field = plan["result"]["field"]
-    assert len(field["stations"]) == plan["result"]["count"] == len(plan["result"]["records"])
+    field = plan["result"]["field"]  # the last sequential round: every station touched so far, then its own
+    own = [s for s in field["stations"] if not s.get("from_run")]
+    assert len(own) == plan["result"]["count"] == len(plan["result"]["records"])
+    assert field["sequential"]["final"] and len(field["stations"]) - len(own) == field["sequential"]["touched_before"]
     assert field["max_sd_mm"] * 3 <= 0.005 + 1e-9
     on = [s for s in field["stations"] if s["trace"] >= 0]
     assert len(on) == len(field["stations"])  # on_traces by default
     per_trace = [e["stations"] for e in plan["result"]["traces"]]
-    assert [e["probes"] for e in entries] == per_trace and sum(per_trace) == plan["result"]["count"]
+    assert [e["probes"] for e in entries] == per_trace
+    assert sum(per_trace) + field["verify_count"] == len(field["stations"]) and field["verify_count"] == 5
     for entry in entries:
         rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
         assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
@@ -110,7 +113,7 @@ def test_the_exchange_switch_and_both_degree_of_freedom_counts_reach_the_result(
 def test_reconstruct_method_must_match_a_field_run(client, coarse):
     setup = board(client, coarse)
     plan = job(client, "probe_plan", {"trace_ids": setup["trace_ids"], "count": 12, **PROCESS})
-    assert plan["result"]["count"] == 12
+    assert plan["result"]["count"] == 12 + plan["result"]["field"]["verify_count"]  # + the verification points
     run = job(client, "probe_run", {"plan_job_id": plan["id"], "machine_id": setup["machine_id"]})
     wrong = submit(client, "reconstruct", {"trace_id": setup["trace_ids"][0], "probe_run_job_id": run["id"],
                                            "method": "kriging"})
@@ -136,7 +139,7 @@ def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client,
     grad = np.array([mesh_top_sampler(coarse[0])(sd_map.vertices[i:i + 1, :2]).grad[0]
                      for i in range(0, len(sd_map.vertices), 997)])
     sites = Sites(sd_map.vertices[::997, :2], grad)
-    assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations, sites, field.center), atol=1e-12)
+    assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations.take(~field.verify), sites, field.center), atol=1e-12)
     # low at the stations, high far from them
     near = np.linalg.norm(sd_map.vertices[:, None, :2] - field.stations.xy[None], axis=2).min(axis=1)
     assert sd_map.values[near < 0.3].max() < sd_map.values[near > 5].min()
@@ -264,3 +267,85 @@ def test_a_board_reconstruct_stores_each_traces_reconstruction_and_compensate_re
     assert program(comp, rows[2].print_artifact) == program(alone, "print.gcode").replace(
         alone["id"].encode(), comp["id"].encode())
     assert rows[2].points == alone["result"]["points"]
+
+
+def fourteen_mm_part(client) -> dict:
+    """S1 traces on a mock machine whose part's error is the 14 mm field
+    (0.12 sin(2 pi x/22) sin(2 pi y/18) + 0.05 cos(2 pi (x+y)/35) mm)."""
+    from app.reference.s1 import AsMadePart, centred_placement
+
+    a, b, c = 2 * np.pi / 22, 2 * np.pi / 18, 2 * np.pi / 35
+    waves = np.array([[a, -b, 0.0, 0.06], [a, b, 0.0, -0.06], [c, c, 0.0, 0.05]])
+    made = AsMadePart(0, 0.17, 14.0, centred_placement(0.0, 0.0, 0.0, 0.0), waves)
+    xy = np.random.default_rng(0).uniform([0, 0], [60, 40], (50, 2))
+    x, y = xy[:, 0], xy[:, 1]
+    expected = 0.12 * np.sin(2 * np.pi * x / 22) * np.sin(2 * np.pi * y / 18) + 0.05 * np.cos(2 * np.pi * (x + y) / 35)
+    assert np.allclose(made.machining_error(xy), expected)      # the waves are the issue's field
+    return board(client, (s1_mesh(grid_mm=0.3), made.mesh(grid_mm=0.3).export(file_type="stl")))
+
+
+def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_verified_bound(client):
+    """Default prior (20 mm) on the 14 mm part: the loop pilots, learns, adds stations, verifies;
+    measured on the mock's true part, no trace is worse than the nominal program and every
+    trace is within its bound (+ the program's chord error and the true mesh's facets)."""
+    setup = fourteen_mm_part(client)
+    done = job(client, "closed_loop", {**setup, "joint_probing": True, "sigma_mm": 0.001, "evaluate": True},
+               timeout=600)
+    verdict = done["result"]["verdict"]
+    assert not verdict["needs_attention"], verdict["reasons"]
+    plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}", headers=OP).json()
+    sequential = plan["result"]["field"]["sequential"]
+    assert sequential["final"] and sequential["round"] >= 1 and sequential["touched_before"] > 0
+    assert verdict["verified"].startswith("verified at 5 points")
+    for entry, row in zip(done["result"]["traces"], done["result"]["table"]):
+        assert row["standoff_max_after_um"] < row["standoff_max_before_um"], row
+        assert row["standoff_max_after_um"] <= entry["bound_mm"] * 1000 + 2.0 + 1.5, (row, entry["bound_mm"])
+
+
+def test_a_loop_whose_field_check_fails_says_so_and_prints_nothing(client):
+    """The 14 mm part (0.12 sin(2 pi x/22) sin(2 pi y/18) + 0.05 cos(2 pi (x+y)/35) mm) with the
+    prior left at the default 20 mm: the learned prior says the default plan is too sparse, so
+    the single-shot loop ends with a verdict asking for attention and the print step is not run."""
+    setup = fourteen_mm_part(client)
+    single = {**setup, "joint_probing": True, "sigma_mm": 0.001, "sequential": False}
+    done = job(client, "closed_loop", {**single, "print": True}, timeout=300)
+    verdict = done["result"]["verdict"]
+    assert verdict["needs_attention"] and "NEEDS ATTENTION" in done["message"], verdict
+    assert verdict["printing_held"] and all("print" not in e for e in done["result"]["traces"])
+    assert verdict["verified"].startswith("verified at 5 points: max |residual| ")
+    assert 10.0 < verdict["learned"]["wavelength_mm"]["value"] < 17.0
+    assert verdict["suggested_probe"]["deviation_wavelength_mm"] == verdict["learned"]["wavelength_mm"]["value"]
+    assert all(e["bound_mm"] > 0 for e in done["result"]["traces"])
+    report = client.get(f"/api/v1/jobs/{done['id']}/report", headers=OP)
+    assert report.status_code == 200 and "NEEDS ATTENTION" in report.text and "Verification points" in report.text
+
+
+def test_a_suspected_outlier_is_touched_again_at_most_twice_before_it_may_be_excluded():
+    """The sequential round's re-touches: the station the fitted field would exclude (a 50 um
+    spike on a smooth field) is listed for a new touch, again after one disagreeing re-touch,
+    and not after two."""
+    from types import SimpleNamespace
+
+    from app.jobs.kinds.probe_plan import _retouches
+    from app.probing.deviation_prior import DeviationPrior, Sites as S
+
+    rng = np.random.default_rng(4)
+    xy = rng.uniform([0, 0], [40, 30], (60, 2))
+    sites = S(xy, np.zeros((60, 2)))
+    dz = 0.05 * np.sin(2 * np.pi * xy[:, 0] / 25) + rng.normal(0, 0.001, 60)
+    dz[17] += 0.05
+    field = SimpleNamespace(z=np.zeros(60), center=xy.mean(axis=0))
+    keep = np.ones(60, dtype=bool)
+    prior = DeviationPrior(amplitude_mm=0.15, wavelength_mm=15.0)
+    fixed = [{"xy": p.tolist()} for p in xy]
+    assert _retouches(prior, sites, dz, field, keep, fixed) == [17]
+    once = fixed + [{"xy": xy[17].tolist(), "retouch_of": 17}]
+    sites2 = S(np.concatenate([xy, xy[17:18]]), np.zeros((61, 2)))
+    dz2 = np.concatenate([dz, [dz[17] - 0.05]])             # the re-touch disagrees with the first touch
+    field2 = SimpleNamespace(z=np.zeros(61), center=field.center)
+    assert _retouches(prior, sites2, dz2, field2, np.ones(61, dtype=bool), once) == [17]
+    twice = once + [{"xy": xy[17].tolist(), "retouch_of": 17}]
+    sites3 = S(np.concatenate([sites2.xy, xy[17:18]]), np.zeros((62, 2)))
+    dz3 = np.concatenate([dz2, [dz[17] - 0.05]])
+    field3 = SimpleNamespace(z=np.zeros(62), center=field.center)
+    assert _retouches(prior, sites3, dz3, field3, np.ones(62, dtype=bool), twice) == []

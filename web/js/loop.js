@@ -146,11 +146,11 @@ async function plan() {
     buttons.plan.disabled = true;
     planOut.textContent = "planning…";
     const job = await waitJob(await post("jobs", { kind: "probe_plan",
-      params: { trace_ids: [...traceIds, ...rings], method: "kriging" } }));
+      params: { trace_ids: [...traceIds, ...rings], method: "field" } }));
     if (job.status !== "succeeded") failed(job, "probe plan");
     state.plan = job;
     const sds = (job.result.traces || []).map((t) => t.predicted_sd_mm).filter(Number.isFinite);
-    const worst = sds.length ? Math.max(...sds) : null;
+    const worst = sds.length ? Math.max(...sds) : null;  // under the prior told; checked after probing
     planOut.replaceChildren(el("p", { id: "wz-plan-summary" },
       el("strong", { class: "figure", "data-touches": job.result.count }, `${job.result.count} touches`),
       ` on ${traceIds.length} trace(s)`, rings.length ? el("span", { id: "wz-plan-rings", "data-rings": rings.length },
@@ -191,7 +191,7 @@ async function review() {
   for (const traceId of chosenTraces()) {
     const trace = state.traces.find((t) => t.id === traceId);
     const rebuilt = await waitJob(await post("jobs", { kind: "reconstruct", params: {
-      trace_id: traceId, probe_run_job_id: state.run.id, method: "kriging" } }));
+      trace_id: traceId, probe_run_job_id: state.run.id, method: "field" } }));
     if (rebuilt.status !== "succeeded") failed(rebuilt, `reconstruction of ${trace.name}`);
     const program = await waitJob(await post("jobs", { kind: "compensate", params: {
       trace_id: traceId, reconstruct_job_id: rebuilt.id, machine_id: state.machine } }));
@@ -212,11 +212,42 @@ async function review() {
       el("td", {}, r.program.status === "succeeded" ? el("span", { class: "badge succeeded" }, "ready") : el("span", { class: "badge failed" }, "not printable")))))),
   ...rows.map((r) => chart((r.rebuilt.result.deviation?.samples || []).map(([s, d]) => ({ s_mm: s, deviation_mm: d })),
     { x: "s_mm", ys: ["deviation_mm"], title: `${r.trace.name}: real surface − model along the trace` }) || ""));
+  const check = rows.find((r) => r.rebuilt.result.field_check)?.rebuilt.result.field_check;
+  if (check) reviewOut.prepend(fieldCheck(check, rows));
   done("wz-6");
   const ready = rows.filter((r) => r.program.status === "succeeded");
   buttons.print.textContent = `Print ${ready.length} trace(s)`;
-  buttons.print.disabled = !ready.length;
+  // a field check that asks for attention holds the print until the operator accepts it explicitly
+  const accept = document.getElementById("wz-accept");
+  buttons.print.disabled = !ready.length || Boolean(accept && !accept.checked);
+  accept?.addEventListener("change", () => { buttons.print.disabled = !ready.length || !accept.checked; });
   await showReport();
+}
+
+// the field learned from the touches and checked at the verification points
+function fieldCheck(check, rows) {
+  const bound = Math.max(...rows.map((r) => r.rebuilt.result.bound_mm).filter(Number.isFinite));
+  const verified = (check.verification || []);
+  const worst = verified.reduce((m, p) => Math.max(m, Math.abs(p.residual_mm)), 0);
+  const learned = check.learned;
+  const param = (name, unit) => learned ? `${name.split("_")[0]} ${length(learned[name].value)}${unit} (told ${length(learned[name].prior)})` : "";
+  const box = el("div", { id: "wz-field-check", "data-attention": check.needs_attention ? "1" : "0" },
+    el("p", {}, el("strong", {}, check.needs_attention ? "Needs attention" : "Verified"), ` · verified at ${verified.length} points: `
+      + `max |residual| ${length(worst)} (bound ${length(bound)})`),
+    learned ? el("p", { id: "wz-learned" }, `Learned from ${learned.touches} touches: `,
+      [param("amplitude_mm", ""), param("wavelength_mm", ""), param("sigma_mm", "")].join(" · ")) : "",
+    el("table", { id: "wz-verify", class: "records" },
+      el("thead", {}, el("tr", {}, ["x, y", "measured", "predicted", "residual", "limit"].map((h) => el("th", { scope: "col" }, h)))),
+      el("tbody", {}, verified.map((p) => el("tr", { "data-within": p.within ? "1" : "0" },
+        el("td", {}, `${p.xy[0].toFixed(1)}, ${p.xy[1].toFixed(1)} mm`), el("td", {}, length(p.measured_mm)),
+        el("td", {}, length(p.predicted_mm)), el("td", {}, length(p.residual_mm)), el("td", {}, length(p.limit_mm)))))));
+  if (check.needs_attention) {
+    box.append(el("ul", {}, check.reasons.map((r) => el("li", {}, r))),
+      el("p", {}, "What to do: plan again with the learned prior (deviation wavelength and amplitude above) and probe "
+        + "again, or accept and print as it is."),
+      el("label", {}, el("input", { type: "checkbox", id: "wz-accept" }), " accept the field as it is and allow printing"));
+  }
+  return box;
 }
 
 // ---- 7: print --------------------------------------------------------------------------------

@@ -15,6 +15,16 @@ on the ``workflow`` queue and only submits and waits.  Resume: if the parent is 
 (its worker died), succeeded children of the same step and trace are reused, so a
 restarted loop continues where it stopped instead of probing again.
 
+A field plan's reconstruction is checked before anything is printed
+(:mod:`app.reconstruction.field_trust`: the prior learned from the touches, the verification
+points touched after the stations): the result's ``verdict`` states "verified at K points:
+max |residual| X um (bound Y um)", the learned prior, every excluded touch and the traces
+the correction makes worse at a verification point.  When the check fails (``verdict.
+needs_attention``) the loop still ends ``succeeded`` with its programs, but ``print`` is
+refused for every trace (nothing is printed automatically; the operator accepts explicitly
+by printing from the machines page, or runs the loop again with ``verdict.suggested_probe``)
+and its message says so.
+
 ``evaluate`` (mock machines with a true part only): print the nominal program and then
 the compensated one on the mock and compare the standoff along what was really deposited
 (the mock's deposition log) with the truth — the seed's Table 1, in simulation — and the
@@ -95,6 +105,13 @@ class ClosedLoopParams(JobParams):
                              "traces, from the one fitted field) instead of two child jobs per trace; each trace's "
                              "programs are then the compensate job's print.<trace_id>.gcode / nominal.<trace_id>.gcode "
                              "(the result's traces name them)")
+    sequential: bool = Field(True, description="with joint_probing and the field planner: plan sequentially - a pilot "
+                             "plan for the given prior, then rounds that learn the prior from every touch so far and "
+                             "add the stations the fitted field still needs (probe_plan fixed_run_job_id), until it "
+                             "needs none, touch_budget is reached or max_rounds pass; then the verification points. "
+                             "false: one plan for the given prior (+ its verification points)")
+    touch_budget: int = Field(2000, ge=1, le=100_000, description="sequential planning: the most touches in all")
+    max_rounds: int = Field(4, ge=1, le=10, description="sequential planning: the most rounds after the pilot")
     board_batch: int = Field(250, ge=1, le=MAX_FIELD_TRACES, description="traces per board reconstruct / compensate "
                              "job (a resumed loop reuses every finished batch)")
 
@@ -195,6 +212,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         shared = _plan_and_probe(steps, params, placed, machine.dialect, None, (0.0, f"probing all {total} traces"))
     board = shared is not None and params.board_jobs and bool(ProbePlanResult.of(shared[0]).field)
     batch = params.board_batch if board else 1
+    checks: list[dict[str, Any]] = []
     for lo in range(0, total, batch):
         if board:
             assert shared is not None
@@ -208,10 +226,19 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                      "deviation_max_mm": deviation}
             if board:
                 entry |= {"print_artifact": printed, "nominal_artifact": plain}
-            _print_trace(ctx, steps, params, machine, index, entry, rows)
+            check = _field_check(rebuilt, trace_id, entry, plan)
+            if check is not None and (not checks or checks[-1] is not check):
+                checks.append(check)
+            held = any(c["needs_attention"] for c in checks)
+            _print_trace(ctx, steps, params, machine, index, entry, rows, hold_print=held)
             per_trace.append(entry)
             ctx.progress((index + 1) / total, f"{index + 1}/{total} traces done")
     result: dict[str, Any] = {"traces": per_trace, "table": rows}
+    if checks:
+        result["verdict"] = loop_verdict(checks, per_trace, params.print)
+        if result["verdict"]["needs_attention"]:
+            ctx.progress(1.0, f"{total}/{total} traces done; NEEDS ATTENTION: {result['verdict']['reasons'][0]}"
+                         + ("; nothing printed" if params.print else ""))
     if registration is not None:
         result["registration"] = {"job_id": registration.id, **RegisterResult.of(registration).echo()}
     from app.jobs.loop_files import write_loop_files  # the loop's own files (issue 19), kept out of this module
@@ -261,9 +288,55 @@ def _board_batch(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any]
             for r in CompensateBoardResult.of(compensated).traces]
 
 
+def _field_check(rebuilt: Job, trace_id: str, entry: dict[str, Any], plan: Job) -> dict[str, Any] | None:
+    """A field reconstruct child's check (the same dict object for every trace of one child);
+    fills the trace's ``bound_mm`` and ``worse_than_nominal``.  None for other methods."""
+    result = rebuilt.result or {}
+    check = result.get("field_check")
+    if check is None:
+        return None
+    row = reconstruct_rows(rebuilt)[trace_id]
+    entry["bound_mm"] = row.bound_mm
+    index = (plan.params.get("trace_ids") or [plan.params.get("trace_id")]).index(trace_id)
+    entry["worse_than_nominal"] = index in check.get("worse_traces", [])
+    return check  # type: ignore[no-any-return]
+
+
+def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], printing: bool) -> dict[str, Any]:
+    """The loop's verdict from its field reconstruct children's checks (one per batch, one
+    fit): needs_attention if any says so; the bound is the largest trace bound; "verified at
+    K points: max |residual| X um (bound Y um)"."""
+    first = checks[0]
+    reasons = list(dict.fromkeys(r for c in checks for r in c["reasons"]))
+    bounds = [t["bound_mm"] for t in traces if t.get("bound_mm") is not None]
+    bound = max(bounds) if bounds else first.get("bound_mm")
+    points = first.get("verification") or []
+    worse = [t["trace_id"] for t in traces if t.get("worse_than_nominal")]
+    line = ("not verified: no verification points were touched" if not points else
+            f"verified at {len(points)} points: max |residual| "
+            f"{max(abs(p['residual_mm']) for p in points) * 1000:.1f} um (bound {(bound or 0) * 1000:.1f} um)")
+    said = any("promised for the traces" in r for r in reasons)
+    if points and bound is not None and not said and max(abs(p["residual_mm"]) for p in points) > bound:
+        reasons.append(f"a verification point is off the field by more than the bound {bound * 1000:.1f} um "
+                       "promised for the traces")
+    learned = first.get("learned")
+    suggested = None if learned is None else {
+        "deviation_amplitude_mm": learned["amplitude_mm"]["value"],
+        "deviation_wavelength_mm": learned["wavelength_mm"]["value"]}
+    return {"needs_attention": bool(reasons), "reasons": reasons, "verified": line, "bound_mm": bound,
+            "verification": points, "learned": learned, "prior_used": first.get("prior_used"),
+            "exclusions": first.get("exclusions", []), "worse_traces": worse,
+            "printing_held": bool(reasons) and printing, "suggested_probe": suggested,
+            "actions": [] if not reasons else [
+                "add stations and refit: run the loop again with probe = suggested_probe (the fitted prior)",
+                "or accept explicitly: print the compensate jobs' programs from the machines page"]}
+
+
 def _print_trace(ctx: JobContext, steps: _Steps, params: ClosedLoopParams, machine: Machine, index: int,
-                 entry: dict[str, Any], rows: list[dict[str, Any]]) -> None:
-    """Print (or, with ``evaluate``, print both programs of and measure) one compensated trace."""
+                 entry: dict[str, Any], rows: list[dict[str, Any]], hold_print: bool = False) -> None:
+    """Print (or, with ``evaluate``, print both programs of and measure) one compensated trace;
+    ``hold_print``: the field check asks for attention, so nothing is printed automatically
+    (``evaluate``, a simulation on a mock machine, still measures both programs)."""
     trace_id = entry["trace_id"]
     artifacts = {"nominal.gcode": entry.get("nominal_artifact", "nominal.gcode"),
                  "print.gcode": entry.get("print_artifact", "print.gcode")}
@@ -283,7 +356,7 @@ def _print_trace(ctx: JobContext, steps: _Steps, params: ClosedLoopParams, machi
                                      "xy_max_before_um": round(xy_before.max_mm * 1000, 2),
                                      "xy_max_after_um": round(xy_after.max_mm * 1000, 2)})
         entry["evaluation"] = {"nominal": _report(before, xy_before), "compensated": _report(after, xy_after)}
-    elif params.print:
+    elif params.print and not hold_print:
         entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": entry["compensate"],
                                              "artifact": artifacts["print.gcode"],
                                              "drift_reference": params.corrections.drift}, trace_id).id
@@ -296,10 +369,24 @@ def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, A
     cancel that came during planning stops the loop before the machine is used)."""
     target: dict[str, Any] = {"trace_ids": params.trace_ids} if trace_id is None else {"trace_id": trace_id}
     default = {} if trace_id is None else {"method": "deviation"}  # joint: the planner's default (field)
-    plan = steps.run("probe_plan", {**default, **params.probe, **placed, **target, "dialect": dialect}, trace_id)
+    sequential = trace_id is None and params.sequential and params.probe.get("method", "field") == "field"
+    pilot = {"verify_count": 0} if sequential else {}  # the last round touches the verification points
+    base = {**default, **params.probe, **placed, **target, "dialect": dialect}
+    plan = steps.run("probe_plan", {**base, **pilot}, trace_id)
     steps.ctx.progress(*progress)
-    probe = steps.run("probe_run", {"plan_job_id": plan.id, "machine_id": params.machine_id,
-                                    **_corrections_for("probe_run", params)}, trace_id)
+    run = {"machine_id": params.machine_id, **_corrections_for("probe_run", params)}
+    probe = steps.run("probe_run", {"plan_job_id": plan.id, **run}, trace_id)
+    for round_ in range(params.max_rounds if sequential else 0):
+        following = steps.run("probe_plan", {**base, "fixed_run_job_id": probe.id,
+                                             "touch_budget": params.touch_budget}, trace_id)
+        field = ProbePlanResult.of(following).field or {}
+        steps.ctx.progress(progress[0], f"sequential round {round_ + 1}: {field['sequential']['added']} stations "
+                           f"added, {ProbePlanResult.of(following).count} touches")
+        if ProbePlanResult.of(following).count == 0:
+            break
+        plan, probe = following, steps.run("probe_run", {"plan_job_id": following.id, **run}, trace_id)
+        if field["sequential"]["final"]:
+            break
     return plan, probe
 
 

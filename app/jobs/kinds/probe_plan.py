@@ -18,6 +18,7 @@ shared).  Reconstruct each trace with ``method: "field"`` from the run."""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import replace
 from typing import Any
 
@@ -36,6 +37,11 @@ from app.probing import (PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams
                          build_probe_program, plan_probes)
 from app.probing.field import field_result, plan_field
 from app.probing.field_top import mesh_top_sampler
+from app.probing.field_verify import with_sequential_verification, with_verification
+from app.jobs.field_runs import field_touches, measured_array, touched_stations
+from app.probing.field import stored_field
+from app.reconstruction.field import fit_field
+from app.reconstruction.field_learning import learn_prior
 from app.probing.joint import plan_joint
 from app.probing.merge import merge_plans
 from app.probing.program import mesh_station_normals
@@ -159,6 +165,87 @@ def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     return ProbePlanResult.written(result)
 
 
+def _field_entry(plan: Any, plan_params: PlanParams, params: ProbePlanParams,
+                 sequential: dict[str, Any] | None) -> dict[str, Any]:
+    """The result's ``field``: the plan's stations (after a sequential round's touched ones)."""
+    entry = {**field_result(plan, plan_params.prior()), "coverage": params.coverage,
+             "target_error_mm": params.target_error_mm, "verify_count": int(plan.verify_mask.sum())}
+    if sequential is not None:
+        own = entry["stations"]
+        marks = sequential.get("retouch_of", [])
+        first = len(own) - int(plan.verify_mask.sum()) - len(marks)
+        for k, original in enumerate(marks):
+            own[first + k]["retouch_of"] = original
+        entry["stations"] = sequential.pop("fixed") + own
+        entry["center"] = sequential.pop("center")
+        entry["sequential"] = sequential
+    return entry
+
+
+RETOUCHES = 2  # a suspected outlier is touched again, and once more if the two disagree
+
+
+def _retouches(prior: Any, sites: Any, dz: np.ndarray, field: Any, keep: np.ndarray,
+               fixed: list[dict[str, Any]]) -> list[int]:
+    """Indices into ``fixed`` of the touches the fitted field would exclude as outliers
+    (leave-one-out, :func:`app.reconstruction.field.fit_field`) that were not yet touched
+    again RETOUCHES times (a re-touch names its original in ``retouch_of``)."""
+    fit = fit_field(prior, sites, field.z[keep], np.column_stack([sites.xy, field.z[keep] + dz]), field.center)
+    again = Counter(int(st["retouch_of"]) for st in fixed if st.get("retouch_of") is not None)
+    out = []
+    for i in fit.outliers:
+        original = int(fixed[i].get("retouch_of", i))
+        if again[original] < RETOUCHES and original not in out:
+            out.append(original)
+    return out
+
+
+def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], plan_params: PlanParams,
+                top: Any) -> tuple[Any, PlanParams, dict[str, Any]]:
+    """A sequential round: learn the prior from every station touched so far (the fixed
+    run's field), plan the stations the fitted field still needs; with none (or past the
+    touch budget) only the verification points.  Returns (the plan of what this round
+    touches, the learned plan parameters, the round's record incl. the fixed stations)."""
+    run = ctx.job(str(params.fixed_run_job_id), kind="probe_run", field="params.fixed_run_job_id")
+    plan_job = ctx.job(run.params["plan_job_id"], field="params.fixed_run_job_id")
+    if not ProbePlanResult.of(plan_job).field or plan_job.params.get("trace_ids") != params.trace_ids:
+        raise InvalidInput(f"probe run {run.id!r} is not a run of a field plan of the same traces",
+                           field="params.fixed_run_job_id", value=run.id)
+    stored, rows = field_touches(ctx, run)
+    field = stored_field(stored)
+    fixed = touched_stations(stored, run.id)
+    keep = ~field.verify
+    dz = measured_array(rows)[keep, 2] - field.z[keep]
+    sites = field.stations.take(np.flatnonzero(keep))
+    learned = learn_prior(plan_params.prior(), sites, dz, field.center)
+    learned_params = replace(plan_params, deviation_amplitude_mm=learned.prior.amplitude_mm,
+                             deviation_wavelength_mm=learned.prior.wavelength_mm,
+                             probe_sigma_mm=max(learned.prior.sigma_mm, plan_params.probe_sigma_mm))
+    more = plan_field(nominals, learned_params, params.stations, top, fixed=sites)
+    retouch = _retouches(learned.prior, sites, dz, field, keep, fixed)
+    budget = params.touch_budget
+    over = budget is not None and len(fixed) + more.count + len(retouch) + params.verify_count > budget
+    final = (more.count == 0 and not retouch) or over
+    if not final and retouch:  # a suspected outlier is touched again before the fit may exclude it
+        idx = np.flatnonzero(keep)[retouch]
+        more = replace(more, xy=np.concatenate([more.xy, field.stations.xy[idx]]),
+                       z=np.concatenate([more.z, field.z[idx]]),
+                       grad=np.concatenate([more.grad, field.stations.grad[idx]]),
+                       trace=np.concatenate([more.trace, field.trace[idx]]),
+                       s_mm=np.concatenate([more.s_mm, field.s_mm[idx]]),
+                       order=np.arange(more.count + len(idx)))
+    if final:  # no stations: the verification points for every station touched so far
+        more = replace(more, xy=more.xy[:0], z=more.z[:0], grad=more.grad[:0], trace=more.trace[:0],
+                       s_mm=more.s_mm[:0], order=more.order[:0])
+        more = with_sequential_verification(more, sites, nominals, learned_params.prior(), params.verify_count)
+    return more, learned_params, {
+        "round": int(plan_job.result.get("field", {}).get("sequential", {}).get("round", 0)) + 1,
+        "final": final, "stopped": "budget" if over else ("bound holds" if final else None),
+        "added": 0 if final else more.count - len(retouch), "touched_before": len(fixed),
+        "learned": learned.as_dict(), "retouch_of": [] if final else [int(i) for i in retouch],
+        "fixed": fixed, "center": stored["center"]}
+
+
 def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
     """Board plan: stations over the region the traces cover, one program in probing order."""
     traces = [ctx.trace(t) for t in trace_ids]
@@ -168,11 +255,19 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     ctx.progress(0.1, f"planning field stations over {len(traces)} traces")
     plan_params = _plan_params(params)
     top = mesh_top_sampler(mesh) if params.stations == "anywhere_on_top" else None
-    plan = plan_field(nominals, plan_params, params.stations, top)
-    ctx.progress(0.5, f"{plan.count} stations for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
+    sequential = None
+    if params.fixed_run_job_id is not None:
+        plan, plan_params, sequential = _next_round(ctx, params, nominals, plan_params, top)
+    else:
+        plan = with_verification(plan_field(nominals, plan_params, params.stations, top), nominals,
+                                 plan_params.prior(), params.verify_count)
+    ctx.progress(0.5, f"{plan.count - int(plan.verify_mask.sum())} stations and {int(plan.verify_mask.sum())} "
+                 f"verification points for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
                  f"freedom at the target, {plan.nyquist_dof:.0f} by the Nyquist rule); writing the program")
     program, meta = _program(ctx, params, plan.probe_plan(), mesh)
-    counts = plan.stations_per_trace
+    field = _field_entry(plan, plan_params, params, sequential)
+    on = [st["trace"] for st in field["stations"] if st["trace"] >= 0 and not st.get("verify")]
+    counts = np.bincount(np.asarray(on, dtype=int), minlength=len(traces))
     result = {
         "count": plan.count,
         "method": "field",
@@ -180,7 +275,7 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
         "s_mm": [None if np.isnan(s) else float(s) for s in plan.s_mm],
         "records": [r.to_dict() for r in program.records],
         "program": meta,
-        "field": field_result(plan, plan_params.prior()),
+        "field": field,
         "traces": [{"trace_id": trace.id, "index": i, "stations": int(counts[i]), "trace_length_mm": trace.length_mm,
                     "predicted_sd_mm": float(plan.trace_sd_mm[i])} for i, trace in enumerate(traces)],
     }

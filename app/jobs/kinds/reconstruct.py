@@ -17,6 +17,7 @@ from dataclasses import replace
 from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
@@ -35,8 +36,11 @@ from app.reconstruction import (PreprocessParams, Reconstruction, Reconstruction
                                 preprocess, reconstruct)
 from app.probing.field import stored_field
 from app.probing.field_top import mesh_top_sampler
-from app.reconstruction.field import field_gradient, fit_bytes, fit_field, trace_reconstruction
+from app.probing.deviation_prior import path_sites
+from app.reconstruction.field import field_gradient, fit_bytes, trace_reconstruction
+from app.reconstruction.field_trust import FieldCheck, checked_field, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
+from app.jobs.field_runs import field_touches
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
 
@@ -84,6 +88,9 @@ class ReconstructJobParams(PlacedParams):
         False, description="without sigma_mm, on a calibrated machine's probe run: the probe calibration's measured "
         "scatter of a touch (its residual rms).  Off by default: with method deviation on sparse stations it "
         "smooths the real deviation away (the closed loop measured 1-1.7 um worse, see the README)")
+    learn_prior: bool = Field(True, description="method field: learn the prior's amplitude, wavelength and noise from "
+                              "the stations' touches (type-II maximum likelihood, the plan's prior as start) and "
+                              "fit the field with it; false: the plan's prior as stated")
     deviation_amplitude_mm: float = Field(0.2, gt=0, le=10, description="kriging: expected machining error amplitude")
     deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
                                            description="kriging: shortest wavelength of the machining error")
@@ -208,10 +215,18 @@ def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
     if params.trace_ids is None:
         reconstruction = rebuild(ctx, params)
         _store(ctx, reconstruction, stored_name())
-        return ReconstructResult.written({**reconstruction.to_result(), "sigma": sigma})
+        extra: dict[str, Any] = {}
+        if params.method == "field":
+            check = _run_field(ctx, params)[0]
+            bound = _trace_bound(check, reconstruction.nominal)
+            extra = {"bound_mm": bound, "field_check": with_bound(check, [bound / check.coverage]).as_dict()}
+        return ReconstructResult.written({**reconstruction.to_result(), "sigma": sigma, **extra})
     rows = _board_rows(ctx, params, sigma)
+    check, _, _ = _run_field(ctx, params)
+    bounds = [r["bound_mm"] for r in rows if r.get("bound_mm") is not None]
     return ReconstructBoardResult.written({
         "method": "field", "board": True, "traces": rows, "sigma": sigma,
+        "field_check": (with_bound(check, [b / check.coverage for b in bounds]) if bounds else check).as_dict(),
         "deviation": {"max_mm": max(r["deviation"]["max_mm"] for r in rows),
                       "rms_mm": max(r["deviation"]["rms_mm"] for r in rows)}})
 
@@ -237,7 +252,8 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
         ctx.progress(0.2, f"{checkpoints.reused}/{len(params.traces)} traces reused from an earlier attempt")
     for trace_id, rec in zip(left, rebuild_board(ctx, params, left) if left else ()):
         name = stored_name(trace_id)
-        row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec)}
+        row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec),
+               "bound_mm": _trace_bound(_run_field(ctx, params)[0], rec.nominal)}
         checkpoints.done(trace_id, keys[trace_id], {name: _store(ctx, rec, name)}, row)
         done[trace_id] = row
     checkpoints.flush()
@@ -282,11 +298,11 @@ def rebuild_board(ctx: JobContext, params: ReconstructJobParams,
     evaluated along each trace (the probe noise as for one trace: ``params.sigma_mm``,
     resolved by :func:`run`)."""
     placement = placement_from(ctx, params)
-    fit, refinement, plan_traces = _run_field(ctx, params)
+    check, refinement, plan_traces = _run_field(ctx, params)
     where = {t: i for i, t in enumerate(plan_traces)}
     wanted = params.traces if trace_ids is None else trace_ids
     for index, trace_id in enumerate(wanted):
-        yield _field_trace(fit, refinement, placed_nominal(ctx.trace(trace_id), placement), where[trace_id])
+        yield _field_trace(check, refinement, placed_nominal(ctx.trace(trace_id), placement), where[trace_id])
         if index % 50 == 49:
             ctx.progress(0.2 + 0.7 * (index + 1) / len(wanted), f"{index + 1}/{len(wanted)} traces rebuilt")
 
@@ -365,18 +381,29 @@ def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dic
 
 def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) -> Reconstruction:
     """The trace from its run's fitted field (fitted once per run and sigma, cached)."""
-    fit, refinement, trace_ids = _run_field(ctx, params)
-    return _field_trace(fit, refinement, nominal, trace_ids.index(params.trace_id))
+    check, refinement, trace_ids = _run_field(ctx, params)
+    return _field_trace(check, refinement, nominal, trace_ids.index(params.trace_id))
 
 
-def _field_trace(fit: Any, refinement: Any, nominal: Any, index: int) -> Reconstruction:
+BOUND_STEP_PER_WAVELENGTH = 16  # the trace's posterior sd judged every lambda / 16 (as the planner does)
+
+
+def _trace_bound(check: FieldCheck, nominal: Any) -> float:
+    """coverage x the largest posterior sd (mm) along the trace under the fitted model."""
+    step = check.fit.posterior.prior.wavelength_mm / BOUND_STEP_PER_WAVELENGTH
+    s = np.linspace(0.0, nominal.length_mm, max(2, int(np.ceil(nominal.length_mm / step)) + 1))
+    return float(check.coverage * check.fit.posterior.sd(path_sites(nominal, s)).max())
+
+
+def _field_trace(check: FieldCheck, refinement: Any, nominal: Any, index: int) -> Reconstruction:
+    fit = check.fit
     rec = trace_reconstruction(fit, nominal, index, ReconstructParams(prior=fit.posterior.prior))
     return rec if refinement is None else replace(rec, refinement=refinement)
 
 
-def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any, Any, list[str]]:
-    """(fit, normal-iteration report or None, the plan's trace ids) of the run's field; every
-    trace of ``params`` must be one of the plan's (422 otherwise)."""
+def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[FieldCheck, Any, list[str]]:
+    """(checked field, normal-iteration report or None, the plan's trace ids) of the run's
+    field; every trace of ``params`` must be one of the plan's (422 otherwise)."""
     probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
     plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
     stored = ProbePlanResult.of(plan).field
@@ -390,27 +417,31 @@ def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any, Any,
         raise InvalidInput(f"trace {trace_id!r} is not one of the traces of field plan {plan.id!r}",
                            field="params.trace_id" if params.trace_ids is None else "params.trace_ids",
                            value=trace_id)
-    key = (probe_run.id, params.sigma_mm)
+    key = (probe_run.id, params.sigma_mm, params.learn_prior)
     cached = FIELD_FITS.get(key)
     if cached is None:
         field = stored_field(stored)
         prior = field.prior if params.sigma_mm is None else replace(field.prior, sigma_mm=params.sigma_mm)
-        rows = sorted(ProbeRunResult.of(probe_run).rows(), key=lambda p: p["index"])
+        rows = field_touches(ctx, probe_run)[1]  # with the stations earlier runs of a sequential plan touched
+        plan_params = plan.params or {}
+        coverage = float(stored.get("coverage", plan_params.get("coverage", 3.0)))
+        target = float(stored.get("target_error_mm", plan_params.get("target_error_mm", 0.005)))
 
-        def fit_of(points: Any) -> Any:
-            return fit_field(prior, field.stations, field.z, points, field.center, field.trace, field.s_mm,
-                             field="probe run points")
+        def fit_of(points: Any) -> FieldCheck:
+            return checked_field(prior, field.stations, field.z, np.asarray(points, dtype=float), field.center,
+                                 field.trace, field.s_mm, field.verify, coverage, target, learn=params.learn_prior,
+                                 field="probe run points")
 
-        fit = fit_of([p["measured"] for p in rows])
+        check = fit_of([p["measured"] for p in rows])
         calibration = run_probe_calibration(probe_run)
         refinement = None
         if calibration is not None:
             stations = field.stations
             trace = ctx.trace(params.traces[0])
             top = mesh_top_sampler(ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement_from(ctx, params)))
-            fit, refinement = refined(fit, rows, calibration, lambda f, _xy: field_gradient(
-                f, stations, slope_at=lambda xy: top(xy).grad), fit_of)
-        cached = (fit, refinement)
-        FIELD_FITS.put(key, cached, fit_bytes(fit))
-    fit, refinement = cached
-    return fit, refinement, trace_ids
+            check, refinement = refined(check, rows, calibration, lambda c, _xy: field_gradient(
+                c.fit, stations, slope_at=lambda xy: top(xy).grad), fit_of)
+        cached = (check, refinement)
+        FIELD_FITS.put(key, cached, fit_bytes(check.fit))
+    check, refinement = cached
+    return check, refinement, trace_ids

@@ -67,6 +67,14 @@ def test_wizard_walks_plan_probe_review_print_report(page, served, loop_setup):
         max_um = rebuilt[trace["id"]]["result"]["deviation"]["max_mm"] * 1000
         assert max_um > 20 and shown.startswith(f"{float(f'{max_um:.4g}'):g}"), (shown, max_um)  # the model was off
     screenshot(page, "wizard-review")
+    # the field learned from the touches and checked at the verification points is shown; a check
+    # asking for attention holds the print until the operator accepts it explicitly
+    check = rebuilt[traces[0]["id"]]["result"]["field_check"]
+    assert page.locator("#wz-verify tbody tr").count() == len(check["verification"]) == 5
+    assert "Learned from" in page.inner_text("#wz-learned")
+    if check["needs_attention"]:
+        assert page.is_disabled("#wz-print")
+        page.check("#wz-accept")
 
     # print: every compensated trace streamed to the mock, exactly its program
     page.click("#wz-print")

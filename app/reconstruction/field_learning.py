@@ -1,0 +1,295 @@
+"""The deviation prior learned from the touches, and the model's fit checked.
+
+The field planner designs stations for a prior the user states (peak amplitude, shortest
+wavelength, probe noise, placement tolerances: :class:`app.probing.deviation_prior.DeviationPrior`);
+a real part's error spectrum is not known in advance.  :func:`learn_prior` fits the prior's
+hyperparameters to the measured deviations by **type-II maximum likelihood**: the log marginal
+likelihood of a zero-mean Gaussian process with covariance
+
+    K(theta) = rms^2 jinc(r; wavelength) + B diag(placement sd^2) B' + sigma^2 I
+
+    log p(dz | theta) = -1/2 dz' K^-1 dz - 1/2 log det K - n/2 log 2 pi
+
+is maximised over theta = (log rms, log wavelength, log sigma) with L-BFGS-B inside bounds
+around the user's values (the placement sd's are kept at the user's tolerances: a handful of
+rigid terms is not identifiable from a few dozen touches beside the field).  The likelihood
+is multimodal in the wavelength (a short-wavelength model can explain any data as noise), so
+the search starts from a coarse grid of wavelengths and refines the best.
+
+Uncertainty: the inverse of the Hessian of -log p in the log parameters at the optimum (the
+Laplace approximation; central differences), reported as the sd of each log parameter
+(a relative sd) — a parameter at its bound says so instead.
+
+Fit check: the exact leave-one-out residuals of the fitted GP, r_i = (K^-1 dz)_i / (K^-1)_ii
+with sd_i = (K^-1)_ii^-1/2, standardised z_i = r_i / sd_i (N(0, 1) each if the model holds).
+The misfit statistic is ``mean(z^2)`` (1 for a model that holds); the model **misfits** when the
+largest |z| exceeds the two-sided Bonferroni quantile at ``MISFIT_ALPHA`` over the n touches, when
+``mean(z^2)`` exceeds its chi-square quantile at the same level, or when the fitted wavelength
+sits on its lower bound (the field is shorter than the shortest wavelength allowed), or when the
+learned noise exceeds NOISE_MISFIT x the user's (the probe's repeatability): what the stations
+cannot resolve shows up as noise.
+
+Pure: numpy/scipy.  Units: mm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import minimize
+from scipy.special import j1, jv
+from scipy.stats import chi2, norm
+
+from app.errors import InvalidInput
+from app.geometry.tolerance import COVARIANCE_JITTER_REL
+from app.probing.deviation_prior import DeviationPrior, Sites, placement_basis
+
+AMPLITUDE_RANGE = 20.0      # the learned amplitude within [user / 20, user x 20]
+WAVELENGTH_FLOOR_MM = 3.0   # the shortest wavelength the learning may find (a probe ball's scale)
+WAVELENGTH_RANGE = 4.0      # longest: user x 4
+NOISE_RANGE = (0.5, 50.0)   # the learned probe noise within [user x 0.5, user x 50]
+GRID_WAVELENGTHS = 10       # start points of the search (log-spaced over the wavelength bounds)
+MISFIT_ALPHA = 0.01         # false-alarm level of the misfit test
+HESSIAN_STEP = 1e-3         # central-difference step in the log parameters
+MIN_TOUCHES = 8
+NOISE_MISFIT = 5.0          # learned noise over the user's (the probe's repeatability) that is a misfit
+NAMES = ("amplitude_mm", "wavelength_mm", "sigma_mm")
+
+
+class LearningError(InvalidInput):
+    """Too few or bad touches to learn a prior from."""
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Search bounds (lo, hi) of amplitude (peak), wavelength and noise, mm."""
+
+    amplitude_mm: tuple[float, float]
+    wavelength_mm: tuple[float, float]
+    sigma_mm: tuple[float, float]
+
+
+def default_bounds(prior: DeviationPrior, shortest_wavelength_mm: float | None = None) -> Bounds:
+    """Bounds around the user's prior; ``shortest_wavelength_mm`` (default
+    max(WAVELENGTH_FLOOR_MM, wavelength / 4)) is the shortest wavelength allowed."""
+    shortest = shortest_wavelength_mm or max(WAVELENGTH_FLOOR_MM, prior.wavelength_mm / 4)
+    sigma = max(prior.sigma_mm, 1e-5)
+    return Bounds((prior.amplitude_mm / AMPLITUDE_RANGE, prior.amplitude_mm * AMPLITUDE_RANGE),
+                  (shortest, max(prior.wavelength_mm * WAVELENGTH_RANGE, shortest * 1.01)),
+                  (sigma * NOISE_RANGE[0], sigma * NOISE_RANGE[1]))
+
+
+@dataclass(frozen=True)
+class LooCheck:
+    """Standardised leave-one-out residuals of a fitted field and the misfit verdict.
+
+    residual_mm (n,), sd_mm (n,), z (n,) = residual / sd; statistic = mean(z^2);
+    z_limit: the Bonferroni |z| limit; statistic_limit: mean(z^2)'s limit; misfit: bool;
+    reasons: why (empty when the model holds)."""
+
+    residual_mm: np.ndarray
+    sd_mm: np.ndarray
+    z: np.ndarray
+    statistic: float
+    z_limit: float
+    statistic_limit: float
+    misfit: bool
+    reasons: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class LearnedPrior:
+    """The prior fitted to the touches.
+
+    prior: the user's prior with amplitude, wavelength and noise replaced by the ML values;
+    start: the user's prior; bounds; log_sd (3,): sd of (log amplitude, log wavelength,
+    log sigma) from the Hessian (NaN where a parameter sits on a bound); at_bound (3,) str:
+    "lower" / "upper" / ""; log_likelihood (at the optimum) and start_log_likelihood (the
+    user's prior); loo: the fit check under the learned prior; n: touches used."""
+
+    prior: DeviationPrior
+    start: DeviationPrior
+    bounds: Bounds
+    log_sd: np.ndarray
+    at_bound: tuple[str, str, str]
+    log_likelihood: float
+    start_log_likelihood: float
+    loo: LooCheck
+    n: int
+
+    @property
+    def misfit(self) -> bool:
+        return self.loo.misfit
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON form: each parameter's value, the user's value, its relative sd and bound."""
+        values = (self.prior.amplitude_mm, self.prior.wavelength_mm, self.prior.sigma_mm)
+        starts = (self.start.amplitude_mm, self.start.wavelength_mm, self.start.sigma_mm)
+        out: dict[str, Any] = {
+            name: {"value": float(v), "prior": float(s),
+                   "relative_sd": None if not math.isfinite(sd) else float(math.expm1(sd)),
+                   "at_bound": b or None}
+            for name, v, s, sd, b in zip(NAMES, values, starts, self.log_sd, self.at_bound)}
+        out |= {"touches": self.n, "log_likelihood": self.log_likelihood,
+                "prior_log_likelihood": self.start_log_likelihood,
+                "loo": {"statistic": self.loo.statistic, "statistic_limit": self.loo.statistic_limit,
+                        "max_abs_z": float(np.abs(self.loo.z).max()), "z_limit": self.loo.z_limit,
+                        "misfit": self.loo.misfit, "reasons": list(self.loo.reasons)}}
+        return out
+
+
+class _Likelihood:
+    """-log p(dz | theta) and its gradient over theta = (log amplitude, log wavelength,
+    log sigma), with the distances and the placement part computed once."""
+
+    def __init__(self, prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray) -> None:
+        xy = sites.xy
+        self.r = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        basis = placement_basis(sites, center) * prior.basis_sd
+        self.placement = basis @ basis.T
+        self.peak = prior.peak_factor
+        self.dz = dz
+
+    def parts(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+        """(K, jinc, d jinc / d log wavelength, rms^2, noise variance) at theta."""
+        rms2 = (math.exp(theta[0]) / self.peak) ** 2
+        x = self.r * (2.0 * math.pi / math.exp(theta[1]))
+        small = x < 1e-6
+        safe = np.where(small, 1.0, x)
+        jinc = np.where(small, 1.0 - x ** 2 / 8.0, 2.0 * j1(safe) / safe)
+        djinc = np.where(small, x ** 2 / 4.0, 2.0 * jv(2, safe))
+        noise = max(math.exp(2 * theta[2]), COVARIANCE_JITTER_REL * rms2)
+        k = rms2 * jinc + self.placement
+        k[np.diag_indices_from(k)] += noise
+        return k, jinc, djinc, rms2, noise
+
+    def __call__(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        k, jinc, djinc, rms2, noise = self.parts(theta)
+        try:
+            factor = cho_factor(k, lower=True)
+        except np.linalg.LinAlgError:
+            return 1e30, np.zeros(3)
+        alpha = cho_solve(factor, self.dz)
+        value = float(0.5 * self.dz @ alpha + np.sum(np.log(np.diag(factor[0])))
+                      + 0.5 * len(self.dz) * math.log(2 * math.pi))
+        w = cho_solve(factor, np.eye(len(k))) - np.outer(alpha, alpha)   # K^-1 - alpha alpha'
+        grad = 0.5 * np.array([np.sum(w * (2 * rms2 * jinc)), np.sum(w * (rms2 * djinc)),
+                               np.trace(w) * 2 * noise])
+        return value, grad
+
+    def value(self, theta: np.ndarray) -> float:
+        return self(theta)[0]
+
+
+def _theta(prior: DeviationPrior) -> np.ndarray:
+    return np.log([prior.amplitude_mm, prior.wavelength_mm, max(prior.sigma_mm, 1e-9)])
+
+
+def log_marginal_likelihood(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray) -> float:
+    """log p(dz (n,) | prior) mm-based, of the touches at ``sites`` (n,)."""
+    return -_Likelihood(prior, sites, np.asarray(dz, dtype=float), center).value(_theta(prior))
+
+
+def loo_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
+              alpha: float = MISFIT_ALPHA) -> LooCheck:
+    """Standardised LOO residuals of the GP ``prior`` on the touches and the misfit test."""
+    q = np.linalg.inv(_Likelihood(prior, sites, dz, center).parts(_theta(prior))[0])
+    d = np.diag(q)
+    resid = (q @ dz) / d
+    sd = 1.0 / np.sqrt(d)
+    z = resid / sd
+    n = len(dz)
+    z_limit = float(norm.isf(alpha / (2 * n)))
+    statistic = float(np.mean(z ** 2))
+    statistic_limit = float(chi2.isf(alpha, n) / n)
+    reasons = []
+    if np.abs(z).max() > z_limit:
+        i = int(np.argmax(np.abs(z)))
+        reasons.append(f"touch {i} is {abs(z[i]):.1f} sd from what the others predict (limit {z_limit:.1f})")
+    if statistic > statistic_limit:
+        reasons.append(f"mean squared standardised residual {statistic:.2f} (limit {statistic_limit:.2f})")
+    return LooCheck(resid, sd, z, statistic, z_limit, statistic_limit, bool(reasons), tuple(reasons))
+
+
+def learn_prior(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
+                bounds: Bounds | None = None) -> LearnedPrior:
+    """Type-II ML fit of amplitude, wavelength and noise to deviations dz (n,) mm measured at
+    ``sites`` (n,), placement centre ``center`` (2,).  Raises LearningError below
+    MIN_TOUCHES touches or for non-finite values."""
+    dz = np.asarray(dz, dtype=float)
+    n = len(dz)
+    if n < MIN_TOUCHES:
+        raise LearningError(f"learning the prior needs at least {MIN_TOUCHES} touches, got {n}",
+                            field="stations", value=n)
+    if not np.isfinite(dz).all():
+        raise LearningError("a measured deviation is not finite", field="dz", value=None)
+    bounds = bounds or default_bounds(prior)
+    lo = np.log([bounds.amplitude_mm[0], bounds.wavelength_mm[0], bounds.sigma_mm[0]])
+    hi = np.log([bounds.amplitude_mm[1], bounds.wavelength_mm[1], bounds.sigma_mm[1]])
+    likelihood = _Likelihood(prior, sites, dz, center)
+    objective = likelihood.value
+    start = np.clip(_theta(prior), lo, hi)
+    starts = [start]
+    for log_w in np.linspace(lo[1], hi[1], GRID_WAVELENGTHS):
+        amp = math.log(max(float(np.std(dz)) * prior.peak_factor, math.exp(lo[0])))
+        starts.append(np.clip(np.array([amp, log_w, start[2]]), lo, hi))
+    scored = sorted(starts, key=objective)
+    best = None
+    for theta0 in scored[:2]:
+        res = minimize(likelihood, theta0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi)))
+        if best is None or res.fun < best.fun:
+            best = res
+    assert best is not None
+    theta = np.asarray(best.x, dtype=float)
+    span = hi - lo
+    at = tuple("lower" if t - a < 1e-3 * s else "upper" if b - t < 1e-3 * s else ""
+               for t, a, b, s in zip(theta, lo, hi, span))
+    log_sd = _laplace_sd(objective, theta, at)
+    learned = replace(prior, amplitude_mm=float(math.exp(theta[0])), wavelength_mm=float(math.exp(theta[1])),
+                      sigma_mm=float(math.exp(theta[2])))
+    loo = loo_check(learned, sites, dz, center)
+    if at[1] == "lower":
+        loo = replace(loo, misfit=True, reasons=loo.reasons + (
+            f"the field's wavelength is at the shortest allowed ({bounds.wavelength_mm[0]:.1f} mm) "
+            "or shorter",))
+    if learned.sigma_mm > NOISE_MISFIT * prior.sigma_mm:
+        loo = replace(loo, misfit=True, reasons=loo.reasons + (
+            f"the touches scatter {learned.sigma_mm * 1000:.1f} um about the field, {learned.sigma_mm / prior.sigma_mm:.0f}x "
+            "the probe's repeatability: structure shorter than the stations resolve, or misreading touches",))
+    return LearnedPrior(learned, prior, bounds, log_sd, (at[0], at[1], at[2]), -float(best.fun),
+                        -objective(start), loo, n)
+
+
+def _laplace_sd(objective: Any, theta: np.ndarray, at: tuple[str, ...]) -> np.ndarray:
+    """sd (3,) of the log parameters from the inverse Hessian of ``objective`` at ``theta``
+    (central differences over the parameters not on a bound; NaN for those on one)."""
+    free = [i for i in range(len(theta)) if not at[i]]
+    out = np.full(len(theta), np.nan)
+    if not free:
+        return out
+    h = HESSIAN_STEP
+    m = len(free)
+    hess = np.zeros((m, m))
+    f0 = objective(theta)
+    for a, i in enumerate(free):
+        for b, j in enumerate(free[a:], a):
+            def f(di: float, dj: float, i: int = i, j: int = j) -> float:
+                t = theta.copy()
+                t[i] += di
+                t[j] += dj
+                return float(objective(t))
+            if i == j:
+                hess[a, a] = (f(h, 0) - 2 * f0 + f(-h, 0)) / h ** 2
+            else:
+                hess[a, b] = hess[b, a] = (f(h, h) - f(h, -h) - f(-h, h) + f(-h, -h)) / (4 * h * h)
+    try:
+        cov = np.linalg.inv(hess)
+    except np.linalg.LinAlgError:
+        return out
+    diag = np.diag(cov)
+    out[free] = np.where(diag > 0, np.sqrt(np.abs(diag)), np.nan)
+    return out

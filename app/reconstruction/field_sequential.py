@@ -1,0 +1,114 @@
+"""Sequential field planning: pilot, learn the prior, add stations until the fitted model
+meets the target (or a touch budget is spent), then verify.
+
+A single-shot field plan (:func:`app.probing.field.plan_field`) is only as good as the prior
+it was designed for.  When the prior is uncertain:
+
+1. **pilot**: a field plan for the user's prior (amplitude, wavelength, noise);
+2. **learn**: the prior's amplitude, wavelength and noise by type-II ML from every touch so
+   far (:func:`app.reconstruction.field_learning.learn_prior`);
+3. **add**: the field planner again, for the learned prior, starting from every station
+   already touched (``fixed``): it returns only the stations the fitted posterior still needs
+   for ``coverage`` x sd <= target on every trace point; none -> the bound holds under the
+   fitted model;
+4. repeat 2-3 until no station is added, ``max_rounds`` pass, or the next round would pass
+   ``budget`` touches (the result says which);
+5. **verify**: ``verify_count`` points where the fitted posterior is least certain, touched
+   last and never fitted (:mod:`app.reconstruction.field_trust`).
+
+``measure(xy (m, 2)) -> dz (m,)`` touches points and returns the measured deviation (mm):
+the mock's truth plus noise in the bench, a probe run on a machine.
+
+Pure: numpy/scipy.  Units: mm.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from app.geometry.traces import as_trace_polyline
+from app.probing.deviation_prior import Sites
+from app.probing.field import plan_field
+from app.probing.field_verify import verification_indices
+from app.probing.field_region import field_region
+from app.probing.selection import PlanParams
+from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
+from app.reconstruction.field_trust import FieldCheck, checked_field, with_bound
+
+MAX_ROUNDS = 4
+DEFAULT_BUDGET = 2000
+
+
+@dataclass(frozen=True)
+class SequentialResult:
+    """check: the verified field (its bound: coverage x the largest posterior sd over every
+    trace point under the fitted model); stations: every fitted station (n,); rounds:
+    stations added per round (the pilot first); stopped: why the rounds ended ("bound
+    holds", "budget", "rounds"); params: the plan parameters of the last round."""
+
+    check: FieldCheck
+    stations: Sites
+    trace: np.ndarray
+    s_mm: np.ndarray
+    rounds: tuple[int, ...]
+    stopped: str
+    params: PlanParams
+
+    @property
+    def touches(self) -> int:
+        v = self.check.verification
+        return len(self.stations.xy) + (0 if v is None else len(v.xy))
+
+
+def plan_sequential(nominals: Sequence[object], params: PlanParams,
+                    measure: Callable[[np.ndarray], np.ndarray], budget: int = DEFAULT_BUDGET,
+                    verify_count: int = 5, max_rounds: int = MAX_ROUNDS) -> SequentialResult:
+    """Pilot, learn, add, verify (see the module doc).  ``nominals``: the traces (one frame)."""
+    paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
+    user = params.prior()
+    plan = plan_field(paths, params)
+    sites, trace, s, z = plan.sites, plan.trace, plan.s_mm, plan.z
+    dz = np.asarray(measure(plan.xy), dtype=float)
+    rounds = [plan.count]
+    current = params
+    stopped = "rounds"
+    center = plan.center
+    for _ in range(max_rounds):
+        if len(dz) < MIN_TOUCHES:
+            break
+        learned = learn_prior(user, sites, dz, center)
+        current = replace(params, deviation_amplitude_mm=learned.prior.amplitude_mm,
+                          deviation_wavelength_mm=learned.prior.wavelength_mm,
+                          probe_sigma_mm=max(learned.prior.sigma_mm, params.probe_sigma_mm))
+        more = plan_field(paths, current, fixed=sites)
+        if more.count == 0:
+            stopped = "bound holds"
+            break
+        if len(dz) + more.count + verify_count > budget:
+            stopped = "budget"
+            break
+        rounds.append(more.count)
+        sites = Sites(np.concatenate([sites.xy, more.xy]), np.concatenate([sites.grad, more.grad]))
+        trace = np.concatenate([trace, more.trace])
+        s = np.concatenate([s, more.s_mm])
+        z = np.concatenate([z, more.z])
+        dz = np.concatenate([dz, np.asarray(measure(more.xy), dtype=float)])
+    region = field_region(paths, current.deviation_wavelength_mm)
+    samples = region.samples
+    prior_now = current.prior()
+    vi = verification_indices(prior_now, sites, samples.sites, center, verify_count)
+    v_dz = np.asarray(measure(samples.sites.xy[vi]), dtype=float) if len(vi) else np.zeros(0)
+    all_sites = Sites(np.concatenate([sites.xy, samples.sites.xy[vi]]),
+                      np.concatenate([sites.grad, samples.sites.grad[vi]]))
+    n = len(sites.xy)
+    nominal_z = np.zeros(n + len(vi))
+    measured = np.column_stack([all_sites.xy, np.concatenate([dz, v_dz])])
+    mask = np.concatenate([np.zeros(n, dtype=bool), np.ones(len(vi), dtype=bool)])
+    check = checked_field(user, all_sites, nominal_z, measured, center,
+                          np.concatenate([trace, samples.trace[vi]]), np.concatenate([s, samples.s[vi]]), mask,
+                          params.coverage, params.target_error_mm)
+    sd = check.fit.posterior.sd(samples.sites)
+    return SequentialResult(with_bound(check, sd), sites, trace, s, tuple(rounds), stopped, current)

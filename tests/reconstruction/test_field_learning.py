@@ -1,0 +1,76 @@
+"""The deviation prior learned from the touches: type-II ML against fields drawn from a
+known prior (the analytic truth), its uncertainty, and the leave-one-out misfit test."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import check_grad
+
+from app.probing.deviation_prior import DeviationPrior, Sites, prior_covariance
+from app.reconstruction.field_learning import (LearningError, _Likelihood, learn_prior,
+                                               log_marginal_likelihood, loo_check)
+
+TRUTH = DeviationPrior(amplitude_mm=0.12, wavelength_mm=10.0, sigma_mm=0.004)
+USER = DeviationPrior()  # the defaults: A 0.2 mm, lambda 20 mm, 1 um noise
+
+
+def draw(prior: DeviationPrior, n: int, seed: int, pairs: int = 0) -> tuple[Sites, np.ndarray, np.ndarray]:
+    """n touches (n - pairs random over 40 x 30 mm, ``pairs`` of them touched again 0.2 mm
+    away) of one field drawn from ``prior`` with its noise: (sites, centre, dz)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform([0.0, 0.0], [40.0, 30.0], (n - pairs, 2))
+    xy = np.concatenate([xy, xy[:pairs] + [0.2, 0.0]])
+    sites = Sites(xy, rng.normal(0.0, 0.05, (n, 2)))
+    center = xy.mean(axis=0)
+    k = prior_covariance(prior, sites, sites, center) + prior.sigma_mm ** 2 * np.eye(n)
+    return sites, center, np.linalg.cholesky(k) @ rng.normal(size=n)
+
+
+def test_the_gradient_is_the_likelihoods():
+    sites, center, dz = draw(TRUTH, 30, 1)
+    lk = _Likelihood(USER, sites, dz, center)
+    theta = np.log([0.1, 12.0, 0.003])
+    assert check_grad(lk.value, lambda t: lk(t)[1], theta) < 1e-4 * np.linalg.norm(lk(theta)[1])
+    assert math.isclose(-lk.value(np.log([0.2, 20.0, 0.001])), log_marginal_likelihood(USER, sites, dz, center))
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_amplitude_wavelength_and_noise_recovered_within_20_percent_from_60_touches(seed):
+    sites, center, dz = draw(TRUTH, 60, seed, pairs=12)
+    learned = learn_prior(USER, sites, dz, center)
+    got = learned.prior
+    assert abs(got.amplitude_mm / TRUTH.amplitude_mm - 1) < 0.2
+    assert abs(got.wavelength_mm / TRUTH.wavelength_mm - 1) < 0.2
+    assert abs(got.sigma_mm / TRUTH.sigma_mm - 1) < 0.5   # noise from 12 repeated pairs: a coarser figure
+    # the stated uncertainty covers the truth (3 sd in the log parameters) and the model fits
+    truth = np.log([TRUTH.amplitude_mm, TRUTH.wavelength_mm])
+    fitted = np.log([got.amplitude_mm, got.wavelength_mm])
+    assert np.all(np.abs(fitted - truth) < 3 * learned.log_sd[:2])
+    assert not learned.misfit and learned.log_likelihood >= learned.start_log_likelihood
+
+
+def test_a_field_shorter_than_the_shortest_wavelength_allowed_is_a_misfit():
+    short = DeviationPrior(amplitude_mm=0.12, wavelength_mm=2.0, sigma_mm=0.001)
+    sites, center, dz = draw(short, 40, 7)
+    learned = learn_prior(USER, sites, dz, center)
+    assert learned.misfit
+    assert learned.at_bound[1] == "lower" or learned.prior.sigma_mm > 5 * USER.sigma_mm
+
+
+def test_loo_flags_a_spike_and_passes_the_clean_field():
+    sites, center, dz = draw(TRUTH, 40, 8)
+    clean = loo_check(TRUTH, sites, dz, center)
+    assert not clean.misfit and 0.4 < clean.statistic < 2.0
+    spiked = dz.copy()
+    spiked[5] += 0.08
+    check = loo_check(TRUTH, sites, spiked, center)
+    assert check.misfit and int(np.argmax(np.abs(check.z))) == 5
+
+
+def test_too_few_touches_is_refused():
+    sites, center, dz = draw(TRUTH, 5, 1)
+    with pytest.raises(LearningError):
+        learn_prior(USER, sites, dz, center)
