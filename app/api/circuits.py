@@ -9,27 +9,32 @@ or none.  ``dry_run`` returns the mapped circuit and its warnings and stores not
 from __future__ import annotations
 
 import json
+import shutil
+import tempfile
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import anyio
 from fastapi import APIRouter, File, Form, Request, UploadFile
 from pydantic import BaseModel, Field, ValidationError
 
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
-from app.circuits.formats import read_layout
-from app.circuits.mapping import MappingOptions, map_layout
+from app.api.limits import lone_surrogate_path
+from app.circuits.mapping import MappingOptions
 from app.circuits.pad_probes import probe_ring
 from app.circuits.placement import LayoutPlacement
 from app.errors import ConformaError, InvalidInput
 from app.geometry.traces import TracePolyline
+from app.jobs.circuit_import import FileMapped, ImportRequest, PartMesh, read_and_map
+from app.jobs.isolated import call_isolated
 from app.jobs.kinds.circuit_program import import_probe_trace_ids
 from app.models import CircuitImport, Part, Trace, new_id, utcnow
 from app.records import build_trace, get_or_404
 
 router = APIRouter(prefix="/api/v1", tags=["circuits"])
 MAX_FILES = 20
-MAX_TRACES = 5000
 
 
 class CircuitImportOptions(Strict):
@@ -116,7 +121,13 @@ class CircuitImportRecord(BaseModel):
 
 def _options(raw: str) -> CircuitImportOptions:
     try:
-        return CircuitImportOptions.model_validate(json.loads(raw or "{}"))
+        parsed = json.loads(raw or "{}")
+        bad = lone_surrogate_path(parsed)
+        if bad is not None or lone_surrogate_path(raw) is not None:
+            loc = ".".join(["options", *(bad or ())])
+            raise InvalidInput(f"{loc} holds a lone UTF-16 surrogate (not valid Unicode)", field=loc,
+                               value=None)
+        return CircuitImportOptions.model_validate(parsed)
     except json.JSONDecodeError as exc:
         raise InvalidInput(f"options is not JSON: {exc.msg} at column {exc.colno}", field="options",
                            value=raw[:80]) from None
@@ -142,23 +153,16 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     part = get_or_404(session, Part, part_id)
     if len(files) > MAX_FILES:
         raise InvalidInput(f"at most {MAX_FILES} files per import", field="files", value=len(files))
-    placement = LayoutPlacement(tuple(opts.origin_mm), opts.rotation_deg, opts.mirror)
     mesh = runtime.meshes.mesh(part)
-    mapping = MappingOptions(opts.mapping, opts.max_stretch)
     import_id = new_id("cimp")
     out = CircuitImportOut(import_id=import_id, dry_run=opts.dry_run, files=[], traces=[], pads=[], areas=[],
                            warnings=[])
     records: list = []
     pad_records: list = []
-    for upload in files:
-        name = (upload.filename or "circuit").rsplit("/", 1)[-1]
-        layout = read_layout(upload.file.read(), name, opts.format, opts.layers)
-        if len(out.traces) + len(layout.traces) > MAX_TRACES:
-            raise InvalidInput(f"more than {MAX_TRACES} traces in one import", field="files", value=name)
-        mapped = map_layout(layout, placement, mesh, mapping)
-        out.files.append(ImportedFile(file=name, format=layout.format, units=layout.units,
-                                      layers=list(layout.layers), notes=layout.notes, traces=len(layout.traces),
-                                      pads=len(layout.pads), areas=len(layout.areas)))
+    for read in _read_and_map(runtime, request, part, files, opts):
+        name, mapped = read.file, read.mapped
+        out.files.append(ImportedFile(file=name, format=read.format, units=read.units, layers=read.layers,
+                                      notes=read.notes, traces=read.traces, pads=read.pads, areas=read.areas))
         base = len(out.traces)
         for w in mapped.warnings:
             w = dict(w, file=name)
@@ -225,6 +229,27 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     if opts.dry_run and opts.view_id:
         out.preview = _preview(request, part, mesh, out, opts.view_id)
     return out
+
+
+def _read_and_map(runtime, request: Request, part: Part, files: list[UploadFile],
+                  opts: CircuitImportOptions) -> list[FileMapped]:
+    """Every file read and mapped in a bounded child process (:mod:`app.jobs.circuit_import`):
+    CONFORMA_JOB_MEMORY_MB of memory, CONFORMA_IMPORT_TIME_S of time, killed when the client
+    goes away.  The uploads reach it as spooled files, never as copies in this process."""
+    settings = runtime.settings
+    with tempfile.TemporaryDirectory(prefix="import-", dir=settings.data_dir) as tmp:
+        paths = []
+        for k, upload in enumerate(files):
+            path = Path(tmp) / str(k)
+            with path.open("wb") as spool:
+                shutil.copyfileobj(upload.file, spool, 2**20)
+            paths.append(((upload.filename or "circuit").rsplit("/", 1)[-1], str(path)))
+        job = ImportRequest(paths, opts.format, opts.layers,
+                            LayoutPlacement(tuple(opts.origin_mm), opts.rotation_deg, opts.mirror),
+                            MappingOptions(opts.mapping, opts.max_stretch), PartMesh(part.sha256, part.format))
+        return call_isolated(read_and_map, job, settings, memory_bytes=int(settings.job_memory_mb * 2**20),
+                             time_s=settings.import_time_s, what="the import",
+                             cancelled=lambda: bool(anyio.from_thread.run(request.is_disconnected)))
 
 
 def _nominal_points(trace: Trace) -> list[list[float]]:

@@ -36,8 +36,10 @@ from app.jobs.compute_child import serve_jobs
 log = logging.getLogger("conforma.jobs.pool")
 MIB = 2 ** 20
 STOP_WAIT_S = 2.0
-# Imported once by the fork server, so that every child starts with the compute core loaded.
-PRELOAD = ["app.jobs.compute_child"]
+# Imported once by the fork server, so that every child starts with the compute core loaded
+# (and the circuit importers with their ECAD libraries: an import's child reads at once).
+PRELOAD = ["app.jobs.compute_child", "app.jobs.circuit_import", "app.circuits.dxf", "app.circuits.svg",
+           "app.circuits.gerber", "app.circuits.kicad"]
 _context_lock = threading.Lock()
 _context: multiprocessing.context.BaseContext | None = None
 
