@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import pkgutil
 import threading
 import time
@@ -139,7 +140,7 @@ class ComputePool:
     def _spawn(self) -> Member:
         context = mp_context()
         parent, child = context.Pipe()
-        process = context.Process(target=serve_jobs, args=(self.settings, child), name="conforma-compute",
+        process = context.Process(target=serve_jobs, args=(self.settings, child, os.getpid()), name="conforma-compute",
                                   daemon=True)
         process.start()  # the first start waits for the fork server to import the compute core
         child.close()

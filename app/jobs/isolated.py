@@ -8,7 +8,8 @@ milliseconds with the compute core imported), with
 * its address space capped at its size at start plus ``memory_bytes`` (an allocation beyond
   is a ``MemoryError`` in the child, answered as :class:`~app.errors.TooLarge`);
 * a wall-clock limit ``time_s`` (SIGKILL, then :class:`~app.errors.TooLarge`);
-* death with its parent (``PR_SET_PDEATHSIG``) and the OOM killer's first choice;
+* death with its server (``PR_SET_PDEATHSIG`` and :func:`~app.jobs.compute_child.bind_to`) and
+  the OOM killer's first choice;
 * a ``cancelled`` callback polled while it runs (a client that went away): SIGKILL, then
   :class:`~app.errors.Cancelled`.
 
@@ -19,6 +20,7 @@ it raised (class, message, field, value), which is raised again here.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -31,11 +33,12 @@ T = TypeVar("T")
 POLL_S = 0.05
 
 
-def _child(conn: Any, memory_bytes: int, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+def _child(conn: Any, memory_bytes: int, server_pid: int, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
     """The child's body: limits, then ``fn(*args)``; sends ("ok", result) or ("error", fields)."""
-    from app.jobs.compute_child import _vm_size_bytes, process_limits
+    from app.jobs.compute_child import _vm_size_bytes, bind_to, process_limits
 
     process_limits(_vm_size_bytes() + memory_bytes)
+    bind_to(server_pid)
     try:
         answer: tuple[str, Any] = ("ok", fn(*args))
     except MemoryError:
@@ -73,7 +76,7 @@ def call_isolated(fn: Callable[..., T], *args: Any, memory_bytes: int, time_s: f
 
     context = mp_context()
     parent, child = context.Pipe(duplex=False)
-    process = context.Process(target=_child, args=(child, memory_bytes, fn, args), name="conforma-isolated",
+    process = context.Process(target=_child, args=(child, memory_bytes, os.getpid(), fn, args), name="conforma-isolated",
                               daemon=True)
     process.start()
     child.close()

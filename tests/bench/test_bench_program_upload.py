@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 
 from tests.processes import free_port, stop, wait_healthy
 from tests.upload_memory import KEY, ROOT, _status
@@ -19,6 +20,7 @@ from tests.upload_memory import KEY, ROOT, _status
 LINES = 3_000_000
 
 
+@pytest.mark.timeout(1800)
 def test_a_3m_line_program_uploads_within_100_mb_of_growth(tmp_path):
     path = tmp_path / "long.gcode"
     with path.open("w") as out:
