@@ -26,3 +26,9 @@ def test_a_program_streamed_in_pieces_keeps_its_facts(client):
     assert body["bounds"] == [[0.0, 0.0, 0.0], [49.0, 12.0, 0.8]]
     stored = client.get(f"/api/v1/programs/{body['id']}/file", headers=OP)
     assert stored.content == text.encode()
+
+
+def test_the_firmware_s_502_is_documented_on_the_routes_that_talk_to_it(client):
+    paths = client.get("/openapi.json").json()["paths"]
+    assert "502" in paths["/api/v1/machines/{machine_id}/command"]["post"]["responses"]
+    assert "502" not in paths["/api/v1/programs"]["post"]["responses"]
