@@ -84,6 +84,45 @@ class BlobStore:
         return self.path(sha256).read_bytes()
 
 
+#: a temporary or row-less file younger than this may belong to a write in flight (another
+#: process renames a blob into place before it inserts its row): the sweep leaves it
+SWEEP_GRACE_S = 3600.0
+
+
+def sweep_blobs(store: BlobStore, session: Session, grace_s: float = SWEEP_GRACE_S,
+                now: float | None = None) -> dict[str, int]:
+    """Delete what crashes left in ``store`` and no row lists: ``.tmp-*`` files and blob files
+    whose sha256 has no row, both only when older than ``grace_s``.  Returns the counts
+    ``{"temporary": n, "orphans": m}``."""
+    import time
+
+    from sqlmodel import select
+
+    now = time.time() if now is None else now
+    counts = {"temporary": 0, "orphans": 0}
+    if not store.root.is_dir():
+        return counts
+    known: set[str] | None = None
+    for path in store.root.rglob("*"):
+        try:
+            if not path.is_file() or now - path.stat().st_mtime < grace_s:
+                continue
+        except OSError:
+            continue
+        if path.name.startswith(".tmp-"):
+            path.unlink(missing_ok=True)
+            counts["temporary"] += 1
+            continue
+        if len(path.name) != 64 or path.parent.name != path.name[:2]:
+            continue
+        if known is None:
+            known = set(session.exec(select(Blob.sha256)).all())
+        if path.name not in known:
+            path.unlink(missing_ok=True)
+            counts["orphans"] += 1
+    return counts
+
+
 def _record(session: Session, sha: str, size: int) -> str:
     """Insert the blob's row unless it exists (the file is already in place); its sha256."""
     insert = pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert

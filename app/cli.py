@@ -112,6 +112,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_loopback(host: str) -> bool:
+    """Whether ``host`` names only this machine (127.0.0.0/8, ::1, localhost)."""
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 def cmd_mock_printer(args: argparse.Namespace) -> int:
     """The mock firmware on a pseudo-terminal and/or a TCP port until interrupted."""
     from urllib.parse import urlencode
@@ -146,6 +158,9 @@ def cmd_mock_printer(args: argparse.Namespace) -> int:
             exposed.append(PtyBridge(url, baudrate=args.baud))
             print(f"pty {exposed[-1].path}", flush=True)
         if args.tcp is not None:
+            if not _is_loopback(args.host):
+                print(f"mock-printer: warning: listening on {args.host}, not loopback: anyone who reaches this "
+                      "address can drive the mock firmware (it has no authentication)", file=sys.stderr, flush=True)
             exposed.append(TcpMockServer(url, port=args.tcp, host=args.host, baudrate=args.baud))
             host, port = exposed[-1].address
             print(f"tcp {host}:{port}", flush=True)

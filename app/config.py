@@ -52,6 +52,8 @@ class Settings(BaseSettings):
     job_memory_mb: float = Field(1024.0, ge=64, le=1_000_000,
                                  description="memory a compute job may use (address space above the worker's)")
     job_time_s: float = Field(3600.0, gt=0, le=7 * 86400, description="wall-clock limit of a compute job")
+    import_time_s: float = Field(120.0, gt=0, le=3600, description="wall-clock limit of reading and mapping one "
+                                 "circuit import (in its own process, with CONFORMA_JOB_MEMORY_MB of memory)")
     blas_threads: int = Field(1, ge=1, le=64, description="BLAS/OpenMP threads of a process that runs compute jobs, "
                               "set once when it starts (the planners' many small solves run fastest on one)")
     cache_mb: float = Field(512.0, ge=0, le=1_000_000,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import stat
 import re
 import socket
 import threading
@@ -129,6 +130,7 @@ def physical_port(port: str, machine_id: str) -> str:
         if not real.startswith("/dev/") or real == "/dev/":
             raise InvalidInput(f"device {port!r} resolves to {real!r}, which is not under /dev", field="port",
                                value=port)
+        check_serial_device(real, port)
         return real
     if re.fullmatch(r"COM\d+", port, flags=re.IGNORECASE):
         return port.upper()
@@ -161,6 +163,34 @@ def port_owner(key: str, records: Iterable[tuple[str, str]]) -> str | None:
         except InvalidInput:
             continue
     return None
+
+
+#: character-device majors of UNIX98 pseudo-terminal ends (they have no entry in sysfs)
+PTY_MAJORS = range(136, 144)
+
+
+def check_serial_device(real: str, port: str) -> None:
+    """Refuse a device the kernel does not call a terminal: it must exist, be a character
+    device, and be of the ``tty`` class in sysfs (``/sys/dev/char/MAJOR:MINOR/subsystem``) or
+    a pseudo-terminal (majors 136-143).  So ``/dev/mem`` (mem class), ``/dev/watchdog``
+    (misc) or a disk are refused whatever they are named."""
+    try:
+        st = os.stat(real)
+    except OSError as exc:
+        raise InvalidInput(f"device {port!r} cannot be opened: {exc.strerror}", field="port", value=port) from None
+    if not stat.S_ISCHR(st.st_mode):
+        raise InvalidInput(f"device {port!r} is not a character device (a serial port is one)", field="port",
+                           value=port)
+    major, minor = os.major(st.st_rdev), os.minor(st.st_rdev)
+    if major in PTY_MAJORS:
+        return
+    try:
+        subsystem = os.path.basename(os.readlink(f"/sys/dev/char/{major}:{minor}/subsystem"))
+    except OSError:
+        subsystem = "unknown"
+    if subsystem != "tty":
+        raise InvalidInput(f"device {port!r} is not a serial port: the kernel lists it as {subsystem!r} "
+                           f"(character device {major}:{minor}), not tty", field="port", value=port)
 
 
 class MachineManager:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import shutil
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -30,6 +32,23 @@ WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 log = logging.getLogger("conforma")
 
 
+def _sweep(runtime: Runtime) -> None:
+    """Files a crash left behind: old ``.tmp-*`` and blob files without a row (logged)."""
+    from sqlmodel import Session
+
+    from app.blobs import SWEEP_GRACE_S, sweep_blobs
+
+    with Session(runtime.engine) as session:
+        counts = sweep_blobs(runtime.blobs, session)
+    for spool in runtime.settings.data_dir.glob("import-*"):  # a circuit import's uploads
+        if spool.is_dir() and time.time() - spool.stat().st_mtime > SWEEP_GRACE_S:
+            shutil.rmtree(spool, ignore_errors=True)
+            counts["temporary"] += 1
+    if any(counts.values()):
+        logging.getLogger("conforma").warning("swept %(temporary)d temporary and %(orphans)d row-less blob "
+                                              "files left by a crash", counts)
+
+
 def create_app(settings: Settings, *, start_workers: bool | None = None) -> FastAPI:
     """Build the API for ``settings``.  On start-up: migrate, open the runtime, start the
     embedded worker (unless disabled) and the viewer (if enabled)."""
@@ -39,6 +58,7 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
         migrate(settings)
         runtime = Runtime(settings)
         api.state.runtime = runtime
+        _sweep(runtime)
         api.state.keyring = KeyRing(runtime.engine, settings.static_keys())
         api.state.login_throttle = LoginThrottle()
         # This process owns the serial ports: it always consumes the machine queue (and the

@@ -9,28 +9,32 @@ or none.  ``dry_run`` returns the mapped circuit and its warnings and stores not
 from __future__ import annotations
 
 import json
+import shutil
+import tempfile
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import anyio
 from fastapi import APIRouter, File, Form, Request, UploadFile
 from pydantic import BaseModel, Field, ValidationError
 
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
-from app.circuits.formats import read_layout
-from app.circuits.mapping import MappingOptions, map_layout
+from app.api.limits import lone_surrogate_path
+from app.circuits.mapping import MappingOptions
 from app.circuits.nets import area_polygon
 from app.circuits.pad_probes import probe_ring
-from app.circuits.placement import LayoutPlacement, board_center
 from app.errors import ConformaError, InvalidInput
 from app.geometry.traces import TracePolyline
+from app.jobs.circuit_import import ImportMapped, ImportRequest, PartMesh, read_and_map
+from app.jobs.isolated import call_isolated
 from app.jobs.kinds.circuit_program import import_probe_trace_ids, stored_areas
 from app.models import CircuitImport, Part, Trace, new_id, utcnow
 from app.records import build_trace, get_or_404
 
 router = APIRouter(prefix="/api/v1", tags=["circuits"])
 MAX_FILES = 20
-MAX_TRACES = 5000
 
 
 class CircuitImportOptions(Strict):
@@ -140,7 +144,13 @@ class CircuitImportRecord(BaseModel):
 
 def _options(raw: str) -> CircuitImportOptions:
     try:
-        return CircuitImportOptions.model_validate(json.loads(raw or "{}"))
+        parsed = json.loads(raw or "{}")
+        bad = lone_surrogate_path(parsed)
+        if bad is not None or lone_surrogate_path(raw) is not None:
+            loc = ".".join(["options", *(bad or ())])
+            raise InvalidInput(f"{loc} holds a lone UTF-16 surrogate (not valid Unicode)", field=loc,
+                               value=None)
+        return CircuitImportOptions.model_validate(parsed)
     except json.JSONDecodeError as exc:
         raise InvalidInput(f"options is not JSON: {exc.msg} at column {exc.colno}", field="options",
                            value=raw[:80]) from None
@@ -171,15 +181,11 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     if len(files) > MAX_FILES:
         raise InvalidInput(f"at most {MAX_FILES} files per import", field="files", value=len(files))
     mesh = runtime.meshes.mesh(part)
-    layouts = [(name, read_layout(upload.file.read(), name, opts.format, opts.layers))
-               for name, upload in ((_file_name(u), u) for u in files)]
     anchor = opts.anchor or ("file_origin" if opts.origin_mm is not None else "board_center")
     origin = opts.origin_mm if opts.origin_mm is not None else (
         mesh.bounds[:, :2].mean(axis=0).tolist() if anchor == "board_center" else [0.0, 0.0])
-    anchor_xy = board_center([lay for _, lay in layouts]) if anchor == "board_center" else (0.0, 0.0)
-    placement = LayoutPlacement((float(origin[0]), float(origin[1])), opts.rotation_deg, opts.mirror,
-                                (float(anchor_xy[0]), float(anchor_xy[1])))
-    mapping = MappingOptions(opts.mapping, opts.max_stretch)
+    read_all = _read_and_map(runtime, request, part, files, opts, (float(origin[0]), float(origin[1])), anchor)
+    placement = read_all.placement
     import_id = new_id("cimp")
     out = CircuitImportOut(import_id=import_id, dry_run=opts.dry_run, files=[], traces=[], pads=[], areas=[],
                            warnings=[])
@@ -187,13 +193,11 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     pad_records: list = []
     out.placement = {"origin_mm": [round(float(v), 6) for v in placement.origin_mm], "anchor": anchor,
                      "anchor_mm": [round(float(v), 6) for v in placement.anchor_mm]}
-    for name, layout in layouts:
-        if len(out.traces) + len(layout.traces) > MAX_TRACES:
-            raise InvalidInput(f"more than {MAX_TRACES} traces in one import", field="files", value=name)
-        mapped = map_layout(layout, placement, mesh, mapping)
-        out.files.append(ImportedFile(file=name, format=layout.format, units=layout.units,
-                                      layers=list(layout.layers), notes=layout.notes, traces=len(layout.traces),
-                                      pads=len(layout.pads), areas=len(layout.areas), vias=len(layout.vias)))
+    for read in read_all.files:
+        name, mapped = read.file, read.mapped
+        out.files.append(ImportedFile(file=name, format=read.format, units=read.units, layers=read.layers,
+                                      notes=read.notes, traces=read.traces, pads=read.pads, areas=read.areas,
+                                      vias=read.vias))
         out.vias += [dict(v, file=name) for v in mapped.vias]
         out.outline += [r.round(6).tolist() for r in mapped.outline]
         base = len(out.traces)
@@ -267,6 +271,28 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     if opts.dry_run and opts.view_id:
         out.preview = _preview(request, part, mesh, out, opts.view_id)
     return out
+
+
+def _read_and_map(runtime, request: Request, part: Part, files: list[UploadFile], opts: CircuitImportOptions,
+                  origin_mm: tuple[float, float], anchor: str) -> ImportMapped:
+    """Every file read and mapped in a bounded child process (:mod:`app.jobs.circuit_import`):
+    CONFORMA_JOB_MEMORY_MB of memory, CONFORMA_IMPORT_TIME_S of time, killed when the client
+    goes away.  The uploads reach it as spooled files, never as copies in this process."""
+    settings = runtime.settings
+    with tempfile.TemporaryDirectory(prefix="import-", dir=settings.data_dir) as tmp:
+        paths = []
+        for k, upload in enumerate(files):
+            path = Path(tmp) / str(k)
+            with path.open("wb") as spool:
+                shutil.copyfileobj(upload.file, spool, 2**20)
+            paths.append((_file_name(upload), str(path)))
+        job = ImportRequest(paths, opts.format, opts.layers, origin_mm, opts.rotation_deg, opts.mirror, anchor,
+                            MappingOptions(opts.mapping, opts.max_stretch), PartMesh(part.sha256, part.format))
+        result: ImportMapped = call_isolated(
+            read_and_map, job, settings, memory_bytes=int(settings.job_memory_mb * 2**20),
+            time_s=settings.import_time_s, what="the import",
+            cancelled=lambda: bool(anyio.from_thread.run(request.is_disconnected)))
+        return result
 
 
 def _nominal_points(trace: Trace) -> list[list[float]]:

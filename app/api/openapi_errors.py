@@ -43,6 +43,7 @@ _DESCRIPTIONS = {
     413: "the body exceeds the size limit",
     422: "a parameter or field is invalid (the problem names it and the value)",
     429: "too many failed API key attempts from this address (see Retry-After)",
+    502: "the machine's firmware rejected the command, halted, or answered nonsense",
     503: "the server is at capacity (see Retry-After)",
 }
 
@@ -75,6 +76,8 @@ def error_codes(route: APIRoute) -> set[int]:
         codes |= {400, 401, 413}
     if route.methods & {"POST", "DELETE"} and need is not None:
         codes.add(409)
+    if route.path.startswith("/api/v1/machines/{machine_id}/") and "POST" in route.methods:
+        codes.add(502)  # it talks to the machine's firmware (MachineFault)
     return codes
 
 

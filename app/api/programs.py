@@ -13,31 +13,31 @@ from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.downloads import attachment
 from app.api.machine_schemas import ProgramOut
 from app.api.schemas import Page
-from app.errors import InvalidInput
-from app.jobs.gcode_meta import check_gcode, gcode_meta
+from app.jobs.gcode_meta import ProgramScan
 from app.models import Program, new_id, utcnow
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/programs", tags=["programs"])
+#: an upload is read, checked and hashed this many bytes at a time (its memory, whatever its lines)
+CHUNK_BYTES = 2**20
 
 
 @router.post("", status_code=201, dependencies=[Operator])
 def upload_program(runtime: RuntimeDep, session: SessionDep, request: Request,
                    file: Annotated[UploadFile, File(description="G-code text")],
                    idempotency_key: idempotency.IdempotencyKey = None) -> ProgramOut:
-    """Upload a G-code program (422 if it is not G-code text)."""
-    data = file.file.read()
-    claim = idempotency.claim(request, idempotency_key, data, file.filename or "")
+    """Upload a G-code program (422 if it is not G-code text).  Read as a stream: checked,
+    digested and bounded one MiB at a time, then copied to the blob store."""
+    scan = ProgramScan(field="file")
+    file.file.seek(0)
+    while block := file.file.read(CHUNK_BYTES):
+        scan.feed(block)
+    meta = scan.result()
+    claim = idempotency.claim(request, idempotency_key, bytes.fromhex(meta["sha256"]), file.filename or "")
     replayed = idempotency.replay(session, claim)
     if replayed is not None:
         return replayed  # type: ignore[return-value]
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise InvalidInput(f"the file is not UTF-8 text (byte {exc.start})", field="file", value=exc.start) from None
-    check_gcode(text)
-    meta = gcode_meta(text)
-    sha = runtime.blobs.put(session, data)
+    sha = runtime.blobs.put_file(session, file.file)
     program = Program(id=new_id("prog"), name=(file.filename or "program.gcode").rsplit("/", 1)[-1], sha256=sha,
                       lines=meta["lines"], commands=meta["commands"], commands_sha256=meta["commands_sha256"],
                       bounds=meta["bounds"], created_at=utcnow())

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Iterable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -27,6 +28,7 @@ from ezdxf.filemanagement import read as read_dxf_stream
 from ezdxf.lldxf.const import DXFError
 from ezdxf.math import rational_bspline_from_ellipse
 
+from app.circuits.budget import MAX_ITEMS
 from app.circuits.curves import arc_center, bulge_arc, concatenated, line
 from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Layout, LayoutTrace, Source
@@ -39,6 +41,8 @@ __all__ = ["read_dxf", "INSUNITS_MM"]
 #: $INSUNITS code -> mm per drawing unit (exact factors)
 INSUNITS_MM = {0: 1.0, 1: 25.4, 2: 304.8, 4: 1.0, 5: 10.0, 6: 1000.0, 8: 25.4e-6, 9: 0.0254, 10: 914.4,
                13: 1e-3, 14: 0.1}
+#: deepest chain of blocks inserting blocks
+MAX_NESTING = 64
 _NAMES = {0: "unitless", 1: "inch", 2: "foot", 4: "mm", 5: "cm", 6: "m", 8: "microinch", 9: "mil", 10: "yard",
           13: "micron", 14: "decimetre"}
 
@@ -133,6 +137,40 @@ def _entities(layout: Iterable[DXFGraphic], parent_layer: str | None = None,
             yield e, layer, path
 
 
+def _count(layout: Iterable[DXFGraphic], blocks: Any, name: str, memo: dict[str, int],
+           stack: tuple[str, ...] = ()) -> int:
+    """Drawn items ``layout`` expands into (polyline vertices, spline points, block contents
+    once per INSERT and MINSERT cell), counted without expanding; CircuitFileError past
+    MAX_ITEMS, on a block that inserts itself, or nested deeper than MAX_NESTING."""
+    total = 0
+    for e in layout:
+        kind = e.dxftype()
+        if kind == "INSERT":
+            block = str(e.dxf.get("name", ""))
+            if block in stack:
+                raise CircuitFileError(f"block {block!r} inserts itself", file=name, where=f"block {block}")
+            if len(stack) >= MAX_NESTING:
+                raise CircuitFileError(f"blocks nested deeper than {MAX_NESTING}", file=name, where=f"block {block}")
+            if block not in memo:
+                inner = blocks.get(block)
+                memo[block] = 0 if inner is None else _count(inner, blocks, name, memo, (*stack, block))
+            cells = max(1, int(e.dxf.get("row_count", 1))) * max(1, int(e.dxf.get("column_count", 1)))
+            total += 1 + cells * memo[block]
+        elif kind == "LWPOLYLINE":
+            total += 1 + len(e)  # type: ignore[arg-type]
+        elif kind == "POLYLINE":
+            total += 1 + len(getattr(e, "vertices", ()))
+        elif kind == "SPLINE":
+            total += 1 + len(getattr(e, "control_points", ())) + len(getattr(e, "fit_points", ()))
+        else:
+            total += 1
+        if total > MAX_ITEMS:
+            raise CircuitFileError(f"the drawing expands into more than {MAX_ITEMS} entities and vertices "
+                                   "(block references counted); split it or simplify it", file=name,
+                                   where="INSERT" if stack else "modelspace", field="files")
+    return total
+
+
 def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
     """Traces of the chosen ``layers`` (all when None) of a DXF drawing, in mm."""
     if "EOF" not in text[-200:]:
@@ -150,6 +188,7 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
     out = Layout(file=name, format="dxf", units=_NAMES[code])
     if code == 0:
         out.notes.append("$INSUNITS is 0 (unitless): read as mm")
+    _count(doc.modelspace(), doc.blocks, name, {})
     items = list(_entities(doc.modelspace()))
     present = sorted({layer for _, layer, _ in items})
     out.layers = tuple(present)

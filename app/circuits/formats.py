@@ -6,8 +6,12 @@ about a second of every server, worker and compute-process start."""
 
 from __future__ import annotations
 
+import numpy as np
+
+from app.circuits.budget import check_layout, precount, svg_items
 from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Layout, LayoutTrace
+from app.geometry.errors import GeometryError
 
 __all__ = ["FORMATS", "MIN_TRACE_MM", "detect_format", "read_layout"]
 
@@ -70,11 +74,24 @@ def _without_slivers(layout: Layout) -> Layout:
 
 
 def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str] | None = None) -> Layout:
-    """A file's layout in mm (``fmt`` None = auto-detect).  ``layers``: KiCad copper layer (one),
-    DXF layers, SVG group ids/labels, a Gerber file's function; None takes the default
-    (KiCad F.Cu, everything else all).  Traces shorter than :data:`MIN_TRACE_MM` are dropped
-    with a note."""
-    return _without_slivers(_read(data, name, fmt, layers))
+    """A file's layout in mm (``fmt`` None = auto-detect), within the bounds of
+    :mod:`app.circuits.budget` (counted before expanding, checked after).  ``layers``: KiCad
+    copper layer (one), DXF layers, SVG group ids/labels, a Gerber file's function; None
+    takes the default (KiCad F.Cu, everything else all).  Traces shorter than
+    :data:`MIN_TRACE_MM` are dropped with a note.
+
+    An importer's library failing on numbers it cannot represent (an overflow, a singular
+    transform) is a CircuitFileError naming the file, like any other unreadable file."""
+    try:
+        layout = _read(data, name, fmt, layers)
+    except CircuitFileError:
+        raise
+    except (ArithmeticError, ValueError, TypeError, IndexError, KeyError, AttributeError, RecursionError,
+            np.linalg.LinAlgError, GeometryError) as exc:
+        message = getattr(exc, "message", None) or f"{type(exc).__name__}: {exc}"
+        raise CircuitFileError(f"cannot read the file: {message}"[:300], file=name) from exc
+    check_layout(layout)
+    return _without_slivers(layout)
 
 
 def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> Layout:
@@ -87,8 +104,10 @@ def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> 
     if fmt == "svg":
         from app.circuits.svg import read_svg
 
+        svg_items(data, name)
         return read_svg(data, name, layers)
     text = _text(data, name)
+    precount(fmt, text, name)
     if fmt == "kicad":
         if layers and len(layers) > 1:
             raise CircuitFileError("a KiCad import takes one copper layer", file=name, where=f"layer {layers[1]}",

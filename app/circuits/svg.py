@@ -19,7 +19,7 @@ import re
 
 from collections.abc import Iterable, Iterator
 
-from svgelements import SVG, Arc, Close, CubicBezier, Group, Line, Move, Path, QuadraticBezier, Shape
+from svgelements import SVG, Arc, Close, CubicBezier, Group, Line, Move, Path, QuadraticBezier, Shape, Use
 
 from app.circuits.curves import arc_ccw, concatenated, line, transformed
 from app.circuits.errors import CircuitFileError
@@ -93,11 +93,11 @@ def _to_layout_frame(curve: NurbsCurve, page_height_px: float, mm_px: float) -> 
 
 
 def _shapes(node: Iterable[object], groups: tuple[str, ...] = ()) -> Iterator[tuple[Shape, set[str]]]:
-    """(shape, names of it and its enclosing groups) depth first."""
+    """(shape, names of it and its enclosing groups and uses) depth first."""
     for child in node:
         if isinstance(child, Shape):
             yield child, set(groups) | _group_names(child)
-        elif isinstance(child, Group):
+        elif isinstance(child, (Group, Use)):  # a <use> holds its copy of what it refers to
             yield from _shapes(child, groups + tuple(_group_names(child)))
 
 
@@ -148,7 +148,7 @@ def read_svg(data: bytes, name: str, layers: list[str] | None = None) -> Layout:
     return out
 
 
-def _group_names(e: Shape | Group) -> set[str]:
+def _group_names(e: Shape | Group | Use) -> set[str]:
     """The id and inkscape label of an element."""
     names: set[str] = set()
     if getattr(e, "id", None):

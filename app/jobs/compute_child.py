@@ -14,7 +14,8 @@ bounded by ``CONFORMA_COMPUTE_CACHE_MB`` (least recently used out).  Limits:
   its budget to the warm process; an allocation beyond it is a ``MemoryError`` in the job
   (failed with the reason), never the kernel's OOM killer choosing a victim;
 * it asks to be the OOM killer's first choice (``oom_score_adj`` 1000) should memory run
-  out anyway, and to die with its fork server (``PR_SET_PDEATHSIG``) when the service dies;
+  out anyway, and to die with its fork server (``PR_SET_PDEATHSIG``) and, within 0.1 s,
+  with the server that owns it (:func:`bind_to`), even when the server is SIGKILLed;
 * it opens its own database engine and blob store (nothing is inherited).
 
 Outcomes the job itself decides (succeeded, failed, cancelled) are written here, with the
@@ -29,8 +30,10 @@ from __future__ import annotations
 import ctypes
 import gc
 import logging
+import os
 import resource
 import signal
+import threading
 import time
 from typing import Any
 
@@ -82,6 +85,34 @@ def process_limits(hard_bytes: int) -> None:
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     except (OSError, AttributeError):
         pass
+
+
+def _start_time(pid: int) -> int | None:
+    """The start time (clock ticks since boot) of a live, non-zombie process; None otherwise."""
+    try:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return None if fields[0] in ("Z", "X") else int(fields[19])
+
+
+def bind_to(server_pid: int, every_s: float = 0.1) -> None:
+    """Die (SIGKILL) within ``every_s`` of the server process ``server_pid`` ending.
+
+    ``PR_SET_PDEATHSIG`` binds a process to its parent, which is the fork server here, and a
+    fork server outlives its server by as long as its own shutdown takes; so a daemon thread
+    watches the server itself (its pid and start time, so a reused pid is not mistaken for
+    it).  Without /proc it does nothing."""
+    started = _start_time(server_pid)
+    if started is None:
+        return
+
+    def watch() -> None:
+        while _start_time(server_pid) == started:
+            time.sleep(every_s)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="conforma-lifeline", daemon=True).start()
 
 
 def job_limit(memory_bytes: int) -> int:
@@ -195,11 +226,14 @@ def run_job(runtime: ChildRuntime, claim: Claim) -> bool:
     return True
 
 
-def serve_jobs(settings: Settings, conn: Any) -> None:
-    """Entry point of a compute process: limits, then jobs from ``conn`` (a pipe end) until
+def serve_jobs(settings: Settings, conn: Any, server_pid: int | None = None) -> None:
+    """Entry point of a compute process: limits, bound to the life of ``server_pid`` (the
+    process that owns the pool: :func:`bind_to`), then jobs from ``conn`` (a pipe end) until
     it sends None or closes.  After each job it sends its report (:meth:`ChildRuntime.report`
     plus ``fit``: False when it should not serve another job)."""
     process_limits(_vm_size_bytes() + int((settings.job_memory_mb + settings.compute_recycle_mb) * MIB))
+    if server_pid is not None:
+        bind_to(server_pid)
     threadpool_limits(limits=settings.blas_threads)  # once per process, never inside the core
     load_kinds(settings.job_plugins.split(","))
     runtime = ChildRuntime(settings)

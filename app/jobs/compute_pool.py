@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import pkgutil
 import threading
 import time
@@ -36,8 +37,10 @@ from app.jobs.compute_child import serve_jobs
 log = logging.getLogger("conforma.jobs.pool")
 MIB = 2 ** 20
 STOP_WAIT_S = 2.0
-# Imported once by the fork server, so that every child starts with the compute core loaded.
-PRELOAD = ["app.jobs.compute_child"]
+# Imported once by the fork server, so that every child starts with the compute core loaded
+# (and the circuit importers with their ECAD libraries: an import's child reads at once).
+PRELOAD = ["app.jobs.compute_child", "app.jobs.circuit_import", "app.circuits.dxf", "app.circuits.svg",
+           "app.circuits.gerber", "app.circuits.kicad"]
 _context_lock = threading.Lock()
 _context: multiprocessing.context.BaseContext | None = None
 
@@ -137,7 +140,7 @@ class ComputePool:
     def _spawn(self) -> Member:
         context = mp_context()
         parent, child = context.Pipe()
-        process = context.Process(target=serve_jobs, args=(self.settings, child), name="conforma-compute",
+        process = context.Process(target=serve_jobs, args=(self.settings, child, os.getpid()), name="conforma-compute",
                                   daemon=True)
         process.start()  # the first start waits for the fork server to import the compute core
         child.close()

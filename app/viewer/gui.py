@@ -9,6 +9,7 @@ that a focus change coming from the API does not echo back as a new focus reques
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable
 from html import escape
 from typing import Any
@@ -93,7 +94,8 @@ class ViewerPanel:
         present = set(self.registry.groups())
         for group, box in self.toggles.items():
             box.visible = group in present
-        self.title.content = f"**{scene.title}**" + "".join(f"\n\n_{n}_" for n in scene.notes)
+        self.title.content = f"**{markdown_text(scene.title)}**" + "".join(
+            f"\n\n_{markdown_text(n)}_" for n in scene.notes)
         legends = self.registry.legends()
         self.legend_folder.visible = bool(legends)
         with self.legend_folder:
@@ -114,12 +116,12 @@ class ViewerPanel:
         last = max(len(labels) - 1, 0)
         slider = gui.add_slider(f"{name}", min=0, max=max(last, 1), step=1, initial_value=last,
                                 disabled=last == 0, hint="layer index")
-        caption = gui.add_markdown(labels[last] if labels else "")
+        caption = gui.add_markdown(markdown_text(labels[last]) if labels else "")
         self.registry.set_slider(name, 0, last, last, list(labels))
 
         def moved(_event: Any) -> None:
             index = show(name, int(slider.value))
-            caption.content = labels[index]
+            caption.content = markdown_text(labels[index])
             self.registry.set_slider(name, 0, last, index, list(labels))
 
         slider.on_update(moved)
@@ -140,6 +142,17 @@ class ViewerPanel:
         self.registry.add_plot(f"deviation/{plot.name}", plot.title, s.tolist(), dz.tolist(),
                                "mm along the trace", "dz (mm)")
         self._dynamic.append(handle)
+
+
+_MARKDOWN_PUNCTUATION = re.compile(r"([\\`*_{}\[\]()#+\-.!|~>])")
+
+
+def markdown_text(text: str) -> str:
+    """``text`` (a user's part, trace, job or machine name, a message) as literal text inside
+    viser's markdown, which renders raw HTML: ``& < >`` as entities (no tag can open), every
+    markdown punctuation mark escaped, line breaks as spaces."""
+    flat = " ".join(str(text).split())
+    return _MARKDOWN_PUNCTUATION.sub(r"\\\1", escape(flat, quote=False))
 
 
 def legend_html(legend: dict[str, Any]) -> str:

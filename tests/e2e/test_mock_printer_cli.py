@@ -35,3 +35,13 @@ def test_mock_printer_refuses_a_bad_option():
     done = subprocess.run([sys.executable, "-m", "app.cli", "mock-printer", "--pty",
                            "--set", "checksum_rate=2"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "checksum_rate" in done.stderr
+
+
+def test_mock_printer_listens_on_loopback_unless_told_and_warns_when_told():
+    for host, warned in ((None, False), ("0.0.0.0", True)):
+        args = [sys.executable, "-m", "app.cli", "mock-printer", "--pty", "--tcp", "0", "--seconds", "0.2"]
+        done = subprocess.run(args + (["--host", host] if host else []), capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        address = next(line for line in done.stdout.splitlines() if line.startswith("tcp ")).split()[1]
+        assert address.startswith("0.0.0.0:" if host else "127.0.0.1:")
+        assert ("warning: listening on 0.0.0.0" in done.stderr) is warned, done.stderr

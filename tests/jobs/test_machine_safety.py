@@ -91,10 +91,17 @@ def test_row1_the_reaper_interrupts_a_machine_job_whose_process_died(client):
     assert runtime.store.interrupt_orphans(f"{runtime.worker_id}:") == [job.id]
 
 
+@pytest.mark.parametrize("device", ["/dev/null", "/dev/zero", "/dev/mem", "/dev/watchdog", "/dev/ttyCONFORMA_NONE",
+                                    "/dev/shm"])
+def test_only_what_the_kernel_calls_a_terminal_is_a_machine_port(client, device):
+    response = client.post("/api/v1/machines", json={"name": "x", "port": device}, headers=OP)
+    assert response.status_code == 422 and response.json()["errors"][0]["loc"] == ["port"], response.text
+
+
 def test_row2_one_record_per_physical_port(client, tmp_path):
-    first = client.post("/api/v1/machines", json={"name": "a", "port": "/dev/null"}, headers=OP)
+    first = client.post("/api/v1/machines", json={"name": "a", "port": "/dev/tty"}, headers=OP)
     assert first.status_code == 201
-    for alias in ("/dev/./null", "/dev/../dev/null"):
+    for alias in ("/dev/./tty", "/dev/../dev/tty"):
         again = client.post("/api/v1/machines", json={"name": "b", "port": alias}, headers=OP)
         assert again.status_code == 409 and again.json()["errors"][0]["loc"] == ["port"], again.text
     for bad in ("/dev/../etc/passwd", "/dev/../tmp/ttyUSB0"):  # real path outside /dev

@@ -1,0 +1,80 @@
+"""`conforma serve` SIGKILLed during a compute job: its compute processes (and their fork
+server) die with it within 2 s, and after a restart the job runs once more, alone, to its end."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import httpx
+
+from tests.e2e.test_serve import env_for, start
+from tests.processes import free_port, stop, wait_healthy
+
+KEY = "e2e-operator-key-1"
+HEADERS = {"Authorization": f"Bearer {KEY}"}
+
+
+def _session_members(sid: int) -> list[int]:
+    """Live processes (not zombies) of session ``sid``."""
+    out = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat.rsplit(")", 1)[1].split()
+        if fields[0] != "Z" and int(fields[3]) == sid:
+            out.append(int(entry))
+    return out
+
+
+def _is_compute(pid: int) -> bool:
+    """A process forked by a fork server (a compute or import process), not the server itself."""
+    try:
+        parent = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        return b"forkserver" in Path(f"/proc/{parent}/cmdline").read_bytes()
+    except (OSError, ValueError):
+        return False
+
+
+def _wait_job(base: str, job_id: str, states: tuple[str, ...], timeout: float = 60) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = httpx.get(f"{base}/api/v1/jobs/{job_id}", headers=HEADERS, timeout=10).json()
+        if job["status"] in states:
+            return job
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_id} never reached {states}: {job}")
+
+
+def test_compute_processes_die_with_the_server_and_the_job_runs_once_after_restart(tmp_path):
+    data = tmp_path / "data"
+    env = env_for(data, CONFORMA_API_KEYS=f"{KEY}:operator", CONFORMA_LEASE_S="2")
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    server = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
+    try:
+        wait_healthy(base, server, log=tmp_path / "serve.log")
+        job = httpx.post(f"{base}/api/v1/jobs", json={"kind": "test_spin", "params": {"seconds": 8}},
+                         headers=HEADERS, timeout=30).json()
+        _wait_job(base, job["id"], ("running",))
+        assert len(_session_members(server.pid)) >= 2  # the server and its compute process(es)
+        os.kill(server.pid, signal.SIGKILL)
+        server.wait()
+        time.sleep(2.0)
+        left = [pid for pid in _session_members(server.pid) if _is_compute(pid)]
+        assert left == [], "a compute process outlived the server by 2 s"
+    finally:
+        stop(server)
+    again = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
+    try:
+        wait_healthy(base, again, log=tmp_path / "serve.log")
+        done = _wait_job(base, job["id"], ("succeeded", "failed", "cancelled"), timeout=90)
+        assert done["status"] == "succeeded" and done["attempts"] == 2, done
+    finally:
+        stop(again)

@@ -1,0 +1,81 @@
+"""Programs are scanned as a stream: the same facts as the whole-text reader, in any pieces,
+with memory that does not grow with the number of lines; non-finite numbers refused."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from app.errors import InvalidInput
+from app.gcode.reader import read_program
+from app.jobs.gcode_meta import ProgramScan, gcode_meta
+from hardware.protocol import commands_sha256
+
+PROGRAM = """; header
+G21 G90
+G28
+G0 X10 Y5 Z2
+G1 Z0.5 F600
+G2 X20 Y5 I5 J0
+G91
+G1 X-3 Y4 (relative)\r
+G90
+G92 X0 Y0
+G1 X1 Y1
+G20
+G1 X1 Y-1 Z0.1
+G3 X0 Y0 I-0.5 J0.5
+M2
+"""
+
+
+def _scan(data: bytes, piece: int) -> dict:
+    scan = ProgramScan()
+    for k in range(0, len(data), piece):
+        scan.feed(data[k:k + piece])
+    return scan.result()
+
+
+@pytest.mark.parametrize("piece", [1, 3, 7, 64, 10_000])
+def test_any_pieces_give_the_whole_texts_facts(piece):
+    data = PROGRAM.encode()
+    meta = _scan(data, piece)
+    reference = read_program(PROGRAM).bounds()
+    np.testing.assert_allclose(meta["bounds"], reference, atol=1e-12)
+    digest = commands_sha256(PROGRAM.splitlines())
+    assert (meta["lines"], meta["commands"], meta["commands_sha256"]) == (
+        len(PROGRAM.splitlines()), digest.count, digest.sha256)
+    assert meta == {**gcode_meta(PROGRAM), "sha256": meta["sha256"], "bytes": len(data)}
+
+
+def test_a_crlf_split_between_pieces_is_one_line_break():
+    data = b"G1 X1\r\nG1 X2\r\n"
+    assert _scan(data, 6)["lines"] == 2  # the pieces end between "\r" and "\n"
+
+
+def _peak_bytes(lines: int) -> int:
+    text = "".join(f"G1 X{k % 100}.{k % 7} Y{k % 37}.5 Z0.2 F1200 ; line {k}\n" for k in range(lines)).encode()
+    tracemalloc.start()
+    try:
+        scan = ProgramScan()
+        for k in range(0, len(text), 2**16):
+            scan.feed(text[k:k + 2**16])
+        assert scan.result()["lines"] == lines
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_memory_does_not_grow_with_the_lines():
+    small, large = _peak_bytes(5_000), _peak_bytes(80_000)
+    assert large < 1.5 * small + 2**20, (small, large)   # 16x the lines: about the same peak
+    assert large < 8 * 2**20
+
+
+@pytest.mark.parametrize("line", ["G1 X" + "9" * 400, "G1 X1e999 Y0"])
+def test_a_number_beyond_a_double_is_refused_naming_its_line(line):
+    with pytest.raises(InvalidInput) as raised:
+        _scan(f"G21\n{line}\n".encode(), 1 << 20)
+    assert raised.value.field == "file" and raised.value.value["line"] == 2
