@@ -77,9 +77,9 @@ def test_two_spellings_of_one_port_are_refused_as_a_second_machine(client, first
 
 
 def test_two_names_of_one_device_are_refused_as_a_second_machine(client):
-    assert client.post("/api/v1/machines", json={"name": "a", "port": "/dev/null", "dialect": "grbl"},
+    assert client.post("/api/v1/machines", json={"name": "a", "port": "/dev/tty", "dialect": "grbl"},
                        headers=OP).status_code == 201
-    again = client.post("/api/v1/machines", json={"name": "b", "port": "/dev/../dev/null", "dialect": "grbl"},
+    again = client.post("/api/v1/machines", json={"name": "b", "port": "/dev/../dev/tty", "dialect": "grbl"},
                         headers=OP)
     assert again.status_code == 409, again.text
 
