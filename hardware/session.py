@@ -70,6 +70,7 @@ class ReplySession:
         self._replay_inflight: int | None = None
         self._answered = False
         self._last_rx = now
+        self._waiting_since = now  # when the host last began to wait for an answer
         self._last_ack = now
         self._last_answer = now
         self._rtt = 0.002
@@ -121,6 +122,7 @@ class ReplySession:
         command = Command(text, line_no, data, internal, t_sent=now, sync=sync)
         if not self.outstanding:
             self._last_ack = now
+            self._waiting_since = now  # an idle firmware owed nothing until now
         self.outstanding.append(command)
         if line_no is not None:
             self.history[line_no] = command
@@ -352,13 +354,29 @@ class ReplySession:
             self.unsolicited.append(event)
 
     def _on_banner(self, event: StartBanner, now: float) -> None:
+        """The controller (re)started: its receive buffer was flushed, so nothing sent before
+        is answered any more.  The host's own markers and pokes are forgotten (never counted
+        against a later reply); a reset the firmware announced fails the commands still in
+        flight (flushed with the buffer) and the session goes on in step with the firmware;
+        an unannounced one with commands in flight fails the session."""
         self.next_line = 1
         self._swallow = False
         self._guard = None
         self._replay.clear()
         self._replay_inflight = None
+        self.reports.flushed()
+        own = [c for c in self.outstanding if c.internal]
+        for command in own:
+            self.outstanding.remove(command)
+            command.status = "failed"
+        if own:
+            self._actions.append(Halt(tuple(own), FirmwareReset("the controller reset: the host's own "
+                                                                 "request was flushed")))
         if self._expect_banner_until is not None:  # the reset grbl announced ($C, homing)
             self._expect_banner_until = None
+            if self.outstanding:
+                self._drop(FirmwareReset("the controller reset itself (announced): the command was "
+                                         "flushed with its receive buffer", last_line=self.last_acked_line()))
             self.unsolicited.append(event)
             return
         if self.outstanding and self._answered:  # a restart, not the boot banner of open()
@@ -420,12 +438,20 @@ class ReplySession:
         return self._take()
 
     # ------------------------------------------------------------------ stalls
+    def silent_s(self, now: float) -> float:
+        """Seconds the firmware has owed an answer without a sign of life: since the later
+        of its last parsed reply and the moment the host began to wait (the first command
+        sent into an idle link).  An idle grbl or Marlin says nothing unless asked, so
+        silence before that moment is no evidence of a dead link."""
+        return now - max(self._last_rx, self._waiting_since)
+
     def timeout(self, now: float) -> list[Action]:
-        """The reader saw nothing: fail after ``timeout_s`` of silence with commands in
-        flight; poke a stalled firmware (backing off, never later than ``timeout_s / 3``)."""
+        """The reader saw nothing: fail after ``timeout_s`` of silence while commands are
+        in flight (``silent_s``); poke a stalled firmware (backing off, never later than
+        ``timeout_s / 3``)."""
         if not self.outstanding or self.fatal is not None:
             return self._take()
-        if now - self._last_rx > self.timeout_s:
+        if self.silent_s(now) > self.timeout_s:
             self._fail(LinkError(f"no reply for {self.timeout_s} s", field="timeout_s",
                                  last_line=self.last_acked_line()), now)
             return self._take()
