@@ -27,7 +27,7 @@ from .events import (Alarm, Busy, Feedback, FirmwareErrorEvent, Halted, Message,
                      ReplyEvent, Resend, StartBanner, StatusReport, Unknown)
 from .protocol import frame, parse_reply
 from .reports import PositionMark, PositionTracker
-from .session_types import Action, Command, Complete, Halt, Observed, Position, Write
+from .session_types import Action, Command, Complete, ControllerState, Halt, Observed, Position, Write
 
 WINDOWS = ("pingpong", "windowed")
 RESET_BANNER_WAIT_S = 5.0  # how long an announced grbl reset may take to show its banner
@@ -63,6 +63,7 @@ class ReplySession:
         self.status_seq = 0
         self.last_status: StatusReport | None = None
         self.status_marks: deque[tuple[StatusReport, int, float]] = deque(maxlen=64)
+        self.controller: ControllerState | None = None  # the firmware's own state (grbl)
         self.completed = 0  # commands answered so far (Command.seq)
         self._swallow = False  # the plain ok right after a Resend belongs to the request
         self._guard: list[int] | None = None
@@ -198,6 +199,7 @@ class ReplySession:
                 return self._take()  # the S_XYZ line after an S000 answer (hardware.reports)
         if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
             self._answered = True
+        self._track_controller(event, now)
         swallow, self._swallow = self._swallow, False
         if isinstance(event, Ok):
             self._on_ok(event, now, swallow)
@@ -228,6 +230,34 @@ class ReplySession:
         elif event.raw.strip():
             self.unsolicited.append(event)
         return self._take()
+
+    def _track_controller(self, event: ReplyEvent, now: float) -> None:
+        """Keep ``controller``, the firmware's own state, from what it says: a status report
+        names it; an alarm locks it (with its reason) until grbl says it unlocked or a status
+        says otherwise; a start banner is Idle unless grbl adds that it boots locked; a
+        G-code refused with the lock error proves a lock the host may have missed."""
+        if not self.rules.position_by_status:
+            return  # Marlin reports no controller state (a halt fails the session)
+        known = self.controller
+        if isinstance(event, StatusReport):
+            keep = known.reason if known is not None and known.name == "Alarm" \
+                and event.state.startswith("Alarm") else None
+            self.controller = ControllerState(event.state, keep, now)
+        elif isinstance(event, Alarm):
+            self.controller = ControllerState("Alarm", f"ALARM:{event.code} {event.message}".strip(), now)
+        elif isinstance(event, StartBanner):
+            self.controller = ControllerState("Idle", None, now)
+        elif isinstance(event, Message):
+            text = event.text.strip()
+            if "'$X' to unlock" in text or "$X to unlock" in text:
+                reason = known.reason if known is not None and known.name == "Alarm" and known.reason \
+                    else "the controller started locked (homing required, or an alarm before its reset)"
+                self.controller = ControllerState("Alarm", reason, now)
+            elif text.startswith("Caution: Unlocked"):
+                self.controller = ControllerState("Idle", None, now)
+        elif isinstance(event, FirmwareErrorEvent) and event.code == self.rules.lock_error \
+                and (known is None or known.name not in ("Alarm", "Jog")):
+            self.controller = ControllerState("Alarm", f"error:{event.code} {event.message}".strip(), now)
 
     def _complete_head(self, status: str, now: float, error: ReplyEvent | None = None) -> None:
         command = self.outstanding.popleft()
