@@ -8,7 +8,7 @@ import time
 
 from .errors import ControllerLocked, FirmwareError, LinkError, MachineStateError
 from .events import Feedback, StartBanner
-from .session_types import ControllerState
+from .controller_state import ControllerState
 
 JOG_POLL_S = 0.05
 

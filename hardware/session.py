@@ -9,12 +9,12 @@ no lock, no clock (every time is the caller's ``now``, ``time.monotonic()`` seco
 ``hardware.link.Link`` owns the port, the reader thread and the lock and applies the
 actions (``hardware.session_types``) in order.  What the session decides (see the link's
 module docstring for the protocol): correlation of replies to the oldest unacknowledged
-command, Marlin ``ok N`` (ADVANCED_OK) covering every earlier line, resend requests and the
-one-at-a-time replay, transmission errors, command errors (Marlin still sends ``ok``; grbl's
-``error:N`` is the answer), alarms, restarts (a banner after the first answer fails every
-command in flight), stalls (Marlin replays or sends ``M114``; grbl ``?`` and a ``$G``
-marker whose ``[GC:]`` settles lost ``ok``s), the fallback to ping-pong, and the windowed
-flow control (``window_open``).  Dialect differences are fields of ``hardware.dialects``.
+command, Marlin ``ok N`` covering every earlier line, resends replayed one at a time,
+command errors (Marlin still sends ``ok``; grbl's ``error:N`` is the answer), alarms and the
+controller's own state (``hardware.controller_state``), restarts (a banner flushes the
+host's markers; after the first answer it fails every command in flight), stalls (Marlin
+replays or sends ``M114``; grbl ``?`` and a ``$G`` marker whose ``[GC:]`` settles lost
+``ok``s), the fallback to ping-pong and the windowed flow control (``window_open``).
 """
 
 from __future__ import annotations
@@ -25,9 +25,10 @@ from .dialects import Dialect
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
 from .events import (Alarm, Busy, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
                      ReplyEvent, Resend, StartBanner, StatusReport, Unknown)
-from .protocol import frame, parse_reply
+from .protocol import dwell_budget_s, frame, parse_reply
 from .reports import PositionMark, PositionTracker
-from .session_types import Action, Command, Complete, ControllerState, Halt, Observed, Position, Write
+from .controller_state import ControllerState, next_controller_state
+from .session_types import Action, Command, Complete, Halt, Observed, Position, Write
 
 WINDOWS = ("pingpong", "windowed")
 RESET_BANNER_WAIT_S = 5.0  # how long an announced grbl reset may take to show its banner
@@ -50,9 +51,8 @@ class ReplySession:
         self.command_buffer = command_buffer
         self.rx_buffer = rx_buffer
         self.poke_s = poke_s
-        self.fallbacks: list[str] = []
-        self.stats = {"sent": 0, "resends": 0, "pokes": 0, "ignored_resends": 0,
-                      "assumed_ok": 0, "retries": 0}
+        self.fallbacks: list[str] = []  # why the link fell back to ping-pong
+        self.stats = {"sent": 0, "resends": 0, "pokes": 0, "ignored_resends": 0, "assumed_ok": 0, "retries": 0}
         self.unsolicited: deque[ReplyEvent] = deque(maxlen=200)
         self.outstanding: deque[Command] = deque()
         self.history: OrderedDict[int, Command] = OrderedDict()
@@ -69,13 +69,10 @@ class ReplySession:
         self._guard: list[int] | None = None
         self._replay: deque[int] = deque()
         self._replay_inflight: int | None = None
-        self._answered = False
-        self._last_rx = now
-        self._waiting_since = now  # when the host last began to wait for an answer
-        self._last_ack = now
-        self._last_answer = now
-        self._rtt = 0.002
-        self._pokes_in_row = 0
+        self._answered = False  # a first answer came (a later banner is a restart)
+        # last reply, last time the host began to wait (an idle link owes nothing), last ack/answer
+        self._last_rx = self._waiting_since = self._last_ack = self._last_answer = now
+        self._rtt, self._pokes_in_row = 0.002, 0
         self._expect_banner_until: float | None = None
         self._actions: list[Action] = []
         self.reports = PositionTracker(rules)
@@ -199,7 +196,8 @@ class ReplySession:
                 return self._take()  # the S_XYZ line after an S000 answer (hardware.reports)
         if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
             self._answered = True
-        self._track_controller(event, now)
+        if self.rules.position_by_status:  # the firmware's own state (Marlin reports none)
+            self.controller = next_controller_state(self.controller, event, now, self.rules.lock_error)
         swallow, self._swallow = self._swallow, False
         if isinstance(event, Ok):
             self._on_ok(event, now, swallow)
@@ -230,34 +228,6 @@ class ReplySession:
         elif event.raw.strip():
             self.unsolicited.append(event)
         return self._take()
-
-    def _track_controller(self, event: ReplyEvent, now: float) -> None:
-        """Keep ``controller``, the firmware's own state, from what it says: a status report
-        names it; an alarm locks it (with its reason) until grbl says it unlocked or a status
-        says otherwise; a start banner is Idle unless grbl adds that it boots locked; a
-        G-code refused with the lock error proves a lock the host may have missed."""
-        if not self.rules.position_by_status:
-            return  # Marlin reports no controller state (a halt fails the session)
-        known = self.controller
-        if isinstance(event, StatusReport):
-            keep = known.reason if known is not None and known.name == "Alarm" \
-                and event.state.startswith("Alarm") else None
-            self.controller = ControllerState(event.state, keep, now)
-        elif isinstance(event, Alarm):
-            self.controller = ControllerState("Alarm", f"ALARM:{event.code} {event.message}".strip(), now)
-        elif isinstance(event, StartBanner):
-            self.controller = ControllerState("Idle", None, now)
-        elif isinstance(event, Message):
-            text = event.text.strip()
-            if "'$X' to unlock" in text or "$X to unlock" in text:
-                reason = known.reason if known is not None and known.name == "Alarm" and known.reason \
-                    else "the controller started locked (homing required, or an alarm before its reset)"
-                self.controller = ControllerState("Alarm", reason, now)
-            elif text.startswith("Caution: Unlocked"):
-                self.controller = ControllerState("Idle", None, now)
-        elif isinstance(event, FirmwareErrorEvent) and event.code == self.rules.lock_error \
-                and (known is None or known.name not in ("Alarm", "Jog")):
-            self.controller = ControllerState("Alarm", f"error:{event.code} {event.message}".strip(), now)
 
     def _complete_head(self, status: str, now: float, error: ReplyEvent | None = None) -> None:
         command = self.outstanding.popleft()
@@ -384,24 +354,21 @@ class ReplySession:
             self.unsolicited.append(event)
 
     def _on_banner(self, event: StartBanner, now: float) -> None:
-        """The controller (re)started: its receive buffer was flushed, so nothing sent before
-        is answered any more.  The host's own markers and pokes are forgotten (never counted
-        against a later reply); a reset the firmware announced fails the commands still in
-        flight (flushed with the buffer) and the session goes on in step with the firmware;
-        an unannounced one with commands in flight fails the session."""
+        """The controller (re)started and flushed its receive buffer: the host's own markers
+        are forgotten (never matched to a later reply); an announced reset fails what is
+        still in flight, an unannounced one with commands in flight fails the session."""
         self.next_line = 1
         self._swallow = False
         self._guard = None
         self._replay.clear()
         self._replay_inflight = None
         self.reports.flushed()
-        own = [c for c in self.outstanding if c.internal]
+        own = tuple(c for c in self.outstanding if c.internal)
+        self.outstanding = deque(c for c in self.outstanding if not c.internal)
         for command in own:
-            self.outstanding.remove(command)
             command.status = "failed"
         if own:
-            self._actions.append(Halt(tuple(own), FirmwareReset("the controller reset: the host's own "
-                                                                 "request was flushed")))
+            self._actions.append(Halt(own, FirmwareReset("the controller reset: the host's own request was flushed")))
         if self._expect_banner_until is not None:  # the reset grbl announced ($C, homing)
             self._expect_banner_until = None
             if self.outstanding:
@@ -469,16 +436,14 @@ class ReplySession:
 
     # ------------------------------------------------------------------ stalls
     def silent_s(self, now: float) -> float:
-        """Seconds the firmware has owed an answer without a sign of life: since the later
-        of its last parsed reply and the moment the host began to wait (the first command
-        sent into an idle link).  An idle grbl or Marlin says nothing unless asked, so
-        silence before that moment is no evidence of a dead link."""
+        """Seconds the firmware owes an answer without a sign of life: since its last parsed
+        reply or, later, the first command sent into an idle link (an idle grbl or Marlin
+        says nothing unless asked: that silence is no evidence of a dead link)."""
         return now - max(self._last_rx, self._waiting_since)
 
     def timeout(self, now: float) -> list[Action]:
-        """The reader saw nothing: fail after ``timeout_s`` of silence while commands are
-        in flight (``silent_s``); poke a stalled firmware (backing off, never later than
-        ``timeout_s / 3``)."""
+        """The reader saw nothing: fail after ``timeout_s`` of ``silent_s``; poke a stalled
+        firmware (backing off, never later than ``timeout_s / 3``)."""
         if not self.outstanding or self.fatal is not None:
             return self._take()
         if self.silent_s(now) > self.timeout_s:
@@ -523,23 +488,11 @@ class ReplySession:
             elif status.state.split(":")[0] in ("Idle", "Alarm", "Check"):
                 # not moving and not parsing: after every outstanding dwell has surely
                 # ended, nothing can be left unread in its buffer
-                room = now - self._last_answer > self._dwell_budget_s() + 4 * self.poke_s \
+                room = now - self._last_answer > dwell_budget_s(p.command for p in self.outstanding) + 4 * self.poke_s \
                     and seen_at > self._last_answer
         if room:
             marker = self._send(marker_text, now, internal=True)
             marker.marker = True
-
-    def _dwell_budget_s(self) -> float:
-        """Seconds of ``G4`` dwell among the outstanding commands (grbl P is seconds)."""
-        total = 0.0
-        for command in self.outstanding:
-            words = command.command.upper().replace(" ", "")
-            if words.startswith("G4P"):
-                try:
-                    total += float(words[3:])
-                except ValueError:
-                    total += 60.0
-        return total
 
     def _fallback(self, reason: str) -> None:
         if self.mode != "pingpong":

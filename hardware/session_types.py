@@ -55,45 +55,6 @@ class Command:
         return any(isinstance(e, Feedback) and e.tag == "GC" for e in self.replies)
 
 
-#: how an operator clears each controller state that refuses motion (grbl names)
-CLEARING = {
-    "Alarm": "check the machine, then unlock ($X; its position may be wrong: home when you can) or home ($H)",
-    "Hold": "resume with cycle start (~), or stop",
-    "Door": "close the safety door, then resume with cycle start (~)",
-    "Check": "leave check mode ($C; grbl resets)",
-    "Sleep": "reset the controller (reconnect)",
-}
-
-
-@dataclass(frozen=True)
-class ControllerState:
-    """The firmware's own state as the host last learned it (grbl: ``Idle``, ``Run``,
-    ``Hold:0``, ``Jog``, ``Alarm``, ``Door:1``, ``Check``, ``Home``, ``Sleep``), ``reason``
-    (the alarm that caused it, e.g. ``ALARM:5 Probe fail...``), ``since`` (host time)."""
-
-    state: str
-    reason: str | None = None
-    since: float = 0.0
-
-    @property
-    def name(self) -> str:
-        """The state without its sub-state (``Hold:0`` -> ``Hold``)."""
-        return self.state.split(":")[0]
-
-    @property
-    def locks_motion(self) -> bool:
-        """True when the firmware refuses or holds every motion until an operator clears it."""
-        return self.name in CLEARING
-
-    @property
-    def clear(self) -> str | None:
-        """How an operator clears it (None when nothing needs clearing)."""
-        return CLEARING.get(self.name)
-
-    def as_dict(self) -> dict[str, str | None]:
-        return {"state": self.name, "detail": self.state, "reason": self.reason, "clear": self.clear}
-
-
 @dataclass(frozen=True)
 class Write:
     data: bytes

@@ -53,6 +53,7 @@ ROLES = {
     ("POST", "/api/v1/machines/{machine_id}/print"): "operator",
     ("POST", "/api/v1/machines/{machine_id}/home"): "operator",
     ("POST", "/api/v1/machines/{machine_id}/jog"): "operator",
+    ("POST", "/api/v1/machines/{machine_id}/unlock"): "operator",
     ("POST", "/api/v1/machines/{machine_id}/command"): "operator",
     ("DELETE", "/api/v1/machines/{machine_id}"): "operator",
     ("POST", "/api/v1/files"): "operator",
