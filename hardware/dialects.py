@@ -73,6 +73,12 @@ class Dialect:
     Resume
       ``resets_on_connect``: opening the port resets the controller and flushes its
       buffers, so a resumed program restarts from the planner bound (grbl).
+      ``stepper_queue``: moves the stepper may still hold after the planner released their
+      blocks (acknowledged, not moved, and not counted by ``[OPT:]`` or ``Bf:``): grbl 1.1's
+      SEGMENT_BUFFER_SIZE, 6 on the 328P, each segment possibly the last of another short
+      block; Marlin 0 (its stepper runs a block in place in the planner ring and discards
+      it only when done, so BLOCK_BUFFER_SIZE counts everything).  A reset loses up to the
+      planner's blocks plus this many acknowledged moves.
     Mock
       ``mock_dispense``: the mock world's default dispenser on/off commands.
     """
@@ -104,6 +110,7 @@ class Dialect:
     parser_marker: str | None
     announced_resets: bool
     resets_on_connect: bool
+    stepper_queue: int
     mock_dispense: tuple[str, str]
 
     def line_bytes(self, text: str) -> int:
@@ -123,7 +130,7 @@ MARLIN = Dialect(
     lock_error=None, position_by_status=False, jog_locks_gcode=False, feed_hold=None, cycle_start=None,
     position_request=b"S000\n", request_queued=True, estop_bytes=b"M112\n",
     line_numbers=True, line_overhead=16, window="slots", ok_after_error=True,
-    parser_marker=None, announced_resets=False, resets_on_connect=False,
+    parser_marker=None, announced_resets=False, resets_on_connect=False, stepper_queue=0,
     mock_dispense=("M106", "M107"))
 
 GRBL = Dialect(
@@ -133,7 +140,7 @@ GRBL = Dialect(
     lock_error=9, position_by_status=True, jog_locks_gcode=True, feed_hold=b"!", cycle_start=b"~",
     position_request=b"?", request_queued=False, estop_bytes=b"\x18",
     line_numbers=False, line_overhead=1, window="bytes", ok_after_error=False,
-    parser_marker="$G", announced_resets=True, resets_on_connect=True,
+    parser_marker="$G", announced_resets=True, resets_on_connect=True, stepper_queue=6,
     mock_dispense=("M3", "M5"))
 
 # RepRapFirmware would be one more record here (M115, G28, M400, G30, M112, line numbers

@@ -136,27 +136,58 @@ POSITION_TOLERANCE_MM = 0.01  # a reported position this close to the programmed
 
 @dataclass(frozen=True)
 class ResumeLocation:
-    """Where a resumed program starts and why.
+    """Where a resumed program starts and why, and what may run twice.
 
     start: first command to send; basis: "line numbers" (Marlin kept running and counting:
     exact), "position" (the controller kept its position and it lies on exactly one place
     of the path: at most the move it was cut in runs again), "reported position" (the
     controller reset; the last real position it reported while streaming lies on one place
     of the path: what may run twice is bounded by ``repeat_bound_mm`` / ``repeat_bound_lines``)
-    or "planner bound" (nothing better is known: up to a planner's worth of short moves may
-    run twice); detail: the evidence, for the operator."""
+    or "planner bound" (nothing better is known: everything the controller could hold
+    acknowledged but unmoved, planner blocks and stepper segments, runs again); detail: the
+    evidence, for the operator.  ``repeats``: commands from ``start`` on that may already
+    have run (they run again), ``repeat_moves`` the moves among them; nothing is skipped:
+    every command before ``start`` is known to have completed."""
 
     start: int
     basis: str
     detail: str
     repeat_bound_mm: float | None = None  # "reported position": what may run twice, mm ...
     repeat_bound_lines: int | None = None  # ... and commands (whole or in part)
+    repeats: int = 0
+    repeat_moves: int = 0
+
+    def summary(self) -> str:
+        """One sentence for the operator before confirming."""
+        if self.repeats == 0:
+            again = "no command runs twice"
+        else:
+            again = (f"commands {self.start + 1}..{self.start + self.repeats} may run a second time "
+                     f"({self.repeat_moves} move{'s' if self.repeat_moves != 1 else ''})")
+        return (f"resumes at command {self.start + 1} (by {self.basis}); {again}; none is skipped: "
+                f"every command before it is known to have completed")
 
     def as_dict(self) -> dict:
-        out: dict = {"start": self.start, "basis": self.basis, "detail": self.detail}
+        out: dict = {"start": self.start, "basis": self.basis, "detail": self.detail,
+                     "repeats": self.repeats, "repeat_moves": self.repeat_moves, "skipped": 0,
+                     "summary": self.summary()}
         if self.basis == "reported position":
             out |= {"repeat_bound_mm": self.repeat_bound_mm, "repeat_bound_lines": self.repeat_bound_lines}
         return out
+
+
+def count_moves(commands: list[str]) -> int:
+    """Commands among ``commands`` that move the tool (motion words with an axis)."""
+    state = ModalState()
+    moves = 0
+    for command in commands:
+        text = command.upper()
+        before = state.motion
+        state.update(command)
+        motion = state.motion or before
+        has_axis = any(letter in "XYZ" for letter, _ in _WORD.findall(text.replace(" ", "")))
+        moves += int(has_axis and motion is not None and not any(g in text for g in ("G4", "G92", "G10")))
+    return moves
 
 
 def end_positions(commands: list[str], dispense_on: str = "", dispense_off: str = "",
