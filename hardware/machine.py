@@ -304,7 +304,10 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         self._note_stream_start(start_line)  # where the tool stands, for reports (hardware.reports)
         try:
             self._replay_modes(commands, start_line)
-        except HardwareError:
+        except HardwareError as exc:
+            if isinstance(exc, LinkError):  # nothing of the program was sent: it resumes where it was to start
+                self._interrupted = _Interrupted(total, start_line, None, [], True, start_line)
+                self._resume_commands = list(commands)
             self._release("error" if not link.healthy else "idle")
             raise
 

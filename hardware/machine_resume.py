@@ -4,6 +4,7 @@ planned), and draining the lines a controller still runs after it rejected one."
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from dataclasses import replace
@@ -11,7 +12,7 @@ from dataclasses import replace
 from .errors import FirmwareError, FirmwareReset, HardwareError
 from .events import PositionReport
 from .machine_types import ReportEvidence
-from .resume import (ResumeLocation, command_feeds, count_moves, end_positions, executed_bound,
+from .resume import (POSITION_TOLERANCE_MM, ResumeLocation, command_feeds, count_moves, end_positions, executed_bound,
                      locate_by_position, locate_by_report, modal_preamble, planner_blocks)
 
 
@@ -167,10 +168,12 @@ class ResumeOperations:
             return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
                                   f"{where} may lie on the program's opening move, whose start is not known")
         found = locate_by_report(ends, command_feeds(commands, p.dispense_on, p.dispense_off), report.position,
-                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index)
+                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index,
+                                 origin=report.origin)
         if found is None:
             return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
                                   f"{where} is not at one place of commands {lo}..{max(sent, fallback.start)}")
+        found = _not_past_a_move_end(found, ends, report.position, lo)
         behind = "" if found.start >= fallback.start else \
             "; it lies before the planner bound, so the resume starts there (earlier)"
         mm = "the path up to the last command sent" if found.after_mm is None else f"{found.after_mm:.3f} mm"
@@ -234,3 +237,19 @@ class ResumeOperations:
             executed = index + 1
         self.rejected_lines = rejected
         return executed
+
+
+def _not_past_a_move_end(found, ends, position, lo):  # type: ignore[no-untyped-def]
+    """A tool *moving* when reported and within the tolerance of a move's end may still be
+    finishing that move (the report rounds, the tolerance is wider than a step): resume at
+    that move, not after it (it runs again whole; never a step of it skipped)."""
+    start = found.start
+    while start > lo and ends[start - 1] is not None and math.dist(ends[start - 1], position) <= POSITION_TOLERANCE_MM:
+        start -= 1
+    if start == found.start:
+        return found
+    again = sum(math.dist(ends[k - 1], ends[k]) for k in range(start, found.start) if k > 0
+                and ends[k - 1] is not None and ends[k] is not None)
+    return replace(found, start=start, bound_lines=found.bound_lines + found.start - start,
+                   bound_mm=None if found.bound_mm is None else found.bound_mm + again,
+                   before_mm=found.before_mm + again)

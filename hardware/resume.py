@@ -223,13 +223,14 @@ def _distance_to_segment(p: tuple[float, ...], a: tuple[float, ...], b: tuple[fl
 
 def locate_by_position(ends: list[tuple[float, float, float] | None], position: tuple[float, float, float],
                        lo: int, hi: int, tolerance_mm: float = POSITION_TOLERANCE_MM,
-                       acked: int = 0) -> int | None:
+                       acked: int = 0, origin: tuple[float, float, float] | None = None) -> int | None:
     """First command not completed when the tool stands still at ``position`` (mm), knowing
     that commands [0, lo) completed and commands [hi, ...) never reached the controller;
     ``ends`` from :func:`end_positions`.  None when that is not one answer.
 
-    The tool at the end of move k (the position after command k) means k completed: the
-    answer is k + 1, or later over the commands after k that do not move (a dispenser
+    The tool at the end of move k (the position after command k) means k completed when k
+    moved it there (a command that moves nothing may not have run: k itself is an answer
+    too; ``origin``: where the tool stood before command 0, when known): the answer is k + 1, or later over the commands after k that do not move (a dispenser
     switch, a dwell) and were acknowledged (``acked``: commands [0, acked) were; such a
     command ran when it was answered); the others are sent again rather than skipped.  The tool strictly inside move k's straight segment means k
     was cut: the answer is k (the resume's modal replay goes back to k's start point; the
@@ -242,8 +243,8 @@ def locate_by_position(ends: list[tuple[float, float, float] | None], position: 
     if lo > hi:
         return None
     answers: set[int] = set()
-    previous = ends[lo - 1] if lo > 0 else None
-    if lo > 0 and previous is not None and math.dist(previous, position) <= tolerance_mm:
+    previous = ends[lo - 1] if lo > 0 else origin
+    if previous is not None and math.dist(previous, position) <= tolerance_mm:
         answers.add(lo)  # nothing of the window moved yet
     known = any(e is not None for e in ends[:lo])
     for k in range(lo, hi):
@@ -255,6 +256,8 @@ def locate_by_position(ends: list[tuple[float, float, float] | None], position: 
         known = True
         if math.dist(end, position) <= tolerance_mm:
             answers.add(k + 1)
+            if previous is not None and math.dist(previous, end) <= tolerance_mm:
+                answers.add(k)  # k moves nothing: the tool there does not prove that it ran
         elif previous is not None and _distance_to_segment(position, previous, end) <= tolerance_mm:
             answers.add(k)
         previous = end
@@ -295,7 +298,8 @@ class ReportedResume:
 
 def locate_by_report(ends: list[tuple[float, float, float] | None], feeds: list[float | None],
                      position: tuple[float, float, float], lo: int, hi: int, seconds: float,
-                     acked: int = 0, tolerance_mm: float = POSITION_TOLERANCE_MM) -> ReportedResume | None:
+                     acked: int = 0, tolerance_mm: float = POSITION_TOLERANCE_MM,
+                     origin: tuple[float, float, float] | None = None) -> ReportedResume | None:
     """The tool was at ``position`` (a real-position report) when commands [0, lo) had
     surely completed and commands [hi, ...) were not sent; it then moved for at most
     ``seconds`` (until the controller reset) along the program.  Resuming at the command
@@ -304,7 +308,7 @@ def locate_by_report(ends: list[tuple[float, float, float] | None], feeds: list[
     the commands from there to ``hi`` during ``seconds`` (a rapid in between: unbounded by
     time, the path up to ``hi``), walked along the path.  None when the position is not on
     exactly one place of the window."""
-    start = locate_by_position(ends, position, lo, hi, tolerance_mm, acked=acked)
+    start = locate_by_position(ends, position, lo, hi, tolerance_mm, acked=acked, origin=origin)
     if start is None:
         return None
     hi = min(hi, len(ends))
