@@ -33,6 +33,7 @@ ROLES = {
     ("GET", "/api/v1/jobs/{job_id}/artifacts"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/report"): "viewer",
     ("POST", "/api/v1/jobs/{job_id}/resume"): "operator",
+    ("GET", "/api/v1/jobs/{job_id}/resume"): "operator",
     ("POST", "/api/v1/jobs/{job_id}/abandon"): "operator",
     ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}"): "viewer",
     ("GET", "/api/v1/jobs/{job_id}/artifacts/{name}/summary"): "viewer",
