@@ -18,6 +18,7 @@ PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S
 WAIT = {"marlin": "M400", "grbl": "G4 P0"}
 
 
+@pytest.mark.timeout(IDLE_S + 600)
 @pytest.mark.parametrize("dialect", ["marlin", "grbl"])
 def test_a_print_after_ten_minutes_idle_runs_exactly_once(dialect):
     name = f"bench-idle-{dialect}"
