@@ -46,7 +46,8 @@ class Dialect:
       ``wait_moves`` (``M400`` / ``G4 P0``), ``probe_command`` (the default probing
       word), ``probe_reports_contact`` (``G38.2`` answers with the contact point,
       grbl ``[PRB:...]``; Marlin's ``G38.2`` prints nothing and the host reads ``M114 D``),
-      ``unlock_command`` (after an alarm: grbl ``$X``), ``position_by_status`` (where the
+      ``unlock_command`` (after an alarm: grbl ``$X``), ``lock_error`` (the code a locked
+      controller answers G-code with: grbl ``error:9``, alarm or jog), ``position_by_status`` (where the
       tool is: a real-time status report, else ``M114``), ``jog_locks_gcode`` (G-code
       while jogging is ``error:9``), ``feed_hold``/``cycle_start`` real-time bytes.
     Position reports while streaming (``hardware.reports``)
@@ -72,6 +73,12 @@ class Dialect:
     Resume
       ``resets_on_connect``: opening the port resets the controller and flushes its
       buffers, so a resumed program restarts from the planner bound (grbl).
+      ``stepper_queue``: moves the stepper may still hold after the planner released their
+      blocks (acknowledged, not moved, and not counted by ``[OPT:]`` or ``Bf:``): grbl 1.1's
+      SEGMENT_BUFFER_SIZE, 6 on the 328P, each segment possibly the last of another short
+      block; Marlin 0 (its stepper runs a block in place in the planner ring and discards
+      it only when done, so BLOCK_BUFFER_SIZE counts everything).  A reset loses up to the
+      planner's blocks plus this many acknowledged moves.
     Mock
       ``mock_dispense``: the mock world's default dispenser on/off commands.
     """
@@ -88,6 +95,7 @@ class Dialect:
     probe_command: str
     probe_reports_contact: bool
     unlock_command: str | None
+    lock_error: int | None
     position_by_status: bool
     jog_locks_gcode: bool
     feed_hold: bytes | None
@@ -102,6 +110,7 @@ class Dialect:
     parser_marker: str | None
     announced_resets: bool
     resets_on_connect: bool
+    stepper_queue: int
     mock_dispense: tuple[str, str]
 
     def line_bytes(self, text: str) -> int:
@@ -118,20 +127,20 @@ MARLIN = Dialect(
     name="marlin", identify_command="M115", boot_banner=False, banner_words=("start",),
     build_info=False, home_command="G28", homing_disabled_error=None, homing_setting=None,
     wait_moves="M400", probe_command="G30", probe_reports_contact=False, unlock_command=None,
-    position_by_status=False, jog_locks_gcode=False, feed_hold=None, cycle_start=None,
+    lock_error=None, position_by_status=False, jog_locks_gcode=False, feed_hold=None, cycle_start=None,
     position_request=b"S000\n", request_queued=True, estop_bytes=b"M112\n",
     line_numbers=True, line_overhead=16, window="slots", ok_after_error=True,
-    parser_marker=None, announced_resets=False, resets_on_connect=False,
+    parser_marker=None, announced_resets=False, resets_on_connect=False, stepper_queue=0,
     mock_dispense=("M106", "M107"))
 
 GRBL = Dialect(
     name="grbl", identify_command="$I", boot_banner=True, banner_words=(),
     build_info=True, home_command="$H", homing_disabled_error=5, homing_setting="$22=1",
     wait_moves="G4 P0", probe_command="G38.2", probe_reports_contact=True, unlock_command="$X",
-    position_by_status=True, jog_locks_gcode=True, feed_hold=b"!", cycle_start=b"~",
+    lock_error=9, position_by_status=True, jog_locks_gcode=True, feed_hold=b"!", cycle_start=b"~",
     position_request=b"?", request_queued=False, estop_bytes=b"\x18",
     line_numbers=False, line_overhead=1, window="bytes", ok_after_error=False,
-    parser_marker="$G", announced_resets=True, resets_on_connect=True,
+    parser_marker="$G", announced_resets=True, resets_on_connect=True, stepper_queue=6,
     mock_dispense=("M3", "M5"))
 
 # RepRapFirmware would be one more record here (M115, G28, M400, G30, M112, line numbers

@@ -109,3 +109,8 @@ class MachineStateError(HardwareError):
     """The request does not fit the machine's current state (e.g. stop while idle)."""
 
     status = 409
+
+
+class ControllerLocked(MachineStateError):
+    """The firmware itself refuses motion in its current state (grbl Alarm, Hold, Door,
+    Check): the message names the state, why, and how an operator clears it."""

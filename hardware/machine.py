@@ -192,12 +192,29 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
 
     # ------------------------------------------------------------------ simple commands
     def send(self, command: str) -> CommandResult:
-        """Raw console command (blocking; FirmwareError when rejected)."""
-        self._claim("busy")
+        """Raw console command (blocking; FirmwareError when rejected).  G-code while the
+        controller refuses motion (grbl Alarm, Hold, Door, Check) is ``ControllerLocked``
+        naming the state and how to clear it; ``$`` system commands always go through."""
+        system = command.strip().startswith("$")
+        self._claim_motion("busy", f"run {command.strip()[:40]!r}", check=not system)
         try:
             return self.link.send(command, self.timeout_s * 10)
+        except FirmwareError as exc:
+            raise self._locked_reply(exc, f"run {command.strip()[:40]!r}") from exc
         finally:
             self._release()
+
+    def _claim_motion(self, state: str, what: str, *, check: bool = True) -> None:
+        """Claim the machine for an operation that moves it (``what``, for the message):
+        ``ControllerLocked`` while the firmware refuses motion (see ``_refuse_locked``)."""
+        self._claim(state)
+        if not check:
+            return
+        try:
+            self._refuse_locked(what)
+        except HardwareError:
+            self._release()
+            raise
 
     def _run(self, commands: Iterable[str]) -> list[CommandResult]:
         return [self.link.send(c, self.timeout_s * 10) for c in commands]
@@ -232,7 +249,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         """Absolute straight move; returns once the motion is finished."""
         feed = feed_mm_min or self.profile.travel_feed_mm_min
         words = axis_words(x, y, z)
-        self._claim("busy")
+        self._claim_motion("busy", "move")
         try:
             if self.rules.jog_locks_gcode:
                 self._wait_not_jogging()  # G-code during a jog is error:9
@@ -273,7 +290,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         if not 0 <= start_line <= total:
             raise InvalidConfig(f"start_line must be within 0..{total}", field="start_line",
                                 value=start_line)
-        self._claim("printing")
+        self._claim_motion("printing", "start a program")
         self._cancel = False
         self._resume_event.set()
         self._interrupted = None
@@ -287,7 +304,10 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         self._note_stream_start(start_line)  # where the tool stands, for reports (hardware.reports)
         try:
             self._replay_modes(commands, start_line)
-        except HardwareError:
+        except HardwareError as exc:
+            if isinstance(exc, LinkError):  # nothing of the program was sent: it resumes where it was to start
+                self._interrupted = _Interrupted(total, start_line, None, [], True, start_line)
+                self._resume_commands = list(commands)
             self._release("error" if not link.healthy else "idle")
             raise
 
@@ -453,4 +473,5 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
                 else {"line": executed, "total": total},
                 "link": dict(self.link.stats) if self.link else None,
                 "controller": self.last_controller_state(),
+                "controller_state": self.controller.as_dict() if self.controller is not None else None,
                 "fallbacks": list(self.link.fallbacks) if self.link else []}

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import time
 
-from .errors import LinkError, MachineStateError
+from .errors import ControllerLocked, FirmwareError, LinkError, MachineStateError
 from .events import Feedback, StartBanner
+from .controller_state import ControllerState
 
 JOG_POLL_S = 0.05
 
@@ -59,16 +60,53 @@ class GrblOperations:
         return self.link.query_status().state
 
     def last_controller_state(self) -> str | None:
-        """The state in the last status report seen (no query), or None."""
-        if self.link is None or not self.link.status_marks:
-            return None
-        return self.link.status_marks[-1][0].state
+        """The firmware's own state as last learned (status reports, alarms, banners,
+        unlock messages; no query), e.g. ``Idle``, ``Alarm``, ``Hold:0``; None when unknown."""
+        known = self.controller
+        return known.state if known is not None else None
+
+    @property
+    def controller(self) -> ControllerState | None:
+        """The firmware's own state with its reason (``hardware.session_types``), or None."""
+        return self.link.session.controller if self.link is not None else None
+
+    def _refuse_locked(self, what: str) -> None:
+        """``ControllerLocked`` naming the state, why and how to clear it, when the firmware
+        refuses or holds motion now (grbl Alarm, Hold, Door, Check)."""
+        known = self.controller
+        if known is not None and known.locks_motion and self.rules.position_by_status:
+            self.link.query_status()  # never refuse on a stale state: ask the firmware now
+            known = self.controller
+        if known is not None and known.locks_motion:
+            raise ControllerLocked(self._locked_message(known, what), field="controller", value=known.state)
+
+    @staticmethod
+    def _locked_message(known: ControllerState, what: str) -> str:
+        why = f" ({known.reason})" if known.reason else ""
+        return f"the controller is in {known.name}{why}: cannot {what}; {known.clear}"
+
+    def _locked_reply(self, exc: FirmwareError, what: str) -> FirmwareError | ControllerLocked:
+        """A command the firmware refused with its lock error (grbl ``error:9``) as the
+        ``ControllerLocked`` it means; any other rejection unchanged."""
+        code = self.rules.lock_error
+        if code is None or exc.code != code:
+            return exc
+        known = self.controller or ControllerState("Alarm", str(exc))
+        if not known.locks_motion:  # jogging: G-code waits for the jog to end
+            return exc
+        return ControllerLocked(self._locked_message(known, what), field="controller", value=known.state)
 
     def unlock(self) -> None:
-        """``$X``: leave grbl's Alarm lock (the position may be wrong: home when you can)."""
+        """``$X``: leave grbl's Alarm lock (the position may be wrong: home when you can).
+        ``MachineStateError`` on a firmware without an alarm lock (Marlin)."""
+        command = self.rules.unlock_command
+        if command is None:
+            raise MachineStateError(f"{self.dialect} has no alarm lock to clear", field="dialect",
+                                    value=self.dialect)
         self._claim("busy")
         try:
-            self.link.send("$X", self.timeout_s)
+            self.link.send(command, self.timeout_s)
+            self.link.query_status()  # the state after the unlock, for status()
         finally:
             self._release()
 
@@ -94,7 +132,7 @@ class GrblOperations:
         locked with ``error:9`` while grbl jogs)."""
         feed = feed_mm_min or self.profile.travel_feed_mm_min
         words = "".join(f" {a}{v:.4f}" for a, v in zip("XYZ", (x, y, z)) if v)
-        self._claim("busy")
+        self._claim_motion("busy", "jog")
         try:
             self.link.send(f"$J=G91{words} F{feed:.1f}", self.timeout_s)
             self._wait_not_jogging()

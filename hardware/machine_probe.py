@@ -32,7 +32,7 @@ class ProbeOperations:
             raise InvalidConfig("z_min must be below z_start", field="z_min", value=z_min)
         kind = p.probe_command or self.rules.probe_command
         travel = p.travel_feed_mm_min
-        self._claim("busy")
+        self._claim_motion("busy", "probe")
         try:
             self._run(["G90", f"G1 Z{z_start:.4f} F{travel:.1f}",
                        f"G1 X{x:.4f} Y{y:.4f} F{travel:.1f}"])
@@ -99,7 +99,7 @@ class ProbeOperations:
         travel = p.travel_feed_mm_min
         sx, sy, sz = start
         back = f"G1 X{sx:.4f} Y{sy:.4f} Z{sz:.4f} F{travel:.1f}"
-        self._claim("busy")
+        self._claim_motion("busy", "probe")
         try:
             here = self._position()
             self._run(["G90", f"G1 Z{max(here[2], sz):.4f} F{travel:.1f}",

@@ -4,14 +4,16 @@ planned), and draining the lines a controller still runs after it rejected one."
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
+from dataclasses import replace
 
 from .errors import FirmwareError, FirmwareReset, HardwareError
 from .events import PositionReport
 from .machine_types import ReportEvidence
-from .resume import (ResumeLocation, command_feeds, end_positions, executed_bound, locate_by_position,
-                     locate_by_report, modal_preamble, planner_blocks)
+from .resume import (POSITION_TOLERANCE_MM, ResumeLocation, command_feeds, count_moves, end_positions, executed_bound,
+                     locate_by_position, locate_by_report, modal_preamble, planner_blocks)
 
 
 class ResumeOperations:
@@ -30,14 +32,22 @@ class ResumeOperations:
             self.link.send(command, self.timeout_s * 10)
         self.last_preamble = preamble
 
+    @property
+    def held_moves(self) -> int:
+        """Acknowledged moves the controller may hold unmoved: its planner's blocks plus what
+        its stepper holds after the planner released them (``Dialect.stepper_queue``: grbl's
+        step segments, each possibly the end of another short block)."""
+        return self.planner_blocks + self.rules.stepper_queue
+
     def _moved_bound(self, commands: list[str], acked: int, seqs: dict[int, int]) -> int:
-        """First command not known to have *moved* (``ok`` = planned): from the planner's
-        capacity, tightened by the last grbl status report (Idle: nothing planned; ``Bf:``
-        free blocks) that came after some of the acknowledgements."""
+        """First command not known to have *moved* (``ok`` = planned): from what the
+        controller can hold (``held_moves``), tightened by the last grbl status report (Idle:
+        nothing held; ``Bf:`` free planner blocks, plus the stepper's) that came after some
+        of the acknowledgements."""
         p = self.profile
         self._resume_commands = list(commands)  # for locate_resume after the reconnect
         blocks = planner_blocks(commands, p.dispense_on, p.dispense_off)
-        bound = executed_bound(blocks, acked, self.planner_blocks)
+        bound = executed_bound(blocks, acked, self.held_moves)
         marks = list(self.link.status_marks) if self.link is not None else []
         for status, completed, _ in reversed(marks):
             done = [i for i, seq in seqs.items() if seq is not None and seq <= completed]
@@ -47,9 +57,9 @@ class ResumeOperations:
             if status.state.split(":")[0] in ("Idle", "Alarm", "Check"):
                 pending = 0
             elif "," in free:
-                pending = max(self.planner_blocks - int(free.split(",")[0]), 0)
+                pending = max(self.planner_blocks - int(free.split(",")[0]), 0) + self.rules.stepper_queue
             else:
-                pending = self.planner_blocks
+                pending = self.held_moves
             return max(bound, executed_bound(blocks, max(done) + 1, pending))
         return bound
 
@@ -114,20 +124,39 @@ class ResumeOperations:
             found = self._locate_by_position(bound, gap.acked_index, sent, gap.total)
             if found.basis == "planner bound" and gap.report is not None:
                 found = self._locate_by_report(found, gap.report, sent, gap.total)
+        found = self._with_repeats(found, gap.acked_index + len(gap.inflight))
         self.last_resume = found
         return found
+
+    def _with_repeats(self, found: ResumeLocation, sent: int) -> ResumeLocation:
+        """``found`` with what may run twice counted: by line numbers nothing; by position the
+        move the tool stood in; by a reported position its bound; by the planner bound every
+        command from the start up to the last one sent (any of them may have moved)."""
+        if found.basis == "line numbers":
+            last = found.start
+        elif found.basis == "position":
+            last = found.start + 1
+        elif found.basis == "reported position" and found.repeat_bound_lines is not None:
+            last = found.start + found.repeat_bound_lines
+        else:
+            last = max(sent, found.start)
+        commands = getattr(self, "_resume_commands", None) or []
+        last = min(last, len(commands)) if commands else last
+        moves = count_moves(commands[found.start:last]) if commands else last - found.start
+        return replace(found, repeats=max(last - found.start, 0), repeat_moves=moves)
 
     def _locate_by_report(self, fallback: ResumeLocation, report: ReportEvidence, sent: int,
                           total: int) -> ResumeLocation:
         """The controller lost its position: place the last position it reported while
-        streaming on the program (``hardware.resume.locate_by_report``); the start is never
-        before the planner bound (both are sound: the later one wins)."""
+        streaming on the program (``hardware.resume.locate_by_report``).  A real position is
+        evidence: it is used whether it lies after the bound (fewer repeats) or before it
+        (the bound assumed less was held than really was: resume earlier, never skip)."""
         commands = getattr(self, "_resume_commands", None)
         if commands is None or len(commands) != total:
             return fallback
         p = self.profile
         blocks = planner_blocks(commands, p.dispense_on, p.dispense_off)
-        lo = executed_bound(blocks, report.acked_index, self.planner_blocks)
+        lo = executed_bound(blocks, report.acked_index, self.held_moves)
         stopped = report.stopped_at if report.stopped_at is not None else getattr(self, "_connected_at", time.monotonic())
         seconds = max(stopped - report.asked_at, 0.0)
         ends = end_positions(commands, p.dispense_on, p.dispense_off, start=report.origin)
@@ -139,19 +168,20 @@ class ResumeOperations:
             return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
                                   f"{where} may lie on the program's opening move, whose start is not known")
         found = locate_by_report(ends, command_feeds(commands, p.dispense_on, p.dispense_off), report.position,
-                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index)
+                                 lo, max(sent, fallback.start), seconds, acked=report.acked_index,
+                                 origin=report.origin)
         if found is None:
             return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
                                   f"{where} is not at one place of commands {lo}..{max(sent, fallback.start)}")
-        if found.start < fallback.start:
-            return ResumeLocation(fallback.start, fallback.basis, f"{fallback.detail}; the last reported position "
-                                  f"{where} (command {found.start}) is older than the planner bound")
+        found = _not_past_a_move_end(found, ends, report.position, lo)
+        behind = "" if found.start >= fallback.start else \
+            "; it lies before the planner bound, so the resume starts there (earlier)"
         mm = "the path up to the last command sent" if found.after_mm is None else f"{found.after_mm:.3f} mm"
         total_mm = "" if found.bound_mm is None else f"{found.bound_mm:.3f} mm, "
         detail = (f"the controller reset; {seconds * 1000:.0f} ms before it stopped the tool was reported at "
                   f"{where}, in command {found.start}: at most {total_mm}{found.bound_lines} commands may run "
                   f"twice ({found.before_mm:.3f} mm of command {found.start} before that point, then at most "
-                  f"{mm} of motion up to the reset); the planner bound was command {fallback.start}")
+                  f"{mm} of motion up to the reset); the planner bound was command {fallback.start}{behind}")
         return ResumeLocation(found.start, "reported position", detail, found.bound_mm, found.bound_lines)
 
     def _locate_by_position(self, bound: int, acked: int, sent: int, total: int) -> ResumeLocation:
@@ -207,3 +237,19 @@ class ResumeOperations:
             executed = index + 1
         self.rejected_lines = rejected
         return executed
+
+
+def _not_past_a_move_end(found, ends, position, lo):  # type: ignore[no-untyped-def]
+    """A tool *moving* when reported and within the tolerance of a move's end may still be
+    finishing that move (the report rounds, the tolerance is wider than a step): resume at
+    that move, not after it (it runs again whole; never a step of it skipped)."""
+    start = found.start
+    while start > lo and ends[start - 1] is not None and math.dist(ends[start - 1], position) <= POSITION_TOLERANCE_MM:
+        start -= 1
+    if start == found.start:
+        return found
+    again = sum(math.dist(ends[k - 1], ends[k]) for k in range(start, found.start) if k > 0
+                and ends[k - 1] is not None and ends[k] is not None)
+    return replace(found, start=start, bound_lines=found.bound_lines + found.start - start,
+                   bound_mm=None if found.bound_mm is None else found.bound_mm + again,
+                   before_mm=found.before_mm + again)

@@ -343,3 +343,16 @@ def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:
     if text.startswith("X:") and _AXIS.match(text):
         return _parse_position(raw, text)
     return Unknown(text, raw=raw)
+
+
+def dwell_budget_s(commands: Iterable[str]) -> float:
+    """Seconds of grbl ``G4`` dwell among ``commands`` (P is seconds; an unreadable P: 60)."""
+    total = 0.0
+    for command in commands:
+        words = command.upper().replace(" ", "")
+        if words.startswith("G4P"):
+            try:
+                total += float(words[3:])
+            except ValueError:
+                total += 60.0
+    return total

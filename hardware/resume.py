@@ -136,27 +136,58 @@ POSITION_TOLERANCE_MM = 0.01  # a reported position this close to the programmed
 
 @dataclass(frozen=True)
 class ResumeLocation:
-    """Where a resumed program starts and why.
+    """Where a resumed program starts and why, and what may run twice.
 
     start: first command to send; basis: "line numbers" (Marlin kept running and counting:
     exact), "position" (the controller kept its position and it lies on exactly one place
     of the path: at most the move it was cut in runs again), "reported position" (the
     controller reset; the last real position it reported while streaming lies on one place
     of the path: what may run twice is bounded by ``repeat_bound_mm`` / ``repeat_bound_lines``)
-    or "planner bound" (nothing better is known: up to a planner's worth of short moves may
-    run twice); detail: the evidence, for the operator."""
+    or "planner bound" (nothing better is known: everything the controller could hold
+    acknowledged but unmoved, planner blocks and stepper segments, runs again); detail: the
+    evidence, for the operator.  ``repeats``: commands from ``start`` on that may already
+    have run (they run again), ``repeat_moves`` the moves among them; nothing is skipped:
+    every command before ``start`` is known to have completed."""
 
     start: int
     basis: str
     detail: str
     repeat_bound_mm: float | None = None  # "reported position": what may run twice, mm ...
     repeat_bound_lines: int | None = None  # ... and commands (whole or in part)
+    repeats: int = 0
+    repeat_moves: int = 0
+
+    def summary(self) -> str:
+        """One sentence for the operator before confirming."""
+        if self.repeats == 0:
+            again = "no command runs twice"
+        else:
+            again = (f"commands {self.start + 1}..{self.start + self.repeats} may run a second time "
+                     f"({self.repeat_moves} move{'s' if self.repeat_moves != 1 else ''})")
+        return (f"resumes at command {self.start + 1} (by {self.basis}); {again}; none is skipped: "
+                f"every command before it is known to have completed")
 
     def as_dict(self) -> dict:
-        out: dict = {"start": self.start, "basis": self.basis, "detail": self.detail}
+        out: dict = {"start": self.start, "basis": self.basis, "detail": self.detail,
+                     "repeats": self.repeats, "repeat_moves": self.repeat_moves, "skipped": 0,
+                     "summary": self.summary()}
         if self.basis == "reported position":
             out |= {"repeat_bound_mm": self.repeat_bound_mm, "repeat_bound_lines": self.repeat_bound_lines}
         return out
+
+
+def count_moves(commands: list[str]) -> int:
+    """Commands among ``commands`` that move the tool (motion words with an axis)."""
+    state = ModalState()
+    moves = 0
+    for command in commands:
+        text = command.upper()
+        before = state.motion
+        state.update(command)
+        motion = state.motion or before
+        has_axis = any(letter in "XYZ" for letter, _ in _WORD.findall(text.replace(" ", "")))
+        moves += int(has_axis and motion is not None and not any(g in text for g in ("G4", "G92", "G10")))
+    return moves
 
 
 def end_positions(commands: list[str], dispense_on: str = "", dispense_off: str = "",
@@ -192,13 +223,14 @@ def _distance_to_segment(p: tuple[float, ...], a: tuple[float, ...], b: tuple[fl
 
 def locate_by_position(ends: list[tuple[float, float, float] | None], position: tuple[float, float, float],
                        lo: int, hi: int, tolerance_mm: float = POSITION_TOLERANCE_MM,
-                       acked: int = 0) -> int | None:
+                       acked: int = 0, origin: tuple[float, float, float] | None = None) -> int | None:
     """First command not completed when the tool stands still at ``position`` (mm), knowing
     that commands [0, lo) completed and commands [hi, ...) never reached the controller;
     ``ends`` from :func:`end_positions`.  None when that is not one answer.
 
-    The tool at the end of move k (the position after command k) means k completed: the
-    answer is k + 1, or later over the commands after k that do not move (a dispenser
+    The tool at the end of move k (the position after command k) means k completed when k
+    moved it there (a command that moves nothing may not have run: k itself is an answer
+    too; ``origin``: where the tool stood before command 0, when known): the answer is k + 1, or later over the commands after k that do not move (a dispenser
     switch, a dwell) and were acknowledged (``acked``: commands [0, acked) were; such a
     command ran when it was answered); the others are sent again rather than skipped.  The tool strictly inside move k's straight segment means k
     was cut: the answer is k (the resume's modal replay goes back to k's start point; the
@@ -211,8 +243,8 @@ def locate_by_position(ends: list[tuple[float, float, float] | None], position: 
     if lo > hi:
         return None
     answers: set[int] = set()
-    previous = ends[lo - 1] if lo > 0 else None
-    if lo > 0 and previous is not None and math.dist(previous, position) <= tolerance_mm:
+    previous = ends[lo - 1] if lo > 0 else origin
+    if previous is not None and math.dist(previous, position) <= tolerance_mm:
         answers.add(lo)  # nothing of the window moved yet
     known = any(e is not None for e in ends[:lo])
     for k in range(lo, hi):
@@ -224,6 +256,8 @@ def locate_by_position(ends: list[tuple[float, float, float] | None], position: 
         known = True
         if math.dist(end, position) <= tolerance_mm:
             answers.add(k + 1)
+            if previous is not None and math.dist(previous, end) <= tolerance_mm:
+                answers.add(k)  # k moves nothing: the tool there does not prove that it ran
         elif previous is not None and _distance_to_segment(position, previous, end) <= tolerance_mm:
             answers.add(k)
         previous = end
@@ -264,7 +298,8 @@ class ReportedResume:
 
 def locate_by_report(ends: list[tuple[float, float, float] | None], feeds: list[float | None],
                      position: tuple[float, float, float], lo: int, hi: int, seconds: float,
-                     acked: int = 0, tolerance_mm: float = POSITION_TOLERANCE_MM) -> ReportedResume | None:
+                     acked: int = 0, tolerance_mm: float = POSITION_TOLERANCE_MM,
+                     origin: tuple[float, float, float] | None = None) -> ReportedResume | None:
     """The tool was at ``position`` (a real-position report) when commands [0, lo) had
     surely completed and commands [hi, ...) were not sent; it then moved for at most
     ``seconds`` (until the controller reset) along the program.  Resuming at the command
@@ -273,7 +308,7 @@ def locate_by_report(ends: list[tuple[float, float, float] | None], feeds: list[
     the commands from there to ``hi`` during ``seconds`` (a rapid in between: unbounded by
     time, the path up to ``hi``), walked along the path.  None when the position is not on
     exactly one place of the window."""
-    start = locate_by_position(ends, position, lo, hi, tolerance_mm, acked=acked)
+    start = locate_by_position(ends, position, lo, hi, tolerance_mm, acked=acked, origin=origin)
     if start is None:
         return None
     hi = min(hi, len(ends))

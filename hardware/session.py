@@ -9,12 +9,12 @@ no lock, no clock (every time is the caller's ``now``, ``time.monotonic()`` seco
 ``hardware.link.Link`` owns the port, the reader thread and the lock and applies the
 actions (``hardware.session_types``) in order.  What the session decides (see the link's
 module docstring for the protocol): correlation of replies to the oldest unacknowledged
-command, Marlin ``ok N`` (ADVANCED_OK) covering every earlier line, resend requests and the
-one-at-a-time replay, transmission errors, command errors (Marlin still sends ``ok``; grbl's
-``error:N`` is the answer), alarms, restarts (a banner after the first answer fails every
-command in flight), stalls (Marlin replays or sends ``M114``; grbl ``?`` and a ``$G``
-marker whose ``[GC:]`` settles lost ``ok``s), the fallback to ping-pong, and the windowed
-flow control (``window_open``).  Dialect differences are fields of ``hardware.dialects``.
+command, Marlin ``ok N`` covering every earlier line, resends replayed one at a time,
+command errors (Marlin still sends ``ok``; grbl's ``error:N`` is the answer), alarms and the
+controller's own state (``hardware.controller_state``), restarts (a banner flushes the
+host's markers; after the first answer it fails every command in flight), stalls (Marlin
+replays or sends ``M114``; grbl ``?`` and a ``$G`` marker whose ``[GC:]`` settles lost
+``ok``s), the fallback to ping-pong and the windowed flow control (``window_open``).
 """
 
 from __future__ import annotations
@@ -25,8 +25,9 @@ from .dialects import Dialect
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
 from .events import (Alarm, Busy, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
                      ReplyEvent, Resend, StartBanner, StatusReport, Unknown)
-from .protocol import frame, parse_reply
+from .protocol import dwell_budget_s, frame, parse_reply
 from .reports import PositionMark, PositionTracker
+from .controller_state import ControllerState, next_controller_state
 from .session_types import Action, Command, Complete, Halt, Observed, Position, Write
 
 WINDOWS = ("pingpong", "windowed")
@@ -50,9 +51,8 @@ class ReplySession:
         self.command_buffer = command_buffer
         self.rx_buffer = rx_buffer
         self.poke_s = poke_s
-        self.fallbacks: list[str] = []
-        self.stats = {"sent": 0, "resends": 0, "pokes": 0, "ignored_resends": 0,
-                      "assumed_ok": 0, "retries": 0}
+        self.fallbacks: list[str] = []  # why the link fell back to ping-pong
+        self.stats = {"sent": 0, "resends": 0, "pokes": 0, "ignored_resends": 0, "assumed_ok": 0, "retries": 0}
         self.unsolicited: deque[ReplyEvent] = deque(maxlen=200)
         self.outstanding: deque[Command] = deque()
         self.history: OrderedDict[int, Command] = OrderedDict()
@@ -63,17 +63,16 @@ class ReplySession:
         self.status_seq = 0
         self.last_status: StatusReport | None = None
         self.status_marks: deque[tuple[StatusReport, int, float]] = deque(maxlen=64)
+        self.controller: ControllerState | None = None  # the firmware's own state (grbl)
         self.completed = 0  # commands answered so far (Command.seq)
         self._swallow = False  # the plain ok right after a Resend belongs to the request
         self._guard: list[int] | None = None
         self._replay: deque[int] = deque()
         self._replay_inflight: int | None = None
-        self._answered = False
-        self._last_rx = now
-        self._last_ack = now
-        self._last_answer = now
-        self._rtt = 0.002
-        self._pokes_in_row = 0
+        self._answered = False  # a first answer came (a later banner is a restart)
+        # last reply, last time the host began to wait (an idle link owes nothing), last ack/answer
+        self._last_rx = self._waiting_since = self._last_ack = self._last_answer = now
+        self._rtt, self._pokes_in_row = 0.002, 0
         self._expect_banner_until: float | None = None
         self._actions: list[Action] = []
         self.reports = PositionTracker(rules)
@@ -121,6 +120,7 @@ class ReplySession:
         command = Command(text, line_no, data, internal, t_sent=now, sync=sync)
         if not self.outstanding:
             self._last_ack = now
+            self._waiting_since = now  # an idle firmware owed nothing until now
         self.outstanding.append(command)
         if line_no is not None:
             self.history[line_no] = command
@@ -196,6 +196,8 @@ class ReplySession:
                 return self._take()  # the S_XYZ line after an S000 answer (hardware.reports)
         if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
             self._answered = True
+        if self.rules.position_by_status:  # the firmware's own state (Marlin reports none)
+            self.controller = next_controller_state(self.controller, event, now, self.rules.lock_error)
         swallow, self._swallow = self._swallow, False
         if isinstance(event, Ok):
             self._on_ok(event, now, swallow)
@@ -352,13 +354,26 @@ class ReplySession:
             self.unsolicited.append(event)
 
     def _on_banner(self, event: StartBanner, now: float) -> None:
+        """The controller (re)started and flushed its receive buffer: the host's own markers
+        are forgotten (never matched to a later reply); an announced reset fails what is
+        still in flight, an unannounced one with commands in flight fails the session."""
         self.next_line = 1
         self._swallow = False
         self._guard = None
         self._replay.clear()
         self._replay_inflight = None
+        self.reports.flushed()
+        own = tuple(c for c in self.outstanding if c.internal)
+        self.outstanding = deque(c for c in self.outstanding if not c.internal)
+        for command in own:
+            command.status = "failed"
+        if own:
+            self._actions.append(Halt(own, FirmwareReset("the controller reset: the host's own request was flushed")))
         if self._expect_banner_until is not None:  # the reset grbl announced ($C, homing)
             self._expect_banner_until = None
+            if self.outstanding:
+                self._drop(FirmwareReset("the controller reset itself (announced): the command was "
+                                         "flushed with its receive buffer", last_line=self.last_acked_line()))
             self.unsolicited.append(event)
             return
         if self.outstanding and self._answered:  # a restart, not the boot banner of open()
@@ -420,12 +435,18 @@ class ReplySession:
         return self._take()
 
     # ------------------------------------------------------------------ stalls
+    def silent_s(self, now: float) -> float:
+        """Seconds the firmware owes an answer without a sign of life: since its last parsed
+        reply or, later, the first command sent into an idle link (an idle grbl or Marlin
+        says nothing unless asked: that silence is no evidence of a dead link)."""
+        return now - max(self._last_rx, self._waiting_since)
+
     def timeout(self, now: float) -> list[Action]:
-        """The reader saw nothing: fail after ``timeout_s`` of silence with commands in
-        flight; poke a stalled firmware (backing off, never later than ``timeout_s / 3``)."""
+        """The reader saw nothing: fail after ``timeout_s`` of ``silent_s``; poke a stalled
+        firmware (backing off, never later than ``timeout_s / 3``)."""
         if not self.outstanding or self.fatal is not None:
             return self._take()
-        if now - self._last_rx > self.timeout_s:
+        if self.silent_s(now) > self.timeout_s:
             self._fail(LinkError(f"no reply for {self.timeout_s} s", field="timeout_s",
                                  last_line=self.last_acked_line()), now)
             return self._take()
@@ -467,23 +488,11 @@ class ReplySession:
             elif status.state.split(":")[0] in ("Idle", "Alarm", "Check"):
                 # not moving and not parsing: after every outstanding dwell has surely
                 # ended, nothing can be left unread in its buffer
-                room = now - self._last_answer > self._dwell_budget_s() + 4 * self.poke_s \
+                room = now - self._last_answer > dwell_budget_s(p.command for p in self.outstanding) + 4 * self.poke_s \
                     and seen_at > self._last_answer
         if room:
             marker = self._send(marker_text, now, internal=True)
             marker.marker = True
-
-    def _dwell_budget_s(self) -> float:
-        """Seconds of ``G4`` dwell among the outstanding commands (grbl P is seconds)."""
-        total = 0.0
-        for command in self.outstanding:
-            words = command.command.upper().replace(" ", "")
-            if words.startswith("G4P"):
-                try:
-                    total += float(words[3:])
-                except ValueError:
-                    total += 60.0
-        return total
 
     def _fallback(self, reason: str) -> None:
         if self.mode != "pingpong":

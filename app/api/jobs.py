@@ -17,8 +17,8 @@ from app.api.job_events import JobWatch, TooManyStreams
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
 from app.jobs.results import ProgramEcho
 from app.errors import Conflict, InvalidInput, NotFound
-from app.jobs.machine_jobs import request_resume
-from app.models import Artifact, Job, JobReference, Trace
+from app.jobs.machine_jobs import request_resume, resume_preview
+from app.models import Artifact, Job, JobReference, Machine, Trace
 from app.problems import PROBLEM_MEDIA_TYPE, problem
 from app.records import get_or_404
 
@@ -184,6 +184,22 @@ def artifact_summary(job_id: str, name: str, runtime: RuntimeDep, session: Sessi
 
 
 _SUMMARIES: dict[tuple, dict] = {}  # by content (and frame): a program's summary never changes
+
+
+@router.get("/{job_id}/resume", dependencies=[Operator],
+            responses={409: {"description": "the job is not interrupted, or not a machine job"}})
+def preview_resume(job_id: str, runtime: RuntimeDep, session: SessionDep) -> dict:
+    """What ``POST /jobs/{id}/resume`` will do, before the operator confirms: the command it
+    resumes at (``line``), the ``basis`` and its ``detail``, the commands (``repeats``) and
+    moves (``repeat_moves``) that may run a second time, ``skipped: 0`` and a ``summary``.
+    Reconnects a machine whose link was lost (no motion) to ask where it stands."""
+    job = get_or_404(session, Job, job_id)
+    machine_id = (job.params or {}).get("machine_id")
+    if job.status != "interrupted" or not machine_id:
+        raise Conflict(f"job {job_id!r} is {job.status}, not an interrupted machine job: nothing to resume",
+                       field="job_id", value=job_id)
+    row = get_or_404(session, Machine, machine_id)
+    return resume_preview(runtime, job, row)
 
 
 @router.post("/{job_id}/resume", status_code=202, dependencies=[Operator],

@@ -231,6 +231,17 @@ class ProgramState(BaseModel):
     total: int | None
 
 
+class ControllerOut(BaseModel):
+    """The firmware's own state (grbl): ``state`` (Idle, Run, Hold, Jog, Alarm, Door, Check,
+    Home, Sleep), ``detail`` as reported (``Hold:0``), ``reason`` (the alarm, e.g. ``ALARM:5
+    Probe fail...``) and ``clear``: how an operator clears a state that refuses motion."""
+
+    state: str
+    detail: str
+    reason: str | None = None
+    clear: str | None = None
+
+
 class MachineOut(BaseModel):
     id: str
     name: str
@@ -246,6 +257,9 @@ class MachineOut(BaseModel):
     position: list[float] | None
     program: ProgramState | None
     firmware: str | None = None
+    controller: ControllerOut | None = Field(
+        None, description="the firmware's own state when it reports one (grbl); an Alarm, Hold, Door or "
+        "Check refuses motion (409) until cleared as ``clear`` says")
 
 
 class PrintRequest(Strict):
@@ -274,6 +288,13 @@ class JogRequest(BaseModel):
     dz_mm: float = Field(0.0, ge=-100.0, le=100.0, allow_inf_nan=False)
     feed_mm_min: float | None = Field(None, gt=0, le=10_000, allow_inf_nan=False,
                                       description="default: the profile's travel feed")
+
+
+class UnlockRequest(Strict):
+    """The operator's confirmation that the machine was checked before its alarm lock is
+    cleared (grbl ``$X``: the position may be wrong after an alarm; home when you can)."""
+
+    confirm: Literal[True] = Field(description="true: I checked the machine; clear its alarm lock")
 
 
 class ConsoleRequest(BaseModel):

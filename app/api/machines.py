@@ -22,8 +22,9 @@ from sqlmodel import Session, select
 from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.jobs import load_job_out
-from app.api.machine_schemas import (CalibrationOut, ConsoleOut, ConsoleRequest, JogRequest, MachineCreate, MachineOut,
-                                     MockSettings, PrintRequest, ProgramState, StopOut)
+from app.api.machine_schemas import (CalibrationOut, ConsoleOut, ConsoleRequest, ControllerOut, JogRequest,
+                                     MachineCreate, MachineOut, MockSettings, PrintRequest, ProgramState, StopOut,
+                                     UnlockRequest)
 from app.api.schemas import JobOut, Page
 from app.errors import Conflict, InvalidInput, NotFound
 from app.jobs.calibration import calibration_summary, current_calibration, machine_profile
@@ -60,8 +61,10 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
         if world is not None:
             mock.update(executed_commands=world.executed_count, executed_sha256=world.executed_sha256,
                         deposited_moves=len(world.deposition_log))
+    known = getattr(live, "controller", None) if live is not None and state != "disconnected" else None
     return MachineOut(**row.model_dump(exclude={"mock"}), mock=mock, state=state, position=position,
-                      program=program, firmware=live.identity.firmware if live is not None and live.identity else None)
+                      program=program, firmware=live.identity.firmware if live is not None and live.identity else None,
+                      controller=ControllerOut(**known.as_dict()) if known is not None else None)
 
 
 @router.post("", status_code=201, dependencies=[Operator])
@@ -227,6 +230,22 @@ def home_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> M
     machine = runtime.machines.require(machine_id)
     with hardware_errors():
         machine.home()
+    return machine_out(runtime, row)
+
+
+@router.post("/{machine_id}/unlock", dependencies=[Operator])
+def unlock_machine(machine_id: str, body: UnlockRequest, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Clear the controller's alarm lock (grbl ``$X``) once the operator confirms the machine
+    was checked; 409 while a program holds the machine, when it is not connected or its
+    firmware has no alarm lock (Marlin)."""
+    row = get_or_404(session, Machine, machine_id)
+    _free(runtime, machine_id)
+    machine = runtime.machines.require(machine_id)
+    if not hasattr(machine, "unlock"):
+        raise Conflict(f"machine {machine_id!r} ({row.dialect}) has no alarm lock to clear", field="dialect",
+                       value=row.dialect)
+    with hardware_errors():
+        machine.unlock()
     return machine_out(runtime, row)
 
 

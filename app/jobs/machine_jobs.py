@@ -166,6 +166,34 @@ def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[st
     return start, [home]
 
 
+def resume_preview(runtime: "Runtime", job: Job, row: Any) -> dict[str, Any]:
+    """What an operator's resume of the interrupted ``job`` will do, before it moves anything:
+    the command it resumes at (``start``, 0-based; ``line`` 1-based), the ``basis``, the
+    commands and moves that may run again and ``skipped: 0``, with a ``summary`` sentence.
+    For a print whose machine still knows the interrupted program, the machine is reconnected
+    if its link was lost (no motion: grbl resets on connect, Marlin keeps running) and asked
+    where it stands (``Machine.locate_resume``: the resume itself then continues there);
+    otherwise the recorded count, which the resume confirms with the machine."""
+    state = job.program_state or {}
+    total = state.get("total")
+    machine = runtime.machines.get(row.id)
+    gap = getattr(machine, "interrupted_program", None)
+    if job.kind == "print" and machine is not None and gap is not None and hasattr(machine, "locate_resume"):
+        with hardware_errors():
+            if machine.state == "disconnected" or machine.link_lost:
+                runtime.machines.connect(row)
+            located = machine.locate_resume()
+        out = located.as_dict()
+        total = gap.total
+    else:
+        start = int(state.get("executed", 0))
+        out = {"start": start, "basis": "recorded count", "repeats": 0, "repeat_moves": 0, "skipped": 0,
+               "detail": "this process does not hold the interrupted program: the resume asks the machine again",
+               "summary": f"resumes at command {start + 1} as recorded (the machine is asked again when it "
+                          "resumes; it never starts later than what is known to have run)"}
+    return {"job_id": job.id, "machine_id": row.id, "total": total, "line": int(out["start"]) + 1, **out}
+
+
 def request_resume(store: "JobStore", job: Job) -> bool:
     """interrupted -> queued with the operator's request recorded in ``program_state``.
 

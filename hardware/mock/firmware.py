@@ -36,6 +36,7 @@ _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 KEEPALIVE_S = 2.0
 SLOW_S = 2.5
 UNDERRUN_WINDOW_S = 0.2
+SEGMENT_S = 0.01  # grbl's step segment: DT_SEGMENT, 1 / ACCELERATION_TICKS_PER_SECOND (100) s
 
 Wait = tuple  # ("until", t) | ("slot",) | ("drain",)
 
@@ -193,7 +194,7 @@ class FirmwareCore:
         if waiting[0] == "until":
             return waiting[1] <= now
         if waiting[0] == "slot":
-            return len(self.planner) < self.block_capacity()
+            return self.planner_room(now)
         return not self.planner  # "drain"
 
     def _next_time(self) -> float | None:
@@ -205,6 +206,8 @@ class FirmwareCore:
                 times.append(self.waiting[1])
             elif self.planner and self.held_since is None:
                 times.append(self.planner[0])
+                if self.waiting and self.waiting[0] == "slot" and self.world.segments:
+                    times.append(self.now + SEGMENT_S * self.scale)  # a block may leave at a segment
             if self.keepalive_at != float("inf"):
                 times.append(self.keepalive_at)
         return min(times) if times else None
@@ -260,7 +263,7 @@ class FirmwareCore:
     def plan_move(self, target: list[float], feed_mm_min: float, now: float
                   ) -> Generator[Wait, None, None]:
         """Wait for a free planner block, then plan a straight move to ``target``."""
-        if len(self.planner) >= self.block_capacity():
+        if not self.planner_room(self.clock()):
             yield ("slot",)
         start = tuple(self.position)
         length = math.dist(target, start)
@@ -375,6 +378,33 @@ class FirmwareCore:
         transcript ends at the last command whose motion completed (when it keeps texts)."""
         if self.world.transcript.keep:
             self.world.transcript.truncate(self.done_count(now))
+
+    def planner_room(self, now: float) -> bool:
+        """True when the planner has a free block at ``now``: blocks whose segments all sit
+        in the stepper's segment buffer (``world.segments``) no longer take one."""
+        return len(self.planner) - self.segmented(now) < self.block_capacity()
+
+    def segmented(self, now: float) -> int:
+        """Planned blocks (from the oldest) the planner has released at ``now``: ended, or
+        every segment prepared in the stepper's segment buffer (grbl ``st_prep_buffer``:
+        it keeps ``segments - 1`` segments of ``SEGMENT_S`` ready, the executing one
+        included; a block's last segment ends with the block, so a short block is one)."""
+        slots = self.world.segments - 1
+        if slots <= 0 or not self.planner:
+            return 0
+        t = self.held_since if self.held_since is not None else now
+        step = SEGMENT_S * self.scale
+        released, used = 0, 0
+        for (_, _, begin, _, _), end in zip(self.blocks, self.planner):
+            if end <= t:
+                released += 1  # moved already (the event loop retires it next)
+                continue
+            first = begin if begin >= t else begin + math.floor((t - begin) / step) * step
+            used += max(1, math.ceil((end - first) / step - 1e-9)) if step > 0 else 1
+            if used > slots:
+                break
+            released += 1
+        return released
 
     def block_capacity(self) -> int:
         """Planner blocks that can hold motion at once (grbl keeps one ring slot free)."""

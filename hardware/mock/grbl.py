@@ -2,7 +2,9 @@
 ``report.c``, ``motion_control.c`` and the "Grbl v1.1 Interface" document).
 
 * No line numbers or checksums; one ``ok`` or ``error:N`` per line, sent once the line is
-  parsed and its motion *planned* (the planner has ``planner_blocks`` - 1 usable blocks);
+  parsed and its motion *planned* (the planner has ``planner_blocks`` - 1 usable blocks; a
+  block leaves it once the stepper has prepared all its step segments, ``segment_buffer``
+  - 1 of 10 ms, so up to that many more acknowledged short moves wait unmoved there);
   the RX buffer (``rx_buffer``, 128 bytes) is what a character-counting host fills.
   ``error:1`` (no command letter) and ``error:2`` (bad number) come from the parser.
 * Real-time bytes are taken out of the stream on arrival: ``?`` status report, ``!`` feed
@@ -126,7 +128,7 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         kind = "MPos" if mask & 1 else "WPos"
         fields = [self.state_name(now), f"{kind}:{x:.3f},{y:.3f},{z:.3f}"]
         if mask & 2:
-            free_blocks = self.world.planner_blocks - 1 - len(self.planner)
+            free_blocks = self.world.planner_blocks - 1 - len(self.planner) + self.segmented(now)
             queued = len(self.rx) + sum(len(d) for _, d in self.wire)
             fields.append(f"Bf:{free_blocks},{self.world.rx_buffer - 1 - queued}")
         if self.world.line_numbers and self.blocks and self.blocks[0][1]:

@@ -10,7 +10,7 @@ URL form (every option optional)::
         &checksum_rate=0.01&drop_ok_rate=0&duplicate_ok_rate=0&resend_rate=0
         &garbage_rate=0&busy_rate=0&slow_rate=0&line_number_rate=0
         &disconnect_at_line=500&reset_at_line=900
-        &advanced_ok=1&latency_ms=1&rx_buffer=128&command_buffer=4&planner_blocks=16
+        &advanced_ok=1&latency_ms=1&rx_buffer=128&command_buffer=4&planner_blocks=16&segment_buffer=6
         &homing=0&homing_fails=0&fresh_eeprom=0&boot_s=0.5&line_numbers=0   (grbl)
         &stylus_radius_mm=0.5&pretravel_mm=0.015&pretravel_sd_mm=0.002
         &pretravel_lobing_mm=0.003&drift_mm_per_min=0.001&touchoff_sd_mm=0.001
@@ -187,6 +187,11 @@ class MockWorld:
     rx_buffer: int = 128
     command_buffer: int = 4
     planner_blocks: int = 16
+    # grbl's stepper segment buffer (SEGMENT_BUFFER_SIZE, 6 on the 328P; one ring slot stays
+    # free) of SEGMENT_S segments: a planner block is released once all its segments are
+    # prepared, before they move.  None: the dialect's (grbl 6; Marlin 0, its stepper runs the
+    # block in place in the planner ring)
+    segment_buffer: int | None = None
     bed_z: float = 0.0
     probe_z_min: float = -20.0
     rapid_feed_mm_min: float = 6000.0
@@ -234,6 +239,13 @@ class MockWorld:
         self.deposition_log: list[DepositedMove] = []
         self.stats = MockStats()
         self.firmware = None  # created by the first connection (hardware.mock.firmware)
+
+    @property
+    def segments(self) -> int:
+        """Stepper segment buffer size (see ``segment_buffer``; 0: none)."""
+        if self.segment_buffer is not None:
+            return self.segment_buffer
+        return dialect(self.dialect).stepper_queue
 
     @property
     def dispense_commands(self) -> tuple[str, str]:
@@ -286,7 +298,7 @@ _REGISTRY_LOCK = threading.Lock()
 _FAULT_KEYS = {f.name: f.type for f in fields(FaultConfig)}
 _WORLD_KEYS = {"dialect": str, "time_scale": float, "seed": int, "probe_noise_mm": float,
                "advanced_ok": bool, "latency_ms": float, "rx_buffer": int,
-               "command_buffer": int, "planner_blocks": int, "bed_z": float,
+               "command_buffer": int, "planner_blocks": int, "segment_buffer": int, "bed_z": float,
                "probe_z_min": float, "dispense_on": str, "dispense_off": str,
                "keep_transcript": bool, "homing": bool, "homing_fails": bool,
                "fresh_eeprom": bool, "boot_s": float, "line_numbers": bool,
@@ -363,7 +375,8 @@ def parse_mock_options(query: str) -> dict[str, object]:
                                 value=value)
         if key in ("time_scale", "latency_ms", "probe_noise_mm", "boot_s") and value < 0:
             raise InvalidConfig(f"mock option {key} must be >= 0", field=f"port.{key}", value=value)
-        if key in ("rx_buffer", "command_buffer", "planner_blocks") and value < 1:
+        if key in ("rx_buffer", "command_buffer", "planner_blocks") and value < 1 \
+                or key == "segment_buffer" and value < 0:
             raise InvalidConfig(f"mock option {key} must be >= 1", field=f"port.{key}", value=value)
         if key == "dialect" and value not in DIALECTS:
             raise InvalidConfig(f"unknown dialect {value!r}; expected one of {', '.join(DIALECTS)}",

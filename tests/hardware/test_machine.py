@@ -92,11 +92,12 @@ def _trial(make_world, rng: random.Random, trial: int) -> None:
     start = machine.resume_line()
     case = (dialect, window, kind, at, start, ran)
     assert start <= ran, case  # never skips a command that did not run
-    # "ok" = planned: after a reset up to a planner's worth of acknowledged moves may not
-    # have run, so that many may run twice; a Marlin that kept running is exact
+    # "ok" = planned: after a reset what the controller can hold (planner blocks and stepper
+    # segments) of acknowledged moves may not have run, so that many may run twice; a
+    # Marlin that kept running is exact
     if dialect == "marlin" and kind == "disconnect_at_line":
         assert start == ran, case
-    assert ran - start <= machine.planner_blocks + 2, case
+    assert ran - start <= machine.held_moves + 2, case
     report = machine.stream(program, start_line=start)
     assert report.executed == report.total == len(program)
     commands = normalized_commands(program)

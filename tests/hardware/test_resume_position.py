@@ -86,13 +86,15 @@ def test_marlin_that_kept_running_resumes_by_line_numbers_exactly(make_world, at
 def test_a_reset_loses_the_position_and_keeps_the_planner_bound_saying_so(make_world, dialect, at):
     """A controller reset zeroes the position (Marlin and grbl alike, on the mock as on real
     boards).  Marlin's default build reports nothing while streaming: the planner bound
-    stands and says why.  grbl's status reports during the stream may place the tool later
-    (``tests/hardware/test_resume_reported.py``); never earlier than the bound."""
+    stands and says why.  grbl's status reports during the stream place the tool
+    (``tests/hardware/test_resume_reported.py``), later than the bound or, when the report
+    is older than the bound, earlier (a real position is never discarded: resume earlier)."""
     found, bound, ran, executed, expected = cut_and_resume(make_world, dialect, "reset_at_line", at)
     if dialect == "marlin":
         assert found.basis == "planner bound" and "origin" in found.detail and found.start == bound
     else:
-        assert found.basis in ("planner bound", "reported position") and found.start >= bound, found
+        assert found.basis in ("planner bound", "reported position"), found
+        assert found.start >= bound or "before the planner bound" in found.detail, found
     assert found.start <= ran and executed == expected  # repeats (at most a planner's worth), never skips
 
 

@@ -69,6 +69,12 @@ function card(m) {
   const state = el("span", { class: `badge ${m.state}`, "data-state": m.state }, m.state);
   const pos = el("div", { class: "pos" }, position(m));
   const prog = el("div", { class: "small program" });
+  const controller = el("div", { class: "small controller", "aria-live": "polite" });
+  const unlock = el("button", { type: "button", class: "act-unlock", hidden: true,
+    onclick: () => guarded(`Unlock ${m.name}`, async () => {
+      if (!window.confirm(`Clear the alarm lock of ${m.name} ($X)? Check the machine first: after an alarm its position may be wrong (home when you can).`)) return;
+      update(await post(`machines/${m.id}/unlock`, { confirm: true }));
+    }) }, "Unlock ($X)");
   const estop = el("button", { class: "estop", "data-machine": m.id, title: "Emergency stop (out of band: M112 / grbl reset)",
     onclick: () => guarded(`EMERGENCY STOP ${m.name}`, async () => {
       const fresh = await post(`machines/${m.id}/stop`);
@@ -79,11 +85,11 @@ function card(m) {
   const programs = el("div", { class: "programs-body" }, programList(m, shownPrograms, () => refresh()));
   const node = el("section", { class: "machine-card", "data-id": m.id },
     el("h2", {}, m.name, " ", state), el("div", { class: "small mono" }, `${m.id} · ${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
-    pos, prog, bar, estop,
+    pos, controller, unlock, prog, bar, estop,
     el("div", { class: "row" }, act(m, "connect", "Connect"), act(m, "disconnect", "Disconnect"), act(m, "pause", "Pause"), act(m, "resume", "Resume")),
     el("details", { class: "programs", open: true }, el("summary", {}, "Programs"), programs),
     manualControls(m));
-  cards.set(m.id, { node, state, pos, prog, bar, programs, machine: m });
+  cards.set(m.id, { node, state, pos, prog, bar, programs, controller, unlock, machine: m });
   update(m);
   return node;
 }
@@ -139,6 +145,11 @@ function update(m) {
   c.state.dataset.state = m.state;
   c.state.textContent = m.state;
   c.pos.textContent = position(m);
+  // the firmware's own state (grbl): an Alarm, Hold, Door or Check refuses motion until cleared
+  const k = m.controller;
+  c.controller.textContent = k ? `controller: ${k.detail}${k.reason ? ` (${k.reason})` : ""}${k.clear ? ` — to clear: ${k.clear}` : ""}` : "";
+  c.controller.dataset.state = k ? k.state : "";
+  c.unlock.hidden = !(k && k.state === "Alarm");
   const p = m.program;
   const line = p ? (p.executed ?? p.line) : null;
   c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +

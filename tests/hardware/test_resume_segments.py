@@ -1,0 +1,129 @@
+"""Resume after controller resets never skips a move, with grbl's real buffers on the mock.
+
+grbl 1.1 acknowledges a line once its motion is *planned*; the planner holds ``[OPT:V,15,..]``
+blocks, and the stepper releases a block from the planner as soon as it has prepared all of
+its 10 ms step segments (SEGMENT_BUFFER_SIZE 6 on the 328P), before they move.  So up to 15
+blocks plus a segment buffer of short moves are acknowledged and unmoved when the board
+resets.  The mock's grbl models that buffer: a bound of 15 alone skips moves on it, as it did
+on the real firmware; the machine's bound (planner plus stepper, per dialect) and the last
+reported position never do, and the resume states how many commands may run again.
+"""
+
+from __future__ import annotations
+
+import random
+import threading
+import time
+
+import pytest
+
+from hardware.dialects import GRBL
+from hardware.errors import LinkError
+from hardware.machine import Machine, MachineProfile
+from hardware.protocol import normalized_commands
+from hardware.resume import ResumeLocation, executed_bound, modal_preamble, planner_blocks
+
+PROFILE = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
+
+
+def short_moves(count: int) -> list[str]:
+    """0.08 mm moves at 10 mm/s (8 ms each: one step segment apiece), x always increasing,
+    so no place of the path is visited twice and every segment slot holds another block."""
+    moves = [f"G1 X{i * 0.08:.2f} Y{0.05 * (i % 2):.2f}" for i in range(1, count + 1)]
+    return ["G21", "G90", "G1 X0 Y0 Z1 F600", *moves, "G4 P0"]
+
+
+def grbl(make_world, time_scale: float = 1.0) -> tuple[Machine, object]:
+    url, world = make_world(dialect="grbl", time_scale=time_scale, boot_s=0.02)
+    m = Machine(url, "grbl", PROFILE, timeout_s=10, boot_wait_s=0.5, boot_quiet_s=0.01, poke_s=0.5)
+    m.connect()
+    world.transcript.reset()
+    return m, world
+
+
+def stream_until_reset(m: Machine, world, lines: list[str], start: int, after_s: float) -> bool:
+    """Stream from ``start``; the controller resets ``after_s`` later.  False when the
+    program ended first."""
+    timer = threading.Timer(after_s, world.reset_controller)
+    timer.start()
+    try:
+        m.stream(lines, start_line=start)
+    except LinkError:
+        return True
+    finally:
+        timer.cancel()
+    return False
+
+
+def reset_when_held(world, held: int, limit_s: float = 5.0) -> threading.Thread:
+    """A thread that resets the controller as soon as its planner holds ``held`` blocks
+    (the mock's truth: acknowledged, planned and not finished)."""
+    def watch() -> None:
+        deadline = time.monotonic() + limit_s
+        while time.monotonic() < deadline:
+            firmware = world.firmware
+            if firmware is not None and len(firmware.planner) >= held:
+                world.reset_controller()
+                return
+            time.sleep(0.0005)
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_the_mock_holds_a_segment_buffer_beyond_the_planner(make_world):
+    """A reset in a stream of short moves while more than the 15 planner blocks are held
+    (the rest released into the segment buffer): the planner-only bound would skip moves;
+    the machine's bound (planner plus stepper) does not."""
+    m, world = grbl(make_world)
+    lines = short_moves(400)
+    commands = normalized_commands(lines)
+    assert m.planner_blocks == 15 and m.held_moves == 15 + GRBL.stepper_queue
+    watcher = reset_when_held(world, 18)
+    with pytest.raises(LinkError):
+        m.stream(lines)
+    watcher.join()
+    m.connect()
+    gap = m.interrupted_program
+    ran = len(world.transcript.commands)  # the commands whose motion completed
+    blocks = planner_blocks(commands, PROFILE.dispense_on, PROFILE.dispense_off)
+    assert gap.acked_index - ran > 15  # acknowledged and never moved: planner + segments
+    assert executed_bound(blocks, gap.acked_index, 15) > ran  # the planner alone would skip
+    assert m.resume_line() <= ran  # planner + stepper: none skipped
+    m.disconnect()
+
+
+def test_twenty_resets_at_random_moments_skip_nothing_and_state_the_repeats(make_world):
+    m, world = grbl(make_world)  # real time: the reported position's bound is in real seconds
+    lines = short_moves(120)
+    commands = normalized_commands(lines)
+    p = m.profile
+    rng = random.Random(27)
+    start, resets, repeated, base, preamble = 0, 0, 0, 0, []
+    while True:
+        after_s = rng.uniform(0.03, 0.12) if resets < 20 else 60.0  # the last run ends by itself
+        interrupted = stream_until_reset(m, world, lines, start, after_s)
+        segment = world.transcript.commands[base:]
+        done = start + max(len(segment) - len(preamble), 0)  # program commands whose motion completed
+        assert segment == (preamble + commands[start:done])[:len(segment)], (resets, start)  # in order
+        if not interrupted:
+            assert done == len(commands)  # the rest ran, exactly once after the last resume
+            break
+        resets += 1
+        m.connect()
+        found = m.locate_resume()
+        assert found.start <= done, (resets, found, done)  # nothing skipped
+        assert done - found.start <= found.repeats, (resets, found, done)  # the stated repeats hold
+        assert "none is skipped" in found.summary() and found.as_dict()["skipped"] == 0
+        repeated += done - found.start
+        base, start = len(world.transcript.commands), found.start
+        preamble = [] if start == 0 else normalized_commands(modal_preamble(
+            commands, start, dispense_on=p.dispense_on, dispense_off=p.dispense_off, clearance_z=p.clearance_z))
+    assert resets == 20
+    m.disconnect()
+
+
+def test_the_summary_names_line_basis_and_repeats():
+    found = ResumeLocation(41, "planner bound", "why", repeats=3, repeat_moves=2)
+    assert found.summary().startswith("resumes at command 42 (by planner bound); commands 42..44 may run")
+    assert "2 moves" in found.summary() and found.as_dict()["repeats"] == 3
