@@ -33,13 +33,13 @@ from __future__ import annotations
 
 import math
 import re
+from array import array
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
+from app.gcode.lines import GcodeLine, GcodeReadError, iter_lines, read_lines
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 
 #: an arc whose end angle is within this (rad) of its start angle, against its direction,
@@ -162,18 +162,8 @@ def _strip(raw: str) -> str:
     return " ".join(line.split())
 
 
-class _Row(NamedTuple):
-    """One move as the reader emits it (the fields of :class:`Program`, one entry each)."""
-
-    start: npt.NDArray[np.float64]
-    end: npt.NDArray[np.float64]
-    rotary: npt.NDArray[np.float64]
-    feed_mm_s: float
-    motion: int
-    dispense: bool
-    layer: int
-    line: int
-    stop_before: bool
+_FLOATS_PER_ROW = 11  # start (4), end (4), rotary (2), feed
+_INTS_PER_ROW = 5  # motion, dispense, layer, line, stop_before
 
 
 class _Reader:
@@ -184,7 +174,9 @@ class _Reader:
         self.on_line = _normalise(options.dispense_on)
         self.off_line = _normalise(options.dispense_off)
         self.state = _State(feed=options.feed_mm_s)
-        self.rows: list[_Row] = []
+        # each move as plain numbers (a million moves: ~130 MB, not ~1 GB of small arrays)
+        self.floats = array("d")
+        self.ints = array("q")
         self.dwell = 0.0
         self.limits: list[tuple[str, dict[str, float]]] = []
         self.text = ""  # the current line, stripped
@@ -194,8 +186,11 @@ class _Reader:
         """Record a move from ``start`` to ``end`` (4,) mm under the current modal state."""
         s = self.state
         dispense = motion in (FEED, ARC_CW, ARC_CCW) and (s.dispensing or extrudes)
-        self.rows.append(_Row(start.copy(), end.copy(), s.rot.copy(), s.feed, motion, dispense, s.layer, number,
-                              s.stop_pending))
+        self.floats.extend(start.tolist())
+        self.floats.extend(end.tolist())
+        self.floats.extend(s.rot.tolist())
+        self.floats.append(s.feed)
+        self.ints.extend((motion, dispense, s.layer, number, s.stop_pending))
         s.stop_pending = False
 
     def line(self, parsed: GcodeLine) -> None:
@@ -364,17 +359,11 @@ class _Reader:
 
     def program(self) -> Program:
         """Everything read so far as a :class:`Program`."""
-        m = len(self.rows)
-        if m == 0:
-            empty = np.zeros((0, 4))
-            return Program(empty, empty.copy(), np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int8),
-                           np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool),
-                           self.dwell, tuple(self.limits))
-        start, end, rot, feed, motion, dispense, layer, line, stop = zip(*self.rows)
-        return Program(np.array(start), np.array(end), np.array(rot), np.array(feed, dtype=float),
-                       np.array(motion, dtype=np.int8), np.array(dispense, dtype=bool),
-                       np.array(layer, dtype=np.int64), np.array(line, dtype=np.int64),
-                       np.array(stop, dtype=bool), self.dwell, tuple(self.limits))
+        floats = np.frombuffer(self.floats, dtype=np.float64).reshape(-1, _FLOATS_PER_ROW)
+        ints = np.frombuffer(self.ints, dtype=np.int64).reshape(-1, _INTS_PER_ROW)
+        return Program(floats[:, 0:4].copy(), floats[:, 4:8].copy(), floats[:, 8:10].copy(), floats[:, 10].copy(),
+                       ints[:, 0].astype(np.int8), ints[:, 1].astype(bool), ints[:, 2].copy(), ints[:, 3].copy(),
+                       ints[:, 4].astype(bool), self.dwell, tuple(self.limits))
 
 
 def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Program:
@@ -389,6 +378,6 @@ def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Pro
         except UnicodeDecodeError as exc:
             raise GcodeReadError("the program is not UTF-8 text", field="gcode", value=str(exc)[:80]) from None
     reader = _Reader(options)
-    for parsed in read_lines(text, strict=False):
+    for parsed in iter_lines(text, strict=False):
         reader.line(parsed)
     return reader.program()

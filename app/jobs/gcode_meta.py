@@ -11,20 +11,21 @@ from __future__ import annotations
 import re
 
 from app.errors import InvalidInput
-from app.gcode.reader import read_program
+from app.gcode.reader import Program, read_program
 from hardware.protocol import commands_sha256, normalized_commands
 
 _WORD = re.compile(r"^([GMTFSXYZEIJKPRNABC]\s*-?\d|\$[A-Z#$]?|[~!?]$)", re.IGNORECASE)
 
 
-def gcode_meta(text: str) -> dict:
+def gcode_meta(text: str, program: Program | None = None) -> dict:
     """``{lines, commands, commands_sha256, bounds}``; ``bounds``: the lowest and highest
     machine position the program moves to, ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm,
     as :func:`app.gcode.reader.read_program` reads it (relative moves, G92, G28, arcs and
-    inches included; None when there are no moves)."""
+    inches included; None when there are no moves).  ``program``: ``text`` already read
+    (:func:`read_program` with its default options), so that it is not read twice."""
     lines = text.splitlines()
     digest = commands_sha256(lines)
-    extent = read_program(text).bounds()
+    extent = (program if program is not None else read_program(text)).bounds()
     bounds = None if extent is None else extent.tolist()
     return {"lines": len(lines), "commands": digest.count, "commands_sha256": digest.sha256, "bounds": bounds}
 

@@ -337,3 +337,18 @@ def test_toolpath_is_placed_on_the_bed_and_refused_outside_the_machine(client, p
     error = problem["errors"][0]
     assert "placement" in str(error["loc"]) and "on X" in problem["detail"]
     assert "2.5" in problem["detail"]       # a 20 mm wide part centred on a 15 mm bed: 2.5 mm over each side
+
+
+def test_a_thin_walled_tube_prints_its_wall_and_a_part_with_nothing_to_extrude_fails_with_the_reason(client):
+    from tests.real_parts import thin_tube
+
+    printed = run(client, "slice", {"part_id": upload(client, thin_tube(0.305, 10.0, 1.0)), "layer_mm": 0.25})
+    job = run(client, "toolpath", {"slice_job_id": printed["id"]})
+    assert job["result"]["path_mm"] == pytest.approx(4 * 2 * math.pi * (10.0 - 0.1525) * math.cos(math.pi / 128),
+                                                     rel=2e-3)
+    nothing = run(client, "slice", {"part_id": upload(client, thin_tube(0.08, 10.0, 1.0)), "layer_mm": 0.25})
+    response = submit(client, "toolpath", {"slice_job_id": nothing["id"]})
+    failed = wait_for(client, response.json()["id"], timeout=60.0)
+    assert failed["status"] == "failed" and failed["error"]["status"] == 422
+    assert "no extrusion" in failed["error"]["detail"]
+    assert failed["error"]["errors"][0]["loc"] == ["params", "line_width_mm"]

@@ -11,14 +11,16 @@ alone (no retracts, homing or start section).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
-from app.gcode.estimator import MachineLimits, estimate_gcode
-from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_gcode
+from app.gcode.estimator import MachineLimits, estimate_program
+from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_layers
+from app.gcode.reader import read_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.context import JobContext
@@ -30,7 +32,8 @@ from app.jobs.results import SliceResult
 from app.models import Job, Machine, Part
 from app.jobs.inputs import succeeded_job
 from app.records import get_or_404
-from app.slicing import SlicingError, ToolpathParams, plan_toolpath
+from app.slicing import SlicingError, ToolpathParams
+from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
 from app.slicing.export import from_json
 from app.slicing.layers import translated
 from app.slicing.fractal import MergeWeights
@@ -195,12 +198,13 @@ def machine_volume(params: ToolpathJobParams, session: Session) -> MachineVolume
     return MachineVolume()
 
 
-def _per_layer(toolpath, layer_times: tuple[float, ...]) -> list[dict]:
-    return [{"index": lay.index, "z": lay.z, "thickness": lay.thickness, "path_mm": lay.stats.path_mm,
-             "travel_mm": lay.stats.travel_mm, "turns": lay.stats.turns, "jumps": lay.stats.jumps,
-             "time_s": layer_times[lay.index] if lay.index < len(layer_times) else 0.0,
-             "planner_time_s": lay.stats.time_s, "pieces": len(lay.pieces)}
-            for lay in toolpath.layers]
+def _per_layer(stats: list[tuple[int, float, float, LayerStats, int]], layer_times: tuple[float, ...]) -> list[dict]:
+    """Per-layer rows from (index, z, thickness, stats, pieces) and the estimated layer times."""
+    return [{"index": index, "z": z, "thickness": thickness, "path_mm": st.path_mm,
+             "travel_mm": st.travel_mm, "turns": st.turns, "jumps": st.jumps,
+             "time_s": layer_times[index] if index < len(layer_times) else 0.0,
+             "planner_time_s": st.time_s, "pieces": pieces}
+            for index, z, thickness, st, pieces in stats]
 
 
 def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
@@ -254,23 +258,36 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     shift = placement_shift(sliced.bounds, params.placement.core(), volume)
     sliced = translated(sliced, shift)
     ctx.progress(0.1, f"filling {len(sliced.layers)} layers ({params.pattern})")
-    toolpath = plan_toolpath(sliced, params.fill())
-    ctx.progress(0.7, "writing G-code")
-    gcode = write_fdm_gcode(toolpath, params.fdm(ctx.job_id))
+    fill = params.fill()
+    stats: list[tuple[int, float, float, LayerStats, int]] = []
+
+    def planned() -> Iterator[LayerToolpath]:  # each layer written as it is planned, then let go
+        for layer in iter_toolpath(sliced, fill):
+            stats.append((layer.index, layer.z, layer.thickness, layer.stats, len(layer.pieces)))
+            yield layer
+
+    gcode = write_fdm_layers(planned(), fill, params.fdm(ctx.job_id))
+    totals = totals_of(row[3] for row in stats)
+    if totals.path_mm <= 0:
+        raise SlicingError(f"the part yields no extrusion at line width {params.line_width_mm:g} mm: every section "
+                           f"is thinner than {THINNEST_WALL:g} of the {params.nozzle_mm:g} mm nozzle",
+                           field="params.line_width_mm", value=params.line_width_mm)
+    ctx.progress(0.7, "estimating the print time")
     limits = params.limits()
-    estimate = estimate_gcode(gcode, limits)
-    meta = gcode_meta(gcode)
+    program = read_program(gcode)
+    estimate = estimate_program(program, limits)
+    meta = gcode_meta(gcode, program)
+    del program
     if meta["bounds"] is not None:
         check_inside(np.asarray(meta["bounds"]), volume, what="print.gcode")
     ctx.artifact("print.gcode", gcode.encode(), "text/x-gcode", meta)
-    totals = toolpath.totals
     return ToolpathResult.written({
         "time_s": estimate.total_s,
         "planner_time_s": totals.time_s,
         "estimator": {"name": "app.gcode.estimator.estimate_gcode (marlin-jd, full lookahead)",
-                      "description": toolpath.estimator, "limits": dataclasses.asdict(limits)},
+                      "description": limits.describe(), "limits": dataclasses.asdict(limits)},
         "pattern": params.pattern,
-        "layer_count": len(toolpath.layers),
+        "layer_count": len(stats),
         "path_mm": totals.path_mm,
         "travel_mm": totals.travel_mm,
         "turns": totals.turns,
@@ -279,5 +296,5 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
         "placement": {**params.placement.model_dump(), "shift_mm": [float(v) for v in shift],
                       "volume_mm": volume.describe(),
                       "note": f"the part's frame moved by {np.round(shift, 6).tolist()} mm into the machine's"},
-        "layers": _per_layer(toolpath, estimate.layer_times),
+        "layers": _per_layer(stats, estimate.layer_times),
     })
