@@ -11,6 +11,7 @@ alone (no retracts, homing or start section).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterator
 from typing import Annotated, Literal
 
@@ -211,16 +212,40 @@ def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
     return [("job", params.slice_job_id)] + ([("machine", params.machine_id)] if params.machine_id else [])
 
 
-# Cost model, calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py): the
-# fractal fills build a grid of cells at the pitch line_width / infill over each layer's
-# footprint; hilbert_merged peaked at ~440 bytes and 40-80 us per cell (0.1 mm: 160,000 cells,
-# 71 MiB, 5.8 s; 0.05 mm: 640,000 cells, 279 MiB, 51 s); plain hilbert ~360 bytes, 70 us.  The
-# scan-line fills keep ~2 vertices per line at ~300 bytes and ~50 us each, all layers held.
+# Cost model, calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py and
+# tests/bench/test_bench_job_memory.py): the fractal fills build a grid of cells at the pitch
+# line_width / infill over each layer's footprint; hilbert_merged peaked at ~440 bytes and
+# 40-80 us per cell.  The other fills are planned and written a layer at a time, so what
+# grows is the program, ~PROGRAM_LINE_BYTES per written line (its text, then the compact rows
+# read back for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
+# read from layers.json (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
+# slice: ~INFILL_LINES per sqrt(layer area) / pitch (scan lines at the angle, with their
+# links) and ~CONTOUR_LINES per mm of contour per perimeter (simplified to the resolution,
+# so a finer mesh of the same part writes the same lines).
 CELL_BYTES = 500.0
 CELL_S = 80e-6
-LINE_VERTEX_BYTES = 300.0
-LINE_VERTEX_S = 50e-6
-BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh process
+PROGRAM_LINE_BYTES = 600.0
+SLICE_VERTEX_BYTES = 115.0
+LINE_S = 150e-6
+INFILL_LINES = 6.7
+CONTOUR_LINES = 0.5
+GRID_BASE_MB = 100.0  # the fractal fills' numpy/scipy buffers on top of their cells
+
+
+def predicted_lines(slice_result: SliceResult, pitch: float, perimeters: int) -> float:
+    """Program lines a scan-line or contour fill of ``slice_result`` writes (see the cost model);
+    a slice job without its contour length is counted at ~1 line per 2 vertices."""
+    sqrt_area = sum(math.sqrt(max(float(row.get("area_mm2") or 0.0), 0.0)) for row in slice_result.layers)
+    contour = slice_result.contour_mm
+    contour_lines = CONTOUR_LINES * contour if contour is not None else 0.5 * (slice_result.vertices or 0)
+    return INFILL_LINES * sqrt_area / pitch + contour_lines * max(1, perimeters)
+
+
+def slice_vertices(slice_result: SliceResult, faces: int) -> int:
+    """The slice's contour vertices (recorded, else ~8 sqrt(faces) per layer)."""
+    if slice_result.vertices is not None:
+        return slice_result.vertices
+    return int(8 * math.sqrt(max(faces, 1)) * max(1, slice_result.layer_count))
 
 
 def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
@@ -232,18 +257,19 @@ def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
         return None
     (x0, y0, _), (x1, y1, _) = part.bounds
     pitch = params.line_width_mm / params.infill
-    layers = max(1, SliceResult.of(job).layer_count)
+    sliced = SliceResult.of(job)
+    layers = max(1, sliced.layer_count)
     cols, rows = (x1 - x0) / pitch + 2, (y1 - y0) / pitch + 2
     if params.pattern in ("hilbert", "hilbert_merged"):
         cells = cols * rows
-        memory_mb = BASE_MB + CELL_BYTES * cells / 2**20
+        memory_mb = GRID_BASE_MB + CELL_BYTES * cells / 2**20
         seconds = CELL_S * cells * layers
         basis = f"{cells:,.0f} fill cells per layer at pitch {pitch:g} mm, {layers} layers"
-    else:  # scan lines (or contour rings) across the larger side, both ends a vertex
-        vertices = 2 * max(cols, rows) * layers * (1 + params.perimeters)
-        memory_mb = BASE_MB + LINE_VERTEX_BYTES * vertices / 2**20
-        seconds = LINE_VERTEX_S * vertices
-        basis = f"{vertices:,.0f} path vertices at pitch {pitch:g} mm, {layers} layers"
+    else:
+        lines = predicted_lines(sliced, pitch, params.perimeters)
+        memory_mb = (PROGRAM_LINE_BYTES * lines + SLICE_VERTEX_BYTES * slice_vertices(sliced, part.faces)) / 2**20
+        seconds = LINE_S * lines
+        basis = f"about {lines:,.0f} program lines at pitch {pitch:g} mm, {layers} layers"
     field, value = (("params.infill", params.infill) if params.infill < 0.5
                     else ("params.line_width_mm", params.line_width_mm))
     return Cost(memory_mb=memory_mb, time_s=seconds, field=field, value=value, basis=basis)
