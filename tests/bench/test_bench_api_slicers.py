@@ -9,7 +9,8 @@ CuraEngine (``cura-engine``, with the ``cura`` package's definition files) with 
 height, perimeters and infill and no skins, skirt or brim.  CPU seconds are compared (the box
 may be loaded; wall times are printed too): ours is the whole service tree's (the server, the
 fork server and the compute processes), theirs the CLI's.  Peak memory: the compute processes'
-largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part.
+largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part,
+``BENCH_QUICK=1`` leaves the 300 mm plate out.
 
 The tools are installed by ``make bench-tools`` (``apt-get install prusa-slicer cura-engine``,
 the ``cura`` package's definitions extracted to ``CURA_RESOURCES``); without them this bench
@@ -37,6 +38,8 @@ PARTS = {
     "tube, 0.305 mm wall": "thin_tube()",
     "plate 300 mm, 69k faces": "large_plate()",
 }
+if os.environ.get("BENCH_QUICK"):  # the small parts only
+    del PARTS["plate 300 mm, 69k faces"]
 if os.environ.get("BENCH_LARGE"):
     PARTS["cad part 1.34M faces"] = "cad_part(refine=10)"
 
