@@ -116,6 +116,12 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
     settings = settings_factory(lease_s=30.0, compute_isolation="process")
     rows = []
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
+        # warm: the fork server and compute processes start (imports: seconds of CPU) before any figure
+        warm = client.post("/api/v1/parts", files={"file": ("warm.stl", trimesh.creation.box((5.0, 5.0, 1.0))
+                                                            .export(file_type="stl"))}, headers=OP).json()
+        warm_slice = client.post("/api/v1/jobs", json={"kind": "slice", "params": {"part_id": warm["id"]}},
+                                 headers=OP).json()
+        assert _wait(client, warm_slice["id"])["status"] == "succeeded"
         for name, expression in PARTS.items():
             mesh = eval(expression, {"trimesh": trimesh, "cad_part": cad_part, "large_plate": large_plate,
                                      "thin_tube": thin_tube})
