@@ -19,13 +19,14 @@ from app.config import Settings
 from tests.jobs.job_memory import measure_jobs
 
 SMALL_MB = 50.0
+VOLUME = {"x": [0, 400], "y": [0, 400], "z": [0, 400]}  # a bed the 300 mm plate fits on
 PARTS = ["thin_tube()", "cad_part(refine=1)", "large_plate(100.0, refine=1)", "large_plate()",
          "cad_part(refine=10)"]
 
 
 @pytest.mark.parametrize("part", PARTS)
 def test_bench_estimate_over_peak_within_1_and_1_5(part):
-    measured = measure_jobs(part)
+    measured = measure_jobs(part, toolpath_params={"volume_mm": VOLUME})
     limit = Settings.model_fields["job_memory_mb"].default
     for job in ("slice", "toolpath"):
         row = measured[job]
