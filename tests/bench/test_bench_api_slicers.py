@@ -106,6 +106,7 @@ def tools():
                     "install prusa-slicer cura-engine, Cura's definitions extracted)")
 
 
+@pytest.mark.timeout(7200)  # the 300 mm plate and the reference slicers take minutes on a loaded box
 def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaengine(tools, settings_factory,
                                                                                        tmp_path):
     import trimesh  # noqa: F401  (the part expressions use it)
