@@ -196,7 +196,7 @@ def _layer_row(layer, beam_offset_mm: float | None) -> dict:
 # mesh ~FACE_BYTES per face (trimesh's arrays and caches, the vectorised slicer's edge arrays),
 # the contours ~VERTEX_BYTES per vertex (~VERTICES_PER_ROOT_FACE sqrt(faces) per layer) with
 # their SLC / CLI / JSON text.  Adaptive modes are counted at their thinnest layer (the worst case).
-FACE_BYTES = 520.0
+FACE_BYTES = 560.0
 VERTEX_BYTES = 45.0
 VERTICES_PER_ROOT_FACE = 10.0
 LAYER_S = 2e-3
