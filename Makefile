@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 PYTEST := $(BIN)/python -m pytest
 
-.PHONY: run test bench lint install clean-data screenshots
+.PHONY: run test bench bench-tools lint install clean-data screenshots
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -26,7 +26,20 @@ run: $(STAMP)
 test: $(STAMP)
 	$(PYTEST) -n 2 --dist loadgroup
 
-bench: $(STAMP)
+# the reference slicers the benches run beside ours (Debian packages; Cura's definition files
+# come from the `cura` package, extracted without its GUI dependencies)
+CURA_RESOURCES ?= $(VENV)/cura/usr/share/cura/resources
+export CURA_RESOURCES
+
+bench-tools:
+	command -v prusa-slicer >/dev/null && command -v CuraEngine >/dev/null || \
+		apt-get install -y --no-install-recommends prusa-slicer cura-engine time || \
+		{ echo "bench: cannot install prusa-slicer and cura-engine (apt-get, as root)"; exit 1; }
+	test -f $(CURA_RESOURCES)/definitions/fdmprinter.def.json || \
+		{ mkdir -p $(VENV)/cura && cd $(VENV)/cura && apt-get download cura && dpkg-deb -x cura_*.deb . ; } || \
+		{ echo "bench: cannot fetch Cura's definition files (apt-get download cura)"; exit 1; }
+
+bench: $(STAMP) bench-tools
 	$(PYTEST) tests/bench -o addopts="" -s -q -p no:cacheprovider
 
 screenshots: $(STAMP)

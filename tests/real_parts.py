@@ -102,3 +102,28 @@ def cad_part(refine: int = 10) -> trimesh.Trimesh:
         for y in (6.0, 34.0):
             solid = solid - M.cylinder(30.0, 3.0, 3.0, 128).translate([x, y, -5.0])
     return to_trimesh(solid.refine(refine) if refine > 1 else solid)
+
+
+def large_plate(size_mm: float = 300.0, height_mm: float = 12.0, refine: int = 2) -> trimesh.Trimesh:
+    """A large CAD-like part (a countertop-sized plate, as trimesh's ``counter`` model): a
+    ``size_mm`` square block with a raised rim, a round boss, a dome, two pockets and a grid of
+    through holes; 21k faces, refined by ``refine`` (faces x refine^2: 2 -> ~84k)."""
+    solid = M.cube([size_mm, size_mm, height_mm])
+    rim_inner = M.cube([size_mm - 20.0, size_mm - 20.0, 10.0]).translate([10.0, 10.0, height_mm])
+    solid = solid + (M.cube([size_mm, size_mm, 10.0]).translate([0.0, 0.0, height_mm]) - rim_inner)
+    solid = solid + M.cylinder(20.0, 30.0, 30.0, 256).translate([size_mm * 0.3, size_mm * 0.7, height_mm])
+    solid = solid + M.sphere(40.0, 192).scale([1.0, 1.0, 0.4]).translate([size_mm * 0.7, size_mm * 0.3, height_mm])
+    solid = solid - M.cube([60.0, 40.0, 8.0]).translate([size_mm * 0.15, size_mm * 0.15, height_mm - 6.0])
+    solid = solid - M.cube([40.0, 80.0, 8.0]).translate([size_mm * 0.6, size_mm * 0.6, height_mm - 6.0])
+    for x in np.linspace(25.0, size_mm - 25.0, 5):
+        for y in (25.0, size_mm - 25.0):
+            solid = solid - M.cylinder(height_mm + 40.0, 4.0, 4.0, 96).translate([x, y, -5.0])
+    return to_trimesh(solid.refine(refine) if refine > 1 else solid)
+
+
+def thin_tube(wall_mm: float = 0.305, radius_mm: float = 10.0, height_mm: float = 30.0) -> trimesh.Trimesh:
+    """A round tube whose wall (``wall_mm``) is thinner than two 0.4 mm beads: what a
+    single-bead (vase-like) wall looks like in an STL; 128 sides."""
+    outer = M.cylinder(height_mm, radius_mm, radius_mm, 128)
+    inner = M.cylinder(height_mm + 2.0, radius_mm - wall_mm, radius_mm - wall_mm, 128).translate([0.0, 0.0, -1.0])
+    return to_trimesh(outer - inner)

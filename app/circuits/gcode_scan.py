@@ -198,14 +198,14 @@ def scan_lines(text: str, arc_chord_mm: float = 0.001, max_arc_chords: int | Non
         for code in ln.m:
             if code in (82.0, 83.0):
                 e_abs = code == 82.0
-        before = len(reader.rows)
+        before = reader.move_count
         try:
             reader.line(ln)
         except ArcBudgetError as exc:
             raise refuse_line(ln.number, ln.text, exc.message.split(": ", 1)[-1], field="arc_chord_mm") from None
         except GcodeReadError as exc:
             raise refuse_line(ln.number, ln.text, exc.message.split(": ", 1)[-1]) from None
-        rows = reader.rows[before:]
+        rows = reader.moves_from(before)
         if words:
             carried[ln.number - 1] = words
         if not rows:
@@ -225,7 +225,7 @@ def scan_lines(text: str, arc_chord_mm: float = 0.001, max_arc_chords: int | Non
             motions.append(row.motion)
             feeds.append(feed)
             eabs.append(e_abs)
-        del reader.rows[before:]                      # the warp keeps its own records
+        reader.forget_moves_from(before)              # the warp keeps its own records
     n = len(kinds)
     return Records(np.array(kinds, dtype=np.int8), np.array(where, dtype=np.int64),
                    np.array(starts, float).reshape(n, 4), np.array(ends, float).reshape(n, 4),

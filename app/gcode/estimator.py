@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.errors import InvalidInput
-from app.gcode.reader import ReadOptions, read_program
+from app.gcode.reader import Program, ReadOptions, read_program
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
 #: a junction with sin(theta / 2) >= 1 - this (theta: the angle between the moves' reversed
@@ -195,7 +195,11 @@ def estimate_gcode(text: str, limits: MachineLimits = MachineLimits()) -> TimeEs
     reads it (arcs timed along their chords at the reader's tolerance).  The last
     M201/M203/M204/M205 seen applies to the whole file (limits are normally set once in
     the start section)."""
-    program = read_program(text, ReadOptions(feed_mm_s=25.0))
+    return estimate_program(read_program(text, ReadOptions(feed_mm_s=25.0)), limits)
+
+
+def estimate_program(program: Program, limits: MachineLimits = MachineLimits()) -> TimeEstimate:
+    """:func:`estimate_gcode` of a program already read (with the default :class:`ReadOptions`)."""
     limits = _apply_limit_commands(limits, program.limits)
     dwell = program.dwell_s
     if program.count == 0:

@@ -17,6 +17,7 @@ Units: mm and mm/s inside; feeds written as mm/min, temperatures in deg C.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -26,8 +27,8 @@ import numpy.typing as npt
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
 
-if TYPE_CHECKING:  # the slicer imports this writer; the toolpath type is needed only here
-    from app.slicing.toolpath import Toolpath
+if TYPE_CHECKING:  # the slicer imports this writer; the toolpath types are needed only here
+    from app.slicing.toolpath import LayerToolpath, Toolpath, ToolpathParams
 
 END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
 
@@ -60,9 +61,9 @@ class FdmParams:
     dispense_off: str | None = None
 
 
-def _start(b: ProgramBuilder, tp: Toolpath, p: FdmParams, rules: Dialect) -> None:
+def _start(b: ProgramBuilder, tpp: ToolpathParams, p: FdmParams, rules: Dialect) -> None:
     """The start section: limits, heating, E mode, homing."""
-    lim = tp.params.limits
+    lim = tpp.limits
     b.comment("start")
     if rules.machine_limits:
         b.raw(f"M204 P{lim.accel_mm_s2:g} T{lim.travel_accel_mm_s2:g} "
@@ -93,6 +94,14 @@ def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str, rules: Dialect) ->
 
 def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
     """G-code text of ``toolpath`` (a :class:`~app.slicing.toolpath.Toolpath`)."""
+    return write_fdm_layers(toolpath.layers, toolpath.params, params)
+
+
+def write_fdm_layers(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmParams = FdmParams()) -> str:
+    """G-code text of ``layers`` (planned with ``tpp``), consumed one at a time: a generator
+    (:func:`~app.slicing.toolpath.iter_toolpath`) is written without holding every layer.
+    A move whose written X and Y equal the position before is not written (its E goes with
+    the next one): no repeated or zero-length line."""
     if params.mode not in ("extrude", "dispense"):
         raise GcodeError(f"unknown mode {params.mode!r}", field="mode", value=params.mode)
     rules = DIALECTS.get(params.dialect)
@@ -103,18 +112,17 @@ def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
     rules = b.dialect
     on, off = rules.dispense
     on, off = params.dispense_on or on, params.dispense_off or off
-    tpp = toolpath.params
     fil_area = math.pi * (tpp.filament_mm / 2) ** 2
-    _start(b, toolpath, params, rules)
+    _start(b, tpp, params, rules)
+    decimals = b.decimals
     b.comment("process")
     e, retracted, extruded = 0.0, False, False
     pos: npt.NDArray[np.float64] | None = None
     travel = tpp.travel_feed_mm_s * 60.0
     z = 0.0
-    for lay in toolpath.layers:
+    for lay in layers:
         z = lay.z
         h = tpp.layer_height_mm or lay.thickness
-        e_per_mm = bead_area_mm2(tpp.line_width_mm, h) / fil_area
         b.raw(f";LAYER:{lay.index}")
         b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
         for piece in lay.pieces:
@@ -136,13 +144,20 @@ def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
             if params.mode == "dispense":
                 b.raw(on)
             feed = piece.feed_mm_s * 60.0
+            e_per_mm = bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area
             first = True
+            written = (round(float(start[0]), decimals), round(float(start[1]), decimals))
             for a, c in zip(piece.points[:-1], piece.points[1:]):
                 seg = math.hypot(*(c - a))
                 if seg <= LENGTH_EPS_MM:
                     continue
                 if params.mode == "extrude":
                     e += seg * e_per_mm
+                target = (round(float(c[0]), decimals), round(float(c[1]), decimals))
+                if target == written:
+                    continue  # the same line again: its filament goes with the next move
+                written = target
+                if params.mode == "extrude":
                     extruded = True
                     b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None, e=e)
                 else:

@@ -9,6 +9,7 @@ line numbers ``N`` and ``*checksum``.  This is the one tokenizer: the modal inte
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from typing import NamedTuple
 
 from app.errors import InvalidInput
@@ -49,7 +50,12 @@ class GcodeLine(NamedTuple):
 def read_lines(text: str, strict: bool = True) -> list[GcodeLine]:
     """Every line of ``text`` with its words; GcodeReadError names a line with stray characters
     (``strict``), else such text (an ``M117`` message, a bare ``G28 X``) is left out of the words."""
-    out = []
+    return list(iter_lines(text, strict))
+
+
+def iter_lines(text: str, strict: bool = True) -> Iterator[GcodeLine]:
+    """:func:`read_lines` one line at a time (a reader that keeps what it needs of each line
+    holds no more than that: a million-line program's parsed lines are ~1 GB at once)."""
     for number, raw in enumerate(text.splitlines(), start=1):
         body, _, comment = raw.partition(";")
         if "(" in body:
@@ -63,6 +69,5 @@ def read_lines(text: str, strict: bool = True) -> list[GcodeLine]:
                                  field="file", value={"line": number, "text": raw.strip()[:80]})
         values = dict(reversed(words))           # the first value of each letter wins
         values.pop("N", None)
-        out.append(GcodeLine(number, raw, tuple(words), comment.strip(), values,
-                             tuple(v for k, v in words if k == "G"), tuple(v for k, v in words if k == "M")))
-    return out
+        yield GcodeLine(number, raw, tuple(words), comment.strip(), values,
+                        tuple(v for k, v in words if k == "G"), tuple(v for k, v in words if k == "M"))

@@ -36,13 +36,14 @@ from __future__ import annotations
 
 import math
 import re
+from array import array
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
+from app.gcode.lines import GcodeLine, GcodeReadError, iter_lines, read_lines
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 
 #: an arc whose end angle is within this (rad) of its start angle, against its direction,
@@ -194,16 +195,23 @@ class MoveRow(NamedTuple):
     stop_before: bool
 
 
+_FLOATS_PER_ROW = 11  # start (4), end (4), rotary (2), feed
+_INTS_PER_ROW = 5  # motion, dispense, layer, line, stop_before
+
+
 class ModalReader:
-    """The modal interpreter: fed line by line (:meth:`line`), it collects moves (``rows``,
-    one :class:`MoveRow` per move or arc chord), dwells and limits; :meth:`program` gathers them."""
+    """The modal interpreter: fed line by line (:meth:`line`), it collects moves (one per move
+    or arc chord, stored compactly; :meth:`moves_from` gives them as :class:`MoveRow`), dwells
+    and limits; :meth:`program` gathers them."""
 
     def __init__(self, options: ReadOptions) -> None:
         self.options = options
         self.on_line = _normalise(options.dispense_on)
         self.off_line = _normalise(options.dispense_off)
         self.state = _State(feed=options.feed_mm_s)
-        self.rows: list[MoveRow] = []
+        # each move as plain numbers (a million moves: ~130 MB, not ~1 GB of small arrays)
+        self.floats = array("d")
+        self.ints = array("q")
         self.dwell = 0.0
         self.limits: list[tuple[str, dict[str, float]]] = []
         self.text = ""  # the current line, stripped
@@ -214,8 +222,11 @@ class ModalReader:
         """Record a move from ``start`` to ``end`` (4,) mm under the current modal state."""
         s = self.state
         dispense = motion in (FEED, ARC_CW, ARC_CCW) and (s.dispensing or extrudes)
-        self.rows.append(MoveRow(start.copy(), end.copy(), s.rot.copy(), s.feed, motion, dispense, s.layer, number,
-                              s.stop_pending))
+        self.floats.extend(start.tolist())
+        self.floats.extend(end.tolist())
+        self.floats.extend(s.rot.tolist())
+        self.floats.append(s.feed)
+        self.ints.extend((motion, dispense, s.layer, number, s.stop_pending))
         s.stop_pending = False
 
     def line(self, parsed: GcodeLine) -> None:
@@ -389,19 +400,33 @@ class ModalReader:
         points[0], points[-1] = start, end
         return points
 
+    @property
+    def move_count(self) -> int:
+        """How many moves (and arc chords) have been read so far."""
+        return len(self.ints) // _INTS_PER_ROW
+
+    def moves_from(self, first: int) -> list[MoveRow]:
+        """The moves read since the first ``first`` ones, as :class:`MoveRow`."""
+        f, i = _FLOATS_PER_ROW, _INTS_PER_ROW
+        out = []
+        for k in range(first, self.move_count):
+            v, n = self.floats[k * f:(k + 1) * f], self.ints[k * i:(k + 1) * i]
+            out.append(MoveRow(np.array(v[0:4]), np.array(v[4:8]), np.array(v[8:10]), v[10], n[0], bool(n[1]), n[2],
+                               n[3], bool(n[4])))
+        return out
+
+    def forget_moves_from(self, first: int) -> None:
+        """Drop the moves read since the first ``first`` ones (a caller keeping its own records)."""
+        del self.floats[first * _FLOATS_PER_ROW:]
+        del self.ints[first * _INTS_PER_ROW:]
+
     def program(self) -> Program:
         """Everything read so far as a :class:`Program`."""
-        m = len(self.rows)
-        if m == 0:
-            empty = np.zeros((0, 4))
-            return Program(empty, empty.copy(), np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int8),
-                           np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool),
-                           self.dwell, tuple(self.limits))
-        start, end, rot, feed, motion, dispense, layer, line, stop = zip(*self.rows)
-        return Program(np.array(start), np.array(end), np.array(rot), np.array(feed, dtype=float),
-                       np.array(motion, dtype=np.int8), np.array(dispense, dtype=bool),
-                       np.array(layer, dtype=np.int64), np.array(line, dtype=np.int64),
-                       np.array(stop, dtype=bool), self.dwell, tuple(self.limits))
+        floats = np.frombuffer(self.floats, dtype=np.float64).reshape(-1, _FLOATS_PER_ROW)
+        ints = np.frombuffer(self.ints, dtype=np.int64).reshape(-1, _INTS_PER_ROW)
+        return Program(floats[:, 0:4].copy(), floats[:, 4:8].copy(), floats[:, 8:10].copy(), floats[:, 10].copy(),
+                       ints[:, 0].astype(np.int8), ints[:, 1].astype(bool), ints[:, 2].copy(), ints[:, 3].copy(),
+                       ints[:, 4].astype(bool), self.dwell, tuple(self.limits))
 
 
 def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Program:
@@ -416,6 +441,6 @@ def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Pro
         except UnicodeDecodeError as exc:
             raise GcodeReadError("the program is not UTF-8 text", field="gcode", value=str(exc)[:80]) from None
     reader = ModalReader(options)
-    for parsed in read_lines(text, strict=False):
+    for parsed in iter_lines(text, strict=False):
         reader.line(parsed)
     return reader.program()

@@ -216,7 +216,7 @@ def run_job(runtime: ChildRuntime, claim: Claim) -> bool:
         runtime.store.finish(claim, "failed", error=from_error(exc))
     except MemoryError:
         lift_job_limit()
-        runtime.store.finish(claim, "failed", error=memory_problem(settings.job_memory_mb))
+        runtime.store.finish_surely(claim, "failed", error=memory_problem(settings.job_memory_mb))
         return False
     except Exception as exc:  # a bug: record it without a stack trace for clients
         lift_job_limit()

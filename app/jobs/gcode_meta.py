@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from app.errors import InvalidInput
 from app.gcode.lines import GcodeLine, read_lines
-from app.gcode.reader import HOME, ModalReader, ReadOptions
+from app.gcode.reader import HOME, ModalReader, Program, ReadOptions
 from hardware.protocol import CommandHasher, normalize_command, normalized_commands
 
 # a word, a grbl system command or real-time character, or a tape mark ("%", which
@@ -65,9 +65,10 @@ class ProgramScan:
     bounds (see :func:`gcode_meta`), and the sha256 and size of the bytes.  ``check``: refuse
     what is not G-code (:func:`check_gcode`'s rules) as it comes."""
 
-    def __init__(self, *, field: str = "file", check: bool = True) -> None:
+    def __init__(self, *, field: str = "file", check: bool = True, read_moves: bool = True) -> None:
         self.field = field
         self.check = check
+        self.read_moves = read_moves  # False: bounds are not read (the caller has them)
         self.lines = 0
         self.size = 0
         self.raw = hashlib.sha256()
@@ -108,8 +109,9 @@ class ProgramScan:
             if self.check and not _WORD.match(command):
                 raise InvalidInput(f"command {self.hasher.count} is not G-code: {command[:60]!r}", field=self.field,
                                    value=self.hasher.count)
-        for parsed in read_lines(block, strict=False):
-            self._reader.line(parsed._replace(number=parsed.number + offset))
+        if self.read_moves:
+            for parsed in read_lines(block, strict=False):
+                self._reader.line(parsed._replace(number=parsed.number + offset))
 
     def result(self) -> dict[str, Any]:
         """``{lines, commands, commands_sha256, bounds, sha256, bytes}`` of everything fed."""
@@ -126,15 +128,19 @@ class ProgramScan:
                 "bounds": self._reader.bounds(), "sha256": self.raw.hexdigest(), "bytes": self.size}
 
 
-def gcode_meta(text: str) -> dict:
+def gcode_meta(text: str, program: Program | None = None) -> dict:
     """``{lines, commands, commands_sha256, bounds}``; ``bounds``: the lowest and highest
     machine position the program moves to, ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm,
     as :func:`app.gcode.reader.read_program` reads it (relative moves, G92, G28, arcs and
     inches included; None when there are no moves).  InvalidInput naming the line when a
-    number is not finite."""
-    scan = ProgramScan(check=False)
+    number is not finite.  ``program``: ``text`` already read (:func:`read_program` with its
+    default options): its bounds are taken, so that the text is not read twice."""
+    scan = ProgramScan(check=False, read_moves=program is None)
     scan.feed_text(text)
     meta = scan.result()
+    if program is not None:
+        extent = program.bounds()
+        meta["bounds"] = None if extent is None else extent.tolist()
     return {key: meta[key] for key in ("lines", "commands", "commands_sha256", "bounds")}
 
 

@@ -76,7 +76,10 @@ def _lease_kept(store: JobStore, claim: Claim, every_s: float) -> Iterator[None]
 
     def renew() -> None:
         while not done.wait(every_s):
-            store.heartbeat(claim)
+            try:
+                store.heartbeat(claim)
+            except Exception:  # a locked database: the next renewal tries again
+                log.warning("could not renew the lease of job %s", claim.job_id, exc_info=True)
 
     thread = threading.Thread(target=renew, daemon=True, name=f"lease-{claim.job_id}")
     thread.start()
@@ -191,7 +194,8 @@ class ProcessSupervisor:
             self.pool.release(member, report)
             return
         exitcode = self.pool.discard(member, KILL_WAIT_S)
-        self._record(claim, verdict, exitcode)
+        with _lease_kept(store, claim, renew_every):  # the outcome's write may wait for the database
+            self._record(claim, verdict, exitcode)
         self.pool.replenish()  # after the outcome: a cancel is recorded first
 
     @staticmethod
@@ -231,16 +235,16 @@ class ProcessSupervisor:
         store = self.runtime.store
         if verdict == "cancel":
             cancelled = Cancelled("the job was cancelled (its process was killed)", field="job_id", value=claim.job_id)
-            store.finish(claim, "cancelled", error=from_error(cancelled))
+            store.finish_surely(claim, "cancelled", error=from_error(cancelled))
         elif verdict == "time":
-            store.finish(claim, "failed", error=time_limit_problem(self.settings.job_time_s))
+            store.finish_surely(claim, "failed", error=time_limit_problem(self.settings.job_time_s))
         elif verdict == "stop":
             store.release(claim, "released by a stopping worker")
         elif verdict is None and exitcode not in (0, None):
-            if store.finish(claim, "failed", error=quarantine_problem(exitcode)):
+            if store.finish_surely(claim, "failed", error=quarantine_problem(exitcode)):
                 log.warning("job %s (%s) quarantined: its process ended with %s", claim.job_id, claim.kind, exitcode)
         elif verdict is None:  # exited without an outcome: a bug, not a retry
-            store.finish(claim, "failed", error=problem(500, "Job crashed", "the job's process ended without a result"))
+            store.finish_surely(claim, "failed", error=problem(500, "Job crashed", "the job's process ended without a result"))
 
     def stop(self, timeout_s: float = 3.0) -> None:
         """Kill running jobs' processes and wait (up to ``timeout_s``) until their jobs are

@@ -291,6 +291,8 @@ class SliceResult(KindResult):
     kind: ClassVar[str] = "slice"
     mode: str
     layer_count: int
+    vertices: int | None = None  # contour vertices over all layers (the toolpath's cost model)
+    contour_mm: float | None = None  # contour length over all layers, mm (the same)
     z_min: float
     z_max: float
     bounds: list[list[float]]

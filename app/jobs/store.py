@@ -15,9 +15,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy import Engine, and_, case, literal, or_, select, update
+from sqlalchemy.exc import DBAPIError
 
 from app.models import TERMINAL_STATES, Job, utcnow
 
+FINISH_TRIES = 6  # JobStore.finish_surely: tries of an outcome's write...
+FINISH_WAIT_S = 0.5  # ...this far apart, doubling (~16 s in all)
 # Jobs that move a machine: when their process dies or their link drops they become
 # ``interrupted`` and wait for an operator (never requeued by the reaper).
 OPERATOR_RESUMED_KINDS = ("print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle")
@@ -105,6 +108,22 @@ class JobStore:
         values["message"] = final_message(status, error)
         rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(Job.id))
         return bool(rows)
+
+    def finish_surely(self, claim: Claim, status: str, *, error: dict | None = None,
+                      tries: int = FINISH_TRIES, wait_s: float = FINISH_WAIT_S) -> bool:
+        """:meth:`finish`, tried again (``tries`` times, ``wait_s`` apart, doubling) while the
+        database refuses the write (locked, a dropped connection): an outcome the process
+        knows (out of memory, killed, timed out) is recorded, never left to the lease's expiry,
+        which would run the job again without a word.  Raises the last error when every try
+        failed."""
+        for attempt in range(tries):
+            try:
+                return self.finish(claim, status, error=error)
+            except DBAPIError:
+                if attempt == tries - 1:
+                    raise
+                time.sleep(wait_s * 2 ** attempt)
+        return False
 
     def request_cancel(self, job_id: str) -> str | None:
         """Ask a job to stop.  A queued job is cancelled at once; a running one cooperatively.

@@ -126,3 +126,8 @@ def islands_from_polygons(polygons: list[npt.NDArray[np.float64]]) -> tuple[Isla
                for k, holes in outers.items()]
     islands.sort(key=lambda i: (float(i.outer[:, 1].min()), float(i.outer[:, 0].min())))
     return tuple(islands)
+
+
+def ring_length(ring: npt.NDArray[np.float64]) -> float:
+    """Perimeter of a closed ring (n, 2) mm (the closing edge included), mm."""
+    return float(np.hypot(*(np.roll(ring, -1, axis=0) - ring).T).sum())

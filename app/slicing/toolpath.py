@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator
 from typing import Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+import shapely
 
 from app.checks import require_positive
 from app.gcode.estimator import MachineLimits, estimate_moves
@@ -31,6 +33,9 @@ from app.slicing.ordering import order_paths
 from app.slicing.rings import Island
 
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
+RESOLUTION_MM = 0.0125  # PrusaSlicer's G-code resolution: paths simplified to it, no move shorter
+THINNEST_WALL = 0.25  # of the nozzle: a wall thinner than this is not printed (PrusaSlicer's min feature)
+THIN_WALL_STEPS = 10  # bisection steps finding a thin wall's half thickness (w/2 / 2^10: 0.2 um at 0.4 mm)
 PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
 
 
@@ -40,7 +45,9 @@ class ToolpathParams:
 
     ``pattern``: raster (zigzag), lines (raster without links), contour, zone, hilbert,
     hilbert_merged (seed S5 improved fractal).  ``infill``: density in (0, 1].
-    ``filament_mm``: filament diameter for E (extrusion mode).
+    ``filament_mm``: filament diameter for E (extrusion mode).  ``resolution_mm``: every
+    path is simplified to it (a vertex is dropped when the path moves less than this from
+    the computed one) and no move is shorter (the firmware plans shorter moves uselessly).
     """
 
     pattern: Pattern = "raster"
@@ -56,6 +63,7 @@ class ToolpathParams:
     travel_feed_mm_s: float = 120.0
     filament_mm: float = 1.75
     turn_threshold_deg: float = 10.0
+    resolution_mm: float = RESOLUTION_MM
     limits: MachineLimits = field(default_factory=MachineLimits)
     merge_weights: MergeWeights = field(default_factory=MergeWeights)
 
@@ -65,7 +73,7 @@ class ToolpathParams:
             raise SlicingError(f"unknown fill pattern {self.pattern!r}; expected one of "
                                f"{list(PATTERNS)}", field="params.pattern", value=self.pattern)
         require_positive(self, ("line_width_mm", "nozzle_mm", "print_feed_mm_s",
-                                "perimeter_feed_mm_s", "travel_feed_mm_s", "filament_mm"),
+                                "perimeter_feed_mm_s", "travel_feed_mm_s", "filament_mm", "resolution_mm"),
                          SlicingError, prefix="params.")
         if not (0 < self.infill <= 1):
             raise SlicingError(f"infill must be in (0, 1], got {self.infill!r}",
@@ -81,11 +89,13 @@ class ToolpathParams:
 
 @dataclass(frozen=True, eq=False)
 class PathPiece:
-    """One extruded polyline: ``points`` (n, 2) mm; ``kind`` perimeter | infill."""
+    """One extruded polyline: ``points`` (n, 2) mm; ``kind`` perimeter | infill | thin_wall;
+    ``width_mm``: its bead width when it is not the line width (a thin wall's single bead)."""
 
     kind: str
     points: npt.NDArray[np.float64]
     feed_mm_s: float
+    width_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -168,6 +178,75 @@ def perimeter_paths(islands: tuple[Island, ...], params: ToolpathParams) -> list
     return out
 
 
+def _drop_short(points: npt.NDArray[np.float64], shortest: float) -> npt.NDArray[np.float64]:
+    """``points`` (n, 2) without the vertices that end a move shorter than ``shortest`` (mm);
+    the first and last stay (the vertex before the last goes instead)."""
+    while len(points) > 2:
+        seg = np.hypot(*np.diff(points, axis=0).T)
+        drop = np.flatnonzero(seg < shortest) + 1
+        if not len(drop):
+            break
+        drop[drop == len(points) - 1] -= 1
+        drop = np.unique(drop[drop > 0])
+        drop = drop[np.concatenate([[True], np.diff(drop) > 1])]  # never two neighbours in one pass
+        if not len(drop):
+            break
+        points = np.delete(points, drop, axis=0)
+    return points
+
+
+def simplify_paths(paths: list[npt.NDArray[np.float64]], resolution: float) -> list[npt.NDArray[np.float64]]:
+    """Each polyline (n, 2) mm simplified to ``resolution`` mm (Douglas-Peucker in GEOS, all
+    of a layer's paths in one call), then without moves shorter than ``resolution``; paths
+    that are no longer than it are dropped.  A closed path stays closed."""
+    paths = [p for p in paths if len(p) >= 2]
+    if not paths:
+        return []
+    lines = shapely.linestrings(np.vstack(paths), indices=np.repeat(np.arange(len(paths)), [len(p) for p in paths]))
+    coords, index = shapely.get_coordinates(shapely.simplify(lines, resolution, preserve_topology=False),
+                                            return_index=True)
+    out: list[npt.NDArray[np.float64]] = []
+    for points in np.split(coords, np.flatnonzero(np.diff(index)) + 1):
+        points = _drop_short(points, resolution)
+        if len(points) >= 2 and np.hypot(*np.diff(points, axis=0).T).sum() >= resolution:
+            out.append(points)
+    return out
+
+
+def _open_path(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """A sliver's ring (n, 2), both sides of one line, as that line: the ring from a point
+    farthest from its start to the point farthest from that one."""
+    a = int(np.argmax(np.hypot(*(ring - ring[0]).T)))
+    rolled = np.roll(ring, -a, axis=0)
+    b = int(np.argmax(np.hypot(*(rolled - rolled[0]).T)))
+    return rolled[: b + 1]
+
+
+def thin_wall_paths(islands: tuple[Island, ...], params: ToolpathParams) -> list[tuple[npt.NDArray[np.float64], float]]:
+    """Single-bead paths for the islands too thin for a bead of the line width (no inward
+    offset of w/2 survives): each one's centre line and the wall thickness there, as
+    ``(points (n, 2) mm, width mm)``.  The centre is what survives the deepest inward offset
+    (found by bisection); a ring-shaped wall (a tube) gives a closed loop, a sliver (a rib)
+    the line along it.  Walls thinner than ``THINNEST_WALL`` of the nozzle are not printed."""
+    half = params.line_width_mm / 2
+    out: list[tuple[npt.NDArray[np.float64], float]] = []
+    for island in islands:
+        alone = (island,)
+        if offset_islands(alone, -half):
+            continue  # a full bead fits: perimeters and infill print it
+        lo, hi = 0.0, half
+        for _ in range(THIN_WALL_STEPS):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if offset_islands(alone, -mid) else (lo, mid)
+        if 2 * lo < THINNEST_WALL * params.nozzle_mm:
+            continue
+        for core in offset_islands(alone, -lo):
+            ring = core.outer
+            path = np.vstack([ring, ring[:1]]) if core.holes else _open_path(ring)
+            out.append((path, 2 * lo))
+    return out
+
+
 class _Moves(NamedTuple):
     """A layer as planner moves: ``positions`` (m, 4) x, y, z mm and E (mm of filament),
     ``feeds`` (m - 1,) mm/s into each position after the first, ``stops`` (m,) full stops."""
@@ -177,10 +256,17 @@ class _Moves(NamedTuple):
     stops: npt.NDArray[np.bool_]
 
 
-def _layer_moves(pieces: tuple[PathPiece, ...], start: npt.NDArray[np.float64], z: float, e_per_mm: float,
+def piece_e_per_mm(piece: PathPiece, line_width_mm: float, height_mm: float, filament_area_mm2: float) -> float:
+    """Filament (mm) per mm of ``piece``: its bead's cross-section (its own width, else the
+    line width, at ``height_mm``) over the filament's."""
+    return bead_area_mm2(piece.width_mm or line_width_mm, height_mm) / filament_area_mm2
+
+
+def _layer_moves(pieces: tuple[PathPiece, ...], start: npt.NDArray[np.float64], z: float, height_mm: float,
                  params: ToolpathParams) -> _Moves:
     """Travel to each piece then along it from ``start`` (2,) mm at height ``z`` mm,
-    extruding ``e_per_mm`` mm of filament per mm of path."""
+    extruding each piece's bead (:func:`piece_e_per_mm`) of ``height_mm``."""
+    fil_area = math.pi * (params.filament_mm / 2) ** 2
     pos: list[npt.NDArray[np.float64]] = [np.array([*start, z, 0.0])]
     feeds: list[float] = []
     stops = [True]
@@ -190,7 +276,7 @@ def _layer_moves(pieces: tuple[PathPiece, ...], start: npt.NDArray[np.float64], 
         feeds.append(params.travel_feed_mm_s)
         stops.append(False)
         seg = np.hypot(*np.diff(piece.points, axis=0).T)
-        es = e + np.cumsum(seg) * e_per_mm
+        es = e + np.cumsum(seg) * piece_e_per_mm(piece, params.line_width_mm, height_mm, fil_area)
         pos.extend(np.c_[piece.points[1:], np.full(len(seg), z), es])
         feeds.extend([piece.feed_mm_s] * len(seg))
         stops.extend([False] * len(seg))
@@ -199,35 +285,53 @@ def _layer_moves(pieces: tuple[PathPiece, ...], start: npt.NDArray[np.float64], 
     return _Moves(np.array(pos), np.array(feeds, dtype=np.float64), np.array(stops))
 
 
-def plan_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathParams()) -> Toolpath:
-    """Perimeters + infill + travel ordering + statistics for every layer."""
+def layer_pieces(islands: tuple[Island, ...], layer_index: int, start: npt.NDArray[np.float64],
+                 params: ToolpathParams) -> tuple[tuple[PathPiece, ...], npt.NDArray[np.float64]]:
+    """One section's print-ordered pieces from ``start`` (2,) mm: perimeters, thin walls'
+    single beads, infill, each simplified to ``params.resolution_mm``; and where it ends."""
+    res = params.resolution_mm
+    per, pos = order_paths(simplify_paths(perimeter_paths(islands, params), res), start)
+    walls: list[PathPiece] = []
+    for path, width in thin_wall_paths(islands, params):  # each wall's bead has its own width
+        ordered, pos = order_paths(simplify_paths([path], res), pos)
+        walls.extend(PathPiece("thin_wall", q, params.perimeter_feed_mm_s, width) for q in ordered)
+    inf, end = order_paths(simplify_paths(infill_paths(islands, params, layer_index), res), pos)
+    pieces = tuple([PathPiece("perimeter", p, params.perimeter_feed_mm_s) for p in per] + walls
+                   + [PathPiece("infill", p, params.print_feed_mm_s) for p in inf])
+    return pieces, (end if len(inf) else pos)
+
+
+def iter_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathParams()) -> Iterator[LayerToolpath]:
+    """The layers of :func:`plan_toolpath` one at a time (a caller that writes each one out
+    holds one layer's paths, never all of them)."""
     params.validate()
     thr = math.radians(params.turn_threshold_deg)
-    fil_area = math.pi * (params.filament_mm / 2) ** 2
-    layers: list[LayerToolpath] = []
     pos = np.zeros(2)
     for lay in slice_result.layers:
         h = params.layer_height_mm or lay.thickness
-        e_per_mm = bead_area_mm2(params.line_width_mm, h) / fil_area
-        per, pos1 = order_paths(perimeter_paths(lay.islands, params), pos)
-        inf, pos2 = order_paths(infill_paths(lay.islands, params, lay.index), pos1)
-        pieces = tuple([PathPiece("perimeter", p, params.perimeter_feed_mm_s) for p in per]
-                       + [PathPiece("infill", p, params.print_feed_mm_s) for p in inf])
+        pieces, end = layer_pieces(lay.islands, lay.index, pos, params)
         path_mm = float(sum(np.hypot(*np.diff(p.points, axis=0).T).sum() for p in pieces))
         gaps = [np.hypot(*(b.points[0] - a.points[-1])) for a, b in zip(pieces, pieces[1:])]
         first = np.hypot(*(pieces[0].points[0] - pos)) if pieces else 0.0
-        moves = _layer_moves(pieces, pos, lay.z_top, e_per_mm, params)
-        positions, feeds, stops = moves
+        positions, feeds, stops = _layer_moves(pieces, pos, lay.z_top, h, params)
         t = estimate_moves(positions, feeds, params.limits, stops) if len(feeds) else [0.0]
         stats = LayerStats(path_mm=path_mm, travel_mm=float(first + sum(gaps)),
                            turns=sum(count_turns(p.points, thr) for p in pieces),
                            jumps=int(sum(1 for g in gaps if g > LENGTH_EPS_MM)),
                            time_s=float(np.sum(t)))
-        layers.append(LayerToolpath(lay.index, lay.z_top, lay.thickness, pieces, stats))
-        pos = pos2 if len(inf) else pos1
-    tot = LayerStats(path_mm=sum(x.stats.path_mm for x in layers),
-                     travel_mm=sum(x.stats.travel_mm for x in layers),
-                     turns=sum(x.stats.turns for x in layers),
-                     jumps=sum(x.stats.jumps for x in layers),
-                     time_s=sum(x.stats.time_s for x in layers))
-    return Toolpath(tuple(layers), params, tot, params.limits.describe())
+        yield LayerToolpath(lay.index, lay.z_top, lay.thickness, pieces, stats)
+        pos = end
+
+
+def totals_of(stats: Iterable[LayerStats]) -> LayerStats:
+    """The sum of per-layer statistics."""
+    rows = list(stats)
+    return LayerStats(path_mm=sum(x.path_mm for x in rows), travel_mm=sum(x.travel_mm for x in rows),
+                      turns=sum(x.turns for x in rows), jumps=sum(x.jumps for x in rows),
+                      time_s=sum(x.time_s for x in rows))
+
+
+def plan_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathParams()) -> Toolpath:
+    """Perimeters + thin walls + infill + travel ordering + statistics for every layer."""
+    layers = tuple(iter_toolpath(slice_result, params))
+    return Toolpath(layers, params, totals_of(x.stats for x in layers), params.limits.describe())

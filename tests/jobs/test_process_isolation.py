@@ -90,6 +90,33 @@ def test_a_job_that_kills_its_process_is_quarantined_after_one_crash(client):
     assert again["status"] == "failed" and again["attempts"] == 1
 
 
+def test_a_job_killed_for_memory_fails_once_with_the_reason_when_the_database_first_refuses_the_write(
+        client, monkeypatch):
+    """The kernel's OOM killer's SIGKILL, recorded while the database is briefly locked: the job
+    fails at its first attempt with the reason, never runs again as attempt 2 without an error."""
+    from sqlalchemy.exc import OperationalError
+
+    from app.jobs.store import JobStore
+
+    finish, refused = JobStore.finish, []
+
+    def locked_once(self, claim, status, **kwargs):
+        if status == "failed" and not refused:
+            refused.append(claim.job_id)
+            raise OperationalError("UPDATE jobs", {}, Exception("database is locked"))
+        return finish(self, claim, status, **kwargs)
+
+    monkeypatch.setattr(JobStore, "finish", locked_once)
+    job = submit(client, "test_crash", signal=9)
+    done = wait_for(client, job["id"], timeout=30)
+    assert refused == [job["id"]]
+    assert done["status"] == "failed" and done["attempts"] == 1, done
+    assert "SIGKILL" in done["error"]["detail"] and "out of memory" in done["error"]["detail"]
+    time.sleep(6.0)  # past the test lease (5 s) and many reaper passes: never claimed again
+    again = client.get(f"/api/v1/jobs/{job['id']}", headers=OP).json()
+    assert again["status"] == "failed" and again["attempts"] == 1
+
+
 @pytest.fixture
 def runtime(settings_factory):
     settings = settings_factory(lease_s=1.0, max_attempts=5)

@@ -360,3 +360,18 @@ def test_toolpath_on_a_registered_machine_uses_its_travel_limits(client, part):
     assert refused.status_code == 422 and "on X" in refused.json()["detail"], refused.text
     missing = submit(client, "toolpath", {"slice_job_id": sliced["id"], "machine_id": "mach_nope"})
     assert missing.status_code in (404, 422) and "mach_nope" in missing.text
+
+
+def test_a_thin_walled_tube_prints_its_wall_and_a_part_with_nothing_to_extrude_fails_with_the_reason(client):
+    from tests.real_parts import thin_tube
+
+    printed = run(client, "slice", {"part_id": upload(client, thin_tube(0.305, 10.0, 1.0)), "layer_mm": 0.25})
+    job = run(client, "toolpath", {"slice_job_id": printed["id"]})
+    assert job["result"]["path_mm"] == pytest.approx(4 * 2 * math.pi * (10.0 - 0.1525) * math.cos(math.pi / 128),
+                                                     rel=2e-3)
+    nothing = run(client, "slice", {"part_id": upload(client, thin_tube(0.08, 10.0, 1.0)), "layer_mm": 0.25})
+    response = submit(client, "toolpath", {"slice_job_id": nothing["id"]})
+    failed = wait_for(client, response.json()["id"], timeout=60.0)
+    assert failed["status"] == "failed" and failed["error"]["status"] == 422
+    assert "no extrusion" in failed["error"]["detail"]
+    assert failed["error"]["errors"][0]["loc"] == ["params", "line_width_mm"]

@@ -27,6 +27,7 @@ from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingErro
 from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
 from app.slicing.mesh_prep import default_max_hole_mm
+from app.slicing.rings import ring_length
 
 MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at submission)
 _CORE = SliceParams()
@@ -191,14 +192,15 @@ def _layer_row(layer, beam_offset_mm: float | None) -> dict:
     return row
 
 
-# Cost model: every layer holds its contours (a ring crosses ~sqrt(faces) facets) and their
-# SLC / CLI / JSON text, ~LAYER_VERTEX_BYTES per vertex; the mesh itself ~FACE_BYTES per face
-# (trimesh caches, the vectorised slicer's edge arrays).  Adaptive modes are counted at their
-# thinnest layer (the worst case).
-LAYER_VERTEX_BYTES = 400.0
+# Cost model, calibrated against measured peaks (tests/bench/test_bench_job_memory.py): the
+# mesh ~FACE_BYTES per face (trimesh's arrays and caches, the vectorised slicer's edge arrays),
+# the contours ~VERTEX_BYTES per vertex (~VERTICES_PER_ROOT_FACE sqrt(faces) per layer) with
+# their SLC / CLI / JSON text.  Adaptive modes are counted at their thinnest layer (the worst case).
+FACE_BYTES = 560.0
+VERTEX_BYTES = 45.0
+VERTICES_PER_ROOT_FACE = 10.0
 LAYER_S = 2e-3
-FACE_BYTES = 600.0
-BASE_MB = 60.0
+BASE_MB = 4.0
 
 
 def _estimate(params: SliceJobParams, session: Session) -> Cost | None:
@@ -211,8 +213,8 @@ def _estimate(params: SliceJobParams, session: Session) -> Cost | None:
     field, thickness = (("params.layer_mm", params.layer_mm) if params.mode == "uniform"
                         else ("params.l_min", params.l_min))
     layers = math.ceil(max(height, 0.0) / thickness) + 1
-    vertices = 8 * math.sqrt(max(part.faces, 1))
-    memory = BASE_MB + (FACE_BYTES * part.faces + LAYER_VERTEX_BYTES * vertices * layers) / 2**20
+    vertices = VERTICES_PER_ROOT_FACE * math.sqrt(max(part.faces, 1))
+    memory = BASE_MB + (FACE_BYTES * part.faces + VERTEX_BYTES * vertices * layers) / 2**20
     return Cost(memory_mb=memory, time_s=LAYER_S * layers * (1 + vertices / 1000), field=field, value=thickness,
                 basis=f"{layers:,} layers of ~{vertices:,.0f} contour vertices, {part.faces:,} faces")
 
@@ -247,6 +249,9 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
     return SliceResult.written({
         "mode": params.mode,
         "layer_count": len(sliced.layers),
+        "vertices": int(sum(len(ring) for layer in sliced.layers for island in layer.islands for ring in island.rings())),
+        "contour_mm": float(sum(ring_length(ring) for layer in sliced.layers for island in layer.islands
+                                for ring in island.rings())),
         "z_min": sliced.z_min,
         "z_max": sliced.z_max,
         "bounds": [[float(v) for v in row] for row in sliced.bounds],

@@ -11,14 +11,17 @@ alone (no retracts, homing or start section).
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Iterator
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
-from app.gcode.estimator import MachineLimits, estimate_gcode
-from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_gcode
+from app.gcode.estimator import MachineLimits, estimate_program
+from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_layers
+from app.gcode.reader import read_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.context import JobContext
@@ -30,7 +33,8 @@ from app.jobs.results import SliceResult
 from app.models import Job, Machine, Part
 from app.jobs.inputs import succeeded_job
 from app.records import get_or_404
-from app.slicing import SlicingError, ToolpathParams, plan_toolpath
+from app.slicing import SlicingError, ToolpathParams
+from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
 from app.slicing.export import from_json
 from app.slicing.layers import translated
 from app.slicing.fractal import MergeWeights
@@ -198,28 +202,53 @@ def machine_volume(params: ToolpathJobParams, machine: Machine | None) -> Machin
     return MachineVolume()
 
 
-def _per_layer(toolpath, layer_times: tuple[float, ...]) -> list[dict]:
-    return [{"index": lay.index, "z": lay.z, "thickness": lay.thickness, "path_mm": lay.stats.path_mm,
-             "travel_mm": lay.stats.travel_mm, "turns": lay.stats.turns, "jumps": lay.stats.jumps,
-             "time_s": layer_times[lay.index] if lay.index < len(layer_times) else 0.0,
-             "planner_time_s": lay.stats.time_s, "pieces": len(lay.pieces)}
-            for lay in toolpath.layers]
+def _per_layer(stats: list[tuple[int, float, float, LayerStats, int]], layer_times: tuple[float, ...]) -> list[dict]:
+    """Per-layer rows from (index, z, thickness, stats, pieces) and the estimated layer times."""
+    return [{"index": index, "z": z, "thickness": thickness, "path_mm": st.path_mm,
+             "travel_mm": st.travel_mm, "turns": st.turns, "jumps": st.jumps,
+             "time_s": layer_times[index] if index < len(layer_times) else 0.0,
+             "planner_time_s": st.time_s, "pieces": pieces}
+            for index, z, thickness, st, pieces in stats]
 
 
 def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
     return [("job", params.slice_job_id)] + ([("machine", params.machine_id)] if params.machine_id else [])
 
 
-# Cost model, calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py): the
-# fractal fills build a grid of cells at the pitch line_width / infill over each layer's
-# footprint; hilbert_merged peaked at ~440 bytes and 40-80 us per cell (0.1 mm: 160,000 cells,
-# 71 MiB, 5.8 s; 0.05 mm: 640,000 cells, 279 MiB, 51 s); plain hilbert ~360 bytes, 70 us.  The
-# scan-line fills keep ~2 vertices per line at ~300 bytes and ~50 us each, all layers held.
+# Cost model, calibrated on a 2-core machine (tests/bench/test_bench_compute_limits.py and
+# tests/bench/test_bench_job_memory.py): the fractal fills build a grid of cells at the pitch
+# line_width / infill over each layer's footprint; hilbert_merged peaked at ~440 bytes and
+# 40-80 us per cell.  The other fills are planned and written a layer at a time, so what
+# grows is the program, ~PROGRAM_LINE_BYTES per written line (its text, then the compact rows
+# read back for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
+# read from layers.json (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
+# slice: ~INFILL_LINES per sqrt(layer area) / pitch (scan lines at the angle, with their
+# links) and ~CONTOUR_LINES per mm of contour per perimeter (simplified to the resolution,
+# so a finer mesh of the same part writes the same lines).
 CELL_BYTES = 500.0
 CELL_S = 80e-6
-LINE_VERTEX_BYTES = 300.0
-LINE_VERTEX_S = 50e-6
-BASE_MB = 100.0  # interpreter, numpy/scipy buffers and BLAS arenas of a fresh process
+PROGRAM_LINE_BYTES = 600.0
+SLICE_VERTEX_BYTES = 125.0
+LINE_S = 150e-6
+INFILL_LINES = 6.7
+CONTOUR_LINES = 0.5
+GRID_BASE_MB = 100.0  # the fractal fills' numpy/scipy buffers on top of their cells
+
+
+def predicted_lines(slice_result: SliceResult, pitch: float, perimeters: int) -> float:
+    """Program lines a scan-line or contour fill of ``slice_result`` writes (see the cost model);
+    a slice job without its contour length is counted at ~1 line per 2 vertices."""
+    sqrt_area = sum(math.sqrt(max(float(row.get("area_mm2") or 0.0), 0.0)) for row in slice_result.layers)
+    contour = slice_result.contour_mm
+    contour_lines = CONTOUR_LINES * contour if contour is not None else 0.5 * (slice_result.vertices or 0)
+    return INFILL_LINES * sqrt_area / pitch + contour_lines * max(1, perimeters)
+
+
+def slice_vertices(slice_result: SliceResult, faces: int) -> int:
+    """The slice's contour vertices (recorded, else ~8 sqrt(faces) per layer)."""
+    if slice_result.vertices is not None:
+        return slice_result.vertices
+    return int(8 * math.sqrt(max(faces, 1)) * max(1, slice_result.layer_count))
 
 
 def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
@@ -231,18 +260,19 @@ def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
         return None
     (x0, y0, _), (x1, y1, _) = part.bounds
     pitch = params.line_width_mm / params.infill
-    layers = max(1, SliceResult.of(job).layer_count)
+    sliced = SliceResult.of(job)
+    layers = max(1, sliced.layer_count)
     cols, rows = (x1 - x0) / pitch + 2, (y1 - y0) / pitch + 2
     if params.pattern in ("hilbert", "hilbert_merged"):
         cells = cols * rows
-        memory_mb = BASE_MB + CELL_BYTES * cells / 2**20
+        memory_mb = GRID_BASE_MB + CELL_BYTES * cells / 2**20
         seconds = CELL_S * cells * layers
         basis = f"{cells:,.0f} fill cells per layer at pitch {pitch:g} mm, {layers} layers"
-    else:  # scan lines (or contour rings) across the larger side, both ends a vertex
-        vertices = 2 * max(cols, rows) * layers * (1 + params.perimeters)
-        memory_mb = BASE_MB + LINE_VERTEX_BYTES * vertices / 2**20
-        seconds = LINE_VERTEX_S * vertices
-        basis = f"{vertices:,.0f} path vertices at pitch {pitch:g} mm, {layers} layers"
+    else:
+        lines = predicted_lines(sliced, pitch, params.perimeters)
+        memory_mb = (PROGRAM_LINE_BYTES * lines + SLICE_VERTEX_BYTES * slice_vertices(sliced, part.faces)) / 2**20
+        seconds = LINE_S * lines
+        basis = f"about {lines:,.0f} program lines at pitch {pitch:g} mm, {layers} layers"
     field, value = (("params.infill", params.infill) if params.infill < 0.5
                     else ("params.line_width_mm", params.line_width_mm))
     return Cost(memory_mb=memory_mb, time_s=seconds, field=field, value=value, basis=basis)
@@ -259,23 +289,36 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     shift = placement_shift(sliced.bounds, params.placement.core(), volume)
     sliced = translated(sliced, shift)
     ctx.progress(0.1, f"filling {len(sliced.layers)} layers ({params.pattern})")
-    toolpath = plan_toolpath(sliced, params.fill())
-    ctx.progress(0.7, "writing G-code")
-    gcode = write_fdm_gcode(toolpath, params.fdm(ctx.job_id))
+    fill = params.fill()
+    stats: list[tuple[int, float, float, LayerStats, int]] = []
+
+    def planned() -> Iterator[LayerToolpath]:  # each layer written as it is planned, then let go
+        for layer in iter_toolpath(sliced, fill):
+            stats.append((layer.index, layer.z, layer.thickness, layer.stats, len(layer.pieces)))
+            yield layer
+
+    gcode = write_fdm_layers(planned(), fill, params.fdm(ctx.job_id))
+    totals = totals_of(row[3] for row in stats)
+    if totals.path_mm <= 0:
+        raise SlicingError(f"the part yields no extrusion at line width {params.line_width_mm:g} mm: every section "
+                           f"is thinner than {THINNEST_WALL:g} of the {params.nozzle_mm:g} mm nozzle",
+                           field="params.line_width_mm", value=params.line_width_mm)
+    ctx.progress(0.7, "estimating the print time")
     limits = params.limits()
-    estimate = estimate_gcode(gcode, limits)
-    meta = gcode_meta(gcode)
+    program = read_program(gcode)
+    estimate = estimate_program(program, limits)
+    meta = gcode_meta(gcode, program)
+    del program
     if meta["bounds"] is not None:
         check_inside(np.asarray(meta["bounds"]), volume, what="print.gcode")
     ctx.artifact("print.gcode", gcode.encode(), "text/x-gcode", meta)
-    totals = toolpath.totals
     return ToolpathResult.written({
         "time_s": estimate.total_s,
         "planner_time_s": totals.time_s,
         "estimator": {"name": "app.gcode.estimator.estimate_gcode (marlin-jd, full lookahead)",
-                      "description": toolpath.estimator, "limits": dataclasses.asdict(limits)},
+                      "description": limits.describe(), "limits": dataclasses.asdict(limits)},
         "pattern": params.pattern,
-        "layer_count": len(toolpath.layers),
+        "layer_count": len(stats),
         "path_mm": totals.path_mm,
         "travel_mm": totals.travel_mm,
         "turns": totals.turns,
@@ -284,5 +327,5 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
         "placement": {**params.placement.model_dump(), "shift_mm": [float(v) for v in shift],
                       "volume_mm": volume.describe(),
                       "note": f"the part's frame moved by {np.round(shift, 6).tolist()} mm into the machine's"},
-        "layers": _per_layer(toolpath, estimate.layer_times),
+        "layers": _per_layer(stats, estimate.layer_times),
     })

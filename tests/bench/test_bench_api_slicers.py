@@ -1,0 +1,176 @@
+"""Slice + toolpath through the HTTP API beside PrusaSlicer and CuraEngine, in the same run.
+
+Run: make bench (or .venv/bin/python -m pytest tests/bench/test_bench_api_slicers.py -s -o addopts="" -q)
+
+Each real-shaped part (:mod:`tests.real_parts`) is uploaded to a served app (compute jobs in
+their pool processes, default limits), sliced and filled at the defaults (0.2 mm layers, one
+perimeter, 100 % raster infill), then given to PrusaSlicer (``prusa-slicer``, Debian) and
+CuraEngine (``cura-engine``, with the ``cura`` package's definition files) with the same layer
+height, perimeters and infill and no skins, skirt or brim.  CPU seconds are compared (the box
+may be loaded; wall times are printed too): ours is the whole service tree's (the server, the
+fork server and the compute processes), theirs the CLI's.  Peak memory: the compute processes'
+largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part,
+``BENCH_QUICK=1`` leaves the 300 mm plate out.
+
+The tools are installed by ``make bench-tools`` (``apt-get install prusa-slicer cura-engine``,
+the ``cura`` package's definitions extracted to ``CURA_RESOURCES``); without them this bench
+fails and says so, it never skips.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import auth
+from tests.real_parts import cad_part, large_plate, thin_tube
+
+OP = auth("operator")
+CURA_RESOURCES = Path(os.environ.get("CURA_RESOURCES", "/usr/share/cura/resources"))
+PARTS = {
+    "cube 20 mm": "trimesh.creation.box((20.0, 20.0, 20.0))",
+    "cad part 13k faces": "cad_part(refine=1)",
+    "tube, 0.305 mm wall": "thin_tube()",
+    "plate 300 mm, 69k faces": "large_plate()",
+}
+if os.environ.get("BENCH_QUICK"):  # the small parts only
+    del PARTS["plate 300 mm, 69k faces"]
+if os.environ.get("BENCH_LARGE"):
+    PARTS["cad part 1.34M faces"] = "cad_part(refine=10)"
+
+
+def _tree_cpu_and_peak(root: int) -> tuple[float, float]:
+    """CPU seconds (user + system) of ``root`` and every descendant, and the largest resident
+    peak (VmHWM, MiB) among the descendants."""
+    children: dict[int, list[int]] = {}
+    stats: dict[int, list[str]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            stats[int(entry)] = fields
+            children.setdefault(int(fields[1]), []).append(int(entry))
+    tick = os.sysconf("SC_CLK_TCK")
+    cpu, peak, todo = 0.0, 0.0, [root]
+    while todo:
+        pid = todo.pop()
+        if pid in stats:
+            cpu += (int(stats[pid][11]) + int(stats[pid][12])) / tick
+        if pid != root:
+            try:
+                hwm = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                           if line.startswith("VmHWM:"))
+                peak = max(peak, int(hwm.split()[1]) / 1024)
+            except (OSError, StopIteration):
+                pass
+        todo.extend(children.get(pid, []))
+    return cpu, peak
+
+
+def _timed(cmd: list[str], env: dict | None = None) -> tuple[float, float, float, subprocess.CompletedProcess]:
+    """(CPU s, max RSS MiB, wall s, the run) of ``cmd`` under GNU time."""
+    started = time.perf_counter()
+    run = subprocess.run(["/usr/bin/time", "-f", "@@%U %S %M", *cmd], capture_output=True, text=True, timeout=3600,
+                         env=env)
+    wall = time.perf_counter() - started
+    user, system, rss_kib = run.stderr.rsplit("@@", 1)[1].split()
+    return float(user) + float(system), int(rss_kib) / 1024, wall, run
+
+
+def _wait(client, job_id: str, timeout: float = 3600.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
+        if job["status"] in ("succeeded", "failed", "cancelled"):
+            return job
+        time.sleep(0.2)
+    raise AssertionError(f"job {job_id} did not finish in {timeout} s")
+
+
+@pytest.fixture(scope="module")
+def tools():
+    missing = [name for name in ("prusa-slicer", "CuraEngine") if shutil.which(name) is None]
+    if not (CURA_RESOURCES / "definitions/fdmprinter.def.json").exists():
+        missing.append(f"Cura's definitions in {CURA_RESOURCES} (CURA_RESOURCES)")
+    if not Path("/usr/bin/time").exists():
+        missing.append("/usr/bin/time (GNU time)")
+    if missing:
+        pytest.fail(f"the reference slicers are missing: {', '.join(missing)}; run `make bench-tools` (apt-get "
+                    "install prusa-slicer cura-engine, Cura's definitions extracted)")
+
+
+@pytest.mark.timeout(7200)  # the 300 mm plate and the reference slicers take minutes on a loaded box
+def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaengine(tools, settings_factory,
+                                                                                       tmp_path):
+    import trimesh  # noqa: F401  (the part expressions use it)
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+
+    settings = settings_factory(lease_s=30.0, compute_isolation="process")
+    rows = []
+    with TestClient(create_app(settings), raise_server_exceptions=False) as client:
+        # warm: the fork server and compute processes start (imports: seconds of CPU) before any figure
+        warm = client.post("/api/v1/parts", files={"file": ("warm.stl", trimesh.creation.box((5.0, 5.0, 1.0))
+                                                            .export(file_type="stl"))}, headers=OP).json()
+        warm_slice = client.post("/api/v1/jobs", json={"kind": "slice", "params": {"part_id": warm["id"]}},
+                                 headers=OP).json()
+        assert _wait(client, warm_slice["id"])["status"] == "succeeded"
+        for name, expression in PARTS.items():
+            mesh = eval(expression, {"trimesh": trimesh, "cad_part": cad_part, "large_plate": large_plate,
+                                     "thin_tube": thin_tube})
+            mesh.apply_translation([100.0, 100.0, 0.0] - (mesh.bounds[0] + mesh.bounds[1]) * [0.5, 0.5, 0.0]
+                                   - [0.0, 0.0, mesh.bounds[0][2]])
+            stl = tmp_path / "part.stl"
+            mesh.export(stl)
+            cpu0, _ = _tree_cpu_and_peak(os.getpid())
+            started = time.perf_counter()
+            response = client.post("/api/v1/parts", files={"file": ("part.stl", stl.read_bytes())}, headers=OP)
+            assert response.status_code == 201, response.text
+            sliced = client.post("/api/v1/jobs", json={"kind": "slice", "params": {
+                "part_id": response.json()["id"], "layer_mm": 0.2}}, headers=OP)
+            assert sliced.status_code == 202, sliced.text
+            slice_job = _wait(client, sliced.json()["id"])
+            assert slice_job["status"] == "succeeded", slice_job["error"]
+            volume = {"x": [0, 400], "y": [0, 400], "z": [0, 400]}
+            filled = client.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
+                "slice_job_id": slice_job["id"], "volume_mm": volume}}, headers=OP)
+            assert filled.status_code == 202, filled.text
+            tool_job = _wait(client, filled.json()["id"])
+            assert tool_job["status"] == "succeeded", tool_job["error"]
+            ours_wall = time.perf_counter() - started
+            ours_cpu, ours_peak = _tree_cpu_and_peak(os.getpid())
+            ours_cpu -= cpu0
+            result = client.get(f"/api/v1/jobs/{tool_job['id']}", headers=OP).json()["result"]
+            prusa = _timed(["prusa-slicer", "--export-gcode", "--layer-height", "0.2", "--first-layer-height", "0.2",
+                            "--perimeters", "1", "--fill-density", "100%", "--fill-pattern", "rectilinear",
+                            "--top-solid-layers", "0", "--bottom-solid-layers", "0", "--skirts", "0",
+                            "--bed-shape", "0x0,400x0,400x400,0x400", "--max-print-height", "400",
+                            "-o", str(tmp_path / "prusa.gcode"), str(stl)])
+            assert prusa[3].returncode == 0, prusa[3].stderr[-500:]
+            env = dict(os.environ, CURA_ENGINE_SEARCH_PATH=f"{CURA_RESOURCES}/definitions:"
+                                                           f"{CURA_RESOURCES}/extruders")
+            cura_cmd = ["CuraEngine", "slice", "-j", str(CURA_RESOURCES / "definitions/fdmprinter.def.json")]
+            for setting in ("layer_height=0.2", "layer_height_0=0.2", "wall_line_count=1",
+                            "infill_sparse_density=100", "infill_pattern=lines", "top_layers=0", "bottom_layers=0",
+                            "adhesion_type=none", "machine_width=400", "machine_depth=400", "machine_height=400"):
+                cura_cmd += ["-s", setting]
+            cura = _timed([*cura_cmd, "-l", str(stl), "-o", str(tmp_path / "cura.gcode")], env)
+            assert cura[3].returncode == 0, cura[3].stderr[-500:]
+            rows.append([name, f"{len(mesh.faces):,}", result["program"]["lines"], f"{result['path_mm']:,.0f}",
+                         ours_cpu, ours_wall, ours_peak, prusa[0], prusa[1], cura[0], cura[1],
+                         ours_cpu / prusa[0], ours_cpu / cura[0]])
+    header = ["part", "faces", "our lines", "our path mm", "ours CPU s", "ours wall s", "compute peak MiB",
+              "Prusa CPU s", "Prusa MiB", "Cura CPU s", "Cura MiB", "CPU x Prusa", "CPU x Cura"]
+    print("\nslice + toolpath through the API (0.2 mm layers, 1 perimeter, 100 % raster infill, no skins) "
+          "beside PrusaSlicer 2.5 and CuraEngine 4.13, same run")
+    print(" | ".join(header))
+    for row in rows:
+        print(" | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in row))
