@@ -38,7 +38,9 @@ def start_print(client, machine: dict, prog: dict):
 
 
 def executed(client, machine: dict) -> int:
-    return client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["mock"]["executed_commands"]
+    """Commands the mock firmware executed; 0 before the print job has connected it (a job is
+    ``running`` from its claim, the mock's world exists from the connect)."""
+    return client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["mock"].get("executed_commands", 0)
 
 
 def test_row1_a_dropped_link_interrupts_the_print_and_only_the_operator_resumes_it(client):

@@ -113,6 +113,9 @@ class ToolpathJobParams(JobParams):
     filament_mm: float = Field(_FILL.filament_mm, gt=0, le=10, allow_inf_nan=False, description="filament diameter, mm")
     turn_threshold_deg: float = Field(_FILL.turn_threshold_deg, ge=0, le=180, allow_inf_nan=False,
                                       description="direction changes above this count as turns, deg")
+    resolution_mm: float = Field(_FILL.resolution_mm, ge=0.001, le=1, allow_inf_nan=False,
+                                 description="the machine's resolution: paths are simplified to it and no move "
+                                             "is shorter, mm")
     merge_weight_along: float = Field(_WEIGHTS.along, ge=0, le=1000, allow_inf_nan=False,
                                       description="hilbert_merged: weight of merging along the layer direction")
     merge_weight_across: float = Field(_WEIGHTS.across, ge=0, le=1000, allow_inf_nan=False,
@@ -158,7 +161,7 @@ class ToolpathJobParams(JobParams):
             print_feed_mm_s=self.print_feed_mm_min / MM_MIN_PER_MM_S,
             perimeter_feed_mm_s=self.perimeter_feed_mm_min / MM_MIN_PER_MM_S,
             travel_feed_mm_s=self.travel_feed_mm_min / MM_MIN_PER_MM_S, filament_mm=self.filament_mm,
-            turn_threshold_deg=self.turn_threshold_deg, limits=self.limits(),
+            turn_threshold_deg=self.turn_threshold_deg, resolution_mm=self.resolution_mm, limits=self.limits(),
             merge_weights=MergeWeights(along=self.merge_weight_along, across=self.merge_weight_across))
 
     def fdm(self, job_id: str | None) -> FdmParams:
