@@ -48,17 +48,7 @@ def with_verification(plan: FieldPlan, nominals: Sequence[object], prior: Deviat
     """``plan`` (of the traces ``nominals``, designed for ``prior``) with ``count``
     verification points (:func:`verification_indices`) on the traces appended after its
     stations (touched last; ``verify`` marks them)."""
-    if count <= 0:
-        return plan
-    paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
-    samples = field_region(paths, prior.wavelength_mm).samples
-    idx = verification_indices(prior, plan.sites, samples.sites, plan.center, count)
-    n = plan.count
-    return replace(plan, xy=np.concatenate([plan.xy, samples.sites.xy[idx]]),
-                   z=np.concatenate([plan.z, samples.z[idx]]), grad=np.concatenate([plan.grad, samples.sites.grad[idx]]),
-                   trace=np.concatenate([plan.trace, samples.trace[idx]]),
-                   s_mm=np.concatenate([plan.s_mm, samples.s[idx]]),
-                   verify=np.concatenate([np.zeros(n, dtype=bool), np.ones(len(idx), dtype=bool)]))
+    return with_sequential_verification(plan, Sites(plan.xy[:0], plan.grad[:0]), nominals, prior, count)
 
 
 def with_sequential_verification(plan: FieldPlan, touched: Sites, nominals: Sequence[object],
