@@ -138,11 +138,32 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             if self.rules.line_numbers and (self._interrupted is None or self._interrupted.reset):
                 self.link.reset_line_numbers(1)
             self.identity = self._identify(banner, reset)
+            self._outputs_off_after_a_lost_link(reset)
         except HardwareError:
             self._state = "error"
             raise
         self._state = "idle"
         return self.identity
+
+    def _outputs_off_after_a_lost_link(self, reset: bool) -> None:
+        """A controller that kept running through a lost link (a Marlin board that does not
+        reset on connect) still holds the interrupted program's outputs, dispensing while it
+        waits.  Settle where the program stands by line numbers first (``resume_line``, so
+        the resume is unchanged by what follows), then send the profile's ``safe_off``: it is
+        queued after the moves the controller accepted, and a resume's modal replay turns the
+        dispenser back on where the program had it on."""
+        gap = self._interrupted
+        if gap is None or reset or gap.reset or self.rules.resets_on_connect or not self.rules.line_numbers:
+            return
+        try:
+            settled = self.resume_line()
+        except FirmwareReset:  # it restarted after all: its outputs are off, numbering starts again
+            gap.reset = True
+            self.link.reset_line_numbers(1)
+            return
+        gap.acked_index, gap.inflight = settled, []
+        for command in self.profile.safe_off:
+            self.link.send(command, self.timeout_s * 10)
 
     def _await_quiet(self) -> list:
         link = self.link

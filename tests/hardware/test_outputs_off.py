@@ -57,11 +57,7 @@ def test_stop_mid_line_and_reconnect_leave_the_dispenser_off(make_world, dialect
     machine.disconnect()
 
 
-@pytest.mark.parametrize("dialect", [
-    pytest.param("marlin", marks=pytest.mark.xfail(strict=True, reason=(
-        "a Marlin board that does not reset on reconnect keeps its dispenser on after a lost link, and "
-        "Machine.connect sends no dispense_off yet (the mock deposits along the next travel moves)"))),
-    "grbl"])
+@pytest.mark.parametrize("dialect", ["marlin", "grbl"])
 def test_a_lost_link_and_a_reconnect_leave_the_dispenser_off(make_world, dialect):
     from hardware.mock import FaultConfig
 

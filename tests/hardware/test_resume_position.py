@@ -18,6 +18,7 @@ from hardware.machine import Machine, MachineProfile
 from hardware.mock import FaultConfig
 from hardware.protocol import normalized_commands
 from hardware.resume import end_positions, locate_by_position
+from tests.helpers.machines import executed_before_the_cut
 
 PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
 
@@ -50,7 +51,7 @@ def cut_and_resume(make_world, dialect: str, fault: str, at: int):
     with pytest.raises(LinkError):
         m.stream(lines)
     m.connect()
-    ran = len(world.transcript.commands)  # what the controller really executed before the cut
+    ran, safe = executed_before_the_cut(world, m, kept_running=dialect == "marlin" and fault == "disconnect_at_line")
     bound = m.resume_line()
     found = m.locate_resume()
     assert m.last_resume == found
@@ -61,7 +62,7 @@ def cut_and_resume(make_world, dialect: str, fault: str, at: int):
     home = ["G28"] if dialect == "marlin" else []  # grbl's $H is a system command: not in the transcript
     executed = world.transcript.commands
     m.disconnect()
-    return found, bound, ran, executed, commands[:ran] + home + m.last_preamble + commands[found.start:]
+    return found, bound, ran, executed, commands[:ran] + safe + home + m.last_preamble + commands[found.start:]
 
 
 @pytest.mark.parametrize("at", [4, 9, 17, 26, 38, 47])

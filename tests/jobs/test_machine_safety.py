@@ -37,6 +37,12 @@ def start_print(client, machine: dict, prog: dict):
     return client.post(f"/api/v1/machines/{machine['id']}/print", json={"program_id": prog["id"]}, headers=OP)
 
 
+def safe_off(client, machine: dict) -> list[str]:
+    """The machine profile's ``safe_off`` commands as the firmware's transcript records them."""
+    profile = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["profile"]
+    return normalized_commands([profile["dispense_off"], *profile.get("outputs_off", [])])
+
+
 def executed(client, machine: dict) -> int:
     """Commands the mock firmware executed; 0 before the print job has connected it (a job is
     ``running`` from its claim, the mock's world exists from the connect)."""
@@ -68,8 +74,11 @@ def test_row1_a_dropped_link_interrupts_the_print_and_only_the_operator_resumes_
     # re-homed, then the modal state the skipped commands left replayed (units, modes, start point, feed)
     assert preamble[0] == "G28" and "G21" in preamble and start == done["program_state"]["resumed_from"]
     commands = normalized_commands(text.splitlines())
+    # the Marlin kept running through the dropped link: the reconnect sent its safe_off after what
+    # it had accepted (it would dispense while it waited otherwise)
+    safe = safe_off(client, machine)
     # what the firmware executed: the program exactly once, with the re-homing before the resume point
-    assert get_world(machine["id"]).transcript.commands == commands[:start] + preamble + commands[start:]
+    assert get_world(machine["id"]).transcript.commands == commands[:start] + safe + preamble + commands[start:]
 
 
 def test_row1_the_reaper_interrupts_a_machine_job_whose_process_died(client):

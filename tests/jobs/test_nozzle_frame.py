@@ -253,4 +253,9 @@ def test_a_shifted_print_interrupted_mid_program_resumes_the_same_shifted_progra
     executed = world.transcript.commands[base:]
     assert executed[-(len(shifted) - start + len(preamble)):] == preamble + shifted[start:]
     before = executed[:-(len(shifted) - start + len(preamble))]
+    # the Marlin kept running through the dropped link: the reconnect's safe_off follows what it accepted
+    profile = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["profile"]
+    safe = normalized_commands([profile["dispense_off"], *profile.get("outputs_off", [])])
+    assert before[-len(safe):] == safe
+    before = before[:-len(safe)]
     assert before[-start:] == shifted[:start] and "G38.2" not in " ".join(executed[-(len(shifted) - start):])
