@@ -103,7 +103,11 @@ def test_server_killed_mid_print_waits_for_the_operator_and_resumes_exactly_once
         assert done["result"]["resume_location"]["basis"] == "line numbers"  # the evidence, in the record
         assert done["result"]["resume_location"]["start"] == start_line
         commands = normalized_commands(PROGRAM.splitlines())
-        assert status(status_port)["commands"] == commands[:start_line] + preamble + commands[start_line:]
+        # the Marlin kept running through the lost link: the reconnect sent its safe_off after what
+        # it had accepted, then the resume's replay
+        profile = httpx.get(f"{base}/api/v1/machines/{machine['id']}", headers=headers).json()["profile"]
+        safe = normalized_commands([profile["dispense_off"], *profile.get("outputs_off", [])])
+        assert status(status_port)["commands"] == commands[:start_line] + safe + preamble + commands[start_line:]
     finally:
         stop(server)
         stop(printer)
