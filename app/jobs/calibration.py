@@ -65,7 +65,7 @@ def _done_at(job: Job) -> datetime:
 
 
 def machine_profile(row: Machine) -> Profile:
-    """The stored profile of ``row`` (profiles stored before issue 16 get the defaults;
+    """The stored profile of ``row`` (profiles stored without them get the defaults;
     keys this service does not know are left to the hardware layer)."""
     known = {k: v for k, v in (row.profile or {}).items() if k in Profile.model_fields}
     try:

@@ -1,4 +1,4 @@
-"""A closed loop's own files (issue 19): what an operator downloads from the loop itself
+"""A closed loop's own files: what an operator downloads from the loop itself
 instead of digging through each trace's compensate job.
 
 - ``loop_summary.json`` / ``loop_summary.csv``: one row per trace with its figures (probes,

@@ -1,7 +1,7 @@
 """What the machine job kinds share: one program per machine (held by the database), one
 execution thread per machine, a connected machine, and the operator-only recovery.
 
-Recovery rule (issue 13): nothing moves a machine without an operator's request.  When a
+Recovery rule: nothing moves a machine without an operator's request.  When a
 machine job's link drops, or its process dies, the job becomes ``interrupted`` with
 where its program stands (``program_state``); it is never requeued automatically.  The
 operator resumes it (``POST /jobs/{id}/resume``: reconnect, ask the machine which command

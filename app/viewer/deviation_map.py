@@ -1,6 +1,6 @@
-"""Deviation drawn on the part, standoff errors on the programs, and the colour legends
-(issue 19: "deviation as a colour map on the part, traces coloured by standoff error, a
-legend with units").
+"""Deviation drawn on the part, standoff errors on the programs, and the colour legends:
+the deviation as a colour map on the part, traces coloured by standoff error, a legend
+with units.
 
 - :func:`deviation_ribbon`: a band on the part along a trace, coloured by the rebuilt
   deviation (real minus nominal height) at each point of the trace;

@@ -30,7 +30,7 @@ the compensated one on the mock and compare the standoff along what was really d
 (the mock's deposition log) with the truth — the seed's Table 1, in simulation — and the
 top-view (XY) distance of the printed path from the design at the part's true placement.
 
-Probe physics (issue 16): ``corrections`` switches each calibrated correction (all on by
+Probe physics: ``corrections`` switches each calibrated correction (all on by
 default; off = left out, for the ablation bench): ``radius`` and ``pretravel`` go to the
 probe_run (and reconstruct) children, ``drift`` to the probe_run children and to the print
 children (their pad touch before streaming, ``drift_reference``), ``offsets`` to the
@@ -241,7 +241,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
                          + ("; nothing printed" if params.print else ""))
     if registration is not None:
         result["registration"] = {"job_id": registration.id, **RegisterResult.of(registration).echo()}
-    from app.jobs.loop_files import write_loop_files  # the loop's own files (issue 19), kept out of this module
+    from app.jobs.loop_files import write_loop_files  # the loop's own files, kept out of this module
 
     result["files"] = write_loop_files(ctx, params.machine_id, result)
     return ClosedLoopResult.written(result)

@@ -11,7 +11,7 @@ are ``print.<trace_id>.gcode`` / ``nominal.<trace_id>.gcode``.
 Policy outside the probed span: refused (422) unless ``hold_mm`` allows holding the end
 deviation over a short gap; see :mod:`app.compensation.standoff`.
 
-Tool frame (issue 16): on a machine whose profile has nozzles the programs are written for
+Tool frame: on a machine whose profile has nozzles the programs are written for
 a nozzle (``tool``, default the profile's first): ``T<tool>`` first, every coordinate the
 carriage's = desired tip - the nozzle's CALIBRATED offset (the latest ``calibrate_nozzle``
 job, :func:`app.jobs.calibration.current_calibration`).  An uncalibrated nozzle is refused

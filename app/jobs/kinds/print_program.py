@@ -6,7 +6,7 @@ waits: ``POST /jobs/{id}/resume`` reconnects, takes the first command not known 
 executed (``Machine.resume_line``), re-homes and streams on from there
 (``app.jobs.machine_jobs``).  ``program_state`` in the job record shows where it stands.
 
-Drift reference (issue 16, ``drift_reference``, default on): on a machine whose probe
+Drift reference (``drift_reference``, default on): on a machine whose probe
 calibration has a pad reading and whose profile has a reference pad, the probe (T0)
 touches the pad right before streaming and the program's absolute Z is shifted by the
 reading now minus the reading at calibration (:func:`app.gcode.shift.shift_z`): the Z the
