@@ -44,8 +44,9 @@ def _status(pid: int, field: str) -> int:
     raise AssertionError(f"{field} not in /proc/{pid}/status")
 
 
-def measure_upload(stl: Path, data_dir: Path) -> UploadPeak:
-    """Start a server on ``data_dir``, warm it up, upload ``stl`` and measure."""
+def start_upload_server(data_dir: Path) -> tuple[subprocess.Popen, str, dict[str, str]]:
+    """A ``conforma serve`` of its own on ``data_dir`` (no viewer, no embedded worker, 1000 MB
+    uploads, one operator key): (the process, its base URL, the key's headers)."""
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("CONFORMA_")}
     env.update({"PYTHONPATH": str(ROOT), "CONFORMA_DATA_DIR": str(data_dir), "CONFORMA_VIEWER": "false",
@@ -53,8 +54,12 @@ def measure_upload(stl: Path, data_dir: Path) -> UploadPeak:
                 "CONFORMA_MAX_UPLOAD_MB": "1000"})
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port)], env=env, cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    base = f"http://127.0.0.1:{port}"
-    headers = {"Authorization": f"Bearer {KEY}"}
+    return proc, f"http://127.0.0.1:{port}", {"Authorization": f"Bearer {KEY}"}
+
+
+def measure_upload(stl: Path, data_dir: Path) -> UploadPeak:
+    """Start a server on ``data_dir``, warm it up, upload ``stl`` and measure."""
+    proc, base, headers = start_upload_server(data_dir)
     try:
         wait_healthy(base, proc)
         warm = trimesh.creation.icosphere(subdivisions=3).export(file_type="stl")

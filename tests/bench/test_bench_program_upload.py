@@ -5,17 +5,14 @@ Run: .venv/bin/python -m pytest tests/bench/test_bench_program_upload.py -s -o a
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.processes import free_port, stop, wait_healthy
-from tests.upload_memory import KEY, ROOT, _status
+from tests.processes import stop, wait_healthy
+from tests.upload_memory import _status, start_upload_server
 
 LINES = 3_000_000
 
@@ -26,15 +23,7 @@ def test_a_3m_line_program_uploads_within_100_mb_of_growth(tmp_path):
     with path.open("w") as out:
         for k in range(0, LINES, 10_000):
             out.write("".join(f"G1 X{j % 100}.{j % 7} Y{j % 37}.5 Z0.2 F1200\n" for j in range(k, k + 10_000)))
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("CONFORMA_")}
-    env.update({"PYTHONPATH": str(ROOT), "CONFORMA_DATA_DIR": str(tmp_path / "data"), "CONFORMA_VIEWER": "false",
-                "CONFORMA_EMBEDDED_WORKER": "false", "CONFORMA_API_KEYS": f"{KEY}:operator",
-                "CONFORMA_MAX_UPLOAD_MB": "1000"})
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--port", str(port)], env=env, cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    base = f"http://127.0.0.1:{port}"
-    headers = {"Authorization": f"Bearer {KEY}"}
+    proc, base, headers = start_upload_server(tmp_path / "data")
     try:
         wait_healthy(base, proc)
         warm = httpx.post(f"{base}/api/v1/programs", files={"file": ("w.gcode", b"G1 X1\n")}, headers=headers,
