@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 PYTEST := $(BIN)/python -m pytest
 
-.PHONY: run test bench bench-tools lint install clean-data screenshots
+.PHONY: run test bench bench-tools lint install clean-data screenshots docs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -45,6 +45,10 @@ bench: $(STAMP) bench-tools
 screenshots: $(STAMP)
 	$(PYTEST) tests/e2e/browser
 	cp tests/artifacts/screenshots/*.png web/screenshots/
+
+# the manual (docs/*.md) as a site in build/docs/; --strict: any warning fails the build
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict -f docs/config/mkdocs.yml
 
 lint: $(STAMP)
 	$(BIN)/ruff check app hardware tests
