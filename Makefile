@@ -48,7 +48,7 @@ screenshots: $(STAMP)
 
 # the manual (docs/*.md) as a site in build/docs/; --strict: any warning fails the build
 docs: $(STAMP)
-	$(BIN)/mkdocs build --strict -f docs/config/mkdocs.yml
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -f docs/config/mkdocs.yml
 
 lint: $(STAMP)
 	$(BIN)/ruff check app hardware tests

@@ -27,10 +27,11 @@ README = ROOT / "README.md"
 
 def _build(site: Path) -> subprocess.CompletedProcess[str]:
     """``mkdocs build --strict`` into ``site`` with every proxy pointing at a closed port, so a
-    build that reached for the network would fail."""
+    build that reached for the network would fail (and without the theme's end-of-life banner,
+    which is not about the manual)."""
     dead = "http://127.0.0.1:9"
     env = {**os.environ, "HTTP_PROXY": dead, "HTTPS_PROXY": dead, "http_proxy": dead, "https_proxy": dead,
-           "NO_PROXY": "", "no_proxy": ""}
+           "NO_PROXY": "", "no_proxy": "", "NO_MKDOCS_2_WARNING": "1"}
     return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(CONFIG),
                            "--site-dir", str(site)], capture_output=True, text=True, env=env, timeout=240)
 
@@ -44,7 +45,7 @@ def test_the_manual_builds_strictly_offline_without_a_warning(tmp_path):
     run = _build(tmp_path / "site")
     output = run.stdout + run.stderr
     assert run.returncode == 0, output
-    assert not re.search(r"\bWARNING\b", output), output
+    assert not re.search(r"warning", output, re.I), output
     for page in ("index", "install", "architecture", "measured", "methods"):
         assert (tmp_path / "site" / f"{page}.html").is_file(), page
 
