@@ -38,21 +38,24 @@ def test_postgres_url_gets_the_psycopg_driver():
     assert not settings.is_sqlite
 
 
-def _readme_configuration_names() -> list[str]:
-    """Every ``CONFORMA_*`` name the README's Configuration table documents."""
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme.split("\n## Configuration\n", 1)[1].split("\n## ", 1)[0]
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+
+
+def _documented_configuration_names() -> list[str]:
+    """Every ``CONFORMA_*`` name the manual's Configuration table documents."""
+    page = (DOCS / "install.md").read_text()
+    section = page.split("\n## Configuration\n", 1)[1].split("\n## ", 1)[0]
     table = [line for line in section.splitlines() if line.startswith("| `CONFORMA_")]
     return sorted({name for line in table for name in re.findall(r"CONFORMA_[A-Z0-9_]+", line.split("|")[1])})
 
 
-def test_every_setting_the_readme_documents_passes_the_start_up_check():
-    names = _readme_configuration_names()
+def test_every_setting_the_manual_documents_passes_the_start_up_check():
+    names = _documented_configuration_names()
     assert len(names) >= 30 and "CONFORMA_LINUXCNC_ENABLEPW" in names
     assert unknown_variables({name: "x" for name in names}) == []
-    # and every name anywhere in the README (test and simulator variables included)
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    assert unknown_variables({name: "x" for name in re.findall(r"CONFORMA_[A-Z0-9_]*[A-Z0-9]", readme)}) == []
+    # and every name anywhere in the manual and the README (test and simulator variables included)
+    text = "\n".join(p.read_text() for p in [*DOCS.glob("*.md"), DOCS.parent / "README.md"])
+    assert unknown_variables({name: "x" for name in re.findall(r"CONFORMA_[A-Z0-9_]*[A-Z0-9]", text)}) == []
 
 
 def test_linuxcnc_settings_are_read_and_checked(tmp_path):
