@@ -177,7 +177,7 @@ def cmd_mock_printer(args: argparse.Namespace) -> int:
 
 
 START_HERE = """start here:
-  conforma demo     seed S1's closed loop on the mock printer: probes, compensates and prints
+  conforma demo     the published closed loop on the mock printer: probes, compensates and prints
                     nine traces and prints the before/after table (about 10 s)
   conforma serve    then the service: the pages at http://127.0.0.1:8000/ (the first start
                     prints an operator API key), the API at /api/v1, its docs at /docs
@@ -214,7 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     mig.add_argument("--revision", default="head")
     mig.set_defaults(func=cmd_migrate)
 
-    demo = sub.add_parser("demo", help="seed S1's experiment on the mock printer: closed loop + Table 1")
+    demo = sub.add_parser("demo", help="the published experiment on the mock printer: closed loop + its width table")
     data_dir(demo)
     from app.demo import add_arguments
 

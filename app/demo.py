@@ -1,10 +1,10 @@
-"""``conforma demo``: seed S1's experiment, reproduced on the mock printer.
+"""``conforma demo``: the height-compensation paper's experiment, reproduced on the mock printer.
 
 Loads the S1 reference part (40 mm x 60 mm, NURBS free-form top) and its nine traces, a
 mock machine whose true part carries a smooth machining error and a placement offset,
 runs the closed loop (probe plan -> probe run -> reconstruct -> compensate), prints the
 nominal and the compensated program of every trace on the mock, and prints a table like
-the seed's Table 1 from what the mock really deposited: standoff error before/after,
+the paper's Table 1 from what the mock really deposited: standoff error before/after,
 predicted line width mean/std before/after, probes used.
 """
 
@@ -100,7 +100,7 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
                 for row in current.result["table"]]
         for row, number in zip(rows, numbers):
             object.__setattr__(row, "trace", number)
-        print("\nSeed S1 Table 1, simulated (um; 'before' = nominal program, 'after' = compensated):", file=out)
+        print("\nThe published Table 1, simulated (um; 'before' = nominal program, 'after' = compensated):", file=out)
         print(format_table(rows), file=out)
         print(f"\nclosed-loop job {job.id} (children: GET /api/v1/jobs?parent_id={job.id}); "
               f"data in {settings.data_dir}; `conforma serve` shows it at http://{settings.host}:{settings.port}/",

@@ -22,7 +22,7 @@ CORE = ("geometry", "probing", "reconstruction", "registration", "compensation",
 FORBIDDEN_IN_CORE = ("fastapi", "starlette", "sqlmodel", "sqlalchemy", "viser", "hardware", "huey", "uvicorn",
                      "app.api", "app.jobs", "app.viewer", "app.db", "app.models", "app.main")
 MAX_MODULE_LINES = 500
-# import cycles that exist today (issue 14 names the slicing one); the list may only shrink
+# import cycles that exist today; the list may only shrink
 KNOWN_CYCLES: set[frozenset[str]] = set()
 
 

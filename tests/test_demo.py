@@ -1,4 +1,4 @@
-"""`conforma demo` runs the closed loop on the mock and prints seed S1's Table 1."""
+"""`conforma demo` runs the closed loop on the mock and prints the published Table 1."""
 
 from __future__ import annotations
 

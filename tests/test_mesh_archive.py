@@ -1,4 +1,4 @@
-"""3MF archives are inflated with a hard cap whatever their headers say (issue 13 row 9)."""
+"""3MF archives are inflated with a hard cap whatever their headers say."""
 
 from __future__ import annotations
 

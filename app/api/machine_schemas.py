@@ -123,7 +123,7 @@ class Profile(Strict):
                                           description="five-axis table pivot [x, y, z] mm (LinuxCNC xyzac-trt "
                                           "x/y/z-rot-point); five_axis jobs with machine_id use it")
     five_axis_post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
-        "conforma", description="how five_axis jobs with machine_id write X Y Z A C (see the README)")
+        "conforma", description="how five_axis jobs with machine_id write X Y Z A C (see docs/five-axis.md)")
     tools: Tools | None = Field(None, description="T0 = the touch probe, T1..T8 = nozzles (nominal offsets)")
     reference: Reference | None = Field(None, description="reference pad and sphere for the calibration jobs")
     calibration_max_age_h: Finite = Field(24.0, gt=0, le=24 * 365,

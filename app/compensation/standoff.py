@@ -1,4 +1,4 @@
-"""Trace height compensation (seed S1 step 5, job ``compensate``).
+"""Trace height compensation (the published method's step 5, job ``compensate``).
 
 From a :class:`~app.reconstruction.reconstruct.Reconstruction` of the real trace, the
 print path keeps the nozzle tip ``standoff_mm`` above the REAL surface:

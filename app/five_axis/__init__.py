@@ -1,4 +1,4 @@
-"""Five-axis conformal paths (seed S3): nozzle-normal traverses on a measured surface for a
+"""Five-axis conformal paths (the EHD patent's method): nozzle-normal traverses on a measured surface for a
 table-tilting A/C machine, with constant-feed Taylor interpolation and G-code output."""
 
 from app.five_axis.branches import BranchChoice, choose_axes

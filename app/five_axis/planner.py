@@ -1,4 +1,4 @@
-"""Plan a five-axis nozzle-normal traverse of a trace on a measured surface (seed S3).
+"""Plan a five-axis nozzle-normal traverse of a trace on a measured surface (the EHD patent's method).
 
 ``plan_five_axis(surface, trace, params)``:
 

@@ -1,7 +1,7 @@
 """FDM / dispensing G-code from a planned toolpath: start, process and end sections.
 
 ``write_fdm_gcode(toolpath, FdmParams) -> str`` (pure, byte-identical for equal inputs).
-Sections (seed S5: only the process part depends on the part):
+Sections (as the published FDM path planning writes them: only the process part depends on the part):
 
 * start - header (from :class:`~app.gcode.writer.ProgramBuilder`), machine limits
   (M204/M205 for Marlin), heating (extrusion) and relative/absolute E, homing, prime;

@@ -1,4 +1,4 @@
-"""Droplet-jetting morphology compensation (seed S2): height model, threshold ink flow,
+"""Droplet-jetting morphology compensation (the jetting MPC method): height model, threshold ink flow,
 plant simulator, layer-to-layer MPC with binary drop patterns, targets and metrics.
 
 Entry points for the job adapter: ``JettingParams``, ``simulate``, ``next_layer``,

@@ -1,4 +1,4 @@
-"""Seed S2 threshold ink flow (eq. 7), mass-conserving and liquid-limited.
+"""The published threshold ink flow (eq. 7), mass-conserving and liquid-limited.
 
 After a layer's drops land, liquid ink moves between 4-neighbours i, j whose surface
 heights differ by more than the threshold, from high to low (the seed's eq. 7 leaves the

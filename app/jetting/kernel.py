@@ -1,4 +1,4 @@
-"""Single-droplet height kernel D and the deposit operator B (seed S2 eqs. 1-5).
+"""Single-droplet height kernel D and the deposit operator B (the jetting MPC paper's eqs. 1-5).
 
 A drop lands as a spherical cap of base diameter ``drop_diameter_um`` and volume
 ``drop_volume_pl``. The cap is integrated over the print cells (supersampled) and scaled

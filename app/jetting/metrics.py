@@ -1,4 +1,4 @@
-"""Surface metrics of a printed layer over the part's cells (seed S2, section 3.2).
+"""Surface metrics of a printed layer over the part's cells (the jetting MPC paper, section 3.2).
 
 Sa = mean |h - mean h|, Sz = max h - min h, RMSE (eq. 16) = sqrt(mean (h - mean h)^2),
 all over the part mask (``sa_interior_um``: Sa of the interior cells alone). Edge

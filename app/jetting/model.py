@@ -1,4 +1,4 @@
-"""The controller's linear layer model h_(l+1) = h_l + G f_l (seed S2 eq. 9).
+"""The controller's linear layer model h_(l+1) = h_l + G f_l (the jetting MPC paper's eq. 9).
 
 G = (I + Dg) B in the seed's form: B deposits drops (kernel convolution) and the flow is
 frozen at a predicted pattern (the previous layer's, or ``fill`` everywhere at the first

@@ -15,7 +15,7 @@ MM_PER_UM = 1e-3
 
 @dataclass(frozen=True)
 class DropParams:
-    """Print resolution and the nominal droplet (seed S2: 300 dpi, ~60 um spread).
+    """Print resolution and the nominal droplet (as published: 300 dpi, ~60 um spread).
 
     ``drop_volume_pl`` is not given by the seed; 6 pL puts one full layer at 0.84 um,
     which makes the open-loop Sa at 200 layers with 2 % nozzle spread close to the
@@ -47,7 +47,7 @@ class DropParams:
 
 @dataclass(frozen=True)
 class FlowParams:
-    """Seed S2 eq. 7 threshold flow: ink moves between 4-neighbours i, j only when
+    """The published threshold flow (eq. 7): ink moves between 4-neighbours i, j only when
     |h_i - h_j| > threshold; the edge's mobility (2/pi) eta_s(k, lambda) in [0, 1] is
     ``mobility`` on a flat substrate and grows by ``slope_gain`` per radian of substrate
     tilt k above ``slope_lambda_rad``. ``flow_steps`` explicit sub-steps per layer (how far the

@@ -1,4 +1,4 @@
-"""The MPC quadratic program of one layer (seed S2 eqs. 12-15) and its two solvers.
+"""The MPC quadratic program of one layer (the jetting MPC paper's eqs. 12-15) and its two solvers.
 
 Decision x = (f_l, ..., f_(l+m-1)), shape (m, L, W), 0 <= x <= 1 on printable cells and 0
 elsewhere. With G frozen over the horizon, h_(l+i) = h_l + G (f_l + ... + f_(l+i-1)).

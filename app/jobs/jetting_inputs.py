@@ -120,7 +120,7 @@ class PrintModelParams(JobParams):
                                   description="nominal droplet volume, pL")
     margin_mm: float = Field(0.25, ge=0, le=10, allow_inf_nan=False, description="empty border around the part, mm")
     threshold_um: float = Field(_F.threshold_um, ge=0, le=1000, allow_inf_nan=False,
-                                description="seed eq. 7: ink flows between neighbours only above this step, um")
+                                description="threshold flow: ink flows between neighbours only above this step, um")
     mobility: float = Field(_F.mobility, ge=0, le=1, allow_inf_nan=False,
                             description="flow mobility (2/pi) eta_s on a flat substrate, 0..1")
     flow_steps: int = Field(_F.flow_steps, ge=0, le=50, description="flow sub-steps per layer before cure")

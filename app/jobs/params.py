@@ -122,8 +122,8 @@ class ProbePlanParams(PlacedParams):
     exchange: bool = Field(False, description="field planner, automatic count: refine the design by exchange "
                            "moves (2-11 % fewer stations, about twice the planning time, less slack when a "
                            "touch is rejected as an outlier)")
-    capability_k: float | None = Field(None, gt=0, lt=1, description="seed eq. 1: process capability K")
-    confidence: float | None = Field(None, gt=0.5, lt=1, description="seed eq. 1: confidence gamma")
+    capability_k: float | None = Field(None, gt=0, lt=1, description="point-count formula: process capability K")
+    confidence: float | None = Field(None, gt=0.5, lt=1, description="point-count formula: confidence gamma")
     cl_tolerance_mm: float = Field(0.001, gt=0, le=1)
     deviation_amplitude_mm: float = Field(0.2, gt=0, le=10)
     deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000)
@@ -139,7 +139,7 @@ class ProbePlanParams(PlacedParams):
     @model_validator(mode="after")
     def _both_or_neither(self) -> "ProbePlanParams":
         if (self.capability_k is None) != (self.confidence is None):
-            raise ValueError("capability_k and confidence go together (seed eq. 1)")
+            raise ValueError("capability_k and confidence go together (the published point-count formula)")
         if (self.trace_id is None) == (self.trace_ids is None):
             raise ValueError("give exactly one of trace_id or trace_ids")
         if self.trace_ids is not None and len(self.trace_ids) > MAX_TRACES and self.planner != "field":

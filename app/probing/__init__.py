@@ -1,4 +1,4 @@
-"""app/probing: point count (seed eq. 1), probe selection, probe programs, probe grids (pure).
+"""app/probing: point count (the published formula), probe selection, probe programs, probe grids (pure).
 
 The trace they plan along is :class:`app.geometry.traces.TracePolyline`."""
 

@@ -1,4 +1,4 @@
-"""Number of measurement points, seed S1 eq. 1, implemented exactly as printed.
+"""Number of measurement points, the height-compensation paper's eq. 1, implemented exactly as printed.
 
     N = 1/2 * [ (1 + K) / (1 - K) * Z_gamma ]^2  =  1/2 * [ (2 / (1 - K) - 1) * Z_gamma ]^2
 
@@ -50,7 +50,7 @@ class PointCount:
 
 
 def seed_point_count(capability_k: float, confidence: float) -> PointCount:
-    """Seed S1 eq. 1 as printed: ``N = 0.5 * ((1+K)/(1-K) * Z_gamma)^2``.
+    """The published eq. 1 as printed: ``N = 0.5 * ((1+K)/(1-K) * Z_gamma)^2``.
 
     capability_k: K > 0, K != 1 (dimensionless).  confidence: gamma in (0, 1).
     """

@@ -2,7 +2,7 @@
 
 Methods (``plan_probes(nominal, method, params)``):
 
-``"adaptive"`` — seed S1 Fig. 3, exactly as published: the chord-height (sagitta) rule on
+``"adaptive"`` — the height-compensation paper's Fig. 3, exactly as published: the chord-height (sagitta) rule on
     the trace's CL points.  Dense where the 3-D trace bends, sparse where it is straight.
     Use it to reproduce the paper.  Caveat (measured, see the bench): it places points by
     the *nominal's* curvature, which is known from CAD anyway, and starves the flat
@@ -166,7 +166,7 @@ def chord_heights(points: np.ndarray, start: int, stop: int) -> float:
 
 
 def chord_height_select(cl_points: np.ndarray, chord_error_mm: float) -> np.ndarray:
-    """Seed S1 Fig. 3: indices (m,) of the measurement points among CL points (n, d).
+    """The published chord-height rule (Fig. 3): indices (m,) of the measurement points among CL points (n, d).
 
     C1 is the first measurement point; with start i and j = i + 2, the chord height e_ij
     (largest distance of C(i+1)..C(j-1) from segment Ci-Cj) is compared with e; while

@@ -2,7 +2,7 @@
 
 Methods:
 
-``"interpolate"`` — seed S1 eqs. 2-3: inverse cubic NURBS interpolation through the
+``"interpolate"`` — the height-compensation paper's eqs. 2-3: inverse cubic NURBS interpolation through the
     measured points (clamped averaged knots, chord-length parameters, all weights 1) via
     ``app.geometry.fitting.interpolate_curve``.  Passes through every point; carries the
     probe noise into the curve.

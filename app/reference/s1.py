@@ -1,4 +1,4 @@
-"""Seed S1's reference case as a fixture and demo dataset (pure: no files).
+"""The height-compensation paper's reference case as a fixture and demo dataset (pure: no files).
 
 The part: 60 mm (x, long edge) x 40 mm (y, short edge), bottom at z = 0, five planar faces
 and a free-form top, a bicubic clamped B-spline (NURBS with unit weights) over an 8 x 7

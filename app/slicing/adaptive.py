@@ -1,9 +1,9 @@
-"""Layer-thickness planners: uniform, the seed S4 rules (area, multi-cavity), cusp.
+"""Layer-thickness planners: uniform, the published rules (area, multi-cavity), cusp.
 
 Each planner takes a :class:`~app.slicing.layers.Sampler` (sections by height) and
 :class:`~app.slicing.layers.SliceParams` and returns a :class:`LayerPlan` ``(layers, notes)``.
 
-Seed S4, steps 1-11 as published (``area`` mode = steps without step 9):
+The multi-cavity slicing paper, steps 1-11 as published (``area`` mode = steps without step 9):
   3-4  slice at Z = z_min, store rings, A_i and the inner-ring count n;
   5    Z_step = l_max, Z' = Z + Z_step; stop when Z' > z_max;
   6    eps = |A_(i+1) - A_i| / A_i <= eps0 ? -> 9 : -> 7;
@@ -110,7 +110,7 @@ def _no_sliver(z: float, step: float, z_max: float, params: SliceParams) -> floa
 
 
 def area_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
-    """Seed S4 area-deviation rule, plus step 9 (multi-cavity) in ``cavity`` mode."""
+    """The published area-deviation rule, plus step 9 (multi-cavity) in ``cavity`` mode."""
     z_min, z_max = sampler.prepared.z_min, sampler.prepared.z_max
     z = z_min
     _, st_i = sampler.section(z)
@@ -119,7 +119,7 @@ def area_layers(sampler: Sampler, params: SliceParams) -> LayerPlan:
                            value=z_min)
     a_i = st_i.area
     layers: list[Layer] = []
-    notes = ["seed S4 stops when Z + l_max > z_max; the last step is capped at the "
+    notes = ["the published rule stops when Z + l_max > z_max; the last step is capped at the "
              "remaining height instead so the whole part is sliced"]
     if params.mode == "cavity":
         notes.append(f"theta rule: {params.theta_rule}; step 9 "

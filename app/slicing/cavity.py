@@ -1,4 +1,4 @@
-"""Seed S4's cavity measures of one section: the discriminant theta and mu (step 9).
+"""The multi-cavity slicing paper's cavity measures of one section: the discriminant theta and mu (step 9).
 
 Shared by the layer builder (:mod:`app.slicing.layers`) and the planners
 (:mod:`app.slicing.adaptive`), so neither has to import the other's module at run time."""
@@ -11,7 +11,7 @@ from app.slicing.rings import SectionStats
 
 
 def theta(sigma: float, sigma0: float, rule: str) -> int:
-    """Seed S4 discriminant theta: 1 when the section is cavity-rich, else 0.
+    """The published discriminant theta: 1 when the section is cavity-rich, else 0.
 
     ``rule="indicator"``: sigma >= sigma0.  ``rule="printed"``: int(ln(sigma - sigma0 + 55)
     / 4) evaluated literally (0 when the logarithm's argument is not positive).

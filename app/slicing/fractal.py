@@ -4,7 +4,7 @@ Both place cells of side ``p`` over the region; cell centres are path vertices.
 
 * :func:`hilbert_fill` clips the Hilbert curve of order ``ceil(log2(n))`` over the grid to
   the region; the path breaks (a jump) wherever the curve leaves the region.
-* :func:`merged_fractal_fill` (seed S5, "improved fractal"): the base cells are 2 x 2 cell
+* :func:`merged_fractal_fill` (the published "improved fractal"): the base cells are 2 x 2 cell
   loops (the smallest Hilbert circuits); neighbouring loops are merged pairwise (two
   facing sides removed, two connecting sides added) along the direction of least weight
   until one Hamiltonian circuit covers each connected region: Kruskal's minimum spanning
@@ -236,7 +236,7 @@ def _walk_cycles(edges: Edges) -> list[list[int]]:
 
 def merged_fractal_fill(islands: tuple[Island, ...], pitch: float, along_x: bool = True,
                         weights: MergeWeights = MergeWeights()) -> list[npt.NDArray[np.float64]]:
-    """Seed S5 improved fractal fill: one closed circuit per connected region.
+    """The published improved fractal fill: one closed circuit per connected region.
 
     Returns closed polylines (n, 2) mm (first vertex repeated at the end).
     """

@@ -2,7 +2,7 @@
 
 ``slice_mesh(mesh, SliceParams) -> SliceResult``.  Layers are slabs
 ``[z_bottom, z_top]`` (mm); each carries the section sampled at ``z_sample`` as nested,
-oriented rings (:class:`~app.slicing.rings.Island`) plus the seed S4 statistics (area,
+oriented rings (:class:`~app.slicing.rings.Island`) plus the multi-cavity slicing statistics (area,
 ring counts, sigma, mu), the area deviation eps to the previous layer and the reason
 its thickness was chosen.  Modes (see :mod:`app.slicing.adaptive`):
 
@@ -106,7 +106,7 @@ class SliceParams:
 class Layer:
     """One slab ``[z_bottom, z_top]`` (mm) and its section sampled at ``z_sample``.
 
-    ``area``: net area mm^2; ``sigma``, ``mu``: seed S4 ratios; ``eps``: relative area
+    ``area``: net area mm^2; ``sigma``, ``mu``: the multi-cavity ratios; ``eps``: relative area
     deviation to the previous layer (0 for the first); ``reason``: why this thickness.
     """
 
@@ -174,7 +174,7 @@ def section_at(solid: manifold3d.Manifold, z: float) -> tuple[Island, ...]:
 
 
 class Section(NamedTuple):
-    """One cross-section: its islands and their seed S4 statistics."""
+    """One cross-section: its islands and their multi-cavity slicing statistics."""
 
     islands: tuple[Island, ...]
     stats: SectionStats

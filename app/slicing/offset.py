@@ -75,7 +75,7 @@ class BeamWidthTable:
         return float(np.interp(thickness, t, np.asarray(self.width_mm, dtype=float)))
 
 
-#: Seed S4: melt tracks 112/116/118/121/126 um at 20..40 um layers -> heat-affected widths.
+#: The multi-cavity slicing paper: melt tracks 112/116/118/121/126 um at 20..40 um layers -> heat-affected widths.
 SEED_HAZ_TABLE = BeamWidthTable(thickness_mm=(0.020, 0.025, 0.030, 0.035, 0.040),
                                 width_mm=(0.021, 0.023, 0.024, 0.0255, 0.028))
 

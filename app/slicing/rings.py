@@ -61,7 +61,7 @@ class Island:
 
 @dataclass(frozen=True)
 class SectionStats:
-    """Ring statistics of one section (seed S4 quantities).
+    """Ring statistics of one section (the multi-cavity slicing quantities).
 
     ``outer_area`` = sum A_out, ``inner_area`` = sum A_in (mm^2), ``area`` = net area,
     ``sigma`` = sum(A_in) / A_out, ``mean_inner_ratio`` = sigma / n (0 when n = 0).

@@ -44,7 +44,7 @@ class ToolpathParams:
     """Fill and motion parameters.
 
     ``pattern``: raster (zigzag), lines (raster without links), contour, zone, hilbert,
-    hilbert_merged (seed S5 improved fractal).  ``infill``: density in (0, 1].
+    hilbert_merged (the published improved fractal).  ``infill``: density in (0, 1].
     ``filament_mm``: filament diameter for E (extrusion mode).  ``resolution_mm``: every
     path is simplified to it (a vertex is dropped when the path moves less than this from
     the computed one) and no move is shorter (the firmware plans shorter moves uselessly).

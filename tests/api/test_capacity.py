@@ -1,5 +1,5 @@
-"""200 concurrent job submitters against a real ``conforma serve`` (issue 13 row 10: once
-83 x 500 from an exhausted pool and jobs created behind a 500): every answer is a 202 or a
+"""200 concurrent job submitters against a real ``conforma serve`` (without admission, an
+exhausted pool answers 500s and creates jobs behind them): every answer is a 202 or a
 clean 429/503 problem with Retry-After, never a 500; a retried key never duplicates; the
 jobs that exist are exactly the ones whose 202 was sent."""
 

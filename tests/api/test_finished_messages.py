@@ -1,5 +1,5 @@
 """A finished job never keeps the progress line of a run that did not reach its end
-(issue 19: a failed closed loop read "probing 3/17" for ever).  Checked through the API,
+(a failed closed loop must not read "probing 3/17" for ever).  Checked through the API,
 the way the pages read it (GET /jobs/{id}, the list, and the SSE stream's last event)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The small ones of issue 13 row 12, each as it was observed: lone surrogates, huge
+"""Small hardening cases, each as it can be met: lone surrogates, huge
 coordinates, degenerate meshes, download names, auth before the body, chunked overflow,
 throttled failed keys, a bounded key cache, security headers."""
 

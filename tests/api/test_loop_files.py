@@ -1,4 +1,4 @@
-"""A closed loop has files of its own (issue 19 item 10): a summary of every trace's figures
+"""A closed loop has files of its own: a summary of every trace's figures
 (JSON and CSV, the same rows as the result) and one whole-part program that dispenses
 exactly what each trace's compensated program dispenses, in the machine's dialect, with
 travel between traces at a safe height."""

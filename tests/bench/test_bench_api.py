@@ -1,6 +1,6 @@
 """API throughput/latency and job pickup latency against a real `conforma serve` process.
 
-Targets (issue 2): GET /api/v1/jobs/{id} with 64 concurrent clients on one process
+Targets: GET /api/v1/jobs/{id} with 64 concurrent clients on one process
 >= 500 req/s with p99 < 50 ms; job submit -> start p50 < 50 ms.  The reference run in the
 same process is GET /api/v1/health (no auth, no row to load), so the ratio shows what the
 job read costs on top of the framework, whatever the machine's load.

@@ -1,4 +1,4 @@
-"""Bench: the closed loop on a whole board through the API (issue 15): per-trace child jobs
+"""Bench: the closed loop on a whole board through the API: per-trace child jobs
 against the board mode (one reconstruct and one compensate job per batch of traces).
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_board_loop.py -s -o addopts="" -q

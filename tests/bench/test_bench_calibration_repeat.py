@@ -1,4 +1,4 @@
-"""Bench: does a calibration repeat within 2 um (issue 16)?  20 consecutive calibrations.
+"""Bench: does a calibration repeat within 2 um?  20 consecutive calibrations.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_calibration_repeat.py -s -o addopts="" -q
 (also part of ``make bench``; ~20 calibration pairs, several minutes).

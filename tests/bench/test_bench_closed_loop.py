@@ -1,4 +1,4 @@
-"""Bench: the closed loop's pure core on seed S1's experiment (simulated, no machine).
+"""Bench: the closed loop's pure core on the published experiment (simulated, no machine).
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_closed_loop.py -s -o addopts="" -q
 

@@ -1,4 +1,4 @@
-"""Issue 13 row 8/9 bench: the bombs' peak memory, measured, against the cost model's prediction.
+"""Bench: the bombs' peak memory, measured, against the cost model's prediction.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_compute_limits.py -s -o addopts="" -q
 
@@ -98,7 +98,7 @@ def test_surface_fit_peak_memory_against_the_cost_model(net_of_grid):
               f"(measured/predicted {got['peak_mb'] / predicted.memory_mb:4.2f}); {got['s']:6.1f} s, predicted "
               f"{predicted.time_s:6.1f} s")
         assert got["peak_mb"] <= predicted.memory_mb  # the model is an upper bound
-        assert got["peak_mb"] < 2 * UPLOAD_LIMIT_MB  # issue 13's Show: bounded below 2x the upload limit
+        assert got["peak_mb"] < 2 * UPLOAD_LIMIT_MB  # bounded below 2x the upload limit
 
 
 _SOLVE_SETUP = """
@@ -123,7 +123,7 @@ _OLD_SOLVE = """
         dv = sp.kron(sp.eye(m), F._second_difference(m))
         pen = (du.T @ du + dv.T @ dv).tocsc()
         penalty = smoothing * (design.multiply(design)).sum() / pen.diagonal().sum() * pen
-    ctrl = F._solve_normal(design, grid.reshape(-1, 3), "grid", penalty)  # SuperLU, as before issue 13's fix
+    ctrl = F._solve_normal(design, grid.reshape(-1, 3), "grid", penalty)  # SuperLU: the dense-design reference
 """
 _NEW_SOLVE = """
     if smoothing:

@@ -1,4 +1,4 @@
-"""Bench: long-lived compute processes (issue 15 item 3, "the second job on the same 1M-face
+"""Bench: long-lived compute processes ("the second job on the same 1M-face
 part skips the precomputation").
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_compute_pool.py -s -o addopts="" -q

@@ -1,11 +1,11 @@
-"""Emergency stop under load against a real `conforma serve` (issue 13 row 6 and Show).
+"""Emergency stop under load against a real `conforma serve` (progress streams and submitters).
 
 Targets: with 100 open progress streams (SSE), STOP p99 < 100 ms and ``/health`` p99
 < 250 ms (row 6; the reference /health p99 on this shared 2-core box is 20-70 ms);
 with 100 streams and 200 submitters (``POST /jobs`` in a loop) at once, STOP p99 < 100 ms
 (``/health`` is reported, not asserted: it is a synchronous route and shares the request
-thread pool with the submitters, which is issue 13 row 10's matter).  Before the fix an
-emergency stop took 15 s with 50-80 streams open (28 ms with none).  The reference is the
+thread pool with the submitters, which admission control bounds).  A STOP that shared the
+request threads took 15 s with 50-80 streams open (28 ms with none).  The reference is the
 same STOP measured in the same run with nothing else going on; the work grows 10, 100,
 1000 streams (20 per key: the per-key cap) to show how it scales.
 """

@@ -1,4 +1,4 @@
-"""Bench: the field planner on whole boards (issue 15).
+"""Bench: the field planner on whole boards.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_field.py -s -o addopts="" -q
 

@@ -1,4 +1,4 @@
-"""Bench: how many stations a noise-limited target needs, whatever the design (issue 15).
+"""Bench: how many stations a noise-limited target needs, whatever the design.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_field_lattice.py -s -o addopts="" -q
 

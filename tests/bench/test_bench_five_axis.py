@@ -1,4 +1,4 @@
-"""Benchmark: surface fit accuracy (issue 6 goal: <= 10 um from a noisy 20 x 20 grid) and
+"""Benchmark: surface fit accuracy (goal: <= 10 um from a noisy 20 x 20 grid) and
 the five-axis planner (feed fluctuation, normal and standoff errors, time).
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_five_axis.py -s -o addopts="" -q

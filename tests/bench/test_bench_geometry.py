@@ -1,4 +1,4 @@
-"""Geometry benchmarks (issue 3): interpolation speed vs geomdl, draping on a 1M-face mesh.
+"""Geometry benchmarks: interpolation speed vs geomdl, draping on a 1M-face mesh.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_geometry.py -s -o addopts="" -q
 Times are medians of repeated runs on a shared, noisy machine; ratios are against a

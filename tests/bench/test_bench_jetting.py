@@ -1,10 +1,10 @@
-"""Benchmark of droplet-jetting compensation (seed S2) on the seed's case.
+"""Benchmark of droplet-jetting compensation (the jetting MPC method) on the published case.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_jetting.py -s -o addopts="" -q
 
 The seed's case: 10 mm square with a 4 mm square hole, 300 dpi, 60 um drops (6 pL),
 200 layers, nozzle volume spread 2 % and 6 %, plant seeds 0-4. Open loop prints every
-part cell each layer; the MPC (horizon 1) prints 0/1 patterns. Goals (issue 8): Sa >= 3x
+part cell each layer; the MPC (horizon 1) prints 0/1 patterns. Goals: Sa >= 3x
 lower than open loop on every seed, >= 50 % less edge collapse, controller <= 50 ms per
 layer (median, one core) at 300 dpi and <= 0.25 s at 600 dpi. Times are CPU seconds of
 the controller's thread (the machine is shared); wall-clock medians are printed beside.

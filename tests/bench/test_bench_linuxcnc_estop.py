@@ -1,4 +1,4 @@
-"""Emergency stop on LinuxCNC (issue 18), the full measurement: 30 stops, each while a
+"""Emergency stop on LinuxCNC, the full measurement: 30 stops, each while a
 program runs on Conforma's three-axis simulator, every one timed at the controller (HAL,
 ``hardware.linuxcnc.HalWatch``, sampled every 0.5 ms on the host's monotonic clock) from
 the call to ``LinuxCNCMachine.emergency_stop``:

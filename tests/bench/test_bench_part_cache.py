@@ -1,4 +1,4 @@
-"""Bench: the per-part cache on disk (issue 15, "per-part precomputation paid once").
+"""Bench: the per-part cache on disk ("per-part precomputation paid once").
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_part_cache.py -s -o addopts="" -q
 

@@ -1,4 +1,4 @@
-"""Bench: what each probe-physics correction buys (issue 16), through the API on the mock.
+"""Bench: what each probe-physics correction buys, through the API on the mock.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_probe_physics.py -s -o addopts="" -q
 (also part of ``make bench``).

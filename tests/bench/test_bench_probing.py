@@ -13,7 +13,7 @@ mm, placement tolerances at their defaults); "uniform+dev" (even stations, devia
 model) shows how much comes from the model alone; "kriging joint" plans the nine traces
 of the part together (:func:`app.probing.joint.plan_joint`, the same count on every trace)
 and reconstructs each trace from all of the part's probes (``reconstruct(...,
-context=...)``).  The goal (issue 3): our best planner needs <= 0.5 x the probes of the
+context=...)``).  The goal: our best planner needs <= 0.5 x the probes of the
 better seed method, per trace type.
 """
 

@@ -1,7 +1,7 @@
 """The 3D view under load: 100,000 toolpath segments pushed to viser while the API keeps
 answering, and how fast the pages load.
 
-Goal (issue 9): 100k toolpath segments reach the view without blocking the API; the pages
+Goal: 100k toolpath segments reach the view without blocking the API; the pages
 load in < 1 s on localhost.  Measured against a real ``conforma serve`` process (API,
 worker and viewer in one process, as operators run it).  The reference run is the same
 API latency probe with the viewer idle, in the same process and minute (noisy machine).

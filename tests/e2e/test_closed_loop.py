@@ -1,4 +1,4 @@
-"""The closed loop through the API with the mock printer (issue 5's acceptance case).
+"""The closed loop through the API with the mock printer (the acceptance case).
 
 S1 reference part, as-made with +-0.15 mm machining error and a 0.03 mm placement offset
 in z, 1 um probe noise: every compensated trace holds its standoff within 10 um along the

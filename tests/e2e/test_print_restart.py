@@ -1,4 +1,4 @@
-"""Issue 13 row 1 on the real processes: `conforma serve` SIGKILLed mid-print and started
+"""Resume on the real processes: `conforma serve` SIGKILLed mid-print and started
 again.  The printer (the mock firmware behind a TCP-serial bridge in its own process, see
 tests/mock_tcp_printer.py) outlives the server, as a real one does.  The job comes back
 ``interrupted``, the printer executes nothing until an operator resumes, and the resumed

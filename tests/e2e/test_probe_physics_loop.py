@@ -1,4 +1,4 @@
-"""Issue 16's Show, through the API: a mock machine with real probe physics — a 0.5 mm
+"""Probe physics end to end, through the API: a mock machine with real probe physics — a 0.5 mm
 stylus ball, 15 um +- 2 um pre-travel, Z drift of 1 um/min, 1 um probe noise, a nozzle T1
 whose true offset (12.3, -4.1, -8.7) mm the machine knows only as (12, -4, -8.5), a
 reference pad and datum sphere ~0.3 mm off their nominal places — is calibrated

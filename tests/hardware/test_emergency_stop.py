@@ -1,4 +1,4 @@
-"""Issue 13 row 0: after an emergency stop not one more byte of the program is written.
+"""After an emergency stop not one more byte of the program is written.
 
 The host-side wire transcript (every ``write`` to the port, in order) must end with the
 stop byte, on the mock grbl and the mock Marlin, whatever the stream was doing when the

@@ -1,4 +1,4 @@
-"""The host against grbl 1.1h behaviour (issue 18, item 6): each test names the defect it
+"""The host against grbl 1.1h behaviour: each test names the defect it
 pins down; every one failed against the host before its fix (see the commit messages)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 13 item 2: a device is opened exclusively; a second opener is refused."""
+"""A device is opened exclusively; a second opener is refused."""
 
 from __future__ import annotations
 

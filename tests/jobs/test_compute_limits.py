@@ -108,9 +108,9 @@ def test_the_heaviest_kinds_are_cancelled_within_a_second(client):
 
 
 def test_the_200_grid_200_net_surface_fit_is_accepted_and_peaks_below_twice_the_upload_limit(client):
-    """Issue 13's Show: the surface-fit bomb of a 200 x 200 grid with a 200 x 200 net peaked at
-    ~470 MiB in the old 40,000-unknown sparse solve.  The grid's least squares now separates
-    by direction: the estimate admits it below 2x the upload limit, and the measured peak of the
+    """The surface-fit bomb of a 200 x 200 grid with a 200 x 200 net (~470 MiB as one
+    40,000-unknown sparse solve).  The grid's least squares separates by direction: the
+    estimate admits it below 2x the upload limit, and the measured peak of the
     fit (in a fresh process: VmHWM minus the RSS before) stays below the estimate and the bound."""
     import json
     import subprocess

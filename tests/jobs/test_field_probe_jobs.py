@@ -82,7 +82,7 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     for entry in entries:
         rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
         assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
-    # (the fit is cached per process: with compute jobs in child processes, issue 13, each
+    # (the fit is cached per process: with compute jobs in child processes, each
     # reconstruct job fits the run's field again — the same fit, see tests/reconstruction)
 
 

@@ -1,4 +1,4 @@
-"""Issue 13 row 6: progress streams (SSE) are async and capped per API key."""
+"""Progress streams (SSE) are async and capped per API key."""
 
 from __future__ import annotations
 

@@ -158,7 +158,7 @@ def test_a_running_loop_holds_its_machine_against_other_programs(client, setup):
     assert wait_for(client, allowed.json()["id"])["status"] == "succeeded"
 
 
-# --- a closed loop whose probe_run child is interrupted (issue 13) -------------------------------
+# --- a closed loop whose probe_run child is interrupted --------------------------------------
 
 def touches(machine_id: str) -> list[str]:
     """The probe commands the mock firmware executed (Marlin G30 / G38.2), in order."""

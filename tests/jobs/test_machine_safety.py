@@ -1,4 +1,4 @@
-"""Issue 13 rows 1-5 through the API on the mock firmware: no motion without an operator,
+"""Machine safety through the API on the mock firmware: no motion without an operator,
 a port is one machine, one program per machine, one thread per machine."""
 
 from __future__ import annotations

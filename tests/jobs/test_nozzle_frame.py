@@ -1,4 +1,4 @@
-"""compensate writes for a nozzle (issue 16): ``T<tool>`` first, every coordinate the
+"""compensate writes for a nozzle: ``T<tool>`` first, every coordinate the
 carriage's = tip - the nozzle's CALIBRATED offset (the latest calibrate_nozzle job), the
 nominal offset only when asked (ablation) or allowed (uncalibrated, with a warning), and
 the nozzle body's clearance against the real surface — refused (422) when it would touch.

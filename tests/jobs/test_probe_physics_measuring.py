@@ -1,4 +1,4 @@
-"""Probe readings become true surface points (issue 16, the measuring side) through the API.
+"""Probe readings become true surface points (the measuring side) through the API.
 
 The mock probes with a ball stylus (radius 0.5 mm), 15 um pre-travel, 1 um/min Z drift and
 1 um noise, with a reference pad beside the part.  The machine's probe calibration is a
@@ -164,7 +164,7 @@ def test_drift_is_tracked_by_pad_retouches(client, meshes, plan7):
     """20 um/min: the pad readings fall with machine time; the corrected points stay on the
     surface while the uncorrected ones sink with the clock.  grbl: its G38.2 probes at the
     plan's feed, so the estimated touch times follow the machine clock (Marlin's G30 probes
-    at the firmware's own feed, which the estimate does not know: see the README)."""
+    at the firmware's own feed, which the estimate does not know: see docs/calibration.md)."""
     true, plan = meshes["true"], plan7
     runs = {}
     for drift in (True, False):
@@ -201,7 +201,7 @@ def _calibrated_run_measures_the_true_surface(result: dict) -> None:
 
 def test_each_correction_switched_off_shows_its_error(client, meshes, plan7):
     """The ablation table on S1 trace 7 (16 stations): all corrections (the calibrated run measures
-    the true surface), then each one off (printed with -s: the figures in the README)."""
+    the true surface), then each one off (printed with -s: the figures in docs/measured.md)."""
     true, plan = meshes["true"], plan7
     table = {}
     for off in (None, "radius", "pretravel", "drift"):

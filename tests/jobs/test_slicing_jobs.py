@@ -147,7 +147,7 @@ def test_beam_offsets_constant_and_seed_table(client, part):
     thin = upload(client, trimesh.creation.box((20.0, 12.0, 0.06)), "thin.stl")
     job = run(client, "slice", {"part_id": thin, "layer_mm": 0.025, "beam": "seed_haz", "remainder": "merge"})
     layers = job["result"]["layers"]
-    # seed S4: 23 um heat-affected width at 25 um layers; the 10 um rest merged into a 35 um top layer: 25.5 um
+    # published: 23 um heat-affected width at 25 um layers; the 10 um rest merged into a 35 um top layer: 25.5 um
     assert [lay["beam_offset_mm"] for lay in layers] == pytest.approx([0.023, 0.0255])
     for lay in layers:
         width = 2 * lay["beam_offset_mm"]

@@ -1,4 +1,4 @@
-"""Seed S1 eq. 1 as printed, including its documented inconsistency."""
+"""The published point-count formula as printed, including its documented inconsistency."""
 
 import math
 

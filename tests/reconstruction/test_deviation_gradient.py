@@ -1,4 +1,4 @@
-"""The reconstructed deviation's top-view gradient (the normal iteration of issue 16 uses it)."""
+"""The reconstructed deviation's top-view gradient (the probe-normal iteration uses it)."""
 
 import numpy as np
 

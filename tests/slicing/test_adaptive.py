@@ -1,4 +1,4 @@
-"""Adaptive rules: seed S4 area and multi-cavity behaviour, theta, our cusp rule."""
+"""Adaptive rules: the published area and multi-cavity behaviour, theta, our cusp rule."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Fill patterns: stay inside the ring, cover it, seed S5 single circuit, turn counts."""
+"""Fill patterns: stay inside the ring, cover it, the improved fractal's single circuit, turn counts."""
 
 from __future__ import annotations
 

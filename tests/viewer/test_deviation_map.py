@@ -1,4 +1,4 @@
-"""The 3-D view's readability (issue 19): the part in a colour that contrasts with the white
+"""The 3-D view's readability: the part in a colour that contrasts with the white
 grid, the rebuilt deviation as a colour ribbon on the part, programs coloured by their
 standoff error, and legends whose ends are the data's — all read from the scene drawn
 into a real viser server."""

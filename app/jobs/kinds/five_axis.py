@@ -1,4 +1,4 @@
-"""Job ``five_axis``: a nozzle-normal X Y Z A C program for a trace on a surface (seed S3).
+"""Job ``five_axis``: a nozzle-normal X Y Z A C program for a trace on a surface (the EHD patent's method).
 
 * Surface: the ``surface_fit_job_id`` job's surface (the "real surface"), or else a fit of
   the part's nominal top surface over the trace's bounding region (grown by

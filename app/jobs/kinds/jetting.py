@@ -1,4 +1,4 @@
-"""Job ``jetting``: the simulated droplet-jetting closed loop of seed S2 (open loop or MPC).
+"""Job ``jetting``: the simulated droplet-jetting closed loop (open loop or the published MPC).
 
 Thin adapter over :mod:`app.jetting`: the target (the seed's square with a
 square hole, a 1-bit PNG mask, or one layer of a slice job) and every model, plant and

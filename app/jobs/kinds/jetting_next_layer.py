@@ -1,6 +1,6 @@
 """Job ``jetting_next_layer``: a measured height map in, the next layer's drop pattern out.
 
-The form a real jetting printer uses between layers (seed S2 MPC, one receding-horizon
+The form a real jetting printer uses between layers (the jetting MPC, one receding-horizon
 step).  The measured map comes inline (``measured.heights_um``, bounded size) or from a
 stored NPZ artifact holding ``heights`` (k, L, W) mm and ``layers`` (k,) - the
 ``heights.npz`` of a ``jetting`` job (pick the snapshot with ``measured.layer``).
@@ -165,7 +165,7 @@ def measured_heights_mm(ctx: JobContext, measured: MeasuredSource) -> tuple[np.n
 
 @job_kind("jetting_next_layer", NextLayerParams, references=_references, check=_check)
 def run(ctx: JobContext, params: NextLayerParams) -> dict:
-    """The next layer's 0/1 drop pattern from a measured height map (one MPC step, seed S2)."""
+    """The next layer's 0/1 drop pattern from a measured height map (one MPC step)."""
     core = params.core()
     target = target_of(params.target, core, lambda job_id, name: ctx.artifact_bytes(job_id, name))
     heights_mm, snapshot = measured_heights_mm(ctx, params.measured)

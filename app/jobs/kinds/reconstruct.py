@@ -87,7 +87,7 @@ class ReconstructJobParams(PlacedParams):
     sigma_from_calibration: bool = Field(
         False, description="without sigma_mm, on a calibrated machine's probe run: the probe calibration's measured "
         "scatter of a touch (its residual rms).  Off by default: with method deviation on sparse stations it "
-        "smooths the real deviation away (the closed loop measured 1-1.7 um worse, see the README)")
+        "smooths the real deviation away (the closed loop measured 1-1.7 um worse, see docs/measured.md)")
     learn_prior: bool = Field(True, description="method field: learn the prior's amplitude, wavelength and noise from "
                               "the stations' touches (type-II maximum likelihood, the plan's prior as start) and "
                               "fit the field with it; false: the plan's prior as stated")

@@ -1,4 +1,4 @@
-"""Job ``slice``: a part into layers of closed rings (seed S4), with SLC/CLI/JSON/SVG exports.
+"""Job ``slice``: a part into layers of closed rings (the multi-cavity slicing rules), with SLC/CLI/JSON/SVG exports.
 
 Beam (track-width) compensation is chosen by ``beam``: ``none``; ``seed_haz`` - the seed
 S4 heat-affected widths (21 / 23 / 24 / 25.5 / 28 um at 20 / 25 / 30 / 35 / 40 um layers,
@@ -58,7 +58,7 @@ class SliceJobParams(JobParams):
     part_id: str = Field(description="the part to slice")
     mode: Literal["uniform", "area", "cavity", "cusp"] = Field(
         "uniform", description="uniform: layers of layer_mm, the remainder distributed or merged (see "
-        "remainder); area: the seed S4 area-deviation rule (eps0, l_min, l_max); cavity: S4 multi-cavity "
+        "remainder); area: the published area-deviation rule (eps0, l_min, l_max); cavity: the multi-cavity "
         "refinement (adds sigma0, mu0, mu1); cusp: our cusp-height rule (cusp_mm, l_min, l_max)")
     layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False,
                             description="uniform layer thickness, mm")
@@ -89,7 +89,7 @@ class SliceJobParams(JobParams):
                                       description="repair fills holes up to this perimeter, mm (default: the perimeter "
                                       "of the part's bounding box's largest face); larger holes are refused with their size")
     beam: Literal["none", "seed_haz", "table"] = Field(
-        "none", description="beam compensation: none, seed_haz (seed S4 heat-affected widths 21-28 um for "
+        "none", description="beam compensation: none, seed_haz (the published heat-affected widths 21-28 um for "
         "20-40 um layers, linear in thickness) or table (beam_table)")
     beam_table: BeamTable | None = Field(None, description="own compensation table (beam: table)")
     offset_mm: float | None = Field(None, ge=0, le=10, allow_inf_nan=False,

@@ -1,4 +1,4 @@
-"""Job ``surface_fit``: a NURBS surface of a region of a part (seed S3, step 1).
+"""Job ``surface_fit``: a NURBS surface of a region of a part (the EHD patent, step 1).
 
 Where the heights come from:
 

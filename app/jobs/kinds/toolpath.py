@@ -1,4 +1,4 @@
-"""Job ``toolpath``: fill paths for the layers of a slice job, G-code and its print time (seed S5).
+"""Job ``toolpath``: fill paths for the layers of a slice job, G-code and its print time.
 
 The layers come from the slice job's ``layers.json`` artifact (exactly the contours that
 job exported, beam compensation included); nothing is re-sliced.  ``time_s`` is the
@@ -97,7 +97,7 @@ class ToolpathJobParams(JobParams):
     slice_job_id: str = Field(description="a succeeded slice job; its layers.json is filled")
     pattern: Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"] = Field(
         "raster", description="raster (zigzag), lines (raster without links), contour (offsets), zone (partition "
-        "scanning), hilbert (plain fractal), hilbert_merged (seed S5 improved fractal: one circuit)")
+        "scanning), hilbert (plain fractal), hilbert_merged (the published improved fractal: one circuit)")
     line_width_mm: float = Field(_FILL.line_width_mm, gt=0, le=20, allow_inf_nan=False, description="bead width, mm")
     nozzle_mm: float = Field(_FILL.nozzle_mm, gt=0, le=20, allow_inf_nan=False, description="nozzle diameter, mm")
     layer_height_mm: float | None = Field(None, gt=0, le=20, allow_inf_nan=False,

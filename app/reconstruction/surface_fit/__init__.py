@@ -1,5 +1,5 @@
 """Measured height grids, preprocessing (bad points, densification, smoothing) and NURBS
-surface fit of a measured part (seed S3, step 1).  The probe grid that measures one is
+surface fit of a measured part (the EHD patent, step 1).  The probe grid that measures one is
 planned in :mod:`app.probing.grid`."""
 
 from app.reconstruction.surface_fit.errors import GridHoleError, SurfaceFitError

@@ -1,4 +1,4 @@
-"""Measured points -> preprocessed grid -> NURBS surface, with residuals (seed S3, step 1).
+"""Measured points -> preprocessed grid -> NURBS surface, with residuals (the EHD patent, step 1).
 
 ``fit_surface(data, params)`` accepts a :class:`HeightGrid` (probing grid, NaN = missing)
 or CMM points (k, 3).  Pipeline:

@@ -1,4 +1,4 @@
-"""Preprocessing of measured points as in the patent (seed S3, step 1b).
+"""Preprocessing of measured points as in the patent (step 1b).
 
 1. bad-point removal: each point is compared with a least-squares cubic B-spline height
    surface (net by GCV, leave-one-out residuals; above 2,000 points one surface per

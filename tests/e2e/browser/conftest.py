@@ -21,7 +21,7 @@ from tests.real_components import missing
 
 ROOT = Path(__file__).resolve().parents[3]
 # Test runs write screenshots as test artifacts; `make screenshots` copies them to
-# web/screenshots/, the committed ones the README shows.
+# web/screenshots/, the committed ones the manual names.
 SCREENSHOTS = ROOT / "tests" / "artifacts" / "screenshots"
 KEY = "browser-operator-key-1"
 CHROMIUM_ARGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",

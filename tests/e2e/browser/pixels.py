@@ -122,7 +122,7 @@ def wait_for_view(page, drawn: Callable[[Counts], bool], exact: tuple[tuple[int,
 
 def save_view_panel(page, path) -> None:  # type: ignore[no-untyped-def]
     """Save the page's 3-D view section (caption, canvas, viser's panel with its legend) for the
-    README, without viser's software-WebGL notice (not for operators with a GPU)."""
+    screenshots, without viser's software-WebGL notice (not for operators with a GPU)."""
     close = page.frame_locator("#viewer-iframe").locator("[class*='Notification'] button")
     try:
         if close.count():

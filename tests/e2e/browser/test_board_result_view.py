@@ -1,4 +1,4 @@
-"""Issue 15 in a real browser: a board compensate job's result read at a glance — the summary
+"""In a real browser: a board compensate job's result read at a glance — the summary
 line, the table of traces worst first (20 rows, then all), sorting by a column, the
 operator's tolerance, each trace's program downloads and the selected trace's chart.  Every
 figure on screen is checked against what the API says."""

@@ -1,4 +1,4 @@
-"""Issue 19 in a real browser: the probe plan's stations on the part, compensation's
+"""Result views in a real browser: the probe plan's stations on the part, compensation's
 standoff along the trace and its program time, a five-axis program's A/C angles and tip
 speed, and the machines page's program list whose Print asks first (machine, program,
 lines, estimated time), shows progress and keeps the STOP beside it.  Every figure on

@@ -41,7 +41,7 @@ def test_print_job_runs_a_program_on_linuxcnc(client, lcnc_env):
     status = client.get(f"/api/v1/machines/{machine_id}", headers=OP).json()
     assert status["state"] == "idle" and status["position"] == pytest.approx([9.5, 4.5, 5.0], abs=1e-6)
     stop = client.post(f"/api/v1/machines/{machine_id}/stop", headers=OP)
-    # a stop always reaches the controller, idle or not (issue 13): LinuxCNC is then in e-stop
+    # a stop always reaches the controller, idle or not: LinuxCNC is then in e-stop
     assert stop.status_code == 200 and stop.json()["stop_sent"] is True, stop.text
     assert client.get(f"/api/v1/machines/{machine_id}", headers=OP).json()["state"] == "error"
     assert register_bad(client).status_code == 422
