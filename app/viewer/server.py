@@ -31,6 +31,7 @@ from app.viewer.offload import ParsePool
 from app.viewer.registry import SceneRegistry
 from app.viewer.scene_data import FocusScene
 from app.viewer.scenes import SceneBuilder
+from app.viewer.text import user_text
 
 log = logging.getLogger("conforma.viewer")
 JOB_LIST_LIMIT = 50
@@ -223,7 +224,7 @@ class Viewer:
         with Session(self.runtime.engine) as session:
             parts = session.exec(select(Part).order_by(Part.created_at.desc()).limit(JOB_LIST_LIMIT)).all()
             jobs = session.exec(select(Job).order_by(Job.created_at.desc()).limit(JOB_LIST_LIMIT)).all()
-        return [(f"part {p.name} ({p.id})", p.id) for p in parts] + \
+        return [(f"part {user_text(p.name, 'label', 80)} ({p.id})", p.id) for p in parts] + \
                [(f"{j.kind} {j.status} ({j.id})", j.id) for j in jobs]
 
 
