@@ -75,7 +75,7 @@ def _open(browser, viewer):  # type: ignore[no-untyped-def]
     port = viewer.port
     token = viewer.guard.signer.mint("default").token
     websocket = f"ws://127.0.0.1:{port}/?token={quote(token)}"
-    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    context = browser.new_context(viewport={"width": 960, "height": 640})
     context.add_init_script(VIOLATIONS)
     page = context.new_page()
     page.set_default_timeout(30_000)
