@@ -8,7 +8,12 @@ only while a viser server starts, chaining our check in front of viser's own cal
 :class:`HandshakeGuard` then refuses every websocket upgrade without a valid token or
 from a foreign Origin (401 / 403) before a single scene message is sent.  If viser ever
 stops going through that call, :func:`guarded_viser_serve` notices and the start-up fails:
-the view is never served open.
+the view is never served open.  The same wrapper chains the view's Content-Security-Policy
+(:mod:`app.viewer.csp`) into websockets' documented ``process_response`` hook, which sees
+every response of the port (viser's static files, refusals, upgrades): it depends on
+websockets' API only, not on viser's internals, so it survives viser upgrades that keep
+serving through websockets (and a viser that stopped doing so fails the start-up check
+above instead of serving without a policy).
 
 A token is ``<view id>.<expiry (unix s)>.<HMAC-SHA256 hex>`` over the first two parts with
 a per-install secret (``CONFORMA_VIEWER_SECRET`` or ``<data dir>/viewer.secret``, created
