@@ -8,7 +8,12 @@ only while a viser server starts, chaining our check in front of viser's own cal
 :class:`HandshakeGuard` then refuses every websocket upgrade without a valid token or
 from a foreign Origin (401 / 403) before a single scene message is sent.  If viser ever
 stops going through that call, :func:`guarded_viser_serve` notices and the start-up fails:
-the view is never served open.
+the view is never served open.  The same wrapper chains the view's Content-Security-Policy
+(:mod:`app.viewer.csp`) into websockets' documented ``process_response`` hook, which sees
+every response of the port (viser's static files, refusals, upgrades): it depends on
+websockets' API only, not on viser's internals, so it survives viser upgrades that keep
+serving through websockets (and a viser that stopped doing so fails the start-up check
+above instead of serving without a policy).
 
 A token is ``<view id>.<expiry (unix s)>.<HMAC-SHA256 hex>`` over the first two parts with
 a per-install secret (``CONFORMA_VIEWER_SECRET`` or ``<data dir>/viewer.secret``, created
@@ -152,26 +157,41 @@ class HandshakeGuard:
 
 
 @contextmanager
-def guarded_viser_serve(guard: Callable[[Any, Any], Any]) -> Iterator[threading.Event]:
+def guarded_viser_serve(guard: Callable[[Any, Any], Any],
+                        respond: Callable[[Any, Any, Any], Any] | None = None) -> Iterator[threading.Event]:
     """While active, ``websockets.asyncio.server.serve`` runs ``guard`` before the caller's
-    own ``process_request``.  Yields an event set once a server was built through it."""
+    own ``process_request``, and ``respond`` (e.g. the view's CSP) on every response after the
+    caller's own ``process_response``: websockets calls it for the static files viser serves
+    from its ``process_request``, for refusals and for accepted upgrades alike.  Yields an
+    event set once a server was built through it."""
     import websockets.asyncio.server as ws_server
 
     original = ws_server.serve
     installed = threading.Event()
 
+    async def _call(hook: Any, *args: Any) -> Any:
+        answer = hook(*args)
+        return await answer if inspect.isawaitable(answer) else answer
+
     class _GuardedServe(original):  # type: ignore[misc, valid-type]
-        def __init__(self, handler: Any, *args: Any, process_request: Any = None, **kwargs: Any) -> None:
-            inner = process_request
+        def __init__(self, handler: Any, *args: Any, process_request: Any = None, process_response: Any = None,
+                     **kwargs: Any) -> None:
+            inner, inner_response = process_request, process_response
 
             async def process(connection: Any, request: Any) -> Any:
                 refusal = guard(connection, request)
                 if refusal is not None or inner is None:
                     return refusal
-                answer = inner(connection, request)
-                return await answer if inspect.isawaitable(answer) else answer
+                return await _call(inner, connection, request)
 
-            super().__init__(handler, *args, process_request=process, **kwargs)
+            async def processed(connection: Any, request: Any, response: Any) -> Any:
+                replaced = await _call(inner_response, connection, request, response) if inner_response else None
+                final = replaced if replaced is not None else response
+                if respond is not None:
+                    await _call(respond, connection, request, final)
+                return replaced
+
+            super().__init__(handler, *args, process_request=process, process_response=processed, **kwargs)
             installed.set()
 
     ws_server.serve = _GuardedServe

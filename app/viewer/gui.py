@@ -9,9 +9,7 @@ that a focus change coming from the API does not echo back as a new focus reques
 from __future__ import annotations
 
 import logging
-import re
 from collections.abc import Callable
-from html import escape
 from typing import Any
 
 import numpy as np
@@ -19,6 +17,7 @@ import numpy as np
 from app.viewer.registry import SceneRegistry
 from app.viewer.scene_data import FocusScene
 from app.viewer.scenes import SceneBuilder
+from app.viewer.text import user_text
 
 log = logging.getLogger("conforma.viewer")
 GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces")
@@ -70,7 +69,8 @@ class ViewerPanel:
 
     # updates ---------------------------------------------------------------------------
     def refresh_jobs(self, current: str | None = None) -> None:
-        """Fill the selector with recent parts and jobs (label -> (part_id, job_id))."""
+        """Fill the selector with recent parts and jobs (label -> (part_id, job_id)); each
+        label is shown as text (:func:`user_text`, ``"label"``)."""
         try:
             entries = self._list_jobs()
         except Exception:  # the database may be busy; keep the old list
@@ -78,7 +78,7 @@ class ViewerPanel:
             return
         self._choices = {NO_JOB: (None, None)}
         for label, ref in entries:
-            self._choices[label] = (ref, None) if ref.startswith("part_") else (None, ref)
+            self._choices[user_text(label, "label")] = (ref, None) if ref.startswith("part_") else (None, ref)
         self.selector.options = list(self._choices)
         if current is not None:
             label = next((lab for lab, ids in self._choices.items() if current in ids), None)
@@ -94,8 +94,8 @@ class ViewerPanel:
         present = set(self.registry.groups())
         for group, box in self.toggles.items():
             box.visible = group in present
-        self.title.content = f"**{markdown_text(scene.title)}**" + "".join(
-            f"\n\n_{markdown_text(n)}_" for n in scene.notes)
+        self.title.content = f"**{user_text(scene.title, 'markdown')}**" + "".join(
+            f"\n\n_{user_text(n, 'markdown')}_" for n in scene.notes)
         legends = self.registry.legends()
         self.legend_folder.visible = bool(legends)
         with self.legend_folder:
@@ -114,14 +114,14 @@ class ViewerPanel:
 
     def _slider(self, gui: Any, name: str, labels: tuple[str, ...], show: Callable[[str, int], int]) -> None:
         last = max(len(labels) - 1, 0)
-        slider = gui.add_slider(f"{name}", min=0, max=max(last, 1), step=1, initial_value=last,
+        slider = gui.add_slider(user_text(name, "label"), min=0, max=max(last, 1), step=1, initial_value=last,
                                 disabled=last == 0, hint="layer index")
-        caption = gui.add_markdown(markdown_text(labels[last]) if labels else "")
+        caption = gui.add_markdown(user_text(labels[last], "markdown") if labels else "")
         self.registry.set_slider(name, 0, last, last, list(labels))
 
         def moved(_event: Any) -> None:
             index = show(name, int(slider.value))
-            caption.content = markdown_text(labels[index])
+            caption.content = user_text(labels[index], "markdown")
             self.registry.set_slider(name, 0, last, index, list(labels))
 
         slider.on_update(moved)
@@ -135,7 +135,7 @@ class ViewerPanel:
         handle = gui.add_uplot(
             (s, dz),
             (uplot.Series(label="s (mm)"), uplot.Series(label="dz (mm)", stroke="#d33", width=2)),
-            title=plot.title, scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)},
+            title=user_text(plot.title, "label"), scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)},
             axes=(uplot.Axis(label="mm along the trace"), uplot.Axis(label="dz (mm)")),
             aspect=1.6,
         )
@@ -144,25 +144,15 @@ class ViewerPanel:
         self._dynamic.append(handle)
 
 
-_MARKDOWN_PUNCTUATION = re.compile(r"([\\`*_{}\[\]()#+\-.!|~>])")
-
-
-def markdown_text(text: str) -> str:
-    """``text`` (a user's part, trace, job or machine name, a message) as literal text inside
-    viser's markdown, which renders raw HTML: ``& < >`` as entities (no tag can open), every
-    markdown punctuation mark escaped, line breaks as spaces."""
-    flat = " ".join(str(text).split())
-    return _MARKDOWN_PUNCTUATION.sub(r"\\\1", escape(flat, quote=False))
-
-
 def legend_html(legend: dict[str, Any]) -> str:
     """A legend as a gradient bar with its title, unit and the ends of the scale, plus the
     range the data really spans (``legend`` as :meth:`Legend.to_dict` gives it)."""
     stops = ", ".join(f"{color} {position * 100:.0f}%" for position, color in legend["stops"])
-    lo, hi, unit = legend["lo"], legend["hi"], legend["unit"]
+    lo, hi = legend["lo"], legend["hi"]
     mid = f"<span>{(lo + hi) / 2:.3g}</span>" if lo < 0 < hi else ""
-    return (f'<div class="conforma-legend" data-name="{escape(legend["name"])}" style="font-size:12px;margin:4px 0">'
-            f'<div><b>{escape(legend["title"])}</b> ({escape(unit)})</div>'
+    name, title, unit_text = (user_text(legend[k], "html") for k in ("name", "title", "unit"))
+    return (f'<div class="conforma-legend" data-name="{name}" style="font-size:12px;margin:4px 0">'
+            f'<div><b>{title}</b> ({unit_text})</div>'
             f'<div style="height:12px;border:1px solid #555;background:linear-gradient(to right, {stops})"></div>'
             f'<div style="display:flex;justify-content:space-between"><span>{lo:.3g}</span>{mid}<span>{hi:.3g}</span></div>'
-            f'<div style="color:#555">data {legend["data_min"]:.3g} .. {legend["data_max"]:.3g} {escape(unit)}</div></div>')
+            f'<div style="color:#555">data {legend["data_min"]:.3g} .. {legend["data_max"]:.3g} {unit_text}</div></div>')

@@ -23,6 +23,7 @@ from sqlmodel import Session, select
 from app.config import Settings
 from app.models import Job, Part
 from app.viewer.access import HandshakeGuard, TokenSigner, allowed_origins, guarded_viser_serve, load_secret
+from app.viewer.csp import ViewPolicy
 from app.viewer.gui import ViewerPanel
 from app.viewer.headless import HeadlessTarget
 from app.viewer.loaders import load_focus
@@ -30,6 +31,7 @@ from app.viewer.offload import ParsePool
 from app.viewer.registry import SceneRegistry
 from app.viewer.scene_data import FocusScene
 from app.viewer.scenes import SceneBuilder
+from app.viewer.text import user_text
 
 log = logging.getLogger("conforma.viewer")
 JOB_LIST_LIMIT = 50
@@ -222,7 +224,7 @@ class Viewer:
         with Session(self.runtime.engine) as session:
             parts = session.exec(select(Part).order_by(Part.created_at.desc()).limit(JOB_LIST_LIMIT)).all()
             jobs = session.exec(select(Job).order_by(Job.created_at.desc()).limit(JOB_LIST_LIMIT)).all()
-        return [(f"part {p.name} ({p.id})", p.id) for p in parts] + \
+        return [(f"part {user_text(p.name, 'label', 80)} ({p.id})", p.id) for p in parts] + \
                [(f"{j.kind} {j.status} ({j.id})", j.id) for j in jobs]
 
 
@@ -266,17 +268,46 @@ def make_guard(settings: Settings) -> tuple[HandshakeGuard, OriginPolicy]:
     return HandshakeGuard(signer, policy), policy
 
 
+def check_page_policy(host: str, port: int, timeout_s: float = 30.0) -> str:
+    """GET the view's page from the running server and return its CSP; ViewerStartError
+    unless it carries one that allows the page's scripts by hash and nothing inline."""
+    import http.client
+
+    address = "127.0.0.1" if host in ("0.0.0.0", "", "::") else host.strip("[]")
+    connection = http.client.HTTPConnection(address, port, timeout=timeout_s)
+    try:
+        connection.request("GET", "/", headers={"Accept-Encoding": "identity"})
+        response = connection.getresponse()
+        response.read()
+        policy = response.getheader("Content-Security-Policy") or ""
+    except OSError as exc:
+        raise ViewerStartError(f"could not read the view's page to check its CSP: {exc}") from exc
+    finally:
+        connection.close()
+    script = next((d for d in policy.split(";") if d.strip().startswith("script-src ")), "")
+    if response.status != 200 or "'sha256-" not in script or "'unsafe-inline'" in script:
+        raise ViewerStartError(f"the view's page is served without its script hashes (HTTP {response.status}, "
+                               f"CSP {policy[:200]!r}): the view is not served")
+    return policy
+
+
 def start_viewer(settings: Settings, runtime: Any) -> Viewer:
     import viser
 
     guard, origins = make_guard(settings)
-    with guarded_viser_serve(guard) as installed:
+    policy = ViewPolicy(origins, settings.port)
+    with guarded_viser_serve(guard, policy) as installed:
         server = viser.ViserServer(host=settings.viewer_host, port=settings.viewer_port, verbose=False)
     if not installed.is_set():
         server.stop()
         raise ViewerStartError("viser did not start through websockets.asyncio.server.serve: the view's "
                                "access check could not be installed, so the view is not served")
     origins.set_port(int(server.get_port()))
+    try:
+        check_page_policy(settings.viewer_host, int(server.get_port()))
+    except ViewerStartError:
+        server.stop()
+        raise
     server.scene.set_up_direction("+z")
     server.scene.configure_environment_map(None)
     server.scene.configure_default_lights(True, cast_shadow=False)

@@ -39,6 +39,15 @@ def _missing() -> str | None:
     return None
 
 
+def is_view_eval_refusal(message: str) -> bool:
+    """viser's bundle builds its (unused) Gaussian-splat sorter at load, and its WebAssembly
+    glue compiles JavaScript from strings: the view's CSP refuses that eval (it allows
+    WebAssembly, ``'wasm-unsafe-eval'``, but no ``'unsafe-eval'``).  Only the view's policy
+    names ``'wasm-unsafe-eval'``, so this matches that refusal and no page's error."""
+    return message.startswith("Evaluating a string as JavaScript violates the following Content Security "
+                              "Policy directive") and "'wasm-unsafe-eval'" in message
+
+
 @pytest.fixture(autouse=True)
 def _chromium_present() -> None:
     """Every browser test needs Debian's Chromium and playwright: skip, or fail under CI."""
@@ -99,8 +108,10 @@ def page(browser, served):  # type: ignore[no-untyped-def]
     page = context.new_page()
     page.set_default_timeout(30_000)  # the test machine may be heavily loaded
     errors: list[str] = []
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    refused: list[str] = []
+    page.on("pageerror", lambda exc: (refused if is_view_eval_refusal(str(exc)) else errors).append(str(exc)))
     page.js_errors = errors  # type: ignore[attr-defined]
+    page.view_eval_refusals = refused  # type: ignore[attr-defined]
     yield page
     context.close()
 
