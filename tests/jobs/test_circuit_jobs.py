@@ -97,13 +97,17 @@ def test_warp_program_on_a_surface_fit_and_outside_it(client, s1_stl):
 
 
 def test_arc_chords_are_bounded_before_they_are_expanded(client):
-    """Four full circles in 130 bytes: a chord sagitta below the floor is refused by the schema,
+    """Four full circles in 130 bytes: uploaded with their exact bounds in milliseconds; a chord
+    sagitta below the floor is refused by the schema,
     and at the floor a radius whose chords exceed the program's budget is refused at submission,
     in milliseconds (the chords are counted, never made)."""
     import time
 
     circles = "G21\nG90\nG0 X10 Y10\n" + "G2 X10 Y10 I1000000 J0 F600\n" * 4
+    cpu = time.process_time()
     program = _upload(client, circles)
+    assert time.process_time() - cpu < 1.0         # the upload's bounds: each circle's exact extent, no chords
+    assert program["bounds"] == [[10.0, -999_990.0, 0.0], [2_000_010.0, 1_000_010.0, 0.0]]
     probe = {"program_id": program["id"], "probe_run_job_id": "job_none"}
     tiny = submit(client, "warp_program", {**probe, "arc_chord_mm": 1e-12})
     assert tiny.status_code == 422 and tiny.json()["errors"][0]["loc"][-1] == "arc_chord_mm"
