@@ -101,7 +101,8 @@ def normalize_command(line: str) -> str | None:
 _BLOCK_COMMENT = re.compile(r";[^\n]*")
 _BLOCK_PAREN = re.compile(r"\([^)\n]*\)")
 _BLOCK_CHECKSUM = re.compile(r"\*\d*[ \t]*$", re.MULTILINE)
-_BLOCK_EDGES = re.compile(r"^[ \t]+|[ \t]+$", re.MULTILINE)
+_BLOCK_LEADING = re.compile(r"^[ \t]+", re.MULTILINE)
+_BLOCK_TRAILING = re.compile(r"[ \t]+(?=\n|\Z)")
 _BLOCK_LINE_NUMBER = re.compile(r"^[Nn]-?\d+[ \t]*", re.MULTILINE)
 _BLOCK_BLANK_LINES = re.compile(r"\n\n+")
 #: what :func:`normalize_block` reads: printable ASCII and tabs, lines ending in "\n"
@@ -121,7 +122,10 @@ def normalize_block(text: str) -> str | None:
         text = _BLOCK_PAREN.sub("", text)
     if "*" in text:
         text = _BLOCK_CHECKSUM.sub("", text)
-    text = _BLOCK_EDGES.sub("", text)
+    if text[:1] in (" ", "\t") or "\n " in text or "\n\t" in text:
+        text = _BLOCK_LEADING.sub("", text)
+    if text.endswith((" ", "\t")) or " \n" in text or "\t\n" in text:
+        text = _BLOCK_TRAILING.sub("", text)
     if text[:1] in ("N", "n") or "\nN" in text or "\nn" in text:
         text = _BLOCK_LINE_NUMBER.sub("", text)
     text = _BLOCK_BLANK_LINES.sub("\n", text).lstrip("\n")

@@ -24,9 +24,10 @@ import numpy as np
 import numpy.typing as npt
 
 from app.errors import InvalidInput
-from app.gcode.arcs import arc_circles, arc_extents
+from app.gcode.arcs import ArcCircles, arc_circles, arc_extents
 from app.gcode.lines import GcodeLine, GcodeReadError, iter_lines
-from app.gcode.reader import ARC_CCW, ARC_CW, HOME, SETTING_CODES, ModalReader, ReadOptions
+from app.gcode.reader import (ARC_CCW, ARC_CW, HOME, MIN_ARC_STEP_RAD, MIN_ARC_TOLERANCE_MM, SETTING_CODES,
+                              ModalReader, ReadOptions)
 
 __all__ = ["BoundsScan", "LineBounds"]
 
@@ -145,11 +146,14 @@ class LineBounds(ModalReader):
     XYZ a non-homing move (or an arc, exactly) reaches; non-finite numbers refused naming the
     line.  :class:`BoundsScan` reads through it what its arrays do not."""
 
-    def __init__(self, field: str) -> None:
+    def __init__(self, field: str, arc_chord_mm: float | None = None, max_arc_chords: int | None = None) -> None:
         super().__init__(ReadOptions())
         self.field = field
         self.low = np.full(3, np.inf)
         self.high = np.full(3, -np.inf)
+        self.arc_chord_mm = arc_chord_mm
+        self.max_arc_chords = max_arc_chords
+        self.chords = 0
 
     def line(self, parsed: GcodeLine) -> None:
         for letter, value in parsed.words:
@@ -159,6 +163,8 @@ class LineBounds(ModalReader):
         try:
             super().line(parsed)
         except GcodeReadError as exc:
+            if exc.field != "gcode":
+                raise
             raise GcodeReadError(exc.message, field=self.field, value=exc.value) from None
 
     def add(self, low: Floats, high: Floats) -> None:
@@ -191,8 +197,27 @@ class LineBounds(ModalReader):
         if circles.problem is not None:
             i, text = circles.problem
             raise GcodeReadError(f"line {int(number[i])}: {text}", field=self.field, value=int(number[i]))
+        if self.arc_chord_mm is not None:
+            self._count_chords(circles, number)
         low, high = arc_extents(start, end, circles)
         self.add(low.min(axis=0), high.max(axis=0))
+
+    def _count_chords(self, circles: ArcCircles, number: npt.NDArray[np.int64]) -> None:
+        """Add the chords the modal reader's rule splits these arcs into at ``arc_chord_mm``
+        (counted, none made); GcodeReadError (field ``arc_chord_mm``) at the arc that takes
+        the count beyond ``max_arc_chords``."""
+        tol = max(float(self.arc_chord_mm or 0.0), MIN_ARC_TOLERANCE_MM)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = np.where(tol < circles.r0, 2.0 * np.arccos(np.maximum(1.0 - tol / circles.r0, -1.0)), math.pi / 2)
+        count = np.maximum(1, np.ceil(np.abs(circles.sweep) / np.maximum(step, MIN_ARC_STEP_RAD)))
+        total = self.chords + np.cumsum(count)
+        budget = self.max_arc_chords
+        if budget is not None and total[-1] > budget:
+            i = int(np.argmax(total > budget))
+            raise GcodeReadError(f"line {int(number[i])}: the arcs need more than {budget} chords at a chord "
+                                 f"tolerance of {tol:g} mm", field="arc_chord_mm",
+                                 value={"line": int(number[i]), "max_chords": budget})
+        self.chords = int(total[-1])
 
     def bounds(self) -> list[list[float]] | None:
         if not np.isfinite(self.low).all():
@@ -204,10 +229,18 @@ class BoundsScan:
     """Fed blocks of whole lines in order (:meth:`block`), then :meth:`bounds`: the lowest and
     highest XYZ the program moves to (see :func:`app.jobs.gcode_meta.gcode_meta`).
     InvalidInput naming ``field`` and the line for a number that is not finite or an arc
-    that is not one."""
+    that is not one.  ``arc_chord_mm``: the arcs' chords at that sagitta are counted by the
+    modal reader's rule (:attr:`chords`), none made; beyond ``max_arc_chords`` a
+    GcodeReadError naming the field ``arc_chord_mm`` and the line."""
 
-    def __init__(self, field: str = "file") -> None:
-        self.reader = LineBounds(field)
+    def __init__(self, field: str = "file", arc_chord_mm: float | None = None,
+                 max_arc_chords: int | None = None) -> None:
+        self.reader = LineBounds(field, arc_chord_mm, max_arc_chords)
+
+    @property
+    def chords(self) -> int:
+        """The chords the arcs read so far need at ``arc_chord_mm`` (0 without it)."""
+        return self.reader.chords
 
     def bounds(self) -> list[list[float]] | None:
         """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm, None without moves."""

@@ -124,3 +124,22 @@ def test_an_arc_that_is_not_one_is_refused_naming_its_line_and_the_field():
         scan.result()
     assert raised.value.field == "file" and raised.value.value == 3
     assert "line 3: arc end is not on its circle" in raised.value.message
+
+
+def test_arc_chords_are_counted_as_the_reader_makes_them_and_refused_beyond_the_budget():
+    from app.gcode.reader import ModalReader
+
+    text = "G21\nG90\nG0 X10 Y10\n" + "".join(f"G2 X10 Y10 I{r} J0\nG3 X{10 + 2 * r} Y10 R{r}\nG2 X10 Y10 R-{r}\n"
+                                                 for r in (0.5, 3, 40, 700))
+    reader = ModalReader(ReadOptions(arc_tolerance_mm=1e-3))
+    for parsed in iter_lines(text):
+        reader.line(parsed)
+    counted = BoundsScan(arc_chord_mm=1e-3)
+    counted.block(text, 1)
+    assert counted.chords == reader.chords > 1_000
+    cpu = time.process_time()
+    refused = BoundsScan(arc_chord_mm=1e-4, max_arc_chords=10_260)
+    with pytest.raises(InvalidInput) as raised:
+        refused.block("G21\nG90\nG0 X10 Y10\n" + "G2 X10 Y10 I1000000 J0 F600\n" * 4, 1)
+    assert time.process_time() - cpu < 0.1                  # 222,000 chords a circle: counted, none made
+    assert raised.value.field == "arc_chord_mm" and raised.value.value == {"line": 4, "max_chords": 10_260}

@@ -121,3 +121,26 @@ def test_arc_chords_are_bounded_before_they_are_expanded(client):
     assert big.status_code == 422, big.text
     assert big.json()["errors"][0]["loc"] == ["params", "arc_chord_mm"] and "line 4" in big.json()["detail"]
     assert elapsed < 1.0
+
+
+def test_a_program_too_big_to_check_at_submission_is_checked_by_its_job(client):
+    """Arcs within the program's chord budget but beyond what a request reads (500 circles of
+    50 chords each): accepted in well under a second of CPU, and the job itself refuses the
+    moves that leave the measured region, naming the line."""
+    import time
+
+    from tests.helpers.jobs import wait_for
+
+    text = "G21\nG90\nG0 X100 Y10\nM106\n" + "G2 X100 Y10 I0.5 J0 F600\n" * 500
+    program = _upload(client, text)
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", MESH.export(file_type="stl"))}, headers=OP).json()
+    fit = run_job(client, "surface_fit", {"part_id": part["id"], "region": {"x": [5, 55], "y": [5, 35]},
+                                          "grid": [9, 7]})
+    cpu = time.process_time()
+    accepted = submit(client, "warp_program", {"program_id": program["id"], "surface_fit_job_id": fit["id"],
+                                               "arc_chord_mm": 0.001})
+    assert time.process_time() - cpu < 1.0
+    assert accepted.status_code == 202, accepted.text
+    job = wait_for(client, accepted.json()["id"], timeout=120)
+    assert job["status"] == "failed"
+    assert "line 5" in str(job["error"]) and "leaves the measured region" in str(job["error"]), job["error"]
