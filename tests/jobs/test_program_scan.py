@@ -81,3 +81,15 @@ def test_a_number_beyond_a_double_is_refused_naming_its_line(line):
     with pytest.raises(InvalidInput) as raised:
         _scan(f"G21\n{line}\n".encode(), 1 << 20)
     assert raised.value.field == "file" and raised.value.value["line"] == 2
+
+
+def test_a_line_longer_than_a_mib_is_refused_as_it_comes():
+    """A program's lines are held whole while read: one of 3 MiB is refused at its second MiB."""
+    scan = ProgramScan()
+    scan.feed(b"G1 X1\nG1 X2\n")
+    with pytest.raises(InvalidInput) as raised:
+        for _ in range(48):
+            scan.feed(b"G1 X1 " + b"0" * (2**16 - 6))
+    assert raised.value.field == "file" and raised.value.value == 3
+    assert "line 3 is longer than 1048576 characters" in raised.value.message
+    assert scan.size <= 2**20 + 2**17

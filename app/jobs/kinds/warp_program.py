@@ -29,10 +29,10 @@ from app.jobs.results import ProbeRunResult, SurfaceFitResult
 from app.records import get_or_404
 
 
-#: the largest program the submission checks itself (lines, bytes, arc chords: well under a second)
-CHECK_LINES = 20_000
-CHECK_BYTES = 2 * 2**20
-CHECK_CHORDS = 20_000
+#: the largest program the submission checks itself (lines, bytes, arc chords: ~0.5 s of CPU at most)
+CHECK_LINES = 10_000
+CHECK_BYTES = 2**20
+CHECK_CHORDS = 10_000
 
 
 class WarpProgramParams(JobParams):
