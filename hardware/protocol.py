@@ -98,6 +98,40 @@ def normalize_command(line: str) -> str | None:
     return text or None
 
 
+_BLOCK_COMMENT = re.compile(r";[^\n]*")
+_BLOCK_PAREN = re.compile(r"\([^)\n]*\)")
+_BLOCK_CHECKSUM = re.compile(r"\*\d*[ \t]*$", re.MULTILINE)
+_BLOCK_LEADING = re.compile(r"^[ \t]+", re.MULTILINE)
+_BLOCK_TRAILING = re.compile(r"[ \t]+(?=\n|\Z)")
+_BLOCK_LINE_NUMBER = re.compile(r"^[Nn]-?\d+[ \t]*", re.MULTILINE)
+_BLOCK_BLANK_LINES = re.compile(r"\n\n+")
+#: what :func:`normalize_block` reads: printable ASCII and tabs, lines ending in "\n"
+_BLOCK_TEXT = re.compile(r"[\t\n\x20-\x7e]*")
+
+
+def normalize_block(text: str) -> str | None:
+    """:func:`normalize_command` of every line of ``text`` at once: the non-empty commands,
+    each followed by ``"\\n"`` (``""`` when there are none); None unless ``text`` is
+    printable ASCII and tabs with ``"\\n"`` line breaks (a caller then goes line by line).
+    A last line without its ``"\\n"`` counts as a line."""
+    if not _BLOCK_TEXT.fullmatch(text):
+        return None
+    if ";" in text:
+        text = _BLOCK_COMMENT.sub("", text)
+    if "(" in text:
+        text = _BLOCK_PAREN.sub("", text)
+    if "*" in text:
+        text = _BLOCK_CHECKSUM.sub("", text)
+    if text[:1] in (" ", "\t") or "\n " in text or "\n\t" in text:
+        text = _BLOCK_LEADING.sub("", text)
+    if text.endswith((" ", "\t")) or " \n" in text or "\t\n" in text:
+        text = _BLOCK_TRAILING.sub("", text)
+    if text[:1] in ("N", "n") or "\nN" in text or "\nn" in text:
+        text = _BLOCK_LINE_NUMBER.sub("", text)
+    text = _BLOCK_BLANK_LINES.sub("\n", text).lstrip("\n")
+    return text if not text or text.endswith("\n") else text + "\n"
+
+
 class CommandHasher:
     """Incremental ``commands_sha256``: ``update(command)`` with normalised commands."""
 
@@ -111,6 +145,11 @@ class CommandHasher:
         """Add one already-normalised command."""
         self._hash.update(command.encode("utf-8") + b"\n")
         self.count += 1
+
+    def update_block(self, commands: str) -> None:
+        """Add already-normalised commands, each followed by ``"\\n"`` (:func:`normalize_block`)."""
+        self._hash.update(commands.encode("utf-8"))
+        self.count += commands.count("\n")
 
     def digest(self) -> CommandDigest:
         """Current count and hex digest."""

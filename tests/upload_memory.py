@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +43,51 @@ def _status(pid: int, field: str) -> int:
         if line.startswith(field + ":"):
             return int(line.split()[1]) * 1024
     raise AssertionError(f"{field} not in /proc/{pid}/status")
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far (every thread), s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@dataclass(frozen=True)
+class ProgramUpload:
+    """One ``POST /programs`` on a real server: ``growth_bytes`` of its peak RSS, ``cpu_s``
+    the server's CPU time for it (load on the box does not inflate it), ``wall_s``, the body."""
+
+    growth_bytes: int
+    cpu_s: float
+    wall_s: float
+    program: dict
+
+
+def write_program(path: Path, lines: int) -> None:
+    """A program of ``lines`` G1 moves (x 0..99.6, y 0.5..36.5, z 0.2 mm), ~26 bytes a line."""
+    with path.open("w") as out:
+        for k in range(0, lines, 10_000):
+            out.write("".join(f"G1 X{j % 100}.{j % 7} Y{j % 37}.5 Z0.2 F1200\n" for j in range(k, min(k + 10_000, lines))))
+
+
+def measure_program_upload(path: Path, data_dir: Path) -> ProgramUpload:
+    """Start a server on ``data_dir``, warm it up, upload the program at ``path`` and measure."""
+    proc, base, headers = start_upload_server(data_dir)
+    try:
+        wait_healthy(base, proc)
+        warm = httpx.post(f"{base}/api/v1/programs", files={"file": ("w.gcode", b"G1 X1\n")}, headers=headers,
+                          timeout=120)
+        assert warm.status_code == 201, warm.text
+        Path(f"/proc/{proc.pid}/clear_refs").write_text("5")
+        before, cpu = _status(proc.pid, "VmRSS"), cpu_seconds(proc.pid)
+        started = time.perf_counter()
+        with path.open("rb") as handle:
+            response = httpx.post(f"{base}/api/v1/programs", files={"file": (path.name, handle)}, headers=headers,
+                                  timeout=1800)
+        wall = time.perf_counter() - started
+        assert response.status_code == 201, response.text
+        return ProgramUpload(_status(proc.pid, "VmHWM") - before, cpu_seconds(proc.pid) - cpu, wall, response.json())
+    finally:
+        stop(proc)
 
 
 def start_upload_server(data_dir: Path) -> tuple[subprocess.Popen, str, dict[str, str]]:

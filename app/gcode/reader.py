@@ -50,9 +50,9 @@ from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 #: sweeps a full circle
 _FULL_CIRCLE_SWEEP_RAD = 1e-12
 #: floor (mm) of the chord tolerance an arc is flattened with
-_MIN_ARC_TOLERANCE_MM = 1e-6
+MIN_ARC_TOLERANCE_MM = 1e-6
 #: floor (rad) of an arc's angular step so that its segment count stays finite
-_MIN_ARC_STEP_RAD = 1e-6
+MIN_ARC_STEP_RAD = 1e-6
 
 INCH_MM = 25.4
 DEFAULT_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
@@ -380,9 +380,9 @@ class ModalReader:
             sweep = sweep - 2 * math.pi if sweep >= -_FULL_CIRCLE_SWEEP_RAD else sweep
         else:
             sweep = sweep + 2 * math.pi if sweep <= _FULL_CIRCLE_SWEEP_RAD else sweep
-        tol = max(self.options.arc_tolerance_mm, _MIN_ARC_TOLERANCE_MM)
+        tol = max(self.options.arc_tolerance_mm, MIN_ARC_TOLERANCE_MM)
         step = 2.0 * math.acos(max(1.0 - tol / r0, -1.0)) if tol < r0 else math.pi / 2
-        count = max(1, int(math.ceil(abs(sweep) / max(step, _MIN_ARC_STEP_RAD))))
+        count = max(1, int(math.ceil(abs(sweep) / max(step, MIN_ARC_STEP_RAD))))
         self.chords += count
         budget = self.options.max_arc_chords
         if budget is not None and self.chords > budget:

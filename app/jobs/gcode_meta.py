@@ -14,50 +14,28 @@ from __future__ import annotations
 
 import codecs
 import hashlib
-import math
 import re
 from typing import Any
 
-import numpy as np
-import numpy.typing as npt
-
 from app.errors import InvalidInput
-from app.gcode.lines import GcodeLine, read_lines
-from app.gcode.reader import HOME, ModalReader, Program, ReadOptions
-from hardware.protocol import CommandHasher, normalize_command, normalized_commands
+from app.gcode.program_bounds import BoundsScan
+from app.gcode.reader import Program
+from hardware.protocol import CommandHasher, normalize_block, normalize_command, normalized_commands
 
 # a word, a grbl system command or real-time character, or a tape mark ("%", which
 # gcodetools and Fusion-style posts write around a program)
 _WORD = re.compile(r"^([GMTFSXYZEIJKOPRNABC]\s*[-+]?\.?\d|\$[A-Z#$]?|[~!?]$|%\s*$)", re.IGNORECASE)
+#: a line of normalised commands (each ending "\n") that ``_WORD`` refuses
+_NOT_A_COMMAND = re.compile(r"^(?=[^\n])(?![GMTFSXYZEIJKOPRNABC][ \t]*[-+]?\.?\d|\$|[~!?]$|%[ \t]*$)",
+                            re.IGNORECASE | re.MULTILINE)
+#: the longest line a program may have (characters; a line is held whole while it is read)
+MAX_LINE_CHARS = 1 << 20
+_BREAKS = "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
 
 
-class _BoundsReader(ModalReader):
-    """The modal reader keeping only the lowest and highest XYZ a non-homing move ends at."""
-
-    def __init__(self, field: str) -> None:
-        super().__init__(ReadOptions())
-        self.field = field
-        self.low = np.full(3, np.inf)
-        self.high = np.full(3, -np.inf)
-
-    def line(self, parsed: GcodeLine) -> None:
-        for letter, value in parsed.words:
-            if not math.isfinite(value):
-                raise InvalidInput(f"line {parsed.number}: {letter} is not a finite number", field=self.field,
-                                   value={"line": parsed.number, "text": parsed.text.strip()[:80]})
-        super().line(parsed)
-
-    def emit(self, start: npt.NDArray[np.float64], end: npt.NDArray[np.float64], motion: int, number: int,
-             extrudes: bool) -> None:
-        if motion != HOME:
-            np.minimum(self.low, end[:3], out=self.low)
-            np.maximum(self.high, end[:3], out=self.high)
-        self.state.stop_pending = False
-
-    def bounds(self) -> list[list[float]] | None:
-        if not np.isfinite(self.low).all():
-            return None
-        return [self.low.tolist(), self.high.tolist()]
+def _last_break(text: str) -> int:
+    """The index just after the last line break of ``text`` (0 without one)."""
+    return max(text.rfind(c) for c in _BREAKS) + 1
 
 
 class ProgramScan:
@@ -75,7 +53,7 @@ class ProgramScan:
         self.hasher = CommandHasher()
         self._decoder = codecs.getincrementaldecoder("utf-8")()
         self._rest = ""
-        self._reader = _BoundsReader(field)
+        self._bounds = BoundsScan(field)
 
     def feed(self, data: bytes) -> None:
         self.raw.update(data)
@@ -93,14 +71,43 @@ class ProgramScan:
         self._text(text, final=False)
 
     def _text(self, text: str, final: bool) -> None:
-        pieces = (self._rest + text).splitlines(keepends=True)
+        text = self._rest + text
         self._rest = ""
-        # an unfinished last line (or a "\r" whose "\n" may follow) waits for the next piece
-        if not final and pieces and (pieces[-1].endswith("\r") or pieces[-1].splitlines()[0] == pieces[-1]):
-            self._rest = pieces.pop()
-        block = "".join(pieces)
-        offset = self.lines
-        for raw in block.splitlines():
+        if "\r\n" in text:
+            text = text.replace("\r\n", "\n")
+        if not final:
+            # an unfinished last line (or a "\r" whose "\n" may follow) waits for the next piece
+            cut = _last_break(text[:-1] if text.endswith("\r") else text)
+            text, self._rest = text[:cut], text[cut:]
+            if len(self._rest) > MAX_LINE_CHARS:
+                raise InvalidInput(f"line {self.lines + 1} is longer than {MAX_LINE_CHARS} characters",
+                                   field=self.field, value=self.lines + 1)
+        if not text:
+            return
+        first = self.lines + 1
+        if not self._commands(text):
+            self._command_lines(text)
+        if self.read_moves:
+            self._bounds.block(text, first)
+
+    def _commands(self, text: str) -> bool:
+        """Count, digest and check the lines of ``text`` at once (False: it needs line by line)."""
+        commands = normalize_block(text)
+        if commands is None:
+            return False
+        if self.check:
+            bad = _NOT_A_COMMAND.search(commands)
+            if bad is not None:
+                number = self.hasher.count + commands.count("\n", 0, bad.start()) + 1
+                command = commands[bad.start():commands.index("\n", bad.start())]
+                raise InvalidInput(f"command {number} is not G-code: {command[:60]!r}", field=self.field,
+                                   value=number)
+        self.lines += text.count("\n") + (not text.endswith("\n"))
+        self.hasher.update_block(commands)
+        return True
+
+    def _command_lines(self, text: str) -> None:
+        for raw in text.splitlines():
             self.lines += 1
             command = normalize_command(raw)
             if command is None:
@@ -109,9 +116,6 @@ class ProgramScan:
             if self.check and not _WORD.match(command):
                 raise InvalidInput(f"command {self.hasher.count} is not G-code: {command[:60]!r}", field=self.field,
                                    value=self.hasher.count)
-        if self.read_moves:
-            for parsed in read_lines(block, strict=False):
-                self._reader.line(parsed._replace(number=parsed.number + offset))
 
     def result(self) -> dict[str, Any]:
         """``{lines, commands, commands_sha256, bounds, sha256, bytes}`` of everything fed."""
@@ -125,14 +129,15 @@ class ProgramScan:
         if self.check and digest.count == 0:
             raise InvalidInput("the program has no G-code commands", field=self.field, value=0)
         return {"lines": self.lines, "commands": digest.count, "commands_sha256": digest.sha256,
-                "bounds": self._reader.bounds(), "sha256": self.raw.hexdigest(), "bytes": self.size}
+                "bounds": self._bounds.bounds(), "sha256": self.raw.hexdigest(), "bytes": self.size}
 
 
 def gcode_meta(text: str, program: Program | None = None) -> dict:
     """``{lines, commands, commands_sha256, bounds}``; ``bounds``: the lowest and highest
     machine position the program moves to, ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm,
-    as :func:`app.gcode.reader.read_program` reads it (relative moves, G92, G28, arcs and
-    inches included; None when there are no moves).  InvalidInput naming the line when a
+    as :func:`app.gcode.reader.read_program` reads it (relative moves, G92, G28 and inches
+    included; an arc's exact extent rather than its chords' ends; None when there are no
+    moves).  InvalidInput naming the line when a
     number is not finite.  ``program``: ``text`` already read (:func:`read_program` with its
     default options): its bounds are taken, so that the text is not read twice."""
     scan = ProgramScan(check=False, read_moves=program is None)

@@ -97,13 +97,17 @@ def test_warp_program_on_a_surface_fit_and_outside_it(client, s1_stl):
 
 
 def test_arc_chords_are_bounded_before_they_are_expanded(client):
-    """Four full circles in 130 bytes: a chord sagitta below the floor is refused by the schema,
+    """Four full circles in 130 bytes: uploaded with their exact bounds in milliseconds; a chord
+    sagitta below the floor is refused by the schema,
     and at the floor a radius whose chords exceed the program's budget is refused at submission,
     in milliseconds (the chords are counted, never made)."""
     import time
 
     circles = "G21\nG90\nG0 X10 Y10\n" + "G2 X10 Y10 I1000000 J0 F600\n" * 4
+    cpu = time.process_time()
     program = _upload(client, circles)
+    assert time.process_time() - cpu < 1.0         # the upload's bounds: each circle's exact extent, no chords
+    assert program["bounds"] == [[10.0, -999_990.0, 0.0], [2_000_010.0, 1_000_010.0, 0.0]]
     probe = {"program_id": program["id"], "probe_run_job_id": "job_none"}
     tiny = submit(client, "warp_program", {**probe, "arc_chord_mm": 1e-12})
     assert tiny.status_code == 422 and tiny.json()["errors"][0]["loc"][-1] == "arc_chord_mm"
@@ -117,3 +121,26 @@ def test_arc_chords_are_bounded_before_they_are_expanded(client):
     assert big.status_code == 422, big.text
     assert big.json()["errors"][0]["loc"] == ["params", "arc_chord_mm"] and "line 4" in big.json()["detail"]
     assert elapsed < 1.0
+
+
+def test_a_program_too_big_to_check_at_submission_is_checked_by_its_job(client):
+    """Arcs within the program's chord budget but beyond what a request reads (500 circles of
+    50 chords each): accepted in well under a second of CPU, and the job itself refuses the
+    moves that leave the measured region, naming the line."""
+    import time
+
+    from tests.helpers.jobs import wait_for
+
+    text = "G21\nG90\nG0 X100 Y10\nM106\n" + "G2 X100 Y10 I0.5 J0 F600\n" * 500
+    program = _upload(client, text)
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", MESH.export(file_type="stl"))}, headers=OP).json()
+    fit = run_job(client, "surface_fit", {"part_id": part["id"], "region": {"x": [5, 55], "y": [5, 35]},
+                                          "grid": [9, 7]})
+    cpu = time.process_time()
+    accepted = submit(client, "warp_program", {"program_id": program["id"], "surface_fit_job_id": fit["id"],
+                                               "arc_chord_mm": 0.001})
+    assert time.process_time() - cpu < 1.0
+    assert accepted.status_code == 202, accepted.text
+    job = wait_for(client, accepted.json()["id"], timeout=120)
+    assert job["status"] == "failed"
+    assert "line 5" in str(job["error"]) and "leaves the measured region" in str(job["error"]), job["error"]

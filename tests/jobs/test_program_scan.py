@@ -42,8 +42,10 @@ def _scan(data: bytes, piece: int) -> dict:
 def test_any_pieces_give_the_whole_texts_facts(piece):
     data = PROGRAM.encode()
     meta = _scan(data, piece)
-    reference = read_program(PROGRAM).bounds()
-    np.testing.assert_allclose(meta["bounds"], reference, atol=1e-12)
+    chords = read_program(PROGRAM).bounds()      # the arcs' chord ends: on the arcs, within 0.002 mm of their extremes
+    low, high = np.array(meta["bounds"])
+    assert (low <= chords[0]).all() and (high >= chords[1]).all()
+    np.testing.assert_allclose(meta["bounds"], chords, atol=0.002 + 1e-9, rtol=0)
     digest = commands_sha256(PROGRAM.splitlines())
     assert (meta["lines"], meta["commands"], meta["commands_sha256"]) == (
         len(PROGRAM.splitlines()), digest.count, digest.sha256)
@@ -79,3 +81,15 @@ def test_a_number_beyond_a_double_is_refused_naming_its_line(line):
     with pytest.raises(InvalidInput) as raised:
         _scan(f"G21\n{line}\n".encode(), 1 << 20)
     assert raised.value.field == "file" and raised.value.value["line"] == 2
+
+
+def test_a_line_longer_than_a_mib_is_refused_as_it_comes():
+    """A program's lines are held whole while read: one of 3 MiB is refused at its second MiB."""
+    scan = ProgramScan()
+    scan.feed(b"G1 X1\nG1 X2\n")
+    with pytest.raises(InvalidInput) as raised:
+        for _ in range(48):
+            scan.feed(b"G1 X1 " + b"0" * (2**16 - 6))
+    assert raised.value.field == "file" and raised.value.value == 3
+    assert "line 3 is longer than 1048576 characters" in raised.value.message
+    assert scan.size <= 2**20 + 2**17

@@ -13,19 +13,26 @@ from pydantic import Field, model_validator
 from sqlmodel import Session
 
 from app.circuits.errors import WarpError
-from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, scan_program
+from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, arc_chord_budget, scan_program
 from app.circuits.heightfield import height_model_from_points, points_region
 from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
 from app.errors import InvalidInput
+from app.gcode.program_bounds import BoundsScan
 from app.geometry.nurbs_surface import NurbsSurface
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
-from app.models import Job, Program
+from app.models import Blob, Job, Program
 from app.jobs.inputs import succeeded_job
 from app.jobs.program_results import WarpProgramResult
 from app.jobs.results import ProbeRunResult, SurfaceFitResult
 from app.records import get_or_404
+
+
+#: the largest program the submission checks itself (lines, bytes, arc chords: ~0.5 s of CPU at most)
+CHECK_LINES = 10_000
+CHECK_BYTES = 2**20
+CHECK_CHORDS = 10_000
 
 
 class WarpProgramParams(JobParams):
@@ -57,22 +64,32 @@ def _surface_job(params: WarpProgramParams) -> tuple[str, str]:
 
 
 def _check(params: WarpProgramParams, session: Session) -> None:
-    """The program must be readable and (unless ``allow_outside``) print only inside the
-    surface's measured region: a 422 naming the line and its coordinates before any job runs."""
+    """The program must be readable, its arcs' chords within the budget, and (unless
+    ``allow_outside``) print only inside the surface's measured region: a 422 naming the line
+    and its coordinates before any job runs.  Bounded work in the request: a program beyond
+    :data:`CHECK_LINES` lines or :data:`CHECK_BYTES` bytes, or whose arcs need more than
+    :data:`CHECK_CHORDS` chords, is checked the same way by the job in its own process."""
     program = get_or_404(session, Program, params.program_id, field="params.program_id")
     kind, job_id = _surface_job(params)
     job = succeeded_job(session, job_id, kind, f"params.{kind}_job_id")
     read_blob = session.info.get("read_blob")
     if read_blob is None:                     # a check without the store (never in the service)
         return
+    if program.lines > CHECK_LINES or get_or_404(session, Blob, program.sha256).bytes > CHECK_BYTES:
+        return                                # the job checks it in its own process
     try:
-        recs = scan_program(read_blob(program.sha256).decode("utf-8"), params.arc_chord_mm)
+        text = read_blob(program.sha256).decode("utf-8")
+        arcs = BoundsScan("params.program_id", params.arc_chord_mm, arc_chord_budget(len(text)))
+        arcs.block(text, 1)                   # the arcs' chords counted, none made
+        if arcs.chords > CHECK_CHORDS:
+            return
+        recs = scan_program(text, params.arc_chord_mm)
         if not params.allow_outside:
             inside, bounds = points_region(_surface_points(job))
             check_region(recs, inside, bounds)
     except UnicodeDecodeError:
         raise InvalidInput("the program is not UTF-8 text", field="params.program_id", value=program.id) from None
-    except WarpError as exc:
+    except (WarpError, InvalidInput) as exc:
         field = "params.arc_chord_mm" if exc.field == "arc_chord_mm" else "params.program_id"
         raise InvalidInput(f"program {program.name!r} {exc.message}", field=field, value=exc.value) from None
 
