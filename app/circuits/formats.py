@@ -10,14 +10,15 @@ import numpy as np
 
 from app.circuits.budget import check_layout, precount, svg_items
 from app.circuits.errors import CircuitFileError
-from app.circuits.layout import Layout, LayoutTrace
+from app.circuits.layout import RESOLUTION_MM, Dropped, Layout, LayoutTrace
+from app.circuits.opens import curve_points, source_connections
 from app.geometry.errors import GeometryError
 
 __all__ = ["FORMATS", "MIN_TRACE_MM", "detect_format", "read_layout"]
 
 #: the shortest trace that is printed (mm): a piece shorter than this (real boards hold 1 nm
 #: segments from KiCad's editor, 1 um pieces in its DXF export) is below any printer's step
-MIN_TRACE_MM = 0.001
+MIN_TRACE_MM = RESOLUTION_MM
 
 FORMATS = ("kicad", "gerber", "excellon", "dxf", "svg")
 _SUFFIXES = {".kicad_pcb": "kicad", ".gbr": "gerber", ".ger": "gerber", ".gtl": "gerber", ".gbl": "gerber",
@@ -70,6 +71,7 @@ def _without_slivers(layout: Layout) -> Layout:
     if len(dropped) > 20:
         layout.notes.append(f"{len(dropped) - 20} more traces shorter than {MIN_TRACE_MM} mm dropped")
     layout.traces = keep
+    layout.dropped += [Dropped(curve_points(t.curve), t.source) for t in dropped]
     return layout
 
 
@@ -78,7 +80,8 @@ def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str
     :mod:`app.circuits.budget` (counted before expanding, checked after).  ``layers``: KiCad
     copper layer (one), DXF layers, SVG group ids/labels, a Gerber file's function; None
     takes the default (KiCad F.Cu, everything else all).  Traces shorter than
-    :data:`MIN_TRACE_MM` are dropped with a note.
+    :data:`MIN_TRACE_MM` are dropped with a note; the layout's ``connections`` are its named
+    nets' connected pieces as the file draws them (:func:`app.circuits.opens.source_connections`).
 
     An importer's library failing on numbers it cannot represent (an overflow, a singular
     transform) is a CircuitFileError naming the file, like any other unreadable file."""
@@ -91,7 +94,9 @@ def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str
         message = getattr(exc, "message", None) or f"{type(exc).__name__}: {exc}"
         raise CircuitFileError(f"cannot read the file: {message}"[:300], file=name) from exc
     check_layout(layout)
-    return _without_slivers(layout)
+    layout = _without_slivers(layout)
+    layout.connections = source_connections(layout)
+    return layout
 
 
 def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> Layout:

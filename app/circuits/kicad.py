@@ -22,7 +22,7 @@ from shapely.geometry.base import BaseGeometry
 from app.circuits.curves import arc_three_points, line
 from app.circuits.errors import CircuitFileError
 from app.circuits.kicad_pads import kicad_pad_outline
-from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, Via, circle_ring
+from app.circuits.layout import Area, Dropped, Layout, LayoutTrace, Pad, Source, Via, circle_ring
 from app.circuits.shapes import CHORD_MM, outline_rings, ring_of, rotate
 from app.geometry.tolerance import LENGTH_EPS_MM
 
@@ -168,7 +168,9 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
         if not np.isfinite(width) or width <= 0:
             raise CircuitFileError(f"track width {width} must be positive", file=name, where=entity)
         start, end = _up(item.start), _up(item.end)
-        if np.linalg.norm(end - start) <= LENGTH_EPS_MM and kind == "Segment":
+        if np.linalg.norm(end - start) <= LENGTH_EPS_MM and kind == "Segment":   # a dot: not a trace
+            out.dropped.append(Dropped(np.vstack([start, end]), Source(name, layer, nets.get(item.net, ""), width,
+                                                                       entity)))
             continue
         curve = line(start, end) if kind == "Segment" else arc_three_points(start, _up(item.mid), end)
         src = Source(name, layer, nets.get(item.net, ""), width, entity)
@@ -210,6 +212,9 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
             out.vias.append(Via(_up(item.position), float(item.size), float(item.drill or 0.0),
                                 nets.get(item.net, ""), tuple(item.layers)))
     out.outline = _edge_rings(board)
+    if out.dropped:
+        out.notes.append(f"{len(out.dropped)} zero-length track(s) (dots, e.g. {out.dropped[0].source.entity}): "
+                         "not printed")
     if holes:
         out.notes.append(f"{holes} non-plated hole(s) (mounting, tooling) are not copper: not printed")
     if out.vias:

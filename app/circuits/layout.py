@@ -17,8 +17,12 @@ from app.geometry.nurbs import NurbsCurve
 
 #: floor (rad) of an arc's angular step so that its point count stays finite
 _MIN_ARC_STEP_RAD = 1e-9
+#: the machine's resolution (mm): a trace no longer than this is not printed, and copper
+#: closer than this counts as joined
+RESOLUTION_MM = 0.001
 
-__all__ = ["Source", "LayoutTrace", "Pad", "Area", "Via", "Layout", "circle_ring", "arc_points"]
+__all__ = ["Source", "LayoutTrace", "Pad", "Area", "Via", "Dropped", "Connection", "Layout", "circle_ring",
+           "arc_points", "RESOLUTION_MM"]
 
 
 @dataclass(frozen=True)
@@ -82,11 +86,39 @@ class Via:
     layers: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True)
+class Dropped:
+    """Copper the file holds that is not printed (a zero-length track: a dot of its width; a
+    sliver shorter than :data:`RESOLUTION_MM`): ``points`` (k, 2) mm of its centre line.  Kept
+    so that what the source board connects is known."""
+
+    points: npt.NDArray[np.float64]
+    source: Source
+
+
+@dataclass(frozen=True)
+class Connection:
+    """Items of one named net that the source board connects (one connected piece of its
+    copper, dropped copper and via lands included): indices into the layout's ``traces``,
+    ``pads`` and ``areas``.  Only pieces of two or more printed items are kept."""
+
+    net: str
+    traces: tuple[int, ...] = ()
+    pads: tuple[int, ...] = ()
+    areas: tuple[int, ...] = ()
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON form (stored with the import)."""
+        return {"net": self.net, "traces": list(self.traces), "pads": list(self.pads), "areas": list(self.areas)}
+
+
 @dataclass
 class Layout:
     """Everything one file contributes; ``units`` names the file's own unit (converted to mm).
     ``vias``: interconnect points (not printed as pads); ``outline``: the board's edge as
-    closed rings (k, 2) mm (KiCad Edge.Cuts, a Gerber profile): the boundary, not traces."""
+    closed rings (k, 2) mm (KiCad Edge.Cuts, a Gerber profile): the boundary, not traces.
+    ``dropped``: copper read but not printed; ``connections``: the named nets' connected
+    pieces as the file draws them (see :mod:`app.circuits.opens`)."""
 
     file: str
     format: str
@@ -98,6 +130,8 @@ class Layout:
     outline: list[npt.NDArray[np.float64]] = field(default_factory=list)
     layers: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)
+    dropped: list[Dropped] = field(default_factory=list)
+    connections: list[Connection] = field(default_factory=list)
 
     def bounds(self) -> npt.NDArray[np.float64]:
         """[[xmin, ymin], [xmax, ymax]] mm over trace control points and pad/area outlines."""

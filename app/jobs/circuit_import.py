@@ -58,6 +58,7 @@ class FileMapped:
     areas: int
     vias: int
     mapped: MappedLayout
+    connections: list[dict[str, object]]   # the named nets' connected pieces in the file (indices)
 
 
 @dataclass(frozen=True)
@@ -98,5 +99,6 @@ def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
     for layout in layouts:
         mapped = map_layout(layout, placement, mesh, request.mapping)
         out.append(FileMapped(layout.file, layout.format, layout.units, list(layout.layers), layout.notes,
-                              len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), mapped))
+                              len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), mapped,
+                              [c.to_dict() for c in layout.connections]))
     return ImportMapped(placement, out)
