@@ -197,12 +197,12 @@ def _width(width: float, name: str, where: str) -> None:
                                where=where, field="width_mm")
 
 
-def check_layout(layout: Layout) -> None:
-    """Every number of ``layout`` finite and bounded, its shape count and drawn length within
-    the bounds; CircuitFileError naming the entity and the field otherwise."""
+def check_layout(layout: Layout, *, count: bool = True) -> None:
+    """Every number of ``layout`` finite and bounded, its shape count (unless not ``count``)
+    and drawn length within the bounds; CircuitFileError naming the entity and the field otherwise."""
     name = layout.file
     shapes = len(layout.traces) + len(layout.pads)
-    if shapes > MAX_SHAPES:
+    if count and shapes > MAX_SHAPES:
         raise _over(name, "traces and pads", shapes, MAX_SHAPES)
     drawn = 0.0
     for t in layout.traces:
