@@ -75,18 +75,21 @@ def _without_slivers(layout: Layout) -> Layout:
     return layout
 
 
-def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str] | None = None) -> Layout:
+def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str] | None = None, *,
+                graphics: bool = False, copper_layer: str | None = None) -> Layout:
     """A file's layout in mm (``fmt`` None = auto-detect), within the bounds of
     :mod:`app.circuits.budget` (counted before expanding, checked after).  ``layers``: KiCad
     copper layer (one), DXF layers, SVG group ids/labels, a Gerber file's function; None
-    takes the default (KiCad F.Cu, everything else all).  Traces shorter than
+    takes the default (KiCad F.Cu, everything else all); ``graphics``: a KiCad board's copper
+    graphics and text are printed (else reported); ``copper_layer``: the KiCad copper layer
+    printed (``top``, ``bottom``, ``inner<n>`` or its name; ``layers`` names it too).  Traces shorter than
     :data:`MIN_TRACE_MM` are dropped with a note; the layout's ``connections`` are its named
     nets' connected pieces as the file draws them (:func:`app.circuits.opens.source_connections`).
 
     An importer's library failing on numbers it cannot represent (an overflow, a singular
     transform) is a CircuitFileError naming the file, like any other unreadable file."""
     try:
-        layout = _read(data, name, fmt, layers)
+        layout = _read(data, name, fmt, layers, graphics, copper_layer)
     except CircuitFileError:
         raise
     except (ArithmeticError, ValueError, TypeError, IndexError, KeyError, AttributeError, RecursionError,
@@ -99,7 +102,8 @@ def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str
     return layout
 
 
-def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> Layout:
+def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None, graphics: bool = False,
+          copper_layer: str | None = None) -> Layout:
     """The importer's layout of the file, as it reads it."""
     fmt = fmt or detect_format(name, data)
     if fmt not in FORMATS:
@@ -119,7 +123,10 @@ def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> 
                                    field="layers")
         from app.circuits.kicad import read_kicad
 
-        return read_kicad(text, name, layers[0] if layers else None)
+        if layers and copper_layer and layers[0] != copper_layer:
+            raise CircuitFileError(f"layers {layers[0]!r} and layer {copper_layer!r} disagree: give one", file=name,
+                                   where=f"layer {copper_layer}", field="layer")
+        return read_kicad(text, name, layers[0] if layers else copper_layer, graphics)
     if fmt == "gerber":
         from app.circuits.gerber import read_gerber
 

@@ -21,8 +21,21 @@ _MIN_ARC_STEP_RAD = 1e-9
 #: closer than this counts as joined
 RESOLUTION_MM = 0.001
 
-__all__ = ["Source", "LayoutTrace", "Pad", "Area", "Via", "Dropped", "Connection", "Layout", "circle_ring",
+__all__ = ["copper_side", "Source", "LayoutTrace", "Pad", "Area", "Via", "Dropped", "Connection", "Layout", "circle_ring",
            "arc_points", "RESOLUTION_MM"]
+
+
+def copper_side(layer: str) -> str:
+    """Where a copper layer lies in the board's stack: ``top``, ``bottom`` or ``inner`` (KiCad
+    F.Cu / B.Cu / In<n>.Cu; Gerber X2 file functions Copper,L<n>,Top / Bot / Inr), "" for a
+    layer that names no copper side (a DXF or SVG layer, a Gerber file without X2)."""
+    if layer == "F.Cu" or layer.startswith("Copper,") and layer.endswith(",Top"):
+        return "top"
+    if layer == "B.Cu" or layer.startswith("Copper,") and layer.endswith(",Bot"):
+        return "bottom"
+    if layer.startswith("In") and layer.endswith(".Cu") or layer.startswith("Copper,") and ",Inr" in layer:
+        return "inner"
+    return ""
 
 
 @dataclass(frozen=True)
@@ -36,9 +49,9 @@ class Source:
     entity: str = ""
 
     def to_dict(self) -> dict[str, str | float]:
-        """API form (JSON values)."""
-        return {"file": self.file, "layer": self.layer, "net": self.net, "width_mm": self.width_mm,
-                "entity": self.entity}
+        """API form (JSON values); ``side``: the layer's place in the stack (:func:`copper_side`)."""
+        return {"file": self.file, "layer": self.layer, "side": copper_side(self.layer), "net": self.net,
+                "width_mm": self.width_mm, "entity": self.entity}
 
 
 @dataclass(frozen=True)
@@ -117,7 +130,10 @@ class Layout:
     """Everything one file contributes; ``units`` names the file's own unit (converted to mm).
     ``vias``: interconnect points (not printed as pads); ``outline``: the board's edge as
     closed rings (k, 2) mm (KiCad Edge.Cuts, a Gerber profile): the boundary, not traces.
-    ``dropped``: copper read but not printed; ``connections``: the named nets' connected
+    ``dropped``: copper read but not printed; ``skipped``: what the file holds that is not
+    printed unless the import asks (each a sentence, a warning of the import); ``stack``: each
+    copper layer of the file (name, side, printed or not, its tracks, pads, zones and vias
+    counted); ``connections``: the named nets' connected
     pieces as the file draws them (see :mod:`app.circuits.opens`)."""
 
     file: str
@@ -131,6 +147,8 @@ class Layout:
     layers: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)
     dropped: list[Dropped] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    stack: list[dict[str, object]] = field(default_factory=list)
     connections: list[Connection] = field(default_factory=list)
 
     def bounds(self) -> npt.NDArray[np.float64]:

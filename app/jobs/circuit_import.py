@@ -42,6 +42,8 @@ class ImportRequest:
     anchor: str  # "board_center" (the boards' own centre, over all files) or "file_origin" (0, 0)
     mapping: MappingOptions
     part: PartMesh
+    graphics: bool = False   # a KiCad board's copper graphics and text printed (else reported)
+    copper_layer: str | None = None   # the KiCad copper layer printed (top, bottom, inner<n>, a name)
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,7 @@ class FileMapped:
     vias: int
     mapped: MappedLayout
     connections: list[dict[str, object]]   # the named nets' connected pieces in the file (indices)
+    stack: list[dict[str, object]]         # the file's copper layers (side, printed, counts)
 
 
 @dataclass(frozen=True)
@@ -85,7 +88,8 @@ def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
     layouts = []
     shapes = 0
     for name, path in request.files:
-        layout = read_layout(Path(path).read_bytes(), name, request.format, request.layers)
+        layout = read_layout(Path(path).read_bytes(), name, request.format, request.layers, graphics=request.graphics,
+                             copper_layer=request.copper_layer)
         shapes += len(layout.traces) + len(layout.pads)
         if shapes > MAX_SHAPES:
             raise CircuitFileError(f"more than {MAX_SHAPES} traces and pads in one import", file=name,
@@ -100,5 +104,5 @@ def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
         mapped = map_layout(layout, placement, mesh, request.mapping)
         out.append(FileMapped(layout.file, layout.format, layout.units, list(layout.layers), layout.notes,
                               len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), mapped,
-                              [c.to_dict() for c in layout.connections]))
+                              [c.to_dict() for c in layout.connections], layout.stack))
     return ImportMapped(placement, out)

@@ -186,3 +186,43 @@ def test_a_program_that_would_open_a_net_is_refused(client, part):
     ok = client.post("/api/v1/jobs", headers=OP, json={"kind": "circuit_program", "params": {
         "import_id": fine.json()["import_id"], "closed_loop_job_id": loop, "line_width_mm": 0.05}})
     assert ok.status_code == 422 and "closed_loop" in ok.text and "open" not in ok.json()["detail"]
+
+
+def test_copper_graphics_are_warned_about_unless_asked(client, part):
+    from tests.circuits.test_kicad_graphics import _board
+
+    def run(**options):
+        return client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                           files=[("files", ("g.kicad_pcb", _board().encode()))],
+                           data={"options": json.dumps({"origin_mm": [0, 30], "dry_run": True, **options})}).json()
+
+    plain = run()
+    assert plain["areas"] == [] and len(plain["traces"]) == 1
+    (warning,) = [w for w in plain["warnings"] if w["kind"] == "not_printed"]
+    assert "5 copper graphic(s)" in warning["message"] and warning["file"] == "g.kicad_pcb"
+    asked = run(copper_graphics=True)
+    assert len(asked["areas"]) == 4 and len(asked["traces"]) == 2
+    assert not [w for w in asked["warnings"] if w["kind"] == "not_printed"]
+    assert sum(a["area_mm2"] for a in asked["areas"]) == pytest.approx(
+        4 + (4.2 * 2.2 - 3.8 * 1.8 - (4 - np.pi) * 0.1 ** 2) + np.pi * 1.1 ** 2 + 1, abs=1e-2)   # arcs within 1 um
+
+
+def test_the_layer_stack_and_vias_are_in_the_response_and_the_stored_import(client, part):
+    from tests.circuits.test_layer_stack import STACK, four_layers
+
+    done = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                       files=[("files", ("b.kicad_pcb", four_layers().encode()))],
+                       data={"options": json.dumps({"origin_mm": [5, 30], "layer": "bottom"})})
+    assert done.status_code == 201, done.text
+    body = done.json()
+    (stack_file,) = body["files"]
+    assert [(r["layer"], r["side"], r["printed"], r["tracks"]) for r in stack_file["stack"]] == [
+        (name, side, name == "B.Cu", tracks) for name, (side, tracks, *_) in STACK.items()]
+    assert [t["source"]["side"] for t in body["traces"]] == ["bottom"]
+    assert {p["source"]["layer"] for p in body["pads"]} == {"B.Cu"}
+    (via,) = body["vias"]                         # the blind via does not reach B.Cu
+    assert via["layers"] == ["F.Cu", "B.Cu"] and via["sides"] == ["top", "bottom"]
+    record = client.get(f"/api/v1/circuit-imports/{body['import_id']}", headers=OP).json()
+    (stored,) = record["files"]
+    assert stored["stack"] == stack_file["stack"] and stored["interconnects"][0]["center_mm"] == via["center_mm"]
+    assert record["options"]["layer"] == "bottom"
