@@ -15,9 +15,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import anyio
-from fastapi import APIRouter, File, Form, Request, UploadFile
+from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from pydantic import BaseModel, Field, ValidationError
 
+from app.api.circuit_pages import paged
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
@@ -134,6 +135,9 @@ class CircuitImportOut(BaseModel):
                                       "(top view), anchor and anchor_mm (the layout point put there)")
     preview: dict[str, Any] | None = Field(None, description="with dry_run and view_id: the 3-D view drawn "
                                            "(view_id, generation, nodes) or why it could not be")
+    totals: dict[str, int] = Field(default_factory=dict, description="every list's full length: traces, pads, "
+                                   "areas, warnings, vias, probe_paths, outline (the lists hold the rows offset .. "
+                                   "offset + limit when the request gives them)")
 
 
 class CircuitImportRecord(BaseModel):
@@ -179,6 +183,9 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
                    files: Annotated[list[UploadFile], File(description="circuit files (KiCad, Gerber, Excellon, "
                                                                        "DXF, SVG)")],
                    options: Annotated[str, Form(description="CircuitImportOptions as JSON")] = "{}",
+                   offset: Annotated[int, Query(ge=0, description="first row of every list in the answer")] = 0,
+                   limit: Annotated[int | None, Query(ge=1, le=100_000, description="rows of every list in the "
+                                                      "answer (all when omitted); totals gives their lengths")] = None,
                    ) -> CircuitImportOut:
     """Import circuits onto a part: all files' traces are stored, or none (422 naming the file's
     line or entity, or the trace); ``dry_run`` stores nothing."""
@@ -277,6 +284,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
             "width_mm": trace.width_mm, "geometry": trace.geometry, "nominal": {"points": _nominal_points(trace)}}
     if opts.dry_run and opts.view_id:
         out.preview = _preview(request, part, mesh, out, opts.view_id)
+    out.totals = paged(out, offset, limit)
     return out
 
 

@@ -2,7 +2,7 @@
 
 ``POST /parts/{id}/circuits:import`` hands the uploaded files here through
 :func:`app.jobs.isolated.call_isolated`: every file is read (within the bounds of
-:mod:`app.circuits.budget`), the import's traces and pads are counted together against
+:mod:`app.circuits.budget`), the import's traces, pads and areas are counted together against
 :data:`~app.circuits.budget.MAX_SHAPES`, and each layout is mapped onto the part's mesh
 (loaded in the child from the blob store and the part cache).  What comes back is small and
 bounded: the files' facts and their :class:`~app.circuits.mapping.MappedLayout`.
@@ -84,16 +84,16 @@ def _mesh(settings: Any, part: PartMesh) -> Any:
 
 def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
     """Every file read, counted and mapped (see the module); CircuitFileError (422) naming the
-    file when the import's traces and pads pass MAX_SHAPES."""
+    file when the import's traces, pads and areas pass MAX_SHAPES."""
     layouts = []
     shapes = 0
     for name, path in request.files:
         layout = read_layout(Path(path).read_bytes(), name, request.format, request.layers, graphics=request.graphics,
                              copper_layer=request.copper_layer)
-        shapes += len(layout.traces) + len(layout.pads)
+        shapes += len(layout.traces) + len(layout.pads) + len(layout.areas)
         if shapes > MAX_SHAPES:
-            raise CircuitFileError(f"more than {MAX_SHAPES} traces and pads in one import", file=name,
-                                   where="traces and pads", field="files")
+            raise CircuitFileError(f"more than {MAX_SHAPES} traces, pads and areas in one import", file=name,
+                                   where="traces, pads and areas", field="files")
         layouts.append(layout)
     anchor_xy = board_center(layouts) if request.anchor == "board_center" else (0.0, 0.0)
     placement = LayoutPlacement(request.origin_mm, request.rotation_deg, request.mirror,

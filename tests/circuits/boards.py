@@ -239,3 +239,53 @@ def open_board(*, neck_mm: float = 0.1, dot: bool = True) -> str:
     (filled_polygon (layer "F.Cu") (pts {pts})))
 )
 """
+
+
+@dataclass(frozen=True)
+class RowBoard:
+    """A board of ``rows`` x ``per_row`` tracks: row r (net R<r>) runs along y = -r * pitch
+    (KiCad's frame) from x = 0 in ``per_row`` segments ``seg`` mm long, with a round pad
+    (``pad`` mm) at every ``pad_every``-th joint and at the row's end; tracks ``width`` mm; an
+    Edge.Cuts rectangle 2 mm around.  Every count is known: tracks = rows x per_row, pads =
+    rows x (per_row // pad_every + 1), one connected piece per net."""
+
+    rows: int = 100
+    per_row: int = 50
+    seg: float = 3.0
+    pitch: float = 1.15
+    width: float = 0.25
+    pad: float = 0.6
+    pad_every: int = 5
+
+    @property
+    def pads(self) -> int:
+        return self.rows * (self.per_row // self.pad_every + 1)
+
+    @property
+    def tracks(self) -> int:
+        return self.rows * self.per_row
+
+    @property
+    def size(self) -> tuple[float, float]:
+        return self.per_row * self.seg, (self.rows - 1) * self.pitch
+
+    def kicad(self) -> str:
+        nets = "\n".join(f'  (net {r + 1} "R{r}")' for r in range(self.rows))
+        tracks, pads = [], []
+        for r in range(self.rows):
+            y = -r * self.pitch
+            for k in range(self.per_row + 1):
+                if k % self.pad_every == 0 or k == self.per_row:
+                    pads.append(f'    (pad "{r}.{k}" smd circle (at {k * self.seg:.4f} {y:.4f}) (size {self.pad} '
+                                f'{self.pad}) (layers "F.Cu") (net {r + 1} "R{r}"))')
+                if k < self.per_row:
+                    tracks.append(f'  (segment (start {k * self.seg:.4f} {y:.4f}) (end {(k + 1) * self.seg:.4f} '
+                                  f'{y:.4f}) (width {self.width}) (layer "F.Cu") (net {r + 1}))')
+        w, h = self.size
+        edge = [(-2, 2), (w + 2, 2), (w + 2, -h - 2), (-2, -h - 2)]
+        edges = "\n".join(f'  (gr_line (start {a[0]} {a[1]}) (end {b[0]} {b[1]}) (layer "Edge.Cuts") (width 0.1))'
+                          for a, b in zip(edge, edge[1:] + edge[:1]))
+        return (f'(kicad_pcb (version 20221018) (generator pcbnew)\n  (general (thickness 1.6))\n'
+                f'  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))\n  (net 0 "")\n{nets}\n'
+                f'  (footprint "rows" (layer "F.Cu") (at 0 0)\n    (property "Reference" "J1")\n'
+                + "\n".join(pads) + "\n  )\n" + "\n".join(tracks) + "\n" + edges + "\n)\n")
