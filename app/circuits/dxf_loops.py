@@ -8,7 +8,8 @@ point joining exactly two of them (ends closer than :data:`~app.circuits.layout.
 meet).  A layer is read as an outline drawing when at least :data:`OUTLINE_SHARE` of its
 zero-width curves close into loops; on any other layer a closed curve is a drawn trace (a
 ring).  Loops nest: a loop inside an even number of others is an area's outline, inside an
-odd number a hole of the smallest one around it.  Curves with a width (a drawn trace, a
+odd number a hole of the smallest one around it; areas that overlap or touch are one area
+(an outline plot draws each track's outline over its pads).  Curves with a width (a drawn trace, a
 polyline of constant width) and chains that do not close or branch stay traces.
 """
 
@@ -146,4 +147,26 @@ def loops_as_areas(traces: list[LayoutTrace]) -> tuple[list[LayoutTrace], list[A
             hole = np.asarray(orient(polys[i], -1.0).exterior.coords)[:-1]
             areas[k] = Area(areas[k].exterior, (*areas[k].holes, hole), areas[k].source)
     gone = {hair[j] for u in used for j in u}
-    return [t for k, t in enumerate(traces) if k not in gone], areas, len(polys)
+    return [t for k, t in enumerate(traces) if k not in gone], _merged(areas), len(polys)
+
+
+def _merged(areas: list[Area]) -> list[Area]:
+    """Overlapping or touching areas of one layer as one area each (an outline plot draws a
+    track's stadium over its pads: one piece of copper, filled once), holes kept; each named
+    by its first loop and how many it joins."""
+    out: list[Area] = []
+    for layer in dict.fromkeys(a.source.layer for a in areas):
+        mine = [a for a in areas if a.source.layer == layer]
+        shapes = [Polygon(a.exterior, list(a.holes)).buffer(0) for a in mine]
+        tree = shapely.STRtree(shapes)
+        for part in shapely.get_parts(shapely.union_all(shapes)):
+            if not isinstance(part, Polygon) or part.area <= 0:
+                continue
+            joined = sorted(int(k) for k in tree.query(part, predicate="intersects"))
+            src = mine[joined[0]].source if joined else mine[0].source
+            entity = src.entity if len(joined) <= 1 else f"{src.entity} (+{len(joined) - 1} overlapping loops)"
+            part = orient(part, 1.0)
+            out.append(Area(np.asarray(part.exterior.coords)[:-1], tuple(np.asarray(h.coords)[:-1]
+                                                                          for h in part.interiors),
+                            Source(src.file, src.layer, src.net, 0.0, entity)))
+    return out
