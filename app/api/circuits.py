@@ -15,9 +15,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import anyio
-from fastapi import APIRouter, File, Form, Request, UploadFile
+from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from pydantic import BaseModel, Field, ValidationError
 
+from app.api.circuit_pages import paged
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.api.traces import trace_out
@@ -58,6 +59,10 @@ class CircuitImportOptions(Strict):
     max_stretch: Finite = Field(1.01, ge=1.0, le=10.0, description="warn above this stretch")
     standoff_mm: Finite = Field(0.10, gt=0, le=50)
     feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
+    layer: str | None = Field(None, max_length=40, description="the copper layer printed: top (the default), "
+                              "bottom, inner<n> or a KiCad layer name; the others are reported in files[].stack")
+    copper_graphics: bool = Field(False, description="print a KiCad board's copper graphics (polygons, "
+                                  "rectangles, circles, lines) and text as copper; off: they are reported in warnings")
     dry_run: bool = False
     view_id: str | None = Field(None, min_length=1, max_length=40, pattern=r"^[A-Za-z0-9_-]+$",
                                 description="with dry_run: draw the mapped circuit on the part in this 3-D view "
@@ -74,6 +79,8 @@ class ImportedFile(BaseModel):
     pads: int
     areas: int
     vias: int = Field(0, description="vias read (interconnect points; not pads, not filled)")
+    stack: list[dict[str, Any]] = Field(default_factory=list, description="the file's copper layers, top to "
+                                        "bottom: layer, side (top/inner/bottom), printed, tracks, pads, zones, vias")
 
 
 class ImportedTrace(BaseModel):
@@ -128,6 +135,9 @@ class CircuitImportOut(BaseModel):
                                       "(top view), anchor and anchor_mm (the layout point put there)")
     preview: dict[str, Any] | None = Field(None, description="with dry_run and view_id: the 3-D view drawn "
                                            "(view_id, generation, nodes) or why it could not be")
+    totals: dict[str, int] = Field(default_factory=dict, description="every list's full length: traces, pads, "
+                                   "areas, warnings, vias, probe_paths, outline (the lists hold the rows offset .. "
+                                   "offset + limit when the request gives them)")
 
 
 class CircuitImportRecord(BaseModel):
@@ -173,6 +183,9 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
                    files: Annotated[list[UploadFile], File(description="circuit files (KiCad, Gerber, Excellon, "
                                                                        "DXF, SVG)")],
                    options: Annotated[str, Form(description="CircuitImportOptions as JSON")] = "{}",
+                   offset: Annotated[int, Query(ge=0, description="first row of every list in the answer")] = 0,
+                   limit: Annotated[int | None, Query(ge=1, le=100_000, description="rows of every list in the "
+                                                      "answer (all when omitted); totals gives their lengths")] = None,
                    ) -> CircuitImportOut:
     """Import circuits onto a part: all files' traces are stored, or none (422 naming the file's
     line or entity, or the trace); ``dry_run`` stores nothing."""
@@ -197,7 +210,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
         name, mapped = read.file, read.mapped
         out.files.append(ImportedFile(file=name, format=read.format, units=read.units, layers=read.layers,
                                       notes=read.notes, traces=read.traces, pads=read.pads, areas=read.areas,
-                                      vias=read.vias))
+                                      vias=read.vias, stack=read.stack))
         out.vias += [dict(v, file=name) for v in mapped.vias]
         out.outline += [r.round(6).tolist() for r in mapped.outline]
         base = len(out.traces)
@@ -257,7 +270,8 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
             pad.probe_trace_id = trace.id
         out.probe_trace_ids = [t.id for item, t in records if item is None]
         session.add(CircuitImport(
-            id=import_id, part_id=part.id, files=[f.model_dump() for f in out.files],
+            id=import_id, part_id=part.id, files=[dict(f.model_dump(), connections=r.connections, interconnects=r.mapped.vias)
+                                                  for f, r in zip(out.files, read_all.files)],
             options=opts.model_dump(), trace_ids=[trace.id for item, trace in records if item is not None],
             pads=[p.model_dump() for p in out.pads], areas=[a.model_dump() for a in out.areas],
             created_at=utcnow()))
@@ -270,6 +284,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
             "width_mm": trace.width_mm, "geometry": trace.geometry, "nominal": {"points": _nominal_points(trace)}}
     if opts.dry_run and opts.view_id:
         out.preview = _preview(request, part, mesh, out, opts.view_id)
+    out.totals = paged(out, offset, limit)
     return out
 
 
@@ -287,7 +302,8 @@ def _read_and_map(runtime, request: Request, part: Part, files: list[UploadFile]
                 shutil.copyfileobj(upload.file, spool, 2**20)
             paths.append((_file_name(upload), str(path)))
         job = ImportRequest(paths, opts.format, opts.layers, origin_mm, opts.rotation_deg, opts.mirror, anchor,
-                            MappingOptions(opts.mapping, opts.max_stretch), PartMesh(part.sha256, part.format))
+                            MappingOptions(opts.mapping, opts.max_stretch), PartMesh(part.sha256, part.format),
+                            graphics=opts.copper_graphics, copper_layer=opts.layer)
         result: ImportMapped = call_isolated(
             read_and_map, job, settings, memory_bytes=int(settings.job_memory_mb * 2**20),
             time_s=settings.import_time_s, what="the import",

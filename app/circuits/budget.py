@@ -33,8 +33,10 @@ MAX_ITEMS = 100_000
 #: statements of a Gerber file, lines of an Excellon file (each item is one; the rest is
 #: the header, apertures, tools and comments)
 MAX_STATEMENTS = MAX_ITEMS + 20_000
-#: traces plus pads of one import (every file together)
-MAX_SHAPES = 5000
+#: traces, pads and areas of one import (every file together): a 20,000-track board with
+#: its pads (real boards reach 4,000-15,000 tracks); each becomes a stored trace or probe
+#: ring, so this also bounds a closed loop over an import (``MAX_FIELD_TRACES``)
+MAX_SHAPES = 20_000
 #: largest |coordinate| of a layout, mm (10 m: beyond any part a machine holds)
 MAX_COORD_MM = 10_000.0
 #: widest trace, pad-tool or line width, mm
@@ -197,13 +199,13 @@ def _width(width: float, name: str, where: str) -> None:
                                where=where, field="width_mm")
 
 
-def check_layout(layout: Layout) -> None:
-    """Every number of ``layout`` finite and bounded, its shape count and drawn length within
-    the bounds; CircuitFileError naming the entity and the field otherwise."""
+def check_layout(layout: Layout, *, count: bool = True) -> None:
+    """Every number of ``layout`` finite and bounded, its shape count (unless not ``count``)
+    and drawn length within the bounds; CircuitFileError naming the entity and the field otherwise."""
     name = layout.file
-    shapes = len(layout.traces) + len(layout.pads)
-    if shapes > MAX_SHAPES:
-        raise _over(name, "traces and pads", shapes, MAX_SHAPES)
+    shapes = len(layout.traces) + len(layout.pads) + len(layout.areas)
+    if count and shapes > MAX_SHAPES:
+        raise _over(name, "traces, pads and areas", shapes, MAX_SHAPES)
     drawn = 0.0
     for t in layout.traces:
         curve = t.curve

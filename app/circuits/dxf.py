@@ -4,7 +4,9 @@ ELLIPSE (exact rational spline) and blocks placed by INSERT (nested, with their 
 Units come from the header's ``$INSUNITS`` (inch = 25.4 mm exactly; unitless files are read
 as mm and say so in the layout's notes).  A trace's width is the polyline's constant width
 or, else, the entity's lineweight (1/100 mm); 0 when neither is set.  Entities of a block
-on layer "0" take the layer of the INSERT that places them (DXF's BYBLOCK rule).
+on layer "0" take the layer of the INSERT that places them (DXF's BYBLOCK rule).  Copper
+drawn as closed zero-width outlines (an ECAD plot's outline mode) is read as areas with
+their holes (:mod:`app.circuits.dxf_loops`).
 """
 
 from __future__ import annotations
@@ -28,8 +30,9 @@ from ezdxf.filemanagement import read as read_dxf_stream
 from ezdxf.lldxf.const import DXFError
 from ezdxf.math import rational_bspline_from_ellipse
 
-from app.circuits.budget import MAX_ITEMS
+from app.circuits.budget import MAX_ITEMS, check_layout
 from app.circuits.curves import arc_center, bulge_arc, concatenated, line
+from app.circuits.dxf_loops import loops_as_areas
 from app.circuits.errors import CircuitFileError
 from app.circuits.layout import Layout, LayoutTrace, Source
 from app.geometry.errors import GeometryError
@@ -227,4 +230,11 @@ def read_dxf(text: str, name: str, layers: list[str] | None = None) -> Layout:
         if curve is None:
             continue
         out.traces.append(LayoutTrace(curve, Source(name, layer, "", _width(e, scale), entity)))
+    check_layout(out, count=False)       # finite, bounded numbers before the loops are traced
+    before = len(out.traces)
+    out.traces, out.areas, loops = loops_as_areas(out.traces)
+    if loops:
+        holes = sum(len(a.holes) for a in out.areas)
+        out.notes.append(f"{before - len(out.traces)} zero-width curves close into {loops} outline loop(s): read as "
+                         f"{len(out.areas)} copper area(s) with {holes} hole(s), not as traces")
     return out

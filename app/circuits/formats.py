@@ -10,14 +10,15 @@ import numpy as np
 
 from app.circuits.budget import check_layout, precount, svg_items
 from app.circuits.errors import CircuitFileError
-from app.circuits.layout import Layout, LayoutTrace
+from app.circuits.layout import RESOLUTION_MM, Dropped, Layout, LayoutTrace
+from app.circuits.opens import curve_points, source_connections
 from app.geometry.errors import GeometryError
 
 __all__ = ["FORMATS", "MIN_TRACE_MM", "detect_format", "read_layout"]
 
 #: the shortest trace that is printed (mm): a piece shorter than this (real boards hold 1 nm
 #: segments from KiCad's editor, 1 um pieces in its DXF export) is below any printer's step
-MIN_TRACE_MM = 0.001
+MIN_TRACE_MM = RESOLUTION_MM
 
 FORMATS = ("kicad", "gerber", "excellon", "dxf", "svg")
 _SUFFIXES = {".kicad_pcb": "kicad", ".gbr": "gerber", ".ger": "gerber", ".gtl": "gerber", ".gbl": "gerber",
@@ -70,20 +71,25 @@ def _without_slivers(layout: Layout) -> Layout:
     if len(dropped) > 20:
         layout.notes.append(f"{len(dropped) - 20} more traces shorter than {MIN_TRACE_MM} mm dropped")
     layout.traces = keep
+    layout.dropped += [Dropped(curve_points(t.curve), t.source) for t in dropped]
     return layout
 
 
-def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str] | None = None) -> Layout:
+def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str] | None = None, *,
+                graphics: bool = False, copper_layer: str | None = None) -> Layout:
     """A file's layout in mm (``fmt`` None = auto-detect), within the bounds of
     :mod:`app.circuits.budget` (counted before expanding, checked after).  ``layers``: KiCad
     copper layer (one), DXF layers, SVG group ids/labels, a Gerber file's function; None
-    takes the default (KiCad F.Cu, everything else all).  Traces shorter than
-    :data:`MIN_TRACE_MM` are dropped with a note.
+    takes the default (KiCad F.Cu, everything else all); ``graphics``: a KiCad board's copper
+    graphics and text are printed (else reported); ``copper_layer``: the KiCad copper layer
+    printed (``top``, ``bottom``, ``inner<n>`` or its name; ``layers`` names it too).  Traces shorter than
+    :data:`MIN_TRACE_MM` are dropped with a note; the layout's ``connections`` are its named
+    nets' connected pieces as the file draws them (:func:`app.circuits.opens.source_connections`).
 
     An importer's library failing on numbers it cannot represent (an overflow, a singular
     transform) is a CircuitFileError naming the file, like any other unreadable file."""
     try:
-        layout = _read(data, name, fmt, layers)
+        layout = _read(data, name, fmt, layers, graphics, copper_layer)
     except CircuitFileError:
         raise
     except (ArithmeticError, ValueError, TypeError, IndexError, KeyError, AttributeError, RecursionError,
@@ -91,10 +97,13 @@ def read_layout(data: bytes, name: str, fmt: str | None = None, layers: list[str
         message = getattr(exc, "message", None) or f"{type(exc).__name__}: {exc}"
         raise CircuitFileError(f"cannot read the file: {message}"[:300], file=name) from exc
     check_layout(layout)
-    return _without_slivers(layout)
+    layout = _without_slivers(layout)
+    layout.connections = source_connections(layout)
+    return layout
 
 
-def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> Layout:
+def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None, graphics: bool = False,
+          copper_layer: str | None = None) -> Layout:
     """The importer's layout of the file, as it reads it."""
     fmt = fmt or detect_format(name, data)
     if fmt not in FORMATS:
@@ -114,7 +123,10 @@ def _read(data: bytes, name: str, fmt: str | None, layers: list[str] | None) -> 
                                    field="layers")
         from app.circuits.kicad import read_kicad
 
-        return read_kicad(text, name, layers[0] if layers else None)
+        if layers and copper_layer and layers[0] != copper_layer:
+            raise CircuitFileError(f"layers {layers[0]!r} and layer {copper_layer!r} disagree: give one", file=name,
+                                   where=f"layer {copper_layer}", field="layer")
+        return read_kicad(text, name, layers[0] if layers else copper_layer, graphics)
     if fmt == "gerber":
         from app.circuits.gerber import read_gerber
 

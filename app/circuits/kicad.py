@@ -21,8 +21,9 @@ from shapely.geometry.base import BaseGeometry
 
 from app.circuits.curves import arc_three_points, line
 from app.circuits.errors import CircuitFileError
+from app.circuits.kicad_graphics import copper_graphics
 from app.circuits.kicad_pads import kicad_pad_outline
-from app.circuits.layout import Area, Layout, LayoutTrace, Pad, Source, Via, circle_ring
+from app.circuits.layout import Area, Dropped, Layout, copper_side, LayoutTrace, Pad, Source, Via, circle_ring
 from app.circuits.shapes import CHORD_MM, outline_rings, ring_of, rotate
 from app.geometry.tolerance import LENGTH_EPS_MM
 
@@ -124,6 +125,42 @@ def _edge_rings(board: Board) -> list[npt.NDArray[np.float64]]:
     return outline_rings(lines)
 
 
+def _without(tree: list[Any], token: str) -> list[Any]:
+    """The s-expression tree less every list headed ``token`` (kiutils cannot read KiCad 7's
+    ``render_cache``, the stored outline of a TrueType text; it is read from the tree)."""
+    return [_without(item, token) if isinstance(item, list) else item for item in tree
+            if not (isinstance(item, list) and item and item[0] == token)]
+
+
+_INNER = re.compile(r"^(?:inner|in)\s*(\d+)$", re.IGNORECASE)
+
+
+def _resolve_layer(layer: str) -> str:
+    """A copper layer asked by its side (``top``, ``bottom``, ``inner<n>``) or its KiCad name."""
+    inner = _INNER.match(layer.strip())
+    return {"top": "F.Cu", "bottom": "B.Cu"}.get(layer.strip().lower(), f"In{inner.group(1)}.Cu" if inner else layer)
+
+
+def _stack(board: Board, copper: tuple[str, ...], printed: str) -> list[dict[str, object]]:
+    """Each copper layer (top to bottom): its side, whether it is printed, and its tracks, pads
+    (NPTH holes not counted), zones and vias (a via joins every layer from its first to its last)."""
+    order = {name: k for k, name in enumerate(copper)}
+    tracks: dict[str, int] = {}
+    spans = []
+    for item in board.traceItems:
+        kind = type(item).__name__
+        if kind in ("Segment", "Arc"):
+            tracks[item.layer] = tracks.get(item.layer, 0) + 1
+        elif kind == "Via":
+            ends = [order[name] for name in (item.layers or []) if name in order] or [0, len(copper) - 1]
+            spans.append((min(ends), max(ends)))
+    pads = [list(p.layers) for fp in board.footprints for p in fp.pads if p.type != "np_thru_hole"]
+    return [{"layer": name, "side": copper_side(name), "printed": name == printed, "tracks": tracks.get(name, 0),
+             "pads": sum(_on_layer(layers, name) for layers in pads),
+             "zones": sum(name in (z.layers or []) for z in board.zones),
+             "vias": sum(lo <= k <= hi for lo, hi in spans)} for k, name in enumerate(copper)]
+
+
 def _reference(fp: Footprint) -> str:
     """A footprint's reference designator (else its library id)."""
     props = getattr(fp, "properties", None) or {}
@@ -135,8 +172,11 @@ def _reference(fp: Footprint) -> str:
     return str(getattr(fp, "libId", "") or "")
 
 
-def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
-    """Tracks and pads of ``layer`` (default ``F.Cu``) of a board; mm, y up.
+def read_kicad(text: str, name: str, layer: str | None = None, graphics: bool = False) -> Layout:
+    """Tracks and pads of ``layer`` (``top`` = F.Cu, the default; ``bottom`` = B.Cu; ``inner<n>``
+    = In<n>.Cu; or a KiCad layer name) of a board; mm, y up; ``stack``: every copper layer counted.  Its copper
+    graphics and text (:mod:`app.circuits.kicad_graphics`) are read when ``graphics`` asks,
+    else only reported in the layout's ``skipped``.
 
     Raises CircuitFileError naming the line (unbalanced brackets), the entity, or the layer
     when it is not a copper layer of the board.
@@ -145,7 +185,7 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
     tree = sexpr.parse_sexp(text)
     version = _version(tree, name)
     try:
-        board = Board.from_sexpr(tree)
+        board = Board.from_sexpr(_without(tree, "render_cache") if "(render_cache" in text else tree)
         modules = [item for item in tree[1:] if isinstance(item, list) and item and item[0] in ("module", "footprint")]
         if not board.footprints:       # KiCad 5 calls its footprints modules; kiutils reads them one by one
             board.footprints = [Footprint.from_sexpr(item) for item in modules]
@@ -153,7 +193,7 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
         raise CircuitFileError(f"not a KiCad board: {exc}", file=name, where="kicad_pcb") from exc
     deltas = [[_rect_delta(p) for p in item if isinstance(p, list) and p and p[0] == "pad"] for item in modules]
     copper = tuple(lt.name for lt in board.layers if lt.name.endswith(".Cu"))
-    layer = layer or "F.Cu"
+    layer = _resolve_layer(layer or "top")
     if copper and layer not in copper:
         raise CircuitFileError(f"layer {layer!r} is not a copper layer of the board (it has {', '.join(copper)})",
                                file=name, where=f"layer {layer}", field="layers")
@@ -168,7 +208,9 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
         if not np.isfinite(width) or width <= 0:
             raise CircuitFileError(f"track width {width} must be positive", file=name, where=entity)
         start, end = _up(item.start), _up(item.end)
-        if np.linalg.norm(end - start) <= LENGTH_EPS_MM and kind == "Segment":
+        if np.linalg.norm(end - start) <= LENGTH_EPS_MM and kind == "Segment":   # a dot: not a trace
+            out.dropped.append(Dropped(np.vstack([start, end]), Source(name, layer, nets.get(item.net, ""), width,
+                                                                       entity)))
             continue
         curve = line(start, end) if kind == "Segment" else arc_three_points(start, _up(item.mid), end)
         src = Source(name, layer, nets.get(item.net, ""), width, entity)
@@ -210,6 +252,23 @@ def read_kicad(text: str, name: str, layer: str | None = None) -> Layout:
             out.vias.append(Via(_up(item.position), float(item.size), float(item.drill or 0.0),
                                 nets.get(item.net, ""), tuple(item.layers)))
     out.outline = _edge_rings(board)
+    out.stack = _stack(board, copper, layer)
+    drawn = copper_graphics(tree, layer, name, read_text=graphics)
+    if graphics:
+        out.areas += drawn.areas
+        out.traces += drawn.traces
+        if drawn.texts or drawn.shapes:
+            out.notes.append(f"{drawn.shapes} copper graphic(s) and {drawn.texts} copper text(s) on {layer} read as "
+                             "copper")
+        if drawn.unread:
+            out.skipped.append(f"{len(drawn.unread)} copper graphic(s) or text(s) on {layer} not printed: "
+                               f"{', '.join(drawn.unread[:5])}")
+    elif drawn.texts or drawn.shapes:
+        out.skipped.append(f"{drawn.shapes} copper graphic(s) and {drawn.texts} copper text(s) on {layer} not "
+                           "printed (the import's copper_graphics option prints them)")
+    if out.dropped:
+        out.notes.append(f"{len(out.dropped)} zero-length track(s) (dots, e.g. {out.dropped[0].source.entity}): "
+                         "not printed")
     if holes:
         out.notes.append(f"{holes} non-plated hole(s) (mounting, tooling) are not copper: not printed")
     if out.vias:

@@ -17,8 +17,25 @@ from app.geometry.nurbs import NurbsCurve
 
 #: floor (rad) of an arc's angular step so that its point count stays finite
 _MIN_ARC_STEP_RAD = 1e-9
+#: the machine's resolution (mm): a trace no longer than this is not printed, and copper
+#: closer than this counts as joined
+RESOLUTION_MM = 0.001
 
-__all__ = ["Source", "LayoutTrace", "Pad", "Area", "Via", "Layout", "circle_ring", "arc_points"]
+__all__ = ["copper_side", "Source", "LayoutTrace", "Pad", "Area", "Via", "Dropped", "Connection", "Layout", "circle_ring",
+           "arc_points", "RESOLUTION_MM"]
+
+
+def copper_side(layer: str) -> str:
+    """Where a copper layer lies in the board's stack: ``top``, ``bottom`` or ``inner`` (KiCad
+    F.Cu / B.Cu / In<n>.Cu; Gerber X2 file functions Copper,L<n>,Top / Bot / Inr), "" for a
+    layer that names no copper side (a DXF or SVG layer, a Gerber file without X2)."""
+    if layer == "F.Cu" or layer.startswith("Copper,") and layer.endswith(",Top"):
+        return "top"
+    if layer == "B.Cu" or layer.startswith("Copper,") and layer.endswith(",Bot"):
+        return "bottom"
+    if layer.startswith("In") and layer.endswith(".Cu") or layer.startswith("Copper,") and ",Inr" in layer:
+        return "inner"
+    return ""
 
 
 @dataclass(frozen=True)
@@ -32,9 +49,9 @@ class Source:
     entity: str = ""
 
     def to_dict(self) -> dict[str, str | float]:
-        """API form (JSON values)."""
-        return {"file": self.file, "layer": self.layer, "net": self.net, "width_mm": self.width_mm,
-                "entity": self.entity}
+        """API form (JSON values); ``side``: the layer's place in the stack (:func:`copper_side`)."""
+        return {"file": self.file, "layer": self.layer, "side": copper_side(self.layer), "net": self.net,
+                "width_mm": self.width_mm, "entity": self.entity}
 
 
 @dataclass(frozen=True)
@@ -82,11 +99,42 @@ class Via:
     layers: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True)
+class Dropped:
+    """Copper the file holds that is not printed (a zero-length track: a dot of its width; a
+    sliver shorter than :data:`RESOLUTION_MM`): ``points`` (k, 2) mm of its centre line.  Kept
+    so that what the source board connects is known."""
+
+    points: npt.NDArray[np.float64]
+    source: Source
+
+
+@dataclass(frozen=True)
+class Connection:
+    """Items of one named net that the source board connects (one connected piece of its
+    copper, dropped copper and via lands included): indices into the layout's ``traces``,
+    ``pads`` and ``areas``.  Only pieces of two or more printed items are kept."""
+
+    net: str
+    traces: tuple[int, ...] = ()
+    pads: tuple[int, ...] = ()
+    areas: tuple[int, ...] = ()
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON form (stored with the import)."""
+        return {"net": self.net, "traces": list(self.traces), "pads": list(self.pads), "areas": list(self.areas)}
+
+
 @dataclass
 class Layout:
     """Everything one file contributes; ``units`` names the file's own unit (converted to mm).
     ``vias``: interconnect points (not printed as pads); ``outline``: the board's edge as
-    closed rings (k, 2) mm (KiCad Edge.Cuts, a Gerber profile): the boundary, not traces."""
+    closed rings (k, 2) mm (KiCad Edge.Cuts, a Gerber profile): the boundary, not traces.
+    ``dropped``: copper read but not printed; ``skipped``: what the file holds that is not
+    printed unless the import asks (each a sentence, a warning of the import); ``stack``: each
+    copper layer of the file (name, side, printed or not, its tracks, pads, zones and vias
+    counted); ``connections``: the named nets' connected
+    pieces as the file draws them (see :mod:`app.circuits.opens`)."""
 
     file: str
     format: str
@@ -98,6 +146,10 @@ class Layout:
     outline: list[npt.NDArray[np.float64]] = field(default_factory=list)
     layers: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)
+    dropped: list[Dropped] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    stack: list[dict[str, object]] = field(default_factory=list)
+    connections: list[Connection] = field(default_factory=list)
 
     def bounds(self) -> npt.NDArray[np.float64]:
         """[[xmin, ymin], [xmax, ymax]] mm over trace control points and pad/area outlines."""

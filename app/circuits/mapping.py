@@ -22,7 +22,7 @@ import shapely
 from shapely import STRtree
 from shapely.geometry import LineString
 
-from app.circuits.layout import Layout, LayoutTrace
+from app.circuits.layout import Layout, LayoutTrace, copper_side
 from app.circuits.placement import LayoutPlacement, place_layout
 from app.circuits.wrap import SurfaceWalker
 from app.geometry.cl_points import cl_points
@@ -212,10 +212,12 @@ def map_layout(layout: Layout, placement: LayoutPlacement, mesh: trimesh.Trimesh
     warnings += _spacing_warnings(traces, widths, nets)
     via_points = to_surface(np.array([v.center for v in placed.vias])) if placed.vias else np.zeros((0, 3))
     vias = [{"center_mm": [None if not np.isfinite(c) else round(float(c), 6) for c in p], "diameter_mm": v.diameter_mm,
-             "drill_mm": v.drill_mm, "net": v.net, "layers": list(v.layers), "on_part": bool(np.isfinite(p).all())}
+             "drill_mm": v.drill_mm, "net": v.net, "layers": list(v.layers),
+             "sides": [copper_side(name) for name in v.layers], "on_part": bool(np.isfinite(p).all())}
             for v, p in zip(placed.vias, via_points)]
     outline = []
     for r in placed.outline:             # an edge off the part (wrap) stays where the layout puts it
         on = to_surface(r)[:, :2] if walker is not None else r
         outline.append(np.where(np.isfinite(on), on, r + origin))
+    warnings += [{"kind": "not_printed", "message": m} for m in layout.skipped]
     return MappedLayout(traces, pads, areas, warnings, vias, outline)

@@ -121,6 +121,8 @@ def cl_points(curve: NurbsCurve, chord_mm: float) -> CLPoints:
         for a, b in pieces:
             params.append(_equidistributed(curve, a, b, chord_mm)[1:])
     u = np.unique(np.concatenate(params))
+    if curve.degree == 1 and not curve.is_rational:  # the chords are the curve itself: nothing to verify
+        return CLPoints(u, curve.evaluate(u), 0.0)
     sag = segment_sagitta(curve, u)
     for _ in range(60):
         bad = sag > chord_mm

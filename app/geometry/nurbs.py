@@ -175,7 +175,9 @@ class NurbsCurve:
 
     @property
     def length(self) -> float:
-        """Total arc length in mm."""
+        """Total arc length in mm (a degree-1 curve: its control polygon's, exactly)."""
+        if self.degree == 1:
+            return float(np.linalg.norm(np.diff(self.control_points, axis=0), axis=1).sum())
         return float(self._length_table[1][-1])
 
     def arc_length(self, u0: float | None = None, u1: float | None = None) -> float:

@@ -58,8 +58,11 @@ def check_coordinates(points: np.ndarray, field: str) -> None:
 
 def estimated_cl_points(curve: NurbsCurve, chord_mm: float) -> float:
     """Tool-location points the chordal tolerance needs: the integral of sqrt(kappa/(8 delta))
-    over arc length (trapezoid on at most 50,000 samples), plus one point per knot span."""
+    over arc length (trapezoid on at most 50,000 samples; 0 for a degree-1 curve), plus one
+    point per knot span."""
     spans = max(1, len(np.unique(curve.knots)) - 1)
+    if curve.degree == 1:                      # straight pieces: no curvature, the breakpoints only
+        return float(spans + 1)
     a, b = curve.domain
     u = np.linspace(a, b, min(_MAX_ESTIMATE_SAMPLES, _SAMPLES_PER_SPAN * spans + 1))
     density = np.sqrt(np.maximum(curve.curvature(u), 0.0) / (8.0 * chord_mm)) * curve.speed(u)

@@ -2,7 +2,7 @@
 
 ``POST /parts/{id}/circuits:import`` hands the uploaded files here through
 :func:`app.jobs.isolated.call_isolated`: every file is read (within the bounds of
-:mod:`app.circuits.budget`), the import's traces and pads are counted together against
+:mod:`app.circuits.budget`), the import's traces, pads and areas are counted together against
 :data:`~app.circuits.budget.MAX_SHAPES`, and each layout is mapped onto the part's mesh
 (loaded in the child from the blob store and the part cache).  What comes back is small and
 bounded: the files' facts and their :class:`~app.circuits.mapping.MappedLayout`.
@@ -42,6 +42,8 @@ class ImportRequest:
     anchor: str  # "board_center" (the boards' own centre, over all files) or "file_origin" (0, 0)
     mapping: MappingOptions
     part: PartMesh
+    graphics: bool = False   # a KiCad board's copper graphics and text printed (else reported)
+    copper_layer: str | None = None   # the KiCad copper layer printed (top, bottom, inner<n>, a name)
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,8 @@ class FileMapped:
     areas: int
     vias: int
     mapped: MappedLayout
+    connections: list[dict[str, object]]   # the named nets' connected pieces in the file (indices)
+    stack: list[dict[str, object]]         # the file's copper layers (side, printed, counts)
 
 
 @dataclass(frozen=True)
@@ -80,15 +84,16 @@ def _mesh(settings: Any, part: PartMesh) -> Any:
 
 def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
     """Every file read, counted and mapped (see the module); CircuitFileError (422) naming the
-    file when the import's traces and pads pass MAX_SHAPES."""
+    file when the import's traces, pads and areas pass MAX_SHAPES."""
     layouts = []
     shapes = 0
     for name, path in request.files:
-        layout = read_layout(Path(path).read_bytes(), name, request.format, request.layers)
-        shapes += len(layout.traces) + len(layout.pads)
+        layout = read_layout(Path(path).read_bytes(), name, request.format, request.layers, graphics=request.graphics,
+                             copper_layer=request.copper_layer)
+        shapes += len(layout.traces) + len(layout.pads) + len(layout.areas)
         if shapes > MAX_SHAPES:
-            raise CircuitFileError(f"more than {MAX_SHAPES} traces and pads in one import", file=name,
-                                   where="traces and pads", field="files")
+            raise CircuitFileError(f"more than {MAX_SHAPES} traces, pads and areas in one import", file=name,
+                                   where="traces, pads and areas", field="files")
         layouts.append(layout)
     anchor_xy = board_center(layouts) if request.anchor == "board_center" else (0.0, 0.0)
     placement = LayoutPlacement(request.origin_mm, request.rotation_deg, request.mirror,
@@ -98,5 +103,6 @@ def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
     for layout in layouts:
         mapped = map_layout(layout, placement, mesh, request.mapping)
         out.append(FileMapped(layout.file, layout.format, layout.units, list(layout.layers), layout.notes,
-                              len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), mapped))
+                              len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), mapped,
+                              [c.to_dict() for c in layout.connections], layout.stack))
     return ImportMapped(placement, out)

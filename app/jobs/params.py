@@ -25,7 +25,9 @@ from app.jobs.registry import JobParams
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
 
 MAX_TRACES = 200
-MAX_FIELD_TRACES = 5000
+#: traces of one field-planned loop: a whole circuit import (its traces and the probe rings
+#: of its pads and areas: at most the import's MAX_SHAPES, app.circuits.budget)
+MAX_FIELD_TRACES = 20_000
 
 
 class PlacementParams(BaseModel):

@@ -18,8 +18,9 @@ from app.jobs.results import KindResult
 class CircuitProgramResult(KindResult):
     """A circuit_program job: strokes written (``fill_strokes`` of them pad / area fills), the
     import's trace count, the pad probe rings used and the stations of the deviation field,
-    the named nets the short check went through (``nets_checked``), the travel (mm) in the chosen and in the input order, the order ([input index, reversed]
-    per stroke) and the dispense codes."""
+    the named nets the short check went through (``nets_checked``), the source's connected
+    pieces the open check went through (``connections_checked``), the travel (mm) in the chosen
+    and in the input order, the order ([input index, reversed] per stroke) and the dispense codes."""
 
     kind: ClassVar[str] = "circuit_program"
     strokes: int
@@ -28,6 +29,7 @@ class CircuitProgramResult(KindResult):
     pad_probe_traces: list[str]
     stations: int
     nets_checked: int = 0
+    connections_checked: int = 0
     travel_mm: float
     travel_input_order_mm: float
     order: list[tuple[int, bool]]

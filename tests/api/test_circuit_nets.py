@@ -152,3 +152,77 @@ def test_a_pour_patch_follows_a_curved_part():
     middles = verts[faces].mean(axis=1)
     surface = top_surface_z(dome, middles[:, :2]).z
     assert (middles[:, 2] - surface).min() >= -0.005
+
+
+def test_a_program_that_would_open_a_net_is_refused(client, part):
+    """The board's dropped dot and narrow pour neck split SIG and GND in the print: the
+    committed import stores the file's connections and the program is refused naming the net
+    and the gap (from the board's numbers), moved by the placement."""
+    from tests.circuits.boards import OPENS, open_board
+
+    done = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                       files=[("files", ("board.kicad_pcb", open_board().encode()))],
+                       data={"options": json.dumps({"origin_mm": [0, 20]})})
+    assert done.status_code == 201, done.text
+    record = client.get(f"/api/v1/circuit-imports/{done.json()['import_id']}", headers=OP).json()
+    assert {c["net"] for c in record["files"][0]["connections"]} == {"SIG", "GND"}
+    loop = client.post("/api/v1/jobs", headers=OP, json={"kind": "probe_plan", "params": {
+        "trace_ids": [done.json()["traces"][0]["trace"]["id"]]}}).json()["id"]
+    refused = client.post("/api/v1/jobs", headers=OP, json={"kind": "circuit_program", "params": {
+        "import_id": done.json()["import_id"], "closed_loop_job_id": loop}})
+    assert refused.status_code == 422, refused.text
+    problem = refused.json()
+    assert "the print would open net" in problem["detail"] and "1 more net" in problem["detail"]
+    value = problem["errors"][0]["value"]
+    assert problem["errors"][0]["loc"] == ["params", "import_id"] and value["nets_open"] == 2
+    gap, at = OPENS[value["net"]]
+    assert value["gap_mm"] == pytest.approx(gap, abs=5e-3)
+    where = shapely.LineString([(at[0], at[1] + 20), (at[2], at[3] + 20)])
+    assert shapely.Point(value["at_mm"]).distance(where) <= 5e-3
+    # a line fine enough for the neck, from a board without the dot: no open; the loop check follows
+    fine = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                       files=[("files", ("board.kicad_pcb", open_board(dot=False).encode()))],
+                       data={"options": json.dumps({"origin_mm": [0, 20]})})
+    ok = client.post("/api/v1/jobs", headers=OP, json={"kind": "circuit_program", "params": {
+        "import_id": fine.json()["import_id"], "closed_loop_job_id": loop, "line_width_mm": 0.05}})
+    assert ok.status_code == 422 and "closed_loop" in ok.text and "open" not in ok.json()["detail"]
+
+
+def test_copper_graphics_are_warned_about_unless_asked(client, part):
+    from tests.circuits.test_kicad_graphics import _board
+
+    def run(**options):
+        return client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                           files=[("files", ("g.kicad_pcb", _board().encode()))],
+                           data={"options": json.dumps({"origin_mm": [0, 30], "dry_run": True, **options})}).json()
+
+    plain = run()
+    assert plain["areas"] == [] and len(plain["traces"]) == 1
+    (warning,) = [w for w in plain["warnings"] if w["kind"] == "not_printed"]
+    assert "5 copper graphic(s)" in warning["message"] and warning["file"] == "g.kicad_pcb"
+    asked = run(copper_graphics=True)
+    assert len(asked["areas"]) == 4 and len(asked["traces"]) == 2
+    assert not [w for w in asked["warnings"] if w["kind"] == "not_printed"]
+    assert sum(a["area_mm2"] for a in asked["areas"]) == pytest.approx(
+        4 + (4.2 * 2.2 - 3.8 * 1.8 - (4 - np.pi) * 0.1 ** 2) + np.pi * 1.1 ** 2 + 1, abs=1e-2)   # arcs within 1 um
+
+
+def test_the_layer_stack_and_vias_are_in_the_response_and_the_stored_import(client, part):
+    from tests.circuits.test_layer_stack import STACK, four_layers
+
+    done = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                       files=[("files", ("b.kicad_pcb", four_layers().encode()))],
+                       data={"options": json.dumps({"origin_mm": [5, 30], "layer": "bottom"})})
+    assert done.status_code == 201, done.text
+    body = done.json()
+    (stack_file,) = body["files"]
+    assert [(r["layer"], r["side"], r["printed"], r["tracks"]) for r in stack_file["stack"]] == [
+        (name, side, name == "B.Cu", tracks) for name, (side, tracks, *_) in STACK.items()]
+    assert [t["source"]["side"] for t in body["traces"]] == ["bottom"]
+    assert {p["source"]["layer"] for p in body["pads"]} == {"B.Cu"}
+    (via,) = body["vias"]                         # the blind via does not reach B.Cu
+    assert via["layers"] == ["F.Cu", "B.Cu"] and via["sides"] == ["top", "bottom"]
+    record = client.get(f"/api/v1/circuit-imports/{body['import_id']}", headers=OP).json()
+    (stored,) = record["files"]
+    assert stored["stack"] == stack_file["stack"] and stored["interconnects"][0]["center_mm"] == via["center_mm"]
+    assert record["options"]["layer"] == "bottom"

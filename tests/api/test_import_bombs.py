@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from app.circuits.budget import MAX_SHAPES
 from app.reference.s1 import s1_mesh
 from tests.api.test_machines import program_text, register, upload_program
 from tests.circuits import bombs
@@ -56,7 +57,7 @@ BOMBS = [
     ("scale.svg", lambda: bombs.svg_scaled("1e300")),
     ("aperture.gbr", lambda: bombs.gerber_flashes(3, "1e20")),
     ("tool.drl", lambda: bombs.excellon_hits(3, "1e20")),
-    ("pads-count.gbr", lambda: bombs.gerber_traces_and_pads(3000, 3000)),
+    ("pads-count.gbr", lambda: bombs.gerber_traces_and_pads(MAX_SHAPES // 2 + 1, MAX_SHAPES // 2 + 1)),
 ]
 
 

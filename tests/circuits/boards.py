@@ -197,3 +197,95 @@ def x2_graphics(board: PourBoard) -> str:
              "D51*", _xy(*profile[0]) + "D02*"] + [_xy(*p) + "D01*" for p in profile[1:]]
     lines += ["%TO.N,GND*%", "D52*", _xy(12, 2) + "D03*", "%TD*%"]
     return "\n".join(lines) + "\n"
+
+
+#: :func:`open_board`'s two opens when printed with a 0.2 mm line: net -> (gap mm, where its
+#: middle lies (a segment (x0, y0, x1, y1), y up: the pour's gap is as wide as the squares' facing sides))
+OPENS = {"SIG": (0.15, (20.2, -10.0, 20.2, -10.0)), "GND": (1.0, (45.5, -10.0, 45.5, -5.0))}
+
+
+def open_board(*, neck_mm: float = 0.1, dot: bool = True) -> str:
+    """A KiCad board whose print opens two nets the file connects: SIG's two tracks (0.25 mm,
+    ending at x = 20 and 20.4) meet only through a zero-length track at x = 20.2, 0.5 mm wide
+    (a dot the import drops: a 0.15 mm gap between the track ends' caps); GND's pour is two
+    5 x 5 mm squares (x 40..45 and 46..51, y 5..10) joined by a neck ``neck_mm`` wide and 1 mm
+    long (narrower than a 0.2 mm line: its fill leaves a 1 mm gap), with a GND pad on each
+    square.  VCC's two tracks are apart in the file already (joined on another layer): no open."""
+    n0, n1 = 7.5 - neck_mm / 2, 7.5 + neck_mm / 2
+    ring = [(40, 5), (45, 5), (45, n0), (46, n0), (46, 5), (51, 5), (51, 10), (46, 10), (46, n1), (45, n1),
+            (45, 10), (40, 10)]
+    pts = " ".join(f"(xy {x} {y})" for x, y in ring)
+    segs = [((10, 10), (20, 10), 0.25, 1), ((20.4, 10), (30, 10), 0.25, 1), ((53, 10), (55, 10), 0.25, 3),
+            ((57, 10), (59, 10), 0.25, 3)]
+    if dot:
+        segs.append(((20.2, 10), (20.2, 10), 0.5, 1))
+    tracks = "\n".join(f'  (segment (start {a[0]} {a[1]}) (end {b[0]} {b[1]}) (width {w}) (layer "F.Cu") (net {n}))'
+                       for a, b, w, n in segs)
+    return f"""(kicad_pcb (version 20221018) (generator pcbnew)
+  (general (thickness 1.6))
+  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))
+  (net 0 "")
+  (net 1 "SIG")
+  (net 2 "GND")
+  (net 3 "VCC")
+  (footprint "pads" (layer "F.Cu") (at 0 0)
+    (property "Reference" "J1")
+    (pad "1" smd circle (at 42.5 7.5) (size 1 1) (layers "F.Cu") (net 2 "GND"))
+    (pad "2" smd circle (at 48.5 7.5) (size 1 1) (layers "F.Cu") (net 2 "GND"))
+  )
+{tracks}
+  (zone (net 2) (net_name "GND") (layer "F.Cu") (hatch edge 0.5)
+    (polygon (pts {pts}))
+    (filled_polygon (layer "F.Cu") (pts {pts})))
+)
+"""
+
+
+@dataclass(frozen=True)
+class RowBoard:
+    """A board of ``rows`` x ``per_row`` tracks: row r (net R<r>) runs along y = -r * pitch
+    (KiCad's frame) from x = 0 in ``per_row`` segments ``seg`` mm long, with a round pad
+    (``pad`` mm) at every ``pad_every``-th joint and at the row's end; tracks ``width`` mm; an
+    Edge.Cuts rectangle 2 mm around.  Every count is known: tracks = rows x per_row, pads =
+    rows x (per_row // pad_every + 1), one connected piece per net."""
+
+    rows: int = 100
+    per_row: int = 50
+    seg: float = 3.0
+    pitch: float = 1.15
+    width: float = 0.25
+    pad: float = 0.6
+    pad_every: int = 5
+
+    @property
+    def pads(self) -> int:
+        return self.rows * (self.per_row // self.pad_every + 1)
+
+    @property
+    def tracks(self) -> int:
+        return self.rows * self.per_row
+
+    @property
+    def size(self) -> tuple[float, float]:
+        return self.per_row * self.seg, (self.rows - 1) * self.pitch
+
+    def kicad(self) -> str:
+        nets = "\n".join(f'  (net {r + 1} "R{r}")' for r in range(self.rows))
+        tracks, pads = [], []
+        for r in range(self.rows):
+            y = -r * self.pitch
+            for k in range(self.per_row + 1):
+                if k % self.pad_every == 0 or k == self.per_row:
+                    pads.append(f'    (pad "{r}.{k}" smd circle (at {k * self.seg:.4f} {y:.4f}) (size {self.pad} '
+                                f'{self.pad}) (layers "F.Cu") (net {r + 1} "R{r}"))')
+                if k < self.per_row:
+                    tracks.append(f'  (segment (start {k * self.seg:.4f} {y:.4f}) (end {(k + 1) * self.seg:.4f} '
+                                  f'{y:.4f}) (width {self.width}) (layer "F.Cu") (net {r + 1}))')
+        w, h = self.size
+        edge = [(-2, 2), (w + 2, 2), (w + 2, -h - 2), (-2, -h - 2)]
+        edges = "\n".join(f'  (gr_line (start {a[0]} {a[1]}) (end {b[0]} {b[1]}) (layer "Edge.Cuts") (width 0.1))'
+                          for a, b in zip(edge, edge[1:] + edge[:1]))
+        return (f'(kicad_pcb (version 20221018) (generator pcbnew)\n  (general (thickness 1.6))\n'
+                f'  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))\n  (net 0 "")\n{nets}\n'
+                f'  (footprint "rows" (layer "F.Cu") (at 0 0)\n    (property "Reference" "J1")\n'
+                + "\n".join(pads) + "\n  )\n" + "\n".join(tracks) + "\n" + edges + "\n)\n")

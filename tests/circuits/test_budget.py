@@ -21,9 +21,10 @@ BOMBS = {
     "region.gbr": (lambda: bombs.gerber_region(), "files", "statements"),
     "region-110k.gbr": (lambda: bombs.gerber_region(110_000), "files", "region vertices"),
     "step-repeat.gbr": (lambda: bombs.gerber_step_repeat(), "files", "step-and-repeat"),
-    "traces-and-pads.gbr": (lambda: bombs.gerber_traces_and_pads(3000, 3000), "files", "flashed pads"),
+    "traces-and-pads.gbr": (lambda: bombs.gerber_traces_and_pads(MAX_SHAPES // 2 + 1, MAX_SHAPES // 2 + 1), "files",
+                            "flashed pads"),
     "hits.drl": (lambda: bombs.excellon_hits(), "files", "lines"),
-    "hits-10k.drl": (lambda: bombs.excellon_hits(10_000), "files", "drill hits"),
+    "hits-past-shapes.drl": (lambda: bombs.excellon_hits(MAX_SHAPES + 1), "files", "drill hits"),
 }
 
 

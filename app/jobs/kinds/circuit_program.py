@@ -9,7 +9,10 @@ filled), so every fill is compensated from stations on its own pad, not extrapol
 Areas keep their holes (the rings around other nets' pads and tracks), and no fill covers
 them.  Before anything is written, the copper to print (traces at their width, pads, area
 fills) is checked against the netlist (:mod:`app.circuits.nets`): a program that would join
-two nets is refused at submission (422) naming both nets, the items and where they meet.
+two nets is refused at submission (422) naming both nets, the items and where they meet,
+and so is one that would open a net: the printed items (traces at the width they print,
+fills as their beads cover them, pads off the part left out) of a piece of a net the source
+file connects no longer connected (:mod:`app.circuits.opens`), naming the net and the gap.
 Strokes are ordered for short travel.
 """
 
@@ -21,6 +24,7 @@ from sqlmodel import Session, select
 
 from app.gcode.writer import DEFAULT_DIALECT
 from app.circuits.nets import Copper, area_polygon, check_nets, trace_copper
+from app.circuits.opens import check_opens, fill_coverage
 from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import deviation_field, fill_tip_strokes, trace_passes
 from app.errors import InvalidInput
@@ -96,9 +100,47 @@ def import_copper(session: Session, imp: CircuitImport, pads: bool) -> list[Copp
     return copper
 
 
+def printed_copper(session: Session, imp: CircuitImport, line_width_mm: float,
+                   fills: bool) -> tuple[list[Copper], list[list[int]]]:
+    """The copper as printed (traces at max(width, line), on-part pads and areas as their fills
+    cover them when ``fills``, else as drawn) and the source's connected pieces of each named
+    net (the files' stored ``connections``) as indices into it."""
+    rows = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()}  # type: ignore[attr-defined]
+    copper: list[Copper] = []
+    where: dict[tuple[str, int], int] = {}
+
+    def add(kind: str, index: int, item: Copper) -> None:
+        where[(kind, index)] = len(copper)
+        copper.append(item)
+
+    for g, trace_id in enumerate(imp.trace_ids):
+        t = rows.get(trace_id)
+        if t is not None:
+            add("traces", g, Copper("trace", t.name, str((t.source or {}).get("net") or ""), trace_copper(
+                TracePolyline.from_dict(t.nominal).points[:, :2], max(t.width_mm or 0.0, line_width_mm))))
+    for g, p in enumerate(imp.pads):
+        if p["on_part"]:
+            shape = fill_coverage(p["outline_xy_mm"], [], line_width_mm) if fills else area_polygon(p["outline_xy_mm"])
+            add("pads", g, Copper("pad", p["name"], str((p.get("source") or {}).get("net") or ""), shape))
+    for g, a in enumerate(stored_areas(imp.areas)):
+        shape = (fill_coverage(a["exterior_xy_mm"], a["holes_xy_mm"], line_width_mm) if fills
+                 else area_polygon(a["exterior_xy_mm"], a["holes_xy_mm"]))
+        add("areas", g, Copper("area", a["name"], str((a.get("source") or {}).get("net") or ""), shape))
+    pieces: list[list[int]] = []
+    base = {"traces": 0, "pads": 0, "areas": 0}
+    for f in imp.files:
+        for c in f.get("connections") or []:
+            pieces.append([where[(kind, base[kind] + k)] for kind in base for k in c.get(kind, [])
+                           if (kind, base[kind] + k) in where])
+        for kind in base:
+            base[kind] += int(f.get(kind, 0))
+    return copper, pieces
+
+
 def _check(params: CircuitProgramParams, session: Session) -> None:
     imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
     check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
+    check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
     loop = succeeded_job(session, params.closed_loop_job_id, "closed_loop", "params.closed_loop_job_id")
     missing = [t for t in imp.trace_ids if t not in _loop_entries(loop)]
     if missing:
@@ -119,6 +161,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
         probe_ids = import_probe_trace_ids(session, imp) if params.pads else []
         nets = check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
+        pieces = check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
     loop = ctx.job(params.closed_loop_job_id, kind="closed_loop", field="params.closed_loop_job_id")
     entries = _loop_entries(loop)
     mesh = ctx.mesh(imp.part_id)
@@ -168,5 +211,6 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
     return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
             "pad_probe_traces": probe_ids, "stations": len(stations), "nets_checked": nets,
+            "connections_checked": pieces,
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
             "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off})
