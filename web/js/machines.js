@@ -152,8 +152,18 @@ function update(m) {
   c.unlock.hidden = !(k && k.state === "Alarm");
   const p = m.program;
   const line = p ? (p.executed ?? p.line) : null;
-  c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
-    (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") : "no program running";
+  c.prog.dataset.state = p ? (p.state || "printing") : "";
+  if (p && p.state === "interrupted") {
+    // the job stopped mid-program (a lost link, a dead process) and holds the machine until an operator decides
+    c.prog.textContent = `interrupted at line ${line ?? "?"} of ${p.total ?? "?"} — job ${p.job_id || "?"} waits: ` +
+      `resume or abandon` + (p.resume_line != null ? ` (a resume starts at line ${p.resume_line})` : "");
+    c.prog.title = p.message || "";
+  } else {
+    c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
+      (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") :
+      (m.held_by ? `job ${m.held_by} holds the machine` : "no program running");
+    c.prog.title = "";
+  }
   c.bar.hidden = !(p && p.total);
   if (p && p.total) c.bar.value = (line ?? 0) / p.total;
 }
