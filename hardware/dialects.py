@@ -88,6 +88,21 @@ class Dialect:
       block; Marlin 0 (its stepper runs a block in place in the planner ring and discards
       it only when done, so BLOCK_BUFFER_SIZE counts everything).  A reset loses up to the
       planner's blocks plus this many acknowledged moves.
+    Liveness (what proves the firmware alive; ``hardware.session``)
+      ``idle_silent``: an idle firmware sends nothing unless asked, so silence while the
+      host owes nothing is no evidence and the liveness window opens when the host begins
+      to wait (Marlin: ``host_keepalive()`` prints only while ``busy_state != NOT_BUSY``,
+      ``wait`` only with the opt-in ``NO_TIMEOUTS``, temperatures only after ``M155``;
+      grbl: nothing unsolicited).  ``alive_replies``: the reply kinds
+      (``hardware.events`` class names) that prove it alive and restart the window (never
+      ``Unknown``: noise and echoes).  ``busy_replies``: kinds that say a command still runs
+      (Marlin ``echo:busy: processing``/``paused for user``): no stall poke while they come,
+      every ``keepalive_s`` (Marlin ``HOST_KEEPALIVE_INTERVAL``, 2 s by default; None: the
+      firmware has none).  ``life_query``: real-time bytes the firmware answers in any
+      state (grbl ``?``: the serial ISR sets ``EXEC_STATUS_REPORT``, served in every
+      ``protocol_execute_realtime()``, also while dwelling, homing or in Alarm), which a
+      stall poke asks first; None: none (Marlin's ``M105``/``M114`` queue behind a
+      blocking command).
     Mock
       ``mock_dispense``: the mock world's default dispenser on/off commands.
     """
@@ -122,7 +137,20 @@ class Dialect:
     announced_resets: bool
     resets_on_connect: bool
     stepper_queue: int
+    idle_silent: bool
+    alive_replies: tuple[str, ...]
+    busy_replies: tuple[str, ...]
+    keepalive_s: float | None
+    life_query: bytes | None
     mock_dispense: tuple[str, str]
+
+    def proves_alive(self, kind: str) -> bool:
+        """True when a reply of kind ``kind`` (an event class name) proves the firmware alive."""
+        return kind in self.alive_replies
+
+    def says_busy(self, kind: str) -> bool:
+        """True when a reply of kind ``kind`` says the command in hand still runs."""
+        return kind in self.busy_replies
 
     def line_bytes(self, text: str) -> int:
         """Bytes a normalised command ``text`` occupies in the controller's RX buffer
@@ -149,6 +177,11 @@ MARLIN = Dialect(
     estop_keeps=("M106", "M107", "M42"),
     line_numbers=True, line_overhead=16, window="slots", ok_after_error=True,
     parser_marker=None, announced_resets=False, resets_on_connect=False, stepper_queue=0,
+    idle_silent=True,
+    alive_replies=("Ok", "Resend", "FirmwareErrorEvent", "Busy", "Wait", "Halted", "TemperatureReport",
+                   "PositionReport", "ProbeReport", "FirmwareInfo", "Capability", "Echo", "Message", "Setting",
+                   "HostAction", "StartBanner", "Alarm", "StatusReport", "Feedback"),
+    busy_replies=("Busy",), keepalive_s=2.0, life_query=None,
     mock_dispense=("M106", "M107"))
 
 GRBL = Dialect(
@@ -159,6 +192,10 @@ GRBL = Dialect(
     position_request=b"?", request_queued=False, estop_bytes=b"\x18", estop_keeps=(),
     line_numbers=False, line_overhead=1, window="bytes", ok_after_error=False,
     parser_marker="$G", announced_resets=True, resets_on_connect=True, stepper_queue=6,
+    idle_silent=True,
+    alive_replies=("Ok", "FirmwareErrorEvent", "Alarm", "StatusReport", "ProbeReport", "Feedback", "FirmwareInfo",
+                   "Message", "Setting", "Echo", "StartBanner"),
+    busy_replies=(), keepalive_s=None, life_query=b"?",
     mock_dispense=("M3", "M5"))
 
 # RepRapFirmware would be one more record here (M115, G28, M400, G30, M112, line numbers

@@ -23,8 +23,8 @@ from collections import OrderedDict, deque
 
 from .dialects import Dialect
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
-from .events import (Alarm, Busy, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
-                     ReplyEvent, Resend, StartBanner, StatusReport, Unknown)
+from .events import (Alarm, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
+                     ReplyEvent, Resend, StartBanner, StatusReport)
 from .protocol import dwell_budget_s, frame, parse_reply
 from .reports import PositionMark, PositionTracker
 from .controller_state import ControllerState, next_controller_state
@@ -182,7 +182,8 @@ class ReplySession:
     def feed(self, line: str, now: float) -> list[Action]:
         """One reply line (terminator optional) received at ``now``."""
         event = parse_reply(line, self.rules.name)
-        if not isinstance(event, Unknown):  # noise and echoes are no sign of life
+        kind = type(event).__name__
+        if self.rules.proves_alive(kind):  # Dialect.alive_replies: never noise or echoes
             self._last_rx = now
         if self.fatal is not None:  # a dead session: listen, never act
             self.unsolicited.append(event)
@@ -203,7 +204,7 @@ class ReplySession:
             self._on_ok(event, now, swallow)
         elif isinstance(event, Resend):
             self._on_resend(event.line, now)
-        elif isinstance(event, Busy):
+        elif self.rules.says_busy(kind):  # the command in hand still runs: no stall poke
             self._last_ack = now
             if self.outstanding:
                 self.outstanding[0].replies.append(event)
@@ -436,10 +437,13 @@ class ReplySession:
 
     # ------------------------------------------------------------------ stalls
     def silent_s(self, now: float) -> float:
-        """Seconds the firmware owes an answer without a sign of life: since its last parsed
-        reply or, later, the first command sent into an idle link (an idle grbl or Marlin
-        says nothing unless asked: that silence is no evidence of a dead link)."""
-        return now - max(self._last_rx, self._waiting_since)
+        """Seconds the firmware owes an answer without a sign of life (``Dialect.alive_replies``):
+        since its last such reply or, for a firmware that is silent while idle
+        (``Dialect.idle_silent``: grbl and Marlin say nothing unless asked), since the host
+        began to wait, if later: that silence is no evidence of a dead link."""
+        if self.rules.idle_silent:
+            return now - max(self._last_rx, self._waiting_since)
+        return now - self._last_rx
 
     def timeout(self, now: float) -> list[Action]:
         """The reader saw nothing: fail after ``timeout_s`` of ``silent_s``; poke a stalled
@@ -473,7 +477,9 @@ class ReplySession:
         """A stalled grbl link: ask for a status (a sign of life; grbl answers ``?`` even
         while dwelling or homing) and, when its receive buffer surely has room, send one
         ``$G`` marker whose ``[GC:]`` answer settles any lost ``ok``."""
-        self._write(self.reports.ask(now), "poke")
+        query = self.rules.life_query  # answered in any state (Dialect.life_query)
+        if query is not None:
+            self._write(self.reports.ask(now) if query == self.rules.position_request else query, "poke")
         if any(p.marker and not p.has_parser_state() for p in self.outstanding) \
                 or self.fatal is not None:  # one unanswered marker at a time
             return
