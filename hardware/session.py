@@ -68,10 +68,9 @@ class ReplySession:
         self._swallow = False  # the plain ok right after a Resend belongs to the request
         self._guard: list[int] | None = None
         self._replay: deque[int] = deque()
-        self._replay_inflight: int | None = None
+        self._replay_inflight: int | None = None  # the resend being replayed
         self._answered = False  # a first answer came (a later banner is a restart)
-        # last reply, last time the host began to wait (an idle link owes nothing), last ack/answer
-        self._last_rx = self._waiting_since = self._last_ack = self._last_answer = now
+        self._last_rx = self._waiting_since = self._last_ack = self._last_answer = now  # sign of life, wait, ack
         self._rtt, self._pokes_in_row = 0.002, 0
         self._expect_banner_until: float | None = None
         self._actions: list[Action] = []
@@ -160,8 +159,7 @@ class ReplySession:
         return until is not None
 
     def halt(self, failure: HardwareError, now: float) -> list[Action]:
-        """Fail the session (emergency stop, port failure): every command in flight fails
-        and nothing is written any more."""
+        """Fail the session (emergency stop, port failure): all in flight fail, nothing is written."""
         self._fail(failure, now)
         return self._take()
 
@@ -437,13 +435,10 @@ class ReplySession:
 
     # ------------------------------------------------------------------ stalls
     def silent_s(self, now: float) -> float:
-        """Seconds the firmware owes an answer without a sign of life (``Dialect.alive_replies``):
-        since its last such reply or, for a firmware that is silent while idle
-        (``Dialect.idle_silent``: grbl and Marlin say nothing unless asked), since the host
-        began to wait, if later: that silence is no evidence of a dead link."""
-        if self.rules.idle_silent:
-            return now - max(self._last_rx, self._waiting_since)
-        return now - self._last_rx
+        """Seconds the firmware owes an answer without a sign of life (``Dialect.alive_replies``),
+        counted from the host's first wait for a firmware silent while idle
+        (``Dialect.idle_silent``: that silence is no evidence of a dead link)."""
+        return now - (max(self._last_rx, self._waiting_since) if self.rules.idle_silent else self._last_rx)
 
     def timeout(self, now: float) -> list[Action]:
         """The reader saw nothing: fail after ``timeout_s`` of ``silent_s``; poke a stalled
@@ -477,8 +472,7 @@ class ReplySession:
         """A stalled grbl link: ask for a status (a sign of life; grbl answers ``?`` even
         while dwelling or homing) and, when its receive buffer surely has room, send one
         ``$G`` marker whose ``[GC:]`` answer settles any lost ``ok``."""
-        query = self.rules.life_query  # answered in any state (Dialect.life_query)
-        if query is not None:
+        if (query := self.rules.life_query) is not None:  # answered in any state
             self._write(self.reports.ask(now) if query == self.rules.position_request else query, "poke")
         if any(p.marker and not p.has_parser_state() for p in self.outstanding) \
                 or self.fatal is not None:  # one unanswered marker at a time
