@@ -269,6 +269,10 @@ class MachineOut(BaseModel):
     held_by: str | None = Field(None, description="the machine job that holds the machine (queued, running or "
                                 "interrupted); Print, Home and manual control are 409 naming it until it ends")
     firmware: str | None = None
+    outputs: dict[str, Any] | None = Field(
+        None, description="the last time the profile's safe_off was sent (safe_off: connect, disconnect, program, "
+        "emergency stop), whether it was (sent) and why not (why: e.g. a grbl in Alarm, whose reset switched its "
+        "outputs off, or a Marlin emergency stop, which leaves fan outputs on until the reconnect resets it)")
     controller: ControllerOut | None = Field(
         None, description="the firmware's own state when it reports one (grbl); an Alarm, Hold, Door or "
         "Check refuses motion (409) until cleared as ``clear`` says")

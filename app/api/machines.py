@@ -68,7 +68,8 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
                         deposited_moves=len(world.deposition_log))
     known = getattr(live, "controller", None) if live is not None and state != "disconnected" else None
     return MachineOut(**row.model_dump(exclude={"mock"}), mock=mock, state=state, position=position,
-                      program=program, held_by=holder["id"] if holder is not None else None, firmware=live.identity.firmware if live is not None and live.identity else None,
+                      program=program, held_by=holder["id"] if holder is not None else None,
+                      outputs=getattr(live, "outputs", None) if state != "disconnected" else None, firmware=live.identity.firmware if live is not None and live.identity else None,
                       controller=ControllerOut(**known.as_dict()) if known is not None else None)
 
 

@@ -55,3 +55,16 @@ def test_a_restarted_server_shows_the_interrupted_program_from_the_job_record():
     shown = interrupted_program("mach_1", job, None)
     assert (shown.state, shown.line, shown.total, shown.resume_line, shown.job_id) == ("interrupted", 40, 100, None, "job_1")
     assert "command 40 of 100" in shown.message and "job_1" in shown.message
+
+
+@pytest.mark.parametrize("dialect, why", [("marlin", "M106"), ("grbl", "switched its outputs off")])
+def test_the_record_says_when_the_outputs_last_went_off_and_what_a_stop_left_on(client, dialect, why):
+    profile = {"dispense_on": "M3 S1000", "dispense_off": "M5"} if dialect == "grbl" else {}
+    machine = client.post("/api/v1/machines", json={"name": "m", "port": "mock://", "dialect": dialect, "profile": profile},
+                          headers=OP).json()
+    connected = client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP).json()
+    assert connected["outputs"] == {"safe_off": "connect", "sent": True, "why": None}
+    assert client.post(f"/api/v1/machines/{machine['id']}/stop", headers=OP).status_code == 200
+    stopped = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()
+    assert stopped["outputs"]["safe_off"] == "emergency stop" and stopped["outputs"]["sent"] is False
+    assert why in stopped["outputs"]["why"]

@@ -54,7 +54,9 @@ def test_stop_mid_line_and_reconnect_leave_the_dispenser_off(make_world, dialect
     # the firmware's own state: Marlin's kill() leaves a fan output (M106) as it was until the
     # board resets; grbl's mc_reset() switched spindle and coolant off
     assert world.firmware.dispensing is (dialect == "marlin")
-    assert machine.status()["outputs"]["sent"] is False
+    outputs = machine.status()["outputs"]
+    assert outputs["safe_off"] == "emergency stop" and outputs["sent"] is False
+    assert (on in outputs["why"]) is (dialect == "marlin")   # what the firmware's own stop leaves on
     deposited = len(world.deposition_log)
     machine.connect()
     assert not world.firmware.dispensing and len(world.deposition_log) == deposited

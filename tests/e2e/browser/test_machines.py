@@ -39,6 +39,9 @@ def test_emergency_stop_changes_the_machine_state(page, served):
     screenshot(page, "machines")
     page.click(f"{sel} .estop")
     page.wait_for_selector(f'{sel} [data-state="error"]')
+    # Marlin's kill() leaves a fan output (the default dispenser, M106) as it was until the board resets
+    page.wait_for_selector(f'{sel} .outputs:has-text("M106")')
+    assert "connect again" in page.inner_text(f"{sel} .outputs")
     t0 = time.monotonic()
     status = api.get(f"/api/v1/machines/{machine_id}").json()
     assert status["state"] == "error" and time.monotonic() - t0 < 5
