@@ -59,7 +59,8 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
         program = ProgramState(job_id=runtime.machines.running_job.get(row.id) or (holder or {}).get("id"),
                                line=executed, total=total, state=state)
     elif holder is not None and holder["status"] == "interrupted":
-        program = interrupted_program(row.id, holder, live.program_status() if live is not None else None)
+        reported = getattr(live, "program_status", None)  # the serial machines report it; LinuxCNC does not
+        program = interrupted_program(row.id, holder, reported() if callable(reported) else None)
     mock = None
     if row.mock is not None:
         mock = dict(row.mock)
