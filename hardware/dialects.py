@@ -47,7 +47,9 @@ class Dialect:
       word), ``probe_reports_contact`` (``G38.2`` answers with the contact point,
       grbl ``[PRB:...]``; Marlin's ``G38.2`` prints nothing and the host reads ``M114 D``),
       ``unlock_command`` (after an alarm: grbl ``$X``), ``lock_error`` (the code a locked
-      controller answers G-code with: grbl ``error:9``, alarm or jog), ``position_by_status`` (where the
+      controller answers G-code with: grbl ``error:9``, alarm or jog), ``unknown_error``
+      (the code of a command the firmware does not have: grbl ``error:20``; Marlin answers
+      ``echo:Unknown command`` and ``ok``, None), ``position_by_status`` (where the
       tool is: a real-time status report, else ``M114``), ``jog_locks_gcode`` (G-code
       while jogging is ``error:9``), ``feed_hold``/``cycle_start`` real-time bytes.
     Position reports while streaming (``hardware.reports``)
@@ -57,7 +59,14 @@ class Dialect:
       for a real-time byte (grbl ``?``, always available).
     Safety
       ``estop_bytes``: written under the link's lock, never queued (Marlin ``M112`` via
-      its emergency parser, grbl soft reset 0x18).
+      its emergency parser, grbl soft reset 0x18).  ``estop_keeps``: command words whose
+      outputs the firmware's emergency stop leaves as they were until the board resets.
+      Marlin's ``kill()`` (MarlinCore.cpp) runs ``thermalManager.disable_all_heaters()`` and
+      ``cutter.kill()`` (a spindle/laser on ``M3``/``M4``), then ``minkill()``: ``cli()``
+      and a loop waiting for a reset; fans (``M106``/``M107``: ``zero_fan_speeds()`` is
+      only called when an SD print is aborted) and ``M42`` pins keep their level, hardware
+      PWM keeps running.  grbl's ``0x18`` runs ``mc_reset()``: ``spindle_stop();
+      coolant_stop();`` (motion_control.c), so nothing is kept.
     Framing and flow control
       ``line_numbers``: ``N<n> cmd*<xor>`` with ``M110`` (Marlin), which also makes
       resend requests, ``ok N`` (ADVANCED_OK) and line-number resynchronisation after a
@@ -79,6 +88,21 @@ class Dialect:
       block; Marlin 0 (its stepper runs a block in place in the planner ring and discards
       it only when done, so BLOCK_BUFFER_SIZE counts everything).  A reset loses up to the
       planner's blocks plus this many acknowledged moves.
+    Liveness (what proves the firmware alive; ``hardware.session``)
+      ``idle_silent``: an idle firmware sends nothing unless asked, so silence while the
+      host owes nothing is no evidence and the liveness window opens when the host begins
+      to wait (Marlin: ``host_keepalive()`` prints only while ``busy_state != NOT_BUSY``,
+      ``wait`` only with the opt-in ``NO_TIMEOUTS``, temperatures only after ``M155``;
+      grbl: nothing unsolicited).  ``alive_replies``: the reply kinds
+      (``hardware.events`` class names) that prove it alive and restart the window (never
+      ``Unknown``: noise and echoes).  ``busy_replies``: kinds that say a command still runs
+      (Marlin ``echo:busy: processing``/``paused for user``): no stall poke while they come,
+      every ``keepalive_s`` (Marlin ``HOST_KEEPALIVE_INTERVAL``, 2 s by default; None: the
+      firmware has none).  ``life_query``: real-time bytes the firmware answers in any
+      state (grbl ``?``: the serial ISR sets ``EXEC_STATUS_REPORT``, served in every
+      ``protocol_execute_realtime()``, also while dwelling, homing or in Alarm), which a
+      stall poke asks first; None: none (Marlin's ``M105``/``M114`` queue behind a
+      blocking command).
     Mock
       ``mock_dispense``: the mock world's default dispenser on/off commands.
     """
@@ -96,6 +120,7 @@ class Dialect:
     probe_reports_contact: bool
     unlock_command: str | None
     lock_error: int | None
+    unknown_error: int | None
     position_by_status: bool
     jog_locks_gcode: bool
     feed_hold: bytes | None
@@ -103,6 +128,7 @@ class Dialect:
     position_request: bytes
     request_queued: bool
     estop_bytes: bytes
+    estop_keeps: tuple[str, ...]
     line_numbers: bool
     line_overhead: int
     window: Literal["slots", "bytes"]
@@ -111,12 +137,31 @@ class Dialect:
     announced_resets: bool
     resets_on_connect: bool
     stepper_queue: int
+    idle_silent: bool
+    alive_replies: tuple[str, ...]
+    busy_replies: tuple[str, ...]
+    keepalive_s: float | None
+    life_query: bytes | None
     mock_dispense: tuple[str, str]
+
+    def proves_alive(self, kind: str) -> bool:
+        """True when a reply of kind ``kind`` (an event class name) proves the firmware alive."""
+        return kind in self.alive_replies
+
+    def says_busy(self, kind: str) -> bool:
+        """True when a reply of kind ``kind`` says the command in hand still runs."""
+        return kind in self.busy_replies
 
     def line_bytes(self, text: str) -> int:
         """Bytes a normalised command ``text`` occupies in the controller's RX buffer
         (the framed line and its newline; for numbered dialects an upper bound)."""
         return len(text) + self.line_overhead
+
+    def keeps_through_estop(self, command: str) -> bool:
+        """True when the output ``command`` switches keeps its level through this
+        firmware's emergency stop (its first word is in ``estop_keeps``)."""
+        word = command.strip().upper().split(" ")[0] if command.strip() else ""
+        return word in self.estop_keeps
 
     def is_banner_word(self, text: str) -> bool:
         """True when the stripped reply ``text`` is this dialect's start banner word."""
@@ -127,20 +172,30 @@ MARLIN = Dialect(
     name="marlin", identify_command="M115", boot_banner=False, banner_words=("start",),
     build_info=False, home_command="G28", homing_disabled_error=None, homing_setting=None,
     wait_moves="M400", probe_command="G30", probe_reports_contact=False, unlock_command=None,
-    lock_error=None, position_by_status=False, jog_locks_gcode=False, feed_hold=None, cycle_start=None,
+    lock_error=None, unknown_error=None, position_by_status=False, jog_locks_gcode=False, feed_hold=None, cycle_start=None,
     position_request=b"S000\n", request_queued=True, estop_bytes=b"M112\n",
+    estop_keeps=("M106", "M107", "M42"),
     line_numbers=True, line_overhead=16, window="slots", ok_after_error=True,
     parser_marker=None, announced_resets=False, resets_on_connect=False, stepper_queue=0,
+    idle_silent=True,
+    alive_replies=("Ok", "Resend", "FirmwareErrorEvent", "Busy", "Wait", "Halted", "TemperatureReport",
+                   "PositionReport", "ProbeReport", "FirmwareInfo", "Capability", "Echo", "Message", "Setting",
+                   "HostAction", "StartBanner", "Alarm", "StatusReport", "Feedback"),
+    busy_replies=("Busy",), keepalive_s=2.0, life_query=None,
     mock_dispense=("M106", "M107"))
 
 GRBL = Dialect(
     name="grbl", identify_command="$I", boot_banner=True, banner_words=(),
     build_info=True, home_command="$H", homing_disabled_error=5, homing_setting="$22=1",
     wait_moves="G4 P0", probe_command="G38.2", probe_reports_contact=True, unlock_command="$X",
-    lock_error=9, position_by_status=True, jog_locks_gcode=True, feed_hold=b"!", cycle_start=b"~",
-    position_request=b"?", request_queued=False, estop_bytes=b"\x18",
+    lock_error=9, unknown_error=20, position_by_status=True, jog_locks_gcode=True, feed_hold=b"!", cycle_start=b"~",
+    position_request=b"?", request_queued=False, estop_bytes=b"\x18", estop_keeps=(),
     line_numbers=False, line_overhead=1, window="bytes", ok_after_error=False,
     parser_marker="$G", announced_resets=True, resets_on_connect=True, stepper_queue=6,
+    idle_silent=True,
+    alive_replies=("Ok", "FirmwareErrorEvent", "Alarm", "StatusReport", "ProbeReport", "Feedback", "FirmwareInfo",
+                   "Message", "Setting", "Echo", "StartBanner"),
+    busy_replies=(), keepalive_s=None, life_query=b"?",
     mock_dispense=("M3", "M5"))
 
 # RepRapFirmware would be one more record here (M115, G28, M400, G30, M112, line numbers

@@ -41,9 +41,14 @@ What "known executed" means (``resume_line``):
   the lines it already held (grbl: up to a buffer's worth); ``stream`` waits for them and
   ``resume_line()`` is the index after them (``rejected_lines`` lists the rejected ones).
 
-``stream(start_line=n)`` first replays the modal state the skipped commands left (units,
+Process outputs (``hardware.machine_outputs``): ``connect``, a ``disconnect`` of an idle
+machine on a healthy link and every ``stream`` before its first command send the profile's
+``safe_off``: a program starts with every output off unless it turns one on.
+
+``stream(start_line=n)`` then replays the modal state the skipped commands left (units,
 coordinate system, motion mode, feed, the start point at clearance height, G90/G91, the
-dispenser; ``hardware.resume.modal_preamble``; ``last_preamble`` shows it).
+dispenser, turned back on only where the program had it on;
+``hardware.resume.modal_preamble``; ``last_preamble`` shows what preceded command n).
 """
 
 from __future__ import annotations
@@ -58,9 +63,11 @@ from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig,
 from .events import Capability, FirmwareInfo, PositionReport, StartBanner
 from .link import CommandResult, Link, PendingCommand
 from .machine_grbl import GrblOperations
+from .machine_outputs import OutputOperations
 from .machine_probe import ProbeOperations
 from .machine_state import ClaimedOperations, axis_words
 from .machine_resume import ResumeOperations
+from .machine_outputs import DISCONNECT_SAFE_OFF_S
 from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
                             _Interrupted)
 from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
@@ -70,7 +77,7 @@ REPORT_INTERVAL_S = 0.1  # while streaming: a real-position report this often (h
 
 __all__ = ["STATES", "Identity", "Machine", "MachineProfile", "ProbeResult", "StreamReport"]
 
-class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperations):
+class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperations, ClaimedOperations):
     """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
     for a second caller); pause/resume/cancel/stop/status work from any thread."""
 
@@ -100,8 +107,9 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         self._interrupted: _Interrupted | None = None
         self._estopped = False
         self.planner_blocks = 16  # Marlin BLOCK_BUFFER_SIZE; grbl: from [OPT:..] (15)
-        self.last_preamble: list[str] = []  # modal replay sent by the last resumed stream
+        self.last_preamble: list[str] = []  # what the last stream sent before its first command
         self.rejected_lines: list[int] = []  # command indices the controller rejected
+        self.outputs: dict | None = None  # the last safe_off: when, whether sent, why not
 
     # ------------------------------------------------------------------ state
     @property
@@ -138,32 +146,12 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
             if self.rules.line_numbers and (self._interrupted is None or self._interrupted.reset):
                 self.link.reset_line_numbers(1)
             self.identity = self._identify(banner, reset)
-            self._outputs_off_after_a_lost_link(reset)
+            self._outputs_off_on_connect(reset)
         except HardwareError:
             self._state = "error"
             raise
         self._state = "idle"
         return self.identity
-
-    def _outputs_off_after_a_lost_link(self, reset: bool) -> None:
-        """A controller that kept running through a lost link (a Marlin board that does not
-        reset on connect) still holds the interrupted program's outputs, dispensing while it
-        waits.  Settle where the program stands by line numbers first (``resume_line``, so
-        the resume is unchanged by what follows), then send the profile's ``safe_off``: it is
-        queued after the moves the controller accepted, and a resume's modal replay turns the
-        dispenser back on where the program had it on."""
-        gap = self._interrupted
-        if gap is None or reset or gap.reset or self.rules.resets_on_connect or not self.rules.line_numbers:
-            return
-        try:
-            settled = self.resume_line()
-        except FirmwareReset:  # it restarted after all: its outputs are off, numbering starts again
-            gap.reset = True
-            self.link.reset_line_numbers(1)
-            return
-        gap.acked_index, gap.inflight = settled, []
-        for command in self.profile.safe_off:
-            self.link.send(command, self.timeout_s * 10)
 
     def _await_quiet(self) -> list:
         link = self.link
@@ -203,8 +191,19 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         return Identity(self.dialect, name, fields, caps, tuple(e.raw for e in banner), reset)
 
     def disconnect(self) -> None:
-        """Close the link (a running program fails with ``LinkError``)."""
-        link, self.link = self.link, None
+        """Close the link (a running program fails with ``LinkError``).  An idle machine on a
+        healthy link (not emergency-stopped) gets ``safe_off`` first (best effort, within
+        ``DISCONNECT_SAFE_OFF_S``): nothing is left dispensing behind a closed port."""
+        link = self.link
+        if link is not None and link.healthy and not self._estopped and self._state == "idle" \
+                and self._hold.acquire(blocking=False):
+            try:
+                self._send_safe_off("disconnect", min(self.timeout_s, DISCONNECT_SAFE_OFF_S))
+            except HardwareError:
+                pass  # the port closes anyway; the next connect sends safe_off again
+            finally:
+                self._hold.release()
+        self.link = None
         self._cancel = True
         self._resume_event.set()
         if link is not None:
@@ -315,6 +314,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         self._cancel = False
         self._resume_event.set()
         self._interrupted = None
+        self.last_resume = None  # located for the program interrupted before this one
         link = self.link
         started = time.monotonic()
         inflight: deque[tuple[int, PendingCommand]] = deque()
@@ -484,15 +484,16 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, ClaimedOperatio
         self._resume_event.set()
         self.link.emergency_stop()
         self._state = "error"
+        self._note_estop_outputs()
 
     def status(self) -> dict:
-        """JSON-friendly snapshot for the API (state, identity, program progress)."""
-        executed, total = self.progress or (None, None)
+        """JSON-friendly snapshot for the API: state, identity, ``program`` (see
+        ``program_status``), link counters, the controller's own state and ``outputs``."""
         return {"state": self.state, "dialect": self.dialect, "url": self.url,
                 "firmware": self.identity.firmware if self.identity else None,
-                "program": None if self.progress is None or self.state not in ("printing", "paused")
-                else {"line": executed, "total": total},
+                "program": self.program_status(),
                 "link": dict(self.link.stats) if self.link else None,
                 "controller": self.last_controller_state(),
                 "controller_state": self.controller.as_dict() if self.controller is not None else None,
+                "outputs": dict(self.outputs) if self.outputs is not None else None,
                 "fallbacks": list(self.link.fallbacks) if self.link else []}

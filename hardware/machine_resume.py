@@ -17,20 +17,30 @@ from .resume import (POSITION_TOLERANCE_MM, ResumeLocation, command_feeds, count
 
 
 class ResumeOperations:
-    """Mixin of ``Machine`` (uses its link, profile, timeout_s and planner_blocks)."""
+    """Mixin of ``Machine`` (uses its link, profile, timeout_s, planner_blocks and
+    ``_send_safe_off``)."""
 
     def _replay_modes(self, commands: list[str], start_line: int) -> None:
-        """Resuming mid-program: restore units, coordinate system, motion mode, feed, the
-        start point, distance mode and the dispenser as the skipped commands left them."""
+        """Before a program's first command: every process output off (``safe_off``), so a
+        program starts with them off unless it turns them on.  Resuming mid-program, then
+        restore units, coordinate system, motion mode, feed, the start point, distance mode
+        and the dispenser as the skipped commands left them (the dispenser goes back on only
+        where the program had it on).  ``last_preamble``: what the stream sent before command
+        ``start_line`` (``safe_off``; resuming, then the modal replay without its own
+        ``dispense_off``, already sent)."""
         self.last_preamble = []
+        p = self.profile
+        if self._send_safe_off("program"):
+            self.last_preamble = list(p.safe_off)
         if start_line == 0:
             return
-        p = self.profile
         preamble = modal_preamble(commands, start_line, dispense_on=p.dispense_on,
                                   dispense_off=p.dispense_off, clearance_z=p.clearance_z)
+        if preamble[:1] == [p.dispense_off]:
+            preamble = preamble[1:]  # sent with safe_off
         for command in preamble:
             self.link.send(command, self.timeout_s * 10)
-        self.last_preamble = preamble
+        self.last_preamble = [*p.safe_off, *preamble]
 
     @property
     def held_moves(self) -> int:

@@ -23,8 +23,8 @@ from collections import OrderedDict, deque
 
 from .dialects import Dialect
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
-from .events import (Alarm, Busy, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
-                     ReplyEvent, Resend, StartBanner, StatusReport, Unknown)
+from .events import (Alarm, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
+                     ReplyEvent, Resend, StartBanner, StatusReport)
 from .protocol import dwell_budget_s, frame, parse_reply
 from .reports import PositionMark, PositionTracker
 from .controller_state import ControllerState, next_controller_state
@@ -68,10 +68,9 @@ class ReplySession:
         self._swallow = False  # the plain ok right after a Resend belongs to the request
         self._guard: list[int] | None = None
         self._replay: deque[int] = deque()
-        self._replay_inflight: int | None = None
+        self._replay_inflight: int | None = None  # the resend being replayed
         self._answered = False  # a first answer came (a later banner is a restart)
-        # last reply, last time the host began to wait (an idle link owes nothing), last ack/answer
-        self._last_rx = self._waiting_since = self._last_ack = self._last_answer = now
+        self._last_rx = self._waiting_since = self._last_ack = self._last_answer = now  # sign of life, wait, ack
         self._rtt, self._pokes_in_row = 0.002, 0
         self._expect_banner_until: float | None = None
         self._actions: list[Action] = []
@@ -160,8 +159,7 @@ class ReplySession:
         return until is not None
 
     def halt(self, failure: HardwareError, now: float) -> list[Action]:
-        """Fail the session (emergency stop, port failure): every command in flight fails
-        and nothing is written any more."""
+        """Fail the session (emergency stop, port failure): all in flight fail, nothing is written."""
         self._fail(failure, now)
         return self._take()
 
@@ -182,7 +180,8 @@ class ReplySession:
     def feed(self, line: str, now: float) -> list[Action]:
         """One reply line (terminator optional) received at ``now``."""
         event = parse_reply(line, self.rules.name)
-        if not isinstance(event, Unknown):  # noise and echoes are no sign of life
+        kind = type(event).__name__
+        if self.rules.proves_alive(kind):  # Dialect.alive_replies: never noise or echoes
             self._last_rx = now
         if self.fatal is not None:  # a dead session: listen, never act
             self.unsolicited.append(event)
@@ -203,7 +202,7 @@ class ReplySession:
             self._on_ok(event, now, swallow)
         elif isinstance(event, Resend):
             self._on_resend(event.line, now)
-        elif isinstance(event, Busy):
+        elif self.rules.says_busy(kind):  # the command in hand still runs: no stall poke
             self._last_ack = now
             if self.outstanding:
                 self.outstanding[0].replies.append(event)
@@ -436,10 +435,10 @@ class ReplySession:
 
     # ------------------------------------------------------------------ stalls
     def silent_s(self, now: float) -> float:
-        """Seconds the firmware owes an answer without a sign of life: since its last parsed
-        reply or, later, the first command sent into an idle link (an idle grbl or Marlin
-        says nothing unless asked: that silence is no evidence of a dead link)."""
-        return now - max(self._last_rx, self._waiting_since)
+        """Seconds the firmware owes an answer without a sign of life (``Dialect.alive_replies``),
+        counted from the host's first wait for a firmware silent while idle
+        (``Dialect.idle_silent``: that silence is no evidence of a dead link)."""
+        return now - (max(self._last_rx, self._waiting_since) if self.rules.idle_silent else self._last_rx)
 
     def timeout(self, now: float) -> list[Action]:
         """The reader saw nothing: fail after ``timeout_s`` of ``silent_s``; poke a stalled
@@ -473,7 +472,8 @@ class ReplySession:
         """A stalled grbl link: ask for a status (a sign of life; grbl answers ``?`` even
         while dwelling or homing) and, when its receive buffer surely has room, send one
         ``$G`` marker whose ``[GC:]`` answer settles any lost ``ok``."""
-        self._write(self.reports.ask(now), "poke")
+        if (query := self.rules.life_query) is not None:  # answered in any state
+            self._write(self.reports.ask(now) if query == self.rules.position_request else query, "poke")
         if any(p.marker and not p.has_parser_state() for p in self.outstanding) \
                 or self.fatal is not None:  # one unanswered marker at a time
             return

@@ -226,9 +226,19 @@ class StopOut(BaseModel):
 
 
 class ProgramState(BaseModel):
+    """The program on a machine: running (``printing``/``paused``: ``line`` commands of
+    ``total`` acknowledged) or ``interrupted`` (stopped on a lost link or a dead process:
+    ``line`` commands known processed, ``resume_line`` the command a resume starts at when
+    known before reconnecting; the job ``job_id`` holds the machine until an operator
+    resumes or abandons it, ``waits`` says so and ``message`` how)."""
+
     job_id: str | None
     line: int | None
     total: int | None
+    state: Literal["printing", "paused", "interrupted"] = "printing"
+    resume_line: int | None = None
+    waits: str | None = Field(None, description="what the holding job waits for (\"resume or abandon\")")
+    message: str | None = Field(None, description="for the operator: where it stopped and how to resume or abandon it")
 
 
 class ControllerOut(BaseModel):
@@ -256,7 +266,13 @@ class MachineOut(BaseModel):
     state: Literal["disconnected", "idle", "busy", "printing", "paused", "error"]
     position: list[float] | None
     program: ProgramState | None
+    held_by: str | None = Field(None, description="the machine job that holds the machine (queued, running or "
+                                "interrupted); Print, Home and manual control are 409 naming it until it ends")
     firmware: str | None = None
+    outputs: dict[str, Any] | None = Field(
+        None, description="the last time the profile's safe_off was sent (safe_off: connect, disconnect, program, "
+        "emergency stop), whether it was (sent) and why not (why: e.g. a grbl in Alarm, whose reset switched its "
+        "outputs off, or a Marlin emergency stop, which leaves fan outputs on until the reconnect resets it)")
     controller: ControllerOut | None = Field(
         None, description="the firmware's own state when it reports one (grbl); an Alarm, Hold, Door or "
         "Check refuses motion (409) until cleared as ``clear`` says")

@@ -28,6 +28,7 @@ from app.api.machine_schemas import (CalibrationOut, ConsoleOut, ConsoleRequest,
 from app.api.schemas import JobOut, Page
 from app.errors import Conflict, InvalidInput, NotFound
 from app.jobs.calibration import calibration_summary, current_calibration, machine_profile
+from app.jobs.machine_jobs import holding_message
 from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, port_owner, translate
 from hardware.errors import HardwareError
@@ -52,9 +53,14 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
     elif live is not None and state == "idle":
         with hardware_errors():
             position = list(live.position())
+    holder = runtime.store.holding_job(row.id)
     if live is not None and live.progress is not None and state in ("printing", "paused"):
         executed, total = live.progress
-        program = ProgramState(job_id=runtime.machines.running_job.get(row.id), line=executed, total=total)
+        program = ProgramState(job_id=runtime.machines.running_job.get(row.id) or (holder or {}).get("id"),
+                               line=executed, total=total, state=state)
+    elif holder is not None and holder["status"] == "interrupted":
+        reported = getattr(live, "program_status", None)  # the serial machines report it; LinuxCNC does not
+        program = interrupted_program(row.id, holder, reported() if callable(reported) else None)
     mock = None
     if row.mock is not None:
         mock = dict(row.mock)
@@ -63,8 +69,22 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
                         deposited_moves=len(world.deposition_log))
     known = getattr(live, "controller", None) if live is not None and state != "disconnected" else None
     return MachineOut(**row.model_dump(exclude={"mock"}), mock=mock, state=state, position=position,
-                      program=program, firmware=live.identity.firmware if live is not None and live.identity else None,
+                      program=program, held_by=holder["id"] if holder is not None else None,
+                      outputs=getattr(live, "outputs", None) if state != "disconnected" else None, firmware=live.identity.firmware if live is not None and live.identity else None,
                       controller=ControllerOut(**known.as_dict()) if known is not None else None)
+
+
+def interrupted_program(machine_id: str, job: dict, live: dict | None) -> ProgramState:
+    """The interrupted program of ``job`` (which holds the machine): where it stopped from the
+    live machine when this process ran it (``Machine.program_status``), else from the job's
+    recorded ``program_state`` (a restarted server)."""
+    recorded = job.get("program_state") or {}
+    live = live if live is not None and live.get("state") == "interrupted" else {}
+    line = live.get("line", recorded.get("executed"))
+    total = live.get("total", recorded.get("total"))
+    return ProgramState(job_id=job["id"], line=line, total=total, state="interrupted",
+                        resume_line=live.get("resume_line"), waits="resume or abandon",
+                        message=holding_message(machine_id, {**job, "program_state": {"executed": line, "total": total}}))
 
 
 @router.post("", status_code=201, dependencies=[Operator])
@@ -210,15 +230,15 @@ def print_on_machine(machine_id: str, body: PrintRequest, runtime: RuntimeDep, s
 
 
 # ---- manual control: an operator's explicit requests, never while a program holds the machine
-HOLDING = ("queued", "running", "interrupted")
 
 
 def _free(runtime: Runtime, machine_id: str) -> None:
-    """409 while a program holds the machine."""
-    holding = runtime.store.jobs_on_machine(machine_id, HOLDING)
-    if holding:
-        raise Conflict(f"machine {machine_id!r} is held by job {holding[0]}: manual control waits until it ends "
-                       "(or abandon it)", field="machine_id", value=machine_id)
+    """409 while a program holds the machine, naming the job and how to resume, abandon or
+    cancel it."""
+    holding = runtime.store.holding_job(machine_id)
+    if holding is not None:
+        raise Conflict(f"{holding_message(machine_id, holding)}; manual control waits until it ends",
+                       field="machine_id", value=machine_id)
 
 
 @router.post("/{machine_id}/home", dependencies=[Operator])

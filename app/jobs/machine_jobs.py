@@ -49,13 +49,30 @@ def machine_slot(kind: str, params: dict[str, Any]) -> str | None:
     return None
 
 
+def holding_message(machine_id: str, job: dict[str, Any]) -> str:
+    """Why ``machine_id`` is not free, naming the job that holds it (``job``: ``id``,
+    ``kind``, ``status`` and, for an interrupted one, ``program_state``) and what an
+    operator does about it: an interrupted program waits to be resumed or abandoned,
+    a queued or running one to end or be cancelled."""
+    job_id, kind, status = job["id"], job["kind"], job["status"]
+    if status == "interrupted":
+        state = job.get("program_state") or {}
+        where = (f" (stopped at command {state['executed']} of {state['total']})"
+                 if state.get("executed") is not None and state.get("total") is not None else "")
+        return (f"machine {machine_id!r} is held by the interrupted {kind} job {job_id}{where}: resume it "
+                f"(GET /api/v1/jobs/{job_id}/resume shows where, POST it with {{\"confirm\": true}}) or "
+                f"abandon it (POST /api/v1/jobs/{job_id}/abandon)")
+    return (f"machine {machine_id!r} is busy with {kind} job {job_id} ({status}); one program at a time: "
+            f"wait for it or cancel it (POST /api/v1/jobs/{job_id}/cancel)")
+
+
 def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
     """409 when another machine job, or a workflow holding the machine, is queued, running
     or interrupted on ``machine_id``.  A friendly early answer only: the unique index on
     ``jobs.machine_id`` is what makes two concurrent submissions impossible.  A workflow's
     own children (``session.info["parent_id"]``) may use the machine it holds."""
     parent_id = session.info.get("parent_id")
-    query = (select(Job.id, Job.kind).join(JobReference, JobReference.job_id == Job.id)
+    query = (select(Job.id, Job.kind, Job.status, Job.program_state).join(JobReference, JobReference.job_id == Job.id)
              .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
                     Job.status.in_(("queued", "running", "interrupted")),
                     Job.kind.in_(machine_kinds() + WORKFLOW_KINDS)))
@@ -63,8 +80,8 @@ def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
         query = query.where(Job.id != parent_id)
     busy = session.exec(query).first()
     if busy is not None:
-        raise Conflict(f"machine {machine_id!r} is busy with {busy[1]} job {busy[0]}; one program at a time",
-                       field="params.machine_id", value=machine_id)
+        job = {"id": busy[0], "kind": busy[1], "status": busy[2], "program_state": busy[3]}
+        raise Conflict(holding_message(machine_id, job), field="params.machine_id", value=machine_id)
 
 
 def connected_machine(ctx: JobContext, machine_id: str) -> Machine:

@@ -256,6 +256,17 @@ class JobStore:
         rows = self._run(select(Job.machine_id).where(Job.id == job_id))
         return rows[0][0] if rows else None
 
+    def holding_job(self, machine_id: str) -> dict | None:
+        """The machine job that holds ``machine_id`` (queued, running or interrupted: at
+        most one, the unique index), as ``{"id", "kind", "status", "program_state"}``; None
+        when the machine is free."""
+        rows = self._run(select(Job.id, Job.kind, Job.status, Job.program_state).where(and_(
+            Job.machine_id == machine_id, Job.status.in_(("queued", "running", "interrupted")))))
+        if not rows:
+            return None
+        job_id, kind, status, state = rows[0]
+        return {"id": job_id, "kind": kind, "status": status, "program_state": state}
+
     def jobs_on_machine(self, machine_id: str, statuses: tuple[str, ...]) -> list[str]:
         rows = self._run(select(Job.id).where(and_(Job.machine_id == machine_id, Job.status.in_(statuses))))
         return [r[0] for r in rows]

@@ -140,7 +140,10 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         self.emit("<" + "|".join(fields) + ">", now)
 
     def soft_reset(self, now: float) -> None:
-        """Ctrl-X: motion stops at once (position kept, planned motion lost), banner."""
+        """Ctrl-X: motion stops at once (position kept, planned motion lost), banner; the
+        spindle and coolant (the dispenser) go off, as grbl's ``mc_reset()`` ("Kill spindle
+        and coolant": ``spindle_stop(); coolant_stop();``, motion_control.c) and the
+        re-initialisation after it (``spindle_init(); coolant_init();``, main.c)."""
         moving = self.moving() or self.homing_until is not None
         position = list(self.machine_position(now))
         self.lose_planned_motion(now)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import re
 from collections.abc import Generator
 
+from ..dialects import dialect
 from ..protocol import checksum
 from .firmware import SLOW_S, FirmwareCore, Wait, normalized, split_words
 
@@ -86,9 +87,14 @@ class MarlinFirmware(FirmwareCore):
         self.emit(f"S_XYZ:{5 if self.moving() else 3}", now)
 
     def kill(self, now: float) -> None:
-        """Emergency stop: halt everything; only a reset (reopen) brings it back."""
+        """Emergency stop: halt everything; only a reset (reopen) brings it back.  As
+        Marlin's ``kill()``/``minkill()`` (MarlinCore.cpp): heaters and a cutter go off,
+        a fan (``M106``) or ``M42`` pin keeps its level until the reset
+        (``Dialect.estop_keeps``): a dispenser on a fan output stays on while halted."""
         self.emit("Error:Printer halted. kill() called!", now)
+        kept = self.dispensing and dialect(self.dialect).keeps_through_estop(self.world.dispense_commands[0])
         self.cold_start()
+        self.dispensing = kept
         self.world.stats.stops += 1
         self.world.stats.executed_at_stop = self.world.transcript.executed_count
         self.halted = True

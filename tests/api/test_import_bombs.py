@@ -92,7 +92,9 @@ def test_every_bomb_is_refused_fast_and_small_while_a_print_streams_on(client):
     done = wait_for(client, printing["id"], timeout=60)
     assert done["status"] == "succeeded", done["error"]
     status = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()
-    assert status["mock"]["executed_commands"] == program["commands"]
+    # the connect's and the program's safe_off (every program starts with its outputs off), then the program
+    safe = [status["profile"]["dispense_off"], *status["profile"]["outputs_off"]]
+    assert status["mock"]["executed_commands"] == 2 * len(safe) + program["commands"]
 
 
 @pytest.mark.parametrize("options", ['{"layers": ["\\ud800"]}', '{"\\udfff": 1}'])

@@ -64,8 +64,11 @@ def test_print_executes_every_command_exactly_once(client, faults):
     done = wait_for(client, job.json()["id"], timeout=60)
     assert done["status"] == "succeeded", done["error"]
     status = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()
-    assert status["mock"]["executed_commands"] == program["commands"]
-    assert status["mock"]["executed_sha256"] == program["commands_sha256"]
+    # the connect's safe_off, the program's safe_off (every program starts with its outputs off),
+    # then every command of the program exactly once
+    safe = [status["profile"]["dispense_off"], *status["profile"]["outputs_off"]]
+    assert status["mock"]["executed_commands"] == 2 * len(safe) + program["commands"]
+    assert status["mock"]["executed_sha256"] == commands_sha256([*safe, *safe, *program_text().splitlines()]).sha256
     assert status["mock"]["deposited_moves"] == 400  # every G1 between M106 and M107
     assert status["state"] == "idle"
 

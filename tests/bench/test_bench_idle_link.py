@@ -34,7 +34,7 @@ def test_a_print_after_ten_minutes_idle_runs_exactly_once(dialect):
         report = m.stream(lines)
         elapsed = time.monotonic() - started
         assert report.executed == report.total == len(lines) == 2000
-        assert world.transcript.commands == normalized_commands(lines)
+        assert world.transcript.commands == normalized_commands([*m.profile.safe_off, *lines])  # safe_off first
         print(f"\n{dialect}: idle {IDLE_S:.0f} s, then {len(lines)} lines in {elapsed:.1f} s, executed once, "
               f"link {report.link_stats}")
         m.disconnect()

@@ -78,7 +78,10 @@ def test_server_killed_mid_print_waits_for_the_operator_and_resumes_exactly_once
             time.sleep(0.02)
         stop(server, signal.SIGKILL)  # mid-print, no goodbye
         drained = _settled(status_port)
-        assert 25 <= drained < 102  # the printer finished what it had buffered, then stopped
+        # the connect's and the program's safe_off ran first, then the program's commands
+        safe = normalized_commands([machine["profile"]["dispense_off"], *machine["profile"].get("outputs_off", [])])
+        drained -= 2 * len(safe)
+        assert 25 - 2 * len(safe) <= drained < 102  # the printer finished what it had buffered, then stopped
 
         server = start(["serve", "--port", str(port)], env, tmp_path / "processes.log")
         wait_healthy(base, server, log=tmp_path / "processes.log")
@@ -87,7 +90,7 @@ def test_server_killed_mid_print_waits_for_the_operator_and_resumes_exactly_once
         state = record["program_state"]
         assert state["total"] == 102 and 0 < state["executed"] <= drained and state["acked_line_no"]
         time.sleep(1.0)  # restarted, reaped, nobody asked: nothing moves
-        assert status(status_port)["executed"] == drained
+        assert status(status_port)["executed"] == drained + 2 * len(safe)
         assert httpx.get(f"{base}/api/v1/jobs/{job['id']}", headers=headers).json()["status"] == "interrupted"
 
         resumed = httpx.post(f"{base}/api/v1/jobs/{job['id']}/resume", json={"confirm": True}, headers=headers)
@@ -103,11 +106,12 @@ def test_server_killed_mid_print_waits_for_the_operator_and_resumes_exactly_once
         assert done["result"]["resume_location"]["basis"] == "line numbers"  # the evidence, in the record
         assert done["result"]["resume_location"]["start"] == start_line
         commands = normalized_commands(PROGRAM.splitlines())
-        # the Marlin kept running through the lost link: the reconnect sent its safe_off after what
-        # it had accepted, then the resume's replay
-        profile = httpx.get(f"{base}/api/v1/machines/{machine['id']}", headers=headers).json()["profile"]
-        safe = normalized_commands([profile["dispense_off"], *profile.get("outputs_off", [])])
-        assert status(status_port)["commands"] == commands[:start_line] + safe + preamble + commands[start_line:]
+        # the connect's and the program's safe_off, the program up to the lost link; the Marlin kept
+        # running through it: the reconnect sent its safe_off after what it had accepted, then the
+        # resume's re-homing and replay (from safe_off)
+        assert preamble[1:1 + len(safe)] == safe
+        assert status(status_port)["commands"] == \
+            safe + safe + commands[:start_line] + safe + preamble + commands[start_line:]
     finally:
         stop(server)
         stop(printer)

@@ -87,8 +87,9 @@ def test_6_4_pingpong_stops_at_the_rejected_line(make_world):
     with pytest.raises(FirmwareError) as info:
         machine.stream(program)
     assert info.value.code == 20
-    assert world.transcript.commands == ["G1 X1 F600", "G1 X2"]
-    assert world.stats.lines_received - before == 3  # nothing after the bad line reached grbl
+    safe = normalized_commands(machine.profile.safe_off)  # every program starts with its outputs off
+    assert world.transcript.commands == [*safe, "G1 X1 F600", "G1 X2"]
+    assert world.stats.lines_received - before == len(safe) + 3  # nothing after the bad line reached grbl
     machine.disconnect()
 
 
@@ -117,7 +118,9 @@ def test_6_6_windowed_error_lets_queued_lines_finish_and_names_them(make_world):
               [f"G1 Y{i}" for i in range(1, 21)]
     with pytest.raises(FirmwareError) as info:
         machine.stream(program)
-    ran = world.transcript.commands
+    safe = normalized_commands(machine.profile.safe_off)  # every program starts with its outputs off
+    assert world.transcript.commands[:len(safe)] == safe
+    ran = world.transcript.commands[len(safe):]
     assert "G5 X1" not in ran and ran[:7] == normalized_commands(program)[:7]
     after = len(ran) - 7  # lines grbl already held when it rejected line 7
     assert after > 0
@@ -136,7 +139,9 @@ def test_6_7_leaving_check_mode_resets_without_poisoning_the_link(make_world):
     machine.send("G1 X5 F600")  # checked, not run
     assert "Disabled" in " ".join(machine.send("$C").reply_lines)
     assert machine.send("G1 X1 F600").status == "ok"
-    assert machine.state == "idle" and world.transcript.commands == ["G1 X1 F600"]
+    # the connect's safe_off, then the one command that ran (not the checked one)
+    safe = normalized_commands(machine.profile.safe_off)
+    assert machine.state == "idle" and world.transcript.commands == [*safe, "G1 X1 F600"]
     machine.disconnect()
 
 
@@ -231,7 +236,8 @@ def test_6_11_rx_buffer_from_opt(make_world):
     world.transcript.reset()
     program = [f"G1 X{i % 50}.125 Y{i // 50}.250 F6000" for i in range(200)]
     machine.stream(program)
-    assert world.stats.rx_overflows == 0 and world.transcript.commands == program
+    safe = normalized_commands(machine.profile.safe_off)  # every program starts with its outputs off
+    assert world.stats.rx_overflows == 0 and world.transcript.commands == [*safe, *program]
     machine.disconnect()
 
 
@@ -261,7 +267,9 @@ def test_6_8_resume_starts_at_what_moved_and_restores_the_modes(make_world):
               [f"G1 X{0.04 if i % 2 else -0.04:.2f} Y0.01" for i in range(60)] + ["M5"]
     with pytest.raises(HardwareError):  # the link drops at line 45
         machine.stream(program)
-    ran = len(world.transcript.commands)  # lines whose motion completed before the drop
+    safe = normalized_commands(machine.profile.safe_off)  # the program started with its outputs off
+    assert world.transcript.commands[:len(safe)] == safe
+    ran = len(world.transcript.commands) - len(safe)  # lines whose motion completed before the drop
     acked = machine._interrupted.acked_index
     assert acked - ran >= 10  # many acknowledged moves never ran
     machine.connect()
@@ -269,7 +277,8 @@ def test_6_8_resume_starts_at_what_moved_and_restores_the_modes(make_world):
     assert start <= ran and ran - start <= machine.planner_blocks
     machine.stream(program, start_line=start)
     commands = normalized_commands(program)
-    assert world.transcript.commands == commands[:ran] + machine.last_preamble + commands[start:]
+    # the connect's safe_off (grbl reset: its outputs were off already), then safe_off and the replay
+    assert world.transcript.commands == safe + commands[:ran] + safe + machine.last_preamble + commands[start:]
     assert machine.last_preamble[:2] == ["M5", "G20"] and machine.last_preamble[-3:] == \
         ["G1 F60", "G91", "M3 S1000"]
     # the tool ends where the uninterrupted program would have put it (inches, relative)

@@ -37,7 +37,8 @@ def test_a_print_after_an_idle_longer_than_the_liveness_window_runs_exactly_once
     lines = program(dialect, 20)
     report = m.stream(lines)  # LinkError("no reply for 0.6 s") before the fix
     assert report.executed == report.total == len(lines)
-    assert world.transcript.commands == normalized_commands(lines)  # exactly once, in order
+    # exactly once, in order, after the safe_off every program starts with
+    assert world.transcript.commands == normalized_commands([*m.profile.safe_off, *lines])
     assert m.state == "idle" and m.link.healthy
     time.sleep(0.8)  # idle again, then a console dwell: its answer comes 0.3 s later (no reports)
     assert m.send(DWELL[dialect]).status == "ok"

@@ -81,7 +81,9 @@ def _trial(make_world, rng: random.Random, trial: int) -> None:
     kind = rng.choice(["disconnect_at_line", "reset_at_line"])
     program = ["G21", "G90"] + [f"G1 X{i * 0.5:.1f} Y{rng.randrange(50)} F3000" for i in range(38)]
     at = rng.randrange(1, len(program) + 1)
-    url, world = make_world(dialect=dialect, faults=FaultConfig(seed=trial, **{kind: at}))
+    # the fault comes at program command ``at``: the controller runs the program's safe_off first
+    cut = at + len((GRBL_PROFILE if dialect == "grbl" else MachineProfile()).safe_off)
+    url, world = make_world(dialect=dialect, faults=FaultConfig(seed=trial, **{kind: cut}))
     machine = _machine(url, dialect, window=window)
     machine.connect()
     world.transcript.reset()
@@ -89,7 +91,7 @@ def _trial(make_world, rng: random.Random, trial: int) -> None:
         machine.stream(program)
     assert machine.state == "error"
     machine.connect()
-    ran, safe = executed_before_the_cut(world, machine, kept_running=dialect == "marlin" and kind == "disconnect_at_line")
+    ran, safe, reconnect = executed_before_the_cut(world, machine)
     start = machine.resume_line()
     case = (dialect, window, kind, at, start, ran)
     assert start <= ran, case  # never skips a command that did not run
@@ -102,7 +104,7 @@ def _trial(make_world, rng: random.Random, trial: int) -> None:
     report = machine.stream(program, start_line=start)
     assert report.executed == report.total == len(program)
     commands = normalized_commands(program)
-    expected = commands[:ran] + safe + machine.last_preamble + commands[start:]
+    expected = safe + commands[:ran] + reconnect + machine.last_preamble + commands[start:]
     assert world.transcript.commands == expected, case
     if start:  # units, distance mode, feed and start point restored before continuing
         assert machine.last_preamble[1:3] == ["G21", "G90"] and "G1 F3000" in machine.last_preamble
@@ -145,7 +147,8 @@ def test_pause_resume_and_cancel_from_another_thread(make_world):
     seen["thread"].join(5)
     assert seen["state"] == "paused" and seen["frozen"] is True
     assert report.cancelled and 40 <= report.executed < 60
-    assert world.transcript.commands == normalized_commands(program)[:report.executed]
+    # the program's safe_off, then its commands up to the cancel
+    assert world.transcript.commands == normalized_commands([*machine.profile.safe_off, *program[:report.executed]])
     assert machine.state == "idle"
     with pytest.raises(MachineStateError):
         machine.pause()
@@ -157,10 +160,12 @@ def test_stop_while_idle_or_disconnected_is_a_clear_error(make_world):
     with pytest.raises(MachineStateError):
         machine.stop()
     machine.connect()
+    connected = list(world.transcript.commands)
+    assert connected == normalized_commands(machine.profile.safe_off)  # the connect's safe_off
     with pytest.raises(MachineStateError) as info:
         machine.stop()
     assert "idle" in info.value.message and machine.state == "idle"
-    assert world.transcript.executed_count == 0  # nothing was sent
+    assert world.transcript.commands == connected and world.stats.stops == 0  # nothing was sent
 
 
 def test_emergency_stop_during_a_program(make_world):

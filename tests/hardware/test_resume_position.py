@@ -43,7 +43,9 @@ def machine(url: str, dialect: str) -> Machine:
 
 def cut_and_resume(make_world, dialect: str, fault: str, at: int):
     lines = program(dialect)
-    url, world = make_world(dialect=dialect, faults=FaultConfig(**{fault: at}), homing=dialect == "grbl")
+    # the cut comes at program command ``at``: the controller runs the program's safe_off first
+    cut = at + len(PROFILES[dialect].safe_off)
+    url, world = make_world(dialect=dialect, faults=FaultConfig(**{fault: cut}), homing=dialect == "grbl")
     m = machine(url, dialect)
     m.connect()
     m.home()
@@ -51,7 +53,7 @@ def cut_and_resume(make_world, dialect: str, fault: str, at: int):
     with pytest.raises(LinkError):
         m.stream(lines)
     m.connect()
-    ran, safe = executed_before_the_cut(world, m, kept_running=dialect == "marlin" and fault == "disconnect_at_line")
+    ran, safe, reconnect = executed_before_the_cut(world, m)
     bound = m.resume_line()
     found = m.locate_resume()
     assert m.last_resume == found
@@ -60,9 +62,11 @@ def cut_and_resume(make_world, dialect: str, fault: str, at: int):
     assert report.executed == report.total == len(lines)
     commands = normalized_commands(lines)
     home = ["G28"] if dialect == "marlin" else []  # grbl's $H is a system command: not in the transcript
-    executed = world.transcript.commands
-    m.disconnect()
-    return found, bound, ran, executed, commands[:ran] + safe + home + m.last_preamble + commands[found.start:]
+    executed = list(world.transcript.commands)
+    m.disconnect()   # its safe_off comes after
+    assert world.transcript.commands == executed + normalized_commands(m.profile.safe_off)
+    return found, bound, ran, executed, safe + commands[:ran] + reconnect + home + m.last_preamble + \
+        commands[found.start:]
 
 
 @pytest.mark.parametrize("at", [4, 9, 17, 26, 38, 47])

@@ -28,6 +28,8 @@ from hardware.machine_types import ReportEvidence
 from hardware.reports import PositionMark
 from hardware.resume import ResumeLocation, command_feeds, end_positions, locate_by_report
 
+from tests.helpers.machines import executed_before_the_cut
+
 PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
 SYNC = {"marlin": "M400", "grbl": "G4 P0"}  # the program ends when its motion has ended
 
@@ -81,7 +83,7 @@ def reset_and_resume(make_world, dialect: str, lines: list[str], reset_after_s: 
     finally:
         timer.cancel()
     m.connect()
-    ran = len(w.transcript.commands)  # commands whose motion completed before the reset
+    ran, safe, reconnect = executed_before_the_cut(w, m)  # commands whose motion completed before the reset
     bound = m.resume_line()
     found = m.locate_resume()
     assert m.last_resume == found
@@ -93,7 +95,7 @@ def reset_and_resume(make_world, dialect: str, lines: list[str], reset_after_s: 
     home = ["G28"] if dialect == "marlin" else []  # grbl: the reset board needs no homing here (homing off)
     executed = list(w.transcript.commands)
     m.disconnect()
-    expected = commands[:ran] + home + m.last_preamble + commands[found.start:]
+    expected = safe + commands[:ran] + reconnect + home + m.last_preamble + commands[found.start:]
     return found, bound, ran, truth["where"], executed, expected, commands
 
 

@@ -22,6 +22,7 @@ from hardware.errors import LinkError
 from hardware.machine import Machine, MachineProfile
 from hardware.protocol import normalized_commands
 from hardware.resume import ResumeLocation, executed_bound, modal_preamble, planner_blocks
+from tests.helpers.machines import executed_before_the_cut
 
 PROFILE = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
 
@@ -85,7 +86,7 @@ def test_the_mock_holds_a_segment_buffer_beyond_the_planner(make_world):
     watcher.join()
     m.connect()
     gap = m.interrupted_program
-    ran = len(world.transcript.commands)  # the commands whose motion completed
+    ran, _, _ = executed_before_the_cut(world, m)  # the commands whose motion completed
     blocks = planner_blocks(commands, PROFILE.dispense_on, PROFILE.dispense_off)
     assert gap.acked_index - ran > 15  # acknowledged and never moved: planner + segments
     assert executed_bound(blocks, gap.acked_index, 15) > ran  # the planner alone would skip
@@ -99,7 +100,8 @@ def test_twenty_resets_at_random_moments_skip_nothing_and_state_the_repeats(make
     commands = normalized_commands(lines)
     p = m.profile
     rng = random.Random(27)
-    start, resets, repeated, base, preamble = 0, 0, 0, 0, []
+    safe = normalized_commands(p.safe_off)  # every stream starts with its outputs off
+    start, resets, repeated, base, preamble = 0, 0, 0, 0, safe
     while True:
         after_s = rng.uniform(0.03, 0.12) if resets < 20 else 60.0  # the last run ends by itself
         interrupted = stream_until_reset(m, world, lines, start, after_s)
@@ -117,8 +119,8 @@ def test_twenty_resets_at_random_moments_skip_nothing_and_state_the_repeats(make
         assert "none is skipped" in found.summary() and found.as_dict()["skipped"] == 0
         repeated += done - found.start
         base, start = len(world.transcript.commands), found.start
-        preamble = [] if start == 0 else normalized_commands(modal_preamble(
-            commands, start, dispense_on=p.dispense_on, dispense_off=p.dispense_off, clearance_z=p.clearance_z))
+        preamble = safe + ([] if start == 0 else normalized_commands(modal_preamble(
+            commands, start, dispense_on=p.dispense_on, dispense_off=p.dispense_off, clearance_z=p.clearance_z))[1:])
     assert resets == 20
     m.disconnect()
 

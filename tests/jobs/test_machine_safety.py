@@ -74,11 +74,15 @@ def test_row1_a_dropped_link_interrupts_the_print_and_only_the_operator_resumes_
     # re-homed, then the modal state the skipped commands left replayed (units, modes, start point, feed)
     assert preamble[0] == "G28" and "G21" in preamble and start == done["program_state"]["resumed_from"]
     commands = normalized_commands(text.splitlines())
-    # the Marlin kept running through the dropped link: the reconnect sent its safe_off after what
-    # it had accepted (it would dispense while it waited otherwise)
+    # the program started with its outputs off; the Marlin kept running through the dropped link:
+    # the reconnect sent its safe_off after what it had accepted (it would dispense while it
+    # waited otherwise); the resume starts from safe_off again, then the modal replay
     safe = safe_off(client, machine)
-    # what the firmware executed: the program exactly once, with the re-homing before the resume point
-    assert get_world(machine["id"]).transcript.commands == commands[:start] + safe + preamble + commands[start:]
+    assert preamble[1:1 + len(safe)] == safe
+    # what the firmware executed: the connect's safe_off, the program exactly once, with the
+    # re-homing before the resume point
+    assert get_world(machine["id"]).transcript.commands == \
+        safe + safe + commands[:start] + safe + preamble + commands[start:]
 
 
 def test_row1_the_reaper_interrupts_a_machine_job_whose_process_died(client):
@@ -224,4 +228,4 @@ def test_row1_a_print_queued_before_a_restart_waits_for_the_operator(client):
     assert client.post(f"/api/v1/jobs/{job.id}/resume", json={"confirm": True}, headers=OP).status_code == 202
     done = wait_for(client, job.id)
     assert done["status"] == "succeeded" and done["result"]["start_line"] == 0 and done["result"]["resumes"] == 0
-    assert executed(client, machine) == before + 7
+    assert executed(client, machine) == before + len(safe_off(client, machine)) + 7  # safe_off, then the program

@@ -11,6 +11,7 @@ import pytest
 from app.db import migrate
 from app.jobs.runtime import Runtime
 from tests.api.test_machines import program_text, register, upload_program
+from hardware.protocol import commands_sha256
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 
@@ -57,8 +58,10 @@ def test_out_of_memory_and_crashing_jobs_fail_alone_while_a_print_runs_to_its_la
     done = wait_for(client, printing["id"], timeout=60)
     assert done["status"] == "succeeded", done["error"]
     status = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()
-    assert status["mock"]["executed_commands"] == program["commands"]
-    assert status["mock"]["executed_sha256"] == program["commands_sha256"]
+    # the connect's and the program's safe_off (every program starts with its outputs off), then the program
+    safe = [status["profile"]["dispense_off"], *status["profile"]["outputs_off"]]
+    assert status["mock"]["executed_commands"] == 2 * len(safe) + program["commands"]
+    assert status["mock"]["executed_sha256"] == commands_sha256([*safe, *safe, *program_text(1500).splitlines()]).sha256
 
 
 def test_cancel_kills_a_loop_that_never_checks_within_a_second(client):

@@ -69,6 +69,7 @@ function card(m) {
   const state = el("span", { class: `badge ${m.state}`, "data-state": m.state }, m.state);
   const pos = el("div", { class: "pos" }, position(m));
   const prog = el("div", { class: "small program" });
+  const outputs = el("div", { class: "small outputs" });
   const controller = el("div", { class: "small controller", "aria-live": "polite" });
   const unlock = el("button", { type: "button", class: "act-unlock", hidden: true,
     onclick: () => guarded(`Unlock ${m.name}`, async () => {
@@ -85,11 +86,11 @@ function card(m) {
   const programs = el("div", { class: "programs-body" }, programList(m, shownPrograms, () => refresh()));
   const node = el("section", { class: "machine-card", "data-id": m.id },
     el("h2", {}, m.name, " ", state), el("div", { class: "small mono" }, `${m.id} · ${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
-    pos, controller, unlock, prog, bar, estop,
+    pos, controller, unlock, prog, outputs, bar, estop,
     el("div", { class: "row" }, act(m, "connect", "Connect"), act(m, "disconnect", "Disconnect"), act(m, "pause", "Pause"), act(m, "resume", "Resume")),
     el("details", { class: "programs", open: true }, el("summary", {}, "Programs"), programs),
     manualControls(m));
-  cards.set(m.id, { node, state, pos, prog, bar, programs, controller, unlock, machine: m });
+  cards.set(m.id, { node, state, pos, prog, outputs, bar, programs, controller, unlock, machine: m });
   update(m);
   return node;
 }
@@ -150,10 +151,23 @@ function update(m) {
   c.controller.textContent = k ? `controller: ${k.detail}${k.reason ? ` (${k.reason})` : ""}${k.clear ? ` — to clear: ${k.clear}` : ""}` : "";
   c.controller.dataset.state = k ? k.state : "";
   c.unlock.hidden = !(k && k.state === "Alarm");
+  // process outputs the host could not switch off (a Marlin e-stop leaves fans on until the reconnect)
+  const o = m.outputs;
+  c.outputs.textContent = o && !o.sent && o.why ? `outputs: ${o.why}` : "";
   const p = m.program;
   const line = p ? (p.executed ?? p.line) : null;
-  c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
-    (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") : "no program running";
+  c.prog.dataset.state = p ? (p.state || "printing") : "";
+  if (p && p.state === "interrupted") {
+    // the job stopped mid-program (a lost link, a dead process) and holds the machine until an operator decides
+    c.prog.textContent = `interrupted at line ${line ?? "?"} of ${p.total ?? "?"} — job ${p.job_id || "?"} waits: ` +
+      `resume or abandon` + (p.resume_line != null ? ` (a resume starts at line ${p.resume_line})` : "");
+    c.prog.title = p.message || "";
+  } else {
+    c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
+      (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") :
+      (m.held_by ? `job ${m.held_by} holds the machine` : "no program running");
+    c.prog.title = "";
+  }
   c.bar.hidden = !(p && p.total);
   if (p && p.total) c.bar.value = (line ?? 0) / p.total;
 }

@@ -1,5 +1,6 @@
 """The machines page: register a mock machine, connect, watch a print, press the
-emergency stop and see the state change."""
+emergency stop and see the state change; an interrupted print shows on its card with the
+job that waits and what to do."""
 
 from __future__ import annotations
 
@@ -38,7 +39,33 @@ def test_emergency_stop_changes_the_machine_state(page, served):
     screenshot(page, "machines")
     page.click(f"{sel} .estop")
     page.wait_for_selector(f'{sel} [data-state="error"]')
+    # Marlin's kill() leaves a fan output (the default dispenser, M106) as it was until the board resets
+    page.wait_for_selector(f'{sel} .outputs:has-text("M106")')
+    assert "connect again" in page.inner_text(f"{sel} .outputs")
     t0 = time.monotonic()
     status = api.get(f"/api/v1/machines/{machine_id}").json()
     assert status["state"] == "error" and time.monotonic() - t0 < 5
+    assert page.js_errors == []
+
+
+def test_an_interrupted_print_shows_on_the_card(page, served):
+    api = served.api()
+    made = api.post("/api/v1/machines", json={"name": "cut-link", "port": "mock://", "dialect": "marlin",
+                                              "mock": {"faults": {"disconnect_at_line": 20}}})
+    assert made.status_code == 201, made.text
+    machine_id = made.json()["id"]
+    program = api.post("/api/v1/programs", files={"file": ("cut.gcode", (
+        "G21\nG90\n" + "".join(f"G1 X{i % 9} Y{i // 9} F3000\n" for i in range(60))).encode())}).json()
+    job = api.post(f"/api/v1/machines/{machine_id}/print", json={"program_id": program["id"]}).json()
+    deadline = time.monotonic() + 60
+    while (record := api.get(f"/api/v1/jobs/{job['id']}").json())["status"] != "interrupted":
+        assert record["status"] in ("queued", "running") and time.monotonic() < deadline, record
+        time.sleep(0.1)
+    state = record["program_state"]
+    page.goto("/machines.html")
+    sel = f'.machine-card[data-id="{machine_id}"]'
+    page.wait_for_selector(f'{sel} .program[data-state="interrupted"]', timeout=15_000)
+    text = page.inner_text(f"{sel} .program")
+    assert text.startswith(f"interrupted at line {state['executed']} of {state['total']}"), text
+    assert f"job {job['id']} waits: resume or abandon" in text, text
     assert page.js_errors == []
