@@ -10,6 +10,7 @@ its own threads and its own write to the link (out of band, never queued).
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 
 from typing import Annotated
@@ -30,13 +31,14 @@ from app.errors import Conflict, InvalidInput, NotFound
 from app.jobs.calibration import calibration_summary, current_calibration, machine_profile
 from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, port_owner, translate
-from hardware.errors import HardwareError
+from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
 from app.db import lock_for_delete
 from app.models import JobReference, Machine, Part, new_id, utcnow
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/machines", tags=["machines"])
+log = logging.getLogger("conforma.api.machines")
 
 
 def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
@@ -50,8 +52,10 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
     elif world is not None:
         position = list(world.position)
     elif live is not None and state == "idle":
-        with hardware_errors():
+        try:  # a read of the record never fails on the controller's answer: the position is unknown
             position = list(live.position())
+        except HardwareError as exc:
+            log.info("machine %s: no position (%s)", row.id, exc)
     if live is not None and live.progress is not None and state in ("printing", "paused"):
         executed, total = live.progress
         program = ProgramState(job_id=runtime.machines.running_job.get(row.id), line=executed, total=total)
@@ -83,8 +87,10 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
             raise InvalidInput(f"part {body.mock.true_part_id!r} does not exist", field="mock.true_part_id",
                                value=body.mock.true_part_id)
     if is_mock:
-        with hardware_errors():
+        try:
             parse_mock_options(body.port.split("?", 1)[1] if "?" in body.port else "")
+        except InvalidConfig as exc:  # 422 naming the option
+            raise translate(exc) from exc
     machine_id = new_id("mach")
     key = port_key(body.port, machine_id, runtime.settings.socket_host_list)
     taken = session.exec(select(Machine.id).where(Machine.port_key == key)).first()
