@@ -271,7 +271,8 @@ def jog_machine(machine_id: str, body: JogRequest, runtime: RuntimeDep, session:
 
 @router.post("/{machine_id}/command", dependencies=[Operator])
 def console_command(machine_id: str, body: ConsoleRequest, runtime: RuntimeDep, session: SessionDep) -> ConsoleOut:
-    """Send one command and return the firmware's reply lines (502 when it rejects it)."""
+    """Send one command and return the firmware's reply lines; 422 naming ``command`` when the
+    firmware refuses it (unsupported, malformed), 502 when it halts or raises an alarm."""
     row = get_or_404(session, Machine, machine_id)
     _free(runtime, machine_id)
     machine = runtime.machines.require(machine_id)

@@ -101,3 +101,19 @@ def test_reading_a_machine_never_fails_on_the_controller_s_answer(client, machin
         response = client.get(url, headers=OP)
         assert response.status_code == 200, response.text
     assert response.json()["items"][0]["position"] is None and response.json()["items"][0]["state"] == "idle"
+
+
+@pytest.mark.parametrize(("command", "words"), [("G99999", "Unsupported command"), ("XYZ", "Bad number format")])
+def test_a_console_command_the_firmware_refuses_is_a_422_naming_it(client, command, words):
+    """grbl's ``error:N`` about the command itself is the sender's mistake: 422 naming the
+    command and the firmware's words; the machine stays ready."""
+    row = register(client, dialect="grbl").json()
+    base = f"/api/v1/machines/{row['id']}"
+    assert client.post(f"{base}/connect", headers=OP).status_code == 200
+    refused = client.post(f"{base}/command", json={"command": command}, headers=OP)
+    assert refused.status_code == 422, refused.text
+    problem = refused.json()
+    assert words in problem["detail"] and problem["errors"][0]["loc"][-1] == "command"
+    assert problem["errors"][0]["value"] == command
+    assert client.get(base, headers=OP).json()["state"] == "idle"
+    assert client.post(f"{base}/command", json={"command": "G1 X1 F100"}, headers=OP).status_code == 200
