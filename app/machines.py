@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from typing import Any
 from urllib.parse import urlsplit
 
-from hardware.errors import HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
+from hardware.errors import CommandRejected, HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
 from hardware.machine import Machine, MachineProfile
 from hardware.mock import (FaultConfig, MockPad, MockSphere, MockTool, MockWorld, TruePlacement,
                            register_world, unregister_world)
@@ -38,7 +38,8 @@ class MachineUnavailable(ConformaError):
 
 
 class MachineFault(ConformaError):
-    """The firmware rejected a command, halted, or answered nonsense (502)."""
+    """The firmware halted, raised an alarm, or answered nonsense (502); a command it
+    refuses for what it says is an InvalidInput (422) naming it."""
 
     status = 502
     title = "Machine fault"
@@ -61,6 +62,9 @@ def translate(exc: HardwareError) -> ConformaError:
         kind = ProbeMissed
     elif isinstance(exc, LinkError):
         kind = MachineUnavailable
+    elif isinstance(exc, CommandRejected):  # the command's fault: 422 naming it
+        field, value = field or "command", value if value is not None else exc.command
+        kind = InvalidInput
     else:  # FirmwareError, ProtocolError and anything else the firmware side raised
         kind = MachineFault
     return kind(str(exc), field=field, value=value)

@@ -116,6 +116,9 @@ class Job(SQLModel, table=True):
     # program stands (last executed / acknowledged command, interruption, resume)
     machine_id: str | None = Field(default=None, max_length=40)
     program_state: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    # compute jobs: the process that runs (ran) its latest attempt, {"pid", "start_ticks",
+    # "boot_id"} (app.jobs.process_identity): a later attempt runs only once it has ended
+    process: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 class JobReference(SQLModel, table=True):
     """Which stored records a job reads (parts, traces, other jobs): guards deletion."""

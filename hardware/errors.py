@@ -12,6 +12,8 @@ LinkError              port unreachable, disconnect, timeout with no answer     
 FirmwareReset          the controller restarted (banner seen) mid-conversation    503
 ProtocolError          the firmware's replies cannot be reconciled                502
 FirmwareError          ``error:N`` / ``Error:...`` / ``ALARM:N`` / ``!!`` halt      502
+CommandRejected        a FirmwareError: the firmware refused the command itself   422
+                       (unsupported, malformed) and stays ready
 ProbeFailed            the probe reached its lower limit without a trigger        422
 MachineBusy            a program or command already owns the machine              409
 MachineStateError      the request does not fit the machine's state               409
@@ -81,6 +83,14 @@ class FirmwareError(HardwareError):
         self.command = command
         self.reply_lines = reply_lines  # what the controller answered (ALARM:9, ok ...)
         self.line_index: int | None = None  # stream(): index of the rejected command
+
+
+class CommandRejected(FirmwareError):
+    """The firmware refused one command for what it says (unsupported, malformed: a Marlin
+    ``Error:`` or grbl ``error:N`` about the command, not a halt, an alarm or a damaged
+    line) and is ready for the next: the sender's mistake, not the machine's."""
+
+    status = 422
 
 
 class ProbeFailed(HardwareError):

@@ -7,8 +7,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from .errors import FirmwareError, HardwareError, LinkError
-from .events import ReplyEvent
+from .errors import CommandRejected, FirmwareError, HardwareError, LinkError
+from .events import FirmwareErrorEvent, ReplyEvent
 from .session_types import Command
 
 _PAYLOAD_TYPES = ("ProbeReport", "PositionReport", "FirmwareInfo", "StatusReport",
@@ -94,9 +94,10 @@ class PendingCommand:
         outcome = self.outcome
         if check and outcome.status == "error":
             event = outcome.error
-            raise FirmwareError(f"{self.command!r} failed: {getattr(event, 'message', event.raw)}",
-                                code=getattr(event, "code", None), command=self.command,
-                                reply_lines=outcome.reply_lines)
+            rejected = isinstance(event, FirmwareErrorEvent) and event.kind == "command"
+            raise (CommandRejected if rejected else FirmwareError)(
+                f"{self.command!r} failed: {getattr(event, 'message', event.raw)}",
+                code=getattr(event, "code", None), command=self.command, reply_lines=outcome.reply_lines)
         return outcome
 
 

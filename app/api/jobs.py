@@ -187,7 +187,8 @@ _SUMMARIES: dict[tuple, dict] = {}  # by content (and frame): a program's summar
 
 
 @router.get("/{job_id}/resume", dependencies=[Operator],
-            responses={409: {"description": "the job is not interrupted, or not a machine job"}})
+            responses={409: {"description": "the job is not interrupted, or not a machine job"},
+                       502: {"description": "the machine's firmware answered nonsense to where it stands"}})
 def preview_resume(job_id: str, runtime: RuntimeDep, session: SessionDep) -> dict:
     """What ``POST /jobs/{id}/resume`` will do, before the operator confirms: the command it
     resumes at (``line``), the ``basis`` and its ``detail``, the commands (``repeats``) and

@@ -10,6 +10,7 @@ its own threads and its own write to the link (out of band, never queued).
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 
 from typing import Annotated
@@ -31,13 +32,14 @@ from app.jobs.calibration import calibration_summary, current_calibration, machi
 from app.jobs.machine_jobs import holding_message
 from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, port_owner, translate
-from hardware.errors import HardwareError
+from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
 from app.db import lock_for_delete
 from app.models import JobReference, Machine, Part, new_id, utcnow
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/machines", tags=["machines"])
+log = logging.getLogger("conforma.api.machines")
 
 
 def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
@@ -51,8 +53,10 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
     elif world is not None:
         position = list(world.position)
     elif live is not None and state == "idle":
-        with hardware_errors():
+        try:  # a read of the record never fails on the controller's answer: the position is unknown
             position = list(live.position())
+        except HardwareError as exc:
+            log.info("machine %s: no position (%s)", row.id, exc)
     holder = runtime.store.holding_job(row.id)
     if live is not None and live.progress is not None and state in ("printing", "paused"):
         executed, total = live.progress
@@ -103,8 +107,10 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
             raise InvalidInput(f"part {body.mock.true_part_id!r} does not exist", field="mock.true_part_id",
                                value=body.mock.true_part_id)
     if is_mock:
-        with hardware_errors():
+        try:
             parse_mock_options(body.port.split("?", 1)[1] if "?" in body.port else "")
+        except InvalidConfig as exc:  # 422 naming the option
+            raise translate(exc) from exc
     machine_id = new_id("mach")
     key = port_key(body.port, machine_id, runtime.settings.socket_host_list)
     taken = session.exec(select(Machine.id).where(Machine.port_key == key)).first()
@@ -285,7 +291,8 @@ def jog_machine(machine_id: str, body: JogRequest, runtime: RuntimeDep, session:
 
 @router.post("/{machine_id}/command", dependencies=[Operator])
 def console_command(machine_id: str, body: ConsoleRequest, runtime: RuntimeDep, session: SessionDep) -> ConsoleOut:
-    """Send one command and return the firmware's reply lines (502 when it rejects it)."""
+    """Send one command and return the firmware's reply lines; 422 naming ``command`` when the
+    firmware refuses it (unsupported, malformed), 502 when it halts or raises an alarm."""
     row = get_or_404(session, Machine, machine_id)
     _free(runtime, machine_id)
     machine = runtime.machines.require(machine_id)

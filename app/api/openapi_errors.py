@@ -43,7 +43,7 @@ _DESCRIPTIONS = {
     413: "the body exceeds the size limit",
     422: "a parameter or field is invalid (the problem names it and the value)",
     429: "too many failed API key attempts from this address (see Retry-After)",
-    502: "the machine's firmware rejected the command, halted, or answered nonsense",
+    502: "the machine's firmware halted, raised an alarm, or answered nonsense",
     503: "the server is at capacity (see Retry-After)",
 }
 

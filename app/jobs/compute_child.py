@@ -42,6 +42,7 @@ from app.config import Settings
 from app.db import make_engine
 from app.errors import Cancelled, ConformaError
 from app.jobs.context import JobContext
+from app.jobs.process_identity import start_ticks
 from app.jobs.registry import get_kind, load_kinds
 from app.jobs.store import Claim, JobStore, json_result
 from threadpoolctl import threadpool_limits
@@ -87,15 +88,6 @@ def process_limits(hard_bytes: int) -> None:
         pass
 
 
-def _start_time(pid: int) -> int | None:
-    """The start time (clock ticks since boot) of a live, non-zombie process; None otherwise."""
-    try:
-        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-    except OSError:
-        return None
-    return None if fields[0] in ("Z", "X") else int(fields[19])
-
-
 def bind_to(server_pid: int, every_s: float = 0.1) -> None:
     """Die (SIGKILL) within ``every_s`` of the server process ``server_pid`` ending.
 
@@ -103,12 +95,12 @@ def bind_to(server_pid: int, every_s: float = 0.1) -> None:
     fork server outlives its server by as long as its own shutdown takes; so a daemon thread
     watches the server itself (its pid and start time, so a reused pid is not mistaken for
     it).  Without /proc it does nothing."""
-    started = _start_time(server_pid)
+    started = start_ticks(server_pid)
     if started is None:
         return
 
     def watch() -> None:
-        while _start_time(server_pid) == started:
+        while start_ticks(server_pid) == started:
             time.sleep(every_s)
         os.kill(os.getpid(), signal.SIGKILL)
 

@@ -16,7 +16,12 @@ it prefers a process that already holds the job's part), while the thread
   segfault, an abort in native code), **quarantines** the job: failed with the reason, never
   re-claimed; the process is replaced;
 * when its own runtime stops, kills the process and puts the job back in the queue
-  (``released``), so that a normal restart runs it again.
+  (``released``), so that a normal restart runs it again;
+* records the process that runs each attempt (``jobs.process``: pid, start time, boot) and,
+  before a later attempt runs (its server was SIGKILLed and restarted, its lease expired),
+  makes sure that process has ended: it waits ``EARLIER_WAIT_S`` for it (a compute process
+  dies within 0.1 s of its server), then SIGKILLs it; one that survives even that puts the
+  job back in the queue (``released``).  Two attempts of a job never compute at once.
 
 Machine and workflow jobs stay in threads of the ``serve`` process (they need its ports).
 """
@@ -33,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import select
 
+from app.jobs import process_identity
 from app.jobs.compute_pool import ComputePool, Member, mp_context
 from app.jobs.store import Claim, JobStore
 from app.models import TERMINAL_STATES, Job, JobReference, Part, Trace
@@ -45,6 +51,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("conforma.jobs.process")
 POLL_S = 0.1
 KILL_WAIT_S = 5.0
+EARLIER_WAIT_S = 1.0  # how long an earlier attempt's process may take to end by itself
 
 
 def _signal_name(exitcode: int) -> str:
@@ -151,6 +158,10 @@ class ProcessSupervisor:
             parts = set()
         for attempt in range(3):
             member = self.pool.acquire(parts)
+            try:  # recorded before the job starts: a server killed after the send leaves its trace
+                self.runtime.store.record_process(claim, process_identity.identify(member.pid))
+            except Exception:
+                log.exception("could not record the process of job %s", claim.job_id)
             try:
                 member.conn.send(claim)
                 return member
@@ -160,8 +171,27 @@ class ProcessSupervisor:
                     raise
         raise AssertionError("unreachable")
 
+    def _earlier_process_gone(self, claim: Claim) -> bool:
+        """Whether the process of ``claim``'s earlier attempt has ended (waited for, or
+        killed); False when it survives."""
+        if claim.earlier_process is None:
+            return True
+        how = process_identity.make_gone(claim.earlier_process, EARLIER_WAIT_S, KILL_WAIT_S)
+        if how in ("exited", "killed"):
+            log.warning("job %s: the process %s of its earlier attempt still ran; it %s before attempt %d",
+                        claim.job_id, claim.earlier_process.get("pid"), "ended" if how == "exited" else "was killed",
+                        claim.attempt)
+        return how != "alive"
+
     def _supervise(self, claim: Claim) -> None:
         store = self.runtime.store
+        with _lease_kept(store, claim, self.settings.lease_s / 3):
+            gone = self._earlier_process_gone(claim)
+        if not gone:
+            log.error("job %s: the process %s of its earlier attempt survives SIGKILL; the job waits in the queue",
+                      claim.job_id, claim.earlier_process and claim.earlier_process.get("pid"))
+            store.release(claim, "waiting for the process of its earlier attempt to end")
+            return
         try:
             with _lease_kept(store, claim, self.settings.lease_s / 3):
                 member = self._start(claim)

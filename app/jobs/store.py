@@ -35,6 +35,8 @@ class Claim:
     worker: str
     attempt: int
     params: dict[str, Any]
+    # the process that ran an earlier attempt, as recorded (app.jobs.process_identity)
+    earlier_process: dict[str, Any] | None = None
 
 
 class JobStore:
@@ -65,12 +67,12 @@ class JobStore:
                 started_at=utcnow(),
                 revision=Job.revision + 1,
             )
-            .returning(Job.kind, Job.attempts, Job.params)
+            .returning(Job.kind, Job.attempts, Job.params, Job.process)
         )
         if not rows:
             return None
-        kind, attempt, params = rows[0]
-        return Claim(job_id, kind, worker, attempt, dict(params))
+        kind, attempt, params, process = rows[0]
+        return Claim(job_id, kind, worker, attempt, dict(params), process if isinstance(process, dict) else None)
 
     def _owned(self, claim: Claim):  # type: ignore[no-untyped-def]
         return and_(
@@ -280,6 +282,10 @@ class JobStore:
                     attempts=Job.attempts - 1, revision=Job.revision + 1)
             .returning(Job.id))
         return bool(rows)
+
+    def record_process(self, claim: Claim, process: dict[str, Any] | None) -> bool:
+        """The process that runs ``claim``'s attempt (while ``claim`` owns the job)."""
+        return bool(self._run(update(Job).where(self._owned(claim)).values(process=process).returning(Job.id)))
 
     def quarantine_lost_compute_jobs(self, compute_queue: str = "default", max_lost: int = 2) -> list[str]:
         """Fail (quarantine) compute jobs whose lease expired for the ``max_lost``-th time.

@@ -82,7 +82,7 @@ def capacity_server(data_dir: Path, log: Path, key: str) -> Iterator[str]:
                          CONFORMA_EMBEDDED_WORKER="false"), log)
     base = f"http://127.0.0.1:{port}"
     try:
-        wait_healthy(base, proc)
+        wait_healthy(base, proc, log=log)  # its output when it exits at start
         yield base
     finally:
         stop(proc)

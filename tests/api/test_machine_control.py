@@ -82,3 +82,38 @@ def test_a_machine_is_removed_unless_jobs_reference_it(client, machine):
     assert client.delete(f"{base}?force=true", headers=OP).status_code == 403
     assert client.delete(f"{base}?force=true", headers=ADMIN).status_code == 204
     assert client.get(base, headers=OP).status_code == 404
+
+
+def test_reading_a_machine_never_fails_on_the_controller_s_answer(client, machine, monkeypatch):
+    """A real controller (no mock world) whose position query fails: the record is read with
+    ``position`` null, never a 502 on a GET."""
+    from hardware.errors import FirmwareError
+
+    machines = client.app.state.runtime.machines
+    live = machines.get(machine["id"])
+
+    def fails() -> tuple[float, float, float]:
+        raise FirmwareError("M114 returned no position", command="M114")
+
+    monkeypatch.setattr(machines, "world", lambda row: None)  # as for a serial port
+    monkeypatch.setattr(live, "position", fails)
+    for url in (f"/api/v1/machines/{machine['id']}", "/api/v1/machines"):
+        response = client.get(url, headers=OP)
+        assert response.status_code == 200, response.text
+    assert response.json()["items"][0]["position"] is None and response.json()["items"][0]["state"] == "idle"
+
+
+@pytest.mark.parametrize(("command", "words"), [("G99999", "Unsupported command"), ("XYZ", "Bad number format")])
+def test_a_console_command_the_firmware_refuses_is_a_422_naming_it(client, command, words):
+    """grbl's ``error:N`` about the command itself is the sender's mistake: 422 naming the
+    command and the firmware's words; the machine stays ready."""
+    row = register(client, dialect="grbl").json()
+    base = f"/api/v1/machines/{row['id']}"
+    assert client.post(f"{base}/connect", headers=OP).status_code == 200
+    refused = client.post(f"{base}/command", json={"command": command}, headers=OP)
+    assert refused.status_code == 422, refused.text
+    problem = refused.json()
+    assert words in problem["detail"] and problem["errors"][0]["loc"][-1] == "command"
+    assert problem["errors"][0]["value"] == command
+    assert client.get(base, headers=OP).json()["state"] == "idle"
+    assert client.post(f"{base}/command", json={"command": "G1 X1 F100"}, headers=OP).status_code == 200

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import httpx
 
+from app.jobs.process_identity import identify, make_gone
 from tests.e2e.test_serve import env_for, start
 from tests.processes import free_port, stop, wait_healthy
 
@@ -78,3 +79,48 @@ def test_compute_processes_die_with_the_server_and_the_job_runs_once_after_resta
         assert done["status"] == "succeeded" and done["attempts"] == 2, done
     finally:
         stop(again)
+
+
+def test_a_compute_process_that_outlives_its_server_is_ended_before_the_job_runs_again(tmp_path):
+    """The first execution of ``test_stubborn`` defeats both of a compute process's bonds to
+    its server (no parent-death signal, the watching thread starved of the GIL): after a
+    SIGKILL of the server it computes on.  The restarted server's worker ends it before it
+    runs the job again, so the job's one complete execution is the second, alone."""
+    data = tmp_path / "data"
+    journal = tmp_path / "journal.txt"
+    # a 5 s lease: a restarting server on a loaded box can stall its renewals for 2 s
+    env = env_for(data, CONFORMA_API_KEYS=f"{KEY}:operator", CONFORMA_LEASE_S="5")
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    server = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
+    try:
+        wait_healthy(base, server, log=tmp_path / "serve.log")
+        job = httpx.post(f"{base}/api/v1/jobs", json={"kind": "test_stubborn", "params": {
+            "journal": str(journal), "stubborn_s": 120, "seconds": 0.5}}, headers=HEADERS, timeout=30).json()
+        _wait_job(base, job["id"], ("running",))
+        deadline = time.monotonic() + 30
+        while not journal.exists() or not journal.read_text().endswith("\n"):
+            assert time.monotonic() < deadline, "the job never started"
+            time.sleep(0.05)
+        first = int(journal.read_text().split()[1])
+        first_record = identify(first)
+        os.kill(server.pid, signal.SIGKILL)
+        server.wait()
+        time.sleep(2.0)
+        assert first in _session_members(server.pid), "the stubborn process died with its server: nothing tested"
+    finally:
+        stop(server)
+    again = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
+    try:
+        wait_healthy(base, again, log=tmp_path / "serve.log")
+        done = _wait_job(base, job["id"], ("succeeded", "failed", "cancelled"), timeout=90)
+        assert done["status"] == "succeeded" and done["attempts"] == 2, done
+    finally:
+        stop(again)
+        assert make_gone(first_record, 0.0) == "gone", "the stubborn process outlived the restarted server"
+    lines = journal.read_text().splitlines()
+    assert [line.split()[0] for line in lines] == ["start", "start", "end"], lines
+    second = lines[1].split()
+    assert second[2] == "2" and second[3] == "-", lines  # attempt 2 began with no earlier process alive
+    assert lines[2] == f"end {second[1]}"  # the one execution to its end is the second
+    assert first not in _session_members(server.pid)

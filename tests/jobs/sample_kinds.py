@@ -113,3 +113,41 @@ def run_drape(ctx: JobContext, params: DrapeParams) -> dict:
     top = top_surface_z(mesh, xy).z
     return {"points": points.tolist(), "top_z": top.tolist(),
             "sha256": hashlib.sha256(points.tobytes() + np.asarray(top).tobytes()).hexdigest()}
+
+
+class StubbornParams(JobParams):
+    journal: str = Field(max_length=500)
+    stubborn_s: int = Field(60, ge=0, le=600)
+    seconds: float = Field(0.5, ge=0, le=60)
+
+
+def _alive(pid: int) -> bool:
+    from app.jobs.process_identity import start_ticks
+
+    return start_ticks(pid) is not None
+
+
+@job_kind("test_stubborn", StubbornParams)
+def run_stubborn(ctx: JobContext, params: StubbornParams) -> dict:
+    """Journal each execution ("start <pid> <attempt> <earlier pids still alive>", "end <pid>")
+    in the file ``journal``.  The first execution makes its process outlive its server: it
+    drops its parent-death signal and then sleeps ``stubborn_s`` in native code holding the
+    GIL, so that the thread watching the server never runs.  Later ones sleep ``seconds``."""
+    import ctypes
+    import os
+    from pathlib import Path
+
+    journal = Path(params.journal)
+    lines = journal.read_text().splitlines() if journal.exists() else []
+    earlier = [int(line.split()[1]) for line in lines if line.startswith("start ")]
+    alive = [pid for pid in earlier if pid != os.getpid() and _alive(pid)]
+    with journal.open("a") as f:
+        f.write(f"start {os.getpid()} {ctx.claim.attempt} {','.join(map(str, alive)) or '-'}\n")
+    if not earlier:
+        ctypes.CDLL(None).prctl(1, 0, 0, 0, 0)  # PR_SET_PDEATHSIG: none
+        ctypes.PyDLL(None).sleep(params.stubborn_s)  # PyDLL: the GIL stays held
+    else:
+        time.sleep(params.seconds)
+    with journal.open("a") as f:
+        f.write(f"end {os.getpid()}\n")
+    return {"attempt": ctx.claim.attempt}
