@@ -185,6 +185,18 @@ START_HERE = """start here:
 """
 
 
+def _demo_arguments(parser: argparse.ArgumentParser) -> None:
+    """``conforma demo``'s options (here, so that building the parser imports no job runtime:
+    ``mock-printer``, ``keys`` and ``migrate`` start without it)."""
+    parser.add_argument("--traces", default="1-9", help="trace numbers, e.g. 1-9 or 1,4,7")
+    parser.add_argument("--seed", type=int, default=11, help="seed of the machining error field")
+    parser.add_argument("--amplitude-mm", type=float, default=0.15, help="machining error amplitude")
+    parser.add_argument("--dz-mm", type=float, default=0.03, help="placement offset in z")
+    parser.add_argument("--noise-um", type=float, default=1.0, help="probe noise (1 sigma)")
+    parser.add_argument("--planner", choices=("adaptive", "uniform", "deviation"), default="deviation")
+    parser.add_argument("--grid-mm", type=float, default=0.3, help="tessellation of the part meshes")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="conforma", description=__doc__, epilog=START_HERE,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -216,9 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="the published experiment on the mock printer: closed loop + its width table")
     data_dir(demo)
-    from app.demo import add_arguments
-
-    add_arguments(demo)
+    _demo_arguments(demo)
     demo.set_defaults(func=cmd_demo)
 
     mock = sub.add_parser("mock-printer", help="the mock firmware on a pty or TCP port for any host")

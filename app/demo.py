@@ -27,16 +27,6 @@ from app.records import build_trace, store_part
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--traces", default="1-9", help="trace numbers, e.g. 1-9 or 1,4,7")
-    parser.add_argument("--seed", type=int, default=11, help="seed of the machining error field")
-    parser.add_argument("--amplitude-mm", type=float, default=0.15, help="machining error amplitude")
-    parser.add_argument("--dz-mm", type=float, default=0.03, help="placement offset in z")
-    parser.add_argument("--noise-um", type=float, default=1.0, help="probe noise (1 sigma)")
-    parser.add_argument("--planner", choices=("adaptive", "uniform", "deviation"), default="deviation")
-    parser.add_argument("--grid-mm", type=float, default=0.3, help="tessellation of the part meshes")
-
-
 def _numbers(spec: str) -> list[int]:
     out: list[int] = []
     for item in spec.split(","):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from app.api.programs import CHUNK_BYTES
 from tests.conftest import auth
 
 OP = auth("operator")
@@ -18,11 +19,16 @@ def test_a_400_digit_coordinate_is_a_422_naming_its_line(client):
 
 
 def test_a_program_streamed_in_pieces_keeps_its_facts(client):
-    text = "".join(f"G1 X{k % 50} Y{k % 13} Z0.{k % 9}\n" for k in range(300_000))  # several MiB pieces
+    """A program read in three ``CHUNK_BYTES`` pieces, both boundaries inside a line: its line
+    and command counts, its bounds and its stored bytes are the ones of the whole text (more
+    pieces cross no other kind of boundary)."""
+    text = "".join(f"G1 X{k % 50} Y{k % 13} Z0.{k % 9}\n" for k in range(160_000))
+    assert 2 * CHUNK_BYTES < len(text) <= 3 * CHUNK_BYTES
+    assert text[CHUNK_BYTES - 1] != "\n" and text[2 * CHUNK_BYTES - 1] != "\n"   # pieces end mid-line
     response = client.post("/api/v1/programs", files={"file": ("long.gcode", text.encode())}, headers=OP)
     assert response.status_code == 201, response.text
     body = response.json()
-    assert (body["lines"], body["commands"]) == (300_000, 300_000)
+    assert (body["lines"], body["commands"]) == (160_000, 160_000)
     assert body["bounds"] == [[0.0, 0.0, 0.0], [49.0, 12.0, 0.8]]
     stored = client.get(f"/api/v1/programs/{body['id']}/file", headers=OP)
     assert stored.content == text.encode()
