@@ -19,7 +19,7 @@ from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
 from app.jobs.results import ProgramEcho
 from app.errors import Conflict, ConformaError, InvalidInput, NotFound, TooLarge
 from app.gcode.lines import GcodeReadError
-from app.gcode.reader import ArcBudgetError
+from app.gcode.reader import ArcBudgetError, arc_chord_budget, beyond_size_budget
 from app.jobs.machine_jobs import request_resume, resume_preview
 from app.models import Artifact, Job, JobReference, Machine, Trace
 from app.problems import PROBLEM_MEDIA_TYPE, problem
@@ -192,9 +192,12 @@ def artifact_summary(job_id: str, name: str, request: Request, runtime: RuntimeD
         if artifact.bytes <= SUMMARY_INLINE_BYTES:
             text = runtime.blobs.read(artifact.sha256).decode("utf-8", errors="replace")
             try:
-                summary = program_summary(text, pivot, tcp, *dispense, max_arc_chords=SUMMARY_INLINE_CHORDS)
-            except ArcBudgetError:
-                summary = None                   # more chords than a request reads: the child reads it
+                # at most the size's budget: a refusal beyond it names the first arc over it
+                budget = min(SUMMARY_INLINE_CHORDS, arc_chord_budget(artifact.bytes))
+                summary = program_summary(text, pivot, tcp, *dispense, max_arc_chords=budget)
+            except ArcBudgetError as exc:        # beyond its size's budget: refused; else the child reads it
+                refusal = beyond_size_budget(exc, artifact.bytes)
+                summary = None if refusal is None else _refusal(name, refusal)
             except GcodeReadError as exc:
                 summary = _refusal(name, exc)
         if summary is None:

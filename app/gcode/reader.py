@@ -100,6 +100,21 @@ class ArcBudgetError(GcodeReadError):
     ``arc_tolerance_mm``; value: the line, the budget and the chords counted)."""
 
 
+def beyond_size_budget(exc: ArcBudgetError, text_bytes: int) -> ArcBudgetError | None:
+    """The refusal of a program of ``text_bytes`` bytes when the chords counted up to ``exc``
+    (raised under a budget no larger than :func:`arc_chord_budget` of its size) are already
+    beyond that budget (then ``exc``'s line is the first arc beyond it: the count before it
+    was within the smaller budget); None when reading it again with that budget may succeed."""
+    budget = arc_chord_budget(text_bytes)
+    seen = exc.value if isinstance(exc.value, dict) else {}
+    chords, line = int(seen.get("chords", 0)), seen.get("line")
+    if chords <= budget:
+        return None
+    return ArcBudgetError(f"line {line}: the arcs need at least {chords} chords, more than the {budget} a program "
+                          f"of {text_bytes} bytes may have", field=exc.field,
+                          value={"line": line, "max_chords": budget, "chords": chords})
+
+
 def arc_chord_budget(text_bytes: int) -> int:
     """The most arc chords a program of ``text_bytes`` bytes may be split into:
     ``BASE_ARC_CHORDS + ARC_CHORDS_PER_BYTE * text_bytes``, at most ``MAX_ARC_CHORDS``

@@ -20,7 +20,7 @@ from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
-from app.gcode.reader import ArcBudgetError
+from app.gcode.reader import ArcBudgetError, arc_chord_budget, beyond_size_budget
 from app.viewer.gcode_paths import ToolpathSegments, parse_toolpath
 
 log = logging.getLogger("conforma.viewer")
@@ -54,8 +54,13 @@ class ParsePool:
         segments = None
         if len(data) <= self.inline_bytes:
             try:
-                segments = parse_toolpath(data, dispense_on, dispense_off, self.inline_chords)
-            except ArcBudgetError:
+                # at most the size's budget: a refusal beyond it names the first arc over it
+                budget = min(self.inline_chords, arc_chord_budget(len(data)))
+                segments = parse_toolpath(data, dispense_on, dispense_off, budget)
+            except ArcBudgetError as exc:
+                refusal = beyond_size_budget(exc, len(data))
+                if refusal is not None:
+                    raise refusal from None
                 segments = None          # more arc chords than the API process draws: the worker's budget
         if segments is None:
             try:

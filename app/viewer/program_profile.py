@@ -18,7 +18,7 @@ import numpy as np
 
 from app.gcode.estimator import estimate_gcode
 from app.gcode.lines import read_lines
-from app.gcode.reader import ReadOptions, read_program
+from app.gcode.reader import ReadOptions, arc_chord_budget, read_program
 
 MAX_POINTS = 600
 RAPID = 0
@@ -112,5 +112,6 @@ def program_summary_file(path: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool =
     replaced), with the arc budget of its size: what a bounded child process computes for
     a program too large to summarise in a request (:func:`app.jobs.isolated.call_isolated`)."""
     with open(path, "rb") as handle:
-        text = handle.read().decode("utf-8", errors="replace")
-    return program_summary(text, pivot_mm, tcp, dispense_on, dispense_off)
+        data = handle.read()
+    text = data.decode("utf-8", errors="replace")
+    return program_summary(text, pivot_mm, tcp, dispense_on, dispense_off, arc_chord_budget(len(data)))
