@@ -169,7 +169,7 @@ def artifact_summary(job_id: str, name: str, request: Request, runtime: RuntimeD
     path (``rotary``: s_mm, a_deg, c_deg, tip_speed_mm_s; see app.viewer.program_profile).
 
     Bounded: a program of at most ``SUMMARY_INLINE_BYTES`` whose arcs need at most
-    ``SUMMARY_INLINE_CHORDS`` chords is read here (~0.3 s at most); any other in a child
+    ``SUMMARY_INLINE_CHORDS`` chords is read here (~0.5 s of CPU at most); any other in a child
     process with CONFORMA_JOB_MEMORY_MB of memory and CONFORMA_IMPORT_TIME_S of time, its
     arcs' chords counted against the budget of its size before any is made
     (:func:`app.gcode.reader.arc_chord_budget`): a 422 naming the artifact and the line
@@ -212,7 +212,7 @@ def artifact_summary(job_id: str, name: str, request: Request, runtime: RuntimeD
 
 
 #: a G-code artifact up to this size (bytes) whose arcs need at most ``SUMMARY_INLINE_CHORDS``
-#: chords is summarised in the request (the summary costs ~10 us per move: ~0.3 s at most)
+#: chords is summarised in the request (~20 us per move or chord: ~0.5 s of CPU at most)
 SUMMARY_INLINE_BYTES = 64 * 1024
 SUMMARY_INLINE_CHORDS = 20_000
 

@@ -128,3 +128,18 @@ def test_the_views_parse_draws_every_chord_within_the_budget_and_refuses_beyond(
         assert refused.value.value["line"] == 4 and "the arcs need" in refused.value.message
     finally:
         pool.close()
+
+
+def test_a_summary_beyond_the_childs_time_is_a_413_naming_the_artifact(settings_factory):
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+
+    with TestClient(create_app(settings_factory(import_time_s=0.05)), raise_server_exceptions=False) as client:
+        text = "G21 G90\nG1 X10 Y0 F600\n" + "G1 X1\nG1 X2\n" * 20_000       # 240 KB: ~2 s to summarise
+        job_id = _job_with_program(client, text)
+        refused = client.get(f"/api/v1/jobs/{job_id}/artifacts/warped.gcode/summary", headers=OP)
+        assert refused.status_code == 413, refused.text
+        assert refused.json()["errors"][0]["loc"] == ["name"]
+        assert refused.json()["errors"][0]["value"] == {"name": "warped.gcode", "bytes": len(text)}
+        assert "the summary of artifact 'warped.gcode' took longer than 0.05 s" in refused.json()["detail"]
