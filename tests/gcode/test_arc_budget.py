@@ -119,3 +119,11 @@ def test_the_default_budget_is_the_programs_size_and_refuses_at_the_exact_line()
     assert beyond_size_budget(small.value, len(text)) is None      # 316 chords counted: not yet beyond
     assert beyond_size_budget(refused.value, len(text)) is not None
     assert arc_chord_budget(10**9) == MAX_ARC_CHORDS
+
+
+def test_no_reader_is_without_a_budget():
+    from app.gcode.reader import BASE_ARC_CHORDS, ModalReader
+
+    assert ModalReader(ReadOptions()).max_arc_chords == BASE_ARC_CHORDS == arc_chord_budget(0)
+    assert ModalReader(ReadOptions(), size_bytes=1_000).max_arc_chords == BASE_ARC_CHORDS + 2_000
+    assert ModalReader(ReadOptions(max_arc_chords=7)).max_arc_chords == 7
