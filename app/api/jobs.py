@@ -5,6 +5,7 @@ from __future__ import annotations
 from datetime import datetime, timezone
 from typing import Annotated, Literal
 
+import anyio
 from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy import bindparam, func
@@ -16,7 +17,9 @@ from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.job_events import JobWatch, TooManyStreams
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
 from app.jobs.results import ProgramEcho
-from app.errors import Conflict, InvalidInput, NotFound
+from app.errors import Conflict, ConformaError, InvalidInput, NotFound, TooLarge
+from app.gcode.lines import GcodeReadError
+from app.gcode.reader import ArcBudgetError, arc_chord_budget, beyond_size_budget
 from app.jobs.machine_jobs import request_resume, resume_preview
 from app.models import Artifact, Job, JobReference, Machine, Trace
 from app.problems import PROBLEM_MEDIA_TYPE, problem
@@ -157,11 +160,20 @@ def get_artifact(job_id: str, name: str, runtime: RuntimeDep, session: SessionDe
 
 
 @router.get("/{job_id}/artifacts/{name}/summary", dependencies=[Viewer],
-            responses={422: {"description": "the artifact is not a G-code program"}})
-def artifact_summary(job_id: str, name: str, runtime: RuntimeDep, session: SessionDep) -> dict:
+            responses={413: {"description": "the program needs more memory or time than a summary may take"},
+                       422: {"description": "the artifact is not a G-code program, or its arcs need more chords "
+                                            "than its size allows"}})
+def artifact_summary(job_id: str, name: str, request: Request, runtime: RuntimeDep, session: SessionDep) -> dict:
     """A G-code artifact as an operator reads it before printing: its lines, the
     estimated time (s) and, for a five-axis program, its A/C angles and tip speed along the
-    path (``rotary``: s_mm, a_deg, c_deg, tip_speed_mm_s; see app.viewer.program_profile)."""
+    path (``rotary``: s_mm, a_deg, c_deg, tip_speed_mm_s; see app.viewer.program_profile).
+
+    Bounded: a program of at most ``SUMMARY_INLINE_BYTES`` whose arcs need at most
+    ``SUMMARY_INLINE_CHORDS`` chords is read here (~0.5 s of CPU at most); any other in a child
+    process with CONFORMA_JOB_MEMORY_MB of memory and CONFORMA_IMPORT_TIME_S of time, its
+    arcs' chords counted against the budget of its size before any is made
+    (:func:`app.gcode.reader.arc_chord_budget`): a 422 naming the artifact and the line
+    beyond it, a 413 beyond the memory or time."""
     from app.viewer.program_profile import program_summary
 
     job = get_or_404(session, Job, job_id)
@@ -176,14 +188,66 @@ def artifact_summary(job_id: str, name: str, runtime: RuntimeDep, session: Sessi
     dispense = (echo.dispense_on, echo.dispense_off)
     key = (artifact.sha256, tuple(pivot), tcp, dispense)
     if key not in _SUMMARIES:
-        text = runtime.blobs.read(artifact.sha256).decode("utf-8", errors="replace")
+        summary: dict | InvalidInput | None = None
+        if artifact.bytes <= SUMMARY_INLINE_BYTES:
+            text = runtime.blobs.read(artifact.sha256).decode("utf-8", errors="replace")
+            try:
+                # at most the size's budget: a refusal beyond it names the first arc over it
+                budget = min(SUMMARY_INLINE_CHORDS, arc_chord_budget(artifact.bytes))
+                summary = program_summary(text, pivot, tcp, *dispense, max_arc_chords=budget)
+            except ArcBudgetError as exc:        # beyond its size's budget: refused; else the child reads it
+                refusal = beyond_size_budget(exc, artifact.bytes)
+                summary = None if refusal is None else _refusal(name, refusal)
+            except GcodeReadError as exc:
+                summary = _refusal(name, exc)
+        if summary is None:
+            summary = _summary_isolated(runtime, request, artifact, name, pivot, tcp, dispense)
         while len(_SUMMARIES) >= 64:
             _SUMMARIES.pop(next(iter(_SUMMARIES)))
-        _SUMMARIES[key] = program_summary(text, pivot, tcp, *dispense)
-    return {"job_id": job_id, "name": name, "kind": job.kind, "sha256": artifact.sha256, **_SUMMARIES[key]}
+        _SUMMARIES[key] = summary
+    cached = _SUMMARIES[key]
+    if isinstance(cached, InvalidInput):
+        raise InvalidInput(cached.message, field=cached.field, value=cached.value)
+    return {"job_id": job_id, "name": name, "kind": job.kind, "sha256": artifact.sha256, **cached}
 
 
-_SUMMARIES: dict[tuple, dict] = {}  # by content (and frame): a program's summary never changes
+#: a G-code artifact up to this size (bytes) whose arcs need at most ``SUMMARY_INLINE_CHORDS``
+#: chords is summarised in the request (~20 us per move or chord: ~0.5 s of CPU at most)
+SUMMARY_INLINE_BYTES = 64 * 1024
+SUMMARY_INLINE_CHORDS = 20_000
+
+
+def _refusal(name: str, exc: ConformaError) -> InvalidInput:
+    """The 422 of an artifact whose program cannot be read: field ``name``, the artifact and
+    what the reader said (the line, the chord budget)."""
+    value = {"name": name, **(exc.value if isinstance(exc.value, dict) else {"detail": exc.value})}
+    return InvalidInput(f"artifact {name!r}: {exc.message}", field="name", value=value)
+
+
+def _summary_isolated(runtime, request: Request, artifact: Artifact, name: str, pivot: list[float],  # type: ignore[no-untyped-def]
+                      tcp: bool, dispense: tuple[str | None, str | None]) -> dict | InvalidInput:
+    """The summary computed in a bounded child process (:func:`app.jobs.isolated.call_isolated`)
+    from the stored file; a refusal of its program as a 422 (returned, to be remembered);
+    TooLarge (413) naming the artifact beyond the memory or time; killed when the client
+    goes away."""
+    from app.jobs.isolated import call_isolated
+    from app.viewer.program_profile import program_summary_file
+
+    settings = runtime.settings
+    what = f"the summary of artifact {name!r}"
+    try:
+        summary: dict = call_isolated(
+            program_summary_file, str(runtime.blobs.path(artifact.sha256)), pivot, tcp, *dispense,
+            memory_bytes=int(settings.job_memory_mb * 2**20), time_s=settings.import_time_s, what=what,
+            cancelled=lambda: bool(anyio.from_thread.run(request.is_disconnected)))
+    except TooLarge as exc:
+        raise TooLarge(exc.message, field="name", value={"name": name, "bytes": artifact.bytes}) from None
+    except InvalidInput as exc:
+        return _refusal(name, exc)
+    return summary
+
+
+_SUMMARIES: dict[tuple, dict | InvalidInput] = {}  # by content (and frame): a summary (or refusal) never changes
 
 
 @router.get("/{job_id}/resume", dependencies=[Operator],

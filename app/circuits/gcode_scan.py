@@ -38,7 +38,7 @@ import numpy.typing as npt
 
 from app.circuits.errors import WarpError
 from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
-from app.gcode.reader import HOME, ArcBudgetError, ModalReader, ReadOptions
+from app.gcode.reader import HOME, ArcBudgetError, ModalReader, ReadOptions, arc_chord_budget
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
 __all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_line", "MIN_ARC_CHORD_MM", "PRINT", "TRAVEL", "ZONLY",
@@ -61,10 +61,6 @@ UNMODELLED_AXES = frozenset("ABCUVW")
 CARRIED_LETTERS = frozenset("MST")
 #: letters whose meaning the warp takes over on a rewritten line
 REWRITTEN_LETTERS = frozenset("GNXYZEIJRF")
-#: an arc budget: this many chords, plus ``ARC_CHORDS_PER_BYTE`` per byte of program, at most ``MAX_ARC_CHORDS``
-BASE_ARC_CHORDS = 10_000
-ARC_CHORDS_PER_BYTE = 2
-MAX_ARC_CHORDS = 1_000_000
 #: the smallest arc chord sagitta (mm) the warp accepts
 MIN_ARC_CHORD_MM = 1e-4
 
@@ -114,11 +110,6 @@ class Records:
 def refuse_line(number: int, text: str, message: str, field: str = "file") -> WarpError:
     """A WarpError naming source line ``number`` (1-based) and its text."""
     return WarpError(f"line {number}: {message}", field=field, value={"line": number, "text": text.strip()[:80]})
-
-
-def arc_chord_budget(text_bytes: int) -> int:
-    """The most arc chords a program of ``text_bytes`` bytes may be split into."""
-    return min(MAX_ARC_CHORDS, BASE_ARC_CHORDS + ARC_CHORDS_PER_BYTE * text_bytes)
 
 
 def scan_program(text: str, arc_chord_mm: float = 0.001) -> Records:

@@ -21,11 +21,16 @@ import numpy.typing as npt
 
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 
-__all__ = ["ArcCircles", "arc_circles", "arc_extents", "FULL_CIRCLE_SWEEP_RAD"]
+__all__ = ["ArcCircles", "arc_circles", "arc_extents", "arc_chord_counts", "FULL_CIRCLE_SWEEP_RAD",
+           "MIN_ARC_TOLERANCE_MM", "MIN_ARC_STEP_RAD"]
 
 #: an arc whose end angle is within this (rad) of its start angle, against its direction,
 #: sweeps a full circle
 FULL_CIRCLE_SWEEP_RAD = 1e-12
+#: floor (mm) of the chord tolerance an arc is flattened with
+MIN_ARC_TOLERANCE_MM = 1e-6
+#: floor (rad) of an arc's angular step: one arc is at most 2 pi / this many chords
+MIN_ARC_STEP_RAD = 1e-6
 _QUARTER = math.pi / 2
 #: cos and sin of k * 90 degrees, k mod 4 (exact: no 6e-17 for cos 90)
 _COS = np.array([1.0, 0.0, -1.0, 0.0])
@@ -93,6 +98,21 @@ def arc_circles(start: Floats, end: Floats, clockwise: npt.NDArray[np.bool_], ij
             text = f"arc end is not on its circle (radius {float(r0[i]):.4f} vs {float(r1[i]):.4f} mm)"
         problem = (i, text)
     return ArcCircles(centre, r0, r1, a0, sweep, problem)
+
+
+def arc_chord_counts(r0: Floats, sweep: Floats, tolerance_mm: float) -> Floats:
+    """(k,) float: the chords each of k arcs of start radius ``r0`` (k,) mm and signed
+    ``sweep`` (k,) rad is split into at a sagitta of ``tolerance_mm`` (floored at
+    :data:`MIN_ARC_TOLERANCE_MM`): n = ceil(|sweep| / step), step = 2 acos(1 - tol / r0)
+    (a quarter turn when tol >= r0), at least :data:`MIN_ARC_STEP_RAD`; at least 1.  Counted
+    without making any chord, whatever the radius: the modal reader splits each arc into
+    exactly this many (:class:`app.gcode.reader.ModalReader`)."""
+    tol = max(float(tolerance_mm), MIN_ARC_TOLERANCE_MM)
+    r0 = np.asarray(r0, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        step = np.where(tol < r0, 2.0 * np.arccos(np.maximum(1.0 - tol / r0, -1.0)), math.pi / 2)
+    count: Floats = np.maximum(1.0, np.ceil(np.abs(sweep) / np.maximum(step, MIN_ARC_STEP_RAD)))
+    return count
 
 
 def arc_extents(start: Floats, end: Floats, circles: ArcCircles) -> tuple[Floats, Floats]:

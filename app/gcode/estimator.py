@@ -190,12 +190,13 @@ def _apply_limit_commands(limits: MachineLimits,
     return limits
 
 
-def estimate_gcode(text: str, limits: MachineLimits = MachineLimits()) -> TimeEstimate:
+def estimate_gcode(text: str, limits: MachineLimits = MachineLimits(), max_arc_chords: int | None = None) -> TimeEstimate:
     """Estimate the run time of G-code ``text`` as :func:`app.gcode.reader.read_program`
-    reads it (arcs timed along their chords at the reader's tolerance).  The last
+    reads it (arcs timed along their chords at the reader's tolerance, at most
+    ``max_arc_chords`` of them: by default the budget of the text's size).  The last
     M201/M203/M204/M205 seen applies to the whole file (limits are normally set once in
     the start section)."""
-    return estimate_program(read_program(text, ReadOptions(feed_mm_s=25.0)), limits)
+    return estimate_program(read_program(text, ReadOptions(feed_mm_s=25.0, max_arc_chords=max_arc_chords)), limits)
 
 
 def estimate_program(program: Program, limits: MachineLimits = MachineLimits()) -> TimeEstimate:

@@ -24,10 +24,9 @@ import numpy as np
 import numpy.typing as npt
 
 from app.errors import InvalidInput
-from app.gcode.arcs import ArcCircles, arc_circles, arc_extents
+from app.gcode.arcs import MIN_ARC_TOLERANCE_MM, ArcCircles, arc_chord_counts, arc_circles, arc_extents
 from app.gcode.lines import GcodeLine, GcodeReadError, iter_lines
-from app.gcode.reader import (ARC_CCW, ARC_CW, HOME, MIN_ARC_STEP_RAD, MIN_ARC_TOLERANCE_MM, SETTING_CODES,
-                              ModalReader, ReadOptions)
+from app.gcode.reader import ARC_CCW, ARC_CW, HOME, SETTING_CODES, ModalReader, ReadOptions
 
 __all__ = ["BoundsScan", "LineBounds"]
 
@@ -152,7 +151,7 @@ class LineBounds(ModalReader):
         self.low = np.full(3, np.inf)
         self.high = np.full(3, -np.inf)
         self.arc_chord_mm = arc_chord_mm
-        self.max_arc_chords = max_arc_chords
+        self.chord_limit = max_arc_chords  # counting only: None counts without a limit
         self.chords = 0
 
     def line(self, parsed: GcodeLine) -> None:
@@ -207,11 +206,9 @@ class LineBounds(ModalReader):
         (counted, none made); GcodeReadError (field ``arc_chord_mm``) at the arc that takes
         the count beyond ``max_arc_chords``."""
         tol = max(float(self.arc_chord_mm or 0.0), MIN_ARC_TOLERANCE_MM)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            step = np.where(tol < circles.r0, 2.0 * np.arccos(np.maximum(1.0 - tol / circles.r0, -1.0)), math.pi / 2)
-        count = np.maximum(1, np.ceil(np.abs(circles.sweep) / np.maximum(step, MIN_ARC_STEP_RAD)))
+        count = arc_chord_counts(circles.r0, circles.sweep, tol)
         total = self.chords + np.cumsum(count)
-        budget = self.max_arc_chords
+        budget = self.chord_limit
         if budget is not None and total[-1] > budget:
             i = int(np.argmax(total > budget))
             raise GcodeReadError(f"line {int(number[i])}: the arcs need more than {budget} chords at a chord "

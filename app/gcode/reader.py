@@ -21,7 +21,10 @@ Semantics (RS274/NGC as Marlin, grbl and LinuxCNC share them):
   ``G92`` shift (Marlin's behaviour); it is reported as a move flagged ``home``;
 * ``G2``/``G3`` arcs in the XY plane (``G17``; ``G18``/``G19`` are refused) with ``I J``
   centre offsets or ``R`` radius, helical in Z and linear in E, are split into chords whose
-  sagitta is at most ``arc_tolerance_mm``;
+  sagitta is at most ``arc_tolerance_mm`` (:func:`app.gcode.arcs.arc_chord_counts`).  Each
+  arc's chords are counted before any is made, against a budget derived from the program's
+  size (:func:`arc_chord_budget`): an arc of radius 1e9 mm is refused naming its line
+  (:class:`ArcBudgetError`) in microseconds, never expanded;
 * ``G4 P<ms>`` / ``G4 S<s>`` dwell: the machine stops there;
 * axis words on a line with an M code and no G code are that code's arguments (``M92 X80``),
   except beside the dispenser's and E mode's codes; G10, G53, G38.x... own their axis words too;
@@ -43,16 +46,15 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from app.gcode.arcs import FULL_CIRCLE_SWEEP_RAD, MIN_ARC_TOLERANCE_MM, arc_chord_counts
 from app.gcode.lines import GcodeLine, GcodeReadError, iter_lines, read_lines
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 
-#: an arc whose end angle is within this (rad) of its start angle, against its direction,
-#: sweeps a full circle
-_FULL_CIRCLE_SWEEP_RAD = 1e-12
-#: floor (mm) of the chord tolerance an arc is flattened with
-MIN_ARC_TOLERANCE_MM = 1e-6
-#: floor (rad) of an arc's angular step so that its segment count stays finite
-MIN_ARC_STEP_RAD = 1e-6
+#: an arc budget: this many chords, plus ``ARC_CHORDS_PER_BYTE`` per byte of program, at most
+#: ``MAX_ARC_CHORDS`` (:func:`arc_chord_budget`)
+BASE_ARC_CHORDS = 10_000
+ARC_CHORDS_PER_BYTE = 2
+MAX_ARC_CHORDS = 1_000_000
 
 INCH_MM = 25.4
 DEFAULT_ON = frozenset({"M106", "M8", "M3", "M4", "M7"})
@@ -81,7 +83,8 @@ class ReadOptions:
     ``keep_still``: a motion line that moves nothing (a repeated retract) is reported as a
     zero-length move instead of left out; ``max_arc_chords``: the most chords all arcs
     together may be split into, counted before any is expanded (:class:`ArcBudgetError`
-    beyond it; None: no limit).
+    beyond it); None: :func:`arc_chord_budget` of the program's size (there is no unbounded
+    reading).
     """
 
     dispense_on: str | None = None
@@ -93,7 +96,30 @@ class ReadOptions:
 
 
 class ArcBudgetError(GcodeReadError):
-    """The program's arcs need more chords than :attr:`ReadOptions.max_arc_chords` allows."""
+    """The program's arcs need more chords than their budget allows (field
+    ``arc_tolerance_mm``; value: the line, the budget and the chords counted)."""
+
+
+def beyond_size_budget(exc: ArcBudgetError, text_bytes: int) -> ArcBudgetError | None:
+    """The refusal of a program of ``text_bytes`` bytes when the chords counted up to ``exc``
+    (raised under a budget no larger than :func:`arc_chord_budget` of its size) are already
+    beyond that budget (then ``exc``'s line is the first arc beyond it: the count before it
+    was within the smaller budget); None when reading it again with that budget may succeed."""
+    budget = arc_chord_budget(text_bytes)
+    seen = exc.value if isinstance(exc.value, dict) else {}
+    chords, line = int(seen.get("chords", 0)), seen.get("line")
+    if chords <= budget:
+        return None
+    return ArcBudgetError(f"line {line}: the arcs need at least {chords} chords, more than the {budget} a program "
+                          f"of {text_bytes} bytes may have", field=exc.field,
+                          value={"line": line, "max_chords": budget, "chords": chords})
+
+
+def arc_chord_budget(text_bytes: int) -> int:
+    """The most arc chords a program of ``text_bytes`` bytes may be split into:
+    ``BASE_ARC_CHORDS + ARC_CHORDS_PER_BYTE * text_bytes``, at most ``MAX_ARC_CHORDS``
+    (a chord costs ~2 us and ~250 bytes while read: 1e6 chords ~2 s, ~250 MB)."""
+    return min(MAX_ARC_CHORDS, BASE_ARC_CHORDS + ARC_CHORDS_PER_BYTE * max(0, int(text_bytes)))
 
 
 @dataclass(frozen=True)
@@ -202,10 +228,14 @@ _INTS_PER_ROW = 5  # motion, dispense, layer, line, stop_before
 class ModalReader:
     """The modal interpreter: fed line by line (:meth:`line`), it collects moves (one per move
     or arc chord, stored compactly; :meth:`moves_from` gives them as :class:`MoveRow`), dwells
-    and limits; :meth:`program` gathers them."""
+    and limits; :meth:`program` gathers them.  ``size_bytes``: the program's size, from
+    which the arcs' chord budget is derived unless ``options.max_arc_chords`` gives one
+    (:func:`arc_chord_budget`; 0: the base budget)."""
 
-    def __init__(self, options: ReadOptions) -> None:
+    def __init__(self, options: ReadOptions, size_bytes: int = 0) -> None:
         self.options = options
+        self.max_arc_chords = (options.max_arc_chords if options.max_arc_chords is not None
+                               else arc_chord_budget(size_bytes))
         self.on_line = _normalise(options.dispense_on)
         self.off_line = _normalise(options.dispense_off)
         self.state = _State(feed=options.feed_mm_s)
@@ -377,18 +407,18 @@ class ModalReader:
         a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
         sweep = a1 - a0
         if clockwise:
-            sweep = sweep - 2 * math.pi if sweep >= -_FULL_CIRCLE_SWEEP_RAD else sweep
+            sweep = sweep - 2 * math.pi if sweep >= -FULL_CIRCLE_SWEEP_RAD else sweep
         else:
-            sweep = sweep + 2 * math.pi if sweep <= _FULL_CIRCLE_SWEEP_RAD else sweep
+            sweep = sweep + 2 * math.pi if sweep <= FULL_CIRCLE_SWEEP_RAD else sweep
         tol = max(self.options.arc_tolerance_mm, MIN_ARC_TOLERANCE_MM)
-        step = 2.0 * math.acos(max(1.0 - tol / r0, -1.0)) if tol < r0 else math.pi / 2
-        count = max(1, int(math.ceil(abs(sweep) / max(step, MIN_ARC_STEP_RAD))))
-        self.chords += count
-        budget = self.options.max_arc_chords
-        if budget is not None and self.chords > budget:
+        count = int(arc_chord_counts(np.array([r0]), np.array([sweep]), tol)[0])
+        budget = self.max_arc_chords
+        if self.chords + count > budget:
             raise ArcBudgetError(f"line {number}: the arcs need more than {budget} chords at a chord "
-                                 f"tolerance of {tol:g} mm", field="arc_tolerance_mm",
-                                 value={"line": number, "max_chords": budget})
+                                 f"tolerance of {tol:g} mm (this arc of radius {r0:g} mm alone: {count})",
+                                 field="arc_tolerance_mm",
+                                 value={"line": number, "max_chords": budget, "chords": self.chords + count})
+        self.chords += count
         t = np.linspace(0.0, 1.0, count + 1)
         angle = a0 + sweep * t
         radius_t = r0 + (r1 - r0) * t
@@ -433,14 +463,16 @@ def read_program(text: str | bytes, options: ReadOptions = ReadOptions()) -> Pro
     """Every move of G-code ``text`` (see the module docstring for the rules).
 
     Raises :class:`GcodeReadError` (field ``gcode``) when the bytes are not UTF-8 or an arc
-    is malformed.
+    is malformed, :class:`ArcBudgetError` when the arcs need more chords than
+    ``options.max_arc_chords`` (default: :func:`arc_chord_budget` of the text's size).
     """
+    size = len(text)  # characters of a str: at most its bytes, so its budget is never larger
     if isinstance(text, bytes):
         try:
             text = text.decode("utf-8")
         except UnicodeDecodeError as exc:
             raise GcodeReadError("the program is not UTF-8 text", field="gcode", value=str(exc)[:80]) from None
-    reader = ModalReader(options)
+    reader = ModalReader(options, size)
     for parsed in iter_lines(text, strict=False):
         reader.line(parsed)
     return reader.program()

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.gcode.reader import GcodeReadError, ReadOptions, read_program
+from app.gcode.reader import ArcBudgetError, GcodeReadError, ReadOptions, read_program
+
 
 class GcodeViewError(GcodeReadError):
     """A program cannot be read for the view (not text, or no moves)."""
@@ -46,15 +47,21 @@ class ToolpathSegments:
 
 
 def parse_toolpath(text: str | bytes, dispense_on: str | None = None,
-                   dispense_off: str | None = None) -> ToolpathSegments:
+                   dispense_off: str | None = None, max_arc_chords: int | None = None) -> ToolpathSegments:
     """Segments of every move of ``text`` (see the module docstring for the rules).
 
     ``dispense_on``/``dispense_off``: the profile's exact lines (as a job result echoes
-    them); when given they replace the default command words.
-    Raises GcodeViewError when the text is not UTF-8 or has no move.
+    them); when given they replace the default command words.  ``max_arc_chords``: the
+    most chords its arcs may be drawn with (default: the budget of the text's size,
+    :func:`app.gcode.reader.arc_chord_budget`), counted before any is made.
+    Raises GcodeViewError when the text is not UTF-8 or has no move,
+    :class:`ArcBudgetError` (naming the line) when its arcs need more chords.
     """
     try:
-        program = read_program(text, ReadOptions(dispense_on=dispense_on, dispense_off=dispense_off))
+        program = read_program(text, ReadOptions(dispense_on=dispense_on, dispense_off=dispense_off,
+                                                 max_arc_chords=max_arc_chords))
+    except ArcBudgetError:
+        raise
     except GcodeReadError as exc:
         raise GcodeViewError(exc.message, field="gcode", value=exc.value) from None
     previous_rot = np.vstack([np.zeros((1, 2)), program.rotary[:-1]]) if program.count else program.rotary

@@ -17,6 +17,7 @@ import numpy as np
 from sqlmodel import Session, select
 
 from app.errors import NotFound
+from app.gcode.lines import GcodeReadError
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
 from app.models import Artifact, Job, JobReference, Part, Trace
@@ -27,6 +28,7 @@ from app.jobs.results import (CompensateResult, ProbePlanResult, ProbeRunResult,
                               SurfaceFitResult, compensate_rows, program_artifacts, reconstruct_rows)
 from app.records import get_or_404, joint_trace_ranges
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
+from app.viewer.gcode_paths import GcodeViewError
 from app.viewer.offload import ParsePool
 from app.viewer.scene_data import (
     AxisGlyphs,
@@ -96,7 +98,10 @@ class Loader:
                               f"{job.kind} {job.id} ({job.status})", vertices, faces)
             if job.status != "succeeded":
                 return replace(base, notes=(f"job is {job.status}: {job.message}",))
-            content = self._content(session, job)
+            try:
+                content = self._content(session, job)
+            except GcodeReadError as exc:   # a program the view refuses to draw (its arcs' chords...)
+                return replace(base, notes=(f"cannot draw this job's program {exc.message}",))
         return replace(content, focus=base.focus, title=base.title, mesh_vertices=vertices, mesh_faces=faces)
 
     # records ---------------------------------------------------------------------------
@@ -134,7 +139,10 @@ class Loader:
         row = self._artifact_row(session, job.id, name)
         if row is None:
             return None
-        return self.parser.parse(self.runtime.blobs.read(row.sha256), *_dispense_lines(job), key=row.sha256)
+        try:
+            return self.parser.parse(self.runtime.blobs.read(row.sha256), *_dispense_lines(job), key=row.sha256)
+        except GcodeReadError as exc:
+            raise GcodeViewError(f"{name}: {exc.message}", field="name", value=exc.value) from None
 
     def _trace(self, session: Session, trace_id: str | None) -> Trace | None:
         return session.get(Trace, trace_id) if trace_id else None

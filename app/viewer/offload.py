@@ -2,9 +2,13 @@
 
 Parsing 100k moves is ~2 s of pure Python: done in the API process it holds the GIL and
 every API request queues behind it (the convoy effect measured in
-tests/bench/test_bench_viewer.py).  Programs above ``inline_bytes`` are parsed in one
-spawned worker process; the result (arrays) comes back pickled.  Parsed programs are
-cached by their content hash, so opening the same job again is immediate.
+tests/bench/test_bench_viewer.py).  Programs above ``inline_bytes``, and programs whose
+arcs need more than ``inline_chords`` chords (counted before any is made), are parsed in
+one spawned worker process, with the arc budget of their size
+(:func:`app.gcode.reader.arc_chord_budget`); the result (arrays) comes back pickled.  A
+program beyond that budget is refused (:class:`app.gcode.reader.ArcBudgetError` naming
+the line), never expanded.  Parsed programs are cached by their content hash, so opening
+the same job again is immediate.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
+from app.gcode.reader import ArcBudgetError, arc_chord_budget, beyond_size_budget
 from app.viewer.gcode_paths import ToolpathSegments, parse_toolpath
 
 log = logging.getLogger("conforma.viewer")
@@ -24,8 +29,9 @@ log = logging.getLogger("conforma.viewer")
 class ParsePool:
     """``parse(data, on, off, key)`` -> ToolpathSegments, off the API's GIL when large."""
 
-    def __init__(self, inline_bytes: int = 200_000, cache_size: int = 8) -> None:
+    def __init__(self, inline_bytes: int = 200_000, cache_size: int = 8, inline_chords: int = 20_000) -> None:
         self.inline_bytes = inline_bytes
+        self.inline_chords = inline_chords
         self.cache_size = cache_size
         self._cache: OrderedDict[tuple, ToolpathSegments] = OrderedDict()
         self._lock = threading.Lock()
@@ -45,16 +51,25 @@ class ParsePool:
                 if cache_key in self._cache:
                     self._cache.move_to_end(cache_key)
                     return self._cache[cache_key]
+        segments = None
         if len(data) <= self.inline_bytes:
-            segments = parse_toolpath(data, dispense_on, dispense_off)
-        else:
+            try:
+                # at most the size's budget: a refusal beyond it names the first arc over it
+                budget = min(self.inline_chords, arc_chord_budget(len(data)))
+                segments = parse_toolpath(data, dispense_on, dispense_off, budget)
+            except ArcBudgetError as exc:
+                refusal = beyond_size_budget(exc, len(data))
+                if refusal is not None:
+                    raise refusal from None
+                segments = None          # more arc chords than the API process draws: the worker's budget
+        if segments is None:
             try:
                 segments = self._executor().submit(parse_toolpath, data, dispense_on, dispense_off).result()
             except (BrokenProcessPool, OSError, RuntimeError):
                 log.warning("G-code worker process unavailable; parsing in the API process", exc_info=True)
                 with self._lock:
                     self._pool = None
-                segments = parse_toolpath(data, dispense_on, dispense_off)
+                segments = parse_toolpath(data, dispense_on, dispense_off, self.inline_chords)
         if cache_key is not None:
             with self._lock:
                 self._cache[cache_key] = segments

@@ -18,7 +18,7 @@ import numpy as np
 
 from app.gcode.estimator import estimate_gcode
 from app.gcode.lines import read_lines
-from app.gcode.reader import ReadOptions, read_program
+from app.gcode.reader import ReadOptions, arc_chord_budget, read_program
 
 MAX_POINTS = 600
 RAPID = 0
@@ -87,14 +87,31 @@ def rotary_profile(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False
 
 
 def program_summary(text: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False,
-                    dispense_on: str | None = None, dispense_off: str | None = None) -> dict[str, Any]:
+                    dispense_on: str | None = None, dispense_off: str | None = None,
+                    max_arc_chords: int | None = None) -> dict[str, Any]:
     """``{lines, time_s, timing, rotary}`` of a G-code text (see the module doc);
-    ``time_s`` of a five-axis program counts every feed line, its profile the dispensing ones."""
-    lines = text.splitlines()
-    rotary = rotary_profile(text, pivot_mm, tcp, options=ReadOptions(dispense_on=dispense_on, dispense_off=dispense_off))
+    ``time_s`` of a five-axis program counts every feed line, its profile the dispensing ones.
+    Its arcs may need at most ``max_arc_chords`` chords (default: the budget of the text's
+    size, :func:`app.gcode.reader.arc_chord_budget`), counted before any is made
+    (:class:`app.gcode.reader.ArcBudgetError` naming the line beyond it)."""
+    lines = len(text.splitlines())
+    options = ReadOptions(dispense_on=dispense_on, dispense_off=dispense_off, max_arc_chords=max_arc_chords)
+    rotary = rotary_profile(text, pivot_mm, tcp, options=options)
     if rotary is not None:
         time_s, timing = rotary["time_s"], "five-axis feed lines (G93 inverse time / G94 feed), rapids not counted"
     else:
-        time_s, timing = estimate_gcode(text).total_s, "app.gcode.estimator (trapezoids, junction deviation)"
-    return {"lines": len(lines), "time_s": float(time_s),
+        time_s = estimate_gcode(text, max_arc_chords=max_arc_chords).total_s
+        timing = "app.gcode.estimator (trapezoids, junction deviation)"
+    return {"lines": lines, "time_s": float(time_s),
             "timing": timing, "rotary": rotary}
+
+
+def program_summary_file(path: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool = False,
+                         dispense_on: str | None = None, dispense_off: str | None = None) -> dict[str, Any]:
+    """:func:`program_summary` of the program stored at ``path`` (UTF-8, undecodable bytes
+    replaced), with the arc budget of its size: what a bounded child process computes for
+    a program too large to summarise in a request (:func:`app.jobs.isolated.call_isolated`)."""
+    with open(path, "rb") as handle:
+        data = handle.read()
+    text = data.decode("utf-8", errors="replace")
+    return program_summary(text, pivot_mm, tcp, dispense_on, dispense_off, arc_chord_budget(len(data)))
