@@ -53,7 +53,7 @@ from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 #: an arc budget: this many chords, plus ``ARC_CHORDS_PER_BYTE`` per byte of program, at most
 #: ``MAX_ARC_CHORDS`` (:func:`arc_chord_budget`)
 BASE_ARC_CHORDS = 10_000
-ARC_CHORDS_PER_BYTE = 2
+ARC_CHORDS_PER_BYTE = 8  # a 20-byte full-circle line may hold r ~ 8 mm at 0.002 mm: real drill and outline circles pass
 MAX_ARC_CHORDS = 1_000_000
 
 INCH_MM = 25.4

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from app.gcode.arcs import MIN_ARC_TOLERANCE_MM, arc_chord_counts
 from app.gcode.lines import GcodeReadError
 from app.gcode.program_bounds import BoundsScan
-from app.gcode.reader import (ARC_CCW, ARC_CW, MAX_ARC_CHORDS, ArcBudgetError, ReadOptions, arc_chord_budget,
+from app.gcode.reader import (ARC_CCW, ARC_CHORDS_PER_BYTE, ARC_CW, MAX_ARC_CHORDS, ArcBudgetError, ReadOptions, arc_chord_budget,
                               beyond_size_budget, read_program)
 
 
@@ -94,7 +94,7 @@ def test_a_radius_of_1e9_at_a_tiny_tolerance_is_refused_naming_its_line_before_a
     assert time.process_time() - before < 0.05
     assert refused.value.message.startswith("line 3: ")
     assert refused.value.value["line"] == 3
-    assert refused.value.value["max_chords"] == arc_chord_budget(len(text)) == 10_000 + 2 * len(text)
+    assert refused.value.value["max_chords"] == arc_chord_budget(len(text)) == 10_000 + ARC_CHORDS_PER_BYTE * len(text)
     assert refused.value.value["chords"] == math.ceil(2 * math.pi / 1e-6)   # the floor of the angular step
 
 
@@ -103,13 +103,14 @@ def test_the_default_budget_is_the_programs_size_and_refuses_at_the_exact_line()
     circle = "G2 X10 Y0 I-10 J0\n"                  # 158 chords at the default 0.002 mm
     text = head + circle * 1000
     budget = arc_chord_budget(len(text))
-    assert budget == 10_000 + 2 * len(text)
+    assert budget == 10_000 + ARC_CHORDS_PER_BYTE * len(text)
     with pytest.raises(ArcBudgetError) as refused:
         read_program(text)
     first_over = budget // 158 + 1                  # the circle that takes the count past the budget
     assert refused.value.value == {"line": first_over + 1, "max_chords": budget, "chords": 158 * first_over}
-    # the most such circles a program may hold: 158 n <= 10,000 + 2 (len(head) + n len(circle))
-    n = (10_000 + 2 * len(head)) // (158 - 2 * len(circle))
+    # the most such circles a program may hold: 158 n <= 10,000 + k (len(head) + n len(circle))
+    k = ARC_CHORDS_PER_BYTE
+    n = (10_000 + k * len(head)) // (158 - k * len(circle))
     assert read_program(head + circle * n).count == 1 + 158 * n     # every chord of them
     with pytest.raises(ArcBudgetError):
         read_program(head + circle * (n + 1))
@@ -125,5 +126,5 @@ def test_no_reader_is_without_a_budget():
     from app.gcode.reader import BASE_ARC_CHORDS, ModalReader
 
     assert ModalReader(ReadOptions()).max_arc_chords == BASE_ARC_CHORDS == arc_chord_budget(0)
-    assert ModalReader(ReadOptions(), size_bytes=1_000).max_arc_chords == BASE_ARC_CHORDS + 2_000
+    assert ModalReader(ReadOptions(), size_bytes=1_000).max_arc_chords == BASE_ARC_CHORDS + ARC_CHORDS_PER_BYTE * 1_000
     assert ModalReader(ReadOptions(max_arc_chords=7)).max_arc_chords == 7

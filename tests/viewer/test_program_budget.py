@@ -92,12 +92,12 @@ def test_a_small_program_with_arcs_gets_its_exact_summary_in_the_request(vclient
 
 
 def test_programs_beyond_the_requests_share_are_summarised_in_a_bounded_child(vclient):
-    # 200 turns = 31,600 chords: more than a request reads, within the 10,000 + 2 / byte budget
+    # 200 turns = 31,600 chords: more than a request reads, within the 10,000 + 8 / byte budget
     # of a program padded to 20 KB with feed lines
     pad = "G1 X10 Y0\n" * 1_100
     fits = "G21 G90\nG1 X10 Y0 F600\n" + pad + CIRCLE * 200
     assert 31_600 <= arc_chord_budget(len(fits))
-    beyond = "G21 G90\nG1 X10 Y0 F600\n" + CIRCLE * 200                  # 3.8 KB: budget 17,676
+    beyond = "G21 G90\nG1 X10 Y0 F600\n" + CIRCLE * 800                  # 14.4 KB: budget 125,400
     job_fits, job_beyond = _job_with_program(vclient, fits), _job_with_program(vclient, beyond)
     summary = vclient.get(f"/api/v1/jobs/{job_fits}/artifacts/warped.gcode/summary", headers=OP)
     assert summary.status_code == 200, summary.text
