@@ -104,7 +104,8 @@ class Dialect:
       stall poke asks first; None: none (Marlin's ``M105``/``M114`` queue behind a
       blocking command).
     Mock
-      ``mock_dispense``: the mock world's default dispenser on/off commands.
+      ``mock_dispense``: the dispenser on/off commands a machine of this dialect uses unless
+      its profile says otherwise (the mock world's too; :func:`default_dispense`).
     """
 
     name: str
@@ -212,3 +213,14 @@ def dialect(name: str) -> Dialect:
         raise UnknownDialect(f"unknown dialect {name!r}; expected one of {', '.join(DIALECTS)}",
                              field="dialect", value=str(name)[:40])
     return found
+
+
+#: LinuxCNC's dispenser: digital output 0 (``motion.digital-out-00``), synchronised with motion
+LINUXCNC_DISPENSE = ("M64 P0", "M65 P0")
+
+
+def default_dispense(name: str) -> tuple[str, str]:
+    """The dispenser on/off commands a ``name`` machine (a serial dialect or ``linuxcnc``)
+    gets when its profile names none: Marlin's fan output ``M106``/``M107``, grbl's spindle
+    ``M3``/``M5`` (grbl has no fan word: ``M106`` is its ``error:20``), LinuxCNC ``M64``/``M65 P0``."""
+    return LINUXCNC_DISPENSE if name == "linuxcnc" else dialect(name).mock_dispense

@@ -5,10 +5,10 @@ from __future__ import annotations
 import re
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
 
 from app.api.schemas import Finite, Strict, UtcDatetime
-from hardware.dialects import DEFAULT_DIALECT
+from hardware.dialects import DEFAULT_DIALECT, default_dispense
 
 _PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*"
                    r"|linuxcnc://[A-Za-z0-9.\-]+:\d{1,5}(\?joints=\d)?)$")
@@ -102,8 +102,10 @@ class Reference(Strict):
 
 
 class Profile(Strict):
-    dispense_on: str = Field("M106", min_length=1, max_length=80, description="G-code that starts dispensing")
-    dispense_off: str = Field("M107", min_length=1, max_length=80, description="G-code that stops dispensing")
+    dispense_on: str | None = Field(None, min_length=1, max_length=80, description=(
+        "G-code that starts dispensing; default: the dialect's (Marlin M106, grbl M3, LinuxCNC M64 P0)"))
+    dispense_off: str | None = Field(None, min_length=1, max_length=80, description=(
+        "G-code that stops dispensing; default: the dialect's (Marlin M107, grbl M5, LinuxCNC M65 P0)"))
     outputs_off: list[Annotated[str, Field(min_length=1, max_length=80)]] = Field(
         default_factory=list, max_length=16,
         description="G-code that switches every other process output off (spindle, high voltage, heaters), sent "
@@ -212,6 +214,16 @@ class MachineCreate(Strict):
         if not _PORT.match(value):
             raise ValueError("expected mock://..., socket://host:port, linuxcnc://host:port or a serial device path")
         return value
+
+    @model_validator(mode="after")
+    def _dialect_dispense(self) -> MachineCreate:
+        """A profile that names no dispenser gets its dialect's (``default_dispense``)."""
+        on, off = default_dispense(self.dialect)
+        if self.profile.dispense_on is None:
+            self.profile.dispense_on = on
+        if self.profile.dispense_off is None:
+            self.profile.dispense_off = off
+        return self
 
 
 class StopOut(BaseModel):

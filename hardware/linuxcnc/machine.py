@@ -37,6 +37,7 @@ from collections.abc import Callable, Iterable
 from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
 from ..machine_state import ClaimedOperations, axis_words
 from ..machine_types import _Interrupted, Identity, MachineProfile, ProbeResult, StreamReport
+from ..dialects import LINUXCNC_DISPENSE
 from ..protocol import validate_program
 from .rsh import RshRejected, RshSession
 from .url import parse_url, passwords
@@ -58,8 +59,7 @@ class LinuxCNCMachine(ClaimedOperations):
                  poll_s: float = 0.02) -> None:
         self.url = url
         self.address = parse_url(url, program_dir)
-        self.profile = profile or MachineProfile(dispense_on="M64 P0", dispense_off="M65 P0",
-                                                 probe_command="G38.2")
+        self.profile = profile or MachineProfile(*LINUXCNC_DISPENSE, probe_command="G38.2")
         self._connect_pw, self._enable_pw = passwords(connect_pw, enable_pw)
         self.timeout_s = timeout_s
         self.motion_timeout_s = motion_timeout_s

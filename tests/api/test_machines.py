@@ -122,3 +122,24 @@ def test_probe_run_measures_the_true_part_within_three_sigma(client):
     truth_z = np.array([hits[np.argmin(np.linalg.norm(hits[:, :2] - p[:2], axis=1))][2] for p in measured])
     assert np.abs(measured[:, 2] - truth_z).max() < 3 * sigma + 1e-4
     assert done["result"]["stats"]["count"] == 10
+
+
+@pytest.mark.parametrize("dialect, port, on, off", [("marlin", "mock://", "M106", "M107"),
+                                                    ("grbl", "mock://", "M3", "M5"),
+                                                    ("linuxcnc", "linuxcnc://127.0.0.1:5007", "M64 P0", "M65 P0")])
+def test_a_profile_without_a_dispenser_gets_its_dialects(client, dialect, port, on, off):
+    machine = register(client, port=port, dialect=dialect).json()
+    assert (machine["profile"]["dispense_on"], machine["profile"]["dispense_off"]) == (on, off)
+    named = client.post("/api/v1/machines", json={"name": "own", "port": "mock://", "dialect": dialect,
+                                                  "profile": {"dispense_on": "M8", "dispense_off": "M9"}},
+                        headers=OP).json()
+    assert (named["profile"]["dispense_on"], named["profile"]["dispense_off"]) == ("M8", "M9")
+
+
+def test_a_grbl_registered_without_a_profile_switches_its_dispenser_off_on_connect(client):
+    machine = register(client, dialect="grbl").json()
+    connected = client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP)
+    assert connected.status_code == 200, connected.text
+    outputs = client.get(f"/api/v1/machines/{machine['id']}", headers=OP).json()["outputs"]
+    assert outputs["sent"] is True and outputs["why"] is None  # M5 is grbl's: nothing skipped as unknown
+    client.post(f"/api/v1/machines/{machine['id']}/disconnect", headers=OP)
