@@ -1,9 +1,11 @@
 """Nozzle-tip strokes of a circuit: compensated traces (with side passes when wide) and pad /
 area fills lifted onto the real surface.
 
-The real surface under a pad is the nominal surface (the part mesh, draped exactly) plus the
-deviation the probes measured, interpolated between probe stations (linear over their
-triangulation, the nearest station's value outside it).  Side passes of a wide trace follow
+The real surface under a pad is the measured surface the whole program follows
+(:class:`app.circuits.surface.MeasuredSurface`: the nominal top plus the loop's fitted field,
+or, without one, the deviation interpolated between probe stations by
+:func:`deviation_field`: linear over their triangulation, the nearest station's value
+outside it).  Side passes of a wide trace follow
 its compensated centre line, shifted by the nominal surface's height change across.
 """
 
@@ -66,14 +68,15 @@ def trace_passes(tip: npt.NDArray[np.float64], width_mm: float, line_width_mm: f
 
 
 def fill_tip_strokes(exterior: npt.NDArray[np.float64], holes: list[npt.NDArray[np.float64]], line_width_mm: float,
-                     drape: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], deviation: HeightFn,
+                     drape: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], surface_z: HeightFn,
                      standoff_mm: float,
                      step_mm: float = 0.25) -> list[npt.NDArray[np.float64]]:
-    """Tip strokes (k, 3) filling a pad or area: top-view fill strokes, densified to ``step_mm``,
-    draped on the nominal surface (``drape``: xy (k, 2) -> points (m, 3)), lifted by the measured
-    deviation and the standoff."""
+    """Tip strokes (k, 3) filling a pad or area: top-view fill strokes, densified to ``step_mm``
+    and to the nominal surface's facets (``drape``: xy (k, 2) -> points (m, 3)), each point at
+    the measured surface (``surface_z``: xy (m, 2) -> z (m,), nominal + measured deviation)
+    plus the standoff."""
     out = []
     for stroke in fill_strokes(exterior, holes, line_width_mm):
-        pts = drape(densify(stroke, step_mm))
-        out.append(np.column_stack([pts[:, :2], pts[:, 2] + deviation(pts[:, :2]) + standoff_mm]))
+        xy = drape(densify(stroke, step_mm))[:, :2]
+        out.append(np.column_stack([xy, surface_z(xy) + standoff_mm]))
     return out
