@@ -87,7 +87,9 @@ class PrintedPoints:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON form: ``items`` {name: {kind, points, sd_mm, bound_mm, clearance_min_mm,
-        standoff_mm}} and the overall worst (``sd_mm``, ``bound_mm``, ``clearance_min_mm``)."""
+        standoff_mm}}, the overall worst (``sd_mm``, ``bound_mm``, ``clearance_min_mm``) and
+        ``bound_over_standoff``: the items whose bound reaches their standoff (the nozzle may
+        touch the real surface there: probe them more)."""
         k = self.surface.coverage
         modelled = k is not None
 
@@ -99,6 +101,7 @@ class PrintedPoints:
         rows = {n: row(i) for n, i in self.items.items()}
         sd = max((i.sd_mm for i in self.items.values()), default=0.0)
         clear = [i.clearance_mm for i in self.items.values() if np.isfinite(i.clearance_mm)]
-        return {"points": sum(i.points for i in self.items.values()), "coverage": k,
+        risky = sorted(n for n, i in self.items.items() if k is not None and k * i.sd_mm >= i.standoff_mm)
+        return {"points": sum(i.points for i in self.items.values()), "coverage": k, "bound_over_standoff": risky,
                 "sd_mm": sd if modelled else None, "bound_mm": k * sd if k is not None else None,
                 "clearance_min_mm": min(clear) if clear else None, "items": rows}

@@ -86,6 +86,11 @@ def test_every_printed_point_within_its_bound_and_never_below_the_true_surface(c
     assert set(items) == names
     assert {i["kind"] for i in items.values()} == {"trace", "pad", "area"}
     assert all(i["bound_mm"] > 0 and i["clearance_min_mm"] > 0 for i in items.values())
+    assert surface["bound_mm"] == max(i["bound_mm"] for i in items.values())
+    assert surface["bound_over_standoff"] == sorted(n for n, i in items.items() if i["bound_mm"] >= STANDOFF)
+    report = client.get(f"/api/v1/jobs/{loop['id']}/report", headers=OP)
+    assert report.status_code == 200, report.text
+    assert f"Circuit program {program['id']}" in report.text and "area 0" in report.text
 
     text = client.get(f"/api/v1/jobs/{program['id']}/artifacts/circuit.gcode", headers=OP).content
     moves = read_program(text, ReadOptions(dispense_on=program["result"]["dispense_on"],
