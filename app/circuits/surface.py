@@ -27,24 +27,39 @@ __all__ = ["MeasuredSurface", "PrintedPoints"]
 
 Array = npt.NDArray[np.float64]
 NominalTop = Callable[[Array], tuple[Array, Array]]                    # xy (m, 2) -> z (m,), slope (m, 2)
-Deviation = Callable[[Array, Array], tuple[Array, Array | None]]        # xy, slope -> mean (m,), sd (m,) | None
+#: xy (m, 2), slope (m, 2), whether the sd is wanted -> mean (m,), sd (m,) | None
+Deviation = Callable[[Array, Array, bool], tuple[Array, Array | None]]
 
 
 @dataclass(frozen=True)
 class MeasuredSurface:
     """Nominal top + measured deviation; ``coverage``: the bound is coverage x sd (None
-    without a posterior)."""
+    without a posterior); ``sd_step_mm``: the sd (smooth on the field's wavelength, and
+    costly: one solve against every station per point) is judged at points this far apart
+    along each stroke (and at its ends); None: at every point."""
 
     nominal: NominalTop
     deviation: Deviation
     coverage: float | None = None
+    sd_step_mm: float | None = None
 
-    def at(self, xy: Array) -> tuple[Array, Array | None]:
-        """(surface z (m,) mm, posterior sd (m,) mm or None) at xy (m, 2) mm."""
+    def at(self, xy: Array, sd: bool = False) -> tuple[Array, Array | None]:
+        """(surface z (m,) mm, posterior sd (m,) mm when ``sd`` and modelled, else None) at
+        xy (m, 2) mm."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         z, slope = self.nominal(xy)
-        mean, sd = self.deviation(xy, slope)
-        return np.asarray(z, dtype=float) + np.asarray(mean, dtype=float), sd
+        mean, spread = self.deviation(xy, slope, sd)
+        return np.asarray(z, dtype=float) + np.asarray(mean, dtype=float), spread
+
+
+def _judged(xy: Array, step_mm: float | None) -> npt.NDArray[np.intp]:
+    """Indices of the points (k, 2) of a stroke where the sd is judged: the first point of
+    every ``step_mm`` of top-view length, and the last (all with ``step_mm`` None)."""
+    if step_mm is None or len(xy) < 3:
+        return np.arange(len(xy))
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    first = np.flatnonzero(np.diff(np.floor(s / step_mm), prepend=-1.0) > 0)
+    return np.unique(np.concatenate([first, [len(xy) - 1]]))
 
 
 @dataclass
@@ -68,7 +83,8 @@ class PrintedPoints:
     def add(self, name: str, kind: str, tip: Array, standoff_mm: float) -> None:
         """Record the tip points (k, 3) mm of one stroke of item ``name`` printed at ``standoff_mm``."""
         tip = np.asarray(tip, dtype=float).reshape(-1, 3)
-        z, sd = self.surface.at(tip[:, :2])
+        z, _ = self.surface.at(tip[:, :2])
+        sd = self.surface.at(tip[_judged(tip[:, :2], self.surface.sd_step_mm), :2], sd=True)[1]
         item = self.items.setdefault(name, _Item(kind, standoff_mm))
         clearance = tip[:, 2] - z
         ok = np.isfinite(clearance)

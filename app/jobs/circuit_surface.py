@@ -28,6 +28,9 @@ from app.reconstruction.field_trust import FieldCheck
 
 #: posterior sd evaluated this many points at a time (the cross-covariance is points x stations)
 SD_CHUNK = 2000
+#: the posterior sd judged every wavelength / 16 along each printed stroke (as the planner
+#: and the traces' bounds judge it)
+SD_PER_WAVELENGTH = 16
 
 
 def measured_surface(ctx: JobContext, mesh: trimesh.Trimesh, entries: dict[str, LoopTrace], trace_ids: Sequence[str],
@@ -57,18 +60,20 @@ def measured_surface(ctx: JobContext, mesh: trimesh.Trimesh, entries: dict[str, 
                           placement_from(ctx, placed), trace_field="params.closed_loop_job_id")[0]
         posterior = check.fit.posterior
 
-        def field(xy: np.ndarray, slope: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        def field(xy: np.ndarray, slope: np.ndarray, want_sd: bool) -> tuple[np.ndarray, np.ndarray | None]:
             mean, sd = np.empty(len(xy)), np.empty(len(xy))
             for i in range(0, len(xy), SD_CHUNK):
                 sites = Sites(xy[i:i + SD_CHUNK], slope[i:i + SD_CHUNK])
                 mean[i:i + SD_CHUNK] = posterior.mean(sites)
-                sd[i:i + SD_CHUNK] = posterior.sd(sites)
-            return mean, sd
+                if want_sd:
+                    sd[i:i + SD_CHUNK] = posterior.sd(sites)
+            return mean, sd if want_sd else None
 
-        return MeasuredSurface(nominal, field, check.coverage), check, framed
+        step = posterior.prior.wavelength_mm / SD_PER_WAVELENGTH
+        return MeasuredSurface(nominal, field, check.coverage, step), check, framed
     interpolated = deviation_field(np.array(stations), np.array(deviations))
 
-    def between(xy: np.ndarray, _slope: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def between(xy: np.ndarray, _slope: np.ndarray, _sd: bool) -> tuple[np.ndarray, np.ndarray | None]:
         return interpolated(xy), None
 
     return MeasuredSurface(nominal, between), None, framed

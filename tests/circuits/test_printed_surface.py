@@ -15,9 +15,9 @@ def _plane() -> MeasuredSurface:
     def nominal(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return 0.1 * xy[:, 0], np.tile([0.1, 0.0], (len(xy), 1))
 
-    def deviation(xy: np.ndarray, slope: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def deviation(xy: np.ndarray, slope: np.ndarray, sd: bool) -> tuple[np.ndarray, np.ndarray | None]:
         assert np.allclose(slope, [0.1, 0.0])
-        return 0.002 * xy[:, 1], 0.001 * (1 + xy[:, 0] / 10)
+        return 0.002 * xy[:, 1], 0.001 * (1 + xy[:, 0] / 10) if sd else None
 
     return MeasuredSurface(nominal, deviation, coverage=3.0)
 
@@ -52,3 +52,20 @@ def test_a_point_below_the_surface_or_its_standoff_is_named():
     assert set(below) == {"low", "under"}
     assert below["low"] == pytest.approx(0.07) and below["under"] == pytest.approx(-0.001)
     assert printed.as_dict()["bound_over_standoff"] == ["under"]        # its bound 3 x 1 um reaches its 3 um standoff
+
+
+def test_the_sd_is_judged_every_step_along_a_stroke_and_at_its_end():
+    plane = _plane()
+    judged: list[np.ndarray] = []
+
+    def deviation(xy: np.ndarray, slope: np.ndarray, sd: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        if sd:
+            judged.append(xy.copy())
+        return plane.deviation(xy, slope, sd)
+
+    printed = PrintedPoints(MeasuredSurface(plane.nominal, deviation, coverage=3.0, sd_step_mm=1.0))
+    x = np.arange(0.0, 4.0, 0.25)                                     # 0 .. 3.75 mm, 16 points
+    printed.add("trace", "trace", np.column_stack([x, np.zeros_like(x), 0.1 * x + 0.05]), 0.05)
+    (at,) = judged
+    assert at[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 3.75]
+    assert printed.as_dict()["items"]["trace"]["sd_mm"] == pytest.approx(0.001 * 1.375)
