@@ -6,7 +6,7 @@ The real surface under a pad is the measured surface the whole program follows
 or, without one, the deviation interpolated between probe stations by
 :func:`deviation_field`: linear over their triangulation, the nearest station's value
 outside it).  Side passes of a wide trace follow
-its compensated centre line, shifted by the nominal surface's height change across.
+its compensated centre line, shifted by the measured surface's height change across.
 """
 
 from __future__ import annotations
@@ -52,18 +52,19 @@ def densify(xy: npt.NDArray[np.float64], step_mm: float) -> npt.NDArray[np.float
 
 
 def trace_passes(tip: npt.NDArray[np.float64], width_mm: float, line_width_mm: float,
-                 nominal_top: HeightFn) -> list[npt.NDArray[np.float64]]:
+                 surface_z: HeightFn) -> list[npt.NDArray[np.float64]]:
     """Passes (each (k, 3)) of a compensated trace tip path (k, 3): the centre line itself when
-    the trace is no wider than the line, else ceil(width / line) parallel passes."""
+    the trace is no wider than the line, else ceil(width / line) parallel passes, each shifted
+    by the height change of ``surface_z`` (xy (m, 2) -> z (m,)) across."""
     tip = np.asarray(tip, float)
     offsets = pass_offsets(width_mm, line_width_mm)
     if len(offsets) == 1:
         return [tip]
-    base = nominal_top(tip[:, :2])
+    base = surface_z(tip[:, :2])
     out = []
     for d in offsets:
         xy = offset_polyline(tip[:, :2], float(d))
-        out.append(np.column_stack([xy, tip[:, 2] + nominal_top(xy) - base]))
+        out.append(np.column_stack([xy, tip[:, 2] + surface_z(xy) - base]))
     return out
 
 

@@ -1,4 +1,4 @@
-"""A board with a trace, pads and a pour (with holes) looped on a held-out as-made part with
+"""A board with a wide trace (three passes), pads and a pour (with holes) looped on a held-out as-made part with
 the field planner (joint probing): the circuit program's every printed point (trace, pad
 fills, pour fill) follows the one fitted field.  Read back from the program itself and
 checked against the mock's TRUE surface: every point sits at its standoff within the bound
@@ -26,7 +26,7 @@ OP = auth("operator")
 STANDOFF = 0.08
 LINE = 0.2
 ORIGIN = (20.0, 14.0)
-BOARD = PourBoard(width=12.0, height=7.0, hole_side=2.4, trace=((6.0, 5.5), (6.0, 9.0), 0.25),
+BOARD = PourBoard(width=12.0, height=7.0, hole_side=2.4, trace=((6.0, 5.5), (6.0, 9.0), 0.6),
                   pads=[(3.0, 3.0, 1.2, "VCC"), (9.0, 3.0, 1.2, "SIG"), (6.0, 5.5, 0.8, "GND")])
 #: what the reported bound does not model: the mock's probe noise (1 um, 3 sigma) and the
 #: true part's mesh (0.5 mm facets of a wave >= 15 mm long: < 1 um) -- mm
@@ -106,6 +106,10 @@ def test_every_printed_point_within_its_bound_and_never_below_the_true_surface(c
     traces = {t["name"]: LineString(np.array(client.get(f"/api/v1/traces/{t['trace']['id']}", headers=OP)
                                              .json()["nominal"]["points"])[:, :2]) for t in body["traces"]}
     owner = _owners(pts[:, :2], pads, pour, traces)
+    (trace_name,) = traces
+    above_pour = pts[(owner == trace_name) & (pts[:, 1] > ORIGIN[1] + BOARD.height + 0.5)]
+    x_trace = ORIGIN[0] + BOARD.trace[0][0]
+    assert sorted(set(np.round(above_pour[:, 0] - x_trace, 6))) == pytest.approx([-0.2, 0.0, 0.2])   # three passes
     error = pts[:, 2] - true_z - STANDOFF
     assert (pts[:, 2] > true_z).all(), "a printed point below the true surface"
     for name in sorted(set(owner)):

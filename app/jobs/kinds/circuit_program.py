@@ -30,7 +30,7 @@ from app.circuits.strokes import fill_tip_strokes, trace_passes
 from app.circuits.surface import PrintedPoints
 from app.jobs.circuit_surface import measured_surface
 from app.errors import InvalidInput
-from app.geometry.drape import drape_polyline, top_surface_z
+from app.geometry.drape import drape_polyline
 from app.geometry.traces import TracePolyline
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
@@ -175,9 +175,6 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     entries = _loop_entries(loop)
     mesh = ctx.mesh(imp.part_id)
 
-    def nominal_top(xy: np.ndarray) -> np.ndarray:
-        return top_surface_z(mesh, xy).z
-
     stations, deviations = [], []
     runs = station_runs(entries, probe_ids + list(imp.trace_ids))      # each probe run once
     for run_id in runs:
@@ -187,6 +184,10 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
             deviations.append(pt.measured[2] - pt.nominal[2])
     surface, check, framed = measured_surface(ctx, mesh, entries, imp.trace_ids, runs, stations, deviations)
     printed = PrintedPoints(surface)
+
+    def surface_z(xy: np.ndarray) -> np.ndarray:
+        return surface.at(xy)[0]
+
     standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
     strokes: list[Stroke] = []
     for trace_id in imp.trace_ids:
@@ -194,7 +195,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         comp = ctx.job(entries[trace_id].compensate, kind="compensate", field="params.closed_loop_job_id")
         tip = np.asarray(compensate_rows(comp)[trace_id].points, float)  # one-trace or board job
         for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
-                                           nominal_top)):
+                                           surface_z)):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
             printed.add(trace.name, "trace", p, float(comp.params.get("standoff_mm") or trace.standoff_mm))
     ctx.progress(0.5, "filling pads and areas")
@@ -202,9 +203,6 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     if params.pads and (imp.pads or imp.areas):
         def drape(xy: np.ndarray) -> np.ndarray:
             return drape_polyline(mesh, xy).points
-
-        def surface_z(xy: np.ndarray) -> np.ndarray:
-            return surface.at(xy)[0]
 
         outlines = [(p["outline_xy_mm"], [], p["name"], "pad") for p in imp.pads if p["on_part"]]
         outlines += [(a["exterior_xy_mm"], a["holes_xy_mm"], a["name"], "area") for a in stored_areas(imp.areas)]
