@@ -1,10 +1,12 @@
 """Nozzle-tip strokes of a circuit: compensated traces (with side passes when wide) and pad /
 area fills lifted onto the real surface.
 
-The real surface under a pad is the nominal surface (the part mesh, draped exactly) plus the
-deviation the probes measured, interpolated between probe stations (linear over their
-triangulation, the nearest station's value outside it).  Side passes of a wide trace follow
-its compensated centre line, shifted by the nominal surface's height change across.
+The real surface under a pad is the measured surface the whole program follows
+(:class:`app.circuits.surface.MeasuredSurface`: the nominal top plus the loop's fitted field,
+or, without one, the deviation interpolated between probe stations by
+:func:`deviation_field`: linear over their triangulation, the nearest station's value
+outside it).  Side passes of a wide trace follow
+its compensated centre line, shifted by the measured surface's height change across.
 """
 
 from __future__ import annotations
@@ -50,30 +52,32 @@ def densify(xy: npt.NDArray[np.float64], step_mm: float) -> npt.NDArray[np.float
 
 
 def trace_passes(tip: npt.NDArray[np.float64], width_mm: float, line_width_mm: float,
-                 nominal_top: HeightFn) -> list[npt.NDArray[np.float64]]:
+                 surface_z: HeightFn) -> list[npt.NDArray[np.float64]]:
     """Passes (each (k, 3)) of a compensated trace tip path (k, 3): the centre line itself when
-    the trace is no wider than the line, else ceil(width / line) parallel passes."""
+    the trace is no wider than the line, else ceil(width / line) parallel passes, each shifted
+    by the height change of ``surface_z`` (xy (m, 2) -> z (m,)) across."""
     tip = np.asarray(tip, float)
     offsets = pass_offsets(width_mm, line_width_mm)
     if len(offsets) == 1:
         return [tip]
-    base = nominal_top(tip[:, :2])
+    base = surface_z(tip[:, :2])
     out = []
     for d in offsets:
         xy = offset_polyline(tip[:, :2], float(d))
-        out.append(np.column_stack([xy, tip[:, 2] + nominal_top(xy) - base]))
+        out.append(np.column_stack([xy, tip[:, 2] + surface_z(xy) - base]))
     return out
 
 
 def fill_tip_strokes(exterior: npt.NDArray[np.float64], holes: list[npt.NDArray[np.float64]], line_width_mm: float,
-                     drape: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], deviation: HeightFn,
+                     drape: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], surface_z: HeightFn,
                      standoff_mm: float,
                      step_mm: float = 0.25) -> list[npt.NDArray[np.float64]]:
-    """Tip strokes (k, 3) filling a pad or area: top-view fill strokes, densified to ``step_mm``,
-    draped on the nominal surface (``drape``: xy (k, 2) -> points (m, 3)), lifted by the measured
-    deviation and the standoff."""
+    """Tip strokes (k, 3) filling a pad or area: top-view fill strokes, densified to ``step_mm``
+    and to the nominal surface's facets (``drape``: xy (k, 2) -> points (m, 3)), each point at
+    the measured surface (``surface_z``: xy (m, 2) -> z (m,), nominal + measured deviation)
+    plus the standoff."""
     out = []
     for stroke in fill_strokes(exterior, holes, line_width_mm):
-        pts = drape(densify(stroke, step_mm))
-        out.append(np.column_stack([pts[:, :2], pts[:, 2] + deviation(pts[:, :2]) + standoff_mm]))
+        xy = drape(densify(stroke, step_mm))[:, :2]
+        out.append(np.column_stack([xy, surface_z(xy) + standoff_mm]))
     return out

@@ -20,7 +20,12 @@ class CircuitProgramResult(KindResult):
     import's trace count, the pad probe rings used and the stations of the deviation field,
     the named nets the short check went through (``nets_checked``), the source's connected
     pieces the open check went through (``connections_checked``), the travel (mm) in the chosen
-    and in the input order, the order ([input index, reversed] per stroke) and the dispense codes."""
+    and in the input order, the order ([input index, reversed] per stroke) and the dispense codes;
+    ``surface``: the measured surface every printed point follows (``model`` field or stations,
+    the field's ``verified`` line and ``needs_attention``) and what each printed item (by name:
+    kind, points, worst posterior ``sd_mm``, its ``bound_mm`` = coverage x sd, the nozzle's
+    smallest ``clearance_min_mm`` over the surface, its ``standoff_mm``) and the whole program
+    predict (:meth:`app.circuits.surface.PrintedPoints.as_dict`)."""
 
     kind: ClassVar[str] = "circuit_program"
     strokes: int
@@ -35,6 +40,7 @@ class CircuitProgramResult(KindResult):
     order: list[tuple[int, bool]]
     dispense_on: str
     dispense_off: str
+    surface: dict[str, Any] | None = None
 
 
 # warp_program -----------------------------------------------------------------------------

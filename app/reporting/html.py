@@ -165,6 +165,30 @@ def _verdict(verdict: dict[str, Any]) -> list[str]:
     return out
 
 
+def _printed_points(records: RunRecords) -> list[str]:
+    """Per circuit program made from the session: the surface every printed point follows and,
+    per printed item, its worst predicted error (posterior sd), bound and nozzle clearance."""
+    out: list[str] = []
+    for job in records.of_kind("circuit_program"):
+        surface = (job.get("result") or {}).get("surface")
+        if job["status"] != "succeeded" or not surface:
+            continue
+        out += [f"<h2>Circuit program {_e(job['id'])}: every printed point on the measured surface</h2>",
+                _facts([("surface", surface.get("model")), ("field", surface.get("verified")),
+                        ("needs attention", surface.get("needs_attention")), ("printed points", surface.get("points")),
+                        ("worst predicted error, sd (µm)", _um(surface.get("sd_mm"))),
+                        ("its bound (µm)", _um(surface.get("bound_mm"))),
+                        ("smallest nozzle clearance over the surface (µm)", _um(surface.get("clearance_min_mm"))),
+                        ("bound reaches the standoff", ", ".join(surface.get("bound_over_standoff") or []) or "none")]),
+                _table(["item", "kind", "points", "sd max (µm)", "bound (µm)", "clearance min (µm)", "standoff (µm)"],
+                       [[name, i.get("kind"), i.get("points"), _um(i.get("sd_mm")), _um(i.get("bound_mm")),
+                         _um(i.get("clearance_min_mm")), _um(i.get("standoff_mm"))]
+                        for name, i in sorted((surface.get("items") or {}).items(),
+                                              key=lambda kv: -(kv[1].get("bound_mm") or 0.0))],
+                       numeric={2, 3, 4, 5, 6})]
+    return out
+
+
 def render_run_report(records: RunRecords, software_version: str) -> str:
     """The whole report as an HTML document."""
     root = records.root
@@ -208,6 +232,7 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
                           r.get("standoff_max_after_um"), r.get("standoff_rms_before_um"), r.get("standoff_rms_after_um")]
                          for r in table], numeric={1, 2, 3, 4, 5})]
     body += plots and ["<h2>Real surface minus model along each trace</h2>", *plots] or []
+    body += _printed_points(records)
     body += ["<h2>Jobs</h2>", _table(["job", "kind", "status", "started", "finished", "input hashes"],
                                      [[j["id"], j["kind"], j["status"], j["started_at"], j["finished_at"],
                                        "; ".join(f"{k}={v[:12]}" for k, v in (j.get("input_hashes") or {}).items())]

@@ -5,7 +5,7 @@
 // angles and tip speed along the path.  Each returns a container at once and fills it
 // when its reads answer (the raw JSON stays one click away on the job page).
 import { get } from "./api.js";
-import { chart, duration, length, round } from "./results.js";
+import { chart, duration, length, recordsTable, round } from "./results.js";
 import { el } from "./ui.js";
 
 const NS = "http://www.w3.org/2000/svg";
@@ -145,5 +145,32 @@ function boardCompensateView(job) {
   return node;
 }
 
-export const VIEWS = { probe_plan: planView, five_axis: fiveAxisView,
+// ---- circuit program: every printed item on the measured surface, largest bound first -----
+function circuitSurfaceView(job) {
+  const { node, body } = box("circuit-surface-view", "Every printed point on the measured surface");
+  const s = job.result.surface;
+  if (!s) {
+    body.replaceChildren(el("p", { class: "small" }, "this program reports no surface"));
+    return node;
+  }
+  const um = (mm) => (Number.isFinite(mm) ? `${round(mm * 1000, 2)} µm` : "—");
+  const items = Object.entries(s.items || {}).map(([name, i]) => ({ item: name, kind: i.kind, points: i.points,
+    sd_um: Number.isFinite(i.sd_mm) ? i.sd_mm * 1000 : null, bound_um: Number.isFinite(i.bound_mm) ? i.bound_mm * 1000 : null,
+    clearance_min_um: Number.isFinite(i.clearance_min_mm) ? i.clearance_min_mm * 1000 : null,
+    standoff_um: i.standoff_mm * 1000 }));
+  items.sort((a, b) => (b.bound_um ?? 0) - (a.bound_um ?? 0));
+  const risky = s.bound_over_standoff || [];
+  body.replaceChildren(figureList([
+    ["Surface", s.model === "field" ? "the loop's fitted field (posterior mean)" : "interpolated between probe stations", "model"],
+    s.verified ? ["Field", s.verified, "verified"] : null,
+    ["Printed points", String(s.points), "points"],
+    ["Worst predicted error (sd)", um(s.sd_mm), "sd_mm"],
+    ["Its bound", um(s.bound_mm), "bound_mm"],
+    ["Smallest nozzle clearance over the surface", um(s.clearance_min_mm), "clearance_min_mm"],
+    ["Bound reaches the standoff", risky.length ? risky.join(", ") : "none", "bound_over_standoff"]]),
+  recordsTable(items, 50));
+  return node;
+}
+
+export const VIEWS = { probe_plan: planView, five_axis: fiveAxisView, circuit_program: circuitSurfaceView,
   compensate: (job) => (job.result.board ? boardCompensateView(job) : compensateView(job)) };

@@ -26,9 +26,11 @@ from app.gcode.writer import DEFAULT_DIALECT
 from app.circuits.nets import Copper, area_polygon, check_nets, trace_copper
 from app.circuits.opens import check_opens, fill_coverage
 from app.circuits.program import Stroke, write_circuit_program
-from app.circuits.strokes import deviation_field, fill_tip_strokes, trace_passes
+from app.circuits.strokes import fill_tip_strokes, trace_passes
+from app.circuits.surface import PrintedPoints
+from app.jobs.circuit_surface import measured_surface
 from app.errors import InvalidInput
-from app.geometry.drape import drape_polyline, top_surface_z
+from app.geometry.drape import drape_polyline
 from app.geometry.traces import TracePolyline
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
@@ -39,6 +41,13 @@ from app.jobs.program_results import CircuitProgramResult
 from app.jobs.loop_results import ClosedLoopResult, LoopTrace
 from app.jobs.results import ProbeRunResult, compensate_rows
 from app.records import get_or_404
+
+
+#: slack (mm) below surface + standoff a printed point may come on a fitted field (the traces'
+#: compensation samples the same field along its own curve); below the surface itself is
+#: always refused (also on a surface interpolated between stations, which the traces'
+#: per-trace reconstructions do not follow point for point)
+SURFACE_TOLERANCE_MM = 0.002
 
 
 class CircuitProgramParams(JobParams):
@@ -166,29 +175,32 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     entries = _loop_entries(loop)
     mesh = ctx.mesh(imp.part_id)
 
-    def nominal_top(xy: np.ndarray) -> np.ndarray:
-        return top_surface_z(mesh, xy).z
-
-    strokes: list[Stroke] = []
     stations, deviations = [], []
-    for run_id in station_runs(entries, probe_ids + list(imp.trace_ids)):   # each probe run once
+    runs = station_runs(entries, probe_ids + list(imp.trace_ids))      # each probe run once
+    for run_id in runs:
         probe = ctx.job(run_id, kind="probe_run", field="params.closed_loop_job_id")
         for pt in ProbeRunResult.of(probe).points:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])
+    surface, check, framed = measured_surface(ctx, mesh, entries, imp.trace_ids, runs, stations, deviations)
+    printed = PrintedPoints(surface)
+
+    def surface_z(xy: np.ndarray) -> np.ndarray:
+        return surface.at(xy)[0]
+
+    standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
+    strokes: list[Stroke] = []
     for trace_id in imp.trace_ids:
         trace = ctx.trace(trace_id)
         comp = ctx.job(entries[trace_id].compensate, kind="compensate", field="params.closed_loop_job_id")
         tip = np.asarray(compensate_rows(comp)[trace_id].points, float)  # one-trace or board job
         for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
-                                           nominal_top)):
+                                           surface_z)):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
+            printed.add(trace.name, "trace", p, float(comp.params.get("standoff_mm") or trace.standoff_mm))
     ctx.progress(0.5, "filling pads and areas")
     fills = 0
     if params.pads and (imp.pads or imp.areas):
-        field = deviation_field(np.array(stations), np.array(deviations))
-        standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
-
         def drape(xy: np.ndarray) -> np.ndarray:
             return drape_polyline(mesh, xy).points
 
@@ -196,9 +208,17 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         outlines += [(a["exterior_xy_mm"], a["holes_xy_mm"], a["name"], "area") for a in stored_areas(imp.areas)]
         for ring, holes, name, kind in outlines:
             for s in fill_tip_strokes(np.asarray(ring, float), [np.asarray(h, float) for h in holes],
-                                      params.line_width_mm, drape, field, standoff):
+                                      params.line_width_mm, drape, surface_z, standoff):
                 strokes.append(Stroke(s, kind, name, params.feed_mm_min))
+                printed.add(name, kind, s, standoff)
                 fills += 1
+    low = printed.below(SURFACE_TOLERANCE_MM if check is not None else np.inf) if framed else []
+    if low:
+        name, clearance, item_standoff = low[0]
+        raise InvalidInput(f"{len(low)} printed item(s) would put the nozzle below the measured surface plus their "
+                           f"standoff: {name!r} comes to {clearance * 1000:.1f} um over it (standoff "
+                           f"{item_standoff * 1000:.1f} um)", field="params.closed_loop_job_id",
+                           value=params.closed_loop_job_id)
     if not strokes:
         raise InvalidInput("the import has nothing to print", field="params.import_id", value=params.import_id)
     dialect, on, off = DEFAULT_DIALECT, "M106", "M107"
@@ -213,4 +233,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
             "pad_probe_traces": probe_ids, "stations": len(stations), "nets_checked": nets,
             "connections_checked": pieces,
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
-            "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off})
+            "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off,
+            "surface": {"model": "field" if check is not None else "stations", "frame_checked": framed,
+                        "verified": None if check is None else check.verified_line(),
+                        "needs_attention": None if check is None else check.needs_attention,
+                        **printed.as_dict()}})

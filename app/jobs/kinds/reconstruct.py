@@ -34,15 +34,13 @@ from app.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
-from app.probing.field import stored_field
-from app.probing.field_top import mesh_top_sampler
 from app.probing.deviation_prior import path_sites
-from app.reconstruction.field import field_gradient, fit_bytes, trace_reconstruction
-from app.reconstruction.field_trust import FieldCheck, checked_field, with_bound
+from app.reconstruction.field import trace_reconstruction
+from app.reconstruction.field_trust import FieldCheck, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
-from app.jobs.field_runs import field_touches
+from app.jobs.field_runs import run_field
 from app.jobs.probe_correction import refined, run_probe_calibration
-from app.records import FIELD_FITS, get_or_404, joint_trace_ranges
+from app.records import get_or_404, joint_trace_ranges
 
 DEGREE = 3
 NPZ_MEDIA_TYPE = "application/zip"  # an NPZ is a zip of .npy members
@@ -403,45 +401,8 @@ def _field_trace(check: FieldCheck, refinement: Any, nominal: Any, index: int) -
 
 def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[FieldCheck, Any, list[str]]:
     """(checked field, normal-iteration report or None, the plan's trace ids) of the run's
-    field; every trace of ``params`` must be one of the plan's (422 otherwise)."""
-    probe_run = ctx.job(str(params.probe_run_job_id), kind="probe_run", field="params.probe_run_job_id")
-    plan = ctx.job(probe_run.params["plan_job_id"], field="params.probe_run_job_id")
-    stored = ProbePlanResult.of(plan).field
-    if not stored:
-        raise InvalidInput(f"probe run {probe_run.id!r} is not a run of a field plan", field="params.method",
-                           value=params.method)
-    trace_ids = plan.params.get("trace_ids") or [plan.params.get("trace_id")]
-    missing = set(params.traces) - set(trace_ids)
-    if missing:
-        trace_id = next(t for t in params.traces if t in missing)
-        raise InvalidInput(f"trace {trace_id!r} is not one of the traces of field plan {plan.id!r}",
-                           field="params.trace_id" if params.trace_ids is None else "params.trace_ids",
-                           value=trace_id)
-    key = (probe_run.id, params.sigma_mm, params.learn_prior)
-    cached = FIELD_FITS.get(key)
-    if cached is None:
-        field = stored_field(stored)
-        prior = field.prior if params.sigma_mm is None else replace(field.prior, sigma_mm=params.sigma_mm)
-        rows = field_touches(ctx, probe_run)[1]  # with the stations earlier runs of a sequential plan touched
-        plan_params = plan.params or {}
-        coverage = float(stored.get("coverage", plan_params.get("coverage", 3.0)))
-        target = float(stored.get("target_error_mm", plan_params.get("target_error_mm", 0.005)))
-
-        def fit_of(points: Any) -> FieldCheck:
-            return checked_field(prior, field.stations, field.z, np.asarray(points, dtype=float), field.center,
-                                 field.trace, field.s_mm, field.verify, coverage, target, learn=params.learn_prior,
-                                 field="probe run points")
-
-        check = fit_of([p["measured"] for p in rows])
-        calibration = run_probe_calibration(probe_run)
-        refinement = None
-        if calibration is not None:
-            stations = field.stations
-            trace = ctx.trace(params.traces[0])
-            top = mesh_top_sampler(ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement_from(ctx, params)))
-            check, refinement = refined(check, rows, calibration, lambda c, _xy: field_gradient(
-                c.fit, stations, slope_at=lambda xy: top(xy).grad), fit_of)
-        cached = (check, refinement)
-        FIELD_FITS.put(key, cached, fit_bytes(check.fit))
-    check, refinement = cached
-    return check, refinement, trace_ids
+    field (:func:`app.jobs.field_runs.run_field`); every trace of ``params`` must be one of
+    the plan's (422 otherwise)."""
+    return run_field(ctx, str(params.probe_run_job_id), params.sigma_mm, params.learn_prior, params.traces,
+                     placement_from(ctx, params), method=params.method,
+                     trace_field="params.trace_id" if params.trace_ids is None else "params.trace_ids")
