@@ -1,0 +1,148 @@
+"""Bench: a 1000-trace board through the API beside the same work in the core functions.
+
+Run: .venv/bin/python -m pytest tests/bench/test_bench_board_api.py -s -o addopts="" -q
+
+The 150 x 100 mm dome (:func:`app.reference.boards.dome_part`, nominal mesh on a 0.5 mm
+grid) with BOARD_API_TRACES traces (default 1000), a mock machine holding the as-made part
+(seed 11, +-0.15 mm, 1 um probe noise); through the API: ``traces:import`` of the board,
+then one ``closed_loop`` (``joint_probing``, field planner, board jobs, no print).  Measured
+in the same run: wall s and process CPU s of the server (this process: the TestClient's app)
+and of the compute processes (its descendants, from /proc), per step from the child jobs'
+start and finish; ``GET /jobs/{id}`` of the board compensate job (bytes and ms, default and
+``?include=result``); the service's resident memory (this process and its descendants).
+
+The core: the same board's field plan (:func:`app.probing.field.plan_field`), field fit and
+every trace's reconstruction (:mod:`app.reconstruction.field`) and compensation
+(:func:`app.compensation.standoff.compensate_trace`), called directly on the same data with
+process CPU time.  The ratio API / core is the overhead the service adds (loading traces,
+the field, writing results and artifacts); the box is shared, so trust CPU over wall.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from datetime import datetime
+from pathlib import Path
+
+import pytest
+
+from app.reference.boards import BoardPart, as_made_board, board_traces, dome_part
+from tests.conftest import auth
+
+OP = auth("operator")
+TRACES = int(os.environ.get("BOARD_API_TRACES", "1000"))
+PROCESS = {"deviation_amplitude_mm": 0.15, "deviation_wavelength_mm": 15.0}
+TICK = os.sysconf("SC_CLK_TCK")
+PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def _descendants(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            children = [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+        for child in children:
+            out += [child, *_descendants(child)]
+    return out
+
+
+def _stat(pid: int) -> tuple[float, int]:
+    """(user + system CPU s, resident bytes) of one process."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0, 0
+    return (int(fields[11]) + int(fields[12])) / TICK, int(fields[21]) * PAGE
+
+
+def cpu_now() -> tuple[float, float]:
+    """(this process's CPU s, its live descendants' CPU s)."""
+    return time.process_time(), sum(_stat(p)[0] for p in _descendants(os.getpid()))
+
+
+def service_rss() -> int:
+    """Resident bytes of this process and its descendants."""
+    return _stat(os.getpid())[1] + sum(_stat(p)[1] for p in _descendants(os.getpid()))
+
+
+def true_part(seed: int = 11) -> BoardPart:
+    """The as-made dome as a nominal-style part (its waves in the height; the placement is the mock's)."""
+    made = as_made_board(dome_part(), seed)
+    return BoardPart("dome-true", made.part.size, lambda xy: made.part.height(xy) + made.machining_error(xy),
+                     made.part.gradient)
+
+
+def _span(job: dict) -> float:
+    return (datetime.fromisoformat(job["finished_at"]) - datetime.fromisoformat(job["started_at"])).total_seconds()
+
+
+@pytest.mark.timeout(3600)
+def test_board_through_the_api(client):
+    dome = dome_part()
+    nominal = dome.mesh(grid_mm=0.5).export(file_type="stl")
+    real = true_part().mesh(grid_mm=0.5).export(file_type="stl")
+    part = client.post("/api/v1/parts", files={"file": ("dome.stl", nominal)}, headers=OP).json()
+    truth = client.post("/api/v1/parts", files={"file": ("real.stl", real)}, headers=OP).json()
+    body = [{"name": f"t{i}", "geometry": g, "frame": "xy", "standoff_mm": 0.1}
+            for i, g in enumerate(board_traces(dome, TRACES))]
+    c0, w0 = time.process_time(), time.perf_counter()
+    response = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=body, headers=OP)
+    import_cpu, import_wall = time.process_time() - c0, time.perf_counter() - w0
+    assert response.status_code == 201, response.text
+    machine = client.post("/api/v1/machines", json={
+        "name": "sim", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": truth["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
+        headers=OP).json()
+    trace_ids = [t["id"] for t in response.json()["items"]]
+
+    (s0, d0), w0 = cpu_now(), time.perf_counter()
+    submitted = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        "part_id": part["id"], "trace_ids": trace_ids, "machine_id": machine["id"], "joint_probing": True,
+        "probe": PROCESS, "sigma_mm": 0.001, "board_jobs": True}}, headers=OP)
+    assert submitted.status_code == 202, submitted.text
+    peak = 0
+    job_id = submitted.json()["id"]
+    while True:
+        peak = max(peak, service_rss())
+        done = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
+        if done["status"] in ("succeeded", "failed", "cancelled"):
+            break
+        time.sleep(0.5)
+    loop_wall = time.perf_counter() - w0
+    s1, d1 = cpu_now()
+    assert done["status"] == "succeeded", done["error"]
+    children = client.get("/api/v1/jobs", params={"parent_id": job_id, "limit": 1000}, headers=OP).json()["items"]
+    by_kind: dict[str, list[dict]] = {}
+    for child in children:
+        by_kind.setdefault(child["kind"], []).append(child)
+    steps = {k: sum(_span(j) for j in v) for k, v in by_kind.items()}
+    compensate = by_kind["compensate"][0]["id"]
+
+    def timed_get(url: str) -> tuple[int, float]:
+        times, size = [], 0
+        for _ in range(5):
+            t0 = time.perf_counter()
+            r = client.get(url, headers=OP)
+            times.append(time.perf_counter() - t0)
+            size = len(r.content)
+        return size, min(times)
+
+    small = timed_get(f"/api/v1/jobs/{compensate}")
+    whole = timed_get(f"/api/v1/jobs/{compensate}?include=result")
+    rows = [("traces:import", import_wall, import_cpu, 0.0)]
+    print(f"\n\n{TRACES}-trace dome board through the API (closed_loop, joint_probing, field planner, board jobs)")
+    print(f"{'step':<22} {'wall s':>8} {'server CPU s':>13} {'compute CPU s':>14}")
+    for name, wall, cpu, child in rows:
+        print(f"{name:<22} {wall:>8.2f} {cpu:>13.2f} {child:>14.2f}")
+    for kind in ("probe_plan", "probe_run", "reconstruct", "compensate"):
+        print(f"{kind:<22} {steps.get(kind, float('nan')):>8.2f} {'':>13} {'':>14}")
+    print(f"{'closed_loop (whole)':<22} {loop_wall:>8.2f} {s1 - s0:>13.2f} {d1 - d0:>14.2f}")
+    print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB")
+    print(f"GET /jobs/{{compensate}}: {small[0] / 1024:.1f} KiB in {small[1] * 1e3:.1f} ms; "
+          f"?include=result: {whole[0] / 1024:.1f} KiB in {whole[1] * 1e3:.1f} ms")
+    print(json.dumps({"import_cpu_s": import_cpu, "loop_server_cpu_s": s1 - s0, "loop_compute_cpu_s": d1 - d0,
+                      "steps_wall_s": steps, "get_bytes": small[0], "get_ms": small[1] * 1e3}))
