@@ -6,10 +6,12 @@ The 150 x 100 mm dome (:func:`app.reference.boards.dome_part`, nominal mesh on a
 grid) with BOARD_API_TRACES traces (default 1000), a mock machine holding the as-made part
 (seed 11, +-0.15 mm, 1 um probe noise); through the API: ``traces:import`` of the board,
 then one ``closed_loop`` (``joint_probing``, field planner, board jobs, no print).  Measured
-in the same run: wall s and process CPU s of the server (this process: the TestClient's app)
-and of the compute processes (its descendants, from /proc), per step from the child jobs'
-start and finish; ``GET /jobs/{id}`` of the board compensate job (bytes and ms, default and
-``?include=result``); the service's resident memory (this process and its descendants).
+in the same run: wall s per step (the child jobs' start to finish) and the CPU s each child
+spent in its compute process (the part cache's journal: the job's own run, loading its inputs
+and writing its results and artifacts included); the loop's process CPU s of the server (this
+process: the TestClient's app) and of the compute processes (its descendants, from /proc);
+``GET /jobs/{id}`` of the board compensate job (bytes and ms, default and ``?include=result``);
+the service's peak resident memory (this process and its descendants).
 
 The core: the same board's field plan (:func:`app.probing.field.plan_field`), field fit and
 every trace's reconstruction (:mod:`app.reconstruction.field`) and compensation
@@ -21,6 +23,7 @@ the field, writing results and artifacts); the box is shared, so trust CPU over 
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from datetime import datetime
@@ -28,7 +31,14 @@ from pathlib import Path
 
 import pytest
 
-from app.reference.boards import BoardPart, as_made_board, board_traces, dome_part
+import numpy as np
+
+from app.compensation.standoff import CompensationParams, compensate_trace
+from app.probing.field import plan_field
+from app.probing.selection import PlanParams
+from app.reconstruction.field import fit_field, trace_reconstruction
+from app.reconstruction.reconstruct import ReconstructParams
+from app.reference.boards import BoardPart, as_made_board, board_path, board_traces, dome_part
 from tests.conftest import auth
 
 OP = auth("operator")
@@ -76,12 +86,43 @@ def true_part(seed: int = 11) -> BoardPart:
                      made.part.gradient)
 
 
+def core_board(part: BoardPart, n: int, seed: int = 11) -> dict[str, float]:
+    """Process CPU s of the core functions on the same board: the field plan, the field fit,
+    every trace's reconstruction and compensation (the API's defaults: coverage 3, chord 2 um)."""
+    params = PlanParams(**PROCESS)
+    paths = [board_path(part, g, 0.05) for g in board_traces(part, n)]
+    made = as_made_board(part, seed)
+    c0 = time.process_time()
+    plan = plan_field(paths, params)
+    c1 = time.process_time()
+    measured = plan.points.copy()
+    measured[:, 2] = made.true_height(plan.xy) + np.random.default_rng(seed).normal(0, 0.001, len(plan.xy))
+    fit = fit_field(params.prior(), plan.sites, plan.z, measured, plan.center, plan.trace, plan.s_mm)
+    rebuilt = [trace_reconstruction(fit, path, i, ReconstructParams(prior=params.prior())) for i, path in enumerate(paths)]
+    c2 = time.process_time()
+    for r in rebuilt:
+        compensate_trace(r, CompensationParams(standoff_mm=0.1))
+    c3 = time.process_time()
+    return {"probe_plan": c1 - c0, "reconstruct": c2 - c1, "compensate": c3 - c2}
+
+
+def compute_cpu(data_dir: Path) -> dict[str, float]:
+    """job id -> CPU s the compute process spent in it (the part cache's journal)."""
+    out: dict[str, float] = {}
+    for journal in data_dir.rglob("journal*.jsonl"):
+        for line in journal.read_text().splitlines():
+            row = json.loads(line)
+            if "cpu_s" in row.get("memory", {}):
+                out[row["job_id"]] = float(row["memory"]["cpu_s"])
+    return out
+
+
 def _span(job: dict) -> float:
     return (datetime.fromisoformat(job["finished_at"]) - datetime.fromisoformat(job["started_at"])).total_seconds()
 
 
 @pytest.mark.timeout(3600)
-def test_board_through_the_api(client):
+def test_board_through_the_api(client, settings):
     dome = dome_part()
     nominal = dome.mesh(grid_mm=0.5).export(file_type="stl")
     real = true_part().mesh(grid_mm=0.5).export(file_type="stl")
@@ -133,16 +174,26 @@ def test_board_through_the_api(client):
 
     small = timed_get(f"/api/v1/jobs/{compensate}")
     whole = timed_get(f"/api/v1/jobs/{compensate}?include=result")
-    rows = [("traces:import", import_wall, import_cpu, 0.0)]
+    journal = compute_cpu(Path(settings.data_dir))
+    api_cpu = {k: sum(journal.get(j["id"], math.nan) for j in v) for k, v in by_kind.items()}
+    core = core_board(dome, TRACES)
     print(f"\n\n{TRACES}-trace dome board through the API (closed_loop, joint_probing, field planner, board jobs)")
-    print(f"{'step':<22} {'wall s':>8} {'server CPU s':>13} {'compute CPU s':>14}")
-    for name, wall, cpu, child in rows:
-        print(f"{name:<22} {wall:>8.2f} {cpu:>13.2f} {child:>14.2f}")
+    print(f"{'step':<22} {'wall s':>8} {'job CPU s':>10} {'core CPU s':>11} {'API/core':>9}")
+    print(f"{'traces:import':<22} {import_wall:>8.2f} {import_cpu:>10.2f} {'':>11} {'':>9}  (server process)")
     for kind in ("probe_plan", "probe_run", "reconstruct", "compensate"):
-        print(f"{kind:<22} {steps.get(kind, float('nan')):>8.2f} {'':>13} {'':>14}")
-    print(f"{'closed_loop (whole)':<22} {loop_wall:>8.2f} {s1 - s0:>13.2f} {d1 - d0:>14.2f}")
+        ref = core.get(kind)
+        ratio = f"{api_cpu[kind] / ref:>9.2f}" if ref else f"{'':>9}"
+        print(f"{kind:<22} {steps.get(kind, math.nan):>8.2f} {api_cpu.get(kind, math.nan):>10.2f} "
+              f"{ref if ref is not None else math.nan:>11.2f} {ratio}")
+    rc_api = api_cpu["reconstruct"] + api_cpu["compensate"]
+    rc_core = core["reconstruct"] + core["compensate"]
+    print(f"{'reconstruct+compensate':<22} {steps['reconstruct'] + steps['compensate']:>8.2f} {rc_api:>10.2f} "
+          f"{rc_core:>11.2f} {rc_api / rc_core:>9.2f}")
+    print(f"closed_loop whole: {loop_wall:.1f} s wall; server process {s1 - s0:.2f} s CPU, compute processes "
+          f"{d1 - d0:.2f} s CPU (live ones)")
     print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB")
     print(f"GET /jobs/{{compensate}}: {small[0] / 1024:.1f} KiB in {small[1] * 1e3:.1f} ms; "
           f"?include=result: {whole[0] / 1024:.1f} KiB in {whole[1] * 1e3:.1f} ms")
     print(json.dumps({"import_cpu_s": import_cpu, "loop_server_cpu_s": s1 - s0, "loop_compute_cpu_s": d1 - d0,
-                      "steps_wall_s": steps, "get_bytes": small[0], "get_ms": small[1] * 1e3}))
+                      "steps_wall_s": steps, "steps_cpu_s": api_cpu, "core_cpu_s": core,
+                      "get_bytes": small[0], "get_ms": small[1] * 1e3}))
