@@ -74,9 +74,9 @@ def cpu_now() -> tuple[float, float]:
     return time.process_time(), sum(_stat(p)[0] for p in _descendants(os.getpid()))
 
 
-def service_rss() -> int:
-    """Resident bytes of this process and its descendants."""
-    return _stat(os.getpid())[1] + sum(_stat(p)[1] for p in _descendants(os.getpid()))
+def service_rss() -> tuple[int, int]:
+    """Resident bytes of (this process, its descendants)."""
+    return _stat(os.getpid())[1], sum(_stat(p)[1] for p in _descendants(os.getpid()))
 
 
 def true_part(seed: int = 11) -> BoardPart:
@@ -145,10 +145,12 @@ def test_board_through_the_api(client, settings):
         "part_id": part["id"], "trace_ids": trace_ids, "machine_id": machine["id"], "joint_probing": True,
         "probe": PROCESS, "sigma_mm": 0.001, "board_jobs": True}}, headers=OP)
     assert submitted.status_code == 202, submitted.text
-    peak = 0
+    peak = peak_server = peak_compute = 0
     job_id = submitted.json()["id"]
     while True:
-        peak = max(peak, service_rss())
+        server_rss, compute_rss = service_rss()
+        peak, peak_server, peak_compute = (max(peak, server_rss + compute_rss), max(peak_server, server_rss),
+                                           max(peak_compute, compute_rss))
         done = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
         if done["status"] in ("succeeded", "failed", "cancelled"):
             break
@@ -191,7 +193,8 @@ def test_board_through_the_api(client, settings):
           f"{rc_core:>11.2f} {rc_api / rc_core:>9.2f}")
     print(f"closed_loop whole: {loop_wall:.1f} s wall; server process {s1 - s0:.2f} s CPU, compute processes "
           f"{d1 - d0:.2f} s CPU (live ones)")
-    print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB")
+    print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB (server alone {peak_server / 2**20:.0f}"
+          f" MiB, with the test's own data; compute processes {peak_compute / 2**20:.0f} MiB)")
     print(f"GET /jobs/{{compensate}}: {small[0] / 1024:.1f} KiB in {small[1] * 1e3:.1f} ms; "
           f"?include=result: {whole[0] / 1024:.1f} KiB in {whole[1] * 1e3:.1f} ms")
     print(json.dumps({"import_cpu_s": import_cpu, "loop_server_cpu_s": s1 - s0, "loop_compute_cpu_s": d1 - d0,
