@@ -124,6 +124,15 @@ class JobContext:
             session.commit()
             return artifact.sha256
 
+    def artifacts(self, items: list[tuple[str, bytes, str, dict[str, Any] | None]]) -> list[str]:
+        """Store several artifacts of this job (name, data, media type, meta) in one commit
+        (each blob written and fsynced before it); their sha256 in order."""
+        with self.session() as session:
+            shas = [add_artifact(session, self.runtime.blobs, self.job_id, name, data, media_type, meta).sha256
+                    for name, data, media_type, meta in items]
+            session.commit()
+            return shas
+
     # children --------------------------------------------------------------------
     def submit_child(self, kind: str, params: dict[str, Any]) -> str:
         return self.runtime.submit(kind, params, parent_id=self.job_id).id

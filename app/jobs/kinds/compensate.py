@@ -282,8 +282,9 @@ def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, 
                                          placed_nominal(trace, placement))
     result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement, records)
     printed, plain = board_artifacts(trace.id)
-    stored = {printed: ctx.artifact(printed, program.encode(), "text/x-gcode", gcode_meta(program)),
-              plain: ctx.artifact(plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))}
+    shas = ctx.artifacts([(printed, program.encode(), "text/x-gcode", gcode_meta(program)),
+                          (plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))])
+    stored = {printed: shas[0], plain: shas[1]}
     return {"trace_id": trace.id, "print_artifact": printed, "nominal_artifact": plain, **result, "stored": stored}
 
 
