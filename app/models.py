@@ -97,6 +97,10 @@ class Job(SQLModel, table=True):
     message: str = Field(default="", max_length=500)
     params: dict = Field(sa_column=Column(JSON, nullable=False))
     result: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    # the result's size as stored (bytes of its JSON) and its summary (app.jobs.results.result_summary):
+    # what the job's record shows in place of a large result
+    result_bytes: int | None = None
+    result_summary: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
     error: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
     parent_id: str | None = Field(default=None, foreign_key="jobs.id", index=True, max_length=40)
     queue: str = Field(default="default", max_length=40)

@@ -9,12 +9,15 @@ import anyio
 from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy import bindparam, func
+from sqlalchemy import select as sa_select
 from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import defer
 from sqlmodel import Session, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.job_events import JobWatch, TooManyStreams
+from app.api.job_results import ARTIFACTS_INLINE_MAX, Include, inlined, shown_result, wants
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
 from app.jobs.results import ProgramEcho
 from app.errors import Conflict, ConformaError, InvalidInput, NotFound, TooLarge
@@ -29,24 +32,38 @@ router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled", "interrupted"]
 SSE_POLL_S = 0.1
 # Built once: the statements' compiled forms are cached, so a poll pays for execution only.
-_JOB_BY_ID = Job.__table__.select().where(Job.__table__.c.id == bindparam("job_id"))
+_JOB_BY_ID = (sa_select(*(c for c in Job.__table__.c if c.name != "result"))
+              .where(Job.__table__.c.id == bindparam("job_id")))
+_RESULT_OF_JOB = sa_select(Job.__table__.c.result).where(Job.__table__.c.id == bindparam("job_id"))
 _ARTIFACTS_OF_JOB = (Artifact.__table__.select().where(Artifact.__table__.c.job_id == bindparam("job_id"))
                      .order_by(Artifact.__table__.c.id))
+_FIRST_ARTIFACTS = _ARTIFACTS_OF_JOB.limit(ARTIFACTS_INLINE_MAX + 1)
+_ARTIFACT_COUNT = (sa_select(func.count()).select_from(Artifact.__table__)
+                   .where(Artifact.__table__.c.job_id == bindparam("job_id")))
 SSE_RETRY_AFTER_S = 5
 
 
-def job_out(job: Job, artifacts: list[Artifact]) -> JobOut:
+def job_out(job: Job, artifacts: list[Artifact], include: list[str] | None = None,
+            artifact_count: int | None = None) -> JobOut:
+    """The record of ``job`` (its result in brief unless ``include`` has "result"; its first
+    ARTIFACTS_INLINE_MAX ``artifacts`` unless it has "artifacts"; ``artifact_count``: how
+    many it wrote, when ``artifacts`` are not all of them)."""
+    count = len(artifacts) if artifact_count is None else artifact_count
+    listed = artifacts if wants(include, "artifacts") else artifacts[:ARTIFACTS_INLINE_MAX]
     return JobOut(
-        **job.model_dump(exclude={"queue", "max_attempts", "worker", "lease_until", "revision", "enqueued_at"}),
+        **job.model_dump(exclude={"queue", "max_attempts", "worker", "lease_until", "revision", "enqueued_at",
+                                  "result", "result_bytes", "result_summary"}),
+        **shown_result(job, wants(include, "result")),
         artifacts=[ArtifactOut(name=a.name, media_type=a.media_type, bytes=a.bytes, sha256=a.sha256, meta=a.meta,
-                               url=f"/api/v1/jobs/{job.id}/artifacts/{a.name}") for a in artifacts],
+                               url=f"/api/v1/jobs/{job.id}/artifacts/{a.name}") for a in listed],
+        artifact_count=count,
     )
 
 
-def load_job_out(session: Session, job_id: str) -> JobOut:
+def load_job_out(session: Session, job_id: str, include: list[str] | None = None) -> JobOut:
     job = get_or_404(session, Job, job_id)
     artifacts = session.exec(select(Artifact).where(Artifact.job_id == job_id).order_by(Artifact.id)).all()
-    return job_out(job, list(artifacts))
+    return job_out(job, list(artifacts), include)
 
 
 @router.post("", status_code=202, dependencies=[Operator])
@@ -84,8 +101,9 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
               top_level: Annotated[bool, Query(description="only jobs without a parent (hide workflow children)")] = False,
               created_after: Annotated[datetime | None, Query(description="ISO 8601; inclusive")] = None,
               created_before: Annotated[datetime | None, Query(description="ISO 8601; exclusive")] = None,
-              limit: Limit = 100, offset: Offset = 0) -> Page[JobOut]:
-    """Jobs, newest first, filtered by kind, status, parent, part, machine and creation time."""
+              limit: Limit = 100, offset: Offset = 0, include: Include = None) -> Page[JobOut]:
+    """Jobs, newest first, filtered by kind, status, parent, part, machine and creation time;
+    large results and long artifact lists in brief (see ``include``)."""
     filters = [c for c in (Job.kind == kind if kind else None, Job.status == status if status else None,
                            Job.parent_id == parent_id if parent_id else None,
                            Job.parent_id.is_(None) if top_level else None,  # type: ignore[union-attr]
@@ -100,13 +118,17 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
         filters.append(Job.id.in_(select(JobReference.job_id).where(  # type: ignore[attr-defined]
             JobReference.ref_kind == "machine", JobReference.ref_id == machine_id)))
     total = session.exec(select(func.count()).select_from(Job).where(*filters)).one()
-    jobs = session.exec(select(Job).where(*filters).order_by(Job.created_at.desc(), Job.id).offset(offset).limit(limit)).all()
+    jobs = session.exec(select(Job).options(defer(Job.result)).where(*filters)  # type: ignore[arg-type]
+                        .order_by(Job.created_at.desc(), Job.id).offset(offset).limit(limit)).all()
     ids = [j.id for j in jobs]
+    shown = [j.id for j in jobs if inlined(j.result_bytes, wants(include, "result"))]
+    results = dict(session.exec(select(Job.id, Job.result).where(Job.id.in_(shown))).all()) if shown else {}  # type: ignore[attr-defined]
     by_job: dict[str, list[Artifact]] = {i: [] for i in ids}
     if ids:
         for artifact in session.exec(select(Artifact).where(Artifact.job_id.in_(ids)).order_by(Artifact.id)).all():
             by_job[artifact.job_id].append(artifact)
-    return Page(items=[job_out(j, by_job[j.id]) for j in jobs], total=total)
+    return Page(items=[job_out(Job.model_construct(**{**j.model_dump(exclude={"result"}), "result": results.get(j.id)}),
+                               by_job[j.id], include) for j in jobs], total=total)
 
 
 def _utc(moment: datetime) -> datetime:
@@ -115,15 +137,22 @@ def _utc(moment: datetime) -> datetime:
 
 
 @router.get("/{job_id}", dependencies=[Viewer], response_model=JobOut)
-def get_job(job_id: str, runtime: RuntimeDep) -> Response:
-    """One job.  The hot path of lab automation (polling): two indexed Core queries and one
-    serialisation, no ORM objects and no second validation of the response."""
+def get_job(job_id: str, runtime: RuntimeDep, include: Include = None) -> Response:
+    """One job.  The hot path of lab automation (polling): indexed Core queries and one
+    serialisation, no ORM objects and no second validation of the response; a large result
+    is read only for ``include=result``, and a long list of artifacts only for ``include=artifacts``."""
     with runtime.engine.connect() as conn:
         row = conn.execute(_JOB_BY_ID, {"job_id": job_id}).mappings().first()
         if row is None:
             raise NotFound(f"job {job_id!r} does not exist", field="job_id", value=job_id)
-        artifacts = conn.execute(_ARTIFACTS_OF_JOB, {"job_id": job_id}).mappings().all()
-    body = job_out(Job.model_construct(**row), [Artifact.model_construct(**a) for a in artifacts])
+        every = wants(include, "artifacts")
+        artifacts = conn.execute(_ARTIFACTS_OF_JOB if every else _FIRST_ARTIFACTS, {"job_id": job_id}).mappings().all()
+        count = len(artifacts) if every or len(artifacts) <= ARTIFACTS_INLINE_MAX else \
+            conn.execute(_ARTIFACT_COUNT, {"job_id": job_id}).scalar_one()
+        whole = inlined(row["result_bytes"], wants(include, "result"))
+        result = conn.execute(_RESULT_OF_JOB, {"job_id": job_id}).scalar() if whole else None
+    body = job_out(Job.model_construct(**row, result=result), [Artifact.model_construct(**a) for a in artifacts],
+                   include, count)
     return Response(body.model_dump_json(), media_type="application/json")
 
 
@@ -145,7 +174,7 @@ def cancel_job(job_id: str, runtime: RuntimeDep, session: SessionDep) -> JobOut:
 @router.get("/{job_id}/artifacts", dependencies=[Viewer])
 def list_artifacts(job_id: str, session: SessionDep) -> list[ArtifactOut]:
     """The files a job wrote, in the order it wrote them (name, type, size, sha256, url)."""
-    return load_job_out(session, job_id).artifacts
+    return load_job_out(session, job_id, ["artifacts"]).artifacts
 
 
 @router.get("/{job_id}/artifacts/{name}", dependencies=[Viewer],

@@ -156,10 +156,19 @@ class JobOut(BaseModel):
     started_at: UtcDatetime | None
     finished_at: UtcDatetime | None
     error: dict[str, Any] | None
-    result: dict[str, Any] | None
+    result: dict[str, Any] | None = Field(description=(
+        "the result; null while unfinished, and when larger than 16 KiB of JSON unless asked for "
+        "with ?include=result (then result_omitted is true)"))
+    result_omitted: bool = Field(False, description="the result exists but is not inlined (ask ?include=result)")
+    result_bytes: int | None = Field(None, description="size of the whole result as JSON, bytes")
+    result_summary: dict[str, Any] | None = Field(None, description=(
+        "when the result is omitted: its top-level scalars, the kind's summary fields and <list>_count "
+        "(the length of each top-level list)"))
     input_hashes: dict[str, str]
     software_version: str
-    artifacts: list[ArtifactOut]
+    artifacts: list[ArtifactOut] = Field(description=(
+        "the artifacts the job wrote, in order: the first 20 unless asked for with ?include=artifacts"))
+    artifact_count: int = Field(0, description="how many artifacts the job wrote")
     program_state: dict[str, Any] | None = Field(
         None, description="machine jobs: commands executed (known) and total, last acknowledged firmware line, "
         "and once interrupted: when, why, the position if known; resumes and the resume preamble")

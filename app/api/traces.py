@@ -11,7 +11,7 @@ from sqlmodel import Session, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
-from app.api.schemas import Page, TraceCreate, TraceOut
+from app.api.schemas import NominalOut, Page, TraceCreate, TraceOut
 from app.db import lock_for_delete
 from app.errors import Conflict, NotFound
 from app.models import JobReference, Part, Trace
@@ -22,9 +22,11 @@ MAX_IMPORT = 1000
 
 
 def trace_out(trace: Trace) -> TraceOut:
-    data = trace.model_dump()
-    data["z_range"] = [data.pop("z_min"), data.pop("z_max")]
-    return TraceOut(**data)
+    """The API form of a stored trace, built without validating it again (the record was
+    validated when it was made; its nominal polyline is thousands of floats)."""
+    fields = {name: getattr(trace, name) for name in TraceOut.model_fields if name not in ("z_range", "nominal")}
+    return TraceOut.model_construct(**fields, z_range=[trace.z_min, trace.z_max],
+                                    nominal=NominalOut.model_construct(**trace.nominal))
 
 
 @router.post("/parts/{part_id}/traces", status_code=201, dependencies=[Operator])

@@ -95,6 +95,12 @@ class NurbsCurve:
         c = np.hstack([self.control_points * w, w])
         return BSpline(self.knots, c, self.degree, extrapolate=True)
 
+    @property
+    def homogeneous_spline(self) -> BSpline:
+        """The curve in homogeneous coordinates (w*x, w*y[, w*z], w) as a scipy BSpline: for
+        hot loops whose parameters are known to lie in the domain (no check, no clipping)."""
+        return self._homogeneous
+
     def _params(self, u: ArrayLike, field: str = "u") -> np.ndarray:
         arr = np.atleast_1d(np.asarray(u, dtype=float)).ravel()
         a, b = self.domain
@@ -132,9 +138,10 @@ class NurbsCurve:
         out: np.ndarray = self._homogeneous(u, nu=nu)
         return out
 
-    def curvature(self, u: ArrayLike) -> np.ndarray:
-        """Curvature |C' x C''| / |C'|^3 at ``u`` (k,) -> (k,) in 1/mm (0 where C' = 0)."""
-        d = self.derivatives(u, 2)
+    def curvature(self, u: ArrayLike, derivatives: np.ndarray | None = None) -> np.ndarray:
+        """Curvature |C' x C''| / |C'|^3 at ``u`` (k,) -> (k,) in 1/mm (0 where C' = 0);
+        ``derivatives``: :meth:`derivatives` (u, 2) when the caller has them already."""
+        d = self.derivatives(u, 2) if derivatives is None else derivatives
         d1, d2 = d[1], d[2]
         s2 = np.einsum("ij,ij->i", d1, d1)
         if self.dimension == 2:

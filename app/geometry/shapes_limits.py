@@ -65,7 +65,8 @@ def estimated_cl_points(curve: NurbsCurve, chord_mm: float) -> float:
         return float(spans + 1)
     a, b = curve.domain
     u = np.linspace(a, b, min(_MAX_ESTIMATE_SAMPLES, _SAMPLES_PER_SPAN * spans + 1))
-    density = np.sqrt(np.maximum(curve.curvature(u), 0.0) / (8.0 * chord_mm)) * curve.speed(u)
+    d = curve.derivatives(u, 2)
+    density = np.sqrt(np.maximum(curve.curvature(u, d), 0.0) / (8.0 * chord_mm)) * np.linalg.norm(d[1], axis=1)
     return float(np.sum(0.5 * (density[1:] + density[:-1]) * np.diff(u))) + spans + 1
 
 

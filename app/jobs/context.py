@@ -10,7 +10,7 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
-from sqlmodel import Session
+from sqlmodel import Session, select
 
 from app.errors import Cancelled, ConformaError
 from app.jobs.inputs import succeeded_job
@@ -82,6 +82,34 @@ class JobContext:
             raise ConformaError(f"job {job_id!r} has no artifact {name!r}", field="artifact", value=name)
         return self.runtime.blobs.read(row.sha256)
 
+    def artifacts_of(self, wanted: list[tuple[str, str]]) -> dict[tuple[str, str], Artifact]:
+        """The artifact rows (job id, name) -> Artifact of ``wanted``, in one query per
+        distinct job (not one per artifact: a board's children hold thousands); read their
+        bytes with :meth:`blob`.  A missing one is a ConformaError naming it."""
+        by_job: dict[str, set[str]] = {}
+        for job_id, name in wanted:
+            by_job.setdefault(job_id, set()).add(name)
+        found: dict[tuple[str, str], Artifact] = {}
+        with self.session() as session:
+            for job_id, names in by_job.items():
+                for row in session.exec(select(Artifact).where(Artifact.job_id == job_id)).all():
+                    if row.name in names:
+                        found[(job_id, row.name)] = row
+        for job_id, name in wanted:
+            if (job_id, name) not in found:
+                raise ConformaError(f"job {job_id!r} has no artifact {name!r}", field="artifact", value=name)
+        return found
+
+    def blob(self, sha256: str) -> bytes:
+        """Stored content by its sha256 (an artifact's :attr:`Artifact.sha256`)."""
+        return self.runtime.blobs.read(sha256)
+
+    def trace_names(self, trace_ids: list[str]) -> dict[str, str]:
+        """trace id -> name, in one query (without the traces' nominal polylines)."""
+        with self.session() as session:
+            rows = session.exec(select(Trace.id, Trace.name).where(Trace.id.in_(trace_ids))).all()  # type: ignore[attr-defined]
+        return dict(rows)
+
     def file_bytes(self, file_id: str, field: str = "file_id") -> bytes:
         """The content of an uploaded file (``POST /api/v1/files``)."""
         with self.session() as session:
@@ -96,6 +124,15 @@ class JobContext:
             session.commit()
             return artifact.sha256
 
+    def artifacts(self, items: list[tuple[str, bytes, str, dict[str, Any] | None]]) -> list[str]:
+        """Store several artifacts of this job (name, data, media type, meta) in one commit
+        (each blob written and fsynced before it); their sha256 in order."""
+        with self.session() as session:
+            shas = [add_artifact(session, self.runtime.blobs, self.job_id, name, data, media_type, meta).sha256
+                    for name, data, media_type, meta in items]
+            session.commit()
+            return shas
+
     # children --------------------------------------------------------------------
     def submit_child(self, kind: str, params: dict[str, Any]) -> str:
         return self.runtime.submit(kind, params, parent_id=self.job_id).id
@@ -105,10 +142,11 @@ class JobContext:
         cancels them too; a lost lease does not (another attempt of this job takes over and
         reuses them: an interrupted child keeps its measured points for the operator's resume)."""
         while True:
-            with self.session() as session:
-                jobs = [session.get(Job, job_id) for job_id in job_ids]
-            if all(job is not None and job.status in TERMINAL_STATES for job in jobs):
-                return [job for job in jobs if job is not None]
+            with self.session() as session:  # each poll reads the states only, not the results
+                states = dict(session.exec(select(Job.id, Job.status).where(Job.id.in_(job_ids))).all())  # type: ignore[attr-defined]
+                if all(states.get(job_id) in TERMINAL_STATES for job_id in job_ids):
+                    jobs = {job.id: job for job in session.exec(select(Job).where(Job.id.in_(job_ids))).all()}  # type: ignore[attr-defined]
+                    return [jobs[job_id] for job_id in job_ids]
             try:
                 self.check_cancelled()
             except Cancelled:

@@ -39,18 +39,21 @@ def _measured(report: PrintReport | None, name: str) -> float | None:
     return None if report is None else _um(getattr(report, name))
 
 
-def summary_rows(ctx: JobContext, traces: list[LoopTrace], programs: dict[str, str]) -> list[dict[str, Any]]:
+def summary_rows(ctx: JobContext, traces: list[LoopTrace], programs: dict[str, str],
+                 metas: dict[str, dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """One row per trace of a closed loop's result (lengths µm); ``programs``: trace id ->
-    its compensated program's text."""
+    its compensated program's text; ``metas``: trace id -> that program's stored
+    :func:`gcode_meta` (computed from the text where missing)."""
     rows = []
+    names = ctx.trace_names([entry.trace_id for entry in traces])
     for index, entry in enumerate(traces, start=1):
-        text = programs[entry.trace_id]
-        meta = gcode_meta(text)
+        stored = (metas or {}).get(entry.trace_id) or {}
+        meta = stored if {"lines", "commands_sha256"} <= stored.keys() else gcode_meta(programs[entry.trace_id])
         evaluation = entry.evaluation
         before = evaluation.nominal if evaluation is not None else None
         after = evaluation.compensated if evaluation is not None else None
         rows.append({
-            "index": index, "trace_id": entry.trace_id, "name": ctx.trace(entry.trace_id).name,
+            "index": index, "trace_id": entry.trace_id, "name": names[entry.trace_id],
             "probes": entry.probes, "deviation_max_um": _um(entry.deviation_max_mm),
             "compensate_job": entry.compensate, "program_lines": meta["lines"],
             "program_sha256": meta["commands_sha256"],
@@ -80,8 +83,9 @@ def write_loop_files(ctx: JobContext, machine_id: str, result: dict[str, Any]) -
     dialect = ctx.machine(machine_id).dialect
     traces = ClosedLoopResult.model_validate(result).traces
     # a board compensate job holds every trace's program as print.<trace_id>.gcode (the entry names it)
-    programs = {e.trace_id: ctx.artifact_bytes(e.compensate, e.program).decode() for e in traces}
-    rows = summary_rows(ctx, traces, programs)
+    stored = ctx.artifacts_of([(e.compensate, e.program) for e in traces])
+    programs = {e.trace_id: ctx.blob(stored[(e.compensate, e.program)].sha256).decode() for e in traces}
+    rows = summary_rows(ctx, traces, programs, {e.trace_id: stored[(e.compensate, e.program)].meta for e in traces})
     ctx.artifact("loop_summary.json", json.dumps({"traces": rows}, indent=1).encode(), "application/json")
     ctx.artifact("loop_summary.csv", _csv(rows), "text/csv")
     files: dict[str, Any] = {"summary": ["loop_summary.json", "loop_summary.csv"]}

@@ -20,6 +20,7 @@ set are dumped), so the API's results are unchanged.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from typing import Any, ClassVar, Literal, TypeVar
 
@@ -29,6 +30,8 @@ from app.errors import ConformaError
 from app.models import Job
 
 R = TypeVar("R", bound="KindResult")
+SUMMARY_FIELDS: dict[str, tuple[str, ...]] = {}  # kind -> the fields its results' summaries keep
+SUMMARY_MAX_BYTES = 4096  # a declared field larger than this (as JSON) is left out of the summary
 
 
 class StoredResultError(ConformaError):
@@ -36,10 +39,17 @@ class StoredResultError(ConformaError):
 
 
 class KindResult(BaseModel):
-    """Base of the result models: unknown keys are errors."""
+    """Base of the result models: unknown keys are errors.  ``summary_fields``: the fields a
+    large result's summary keeps (:func:`result_summary`; beside its top-level scalars)."""
 
     model_config = ConfigDict(extra="forbid")
     kind: ClassVar[str] = ""
+    summary_fields: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("summary_fields"):
+            SUMMARY_FIELDS[cls.kind] = tuple(dict.fromkeys(SUMMARY_FIELDS.get(cls.kind, ()) + cls.summary_fields))
 
     @classmethod
     def of(cls: type[R], job: Job) -> R:
@@ -447,3 +457,22 @@ class ProgramEcho(BaseModel):
             where = ".".join(str(p) for p in first["loc"])
             raise StoredResultError(f"the result of {job.kind} job {job.id!r} echoes a bad {where}: {first['msg']}",
                                     field=f"result.{where}", value=job.id) from None
+
+
+# any job's summary ------------------------------------------------------------------------
+def result_summary(kind: str, result: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """What a job's record shows in place of a large result: its top-level scalars, the
+    fields its kind declares (``KindResult.summary_fields``, each at most SUMMARY_MAX_BYTES
+    of JSON), and ``<key>_count`` for each top-level list (its length)."""
+    if result is None:
+        return None
+    out: dict[str, Any] = {}
+    for key, value in result.items():
+        if value is None or isinstance(value, (bool, int, float, str)):
+            out[key] = value
+        elif isinstance(value, list) and f"{key}_count" not in result:
+            out[f"{key}_count"] = len(value)
+    for key in SUMMARY_FIELDS.get(kind, ()):
+        if key in result and len(json.dumps(result[key])) <= SUMMARY_MAX_BYTES:
+            out[key] = result[key]
+    return out

@@ -17,6 +17,7 @@ from typing import Any
 from sqlalchemy import Engine, and_, case, literal, or_, select, update
 from sqlalchemy.exc import DBAPIError
 
+from app.jobs.results import result_summary
 from app.models import TERMINAL_STATES, Job, utcnow
 
 FINISH_TRIES = 6  # JobStore.finish_surely: tries of an outcome's write...
@@ -100,6 +101,8 @@ class JobStore:
         values: dict[str, Any] = {
             "status": status,
             "result": result,
+            "result_bytes": None if result is None else len(json.dumps(result).encode()),
+            "result_summary": result_summary(claim.kind, result),
             "error": error,
             "finished_at": utcnow(),
             "lease_until": None,

@@ -87,7 +87,7 @@ def _timed(cmd: list[str], env: dict | None = None) -> tuple[float, float, float
 def _wait(client, job_id: str, timeout: float = 3600.0) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        job = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
+        job = client.get(f"/api/v1/jobs/{job_id}?include=result&include=artifacts", headers=OP).json()
         if job["status"] in ("succeeded", "failed", "cancelled"):
             return job
         time.sleep(0.2)
@@ -148,7 +148,7 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
             ours_wall = time.perf_counter() - started
             ours_cpu, ours_peak = _tree_cpu_and_peak(os.getpid())
             ours_cpu -= cpu0
-            result = client.get(f"/api/v1/jobs/{tool_job['id']}", headers=OP).json()["result"]
+            result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts", headers=OP).json()["result"]
             prusa = _timed(["prusa-slicer", "--export-gcode", "--layer-height", "0.2", "--first-layer-height", "0.2",
                             "--perimeters", "1", "--fill-density", "100%", "--fill-pattern", "rectilinear",
                             "--top-solid-layers", "0", "--bottom-solid-layers", "0", "--skirts", "0",

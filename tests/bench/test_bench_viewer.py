@@ -185,7 +185,7 @@ def _job_with_artifact(api: httpx.Client, seed: int) -> str:
     job_id = api.post("/api/v1/jobs", json={"kind": "bench_toolpath", "params": {"segments": SEGMENTS, "seed": seed}}
                       ).json()["id"]
     for _ in range(1200):
-        job = api.get(f"/api/v1/jobs/{job_id}").json()
+        job = api.get(f"/api/v1/jobs/{job_id}?include=result&include=artifacts").json()
         if job["status"] in ("succeeded", "failed"):
             assert job["status"] == "succeeded", job["error"]
             return job_id

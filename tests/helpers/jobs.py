@@ -9,6 +9,7 @@ from tests.conftest import auth
 
 OP = auth("operator")
 POLL_MIN_S, POLL_MAX_S = 0.02, 0.2
+WHOLE = {"include": ["result", "artifacts"]}  # a job's record with its result and every artifact
 
 
 def submit(client: Any, kind: str, params: dict[str, Any]) -> Any:
@@ -18,15 +19,17 @@ def submit(client: Any, kind: str, params: dict[str, Any]) -> Any:
 
 def wait_for(client: Any, job_id: str, states: tuple[str, ...] = ("succeeded", "failed", "cancelled"),
              timeout: float = 20.0) -> dict[str, Any]:
-    """The job once its status is one of ``states``.  Polled every 20 ms at first, then ever
-    less often (every 5 % of the time waited so far, at most every 0.2 s): each poll is a
-    request through the whole app (~5 ms of CPU), which a 20 ms poll took from the job it
-    waits for for as long as the job ran."""
+    """The job once its status is one of ``states``, whole (``?include=result&include=artifacts``:
+    what a test reads).  Polled (the small record) every 20 ms at first, then ever less often
+    (every 5 % of the time waited so far, at most every 0.2 s): each poll is a request through
+    the whole app (~5 ms of CPU), which a 20 ms poll took from the job it waits for for as
+    long as the job ran."""
     start = time.monotonic()
     deadline = start + timeout
     while time.monotonic() < deadline:
         job: dict[str, Any] = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
         if job["status"] in states:
-            return job
+            whole: dict[str, Any] = client.get(f"/api/v1/jobs/{job_id}", params=WHOLE, headers=OP).json()
+            return whole if whole["status"] in states else job
         time.sleep(min(POLL_MAX_S, max(POLL_MIN_S, (time.monotonic() - start) / 20)))
     raise AssertionError(f"job {job_id} still {job['status']}")

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import time
+from typing import Any, ClassVar
 
 from pydantic import Field
 
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import KindResult
 
 
 class SleepParams(JobParams):
@@ -151,3 +153,32 @@ def run_stubborn(ctx: JobContext, params: StubbornParams) -> dict:
     with journal.open("a") as f:
         f.write(f"end {os.getpid()}\n")
     return {"attempt": ctx.claim.attempt}
+
+
+class BoardResultParams(JobParams):
+    trace_ids: list[str] = Field(min_length=1, max_length=1000)
+    points: int = Field(100, ge=1, le=10_000)
+    artifacts_per_trace: int = Field(2, ge=0, le=2)
+
+
+class BoardLikeResult(KindResult):
+    """A board-shaped result: one row per trace (``points`` (n, 3) mm each) and a worst figure."""
+
+    kind: ClassVar[str] = "test_board_result"
+    summary_fields: ClassVar[tuple[str, ...]] = ("deviation",)
+    board: bool
+    deviation: dict[str, float]
+    traces: list[dict[str, Any]]
+
+
+@job_kind("test_board_result", BoardResultParams)
+def run_board_result(ctx: JobContext, params: BoardResultParams) -> dict:
+    """A result the size of a board compensate's (``points`` points per trace) and
+    ``artifacts_per_trace`` small programs per trace, as a board job writes them."""
+    rows = [{"trace_id": t, "segments": params.points - 1,
+             "points": [[i * 0.1, k * 0.01, 10.0 + 1e-4 * i] for i in range(params.points)]}
+            for k, t in enumerate(params.trace_ids)]
+    for t in params.trace_ids:
+        for name in ("print", "nominal")[:params.artifacts_per_trace]:
+            ctx.artifact(f"{name}.{t}.gcode", f"G1 X0 ; {t}\n".encode(), "text/x-gcode")
+    return BoardLikeResult.written({"board": True, "deviation": {"max_mm": 0.002, "rms_mm": 0.001}, "traces": rows})

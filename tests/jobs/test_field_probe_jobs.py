@@ -67,7 +67,7 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     for row in table:
         assert row["standoff_max_after_um"] <= 10.0, row
         assert row["standoff_max_before_um"] >= 50.0, row
-    plan = client.get(f"/api/v1/jobs/{entries[0]['probe_plan']}", headers=OP).json()
+    plan = client.get(f"/api/v1/jobs/{entries[0]['probe_plan']}?include=result&include=artifacts", headers=OP).json()
     assert plan["params"]["method"] is None and plan["result"]["method"] == "field"  # the default for boards
     field = plan["result"]["field"]  # the last sequential round: every station touched so far, then its own
     own = [s for s in field["stations"] if not s.get("from_run")]
@@ -80,7 +80,7 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     assert [e["probes"] for e in entries] == per_trace
     assert sum(per_trace) + field["verify_count"] == len(field["stations"]) and field["verify_count"] == 5
     for entry in entries:
-        rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
+        rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}?include=result&include=artifacts", headers=OP).json()
         assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
     # (the fit is cached per process: with compute jobs in child processes, each
     # reconstruct job fits the run's field again — the same fit, see tests/reconstruction)
@@ -173,7 +173,7 @@ def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(c
         assert gcode_meta(board_text)["commands_sha256"] == gcode_meta(alone)["commands_sha256"]
         # the loop's own summary reads the board program the same way
         assert row["program_sha256"] == gcode_meta(alone)["commands_sha256"] and row["compensate_job"] == entry["compensate"]
-        rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
+        rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}?include=result&include=artifacts", headers=OP).json()
         assert entry["trace_id"] in rebuilt["params"]["trace_ids"] and rebuilt["params"]["method"] == "field"
     whole = client.get(f"/api/v1/jobs/{loop['id']}/artifacts/whole_part.gcode", headers=OP).text
     assert whole.count("G1") > 0
@@ -293,7 +293,7 @@ def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_veri
                timeout=600)
     verdict = done["result"]["verdict"]
     assert not verdict["needs_attention"], verdict["reasons"]
-    plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}", headers=OP).json()
+    plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}?include=result&include=artifacts", headers=OP).json()
     sequential = plan["result"]["field"]["sequential"]
     assert sequential["final"] and sequential["round"] >= 1 and sequential["touched_before"] > 0
     assert verdict["verified"].startswith("verified at 5 points")

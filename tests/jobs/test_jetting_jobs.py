@@ -287,7 +287,7 @@ def test_cancel_stops_a_run_between_layers(client):
     deadline = time.monotonic() + 20
     while job["progress"] < 0.05 and time.monotonic() < deadline:
         time.sleep(0.05)
-        job = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
+        job = client.get(f"/api/v1/jobs/{job_id}?include=result&include=artifacts", headers=OP).json()
     assert client.post(f"/api/v1/jobs/{job_id}/cancel", headers=OP).status_code == 202
     done = wait_for(client, job_id)
     assert done["status"] == "cancelled" and done["progress"] < 0.9

@@ -264,7 +264,7 @@ def assert_standoff_held(client, done: dict) -> None:
         assert row["standoff_max_before_um"] >= 50.0, row
         assert row["width_std_after_um"] < row["width_std_before_um"]
     assert len({e["probe_plan"] for e in entries}) == 1 and len({e["probe_run"] for e in entries}) == 1
-    plan = client.get(f"/api/v1/jobs/{entries[0]['probe_plan']}", headers=OP).json()
+    plan = client.get(f"/api/v1/jobs/{entries[0]['probe_plan']}?include=result&include=artifacts", headers=OP).json()
     assert plan["params"]["trace_ids"] == [e["trace_id"] for e in entries] and plan["params"]["dialect"] == "marlin"
     counts = [e["count"] for e in plan["result"]["traces"]]
     assert [e["probes"] for e in entries] == [row["probes"] for row in table] == counts

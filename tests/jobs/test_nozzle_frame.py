@@ -168,7 +168,7 @@ def test_a_nozzle_body_that_would_touch_the_part_is_refused(client, rebuilt):
     detail = error["detail"]
     assert f"trace {trace['name']} ({trace['id']})" in detail and "outer diameter 1.5 mm" in detail
     assert "s = " in detail and f"by {by:.4f} mm" in detail
-    assert not any(a["name"] == "print.gcode" for a in client.get(f"/api/v1/jobs/{done['id']}", headers=OP)
+    assert not any(a["name"] == "print.gcode" for a in client.get(f"/api/v1/jobs/{done['id']}?include=result&include=artifacts", headers=OP)
                    .json().get("artifacts", []))
 
 

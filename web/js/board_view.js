@@ -77,7 +77,7 @@ function standoffChart(selected) {
 
 // The view's contents (the caller puts them in the result-view box).
 export async function boardCompensateContents(job) {
-  const rebuilt = job.params.reconstruct_job_id ? await get(`jobs/${job.params.reconstruct_job_id}`).catch(() => null) : null;
+  const rebuilt = job.params.reconstruct_job_id ? await get(`jobs/${job.params.reconstruct_job_id}?include=result`).catch(() => null) : null;
   const rows = boardRows(job, rebuilt);
   const urls = new Map((job.artifacts || []).map((a) => [a.name, a.url]));
   const state = { key: "nominal_error_um", descending: true, all: false, tolerance: NaN,

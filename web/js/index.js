@@ -42,7 +42,8 @@ function machineRow(m) {
 }
 
 function jobLine(job, figures = false) {
-  const heads = figures && job.result ? headlineFigures(job.result).slice(0, 3) : [];
+  const shown = job.result || job.result_summary;  // a large result comes in brief: its summary
+  const heads = figures && shown ? headlineFigures(shown).slice(0, 3) : [];
   const took = job.started_at && job.finished_at ? duration((new Date(job.finished_at) - new Date(job.started_at)) / 1000) : null;
   return el("div", { class: "machine", "data-id": job.id },
     el("div", {}, el("a", { href: `jobs.html?job=${job.id}` }, el("strong", {}, job.kind)), " ",

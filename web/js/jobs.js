@@ -182,7 +182,7 @@ function follow(job) {
     streams.delete(job.id);
     if (err) { showError(err, `Live progress of ${job.id}`); return; }
     await guarded("Jobs", async () => {
-      const fresh = await get(`jobs/${job.id}`);
+      const fresh = await get(`jobs/${job.id}?include=result&include=artifacts`);
       updateRow(fresh);
       if (selected === job.id) renderDetail(fresh);
     });
@@ -321,7 +321,7 @@ async function openJob(jobId) {
   tbody.querySelectorAll("tr.selected").forEach((r) => r.classList.remove("selected"));
   tbody.querySelector(`tr[data-id="${jobId}"]`)?.classList.add("selected");
   await guarded(`Job ${jobId}`, async () => {
-    const job = await get(`jobs/${jobId}`);
+    const job = await get(`jobs/${jobId}?include=result&include=artifacts`);
     renderDetail(job);
     follow(job);
   });

@@ -59,7 +59,7 @@ async function waitJob(job, onEvent) {
   await new Promise((resolve) => {
     streamEvents(`/api/v1/jobs/${job.id}/events`, (ev) => onEvent?.(ev.data), () => resolve());
   });
-  return get(`jobs/${job.id}`);
+  return get(`jobs/${job.id}?include=result`);
 }
 
 function failed(job, what) {

@@ -154,7 +154,7 @@ async function onWarp() {
       if (["succeeded", "failed", "cancelled"].includes(data.status)) { ctrl.abort(); resolve(); }
     }, () => resolve());
   });
-  const done = await get(`jobs/${job.id}`);
+  const done = await get(`jobs/${job.id}?include=result&include=artifacts`);
   progress.value = 1;
   if (done.status === "succeeded") {
     showResult(done);

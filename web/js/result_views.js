@@ -96,7 +96,7 @@ function compensateView(job) {
     const [program, nominal, rebuilt] = await Promise.all([
       get(`jobs/${job.id}/artifacts/print.gcode/summary`).catch(() => null),
       get(`jobs/${job.id}/artifacts/nominal.gcode/summary`).catch(() => null),
-      job.params.reconstruct_job_id ? get(`jobs/${job.params.reconstruct_job_id}`).catch(() => null) : null]);
+      job.params.reconstruct_job_id ? get(`jobs/${job.params.reconstruct_job_id}?include=result`).catch(() => null) : null]);
     const standoff = r.standoff_mm;
     const samples = rebuilt?.result?.deviation?.samples || [];
     const rows = samples.map(([s, dz]) => ({ s_mm: s, nominal_program_um: (standoff - dz) * 1000, compensated_um: standoff * 1000 }));

@@ -213,6 +213,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     board = shared is not None and params.board_jobs and bool(ProbePlanResult.of(shared[0]).field)
     batch = params.board_batch if board else 1
     checks: list[dict[str, Any]] = []
+    typed = _TypedResults()  # each child's result read once, not once per trace of a board
     for lo in range(0, total, batch):
         if board:
             assert shared is not None
@@ -222,11 +223,11 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
             done = [_trace_children(steps, params, placed, machine.dialect, shared, lo, total)]
         for index, (trace_id, plan, probe, rebuilt, compensated, deviation, (printed, plain)) in enumerate(done, lo):
             entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
-                     "compensate": compensated.id, "probes": _probe_count(plan, trace_id),
+                     "compensate": compensated.id, "probes": typed.probe_count(plan, trace_id),
                      "deviation_max_mm": deviation}
             if board:
                 entry |= {"print_artifact": printed, "nominal_artifact": plain}
-            check = _field_check(rebuilt, trace_id, entry, plan)
+            check = _field_check(rebuilt, trace_id, entry, plan, typed)
             if check is not None and (not checks or checks[-1] is not check):
                 checks.append(check)
             held = any(c["needs_attention"] for c in checks)
@@ -288,17 +289,49 @@ def _board_batch(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any]
             for r in CompensateBoardResult.of(compensated).traces]
 
 
-def _field_check(rebuilt: Job, trace_id: str, entry: dict[str, Any], plan: Job) -> dict[str, Any] | None:
+class _TypedResults:
+    """The children's results read through their models once per job (a board's children
+    serve every trace of their batch: reading them per trace costs traces x rows)."""
+
+    def __init__(self) -> None:
+        self._rows: dict[str, dict[str, Any]] = {}
+        self._counts: dict[str, tuple[dict[str, int], int]] = {}
+        self._indices: dict[str, dict[str, int]] = {}
+
+    def reconstruct_rows(self, rebuilt: Job) -> dict[str, Any]:
+        if rebuilt.id not in self._rows:
+            self._rows[rebuilt.id] = reconstruct_rows(rebuilt)
+        return self._rows[rebuilt.id]
+
+    def probe_count(self, plan: Job, trace_id: str) -> int:
+        """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's; a
+        field plan's stations on that trace)."""
+        if plan.id not in self._counts:
+            result = ProbePlanResult.of(plan)
+            counts = {e.trace_id: int(e.stations if e.stations is not None else e.count or 0)
+                      for e in reversed(result.traces or ())}  # reversed: a trace's first entry wins
+            self._counts[plan.id] = (counts, result.count)
+        counts, every = self._counts[plan.id]
+        return counts.get(trace_id, every)
+
+    def trace_index(self, plan: Job, trace_id: str) -> int:
+        if plan.id not in self._indices:
+            ids = plan.params.get("trace_ids") or [plan.params.get("trace_id")]
+            self._indices[plan.id] = {t: i for i, t in reversed(list(enumerate(ids)))}
+        return self._indices[plan.id][trace_id]
+
+
+def _field_check(rebuilt: Job, trace_id: str, entry: dict[str, Any], plan: Job,
+                 typed: _TypedResults) -> dict[str, Any] | None:
     """A field reconstruct child's check (the same dict object for every trace of one child);
     fills the trace's ``bound_mm`` and ``worse_than_nominal``.  None for other methods."""
     result = rebuilt.result or {}
     check = result.get("field_check")
     if check is None:
         return None
-    row = reconstruct_rows(rebuilt)[trace_id]
+    row = typed.reconstruct_rows(rebuilt)[trace_id]
     entry["bound_mm"] = row.bound_mm
-    index = (plan.params.get("trace_ids") or [plan.params.get("trace_id")]).index(trace_id)
-    entry["worse_than_nominal"] = index in check.get("worse_traces", [])
+    entry["worse_than_nominal"] = typed.trace_index(plan, trace_id) in check.get("worse_traces", [])
     return check  # type: ignore[no-any-return]
 
 
@@ -408,16 +441,6 @@ def _tool_of(params: ClosedLoopParams) -> dict[str, Any]:
     if not params.corrections.offsets:
         out["corrections"] = {"offsets": False}
     return out
-
-
-def _probe_count(plan: Job, trace_id: str) -> int:
-    """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's; a field
-    plan's stations on that trace)."""
-    result = ProbePlanResult.of(plan)
-    for entry in result.traces or ():
-        if entry.trace_id == trace_id:
-            return int(entry.stations if entry.stations is not None else entry.count or 0)
-    return result.count
 
 
 def _placement_of(probe: dict[str, Any]) -> dict[str, Any]:

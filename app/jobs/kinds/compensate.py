@@ -222,16 +222,14 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     checkpoints = TraceCheckpoints(ctx)
     shared = inputs_sha256(_board_inputs(ctx, params, choice, source.id, placement))
     reconstructions = artifact_shas(ctx, source.id)
-    parts: dict[str, str] = {}
+    records = _Records(ctx)
     for index, trace_id in enumerate(params.trace_ids):
         trace = ctx.trace(trace_id)
-        if trace.part_id not in parts:
-            parts[trace.part_id] = ctx.part(trace.part_id).sha256
-        inputs = inputs_sha256(shared, trace_inputs(trace, parts[trace.part_id]),
+        inputs = inputs_sha256(shared, trace_inputs(trace, records.part(trace.part_id).sha256),
                                reconstructions.get(stored_name(trace_id)))
         row = checkpoints.reusable(trace_id, inputs)
         if row is None:
-            row = _board_trace(ctx, params, choice, trace, source.id, placement)
+            row = _board_trace(ctx, params, choice, trace, source.id, placement, records)
             checkpoints.done(trace_id, inputs, row.pop("stored"), row)
         rows.append(row)
         if index % 25 == 24 or index + 1 == total:
@@ -257,28 +255,49 @@ def _board_inputs(ctx: JobContext, params: CompensateParams, choice: ToolChoice,
             "reconstruct_job_id": source_id}
 
 
+class _Records:
+    """A board job's machine and parts, each read once (not once per trace)."""
+
+    def __init__(self, ctx: JobContext) -> None:
+        self.ctx = ctx
+        self._machines: dict[str, Machine] = {}
+        self._parts: dict[str, Any] = {}
+
+    def machine(self, machine_id: str) -> Machine:
+        if machine_id not in self._machines:
+            self._machines[machine_id] = self.ctx.machine(machine_id)
+        return self._machines[machine_id]
+
+    def part(self, part_id: str) -> Any:
+        if part_id not in self._parts:
+            self._parts[part_id] = self.ctx.part(part_id)
+        return self._parts[part_id]
+
+
 def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, source_id: str,
-                 placement: Any) -> dict[str, Any]:
+                 placement: Any, records: _Records) -> dict[str, Any]:
     """Compensate one trace of a board job and store its programs; its result row, with
     ``stored``: {artifact name: sha256} of the programs."""
     reconstruction = read_reconstruction(ctx.artifact_bytes(source_id, stored_name(trace.id)),
                                          placed_nominal(trace, placement))
-    result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement)
+    result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement, records)
     printed, plain = board_artifacts(trace.id)
-    stored = {printed: ctx.artifact(printed, program.encode(), "text/x-gcode", gcode_meta(program)),
-              plain: ctx.artifact(plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))}
+    shas = ctx.artifacts([(printed, program.encode(), "text/x-gcode", gcode_meta(program)),
+                          (plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))])
+    stored = {printed: shas[0], plain: shas[1]}
     return {"trace_id": trace.id, "print_artifact": printed, "nominal_artifact": plain, **result, "stored": stored}
 
 
 def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, reconstruction: Any,
-             placement: Any) -> tuple[dict[str, Any], str, str]:
-    """(result, print program, nominal program) of one trace."""
+             placement: Any, records: "_Records | None" = None) -> tuple[dict[str, Any], str, str]:
+    """(result, print program, nominal program) of one trace (``records``: a board job's
+    machine and parts, read once for all its traces)."""
     dialect, on, off = params.dialect, params.dispense_on, params.dispense_off
     if params.machine_id:
-        machine: Machine = ctx.machine(params.machine_id)
+        machine: Machine = records.machine(params.machine_id) if records else ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
         on, off = choice.dispense_on or on, choice.dispense_off or off
-    mesh = ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement)
+    mesh = ctx.runtime.meshes.placed(records.part(trace.part_id) if records else ctx.part(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
         standoff_mm=params.standoff_mm or trace.standoff_mm,
         feed_mm_min=params.feed_mm_min or trace.feed_mm_min or 300.0,

@@ -248,10 +248,12 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     left = [t for t in params.traces if done[t] is None]
     if checkpoints.reused:
         ctx.progress(0.2, f"{checkpoints.reused}/{len(params.traces)} traces reused from an earlier attempt")
+    check = _run_field(ctx, params)[0] if left else None  # once: it reads the run and the plan
     for trace_id, rec in zip(left, rebuild_board(ctx, params, left) if left else ()):
+        assert check is not None
         name = stored_name(trace_id)
         row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec),
-               "bound_mm": _trace_bound(_run_field(ctx, params)[0], rec.nominal)}
+               "bound_mm": _trace_bound(check, rec.nominal)}
         checkpoints.done(trace_id, keys[trace_id], {name: _store(ctx, rec, name)}, row)
         done[trace_id] = row
     checkpoints.flush()

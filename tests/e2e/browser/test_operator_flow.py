@@ -28,7 +28,7 @@ def s1_stl(tmp_path_factory) -> str:
 def wait_job(api, job_id: str, timeout: float = 30.0) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        job = api.get(f"/api/v1/jobs/{job_id}").json()
+        job = api.get(f"/api/v1/jobs/{job_id}?include=result&include=artifacts").json()
         if job["status"] in ("succeeded", "failed", "cancelled"):
             return job
         time.sleep(0.05)
@@ -83,7 +83,7 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
     page.wait_for_selector("#job-detail[data-job-id]")
     plan_id = page.get_attribute("#job-detail", "data-job-id")
     page.wait_for_selector(f'#jobs-body tr[data-id="{plan_id}"] [data-status="succeeded"]')
-    plan = api.get(f"/api/v1/jobs/{plan_id}").json()
+    plan = api.get(f"/api/v1/jobs/{plan_id}?include=result&include=artifacts").json()
 
     # points "measured" on the as-made part, computed here
     truth = as_made(seed=3, amplitude_mm=0.15)
@@ -92,7 +92,7 @@ def test_upload_trace_probe_reconstruct_and_view(page, served, s1_stl):
     rec_id = submit_job_form(page, "reconstruct", {"trace_id": trace_id, "points": json.dumps(measured.tolist())})
     page.wait_for_selector(f'#jobs-body tr[data-id="{rec_id}"] [data-status="succeeded"]')
     page.wait_for_selector("#deviation-plot")  # the detail refreshed when the stream ended
-    rec = api.get(f"/api/v1/jobs/{rec_id}").json()
+    rec = api.get(f"/api/v1/jobs/{rec_id}?include=result&include=artifacts").json()
     shown = json.loads(page.get_attribute("#deviation-plot", "data-samples"))
     assert np.allclose(shown, rec["result"]["deviation"]["samples"])
     screenshot(page, "jobs")

@@ -74,7 +74,7 @@ def test_the_programs_page_warps_onto_the_probed_part(page, served, tmp_path):
     page.wait_for_selector("#warp-figures", timeout=120_000)
     assert page.get_attribute("#warp-progress", "value") == "1"
     job_id = page.inner_text("#warped-link").removeprefix("job ")
-    job = api.get(f"/api/v1/jobs/{job_id}").json()
+    job = api.get(f"/api/v1/jobs/{job_id}?include=result&include=artifacts").json()
     assert job["kind"] == "warp_program" and job["status"] == "succeeded"
     shown = page.inner_text('[data-figure="pieces"]')
     assert shown == str(job["result"]["pieces"]) and job["result"]["pieces"] > 2

@@ -1,0 +1,52 @@
+"""How a job's record shows its result and artifacts: whole when small, else in brief.
+
+A result larger than RESULT_INLINE_MAX_BYTES of JSON (a board job's per-trace rows, a slice's
+layers) is not inlined in ``GET /jobs/{id}`` or the job list: the record carries
+``result: null``, ``result_omitted: true``, ``result_bytes`` and ``result_summary``
+(:func:`app.jobs.results.result_summary`, written with the result).  A job's first
+ARTIFACTS_INLINE_MAX artifacts are listed, and ``artifact_count`` counts them all (a board
+compensate writes two programs per trace).  So a client polling a job's status pays for a
+small record; ``?include=result`` returns the result whole, ``?include=artifacts`` every
+artifact (as ``GET /jobs/{id}/artifacts`` does).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any, Literal
+
+from fastapi import Query
+
+from app.jobs.results import result_summary
+from app.models import Job
+
+RESULT_INLINE_MAX_BYTES = 16 * 1024
+ARTIFACTS_INLINE_MAX = 20
+
+Include = Annotated[list[Literal["result", "artifacts"]] | None, Query(description=(
+    "result: the job's result whole, however large (by default a result larger than "
+    f"{RESULT_INLINE_MAX_BYTES // 1024} KiB of JSON is left out: result null, result_omitted true, "
+    f"result_bytes and result_summary say what it holds); artifacts: every artifact (by default the first "
+    f"{ARTIFACTS_INLINE_MAX}; artifact_count counts them all).  Repeat to ask for both."))]
+
+
+def wants(include: list[str] | None, what: str) -> bool:
+    """Whether ``?include=`` asks for ``what``."""
+    return bool(include) and what in include  # type: ignore[operator]
+
+
+def inlined(result_bytes: int | None, include: bool) -> bool:
+    """Whether a result of ``result_bytes`` (None: not recorded) is shown whole."""
+    return include or result_bytes is None or result_bytes <= RESULT_INLINE_MAX_BYTES
+
+
+def shown_result(job: Job, include: bool) -> dict[str, Any]:
+    """The record's result fields for ``job`` (``result``, ``result_omitted``, ``result_bytes``,
+    ``result_summary``).  ``job.result`` need only be loaded when :func:`inlined` says so."""
+    size = job.result_bytes
+    if size is None and job.result is not None:  # a result written before its size was recorded
+        size = len(json.dumps(job.result).encode())
+    if size is None or include or size <= RESULT_INLINE_MAX_BYTES:
+        return {"result": job.result, "result_omitted": False, "result_bytes": size, "result_summary": None}
+    summary = job.result_summary if job.result_summary is not None else result_summary(job.kind, job.result)
+    return {"result": None, "result_omitted": True, "result_bytes": size, "result_summary": summary}

@@ -1,0 +1,26 @@
+"""job result size and summary (a large result is not inlined in the job's record)
+
+Revision ID: 0008
+Revises: 0004
+"""
+
+from alembic import op
+import sqlalchemy as sa
+
+
+revision = '0009'
+down_revision = '0008'
+branch_labels = None
+depends_on = None
+
+
+def upgrade() -> None:
+    with op.batch_alter_table('jobs') as batch:
+        batch.add_column(sa.Column('result_bytes', sa.Integer(), nullable=True))
+        batch.add_column(sa.Column('result_summary', sa.JSON(), nullable=True))
+
+
+def downgrade() -> None:
+    with op.batch_alter_table('jobs') as batch:
+        batch.drop_column('result_summary')
+        batch.drop_column('result_bytes')

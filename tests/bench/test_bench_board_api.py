@@ -1,0 +1,205 @@
+"""Bench: a 1000-trace board through the API beside the same work in the core functions.
+
+Run: .venv/bin/python -m pytest tests/bench/test_bench_board_api.py -s -o addopts="" -q
+
+The 150 x 100 mm dome (:func:`app.reference.boards.dome_part`, nominal mesh on a 0.5 mm
+grid) with BOARD_API_TRACES traces (default 1000), a mock machine holding the as-made part
+(seed 11, +-0.15 mm, 1 um probe noise); through the API: ``traces:import`` of the board,
+then one ``closed_loop`` (``joint_probing``, field planner, board jobs, no print).  Measured
+in the same run: wall s per step (the child jobs' start to finish) and the CPU s each child
+spent in its compute process (the part cache's journal: the job's own run, loading its inputs
+and writing its results and artifacts included); the loop's process CPU s of the server (this
+process: the TestClient's app) and of the compute processes (its descendants, from /proc);
+``GET /jobs/{id}`` of the board compensate job (bytes and ms, default and ``?include=result``);
+the service's peak resident memory (this process and its descendants).
+
+The core: the same board's field plan (:func:`app.probing.field.plan_field`), field fit and
+every trace's reconstruction (:mod:`app.reconstruction.field`) and compensation
+(:func:`app.compensation.standoff.compensate_trace`), called directly on the same data with
+process CPU time.  The ratio API / core is the overhead the service adds (loading traces,
+the field, writing results and artifacts); the box is shared, so trust CPU over wall.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from datetime import datetime
+from pathlib import Path
+
+import pytest
+
+import numpy as np
+
+from app.compensation.standoff import CompensationParams, compensate_trace
+from app.probing.field import plan_field
+from app.probing.selection import PlanParams
+from app.reconstruction.field import trace_reconstruction
+from app.reconstruction.field_trust import checked_field
+from app.reconstruction.reconstruct import ReconstructParams
+from app.reference.boards import BoardPart, as_made_board, board_path, board_traces, dome_part
+from tests.conftest import auth
+
+OP = auth("operator")
+TRACES = int(os.environ.get("BOARD_API_TRACES", "1000"))
+PROCESS = {"deviation_amplitude_mm": 0.15, "deviation_wavelength_mm": 15.0}
+TICK = os.sysconf("SC_CLK_TCK")
+PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def _descendants(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            children = [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+        for child in children:
+            out += [child, *_descendants(child)]
+    return out
+
+
+def _stat(pid: int) -> tuple[float, int]:
+    """(user + system CPU s, resident bytes) of one process."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0, 0
+    return (int(fields[11]) + int(fields[12])) / TICK, int(fields[21]) * PAGE
+
+
+def cpu_now() -> tuple[float, float]:
+    """(this process's CPU s, its live descendants' CPU s)."""
+    return time.process_time(), sum(_stat(p)[0] for p in _descendants(os.getpid()))
+
+
+def service_rss() -> tuple[int, int]:
+    """Resident bytes of (this process, its descendants)."""
+    return _stat(os.getpid())[1], sum(_stat(p)[1] for p in _descendants(os.getpid()))
+
+
+def true_part(seed: int = 11) -> BoardPart:
+    """The as-made dome as a nominal-style part (its waves in the height; the placement is the mock's)."""
+    made = as_made_board(dome_part(), seed)
+    return BoardPart("dome-true", made.part.size, lambda xy: made.part.height(xy) + made.machining_error(xy),
+                     made.part.gradient)
+
+
+def core_board(part: BoardPart, n: int, seed: int = 11) -> dict[str, float]:
+    """Process CPU s of the core functions on the same board: the field plan, the field fit
+    (its prior learned from the touches, as the job does), every trace's reconstruction and
+    compensation (the API's defaults: coverage 3, chord 2 um)."""
+    params = PlanParams(**PROCESS)
+    paths = [board_path(part, g, 0.05) for g in board_traces(part, n)]
+    made = as_made_board(part, seed)
+    c0 = time.process_time()
+    plan = plan_field(paths, params)
+    c1 = time.process_time()
+    measured = plan.points.copy()
+    measured[:, 2] = made.true_height(plan.xy) + np.random.default_rng(seed).normal(0, 0.001, len(plan.xy))
+    fit = checked_field(params.prior(), plan.sites, plan.z, measured, plan.center, plan.trace, plan.s_mm,
+                        np.zeros(len(plan.z), dtype=bool), 3.0, 0.005, learn=True).fit  # as the job: prior learned
+    rebuilt = [trace_reconstruction(fit, path, i, ReconstructParams(prior=params.prior())) for i, path in enumerate(paths)]
+    c2 = time.process_time()
+    for r in rebuilt:
+        compensate_trace(r, CompensationParams(standoff_mm=0.1))
+    c3 = time.process_time()
+    return {"probe_plan": c1 - c0, "reconstruct": c2 - c1, "compensate": c3 - c2}
+
+
+def compute_cpu(data_dir: Path) -> dict[str, float]:
+    """job id -> CPU s the compute process spent in it (the part cache's journal)."""
+    out: dict[str, float] = {}
+    for journal in data_dir.rglob("journal*.jsonl"):
+        for line in journal.read_text().splitlines():
+            row = json.loads(line)
+            if "cpu_s" in row.get("memory", {}):
+                out[row["job_id"]] = float(row["memory"]["cpu_s"])
+    return out
+
+
+def _span(job: dict) -> float:
+    return (datetime.fromisoformat(job["finished_at"]) - datetime.fromisoformat(job["started_at"])).total_seconds()
+
+
+@pytest.mark.timeout(3600)
+def test_board_through_the_api(client, settings):
+    dome = dome_part()
+    nominal = dome.mesh(grid_mm=0.5).export(file_type="stl")
+    real = true_part().mesh(grid_mm=0.5).export(file_type="stl")
+    part = client.post("/api/v1/parts", files={"file": ("dome.stl", nominal)}, headers=OP).json()
+    truth = client.post("/api/v1/parts", files={"file": ("real.stl", real)}, headers=OP).json()
+    body = [{"name": f"t{i}", "geometry": g, "frame": "xy", "standoff_mm": 0.1}
+            for i, g in enumerate(board_traces(dome, TRACES))]
+    c0, w0 = time.process_time(), time.perf_counter()
+    response = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=body, headers=OP)
+    import_cpu, import_wall = time.process_time() - c0, time.perf_counter() - w0
+    assert response.status_code == 201, response.text
+    machine = client.post("/api/v1/machines", json={
+        "name": "sim", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": truth["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
+        headers=OP).json()
+    trace_ids = [t["id"] for t in response.json()["items"]]
+
+    (s0, d0), w0 = cpu_now(), time.perf_counter()
+    submitted = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        "part_id": part["id"], "trace_ids": trace_ids, "machine_id": machine["id"], "joint_probing": True,
+        "probe": PROCESS, "sigma_mm": 0.001, "board_jobs": True}}, headers=OP)
+    assert submitted.status_code == 202, submitted.text
+    peak = peak_server = peak_compute = 0
+    job_id = submitted.json()["id"]
+    while True:
+        server_rss, compute_rss = service_rss()
+        peak, peak_server, peak_compute = (max(peak, server_rss + compute_rss), max(peak_server, server_rss),
+                                           max(peak_compute, compute_rss))
+        done = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
+        if done["status"] in ("succeeded", "failed", "cancelled"):
+            break
+        time.sleep(0.5)
+    loop_wall = time.perf_counter() - w0
+    s1, d1 = cpu_now()
+    assert done["status"] == "succeeded", done["error"]
+    children = client.get("/api/v1/jobs", params={"parent_id": job_id, "limit": 1000}, headers=OP).json()["items"]
+    by_kind: dict[str, list[dict]] = {}
+    for child in children:
+        by_kind.setdefault(child["kind"], []).append(child)
+    steps = {k: sum(_span(j) for j in v) for k, v in by_kind.items()}
+    compensate = by_kind["compensate"][0]["id"]
+
+    def timed_get(url: str) -> tuple[int, float]:
+        times, size = [], 0
+        for _ in range(5):
+            t0 = time.perf_counter()
+            r = client.get(url, headers=OP)
+            times.append(time.perf_counter() - t0)
+            size = len(r.content)
+        return size, min(times)
+
+    small = timed_get(f"/api/v1/jobs/{compensate}")
+    whole = timed_get(f"/api/v1/jobs/{compensate}?include=result")
+    journal = compute_cpu(Path(settings.data_dir))
+    api_cpu = {k: sum(journal.get(j["id"], math.nan) for j in v) for k, v in by_kind.items()}
+    core = core_board(dome, TRACES)
+    print(f"\n\n{TRACES}-trace dome board through the API (closed_loop, joint_probing, field planner, board jobs)")
+    print(f"{'step':<22} {'wall s':>8} {'job CPU s':>10} {'core CPU s':>11} {'API/core':>9}")
+    print(f"{'traces:import':<22} {import_wall:>8.2f} {import_cpu:>10.2f} {'':>11} {'':>9}  (server process)")
+    for kind in ("probe_plan", "probe_run", "reconstruct", "compensate"):
+        ref = core.get(kind)
+        ratio = f"{api_cpu[kind] / ref:>9.2f}" if ref else f"{'':>9}"
+        print(f"{kind:<22} {steps.get(kind, math.nan):>8.2f} {api_cpu.get(kind, math.nan):>10.2f} "
+              f"{ref if ref is not None else math.nan:>11.2f} {ratio}")
+    rc_api = api_cpu["reconstruct"] + api_cpu["compensate"]
+    rc_core = core["reconstruct"] + core["compensate"]
+    print(f"{'reconstruct+compensate':<22} {steps['reconstruct'] + steps['compensate']:>8.2f} {rc_api:>10.2f} "
+          f"{rc_core:>11.2f} {rc_api / rc_core:>9.2f}")
+    print(f"closed_loop whole: {loop_wall:.1f} s wall; server process {s1 - s0:.2f} s CPU, compute processes "
+          f"{d1 - d0:.2f} s CPU (live ones)")
+    print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB (server alone {peak_server / 2**20:.0f}"
+          f" MiB, with the test's own data; compute processes {peak_compute / 2**20:.0f} MiB)")
+    print(f"GET /jobs/{{compensate}}: {small[0] / 1024:.1f} KiB in {small[1] * 1e3:.1f} ms; "
+          f"?include=result: {whole[0] / 1024:.1f} KiB in {whole[1] * 1e3:.1f} ms")
+    print(json.dumps({"import_cpu_s": import_cpu, "loop_server_cpu_s": s1 - s0, "loop_compute_cpu_s": d1 - d0,
+                      "steps_wall_s": steps, "steps_cpu_s": api_cpu, "core_cpu_s": core,
+                      "get_bytes": small[0], "get_ms": small[1] * 1e3}))
