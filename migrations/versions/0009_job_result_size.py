@@ -1,7 +1,7 @@
 """job result size and summary (a large result is not inlined in the job's record)
 
-Revision ID: 0008
-Revises: 0004
+Revision ID: 0009
+Revises: 0008
 """
 
 from alembic import op
