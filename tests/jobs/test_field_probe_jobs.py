@@ -296,7 +296,8 @@ def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_veri
     plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}", headers=OP).json()
     sequential = plan["result"]["field"]["sequential"]
     assert sequential["final"] and sequential["round"] >= 1 and sequential["touched_before"] > 0
-    assert verdict["verified"].startswith("verified at 5 points")
+    points = verdict["verification"]   # 5 where the field is least certain, the gaps beside the worst predicted stations
+    assert 5 <= len(points) <= 9 and verdict["verified"].startswith(f"verified at {len(points)} points")
     for entry, row in zip(done["result"]["traces"], done["result"]["table"]):
         assert row["standoff_max_after_um"] < row["standoff_max_before_um"], row
         assert row["standoff_max_after_um"] <= entry["bound_mm"] * 1000 + 2.0 + 1.5, (row, entry["bound_mm"])

@@ -57,6 +57,7 @@ from app.jobs.inputs import nominal_of
 from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
                               RegisterResult, program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
+from app.reconstruction.field_trust import verification_line
 from app.models import Job, Machine, Trace
 from app.records import get_or_404
 
@@ -312,9 +313,7 @@ def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], pri
     bound = max(bounds) if bounds else first.get("bound_mm")
     points = first.get("verification") or []
     worse = [t["trace_id"] for t in traces if t.get("worse_than_nominal")]
-    line = ("not verified: no verification points were touched" if not points else
-            f"verified at {len(points)} points: max |residual| "
-            f"{max(abs(p['residual_mm']) for p in points) * 1000:.1f} um (bound {(bound or 0) * 1000:.1f} um)")
+    line = verification_line(points, bound)
     said = any("promised for the traces" in r for r in reasons)
     if points and bound is not None and not said and max(abs(p["residual_mm"]) for p in points) > bound:
         reasons.append(f"a verification point is off the field by more than the bound {bound * 1000:.1f} um "
