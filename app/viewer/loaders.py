@@ -19,7 +19,7 @@ from sqlmodel import Session, select
 from app.errors import NotFound
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
-from app.models import Artifact, Job, JobReference, Part, Trace
+from app.models import COMPLETED_STATES, Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
 from app.jobs.inputs import nominal_of
@@ -94,7 +94,7 @@ class Loader:
             vertices, faces = self._mesh(part) if part is not None else (None, None)
             base = FocusScene({"job_id": job_id, "part_id": part.id if part else None},
                               f"{job.kind} {job.id} ({job.status})", vertices, faces)
-            if job.status != "succeeded":
+            if job.status not in COMPLETED_STATES:
                 return replace(base, notes=(f"job is {job.status}: {job.message}",))
             content = self._content(session, job)
         return replace(content, focus=base.focus, title=base.title, mesh_vertices=vertices, mesh_faces=faces)

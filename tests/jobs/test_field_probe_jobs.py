@@ -42,8 +42,9 @@ def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
     return done
 
 
-def board(client, meshes, traces: tuple[int, ...] = TRACES) -> dict:
-    """Part, S1 traces (by index), and a mock machine holding the as-made part."""
+def board(client, meshes, traces: tuple[int, ...] = TRACES, dust: list | None = None) -> dict:
+    """Part, S1 traces (by index), and a mock machine holding the as-made part (``dust``: the
+    mock's probe_dust, [x, y, dz] mm read high once)."""
     nominal, true_stl = meshes
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
                        headers=OP).json()
@@ -52,7 +53,8 @@ def board(client, meshes, traces: tuple[int, ...] = TRACES) -> dict:
                          json=[s1_traces()[i].to_api() for i in traces], headers=OP).json()["items"]
     machine = client.post("/api/v1/machines", json={
         "name": "sim", "port": "mock://", "dialect": "marlin",
-        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
+        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001,
+                 "probe_dust": dust or []}},
         headers=OP).json()
     return {"part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"]}
 
@@ -78,7 +80,8 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     assert len(on) == len(field["stations"])  # on_traces by default
     per_trace = [e["stations"] for e in plan["result"]["traces"]]
     assert [e["probes"] for e in entries] == per_trace
-    assert sum(per_trace) + field["verify_count"] == len(field["stations"]) and field["verify_count"] == 5
+    assert sum(per_trace) + field["verify_count"] == len(field["stations"])
+    assert 5 <= field["verify_count"] <= 5 + 4   # least certain, and the gaps beside the 2 worst predicted stations
     for entry in entries:
         rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}", headers=OP).json()
         assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
@@ -269,7 +272,7 @@ def test_a_board_reconstruct_stores_each_traces_reconstruction_and_compensate_re
     assert rows[2].points == alone["result"]["points"]
 
 
-def fourteen_mm_part(client) -> dict:
+def fourteen_mm_part(client, dust: list | None = None) -> dict:
     """S1 traces on a mock machine whose part's error is the 14 mm field
     (0.12 sin(2 pi x/22) sin(2 pi y/18) + 0.05 cos(2 pi (x+y)/35) mm)."""
     from app.reference.s1 import AsMadePart, centred_placement
@@ -281,7 +284,7 @@ def fourteen_mm_part(client) -> dict:
     x, y = xy[:, 0], xy[:, 1]
     expected = 0.12 * np.sin(2 * np.pi * x / 22) * np.sin(2 * np.pi * y / 18) + 0.05 * np.cos(2 * np.pi * (x + y) / 35)
     assert np.allclose(made.machining_error(xy), expected)      # the waves are the issue's field
-    return board(client, (s1_mesh(grid_mm=0.3), made.mesh(grid_mm=0.3).export(file_type="stl")))
+    return board(client, (s1_mesh(grid_mm=0.3), made.mesh(grid_mm=0.3).export(file_type="stl")), dust=dust)
 
 
 def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_verified_bound(client):
@@ -306,12 +309,17 @@ def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_veri
 def test_a_loop_whose_field_check_fails_says_so_and_prints_nothing(client):
     """The 14 mm part (0.12 sin(2 pi x/22) sin(2 pi y/18) + 0.05 cos(2 pi (x+y)/35) mm) with the
     prior left at the default 20 mm: the learned prior says the default plan is too sparse, so
-    the single-shot loop ends with a verdict asking for attention and the print step is not run."""
+    the single-shot loop ends in the state needs_attention (not succeeded) and the print step
+    is not run; no touch looked like an outlier, so nothing was touched again."""
     setup = fourteen_mm_part(client)
     single = {**setup, "joint_probing": True, "sigma_mm": 0.001, "sequential": False}
-    done = job(client, "closed_loop", {**single, "print": True}, timeout=300)
+    response = submit(client, "closed_loop", {**single, "print": True})
+    done = wait_for(client, response.json()["id"], timeout=300)
+    assert done["status"] == "needs_attention", done["error"]     # not succeeded: the operator must act
     verdict = done["result"]["verdict"]
     assert verdict["needs_attention"] and "NEEDS ATTENTION" in done["message"], verdict
+    listed = client.get("/api/v1/jobs?status=needs_attention&kind=closed_loop", headers=OP).json()["items"]
+    assert done["id"] in [j["id"] for j in listed]
     assert verdict["printing_held"] and all("print" not in e for e in done["result"]["traces"])
     assert verdict["verified"].startswith("verified at 5 points: max |residual| ")
     assert 10.0 < verdict["learned"]["wavelength_mm"]["value"] < 17.0
@@ -319,6 +327,8 @@ def test_a_loop_whose_field_check_fails_says_so_and_prints_nothing(client):
     assert all(e["bound_mm"] > 0 for e in done["result"]["traces"])
     report = client.get(f"/api/v1/jobs/{done['id']}/report", headers=OP)
     assert report.status_code == 200 and "NEEDS ATTENTION" in report.text and "Verification points" in report.text
+    assert "status needs_attention" in report.text
+    assert verdict["retouched"] == [] and "Touched again" in report.text and "Excluded touches" in report.text
 
 
 def test_a_suspected_outlier_is_touched_again_at_most_twice_before_it_may_be_excluded():
