@@ -42,9 +42,8 @@ def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
     return done
 
 
-def board(client, meshes, traces: tuple[int, ...] = TRACES, dust: list | None = None) -> dict:
-    """Part, S1 traces (by index), and a mock machine holding the as-made part (``dust``: the
-    mock's probe_dust, [x, y, dz] mm read high once)."""
+def board(client, meshes, traces: tuple[int, ...] = TRACES) -> dict:
+    """Part, S1 traces (by index), and a mock machine holding the as-made part."""
     nominal, true_stl = meshes
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
                        headers=OP).json()
@@ -53,8 +52,7 @@ def board(client, meshes, traces: tuple[int, ...] = TRACES, dust: list | None = 
                          json=[s1_traces()[i].to_api() for i in traces], headers=OP).json()["items"]
     machine = client.post("/api/v1/machines", json={
         "name": "sim", "port": "mock://", "dialect": "marlin",
-        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001,
-                 "probe_dust": dust or []}},
+        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
         headers=OP).json()
     return {"part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"]}
 
@@ -272,7 +270,7 @@ def test_a_board_reconstruct_stores_each_traces_reconstruction_and_compensate_re
     assert rows[2].points == alone["result"]["points"]
 
 
-def fourteen_mm_part(client, dust: list | None = None) -> dict:
+def fourteen_mm_part(client) -> dict:
     """S1 traces on a mock machine whose part's error is the 14 mm field
     (0.12 sin(2 pi x/22) sin(2 pi y/18) + 0.05 cos(2 pi (x+y)/35) mm)."""
     from app.reference.s1 import AsMadePart, centred_placement
@@ -284,7 +282,7 @@ def fourteen_mm_part(client, dust: list | None = None) -> dict:
     x, y = xy[:, 0], xy[:, 1]
     expected = 0.12 * np.sin(2 * np.pi * x / 22) * np.sin(2 * np.pi * y / 18) + 0.05 * np.cos(2 * np.pi * (x + y) / 35)
     assert np.allclose(made.machining_error(xy), expected)      # the waves are the issue's field
-    return board(client, (s1_mesh(grid_mm=0.3), made.mesh(grid_mm=0.3).export(file_type="stl")), dust=dust)
+    return board(client, (s1_mesh(grid_mm=0.3), made.mesh(grid_mm=0.3).export(file_type="stl")))
 
 
 def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_verified_bound(client):
