@@ -22,7 +22,7 @@ from app.config import Settings
 from app.db import migrate
 from app.jobs.runtime import QUEUES, Runtime
 from app.ownership import MachineOwnerLock
-from app.models import Machine, TERMINAL_STATES, Job, new_id, utcnow
+from app.models import COMPLETED_STATES, Machine, TERMINAL_STATES, Job, new_id, utcnow
 from app.records import build_trace, store_part
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 
@@ -83,7 +83,7 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
             if current.status in TERMINAL_STATES:
                 break
             time.sleep(0.2)
-        if current.status != "succeeded":
+        if current.status not in COMPLETED_STATES:
             print(f"closed loop {current.status}: {(current.error or {}).get('detail')}", file=out)
             raise SystemExit(1)
         rows = [Table1Row(**{k: v for k, v in row.items() if k in Table1Row.__dataclass_fields__})

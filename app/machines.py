@@ -277,6 +277,7 @@ class MachineManager:
             true_part=self._load_mesh(true_part_id) if true_part_id else None,
             placement=TruePlacement(**placement),
             probe_noise_mm=float(mock.get("probe_noise_mm", 0.0)),
+            probe_dust=tuple((float(x), float(y), float(dz)) for x, y, dz in mock.get("probe_dust") or ()),
             seed=int(faults.get("seed", mock.get("seed", 0))),
             dialect=row.dialect,
             time_scale=float(mock.get("time_scale", 0.0)),

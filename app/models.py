@@ -22,8 +22,13 @@ SQLModel.metadata.naming_convention = {
     "pk": "pk_%(table_name)s",
 }
 
-JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled", "interrupted")
-TERMINAL_STATES = ("succeeded", "failed", "cancelled")
+JOB_STATES = ("queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted")
+TERMINAL_STATES = ("succeeded", "needs_attention", "failed", "cancelled")
+# A job that ran to its end: its result is complete.  ``needs_attention``: it did, but the
+# result asks the operator to act before it is relied on (a closed loop whose field check
+# failed: it printed nothing; add stations and refit, or accept explicitly).
+COMPLETED_STATES = ("succeeded", "needs_attention")
+ATTENTION_KEY = "needs_attention"  # a kind's result with this key true ends the job in that state
 # A machine job in these states holds its machine: at most one per machine (a unique
 # partial index, so that concurrent submissions cannot both win).  ``interrupted`` waits
 # for an operator to resume or abandon it.
@@ -92,7 +97,7 @@ class Job(SQLModel, table=True):
                             sqlite_where=text(_HOLDING_SQL), postgresql_where=text(_HOLDING_SQL)))
     id: str = Field(primary_key=True, max_length=40)
     kind: str = Field(max_length=40, index=True)
-    status: str = Field(default="queued", max_length=12, index=True)
+    status: str = Field(default="queued", max_length=20, index=True)
     progress: float = 0.0
     message: str = Field(default="", max_length=500)
     params: dict = Field(sa_column=Column(JSON, nullable=False))

@@ -29,7 +29,7 @@ from app.problems import PROBLEM_MEDIA_TYPE, problem
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
-JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled", "interrupted"]
+JobStatus = Literal["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted"]
 SSE_POLL_S = 0.1
 # Built once: the statements' compiled forms are cached, so a poll pays for execution only.
 _JOB_BY_ID = (sa_select(*(c for c in Job.__table__.c if c.name != "result"))

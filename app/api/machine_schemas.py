@@ -194,6 +194,9 @@ class MockSettings(Strict):
     true_part_id: str | None = Field(None, description="the as-made part the mock probes against")
     placement: MockPlacement = Field(default_factory=MockPlacement)
     probe_noise_mm: Finite = Field(0.0, ge=0, le=1)
+    probe_dust: list[tuple[Coord, Coord, Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)]]] = Field(
+        default_factory=list, max_length=100, description="dust [x, y, dz] mm: the first touch within 0.5 mm of "
+        "(x, y) reads dz high (gone after that touch: a touch again reads the part)")
     time_scale: Finite = Field(0.0, ge=0, le=10, description="1 = real time, 0 = as fast as possible")
     faults: MockFaults = Field(default_factory=MockFaults)
     physics: MockPhysics | None = Field(None, description="probe physics (ball stylus, pre-travel, drift, tools, "

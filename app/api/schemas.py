@@ -145,7 +145,7 @@ class ResumeRequest(Strict):
 class JobOut(BaseModel):
     id: str
     kind: str
-    status: Literal["queued", "running", "succeeded", "failed", "cancelled", "interrupted"]
+    status: Literal["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted"]
     progress: float
     message: str
     params: dict[str, Any]

@@ -44,7 +44,7 @@ from app.errors import Cancelled, ConformaError
 from app.jobs.context import JobContext
 from app.jobs.process_identity import start_ticks
 from app.jobs.registry import get_kind, load_kinds
-from app.jobs.store import Claim, JobStore, json_result
+from app.jobs.store import Claim, JobStore, completed_status, json_result
 from threadpoolctl import threadpool_limits
 
 from app.part_cache import CacheStats, FieldFitStore, MeshStore, part_cache_for, record_job
@@ -199,7 +199,7 @@ def run_job(runtime: ChildRuntime, claim: Claim) -> bool:
         lift_job_limit()
         start.update(wall_s=round(time.perf_counter() - wall, 4), cpu_s=round(time.process_time() - cpu, 4))
         runtime.persist_caches(claim, start)  # before the outcome: the next job may start at once
-        runtime.store.finish(claim, "succeeded", result=encoded)
+        runtime.store.finish(claim, completed_status(encoded), result=encoded)
     except Cancelled as exc:
         lift_job_limit()
         runtime.store.finish(claim, "cancelled", error=from_error(exc))

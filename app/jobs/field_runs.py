@@ -55,9 +55,9 @@ def field_touches(ctx: JobContext, run: Job) -> tuple[dict[str, Any], list[dict[
     return stored, out
 
 
-def touched_stations(stored: dict[str, Any], run_id: str) -> list[dict[str, Any]]:
-    """The fit stations (not verification points) of a run's field, each naming the run
-    that touched it (``from_run``, ``run_index``): the fixed stations of the next round."""
+def _touched(stored: dict[str, Any], run_id: str, verify: bool) -> list[dict[str, Any]]:
+    """The stations (``verify`` False) or verification points (True) of a run's field, each
+    naming the run that touched it (``from_run``, ``run_index``)."""
     out, own = [], 0
     for station in stored["stations"]:
         if station.get("from_run"):
@@ -65,9 +65,21 @@ def touched_stations(stored: dict[str, Any], run_id: str) -> list[dict[str, Any]
         else:
             source, index = run_id, own
             own += 1
-        if not station.get("verify"):
+        if bool(station.get("verify")) == verify:
             out.append({**station, "from_run": source, "run_index": int(index)})
     return out
+
+
+def touched_stations(stored: dict[str, Any], run_id: str) -> list[dict[str, Any]]:
+    """The fit stations (not verification points) of a run's field, each naming the run
+    that touched it (``from_run``, ``run_index``): the fixed stations of the next round."""
+    return _touched(stored, run_id, verify=False)
+
+
+def touched_verification(stored: dict[str, Any], run_id: str) -> list[dict[str, Any]]:
+    """The verification points of a run's field, named like :func:`touched_stations`: kept
+    by a round that only touches outliers again."""
+    return _touched(stored, run_id, verify=True)
 
 
 def measured_array(rows: list[dict[str, Any]]) -> np.ndarray:

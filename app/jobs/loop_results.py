@@ -64,6 +64,7 @@ class ClosedLoopResult(KindResult):
     table: list[dict[str, Any]]
     registration: dict[str, Any] | None = None
     verdict: dict[str, Any] | None = None  # field: learned prior, verification, needs_attention and why
+    needs_attention: bool = False  # the verdict asks for attention: the job ends in that state (app.models)
     files: dict[str, Any] | None = None  # set last (app.jobs.loop_files), from the rows above
 
     def by_trace(self) -> dict[str, LoopTrace]:

@@ -118,6 +118,9 @@ class ProbePlanParams(PlacedParams):
                                          "earlier field plan of the same traces; the prior is learned from every "
                                          "station touched so far and the plan adds only the stations the fitted "
                                          "field still needs (none: only the verification points)")
+    retouch_only: bool = Field(False, description="with fixed_run_job_id: touch again only the touches the field "
+                               "fitted to that run would exclude as outliers (once each), add no stations and keep "
+                               "the run's verification points (a single-shot plan's second run; none: no touches)")
     touch_budget: int | None = Field(None, ge=1, le=100_000, description="sequential round: the most touches in all "
                                      "(stations so far + added + verification); a round that would pass it adds "
                                      "no stations and says so")

@@ -37,7 +37,7 @@ from app.jobs.cost import check_cost
 from app.jobs.process_worker import ProcessSupervisor, warm_up
 from threadpoolctl import threadpool_limits
 from app.jobs.registry import JobKind, get_kind, load_kinds
-from app.jobs.store import JobStore, json_result
+from app.jobs.store import JobStore, completed_status, json_result
 from app.machines import MachineManager
 from app.models import Job, JobReference, Part, Trace, new_id, utcnow
 from app.models import Machine as MachineRow
@@ -245,8 +245,8 @@ class Runtime:
         threading.Thread(target=self._heartbeat, args=(ctx, done), daemon=True, name=f"lease-{job_id}").start()
         try:
             params = kind.params.model_validate(claim.params)
-            result = kind.run(ctx, params)
-            self.store.finish(claim, "succeeded", result=json_result(result))
+            result = json_result(kind.run(ctx, params))
+            self.store.finish(claim, completed_status(result), result=result)
         except Cancelled as exc:
             self.store.finish(claim, "cancelled", error=from_error(exc))
         except ConformaError as exc:

@@ -18,7 +18,7 @@ from sqlalchemy import Engine, and_, case, literal, or_, select, update
 from sqlalchemy.exc import DBAPIError
 
 from app.jobs.results import result_summary
-from app.models import TERMINAL_STATES, Job, utcnow
+from app.models import ATTENTION_KEY, COMPLETED_STATES, TERMINAL_STATES, Job, utcnow
 
 FINISH_TRIES = 6  # JobStore.finish_surely: tries of an outcome's write...
 FINISH_WAIT_S = 0.5  # ...this far apart, doubling (~16 s in all)
@@ -96,7 +96,8 @@ class JobStore:
         return bool(rows[0][0]) if rows else None
 
     def finish(self, claim: Claim, status: str, *, result: dict | None = None, error: dict | None = None) -> bool:
-        """running -> succeeded/failed/cancelled, only while ``claim`` still owns the job."""
+        """running -> succeeded/needs_attention/failed/cancelled, only while ``claim`` still
+        owns the job."""
         assert status in TERMINAL_STATES
         values: dict[str, Any] = {
             "status": status,
@@ -108,7 +109,7 @@ class JobStore:
             "lease_until": None,
             "revision": Job.revision + 1,
         }
-        if status == "succeeded":
+        if status in COMPLETED_STATES:
             values["progress"] = 1.0
         values["message"] = final_message(status, error)
         rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(Job.id))
@@ -316,10 +317,10 @@ def final_message(status: str, error: dict | None) -> Any:
     """The message a job keeps once it finished, never the last progress line of a run that
     did not get to its end ("probing 3/17" on a failed job reads as if it still probed).
 
-    succeeded: the kind's own closing words when it reported them at progress 1 (e.g.
+    succeeded / needs_attention: the kind's own closing words when it reported them at progress 1 (e.g.
     "9/9 traces done"), else "done"; failed / cancelled: the status and the error's detail.
     Returns a SQL expression for :meth:`JobStore.finish`'s conditional UPDATE."""
-    if status == "succeeded":
+    if status in COMPLETED_STATES:
         return case((and_(Job.progress >= 1.0, Job.message.is_not(None), Job.message != ""), Job.message),
                     else_=literal("done"))
     detail = (error or {}).get("detail") or (error or {}).get("title") or ""
@@ -337,3 +338,9 @@ def _json_default(value: Any) -> Any:
     if hasattr(value, "item"):
         return value.item()
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def completed_status(result: Any) -> str:
+    """The state a job whose kind returned ``result`` (stored JSON) ends in:
+    ``needs_attention`` when the result says so (its ATTENTION_KEY is true), else ``succeeded``."""
+    return "needs_attention" if isinstance(result, dict) and result.get(ATTENTION_KEY) is True else "succeeded"

@@ -7,6 +7,14 @@ variance once the stations and the previous verification points are (hypothetica
 touched, so they spread instead of clustering at one worst spot; like every posterior sd
 of the field, this does not depend on what the probes read, so they are planned in advance.
 
+Those points are where the *model* is least certain; a structure the smooth field cannot
+represent (a step, a scratch) is elsewhere: where the touches disagree with each other.
+When the touches so far are known (the last round of a sequential plan), :func:`gap_points`
+adds points in the gaps along the trace on either side of the stations that the others
+predict worst (largest standardised leave-one-out residual): a step between stations bends
+the smooth fit there, and a touch in the gap reads the step against the fit (far outside
+its predictive band), where a touch far from it reads nothing unusual.
+
 Pure: numpy/scipy.  Units: mm.
 """
 
@@ -17,10 +25,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from app.geometry.traces import as_trace_polyline
-from app.probing.deviation_prior import DeviationPrior, Sites
+from app.geometry.traces import TracePolyline, as_trace_polyline
+from app.probing.deviation_prior import DeviationPrior, Sites, path_gradient
 from app.probing.field import FieldPlan, GreedyField
-from app.probing.field_region import field_region
+from app.probing.field_region import TracePoints, field_region
+
+GAP_STATIONS = 2      # the stations whose gaps are verified (the worst predicted by the others)
+MIN_GAP_MM = 0.5      # a neighbour closer than this along the trace is the same spot (a re-touch)
 
 
 def verification_indices(prior: DeviationPrior, stations: Sites, samples: Sites, center: np.ndarray,
@@ -44,6 +55,41 @@ def verification_indices(prior: DeviationPrior, stations: Sites, samples: Sites,
     return np.array(picked, dtype=int)
 
 
+def gap_points(paths: Sequence[TracePolyline], trace: np.ndarray, s_mm: np.ndarray, loo_z: np.ndarray,
+               stations: int = GAP_STATIONS) -> TracePoints:
+    """Points (<= 2 x ``stations``) in the gaps beside the most surprising stations.
+
+    trace (n,) / s_mm (n,): each fitted station's trace index and arc length (-1 / NaN off
+    the traces); loo_z (n,): its standardised leave-one-out residual under the fitted prior.
+    For the ``stations`` on-trace stations of largest |z|, the midpoint (in arc length) of
+    the gap to the next station along the same trace on each side (none past a trace's end;
+    neighbours within MIN_GAP_MM are the same spot).  Sorted by (trace, s), duplicates
+    dropped."""
+    trace = np.asarray(trace, dtype=int)
+    s_mm = np.asarray(s_mm, dtype=float)
+    on = np.flatnonzero(trace >= 0)
+    worst = on[np.argsort(-np.abs(np.asarray(loo_z, dtype=float)[on]), kind="stable")][:stations]
+    picked: set[tuple[int, float]] = set()
+    for i in worst:
+        along = s_mm[trace == trace[i]]
+        below, above = along[along < s_mm[i] - MIN_GAP_MM], along[along > s_mm[i] + MIN_GAP_MM]
+        if len(below):
+            picked.add((int(trace[i]), round(float(below.max() + s_mm[i]) / 2, 6)))
+        if len(above):
+            picked.add((int(trace[i]), round(float(above.min() + s_mm[i]) / 2, 6)))
+    rows = sorted(picked)
+    xy, grad, z = [], [], []
+    for t, s in rows:
+        point = paths[t].at(np.array([s]))
+        xy.append(point[:, :2])
+        z.append(point[:, 2])
+        grad.append(path_gradient(paths[t], np.array([s])))
+    if not rows:
+        return TracePoints(Sites(np.zeros((0, 2)), np.zeros((0, 2))), np.zeros(0, dtype=int), np.zeros(0), np.zeros(0))
+    return TracePoints(Sites(np.concatenate(xy), np.concatenate(grad)), np.array([t for t, _ in rows], dtype=int),
+                       np.array([s for _, s in rows]), np.concatenate(z))
+
+
 def with_verification(plan: FieldPlan, nominals: Sequence[object], prior: DeviationPrior, count: int) -> FieldPlan:
     """``plan`` (of the traces ``nominals``, designed for ``prior``) with ``count``
     verification points (:func:`verification_indices`) on the traces appended after its
@@ -52,19 +98,28 @@ def with_verification(plan: FieldPlan, nominals: Sequence[object], prior: Deviat
 
 
 def with_sequential_verification(plan: FieldPlan, touched: Sites, nominals: Sequence[object],
-                                 prior: DeviationPrior, count: int) -> FieldPlan:
+                                 prior: DeviationPrior, count: int,
+                                 surprise: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> FieldPlan:
     """``plan`` (a sequential round's added stations, possibly none) with ``count``
     verification points chosen given every station: the ``touched`` ones (earlier rounds)
-    and the plan's own."""
+    and the plan's own.  ``surprise``: (trace (n,), s_mm (n,), loo_z (n,)) of the touched
+    stations: then the :func:`gap_points` beside the most surprising ones are verified too."""
     if count <= 0:
         return plan
     paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     samples = field_region(paths, prior.wavelength_mm).samples
     every = Sites(np.concatenate([touched.xy, plan.xy]), np.concatenate([touched.grad, plan.grad]))
     idx = verification_indices(prior, every, samples.sites, plan.center, count)
-    n = plan.count
-    return replace(plan, xy=np.concatenate([plan.xy, samples.sites.xy[idx]]),
-                   z=np.concatenate([plan.z, samples.z[idx]]), grad=np.concatenate([plan.grad, samples.sites.grad[idx]]),
-                   trace=np.concatenate([plan.trace, samples.trace[idx]]),
-                   s_mm=np.concatenate([plan.s_mm, samples.s[idx]]),
-                   verify=np.concatenate([np.zeros(n, dtype=bool), np.ones(len(idx), dtype=bool)]))
+    points = samples.take(idx)
+    if surprise is not None:
+        gaps = gap_points(paths, *surprise)
+        points = TracePoints(Sites(np.concatenate([points.sites.xy, gaps.sites.xy]),
+                                   np.concatenate([points.sites.grad, gaps.sites.grad])),
+                             np.concatenate([points.trace, gaps.trace]), np.concatenate([points.s, gaps.s]),
+                             np.concatenate([points.z, gaps.z]))
+    n, k = plan.count, len(points)
+    return replace(plan, xy=np.concatenate([plan.xy, points.sites.xy]),
+                   z=np.concatenate([plan.z, points.z]), grad=np.concatenate([plan.grad, points.sites.grad]),
+                   trace=np.concatenate([plan.trace, points.trace]),
+                   s_mm=np.concatenate([plan.s_mm, points.s]),
+                   verify=np.concatenate([np.zeros(n, dtype=bool), np.ones(k, dtype=bool)]))

@@ -13,8 +13,10 @@ it was designed for.  When the prior is uncertain:
    fitted model;
 4. repeat 2-3 until no station is added, ``max_rounds`` pass, or the next round would pass
    ``budget`` touches (the result says which);
-5. **verify**: ``verify_count`` points where the fitted posterior is least certain, touched
-   last and never fitted (:mod:`app.reconstruction.field_trust`).
+5. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
+   gaps beside the stations the others predict worst (where a step or another structure the
+   smooth field cannot represent shows: :func:`app.probing.field_verify.gap_points`),
+   touched last and never fitted (:mod:`app.reconstruction.field_trust`).
 
 ``measure(xy (m, 2)) -> dz (m,)`` touches points and returns the measured deviation (mm):
 the mock's truth plus noise in the bench, a probe run on a machine.
@@ -32,10 +34,10 @@ import numpy as np
 from app.geometry.traces import as_trace_polyline
 from app.probing.deviation_prior import Sites
 from app.probing.field import plan_field
-from app.probing.field_verify import verification_indices
 from app.probing.field_region import field_region
+from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
-from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
+from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior, loo_check
 from app.reconstruction.field_trust import FieldCheck, checked_field, with_bound
 
 MAX_ROUNDS = 4
@@ -96,19 +98,21 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
         s = np.concatenate([s, more.s_mm])
         z = np.concatenate([z, more.z])
         dz = np.concatenate([dz, np.asarray(measure(more.xy), dtype=float)])
-    region = field_region(paths, current.deviation_wavelength_mm)
-    samples = region.samples
     prior_now = current.prior()
-    vi = verification_indices(prior_now, sites, samples.sites, center, verify_count)
-    v_dz = np.asarray(measure(samples.sites.xy[vi]), dtype=float) if len(vi) else np.zeros(0)
-    all_sites = Sites(np.concatenate([sites.xy, samples.sites.xy[vi]]),
-                      np.concatenate([sites.grad, samples.sites.grad[vi]]))
+    surprise = None
+    if len(dz) >= MIN_TOUCHES:
+        surprise = (trace, s, loo_check(prior_now, sites, dz, center).z)
+    empty = replace(plan, xy=plan.xy[:0], z=plan.z[:0], grad=plan.grad[:0], trace=plan.trace[:0],
+                    s_mm=plan.s_mm[:0], order=plan.order[:0])
+    points = with_sequential_verification(empty, sites, paths, prior_now, verify_count, surprise)
+    v_dz = np.asarray(measure(points.xy), dtype=float) if points.count else np.zeros(0)
+    all_sites = Sites(np.concatenate([sites.xy, points.xy]), np.concatenate([sites.grad, points.grad]))
     n = len(sites.xy)
-    nominal_z = np.zeros(n + len(vi))
+    nominal_z = np.zeros(n + points.count)
     measured = np.column_stack([all_sites.xy, np.concatenate([dz, v_dz])])
-    mask = np.concatenate([np.zeros(n, dtype=bool), np.ones(len(vi), dtype=bool)])
+    mask = np.concatenate([np.zeros(n, dtype=bool), np.ones(points.count, dtype=bool)])
     check = checked_field(user, all_sites, nominal_z, measured, center,
-                          np.concatenate([trace, samples.trace[vi]]), np.concatenate([s, samples.s[vi]]), mask,
+                          np.concatenate([trace, points.trace]), np.concatenate([s, points.s_mm]), mask,
                           params.coverage, params.target_error_mm)
-    sd = check.fit.posterior.sd(samples.sites)
+    sd = check.fit.posterior.sd(field_region(paths, current.deviation_wavelength_mm).samples.sites)
     return SequentialResult(with_bound(check, sd), sites, trace, s, tuple(rounds), stopped, current)

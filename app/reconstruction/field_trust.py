@@ -138,12 +138,13 @@ class FieldCheck:
         return bool(self.reasons)
 
     def verified_line(self) -> str:
-        """'verified at K points: max |residual| X um (bound Y um)'."""
+        """'verified at K points: max |residual| X um (bound Y um)', or 'NOT verified at K
+        points: ... worst at [x, y] mm' when a point is outside its band or over the bound."""
         v = self.verification
         if v is None or not len(v.xy):
             return "not verified: no verification points were touched"
-        return (f"verified at {len(v.xy)} points: max |residual| {v.max_abs_residual_mm * 1000:.1f} um "
-                f"(bound {self.bound_mm * 1000:.1f} um)")
+        return verification_line([{"xy": xy.tolist(), "residual_mm": float(r), "within": bool(w)}
+                                  for xy, r, w in zip(v.xy, v.residual_mm, v.within)], self.bound_mm)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON form for job results and the run report."""
@@ -169,6 +170,25 @@ class FieldCheck:
                 for xy, t, m, p, lim, w, b in zip(v.xy, v.trace, v.measured_mm, v.predicted_mm, v.limit_mm,
                                                   v.within, v.worse)]
         return out
+
+
+def verification_line(points: Sequence[dict[str, Any]], bound_mm: float | None) -> str:
+    """The verdict line of verification points (each with ``xy``, ``residual_mm``, ``within``)
+    against the ``bound_mm`` promised for the traces: 'verified at K points: max |residual| X
+    um (bound Y um)' when every residual is within its band and the bound, else 'NOT
+    verified at K points: ..., worst at [x, y] mm' (where to look: a step shows there)."""
+    if not points:
+        return "not verified: no verification points were touched"
+    worst = max(points, key=lambda p: abs(p["residual_mm"]))
+    top = abs(worst["residual_mm"])
+    bound = math.nan if bound_mm is None else float(bound_mm)
+    ok = all(p["within"] for p in points) and not top > bound
+    said = f"bound {bound * 1000:.1f} um" if math.isfinite(bound) else "no bound"
+    line = f"{'verified' if ok else 'NOT verified'} at {len(points)} points: max |residual| {top * 1000:.1f} um ({said})"
+    if not ok:
+        outside = max((p for p in points if not p["within"]), key=lambda p: abs(p["residual_mm"]), default=worst)
+        line += f", worst at [{outside['xy'][0]:.2f}, {outside['xy'][1]:.2f}] mm"
+    return line
 
 
 def checked_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, measured: np.ndarray,

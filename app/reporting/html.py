@@ -162,6 +162,11 @@ def _verdict(verdict: dict[str, Any]) -> list[str]:
                    [[e["station"], round(e["xy"][0], 2), round(e["xy"][1], 2), e["trace"], _um(e["deviation_mm"]),
                      _um(e["residual_mm"])] for e in excluded], numeric={1, 2, 4, 5})
             if excluded else "<p>none</p>"]
+    again = verdict.get("retouched") or []
+    out += ["<h3>Touched again (suspected outliers)</h3>",
+            _table(["station", "x (mm)", "y (mm)", "trace", "touch again of station"],
+                   [[r["station"], round(r["xy"][0], 2), round(r["xy"][1], 2), r["trace"], r["retouch_of"]]
+                    for r in again], numeric={1, 2}) if again else "<p>none</p>"]
     return out
 
 

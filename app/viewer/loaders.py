@@ -20,7 +20,7 @@ from app.errors import NotFound
 from app.gcode.lines import GcodeReadError
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
-from app.models import Artifact, Job, JobReference, Part, Trace
+from app.models import COMPLETED_STATES, Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
 from app.jobs.inputs import nominal_of
@@ -96,7 +96,7 @@ class Loader:
             vertices, faces = self._mesh(part) if part is not None else (None, None)
             base = FocusScene({"job_id": job_id, "part_id": part.id if part else None},
                               f"{job.kind} {job.id} ({job.status})", vertices, faces)
-            if job.status != "succeeded":
+            if job.status not in COMPLETED_STATES:
                 return replace(base, notes=(f"job is {job.status}: {job.message}",))
             try:
                 content = self._content(session, job)

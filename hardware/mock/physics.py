@@ -36,6 +36,7 @@ from .sweep import (Contact, in_triangles, sweep_ball_plane, sweep_ball_sphere, 
 from .world import MockWorld
 
 _VERTICAL = np.array([0.0, 0.0, -1.0])
+DUST_RADIUS_MM = 0.5  # a touch this close (xy) to a speck of MockWorld.probe_dust lands on it
 
 
 class Touch(NamedTuple):
@@ -235,6 +236,10 @@ class ProbePhysics:
         if travel > length + 1e-12:
             return Touch("miss", tuple(float(v) for v in target), length, what)
         reading = at_contact + delta * direction if travel > 0.0 else start_c
+        for i, (x, y, dz) in enumerate(world.probe_dust):
+            if i not in world.dust_gone and math.hypot(reading[0] - x, reading[1] - y) <= DUST_RADIUS_MM:
+                world.dust_gone.add(i)
+                reading = reading - dz * direction
         noise = world.probe_noise_mm
         if noise > 0:
             reading = reading - float(self.noise_draw(noise)) * direction

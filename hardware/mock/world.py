@@ -176,6 +176,10 @@ class MockWorld:
     true_part: object | None = None  # trimesh.Trimesh of the as-made part, or None (flat bed)
     placement: TruePlacement = field(default_factory=TruePlacement)
     probe_noise_mm: float = 0.0
+    # dust (x, y, dz) mm: the first touch within DUST_RADIUS_MM of (x, y) reads dz high
+    # (a chip or dust under the stylus, gone after that touch: a touch again reads the part)
+    probe_dust: tuple[tuple[float, float, float], ...] = ()
+    dust_gone: set[int] = field(default_factory=set)
     seed: int = 0
     dialect: str = DEFAULT_DIALECT
     time_scale: float = 0.0

@@ -17,7 +17,7 @@ def submit(client: Any, kind: str, params: dict[str, Any]) -> Any:
     return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
-def wait_for(client: Any, job_id: str, states: tuple[str, ...] = ("succeeded", "failed", "cancelled"),
+def wait_for(client: Any, job_id: str, states: tuple[str, ...] = ("succeeded", "needs_attention", "failed", "cancelled"),
              timeout: float = 20.0) -> dict[str, Any]:
     """The job once its status is one of ``states``, whole (``?include=result&include=artifacts``:
     what a test reads).  Polled (the small record) every 20 ms at first, then ever less often

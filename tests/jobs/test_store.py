@@ -58,3 +58,23 @@ def test_reaped_job_finishes_on_a_live_worker(runtime):
     while time.monotonic() < deadline and runtime.store.status(job.id)[0] != "succeeded":
         time.sleep(0.05)
     assert runtime.store.status(job.id)[0] == "succeeded"
+
+
+def test_a_result_that_asks_for_attention_ends_the_job_in_that_state_with_its_closing_words(runtime):
+    from sqlmodel import Session
+
+    from app.jobs.store import completed_status
+    from app.models import Job
+
+    assert completed_status({"needs_attention": True}) == "needs_attention"
+    assert completed_status({"needs_attention": False}) == completed_status({}) == "succeeded"
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    claim = runtime.store.claim(job.id, "w1")
+    runtime.store.heartbeat(claim, 1.0, "3/3 traces done; NEEDS ATTENTION: a step")
+    assert runtime.store.finish(claim, "needs_attention", result={"needs_attention": True})
+    with Session(runtime.engine) as session:
+        done = session.get(Job, job.id)
+        assert (done.status, done.progress, done.message) == ("needs_attention", 1.0,
+                                                              "3/3 traces done; NEEDS ATTENTION: a step")
+        assert done.finished_at is not None and done.lease_until is None
+    assert runtime.store.claim(job.id, "w2") is None          # terminal: never run again

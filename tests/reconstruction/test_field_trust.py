@@ -90,3 +90,41 @@ def test_sequential_planning_holds_every_trace_within_its_verified_bound_on_the_
     assert (after < before).all()
     assert after.max() <= check.bound_mm <= DEFAULT.target_error_mm
     assert check.verification is not None and check.verification.within.all()
+    assert check.verified_line().startswith(f"verified at {len(check.verification.xy)} points: max |residual| ")
+
+
+def stepped(xy: np.ndarray) -> np.ndarray:
+    """The 14 mm part with a 20 um step up across x = 30 mm (a discontinuity the smooth field
+    cannot represent): the truth (m,) mm at xy (m, 2)."""
+    return fourteen(xy) + 0.02 * (xy[:, 0] > 30.0)
+
+
+def test_a_step_in_the_part_is_not_verified_and_the_verdict_says_where(paths):
+    rng = np.random.default_rng(4)
+    result = plan_sequential(paths, DEFAULT,
+                             lambda xy: stepped(np.atleast_2d(xy)) + rng.normal(0.0, NOISE_MM, len(np.atleast_2d(xy))),
+                             verify_count=5)
+    check = result.check
+    worst_true = max(np.abs(check.fit.deviation(s) - stepped(s.xy)).max()
+                     for s in (path_sites(p, p.s[::2]) for p in paths))
+    assert worst_true > check.bound_mm                         # calling this verified would be false
+    assert check.needs_attention
+    v = check.verification
+    outside = ~v.within
+    assert outside.any() and (np.abs(v.xy[outside, 0] - 30.0) < 1.5).all()   # the points off the field are at the step
+    line = check.verified_line()
+    assert line.startswith(f"NOT verified at {len(v.xy)} points") and "worst at [30." in line
+
+
+def test_gap_points_lie_midway_to_the_neighbours_of_the_worst_predicted_stations():
+    from app.geometry.traces import TracePolyline
+    from app.probing.field_verify import gap_points
+
+    line = TracePolyline.from_points(np.column_stack([np.linspace(0, 20, 41), np.full(41, 5.0), np.zeros(41)]))
+    trace = np.array([0, 0, 0, 0, 0, -1])
+    s = np.array([0.0, 5.0, 10.0, 10.2, 20.0, np.nan])      # 10.2: a re-touch of the station at 10 (same spot)
+    z = np.array([0.1, 0.5, -3.0, 0.2, 2.0, 9.0])            # off-trace station (z 9) has no gap along a trace
+    points = gap_points([line], trace, s, z, stations=2)       # worst: s 10 (both sides), s 20 (the end: one side)
+    assert np.allclose(points.s, [7.5, 15.0, 15.1])
+    assert np.allclose(points.sites.xy, [[7.5, 5.0], [15.0, 5.0], [15.1, 5.0]])
+    assert (points.trace == 0).all() and len(gap_points([line], trace, s, z, stations=0)) == 0

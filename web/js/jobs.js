@@ -6,7 +6,7 @@ import { schemaForm } from "./schema_form.js";
 import { figuresTable, kindView } from "./results.js";
 import { el, fmt, guarded, initPage, latest, markReady, query, showError, showInfo, viewerPanel } from "./ui.js";
 
-const TERMINAL = new Set(["succeeded", "failed", "cancelled"]);
+const TERMINAL = new Set(["succeeded", "needs_attention", "failed", "cancelled"]);
 const main = initPage("jobs.html");
 const left = el("div");
 const right = el("div");
@@ -105,7 +105,7 @@ async function onSubmit(event) {
 
 // ---- history: filters, paging and live progress ------------------------------------------
 const PAGE_SIZE = 25;
-const STATUSES = ["queued", "running", "succeeded", "failed", "cancelled", "interrupted"];
+const STATUSES = ["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted"];
 const tbody = el("tbody", { id: "jobs-body" });
 const filterKind = el("select", { id: "filter-kind", "aria-label": "filter by kind" }, el("option", { value: "" }, "any kind"));
 const filterStatus = el("select", { id: "filter-status", "aria-label": "filter by status" },
@@ -154,7 +154,7 @@ async function loadFilterChoices() {
 }
 
 function statusCell(job) {
-  return el("span", { class: `badge ${job.status}`, "data-status": job.status }, job.status);
+  return el("span", { class: `badge ${job.status}`, "data-status": job.status }, job.status.replace("_", " "));
 }
 
 function row(job) {

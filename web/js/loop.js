@@ -8,7 +8,7 @@ import { chart, length } from "./results.js";
 import { el, guarded, initPage, latest, markReady, showInfo, viewerPanel } from "./ui.js";
 
 const main = initPage("loop.html");
-const TERMINAL = new Set(["succeeded", "failed", "cancelled", "interrupted"]);
+const TERMINAL = new Set(["succeeded", "needs_attention", "failed", "cancelled", "interrupted"]);
 // traces: the part's printable traces; rings: its circuit imports' pad / area probe rings
 // (traces with source.role "pad_probe"), probed with the import's traces, never printed.
 const state = { part: null, traces: [], rings: [], machine: null, plan: null, run: null, rows: [] };

@@ -187,6 +187,6 @@ export function kindView(job) {
     if (figure) out.push(figure);
     if (job.kind === "closed_loop") out.push(recordsTable(job.result.table, 50));
   }
-  if (VIEWS[job.kind] && job.status === "succeeded" && job.result) out.push(VIEWS[job.kind](job));
+  if (VIEWS[job.kind] && ["succeeded", "needs_attention"].includes(job.status) && job.result) out.push(VIEWS[job.kind](job));
   return out;
 }

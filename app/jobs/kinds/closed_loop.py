@@ -20,8 +20,8 @@ A field plan's reconstruction is checked before anything is printed
 points touched after the stations): the result's ``verdict`` states "verified at K points:
 max |residual| X um (bound Y um)", the learned prior, every excluded touch and the traces
 the correction makes worse at a verification point.  When the check fails (``verdict.
-needs_attention``) the loop still ends ``succeeded`` with its programs, but ``print`` is
-refused for every trace (nothing is printed automatically; the operator accepts explicitly
+needs_attention``) the loop ends in the state ``needs_attention`` (not ``succeeded``) with
+its programs, and ``print`` is refused for every trace (nothing is printed automatically; the operator accepts explicitly
 by printing from the machines page, or runs the loop again with ``verdict.suggested_probe``)
 and its message says so.
 
@@ -57,6 +57,7 @@ from app.jobs.inputs import nominal_of
 from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
                               RegisterResult, program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
+from app.reconstruction.field_trust import verification_line
 from app.models import Job, Machine, Trace
 from app.records import get_or_404
 
@@ -237,7 +238,9 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     result: dict[str, Any] = {"traces": per_trace, "table": rows}
     if checks:
         result["verdict"] = loop_verdict(checks, per_trace, params.print)
+        result["verdict"]["retouched"] = [] if shared is None else retouched(shared[0])
         if result["verdict"]["needs_attention"]:
+            result["needs_attention"] = True  # the job ends needs_attention, not succeeded
             ctx.progress(1.0, f"{total}/{total} traces done; NEEDS ATTENTION: {result['verdict']['reasons'][0]}"
                          + ("; nothing printed" if params.print else ""))
     if registration is not None:
@@ -335,6 +338,14 @@ def _field_check(rebuilt: Job, trace_id: str, entry: dict[str, Any], plan: Job,
     return check  # type: ignore[no-any-return]
 
 
+def retouched(plan: Job) -> list[dict[str, Any]]:
+    """The touches of a field plan that were touches again of a suspected outlier: station
+    (index in the plan's field), xy, trace and ``retouch_of`` (the station touched again)."""
+    stations = (ProbePlanResult.of(plan).field or {}).get("stations", [])
+    return [{"station": i, "xy": st["xy"], "trace": st["trace"], "retouch_of": int(st["retouch_of"])}
+            for i, st in enumerate(stations) if st.get("retouch_of") is not None]
+
+
 def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], printing: bool) -> dict[str, Any]:
     """The loop's verdict from its field reconstruct children's checks (one per batch, one
     fit): needs_attention if any says so; the bound is the largest trace bound; "verified at
@@ -345,9 +356,7 @@ def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], pri
     bound = max(bounds) if bounds else first.get("bound_mm")
     points = first.get("verification") or []
     worse = [t["trace_id"] for t in traces if t.get("worse_than_nominal")]
-    line = ("not verified: no verification points were touched" if not points else
-            f"verified at {len(points)} points: max |residual| "
-            f"{max(abs(p['residual_mm']) for p in points) * 1000:.1f} um (bound {(bound or 0) * 1000:.1f} um)")
+    line = verification_line(points, bound)
     said = any("promised for the traces" in r for r in reasons)
     if points and bound is not None and not said and max(abs(p["residual_mm"]) for p in points) > bound:
         reasons.append(f"a verification point is off the field by more than the bound {bound * 1000:.1f} um "
@@ -420,6 +429,12 @@ def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, A
         plan, probe = following, steps.run("probe_run", {"plan_job_id": following.id, **run}, trace_id)
         if field["sequential"]["final"]:
             break
+    if trace_id is None and not sequential and ProbePlanResult.of(plan).field:
+        # single shot: a touch the fitted field would exclude is touched once more before it may be
+        again = steps.run("probe_plan", {**base, "fixed_run_job_id": probe.id, "retouch_only": True}, trace_id)
+        if ProbePlanResult.of(again).count:
+            steps.ctx.progress(progress[0], f"{ProbePlanResult.of(again).count} suspected outliers touched again")
+            plan, probe = again, steps.run("probe_run", {"plan_job_id": again.id, **run}, trace_id)
     return plan, probe
 
 

@@ -38,7 +38,7 @@ from app.probing import (PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams
 from app.probing.field import field_result, plan_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.field_verify import with_sequential_verification, with_verification
-from app.jobs.field_runs import field_touches, measured_array, touched_stations
+from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
 from app.probing.field import stored_field
 from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import learn_prior
@@ -177,6 +177,7 @@ def _field_entry(plan: Any, plan_params: PlanParams, params: ProbePlanParams,
         for k, original in enumerate(marks):
             own[first + k]["retouch_of"] = original
         entry["stations"] = sequential.pop("fixed") + own
+        entry["verify_count"] = sum(bool(st.get("verify")) for st in entry["stations"])
         entry["center"] = sequential.pop("center")
         entry["sequential"] = sequential
     return entry
@@ -200,6 +201,14 @@ def _retouches(prior: Any, sites: Any, dz: np.ndarray, field: Any, keep: np.ndar
     return out
 
 
+def _retouched(plan: Any, field: Any, keep: np.ndarray, retouch: list[int]) -> Any:
+    """``plan`` (a field plan of the same traces) touching only the fit stations ``retouch``
+    (indices among the kept ones of the stored ``field``) again, nothing else."""
+    idx = np.flatnonzero(keep)[retouch] if retouch else np.zeros(0, dtype=int)
+    return replace(plan, xy=field.stations.xy[idx], z=field.z[idx], grad=field.stations.grad[idx],
+                   trace=field.trace[idx], s_mm=field.s_mm[idx], order=np.arange(len(idx)), verify=None)
+
+
 def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], plan_params: PlanParams,
                 top: Any) -> tuple[Any, PlanParams, dict[str, Any]]:
     """A sequential round: learn the prior from every station touched so far (the fixed
@@ -221,8 +230,17 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     learned_params = replace(plan_params, deviation_amplitude_mm=learned.prior.amplitude_mm,
                              deviation_wavelength_mm=learned.prior.wavelength_mm,
                              probe_sigma_mm=max(learned.prior.sigma_mm, plan_params.probe_sigma_mm))
+    suspect = learned.prior
+    if params.retouch_only:  # judged at the probe's repeatability: one bad touch inflates the learned noise
+        suspect = replace(suspect, sigma_mm=min(suspect.sigma_mm, plan_params.probe_sigma_mm))
+    retouch = _retouches(suspect, sites, dz, field, keep, fixed)
     more = plan_field(nominals, learned_params, params.stations, top, fixed=sites)
-    retouch = _retouches(learned.prior, sites, dz, field, keep, fixed)
+    if params.retouch_only:  # the prior stays the user's: a single-shot plan's second run
+        return _retouched(more, field, keep, retouch), plan_params, {
+            "round": int(plan_job.result.get("field", {}).get("sequential", {}).get("round", 0)) + 1,
+            "final": True, "stopped": "retouched", "added": 0, "touched_before": len(fixed),
+            "learned": learned.as_dict(), "retouch_of": [int(i) for i in retouch],
+            "fixed": fixed + touched_verification(stored, run.id), "center": stored["center"]}
     budget = params.touch_budget
     over = budget is not None and len(fixed) + more.count + len(retouch) + params.verify_count > budget
     final = (more.count == 0 and not retouch) or over
@@ -237,7 +255,9 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     if final:  # no stations: the verification points for every station touched so far
         more = replace(more, xy=more.xy[:0], z=more.z[:0], grad=more.grad[:0], trace=more.trace[:0],
                        s_mm=more.s_mm[:0], order=more.order[:0])
-        more = with_sequential_verification(more, sites, nominals, learned_params.prior(), params.verify_count)
+        surprise = (field.trace[keep], field.s_mm[keep], learned.loo.z)  # the gaps beside the worst predicted
+        more = with_sequential_verification(more, sites, nominals, learned_params.prior(), params.verify_count,
+                                            surprise)
     return more, learned_params, {
         "round": int(plan_job.result.get("field", {}).get("sequential", {}).get("round", 0)) + 1,
         "final": final, "stopped": "budget" if over else ("bound holds" if final else None),
@@ -264,7 +284,11 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     ctx.progress(0.5, f"{plan.count - int(plan.verify_mask.sum())} stations and {int(plan.verify_mask.sum())} "
                  f"verification points for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
                  f"freedom at the target, {plan.nyquist_dof:.0f} by the Nyquist rule); writing the program")
-    program, meta = _program(ctx, params, plan.probe_plan(), mesh)
+    if plan.count:
+        program, meta = _program(ctx, params, plan.probe_plan(), mesh)
+        records = [r.to_dict() for r in program.records]
+    else:  # a round with nothing to touch (no suspected outlier to touch again): no program
+        records, meta = [], {}
     field = _field_entry(plan, plan_params, params, sequential)
     on = [st["trace"] for st in field["stations"] if st["trace"] >= 0 and not st.get("verify")]
     counts = np.bincount(np.asarray(on, dtype=int), minlength=len(traces))
@@ -273,7 +297,7 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
         "method": "field",
         "points": plan.points.tolist(),
         "s_mm": [None if np.isnan(s) else float(s) for s in plan.s_mm],
-        "records": [r.to_dict() for r in program.records],
+        "records": records,
         "program": meta,
         "field": field,
         "traces": [{"trace_id": trace.id, "index": i, "stations": int(counts[i]), "trace_length_mm": trace.length_mm,

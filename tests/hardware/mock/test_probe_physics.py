@@ -240,3 +240,15 @@ def test_starting_beside_a_face_plane_is_not_inside():
     assert touch.reading[0] == pytest.approx(5.0 + math.sqrt(R_BALL**2 - 0.2**2), abs=1e-12)
     # really overlapping at the start: inside
     assert physics.touch((4.0, 0.0, 5.2), (4.0, 0.0, 0.0), tool=0).status == "inside"
+
+
+def test_dust_reads_high_once_then_the_part_is_read():
+    """A speck of dust (x, y, dz): the first touch within 0.5 mm reads dz high, a touch again
+    reads the bed; a touch farther away never meets it."""
+    world, physics = _physics(probe_dust=((20.0, 10.0, 0.08),))
+    far = physics.touch((20.6, 10.0, 5.0), (20.6, 10.0, -1.0), tool=0)
+    assert far.reading[2] == pytest.approx(0.0, abs=1e-12)
+    first = physics.touch((20.2, 10.1, 5.0), (20.2, 10.1, -1.0), tool=0)
+    assert first.reading[2] == pytest.approx(0.08, abs=1e-12)
+    again = physics.touch((20.2, 10.1, 5.0), (20.2, 10.1, -1.0), tool=0)
+    assert again.reading[2] == pytest.approx(0.0, abs=1e-12) and world.dust_gone == {0}
