@@ -51,7 +51,7 @@ class XYProjection(NamedTuple):
 
 
 def _rounded(rows: np.ndarray) -> list[list[float]]:
-    return [[round(float(v), STORED_DECIMALS) for v in row] for row in rows]
+    return [[round(v, STORED_DECIMALS) for v in row] for row in np.asarray(rows, dtype=float).tolist()]
 
 
 @dataclass(frozen=True, eq=False)
