@@ -26,7 +26,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 import trimesh
 
-from app.geometry.cl_points import cl_points
+from app.geometry.cl_points import cl_points, cl_points_many
 from app.geometry.drape import drape_polyline, snap_to_surface
 from app.geometry.drape_batch import drape_polylines
 from app.geometry.errors import DegenerateGeometryError, GeometryError
@@ -235,7 +235,7 @@ def build_nominal_traces(
     (:func:`app.geometry.drape_batch.drape_polylines`): equal to :func:`build_nominal_trace`
     of each.  None when any of them is not a valid top-view trace over the part: build those
     one by one, which names the first error."""
-    top_views = []
+    curves = []
     for geometry in geometries:
         try:
             curve = trace_curve(geometry, tolerance=tolerance)
@@ -243,7 +243,8 @@ def build_nominal_traces(
             return None
         if curve.dimension != 2:
             return None
-        top_views.append(cl_points(curve, tolerance.chord_mm).points)
+        curves.append(curve)
+    top_views = [c.points for c in cl_points_many(curves, tolerance.chord_mm)]
     draped = drape_polylines(mesh, top_views, tolerance)
     if draped is None:
         return None

@@ -1,12 +1,14 @@
-"""Draping many traces at once gives exactly what draping each one gives."""
+"""Building many traces at once (CL points, draping) gives exactly what building each one gives."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from app.geometry.cl_points import cl_points, cl_points_many
 from app.geometry.drape import DrapedPath, drape_polyline
 from app.geometry.drape_batch import drape_polylines
+from app.geometry.shapes import trace_curve
 from app.geometry.tolerance import Tolerance
 from app.geometry.traces import build_nominal_trace, build_nominal_traces
 from app.reference.boards import board_traces, dome_part
@@ -72,3 +74,13 @@ def test_a_board_builds_the_same_nominal_traces_batched(dome):  # type: ignore[n
         np.testing.assert_array_equal(b.s, s.s)
     assert build_nominal_traces(mesh, [*geometries[:3], {"type": "line", "start": [0, 0, 0], "end": [1, 1, 1]}],
                                 Tolerance()) is None
+
+
+def test_cl_points_of_many_curves_are_each_curves_own(dome):  # type: ignore[no-untyped-def]
+    part, _ = dome
+    curves = [trace_curve(g, tolerance=Tolerance()) for g in board_traces(part, 200, seed=5)]
+    assert {(c.degree, c.is_rational) for c in curves} == {(1, False), (2, True), (3, False)}
+    for many, one in zip(cl_points_many(curves, 0.01), (cl_points(c, 0.01) for c in curves)):
+        np.testing.assert_array_equal(many.u, one.u)
+        np.testing.assert_array_equal(many.points, one.points)
+        assert many.max_sagitta_mm == one.max_sagitta_mm <= 0.01
