@@ -9,6 +9,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from dataclasses import replace
+from collections.abc import Callable
 from typing import Any, BinaryIO, TypeVar
 
 import numpy as np
@@ -19,7 +20,7 @@ from app.blobs import BlobStore
 from app.errors import ConformaError, NotFound
 from app.geometry.slope import SlopePolicy, check_slope
 from app.geometry.tolerance import Tolerance
-from app.geometry.traces import build_nominal_trace
+from app.geometry.traces import TracePolyline, build_nominal_trace, build_nominal_traces
 from app.jobs.results import ProbePlanResult
 from app.mesh_intake import intake, parse_mesh
 from app.models import Artifact, Job, Machine, Part, Trace, new_id, utcnow
@@ -309,9 +310,29 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
     Errors from the geometry core name their field under ``field_prefix`` (the index of a
     trace in a bulk import)."""
     geometry = body.geometry.model_dump()
+    return _trace_record(part, body, geometry, field_prefix,
+                         lambda: build_nominal_trace(meshes.mesh(part), geometry, body.frame, Tolerance()))
+
+
+def build_traces(meshes: MeshCache, part: Part, bodies: list[Any]) -> list[Trace]:
+    """:func:`build_trace` of each body (API ``TraceCreate``), errors named by index; top-view
+    traces are draped all at once (:func:`app.geometry.traces.build_nominal_traces`, the same
+    polylines), anything else (or a batch with an error) one by one."""
+    geometries = [body.geometry.model_dump() for body in bodies]
+    nominals = None
+    if all(body.frame == "xy" for body in bodies):
+        nominals = build_nominal_traces(meshes.mesh(part), geometries, Tolerance())
+    if nominals is None:
+        return [build_trace(meshes, part, body, field_prefix=str(i)) for i, body in enumerate(bodies)]
+    return [_trace_record(part, body, geometry, str(i), lambda n=nominal: n)
+            for i, (body, geometry, nominal) in enumerate(zip(bodies, geometries, nominals))]
+
+
+def _trace_record(part: Part, body: Any, geometry: dict[str, Any], field_prefix: str,
+                  nominal_of: Callable[[], TracePolyline]) -> Trace:
     policy = SlopePolicy(warn_deg=min(body.slope_warn_deg, body.slope_max_deg), max_deg=body.slope_max_deg)
     try:
-        nominal = build_nominal_trace(meshes.mesh(part), geometry, body.frame, Tolerance())
+        nominal = nominal_of()
         slope = check_slope(nominal.points, nominal.normals, policy)
     except ConformaError as exc:
         if field_prefix and exc.field:

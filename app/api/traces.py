@@ -15,7 +15,7 @@ from app.api.schemas import NominalOut, Page, TraceCreate, TraceOut
 from app.db import lock_for_delete
 from app.errors import Conflict, NotFound
 from app.models import JobReference, Part, Trace
-from app.records import build_trace, get_or_404
+from app.records import build_trace, build_traces, get_or_404
 
 router = APIRouter(prefix="/api/v1", tags=["traces"])
 MAX_IMPORT = 1000
@@ -56,7 +56,7 @@ def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep, reques
     if replayed is not None:
         return replayed  # type: ignore[return-value]
     part = get_or_404(session, Part, part_id)
-    traces = [build_trace(runtime.meshes, part, item, field_prefix=str(i)) for i, item in enumerate(body)]
+    traces = build_traces(runtime.meshes, part, body)
     out = Page(items=[trace_out(t) for t in traces], total=len(traces))
     session.add_all(traces)
     idempotency.remember(session, claim, 201, out)

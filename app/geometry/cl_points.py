@@ -16,7 +16,7 @@ import numpy as np
 from app.geometry.errors import GeometryError
 from app.geometry.nurbs import NurbsCurve
 
-__all__ = ["CLPoints", "cl_points", "segment_sagitta"]
+__all__ = ["CLPoints", "cl_points", "cl_points_many", "segment_sagitta"]
 
 _VERIFY_SAMPLES = 24
 _GOLDEN_STEPS = 16  # the bracket shrinks to 0.618^16 = 5e-4 of 2/25 of the segment: the sagitta to ~1e-8 of itself
@@ -48,27 +48,39 @@ def segment_sagitta(curve: NurbsCurve, u: np.ndarray) -> np.ndarray:
 
     Dense samples locate the worst point, golden-section search refines it.
     """
-    u = np.asarray(u, dtype=float)
-    a_u, b_u = u[:-1], u[1:]
-    ends = curve.evaluate(u)
-    a, b = ends[:-1], ends[1:]
+    return _sagittas([curve], [np.asarray(u, dtype=float)])[0]
+
+
+def _sagittas(curves: list[NurbsCurve], us: list[np.ndarray]) -> list[np.ndarray]:
+    """:func:`segment_sagitta` of several curves of one dimension at once: the golden-section
+    steps run once over every curve's segments (each curve's spline evaluated on its own)."""
+    counts = np.array([u.size - 1 for u in us])
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    a_u = np.concatenate([u[:-1] for u in us])
+    b_u = np.concatenate([u[1:] for u in us])
+    ends = [curve.evaluate(u) for curve, u in zip(curves, us)]
+    a = np.concatenate([e[:-1] for e in ends])
+    b = np.concatenate([e[1:] for e in ends])
     frac = np.linspace(0.0, 1.0, _VERIFY_SAMPLES + 2)[1:-1]
-    us = a_u[:, None] + (b_u - a_u)[:, None] * frac[None, :]
-    d = _distance_to_chords(curve.evaluate(us.ravel()).reshape(us.shape + (-1,)), a, b)
+    samples = a_u[:, None] + (b_u - a_u)[:, None] * frac[None, :]
+    dense = np.concatenate([curve.evaluate(samples[lo:hi].ravel()).reshape(hi - lo, _VERIFY_SAMPLES, -1)
+                            for curve, lo, hi in zip(curves, bounds[:-1], bounds[1:])])
+    d = _distance_to_chords(dense, a, b)
     j = np.argmax(d, axis=1)
     step = (b_u - a_u) / (_VERIFY_SAMPLES + 1)
-    lo = np.maximum(us[np.arange(us.shape[0]), j] - step, a_u)
-    hi = np.minimum(us[np.arange(us.shape[0]), j] + step, b_u)
+    lo = np.maximum(samples[np.arange(samples.shape[0]), j] - step, a_u)
+    hi = np.minimum(samples[np.arange(samples.shape[0]), j] + step, b_u)
     best = d.max(axis=1)
     ratio = (np.sqrt(5.0) - 1.0) / 2.0
 
-    homogeneous = curve.homogeneous_spline  # x stays inside [a_u, b_u]: no domain check per step
+    splines = [curve.homogeneous_spline for curve in curves]  # x stays inside [a_u, b_u]: no domain check
     ab = b - a
     ll = np.einsum("ij,ij->i", ab, ab)
     inv = np.divide(1.0, ll, out=np.zeros_like(ll), where=ll > 0)
 
     def dist(x: np.ndarray) -> np.ndarray:
-        h = homogeneous(x)
+        h = splines[0](x) if len(splines) == 1 else \
+            np.concatenate([f(x[i:k]) for f, i, k in zip(splines, bounds[:-1], bounds[1:])])
         ap = h[:, :-1] / h[:, -1:] - a
         t = np.clip(np.einsum("ij,ij->i", ap, ab) * inv, 0.0, 1.0)
         r = ap - t[:, None] * ab
@@ -86,8 +98,7 @@ def segment_sagitta(curve: NurbsCurve, u: np.ndarray) -> np.ndarray:
         fx = dist(np.where(left, x1, x2))
         f1, f2 = np.where(left, fx, f2), np.where(left, f1, fx)
         best = np.maximum(best, np.maximum(f1, f2))
-    out: np.ndarray = best
-    return out
+    return [best[i:k] for i, k in zip(bounds[:-1], bounds[1:])]
 
 
 def _pieces(curve: NurbsCurve) -> list[tuple[float, float]]:
@@ -121,20 +132,34 @@ def cl_points(curve: NurbsCurve, chord_mm: float) -> CLPoints:
     Returns parameters (k,), points (k, d) mm and the largest verified sagitta (mm) which
     is <= chord_mm.  Corners (C0 breaks) are always CL points.
     """
+    return cl_points_many([curve], chord_mm)[0]
+
+
+def cl_points_many(curves: list[NurbsCurve], chord_mm: float) -> list[CLPoints]:
+    """:func:`cl_points` of each curve (the same points): the first verification of every
+    curve of one dimension runs at once."""
     if not (isinstance(chord_mm, (int, float)) and np.isfinite(chord_mm) and chord_mm > 0):
         raise GeometryError("chord tolerance must be positive and finite", field="chord_mm", value=chord_mm)
-    params = [np.array([curve.domain[0]])]
-    pieces = _pieces(curve)
-    if curve.degree == 1 and not curve.is_rational:  # straight pieces: exactly their ends, sagitta 0
-        u = np.unique(np.concatenate([params[0], [b for _, b in pieces]]))
-        return CLPoints(u, curve.evaluate(u), 0.0)
-    else:
-        for a, b in pieces:
-            params.append(_equidistributed(curve, a, b, chord_mm)[1:])
-    u = np.unique(np.concatenate(params))
-    if curve.degree == 1 and not curve.is_rational:  # the chords are the curve itself: nothing to verify
-        return CLPoints(u, curve.evaluate(u), 0.0)
-    sag = segment_sagitta(curve, u)
+    out: list[CLPoints | None] = [None] * len(curves)
+    todo: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for i, curve in enumerate(curves):
+        start = np.array([curve.domain[0]])
+        pieces = _pieces(curve)
+        if curve.degree == 1 and not curve.is_rational:  # straight pieces: exactly their ends, sagitta 0
+            u = np.unique(np.concatenate([start, [b for _, b in pieces]]))
+            out[i] = CLPoints(u, curve.evaluate(u), 0.0)
+            continue
+        u = np.unique(np.concatenate([start, *(_equidistributed(curve, a, b, chord_mm)[1:] for a, b in pieces)]))
+        todo.setdefault(curve.dimension, []).append((i, u))
+    for group in todo.values():
+        sags = _sagittas([curves[i] for i, _ in group], [u for _, u in group])
+        for (i, u), sag in zip(group, sags):
+            out[i] = _refined(curves[i], u, sag, chord_mm)
+    return [p for p in out if p is not None]
+
+
+def _refined(curve: NurbsCurve, u: np.ndarray, sag: np.ndarray, chord_mm: float) -> CLPoints:
+    """Bisect the segments of parameters ``u`` (k,) whose sagitta ``sag`` (k-1,) passes ``chord_mm``."""
     for _ in range(60):
         bad = sag > chord_mm
         if not bad.any():

@@ -19,20 +19,22 @@ and any point farther than ``tolerance.snap_mm`` is an error naming it.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import trimesh
 
-from app.geometry.cl_points import cl_points
+from app.geometry.cl_points import cl_points, cl_points_many
 from app.geometry.drape import drape_polyline, snap_to_surface
+from app.geometry.drape_batch import drape_polylines
 from app.geometry.errors import DegenerateGeometryError, GeometryError
 from app.geometry.shapes import trace_curve
 from app.geometry.tolerance import DEFAULT_TOLERANCE, LENGTH_EPS_MM, STORED_DECIMALS, Tolerance
 
-__all__ = ["TracePolyline", "TracePolylineError", "XYProjection", "as_trace_polyline", "build_nominal_trace"]
+__all__ = ["TracePolyline", "TracePolylineError", "XYProjection", "as_trace_polyline", "build_nominal_trace",
+           "build_nominal_traces"]
 
 Frame = Literal["xy", "3d"]
 
@@ -49,7 +51,7 @@ class XYProjection(NamedTuple):
 
 
 def _rounded(rows: np.ndarray) -> list[list[float]]:
-    return [[round(float(v), STORED_DECIMALS) for v in row] for row in rows]
+    return [[round(v, STORED_DECIMALS) for v in row] for row in np.asarray(rows, dtype=float).tolist()]
 
 
 @dataclass(frozen=True, eq=False)
@@ -224,3 +226,27 @@ def build_nominal_trace(
     else:
         raise GeometryError("frame must be 'xy' or '3d'", field="frame", value=frame)
     return TracePolyline(points=points, s=s_mm, normals=normals, slope_stretch=float(stretch))
+
+
+def build_nominal_traces(
+    mesh: trimesh.Trimesh, geometries: Sequence[Mapping[str, Any]], tolerance: Tolerance = DEFAULT_TOLERANCE,
+) -> list[TracePolyline] | None:
+    """Many frame "xy" geometry dicts -> their trace polylines, draped all at once
+    (:func:`app.geometry.drape_batch.drape_polylines`): equal to :func:`build_nominal_trace`
+    of each.  None when any of them is not a valid top-view trace over the part: build those
+    one by one, which names the first error."""
+    curves = []
+    for geometry in geometries:
+        try:
+            curve = trace_curve(geometry, tolerance=tolerance)
+        except (GeometryError, ValueError):
+            return None
+        if curve.dimension != 2:
+            return None
+        curves.append(curve)
+    top_views = [c.points for c in cl_points_many(curves, tolerance.chord_mm)]
+    draped = drape_polylines(mesh, top_views, tolerance)
+    if draped is None:
+        return None
+    return [TracePolyline(points=d.points, s=d.s_mm, normals=d.normals, slope_stretch=float(d.slope_stretch))
+            for d in draped]
