@@ -69,6 +69,8 @@ class Settings(BaseSettings):
     compute_recycle_mb: float = Field(3072.0, ge=64, le=1_000_000,
                                       description="a compute process is replaced after a job that leaves its resident "
                                       "memory (or its address space's growth) above this")
+    compute_warm_up: bool = Field(True, description="start the compute processes (and the fork server that imports "
+                                  "the compute core) when the server starts, not at the first compute job")
     lease_s: float = Field(30.0, gt=0.5, le=3600)
     max_attempts: int = Field(3, ge=1, le=100)
     reaper_interval_s: float = Field(1.0, gt=0.01, le=600)

@@ -58,6 +58,9 @@ def settings_factory(tmp_path: Path, migrated_database: Path):  # type: ignore[n
             "lease_s": 5.0,
             "reaper_interval_s": 0.2,
             "job_plugins": "tests.jobs.sample_kinds",
+            # Most test apps never run a compute job: their compute processes start at the
+            # first one instead of with the app (the warm-up is tested on its own).
+            "compute_warm_up": False,
         }
         values.update(overrides)
         settings = load_settings({}, **values)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import io
 import struct
 import tracemalloc
@@ -28,8 +29,11 @@ def npy(array: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
+@functools.cache
 def bomb(mb: int) -> bytes:
-    """A deflated NPZ holding an ``mb`` MiB float64 zero array (~1000:1)."""
+    """A deflated NPZ holding an ``mb`` MiB float64 zero array (~1000:1); made once per test
+    process (deflating 800 MiB costs ~2.6 s of CPU) and shared, read-only (``bytes``), by the
+    tests that refuse it."""
     return npz(heights=np.zeros(mb * MIB // 8))
 
 

@@ -271,7 +271,9 @@ class Runtime:
     def start_workers(self, queues: tuple[str, ...] = QUEUES) -> None:
         """Start consumer threads for ``queues`` plus the reaper (idempotent per process)."""
         if "default" in queues and self.settings.compute_isolation == "process":
-            threading.Thread(target=warm_up, args=(self.supervisor.pool,), daemon=True, name="compute-warm-up").start()
+            if self.settings.compute_warm_up:
+                threading.Thread(target=warm_up, args=(self.supervisor.pool,), daemon=True,
+                                 name="compute-warm-up").start()
         elif "default" in queues:  # compute jobs in this process's threads: its BLAS limit, set once here
             threadpool_limits(limits=self.settings.blas_threads)
         for name in queues:

@@ -60,7 +60,7 @@ def test_server_killed_mid_print_waits_for_the_operator_and_resumes_exactly_once
     base = f"http://127.0.0.1:{port}"
     headers = {"Authorization": f"Bearer {ADMIN}"}
     env = env_for(data, CONFORMA_API_KEYS=f"{ADMIN}:admin", CONFORMA_LEASE_S="2", CONFORMA_REAPER_INTERVAL_S="0.2",
-                  CONFORMA_SOCKET_HOSTS="127.0.0.1")
+                  CONFORMA_SOCKET_HOSTS="127.0.0.1", CONFORMA_COMPUTE_WARM_UP="false")  # a print: no compute job
     server = start(["serve", "--port", str(port)], env, tmp_path / "processes.log")
     try:
         wait_healthy(base, server, log=tmp_path / "processes.log")

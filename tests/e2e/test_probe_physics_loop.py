@@ -3,8 +3,9 @@ stylus ball, 15 um +- 2 um pre-travel, Z drift of 1 um/min, 1 um probe noise, a 
 whose true offset (12.3, -4.1, -8.7) mm the machine knows only as (12, -4, -8.5), a
 reference pad and datum sphere ~0.3 mm off their nominal places — is calibrated
 (calibrate_probe, calibrate_nozzle) and then runs the closed loop with evaluation on S1's
-as-made part and on a HELD-OUT as-made part (another seed and amplitude, never used while
-tuning): every compensated trace, printed by the nozzle and measured on the mock's
+as-made part (the same loop on a held-out as-made part, another seed and amplitude never
+used while tuning, is tests/bench/test_bench_probe_physics_loop.py: the same path and the
+same assertions on other numbers): every compensated trace, printed by the nozzle and measured on the mock's
 deposition log at the nozzle's TRUE tip, holds its standoff within 10 um max and its
 top-view path within 10 um of the design.  The uncompensated (nominal) programs printed
 by the same nozzle miss by far more.  On the same machine a wide nozzle (2 mm body) is
@@ -89,20 +90,18 @@ def closed_loop(client, part: dict, traces: list[dict], machine: dict, **extra) 
         "probe": {"method": "deviation"}, "sigma_mm": 0.001, "evaluate": True, **extra}, timeout=900)
 
 
-@pytest.fixture(scope="module")
-def stls():
-    return true_part_stl(seed=11, amplitude_mm=0.15), true_part_stl(seed=29, amplitude_mm=0.12)
-
-
 def _children(client, loop: dict) -> list[dict]:
     return client.get(f"/api/v1/jobs?parent_id={loop['id']}&limit=100", headers=OP).json()["items"]
 
 
-@pytest.mark.parametrize("held_out", [False, True], ids=["s1-as-made", "held-out"])
-def test_after_calibration_every_trace_holds_its_standoff_and_path(client, stls, held_out):
+def calibrated_loop_holds_standoff_and_path(client, true_stl: bytes, name: str, seed: int):  # type: ignore[no-untyped-def]
+    """Calibrate a physics mock holding ``true_stl``, run the evaluated closed loop on S1's
+    traces and assert what it must hold: the hidden truth recovered by the calibration, every
+    compensated trace within 10 um of its standoff and path, the nominal programs >= 30 um
+    off, each print's drift shift read from the pad, every probe run on that calibration.
+    Returns (traces, children of the loop)."""
     part, traces = nominal_part(client)
-    machine, probe, nozzle = calibrated_machine(client, stls[held_out], "held-out" if held_out else "s1",
-                                                seed=7 if held_out else 5)
+    machine, probe, nozzle = calibrated_machine(client, true_stl, name, seed=seed)
     # the calibration found the mock's hidden truth
     assert probe["result"]["ball_radius_mm"] == pytest.approx(0.5, abs=0.003)
     assert probe["result"]["pretravel"]["p0_mm"] == pytest.approx(0.015, abs=0.003)
@@ -131,8 +130,14 @@ def test_after_calibration_every_trace_holds_its_standoff_and_path(client, stls,
         assert run["result"]["program"]["commands"] == run["result"]["source_program"]["commands"]
     runs = [j for j in children if j["kind"] == "probe_run"]
     assert all(r["result"]["calibration"]["probe_job_id"] == probe["id"] for r in runs)
-    if held_out:
-        return
+    return traces, children
+
+
+def test_after_calibration_every_trace_holds_its_standoff_and_path(client):
+    """On S1's as-made part: everything :func:`calibrated_loop_holds_standoff_and_path`
+    asserts, and a wide nozzle on the same machine refused on the slopes, named."""
+    traces, children = calibrated_loop_holds_standoff_and_path(
+        client, true_part_stl(seed=11, amplitude_mm=0.15), "s1", seed=5)
     # a wide nozzle on the same machine: its 2 mm body would touch S1's slopes; refused, named
     comp = next(j for j in children if j["kind"] == "compensate")
     trace = next(t for t in traces if t["id"] == comp["params"]["trace_id"])

@@ -34,8 +34,10 @@ def start(args: list[str], env: dict[str, str], log: Path | None = None) -> subp
 
 
 def test_first_start_prints_url_and_a_working_operator_key(tmp_path):
+    """A first ``conforma serve`` prints its URL and an operator key that works (it runs no
+    compute job: its compute processes are not started)."""
     port = free_port()
-    proc = start(["serve", "--port", str(port)], env_for(tmp_path / "data"))
+    proc = start(["serve", "--port", str(port)], env_for(tmp_path / "data", CONFORMA_COMPUTE_WARM_UP="false"))
     try:
         lines = []
         deadline = time.monotonic() + 60
@@ -54,11 +56,16 @@ def test_first_start_prints_url_and_a_working_operator_key(tmp_path):
 
 
 def test_sigkilled_worker_job_is_requeued_and_restart_keeps_everything(tmp_path):
+    """A ``conforma worker`` SIGKILLed mid-job: a new worker runs the job to success on its
+    second attempt, and a restarted server still serves the part, the job and its artifact
+    byte for byte (compute processes started at the first job, not with each process)."""
     data = tmp_path / "data"
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     headers = {"Authorization": f"Bearer {ADMIN}"}
-    common = {"CONFORMA_API_KEYS": f"{ADMIN}:admin", "CONFORMA_LEASE_S": "1.5", "CONFORMA_REAPER_INTERVAL_S": "0.2"}
+    # compute processes start at the job (tests/e2e/test_compute_dies_with_server.py runs warm)
+    common = {"CONFORMA_API_KEYS": f"{ADMIN}:admin", "CONFORMA_LEASE_S": "1.5", "CONFORMA_REAPER_INTERVAL_S": "0.2",
+              "CONFORMA_COMPUTE_WARM_UP": "false"}
     log = tmp_path / "processes.log"
     server = start(["serve", "--port", str(port)], env_for(data, CONFORMA_EMBEDDED_WORKER="false", **common), log)
     worker = start(["worker"], env_for(data, **common), log)

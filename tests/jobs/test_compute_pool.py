@@ -152,3 +152,24 @@ def test_after_a_crash_the_pool_serves_the_next_job(settings_factory, signal):
         done = wait_for(client, crash.json()["id"], timeout=120)
         assert done["status"] == "failed" and "quarantined" in done["error"]["detail"]
         assert _job(client, "test_sleep", {"seconds": 0})["status"] == "succeeded"
+
+
+def test_the_warm_up_starts_the_pool_with_the_app_and_without_it_the_first_job_does(settings_factory):
+    """``compute_warm_up`` on (the default): the pool holds its ``worker_threads`` processes
+    soon after the app starts, before any job; off: none until the first compute job, which
+    starts one and succeeds all the same."""
+    client, _ = _service(settings_factory, worker_threads=2, compute_warm_up=True)
+    with client:
+        pool = client.app.state.runtime.supervisor.pool
+        deadline = time.monotonic() + 120
+        while len(pool.members) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(pool.members) == 2 and pool.started == 2
+    client, _ = _service(settings_factory, worker_threads=2, compute_warm_up=False,
+                                data_dir=settings_factory().data_dir.parent / "cold")
+    with client:
+        pool = client.app.state.runtime.supervisor.pool
+        time.sleep(1.0)
+        assert pool.members == [] and pool.started == 0
+        assert _job(client, "test_sleep", {"seconds": 0})["status"] == "succeeded"
+        assert pool.started == 1
