@@ -47,7 +47,7 @@ def test_wizard_walks_plan_probe_review_print_report(page, served, loop_setup):
     page.click("#wz-plan")
     page.wait_for_selector('#wz-4[data-done="1"]', timeout=60_000)
     touches = int(page.get_attribute("#wz-plan-summary .figure", "data-touches"))
-    plan = api.get("/api/v1/jobs?kind=probe_plan&limit=1").json()["items"][0]
+    plan = api.get("/api/v1/jobs?kind=probe_plan&limit=1&include=result").json()["items"][0]
     assert touches == plan["result"]["count"] == len(plan["result"]["points"]) > 0
     assert "predicted error" in page.inner_text("#wz-plan-summary")
     assert api.get(f"/api/v1/machines/{machine['id']}").json()["mock"]["executed_commands"] == executed_before
@@ -55,13 +55,13 @@ def test_wizard_walks_plan_probe_review_print_report(page, served, loop_setup):
     # probe, then review: the rebuilt traces and their compensated programs
     page.click("#wz-probe")
     page.wait_for_selector('#wz-6[data-done="1"]', timeout=120_000)
-    run = api.get("/api/v1/jobs?kind=probe_run&limit=1").json()["items"][0]
+    run = api.get("/api/v1/jobs?kind=probe_run&limit=1&include=result").json()["items"][0]
     assert run["status"] == "succeeded" and len(run["result"]["points"]) == touches
     assert f"{touches} touches" in page.inner_text("#wz-probe-live")
     rows = page.query_selector_all("#wz-review tbody tr")
     assert [r.get_attribute("data-trace") for r in rows] == [t["id"] for t in traces]
     assert all(r.get_attribute("data-ready") == "1" for r in rows)
-    rebuilt = {j["params"]["trace_id"]: j for j in api.get("/api/v1/jobs?kind=reconstruct&limit=10").json()["items"]}
+    rebuilt = {j["params"]["trace_id"]: j for j in api.get("/api/v1/jobs?kind=reconstruct&limit=10&include=result").json()["items"]}
     for row, trace in zip(rows, traces):
         shown = row.query_selector_all("td")[1].inner_text()
         max_um = rebuilt[trace["id"]]["result"]["deviation"]["max_mm"] * 1000
@@ -86,7 +86,7 @@ def test_wizard_walks_plan_probe_review_print_report(page, served, loop_setup):
 
     # report: one page naming every trace and the hash of every compensated program
     report = api.get(f"/api/v1/jobs/{run['id']}/report").text
-    for job in api.get("/api/v1/jobs?kind=compensate&limit=10").json()["items"][:len(TRACES)]:
+    for job in api.get("/api/v1/jobs?kind=compensate&limit=10&include=result").json()["items"][:len(TRACES)]:
         program = next(a for a in job["artifacts"] if a["name"] == "print.gcode")
         assert program["meta"]["commands_sha256"] in report
     for trace in traces:
@@ -138,13 +138,13 @@ def test_wizard_probes_the_pads_of_an_imported_circuit_by_itself(page, served):
 
     page.click("#wz-plan")
     page.wait_for_selector('#wz-4[data-done="1"]', timeout=60_000)
-    plan = api.get("/api/v1/jobs?kind=probe_plan&limit=1").json()["items"][0]
+    plan = api.get("/api/v1/jobs?kind=probe_plan&limit=1&include=result").json()["items"][0]
     assert sorted(plan["params"]["trace_ids"]) == sorted(traces + [ring])   # added by the page itself
     assert page.get_attribute("#wz-plan-rings", "data-rings") == "1"
 
     page.click("#wz-probe")
     page.wait_for_selector('#wz-6[data-done="1"]', timeout=180_000)
-    run = api.get("/api/v1/jobs?kind=probe_run&limit=1").json()["items"][0]
+    run = api.get("/api/v1/jobs?kind=probe_run&limit=1&include=result").json()["items"][0]
     stations = shapely.points(np.array([p["nominal"][:2] for p in run["result"]["points"]]))
     on_pad = shapely.contains(Polygon(body["pads"][0]["outline_xy_mm"]), stations)
     assert on_pad.sum() >= 1, f"no station on the pad ({len(on_pad)} stations)"   # the pad was probed
