@@ -71,13 +71,13 @@ def trace_passes(tip: npt.NDArray[np.float64], width_mm: float, line_width_mm: f
 def fill_tip_strokes(exterior: npt.NDArray[np.float64], holes: list[npt.NDArray[np.float64]], line_width_mm: float,
                      drape: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]], surface_z: HeightFn,
                      standoff_mm: float,
-                     step_mm: float = 0.25) -> list[npt.NDArray[np.float64]]:
+                     step_mm: float = 0.25, angle_deg: float = 0.0) -> list[npt.NDArray[np.float64]]:
     """Tip strokes (k, 3) filling a pad or area: top-view fill strokes, densified to ``step_mm``
     and to the nominal surface's facets (``drape``: xy (k, 2) -> points (m, 3)), each point at
     the measured surface (``surface_z``: xy (m, 2) -> z (m,), nominal + measured deviation)
-    plus the standoff."""
+    plus the standoff; the raster lines run at ``angle_deg`` from x."""
     out = []
-    for stroke in fill_strokes(exterior, holes, line_width_mm):
+    for stroke in fill_strokes(exterior, holes, line_width_mm, angle_deg):
         xy = drape(densify(stroke, step_mm))[:, :2]
         out.append(np.column_stack([xy, surface_z(xy) + standoff_mm]))
     return out

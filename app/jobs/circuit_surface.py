@@ -5,6 +5,12 @@ run (:func:`app.jobs.field_runs.run_field`, the fit every trace's reconstruction
 learned and verified): the program's surface is the nominal top plus that field's posterior
 mean, each point with its posterior sd and the bound coverage x sd.  Any other loop gives
 the deviation interpolated between its probe stations (no sd).
+
+A loop that worked in machine coordinates (a placement, or its registration) probed,
+fitted and compensated there: the surface is then the PLACED part's top plus that
+deviation, in the same machine frame as the compensated trace tips, and everything else the
+program prints (pads, areas) is carried into that frame by :func:`loop_placement`'s
+placement before it is filled.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import trimesh
 from app.circuits.strokes import deviation_field
 from app.circuits.surface import MeasuredSurface
 from app.jobs.context import JobContext
+from app.geometry.placement import Placement
 from app.jobs.field_runs import run_field
 from app.jobs.inputs import placement_from
 from app.jobs.loop_results import LoopTrace
@@ -33,12 +40,23 @@ SD_CHUNK = 2000
 SD_PER_WAVELENGTH = 16
 
 
+def loop_placement(ctx: JobContext, entries: dict[str, LoopTrace], trace_ids: Sequence[str]) -> Placement | None:
+    """The placement (part -> machine) the loop's traces were rebuilt and compensated in (its
+    reconstructions' ``placement`` / ``registration_job_id``; the first trace's stands for
+    all: a loop places every trace alike), else None (the part's own frame)."""
+    first = entries[trace_ids[0]] if trace_ids else None
+    rec = ctx.job(first.reconstruct, kind="reconstruct", field="params.closed_loop_job_id") if first else None
+    placed = PlacedParams.model_validate({k: (rec.params or {}).get(k) for k in ("placement", "registration_job_id")}
+                                         if rec is not None else {})
+    return placement_from(ctx, placed)
+
+
 def measured_surface(ctx: JobContext, mesh: trimesh.Trimesh, entries: dict[str, LoopTrace], trace_ids: Sequence[str],
-                     runs: Sequence[str], stations: list[np.ndarray], deviations: list[float]
-                     ) -> tuple[MeasuredSurface, FieldCheck | None, bool]:
-    """(the surface, the loop's checked field or None, whether the surface is in the part's own
-    frame: False when the loop worked in machine coordinates (a placement or registration),
-    where the part's nominal and the compensated tips are in different frames)."""
+                     runs: Sequence[str], stations: list[np.ndarray], deviations: list[float],
+                     placement: Placement | None = None) -> tuple[MeasuredSurface, FieldCheck | None]:
+    """(the surface, the loop's checked field or None) in the loop's frame: ``mesh`` is the
+    part's mesh already moved by ``placement`` (the loop's, :func:`loop_placement`), and
+    ``stations`` (n, 2) mm are the probe stations' machine xy."""
     top = mesh_top_sampler(mesh)
 
     def nominal(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -47,9 +65,6 @@ def measured_surface(ctx: JobContext, mesh: trimesh.Trimesh, entries: dict[str, 
 
     first = entries[trace_ids[0]] if trace_ids else None
     rec = ctx.job(first.reconstruct, kind="reconstruct", field="params.closed_loop_job_id") if first else None
-    placed = PlacedParams.model_validate({k: (rec.params or {}).get(k) for k in ("placement", "registration_job_id")}
-                                         if rec is not None else {})
-    framed = placed.placement is None and placed.registration_job_id is None
     plan = None
     if first is not None and len(runs) == 1:
         run = ctx.job(runs[0], kind="probe_run", field="params.closed_loop_job_id")
@@ -57,7 +72,7 @@ def measured_surface(ctx: JobContext, mesh: trimesh.Trimesh, entries: dict[str, 
     if rec is not None and plan is not None and ProbePlanResult.of(plan).field and rec.params.get("method") == "field":
         sigma = ((rec.result or {}).get("sigma") or {}).get("sigma_mm")
         check = run_field(ctx, runs[0], sigma, bool(rec.params.get("learn_prior", True)), list(trace_ids),
-                          placement_from(ctx, placed), trace_field="params.closed_loop_job_id")[0]
+                          placement, trace_field="params.closed_loop_job_id")[0]
         posterior = check.fit.posterior
 
         def field(xy: np.ndarray, slope: np.ndarray, want_sd: bool) -> tuple[np.ndarray, np.ndarray | None]:
@@ -70,10 +85,10 @@ def measured_surface(ctx: JobContext, mesh: trimesh.Trimesh, entries: dict[str, 
             return mean, sd if want_sd else None
 
         step = posterior.prior.wavelength_mm / SD_PER_WAVELENGTH
-        return MeasuredSurface(nominal, field, check.coverage, step), check, framed
+        return MeasuredSurface(nominal, field, check.coverage, step), check
     interpolated = deviation_field(np.array(stations), np.array(deviations))
 
     def between(xy: np.ndarray, _slope: np.ndarray, _sd: bool) -> tuple[np.ndarray, np.ndarray | None]:
         return interpolated(xy), None
 
-    return MeasuredSurface(nominal, between), None, framed
+    return MeasuredSurface(nominal, between), None

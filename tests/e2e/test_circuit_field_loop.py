@@ -15,8 +15,9 @@ import shapely
 from shapely.geometry import LineString, Polygon
 
 from app.gcode.reader import ReadOptions, read_program
+from app.geometry.placement import Placement
 from app.jobs.simulation import true_height_of
-from app.reference.s1 import as_made, s1_mesh
+from app.reference.s1 import as_made, centred_placement, s1_mesh
 from hardware.mock import get_world
 from tests.circuits.boards import PourBoard, gerber_x2
 from tests.conftest import auth
@@ -118,3 +119,103 @@ def test_every_printed_point_within_its_bound_and_never_below_the_true_surface(c
         print(f"{items[name]['kind']:5} {name}: {int(mine.sum())} points, |standoff error| max "
               f"{worst * 1000:.2f} um, bound {items[name]['bound_mm'] * 1000:.2f} um")
         assert worst <= items[name]["bound_mm"] + UNMODELLED_MM, (name, worst, items[name]["bound_mm"])
+
+
+#: where the mock really holds the as-made part (about the machine origin): far enough off
+#: its nominal place that a fill drawn on the part's own frame lands off its pad
+PLACED = {"dx": 0.6, "dy": -0.4, "dz": 0.03, "rz_deg": 0.4}
+
+
+def _strokes(text: str, on: str, off: str) -> list[tuple[str, np.ndarray]]:
+    """The printed strokes of a circuit program, read from its text: (the ``kind name``
+    comment before the stroke, its tip points (k, 3) mm from the plunge on)."""
+    out: list[tuple[str, np.ndarray]] = []
+    label, at, points, printing = "", np.zeros(3), [], False
+    for raw in text.splitlines():
+        line = raw.split(";")[0].strip()
+        if raw.startswith("; ") and not printing:
+            label = raw[2:].strip()
+        if line == on.strip():
+            printing, points = True, [at.copy()]
+        elif line == off.strip():
+            printing = False
+            out.append((label, np.array(points)))
+        elif line.startswith(("G0", "G1")):
+            for word in line.split()[1:]:
+                if word[0] in "XYZ":
+                    at["XYZ".index(word[0])] = float(word[1:])
+            if printing:
+                points.append(at.copy())
+    return out
+
+
+def test_a_placed_part_gets_every_fill_over_its_item_and_above_the_true_surface(client, meshes):
+    """The mock holds the part shifted and turned; the loop registers it first.  Every printed
+    stroke (trace passes, pad fills, the pour) read back from the program and carried into the
+    part's frame by the TRUE placement lies over its own item, and every point is at its
+    standoff over the TRUE surface within the item's reported bound, never below it."""
+    nominal_stl = meshes[0]
+    true_stl = as_made(seed=23, amplitude_mm=0.12, placement=centred_placement()).mesh(grid_mm=0.5).export(
+        file_type="stl")                         # as made, in its own frame: the mock places it
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal_stl)}, headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
+    imported = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                           files=[("files", ("top.gbr", gerber_x2(BOARD).encode()))],
+                           data={"options": json.dumps({"origin_mm": list(ORIGIN), "standoff_mm": STANDOFF})})
+    assert imported.status_code == 201, imported.text
+    body = imported.json()
+    trace_ids = [t["trace"]["id"] for t in body["traces"]]
+    machine = client.post("/api/v1/machines", json={
+        "name": "placed", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "placement": PLACED, "probe_noise_mm": 0.001}}, headers=OP).json()
+    loop = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        "part_id": part["id"], "trace_ids": trace_ids + body["probe_trace_ids"], "machine_id": machine["id"],
+        "joint_probing": True, "sigma_mm": 0.001, "registration": True}}, headers=OP)
+    assert loop.status_code == 202, loop.text
+    loop = wait_for(client, loop.json()["id"], timeout=400)
+    assert loop["status"] == "succeeded", loop["error"]
+    program = client.post("/api/v1/jobs", json={"kind": "circuit_program", "params": {
+        "import_id": body["import_id"], "closed_loop_job_id": loop["id"], "machine_id": machine["id"],
+        "line_width_mm": LINE}}, headers=OP)
+    assert program.status_code == 202, program.text
+    program = wait_for(client, program.json()["id"], timeout=240)
+    assert program["status"] == "succeeded", program["error"]
+    result = program["result"]
+    surface = result["surface"]
+    assert surface["model"] == "field"
+    items = surface["items"]
+    truth = Placement.from_deg(**PLACED)
+
+    text = client.get(f"/api/v1/jobs/{program['id']}/artifacts/circuit.gcode", headers=OP).text
+    strokes = _strokes(text, result["dispense_on"], result["dispense_off"])
+    assert len(strokes) == result["strokes"] and sum(len(p) for _, p in strokes) > 500
+    true_z = true_height_of(get_world(machine["id"]))
+    pads = {p["name"]: Polygon(p["outline_xy_mm"]) for p in body["pads"]}
+    area = body["areas"][0]
+    shapes: dict[str, shapely.Geometry] = {**pads, area["name"]: Polygon(area["exterior_xy_mm"], area["holes_xy_mm"])}
+    halves = {}
+    for t in body["traces"]:
+        line = LineString(np.array(client.get(f"/api/v1/traces/{t['trace']['id']}", headers=OP)
+                                   .json()["nominal"]["points"])[:, :2])
+        shapes[t["name"]], halves[t["name"]] = line, BOARD.trace[2] / 2
+    commented = {" ".join(n.replace("(", "[").replace(")", "]").split()): n for n in shapes}   # as comments spell it
+    seen = set()
+    for label, pts in strokes:
+        kind, name = label.split(" ", 1)
+        name = commented[name]
+        seen.add(name)
+        on_part = truth.remove(pts)[:, :2]                     # where on the real part it lands
+        off_item = shapely.distance(shapely.points(on_part), shapes[name])
+        # fills: inside their pad / pour (their contour runs half a line in); trace passes:
+        # within the trace's half width of its centre line -- to 10 um (the registration's error)
+        allowed = (halves[name] - LINE / 2 if name in halves else 0.0) + 0.010
+        assert off_item.max() <= allowed, (kind, name, float(off_item.max()))
+        z = true_z(pts[:, :2])
+        assert np.isfinite(z).all() and (pts[:, 2] > z).all(), ("below the true surface", name)
+        worst = float(np.abs(pts[:, 2] - z - STANDOFF).max())
+        assert worst <= items[name]["bound_mm"] + UNMODELLED_MM, (name, worst, items[name]["bound_mm"])
+    assert seen == set(shapes)
+    fitted = surface["placement"]                                   # the registration's, reported
+    fitted = Placement.from_deg(fitted["dx"], fitted["dy"], fitted["dz"], fitted["rz_deg"], tuple(fitted["pivot"]))
+    centre = np.array([[ORIGIN[0] + BOARD.width / 2, ORIGIN[1] + BOARD.height / 2]])
+    assert np.linalg.norm(fitted.apply(centre) - truth.apply(centre)) <= 0.01

@@ -13,7 +13,10 @@ two nets is refused at submission (422) naming both nets, the items and where th
 and so is one that would open a net: the printed items (traces at the width they print,
 fills as their beads cover them, pads off the part left out) of a piece of a net the source
 file connects no longer connected (:mod:`app.circuits.opens`), naming the net and the gap.
-Strokes are ordered for short travel.
+After a loop in machine coordinates (a placement or registration) every printed point goes
+through the loop's part -> machine placement: the traces' compensated tips already are, pad
+and area outlines are placed before they are filled, and the surface and its below-surface
+check are the placed part's.  Strokes are ordered for short travel.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from app.circuits.opens import check_opens, fill_coverage
 from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import fill_tip_strokes, trace_passes
 from app.circuits.surface import PrintedPoints
-from app.jobs.circuit_surface import measured_surface
+from app.jobs.circuit_surface import loop_placement, measured_surface
 from app.errors import InvalidInput
 from app.geometry.drape import drape_polyline
 from app.geometry.traces import TracePolyline
@@ -173,7 +176,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         pieces = check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
     loop = ctx.job(params.closed_loop_job_id, kind="closed_loop", field="params.closed_loop_job_id")
     entries = _loop_entries(loop)
-    mesh = ctx.mesh(imp.part_id)
+    placement = loop_placement(ctx, entries, imp.trace_ids)          # part -> machine, as the traces
+    mesh = ctx.runtime.meshes.placed(ctx.part(imp.part_id), placement)
 
     stations, deviations = [], []
     runs = station_runs(entries, probe_ids + list(imp.trace_ids))      # each probe run once
@@ -182,7 +186,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         for pt in ProbeRunResult.of(probe).points:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])
-    surface, check, framed = measured_surface(ctx, mesh, entries, imp.trace_ids, runs, stations, deviations)
+    surface, check = measured_surface(ctx, mesh, entries, imp.trace_ids, runs, stations, deviations, placement)
     printed = PrintedPoints(surface)
 
     def surface_z(xy: np.ndarray) -> np.ndarray:
@@ -204,15 +208,20 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         def drape(xy: np.ndarray) -> np.ndarray:
             return drape_polyline(mesh, xy).points
 
+        def placed(xy: list) -> np.ndarray:                               # part -> machine, top view
+            ring = np.asarray(xy, float).reshape(-1, 2)
+            return ring if placement is None else placement.apply(ring)
+
+        angle = 0.0 if placement is None else placement.rz_deg              # rasters stay along the part's x
         outlines = [(p["outline_xy_mm"], [], p["name"], "pad") for p in imp.pads if p["on_part"]]
         outlines += [(a["exterior_xy_mm"], a["holes_xy_mm"], a["name"], "area") for a in stored_areas(imp.areas)]
         for ring, holes, name, kind in outlines:
-            for s in fill_tip_strokes(np.asarray(ring, float), [np.asarray(h, float) for h in holes],
-                                      params.line_width_mm, drape, surface_z, standoff):
+            for s in fill_tip_strokes(placed(ring), [placed(h) for h in holes],
+                                      params.line_width_mm, drape, surface_z, standoff, angle_deg=angle):
                 strokes.append(Stroke(s, kind, name, params.feed_mm_min))
                 printed.add(name, kind, s, standoff)
                 fills += 1
-    low = printed.below(SURFACE_TOLERANCE_MM if check is not None else np.inf) if framed else []
+    low = printed.below(SURFACE_TOLERANCE_MM if check is not None else np.inf)
     if low:
         name, clearance, item_standoff = low[0]
         raise InvalidInput(f"{len(low)} printed item(s) would put the nozzle below the measured surface plus their "
@@ -234,7 +243,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
             "connections_checked": pieces,
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
             "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off,
-            "surface": {"model": "field" if check is not None else "stations", "frame_checked": framed,
+            "surface": {"model": "field" if check is not None else "stations",
+                        "placement": None if placement is None else placement.to_dict(),
                         "verified": None if check is None else check.verified_line(),
                         "needs_attention": None if check is None else check.needs_attention,
                         **printed.as_dict()}})
