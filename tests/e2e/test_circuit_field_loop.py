@@ -68,18 +68,7 @@ def test_every_printed_point_within_its_bound_and_never_below_the_true_surface(c
     machine = client.post("/api/v1/machines", json={
         "name": "circuit", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}}, headers=OP).json()
-    loop = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
-        "part_id": part["id"], "trace_ids": trace_ids + body["probe_trace_ids"], "machine_id": machine["id"],
-        "joint_probing": True, "sigma_mm": 0.001}}, headers=OP)
-    assert loop.status_code == 202, loop.text
-    loop = wait_for(client, loop.json()["id"], timeout=300)
-    assert loop["status"] == "succeeded", loop["error"]
-    program = client.post("/api/v1/jobs", json={"kind": "circuit_program", "params": {
-        "import_id": body["import_id"], "closed_loop_job_id": loop["id"], "machine_id": machine["id"],
-        "line_width_mm": LINE}}, headers=OP)
-    assert program.status_code == 202, program.text
-    program = wait_for(client, program.json()["id"], timeout=240)
-    assert program["status"] == "succeeded", program["error"]
+    loop, program = _loop_then_program(client, part, machine, body, trace_ids, loop_timeout=300)
     surface = program["result"]["surface"]
     assert surface["model"] == "field" and surface["verified"].startswith("verified at")
     items = surface["items"]
@@ -168,18 +157,8 @@ def test_a_placed_part_gets_every_fill_over_its_item_and_above_the_true_surface(
     machine = client.post("/api/v1/machines", json={
         "name": "placed", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "placement": PLACED, "probe_noise_mm": 0.001}}, headers=OP).json()
-    loop = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
-        "part_id": part["id"], "trace_ids": trace_ids + body["probe_trace_ids"], "machine_id": machine["id"],
-        "joint_probing": True, "sigma_mm": 0.001, "registration": True}}, headers=OP)
-    assert loop.status_code == 202, loop.text
-    loop = wait_for(client, loop.json()["id"], timeout=400)
-    assert loop["status"] == "succeeded", loop["error"]
-    program = client.post("/api/v1/jobs", json={"kind": "circuit_program", "params": {
-        "import_id": body["import_id"], "closed_loop_job_id": loop["id"], "machine_id": machine["id"],
-        "line_width_mm": LINE}}, headers=OP)
-    assert program.status_code == 202, program.text
-    program = wait_for(client, program.json()["id"], timeout=240)
-    assert program["status"] == "succeeded", program["error"]
+    loop, program = _loop_then_program(client, part, machine, body, trace_ids, loop_timeout=400,
+                                       registration=True)
     result = program["result"]
     surface = result["surface"]
     assert surface["model"] == "field"
@@ -219,3 +198,22 @@ def test_a_placed_part_gets_every_fill_over_its_item_and_above_the_true_surface(
     fitted = Placement.from_deg(fitted["dx"], fitted["dy"], fitted["dz"], fitted["rz_deg"], tuple(fitted["pivot"]))
     centre = np.array([[ORIGIN[0] + BOARD.width / 2, ORIGIN[1] + BOARD.height / 2]])
     assert np.linalg.norm(fitted.apply(centre) - truth.apply(centre)) <= 0.01
+
+
+def _loop_then_program(client, part: dict, machine: dict, body: dict, trace_ids: list[str], *,
+                       loop_timeout: float, **loop_params) -> tuple[dict, dict]:
+    """A joint, field-planned closed loop over the traces and the import's pad probes, then the
+    import's circuit program after it: both records, each checked to have succeeded."""
+    loop = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        "part_id": part["id"], "trace_ids": trace_ids + body["probe_trace_ids"], "machine_id": machine["id"],
+        "joint_probing": True, "sigma_mm": 0.001, **loop_params}}, headers=OP)
+    assert loop.status_code == 202, loop.text
+    loop = wait_for(client, loop.json()["id"], timeout=loop_timeout)
+    assert loop["status"] == "succeeded", loop["error"]
+    program = client.post("/api/v1/jobs", json={"kind": "circuit_program", "params": {
+        "import_id": body["import_id"], "closed_loop_job_id": loop["id"], "machine_id": machine["id"],
+        "line_width_mm": LINE}}, headers=OP)
+    assert program.status_code == 202, program.text
+    program = wait_for(client, program.json()["id"], timeout=240)
+    assert program["status"] == "succeeded", program["error"]
+    return loop, program
