@@ -147,10 +147,16 @@ def test_markup_sent_past_the_escaping_is_confined_by_the_csp(browser, hostile_v
     context, page, _errors = _open(browser, hostile_view)
     try:
         page.get_by_text("Connected").first.wait_for(state="visible")
-        handles = [client.gui.add_html('<img id="raw-img" src="x" onerror="window.pwned=1">'
-                                       '<iframe id="raw-frame" srcdoc="<script>parent.pwned=2</script>"></iframe>')
-                   for client in hostile_view.server.get_clients().values()]
-        page.locator("#raw-img").wait_for(state="attached")
+        # the page may show "Connected" before the server lists its client: send until it arrives
+        handles: list = []
+        deadline = time.monotonic() + 60
+        while page.locator("#raw-img").count() == 0:
+            assert time.monotonic() < deadline, "the view never received the raw markup"
+            handles += [client.gui.add_html('<img id="raw-img" src="x" onerror="window.pwned=1">'
+                                            '<iframe id="raw-frame" srcdoc="<script>parent.pwned=2</script>">'
+                                            '</iframe>')
+                        for client in hostile_view.server.get_clients().values()]
+            page.wait_for_timeout(1000)
         page.wait_for_function("window.__violations.some(v => v.blocked === 'inline') || window.pwned !== undefined")
         page.wait_for_timeout(500)
         assert page.evaluate("typeof window.pwned") == "undefined"
