@@ -56,14 +56,7 @@ def _owners(xy: np.ndarray, pads: dict[str, Polygon], pour: tuple[str, Polygon],
 
 def test_every_printed_point_within_its_bound_and_never_below_the_true_surface(client, meshes):
     nominal_stl, true_stl = meshes
-    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal_stl)}, headers=OP).json()
-    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
-    imported = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
-                           files=[("files", ("top.gbr", gerber_x2(BOARD).encode()))],
-                           data={"options": json.dumps({"origin_mm": list(ORIGIN), "standoff_mm": STANDOFF})})
-    assert imported.status_code == 201, imported.text
-    body = imported.json()
-    trace_ids = [t["trace"]["id"] for t in body["traces"]]
+    part, real, body, trace_ids = _board_on_parts(client, nominal_stl, true_stl)
     assert len(trace_ids) == 1 and len(body["pads"]) == 3 and len(body["areas"]) == 1
     machine = client.post("/api/v1/machines", json={
         "name": "circuit", "port": "mock://", "dialect": "marlin",
@@ -146,14 +139,7 @@ def test_a_placed_part_gets_every_fill_over_its_item_and_above_the_true_surface(
     nominal_stl = meshes[0]
     true_stl = as_made(seed=23, amplitude_mm=0.12, placement=centred_placement()).mesh(grid_mm=0.5).export(
         file_type="stl")                         # as made, in its own frame: the mock places it
-    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal_stl)}, headers=OP).json()
-    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
-    imported = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
-                           files=[("files", ("top.gbr", gerber_x2(BOARD).encode()))],
-                           data={"options": json.dumps({"origin_mm": list(ORIGIN), "standoff_mm": STANDOFF})})
-    assert imported.status_code == 201, imported.text
-    body = imported.json()
-    trace_ids = [t["trace"]["id"] for t in body["traces"]]
+    part, real, body, trace_ids = _board_on_parts(client, nominal_stl, true_stl)
     machine = client.post("/api/v1/machines", json={
         "name": "placed", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "placement": PLACED, "probe_noise_mm": 0.001}}, headers=OP).json()
@@ -217,3 +203,16 @@ def _loop_then_program(client, part: dict, machine: dict, body: dict, trace_ids:
     program = wait_for(client, program.json()["id"], timeout=240)
     assert program["status"] == "succeeded", program["error"]
     return loop, program
+
+
+def _board_on_parts(client, nominal_stl: bytes, true_stl: bytes) -> tuple[dict, dict, dict, list[str]]:
+    """Upload the nominal and the as-made part and import the board onto the nominal one:
+    the two part records, the import's answer and its trace ids."""
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal_stl)}, headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
+    imported = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
+                           files=[("files", ("top.gbr", gerber_x2(BOARD).encode()))],
+                           data={"options": json.dumps({"origin_mm": list(ORIGIN), "standoff_mm": STANDOFF})})
+    assert imported.status_code == 201, imported.text
+    body = imported.json()
+    return part, real, body, [t["trace"]["id"] for t in body["traces"]]

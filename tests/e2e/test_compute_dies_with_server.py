@@ -72,13 +72,7 @@ def test_compute_processes_die_with_the_server_and_the_job_runs_once_after_resta
         assert left == [], "a compute process outlived the server by 2 s"
     finally:
         stop(server)
-    again = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
-    try:
-        wait_healthy(base, again, log=tmp_path / "serve.log")
-        done = _wait_job(base, job["id"], ("succeeded", "failed", "cancelled"), timeout=90)
-        assert done["status"] == "succeeded" and done["attempts"] == 2, done
-    finally:
-        stop(again)
+    _restart_and_finish_on_the_second_attempt(port, env, tmp_path, job["id"])
 
 
 def test_a_compute_process_that_outlives_its_server_is_ended_before_the_job_runs_again(tmp_path):
@@ -110,17 +104,24 @@ def test_a_compute_process_that_outlives_its_server_is_ended_before_the_job_runs
         assert first in _session_members(server.pid), "the stubborn process died with its server: nothing tested"
     finally:
         stop(server)
-    again = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
-    try:
-        wait_healthy(base, again, log=tmp_path / "serve.log")
-        done = _wait_job(base, job["id"], ("succeeded", "failed", "cancelled"), timeout=90)
-        assert done["status"] == "succeeded" and done["attempts"] == 2, done
-    finally:
-        stop(again)
-        assert make_gone(first_record, 0.0) == "gone", "the stubborn process outlived the restarted server"
+    _restart_and_finish_on_the_second_attempt(port, env, tmp_path, job["id"])
+    assert make_gone(first_record, 0.0) == "gone", "the stubborn process outlived the restarted server"
     lines = journal.read_text().splitlines()
     assert [line.split()[0] for line in lines] == ["start", "start", "end"], lines
     second = lines[1].split()
     assert second[2] == "2" and second[3] == "-", lines  # attempt 2 began with no earlier process alive
     assert lines[2] == f"end {second[1]}"  # the one execution to its end is the second
     assert first not in _session_members(server.pid)
+
+
+def _restart_and_finish_on_the_second_attempt(port: int, env: dict, tmp_path, job_id: str) -> None:
+    """Start the server again on the same data and port: the job ends ``succeeded`` on its
+    second attempt; the server is stopped afterwards."""
+    base = f"http://127.0.0.1:{port}"
+    again = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
+    try:
+        wait_healthy(base, again, log=tmp_path / "serve.log")
+        done = _wait_job(base, job_id, ("succeeded", "failed", "cancelled"), timeout=90)
+        assert done["status"] == "succeeded" and done["attempts"] == 2, done
+    finally:
+        stop(again)
