@@ -9,7 +9,6 @@ import time
 import pytest
 from sqlmodel import Session
 
-from app.db import migrate
 from app.jobs.process_identity import alive, identify, make_gone
 from app.jobs.runtime import Runtime
 from app.models import Job
@@ -43,15 +42,6 @@ def test_make_gone_waits_for_a_process_that_ends_and_kills_one_that_does_not(sle
     began = time.monotonic()
     assert make_gone(identify(sleeper.pid), wait_s=0.2) == "killed"
     assert sleeper.wait(5) == -9 and time.monotonic() - began < 5
-
-
-@pytest.fixture
-def runtime(settings_factory):
-    settings = settings_factory(lease_s=1.0, max_attempts=5)
-    migrate(settings)
-    runtime = Runtime(settings)
-    yield runtime
-    runtime.stop()
 
 
 def _lose_first_attempt(runtime: Runtime, record: dict) -> str:

@@ -8,8 +8,6 @@ from datetime import datetime
 
 import pytest
 
-from app.db import migrate
-from app.jobs.runtime import Runtime
 from tests.api.test_machines import program_text, register, upload_program
 from hardware.protocol import commands_sha256
 from tests.conftest import auth
@@ -118,15 +116,6 @@ def test_a_job_killed_for_memory_fails_once_with_the_reason_when_the_database_fi
     time.sleep(6.0)  # past the test lease (5 s) and many reaper passes: never claimed again
     again = client.get(f"/api/v1/jobs/{job['id']}", headers=OP).json()
     assert again["status"] == "failed" and again["attempts"] == 1
-
-
-@pytest.fixture
-def runtime(settings_factory):
-    settings = settings_factory(lease_s=1.0, max_attempts=5)
-    migrate(settings)
-    runtime = Runtime(settings)
-    yield runtime
-    runtime.stop()
 
 
 def test_a_compute_job_whose_worker_is_lost_twice_is_quarantined(runtime):
