@@ -16,6 +16,17 @@ rigid terms is not identifiable from a few dozen touches beside the field).  The
 is multimodal in the wavelength (a short-wavelength model can explain any data as noise), so
 the search starts from a coarse grid of wavelengths and refines the best.
 
+Gross outliers (a chip or dust under the stylus, a bounced touch) would be explained by a
+short wavelength or a large noise: one 0.3 mm spike can halve the learned wavelength.  So
+before the fit, :func:`screen_outliers` takes out the touches their own re-touches contradict
+(a spot touched again reads the part where the first touch read the chip), then those whose
+standardised
+leave-one-out residual is more than SCREEN_K robust sd (1.4826 x the median |z|, at least 1)
+of all of them and more than SCREEN_FLOOR_MM, the least consistent first, under the user's
+prior; the prior is learned from the rest, and the screen is run again under the learned
+prior (a touch the first screen missed or wrongly took out is judged again).  The screened
+touches are reported (``screened``); the fit and its outlier rejection still see every touch.
+
 Uncertainty: the inverse of the Hessian of -log p in the log parameters at the optimum (the
 Laplace approximation; central differences), reported as the sd of each log parameter
 (a relative sd) — a parameter at its bound says so instead.
@@ -58,6 +69,10 @@ HESSIAN_STEP = 1e-3         # central-difference step in the log parameters
 MIN_TOUCHES = 8
 NOISE_MISFIT = 5.0          # learned noise over the user's (the probe's repeatability) that is a misfit
 NAMES = ("amplitude_mm", "wavelength_mm", "sigma_mm")
+SCREEN_K = 6.0              # a touch this many robust sd off what the others predict is screened out
+SCREEN_FLOOR_MM = 0.03      # ... and this far (mm): no smooth part's touch is screened for noise
+SCREEN_SHARE = 0.1          # at most this share of the touches is screened out
+REPEAT_RADIUS_MM = 0.5      # touches this close read the same spot (a re-touch)
 
 
 class LearningError(InvalidInput):
@@ -120,6 +135,7 @@ class LearnedPrior:
     start_log_likelihood: float
     loo: LooCheck
     n: int
+    screened: tuple[int, ...] = ()
 
     @property
     def misfit(self) -> bool:
@@ -134,7 +150,7 @@ class LearnedPrior:
                    "relative_sd": None if not math.isfinite(sd) else float(math.expm1(sd)),
                    "at_bound": b or None}
             for name, v, s, sd, b in zip(NAMES, values, starts, self.log_sd, self.at_bound)}
-        out |= {"touches": self.n, "log_likelihood": self.log_likelihood,
+        out |= {"touches": self.n, "screened": list(self.screened), "log_likelihood": self.log_likelihood,
                 "prior_log_likelihood": self.start_log_likelihood,
                 "loo": {"statistic": self.loo.statistic, "statistic_limit": self.loo.statistic_limit,
                         "max_abs_z": float(np.abs(self.loo.z).max()), "z_limit": self.loo.z_limit,
@@ -215,11 +231,52 @@ def loo_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.nd
     return LooCheck(resid, sd, z, statistic, z_limit, statistic_limit, bool(reasons), tuple(reasons))
 
 
+def repeat_outliers(sites: Sites, dz: np.ndarray, sigma_mm: float) -> np.ndarray:
+    """Indices (k,) of touches their own re-touches contradict: touches within REPEAT_RADIUS_MM
+    of each other read the same spot; one more than max(SCREEN_K x sigma, SCREEN_FLOOR_MM)
+    off the spot's median is out (two that disagree so: both, which one is right cannot be
+    told).  A chip or dust reads once; the spot's other touches read the part."""
+    xy = sites.xy
+    near = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1]) <= REPEAT_RADIUS_MM
+    limit = max(SCREEN_K * sigma_mm, SCREEN_FLOOR_MM)
+    out: set[int] = set()
+    for i in range(len(dz)):
+        spot = np.flatnonzero(near[i])
+        if len(spot) < 2:
+            continue
+        off = np.abs(dz[spot] - np.median(dz[spot])) > limit
+        if len(spot) == 2 and abs(dz[spot[0]] - dz[spot[1]]) > limit:
+            off[:] = True
+        out.update(int(j) for j in spot[off])
+    return np.array(sorted(out), dtype=int)
+
+
+def screen_outliers(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """Indices (k,) of the touches that are gross outliers under ``prior``: those their own
+    re-touches contradict (:func:`repeat_outliers`), then those whose standardised
+    leave-one-out residual over SCREEN_K robust sd of all of them (1.4826 x median |z|, at
+    least 1: a prior that misjudges the field scales every z alike) and residual over
+    SCREEN_FLOOR_MM; the least consistent is taken out and the rest judged again, at most
+    SCREEN_SHARE of the touches."""
+    keep = np.ones(len(dz), dtype=bool)
+    keep[repeat_outliers(sites, dz, prior.sigma_mm)] = False
+    while (~keep).sum() < SCREEN_SHARE * len(dz):
+        idx = np.flatnonzero(keep)
+        check = loo_check(prior, sites.take(idx), dz[idx], center)
+        scale = max(1.0, 1.4826 * float(np.median(np.abs(check.z))))
+        bad = (np.abs(check.z) > SCREEN_K * scale) & (np.abs(check.residual_mm) > SCREEN_FLOOR_MM)
+        if not bad.any():
+            break
+        keep[idx[int(np.argmax(np.where(bad, np.abs(check.z), -1.0)))]] = False
+    return np.flatnonzero(~keep)
+
+
 def learn_prior(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
-                bounds: Bounds | None = None) -> LearnedPrior:
+                bounds: Bounds | None = None, screen: bool = True) -> LearnedPrior:
     """Type-II ML fit of amplitude, wavelength and noise to deviations dz (n,) mm measured at
-    ``sites`` (n,), placement centre ``center`` (2,).  Raises LearningError below
-    MIN_TOUCHES touches or for non-finite values."""
+    ``sites`` (n,), placement centre ``center`` (2,), gross outliers screened out first
+    (:func:`screen_outliers` under the user's prior, then again under the learned one).
+    Raises LearningError below MIN_TOUCHES touches or for non-finite values."""
     dz = np.asarray(dz, dtype=float)
     n = len(dz)
     if n < MIN_TOUCHES:
@@ -227,6 +284,25 @@ def learn_prior(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.
                             field="stations", value=n)
     if not np.isfinite(dz).all():
         raise LearningError("a measured deviation is not finite", field="dz", value=None)
+    if not screen:
+        return _learn(prior, sites, dz, center, bounds)
+    out = np.zeros(0, dtype=int)
+    learned = None
+    for _ in range(2):  # under the user's prior, then under the learned one
+        now = screen_outliers(prior if learned is None else learned.prior, sites, dz, center)
+        if learned is not None and np.array_equal(now, out):
+            break
+        out = now
+        kept = np.setdiff1d(np.arange(n), out)
+        learned = _learn(prior, sites.take(kept), dz[kept], center, bounds)
+    assert learned is not None
+    return replace(learned, n=n, screened=tuple(int(i) for i in out))
+
+
+def _learn(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
+           bounds: Bounds | None) -> LearnedPrior:
+    """:func:`learn_prior` on the touches given, none screened out."""
+    n = len(dz)
     bounds = bounds or default_bounds(prior)
     lo = np.log([bounds.amplitude_mm[0], bounds.wavelength_mm[0], bounds.sigma_mm[0]])
     hi = np.log([bounds.amplitude_mm[1], bounds.wavelength_mm[1], bounds.sigma_mm[1]])

@@ -4,13 +4,15 @@ meets the target (or a touch budget is spent), then verify.
 A single-shot field plan (:func:`app.probing.field.plan_field`) is only as good as the prior
 it was designed for.  When the prior is uncertain:
 
-1. **pilot**: a field plan for the user's prior (amplitude, wavelength, noise);
+1. **pilot**: a coarse field plan (:func:`pilot_params`: the user's amplitude and noise, twice
+   the user's wavelength): the fewest touches any part needs, so a smooth part costs no more
+   than a plan for its true prior would;
 2. **learn**: the prior's amplitude, wavelength and noise by type-II ML from every touch so
-   far (:func:`app.reconstruction.field_learning.learn_prior`);
-3. **add**: the field planner again, for the learned prior, starting from every station
-   already touched (``fixed``): it returns only the stations the fitted posterior still needs
-   for ``coverage`` x sd <= target on every trace point; none -> the bound holds under the
-   fitted model;
+   far (:func:`app.reconstruction.field_learning.learn_prior`, gross outliers screened out);
+3. **add**: the field planner again, for the learned prior (:func:`round_params`), starting
+   from every station already touched (``fixed``): it returns only the stations the fitted
+   posterior still needs for ``coverage`` x sd <= target on every trace point; none -> the
+   bound holds under the fitted model;
 4. repeat 2-3 until no station is added, ``max_rounds`` pass, or the next round would pass
    ``budget`` touches (the result says which);
 5. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
@@ -32,24 +34,48 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from app.geometry.traces import as_trace_polyline
-from app.probing.deviation_prior import Sites
+from app.probing.deviation_prior import DeviationPrior, Sites
 from app.probing.field import plan_field
-from app.probing.field_region import field_region
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
-from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior, loo_check
-from app.reconstruction.field_trust import FieldCheck, checked_field, with_bound
+from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, learn_prior, loo_check
+from app.reconstruction.field_trust import FieldCheck, checked_field, trace_bound, with_bound
 
-MAX_ROUNDS = 4
+MAX_ROUNDS = 6
 DEFAULT_BUDGET = 2000
+PILOT_WAVELENGTH_FACTOR = 2.0  # the pilot plans for twice the user's wavelength
+SHRINK_PER_ROUND = 2.0         # a round plans for no less than the previous round's wavelength / 2
+PLAN_NOISE_CAP = 2.0           # a round plans for at most 2 x the probe's noise
+
+
+def pilot_params(params: PlanParams) -> PlanParams:
+    """The pilot's plan parameters: ``params`` with twice the wavelength (a coarse design
+    any part needs; the rounds add what the learned prior asks for)."""
+    return replace(params, deviation_wavelength_mm=params.deviation_wavelength_mm * PILOT_WAVELENGTH_FACTOR)
+
+
+def round_params(params: PlanParams, learned: DeviationPrior, previous_wavelength_mm: float) -> PlanParams:
+    """A round's plan parameters: the ``learned`` amplitude and wavelength, the wavelength no
+    shorter than ``previous_wavelength_mm`` / SHRINK_PER_ROUND (stations far apart alias a
+    short field into any wavelength: the plan refines step by step); the noise the larger of
+    the learned and the probe's, at most PLAN_NOISE_CAP x the probe's (structure the stations
+    do not resolve reads as noise: it asks for a finer plan, not for averaging: the wavelength
+    is then halved)."""
+    user_sigma = params.probe_sigma_mm
+    wavelength = max(learned.wavelength_mm, previous_wavelength_mm / SHRINK_PER_ROUND)
+    if learned.sigma_mm > NOISE_MISFIT * user_sigma:
+        wavelength = previous_wavelength_mm / SHRINK_PER_ROUND
+    sigma = min(max(learned.sigma_mm, user_sigma), PLAN_NOISE_CAP * user_sigma)
+    return replace(params, deviation_amplitude_mm=learned.amplitude_mm, deviation_wavelength_mm=wavelength,
+                   probe_sigma_mm=sigma)
 
 
 @dataclass(frozen=True)
 class SequentialResult:
-    """check: the verified field (its bound: coverage x the largest posterior sd over every
-    trace point under the fitted model); stations: every fitted station (n,); rounds:
+    """check: the verified field (its bound: the largest trace bound under the fitted model); stations: every fitted station (n,); rounds:
     stations added per round (the pilot first); stopped: why the rounds ended ("bound
-    holds", "budget", "rounds"); params: the plan parameters of the last round."""
+    holds", "budget", "rounds"); params: the plan parameters of the last round;
+    trace_bounds_mm (T,): each trace's bound (:func:`app.reconstruction.field_trust.trace_bound`)."""
 
     check: FieldCheck
     stations: Sites
@@ -58,6 +84,7 @@ class SequentialResult:
     rounds: tuple[int, ...]
     stopped: str
     params: PlanParams
+    trace_bounds_mm: tuple[float, ...] = ()
 
     @property
     def touches(self) -> int:
@@ -71,20 +98,18 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     """Pilot, learn, add, verify (see the module doc).  ``nominals``: the traces (one frame)."""
     paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     user = params.prior()
-    plan = plan_field(paths, params)
+    current = pilot_params(params)
+    plan = plan_field(paths, current)
     sites, trace, s, z = plan.sites, plan.trace, plan.s_mm, plan.z
     dz = np.asarray(measure(plan.xy), dtype=float)
     rounds = [plan.count]
-    current = params
     stopped = "rounds"
     center = plan.center
     for _ in range(max_rounds):
         if len(dz) < MIN_TOUCHES:
             break
         learned = learn_prior(user, sites, dz, center)
-        current = replace(params, deviation_amplitude_mm=learned.prior.amplitude_mm,
-                          deviation_wavelength_mm=learned.prior.wavelength_mm,
-                          probe_sigma_mm=max(learned.prior.sigma_mm, params.probe_sigma_mm))
+        current = round_params(params, learned.prior, current.deviation_wavelength_mm)
         more = plan_field(paths, current, fixed=sites)
         if more.count == 0:
             stopped = "bound holds"
@@ -114,5 +139,5 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     check = checked_field(user, all_sites, nominal_z, measured, center,
                           np.concatenate([trace, points.trace]), np.concatenate([s, points.s_mm]), mask,
                           params.coverage, params.target_error_mm)
-    sd = check.fit.posterior.sd(field_region(paths, current.deviation_wavelength_mm).samples.sites)
-    return SequentialResult(with_bound(check, sd), sites, trace, s, tuple(rounds), stopped, current)
+    bounds = tuple(trace_bound(check.fit, p, params.coverage) for p in paths)
+    return SequentialResult(with_bound(check, bounds), sites, trace, s, tuple(rounds), stopped, current, bounds)

@@ -15,8 +15,8 @@ Verdict: the field is *verified* when the learned model fits (no LOO misfit), ev
 verification residual lies within ``coverage`` x its predictive sd (posterior sd and probe
 noise) and within the bound promised for the traces, and that bound meets the target.  A verification point
 where the compensated program would be off by more than the uncompensated one
-(|measured - predicted| >= |measured|: the correction does not help there) flags its trace as
-*worse than nominal*.  Anything else is ``needs_attention`` with the reasons.
+(|measured - predicted| >= |measured|, by more than the probe's noise: the correction does not
+help there) flags its trace as *worse than nominal*.  Anything else is ``needs_attention`` with the reasons.
 
 Pure: numpy/scipy.  Units: mm.
 """
@@ -29,8 +29,10 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from scipy.optimize import brentq
+from scipy.stats import norm
 
-from app.probing.deviation_prior import DeviationPrior, Sites
+from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.reconstruction.field import FieldFit, fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
 
@@ -42,7 +44,9 @@ class Verification:
     xy (k, 2) mm; trace (k,) trace index; measured_mm (k,) measured deviation; predicted_mm
     (k,) the field's; sd_mm (k,) predictive sd (posterior and noise); limit_mm (k,) =
     coverage x sd; residual_mm = measured - predicted; within (k,) |residual| <= limit;
-    worse (k,) the correction does not help there (|residual| >= |measured|)."""
+    noise_limit_mm: coverage x the probe noise; worse (k,) the correction does not help there
+    (|residual| >= |measured|, the residual more than the noise: where the part is within a
+    touch's noise of nominal, which of the two is nearer cannot be read from one touch)."""
 
     xy: np.ndarray
     trace: np.ndarray
@@ -50,6 +54,7 @@ class Verification:
     predicted_mm: np.ndarray
     sd_mm: np.ndarray
     limit_mm: np.ndarray
+    noise_limit_mm: float = 0.0
 
     @property
     def residual_mm(self) -> np.ndarray:
@@ -63,7 +68,8 @@ class Verification:
 
     @property
     def worse(self) -> np.ndarray:
-        out: np.ndarray = np.abs(self.residual_mm) >= np.abs(self.measured_mm)
+        r = np.abs(self.residual_mm)
+        out: np.ndarray = (r >= np.abs(self.measured_mm)) & (r > self.noise_limit_mm)
         return out
 
     @property
@@ -72,21 +78,31 @@ class Verification:
 
     def arrays(self) -> dict[str, list[Any]]:
         """The fields as lists (a cache's JSON); :meth:`from_arrays` reads them back."""
-        return {k: getattr(self, k).tolist() for k in ("xy", "trace", "measured_mm", "predicted_mm", "sd_mm",
-                                                        "limit_mm")}
+        return {**{k: getattr(self, k).tolist() for k in ("xy", "trace", "measured_mm", "predicted_mm", "sd_mm",
+                                                           "limit_mm")}, "noise_limit_mm": [self.noise_limit_mm]}
 
     @classmethod
     def from_arrays(cls, data: dict[str, list[Any]]) -> "Verification":
+        measured, predicted, sd, limit = (np.asarray(data[k], dtype=float)
+                                          for k in ("measured_mm", "predicted_mm", "sd_mm", "limit_mm"))
         return cls(np.asarray(data["xy"], dtype=float).reshape(-1, 2), np.asarray(data["trace"], dtype=int),
-                   *(np.asarray(data[k], dtype=float) for k in ("measured_mm", "predicted_mm", "sd_mm", "limit_mm")))
+                   measured, predicted, sd, limit, float(data.get("noise_limit_mm", [0.0])[0]))
+
+
+def joint_coverage(coverage: float, count: int) -> float:
+    """The per-point limit in sd for ``count`` points tested together at the confidence
+    ``coverage`` gives one point (Bonferroni: the false alarms of all of them together at
+    2 Phi(-coverage), so a model that holds asks for attention as rarely as one point would)."""
+    return float(norm.isf(norm.sf(coverage) / max(count, 1)))
 
 
 def verify(fit: FieldFit, sites: Sites, measured_mm: np.ndarray, trace: np.ndarray, coverage: float) -> Verification:
-    """The field ``fit`` at verification sites (k,) against deviations measured there."""
+    """The field ``fit`` at verification sites (k,) against deviations measured there; each
+    point's limit is :func:`joint_coverage` x its predictive sd (posterior and probe noise)."""
     predicted = fit.deviation(sites)
     sd = np.sqrt(fit.posterior.sd(sites) ** 2 + fit.posterior.prior.sigma_mm ** 2)
     return Verification(sites.xy, np.asarray(trace, dtype=int), np.asarray(measured_mm, dtype=float), predicted,
-                        sd, coverage * sd)
+                        sd, joint_coverage(coverage, len(sd)) * sd, coverage * fit.posterior.prior.sigma_mm)
 
 
 @dataclass(frozen=True)
@@ -95,9 +111,10 @@ class FieldCheck:
 
     fit: the field (fitted with the learned prior); learned: the learning's JSON form
     (:meth:`LearnedPrior.as_dict`; None below MIN_TOUCHES stations: the user's prior is used); verification (None without points);
-    coverage, target_mm: the promise (coverage x sd <= target); bound_mm: coverage x the
-    largest posterior sd over the traces under the fitted model (set by the caller, who
-    has the traces; NaN until then)."""
+    coverage, target_mm: the promise (coverage x sd <= target); bound_mm: the largest of the
+    traces' bounds under the fitted model (:func:`trace_bound`: over each whole trace, at the
+    confidence ``coverage`` gives one point; set by the caller, who has the traces; NaN until
+    then)."""
 
     fit: FieldFit
     learned: dict[str, Any] | None
@@ -120,11 +137,12 @@ class FieldCheck:
         if v is not None and not v.within.all():
             i = int(np.argmax(np.abs(v.residual_mm) / v.limit_mm))
             out.append(f"{int((~v.within).sum())} of {len(v.xy)} verification points off the field by more than "
-                       f"{self.coverage:g} sd (worst {v.residual_mm[i] * 1000:+.1f} um at "
+                       f"{joint_coverage(self.coverage, len(v.xy)):.2f} sd (worst {v.residual_mm[i] * 1000:+.1f} um at "
                        f"[{v.xy[i, 0]:.2f}, {v.xy[i, 1]:.2f}] mm, limit {v.limit_mm[i] * 1000:.1f} um)")
-        if v is not None and len(v.xy) and math.isfinite(self.bound_mm) and v.max_abs_residual_mm > self.bound_mm:
+        if v is not None and len(v.xy) and v.max_abs_residual_mm > self.measured_bound_mm:
             out.append(f"a verification point is off the field by {v.max_abs_residual_mm * 1000:.1f} um, more than the "
-                       f"bound {self.bound_mm * 1000:.1f} um promised for the traces")
+                       f"bound {self.bound_mm * 1000:.1f} um promised for the traces (with the probe's noise "
+                       f"{self.measured_bound_mm * 1000:.1f} um)")
         if self.worse_traces:
             out.append(f"the correction makes trace(s) {list(self.worse_traces)} worse than the nominal program at a "
                        "verification point")
@@ -132,6 +150,16 @@ class FieldCheck:
             out.append(f"under the fitted model the traces are known to {self.bound_mm * 1000:.1f} um, over the "
                        f"target {self.target_mm * 1000:.1f} um: add stations (plan with the fitted prior)")
         return tuple(out)
+
+    @property
+    def noise_allowance_mm(self) -> float:
+        """``coverage`` x the probe noise: what a touch reads on top of the field's error."""
+        return float(self.coverage * self.fit.posterior.prior.sigma_mm)
+
+    @property
+    def measured_bound_mm(self) -> float:
+        """What a touch may read off the field where the bound holds (:func:`measured_bound`)."""
+        return measured_bound(self.bound_mm, self.noise_allowance_mm)
 
     @property
     def needs_attention(self) -> bool:
@@ -144,7 +172,8 @@ class FieldCheck:
         if v is None or not len(v.xy):
             return "not verified: no verification points were touched"
         return verification_line([{"xy": xy.tolist(), "residual_mm": float(r), "within": bool(w)}
-                                  for xy, r, w in zip(v.xy, v.residual_mm, v.within)], self.bound_mm)
+                                  for xy, r, w in zip(v.xy, v.residual_mm, v.within)], self.bound_mm,
+                                 self.noise_allowance_mm)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON form for job results and the run report."""
@@ -153,6 +182,7 @@ class FieldCheck:
             "needs_attention": self.needs_attention, "reasons": list(self.reasons),
             "verified": self.verified_line(), "coverage": self.coverage, "target_mm": self.target_mm,
             "bound_mm": None if not math.isfinite(self.bound_mm) else self.bound_mm,
+            "noise_allowance_mm": self.noise_allowance_mm,
             "prior_used": {k: float(getattr(fit.posterior.prior, k))
                            for k in ("amplitude_mm", "wavelength_mm", "sigma_mm")},
             "learned": self.learned,
@@ -172,17 +202,26 @@ class FieldCheck:
         return out
 
 
-def verification_line(points: Sequence[dict[str, Any]], bound_mm: float | None) -> str:
+def measured_bound(bound_mm: float | None, noise_allowance_mm: float = 0.0) -> float:
+    """What a touch may read off the field where the field's error is within ``bound_mm``:
+    the bound and the touch's own noise allowance (coverage x probe sd) in quadrature (NaN
+    without a bound)."""
+    return math.nan if bound_mm is None else math.hypot(float(bound_mm), noise_allowance_mm)
+
+
+def verification_line(points: Sequence[dict[str, Any]], bound_mm: float | None,
+                      noise_allowance_mm: float = 0.0) -> str:
     """The verdict line of verification points (each with ``xy``, ``residual_mm``, ``within``)
     against the ``bound_mm`` promised for the traces: 'verified at K points: max |residual| X
-    um (bound Y um)' when every residual is within its band and the bound, else 'NOT
-    verified at K points: ..., worst at [x, y] mm' (where to look: a step shows there)."""
+    um (bound Y um)' when every residual is within its band and the bound (with the touch's
+    ``noise_allowance_mm``, :func:`measured_bound`), else 'NOT verified at K points: ...,
+    worst at [x, y] mm' (where to look: a step shows there)."""
     if not points:
         return "not verified: no verification points were touched"
     worst = max(points, key=lambda p: abs(p["residual_mm"]))
     top = abs(worst["residual_mm"])
     bound = math.nan if bound_mm is None else float(bound_mm)
-    ok = all(p["within"] for p in points) and not top > bound
+    ok = all(p["within"] for p in points) and not top > measured_bound(bound_mm, noise_allowance_mm)
     said = f"bound {bound * 1000:.1f} um" if math.isfinite(bound) else "no bound"
     line = f"{'verified' if ok else 'NOT verified'} at {len(points)} points: max |residual| {top * 1000:.1f} um ({said})"
     if not ok:
@@ -229,6 +268,45 @@ def checked_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray,
     return FieldCheck(fit, None if learned is None else learned.as_dict(), verification, coverage, target_mm)
 
 
-def with_bound(check: FieldCheck, trace_sd_mm: Sequence[float] | np.ndarray) -> FieldCheck:
-    """``check`` with its bound: coverage x the largest of the traces' posterior sd (T,) mm."""
-    return replace(check, bound_mm=float(check.coverage * np.max(trace_sd_mm)))
+BOUND_STEP_PER_WAVELENGTH = 16  # a trace's posterior sd judged every lambda / 16 (as the planner does)
+
+
+def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, coverage: float) -> float:
+    """The bound u (mm) on |model - truth| over a whole trace whose posterior sd, sampled every
+    ``step_mm``, is ``sd_mm`` (m,): the union bound at the confidence ``coverage`` gives one
+    point (1 - 2 Phi(-coverage)) over the error's independent values.  The field is
+    band-limited at ``wavelength_mm`` and so is its posterior error: one independent value per
+    half wavelength, each sample standing for step / (wavelength / 2) of one.  Solves
+    sum_i w 2 Phi(-u / sd_i) = 2 Phi(-coverage), w = min(1, 2 step / wavelength); never below
+    coverage x max sd (one point's bound)."""
+    sd = np.maximum(np.asarray(sd_mm, dtype=float), 1e-12)
+    alpha = 2.0 * float(norm.sf(coverage))
+    weight = min(1.0, 2.0 * step_mm / wavelength_mm)
+
+    def excess(u: float) -> float:
+        return float(weight * np.sum(2.0 * norm.sf(u / sd))) - alpha
+
+    lo = coverage * float(sd.max())
+    if excess(lo) <= 0.0:
+        return lo
+    hi = 2.0 * lo
+    while excess(hi) > 0.0:
+        hi *= 2.0
+    return float(brentq(excess, lo, hi, xtol=1e-9 * lo))
+
+
+def trace_bound(fit: FieldFit, path: Any, coverage: float) -> float:
+    """The bound (mm) on the fitted field's error over the whole trace ``path`` (a
+    TracePolyline) under the fitted model: :func:`simultaneous_bound` of its posterior sd
+    every wavelength / BOUND_STEP_PER_WAVELENGTH of arc length."""
+    wavelength = fit.posterior.prior.wavelength_mm
+    step = wavelength / BOUND_STEP_PER_WAVELENGTH
+    count = max(2, int(np.ceil(path.length_mm / step)) + 1)
+    s = np.linspace(0.0, path.length_mm, count)
+    return simultaneous_bound(fit.posterior.sd(path_sites(path, s)), path.length_mm / (count - 1), wavelength,
+                              coverage)
+
+
+def with_bound(check: FieldCheck, trace_bounds_mm: Sequence[float] | np.ndarray) -> FieldCheck:
+    """``check`` with its bound: the largest of the traces' bounds (T,) mm (:func:`trace_bound`)."""
+    return replace(check, bound_mm=float(np.max(trace_bounds_mm)))

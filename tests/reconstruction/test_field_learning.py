@@ -74,3 +74,12 @@ def test_too_few_touches_is_refused():
     sites, center, dz = draw(TRUTH, 5, 1)
     with pytest.raises(LearningError):
         learn_prior(USER, sites, dz, center)
+
+
+def test_two_touches_of_one_spot_that_disagree_are_both_screened():
+    from app.reconstruction.field_learning import repeat_outliers
+
+    sites = Sites(np.array([[0.0, 0.0], [0.1, 0.0], [5.0, 0.0], [5.1, 0.0], [5.2, 0.0], [9.0, 0.0]]), np.zeros((6, 2)))
+    dz = np.array([0.0, 0.2, 0.01, 0.011, 0.3, 0.05])       # spot 1: 2 disagree; spot 2: the third is off the median
+    assert repeat_outliers(sites, dz, 0.001).tolist() == [0, 1, 4]
+    assert repeat_outliers(sites, dz[[0, 2, 5, 1, 3, 4]] * 0.0, 0.001).tolist() == []

@@ -14,7 +14,7 @@ from app.probing.field_region import field_region
 from app.probing.field_verify import verification_indices, with_verification
 from app.probing.selection import PlanParams
 from app.reconstruction.field_sequential import plan_sequential
-from app.reconstruction.field_trust import checked_field, with_bound
+from app.reconstruction.field_trust import checked_field, trace_bound, with_bound
 from app.reference.s1 import nominal_path, s1_traces
 
 DEFAULT = PlanParams()  # the user's prior left at the defaults: A 0.2 mm, lambda 20 mm, target 5 um, coverage 3
@@ -69,8 +69,7 @@ def test_the_single_shot_default_plan_does_not_call_itself_done_on_the_14_mm_par
     check = checked_field(DEFAULT.prior(), plan.sites, np.zeros(plan.count), np.column_stack([plan.xy, dz]),
                           plan.center, plan.trace, plan.s_mm, plan.verify_mask, DEFAULT.coverage,
                           DEFAULT.target_error_mm)
-    bound = DEFAULT.coverage * max(check.fit.posterior.sd(path_sites(p, p.s[::10])).max() for p in paths)
-    check = with_bound(check, [bound / DEFAULT.coverage])
+    check = with_bound(check, [trace_bound(check.fit, p, DEFAULT.coverage) for p in paths])
     learned = check.learned["wavelength_mm"]["value"]
     assert 10.0 < learned < 17.0                               # learned from the touches, not the 20 mm told
     after, before = true_errors(check.fit, paths)
@@ -89,6 +88,7 @@ def test_sequential_planning_holds_every_trace_within_its_verified_bound_on_the_
     after, before = true_errors(check.fit, paths)
     assert (after < before).all()
     assert after.max() <= check.bound_mm <= DEFAULT.target_error_mm
+    assert (after <= np.array(result.trace_bounds_mm)).all()   # every trace within its own bound
     assert check.verification is not None and check.verification.within.all()
     assert check.verified_line().startswith(f"verified at {len(check.verification.xy)} points: max |residual| ")
 
@@ -128,3 +128,58 @@ def test_gap_points_lie_midway_to_the_neighbours_of_the_worst_predicted_stations
     assert np.allclose(points.s, [7.5, 15.0, 15.1])
     assert np.allclose(points.sites.xy, [[7.5, 5.0], [15.0, 5.0], [15.1, 5.0]])
     assert (points.trace == 0).all() and len(gap_points([line], trace, s, z, stations=0)) == 0
+
+
+def test_a_chip_touched_again_does_not_shorten_the_learned_wavelength(paths):
+    """The default plan on the 14 mm part, one touch on a 0.3 mm chip: learned from every touch
+    the wavelength collapses; with the spot touched again twice (the chip gone) the chip is
+    screened out before the fit and the wavelength is the clean touches' (within 20 % of 14 mm)."""
+    from app.probing.deviation_prior import Sites
+    from app.reconstruction.field_learning import learn_prior
+
+    plan = plan_field(paths, DEFAULT)
+    dz = toucher(1)(plan.xy)
+    clean = learn_prior(DEFAULT.prior(), plan.sites, dz, plan.center).prior.wavelength_mm
+    chipped = dz.copy()
+    chipped[7] += 0.3
+    blind = learn_prior(DEFAULT.prior(), plan.sites, chipped, plan.center, screen=False).prior.wavelength_mm
+    assert blind < 0.7 * clean                                 # one bad touch drags the wavelength down
+    spot = plan.xy[[7, 7]] + [[0.05, 0.0], [-0.05, 0.0]]
+    sites = Sites(np.concatenate([plan.xy, spot]), np.concatenate([plan.sites.grad, plan.sites.grad[[7, 7]]]))
+    learned = learn_prior(DEFAULT.prior(), sites, np.concatenate([chipped, fourteen(spot)]), plan.center)
+    assert learned.screened == (7,)
+    assert abs(learned.prior.wavelength_mm / 14.0 - 1) < 0.2 and abs(learned.prior.wavelength_mm / clean - 1) < 0.05
+
+
+def test_the_bound_over_a_whole_trace_is_the_union_bound_over_its_independent_values():
+    from scipy.stats import norm
+
+    from app.reconstruction.field_trust import joint_coverage, simultaneous_bound
+
+    sd = np.full(161, 0.001)                                  # 10 wavelengths sampled every lambda / 16: 20 values
+    u = simultaneous_bound(sd, 1.0, 16.0, 3.0)
+    assert u == pytest.approx(0.001 * norm.isf(norm.sf(3.0) / (161 / 8)), rel=1e-6)
+    assert simultaneous_bound(np.array([0.001, 1e-6]), 1.0, 16.0, 3.0) == pytest.approx(0.003)  # one value: 3 sd
+    assert joint_coverage(3.0, 1) == pytest.approx(3.0) and joint_coverage(3.0, 5) > 3.4
+
+
+def test_a_point_is_worse_than_nominal_only_when_the_residual_is_more_than_the_noise():
+    from app.reconstruction.field_trust import Verification
+
+    v = Verification(np.zeros((3, 2)), np.array([0, 1, 2]), np.array([0.0005, 0.002, 0.004]),
+                     np.array([-0.0005, -0.004, 0.003]), np.full(3, 0.0015), np.full(3, 0.005), 0.003)
+    assert v.worse.tolist() == [False, True, False]          # noise-level disagreement near nominal is not "worse"
+    assert Verification.from_arrays(v.arrays()).worse.tolist() == [False, True, False]
+
+
+def test_a_round_refines_the_wavelength_step_by_step_and_plans_for_the_probes_noise():
+    from app.probing.deviation_prior import DeviationPrior
+    from app.reconstruction.field_sequential import pilot_params, round_params
+
+    assert pilot_params(DEFAULT).deviation_wavelength_mm == 2 * DEFAULT.deviation_wavelength_mm
+    aliased = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=5.0, sigma_mm=0.001), 40.0)
+    assert aliased.deviation_wavelength_mm == 20.0 and aliased.deviation_amplitude_mm == 0.1
+    noisy = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=30.0, sigma_mm=0.02), 20.0)
+    assert noisy.deviation_wavelength_mm == 10.0 and noisy.probe_sigma_mm == 2 * DEFAULT.probe_sigma_mm
+    resolved = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=13.0, sigma_mm=0.0008), 20.0)
+    assert resolved.deviation_wavelength_mm == 13.0 and resolved.probe_sigma_mm == DEFAULT.probe_sigma_mm

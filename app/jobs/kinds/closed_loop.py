@@ -57,7 +57,7 @@ from app.jobs.inputs import nominal_of
 from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
                               RegisterResult, program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
-from app.reconstruction.field_trust import verification_line
+from app.reconstruction.field_trust import measured_bound, verification_line
 from app.models import Job, Machine, Trace
 from app.records import get_or_404
 
@@ -356,9 +356,11 @@ def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], pri
     bound = max(bounds) if bounds else first.get("bound_mm")
     points = first.get("verification") or []
     worse = [t["trace_id"] for t in traces if t.get("worse_than_nominal")]
-    line = verification_line(points, bound)
+    noise = float(first.get("noise_allowance_mm") or 0.0)  # a touch reads its own noise on top of the bound
+    line = verification_line(points, bound, noise)
     said = any("promised for the traces" in r for r in reasons)
-    if points and bound is not None and not said and max(abs(p["residual_mm"]) for p in points) > bound:
+    if points and bound is not None and not said and max(abs(p["residual_mm"]) for p in points) > measured_bound(
+            bound, noise):
         reasons.append(f"a verification point is off the field by more than the bound {bound * 1000:.1f} um "
                        "promised for the traces")
     learned = first.get("learned")

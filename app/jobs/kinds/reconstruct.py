@@ -17,7 +17,6 @@ from dataclasses import replace
 from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
@@ -34,9 +33,8 @@ from app.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
-from app.probing.deviation_prior import path_sites
 from app.reconstruction.field import trace_reconstruction
-from app.reconstruction.field_trust import FieldCheck, with_bound
+from app.reconstruction.field_trust import FieldCheck, trace_bound, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
 from app.jobs.field_runs import run_field
 from app.jobs.probe_correction import refined, run_probe_calibration
@@ -217,14 +215,14 @@ def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
         if params.method == "field":
             check = _run_field(ctx, params)[0]
             bound = _trace_bound(check, reconstruction.nominal)
-            extra = {"bound_mm": bound, "field_check": with_bound(check, [bound / check.coverage]).as_dict()}
+            extra = {"bound_mm": bound, "field_check": with_bound(check, [bound]).as_dict()}
         return ReconstructResult.written({**reconstruction.to_result(), "sigma": sigma, **extra})
     rows = _board_rows(ctx, params, sigma)
     check, _, _ = _run_field(ctx, params)
     bounds = [r["bound_mm"] for r in rows if r.get("bound_mm") is not None]
     return ReconstructBoardResult.written({
         "method": "field", "board": True, "traces": rows, "sigma": sigma,
-        "field_check": (with_bound(check, [b / check.coverage for b in bounds]) if bounds else check).as_dict(),
+        "field_check": (with_bound(check, bounds) if bounds else check).as_dict(),
         "deviation": {"max_mm": max(r["deviation"]["max_mm"] for r in rows),
                       "rms_mm": max(r["deviation"]["rms_mm"] for r in rows)}})
 
@@ -385,14 +383,9 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
     return _field_trace(check, refinement, nominal, trace_ids.index(params.trace_id))
 
 
-BOUND_STEP_PER_WAVELENGTH = 16  # the trace's posterior sd judged every lambda / 16 (as the planner does)
-
-
 def _trace_bound(check: FieldCheck, nominal: Any) -> float:
-    """coverage x the largest posterior sd (mm) along the trace under the fitted model."""
-    step = check.fit.posterior.prior.wavelength_mm / BOUND_STEP_PER_WAVELENGTH
-    s = np.linspace(0.0, nominal.length_mm, max(2, int(np.ceil(nominal.length_mm / step)) + 1))
-    return float(check.coverage * check.fit.posterior.sd(path_sites(nominal, s)).max())
+    """The bound (mm) over the whole trace under the fitted model (:func:`trace_bound`)."""
+    return trace_bound(check.fit, nominal, check.coverage)
 
 
 def _field_trace(check: FieldCheck, refinement: Any, nominal: Any, index: int) -> Reconstruction:
