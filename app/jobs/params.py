@@ -118,6 +118,8 @@ class ProbePlanParams(PlacedParams):
                                          "earlier field plan of the same traces; the prior is learned from every "
                                          "station touched so far and the plan adds only the stations the fitted "
                                          "field still needs (none: only the verification points)")
+    pilot: bool = Field(False, description="field planner, the pilot of a sequential plan: a coarse plan for twice "
+                        "deviation_wavelength_mm (the rounds add what the learned prior asks for)")
     retouch_only: bool = Field(False, description="with fixed_run_job_id: touch again only the touches the field "
                                "fitted to that run would exclude as outliers (once each), add no stations and keep "
                                "the run's verification points (a single-shot plan's second run; none: no touches)")

@@ -45,7 +45,6 @@ MAX_ROUNDS = 6
 DEFAULT_BUDGET = 2000
 PILOT_WAVELENGTH_FACTOR = 2.0  # the pilot plans for twice the user's wavelength
 SHRINK_PER_ROUND = 2.0         # a round plans for no less than the previous round's wavelength / 2
-PLAN_NOISE_CAP = 2.0           # a round plans for at most 2 x the probe's noise
 
 
 def pilot_params(params: PlanParams) -> PlanParams:
@@ -57,17 +56,17 @@ def pilot_params(params: PlanParams) -> PlanParams:
 def round_params(params: PlanParams, learned: DeviationPrior, previous_wavelength_mm: float) -> PlanParams:
     """A round's plan parameters: the ``learned`` amplitude and wavelength, the wavelength no
     shorter than ``previous_wavelength_mm`` / SHRINK_PER_ROUND (stations far apart alias a
-    short field into any wavelength: the plan refines step by step); the noise the larger of
-    the learned and the probe's, at most PLAN_NOISE_CAP x the probe's (structure the stations
-    do not resolve reads as noise: it asks for a finer plan, not for averaging: the wavelength
-    is then halved)."""
+    short field into any wavelength: the plan refines step by step); the noise the probe's
+    (``params``: its repeatability; a learned noise a little over it is the estimate's own
+    scatter and would buy stations to average it; one over NOISE_MISFIT x it is structure the
+    stations do not resolve: it asks for a finer plan, and the wavelength is then halved).
+    The fit and its bound still use the learned noise."""
     user_sigma = params.probe_sigma_mm
     wavelength = max(learned.wavelength_mm, previous_wavelength_mm / SHRINK_PER_ROUND)
     if learned.sigma_mm > NOISE_MISFIT * user_sigma:
         wavelength = previous_wavelength_mm / SHRINK_PER_ROUND
-    sigma = min(max(learned.sigma_mm, user_sigma), PLAN_NOISE_CAP * user_sigma)
     return replace(params, deviation_amplitude_mm=learned.amplitude_mm, deviation_wavelength_mm=wavelength,
-                   probe_sigma_mm=sigma)
+                   probe_sigma_mm=user_sigma)
 
 
 @dataclass(frozen=True)

@@ -42,8 +42,9 @@ def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
     return done
 
 
-def board(client, meshes, traces: tuple[int, ...] = TRACES) -> dict:
-    """Part, S1 traces (by index), and a mock machine holding the as-made part."""
+def board(client, meshes, traces: tuple[int, ...] = TRACES, mock: dict | None = None) -> dict:
+    """Part, S1 traces (by index), and a mock machine holding the as-made part (``mock``: more
+    of the mock's settings)."""
     nominal, true_stl = meshes
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
                        headers=OP).json()
@@ -52,7 +53,7 @@ def board(client, meshes, traces: tuple[int, ...] = TRACES) -> dict:
                          json=[s1_traces()[i].to_api() for i in traces], headers=OP).json()["items"]
     machine = client.post("/api/v1/machines", json={
         "name": "sim", "port": "mock://", "dialect": "marlin",
-        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}},
+        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001, **(mock or {})}},
         headers=OP).json()
     return {"part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine["id"]}
 
@@ -270,7 +271,7 @@ def test_a_board_reconstruct_stores_each_traces_reconstruction_and_compensate_re
     assert rows[2].points == alone["result"]["points"]
 
 
-def fourteen_mm_part(client) -> dict:
+def fourteen_mm_part(client, mock: dict | None = None) -> dict:
     """S1 traces on a mock machine whose part's error is the 14 mm field
     (0.12 sin(2 pi x/22) sin(2 pi y/18) + 0.05 cos(2 pi (x+y)/35) mm)."""
     from app.reference.s1 import AsMadePart, centred_placement
@@ -282,7 +283,34 @@ def fourteen_mm_part(client) -> dict:
     x, y = xy[:, 0], xy[:, 1]
     expected = 0.12 * np.sin(2 * np.pi * x / 22) * np.sin(2 * np.pi * y / 18) + 0.05 * np.cos(2 * np.pi * (x + y) / 35)
     assert np.allclose(made.machining_error(xy), expected)      # the waves are the issue's field
-    return board(client, (s1_mesh(grid_mm=0.3), made.mesh(grid_mm=0.3).export(file_type="stl")))
+    return board(client, (s1_mesh(grid_mm=0.3), made.mesh(grid_mm=0.3).export(file_type="stl")), mock=mock)
+
+
+def test_a_chip_under_one_touch_neither_shortens_the_learned_wavelength_nor_passes_unflagged(client):
+    """The sequential loop on the 14 mm part with a 0.3 mm chip under the pilot's first station
+    (the mock's probe_dust: that touch reads 0.3 mm high, a touch again reads the part): the
+    chip is touched again and kept out of the learning, the learned wavelength stays within
+    20 % of 14 mm, and the loop either holds every trace within its bound (measured on the
+    mock's true part) or asks for attention."""
+    from app.probing.field import plan_field
+    from app.probing.selection import PlanParams
+    from app.reconstruction.field_sequential import pilot_params
+    from app.reference.s1 import nominal_path
+
+    pilot = plan_field([nominal_path(s1_traces()[i], 0.05) for i in TRACES], pilot_params(PlanParams()))
+    dust = [float(pilot.xy[0, 0]), float(pilot.xy[0, 1])]
+    setup = fourteen_mm_part(client, mock={"probe_dust": [[*dust, 0.3]]})
+    response = submit(client, "closed_loop", {**setup, "joint_probing": True, "sigma_mm": 0.001, "evaluate": True})
+    done = wait_for(client, response.json()["id"], timeout=900)
+    assert done["status"] in ("succeeded", "needs_attention"), done["error"]
+    verdict = done["result"]["verdict"]
+    assert abs(verdict["learned"]["wavelength_mm"]["value"] / 14.0 - 1) < 0.2, verdict["learned"]
+    near = [r for r in verdict["retouched"] if np.hypot(*(np.array(r["xy"]) - dust)) < 0.5]
+    assert near, verdict["retouched"]                         # the chip's touch was touched again
+    if not verdict["needs_attention"]:
+        for entry, row in zip(done["result"]["traces"], done["result"]["table"]):
+            assert row["standoff_max_after_um"] < row["standoff_max_before_um"], row
+            assert row["standoff_max_after_um"] <= entry["bound_mm"] * 1000 + 2.0 + 1.5, (row, entry["bound_mm"])
 
 
 def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_verified_bound(client):

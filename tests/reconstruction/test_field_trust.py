@@ -180,6 +180,6 @@ def test_a_round_refines_the_wavelength_step_by_step_and_plans_for_the_probes_no
     aliased = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=5.0, sigma_mm=0.001), 40.0)
     assert aliased.deviation_wavelength_mm == 20.0 and aliased.deviation_amplitude_mm == 0.1
     noisy = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=30.0, sigma_mm=0.02), 20.0)
-    assert noisy.deviation_wavelength_mm == 10.0 and noisy.probe_sigma_mm == 2 * DEFAULT.probe_sigma_mm
-    resolved = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=13.0, sigma_mm=0.0008), 20.0)
+    assert noisy.deviation_wavelength_mm == 10.0 and noisy.probe_sigma_mm == DEFAULT.probe_sigma_mm
+    resolved = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=13.0, sigma_mm=0.0013), 20.0)
     assert resolved.deviation_wavelength_mm == 13.0 and resolved.probe_sigma_mm == DEFAULT.probe_sigma_mm

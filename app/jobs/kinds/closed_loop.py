@@ -414,7 +414,7 @@ def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, A
     target: dict[str, Any] = {"trace_ids": params.trace_ids} if trace_id is None else {"trace_id": trace_id}
     default = {} if trace_id is None else {"method": "deviation"}  # joint: the planner's default (field)
     sequential = trace_id is None and params.sequential and params.probe.get("method", "field") == "field"
-    pilot = {"verify_count": 0} if sequential else {}  # the last round touches the verification points
+    pilot = {"verify_count": 0, "pilot": True} if sequential else {}  # coarse; the last round verifies
     base = {**default, **params.probe, **placed, **target, "dialect": dialect}
     plan = steps.run("probe_plan", {**base, **pilot}, trace_id)
     steps.ctx.progress(*progress)

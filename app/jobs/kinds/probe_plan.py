@@ -42,6 +42,7 @@ from app.jobs.field_runs import field_touches, measured_array, touched_stations,
 from app.probing.field import stored_field
 from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import learn_prior
+from app.reconstruction.field_sequential import pilot_params, round_params
 from app.probing.joint import plan_joint
 from app.probing.merge import merge_plans
 from app.probing.program import mesh_station_normals
@@ -227,9 +228,7 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     dz = measured_array(rows)[keep, 2] - field.z[keep]
     sites = field.stations.take(np.flatnonzero(keep))
     learned = learn_prior(plan_params.prior(), sites, dz, field.center)
-    learned_params = replace(plan_params, deviation_amplitude_mm=learned.prior.amplitude_mm,
-                             deviation_wavelength_mm=learned.prior.wavelength_mm,
-                             probe_sigma_mm=max(learned.prior.sigma_mm, plan_params.probe_sigma_mm))
+    learned_params = round_params(plan_params, learned.prior, field.prior.wavelength_mm)
     suspect = learned.prior
     if params.retouch_only:  # judged at the probe's repeatability: one bad touch inflates the learned noise
         suspect = replace(suspect, sigma_mm=min(suspect.sigma_mm, plan_params.probe_sigma_mm))
@@ -279,6 +278,8 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     if params.fixed_run_job_id is not None:
         plan, plan_params, sequential = _next_round(ctx, params, nominals, plan_params, top)
     else:
+        if params.pilot:
+            plan_params = pilot_params(plan_params)
         plan = with_verification(plan_field(nominals, plan_params, params.stations, top), nominals,
                                  plan_params.prior(), params.verify_count)
     ctx.progress(0.5, f"{plan.count - int(plan.verify_mask.sum())} stations and {int(plan.verify_mask.sum())} "
