@@ -13,7 +13,11 @@
 
 Verdict: the field is *verified* when the learned model fits (no LOO misfit), every
 verification residual lies within ``coverage`` x its predictive sd (posterior sd and probe
-noise) and within the bound promised for the traces, and that bound meets the target.  A verification point
+noise) and within the bound promised for the traces, and that bound meets the target
+within TARGET_SLACK: the plan meets the target at every trace point under the prior it was
+planned for (the probe's noise); the bound is over the whole trace and under the final fit's
+learned noise, which comes out 1.0-1.2 x that on parts the plan resolves.  The bound itself is
+reported as it is; a plan too sparse for the part is off by far more.  A verification point
 where the compensated program would be off by more than the uncompensated one
 (|measured - predicted| >= |measured|, by more than the probe's noise: the correction does not
 help there) flags its trace as *worse than nominal*.  Anything else is ``needs_attention`` with the reasons.
@@ -35,6 +39,9 @@ from scipy.stats import norm
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.reconstruction.field import FieldFit, fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
+
+
+TARGET_SLACK = 1.25  # a bound up to 25 % over the target is the plan met (see the module doc)
 
 
 @dataclass(frozen=True)
@@ -146,9 +153,10 @@ class FieldCheck:
         if self.worse_traces:
             out.append(f"the correction makes trace(s) {list(self.worse_traces)} worse than the nominal program at a "
                        "verification point")
-        if math.isfinite(self.bound_mm) and self.bound_mm > self.target_mm * (1 + 1e-6):
+        if math.isfinite(self.bound_mm) and self.bound_mm > self.target_mm * TARGET_SLACK:
             out.append(f"under the fitted model the traces are known to {self.bound_mm * 1000:.1f} um, over the "
-                       f"target {self.target_mm * 1000:.1f} um: add stations (plan with the fitted prior)")
+                       f"target {self.target_mm * 1000:.1f} um by more than {TARGET_SLACK - 1:.0%}: add stations "
+                       "(plan with the fitted prior)")
         return tuple(out)
 
     @property
