@@ -28,7 +28,7 @@ from app.jobs.registry import get_kind
 from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
                               program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
-from app.models import Job, Machine
+from app.models import Job, Machine, Trace
 from app.reference.evaluation import predicted_width, table_row
 
 Done = tuple[str, Job, Job, Job, Job, float, tuple[str, str]]
@@ -63,6 +63,14 @@ class Steps:
             raise ConformaError(f"{kind} of trace {trace_id} {job.status}: {detail}", field="trace_ids", value=trace_id)
         self.reusable[key] = job
         return job
+
+
+def probe_rings(ctx: JobContext, trace_ids: list[str]) -> set[str]:
+    """The pad / area probe rings among ``trace_ids`` (traces with ``source.role`` ``pad_probe``,
+    made by a circuit import): probed and rebuilt with the traces, never printed."""
+    with ctx.session() as session:
+        rows = session.exec(select(Trace.id, Trace.source).where(Trace.id.in_(trace_ids))).all()  # type: ignore[attr-defined]
+    return {trace_id for trace_id, source in rows if (source or {}).get("role") == "pad_probe"}
 
 
 def plan_params(params: Any, placed: dict[str, Any], dialect: str, trace_id: str | None) -> dict[str, Any]:

@@ -64,7 +64,7 @@ from app.jobs.loop_files import write_loop_files
 from app.jobs.loop_gates import Gates, PausePoint
 from app.jobs.loop_results import ClosedLoopResult
 from app.jobs.loop_steps import (Steps, TypedResults, board_batch, is_sequential, more_rounds, plan_params,
-                                 print_trace, run_params, trace_children)
+                                 print_trace, probe_rings, run_params, trace_children)
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
 from app.jobs.registry import JobParams, job_kind
@@ -241,10 +241,15 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     if accepted is not None and attention:
         result["verdict"] |= {"accepted": accepted, "printing_held": False}
     hold = attention and accepted is None
+    rings = probe_rings(ctx, params.trace_ids) if params.print or params.evaluate else set()
+    printed = [entry for entry in per_trace if entry["trace_id"] not in rings]
     if (params.print or params.evaluate) and not hold:
-        gates.gate("print", _print_summary(per_trace, params), round_=rounds)
+        gates.gate("print", _print_summary(printed, params), round_=rounds)
     for index, entry in enumerate(per_trace):
-        print_trace(ctx, steps, params, machine, index, entry, result["table"], hold_print=hold)
+        if entry["trace_id"] in rings:
+            entry["role"] = "pad_probe"  # a pad's probe ring: probed and rebuilt, never printed
+        else:
+            print_trace(ctx, steps, params, machine, index, entry, result["table"], hold_print=hold)
         ctx.progress(0.8 + 0.2 * (index + 1) / total, f"{index + 1}/{total} traces done")
     if hold:
         result["needs_attention"] = True  # the job ends needs_attention, not succeeded
