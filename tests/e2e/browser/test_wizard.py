@@ -49,7 +49,19 @@ def _waits_at(page, point: str) -> str:  # type: ignore[no-untyped-def]
     return page.get_attribute("#wz-run", "data-job")
 
 
-def test_the_loop_runs_on_the_server_and_a_new_browser_sees_the_same_run(browser, served, loop_setup):
+@pytest.fixture
+def no_live_loop(served):  # type: ignore[no-untyped-def]
+    """The page shows the live loop of the server: every test ends (or abandons) its own."""
+    yield
+    api = served.api()
+    for status, action in (("waiting", "abandon"), ("interrupted", "abandon"), ("running", "cancel"),
+                           ("queued", "cancel")):
+        for job in api.get(f"/api/v1/jobs?kind=closed_loop&status={status}").json()["items"]:
+            api.post(f"/api/v1/jobs/{job['id']}/{action}")
+
+
+@pytest.mark.timeout(900)   # two traces probed, rebuilt and printed beside software GL drawing on a loaded host
+def test_the_loop_runs_on_the_server_and_a_new_browser_sees_the_same_run(browser, served, loop_setup, no_live_loop):
     """Start a loop in one browser, close it at the plan, open another: the same run at the same
     step; continue it there to the end: one parent job, one report, the mock's truth printed."""
     api = served.api()
@@ -104,8 +116,10 @@ def test_the_loop_runs_on_the_server_and_a_new_browser_sees_the_same_run(browser
     # one parent job, whose children are every step; every trace printed exactly its program
     loops = api.get(f"/api/v1/jobs?kind=closed_loop&part_id={part['id']}").json()
     assert loops["total"] == 1 and loops["items"][0]["id"] == loop_id
-    for kind in ("probe_plan", "probe_run", "reconstruct", "compensate"):   # no loose step without its parent
-        steps = api.get(f"/api/v1/jobs?kind={kind}&part_id={part['id']}").json()["items"]
+    for kind, of in (("probe_plan", f"part_id={part['id']}"), ("reconstruct", f"part_id={part['id']}"),
+                     ("compensate", f"part_id={part['id']}"), ("probe_run", f"machine_id={machine['id']}"),
+                     ("print", f"machine_id={machine['id']}")):           # no loose step without its parent
+        steps = api.get(f"/api/v1/jobs?kind={kind}&{of}").json()["items"]
         assert steps and {j["parent_id"] for j in steps} == {loop_id}, kind
     prints = api.get(f"/api/v1/jobs?kind=print&parent_id={loop_id}").json()["items"]
     assert len(prints) == len(TRACES) and all(p["result"]["executed"] == p["result"]["total"] for p in prints)
@@ -127,7 +141,8 @@ def test_the_loop_runs_on_the_server_and_a_new_browser_sees_the_same_run(browser
     context.close()
 
 
-def test_wizard_probes_the_pads_of_an_imported_circuit_by_itself(page, served):
+@pytest.mark.timeout(600)
+def test_wizard_probes_the_pads_of_an_imported_circuit_by_itself(page, served, no_live_loop):
     """Traces from an imported circuit with pads: the loop page adds the import's pad probe rings
     to the plan by itself (the API's closed loop needs them given), probes the pads, and neither
     lists nor prints the rings as traces."""
