@@ -160,3 +160,25 @@ def test_a_restart_while_waiting_keeps_the_loop_at_the_same_point(settings, stls
         _waits_at(second, loop["id"], "verified")
         assert [j["id"] for j in _children(second, loop["id"]) if j["kind"] == "probe_run"] == runs  # not again
         assert second.post(f"/api/v1/jobs/{loop['id']}/abandon", headers=OP).json()["status"] == "cancelled"
+
+
+def test_add_stations_at_the_verified_point_plans_one_more_round_from_the_run(client, stls):
+    part, trace, machine = _setup(client, stls)
+    loop = _loop(client, part, trace, machine, pause_at=["verified"])
+    first = _waits_at(client, loop["id"], "verified")
+    runs = [j for j in _children(client, loop["id"]) if j["kind"] == "probe_run"]
+    last_run = runs[0]["id"]                                              # newest first
+    learned = first["program_state"]["waiting"]["summary"]["verdict"]["suggested_probe"]
+    too_early = client.post(f"/api/v1/jobs/{loop['id']}/add-stations", json={"touch_budget": 0}, headers=OP)
+    assert too_early.status_code == 422 and too_early.json()["errors"][0]["loc"][-1] == "touch_budget"
+    assert client.post(f"/api/v1/jobs/{loop['id']}/add-stations", headers=OP).status_code == 202
+    again = _waits_at(client, loop["id"], "verified")
+    assert again["program_state"]["waiting"]["key"] == "verified@1"
+    [replan] = again["program_state"]["replans"]
+    assert {k: replan[k] for k in learned} == learned                     # planned from the learned prior
+    plans = [j for j in _children(client, loop["id"]) if j["kind"] == "probe_plan"
+             and j["params"].get("fixed_run_job_id") == last_run and not j["params"].get("retouch_only")]
+    assert len(plans) == 1 and plans[0]["params"]["deviation_wavelength_mm"] == learned["deviation_wavelength_mm"]
+    kinds = [j["kind"] for j in _children(client, loop["id"])]
+    assert kinds.count("probe_run") == len(runs) + (1 if plans[0]["result"]["count"] else 0)
+    assert client.post(f"/api/v1/jobs/{loop['id']}/abandon", headers=OP).json()["status"] == "cancelled"
