@@ -22,7 +22,10 @@ SQLModel.metadata.naming_convention = {
     "pk": "pk_%(table_name)s",
 }
 
-JOB_STATES = ("queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted")
+JOB_STATES = ("queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted", "waiting")
+# ``waiting``: a workflow (a closed loop) stopped at one of its pause points and holds no
+# worker: it waits for an operator's continue, accept, add-stations or abandon (what it
+# waits at is its ``program_state["waiting"]``); nothing moves meanwhile.
 TERMINAL_STATES = ("succeeded", "needs_attention", "failed", "cancelled")
 # A job that ran to its end: its result is complete.  ``needs_attention``: it did, but the
 # result asks the operator to act before it is relied on (a closed loop whose field check

@@ -29,7 +29,8 @@ from app.problems import PROBLEM_MEDIA_TYPE, problem
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
-JobStatus = Literal["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted"]
+JobStatus = Literal["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted",
+                    "waiting"]
 SSE_POLL_S = 0.1
 # Built once: the statements' compiled forms are cached, so a poll pays for execution only.
 _JOB_BY_ID = (sa_select(*(c for c in Job.__table__.c if c.name != "result"))
@@ -316,13 +317,14 @@ def resume_job(job_id: str, body: ResumeRequest, runtime: RuntimeDep, session: S
 
 
 @router.post("/{job_id}/abandon", dependencies=[Operator],
-             responses={409: {"description": "the job is not interrupted"}})
+             responses={409: {"description": "the job is neither interrupted nor waiting"}})
 def abandon_job(job_id: str, runtime: RuntimeDep, session: SessionDep) -> JobOut:
-    """Give up an ``interrupted`` machine job (it becomes cancelled; the machine is free)."""
+    """Give up an ``interrupted`` machine job or a ``waiting`` closed loop (it becomes
+    cancelled; the machine is free)."""
     job = get_or_404(session, Job, job_id)
     if runtime.store.abandon(job_id) is None:
-        raise Conflict(f"job {job_id!r} is {job.status}, not interrupted: nothing to abandon", field="job_id",
-                       value=job_id)
+        raise Conflict(f"job {job_id!r} is {job.status}, neither interrupted nor waiting: nothing to abandon",
+                       field="job_id", value=job_id)
     session.expire_all()
     return load_job_out(session, job_id)
 

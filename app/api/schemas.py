@@ -145,7 +145,8 @@ class ResumeRequest(Strict):
 class JobOut(BaseModel):
     id: str
     kind: str
-    status: Literal["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted"]
+    status: Literal["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted",
+                    "waiting"]
     progress: float
     message: str
     params: dict[str, Any]
@@ -171,7 +172,9 @@ class JobOut(BaseModel):
     artifact_count: int = Field(0, description="how many artifacts the job wrote")
     program_state: dict[str, Any] | None = Field(
         None, description="machine jobs: commands executed (known) and total, last acknowledged firmware line, "
-        "and once interrupted: when, why, the position if known; resumes and the resume preamble")
+        "and once interrupted: when, why, the position if known; resumes and the resume preamble. closed_loop: "
+        "``waiting`` (the pause point it waits at: at, key, round, since, summary, needs_attention), ``passed`` "
+        "(the pause points an operator continued), ``accepted``, ``replans`` (stations added on request)")
 
 
 class JobKindOut(BaseModel):

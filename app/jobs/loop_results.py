@@ -51,6 +51,8 @@ class LoopTrace(BaseModel):
     print: str | None = None  # the print child's job id (print without evaluate)
     bound_mm: float | None = None  # field: coverage x the trace's largest posterior sd under the fitted model
     worse_than_nominal: bool | None = None  # field: the correction did not help at a verification point
+    held_ends_mm: list[float] | None = None  # (before, after) mm beyond the trace's probes, held at the nearest
+    role: str | None = None  # "pad_probe": a pad's probe ring, probed and rebuilt, never printed
 
     @property
     def program(self) -> str:

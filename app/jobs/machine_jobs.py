@@ -62,19 +62,23 @@ def holding_message(machine_id: str, job: dict[str, Any]) -> str:
         return (f"machine {machine_id!r} is held by the interrupted {kind} job {job_id}{where}: resume it "
                 f"(GET /api/v1/jobs/{job_id}/resume shows where, POST it with {{\"confirm\": true}}) or "
                 f"abandon it (POST /api/v1/jobs/{job_id}/abandon)")
+    if status == "waiting":
+        at = ((job.get("program_state") or {}).get("waiting") or {}).get("at", "a pause point")
+        return (f"machine {machine_id!r} is held by the {kind} job {job_id}, waiting for an operator at {at!r}: "
+                f"continue it (POST /api/v1/jobs/{job_id}/continue) or abandon it (POST /api/v1/jobs/{job_id}/abandon)")
     return (f"machine {machine_id!r} is busy with {kind} job {job_id} ({status}); one program at a time: "
             f"wait for it or cancel it (POST /api/v1/jobs/{job_id}/cancel)")
 
 
 def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
-    """409 when another machine job, or a workflow holding the machine, is queued, running
-    or interrupted on ``machine_id``.  A friendly early answer only: the unique index on
+    """409 when another machine job, or a workflow holding the machine, is queued, running,
+    interrupted or waiting (at a pause point) on ``machine_id``.  A friendly early answer only: the unique index on
     ``jobs.machine_id`` is what makes two concurrent submissions impossible.  A workflow's
     own children (``session.info["parent_id"]``) may use the machine it holds."""
     parent_id = session.info.get("parent_id")
     query = (select(Job.id, Job.kind, Job.status, Job.program_state).join(JobReference, JobReference.job_id == Job.id)
              .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
-                    Job.status.in_(("queued", "running", "interrupted")),
+                    Job.status.in_(("queued", "running", "interrupted", "waiting")),
                     Job.kind.in_(machine_kinds() + WORKFLOW_KINDS)))
     if parent_id is not None:
         query = query.where(Job.id != parent_id)

@@ -245,14 +245,38 @@ class JobStore:
         return bool(rows)
 
     def abandon(self, job_id: str) -> str | None:
-        """interrupted -> cancelled (the operator gives the program up); None otherwise."""
+        """interrupted or waiting -> cancelled (the operator gives the program up); None otherwise."""
         rows = self._run(
             update(Job)
-            .where(and_(Job.id == job_id, Job.status == "interrupted"))
+            .where(and_(Job.id == job_id, Job.status.in_(("interrupted", "waiting"))))
             .values(status="cancelled", finished_at=utcnow(), message="abandoned by an operator",
                     revision=Job.revision + 1)
             .returning(Job.id))
         return "cancelled" if rows else None
+
+    # workflows: pause points (app.jobs.loop_gates) ----------------------------------
+    def wait(self, claim: Claim, state: dict[str, Any], message: str) -> bool:
+        """running -> waiting (while ``claim`` owns the job): the attempt ends at a pause point
+        and holds no worker; ``state`` says where it waits.  A pause is not a failed attempt
+        (``attempts`` is given back)."""
+        rows = self._run(
+            update(Job).where(self._owned(claim))
+            .values(status="waiting", program_state=state, message=message[:500], lease_until=None, worker=None,
+                    attempts=Job.attempts - 1, revision=Job.revision + 1)
+            .returning(Job.id))
+        return bool(rows)
+
+    def proceed(self, job_id: str, state: dict[str, Any], revision: int, message: str,
+                from_states: tuple[str, ...] = ("waiting",)) -> bool:
+        """waiting (or another of ``from_states``) -> queued with ``state`` (the operator's
+        decision), only if nobody changed the job since ``revision`` was read."""
+        rows = self._run(
+            update(Job)
+            .where(and_(Job.id == job_id, Job.status.in_(from_states), Job.revision == revision))
+            .values(status="queued", program_state=state, cancel_requested=False, enqueued_at=time.time(),
+                    finished_at=None, error=None, message=message[:500], revision=Job.revision + 1)
+            .returning(Job.id))
+        return bool(rows)
 
     def cancel_requested(self, job_id: str) -> bool:
         rows = self._run(select(Job.cancel_requested).where(Job.id == job_id))

@@ -105,7 +105,7 @@ async function onSubmit(event) {
 
 // ---- history: filters, paging and live progress ------------------------------------------
 const PAGE_SIZE = 25;
-const STATUSES = ["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted"];
+const STATUSES = ["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted", "waiting"];
 const tbody = el("tbody", { id: "jobs-body" });
 const filterKind = el("select", { id: "filter-kind", "aria-label": "filter by kind" }, el("option", { value: "" }, "any kind"));
 const filterStatus = el("select", { id: "filter-status", "aria-label": "filter by status" },
@@ -273,6 +273,10 @@ function renderDetail(job) {
     el("p", { class: "small" }, `created ${fmt.time(job.created_at)} · started ${fmt.time(job.started_at)} · finished ${fmt.time(job.finished_at)}`),
   ];
   if (job.status === "interrupted") parts.push(interruptedPanel(job));
+  if (job.status === "waiting") {
+    parts.push(el("div", { class: "msg", id: "waiting" }, `${job.message || "waiting for an operator"} — `,
+      el("a", { href: `loop.html?job=${job.id}` }, "continue, accept, add stations or abandon it on the Closed loop page")));
+  }
   if (job.error) parts.push(el("div", { class: "msg error", id: "job-error" }, `${job.error.title}: ${job.error.detail}`));
   const samples = job.result?.deviation?.samples;
   if (Array.isArray(samples) && samples.length > 1) {

@@ -1,17 +1,22 @@
-// The closed-loop wizard: part -> traces -> machine -> plan (touches and predicted error
-// before anything moves) -> probe (live touch count) -> review (how far the model was off,
-// where, and the compensated programs) -> print (after a confirmation) -> run report.
-// Every step is an ordinary job of the API; nothing moves a machine without a click and a
-// confirmation.
-import { download, get, post, streamEvents } from "./api.js";
+// The closed-loop wizard: a VIEW of one server-side `closed_loop` job.  Part -> traces ->
+// machine -> start: ONE job, paused by the server at every point where the operator decides
+// (plan reviewed before anything moves, touches made, traces verified, before printing).
+// The page only shows that job and sends the operator's decisions (continue, accept, add
+// stations, resume, abandon); reload it, open it in another browser: the same run, at the
+// same step.  Nothing moves a machine without a click and a confirmation.
+import { download, get, post } from "./api.js";
 import { chart, length } from "./results.js";
-import { el, guarded, initPage, latest, markReady, showInfo, viewerPanel } from "./ui.js";
+import { el, guarded, initPage, latest, markReady, query, showInfo, viewerPanel } from "./ui.js";
 
 const main = initPage("loop.html");
-const TERMINAL = new Set(["succeeded", "needs_attention", "failed", "cancelled", "interrupted"]);
+const FINISHED = new Set(["succeeded", "needs_attention", "failed", "cancelled"]);
+const LIVE = ["waiting", "interrupted", "running", "queued"];  // a loop in these states is "the run"
+const PAUSES = ["plan", "probed", "verified", "print"];        // the console stops at every one
+const POLL_MS = 1000;
+const STEP_OF = { plan: "wz-4", probed: "wz-5", verified: "wz-6", print: "wz-7" };
 // traces: the part's printable traces; rings: its circuit imports' pad / area probe rings
 // (traces with source.role "pad_probe"), probed with the import's traces, never printed.
-const state = { part: null, traces: [], rings: [], machine: null, plan: null, run: null, rows: [] };
+const state = { part: null, traces: [], rings: [], machine: null, loop: null, names: {} };
 
 function step(id, title, ...body) {
   return el("section", { id, class: "wizard-step", "data-done": "0", "aria-labelledby": `${id}-h` },
@@ -23,49 +28,37 @@ const traceList = el("div", { id: "wz-traces", role: "group", "aria-label": "tra
 const ringNote = el("p", { id: "wz-pad-rings", class: "small", "data-rings": "0" });
 const machineSelect = el("select", { id: "wz-machine", "aria-label": "machine" });
 const machineState = el("span", { id: "wz-machine-state", class: "small" });
-const planOut = el("div", { id: "wz-plan-out" });
-const probeOut = el("div", { id: "wz-probe-out" });
-const reviewOut = el("div", { id: "wz-review-out" });
-const printOut = el("div", { id: "wz-print-out" });
+const runBox = el("div", { id: "wz-run", "data-status": "", "data-step": "" });
+const stepOut = { plan: el("div", { id: "wz-plan-out" }), probed: el("div", { id: "wz-probe-out" }),
+  verified: el("div", { id: "wz-review-out" }), print: el("div", { id: "wz-print-out" }) };
 const reportOut = el("div", { id: "wz-report-out" });
+const childrenOut = el("div", { id: "wz-children" });
 const buttons = {
   connect: el("button", { id: "wz-connect", type: "button", onclick: () => connect() }, "Connect"),
-  plan: el("button", { id: "wz-plan", class: "primary", type: "button", onclick: () => plan() }, "Plan the probes"),
-  probe: el("button", { id: "wz-probe", class: "primary", type: "button", disabled: true, onclick: () => probe() }, "Probe the part"),
-  print: el("button", { id: "wz-print", class: "primary", type: "button", disabled: true, onclick: () => printAll() }, "Print"),
+  start: el("button", { id: "wz-start", class: "primary", type: "button", onclick: () => start() }, "Start the loop"),
 };
 const viewerSection = el("section", { id: "viewer-panel" });
 main.append(el("h1", {}, "Closed loop"),
   el("p", { class: "small" }, "Probe the real part, rebuild each trace on its real surface and print at the standoff above it. ",
-    "The machine moves only at “Probe” and “Print”, each after a confirmation."),
+    "The loop runs on the server: close this page and open it anywhere, the run is still there. ",
+    "It waits for you before probing, after probing, after verifying and before printing; the machine moves only at “Probe” and “Print”."),
   el("div", { class: "layout" },
     el("div", {},
       step("wz-1", "1 · Part", partSelect),
       step("wz-2", "2 · Traces", traceList, ringNote),
       step("wz-3", "3 · Machine", machineSelect, " ", buttons.connect, " ", machineState),
-      step("wz-4", "4 · Plan", el("p", { class: "small" }, "How many touches, and the error they leave, before anything moves."),
-        buttons.plan, planOut),
-      step("wz-5", "5 · Probe", buttons.probe, probeOut),
-      step("wz-6", "6 · Review", reviewOut),
-      step("wz-7", "7 · Print", buttons.print, printOut),
-      step("wz-8", "8 · Report", reportOut)),
+      step("wz-run-step", "Run", el("p", { class: "small" }, "One job on the server: its plan is shown before anything moves."),
+        buttons.start, runBox),
+      step("wz-4", "4 · Plan", stepOut.plan),
+      step("wz-5", "5 · Probe", stepOut.probed),
+      step("wz-6", "6 · Review", stepOut.verified),
+      step("wz-7", "7 · Print", stepOut.print),
+      step("wz-8", "8 · Report", reportOut),
+      el("details", { id: "wz-children-box" }, el("summary", {}, "The loop's steps (child jobs)"), childrenOut)),
     viewerSection));
 const viewer = viewerPanel(viewerSection);
 
-const done = (id) => { document.getElementById(id).dataset.done = "1"; };
-
-async function waitJob(job, onEvent) {
-  if (TERMINAL.has(job.status)) return job;
-  await new Promise((resolve) => {
-    streamEvents(`/api/v1/jobs/${job.id}/events`, (ev) => onEvent?.(ev.data), () => resolve());
-  });
-  return get(`jobs/${job.id}?include=result`);
-}
-
-function failed(job, what) {
-  const reason = job.error ? `${job.error.title}: ${job.error.detail}` : job.status;
-  throw new Error(`${what} ${job.id} ${job.status}: ${reason}`);
-}
+const done = (id, yes = true) => { document.getElementById(id).dataset.done = yes ? "1" : "0"; };
 
 // ---- 1-3: part, traces, machine ------------------------------------------------------------
 async function loadParts() {
@@ -74,10 +67,9 @@ async function loadParts() {
 }
 
 const isRing = (t) => (t.source || {}).role === "pad_probe";
-
 const tracesLatest = latest();  // the part changed quickly: never the traces of a part no longer chosen
 
-async function loadTraces() {
+async function loadTraces(checked = null) {
   const current = tracesLatest();
   const part = partSelect.value || null;
   const all = part ? (await get(`parts/${part}/traces?limit=1000`)).items : [];
@@ -85,11 +77,12 @@ async function loadTraces() {
   state.part = part;
   state.traces = all.filter((t) => !isRing(t));
   state.rings = all.filter(isRing);
+  state.names = Object.fromEntries(all.map((t) => [t.id, t.name]));
   traceList.replaceChildren(...(state.traces.length ? state.traces.map((t) => el("label", { class: "inline" },
-    el("input", { type: "checkbox", value: t.id, checked: true }), ` ${t.name} (${length(t.length_mm)})`))
+    el("input", { type: "checkbox", value: t.id, checked: checked ? checked.includes(t.id) : true }), ` ${t.name} (${length(t.length_mm)})`))
     : [el("p", { class: "small" }, state.part ? "This part has no traces: add some on the Traces page." : "Choose a part first.")]));
   showRings();
-  if (state.part) { done("wz-1"); viewer.show({ part_id: state.part }); }
+  if (state.part) { done("wz-1"); if (!state.loop) viewer.show({ part_id: state.part }); }
   if (state.traces.length) done("wz-2");
 }
 
@@ -122,9 +115,9 @@ async function showMachine() {
   if (!state.machine) { machineState.textContent = ""; return; }
   const m = await get(`machines/${state.machine}`);
   machineState.textContent = `${m.state}${m.firmware ? ` · ${m.firmware}` : ""}`;
-  machineSelect.selectedOptions[0].textContent = `${m.name} (${m.state})`;
+  if (machineSelect.selectedOptions[0]) machineSelect.selectedOptions[0].textContent = `${m.name} (${m.state})`;
   machineState.dataset.state = m.state;
-  buttons.connect.disabled = m.state !== "disconnected";
+  buttons.connect.disabled = m.state !== "disconnected" || Boolean(state.loop && !FINISHED.has(state.loop.status));
   if (m.state !== "disconnected") done("wz-3");
 }
 
@@ -137,156 +130,215 @@ async function connect() {
 
 const chosenTraces = () => [...traceList.querySelectorAll("input:checked")].map((i) => i.value);
 
-// ---- 4: plan ---------------------------------------------------------------------------------
-async function plan() {
-  await guarded("Plan", async () => {
+// ---- the run: one closed_loop job ------------------------------------------------------------
+async function start() {
+  await guarded("Start", async () => {
     const traceIds = chosenTraces();
     if (!traceIds.length) throw new Error("choose at least one trace");
-    const rings = padRings().map((r) => r.id);
-    buttons.plan.disabled = true;
-    planOut.textContent = "planning…";
-    const job = await waitJob(await post("jobs", { kind: "probe_plan",
-      params: { trace_ids: [...traceIds, ...rings], method: "field" } }));
-    if (job.status !== "succeeded") failed(job, "probe plan");
-    state.plan = job;
-    const sds = (job.result.traces || []).map((t) => t.predicted_sd_mm).filter(Number.isFinite);
-    const worst = sds.length ? Math.max(...sds) : null;  // under the prior told; checked after probing
-    planOut.replaceChildren(el("p", { id: "wz-plan-summary" },
-      el("strong", { class: "figure", "data-touches": job.result.count }, `${job.result.count} touches`),
-      ` on ${traceIds.length} trace(s)`, rings.length ? el("span", { id: "wz-plan-rings", "data-rings": rings.length },
-        ` and ${rings.length} pad probe ring(s)`) : "", worst !== null ? ` · predicted error (3σ) ≤ ${length(3 * worst)}` : ""));
-    done("wz-4");
-    buttons.probe.disabled = !state.machine;
-    viewer.show({ job_id: job.id });
+    if (!state.machine) throw new Error("choose a machine");
+    buttons.start.disabled = true;
+    const job = await post("jobs", { kind: "closed_loop", params: {
+      part_id: state.part, trace_ids: [...traceIds, ...padRings().map((r) => r.id)], machine_id: state.machine,
+      joint_probing: true, sequential: false, print: true, pause_at: PAUSES } });
+    history.replaceState(null, "", `?job=${job.id}`);
+    await follow(job.id);
   });
-  buttons.plan.disabled = false;
+  buttons.start.disabled = Boolean(state.loop && !FINISHED.has(state.loop.status));
 }
 
-// ---- 5: probe --------------------------------------------------------------------------------
-async function probe() {
-  if (!state.plan || !state.machine) return;
-  if (!window.confirm(`Probe ${state.plan.result.count} points? The machine will move.`)) return;
-  await guarded("Probe", async () => {
-    buttons.probe.disabled = true;
-    const live = el("p", { id: "wz-probe-live" }, "starting…");
-    probeOut.replaceChildren(live);
-    const total = state.plan.result.count;
-    const job = await waitJob(await post("jobs", { kind: "probe_run", params: { plan_job_id: state.plan.id, machine_id: state.machine } }),
-      (ev) => { live.textContent = `touch ${Math.round(ev.progress * total)} of ${total} · ${ev.message || ""}`; });
-    if (job.status !== "succeeded") failed(job, "probe run");
-    state.run = job;
-    const stats = job.result.stats || {};
-    live.textContent = `${stats.count} touches · largest |real − model| ${length(stats.max_abs_mm)} · rms ${length(stats.rms_mm)}`;
-    probeOut.append(chart(job.result.points, { x: "index", ys: ["deviation_mm"], title: "Real − model height at each touch" }) || "");
-    done("wz-5");
-    viewer.show({ job_id: job.id });
-    await review();
-  });
-}
-
-// ---- 6: review -------------------------------------------------------------------------------
-async function review() {
-  reviewOut.textContent = "rebuilding each trace on the real surface…";
-  const rows = [];
-  for (const traceId of chosenTraces()) {
-    const trace = state.traces.find((t) => t.id === traceId);
-    const rebuilt = await waitJob(await post("jobs", { kind: "reconstruct", params: {
-      trace_id: traceId, probe_run_job_id: state.run.id, method: "field" } }));
-    if (rebuilt.status !== "succeeded") failed(rebuilt, `reconstruction of ${trace.name}`);
-    const program = await waitJob(await post("jobs", { kind: "compensate", params: {
-      trace_id: traceId, reconstruct_job_id: rebuilt.id, machine_id: state.machine } }));
-    const samples = rebuilt.result.deviation?.samples || [];
-    const worst = samples.reduce((a, b) => (Math.abs(b[1]) > Math.abs(a[1]) ? b : a), [0, 0]);
-    rows.push({ trace, rebuilt, program, worst });
+// The loop this page shows: ?job=<id>, else the newest one still live (waiting, interrupted,
+// running or queued), whoever started it.
+async function findLoop() {
+  const asked = query("job");
+  if (asked) return asked;
+  for (const status of LIVE) {
+    const page = await get(`jobs?kind=closed_loop&status=${status}&limit=1`);
+    if (page.items.length) return page.items[0].id;
   }
-  state.rows = rows;
-  reviewOut.replaceChildren(el("table", { id: "wz-review", class: "records" },
-    el("thead", {}, el("tr", {}, ["trace", "model off by (max)", "where", "compensated program", "ready"].map((h) => el("th", { scope: "col" }, h)))),
-    el("tbody", {}, rows.map((r) => el("tr", { "data-trace": r.trace.id, "data-ready": r.program.status === "succeeded" ? "1" : "0" },
-      el("td", {}, r.trace.name),
-      el("td", {}, length(r.rebuilt.result.deviation?.max_mm)),
-      el("td", {}, `${length(r.worst[0])} along the trace (${length(r.worst[1])})`),
-      el("td", {}, r.program.status === "succeeded"
-        ? `${r.program.result.segments} segments, chord error ≤ ${length(r.program.result.max_chord_error_mm)}`
-        : `${r.program.error?.title || r.program.status}: ${r.program.error?.detail || ""}`),
-      el("td", {}, r.program.status === "succeeded" ? el("span", { class: "badge succeeded" }, "ready") : el("span", { class: "badge failed" }, "not printable")))))),
-  ...rows.map((r) => chart((r.rebuilt.result.deviation?.samples || []).map(([s, d]) => ({ s_mm: s, deviation_mm: d })),
-    { x: "s_mm", ys: ["deviation_mm"], title: `${r.trace.name}: real surface − model along the trace` }) || ""));
-  const check = rows.find((r) => r.rebuilt.result.field_check)?.rebuilt.result.field_check;
-  if (check) reviewOut.prepend(fieldCheck(check, rows));
-  done("wz-6");
-  const ready = rows.filter((r) => r.program.status === "succeeded");
-  buttons.print.textContent = `Print ${ready.length} trace(s)`;
-  // a field check that asks for attention holds the print until the operator accepts it explicitly
-  const accept = document.getElementById("wz-accept");
-  buttons.print.disabled = !ready.length || Boolean(accept && !accept.checked);
-  accept?.addEventListener("change", () => { buttons.print.disabled = !ready.length || !accept.checked; });
-  await showReport();
+  return null;
+}
+
+let polling = null;
+async function follow(jobId) {
+  await refresh(jobId);
+  if (polling) clearTimeout(polling);
+  const tick = async () => {
+    if (state.loop && FINISHED.has(state.loop.status)) return;
+    await guarded("Loop", () => refresh(jobId));
+    polling = setTimeout(tick, POLL_MS);
+  };
+  polling = setTimeout(tick, POLL_MS);
+}
+
+let shownRevision = "";
+async function refresh(jobId) {
+  const job = await get(`jobs/${jobId}?include=result`);
+  const kids = (await get(`jobs?parent_id=${jobId}&limit=500`)).items;
+  const signature = `${job.status}|${job.message}|${kids.map((k) => k.status).join(",")}`;
+  state.loop = job;
+  if (signature === shownRevision) return;
+  shownRevision = signature;
+  await showSetup(job);
+  render(job, kids);
+}
+
+// the setup the loop was started with, read back (another browser shows the same)
+async function showSetup(job) {
+  const p = job.params;
+  if (partSelect.value !== p.part_id) { partSelect.value = p.part_id; await loadTraces(p.trace_ids); }
+  if (machineSelect.value !== p.machine_id) { machineSelect.value = p.machine_id; await showMachine(); }
+  const live = !FINISHED.has(job.status);
+  for (const input of [partSelect, machineSelect, ...traceList.querySelectorAll("input")]) input.disabled = live;
+  buttons.start.disabled = live;
+}
+
+function action(id, label, path, confirmText, body) {
+  return el("button", { id, type: "button", class: id === "wz-abandon" ? "" : "primary", onclick: () => guarded(label, async () => {
+    if (confirmText && !window.confirm(confirmText)) return;
+    for (const b of runBox.querySelectorAll("button")) b.disabled = true;
+    await post(`jobs/${state.loop.id}/${path}`, body);
+    shownRevision = "";
+    await follow(state.loop.id);
+  }) }, label);
+}
+
+function render(job, kids) {
+  const ps = job.program_state || {};
+  const waiting = job.status === "waiting" ? ps.waiting || {} : null;
+  runBox.dataset.status = job.status;
+  runBox.dataset.step = waiting ? waiting.at : "";
+  runBox.dataset.job = job.id;
+  const head = el("p", { id: "wz-run-status" }, el("span", { class: `badge ${job.status}` }, job.status),
+    ` loop ${job.id} · ${job.message || ""}`);
+  const actions = el("div", { id: "wz-actions" });
+  const passed = new Set((ps.passed || []).map((k) => k.split("@")[0]));
+  for (const point of PAUSES) done(STEP_OF[point], passed.has(point) || (FINISHED.has(job.status) && job.status !== "failed"));
+  if (waiting) actions.append(...actionsAt(waiting, job));
+  if (job.status === "needs_attention") {
+    actions.append(action("wz-accept", "Accept and print", "accept", "Accept the field as it is and print? The machine will move."),
+      " ", action("wz-add-stations", "Add stations and probe again", "add-stations", "Plan more stations and probe them? The machine will move."));
+  }
+  const stuck = kids.filter((k) => k.status === "interrupted");
+  if (job.status === "interrupted") {
+    actions.append(el("p", {}, stuck.length ? `Step ${stuck[0].kind} ${stuck[0].id} was interrupted: resume it first (the Jobs page shows where it stopped).`
+      : "The loop was interrupted (its process stopped): resume it; it reuses every finished step."));
+    actions.append(stuck.length
+      ? el("a", { id: "wz-resume-step", href: `jobs.html?job=${stuck[0].id}` }, `resume ${stuck[0].kind}`)
+      : action("wz-resume", "Resume", "resume", "Resume the loop? It continues where it stopped; the machine may move.", { confirm: true }));
+  }
+  if (waiting || job.status === "interrupted") actions.append(" ", action("wz-abandon", "Abandon the run", "abandon", "Abandon this run? Nothing more is probed or printed."));
+  if (job.status === "running" || job.status === "queued") {
+    actions.append(el("progress", { max: 1, value: job.progress || 0, "aria-label": "loop progress" }));
+  }
+  if (FINISHED.has(job.status)) actions.append(" ", el("button", { id: "wz-new", type: "button", onclick: () => newRun() }, "Start another loop"));
+  runBox.replaceChildren(head, actions);
+  if (waiting) showStep(waiting);
+  if (job.result?.traces) showResult(job);
+  showChildren(kids);
+  if (FINISHED.has(job.status) || kids.some((k) => k.kind === "probe_run" && k.status === "succeeded")) showReport(job);
+}
+
+function actionsAt(waiting, job) {
+  const n = job.params.trace_ids.length;
+  if (waiting.at === "plan") return [action("wz-continue", "Probe the part", "continue", `Probe ${waiting.summary.touches} points? The machine will move.`)];
+  if (waiting.at === "probed") return [action("wz-continue", "Rebuild and compensate", "continue")];
+  if (waiting.at === "verified") {
+    if (!waiting.needs_attention) return [action("wz-continue", "Go on to printing", "continue")];
+    return [action("wz-accept", "Accept the field as it is", "accept", "Accept although the verification failed? The loop goes on to printing."),
+      " ", action("wz-add-stations", "Add stations and probe again", "add-stations", "Plan more stations from what was learned and probe them? The machine will move.")];
+  }
+  return [action("wz-continue", `Print ${waiting.summary.trace_count ?? n} trace(s)`, "continue", "Print the compensated traces on the machine? It will move.")];
+}
+
+function showStep(waiting) {
+  const s = waiting.summary || {};
+  const out = stepOut[waiting.at];
+  if (waiting.at === "plan") {
+    out.replaceChildren(el("p", { id: "wz-plan-summary" }, el("strong", { class: "figure", "data-touches": s.touches }, `${s.touches} touches`),
+      ` · ${s.headline}`));
+    if (s.plans?.length) viewer.show({ job_id: s.plans[s.plans.length - 1] });
+  } else if (waiting.at === "probed") {
+    out.replaceChildren(el("p", { id: "wz-probe-live" }, s.headline));
+    if (s.runs?.length) viewer.show({ job_id: s.runs[s.runs.length - 1] });
+  } else if (waiting.at === "verified") {
+    out.replaceChildren(reviewTable(s.traces || []), s.verdict ? fieldCheck(s.verdict) : "");
+  } else {
+    out.replaceChildren(el("p", { id: "wz-print-summary" }, s.headline));
+  }
+}
+
+function reviewTable(rows) {
+  return el("table", { id: "wz-review", class: "records" },
+    el("thead", {}, el("tr", {}, ["trace", "model off by (max)", "bound", "ends held", "compensated program"].map((h) => el("th", { scope: "col" }, h)))),
+    el("tbody", {}, rows.map((r) => el("tr", { "data-trace": r.trace_id, "data-ready": r.compensate ? "1" : "0" },
+      el("td", {}, state.names[r.trace_id] || r.trace_id), el("td", {}, length(r.deviation_max_mm)),
+      el("td", {}, r.bound_mm != null ? length(r.bound_mm) : "—"),
+      el("td", {}, r.held_ends_mm ? `${length(r.held_ends_mm[0])} / ${length(r.held_ends_mm[1])}` : "—"),
+      el("td", {}, el("a", { href: `jobs.html?job=${r.compensate}` }, "program"))))));
 }
 
 // the field learned from the touches and checked at the verification points
-function fieldCheck(check, rows) {
-  const bound = Math.max(...rows.map((r) => r.rebuilt.result.bound_mm).filter(Number.isFinite));
-  const verified = (check.verification || []);
-  const worst = verified.reduce((m, p) => Math.max(m, Math.abs(p.residual_mm)), 0);
-  const learned = check.learned;
-  const param = (name, unit) => learned ? `${name.split("_")[0]} ${length(learned[name].value)}${unit} (told ${length(learned[name].prior)})` : "";
-  const box = el("div", { id: "wz-field-check", "data-attention": check.needs_attention ? "1" : "0" },
-    el("p", {}, el("strong", {}, check.needs_attention ? "Needs attention" : "Verified"), ` · verified at ${verified.length} points: `
-      + `max |residual| ${length(worst)} (bound ${length(bound)})`),
+function fieldCheck(v) {
+  const learned = v.learned;
+  const param = (name) => learned ? `${name.split("_")[0]} ${length(learned[name].value)} (told ${length(learned[name].prior)})` : "";
+  return el("div", { id: "wz-field-check", "data-attention": v.needs_attention ? "1" : "0" },
+    el("p", {}, el("strong", {}, v.needs_attention ? "Needs attention" : "Verified"), ` · ${v.verified}`, v.accepted ? " · accepted by an operator" : ""),
     learned ? el("p", { id: "wz-learned" }, `Learned from ${learned.touches} touches: `,
-      [param("amplitude_mm", ""), param("wavelength_mm", ""), param("sigma_mm", "")].join(" · ")) : "",
+      [param("amplitude_mm"), param("wavelength_mm"), param("sigma_mm")].join(" · ")) : "",
     el("table", { id: "wz-verify", class: "records" },
       el("thead", {}, el("tr", {}, ["x, y", "measured", "predicted", "residual", "limit"].map((h) => el("th", { scope: "col" }, h)))),
-      el("tbody", {}, verified.map((p) => el("tr", { "data-within": p.within ? "1" : "0" },
+      el("tbody", {}, (v.verification || []).map((p) => el("tr", { "data-within": p.within ? "1" : "0" },
         el("td", {}, `${p.xy[0].toFixed(1)}, ${p.xy[1].toFixed(1)} mm`), el("td", {}, length(p.measured_mm)),
-        el("td", {}, length(p.predicted_mm)), el("td", {}, length(p.residual_mm)), el("td", {}, length(p.limit_mm)))))));
-  if (check.needs_attention) {
-    box.append(el("ul", {}, check.reasons.map((r) => el("li", {}, r))),
-      el("p", {}, "What to do: plan again with the learned prior (deviation wavelength and amplitude above) and probe "
-        + "again, or accept and print as it is."),
-      el("label", {}, el("input", { type: "checkbox", id: "wz-accept" }), " accept the field as it is and allow printing"));
-  }
-  return box;
+        el("td", {}, length(p.predicted_mm)), el("td", {}, length(p.residual_mm)), el("td", {}, length(p.limit_mm)))))),
+    v.needs_attention ? el("ul", {}, v.reasons.map((r) => el("li", {}, r))) : "");
 }
 
-// ---- 7: print --------------------------------------------------------------------------------
-async function printAll() {
-  const ready = state.rows.filter((r) => r.program.status === "succeeded");
-  if (!window.confirm(`Print ${ready.length} compensated trace(s) on the machine? It will move.`)) return;
-  await guarded("Print", async () => {
-    buttons.print.disabled = true;
-    const list = el("ol", { id: "wz-prints" });
-    printOut.replaceChildren(list);
-    for (const r of ready) {
-      const item = el("li", { "data-trace": r.trace.id }, `${r.trace.name}: queued`);
-      list.append(item);
-      const job = await waitJob(await post(`machines/${state.machine}/print`, { job_id: r.program.id, artifact: "print.gcode" }),
-        (ev) => { item.textContent = `${r.trace.name}: ${Math.round(ev.progress * 100)} % ${ev.message || ""}`; });
-      item.textContent = `${r.trace.name}: ${job.status}${job.result ? ` (${job.result.executed}/${job.result.total} commands)` : ""}`;
-      item.dataset.status = job.status;
-      if (job.status !== "succeeded") failed(job, `print of ${r.trace.name}`);
-    }
-    done("wz-7");
-    showInfo("Every trace printed. The run report lists the programs and their hashes.");
-  });
+function showResult(job) {
+  const traces = job.result.traces;
+  stepOut.verified.replaceChildren(reviewTable(traces), job.result.verdict ? fieldCheck(job.result.verdict) : "");
+  stepOut.print.replaceChildren(el("ol", { id: "wz-prints" }, traces.map((t) => el("li", { "data-trace": t.trace_id,
+    "data-status": t.print ? "printed" : "not printed" }, `${state.names[t.trace_id] || t.trace_id}: `,
+    t.print ? el("a", { href: `jobs.html?job=${t.print}` }, "printed") : (t.role === "pad_probe" ? "pad probe ring, never printed" : "not printed")))));
 }
 
-// ---- 8: report -------------------------------------------------------------------------------
-async function showReport() {
-  const path = `/api/v1/jobs/${state.run.id}/report`;
+function showChildren(kids) {
+  childrenOut.replaceChildren(el("table", { class: "records", id: "wz-children-table" },
+    el("thead", {}, el("tr", {}, ["step", "status", "job"].map((h) => el("th", { scope: "col" }, h)))),
+    el("tbody", {}, [...kids].reverse().map((k) => el("tr", { "data-kind": k.kind, "data-status": k.status },
+      el("td", {}, k.kind), el("td", {}, el("span", { class: `badge ${k.status}` }, k.status)),
+      el("td", {}, el("a", { href: `jobs.html?job=${k.id}` }, k.id)))))));
+}
+
+function showReport(job) {
+  if (reportOut.dataset.job === job.id && reportOut.dataset.status === job.status) return;
+  reportOut.dataset.job = job.id;
+  reportOut.dataset.status = job.status;
   reportOut.replaceChildren(
-    el("button", { id: "wz-report-open", type: "button", onclick: () => guarded("Report", async () => {
-      const blob = await download(`${path}`, `run-report-${state.run.id}.html`);
-      return blob;
-    }) }, "Download the run report"),
-    el("p", { class: "small" }, "One page with the part, machine, touches, how far the model was off on each trace, ",
+    el("button", { id: "wz-report-open", type: "button", onclick: () => guarded("Report", () =>
+      download(`/api/v1/jobs/${job.id}/report`, `run-report-${job.id}.html`)) }, "Download the run report"),
+    el("p", { class: "small" }, "One page for the whole run: the part, machine, touches, how far the model was off on each trace, ",
       "the compensated programs with their hashes and the prints."));
-  done("wz-8");
+  if (FINISHED.has(job.status)) done("wz-8");
 }
 
-partSelect.addEventListener("change", () => guarded("Traces", loadTraces));
+function newRun() {
+  state.loop = null;
+  shownRevision = "";
+  history.replaceState(null, "", location.pathname);
+  runBox.replaceChildren();
+  for (const out of [...Object.values(stepOut), reportOut, childrenOut]) out.replaceChildren();
+  for (const input of [partSelect, machineSelect, ...traceList.querySelectorAll("input")]) input.disabled = false;
+  buttons.start.disabled = false;
+  for (const id of ["wz-4", "wz-5", "wz-6", "wz-7", "wz-8"]) done(id, false);
+  showInfo("Choose the traces and start a new loop.");
+}
+
+partSelect.addEventListener("change", () => guarded("Traces", () => loadTraces()));
 machineSelect.addEventListener("change", () => guarded("Machine", showMachine));
 document.addEventListener("conforma:key", () => guarded("Parts", async () => { await loadParts(); await loadMachines(); }));
 await Promise.all([guarded("Parts", loadParts), guarded("Machines", loadMachines)]);
+await guarded("Loop", async () => {
+  const found = await findLoop();
+  if (found) await follow(found);
+});
 markReady();

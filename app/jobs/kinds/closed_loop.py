@@ -11,9 +11,20 @@ its placement on the machine; every probe_plan / reconstruct child then gets its
 coordinates; the result reports the transform and its uncertainty.
 
 Each step is a child job (visible, cancellable, with its own artifacts).  The parent runs
-on the ``workflow`` queue and only submits and waits.  Resume: if the parent is retried
-(its worker died), succeeded children of the same step and trace are reused, so a
-restarted loop continues where it stopped instead of probing again.
+on the ``workflow`` queue and only submits and waits (:mod:`app.jobs.loop_steps`).  Its
+phases: every plan, then every probe run, then every trace rebuilt and compensated, then
+the verdict, then the prints.  Resume: when the parent runs again (its worker died, an
+operator resumed or continued it), succeeded children of the same step and trace are
+reused, so it continues where it stopped instead of probing again.
+
+Pause points (``pause_at``: ``plan``, ``probed``, ``verified``, ``print``; none by default,
+all from the console): the loop stops there as a ``waiting`` job, holding no worker, until
+an operator continues, accepts, adds stations or abandons it (:mod:`app.jobs.loop_gates`).
+With ``verified`` a failed verification waits there instead of ending ``needs_attention``.
+
+Trace ends beyond their own probes (a trace that starts on a pad): held at the nearest
+probe's deviation within ``end_hold_max_mm`` (the row's ``held_ends_mm`` says so), beyond
+it the loop stops naming the trace (:func:`app.jobs.loop_steps.end_hold`).
 
 A field plan's reconstruction is checked before anything is printed
 (:mod:`app.reconstruction.field_trust`: the prior learned from the touches, the verification
@@ -23,7 +34,9 @@ the correction makes worse at a verification point.  When the check fails (``ver
 needs_attention``) the loop ends in the state ``needs_attention`` (not ``succeeded``) with
 its programs, and ``print`` is refused for every trace (nothing is printed automatically; the operator accepts explicitly
 by printing from the machines page, or runs the loop again with ``verdict.suggested_probe``)
-and its message says so.
+and its message says so.  An operator may then accept it (``POST /jobs/{id}/accept``: it
+runs again, reuses every child, prints and ends ``succeeded`` with ``verdict.accepted``) or
+add stations (``POST /jobs/{id}/add-stations``: one more round planned from the run so far).
 
 ``evaluate`` (mock machines with a true part only): print the nominal program and then
 the compensated one on the mock and compare the standoff along what was really deposited
@@ -40,25 +53,24 @@ the nozzle the compensate children write for (default: the profile's first).
 
 from __future__ import annotations
 
-import json
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
-from sqlmodel import Session, select
+from sqlmodel import Session
 
-from app.reference.evaluation import predicted_width, table_row
-from app.errors import Cancelled, ConformaError, InvalidInput
+from app.errors import InvalidInput
 from app.jobs.context import JobContext
-from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
-from app.jobs.machine_jobs import refuse_if_machine_busy
-from app.jobs.registry import JobParams, get_kind, job_kind
+from app.jobs.loop_files import write_loop_files
+from app.jobs.loop_gates import Gates, PausePoint
 from app.jobs.loop_results import ClosedLoopResult
-from app.jobs.inputs import nominal_of
-from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
-                              RegisterResult, program_artifacts, reconstruct_rows)
-from app.jobs.simulation import evaluate_print, xy_error
-from app.reconstruction.field_trust import measured_bound, verification_line
+from app.jobs.loop_steps import (Steps, TypedResults, board_batch, is_sequential, more_rounds, plan_params,
+                                 print_trace, probe_rings, run_params, trace_children)
+from app.jobs.machine_jobs import refuse_if_machine_busy
+from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
+from app.jobs.registry import JobParams, job_kind
+from app.jobs.results import ProbePlanResult, RegisterResult
 from app.models import Job, Machine, Trace
+from app.reconstruction.field_trust import measured_bound, verification_line
 from app.records import get_or_404
 
 STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
@@ -113,6 +125,13 @@ class ClosedLoopParams(JobParams):
                              "false: one plan for the given prior (+ its verification points)")
     touch_budget: int = Field(2000, ge=1, le=100_000, description="sequential planning: the most touches in all")
     max_rounds: int = Field(4, ge=1, le=10, description="sequential planning: the most rounds after the pilot")
+    pause_at: list[PausePoint] = Field(default_factory=list, max_length=4, description="where the loop waits "
+                                       "for an operator (plan, probed, verified, print): the job is then waiting "
+                                       "until POST /jobs/{id}/continue, accept, add-stations or abandon; none by "
+                                       "default (the console asks for all)")
+    end_hold_max_mm: float = Field(0.5, ge=0, le=5, description="a trace's end beyond its own probes (a trace "
+                                   "starting on a pad): up to this gap the deviation at the nearest probe is held "
+                                   "(the trace's held_ends_mm), beyond it the loop stops naming the trace")
     board_batch: int = Field(250, ge=1, le=MAX_FIELD_TRACES, description="traces per board reconstruct / compensate "
                              "job (a resumed loop reuses every finished batch)")
 
@@ -167,39 +186,12 @@ def _references(params: ClosedLoopParams) -> list[tuple[str, str]]:
     return [("part", params.part_id), ("machine", params.machine_id), *(("trace", t) for t in params.trace_ids)]
 
 
-class _Steps:
-    """Runs child jobs, reusing a succeeded child of an earlier attempt of this parent that
-    had exactly the same kind and (validated) parameters."""
-
-    def __init__(self, ctx: JobContext) -> None:
-        self.ctx = ctx
-        with ctx.session() as session:
-            done = session.exec(select(Job).where(Job.parent_id == ctx.job_id, Job.status == "succeeded")).all()
-        self.reusable = {(j.kind, json.dumps(j.params, sort_keys=True)): j for j in done}
-
-    def run(self, kind: str, params: dict[str, Any], trace_id: str | None) -> Job:
-        normalized = get_kind(kind).params.model_validate(params).model_dump(mode="json")
-        key = (kind, json.dumps(normalized, sort_keys=True))
-        if key in self.reusable:
-            return self.reusable[key]
-        [job] = self.ctx.wait_for([self.ctx.submit_child(kind, params)])
-        if job.status == "cancelled":  # the loop's cancel reached its child first, or a user cancelled the step
-            step = kind if trace_id is None else f"{kind} of trace {trace_id}"
-            raise Cancelled(f"{step} was cancelled", field="trace_ids", value=trace_id)
-        if job.status != "succeeded":
-            detail = (job.error or {}).get("detail", job.status)
-            if trace_id is None:
-                raise ConformaError(f"{kind} {job.status}: {detail}", field=kind, value=job.id)
-            raise ConformaError(f"{kind} of trace {trace_id} {job.status}: {detail}", field="trace_ids", value=trace_id)
-        return job
-
-
 @job_kind("closed_loop", ClosedLoopParams, queue="workflow", check=_check, references=_references)
 def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
-    """Probe, rebuild and compensate every trace on a machine (and print, and evaluate)."""
+    """Probe, rebuild and compensate every trace on a machine (and print, and evaluate),
+    pausing at ``pause_at`` (:mod:`app.jobs.loop_gates`)."""
     machine = ctx.machine(params.machine_id)
-    steps = _Steps(ctx)
-    per_trace, rows = [], []
+    steps, gates = Steps(ctx), Gates(ctx, list(params.pause_at))
     total = len(params.trace_ids)
     placed: dict[str, Any] = {}
     registration = None
@@ -208,124 +200,148 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         registration = steps.run("register", {**params.registration_params, "part_id": params.part_id,
                                               "machine_id": params.machine_id}, None)
         placed = {"registration_job_id": registration.id}
-    shared = None
-    if params.joint_probing:
-        shared = _plan_and_probe(steps, params, placed, machine.dialect, None, (0.0, f"probing all {total} traces"))
+    shared, runs, rounds = _probe(steps, gates, params, placed, machine.dialect)
+    gates.gate("probed", _probed_summary(runs, total), round_=rounds)
     board = shared is not None and params.board_jobs and bool(ProbePlanResult.of(shared[0]).field)
     batch = params.board_batch if board else 1
+    per_trace: list[dict[str, Any]] = []
     checks: list[dict[str, Any]] = []
-    typed = _TypedResults()  # each child's result read once, not once per trace of a board
+    typed = TypedResults()  # each child's result read once, not once per trace of a board
     for lo in range(0, total, batch):
+        ctx.progress(0.4 + 0.4 * lo / total, f"traces {lo + 1}-{min(lo + batch, total)}/{total}: rebuilding "
+                     "and compensating")
+        held: list[float] | None = None
         if board:
             assert shared is not None
-            done = _board_batch(steps, params, placed, shared, params.trace_ids[lo:lo + batch],
-                                (lo / total, f"traces {lo + 1}-{min(lo + batch, total)}/{total}: rebuilding and compensating"))
+            done = board_batch(steps, params, placed, shared, params.trace_ids[lo:lo + batch])
         else:
-            done = [_trace_children(steps, params, placed, machine.dialect, shared, lo, total)]
-        for index, (trace_id, plan, probe, rebuilt, compensated, deviation, (printed, plain)) in enumerate(done, lo):
+            plan, probe = shared or runs[lo]
+            one, held = trace_children(steps, params, placed, plan, probe, params.trace_ids[lo])
+            done = [one]
+        for trace_id, plan, probe, rebuilt, compensated, deviation, (printed, plain) in done:
             entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
                      "compensate": compensated.id, "probes": typed.probe_count(plan, trace_id),
                      "deviation_max_mm": deviation}
             if board:
                 entry |= {"print_artifact": printed, "nominal_artifact": plain}
+            if held is not None:
+                entry["held_ends_mm"] = held
             check = _field_check(rebuilt, trace_id, entry, plan, typed)
             if check is not None and (not checks or checks[-1] is not check):
                 checks.append(check)
-            held = any(c["needs_attention"] for c in checks)
-            _print_trace(ctx, steps, params, machine, index, entry, rows, hold_print=held)
             per_trace.append(entry)
-            ctx.progress((index + 1) / total, f"{index + 1}/{total} traces done")
-    result: dict[str, Any] = {"traces": per_trace, "table": rows}
+    result: dict[str, Any] = {"traces": per_trace, "table": []}
+    attention = False
     if checks:
         result["verdict"] = loop_verdict(checks, per_trace, params.print)
         result["verdict"]["retouched"] = [] if shared is None else retouched(shared[0])
-        if result["verdict"]["needs_attention"]:
-            result["needs_attention"] = True  # the job ends needs_attention, not succeeded
-            ctx.progress(1.0, f"{total}/{total} traces done; NEEDS ATTENTION: {result['verdict']['reasons'][0]}"
-                         + ("; nothing printed" if params.print else ""))
+        attention = bool(result["verdict"]["needs_attention"])
+    gates.gate("verified", _verified_summary(result, per_trace), round_=rounds, attention=attention)
+    accepted = gates.decisions.accepted
+    if accepted is not None and attention:
+        result["verdict"] |= {"accepted": accepted, "printing_held": False}
+    hold = attention and accepted is None
+    rings = probe_rings(ctx, params.trace_ids) if params.print or params.evaluate else set()
+    printed = [entry for entry in per_trace if entry["trace_id"] not in rings]
+    if (params.print or params.evaluate) and not hold:
+        gates.gate("print", _print_summary(printed, params), round_=rounds)
+    for index, entry in enumerate(per_trace):
+        if entry["trace_id"] in rings:
+            entry["role"] = "pad_probe"  # a pad's probe ring: probed and rebuilt, never printed
+        else:
+            print_trace(ctx, steps, params, machine, index, entry, result["table"], hold_print=hold)
+        ctx.progress(0.8 + 0.2 * (index + 1) / total, f"{index + 1}/{total} traces done")
+    if hold:
+        result["needs_attention"] = True  # the job ends needs_attention, not succeeded
+        ctx.progress(1.0, f"{total}/{total} traces done; NEEDS ATTENTION: {result['verdict']['reasons'][0]}"
+                     + ("; nothing printed" if params.print else ""))
     if registration is not None:
         result["registration"] = {"job_id": registration.id, **RegisterResult.of(registration).echo()}
-    from app.jobs.loop_files import write_loop_files  # the loop's own files, kept out of this module
-
     result["files"] = write_loop_files(ctx, params.machine_id, result)
     return ClosedLoopResult.written(result)
 
 
-Done = tuple[str, Job, Job, Job, Job, float, tuple[str, str]]
-"""One trace's children: (trace_id, plan, probe run, reconstruct, compensate, deviation max mm,
-(print artifact, nominal artifact))."""
+def _probe(steps: Steps, gates: Gates, params: ClosedLoopParams, placed: dict[str, Any],
+           dialect: str) -> tuple[tuple[Job, Job] | None, list[tuple[Job, Job]], int]:
+    """Every plan, then (after the ``plan`` pause) every probe run: (the joint (plan, run) or
+    None, each (plan, run) made, the round of stations added on request)."""
+    total = len(params.trace_ids)
+    if not params.joint_probing:
+        plans = [steps.run("probe_plan", plan_params(params, placed, dialect, t), t) for t in params.trace_ids]
+        gates.gate("plan", _plan_summary(plans, total))
+        runs = []
+        for index, (trace_id, plan) in enumerate(zip(params.trace_ids, plans)):
+            steps.ctx.progress(0.4 * index / total, f"trace {index + 1}/{total}: probing")
+            runs.append((plan, steps.run("probe_run", {"plan_job_id": plan.id, **run_params(params)}, trace_id)))
+        return None, runs, 0
+    base = plan_params(params, placed, dialect, None)
+    pilot = {"verify_count": 0, "pilot": True} if is_sequential(params) else {}  # coarse; the last round verifies
+    plan = steps.run("probe_plan", {**base, **pilot}, None)
+    gates.gate("plan", _plan_summary([plan], total))
+    steps.ctx.progress(0.05, f"probing all {total} traces")
+    probe = steps.run("probe_run", {"plan_job_id": plan.id, **run_params(params)}, None)
+    plan, probe = more_rounds(steps, params, base, plan, probe, 0.05)
+    runs = [(plan, probe)]
+    for round_, asked in enumerate(gates.decisions.replans, start=1):  # stations an operator added
+        prior = {k: asked[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in asked}
+        following = steps.run("probe_plan", {**base, **prior, "fixed_run_job_id": probe.id,
+                                             "touch_budget": asked.get("touch_budget") or params.touch_budget}, None)
+        gates.gate("plan", _plan_summary([following], total), round_=round_)
+        if ProbePlanResult.of(following).count:
+            steps.ctx.progress(0.1, f"round {round_} asked by an operator: "
+                               f"{ProbePlanResult.of(following).count} touches")
+            plan, probe = following, steps.run("probe_run", {"plan_job_id": following.id, **run_params(params)},
+                                               None)
+            runs.append((plan, probe))
+    return (plan, probe), runs, len(gates.decisions.replans)
 
 
-def _trace_children(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any], dialect: str,
-                    shared: tuple[Job, Job] | None, index: int, total: int) -> Done:
-    """A reconstruct and a compensate child of one trace (and its own plan and run unless shared)."""
-    trace_id = params.trace_ids[index]
-    plan, probe = shared or _plan_and_probe(steps, params, placed, dialect, trace_id,
-                                            ((index + 0.25) / total, f"trace {index + 1}/{total}: probing"))
-    prior = {k: params.probe[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in params.probe}
-    method = "field" if ProbePlanResult.of(plan).field else params.reconstruct_method
-    rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, **prior,
-                                        "trace_id": trace_id, "probe_run_job_id": probe.id,
-                                        "method": method, "sigma_mm": params.sigma_mm,
-                                        **_corrections_for("reconstruct", params)}, trace_id)
-    steps.ctx.progress((index + 0.5) / total, f"trace {index + 1}/{total}: compensating")
-    compensated = steps.run("compensate", {"trace_id": trace_id, "reconstruct_job_id": rebuilt.id,
-                                           "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
-                                           "hold_mm": params.hold_mm, **_tool_of(params)}, trace_id)
-    return (trace_id, plan, probe, rebuilt, compensated, ReconstructResult.of(rebuilt).deviation.max_mm,
-            program_artifacts(CompensateResult.of(compensated)))
+SUMMARY_TRACES = 200  # a pause's summary lists at most this many traces (the children hold every one)
 
 
-def _board_batch(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any], shared: tuple[Job, Job],
-                 trace_ids: list[str], progress: tuple[float, str]) -> list[Done]:
-    """ONE reconstruct and ONE compensate child for a batch of a field plan's traces."""
-    plan, probe = shared
-    steps.ctx.progress(*progress)
-    rebuilt = steps.run("reconstruct", {**_placement_of(params.probe), **placed, "trace_ids": trace_ids,
-                                        "probe_run_job_id": probe.id, "method": "field", "sigma_mm": params.sigma_mm,
-                                        **_corrections_for("reconstruct", params)}, None)
-    compensated = steps.run("compensate", {"trace_ids": trace_ids, "reconstruct_job_id": rebuilt.id,
-                                           "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
-                                           "hold_mm": params.hold_mm, **_tool_of(params)}, None)
-    deviations = {t: row.deviation.max_mm for t, row in reconstruct_rows(rebuilt).items()}
-    return [(r.trace_id, plan, probe, rebuilt, compensated, deviations[r.trace_id], program_artifacts(r))
-            for r in CompensateBoardResult.of(compensated).traces]
+def _plan_summary(plans: list[Job], total: int) -> dict[str, Any]:
+    """What the operator reviews before anything moves: touches and their predicted error."""
+    results = [ProbePlanResult.of(p) for p in plans]
+    touches = sum(r.count for r in results)
+    sds = [t.predicted_sd_mm for r in results for t in (r.traces or ()) if t.predicted_sd_mm is not None]
+    worst = 3 * max(sds) if sds else None
+    line = f"{touches} touches on {total} trace(s)" + ("" if worst is None else
+                                                       f"; predicted error (3 sigma) <= {worst * 1000:.1f} um")
+    return {"headline": line, "touches": touches, "predicted_error_mm": worst, "plans": [p.id for p in plans]}
 
 
-class _TypedResults:
-    """The children's results read through their models once per job (a board's children
-    serve every trace of their batch: reading them per trace costs traces x rows)."""
+def _probed_summary(runs: list[tuple[Job, Job]], total: int) -> dict[str, Any]:
+    """The touches made (the last run of each trace or of the joint plan: it holds them all)."""
+    stats = [(run.result or {}).get("stats") or {} for _plan, run in runs]
+    touches = sum(int(s.get("count") or 0) for s in stats)
+    worst = max((float(s["max_abs_mm"]) for s in stats if s.get("max_abs_mm") is not None), default=None)
+    line = f"{touches} touches made on {total} trace(s)" + ("" if worst is None else
+                                                            f"; largest |real - model| {worst * 1000:.1f} um")
+    return {"headline": line, "touches": touches, "max_abs_mm": worst, "runs": [run.id for _plan, run in runs]}
 
-    def __init__(self) -> None:
-        self._rows: dict[str, dict[str, Any]] = {}
-        self._counts: dict[str, tuple[dict[str, int], int]] = {}
-        self._indices: dict[str, dict[str, int]] = {}
 
-    def reconstruct_rows(self, rebuilt: Job) -> dict[str, Any]:
-        if rebuilt.id not in self._rows:
-            self._rows[rebuilt.id] = reconstruct_rows(rebuilt)
-        return self._rows[rebuilt.id]
+def _verified_summary(result: dict[str, Any], traces: list[dict[str, Any]]) -> dict[str, Any]:
+    """Every trace rebuilt and compensated, and the field's verdict when there is one."""
+    verdict = result.get("verdict")
+    worst = max((t["deviation_max_mm"] for t in traces), default=0.0)
+    line = verdict["verified"] if verdict else f"{len(traces)} trace(s) rebuilt and compensated"
+    if verdict and verdict["needs_attention"]:
+        line = f"NEEDS ATTENTION: {verdict['reasons'][0]}"
+    keep = ("trace_id", "deviation_max_mm", "bound_mm", "worse_than_nominal", "held_ends_mm", "compensate",
+            "print_artifact")
+    return {"headline": line, "deviation_max_mm": worst, "verdict": verdict, "trace_count": len(traces),
+            "traces": [{k: t[k] for k in keep if k in t} for t in traces[:SUMMARY_TRACES]],
+            "held_ends": [t["trace_id"] for t in traces if t.get("held_ends_mm")]}
 
-    def probe_count(self, plan: Job, trace_id: str) -> int:
-        """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's; a
-        field plan's stations on that trace)."""
-        if plan.id not in self._counts:
-            result = ProbePlanResult.of(plan)
-            counts = {e.trace_id: int(e.stations if e.stations is not None else e.count or 0)
-                      for e in reversed(result.traces or ())}  # reversed: a trace's first entry wins
-            self._counts[plan.id] = (counts, result.count)
-        counts, every = self._counts[plan.id]
-        return counts.get(trace_id, every)
 
-    def trace_index(self, plan: Job, trace_id: str) -> int:
-        if plan.id not in self._indices:
-            ids = plan.params.get("trace_ids") or [plan.params.get("trace_id")]
-            self._indices[plan.id] = {t: i for i, t in reversed(list(enumerate(ids)))}
-        return self._indices[plan.id][trace_id]
+def _print_summary(traces: list[dict[str, Any]], params: ClosedLoopParams) -> dict[str, Any]:
+    what = "print the nominal and the compensated program of" if params.evaluate else "print"
+    return {"headline": f"{what} {len(traces)} trace(s) on machine {params.machine_id}: the machine will move",
+            "trace_count": len(traces), "compensate": [t["compensate"] for t in traces[:SUMMARY_TRACES]]}
 
 
 def _field_check(rebuilt: Job, trace_id: str, entry: dict[str, Any], plan: Job,
-                 typed: _TypedResults) -> dict[str, Any] | None:
+                 typed: TypedResults) -> dict[str, Any] | None:
     """A field reconstruct child's check (the same dict object for every trace of one child);
     fills the trace's ``bound_mm`` and ``worse_than_nominal``.  None for other methods."""
     result = rebuilt.result or {}
@@ -372,101 +388,8 @@ def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], pri
             "exclusions": first.get("exclusions", []), "worse_traces": worse,
             "printing_held": bool(reasons) and printing, "suggested_probe": suggested,
             "actions": [] if not reasons else [
-                "add stations and refit: run the loop again with probe = suggested_probe (the fitted prior)",
-                "or accept explicitly: print the compensate jobs' programs from the machines page"]}
+                "add stations and refit: POST /jobs/{id}/add-stations (one more round planned from the run, "
+                "with suggested_probe, the fitted prior, as its start)",
+                "or accept explicitly: POST /jobs/{id}/accept (the loop prints what it holds and says it was accepted)"]}
 
 
-def _print_trace(ctx: JobContext, steps: _Steps, params: ClosedLoopParams, machine: Machine, index: int,
-                 entry: dict[str, Any], rows: list[dict[str, Any]], hold_print: bool = False) -> None:
-    """Print (or, with ``evaluate``, print both programs of and measure) one compensated trace;
-    ``hold_print``: the field check asks for attention, so nothing is printed automatically
-    (``evaluate``, a simulation on a mock machine, still measures both programs)."""
-    trace_id = entry["trace_id"]
-    artifacts = {"nominal.gcode": entry.get("nominal_artifact", "nominal.gcode"),
-                 "print.gcode": entry.get("print_artifact", "print.gcode")}
-    if params.evaluate:
-        trace = ctx.trace(trace_id)
-        world = ctx.runtime.machines.world(machine)  # built when the probe run connected
-        reports = {}
-        for artifact in ("nominal.gcode", "print.gcode"):
-            start = len(world.deposition_log)
-            steps.run("print", {"machine_id": params.machine_id, "job_id": entry["compensate"],
-                                "artifact": artifacts[artifact], "drift_reference": params.corrections.drift}, trace_id)
-            reports[artifact] = (evaluate_print(world, start, trace.standoff_mm),
-                                 xy_error(world, start, nominal_of(trace).points))
-        (before, xy_before), (after, xy_after) = reports["nominal.gcode"], reports["print.gcode"]
-        row = table_row(index + 1, before, after, entry["probes"])
-        rows.append(row.as_dict() | {"trace_id": trace_id, "name": trace.name,
-                                     "xy_max_before_um": round(xy_before.max_mm * 1000, 2),
-                                     "xy_max_after_um": round(xy_after.max_mm * 1000, 2)})
-        entry["evaluation"] = {"nominal": _report(before, xy_before), "compensated": _report(after, xy_after)}
-    elif params.print and not hold_print:
-        entry["print"] = steps.run("print", {"machine_id": params.machine_id, "job_id": entry["compensate"],
-                                             "artifact": artifacts["print.gcode"],
-                                             "drift_reference": params.corrections.drift}, trace_id).id
-
-
-def _plan_and_probe(steps: _Steps, params: ClosedLoopParams, placed: dict[str, Any], dialect: str,
-                    trace_id: str | None, progress: tuple[float, str]) -> tuple[Job, Job]:
-    """The probe_plan and probe_run children of one trace, or (``trace_id`` None) of every
-    trace of the loop together (joint probing); ``progress`` is reported between them (a
-    cancel that came during planning stops the loop before the machine is used)."""
-    target: dict[str, Any] = {"trace_ids": params.trace_ids} if trace_id is None else {"trace_id": trace_id}
-    default = {} if trace_id is None else {"method": "deviation"}  # joint: the planner's default (field)
-    sequential = trace_id is None and params.sequential and params.probe.get("method", "field") == "field"
-    pilot = {"verify_count": 0, "pilot": True} if sequential else {}  # coarse; the last round verifies
-    base = {**default, **params.probe, **placed, **target, "dialect": dialect}
-    plan = steps.run("probe_plan", {**base, **pilot}, trace_id)
-    steps.ctx.progress(*progress)
-    run = {"machine_id": params.machine_id, **_corrections_for("probe_run", params)}
-    probe = steps.run("probe_run", {"plan_job_id": plan.id, **run}, trace_id)
-    for round_ in range(params.max_rounds if sequential else 0):
-        following = steps.run("probe_plan", {**base, "fixed_run_job_id": probe.id,
-                                             "touch_budget": params.touch_budget}, trace_id)
-        field = ProbePlanResult.of(following).field or {}
-        steps.ctx.progress(progress[0], f"sequential round {round_ + 1}: {field['sequential']['added']} stations "
-                           f"added, {ProbePlanResult.of(following).count} touches")
-        if ProbePlanResult.of(following).count == 0:
-            break
-        plan, probe = following, steps.run("probe_run", {"plan_job_id": following.id, **run}, trace_id)
-        if field["sequential"]["final"]:
-            break
-    if trace_id is None and not sequential and ProbePlanResult.of(plan).field:
-        # single shot: a touch the fitted field would exclude is touched once more before it may be
-        again = steps.run("probe_plan", {**base, "fixed_run_job_id": probe.id, "retouch_only": True}, trace_id)
-        if ProbePlanResult.of(again).count:
-            steps.ctx.progress(progress[0], f"{ProbePlanResult.of(again).count} suspected outliers touched again")
-            plan, probe = again, steps.run("probe_run", {"plan_job_id": again.id, **run}, trace_id)
-    return plan, probe
-
-
-def _corrections_for(kind: str, params: ClosedLoopParams) -> dict[str, Any]:
-    """The measuring corrections (radius, pretravel, drift) a child kind takes, as its
-    ``corrections`` parameter lists them (nothing for a kind without one)."""
-    fields = get_kind(kind).params.model_fields
-    if "corrections" not in fields:
-        return {}
-    wanted = params.corrections.model_dump()
-    annotation = fields["corrections"].annotation
-    names = getattr(annotation, "model_fields", None)
-    return {"corrections": {k: v for k, v in wanted.items() if names is None or k in names}}
-
-
-def _tool_of(params: ClosedLoopParams) -> dict[str, Any]:
-    """compensate's tool and offsets correction (defaults left out: the child's own)."""
-    out: dict[str, Any] = {} if params.tool is None else {"tool": params.tool}
-    if not params.corrections.offsets:
-        out["corrections"] = {"offsets": False}
-    return out
-
-
-def _placement_of(probe: dict[str, Any]) -> dict[str, Any]:
-    """An explicit placement among the probe parameters also applies to the reconstruction."""
-    return {k: probe[k] for k in ("placement", "registration_job_id") if k in probe}
-
-
-def _report(report: Any, xy: Any) -> dict[str, float]:
-    width = predicted_width(report)
-    return {"standoff_error_max_mm": report.max_abs_error_mm, "standoff_error_rms_mm": report.rms_error_mm,
-            "width_mean_mm": width.mean_mm, "width_std_mm": width.std_mm, "length_mm": report.length_mm,
-            "xy_error_max_mm": xy.max_mm, "xy_error_rms_mm": xy.rms_mm}
