@@ -9,5 +9,6 @@ PURE core (no FastAPI, database, viewer or hardware):
   part (``project``: vertical projection; ``wrap``: length-preserving geodesic unrolling);
 * ``fills`` turns pads and areas into contour + raster paths at the line width;
 * ``warp`` moves every printing move of a G-code program onto a measured surface with a
-  proved chord bound.
+  chord bound proved against the height model (``height_model`` chooses that model from the
+  probes by cross-validation and states its own error beside the bound).
 """

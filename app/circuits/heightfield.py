@@ -13,7 +13,6 @@ L^2 / 8 * max over the cells the segment's bounding box touches (2-D sparse-tabl
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -30,7 +29,7 @@ from app.geometry.tolerance import LENGTH_EPS_MM
 #: outside the hull's edge still counts as inside
 _HULL_BARYCENTRIC_TOL = 1e-9
 
-__all__ = ["HeightField", "HeightModel", "Inside", "Region", "height_model_from_points"]
+__all__ = ["HeightField", "Inside", "Region", "checked_points", "height_field_from_points", "points_region"]
 
 #: ``inside(x (n,), y (n,)) -> (n,) bool``: whether points (mm) lie in a measured region
 Inside = Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.bool_]]
@@ -111,7 +110,7 @@ class HeightField:
 
     def curvature_bound(self, x0: npt.NDArray[np.float64], y0: npt.NDArray[np.float64], x1: npt.NDArray[np.float64],
                         y1: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """Proved bound (n,) 1/mm on |d^2 h / ds^2| along each segment (x0, y0) -> (x1, y1)."""
+        """Bound (n,) 1/mm (proved for this spline) on |d^2 h / ds^2| along each segment (x0, y0) -> (x1, y1)."""
         ncx, ncy = self._table[0].shape
         ix0 = np.clip(np.searchsorted(self._tx, np.minimum(x0, x1), side="right") - 1, 0, ncx - 1)
         ix1 = np.clip(np.searchsorted(self._tx, np.maximum(x0, x1), side="right") - 1, 0, ncx - 1)
@@ -134,7 +133,7 @@ class HeightField:
         return out
 
 
-def _checked_points(points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+def checked_points(points: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """``points`` as (n, 3) finite mm, at least 4 spanning an area (else WarpError)."""
     pts = np.asarray(points, float)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4 or not np.isfinite(pts).all():
@@ -150,7 +149,7 @@ def points_region(points: npt.ArrayLike) -> Region:
     """The measured region of scattered surface points (n, 3) mm, as :func:`height_field_from_points`
     defines it (their convex hull), without building the field: :class:`Region` (inside(x (m,), y (m,))
     -> (m,) bool, bounds (x0, x1, y0, y1) mm)."""
-    pts = _checked_points(points)
+    pts = checked_points(points)
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     hull = Delaunay(pts[:, :2])
 
@@ -169,7 +168,7 @@ def height_field_from_points(points: npt.ArrayLike, spacing_mm: float = 1.0) -> 
     box; the measured region is their convex hull (grid nodes outside it take the nearest value)."""
     from scipy.interpolate import CloughTocher2DInterpolator, NearestNDInterpolator
 
-    pts = _checked_points(points)
+    pts = checked_points(points)
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     nx = max(4, int(np.ceil((hi[0] - lo[0]) / spacing_mm)) + 1)
     ny = max(4, int(np.ceil((hi[1] - lo[1]) / spacing_mm)) + 1)
@@ -180,122 +179,3 @@ def height_field_from_points(points: npt.ArrayLike, spacing_mm: float = 1.0) -> 
     if missing.any():
         z[missing] = NearestNDInterpolator(pts[:, :2], pts[:, 2])(X[missing], Y[missing])
     return HeightField(x, y, z, hull_points=pts[:, :2])
-
-
-class HeightModel(NamedTuple):
-    """How a height field was built from probe points: ``kind`` ("grid_bicubic": the interpolating
-    bicubic spline on the probes' own grid; "clough_tocher": C1 interpolation of the scattered
-    points resampled onto a grid); ``cv`` the cross-validation scheme ("leave_one_row_out" on a
-    grid: every interior grid row and column left out in turn and predicted; "leave_one_out",
-    "10_fold", "holdout_10pct" on scattered points); ``cv_rms_mm``, ``cv_max_mm`` its prediction errors (the
-    model's own uncertainty: the chord bound holds against the model, this is how far the model
-    may be from the part); ``alternatives``: {kind: cv rms mm} of every model compared."""
-
-    kind: str
-    cv: str
-    cv_rms_mm: float
-    cv_max_mm: float
-    alternatives: dict[str, float]
-
-
-#: scattered points above this many are cross-validated in 10 folds instead of one by one
-#: (each fold rebuilds the interpolant: 10 builds bound the cost)
-_LOO_MAX_POINTS = 30
-#: and above this many (a fitted surface's samples) one tenth is held out once
-_ONE_FOLD_POINTS = 1000
-_GRID_DECIMALS = 6
-
-
-def _as_grid(pts: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64],
-                                                    npt.NDArray[np.float64]] | None:
-    """(x (nx,), y (ny,), z (nx, ny)) when the points are every node of a rectangular grid, else None."""
-    xr, yr = np.round(pts[:, 0], _GRID_DECIMALS), np.round(pts[:, 1], _GRID_DECIMALS)
-    ux, ix = np.unique(xr, return_inverse=True)
-    uy, iy = np.unique(yr, return_inverse=True)
-    if len(ux) * len(uy) != len(pts) or len(ux) < 4 or len(uy) < 4:
-        return None
-    z = np.full((len(ux), len(uy)), np.nan)
-    z[ix, iy] = pts[:, 2]
-    if not np.isfinite(z).all():
-        return None
-    return ux, uy, z
-
-
-def _ct_predict(train: npt.NDArray[np.float64], at: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Clough-Tocher of ``train`` (n, 3) at ``at`` (m, 2), the nearest point outside its hull."""
-    from scipy.interpolate import CloughTocher2DInterpolator, NearestNDInterpolator
-
-    z: npt.NDArray[np.float64] = CloughTocher2DInterpolator(train[:, :2], train[:, 2])(at)
-    missing = ~np.isfinite(z)
-    if missing.any():
-        z[missing] = NearestNDInterpolator(train[:, :2], train[:, 2])(at[missing])
-    return z
-
-
-def _grid_row_cv(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64],
-                 z: npt.NDArray[np.float64]) -> dict[str, npt.NDArray[np.float64]]:
-    """Prediction errors (mm) of both models when each interior grid row (x) and column (y) is
-    left out in turn: {kind: errors}."""
-    errors: dict[str, list[npt.NDArray[np.float64]]] = {"grid_bicubic": [], "clough_tocher": []}
-    X, Y = np.meshgrid(x, y, indexing="ij")
-    pts = np.column_stack([X.ravel(), Y.ravel(), z.ravel()])
-    for axis, coords in ((0, x), (1, y)):
-        if len(coords) < 5:
-            continue                            # a bicubic needs 4 rows after one is left out
-        for k in range(1, len(coords) - 1):
-            keep = np.arange(len(coords)) != k
-            if axis == 0:
-                spline = RectBivariateSpline(x[keep], y, z[keep], kx=3, ky=3, s=0)
-                truth, at = z[k], np.column_stack([np.full(len(y), x[k]), y])
-            else:
-                spline = RectBivariateSpline(x, y[keep], z[:, keep], kx=3, ky=3, s=0)
-                truth, at = z[:, k], np.column_stack([x, np.full(len(x), y[k])])
-            errors["grid_bicubic"].append(spline.ev(at[:, 0], at[:, 1]) - truth)
-            held = np.isclose(pts[:, axis], coords[k])
-            errors["clough_tocher"].append(_ct_predict(pts[~held], at) - truth)
-    return {kind: np.concatenate(e) if e else np.zeros(0) for kind, e in errors.items()}
-
-
-def _scattered_cv(pts: npt.NDArray[np.float64]) -> tuple[str, npt.NDArray[np.float64]]:
-    """(scheme, errors mm) of Clough-Tocher on scattered points: leave-one-out, or 10 folds."""
-    n = len(pts)
-    folds = n if n <= _LOO_MAX_POINTS else 10
-    order = np.random.default_rng(0).permutation(n)
-    errors = []
-    for f in range(folds if n <= _ONE_FOLD_POINTS else 1):
-        held = order[f::folds]
-        keep = np.ones(n, bool)
-        keep[held] = False
-        if keep.sum() < 4:
-            continue
-        errors.append(_ct_predict(pts[keep], pts[held, :2]) - pts[held, 2])
-    scheme = "leave_one_out" if folds == n else ("10_fold" if n <= _ONE_FOLD_POINTS else "holdout_10pct")
-    return scheme, (np.concatenate(errors) if errors else np.zeros(0))
-
-
-def _summary(errors: npt.NDArray[np.float64]) -> tuple[float, float]:
-    if not len(errors):
-        return math.nan, math.nan
-    return float(np.sqrt(np.mean(errors ** 2))), float(np.abs(errors).max())
-
-
-def height_model_from_points(points: npt.ArrayLike, spacing_mm: float = 1.0) -> tuple[HeightField, HeightModel]:
-    """The height field the probe points (n, 3) mm support best, and how it was chosen: on a
-    full rectangular grid, the interpolating bicubic on that grid or Clough-Tocher resampled at
-    ``spacing_mm``, whichever predicts left-out grid rows and columns better; scattered points,
-    Clough-Tocher (:func:`height_field_from_points`) with its leave-one-out error."""
-    pts = _checked_points(points)
-    grid = _as_grid(pts)
-    if grid is not None:
-        errors = _grid_row_cv(*grid)
-        if len(errors["grid_bicubic"]):
-            scores = {kind: _summary(e) for kind, e in errors.items()}
-            kind = min(scores, key=lambda k: scores[k][0])
-            model = HeightModel(kind, "leave_one_row_out", *scores[kind], {k: v[0] for k, v in scores.items()})
-            if kind == "grid_bicubic":
-                return HeightField(*grid, hull_points=pts[:, :2]), model
-            return height_field_from_points(pts, spacing_mm), model
-    scheme, errs = _scattered_cv(pts)
-    rms, worst = _summary(errs)
-    return height_field_from_points(pts, spacing_mm), HeightModel("clough_tocher", scheme, rms, worst,
-                                                                  {"clough_tocher": rms})

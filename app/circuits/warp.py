@@ -56,7 +56,8 @@ class WarpOptions:
 class WarpResult:
     """text: the warped program; lines_in (records read: a source line, or an arc's chord) /
     lines_out; printing_moves; pieces (emitted printing segments); max_bound_mm: the largest
-    proved chord bound of an emitted piece (<= chord_error_mm)."""
+    chord bound of an emitted piece (<= chord_error_mm), proved against the height field, not
+    the part (how far the field is from the part is the height model's own error)."""
 
     text: str
     lines_in: int

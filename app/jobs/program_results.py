@@ -56,7 +56,9 @@ class FixedSplit(BaseModel):
 class WarpHeightModel(BaseModel):
     """The height model the warp used, chosen by cross-validation on the surface's points: its
     kind, the scheme, the prediction error (rms, max mm: the model's own uncertainty beside the
-    chord bound, which holds against the model) and every model's rms compared."""
+    chord bound, which holds against the model), every model's rms compared, the kriging
+    candidate's parameters and exact leave-one-out error (scattered points), and the kriging
+    model's largest posterior sd over the measured region when it was chosen (mm)."""
 
     model_config = ConfigDict(extra="forbid")
     kind: str
@@ -64,12 +66,16 @@ class WarpHeightModel(BaseModel):
     cv_rms_mm: float | None
     cv_max_mm: float | None
     alternatives: dict[str, float | None]
+    kriging: dict[str, float] | None = None
+    posterior_sd_max_mm: float | None = None
 
 
 class WarpProgramResult(KindResult):
     """A warp_program job: lines in and out, printing moves, emitted pieces, the largest chord
-    bound against the height model (mm), the travel height (mm), the height model and its
-    cross-validated error, and the fixed split compared."""
+    bound against the height model (mm) and beside it ``model_error_mm``, how far the height
+    model itself may be from the part (its cross-validated max error, mm; None when it cannot
+    be measured): the chord bound is conditional on the model.  The travel height (mm), the
+    height model and how it was chosen, and the fixed split compared."""
 
     kind: ClassVar[str] = "warp_program"
     lines_in: int
@@ -77,6 +83,7 @@ class WarpProgramResult(KindResult):
     printing_moves: int
     pieces: int
     max_chord_bound_mm: float
+    model_error_mm: float | None = None
     safe_z_mm: float
     height_model: WarpHeightModel | None = None
     fixed_split: FixedSplit

@@ -59,6 +59,53 @@ def _plot(samples: list[list[float]], title: str) -> str:
             f'</svg><figcaption class="muted">{_e(title)}</figcaption></figure>')
 
 
+def _residual_color(t: float) -> str:
+    """Diverging colour of t in [-1, 1] (blue, white, red)."""
+    t = max(-1.0, min(1.0, t))
+    lo, mid, hi = (33, 102, 172), (247, 247, 247), (178, 24, 43)
+    a, b, u = (mid, hi, t) if t >= 0 else (mid, lo, -t)
+    return "#" + "".join(f"{round(x + (y - x) * u):02x}" for x, y in zip(a, b))
+
+
+def _residual_map(points: list[dict[str, Any]]) -> str:
+    """The verification residuals (measured − predicted) on the part's top view as an inline
+    SVG: one dot per point at its x, y (mm), coloured by residual on a symmetric scale with its
+    legend in µm; a point outside its band or where the correction does not help is ringed."""
+    pts = [p for p in points if isinstance(p.get("residual_mm"), (int, float))]
+    if not pts:
+        return ""
+    w, h, pad = 640, 360, 40
+    xs, ys = [p["xy"][0] for p in pts], [p["xy"][1] for p in pts]
+    x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
+    span = max(x1 - x0, y1 - y0, 1e-9)
+    lim = max(max(abs(p["residual_mm"]) for p in pts), 1e-12)
+
+    def at(x: float, y: float) -> tuple[float, float]:
+        return pad + (x - x0) / span * (w - 2 * pad - 90), h - pad - (y - y0) / span * (h - 2 * pad)
+
+    dots = []
+    for p in pts:
+        cx, cy = at(p["xy"][0], p["xy"][1])
+        flagged = not p.get("within", True) or p.get("worse", False)
+        dots.append(f'<circle cx="{cx:.1f}" cy="{cy:.1f}" r="7" fill="{_residual_color(p["residual_mm"] / lim)}" '
+                    f'stroke="{"#cf222e" if flagged else "#57606a"}" stroke-width="{3 if flagged else 1}">'
+                    f'<title>[{p["xy"][0]:.2f}, {p["xy"][1]:.2f}] mm: residual {p["residual_mm"] * 1000:+.1f} µm'
+                    f'{" (flagged)" if flagged else ""}</title></circle>')
+    steps = [-1.0, -0.5, 0.0, 0.5, 1.0]
+    legend = "".join(f'<rect x="{w - 80}" y="{pad + i * 22}" width="16" height="16" fill="{_residual_color(t)}" '
+                     f'stroke="#57606a"/><text x="{w - 58}" y="{pad + i * 22 + 13}" font-size="11">'
+                     f'{t * lim * 1000:+.1f} µm</text>' for i, t in enumerate(reversed(steps)))
+    title = "verification residuals, measured − predicted (top view; ringed: flagged)"
+    return (f'<figure><svg id="residual-map" viewBox="0 0 {w} {h}" width="{w}" height="{h}" role="img" '
+            f'aria-label="{_e(title)}">{"".join(dots)}{legend}'
+            f'<text x="{pad}" y="{h - 8}" font-size="11">x {x0:.1f}–{x1:.1f} mm, y {y0:.1f}–{y1:.1f} mm</text>'
+            f'</svg><figcaption class="muted">{_e(title)}</figcaption></figure>')
+
+
+def _relative(sd: Any) -> str:
+    return "—" if not isinstance(sd, (int, float)) else f"± {sd * 100:.0f} %"
+
+
 def _artifact_hash(records: RunRecords, job_id: str, name: str) -> str | None:
     for artifact in records.artifacts.get(job_id, []):
         if artifact["name"] == name:
@@ -124,6 +171,12 @@ def _trace_rows(records: RunRecords) -> tuple[list[list[Any]], list[str]]:
     return rows, plots
 
 
+#: what an operator can do about a misfit when the loop's verdict names no action of its own
+_MISFIT_ACTIONS = ["add stations and refit with the fitted prior (the wizard's one click)",
+                   "look for a step, chip or fixture fault where the residual map shows the flagged points",
+                   "or accept the programs explicitly before printing them"]
+
+
 def _verdict(verdict: dict[str, Any]) -> list[str]:
     """The field check: verified or needs attention (and why, and what to do), the learned
     prior against the one told, every verification point and every excluded touch."""
@@ -136,14 +189,15 @@ def _verdict(verdict: dict[str, Any]) -> list[str]:
                                                   ", ".join(verdict.get("worse_traces") or []) or "none")])]
     if verdict.get("reasons"):
         out.append("<ul>" + "".join(f"<li>{_e(r)}</li>" for r in verdict["reasons"]) + "</ul>")
-        out.append("<p>What to do: " + "; ".join(_e(a) for a in verdict.get("actions") or []) + ".</p>")
+        actions = list(verdict.get("actions") or []) or _MISFIT_ACTIONS
+        out.append('<p id="misfit-actions">What to do: ' + "; ".join(_e(a) for a in actions) + ".</p>")
     learned = verdict.get("learned")
     if learned:
         out += ["<h3>Prior learned from the touches (type-II maximum likelihood)</h3>",
-                _table(["parameter", "told", "learned", "relative sd", "at a bound"],
-                       [[name, learned[name]["prior"], learned[name]["value"], learned[name]["relative_sd"],
-                         learned[name]["at_bound"] or ""] for name in ("amplitude_mm", "wavelength_mm", "sigma_mm")],
-                       numeric={1, 2, 3}),
+                _table(["parameter", "told", "learned", "uncertainty (1 sd)", "at a bound"],
+                       [[name, learned[name]["prior"], f'{learned[name]["value"]:.4g}',
+                         _relative(learned[name]["relative_sd"]), learned[name]["at_bound"] or ""]
+                        for name in ("amplitude_mm", "wavelength_mm", "sigma_mm")], numeric={1, 2, 3}),
                 _facts([("touches", learned.get("touches")),
                         ("LOO statistic mean z² (limit)", f"{learned['loo']['statistic']:.2f} "
                                                          f"({learned['loo']['statistic_limit']:.2f})"),
@@ -155,7 +209,8 @@ def _verdict(verdict: dict[str, Any]) -> list[str]:
                         "within", "correction helps"],
                        [[round(p["xy"][0], 2), round(p["xy"][1], 2), p["trace"], _um(p["measured_mm"]),
                          _um(p["predicted_mm"]), _um(p["residual_mm"]), _um(p["limit_mm"]), p["within"],
-                         not p["worse"]] for p in points], numeric={0, 1, 3, 4, 5, 6})]
+                         not p["worse"]] for p in points], numeric={0, 1, 3, 4, 5, 6}),
+                _residual_map(points)]
     excluded = verdict.get("exclusions") or []
     out += ["<h3>Excluded touches</h3>",
             _table(["station", "x (mm)", "y (mm)", "trace", "deviation (µm)", "residual (µm)"],

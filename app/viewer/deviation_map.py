@@ -10,7 +10,8 @@ with units.
 - :func:`scene_legends`: one symmetric diverging scale in µm shared by every signed value
   of a scene (deviation ribbons, measured probes, standoff errors), so that colours compare
   across traces and between the nominal and the compensated program; plus one sequential
-  scale per unsigned map (the field's posterior sd).
+  scale per unsigned map (the field's posterior sd) and one diverging scale per map of
+  verification residuals (:mod:`app.viewer.residual_map`).
 
 Lengths mm in the data, µm in the legends.  numpy only.
 """
@@ -26,6 +27,7 @@ from app.viewer.scene_data import FocusScene, ScalarSurface
 from app.viewer.trace_math import project_onto_polyline
 
 SIGNED = "signed"
+RESIDUAL = "residual"
 
 
 @dataclass(frozen=True)
@@ -138,6 +140,13 @@ def scene_legends(scene: FocusScene) -> list[Legend]:
         legends.append(Legend(SIGNED, "deviation / standoff error (blue: low, red: high)", "µm", -limit * 1000,
                               limit * 1000, float(allv.min()) * 1000, float(allv.max()) * 1000,
                               DIVERGING_STOPS, len(values)))
+    for residuals in scene.residuals:
+        r = np.asarray(residuals.residual_mm, float)
+        if len(r):
+            limit = float(np.abs(r).max())
+            legends.append(Legend(f"{RESIDUAL}:{residuals.name}", "verification residual, measured - predicted "
+                                  "(blue: part below the field, red: above; ringed: flagged)", "µm", -limit * 1000,
+                                  limit * 1000, float(r.min()) * 1000, float(r.max()) * 1000, DIVERGING_STOPS, 1))
     for surface in scene.scalar_surfaces:
         if not surface.signed:
             values_s = np.asarray(surface.values, float)

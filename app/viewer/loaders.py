@@ -30,6 +30,7 @@ from app.records import get_or_404, joint_trace_ranges
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.gcode_paths import GcodeViewError
 from app.viewer.offload import ParsePool
+from app.viewer.residual_map import residual_map
 from app.viewer.scene_data import (
     AxisGlyphs,
     DeviationPlot,
@@ -350,7 +351,22 @@ class Loader:
                 replace(item, name=f"{child.kind}:{owner}:{item.name}") for item in getattr(scene, key))
                 for key in ("polylines", "probes", "toolpaths", "layers", "axes", "heights", "surfaces", "plots",
                             "scalar_surfaces")})
-        return merged
+        return self._loop_residuals(session, job, merged)
+
+    def _loop_residuals(self, session: Session, job: Job, scene: FocusScene) -> FocusScene:
+        """A field loop's verification residuals as a map on the part, and every trace its verdict
+        names worse than nominal drawn again, highlighted (role "flagged")."""
+        verdict = (job.result or {}).get("verdict")
+        if not verdict:
+            return scene
+        trace_ids = list((job.params or {}).get("trace_ids") or [])
+        traces = {t: self._trace(session, t) for t in trace_ids}
+        nominals = {t: nominal_of(tr).points for t, tr in traces.items() if tr is not None}
+        residuals = residual_map(verdict, trace_ids, nominals)
+        flagged = tuple(Polyline(f"{traces[t].name} {t} worse than nominal", nominals[t], role="flagged")
+                        for t in verdict.get("worse_traces") or [] if t in nominals and traces[t] is not None)
+        return replace(scene, polylines=scene.polylines + flagged,
+                       residuals=scene.residuals + ((residuals,) if residuals is not None else ()))
 
     def _surface_fit(self, session: Session, job: Job) -> FocusScene:
         fit = SurfaceFitResult.of(job)

@@ -112,6 +112,24 @@ class DeviationPlot:
 
 
 @dataclass(frozen=True)
+class ResidualMap:
+    """Verification residuals of a closed loop shown on the part.
+
+    points (k, 3) mm: each verification touch on its trace's nominal, lifted by the measured
+    deviation; residual_mm (k,) measured - predicted deviation; limit_mm (k,) the band the
+    residual had to stay within; flagged (k,) bool: outside its band, or the correction does
+    not help there (the compensated program would be worse than the nominal one);
+    trace_ids (k,) the touch's trace (None off the traces)."""
+
+    name: str
+    points: np.ndarray
+    residual_mm: np.ndarray
+    limit_mm: np.ndarray
+    flagged: np.ndarray
+    trace_ids: tuple[str | None, ...] = ()
+
+
+@dataclass(frozen=True)
 class FocusScene:
     """Everything one focus shows.  ``focus`` is {"part_id": ...} or {"job_id": ...}."""
 
@@ -128,6 +146,7 @@ class FocusScene:
     surfaces: tuple[SurfaceMesh, ...] = ()
     plots: tuple[DeviationPlot, ...] = ()
     scalar_surfaces: tuple[ScalarSurface, ...] = ()
+    residuals: tuple[ResidualMap, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def bounds(self, include_part: bool = True) -> np.ndarray | None:
@@ -140,6 +159,7 @@ class FocusScene:
         chunks += [s.vertices for s in self.surfaces]
         chunks += [s.vertices for s in self.scalar_surfaces]
         chunks += [a.positions for a in self.axes]
+        chunks += [r.points for r in self.residuals]
         for h in self.heights:
             _k, rows, cols = h.heights.shape
             x0, y0 = h.origin_xy

@@ -156,6 +156,8 @@ class SceneBuilder:
                 self._add(name, "surfaces", handle, "mesh", len(surface.faces))
             for scalar in scene.scalar_surfaces:
                 self._scalar_surface(scalar)
+            for residuals in scene.residuals:
+                self._residuals(residuals)
             for glyphs in scene.axes:
                 self._axes(glyphs)
             for stack in scene.layers:
@@ -165,7 +167,8 @@ class SceneBuilder:
 
     def _polyline(self, label: str, points: np.ndarray, role: str) -> None:
         group = "curves" if role == "reconstructed" else "traces"
-        color = self.palette.reconstructed if role == "reconstructed" else self.palette.nominal
+        color = {"reconstructed": self.palette.reconstructed,
+                 "flagged": self.palette.dispense}.get(role, self.palette.nominal)
         name = f"{ROOT}/{group}/{_slug(label)}"
         segs = polyline_segments(points)
         if not len(segs):
@@ -190,6 +193,27 @@ class SceneBuilder:
             handle = self.server.scene.add_point_cloud(name, pts, deviation_colors(dev, limit), point_size=size * 1.3,
                                                        point_shape="circle", precision="float32")
             self._add(name, "probes", handle, "points", len(pts), role="measured", deviation_limit_mm=limit)
+
+    def _residuals(self, residuals: Any) -> None:
+        """Verification points coloured by residual on their own scale (its legend), the flagged
+        ones ringed in the dispense colour."""
+        if not len(residuals.points):
+            return
+        name = f"{ROOT}/residuals/{_slug(residuals.name)}"
+        pts = np.asarray(residuals.points, np.float32)
+        values = np.asarray(residuals.residual_mm, float)
+        limit = float(np.abs(values).max())
+        handle = self.server.scene.add_point_cloud(name, pts, deviation_colors(values, limit),
+                                                   point_size=self._point_size * 1.8, point_shape="circle",
+                                                   precision="float32")
+        self._add(name, "residuals", handle, "points", len(pts), role="residual", deviation_limit_mm=limit)
+        flagged = np.asarray(residuals.flagged, bool)
+        if flagged.any():
+            ring = f"{name}/flagged"
+            handle = self.server.scene.add_point_cloud(ring, pts[flagged], self.palette.dispense,
+                                                       point_size=self._point_size * 3.0, point_shape="square",
+                                                       precision="float32")
+            self._add(ring, "residuals", handle, "points", int(flagged.sum()), role="flagged")
 
     def _toolpath(self, toolpath: Toolpath) -> None:
         seg = toolpath.segments

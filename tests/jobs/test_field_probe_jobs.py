@@ -355,6 +355,11 @@ def test_a_loop_whose_field_check_fails_says_so_and_prints_nothing(client):
     assert report.status_code == 200 and "NEEDS ATTENTION" in report.text and "Verification points" in report.text
     assert "status needs_attention" in report.text
     assert verdict["retouched"] == [] and "Touched again" in report.text and "Excluded touches" in report.text
+    # the residuals as a map on the part: in the report, and in the 3-D view with the verdict's values
+    assert 'id="residual-map"' in report.text and "uncertainty (1 sd)" in report.text
+    (residuals,) = load_focus(client.app.state.runtime, job_id=done["id"]).residuals
+    assert np.allclose(residuals.residual_mm, [p["residual_mm"] for p in verdict["verification"]])
+    assert np.allclose(residuals.points[:, :2], [p["xy"] for p in verdict["verification"]])
 
 
 def test_a_suspected_outlier_is_touched_again_at_most_twice_before_it_may_be_excluded():

@@ -1,6 +1,6 @@
 // Programs: the uploaded G-code programs and the programs jobs generated, and the warp of
 // one onto the probed part (warp_program on a surface_fit or a probe_run): progress, the
-// result (pieces, worst proved chord error, the fixed-length split beside it) and the
+// result (pieces, worst chord error against the height model, the model's own error, the fixed-length split beside it) and the
 // warped program; a refusal (a printing move outside the measured region) names the line.
 import { ApiError, download, get, getKey, post, streamEvents, upload } from "./api.js";
 import { el, fmt, guarded, initPage, markReady, showError, showInfo } from "./ui.js";
@@ -90,7 +90,7 @@ const progress = el("progress", { id: "warp-progress", max: 1, value: 0, "aria-l
 const output = el("div", { id: "warp-result" });
 right.append(el("h2", {}, "Warp onto the probed part"),
   el("p", { class: "small" }, "Every printing move is moved onto the measured surface at the standoff and split so "
-    + "that a proved bound on its chord error holds; travel is lifted. A printing move outside the probed area is "
+    + "that a bound on its chord error against the height model holds (the model's own cross-validated error is shown beside it); travel is lifted. A printing move outside the probed area is "
     + "refused (naming its line) unless allowed."),
   el("form", { id: "warp-form", onsubmit: (e) => { e.preventDefault(); onWarp(); } },
     el("div", { class: "row" }, el("label", {}, "program ", programSelect)),
@@ -112,9 +112,14 @@ function showResult(job) {
   output.replaceChildren(el("table", { id: "warp-figures" }, el("tbody", {},
     [["lines in / out", `${r.lines_in} / ${r.lines_out}`], ["printing moves", r.printing_moves],
       ["pieces", r.pieces], ["worst chord error (against the height model)", `${fmt.num(r.max_chord_bound_mm * 1000, 3)} µm`],
-      ["height model", r.height_model ? `${r.height_model.kind.replace("_", " ")}, ${r.height_model.cv.replaceAll("_", " ")} `
+      ["height model error (cross-validated max)", r.model_error_mm == null ? "not measurable"
+        : `± ${fmt.num(r.model_error_mm * 1000, 3)} µm`],
+      ["height model", r.height_model ? `${r.height_model.kind.replaceAll("_", " ")}, ${r.height_model.cv.replaceAll("_", " ")} `
         + (r.height_model.cv_max_mm == null ? "not measurable" : `max ${fmt.num(r.height_model.cv_max_mm * 1000, 3)} µm, `
-        + `rms ${fmt.num(r.height_model.cv_rms_mm * 1000, 3)} µm`) : "—"],
+        + `rms ${fmt.num(r.height_model.cv_rms_mm * 1000, 3)} µm`)
+        + (r.height_model.posterior_sd_max_mm == null ? "" : `, posterior sd ≤ ${fmt.num(r.height_model.posterior_sd_max_mm * 1000, 3)} µm`)
+        + (r.height_model.kriging ? ` (kriging: wavelength ${fmt.num(r.height_model.kriging.wavelength_mm, 3)} mm, leave-one-out max `
+          + `${fmt.num(r.height_model.kriging.loo_max_mm * 1000, 3)} µm)` : "") : "—"],
       [`fixed ${fmt.num(r.fixed_split.split_mm, 3)} mm split`, `${r.fixed_split.pieces} pieces, worst `
         + `${fmt.num(r.fixed_split.max_error_mm * 1000, 3)} µm`], ["safe travel z", fmt.mm(r.safe_z_mm, 3)]]
       .map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", { "data-figure": k }, String(v)))))),

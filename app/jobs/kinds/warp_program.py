@@ -14,7 +14,8 @@ from sqlmodel import Session
 
 from app.circuits.errors import WarpError
 from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, arc_chord_budget, scan_program
-from app.circuits.heightfield import height_model_from_points, points_region
+from app.circuits.height_model import height_model_from_points
+from app.circuits.heightfield import points_region
 from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
 from app.errors import InvalidInput
 from app.gcode.program_bounds import BoundsScan
@@ -124,8 +125,10 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
     ctx.artifact("warped.gcode", result.text.encode(), "text/x-gcode", gcode_meta(result.text))
     pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
     return WarpProgramResult.written({"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
-            "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm, "safe_z_mm": result.safe_z_mm,
+            "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm,
+            "model_error_mm": _finite(model.cv_max_mm), "safe_z_mm": result.safe_z_mm,
             "height_model": {"kind": model.kind, "cv": model.cv, "cv_rms_mm": _finite(model.cv_rms_mm),
                              "cv_max_mm": _finite(model.cv_max_mm),
-                             "alternatives": {k: _finite(v) for k, v in model.alternatives.items()}},
+                             "alternatives": {k: _finite(v) for k, v in model.alternatives.items()},
+                             "kriging": model.kriging, "posterior_sd_max_mm": model.posterior_sd_max_mm},
             "fixed_split": {"split_mm": params.compare_split_mm, "pieces": pieces, "max_error_mm": worst}})

@@ -80,7 +80,9 @@ def test_the_programs_page_warps_onto_the_probed_part(page, served, tmp_path):
     assert shown == str(job["result"]["pieces"]) and job["result"]["pieces"] > 2
     assert job["result"]["max_chord_bound_mm"] <= 0.002
     assert "µm" in page.inner_text('[data-figure="worst chord error (against the height model)"]')
-    assert "µm" in page.inner_text('[data-figure="height model"]')           # the model's own error beside it
+    assert "µm" in page.inner_text('[data-figure="height model"]')
+    # the model's own error beside the chord bound (the bound holds against the model only)
+    assert "µm" in page.inner_text('[data-figure="height model error (cross-validated max)"]')
     assert page.locator("#warp-figures >> text=fixed 5.000 mm split").count() == 1
     screenshot(page, "programs-warp")
 
