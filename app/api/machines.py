@@ -15,7 +15,7 @@ import time
 from datetime import datetime, timezone
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi import APIRouter, HTTPException, Query, Request, Response
 from sqlalchemy import delete
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
@@ -101,7 +101,7 @@ def interrupted_program(machine_id: str, job: dict, live: dict | None) -> Progra
 
 @router.post("", status_code=201, dependencies=[Operator])
 def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionDep, request: Request,
-                     idempotency_key: idempotency.IdempotencyKey = None) -> MachineOut:
+                     response: Response, idempotency_key: idempotency.IdempotencyKey = None) -> MachineOut:
     """Register a machine (a device under /dev, socket:// to an allowed host, or the mock
     firmware).  A port is one machine: a second record on the same physical port is a 409."""
     claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
@@ -132,7 +132,9 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
                   dialect=body.dialect, profile=body.profile.model_dump(), mock=mock, created_at=utcnow())
     session.add(row)
     out = machine_out(runtime, row)
-    idempotency.remember(session, claim, 201, out)
+    location = f"/api/v1/machines/{machine_id}"
+    idempotency.remember(session, claim, 201, out, location=location)
+    response.headers["Location"] = location
     try:
         return idempotency.commit(session, claim) or out  # type: ignore[return-value]
     except IntegrityError:  # a concurrent registration of the same port won
@@ -264,11 +266,13 @@ async def stop_machine(machine_id: str, runtime: RuntimeDep) -> StopOut:
 
 
 @router.post("/{machine_id}/print", status_code=202, dependencies=[Operator])
-def print_on_machine(machine_id: str, body: PrintRequest, runtime: RuntimeDep, session: SessionDep) -> JobOut:
+def print_on_machine(machine_id: str, body: PrintRequest, runtime: RuntimeDep, session: SessionDep,
+                     response: Response) -> JobOut:
     """Start a print job streaming an uploaded program or a job's G-code artifact (409 if busy)."""
     get_or_404(session, Machine, machine_id)
     params = {"machine_id": machine_id, **body.model_dump(exclude_none=True)}
     job = runtime.submit("print", params)
+    response.headers["Location"] = f"/api/v1/jobs/{job.id}"
     return load_job_out(session, job.id)
 
 
