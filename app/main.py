@@ -14,7 +14,8 @@ from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
 import app as app_package
-from app.api import circuits, files, jobs, loop_actions, machines, parts, programs, reports, system, traces
+from app.api import (circuits, files, jobs, loop_actions, machine_console, machines, parts, programs, reports, system,
+                     traces)
 from app.api import viewer as viewer_api
 from app.api.admission import AdmissionMiddleware
 from app.api.errors import install_error_handlers
@@ -28,6 +29,7 @@ from app.jobs.runtime import QUEUES, Runtime
 
 # The API's routers, in the order their routes are matched
 ROUTERS = (system.router, parts.router, traces.router, jobs.router, loop_actions.router, programs.router, machines.router,
+           machine_console.router,
            files.router, viewer_api.router, reports.router, circuits.router)
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 log = logging.getLogger("conforma")

@@ -61,6 +61,7 @@ from collections.abc import Callable
 import serial
 
 from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
+from .console_log import ConsoleLog
 from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError, ProtocolError
 from .events import ReplyEvent, StatusReport
 from .pending import CommandResult, PendingCommand
@@ -78,8 +79,9 @@ class Link:
 
     def __init__(self, port: serial.SerialBase, *, dialect: str, timeout_s: float, window: str,
                  history: int, command_buffer: int, rx_buffer: int, poke_s: float,
-                 on_event: Callable[[ReplyEvent], None] | None) -> None:
+                 on_event: Callable[[ReplyEvent], None] | None, console: ConsoleLog | None = None) -> None:
         self.port = port
+        self.console = console if console is not None else ConsoleLog()  # what went over the wire
         self.rules = dialect_rules(dialect)  # what this firmware does (hardware.dialects)
         self.dialect = self.rules.name
         self.on_event = on_event
@@ -98,14 +100,16 @@ class Link:
     def open(cls, url: str, *, baudrate: int = 115200, dialect: str = DEFAULT_DIALECT,
              timeout_s: float = 30.0, window: str = "windowed", history: int = 1024,
              command_buffer: int = 4, rx_buffer: int = 128, poke_s: float = 2.5,
-             on_event: Callable[[ReplyEvent], None] | None = None) -> Link:
+             on_event: Callable[[ReplyEvent], None] | None = None,
+             console: ConsoleLog | None = None) -> Link:
         """Open ``url`` and start the reader.  ``InvalidConfig`` for bad arguments,
         ``LinkError`` when the port cannot be opened.
 
         ``command_buffer``/``rx_buffer``: the controller's command slots (Marlin BUFSIZE)
         and receive buffer in bytes, the windowed limits.  ``on_event(event)`` sees every
         parsed reply on the reader thread with the link locked: keep it quick and never
-        call the link from it."""
+        call the link from it.  ``console``: the log the link records every line in (the
+        machine's, so that it outlives a reconnect; a new one when not given)."""
         dialect_rules(dialect)
         if window not in WINDOWS:
             raise InvalidConfig(f"unknown window mode {window!r}; expected pingpong or windowed",
@@ -126,7 +130,7 @@ class Link:
             raise LinkError(f"cannot open port {url!r}: {exc}", field="port", value=url[:80]) from exc
         return cls(port, dialect=dialect, timeout_s=timeout_s, window=window, history=history,
                    command_buffer=command_buffer, rx_buffer=rx_buffer, poke_s=poke_s,
-                   on_event=on_event)
+                   on_event=on_event, console=console)
 
     # ------------------------------------------------------------------ the session's state
     @property
@@ -261,6 +265,7 @@ class Link:
     def _write(self, data: bytes) -> None:
         if self._halted:
             return
+        self.console.record_bytes("sent", data)
         try:
             self.port.write(data)
         except (serial.SerialException, OSError) as exc:
@@ -292,6 +297,7 @@ class Link:
                                           time.monotonic()))
             self._halted = True
             self.session.stats["emergency_stops"] = self.session.stats.get("emergency_stops", 0) + 1
+            self.console.record("sent", f"EMERGENCY STOP {data!r}")
             try:
                 self.port.write(data)
             except (serial.SerialException, OSError) as exc:
@@ -302,6 +308,7 @@ class Link:
         like every write, once the link failed or was emergency-stopped)."""
         with self._cond:
             self._check_fatal()
+            self.console.record_bytes("sent", byte)
             try:
                 self.port.write(byte)
             except (serial.SerialException, OSError) as exc:
@@ -338,6 +345,7 @@ class Link:
     # ------------------------------------------------------------------ reader
     def _handle(self, line: str) -> None:
         """One received line (the lock is held)."""
+        self.console.record("received", line.rstrip("\r\n"))
         self._apply(self.session.feed(line, time.monotonic()))
 
     def _read_loop(self) -> None:

@@ -58,6 +58,8 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 
+from .console_log import ConsoleLog
+from .program_clock import ProgramClock
 from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
                      MachineStateError)
 from .events import Capability, FirmwareInfo, PositionReport, StartBanner
@@ -110,6 +112,9 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         self.last_preamble: list[str] = []  # what the last stream sent before its first command
         self.rejected_lines: list[int] = []  # command indices the controller rejected
         self.outputs: dict | None = None  # the last safe_off: when, whether sent, why not
+        self.console = ConsoleLog()  # every line sent and received, across reconnects
+        self.homed = False  # homed since this connection (the host's record: Marlin and grbl do not report it)
+        self.clock = ProgramClock()  # elapsed time and time left of the running program
 
     # ------------------------------------------------------------------ state
     @property
@@ -135,9 +140,11 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
             self.disconnect()
         self._connected_at = time.monotonic()  # a controller that kept running stopped by now at the latest
         self.link = Link.open(self.url, baudrate=self.baudrate, dialect=self.dialect,
-                              timeout_s=self.timeout_s, window=self.window, poke_s=self.poke_s)
+                              timeout_s=self.timeout_s, window=self.window, poke_s=self.poke_s,
+                              console=self.console)
         self._state = "busy"
         self._estopped = False
+        self.homed = False
         try:
             banner = self._await_boot() if self.rules.boot_banner else self._await_quiet()
             reset = any(isinstance(e, StartBanner) for e in banner)
@@ -218,11 +225,14 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         system = command.strip().startswith("$")
         self._claim_motion("busy", f"run {command.strip()[:40]!r}", check=not system)
         try:
-            return self.link.send(command, self.timeout_s * 10)
+            result = self.link.send(command, self.timeout_s * 10)
         except FirmwareError as exc:
             raise self._locked_reply(exc, f"run {command.strip()[:40]!r}") from exc
         finally:
             self._release()
+        if command.strip().upper() == self.home_command.strip().upper():
+            self.homed = True  # the operator homed from the console
+        return result
 
     def _claim_motion(self, state: str, what: str, *, check: bool = True) -> None:
         """Claim the machine for an operation that moves it (``what``, for the message):
@@ -248,6 +258,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         """Home all axes; returns the position afterwards."""
         command = self.home_command
         self._claim("busy")
+        self.homed = False  # until this homing succeeds
         try:
             try:
                 self._run([command])
@@ -257,6 +268,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
                                             "unlock instead, or enable homing", field="home",
                                             value=command) from exc
                 raise
+            self.homed = True
             return self._position()
         finally:
             self._release()
@@ -321,6 +333,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         executed = start_line
         acked_line: int | None = None
         self.progress = (executed, total)
+        self.clock.start(start_line)
         seqs: dict[int, int] = {}  # command index -> completion order (Link.status_marks)
         self._note_stream_start(start_line)  # where the tool stands, for reports (hardware.reports)
         try:
@@ -443,6 +456,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
             raise MachineStateError(f"cannot pause while {self.state}", field="state",
                                     value=self.state)
         self._resume_event.clear()
+        self.clock.pause()
         if self.rules.feed_hold is not None and self.link is not None:
             self.link.realtime(self.rules.feed_hold)  # feed hold: motion already planned stops too
         self._state = "paused"
@@ -455,6 +469,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         if self.rules.cycle_start is not None and self.link is not None:
             self.link.realtime(self.rules.cycle_start)  # cycle start after the feed hold
         self._state = "printing"
+        self.clock.resume()
         self._resume_event.set()
 
     def cancel(self) -> None:
@@ -481,6 +496,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
             raise MachineStateError("machine is not connected", field="state", value="disconnected")
         self._cancel = True
         self._estopped = True
+        self.homed = False
         self._resume_event.set()
         self.link.emergency_stop()
         self._state = "error"

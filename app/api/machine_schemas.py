@@ -254,6 +254,11 @@ class ProgramState(BaseModel):
     resume_line: int | None = None
     waits: str | None = Field(None, description="what the holding job waits for (\"resume or abandon\")")
     message: str | None = Field(None, description="for the operator: where it stopped and how to resume or abandon it")
+    started_at: UtcDatetime | None = Field(None, description="when the running program started streaming")
+    elapsed_s: float | None = Field(None, description="wall seconds since the start, pauses included")
+    eta_s: float | None = Field(None, description="seconds left at the line rate so far (running seconds per "
+                                "executed line times the lines left; null for the first lines); a program whose "
+                                "remaining moves are slower finishes later")
 
 
 class ControllerOut(BaseModel):
@@ -279,6 +284,10 @@ class MachineOut(BaseModel):
         "(API.md's commands_sha256 over what the firmware executed) and deposited_moves")
     created_at: UtcDatetime
     state: Literal["disconnected", "idle", "busy", "printing", "paused", "error"]
+    homed: bool | None = Field(None, description="homed since this connection: the host's record for Marlin and "
+                               "grbl (a successful Home or the home command from the console; cleared by a "
+                               "reconnect, an emergency stop or an alarm), the controller's own report for "
+                               "LinuxCNC; null while disconnected")
     position: list[float] | None
     program: ProgramState | None
     held_by: str | None = Field(None, description="the machine job that holds the machine (queued, running or "
@@ -393,3 +402,28 @@ class CalibrationOut(BaseModel):
     nozzles: list[NozzleCalibrationOut]
     flags: list[str] = Field(description="stale calibrations, re-checks that disagree, nozzles calibrated "
                              "against an earlier probe calibration")
+
+
+class MachineUpdate(Strict):
+    """What an operator may change on a registered machine.  ``name`` any time; ``baudrate``
+    and ``profile`` (replaced whole) only while the machine is disconnected, since the live
+    connection was opened with them.  The port and dialect are the machine itself: register
+    another machine for another port."""
+    name: str | None = Field(None, min_length=1, max_length=200)
+    baudrate: int | None = Field(None, ge=300, le=4_000_000)
+    profile: Profile | None = None
+
+
+class ConsoleLine(BaseModel):
+    seq: int = Field(description="1, 2, ... per machine, never repeated: pass the last one as ``after``")
+    t: float = Field(description="Unix time of the line, s")
+    direction: Literal["sent", "received"]
+    text: str
+
+
+class ConsoleLogOut(BaseModel):
+    """Lines sent to and received from the machine, oldest first (the last
+    ``hardware.console_log.DEFAULT_CAPACITY`` lines are kept, across reconnects)."""
+    entries: list[ConsoleLine]
+    last_seq: int = Field(description="pass as ``after`` to get what comes next")
+    dropped: int = Field(description="lines after ``after`` that the ring no longer holds")

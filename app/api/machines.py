@@ -12,10 +12,10 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-
+from datetime import datetime, timezone
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi import APIRouter, HTTPException, Query, Request, Response
 from sqlalchemy import delete
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session, select
@@ -24,7 +24,7 @@ from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.jobs import load_job_out
 from app.api.machine_schemas import (CalibrationOut, ConsoleOut, ConsoleRequest, ControllerOut, JogRequest,
-                                     MachineCreate, MachineOut, MockSettings, PrintRequest, ProgramState, StopOut,
+                                     MachineCreate, MachineOut, MachineUpdate, MockSettings, PrintRequest, ProgramState, StopOut,
                                      UnlockRequest)
 from app.api.schemas import JobOut, Page
 from app.errors import Conflict, InvalidInput, NotFound
@@ -32,10 +32,11 @@ from app.jobs.calibration import calibration_summary, current_calibration, machi
 from app.jobs.machine_jobs import holding_message
 from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, port_owner, translate
+from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
 from app.db import lock_for_delete
-from app.models import JobReference, Machine, Part, new_id, utcnow
+from app.models import TERMINAL_STATES, Job, JobReference, Machine, Part, new_id, utcnow
 from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/machines", tags=["machines"])
@@ -60,8 +61,12 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
     holder = runtime.store.holding_job(row.id)
     if live is not None and live.progress is not None and state in ("printing", "paused"):
         executed, total = live.progress
+        clock = live.clock
+        started = clock.started_at
         program = ProgramState(job_id=runtime.machines.running_job.get(row.id) or (holder or {}).get("id"),
-                               line=executed, total=total, state=state)
+                               line=executed, total=total, state=state, elapsed_s=clock.elapsed_s(),
+                               eta_s=clock.eta_s(executed, total),
+                               started_at=datetime.fromtimestamp(started, timezone.utc) if started else None)
     elif holder is not None and holder["status"] == "interrupted":
         reported = getattr(live, "program_status", None)  # the serial machines report it; LinuxCNC does not
         program = interrupted_program(row.id, holder, reported() if callable(reported) else None)
@@ -72,7 +77,10 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
             mock.update(executed_commands=world.executed_count, executed_sha256=world.executed_sha256,
                         deposited_moves=len(world.deposition_log))
     known = getattr(live, "controller", None) if live is not None and state != "disconnected" else None
-    return MachineOut(**row.model_dump(exclude={"mock"}), mock=mock, state=state, position=position,
+    homed = None
+    if live is not None and state != "disconnected":
+        homed = live.homed and state != "error" and not (known is not None and known.state == "Alarm")
+    return MachineOut(**row.model_dump(exclude={"mock"}), mock=mock, state=state, position=position, homed=homed,
                       program=program, held_by=holder["id"] if holder is not None else None,
                       outputs=getattr(live, "outputs", None) if state != "disconnected" else None, firmware=live.identity.firmware if live is not None and live.identity else None,
                       controller=ControllerOut(**known.as_dict()) if known is not None else None)
@@ -93,7 +101,7 @@ def interrupted_program(machine_id: str, job: dict, live: dict | None) -> Progra
 
 @router.post("", status_code=201, dependencies=[Operator])
 def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionDep, request: Request,
-                     idempotency_key: idempotency.IdempotencyKey = None) -> MachineOut:
+                     response: Response, idempotency_key: idempotency.IdempotencyKey = None) -> MachineOut:
     """Register a machine (a device under /dev, socket:// to an allowed host, or the mock
     firmware).  A port is one machine: a second record on the same physical port is a 409."""
     claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
@@ -124,7 +132,9 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
                   dialect=body.dialect, profile=body.profile.model_dump(), mock=mock, created_at=utcnow())
     session.add(row)
     out = machine_out(runtime, row)
-    idempotency.remember(session, claim, 201, out)
+    location = f"/api/v1/machines/{machine_id}"
+    idempotency.remember(session, claim, 201, out, location=location)
+    response.headers["Location"] = location
     try:
         return idempotency.commit(session, claim) or out  # type: ignore[return-value]
     except IntegrityError:  # a concurrent registration of the same port won
@@ -142,6 +152,35 @@ def list_machines(runtime: RuntimeDep, session: SessionDep) -> Page[MachineOut]:
 @router.get("/{machine_id}", dependencies=[Viewer])
 def get_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
     return machine_out(runtime, get_or_404(session, Machine, machine_id))
+
+
+@router.patch("/{machine_id}", dependencies=[Operator])
+def update_machine(machine_id: str, body: MachineUpdate, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
+    """Rename a machine (any time), or change its baud rate or profile (409 unless it is
+    disconnected: the live connection was opened with them).  Never while a program holds it."""
+    row = get_or_404(session, Machine, machine_id)
+    _free(runtime, machine_id)
+    live = runtime.machines.get(machine_id)
+    state = live.state if live is not None else "disconnected"
+    if (body.baudrate is not None or body.profile is not None) and state != "disconnected":
+        field = "profile" if body.profile is not None else "baudrate"
+        raise Conflict(f"machine {machine_id!r} is {state}: disconnect it before changing its {field}",
+                       field=field, value=state)
+    if body.name is not None:
+        row.name = body.name
+    if body.baudrate is not None:
+        row.baudrate = body.baudrate
+    if body.profile is not None:
+        on, off = default_dispense(row.dialect)
+        profile = body.profile.model_dump()
+        profile["dispense_on"] = profile["dispense_on"] or on
+        profile["dispense_off"] = profile["dispense_off"] or off
+        row.profile = profile
+        runtime.machines.forget(machine_id)  # the next connect builds the machine with the new profile
+    session.add(row)
+    session.commit()
+    session.refresh(row)
+    return machine_out(runtime, row)
 
 
 @router.get("/{machine_id}/calibration", dependencies=[Viewer], responses={404: {"description": "no such machine"}})
@@ -227,11 +266,13 @@ async def stop_machine(machine_id: str, runtime: RuntimeDep) -> StopOut:
 
 
 @router.post("/{machine_id}/print", status_code=202, dependencies=[Operator])
-def print_on_machine(machine_id: str, body: PrintRequest, runtime: RuntimeDep, session: SessionDep) -> JobOut:
+def print_on_machine(machine_id: str, body: PrintRequest, runtime: RuntimeDep, session: SessionDep,
+                     response: Response) -> JobOut:
     """Start a print job streaming an uploaded program or a job's G-code artifact (409 if busy)."""
     get_or_404(session, Machine, machine_id)
     params = {"machine_id": machine_id, **body.model_dump(exclude_none=True)}
     job = runtime.submit("print", params)
+    response.headers["Location"] = f"/api/v1/jobs/{job.id}"
     return load_job_out(session, job.id)
 
 
@@ -307,20 +348,22 @@ def console_command(machine_id: str, body: ConsoleRequest, runtime: RuntimeDep, 
 def delete_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep, role: str = Operator,
                    force: Annotated[bool, Query(description="admin only: delete even if jobs reference it")] = False,
                    ) -> None:
-    """Remove a machine record (disconnecting it); 409 while any job references it unless
-    ``force`` (admin), and always while a program holds it."""
+    """Remove a machine record (disconnecting it); 409 while a queued or running job uses it
+    unless ``force`` (admin), and always while a program holds it.  Finished jobs keep their
+    records (their parameters still name the machine's id)."""
     if force and role != "admin":
         raise HTTPException(403, "force=true needs the admin role")
     if not lock_for_delete(session, Machine, [machine_id]):
         session.rollback()
         raise NotFound(f"machine {machine_id!r} does not exist", field="machine_id", value=machine_id)
     _free(runtime, machine_id)
-    refs = session.exec(select(JobReference.job_id).where(JobReference.ref_kind == "machine",
-                                                          JobReference.ref_id == machine_id)).all()
-    if refs and not force:
+    active = session.exec(select(JobReference.job_id).join(Job, Job.id == JobReference.job_id).where(  # type: ignore[arg-type]
+        JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
+        Job.status.not_in(TERMINAL_STATES))).all()  # type: ignore[attr-defined]
+    if active and not force:
         session.rollback()
-        raise Conflict(f"machine {machine_id!r} is referenced by {len(set(refs))} job(s), e.g. {sorted(set(refs))[0]}",
-                       field="machine_id", value=machine_id)
+        raise Conflict(f"machine {machine_id!r} has {len(set(active))} unfinished job(s), e.g. {sorted(set(active))[0]}: "
+                       "cancel or finish them first", field="machine_id", value=machine_id)
     runtime.machines.forget(machine_id)
     session.exec(delete(JobReference).where(JobReference.ref_kind == "machine",  # type: ignore[call-overload]
                                             JobReference.ref_id == machine_id))

@@ -42,6 +42,7 @@ def upload_part(
     runtime: RuntimeDep,
     session: SessionDep,
     request: Request,
+    response: Response,
     file: Annotated[UploadFile, File(description="STL (ascii/binary), OBJ, PLY, OFF, 3MF or GLB")],
     name: Annotated[str | None, Form(max_length=200)] = None,
     format: Annotated[str | None, Form(description="overrides the file extension")] = None,
@@ -70,7 +71,9 @@ def upload_part(
                       units=units, up=up, rotate_deg=parse_angles(rotate_deg))
     check_part_geometry(part)
     out = part_out(part)
-    idempotency.remember(session, claim, 201, out)
+    location = f"/api/v1/parts/{part.id}"
+    idempotency.remember(session, claim, 201, out, location=location)
+    response.headers["Location"] = location
     return idempotency.commit(session, claim) or out  # type: ignore[return-value]
 
 

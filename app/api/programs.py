@@ -23,7 +23,7 @@ CHUNK_BYTES = 2**20
 
 
 @router.post("", status_code=201, dependencies=[Operator])
-def upload_program(runtime: RuntimeDep, session: SessionDep, request: Request,
+def upload_program(runtime: RuntimeDep, session: SessionDep, request: Request, response: Response,
                    file: Annotated[UploadFile, File(description="G-code text")],
                    idempotency_key: idempotency.IdempotencyKey = None) -> ProgramOut:
     """Upload a G-code program (422 if it is not G-code text).  Read as a stream: checked,
@@ -43,7 +43,9 @@ def upload_program(runtime: RuntimeDep, session: SessionDep, request: Request,
                       bounds=meta["bounds"], created_at=utcnow())
     session.add(program)
     out = ProgramOut(**program.model_dump())
-    idempotency.remember(session, claim, 201, out)
+    location = f"/api/v1/programs/{program.id}"
+    idempotency.remember(session, claim, 201, out, location=location)
+    response.headers["Location"] = location
     return idempotency.commit(session, claim) or out  # type: ignore[return-value]
 
 

@@ -199,6 +199,18 @@ def estimate_gcode(text: str, limits: MachineLimits = MachineLimits(), max_arc_c
     return estimate_program(read_program(text, ReadOptions(feed_mm_s=25.0, max_arc_chords=max_arc_chords)), limits)
 
 
+def command_times(commands: list[str], limits: MachineLimits = MachineLimits()) -> npt.NDArray[np.float64]:
+    """(len(commands),) estimated seconds each command keeps the machine busy (its moves'
+    planned times; dwells and heating waits count 0): what the machines page's time left is
+    weighted by.  ``commands``: one G-code command per entry, as the machine streams them."""
+    program = read_program("\n".join(commands), ReadOptions(feed_mm_s=25.0))
+    times = estimate_program(program, limits).block_times
+    per_command = np.zeros(len(commands))
+    if len(times):
+        np.add.at(per_command, np.clip(program.line - 1, 0, max(len(commands) - 1, 0)), times)
+    return per_command
+
+
 def estimate_program(program: Program, limits: MachineLimits = MachineLimits()) -> TimeEstimate:
     """:func:`estimate_gcode` of a program already read (with the default :class:`ReadOptions`)."""
     limits = _apply_limit_commands(limits, program.limits)

@@ -16,15 +16,18 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from sqlmodel import Session, select
 
 from app.errors import Cancelled, Conflict, ConformaError
+from app.gcode.estimator import command_times
 from app.jobs.context import JobContext
 from app.jobs.registry import machine_kinds
 from app.models import Job, JobReference, utcnow
 from app.machines import MachineFault, MachineUnavailable, hardware_errors
 from hardware.errors import HardwareError
 from hardware.machine import Machine
+from hardware.protocol import validate_program
 
 if TYPE_CHECKING:
     from app.jobs.runtime import Runtime
@@ -105,6 +108,19 @@ def resume_request(ctx: JobContext) -> dict[str, Any] | None:
         job = session.get(Job, ctx.job_id)
     state = job.program_state if job is not None else None
     return state if state and state.get("resume_requested") and "total" in state else None
+
+
+def plan_eta(machine: Machine, lines: list[str]) -> None:
+    """Give the machine's program clock each command's estimated duration
+    (:func:`app.gcode.estimator.command_times`), so that the machines page's time left is the
+    estimate scaled by how fast the machine really goes; a program the estimator cannot read
+    keeps the line-rate estimate."""
+    try:
+        times = command_times(validate_program(lines))
+    except (ConformaError, HardwareError) as exc:
+        log.info("no time plan for the program: %s", exc)
+        return
+    machine.clock.expect(np.concatenate([[0.0], np.cumsum(times)]))  # type: ignore[arg-type]
 
 
 def stopped_by_operator(ctx: JobContext, machine: Machine | None) -> bool:

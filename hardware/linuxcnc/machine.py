@@ -34,6 +34,8 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 
+from ..console_log import ConsoleLog
+from ..program_clock import ProgramClock
 from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
 from ..machine_state import ClaimedOperations, axis_words
 from ..machine_types import _Interrupted, Identity, MachineProfile, ProbeResult, StreamReport
@@ -76,6 +78,9 @@ class LinuxCNCMachine(ClaimedOperations):
         self._interrupted: tuple[int, int] | None = None   # (total, executed) at the loss
         self._probe_seq = 0
         self.last_preamble: list[str] = []  # the modal replay written before a resumed program
+        self.console = ConsoleLog()  # MDI commands sent and the controller's answers, across reconnects
+        self.homed = False  # every joint homed, as the controller reported at connect and after homing
+        self.clock = ProgramClock()  # elapsed time and time left of the running program
 
     # ------------------------------------------------------------------ state
     @property
@@ -118,7 +123,8 @@ class LinuxCNCMachine(ClaimedOperations):
             self.link.set("machine", "on")
             homed = self.link.get("joint_homed")
             kins = self.link.get("kinematics_type")
-            if self._homed(homed) and self.link.get("program_status").upper() == "IDLE":
+            self.homed = self._homed(homed)
+            if self.homed and self.link.get("program_status").upper() == "IDLE":
                 self._mdi(self.profile.safe_off)  # an output left on before this connection goes off
         except HardwareError:
             self._state = "error"
@@ -166,6 +172,7 @@ class LinuxCNCMachine(ClaimedOperations):
             if self._estopped:
                 raise MachineStateError("emergency stop: reconnect first", field="state", value="error")
             self.link.pop_error()
+            self.console.record("sent", command)
             try:
                 # "set mdi" is answered once the controller received it (not after the
                 # motion): a reply lost by linuxcncrsh becomes a LinkError after timeout_s
@@ -178,6 +185,7 @@ class LinuxCNCMachine(ClaimedOperations):
                 self._abort_best_effort()
                 raise
             error = self.link.pop_error()
+            self.console.record("received", f"error: {error}" if error is not None else "done")
             if error is not None:
                 raise FirmwareError(f"LinuxCNC: {error}", command=command)
             if self._estopped:
@@ -221,6 +229,8 @@ class LinuxCNCMachine(ClaimedOperations):
                 if now > deadline:
                     raise LinkError("homing did not finish in time", field="home")
                 time.sleep(self.poll_s)
+            self.homed = True
+            self.console.record("received", "homed: " + " ".join("YES" if h else "NO" for h in homed))
             self._mdi(self.profile.safe_off)  # first chance after a connect to an un-homed machine
             return self._position()
         finally:
@@ -366,6 +376,7 @@ class LinuxCNCMachine(ClaimedOperations):
         self._pause_requested = False
         self._interrupted = None
         self.progress = (start_line, total)
+        self.clock.start(start_line)
         started = time.monotonic()
         try:
             if start_line == total:
@@ -443,6 +454,7 @@ class LinuxCNCMachine(ClaimedOperations):
         if self._state != "printing":
             raise MachineStateError(f"cannot pause while {self.state}", field="state", value=self.state)
         self.link.set("pause")
+        self.clock.pause()
         self._state = "paused"
 
     def resume(self) -> None:
@@ -450,6 +462,7 @@ class LinuxCNCMachine(ClaimedOperations):
         if self._state != "paused":
             raise MachineStateError(f"cannot resume while {self.state}", field="state", value=self.state)
         self.link.set("resume")
+        self.clock.resume()
         self._state = "printing"
 
     def cancel(self) -> None:
@@ -473,6 +486,8 @@ class LinuxCNCMachine(ClaimedOperations):
             raise MachineStateError("machine is not connected", field="state", value="disconnected")
         self._estopped = True
         self._cancel = True
+        self.homed = False
+        self.console.record("sent", "set estop on")
         session = self._stop_link
         if session is None or not session.healthy:
             session = self._stop_link = self._open_session()

@@ -68,20 +68,25 @@ def test_manual_control_waits_while_a_program_holds_the_machine(client):
     client.post(f"{base}/stop", headers=OP)
 
 
-def test_a_machine_is_removed_unless_jobs_reference_it(client, machine):
+def test_a_used_machine_is_removed_once_its_jobs_ended(client, machine):
     spare = register(client, port="mock://").json()
     assert client.delete(f"/api/v1/machines/{spare['id']}", headers=OP).status_code == 204
     assert client.get(f"/api/v1/machines/{spare['id']}", headers=OP).status_code == 404
     assert client.delete(f"/api/v1/machines/{spare['id']}", headers=OP).status_code == 404
     base = f"/api/v1/machines/{machine['id']}"
     program = upload_program(client, program_text(5)).json()
-    job = client.post(f"{base}/print", json={"program_id": program["id"]}, headers=OP).json()
-    assert wait_for(client, job["id"])["status"] == "succeeded"
+    done = client.post(f"{base}/print", json={"program_id": program["id"]}, headers=OP).json()
+    assert wait_for(client, done["id"])["status"] == "succeeded"
+    client.post(f"{base}/disconnect", headers=OP)      # a queued print waits for the machine: an unfinished job
+    queued = client.post(f"{base}/print", json={"program_id": program["id"]}, headers=OP).json()
     refused = client.delete(base, headers=OP)
-    assert refused.status_code == 409 and job["id"] in refused.json()["detail"]
+    assert refused.status_code == 409 and queued["id"] in refused.json()["detail"], refused.text
     assert client.delete(f"{base}?force=true", headers=OP).status_code == 403
-    assert client.delete(f"{base}?force=true", headers=ADMIN).status_code == 204
+    client.post(f"/api/v1/jobs/{queued['id']}/cancel", headers=OP)
+    assert wait_for(client, queued["id"])["status"] in ("cancelled", "failed")
+    assert client.delete(base, headers=OP).status_code == 204    # finished jobs keep their records
     assert client.get(base, headers=OP).status_code == 404
+    assert client.get(f"/api/v1/jobs/{done['id']}", headers=OP).json()["status"] == "succeeded"
 
 
 def test_reading_a_machine_never_fails_on_the_controller_s_answer(client, machine, monkeypatch):

@@ -111,3 +111,13 @@ def test_estimate_bounds(points, feed):
 def test_bad_limits():
     with pytest.raises(EstimatorError):
         estimate_gcode("G1 X1 F600\n", MachineLimits(accel_mm_s2=0.0))
+
+
+def test_command_times_put_each_move_s_time_on_its_command_and_sum_to_the_estimate():
+    from app.gcode.estimator import command_times, estimate_gcode
+    commands = ["G21", "G90", "G1 X10 F600", "M106", "G1 X10 Y10 F600", "G4 P0", "G1 X0 Y0 F1200"]
+    times = command_times(commands)
+    assert times.shape == (7,)
+    assert times[[0, 1, 3, 5]].tolist() == [0.0, 0.0, 0.0, 0.0]            # no motion, no time
+    assert times[2] == pytest.approx(1.0, rel=0.05) and times[4] == pytest.approx(1.0, rel=0.05)  # 10 mm at 10 mm/s
+    assert times.sum() == pytest.approx(estimate_gcode("\n".join(commands)).total_s)

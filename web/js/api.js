@@ -116,6 +116,7 @@ export async function request(method, path, body) {
 export const get = (path) => request("GET", path);
 export const post = (path, body) => request("POST", path, body ?? {});
 export const del = (path) => request("DELETE", path);
+export const patch = (path, body) => request("PATCH", path, body ?? {});
 
 // Multipart upload with progress (fetch() cannot report upload progress).
 export function upload(path, formData, onProgress) {

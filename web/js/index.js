@@ -2,7 +2,7 @@
 // jobs running or queued, and recent results with their headline figures.  Refreshed every
 // two seconds; the global STOP is in the header of every page.
 import { get } from "./api.js";
-import { duration, headlineFigures } from "./results.js";
+import { duration, headline } from "./results.js";
 import { el, fmt, guarded, initPage, markReady } from "./ui.js";
 
 const main = initPage("index.html");
@@ -42,14 +42,12 @@ function machineRow(m) {
 }
 
 function jobLine(job, figures = false) {
-  const shown = job.result || job.result_summary;  // a large result comes in brief: its summary
-  const heads = figures && shown ? headlineFigures(shown).slice(0, 3) : [];
+  const head = figures ? headline(job) : "";  // a large result comes in brief: its summary
   const took = job.started_at && job.finished_at ? duration((new Date(job.finished_at) - new Date(job.started_at)) / 1000) : null;
   return el("div", { class: "machine", "data-id": job.id },
     el("div", {}, el("a", { href: `jobs.html?job=${job.id}` }, el("strong", {}, job.kind)), " ",
       el("span", { class: `badge ${job.status}` }, job.status),
-      el("div", { class: "small" }, heads.length ? heads.map(([n, v]) => `${n}: ${v}`).join(" · ")
-        : (job.message || (job.error ? job.error.detail : "")))),
+      el("div", { class: "small headline" }, head || job.message || (job.error ? job.error.detail : ""))),
     el("div", { class: "small" }, job.status === "running" ? el("progress", { max: 1, value: job.progress })
       : (took ? `took ${took}` : fmt.time(job.created_at))));
 }

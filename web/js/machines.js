@@ -1,6 +1,9 @@
-// Machines: register (mock or real port), connect, live state and position, pause /
-// resume, and a big emergency stop.  The page polls the machines' status once a second.
-import { ApiError, del, get, post } from "./api.js";
+// Machines: register (mock or real port), connect, live state, homed and position, the
+// running program's line, elapsed time and time left, pause / resume, rename, manual control
+// with a live console (machine_console.js), and a big emergency stop.  Buttons follow the
+// machine's state.  The page polls the machines' status once a second.
+import { ApiError, get, patch, post } from "./api.js";
+import { manualControls } from "./machine_console.js";
 import { loadPrograms, programList } from "./machine_programs.js";
 import { el, guarded, initPage, markReady, showError, showInfo } from "./ui.js";
 
@@ -58,7 +61,7 @@ function position(m) {
 }
 
 function act(m, action, label) {
-  return el("button", { class: `act-${action}`, onclick: () => guarded(`${label} ${m.name}`, async () => {
+  return el("button", { type: "button", class: `act-${action}`, onclick: () => guarded(`${label} ${m.name}`, async () => {
     const fresh = await post(`machines/${m.id}/${action}`);
     update(fresh);
     if (action === "stop") showInfo(`EMERGENCY STOP sent to ${m.name}: state ${fresh.state}.`, 10000);
@@ -67,6 +70,17 @@ function act(m, action, label) {
 
 function card(m) {
   const state = el("span", { class: `badge ${m.state}`, "data-state": m.state }, m.state);
+  const homed = el("span", { class: "badge homed" });
+  const title = el("span", { class: "machine-name" }, m.name);
+  const rename = el("button", { type: "button", class: "act-rename small", "aria-label": `rename ${m.name}`,
+    onclick: () => guarded(`Rename ${m.name}`, async () => {
+      const name = window.prompt(`New name for ${m.name}`, m.name);
+      if (!name || name === m.name) return;
+      const fresh = await patch(`machines/${m.id}`, { name });
+      m.name = fresh.name;
+      title.textContent = fresh.name;
+      update(fresh);
+    }) }, "Rename");
   const pos = el("div", { class: "pos" }, position(m));
   const prog = el("div", { class: "small program" });
   const outputs = el("div", { class: "small outputs" });
@@ -84,67 +98,59 @@ function card(m) {
     }) }, "■ Emergency stop");
   const bar = el("progress", { class: "print-progress", max: 1, value: 0, hidden: true, "aria-label": `print progress on ${m.name}` });
   const programs = el("div", { class: "programs-body" }, programList(m, shownPrograms, () => refresh()));
+  const buttons = { connect: act(m, "connect", "Connect"), disconnect: act(m, "disconnect", "Disconnect"),
+    pause: act(m, "pause", "Pause"), resume: act(m, "resume", "Resume") };
+  const manual = manualControls(m, { update, onRemoved: () => forget(m.id) });
   const node = el("section", { class: "machine-card", "data-id": m.id },
-    el("h2", {}, m.name, " ", state), el("div", { class: "small mono" }, `${m.id} · ${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
+    el("h2", {}, title, " ", state, " ", homed, " ", rename),
+    el("div", { class: "small mono", title: m.id }, `${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
     pos, controller, unlock, prog, outputs, bar, estop,
-    el("div", { class: "row" }, act(m, "connect", "Connect"), act(m, "disconnect", "Disconnect"), act(m, "pause", "Pause"), act(m, "resume", "Resume")),
+    el("div", { class: "row" }, ...Object.values(buttons)),
     el("details", { class: "programs", open: true }, el("summary", {}, "Programs"), programs),
-    manualControls(m));
-  cards.set(m.id, { node, state, pos, prog, outputs, bar, programs, controller, unlock, machine: m });
+    manual.node);
+  cards.set(m.id, { node, state, homed, pos, prog, outputs, bar, programs, controller, unlock, buttons, manual, machine: m });
   update(m);
   return node;
 }
 
-// Manual control: home, jog by a chosen step, one console line with the firmware's reply,
-// and removing the machine.  The server refuses all of it while a program holds the machine.
-// The machine's manual actions go out one after another, in the order they were clicked (two
-// quick clicks, Home then X+, must not reach the server as X+ then Home); STOP is not one of
-// them and never waits.
-function manualControls(m) {
-  let last = Promise.resolve();
-  const inOrder = (label, action) => { last = last.then(() => guarded(label, action)); return last; };
-  const step = el("select", { class: "jog-step", "aria-label": `jog step for ${m.name}` },
-    ["0.1", "1", "10"].map((v) => el("option", { value: v, selected: v === "1" }, `${v} mm`)));
-  const jog = (axis, sign) => el("button", { type: "button", class: `jog jog-${axis}${sign > 0 ? "p" : "m"}`,
-    "aria-label": `jog ${axis.toUpperCase()} ${sign > 0 ? "+" : "-"}`,
-    onclick: () => inOrder(`Jog ${m.name}`, async () => {
-      update(await post(`machines/${m.id}/jog`, { [`d${axis}_mm`]: sign * Number(step.value) }));
-    }) }, `${axis.toUpperCase()}${sign > 0 ? "+" : "−"}`);
-  const home = el("button", { type: "button", class: "act-home", onclick: () => inOrder(`Home ${m.name}`, async () => {
-    if (!window.confirm(`Home ${m.name}? Every axis moves to its end stops.`)) return;
-    update(await post(`machines/${m.id}/home`));
-  }) }, "Home");
-  const log = el("pre", { class: "console-log", "aria-live": "polite" });
-  const line = el("input", { class: "console-line", "aria-label": `console command for ${m.name}`, placeholder: "M114", maxlength: 96 });
-  const consoleForm = el("form", { class: "console", onsubmit: (e) => {
-    e.preventDefault();
-    const command = line.value.trim();
-    if (!command) return;
-    inOrder(`Console ${m.name}`, async () => {
-      const answer = await post(`machines/${m.id}/command`, { command });
-      log.textContent = `${log.textContent}> ${answer.command}\n${answer.reply.join("\n")}\n`.split("\n").slice(-40).join("\n");
-      line.value = "";
-      update(answer.machine);
-    });
-  } }, line, el("button", { type: "submit" }, "Send"));
-  const remove = el("button", { type: "button", class: "danger act-delete", onclick: () => guarded(`Remove ${m.name}`, async () => {
-    if (!window.confirm(`Remove the machine record ${m.name}? (Jobs that used it keep their records.)`)) return;
-    await del(`machines/${m.id}`);
-    cards.get(m.id)?.node.remove();
-    cards.delete(m.id);
-    showInfo(`Machine ${m.name} removed.`);
-  }) }, "Remove");
-  return el("details", { class: "manual" }, el("summary", {}, "Manual control"),
-    el("div", { class: "row" }, home, step, jog("x", -1), jog("x", 1), jog("y", -1), jog("y", 1), jog("z", -1), jog("z", 1)),
-    consoleForm, log, el("div", { class: "row" }, remove));
+function forget(id) {
+  const c = cards.get(id);
+  if (!c) return;
+  c.manual.dispose();
+  c.node.remove();
+  cards.delete(id);
+}
+
+// "1 h 02 min", "3 min 05 s", "42 s"
+export function duration(s) {
+  if (s == null || !Number.isFinite(s)) return "—";
+  const t = Math.round(s);
+  const h = Math.floor(t / 3600), min = Math.floor((t % 3600) / 60), sec = t % 60;
+  if (h) return `${h} h ${String(min).padStart(2, "0")} min`;
+  if (min) return `${min} min ${String(sec).padStart(2, "0")} s`;
+  return `${sec} s`;
 }
 
 function update(m) {
   const c = cards.get(m.id);
   if (!c) return;
+  c.machine = m;
   c.state.className = `badge ${m.state}`;
   c.state.dataset.state = m.state;
   c.state.textContent = m.state;
+  // homed: the host's record since the connection (Marlin, grbl), the controller's (LinuxCNC)
+  c.homed.hidden = m.homed == null;
+  c.homed.dataset.homed = String(m.homed);
+  c.homed.className = `badge homed ${m.homed ? "idle" : "paused"}`;
+  c.homed.textContent = m.homed ? "homed" : "not homed";
+  c.homed.title = m.homed ? "homed since this connection" : "not homed since this connection: positions are not trusted until Home";
+  const b = c.buttons;
+  const connected = m.state !== "disconnected";
+  b.connect.disabled = connected && m.state !== "error";
+  b.disconnect.disabled = !connected;
+  b.pause.disabled = m.state !== "printing";
+  b.resume.disabled = m.state !== "paused";
+  c.manual.setState(m);
   c.pos.textContent = position(m);
   // the firmware's own state (grbl): an Alarm, Hold, Door or Check refuses motion until cleared
   const k = m.controller;
@@ -164,7 +170,8 @@ function update(m) {
     c.prog.title = p.message || "";
   } else {
     c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
-      (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") :
+      (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") +
+      (p.elapsed_s != null ? ` · elapsed ${duration(p.elapsed_s)} · left ${p.eta_s != null ? `about ${duration(p.eta_s)}` : "estimating…"}` : "") :
       (m.held_by ? `job ${m.held_by} holds the machine` : "no program running");
     c.prog.title = "";
   }
@@ -192,7 +199,7 @@ async function refresh() {
     unavailable.hidden = true;
     registerSection.hidden = false;
     const ids = new Set(page.items.map((m) => m.id));
-    for (const id of [...cards.keys()]) if (!ids.has(id)) { cards.get(id).node.remove(); cards.delete(id); }
+    for (const id of [...cards.keys()]) if (!ids.has(id)) forget(id);
     for (const m of page.items) {
       if (cards.has(m.id)) update(m);
       else list.append(card(m));

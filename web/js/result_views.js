@@ -172,5 +172,30 @@ function circuitSurfaceView(job) {
   return node;
 }
 
-export const VIEWS = { probe_plan: planView, five_axis: fiveAxisView, circuit_program: circuitSurfaceView,
+// ---- reconstruction: what the probes measured along the trace, with the bound -----------
+function reconstructView(job) {
+  const r = job.result;
+  const { node, body } = box("reconstruct-view", "Reconstruction: measured − nominal along the trace");
+  const samples = (r.deviation?.samples || []).map(([s, dz]) => ({ s_mm: s, deviation_mm: dz }))
+    .sort((a, b) => a.s_mm - b.s_mm);
+  if (!samples.length) {
+    body.replaceChildren(el("p", { class: "small" }, "this reconstruction reports no samples"));
+    return node;
+  }
+  const um = (mm) => (Number.isFinite(mm) ? `${round(mm * 1000, 3)} µm` : "—");
+  const band = r.bound_mm != null ? { half: r.bound_mm } : null;
+  const plot = chart(samples, { x: "s_mm", ys: ["deviation_mm"], xUnit: "mm", points: samples, band,
+    title: `Measured − nominal height at each kept probe point along the trace` +
+      (band ? `; shaded: ± the reconstruction's bound (${um(r.bound_mm)}, under the fitted model)` : "") });
+  body.replaceChildren(figureList([
+    ["Method", r.method, "method"],
+    ["Probe points used", String(r.points_used), "points_used"],
+    ["Deviation max / rms", `${um(r.deviation.max_mm)} / ${um(r.deviation.rms_mm)}`, "deviation"],
+    r.bound_mm != null ? ["Bound", `± ${um(r.bound_mm)}`, "bound_mm"] : null,
+    ["Outliers excluded", r.outliers?.length ? r.outliers.join(", ") : "none", "outliers"],
+    r.field_check?.verdict?.line ? ["Verified", r.field_check.verdict.line, "verdict"] : null]), plot);
+  return node;
+}
+
+export const VIEWS = { probe_plan: planView, reconstruct: reconstructView, five_axis: fiveAxisView, circuit_program: circuitSurfaceView,
   compensate: (job) => (job.result.board ? boardCompensateView(job) : compensateView(job)) };

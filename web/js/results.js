@@ -112,18 +112,54 @@ function unitOf(name) {
   return unit ? unit[0].slice(1).replace("mm_s", "mm/s").replace("um", "µm").replace("deg", "°") : "";
 }
 
-// An SVG chart of `rows` (objects): axes with min/max ticks, a legend with units.
-export function chart(rows, { x, ys, type = "line", title = "", xUnit = "", yUnit = "" }) {
+// Ticks at 1, 2 or 5 x 10^k enclosing [lo, hi]: about `count` of them, with the decimals
+// their step needs (no exponents, no 4.522e-4).
+export function niceTicks(lo, hi, count = 5) {
+  if (!(hi > lo)) return { ticks: [lo], decimals: 0 };
+  const raw = (hi - lo) / Math.max(1, count);
+  const mag = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 5, 10].map((f) => f * mag).find((v) => v >= raw) ?? 10 * mag;
+  const decimals = Math.max(0, -Math.floor(Math.log10(step) + 1e-9));
+  const ticks = [];
+  const first = Math.floor(lo / step + 1e-9), last = Math.ceil(hi / step - 1e-9);  // the ticks enclose [lo, hi]
+  for (let k = first; k <= last; k += 1) ticks.push(Number((k * step).toFixed(decimals)));
+  return { ticks, decimals };
+}
+
+// How a series is shown: lengths in mm that are all below 1 mm (errors, deviations) in µm,
+// the unit the page's tables use for them; everything else as its name says.
+function displayScale(names, rows, unit) {
+  const mm = unit ? unit === "mm" : names.every((k) => k.endsWith("_mm"));
+  if (!mm) return { factor: 1, unit: unit || unitOf(names[0]) };
+  const big = rows.some((r) => names.some((k) => Number.isFinite(r[k]) && Math.abs(r[k]) >= 1));
+  return big ? { factor: 1, unit: "mm" } : { factor: 1000, unit: "µm" };
+}
+
+// An SVG chart of `rows` (objects): nice ticks with grid lines on both axes, values in the
+// page's units, a legend; optionally `points` (records with the same x and y keys, drawn as
+// dots: probe touches) and a `band` ({ lo, hi } keys or { half } constant: an uncertainty band).
+export function chart(rows, { x, ys, type = "line", title = "", xUnit = "", yUnit = "", points = null, band = null }) {
   const series = ys.filter((k) => rows.length && typeof rows[0][k] === "number");
   if (!series.length || rows.length < 1) return null;
-  const w = 640, h = 220, left = 56, right = 12, top = 26, bottom = 34;
+  const w = 640, h = 240, left = 60, right = 14, top = 26, bottom = 40;
   const xs = rows.map((r, i) => (typeof r[x] === "number" ? r[x] : i));
-  const all = series.flatMap((k) => rows.map((r) => r[k])).filter(Number.isFinite);
+  const scale = displayScale(series, rows, yUnit);
+  const f = scale.factor;
+  const dots = (points || []).filter((p) => Number.isFinite(p[x]) && Number.isFinite(p[series[0]]));
+  const bandAt = (r) => (band?.half !== undefined ? [r[series[0]] - band.half, r[series[0]] + band.half]
+    : band ? [r[band.lo], r[band.hi]] : null);
+  const all = [...series.flatMap((k) => rows.map((r) => r[k])), ...dots.map((p) => p[series[0]]),
+    ...(band ? rows.flatMap((r) => bandAt(r)) : [])].filter(Number.isFinite).map((v) => v * f);
   let y0 = Math.min(0, ...all), y1 = Math.max(0, ...all);
   if (y1 - y0 < 1e-12) y1 = y0 + 1;
-  const x0 = Math.min(...xs), x1 = Math.max(...xs) === x0 ? x0 + 1 : Math.max(...xs);
+  const yt = niceTicks(y0, y1);
+  y0 = Math.min(y0, yt.ticks[0]); y1 = Math.max(y1, yt.ticks[yt.ticks.length - 1]);
+  const allX = [...xs, ...dots.map((p) => p[x])];
+  const x0 = Math.min(...allX), x1 = Math.max(...allX) === x0 ? x0 + 1 : Math.max(...allX);
+  const xt = niceTicks(x0, x1, 6);
   const X = (v) => left + ((v - x0) / (x1 - x0)) * (w - left - right);
-  const Y = (v) => top + (1 - (v - y0) / (y1 - y0)) * (h - top - bottom);
+  const Y = (v) => top + (1 - (v * f - y0) / (y1 - y0)) * (h - top - bottom);
+  const Yd = (v) => top + (1 - (v - y0) / (y1 - y0)) * (h - top - bottom);  // v already in display units
   const ns = "http://www.w3.org/2000/svg";
   const svg = document.createElementNS(ns, "svg");
   svg.setAttribute("viewBox", `0 0 ${w} ${h}`);
@@ -136,15 +172,26 @@ export function chart(rows, { x, ys, type = "line", title = "", xUnit = "", yUni
     svg.append(n);
     return n;
   };
-  const yu = yUnit || unitOf(series[0]);
   const xu = xUnit || unitOf(x);
-  mk("line", { x1: left, x2: w - right, y1: Y(0), y2: Y(0), stroke: "#8c959f" });
+  for (const v of yt.ticks) {
+    mk("line", { x1: left, x2: w - right, y1: Yd(v), y2: Yd(v), stroke: v === 0 ? "#8c959f" : "#eaeef2", class: "grid-y" });
+    mk("text", { x: left - 4, y: Yd(v) + 4, "font-size": 11, "text-anchor": "end", class: "tick-y" }, v.toFixed(yt.decimals));
+  }
+  if (type !== "bars") {
+    for (const v of xt.ticks.filter((t) => t >= x0 && t <= x1)) {
+      mk("line", { x1: X(v), x2: X(v), y1: top, y2: h - bottom, stroke: "#eaeef2", class: "grid-x" });
+      mk("text", { x: X(v), y: h - bottom + 14, "font-size": 11, "text-anchor": "middle", class: "tick-x" }, v.toFixed(xt.decimals));
+    }
+  }
   mk("line", { x1: left, x2: left, y1: top, y2: h - bottom, stroke: "#8c959f" });
-  for (const v of [y0, y1]) mk("text", { x: left - 4, y: Y(v) + 4, "font-size": 11, "text-anchor": "end" }, `${round(v, 3)}`);
-  mk("text", { x: 4, y: top - 10, "font-size": 11 }, yu);
-  mk("text", { x: left, y: h - 8, "font-size": 11 }, `${round(x0, 4)}`);
-  mk("text", { x: w - right, y: h - 8, "font-size": 11, "text-anchor": "end" }, `${round(x1, 4)} ${xu}`.trim());
-  mk("text", { x: (left + w) / 2, y: h - 8, "font-size": 11, "text-anchor": "middle" }, x.replace(/_/g, " "));
+  mk("text", { x: 4, y: top - 10, "font-size": 11, class: "unit-y" }, scale.unit);
+  mk("text", { x: (left + w) / 2, y: h - 6, "font-size": 11, "text-anchor": "middle" },
+    `${x.replace(/_(mm|s|deg)$/, "").replace(/_/g, " ")}${xu ? ` (${xu})` : ""}`);
+  if (band && type !== "bars") {
+    const upper = rows.map((r, i) => `${X(xs[i]).toFixed(1)},${Y(bandAt(r)[1]).toFixed(1)}`);
+    const lower = rows.map((r, i) => `${X(xs[i]).toFixed(1)},${Y(bandAt(r)[0]).toFixed(1)}`).reverse();
+    mk("polygon", { points: [...upper, ...lower].join(" "), fill: "#1f6feb", "fill-opacity": 0.15, stroke: "none", class: "band" });
+  }
   series.forEach((key, s) => {
     const color = COLORS[s % COLORS.length];
     if (type === "bars") {
@@ -162,8 +209,40 @@ export function chart(rows, { x, ys, type = "line", title = "", xUnit = "", yUni
     mk("rect", { x: left + 8 + s * 190, y: 6, width: 10, height: 10, fill: color });
     mk("text", { x: left + 22 + s * 190, y: 15, "font-size": 11 }, key.replace(/_(mm_s|um|mm|s|ms|deg)$/, "").replace(/_/g, " "));
   });
-  return el("figure", { class: "chart", "data-rows": rows.length, "data-series": series.join(",") },
-    svg, el("figcaption", { class: "small" }, title));
+  for (const p of dots) mk("circle", { cx: X(p[x]), cy: Y(p[series[0]]), r: 3, fill: "#24292f", class: "probe-point" });
+  if (dots.length) {
+    const lx = left + 8 + series.length * 190;
+    mk("circle", { cx: lx + 5, cy: 11, r: 3, fill: "#24292f" });
+    mk("text", { x: lx + 14, y: 15, "font-size": 11 }, "probe points");
+  }
+  return el("figure", { class: "chart", "data-rows": rows.length, "data-series": series.join(","), "data-unit": scale.unit,
+    "data-points": dots.length }, svg, el("figcaption", { class: "small" }, title));
+}
+
+// The one line a dashboard shows for a finished job: the figure that matters for its kind
+// (the worst standoff error before and after, a deviation and its bound), else its first
+// figures.
+export function headline(job) {
+  const r = job.result || job.result_summary;
+  if (!r) return "";
+  const um = (mm) => `${round(mm * 1000, 3)} µm`;
+  const worst = (rows, key) => Math.max(...rows.map((row) => row[key]).filter(Number.isFinite));
+  if (job.kind === "closed_loop" && Array.isArray(r.table) && r.table.length) {
+    const before = worst(r.table, "standoff_max_before_um"), after = worst(r.table, "standoff_max_after_um");
+    const verified = r.verdict?.line ? ` · ${r.verdict.line}` : "";
+    if (Number.isFinite(before) && Number.isFinite(after)) {
+      return `worst standoff error ${round(before, 3)} µm → ${round(after, 3)} µm over ${r.table.length} traces${verified}`;
+    }
+  }
+  if (job.kind === "reconstruct" && r.deviation) {
+    return `deviation max ${um(r.deviation.max_mm)}, rms ${um(r.deviation.rms_mm)}` +
+      (r.bound_mm != null ? ` · bound ±${um(r.bound_mm)}` : "") + (r.points_used != null ? ` · ${r.points_used} points` : "");
+  }
+  if (job.kind === "compensate" && r.max_chord_error_mm != null) {
+    return `chord error ≤ ${um(r.max_chord_error_mm)} · standoff ${length(r.standoff_mm)} · ${length(r.length_mm)}` +
+      (r.warnings?.length ? ` · ${r.warnings.length} warning${r.warnings.length === 1 ? "" : "s"}` : "");
+  }
+  return headlineFigures(r).slice(0, 3).map(([n, v]) => `${n}: ${v}`).join(" · ");
 }
 
 // Rows of records as a table with units (at most `limit` rows; the rest one click away).

@@ -31,8 +31,8 @@ from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.calibration_touch import travel_height
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import check_gcode, gcode_meta
-from app.jobs.machine_jobs import (connected_machine, interrupt, machine_for_job, refuse_if_machine_busy, resume_point,
-                                   resume_request, stopped_by_operator)
+from app.jobs.machine_jobs import (connected_machine, interrupt, machine_for_job, plan_eta, refuse_if_machine_busy,
+                                   resume_point, resume_request, stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
 from app.jobs.results import PrintResult
 from app.gcode.placement import check_inside, profile_volume
@@ -188,6 +188,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
                 cancelled = True
                 machine.cancel()
 
+    plan_eta(machine, lines)
     with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
         try:
             report = machine.stream(lines, on_progress=on_progress, start_line=state["start_line"])

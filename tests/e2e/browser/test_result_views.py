@@ -218,3 +218,37 @@ def test_3d_view_of_a_compensation_shows_the_deviation_standoff_errors_and_a_leg
     assert "µm" in frame.locator(".conforma-legend").first.inner_text()
     save_view_panel(page, screenshot_path("view3d-compensate"))
     assert page.js_errors == []
+
+
+def test_reconstruction_view_plots_the_probe_points_in_micrometres_with_nice_ticks(page, jobs):
+    job = jobs["rebuilt"]
+    samples = job["result"]["deviation"]["samples"]
+    page.goto(f"/jobs.html?job={job['id']}")
+    figure = page.wait_for_selector("#reconstruct-view figure.chart")
+    assert figure.get_attribute("data-unit") == "µm"                       # deviations below 1 mm read in µm
+    assert int(figure.get_attribute("data-points")) == len(samples)
+    ticks = [float(t) for t in page.locator("#reconstruct-view .tick-y").all_text_contents()]
+    assert len(ticks) >= 3 and not any("e" in t for t in page.locator("#reconstruct-view .tick-y").all_text_contents())
+    steps = np.diff(ticks)
+    assert np.allclose(steps, steps[0])
+    mantissa = steps[0] / 10 ** np.floor(np.log10(steps[0]))
+    assert min(abs(mantissa - m) for m in (1, 2, 5, 10)) < 1e-6             # a 1-2-5 step
+    dz_um = np.array([d for _s, d in samples]) * 1000
+    assert ticks[0] <= dz_um.min() and ticks[-1] >= dz_um.max()              # the ticks cover every point
+    worst = page.inner_text('#reconstruct-view tr[data-key="deviation"] td').split("/")[0]
+    assert float(worst.split()[0]) == pytest.approx(job["result"]["deviation"]["max_mm"] * 1000, rel=1e-3)
+    assert (page.locator("#reconstruct-view polygon.band").count() == 1) == (job["result"].get("bound_mm") is not None)
+    assert page.js_errors == []
+
+
+def test_the_dashboard_headlines_give_the_figure_that_matters(page, jobs):
+    page.goto("/index.html")
+    comp = page.wait_for_selector(f'#dash-recent [data-id="{jobs["compensate"]["id"]}"] .headline')
+    text = comp.inner_text()
+    assert text.startswith("chord error ≤") and "Dispense" not in text
+    chord_um = float(text.split("≤")[1].split()[0])
+    assert chord_um == pytest.approx(jobs["compensate"]["result"]["max_chord_error_mm"] * 1000, rel=5e-3)  # 3 digits
+    rebuilt = page.inner_text(f'#dash-recent [data-id="{jobs["rebuilt"]["id"]}"] .headline')
+    max_um = float(re.search(r"deviation max ([-\d.]+) µm", rebuilt).group(1))
+    assert max_um == pytest.approx(jobs["rebuilt"]["result"]["deviation"]["max_mm"] * 1000, rel=5e-3)
+    assert page.js_errors == []
