@@ -93,7 +93,7 @@ class Scene:
         normal = np.tile([0.0, 0.0, 1.0], (n, 1))
         if self.mesh is not None and n:
             origins = np.column_stack([xy, np.full(n, self.top)])
-            rays, tris, where = self.mesh.ray.intersects_id(origins, np.tile([0.0, 0.0, -1.0], (n, 1)),
+            tris, rays, where = self.mesh.ray.intersects_id(origins, np.tile([0.0, 0.0, -1.0], (n, 1)),
                                                             multiple_hits=False, return_locations=True)
             higher = where[:, 2] > z[rays]
             z[rays[higher]] = where[higher, 2]
@@ -125,7 +125,7 @@ def readings(optics: SensorOptics, scene: Scene, carriage: np.ndarray) -> np.nda
     n = len(p)
     offset = np.asarray(optics.offset_mm)
     spot = p[:, :2] + offset[:2]
-    pattern = SPOT_PATTERN * optics.spot_mm
+    pattern = SPOT_PATTERN[:1] if optics.spot_mm == 0 else SPOT_PATTERN * optics.spot_mm
     z_all, normals = scene.top_z((spot[:, None, :] + pattern[None, :, :]).reshape(-1, 2))
     h = z_all.reshape(n, len(pattern)).mean(axis=1)
     centre = normals.reshape(n, len(pattern), 3)[:, 0, :]
