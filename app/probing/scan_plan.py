@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from app.errors import InvalidInput
 from app.geometry.traces import TracePolyline
+from app.probing.deviation_prior import DeviationPrior, Sites, path_gradient
 from app.probing.scan_cost import MotionCost, link_time, nearest_order, pass_time
 
 Height = Callable[[np.ndarray], np.ndarray]
@@ -88,19 +89,36 @@ def _dense(xy: np.ndarray, step_mm: float) -> np.ndarray:
     return np.column_stack([np.interp(at, s, xy[:, 0]), np.interp(at, s, xy[:, 1])])
 
 
+def _cells(xy: np.ndarray, x0: float, y0: float, tw: float, th: float, nx: int, ny: int) -> set[tuple[int, int]]:
+    """The tiles the points xy (n, 2) fall in."""
+    cx = np.clip(((xy[:, 0] - x0) // tw).astype(int), 0, nx - 1)
+    cy = np.clip(((xy[:, 1] - y0) // th).astype(int), 0, ny - 1)
+    return {(int(a), int(b)) for a, b in zip(cx, cy)}
+
+
 def _on_top(xy: np.ndarray, height: Height) -> np.ndarray:
     return np.column_stack([xy, height(xy)])
 
 
-def _raster_lines(x0: float, x1: float, y0: float, y1: float, spacing: float, step: float,
-                  height: Height) -> list[np.ndarray]:
-    count = max(1, int(math.ceil((y1 - y0) / spacing)))
-    ys = y0 + (np.arange(count) + 0.5) * (y1 - y0) / count
+def _raster_ys(y0: float, y1: float, spacing: float) -> np.ndarray:
+    """Raster line ordinates (k,) from y0 to y1 inclusive, at most ``spacing`` apart (the rim
+    lines lie on the bounds: no trace point is extrapolated to)."""
+    return np.linspace(y0, y1, max(2, int(math.ceil((y1 - y0) / spacing)) + 1))
+
+
+def _raster_lines(x0: float, x1: float, ys: np.ndarray, step: float, height: Height) -> list[np.ndarray]:
     lines = []
     for i, y in enumerate(ys):
         xs = (x0, x1) if i % 2 == 0 else (x1, x0)
         lines.append(_on_top(_dense(np.array([[xs[0], y], [xs[1], y]]), step), height))
     return lines
+
+
+def _row_ys(ys: np.ndarray, row: int, y0: float, th: float, ny: int) -> np.ndarray:
+    """The raster ordinates that belong to tile row ``row`` (the last row keeps its top)."""
+    lo, hi = y0 + row * th, y0 + (row + 1) * th
+    out: np.ndarray = ys[(ys >= lo - 1e-9) & ((ys < hi - 1e-9) | (row == ny - 1))]
+    return out
 
 
 def _trace_cost(paths: Sequence[np.ndarray], cost: MotionCost) -> float:
@@ -133,6 +151,7 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
     x0, y0, x1, y1 = bounds
     nx, ny = max(1, int(math.ceil((x1 - x0) / tile_mm))), max(1, int(math.ceil((y1 - y0) / tile_mm)))
     tw, th = (x1 - x0) / nx, (y1 - y0) / ny
+    ys = _raster_ys(y0, y1, spacing_mm)
     tiles: dict[tuple[int, int], list[int]] = {}
     spots = [_on_top(_dense(p.points[:, :2], step_mm), height) for p in paths]
     for k, p in enumerate(paths):
@@ -145,10 +164,18 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
             choice[key] = "trace" if mode == "traces" else "raster"
             continue
         tx, ty = x0 + key[0] * tw, y0 + key[1] * th
-        lines = _raster_lines(tx, tx + tw, ty, ty + th, spacing_mm, step_mm, height)
+        lines = _raster_lines(tx, tx + tw, _row_ys(ys, key[1], y0, th, ny), step_mm, height)
         raster = sum(pass_time(cost, float(np.sum(np.linalg.norm(np.diff(line, axis=0), axis=1)))) for line in lines)
         raster += (len(lines) - 1) * link_time(cost, spacing_mm, hop=False)
         choice[key] = "trace" if _trace_cost([spots[k] for k in members], cost) < raster else "raster"
+    # a rastered tile must cover every trace point in it: tiles that traces of rastered owners
+    # reach are rastered too
+    for key, members in list(tiles.items()):
+        if choice[key] != "raster":
+            continue
+        for k in members:
+            for cell in _cells(paths[k].points[:, :2], x0, y0, tw, th, nx, ny):
+                choice[cell] = "raster"
     passes: list[ScanPass] = []
     for row in range(ny):
         cols = range(nx) if row % 2 == 0 else range(nx - 1, -1, -1)
@@ -157,8 +184,8 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
         def flush() -> None:
             if run:
                 a, b = min(run), max(run)
-                lines = _raster_lines(x0 + a * tw, x0 + (b + 1) * tw, y0 + row * th, y0 + (row + 1) * th,
-                                      spacing_mm, step_mm, height)
+                lines = _raster_lines(x0 + a * tw, x0 + (b + 1) * tw, _row_ys(ys, row, y0, th, ny), step_mm,
+                                      height)
                 if row % 2:
                     lines = [line[::-1] for line in lines]
                 passes.extend(ScanPass(line, "raster", -1, i == 0) for i, line in enumerate(lines))
@@ -185,3 +212,45 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
     counts = {"trace": sum(1 for v in choice.values() if v == "trace"),
               "raster": sum(1 for v in choice.values() if v == "raster")}
     return ScanPlan(passes, float(scan_s), float(link_s), counts)
+
+
+@dataclass(frozen=True)
+class TargetedPlan:
+    """The plan chosen for a target: the plan, its raster spacing, its predicted bound
+    (coverage x the largest posterior sd over the trace points, mm) and every spacing tried
+    with its bound and machine seconds."""
+
+    plan: ScanPlan
+    spacing_mm: float
+    bound_mm: float
+    tried: list[dict[str, float]]
+
+
+def plan_to_target(paths: Sequence[TracePolyline], height: Height, slope: Callable[[np.ndarray], np.ndarray],
+                   bounds: tuple[float, float, float, float], cost: MotionCost, prior: DeviationPrior,
+                   coverage: float, target_mm: float, rate_hz: float, spacings_mm: Sequence[float],
+                   mode: str = "mixed", block: int = 5) -> TargetedPlan:
+    """The fastest of the plans at ``spacings_mm`` whose predicted bound meets ``target_mm``
+    (their bounds judged with samples averaged in blocks of ``block``, noise
+    ``prior.sigma_mm / sqrt(block)``, as the fit sees them); ``ScanPlanError`` naming
+    ``spacings_mm`` when none does."""
+    from app.reconstruction.scan_field import predicted_sd  # the fit's own posterior: one model
+
+    query = Sites(np.concatenate([p.at(np.linspace(0, p.length_mm, 9))[:, :2] for p in paths]),
+                  np.concatenate([path_gradient(p, np.linspace(0, p.length_mm, 9)) for p in paths]))
+    center = np.array([(bounds[0] + bounds[2]) / 2, (bounds[1] + bounds[3]) / 2])
+    averaged = replace(prior, sigma_mm=prior.sigma_mm / math.sqrt(block))
+    tried: list[dict[str, float]] = []
+    best: TargetedPlan | None = None
+    for spacing in sorted(spacings_mm, reverse=True):
+        plan = plan_scans(paths, height, bounds, cost, spacing, mode=mode)
+        xy = plan.samples(cost, rate_hz)
+        xy = xy[: len(xy) // block * block].reshape(-1, block, 2).mean(axis=1)
+        bound = coverage * float(predicted_sd(averaged, Sites(xy, slope(xy)), center, query, slope).max())
+        tried.append({"spacing_mm": float(spacing), "bound_mm": bound, "machine_s": plan.machine_s})
+        if bound <= target_mm and (best is None or plan.machine_s < best.plan.machine_s):
+            best = TargetedPlan(plan, float(spacing), bound, tried)
+    if best is None:
+        raise ScanPlanError(f"no raster spacing of {list(spacings_mm)} meets the target {target_mm * 1e3:.2f} um",
+                            field="spacings_mm", value=list(spacings_mm))
+    return replace(best, tried=tried)

@@ -38,6 +38,7 @@ from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel, placement_basis,
                                          prior_variance)
 from app.reconstruction.field import FieldFit
+from app.reconstruction.field_trust import Verification
 from app.reconstruction.preprocess import ReconstructionError
 
 CHUNK = 4096
@@ -175,3 +176,14 @@ def predicted_sd(prior: DeviationPrior, samples: Sites, center: np.ndarray, quer
     post = _solve(prior, samples, np.zeros(len(samples.xy)), center, inducing, low)
     return np.concatenate([post.sd(query.take(np.arange(s, min(s + CHUNK, len(query.xy)))))
                            for s in range(0, len(query.xy), CHUNK)])
+
+
+def verify_touches(fit: FieldFit, sites: Sites, measured_mm: np.ndarray, trace: np.ndarray, coverage: float,
+                   probe_sigma_mm: float) -> Verification:
+    """Verification touches (k,) against a scan field: as :func:`app.reconstruction.field_trust.verify`,
+    with the predictive sd of a TOUCH (the field's posterior sd and the probe's noise, not the
+    averaged scan samples' noise the field was fitted with)."""
+    predicted = fit.deviation(sites)
+    sd = np.sqrt(fit.posterior.sd(sites) ** 2 + probe_sigma_mm ** 2)
+    return Verification(sites.xy, np.asarray(trace, dtype=int), np.asarray(measured_mm, dtype=float), predicted,
+                        sd, coverage * sd)

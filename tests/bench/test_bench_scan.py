@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -34,12 +35,12 @@ from app.compensation.standoff import CompensationParams, compensate_trace
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.field import plan_field
 from app.probing.scan_cost import MotionCost, touch_time
-from app.probing.scan_plan import plan_scans
+from app.probing.scan_plan import plan_to_target
 from app.probing.selection import PlanParams
 from app.reconstruction.field import trace_reconstruction
-from app.reconstruction.field_trust import checked_field, verify
+from app.reconstruction.field_trust import checked_field
 from app.reconstruction.reconstruct import ReconstructParams
-from app.reconstruction.scan_field import fit_scan_field
+from app.reconstruction.scan_field import fit_scan_field, verify_touches
 from app.reconstruction.scan_samples import block_average, pass_deviations
 from app.reference.boards import as_made_board, board_path, board_traces, dome_part
 from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor, run_pass
@@ -55,6 +56,7 @@ PAD, SPHERE = (190.0, 20.0, 4.0), (190.0, 70.0, 12.0)
 NOMINAL_OFFSET = (30.0, 5.0, -10.0)
 RATE = 2000.0
 VERIFY = 5
+BLOCK = 5  # samples averaged per fitted point (noise / sqrt(5), 0.25 mm along a pass at 100 mm/s)
 DZ = 0.03
 
 
@@ -91,7 +93,6 @@ def test_scan_against_touches_on_the_1000_trace_board():
     check = checked_field(params.prior(), stations, plan.z, measured, plan.center, plan.trace, plan.s_mm,
                           np.zeros(len(plan.z), bool), COVERAGE, TARGET, learn=True)
     touch_cpu = time.process_time() - c0
-    touch_s = touch_time(cost, plan.xy) + touch_time(cost, plan.xy[:VERIFY])  # + verification touches
     touch_bound = COVERAGE * float(plan.max_sd_mm)
 
     # ---------------------------------------------------------------- scan on the mock
@@ -116,7 +117,10 @@ def test_scan_against_touches_on_the_1000_trace_board():
         allp = np.concatenate([p.points[:, :2] for p in paths])
         lo, hi = allp.min(axis=0) - 1.0, allp.max(axis=0) + 1.0
         c1 = time.process_time()
-        scan = plan_scans(paths, part.height, (lo[0], lo[1], hi[0], hi[1]), cost, spacing_mm=5.0)
+        prior = DeviationPrior(amplitude_mm=0.15, wavelength_mm=15.0, sigma_mm=0.0005)
+        targeted = plan_to_target(paths, part.height, part.gradient, (lo[0], lo[1], hi[0], hi[1]), cost, prior,
+                                  COVERAGE, TARGET, RATE, (7.5, 6.5, 6.0, 5.0, 4.0), block=BLOCK)
+        scan = targeted.plan
         plan_cpu = time.process_time() - c1
         t0, bytes0 = world.stats.machine_time_s, sensor.bytes_received
         xy_all, dz_all = [], []
@@ -125,14 +129,14 @@ def test_scan_against_touches_on_the_1000_trace_board():
             data = run_pass(machine, sensor, w, cost.scan_mm_s, 40.0 if p.hop else None)
             xy, dz = pass_deviations(w, cost.scan_mm_s, data.values, RATE, calibration, part.height,
                                      lambda q: part.gradient(q))
-            xy, dz = block_average(xy, dz, 5)
+            xy, dz = block_average(xy, dz, BLOCK)
             xy_all.append(xy)
             dz_all.append(dz)
         scan_clock = world.stats.machine_time_s - t0
         transfer_s = (sensor.bytes_received - bytes0) * 10 / 115200
         xy, dz = np.concatenate(xy_all), np.concatenate(dz_all)
         c2 = time.process_time()
-        prior = DeviationPrior(amplitude_mm=0.15, wavelength_mm=15.0, sigma_mm=0.0005 / math.sqrt(5))
+        prior = replace(prior, sigma_mm=prior.sigma_mm / math.sqrt(BLOCK))
         center = (lo + hi) / 2
         fit = fit_scan_field(prior, Sites(xy, part.gradient(xy)), dz, center, part.gradient)
         fit_cpu = time.process_time() - c2
@@ -140,7 +144,8 @@ def test_scan_against_touches_on_the_1000_trace_board():
         touched = []
         for (x, y), z_nom in zip(vsites.xy, part.height(vsites.xy)):
             touched.append(machine.probe(float(x), float(y), z_start=float(z_nom) + 2.0, z_min=float(z_nom) - 2.0).z)
-        verification = verify(fit, vsites, np.array(touched) - part.height(vsites.xy), vtrace, COVERAGE)
+        verification = verify_touches(fit, vsites, np.array(touched) - part.height(vsites.xy), vtrace, COVERAGE,
+                                      params.probe_sigma_mm)
         trace_sd = [float(fit.posterior.sd(path_sites(p, np.linspace(0, p.length_mm, 9))).max()) for p in paths]
         scan_bound = COVERAGE * max(trace_sd)
         errors = []
@@ -156,6 +161,7 @@ def test_scan_against_touches_on_the_1000_trace_board():
         unregister_sensor("scanbench")
         unregister_world("scanbench")
     scan_s = scan.machine_s + touch_time(cost, vsites.xy)
+    touch_s = touch_time(cost, plan.xy) + touch_time(cost, vsites.xy)  # the same verification touches
     touch_errors = []
     for i, path in enumerate(paths[:200]):
         rec = trace_reconstruction(check.fit, path, i, ReconstructParams(prior=params.prior()))
@@ -167,13 +173,16 @@ def test_scan_against_touches_on_the_1000_trace_board():
           f"{(calibration.scale - 1 - scale_error):+.1e}; mock clock {cal_clock:.1f} s (per machine setup)")
     print(f"touch-only: {len(plan.xy)} stations + {VERIFY} verification: {touch_s:.0f} s machine time; bound "
           f"{touch_bound * 1e3:.2f} um; max error (200 traces) {max(touch_errors) * 1e3:.2f} um; CPU {touch_cpu:.1f} s")
-    print(f"scan: {len(scan.passes)} passes ({scan.tiles}), {scan.length_mm:.0f} mm: {scan.machine_s:.1f} s "
+    print(f"scan plans tried: {targeted.tried}")
+    print(f"scan: spacing {targeted.spacing_mm:g} mm, predicted bound {targeted.bound_mm * 1e3:.2f} um; "
+          f"{len(scan.passes)} passes ({scan.tiles}), {scan.length_mm:.0f} mm: {scan.machine_s:.1f} s "
           f"(+ {VERIFY} verification touches: {scan_s:.1f} s; mock clock {scan_clock:.1f} s; data transfer at "
           f"115200 baud {transfer_s:.1f} s); {len(dz)} averaged samples; bound {scan_bound * 1e3:.2f} um; max error "
           f"{max(errors) * 1e3:.2f} um; verification max |r| {verification.max_abs_residual_mm * 1e3:.2f} um "
           f"(within: {bool(verification.within.all())}); CPU plan {plan_cpu:.1f} s, fit {fit_cpu:.1f} s, "
           f"reconstruct+compensate {compensate_cpu:.1f} s")
-    print(f"ratio touch / scan machine time: {touch_s / scan_s:.1f}x")
+    print(f"ratio touch / scan machine time: {touch_s / scan_s:.1f}x "
+          f"({touch_s / (scan_s + transfer_s):.1f}x with the sensor's data transfer at 115200 baud)")
     assert abs(calibration.time_offset_s - tau) < 1e-3
     assert scan_bound <= TARGET and touch_bound <= TARGET
     assert verification.within.all() and verification.max_abs_residual_mm <= scan_bound
