@@ -71,9 +71,10 @@ class SensorCalibration:
         offset = data.get("offset_mm")
         if not isinstance(offset, (list, tuple)) or len(offset) != 3:
             raise CalibrationError("offset_mm must be three numbers", field="offset_mm", value=offset)
+        sd = data.get("sd")
         return cls((float(offset[0]), float(offset[1]), float(offset[2])), float(data["scale"]),  # type: ignore[arg-type]
                    float(data["time_offset_s"]), float(data.get("slope_bias_mm", 0.0)),  # type: ignore[arg-type]
-                   dict(data["sd"]) if isinstance(data.get("sd"), dict) else None)  # type: ignore[arg-type]
+                   {str(k): float(v) for k, v in sd.items()} if isinstance(sd, dict) else None)
 
     def surface_z(self, carriage: np.ndarray, readings: np.ndarray, tan2: np.ndarray | float = 0.0) -> np.ndarray:
         """Surface heights (n,) mm from readings (n,) with the carriage (n, 3) where they were

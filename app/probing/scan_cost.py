@@ -105,11 +105,13 @@ def nearest_order(starts: np.ndarray, ends: np.ndarray, origin: np.ndarray | Non
         d_end = np.where(left, np.linalg.norm(ends - here, axis=1), math.inf)
         i_s, i_e = int(np.argmin(d_start)), int(np.argmin(d_end))
         if d_start[i_s] <= d_end[i_e]:
-            order.append(i_s), flipped.append(False)
+            order.append(i_s)
+            flipped.append(False)
             here = ends[i_s]
             left[i_s] = False
         else:
-            order.append(i_e), flipped.append(True)
+            order.append(i_e)
+            flipped.append(True)
             here = starts[i_e]
             left[i_e] = False
     return order, flipped

@@ -163,7 +163,7 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
         if mode != "mixed":
             choice[key] = "trace" if mode == "traces" else "raster"
             continue
-        tx, ty = x0 + key[0] * tw, y0 + key[1] * th
+        tx = x0 + key[0] * tw
         lines = _raster_lines(tx, tx + tw, _row_ys(ys, key[1], y0, th, ny), step_mm, height)
         raster = sum(pass_time(cost, float(np.sum(np.linalg.norm(np.diff(line, axis=0), axis=1)))) for line in lines)
         raster += (len(lines) - 1) * link_time(cost, spacing_mm, hop=False)
@@ -181,7 +181,7 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
         cols = range(nx) if row % 2 == 0 else range(nx - 1, -1, -1)
         run: list[int] = []
 
-        def flush() -> None:
+        def flush(run: list[int], row: int) -> None:
             if run:
                 a, b = min(run), max(run)
                 lines = _raster_lines(x0 + a * tw, x0 + (b + 1) * tw, _row_ys(ys, row, y0, th, ny), step_mm,
@@ -196,7 +196,7 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
             if kind == "raster":
                 run.append(col)
                 continue
-            flush()
+            flush(run, row)
             if kind == "trace":
                 members = tiles[(col, row)]
                 starts = np.array([spots[k][0, :2] for k in members])
@@ -205,7 +205,7 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
                 order, flipped = nearest_order(starts, ends, here)
                 passes.extend(ScanPass(spots[members[i]][::-1] if f else spots[members[i]], "trace", members[i], True)
                               for i, f in zip(order, flipped))
-        flush()
+        flush(run, row)
     scan_s = sum(pass_time(cost, p.length_mm) for p in passes)
     link_s = sum(link_time(cost, float(np.linalg.norm(b.spot[0, :2] - a.spot[-1, :2])), b.hop)
                  for a, b in zip(passes, passes[1:]))
