@@ -38,6 +38,10 @@ class MotionTimeline:
         with self._lock:
             self._segments.append((float(t0), float(t1), a, b))
 
+    def advance(self, until: float, seconds: float, path: tuple[tuple[float, ...], tuple[float, ...]]) -> None:
+        """The clock advanced by ``seconds`` up to ``until`` while the carriage went path[0] -> path[1]."""
+        self.add(until - max(float(seconds), 0.0), until, path[0], path[1])
+
     def anchor(self, t: float, position: tuple[float, ...]) -> None:
         """The carriage stands at ``position`` at time ``t``; older segments are dropped."""
         with self._lock:
