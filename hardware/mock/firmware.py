@@ -269,7 +269,7 @@ class FirmwareCore:
         length = math.dist(target, start)
         drift_before = self.world.drift_mm()
         if length > 0:
-            self.advance_clock(length / max(feed_mm_min, 1e-9) * 60.0)
+            self.advance_clock(length / max(feed_mm_min, 1e-9) * 60.0, (start, tuple(target)))
         if length > 0 and (self.dispensing or self.active_tool):
             tip_start, tip_end = self.tip_path(start, tuple(target), drift_before)
             if self.dispensing:
@@ -294,9 +294,11 @@ class FirmwareCore:
             self.blocks.append((self.world.transcript.executed_count, self.line_n, begin, start,
                                 tuple(target)))
 
-    def advance_clock(self, seconds: float) -> None:
-        """The machine clock: modelled (unscaled) seconds of motion and dwell."""
+    def advance_clock(self, seconds: float, path: tuple | None = None) -> None:
+        """Machine clock += ``seconds`` (modelled); a ``world.timeline`` gets ``path`` (start, end)."""
         self.world.stats.machine_time_s += max(float(seconds), 0.0)
+        if self.world.timeline is not None:  # a device shares the position stream (default: standing)
+            self.world.timeline.advance(self.world.stats.machine_time_s, seconds, path or (self.position,) * 2)
 
     def tip_path(self, start: tuple, end: tuple, drift_before: float) -> tuple[tuple, tuple]:
         """Where the active tool's tip really went: carriage + tool offset + Z drift (the
@@ -324,7 +326,7 @@ class FirmwareCore:
             self.advance_clock(length / max(feed_mm_min, 1e-9) * 60.0)
             return Touch("miss", tuple(target), length, None)
         result = self.physics.touch(start, target, tool)
-        self.advance_clock(result.travel_mm / max(feed_mm_min, 1e-9) * 60.0)
+        self.advance_clock(result.travel_mm / max(feed_mm_min, 1e-9) * 60.0, (start, result.reading))
         return result
 
     def hold(self, now: float) -> None:

@@ -48,6 +48,7 @@ from urllib.parse import parse_qsl, urlsplit
 from ..errors import InvalidConfig
 from ..dialects import DEFAULT_DIALECT, DIALECTS, dialect
 from ..protocol import CommandHasher, CommandDigest
+from .timeline import MotionTimeline
 from .artifacts import (PHYSICS_LIMITS, MockPad, MockSphere, MockTool, check_physics_value,
                         merge_tools, parse_artifact_option, tool_number)
 
@@ -243,6 +244,9 @@ class MockWorld:
         self.deposition_log: list[DepositedMove] = []
         self.stats = MockStats()
         self.firmware = None  # created by the first connection (hardware.mock.firmware)
+        # the carriage's path on the machine clock, kept while a device shares the position
+        # stream (hardware.mock.timeline; the mock height sensor sets it)
+        self.timeline: MotionTimeline | None = None
 
     @property
     def segments(self) -> int:

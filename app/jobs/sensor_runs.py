@@ -1,0 +1,131 @@
+"""Driving a height sensor with a machine: scan passes and the sensor's calibration.
+
+A pass: the carriage goes to the travel height, over the first waypoint, down to it; the
+sensor's storage starts with the carriage at rest there; the waypoints stream at the scan
+feed (then the dialect's wait for the moves); the storage stops and its values are read.
+The carriage position of each sample comes from the commanded pass
+(:func:`app.probing.scan_path.sample_positions`) and the calibrated time offset.
+
+:func:`calibrate_sensor` runs the three procedures of :mod:`app.calibration.sensor` on the
+reference pad (its probe-measured top height) and the datum sphere (its qualified centre
+and radius).  Machine and sensor errors pass through as hardware errors (the job kinds
+translate them).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.calibration.sensor import (EdgePass, SensorCalibration, fit_scale_and_z, fit_sphere_scan,
+                                    fit_time_offset)
+from app.probing.scan_path import positions_at, sample_positions
+from hardware.height_sensor import HeightSensor
+from hardware.machine import Machine
+
+
+@dataclass(frozen=True)
+class PassData:
+    """One executed pass: waypoints (m, 3), speed mm/s, readings (n,) mm (NaN: none)."""
+
+    waypoints: np.ndarray
+    speed_mm_s: float
+    values: np.ndarray
+
+
+def run_pass(machine: Machine, sensor: HeightSensor, waypoints: np.ndarray, speed_mm_s: float,
+             travel_z: float | None = None) -> PassData:
+    """Drive one pass (see module docstring); ``travel_z`` None: go straight to the start."""
+    w = np.asarray(waypoints, dtype=float)
+    if travel_z is not None:
+        machine.move(z=max(travel_z, float(w[0, 2])))
+        machine.move(x=float(w[0, 0]), y=float(w[0, 1]))
+    machine.move(x=float(w[0, 0]), y=float(w[0, 1]), z=float(w[0, 2]))
+    feed = speed_mm_s * 60.0
+    lines = ["G90"] + [f"G1 X{x:.4f} Y{y:.4f} Z{z:.4f} F{feed:.1f}" for x, y, z in w[1:]]
+    sensor.start_storage()
+    machine.stream(lines + [machine.rules.wait_moves])
+    values, _ = sensor.stop_storage()
+    return PassData(w, speed_mm_s, values)
+
+
+@dataclass(frozen=True)
+class CalibrationSetup:
+    """Where the artifacts are (probe frame, mm) and how to scan them.
+
+    pad_centre (3,): the pad's top centre (z measured by the probe); pad_size; sphere_centre
+    (3,) and sphere_radius from the probe qualification; nominal_offset (3,) the sensor's
+    offset as mounted (known to a few 0.1 mm); range_mm: the head's half range."""
+
+    pad_centre: tuple[float, float, float]
+    pad_size: float
+    sphere_centre: tuple[float, float, float]
+    sphere_radius: float
+    nominal_offset: tuple[float, float, float]
+    range_mm: float
+    travel_z: float
+    edge_speed_mm_s: float = 20.0
+    edge_passes: int = 4
+    still_heights: int = 9
+    still_readings: int = 5
+    sphere_lines: int = 9
+    sphere_speed_mm_s: float = 10.0
+
+
+def calibrate_sensor(machine: Machine, sensor: HeightSensor, setup: CalibrationSetup) -> tuple[SensorCalibration, dict]:
+    """The sensor's calibration and a report of each procedure (module docstring)."""
+    o = np.asarray(setup.nominal_offset, dtype=float)
+    pad = np.asarray(setup.pad_centre, dtype=float)
+    # 1. scale and z offset: still over the pad's centre at heights across the range
+    machine.move(z=setup.travel_z)
+    heights = pad[2] - o[2] - np.linspace(-0.7, 0.7, setup.still_heights) * setup.range_mm
+    still = []
+    for z in heights:
+        machine.move(x=float(pad[0] - o[0]), y=float(pad[1] - o[1]), z=float(z))
+        values = [sensor.measure() for _ in range(setup.still_readings)]
+        still.append(np.nanmean([np.nan if v is None else v for v in values]))
+    scale, oz, sd_oz = fit_scale_and_z(heights, np.array(still), float(pad[2]))
+    # 2. time offset: across the pad's -x edge both ways, the zero 0.4 range below its top
+    edge_x = pad[0] - setup.pad_size / 2
+    z = pad[2] - oz - 0.4 * setup.range_mm
+    y = pad[1] - o[1]
+    passes: list[EdgePass] = []
+    level = 0.4 * setup.range_mm * scale - 0.5 * min(0.4 * setup.range_mm, 1.0) * scale
+    for k in range(2 * setup.edge_passes):
+        direction = 1 if k % 2 == 0 else -1
+        a, b = edge_x - o[0] - 3.0 * direction, edge_x - o[0] + 3.0 * direction
+        data = run_pass(machine, sensor, np.array([[a, y, z], [b, y, z]]), setup.edge_speed_mm_s,
+                        setup.travel_z if k == 0 else None)
+        along = positions_at(data.waypoints, data.speed_mm_s, sensor.stamps(len(data.values)))[:, 0]
+        passes.append(EdgePass(along, data.values, direction,
+                               setup.edge_speed_mm_s))
+    tau, _, sd_tau = fit_time_offset(passes, level)
+    # 3. lateral offset and tilt bias: a serpentine raster over the sphere's cap
+    c = np.asarray(setup.sphere_centre, dtype=float)
+    r = setup.sphere_radius
+    z = c[2] + r - oz - 0.05 * r
+    carriage, hs = [], []
+    machine.move(z=setup.travel_z)
+    for i, dy in enumerate(np.linspace(-0.35, 0.35, setup.sphere_lines) * r):
+        sign = 1 if i % 2 == 0 else -1
+        w = np.array([[c[0] - o[0] - sign * 0.45 * r, c[1] - o[1] + dy, z],
+                      [c[0] - o[0] + sign * 0.45 * r, c[1] - o[1] + dy, z]])
+        data = run_pass(machine, sensor, w, setup.sphere_speed_mm_s, setup.travel_z if i == 0 else None)
+        p = sample_positions(w, data.speed_mm_s, len(data.values), sensor.rate_hz, tau)
+        carriage.append(p)
+        hs.append(p[:, 2] + oz + data.values / scale)
+    machine.move(z=setup.travel_z)
+    sphere = fit_sphere_scan(np.concatenate(carriage), np.concatenate(hs), c, r, o[:2])
+    calibration = SensorCalibration((sphere["o_x"], sphere["o_y"], oz), scale, tau, sphere["b"],
+                                    {"o_x": sphere["sd_o_x"], "o_y": sphere["sd_o_y"], "o_z": sd_oz,
+                                     "time_offset_s": sd_tau, "slope_bias_mm": sphere["sd_b"]})
+    report = {"still": {"heights_mm": heights.tolist(), "readings_mm": [float(v) for v in still]},
+              "edge_passes": len(passes), "sphere": sphere}
+    return calibration, report
+
+
+def still_heights(values: Sequence[float | None]) -> np.ndarray:
+    """Readings as an array (n,) mm with NaN for no value."""
+    return np.array([np.nan if v is None else v for v in values], dtype=float)

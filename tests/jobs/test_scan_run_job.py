@@ -1,0 +1,72 @@
+"""scan_run through the API: the mock LK-G on a mock machine holding an as-made S1 part."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+from app.reference.s1 import as_made, s1_mesh, s1_traces
+from hardware.height_sensor.mock import unregister_sensor
+from tests.conftest import auth
+from tests.helpers.jobs import submit, wait_for
+
+OP = auth("operator")
+OFFSET = (30.05, 4.93, -10.08)
+TAU_S = 0.0021
+
+
+@pytest.fixture(scope="module")
+def meshes():
+    truth = as_made(seed=11, amplitude_mm=0.15)
+    return s1_mesh(grid_mm=0.6), truth.mesh(grid_mm=0.6).export(file_type="stl"), truth
+
+
+@pytest.mark.parametrize("mode", ["traces", "raster"])
+def test_a_scan_run_records_samples_and_verifies_its_field(client, meshes, mode):
+    nominal, true_stl, truth = meshes
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
+                       headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
+    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
+                         json=[s1_traces()[i].to_api() for i in (0, 4)], headers=OP).json()["items"]
+    machine = client.post("/api/v1/machines", json={
+        "name": "sim", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001}}, headers=OP).json()
+    port = (f"lkg://{machine['id']}?offset={','.join(map(str, OFFSET))}&time_offset_ms={TAU_S * 1000}"
+            "&noise_mm=0.0005&rate_hz=2000&seed=4")
+    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": TAU_S, "slope_bias_mm": 0.0}
+    try:
+        response = submit(client, "scan_run", {
+            "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
+            "calibration": calibration, "mode": mode, "deviation_amplitude_mm": 0.15,
+            "deviation_wavelength_mm": 15.0, "verify_count": 3})
+        assert response.status_code == 202, response.text
+        done = wait_for(client, response.json()["id"], timeout=120)
+    finally:
+        unregister_sensor(machine["id"])
+    assert done["status"] == "succeeded", done["error"]
+    result = done["result"]
+    assert result["verification"]["within"], result["verification"]
+    assert result["bound_mm"] <= 0.005
+    assert result["tiles"][mode.removesuffix("s") if mode == "traces" else "raster"] >= 1
+    artifact = next(a for a in done["artifacts"] if a["name"] == "samples.npz")
+    data = np.load(io.BytesIO(client.get(artifact["url"], headers=OP).content))
+    valid = data["valid"]
+    assert valid.mean() > 0.9 and len(valid) == result["samples"]
+    xy = np.column_stack([data["x"], data["y"]])[valid]
+    on_part = (xy[:, 0] > 1) & (xy[:, 0] < 59) & (xy[:, 1] > 1) & (xy[:, 1] < 39)
+    error = data["z"][valid][on_part] - truth.true_height(xy[on_part])
+    assert np.abs(np.median(error)) < 0.002 and np.percentile(np.abs(error), 95) < 0.01  # the 0.6 mm mesh
+
+
+def test_a_malformed_calibration_is_refused_at_submission(client):
+    machine = client.post("/api/v1/machines", json={"name": "sim", "port": "mock://", "dialect": "marlin"},
+                          headers=OP).json()
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_mesh(grid_mm=1.0).export(file_type="stl"))},
+                       headers=OP).json()
+    trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[0].to_api(), headers=OP).json()
+    response = submit(client, "scan_run", {"machine_id": machine["id"], "trace_ids": [trace["id"]],
+                                           "sensor_port": "lkg://x", "calibration": {"scale": 1.0}})
+    assert response.status_code == 422 and "calibration" in response.text
