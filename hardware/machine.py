@@ -407,25 +407,6 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started,
                             dict(link.stats))
 
-    def resume_line(self) -> int:
-        """After reconnecting: index of the first command not known to be executed."""
-        gap = self._interrupted
-        if gap is None:
-            raise MachineStateError("no interrupted program to resume", field="state")
-        if self.link is None:
-            raise MachineStateError("connect before resuming", field="state", value="disconnected")
-        if self.rules.resets_on_connect or gap.reset:
-            return gap.moved_index if gap.moved_index is not None else gap.acked_index
-        if not gap.inflight:
-            return gap.acked_index
-        first_line = gap.inflight[0][0]
-        last = self.link.sync_line_number(first_line)
-        if gap.acked_line_no is not None and last < gap.acked_line_no:
-            self.link.reset_line_numbers(1)  # the firmware restarted meanwhile
-            return gap.acked_index
-        done = [index + 1 for number, index in gap.inflight if number is not None and number <= last]
-        return max([gap.acked_index, *done])
-
     @property
     def estopped(self) -> bool:
         """True after an emergency stop, until the next ``connect``."""
@@ -435,20 +416,6 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
     def interrupted_program(self) -> _Interrupted | None:
         """What is known of a program that stopped on a link failure (``resume_line``)."""
         return self._interrupted
-
-    def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None:
-        """Before ``connect`` in a new host process: take over what an earlier process
-        recorded of an interrupted program (commands [0, acked_index) acknowledged, the
-        last of them numbered ``acked_line_no``; later commands were numbered on from
-        it), so that ``connect`` keeps the firmware's line numbering and ``resume_line``
-        can ask the firmware which of the later lines it accepted."""
-        if self.link is not None:
-            raise MachineStateError("adopt an interrupted program before connecting", field="state",
-                                    value=self.state)
-        inflight = [] if acked_line_no is None else \
-            [(acked_line_no + 1 + k, acked_index + k) for k in range(total - acked_index)]
-        self._interrupted = _Interrupted(total, acked_index, acked_line_no, inflight,
-                                         reset=acked_line_no is None)
 
     def pause(self) -> None:
         """Stop sending program lines (commands already sent still run)."""

@@ -230,7 +230,6 @@ class LinuxCNCMachine(ClaimedOperations):
                     raise LinkError("homing did not finish in time", field="home")
                 time.sleep(self.poll_s)
             self.homed = True
-            self.console.record("received", "homed: " + " ".join("YES" if h else "NO" for h in homed))
             self._mdi(self.profile.safe_off)  # first chance after a connect to an un-homed machine
             return self._position()
         finally:
@@ -364,7 +363,7 @@ class LinuxCNCMachine(ClaimedOperations):
                start_line: int = 0) -> StreamReport:
         """Run the program from command ``start_line`` on the controller (see the module
         docstring); returns when it ended or was cancelled (``set abort``)."""
-        from .program_run import run_program, write_program
+        from .program_run import resume_preamble, run_program, write_program
 
         commands = validate_program(lines)
         total = len(commands)
@@ -383,7 +382,7 @@ class LinuxCNCMachine(ClaimedOperations):
                 executed, cancelled = total, False
             else:
                 self._mdi(self.profile.safe_off)  # the program starts with every output off
-                preamble = self._resume_preamble(commands, start_line)
+                preamble = resume_preamble(self, commands, start_line)
                 path = write_program(self.address.program_dir, preamble + commands[start_line:])
                 executed, cancelled = run_program(self, path, start_line, total, on_progress,
                                                   skip=len(preamble))
@@ -399,20 +398,6 @@ class LinuxCNCMachine(ClaimedOperations):
             raise
         self._release("idle")
         return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started, {})
-
-    def _resume_preamble(self, commands: list[str], start_line: int) -> list[str]:
-        """Resuming mid-program: the commands that restore units, work offsets, motion mode,
-        feed, the start point, distance mode and the dispenser as the skipped commands left
-        them (``hardware.resume.modal_preamble``), written at the top of the program file."""
-        from ..resume import modal_preamble
-
-        self.last_preamble = []
-        if start_line == 0:
-            return []
-        p = self.profile
-        self.last_preamble = modal_preamble(commands, start_line, dispense_on=p.dispense_on,
-                                            dispense_off=p.dispense_off, clearance_z=p.clearance_z)
-        return list(self.last_preamble)
 
     # ------------------------------------------------------------------ interruption (the
     # same calls as hardware.machine.Machine: the service's interrupted/resume workflow)

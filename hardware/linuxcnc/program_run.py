@@ -16,14 +16,29 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from ..errors import FirmwareError, LinkError
+from ..resume import modal_preamble
 
 if TYPE_CHECKING:
     from .machine import LinuxCNCMachine
 
-__all__ = ["run_program", "write_program"]
+__all__ = ["resume_preamble", "run_program", "write_program"]
 
 _START_GRACE_S = 1.0  # IDLE right after "set run" may mean "not started yet"
 _PROGRAM_ENDS = ("M2", "M30")
+
+
+def resume_preamble(machine: LinuxCNCMachine, commands: list[str], start_line: int) -> list[str]:
+    """Resuming mid-program: the commands that restore units, work offsets, motion mode,
+    feed, the start point, distance mode and the dispenser as the skipped commands left
+    them (``hardware.resume.modal_preamble``), written at the top of the program file;
+    kept as the machine's ``last_preamble``."""
+    machine.last_preamble = []
+    if start_line == 0:
+        return []
+    p = machine.profile
+    machine.last_preamble = modal_preamble(commands, start_line, dispense_on=p.dispense_on,
+                                           dispense_off=p.dispense_off, clearance_z=p.clearance_z)
+    return list(machine.last_preamble)
 
 
 def write_program(directory: str, commands: list[str]) -> str:
