@@ -10,7 +10,7 @@ from shapely.geometry import LineString, Polygon
 
 from app.circuits.fills import fill_strokes, offset_polyline, pass_offsets
 from app.circuits.layout import circle_ring
-from app.circuits.program import Stroke, write_circuit_program
+from app.circuits.program import Stroke, order_strokes, write_circuit_program
 from app.circuits.strokes import deviation_field, trace_passes
 
 
@@ -51,6 +51,37 @@ def test_deviation_field_interpolates_linearly_and_holds_outside():
     field = deviation_field(xy, 0.01 * xy[:, 0])
     np.testing.assert_allclose(field(np.array([[5.0, 5.0], [2.5, 7.5]])), [0.05, 0.025], atol=1e-12)
     assert field(np.array([[20.0, 0.0]]))[0] == pytest.approx(0.1)
+
+
+def _greedy_by_scan(strokes: list[Stroke]) -> list[tuple[int, bool]]:
+    """The greedy nearest-end order by scanning every open end at each step (the reference)."""
+    heads = np.array([s.points[0, :2] for s in strokes])
+    tails = np.array([s.points[-1, :2] for s in strokes])
+    left, at, order = np.ones(len(strokes), bool), np.zeros(2), []
+    for _ in strokes:
+        dh = np.where(left, np.linalg.norm(heads - at, axis=1), np.inf)
+        dt = np.where(left, np.linalg.norm(tails - at, axis=1), np.inf)
+        i_h, i_t = int(np.argmin(dh)), int(np.argmin(dt))
+        i, rev = (i_h, False) if dh[i_h] <= dt[i_t] else (i_t, True)
+        order.append((i, rev))
+        left[i] = False
+        at = heads[i] if rev else tails[i]
+    return order
+
+
+@pytest.mark.parametrize("n", [1, 2, 37, 1500])
+def test_the_tree_search_orders_as_the_scan_of_every_end(n):
+    """Random strokes (no ties), clustered rows (the tree is rebuilt many times and the nearest
+    ends are printed ones): the same order, stroke for stroke, as the O(n^2) scan."""
+    rng = np.random.default_rng(n)
+    start = rng.uniform(0, 150, (n, 2))
+    step = rng.normal(0, 2, (n, 2))
+    random = [Stroke(np.column_stack([np.vstack([a, a + d]), [1.0, 1.0]]), "trace", "t", 300.0)
+              for a, d in zip(start, step)]
+    assert order_strokes(random) == _greedy_by_scan(random)
+    rows = [Stroke(np.array([[3.0 * k + 0.01 * r, 1.15 * r + 1e-4 * k, 1.0], [3.0 * k + 3.0, 1.15 * r, 1.0]]),
+                   "trace", "t", 300.0) for r in range(max(1, n // 50)) for k in range(min(n, 50))]
+    assert order_strokes(rows) == _greedy_by_scan(rows)
 
 
 def test_program_orders_strokes_for_short_travel():
