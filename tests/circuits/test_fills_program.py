@@ -11,7 +11,7 @@ from shapely.geometry import LineString, Polygon
 from app.circuits.fills import fill_strokes, offset_polyline, pass_offsets
 from app.circuits.layout import circle_ring
 from app.circuits.program import Stroke, order_strokes, write_circuit_program
-from app.circuits.strokes import deviation_field, trace_passes
+from app.circuits.strokes import deviation_field, trace_passes, trace_passes_many
 
 
 @pytest.mark.parametrize("outline", [
@@ -96,3 +96,25 @@ def test_program_orders_strokes_for_short_travel():
     lines = program.text.splitlines()
     assert lines.count("M106") == 20 and lines.count("M107") == 20
     assert sorted(i for i, _ in program.order) == list(range(20))
+
+
+def test_many_traces_passes_are_each_traces_own_from_one_surface_evaluation():
+    """Narrow and wide traces together: the same passes as one trace at a time, with the surface
+    (z = 0.1 x + 0.05 y^2) evaluated once for all of them."""
+    calls: list[int] = []
+
+    def surface_z(xy: np.ndarray) -> np.ndarray:
+        calls.append(len(xy))
+        return 0.1 * xy[:, 0] + 0.05 * xy[:, 1] ** 2
+
+    rng = np.random.default_rng(2)
+    tips = [np.column_stack([np.linspace(0, 5, 7) + i, np.sin(np.linspace(0, 2, 7)) + i, rng.uniform(1, 2, 7)])
+            for i in range(6)]
+    widths = [0.1, 0.5, 0.2, 0.9, 0.15, 0.45]
+    many = trace_passes_many(tips, widths, 0.2, surface_z)
+    assert len(calls) == 1
+    for tip, width, passes in zip(tips, widths, many):
+        alone = trace_passes(tip, width, 0.2, surface_z)
+        assert len(passes) == len(alone) == max(1, int(np.ceil(width / 0.2 - 1e-9)))
+        for a, b in zip(passes, alone):
+            np.testing.assert_allclose(a, b, atol=1e-12)

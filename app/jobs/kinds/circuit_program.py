@@ -35,7 +35,7 @@ from app.gcode.writer import DEFAULT_DIALECT
 from app.circuits.nets import Copper, area_polygon, check_nets, trace_copper
 from app.circuits.opens import check_opens, fill_coverage
 from app.circuits.program import Stroke, write_circuit_program
-from app.circuits.strokes import fill_tip_strokes, trace_passes
+from app.circuits.strokes import fill_tip_strokes, trace_passes_many
 from app.circuits.surface import PrintedPoints
 from app.jobs.circuit_surface import loop_placement, measured_surface
 from app.errors import InvalidInput
@@ -255,12 +255,13 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     with ctx.session() as session:                                    # every trace in one query
         traces = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()}  # type: ignore[attr-defined]
     compensated = _compensated(ctx, entries, imp.trace_ids)
-    for trace_id in imp.trace_ids:
+    tips = [np.asarray(compensated[t][1].points, float) for t in imp.trace_ids]
+    passes = trace_passes_many(tips, [traces[t].width_mm or params.line_width_mm for t in imp.trace_ids],
+                               params.line_width_mm, surface_z)             # one surface evaluation for all
+    for trace_id, trace_passes_ in zip(imp.trace_ids, passes):
         trace = traces[trace_id]
-        comp, row = compensated[trace_id]
-        tip = np.asarray(row.points, float)
-        for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
-                                           surface_z)):
+        comp = compensated[trace_id][0]
+        for k, p in enumerate(trace_passes_):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
             printed.add(trace.name, "trace", p, float(comp.params.get("standoff_mm") or trace.standoff_mm))
     ctx.progress(0.5, "filling pads and areas")
