@@ -207,11 +207,12 @@ def _check(params: CircuitProgramParams, session: Session) -> None:
     check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
     loop = accepted_loop(get_or_404(session, Job, params.closed_loop_job_id, field="params.closed_loop_job_id"),
                          params.accept_unverified)
-    missing = [t for t in imp.trace_ids if t not in _loop_entries(loop)]
+    entries = _loop_entries(loop)                        # the loop's result read once, not once per trace
+    missing = [t for t in imp.trace_ids if t not in entries]
     if missing:
         raise InvalidInput(f"the closed loop did not compensate trace {missing[0]!r} of the import",
                            field="params.closed_loop_job_id", value=missing[0])
-    unprobed = [t for t in import_probe_trace_ids(session, imp) if t not in _loop_entries(loop)] if params.pads else []
+    unprobed = [t for t in import_probe_trace_ids(session, imp) if t not in entries] if params.pads else []
     if unprobed:
         raise InvalidInput(f"the closed loop did not probe the pad ring {unprobed[0]!r} of the import: give it the "
                            "import's probe_trace_ids too (or pads=false)", field="params.closed_loop_job_id",
