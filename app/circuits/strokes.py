@@ -78,15 +78,15 @@ def trace_passes_many(tips: list[npt.NDArray[np.float64]], widths_mm: list[float
     z = surface_z(np.vstack(wanted)) if wanted else np.empty(0)
     out: list[list[npt.NDArray[np.float64]]] = []
     k = 0
-    for tip, sides in zip(tips, plans):
+    for tip, plan in zip(tips, plans):
         tip = np.asarray(tip, float)
-        if sides is None:
+        if plan is None:
             out.append([tip])
             continue
         base = z[k:k + len(tip)]
         k += len(tip)
         passes = []
-        for xy in sides:
+        for xy in plan:
             passes.append(np.column_stack([xy, tip[:, 2] + z[k:k + len(xy)] - base]))
             k += len(xy)
         out.append(passes)
