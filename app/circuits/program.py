@@ -2,8 +2,8 @@
 that keeps travel short, each printed between the dispense codes, travel at a safe height.
 
 Ordering: greedy nearest neighbour from the machine origin over the strokes' two ends (a
-stroke may be printed backwards; no 2-opt); the result reports the travel length
-against the input order.
+stroke may be printed backwards; no 2-opt), searched in a k-d tree; the result reports the
+travel length against the input order.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 from app.gcode.writer import ProgramBuilder
 
@@ -42,24 +43,44 @@ def _travel(starts: npt.NDArray[np.float64], ends: npt.NDArray[np.float64]) -> f
 
 
 def order_strokes(strokes: list[Stroke]) -> list[tuple[int, bool]]:
-    """Greedy nearest-neighbour order (index, reversed) from (0, 0)."""
-    heads = np.array([s.points[0, :2] for s in strokes])
-    tails = np.array([s.points[-1, :2] for s in strokes])
-    left = np.ones(len(strokes), bool)
+    """Greedy nearest-neighbour order (index, reversed) from (0, 0): each next stroke is the one
+    whose head or tail is nearest to where the last one ended (a tail: printed backwards).
+
+    The ends are searched in a k-d tree (the nearest ``k`` ends, ``k`` grown until one of a
+    stroke still to print is among them), rebuilt over the ends still open once half of those
+    it holds are printed: O(n log n) for a board's thousands of strokes, where a scan of every
+    end per step is O(n^2)."""
+    n = len(strokes)
+    if n == 0:
+        return []
+    ends = np.vstack([np.array([s.points[0, :2] for s in strokes]),
+                      np.array([s.points[-1, :2] for s in strokes])])      # (2n, 2): heads, then tails
+    left = np.ones(n, bool)
+    ids = np.arange(2 * n)                                                # the ends the tree holds
+    tree = cKDTree(ends)
     at = np.zeros(2)
-    order = []
-    for _ in range(len(strokes)):
-        dh = np.where(left, np.linalg.norm(heads - at, axis=1), np.inf)
-        dt = np.where(left, np.linalg.norm(tails - at, axis=1), np.inf)
-        i_h, i_t = int(np.argmin(dh)), int(np.argmin(dt))
-        if dh[i_h] <= dt[i_t]:
-            order.append((i_h, False))
-            at = tails[i_h]
-            left[i_h] = False
-        else:
-            order.append((i_t, True))
-            at = heads[i_t]
-            left[i_t] = False
+    order: list[tuple[int, bool]] = []
+    for step in range(n):
+        k = 8
+        while True:
+            k = min(k, len(ids))
+            d, j = tree.query(at, k=k)
+            cand = ids[np.atleast_1d(j)]
+            open_ = left[cand % n]
+            if open_.any():
+                dist = np.atleast_1d(d)
+                best = dist[open_].min()                                  # ties: a head first, then the lowest index
+                tied = cand[open_ & (dist <= best)]
+                pick = int(min(tied, key=lambda e: (e >= n, e % n)))
+                break
+            k *= 4
+        i, rev = pick % n, pick >= n
+        order.append((i, bool(rev)))
+        left[i] = False
+        at = ends[i] if rev else ends[n + i]                              # where it ends
+        if 4 * (n - step - 1) < len(ids) and step + 1 < n:               # half of the tree's ends printed
+            ids = np.flatnonzero(np.tile(left, 2))
+            tree = cKDTree(ends[ids])
     return order
 
 

@@ -19,7 +19,7 @@ from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 
 from app.circuits.fills import fill_strokes, offset_polyline, pass_offsets
 
-__all__ = ["deviation_field", "trace_passes", "fill_tip_strokes", "densify"]
+__all__ = ["deviation_field", "trace_passes", "trace_passes_many", "fill_tip_strokes", "densify"]
 
 HeightFn = Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]      # xy (m, 2) -> z (m,)
 
@@ -56,15 +56,40 @@ def trace_passes(tip: npt.NDArray[np.float64], width_mm: float, line_width_mm: f
     """Passes (each (k, 3)) of a compensated trace tip path (k, 3): the centre line itself when
     the trace is no wider than the line, else ceil(width / line) parallel passes, each shifted
     by the height change of ``surface_z`` (xy (m, 2) -> z (m,)) across."""
-    tip = np.asarray(tip, float)
-    offsets = pass_offsets(width_mm, line_width_mm)
-    if len(offsets) == 1:
-        return [tip]
-    base = surface_z(tip[:, :2])
-    out = []
-    for d in offsets:
-        xy = offset_polyline(tip[:, :2], float(d))
-        out.append(np.column_stack([xy, tip[:, 2] + surface_z(xy) - base]))
+    return trace_passes_many([tip], [width_mm], line_width_mm, surface_z)[0]
+
+
+def trace_passes_many(tips: list[npt.NDArray[np.float64]], widths_mm: list[float], line_width_mm: float,
+                      surface_z: HeightFn) -> list[list[npt.NDArray[np.float64]]]:
+    """:func:`trace_passes` of many traces (tips (k_i, 3), widths mm) with ONE evaluation of
+    ``surface_z`` over every centre line and side pass that needs it (a board's thousands of
+    traces: one large evaluation, not a few small ones each)."""
+    plans: list[list[npt.NDArray[np.float64]] | None] = []
+    wanted: list[npt.NDArray[np.float64]] = []
+    for tip, width in zip(tips, widths_mm):
+        tip = np.asarray(tip, float)
+        offsets = pass_offsets(width, line_width_mm)
+        if len(offsets) == 1:
+            plans.append(None)
+            continue
+        sides = [offset_polyline(tip[:, :2], float(d)) for d in offsets]
+        plans.append(sides)
+        wanted += [tip[:, :2], *sides]
+    z = surface_z(np.vstack(wanted)) if wanted else np.empty(0)
+    out: list[list[npt.NDArray[np.float64]]] = []
+    k = 0
+    for tip, plan in zip(tips, plans):
+        tip = np.asarray(tip, float)
+        if plan is None:
+            out.append([tip])
+            continue
+        base = z[k:k + len(tip)]
+        k += len(tip)
+        passes = []
+        for xy in plan:
+            passes.append(np.column_stack([xy, tip[:, 2] + z[k:k + len(xy)] - base]))
+            k += len(xy)
+        out.append(passes)
     return out
 
 
@@ -76,8 +101,9 @@ def fill_tip_strokes(exterior: npt.NDArray[np.float64], holes: list[npt.NDArray[
     and to the nominal surface's facets (``drape``: xy (k, 2) -> points (m, 3)), each point at
     the measured surface (``surface_z``: xy (m, 2) -> z (m,), nominal + measured deviation)
     plus the standoff; the raster lines run at ``angle_deg`` from x."""
-    out = []
-    for stroke in fill_strokes(exterior, holes, line_width_mm, angle_deg):
-        xy = drape(densify(stroke, step_mm))[:, :2]
-        out.append(np.column_stack([xy, surface_z(xy) + standoff_mm]))
-    return out
+    xys = [drape(densify(stroke, step_mm))[:, :2] for stroke in fill_strokes(exterior, holes, line_width_mm, angle_deg)]
+    if not xys:
+        return []
+    z = surface_z(np.vstack(xys)) + standoff_mm                         # one evaluation for the whole fill
+    ends = np.cumsum([len(xy) for xy in xys])[:-1]
+    return [np.column_stack([xy, zs]) for xy, zs in zip(xys, np.split(z, ends))]

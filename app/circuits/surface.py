@@ -75,29 +75,57 @@ class _Item:
 @dataclass
 class PrintedPoints:
     """Per item (name): the points printed, the worst sd, the smallest clearance (tip z -
-    surface z) of the nozzle over the surface."""
+    surface z) of the nozzle over the surface.  Strokes are gathered by :meth:`add` and the
+    surface is evaluated once over all of them (in ``chunk`` points) when a figure is read: a
+    board's thousands of strokes cost a few large evaluations, not two small ones each."""
 
     surface: MeasuredSurface
     items: dict[str, _Item] = field(default_factory=dict)
+    chunk: int = 20_000
+    _pending: list[tuple[str, Array, float]] = field(default_factory=list)
 
     def add(self, name: str, kind: str, tip: Array, standoff_mm: float) -> None:
         """Record the tip points (k, 3) mm of one stroke of item ``name`` printed at ``standoff_mm``."""
         tip = np.asarray(tip, dtype=float).reshape(-1, 3)
-        z, _ = self.surface.at(tip[:, :2])
-        sd = self.surface.at(tip[_judged(tip[:, :2], self.surface.sd_step_mm), :2], sd=True)[1]
         item = self.items.setdefault(name, _Item(kind, standoff_mm))
-        clearance = tip[:, 2] - z
-        ok = np.isfinite(clearance)
         item.points += len(tip)
-        if ok.any():
-            item.clearance_mm = min(item.clearance_mm, float(clearance[ok].min()))
-            item.low_mm = min(item.low_mm, float((clearance[ok] - standoff_mm).min()))
-        if sd is not None and len(sd):
-            item.sd_mm = max(item.sd_mm, float(np.nanmax(sd)))
+        self._pending.append((name, tip, standoff_mm))
+
+    def _settle(self) -> None:
+        """Evaluate the surface under every pending stroke at once and fold it into the items."""
+        if not self._pending:
+            return
+        pending, self._pending = self._pending, []
+        names = list(dict.fromkeys(n for n, _, _ in pending))
+        index = {n: i for i, n in enumerate(names)}
+        tips = np.vstack([t for _, t, _ in pending])
+        owner = np.concatenate([np.full(len(t), index[n]) for n, t, _ in pending])
+        standoff = np.concatenate([np.full(len(t), s) for _, t, s in pending])
+        judged = np.concatenate([_judged(t[:, :2], self.surface.sd_step_mm) + start for (_, t, _), start in
+                                 zip(pending, np.cumsum([0] + [len(t) for _, t, _ in pending[:-1]]))])
+        z = np.concatenate([self.surface.at(tips[i:i + self.chunk, :2])[0] for i in range(0, len(tips), self.chunk)])
+        clearance = tips[:, 2] - z
+        clear = np.full(len(names), np.inf)
+        low = np.full(len(names), np.inf)
+        ok = np.isfinite(clearance)
+        np.minimum.at(clear, owner[ok], clearance[ok])
+        np.minimum.at(low, owner[ok], clearance[ok] - standoff[ok])
+        worst_sd = np.zeros(len(names))
+        sds = [self.surface.at(tips[judged[i:i + self.chunk], :2], sd=True)[1] for i in range(0, len(judged), self.chunk)]
+        if sds and all(sd is not None for sd in sds):
+            sd = np.concatenate([np.asarray(v, dtype=float) for v in sds if v is not None])
+            good = np.isfinite(sd)
+            np.maximum.at(worst_sd, owner[judged][good], sd[good])
+        for n, i in index.items():
+            item = self.items[n]
+            item.clearance_mm = min(item.clearance_mm, float(clear[i]))
+            item.low_mm = min(item.low_mm, float(low[i]))
+            item.sd_mm = max(item.sd_mm, float(worst_sd[i]))
 
     def below(self, tolerance_mm: float) -> list[tuple[str, float, float]]:
         """Items whose nozzle comes below surface + standoff - ``tolerance_mm`` or below the
         surface itself: (name, smallest clearance, its standoff)."""
+        self._settle()
         return [(n, i.clearance_mm, i.standoff_mm) for n, i in self.items.items()
                 if i.clearance_mm < 0.0 or i.low_mm < -tolerance_mm]
 
@@ -106,6 +134,7 @@ class PrintedPoints:
         standoff_mm}}, the overall worst (``sd_mm``, ``bound_mm``, ``clearance_min_mm``) and
         ``bound_over_standoff``: the items whose bound reaches their standoff (the nozzle may
         touch the real surface there: probe them more)."""
+        self._settle()
         k = self.surface.coverage
         modelled = k is not None
 

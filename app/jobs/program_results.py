@@ -25,7 +25,9 @@ class CircuitProgramResult(KindResult):
     the field's ``verified`` line and ``needs_attention``) and what each printed item (by name:
     kind, points, worst posterior ``sd_mm``, its ``bound_mm`` = coverage x sd, the nozzle's
     smallest ``clearance_min_mm`` over the surface, its ``standoff_mm``) and the whole program
-    predict (:meth:`app.circuits.surface.PrintedPoints.as_dict`)."""
+    predict (:meth:`app.circuits.surface.PrintedPoints.as_dict`); ``loop``: the closed loop it
+    came from (``job_id``, ``status``, ``accepted_unverified``: it ended needs_attention and the
+    request accepted it, with the verdict's ``reasons``)."""
 
     kind: ClassVar[str] = "circuit_program"
     strokes: int
@@ -41,6 +43,7 @@ class CircuitProgramResult(KindResult):
     dispense_on: str
     dispense_off: str
     surface: dict[str, Any] | None = None
+    loop: dict[str, Any] | None = None
 
 
 # warp_program -----------------------------------------------------------------------------

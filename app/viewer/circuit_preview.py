@@ -11,7 +11,8 @@ anything is stored.  What it shows (names under ``/focus``):
   closer than their widths, leaving the part), red, wider than their blue lines under them;
 * ``fields/pads``: pads and areas as draped patches coloured by state (0: on the part,
   0.5: an area, 1: off the part or named by a warning);
-* ``probes/pad probe rings``: the stations' path inside every pad and area (planned points).
+* ``probes/pad probe rings``: the stations' path inside every pad and area (planned points);
+* the notes: the first ``NOTES_SHOWN`` warnings and how many more there are.
 
 Units: mm, part coordinates.
 """
@@ -31,6 +32,7 @@ from app.viewer.scene_data import FocusScene, Polyline, ProbeSet, ScalarSurface,
 
 __all__ = ["circuit_preview_scene"]
 
+NOTES_SHOWN = 20        # warnings listed in the view's notes (a real board has thousands: the console pages them)
 LIFT_MM = 0.01          # patches drawn this far above the part so they do not flicker into it
 PATCH_CELLS = 40        # a patch's triangles: about 1/40 of its extent across,
 PATCH_STEP_MM = (0.5, 2.0)   # but no finer than 0.5 mm (small pads: a few triangles) and no coarser than 2 mm
@@ -108,7 +110,10 @@ def circuit_preview_scene(part_id: str, mesh: trimesh.Trimesh, dry_run: dict[str
                                   0.0, 1.0, unit="state (0 on the part, 0.5 area, 1 warned)"),)
     rings = [np.asarray(p["points"], float).reshape(-1, 3) for p in dry_run.get("probe_paths", []) if p.get("points")]
     probes = (ProbeSet("pad probe rings", planned=np.concatenate(rings)),) if rings else ()
-    notes = tuple(f"{w.get('kind')}: {w.get('message', '')}"[:200] for w in dry_run.get("warnings", []))
+    warnings = dry_run.get("warnings", [])
+    notes = tuple(f"{w.get('kind')}: {w.get('message', '')}"[:200] for w in warnings[:NOTES_SHOWN])
+    if len(warnings) > NOTES_SHOWN:
+        notes += (f"... and {len(warnings) - NOTES_SHOWN} more warnings (the import page lists them all, page by page)",)
     return FocusScene(
         focus={"part_id": part_id, "preview": dry_run.get("import_id")},
         title=f"circuit preview {dry_run.get('import_id')} (dry run, nothing stored)",

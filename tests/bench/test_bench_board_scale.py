@@ -4,7 +4,9 @@ import (goal <= 30 s), the circuit program's netlist checks at submission (short
 over all of it), then the closed loop on the mock (joint probing with the field planner,
 board jobs) over its traces and pad rings, and the circuit program from that loop.  Each
 step prints its wall and CPU time; at the end the peak resident memory of the service
-process and of the largest compute process (read from /proc while it runs).
+process and of the largest compute process (read from /proc while it runs).  The board goals
+asserted: import <= 30 s, the circuit program's run no longer than the loop's compensate step
+for the same board (its compensate jobs' run times added up), service memory <= 1.5 GB.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_board_scale.py -s -o addopts="" -q
 """
@@ -14,6 +16,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from datetime import datetime
 from pathlib import Path
 
 import pytest
@@ -80,6 +83,11 @@ class Memory(threading.Thread):
         return _status_kb(os.getpid(), "VmHWM") / 1024
 
 
+def run_s(job: dict) -> float:
+    """A job's run time (started -> finished), s."""
+    return (datetime.fromisoformat(job["finished_at"]) - datetime.fromisoformat(job["started_at"])).total_seconds()
+
+
 def _step(client, kind: str, params: dict, timeout: float) -> tuple[dict, float, float]:
     """Submit a job and wait for it: (the job, wall s, CPU s of this process and reaped children)."""
     t0, c0 = time.perf_counter(), cpu_s()
@@ -136,3 +144,9 @@ def test_a_5000_track_board_imports_checks_loops_and_prints(client):
           f"  peak resident memory: service {memory.service_peak_mb:.0f} MB, largest compute process "
           f"{memory.compute_peak_mb:.0f} MB; compute CPU in all {sum(memory.compute_cpu.values()):.1f} s", flush=True)
     assert program["status"] == "succeeded", program["error"]
+    compensate = {e["compensate"] for e in loop["result"]["traces"]}
+    compensate_s = sum(run_s(client.get(f"/api/v1/jobs/{j}", headers=OP).json()) for j in compensate)
+    print(f"  the loop's compensate step: {len(compensate)} jobs, {compensate_s:.1f} s of run time; the circuit "
+          f"program's run {run_s(program):.1f} s", flush=True)
+    assert run_s(program) <= compensate_s, (run_s(program), compensate_s)
+    assert memory.service_peak_mb <= 1500, memory.service_peak_mb

@@ -66,6 +66,8 @@ def test_the_sd_is_judged_every_step_along_a_stroke_and_at_its_end():
     printed = PrintedPoints(MeasuredSurface(plane.nominal, deviation, coverage=3.0, sd_step_mm=1.0))
     x = np.arange(0.0, 4.0, 0.25)                                     # 0 .. 3.75 mm, 16 points
     printed.add("trace", "trace", np.column_stack([x, np.zeros_like(x), 0.1 * x + 0.05]), 0.05)
-    (at,) = judged
-    assert at[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 3.75]
+    printed.add("trace", "trace", np.column_stack([x, np.ones_like(x), 0.1 * x + 0.052]), 0.05)   # 1 mm over
     assert printed.as_dict()["items"]["trace"]["sd_mm"] == pytest.approx(0.001 * 1.375)
+    (at,) = judged                                                    # both strokes judged in one evaluation
+    assert at[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 3.75] * 2 and at[:, 1].tolist() == [0.0] * 5 + [1.0] * 5
+    assert printed.as_dict()["items"]["trace"]["clearance_min_mm"] == pytest.approx(0.05)

@@ -216,3 +216,44 @@ def _board_on_parts(client, nominal_stl: bytes, true_stl: bytes) -> tuple[dict, 
     assert imported.status_code == 201, imported.text
     body = imported.json()
     return part, real, body, [t["trace"]["id"] for t in body["traces"]]
+
+
+@pytest.mark.timeout(900)
+def test_a_loop_that_needs_attention_feeds_no_program_unless_accepted(client):
+    """A part whose error waves are 5-6 mm long, planned once (not sequentially) for the default
+    20 mm prior: the loop's field check fails and the loop ends needs_attention.  Its circuit
+    program is refused at submission (422 naming the loop and the verdict's reasons); with
+    ``accept_unverified`` it is written, and its result says it was accepted unverified."""
+    from app.reference.s1 import AsMadePart
+
+    a, b = 2 * np.pi / 6, 2 * np.pi / 5
+    waves = np.array([[a, -b, 0.0, 0.05], [a, b, 0.0, -0.05]])
+    made = AsMadePart(0, 0.1, 5.0, centred_placement(0.0, 0.0, 0.0, 0.0), waves)
+    part, real, body, trace_ids = _board_on_parts(client, s1_mesh(grid_mm=0.5).export(file_type="stl"),
+                                                  made.mesh(grid_mm=0.3).export(file_type="stl"))
+    machine = client.post("/api/v1/machines", json={
+        "name": "short waves", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "placement": {"dz": 0.03}, "probe_noise_mm": 0.001}}, headers=OP).json()
+    loop = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
+        "part_id": part["id"], "trace_ids": trace_ids + body["probe_trace_ids"], "machine_id": machine["id"],
+        "joint_probing": True, "sigma_mm": 0.001, "sequential": False}}, headers=OP)
+    assert loop.status_code == 202, loop.text
+    loop = wait_for(client, loop.json()["id"], timeout=300)
+    assert loop["status"] == "needs_attention", (loop["status"], loop["error"])
+    reasons = loop["result"]["verdict"]["reasons"]
+    params = {"import_id": body["import_id"], "closed_loop_job_id": loop["id"], "machine_id": machine["id"],
+              "line_width_mm": LINE}
+    refused = client.post("/api/v1/jobs", json={"kind": "circuit_program", "params": params}, headers=OP)
+    assert refused.status_code == 422, refused.text
+    problem = refused.json()
+    assert loop["id"] in problem["detail"] and "needs_attention" in problem["detail"]
+    assert reasons[0] in problem["detail"] and "accept_unverified" in problem["detail"]
+    assert problem["errors"][0]["loc"] == ["params", "closed_loop_job_id"]
+    accepted = client.post("/api/v1/jobs", json={"kind": "circuit_program", "params": {
+        **params, "accept_unverified": True}}, headers=OP)
+    assert accepted.status_code == 202, accepted.text
+    program = wait_for(client, accepted.json()["id"], timeout=240)
+    assert program["status"] == "succeeded", program["error"]
+    assert program["result"]["loop"] == {"job_id": loop["id"], "status": "needs_attention",
+                                         "accepted_unverified": True, "reasons": reasons}
+    assert program["result"]["surface"]["needs_attention"] is True

@@ -1,12 +1,14 @@
 // Circuit import (KiCad, Gerber, Excellon, DXF, SVG): preview with a dry run, then accept.
 // The preview draws the mapped circuit in 3-D on the part (the page's viewer: draped traces,
 // warned traces in red, pads and areas as patches, the pads' probe rings) and in top view
-// over the part's outline, and lists each trace's length, stretch and the warnings; nothing
-// is stored until "Accept".
+// over the part's outline, and lists each trace's length, stretch and the warnings, a page
+// of PAGE_ROWS at a time (Prev / Next with "a-b of N": a real board has thousands of each);
+// nothing is stored until "Accept".
 import { upload } from "./api.js";
 import { el, fmt, guarded, showError, showInfo } from "./ui.js";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
+export const PAGE_ROWS = 50;   // warnings and trace rows shown at a time
 
 function svgEl(tag, attrs = {}) {
   const node = document.createElementNS(SVG_NS, tag);
@@ -38,6 +40,28 @@ function previewDrawing(result, bounds) {
     svg.append(svgEl("path", { d, fill: "#c60", "fill-opacity": 0.3, "fill-rule": "evenodd" }));
   }
   return svg;
+}
+
+// One paged list: "<label> a-b of N" with Prev / Next; render(items) draws the rows of one page
+// into the container made by wrap(rows). ids: `${id}-count`, `${id}-prev`, `${id}-next`.
+function pagedList(id, label, items, total, wrap, render) {
+  const count = el("span", { id: `${id}-count`, class: "small" });
+  const prev = el("button", { type: "button", id: `${id}-prev` }, "Prev");
+  const next = el("button", { type: "button", id: `${id}-next` }, "Next");
+  const holder = el("div");
+  let offset = 0;
+  function draw() {
+    const page = items.slice(offset, offset + PAGE_ROWS);
+    count.textContent = items.length
+      ? `${label} ${offset + 1}–${offset + page.length} of ${total}` : `${label}: none`;
+    prev.disabled = offset === 0;
+    next.disabled = offset + PAGE_ROWS >= items.length;
+    holder.replaceChildren(wrap(page.map(render)));
+  }
+  prev.addEventListener("click", () => { offset = Math.max(0, offset - PAGE_ROWS); draw(); });
+  next.addEventListener("click", () => { offset += PAGE_ROWS; draw(); });
+  draw();
+  return el("div", { id: `${id}-pages`, class: "paged" }, el("div", { class: "row" }, count, " ", prev, " ", next), holder);
 }
 
 // A section for the traces page: partSelect gives the part; onDone(result) after an accepted import.
@@ -92,23 +116,26 @@ export function circuitImportSection({ partSelect, getPart, onDone, viewer, view
 
   function show(result, part) {
     const warned = new Set(result.warnings.flatMap((w) => w.traces || []));
-    const rows = result.traces.map((t) => el("tr", {},
+    const totals = result.totals || {};
+    const traceRow = (t) => el("tr", {},
       el("td", { class: "small" }, t.name), el("td", {}, t.source.net || "—"), el("td", {}, fmt.mm(t.source.width_mm, 3)),
       el("td", {}, fmt.mm(t.layout_length_mm, 3)), el("td", {}, fmt.num(t.stretch, 5)), el("td", {}, t.on_part ? "yes" : "NO"),
-      el("td", {}, warned.has(t.index) ? "warning" : "")));
+      el("td", {}, warned.has(t.index) ? "warning" : ""));
     const drawn = result.preview?.drawn;
     const in3d = el("p", { id: "circuit-preview-3d", class: "small", "data-drawn": drawn ? "yes" : "no" }, drawn
       ? `3-D preview in the view on the right: ${result.traces.filter((t) => t.trace).length} traces draped on the part `
         + `(blue; ${warned.size} named by a warning drawn in red), ${result.pads.length} pads and ${result.areas.length} `
-        + `areas as patches (red: off the part), ${result.probe_paths.length} probe rings (grey points).`
+        + `areas as patches on the surface (red: off the part), ${result.probe_paths.length} probe rings (grey points).`
       : `No 3-D preview: ${result.preview?.reason || "the 3D view is not open"} (the top view below still shows it).`);
     output.replaceChildren(
       in3d,
       el("p", { class: "small" }, result.files.map((f) => `${f.file}: ${f.format}, ${f.units}, ${f.traces} traces, ${f.pads} pads, ${f.areas} areas`).join("; ")),
       previewDrawing(result, part ? part.bounds.map((b) => b.slice(0, 2)) : [[0, 0], [100, 100]]),
-      el("ul", { id: "circuit-warnings" }, result.warnings.map((w) => el("li", { class: "small" }, `${w.kind}: ${w.message}`))),
-      el("table", {}, el("thead", {}, el("tr", {}, ["trace", "net", "width", "layout length", "stretch", "on part", "3-D"].map((h) => el("th", {}, h)))),
-        el("tbody", {}, rows)));
+      pagedList("circuit-warnings", "warnings", result.warnings, totals.warnings ?? result.warnings.length,
+        (rows) => el("ul", { id: "circuit-warnings" }, rows), (w) => el("li", { class: "small" }, `${w.kind}: ${w.message}`)),
+      pagedList("circuit-rows", "traces", result.traces, totals.traces ?? result.traces.length,
+        (rows) => el("table", {}, el("thead", {}, el("tr", {}, ["trace", "net", "width", "layout length", "stretch", "on part", "3-D"].map((h) => el("th", {}, h)))),
+          el("tbody", {}, rows)), traceRow));
   }
 
   async function preview(event) {
@@ -118,7 +145,8 @@ export function circuitImportSection({ partSelect, getPart, onDone, viewer, view
       show(result, getPart ? await getPart(partSelect.value) : null);
       if (viewerBox && result.preview?.drawn) viewerBox.dataset.generation = result.preview.generation;
       accept.disabled = false;
-      showInfo(`Preview: ${result.traces.length} traces, ${result.pads.length} pads, ${result.warnings.length} warning(s).`);
+      showInfo(`Preview: ${result.totals?.traces ?? result.traces.length} traces, ${result.totals?.pads ?? result.pads.length} pads, `
+        + `${result.totals?.warnings ?? result.warnings.length} warning(s).`);
     });
   }
 

@@ -17,6 +17,12 @@ After a loop in machine coordinates (a placement or registration) every printed 
 through the loop's part -> machine placement: the traces' compensated tips already are, pad
 and area outlines are placed before they are filled, and the surface and its below-surface
 check are the placed part's.  Strokes are ordered for short travel.
+
+A loop that ended ``needs_attention`` (its field's check failed: the verification points
+disagree with the fit, the plan was too sparse for the learned prior) does not feed a
+program by default: the submission is refused (422) naming the loop and its verdict, unless
+the request says ``accept_unverified: true``; a program so accepted says so in its result
+(``loop``: the loop's state, ``accepted_unverified`` and the verdict's reasons).
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from app.gcode.writer import DEFAULT_DIALECT
 from app.circuits.nets import Copper, area_polygon, check_nets, trace_copper
 from app.circuits.opens import check_opens, fill_coverage
 from app.circuits.program import Stroke, write_circuit_program
-from app.circuits.strokes import fill_tip_strokes, trace_passes
+from app.circuits.strokes import fill_tip_strokes, trace_passes_many
 from app.circuits.surface import PrintedPoints
 from app.jobs.circuit_surface import loop_placement, measured_surface
 from app.errors import InvalidInput
@@ -38,11 +44,11 @@ from app.geometry.traces import TracePolyline
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
+from app.errors import ConformaError
 from app.models import CircuitImport, Job, Trace
-from app.jobs.inputs import succeeded_job
 from app.jobs.program_results import CircuitProgramResult
 from app.jobs.loop_results import ClosedLoopResult, LoopTrace
-from app.jobs.results import ProbeRunResult, compensate_rows
+from app.jobs.results import CompensateResult, ProbeRunResult, compensate_rows
 from app.records import get_or_404
 
 
@@ -64,6 +70,52 @@ class CircuitProgramParams(JobParams):
     pads: bool = Field(True, description="fill pads and areas")
     net_clearance_mm: float = Field(0.0, ge=0, le=10, description="copper of different nets closer than this "
                                     "(top view) counts as a short; 0: only touching copper")
+    accept_unverified: bool = Field(False, description="accept a closed loop that ended needs_attention (its "
+                                    "field's check failed); refused otherwise")
+
+
+def accepted_loop(loop: Job, accept_unverified: bool, error: type[ConformaError] = InvalidInput) -> Job:
+    """``loop`` (a closed_loop job record) when it may feed a program: succeeded, or ended
+    ``needs_attention`` and ``accept_unverified``; else ``error`` naming the loop, its state and
+    (needs_attention) its verdict's reasons and verified line."""
+    field = "params.closed_loop_job_id"
+    if loop.kind == "closed_loop" and loop.status == "needs_attention":
+        if accept_unverified:
+            return loop
+        verdict = (loop.result or {}).get("verdict") or {}
+        reasons = "; ".join(verdict.get("reasons") or []) or "its field's check failed"
+        raise error(f"closed loop {loop.id!r} ended needs_attention ({reasons}; {verdict.get('verified') or 'not verified'}): "
+                    "its surface is not verified, so this program could put the nozzle off the real part. Run the "
+                    "loop again (verdict.suggested_probe), or accept it explicitly with accept_unverified=true",
+                    field=field, value=loop.id)
+    if loop.kind != "closed_loop" or loop.status != "succeeded":
+        raise error(f"job {loop.id!r} is a {loop.status} {loop.kind} job; a succeeded closed_loop job is needed",
+                    field=field, value=loop.id)
+    return loop
+
+
+def loop_state(loop: Job) -> dict:
+    """What a program records of its loop: id, state, whether it was accepted unverified, and
+    the verdict's reasons (empty when verified or without a field check)."""
+    verdict = (loop.result or {}).get("verdict") or {}
+    return {"job_id": loop.id, "status": loop.status, "accepted_unverified": loop.status == "needs_attention",
+            "reasons": list(verdict.get("reasons") or []) if loop.status == "needs_attention" else []}
+
+
+def _compensated(ctx: JobContext, entries: dict[str, LoopTrace],
+                 trace_ids: list[str]) -> dict[str, tuple[Job, CompensateResult]]:
+    """trace id -> (its compensate job, its typed row): each compensate job (a board job holds
+    a batch of traces) read and parsed once, not once per trace it holds."""
+    jobs: dict[str, tuple[Job, dict[str, CompensateResult]]] = {}
+    out = {}
+    for trace_id in trace_ids:
+        job_id = entries[trace_id].compensate
+        if job_id not in jobs:
+            comp = ctx.job(job_id, kind="compensate", field="params.closed_loop_job_id")
+            jobs[job_id] = (comp, compensate_rows(comp))                  # one-trace or board job
+        comp, rows = jobs[job_id]
+        out[trace_id] = (comp, rows[trace_id])
+    return out
 
 
 def _loop_entries(loop: Job) -> dict[str, LoopTrace]:
@@ -153,12 +205,14 @@ def _check(params: CircuitProgramParams, session: Session) -> None:
     imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
     check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
     check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
-    loop = succeeded_job(session, params.closed_loop_job_id, "closed_loop", "params.closed_loop_job_id")
-    missing = [t for t in imp.trace_ids if t not in _loop_entries(loop)]
+    loop = accepted_loop(get_or_404(session, Job, params.closed_loop_job_id, field="params.closed_loop_job_id"),
+                         params.accept_unverified)
+    entries = _loop_entries(loop)                        # the loop's result read once, not once per trace
+    missing = [t for t in imp.trace_ids if t not in entries]
     if missing:
         raise InvalidInput(f"the closed loop did not compensate trace {missing[0]!r} of the import",
                            field="params.closed_loop_job_id", value=missing[0])
-    unprobed = [t for t in import_probe_trace_ids(session, imp) if t not in _loop_entries(loop)] if params.pads else []
+    unprobed = [t for t in import_probe_trace_ids(session, imp) if t not in entries] if params.pads else []
     if unprobed:
         raise InvalidInput(f"the closed loop did not probe the pad ring {unprobed[0]!r} of the import: give it the "
                            "import's probe_trace_ids too (or pads=false)", field="params.closed_loop_job_id",
@@ -174,7 +228,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         probe_ids = import_probe_trace_ids(session, imp) if params.pads else []
         nets = check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
         pieces = check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
-    loop = ctx.job(params.closed_loop_job_id, kind="closed_loop", field="params.closed_loop_job_id")
+    loop = accepted_loop(ctx.job(params.closed_loop_job_id, field="params.closed_loop_job_id"),
+                         params.accept_unverified, ConformaError)
     entries = _loop_entries(loop)
     placement = loop_placement(ctx, entries, imp.trace_ids)          # part -> machine, as the traces
     mesh = ctx.runtime.meshes.placed(ctx.part(imp.part_id), placement)
@@ -187,6 +242,10 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])
     surface, check = measured_surface(ctx, mesh, entries, imp.trace_ids, runs, stations, deviations, placement)
+    if check is not None and check.needs_attention and not params.accept_unverified:
+        raise ConformaError(f"the field of closed loop {loop.id!r} needs attention ({'; '.join(check.reasons)}): "
+                            "accept it explicitly with accept_unverified=true", field="params.closed_loop_job_id",
+                            value=loop.id)
     printed = PrintedPoints(surface)
 
     def surface_z(xy: np.ndarray) -> np.ndarray:
@@ -194,12 +253,16 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
 
     standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
     strokes: list[Stroke] = []
-    for trace_id in imp.trace_ids:
-        trace = ctx.trace(trace_id)
-        comp = ctx.job(entries[trace_id].compensate, kind="compensate", field="params.closed_loop_job_id")
-        tip = np.asarray(compensate_rows(comp)[trace_id].points, float)  # one-trace or board job
-        for k, p in enumerate(trace_passes(tip, trace.width_mm or params.line_width_mm, params.line_width_mm,
-                                           surface_z)):
+    with ctx.session() as session:                                    # every trace in one query
+        traces = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()}  # type: ignore[attr-defined]
+    compensated = _compensated(ctx, entries, imp.trace_ids)
+    tips = [np.asarray(compensated[t][1].points, float) for t in imp.trace_ids]
+    passes = trace_passes_many(tips, [traces[t].width_mm or params.line_width_mm for t in imp.trace_ids],
+                               params.line_width_mm, surface_z)             # one surface evaluation for all
+    for trace_id, trace_passes_ in zip(imp.trace_ids, passes):
+        trace = traces[trace_id]
+        comp = compensated[trace_id][0]
+        for k, p in enumerate(trace_passes_):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
             printed.add(trace.name, "trace", p, float(comp.params.get("standoff_mm") or trace.standoff_mm))
     ctx.progress(0.5, "filling pads and areas")
@@ -240,7 +303,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
     return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
             "pad_probe_traces": probe_ids, "stations": len(stations), "nets_checked": nets,
-            "connections_checked": pieces,
+            "connections_checked": pieces, "loop": loop_state(loop),
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
             "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off,
             "surface": {"model": "field" if check is not None else "stations",
