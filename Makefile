@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 PYTEST := $(BIN)/python -m pytest
 
-.PHONY: run test bench bench-tools lint install clean-data screenshots docs
+.PHONY: run test stress bench bench-tools lint install clean-data screenshots docs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -25,6 +25,16 @@ run: $(STAMP)
 # stay on one worker (tests/conftest.py, SHARED_RESOURCE_GROUPS)
 test: $(STAMP)
 	$(PYTEST) -n 2 --dist loadgroup
+
+# the browser and machine tests, STRESS_RUNS fresh sessions one after another beside stress-ng's
+# STRESS_LOAD; prints each run's failures and, last, how many runs failed (tests/helpers/stress.py)
+STRESS_RUNS ?= 20
+STRESS_LOAD ?= --cpu 2 --cpu-load 60
+stress: $(STAMP)
+	command -v stress-ng >/dev/null || apt-get install -y --no-install-recommends stress-ng || \
+		{ echo "stress: cannot install stress-ng (apt-get, as root)"; exit 1; }
+	$(BIN)/python -m tests.helpers.stress --runs $(STRESS_RUNS) --load "$(STRESS_LOAD)" -- \
+		-n 2 --dist loadgroup tests/e2e/browser tests/hardware
 
 # the reference slicers the benches run beside ours (Debian packages; Cura's definition files
 # come from the `cura` package, extracted without its GUI dependencies)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -144,3 +145,46 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     ordered = sorted((items[k] for k in linuxcnc), key=lambda item: "lcnc_trt" in item.fixturenames)
     for k, item in zip(linuxcnc, ordered):
         items[k] = item
+
+
+# ---- the run's own duration, printed last (CI's log shows it) -------------------------------
+_RUN_STARTED = pytest.StashKey[float]()
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--durations-log", metavar="PATH", default=None,
+                     help="append each test phase's worker, node id, phase, duration and outcome to PATH "
+                          "(tab-separated, as the phases finish); `python -m tests.helpers.durations PATH` sums it")
+
+
+_durations_log: str | None = None  # --durations-log's path
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    global _durations_log
+    config.stash[_RUN_STARTED] = time.monotonic()
+    _durations_log = config.getoption("durations_log")
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """``--durations-log``: one line per test phase, written by the controlling process (under
+    xdist the report names its worker), so a run cut short still leaves what it measured."""
+    path = _durations_log
+    if path is None or os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    gateway = getattr(getattr(report, "node", None), "gateway", None)
+    worker = gateway.id if gateway is not None else "main"
+    with open(path, "a", encoding="utf-8") as log:
+        log.write(f"{worker}\t{report.nodeid}\t{report.when}\t{report.duration:.3f}\t{report.outcome}\n")
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:  # type: ignore[no-untyped-def]
+    """One line with the whole run's wall time (collection included), the number of xdist
+    workers and the host's load at the end: a wall time says little without the load."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    wall = time.monotonic() - config.stash[_RUN_STARTED]
+    workers = getattr(config.option, "numprocesses", None) or 0
+    load = os.getloadavg()[0]
+    terminalreporter.write_line(f"suite wall time: {int(wall // 60)} min {wall % 60:04.1f} s ({wall:.1f} s), "
+                                f"{workers or 'no'} xdist workers, load average {load:.1f} at the end")

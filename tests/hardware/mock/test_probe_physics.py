@@ -159,14 +159,16 @@ def test_vertical_ball_touch_on_a_million_faces_is_fast():
     assert len(mesh.faces) > 1_000_000
     world, physics = _physics(stylus_radius_mm=R_BALL, true_part=mesh)
     assert physics.index is not None
+    # CPU seconds of this thread (the touch is numpy on one thread, BLAS limited to one): on a
+    # loaded host a touch's wall time also counts the time the scheduler gave other processes
     times = []
     for x, y in np.random.default_rng(1).uniform(-15, 15, size=(20, 2)):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         touch = physics.touch((x, y, 20.0), (x, y, -5.0), tool=0)
-        times.append(time.perf_counter() - t0)
+        times.append(time.thread_time() - t0)
         ball = np.linalg.norm(np.array(touch.reading) - (0.0, 0.0, -30.0))
         assert 40.0 + R_BALL - 0.002 < ball <= 40.0 + R_BALL + 1e-9  # the facets sit inside the sphere
-    print(f"\n{len(mesh.faces)} faces: vertical ball touch median {np.median(times) * 1e3:.1f} ms, "
+    print(f"\n{len(mesh.faces)} faces: vertical ball touch median {np.median(times) * 1e3:.1f} ms CPU, "
           f"max {max(times) * 1e3:.1f} ms")
     assert np.median(times) < 0.05, times
 
