@@ -35,6 +35,7 @@ from app.slicing.rings import Island
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
 RESOLUTION_MM = 0.0125  # PrusaSlicer's G-code resolution: paths simplified to it, no move shorter
 THINNEST_WALL = 0.25  # of the nozzle: a wall thinner than this is not printed (PrusaSlicer's min feature)
+COLLINEAR_MM = 1e-6  # a vertex this close to the line through its neighbours adds nothing to a ring
 THIN_WALL_STEPS = 10  # bisection steps finding a thin wall's half thickness (w/2 / 2^10: 0.2 um at 0.4 mm)
 PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
 
@@ -348,6 +349,25 @@ def layer_paths(islands: tuple[Island, ...], layer_index: int, params: ToolpathP
                       simplify_paths(infill_paths(islands, params, layer_index), res))
 
 
+def _without_collinear(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``ring`` (n, 2) mm without the vertices that lie on the line through their neighbours
+    (within ``COLLINEAR_MM``): a mesh's side faces cut a straight wall into pieces whose
+    joints move from layer to layer; the wall is the same."""
+    prev, nxt = np.roll(ring, 1, axis=0), np.roll(ring, -1, axis=0)
+    chord = np.hypot(*(nxt - prev).T)
+    cross = np.abs((ring[:, 0] - prev[:, 0]) * (nxt[:, 1] - prev[:, 1])
+                   - (ring[:, 1] - prev[:, 1]) * (nxt[:, 0] - prev[:, 0]))
+    keep = cross > COLLINEAR_MM * chord
+    return ring[keep] if np.count_nonzero(keep) >= 3 else ring
+
+
+def normalised(islands: tuple[Island, ...]) -> tuple[Island, ...]:
+    """``islands`` with every ring's collinear vertices dropped (:func:`_without_collinear`):
+    the same region, and the same arrays for the same section at another height."""
+    return tuple(Island(_without_collinear(isl.outer), tuple(_without_collinear(h) for h in isl.holes))
+                 for isl in islands)
+
+
 class PathMemo:
     """The last few sections' :class:`LayerPaths` by their exact geometry and infill angle:
     the layers of a prismatic stretch of a part (a cube, a tube, a plate's walls) repeat one
@@ -361,6 +381,7 @@ class PathMemo:
 
     def paths(self, islands: tuple[Island, ...], layer_index: int) -> LayerPaths:
         p = self.params
+        islands = normalised(islands)
         rings = [r for isl in islands for r in (isl.outer, *isl.holes, np.array([[np.nan, np.nan]]))]
         key = (np.concatenate(rings).tobytes() if rings else b"",
                round((p.angle_deg + layer_index * p.angle_step_deg) % 360.0, 9), layer_index % 2)
