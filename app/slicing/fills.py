@@ -83,7 +83,7 @@ def flat_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0
     rank = np.arange(len(row)) - starts[row]
     keep = rank < (per_line // 2 * 2)[row]
     row, xs = row[keep], xs[keep]
-    return FlatIntervals(ys, row[0::2].astype(np.int64), xs[0::2], xs[1::2])
+    return FlatIntervals(ys.astype(np.float64), row[0::2].astype(np.int64), xs[0::2], xs[1::2])
 
 
 def scan_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> ScanIntervals:
@@ -108,7 +108,7 @@ def _links_ok(region: BaseGeometry, ends: npt.NDArray[np.float64], starts: npt.N
               max_len: float) -> npt.NDArray[np.bool_]:
     """(m,) whether each link ``ends[i] -> starts[i]`` ((m, 2) mm) is at most ``max_len`` mm
     long and inside ``region`` (all links tested in one vectorised GEOS call)."""
-    ok = np.hypot(*(starts - ends).T) <= max_len
+    ok: npt.NDArray[np.bool_] = np.hypot(*(starts - ends).T) <= max_len
     if ok.any():
         shapely.prepare(region)
         links = shapely.linestrings(np.stack([ends[ok], starts[ok]], axis=1))
