@@ -40,58 +40,99 @@ class ScanIntervals(NamedTuple):
     rows: list[npt.NDArray[np.float64]]
 
 
+class FlatIntervals(NamedTuple):
+    """Every material interval of a region's scan lines at once, sorted by line then x:
+    ``ys`` (K,) scan heights (mm, rotated frame), ``row`` (m,) the line of each interval,
+    ``x0``, ``x1`` (m,) its start and end (mm, ``x0 <= x1``)."""
+
+    ys: npt.NDArray[np.float64]
+    row: npt.NDArray[np.int64]
+    x0: npt.NDArray[np.float64]
+    x1: npt.NDArray[np.float64]
+
+
+def flat_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> FlatIntervals:
+    """The scan-line intersections of the region (:class:`FlatIntervals`), vectorised over
+    edges: each edge crosses the lines whose height is in ``[min y, max y)`` of the edge."""
+    rot = _rotation(-angle)
+    rings = [ring for isl in islands for ring in isl.rings()]
+    if not rings:
+        empty = np.zeros(0)
+        return FlatIntervals(empty, np.zeros(0, dtype=np.int64), empty, empty)
+    a = np.concatenate(rings) @ rot.T                                    # (E, 2) edge starts
+    b = np.concatenate([np.roll(r, -1, axis=0) for r in rings]) @ rot.T  # (E, 2) edge ends
+    y_lo, y_hi = float(min(a[:, 1].min(), b[:, 1].min())), float(max(a[:, 1].max(), b[:, 1].max()))
+    n = int(np.floor((y_hi - y_lo) / pitch))
+    ys = y_lo + pitch * (0.5 + np.arange(max(n, 0) + 1))
+    ys = ys[ys < y_hi]
+    if len(ys) == 0:
+        ys = np.array([0.5 * (y_lo + y_hi)])
+    y0, y1, x0, x1 = a[:, 1], b[:, 1], a[:, 0], b[:, 0]
+    first = np.searchsorted(ys, np.minimum(y0, y1), side="left")
+    last = np.searchsorted(ys, np.maximum(y0, y1), side="left")   # lines first..last-1 cross the edge
+    count = last - first
+    edge = np.repeat(np.arange(len(a)), count)
+    row = np.repeat(first, count) + np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    t = (ys[row] - y0[edge]) / (y1[edge] - y0[edge])
+    xs = x0[edge] + t * (x1[edge] - x0[edge])
+    order = np.lexsort((xs, row))
+    row, xs = row[order], xs[order]
+    # pair the crossings of each line (an odd one out, from a degenerate touch, is dropped)
+    per_line = np.bincount(row, minlength=len(ys))
+    starts = np.cumsum(per_line) - per_line
+    rank = np.arange(len(row)) - starts[row]
+    keep = rank < (per_line // 2 * 2)[row]
+    row, xs = row[keep], xs[keep]
+    return FlatIntervals(ys.astype(np.float64), row[0::2].astype(np.int64), xs[0::2], xs[1::2])
+
+
 def scan_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> ScanIntervals:
     """Scan-line intersections of the region.
 
     Returns ``(ys, rows)`` (:class:`ScanIntervals`) in the frame rotated by ``-angle``: ``ys`` (K,) scan heights and
     ``rows[k]`` an (m, 2) array of [x_start, x_end] material intervals, sorted by x.
     """
-    rot = _rotation(-angle)
-    edges = []
-    for isl in islands:
-        for ring in isl.rings():
-            r = ring @ rot.T
-            edges.append(np.stack([r, np.roll(r, -1, axis=0)], axis=1))
-    if not edges:
-        return ScanIntervals(np.zeros(0), [])
-    e = np.concatenate(edges)                                   # (E, 2, 2)
-    y_lo, y_hi = e[:, :, 1].min(), e[:, :, 1].max()
-    n = int(np.floor((y_hi - y_lo) / pitch))
-    ys = y_lo + pitch * (0.5 + np.arange(max(n, 0) + 1))
-    ys = ys[ys < y_hi]
-    if len(ys) == 0:
-        ys = np.array([0.5 * (y_lo + y_hi)])
-    y0, y1 = e[:, 0, 1], e[:, 1, 1]
-    x0, x1 = e[:, 0, 0], e[:, 1, 0]
-    rows: list[npt.NDArray[np.float64]] = []
-    for y in ys:
-        hit = (y0 <= y) != (y1 <= y)
-        t = (y - y0[hit]) / (y1[hit] - y0[hit])
-        xs = np.sort(x0[hit] + t * (x1[hit] - x0[hit]))
-        rows.append(xs[: len(xs) // 2 * 2].reshape(-1, 2))
-    return ScanIntervals(ys, rows)
+    flat = flat_intervals(islands, pitch, angle)
+    if len(flat.ys) == 0:
+        return ScanIntervals(flat.ys, [])
+    bounds = np.searchsorted(flat.row, np.arange(1, len(flat.ys)))
+    pairs = np.c_[flat.x0, flat.x1]
+    return ScanIntervals(flat.ys, np.split(pairs, bounds))
 
 
 def _to_world(points: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
     return points @ _rotation(angle).T
 
 
-def _link_ok(region: BaseGeometry, a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], max_len: float) -> bool:
-    if np.hypot(*(b - a)) > max_len:
-        return False
-    return bool(region.covers(shapely.LineString([a, b])))
+def _links_ok(region: BaseGeometry, ends: npt.NDArray[np.float64], starts: npt.NDArray[np.float64],
+              max_len: float) -> npt.NDArray[np.bool_]:
+    """(m,) whether each link ``ends[i] -> starts[i]`` ((m, 2) mm) is at most ``max_len`` mm
+    long and inside ``region`` (all links tested in one vectorised GEOS call)."""
+    ok: npt.NDArray[np.bool_] = np.hypot(*(starts - ends).T) <= max_len
+    if ok.any():
+        shapely.prepare(region)
+        links = shapely.linestrings(np.stack([ends[ok], starts[ok]], axis=1))
+        ok[ok] = shapely.covers(region, links)
+    return ok
+
+
+def _chain_segments(segs: npt.NDArray[np.float64], region: BaseGeometry,
+                    max_link: float) -> list[npt.NDArray[np.float64]]:
+    """Join consecutive world segments ((m, 2, 2) mm) into polylines where the link from
+    one's end to the next one's start is short and stays inside ``region``."""
+    if len(segs) == 0:
+        return []
+    ok = _links_ok(region, segs[:-1, 1], segs[1:, 0], max_link)
+    points = segs.reshape(-1, 2)
+    return np.split(points, 2 * (np.flatnonzero(~ok) + 1))
 
 
 def _chain(segments: list[npt.NDArray[np.float64]], region: BaseGeometry,
            max_link: float) -> list[npt.NDArray[np.float64]]:
     """Join consecutive (2, 2) world segments into polylines when the link stays inside."""
-    out: list[list[npt.NDArray[np.float64]]] = []
-    for seg in segments:
-        if out and _link_ok(region, out[-1][-1][-1], seg[0], max_link):
-            out[-1].append(seg)
-        else:
-            out.append([seg])
-    return [np.vstack(parts) for parts in out]
+    if not segments:
+        return []
+    return _chain_segments(np.stack(segments), region, max_link)
 
 
 def raster_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0,
@@ -102,15 +143,18 @@ def raster_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0,
     link when that link is shorter than 3 pitches and inside the region; otherwise the
     nozzle jumps (the seed's "many jumps at cavities").
     """
-    ys, rows = scan_intervals(islands, pitch, angle)
-    segs: list[npt.NDArray[np.float64]] = []
-    for k, (y, iv) in enumerate(zip(ys, rows)):
-        order = iv if k % 2 == 0 else iv[::-1, ::-1]
-        for x0, x1 in order:
-            segs.append(_to_world(np.array([[x0, y], [x1, y]]), angle))
+    flat = flat_intervals(islands, pitch, angle)
+    if len(flat.row) == 0:
+        return []
+    odd = (flat.row % 2).astype(bool)                       # odd lines run backwards
+    order = np.lexsort((np.where(odd, -flat.x0, flat.x0), flat.row))
+    odd, x0, x1, y = odd[order], flat.x0[order], flat.x1[order], flat.ys[flat.row[order]]
+    begin, end = np.where(odd, x1, x0), np.where(odd, x0, x1)
+    local = np.stack([np.c_[begin, y], np.c_[end, y]], axis=1)          # (m, 2, 2)
+    segs = local @ _rotation(angle).T
     if not zigzag:
-        return segs
-    return _chain(segs, region_geometry(islands).buffer(LENGTH_EPS_MM), 3 * pitch)
+        return list(segs)
+    return _chain_segments(segs, region_geometry(islands).buffer(LENGTH_EPS_MM), 3 * pitch)
 
 
 def zone_fill(islands: tuple[Island, ...], pitch: float, angle: float = 0.0) -> list[npt.NDArray[np.float64]]:

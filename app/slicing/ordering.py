@@ -14,8 +14,12 @@ import numpy as np
 import numpy.typing as npt
 
 
-def _is_closed(p: npt.NDArray[np.float64]) -> bool:
-    return len(p) > 2 and bool(np.allclose(p[0], p[-1]))
+def _closed_mask(heads: npt.NDArray[np.float64], tails: npt.NDArray[np.float64],
+                 sizes: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """(n,) which polylines are closed (more than two vertices, first == last within
+    :func:`numpy.allclose`'s default tolerances), all at once."""
+    near = np.abs(heads - tails) <= 1e-8 + 1e-5 * np.abs(tails)
+    return (sizes > 2) & near.all(axis=1)
 
 
 def _rotate_closed(p: npt.NDArray[np.float64], k: int) -> npt.NDArray[np.float64]:
@@ -41,21 +45,28 @@ def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.floa
     pos = np.asarray(start, dtype=float)
     if not remaining:
         return OrderedPaths(out, pos)
-    closed = np.array([_is_closed(p) for p in remaining])
     heads = np.array([p[0] for p in remaining])
     tails = np.array([p[-1] for p in remaining])
+    closed = _closed_mask(heads, tails, np.array([len(p) for p in remaining]))
     alive = np.ones(len(remaining), dtype=bool)
+    loops = np.flatnonzero(closed)
+    # every closed loop's vertices (the repeated last one left out), and whose they are:
+    # the nearest vertex of any loop still to print is one vectorised argmin
+    loop_points = np.concatenate([remaining[k][:-1] for k in loops]) if len(loops) else np.zeros((0, 2))
+    loop_of = np.repeat(loops, [len(remaining[k]) - 1 for k in loops])
+    loop_first = np.concatenate([[0], np.cumsum([len(remaining[k]) - 1 for k in loops])])[:-1]
+    first_vertex = dict(zip(loops.tolist(), loop_first.tolist()))
     for _ in range(len(remaining)):
         dh = np.where(alive, np.hypot(*(heads - pos).T), np.inf)
         dt = np.where(alive & ~closed, np.hypot(*(tails - pos).T), np.inf)
-        # closed loops: any vertex may be the start; use the nearest one (cheap bound first)
         k_h, k_t = int(np.argmin(dh)), int(np.argmin(dt))
         best_closed, best_d, best_v = -1, np.inf, 0
-        for loop in np.nonzero(alive & closed)[0]:
-            d = np.hypot(*(remaining[loop][:-1] - pos).T)
-            v = int(np.argmin(d))
-            if d[v] < best_d:
-                best_closed, best_d, best_v = int(loop), float(d[v]), v
+        if len(loop_points):
+            dl = np.where(alive[loop_of], np.hypot(*(loop_points - pos).T), np.inf)
+            j = int(np.argmin(dl))
+            if np.isfinite(dl[j]):
+                best_closed, best_d = int(loop_of[j]), float(dl[j])
+                best_v = j - first_vertex[best_closed]
         cands = [(dh[k_h], k_h, "head"), (dt[k_t], k_t, "tail"),
                  (best_d, best_closed, "loop")]
         d, k, how = min(cands, key=lambda c: (c[0], c[1]))

@@ -18,7 +18,9 @@ def signed_area(ring: npt.NDArray[np.float64]) -> float:
     """Shoelace signed area of a closed ring ``(n, 2)`` in mm^2 (CCW positive)."""
     x = ring[:, 0]
     y = ring[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    if len(ring) < 3:
+        return 0.0
+    return 0.5 * float(x[:-1] @ y[1:] - x[1:] @ y[:-1] + x[-1] * y[0] - x[0] * y[-1])
 
 
 def oriented(ring: npt.NDArray[np.float64], ccw: bool) -> npt.NDArray[np.float64]:

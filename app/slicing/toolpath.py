@@ -35,6 +35,7 @@ from app.slicing.rings import Island
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
 RESOLUTION_MM = 0.0125  # PrusaSlicer's G-code resolution: paths simplified to it, no move shorter
 THINNEST_WALL = 0.25  # of the nozzle: a wall thinner than this is not printed (PrusaSlicer's min feature)
+COLLINEAR_MM = 1e-6  # a vertex this close to the line through its neighbours adds nothing to a ring
 THIN_WALL_STEPS = 10  # bisection steps finding a thin wall's half thickness (w/2 / 2^10: 0.2 um at 0.4 mm)
 PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
 
@@ -133,15 +134,39 @@ class Toolpath:
 def count_turns(points: npt.NDArray[np.float64], threshold_rad: float) -> int:
     """Direction changes above ``threshold_rad`` along a polyline (n, 2) (a closed one,
     first == last, also counts the closing junction)."""
-    d = np.diff(points, axis=0)
-    d = d[np.hypot(d[:, 0], d[:, 1]) > DEGENERATE_LENGTH_MM]
-    if len(points) > 2 and np.allclose(points[0], points[-1]) and len(d) > 1:
-        d = np.vstack([d, d[:1]])
-    if len(d) < 2:
+    return turns_of([points], threshold_rad)
+
+
+def _closed(heads: npt.NDArray[np.float64], tails: npt.NDArray[np.float64],
+            sizes: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """(n,) polylines with more than two vertices whose first equals the last (within
+    :func:`numpy.allclose`'s default tolerances)."""
+    return (sizes > 2) & (np.abs(heads - tails) <= 1e-8 + 1e-5 * np.abs(tails)).all(axis=1)
+
+
+def turns_of(paths: list[npt.NDArray[np.float64]], threshold_rad: float) -> int:
+    """:func:`count_turns` summed over ``paths`` (each (n, 2) mm), all in one vectorised pass."""
+    paths = [p for p in paths if len(p)]
+    if not paths:
         return 0
+    sizes = np.array([len(p) for p in paths])
+    points = np.concatenate(paths)
+    owner = np.repeat(np.arange(len(paths)), sizes)
+    d = np.diff(points, axis=0)
+    keep = (owner[1:] == owner[:-1]) & (np.hypot(d[:, 0], d[:, 1]) > DEGENERATE_LENGTH_MM)
+    d, d_owner = d[keep], owner[1:][keep]
+    # a closed path with two or more moves also turns from its last move into its first
+    moves = np.bincount(d_owner, minlength=len(paths))
+    ends = np.cumsum(sizes)
+    closed = _closed(points[ends - sizes], points[ends - 1], sizes) & (moves > 1)
+    first_move = np.cumsum(moves) - moves
+    d = np.concatenate([d, d[first_move[closed]]])
+    d_owner = np.concatenate([d_owner, np.flatnonzero(closed)])
+    order = np.argsort(d_owner, kind="stable")
+    d, d_owner = d[order], d_owner[order]
     ang = np.arctan2(d[:, 1], d[:, 0])
     turn = np.abs((np.diff(ang) + np.pi) % (2 * np.pi) - np.pi)
-    return int(np.count_nonzero(turn > threshold_rad))
+    return int(np.count_nonzero((turn > threshold_rad) & (d_owner[1:] == d_owner[:-1])))
 
 
 def infill_paths(islands: tuple[Island, ...], params: ToolpathParams,
@@ -169,11 +194,14 @@ def infill_paths(islands: tuple[Island, ...], params: ToolpathParams,
                                weights=params.merge_weights)
 
 
-def perimeter_paths(islands: tuple[Island, ...], params: ToolpathParams) -> list[npt.NDArray[np.float64]]:
-    """Closed perimeter loops (first vertex repeated), outermost first."""
+def perimeter_paths(islands: tuple[Island, ...], params: ToolpathParams,
+                    first: tuple[Island, ...] | None = None) -> list[npt.NDArray[np.float64]]:
+    """Closed perimeter loops (first vertex repeated), outermost first.  ``first``: the
+    islands already offset by half a line width inward (the outermost loops), if known."""
     out: list[npt.NDArray[np.float64]] = []
     for k in range(params.perimeters):
-        for isl in offset_islands(islands, -(params.line_width_mm * (0.5 + k))):
+        loops = first if k == 0 and first is not None else offset_islands(islands, -(params.line_width_mm * (0.5 + k)))
+        for isl in loops:
             out.extend(np.vstack([r, r[:1]]) for r in isl.rings())
     return out
 
@@ -205,10 +233,18 @@ def simplify_paths(paths: list[npt.NDArray[np.float64]], resolution: float) -> l
     lines = shapely.linestrings(np.vstack(paths), indices=np.repeat(np.arange(len(paths)), [len(p) for p in paths]))
     coords, index = shapely.get_coordinates(shapely.simplify(lines, resolution, preserve_topology=False),
                                             return_index=True)
+    seg = np.hypot(*np.diff(coords, axis=0).T)
+    inside = index[1:] == index[:-1]
+    short = np.zeros(len(paths), dtype=bool)
+    short[index[1:][inside & (seg < resolution)]] = True
+    length = np.bincount(index[1:][inside], weights=seg[inside], minlength=len(paths))
     out: list[npt.NDArray[np.float64]] = []
-    for points in np.split(coords, np.flatnonzero(np.diff(index)) + 1):
-        points = _drop_short(points, resolution)
-        if len(points) >= 2 and np.hypot(*np.diff(points, axis=0).T).sum() >= resolution:
+    for k, points in enumerate(np.split(coords, np.flatnonzero(np.diff(index)) + 1)):
+        if short[k]:
+            points = _drop_short(points, resolution)
+            if len(points) >= 2 and np.hypot(*np.diff(points, axis=0).T).sum() >= resolution:
+                out.append(points)
+        elif len(points) >= 2 and length[k] >= resolution:
             out.append(points)
     return out
 
@@ -222,18 +258,29 @@ def _open_path(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return rolled[: b + 1]
 
 
-def thin_wall_paths(islands: tuple[Island, ...], params: ToolpathParams) -> list[tuple[npt.NDArray[np.float64], float]]:
+def _too_thin(islands: tuple[Island, ...], inset: tuple[Island, ...]) -> list[Island]:
+    """The islands of which nothing survives the inward offset ``inset`` (every island of
+    ``inset`` lies inside the island it came from: its first vertex tells which)."""
+    if not inset:
+        return list(islands)
+    x, y = np.array([isl.outer[0] for isl in inset]).T
+    return [isl for isl in islands if not shapely.contains_xy(shapely.Polygon(isl.outer, isl.holes), x, y).any()]
+
+
+def thin_wall_paths(islands: tuple[Island, ...], params: ToolpathParams,
+                    inset: tuple[Island, ...] | None = None) -> list[tuple[npt.NDArray[np.float64], float]]:
     """Single-bead paths for the islands too thin for a bead of the line width (no inward
     offset of w/2 survives): each one's centre line and the wall thickness there, as
     ``(points (n, 2) mm, width mm)``.  The centre is what survives the deepest inward offset
     (found by bisection); a ring-shaped wall (a tube) gives a closed loop, a sliver (a rib)
-    the line along it.  Walls thinner than ``THINNEST_WALL`` of the nozzle are not printed."""
+    the line along it.  Walls thinner than ``THINNEST_WALL`` of the nozzle are not printed.
+    ``inset``: ``islands`` offset inward by w/2 when the caller has it (one offset for all)."""
     half = params.line_width_mm / 2
+    if inset is None:
+        inset = offset_islands(islands, -half)
     out: list[tuple[npt.NDArray[np.float64], float]] = []
-    for island in islands:
+    for island in _too_thin(islands, inset):
         alone = (island,)
-        if offset_islands(alone, -half):
-            continue  # a full bead fits: perimeters and infill print it
         lo, hi = 0.0, half
         for _ in range(THIN_WALL_STEPS):
             mid = (lo + hi) / 2
@@ -267,35 +314,98 @@ def _layer_moves(pieces: tuple[PathPiece, ...], start: npt.NDArray[np.float64], 
     """Travel to each piece then along it from ``start`` (2,) mm at height ``z`` mm,
     extruding each piece's bead (:func:`piece_e_per_mm`) of ``height_mm``."""
     fil_area = math.pi * (params.filament_mm / 2) ** 2
-    pos: list[npt.NDArray[np.float64]] = [np.array([*start, z, 0.0])]
-    feeds: list[float] = []
-    stops = [True]
-    e = 0.0
-    for piece in pieces:
-        pos.append(np.array([*piece.points[0], z, e]))
-        feeds.append(params.travel_feed_mm_s)
-        stops.append(False)
-        seg = np.hypot(*np.diff(piece.points, axis=0).T)
-        es = e + np.cumsum(seg) * piece_e_per_mm(piece, params.line_width_mm, height_mm, fil_area)
-        pos.extend(np.c_[piece.points[1:], np.full(len(seg), z), es])
-        feeds.extend([piece.feed_mm_s] * len(seg))
-        stops.extend([False] * len(seg))
-        e = float(es[-1]) if len(es) else e
-    stops[-1] = True
-    return _Moves(np.array(pos), np.array(feeds, dtype=np.float64), np.array(stops))
+    if not pieces:
+        return _Moves(np.array([[*start, z, 0.0]]), np.zeros(0), np.array([True]))
+    sizes = np.array([len(p.points) for p in pieces])
+    xy = np.concatenate([start[None, :], *(p.points for p in pieces)])
+    rate = np.repeat([piece_e_per_mm(p, params.line_width_mm, height_mm, fil_area) for p in pieces], sizes)
+    feeds = np.repeat([p.feed_mm_s for p in pieces], sizes)
+    heads = np.cumsum(sizes) - sizes                      # each piece's first point (a travel's end)
+    feeds[heads] = params.travel_feed_mm_s
+    step = np.hypot(*np.diff(xy, axis=0).T) * rate
+    step[heads] = 0.0                                     # travels extrude nothing
+    stops = np.zeros(len(xy), dtype=bool)
+    stops[[0, -1]] = True
+    positions = np.c_[xy, np.full(len(xy), z), np.concatenate([[0.0], np.cumsum(step)])]
+    return _Moves(positions, feeds.astype(np.float64), stops)
+
+
+class LayerPaths(NamedTuple):
+    """One section's extrusion polylines before travel ordering, each simplified to the
+    resolution: ``perimeters`` (closed, outermost first), ``walls`` (one list of polylines
+    and its bead width per thin wall) and ``infill``; (n, 2) mm each."""
+
+    perimeters: list[npt.NDArray[np.float64]]
+    walls: list[tuple[list[npt.NDArray[np.float64]], float]]
+    infill: list[npt.NDArray[np.float64]]
+
+
+def layer_paths(islands: tuple[Island, ...], layer_index: int, params: ToolpathParams) -> LayerPaths:
+    """The unordered polylines of one section (:class:`LayerPaths`)."""
+    res = params.resolution_mm
+    inset = offset_islands(islands, -params.line_width_mm / 2)   # the outer perimeter and the thin-wall test
+    walls = [(simplify_paths([path], res), width) for path, width in thin_wall_paths(islands, params, inset)]
+    return LayerPaths(simplify_paths(perimeter_paths(islands, params, inset), res), walls,
+                      simplify_paths(infill_paths(islands, params, layer_index), res))
+
+
+def _without_collinear(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``ring`` (n, 2) mm without the vertices that lie on the line through their neighbours
+    (within ``COLLINEAR_MM``): a mesh's side faces cut a straight wall into pieces whose
+    joints move from layer to layer; the wall is the same."""
+    prev, nxt = np.roll(ring, 1, axis=0), np.roll(ring, -1, axis=0)
+    chord = np.hypot(*(nxt - prev).T)
+    cross = np.abs((ring[:, 0] - prev[:, 0]) * (nxt[:, 1] - prev[:, 1])
+                   - (ring[:, 1] - prev[:, 1]) * (nxt[:, 0] - prev[:, 0]))
+    keep = cross > COLLINEAR_MM * chord
+    return ring[keep] if np.count_nonzero(keep) >= 3 else ring
+
+
+def normalised(islands: tuple[Island, ...]) -> tuple[Island, ...]:
+    """``islands`` with every ring's collinear vertices dropped (:func:`_without_collinear`):
+    the same region, and the same arrays for the same section at another height."""
+    return tuple(Island(_without_collinear(isl.outer), tuple(_without_collinear(h) for h in isl.holes))
+                 for isl in islands)
+
+
+class PathMemo:
+    """The last few sections' :class:`LayerPaths` by their exact geometry and infill angle:
+    the layers of a prismatic stretch of a part (a cube, a tube, a plate's walls) repeat one
+    section bit for bit, so their paths are made once (ordering still runs per layer).
+    Holds at most ``size`` sections."""
+
+    def __init__(self, params: ToolpathParams, size: int = 4) -> None:
+        self.params = params
+        self.size = size
+        self.entries: dict[tuple[bytes, float, int], LayerPaths] = {}
+
+    def paths(self, islands: tuple[Island, ...], layer_index: int) -> LayerPaths:
+        p = self.params
+        islands = normalised(islands)
+        rings = [r for isl in islands for r in (isl.outer, *isl.holes, np.array([[np.nan, np.nan]]))]
+        key = (np.concatenate(rings).tobytes() if rings else b"",
+               round((p.angle_deg + layer_index * p.angle_step_deg) % 360.0, 9), layer_index % 2)
+        found = self.entries.pop(key, None)
+        if found is None:
+            found = layer_paths(islands, layer_index, p)
+            if len(self.entries) >= self.size:
+                self.entries.pop(next(iter(self.entries)))
+        self.entries[key] = found
+        return found
 
 
 def layer_pieces(islands: tuple[Island, ...], layer_index: int, start: npt.NDArray[np.float64],
-                 params: ToolpathParams) -> tuple[tuple[PathPiece, ...], npt.NDArray[np.float64]]:
+                 params: ToolpathParams,
+                 memo: PathMemo | None = None) -> tuple[tuple[PathPiece, ...], npt.NDArray[np.float64]]:
     """One section's print-ordered pieces from ``start`` (2,) mm: perimeters, thin walls'
     single beads, infill, each simplified to ``params.resolution_mm``; and where it ends."""
-    res = params.resolution_mm
-    per, pos = order_paths(simplify_paths(perimeter_paths(islands, params), res), start)
+    paths = memo.paths(islands, layer_index) if memo is not None else layer_paths(islands, layer_index, params)
+    per, pos = order_paths(paths.perimeters, start)
     walls: list[PathPiece] = []
-    for path, width in thin_wall_paths(islands, params):  # each wall's bead has its own width
-        ordered, pos = order_paths(simplify_paths([path], res), pos)
+    for wall, width in paths.walls:  # each wall's bead has its own width
+        ordered, pos = order_paths(wall, pos)
         walls.extend(PathPiece("thin_wall", q, params.perimeter_feed_mm_s, width) for q in ordered)
-    inf, end = order_paths(simplify_paths(infill_paths(islands, params, layer_index), res), pos)
+    inf, end = order_paths(paths.infill, pos)
     pieces = tuple([PathPiece("perimeter", p, params.perimeter_feed_mm_s) for p in per] + walls
                    + [PathPiece("infill", p, params.print_feed_mm_s) for p in inf])
     return pieces, (end if len(inf) else pos)
@@ -307,17 +417,21 @@ def iter_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathPa
     params.validate()
     thr = math.radians(params.turn_threshold_deg)
     pos = np.zeros(2)
+    memo = PathMemo(params)
     for lay in slice_result.layers:
         h = params.layer_height_mm or lay.thickness
-        pieces, end = layer_pieces(lay.islands, lay.index, pos, params)
-        path_mm = float(sum(np.hypot(*np.diff(p.points, axis=0).T).sum() for p in pieces))
-        gaps = [np.hypot(*(b.points[0] - a.points[-1])) for a, b in zip(pieces, pieces[1:])]
-        first = np.hypot(*(pieces[0].points[0] - pos)) if pieces else 0.0
+        pieces, end = layer_pieces(lay.islands, lay.index, pos, params, memo)
         positions, feeds, stops = _layer_moves(pieces, pos, lay.z_top, h, params)
+        hops = np.hypot(*np.diff(positions[:, :2], axis=0).T)
+        sizes = np.array([len(p.points) for p in pieces], dtype=np.int64)
+        heads = np.cumsum(sizes) - sizes
+        is_head = np.zeros(len(hops), dtype=bool)
+        is_head[heads] = True                                 # the moves onto each piece
+        gaps = hops[heads[1:]]                                # from one piece's end to the next one's start
         t = estimate_moves(positions, feeds, params.limits, stops) if len(feeds) else [0.0]
-        stats = LayerStats(path_mm=path_mm, travel_mm=float(first + sum(gaps)),
-                           turns=sum(count_turns(p.points, thr) for p in pieces),
-                           jumps=int(sum(1 for g in gaps if g > LENGTH_EPS_MM)),
+        stats = LayerStats(path_mm=float(hops[~is_head].sum()), travel_mm=float(hops[is_head].sum()),
+                           turns=turns_of([p.points for p in pieces], thr),
+                           jumps=int(np.count_nonzero(gaps > LENGTH_EPS_MM)),
                            time_s=float(np.sum(t)))
         yield LayerToolpath(lay.index, lay.z_top, lay.thickness, pieces, stats)
         pos = end
