@@ -59,7 +59,7 @@ def _rounded(rows: np.ndarray) -> list[list[float]]:
     scale = 10.0 ** STORED_DECIMALS
     with np.errstate(invalid="ignore", over="ignore"):
         scaled = arr * scale
-        out = (np.rint(scaled) / scale).tolist()
+        out: list[list[float]] = (np.rint(scaled) / scale).tolist()
         unsure = ~(np.abs(scaled) < 2.0 ** 52) | (np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6)
     for i, j in zip(*np.nonzero(unsure)):
         out[i][j] = round(float(arr[i, j]), STORED_DECIMALS)

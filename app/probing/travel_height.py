@@ -147,13 +147,13 @@ def segments_top_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     z = triangles[face, :, 2]
     # the section's points: vertices on the plane, and strict crossings of the three edges
     on = np.abs(d) <= _ON_PLANE_MM
-    i, j = np.array([0, 1, 2]), np.array([1, 2, 0])
-    di, dj = d[:, i], d[:, j]
+    va, vb = np.array([0, 1, 2]), np.array([1, 2, 0])  # each edge's two vertices
+    di, dj = d[:, va], d[:, vb]
     cross = ((di < -_ON_PLANE_MM) & (dj > _ON_PLANE_MM)) | ((di > _ON_PLANE_MM) & (dj < -_ON_PLANE_MM))
     with np.errstate(divide="ignore", invalid="ignore"):
         w = np.where(cross, di / (di - dj), 0.0)
-    pt = np.concatenate([t, t[:, i] + w * (t[:, j] - t[:, i])], axis=1)  # (n, 6)
-    pz = np.concatenate([z, z[:, i] + w * (z[:, j] - z[:, i])], axis=1)
+    pt = np.concatenate([t, t[:, va] + w * (t[:, vb] - t[:, va])], axis=1)  # (n, 6)
+    pz = np.concatenate([z, z[:, va] + w * (z[:, vb] - z[:, va])], axis=1)
     valid = np.concatenate([on, cross], axis=1)
     # a plane meets a triangle in at most three of these points; the section is their convex
     # hull, whose highest point over a window of t lies on a pair of them
