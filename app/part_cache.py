@@ -42,6 +42,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from app.blobs import write_atomically
+from app.probing.travel_height import FACE_BOXES
 
 log = logging.getLogger("conforma.part_cache")
 FORMAT_VERSION = 1
@@ -262,7 +263,6 @@ def mesh_key(sha256: str, matrix: np.ndarray | None = None) -> str:
     return f"{sha256}@{hashlib.sha256(np.asarray(matrix, dtype=float).round(12).tobytes()).hexdigest()[:32]}"
 
 
-FACE_BOXES = "conforma_face_xy_boxes"  # app.probing.program's cache key of the faces' top-view boxes
 
 
 class MeshStore:
@@ -272,7 +272,7 @@ class MeshStore:
       keyed by the file's sha256 (parsing + merging a 1M-face STL costs seconds);
     * ``"derived"``: per (placed) mesh, what jobs built on it: face normals (F, 3), the
       faces' top-view boxes of the probe program's travel check (F, 2) x 2
-      (:mod:`app.probing.program`) and the edge grid of exact draping
+      (:mod:`app.probing.travel_height`) and the edge grid of exact draping
       (:mod:`app.geometry.edge_grid`), attached to the next process's mesh before the
       core asks for them.
 

@@ -155,6 +155,9 @@ class CompensatedPath:
     (<= chord_error_mm).  segment_error_mm: (k-1,) per-segment bound.
     span: (s0, s1) probed span.  trace_extent: (0, L).  extension_mm: (before, after)
     lengths over which the end deviation was held (0, 0 unless ``hold_mm`` allowed it).
+    program_bounds / nominal_program_bounds: ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm
+    the programs move to as written (what a reader of the text finds), None when the
+    writer could not follow a line (a dispense command that moves).
     """
 
     points: np.ndarray
@@ -174,6 +177,8 @@ class CompensatedPath:
     dispense_off: str
     method: str
     slope: dict[str, Any] | None = None
+    program_bounds: list[list[float]] | None = None
+    nominal_program_bounds: list[list[float]] | None = None
 
     def to_result(self) -> dict[str, Any]:
         """API result of job ``compensate``."""
@@ -259,9 +264,10 @@ def _gap_bound(s: np.ndarray, dev: np.ndarray, safety: float) -> np.ndarray:
 
 
 def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
-             notes: list[str]) -> str:
-    """The program of tip ``points`` (k, 3) mm; with a tool: ``T<tool>`` first and every
-    coordinate in carriage terms (tip - offset)."""
+             notes: list[str]) -> tuple[str, list[list[float]] | None]:
+    """The program of tip ``points`` (k, 3) mm and its bounds as the writer wrote them
+    (:meth:`app.gcode.writer.ProgramBuilder.bounds`); with a tool: ``T<tool>`` first and
+    every coordinate in carriage terms (tip - offset)."""
     b = ProgramBuilder(params.dialect, "compensate", job_id, decimals=params.decimals)
     for note in notes:
         b.comment(note)
@@ -286,7 +292,7 @@ def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
     b.raw(params.dispense_off.strip())
     b.rapid(z=travel_z)
     b.end()
-    return b.text()
+    return b.text(), b.bounds()
 
 
 def _segment(reconstruction: Any, s: np.ndarray, pts: np.ndarray,
@@ -339,10 +345,11 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
              f"{len(seg.points) - 1} segments, proved chord error <= {seg.max_error_mm:.6f} mm"]
     nominal_notes = [(f"NOMINAL [uncompensated] trace: tip {params.standoff_mm:.4f} mm above "
                       f"the CAD surface"), f"{len(nominal_seg.points) - 1} segments"]
+    program, bounds = _program(seg.points, params, job_id, notes)
+    nominal_program, nominal_bounds = _program(nominal_seg.points, params, job_id, nominal_notes)
     return CompensatedPath(
-        points=seg.points, s_mm=seg.s, program=_program(seg.points, params, job_id, notes),
-        nominal_points=nominal_seg.points,
-        nominal_program=_program(nominal_seg.points, params, job_id, nominal_notes),
+        points=seg.points, s_mm=seg.s, program=program, program_bounds=bounds,
+        nominal_points=nominal_seg.points, nominal_program=nominal_program, nominal_program_bounds=nominal_bounds,
         segments=int(len(seg.points) - 1),
         length_mm=float(np.linalg.norm(np.diff(seg.points, axis=0), axis=1).sum()),
         max_chord_error_mm=seg.max_error_mm, segment_error_mm=seg.segment_error_mm,

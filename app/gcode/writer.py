@@ -96,6 +96,10 @@ def format_number(value: float, decimals: int, field: str = "value") -> str:
     return text
 
 
+#: a raw line that moves nothing: a tool change, an M code with settings, a dwell
+_STILL = re.compile(r"^\s*(T\d+|M\d+(\s+[SPQRT][-+]?[\d.]+)*|G4(\s+[PS][\d.]+)?)\s*$", re.IGNORECASE)
+
+
 class ProgramBuilder:
     """Accumulates one G-code program.
 
@@ -128,6 +132,12 @@ class ProgramBuilder:
         self.feed_decimals = int(feed_decimals)
         self._lines: list[str] = [f"; conforma job={job_id or '-'} kind={kind} units=mm",
                                   "G21", "G90", *self.dialect.preamble]
+        # the XYZ bounds of the written moves, as the reader reads them (from 0, 0, 0);
+        # None once a line is written whose motion the builder does not follow (a probe, a
+        # raw line other than a tool change, an M code or a dwell)
+        self._pos: list[float] | None = [0.0, 0.0, 0.0]
+        self._lo: list[float] | None = None
+        self._hi: list[float] | None = None
 
     # -- formatting ---------------------------------------------------------------
     def _coord(self, axis: str, value: float) -> str:
@@ -142,6 +152,7 @@ class ProgramBuilder:
     def _words(self, x: float | None, y: float | None, z: float | None,
                extra_axes: dict[str, float]) -> list[str]:
         words = [self._coord(a, v) for a, v in (("X", x), ("Y", y), ("Z", z)) if v is not None]
+        self._moved(words)
         for name, value in extra_axes.items():
             axis = name.upper()
             if not _AXIS_RE.match(axis):
@@ -198,6 +209,7 @@ class ProgramBuilder:
             if x is None or y is None:
                 raise GcodeError("G30 needs x and y", field="x", value=x)
             self._lines.append("G30 " + " ".join(self._words(x, y, None, {})))
+        self._pos = None  # where a probing move stops is the part's business
         return self
 
     def wait_for_moves(self) -> "ProgramBuilder":
@@ -216,8 +228,29 @@ class ProgramBuilder:
         if "\n" in line or "\r" in line:
             raise GcodeError("raw line must not contain a newline", field="line",
                              value=line[:40])
+        if not _STILL.match(line):
+            self._pos = None
         self._lines.append(line.rstrip())
         return self
+
+    def _moved(self, words: list[str]) -> None:
+        """Follow a move to the (formatted) XYZ ``words``: the reader reads these numbers."""
+        if self._pos is None:
+            return
+        for word in words:
+            self._pos["XYZ".index(word[0])] = float(word[1:])
+        self._lo = list(self._pos) if self._lo is None else [min(a, b) for a, b in zip(self._lo, self._pos)]
+        self._hi = list(self._pos) if self._hi is None else [max(a, b) for a, b in zip(self._hi, self._pos)]
+
+    def bounds(self) -> list[list[float]] | None:
+        """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm of the moves written, what
+        :func:`app.gcode.reader.read_program` reads from the text (the position before the
+        first move is 0, 0, 0; an axis a move leaves out keeps its value); None without
+        moves or when a line was written whose motion the builder does not follow (a probing
+        move, a raw line other than a tool change, an M code or a dwell)."""
+        if self._pos is None or self._lo is None or self._hi is None:
+            return None
+        return [list(self._lo), list(self._hi)]
 
     @property
     def lines(self) -> tuple[str, ...]:

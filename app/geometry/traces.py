@@ -51,7 +51,19 @@ class XYProjection(NamedTuple):
 
 
 def _rounded(rows: np.ndarray) -> list[list[float]]:
-    return [[round(v, STORED_DECIMALS) for v in row] for row in np.asarray(rows, dtype=float).tolist()]
+    """``rows`` (k, d) as lists of ``round(v, STORED_DECIMALS)``, exactly Python's values,
+    vectorised: the nearest integer of v * 10**n divided by 10**n is the double nearest that
+    decimal, as Python's round gives it; near a tie (where v * 10**n is inexact enough to
+    pick the other integer), beyond 2**52 or not finite, Python's round is taken."""
+    arr = np.asarray(rows, dtype=float)
+    scale = 10.0 ** STORED_DECIMALS
+    with np.errstate(invalid="ignore", over="ignore"):
+        scaled = arr * scale
+        out: list[list[float]] = (np.rint(scaled) / scale).tolist()
+        unsure = ~(np.abs(scaled) < 2.0 ** 52) | (np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6)
+    for i, j in zip(*np.nonzero(unsure)):
+        out[i][j] = round(float(arr[i, j]), STORED_DECIMALS)
+    return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -2,11 +2,12 @@
 a retried attempt redoes only the traces the earlier attempt did not finish.
 
 A board job stores each trace's outputs as its own artifacts (``print.<trace_id>.gcode``,
-``reconstruction.<trace_id>.npz``...).  Once a trace's outputs are stored it is recorded as
-done; the records are stored in groups (every CHECKPOINT_TRACES traces or CHECKPOINT_S
-seconds, and at the end: one more artifact per group, not per trace, since each stored
-artifact costs an fsync and a commit, ~10 ms) as the artifact
-``checkpoint.<first trace_id of the group>.json``::
+``reconstruction.<trace_id>.npz``...) and records the trace as done; the records are stored
+in groups (every CHECKPOINT_TRACES traces or CHECKPOINT_S seconds, and at the end) as the
+artifact ``checkpoint.<first trace_id of the group>.json``.  Outputs given to
+:meth:`TraceCheckpoints.add` are stored with their group's checkpoint in ONE commit (a
+transaction per group, not per trace: each costs a commit and its bookkeeping); outputs a
+job stored itself are recorded with :meth:`TraceCheckpoints.done`.  A checkpoint::
 
     {"traces": [{"trace_id": str, "inputs_sha256": str, "artifacts": {name: sha256}, "row": {...}}, ...]}
 
@@ -14,11 +15,12 @@ artifact costs an fsync and a commit, ~10 ms) as the artifact
 trace's outputs were made from (:func:`inputs_sha256`: the job's parameters, the trace's
 record, the part's and the input artifacts' sha256, the software version...).
 
-Why a trace can be trusted: a blob is written to a temporary file, fsynced and renamed
-before its artifact row is committed (:mod:`app.blobs`), so a SIGKILL leaves either no row
-or a row over a whole file; a group is stored after its traces' artifacts, so a kill before
-it leaves traces without a record, which are done again (at most a group's worth of work is
-lost).  On reuse the checkpoint's bytes must hash to its listed sha256, every artifact the
+Why a trace can be trusted: a blob is written to a temporary file, fsynced (its contents,
+not only its directory entry) and renamed before its artifact row is committed
+(:mod:`app.blobs`), so a SIGKILL leaves either no row or a row over a whole file; a group's
+checkpoint is committed with (or after) its traces' artifacts, so a kill before that commit
+leaves traces without a record (and, for :meth:`~TraceCheckpoints.add`, files without rows,
+which the blob sweep removes), which are done again: at most a group's worth of work is lost.  On reuse the checkpoint's bytes must hash to its listed sha256, every artifact the
 trace's record names must still be listed with that sha256 and its bytes hash to it (an
 attempt that rewrote an artifact and was killed before recording it, a missing or altered
 blob: the trace is done again), and the inputs must be this attempt's.
@@ -39,6 +41,8 @@ from app.jobs.context import JobContext
 from app.models import Artifact
 
 CHECKPOINT_MEDIA_TYPE = "application/json"
+Output = tuple[str, bytes, str, dict[str, Any] | None]
+"""An artifact to store: (name, bytes, media type, meta)."""
 
 
 CHECKPOINT_TRACES = 25  # a group is stored after this many traces...
@@ -90,6 +94,7 @@ class TraceCheckpoints:
                     self.earlier.setdefault(record["trace_id"], []).append(record)
         self.reused = 0
         self.pending: list[dict[str, Any]] = []
+        self.outputs: list[Output] = []  # the pending traces' outputs not stored yet
         self.flushed_at = time.monotonic()
 
     def _verified(self, name: str, sha256: Any) -> bytes | None:
@@ -122,13 +127,21 @@ class TraceCheckpoints:
         if len(self.pending) >= CHECKPOINT_TRACES or time.monotonic() - self.flushed_at >= CHECKPOINT_S:
             self.flush()
 
+    def add(self, trace_id: str, inputs: str, outputs: list[Output], row: dict[str, Any]) -> None:
+        """Record a trace with its ``outputs`` (name, bytes, media type, meta), which are
+        stored with the group's checkpoint in one commit (:meth:`flush`)."""
+        self.outputs += outputs
+        self.done(trace_id, inputs, {name: hashlib.sha256(data).hexdigest() for name, data, _, _ in outputs}, row)
+
     def flush(self) -> None:
-        """Store the recorded traces not stored yet as one checkpoint artifact."""
+        """Store the recorded traces not stored yet as one checkpoint artifact, in the same
+        commit as their outputs not stored yet."""
         if self.pending:
             first = self.pending[0]["trace_id"]
-            self.ctx.artifact(checkpoint_name(first), json.dumps({"traces": self.pending}, default=_plain).encode(),
-                              CHECKPOINT_MEDIA_TYPE, {"format": "checkpoint", "traces": len(self.pending)})
-            self.pending = []
+            checkpoint = (checkpoint_name(first), json.dumps({"traces": self.pending}, default=_plain).encode(),
+                          CHECKPOINT_MEDIA_TYPE, {"format": "checkpoint", "traces": len(self.pending)})
+            self.ctx.artifacts([*self.outputs, checkpoint])
+            self.pending, self.outputs = [], []
         self.flushed_at = time.monotonic()
 
     def note(self) -> str:

@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING, Any
 
 from sqlmodel import Session, select
 
-from app.errors import Cancelled, ConformaError
+from app.errors import Cancelled, ConformaError, NotFound
 from app.jobs.inputs import succeeded_job
 from app.jobs.store import Claim
-from app.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile
+from app.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile, utcnow
 from app.records import add_artifact, get_or_404
 
 if TYPE_CHECKING:
@@ -63,6 +63,16 @@ class JobContext:
     def trace(self, trace_id: str) -> Trace:
         with self.session() as session:
             return get_or_404(session, Trace, trace_id)
+
+    def traces(self, trace_ids: list[str]) -> list[Trace]:
+        """The traces ``trace_ids`` in order, read in one query (a board's thousand); a missing
+        one is a NotFound naming it."""
+        with self.session() as session:
+            rows = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(trace_ids))).all()}  # type: ignore[attr-defined]
+        missing = next((t for t in trace_ids if t not in rows), None)
+        if missing is not None:
+            raise NotFound(f"trace {missing!r} does not exist", field="trace_id", value=missing)
+        return [rows[t] for t in trace_ids]
 
     def machine(self, machine_id: str) -> Machine:
         with self.session() as session:
@@ -126,10 +136,23 @@ class JobContext:
 
     def artifacts(self, items: list[tuple[str, bytes, str, dict[str, Any] | None]]) -> list[str]:
         """Store several artifacts of this job (name, data, media type, meta) in one commit
-        (each blob written and fsynced before it); their sha256 in order."""
+        (each blob written and fsynced before it; the rows an earlier attempt left under these
+        names looked up in one query); their sha256 in order: all of them or none are listed."""
+        names = [name for name, _, _, _ in items]
         with self.session() as session:
-            shas = [add_artifact(session, self.runtime.blobs, self.job_id, name, data, media_type, meta).sha256
-                    for name, data, media_type, meta in items]
+            existing = {row.name: row for row in session.exec(select(Artifact).where(
+                Artifact.job_id == self.job_id, Artifact.name.in_(names))).all()}  # type: ignore[attr-defined]
+            shas = []
+            for name, data, media_type, meta in items:
+                sha = self.runtime.blobs.put(session, data)
+                row = existing.get(name)
+                if row is None:
+                    row = existing[name] = Artifact(job_id=self.job_id, name=name, created_at=utcnow(),
+                                                    media_type=media_type, bytes=len(data), sha256=sha, meta=meta or {})
+                else:  # a retried attempt rewrites its artifact
+                    row.sha256, row.bytes, row.media_type, row.meta = sha, len(data), media_type, meta or {}
+                session.add(row)
+                shas.append(sha)
             session.commit()
             return shas
 

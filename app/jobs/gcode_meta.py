@@ -132,20 +132,26 @@ class ProgramScan:
                 "bounds": self._bounds.bounds(), "sha256": self.raw.hexdigest(), "bytes": self.size}
 
 
-def gcode_meta(text: str, program: Program | None = None) -> dict:
+def gcode_meta(text: str, program: Program | None = None, *,
+               bounds: list[list[float]] | None = None) -> dict:
     """``{lines, commands, commands_sha256, bounds}``; ``bounds``: the lowest and highest
     machine position the program moves to, ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm,
     as :func:`app.gcode.reader.read_program` reads it (relative moves, G92, G28 and inches
     included; an arc's exact extent rather than its chords' ends; None when there are no
     moves).  InvalidInput naming the line when a
     number is not finite.  ``program``: ``text`` already read (:func:`read_program` with its
-    default options): its bounds are taken, so that the text is not read twice."""
-    scan = ProgramScan(check=False, read_moves=program is None)
+    default options): its bounds are taken, so that the text is not read twice.
+    ``bounds``: the writer's own (:meth:`app.gcode.writer.ProgramBuilder.bounds`, the same
+    numbers a reader finds), taken as they are: the moves are not read again."""
+    known = program is not None or bounds is not None
+    scan = ProgramScan(check=False, read_moves=not known)
     scan.feed_text(text)
     meta = scan.result()
     if program is not None:
         extent = program.bounds()
         meta["bounds"] = None if extent is None else extent.tolist()
+    elif bounds is not None:
+        meta["bounds"] = [list(bounds[0]), list(bounds[1])]
     return {key: meta[key] for key in ("lines", "commands", "commands_sha256", "bounds")}
 
 

@@ -6,7 +6,8 @@ drop (rapid) to the approach height, probe along -Z at the probe feed, and on to
 Safe travel: the travel height of a segment is the part's highest point *along that
 segment* (not just at its ends) plus ``clearance_mm``.  ``top`` is either a trimesh
 (exact: the part is cut by the vertical plane through the segment and the section's
-highest point inside the segment is taken) or a callable ``top(xy (m, 2)) -> z (m,)``
+highest point inside the segment is taken; every segment of a program at once,
+:mod:`app.probing.travel_height`) or a callable ``top(xy (m, 2)) -> z (m,)``
 (NaN where off the part) sampled every ``sample_mm`` along the segment (plus both ends).
 
 Dialects: ``g38`` (grbl/LinuxCNC, Marlin with G38 support): ``G38.2 Z<target> F<feed>``
@@ -28,6 +29,7 @@ from app.checks import require_positive
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DIALECTS, ProgramBuilder
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 from app.probing.selection import PlanError, ProbePlan
+from app.probing.travel_height import segments_top_max
 
 TopHeight = Callable[[np.ndarray], np.ndarray]
 
@@ -107,68 +109,23 @@ class ProbeProgram:
 
 def segment_top_max(top: Any, a: np.ndarray, b: np.ndarray, sample_mm: float) -> float:
     """Highest point (mm) of the part over the xy segment a-b ((2,) each); -inf if none."""
+    return float(_travel_tops(top, np.atleast_2d(a), np.atleast_2d(b), sample_mm)[0])
+
+
+def _travel_tops(top: Any, a: np.ndarray, b: np.ndarray, sample_mm: float) -> np.ndarray:
+    """Highest point (mm) of the part over each xy segment a -> b ((m, 2) each), -inf where
+    none: a mesh's exactly (:func:`app.probing.travel_height.segments_top_max`, all at
+    once), a callable's sampled every ``sample_mm``."""
     if hasattr(top, "vertices") and hasattr(top, "faces"):
-        return _mesh_segment_max(top, a, b)
-    length = float(np.linalg.norm(b - a))
-    n = max(2, int(math.ceil(length / sample_mm)) + 1)
-    t = np.linspace(0.0, 1.0, n)
-    z = np.asarray(top(a + t[:, None] * (b - a)), dtype=float)
-    z = z[np.isfinite(z)]
-    return float(z.max()) if len(z) else -math.inf
-
-
-_FACE_BOXES = "conforma_face_xy_boxes"
-
-
-def _face_boxes(mesh: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Top-view bounding boxes of every face: lo (F, 2), hi (F, 2) mm (cached on the mesh)."""
-    cached: tuple[np.ndarray, np.ndarray] | None = mesh._cache[_FACE_BOXES]
-    if cached is None:
-        xy = mesh.triangles[:, :, :2]
-        cached = (xy.min(axis=1), xy.max(axis=1))
-        mesh._cache[_FACE_BOXES] = cached
-    return cached
-
-
-def _mesh_segment_max(mesh: Any, a: np.ndarray, b: np.ndarray) -> float:
-    """Exact highest point of a triangle mesh above the xy segment a-b.  Only faces whose
-    top-view box meets the segment's box are cut (the others cannot lie above it)."""
-    import trimesh
-
-    # trimesh is untyped: the plane cut returns segments (m, 2, 3)
-    mesh_plane: Callable[..., np.ndarray] = trimesh.intersections.mesh_plane
-    d = b - a
-    length = float(np.linalg.norm(d))
-    if length < DEGENERATE_LENGTH_MM:
-        origin = np.array([[a[0], a[1], mesh.bounds[1][2] + 1.0]])
-        loc, _, _ = mesh.ray.intersects_location(origin, np.array([[0.0, 0.0, -1.0]]))
-        return float(loc[:, 2].max()) if len(loc) else -math.inf
-    u = d / length
-    normal = np.array([-u[1], u[0], 0.0])
-    lo, hi = _face_boxes(mesh)
-    near = np.flatnonzero(np.all(hi >= np.minimum(a, b), axis=1) & np.all(lo <= np.maximum(a, b), axis=1))
-    if len(near) == 0:
-        return -math.inf
-    segs = mesh_plane(mesh, normal, np.array([a[0], a[1], 0.0]), local_faces=near)
-    if len(segs) == 0:
-        return -math.inf
-    t = (segs[:, :, :2] - a) @ u  # (n, 2) position along the segment
-    t0, t1 = t[:, 0], t[:, 1]
-    z0, z1 = segs[:, 0, 2], segs[:, 1, 2]
-    lo = np.maximum(np.minimum(t0, t1), 0.0)
-    hi = np.minimum(np.maximum(t0, t1), length)
-    ok = lo <= hi
-    if not ok.any():
-        return -math.inf
-    span = np.where(np.abs(t1 - t0) > 1e-15, t1 - t0, 1.0)
-
-    def z_at(tt: np.ndarray) -> np.ndarray:
-        w = np.where(np.abs(t1 - t0) > 1e-15, (tt - t0) / span, 0.0)
-        flat = np.maximum(z0, z1)
-        out: np.ndarray = np.where(np.abs(t1 - t0) > 1e-15, z0 + w * (z1 - z0), flat)
-        return out
-
-    return float(max(z_at(lo)[ok].max(), z_at(hi)[ok].max()))
+        return segments_top_max(top, a, b)
+    out = np.full(len(a), -math.inf)
+    for i, (p, q) in enumerate(zip(np.asarray(a, dtype=float), np.asarray(b, dtype=float))):
+        n = max(2, int(math.ceil(float(np.linalg.norm(q - p)) / sample_mm)) + 1)
+        t = np.linspace(0.0, 1.0, n)
+        z = np.asarray(top(p + t[:, None] * (q - p)), dtype=float)
+        z = z[np.isfinite(z)]
+        out[i] = float(z.max()) if len(z) else -math.inf
+    return out
 
 
 def upward_normals(normals: np.ndarray | None, count: int) -> np.ndarray | None:
@@ -220,8 +177,10 @@ def build_probe_program(plan: ProbePlan, top: Any, params: ProbeProgramParams | 
     b.comment(f"probe plan method={plan.method} points={len(pts)} style={p.style} "
               f"clearance={p.clearance_mm:g}mm")
     xy = pts[:, :2]
-    travel_tops = [segment_top_max(top, xy[0], xy[0], p.sample_mm)]
-    travel_tops += [segment_top_max(top, xy[i - 1], xy[i], p.sample_mm) for i in range(1, len(pts))]
+    # the first point's own column, then every segment between consecutive points, then the last's
+    ends = _travel_tops(top, np.vstack([xy[:1], xy[:-1], xy[-1:]]), np.vstack([xy[:1], xy[1:], xy[-1:]]),
+                        p.sample_mm)
+    travel_tops = ends[:-1]
     approach = pts[:, 2] + p.approach_mm
     safe = []
     for i, t in enumerate(travel_tops):
@@ -257,7 +216,7 @@ def build_probe_program(plan: ProbePlan, top: Any, params: ProbeProgramParams | 
         normal = None if normals is None else (float(normals[i, 0]), float(normals[i, 1]), float(normals[i, 2]))
         records.append(ProbeRecord(i, float(plan.s_mm[i]), (float(x), float(y), float(z)),
                                    float(safe[i]), float(approach[i]), float(target), float(z), normal))
-    end_z = max(segment_top_max(top, xy[-1], xy[-1], p.sample_mm), pts[-1, 2]) + p.clearance_mm
+    end_z = max(float(ends[-1]), pts[-1, 2]) + p.clearance_mm
     b.rapid(z=end_z)
     moves.append((pts[-1, 0], pts[-1, 1], end_z))
     b.end()

@@ -2,6 +2,8 @@
 
 import math
 
+import numpy as np
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -80,3 +82,26 @@ def test_identical_inputs_identical_bytes():
     def build():
         return ProgramBuilder("marlin", "k", "x").rapid(x=1, y=2).move(z=0.1, feed_mm_min=60).text()
     assert build() == build()
+
+
+def test_the_builders_bounds_are_what_the_reader_reads_and_none_when_it_cannot_follow():
+    from app.compensation.standoff import CompensationParams, _program
+    from app.gcode.reader import read_program
+    from app.jobs.gcode_meta import gcode_meta
+
+    rng = np.random.default_rng(5)
+    points = np.cumsum(rng.normal(0.0, 1.3, (60, 3)), axis=0) + [10.0, -20.0, 3.0]
+    for dialect, tool, dwell in (("marlin", None, 0.0), ("grbl", 2, 0.5), ("marlin", 1, 0.2)):
+        params = CompensationParams(standoff_mm=0.1, dialect=dialect, tool=tool, dwell_s=dwell,
+                                    tool_offset_mm=(1.25, -3.5, 0.75) if tool else (0.0, 0.0, 0.0))
+        text, bounds = _program(points, params, "job_x", ["a note"])
+        assert bounds == read_program(text).bounds().tolist()  # the reader's numbers, exactly
+        assert gcode_meta(text, bounds=bounds) == gcode_meta(text)
+    moving = CompensationParams(standoff_mm=0.1, dispense_on="G1 Z9", dispense_off="M107")
+    assert _program(points, moving, None, [])[1] is None  # a dispense command that moves: not followed
+    b = ProgramBuilder("grbl", "probe_plan")
+    b.rapid(z=5.0).rapid(x=1.0, y=2.0)
+    assert b.bounds() == [[0.0, 0.0, 5.0], [1.0, 2.0, 5.0]]  # from 0, 0, 0 as the reader starts
+    b.probe("g38", z=-1.0, feed_mm_min=100.0)
+    assert b.bounds() is None  # where a probe stops is the part's business
+    assert ProgramBuilder("grbl", "x").bounds() is None  # no moves

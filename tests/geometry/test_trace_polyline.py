@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -113,3 +114,19 @@ def test_a_placed_polyline_keeps_lengths_and_stretch() -> None:
     np.testing.assert_allclose(placed.points, pl.apply(poly.points))
     np.testing.assert_allclose(placed.normals, pl.rotate(poly.normals))
     assert placed.slope_stretch == poly.slope_stretch
+
+
+def test_the_stored_form_rounds_exactly_as_pythons_round():
+    from app.geometry.tolerance import STORED_DECIMALS
+    from app.geometry.traces import _rounded
+
+    rng = np.random.default_rng(9)
+    values = np.concatenate([rng.uniform(-400.0, 400.0, 3000), rng.normal(0.0, 1e-6, 300),
+                             (np.arange(-600, 600) + 0.5) / 10 ** STORED_DECIMALS,  # ties, as near as doubles get
+                             np.nextafter((np.arange(200) + 0.5) / 10 ** STORED_DECIMALS, 1.0),
+                             [0.0, -0.0, 1e17, -3e16, 2.0 ** 53 / 1e6, 7.25, -7.25]]).reshape(-1, 3)
+    expected = [[round(v, STORED_DECIMALS) for v in row] for row in values.tolist()]
+    got = _rounded(values)
+    assert got == expected
+    assert [math.copysign(1.0, v) for row in got for v in row] == \
+        [math.copysign(1.0, v) for row in expected for v in row]  # -0.0 stays -0.0

@@ -127,9 +127,9 @@ def test_a_stored_edge_grid_drapes_exactly_like_a_fresh_one(tmp_path):
 
 def test_the_probe_programs_face_boxes_travel_with_the_mesh(tmp_path):
     from app.part_cache import FACE_BOXES
-    from app.probing import program
+    from app.probing import program, travel_height
 
-    assert FACE_BOXES == program._FACE_BOXES  # the key the probe program caches its boxes under
+    assert FACE_BOXES == travel_height.FACE_BOXES  # the key the probe program caches its boxes under
     mesh = s1_mesh(grid_mm=2.0)
     a, b = np.array([3.0, 4.0]), np.array([50.0, 30.0])
     top = program.segment_top_max(mesh, a, b, 0.1)

@@ -41,7 +41,7 @@ from app.compensation.standoff import CompensationError, CompensationParams, com
     tip_path
 from app.errors import InvalidInput
 from app.geometry.drape import top_surface_z
-from app.jobs.board_checkpoints import TraceCheckpoints, artifact_shas, inputs_sha256, trace_inputs
+from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
@@ -213,24 +213,25 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         reconstruction = read_reconstruction(ctx.artifact_bytes(source.id, stored_name()),
                                              placed_nominal(trace, placement))
         ctx.progress(0.3, "segmenting the compensated path")
-        result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement)
-        ctx.artifact("print.gcode", program.encode(), "text/x-gcode", gcode_meta(program))
-        ctx.artifact("nominal.gcode", nominal.encode(), "text/x-gcode", gcode_meta(nominal))
+        result, path = _program(ctx, params, choice, trace, reconstruction, placement)
+        ctx.artifact("print.gcode", path.program.encode(), "text/x-gcode", _meta(path.program, path.program_bounds))
+        ctx.artifact("nominal.gcode", path.nominal_program.encode(), "text/x-gcode",
+                     _meta(path.nominal_program, path.nominal_program_bounds))
         return CompensateResult.written(result)
     rows = []
     total = len(params.trace_ids)
     checkpoints = TraceCheckpoints(ctx)
     shared = inputs_sha256(_board_inputs(ctx, params, choice, source.id, placement))
-    reconstructions = artifact_shas(ctx, source.id)
+    stored = ctx.artifacts_of([(source.id, stored_name(t)) for t in params.trace_ids])  # one query
     records = _Records(ctx)
-    for index, trace_id in enumerate(params.trace_ids):
-        trace = ctx.trace(trace_id)
-        inputs = inputs_sha256(shared, trace_inputs(trace, records.part(trace.part_id).sha256),
-                               reconstructions.get(stored_name(trace_id)))
-        row = checkpoints.reusable(trace_id, inputs)
+    for index, trace in enumerate(ctx.traces(params.trace_ids)):  # one query, not one per trace
+        reconstruction = stored[(source.id, stored_name(trace.id))]
+        inputs = inputs_sha256(shared, trace_inputs(trace, records.part(trace.part_id).sha256), reconstruction.sha256)
+        row = checkpoints.reusable(trace.id, inputs)
         if row is None:
-            row = _board_trace(ctx, params, choice, trace, source.id, placement, records)
-            checkpoints.done(trace_id, inputs, row.pop("stored"), row)
+            row, outputs = _board_trace(ctx, params, choice, trace, ctx.blob(reconstruction.sha256), placement,
+                                        records)
+            checkpoints.add(trace.id, inputs, outputs, row)  # stored with the group's checkpoint, one commit
         rows.append(row)
         if index % 25 == 24 or index + 1 == total:
             ctx.progress((index + 1) / total, f"{index + 1}/{total} traces compensated{checkpoints.note()}")
@@ -274,24 +275,29 @@ class _Records:
         return self._parts[part_id]
 
 
-def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, source_id: str,
-                 placement: Any, records: _Records) -> dict[str, Any]:
-    """Compensate one trace of a board job and store its programs; its result row, with
-    ``stored``: {artifact name: sha256} of the programs."""
-    reconstruction = read_reconstruction(ctx.artifact_bytes(source_id, stored_name(trace.id)),
-                                         placed_nominal(trace, placement))
-    result, program, nominal = _program(ctx, params, choice, trace, reconstruction, placement, records)
+def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, stored: bytes,
+                 placement: Any, records: _Records) -> tuple[dict[str, Any], list[Output]]:
+    """Compensate one trace of a board job from its ``stored`` reconstruction (the npz
+    bytes): its result row and its two programs as artifacts to store."""
+    reconstruction = read_reconstruction(stored, placed_nominal(trace, placement))
+    result, path = _program(ctx, params, choice, trace, reconstruction, placement, records)
     printed, plain = board_artifacts(trace.id)
-    shas = ctx.artifacts([(printed, program.encode(), "text/x-gcode", gcode_meta(program)),
-                          (plain, nominal.encode(), "text/x-gcode", gcode_meta(nominal))])
-    stored = {printed: shas[0], plain: shas[1]}
-    return {"trace_id": trace.id, "print_artifact": printed, "nominal_artifact": plain, **result, "stored": stored}
+    outputs: list[Output] = [(printed, path.program.encode(), "text/x-gcode", _meta(path.program, path.program_bounds)),
+                             (plain, path.nominal_program.encode(), "text/x-gcode",
+                              _meta(path.nominal_program, path.nominal_program_bounds))]
+    return {"trace_id": trace.id, "print_artifact": printed, "nominal_artifact": plain, **result}, outputs
+
+
+def _meta(program: str, bounds: list[list[float]] | None) -> dict[str, Any]:
+    """A program's G-code meta, its bounds the writer's own when it followed every line (the
+    moves are then not read again: reading them cost more than compensating the trace)."""
+    return gcode_meta(program, bounds=bounds)
 
 
 def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, reconstruction: Any,
-             placement: Any, records: "_Records | None" = None) -> tuple[dict[str, Any], str, str]:
-    """(result, print program, nominal program) of one trace (``records``: a board job's
-    machine and parts, read once for all its traces)."""
+             placement: Any, records: "_Records | None" = None) -> tuple[dict[str, Any], Any]:
+    """(result, the compensated path with its programs) of one trace (``records``: a board
+    job's machine and parts, read once for all its traces)."""
     dialect, on, off = params.dialect, params.dispense_on, params.dispense_off
     if params.machine_id:
         machine: Machine = records.machine(params.machine_id) if records else ctx.machine(params.machine_id)
@@ -316,7 +322,7 @@ def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trac
         result["clearance"] = clearance
     if placement is not None:
         result["placement"] = placement.to_dict()
-    return result, path.program, path.nominal_program
+    return result, path
 
 
 def _clearance(trace: Any, reconstruction: Any, path: Any, mesh: Any, diameter_mm: float) -> dict[str, Any]:

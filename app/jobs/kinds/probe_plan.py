@@ -138,7 +138,7 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
 
 def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
     """Part-level plan: stations per trace (jointly for kriging), one program in trace order."""
-    traces = [ctx.trace(t) for t in trace_ids]
+    traces = ctx.traces(trace_ids)  # one query, not one per trace
     placement = placement_from(ctx, params)
     mesh = ctx.runtime.meshes.placed(ctx.part(traces[0].part_id), placement)
     nominals = [placed_nominal(trace, placement) for trace in traces]
@@ -267,7 +267,7 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
 
 def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
     """Board plan: stations over the region the traces cover, one program in probing order."""
-    traces = [ctx.trace(t) for t in trace_ids]
+    traces = ctx.traces(trace_ids)  # one query, not one per trace
     placement = placement_from(ctx, params)
     mesh = ctx.runtime.meshes.placed(ctx.part(traces[0].part_id), placement)
     nominals = [placed_nominal(trace, placement) for trace in traces]
