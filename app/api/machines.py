@@ -154,7 +154,8 @@ def get_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> Ma
     return machine_out(runtime, get_or_404(session, Machine, machine_id))
 
 
-@router.patch("/{machine_id}", dependencies=[Operator])
+@router.patch("/{machine_id}", dependencies=[Operator],
+              responses={409: {"description": "the profile or baud rate of a connected machine, or a program holds it"}})
 def update_machine(machine_id: str, body: MachineUpdate, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
     """Rename a machine (any time), or change its baud rate or profile (409 unless it is
     disconnected: the live connection was opened with them).  Never while a program holds it."""

@@ -49,7 +49,9 @@ SHRINK_PER_ROUND = 2.0         # a round plans for no less than the previous rou
 
 def pilot_params(params: PlanParams) -> PlanParams:
     """The pilot's plan parameters: ``params`` with twice the wavelength (a coarse design
-    any part needs; the rounds add what the learned prior asks for)."""
+    any part needs; the rounds add what the learned prior asks for).  A pilot of fewer than
+    ``MIN_TOUCHES`` stations (a small board) is replaced by the user's own design: the prior
+    cannot be learned from fewer."""
     return replace(params, deviation_wavelength_mm=params.deviation_wavelength_mm * PILOT_WAVELENGTH_FACTOR)
 
 
@@ -99,6 +101,9 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     user = params.prior()
     current = pilot_params(params)
     plan = plan_field(paths, current)
+    if plan.count < MIN_TOUCHES:  # too coarse to learn the prior from: the user's own design
+        current = params
+        plan = plan_field(paths, current)
     sites, trace, s, z = plan.sites, plan.trace, plan.s_mm, plan.z
     dz = np.asarray(measure(plan.xy), dtype=float)
     rounds = [plan.count]

@@ -41,7 +41,7 @@ from app.probing.field_verify import with_sequential_verification, with_verifica
 from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
 from app.probing.field import stored_field
 from app.reconstruction.field import fit_field
-from app.reconstruction.field_learning import learn_prior
+from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
 from app.reconstruction.field_sequential import pilot_params, round_params
 from app.probing.joint import plan_joint
 from app.probing.merge import merge_plans
@@ -278,10 +278,17 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     if params.fixed_run_job_id is not None:
         plan, plan_params, sequential = _next_round(ctx, params, nominals, plan_params, top)
     else:
-        if params.pilot:
-            plan_params = pilot_params(plan_params)
-        plan = with_verification(plan_field(nominals, plan_params, params.stations, top), nominals,
-                                 plan_params.prior(), params.verify_count)
+        designed = None
+        if params.pilot:  # coarse, unless too coarse to learn the prior from: then the user's design
+            coarse = pilot_params(plan_params)
+            designed = plan_field(nominals, coarse, params.stations, top)
+            if designed.count >= MIN_TOUCHES:
+                plan_params = coarse
+            else:
+                designed = None
+        if designed is None:
+            designed = plan_field(nominals, plan_params, params.stations, top)
+        plan = with_verification(designed, nominals, plan_params.prior(), params.verify_count)
     ctx.progress(0.5, f"{plan.count - int(plan.verify_mask.sum())} stations and {int(plan.verify_mask.sum())} "
                  f"verification points for {len(traces)} traces (field: {plan.dof:.0f} degrees of "
                  f"freedom at the target, {plan.nyquist_dof:.0f} by the Nyquist rule); writing the program")
