@@ -25,21 +25,12 @@ import pytest
 
 from app.circuits.height_model import height_model_from_points
 from app.circuits.warp import WarpOptions, warp_program
+from tests.helpers.warped_surfaces import bow, dome
 
 STANDOFF_MM = 0.1
 SAMPLES = 16
 
 
-def dome(x, y):
-    """A 13 mm elliptic dome with 0.15 mm waviness over 60 x 40 mm (the height-model test's)."""
-    base = 13.0 * np.sqrt(np.clip(1 - ((x - 30) / 45) ** 2 - ((y - 20) / 32) ** 2, 0, None))
-    return base + 0.15 * np.sin(2 * np.pi * x / 17) * np.cos(2 * np.pi * y / 13)
-
-
-def bow(x, y):
-    """A 100 x 80 mm board bowed 0.4 mm and twisted 0.1 mm (the height-model test's)."""
-    u, v = (x - 50) / 50, (y - 40) / 40
-    return 1.6 + 0.4 * (1 - u * u) * (1 - 0.3 * v * v) + 0.1 * u * v
 
 
 CASES = {"dome": (dome, 60.0, 40.0, 13, 9), "pcb_bow": (bow, 100.0, 80.0, 7, 5)}
