@@ -31,8 +31,6 @@ STANDOFF_MM = 0.1
 SAMPLES = 16
 
 
-
-
 CASES = {"dome": (dome, 60.0, 40.0, 13, 9), "pcb_bow": (bow, 100.0, 80.0, 7, 5)}
 
 

@@ -17,8 +17,6 @@ from app.circuits.heightfield import height_field_from_points
 from tests.helpers.warped_surfaces import bow, dome
 
 
-
-
 def _grid_probes(surface, width, height, nx, ny, seed):
     rng = np.random.default_rng(seed)
     gx, gy = np.linspace(0, width, nx), np.linspace(0, height, ny)
