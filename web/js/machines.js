@@ -5,6 +5,7 @@
 import { ApiError, get, patch, post } from "./api.js";
 import { manualControls } from "./machine_console.js";
 import { loadPrograms, programList } from "./machine_programs.js";
+import { duration } from "./results.js";
 import { el, guarded, initPage, markReady, showError, showInfo } from "./ui.js";
 
 const POLL_MS = 1000;
@@ -119,16 +120,6 @@ function forget(id) {
   c.manual.dispose();
   c.node.remove();
   cards.delete(id);
-}
-
-// "1 h 02 min", "3 min 05 s", "42 s"
-export function duration(s) {
-  if (s == null || !Number.isFinite(s)) return "—";
-  const t = Math.round(s);
-  const h = Math.floor(t / 3600), min = Math.floor((t % 3600) / 60), sec = t % 60;
-  if (h) return `${h} h ${String(min).padStart(2, "0")} min`;
-  if (min) return `${min} min ${String(sec).padStart(2, "0")} s`;
-  return `${sec} s`;
 }
 
 function update(m) {
