@@ -11,11 +11,13 @@ from __future__ import annotations
 import json
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Engine, and_, case, literal, or_, select, update
+from sqlalchemy import ColumnElement, Engine, Executable, and_, case, literal, or_, select, update
 from sqlalchemy.exc import DBAPIError
+from sqlmodel import col
 
 from app.jobs.results import result_summary
 from app.models import ATTENTION_KEY, COMPLETED_STATES, TERMINAL_STATES, Job, utcnow
@@ -48,40 +50,40 @@ class JobStore:
         self.engine = engine
         self.lease_s = lease_s
 
-    def _run(self, statement):  # type: ignore[no-untyped-def]
+    def _run(self, statement: Executable) -> Sequence[Any]:
         with self.engine.begin() as conn:
             result = conn.execute(statement)
             return result.fetchall() if result.returns_rows else []
 
     def mark_enqueued(self, job_id: str) -> None:
-        self._run(update(Job).where(Job.id == job_id).values(enqueued_at=time.time()))
+        self._run(update(Job).where(col(Job.id) == job_id).values(enqueued_at=time.time()))
 
     def claim(self, job_id: str, worker: str) -> Claim | None:
         """queued -> running for ``worker``; None if someone else has it or it was cancelled."""
         rows = self._run(
             update(Job)
-            .where(and_(Job.id == job_id, Job.status == "queued", Job.cancel_requested.is_(False)))
+            .where(and_(col(Job.id) == job_id, col(Job.status) == "queued", col(Job.cancel_requested).is_(False)))
             .values(
                 status="running",
-                attempts=Job.attempts + 1,
+                attempts=col(Job.attempts) + 1,
                 worker=worker,
                 lease_until=time.time() + self.lease_s,
                 started_at=utcnow(),
-                revision=Job.revision + 1,
+                revision=col(Job.revision) + 1,
             )
-            .returning(Job.kind, Job.attempts, Job.params, Job.process)
+            .returning(col(Job.kind), col(Job.attempts), col(Job.params), col(Job.process))
         )
         if not rows:
             return None
         kind, attempt, params, process = rows[0]
         return Claim(job_id, kind, worker, attempt, dict(params), process if isinstance(process, dict) else None)
 
-    def _owned(self, claim: Claim):  # type: ignore[no-untyped-def]
+    def _owned(self, claim: Claim) -> ColumnElement[bool]:
         return and_(
-            Job.id == claim.job_id,
-            Job.status == "running",
-            Job.worker == claim.worker,
-            Job.attempts == claim.attempt,
+            col(Job.id) == claim.job_id,
+            col(Job.status) == "running",
+            col(Job.worker) == claim.worker,
+            col(Job.attempts) == claim.attempt,
         )
 
     def heartbeat(self, claim: Claim, progress: float | None = None, message: str | None = None) -> bool | None:
@@ -89,11 +91,11 @@ class JobStore:
         values: dict[str, Any] = {"lease_until": time.time() + self.lease_s}
         if progress is not None:
             values["progress"] = min(max(float(progress), 0.0), 1.0)
-            values["revision"] = Job.revision + 1
+            values["revision"] = col(Job.revision) + 1
         if message is not None:
             values["message"] = message[:500]
-            values["revision"] = Job.revision + 1
-        rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(Job.cancel_requested))
+            values["revision"] = col(Job.revision) + 1
+        rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(col(Job.cancel_requested)))
         return bool(rows[0][0]) if rows else None
 
     def finish(self, claim: Claim, status: str, *, result: dict | None = None, error: dict | None = None) -> bool:
@@ -108,12 +110,12 @@ class JobStore:
             "error": error,
             "finished_at": utcnow(),
             "lease_until": None,
-            "revision": Job.revision + 1,
+            "revision": col(Job.revision) + 1,
         }
         if status in COMPLETED_STATES:
             values["progress"] = 1.0
         values["message"] = final_message(status, error)
-        rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(Job.id))
+        rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(col(Job.id)))
         return bool(rows)
 
     def finish_surely(self, claim: Claim, status: str, *, error: dict | None = None,
@@ -140,16 +142,16 @@ class JobStore:
         """
         rows = self._run(
             update(Job)
-            .where(and_(Job.id == job_id, Job.status.in_(("queued", "running")), Job.cancel_requested.is_(False)))
-            .values(cancel_requested=True, revision=Job.revision + 1)
-            .returning(Job.status)
+            .where(and_(col(Job.id) == job_id, col(Job.status).in_(("queued", "running")), col(Job.cancel_requested).is_(False)))
+            .values(cancel_requested=True, revision=col(Job.revision) + 1)
+            .returning(col(Job.status))
         )
         if not rows:
             return self.abandon(job_id)
         self._run(
             update(Job)
-            .where(and_(Job.id == job_id, Job.status == "queued"))
-            .values(status="cancelled", finished_at=utcnow(), message="cancelled before start", revision=Job.revision + 1)
+            .where(and_(col(Job.id) == job_id, col(Job.status) == "queued"))
+            .values(status="cancelled", finished_at=utcnow(), message="cancelled before start", revision=col(Job.revision) + 1)
         )
         return "cancelled" if rows[0][0] == "queued" else "running"
 
@@ -161,49 +163,49 @@ class JobStore:
         because :meth:`claim` is conditional.  Returns the ids to (re)enqueue.
         """
         now = time.time()
-        expired = and_(Job.status == "running", Job.lease_until < now)
+        expired = and_(col(Job.status) == "running", col(Job.lease_until) < now)
         self._run(
             update(Job)
-            .where(and_(expired, Job.kind.in_(OPERATOR_RESUMED_KINDS)))
-            .values(status="interrupted", lease_until=None, worker=None, revision=Job.revision + 1,
+            .where(and_(expired, col(Job.kind).in_(OPERATOR_RESUMED_KINDS)))
+            .values(status="interrupted", lease_until=None, worker=None, revision=col(Job.revision) + 1,
                     message="interrupted: its process stopped reporting; resume or abandon it")
         )
         requeued = self._run(
             update(Job)
-            .where(and_(expired, Job.attempts < Job.max_attempts, Job.cancel_requested.is_(False)))
+            .where(and_(expired, col(Job.attempts) < col(Job.max_attempts), col(Job.cancel_requested).is_(False)))
             .values(status="queued", worker=None, lease_until=None, enqueued_at=now,
-                    message="requeued after lost lease", revision=Job.revision + 1)
-            .returning(Job.id)
+                    message="requeued after lost lease", revision=col(Job.revision) + 1)
+            .returning(col(Job.id))
         )
         self._run(
             update(Job)
-            .where(and_(expired, or_(Job.attempts >= Job.max_attempts, Job.cancel_requested.is_(True))))
+            .where(and_(expired, or_(col(Job.attempts) >= col(Job.max_attempts), col(Job.cancel_requested).is_(True))))
             .values(
                 status="failed",
                 finished_at=utcnow(),
                 lease_until=None,
-                revision=Job.revision + 1, message="failed: the worker stopped reporting and no attempts are left",
+                revision=col(Job.revision) + 1, message="failed: the worker stopped reporting and no attempts are left",
                 error={"type": "about:blank#lease-expired", "title": "Worker lost", "status": 500,
                        "detail": "the worker stopped reporting and no attempts are left"},
             )
         )
         stale = self._run(
             update(Job)
-            .where(and_(Job.status == "queued", Job.cancel_requested.is_(False),
-                        or_(Job.enqueued_at.is_(None), Job.enqueued_at < now - stale_enqueue_s)))
+            .where(and_(col(Job.status) == "queued", col(Job.cancel_requested).is_(False),
+                        or_(col(Job.enqueued_at).is_(None), col(Job.enqueued_at) < now - stale_enqueue_s)))
             .values(enqueued_at=now)
-            .returning(Job.id)
+            .returning(col(Job.id))
         )
         return [r[0] for r in requeued] + [r[0] for r in stale]
 
     def status(self, job_id: str) -> tuple[str, int] | None:
-        rows = self._run(select(Job.status, Job.revision).where(Job.id == job_id))
+        rows = self._run(select(col(Job.status), col(Job.revision)).where(col(Job.id) == job_id))
         return (rows[0][0], rows[0][1]) if rows else None
 
     # machine jobs: program state, interruption, resume ------------------------------
     def save_program_state(self, claim: Claim, state: dict[str, Any]) -> bool:
         """Record where the program stands (while ``claim`` owns the job)."""
-        return bool(self._run(update(Job).where(self._owned(claim)).values(program_state=state).returning(Job.id)))
+        return bool(self._run(update(Job).where(self._owned(claim)).values(program_state=state).returning(col(Job.id))))
 
     def interrupt(self, claim: Claim, state: dict[str, Any], message: str) -> bool:
         """running -> interrupted: the job stops and waits for an operator's resume or
@@ -211,8 +213,8 @@ class JobStore:
         rows = self._run(
             update(Job).where(self._owned(claim))
             .values(status="interrupted", program_state=state, message=message[:500], lease_until=None,
-                    worker=None, revision=Job.revision + 1)
-            .returning(Job.id))
+                    worker=None, revision=col(Job.revision) + 1)
+            .returning(col(Job.id)))
         return bool(rows)
 
     def interrupt_orphans(self, worker_prefix: str) -> list[str]:
@@ -221,17 +223,17 @@ class JobStore:
         (an operator asked then, not now), become interrupted at once."""
         rows = self._run(
             update(Job)
-            .where(and_(Job.status == "running", Job.kind.in_(OPERATOR_RESUMED_KINDS),
-                        or_(Job.worker.is_(None), ~Job.worker.startswith(worker_prefix))))
-            .values(status="interrupted", lease_until=None, worker=None, revision=Job.revision + 1,
+            .where(and_(col(Job.status) == "running", col(Job.kind).in_(OPERATOR_RESUMED_KINDS),
+                        or_(col(Job.worker).is_(None), ~col(Job.worker).startswith(worker_prefix))))
+            .values(status="interrupted", lease_until=None, worker=None, revision=col(Job.revision) + 1,
                     message="interrupted: the server stopped while it ran; resume or abandon it")
-            .returning(Job.id))
+            .returning(col(Job.id)))
         waiting = self._run(
             update(Job)
-            .where(and_(Job.status == "queued", Job.kind.in_(OPERATOR_RESUMED_KINDS)))
-            .values(status="interrupted", revision=Job.revision + 1,
+            .where(and_(col(Job.status) == "queued", col(Job.kind).in_(OPERATOR_RESUMED_KINDS)))
+            .values(status="interrupted", revision=col(Job.revision) + 1,
                     message="interrupted: the server restarted before it started; resume or abandon it")
-            .returning(Job.id))
+            .returning(col(Job.id)))
         return [r[0] for r in rows] + [r[0] for r in waiting]
 
     def resume(self, job_id: str, state: dict[str, Any], revision: int) -> bool:
@@ -239,20 +241,20 @@ class JobStore:
         only if nobody changed the job since ``revision`` was read."""
         rows = self._run(
             update(Job)
-            .where(and_(Job.id == job_id, Job.status == "interrupted", Job.revision == revision))
+            .where(and_(col(Job.id) == job_id, col(Job.status) == "interrupted", col(Job.revision) == revision))
             .values(status="queued", program_state=state, cancel_requested=False, enqueued_at=time.time(),
-                    message="resume requested by an operator", revision=Job.revision + 1)
-            .returning(Job.id))
+                    message="resume requested by an operator", revision=col(Job.revision) + 1)
+            .returning(col(Job.id)))
         return bool(rows)
 
     def abandon(self, job_id: str) -> str | None:
         """interrupted or waiting -> cancelled (the operator gives the program up); None otherwise."""
         rows = self._run(
             update(Job)
-            .where(and_(Job.id == job_id, Job.status.in_(("interrupted", "waiting"))))
+            .where(and_(col(Job.id) == job_id, col(Job.status).in_(("interrupted", "waiting"))))
             .values(status="cancelled", finished_at=utcnow(), message="abandoned by an operator",
-                    revision=Job.revision + 1)
-            .returning(Job.id))
+                    revision=col(Job.revision) + 1)
+            .returning(col(Job.id)))
         return "cancelled" if rows else None
 
     # workflows: pause points (app.jobs.loop_gates) ----------------------------------
@@ -263,8 +265,8 @@ class JobStore:
         rows = self._run(
             update(Job).where(self._owned(claim))
             .values(status="waiting", program_state=state, message=message[:500], lease_until=None, worker=None,
-                    attempts=Job.attempts - 1, revision=Job.revision + 1)
-            .returning(Job.id))
+                    attempts=col(Job.attempts) - 1, revision=col(Job.revision) + 1)
+            .returning(col(Job.id)))
         return bool(rows)
 
     def proceed(self, job_id: str, state: dict[str, Any], revision: int, message: str,
@@ -273,33 +275,33 @@ class JobStore:
         decision), only if nobody changed the job since ``revision`` was read."""
         rows = self._run(
             update(Job)
-            .where(and_(Job.id == job_id, Job.status.in_(from_states), Job.revision == revision))
+            .where(and_(col(Job.id) == job_id, col(Job.status).in_(from_states), col(Job.revision) == revision))
             .values(status="queued", program_state=state, cancel_requested=False, enqueued_at=time.time(),
-                    finished_at=None, error=None, message=message[:500], revision=Job.revision + 1)
-            .returning(Job.id))
+                    finished_at=None, error=None, message=message[:500], revision=col(Job.revision) + 1)
+            .returning(col(Job.id)))
         return bool(rows)
 
     def cancel_requested(self, job_id: str) -> bool:
-        rows = self._run(select(Job.cancel_requested).where(Job.id == job_id))
+        rows = self._run(select(col(Job.cancel_requested)).where(col(Job.id) == job_id))
         return bool(rows and rows[0][0])
 
     def machine_of(self, job_id: str) -> str | None:
-        rows = self._run(select(Job.machine_id).where(Job.id == job_id))
+        rows = self._run(select(col(Job.machine_id)).where(col(Job.id) == job_id))
         return rows[0][0] if rows else None
 
     def holding_job(self, machine_id: str) -> dict | None:
         """The machine job that holds ``machine_id`` (queued, running or interrupted: at
         most one, the unique index), as ``{"id", "kind", "status", "program_state"}``; None
         when the machine is free."""
-        rows = self._run(select(Job.id, Job.kind, Job.status, Job.program_state).where(and_(
-            Job.machine_id == machine_id, Job.status.in_(("queued", "running", "interrupted")))))
+        rows = self._run(select(col(Job.id), col(Job.kind), col(Job.status), col(Job.program_state)).where(and_(
+            col(Job.machine_id) == machine_id, col(Job.status).in_(("queued", "running", "interrupted")))))
         if not rows:
             return None
         job_id, kind, status, state = rows[0]
         return {"id": job_id, "kind": kind, "status": status, "program_state": state}
 
     def jobs_on_machine(self, machine_id: str, statuses: tuple[str, ...]) -> list[str]:
-        rows = self._run(select(Job.id).where(and_(Job.machine_id == machine_id, Job.status.in_(statuses))))
+        rows = self._run(select(col(Job.id)).where(and_(col(Job.machine_id) == machine_id, col(Job.status).in_(statuses))))
         return [r[0] for r in rows]
 
     # compute jobs in processes (app.jobs.process_worker) ---------------------------------
@@ -308,13 +310,13 @@ class JobStore:
         rows = self._run(
             update(Job).where(self._owned(claim))
             .values(status="queued", worker=None, lease_until=None, enqueued_at=None, message=message[:500],
-                    attempts=Job.attempts - 1, revision=Job.revision + 1)
-            .returning(Job.id))
+                    attempts=col(Job.attempts) - 1, revision=col(Job.revision) + 1)
+            .returning(col(Job.id)))
         return bool(rows)
 
     def record_process(self, claim: Claim, process: dict[str, Any] | None) -> bool:
         """The process that runs ``claim``'s attempt (while ``claim`` owns the job)."""
-        return bool(self._run(update(Job).where(self._owned(claim)).values(process=process).returning(Job.id)))
+        return bool(self._run(update(Job).where(self._owned(claim)).values(process=process).returning(col(Job.id))))
 
     def quarantine_lost_compute_jobs(self, compute_queue: str = "default", max_lost: int = 2) -> list[str]:
         """Fail (quarantine) compute jobs whose lease expired for the ``max_lost``-th time.
@@ -326,15 +328,15 @@ class JobStore:
         """
         rows = self._run(
             update(Job)
-            .where(and_(Job.status == "running", Job.lease_until < time.time(), Job.queue == compute_queue,
-                        Job.attempts >= max_lost))
+            .where(and_(col(Job.status) == "running", col(Job.lease_until) < time.time(), col(Job.queue) == compute_queue,
+                        col(Job.attempts) >= max_lost))
             .values(
-                status="failed", finished_at=utcnow(), lease_until=None, revision=Job.revision + 1,
+                status="failed", finished_at=utcnow(), lease_until=None, revision=col(Job.revision) + 1,
                 message=f"failed: quarantined after its worker was lost {max_lost} times",
                 error={"type": "about:blank#quarantined", "title": "Job quarantined", "status": 500,
                        "detail": f"its worker was lost {max_lost} times while running it; the job is "
                                  "failed instead of being claimed again"})
-            .returning(Job.id))
+            .returning(col(Job.id)))
         return [r[0] for r in rows]
 
 
@@ -346,7 +348,7 @@ def final_message(status: str, error: dict | None) -> Any:
     "9/9 traces done"), else "done"; failed / cancelled: the status and the error's detail.
     Returns a SQL expression for :meth:`JobStore.finish`'s conditional UPDATE."""
     if status in COMPLETED_STATES:
-        return case((and_(Job.progress >= 1.0, Job.message.is_not(None), Job.message != ""), Job.message),
+        return case((and_(col(Job.progress) >= 1.0, col(Job.message).is_not(None), col(Job.message) != ""), col(Job.message)),
                     else_=literal("done"))
     detail = (error or {}).get("detail") or (error or {}).get("title") or ""
     return literal(f"{status}: {detail}"[:500] if detail else status)
