@@ -22,7 +22,7 @@ import time
 from collections import OrderedDict, deque
 
 from sqlalchemy import Engine, update
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.config import ROLES
 from app.models import ApiKey, new_id, utcnow
@@ -72,7 +72,7 @@ class KeyRing:
         if not lookup:
             return self.stored_role(digest)
         with Session(self.engine) as session:
-            row = session.exec(select(ApiKey).where(ApiKey.key_sha256 == digest, ApiKey.revoked_at.is_(None))).first()
+            row = session.exec(select(ApiKey).where(ApiKey.key_sha256 == digest, col(ApiKey.revoked_at).is_(None))).first()
         role = row.role if row is not None else None
         with self._lock:
             self._cache[digest] = (role, now + CACHE_TTL_S)
@@ -89,7 +89,7 @@ class KeyRing:
             stored, valid_until = self._stored
         if valid_until <= now:
             with Session(self.engine) as session:
-                rows = session.exec(select(ApiKey.key_sha256, ApiKey.role).where(ApiKey.revoked_at.is_(None))).all()
+                rows = session.exec(select(ApiKey.key_sha256, col(ApiKey.role)).where(col(ApiKey.revoked_at).is_(None))).all()
             stored = {sha: role for sha, role in rows}
             with self._lock:
                 self._stored = (stored, now + CACHE_TTL_S)
@@ -114,8 +114,8 @@ class KeyRing:
 
     def revoke(self, key_id: str) -> bool:
         with Session(self.engine) as session:
-            result = session.exec(  # type: ignore[call-overload]
-                update(ApiKey).where(ApiKey.id == key_id, ApiKey.revoked_at.is_(None)).values(revoked_at=utcnow())
+            result = session.exec(
+                update(ApiKey).where(col(ApiKey.id) == key_id, col(ApiKey.revoked_at).is_(None)).values(revoked_at=utcnow())
             )
             session.commit()
         with self._lock:
@@ -127,14 +127,14 @@ class KeyRing:
         if self._static:
             return True
         with Session(self.engine) as session:
-            return session.exec(select(ApiKey.id).where(ApiKey.revoked_at.is_(None))).first() is not None
+            return session.exec(select(col(ApiKey.id)).where(col(ApiKey.revoked_at).is_(None))).first() is not None
 
 
 class LoginThrottle:
     """Failed key attempts per client address in a sliding window (bounded memory)."""
 
     def __init__(self, max_failures: int = 20, window_s: float = 60.0, max_addresses: int = 10_000,
-                 clock=time.monotonic) -> None:  # type: ignore[no-untyped-def]
+                 clock=time.monotonic) -> None:
         self.max_failures = max_failures
         self.window_s = window_s
         self.max_addresses = max_addresses

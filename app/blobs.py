@@ -126,7 +126,7 @@ def sweep_blobs(store: BlobStore, session: Session, grace_s: float = SWEEP_GRACE
 def _record(session: Session, sha: str, size: int) -> str:
     """Insert the blob's row unless it exists (the file is already in place); its sha256."""
     insert = pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert
-    session.exec(  # type: ignore[call-overload]
+    session.exec(
         insert(Blob).values(sha256=sha, bytes=size, created_at=utcnow()).on_conflict_do_nothing()
     )
     return sha

@@ -9,6 +9,8 @@ import sys
 import threading
 from pathlib import Path
 
+from sqlmodel import col
+
 from app.config import ROLES, Settings, SettingsError, load_settings
 from app.ownership import MachineOwnerLock
 from hardware.dialects import DEFAULT_DIALECT, DIALECTS
@@ -99,7 +101,7 @@ def cmd_keys(args: argparse.Namespace) -> int:
         print(f"revoked {args.key_id}")
     else:
         with Session(engine) as session:
-            for row in session.exec(select(ApiKey).order_by(ApiKey.created_at)).all():
+            for row in session.exec(select(ApiKey).order_by(col(ApiKey.created_at))).all():
                 state = "revoked" if row.revoked_at else "active"
                 print(f"{row.id}\t{row.role}\t{row.prefix}...\t{state}\t{row.name}")
     return 0

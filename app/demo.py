@@ -37,7 +37,7 @@ def _numbers(spec: str) -> list[int]:
     return out
 
 
-def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> list[Table1Row]:  # type: ignore[no-untyped-def]
+def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> list[Table1Row]:
     numbers = _numbers(args.traces)
     migrate(settings)
     runtime = Runtime(settings)

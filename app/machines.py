@@ -71,7 +71,7 @@ def translate(exc: HardwareError) -> ConformaError:
 
 
 @contextmanager
-def hardware_errors():  # type: ignore[no-untyped-def]
+def hardware_errors():
     """Re-raise hardware errors as service errors."""
     try:
         yield

@@ -117,7 +117,7 @@ def part_frame(fmt: str, file_units: str | None, units: str | None = None, up: s
         name, source = "mm", "default"
     rotation = _rz(angles[2]) @ _ry(angles[1]) @ _rx(angles[0]) @ _UP_TO_Z[chosen_up]
     rotation = np.where(np.abs(rotation) < 1e-15, 0.0, rotation)  # quarter turns stay exact
-    return PartFrame(units=name, units_source=source, up=chosen_up, rotate_deg=angles,  # type: ignore[arg-type]
+    return PartFrame(units=name, units_source=source, up=chosen_up, rotate_deg=angles,
                      scale=MM_PER_UNIT[name], rotation=rotation)
 
 
@@ -146,4 +146,4 @@ def parse_angles(text: str | None) -> tuple[float, float, float]:
     if len(values) != 3:
         raise InvalidInput(f"rotate_deg must be three numbers 'rx,ry,rz', got {text!r}", field="rotate_deg",
                            value=text)
-    return values  # type: ignore[return-value]
+    return values

@@ -14,7 +14,7 @@ from typing import Any, BinaryIO, TypeVar
 
 import numpy as np
 import trimesh
-from sqlmodel import Session, SQLModel
+from sqlmodel import SQLModel, Session, col
 
 from app.blobs import BlobStore
 from app.errors import ConformaError, NotFound
@@ -266,7 +266,7 @@ def add_artifact(
 ) -> Artifact:
     """Store ``data`` content-addressed and list it as artifact ``name`` of ``job_id``."""
     sha = blobs.put(session, data)
-    existing = session.query(Artifact).filter(Artifact.job_id == job_id, Artifact.name == name).one_or_none()
+    existing = session.query(Artifact).filter(col(Artifact.job_id) == job_id, col(Artifact.name) == name).one_or_none()
     if existing is not None:  # a retried attempt rewrites its artifact
         existing.sha256, existing.bytes, existing.media_type, existing.meta = sha, len(data), media_type, meta or {}
         session.add(existing)

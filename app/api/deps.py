@@ -61,7 +61,7 @@ def presented_key(headers: Any) -> str | None:
     return headers.get("x-api-key") or None
 
 
-def _require(need: str):  # type: ignore[no-untyped-def]
+def _require(need: str):
     async def check(
         request: Request,
         keyring: Annotated[KeyRing, Depends(get_keyring)],

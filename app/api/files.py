@@ -11,7 +11,7 @@ from typing import Annotated
 from fastapi import APIRouter, File, Request, Response, UploadFile
 from pydantic import BaseModel
 from sqlalchemy import func
-from sqlmodel import select
+from sqlmodel import col, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
@@ -78,7 +78,7 @@ def upload_file(runtime: RuntimeDep, session: SessionDep, request: Request, file
 @router.get("", dependencies=[Viewer])
 def list_files(session: SessionDep, limit: Limit = 100, offset: Offset = 0) -> Page[FileOut]:
     total = session.exec(select(func.count()).select_from(UploadedFile)).one()
-    rows = session.exec(select(UploadedFile).order_by(UploadedFile.created_at.desc()).offset(offset).limit(limit)).all()
+    rows = session.exec(select(UploadedFile).order_by(col(UploadedFile.created_at).desc()).offset(offset).limit(limit)).all()
     return Page(items=[FileOut(**r.model_dump()) for r in rows], total=total)
 
 

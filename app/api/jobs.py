@@ -12,7 +12,7 @@ from sqlalchemy import bindparam, func
 from sqlalchemy import select as sa_select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import defer
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
@@ -63,7 +63,7 @@ def job_out(job: Job, artifacts: list[Artifact], include: list[str] | None = Non
 
 def load_job_out(session: Session, job_id: str, include: list[str] | None = None) -> JobOut:
     job = get_or_404(session, Job, job_id)
-    artifacts = session.exec(select(Artifact).where(Artifact.job_id == job_id).order_by(Artifact.id)).all()
+    artifacts = session.exec(select(Artifact).where(col(Artifact.job_id) == job_id).order_by(col(Artifact.id))).all()
     return job_out(job, list(artifacts), include)
 
 
@@ -120,13 +120,13 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
             JobReference.ref_kind == "machine", JobReference.ref_id == machine_id)))
     total = session.exec(select(func.count()).select_from(Job).where(*filters)).one()
     jobs = session.exec(select(Job).options(defer(Job.result)).where(*filters)  # type: ignore[arg-type]
-                        .order_by(Job.created_at.desc(), Job.id).offset(offset).limit(limit)).all()
+                        .order_by(col(Job.created_at).desc(), col(Job.id)).offset(offset).limit(limit)).all()
     ids = [j.id for j in jobs]
     shown = [j.id for j in jobs if inlined(j.result_bytes, wants(include, "result"))]
     results = dict(session.exec(select(Job.id, Job.result).where(Job.id.in_(shown))).all()) if shown else {}  # type: ignore[attr-defined]
     by_job: dict[str, list[Artifact]] = {i: [] for i in ids}
     if ids:
-        for artifact in session.exec(select(Artifact).where(Artifact.job_id.in_(ids)).order_by(Artifact.id)).all():
+        for artifact in session.exec(select(Artifact).where(col(Artifact.job_id).in_(ids)).order_by(col(Artifact.id))).all():
             by_job[artifact.job_id].append(artifact)
     return Page(items=[job_out(Job.model_construct(**{**j.model_dump(exclude={"result"}), "result": results.get(j.id)}),
                                by_job[j.id], include) for j in jobs], total=total)
@@ -254,7 +254,7 @@ def _refusal(name: str, exc: ConformaError) -> InvalidInput:
     return InvalidInput(f"artifact {name!r}: {exc.message}", field="name", value=value)
 
 
-def _summary_isolated(runtime, request: Request, artifact: Artifact, name: str, pivot: list[float],  # type: ignore[no-untyped-def]
+def _summary_isolated(runtime, request: Request, artifact: Artifact, name: str, pivot: list[float],
                       tcp: bool, dispense: tuple[str | None, str | None]) -> dict | InvalidInput:
     """The summary computed in a bounded child process (:func:`app.jobs.isolated.call_isolated`)
     from the stored file; a refusal of its program as a 422 (returned, to be remembered);
@@ -329,7 +329,7 @@ def abandon_job(job_id: str, runtime: RuntimeDep, session: SessionDep) -> JobOut
     return load_job_out(session, job_id)
 
 
-def _watch(request: Request, runtime) -> JobWatch:  # type: ignore[no-untyped-def]
+def _watch(request: Request, runtime) -> JobWatch:
     watch = getattr(request.app.state, "job_watch", None)
     if watch is None:  # made on the event loop thread: no race
         watch = JobWatch(runtime.engine, per_key=runtime.settings.sse_streams_per_key, poll_s=SSE_POLL_S)

@@ -18,7 +18,7 @@ from typing import Annotated
 from fastapi import APIRouter, HTTPException, Query, Request, Response
 from sqlalchemy import delete
 from sqlalchemy.exc import IntegrityError
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
@@ -145,7 +145,7 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
 
 @router.get("", dependencies=[Viewer])
 def list_machines(runtime: RuntimeDep, session: SessionDep) -> Page[MachineOut]:
-    rows = session.exec(select(Machine).order_by(Machine.created_at)).all()
+    rows = session.exec(select(Machine).order_by(col(Machine.created_at))).all()
     return Page(items=[machine_out(runtime, r) for r in rows], total=len(rows))
 
 
@@ -366,7 +366,7 @@ def delete_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep, ro
         raise Conflict(f"machine {machine_id!r} has {len(set(active))} unfinished job(s), e.g. {sorted(set(active))[0]}: "
                        "cancel or finish them first", field="machine_id", value=machine_id)
     runtime.machines.forget(machine_id)
-    session.exec(delete(JobReference).where(JobReference.ref_kind == "machine",  # type: ignore[call-overload]
-                                            JobReference.ref_id == machine_id))
+    session.exec(delete(JobReference).where(col(JobReference.ref_kind) == "machine",
+                                            col(JobReference.ref_id) == machine_id))
     session.delete(get_or_404(session, Machine, machine_id))
     session.commit()

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, File, Request, Response, UploadFile
 from sqlalchemy import func
-from sqlmodel import select
+from sqlmodel import col, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
@@ -52,7 +52,7 @@ def upload_program(runtime: RuntimeDep, session: SessionDep, request: Request, r
 @router.get("", dependencies=[Viewer])
 def list_programs(session: SessionDep, limit: Limit = 100, offset: Offset = 0) -> Page[ProgramOut]:
     total = session.exec(select(func.count()).select_from(Program)).one()
-    rows = session.exec(select(Program).order_by(Program.created_at.desc()).offset(offset).limit(limit)).all()
+    rows = session.exec(select(Program).order_by(col(Program.created_at).desc()).offset(offset).limit(limit)).all()
     return Page(items=[ProgramOut(**r.model_dump()) for r in rows], total=total)
 
 

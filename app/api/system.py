@@ -8,7 +8,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends
 from pydantic import BaseModel
 from sqlalchemy import text
-from sqlmodel import select
+from sqlmodel import col, select
 
 import app
 from app.api.deps import Admin, RuntimeDep, SessionDep, Viewer, get_keyring
@@ -53,7 +53,7 @@ def create_key(body: KeyCreate, keyring: Annotated[KeyRing, Depends(get_keyring)
 
 @router.get("/keys", dependencies=[Admin])
 def list_keys(session: SessionDep) -> Page[KeyOut]:
-    rows = session.exec(select(ApiKey).order_by(ApiKey.created_at)).all()
+    rows = session.exec(select(ApiKey).order_by(col(ApiKey.created_at))).all()
     return Page(items=[KeyOut(**r.model_dump()) for r in rows], total=len(rows))
 
 

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Request, Response
 from sqlalchemy import func
 from sqlalchemy.exc import IntegrityError
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
@@ -78,7 +78,7 @@ def list_traces(part_id: str, session: SessionDep, limit: Limit = 100,
                 offset: Offset = 0) -> Page[TraceOut]:
     get_or_404(session, Part, part_id)
     total = session.exec(select(func.count()).select_from(Trace).where(Trace.part_id == part_id)).one()
-    rows = session.exec(select(Trace).where(Trace.part_id == part_id).order_by(Trace.created_at, Trace.id)
+    rows = session.exec(select(Trace).where(col(Trace.part_id) == part_id).order_by(col(Trace.created_at), col(Trace.id))
                         .offset(offset).limit(limit)).all()
     return Page(items=[trace_out(t) for t in rows], total=total)
 

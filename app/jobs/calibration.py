@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from typing import Any
 
 from pydantic import ValidationError
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.api.machine_schemas import Profile
 from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
@@ -79,8 +79,8 @@ def machine_profile(row: Machine) -> Profile:
 def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None], str]:
     """{(kind, tool or None): job id} of the newest succeeded calibration job of each kind
     and tool of ``machine_id`` (reads ids and times only, not the stored results)."""
-    rows = session.exec(select(Job.id, Job.kind, Job.params, Job.finished_at, Job.created_at).where(
-        Job.machine_id == machine_id, Job.kind.in_(KINDS), Job.status == "succeeded")).all()
+    rows = session.exec(select(col(Job.id), col(Job.kind), col(Job.params), col(Job.finished_at), col(Job.created_at)).where(
+        col(Job.machine_id) == machine_id, col(Job.kind).in_(KINDS), col(Job.status) == "succeeded")).all()
     latest: dict[tuple[str, int | None], tuple[datetime, str]] = {}
     for job_id, kind, params, finished, created in rows:
         key = (kind, int(params["tool"]) if kind == "calibrate_nozzle" else None)

@@ -19,7 +19,7 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from sqlmodel import Session
+from sqlmodel import Session, col
 
 from app.jetting import (
     ControllerParams,
@@ -249,7 +249,7 @@ def _slice_layers(data: bytes) -> list[Any]:
 def stored_artifact(session: Session, job_id: str, name: str, field: str, media_type: str) -> Artifact:
     """The artifact row of a succeeded job with the expected media type, or a 422 naming ``field``."""
     succeeded_job(session, job_id, None, field, error=JettingError, missing_is_invalid=True)
-    row = session.query(Artifact).filter(Artifact.job_id == job_id, Artifact.name == name).one_or_none()
+    row = session.query(Artifact).filter(col(Artifact.job_id) == job_id, col(Artifact.name) == name).one_or_none()
     if row is None or row.media_type != media_type or row.bytes == 0:
         what = "does not exist" if row is None else f"is an empty or {row.media_type} file"
         raise JettingError(f"{field}: artifact {name!r} of job {job_id!r} {what}; a {media_type} is needed",
@@ -297,7 +297,7 @@ def _stored_reader(session: Session) -> ArtifactReader | None:
         return None
 
     def read(job_id: str, name: str) -> bytes:
-        row = session.query(Artifact).filter(Artifact.job_id == job_id, Artifact.name == name).one()
+        row = session.query(Artifact).filter(col(Artifact.job_id) == job_id, col(Artifact.name) == name).one()
         return read_blob(row.sha256)
 
     return read

@@ -17,7 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.errors import Cancelled, Conflict, ConformaError
 from app.gcode.estimator import command_times
@@ -79,10 +79,10 @@ def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
     ``jobs.machine_id`` is what makes two concurrent submissions impossible.  A workflow's
     own children (``session.info["parent_id"]``) may use the machine it holds."""
     parent_id = session.info.get("parent_id")
-    query = (select(Job.id, Job.kind, Job.status, Job.program_state).join(JobReference, JobReference.job_id == Job.id)
+    query = (select(Job.id, col(Job.kind), col(Job.status), col(Job.program_state)).join(JobReference, col(JobReference.job_id) == col(Job.id))
              .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
-                    Job.status.in_(("queued", "running", "interrupted", "waiting")),
-                    Job.kind.in_(machine_kinds() + WORKFLOW_KINDS)))
+                    col(Job.status).in_(("queued", "running", "interrupted", "waiting")),
+                    col(Job.kind).in_(machine_kinds() + WORKFLOW_KINDS)))
     if parent_id is not None:
         query = query.where(Job.id != parent_id)
     busy = session.exec(query).first()

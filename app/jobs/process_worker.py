@@ -38,6 +38,8 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import select
 
+from sqlmodel import col
+
 from app.jobs import process_identity
 from app.jobs.compute_pool import ComputePool, Member, mp_context
 from app.jobs.store import Claim, JobStore
@@ -123,20 +125,20 @@ class ProcessSupervisor:
 
     def _cancel_requested(self, job_id: str) -> bool:
         with self.runtime.engine.connect() as conn:
-            return bool(conn.execute(select(Job.cancel_requested).where(Job.id == job_id)).scalar())
+            return bool(conn.execute(select(col(Job.cancel_requested)).where(col(Job.id) == job_id)).scalar())
 
     def parts_of(self, job_id: str) -> set[str]:
         """The mesh sha256 of every part the job reads (directly, or through its traces)."""
         with self.runtime.engine.connect() as conn:
-            refs = conn.execute(select(JobReference.ref_kind, JobReference.ref_id)
-                                .where(JobReference.job_id == job_id)).all()
+            refs = conn.execute(select(col(JobReference.ref_kind), col(JobReference.ref_id))
+                                .where(col(JobReference.job_id) == job_id)).all()
             part_ids = {ref_id for kind, ref_id in refs if kind == "part"}
             trace_ids = [ref_id for kind, ref_id in refs if kind == "trace"]
             if trace_ids:
-                part_ids |= set(conn.execute(select(Trace.part_id).where(Trace.id.in_(trace_ids))).scalars())  # type: ignore[attr-defined]
+                part_ids |= set(conn.execute(select(col(Trace.part_id)).where(col(Trace.id).in_(trace_ids))).scalars())
             if not part_ids:
                 return set()
-            return set(conn.execute(select(Part.sha256).where(Part.id.in_(part_ids))).scalars())  # type: ignore[attr-defined]
+            return set(conn.execute(select(Part.sha256).where(col(Part.id).in_(part_ids))).scalars())
 
     def run(self, claim: Claim) -> None:
         """Run ``claim``'s job in a compute process and see it to an outcome (blocks)."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.errors import InvalidInput
 from app.models import Artifact, Job, JobReference, Machine, Part, Trace
@@ -64,9 +64,9 @@ def collect_run(session: Session, job_id: str) -> RunRecords:
     ids |= _downstream(session, sorted(ids))
     if len(ids) > MAX_JOBS:
         raise InvalidInput(f"the session has more than {MAX_JOBS} jobs", field="job_id", value=job_id)
-    jobs = session.exec(select(Job).where(Job.id.in_(ids)).order_by(Job.created_at, Job.id)).all()  # type: ignore[attr-defined]
+    jobs = session.exec(select(Job).where(col(Job.id).in_(ids)).order_by(col(Job.created_at), col(Job.id))).all()
     records = RunRecords(root=root.model_dump(mode="json"), jobs=[j.model_dump(mode="json") for j in jobs])
-    for artifact in session.exec(select(Artifact).where(Artifact.job_id.in_(ids)).order_by(Artifact.id)).all():  # type: ignore[attr-defined]
+    for artifact in session.exec(select(Artifact).where(col(Artifact.job_id).in_(ids)).order_by(col(Artifact.id))).all():
         records.artifacts.setdefault(artifact.job_id, []).append(artifact.model_dump(mode="json"))
     trace_ids = {tid for job in records.jobs for tid in _trace_ids(job["params"])}
     for trace in session.exec(select(Trace).where(Trace.id.in_(trace_ids))).all():  # type: ignore[attr-defined]

@@ -14,7 +14,7 @@ from dataclasses import replace
 from typing import Any, NamedTuple
 
 import numpy as np
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.errors import NotFound
 from app.gcode.lines import GcodeReadError
@@ -85,7 +85,7 @@ class Loader:
     def part_scene(self, part_id: str) -> FocusScene:
         with Session(self.runtime.engine) as session:
             part = get_or_404(session, Part, part_id)
-            traces = session.exec(select(Trace).where(Trace.part_id == part_id).order_by(Trace.created_at)).all()
+            traces = session.exec(select(Trace).where(col(Trace.part_id) == part_id).order_by(col(Trace.created_at))).all()
             vertices, faces = self._mesh(part)
             lines = tuple(Polyline(t.name, nominal_of(t).points) for t in traces)
         return FocusScene({"part_id": part_id}, f"part {part.name}", vertices, faces, polylines=lines)
@@ -337,7 +337,7 @@ class Loader:
 
     def _closed_loop(self, session: Session, job: Job) -> FocusScene:
         children = session.exec(select(Job).where(Job.parent_id == job.id, Job.status == "succeeded")
-                                .order_by(Job.created_at)).all()
+                                .order_by(col(Job.created_at))).all()
         merged = FocusScene({}, "")
         for child in children:
             scene = self._content(session, child)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sqlmodel import Session, select
+from sqlmodel import Session, col, select
 
 from app.config import Settings
 from app.models import Job, Part
@@ -222,8 +222,8 @@ class Viewer:
         if self.runtime is None:
             return []
         with Session(self.runtime.engine) as session:
-            parts = session.exec(select(Part).order_by(Part.created_at.desc()).limit(JOB_LIST_LIMIT)).all()
-            jobs = session.exec(select(Job).order_by(Job.created_at.desc()).limit(JOB_LIST_LIMIT)).all()
+            parts = session.exec(select(Part).order_by(col(Part.created_at).desc()).limit(JOB_LIST_LIMIT)).all()
+            jobs = session.exec(select(Job).order_by(col(Job.created_at).desc()).limit(JOB_LIST_LIMIT)).all()
         return [(f"part {user_text(p.name, 'label', 80)} ({p.id})", p.id) for p in parts] + \
                [(f"{j.kind} {j.status} ({j.id})", j.id) for j in jobs]
 

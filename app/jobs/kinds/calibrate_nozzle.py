@@ -47,7 +47,7 @@ class CalibrateNozzleParams(JobParams):
     probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's")
 
 
-def _nozzle(params: CalibrateNozzleParams, profile):  # type: ignore[no-untyped-def]
+def _nozzle(params: CalibrateNozzleParams, profile):
     nozzles = profile.tools.nozzles if profile.tools is not None else []
     for nozzle in nozzles:
         if nozzle.tool == params.tool:

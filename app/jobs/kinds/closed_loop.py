@@ -351,7 +351,7 @@ def _field_check(rebuilt: Job, trace_id: str, entry: dict[str, Any], plan: Job,
     row = typed.reconstruct_rows(rebuilt)[trace_id]
     entry["bound_mm"] = row.bound_mm
     entry["worse_than_nominal"] = typed.trace_index(plan, trace_id) in check.get("worse_traces", [])
-    return check  # type: ignore[no-any-return]
+    return check
 
 
 def retouched(plan: Job) -> list[dict[str, Any]]:

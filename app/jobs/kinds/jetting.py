@@ -134,7 +134,7 @@ def run(ctx: JobContext, params: JettingJobParams) -> dict:
         ctx.artifact(names[-1], pattern_png(pattern, params.dpi), "image/png",
                      {"layer": layer, "drops": int(pattern.sum()), "shape": grid, "dpi": params.dpi})
     summary = result.summary()
-    solve_ms = [row["solve_ms"] for row in summary["layers"]]  # type: ignore[union-attr]
+    solve_ms = [row["solve_ms"] for row in summary["layers"]]
     return JettingResult.written({
         **summary,
         "grid": {"shape": grid, "pitch_mm": target.pitch_mm, "part_cells": int(target.mask.sum()),
