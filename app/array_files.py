@@ -17,6 +17,7 @@ Pure: bytes in, arrays or :class:`ArrayFileError` (naming ``file``) out.
 from __future__ import annotations
 
 import io
+from typing import IO
 import zipfile
 from dataclasses import dataclass
 
@@ -108,9 +109,10 @@ def inspect_npz(data: bytes, max_bytes: int, field: str = "file") -> dict[str, A
         return infos
 
 
-def _read_capped(stream: io.BufferedIOBase, limit: int, name: str, field: str) -> bytes:
+def _read_capped(stream: IO[bytes], limit: int, name: str, field: str) -> bytes:
     """At most ``limit`` bytes of ``stream``; an error if there is more (a lying zip)."""
-    parts, size = [], 0
+    parts: list[bytes] = []
+    size = 0
     while True:
         chunk = stream.read(min(_CHUNK, limit + 1 - size))
         if not chunk:

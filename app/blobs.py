@@ -21,7 +21,7 @@ from app.models import Blob, utcnow
 
 
 
-def write_atomically(target: Path, write: Callable[[BinaryIO], None]) -> None:
+def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
     """Write ``target`` whole or not at all: ``write`` fills a temporary file beside it, which
     is fsynced and renamed over ``target`` (a reader sees the old file, the new one, or none)."""
     target.parent.mkdir(parents=True, exist_ok=True)

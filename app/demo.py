@@ -23,6 +23,7 @@ from app.db import migrate
 from app.jobs.runtime import QUEUES, Runtime
 from app.ownership import MachineOwnerLock
 from app.models import COMPLETED_STATES, Machine, TERMINAL_STATES, Job, new_id, utcnow
+from app.mesh_intake import export_mesh
 from app.records import build_trace, store_part
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 
@@ -53,9 +54,9 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
         limit = int(settings.max_unzipped_mb * 2**20)
         with Session(runtime.engine, expire_on_commit=False) as session:
             part = store_part(session, runtime.blobs, runtime.meshes,
-                              s1_mesh(grid_mm=args.grid_mm).export(file_type="stl"), "stl", "S1 reference part", limit)
+                              export_mesh(s1_mesh(grid_mm=args.grid_mm), "stl"), "stl", "S1 reference part", limit)
             real = store_part(session, runtime.blobs, runtime.meshes,
-                              truth.mesh(grid_mm=args.grid_mm).export(file_type="stl"), "stl",
+                              export_mesh(truth.mesh(grid_mm=args.grid_mm), "stl"), "stl",
                               f"S1 as made (seed {args.seed}, +-{args.amplitude_mm} mm)", limit)
             session.flush()
             traces = [build_trace(runtime.meshes, part, TraceCreate.model_validate(s1_traces()[n - 1].to_api()))
@@ -77,6 +78,9 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
         while True:
             with Session(runtime.engine) as session:
                 current = session.get(Job, job.id)
+            if current is None:
+                print(f"closed loop {job.id} was deleted", file=out)
+                raise SystemExit(1)
             if current.message != last:
                 print(f"  [{time.monotonic() - started:6.1f} s] {current.progress:4.0%} {current.message}", file=out)
                 last = current.message
@@ -87,7 +91,7 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
             print(f"closed loop {current.status}: {(current.error or {}).get('detail')}", file=out)
             raise SystemExit(1)
         rows = [Table1Row(**{k: v for k, v in row.items() if k in Table1Row.__dataclass_fields__})
-                for row in current.result["table"]]
+                for row in (current.result or {})["table"]]
         for row, number in zip(rows, numbers):
             object.__setattr__(row, "trace", number)
         print("\nThe published Table 1, simulated (um; 'before' = nominal program, 'after' = compensated):", file=out)

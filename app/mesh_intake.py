@@ -262,11 +262,18 @@ def intake(data: bytes | BinaryIO, fmt: str, *, max_unzipped_bytes: int, units: 
 def export_mesh(mesh: trimesh.Trimesh, fmt: str) -> bytes:
     """The mesh as binary STL (mm, +Z up) or GLB (metres, +Y up, as glTF specifies)."""
     if fmt == "stl":
-        return mesh.export(file_type="stl")
+        return _exported(mesh.export(file_type="stl"))
     if fmt == "glb":
         to_gltf = np.eye(4)
         to_gltf[:3, :3] = 0.001 * np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
         scene_mesh = mesh.copy()
         scene_mesh.apply_transform(to_gltf)
-        return trimesh.Scene(scene_mesh).export(file_type="glb")
+        return _exported(trimesh.Scene(scene_mesh).export(file_type="glb"))
     raise MeshError(f"cannot export as {fmt!r}; use stl or glb", field="format", value=fmt)
+
+
+def _exported(data: object) -> bytes:
+    """trimesh's export of a binary format (typed as bytes, str or dict) as bytes."""
+    if not isinstance(data, bytes):
+        raise TypeError(f"trimesh exported {type(data).__name__}, not bytes")
+    return data

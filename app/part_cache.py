@@ -63,7 +63,7 @@ def _software() -> str:
 
 
 def _crc(array: np.ndarray) -> int:
-    return zlib.crc32(memoryview(np.ascontiguousarray(array)).cast("B")) if array.nbytes else 0
+    return zlib.crc32(np.ascontiguousarray(array).data.cast("B")) if array.nbytes else 0
 
 
 class CacheStats:
@@ -191,7 +191,8 @@ class PartCache:
         store to its bound.  False (logged) when the entry alone exceeds the bound or the
         disk refuses; the caller goes on without the cache."""
         t0 = time.perf_counter()
-        items, offset = [], 0
+        items: list[dict[str, Any]] = []
+        offset = 0
         prepared = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
         for name, array in prepared.items():
             if array.dtype.hasobject:
@@ -218,7 +219,7 @@ class PartCache:
                 handle.write(MAGIC + struct.pack("<Q", len(text)) + text)
                 for item, array in zip(items, prepared.values()):
                     handle.seek(item["offset"])
-                    handle.write(memoryview(array).cast("B") if array.nbytes else b"")
+                    handle.write(array.data.cast("B") if array.nbytes else b"")
                 handle.truncate(offset)
 
             write_atomically(target, write)

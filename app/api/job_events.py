@@ -19,12 +19,12 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import Engine, bindparam, select
+from sqlalchemy import Engine, bindparam, inspect, select
 
 from app.models import TERMINAL_STATES, Job
 
 KEEPALIVE_S = 15.0
-_JOBS = Job.__table__
+_JOBS = inspect(Job).local_table
 _SNAPSHOTS = (select(_JOBS.c.id, _JOBS.c.revision, _JOBS.c.status, _JOBS.c.progress, _JOBS.c.message)
               .where(_JOBS.c.id.in_(bindparam("ids", expanding=True))))
 
@@ -151,8 +151,8 @@ class JobWatch:
         ids = sorted({s.job_id for s in subscribers})
         with self.engine.connect() as conn:
             rows = {r.id: dict(r._mapping) for r in conn.execute(_SNAPSHOTS, {"ids": ids})}
-        for row in rows.values():  # serialised once for every stream of the job
-            row["data"] = json.dumps({k: row[k] for k in ("id", "status", "progress", "message")})
+        for snapshot in rows.values():  # serialised once for every stream of the job
+            snapshot["data"] = json.dumps({k: snapshot[k] for k in ("id", "status", "progress", "message")})
         for subscriber in subscribers:
             row = rows.get(subscriber.job_id)
             old = subscriber.snapshot

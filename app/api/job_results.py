@@ -13,6 +13,7 @@ artifact (as ``GET /jobs/{id}/artifacts`` does).
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
 from fastapi import Query
@@ -30,7 +31,7 @@ Include = Annotated[list[Literal["result", "artifacts"]] | None, Query(descripti
     f"{ARTIFACTS_INLINE_MAX}; artifact_count counts them all).  Repeat to ask for both."))]
 
 
-def wants(include: list[str] | None, what: str) -> bool:
+def wants(include: Sequence[str] | None, what: str) -> bool:
     """Whether ``?include=`` asks for ``what``."""
     return bool(include) and what in include  # type: ignore[operator]
 

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from datetime import datetime, timezone
+from collections.abc import Sequence
 from typing import Annotated, Literal
 
 import anyio
 from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
-from sqlalchemy import bindparam, func
+from sqlalchemy import bindparam, func, inspect
 from sqlalchemy import select as sa_select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import defer
@@ -33,18 +34,20 @@ JobStatus = Literal["queued", "running", "succeeded", "needs_attention", "failed
                     "waiting"]
 SSE_POLL_S = 0.1
 # Built once: the statements' compiled forms are cached, so a poll pays for execution only.
-_JOB_BY_ID = (sa_select(*(c for c in Job.__table__.c if c.name != "result"))
-              .where(Job.__table__.c.id == bindparam("job_id")))
-_RESULT_OF_JOB = sa_select(Job.__table__.c.result).where(Job.__table__.c.id == bindparam("job_id"))
-_ARTIFACTS_OF_JOB = (Artifact.__table__.select().where(Artifact.__table__.c.job_id == bindparam("job_id"))
-                     .order_by(Artifact.__table__.c.id))
+_JOB_TABLE = inspect(Job).local_table
+_ARTIFACT_TABLE = inspect(Artifact).local_table
+_JOB_BY_ID = (sa_select(*(c for c in _JOB_TABLE.c if c.name != "result"))
+              .where(_JOB_TABLE.c.id == bindparam("job_id")))
+_RESULT_OF_JOB = sa_select(_JOB_TABLE.c.result).where(_JOB_TABLE.c.id == bindparam("job_id"))
+_ARTIFACTS_OF_JOB = (_ARTIFACT_TABLE.select().where(_ARTIFACT_TABLE.c.job_id == bindparam("job_id"))
+                     .order_by(_ARTIFACT_TABLE.c.id))
 _FIRST_ARTIFACTS = _ARTIFACTS_OF_JOB.limit(ARTIFACTS_INLINE_MAX + 1)
-_ARTIFACT_COUNT = (sa_select(func.count()).select_from(Artifact.__table__)
-                   .where(Artifact.__table__.c.job_id == bindparam("job_id")))
+_ARTIFACT_COUNT = (sa_select(func.count()).select_from(_ARTIFACT_TABLE)
+                   .where(_ARTIFACT_TABLE.c.job_id == bindparam("job_id")))
 SSE_RETRY_AFTER_S = 5
 
 
-def job_out(job: Job, artifacts: list[Artifact], include: list[str] | None = None,
+def job_out(job: Job, artifacts: list[Artifact], include: Sequence[str] | None = None,
             artifact_count: int | None = None) -> JobOut:
     """The record of ``job`` (its result in brief unless ``include`` has "result"; its first
     ARTIFACTS_INLINE_MAX ``artifacts`` unless it has "artifacts"; ``artifact_count``: how
