@@ -59,9 +59,9 @@ class KeyRing:
         clients) answers from the static keys, the cache and the snapshot of stored keys
         (:meth:`stored_role`): no query per presented key."""
         digest = hash_key(key)
-        for known, role in self._static.items():
+        for known, static_role in self._static.items():
             if hmac.compare_digest(known, digest):
-                return role
+                return static_role
         now = time.monotonic()
         with self._lock:
             cached = self._cache.get(digest)

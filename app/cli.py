@@ -17,8 +17,7 @@ from hardware.dialects import DEFAULT_DIALECT, DIALECTS
 
 
 def _settings(args: argparse.Namespace, **extra: object) -> Settings:
-    overrides = {"data_dir": getattr(args, "data_dir", None), **extra}
-    return load_settings(**overrides)
+    return load_settings(None, data_dir=getattr(args, "data_dir", None), **extra)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

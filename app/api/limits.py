@@ -93,7 +93,7 @@ class BodyLimitMiddleware:
         except HTTPException as exc:
             titles = {401: "Unauthorized", 429: "Too many requests"}
             await send_problem(send, exc.status_code, titles.get(exc.status_code, "Error"), str(exc.detail),
-                                headers=exc.headers)
+                                headers=dict(exc.headers) if exc.headers else None)
             return False
         return True
 

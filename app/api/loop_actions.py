@@ -4,6 +4,8 @@ again (:func:`app.jobs.loop_gates.decide`); nothing moves before that."""
 
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import APIRouter
 from pydantic import Field
 
@@ -13,7 +15,7 @@ from app.api.schemas import JobOut, Strict
 from app.jobs.loop_gates import decide
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
-_409 = {409: {"description": "the job is not a closed loop where this action applies (the detail says why)"}}
+_409: dict[int | str, dict[str, Any]] = {409: {"description": "the job is not a closed loop where this action applies (the detail says why)"}}
 
 
 class AddStations(Strict):

@@ -74,9 +74,9 @@ def error_codes(route: APIRoute) -> set[int]:
         codes.add(422)
     if dependant.body_params:
         codes |= {400, 401, 413}
-    if route.methods & {"POST", "DELETE"} and need is not None:
+    if (route.methods or set()) & {"POST", "DELETE"} and need is not None:
         codes.add(409)
-    if route.path.startswith("/api/v1/machines/{machine_id}/") and "POST" in route.methods:
+    if route.path.startswith("/api/v1/machines/{machine_id}/") and "POST" in (route.methods or set()):
         codes.add(502)  # it talks to the machine's firmware (MachineFault)
     return codes
 

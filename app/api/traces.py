@@ -57,7 +57,7 @@ def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep, reques
         return replayed  # type: ignore[return-value]
     part = get_or_404(session, Part, part_id)
     traces = build_traces(runtime.meshes, part, body)
-    out = Page(items=[trace_out(t) for t in traces], total=len(traces))
+    out = Page[TraceOut](items=[trace_out(t) for t in traces], total=len(traces))
     session.add_all(traces)
     idempotency.remember(session, claim, 201, out)
     return _commit(session, claim, part_id) or out  # type: ignore[return-value]

@@ -42,10 +42,10 @@ STOP_WAIT_S = 2.0
 PRELOAD = ["app.jobs.compute_child", "app.jobs.circuit_import", "app.circuits.dxf", "app.circuits.svg",
            "app.circuits.gerber", "app.circuits.kicad"]
 _context_lock = threading.Lock()
-_context: multiprocessing.context.BaseContext | None = None
+_context: multiprocessing.context.ForkServerContext | None = None
 
 
-def mp_context() -> multiprocessing.context.BaseContext:
+def mp_context() -> multiprocessing.context.ForkServerContext:
     """The forkserver context (started once per process, preloading the compute core)."""
     global _context
     with _context_lock:
@@ -53,6 +53,7 @@ def mp_context() -> multiprocessing.context.BaseContext:
             import app.jobs.kinds as kinds_package
 
             context = multiprocessing.get_context("forkserver")
+            assert isinstance(context, multiprocessing.context.ForkServerContext)
             kinds = [f"{kinds_package.__name__}.{info.name}" for info in pkgutil.iter_modules(kinds_package.__path__)]
             context.set_forkserver_preload(PRELOAD + kinds)
             _context = context

@@ -129,7 +129,7 @@ def stopped_by_operator(ctx: JobContext, machine: Machine | None) -> bool:
     return ctx.runtime.store.cancel_requested(ctx.job_id) or (machine is not None and machine.estopped)
 
 
-def interrupt(ctx: JobContext, machine: Machine | None, exc: Exception, state: dict[str, Any]) -> ConformaError:
+def interrupt(ctx: JobContext, machine: Machine | None, exc: BaseException, state: dict[str, Any]) -> ConformaError:
     """Record the job as interrupted (or Cancelled when an operator stopped it) and return
     the exception the kind raises to end its attempt."""
     if stopped_by_operator(ctx, machine):

@@ -138,7 +138,7 @@ class ProcessSupervisor:
                 part_ids |= set(conn.execute(select(col(Trace.part_id)).where(col(Trace.id).in_(trace_ids))).scalars())
             if not part_ids:
                 return set()
-            return set(conn.execute(select(Part.sha256).where(col(Part.id).in_(part_ids))).scalars())
+            return set(conn.execute(select(col(Part.sha256)).where(col(Part.id).in_(part_ids))).scalars())
 
     def run(self, claim: Claim) -> None:
         """Run ``claim``'s job in a compute process and see it to an outcome (blocks)."""

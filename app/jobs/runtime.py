@@ -98,7 +98,8 @@ def _param_holding(params: Any, value: str, ref_kind: str) -> str:
     return find(params.model_dump(), "") or f"{ref_kind}_id"
 
 
-_REFERENCED = {"part": Part, "trace": Trace, "job": Job, "machine": MachineRow}
+_REFERENCED: dict[str, type[Part] | type[Trace] | type[Job] | type[MachineRow]] = {
+    "part": Part, "trace": Trace, "job": Job, "machine": MachineRow}
 
 
 def _recheck_references(session: Session, references: list[tuple[str, str]], validated: Any) -> None:
@@ -178,7 +179,7 @@ class Runtime:
         with Session(self.engine, expire_on_commit=False) as session:
             hashes: dict[str, str] = {}
             for ref_kind, ref_id in references:
-                model = {"part": Part, "trace": Trace, "job": Job, "machine": MachineRow}.get(ref_kind)
+                model = _REFERENCED.get(ref_kind)
                 if model is None:
                     continue
                 try:

@@ -117,7 +117,7 @@ def calibrate_sensor(machine: Machine, sensor: HeightSensor, setup: CalibrationS
         carriage.append(p)
         hs.append(p[:, 2] + oz + data.values / scale)
     machine.move(z=setup.travel_z)
-    sphere = fit_sphere_scan(np.concatenate(carriage), np.concatenate(hs), c, r, o[:2])
+    sphere = fit_sphere_scan(np.concatenate(carriage), np.concatenate(hs), c.tolist(), r, o[:2].tolist())
     calibration = SensorCalibration((sphere["o_x"], sphere["o_y"], oz), scale, tau, sphere["b"],
                                     {"o_x": sphere["sd_o_x"], "o_y": sphere["sd_o_y"], "o_z": sd_oz,
                                      "time_offset_s": sd_tau, "slope_bias_mm": sphere["sd_b"]})
