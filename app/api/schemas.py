@@ -7,6 +7,8 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
+from app.materials import DispenseProfile
+
 T = TypeVar("T")
 
 
@@ -182,6 +184,21 @@ class JobKindOut(BaseModel):
     queue: str
     description: str
     params_schema: dict[str, Any]
+
+
+class MaterialOut(BaseModel):
+    """A material preset (:mod:`app.materials`): the job parameters a form fills in for it and,
+    for what a dispenser deposits, its dispense profile."""
+
+    name: str
+    label: str
+    kind: Literal["conductive", "dielectric", "substrate"]
+    description: str
+    params: dict[str, Any] = Field(description="job parameters by name (e.g. mode, line_width_mm, nozzle_temp_c): "
+                                   "a form sets those it has")
+    dispense: DispenseProfile | None = Field(description="for pastes and inks: what a machine's profile.dispense "
+                                             "takes; none for a substrate's plastic")
+    default: bool = Field(description="the preset the console's forms start from")
 
 
 class KeyCreate(Strict):

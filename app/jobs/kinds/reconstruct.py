@@ -25,6 +25,7 @@ from app.errors import InvalidInput
 from app.geometry.placement import Placement
 from app.jobs.board_checkpoints import TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.context import JobContext
+from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
 from app.jobs.registry import job_kind
@@ -52,7 +53,8 @@ class ContextTrace(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    trace_id: str = Field(description="another trace of the same part (not trace_id itself)")
+    trace_id: str = Field(description="another trace of the same part (not trace_id itself)",
+                          json_schema_extra=ONE_TRACE)
     points: Points = Field(min_length=1, max_length=100_000, description="its measured points [[x, y, z], ...] mm")
 
 
@@ -61,7 +63,8 @@ class ReconstructJobParams(PlacedParams):
     trace_ids: list[str] | None = Field(
         None, min_length=1, max_length=MAX_FIELD_TRACES,
         description="board mode (method field, from a field plan's probe run): rebuild these traces in ONE job "
-        "from the one fitted field; the result's traces lists each trace's reconstruction in this order")
+        "from the one fitted field; the result's traces lists each trace's reconstruction in this order",
+        json_schema_extra=SEVERAL_TRACES)
     probe_run_job_id: str | None = Field(
         None, description="a succeeded probe_run; when its plan probed several traces (trace_ids), trace_id must "
         "be one of them and its own range of the run is used, with method kriging every other trace's range too "
