@@ -33,13 +33,17 @@ const JOB_SUGGESTIONS = { plan_job_id: "probe_plan", probe_run_job_id: "probe_ru
 // all at once (one part's traces after another cost most of a second with 100 parts stored).
 async function suggestions(kind) {
   const want = new Set(Object.keys(kind.params_schema?.properties || {}));
+  const out = {};
   const jobKeys = Object.keys(JOB_SUGGESTIONS).filter((k) => want.has(k));
+  if (want.has("material")) {  // a print's dispense profile by preset name
+    const presets = await loadMaterials();
+    out.material = presets.filter((m) => m.dispense).map((m) => [m.name, m.label]);
+  }
   const [parts, jobs, machines, programs] = await Promise.all([
     want.has("part_id") || want.has("trace_id") ? get("parts?limit=50") : null,
     jobKeys.length ? get("jobs?limit=200") : null,
     want.has("machine_id") ? get("machines").catch(() => null) : null,
     want.has("program_id") ? get("programs?limit=200").catch(() => null) : null]);
-  const out = {};
   if (parts) out.part_id = parts.items.map((p) => [p.id, p.name]);
   if (parts && want.has("trace_id")) {
     const shown = parts.items.slice(0, 20);
@@ -55,13 +59,41 @@ async function suggestions(kind) {
   return out;
 }
 
+// Material presets (GET /materials): a picker fills the fields of the form that a preset sets
+// (a paste's mode, line width, standoff and speed; a substrate plastic's temperatures).  A
+// fresh form with a mode to choose starts from the default preset (a paste), never from a
+// plastic printer's 210 °C nozzle / 60 °C bed.
+let materials = null;
+const loadMaterials = () => (materials ??= get("materials").catch(() => []));
+
+function materialPicker(form, presets, fresh) {
+  const fits = (m) => Object.keys(m.params).filter((k) => form.names.includes(k)).length >= 2;
+  const usable = presets.filter(fits);
+  if (!usable.length) return null;
+  const select = el("select", { id: "material-preset", "aria-label": "material preset" },
+    el("option", { value: "" }, "(as the fields say)"), usable.map((m) => el("option", { value: m.name, title: m.description }, m.label)));
+  const note = el("span", { class: "small", id: "material-note" });
+  const apply = (name) => {
+    const preset = usable.find((m) => m.name === name);
+    if (!preset) { note.textContent = ""; return; }
+    const set = Object.entries(preset.params).filter(([k, v]) => form.set(k, v)).map(([k]) => k);
+    note.textContent = ` ${preset.description}; sets ${set.length} field${set.length === 1 ? "" : "s"}`;
+  };
+  select.addEventListener("change", () => apply(select.value));
+  const start = fresh && form.names.includes("mode") ? usable.find((m) => m.default) : null;
+  if (start) { select.value = start.name; apply(start.name); }
+  return el("div", { class: "field material-field" }, el("label", { for: "material-preset" }, "Material"), select, note);
+}
+
 async function buildForm(prefill = {}) {
   const kind = kinds.find((k) => k.name === kindSelect.value);
   if (!kind) return;
   kindDescription.textContent = kind.description || "";
-  const hints = await suggestions(kind).catch(() => ({}));
+  const [hints, presets] = await Promise.all([suggestions(kind).catch(() => ({})), loadMaterials()]);
   current = schemaForm(kind.params_schema, { suggestions: hints, prefill });
-  formBody.replaceChildren(current.node);
+  const fresh = !Object.keys(prefill).some((k) => current.names.includes(k) && k !== "slice_job_id");
+  const picker = materialPicker(current, presets, fresh);
+  formBody.replaceChildren(...(picker ? [picker] : []), current.node);
   formBody.dataset.kind = kind.name;
 }
 
