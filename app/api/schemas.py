@@ -172,6 +172,8 @@ class JobOut(BaseModel):
     artifacts: list[ArtifactOut] = Field(description=(
         "the artifacts the job wrote, in order: the first 20 unless asked for with ?include=artifacts"))
     artifact_count: int = Field(0, description="how many artifacts the job wrote")
+    title: str | None = Field(None, description="in lists: the job's name for people, part · trace (or net) · "
+                              "what it is, e.g. \"dome · GND · circuit program\"")
     program_state: dict[str, Any] | None = Field(
         None, description="machine jobs: commands executed (known) and total, last acknowledged firmware line, "
         "and once interrupted: when, why, the position if known; resumes and the resume preamble. closed_loop: "
