@@ -10,24 +10,11 @@ import pytest
 
 from app.reference.s1 import s1_mesh
 from tests.api.test_machines import register
+from tests.circuits.boards import USB_PADS_BOARD as BOARD
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
-BOARD = """(kicad_pcb (version 20221018) (generator pcbnew)
-  (general (thickness 1.6))
-  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))
-  (net 0 "")
-  (net 1 "GND")
-  (footprint "USB_C" (layer "F.Cu") (at 10 -10)
-    (property "Reference" "J1")
-    (pad "MP" smd rect (at -3 0) (size 1.2 1.2) (layers "F.Cu") (net 1 "GND"))
-    (pad "MP" smd rect (at 3 0) (size 1.2 1.2) (layers "F.Cu") (net 1 "GND"))
-    (pad "1" smd rect (at 0 0) (size 1.2 1.2) (layers "F.Cu") (net 1 "GND"))
-  )
-  (segment (start 7 10) (end 13 10) (width 0.25) (layer "F.Cu") (net 1))
-)
-"""
 
 
 @pytest.fixture(scope="module")

@@ -48,11 +48,11 @@ async function suggestions(kind) {
   if (parts && want.has("trace_id")) {
     const shown = parts.items.slice(0, 20);
     const traceLists = await Promise.all(shown.map((p) => get(`parts/${p.id}/traces?limit=200`)));
-    out.trace_id = shown.flatMap((p, i) => traceLists[i].items.map((t) => [t.id, `${t.name} on ${p.name}`]));
+    out.trace_id = shown.flatMap((p, i) => traceLists[i].items.map((t) => [t.id, `${t.name}${t.source?.net ? ` · ${t.source.net}` : ""} on ${p.name}`]));
   }
   for (const key of jobKeys) {
     out[key] = jobs.items.filter((j) => j.kind === JOB_SUGGESTIONS[key] && j.status === "succeeded")
-      .map((j) => [j.id, `${j.kind} ${fmt.time(j.created_at)}`]);
+      .map((j) => [j.id, `${j.title || j.kind} · ${fmt.time(j.created_at)}`]);
   }
   if (machines) out.machine_id = machines.items.map((m) => [m.id, m.name]);
   if (programs) out.program_id = programs.items.map((p) => [p.id, `${p.name} (${p.lines} lines)`]);
@@ -124,7 +124,7 @@ async function onSubmit(event) {
   try {
     const job = await post("jobs", { kind: kindSelect.value, params });
     current.markErrors([]);
-    showInfo(`Job ${job.id} (${job.kind}) queued.`);
+    showInfo(`${job.kind.replaceAll("_", " ")} queued.`);
     await refresh();
     openJob(job.id);
   } catch (err) {
@@ -191,7 +191,7 @@ function statusCell(job) {
 
 function row(job) {
   return el("tr", { "data-id": job.id, onclick: () => openJob(job.id), class: "clickable" },
-    el("td", {}, el("strong", {}, job.kind), el("div", { class: "small mono" }, job.id)),
+    el("td", { title: job.id }, el("strong", {}, job.title || job.kind), job.title ? el("div", { class: "small" }, job.kind) : null),
     el("td", { class: "status" }, statusCell(job)),
     el("td", {}, el("progress", { max: 1, value: job.progress })),
     el("td", { class: "small message" }, job.message || (job.error ? job.error.detail : "")));
@@ -292,7 +292,7 @@ function interruptedPanel(job) {
 function renderDetail(job) {
   const canCancel = !TERMINAL.has(job.status);
   const parts = [
-    el("h2", {}, `${job.kind} `, el("span", { class: "mono small" }, job.id)),
+    el("h2", { title: job.id }, job.title || tbody.querySelector(`tr[data-id="${job.id}"] strong`)?.textContent || job.kind),
     el("div", { id: "detail-status" }, statusCell(job), ` ${job.message || ""}`),
     el("progress", { id: "detail-progress", max: 1, value: job.progress }),
     el("div", { class: "row" },
@@ -339,7 +339,7 @@ async function rerun(job) {
   if (moves && !window.confirm(`Run ${job.kind} again? It will move the machine.`)) return;
   await guarded("Run again", async () => {
     const copy = await post("jobs", { kind: job.kind, params: job.params });
-    showInfo(`Job ${copy.id} (${copy.kind}) queued with the parameters of ${job.id}.`);
+    showInfo(`${copy.kind.replaceAll("_", " ")} queued again with the same parameters.`);
     await refresh();
     openJob(copy.id);
   });

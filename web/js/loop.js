@@ -209,7 +209,7 @@ function render(job, kids) {
   runBox.dataset.step = waiting ? waiting.at : "";
   runBox.dataset.job = job.id;
   const head = el("p", { id: "wz-run-status" }, el("span", { class: `badge ${job.status}` }, job.status),
-    ` loop ${job.id} · ${job.message || ""}`);
+    " ", el("span", { title: job.id }, "closed loop"), ` · ${job.message || ""}`);
   const actions = el("div", { id: "wz-actions" });
   const passed = new Set((ps.passed || []).map((k) => k.split("@")[0]));
   for (const point of PAUSES) done(STEP_OF[point], passed.has(point) || (FINISHED.has(job.status) && job.status !== "failed"));
@@ -220,7 +220,7 @@ function render(job, kids) {
   }
   const stuck = kids.filter((k) => k.status === "interrupted");
   if (job.status === "interrupted") {
-    actions.append(el("p", {}, stuck.length ? `Step ${stuck[0].kind} ${stuck[0].id} was interrupted: resume it first (the Jobs page shows where it stopped).`
+    actions.append(el("p", {}, stuck.length ? `Step ${stuck[0].kind.replaceAll("_", " ")} was interrupted: resume it first (the Jobs page shows where it stopped).`
       : "The loop was interrupted (its process stopped): resume it; it reuses every finished step."));
     actions.append(stuck.length
       ? el("a", { id: "wz-resume-step", href: `jobs.html?job=${stuck[0].id}` }, `resume ${stuck[0].kind}`)
@@ -303,10 +303,10 @@ function showResult(job) {
 
 function showChildren(kids) {
   childrenOut.replaceChildren(el("table", { class: "records", id: "wz-children-table" },
-    el("thead", {}, el("tr", {}, ["step", "status", "job"].map((h) => el("th", { scope: "col" }, h)))),
+    el("thead", {}, el("tr", {}, ["step", "status", ""].map((h) => el("th", { scope: "col" }, h)))),
     el("tbody", {}, [...kids].reverse().map((k) => el("tr", { "data-kind": k.kind, "data-status": k.status },
-      el("td", {}, k.kind), el("td", {}, el("span", { class: `badge ${k.status}` }, k.status)),
-      el("td", {}, el("a", { href: `jobs.html?job=${k.id}` }, k.id)))))));
+      el("td", {}, k.title || k.kind.replaceAll("_", " ")), el("td", {}, el("span", { class: `badge ${k.status}` }, k.status)),
+      el("td", {}, el("a", { href: `jobs.html?job=${k.id}`, title: k.id }, "open")))))));
 }
 
 function showReport(job) {

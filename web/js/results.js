@@ -242,7 +242,18 @@ export function headline(job) {
     return `chord error ≤ ${um(r.max_chord_error_mm)} · standoff ${length(r.standoff_mm)} · ${length(r.length_mm)}` +
       (r.warnings?.length ? ` · ${r.warnings.length} warning${r.warnings.length === 1 ? "" : "s"}` : "");
   }
-  return headlineFigures(r).slice(0, 3).map(([n, v]) => `${n}: ${v}`).join(" · ");
+  return headlineFigures(r).slice(0, 3).map(([n, v, key]) => {
+    const raw = key.split(".").reduce((o, k) => o?.[k], r);
+    if (Array.isArray(raw)) return counted(raw.length, n);                      // "7 traces", not "Traces: 7 items"
+    if (/_count$/.test(key) && Number.isInteger(raw)) return counted(raw, n.replace(/ count$/i, ""));
+    return `${n}: ${v}`;
+  }).join(" · ");
+}
+
+// "7 traces", "1 trace": a count and what it counts, in words.
+export function counted(n, what) {
+  const words = what.toLowerCase();
+  return `${n} ${n === 1 && words.endsWith("s") ? words.slice(0, -1) : words}`;
 }
 
 // Rows of records as a table with units (at most `limit` rows; the rest one click away).
