@@ -25,7 +25,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.jobs.form_hints import add_units
+from app.jobs.form_hints import add_units, form
 
 MaterialKind = Literal["conductive", "dielectric", "substrate"]
 
@@ -36,7 +36,8 @@ class DispenseProfile(BaseModel):
     model_config = ConfigDict(extra="forbid", json_schema_extra=add_units)  # units for forms, from the names
 
     material: str | None = Field(None, max_length=80, description="the preset this profile came from (a name in "
-                                 "GET /materials), or none for a profile of one's own")
+                                 "GET /materials), or none for a profile of one's own",
+                                 json_schema_extra=form(advanced=True))
     pressure_kpa: float = Field(200.0, ge=0, le=1000, allow_inf_nan=False, title="Pressure",
                                 description="dispenser pressure, set on the dispenser's controller (the program only "
                                 "switches it on and off); recorded with each print")
