@@ -25,7 +25,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from app.jobs.form_hints import add_units, form
+from app.jobs.form_hints import add_titles_and_units, form
 
 MaterialKind = Literal["conductive", "dielectric", "substrate"]
 
@@ -33,7 +33,7 @@ MaterialKind = Literal["conductive", "dielectric", "substrate"]
 class DispenseProfile(BaseModel):
     """How a dispenser deposits one material (kPa, ms, mm, mm/min)."""
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra=add_units)  # units for forms, from the names
+    model_config = ConfigDict(extra="forbid", json_schema_extra=add_titles_and_units)  # units for forms, from the names
 
     material: str | None = Field(None, max_length=80, description="the preset this profile came from (a name in "
                                  "GET /materials), or none for a profile of one's own",

@@ -75,12 +75,14 @@ def form(*, unit: str | None = None, advanced: bool = False, when: dict[str, lis
     return out
 
 
-def add_units(schema: dict[str, Any], model: type[BaseModel]) -> None:
+def add_titles_and_units(schema: dict[str, Any], model: type[BaseModel]) -> None:
     """pydantic's model ``json_schema_extra``: each property without a unit gets the one its
-    name declares (``x-unit``)."""
+    name declares (``x-unit``), and a title if it has none (pydantic gives none to a field
+    whose type is a model)."""
     for name, prop in (schema.get("properties") or {}).items():
         if "x-unit" not in prop and (unit := unit_of(name)) is not None:
             prop["x-unit"] = unit
+        prop.setdefault("title", title_of(name))
 
 
 #: the one-trace / several-traces choice the probing and rebuilding kinds share

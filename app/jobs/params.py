@@ -153,10 +153,10 @@ class ProbePlanParams(PlacedParams):
     target_error_mm: float = Field(0.005, gt=0, le=10,
                                    json_schema_extra=form(when={"method": ["kriging", "field", None]}))
     probe_sigma_mm: float = Field(0.001, ge=0, le=1, json_schema_extra=_MORE)
-    clearance_mm: float = Field(2.0, gt=0, le=100)
+    clearance_mm: float = Field(2.0, gt=0, le=100, json_schema_extra=_MORE)
     approach_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
-    overtravel_mm: float = Field(1.0, gt=0, le=50)
-    probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000)
+    overtravel_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
+    probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000, json_schema_extra=_MORE)
     dialect: Literal["grbl", "marlin", "linuxcnc"] = DEFAULT_PROBING_DIALECT
     probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin",
                                                       json_schema_extra=_MORE)

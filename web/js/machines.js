@@ -159,15 +159,15 @@ function update(m) {
   c.prog.dataset.state = p ? (p.state || "printing") : "";
   if (p && p.state === "interrupted") {
     // the job stopped mid-program (a lost link, a dead process) and holds the machine until an operator decides
-    c.prog.textContent = `interrupted at line ${line ?? "?"} of ${p.total ?? "?"} — job ${p.job_id || "?"} waits: ` +
+    c.prog.textContent = `interrupted at line ${line ?? "?"} of ${p.total ?? "?"} — its print job waits: ` +
       `resume or abandon` + (p.resume_line != null ? ` (a resume starts at line ${p.resume_line})` : "");
-    c.prog.title = p.message || "";
+    c.prog.title = `${p.message || ""} (job ${p.job_id || "?"})`;
   } else {
-    c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
+    c.prog.textContent = p ? `program: line ${line ?? "?"} of ${p.total ?? "?"}` +
       (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") +
       (p.elapsed_s != null ? ` · elapsed ${duration(p.elapsed_s)} · left ${p.eta_s != null ? `about ${duration(p.eta_s)}` : "estimating…"}` : "") :
-      (m.held_by ? `job ${m.held_by} holds the machine` : "no program running");
-    c.prog.title = "";
+      (m.held_by ? "a job holds the machine" : "no program running");
+    c.prog.title = p?.job_id ? `job ${p.job_id}` : m.held_by ? `job ${m.held_by}` : "";
   }
   c.bar.hidden = !(p && p.total);
   if (p && p.total) c.bar.value = (line ?? 0) / p.total;

@@ -53,13 +53,12 @@ class ContextTrace(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    trace_id: str = Field(description="another trace of the same part (not trace_id itself)",
-                          json_schema_extra=ONE_TRACE)
+    trace_id: str = Field(description="another trace of the same part (not trace_id itself)")
     points: Points = Field(min_length=1, max_length=100_000, description="its measured points [[x, y, z], ...] mm")
 
 
 class ReconstructJobParams(PlacedParams):
-    trace_id: str | None = Field(None, description="the trace to rebuild (or trace_ids)")
+    trace_id: str | None = Field(None, description="the trace to rebuild (or trace_ids)", json_schema_extra=ONE_TRACE)
     trace_ids: list[str] | None = Field(
         None, min_length=1, max_length=MAX_FIELD_TRACES,
         description="board mode (method field, from a field plan's probe run): rebuild these traces in ONE job "
