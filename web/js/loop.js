@@ -77,9 +77,10 @@ async function loadTraces(checked = null) {
   state.part = part;
   state.traces = all.filter((t) => !isRing(t));
   state.rings = all.filter(isRing);
-  state.names = Object.fromEntries(all.map((t) => [t.id, t.name]));
+  const named = (t) => (t.source?.net && !t.name.includes(t.source.net) ? `${t.name} · ${t.source.net}` : t.name);
+  state.names = Object.fromEntries(all.map((t) => [t.id, named(t)]));
   traceList.replaceChildren(...(state.traces.length ? state.traces.map((t) => el("label", { class: "inline" },
-    el("input", { type: "checkbox", value: t.id, checked: checked ? checked.includes(t.id) : true }), ` ${t.name} (${length(t.length_mm)})`))
+    el("input", { type: "checkbox", value: t.id, checked: checked ? checked.includes(t.id) : true }), ` ${named(t)} (${length(t.length_mm)})`))
     : [el("p", { class: "small" }, state.part ? "This part has no traces: add some on the Traces page." : "Choose a part first.")]));
   showRings();
   if (state.part) { done("wz-1"); if (!state.loop) viewer.show({ part_id: state.part }); }

@@ -4,6 +4,7 @@
 // first, naming the machine, the program, its line count and its estimated time; the
 // card then shows the print's progress next to the machine's emergency stop.
 import { get, post } from "./api.js";
+import { dispenseSummary } from "./machine_dispense.js";
 import { duration } from "./results.js";
 import { el, fmt, guarded, showInfo } from "./ui.js";
 
@@ -42,7 +43,8 @@ export async function loadPrograms() {
 export async function confirmAndPrint(machine, program) {
   const summary = await get(`jobs/${program.job_id}/artifacts/${program.name}/summary`);
   const text = `Print on ${machine.name}?\n\nprogram: ${program.label} (${program.name})\n` +
-    `${summary.lines} lines, estimated time ${duration(summary.time_s)}\n\nThe machine will move.`;
+    `${summary.lines} lines, estimated time ${duration(summary.time_s)}\n` +
+    `dispense profile: ${dispenseSummary(machine.profile?.dispense)}\n\nThe machine will move.`;
   if (!window.confirm(text)) return null;
   const job = await post("jobs", { kind: "print", params: { machine_id: machine.id, job_id: program.job_id, artifact: program.name } });
   showInfo(`Printing ${program.label} on ${machine.name}: ${summary.lines} lines, about ${duration(summary.time_s)}.`, 8000);

@@ -185,11 +185,13 @@ function row(trace) {
 
 async function loadParts() {
   await guarded("Parts", async () => {
-    const page = await get("parts?limit=500");
-    const wanted = query("part");
+    const [page, machines] = await Promise.all([get("parts?limit=500"), get("machines").catch(() => ({ items: [] }))]);
+    // a mock's as-made part is the hidden truth it probes, not where traces are drawn: never the default
+    const asMade = new Set(machines.items.map((m) => m.mock?.true_part_id).filter(Boolean));
+    const wanted = query("part") || page.items.find((p) => !asMade.has(p.id))?.id;
     const repeated = new Set(page.items.map((p) => p.name).filter((n, i, all) => all.indexOf(n) !== i));
     partSelect.replaceChildren(...page.items.map((p) => el("option", { value: p.id, selected: p.id === wanted, title: p.id },
-      repeated.has(p.name) ? `${p.name} (uploaded ${fmt.time(p.created_at)})` : p.name)));
+      (repeated.has(p.name) ? `${p.name} (uploaded ${fmt.time(p.created_at)})` : p.name) + (asMade.has(p.id) ? " — a mock's as-made part" : ""))));
     if (!page.items.length) partSelect.append(el("option", { value: "" }, "no parts yet: upload one first"));
   });
 }

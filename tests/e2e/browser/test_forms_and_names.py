@@ -135,6 +135,18 @@ def test_traces_are_listed_by_name_and_net_with_ids_on_hover(page, dome):
     assert page.inner_text("#trace-part option:checked") == "dome"
 
 
+def test_the_traces_page_never_opens_on_a_mocks_as_made_part(page, served):
+    api = served.api()
+    buffer = io.BytesIO()
+    trimesh.creation.box(extents=(10, 10, 2)).export(buffer, file_type="stl")
+    truth = api.post("/api/v1/parts", files={"file": ("truth.stl", buffer.getvalue())}, data={"name": "as made"}).json()
+    api.post("/api/v1/machines", json={"name": "truth bench", "port": "mock://", "mock": {"true_part_id": truth["id"]}})
+    page.goto("/traces.html")                                                  # the newest part is the as-made one
+    page.wait_for_selector("#trace-part option")
+    assert page.input_value("#trace-part") != truth["id"]
+    assert page.inner_text(f'#trace-part option[value="{truth["id"]}"]') == "as made — a mock's as-made part"
+
+
 def test_jobs_programs_and_the_dashboard_use_names(page, served, dome):
     api = served.api()
     plan = wait_job(api, api.post("/api/v1/jobs", json={"kind": "probe_plan", "params": {
