@@ -142,7 +142,7 @@ def test_the_traces_page_never_opens_on_a_mocks_as_made_part(page, served):
     truth = api.post("/api/v1/parts", files={"file": ("truth.stl", buffer.getvalue())}, data={"name": "as made"}).json()
     api.post("/api/v1/machines", json={"name": "truth bench", "port": "mock://", "mock": {"true_part_id": truth["id"]}})
     page.goto("/traces.html")                                                  # the newest part is the as-made one
-    page.wait_for_selector("#trace-part option")
+    page.wait_for_selector("#trace-part option", state="attached")
     assert page.input_value("#trace-part") != truth["id"]
     assert page.inner_text(f'#trace-part option[value="{truth["id"]}"]') == "as made — a mock's as-made part"
 
