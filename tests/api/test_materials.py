@@ -79,3 +79,25 @@ def test_a_print_dwells_after_each_dispenser_switch_by_the_machines_profile(clie
     assert "G4 P500" in get_world(row["id"]).transcript.commands
     wrong = client.post(f"{base}/print", json={"program_id": program["id"], "material": "abs"}, headers=OP)
     assert wrong.status_code == 422 and "material" in wrong.text
+
+
+def test_an_interrupted_print_resumes_with_the_profile_it_started_with(client):
+    machine = client.post("/api/v1/machines", headers=OP, json={
+        "name": "m", "port": "mock://", "mock": {"faults": {"disconnect_at_line": 40}}}).json()
+    base = f"/api/v1/machines/{machine['id']}"
+    assert client.patch(base, json={"material": "silver_paste"}, headers=OP).status_code == 200
+    program = upload_program(client, program_text(80)).json()
+    job = client.post(f"{base}/print", json={"program_id": program["id"]}, headers=OP).json()
+    interrupted = wait_for(client, job["id"], states=("interrupted", "succeeded", "failed"), timeout=60)
+    assert interrupted["status"] == "interrupted", interrupted
+    total = interrupted["program_state"]["total"]
+    assert total == program["commands"] + 2                                # the two dwells are in the stream
+    changed = client.patch(base, json={"material": "dielectric_ink"}, headers=OP)
+    assert changed.status_code == 409                                      # the interrupted print holds it
+    assert client.post(f"/api/v1/jobs/{job['id']}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    done = wait_for(client, job["id"], timeout=60)
+    assert done["status"] == "succeeded", done["error"]
+    assert done["result"]["total"] == total and done["result"]["dispense"]["material"] == "silver_paste"
+    executed = get_world(machine["id"]).transcript.commands
+    last_off = len(executed) - 1 - executed[::-1].index("M107")
+    assert executed[last_off + 1] == "G4 P80"                              # the program's end, as it started
