@@ -30,7 +30,8 @@ UNIT_SUFFIXES: tuple[tuple[str, str], ...] = (
     ("_s", "s"), ("_h", "h"),
 )
 # words a label spells out (the rest of a name reads as it is)
-WORDS = {"id": "", "ids": "", "xy": "XY", "cl": "CL", "svg": "SVG", "slc": "SLC", "sd": "SD"}
+WORDS = {"id": "", "ids": "", "xy": "XY", "cl": "CL", "svg": "SVG", "slc": "SLC", "sd": "SD", "temp": "temperature",
+         "accel": "acceleration", "min": "minimum", "max": "maximum"}
 
 
 def unit_of(name: str) -> str | None:

@@ -22,10 +22,10 @@ def _resolved(schema: dict, prop: dict) -> dict:
 
 def test_names_read_as_words_with_their_units():
     assert (title_of("print_feed_mm_min"), unit_of("print_feed_mm_min")) == ("Print feed", "mm/min")
-    assert (title_of("accel_mm_s2"), unit_of("accel_mm_s2")) == ("Accel", "mm/s²")
+    assert (title_of("accel_mm_s2"), unit_of("accel_mm_s2")) == ("Acceleration", "mm/s²")
     assert (title_of("slice_job_id"), unit_of("slice_job_id")) == ("Slice job", None)
-    assert (title_of("nozzle_temp_c"), unit_of("nozzle_temp_c")) == ("Nozzle temp", "°C")
-    assert (title_of("max_feed_mm_s"), unit_of("max_feed_mm_s")) == ("Max feed", "mm/s")
+    assert (title_of("nozzle_temp_c"), unit_of("nozzle_temp_c")) == ("Nozzle temperature", "°C")
+    assert (title_of("max_feed_mm_s"), unit_of("max_feed_mm_s")) == ("Maximum feed", "mm/s")
     assert unit_of("pressure_kpa") == "kPa" and unit_of("on_delay_ms") == "ms" and unit_of("infill") is None
 
 

@@ -56,7 +56,7 @@ def test_the_toolpath_form_starts_from_a_paste_and_a_preset_fills_it(page, serve
     page.wait_for_selector('#job-form-body[data-kind="toolpath"]')
     assert _label(page, "line_width_mm") == "Line width (mm)"
     assert _label(page, "print_feed_mm_min") == "Print feed (mm/min)"
-    assert _label(page, "nozzle_temp_c") == "Nozzle temp (°C)"
+    assert _label(page, "nozzle_temp_c") == "Nozzle temperature (°C)"
     # a product for printing electronics: the form starts from silver paste, dispensing, no heaters
     assert page.input_value("#material-preset") == "silver_paste"
     assert page.input_value("#param-mode") == '"dispense"'
