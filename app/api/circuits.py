@@ -204,6 +204,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
                            warnings=[])
     records: list = []
     pad_records: list = []
+    ring_names: dict[str, int] = {}
     out.placement = {"origin_mm": [round(float(v), 6) for v in placement.origin_mm], "anchor": anchor,
                      "anchor_mm": [round(float(v), 6) for v in placement.anchor_mm]}
     for read in read_all.files:
@@ -256,7 +257,8 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
                  for i, p in enumerate(mapped.pads) if p.on_part]
         rings += [(None, f"area {first_area + i}", a.exterior_xy, a.holes_xy) for i, a in enumerate(mapped.areas)]
         for pad, what, outline, holes in rings:
-            probe = _probe_trace(runtime, part, outline, f"{name}:{what}", opts, import_id, out, records, holes)
+            label = _unique(f"{name}:{what}", ring_names)  # two pads of one footprint may share a number
+            probe = _probe_trace(runtime, part, outline, label, opts, import_id, out, records, holes)
             if pad is not None and probe is not None:
                 pad_records.append((pad, probe))
     if not opts.dry_run:
@@ -327,6 +329,12 @@ def _preview(request: Request, part: Part, mesh, out: CircuitImportOut, view_id:
     snapshot = viewer.show(circuit_preview_scene(part.id, mesh, out.model_dump(mode="json")), view_id)
     return {"view_id": view_id, "drawn": True, "generation": snapshot["generation"], "nodes": snapshot["nodes"],
             "notes": snapshot["notes"]}
+
+
+def _unique(label: str, seen: dict[str, int]) -> str:
+    """``label``, or ``label #k`` when it was given k - 1 times before in this import."""
+    seen[label] = seen.get(label, 0) + 1
+    return label if seen[label] == 1 else f"{label} #{seen[label]}"
 
 
 def _probe_trace(runtime, part: Part, outline, label: str, opts: CircuitImportOptions, import_id: str,

@@ -19,6 +19,7 @@ from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.job_events import JobWatch, TooManyStreams
 from app.api.job_results import ARTIFACTS_INLINE_MAX, Include, inlined, shown_result, wants
+from app.api.job_titles import job_titles
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
 from app.jobs.results import ProgramEcho
 from app.errors import Conflict, ConformaError, InvalidInput, NotFound, TooLarge
@@ -131,8 +132,10 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
     if ids:
         for artifact in session.exec(select(Artifact).where(col(Artifact.job_id).in_(ids)).order_by(col(Artifact.id))).all():
             by_job[artifact.job_id].append(artifact)
+    titles = job_titles(session, jobs)
     return Page(items=[job_out(Job.model_construct(**{**j.model_dump(exclude={"result"}), "result": results.get(j.id)}),
-                               by_job[j.id], include) for j in jobs], total=total)
+                               by_job[j.id], include).model_copy(update={"title": titles.get(j.id)})
+                       for j in jobs], total=total)
 
 
 def _utc(moment: datetime) -> datetime:

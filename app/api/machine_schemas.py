@@ -8,6 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, Field, field_validator, model_validator
 
 from app.api.schemas import Finite, Strict, UtcDatetime
+from app.materials import DispenseProfile
 from hardware.dialects import DEFAULT_DIALECT, default_dispense
 
 _PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*"
@@ -130,6 +131,9 @@ class Profile(Strict):
     reference: Reference | None = Field(None, description="reference pad and sphere for the calibration jobs")
     calibration_max_age_h: Finite = Field(24.0, gt=0, le=24 * 365,
                                           description="a calibration older than this is flagged stale")
+    dispense: DispenseProfile | None = Field(None, description="the material this machine dispenses: pressure, "
+                                             "on/off delays, standoff, speed (app.materials); print jobs apply "
+                                             "its delays and record it")
 
 
 class MockPlacement(Strict):
@@ -306,6 +310,10 @@ class PrintRequest(Strict):
     program_id: str | None = None
     job_id: str | None = None
     artifact: str | None = Field(None, description="artifact name of job_id, e.g. print.gcode")
+    dispense: DispenseProfile | None = Field(None, description="this print's dispense profile (default: the "
+                                             "machine's profile.dispense)")
+    material: str | None = Field(None, max_length=80, description="this print's dispense profile: a preset's "
+                                 "(GET /materials)")
 
 
 class ProgramOut(BaseModel):
@@ -412,6 +420,20 @@ class MachineUpdate(Strict):
     name: str | None = Field(None, min_length=1, max_length=200)
     baudrate: int | None = Field(None, ge=300, le=4_000_000)
     profile: Profile | None = None
+    dispense: DispenseProfile | None = Field(None, description="the machine's dispense profile (profile.dispense) "
+                                             "alone: any time no program holds the machine, connected or not "
+                                             "(it is read when a print starts)")
+    material: str | None = Field(None, max_length=80, description="set profile.dispense to this preset's "
+                                 "(GET /materials: a paste or an ink)")
+    clear_dispense: bool = Field(False, description="remove the machine's dispense profile")
+
+    @model_validator(mode="after")
+    def _one_dispense(self) -> MachineUpdate:
+        given = [k for k in ("dispense", "material") if getattr(self, k) is not None] + (
+            ["clear_dispense"] if self.clear_dispense else [])
+        if len(given) > 1:
+            raise ValueError(f"give at most one of dispense, material or clear_dispense (got {', '.join(given)})")
+        return self
 
 
 class ConsoleLine(BaseModel):

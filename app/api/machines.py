@@ -32,6 +32,7 @@ from app.jobs.calibration import calibration_summary, current_calibration, machi
 from app.jobs.machine_jobs import holding_message
 from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, port_owner, translate
+from app.materials import BY_NAME, MATERIALS
 from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
@@ -178,10 +179,29 @@ def update_machine(machine_id: str, body: MachineUpdate, runtime: RuntimeDep, se
         profile["dispense_off"] = profile["dispense_off"] or off
         row.profile = profile
         runtime.machines.forget(machine_id)  # the next connect builds the machine with the new profile
+    dispense = _dispense_update(body)
+    if dispense is not None:  # read when a print starts: no reconnect needed
+        row.profile = {**(row.profile or {}), "dispense": dispense or None}
     session.add(row)
     session.commit()
     session.refresh(row)
     return machine_out(runtime, row)
+
+
+def _dispense_update(body: MachineUpdate) -> dict | None:
+    """The new ``profile.dispense`` a request asks for ({} to remove it), or None to keep it."""
+    if body.clear_dispense:
+        return {}
+    if body.dispense is not None:
+        return body.dispense.model_dump()
+    if body.material is not None:
+        preset = BY_NAME.get(body.material)
+        if preset is None or preset.dispense is None:
+            known = ", ".join(m.name for m in MATERIALS if m.dispense is not None)
+            raise InvalidInput(f"no dispensed material {body.material!r} (known: {known})", field="material",
+                               value=body.material)
+        return preset.dispense.model_dump()
+    return None
 
 
 @router.get("/{machine_id}/calibration", dependencies=[Viewer], responses={404: {"description": "no such machine"}})

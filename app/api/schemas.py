@@ -7,6 +7,8 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
+from app.materials import DispenseProfile
+
 T = TypeVar("T")
 
 
@@ -170,6 +172,8 @@ class JobOut(BaseModel):
     artifacts: list[ArtifactOut] = Field(description=(
         "the artifacts the job wrote, in order: the first 20 unless asked for with ?include=artifacts"))
     artifact_count: int = Field(0, description="how many artifacts the job wrote")
+    title: str | None = Field(None, description="in lists: the job's name for people, part · trace (or net) · "
+                              "what it is, e.g. \"dome · GND · circuit program\"")
     program_state: dict[str, Any] | None = Field(
         None, description="machine jobs: commands executed (known) and total, last acknowledged firmware line, "
         "and once interrupted: when, why, the position if known; resumes and the resume preamble. closed_loop: "
@@ -182,6 +186,21 @@ class JobKindOut(BaseModel):
     queue: str
     description: str
     params_schema: dict[str, Any]
+
+
+class MaterialOut(BaseModel):
+    """A material preset (:mod:`app.materials`): the job parameters a form fills in for it and,
+    for what a dispenser deposits, its dispense profile."""
+
+    name: str
+    label: str
+    kind: Literal["conductive", "dielectric", "substrate"]
+    description: str
+    params: dict[str, Any] = Field(description="job parameters by name (e.g. mode, line_width_mm, nozzle_temp_c): "
+                                   "a form sets those it has")
+    dispense: DispenseProfile | None = Field(description="for pastes and inks: what a machine's profile.dispense "
+                                             "takes; none for a substrate's plastic")
+    default: bool = Field(description="the preset the console's forms start from")
 
 
 class KeyCreate(Strict):

@@ -12,10 +12,11 @@ from sqlmodel import col, select
 
 import app
 from app.api.deps import Admin, RuntimeDep, SessionDep, Viewer, get_keyring
-from app.api.schemas import JobKindOut, KeyCreate, KeyCreated, KeyOut, Page
+from app.api.schemas import JobKindOut, KeyCreate, KeyCreated, KeyOut, MaterialOut, Page
 from app.auth import KeyRing
 from app.errors import NotFound
 from app.jobs.registry import kinds
+from app.materials import DEFAULT_MATERIAL, MATERIALS
 from app.models import ApiKey
 
 router = APIRouter(prefix="/api/v1", tags=["system"])
@@ -35,6 +36,14 @@ def job_kinds() -> list[JobKindOut]:
     """Every job kind with the JSON schema of its parameters."""
     return [JobKindOut(name=k.name, queue=k.queue, description=k.description, params_schema=_params_schema(k.params))
             for k in sorted(kinds().values(), key=lambda k: k.name)]
+
+
+@router.get("/materials", dependencies=[Viewer])
+def materials() -> list[MaterialOut]:
+    """The material presets: conductive pastes, dielectric inks and a printed substrate's
+    plastics, each with the job parameters a form fills in for it and, for pastes and inks,
+    the dispense profile a machine takes (``PATCH /machines/{id}`` ``dispense``)."""
+    return [MaterialOut(**m.as_dict(), default=m.name == DEFAULT_MATERIAL) for m in MATERIALS]
 
 
 @functools.cache

@@ -19,11 +19,13 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from app.gcode.writer import DEFAULT_PROBING_DIALECT
+from app.jobs.form_hints import ONE_TRACE as _ONE, SEVERAL_TRACES as _SEVERAL, form
 from app.geometry.placement import Placement
 from app.jobs.registry import JobParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
 
+_MORE = form(advanced=True)  # a folded field (app.jobs.form_hints)
 MAX_TRACES = 200
 #: traces of one field-planned loop: a whole circuit import (its traces and the probe rings
 #: of its pads and areas: at most the import's MAX_SHAPES, app.circuits.budget)
@@ -77,9 +79,12 @@ class RegisterParams(JobParams):
     margin_mm: float = Field(2.0, gt=0, le=50, description="datum touches keep this far from face edges")
     pivot_xy: list[Finite] = Field(default_factory=lambda: [0.0, 0.0], min_length=2, max_length=2,
                                    description="rotation axis of the reported placement (machine x, y) mm")
-    clearance_mm: float = Field(2.0, gt=0, le=100, description="travel height above the part's top")
-    overtravel_mm: float = Field(1.0, gt=0, le=50, description="probe down to this far below the part's bottom")
-    probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's")
+    clearance_mm: float = Field(2.0, gt=0, le=100, description="travel height above the part's top",
+                                json_schema_extra=_MORE)
+    overtravel_mm: float = Field(1.0, gt=0, le=50, description="probe down to this far below the part's bottom",
+                                 json_schema_extra=_MORE)
+    probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's",
+                                            json_schema_extra=_MORE)
     seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the candidate sampling (plans are deterministic)")
 
     @model_validator(mode="after")
@@ -90,13 +95,14 @@ class RegisterParams(JobParams):
 
 
 class ProbePlanParams(PlacedParams):
-    trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)")
+    trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)",
+                                 json_schema_extra=_ONE)
     trace_ids: list[str] | None = Field(
         None, min_length=1, max_length=MAX_FIELD_TRACES,
         description="part-level probing (instead of trace_id): several distinct traces of ONE part, probed by "
         "one program in this order; with the kriging planner their stations are designed together (fewer "
         "probes per trace when each trace is rebuilt from every trace's probes, see reconstruct). The result's "
-        "traces list each trace's range [first, first + count) in points / records")
+        "traces list each trace's range [first, first + count) in points / records", json_schema_extra=_SEVERAL)
     method: Literal["adaptive", "uniform", "deviation", "kriging", "field"] | None = Field(
         None, description="adaptive (default with trace_id): the seed's chord-height rule; uniform: even arc "
         "length; deviation: spacing from the expected deviation of the real part from CAD; kriging: stations "
@@ -105,43 +111,55 @@ class ProbePlanParams(PlacedParams):
         "field for any number of traces, the fewest probes for a board")
     stations: Literal["on_traces", "anywhere_on_top"] = Field(
         "on_traces", description="field planner: stations on the traces, or anywhere on the part's top the probe "
-        "reaches (within a quarter wavelength of a trace)")
-    chord_error_mm: float = Field(0.005, gt=0, le=10)
+        "reaches (within a quarter wavelength of a trace)", json_schema_extra=form(when={"method": ["field"]}))
+    chord_error_mm: float = Field(0.005, gt=0, le=10, json_schema_extra=form(when={"method": [None, "adaptive"]}))
     count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation; per trace "
                               "with trace_ids; field: for the whole board)")
     coverage: float = Field(3.0, gt=0, le=10, description="kriging/field: coverage x largest predicted sd <= "
-                            "target_error_mm")
+                            "target_error_mm", json_schema_extra=form(when={"method": ["kriging", "field"]}))
     verify_count: int = Field(5, ge=0, le=100, description="field planner: verification points touched after the "
                               "stations where the traces' posterior is least certain; never used in the fit, they "
-                              "check it (reconstruct's field_check)")
+                              "check it (reconstruct's field_check)",
+                              json_schema_extra=form(when={"method": ["field", None]}))
     fixed_run_job_id: str | None = Field(None, description="field planner, sequential round: a probe run of an "
                                          "earlier field plan of the same traces; the prior is learned from every "
                                          "station touched so far and the plan adds only the stations the fitted "
-                                         "field still needs (none: only the verification points)")
+                                         "field still needs (none: only the verification points)",
+                                         json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
     pilot: bool = Field(False, description="field planner, the pilot of a sequential plan: a coarse plan for twice "
-                        "deviation_wavelength_mm (the rounds add what the learned prior asks for)")
+                        "deviation_wavelength_mm (the rounds add what the learned prior asks for)",
+                        json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
     retouch_only: bool = Field(False, description="with fixed_run_job_id: touch again only the touches the field "
                                "fitted to that run would exclude as outliers (once each), add no stations and keep "
-                               "the run's verification points (a single-shot plan's second run; none: no touches)")
+                               "the run's verification points (a single-shot plan's second run; none: no touches)",
+                               json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
     touch_budget: int | None = Field(None, ge=1, le=100_000, description="sequential round: the most touches in all "
                                      "(stations so far + added + verification); a round that would pass it adds "
-                                     "no stations and says so")
+                                     "no stations and says so",
+                                     json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
     exchange: bool = Field(False, description="field planner, automatic count: refine the design by exchange "
                            "moves (2-11 % fewer stations, about twice the planning time, less slack when a "
-                           "touch is rejected as an outlier)")
-    capability_k: float | None = Field(None, gt=0, lt=1, description="point-count formula: process capability K")
-    confidence: float | None = Field(None, gt=0.5, lt=1, description="point-count formula: confidence gamma")
-    cl_tolerance_mm: float = Field(0.001, gt=0, le=1)
-    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10)
-    deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000)
-    target_error_mm: float = Field(0.005, gt=0, le=10)
-    probe_sigma_mm: float = Field(0.001, ge=0, le=1)
-    clearance_mm: float = Field(2.0, gt=0, le=100)
-    approach_mm: float = Field(1.0, gt=0, le=50)
-    overtravel_mm: float = Field(1.0, gt=0, le=50)
-    probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000)
+                           "touch is rejected as an outlier)",
+                           json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
+    capability_k: float | None = Field(None, gt=0, lt=1, description="point-count formula: process capability K",
+                                       json_schema_extra=_MORE)
+    confidence: float | None = Field(None, gt=0.5, lt=1, description="point-count formula: confidence gamma",
+                                     json_schema_extra=_MORE)
+    cl_tolerance_mm: float = Field(0.001, gt=0, le=1, json_schema_extra=_MORE)
+    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10,
+                                          json_schema_extra=form(when={"method": ["deviation", "kriging", "field"]}))
+    deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
+                                           json_schema_extra=form(when={"method": ["deviation", "kriging", "field"]}))
+    target_error_mm: float = Field(0.005, gt=0, le=10,
+                                   json_schema_extra=form(when={"method": ["kriging", "field", None]}))
+    probe_sigma_mm: float = Field(0.001, ge=0, le=1, json_schema_extra=_MORE)
+    clearance_mm: float = Field(2.0, gt=0, le=100, json_schema_extra=_MORE)
+    approach_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
+    overtravel_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
+    probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000, json_schema_extra=_MORE)
     dialect: Literal["grbl", "marlin", "linuxcnc"] = DEFAULT_PROBING_DIALECT
-    probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin")
+    probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin",
+                                                      json_schema_extra=_MORE)
 
     @model_validator(mode="after")
     def _both_or_neither(self) -> "ProbePlanParams":

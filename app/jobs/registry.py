@@ -31,14 +31,17 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict
 
+from app.jobs.form_hints import add_titles_and_units, field_title
+
 if TYPE_CHECKING:
     from app.jobs.context import JobContext
 
 
 class JobParams(BaseModel):
-    """Base of every kind's parameters: unknown fields are errors."""
+    """Base of every kind's parameters: unknown fields are errors; titles and units for forms
+    (:mod:`app.jobs.form_hints`)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", field_title_generator=field_title, json_schema_extra=add_titles_and_units)
 
 
 Reference = tuple[str, str]  # ("part" | "trace" | "job" | "machine", id)

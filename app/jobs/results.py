@@ -360,6 +360,7 @@ class PrintResult(KindResult):
     resume_location: dict[str, Any] | None = None
     source_program: dict[str, Any] | None = None
     drift: dict[str, Any] | None = None
+    dispense: dict[str, Any] | None = None  # the dispense profile applied (app.materials), with its dwell counts
 
 
 # five_axis --------------------------------------------------------------------------------

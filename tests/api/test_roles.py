@@ -13,6 +13,7 @@ from tests.conftest import auth
 ROLES = {
     ("GET", "/api/v1/health"): None,
     ("GET", "/api/v1/job-kinds"): "viewer",
+    ("GET", "/api/v1/materials"): "viewer",
     ("POST", "/api/v1/keys"): "admin",
     ("GET", "/api/v1/keys"): "admin",
     ("DELETE", "/api/v1/keys/{key_id}"): "admin",

@@ -289,3 +289,21 @@ class RowBoard:
                 f'  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))\n  (net 0 "")\n{nets}\n'
                 f'  (footprint "rows" (layer "F.Cu") (at 0 0)\n    (property "Reference" "J1")\n'
                 + "\n".join(pads) + "\n  )\n" + "\n".join(tracks) + "\n" + edges + "\n)\n")
+
+
+# One GND segment and a connector whose two mounting pads share the number "MP" (their probe
+# rings must still get different names).
+USB_PADS_BOARD = """(kicad_pcb (version 20221018) (generator pcbnew)
+  (general (thickness 1.6))
+  (layers (0 "F.Cu" signal) (31 "B.Cu" signal) (44 "Edge.Cuts" user))
+  (net 0 "")
+  (net 1 "GND")
+  (footprint "USB_C" (layer "F.Cu") (at 10 -10)
+    (property "Reference" "J1")
+    (pad "MP" smd rect (at -3 0) (size 1.2 1.2) (layers "F.Cu") (net 1 "GND"))
+    (pad "MP" smd rect (at 3 0) (size 1.2 1.2) (layers "F.Cu") (net 1 "GND"))
+    (pad "1" smd rect (at 0 0) (size 1.2 1.2) (layers "F.Cu") (net 1 "GND"))
+  )
+  (segment (start 7 10) (end 13 10) (width 0.25) (layer "F.Cu") (net 1))
+)
+"""

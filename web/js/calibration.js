@@ -72,7 +72,7 @@ function render(m, cal) {
     ...cal.nozzles.map((n) => el("button", { type: "button", class: "calibrate-nozzle", "data-tool": n.tool, disabled: !cal.probe,
       title: cal.probe ? "" : "calibrate the probe first",
       onclick: () => submit(m, "calibrate_nozzle", { tool: n.tool }, `Calibrate nozzle T${n.tool}`) }, `Calibrate nozzle T${n.tool}`)));
-  panel.replaceChildren(el("h3", {}, `${m.name} `, el("span", { class: "small mono" }, m.id)), flags,
+  panel.replaceChildren(el("h3", { title: m.id }, m.name), flags,
     probeTable(cal.probe), nozzleTable(cal.nozzles), buttons,
     el("p", { class: "small" }, `A calibration older than ${cal.max_age_h} h is flagged stale.`));
 }

@@ -45,7 +45,7 @@ function jobLine(job, figures = false) {
   const head = figures ? headline(job) : "";  // a large result comes in brief: its summary
   const took = job.started_at && job.finished_at ? duration((new Date(job.finished_at) - new Date(job.started_at)) / 1000) : null;
   return el("div", { class: "machine", "data-id": job.id },
-    el("div", {}, el("a", { href: `jobs.html?job=${job.id}` }, el("strong", {}, job.kind)), " ",
+    el("div", {}, el("a", { href: `jobs.html?job=${job.id}`, title: `${job.kind} ${job.id}` }, el("strong", {}, job.title || job.kind)), " ",
       el("span", { class: `badge ${job.status}` }, job.status),
       el("div", { class: "small headline" }, head || job.message || (job.error ? job.error.detail : ""))),
     el("div", { class: "small" }, job.status === "running" ? el("progress", { max: 1, value: job.progress })

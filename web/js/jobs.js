@@ -33,35 +33,67 @@ const JOB_SUGGESTIONS = { plan_job_id: "probe_plan", probe_run_job_id: "probe_ru
 // all at once (one part's traces after another cost most of a second with 100 parts stored).
 async function suggestions(kind) {
   const want = new Set(Object.keys(kind.params_schema?.properties || {}));
+  const out = {};
   const jobKeys = Object.keys(JOB_SUGGESTIONS).filter((k) => want.has(k));
+  if (want.has("material")) {  // a print's dispense profile by preset name
+    const presets = await loadMaterials();
+    out.material = presets.filter((m) => m.dispense).map((m) => [m.name, m.label]);
+  }
   const [parts, jobs, machines, programs] = await Promise.all([
     want.has("part_id") || want.has("trace_id") ? get("parts?limit=50") : null,
     jobKeys.length ? get("jobs?limit=200") : null,
     want.has("machine_id") ? get("machines").catch(() => null) : null,
     want.has("program_id") ? get("programs?limit=200").catch(() => null) : null]);
-  const out = {};
   if (parts) out.part_id = parts.items.map((p) => [p.id, p.name]);
   if (parts && want.has("trace_id")) {
     const shown = parts.items.slice(0, 20);
     const traceLists = await Promise.all(shown.map((p) => get(`parts/${p.id}/traces?limit=200`)));
-    out.trace_id = shown.flatMap((p, i) => traceLists[i].items.map((t) => [t.id, `${t.name} on ${p.name}`]));
+    out.trace_id = shown.flatMap((p, i) => traceLists[i].items.map((t) => [t.id, `${t.name}${t.source?.net ? ` · ${t.source.net}` : ""} on ${p.name}`]));
   }
   for (const key of jobKeys) {
     out[key] = jobs.items.filter((j) => j.kind === JOB_SUGGESTIONS[key] && j.status === "succeeded")
-      .map((j) => [j.id, `${j.kind} ${fmt.time(j.created_at)}`]);
+      .map((j) => [j.id, `${j.title || j.kind} · ${fmt.time(j.created_at)}`]);
   }
   if (machines) out.machine_id = machines.items.map((m) => [m.id, m.name]);
   if (programs) out.program_id = programs.items.map((p) => [p.id, `${p.name} (${p.lines} lines)`]);
   return out;
 }
 
+// Material presets (GET /materials): a picker fills the fields of the form that a preset sets
+// (a paste's mode, line width, standoff and speed; a substrate plastic's temperatures).  A
+// fresh form with a mode to choose starts from the default preset (a paste), never from a
+// plastic printer's 210 °C nozzle / 60 °C bed.
+let materials = null;
+const loadMaterials = () => (materials ??= get("materials").catch(() => []));
+
+function materialPicker(form, presets, fresh) {
+  const fits = (m) => Object.keys(m.params).filter((k) => form.names.includes(k)).length >= 2;
+  const usable = presets.filter(fits);
+  if (!usable.length) return null;
+  const select = el("select", { id: "material-preset", "aria-label": "material preset" },
+    el("option", { value: "" }, "(as the fields say)"), usable.map((m) => el("option", { value: m.name, title: m.description }, m.label)));
+  const note = el("span", { class: "small", id: "material-note" });
+  const apply = (name) => {
+    const preset = usable.find((m) => m.name === name);
+    if (!preset) { note.textContent = ""; return; }
+    const set = Object.entries(preset.params).filter(([k, v]) => form.set(k, v)).map(([k]) => k);
+    note.textContent = ` ${preset.description}; sets ${set.length} field${set.length === 1 ? "" : "s"}`;
+  };
+  select.addEventListener("change", () => apply(select.value));
+  const start = fresh && form.names.includes("mode") ? usable.find((m) => m.default) : null;
+  if (start) { select.value = start.name; apply(start.name); }
+  return el("div", { class: "field material-field" }, el("label", { for: "material-preset" }, "Material"), select, note);
+}
+
 async function buildForm(prefill = {}) {
   const kind = kinds.find((k) => k.name === kindSelect.value);
   if (!kind) return;
   kindDescription.textContent = kind.description || "";
-  const hints = await suggestions(kind).catch(() => ({}));
+  const [hints, presets] = await Promise.all([suggestions(kind).catch(() => ({})), loadMaterials()]);
   current = schemaForm(kind.params_schema, { suggestions: hints, prefill });
-  formBody.replaceChildren(current.node);
+  const fresh = !Object.keys(prefill).some((k) => current.names.includes(k) && k !== "slice_job_id");
+  const picker = materialPicker(current, presets, fresh);
+  formBody.replaceChildren(...(picker ? [picker] : []), current.node);
   formBody.dataset.kind = kind.name;
 }
 
@@ -92,7 +124,7 @@ async function onSubmit(event) {
   try {
     const job = await post("jobs", { kind: kindSelect.value, params });
     current.markErrors([]);
-    showInfo(`Job ${job.id} (${job.kind}) queued.`);
+    showInfo(`${job.kind.replaceAll("_", " ")} queued.`);
     await refresh();
     openJob(job.id);
   } catch (err) {
@@ -159,7 +191,7 @@ function statusCell(job) {
 
 function row(job) {
   return el("tr", { "data-id": job.id, onclick: () => openJob(job.id), class: "clickable" },
-    el("td", {}, el("strong", {}, job.kind), el("div", { class: "small mono" }, job.id)),
+    el("td", { title: job.id }, el("strong", {}, job.title || job.kind), job.title ? el("div", { class: "small" }, job.kind) : null),
     el("td", { class: "status" }, statusCell(job)),
     el("td", {}, el("progress", { max: 1, value: job.progress })),
     el("td", { class: "small message" }, job.message || (job.error ? job.error.detail : "")));
@@ -260,7 +292,7 @@ function interruptedPanel(job) {
 function renderDetail(job) {
   const canCancel = !TERMINAL.has(job.status);
   const parts = [
-    el("h2", {}, `${job.kind} `, el("span", { class: "mono small" }, job.id)),
+    el("h2", { title: job.id }, job.title || tbody.querySelector(`tr[data-id="${job.id}"] strong`)?.textContent || job.kind),
     el("div", { id: "detail-status" }, statusCell(job), ` ${job.message || ""}`),
     el("progress", { id: "detail-progress", max: 1, value: job.progress }),
     el("div", { class: "row" },
@@ -307,7 +339,7 @@ async function rerun(job) {
   if (moves && !window.confirm(`Run ${job.kind} again? It will move the machine.`)) return;
   await guarded("Run again", async () => {
     const copy = await post("jobs", { kind: job.kind, params: job.params });
-    showInfo(`Job ${copy.id} (${copy.kind}) queued with the parameters of ${job.id}.`);
+    showInfo(`${copy.kind.replaceAll("_", " ")} queued again with the same parameters.`);
     await refresh();
     openJob(copy.id);
   });

@@ -77,9 +77,10 @@ async function loadTraces(checked = null) {
   state.part = part;
   state.traces = all.filter((t) => !isRing(t));
   state.rings = all.filter(isRing);
-  state.names = Object.fromEntries(all.map((t) => [t.id, t.name]));
+  const named = (t) => (t.source?.net && !t.name.includes(t.source.net) ? `${t.name} · ${t.source.net}` : t.name);
+  state.names = Object.fromEntries(all.map((t) => [t.id, named(t)]));
   traceList.replaceChildren(...(state.traces.length ? state.traces.map((t) => el("label", { class: "inline" },
-    el("input", { type: "checkbox", value: t.id, checked: checked ? checked.includes(t.id) : true }), ` ${t.name} (${length(t.length_mm)})`))
+    el("input", { type: "checkbox", value: t.id, checked: checked ? checked.includes(t.id) : true }), ` ${named(t)} (${length(t.length_mm)})`))
     : [el("p", { class: "small" }, state.part ? "This part has no traces: add some on the Traces page." : "Choose a part first.")]));
   showRings();
   if (state.part) { done("wz-1"); if (!state.loop) viewer.show({ part_id: state.part }); }
@@ -209,7 +210,7 @@ function render(job, kids) {
   runBox.dataset.step = waiting ? waiting.at : "";
   runBox.dataset.job = job.id;
   const head = el("p", { id: "wz-run-status" }, el("span", { class: `badge ${job.status}` }, job.status),
-    ` loop ${job.id} · ${job.message || ""}`);
+    " ", el("span", { title: job.id }, "closed loop"), ` · ${job.message || ""}`);
   const actions = el("div", { id: "wz-actions" });
   const passed = new Set((ps.passed || []).map((k) => k.split("@")[0]));
   for (const point of PAUSES) done(STEP_OF[point], passed.has(point) || (FINISHED.has(job.status) && job.status !== "failed"));
@@ -220,7 +221,7 @@ function render(job, kids) {
   }
   const stuck = kids.filter((k) => k.status === "interrupted");
   if (job.status === "interrupted") {
-    actions.append(el("p", {}, stuck.length ? `Step ${stuck[0].kind} ${stuck[0].id} was interrupted: resume it first (the Jobs page shows where it stopped).`
+    actions.append(el("p", {}, stuck.length ? `Step ${stuck[0].kind.replaceAll("_", " ")} was interrupted: resume it first (the Jobs page shows where it stopped).`
       : "The loop was interrupted (its process stopped): resume it; it reuses every finished step."));
     actions.append(stuck.length
       ? el("a", { id: "wz-resume-step", href: `jobs.html?job=${stuck[0].id}` }, `resume ${stuck[0].kind}`)
@@ -303,10 +304,10 @@ function showResult(job) {
 
 function showChildren(kids) {
   childrenOut.replaceChildren(el("table", { class: "records", id: "wz-children-table" },
-    el("thead", {}, el("tr", {}, ["step", "status", "job"].map((h) => el("th", { scope: "col" }, h)))),
+    el("thead", {}, el("tr", {}, ["step", "status", ""].map((h) => el("th", { scope: "col" }, h)))),
     el("tbody", {}, [...kids].reverse().map((k) => el("tr", { "data-kind": k.kind, "data-status": k.status },
-      el("td", {}, k.kind), el("td", {}, el("span", { class: `badge ${k.status}` }, k.status)),
-      el("td", {}, el("a", { href: `jobs.html?job=${k.id}` }, k.id)))))));
+      el("td", {}, k.title || k.kind.replaceAll("_", " ")), el("td", {}, el("span", { class: `badge ${k.status}` }, k.status)),
+      el("td", {}, el("a", { href: `jobs.html?job=${k.id}`, title: k.id }, "open")))))));
 }
 
 function showReport(job) {

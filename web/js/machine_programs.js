@@ -4,6 +4,7 @@
 // first, naming the machine, the program, its line count and its estimated time; the
 // card then shows the print's progress next to the machine's emergency stop.
 import { get, post } from "./api.js";
+import { dispenseSummary } from "./machine_dispense.js";
 import { duration } from "./results.js";
 import { el, fmt, guarded, showInfo } from "./ui.js";
 
@@ -27,8 +28,11 @@ export async function loadPrograms() {
   for (const job of pages.flatMap((p) => p.items)) {
     for (const a of job.artifacts || []) {
       if (a.media_type !== "text/x-gcode" || !PRINTABLE[job.kind](a.name)) continue;
+      // named by part · trace (net) · kind (the job's title); the artifact only when a job wrote several
+      const several = job.kind === "circuit_program" || job.kind === "warp_program";
       programs.push({ job_id: job.id, kind: job.kind, name: a.name, created_at: job.created_at, lines: a.meta?.lines,
-        dialect: job.params?.dialect || null, label: `${job.kind} · ${a.name}` });
+        dialect: job.params?.dialect || null,
+        label: `${job.title || job.kind.replaceAll("_", " ")}${several ? ` · ${a.name}` : ""}` });
     }
   }
   programs.sort((a, b) => (a.created_at < b.created_at ? 1 : a.created_at > b.created_at ? -1 : 0));
@@ -38,11 +42,12 @@ export async function loadPrograms() {
 // Ask, then submit a print job; returns the job (or null when the operator said no).
 export async function confirmAndPrint(machine, program) {
   const summary = await get(`jobs/${program.job_id}/artifacts/${program.name}/summary`);
-  const text = `Print on ${machine.name}?\n\nprogram: ${program.label} (job ${program.job_id})\n` +
-    `${summary.lines} lines, estimated time ${duration(summary.time_s)}\n\nThe machine will move.`;
+  const text = `Print on ${machine.name}?\n\nprogram: ${program.label} (${program.name})\n` +
+    `${summary.lines} lines, estimated time ${duration(summary.time_s)}\n` +
+    `dispense profile: ${dispenseSummary(machine.profile?.dispense)}\n\nThe machine will move.`;
   if (!window.confirm(text)) return null;
   const job = await post("jobs", { kind: "print", params: { machine_id: machine.id, job_id: program.job_id, artifact: program.name } });
-  showInfo(`Printing ${program.label} on ${machine.name} (job ${job.id}): ${summary.lines} lines, about ${duration(summary.time_s)}.`, 8000);
+  showInfo(`Printing ${program.label} on ${machine.name}: ${summary.lines} lines, about ${duration(summary.time_s)}.`, 8000);
   return job;
 }
 
@@ -55,12 +60,12 @@ export function programList(machine, programs, onPrinted) {
     el("thead", {}, el("tr", {}, el("th", { scope: "col" }, "Program"), el("th", { scope: "col" }, "Lines"),
       el("th", { scope: "col" }, "Written"), el("th", { scope: "col" }, ""))),
     el("tbody", {}, programs.map((p) => el("tr", { "data-job": p.job_id, "data-artifact": p.name },
-      el("td", {}, p.label, el("div", { class: "small mono" }, p.job_id),
+      el("td", { title: `${p.name} of job ${p.job_id}` }, p.label,
         p.dialect && p.dialect !== machine.dialect ? el("div", { class: "small warn" }, `written for ${p.dialect}`) : null),
       el("td", {}, p.lines ?? "?"),
       el("td", { class: "small" }, fmt.time(p.created_at)),
       el("td", {}, el("button", { type: "button", class: "primary print-program",
-        "aria-label": `Print ${p.label} of job ${p.job_id} on ${machine.name}`,
+        "aria-label": `Print ${p.label} (${p.name}) on ${machine.name}`, title: `job ${p.job_id}`,
         onclick: () => guarded(`Print on ${machine.name}`, async () => {
           const job = await confirmAndPrint(machine, p);
           if (job) onPrinted(job);

@@ -3,6 +3,7 @@
 // with a live console (machine_console.js), and a big emergency stop.  Buttons follow the
 // machine's state.  The page polls the machines' status once a second.
 import { ApiError, get, patch, post } from "./api.js";
+import { dispenseSection } from "./machine_dispense.js";
 import { manualControls } from "./machine_console.js";
 import { loadPrograms, programList } from "./machine_programs.js";
 import { duration } from "./results.js";
@@ -46,7 +47,7 @@ async function onRegister(event) {
   }
   await guarded("Register", async () => {
     const m = await post("machines", body);
-    showInfo(`Machine "${m.name}" registered (${m.id}).`);
+    showInfo(`Machine "${m.name}" registered.`);
     await refresh();
   });
 }
@@ -102,14 +103,15 @@ function card(m) {
   const buttons = { connect: act(m, "connect", "Connect"), disconnect: act(m, "disconnect", "Disconnect"),
     pause: act(m, "pause", "Pause"), resume: act(m, "resume", "Resume") };
   const manual = manualControls(m, { update, onRemoved: () => forget(m.id) });
+  const dispense = dispenseSection(m, update);
   const node = el("section", { class: "machine-card", "data-id": m.id },
     el("h2", {}, title, " ", state, " ", homed, " ", rename),
     el("div", { class: "small mono", title: m.id }, `${m.port} · ${m.dialect}${m.firmware ? ` · ${m.firmware}` : ""}`),
     pos, controller, unlock, prog, outputs, bar, estop,
     el("div", { class: "row" }, ...Object.values(buttons)),
     el("details", { class: "programs", open: true }, el("summary", {}, "Programs"), programs),
-    manual.node);
-  cards.set(m.id, { node, state, homed, pos, prog, outputs, bar, programs, controller, unlock, buttons, manual, machine: m });
+    dispense.node, manual.node);
+  cards.set(m.id, { node, state, homed, pos, prog, outputs, bar, programs, controller, unlock, buttons, manual, dispense, machine: m });
   update(m);
   return node;
 }
@@ -142,6 +144,7 @@ function update(m) {
   b.pause.disabled = m.state !== "printing";
   b.resume.disabled = m.state !== "paused";
   c.manual.setState(m);
+  c.dispense.update(m);
   c.pos.textContent = position(m);
   // the firmware's own state (grbl): an Alarm, Hold, Door or Check refuses motion until cleared
   const k = m.controller;
@@ -156,15 +159,15 @@ function update(m) {
   c.prog.dataset.state = p ? (p.state || "printing") : "";
   if (p && p.state === "interrupted") {
     // the job stopped mid-program (a lost link, a dead process) and holds the machine until an operator decides
-    c.prog.textContent = `interrupted at line ${line ?? "?"} of ${p.total ?? "?"} — job ${p.job_id || "?"} waits: ` +
+    c.prog.textContent = `interrupted at line ${line ?? "?"} of ${p.total ?? "?"} — its print job waits: ` +
       `resume or abandon` + (p.resume_line != null ? ` (a resume starts at line ${p.resume_line})` : "");
-    c.prog.title = p.message || "";
+    c.prog.title = `${p.message || ""} (job ${p.job_id || "?"})`;
   } else {
-    c.prog.textContent = p ? `program ${p.job_id || ""}: line ${line ?? "?"} of ${p.total ?? "?"}` +
+    c.prog.textContent = p ? `program: line ${line ?? "?"} of ${p.total ?? "?"}` +
       (p.total ? ` (${Math.round((100 * (line ?? 0)) / p.total)} %)` : "") +
       (p.elapsed_s != null ? ` · elapsed ${duration(p.elapsed_s)} · left ${p.eta_s != null ? `about ${duration(p.eta_s)}` : "estimating…"}` : "") :
-      (m.held_by ? `job ${m.held_by} holds the machine` : "no program running");
-    c.prog.title = "";
+      (m.held_by ? "a job holds the machine" : "no program running");
+    c.prog.title = p?.job_id ? `job ${p.job_id}` : m.held_by ? `job ${m.held_by}` : "";
   }
   c.bar.hidden = !(p && p.total);
   if (p && p.total) c.bar.value = (line ?? 0) / p.total;
@@ -213,7 +216,7 @@ async function refresh() {
 async function loadParts() {
   await guarded("Parts", async () => {
     const parts = await get("parts?limit=200");
-    f.truePart.append(...parts.items.map((p) => el("option", { value: p.id }, `${p.name} (${p.id})`)));
+    f.truePart.append(...parts.items.map((p) => el("option", { value: p.id, title: p.id }, p.name)));
   });
 }
 

@@ -95,7 +95,7 @@ function row(part) {
     });
   } }, "Delete");
   const tr = el("tr", { "data-id": part.id },
-    el("td", {}, el("strong", {}, part.name), el("div", { class: "small mono" }, part.id)),
+    el("td", { title: part.id }, el("strong", {}, part.name)),
     el("td", {}, size(part.bounds)),
     el("td", {}, part.faces),
     el("td", {}, part.watertight ? "yes" : "no"),

@@ -40,31 +40,31 @@ left.append(
     el("p", { class: "small" }, "G-code written by jobs (compensated traces, circuits, slices). "
       + "\"Warp\" copies one to the uploaded programs first."),
     el("table", { id: "generated-table" }, el("thead", {}, el("tr", {},
-      ["job", "artifact", "size", ""].map((h) => el("th", {}, h)))), generatedBody)));
+      ["program", "artifact", "size", ""].map((h) => el("th", {}, h)))), generatedBody)));
 
 const range = (b, i) => (b ? `${fmt.num(b[0][i], 2)} … ${fmt.num(b[1][i], 2)}` : "—");
 
 async function refresh() {
   const [programs, jobs] = await Promise.all([get("programs?limit=100"), get("jobs?status=succeeded&limit=100")]);
   uploadedBody.replaceChildren(...programs.items.map((p) => el("tr", { "data-program": p.id },
-    el("td", {}, p.name, el("div", { class: "small" }, p.id)), el("td", {}, String(p.lines)),
+    el("td", { title: p.id }, p.name), el("td", {}, String(p.lines)),
     el("td", {}, range(p.bounds, 0)), el("td", {}, range(p.bounds, 1)), el("td", {}, fmt.time(p.created_at)),
     el("td", {},
       el("button", { class: "warp-choose", onclick: () => choose(p.id) }, "Warp onto the probed part"), " ",
       el("button", { class: "program-download", onclick: () => guarded("Download",
         () => download(`/api/v1/programs/${p.id}/file`, p.name)) }, "Download")))));
-  programSelect.replaceChildren(...programs.items.map((p) => el("option", { value: p.id }, `${p.name} (${p.id})`)));
+  programSelect.replaceChildren(...programs.items.map((p) => el("option", { value: p.id, title: p.id }, `${p.name} (${p.lines} lines)`)));
   const generated = jobs.items.flatMap((j) => (j.artifacts || []).filter((a) => /\.(gcode|nc|ngc)$/i.test(a.name))
     .map((a) => ({ job: j, artifact: a })));
   generatedBody.replaceChildren(...generated.map(({ job, artifact }) => el("tr", {},
-    el("td", {}, `${job.kind}`, el("div", { class: "small" }, job.id)), el("td", {}, artifact.name),
+    el("td", { title: job.id }, job.title || job.kind.replaceAll("_", " ")), el("td", {}, artifact.name),
     el("td", {}, fmt.bytes(artifact.bytes)),
     el("td", {},
       el("button", { class: "generated-warp", onclick: () => guarded("Copy for a warp", () => adopt(job, artifact)) },
         "Warp"), " ",
       el("button", { onclick: () => guarded("Download", () => download(artifact.url, artifact.name)) }, "Download")))));
   surfaceSelect.replaceChildren(...jobs.items.filter((j) => j.kind === "surface_fit" || j.kind === "probe_run")
-    .map((j) => el("option", { value: `${j.kind}:${j.id}` }, `${j.kind} ${fmt.time(j.created_at)} (${j.id})`)));
+    .map((j) => el("option", { value: `${j.kind}:${j.id}`, title: j.id }, `${j.title || j.kind} · ${fmt.time(j.created_at)}`)));
 }
 
 // A generated program becomes an uploaded one (its text fetched with the key, then uploaded).
@@ -74,7 +74,7 @@ async function adopt(job, artifact) {
   const form = new FormData();
   form.append("file", new Blob([await response.text()], { type: "text/x-gcode" }), `${job.kind}-${job.id}-${artifact.name}`);
   const program = await upload("programs", form);
-  showInfo(`${artifact.name} of ${job.id} copied to program ${program.id}.`);
+  showInfo(`${artifact.name} of ${job.title || job.kind} copied to the uploaded programs as ${program.name}.`);
   await refresh();
   choose(program.id);
 }
@@ -123,7 +123,7 @@ function showResult(job) {
       [`fixed ${fmt.num(r.fixed_split.split_mm, 3)} mm split`, `${r.fixed_split.pieces} pieces, worst `
         + `${fmt.num(r.fixed_split.max_error_mm * 1000, 3)} µm`], ["safe travel z", fmt.mm(r.safe_z_mm, 3)]]
       .map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", { "data-figure": k }, String(v)))))),
-  warped ? el("p", {}, el("a", { id: "warped-link", href: `jobs.html?job=${job.id}` }, `job ${job.id}`), " ",
+  warped ? el("p", {}, el("a", { id: "warped-link", href: `jobs.html?job=${job.id}`, title: job.id }, "the warp job"), " ",
     el("button", { id: "warped-download", onclick: () => guarded("Download", () => download(warped.url, "warped.gcode")) },
       "Download warped.gcode")) : null);
 }

@@ -242,7 +242,24 @@ export function headline(job) {
     return `chord error ≤ ${um(r.max_chord_error_mm)} · standoff ${length(r.standoff_mm)} · ${length(r.length_mm)}` +
       (r.warnings?.length ? ` · ${r.warnings.length} warning${r.warnings.length === 1 ? "" : "s"}` : "");
   }
-  return headlineFigures(r).slice(0, 3).map(([n, v]) => `${n}: ${v}`).join(" · ");
+  if (job.kind === "toolpath" && r.time_s != null) {
+    return `estimated ${duration(r.time_s)}` + (r.layer_count != null ? ` · ${counted(r.layer_count, "layers")}` : "") +
+      (r.path_mm != null ? ` · path ${length(r.path_mm)}` : "") + (r.pattern ? ` · ${r.pattern}` : "");
+  }
+  if (job.kind === "slice" && r.layer_count != null) return `${counted(r.layer_count, "layers")}${r.mode ? ` · ${r.mode}` : ""}`;
+  return headlineFigures(r).slice(0, 3).map(([n, v, key]) => {
+    const raw = key.split(".").reduce((o, k) => o?.[k], r);
+    if (Array.isArray(raw)) return counted(raw.length, n);                      // "7 traces", not "Traces: 7 items"
+    if (/_count$/.test(key) && Number.isInteger(raw)) return counted(raw, n.replace(/ count$/i, ""));
+    return `${n}: ${v}`;
+  }).join(" · ");
+}
+
+// "7 traces", "1 trace": a count and what it counts, in words.
+export function counted(n, what) {
+  const words = what.toLowerCase();
+  if (n === 1) return `1 ${words.endsWith("s") ? words.slice(0, -1) : words}`;
+  return `${n} ${words.endsWith("s") ? words : `${words}s`}`;
 }
 
 // Rows of records as a table with units (at most `limit` rows; the rest one click away).

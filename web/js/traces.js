@@ -162,11 +162,15 @@ left.append(circuitImportSection({ partSelect, getPart: (id) => get(`parts/${id}
 
 left.append(el("section", {}, el("h2", {}, "Traces on this part"),
   el("table", { id: "traces-table" }, el("thead", {}, el("tr", {},
-    ["Name", "Length", "z range (mm)", "Standoff", ""].map((h) => el("th", {}, h)))), tbody)));
+    ["Name", "Net", "Length", "z range (mm)", "Standoff", ""].map((h) => el("th", {}, h)))), tbody)));
+
+// What a trace carries: its net (imported copper), "pad probe ring" (probed, never printed), else "—".
+const netOf = (trace) => trace.source?.net || (trace.source?.role === "pad_probe" ? "pad probe ring" : "—");
 
 function row(trace) {
   const tr = el("tr", { "data-id": trace.id },
-    el("td", {}, el("strong", {}, trace.name), el("div", { class: "small mono" }, trace.id)),
+    el("td", { title: trace.id }, el("strong", {}, trace.name)),
+    el("td", { class: "net" }, netOf(trace)),
     el("td", {}, fmt.mm(trace.length_mm, 2)),
     el("td", {}, trace.z_range.map((z) => z.toFixed(3)).join(" … ")),
     el("td", {}, fmt.mm(trace.standoff_mm, 2)),
@@ -181,9 +185,13 @@ function row(trace) {
 
 async function loadParts() {
   await guarded("Parts", async () => {
-    const page = await get("parts?limit=500");
-    const wanted = query("part");
-    partSelect.replaceChildren(...page.items.map((p) => el("option", { value: p.id, selected: p.id === wanted }, `${p.name} (${p.id})`)));
+    const [page, machines] = await Promise.all([get("parts?limit=500"), get("machines").catch(() => ({ items: [] }))]);
+    // a mock's as-made part is the hidden truth it probes, not where traces are drawn: never the default
+    const asMade = new Set(machines.items.map((m) => m.mock?.true_part_id).filter(Boolean));
+    const wanted = query("part") || page.items.find((p) => !asMade.has(p.id))?.id;
+    const repeated = new Set(page.items.map((p) => p.name).filter((n, i, all) => all.indexOf(n) !== i));
+    partSelect.replaceChildren(...page.items.map((p) => el("option", { value: p.id, selected: p.id === wanted, title: p.id },
+      (repeated.has(p.name) ? `${p.name} (uploaded ${fmt.time(p.created_at)})` : p.name) + (asMade.has(p.id) ? " — a mock's as-made part" : ""))));
     if (!page.items.length) partSelect.append(el("option", { value: "" }, "no parts yet: upload one first"));
   });
 }
@@ -197,7 +205,7 @@ async function refresh(highlight) {
     const page = await get(`parts/${partSelect.value}/traces?limit=1000`);
     if (!current()) return;
     tbody.replaceChildren(...page.items.map(row));
-    if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 5, class: "small" }, "No traces yet.")));
+    if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 6, class: "small" }, "No traces yet.")));
     if (highlight) tbody.querySelector(`tr[data-id="${highlight}"]`)?.classList.add("selected");
   });
 }

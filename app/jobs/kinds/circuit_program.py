@@ -42,6 +42,7 @@ from app.errors import InvalidInput
 from app.geometry.drape import drape_polyline
 from app.geometry.traces import TracePolyline
 from app.jobs.context import JobContext
+from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.errors import ConformaError
@@ -66,12 +67,13 @@ class CircuitProgramParams(JobParams):
     line_width_mm: float = Field(0.2, gt=0.01, le=5, description="the nozzle's line: pass pitch and fill spacing")
     standoff_mm: float | None = Field(None, gt=0, le=50, description="pads and areas; default: the import's")
     feed_mm_min: float = Field(300.0, gt=0, le=100_000)
-    clearance_mm: float = Field(2.0, gt=0, le=100)
+    clearance_mm: float = Field(2.0, gt=0, le=100, json_schema_extra=form(advanced=True))
     pads: bool = Field(True, description="fill pads and areas")
     net_clearance_mm: float = Field(0.0, ge=0, le=10, description="copper of different nets closer than this "
-                                    "(top view) counts as a short; 0: only touching copper")
+                                    "(top view) counts as a short; 0: only touching copper",
+                                    json_schema_extra=form(advanced=True))
     accept_unverified: bool = Field(False, description="accept a closed loop that ended needs_attention (its "
-                                    "field's check failed); refused otherwise")
+                                    "field's check failed); refused otherwise", json_schema_extra=form(advanced=True))
 
 
 def accepted_loop(loop: Job, accept_unverified: bool, error: type[ConformaError] = InvalidInput) -> Job:

@@ -43,6 +43,7 @@ from app.errors import InvalidInput
 from app.geometry.drape import top_surface_z
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.calibration import current_calibration, machine_profile
+from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import placed_nominal, placed_params_of, placement_from, succeeded_job
@@ -66,12 +67,13 @@ class CompensateCorrections(BaseModel):
 
 
 class CompensateParams(JobParams):
-    trace_id: str | None = Field(None, description="the trace (or trace_ids)")
+    trace_id: str | None = Field(None, description="the trace (or trace_ids)", json_schema_extra=ONE_TRACE)
     trace_ids: list[str] | None = Field(
         None, min_length=1, max_length=MAX_FIELD_TRACES,
         description="board mode: compensate these traces in ONE job from a board reconstruct job (reconstruct "
         "with trace_ids); each trace's programs are the artifacts print.<trace_id>.gcode and "
-        "nominal.<trace_id>.gcode, the result's traces lists each trace's figures in this order")
+        "nominal.<trace_id>.gcode, the result's traces lists each trace's figures in this order",
+        json_schema_extra=SEVERAL_TRACES)
     reconstruct_job_id: str = Field(description="a succeeded reconstruct job of this trace (board mode: of these "
                                     "traces)")
     standoff_mm: float | None = Field(None, gt=0, le=50, description="default: the trace's standoff")
@@ -79,17 +81,20 @@ class CompensateParams(JobParams):
     chord_error_mm: float = Field(0.002, gt=0, le=1, description="largest polyline-to-curve distance, proved per segment")
     machine_id: str | None = Field(None, description="take dialect and dispense commands from this machine's profile")
     dialect: Literal["marlin", "grbl"] = DEFAULT_DIALECT
-    dispense_on: str = Field("M106", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$")
-    dispense_off: str = Field("M107", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$")
+    dispense_on: str = Field("M106", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$",
+                             json_schema_extra=form(advanced=True))
+    dispense_off: str = Field("M107", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$",
+                              json_schema_extra=form(advanced=True))
     hold_mm: float = Field(0.0, ge=0, le=5, description="hold the end deviation over gaps to the probed span "
                            "up to this length (0: refuse moves outside the probed span)")
-    clearance_mm: float = Field(2.0, gt=0, le=100)
+    clearance_mm: float = Field(2.0, gt=0, le=100, json_schema_extra=form(advanced=True))
     tool: int | None = Field(None, ge=0, le=8, description="the nozzle T<tool> the programs are written for "
                              "(default: the machine profile's first nozzle; none: the probe frame); 0 = the "
                              "probe's frame with T0")
     allow_uncalibrated: bool = Field(False, description="write for a nozzle without calibration, at its "
                                      "nominal offset (a warning in the result)")
-    corrections: CompensateCorrections = Field(default_factory=CompensateCorrections)
+    corrections: CompensateCorrections = Field(default_factory=CompensateCorrections,
+                                               json_schema_extra=form(advanced=True))
 
     @model_validator(mode="after")
     def _one_target(self) -> "CompensateParams":

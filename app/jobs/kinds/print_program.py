@@ -26,6 +26,7 @@ from pydantic import Field, model_validator
 from sqlmodel import Session, select
 
 from app.errors import Cancelled, InvalidInput
+from app.gcode.dispense_delays import with_dispense_delays
 from app.gcode.shift import shift_z
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.calibration_touch import travel_height
@@ -37,8 +38,10 @@ from app.jobs.registry import JobParams, job_kind
 from app.jobs.results import PrintResult
 from app.gcode.placement import check_inside, profile_volume
 from app.machines import MachineFault, MachineUnavailable, hardware_errors, translate
+from app.materials import BY_NAME, MATERIALS, DispenseProfile
 from app.models import Artifact, Machine, Program
 from app.records import get_or_404
+from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, LinkError
 from hardware.machine import Machine as LiveMachine
 from hardware.protocol import validate_program
@@ -56,6 +59,10 @@ class PrintParams(JobParams):
     program_id: str | None = None
     job_id: str | None = None
     artifact: str | None = Field(None, description="artifact of job_id to print, e.g. print.gcode")
+    dispense: DispenseProfile | None = Field(None, description="this print's dispense profile (default: the "
+                                             "machine's profile.dispense; none: the program as written)")
+    material: str | None = Field(None, max_length=80, description="this print's dispense profile: the preset's "
+                                 "of this name (GET /materials)")
     drift_reference: bool = Field(True, description="touch the reference pad with the probe first and shift the "
                                   "program's Z by the drift since the probe calibration (machines with a "
                                   "calibrated pad reading and a profile reference pad; others: no effect)")
@@ -66,6 +73,12 @@ class PrintParams(JobParams):
             raise ValueError("give exactly one of program_id or job_id (+ artifact)")
         if self.job_id is not None and not self.artifact:
             raise ValueError("artifact names the job's G-code artifact to print")
+        if self.dispense is not None and self.material is not None:
+            raise ValueError("give at most one of dispense or material")
+        if self.material is not None and (BY_NAME.get(self.material) is None
+                                          or BY_NAME[self.material].dispense is None):
+            known = ", ".join(m.name for m in MATERIALS if m.dispense is not None)
+            raise ValueError(f"material {self.material!r} is no dispensed material (known: {known})")
         return self
 
 
@@ -122,12 +135,15 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
     the job, and only an operator's resume continues it (from the first command not known
     executed, after re-homing)."""
     text = _program_text(ctx, params)
+    resume = resume_request(ctx)
+    dispense = resume.get("dispense") if resume is not None else _dispense(ctx, params)
+    if dispense is not None:  # the delays are part of what is streamed (and resumed)
+        text = _with_delays(text, dispense)
     lines = text.splitlines()
     source_meta = gcode_meta("\n".join(lines))
-    resume = resume_request(ctx)
     total = len(validate_program(lines))
     state: dict = {"total": total, "executed": 0, "acked_line_no": None, "start_line": 0,
-                   "resumes": (resume or {}).get("resumes", 0)}
+                   "resumes": (resume or {}).get("resumes", 0), "dispense": dispense}
     preamble: list[str] = []
     drift = (resume or {}).get("drift")
     reference = None  # interrupted before its pad touch ended: start afresh (nothing of the program ran)
@@ -211,7 +227,37 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
               "elapsed_s": report.elapsed_s, "program": meta, "link": report.link_stats}
     if drift is not None:
         result |= {"source_program": source_meta, "drift": drift}
+    if dispense is not None:
+        result["dispense"] = dispense
     return PrintResult.written(result)
+
+
+def _dispense(ctx: JobContext, params: PrintParams) -> dict | None:
+    """The dispense profile this print applies, with the machine's on/off commands and
+    dialect: the request's, a preset's, else the machine's ``profile.dispense`` (or None)."""
+    with ctx.session() as session:
+        row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+        profile = machine_profile(row)
+        dialect = row.dialect
+    if params.dispense is not None:
+        chosen, source = params.dispense, "request"
+    elif params.material is not None:
+        chosen, source = BY_NAME[params.material].dispense, "material"
+    else:
+        chosen, source = profile.dispense, "machine profile"
+    if chosen is None:
+        return None
+    on, off = default_dispense(dialect)
+    return {**chosen.model_dump(), "source": source, "dialect": dialect,
+            "dispense_on": profile.dispense_on or on, "dispense_off": profile.dispense_off or off}
+
+
+def _with_delays(text: str, dispense: dict) -> str:
+    """``text`` with the profile's on/off dwells; counts them into ``dispense``."""
+    delayed = with_dispense_delays(text, dispense["dispense_on"], dispense["dispense_off"],
+                                   dispense["on_delay_ms"], dispense["off_delay_ms"], dispense["dialect"])
+    dispense.update(on_dwells=delayed.on_dwells, off_dwells=delayed.off_dwells)
+    return delayed.text
 
 
 def _drift_reference(ctx: JobContext, params: PrintParams) -> dict | None:

@@ -25,6 +25,7 @@ from app.errors import InvalidInput
 from app.geometry.placement import Placement
 from app.jobs.board_checkpoints import TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.context import JobContext
+from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
 from app.jobs.registry import job_kind
@@ -57,11 +58,12 @@ class ContextTrace(BaseModel):
 
 
 class ReconstructJobParams(PlacedParams):
-    trace_id: str | None = Field(None, description="the trace to rebuild (or trace_ids)")
+    trace_id: str | None = Field(None, description="the trace to rebuild (or trace_ids)", json_schema_extra=ONE_TRACE)
     trace_ids: list[str] | None = Field(
         None, min_length=1, max_length=MAX_FIELD_TRACES,
         description="board mode (method field, from a field plan's probe run): rebuild these traces in ONE job "
-        "from the one fitted field; the result's traces lists each trace's reconstruction in this order")
+        "from the one fitted field; the result's traces lists each trace's reconstruction in this order",
+        json_schema_extra=SEVERAL_TRACES)
     probe_run_job_id: str | None = Field(
         None, description="a succeeded probe_run; when its plan probed several traces (trace_ids), trace_id must "
         "be one of them and its own range of the run is used, with method kriging every other trace's range too "
@@ -71,7 +73,8 @@ class ReconstructJobParams(PlacedParams):
     context: list[ContextTrace] | None = Field(
         None, min_length=1, max_length=199,
         description="kriging with points only: measured points of OTHER traces of the same part (same frame); "
-        "they join this trace's in one posterior over the part (pair with a joint kriging plan)")
+        "they join this trace's in one posterior over the part (pair with a joint kriging plan)",
+        json_schema_extra=form(advanced=True, when={"method": ["kriging"]}))
     method: Literal["interpolate", "approximate", "deviation", "kriging", "field"] = Field(
         "interpolate", description="interpolate: the seed's cubic NURBS through the points; approximate: "
         "least squares; deviation: nominal + smoothed deviation (noise-aware); kriging: nominal + the "
@@ -83,13 +86,17 @@ class ReconstructJobParams(PlacedParams):
     sigma_from_calibration: bool = Field(
         False, description="without sigma_mm, on a calibrated machine's probe run: the probe calibration's measured "
         "scatter of a touch (its residual rms).  Off by default: with method deviation on sparse stations it "
-        "smooths the real deviation away (the closed loop measured 1-1.7 um worse, see docs/measured.md)")
+        "smooths the real deviation away (the closed loop measured 1-1.7 um worse, see docs/measured.md)",
+        json_schema_extra=form(advanced=True))
     learn_prior: bool = Field(True, description="method field: learn the prior's amplitude, wavelength and noise from "
                               "the stations' touches (type-II maximum likelihood, the plan's prior as start) and "
-                              "fit the field with it; false: the plan's prior as stated")
-    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10, description="kriging: expected machining error amplitude")
+                              "fit the field with it; false: the plan's prior as stated",
+                              json_schema_extra=form(when={"method": ["field"]}))
+    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10, description="kriging: expected machining error amplitude",
+                                          json_schema_extra=form(when={"method": ["kriging"]}))
     deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
-                                           description="kriging: shortest wavelength of the machining error")
+                                           description="kriging: shortest wavelength of the machining error",
+                                           json_schema_extra=form(when={"method": ["kriging"]}))
 
     @model_validator(mode="after")
     def _one_source(self) -> "ReconstructJobParams":

@@ -19,6 +19,7 @@ from sqlmodel import Session
 
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
+from app.jobs.form_hints import form
 from app.jobs.registry import JobParams, job_kind
 from app.jobs.results import SliceResult
 from app.models import Part
@@ -33,6 +34,11 @@ MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at su
 _CORE = SliceParams()
 _SLC = SlcOptions()
 
+# form hints (app.jobs.form_hints): folded fields, and the fields of one mode or beam only
+_MORE = form(advanced=True)
+_ADAPTIVE = form(unit="mm", when={"mode": ["area", "cavity", "cusp"]})
+_TABLE = form(advanced=True, when={"beam": ["table"]})
+_OFFSET = form(advanced=True, when={"beam": ["none"]})
 Thickness = Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)]
 Width = Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)]
 
@@ -61,42 +67,60 @@ class SliceJobParams(JobParams):
         "remainder); area: the published area-deviation rule (eps0, l_min, l_max); cavity: the multi-cavity "
         "refinement (adds sigma0, mu0, mu1); cusp: our cusp-height rule (cusp_mm, l_min, l_max)")
     layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False,
-                            description="uniform layer thickness, mm")
-    l_min: float = Field(_CORE.l_min, gt=0, le=100, allow_inf_nan=False, description="thinnest adaptive layer, mm")
-    l_max: float = Field(_CORE.l_max, gt=0, le=100, allow_inf_nan=False, description="thickest adaptive layer, mm")
+                            description="uniform layer thickness, mm", title="Layer thickness",
+                            json_schema_extra=form(unit="mm", when={"mode": ["uniform"]}))
+    l_min: float = Field(_CORE.l_min, gt=0, le=100, allow_inf_nan=False, description="thinnest adaptive layer, mm",
+                         title="Thinnest layer", json_schema_extra=_ADAPTIVE)
+    l_max: float = Field(_CORE.l_max, gt=0, le=100, allow_inf_nan=False, description="thickest adaptive layer, mm",
+                         title="Thickest layer", json_schema_extra=_ADAPTIVE)
     eps0: float = Field(_CORE.eps0, ge=0, le=10, allow_inf_nan=False,
-                        description="allowed relative area change between layers (S4)")
+                        description="allowed relative area change between layers (S4)", title="Allowed area change ε0",
+                        json_schema_extra=form(when={"mode": ["area", "cavity"]}))
     sigma0: float = Field(_CORE.sigma0, ge=0, le=1, allow_inf_nan=False,
-                          description="S4 inner-area ratio threshold sum(A_in)/A_out")
-    mu0: float = Field(_CORE.mu0, ge=0, le=1, allow_inf_nan=False, description="S4 lower mean inner ratio")
-    mu1: float = Field(_CORE.mu1, ge=0, le=1, allow_inf_nan=False, description="S4 upper mean inner ratio")
+                          description="S4 inner-area ratio threshold sum(A_in)/A_out",
+                          title="Inner-area ratio threshold σ0", json_schema_extra=form(when={"mode": ["cavity"]}))
+    mu0: float = Field(_CORE.mu0, ge=0, le=1, allow_inf_nan=False, description="S4 lower mean inner ratio",
+                       title="Lower mean inner ratio μ0", json_schema_extra=form(when={"mode": ["cavity"]}))
+    mu1: float = Field(_CORE.mu1, ge=0, le=1, allow_inf_nan=False, description="S4 upper mean inner ratio",
+                       title="Upper mean inner ratio μ1", json_schema_extra=form(when={"mode": ["cavity"]}))
     theta_rule: Literal["indicator", "printed"] = Field(
-        _CORE.theta_rule, description="S4 theta: indicator (sigma >= sigma0, the seed's text) or the printed formula")
+        _CORE.theta_rule, description="S4 theta: indicator (sigma >= sigma0, the seed's text) or the printed formula",
+        title="θ rule", json_schema_extra=form(advanced=True, when={"mode": ["cavity"]}))
     step9_resets_to_lmax: bool = Field(
-        _CORE.step9_resets_to_lmax, description="read S4 step 9 literally (non-cavity layers always l_max)")
+        _CORE.step9_resets_to_lmax, description="read S4 step 9 literally (non-cavity layers always l_max)",
+        title="Step 9 resets to the thickest layer", json_schema_extra=form(advanced=True, when={"mode": ["cavity"]}))
     seed_sample: Literal["top", "mid"] = Field(
         _CORE.seed_sample, description="area/cavity modes: contour at mid-height (default, inside the layer) or "
-        "at the layer top (as published)")
+        "at the layer top (as published)", title="Contour sampled at",
+        json_schema_extra=form(advanced=True, when={"mode": ["area", "cavity"]}))
     remainder: Literal["distribute", "merge"] = Field(
         _CORE.remainder, description="uniform mode, a height that is not a multiple of layer_mm: distribute "
         "(round(H / layer_mm) equal layers) or merge (layer_mm layers; a remainder under half a layer joins the "
-        "last one). Never a sliver.")
+        "last one). Never a sliver.", json_schema_extra=form(when={"mode": ["uniform"]}))
     cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False,
-                           description="allowed cusp height (cusp mode), mm")
+                           description="allowed cusp height (cusp mode), mm", title="Allowed cusp height",
+                           json_schema_extra=form(when={"mode": ["cusp"]}))
     repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it: winding "
-                         "and normals fixed, holes filled, shells united")
+                         "and normals fixed, holes filled, shells united", title="Repair a bad mesh")
     max_hole_mm: float | None = Field(None, gt=0, le=100_000, allow_inf_nan=False,
                                       description="repair fills holes up to this perimeter, mm (default: the perimeter "
-                                      "of the part's bounding box's largest face); larger holes are refused with their size")
+                                      "of the part's bounding box's largest face); larger holes are refused with their "
+                                      "size",
+                                      title="Largest hole repaired", json_schema_extra=_MORE)
     beam: Literal["none", "seed_haz", "table"] = Field(
         "none", description="beam compensation: none, seed_haz (the published heat-affected widths 21-28 um for "
-        "20-40 um layers, linear in thickness) or table (beam_table)")
-    beam_table: BeamTable | None = Field(None, description="own compensation table (beam: table)")
+        "20-40 um layers, linear in thickness) or table (beam_table)", title="Beam compensation",
+        json_schema_extra=_MORE)
+    beam_table: BeamTable | None = Field(None, description="own compensation table (beam: table)",
+                                         title="Beam compensation table", json_schema_extra=_TABLE)
     offset_mm: float | None = Field(None, ge=0, le=10, allow_inf_nan=False,
-                                    description="constant inward contour offset, mm (with beam: none)")
+                                    description="constant inward contour offset, mm (with beam: none)",
+                                    title="Inward contour offset", json_schema_extra=_OFFSET)
     slc_quantum_mm: float = Field(_SLC.quantum_mm, gt=0, le=1, allow_inf_nan=False,
-                                  description="SLC thickness grid: adaptive thicknesses are rounded to it")
-    svg_layer: int | None = Field(None, ge=0, description="layer drawn in layer.svg (default: the middle one)")
+                                  description="SLC thickness grid: adaptive thicknesses are rounded to it",
+                                  title="SLC thickness grid", json_schema_extra=_MORE)
+    svg_layer: int | None = Field(None, ge=0, description="layer drawn in layer.svg (default: the middle one)",
+                                  title="Layer drawn in layer.svg", json_schema_extra=_MORE)
 
     def core(self) -> SliceParams:
         """The pure core's parameters."""

@@ -26,6 +26,7 @@ from app.gcode.placement import BedPlacement, MachineVolume, check_inside, place
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.context import JobContext
 from app.jobs.cost import Cost
+from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.registry import JobParams, job_kind
 from app.jobs.program_results import ToolpathResult
@@ -47,6 +48,12 @@ _WEIGHTS = MergeWeights()
 
 Speed = Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)]
 Accel = Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)]
+# form hints (app.jobs.form_hints): folded fields, and the fields of one mode or pattern only
+_MORE = form(advanced=True)
+_EXTRUDE = form(when={"mode": ["extrude"]})
+_EXTRUDE_MORE = form(when={"mode": ["extrude"]}, advanced=True)
+_DISPENSE_MORE = form(when={"mode": ["dispense"]}, advanced=True)
+_MERGED = form(advanced=True, when={"pattern": ["hilbert_merged"]})
 Command = Annotated[str, Field(min_length=1, max_length=60, pattern=r"^[A-Za-z0-9 .\-]+$")]
 
 
@@ -104,48 +111,69 @@ class ToolpathJobParams(JobParams):
                                           description="bead height for E; default each layer's thickness")
     infill: float = Field(_FILL.infill, gt=0, le=1, allow_inf_nan=False, description="infill density (0, 1]")
     perimeters: int = Field(_FILL.perimeters, ge=0, le=100, description="closed loops inside each ring")
-    angle_deg: float = Field(_FILL.angle_deg, ge=-360, le=360, allow_inf_nan=False, description="raster angle, deg")
+    angle_deg: float = Field(_FILL.angle_deg, ge=-360, le=360, allow_inf_nan=False, description="raster angle, deg",
+                             json_schema_extra=_MORE)
     angle_step_deg: float = Field(_FILL.angle_step_deg, ge=-360, le=360, allow_inf_nan=False,
-                                  description="raster angle change per layer, deg")
+                                  description="raster angle change per layer, deg", json_schema_extra=_MORE)
     print_feed_mm_min: Speed = Field(_mm_min(_FILL.print_feed_mm_s), description="infill feed, mm/min")
-    perimeter_feed_mm_min: Speed = Field(_mm_min(_FILL.perimeter_feed_mm_s), description="perimeter feed, mm/min")
-    travel_feed_mm_min: Speed = Field(_mm_min(_FILL.travel_feed_mm_s), description="travel feed, mm/min")
-    filament_mm: float = Field(_FILL.filament_mm, gt=0, le=10, allow_inf_nan=False, description="filament diameter, mm")
+    perimeter_feed_mm_min: Speed = Field(_mm_min(_FILL.perimeter_feed_mm_s), description="perimeter feed, mm/min",
+                                         json_schema_extra=_MORE)
+    travel_feed_mm_min: Speed = Field(_mm_min(_FILL.travel_feed_mm_s), description="travel feed, mm/min",
+                                      json_schema_extra=_MORE)
+    filament_mm: float = Field(_FILL.filament_mm, gt=0, le=10, allow_inf_nan=False, description="filament diameter, mm",
+                               json_schema_extra=_EXTRUDE_MORE)
     turn_threshold_deg: float = Field(_FILL.turn_threshold_deg, ge=0, le=180, allow_inf_nan=False,
-                                      description="direction changes above this count as turns, deg")
+                                      description="direction changes above this count as turns, deg",
+                                      json_schema_extra=_MORE)
     resolution_mm: float = Field(_FILL.resolution_mm, ge=0.001, le=1, allow_inf_nan=False,
                                  description="the machine's resolution: paths are simplified to it and no move "
-                                             "is shorter, mm")
+                                             "is shorter, mm", json_schema_extra=_MORE)
     merge_weight_along: float = Field(_WEIGHTS.along, ge=0, le=1000, allow_inf_nan=False,
-                                      description="hilbert_merged: weight of merging along the layer direction")
+                                      description="hilbert_merged: weight of merging along the layer direction",
+                                      json_schema_extra=_MERGED)
     merge_weight_across: float = Field(_WEIGHTS.across, ge=0, le=1000, allow_inf_nan=False,
-                                       description="hilbert_merged: weight of merging across it")
-    accel_mm_s2: Accel = Field(_LIMITS.accel_mm_s2, description="printing acceleration (M204 P), mm/s^2")
-    travel_accel_mm_s2: Accel = Field(_LIMITS.travel_accel_mm_s2, description="travel acceleration (M204 T)")
-    retract_accel_mm_s2: Accel = Field(_LIMITS.retract_accel_mm_s2, description="retract acceleration (M204 R)")
+                                       description="hilbert_merged: weight of merging across it",
+                                       json_schema_extra=_MERGED)
+    accel_mm_s2: Accel = Field(_LIMITS.accel_mm_s2, description="printing acceleration (M204 P), mm/s^2",
+                               json_schema_extra=_MORE)
+    travel_accel_mm_s2: Accel = Field(_LIMITS.travel_accel_mm_s2, description="travel acceleration (M204 T)",
+                                      json_schema_extra=_MORE)
+    retract_accel_mm_s2: Accel = Field(_LIMITS.retract_accel_mm_s2, description="retract acceleration (M204 R)",
+                                       json_schema_extra=_EXTRUDE_MORE)
     junction_deviation_mm: float = Field(_LIMITS.junction_deviation_mm, ge=0, le=10, allow_inf_nan=False,
-                                         description="Marlin junction deviation (M205 J), mm")
+                                         description="Marlin junction deviation (M205 J), mm", json_schema_extra=_MORE)
     max_feed_mm_s: tuple[Speed, Speed, Speed, Speed] = Field(_LIMITS.max_feed_mm_s,
-                                                             description="axis feed limits X Y Z E (M203), mm/s")
+                                                             description="axis feed limits X Y Z E (M203), mm/s",
+                                                             json_schema_extra=_MORE)
     max_accel_mm_s2: tuple[Accel, Accel, Accel, Accel] = Field(_LIMITS.max_accel_mm_s2,
-                                                               description="axis acceleration limits X Y Z E (M201)")
+                                                               description="axis acceleration limits X Y Z E (M201)",
+                                                               json_schema_extra=_MORE)
     dialect: Literal["marlin", "grbl"] = Field(_FDM.dialect, description="G-code dialect (extrude needs marlin)")
     mode: Literal["extrude", "dispense"] = Field(_FDM.mode, description="E-axis extrusion or dispenser on/off")
-    nozzle_temp_c: float = Field(_FDM.nozzle_temp_c, ge=0, le=500, allow_inf_nan=False, description="extrude, deg C")
-    bed_temp_c: float = Field(_FDM.bed_temp_c, ge=0, le=200, allow_inf_nan=False, description="extrude, deg C")
-    retract_mm: float = Field(_FDM.retract_mm, ge=0, le=50, allow_inf_nan=False, description="retraction length, mm")
-    retract_feed_mm_min: Speed = Field(_mm_min(_FDM.retract_feed_mm_s), description="retraction feed, mm/min")
-    z_lift_mm: float = Field(_FDM.z_lift_mm, ge=0, le=50, allow_inf_nan=False, description="lift during travel, mm")
+    nozzle_temp_c: float = Field(_FDM.nozzle_temp_c, ge=0, le=500, allow_inf_nan=False, description="extrude, deg C",
+                                 json_schema_extra=_EXTRUDE)
+    bed_temp_c: float = Field(_FDM.bed_temp_c, ge=0, le=200, allow_inf_nan=False, description="extrude, deg C",
+                              json_schema_extra=_EXTRUDE)
+    retract_mm: float = Field(_FDM.retract_mm, ge=0, le=50, allow_inf_nan=False, description="retraction length, mm",
+                              json_schema_extra=_EXTRUDE_MORE)
+    retract_feed_mm_min: Speed = Field(_mm_min(_FDM.retract_feed_mm_s), description="retraction feed, mm/min",
+                                       json_schema_extra=_EXTRUDE_MORE)
+    z_lift_mm: float = Field(_FDM.z_lift_mm, ge=0, le=50, allow_inf_nan=False, description="lift during travel, mm",
+                             json_schema_extra=_MORE)
     min_travel_for_retract_mm: float = Field(_FDM.min_travel_for_retract_mm, ge=0, le=1000, allow_inf_nan=False,
-                                             description="retract only before longer travels, mm")
-    home: bool = Field(_FDM.home, description="home (G28) in the start section")
-    dispense_on: Command | None = Field(None, description="dispense mode: on command (default M106 S255 / M8)")
-    dispense_off: Command | None = Field(None, description="dispense mode: off command (default M107 / M9)")
+                                             description="retract only before longer travels, mm",
+                                             json_schema_extra=_EXTRUDE_MORE)
+    home: bool = Field(_FDM.home, description="home (G28) in the start section", json_schema_extra=_MORE)
+    dispense_on: Command | None = Field(None, description="dispense mode: on command (default M106 S255 / M8)",
+                                        json_schema_extra=_DISPENSE_MORE)
+    dispense_off: Command | None = Field(None, description="dispense mode: off command (default M107 / M9)",
+                                         json_schema_extra=_DISPENSE_MORE)
     placement: PlacementIn = Field(default_factory=PlacementIn, description="where the part goes on the machine "
-                                   "(default: dropped to the bed and centred)")
+                                   "(default: dropped to the bed and centred)", json_schema_extra=_MORE)
     machine_id: str | None = Field(None, description="take the travel limits (profile.volume_mm) of this machine")
     volume_mm: VolumeIn | None = Field(None, description="the machine's travel limits, mm (default: the machine's "
-                                       "profile, else a 200 x 200 x 200 mm machine with its origin at a bed corner)")
+                                       "profile, else a 200 x 200 x 200 mm machine with its origin at a bed corner)",
+                                       json_schema_extra=_MORE)
 
     def limits(self) -> MachineLimits:
         return MachineLimits(accel_mm_s2=self.accel_mm_s2, travel_accel_mm_s2=self.travel_accel_mm_s2,

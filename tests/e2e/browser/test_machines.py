@@ -67,5 +67,6 @@ def test_an_interrupted_print_shows_on_the_card(page, served):
     page.wait_for_selector(f'{sel} .program[data-state="interrupted"]', timeout=15_000)
     text = page.inner_text(f"{sel} .program")
     assert text.startswith(f"interrupted at line {state['executed']} of {state['total']}"), text
-    assert f"job {job['id']} waits: resume or abandon" in text, text
+    assert "its print job waits: resume or abandon" in text and job["id"] not in text, text
+    assert f"(job {job['id']})" in page.get_attribute(f"{sel} .program", "title")  # the id on hover
     assert page.js_errors == []

@@ -73,7 +73,7 @@ def test_the_programs_page_warps_onto_the_probed_part(page, served, tmp_path):
     page.click("#warp-submit")
     page.wait_for_selector("#warp-figures", timeout=120_000)
     assert page.get_attribute("#warp-progress", "value") == "1"
-    job_id = page.inner_text("#warped-link").removeprefix("job ")
+    job_id = page.get_attribute("#warped-link", "title")  # the id on hover, the link says what it is
     job = api.get(f"/api/v1/jobs/{job_id}?include=result&include=artifacts").json()
     assert job["kind"] == "warp_program" and job["status"] == "succeeded"
     shown = page.inner_text('[data-figure="pieces"]')

@@ -156,7 +156,8 @@ def test_machines_page_prints_a_listed_program_after_a_confirmation(page, served
     page.wait_for_selector(f'{sel} [data-state="printing"]', timeout=20_000)
     assert len(asked) == 1
     text = asked[0]
-    assert "print-list-mock" in text and "print.gcode" in text and job["id"] in text
+    assert "print-list-mock" in text and "print.gcode" in text and "compensated program" in text
+    assert job["id"] not in text and "dispense profile: none" in text  # named, not numbered; the machine's profile
     assert f"{summary['lines']} lines" in text and f"estimated time {duration(summary['time_s'])}" in text
     bar = page.wait_for_selector(f"{sel} .print-progress:not([hidden])")
     assert re.search(r"line \d+ of \d+ \(\d+ %\)", page.inner_text(f"{sel} .program"))
