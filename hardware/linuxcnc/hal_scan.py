@@ -1,0 +1,164 @@
+"""Sample a LinuxCNC controller's height sensor with its joints, in the servo thread.
+
+The controller's HAL (``sim/sensor.hal`` on Conforma's simulator; on a real machine the
+sensor's analog input and its alarm output wired the same way) has a ``sampler`` whose
+channels are ``x y z reading valid updates`` and a signal that switches the sensor and the
+sampler on.  :class:`HalScan` runs ``halsampler`` (LinuxCNC's reader of the sampler's
+FIFO) on this host while a scan pass runs:
+
+    scan = HalScan()                # halcmd / halsampler of the controller on this host
+    scan.start()                    # halsampler attached, then ``sets conforma:sensor-on 1``
+    machine.stream(pass_lines)      # the carriage moves; every servo period is one row
+    samples = scan.stop()           # ``sets ... 0``, the FIFO drained, halsampler ended
+    samples.t, samples.xyz, samples.reading   # (n,) s, (n, 3) mm, (n,) mm (NaN: no value)
+
+Sample k was taken k servo periods after the first (the sampler's sequence numbers; a gap
+means the FIFO overran, which is an error).  Rows before the sensor's first fresh value
+(its ``updates`` counter unchanged since the sampler came on) are dropped: the component
+wakes within its idle period.  The HAL must be on this host (``halcmd`` reaches the
+controller's shared memory): a ``linuxcnc://`` machine elsewhere cannot be scanned this way.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import HardwareError
+
+__all__ = ["HalScan", "HalScanError", "HalSamples", "servo_period_s"]
+
+SENSOR_ON = "conforma:sensor-on"
+CHANNELS = 6  # x y z reading valid updates
+
+
+class HalScanError(HardwareError):
+    """halsampler / halcmd failed, or samples were lost."""
+
+    status = 503
+
+
+@dataclass(frozen=True)
+class HalSamples:
+    """One sampled pass: t (n,) s from its first row, xyz (n, 3) mm (the joints' feedback),
+    reading (n,) mm (NaN where the sensor had no value), period_s the servo period."""
+
+    t: np.ndarray
+    xyz: np.ndarray
+    reading: np.ndarray
+    period_s: float
+
+
+def _halcmd(args: list[str], env: dict[str, str] | None, timeout_s: float = 10.0) -> str:
+    done = subprocess.run(["halcmd", *args], capture_output=True, text=True, timeout=timeout_s, env=env)
+    if done.returncode != 0:
+        raise HalScanError(f"halcmd {' '.join(args)} failed: {done.stderr.strip()[:200]}", field="halcmd",
+                           value=args[0])
+    return done.stdout
+
+
+def servo_period_s(env: dict[str, str] | None = None) -> float:
+    """The servo thread's period (s), from ``halcmd show thread servo-thread``."""
+    for line in _halcmd(["show", "thread", "servo-thread"], env).splitlines():
+        words = line.split()
+        if "servo-thread" in words and words[0].isdigit():
+            return int(words[0]) * 1e-9
+    raise HalScanError("no servo-thread in the controller's HAL", field="halcmd", value="servo-thread")
+
+
+def parse_rows(lines: list[str], period_s: float) -> HalSamples:
+    """``halsampler -t`` lines (``seq x y z reading valid updates``) -> samples; a gap in
+    the sequence (FIFO overrun) raises ``HalScanError``."""
+    rows = np.array([[float(w) for w in line.split()] for line in lines if line.strip()], dtype=float)
+    if any(line.strip() == "overrun" for line in lines) or len(rows) == 0 or rows.shape[1] != CHANNELS + 1:
+        raise HalScanError(f"the sampler's FIFO overran or gave no rows ({len(rows)})", field="sampler")
+    seq = rows[:, 0]
+    if np.any(np.diff(seq) != 1):
+        raise HalScanError("samples were lost (a gap in the sampler's sequence)", field="sampler",
+                           value=int(np.count_nonzero(np.diff(seq) != 1)))
+    fresh = np.flatnonzero(rows[:, 6] != rows[0, 6])
+    rows = rows[fresh[0]:] if len(fresh) else rows[:0]
+    reading = np.where(rows[:, 5] > 0.5, rows[:, 4], np.nan)
+    return HalSamples((rows[:, 0] - (rows[0, 0] if len(rows) else 0.0)) * period_s, rows[:, 1:4], reading,
+                      period_s)
+
+
+class HalScan:
+    """One sampling session at a time (see the module docstring); ``env``: the controller's
+    environment for ``halcmd`` (the simulator's, :attr:`SimController.hal_env`)."""
+
+    def __init__(self, env: dict[str, str] | None = None, signal: str = SENSOR_ON, channel: int = 0) -> None:
+        if shutil.which("halsampler") is None or shutil.which("halcmd") is None:
+            raise HalScanError("halcmd / halsampler are not on this host (LinuxCNC not installed)",
+                               field="halsampler")
+        self.env = env
+        self.signal = signal
+        self.channel = channel
+        self.period_s = servo_period_s(env)
+        self._process: subprocess.Popen | None = None
+        self._lines: list[str] = []
+        self._reader: threading.Thread | None = None
+
+    def start(self) -> None:
+        """Attach halsampler to the FIFO, then switch the sensor and the sampler on."""
+        if self._process is not None:
+            raise HalScanError("a sampling session is already running", field="sampler")
+        _halcmd(["sets", self.signal, "0"], self.env)
+        self._lines = []
+        command = ["halsampler", "-t", "-c", str(self.channel)]
+        if shutil.which("stdbuf"):
+            command = ["stdbuf", "-oL", *command]  # rows reach us as they are read, not at exit
+        self._process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                         env=self.env)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        try:
+            _halcmd(["sets", self.signal, "1"], self.env)
+        except HalScanError:
+            self._end()
+            raise
+
+    def _read(self) -> None:
+        assert self._process is not None and self._process.stdout is not None
+        for line in self._process.stdout:
+            self._lines.append(line)
+
+    def stop(self, drain_timeout_s: float = 10.0) -> HalSamples:
+        """Switch off, wait until halsampler emptied the FIFO and its rows arrived, end it."""
+        if self._process is None:
+            raise HalScanError("no sampling session is running", field="sampler")
+        try:
+            _halcmd(["sets", self.signal, "0"], self.env)
+            deadline = time.monotonic() + drain_timeout_s
+            count, still_since = -1, time.monotonic()
+            while time.monotonic() < deadline:
+                depth = int(_halcmd(["getp", f"sampler.{self.channel}.curr-depth"], self.env).split()[0])
+                if len(self._lines) != count:
+                    count, still_since = len(self._lines), time.monotonic()
+                elif depth == 0 and time.monotonic() - still_since > 0.1:
+                    break
+                time.sleep(0.02)
+            else:
+                raise HalScanError("halsampler did not drain the sampler's FIFO in time", field="halsampler")
+        finally:
+            self._end()
+        return parse_rows(self._lines, self.period_s)
+
+    def _end(self) -> None:
+        process, self._process = self._process, None
+        if process is None:
+            return
+        if process.poll() is None:
+            process.terminate()
+            try:
+                process.wait(5)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(5)
+        if self._reader is not None:
+            self._reader.join(5)
