@@ -3,7 +3,9 @@
 Plans scan passes (:func:`app.probing.scan_plan.plan_scans`: passes along the traces or
 rasters over the part's nominal top, per tile the cheaper in machine time), drives them on
 the machine with the sensor (:mod:`app.jobs.sensor_runs`), turns the stored readings into
-deviations with the sensor's calibration (:mod:`app.reconstruction.scan_samples`), fits the
+deviations with the sensor's calibration (:mod:`app.reconstruction.scan_samples`; on a
+``linuxcnc://`` machine the controller samples the sensor with its joints, elsewhere the
+sensor is read over ``sensor_port``: :func:`app.jobs.sensor_runs.open_scanner`), fits the
 field by the inducing-point solve (:mod:`app.reconstruction.scan_field`), touches
 ``verify_count`` verification points with the probe where the fitted field is least certain
 and checks the field there (:func:`app.reconstruction.scan_field.verify_touches`).  Artifact
@@ -30,22 +32,23 @@ from app.jobs.context import JobContext
 from app.jobs.inputs import nominal_of
 from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
 from app.jobs.registry import JobParams, job_kind
-from app.jobs.sensor_runs import run_pass
+from app.jobs.sensor_runs import open_scanner
 from app.machines import hardware_errors, profile_of
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.scan_cost import MotionCost, touch_time
-from app.probing.scan_path import sample_positions
 from app.probing.scan_plan import plan_scans
 from app.reconstruction.scan_field import fit_scan_field, verify_touches
-from app.reconstruction.scan_samples import block_average, pass_deviations
-from hardware.height_sensor import HeightSensor
+from app.reconstruction.scan_samples import block_average, carriage_deviations
 
 
 class ScanRunParams(JobParams):
     machine_id: str
     trace_ids: list[str] = Field(min_length=1, max_length=5000)
-    sensor_port: str = Field(description="the sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port")
-    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the controller's sampling rate")
+    sensor_port: str | None = Field(None, max_length=500, description=(
+        "the sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port; not used on a linuxcnc:// "
+        "machine (the controller samples the sensor with its joints)"))
+    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the sensor controller's sampling rate "
+                                  "(a linuxcnc:// machine samples once per servo period)")
     calibration: dict[str, Any] = Field(description="the sensor's calibration: offset_mm [x, y, z], scale, "
                                         "time_offset_s, slope_bias_mm (app.calibration.sensor.SensorCalibration)")
     mode: str = Field("mixed", pattern="^(mixed|traces|raster)$")
@@ -107,27 +110,23 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
     xy_fit, dz_fit = [], []
     machine = connected_machine(ctx, params.machine_id)
     with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), hardware_errors():
-        sensor = HeightSensor(params.sensor_port, params.sensor_rate_hz)
-        sensor.connect()
+        scanner = open_scanner(machine, params.sensor_port, params.sensor_rate_hz)
         try:
             for k, scan_pass in enumerate(plan.passes):
                 w = scan_pass.carriage(calibration.offset_mm)
-                data = run_pass(machine, sensor, w, cost.scan_mm_s, travel_z if scan_pass.hop else None)
-                carriage = sample_positions(w, cost.scan_mm_s, len(data.values), sensor.rate_hz,
-                                            calibration.time_offset_s)
+                data = scanner.run(w, cost.scan_mm_s, travel_z if scan_pass.hop else None, calibration.time_offset_s)
                 ok = np.isfinite(data.values)
-                z = np.where(ok, calibration.surface_z(carriage, np.nan_to_num(data.values)), np.nan)
-                xy = calibration.spot_xy(carriage)
-                rows.append(np.column_stack([xy, z, sensor.stamps(len(data.values)), ok, np.full(len(ok), k)]))
-                got_xy, got_dz = pass_deviations(w, cost.scan_mm_s, data.values, sensor.rate_hz, calibration,
-                                                 height, slope)
+                z = np.where(ok, calibration.surface_z(data.carriage, np.nan_to_num(data.values)), np.nan)
+                xy = calibration.spot_xy(data.carriage)
+                rows.append(np.column_stack([xy, z, data.stamps, ok, np.full(len(ok), k)]))
+                got_xy, got_dz = carriage_deviations(data.carriage, data.values, calibration, height, slope)
                 got_xy, got_dz = block_average(got_xy, got_dz, params.block)
                 xy_fit.append(got_xy)
                 dz_fit.append(got_dz)
                 ctx.progress(0.8 * (k + 1) / len(plan.passes), f"scanned {k + 1}/{len(plan.passes)} passes")
             machine.move(z=travel_z)
         finally:
-            sensor.close()
+            scanner.close()
         samples = np.concatenate(rows)
         buf = io.BytesIO()
         np.savez_compressed(buf, x=samples[:, 0], y=samples[:, 1], z=samples[:, 2], t=samples[:, 3],
