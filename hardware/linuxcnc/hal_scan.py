@@ -74,9 +74,16 @@ def servo_period_s(env: dict[str, str] | None = None) -> float:
 def parse_rows(lines: list[str], period_s: float) -> HalSamples:
     """``halsampler -t`` lines (``seq x y z reading valid updates``) -> samples; a gap in
     the sequence (FIFO overrun) raises ``HalScanError``."""
-    rows = np.array([[float(w) for w in line.split()] for line in lines if line.strip()], dtype=float)
-    if any(line.strip() == "overrun" for line in lines) or len(rows) == 0 or rows.shape[1] != CHANNELS + 1:
-        raise HalScanError(f"the sampler's FIFO overran or gave no rows ({len(rows)})", field="sampler")
+    lines = [line for line in lines if line.strip()]
+    while lines and lines[0].strip() == "overrun":  # halsampler counts from 0: the sampler's
+        lines = lines[1:]                             # numbers went on since its last session
+    overruns = sum(line.strip() == "overrun" for line in lines)
+    if overruns:
+        raise HalScanError(f"the sampler's FIFO overran {overruns} times (samples lost)", field="sampler",
+                           value=overruns)
+    rows = np.array([[float(w) for w in line.split()] for line in lines], dtype=float)
+    if len(rows) == 0 or rows.shape[1] != CHANNELS + 1:
+        raise HalScanError(f"the sampler gave no rows of {CHANNELS} channels", field="sampler", value=len(rows))
     seq = rows[:, 0]
     if np.any(np.diff(seq) != 1):
         raise HalScanError("samples were lost (a gap in the sampler's sequence)", field="sampler",
