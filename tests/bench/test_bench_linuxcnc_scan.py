@@ -30,7 +30,7 @@ from app.calibration.sensor import EdgePass, fit_time_offset
 from hardware.linuxcnc import SimBlock, SimController, SimSensor, linuxcnc_available
 from tests.conftest import auth
 from tests.hardware.linuxcnc.conftest import PROFILE, add_sim_machine
-from tests.hardware.linuxcnc.test_height_sensor import _scan, _truth
+from tests.hardware.linuxcnc.test_height_sensor import _scan
 from tests.hardware.linuxcnc.test_scan_run import PROFILE as API_PROFILE, TRACE_X, _box_stl
 from tests.helpers.jobs import submit, wait_for
 from tests.real_components import missing

@@ -15,7 +15,6 @@ import pytest
 
 from hardware.linuxcnc import SimBlock, SimSensor
 from hardware.linuxcnc.hal_scan import HalScan
-from tests.hardware.linuxcnc.conftest import PROFILE
 
 OFFSET = (30.0, 5.0, -10.0)
 BLOCK = SimBlock(40.0, 30.0, 2.0, 0.02, dx=10.0, dy=-5.0, dz=0.1, rz_deg=1.0)
