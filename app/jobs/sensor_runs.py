@@ -20,6 +20,7 @@ translate them).
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -31,6 +32,7 @@ from app.calibration.sensor import (EdgePass, SensorCalibration, fit_scale_and_z
 from app.probing.scan_path import positions_at, sample_positions
 from app.errors import InvalidInput
 from app.reconstruction.scan_samples import exposure_positions
+from hardware.errors import HardwareError
 from hardware.height_sensor import HeightSensor
 from hardware.machine import Machine
 
@@ -116,8 +118,11 @@ class HalScanner:
         self.scan.start()
         try:
             self.machine.stream(["G90"] + [f"G1 X{x:.4f} Y{y:.4f} Z{z:.4f} F{feed:.1f}" for x, y, z in w[1:]])
-        finally:
-            samples = self.scan.stop()
+        except BaseException:
+            with contextlib.suppress(HardwareError):  # the pass's own failure is the one reported
+                self.scan.stop()
+            raise
+        samples = self.scan.stop()
         return ScannedPass(exposure_positions(samples.t, samples.xyz, time_offset_s), samples.reading, samples.t)
 
     def close(self) -> None:

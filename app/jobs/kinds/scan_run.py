@@ -13,7 +13,11 @@ and checks the field there (:func:`app.reconstruction.scan_field.verify_touches`
 start) and valid, and the pass it belongs to.  Result: the plan's machine time (cost
 model), the field check and each trace's largest predicted deviation and bound.
 
-A failure stops the job (nothing moves afterwards); no resume (a scan is re-run whole).
+Artifacts ``pass-NNNN.npz`` (each finished pass's rows and fit points) let a run resume:
+when the link drops (or the server dies) the job becomes ``interrupted`` with the finished
+passes counted in ``program_state``; an operator's resume re-homes, reads the finished
+passes back and drives the interrupted pass again from its start (a pass is idempotent),
+then the rest.  Any other failure stops the job (nothing moves afterwards).
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ from app.calibration.sensor import SensorCalibration
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.inputs import nominal_of
-from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
+from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_machine, resume_request,
+                                   stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
 from app.jobs.sensor_runs import open_scanner
 from app.machines import hardware_errors, profile_of
@@ -39,6 +44,7 @@ from app.probing.scan_cost import MotionCost, touch_time
 from app.probing.scan_plan import plan_scans
 from app.reconstruction.scan_field import fit_scan_field, verify_touches
 from app.reconstruction.scan_samples import block_average, carriage_deviations
+from hardware.errors import HardwareError, LinkError
 
 
 class ScanRunParams(JobParams):
@@ -90,6 +96,23 @@ def _top(mesh: Any) -> tuple[Any, Any]:
     return (lambda xy: hits(xy)[0]), (lambda xy: hits(xy)[1])
 
 
+def _pass_name(k: int) -> str:
+    return f"pass-{k:04d}.npz"
+
+
+def _scanned_passes(ctx: JobContext, count: int) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """The rows (n, 6) and fit points (xy (m, 2), dz (m,)) of this job's first ``count``
+    passes, from their artifacts (a resumed run)."""
+    found = ctx.artifacts_of([(ctx.job_id, _pass_name(k)) for k in range(count)])
+    rows, xy, dz = [], [], []
+    for k in range(count):
+        data = np.load(io.BytesIO(ctx.blob(found[(ctx.job_id, _pass_name(k))].sha256)))
+        rows.append(data["rows"])
+        xy.append(data["xy"])
+        dz.append(data["dz"])
+    return rows, xy, dz
+
+
 @job_kind("scan_run", ScanRunParams, queue="machine", check=_check,
           references=lambda p: [("machine", p.machine_id), *(("trace", t) for t in p.trace_ids)])
 def run(ctx: JobContext, params: ScanRunParams) -> dict:
@@ -106,15 +129,32 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
     plan = plan_scans(paths, height, (lo[0], lo[1], hi[0], hi[1]), cost, params.spacing_mm, mode=params.mode)
     travel_z = float(max(np.nanmax(height(every)), max(float(p.points[:, 2].max()) for p in paths))) \
         - calibration.offset_mm[2] + profile.clearance_z
-    rows: list[np.ndarray] = []
-    xy_fit, dz_fit = [], []
-    machine = connected_machine(ctx, params.machine_id)
+    resume = resume_request(ctx)
+    state: dict[str, Any] = {"total": len(plan.passes), "executed": int((resume or {}).get("executed", 0)),
+                             "resumes": int((resume or {}).get("resumes", 0))}
+    rows, xy_fit, dz_fit = _scanned_passes(ctx, state["executed"])
+    machine = rehomed_machine(ctx, params.machine_id, resume, state)
+
+    def guarded(action: Any, *args: Any, **kwargs: Any) -> Any:
+        """``action(*args, **kwargs)`` on the machine; a lost link (or an operator's stop)
+        interrupts the job."""
+        try:
+            return action(*args, **kwargs)
+        except LinkError as exc:
+            raise interrupt(ctx, machine, exc, state) from exc
+        except HardwareError as exc:
+            if stopped_by_operator(ctx, machine):
+                raise interrupt(ctx, machine, exc, state) from exc
+            raise
+
     with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), hardware_errors():
         scanner = open_scanner(machine, params.sensor_port, params.sensor_rate_hz)
+        first = state["executed"]
         try:
-            for k, scan_pass in enumerate(plan.passes):
-                w = scan_pass.carriage(calibration.offset_mm)
-                data = scanner.run(w, cost.scan_mm_s, travel_z if scan_pass.hop else None, calibration.time_offset_s)
+            for k in range(first, len(plan.passes)):
+                w = plan.passes[k].carriage(calibration.offset_mm)
+                hop = travel_z if plan.passes[k].hop or k == first else None  # a resumed run starts homed
+                data = guarded(scanner.run, w, cost.scan_mm_s, hop, calibration.time_offset_s)
                 ok = np.isfinite(data.values)
                 z = np.where(ok, calibration.surface_z(data.carriage, np.nan_to_num(data.values)), np.nan)
                 xy = calibration.spot_xy(data.carriage)
@@ -123,8 +163,13 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
                 got_xy, got_dz = block_average(got_xy, got_dz, params.block)
                 xy_fit.append(got_xy)
                 dz_fit.append(got_dz)
+                buf = io.BytesIO()
+                np.savez_compressed(buf, rows=rows[-1], xy=got_xy, dz=got_dz)
+                ctx.artifact(_pass_name(k), buf.getvalue(), "application/octet-stream", {"samples": int(len(ok))})
+                state["executed"] = k + 1
+                ctx.runtime.store.save_program_state(ctx.claim, state)
                 ctx.progress(0.8 * (k + 1) / len(plan.passes), f"scanned {k + 1}/{len(plan.passes)} passes")
-            machine.move(z=travel_z)
+            guarded(machine.move, z=travel_z)
         finally:
             scanner.close()
         samples = np.concatenate(rows)
@@ -146,14 +191,14 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         sd = fit.posterior.sd(query)
         picked = list(np.argsort(sd)[::-1][:params.verify_count])
         vsites = query.take(np.array(picked, dtype=int))
-        touched = [machine.probe(float(x), float(y), z_start=float(z_nom) + profile.clearance_z,
-                                 z_min=float(z_nom) - profile.clearance_z).z
+        touched = [guarded(machine.probe, float(x), float(y), z_start=float(z_nom) + profile.clearance_z,
+                           z_min=float(z_nom) - profile.clearance_z).z
                    for (x, y), z_nom in zip(vsites.xy, height(vsites.xy))]
     check = verify_touches(fit, vsites, np.asarray(touched) - height(vsites.xy), owner[picked], params.coverage,
                            params.probe_sigma_mm) if picked else None
     bound = params.coverage * max(trace_sd)
     return {
-        "passes": len(plan.passes), "tiles": plan.tiles, "scan_length_mm": plan.length_mm,
+        "passes": len(plan.passes), "resumes": state["resumes"], "tiles": plan.tiles, "scan_length_mm": plan.length_mm,
         "machine_s": {"scan": plan.scan_s, "links": plan.link_s,
                       "verification": touch_time(cost, vsites.xy) if picked else 0.0},
         "samples": int(len(samples)), "valid": int(samples[:, 4].sum()), "fitted_points": int(len(dz)),

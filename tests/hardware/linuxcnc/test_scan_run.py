@@ -16,7 +16,7 @@ import trimesh
 
 from hardware.linuxcnc import SimBlock, SimSensor
 from tests.conftest import auth
-from tests.hardware.linuxcnc.conftest import add_sim_machine
+from tests.hardware.linuxcnc.conftest import add_sim_machine, wait_until
 from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
@@ -33,32 +33,71 @@ def _box_stl() -> bytes:
     return box.export(file_type="stl")
 
 
-def test_scan_run_on_linuxcnc_measures_the_simulated_block(client, lcnc_env):
-    lcnc_env.set_surface(TRUTH)
-    lcnc_env.set_sensor(SimSensor(offset_mm=OFFSET, noise_mm=0.0005))
+def _submit_scan(client, sim, speed_mm_s: float, verify_count: int) -> tuple[str, str, list[str]]:
+    """(job id, machine id, trace ids) of a scan_run of the two traces on the box."""
+    sim.set_surface(TRUTH)
+    sim.set_sensor(SimSensor(offset_mm=OFFSET, noise_mm=0.0005))
     part = client.post("/api/v1/parts", files={"file": ("box.stl", _box_stl())}, headers=OP).json()
     traces = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=[
         {"name": f"line-{x:g}", "geometry": {"type": "line", "start": [x, 5.0], "end": [x, 25.0]}, "frame": "xy",
          "standoff_mm": 0.08} for x in TRACE_X], headers=OP).json()["items"]
-    machine_id = add_sim_machine(client, lcnc_env, PROFILE, OP)
+    machine_id = add_sim_machine(client, sim, PROFILE, OP)
     calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": 0.001, "slope_bias_mm": 0.0}
     response = submit(client, "scan_run", {
         "machine_id": machine_id, "trace_ids": [t["id"] for t in traces], "calibration": calibration,
-        "mode": "traces", "scan_speed_mm_s": 50.0, "deviation_amplitude_mm": 0.15,
-        "deviation_wavelength_mm": 20.0, "verify_count": 2})
+        "mode": "traces", "scan_speed_mm_s": speed_mm_s, "deviation_amplitude_mm": 0.15,
+        "deviation_wavelength_mm": 20.0, "verify_count": verify_count})
     assert response.status_code == 202, response.text
-    done = wait_for(client, response.json()["id"], timeout=180)
-    assert done["status"] == "succeeded", done["error"]
+    return response.json()["id"], machine_id, [t["id"] for t in traces]
+
+
+def _check_against_truth(client, done: dict, trace_ids: list[str]) -> dict:
+    """The job's fitted deviations and sampled surface against the block; returns the samples."""
     result = done["result"]
-    assert result["verification"]["within"], result["verification"]  # probe touches on the same block
     for trace in result["traces"]:
-        x = TRACE_X[[t["id"] for t in traces].index(trace["trace_id"])]
+        x = TRACE_X[trace_ids.index(trace["trace_id"])]
         assert trace["max_abs_deviation_mm"] == pytest.approx(0.02 + 0.003 * x, abs=0.003)
     artifact = next(a for a in done["artifacts"] if a["name"] == "samples.npz")
-    data = np.load(io.BytesIO(client.get(artifact["url"], headers=OP).content))
+    data = dict(np.load(io.BytesIO(client.get(artifact["url"], headers=OP).content)))
     valid = data["valid"]
     assert len(valid) == result["samples"] > 500 and valid.mean() > 0.99
-    assert np.allclose(np.diff(data["t"][data["pass_index"] == 0]), 0.001)  # one sample per servo period
     x, y, z = data["x"][valid], data["y"][valid], data["z"][valid]
     error = z - np.array([TRUTH.top_z(a, b) for a, b in zip(x, y)])
     assert abs(np.median(error)) < 0.002 and np.percentile(np.abs(error), 95) < 0.006
+    return data
+
+
+def test_scan_run_on_linuxcnc_measures_the_simulated_block(client, lcnc_env):
+    job_id, _, trace_ids = _submit_scan(client, lcnc_env, 50.0, 2)
+    done = wait_for(client, job_id, timeout=180)
+    assert done["status"] == "succeeded", done["error"]
+    result = done["result"]
+    assert result["verification"]["within"], result["verification"]  # probe touches on the same block
+    data = _check_against_truth(client, done, trace_ids)
+    assert np.allclose(np.diff(data["t"][data["pass_index"] == 0]), 0.001)  # one sample per servo period
+
+
+def test_a_scan_run_whose_link_drops_waits_and_resumes_at_the_interrupted_pass(client, lcnc_env):
+    """The linuxcncrsh session is cut while the second pass runs: the job becomes
+    ``interrupted`` with one pass done; the operator's resume re-homes, keeps the first
+    pass's samples, scans the second again and ends as an uninterrupted run would."""
+    job_id, machine_id, trace_ids = _submit_scan(client, lcnc_env, 10.0, 1)
+    machine = client.app.state.runtime.machines.get(machine_id)
+
+    def second_pass_running() -> bool:
+        state = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json().get("program_state") or {}
+        return state.get("executed") == 1 and machine.state == "printing"
+
+    assert wait_until(second_pass_running, 60.0)
+    machine.link.sever()
+    assert wait_until(lambda: client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()["status"] != "running", 60.0)
+    job = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
+    assert job["status"] == "interrupted", job["error"]
+    assert job["program_state"]["executed"] == 1 and job["program_state"]["reason"].startswith("LinkError")
+    assert [a["name"] for a in job["artifacts"]] == ["pass-0000.npz"]  # the interrupted pass left nothing
+    assert client.post(f"/api/v1/jobs/{job_id}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    done = wait_for(client, job_id, timeout=180)
+    assert done["status"] == "succeeded", done["error"]
+    assert done["result"]["resumes"] == 1 and done["result"]["passes"] == 2
+    data = _check_against_truth(client, done, trace_ids)
+    assert sorted(set(data["pass_index"].tolist())) == [0, 1]
