@@ -1,9 +1,12 @@
 """Sample a LinuxCNC controller's height sensor with its joints, in the servo thread.
 
-The controller's HAL (``sim/sensor.hal`` on Conforma's simulator; on a real machine the
-sensor's analog input and its alarm output wired the same way) has a ``sampler`` whose
-channels are ``x y z reading valid updates`` and a signal that switches the sensor and the
-sampler on.  :class:`HalScan` runs ``halsampler`` (LinuxCNC's reader of the sampler's
+The controller's HAL has a ``sampler`` whose channels are ``x y z reading valid clock
+exposed`` and a signal that switches the sensor and the sampler on.  ``clock`` counts servo
+periods; ``exposed`` is the count at which the value in ``reading`` was measured.  On
+Conforma's simulator (``sim/sensor.hal``) the sensor's HAL component stamps each value with
+the count it read the joints at, however late the scheduler ran it.  On a machine whose
+sensor is an analog input sampled in the servo thread, ``exposed`` is the clock itself and
+the sensor's own latency is the calibrated time offset.  :class:`HalScan` runs ``halsampler`` (LinuxCNC's reader of the sampler's
 FIFO) on this host while a scan pass runs:
 
     scan = HalScan()                # halcmd / halsampler of the controller on this host
@@ -12,10 +15,11 @@ FIFO) on this host while a scan pass runs:
     samples = scan.stop()           # ``sets ... 0``, the FIFO drained, halsampler ended
     samples.t, samples.xyz, samples.reading   # (n,) s, (n, 3) mm, (n,) mm (NaN: no value)
 
-Sample k was taken k servo periods after the first (the sampler's sequence numbers; a gap
-means the FIFO overran, which is an error).  Rows before the sensor's first fresh value
-(its ``updates`` counter unchanged since the sampler came on) are dropped: the component
-wakes within its idle period.  The HAL must be on this host (``halcmd`` reaches the
+Each row's value is paired with the joints of the row it was exposed in: ``t`` and ``xyz``
+are the exposure's (a gap in the sampler's sequence numbers means the FIFO overran, which is
+an error).  A value exposed before the first row (the sensor not yet awake) and repeats of
+one exposure (the sensor had nothing new) are dropped; ``lag_s`` is how late each value
+reached the sampler.  The HAL must be on this host (``halcmd`` reaches the
 controller's shared memory): a ``linuxcnc://`` machine elsewhere cannot be scanned this way.
 """
 
@@ -34,7 +38,7 @@ from ..errors import HardwareError
 __all__ = ["HalScan", "HalScanError", "HalSamples", "servo_period_s"]
 
 SENSOR_ON = "conforma:sensor-on"
-CHANNELS = 6  # x y z reading valid updates
+CHANNELS = 7  # x y z reading valid clock exposed
 
 
 class HalScanError(HardwareError):
@@ -45,12 +49,14 @@ class HalScanError(HardwareError):
 
 @dataclass(frozen=True)
 class HalSamples:
-    """One sampled pass: t (n,) s from its first row, xyz (n, 3) mm (the joints' feedback),
-    reading (n,) mm (NaN where the sensor had no value), period_s the servo period."""
+    """One sampled pass: t (n,) s of each exposure from the first row, xyz (n, 3) mm (the
+    joints' feedback at the exposure), reading (n,) mm (NaN where the sensor had no value),
+    lag_s (n,) s from the exposure to the row that sampled the value, period_s the servo period."""
 
     t: np.ndarray
     xyz: np.ndarray
     reading: np.ndarray
+    lag_s: np.ndarray
     period_s: float
 
 
@@ -72,8 +78,8 @@ def servo_period_s(env: dict[str, str] | None = None) -> float:
 
 
 def parse_rows(lines: list[str], period_s: float) -> HalSamples:
-    """``halsampler -t`` lines (``seq x y z reading valid updates``) -> samples; a gap in
-    the sequence (FIFO overrun) raises ``HalScanError``."""
+    """``halsampler -t`` lines (``seq x y z reading valid clock exposed``) -> samples (see
+    the module docstring); a gap in the sequence (FIFO overrun) raises ``HalScanError``."""
     lines = [line for line in lines if line.strip()]
     while lines and lines[0].strip() == "overrun":  # halsampler counts from 0: the sampler's
         lines = lines[1:]                             # numbers went on since its last session
@@ -88,10 +94,12 @@ def parse_rows(lines: list[str], period_s: float) -> HalSamples:
     if np.any(np.diff(seq) != 1):
         raise HalScanError("samples were lost (a gap in the sampler's sequence)", field="sampler",
                            value=int(np.count_nonzero(np.diff(seq) != 1)))
-    fresh = np.flatnonzero(rows[:, 6] != rows[0, 6])
-    rows = rows[fresh[0]:] if len(fresh) else rows[:0]
-    reading = np.where(rows[:, 5] > 0.5, rows[:, 4], np.nan)
-    return HalSamples((rows[:, 0] - (rows[0, 0] if len(rows) else 0.0)) * period_s, rows[:, 1:4], reading,
+    at = np.rint(rows[:, 7] - rows[0, 6]).astype(int)  # the row each value was exposed in
+    keep = (at >= 0) & (at <= np.arange(len(rows)))
+    keep[1:] &= at[1:] != at[:-1]  # a repeat: nothing new since the previous row
+    exposed, sampled = at[keep], rows[keep]
+    reading = np.where(sampled[:, 5] > 0.5, sampled[:, 4], np.nan)
+    return HalSamples(exposed * period_s, rows[exposed, 1:4], reading, (sampled[:, 6] - sampled[:, 7]) * period_s,
                       period_s)
 
 

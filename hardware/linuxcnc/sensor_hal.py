@@ -70,6 +70,8 @@ def main(argv):
     comp.newpin("reading", hal.HAL_FLOAT, hal.HAL_OUT)
     comp.newpin("valid", hal.HAL_BIT, hal.HAL_OUT)
     comp.newpin("updates", hal.HAL_U32, hal.HAL_OUT)
+    comp.newpin("tick", hal.HAL_FLOAT, hal.HAL_IN)
+    comp.newpin("exposed", hal.HAL_FLOAT, hal.HAL_OUT)
     comp.ready()
     running = [True]
     signal.signal(signal.SIGTERM, lambda *_: running.__setitem__(0, False))
@@ -79,7 +81,10 @@ def main(argv):
             if not comp["enable"]:
                 time.sleep(IDLE_S)
                 continue
+            tick = comp["tick"]
             p = {pin: comp[pin] for pin in FLOAT_IN}
+            if comp["tick"] != tick:  # a servo period passed while reading: read again
+                continue
             points = model.spot_points(np.array([[p["x"] + p["offset-x"], p["y"] + p["offset-y"]]]), p["spot"])
             heights, cos_tilt = block_heights(p, points)
             value = model.optical_values(heights, cos_tilt, np.array([p["z"] + p["offset-z"]]), rng,
@@ -89,6 +94,7 @@ def main(argv):
             ok = bool(np.isfinite(value) and abs(value) <= p["range"])
             comp["reading"] = float(value) if ok else 0.0
             comp["valid"] = ok
+            comp["exposed"] = tick
             updates = (updates + 1) & 0xFFFFFFFF
             comp["updates"] = updates
             time.sleep(PERIOD_S)

@@ -8,8 +8,6 @@ sensor's optics; the controller samples it with the joints in the servo thread a
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -20,16 +18,14 @@ OFFSET = (30.0, 5.0, -10.0)
 BLOCK = SimBlock(40.0, 30.0, 2.0, 0.02, dx=10.0, dy=-5.0, dz=0.1, rz_deg=1.0)
 
 
-def _scan(machine, sim, start, end, speed_mm_s, settle_s=0.0):
-    """One straight pass (carriage from ``start`` to ``end``, mm) sampled through HAL, and
-    ``settle_s`` more at the end."""
+def _scan(machine, sim, start, end, speed_mm_s):
+    """One straight pass (carriage from ``start`` to ``end``, mm) sampled through HAL."""
     machine.move(z=start[2])
     machine.move(x=start[0], y=start[1])
     scan = HalScan(sim.hal_env)
     scan.start()
     try:
         machine.stream(["G90", f"G1 X{end[0]:.4f} Y{end[1]:.4f} Z{end[2]:.4f} F{speed_mm_s * 60:.1f}"])
-        time.sleep(settle_s)
     finally:
         samples = scan.stop()
     return samples
@@ -47,8 +43,9 @@ def test_a_scan_pass_samples_the_block_under_the_spot_every_servo_period(lcnc_xy
     # the spot crosses the block along y = 8 (machine), from the bed onto the top and off again
     samples = _scan(machine, lcnc_xyz, (-25.0, 3.0, 12.0), (25.0, 3.0, 12.5), 20.0)
     assert samples.period_s == pytest.approx(0.001)
-    assert np.allclose(np.diff(samples.t), 0.001)  # one row per servo period, none lost
-    assert len(samples.t) > 50.0 / 20.0 / 0.001  # the whole pass (2.5 s at 20 mm/s) and the rest
+    steps = np.diff(samples.t) / 0.001  # values exposed at servo periods, in order; most in every one
+    assert np.allclose(steps, np.round(steps)) and np.round(steps).min() >= 1 and np.median(np.round(steps)) == 1
+    assert samples.t[-1] > 50.0 / 20.0  # the whole pass (2.5 s at 20 mm/s) and the rest
     # the joints' feedback: the motors, within the homing latch's repeatability of the commands
     assert samples.xyz[0] == pytest.approx([-25.0, 3.0, 12.0], abs=0.01)
     assert samples.xyz[-1] == pytest.approx([25.0, 3.0, 12.5], abs=0.01)
@@ -56,34 +53,35 @@ def test_a_scan_pass_samples_the_block_under_the_spot_every_servo_period(lcnc_xy
     error = zero + samples.reading - surface
     spot = samples.xyz[:, :2] + OFFSET[:2]
     u, v = np.array([BLOCK.part_uv(x, y) for x, y in spot]).T
-    near_edge = (np.abs(u) < 1.0) | (np.abs(u - BLOCK.length_mm) < 1.0)  # the spot and the lag
+    near_edge = (np.abs(u) < 0.05) | (np.abs(u - BLOCK.length_mm) < 0.05)  # the spot straddles the edge
     ok = np.isfinite(error) & ~near_edge
     assert np.isfinite(samples.reading[~near_edge]).all()  # no dropout on a 1.1 degree top or the bed
     on_top = ok & (u > 0) & (u < BLOCK.length_mm)
-    assert on_top.sum() > 1000 and (ok & ~on_top).sum() > 200
+    assert on_top.sum() > 100 and (ok & ~on_top).sum() > 50  # fewer values than periods on a loaded host
     for where in (on_top, ok & ~on_top):
-        assert abs(np.median(error[where])) < 0.001
-        assert np.percentile(np.abs(error[where]), 95) < 0.005
-    assert 0.0003 < np.std(error[on_top]) < 0.003  # the sensor's noise (0.5 um) and the lag on the slope
+        assert abs(np.median(error[where])) < 0.0005
+        assert np.abs(error[where]).max() < 0.004
+    # each value is paired with the joints at its exposure, however late it reached the sampler:
+    # what is left is the sensor's noise (0.5 um) and its 0.1 um resolution
+    assert 0.0003 < np.std(error[on_top]) < 0.0008
 
 
-def test_steep_slopes_drop_out_and_a_still_reading_is_exact(lcnc_xyz, machine):
+def test_steep_slopes_drop_out_and_noiseless_values_are_exact(lcnc_xyz, machine):
     steep = SimBlock(6.0, 30.0, 1.0, 0.6, dx=10.0, dy=-5.0, dz=0.1)  # a 31 degree top
     lcnc_xyz.set_surface(steep)
     lcnc_xyz.set_sensor(SimSensor(offset_mm=OFFSET, noise_mm=0.0, resolution_mm=0.0001, acceptance_deg=25.0))
     samples = _scan(machine, lcnc_xyz, (-25.0, 3.0, 12.0), (-10.0, 3.0, 12.0), 20.0)
     spot_u = samples.xyz[:, 0] + OFFSET[0] - steep.dx
-    top = (spot_u > 0.2) & (spot_u < steep.length_mm - 0.2)
-    bed = (spot_u < -0.5) | (spot_u > steep.length_mm + 0.5)
-    assert top.sum() > 200 and np.isnan(samples.reading[top]).all()  # beyond the acceptance angle
+    top = (spot_u > 0.05) & (spot_u < steep.length_mm - 0.05)
+    bed = (spot_u < -0.05) | (spot_u > steep.length_mm + 0.05)
+    assert top.sum() > 50 and np.isnan(samples.reading[top]).all()  # beyond the acceptance angle
     assert np.isfinite(samples.reading[bed]).all()
     surface, zero = _truth(steep, samples.xyz)
-    before = np.all(samples.xyz == samples.xyz[0], axis=1)  # at rest before the pass: every value exact
-    assert before.sum() > 5 and np.abs(zero + samples.reading - surface)[before] == pytest.approx(0.0, abs=6e-5)
-    # a wider acceptance sees the same top; at rest over it the value is exact (no noise)
+    assert np.abs(zero + samples.reading - surface)[bed] == pytest.approx(0.0, abs=6e-5)  # no noise: exact
+    # a wider acceptance sees the same top: every value exact at its exposure (resolution 0.1 um),
+    # the carriage moving down over it
     lcnc_xyz.set_sensor(SimSensor(offset_mm=OFFSET, noise_mm=0.0, acceptance_deg=40.0))
-    samples = _scan(machine, lcnc_xyz, (-17.0, 3.0, 11.5), (-17.0, 3.0, 11.0), 2.0, settle_s=0.3)
+    samples = _scan(machine, lcnc_xyz, (-17.0, 3.0, 11.5), (-17.0, 3.0, 11.0), 2.0)
     surface, zero = _truth(steep, samples.xyz)
-    still = samples.t > samples.t[-1] - 0.1  # the carriage stopped 0.3 s before the end
-    assert np.isfinite(samples.reading).all()
-    assert (zero + samples.reading)[still] == pytest.approx(surface[still], abs=6e-5)  # resolution 0.1 um
+    assert np.isfinite(samples.reading).all() and np.ptp(samples.xyz[:, 2]) > 0.49
+    assert zero + samples.reading == pytest.approx(surface, abs=6e-5)
