@@ -6,6 +6,12 @@ feed (then the dialect's wait for the moves); the storage stops and its values a
 The carriage position of each sample comes from the commanded pass
 (:func:`app.probing.scan_path.sample_positions`) and the calibrated time offset.
 
+:func:`open_scanner` picks how a scan job reads the sensor from the machine's port: on a
+``linuxcnc://`` machine the sensor is an analog input the controller samples with its
+joints in the servo thread (:class:`hardware.linuxcnc.hal_scan.HalScan`, the controller
+on this host), so each sample carries the carriage's measured position; on a serial
+machine it is the LK-G sensor on its own link (``sensor_port``).
+
 :func:`calibrate_sensor` runs the three procedures of :mod:`app.calibration.sensor` on the
 reference pad (its probe-measured top height) and the datum sphere (its qualified centre
 and radius).  Machine and sensor errors pass through as hardware errors (the job kinds
@@ -14,16 +20,23 @@ translate them).
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from app.calibration.sensor import (EdgePass, SensorCalibration, fit_scale_and_z, fit_sphere_scan,
                                     fit_time_offset)
 from app.probing.scan_path import positions_at, sample_positions
+from app.errors import InvalidInput
+from app.reconstruction.scan_samples import exposure_positions
+from hardware.errors import HardwareError
 from hardware.height_sensor import HeightSensor
 from hardware.machine import Machine
+
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 
 
 @dataclass(frozen=True)
@@ -49,6 +62,81 @@ def run_pass(machine: Machine, sensor: HeightSensor, waypoints: np.ndarray, spee
     machine.stream(lines + [machine.rules.wait_moves])
     values, _ = sensor.stop_storage()
     return PassData(w, speed_mm_s, values)
+
+
+@dataclass(frozen=True)
+class ScannedPass:
+    """One pass as a scan job uses it: the carriage (n, 3) mm where each reading was
+    exposed (the calibrated time offset applied), the readings (n,) mm (NaN: none) and their
+    stamps (n,) s after the pass's first sample."""
+
+    carriage: np.ndarray
+    values: np.ndarray
+    stamps: np.ndarray
+
+
+class SerialScanner:
+    """The sensor on its own link; positions from the commanded pass at the sensor's rate."""
+
+    def __init__(self, machine: Machine, port: str, rate_hz: float) -> None:
+        self.machine = machine
+        self.sensor = HeightSensor(port, rate_hz)
+        self.sensor.connect()
+
+    def run(self, waypoints: np.ndarray, speed_mm_s: float, travel_z: float | None,
+            time_offset_s: float) -> ScannedPass:
+        data = run_pass(self.machine, self.sensor, waypoints, speed_mm_s, travel_z)
+        n = len(data.values)
+        carriage = sample_positions(data.waypoints, speed_mm_s, n, self.sensor.rate_hz, time_offset_s)
+        return ScannedPass(carriage, data.values, self.sensor.stamps(n))
+
+    def close(self) -> None:
+        self.sensor.close()
+
+
+class HalScanner:
+    """A LinuxCNC machine's sensor sampled with its joints (see the module docstring)."""
+
+    def __init__(self, machine: Any) -> None:
+        from hardware.linuxcnc.hal_scan import HalScan
+
+        host = machine.address.host
+        if host not in LOCAL_HOSTS:
+            raise InvalidInput(f"scanning on a LinuxCNC machine samples its HAL on this host; {host!r} is another",
+                               field="machine.port", value=machine.url)
+        self.machine = machine
+        self.scan = HalScan()
+
+    def run(self, waypoints: np.ndarray, speed_mm_s: float, travel_z: float | None,
+            time_offset_s: float) -> ScannedPass:
+        w = np.asarray(waypoints, dtype=float)
+        if travel_z is not None:
+            self.machine.move(z=max(travel_z, float(w[0, 2])))
+            self.machine.move(x=float(w[0, 0]), y=float(w[0, 1]))
+        self.machine.move(x=float(w[0, 0]), y=float(w[0, 1]), z=float(w[0, 2]))
+        feed = speed_mm_s * 60.0
+        self.scan.start()
+        try:
+            self.machine.stream(["G90"] + [f"G1 X{x:.4f} Y{y:.4f} Z{z:.4f} F{feed:.1f}" for x, y, z in w[1:]])
+        except BaseException:
+            with contextlib.suppress(HardwareError):  # the pass's own failure is the one reported
+                self.scan.stop()
+            raise
+        samples = self.scan.stop()
+        return ScannedPass(exposure_positions(samples.t, samples.xyz, time_offset_s), samples.reading, samples.t)
+
+    def close(self) -> None:
+        """Nothing stays open between passes."""
+
+
+def open_scanner(machine: Any, sensor_port: str | None, rate_hz: float) -> SerialScanner | HalScanner:
+    """The scan backend for ``machine`` (see the module docstring)."""
+    if getattr(machine, "dialect", None) == "linuxcnc":
+        return HalScanner(machine)
+    if not sensor_port:
+        raise InvalidInput("a scan on a serial machine needs the sensor's link", field="params.sensor_port",
+                           value=sensor_port)
+    return SerialScanner(machine, sensor_port, rate_hz)
 
 
 @dataclass(frozen=True)

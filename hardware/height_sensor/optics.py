@@ -30,8 +30,9 @@ import numpy as np
 from ..errors import InvalidConfig
 from ..mock.surface import placement_matrix
 from ..mock.world import MockWorld
+from .optics_model import SPOT_PATTERN, optical_values, spot_points
 
-SPOT_PATTERN = np.array([[0.0, 0.0]] + [[math.cos(a), math.sin(a)] for a in np.arange(6) * math.pi / 3]) / 3.0
+__all__ = ["SPOT_PATTERN", "Scene", "SensorOptics", "readings"]
 
 
 @dataclass
@@ -125,20 +126,13 @@ def readings(optics: SensorOptics, scene: Scene, carriage: np.ndarray) -> np.nda
     n = len(p)
     offset = np.asarray(optics.offset_mm)
     spot = p[:, :2] + offset[:2]
-    pattern = SPOT_PATTERN[:1] if optics.spot_mm == 0 else SPOT_PATTERN * optics.spot_mm
-    z_all, normals = scene.top_z((spot[:, None, :] + pattern[None, :, :]).reshape(-1, 2))
-    h = z_all.reshape(n, len(pattern)).mean(axis=1)
-    centre = normals.reshape(n, len(pattern), 3)[:, 0, :]
-    cos_tilt = np.clip(np.abs(centre[:, 2]), 1e-9, 1.0)
-    tan2 = (1.0 - cos_tilt ** 2) / cos_tilt ** 2
-    value = (h - (p[:, 2] + offset[2]) + optics.slope_bias_mm * tan2) * (1.0 + optics.scale_error)
-    if optics.noise_mm > 0:
-        value = value + optics.rng.normal(0.0, optics.noise_mm, n)
-    if optics.resolution_mm > 0:
-        value = np.round(value / optics.resolution_mm) * optics.resolution_mm
-    lost = np.degrees(np.arccos(cos_tilt)) > optics.acceptance_deg
+    points = spot_points(spot, optics.spot_mm)
+    z_all, normals = scene.top_z(points.reshape(-1, 2))
+    k = points.shape[1]
+    lost = np.zeros(n, dtype=bool)
     for x, y, r in optics.dark_spots:
         lost |= np.hypot(spot[:, 0] - x, spot[:, 1] - y) <= r
-    if optics.dropout_rate > 0:
-        lost |= optics.rng.random(n) < optics.dropout_rate
-    return np.where(lost, np.nan, value)
+    return optical_values(z_all.reshape(n, k), normals.reshape(n, k, 3)[:, 0, 2], p[:, 2] + offset[2], optics.rng,
+                          noise_mm=optics.noise_mm, resolution_mm=optics.resolution_mm,
+                          scale_error=optics.scale_error, slope_bias_mm=optics.slope_bias_mm,
+                          acceptance_deg=optics.acceptance_deg, dropout_rate=optics.dropout_rate, lost=lost)

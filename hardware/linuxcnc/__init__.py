@@ -4,8 +4,8 @@ LinuxCNC simulators (three-axis and five-axis xyzac-trt)."""
 from .machine import LinuxCNCMachine
 from .rsh import RshRejected, RshSession
 from .sim import HalWatch, SimController, SimUnavailable, linuxcnc_available
-from .sim_surface import SimBlock, SimSphere
+from .sim_surface import SimBlock, SimSensor, SimSphere
 from .url import LinuxCNCAddress, parse_url
 
 __all__ = ["HalWatch", "LinuxCNCAddress", "LinuxCNCMachine", "RshRejected", "RshSession", "SimBlock",
-           "SimController", "SimSphere", "SimUnavailable", "linuxcnc_available", "parse_url"]
+           "SimController", "SimSensor", "SimSphere", "SimUnavailable", "linuxcnc_available", "parse_url"]

@@ -41,12 +41,13 @@ from ..errors import HardwareError, LinkError
 from ..machine_types import MachineProfile
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
-from .sim_surface import SimBlock, SimSphere
+from .sim_surface import SimBlock, SimSensor, SimSphere
 
-__all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSphere", "SimUnavailable", "linuxcnc_available"]
+__all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSensor", "SimSphere", "SimUnavailable", "linuxcnc_available"]
 
 SIM_DIR = Path(__file__).with_name("sim")
 CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
+SENSOR_COMPONENT = Path(__file__).with_name("sensor_hal.py")  # sim/sensor.hal's component
 LOCK_PATH = os.path.join(tempfile.gettempdir(), "conforma-linuxcnc.lock")
 
 
@@ -121,15 +122,41 @@ class SimController:
     def set_surface(self, surface: SimBlock | SimSphere) -> None:
         """Make the simulated probe touch ``surface`` (a block or plane, or the reference
         sphere beside it; ``halcmd setp`` on the running simulator; see
-        :mod:`hardware.linuxcnc.sim_surface`)."""
+        :mod:`hardware.linuxcnc.sim_surface`); on the three-axis simulator the height
+        sensor sees the same block."""
+        values = surface.setp_values()
+        if isinstance(surface, SimBlock) and self.has_sensor:
+            values.update(surface.sensor_setp_values())
+        self._setp(values)
+
+    def set_sensor(self, sensor: SimSensor) -> None:
+        """Set the simulated height sensor's optics (three-axis simulator, ``sim/sensor.hal``)."""
+        if not self.has_sensor:
+            raise SimUnavailable(f"the {self.config} simulator has no height sensor", field="config",
+                                 value=self.config)
+        self._setp(sensor.setp_values())
+
+    @property
+    def has_sensor(self) -> bool:
+        """True for the config with the height sensor component (three-axis)."""
+        return self.config == "xyz"
+
+    @property
+    def hal_env(self) -> dict[str, str] | None:
+        """The environment ``halcmd`` / ``halsampler`` need for this simulator."""
+        return self._env
+
+    def _setp(self, values: dict[str, float]) -> None:
+        """``setp`` each value in one ``halcmd -f`` run."""
         if not self.running:
             raise SimUnavailable("the simulator is not running", field="linuxcnc")
-        for name, value in surface.setp_values().items():
-            done = subprocess.run(["halcmd", "setp", name, repr(float(value))], capture_output=True,
-                                  text=True, timeout=10, env=self._env)
-            if done.returncode != 0:
-                raise SimUnavailable(f"halcmd setp {name} failed: {done.stderr.strip()[:200]}",
-                                     field="halcmd", value=name)
+        script = self.workdir / "setp.hal"
+        script.write_text("".join(f"setp {name} {float(value)!r}\n" for name, value in values.items()))
+        done = subprocess.run(["halcmd", "-f", str(script)], capture_output=True, text=True, timeout=10,
+                              env=self._env)
+        if done.returncode != 0:
+            raise SimUnavailable(f"halcmd setp failed: {done.stderr.strip()[:200]}", field="halcmd",
+                                 value=sorted(values)[0])
 
     def watch(self, names: list[str], period_s: float = 0.0005, max_s: float = 300.0) -> "HalWatch":
         """Start sampling HAL pins / ``task_state`` at the controller (``hal_watch.py``
@@ -172,6 +199,7 @@ class SimController:
     # and the dispense output (M64/M65 P0)
     SNAPSHOT_HAL = (*SimBlock.plane(0.0, 0.0).setp_values(), *SimSphere.none().setp_values(),
                     "motion.digital-out-00")
+    SNAPSHOT_SENSOR = (*SimBlock.plane(0.0, 0.0).sensor_setp_values(), *SimSensor().setp_values())
     # (not "tool_offset": linuxcncrsh 2.9 answers it with an arbitrary integer, -1163042392
     # after one start, 115 after another; the tests apply no tool-length offset, G43)
     SNAPSHOT_RSH = ("estop", "machine", "mode", "joint_homed", "program_status", "program_codes",
@@ -182,7 +210,8 @@ class SimController:
         ``SNAPSHOT_RSH`` (linuxcncrsh ``get``: e-stop, power, task mode, homed joints,
         program status, active G/M codes, units, tool, kinematics) and
         ``SNAPSHOT_HAL`` (``halcmd getp``: the probe surface, the sphere, the dispense
-        output).  Joint positions are not part of it (every test homes first)."""
+        output; with the height sensor also ``SNAPSHOT_SENSOR``: its surface and optics pins).
+        Joint positions are not part of it (every test homes first)."""
         if not self.running:
             raise SimUnavailable("the simulator is not running", field="linuxcnc")
         session = self.session()
@@ -191,13 +220,14 @@ class SimController:
         finally:
             session.close()
         script = self.workdir / "snapshot.hal"
-        script.write_text("".join(f"getp {name}\n" for name in self.SNAPSHOT_HAL))
+        names = self.SNAPSHOT_HAL + (self.SNAPSHOT_SENSOR if self.has_sensor else ())
+        script.write_text("".join(f"getp {name}\n" for name in names))
         done = subprocess.run(["halcmd", "-f", str(script)], capture_output=True, text=True,
                               timeout=10, env=self._env)
         values = done.stdout.split()
-        if done.returncode != 0 or len(values) != len(self.SNAPSHOT_HAL):
+        if done.returncode != 0 or len(values) != len(names):
             raise SimUnavailable(f"halcmd getp failed: {done.stderr.strip()[:200]}", field="halcmd")
-        state.update(zip(self.SNAPSHOT_HAL, (_number_or_text(v) for v in values)))
+        state.update(zip(names, (_number_or_text(v) for v in values)))
         return state
 
     def reset(self, timeout_s: float = 30.0) -> None:
@@ -215,6 +245,9 @@ class SimController:
         z0, slope_x = self.start_surface()
         self.set_surface(SimBlock.plane(z0, slope_x))
         self.set_surface(SimSphere.none())
+        if self.has_sensor:
+            self.set_sensor(SimSensor())
+            self._setp_signal_off()
         session = self.session(enable=True)
         try:
             session.set("estop", "off")
@@ -238,6 +271,11 @@ class SimController:
         finally:
             session.close()
 
+    def _setp_signal_off(self) -> None:
+        """The height sensor and its sampler off (``sets conforma:sensor-on 0``)."""
+        subprocess.run(["halcmd", "sets", "conforma:sensor-on", "0"], capture_output=True, timeout=10,
+                       env=self._env)
+
     _UNHOME = ("import linuxcnc, sys\n"
                "c = linuxcnc.command()\n"
                "c.mode(linuxcnc.MODE_MANUAL); c.wait_complete()\n"
@@ -259,7 +297,7 @@ class SimController:
             line = raw.strip()
             if line.startswith("["):
                 section = line
-            elif section == "[CONFORMA]" and "=" in line and not line.startswith("#"):
+            elif section == "[CONFORMA]" and line.startswith("SURFACE_"):
                 key, _, value = line.partition("=")
                 values[key.strip()] = float(value)
         return values["SURFACE_Z"], values["SURFACE_SLOPE_X"]
@@ -296,7 +334,7 @@ class SimController:
         (workdir / "programs").mkdir()
         fields = {"PORT": str(self.port), "CONNECTPW": self.connect_pw, "ENABLEPW": self.enable_pw,
                   "PIVOT_X": repr(self.pivot_mm[0]), "PIVOT_Y": repr(self.pivot_mm[1]),
-                  "PIVOT_Z": repr(self.pivot_mm[2])}
+                  "PIVOT_Z": repr(self.pivot_mm[2]), "SENSOR_COMPONENT": str(SENSOR_COMPONENT)}
         ini = workdir / CONFIGS[self.config]
         text = ini.read_text()
         for key, value in fields.items():

@@ -19,6 +19,13 @@ trips where the tip, which stands for the ball's centre, is within ``radius_mm``
 sphere's radius plus the ball's) of ``centre_mm``.  ``SimSphere.none()`` removes it.
 
     sim.set_surface(SimSphere((30.3, 20.2, 3.1), 5.0 + 0.5))
+
+The three-axis simulator's laser height sensor (``sim/sensor.hal``) sees the same block:
+``SimBlock.sensor_setp_values()`` are its surface pins.  A :class:`SimSensor` is its
+optics (the fields of :class:`hardware.height_sensor.optics.SensorOptics` the component
+has; the defaults are ``sensor.hal``'s start-up values):
+
+    sim.set_sensor(SimSensor(offset_mm=(30, 5, -10), noise_mm=0.0005))
 """
 
 from __future__ import annotations
@@ -26,7 +33,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["SimBlock", "SimSphere"]
+__all__ = ["SimBlock", "SimSensor", "SimSphere"]
 
 _ENDLESS = 1e9
 
@@ -84,6 +91,16 @@ class SimBlock:
                 "conforma-surface.offset": self.dz + self.height_mm,
                 "conforma-bed.in1": -_ENDLESS if self.endless else self.dz}
 
+    def sensor_setp_values(self) -> dict[str, float]:
+        """HAL pin values of ``sim/sensor.hal``'s component for this surface (the same
+        placement; outside the footprint it sees the bed at dz)."""
+        probe = self.setp_values()
+        names = {"u.gain0": "u-gain0", "u.gain1": "u-gain1", "u.offset": "u-offset", "v.gain0": "v-gain0",
+                 "v.gain1": "v-gain1", "v.offset": "v-offset", "inside-u.min": "u-min", "inside-u.max": "u-max",
+                 "inside-v.min": "v-min", "inside-v.max": "v-max", "surface.gain0": "top-slope",
+                 "surface.offset": "top-z", "bed.in1": "bed-z"}
+        return {f"conforma-sensor.{pin}": probe[f"conforma-{key}"] for key, pin in names.items()}
+
 
 @dataclass(frozen=True)
 class SimSphere:
@@ -102,3 +119,27 @@ class SimSphere:
         cx, cy, cz = (float(v) for v in self.centre_mm)
         return {"conforma-dx.offset": -cx, "conforma-dy.offset": -cy, "conforma-dz.offset": -cz,
                 "conforma-sphere.in1": float(self.radius_mm) ** 2}
+
+
+@dataclass(frozen=True)
+class SimSensor:
+    """The simulated height sensor's optics (mm, degrees); see the module docstring."""
+
+    offset_mm: tuple[float, float, float] = (30.0, 5.0, -10.0)
+    range_mm: float = 5.0
+    noise_mm: float = 0.0005
+    resolution_mm: float = 0.0001
+    spot_mm: float = 0.03
+    acceptance_deg: float = 25.0
+    scale_error: float = 0.0
+    slope_bias_mm: float = 0.0
+    dropout_rate: float = 0.0
+
+    def setp_values(self) -> dict[str, float]:
+        """HAL pin values of ``sim/sensor.hal``'s component for these optics."""
+        ox, oy, oz = (float(v) for v in self.offset_mm)
+        values = {"offset-x": ox, "offset-y": oy, "offset-z": oz, "range": self.range_mm, "noise": self.noise_mm,
+                  "resolution": self.resolution_mm, "spot": self.spot_mm, "acceptance-deg": self.acceptance_deg,
+                  "scale-error": self.scale_error, "slope-bias": self.slope_bias_mm,
+                  "dropout-rate": self.dropout_rate}
+        return {f"conforma-sensor.{k}": float(v) for k, v in values.items()}

@@ -46,3 +46,15 @@ def test_block_average_means_runs_of_k():
     xy = np.arange(14, dtype=float).reshape(7, 2)
     mxy, mz = block_average(xy, np.arange(7, dtype=float), 3)
     assert np.allclose(mz, [1.0, 4.0, 6.0]) and np.allclose(mxy[0], [2.0, 3.0])
+
+
+def test_exposure_positions_shift_sampled_positions_back_by_the_time_offset():
+    from app.reconstruction.scan_samples import exposure_positions
+
+    t = np.arange(100) * 0.001
+    sampled = np.column_stack([5.0 + 50.0 * t, np.full(100, 2.0), 10.0 - 3.0 * t])  # 50 mm/s in x, -3 in z
+    got = exposure_positions(t, sampled, 0.004)
+    assert np.allclose(got[4:, 0], 5.0 + 50.0 * (t[4:] - 0.004))
+    assert np.allclose(got[4:, 2], 10.0 - 3.0 * (t[4:] - 0.004))
+    assert np.allclose(got[:4], sampled[0])  # before the first sample: held there
+    assert np.allclose(exposure_positions(t, sampled, 0.0), sampled)

@@ -3,7 +3,9 @@
 Plans scan passes (:func:`app.probing.scan_plan.plan_scans`: passes along the traces or
 rasters over the part's nominal top, per tile the cheaper in machine time), drives them on
 the machine with the sensor (:mod:`app.jobs.sensor_runs`), turns the stored readings into
-deviations with the sensor's calibration (:mod:`app.reconstruction.scan_samples`), fits the
+deviations with the sensor's calibration (:mod:`app.reconstruction.scan_samples`; on a
+``linuxcnc://`` machine the controller samples the sensor with its joints, elsewhere the
+sensor is read over ``sensor_port``: :func:`app.jobs.sensor_runs.open_scanner`), fits the
 field by the inducing-point solve (:mod:`app.reconstruction.scan_field`), touches
 ``verify_count`` verification points with the probe where the fitted field is least certain
 and checks the field there (:func:`app.reconstruction.scan_field.verify_touches`).  Artifact
@@ -11,7 +13,11 @@ and checks the field there (:func:`app.reconstruction.scan_field.verify_touches`
 start) and valid, and the pass it belongs to.  Result: the plan's machine time (cost
 model), the field check and each trace's largest predicted deviation and bound.
 
-A failure stops the job (nothing moves afterwards); no resume (a scan is re-run whole).
+Artifacts ``pass-NNNN.npz`` (each finished pass's rows and fit points) let a run resume:
+when the link drops (or the server dies) the job becomes ``interrupted`` with the finished
+passes counted in ``program_state``; an operator's resume re-homes, reads the finished
+passes back and drives the interrupted pass again from its start (a pass is idempotent),
+then the rest.  Any other failure stops the job (nothing moves afterwards).
 """
 
 from __future__ import annotations
@@ -28,24 +34,27 @@ from app.calibration.sensor import SensorCalibration
 from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.inputs import nominal_of
-from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
+from app.jobs.machine_jobs import (interrupt, refuse_if_machine_busy, rehomed_machine, resume_request,
+                                   stopped_by_operator)
 from app.jobs.registry import JobParams, job_kind
-from app.jobs.sensor_runs import run_pass
+from app.jobs.sensor_runs import open_scanner
 from app.machines import hardware_errors, profile_of
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.scan_cost import MotionCost, touch_time
-from app.probing.scan_path import sample_positions
 from app.probing.scan_plan import plan_scans
 from app.reconstruction.scan_field import fit_scan_field, verify_touches
-from app.reconstruction.scan_samples import block_average, pass_deviations
-from hardware.height_sensor import HeightSensor
+from app.reconstruction.scan_samples import block_average, carriage_deviations
+from hardware.errors import HardwareError, LinkError
 
 
 class ScanRunParams(JobParams):
     machine_id: str
     trace_ids: list[str] = Field(min_length=1, max_length=5000)
-    sensor_port: str = Field(description="the sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port")
-    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the controller's sampling rate")
+    sensor_port: str | None = Field(None, max_length=500, description=(
+        "the sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port; not used on a linuxcnc:// "
+        "machine (the controller samples the sensor with its joints)"))
+    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the sensor controller's sampling rate "
+                                  "(a linuxcnc:// machine samples once per servo period)")
     calibration: dict[str, Any] = Field(description="the sensor's calibration: offset_mm [x, y, z], scale, "
                                         "time_offset_s, slope_bias_mm (app.calibration.sensor.SensorCalibration)")
     mode: str = Field("mixed", pattern="^(mixed|traces|raster)$")
@@ -87,6 +96,23 @@ def _top(mesh: Any) -> tuple[Any, Any]:
     return (lambda xy: hits(xy)[0]), (lambda xy: hits(xy)[1])
 
 
+def _pass_name(k: int) -> str:
+    return f"pass-{k:04d}.npz"
+
+
+def _scanned_passes(ctx: JobContext, count: int) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """The rows (n, 6) and fit points (xy (m, 2), dz (m,)) of this job's first ``count``
+    passes, from their artifacts (a resumed run)."""
+    found = ctx.artifacts_of([(ctx.job_id, _pass_name(k)) for k in range(count)])
+    rows, xy, dz = [], [], []
+    for k in range(count):
+        data = np.load(io.BytesIO(ctx.blob(found[(ctx.job_id, _pass_name(k))].sha256)))
+        rows.append(data["rows"])
+        xy.append(data["xy"])
+        dz.append(data["dz"])
+    return rows, xy, dz
+
+
 @job_kind("scan_run", ScanRunParams, queue="machine", check=_check,
           references=lambda p: [("machine", p.machine_id), *(("trace", t) for t in p.trace_ids)])
 def run(ctx: JobContext, params: ScanRunParams) -> dict:
@@ -103,31 +129,49 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
     plan = plan_scans(paths, height, (lo[0], lo[1], hi[0], hi[1]), cost, params.spacing_mm, mode=params.mode)
     travel_z = float(max(np.nanmax(height(every)), max(float(p.points[:, 2].max()) for p in paths))) \
         - calibration.offset_mm[2] + profile.clearance_z
-    rows: list[np.ndarray] = []
-    xy_fit, dz_fit = [], []
-    machine = connected_machine(ctx, params.machine_id)
-    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), hardware_errors():
-        sensor = HeightSensor(params.sensor_port, params.sensor_rate_hz)
-        sensor.connect()
+    resume = resume_request(ctx)
+    state: dict[str, Any] = {"total": len(plan.passes), "executed": int((resume or {}).get("executed", 0)),
+                             "resumes": int((resume or {}).get("resumes", 0))}
+    rows, xy_fit, dz_fit = _scanned_passes(ctx, state["executed"])
+    machine = rehomed_machine(ctx, params.machine_id, resume, state)
+
+    def guarded(action: Any, *args: Any, **kwargs: Any) -> Any:
+        """``action(*args, **kwargs)`` on the machine; a lost link (or an operator's stop)
+        interrupts the job."""
         try:
-            for k, scan_pass in enumerate(plan.passes):
-                w = scan_pass.carriage(calibration.offset_mm)
-                data = run_pass(machine, sensor, w, cost.scan_mm_s, travel_z if scan_pass.hop else None)
-                carriage = sample_positions(w, cost.scan_mm_s, len(data.values), sensor.rate_hz,
-                                            calibration.time_offset_s)
+            return action(*args, **kwargs)
+        except LinkError as exc:
+            raise interrupt(ctx, machine, exc, state) from exc
+        except HardwareError as exc:
+            if stopped_by_operator(ctx, machine):
+                raise interrupt(ctx, machine, exc, state) from exc
+            raise
+
+    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), hardware_errors():
+        scanner = open_scanner(machine, params.sensor_port, params.sensor_rate_hz)
+        first = state["executed"]
+        try:
+            for k in range(first, len(plan.passes)):
+                w = plan.passes[k].carriage(calibration.offset_mm)
+                hop = travel_z if plan.passes[k].hop or k == first else None  # a resumed run starts homed
+                data = guarded(scanner.run, w, cost.scan_mm_s, hop, calibration.time_offset_s)
                 ok = np.isfinite(data.values)
-                z = np.where(ok, calibration.surface_z(carriage, np.nan_to_num(data.values)), np.nan)
-                xy = calibration.spot_xy(carriage)
-                rows.append(np.column_stack([xy, z, sensor.stamps(len(data.values)), ok, np.full(len(ok), k)]))
-                got_xy, got_dz = pass_deviations(w, cost.scan_mm_s, data.values, sensor.rate_hz, calibration,
-                                                 height, slope)
+                z = np.where(ok, calibration.surface_z(data.carriage, np.nan_to_num(data.values)), np.nan)
+                xy = calibration.spot_xy(data.carriage)
+                rows.append(np.column_stack([xy, z, data.stamps, ok, np.full(len(ok), k)]))
+                got_xy, got_dz = carriage_deviations(data.carriage, data.values, calibration, height, slope)
                 got_xy, got_dz = block_average(got_xy, got_dz, params.block)
                 xy_fit.append(got_xy)
                 dz_fit.append(got_dz)
+                buf = io.BytesIO()
+                np.savez_compressed(buf, rows=rows[-1], xy=got_xy, dz=got_dz)
+                ctx.artifact(_pass_name(k), buf.getvalue(), "application/octet-stream", {"samples": int(len(ok))})
+                state["executed"] = k + 1
+                ctx.runtime.store.save_program_state(ctx.claim, state)
                 ctx.progress(0.8 * (k + 1) / len(plan.passes), f"scanned {k + 1}/{len(plan.passes)} passes")
-            machine.move(z=travel_z)
+            guarded(machine.move, z=travel_z)
         finally:
-            sensor.close()
+            scanner.close()
         samples = np.concatenate(rows)
         buf = io.BytesIO()
         np.savez_compressed(buf, x=samples[:, 0], y=samples[:, 1], z=samples[:, 2], t=samples[:, 3],
@@ -147,14 +191,14 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         sd = fit.posterior.sd(query)
         picked = list(np.argsort(sd)[::-1][:params.verify_count])
         vsites = query.take(np.array(picked, dtype=int))
-        touched = [machine.probe(float(x), float(y), z_start=float(z_nom) + profile.clearance_z,
-                                 z_min=float(z_nom) - profile.clearance_z).z
+        touched = [guarded(machine.probe, float(x), float(y), z_start=float(z_nom) + profile.clearance_z,
+                           z_min=float(z_nom) - profile.clearance_z).z
                    for (x, y), z_nom in zip(vsites.xy, height(vsites.xy))]
     check = verify_touches(fit, vsites, np.asarray(touched) - height(vsites.xy), owner[picked], params.coverage,
                            params.probe_sigma_mm) if picked else None
     bound = params.coverage * max(trace_sd)
     return {
-        "passes": len(plan.passes), "tiles": plan.tiles, "scan_length_mm": plan.length_mm,
+        "passes": len(plan.passes), "resumes": state["resumes"], "tiles": plan.tiles, "scan_length_mm": plan.length_mm,
         "machine_s": {"scan": plan.scan_s, "links": plan.link_s,
                       "verification": touch_time(cost, vsites.xy) if picked else 0.0},
         "samples": int(len(samples)), "valid": int(samples[:, 4].sum()), "fitted_points": int(len(dz)),

@@ -1,0 +1,108 @@
+"""The LinuxCNC simulator's laser height sensor: a userspace HAL component (``sim/sensor.hal``).
+
+Run by LinuxCNC under the *system* Python (it has LinuxCNC's ``hal`` module and numpy,
+not Conforma's packages): ``loadusr -Wn conforma-sensor python3 sensor_hal.py
+conforma-sensor SEED``.  It imports nothing of Conforma except the optics formula
+(:mod:`hardware.height_sensor.optics_model`, loaded by file path), so it computes its
+values exactly as the mock LK-G does.
+
+Every ``PERIOD_S`` while ``enable`` is true it reads the carriage (pins ``x y z``, wired
+to the joints' ``pos-fb``), puts the spot at carriage + ``offset-x/y``, evaluates the
+simulated part there (the block of :class:`hardware.linuxcnc.sim_surface.SimBlock`,
+pins ``u-*``/``v-*``: the placement, ``top-z``/``top-slope``: the top
+z = top-z + top-slope * u over the footprint, ``bed-z`` elsewhere) at the spot's seven
+lit points, and writes ``reading`` (mm from the sensor's zero at carriage z + ``offset-z``)
+and ``valid`` (false: the sensor's alarm output: too steep, a random dropout, or beyond
++-``range``).  Out pin ``updates`` counts the values written.  It stands for an analog
+input: the controller samples ``reading`` and ``valid`` with the joints in its servo
+thread (``sampler``), so a value lags the positions it was computed from by up to one
+period of this loop plus the scheduling delay (the sensor's time offset).
+
+Units: mm, degrees.  Stops on SIGTERM (LinuxCNC's shutdown).
+"""
+
+import importlib.util
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+PERIOD_S = 0.0005
+IDLE_S = 0.02
+
+FLOAT_IN = ("x", "y", "z", "offset-x", "offset-y", "offset-z", "range", "noise", "resolution", "spot",
+            "acceptance-deg", "scale-error", "slope-bias", "dropout-rate",
+            "u-gain0", "u-gain1", "u-offset", "v-gain0", "v-gain1", "v-offset",
+            "u-min", "u-max", "v-min", "v-max", "top-z", "top-slope", "bed-z")
+
+
+def _optics_model():
+    path = Path(__file__).resolve().parents[1] / "height_sensor" / "optics_model.py"
+    spec = importlib.util.spec_from_file_location("conforma_optics_model", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def block_heights(p: dict, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The block's top (or the bed) at points (n, k, 2) -> heights (n, k), and |cos| of the
+    tilt at each spot centre (n,)."""
+    x, y = points[..., 0], points[..., 1]
+    u = p["u-gain0"] * x + p["u-gain1"] * y + p["u-offset"]
+    v = p["v-gain0"] * x + p["v-gain1"] * y + p["v-offset"]
+    inside = (u > p["u-min"]) & (u < p["u-max"]) & (v > p["v-min"]) & (v < p["v-max"])
+    heights = np.where(inside, p["top-z"] + p["top-slope"] * u, p["bed-z"])
+    cos_top = 1.0 / np.sqrt(1.0 + p["top-slope"] ** 2)
+    return heights, np.where(inside[:, 0], cos_top, 1.0)
+
+
+def main(argv):
+    name, seed = argv[1], int(argv[2]) if len(argv) > 2 else 0
+    import hal  # LinuxCNC's, system Python only
+    model = _optics_model()
+    rng = np.random.default_rng(seed)
+    comp = hal.component(name)
+    for pin in FLOAT_IN:
+        comp.newpin(pin, hal.HAL_FLOAT, hal.HAL_IN)
+    comp.newpin("enable", hal.HAL_BIT, hal.HAL_IN)
+    comp.newpin("reading", hal.HAL_FLOAT, hal.HAL_OUT)
+    comp.newpin("valid", hal.HAL_BIT, hal.HAL_OUT)
+    comp.newpin("updates", hal.HAL_U32, hal.HAL_OUT)
+    comp.newpin("tick", hal.HAL_FLOAT, hal.HAL_IN)
+    comp.newpin("exposed", hal.HAL_FLOAT, hal.HAL_OUT)
+    comp.ready()
+    running = [True]
+    signal.signal(signal.SIGTERM, lambda *_: running.__setitem__(0, False))
+    updates = 0
+    try:
+        while running[0]:
+            if not comp["enable"]:
+                time.sleep(IDLE_S)
+                continue
+            tick = comp["tick"]
+            p = {pin: comp[pin] for pin in FLOAT_IN}
+            if comp["tick"] != tick:  # a servo period passed while reading: read again
+                continue
+            points = model.spot_points(np.array([[p["x"] + p["offset-x"], p["y"] + p["offset-y"]]]), p["spot"])
+            heights, cos_tilt = block_heights(p, points)
+            value = model.optical_values(heights, cos_tilt, np.array([p["z"] + p["offset-z"]]), rng,
+                                         noise_mm=p["noise"], resolution_mm=p["resolution"],
+                                         scale_error=p["scale-error"], slope_bias_mm=p["slope-bias"],
+                                         acceptance_deg=p["acceptance-deg"], dropout_rate=p["dropout-rate"])[0]
+            ok = bool(np.isfinite(value) and abs(value) <= p["range"])
+            comp["reading"] = float(value) if ok else 0.0
+            comp["valid"] = ok
+            comp["exposed"] = tick
+            updates = (updates + 1) & 0xFFFFFFFF
+            comp["updates"] = updates
+            time.sleep(PERIOD_S)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        comp.exit()
+
+
+if __name__ == "__main__":
+    main(sys.argv)
