@@ -14,13 +14,14 @@ from typing import Any
 
 import numpy as np
 
+from app.viewer.preview_draw import layer_label
 from app.viewer.registry import SceneRegistry
 from app.viewer.scene_data import FocusScene
 from app.viewer.scenes import SceneBuilder
 from app.viewer.text import user_text
 
 log = logging.getLogger("conforma.viewer")
-GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces")
+GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces", "head")
 NO_JOB = "(none)"
 
 
@@ -101,8 +102,12 @@ class ViewerPanel:
         with self.legend_folder:
             for legend in legends:
                 self._dynamic.append(gui.add_html(legend_html(legend)))
-        self.layer_folder.visible = bool(self.builder.layer_stacks or self.builder.height_stacks)
+        previews = self.builder.previews
+        self.layer_folder.visible = bool(self.builder.layer_stacks or self.builder.height_stacks or previews)
         with self.layer_folder:
+            for name, preview in previews.items():   # up to layer k, nothing above
+                self._slider(gui, name, tuple(layer_label(preview, k) for k in range(len(preview.layers))),
+                             self.builder.show_preview_layer)
             for name, stack in self.builder.layer_stacks.items():
                 self._slider(gui, name, stack.labels, self.builder.show_layer)
             for name, stack in self.builder.height_stacks.items():

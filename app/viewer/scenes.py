@@ -17,9 +17,11 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from app.viewer import preview_draw
 from app.viewer.colors import PALETTE, Palette, deviation_colors, height_colors
 from app.viewer.deviation_map import scene_legends, signed_limit_mm
 from app.viewer.registry import NodeInfo, SceneRegistry
+from app.viewer.layer_preview import ProgramPreview
 from app.viewer.scene_data import FocusScene, HeightStack, LayerStack, ScalarSurface, Toolpath
 
 ROOT = "/focus"
@@ -87,6 +89,7 @@ class SceneBuilder:
         self._layers: dict[str, LayerStack] = {}
         self._heights: dict[str, HeightStack] = {}
         self._height_range: dict[str, tuple[float, float]] = {}
+        self._previews: dict[str, ProgramPreview] = {}
         self._point_size = 0.5
         self._signed_limit = 0.0  # mm: the symmetric scale shared by the scene's signed values
         self._lock = threading.RLock()
@@ -109,6 +112,35 @@ class SceneBuilder:
                 self._remove(name)
             self._layers.clear()
             self._heights.clear()
+            self._previews.clear()
+
+    # what preview_draw uses --------------------------------------------------------------
+    def node_names(self) -> list[str]:
+        return list(self._handles)
+
+    def add_node(self, name: str, group: str, handle: Any, kind: str, count: int, **meta: Any) -> None:
+        self._add(name, group, handle, kind, count, **meta)
+
+    def remove_node(self, name: str) -> None:
+        self._remove(name)
+
+    @property
+    def point_size(self) -> float:
+        return self._point_size
+
+    @property
+    def previews(self) -> dict[str, ProgramPreview]:
+        return dict(self._previews)
+
+    def show_preview_layer(self, name: str, index: int) -> int:
+        """Draw program preview ``name`` up to layer position ``index`` (clipped), nothing above."""
+        with self._lock:
+            return preview_draw.draw_layers(self, self._previews[name], index)
+
+    def show_head(self, position_mm: Any, line: int | None = None) -> None:
+        """Draw a machine's head at ``position_mm`` (3,) mm in the scene's frame."""
+        with self._lock:
+            preview_draw.draw_head(self, np.asarray(position_mm, float).reshape(3), line)
 
     def set_group_visible(self, group: str, visible: bool) -> None:
         with self._lock:
@@ -164,6 +196,9 @@ class SceneBuilder:
                 self._layer_stack(stack)
             for stack in scene.heights:
                 self._height_stack(stack)
+            for preview in scene.previews:
+                self._previews[preview.name] = preview
+                preview_draw.draw_layers(self, preview, len(preview.layers) - 1)
 
     def _polyline(self, label: str, points: np.ndarray, role: str) -> None:
         group = "curves" if role == "reconstructed" else "traces"
