@@ -50,6 +50,7 @@ class ViewerPanel:
         self.layer_folder = gui.add_folder("Layers", visible=False)
         self.plot_folder = gui.add_folder("Deviation", visible=False)
         self._dynamic: list[Any] = []
+        self._sliders: dict[str, tuple[Any, Any, tuple[str, ...]]] = {}  # name -> (slider, caption, labels)
         self.selector.on_update(self._selected)
         self.refresh_button.on_click(lambda _event: self.refresh_jobs())
         for group, box in self.toggles.items():
@@ -91,6 +92,7 @@ class ViewerPanel:
         for handle in self._dynamic:
             handle.remove()
         self._dynamic.clear()
+        self._sliders.clear()
         gui = self.server.gui
         present = set(self.registry.groups())
         for group, box in self.toggles.items():
@@ -124,13 +126,24 @@ class ViewerPanel:
         caption = gui.add_markdown(user_text(labels[last], "markdown") if labels else "")
         self.registry.set_slider(name, 0, last, last, list(labels))
 
-        def moved(_event: Any) -> None:
+        def moved(event: Any) -> None:
+            if event.client is None:   # set by the server (the page's slider): already drawn
+                return
             index = show(name, int(slider.value))
             caption.content = user_text(labels[index], "markdown")
             self.registry.set_slider(name, 0, last, index, list(labels))
 
         slider.on_update(moved)
         self._dynamic += [slider, caption]
+        self._sliders[name] = (slider, caption, labels)
+
+    def set_slider(self, name: str, index: int) -> None:
+        """Move a layer slider to ``index`` (what the page's slider drew), without redrawing."""
+        entry = self._sliders.get(name)
+        if entry is not None:
+            slider, caption, labels = entry
+            slider.value = index
+            caption.content = user_text(labels[index], "markdown")
 
     def _plot(self, gui: Any, plot: Any) -> None:
         from viser import uplot

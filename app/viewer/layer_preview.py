@@ -80,6 +80,13 @@ class ProgramPreview:
         """Moves per type."""
         return {k: int(np.count_nonzero(self.kind == i)) for i, k in enumerate(self.kinds)}
 
+    def drawn_points(self) -> np.ndarray:
+        """(q, 3) the ends of the dispensing moves (every move's when none dispenses): what a
+        camera frames (a start section's travel from the machine's origin is not the part)."""
+        printing = self.kind != self.kinds.index(TRAVEL) if TRAVEL in self.kinds else np.ones(len(self.kind), bool)
+        chosen = self.segments[printing] if printing.any() else self.segments
+        return chosen.reshape(-1, 3)
+
     def shifted(self, offset_mm: np.ndarray) -> ProgramPreview:
         """The same preview moved by ``offset_mm`` (3,)."""
         off = np.asarray(offset_mm, float).reshape(3)

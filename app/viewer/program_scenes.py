@@ -53,7 +53,7 @@ def _preview(loader: Any, session: Session, job: Job, artifact: str, on: str | N
     if found is None:
         return None
     data, sha = found
-    return loader.parser.preview(data, artifact.rsplit(".", 1)[0], on, off, floor_z, key=sha)
+    return loader.parser.preview(data, artifact, on, off, floor_z, key=sha)
 
 
 def toolpath_scene(loader: Any, session: Session, job: Job, artifact: str = "print.gcode") -> FocusScene:
@@ -98,5 +98,5 @@ def print_scene(loader: Any, session: Session, job: Job) -> FocusScene:
     if program is None:
         return FocusScene({}, "", notes=("the printed program is gone",))
     data = loader.runtime.blobs.read(program.sha256)
-    preview = loader.parser.preview(data, program.name.rsplit(".", 1)[0], None, None, 0.0, key=program.sha256)
+    preview = loader.parser.preview(data, program.name, None, None, 0.0, key=program.sha256)
     return FocusScene({}, "", previews=(preview,))

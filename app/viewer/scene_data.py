@@ -163,7 +163,7 @@ class FocusScene:
         chunks += [s.vertices for s in self.scalar_surfaces]
         chunks += [a.positions for a in self.axes]
         chunks += [r.points for r in self.residuals]
-        chunks += [p.segments.reshape(-1, 3) for p in self.previews]
+        chunks += [p.drawn_points() for p in self.previews]
         for h in self.heights:
             _k, rows, cols = h.heights.shape
             x0, y0 = h.origin_xy

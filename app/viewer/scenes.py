@@ -25,6 +25,7 @@ from app.viewer.layer_preview import ProgramPreview
 from app.viewer.scene_data import FocusScene, HeightStack, LayerStack, ScalarSurface, Toolpath
 
 ROOT = "/focus"
+PREVIEW_PART_OPACITY = 0.15  # the part over a program preview: the moves inside it keep their colours
 
 
 @dataclass(frozen=True)
@@ -169,11 +170,13 @@ class SceneBuilder:
             self.registry.set_legends([legend.to_dict() for legend in scene_legends(scene)])
             scn = self.server.scene
             if scene.mesh_vertices is not None and scene.mesh_faces is not None:
-                # opaque: a translucent part showed its bottom face's triangle fan through the top
+                # opaque: a translucent part showed its bottom face's triangle fan through the top;
+                # but a program preview's layers lie inside the part, so there it is a faint glass
+                opacity = PREVIEW_PART_OPACITY if scene.previews else 1.0
                 handle = scn.add_mesh_simple(f"{ROOT}/part", np.asarray(scene.mesh_vertices, np.float32),
                                              np.asarray(scene.mesh_faces, np.uint32), color=self.palette.mesh,
-                                             opacity=1.0, side="double", flat_shading=False)
-                self._add(f"{ROOT}/part", "part", handle, "mesh", len(scene.mesh_faces))
+                                             opacity=opacity, side="double", flat_shading=False)
+                self._add(f"{ROOT}/part", "part", handle, "mesh", len(scene.mesh_faces), opacity=opacity)
             for line in scene.polylines:
                 self._polyline(line.name, line.points, line.role)
             for probes in scene.probes:

@@ -207,7 +207,8 @@ class Viewer:
                            field="name" if name else "view_id", value=name or view_id)
         for drawer in drawers:
             try:
-                drawer.builder.show_preview_layer(name or names[0], index)
+                shown = drawer.builder.show_preview_layer(name or names[0], index)
+                drawer.panel.set_slider(name or names[0], shown)
             except Exception:
                 if drawer is view.headless:
                     raise

@@ -1,0 +1,99 @@
+"""The toolpath preview in a real browser, as a slicer shows it: the part and the program in one
+frame, the layer slider hiding the layers above k (read on the canvas's pixels), the legend of
+move types in the view's colours, and each layer's z, height and time as the job computed them."""
+
+from __future__ import annotations
+
+import io
+import re
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from app.viewer.preview_draw import MOVE_COLORS
+from tests.e2e.browser.conftest import screenshot_path
+from tests.e2e.browser.pixels import save_view_panel, view_image
+from tests.e2e.browser.test_operator_flow import wait_job
+
+
+@pytest.fixture(scope="module")
+def toolpath(served) -> dict:
+    """A 24 x 16 x 8 mm box sliced at 1 mm (8 layers), filled in dispense mode."""
+    api = served.api()
+    buffer = io.BytesIO()
+    mesh = trimesh.creation.box(extents=(24, 16, 8))
+    mesh.apply_translation([12, 8, 4])
+    mesh.export(buffer, file_type="stl")
+    part = api.post("/api/v1/parts", files={"file": ("preview-box.stl", buffer.getvalue())}).json()
+    sliced = wait_job(api, api.post("/api/v1/jobs", json={"kind": "slice", "params": {
+        "part_id": part["id"], "layer_mm": 1.0}}).json()["id"], 90)
+    assert sliced["status"] == "succeeded", sliced
+    job = wait_job(api, api.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
+        "slice_job_id": sliced["id"], "pattern": "raster", "mode": "dispense", "line_width_mm": 0.8}}).json()["id"], 90)
+    assert job["status"] == "succeeded", job
+    return job
+
+
+def path_rows(img: np.ndarray) -> np.ndarray:
+    """Image rows holding perimeter (orange) or infill (green) pixels: hue tests wide enough for
+    the faint part drawn over them, narrow enough to exclude slate, grey travel and white."""
+    rgb = img.astype(int)
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    orange = (r > 150) & (r - g > 50) & (g - b > 40)
+    green = (g > 110) & (g - r > 60) & (g - b > 30)
+    return np.flatnonzero((orange | green).sum(axis=1) >= 3)
+
+
+def wait_rows(page, check, timeout_ms: int = 60_000) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The path rows once ``check(rows)`` holds (software GL needs frames); the last either way."""
+    waited = 0
+    while True:   # the view's top below the sticky header (its green and red badges are no path)
+        page.locator("#viewer-iframe").evaluate(
+            "el => window.scrollTo(0, el.getBoundingClientRect().top + window.scrollY - 100)")
+        rows = path_rows(view_image(page))
+        if check(rows) or waited >= timeout_ms:
+            return rows
+        page.wait_for_timeout(500)
+        waited += 500
+
+
+@pytest.mark.timeout(900)
+def test_the_toolpath_preview_hides_the_layers_above_the_slider(page, served, toolpath):
+    layers = toolpath["result"]["layers"]
+    page.goto(f"/jobs.html?job={toolpath['id']}")
+    page.click("#open-3d")
+    page.wait_for_selector("#preview-legend li[data-type='perimeter']")
+    # the legend: the move types in the view's own colours, with their move counts
+    legend = {li.get_attribute("data-type"): li for li in page.query_selector_all("#preview-legend li")}
+    assert {"perimeter", "infill", "travel", "dispense_on", "dispense_off"} <= set(legend)
+    assert legend["perimeter"].get_attribute("data-color") == "#%02x%02x%02x" % MOVE_COLORS["perimeter"]
+    assert "perimeter" in legend["perimeter"].inner_text()
+    # every layer's z, height and time as the job computed them, the top one current
+    rows = page.query_selector_all("#preview-layers tbody tr")
+    assert len(rows) == len(layers) == 8
+    shift_z = toolpath["result"]["placement"]["shift_mm"][2]
+    for row, layer in zip(rows, layers):
+        cells = [c.inner_text() for c in row.query_selector_all("td")]
+        assert cells[1] == f"{layer['z'] + shift_z:.3f} mm" and cells[2] == f"{layer['thickness']:.3f} mm"
+    assert "current" in (rows[-1].get_attribute("class") or "")
+    info = page.inner_text("#preview-layer-info")
+    assert re.search(r"Layer 7 \(8 of 8\): z \d+\.\d{3} mm · height 1\.000 mm · time .*s", info), info
+    # on the canvas: the whole stack first; at layer 1 the rows of the layers above are empty
+    full = wait_rows(page, lambda r: len(r) > 40)
+    assert len(full) > 40, "the program is not drawn"
+    Image.fromarray(view_image(page)).save(screenshot_path("toolpath-preview-canvas"))
+    page.locator("#preview-layer").fill("1")        # input + change, as a drag released on 1
+    page.wait_for_selector("#preview-layer-info[data-layer='1']")
+    assert "current" in (page.query_selector_all("#preview-layers tbody tr")[1].get_attribute("class") or "")
+    assert "above" in (page.query_selector_all("#preview-layers tbody tr")[5].get_attribute("class") or "")
+    shown = {li.get_attribute("data-type"): int(li.query_selector(".shown").inner_text())
+             for li in page.query_selector_all("#preview-legend li")}
+    assert 0 < shown["perimeter"] < int(legend["perimeter"].inner_text().split(" of ")[-1])
+    low = wait_rows(page, lambda r: len(r) and r.min() > full.min() + 15)
+    # the camera did not move: the top of the drawn path came down, 6 of 8 layers' rows are gone
+    assert len(low) and low.min() > full.min() + 15, (full.min(), low.min() if len(low) else None)
+    assert len(low) < len(full)
+    save_view_panel(page, screenshot_path("toolpath-preview"))
+    assert page.js_errors == []
