@@ -98,7 +98,7 @@ class Loader:
             vertices, faces = self._mesh(part) if part is not None else (None, None)
             base = FocusScene({"job_id": job_id, "part_id": part.id if part else None},
                               f"{job.kind} {job.id} ({job.status})", vertices, faces)
-            if job.status not in COMPLETED_STATES:
+            if job.status not in COMPLETED_STATES and job.kind != "print":  # a print shows its program while it runs
                 return replace(base, notes=(f"job is {job.status}: {job.message}",))
             try:
                 content = self._content(session, job)

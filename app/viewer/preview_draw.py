@@ -36,8 +36,8 @@ MOVE_COLORS: dict[str, RGB] = {
     "travel": (160, 160, 160),     # grey, thin
 }
 PRINT_COLOR: RGB = (230, 120, 20)
-DISPENSE_ON: RGB = (0, 200, 0)
-DISPENSE_OFF: RGB = (230, 0, 0)
+DISPENSE_ON: RGB = (0, 190, 255)   # sky blue
+DISPENSE_OFF: RGB = (230, 0, 0)     # red
 HEAD_COLOR: RGB = (255, 0, 255)
 LABELS = {"thin_wall": "thin wall", "travel": "travel (not dispensing)", "print": "dispensing (untagged)"}
 
@@ -118,7 +118,7 @@ def draw_layers(builder: Any, preview: ProgramPreview, k: int) -> int:
 def draw_head(builder: Any, position_mm: np.ndarray, line: int | None) -> None:
     """The machine's head as a magenta ball at ``position_mm`` (3,) (the scene's frame)."""
     builder.remove_node(HEAD)
-    radius = max(builder.point_size * 2.0, 0.2)
+    radius = max(builder.point_size * 4.0, 0.3)   # ~3 % of the framed extent: seen at a glance
     handle = builder.server.scene.add_icosphere(HEAD, radius=radius, color=HEAD_COLOR,
                                                 position=tuple(float(v) for v in position_mm))
     builder.add_node(HEAD, "head", handle, "mesh", 1, position_mm=[float(v) for v in position_mm], line=line,

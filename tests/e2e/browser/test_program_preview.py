@@ -95,5 +95,58 @@ def test_the_toolpath_preview_hides_the_layers_above_the_slider(page, served, to
     # the camera did not move: the top of the drawn path came down, 6 of 8 layers' rows are gone
     assert len(low) and low.min() > full.min() + 15, (full.min(), low.min() if len(low) else None)
     assert len(low) < len(full)
+    page.set_viewport_size({"width": 1400, "height": 1500})         # the view, the legend and the layers
     save_view_panel(page, screenshot_path("toolpath-preview"))
     assert page.js_errors == []
+
+
+def distance_to_path(point: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> float:
+    """Shortest distance (mm) from ``point`` (3,) to the segments starts[i] -> ends[i] (m, 3)."""
+    d = ends - starts
+    length2 = np.maximum((d * d).sum(axis=1), 1e-18)
+    t = np.clip(((point - starts) * d).sum(axis=1) / length2, 0.0, 1.0)
+    return float(np.linalg.norm(starts + t[:, None] * d - point, axis=1).min())
+
+
+@pytest.mark.timeout(900)
+def test_the_machine_page_draws_the_head_on_the_path_while_printing(page, served, toolpath):
+    from app.viewer.gcode_paths import parse_toolpath
+
+    api = served.api()
+    machine = api.post("/api/v1/machines", json={"name": "head-bench", "port": "mock://",
+                                                 "mock": {"time_scale": 1.0}}).json()
+    assert api.post(f"/api/v1/machines/{machine['id']}/connect").status_code == 200
+    text = api.get(f"/api/v1/jobs/{toolpath['id']}/artifacts/print.gcode").text
+    moves = parse_toolpath(text)
+    started = api.post(f"/api/v1/machines/{machine['id']}/print", json={"job_id": toolpath["id"],
+                                                                        "artifact": "print.gcode"})
+    assert started.status_code == 202, started.text
+    try:
+        page.goto("/machines.html")
+        page.wait_for_selector(f'.machine-card[data-id="{machine["id"]}"] [data-state="printing"]', timeout=30_000)
+        page.wait_for_selector("#head-readout[data-drawn='true']", timeout=60_000)
+        readout = page.inner_text("#head-readout")
+        assert re.search(r"Head of head-bench: X \d+\.\d{3}\s+Y \d+\.\d{3}\s+Z \d+\.\d{3} · line \d+ of \d+", readout), readout
+        # the head is where the mock machine is: on the program's path (machine coordinates)
+        position = np.asarray([float(v) for v in page.get_attribute("#head-readout", "data-position").split(",")])
+        assert distance_to_path(position, moves.starts, moves.ends) < 1e-3, position
+        view_id = page.get_attribute("#viewer-panel", "data-view")
+        scene = api.get("/api/v1/viewer/scene", params={"view_id": view_id}).json()
+        assert scene["focus"]["job_id"] == api.get(f"/api/v1/machines/{machine['id']}").json()["program"]["job_id"]
+        assert scene["nodes"]["/focus/head"]["group"] == "head"
+        assert any(n.get("role") == "preview" for n in scene["nodes"].values())
+        # and the browser draws it: the magenta head among the path's colours
+        def magenta(img: np.ndarray) -> int:
+            rgb = img.astype(int)
+            return int(((rgb[..., 0] > 150) & (rgb[..., 2] > 150) & (rgb[..., 1] < 110)).sum())
+
+        deadline = 120
+        while magenta(view_image(page)) < 5 and deadline > 0:
+            page.wait_for_timeout(1000)
+            deadline -= 1
+        assert magenta(view_image(page)) >= 5, "the head is not on the canvas"
+        page.set_viewport_size({"width": 1400, "height": 1500})     # the view, the legend and the layers
+        save_view_panel(page, screenshot_path("machine-head"))
+        assert page.js_errors == []
+    finally:
+        api.post(f"/api/v1/machines/{machine['id']}/stop")
