@@ -104,3 +104,39 @@ def test_the_head_is_drawn_where_the_mock_machine_is(vclient, toolpath_job):  # 
     assert body["scene"]["nodes"]["/focus/head"]["position_mm"] == pytest.approx(truth)
     missing = vclient.post("/api/v1/viewer/head", json={"machine_id": "mach_missing"}, headers=OP)
     assert missing.status_code == 404 and missing.json()["errors"][0]["loc"] == ["machine_id"]
+
+
+def test_a_circuit_program_is_previewed_by_stroke_kind_on_the_placed_part(vclient):  # noqa: F811
+    """A circuit program written after a loop in machine coordinates: its strokes typed trace / pad,
+    one layer, dispense on/off, and the part moved by the loop's placement into the program's frame."""
+    from app.circuits.program import Stroke, write_circuit_program
+    from app.geometry.placement import Placement
+    from tests.viewer.test_viewer_api import stored_job
+
+    mesh = trimesh.creation.box(extents=(30, 20, 2))
+    mesh.apply_translation([15, 10, 1])
+    buf = io.BytesIO()
+    mesh.export(buf, file_type="stl")
+    part = vclient.post("/api/v1/parts", files={"file": ("board.stl", buf.getvalue())}, headers=OP).json()
+    placement = Placement(dx=50.0, dy=40.0, dz=0.5, rz_rad=np.radians(90.0))
+    trace = placement.apply(np.array([[5.0, 5.0, 2.1], [25.0, 5.0, 2.1], [25.0, 15.0, 2.1]]))
+    pad = placement.apply(np.array([[10.0, 12.0, 2.1], [11.0, 12.0, 2.1]]))
+    program = write_circuit_program([Stroke(trace, "trace", "T1", 300.0), Stroke(pad, "pad", "P1", 300.0)],
+                                    dialect="marlin", dispense_on="M42 P6 S255", dispense_off="M42 P6 S0",
+                                    clearance_mm=1.0, part_top_mm=2.5)
+    job_id = stored_job(vclient, "circuit_program", part["id"], {}, {
+        "dispense_on": "M42 P6 S255", "dispense_off": "M42 P6 S0", "surface": {"placement": placement.to_dict()}},
+        {"circuit.gcode": program.text.encode()})
+    shown = focus(vclient, job_id=job_id)
+    preview = shown["previews"]["circuit.gcode"]
+    counts = {row["type"]: row["moves"] for row in preview["legend"]}
+    assert counts["trace"] == 2 and counts["pad"] == 1                       # the profile's own on/off lines
+    assert counts["dispense_on"] == counts["dispense_off"] == 2 and preview["layer_count"] == 1
+    assert preview["layers"][0]["z_mm"] == pytest.approx(trace[0, 2])
+    builder = vclient.app.state.viewer.builder
+    drawn = np.asarray(builder._handles["/focus/preview/circuit.gcode/trace"][1].points, float).reshape(-1, 3)
+    assert drawn == pytest.approx(np.repeat(trace, 2, axis=0)[1:-1])
+    part_drawn = _part_vertices(vclient)
+    expected = placement.apply(np.asarray(mesh.vertices))
+    assert part_drawn.min(axis=0) == pytest.approx(expected.min(axis=0), abs=1e-5)
+    assert part_drawn.max(axis=0) == pytest.approx(expected.max(axis=0), abs=1e-5)
