@@ -39,7 +39,7 @@ export function renderPreview(box, scene, setLayer) {
   const rows = p.layers.map((lay, i) => el("tr", { "data-layer": i, class: i === k ? "current" : i > k ? "above" : "" },
     el("td", {}, String(lay.index)), el("td", {}, mm(lay.z_mm)), el("td", {}, mm(lay.height_mm)),
     el("td", {}, duration(lay.time_s)), el("td", {}, String(lay.moves))));
-  const table = el("div", { class: "preview-layers-box" }, el("table", { id: "preview-layers" },
+  const table = el("div", { class: "preview-layers-box", tabindex: 0, role: "region", "aria-label": "layers of the program" }, el("table", { id: "preview-layers" },
     el("caption", {}, "Layers (greyed: above the slider, not drawn)"),
     el("thead", {}, el("tr", {}, ["layer", "z", "height", "time", "moves"].map((h) => el("th", { scope: "col" }, h)))),
     el("tbody", {}, rows)));

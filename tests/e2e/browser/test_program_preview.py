@@ -98,6 +98,12 @@ def test_the_toolpath_preview_hides_the_layers_above_the_slider(page, served, to
     page.set_viewport_size({"width": 1400, "height": 1500})         # the view, the legend and the layers
     save_view_panel(page, screenshot_path("toolpath-preview"))
     assert page.js_errors == []
+    # the preview's slider, legend and table as axe-core reads them (the view's iframe aside)
+    from axe_playwright_python.sync_playwright import Axe
+
+    violations = Axe().run(page, context={"include": [["#preview-panel"]]}).response["violations"]
+    serious = [(v["id"], [n["target"] for n in v["nodes"]][:3]) for v in violations if v["impact"] in ("serious", "critical")]
+    assert serious == [], serious
 
 
 def distance_to_path(point: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> float:
