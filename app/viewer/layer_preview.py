@@ -96,17 +96,18 @@ class ProgramPreview:
                                                  lay.dispense_mm) for lay in self.layers), self.time_s)
 
 
-def line_tags(text: str) -> list[str | None]:
-    """Per source line (index = line number - 1) the move type in force after it (None before
-    any tag)."""
-    tags: list[str | None] = []
-    current: str | None = None
+def line_tags(text: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """The move types named in ``text`` and, per source line (index = line number - 1), the
+    index of the type in force after it (-1 before any tag)."""
+    names: dict[str, int] = {}
+    codes = []
+    current = -1
     for raw in text.splitlines():
-        found = _TYPE_TAG.match(raw) or _STROKE_TAG.match(raw)
+        found = (_TYPE_TAG.match(raw) or _STROKE_TAG.match(raw)) if ";" in raw else None
         if found:
-            current = found.group(1).lower()
-        tags.append(current)
-    return tags
+            current = names.setdefault(found.group(1).lower(), len(names))
+        codes.append(current)
+    return tuple(names), np.asarray(codes, np.int64)
 
 
 def _runs(flag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,13 +133,16 @@ def program_preview(text: str | bytes, name: str = "program", dispense_on: str |
     moved = np.any(end != start, axis=1)
     if not moved.any():
         raise PreviewError("the program has no moves", field="gcode", value=len(text))
-    tags = line_tags(text)
+    vocab, codes = line_tags(text)
     line = program.line
     dispense = program.dispense & moved
-    names = [tags[n - 1] if 0 < n <= len(tags) and tags[n - 1] else PRINT for n in line]
-    kind_names = np.where(dispense, np.asarray(names, dtype=object), TRAVEL)
-    seen = sorted({str(k) for k in kind_names[moved]}, key=lambda k: (k == TRAVEL, k == PRINT, k))
-    index_of = {k: i for i, k in enumerate(seen)}
+    # per move: a tag's index, len(vocab) for an untagged dispensing move (PRINT), +1 for travel
+    inside = (line >= 1) & (line <= len(codes))
+    tagged = np.where(inside, codes[np.clip(line - 1, 0, max(len(codes) - 1, 0))] if len(codes) else -1, -1)
+    raw = np.where(dispense, np.where(tagged >= 0, tagged, len(vocab)), len(vocab) + 1)
+    names = (*vocab, PRINT, TRAVEL)
+    seen = sorted({names[i] for i in np.unique(raw[moved])}, key=lambda k: (k == TRAVEL, k == PRINT, k))
+    index_of = np.array([seen.index(n) if n in seen else -1 for n in names], np.int64)
     tag_ids = np.unique(program.layer[program.layer >= 0])
     if len(tag_ids):   # moves before the first tag (the start section) go with the first layer
         position = np.searchsorted(tag_ids, np.maximum(program.layer, tag_ids[0]))
@@ -159,7 +163,7 @@ def program_preview(text: str | bytes, name: str = "program", dispense_on: str |
     first, last = _runs(dispense)
     keep = np.flatnonzero(moved)
     return ProgramPreview(
-        name, np.stack([start[keep], end[keep]], axis=1), np.array([index_of[str(k)] for k in kind_names[keep]], np.int64),
+        name, np.stack([start[keep], end[keep]], axis=1), index_of[raw[keep]],
         tuple(seen), position[keep].astype(np.int64), line[keep].astype(np.int64),
         start[first].copy(), position[first].astype(np.int64), end[last].copy(), position[last].astype(np.int64),
         tuple(layers), float(times.sum() + program.dwell_s))

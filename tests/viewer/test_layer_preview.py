@@ -59,7 +59,8 @@ def test_moves_are_typed_layered_and_timed_as_the_estimator_times_them():
 def test_circuit_program_strokes_are_typed_by_their_comment_and_one_layer():
     text = "G21\nG90\n; trace T1 net GND\nG0 X0 Y0 Z1\nG1 Z0.1 F100\nM106\nG1 X5 F300\nM107\nG0 Z1\n" \
            "; pad P1\nG0 X7 Y0\nG1 Z0.1\nM106\nG1 X7.5\nM107\n"
-    assert line_tags(text)[2:4] == ["trace", "trace"]
+    vocab, codes = line_tags(text)
+    assert vocab == ("trace", "pad") and codes.tolist()[:4] == [-1, -1, 0, 0] and codes[-1] == 1
     p = program_preview(text)
     assert p.counts() == {"pad": 1, "trace": 1, "travel": 5}
     assert len(p.layers) == 1 and p.layers[0].z_mm == pytest.approx(0.1)
