@@ -27,6 +27,7 @@ export function headView(main) {
     readout.dataset.machine = machine.id;
     readout.dataset.drawn = head.drawn ? "true" : "false";
     readout.dataset.position = head.position_mm ? head.position_mm.join(",") : "";
+    readout.dataset.line = head.line ?? "";
     readout.textContent = `Head of ${machine.name}: ` + (head.position_mm ? xyz(head.position_mm) : `position unknown (${head.source})`)
       + (head.line != null ? ` · line ${head.line} of ${head.total}` : "");
   }

@@ -131,6 +131,11 @@ def test_the_machine_page_draws_the_head_on_the_path_while_printing(page, served
         page.goto("/machines.html")
         page.wait_for_selector(f'.machine-card[data-id="{machine["id"]}"] [data-state="printing"]', timeout=30_000)
         page.wait_for_selector("#head-readout[data-drawn='true']", timeout=60_000)
+        first_layer = text.splitlines().index(";LAYER:0") + 1    # past the start section (homing, prime)
+        for _ in range(120):
+            if int(page.get_attribute("#head-readout", "data-line") or 0) > first_layer:
+                break
+            page.wait_for_timeout(500)
         readout = page.inner_text("#head-readout")
         assert re.search(r"Head of head-bench: X \d+\.\d{3}\s+Y \d+\.\d{3}\s+Z \d+\.\d{3} · line \d+ of \d+", readout), readout
         # the head is where the mock machine is: on the program's path (machine coordinates)
