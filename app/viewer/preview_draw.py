@@ -117,9 +117,12 @@ def draw_layers(builder: Any, preview: ProgramPreview, k: int) -> int:
 
 def draw_head(builder: Any, position_mm: np.ndarray, line: int | None) -> None:
     """The machine's head as a magenta ball at ``position_mm`` (3,) (the scene's frame)."""
-    builder.remove_node(HEAD)
     radius = max(builder.point_size * 4.0, 0.3)   # ~3 % of the framed extent: seen at a glance
-    handle = builder.server.scene.add_icosphere(HEAD, radius=radius, color=HEAD_COLOR,
-                                                position=tuple(float(v) for v in position_mm))
+    position = tuple(float(v) for v in position_mm)
+    handle = builder.handle(HEAD)
+    if handle is not None:    # moved in place: the node (and what the registry says) never goes missing
+        handle.position = position
+    else:
+        handle = builder.server.scene.add_icosphere(HEAD, radius=radius, color=HEAD_COLOR, position=position)
     builder.add_node(HEAD, "head", handle, "mesh", 1, position_mm=[float(v) for v in position_mm], line=line,
                      radius_mm=radius)

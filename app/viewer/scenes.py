@@ -125,6 +125,11 @@ class SceneBuilder:
     def remove_node(self, name: str) -> None:
         self._remove(name)
 
+    def handle(self, name: str) -> Any:
+        """The drawn node ``name`` (None when it is not drawn)."""
+        entry = self._handles.get(name)
+        return None if entry is None else entry[1]
+
     @property
     def point_size(self) -> float:
         return self._point_size

@@ -122,6 +122,7 @@ def test_the_machine_page_draws_the_head_on_the_path_while_printing(page, served
     machine = api.post("/api/v1/machines", json={"name": "head-bench", "port": "mock://",
                                                  "mock": {"time_scale": 1.0}}).json()
     assert api.post(f"/api/v1/machines/{machine['id']}/connect").status_code == 200
+    assert api.post(f"/api/v1/machines/{machine['id']}/home").status_code == 200
     text = api.get(f"/api/v1/jobs/{toolpath['id']}/artifacts/print.gcode").text
     moves = parse_toolpath(text)
     started = api.post(f"/api/v1/machines/{machine['id']}/print", json={"job_id": toolpath["id"],
@@ -158,6 +159,13 @@ def test_the_machine_page_draws_the_head_on_the_path_while_printing(page, served
         assert magenta(view_image(page)) >= 5, "the head is not on the canvas"
         page.set_viewport_size({"width": 1400, "height": 1500})     # the view, the legend and the layers
         save_view_panel(page, screenshot_path("machine-head"))
+        # the whole page at the bench: homed, line, elapsed and time left, the console, the head on the path
+        card = f'.machine-card[data-id="{machine["id"]}"]'
+        page.wait_for_selector(f'{card} .badge.homed[data-homed="true"]')
+        page.wait_for_selector(f'{card} .program:has-text("left about")', timeout=30_000)
+        page.click(f"{card} details.manual summary")
+        page.wait_for_selector(f'{card} .console-log:has-text("G28")')
+        page.screenshot(path=str(screenshot_path("machine-print-3d")), full_page=True)
         assert page.js_errors == []
     finally:
         api.post(f"/api/v1/machines/{machine['id']}/stop")
