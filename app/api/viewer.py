@@ -14,8 +14,12 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request
 from pydantic import BaseModel, Field, model_validator
 
+from app.api.deps import RuntimeDep, SessionDep
 from app.api.deps import Viewer as ViewerRole
 from app.errors import Conflict
+from app.machine_head import head_of
+from app.models import Machine
+from app.records import get_or_404
 
 router = APIRouter(prefix="/api/v1/viewer", tags=["viewer"])
 
@@ -66,6 +70,35 @@ class SceneOut(BaseModel):
     notes: list[str]
     legends: list[dict[str, Any]] = Field(default_factory=list, description="colour scales of what is drawn: "
                                           "name, title, unit (µm), lo, hi, data_min, data_max, stops")
+    previews: dict[str, dict[str, Any]] = Field(default_factory=dict, description="program previews by name: the "
+                                                "layer shown (nothing above it), per layer index, z_mm, height_mm, "
+                                                "time_s, moves; the legend of move types with colours and counts")
+
+
+class LayerRequest(BaseModel):
+    model_config = {"extra": "forbid"}
+    view_id: ViewId = Field("default", description="the view to change")
+    layer: int = Field(ge=0, le=1_000_000, description="show the program's layers 0..layer (positions in the "
+                       "preview's layer list), nothing above; clipped to the last")
+    name: str | None = Field(None, max_length=200, description="the preview (default: the view's first)")
+
+
+class HeadRequest(BaseModel):
+    model_config = {"extra": "forbid"}
+    view_id: ViewId = Field("default", description="the view to draw the head in")
+    machine_id: str = Field(min_length=1, max_length=40, description="the machine whose head to draw")
+
+
+class HeadOut(BaseModel):
+    machine_id: str
+    state: str = Field(description="the machine's state")
+    position_mm: list[float] | None = Field(description="the head in machine coordinates, mm (None: unknown)")
+    source: str = Field(description="where the position comes from")
+    line: int | None = Field(description="lines of the running program executed (None: none runs)")
+    total: int | None = None
+    job_id: str | None = Field(description="the job driving the machine")
+    drawn: bool = Field(description="the head is drawn in the view (in the program's frame: machine coordinates)")
+    scene: SceneOut
 
 
 def _viewer(request: Request) -> Any:
@@ -105,3 +138,25 @@ def viewer_scene(request: Request, view_id: Annotated[str, Query(min_length=1, m
 def viewer_focus(body: FocusRequest, request: Request) -> SceneOut:
     """Show a part (mesh and traces) or a job's results in one view; returns what is shown."""
     return SceneOut(**_viewer(request).focus(part_id=body.part_id, job_id=body.job_id, view_id=body.view_id))
+
+
+@router.post("/layer", dependencies=[ViewerRole],
+             responses={409: {"description": "the view is off, or shows no program preview"}})
+def viewer_layer(body: LayerRequest, request: Request) -> SceneOut:
+    """Show a program preview's layers up to ``layer`` and nothing above it (every browser of the view)."""
+    return SceneOut(**_viewer(request).set_layer(body.view_id, body.layer, body.name))
+
+
+@router.post("/head", dependencies=[ViewerRole],
+             responses={404: {"description": "no such machine"}, 409: {"description": "the view is off"}})
+def viewer_head(body: HeadRequest, request: Request, runtime: RuntimeDep, session: SessionDep) -> HeadOut:
+    """Draw a machine's head where it is now in one view (the view should show the program it
+    prints: a print job's scene is in machine coordinates); nothing moves."""
+    viewer = _viewer(request)
+    get_or_404(session, Machine, body.machine_id, field="machine_id")
+    head = head_of(runtime, body.machine_id)
+    scene = (viewer.show_head(body.view_id, head.position_mm, head.line) if head.position_mm is not None
+             else viewer.snapshot(body.view_id))
+    return HeadOut(machine_id=body.machine_id, state=head.state, position_mm=None if head.position_mm is None
+                   else list(head.position_mm), source=head.source, line=head.line, total=head.total,
+                   job_id=head.job_id, drawn=head.position_mm is not None, scene=SceneOut(**scene))

@@ -5,7 +5,8 @@ Sections (as the published FDM path planning writes them: only the process part 
 
 * start - header (from :class:`~app.gcode.writer.ProgramBuilder`), machine limits
   (M204/M205 for Marlin), heating (extrusion) and relative/absolute E, homing, prime;
-* process - per layer ``;LAYER:n`` then for every piece: travel (retract in extrusion mode,
+* process - per layer ``;LAYER:n`` then for every piece ``; TYPE:<kind>`` (perimeter, infill,
+  thin_wall: what a preview colours the moves by), travel (retract in extrusion mode,
   never before the first extrusion) and the extruded moves with E (per mm: the stadium bead
   cross-section :func:`bead_area_mm2` over the filament's) (``mode="extrude"``) or dispenser on/off commands around
   the piece (``mode="dispense"``: Marlin ``M106 S255``/``M107``, grbl ``M8``/``M9`` unless
@@ -141,6 +142,7 @@ def write_fdm_layers(layers: Iterable[LayerToolpath], tpp: ToolpathParams, param
                 e += params.retract_mm
                 b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
                 retracted = False
+            b.comment(f"TYPE:{piece.kind}")
             if params.mode == "dispense":
                 b.raw(on)
             feed = piece.feed_mm_s * 60.0

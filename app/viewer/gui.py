@@ -14,13 +14,14 @@ from typing import Any
 
 import numpy as np
 
+from app.viewer.preview_draw import layer_label
 from app.viewer.registry import SceneRegistry
 from app.viewer.scene_data import FocusScene
 from app.viewer.scenes import SceneBuilder
 from app.viewer.text import user_text
 
 log = logging.getLogger("conforma.viewer")
-GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces")
+GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces", "head")
 NO_JOB = "(none)"
 
 
@@ -49,6 +50,7 @@ class ViewerPanel:
         self.layer_folder = gui.add_folder("Layers", visible=False)
         self.plot_folder = gui.add_folder("Deviation", visible=False)
         self._dynamic: list[Any] = []
+        self._sliders: dict[str, tuple[Any, Any, tuple[str, ...]]] = {}  # name -> (slider, caption, labels)
         self.selector.on_update(self._selected)
         self.refresh_button.on_click(lambda _event: self.refresh_jobs())
         for group, box in self.toggles.items():
@@ -90,6 +92,7 @@ class ViewerPanel:
         for handle in self._dynamic:
             handle.remove()
         self._dynamic.clear()
+        self._sliders.clear()
         gui = self.server.gui
         present = set(self.registry.groups())
         for group, box in self.toggles.items():
@@ -101,8 +104,12 @@ class ViewerPanel:
         with self.legend_folder:
             for legend in legends:
                 self._dynamic.append(gui.add_html(legend_html(legend)))
-        self.layer_folder.visible = bool(self.builder.layer_stacks or self.builder.height_stacks)
+        previews = self.builder.previews
+        self.layer_folder.visible = bool(self.builder.layer_stacks or self.builder.height_stacks or previews)
         with self.layer_folder:
+            for name, preview in previews.items():   # up to layer k, nothing above
+                self._slider(gui, name, tuple(layer_label(preview, k) for k in range(len(preview.layers))),
+                             self.builder.show_preview_layer)
             for name, stack in self.builder.layer_stacks.items():
                 self._slider(gui, name, stack.labels, self.builder.show_layer)
             for name, stack in self.builder.height_stacks.items():
@@ -119,13 +126,24 @@ class ViewerPanel:
         caption = gui.add_markdown(user_text(labels[last], "markdown") if labels else "")
         self.registry.set_slider(name, 0, last, last, list(labels))
 
-        def moved(_event: Any) -> None:
+        def moved(event: Any) -> None:
+            if event.client is None:   # set by the server (the page's slider): already drawn
+                return
             index = show(name, int(slider.value))
             caption.content = user_text(labels[index], "markdown")
             self.registry.set_slider(name, 0, last, index, list(labels))
 
         slider.on_update(moved)
         self._dynamic += [slider, caption]
+        self._sliders[name] = (slider, caption, labels)
+
+    def set_slider(self, name: str, index: int) -> None:
+        """Move a layer slider to ``index`` (what the page's slider drew), without redrawing."""
+        entry = self._sliders.get(name)
+        if entry is not None:
+            slider, caption, labels = entry
+            slider.value = index
+            caption.content = user_text(labels[index], "markdown")
 
     def _plot(self, gui: Any, plot: Any) -> None:
         from viser import uplot

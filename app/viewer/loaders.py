@@ -30,6 +30,7 @@ from app.records import get_or_404, joint_trace_ranges
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.gcode_paths import GcodeViewError
 from app.viewer.offload import ParsePool
+from app.viewer.program_scenes import PROGRAM_SCENES, print_scene
 from app.viewer.residual_map import residual_map
 from app.viewer.scene_data import (
     AxisGlyphs,
@@ -97,12 +98,15 @@ class Loader:
             vertices, faces = self._mesh(part) if part is not None else (None, None)
             base = FocusScene({"job_id": job_id, "part_id": part.id if part else None},
                               f"{job.kind} {job.id} ({job.status})", vertices, faces)
-            if job.status not in COMPLETED_STATES:
+            if job.status not in COMPLETED_STATES and job.kind != "print":  # a print shows its program while it runs
                 return replace(base, notes=(f"job is {job.status}: {job.message}",))
             try:
                 content = self._content(session, job)
             except GcodeReadError as exc:   # a program the view refuses to draw (its arcs' chords...)
                 return replace(base, notes=(f"cannot draw this job's program {exc.message}",))
+        if vertices is not None and content.part_matrix is not None:   # the part into the program's frame
+            matrix = np.asarray(content.part_matrix, float)
+            vertices = vertices @ matrix[:3, :3].T + matrix[:3, 3]
         return replace(content, focus=base.focus, title=base.title, mesh_vertices=vertices, mesh_faces=faces)
 
     # records ---------------------------------------------------------------------------
@@ -166,8 +170,10 @@ class Loader:
     def _loaders(self) -> dict[str, Callable[[Session, Job], FocusScene]]:
         return {"probe_plan": self._probe_plan, "probe_run": self._probe_run, "reconstruct": self._reconstruct,
                 "compensate": self._compensate, "closed_loop": self._closed_loop, "surface_fit": self._surface_fit,
-                "five_axis": self._five_axis, "slice": self._slice, "toolpath": self._toolpath,
-                "jetting": self._jetting}
+                "five_axis": self._five_axis, "slice": self._slice, "jetting": self._jetting,
+                "print": lambda session, job: print_scene(self, session, job),
+                **{kind: (lambda session, job, build=build: build(self, session, job))
+                   for kind, build in PROGRAM_SCENES.items()}}
 
     def _with_trace(self, session: Session, job: Job, **parts: Any) -> FocusScene:
         trace = self._trace_of(session, job)
@@ -410,17 +416,6 @@ class Loader:
             segments.append(rings_to_segments(rings, z))
             labels.append(f"layer {layer.get('index', len(labels))} z={z:.3f} mm")
         return FocusScene({}, "", layers=(LayerStack("slices", tuple(labels), tuple(segments)),))
-
-    def _toolpath(self, session: Session, job: Job) -> FocusScene:
-        paths = self._gcode(session, job, "print.gcode", "nominal", "toolpath")
-        layers: tuple[LayerStack, ...] = ()
-        if paths and (paths[0].segments.layer >= 0).any():
-            seg = paths[0].segments
-            both = np.stack([seg.starts, seg.ends], axis=1)
-            ids = np.unique(seg.layer[seg.layer >= 0])
-            layers = (LayerStack("toolpath layers", tuple(f"layer {i}" for i in ids),
-                                 tuple(both[(seg.layer == i) & seg.dispense] for i in ids)),)
-        return FocusScene({}, "", toolpaths=paths, layers=layers)
 
     def _jetting(self, session: Session, job: Job) -> FocusScene:
         data = self._artifact(session, job.id, "heights.npz")

@@ -22,6 +22,7 @@ from concurrent.futures.process import BrokenProcessPool
 
 from app.gcode.reader import ArcBudgetError, arc_chord_budget, beyond_size_budget
 from app.viewer.gcode_paths import ToolpathSegments, parse_toolpath
+from app.viewer.layer_preview import ProgramPreview, program_preview
 
 log = logging.getLogger("conforma.viewer")
 
@@ -33,7 +34,7 @@ class ParsePool:
         self.inline_bytes = inline_bytes
         self.inline_chords = inline_chords
         self.cache_size = cache_size
-        self._cache: OrderedDict[tuple, ToolpathSegments] = OrderedDict()
+        self._cache: OrderedDict[tuple, ToolpathSegments | ProgramPreview] = OrderedDict()
         self._lock = threading.Lock()
         self._pool: ProcessPoolExecutor | None = None
 
@@ -50,7 +51,7 @@ class ParsePool:
             with self._lock:
                 if cache_key in self._cache:
                     self._cache.move_to_end(cache_key)
-                    return self._cache[cache_key]
+                    return self._cache[cache_key]  # type: ignore[return-value]
         segments = None
         if len(data) <= self.inline_bytes:
             try:
@@ -76,6 +77,33 @@ class ParsePool:
                 while len(self._cache) > self.cache_size:
                     self._cache.popitem(last=False)
         return segments
+
+    def preview(self, data: bytes, name: str, dispense_on: str | None, dispense_off: str | None,
+                floor_z: float = 0.0, key: str | None = None) -> ProgramPreview:
+        """:func:`app.viewer.layer_preview.program_preview` of ``data``: in this process when
+        small, else in the worker process (as :meth:`parse`); cached by ``key``."""
+        cache_key = ("preview", key, name, dispense_on, dispense_off, floor_z) if key else None
+        with self._lock:
+            if cache_key is not None and cache_key in self._cache:
+                self._cache.move_to_end(cache_key)
+                return self._cache[cache_key]  # type: ignore[return-value]
+        args = (data, name, dispense_on, dispense_off, floor_z)
+        if len(data) <= self.inline_bytes:
+            preview = program_preview(*args)
+        else:
+            try:
+                preview = self._executor().submit(program_preview, *args).result()
+            except (BrokenProcessPool, OSError, RuntimeError):
+                log.warning("G-code worker process unavailable; previewing in the API process", exc_info=True)
+                with self._lock:
+                    self._pool = None
+                preview = program_preview(*args)
+        if cache_key is not None:
+            with self._lock:
+                self._cache[cache_key] = preview
+                while len(self._cache) > self.cache_size:
+                    self._cache.popitem(last=False)
+        return preview
 
     def close(self) -> None:
         with self._lock:

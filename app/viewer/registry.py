@@ -36,6 +36,7 @@ class SceneRegistry:
         self._sliders: dict[str, dict[str, Any]] = {}
         self._notes: list[str] = []
         self._legends: list[dict[str, Any]] = []
+        self._previews: dict[str, dict[str, Any]] = {}
         self.generation = 0
 
     def reset(self, focus: dict[str, Any]) -> None:
@@ -46,6 +47,7 @@ class SceneRegistry:
             self._sliders.clear()
             self._notes.clear()
             self._legends = []
+            self._previews.clear()
             self.generation += 1
 
     def add_node(self, name: str, info: NodeInfo) -> None:
@@ -71,6 +73,11 @@ class SceneRegistry:
     def set_slider(self, name: str, minimum: int, maximum: int, value: int, labels: list[str] | None = None) -> None:
         with self._lock:
             self._sliders[name] = {"min": minimum, "max": maximum, "value": value, "labels": labels or []}
+
+    def set_preview(self, name: str, info: dict[str, Any]) -> None:
+        """A program preview's layer, per-layer figures and legend of move types."""
+        with self._lock:
+            self._previews[name] = copy.deepcopy(info)
 
     def set_legends(self, legends: list[dict[str, Any]]) -> None:
         """The colour scales of what is drawn (see :class:`app.viewer.deviation_map.Legend`)."""
@@ -99,4 +106,4 @@ class SceneRegistry:
             return {"generation": self.generation, "focus": dict(self._focus), "nodes": nodes,
                     "groups": groups, "plots": copy.deepcopy(self._plots),
                     "sliders": copy.deepcopy(self._sliders), "notes": list(self._notes),
-                    "legends": copy.deepcopy(self._legends)}
+                    "legends": copy.deepcopy(self._legends), "previews": copy.deepcopy(self._previews)}

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from app.viewer.gcode_paths import ToolpathSegments
+from app.viewer.layer_preview import ProgramPreview
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,8 @@ class FocusScene:
     plots: tuple[DeviationPlot, ...] = ()
     scalar_surfaces: tuple[ScalarSurface, ...] = ()
     residuals: tuple[ResidualMap, ...] = ()
+    previews: tuple[ProgramPreview, ...] = ()  # slicer-style program previews (move types, layer slider)
+    part_matrix: np.ndarray | None = None  # 4 x 4: the part drawn moved into the program's frame
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def bounds(self, include_part: bool = True) -> np.ndarray | None:
@@ -160,6 +163,7 @@ class FocusScene:
         chunks += [s.vertices for s in self.scalar_surfaces]
         chunks += [a.positions for a in self.axes]
         chunks += [r.points for r in self.residuals]
+        chunks += [p.drawn_points() for p in self.previews]
         for h in self.heights:
             _k, rows, cols = h.heights.shape
             x0, y0 = h.origin_xy

@@ -17,12 +17,15 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from app.viewer import preview_draw
 from app.viewer.colors import PALETTE, Palette, deviation_colors, height_colors
 from app.viewer.deviation_map import scene_legends, signed_limit_mm
 from app.viewer.registry import NodeInfo, SceneRegistry
+from app.viewer.layer_preview import ProgramPreview
 from app.viewer.scene_data import FocusScene, HeightStack, LayerStack, ScalarSurface, Toolpath
 
 ROOT = "/focus"
+PREVIEW_PART_OPACITY = 0.15  # the part over a program preview: the moves inside it keep their colours
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,7 @@ class SceneBuilder:
         self._layers: dict[str, LayerStack] = {}
         self._heights: dict[str, HeightStack] = {}
         self._height_range: dict[str, tuple[float, float]] = {}
+        self._previews: dict[str, ProgramPreview] = {}
         self._point_size = 0.5
         self._signed_limit = 0.0  # mm: the symmetric scale shared by the scene's signed values
         self._lock = threading.RLock()
@@ -109,6 +113,40 @@ class SceneBuilder:
                 self._remove(name)
             self._layers.clear()
             self._heights.clear()
+            self._previews.clear()
+
+    # what preview_draw uses --------------------------------------------------------------
+    def node_names(self) -> list[str]:
+        return list(self._handles)
+
+    def add_node(self, name: str, group: str, handle: Any, kind: str, count: int, **meta: Any) -> None:
+        self._add(name, group, handle, kind, count, **meta)
+
+    def remove_node(self, name: str) -> None:
+        self._remove(name)
+
+    def handle(self, name: str) -> Any:
+        """The drawn node ``name`` (None when it is not drawn)."""
+        entry = self._handles.get(name)
+        return None if entry is None else entry[1]
+
+    @property
+    def point_size(self) -> float:
+        return self._point_size
+
+    @property
+    def previews(self) -> dict[str, ProgramPreview]:
+        return dict(self._previews)
+
+    def show_preview_layer(self, name: str, index: int) -> int:
+        """Draw program preview ``name`` up to layer position ``index`` (clipped), nothing above."""
+        with self._lock:
+            return preview_draw.draw_layers(self, self._previews[name], index)
+
+    def show_head(self, position_mm: Any, line: int | None = None) -> None:
+        """Draw a machine's head at ``position_mm`` (3,) mm in the scene's frame."""
+        with self._lock:
+            preview_draw.draw_head(self, np.asarray(position_mm, float).reshape(3), line)
 
     def set_group_visible(self, group: str, visible: bool) -> None:
         with self._lock:
@@ -137,11 +175,13 @@ class SceneBuilder:
             self.registry.set_legends([legend.to_dict() for legend in scene_legends(scene)])
             scn = self.server.scene
             if scene.mesh_vertices is not None and scene.mesh_faces is not None:
-                # opaque: a translucent part showed its bottom face's triangle fan through the top
+                # opaque: a translucent part showed its bottom face's triangle fan through the top;
+                # but a program preview's layers lie inside the part, so there it is a faint glass
+                opacity = PREVIEW_PART_OPACITY if scene.previews else 1.0
                 handle = scn.add_mesh_simple(f"{ROOT}/part", np.asarray(scene.mesh_vertices, np.float32),
                                              np.asarray(scene.mesh_faces, np.uint32), color=self.palette.mesh,
-                                             opacity=1.0, side="double", flat_shading=False)
-                self._add(f"{ROOT}/part", "part", handle, "mesh", len(scene.mesh_faces))
+                                             opacity=opacity, side="double", flat_shading=False)
+                self._add(f"{ROOT}/part", "part", handle, "mesh", len(scene.mesh_faces), opacity=opacity)
             for line in scene.polylines:
                 self._polyline(line.name, line.points, line.role)
             for probes in scene.probes:
@@ -164,6 +204,9 @@ class SceneBuilder:
                 self._layer_stack(stack)
             for stack in scene.heights:
                 self._height_stack(stack)
+            for preview in scene.previews:
+                self._previews[preview.name] = preview
+                preview_draw.draw_layers(self, preview, len(preview.layers) - 1)
 
     def _polyline(self, label: str, points: np.ndarray, role: str) -> None:
         group = "curves" if role == "reconstructed" else "traces"

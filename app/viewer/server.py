@@ -21,6 +21,7 @@ import numpy as np
 from sqlmodel import Session, col, select
 
 from app.config import Settings
+from app.errors import Conflict
 from app.models import Job, Part
 from app.viewer.access import HandshakeGuard, TokenSigner, allowed_origins, guarded_viser_serve, load_secret
 from app.viewer.csp import ViewPolicy
@@ -192,6 +193,41 @@ class Viewer:
         with self._lock:
             view = self._views.get(view_id)
         return (view.registry if view is not None else SceneRegistry()).snapshot()
+
+    def set_layer(self, view_id: str, index: int, name: str | None = None) -> dict[str, Any]:
+        """Show a view's program preview (``name``, default its first) up to layer position
+        ``index`` (clipped), nothing above, in every browser of the view; returns the snapshot.
+        Conflict when the view shows no program preview."""
+        view = self.view(view_id)
+        with self._lock:
+            drawers = [view.headless, *view.clients.values()]
+        names = list(view.headless.builder.previews)
+        if not names or (name is not None and name not in names):
+            raise Conflict("the view shows no program preview (focus a toolpath, circuit program or print job)",
+                           field="name" if name else "view_id", value=name or view_id)
+        for drawer in drawers:
+            try:
+                shown = drawer.builder.show_preview_layer(name or names[0], index)
+                drawer.panel.set_slider(name or names[0], shown)
+            except Exception:
+                if drawer is view.headless:
+                    raise
+                log.debug("could not draw the layer for a client", exc_info=True)
+        return view.registry.snapshot()
+
+    def show_head(self, view_id: str, position_mm: Any, line: int | None) -> dict[str, Any]:
+        """Draw a machine's head at ``position_mm`` (the program's frame) in every browser of a view."""
+        view = self.view(view_id)
+        with self._lock:
+            drawers = [view.headless, *view.clients.values()]
+        for drawer in drawers:
+            try:
+                drawer.builder.show_head(position_mm, line)
+            except Exception:
+                if drawer is view.headless:
+                    raise
+                log.debug("could not draw the head for a client", exc_info=True)
+        return view.registry.snapshot()
 
     def _draw(self, view: View, drawer: _Drawer, scene: FocusScene) -> None:
         try:

@@ -70,6 +70,8 @@ ROLES = {
     ("GET", "/api/v1/viewer"): "viewer",
     ("GET", "/api/v1/viewer/scene"): "viewer",
     ("POST", "/api/v1/viewer/focus"): "viewer",
+    ("POST", "/api/v1/viewer/layer"): "viewer",
+    ("POST", "/api/v1/viewer/head"): "viewer",
     ("POST", "/api/v1/parts/{part_id}/circuits:import"): "operator",
     ("GET", "/api/v1/circuit-imports/{import_id}"): "viewer",
     ("POST", "/api/v1/viewer/token"): "viewer",

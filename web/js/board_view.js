@@ -8,6 +8,7 @@
 // its row; the worst at first) the single view's chart from the trace's rebuilt samples.
 import { download, get } from "./api.js";
 import { chart, duration, round } from "./results.js";
+import { bandNote, standoffBand, standoffRows } from "./standoff.js";
 import { el, guarded } from "./ui.js";
 
 const LIMIT = 20;
@@ -27,10 +28,11 @@ const COLUMNS = [
 
 // One row per trace of the result, with what the board reconstruct says of it.
 export function boardRows(job, rebuilt) {
-  const deviations = new Map((rebuilt?.result?.traces || []).map((t) => [t.trace_id, t.deviation]));
+  const rebuiltRows = new Map((rebuilt?.result?.traces || []).map((t) => [t.trace_id, t]));
   return job.result.traces.map((t, index) => {
-    const deviation = deviations.get(t.trace_id);
+    const deviation = rebuiltRows.get(t.trace_id)?.deviation;
     return { index, trace_id: t.trace_id, name: t.trace_id, row: t, samples: deviation?.samples || [],
+      bound_mm: rebuiltRows.get(t.trace_id)?.bound_mm ?? null,
       nominal_error_um: um(deviation?.max_mm), compensated_error_um: um(t.max_chord_error_mm),
       clearance_mm: t.clearance ? t.clearance.min_mm : null, time_s: null, standoff_mm: t.standoff_mm };
   });
@@ -61,15 +63,14 @@ function summaryLine(rows, toleranceUm) {
 }
 
 function standoffChart(selected) {
-  const rows = selected.samples.map(([s, dz]) => ({ s_mm: s, nominal_program_um: (selected.standoff_mm - dz) * 1000,
-    compensated_um: selected.standoff_mm * 1000 }));
+  const rows = standoffRows(selected.samples, selected.standoff_mm, selected.bound_mm);
   if (rows.length < 2) {
     return el("p", { class: "small", id: "board-no-samples" },
       `trace ${selected.name}: the reconstruct job's result has ${rows.length ? "one sample" : "no samples"} of its deviation; no chart`);
   }
-  const plot = chart(rows, { x: "s_mm", ys: ["nominal_program_um", "compensated_um"],
-    title: `Trace ${selected.name}: standoff along the trace from the reconstructed surface, the nominal program vs the compensated one`,
-    xUnit: "mm", yUnit: "µm" });
+  const plot = chart(rows, { x: "s_mm", ys: ["nominal_program_um", "compensated_um"], band: standoffBand(selected.bound_mm),
+    title: `Trace ${selected.name}: standoff along the trace from the reconstructed surface, the nominal program vs the compensated one`
+      + bandNote(selected.bound_mm), xUnit: "mm", yUnit: "µm" });
   plot.id = "standoff-plot";
   plot.dataset.trace = selected.trace_id;
   return plot;

@@ -1,11 +1,12 @@
 // Machines: register (mock or real port), connect, live state, homed and position, the
 // running program's line, elapsed time and time left, pause / resume, rename, manual control
-// with a live console (machine_console.js), and a big emergency stop.  Buttons follow the
-// machine's state.  The page polls the machines' status once a second.
+// with a live console (machine_console.js), the head on the path in 3-D while it prints
+// (machine_view.js), and a big emergency stop.  Buttons follow the machine's state.  The page polls the machines' status once a second.
 import { ApiError, get, patch, post } from "./api.js";
 import { dispenseSection } from "./machine_dispense.js";
 import { manualControls } from "./machine_console.js";
 import { loadPrograms, programList } from "./machine_programs.js";
+import { headView } from "./machine_view.js";
 import { duration } from "./results.js";
 import { el, guarded, initPage, markReady, showError, showInfo } from "./ui.js";
 
@@ -36,6 +37,7 @@ const registerForm = el("form", { id: "register-form", onsubmit: onRegister },
   mockBox, el("button", { type: "submit", class: "primary", id: "register-machine" }, "Register machine"));
 const registerSection = el("section", {}, el("h2", {}, "Register a machine"), registerForm);
 main.append(registerSection, list);
+const head = headView(main);
 f.port.addEventListener("input", () => { mockBox.hidden = !f.port.value.startsWith("mock://"); });
 
 async function onRegister(event) {
@@ -200,6 +202,7 @@ async function refresh() {
     }
     if (!page.items.length && !list.querySelector(".empty")) list.append(el("p", { class: "small empty" }, "No machines registered yet."));
     if (page.items.length) list.querySelector(".empty")?.remove();
+    head.follow(page.items);
   } catch (err) {
     if (err instanceof ApiError && err.status === 404) {
       available = false;

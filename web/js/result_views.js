@@ -6,6 +6,7 @@
 // when its reads answer (the raw JSON stays one click away on the job page).
 import { get } from "./api.js";
 import { chart, duration, length, recordsTable, round } from "./results.js";
+import { bandNote, standoffBand, standoffRows } from "./standoff.js";
 import { el } from "./ui.js";
 
 const NS = "http://www.w3.org/2000/svg";
@@ -99,7 +100,8 @@ function compensateView(job) {
       job.params.reconstruct_job_id ? get(`jobs/${job.params.reconstruct_job_id}?include=result`).catch(() => null) : null]);
     const standoff = r.standoff_mm;
     const samples = rebuilt?.result?.deviation?.samples || [];
-    const rows = samples.map(([s, dz]) => ({ s_mm: s, nominal_program_um: (standoff - dz) * 1000, compensated_um: standoff * 1000 }));
+    const bound = rebuilt?.result?.bound_mm ?? null;
+    const rows = standoffRows(samples, standoff, bound);
     const worst = samples.length ? Math.max(...samples.map(([, dz]) => Math.abs(dz))) : null;
     const figures = figureList([
       ["Set standoff", length(standoff), "standoff_mm"],
@@ -110,9 +112,9 @@ function compensateView(job) {
       program ? ["Program time (estimated)", duration(program.time_s), "time_s"] : null,
       program ? ["Program lines", String(program.lines), "lines"] : null,
       nominal ? ["Nominal program time", duration(nominal.time_s), "nominal_time_s"] : null]);
-    const plot = rows.length > 1 ? chart(rows, { x: "s_mm", ys: ["nominal_program_um", "compensated_um"],
-      title: `Standoff along the trace from the reconstructed surface: the nominal program vs the compensated one (± ${length(r.max_chord_error_mm)} chord error)`,
-      xUnit: "mm", yUnit: "µm" }) : el("p", { class: "small" }, "no reconstruction samples to compare with");
+    const plot = rows.length > 1 ? chart(rows, { x: "s_mm", ys: ["nominal_program_um", "compensated_um"], band: standoffBand(bound),
+      title: `Standoff along the trace from the reconstructed surface: the nominal program vs the compensated one (± ${length(r.max_chord_error_mm)} chord error)`
+        + bandNote(bound), xUnit: "mm", yUnit: "µm" }) : el("p", { class: "small" }, "no reconstruction samples to compare with");
     if (plot.tagName === "FIGURE") plot.id = "standoff-plot";
     return [figures, plot];
   });

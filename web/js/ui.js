@@ -203,7 +203,8 @@ let viewerInfo = null;
 export function viewerPanel(container) {
   const frameBox = el("div", { class: "viewer-frame" });
   const caption = el("div", { class: "viewer-caption", id: "viewer-caption" }, "Open a part or a job to see it in 3D.");
-  container.append(el("h2", {}, "3D view"), caption, frameBox);
+  const previewBox = el("div", { class: "preview-panel", id: "preview-panel" });
+  container.append(el("h2", {}, "3D view"), caption, frameBox, previewBox);
 
   let viewId = null;
 
@@ -239,8 +240,22 @@ export function viewerPanel(container) {
       `${nodes.length} scene nodes` + (plots ? `, ${plots} deviation plot(s) in the side panel` : "") +
       ((scene.notes || []).length ? ` — ${scene.notes.join("; ")}` : "");
     container.dataset.generation = scene.generation;
+    await showPreview(scene);
     return scene;
   }
 
-  return { show: (target) => guarded("3D view", () => show(target)), ensureFrame };
+  // A program's preview (slider, legend, layers) is loaded only when a scene has one.
+  async function showPreview(scene) {
+    if (!Object.keys(scene.previews || {}).length) { previewBox.replaceChildren(); return; }
+    const { renderPreview } = await import("./preview_panel.js");
+    renderPreview(previewBox, scene, (layer) => post("viewer/layer", { view_id: viewId, layer }));
+  }
+
+  // Draw a machine's head where it is now (the view should show the program it prints).
+  async function head(machineId) {
+    if (!viewId) return null;
+    return post("viewer/head", { view_id: viewId, machine_id: machineId });
+  }
+
+  return { show: (target) => guarded("3D view", () => show(target)), ensureFrame, head };
 }

@@ -122,6 +122,17 @@ def test_the_selected_traces_chart_or_why_there_is_none(page, board):
     assert int(figure.get_attribute("data-rows")) == len(samples[with_chart])
     assert figure.get_attribute("data-series") == "nominal_program_um,compensated_um"
     assert [r["trace"] for r in table_rows(page) if r["selected"]] == [with_chart]
+    # the posterior band: the compensated standoff ± the field's bound for this trace, centred on it
+    bound = next(t["bound_mm"] for t in rebuilt["result"]["traces"] if t["trace_id"] == with_chart)
+    assert bound is not None and bound > 0                         # the field method bounds every trace
+    band = page.locator(f'#standoff-plot[data-trace="{with_chart}"] polygon.band')
+    assert band.count() == 1
+    band_y = sorted({round(float(p.split(",")[1]), 1) for p in band.get_attribute("points").split()})
+    compensated_y = {round(float(p.split(",")[1]), 1) for p in
+                     page.locator("#standoff-plot polyline").nth(1).get_attribute("points").split()}
+    assert len(band_y) == 2 and len(compensated_y) == 1
+    assert (band_y[0] + band_y[1]) / 2 == pytest.approx(compensated_y.pop(), abs=0.15)
+    assert f"± the reconstruction's bound ({bound * 1000:.2f} µm" in page.get_attribute("#standoff-plot svg", "aria-label")
     if without is not None:  # a trace with fewer than two stations: the view says there is no chart, and why
         page.click(f'#board-traces tr[data-trace="{without}"] td[data-key="trace"]')
         note = page.wait_for_selector("#board-no-samples")

@@ -95,6 +95,8 @@ def test_compensation_view_compares_nominal_and_compensated_standoff(page, serve
     ys = np.array([float(p.split(",")[1]) for p in points])
     dz = np.array([d for _s, d in samples])
     assert np.corrcoef(ys, dz)[0, 1] > 0.999  # screen y grows downwards: standoff - dz falls as dz rises
+    # the posterior band only where the reconstruction has a bound (the field method's)
+    assert (page.locator("#standoff-plot polygon.band").count() == 1) == (rebuilt["result"].get("bound_mm") is not None)
     assert page.inner_text('#compensate-view tr[data-key="time_s"] td') == duration(summary["time_s"])
     assert page.inner_text('#compensate-view tr[data-key="lines"] td') == str(summary["lines"])
     assert page.inner_text('#compensate-view tr[data-key="segments"] td').startswith(str(job["result"]["segments"]))
