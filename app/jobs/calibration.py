@@ -26,7 +26,7 @@ from app.jobs.calibration_results import CalibrateNozzleResult, CalibrateProbeRe
 from app.models import Job, Machine
 from app.records import get_or_404
 
-KINDS = ("calibrate_probe", "calibrate_nozzle")
+KINDS = ("calibrate_probe", "calibrate_nozzle", "calibrate_sensor")
 
 
 @dataclass

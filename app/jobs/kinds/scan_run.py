@@ -24,19 +24,22 @@ import numpy as np
 from pydantic import Field
 from sqlmodel import Session
 
-from app.calibration.sensor import SensorCalibration
-from app.errors import InvalidInput
 from app.jobs.context import JobContext
 from app.jobs.inputs import nominal_of
 from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.sensor_calibration import scan_calibration
 from app.jobs.sensor_runs import run_pass
 from app.machines import hardware_errors, profile_of
+from app.models import Machine
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.scan_cost import MotionCost, touch_time
 from app.probing.scan_path import sample_positions
 from app.probing.scan_plan import plan_scans
-from app.reconstruction.scan_field import fit_scan_field, verify_touches
+from app.reconstruction.field_trust import trace_bound, with_bound
+from app.reconstruction.scan_field import ScanFieldCheck, fit_scan_field, gap_sites, verify_touches
+from app.reconstruction.scan_field_store import scan_check_npz
+from app.records import get_or_404
 from app.reconstruction.scan_samples import block_average, pass_deviations
 from hardware.height_sensor import HeightSensor
 
@@ -46,8 +49,10 @@ class ScanRunParams(JobParams):
     trace_ids: list[str] = Field(min_length=1, max_length=5000)
     sensor_port: str = Field(description="the sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port")
     sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the controller's sampling rate")
-    calibration: dict[str, Any] = Field(description="the sensor's calibration: offset_mm [x, y, z], scale, "
-                                        "time_offset_s, slope_bias_mm (app.calibration.sensor.SensorCalibration)")
+    calibration: dict[str, Any] | None = Field(None, description="the sensor's calibration: offset_mm [x, y, z], "
+                                               "scale, time_offset_s, slope_bias_mm (app.calibration.sensor."
+                                               "SensorCalibration); default: the machine's stored one (the newest "
+                                               "calibrate_sensor job)")
     mode: str = Field("mixed", pattern="^(mixed|traces|raster)$")
     spacing_mm: float = Field(5.0, gt=0, le=100, description="raster line spacing")
     scan_speed_mm_s: float = Field(100.0, gt=0, le=1000)
@@ -58,14 +63,16 @@ class ScanRunParams(JobParams):
     coverage: float = Field(3.0, gt=0, le=10)
     probe_sigma_mm: float = Field(0.001, gt=0, le=1, description="the probe's repeatability (verification touches)")
     verify_count: int = Field(5, ge=0, le=50)
+    gap_touches: int = Field(20, ge=0, le=200, description="at most this many probe touches where the samples left "
+                             "the field too uncertain for the target (the sensor dropped out on steep flanks or dark "
+                             "spots), made before the field is fitted again and verified")
+    target_error_mm: float = Field(0.005, gt=0, le=1, description="the bound the field must reach over every trace "
+                                   "(a larger one asks for attention: scan finer)")
 
 
 def _check(params: ScanRunParams, session: Session) -> None:
-    try:
-        SensorCalibration.from_dict(params.calibration)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InvalidInput(f"calibration: {exc}", field="params.calibration", value=str(params.calibration)[:80]) \
-            from None
+    get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    scan_calibration(session, params.machine_id, params.calibration)
     refuse_if_machine_busy(params.machine_id, session)
 
 
@@ -87,6 +94,15 @@ def _top(mesh: Any) -> tuple[Any, Any]:
     return (lambda xy: hits(xy)[0]), (lambda xy: hits(xy)[1])
 
 
+def _touch(machine: Any, profile: Any, height: Any, xy: np.ndarray) -> np.ndarray:
+    """Probe touches at xy (k, 2): the measured deviation (k,) mm from the nominal top."""
+    nominal = height(xy)
+    z = [machine.probe(float(x), float(y), z_start=float(h) + profile.clearance_z,
+                       z_min=float(h) - profile.clearance_z).z for (x, y), h in zip(xy, nominal)]
+    out: np.ndarray = np.asarray(z, dtype=float) - nominal
+    return out
+
+
 @job_kind("scan_run", ScanRunParams, queue="machine", check=_check,
           references=lambda p: [("machine", p.machine_id), *(("trace", t) for t in p.trace_ids)])
 def run(ctx: JobContext, params: ScanRunParams) -> dict:
@@ -94,7 +110,8 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
     traces = [ctx.trace(t) for t in params.trace_ids]
     paths = [nominal_of(t) for t in traces]
     height, slope = _top(ctx.mesh(traces[0].part_id))
-    calibration = SensorCalibration.from_dict(params.calibration)
+    with ctx.session() as session:
+        calibration, calibration_source = scan_calibration(session, params.machine_id, params.calibration)
     profile = profile_of(ctx.machine(params.machine_id))
     cost = MotionCost(travel_mm_s=profile.travel_feed_mm_min / 60.0, probe_mm_s=profile.probe_feed_mm_min / 60.0,
                       scan_mm_s=params.scan_speed_mm_s)
@@ -140,6 +157,13 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
                                sigma_mm=params.sensor_sigma_mm / math.sqrt(params.block))
         xy, dz = np.concatenate(xy_fit), np.concatenate(dz_fit)
         fit = fit_scan_field(prior, Sites(xy, slope(xy)), dz, (lo + hi) / 2, slope)
+        gaps, _ = gap_sites(fit, paths, params.coverage, params.target_error_mm, params.gap_touches)
+        if len(gaps.xy):  # the sensor left holes (steep flanks, dark spots): touch them and fit again
+            ctx.progress(0.88, f"touching {len(gaps.xy)} points the sensor could not see")
+            xy, dz = np.concatenate([xy, gaps.xy]), np.concatenate([dz, _touch(machine, profile, height, gaps.xy)])
+            noise = np.concatenate([np.full(len(dz) - len(gaps.xy), prior.sigma_mm),
+                                    np.full(len(gaps.xy), params.probe_sigma_mm)])
+            fit = fit_scan_field(prior, Sites(xy, slope(xy)), dz, (lo + hi) / 2, slope, noise_mm=noise)
         sites = [path_sites(p, np.linspace(0.0, p.length_mm, 9)) for p in paths]
         trace_sd = [float(fit.posterior.sd(s).max()) for s in sites]
         query = Sites(np.concatenate([s.xy for s in sites]), np.concatenate([s.grad for s in sites]))
@@ -147,22 +171,26 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         sd = fit.posterior.sd(query)
         picked = list(np.argsort(sd)[::-1][:params.verify_count])
         vsites = query.take(np.array(picked, dtype=int))
-        touched = [machine.probe(float(x), float(y), z_start=float(z_nom) + profile.clearance_z,
-                                 z_min=float(z_nom) - profile.clearance_z).z
-                   for (x, y), z_nom in zip(vsites.xy, height(vsites.xy))]
-    check = verify_touches(fit, vsites, np.asarray(touched) - height(vsites.xy), owner[picked], params.coverage,
-                           params.probe_sigma_mm) if picked else None
-    bound = params.coverage * max(trace_sd)
+        touched = _touch(machine, profile, height, vsites.xy)
+    verification = verify_touches(fit, vsites, touched, owner[picked], params.coverage,
+                                  params.probe_sigma_mm) if picked else None
+    bounds = [trace_bound(fit, p, params.coverage) for p in paths]
+    check = with_bound(ScanFieldCheck(fit, None, verification, params.coverage, params.target_error_mm,
+                                      touch_sigma_mm=params.probe_sigma_mm), bounds)
+    ctx.artifact("field.npz", scan_check_npz(check), "application/octet-stream",
+                 {"fitted_points": int(len(dz)), "inducing": int(len(fit.posterior.alpha))})
     return {
         "passes": len(plan.passes), "tiles": plan.tiles, "scan_length_mm": plan.length_mm,
         "machine_s": {"scan": plan.scan_s, "links": plan.link_s,
+                      "gap_touches": touch_time(cost, gaps.xy) if len(gaps.xy) else 0.0,
                       "verification": touch_time(cost, vsites.xy) if picked else 0.0},
         "samples": int(len(samples)), "valid": int(samples[:, 4].sum()), "fitted_points": int(len(dz)),
-        "outliers": len(fit.outliers), "bound_mm": bound,
-        "verification": None if check is None else {
-            "max_abs_residual_mm": check.max_abs_residual_mm, "within": bool(check.within.all()),
-            "residual_mm": check.residual_mm.tolist(), "limit_mm": check.limit_mm.tolist()},
-        "traces": [{"trace_id": t.id, "bound_mm": params.coverage * s,
+        "outliers": len(fit.outliers), "bound_mm": check.bound_mm, "gap_touches": int(len(gaps.xy)), "calibration": calibration_source,
+        "field_check": {k: v for k, v in check.as_dict().items() if k != "exclusions"},
+        "verification": None if verification is None else {
+            "max_abs_residual_mm": verification.max_abs_residual_mm, "within": bool(verification.within.all()),
+            "residual_mm": verification.residual_mm.tolist(), "limit_mm": verification.limit_mm.tolist()},
+        "traces": [{"trace_id": t.id, "bound_mm": b, "max_posterior_sd_mm": s,
                     "max_abs_deviation_mm": float(np.abs(fit.deviation(site)).max())}
-                   for t, s, site in zip(traces, trace_sd, sites)],
+                   for t, b, s, site in zip(traces, bounds, trace_sd, sites)],
     }
