@@ -2,16 +2,22 @@
 
 Plans scan passes (:func:`app.probing.scan_plan.plan_scans`: passes along the traces or
 rasters over the part's nominal top, per tile the cheaper in machine time), drives them on
-the machine with the sensor (:mod:`app.jobs.sensor_runs`), turns the stored readings into
-deviations with the sensor's calibration (:mod:`app.reconstruction.scan_samples`), fits the
-field by the inducing-point solve (:mod:`app.reconstruction.scan_field`), touches
-``verify_count`` verification points with the probe where the fitted field is least certain
-and checks the field there (:func:`app.reconstruction.scan_field.verify_touches`).  Artifact
-``samples.npz``: every sample's x, y (the spot), z (the surface), t (s after its pass's
-start) and valid, and the pass it belongs to.  Result: the plan's machine time (cost
-model), the field check and each trace's largest predicted deviation and bound.
+the machine with the sensor, each pass stored as it is made (:mod:`app.jobs.scan_passes`),
+turns the readings into deviations with the sensor's calibration (given, or the machine's
+stored one: :mod:`app.jobs.sensor_calibration`; :mod:`app.reconstruction.scan_samples`),
+fits the field by the inducing-point solve (:mod:`app.reconstruction.scan_field`), touches
+up to ``gap_touches`` trace points the samples left too uncertain for the target (the sensor
+dropped out on steep flanks or dark spots) and fits again, then touches ``verify_count``
+verification points where the field is least certain and checks it there
+(:func:`app.reconstruction.scan_field.verify_touches`).  Artifacts: ``samples.npz`` (every
+sample's x, y (the spot), z (the surface), t (s after its pass's start), valid and pass
+index), ``field.npz`` (the checked field, :mod:`app.reconstruction.scan_field_store`: what
+``reconstruct`` with ``scan_run_job_id`` rebuilds the traces from) and ``pass.<k>.npz``.
+Result: the plan's machine time (cost model), the field check (its bound over every trace,
+the verification) and each trace's bound and largest deviation.
 
-A failure stops the job (nothing moves afterwards); no resume (a scan is re-run whole).
+A dropped link interrupts the job (it waits for an operator; a resume keeps the stored
+passes and continues at the next one); another failure stops it (nothing moves afterwards).
 """
 
 from __future__ import annotations
@@ -26,11 +32,11 @@ from sqlmodel import Session
 
 from app.jobs.context import JobContext
 from app.jobs.inputs import nominal_of
-from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
+from app.jobs.machine_jobs import refuse_if_machine_busy
+from app.jobs.scan_passes import interrupting, scan_passes
 from app.jobs.registry import JobParams, job_kind
 from app.jobs.sensor_calibration import scan_calibration
-from app.jobs.sensor_runs import run_pass
-from app.machines import hardware_errors, profile_of
+from app.machines import profile_of
 from app.models import Machine
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.scan_cost import MotionCost, touch_time
@@ -41,7 +47,6 @@ from app.reconstruction.scan_field import ScanFieldCheck, fit_scan_field, gap_si
 from app.reconstruction.scan_field_store import scan_check_npz
 from app.records import get_or_404
 from app.reconstruction.scan_samples import block_average, pass_deviations
-from hardware.height_sensor import HeightSensor
 
 
 class ScanRunParams(JobParams):
@@ -122,29 +127,21 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         - calibration.offset_mm[2] + profile.clearance_z
     rows: list[np.ndarray] = []
     xy_fit, dz_fit = [], []
-    machine = connected_machine(ctx, params.machine_id)
-    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), hardware_errors():
-        sensor = HeightSensor(params.sensor_port, params.sensor_rate_hz)
-        sensor.connect()
-        try:
-            for k, scan_pass in enumerate(plan.passes):
-                w = scan_pass.carriage(calibration.offset_mm)
-                data = run_pass(machine, sensor, w, cost.scan_mm_s, travel_z if scan_pass.hop else None)
-                carriage = sample_positions(w, cost.scan_mm_s, len(data.values), sensor.rate_hz,
-                                            calibration.time_offset_s)
-                ok = np.isfinite(data.values)
-                z = np.where(ok, calibration.surface_z(carriage, np.nan_to_num(data.values)), np.nan)
-                xy = calibration.spot_xy(carriage)
-                rows.append(np.column_stack([xy, z, sensor.stamps(len(data.values)), ok, np.full(len(ok), k)]))
-                got_xy, got_dz = pass_deviations(w, cost.scan_mm_s, data.values, sensor.rate_hz, calibration,
-                                                 height, slope)
-                got_xy, got_dz = block_average(got_xy, got_dz, params.block)
-                xy_fit.append(got_xy)
-                dz_fit.append(got_dz)
-                ctx.progress(0.8 * (k + 1) / len(plan.passes), f"scanned {k + 1}/{len(plan.passes)} passes")
-            machine.move(z=travel_z)
-        finally:
-            sensor.close()
+    waypoints = [p.carriage(calibration.offset_mm) for p in plan.passes]
+    values, machine, state = scan_passes(ctx, params.machine_id, params.sensor_port, params.sensor_rate_hz, waypoints,
+                                         [p.hop for p in plan.passes], cost.scan_mm_s, travel_z)
+    for k, (w, v) in enumerate(zip(waypoints, values)):
+        carriage = sample_positions(w, cost.scan_mm_s, len(v), params.sensor_rate_hz, calibration.time_offset_s)
+        ok = np.isfinite(v)
+        z = np.where(ok, calibration.surface_z(carriage, np.nan_to_num(v)), np.nan)
+        stamps = np.arange(len(v)) / params.sensor_rate_hz
+        rows.append(np.column_stack([calibration.spot_xy(carriage), z, stamps, ok, np.full(len(ok), k)]))
+        got_xy, got_dz = pass_deviations(w, cost.scan_mm_s, v, params.sensor_rate_hz, calibration, height, slope)
+        got_xy, got_dz = block_average(got_xy, got_dz, params.block)
+        xy_fit.append(got_xy)
+        dz_fit.append(got_dz)
+    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), interrupting(ctx, machine, state):
+        machine.move(z=travel_z)
         samples = np.concatenate(rows)
         buf = io.BytesIO()
         np.savez_compressed(buf, x=samples[:, 0], y=samples[:, 1], z=samples[:, 2], t=samples[:, 3],
@@ -185,7 +182,8 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
                       "gap_touches": touch_time(cost, gaps.xy) if len(gaps.xy) else 0.0,
                       "verification": touch_time(cost, vsites.xy) if picked else 0.0},
         "samples": int(len(samples)), "valid": int(samples[:, 4].sum()), "fitted_points": int(len(dz)),
-        "outliers": len(fit.outliers), "bound_mm": check.bound_mm, "gap_touches": int(len(gaps.xy)), "calibration": calibration_source,
+        "outliers": len(fit.outliers), "bound_mm": check.bound_mm, "gap_touches": int(len(gaps.xy)),
+        "resumes": int(state["resumes"]), "calibration": calibration_source,
         "field_check": {k: v for k, v in check.as_dict().items() if k != "exclusions"},
         "verification": None if verification is None else {
             "max_abs_residual_mm": verification.max_abs_residual_mm, "within": bool(verification.within.all()),
