@@ -39,7 +39,7 @@ from app.jobs.sensor_calibration import scan_calibration
 from app.machines import profile_of
 from app.models import Machine
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
-from app.probing.scan_cost import MotionCost, touch_time
+from app.probing.scan_cost import MotionCost, touch_order, touch_time
 from app.probing.scan_path import sample_positions
 from app.probing.scan_plan import plan_scans
 from app.reconstruction.field_trust import trace_bound, with_bound
@@ -155,6 +155,7 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         xy, dz = np.concatenate(xy_fit), np.concatenate(dz_fit)
         fit = fit_scan_field(prior, Sites(xy, slope(xy)), dz, (lo + hi) / 2, slope)
         gaps, _ = gap_sites(fit, paths, params.coverage, params.target_error_mm, params.gap_touches)
+        gaps = gaps.take(touch_order(gaps.xy, plan.passes[-1].spot[-1, :2]))  # from where the scan ended
         if len(gaps.xy):  # the sensor left holes (steep flanks, dark spots): touch them and fit again
             ctx.progress(0.88, f"touching {len(gaps.xy)} points the sensor could not see")
             xy, dz = np.concatenate([xy, gaps.xy]), np.concatenate([dz, _touch(machine, profile, height, gaps.xy)])
@@ -167,6 +168,8 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         owner = np.repeat(np.arange(len(paths)), 9)
         sd = fit.posterior.sd(query)
         picked = list(np.argsort(sd)[::-1][:params.verify_count])
+        last = gaps.xy[-1] if len(gaps.xy) else plan.passes[-1].spot[-1, :2]
+        picked = [picked[i] for i in touch_order(query.xy[picked], last)]  # the touches in a short tour
         vsites = query.take(np.array(picked, dtype=int))
         touched = _touch(machine, profile, height, vsites.xy)
     verification = verify_touches(fit, vsites, touched, owner[picked], params.coverage,
