@@ -10,6 +10,15 @@ its placement on the machine; every probe_plan / reconstruct child then gets its
 ``registration_job_id``, so traces are planned, rebuilt and compensated in machine
 coordinates; the result reports the transform and its uncertainty.
 
+``measuring: scan``: ONE ``scan_run`` child measures every trace with the laser height
+sensor (its ``scan`` parameters; the calibration defaults to the machine's stored one, a
+machine without one is refused at submission), touching where the sensor dropped out and at
+its verification points; then board ``reconstruct`` children rebuild the traces from the
+scan's checked field (``scan_run_job_id``) and the same compensate / verdict / print steps
+follow: a scan whose verification fails ends ``needs_attention`` like a touch loop.  No
+``plan`` pause (the scan plans and scans in one machine job), no registration (the scan
+measures in machine coordinates), no added stations (run again with a finer ``spacing_mm``).
+
 Each step is a child job (visible, cancellable, with its own artifacts).  The parent runs
 on the ``workflow`` queue and only submits and waits (:mod:`app.jobs.loop_steps`).  Its
 phases: every plan, then every probe run, then every trace rebuilt and compensated, then
@@ -271,6 +280,10 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     if checks:
         result["verdict"] = loop_verdict(checks, per_trace, params.print)
         result["verdict"]["retouched"] = [] if shared is None else retouched(shared[0])
+        if params.measuring == "scan" and result["verdict"]["actions"]:
+            result["verdict"]["actions"] = [
+                "run the loop again with a finer scan.spacing_mm or more scan.gap_touches (stations are added to "
+                "touch fields only)", result["verdict"]["actions"][-1]]
         attention = bool(result["verdict"]["needs_attention"])
     gates.gate("verified", _verified_summary(result, per_trace), round_=rounds, attention=attention)
     accepted = gates.decisions.accepted
