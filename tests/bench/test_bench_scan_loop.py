@@ -3,7 +3,7 @@ checked against the mock's truth.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_scan_loop.py -s -o addopts="" -q
 
-SCAN_LOOP_SEEDS as-made S1 parts (default 8, seeds 61-68: used nowhere else, nothing was
+SCAN_LOOP_SEEDS as-made reference parts (default 8, seeds 61-68: used nowhere else, nothing was
 tuned on them), all nine traces, through the API (:mod:`tests.helpers.scan_loop`): a mock
 machine with the reference pad and sphere, a mock LK-G with an offset, time offset, scale
 error and tilt bias drawn from the seed, dropping out beyond 10 degrees of tilt (the steep

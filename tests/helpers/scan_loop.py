@@ -1,4 +1,4 @@
-"""A mock machine holding an as-made S1 part, the reference pad and sphere, and a mock LK-G
+"""A mock machine holding an as-made reference part, the reference pad and sphere, and a mock LK-G
 with hidden errors, for the closed loop measuring by scanning (a test and a bench).
 
 The sensor's offset, time offset, scale error and tilt bias are drawn from the part's seed

@@ -1,4 +1,4 @@
-"""The closed loop measuring by scanning, through the API, on held-out as-made S1 parts.
+"""The closed loop measuring by scanning, through the API, on held-out as-made reference parts.
 
 The mock machine holds an as-made part (seeds used nowhere else), the reference pad and the
 datum sphere; the mock LK-G has an offset, time offset, scale error and tilt bias drawn from
@@ -66,3 +66,8 @@ def test_scanning_without_a_stored_calibration_is_refused_at_submission(client):
     assert response.status_code == 422 and "sensor_port" in response.text
     response = submit(client, "closed_loop", {**base, "scan": {"sensor_port": bed.port, "spacing_mm": -1}})
     assert response.status_code == 422 and "spacing_mm" in response.text
+    trace = bed.traces[0]["id"]
+    response = submit(client, "reconstruct", {"trace_id": trace, "scan_run_job_id": "job-nope", "method": "field"})
+    assert response.status_code == 422 and "scan_run_job_id" in response.text and "does not exist" in response.text
+    response = submit(client, "reconstruct", {"trace_id": trace, "scan_run_job_id": "job-nope", "method": "deviation"})
+    assert response.status_code == 422 and "method must be field" in response.text
