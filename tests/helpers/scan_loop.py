@@ -36,8 +36,9 @@ class ScanBed:
 
 
 def scan_bed(client: Any, seed: int, trace_indices: tuple[int, ...], acceptance_deg: float = 10.0,
-             dark: str = "") -> ScanBed:
-    """Upload the nominal and the as-made part (seed), the traces, a mock machine and the sensor's link."""
+             dark: str = "", disconnect_at_line: int | None = None) -> ScanBed:
+    """Upload the nominal and the as-made part (seed), the traces, a mock machine (its link
+    dropping once at ``disconnect_at_line``) and the sensor's link."""
     truth = as_made(seed=seed, amplitude_mm=0.15)
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_mesh(grid_mm=GRID).export(file_type="stl"))},
                        headers=OP).json()
@@ -49,7 +50,8 @@ def scan_bed(client: Any, seed: int, trace_indices: tuple[int, ...], acceptance_
                  "sphere": {"centre_mm": list(SPHERE), "diameter_mm": DIAMETER}}
     machine = client.post("/api/v1/machines", json={
         "name": "sim", "port": "mock://", "dialect": "marlin", "profile": {"reference": reference},
-        "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001, "physics": reference}}, headers=OP).json()
+        "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001, "physics": reference,
+                 "faults": {"disconnect_at_line": disconnect_at_line}}}, headers=OP).json()
     rng = np.random.default_rng(seed)
     hidden = {"offset": np.asarray(NOMINAL_OFFSET) + rng.uniform(-0.2, 0.2, 3), "tau": rng.uniform(0.5e-3, 4e-3),
               "scale_error": rng.uniform(-0.005, 0.005), "bias": rng.uniform(0.0, 0.003)}
@@ -58,6 +60,12 @@ def scan_bed(client: Any, seed: int, trace_indices: tuple[int, ...], acceptance_
             f"&slope_bias_mm={hidden['bias']:.6f}&acceptance_deg={acceptance_deg:g}&noise_mm=0.0005&rate_hz=2000"
             f"&seed={seed}" + (f"&dark={dark}" if dark else ""))
     return ScanBed(truth, part, traces, machine, hidden, port)
+
+
+def hidden_calibration(bed: ScanBed) -> dict[str, Any]:
+    """The sensor's true calibration (what a perfect calibrate_sensor would store)."""
+    return {"offset_mm": bed.hidden["offset"].tolist(), "scale": 1 + bed.hidden["scale_error"],
+            "time_offset_s": bed.hidden["tau"], "slope_bias_mm": bed.hidden["bias"]}
 
 
 def calibrate(client: Any, bed: ScanBed) -> dict[str, Any]:

@@ -10,13 +10,17 @@ top), independently of the loop's own figures: within the bound the loop states 
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from hardware.height_sensor.mock import unregister_sensor
 from tests.helpers.jobs import submit, wait_for
-from tests.helpers.scan_loop import calibrate, scan_bed, scan_loop, trace_errors
+from tests.conftest import auth
+from tests.helpers.scan_loop import calibrate, hidden_calibration, scan_bed, scan_loop, trace_errors
 
 TRACES = (0, 2, 4, 6, 8)
+OP = auth("operator")
 SCAN = {"mode": "mixed", "spacing_mm": 4.0, "deviation_amplitude_mm": 0.15, "deviation_wavelength_mm": 15.0,
         "verify_count": 4, "coverage": 4.0}
 
@@ -54,6 +58,36 @@ def test_a_scan_whose_verification_fails_ends_needing_attention(client):
     assert done["status"] == "needs_attention", done["error"]
     verdict = done["result"]["verdict"]
     assert verdict["needs_attention"] and verdict["verified"].startswith("NOT verified")
+
+
+def test_a_loop_waits_while_its_scan_is_interrupted_and_finishes_when_the_operator_resumes_it(client):
+    bed = scan_bed(client, 59, TRACES, disconnect_at_line=30)
+    try:
+        loop = submit(client, "closed_loop", {
+            "part_id": bed.part["id"], "trace_ids": [t["id"] for t in bed.traces], "machine_id": bed.machine["id"],
+            "measuring": "scan", "scan": {"sensor_port": bed.port, **SCAN, "calibration": hidden_calibration(bed)}})
+        assert loop.status_code == 202, loop.text
+        loop_id = loop.json()["id"]
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            items = client.get(f"/api/v1/jobs?parent_id={loop_id}", headers=OP).json()["items"]
+            scans = [c for c in items if c["kind"] == "scan_run" and c["status"] == "interrupted"]
+            if scans:
+                break
+            time.sleep(0.05)
+        assert scans, "the scan was not interrupted"
+        assert 0 < scans[0]["program_state"]["passes_done"] < scans[0]["program_state"]["total"]
+        assert client.get(f"/api/v1/jobs/{loop_id}", headers=OP).json()["status"] == "running"  # waiting on it
+        assert client.post(f"/api/v1/jobs/{scans[0]['id']}/resume", json={"confirm": True},
+                           headers=OP).status_code == 202
+        done = wait_for(client, loop_id, timeout=240)
+    finally:
+        unregister_sensor(bed.machine["id"])
+    assert done["status"] == "succeeded", (done["error"], (done["result"] or {}).get("verdict"))
+    scan = wait_for(client, done["result"]["traces"][0]["scan_run"], timeout=5)
+    assert scan["id"] == scans[0]["id"] and scan["result"]["resumes"] == 1
+    for (error, bound), trace in zip(trace_errors(client, bed, done), bed.traces):
+        assert error <= bound, (trace["name"], error, bound)
 
 
 def test_scanning_without_a_stored_calibration_is_refused_at_submission(client):
