@@ -105,3 +105,8 @@ def test_scanning_without_a_stored_calibration_is_refused_at_submission(client):
     assert response.status_code == 422 and "scan_run_job_id" in response.text and "does not exist" in response.text
     response = submit(client, "reconstruct", {"trace_id": trace, "scan_run_job_id": "job-nope", "method": "deviation"})
     assert response.status_code == 422 and "method must be field" in response.text
+    plain = client.post("/api/v1/machines", json={"name": "plain", "port": "mock://", "dialect": "marlin"},
+                        headers=OP).json()
+    response = submit(client, "calibrate_sensor", {"machine_id": plain["id"], "sensor_port": bed.port,
+                                                   "nominal_offset_mm": [30.0, 5.0, -10.0]})
+    assert response.status_code == 422 and "profile.reference.pad" in response.text
