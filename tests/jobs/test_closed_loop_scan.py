@@ -32,6 +32,8 @@ def test_a_scanning_loop_on_a_held_out_part_keeps_every_trace_within_its_bound(c
         done = scan_loop(client, bed, SCAN)
     finally:
         unregister_sensor(bed.machine["id"])
+    stored = client.get(f"/api/v1/machines/{bed.machine['id']}/calibration", headers=OP).json()["sensor"]
+    assert stored["time_offset_s"] == calibration["time_offset_s"] and not stored["stale"]
     assert abs(calibration["time_offset_s"] - bed.hidden["tau"]) < 1e-3
     assert np.abs(np.asarray(calibration["offset_mm"]) - bed.hidden["offset"]).max() < 0.005
     assert done["status"] == "succeeded", (done["error"], (done["result"] or {}).get("verdict"))
