@@ -51,9 +51,11 @@ def _npz(values: np.ndarray) -> bytes:
 
 
 def scan_passes(ctx: JobContext, machine_id: str, sensor_port: str, rate_hz: float, waypoints: Sequence[np.ndarray],
-                hops: Sequence[bool], speed_mm_s: float, travel_z: float) -> tuple[list[np.ndarray], Any, dict]:
+                hops: Sequence[bool], speed_mm_s: float, travel_z: float,
+                probe_tool: bool = False) -> tuple[list[np.ndarray], Any, dict]:
     """Drive every pass (carriage waypoints (m, 3) each; ``hops``: go up to ``travel_z``
-    before it) with the machine leased; (each pass's readings (n,), the machine, the state).
+    before it) with the machine leased, the probe (T0: the carriage frame the sensor's offset is
+    in) selected first with ``probe_tool``; (each pass's readings (n,), the machine, the state).
     Raises ``Interrupted`` after a dropped link (the job waits), ``Cancelled`` when an
     operator stopped the machine, a translated hardware error otherwise."""
     key = plan_sha256(waypoints, speed_mm_s)
@@ -64,6 +66,8 @@ def scan_passes(ctx: JobContext, machine_id: str, sensor_port: str, rate_hz: flo
     machine = rehomed_machine(ctx, machine_id, resume, state)
     values = [np.load(io.BytesIO(ctx.artifact_bytes(ctx.job_id, pass_name(k))))["values"] for k in range(done)]
     with ctx.runtime.machines.lease(machine_id, ctx.job_id), interrupting(ctx, machine, state):
+        if probe_tool and done < len(waypoints):
+            machine.select_tool(0)
         sensor = HeightSensor(sensor_port, rate_hz)
         sensor.connect()
         try:

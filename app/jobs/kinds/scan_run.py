@@ -30,9 +30,11 @@ import numpy as np
 from pydantic import Field
 from sqlmodel import Session
 
+from app.calibration.correct import surface_heights
 from app.jobs.context import JobContext
 from app.jobs.inputs import nominal_of
 from app.jobs.machine_jobs import refuse_if_machine_busy
+from app.jobs.probe_correction import machine_probe
 from app.jobs.scan_passes import interrupting, scan_passes
 from app.jobs.registry import JobParams, job_kind
 from app.jobs.sensor_calibration import scan_calibration
@@ -99,12 +101,23 @@ def _top(mesh: Any) -> tuple[Any, Any]:
     return (lambda xy: hits(xy)[0]), (lambda xy: hits(xy)[1])
 
 
-def _touch(machine: Any, profile: Any, height: Any, xy: np.ndarray) -> np.ndarray:
-    """Probe touches at xy (k, 2): the measured deviation (k,) mm from the nominal top."""
+def _touch(machine: Any, profile: Any, height: Any, slope: Any, xy: np.ndarray, probe: Any) -> np.ndarray:
+    """Probe touches at xy (k, 2): the measured deviation (k,) mm from the nominal top; with a
+    calibrated probe (``probe``: :class:`app.jobs.probe_correction.MachineProbe`) each reading
+    is corrected for the ball radius and the pre-travel along the nominal normal, as a
+    probe run's are (no drift correction)."""
     nominal = height(xy)
-    z = [machine.probe(float(x), float(y), z_start=float(h) + profile.clearance_z,
-                       z_min=float(h) - profile.clearance_z).z for (x, y), h in zip(xy, nominal)]
-    out: np.ndarray = np.asarray(z, dtype=float) - nominal
+    if not len(xy):
+        return np.zeros(0)
+    got = [machine.probe(float(x), float(y), z_start=float(h) + profile.clearance_z,
+                         z_min=float(h) - profile.clearance_z) for (x, y), h in zip(xy, nominal)]
+    readings = np.array([[r.x, r.y, r.z] for r in got], dtype=float)
+    if probe is None:
+        return readings[:, 2] - nominal
+    g = np.asarray(slope(xy), dtype=float)
+    normals = np.column_stack([-g, np.ones(len(g))])
+    out: np.ndarray = surface_heights(readings, normals / np.linalg.norm(normals, axis=1, keepdims=True),
+                                      probe.calibration).z_mm - nominal
     return out
 
 
@@ -128,8 +141,9 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
     rows: list[np.ndarray] = []
     xy_fit, dz_fit = [], []
     waypoints = [p.carriage(calibration.offset_mm) for p in plan.passes]
+    probe = machine_probe(ctx, params.machine_id)
     values, machine, state = scan_passes(ctx, params.machine_id, params.sensor_port, params.sensor_rate_hz, waypoints,
-                                         [p.hop for p in plan.passes], cost.scan_mm_s, travel_z)
+                                         [p.hop for p in plan.passes], cost.scan_mm_s, travel_z, probe is not None)
     for k, (w, v) in enumerate(zip(waypoints, values)):
         carriage = sample_positions(w, cost.scan_mm_s, len(v), params.sensor_rate_hz, calibration.time_offset_s)
         ok = np.isfinite(v)
@@ -142,6 +156,8 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         dz_fit.append(got_dz)
     with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), interrupting(ctx, machine, state):
         machine.move(z=travel_z)
+        if probe is not None:
+            machine.select_tool(0)  # the calibrated probe touches
         samples = np.concatenate(rows)
         buf = io.BytesIO()
         np.savez_compressed(buf, x=samples[:, 0], y=samples[:, 1], z=samples[:, 2], t=samples[:, 3],
@@ -158,7 +174,7 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         gaps = gaps.take(touch_order(gaps.xy, plan.passes[-1].spot[-1, :2]))  # from where the scan ended
         if len(gaps.xy):  # the sensor left holes (steep flanks, dark spots): touch them and fit again
             ctx.progress(0.88, f"touching {len(gaps.xy)} points the sensor could not see")
-            xy, dz = np.concatenate([xy, gaps.xy]), np.concatenate([dz, _touch(machine, profile, height, gaps.xy)])
+            xy, dz = np.concatenate([xy, gaps.xy]), np.concatenate([dz, _touch(machine, profile, height, slope, gaps.xy, probe)])
             noise = np.concatenate([np.full(len(dz) - len(gaps.xy), prior.sigma_mm),
                                     np.full(len(gaps.xy), params.probe_sigma_mm)])
             fit = fit_scan_field(prior, Sites(xy, slope(xy)), dz, (lo + hi) / 2, slope, noise_mm=noise)
@@ -171,7 +187,7 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         last = gaps.xy[-1] if len(gaps.xy) else plan.passes[-1].spot[-1, :2]
         picked = [picked[i] for i in touch_order(query.xy[picked], last)]  # the touches in a short tour
         vsites = query.take(np.array(picked, dtype=int))
-        touched = _touch(machine, profile, height, vsites.xy)
+        touched = _touch(machine, profile, height, slope, vsites.xy, probe)
     verification = verify_touches(fit, vsites, touched, owner[picked], params.coverage,
                                   params.probe_sigma_mm) if picked else None
     bounds = [trace_bound(fit, p, params.coverage) for p in paths]
