@@ -401,13 +401,29 @@ class NozzleCalibrationOut(BaseModel):
     disagrees: list[str] | None = None
 
 
+class SensorCalibrationOut(BaseModel):
+    """The height sensor's stored calibration (the latest succeeded calibrate_sensor job)."""
+
+    job_id: str | None = None
+    calibrated_at: UtcDatetime | None = None
+    age_h: float | None = None
+    stale: bool = False
+    sensor_port: str | None = None
+    offset_mm: list[float] = Field(description="the spot and zero relative to the carriage [x, y, z], mm")
+    scale: float
+    time_offset_s: float
+    slope_bias_mm: float = 0.0
+
+
 class CalibrationOut(BaseModel):
-    """A machine's current calibration (latest succeeded calibrate_probe / calibrate_nozzle jobs)."""
+    """A machine's current calibration (latest succeeded calibrate_probe / calibrate_nozzle /
+    calibrate_sensor jobs)."""
 
     machine_id: str
     max_age_h: float
     probe: ProbeCalibrationOut | None
     nozzles: list[NozzleCalibrationOut]
+    sensor: SensorCalibrationOut | None = None
     flags: list[str] = Field(description="stale calibrations, re-checks that disagree, nozzles calibrated "
                              "against an earlier probe calibration")
 

@@ -1,5 +1,5 @@
-"""A machine's current calibration: the latest succeeded ``calibrate_probe`` job and, per
-nozzle, the latest succeeded ``calibrate_nozzle`` job, with what an operator must know
+"""A machine's current calibration: the latest succeeded ``calibrate_probe`` job, per
+nozzle the latest succeeded ``calibrate_nozzle`` job and the latest ``calibrate_sensor`` job, with what an operator must know
 about them (``flags``): too old, a re-check that disagrees with the calibration before it,
 a nozzle calibrated against an earlier probe calibration (a nozzle's Z offset rests on the
 probe's ball radius and pre-travel).
@@ -22,11 +22,11 @@ from sqlmodel import Session, col, select
 from app.api.machine_schemas import Profile
 from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
 from app.errors import InvalidInput
-from app.jobs.calibration_results import CalibrateNozzleResult, CalibrateProbeResult
+from app.jobs.calibration_results import CalibrateNozzleResult, CalibrateProbeResult, CalibrateSensorResult
 from app.models import Job, Machine
 from app.records import get_or_404
 
-KINDS = ("calibrate_probe", "calibrate_nozzle")
+KINDS = ("calibrate_probe", "calibrate_nozzle", "calibrate_sensor")
 
 
 @dataclass
@@ -46,6 +46,9 @@ class MachineCalibration:
     max_age_h: float = 24.0
     probe_result: CalibrateProbeResult | None = None  # the probe job's stored result (agreement, readings)
     nozzle_results: dict[int, CalibrateNozzleResult] = field(default_factory=dict)
+    sensor: CalibrateSensorResult | None = None  # the height sensor's (calibrate_sensor), if any
+    sensor_job_id: str | None = None
+    sensor_at: datetime | None = None
     now: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
 
     def age_h(self, at: datetime | None) -> float | None:
@@ -109,6 +112,8 @@ def current_calibration(session: Session, machine_id: str, *, now: datetime | No
         if kind == "calibrate_probe":
             cal.probe_result = CalibrateProbeResult.of(job)
             cal.probe, cal.probe_job_id, cal.probe_at = cal.probe_result.calibration(), job_id, _done_at(job)
+        elif kind == "calibrate_sensor":
+            cal.sensor, cal.sensor_job_id, cal.sensor_at = CalibrateSensorResult.of(job), job_id, _done_at(job)
         elif tool is not None:
             nozzle = CalibrateNozzleResult.of(job)
             cal.nozzles[tool], cal.nozzle_job_ids[tool] = nozzle.calibration(), job_id
@@ -124,6 +129,9 @@ def _flags(cal: MachineCalibration) -> list[str]:
         if cal.stale(cal.probe_at):
             flags.append(f"probe calibration is {_age_text(cal.age_h(cal.probe_at))} old (max {cal.max_age_h:g} h)")
         flags += _disagreement_flags("probe", cal.probe_result)
+    if cal.sensor is not None and cal.stale(cal.sensor_at):
+        flags.append(f"height sensor calibration is {_age_text(cal.age_h(cal.sensor_at))} old "
+                     f"(max {cal.max_age_h:g} h)")
     for tool in sorted(cal.nozzles):
         at = cal.nozzle_at[tool]
         if cal.stale(at):
@@ -239,5 +247,11 @@ def calibration_summary(machine_id: str, cal: MachineCalibration, profile: Profi
                          probe_job_id=result.probe_job_id, touches=found.touches,
                          disagrees=list(result.agreement.disagrees))
         nozzles.append(entry)
+    sensor = None
+    if cal.sensor is not None:
+        found = cal.sensor
+        sensor = {"job_id": cal.sensor_job_id, "calibrated_at": cal.sensor_at, "age_h": cal.age_h(cal.sensor_at),
+                  "stale": cal.stale(cal.sensor_at), "sensor_port": found.sensor_port, "offset_mm": found.offset_mm,
+                  "scale": found.scale, "time_offset_s": found.time_offset_s, "slope_bias_mm": found.slope_bias_mm}
     return {"machine_id": machine_id, "max_age_h": cal.max_age_h, "probe": probe, "nozzles": nozzles,
-            "flags": list(cal.flags)}
+            "sensor": sensor, "flags": list(cal.flags)}

@@ -1,4 +1,5 @@
-"""The typed results of the calibration kinds (``calibrate_probe``, ``calibrate_nozzle``):
+"""The typed results of the calibration kinds (``calibrate_probe``, ``calibrate_nozzle``,
+``calibrate_sensor``):
 the core's calibration (:meth:`app.calibration.ProbeCalibration.to_dict` /
 :meth:`~app.calibration.NozzleCalibration.to_dict`, the same keys), how it agrees with the
 one before it, and the touches it read.  Written and read through one model, see
@@ -12,6 +13,7 @@ from typing import Any, ClassVar
 from pydantic import BaseModel, ConfigDict, Field
 
 from app.calibration import NozzleCalibration, ProbeCalibration
+from app.calibration.sensor import SensorCalibration
 from app.jobs.results import KindResult
 
 
@@ -60,3 +62,25 @@ class CalibrateNozzleResult(KindResult):
     def calibration(self) -> NozzleCalibration:
         """The core's nozzle calibration."""
         return NozzleCalibration.from_dict(self.model_dump())
+
+
+class CalibrateSensorResult(KindResult):
+    """The height sensor's calibration (:class:`app.calibration.sensor.SensorCalibration`'s
+    dict: offset_mm, scale, time_offset_s, slope_bias_mm, sd), the link it was made over,
+    the reference heights it rests on and each procedure's report."""
+
+    kind: ClassVar[str] = "calibrate_sensor"
+    offset_mm: list[float]
+    scale: float
+    time_offset_s: float
+    slope_bias_mm: float = 0.0
+    sd: dict[str, float] | None = None
+    sensor_port: str | None = None
+    sensor_rate_hz: float | None = None
+    references: dict[str, Any] = Field(default_factory=dict)
+    report: dict[str, Any] = Field(default_factory=dict)
+
+    def calibration(self) -> SensorCalibration:
+        """The core's sensor calibration."""
+        return SensorCalibration.from_dict(self.model_dump(include={"offset_mm", "scale", "time_offset_s",
+                                                                    "slope_bias_mm", "sd"}))

@@ -39,8 +39,9 @@ class LoopTrace(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     trace_id: str
-    probe_plan: str
-    probe_run: str
+    probe_plan: str | None = None  # touch: the plan and run that measured the trace
+    probe_run: str | None = None
+    scan_run: str | None = None  # scan: the scan that measured it (and touched its verification points)
     reconstruct: str
     compensate: str
     probes: int

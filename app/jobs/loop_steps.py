@@ -19,6 +19,7 @@ import json
 import math
 from typing import Any
 
+from pydantic import ValidationError
 from sqlmodel import select
 
 from app.errors import Cancelled, ConformaError
@@ -63,6 +64,34 @@ class Steps:
             raise ConformaError(f"{kind} of trace {trace_id} {job.status}: {detail}", field="trace_ids", value=trace_id)
         self.reusable[key] = job
         return job
+
+
+def scan_params(params: dict[str, Any]) -> dict[str, Any]:
+    """A closed loop's scan_run parameters, validated by the kind's model (ValueError naming the field)."""
+    try:
+        out: dict[str, Any] = get_kind("scan_run").params.model_validate(params).model_dump(mode="json")
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise ValueError(f"scan.{'.'.join(str(p) for p in first['loc'])}: {first['msg']}") from None
+    return out
+
+
+def measured_by(plan: Job, probe: Job) -> dict[str, str]:
+    """A loop row's measuring children: the scan_run, or the probe plan and probe run."""
+    if probe.kind == "scan_run":
+        return {"scan_run": probe.id}
+    return {"probe_plan": plan.id, "probe_run": probe.id}
+
+
+def scanned_summary(scan: Job, total: int) -> dict[str, Any]:
+    """The ``probed`` pause after a scan: passes, samples, the verification touches and the bound."""
+    result = scan.result or {}
+    check = result.get("verification") or {}
+    line = (f"{result.get('passes', 0)} scan passes, {result.get('valid', 0)}/{result.get('samples', 0)} valid "
+            f"samples over {total} trace(s); bound {float(result.get('bound_mm') or 0.0) * 1000:.1f} um")
+    return {"headline": line, "scan_run": scan.id, "passes": result.get("passes"), "samples": result.get("samples"),
+            "valid": result.get("valid"), "bound_mm": result.get("bound_mm"),
+            "verification_max_abs_mm": check.get("max_abs_residual_mm")}
 
 
 def probe_rings(ctx: JobContext, trace_ids: list[str]) -> set[str]:
@@ -164,11 +193,13 @@ def trace_children(steps: Steps, params: Any, placed: dict[str, Any], plan: Job,
 
 def board_batch(steps: Steps, params: Any, placed: dict[str, Any], shared: tuple[Job, Job],
                 trace_ids: list[str]) -> list[Done]:
-    """ONE reconstruct and ONE compensate child for a batch of a field plan's traces."""
+    """ONE reconstruct and ONE compensate child for a batch of a field plan's traces (or of a
+    scan's: ``shared`` is then (the scan_run, the scan_run))."""
     plan, probe = shared
-    rebuilt = steps.run("reconstruct", {**placement_of(params.probe), **placed, "trace_ids": trace_ids,
-                                        "probe_run_job_id": probe.id, "method": "field", "sigma_mm": params.sigma_mm,
-                                        **corrections_for("reconstruct", params)}, None)
+    source = {"scan_run_job_id": probe.id} if probe.kind == "scan_run" else {
+        **placement_of(params.probe), **placed, "probe_run_job_id": probe.id, "sigma_mm": params.sigma_mm,
+        **corrections_for("reconstruct", params)}
+    rebuilt = steps.run("reconstruct", {**source, "trace_ids": trace_ids, "method": "field"}, None)
     compensated = steps.run("compensate", {"trace_ids": trace_ids, "reconstruct_job_id": rebuilt.id,
                                            "machine_id": params.machine_id, "chord_error_mm": params.chord_error_mm,
                                            "hold_mm": params.hold_mm, **tool_of(params)}, None)
@@ -193,7 +224,9 @@ class TypedResults:
 
     def probe_count(self, plan: Job, trace_id: str) -> int:
         """How many of the plan's probes are on ``trace_id`` (all of a one-trace plan's; a
-        field plan's stations on that trace)."""
+        field plan's stations on that trace; none for a scan: it touches verification points only)."""
+        if plan.kind == "scan_run":
+            return 0
         if plan.id not in self._counts:
             result = ProbePlanResult.of(plan)
             counts = {e.trace_id: int(e.stations if e.stations is not None else e.count or 0)

@@ -115,3 +115,13 @@ def nearest_order(starts: np.ndarray, ends: np.ndarray, origin: np.ndarray | Non
             here = starts[i_e]
             left[i_e] = False
     return order, flipped
+
+
+def touch_order(stations_xy: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
+    """A greedy nearest-neighbour order (n,) of touch stations (n, 2) from ``origin`` (2,)
+    (None: the first station): fewer mm of hops than an order by uncertainty."""
+    xy = np.asarray(stations_xy, dtype=float).reshape(-1, 2)
+    if not len(xy):
+        return np.zeros(0, dtype=int)
+    order, _ = nearest_order(xy, xy, origin)
+    return np.asarray(order, dtype=int)

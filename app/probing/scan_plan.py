@@ -5,7 +5,10 @@ The part's top is cut into square tiles of ``tile_mm``; each tile holding traces
 **trace-scanned** (one pass along each trace whose middle lies in it, in nearest-neighbour
 order, hopping between them) or **rastered** (lines along x at ``spacing_mm`` across the
 tile), whichever the cost model (:mod:`app.probing.scan_cost`) prices lower; consecutive
-rastered tiles of one row of tiles share long lines (fewer ramps).  Rows run in a serpentine.
+rastered tiles of one row of tiles share long lines (fewer ramps).  Rows run in a serpentine:
+a row's raster lines start at the end nearer to where the pass before ended, and a raster
+line that ends within one spacing of the next row's first line runs on into it without a
+hop (as the lines of a row do).
 A pass follows the nominal top at the sensor's zero: the spot's path is sampled every
 ``step_mm`` and the carriage is the spot minus the sensor's offset, so a reading is the
 deviation (far inside the sensor's range).  The plan's predicted bound (coverage x the
@@ -121,6 +124,20 @@ def _row_ys(ys: np.ndarray, row: int, y0: float, th: float, ny: int) -> np.ndarr
     return out
 
 
+def _continued(lines: list[np.ndarray], last: ScanPass | None, spacing: float) -> tuple[list[np.ndarray], bool]:
+    """A run of serpentine raster lines entered from the end of the pass before it: each line
+    reversed when that starts the run nearer to it; and whether the run's first line needs a
+    hop (not when a raster line ends within one spacing of it: the same straight move at scan
+    height as between the lines of a run)."""
+    if last is None:
+        return lines, True
+    here = last.spot[-1, :2]
+    if np.linalg.norm(lines[0][-1, :2] - here) < np.linalg.norm(lines[0][0, :2] - here):
+        lines = [line[::-1] for line in lines]
+    near = float(np.linalg.norm(lines[0][0, :2] - here)) <= spacing * (1 + 1e-6)
+    return lines, not (last.kind == "raster" and near)
+
+
 def _trace_cost(paths: Sequence[np.ndarray], cost: MotionCost) -> float:
     if not paths:
         return 0.0
@@ -174,7 +191,7 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
         if choice[key] != "raster":
             continue
         for k in members:
-            for cell in _cells(paths[k].points[:, :2], x0, y0, tw, th, nx, ny):
+            for cell in _cells(_dense(paths[k].points[:, :2], min(tw, th) / 4), x0, y0, tw, th, nx, ny):
                 choice[cell] = "raster"
     passes: list[ScanPass] = []
     for row in range(ny):
@@ -186,9 +203,8 @@ def plan_scans(paths: Sequence[TracePolyline], height: Height, bounds: tuple[flo
                 a, b = min(run), max(run)
                 lines = _raster_lines(x0 + a * tw, x0 + (b + 1) * tw, _row_ys(ys, row, y0, th, ny), step_mm,
                                       height)
-                if row % 2:
-                    lines = [line[::-1] for line in lines]
-                passes.extend(ScanPass(line, "raster", -1, i == 0) for i, line in enumerate(lines))
+                lines, hop = _continued(lines, passes[-1] if passes else None, spacing_mm)
+                passes.extend(ScanPass(line, "raster", -1, hop and i == 0) for i, line in enumerate(lines))
                 run.clear()
 
         for col in cols:

@@ -27,7 +27,7 @@ Pure: numpy/scipy.  Units: mm.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,10 +35,11 @@ from scipy.linalg import cho_factor, cho_solve, cholesky, solve_triangular
 from scipy.spatial import cKDTree
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
-from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel, placement_basis,
-                                         prior_variance)
+from app.geometry.traces import TracePolyline
+from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel, path_sites,
+                                         placement_basis, prior_variance)
 from app.reconstruction.field import FieldFit
-from app.reconstruction.field_trust import Verification
+from app.reconstruction.field_trust import FieldCheck, Verification, joint_coverage
 from app.reconstruction.preprocess import ReconstructionError
 
 CHUNK = 4096
@@ -109,16 +110,21 @@ class ScanFieldFit(FieldFit):
 
 
 def _solve(prior: DeviationPrior, samples: Sites, dz: np.ndarray, center: np.ndarray, inducing: Sites,
-           low: np.ndarray) -> SparsePosterior:
+           low: np.ndarray, noise_mm: np.ndarray | None = None) -> SparsePosterior:
+    """The posterior; ``noise_mm`` (n,) each sample's noise sd (None: ``prior.sigma_mm`` for all)."""
     m = len(inducing.xy)
-    sigma2 = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
+    floor = COVARIANCE_JITTER_REL * prior.rms_mm ** 2
+    sigma2 = np.maximum(np.full(len(dz), prior.sigma_mm ** 2) if noise_mm is None else
+                        np.asarray(noise_mm, dtype=float) ** 2, floor)
     p = np.eye(m + 6)
     rhs = np.zeros(m + 6)
     probe = SparsePosterior(prior, center, inducing, np.zeros(m), (p, True), low=low)
     for start in range(0, len(dz), CHUNK):
-        psi, _ = probe.whitened(samples.take(np.arange(start, min(start + CHUNK, len(dz)))))
-        p += psi.T @ psi / sigma2
-        rhs += psi.T @ dz[start:start + CHUNK] / sigma2
+        stop = min(start + CHUNK, len(dz))
+        psi, _ = probe.whitened(samples.take(np.arange(start, stop)))
+        w = 1.0 / sigma2[start:stop]
+        p += psi.T @ (psi * w[:, None])
+        rhs += psi.T @ (dz[start:stop] * w)
     factor = cho_factor(p, lower=True)
     v = cho_solve(factor, rhs)
     alpha = solve_triangular(low.T, v[:m], lower=False)
@@ -136,10 +142,12 @@ def _inducing(prior: DeviationPrior, xy_samples: np.ndarray, slope_at: Callable[
 
 def fit_scan_field(prior: DeviationPrior, samples: Sites, dz: np.ndarray, center: np.ndarray,
                    slope_at: Callable[[np.ndarray], np.ndarray] | None = None,
-                   spacing_mm: float | None = None) -> ScanFieldFit:
+                   spacing_mm: float | None = None, noise_mm: np.ndarray | None = None) -> ScanFieldFit:
     """The field of scan samples (n,) measuring deviations dz (n,) mm (finite: drop the
     sensor's dropouts first).  ``slope_at(xy (m, 2)) -> (m, 2)``: the nominal slope at the
-    inducing points (None: zero; only the placement basis reads it, and theta is exact)."""
+    inducing points (None: zero; only the placement basis reads it, and theta is exact).
+    ``noise_mm`` (n,): each sample's noise sd (probe touches among sensor samples; None:
+    ``prior.sigma_mm`` for all); outliers are judged on residuals in units of it."""
     dz = np.asarray(dz, dtype=float)
     n = len(dz)
     if samples.xy.shape != (n, 2) or n < 8:
@@ -147,19 +155,44 @@ def fit_scan_field(prior: DeviationPrior, samples: Sites, dz: np.ndarray, center
                                   value=[list(samples.xy.shape), n])
     if not np.isfinite(dz).all():
         raise ReconstructionError("scan deviations must be finite (drop the dropouts first)", field="samples")
+    noise = None if noise_mm is None else np.asarray(noise_mm, dtype=float)
+    relative = np.ones(n) if noise is None else noise / max(prior.sigma_mm, 1e-12)
     inducing, low = _inducing(prior, samples.xy, slope_at, spacing_mm)
     kept = np.ones(n, dtype=bool)
-    post = _solve(prior, samples, dz, center, inducing, low)
-    resid = dz - np.concatenate([post.mean(samples.take(np.arange(s, min(s + CHUNK, n))))
-                                 for s in range(0, n, CHUNK)])
+    post = _solve(prior, samples, dz, center, inducing, low, noise)
+    resid = (dz - np.concatenate([post.mean(samples.take(np.arange(s, min(s + CHUNK, n))))
+                                  for s in range(0, n, CHUNK)])) / relative
     scale = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
     over = np.abs(resid) > max(OUTLIER_K * scale, OUTLIER_FLOOR_MM)
     if over.any():
         kept = ~over
         idx = np.flatnonzero(kept)
-        post = _solve(prior, samples.take(idx), dz[idx], center, inducing, low)
+        post = _solve(prior, samples.take(idx), dz[idx], center, inducing, low, None if noise is None else noise[idx])
     return ScanFieldFit(post, samples, dz, kept, tuple(int(i) for i in np.flatnonzero(~kept)),
                         np.full(n, -1), np.full(n, math.nan))
+
+
+def gap_sites(fit: FieldFit, paths: Sequence[TracePolyline], coverage: float, target_mm: float,
+              count: int) -> tuple[Sites, np.ndarray]:
+    """Up to ``count`` trace points (Sites, their trace indices (k,)) where the fitted field is
+    too uncertain for the target (coverage x sd > target: where the sensor dropped out on a
+    steep flank or a dark spot), largest sd first, at least lambda / 4 apart: where a probe
+    touch fills the gap."""
+    wavelength = fit.posterior.prior.wavelength_mm
+    sites = [path_sites(p, np.linspace(0.0, p.length_mm, max(2, int(np.ceil(16 * p.length_mm / wavelength)) + 1)))
+             for p in paths]
+    owner = np.concatenate([np.full(len(s.xy), i) for i, s in enumerate(sites)])
+    every = Sites(np.concatenate([s.xy for s in sites]), np.concatenate([s.grad for s in sites]))
+    sd = fit.posterior.sd(every)
+    wanted = np.flatnonzero(coverage * sd > target_mm)
+    picked: list[int] = []
+    for i in wanted[np.argsort(sd[wanted])[::-1]]:
+        if len(picked) >= count:
+            break
+        if not picked or np.min(np.linalg.norm(every.xy[picked] - every.xy[i], axis=1)) >= wavelength / 4:
+            picked.append(int(i))
+    idx = np.array(picked, dtype=int)
+    return every.take(idx), owner[idx]
 
 
 def posterior_sd(prior: DeviationPrior, sites: Sites, center: np.ndarray) -> np.ndarray:
@@ -180,10 +213,25 @@ def predicted_sd(prior: DeviationPrior, samples: Sites, center: np.ndarray, quer
 
 def verify_touches(fit: FieldFit, sites: Sites, measured_mm: np.ndarray, trace: np.ndarray, coverage: float,
                    probe_sigma_mm: float) -> Verification:
-    """Verification touches (k,) against a scan field: as :func:`app.reconstruction.field_trust.verify`,
-    with the predictive sd of a TOUCH (the field's posterior sd and the probe's noise, not the
-    averaged scan samples' noise the field was fitted with)."""
+    """Verification touches (k,) against a scan field: as :func:`app.reconstruction.field_trust.verify`
+    (each point's limit :func:`joint_coverage` x its predictive sd), with the predictive sd of
+    a TOUCH (the field's posterior sd and the probe's noise, not the averaged scan samples'
+    noise the field was fitted with)."""
     predicted = fit.deviation(sites)
     sd = np.sqrt(fit.posterior.sd(sites) ** 2 + probe_sigma_mm ** 2)
     return Verification(sites.xy, np.asarray(trace, dtype=int), np.asarray(measured_mm, dtype=float), predicted,
-                        sd, coverage * sd)
+                        sd, joint_coverage(coverage, len(sd)) * sd, coverage * probe_sigma_mm)
+
+
+@dataclass(frozen=True)
+class ScanFieldCheck(FieldCheck):
+    """The checked field of a scan: the fit of the samples, judged at probe touches.  A
+    touch reads its own noise (``touch_sigma_mm``, the probe's) on top of the field's error,
+    not the averaged samples' noise the field was fitted with: the noise allowance is
+    coverage x the probe's sd."""
+
+    touch_sigma_mm: float = 0.0
+
+    @property
+    def noise_allowance_mm(self) -> float:
+        return float(self.coverage * self.touch_sigma_mm)

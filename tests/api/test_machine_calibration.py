@@ -50,7 +50,8 @@ def test_a_profile_without_tools_keeps_working_and_has_no_calibration(client):
     machine = register(client, {"clearance_z": 7}).json()
     assert machine["profile"]["tools"] is None and machine["profile"]["calibration_max_age_h"] == 24
     summary = calibration(client, machine)
-    assert summary == {"machine_id": machine["id"], "max_age_h": 24.0, "probe": None, "nozzles": [], "flags": []}
+    assert summary == {"machine_id": machine["id"], "max_age_h": 24.0, "probe": None, "nozzles": [], "sensor": None,
+                       "flags": []}
     missing = client.get("/api/v1/machines/mach_nope/calibration", headers=auth("viewer"))
     assert missing.status_code == 404 and "mach_nope" in missing.json()["detail"]
 

@@ -70,3 +70,78 @@ def test_a_malformed_calibration_is_refused_at_submission(client):
     response = submit(client, "scan_run", {"machine_id": machine["id"], "trace_ids": [trace["id"]],
                                            "sensor_port": "lkg://x", "calibration": {"scale": 1.0}})
     assert response.status_code == 422 and "calibration" in response.text
+
+
+def test_a_dropped_link_interrupts_the_scan_and_a_resume_keeps_the_stored_passes(client, meshes):
+    nominal, true_stl, _truth = meshes
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
+                       headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
+    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
+                         json=[s1_traces()[i].to_api() for i in (0, 2, 4, 6)], headers=OP).json()["items"]
+    machine = client.post("/api/v1/machines", json={
+        "name": "flaky", "port": "mock://", "dialect": "marlin",
+        "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001, "faults": {"disconnect_at_line": 30}}},
+        headers=OP).json()
+    port = (f"lkg://{machine['id']}?offset={','.join(map(str, OFFSET))}&time_offset_ms={TAU_S * 1000}"
+            "&noise_mm=0.0005&rate_hz=2000&seed=4")
+    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": TAU_S, "slope_bias_mm": 0.0}
+    try:
+        response = submit(client, "scan_run", {
+            "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
+            "calibration": calibration, "mode": "traces", "deviation_amplitude_mm": 0.15,
+            "deviation_wavelength_mm": 15.0, "verify_count": 3})
+        assert response.status_code == 202, response.text
+        job_id = response.json()["id"]
+        stopped = wait_for(client, job_id, states=("interrupted", "succeeded", "failed"), timeout=120)
+        assert stopped["status"] == "interrupted", (stopped["status"], stopped["error"])
+        state = stopped["program_state"]
+        assert 0 < state["passes_done"] < state["total"] == 4
+        kept = {a["name"]: a["sha256"] for a in stopped["artifacts"] if a["name"].startswith("pass.")}
+        assert len(kept) == state["passes_done"]
+        assert client.post(f"/api/v1/jobs/{job_id}/resume", json={"confirm": True}, headers=OP).status_code == 202
+        done = wait_for(client, job_id, timeout=120)
+    finally:
+        unregister_sensor(machine["id"])
+    assert done["status"] == "succeeded", done["error"]
+    result = done["result"]
+    assert result["resumes"] == 1 and result["passes"] == 4 and result["verification"]["within"]
+    passes = {a["name"]: a["sha256"] for a in done["artifacts"] if a["name"].startswith("pass.")}
+    assert len(passes) == 4 and all(passes[name] == sha for name, sha in kept.items())  # not scanned again
+    assert result["valid"] > 0.9 * result["samples"] and result["bound_mm"] <= 0.005
+
+
+def test_with_a_calibrated_ball_stylus_the_touches_are_corrected_as_a_probe_runs_are(client, meshes):
+    """A 0.5 mm ball with 15 um pre-travel reads ~0.49 mm high on the part: calibrated
+    (calibrate_probe), the scan's gap and verification touches are corrected and agree with
+    the sensor's field."""
+    nominal, true_stl, _truth = meshes
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
+                       headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
+    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
+                         json=[s1_traces()[i].to_api() for i in (0, 4)], headers=OP).json()["items"]
+    physics = "stylus_radius_mm=0.5&pretravel_mm=0.015&pad=150,10,3,20&sphere=110,12,12,10"
+    profile = {"tools": {"probe": {"ball_radius_mm": 0.5}},
+               "reference": {"pad": {"centre_mm": [150.0, 10.0, 3.0], "size_mm": 20.0},
+                             "sphere": {"centre_mm": [110.0, 12.0, 12.0], "diameter_mm": 10.0}}}
+    machine = client.post("/api/v1/machines", json={
+        "name": "stylus", "port": f"mock://?{physics}", "dialect": "marlin", "profile": profile,
+        "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001}}, headers=OP).json()
+    qualified = wait_for(client, submit(client, "calibrate_probe", {"machine_id": machine["id"], "per_ring": 4,
+                                                                    "equator": 8}).json()["id"], timeout=180)
+    assert qualified["status"] == "succeeded", qualified["error"]
+    port = (f"lkg://{machine['id']}?offset={','.join(map(str, OFFSET))}&time_offset_ms={TAU_S * 1000}"
+            "&noise_mm=0.0005&rate_hz=2000&seed=4")
+    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": TAU_S, "slope_bias_mm": 0.0}
+    try:
+        response = submit(client, "scan_run", {
+            "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
+            "calibration": calibration, "mode": "traces", "deviation_amplitude_mm": 0.15,
+            "deviation_wavelength_mm": 15.0, "verify_count": 3})
+        done = wait_for(client, response.json()["id"], timeout=120)
+    finally:
+        unregister_sensor(machine["id"])
+    assert done["status"] == "succeeded", done["error"]
+    verification = done["result"]["verification"]
+    assert verification["within"] and verification["max_abs_residual_mm"] < 0.005, verification

@@ -64,3 +64,27 @@ def test_raster_lines_cover_the_bounds_from_rim_to_rim():
     plan = plan_scans(_lines(40, 50.0, 60.0), flat, (0.0, 2.0, 60.0, 58.0), MotionCost(), 7.0, mode="raster")
     ys = sorted({float(p.spot[0, 1]) for p in plan.passes})
     assert ys[0] == pytest.approx(2.0) and ys[-1] == pytest.approx(58.0) and np.diff(ys).max() <= 7.0 + 1e-9
+
+
+@pytest.mark.parametrize("spacing", [5.0, 6.0, 6.5, 7.0])
+def test_raster_rows_run_on_from_where_the_row_before_ended(spacing):
+    """Whatever the number of lines per row of tiles, the raster is one serpentine: each line
+    starts where the line before ended plus one spacing in y (no move back across the part,
+    one hop: the first line's).  The traces are straight lines given by their two ends: the
+    tiles between the ends are crossed, so rastered too."""
+    flat = lambda xy: np.zeros(len(xy))  # noqa: E731
+    cost = MotionCost()
+    plan = plan_scans(_lines(60, 140.0, 100.0), flat, (0.0, 0.0, 150.0, 100.0), cost, spacing, mode="raster")
+    links = [float(np.linalg.norm(b.spot[0, :2] - a.spot[-1, :2])) for a, b in zip(plan.passes, plan.passes[1:])]
+    assert max(links) <= spacing + 1e-9 and [p.hop for p in plan.passes].count(True) == 1
+    assert plan.link_s == pytest.approx(sum(float(move_time(d, cost.travel_mm_s, cost.accel_mm_s2)) for d in links))
+
+
+def test_touches_are_ordered_into_a_short_tour():
+    from app.probing.scan_cost import touch_order
+
+    xy = np.array([[0.0, 0.0], [100.0, 0.0], [10.0, 0.0], [90.0, 0.0], [50.0, 0.0]])
+    order = touch_order(xy, np.array([-5.0, 0.0]))
+    assert order.tolist() == [0, 2, 4, 3, 1]
+    assert touch_time(MotionCost(), xy[order]) < touch_time(MotionCost(), xy)
+    assert touch_order(np.zeros((0, 2))).tolist() == []

@@ -27,7 +27,7 @@ let kinds = [];
 let current = null;
 
 const JOB_SUGGESTIONS = { plan_job_id: "probe_plan", probe_run_job_id: "probe_run", reconstruct_job_id: "reconstruct",
-  slice_job_id: "slice", surface_fit_job_id: "surface_fit", closed_loop_job_id: "closed_loop" };
+  slice_job_id: "slice", surface_fit_job_id: "surface_fit", closed_loop_job_id: "closed_loop", scan_run_job_id: "scan_run" };
 
 // Suggestions (datalists) for the id fields THIS kind's form has; only what it uses is fetched,
 // all at once (one part's traces after another cost most of a second with 100 parts stored).
@@ -335,7 +335,8 @@ function renderDetail(job) {
 
 // Run a job again with exactly its parameters (a machine job asks first: it moves a machine).
 async function rerun(job) {
-  const moves = ["print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle"].includes(job.kind);
+  const moves = ["print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle", "scan_run",
+    "calibrate_sensor"].includes(job.kind);
   if (moves && !window.confirm(`Run ${job.kind} again? It will move the machine.`)) return;
   await guarded("Run again", async () => {
     const copy = await post("jobs", { kind: job.kind, params: job.params });

@@ -134,7 +134,12 @@ def import_probe_trace_ids(session: Session, imp: CircuitImport) -> list[str]:
 def station_runs(entries: dict[str, LoopTrace], trace_ids: list[str]) -> list[str]:
     """The distinct probe runs (ids, first-seen order) behind ``trace_ids``: a joint loop probes
     every trace in one run, whose stations then count once, not once per trace."""
-    return list(dict.fromkeys(entries[t].probe_run for t in trace_ids))
+    runs = [entries[t].probe_run for t in trace_ids]
+    if any(r is None for r in runs):
+        raise InvalidInput("a circuit program reads the closed loop's probe runs; this loop measured by scanning "
+                           "(measuring scan): print its traces' programs instead", field="params.closed_loop_job_id",
+                           value=next(t for t, r in zip(trace_ids, runs) if r is None))
+    return list(dict.fromkeys(r for r in runs if r is not None))
 
 
 def stored_areas(areas: list) -> list[dict]:

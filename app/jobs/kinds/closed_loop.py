@@ -10,6 +10,15 @@ its placement on the machine; every probe_plan / reconstruct child then gets its
 ``registration_job_id``, so traces are planned, rebuilt and compensated in machine
 coordinates; the result reports the transform and its uncertainty.
 
+``measuring: scan``: ONE ``scan_run`` child measures every trace with the laser height
+sensor (its ``scan`` parameters; the calibration defaults to the machine's stored one, a
+machine without one is refused at submission), touching where the sensor dropped out and at
+its verification points; then board ``reconstruct`` children rebuild the traces from the
+scan's checked field (``scan_run_job_id``) and the same compensate / verdict / print steps
+follow: a scan whose verification fails ends ``needs_attention`` like a touch loop.  No
+``plan`` pause (the scan plans and scans in one machine job), no registration (the scan
+measures in machine coordinates), no added stations (run again with a finer ``spacing_mm``).
+
 Each step is a child job (visible, cancellable, with its own artifacts).  The parent runs
 on the ``workflow`` queue and only submits and waits (:mod:`app.jobs.loop_steps`).  Its
 phases: every plan, then every probe run, then every trace rebuilt and compensated, then
@@ -63,11 +72,13 @@ from app.jobs.context import JobContext
 from app.jobs.loop_files import write_loop_files
 from app.jobs.loop_gates import Gates, PausePoint
 from app.jobs.loop_results import ClosedLoopResult
-from app.jobs.loop_steps import (Steps, TypedResults, board_batch, is_sequential, more_rounds, plan_params,
-                                 print_trace, probe_rings, run_params, trace_children)
+from app.jobs.loop_steps import (Steps, TypedResults, board_batch, is_sequential, measured_by, more_rounds,
+                                 plan_params, print_trace, probe_rings, run_params, scan_params, scanned_summary,
+                                 trace_children)
 from app.jobs.machine_jobs import refuse_if_machine_busy
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
 from app.jobs.registry import JobParams, job_kind
+from app.jobs.sensor_calibration import scan_calibration
 from app.jobs.results import ProbePlanResult, RegisterResult
 from app.models import Job, Machine, Trace
 from app.reconstruction.field_trust import measured_bound, verification_line
@@ -132,6 +143,12 @@ class ClosedLoopParams(JobParams):
     end_hold_max_mm: float = Field(0.5, ge=0, le=5, description="a trace's end beyond its own probes (a trace "
                                    "starting on a pad): up to this gap the deviation at the nearest probe is held "
                                    "(the trace's held_ends_mm), beyond it the loop stops naming the trace")
+    measuring: Literal["touch", "scan"] = Field("touch", description="touch: probe_plan + probe_run children; scan: "
+                                                "ONE scan_run child (the laser height sensor, verification touches "
+                                                "included), every trace rebuilt from its field in board jobs")
+    scan: dict[str, Any] = Field(default_factory=dict, description="measuring scan: scan_run parameters (without "
+                                 "machine_id and trace_ids); sensor_port is required, calibration defaults to the "
+                                 "machine's stored one (the newest calibrate_sensor job)")
     board_batch: int = Field(250, ge=1, le=MAX_FIELD_TRACES, description="traces per board reconstruct / compensate "
                              "job (a resumed loop reuses every finished batch)")
 
@@ -149,6 +166,24 @@ class ClosedLoopParams(JobParams):
             raise ValueError("the field planner probes all traces together: set joint_probing")
         if len(self.trace_ids) > MAX_TRACES and not (self.joint_probing and self.probe.get("method", "field") == "field"):
             raise ValueError(f"more than {MAX_TRACES} traces need joint_probing with the field planner")
+        return self
+
+    @model_validator(mode="after")
+    def _scan_params(self) -> "ClosedLoopParams":
+        if self.measuring == "touch":
+            if self.scan:
+                raise ValueError("scan parameters are for measuring scan")
+            return self
+        if "machine_id" in self.scan or "trace_ids" in self.scan:
+            raise ValueError("scan parameters: leave out machine_id and trace_ids (the loop's are used)")
+        if "sensor_port" not in self.scan:
+            raise ValueError("measuring scan needs scan.sensor_port (the height sensor's link)")
+        if self.registration or self.joint_probing or self.probe:
+            raise ValueError("measuring scan scans in machine coordinates with its own plan: leave registration, "
+                             "joint_probing and probe out")
+        if len(set(self.trace_ids)) != len(self.trace_ids):
+            raise ValueError("measuring scan: trace_ids lists a trace twice")
+        scan_params({"machine_id": "x", "trace_ids": ["x"], **self.scan})
         return self
 
     @field_validator("registration_params")
@@ -179,6 +214,8 @@ def _check(params: ClosedLoopParams, session: Session) -> None:
                                field=f"params.trace_ids.{index}", value=trace_id)
     if params.evaluate and not (machine.mock and machine.mock.get("true_part_id")):
         raise InvalidInput("evaluate needs a mock machine with a true part", field="params.evaluate", value=True)
+    if params.measuring == "scan":
+        scan_calibration(session, params.machine_id, params.scan.get("calibration"), field="params.scan.calibration")
     refuse_if_machine_busy(params.machine_id, session)
 
 
@@ -200,9 +237,17 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         registration = steps.run("register", {**params.registration_params, "part_id": params.part_id,
                                               "machine_id": params.machine_id}, None)
         placed = {"registration_job_id": registration.id}
-    shared, runs, rounds = _probe(steps, gates, params, placed, machine.dialect)
-    gates.gate("probed", _probed_summary(runs, total), round_=rounds)
-    board = shared is not None and params.board_jobs and bool(ProbePlanResult.of(shared[0]).field)
+    if params.measuring == "scan":
+        ctx.progress(0.0, f"scanning all {total} traces")
+        scanned = steps.run("scan_run", {**params.scan, "machine_id": params.machine_id,
+                                         "trace_ids": params.trace_ids}, None)
+        shared, runs, rounds = (scanned, scanned), [], 0
+        gates.gate("probed", scanned_summary(scanned, total))
+    else:
+        shared, runs, rounds = _probe(steps, gates, params, placed, machine.dialect)
+        gates.gate("probed", _probed_summary(runs, total), round_=rounds)
+    board = shared is not None and (params.measuring == "scan" or (
+        params.board_jobs and bool(ProbePlanResult.of(shared[0]).field)))
     batch = params.board_batch if board else 1
     per_trace: list[dict[str, Any]] = []
     checks: list[dict[str, Any]] = []
@@ -219,7 +264,7 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
             one, held = trace_children(steps, params, placed, plan, probe, params.trace_ids[lo])
             done = [one]
         for trace_id, plan, probe, rebuilt, compensated, deviation, (printed, plain) in done:
-            entry = {"trace_id": trace_id, "probe_plan": plan.id, "probe_run": probe.id, "reconstruct": rebuilt.id,
+            entry = {"trace_id": trace_id, **measured_by(plan, probe), "reconstruct": rebuilt.id,
                      "compensate": compensated.id, "probes": typed.probe_count(plan, trace_id),
                      "deviation_max_mm": deviation}
             if board:
@@ -235,6 +280,10 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     if checks:
         result["verdict"] = loop_verdict(checks, per_trace, params.print)
         result["verdict"]["retouched"] = [] if shared is None else retouched(shared[0])
+        if params.measuring == "scan" and result["verdict"]["actions"]:
+            result["verdict"]["actions"] = [
+                "run the loop again with a finer scan.spacing_mm or more scan.gap_touches (stations are added to "
+                "touch fields only)", result["verdict"]["actions"][-1]]
         attention = bool(result["verdict"]["needs_attention"])
     gates.gate("verified", _verified_summary(result, per_trace), round_=rounds, attention=attention)
     accepted = gates.decisions.accepted
@@ -356,7 +405,10 @@ def _field_check(rebuilt: Job, trace_id: str, entry: dict[str, Any], plan: Job,
 
 def retouched(plan: Job) -> list[dict[str, Any]]:
     """The touches of a field plan that were touches again of a suspected outlier: station
-    (index in the plan's field), xy, trace and ``retouch_of`` (the station touched again)."""
+    (index in the plan's field), xy, trace and ``retouch_of`` (the station touched again);
+    none for a scan."""
+    if plan.kind != "probe_plan":
+        return []
     stations = (ProbePlanResult.of(plan).field or {}).get("stations", [])
     return [{"station": i, "xy": st["xy"], "trace": st["trace"], "retouch_of": int(st["retouch_of"])}
             for i, st in enumerate(stations) if st.get("retouch_of") is not None]

@@ -26,7 +26,8 @@ from app.geometry.placement import Placement
 from app.jobs.board_checkpoints import TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.context import JobContext
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
-from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
+from app.jobs.inputs import (check_registration, placed_nominal, placement_from, registration_reference,
+                             succeeded_job)
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
 from app.jobs.registry import job_kind
 from app.jobs.results import ProbePlanResult, ProbeRunResult, ReconstructBoardResult, ReconstructResult
@@ -39,6 +40,7 @@ from app.reconstruction.field_trust import FieldCheck, trace_bound, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
 from app.jobs.field_runs import run_field
 from app.jobs.probe_correction import refined, run_probe_calibration
+from app.jobs.scan_fields import scan_field
 from app.records import get_or_404, joint_trace_ranges
 
 DEGREE = 3
@@ -70,6 +72,9 @@ class ReconstructJobParams(PlacedParams):
         "(as context)")
     points: Points | None = Field(
         None, max_length=100_000, description="measured points [[x, y, z], ...] mm, instead of a probe run")
+    scan_run_job_id: str | None = Field(
+        None, description="a succeeded scan_run (the height sensor) instead of a probe run: method field, every "
+        "trace from the field the scan fitted to its samples and checked at its verification touches")
     context: list[ContextTrace] | None = Field(
         None, min_length=1, max_length=199,
         description="kriging with points only: measured points of OTHER traces of the same part (same frame); "
@@ -100,10 +105,17 @@ class ReconstructJobParams(PlacedParams):
 
     @model_validator(mode="after")
     def _one_source(self) -> "ReconstructJobParams":
-        if (self.probe_run_job_id is None) == (self.points is None):
-            raise ValueError("give exactly one of probe_run_job_id or points")
-        if self.method == "field" and self.probe_run_job_id is None:
-            raise ValueError("method field rebuilds from a field plan's probe run: give probe_run_job_id")
+        if sum(x is not None for x in (self.probe_run_job_id, self.points, self.scan_run_job_id)) != 1:
+            raise ValueError("give exactly one of probe_run_job_id, points or scan_run_job_id")
+        if self.method == "field" and self.probe_run_job_id is None and self.scan_run_job_id is None:
+            raise ValueError("method field rebuilds from a field plan's probe run or a scan run: give "
+                             "probe_run_job_id or scan_run_job_id")
+        if self.scan_run_job_id is not None:
+            if self.method != "field":
+                raise ValueError("a scan run is rebuilt from its fitted field: method must be field")
+            if self.placement is not None or self.registration_job_id is not None:
+                raise ValueError("a scan run measures in machine coordinates: leave placement and "
+                                 "registration_job_id out")
         if (self.trace_id is None) == (self.trace_ids is None):
             raise ValueError("give exactly one of trace_id or trace_ids")
         if self.trace_ids is not None:
@@ -123,6 +135,8 @@ def _references(params: ReconstructJobParams) -> list[tuple[str, str]]:
     refs = [*(("trace", t) for t in params.traces), *registration_reference(params)]
     if params.probe_run_job_id:
         refs.append(("job", params.probe_run_job_id))
+    if params.scan_run_job_id:
+        refs.append(("job", params.scan_run_job_id))
     refs.extend(("trace", c.trace_id) for c in params.context or ())
     return refs
 
@@ -140,9 +154,12 @@ def _check(params: ReconstructJobParams, session: Session) -> None:
                 raise InvalidInput(f"trace {trace_id!r} is on part {row.part_id!r}, not on part {part_id!r} of the "
                                    "first trace", field=f"params.trace_ids.{index}", value=trace_id)
             part_id = row.part_id
-        _check_joint_run(params, session)
+        if params.probe_run_job_id is not None:
+            _check_joint_run(params, session)
+        _check_scan_run(params, session)
         return
     trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
+    _check_scan_run(params, session)
     if params.probe_run_job_id is not None:
         _check_joint_run(params, session)
     if params.context is not None:
@@ -176,6 +193,19 @@ def _check_context(params: ReconstructJobParams, trace: Trace, placement: Placem
             raise InvalidInput(f"{field}.trace_id: trace {entry.trace_id!r} is on part {other.part_id!r}, not on "
                                f"part {trace.part_id!r} of trace_id", field=f"{field}.trace_id", value=entry.trace_id)
         preprocess(placed_nominal(other, placement), entry.points, PreprocessParams(), field=f"{field}.points")
+
+
+def _check_scan_run(params: ReconstructJobParams, session: Session) -> None:
+    """A scan run must be a succeeded scan_run that scanned every trace asked for (404 / 422)."""
+    if params.scan_run_job_id is None:
+        return
+    job = succeeded_job(session, params.scan_run_job_id, "scan_run", "params.scan_run_job_id")
+    scanned = set((job.params or {}).get("trace_ids") or ())
+    for index, trace_id in enumerate(params.traces):
+        if trace_id not in scanned:
+            field = "params.trace_id" if params.trace_ids is None else f"params.trace_ids.{index}"
+            raise InvalidInput(f"trace {trace_id!r} is not one of the traces scanned by scan run {job.id!r}",
+                               field=field, value=trace_id)
 
 
 def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
@@ -405,6 +435,9 @@ def _run_field(ctx: JobContext, params: ReconstructJobParams) -> tuple[FieldChec
     """(checked field, normal-iteration report or None, the plan's trace ids) of the run's
     field (:func:`app.jobs.field_runs.run_field`); every trace of ``params`` must be one of
     the plan's (422 otherwise)."""
+    if params.scan_run_job_id is not None:
+        return scan_field(ctx, params.scan_run_job_id, params.traces,
+                          "params.trace_id" if params.trace_ids is None else "params.trace_ids")
     return run_field(ctx, str(params.probe_run_job_id), params.sigma_mm, params.learn_prior, params.traces,
                      placement_from(ctx, params), method=params.method,
                      trace_field="params.trace_id" if params.trace_ids is None else "params.trace_ids")

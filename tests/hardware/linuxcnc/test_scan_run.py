@@ -95,7 +95,7 @@ def test_a_scan_run_whose_link_drops_waits_and_resumes_at_the_interrupted_pass(c
     job = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()
     assert job["status"] == "interrupted", job["error"]
     assert job["program_state"]["executed"] == 1 and job["program_state"]["reason"].startswith("LinkError")
-    assert [a["name"] for a in job["artifacts"]] == ["pass-0000.npz"]  # the interrupted pass left nothing
+    assert [a["name"] for a in job["artifacts"]] == ["pass.00000.npz"]  # the interrupted pass left nothing
     assert client.post(f"/api/v1/jobs/{job_id}/resume", json={"confirm": True}, headers=OP).status_code == 202
     done = wait_for(client, job_id, timeout=180)
     assert done["status"] == "succeeded", done["error"]
