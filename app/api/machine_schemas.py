@@ -11,6 +11,9 @@ from app.api.schemas import Finite, Strict, UtcDatetime
 from app.materials import DispenseProfile
 from hardware.dialects import DEFAULT_DIALECT, default_dispense
 
+MaterialName = Annotated[str, Field(min_length=1, max_length=80)]
+MAX_MATERIAL_PROFILES = 32
+
 _PORT = re.compile(r"^(mock://[^\s]*|socket://[A-Za-z0-9.\-]+:\d{1,5}|/dev/[A-Za-z0-9_./\-]+|COM\d+|loop://[^\s]*"
                    r"|linuxcnc://[A-Za-z0-9.\-]+:\d{1,5}(\?joints=\d)?)$")
 Rate = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
@@ -134,6 +137,11 @@ class Profile(Strict):
     dispense: DispenseProfile | None = Field(None, description="the material this machine dispenses: pressure, "
                                              "on/off delays, standoff, speed (app.materials); print jobs apply "
                                              "its delays and record it")
+    dispense_by_material: dict[MaterialName, DispenseProfile] = Field(
+        default_factory=dict, max_length=MAX_MATERIAL_PROFILES,
+        description="this machine's own profile of each material it has dispensed, by preset name: set whenever "
+        "profile.dispense is saved for a material; choosing that material again (PATCH {material}, a print's "
+        "material) takes the machine's own, not the preset's starting point")
 
 
 class MockPlacement(Strict):

@@ -23,8 +23,8 @@ from sqlmodel import Session, col, select
 from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
 from app.api.jobs import load_job_out
-from app.api.machine_schemas import (CalibrationOut, ConsoleOut, ConsoleRequest, ControllerOut, JogRequest,
-                                     MachineCreate, MachineOut, MachineUpdate, MockSettings, PrintRequest, ProgramState, StopOut,
+from app.api.machine_schemas import (MAX_MATERIAL_PROFILES, CalibrationOut, ConsoleOut, ConsoleRequest,
+                                     ControllerOut, JogRequest, MachineCreate, MachineOut, MachineUpdate, MockSettings, PrintRequest, ProgramState, StopOut,
                                      UnlockRequest)
 from app.api.schemas import JobOut, Page
 from app.errors import Conflict, InvalidInput, NotFound
@@ -179,22 +179,39 @@ def update_machine(machine_id: str, body: MachineUpdate, runtime: RuntimeDep, se
         profile["dispense_off"] = profile["dispense_off"] or off
         row.profile = profile
         runtime.machines.forget(machine_id)  # the next connect builds the machine with the new profile
-    dispense = _dispense_update(body)
+    dispense = _dispense_update(body, (row.profile or {}).get("dispense_by_material") or {})
     if dispense is not None:  # read when a print starts: no reconnect needed
-        row.profile = {**(row.profile or {}), "dispense": dispense or None}
+        row.profile = {**(row.profile or {}), "dispense": dispense or None,
+                       "dispense_by_material": _remembered(row, dispense)}
     session.add(row)
     session.commit()
     session.refresh(row)
     return machine_out(runtime, row)
 
 
-def _dispense_update(body: MachineUpdate) -> dict | None:
-    """The new ``profile.dispense`` a request asks for ({} to remove it), or None to keep it."""
+def _remembered(row: Machine, dispense: dict) -> dict:
+    """``profile.dispense_by_material`` with ``dispense`` kept as the machine's own profile of
+    its material (a profile of one's own, without a material, is not kept)."""
+    tuned = dict((row.profile or {}).get("dispense_by_material") or {})
+    name = dispense.get("material")
+    if name:
+        tuned[name] = dispense
+        if len(tuned) > MAX_MATERIAL_PROFILES:
+            raise InvalidInput(f"machine {row.id!r} already keeps {MAX_MATERIAL_PROFILES} material profiles",
+                               field="dispense.material", value=name)
+    return tuned
+
+
+def _dispense_update(body: MachineUpdate, tuned: dict) -> dict | None:
+    """The new ``profile.dispense`` a request asks for ({} to remove it), or None to keep it;
+    ``material`` takes the machine's own profile of it (``tuned``) before the preset's."""
     if body.clear_dispense:
         return {}
     if body.dispense is not None:
         return body.dispense.model_dump()
     if body.material is not None:
+        if body.material in tuned:
+            return dict(tuned[body.material])
         preset = BY_NAME.get(body.material)
         if preset is None or preset.dispense is None:
             known = ", ".join(m.name for m in MATERIALS if m.dispense is not None)

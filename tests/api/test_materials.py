@@ -101,3 +101,32 @@ def test_an_interrupted_print_resumes_with_the_profile_it_started_with(client):
     executed = get_world(machine["id"]).transcript.commands
     last_off = len(executed) - 1 - executed[::-1].index("M107")
     assert executed[last_off + 1] == "G4 P80"                              # the program's end, as it started
+
+
+def test_a_machine_keeps_its_own_profile_of_each_material(client):
+    """A profile saved for a material is the machine's own for it: switching to another
+    material and back, or a print naming the material, takes it, not the preset's start."""
+    row = register(client).json()
+    base = f"/api/v1/machines/{row['id']}"
+    silver = {**BY_NAME["silver_paste"].dispense.model_dump(), "on_delay_ms": 55.0, "pressure_kpa": 230.0}
+    assert client.patch(base, json={"dispense": silver}, headers=OP).status_code == 200
+    ink = client.patch(base, json={"material": "dielectric_ink"}, headers=OP).json()["profile"]
+    assert ink["dispense"] == BY_NAME["dielectric_ink"].dispense.model_dump()           # never tuned: the preset
+    assert ink["dispense_by_material"]["silver_paste"] == silver
+    back = client.patch(base, json={"material": "silver_paste"}, headers=OP).json()["profile"]
+    assert back["dispense"] == silver                                                  # the machine's own, kept
+    assert set(back["dispense_by_material"]) == {"silver_paste", "dielectric_ink"}
+    assert client.patch(base, json={"material": "dielectric_ink"}, headers=OP).status_code == 200
+    program = upload_program(client, program_text(20)).json()
+    job = client.post(f"{base}/print", json={"program_id": program["id"], "material": "silver_paste"},
+                      headers=OP).json()
+    done = wait_for(client, job["id"], timeout=60)
+    assert done["status"] == "succeeded", done["error"]
+    applied = done["result"]["dispense"]
+    assert (applied["on_delay_ms"], applied["pressure_kpa"], applied["source"]) == \
+        (55.0, 230.0, "machine's profile of the material")
+    carbon = client.post(f"{base}/print", json={"program_id": program["id"], "material": "carbon_paste"},
+                         headers=OP).json()
+    done = wait_for(client, carbon["id"], timeout=60)
+    assert done["result"]["dispense"]["source"] == "material"                          # no own profile: the preset
+    assert done["result"]["dispense"]["on_delay_ms"] == BY_NAME["carbon_paste"].dispense.on_delay_ms

@@ -55,8 +55,8 @@ export function dispenseSection(machine, onSaved) {
       e.preventDefault();
       guarded(`Dispense profile of ${current.name}`, async () => {
         const values = form.values();
-        const preset = list.find((m) => m.name === values.material);  // a preset changed by hand is one's own
-        if (!preset || Object.entries(preset.dispense).some(([k, v]) => k !== "material" && values[k] !== v)) values.material = null;
+        // a preset's values changed by hand: the machine's own profile of that material (kept for it)
+        if (!list.some((m) => m.name === values.material)) values.material = null;
         try {
           onSaved(await patch(`machines/${current.id}`, { dispense: values }));
         } catch (err) {

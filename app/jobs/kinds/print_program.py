@@ -61,8 +61,9 @@ class PrintParams(JobParams):
     artifact: str | None = Field(None, description="artifact of job_id to print, e.g. print.gcode")
     dispense: DispenseProfile | None = Field(None, description="this print's dispense profile (default: the "
                                              "machine's profile.dispense; none: the program as written)")
-    material: str | None = Field(None, max_length=80, description="this print's dispense profile: the preset's "
-                                 "of this name (GET /materials)")
+    material: str | None = Field(None, max_length=80, description="this print's dispense profile: the machine's "
+                                 "own profile of this material (profile.dispense_by_material), else the preset's of "
+                                 "this name (GET /materials)")
     drift_reference: bool = Field(True, description="touch the reference pad with the probe first and shift the "
                                   "program's Z by the drift since the probe calibration (machines with a "
                                   "calibrated pad reading and a profile reference pad; others: no effect)")
@@ -234,13 +235,16 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
 
 def _dispense(ctx: JobContext, params: PrintParams) -> dict | None:
     """The dispense profile this print applies, with the machine's on/off commands and
-    dialect: the request's, a preset's, else the machine's ``profile.dispense`` (or None)."""
+    dialect: the request's; for a material, the machine's own profile of it, else the
+    preset's; else the machine's ``profile.dispense`` (or None)."""
     with ctx.session() as session:
         row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
         profile = machine_profile(row)
         dialect = row.dialect
     if params.dispense is not None:
         chosen, source = params.dispense, "request"
+    elif params.material in profile.dispense_by_material:
+        chosen, source = profile.dispense_by_material[params.material], "machine's profile of the material"
     elif params.material is not None:
         chosen, source = BY_NAME[params.material].dispense, "material"
     else:
