@@ -328,7 +328,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                                     job_id=ctx.job_id)
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
     return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
-            "pad_probe_traces": probe_ids, "stations": len(stations), "nets_checked": nets,
+            "pad_probe_traces": probe_ids, "nets_checked": nets,
+            "stations": len(stations) if check is None else len(check.fit.stations.xy),  # every round's, once
             "connections_checked": pieces, "loop": loop_state(loop),
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
             "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off,
