@@ -50,6 +50,7 @@ from app.models import CircuitImport, Job, Trace
 from app.jobs.program_results import CircuitProgramResult
 from app.jobs.loop_results import ClosedLoopResult, LoopTrace
 from app.jobs.results import CompensateResult, ProbeRunResult, compensate_rows
+from app.reconstruction.field_trust import with_bound
 from app.records import get_or_404
 
 
@@ -268,6 +269,9 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])
     surface, check = measured_surface(ctx, mesh, entries, imp.trace_ids, runs, stations, deviations, placement)
+    bound = ((loop.result or {}).get("verdict") or {}).get("bound_mm")
+    if check is not None and bound is not None:
+        check = with_bound(check, [float(bound)])          # the traces' bound the loop's verdict stated
     if check is not None and check.needs_attention and not params.accept_unverified:
         raise ConformaError(f"the field of closed loop {loop.id!r} needs attention ({'; '.join(check.reasons)}): "
                             "accept it explicitly with accept_unverified=true", field="params.closed_loop_job_id",
