@@ -6,6 +6,7 @@ process and cached by content hash.
 
 from __future__ import annotations
 
+import json
 import threading
 from collections import OrderedDict
 from dataclasses import replace
@@ -326,6 +327,29 @@ def build_traces(meshes: MeshCache, part: Part, bodies: list[Any]) -> list[Trace
         return [build_trace(meshes, part, body, field_prefix=str(i)) for i, body in enumerate(bodies)]
     return [_trace_record(part, body, geometry, str(i), lambda n=nominal: n)
             for i, (body, geometry, nominal) in enumerate(zip(bodies, geometries, nominals))]
+
+
+class DrapedAhead:
+    """Top-view trace geometries (API ``TraceGeometry`` dicts) draped all at once before their
+    records are made one by one (a circuit import's traces and probe rings): :meth:`build` is
+    :func:`build_trace` with the batch's polyline when the body's geometry is one of them
+    (equal to draping it alone), else (a batch with an error, another frame) draped alone,
+    which names the error."""
+
+    def __init__(self, meshes: MeshCache, part: Part, geometries: list[dict[str, Any]]) -> None:
+        nominals = build_nominal_traces(meshes.mesh(part), geometries, Tolerance()) if geometries else None
+        self._nominal = {} if nominals is None else {_geometry_key(g): n for g, n in zip(geometries, nominals)}
+
+    def build(self, meshes: MeshCache, part: Part, body: Any, field_prefix: str = "") -> Trace:
+        geometry = body.geometry.model_dump()
+        nominal = self._nominal.get(_geometry_key(geometry)) if body.frame == "xy" else None
+        if nominal is None:
+            return build_trace(meshes, part, body, field_prefix=field_prefix)
+        return _trace_record(part, body, geometry, field_prefix, lambda: nominal)
+
+
+def _geometry_key(geometry: dict[str, Any]) -> str:
+    return json.dumps(geometry, sort_keys=True)
 
 
 def _trace_record(part: Part, body: Any, geometry: dict[str, Any], field_prefix: str,

@@ -1,4 +1,5 @@
-"""The per-process caches of app/records.py: bounded by bytes, and what they keep."""
+"""The per-process caches of app/records.py (bounded by bytes, and what they keep) and the
+traces it builds draped in one batch (the same as one by one)."""
 
 from __future__ import annotations
 
@@ -55,3 +56,29 @@ def test_mesh_cache_is_bounded_by_bytes_and_keeps_placed_meshes_with_their_ray_s
     cache.put("b" * 64, trimesh.creation.icosphere(subdivisions=3))
     assert cache.cached(part.sha256) is one and len(cache._items) == 2
     assert cache.bytes <= cache.max_bytes
+
+
+def test_traces_draped_ahead_are_the_traces_built_one_by_one():
+    import pytest
+
+    from app.api.schemas import TraceCreate
+    from app.geometry.drape import OffSurfaceError
+    from app.records import DrapedAhead, build_trace
+    from app.reference.boards import board_traces, dome_part
+
+    dome = dome_part()
+    mesh = dome.mesh(grid_mm=1.0)
+    meshes, part = SimpleNamespace(mesh=lambda _part: mesh), SimpleNamespace(id="part_x")
+    bodies = [TraceCreate(name=f"t{i}", geometry=g, frame="xy") for i, g in enumerate(board_traces(dome, 30))]
+    ahead = DrapedAhead(meshes, part, [b.geometry.model_dump() for b in bodies])   # type: ignore[arg-type]
+    assert len(ahead._nominal) == 30                                             # the batch was draped
+    for body in bodies:
+        batched, alone = ahead.build(meshes, part, body), build_trace(meshes, part, body)  # type: ignore[arg-type]
+        assert batched.nominal == alone.nominal and batched.length_mm == alone.length_mm
+    # a batch with a trace off the part drapes one by one: the good ones alike, the bad one named
+    off = TraceCreate(name="off", geometry={"type": "polyline", "points": [[10, 10], [400, 10]]}, frame="xy")
+    ahead = DrapedAhead(meshes, part, [b.geometry.model_dump() for b in (*bodies[:3], off)])  # type: ignore[arg-type]
+    assert ahead._nominal == {}
+    assert ahead.build(meshes, part, bodies[0]).nominal == build_trace(meshes, part, bodies[0]).nominal  # type: ignore[arg-type]
+    with pytest.raises(OffSurfaceError, match="leaves the part|not over the part"):
+        ahead.build(meshes, part, off, field_prefix="traces.3")                  # type: ignore[arg-type]

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import anyio
+import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from pydantic import BaseModel, Field, ValidationError
 
@@ -27,12 +28,11 @@ from app.circuits.mapping import MappingOptions
 from app.circuits.nets import area_polygon
 from app.circuits.pad_probes import probe_ring
 from app.errors import ConformaError, InvalidInput
-from app.geometry.traces import TracePolyline
 from app.jobs.circuit_import import ImportMapped, ImportRequest, PartMesh, read_and_map
 from app.jobs.isolated import call_isolated
 from app.jobs.kinds.circuit_program import import_probe_trace_ids, stored_areas
 from app.models import CircuitImport, Part, Trace, new_id, utcnow
-from app.records import build_trace, get_or_404
+from app.records import DrapedAhead, get_or_404
 
 router = APIRouter(prefix="/api/v1", tags=["circuits"])
 MAX_FILES = 20
@@ -207,7 +207,13 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
     ring_names: dict[str, int] = {}
     out.placement = {"origin_mm": [round(float(v), 6) for v in placement.origin_mm], "anchor": anchor,
                      "anchor_mm": [round(float(v), 6) for v in placement.anchor_mm]}
-    for read in read_all.files:
+    firsts = np.cumsum([0] + [len(read.mapped.areas) for read in read_all.files]).tolist()
+    rings = [[probe_ring(outline, list(holes)) for _what, outline, holes in _ring_outlines(read.mapped, first)]
+             for read, first in zip(read_all.files, firsts)]  # per file, in _ring_outlines' order
+    ahead = DrapedAhead(runtime.meshes, part, [
+        _xy_geometry(mt.geometry) for read in read_all.files for mt in read.mapped.traces if mt.on_part]
+        + [_xy_geometry({"type": "polyline", "points": r.tolist()}) for file in rings for r in file if r is not None])
+    for file_rings, read in zip(rings, read_all.files):
         name, mapped = read.file, read.mapped
         out.files.append(ImportedFile(file=name, format=read.format, units=read.units, layers=read.layers,
                                       notes=read.notes, traces=read.traces, pads=read.pads, areas=read.areas,
@@ -231,7 +237,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
             body = TraceCreate(name=label, geometry=mt.geometry, frame="xy", standoff_mm=opts.standoff_mm,
                                width_mm=mt.source["width_mm"] or None, feed_mm_min=opts.feed_mm_min)
             try:
-                trace = build_trace(runtime.meshes, part, body, field_prefix=f"traces.{index}")
+                trace = ahead.build(runtime.meshes, part, body, field_prefix=f"traces.{index}")
             except ConformaError as exc:
                 if opts.dry_run:
                     out.warnings.append({"kind": "leaves_part", "traces": [index], "file": name,
@@ -253,12 +259,11 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
                                    holes_xy_mm=[h.round(6).tolist() for h in a.holes_xy],
                                    area_mm2=round(area_polygon(a.exterior_xy, a.holes_xy).area, 6))
                       for i, a in enumerate(mapped.areas)]
-        rings = [(out.pads[len(out.pads) - len(mapped.pads) + i], p.name, p.outline_xy, [])
-                 for i, p in enumerate(mapped.pads) if p.on_part]
-        rings += [(None, f"area {first_area + i}", a.exterior_xy, a.holes_xy) for i, a in enumerate(mapped.areas)]
-        for pad, what, outline, holes in rings:
+        pads = [out.pads[len(out.pads) - len(mapped.pads) + i] for i, p in enumerate(mapped.pads) if p.on_part]
+        outlines = _ring_outlines(mapped, first_area)
+        for pad, (what, _outline, _holes), ring in zip(pads + [None] * len(mapped.areas), outlines, file_rings):
             label = _unique(f"{name}:{what}", ring_names)  # two pads of one footprint may share a number
-            probe = _probe_trace(runtime, part, outline, label, opts, import_id, out, records, holes)
+            probe = _probe_trace(runtime, part, ring, label, opts, import_id, out, records, ahead)
             if pad is not None and probe is not None:
                 pad_records.append((pad, probe))
     if not opts.dry_run:
@@ -314,8 +319,8 @@ def _read_and_map(runtime, request: Request, part: Part, files: list[UploadFile]
 
 
 def _nominal_points(trace: Trace) -> list[list[float]]:
-    """The trace's stored nominal points [[x, y, z]] mm, read through :class:`TracePolyline`."""
-    points: list[list[float]] = TracePolyline.from_dict(trace.nominal).to_dict()["points"]
+    """The trace's stored nominal points [[x, y, z]] mm (as :class:`TracePolyline` stored them)."""
+    points: list[list[float]] = trace.nominal["points"]  # stored by TracePolyline.to_dict: read back, the same
     return points
 
 
@@ -337,17 +342,30 @@ def _unique(label: str, seen: dict[str, int]) -> str:
     return label if seen[label] == 1 else f"{label} #{seen[label]}"
 
 
-def _probe_trace(runtime, part: Part, outline, label: str, opts: CircuitImportOptions, import_id: str,
-                 out: CircuitImportOut, records: list, holes=()) -> Trace | None:
-    """The probe ring of a pad or area as a trace (records gets (None, trace)); a ring the part
-    cannot carry is a warning, the pad is then filled from the stations around it."""
-    ring = probe_ring(outline, list(holes))
+def _ring_outlines(mapped, first_area: int) -> list[tuple[str, Any, Any]]:
+    """(what, outline (n, 2), holes) of each pad on the part and each area of a mapped file
+    (named from ``first_area``, the import's count of areas before it), in that order: what
+    gets a probe ring."""
+    return ([(p.name, p.outline_xy, []) for p in mapped.pads if p.on_part]
+            + [(f"area {first_area + i}", a.exterior_xy, a.holes_xy) for i, a in enumerate(mapped.areas)])
+
+
+def _xy_geometry(geometry: dict[str, Any]) -> dict[str, Any]:
+    """A top-view geometry as the API reads it (the form :class:`DrapedAhead` keys on)."""
+    return TraceCreate(name="x", geometry=geometry, frame="xy").geometry.model_dump()
+
+
+def _probe_trace(runtime, part: Part, ring, label: str, opts: CircuitImportOptions, import_id: str,
+                 out: CircuitImportOut, records: list, ahead: DrapedAhead) -> Trace | None:
+    """The probe ring (m, 2) of a pad or area (None: too small for one) as a trace (records gets
+    (None, trace)); a ring the part cannot carry is a warning, the pad is then filled from the
+    stations around it."""
     if ring is None:
         return None
     body = TraceCreate(name=f"{label} (pad probe)"[:200], geometry={"type": "polyline", "points": ring.tolist()},
                        frame="xy", standoff_mm=opts.standoff_mm)
     try:
-        trace = build_trace(runtime.meshes, part, body, field_prefix="probe_paths")
+        trace = ahead.build(runtime.meshes, part, body, field_prefix="probe_paths")
     except ConformaError as exc:
         out.warnings.append({"kind": "pad_not_probed", "pad": label, "message": exc.message})
         return None

@@ -57,6 +57,23 @@ def _body(text: str, dialect: str, name: str) -> list[str]:
     return body
 
 
+def _nearest_first(starts: np.ndarray) -> tuple[list[int], float]:
+    """Greedy nearest neighbour from the origin over start points (n, 2) mm, the lowest index
+    on a tie: (the order, the XY travel in mm).  One vectorised distance pass per step (the
+    programs of a 6,000-trace board: O(n) numpy steps, not O(n^2) Python calls)."""
+    order: list[int] = []
+    here, travel = np.zeros(2), 0.0
+    left = np.ones(len(starts), dtype=bool)
+    for _ in range(len(starts)):
+        distance = np.where(left, np.hypot(starts[:, 0] - here[0], starts[:, 1] - here[1]), np.inf)
+        nearest = int(np.argmin(distance))
+        travel += float(distance[nearest])
+        here = starts[nearest]
+        order.append(nearest)
+        left[nearest] = False
+    return order, travel
+
+
 def join_programs(programs: list[tuple[str, str]], dialect: str, *, clearance_mm: float = 2.0,
                   job_id: str | None = None, decimals: int = 4) -> JoinedProgram:
     """Join ``programs`` [(name, G-code text)] written in ``dialect`` into one program.
@@ -79,13 +96,7 @@ def join_programs(programs: list[tuple[str, str]], dialect: str, *, clearance_mm
         first = program.end[lateral[0] if len(lateral) else 0, :2]  # where the program's first sideways move goes
         starts.append(np.asarray(first, float))
     safe_z = top + clearance_mm
-    order, here, left, travel = [], np.zeros(2), list(range(len(programs))), 0.0
-    while left:
-        nearest = min(left, key=lambda i: float(np.linalg.norm(starts[i] - here)))
-        travel += float(np.linalg.norm(starts[nearest] - here))
-        here = starts[nearest]
-        order.append(nearest)
-        left.remove(nearest)
+    order, travel = _nearest_first(np.array(starts, dtype=float).reshape(-1, 2))
     builder = ProgramBuilder(dialect, "whole_part", job_id, decimals=decimals)
     builder.comment(f"{len(programs)} traces; safe travel height Z{format_number(safe_z, decimals)} mm")
     for i in order:

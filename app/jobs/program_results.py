@@ -17,7 +17,8 @@ from app.jobs.results import KindResult
 # circuit_program --------------------------------------------------------------------------
 class CircuitProgramResult(KindResult):
     """A circuit_program job: strokes written (``fill_strokes`` of them pad / area fills), the
-    import's trace count, the pad probe rings used and the stations of the deviation field,
+    import's trace count, the pad probe rings used and the stations of the deviation field
+    (a field: the stations it is fitted from, every round's once, verification points apart),
     the named nets the short check went through (``nets_checked``), the source's connected
     pieces the open check went through (``connections_checked``), the travel (mm) in the chosen
     and in the input order, the order ([input index, reversed] per stroke) and the dispense codes;

@@ -38,7 +38,13 @@ largest |z| exceeds the two-sided Bonferroni quantile at ``MISFIT_ALPHA`` over t
 ``mean(z^2)`` exceeds its chi-square quantile at the same level, or when the fitted wavelength
 sits on its lower bound (the field is shorter than the shortest wavelength allowed), or when the
 learned noise exceeds NOISE_MISFIT x the user's (the probe's repeatability): what the stations
-cannot resolve shows up as noise.
+cannot resolve shows up as noise.  A field on the wavelength's lower bound is a misfit only when
+it is likelier than noise: the likelihood ratio against the same model with the field at its
+smallest amplitude and the noise refitted passes its level-``MISFIT_ALPHA`` quantile (the
+50:50 mixture of chi-square 0 and 1 of a variance on its bound).  Below that the short field
+stands for no more than noise (a part with no field beyond the rigid terms, touches a little
+noisier than the stated repeatability: the readout's rounding), the wavelength is not
+determined, and the touches are judged by the noise rule with the refitted noise.
 
 Pure: numpy/scipy.  Units: mm.
 """
@@ -51,7 +57,7 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
-from scipy.optimize import minimize
+from scipy.optimize import minimize, minimize_scalar
 from scipy.special import j1, jv
 from scipy.stats import chi2, norm
 
@@ -328,16 +334,31 @@ def _learn(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarr
     learned = replace(prior, amplitude_mm=float(math.exp(theta[0])), wavelength_mm=float(math.exp(theta[1])),
                       sigma_mm=float(math.exp(theta[2])))
     loo = loo_check(learned, sites, dz, center)
+    scatter = learned.sigma_mm
     if at[1] == "lower":
+        as_noise = _as_noise(likelihood, theta, lo, hi)
+        if 2.0 * (as_noise[0] - float(best.fun)) > chi2.isf(2 * MISFIT_ALPHA, 1):
+            loo = replace(loo, misfit=True, reasons=loo.reasons + (
+                f"the field's wavelength is at the shortest allowed ({bounds.wavelength_mm[0]:.1f} mm) "
+                "or shorter",))
+        else:  # a field no likelier than noise: the touches are judged as the noise it stands for
+            scatter = max(scatter, as_noise[1])
+    if scatter > NOISE_MISFIT * prior.sigma_mm:
         loo = replace(loo, misfit=True, reasons=loo.reasons + (
-            f"the field's wavelength is at the shortest allowed ({bounds.wavelength_mm[0]:.1f} mm) "
-            "or shorter",))
-    if learned.sigma_mm > NOISE_MISFIT * prior.sigma_mm:
-        loo = replace(loo, misfit=True, reasons=loo.reasons + (
-            f"the touches scatter {learned.sigma_mm * 1000:.1f} um about the field, {learned.sigma_mm / prior.sigma_mm:.0f}x "
+            f"the touches scatter {scatter * 1000:.1f} um about the field, {scatter / prior.sigma_mm:.0f}x "
             "the probe's repeatability: structure shorter than the stations resolve, or misreading touches",))
     return LearnedPrior(learned, prior, bounds, log_sd, (at[0], at[1], at[2]), -float(best.fun),
                         -objective(start), loo, n)
+
+
+def _as_noise(likelihood: _Likelihood, theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float]:
+    """The touches read as noise instead of a field at ``theta``'s wavelength: the field at its
+    smallest amplitude allowed, the noise refitted; (-log p at that optimum, the noise sd mm)."""
+    def value(log_sigma: float) -> float:
+        return likelihood.value(np.array([lo[0], theta[1], log_sigma]))
+
+    res = minimize_scalar(value, bounds=(lo[2], hi[2]), method="bounded")
+    return float(res.fun), float(math.exp(res.x))
 
 
 def _laplace_sd(objective: Any, theta: np.ndarray, at: tuple[str, ...]) -> np.ndarray:

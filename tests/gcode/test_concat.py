@@ -4,6 +4,8 @@ dialect's header once and its end once; programs that cannot be spliced are refu
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -75,3 +77,20 @@ def test_programs_that_cannot_be_spliced_are_refused():
         join_programs([], "marlin")
     with pytest.raises(GcodeError):
         join_programs([("a", good)], "marlin", clearance_mm=0)
+
+
+def test_the_order_is_the_greedy_nearest_neighbour_from_the_origin_lowest_index_on_a_tie():
+    from app.gcode.concat import _nearest_first
+
+    rng = np.random.default_rng(5)
+    starts = np.concatenate([rng.uniform(-50, 150, (300, 2)), [[3.0, 4.0], [4.0, 3.0], [3.0, 4.0]]])
+    left, here, want, travel = list(range(len(starts))), np.zeros(2), [], 0.0
+    while left:                                   # the plain scan of every start left, each step
+        nearest = min(left, key=lambda i: math.dist(starts[i], here))
+        travel += math.dist(starts[nearest], here)
+        here = starts[nearest]
+        want.append(nearest)
+        left.remove(nearest)
+    order, got = _nearest_first(starts)
+    assert order == want and got == pytest.approx(travel, rel=1e-12)
+    assert _nearest_first(np.array([[3.0, 4.0], [4.0, 3.0]]))[0] == [0, 1]   # 5 mm both: the first

@@ -60,6 +60,21 @@ def test_a_field_shorter_than_the_shortest_wavelength_allowed_is_a_misfit():
     assert learned.at_bound[1] == "lower" or learned.prior.sigma_mm > 5 * USER.sigma_mm
 
 
+@pytest.mark.parametrize("seed", [13, 29, 30, 40])
+def test_touches_that_are_noise_about_the_rigid_terms_are_no_misfit(seed):
+    # a part 30 um high everywhere, touched with 1 um noise and read to the readout's 1 um: the
+    # learning may park a noise-sized field on the shortest wavelength (these seeds do), but it
+    # is no likelier than noise and the touches scatter as the probe does: the model holds
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform([0.0, 0.0], [60.0, 40.0], (40, 2))
+    sites = Sites(xy, rng.normal(0.0, 0.1, (40, 2)))
+    dz = np.round(9.0 + 0.03 + rng.normal(0.0, 0.001, 40), 3) - 9.0
+    learned = learn_prior(DeviationPrior(amplitude_mm=0.01, wavelength_mm=20.0, sigma_mm=0.001), sites, dz,
+                          xy.mean(axis=0))
+    assert learned.at_bound[1] == "lower" and learned.prior.amplitude_mm < 0.003
+    assert not learned.misfit, learned.loo.reasons
+
+
 def test_loo_flags_a_spike_and_passes_the_clean_field():
     sites, center, dz = draw(TRUTH, 40, 8)
     clean = loo_check(TRUTH, sites, dz, center)

@@ -27,6 +27,8 @@ the request says ``accept_unverified: true``; a program so accepted says so in i
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from pydantic import Field
 from sqlmodel import Session, select
@@ -40,7 +42,6 @@ from app.circuits.surface import PrintedPoints
 from app.jobs.circuit_surface import loop_placement, measured_surface
 from app.errors import InvalidInput
 from app.geometry.drape import drape_polyline
-from app.geometry.traces import TracePolyline
 from app.jobs.context import JobContext
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
@@ -50,6 +51,7 @@ from app.models import CircuitImport, Job, Trace
 from app.jobs.program_results import CircuitProgramResult
 from app.jobs.loop_results import ClosedLoopResult, LoopTrace
 from app.jobs.results import CompensateResult, ProbeRunResult, compensate_rows
+from app.reconstruction.field_trust import with_bound
 from app.records import get_or_404
 
 
@@ -156,13 +158,34 @@ def stored_areas(areas: list) -> list[dict]:
     return out
 
 
-def import_copper(session: Session, imp: CircuitImport, pads: bool) -> list[Copper]:
+class ImportTrace(NamedTuple):
+    """What the net checks read of an import's trace: name, net, width (mm or None) and its
+    stored nominal's top view xy (n, 2) mm."""
+
+    name: str
+    net: str
+    width_mm: float | None
+    xy: np.ndarray
+
+
+def import_traces(session: Session, imp: CircuitImport) -> dict[str, ImportTrace]:
+    """{trace id: :class:`ImportTrace`} of the import's stored traces, read once for both net
+    checks (the columns they use; the nominal's points as stored, which
+    :meth:`TracePolyline.to_dict` wrote valid)."""
+    rows = session.exec(select(Trace.id, Trace.name, Trace.source, Trace.width_mm, Trace.nominal)  # type: ignore[call-overload]
+                        .where(Trace.id.in_(imp.trace_ids))).all()  # type: ignore[attr-defined]
+    return {i: ImportTrace(name, str((source or {}).get("net") or ""), width,
+                           np.asarray(nominal["points"], dtype=float)[:, :2])
+            for i, name, source, width, nominal in rows}
+
+
+def import_copper(session: Session, imp: CircuitImport, pads: bool,
+                  traces: dict[str, ImportTrace] | None = None) -> list[Copper]:
     """The copper a circuit program prints: the import's traces at their width, and (with
-    ``pads``) its on-part pads and its areas with their holes; top view, mm, with their nets."""
-    rows = session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()  # type: ignore[attr-defined]
-    copper = [Copper("trace", t.name, str((t.source or {}).get("net") or ""),
-                     trace_copper(TracePolyline.from_dict(t.nominal).points[:, :2], t.width_mm or 0.0))
-              for t in rows]
+    ``pads``) its on-part pads and its areas with their holes; top view, mm, with their nets.
+    ``traces``: :func:`import_traces` when already read."""
+    rows = import_traces(session, imp) if traces is None else traces
+    copper = [Copper("trace", t.name, t.net, trace_copper(t.xy, t.width_mm or 0.0)) for t in rows.values()]
     if pads:
         copper += [Copper("pad", p["name"], str((p.get("source") or {}).get("net") or ""),
                           area_polygon(p["outline_xy_mm"])) for p in imp.pads if p["on_part"]]
@@ -171,12 +194,13 @@ def import_copper(session: Session, imp: CircuitImport, pads: bool) -> list[Copp
     return copper
 
 
-def printed_copper(session: Session, imp: CircuitImport, line_width_mm: float,
-                   fills: bool) -> tuple[list[Copper], list[list[int]]]:
+def printed_copper(session: Session, imp: CircuitImport, line_width_mm: float, fills: bool,
+                   traces: dict[str, ImportTrace] | None = None) -> tuple[list[Copper], list[list[int]]]:
     """The copper as printed (traces at max(width, line), on-part pads and areas as their fills
     cover them when ``fills``, else as drawn) and the source's connected pieces of each named
-    net (the files' stored ``connections``) as indices into it."""
-    rows = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()}  # type: ignore[attr-defined]
+    net (the files' stored ``connections``) as indices into it.  ``traces``:
+    :func:`import_traces` when already read."""
+    rows = import_traces(session, imp) if traces is None else traces
     copper: list[Copper] = []
     where: dict[tuple[str, int], int] = {}
 
@@ -187,8 +211,7 @@ def printed_copper(session: Session, imp: CircuitImport, line_width_mm: float,
     for g, trace_id in enumerate(imp.trace_ids):
         t = rows.get(trace_id)
         if t is not None:
-            add("traces", g, Copper("trace", t.name, str((t.source or {}).get("net") or ""), trace_copper(
-                TracePolyline.from_dict(t.nominal).points[:, :2], max(t.width_mm or 0.0, line_width_mm))))
+            add("traces", g, Copper("trace", t.name, t.net, trace_copper(t.xy, max(t.width_mm or 0.0, line_width_mm))))
     for g, p in enumerate(imp.pads):
         if p["on_part"]:
             shape = fill_coverage(p["outline_xy_mm"], [], line_width_mm) if fills else area_polygon(p["outline_xy_mm"])
@@ -210,8 +233,9 @@ def printed_copper(session: Session, imp: CircuitImport, line_width_mm: float,
 
 def _check(params: CircuitProgramParams, session: Session) -> None:
     imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
-    check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
-    check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
+    traces = import_traces(session, imp)
+    check_nets(import_copper(session, imp, params.pads, traces), params.net_clearance_mm, field="params.import_id")
+    check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads, traces), field="params.import_id")
     loop = accepted_loop(get_or_404(session, Job, params.closed_loop_job_id, field="params.closed_loop_job_id"),
                          params.accept_unverified)
     entries = _loop_entries(loop)                        # the loop's result read once, not once per trace
@@ -233,8 +257,11 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     with ctx.session() as session:
         imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
         probe_ids = import_probe_trace_ids(session, imp) if params.pads else []
-        nets = check_nets(import_copper(session, imp, params.pads), params.net_clearance_mm, field="params.import_id")
-        pieces = check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads), field="params.import_id")
+        traces = import_traces(session, imp)
+        nets = check_nets(import_copper(session, imp, params.pads, traces), params.net_clearance_mm,
+                          field="params.import_id")
+        pieces = check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads, traces),
+                             field="params.import_id")
     loop = accepted_loop(ctx.job(params.closed_loop_job_id, field="params.closed_loop_job_id"),
                          params.accept_unverified, ConformaError)
     entries = _loop_entries(loop)
@@ -249,6 +276,9 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
             stations.append(pt.nominal[:2])
             deviations.append(pt.measured[2] - pt.nominal[2])
     surface, check = measured_surface(ctx, mesh, entries, imp.trace_ids, runs, stations, deviations, placement)
+    bound = ((loop.result or {}).get("verdict") or {}).get("bound_mm")
+    if check is not None and bound is not None:
+        check = with_bound(check, [float(bound)])          # the traces' bound the loop's verdict stated
     if check is not None and check.needs_attention and not params.accept_unverified:
         raise ConformaError(f"the field of closed loop {loop.id!r} needs attention ({'; '.join(check.reasons)}): "
                             "accept it explicitly with accept_unverified=true", field="params.closed_loop_job_id",
@@ -309,7 +339,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                                     job_id=ctx.job_id)
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
     return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
-            "pad_probe_traces": probe_ids, "stations": len(stations), "nets_checked": nets,
+            "pad_probe_traces": probe_ids, "nets_checked": nets,
+            "stations": len(stations) if check is None else len(check.fit.stations.xy),  # every round's, once
             "connections_checked": pieces, "loop": loop_state(loop),
             "travel_mm": round(program.travel_mm, 3), "travel_input_order_mm": round(program.travel_input_order_mm, 3),
             "order": [[i, r] for i, r in program.order], "dispense_on": on, "dispense_off": off,

@@ -62,6 +62,7 @@ the nozzle the compensate children write for (default: the profile's first).
 
 from __future__ import annotations
 
+import time
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -85,6 +86,7 @@ from app.reconstruction.field_trust import measured_bound, verification_line
 from app.records import get_or_404
 
 STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
+PROGRESS_EVERY_S = 0.5  # the per-trace phase reports its progress at most this often (thousands of traces)
 
 
 class LoopCorrections(BaseModel):
@@ -294,12 +296,17 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
     printed = [entry for entry in per_trace if entry["trace_id"] not in rings]
     if (params.print or params.evaluate) and not hold:
         gates.gate("print", _print_summary(printed, params), round_=rounds)
+    reported = time.monotonic()
     for index, entry in enumerate(per_trace):
         if entry["trace_id"] in rings:
             entry["role"] = "pad_probe"  # a pad's probe ring: probed and rebuilt, never printed
         else:
             print_trace(ctx, steps, params, machine, index, entry, result["table"], hold_print=hold)
-        ctx.progress(0.8 + 0.2 * (index + 1) / total, f"{index + 1}/{total} traces done")
+        if index + 1 == total or time.monotonic() - reported >= PROGRESS_EVERY_S:  # not one write per trace
+            ctx.progress(0.8 + 0.2 * (index + 1) / total, f"{index + 1}/{total} traces done")
+            reported = time.monotonic()
+        else:
+            ctx.check_cancelled()
     if hold:
         result["needs_attention"] = True  # the job ends needs_attention, not succeeded
         ctx.progress(1.0, f"{total}/{total} traces done; NEEDS ATTENTION: {result['verdict']['reasons'][0]}"
