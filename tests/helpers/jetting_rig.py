@@ -63,6 +63,7 @@ def jetting_rig(client: Any, head_options: str = "", sensor_options: str = "") -
     machine = client.post("/api/v1/machines", json={"name": "jetter", "port": "mock://", "dialect": "marlin"},
                           headers=OP).json()
     mid = machine["id"]
+    assert client.post(f"/api/v1/machines/{mid}/connect", headers=OP).status_code == 200  # its world exists now
     head = f"head://{mid}?offset={HEAD_OFFSET[0]},{HEAD_OFFSET[1]}&field=0,0,400,400&history=1"
     sensor = f"lkg://{mid}?offset={','.join(map(str, SENSOR_OFFSET))}&noise_mm=0.0003&rate_hz=2000"
     rig = JettingRig(mid, f"{head}&{head_options}".rstrip("&"), f"{sensor}&{sensor_options}".rstrip("&"))
