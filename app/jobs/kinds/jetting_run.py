@@ -152,6 +152,7 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
             substrate = _substrate(ctx, machine, sensor, grid, calibration, setup, state)
             measured = _last_measured(ctx, state, target.shape)
             pattern: np.ndarray | None = None
+            warm: np.ndarray | None = None
             if resume is not None and state["phase"] != "start":  # cure what may be liquid, then look
                 cure(machine, setup)
                 measured, scan = measure(measured, None)
@@ -165,8 +166,9 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
                 if ctrl.kind == "mpc":
                     with core_errors():
                         decision = mpc_layer(measured, target, kernel, core.drop, core.flow, mobility, ctrl, layer,
-                                             None if pattern is None else pattern.astype(float))
+                                             None if pattern is None else pattern.astype(float), warm)
                     pattern, solve_ms = decision.pattern, decision.solve_ms
+                    warm = np.concatenate([decision.relaxed[1:], decision.relaxed[-1:]])  # as the simulation
                 else:
                     pattern = target.mask
                 state.update(printed=layer + 1, phase="print", pattern=np.packbits(pattern).tobytes().hex())
