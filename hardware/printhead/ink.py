@@ -131,10 +131,11 @@ class JettedField:
 
     def land(self, x: np.ndarray, y: np.ndarray, volume_mm3: np.ndarray) -> int:
         """Drops (n,) landing at (x, y) mm with their volumes (mm^3); those off the field are
-        lost.  Returns how many landed on it."""
+        lost, those of no volume (a dead nozzle's) never were.  Returns how many landed."""
         row, col = self.cell_of(x, y)
         k = self.kernel.shape[0] // 2
-        ok = (row >= k) & (row < self.shape[0] - k) & (col >= k) & (col < self.shape[1] - k)
+        ok = (row >= k) & (row < self.shape[0] - k) & (col >= k) & (col < self.shape[1] - k) \
+            & (np.asarray(volume_mm3, dtype=float) > 0)
         volumes = np.zeros(self.shape)
         np.add.at(volumes, (row[ok], col[ok]), np.asarray(volume_mm3, dtype=float)[ok])
         if k == 0:
