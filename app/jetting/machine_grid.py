@@ -121,13 +121,21 @@ def fill_missing(measured_mm: npt.NDArray[np.float64], predicted_mm: npt.NDArray
 
 def substrate_map(heights_mm: npt.NDArray[np.float64], pitch_mm: float, sigma_mm: float = 0.5
                   ) -> npt.NDArray[np.float64]:
-    """The substrate (L, W) mm from its scan (NaN: no sample): cells without a sample take the
-    median, then a Gaussian of ``sigma_mm`` smooths the sensor's noise away (a substrate is
-    smooth at that scale; its noise would otherwise be a fixed pattern in every layer's map).
-    ``JettingError`` when the scan saw nothing."""
+    """The substrate (L, W) mm from its scan (NaN: no sample): its best plane plus the rest
+    smoothed by a Gaussian of ``sigma_mm`` over the cells that have a sample (normalised convolution: a cell without
+    one takes its neighbourhood's weighted mean).  A substrate is smooth at that scale; the
+    sensor's noise would otherwise be a fixed pattern in every layer's map.  ``JettingError``
+    when the scan saw nothing."""
     h = np.asarray(heights_mm, dtype=float)
-    if not np.isfinite(h).any():
+    seen = np.isfinite(h)
+    if not seen.any():
         raise JettingError("the sensor saw nothing of the substrate under the grid", field="origin_mm", value=None)
-    h = np.where(np.isfinite(h), h, float(np.nanmedian(h)))
-    out: npt.NDArray[np.float64] = ndimage.gaussian_filter(h, sigma_mm / pitch_mm, mode="nearest")  # scipy: untyped
+    rows, cols = np.indices(h.shape, dtype=float)
+    basis = np.stack([np.ones(h.shape), rows, cols], axis=-1)  # a plane first: no tilt bias at the edges
+    coef = np.linalg.lstsq(basis[seen], h[seen], rcond=None)[0]
+    plane = basis @ coef
+    sigma = sigma_mm / pitch_mm
+    total = ndimage.gaussian_filter(np.where(seen, h - plane, 0.0), sigma, mode="nearest")  # scipy: untyped
+    weight = ndimage.gaussian_filter(seen.astype(float), sigma, mode="nearest")
+    out: npt.NDArray[np.float64] = plane + np.where(weight > 1e-9, total / np.maximum(weight, 1e-9), 0.0)
     return out
