@@ -49,6 +49,10 @@ def test_a_run_jets_each_drop_once_and_measures_what_the_mock_holds(client):
         error = data["filled"] - truth
         assert np.abs(error).mean() < 0.3e-3 and np.abs(error).max() < 1.5e-3  # 0.2 um per cell
         assert data["pattern"].any() and data["mask"].shape == shape
+    report = client.get(f"/api/v1/jobs/{done['id']}/report", headers=OP)
+    assert report.status_code == 200 and "Droplet layers" in report.text
+    sha = next(a["sha256"] for a in done["artifacts"] if a["name"] == "measured_0004.npz")
+    assert sha[:16] in report.text
     # the same loop in simulation with the same head (16 nozzles, 5 % spread, its seed): the
     # machine's true part matches the simulated one
     sim = simulate(JettingParams(layers=4, target=TargetSpec(size_mm=1.5, hole_mm=0.5),
