@@ -25,6 +25,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from app.jetting import ControllerParams, JettingParams, PlantParams, simulate, surface_metrics, target_from_spec
 from hardware.height_sensor.mock import sensor_from_url
@@ -76,6 +77,7 @@ def sim_curve(spread: float, kind: str) -> list:
     return [r.metrics for r in simulate(params).layers]
 
 
+@pytest.mark.timeout(7200)
 def test_bench_machine_against_the_simulation(client):
     rows = []
     for spread in SPREADS:
@@ -153,6 +155,7 @@ def disturbances(client, at: dict[str, int]):
     return events, log
 
 
+@pytest.mark.timeout(7200)
 def test_bench_the_loop_survives_a_pause_dropouts_a_lost_sensor_and_a_dead_nozzle(client):
     at = {"pause": LAYERS * 3 // 20, "dropouts": LAYERS * 3 // 10, "unplug": LAYERS * 9 // 20, "dead": LAYERS * 3 // 5}
     events, log = disturbances(client, at)

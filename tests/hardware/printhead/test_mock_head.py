@@ -10,7 +10,7 @@ from app.jetting.flow import flow_layer
 from app.jetting.params import FlowParams
 from hardware.height_sensor import HeightSensor
 from hardware.height_sensor.mock import unregister_sensor
-from hardware.machine import Machine
+from hardware.machine import Machine, MachineProfile
 from hardware.printhead import HeadRejected, PrintHead, hdp
 from hardware.printhead.ink import cap_kernel
 from hardware.printhead.mock import get_head, head_from_url, unregister_head
@@ -133,3 +133,24 @@ def test_the_uv_lamp_cures_the_ink_by_the_published_flow_and_the_sensor_reads_it
     finally:
         sensor.close()
         unregister_sensor(name)
+
+
+def test_on_grbl_the_lamp_is_the_flood_coolant_output(make_world):
+    url, world = make_world(dialect="grbl")
+    name = url.removeprefix("mock://")
+    machine = Machine(url, "grbl", MachineProfile(), boot_quiet_s=0.01, timeout_s=10, poke_s=0.05)
+    machine.connect()
+    head = PrintHead(f"head://{name}?offset={OFFSET[0]},{OFFSET[1]}&field=0,0,100,100&cure=M8&cure_s=0.2")
+    head.connect()
+    try:
+        head.load(np.ones((3, 3), dtype=bool), 2.0, 0)
+        machine.stream(["G90", f"G1 X{50 * PITCH - OFFSET[0]:.4f} Y{2.0 - OFFSET[1] - 1:.4f} Z5 F6000"])
+        head.arm()
+        machine.stream([f"G1 Y{2.0 - OFFSET[1] + 2:.4f} F3000"])
+        assert head.disarm() == 9
+        mock = get_head(name)
+        machine.stream(["M8", "G4 P0.3", "M9"])  # grbl's dwell is in seconds
+        assert mock.cures == 1 and mock.field.drops == 9 and not mock.field.liquid.any()
+    finally:
+        head.close()
+        unregister_head(name)
