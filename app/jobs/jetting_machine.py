@@ -18,6 +18,7 @@ Hardware errors pass through (the kind decides: a lost link interrupts the run).
 
 from __future__ import annotations
 
+from contextlib import suppress
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ from app.calibration.sensor import SensorCalibration
 from app.jetting.machine_grid import Grid, cell_means, raster_waypoints, swaths
 from app.jobs.sensor_runs import run_pass
 from app.probing.scan_path import pass_duration, sample_positions
-from hardware.errors import ProtocolError
+from hardware.errors import HardwareError, ProtocolError
 from hardware.height_sensor import HeightSensor
 from hardware.machine import Machine
 from hardware.printhead import PrintHead
@@ -78,8 +79,13 @@ def print_layer(machine: Machine, head: PrintHead, pattern: np.ndarray, grid: Gr
         machine.move(x=x, y=y_start)
         machine.move(x=x, y=y_start, z=setup.print_z_mm)
         head.arm()  # at the swath's start: a travel move never crosses an armed row
-        machine.stream(["G90", f"G1 Y{y_end:.4f} F{feed:.1f}", machine.rules.wait_moves])
-        status = head.status()
+        try:
+            machine.stream(["G90", f"G1 Y{y_end:.4f} F{feed:.1f}", machine.rules.wait_moves])
+            status = head.status()
+        except HardwareError:
+            with suppress(HardwareError):  # never leave the head armed: a later move would fire it
+                head.disarm()
+            raise
         if status.rows_done != swath.bits.shape[0]:
             head.disarm()
             raise ProtocolError(f"the head fired {status.rows_done} of {swath.bits.shape[0]} rows of the swath at "
