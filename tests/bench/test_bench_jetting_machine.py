@@ -185,3 +185,19 @@ def measured_pattern(client, job: dict, layer: int) -> np.ndarray:
     artifact = next(a for a in job["artifacts"] if a["name"] == f"measured_{layer:04d}.npz")
     with np.load(io.BytesIO(client.get(artifact["url"], headers=OP).content)) as data:
         return np.asarray(data["pattern"])
+
+
+def test_bench_the_reference_rise_and_the_early_gain_in_simulation():
+    """Simulation only: the smallest Sa ratio (open loop / MPC) from layer 80 on, and the mean
+    heights reached, at the default reference rise (fill 0.8) and at the bench's 0.75."""
+    print(f"\nfill | spread | min Sa OL/MPC from layer {FROM_LAYER} | mean height at layer {LAYERS}: MPC / open loop (um)")
+    for fill in (0.8, FILL):
+        for spread in SPREADS:
+            plant = PlantParams(nozzle_spread=spread, seed=SEED)
+            ol = simulate(JettingParams(layers=LAYERS, plant=plant, controller=ControllerParams(kind="open_loop")))
+            mpc = simulate(JettingParams(layers=LAYERS, plant=plant, controller=ControllerParams(fill=fill)))
+            ratio = min(o.metrics.sa_um / m.metrics.sa_um for o, m in zip(ol.layers, mpc.layers) if o.layer >= FROM_LAYER)
+            print(f" {fill:.2f} |  {spread:.2f}  |   {ratio:5.2f}x   | {mpc.final.metrics.mean_height_um:6.1f} / "
+                  f"{ol.final.metrics.mean_height_um:6.1f}")
+            if fill == FILL:
+                assert ratio >= 3.0
