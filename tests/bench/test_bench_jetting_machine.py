@@ -112,19 +112,22 @@ def disturbances(client, at: dict[str, int]):
 
     def events(rig, job_id: str) -> None:
         world = get_world(rig.machine_id)
-        cures = [0]
+        cures, resumed_cure = [0], [False]
         pause_due, unplugged = threading.Event(), threading.Event()
 
         def on_cure(key, value, _t):
             if key != "P6" or value != 0:
                 return
+            if unplugged.is_set() and not resumed_cure[0]:  # the resume cures once more before its scan
+                resumed_cure[0] = True
+                return
             cures[0] += 1
-            k = cures[0]
+            k = cures[0]  # layers cured
             if k == at["pause"]:
                 pause_due.set()
             if k == at["dropouts"]:
                 sensor_from_url(f"{rig.sensor_url}&dropout_rate=0.3")
-                log.append(f"layer {k + 1}-{k + 5}: 30 % of the sensor's samples lost")
+                log.append(f"scans of layers {k}-{k + 4}: 30 % of the sensor's samples lost")
             if k == at["dropouts"] + 5:
                 sensor_from_url(f"{rig.sensor_url}&dropout_rate=0")
             if k == at["unplug"]:
@@ -143,13 +146,14 @@ def disturbances(client, at: dict[str, int]):
         status = client.get(f"/api/v1/jobs/{job_id}", headers=OP).json()["status"]
         assert (state, status) == ("paused", "running")
         assert client.post(f"/api/v1/machines/{rig.machine_id}/resume", headers=OP).status_code == 200
-        log.append(f"after layer {at['pause']}: paused by the operator for 1 s (machine paused, job running), resumed")
+        log.append(f"after layer {at['pause']}'s cure: paused by the operator for 1 s (machine paused, job running), "
+                   "resumed")
         unplugged.wait(timeout=3600)
         stopped = wait_for(client, job_id, states=("interrupted", "failed", "succeeded"), timeout=600)
         assert stopped["status"] == "interrupted", stopped.get("error")
         sensor_from_url(rig.sensor_url).unplugged = False
         assert client.post(f"/api/v1/jobs/{job_id}/resume", json={"confirm": True}, headers=OP).status_code == 202
-        log.append(f"layer {at['unplug'] + 1}: sensor link lost, job interrupted at phase "
+        log.append(f"scan of layer {at['unplug']}: sensor link lost, job interrupted at phase "
                    f"{stopped['program_state']['phase']!r}, resumed by the operator")
 
     return events, log
