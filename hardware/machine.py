@@ -375,6 +375,10 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
                 inflight.append((index, link.send_async(commands[index])))
             while inflight:
                 retire_oldest()
+            if not self._resume_event.is_set() and not self._cancel:  # paused after its last line went out:
+                self._state = "paused"  # the program holds there until resumed (the pause is not lost)
+                self._resume_event.wait()
+                self._state = "printing"
         except LinkError as exc:
             while inflight and inflight[0][1].done() and inflight[0][1].failure is None \
                     and inflight[0][1].outcome.status != "error":

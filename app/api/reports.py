@@ -21,7 +21,8 @@ def run_report(job_id: str, session: SessionDep,
                ) -> HTMLResponse:
     """The run report of a closed_loop or probe_run job: part, machine and calibration,
     probes, how far the real part was from its model along each trace, the compensated
-    programs with their hashes, the prints, and every job with its input hashes."""
+    programs with their hashes, the prints, and every job with its input hashes; of a
+    jetting_run job: the machine, each layer's measured figures and its map's hash."""
     page = render_run_report(collect_run(session, job_id), app_package.__version__)
     headers = {"Content-Disposition": f'attachment; filename="run-report-{job_id}.html"'} if download else {}
     return HTMLResponse(page, headers=headers)

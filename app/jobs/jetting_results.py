@@ -85,3 +85,32 @@ class NextLayerResult(KindResult):
     reference_height_um: float
     measured_layer: int | None
     grid: JettingGrid
+
+
+class MachineLayer(SurfaceFigures):
+    """One layer jetted on a machine: the surface metrics of its MEASURED map (um; cells the scan
+    did not see taken from the model's prediction), the drops in its pattern and fired by the
+    head (-1: unknown, a layer an interruption cut short), the controller's solve (ms; 0 open loop), the scan's valid fraction, the cells filled
+    from the prediction, and the scan passes it took."""
+
+    layer: int
+    drops: int
+    fired: int
+    solve_ms: float
+    valid_fraction: float
+    filled_cells: int
+    scans: int
+
+
+class JettingRunResult(KindResult):
+    """A jetting_run job: per-layer figures (``layers``), the last layer's (``final``), the grid,
+    the controller, the operator's resumes and the median solve time (ms); each layer's measured
+    map is the artifact ``measured_NNNN.npz`` (the substrate's: ``substrate.npz``)."""
+
+    kind: ClassVar[str] = "jetting_run"
+    layers: list[MachineLayer]
+    final: MachineLayer
+    grid: JettingGrid
+    controller: str
+    resumes: int
+    solve_ms_median: float

@@ -27,7 +27,7 @@ FINISH_WAIT_S = 0.5  # ...this far apart, doubling (~16 s in all)
 # Jobs that move a machine: when their process dies or their link drops they become
 # ``interrupted`` and wait for an operator (never requeued by the reaper).
 OPERATOR_RESUMED_KINDS = ("print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle",
-                          "scan_run", "calibrate_sensor")
+                          "scan_run", "calibrate_sensor", "jetting_run")
 
 
 @dataclass(frozen=True)

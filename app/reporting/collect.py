@@ -1,7 +1,7 @@
 """Gather what a run report shows from the database: the jobs of one measurement session.
 
-A session is a ``closed_loop`` job with its children, or a ``probe_run`` job with its plan
-and every job that (transitively) read it — reconstructions, compensations, prints — as
+A session is a ``closed_loop`` job with its children, a ``jetting_run`` job, or a ``probe_run``
+job with its plan and every job that (transitively) read it — reconstructions, compensations, prints — as
 the job references record them.  Records are returned as plain dictionaries so the
 renderer needs no database.
 """
@@ -17,7 +17,7 @@ from app.errors import InvalidInput
 from app.models import Artifact, Job, JobReference, Machine, Part, Trace
 from app.records import get_or_404
 
-REPORTABLE = ("closed_loop", "probe_run")
+REPORTABLE = ("closed_loop", "probe_run", "jetting_run")
 MAX_JOBS = 2000  # a session of 300 traces has ~1,200 jobs; beyond this the report refuses
 
 
@@ -52,7 +52,7 @@ def collect_run(session: Session, job_id: str) -> RunRecords:
     """The session rooted at ``job_id`` (a closed_loop or probe_run job)."""
     root = get_or_404(session, Job, job_id)
     if root.kind not in REPORTABLE:
-        raise InvalidInput(f"a run report is made for a closed_loop or probe_run job, not {root.kind!r}",
+        raise InvalidInput(f"a run report is made for a closed_loop, probe_run or jetting_run job, not {root.kind!r}",
                            field="job_id", value=job_id)
     ids = {root.id}
     if root.kind == "closed_loop":

@@ -267,8 +267,11 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
             "<h2>Machine and calibration</h2>",
             _facts([("name", machine.get("name")), ("id", machine.get("id")), ("port", machine.get("port")),
                     ("dialect", machine.get("dialect")), ("profile", machine.get("profile")),
-                    ("calibration", machine.get("calibration") or "none recorded for this machine")]),
-            "<h2>Probing</h2>",
+                    ("calibration", machine.get("calibration") or "none recorded for this machine")])]
+    if root["kind"] == "jetting_run":
+        body += _droplet_layers(records)
+        return _page(root, body, records)
+    body += ["<h2>Probing</h2>",
             _facts([("plan job", (plan or {}).get("id")),
                     ("method", ((plan or {}).get("params") or {}).get("method") or (planned.method if planned else None)),
                     ("probes planned", planned.count if planned else None),
@@ -293,9 +296,40 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
                          for r in table], numeric={1, 2, 3, 4, 5})]
     body += plots and ["<h2>Real surface minus model along each trace</h2>", *plots] or []
     body += _printed_points(records)
-    body += ["<h2>Jobs</h2>", _table(["job", "kind", "status", "started", "finished", "input hashes"],
-                                     [[j["id"], j["kind"], j["status"], j["started_at"], j["finished_at"],
-                                       "; ".join(f"{k}={v[:12]}" for k, v in (j.get("input_hashes") or {}).items())]
-                                      for j in records.jobs])]
+    return _page(root, body, records)
+
+
+def _page(root: dict[str, Any], body: list[str], records: RunRecords) -> str:
+    """The document: ``body`` and the table of the session's jobs."""
+    body = body + ["<h2>Jobs</h2>", _table(["job", "kind", "status", "started", "finished", "input hashes"],
+                                           [[j["id"], j["kind"], j["status"], j["started_at"], j["finished_at"],
+                                             "; ".join(f"{k}={v[:12]}" for k, v in (j.get("input_hashes") or {}).items())]
+                                            for j in records.jobs])]
     return (f'<!doctype html><html lang="en"><head><meta charset="utf-8"><title>Conforma run report '
             f'{_e(root["id"])}</title><style>{_CSS}</style></head><body>{"".join(body)}</body></html>')
+
+
+def _droplet_layers(records: RunRecords) -> list[str]:
+    """A jetting_run: the run's settings and state, and each layer's measured figures with the
+    hash of its measured map (``measured_NNNN.npz``)."""
+    root = records.root
+    params, result, state = root.get("params") or {}, root.get("result") or {}, root.get("program_state") or {}
+    layers = result.get("layers") or state.get("layers") or []
+    maps = {a["name"]: a["sha256"] for a in records.artifacts.get(root["id"], [])}
+    grid = result.get("grid") or {}
+    out = ["<h2>Droplet layers</h2>",
+           _facts([("controller", params.get("controller", "mpc")), ("layers measured", f"{len(layers)} of {params.get('layers')}"),
+                   ("grid (cells, pitch mm)", f"{grid.get('shape')} at {grid.get('pitch_mm')}" if grid else None),
+                   ("head", params.get("head_port")), ("sensor", params.get("sensor_port")),
+                   ("cure", f"{params.get('cure_on')} for {params.get('cure_s')} s, then {params.get('cure_off')}"),
+                   ("operator resumes", result.get("resumes", state.get("resumes"))),
+                   ("substrate map (sha256)", maps.get("substrate.npz"))])]
+    rows = [[r.get("layer"), f"{r.get('sa_um', 0):.3f}", f"{r.get('edge_collapse_um', 0):.2f}",
+             f"{r.get('mean_height_um', 0):.1f}", r.get("drops"), r.get("fired"), f"{r.get('valid_fraction', 0):.3f}",
+             r.get("filled_cells"), r.get("scans"), (maps.get(f"measured_{int(r.get('layer', 0)):04d}.npz") or "")[:16]]
+            for r in layers]
+    out += ["<h3>Measured after each layer</h3>",
+            _table(["layer", "Sa (µm)", "edge collapse (µm)", "mean height (µm)", "drops", "fired", "valid samples",
+                    "cells from the model", "scan passes", "measured map (sha256)"], rows,
+                   numeric={0, 1, 2, 3, 4, 5, 6, 7, 8})]
+    return out

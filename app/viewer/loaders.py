@@ -52,6 +52,7 @@ MAX_COLORED_MOVES = 200_000  # programs longer than this are drawn in their role
 
 
 BOARD_DRAWN = 100  # traces of a board reconstruct / compensate job drawn in the 3-D view
+MAX_MEASURED_MAPS = 20  # measured maps of a jetting_run shown in the 3-D view
 
 
 def _ribbon(trace: Trace | None, samples: np.ndarray, label: str) -> tuple[ScalarSurface, ...]:
@@ -170,7 +171,7 @@ class Loader:
     def _loaders(self) -> dict[str, Callable[[Session, Job], FocusScene]]:
         return {"probe_plan": self._probe_plan, "probe_run": self._probe_run, "reconstruct": self._reconstruct,
                 "compensate": self._compensate, "closed_loop": self._closed_loop, "surface_fit": self._surface_fit,
-                "five_axis": self._five_axis, "slice": self._slice, "jetting": self._jetting,
+                "five_axis": self._five_axis, "slice": self._slice, "jetting": self._jetting, "jetting_run": self._jetting_run,
                 "print": lambda session, job: print_scene(self, session, job),
                 **{kind: (lambda session, job, build=build: build(self, session, job))
                    for kind, build in PROGRAM_SCENES.items()}}
@@ -433,6 +434,22 @@ class Loader:
             else tuple(f"snapshot {i}" for i in range(len(heights)))
         pitch = float(arrays["pitch_mm"]) if "pitch_mm" in arrays else 25.4 / float(job.params.get("dpi", 300))
         return FocusScene({}, "", heights=(HeightStack("heights", np.asarray(heights, float), pitch, labels),))
+
+    def _jetting_run(self, session: Session, job: Job) -> FocusScene:
+        """The measured maps (``measured_NNNN.npz``, as the controller used them), at most
+        MAX_MEASURED_MAPS of them evenly over the layers measured so far, the last one always."""
+        names = sorted(n for n in session.exec(select(Artifact.name).where(Artifact.job_id == job.id)).all()
+                       if n.startswith("measured_") and n.endswith(".npz"))
+        picked = [names[int(i)] for i in np.unique(np.linspace(0, len(names) - 1, MAX_MEASURED_MAPS).round())] \
+            if names else []
+        maps = []
+        for name in picked:
+            with np.load(io.BytesIO(self._artifact(session, job.id, name) or b""), allow_pickle=False) as npz:
+                maps.append((np.asarray(npz["filled"], float), float(npz["pitch_mm"])))
+        if not maps:
+            return FocusScene({}, "", notes=("jetting_run job has measured no layer yet",))
+        labels = tuple(f"layer {int(n[9:13])} (measured)" for n in picked)
+        return FocusScene({}, "", heights=(HeightStack("measured", np.stack([m for m, _ in maps]), maps[0][1], labels),))
 
     def _generic(self, session: Session, job: Job) -> FocusScene:
         rows = session.exec(select(Artifact).where(Artifact.job_id == job.id)).all()

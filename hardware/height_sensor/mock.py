@@ -52,6 +52,7 @@ class MockHeightSensor:
         self.stored: list[str] = []
         self.lock = threading.RLock()
         self._scene: tuple[object, Scene] | None = None
+        self.unplugged = False  # a fault: the cable is out, nothing answers
 
     # ------------------------------------------------------------------ the machine
     def world(self) -> MockWorld:
@@ -90,8 +91,10 @@ class MockHeightSensor:
         return self.stored[:count]
 
     # ------------------------------------------------------------------ commands
-    def handle(self, line: str) -> str:
-        """The response line (without CR) to one command line."""
+    def handle(self, line: str) -> str | None:
+        """The response line (without CR) to one command line (None: unplugged, no answer)."""
+        if self.unplugged:
+            return None
         parts = [p.strip() for p in line.strip().split(",")]
         head = parts[0].upper()
         args = parts[1:]

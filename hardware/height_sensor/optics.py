@@ -5,8 +5,8 @@ measuring range, its reference distance) at carriage z + offset z; a reading is 
 of the lit surface above that zero: ``(h - z0 + bias) * (1 + scale_error) + noise``,
 quantised to ``resolution_mm``, where
 
-* ``h`` is the scene's top (the as-made part at its placement, the bed, the reference pad's
-  top, the datum sphere's cap: :class:`Scene`) averaged over the spot (``spot_mm``: the
+* ``h`` is the scene's top (the as-made part at its placement, the bed, material jetted on
+  the bed, the reference pad's top, the datum sphere's cap: :class:`Scene`) averaged over the spot (``spot_mm``: the
   centre and six points on a circle of a third of the diameter);
 * ``bias = slope_bias_mm * tan(theta)^2`` (theta: the surface's tilt from horizontal at the
   spot centre): a triangulation spot on a slope is stretched and its centroid moves;
@@ -99,6 +99,11 @@ class Scene:
             higher = where[:, 2] > z[rays]
             z[rays[higher]] = where[higher, 2]
             normal[rays[higher]] = self.mesh.face_normals[tris[higher]]
+        for surface in world.surfaces:  # jetted material on the bed (the mock printhead's field)
+            dz, on = surface.top(xy)
+            higher = on & (world.bed_z + dz > z)
+            z[higher] = world.bed_z + dz[higher]
+            normal[higher] = (0.0, 0.0, 1.0)
         pad = world.pad
         if pad is not None:
             cx, cy, top = pad.centre_mm

@@ -70,7 +70,9 @@ class Serial(SerialBase):
             while (end := self._rx.find(b"\r")) >= 0:
                 line = self._rx[:end].decode("ascii", "replace")
                 del self._rx[:end + 1]
-                self._out += self._sensor.handle(line).encode("ascii") + b"\r"
+                reply = self._sensor.handle(line)
+                if reply is not None:
+                    self._out += reply.encode("ascii") + b"\r"
             self._cond.notify_all()
         return len(data)
 

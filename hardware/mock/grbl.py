@@ -238,6 +238,11 @@ class GrblFirmware(GrblSystem, FirmwareCore):
             yield ("drain",)
             self.advance_clock(params["P"])
             yield from self.dwell(params["P"], now)
+        elif head in ("M7", "M8", "M9"):  # coolant (a UV lamp on the flood output): synced with motion
+            yield ("drain",)
+            if head == "M9":
+                self.world.set_output("M7", 0.0)
+            self.world.set_output("M8" if head != "M7" else "M7", 0.0 if head == "M9" else 1.0)
         elif _TOOL.match(head):
             if int(head[1:]) > MAX_TOOL_NUMBER:
                 self.reply("error:38", now)  # STATUS_GCODE_MAX_VALUE_EXCEEDED

@@ -226,6 +226,8 @@ class MarlinFirmware(FirmwareCore):
                       f"Y:{round(y * 80)} Z:{round(z * 400)}", now)
             if "D" in command.split()[1:]:  # M114 D: the detailed report, 3 decimals
                 self.emit(f"Logical: X:{x:.3f} Y:{y:.3f} Z:{z:.3f}", now)
+        elif head == "M42":  # set a pin (the UV lamp's output): immediate, as Marlin's M42
+            self.world.set_output(f"P{int(params.get('P', -1))}", params.get("S", 255.0))
         elif head == "M115":
             self.identify(now)
         elif head == "M154":  # AUTO_REPORT_POSITION: S<seconds> (a byte), 0 = off

@@ -48,6 +48,12 @@ class MotionTimeline:
             self._segments.clear()
             self._anchor = (float(t), (float(position[0]), float(position[1]), float(position[2])))
 
+    def segments_since(self, t: float) -> np.ndarray:
+        """Segments ending after machine time ``t`` as rows (t0, t1, x0, y0, z0, x1, y1, z1), (n, 8)."""
+        with self._lock:
+            rows = [(s[0], s[1], *s[2], *s[3]) for s in self._segments if s[1] > t]
+        return np.array(rows, dtype=float).reshape(-1, 8)
+
     def __len__(self) -> int:
         return len(self._segments)
 

@@ -42,7 +42,9 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
+from typing import Any
 from urllib.parse import parse_qsl, urlsplit
 
 from ..errors import InvalidConfig
@@ -247,6 +249,19 @@ class MockWorld:
         # the carriage's path on the machine clock, kept while a device shares the position
         # stream (hardware.mock.timeline; the mock height sensor sets it)
         self.timeline: MotionTimeline | None = None
+        # what lies on the bed besides the part and the artifacts (the mock printhead's jetted
+        # material: objects with ``top(xy (n, 2)) -> (height above bed_z (n,), on (n,))``), and
+        # the process outputs the program switched (``M42 P<pin> S<v>``: key "P<pin>"), each
+        # change told to the listeners as (key, value, machine-clock s)
+        self.surfaces: list[Any] = []
+        self.outputs: dict[str, float] = {}
+        self.output_listeners: list[Callable[[str, float, float], None]] = []
+
+    def set_output(self, key: str, value: float) -> None:
+        """The firmware switched output ``key`` to ``value`` (now on the machine clock)."""
+        self.outputs[key] = float(value)
+        for listener in list(self.output_listeners):
+            listener(key, float(value), self.stats.machine_time_s)
 
     @property
     def segments(self) -> int:

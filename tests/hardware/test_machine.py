@@ -154,6 +154,30 @@ def test_pause_resume_and_cancel_from_another_thread(make_world):
         machine.pause()
 
 
+def test_a_pause_after_the_last_line_went_out_holds_the_program_until_resumed(make_world):
+    url, world = make_world(dialect="marlin")
+    machine = _machine(url, "marlin")
+    machine.connect()
+    program = [f"G1 X{i}" for i in range(5)]
+    done = threading.Event()
+
+    def on_progress(executed: int, total: int) -> None:
+        if executed == total:  # every line sent and answered
+            machine.pause()
+
+    def run() -> None:
+        machine.stream(program, on_progress=on_progress)
+        done.set()
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    time.sleep(0.3)
+    assert not done.is_set() and machine.state == "paused"
+    machine.resume()
+    thread.join(5)
+    assert done.is_set() and machine.state == "idle"
+
+
 def test_stop_while_idle_or_disconnected_is_a_clear_error(make_world):
     url, world = make_world(dialect="grbl")
     machine = _machine(url, "grbl")

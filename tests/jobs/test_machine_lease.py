@@ -62,7 +62,8 @@ def test_lease_is_reentrant_for_the_same_job(machines):
 def test_machine_kinds_come_from_the_registry_and_match_the_old_list():
     load_kinds()
     assert set(machine_kinds()) == {"print", "probe_run", "register", "calibrate_probe", "calibrate_nozzle", "scan_run",
-                                     "calibrate_sensor"}
+                                     "calibrate_sensor",
+                                     "jetting_run"}
     assert machine_slot("print", {"machine_id": "m1"}) == "m1"
     assert machine_slot("toolpath", {"machine_id": "m1"}) is None
     # the reaper's list (kept literal so that a process that loaded no kinds still never requeues

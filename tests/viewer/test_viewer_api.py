@@ -143,6 +143,22 @@ def test_slice_layers_and_jetting_heights_get_sliders(vclient, part_and_trace):
     assert shown["sliders"]["heights"]["labels"] == ["layer 100", "layer 200"]
 
 
+def test_a_jetting_runs_measured_maps_get_a_slider(vclient, part_and_trace):
+    part, _ = part_and_trace
+    maps = {}
+    for layer in range(1, 26):
+        buf = io.BytesIO()
+        np.savez(buf, heights=np.full((20, 30), np.nan, np.float32), filled=np.full((20, 30), 0.001 * layer, np.float32),
+                 pattern=np.ones((20, 30), bool), mask=np.ones((20, 30), bool), pitch_mm=np.float64(0.0847))
+        maps[f"measured_{layer:04d}.npz"] = buf.getvalue()
+    job_id = stored_job(vclient, "jetting_run", part["id"], {"dpi": 300}, {"layers": []}, maps)
+    shown = focus(vclient, job_id=job_id)
+    labels = shown["sliders"]["measured"]["labels"]
+    assert len(labels) == 20 and labels[0] == "layer 1 (measured)" and labels[-1] == "layer 25 (measured)"
+    node = shown["nodes"]["/focus/heights/measured"]
+    assert node["height_range_mm"] == pytest.approx([0.001, 0.025])  # over the maps shown
+
+
 def test_five_axis_program_is_shown_in_part_coordinates_with_nozzle_axes(vclient, part_and_trace):
     part, _ = part_and_trace
     t = np.linspace(0, 1, 25)

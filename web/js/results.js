@@ -104,6 +104,7 @@ const CHARTS = {
   slice: { rows: "layers", x: "z", ys: ["thickness"], title: "Layer thickness by height", xUnit: "mm", yUnit: "mm" },
   toolpath: { rows: "layers", x: "index", ys: ["time_s"], title: "Estimated time per layer" },
   jetting: { rows: "layers", x: "layer", ys: ["sa_um", "sz_um", "edge_collapse_um"], title: "Surface roughness and edge collapse by layer" },
+  jetting_run: { rows: "layers", x: "layer", ys: ["sa_um", "edge_collapse_um"], title: "Measured surface roughness and edge collapse by layer" },
 };
 const COLORS = ["#cf222e", "#1a7f37", "#1f6feb", "#9a6700"];
 
