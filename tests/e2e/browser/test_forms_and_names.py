@@ -179,11 +179,13 @@ def test_the_machine_page_shows_and_edits_the_dispense_profile(page, served):
     assert page.input_value(f"{card} #param-on_delay_ms") == "120"
     page.select_option(f"{card} .dispense-preset", "dielectric_ink")
     assert page.input_value(f"{card} #param-standoff_mm") == "0.15"
-    page.fill(f"{card} #param-off_delay_ms", "95")                           # one's own, from a preset
+    page.fill(f"{card} #param-off_delay_ms", "95")            # the machine's own profile of the ink
     page.click(f"{card} .dispense-save")
-    page.wait_for_selector(f'{card} .dispense-summary:has-text("own profile")')
-    stored = api.get(f"/api/v1/machines/{machine['id']}").json()["profile"]["dispense"]
-    assert stored == {"material": None, "pressure_kpa": 150.0, "on_delay_ms": 80.0, "off_delay_ms": 95.0,
-                      "standoff_mm": 0.15, "feed_mm_min": 400.0}
+    page.wait_for_selector(f'{card} .dispense-summary:has-text("off 95 ms")')
+    assert page.inner_text(f"{card} .dispense-summary").startswith("Dielectric ink")
+    profile = api.get(f"/api/v1/machines/{machine['id']}").json()["profile"]
+    tuned = {"material": "dielectric_ink", "pressure_kpa": 150.0, "on_delay_ms": 80.0, "off_delay_ms": 95.0,
+             "standoff_mm": 0.15, "feed_mm_min": 400.0}
+    assert profile["dispense"] == tuned and profile["dispense_by_material"]["dielectric_ink"] == tuned
     screenshot(page, "machine-dispense")
     assert page.js_errors == []
