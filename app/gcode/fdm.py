@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
+from app.gcode.reader import Program
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
 
@@ -102,13 +103,27 @@ def write_fdm_layers(layers: Iterable[LayerToolpath], tpp: ToolpathParams, param
     (:func:`~app.slicing.toolpath.iter_toolpath`) is written without holding every layer.
     A move whose written X and Y equal the position before is not written (its E goes with
     the next one): no repeated or zero-length line."""
+    return _write(layers, tpp, params, record=False).text()
+
+
+def write_fdm_program(layers: Iterable[LayerToolpath], tpp: ToolpathParams,
+                      params: FdmParams = FdmParams()) -> tuple[str, Program]:
+    """:func:`write_fdm_layers` and the :class:`~app.gcode.reader.Program` that
+    :func:`~app.gcode.reader.read_program` reads from that text, followed as it is written
+    (:class:`~app.gcode.recorder.ProgramRecorder`): the time estimate and the bounds
+    without reading the text again."""
+    b = _write(layers, tpp, params, record=True)
+    return b.text(), b.program()
+
+
+def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmParams, record: bool) -> ProgramBuilder:
     if params.mode not in ("extrude", "dispense"):
         raise GcodeError(f"unknown mode {params.mode!r}", field="mode", value=params.mode)
     rules = DIALECTS.get(params.dialect)
     if params.mode == "extrude" and not (rules is not None and rules.extrusion):
         raise GcodeError("extrusion (E axis) output needs the marlin dialect", field="dialect",
                          value=params.dialect)
-    b = ProgramBuilder(params.dialect, "toolpath", params.job_id)  # GcodeError: unknown dialect
+    b = ProgramBuilder(params.dialect, "toolpath", params.job_id, record=record)  # GcodeError: unknown dialect
     rules = b.dialect
     on, off = rules.dispense
     on, off = params.dispense_on or on, params.dispense_off or off
@@ -169,4 +184,4 @@ def write_fdm_layers(layers: Iterable[LayerToolpath], tpp: ToolpathParams, param
             if params.z_lift_mm:
                 b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
     _end(b, params, z, off, rules)
-    return b.text()
+    return b

@@ -1,0 +1,88 @@
+"""What :func:`app.gcode.reader.read_program` reads from a program, kept while it is written.
+
+A writer that knows every move it writes (:class:`app.gcode.writer.ProgramBuilder`) hands
+each line to a :class:`ProgramRecorder` as it appends it: its own linear moves (``G0``/``G1``
+with the numbers exactly as written) are followed by a short path that applies the
+reader's rules for such a line, every other line (header, comments, ``G28``, ``G92``, M
+codes, probing, anything raw) is interpreted by the reader itself
+(:class:`app.gcode.reader.ModalReader`).  :meth:`ProgramRecorder.program` then equals
+``read_program(text)`` of the written text with the default :class:`ReadOptions`, field by
+field (tests/gcode/test_recorder.py holds it to that), without reading the text again.
+
+The short path applies while the modal state is absolute (``G90``, ``M82``): relative
+moves, which need the reader's running sums, go through the reader.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.gcode.lines import iter_lines
+from app.gcode.reader import FEED, RAPID, MAX_ARC_CHORDS, ModalReader, Program, ReadOptions
+from app.geometry.tolerance import DEGENERATE_LENGTH_MM
+
+_INDEX = {"X": 0, "Y": 1, "Z": 2, "E": 3}
+
+
+class ProgramRecorder:
+    """Fed every line of a program in order: :meth:`line` (any line) or :meth:`linear` (a
+    ``G0``/``G1`` line the caller formatted itself, with its words' values); :meth:`program`
+    gives the :class:`Program` of the lines so far."""
+
+    def __init__(self) -> None:
+        # the writers write no arcs; a raw arc line is split at the reader's largest budget
+        self.reader = ModalReader(ReadOptions(), size_bytes=0)
+        self.reader.max_arc_chords = MAX_ARC_CHORDS
+        self.number = 0
+        self._pos = [0.0, 0.0, 0.0, 0.0]   # the reader's position as floats (mirrors state.pos)
+        self._synced = True                # state.pos holds _pos
+
+    def _sync(self) -> None:
+        if not self._synced:
+            self.reader.state.pos = np.array(self._pos)
+            self._synced = True
+
+    def line(self, text: str) -> None:
+        """Interpret one written line (no line break) as the reader does."""
+        self.number += 1
+        self._sync()
+        for parsed in iter_lines(text, strict=False):
+            self.reader.line(parsed._replace(number=self.number))
+        self._pos = self.reader.state.pos.tolist()
+
+    def linear(self, text: str, motion: int, words: list[tuple[str, float]], feed_mm_min: float | None) -> None:
+        """One written ``G0`` (``motion`` RAPID) or ``G1`` (FEED) line ``text`` whose axis
+        words are ``words`` ((letter in XYZE, value as written), ...) and whose ``F`` word,
+        if any, is ``feed_mm_min`` (as written)."""
+        s = self.reader.state
+        if s.relative or s.relative_e or motion not in (RAPID, FEED):
+            self.line(text)
+            return
+        self.number += 1
+        if feed_mm_min is not None:
+            s.feed = feed_mm_min * s.scale / 60.0
+        s.motion = motion
+        start = self._pos
+        end = list(start)
+        shift = s.shift
+        for letter, value in words:
+            i = _INDEX[letter]
+            end[i] = value * (1.0 if i == 3 else s.scale) + float(shift[i])
+        self._pos = end
+        self._synced = False
+        if end == start:
+            return  # the reader leaves out a line that moves nothing
+        extrudes = end[3] > start[3] + DEGENERATE_LENGTH_MM
+        dispense = motion == FEED and (s.dispensing or extrudes)
+        r = self.reader
+        r.floats.extend(start)
+        r.floats.extend(end)
+        r.floats.extend(s.rot.tolist())
+        r.floats.append(s.feed)
+        r.ints.extend((motion, dispense, s.layer, self.number, s.stop_pending))
+        s.stop_pending = False
+
+    def program(self) -> Program:
+        """The moves, dwells and limits of every line fed so far."""
+        self._sync()
+        return self.reader.program()
