@@ -93,6 +93,46 @@ def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str, rules: Dialect) ->
     b.end()
 
 
+def _piece_moves(b: ProgramBuilder, points: list[list[float]], feed_mm_min: float, e_per_mm: float | None,
+                 e: float) -> tuple[float, bool]:
+    """Write the moves along ``points`` ((x, y) mm, n of them) from the first: a move no
+    longer than ``LENGTH_EPS_MM`` is skipped, and so is one whose written X and Y equal the
+    last written (its filament goes with the next move).  ``e_per_mm``: filament per mm
+    (None: no E words) added to the absolute ``e`` (mm) move by move.  The feed goes on the
+    first line.  Returns the E after the piece and whether a line was written."""
+    decimals = b.decimals
+    ax, ay = points[0]
+    written = (round(ax, decimals), round(ay, decimals))
+    lines: list[str] = []
+    axes: list[list[tuple[str, float]]] = []
+    coord = b.coord_text
+    for cx, cy in points[1:]:
+        seg = math.hypot(cx - ax, cy - ay)
+        ax, ay = cx, cy
+        if seg <= LENGTH_EPS_MM:
+            continue
+        if e_per_mm is not None:
+            e += seg * e_per_mm
+        target = (round(cx, decimals), round(cy, decimals))
+        if target == written:
+            continue  # the same line again: its filament goes with the next move
+        written = target
+        x, y = coord(cx, "x"), coord(cy, "y")
+        if e_per_mm is None:
+            lines.append(f"G1 X{x} Y{y}")
+            axes.append([("X", float(x)), ("Y", float(y))])
+        else:
+            w = coord(e, "e")
+            lines.append(f"G1 X{x} Y{y} E{w}")
+            axes.append([("X", float(x)), ("Y", float(y)), ("E", float(w))])
+    if not lines:
+        return e, False
+    feed = b.feed_word(feed_mm_min)
+    lines[0] += " " + feed
+    b.extend_moves(lines, axes, [float(feed[1:])] + [None] * (len(lines) - 1))
+    return e, True
+
+
 def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
     """G-code text of ``toolpath`` (a :class:`~app.slicing.toolpath.Toolpath`)."""
     return write_fdm_layers(toolpath.layers, toolpath.params, params)
@@ -129,7 +169,6 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
     on, off = params.dispense_on or on, params.dispense_off or off
     fil_area = math.pi * (tpp.filament_mm / 2) ** 2
     _start(b, tpp, params, rules)
-    decimals = b.decimals
     b.comment("process")
     e, retracted, extruded = 0.0, False, False
     pos: npt.NDArray[np.float64] | None = None
@@ -160,24 +199,8 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
                 b.raw(on)
             feed = piece.feed_mm_s * 60.0
             e_per_mm = bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area
-            first = True
-            written = (round(float(start[0]), decimals), round(float(start[1]), decimals))
-            for a, c in zip(piece.points[:-1], piece.points[1:]):
-                seg = math.hypot(*(c - a))
-                if seg <= LENGTH_EPS_MM:
-                    continue
-                if params.mode == "extrude":
-                    e += seg * e_per_mm
-                target = (round(float(c[0]), decimals), round(float(c[1]), decimals))
-                if target == written:
-                    continue  # the same line again: its filament goes with the next move
-                written = target
-                if params.mode == "extrude":
-                    extruded = True
-                    b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None, e=e)
-                else:
-                    b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None)
-                first = False
+            e, wrote = _piece_moves(b, piece.points.tolist(), feed, e_per_mm if params.mode == "extrude" else None, e)
+            extruded |= wrote and params.mode == "extrude"
             if params.mode == "dispense":
                 b.raw(off)
             pos = piece.points[-1]

@@ -242,6 +242,32 @@ class ProgramBuilder:
         self._append(line.rstrip())
         return self
 
+    def coord_text(self, value: float, field: str) -> str:
+        """:func:`format_number` of a coordinate (mm) at this builder's decimals."""
+        text = f"{value:.{self.decimals}f}"
+        if text[0] == "-" and float(text) == 0.0:
+            text = text[1:]
+        elif text[-1] in "fn":   # inf, nan
+            format_number(value, self.decimals, field=field)
+        return text
+
+    def feed_word(self, feed_mm_min: float) -> str:
+        """The ``F`` word of a feed (mm/min) as :meth:`move` writes it."""
+        return self._feed(feed_mm_min)
+
+    def extend_moves(self, lines: list[str], axes: list[list[tuple[str, float]]],
+                     feeds: list[float | None]) -> None:
+        """Append ``G1`` ``lines`` the caller formatted as :meth:`move` does (:meth:`coord_text`,
+        :meth:`feed_word`): each line's axis words as (letter X Y Z or E, value as written)
+        and its F value (None without one)."""
+        self._lines.extend(lines)
+        if self._pos is not None:
+            for words in axes:
+                self._moved([f"{letter}{value!r}" for letter, value in words if letter in "XYZ"])
+        if self._recorder is not None:
+            for line, words, feed in zip(lines, axes, feeds):
+                self._recorder.linear(line, 1, words, feed)
+
     def _append(self, line: str) -> None:
         self._lines.append(line)
         if self._recorder is not None:
