@@ -54,33 +54,42 @@ class ProgramRecorder:
         """One written ``G0`` (``motion`` RAPID) or ``G1`` (FEED) line ``text`` whose axis
         words are ``words`` ((letter in XYZE, value as written), ...) and whose ``F`` word,
         if any, is ``feed_mm_min`` (as written)."""
+        self.linear_block([text], motion, [words], [feed_mm_min])
+
+    def linear_block(self, texts: list[str], motion: int, words: list[list[tuple[str, float]]],
+                     feeds: list[float | None]) -> None:
+        """:meth:`linear` of consecutive lines of one motion, all at once."""
         s = self.reader.state
         if s.relative or s.relative_e or motion not in (RAPID, FEED):
-            self.line(text)
+            for text in texts:
+                self.line(text)
             return
-        self.number += 1
-        if feed_mm_min is not None:
-            s.feed = feed_mm_min * s.scale / 60.0
-        s.motion = motion
-        start = self._pos
-        end = list(start)
-        shift = s.shift
-        for letter, value in words:
-            i = _INDEX[letter]
-            end[i] = value * (1.0 if i == 3 else s.scale) + float(shift[i])
-        self._pos = end
-        self._synced = False
-        if end == start:
-            return  # the reader leaves out a line that moves nothing
-        extrudes = end[3] > start[3] + DEGENERATE_LENGTH_MM
-        dispense = motion == FEED and (s.dispensing or extrudes)
-        r = self.reader
-        r.floats.extend(start)
-        r.floats.extend(end)
-        r.floats.extend(s.rot.tolist())
-        r.floats.append(s.feed)
-        r.ints.extend((motion, dispense, s.layer, self.number, s.stop_pending))
-        s.stop_pending = False
+        scale, shift, rot, layer = s.scale, s.shift.tolist(), s.rot.tolist(), s.layer
+        dispensing = motion == FEED and s.dispensing
+        feed, stop, number, pos = s.feed, s.stop_pending, self.number, self._pos
+        floats: list[float] = []
+        ints: list[int] = []
+        for line_words, feed_mm_min in zip(words, feeds):
+            number += 1
+            if feed_mm_min is not None:
+                feed = feed_mm_min * scale / 60.0
+            end = list(pos)
+            for letter, value in line_words:
+                i = _INDEX[letter]
+                end[i] = value * (1.0 if i == 3 else scale) + shift[i]
+            if end != pos:   # the reader leaves out a line that moves nothing
+                extrudes = motion == FEED and end[3] > pos[3] + DEGENERATE_LENGTH_MM
+                floats += pos
+                floats += end
+                floats += rot
+                floats.append(feed)
+                ints += (motion, dispensing or extrudes, layer, number, stop)
+                stop = False
+            pos = end
+        self.reader.floats.extend(floats)
+        self.reader.ints.extend(ints)
+        self.number, self._pos, self._synced = number, pos, False
+        s.feed, s.motion, s.stop_pending = feed, motion, stop
 
     def program(self) -> Program:
         """The moves, dwells and limits of every line fed so far."""

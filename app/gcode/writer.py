@@ -265,8 +265,7 @@ class ProgramBuilder:
             for words in axes:
                 self._moved([f"{letter}{value!r}" for letter, value in words if letter in "XYZ"])
         if self._recorder is not None:
-            for line, words, feed in zip(lines, axes, feeds):
-                self._recorder.linear(line, 1, words, feed)
+            self._recorder.linear_block(lines, 1, axes, feeds)
 
     def _append(self, line: str) -> None:
         self._lines.append(line)
