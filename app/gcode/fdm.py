@@ -99,13 +99,19 @@ def _piece_moves(b: ProgramBuilder, points: list[list[float]], feed_mm_min: floa
     longer than ``LENGTH_EPS_MM`` is skipped, and so is one whose written X and Y equal the
     last written (its filament goes with the next move).  ``e_per_mm``: filament per mm
     (None: no E words) added to the absolute ``e`` (mm) move by move.  The feed goes on the
-    first line.  Returns the E after the piece and whether a line was written."""
+    first line.  Returns the E after the piece and whether a line was written.
+
+    Each number is written as :func:`~app.gcode.writer.format_number` writes it, and its
+    value as read back is ``round(v, decimals) + 0.0`` (CPython rounds correctly, as the
+    text is; ``+ 0.0`` turns -0.0 into the 0.0 that "0.0000" reads as)."""
     decimals = b.decimals
+    spec = f".{decimals}f"
     ax, ay = points[0]
     written = (round(ax, decimals), round(ay, decimals))
     lines: list[str] = []
-    axes: list[list[tuple[str, float]]] = []
-    coord = b.coord_text
+    xs: list[float] = []
+    ys: list[float] = []
+    es: list[float] = []
     for cx, cy in points[1:]:
         seg = math.hypot(cx - ax, cy - ay)
         ax, ay = cx, cy
@@ -117,19 +123,22 @@ def _piece_moves(b: ProgramBuilder, points: list[list[float]], feed_mm_min: floa
         if target == written:
             continue  # the same line again: its filament goes with the next move
         written = target
-        x, y = coord(cx, "x"), coord(cy, "y")
+        x, y = format(cx, spec), format(cy, spec)
+        if x[0] == "-" or y[0] == "-" or x[-1] in "fn" or y[-1] in "fn":   # -0.0000, inf, nan
+            x, y = b.coord_text(cx, "x"), b.coord_text(cy, "y")
+        xs.append(target[0] + 0.0)
+        ys.append(target[1] + 0.0)
         if e_per_mm is None:
             lines.append(f"G1 X{x} Y{y}")
-            axes.append([("X", float(x)), ("Y", float(y))])
         else:
-            w = coord(e, "e")
+            w = b.coord_text(e, "e")
             lines.append(f"G1 X{x} Y{y} E{w}")
-            axes.append([("X", float(x)), ("Y", float(y)), ("E", float(w))])
+            es.append(round(e, decimals) + 0.0)
     if not lines:
         return e, False
     feed = b.feed_word(feed_mm_min)
     lines[0] += " " + feed
-    b.extend_moves(lines, axes, [float(feed[1:])] + [None] * (len(lines) - 1))
+    b.extend_xy_moves(lines, xs, ys, es if e_per_mm is not None else None, float(feed[1:]))
     return e, True
 
 

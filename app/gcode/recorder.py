@@ -91,6 +91,38 @@ class ProgramRecorder:
         self.number, self._pos, self._synced = number, pos, False
         s.feed, s.motion, s.stop_pending = feed, motion, stop
 
+    def xy_block(self, texts: list[str], xs: list[float], ys: list[float], es: list[float] | None,
+                 feed_mm_min: float) -> None:
+        """:meth:`linear_block` of the ``G1 X.. Y.. [E..]`` lines ``texts`` with the feed on
+        the first: the values as written (``es`` None: no E words)."""
+        s = self.reader.state
+        if s.relative or s.relative_e:
+            for text in texts:
+                self.line(text)
+            return
+        scale, (sx, sy, _, se), rot, layer, dispensing = s.scale, s.shift.tolist(), s.rot.tolist(), s.layer, s.dispensing
+        feed, stop, number, pos = feed_mm_min * scale / 60.0, s.stop_pending, self.number, self._pos
+        z, e_end = pos[2], pos[3]
+        floats: list[float] = []
+        ints: list[int] = []
+        for k, (x, y) in enumerate(zip(xs, ys)):
+            number += 1
+            if es is not None:
+                e_end = es[k] * 1.0 + se
+            end = [x * scale + sx, y * scale + sy, z, e_end]
+            if end != pos:   # the reader leaves out a line that moves nothing
+                floats += pos
+                floats += end
+                floats += rot
+                floats.append(feed)
+                ints += (FEED, dispensing or end[3] > pos[3] + DEGENERATE_LENGTH_MM, layer, number, stop)
+                stop = False
+            pos = end
+        self.reader.floats.extend(floats)
+        self.reader.ints.extend(ints)
+        self.number, self._pos, self._synced = number, pos, False
+        s.feed, s.motion, s.stop_pending = feed, FEED, stop
+
     def program(self) -> Program:
         """The moves, dwells and limits of every line fed so far."""
         self._sync()

@@ -255,17 +255,17 @@ class ProgramBuilder:
         """The ``F`` word of a feed (mm/min) as :meth:`move` writes it."""
         return self._feed(feed_mm_min)
 
-    def extend_moves(self, lines: list[str], axes: list[list[tuple[str, float]]],
-                     feeds: list[float | None]) -> None:
-        """Append ``G1`` ``lines`` the caller formatted as :meth:`move` does (:meth:`coord_text`,
-        :meth:`feed_word`): each line's axis words as (letter X Y Z or E, value as written)
-        and its F value (None without one)."""
+    def extend_xy_moves(self, lines: list[str], xs: list[float], ys: list[float], es: list[float] | None,
+                        feed_mm_min: float) -> None:
+        """Append ``G1 X.. Y.. [E..]`` ``lines`` the caller formatted as :meth:`move` does
+        (:meth:`coord_text`, :meth:`feed_word`; the feed on the first line only), with the
+        values as written: ``xs``, ``ys``, ``es`` (None: no E words), ``feed_mm_min``."""
         self._lines.extend(lines)
         if self._pos is not None:
-            for words in axes:
-                self._moved([f"{letter}{value!r}" for letter, value in words if letter in "XYZ"])
+            for x, y in zip(xs, ys):
+                self._moved([f"X{x!r}", f"Y{y!r}"])
         if self._recorder is not None:
-            self._recorder.linear_block(lines, 1, axes, feeds)
+            self._recorder.xy_block(lines, xs, ys, es, feed_mm_min)
 
     def _append(self, line: str) -> None:
         self._lines.append(line)
