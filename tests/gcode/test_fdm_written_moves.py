@@ -12,7 +12,6 @@ import math
 
 import numpy as np
 import pytest
-import trimesh
 
 from app.gcode.fdm import FdmParams, _end, _start, bead_area_mm2, write_fdm_layers
 from app.gcode.writer import GcodeError, ProgramBuilder

@@ -251,8 +251,8 @@ def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
 # tests/bench/test_bench_job_memory.py): the fractal fills build a grid of cells at the pitch
 # line_width / infill over each layer's footprint; hilbert_merged peaked at ~440 bytes and
 # 40-80 us per cell.  The other fills are planned and written a layer at a time, so what
-# grows is the program, ~PROGRAM_LINE_BYTES per written line (its text, then the compact rows
-# read back for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
+# grows is the program, ~PROGRAM_LINE_BYTES per written line (its text and the compact rows
+# the writer records for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
 # read from layers.json (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
 # slice: ~INFILL_LINES per sqrt(layer area) / pitch (scan lines at the angle, with their
 # links) and ~CONTOUR_LINES per mm of contour per perimeter (simplified to the resolution,
