@@ -30,6 +30,12 @@ PARTS = {"cube 20 mm": lambda: trimesh.creation.box((20.0, 20.0, 20.0)),
          "cad part 13k faces": lambda: cad_part(refine=1), "tube, 0.305 mm wall": thin_tube}
 
 
+def _lap(clock: list[float]) -> float:
+    """CPU seconds since the last entry of ``clock`` (appended)."""
+    clock.append(time.process_time())
+    return clock[-1] - clock[-2]
+
+
 def test_bench_toolpath_job_stages():
     rows = []
     for name, make in PARTS.items():
@@ -38,23 +44,18 @@ def test_bench_toolpath_job_stages():
                                - [0.0, 0.0, mesh.bounds[0][2]])
         text = to_json(slice_mesh(mesh, SliceParams(layer_mm=0.2)))
         clock = [time.process_time()]
-
-        def lap() -> float:
-            clock.append(time.process_time())
-            return clock[-1] - clock[-2]
-
         sliced = from_json(text)
-        t_json = lap()
+        t_json = _lap(clock)
         layers = list(iter_toolpath(sliced, ToolpathParams()))
-        t_plan = lap()
+        t_plan = _lap(clock)
         gcode, program = write_fdm_program(layers, ToolpathParams(), FdmParams())
-        t_write = lap()
+        t_write = _lap(clock)
         estimate = estimate_program(program)
-        t_estimate = lap()
+        t_estimate = _lap(clock)
         meta = gcode_meta(gcode, program)
-        t_meta = lap()
+        t_meta = _lap(clock)
         read = read_program(gcode)
-        t_read = lap()
+        t_read = _lap(clock)
         assert np.array_equal(read.end, program.end) and np.array_equal(read.feed_mm_s, program.feed_mm_s)
         assert estimate_program(read).total_s == estimate.total_s
         job = t_json + t_plan + t_write + t_estimate + t_meta
