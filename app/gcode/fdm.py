@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
+from app.gcode.reader import Program
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
 
@@ -93,6 +94,55 @@ def _end(b: ProgramBuilder, p: FdmParams, z: float, off: str, rules: Dialect) ->
     b.end()
 
 
+def _piece_moves(b: ProgramBuilder, points: list[list[float]], feed_mm_min: float, e_per_mm: float | None,
+                 e: float) -> tuple[float, bool]:
+    """Write the moves along ``points`` ((x, y) mm, n of them) from the first: a move no
+    longer than ``LENGTH_EPS_MM`` is skipped, and so is one whose written X and Y equal the
+    last written (its filament goes with the next move).  ``e_per_mm``: filament per mm
+    (None: no E words) added to the absolute ``e`` (mm) move by move.  The feed goes on the
+    first line.  Returns the E after the piece and whether a line was written.
+
+    Each number is written as :func:`~app.gcode.writer.format_number` writes it, and its
+    value as read back is ``round(v, decimals) + 0.0`` (CPython rounds correctly, as the
+    text is; ``+ 0.0`` turns -0.0 into the 0.0 that "0.0000" reads as)."""
+    decimals = b.decimals
+    spec = f".{decimals}f"
+    ax, ay = points[0]
+    written = (round(ax, decimals), round(ay, decimals))
+    lines: list[str] = []
+    xs: list[float] = []
+    ys: list[float] = []
+    es: list[float] = []
+    for cx, cy in points[1:]:
+        seg = math.hypot(cx - ax, cy - ay)
+        ax, ay = cx, cy
+        if seg <= LENGTH_EPS_MM:
+            continue
+        if e_per_mm is not None:
+            e += seg * e_per_mm
+        target = (round(cx, decimals), round(cy, decimals))
+        if target == written:
+            continue  # the same line again: its filament goes with the next move
+        written = target
+        x, y = format(cx, spec), format(cy, spec)
+        if x[0] == "-" or y[0] == "-" or x[-1] in "fn" or y[-1] in "fn":   # -0.0000, inf, nan
+            x, y = b.coord_text(cx, "x"), b.coord_text(cy, "y")
+        xs.append(target[0] + 0.0)
+        ys.append(target[1] + 0.0)
+        if e_per_mm is None:
+            lines.append(f"G1 X{x} Y{y}")
+        else:
+            w = b.coord_text(e, "e")
+            lines.append(f"G1 X{x} Y{y} E{w}")
+            es.append(round(e, decimals) + 0.0)
+    if not lines:
+        return e, False
+    feed = b.feed_word(feed_mm_min)
+    lines[0] += " " + feed
+    b.extend_xy_moves(lines, xs, ys, es if e_per_mm is not None else None, float(feed[1:]))
+    return e, True
+
+
 def write_fdm_gcode(toolpath: Toolpath, params: FdmParams = FdmParams()) -> str:
     """G-code text of ``toolpath`` (a :class:`~app.slicing.toolpath.Toolpath`)."""
     return write_fdm_layers(toolpath.layers, toolpath.params, params)
@@ -103,19 +153,32 @@ def write_fdm_layers(layers: Iterable[LayerToolpath], tpp: ToolpathParams, param
     (:func:`~app.slicing.toolpath.iter_toolpath`) is written without holding every layer.
     A move whose written X and Y equal the position before is not written (its E goes with
     the next one): no repeated or zero-length line."""
+    return _write(layers, tpp, params, record=False).text()
+
+
+def write_fdm_program(layers: Iterable[LayerToolpath], tpp: ToolpathParams,
+                      params: FdmParams = FdmParams()) -> tuple[str, Program]:
+    """:func:`write_fdm_layers` and the :class:`~app.gcode.reader.Program` that
+    :func:`~app.gcode.reader.read_program` reads from that text, followed as it is written
+    (:class:`~app.gcode.recorder.ProgramRecorder`): the time estimate and the bounds
+    without reading the text again."""
+    b = _write(layers, tpp, params, record=True)
+    return b.text(), b.program()
+
+
+def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmParams, record: bool) -> ProgramBuilder:
     if params.mode not in ("extrude", "dispense"):
         raise GcodeError(f"unknown mode {params.mode!r}", field="mode", value=params.mode)
     rules = DIALECTS.get(params.dialect)
     if params.mode == "extrude" and not (rules is not None and rules.extrusion):
         raise GcodeError("extrusion (E axis) output needs the marlin dialect", field="dialect",
                          value=params.dialect)
-    b = ProgramBuilder(params.dialect, "toolpath", params.job_id)  # GcodeError: unknown dialect
+    b = ProgramBuilder(params.dialect, "toolpath", params.job_id, record=record)  # GcodeError: unknown dialect
     rules = b.dialect
     on, off = rules.dispense
     on, off = params.dispense_on or on, params.dispense_off or off
     fil_area = math.pi * (tpp.filament_mm / 2) ** 2
     _start(b, tpp, params, rules)
-    decimals = b.decimals
     b.comment("process")
     e, retracted, extruded = 0.0, False, False
     pos: npt.NDArray[np.float64] | None = None
@@ -147,28 +210,12 @@ def write_fdm_layers(layers: Iterable[LayerToolpath], tpp: ToolpathParams, param
                 b.raw(on)
             feed = piece.feed_mm_s * 60.0
             e_per_mm = bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area
-            first = True
-            written = (round(float(start[0]), decimals), round(float(start[1]), decimals))
-            for a, c in zip(piece.points[:-1], piece.points[1:]):
-                seg = math.hypot(*(c - a))
-                if seg <= LENGTH_EPS_MM:
-                    continue
-                if params.mode == "extrude":
-                    e += seg * e_per_mm
-                target = (round(float(c[0]), decimals), round(float(c[1]), decimals))
-                if target == written:
-                    continue  # the same line again: its filament goes with the next move
-                written = target
-                if params.mode == "extrude":
-                    extruded = True
-                    b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None, e=e)
-                else:
-                    b.move(x=c[0], y=c[1], feed_mm_min=feed if first else None)
-                first = False
+            e, wrote = _piece_moves(b, piece.points.tolist(), feed, e_per_mm if params.mode == "extrude" else None, e)
+            extruded |= wrote and params.mode == "extrude"
             if params.mode == "dispense":
                 b.raw(off)
             pos = piece.points[-1]
             if params.z_lift_mm:
                 b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
     _end(b, params, z, off, rules)
-    return b.text()
+    return b

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 from app.errors import InvalidInput
+from app.gcode.reader import Program
+from app.gcode.recorder import ProgramRecorder
 
 DialectName = Literal["marlin", "grbl", "linuxcnc"]
 DEFAULT_DIALECT: DialectName = "marlin"  # programs for a printer (FDM, compensated traces, circuits, machines)
@@ -112,10 +114,12 @@ class ProgramBuilder:
         Job id for the header (``-`` when None).
     decimals : int
         Decimals for coordinates (mm); feeds use ``feed_decimals``.
+    record : bool
+        Follow every line as the reader reads it, for :meth:`program`.
     """
 
     def __init__(self, dialect: str, kind: str, job_id: str | None = None,
-                 decimals: int = 4, feed_decimals: int = 1) -> None:
+                 decimals: int = 4, feed_decimals: int = 1, record: bool = False) -> None:
         if dialect not in DIALECTS:
             raise GcodeError(f"unknown G-code dialect {dialect!r}; expected one of "
                              f"{sorted(DIALECTS)}", field="dialect", value=dialect)
@@ -130,8 +134,11 @@ class ProgramBuilder:
         self.job_id = job_id
         self.decimals = int(decimals)
         self.feed_decimals = int(feed_decimals)
-        self._lines: list[str] = [f"; conforma job={job_id or '-'} kind={kind} units=mm",
-                                  "G21", "G90", *self.dialect.preamble]
+        # record: every line is also handed to a ProgramRecorder (:meth:`program`)
+        self._recorder = ProgramRecorder() if record else None
+        self._lines: list[str] = []
+        for line in (f"; conforma job={job_id or '-'} kind={kind} units=mm", "G21", "G90", *self.dialect.preamble):
+            self._append(line)
         # the XYZ bounds of the written moves, as the reader reads them (from 0, 0, 0);
         # None once a line is written whose motion the builder does not follow (a probe, a
         # raw line other than a tool change, an M code or a dwell)
@@ -164,7 +171,7 @@ class ProgramBuilder:
     def comment(self, text: str) -> "ProgramBuilder":
         """Append ``; text`` (one line; newlines and parentheses are replaced)."""
         clean = " ".join(str(text).replace("(", "[").replace(")", "]").split())
-        self._lines.append(f"; {clean}" if clean else ";")
+        self._append(f"; {clean}" if clean else ";")
         return self
 
     def rapid(self, x: float | None = None, y: float | None = None,
@@ -173,7 +180,7 @@ class ProgramBuilder:
         words = self._words(x, y, z, {})
         if not words:
             raise GcodeError("rapid move without any axis", field="axis", value=None)
-        self._lines.append("G0 " + " ".join(words))
+        self._append_move("G0 " + " ".join(words), 0, words, None)
         return self
 
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
@@ -182,9 +189,11 @@ class ProgramBuilder:
         words = self._words(x, y, z, extra_axes)
         if not words:
             raise GcodeError("linear move without any axis", field="axis", value=None)
+        feed = None
         if feed_mm_min is not None:
-            words.append(self._feed(feed_mm_min))
-        self._lines.append("G1 " + " ".join(words))
+            feed = self._feed(feed_mm_min)
+            words.append(feed)
+        self._append_move("G1 " + " ".join(words), 1, words, feed)
         return self
 
     def probe(self, style: str, *, x: float | None = None, y: float | None = None,
@@ -204,23 +213,23 @@ class ProgramBuilder:
             if z is None or feed_mm_min is None:
                 raise GcodeError("G38.2 needs a target z and a feed", field="z", value=z)
             words = self._words(x, y, z, {}) + [self._feed(feed_mm_min)]
-            self._lines.append("G38.2 " + " ".join(words))
+            self._append("G38.2 " + " ".join(words))
         else:
             if x is None or y is None:
                 raise GcodeError("G30 needs x and y", field="x", value=x)
-            self._lines.append("G30 " + " ".join(self._words(x, y, None, {})))
+            self._append("G30 " + " ".join(self._words(x, y, None, {})))
         self._pos = None  # where a probing move stops is the part's business
         return self
 
     def wait_for_moves(self) -> "ProgramBuilder":
         """Block until all queued moves finished (``M400`` Marlin, ``G4 P0`` grbl)."""
-        self._lines.append(self.dialect.wait_for_moves)
+        self._append(self.dialect.wait_for_moves)
         return self
 
     def end(self) -> "ProgramBuilder":
         """Program end marker where the dialect has one (grbl and LinuxCNC ``M2``)."""
         if self.dialect.program_end:
-            self._lines.append(self.dialect.program_end)
+            self._append(self.dialect.program_end)
         return self
 
     def raw(self, line: str) -> "ProgramBuilder":
@@ -230,8 +239,55 @@ class ProgramBuilder:
                              value=line[:40])
         if not _STILL.match(line):
             self._pos = None
-        self._lines.append(line.rstrip())
+        self._append(line.rstrip())
         return self
+
+    def coord_text(self, value: float, field: str) -> str:
+        """:func:`format_number` of a coordinate (mm) at this builder's decimals."""
+        text = f"{value:.{self.decimals}f}"
+        if text[0] == "-" and float(text) == 0.0:
+            text = text[1:]
+        elif text[-1] in "fn":   # inf, nan
+            format_number(value, self.decimals, field=field)
+        return text
+
+    def feed_word(self, feed_mm_min: float) -> str:
+        """The ``F`` word of a feed (mm/min) as :meth:`move` writes it."""
+        return self._feed(feed_mm_min)
+
+    def extend_xy_moves(self, lines: list[str], xs: list[float], ys: list[float], es: list[float] | None,
+                        feed_mm_min: float) -> None:
+        """Append ``G1 X.. Y.. [E..]`` ``lines`` the caller formatted as :meth:`move` does
+        (:meth:`coord_text`, :meth:`feed_word`; the feed on the first line only), with the
+        values as written: ``xs``, ``ys``, ``es`` (None: no E words), ``feed_mm_min``."""
+        self._lines.extend(lines)
+        if self._pos is not None:
+            for x, y in zip(xs, ys):
+                self._moved([f"X{x!r}", f"Y{y!r}"])
+        if self._recorder is not None:
+            self._recorder.xy_block(lines, xs, ys, es, feed_mm_min)
+
+    def _append(self, line: str) -> None:
+        self._lines.append(line)
+        if self._recorder is not None:
+            self._recorder.line(line)
+
+    def _append_move(self, line: str, motion: int, words: list[str], feed: str | None) -> None:
+        """A G0/G1 ``line`` of the formatted ``words`` (``feed``: its F word, if any)."""
+        self._lines.append(line)
+        if self._recorder is not None:
+            axes = [(w[0], float(w[1:])) for w in words if w[0] in "XYZE"]
+            if len(axes) + (feed is not None) != len(words):   # another axis (A, C...): the reader's rules
+                self._recorder.line(line)
+            else:
+                self._recorder.linear(line, motion, axes, None if feed is None else float(feed[1:]))
+
+    def program(self) -> Program:
+        """What :func:`app.gcode.reader.read_program` reads from :meth:`text` (default
+        options), followed as the lines were written; needs ``record=True``."""
+        if self._recorder is None:
+            raise GcodeError("the builder was made without record=True", field="record", value=False)
+        return self._recorder.program()
 
     def _moved(self, words: list[str]) -> None:
         """Follow a move to the (formatted) XYZ ``words``: the reader reads these numbers."""

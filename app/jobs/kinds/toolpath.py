@@ -3,7 +3,9 @@
 The layers come from the slice job's ``layers.json`` artifact (exactly the contours that
 job exported, beam compensation included); nothing is re-sliced.  ``time_s`` is the
 estimate of the written ``print.gcode`` by :func:`app.gcode.estimator.estimate_gcode` with
-the machine limits below (so anyone can re-run it on the downloaded file);
+the machine limits below (so anyone can re-run it on the downloaded file; the job takes
+the moves from the writer, :func:`app.gcode.fdm.write_fdm_program`, which records exactly
+what the reader reads from that text, rather than reading it back);
 ``planner_time_s`` is the fill planner's own estimate of the extruded and travel moves
 alone (no retracts, homing or start section).
 """
@@ -20,8 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
 from app.gcode.estimator import MachineLimits, estimate_program
-from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_layers
-from app.gcode.reader import read_program
+from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.context import JobContext
@@ -250,8 +251,8 @@ def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
 # tests/bench/test_bench_job_memory.py): the fractal fills build a grid of cells at the pitch
 # line_width / infill over each layer's footprint; hilbert_merged peaked at ~440 bytes and
 # 40-80 us per cell.  The other fills are planned and written a layer at a time, so what
-# grows is the program, ~PROGRAM_LINE_BYTES per written line (its text, then the compact rows
-# read back for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
+# grows is the program, ~PROGRAM_LINE_BYTES per written line (its text and the compact rows
+# the writer records for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
 # read from layers.json (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
 # slice: ~INFILL_LINES per sqrt(layer area) / pitch (scan lines at the angle, with their
 # links) and ~CONTOUR_LINES per mm of contour per perimeter (simplified to the resolution,
@@ -328,7 +329,8 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
             stats.append((layer.index, layer.z, layer.thickness, layer.stats, len(layer.pieces)))
             yield layer
 
-    gcode = write_fdm_layers(planned(), fill, params.fdm(ctx.job_id))
+    # the program's moves as read_program would read them from the text, kept as it is written
+    gcode, program = write_fdm_program(planned(), fill, params.fdm(ctx.job_id))
     totals = totals_of(row[3] for row in stats)
     if totals.path_mm <= 0:
         raise SlicingError(f"the part yields no extrusion at line width {params.line_width_mm:g} mm: every section "
@@ -336,7 +338,6 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
                            field="params.line_width_mm", value=params.line_width_mm)
     ctx.progress(0.7, "estimating the print time")
     limits = params.limits()
-    program = read_program(gcode)
     estimate = estimate_program(program, limits)
     meta = gcode_meta(gcode, program)
     del program
