@@ -53,6 +53,7 @@ def _reference(layers, tpp: ToolpathParams, params: FdmParams) -> str:
                 e += params.retract_mm
                 b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
                 retracted = False
+            b.comment(f"TYPE:{piece.kind}")
             if params.mode == "dispense":
                 b.raw(on)
             feed = piece.feed_mm_s * 60.0
