@@ -122,7 +122,7 @@ def with_sequential_verification(plan: FieldPlan, touched: Sites, nominals: Sequ
     idx = verification_indices(prior, every, samples.sites, plan.center, count)
     points = samples.take(idx)
     if surprise is not None:
-        gaps = gap_points(paths, *surprise)
+        gaps = gap_points(paths, surprise[0], surprise[1], surprise[2], surprise[3] if len(surprise) > 3 else None)
         points = TracePoints(Sites(np.concatenate([points.sites.xy, gaps.sites.xy]),
                                    np.concatenate([points.sites.grad, gaps.sites.grad])),
                              np.concatenate([points.trace, gaps.trace]), np.concatenate([points.s, gaps.s]),

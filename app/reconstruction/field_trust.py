@@ -17,7 +17,10 @@ noise) and within the bound promised for the traces, and that bound meets the ta
 within TARGET_SLACK: the plan meets the target at every trace point under the prior it was
 planned for (the probe's noise); the bound is over the whole trace and under the final fit's
 learned noise, which comes out 1.0-1.2 x that on parts the plan resolves.  The bound itself is
-reported as it is; a plan too sparse for the part is off by far more.  A verification point
+reported as it is; a plan too sparse for the part is off by far more.  The bound is taken with
+the learned amplitude and wavelength HYPER_SD of their own sd on the unfavourable side
+(:func:`cautious_prior`: they are estimates from a few dozen touches), and a run's traces share
+its confidence (:func:`trace_bound` ``traces``), so the run's bound holds over all of them.  A verification point
 where the compensated program would be off by more than the uncompensated one
 (|measured - predicted| >= |measured|, by more than the probe's noise: the correction does not
 help there) flags its trace as *worse than nominal*.  Anything else is ``needs_attention`` with the reasons.

@@ -318,16 +318,24 @@ def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_veri
     measured on the mock's true part, no trace is worse than the nominal program and every
     trace is within its bound (+ the program's chord error and the true mesh's facets)."""
     setup = fourteen_mm_part(client)
-    done = job(client, "closed_loop", {**setup, "joint_probing": True, "sigma_mm": 0.001, "evaluate": True},
-               timeout=600)
+    response = submit(client, "closed_loop", {**setup, "joint_probing": True, "sigma_mm": 0.001, "evaluate": True})
+    done = wait_for(client, response.json()["id"], timeout=600)
+    assert done["status"] in ("succeeded", "needs_attention"), done["error"]
     verdict = done["result"]["verdict"]
-    assert not verdict["needs_attention"], verdict["reasons"]
+    # the run's bound (its traces sharing the confidence, the learned amplitude and wavelength 2 sd
+    # on their unfavourable side) may come out over the target: then that is the only reason it asks
+    assert all(r.startswith("under the fitted model the traces are known to") for r in verdict["reasons"]), \
+        verdict["reasons"]
+    assert (done["status"] == "needs_attention") == verdict["needs_attention"]
     plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}?include=result&include=artifacts", headers=OP).json()
     sequential = plan["result"]["field"]["sequential"]
     assert sequential["final"] and sequential["round"] >= 1 and sequential["touched_before"] > 0
     points = verdict["verification"]   # 5 where the field is least certain, the gaps beside the worst predicted stations
-    assert 5 <= len(points) <= 9 and verdict["verified"].startswith(f"verified at {len(points)} points")
+    assert 5 <= len(points) <= 13 and verdict["verified"].startswith(f"verified at {len(points)} points")
+    print(f"\n{verdict['verified']}; learned lambda {verdict['learned']['wavelength_mm']['value']:.2f} mm")
     for entry, row in zip(done["result"]["traces"], done["result"]["table"]):
+        print(f"standoff max um: after {row['standoff_max_after_um']:.2f}, before {row['standoff_max_before_um']:.2f}, "
+              f"bound {entry['bound_mm'] * 1000:.2f}")
         assert row["standoff_max_after_um"] < row["standoff_max_before_um"], row
         assert row["standoff_max_after_um"] <= entry["bound_mm"] * 1000 + 2.0 + 1.5, (row, entry["bound_mm"])
 
