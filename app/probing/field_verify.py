@@ -30,7 +30,8 @@ from app.probing.deviation_prior import DeviationPrior, Sites, path_gradient
 from app.probing.field import FieldPlan, GreedyField
 from app.probing.field_region import TracePoints, field_region
 
-GAP_STATIONS = 2      # the stations whose gaps are verified (the worst predicted by the others)
+GAP_STATIONS = 2      # the stations whose gaps are verified (the worst predicted by the others, in sd)
+GAP_RESIDUAL_STATIONS = 2  # ... and the worst predicted in mm (where the leave-one-out sd is large: a trace's end)
 MIN_GAP_MM = 0.5      # a neighbour closer than this along the trace is the same spot (a re-touch)
 
 
@@ -56,19 +57,27 @@ def verification_indices(prior: DeviationPrior, stations: Sites, samples: Sites,
 
 
 def gap_points(paths: Sequence[TracePolyline], trace: np.ndarray, s_mm: np.ndarray, loo_z: np.ndarray,
-               stations: int = GAP_STATIONS) -> TracePoints:
-    """Points (<= 2 x ``stations``) in the gaps beside the most surprising stations.
+               loo_residual_mm: np.ndarray | None = None, stations: int = GAP_STATIONS,
+               by_residual: int = GAP_RESIDUAL_STATIONS) -> TracePoints:
+    """Points (<= 2 x (``stations`` + ``by_residual``)) in the gaps beside the most surprising stations.
 
     trace (n,) / s_mm (n,): each fitted station's trace index and arc length (-1 / NaN off
-    the traces); loo_z (n,): its standardised leave-one-out residual under the fitted prior.
-    For the ``stations`` on-trace stations of largest |z|, the midpoint (in arc length) of
-    the gap to the next station along the same trace on each side (none past a trace's end;
-    neighbours within MIN_GAP_MM are the same spot).  Sorted by (trace, s), duplicates
-    dropped."""
+    the traces); loo_z (n,): its standardised leave-one-out residual under the fitted prior;
+    loo_residual_mm (n,): the same residual in mm (optional).  For the ``stations`` on-trace
+    stations of largest |z| and the ``by_residual`` others of largest |residual| (a station
+    the others predict far off in mm though within their sd: where the leave-one-out sd is
+    large, at a trace's end, a step or an edge at the station itself bends the fit over the
+    gap beside it unseen by the z), the midpoint (in arc length) of the gap to the next
+    station along the same trace on each side (none past a trace's end; neighbours within
+    MIN_GAP_MM are the same spot).  Sorted by (trace, s), duplicates dropped."""
     trace = np.asarray(trace, dtype=int)
     s_mm = np.asarray(s_mm, dtype=float)
     on = np.flatnonzero(trace >= 0)
-    worst = on[np.argsort(-np.abs(np.asarray(loo_z, dtype=float)[on]), kind="stable")][:stations]
+    worst = list(on[np.argsort(-np.abs(np.asarray(loo_z, dtype=float)[on]), kind="stable")][:stations])
+    if loo_residual_mm is not None and by_residual > 0:
+        rest = np.array([i for i in on if i not in set(worst)], dtype=int)
+        order = np.argsort(-np.abs(np.asarray(loo_residual_mm, dtype=float)[rest]), kind="stable")
+        worst += list(rest[order][:by_residual])
     picked: set[tuple[int, float]] = set()
     for i in worst:
         along = s_mm[trace == trace[i]]
@@ -99,11 +108,12 @@ def with_verification(plan: FieldPlan, nominals: Sequence[object], prior: Deviat
 
 def with_sequential_verification(plan: FieldPlan, touched: Sites, nominals: Sequence[object],
                                  prior: DeviationPrior, count: int,
-                                 surprise: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> FieldPlan:
+                                 surprise: tuple[np.ndarray, ...] | None = None) -> FieldPlan:
     """``plan`` (a sequential round's added stations, possibly none) with ``count``
     verification points chosen given every station: the ``touched`` ones (earlier rounds)
-    and the plan's own.  ``surprise``: (trace (n,), s_mm (n,), loo_z (n,)) of the touched
-    stations: then the :func:`gap_points` beside the most surprising ones are verified too."""
+    and the plan's own.  ``surprise``: (trace (n,), s_mm (n,), loo_z (n,)[, loo_residual_mm (n,)])
+    of the touched stations: then the :func:`gap_points` beside the most surprising ones are
+    verified too."""
     if count <= 0:
         return plan
     paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
@@ -112,7 +122,7 @@ def with_sequential_verification(plan: FieldPlan, touched: Sites, nominals: Sequ
     idx = verification_indices(prior, every, samples.sites, plan.center, count)
     points = samples.take(idx)
     if surprise is not None:
-        gaps = gap_points(paths, *surprise)
+        gaps = gap_points(paths, surprise[0], surprise[1], surprise[2], surprise[3] if len(surprise) > 3 else None)
         points = TracePoints(Sites(np.concatenate([points.sites.xy, gaps.sites.xy]),
                                    np.concatenate([points.sites.grad, gaps.sites.grad])),
                              np.concatenate([points.trace, gaps.trace]), np.concatenate([points.s, gaps.s]),

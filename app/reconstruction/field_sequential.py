@@ -130,7 +130,8 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     prior_now = current.prior()
     surprise = None
     if len(dz) >= MIN_TOUCHES:
-        surprise = (trace, s, loo_check(prior_now, sites, dz, center).z)
+        loo = loo_check(prior_now, sites, dz, center)
+        surprise = (trace, s, loo.z, loo.residual_mm)
     empty = replace(plan, xy=plan.xy[:0], z=plan.z[:0], grad=plan.grad[:0], trace=plan.trace[:0],
                     s_mm=plan.s_mm[:0], order=plan.order[:0])
     points = with_sequential_verification(empty, sites, paths, prior_now, verify_count, surprise)
@@ -143,5 +144,5 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     check = checked_field(user, all_sites, nominal_z, measured, center,
                           np.concatenate([trace, points.trace]), np.concatenate([s, points.s_mm]), mask,
                           params.coverage, params.target_error_mm)
-    bounds = tuple(trace_bound(check.fit, p, params.coverage) for p in paths)
+    bounds = tuple(trace_bound(check.fit, p, params.coverage, check.learned, len(paths)) for p in paths)
     return SequentialResult(with_bound(check, bounds), sites, trace, s, tuple(rounds), stopped, current, bounds)

@@ -17,7 +17,10 @@ noise) and within the bound promised for the traces, and that bound meets the ta
 within TARGET_SLACK: the plan meets the target at every trace point under the prior it was
 planned for (the probe's noise); the bound is over the whole trace and under the final fit's
 learned noise, which comes out 1.0-1.2 x that on parts the plan resolves.  The bound itself is
-reported as it is; a plan too sparse for the part is off by far more.  A verification point
+reported as it is; a plan too sparse for the part is off by far more.  The bound is taken with
+the learned amplitude and wavelength HYPER_SD of their own sd on the unfavourable side
+(:func:`cautious_prior`: they are estimates from a few dozen touches), and a run's traces share
+its confidence (:func:`trace_bound` ``traces``), so the run's bound holds over all of them.  A verification point
 where the compensated program would be off by more than the uncompensated one
 (|measured - predicted| >= |measured|, by more than the probe's noise: the correction does not
 help there) flags its trace as *worse than nominal*.  Anything else is ``needs_attention`` with the reasons.
@@ -36,7 +39,7 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import norm
 
-from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
+from app.probing.deviation_prior import DeviationPosterior, DeviationPrior, Sites, fit_posterior, path_sites
 from app.reconstruction.field import FieldFit, fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
 
@@ -279,16 +282,48 @@ def checked_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray,
 BOUND_STEP_PER_WAVELENGTH = 16  # a trace's posterior sd judged every lambda / 16 (as the planner does)
 
 
-def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, coverage: float) -> float:
+HYPER_SD = 2.0  # the bound is taken with the learned amplitude and wavelength this many sd on their unfavourable side
+
+
+def cautious_prior(prior: DeviationPrior, learned: dict[str, Any] | None) -> DeviationPrior:
+    """The fitted ``prior`` with its amplitude HYPER_SD relative sd larger and its wavelength
+    HYPER_SD relative sd shorter (the Laplace sd of ``learned``, :meth:`LearnedPrior.as_dict`;
+    a parameter on a bound, or no learning, is taken as it is).  The learned values are
+    estimates from a few dozen touches (their sd is 5-30 %): a bound under the point estimate
+    alone is too short as often as the amplitude is underestimated.  Shorter and larger both
+    widen the posterior between stations; where the noise dominates they change little."""
+    if learned is None:
+        return prior
+
+    def log_sd(name: str) -> float:
+        rel = learned.get(name, {}).get("relative_sd")
+        return 0.0 if rel is None or not math.isfinite(rel) else math.log1p(float(rel))
+    return replace(prior, amplitude_mm=prior.amplitude_mm * math.exp(HYPER_SD * log_sd("amplitude_mm")),
+                   wavelength_mm=prior.wavelength_mm * math.exp(-HYPER_SD * log_sd("wavelength_mm")))
+
+
+def bound_posterior(fit: FieldFit, learned: dict[str, Any] | None) -> DeviationPosterior:
+    """The posterior of the fit's kept touches under :func:`cautious_prior` (its sd is what the
+    bound is built from; the field itself stays the fit's)."""
+    prior = cautious_prior(fit.posterior.prior, learned)
+    if prior == fit.posterior.prior:
+        return fit.posterior
+    return fit_posterior(prior, fit.stations.take(np.flatnonzero(fit.kept)), fit.dz[fit.kept], fit.posterior.center)
+
+
+def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, coverage: float,
+                       traces: int = 1) -> float:
     """The bound u (mm) on |model - truth| over a whole trace whose posterior sd, sampled every
     ``step_mm``, is ``sd_mm`` (m,): the union bound at the confidence ``coverage`` gives one
     point (1 - 2 Phi(-coverage)) over the error's independent values.  The field is
     band-limited at ``wavelength_mm`` and so is its posterior error: one independent value per
     half wavelength, each sample standing for step / (wavelength / 2) of one.  Solves
-    sum_i w 2 Phi(-u / sd_i) = 2 Phi(-coverage), w = min(1, 2 step / wavelength); never below
-    coverage x max sd (one point's bound)."""
+    sum_i w 2 Phi(-u / sd_i) = 2 Phi(-coverage) / traces, w = min(1, 2 step / wavelength);
+    never below coverage x max sd (one point's bound).  ``traces``: the traces of the run that
+    share the confidence (each gets 1 / traces of it: the largest of their bounds then holds
+    for the whole run at the confidence ``coverage`` gives one point)."""
     sd = np.maximum(np.asarray(sd_mm, dtype=float), 1e-12)
-    alpha = 2.0 * float(norm.sf(coverage))
+    alpha = 2.0 * float(norm.sf(coverage)) / max(int(traces), 1)
     weight = min(1.0, 2.0 * step_mm / wavelength_mm)
 
     def excess(u: float) -> float:
@@ -303,16 +338,21 @@ def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, 
     return float(brentq(excess, lo, hi, xtol=1e-9 * lo))
 
 
-def trace_bound(fit: FieldFit, path: Any, coverage: float) -> float:
+def trace_bound(fit: FieldFit, path: Any, coverage: float, learned: dict[str, Any] | None = None,
+                traces: int = 1) -> float:
     """The bound (mm) on the fitted field's error over the whole trace ``path`` (a
     TracePolyline) under the fitted model: :func:`simultaneous_bound` of its posterior sd
-    every wavelength / BOUND_STEP_PER_WAVELENGTH of arc length."""
-    wavelength = fit.posterior.prior.wavelength_mm
+    every wavelength / BOUND_STEP_PER_WAVELENGTH of arc length; with ``learned`` (the
+    learning's JSON form) under :func:`cautious_prior` (the hyperparameters' own uncertainty);
+    ``traces``: how many traces of the run share the confidence (the run's bound, the largest
+    trace bound, then holds over every trace together)."""
+    posterior = bound_posterior(fit, learned)
+    wavelength = posterior.prior.wavelength_mm
     step = wavelength / BOUND_STEP_PER_WAVELENGTH
     count = max(2, int(np.ceil(path.length_mm / step)) + 1)
     s = np.linspace(0.0, path.length_mm, count)
-    return simultaneous_bound(fit.posterior.sd(path_sites(path, s)), path.length_mm / (count - 1), wavelength,
-                              coverage)
+    return simultaneous_bound(posterior.sd(path_sites(path, s)), path.length_mm / (count - 1), wavelength,
+                              coverage, traces)
 
 
 def with_bound(check: FieldCheck, trace_bounds_mm: Sequence[float] | np.ndarray) -> FieldCheck:

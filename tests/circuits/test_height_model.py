@@ -56,6 +56,8 @@ def test_grid_probes_on_the_dome_get_a_model_within_2x_of_the_best_interpolant()
                   "Clough-Tocher resampled": _max_error(_field(height_field_from_points(pts, 1.0)), dome, pts)}
     candidates |= {f"RBF {k}": _max_error(_rbf(pts, k), dome, pts) for k in ("thin_plate_spline", "cubic", "quintic")}
     best = min(candidates.values())
+    print(f"\ndome, {model.kind}: max error {ours * 1000:.1f} um; "
+          + ", ".join(f"{k} {v * 1000:.1f} um" for k, v in candidates.items()))
     assert ours <= 2.0 * best, (ours, candidates)
     assert ours < candidates["Clough-Tocher resampled"]
     # the reported uncertainty is of the size of the true error (same order, not a chord bound)

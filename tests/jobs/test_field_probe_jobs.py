@@ -38,7 +38,25 @@ def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
     response = submit(client, kind, params)
     assert response.status_code == 202, response.text
     done = wait_for(client, response.json()["id"], timeout=timeout)
-    assert done["status"] == "succeeded", done["error"]
+    assert done["status"] == "succeeded", done["error"] or ((done.get("result") or {}).get("verdict") or {}).get("reasons")
+    return done
+
+
+TARGET_REASON = "under the fitted model the traces are known to"
+
+
+def loop_job(client, params: dict, timeout: float = 300) -> dict:
+    """A closed loop that ends succeeded, or needs_attention for one reason only: its bound
+    (over every trace together, the learned hyperparameters 2 sd on their unfavourable side)
+    over 1.25 x the target (the plan meets the target pointwise; the model fits and every
+    verification point is within its band)."""
+    response = submit(client, "closed_loop", params)
+    assert response.status_code == 202, response.text
+    done = wait_for(client, response.json()["id"], timeout=timeout)
+    assert done["status"] in ("succeeded", "needs_attention"), done["error"]
+    reasons = done["result"]["verdict"]["reasons"]
+    assert (done["status"] == "needs_attention") == bool(reasons)
+    assert all(r.startswith(TARGET_REASON) for r in reasons), reasons
     return done
 
 
@@ -60,9 +78,8 @@ def board(client, meshes, traces: tuple[int, ...] = TRACES, mock: dict | None = 
 
 def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(client, meshes):
     setup = board(client, meshes)
-    done = job(client, "closed_loop", {**setup, "joint_probing": True, "probe": PROCESS, "sigma_mm": 0.001,
-                                       "evaluate": True}, timeout=300)
-    assert done["message"] == f"{len(TRACES)}/{len(TRACES)} traces done"
+    done = loop_job(client, {**setup, "joint_probing": True, "probe": PROCESS, "sigma_mm": 0.001, "evaluate": True})
+    assert done["message"].startswith(f"{len(TRACES)}/{len(TRACES)} traces done")
     entries, table = done["result"]["traces"], done["result"]["table"]
     assert len(table) == len(TRACES)
     for row in table:
@@ -80,7 +97,7 @@ def test_closed_loop_with_the_field_planner_holds_the_standoff_on_every_trace(cl
     per_trace = [e["stations"] for e in plan["result"]["traces"]]
     assert [e["probes"] for e in entries] == per_trace
     assert sum(per_trace) + field["verify_count"] == len(field["stations"])
-    assert 5 <= field["verify_count"] <= 5 + 4   # least certain, and the gaps beside the 2 worst predicted stations
+    assert 5 <= field["verify_count"] <= 5 + 8   # least certain, and the gaps beside the 2 + 2 worst predicted stations
     for entry in entries:
         rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}?include=result&include=artifacts", headers=OP).json()
         assert rebuilt["params"]["method"] == "field" and rebuilt["result"]["method"] == "field"
@@ -153,9 +170,8 @@ def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(c
 
     setup = board(client, coarse)
     n = len(setup["trace_ids"])
-    loop = job(client, "closed_loop", {**setup, "joint_probing": True, "probe": PROCESS, "sigma_mm": 0.001,
-                                       "board_batch": 2}, timeout=300)
-    assert loop["message"] == f"{n}/{n} traces done"
+    loop = loop_job(client, {**setup, "joint_probing": True, "probe": PROCESS, "sigma_mm": 0.001, "board_batch": 2})
+    assert loop["message"].startswith(f"{n}/{n} traces done")
     entries = loop["result"]["traces"]
     assert [e["trace_id"] for e in entries] == setup["trace_ids"]
     # 3 traces in batches of 2: two reconstruct and two compensate jobs, not six
@@ -195,7 +211,7 @@ def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(c
         conn.execute(update(Job).where(Job.id == loop["id"]).values(status="queued", result=None, finished_at=None))
     runtime.enqueue(loop["id"], "workflow")
     again = wait_for(client, loop["id"], timeout=300)
-    assert again["status"] == "succeeded" and again["attempts"] == 2
+    assert again["status"] == loop["status"] and again["attempts"] == 2   # the same verdict as the first run
     assert client.get(f"/api/v1/jobs?parent_id={loop['id']}", headers=OP).json()["total"] == before + 1
     redone = again["result"]["traces"]
     assert [e["compensate"] for e in redone[:2]] == [e["compensate"] for e in entries[:2]]
@@ -318,16 +334,24 @@ def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_veri
     measured on the mock's true part, no trace is worse than the nominal program and every
     trace is within its bound (+ the program's chord error and the true mesh's facets)."""
     setup = fourteen_mm_part(client)
-    done = job(client, "closed_loop", {**setup, "joint_probing": True, "sigma_mm": 0.001, "evaluate": True},
-               timeout=600)
+    response = submit(client, "closed_loop", {**setup, "joint_probing": True, "sigma_mm": 0.001, "evaluate": True})
+    done = wait_for(client, response.json()["id"], timeout=600)
+    assert done["status"] in ("succeeded", "needs_attention"), done["error"]
     verdict = done["result"]["verdict"]
-    assert not verdict["needs_attention"], verdict["reasons"]
+    # the run's bound (its traces sharing the confidence, the learned amplitude and wavelength 2 sd
+    # on their unfavourable side) may come out over the target: then that is the only reason it asks
+    assert all(r.startswith("under the fitted model the traces are known to") for r in verdict["reasons"]), \
+        verdict["reasons"]
+    assert (done["status"] == "needs_attention") == verdict["needs_attention"]
     plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}?include=result&include=artifacts", headers=OP).json()
     sequential = plan["result"]["field"]["sequential"]
     assert sequential["final"] and sequential["round"] >= 1 and sequential["touched_before"] > 0
     points = verdict["verification"]   # 5 where the field is least certain, the gaps beside the worst predicted stations
-    assert 5 <= len(points) <= 9 and verdict["verified"].startswith(f"verified at {len(points)} points")
+    assert 5 <= len(points) <= 13 and verdict["verified"].startswith(f"verified at {len(points)} points")
+    print(f"\n{verdict['verified']}; learned lambda {verdict['learned']['wavelength_mm']['value']:.2f} mm")
     for entry, row in zip(done["result"]["traces"], done["result"]["table"]):
+        print(f"standoff max um: after {row['standoff_max_after_um']:.2f}, before {row['standoff_max_before_um']:.2f}, "
+              f"bound {entry['bound_mm'] * 1000:.2f}")
         assert row["standoff_max_after_um"] < row["standoff_max_before_um"], row
         assert row["standoff_max_after_um"] <= entry["bound_mm"] * 1000 + 2.0 + 1.5, (row, entry["bound_mm"])
 

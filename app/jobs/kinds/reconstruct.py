@@ -288,7 +288,7 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
         assert check is not None
         name = stored_name(trace_id)
         row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec),
-               "bound_mm": _trace_bound(check, rec.nominal)}
+               "bound_mm": _trace_bound(check, rec.nominal, len(params.traces))}
         checkpoints.done(trace_id, keys[trace_id], {name: _store(ctx, rec, name)}, row)
         done[trace_id] = row
     checkpoints.flush()
@@ -420,9 +420,10 @@ def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) 
     return _field_trace(check, refinement, nominal, trace_ids.index(params.trace_id))
 
 
-def _trace_bound(check: FieldCheck, nominal: Any) -> float:
-    """The bound (mm) over the whole trace under the fitted model (:func:`trace_bound`)."""
-    return trace_bound(check.fit, nominal, check.coverage)
+def _trace_bound(check: FieldCheck, nominal: Any, traces: int = 1) -> float:
+    """The bound (mm) over the whole trace under the fitted model, its hyperparameters' own
+    uncertainty included, the confidence shared by the run's ``traces`` (:func:`trace_bound`)."""
+    return trace_bound(check.fit, nominal, check.coverage, check.learned, traces)
 
 
 def _field_trace(check: FieldCheck, refinement: Any, nominal: Any, index: int) -> Reconstruction:

@@ -1,0 +1,101 @@
+"""Bench: how well the deviation prior's hyperparameters are learned from n touches.
+
+Run: .venv/bin/python -m pytest tests/bench/test_bench_learning.py -s -o addopts="" -q
+(``LEARNING_DRAWS`` draws per case, default 10).
+
+Fields drawn from a known prior (the truth: amplitude, wavelength and noise are defined),
+touched at n = 30, 60 and 120 points scattered over 40 x 30 mm, a fifth of them touched again
+0.2 mm away (the noise needs repeats), the user's prior at the defaults (A 0.2 mm, lambda
+20 mm, 1 um noise) as start and bounds.  For each: the learned amplitude and wavelength over
+the truth (within 20 %?), whether the truth lies within 2 stated sd (the Laplace sd of the
+log parameters), and whether :func:`learn_prior` found the likelihood's global maximum
+(L-BFGS-B from a 12 x 2 grid of wavelengths and amplitudes, the best kept): a miss is a local
+optimum, not the data.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from app.probing.deviation_prior import DeviationPrior, Sites, prior_covariance
+from app.reconstruction.field_learning import _Likelihood, default_bounds, learn_prior
+
+DRAWS = int(os.environ.get("LEARNING_DRAWS", "10"))
+USER = DeviationPrior()
+TRUTHS = (DeviationPrior(amplitude_mm=0.2, wavelength_mm=6.0, sigma_mm=0.002),
+          DeviationPrior(amplitude_mm=0.12, wavelength_mm=10.0, sigma_mm=0.002),
+          DeviationPrior(amplitude_mm=0.06, wavelength_mm=15.0, sigma_mm=0.002))
+COUNTS = tuple(int(n) for n in os.environ.get("LEARNING_COUNTS", "30,60,120").split(","))
+
+
+def draw(prior: DeviationPrior, n: int, seed: int) -> tuple[Sites, np.ndarray, np.ndarray]:
+    """n touches of one field drawn from ``prior`` with its noise (n - n/5 random over 40 x 30
+    mm, n/5 of them touched again 0.2 mm away): (sites, centre, dz (n,) mm)."""
+    rng = np.random.default_rng(seed)
+    pairs = n // 5
+    xy = rng.uniform([0.0, 0.0], [40.0, 30.0], (n - pairs, 2))
+    xy = np.concatenate([xy, xy[:pairs] + [0.2, 0.0]])
+    sites = Sites(xy, rng.normal(0.0, 0.05, (n, 2)))
+    center = xy.mean(axis=0)
+    k = prior_covariance(prior, sites, sites, center) + prior.sigma_mm ** 2 * np.eye(n)
+    return sites, center, np.linalg.cholesky(k) @ rng.normal(size=n)
+
+
+def global_optimum(sites: Sites, dz: np.ndarray, center: np.ndarray) -> tuple[float, np.ndarray]:
+    """The largest log marginal likelihood found from a 12 x 2 grid of starts and its
+    (amplitude, wavelength, noise) (3,) mm."""
+    likelihood = _Likelihood(USER, sites, dz, center)
+    b = default_bounds(USER)
+    lo = np.log([b.amplitude_mm[0], b.wavelength_mm[0], b.sigma_mm[0]])
+    hi = np.log([b.amplitude_mm[1], b.wavelength_mm[1], b.sigma_mm[1]])
+    best, where = math.inf, np.zeros(3)
+    for log_w in np.linspace(lo[1], hi[1], 12):
+        for amplitude in (0.03, 0.3):
+            start = np.clip([math.log(amplitude), log_w, lo[2] + 0.5], lo, hi)
+            res = minimize(likelihood, start, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi)))
+            if res.fun < best:
+                best, where = float(res.fun), np.exp(res.x)
+    return -best, where
+
+
+@pytest.mark.timeout(3600)
+def test_hyperparameters_recovered_from_touches():
+    print("\n  n  lambda  A_true  within 20 % (A, lambda, both)  truth within 2 sd  global max found  "
+          "A ratio (min-max)  lambda ratio (min-max)  median rel sd (A, lambda)")
+    summary = {}
+    for n in COUNTS:
+        for truth in TRUTHS:
+            ra, rw, cover, found, sds, glob = [], [], [], [], [], []
+            for seed in range(DRAWS):
+                sites, center, dz = draw(truth, n, 1000 * n + seed)
+                learned = learn_prior(USER, sites, dz, center)
+                got = learned.prior
+                ra.append(got.amplitude_mm / truth.amplitude_mm)
+                rw.append(got.wavelength_mm / truth.wavelength_mm)
+                err = np.abs(np.log([ra[-1], rw[-1]]))
+                sd = learned.log_sd[:2]
+                cover.append(bool(np.all(np.isfinite(sd)) and np.all(err <= 2 * sd)))
+                sds.append(np.expm1(sd))
+                best, where = global_optimum(sites, dz, center)
+                found.append(learned.log_likelihood >= best - 1e-3)
+                glob.append(bool(np.all(np.abs(where[:2] / [truth.amplitude_mm, truth.wavelength_mm] - 1) < 0.2)))
+            a_ok = np.abs(np.array(ra) - 1) < 0.2
+            w_ok = np.abs(np.array(rw) - 1) < 0.2
+            summary[(n, truth.wavelength_mm)] = int((a_ok & w_ok).sum())
+            print(f"{n:4d} {truth.wavelength_mm:6.0f} {truth.amplitude_mm:7.2f}   {int(a_ok.sum()):3d} {int(w_ok.sum()):3d} "
+                  f"{int((a_ok & w_ok).sum()):3d} of {DRAWS}           {sum(cover):3d}             {sum(found):3d}"
+                  f"          {min(ra):.2f}-{max(ra):.2f}          {min(rw):.2f}-{max(rw):.2f}"
+                  f"            {np.nanmedian(np.array(sds)[:, 0]):.2f} {np.nanmedian(np.array(sds)[:, 1]):.2f}"
+                  f"   (the global maximum: both within 20 % in {sum(glob)})",
+                  flush=True)
+    for n in COUNTS:
+        both = sum(v for (m, _), v in summary.items() if m == n)
+        print(f"n = {n}: amplitude and wavelength both within 20 % in {both} of {DRAWS * len(TRUTHS)}")
+    # the figures are the result; the one hard promise: more touches never learn worse overall
+    assert sum(v for (m, _), v in summary.items() if m == COUNTS[-1]) >= sum(
+        v for (m, _), v in summary.items() if m == COUNTS[0])
