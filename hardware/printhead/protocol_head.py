@@ -2,87 +2,31 @@
 head driver (:mod:`hardware.printhead.mock`).
 
 The driver answers each LF-terminated command inside ``write()`` (its drops are timed by the
-mock machine's clock, not the wall clock); ``read()`` returns what it answered.  A
-command the driver cannot take (no such machine) closes nothing: it raises
-``serial.SerialException`` from ``write()``, as a port whose device went away.
+mock machine's clock, not the wall clock); ``read()`` returns what it answered
+(:class:`hardware.mock.line_port.LineDevicePort`).  A command the driver cannot take (no
+such machine) closes nothing: it raises ``serial.SerialException`` from ``write()``, as a
+port whose device went away.
 """
 
 from __future__ import annotations
 
-import threading
-
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException
-
-from ..errors import InvalidConfig
+from ..mock.line_port import LineDevicePort
 from .mock import MockPrintHead, head_from_url
 
 
-class Serial(SerialBase):
+class Serial(LineDevicePort):
     """A serial port to a mock head driver."""
 
-    def open(self) -> None:
-        if self._port is None:
-            raise SerialException("Port must be configured before it can be used.")
-        if self.is_open:
-            raise SerialException("Port is already open.")
-        try:
-            self._head: MockPrintHead = head_from_url(self.portstr)
-        except InvalidConfig as exc:
-            raise SerialException(str(exc)) from exc
-        self._rx = bytearray()
-        self._out = bytearray()
-        self._cond = threading.Condition()
-        self.is_open = True
+    terminator = b"\n"
 
-    def from_url(self, url: str) -> str:  # pyserial hook; options are read in open()
-        return url
+    def _open_device(self, url: str) -> MockPrintHead:
+        return head_from_url(url)
 
-    def _reconfigure_port(self, *args: object, **kwargs: object) -> None:
-        """Nothing to configure on the mock."""
-
-    def close(self) -> None:
-        self.is_open = False
+    def _answer(self, line: str) -> str | None:
+        return self.head.handle(line)
 
     @property
     def head(self) -> MockPrintHead:
-        return self._head
-
-    @property
-    def in_waiting(self) -> int:
-        if not self.is_open:
-            raise PortNotOpenError()
-        with self._cond:
-            return len(self._out)
-
-    def read(self, size: int = 1) -> bytes:
-        if not self.is_open:
-            raise PortNotOpenError()
-        with self._cond:
-            if not self._out and self._timeout:
-                self._cond.wait(self._timeout)
-            data = bytes(self._out[:size])
-            del self._out[:size]
-            return data
-
-    def write(self, data: bytes) -> int:
-        if not self.is_open:
-            raise PortNotOpenError()
-        with self._cond:
-            self._rx += bytes(data)
-            while (end := self._rx.find(b"\n")) >= 0:
-                line = self._rx[:end].decode("ascii", "replace")
-                del self._rx[:end + 1]
-                try:
-                    reply = self._head.handle(line)
-                except InvalidConfig as exc:
-                    raise SerialException(str(exc)) from exc
-                self._out += reply.encode("ascii") + b"\n"
-            self._cond.notify_all()
-        return len(data)
-
-    def reset_input_buffer(self) -> None:
-        with self._cond:
-            self._out.clear()
-
-    def reset_output_buffer(self) -> None:
-        """Nothing is buffered on the host side."""
+        device = self._device
+        assert isinstance(device, MockPrintHead)
+        return device
