@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from app.probing.deviation_prior import DeviationPrior, Sites, prior_covariance
+from app.probing.deviation_prior import DeviationPrior, Sites
+from tests.helpers.field_draws import draw
 from app.reconstruction.field_learning import _Likelihood, default_bounds, learn_prior
 
 DRAWS = int(os.environ.get("LEARNING_DRAWS", "10"))
@@ -31,19 +32,6 @@ TRUTHS = (DeviationPrior(amplitude_mm=0.2, wavelength_mm=6.0, sigma_mm=0.002),
           DeviationPrior(amplitude_mm=0.12, wavelength_mm=10.0, sigma_mm=0.002),
           DeviationPrior(amplitude_mm=0.06, wavelength_mm=15.0, sigma_mm=0.002))
 COUNTS = tuple(int(n) for n in os.environ.get("LEARNING_COUNTS", "30,60,120").split(","))
-
-
-def draw(prior: DeviationPrior, n: int, seed: int) -> tuple[Sites, np.ndarray, np.ndarray]:
-    """n touches of one field drawn from ``prior`` with its noise (n - n/5 random over 40 x 30
-    mm, n/5 of them touched again 0.2 mm away): (sites, centre, dz (n,) mm)."""
-    rng = np.random.default_rng(seed)
-    pairs = n // 5
-    xy = rng.uniform([0.0, 0.0], [40.0, 30.0], (n - pairs, 2))
-    xy = np.concatenate([xy, xy[:pairs] + [0.2, 0.0]])
-    sites = Sites(xy, rng.normal(0.0, 0.05, (n, 2)))
-    center = xy.mean(axis=0)
-    k = prior_covariance(prior, sites, sites, center) + prior.sigma_mm ** 2 * np.eye(n)
-    return sites, center, np.linalg.cholesky(k) @ rng.normal(size=n)
 
 
 def global_optimum(sites: Sites, dz: np.ndarray, center: np.ndarray) -> tuple[float, np.ndarray]:
@@ -72,7 +60,7 @@ def test_hyperparameters_recovered_from_touches():
         for truth in TRUTHS:
             ra, rw, cover, found, sds, glob = [], [], [], [], [], []
             for seed in range(DRAWS):
-                sites, center, dz = draw(truth, n, 1000 * n + seed)
+                sites, center, dz = draw(truth, n, 1000 * n + seed, pairs=n // 5)
                 learned = learn_prior(USER, sites, dz, center)
                 got = learned.prior
                 ra.append(got.amplitude_mm / truth.amplitude_mm)

@@ -9,24 +9,13 @@ import numpy as np
 import pytest
 from scipy.optimize import check_grad
 
-from app.probing.deviation_prior import DeviationPrior, Sites, prior_covariance
+from app.probing.deviation_prior import DeviationPrior, Sites
+from tests.helpers.field_draws import draw
 from app.reconstruction.field_learning import (LearningError, _Likelihood, learn_prior,
                                                log_marginal_likelihood, loo_check)
 
 TRUTH = DeviationPrior(amplitude_mm=0.12, wavelength_mm=10.0, sigma_mm=0.004)
 USER = DeviationPrior()  # the defaults: A 0.2 mm, lambda 20 mm, 1 um noise
-
-
-def draw(prior: DeviationPrior, n: int, seed: int, pairs: int = 0) -> tuple[Sites, np.ndarray, np.ndarray]:
-    """n touches (n - pairs random over 40 x 30 mm, ``pairs`` of them touched again 0.2 mm
-    away) of one field drawn from ``prior`` with its noise: (sites, centre, dz)."""
-    rng = np.random.default_rng(seed)
-    xy = rng.uniform([0.0, 0.0], [40.0, 30.0], (n - pairs, 2))
-    xy = np.concatenate([xy, xy[:pairs] + [0.2, 0.0]])
-    sites = Sites(xy, rng.normal(0.0, 0.05, (n, 2)))
-    center = xy.mean(axis=0)
-    k = prior_covariance(prior, sites, sites, center) + prior.sigma_mm ** 2 * np.eye(n)
-    return sites, center, np.linalg.cholesky(k) @ rng.normal(size=n)
 
 
 def test_the_gradient_is_the_likelihoods():
