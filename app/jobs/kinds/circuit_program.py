@@ -98,12 +98,20 @@ def accepted_loop(loop: Job, accept_unverified: bool, error: type[ConformaError]
     return loop
 
 
+def operator_accepted(loop: Job) -> bool:
+    """Whether an operator accepted the loop at its verification (``POST /jobs/{id}/accept``:
+    it then ends succeeded, its verdict says ``accepted``)."""
+    return bool(((loop.result or {}).get("verdict") or {}).get("accepted"))
+
+
 def loop_state(loop: Job) -> dict:
-    """What a program records of its loop: id, state, whether it was accepted unverified, and
-    the verdict's reasons (empty when verified or without a field check)."""
+    """What a program records of its loop: id, state, whether it was accepted unverified (by
+    this request or by an operator at the loop's verification), and the verdict's reasons
+    (empty when verified or without a field check)."""
     verdict = (loop.result or {}).get("verdict") or {}
-    return {"job_id": loop.id, "status": loop.status, "accepted_unverified": loop.status == "needs_attention",
-            "reasons": list(verdict.get("reasons") or []) if loop.status == "needs_attention" else []}
+    unverified = loop.status == "needs_attention" or operator_accepted(loop)
+    return {"job_id": loop.id, "status": loop.status, "accepted_unverified": unverified,
+            "reasons": list(verdict.get("reasons") or []) if unverified else []}
 
 
 def _compensated(ctx: JobContext, entries: dict[str, LoopTrace],
@@ -279,7 +287,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     bound = ((loop.result or {}).get("verdict") or {}).get("bound_mm")
     if check is not None and bound is not None:
         check = with_bound(check, [float(bound)])          # the traces' bound the loop's verdict stated
-    if check is not None and check.needs_attention and not params.accept_unverified:
+    if check is not None and check.needs_attention and not (params.accept_unverified or operator_accepted(loop)):
         raise ConformaError(f"the field of closed loop {loop.id!r} needs attention ({'; '.join(check.reasons)}): "
                             "accept it explicitly with accept_unverified=true", field="params.closed_loop_job_id",
                             value=loop.id)
