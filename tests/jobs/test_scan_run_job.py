@@ -15,6 +15,14 @@ from tests.helpers.jobs import submit, wait_for
 OP = auth("operator")
 OFFSET = (30.05, 4.93, -10.08)
 TAU_S = 0.0021
+#: the mock sensor's true calibration (what the scans are given)
+CALIBRATION = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": TAU_S, "slope_bias_mm": 0.0}
+
+
+def sensor_port(machine_id: str) -> str:
+    """The mock LK-G on ``machine_id``'s world: the offset and time offset above, 0.5 um noise."""
+    return (f"lkg://{machine_id}?offset={','.join(map(str, OFFSET))}&time_offset_ms={TAU_S * 1000}"
+            "&noise_mm=0.0005&rate_hz=2000&seed=4")
 
 
 @pytest.fixture(scope="module")
@@ -34,9 +42,8 @@ def test_a_scan_run_records_samples_and_verifies_its_field(client, meshes, mode)
     machine = client.post("/api/v1/machines", json={
         "name": "sim", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001}}, headers=OP).json()
-    port = (f"lkg://{machine['id']}?offset={','.join(map(str, OFFSET))}&time_offset_ms={TAU_S * 1000}"
-            "&noise_mm=0.0005&rate_hz=2000&seed=4")
-    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": TAU_S, "slope_bias_mm": 0.0}
+    port = sensor_port(machine['id'])
+    calibration = dict(CALIBRATION)
     try:
         response = submit(client, "scan_run", {
             "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
@@ -83,9 +90,8 @@ def test_a_dropped_link_interrupts_the_scan_and_a_resume_keeps_the_stored_passes
         "name": "flaky", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001, "faults": {"disconnect_at_line": 30}}},
         headers=OP).json()
-    port = (f"lkg://{machine['id']}?offset={','.join(map(str, OFFSET))}&time_offset_ms={TAU_S * 1000}"
-            "&noise_mm=0.0005&rate_hz=2000&seed=4")
-    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": TAU_S, "slope_bias_mm": 0.0}
+    port = sensor_port(machine['id'])
+    calibration = dict(CALIBRATION)
     try:
         response = submit(client, "scan_run", {
             "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
@@ -131,9 +137,8 @@ def test_with_a_calibrated_ball_stylus_the_touches_are_corrected_as_a_probe_runs
     qualified = wait_for(client, submit(client, "calibrate_probe", {"machine_id": machine["id"], "per_ring": 4,
                                                                     "equator": 8}).json()["id"], timeout=180)
     assert qualified["status"] == "succeeded", qualified["error"]
-    port = (f"lkg://{machine['id']}?offset={','.join(map(str, OFFSET))}&time_offset_ms={TAU_S * 1000}"
-            "&noise_mm=0.0005&rate_hz=2000&seed=4")
-    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": TAU_S, "slope_bias_mm": 0.0}
+    port = sensor_port(machine['id'])
+    calibration = dict(CALIBRATION)
     try:
         response = submit(client, "scan_run", {
             "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
