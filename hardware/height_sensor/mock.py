@@ -30,6 +30,7 @@ import numpy as np
 
 from ..errors import InvalidConfig
 from ..mock.timeline import MotionTimeline
+from ..mock.url_options import url_numbers
 from ..mock.world import MockWorld, get_world
 from . import lkg
 from .optics import Scene, SensorOptics, readings
@@ -149,17 +150,6 @@ _REGISTRY: dict[str, MockHeightSensor] = {}
 _LOCK = threading.Lock()
 
 
-def _numbers(key: str, text: str, count: int) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise InvalidConfig(f"sensor option {key}={text!r}: expected {count} comma-separated numbers",
-                            field=f"port.{key}", value=text[:60])
-    return values
-
-
 def parse_options(query: str) -> dict[str, object]:
     """Typed options from a ``lkg://`` query string (``InvalidConfig`` when malformed)."""
     out: dict[str, object] = {}
@@ -171,9 +161,9 @@ def parse_options(query: str) -> dict[str, object]:
         if key == "machine":
             out[key] = text
         elif key == "offset":
-            out["offset_mm"] = _numbers(key, text, 3)
+            out["offset_mm"] = url_numbers(key, text, 3, "sensor")
         elif key == "dark":
-            out["dark_spots"] = tuple(_numbers(key, spot, 3) for spot in text.split(";") if spot)
+            out["dark_spots"] = tuple(url_numbers(key, spot, 3, "sensor") for spot in text.split(";") if spot)
         elif key in _FLOATS or key in _INTS:
             try:
                 value: float = int(text) if key in _INTS else float(text)

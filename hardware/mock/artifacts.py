@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass
 
 from ..errors import InvalidConfig
+from .url_options import url_numbers
 
 #: physics options (floats >= 0) and their upper bounds (mm, mm/min)
 PHYSICS_LIMITS = {"stylus_radius_mm": 10.0, "pretravel_mm": 5.0, "pretravel_sd_mm": 1.0,
@@ -101,29 +102,17 @@ def check_physics_value(name: str, value: float, field: str) -> float:
     return number
 
 
-def _numbers(text: str, count: int, key: str) -> tuple[float, ...]:
-    parts = text.split(",")
-    try:
-        values = tuple(float(p) for p in parts)
-    except ValueError:
-        values = ()
-    if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise InvalidConfig(f"mock option {key}={text!r}: expected {count} comma-separated numbers",
-                            field=f"port.{key}", value=text[:60])
-    return values
-
-
 def parse_artifact_option(key: str, text: str) -> object | None:
     """``tool<k>``, ``pad`` or ``sphere`` URL values as objects; None for other keys."""
     try:
         if key == "pad":
-            x, y, z, size = _numbers(text, 4, key)
+            x, y, z, size = url_numbers(key, text, 4, "mock")
             return MockPad((x, y, z), size)
         if key == "sphere":
-            x, y, z, diameter = _numbers(text, 4, key)
+            x, y, z, diameter = url_numbers(key, text, 4, "mock")
             return MockSphere((x, y, z), diameter)
         if tool_number(key) is not None:
-            x, y, z, diameter = _numbers(text, 4, key)
+            x, y, z, diameter = url_numbers(key, text, 4, "mock")
             return MockTool((x, y, z), diameter)
     except InvalidConfig as exc:
         if exc.field and exc.field.startswith("port."):
