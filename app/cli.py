@@ -11,8 +11,8 @@ from pathlib import Path
 
 from sqlmodel import col
 
-from app.config import ROLES, Settings, SettingsError, load_settings
-from app.ownership import MachineOwnerLock
+from app.platform.config import ROLES, Settings, SettingsError, load_settings
+from app.platform.ownership import MachineOwnerLock
 from hardware.dialects import DEFAULT_DIALECT, DIALECTS
 
 
@@ -23,8 +23,8 @@ def _settings(args: argparse.Namespace, **extra: object) -> Settings:
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from app.auth import KeyRing
-    from app.db import make_engine, migrate
+    from app.platform.auth import KeyRing
+    from app.platform.db import make_engine, migrate
     from app.main import create_app
 
     settings = _settings(args, host=args.host, port=args.port, viewer_port=args.viewer_port,
@@ -49,8 +49,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_worker(args: argparse.Namespace) -> int:
-    from app.db import migrate
-    from app.jobs.runtime import QUEUES, Runtime
+    from app.platform.db import migrate
+    from app.runtime.engine import QUEUES, Runtime
 
     settings = _settings(args)
     migrate(settings)
@@ -71,7 +71,7 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 
 def cmd_migrate(args: argparse.Namespace) -> int:
-    from app.db import migrate
+    from app.platform.db import migrate
 
     settings = _settings(args)
     migrate(settings, args.revision)
@@ -82,9 +82,9 @@ def cmd_migrate(args: argparse.Namespace) -> int:
 def cmd_keys(args: argparse.Namespace) -> int:
     from sqlmodel import Session, select
 
-    from app.auth import KeyRing
-    from app.db import make_engine, migrate
-    from app.models import ApiKey
+    from app.platform.auth import KeyRing
+    from app.platform.db import make_engine, migrate
+    from app.platform.models import ApiKey
 
     settings = _settings(args)
     migrate(settings)

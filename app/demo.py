@@ -18,13 +18,14 @@ from sqlmodel import Session
 
 from app.api.schemas import TraceCreate
 from app.reference.evaluation import Table1Row, format_table
-from app.config import Settings
-from app.db import migrate
-from app.jobs.runtime import QUEUES, Runtime
-from app.ownership import MachineOwnerLock
-from app.models import COMPLETED_STATES, Machine, TERMINAL_STATES, Job, new_id, utcnow
-from app.mesh_intake import export_mesh
-from app.records import build_trace, store_part
+from app.platform.config import Settings
+from app.platform.db import migrate
+from app.runtime.engine import QUEUES, Runtime
+from app.platform.ownership import MachineOwnerLock
+from app.platform.models import COMPLETED_STATES, Machine, TERMINAL_STATES, Job, new_id, utcnow
+from app.parts.intake import export_mesh
+from app.parts.storage import store_part
+from app.parts.traces import build_trace
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 
 

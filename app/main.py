@@ -14,18 +14,18 @@ from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
 import app as app_package
-from app.api import (circuits, files, jobs, loop_actions, machine_console, machines, parts, programs, reports, system,
+from app.api.routes import (circuits, files, jobs, loop_actions, machine_console, machines, parts, programs, reports, system,
                      traces)
-from app.api import viewer as viewer_api
+from app.api.routes import viewer as viewer_api
 from app.api.admission import AdmissionMiddleware
 from app.api.errors import install_error_handlers
 from app.api.headers import SecurityHeadersMiddleware
 from app.api.limits import BodyLimitMiddleware
 from app.api.openapi_errors import document_error_responses
-from app.auth import KeyRing, LoginThrottle
-from app.config import Settings
-from app.db import migrate
-from app.jobs.runtime import QUEUES, Runtime
+from app.platform.auth import KeyRing, LoginThrottle
+from app.platform.config import Settings
+from app.platform.db import migrate
+from app.runtime.engine import QUEUES, Runtime
 
 # The API's routers, in the order their routes are matched
 ROUTERS = (system.router, parts.router, traces.router, jobs.router, loop_actions.router, programs.router, machines.router,
@@ -39,7 +39,7 @@ def _sweep(runtime: Runtime) -> None:
     """Files a crash left behind: old ``.tmp-*`` and blob files without a row (logged)."""
     from sqlmodel import Session
 
-    from app.blobs import SWEEP_GRACE_S, sweep_blobs
+    from app.platform.blobs import SWEEP_GRACE_S, sweep_blobs
 
     with Session(runtime.engine) as session:
         counts = sweep_blobs(runtime.blobs, session)

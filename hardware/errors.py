@@ -1,7 +1,7 @@
 """Exception family of the hardware package (independent of ``app``).
 
 Every error carries a human message and, where it helps, the offending ``field`` and
-``value`` (like ``app.errors``), so the service can translate them without parsing text:
+``value`` (like ``app.domain.errors``), so the service can translate them without parsing text:
 
 =====================  =========================================================  =======
 class                  meaning                                                    HTTP-ish

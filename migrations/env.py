@@ -10,11 +10,11 @@ from __future__ import annotations
 from alembic import context
 from sqlalchemy import create_engine, event, pool
 
-import app.models  # noqa: F401  (registers the tables)
+import app.platform.models  # noqa: F401  (registers the tables)
 from sqlmodel import SQLModel
 
 target_metadata = SQLModel.metadata
-# (the naming convention is set on the metadata in app.models, before the tables)
+# (the naming convention is set on the metadata in app.platform.models, before the tables)
 
 
 def run_migrations_online() -> None:

@@ -34,8 +34,8 @@ def migrated_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ``migrate``, which finds the copy at head."""
     import sqlite3
 
-    from app.config import load_settings
-    from app.db import migrate
+    from app.platform.config import load_settings
+    from app.platform.db import migrate
 
     data_dir = tmp_path_factory.mktemp("migrated") / "data"
     migrate(load_settings({}, data_dir=data_dir, api_keys=f"{KEYS['admin']}:admin", viewer=False))
@@ -49,7 +49,7 @@ def migrated_database(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def settings_factory(tmp_path: Path, migrated_database: Path):  # type: ignore[no-untyped-def]
     import shutil
 
-    from app.config import load_settings
+    from app.platform.config import load_settings
 
     def make(**overrides: object):  # type: ignore[no-untyped-def]
         values: dict[str, object] = {

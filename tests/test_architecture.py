@@ -1,7 +1,10 @@
-"""The house rules (shared/DESIGN.md), checked on the source instead of remembered:
+"""The house rules (docs/architecture.md), checked on the source instead of remembered:
 
-* the compute core never imports the web framework, the database, the viewer or the hardware;
+* the compute core never imports the web framework, the database, the viewer, the hardware or
+  any service package; ``app/domain`` (the core's roots) imports only the standard library;
 * ``hardware`` never imports ``app``;
+* the job engine (``app/runtime``) reaches the kinds only through its registry;
+* no loose module in ``app/`` but the entry points;
 * job kinds never import each other (what several kinds share lives in ``app/jobs``: inputs,
   params, jetting_inputs; math in the core);
 * no import cycles between modules (function-local imports included);
@@ -11,6 +14,7 @@
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import networkx as nx
@@ -20,7 +24,9 @@ ROOT = Path(__file__).resolve().parents[1]
 CORE = ("geometry", "probing", "reconstruction", "registration", "compensation", "jetting", "five_axis", "slicing",
         "gcode", "reference", "calibration", "circuits")
 FORBIDDEN_IN_CORE = ("fastapi", "starlette", "sqlmodel", "sqlalchemy", "viser", "hardware", "huey", "uvicorn",
-                     "app.api", "app.jobs", "app.viewer", "app.db", "app.models", "app.main")
+                     "app.api", "app.jobs", "app.viewer", "app.platform", "app.parts", "app.machines",
+                     "app.runtime", "app.reporting", "app.main")
+ENTRY_POINTS = {"app.main", "app.cli", "app.demo"}  # the only modules at app/'s top
 MAX_MODULE_LINES = 500
 # import cycles that exist today; the list may only shrink
 KNOWN_CYCLES: set[frozenset[str]] = set()
@@ -86,6 +92,24 @@ def test_the_compute_core_is_pure(package):
                  if module.startswith(f"app.{package}") for imported in imported_names
                  if any(imported == f or imported.startswith(f"{f}.") for f in FORBIDDEN_IN_CORE)}
     assert offenders == set()
+
+
+def test_the_cores_roots_import_only_the_standard_library():
+    offenders = {(m, i) for m, names in IMPORTS.items() if m.startswith("app.domain") for i in names
+                 if i.split(".")[0] not in sys.stdlib_module_names and not i.startswith("app.domain")}
+    assert offenders == set()
+
+
+def test_the_job_engine_reaches_kinds_only_through_the_registry():
+    offenders = {(m, i) for m, names in IMPORTS.items() if m.startswith("app.runtime.") and m != "app.runtime.registry"
+                 for i in names if i.startswith("app.jobs.kinds")}
+    assert offenders == set()
+
+
+def test_no_loose_module_in_app_but_the_entry_points():
+    loose = {name for name, path in MODULES.items() if name.startswith("app.") and name.count(".") == 1
+             and path.name != "__init__.py" and name not in ENTRY_POINTS}
+    assert loose == set(), "put it in the package that says what it is (docs/architecture.md)"
 
 
 def test_hardware_never_imports_app():

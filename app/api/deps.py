@@ -9,8 +9,8 @@ from fastapi import Depends, HTTPException, Query, Request, Security
 from fastapi.security import APIKeyHeader, HTTPAuthorizationCredentials, HTTPBearer
 from sqlmodel import Session
 
-from app.auth import KeyRing, LoginThrottle, hash_key, role_allows
-from app.jobs.runtime import Runtime
+from app.platform.auth import KeyRing, LoginThrottle, hash_key, role_allows
+from app.runtime.engine import Runtime
 
 _bearer = HTTPBearer(auto_error=False, description="API key as a bearer token")
 _header = APIKeyHeader(name="X-API-Key", auto_error=False, description="API key")

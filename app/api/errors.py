@@ -11,8 +11,8 @@ from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from app.errors import ConformaError
-from app.problems import PROBLEM_MEDIA_TYPE, _short, from_error, problem
+from app.domain.errors import ConformaError
+from app.platform.problems import PROBLEM_MEDIA_TYPE, _short, from_error, problem
 
 log = logging.getLogger("conforma.api")
 _TITLES = {400: "Bad request", 401: "Unauthorized", 403: "Forbidden", 404: "Not found", 405: "Method not allowed",

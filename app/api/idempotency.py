@@ -26,8 +26,8 @@ from pydantic import BaseModel
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
 
-from app.errors import InvalidInput
-from app.models import IdempotencyRecord, utcnow
+from app.domain.errors import InvalidInput
+from app.platform.models import IdempotencyRecord, utcnow
 
 IdempotencyKey = Annotated[str | None, Header(
     alias="Idempotency-Key", min_length=1, max_length=255, pattern=r"^[\x21-\x7e]+$",

@@ -21,7 +21,7 @@ from typing import Any
 
 from sqlalchemy import Engine, bindparam, inspect, select
 
-from app.models import TERMINAL_STATES, Job
+from app.platform.models import TERMINAL_STATES, Job
 
 KEEPALIVE_S = 15.0
 _JOBS = inspect(Job).local_table

@@ -3,7 +3,7 @@
 A result larger than RESULT_INLINE_MAX_BYTES of JSON (a board job's per-trace rows, a slice's
 layers) is not inlined in ``GET /jobs/{id}`` or the job list: the record carries
 ``result: null``, ``result_omitted: true``, ``result_bytes`` and ``result_summary``
-(:func:`app.jobs.results.result_summary`, written with the result).  A job's first
+(:func:`app.jobs.results.models.result_summary`, written with the result).  A job's first
 ARTIFACTS_INLINE_MAX artifacts are listed, and ``artifact_count`` counts them all (a board
 compensate writes two programs per trace).  So a client polling a job's status pays for a
 small record; ``?include=result`` returns the result whole, ``?include=artifacts`` every
@@ -18,8 +18,8 @@ from typing import Annotated, Any, Literal
 
 from fastapi import Query
 
-from app.jobs.results import result_summary
-from app.models import Job
+from app.jobs.results.models import result_summary
+from app.platform.models import Job
 
 RESULT_INLINE_MAX_BYTES = 16 * 1024
 ARTIFACTS_INLINE_MAX = 20

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 from sqlmodel import Session, select
 
-from app.models import Job, JobReference, Part, Trace
+from app.platform.models import Job, JobReference, Part, Trace
 
 #: a job over more traces than this is titled by their count (their names are not read)
 NAMED_TRACES = 50

@@ -23,7 +23,7 @@ from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.api.deps import authenticate, presented_key
-from app.problems import PROBLEM_MEDIA_TYPE, problem
+from app.platform.problems import PROBLEM_MEDIA_TYPE, problem
 
 _BODY_METHODS = {"POST", "PUT", "PATCH", "DELETE"}
 _SURROGATE_ESCAPE = re.compile(rb"\\u[dD][89a-fA-F]")

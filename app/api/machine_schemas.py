@@ -8,7 +8,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, Field, field_validator, model_validator
 
 from app.api.schemas import Finite, Strict, UtcDatetime
-from app.materials import DispenseProfile
+from app.machines.materials import DispenseProfile
 from hardware.dialects import DEFAULT_DIALECT, default_dispense
 
 MaterialName = Annotated[str, Field(min_length=1, max_length=80)]
@@ -135,7 +135,7 @@ class Profile(Strict):
     calibration_max_age_h: Finite = Field(24.0, gt=0, le=24 * 365,
                                           description="a calibration older than this is flagged stale")
     dispense: DispenseProfile | None = Field(None, description="the material this machine dispenses: pressure, "
-                                             "on/off delays, standoff, speed (app.materials); print jobs apply "
+                                             "on/off delays, standoff, speed (app.machines.materials); print jobs apply "
                                              "its delays and record it")
     dispense_by_material: dict[MaterialName, DispenseProfile] = Field(
         default_factory=dict, max_length=MAX_MATERIAL_PROFILES,

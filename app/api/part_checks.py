@@ -1,6 +1,6 @@
 """What an uploaded part must be before it is stored: finite, bounded and not degenerate.
 
-The mesh parser (``app.mesh_intake``) already refuses NaN/inf and unparsable files; this
+The mesh parser (``app.parts.intake``) already refuses NaN/inf and unparsable files; this
 refuses what parses but cannot be worked on: coordinates beyond ``COORDINATE_LIMIT_MM``
 (1e200 overflows every area, normal and distance computed later) and meshes whose every
 face has zero area (nothing to drape a trace onto).
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import math
 
-from app.errors import InvalidInput
-from app.models import Part
+from app.domain.errors import InvalidInput
+from app.platform.models import Part
 
 # A shared bound for coordinates in millimetres (1 km): far beyond any printer's work
 # volume, far below where squares and cross products overflow or lose all precision.

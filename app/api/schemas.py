@@ -7,7 +7,7 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from app.materials import DispenseProfile
+from app.machines.materials import DispenseProfile
 
 T = TypeVar("T")
 
@@ -189,7 +189,7 @@ class JobKindOut(BaseModel):
 
 
 class MaterialOut(BaseModel):
-    """A material preset (:mod:`app.materials`): the job parameters a form fills in for it and,
+    """A material preset (:mod:`app.machines.materials`): the job parameters a form fills in for it and,
     for what a dispenser deposits, its dispense profile."""
 
     name: str

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.errors import short_value as _short
 
 __all__ = ["CalibrationError", "short_value"]

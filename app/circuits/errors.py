@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = ["CircuitFileError", "LayoutError", "WarpError"]
 

@@ -24,7 +24,7 @@ from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = ["Copper", "Short", "NetShortError", "find_shorts", "check_nets", "area_polygon", "trace_copper"]
 

@@ -26,7 +26,7 @@ from shapely.geometry.base import BaseGeometry
 
 from app.circuits.layout import RESOLUTION_MM, Connection, Layout
 from app.circuits.nets import Copper, area_polygon, trace_copper
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = ["Open", "NetOpenError", "net_pieces", "source_connections", "find_opens", "check_opens",
            "fill_coverage", "curve_points"]

@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
 
 __all__ = [

@@ -42,9 +42,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from app.checks import require_non_negative, require_positive
+from app.domain.checks import require_non_negative, require_positive
 from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.slope import height_error_mm, surface_slopes_deg
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, ProgramBuilder
 

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = ["FiveAxisError", "AxisLimitError", "TraceOffSurfaceError", "DegenerateTraceError",
            "short"]

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass
 
 from app.gcode.writer import DEFAULT_PROBING_DIALECT
-from app.checks import require_positive
+from app.domain.checks import require_positive
 from app.five_axis.contact import NormalSide, NormalSource
 from app.five_axis.errors import FiveAxisError
 from app.five_axis.kinematics import MachineConfig

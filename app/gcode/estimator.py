@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.reader import Program, ReadOptions, read_program
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 

@@ -12,7 +12,7 @@ import re
 from collections.abc import Iterator
 from typing import NamedTuple
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = ["GcodeLine", "GcodeReadError", "read_lines"]
 

@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement
 from app.geometry.tolerance import LENGTH_EPS_MM
 

@@ -23,7 +23,7 @@ import re
 import numpy as np
 import numpy.typing as npt
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.arcs import MIN_ARC_TOLERANCE_MM, ArcCircles, arc_chord_counts, arc_circles, arc_extents
 from app.gcode.lines import GcodeLine, GcodeReadError, iter_lines
 from app.gcode.reader import ARC_CCW, ARC_CW, HOME, SETTING_CODES, ModalReader, ReadOptions

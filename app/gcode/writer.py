@@ -22,7 +22,7 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.reader import Program
 from app.gcode.recorder import ProgramRecorder
 

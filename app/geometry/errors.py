@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = [
     "GeometryError",

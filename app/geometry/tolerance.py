@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from app.checks import require_positive
+from app.domain.checks import require_positive
 
 __all__ = [
     "COVARIANCE_JITTER_REL", "DEFAULT_TOLERANCE", "DEGENERATE_LENGTH_MM", "DIVISION_FLOOR", "DOMAIN_SLACK_REL",

@@ -17,7 +17,7 @@ record, the part's and the input artifacts' sha256, the software version...).
 
 Why a trace can be trusted: a blob is written to a temporary file, fsynced (its contents,
 not only its directory entry) and renamed before its artifact row is committed
-(:mod:`app.blobs`), so a SIGKILL leaves either no row or a row over a whole file; a group's
+(:mod:`app.platform.blobs`), so a SIGKILL leaves either no row or a row over a whole file; a group's
 checkpoint is committed with (or after) its traces' artifacts, so a kill before that commit
 leaves traces without a record (and, for :meth:`~TraceCheckpoints.add`, files without rows,
 which the blob sweep removes), which are done again: at most a group's worth of work is lost.  On reuse the checkpoint's bytes must hash to its listed sha256, every artifact the
@@ -36,9 +36,9 @@ from typing import Any
 from sqlmodel import select
 
 import app
-from app.errors import ConformaError
-from app.jobs.context import JobContext
-from app.models import Artifact
+from app.domain.errors import ConformaError
+from app.runtime.context import JobContext
+from app.platform.models import Artifact
 
 CHECKPOINT_MEDIA_TYPE = "application/json"
 Output = tuple[str, bytes, str, dict[str, Any] | None]

@@ -21,10 +21,10 @@ from sqlmodel import Session, col, select
 
 from app.api.machine_schemas import Profile
 from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
-from app.errors import InvalidInput
-from app.jobs.calibration_results import CalibrateNozzleResult, CalibrateProbeResult, CalibrateSensorResult
-from app.models import Job, Machine
-from app.records import get_or_404
+from app.domain.errors import InvalidInput
+from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult, CalibrateSensorResult
+from app.platform.models import Job, Machine
+from app.platform.lookup import get_or_404
 
 KINDS = ("calibrate_probe", "calibrate_nozzle", "calibrate_sensor")
 

@@ -18,10 +18,10 @@ from typing import Any
 from app.calibration import Touch, hops
 from app.calibration.nozzle import pad_grid
 from app.calibration.qualify import PAD_SPACING_MM
-from app.errors import ConformaError, InvalidInput
-from app.jobs.context import JobContext
-from app.jobs.machine_jobs import interrupt, rehomed_machine, resume_request, stopped_by_operator
-from app.machines import hardware_errors, translate
+from app.domain.errors import ConformaError, InvalidInput
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import interrupt, rehomed_machine, resume_request, stopped_by_operator
+from app.machines.live import hardware_errors, translate
 from hardware.errors import HardwareError, LinkError
 from hardware.machine import Machine
 

@@ -1,7 +1,7 @@
 """The reading and mapping of a circuit import, done in a bounded child process.
 
 ``POST /parts/{id}/circuits:import`` hands the uploaded files here through
-:func:`app.jobs.isolated.call_isolated`: every file is read (within the bounds of
+:func:`app.runtime.isolated.call_isolated`: every file is read (within the bounds of
 :mod:`app.circuits.budget`), the import's traces, pads and areas are counted together against
 :data:`~app.circuits.budget.MAX_SHAPES`, and each layout is mapped onto the part's mesh
 (loaded in the child from the blob store and the part cache).  What comes back is small and
@@ -73,9 +73,9 @@ class ImportMapped:
 
 
 def _mesh(settings: Any, part: PartMesh) -> Any:
-    from app.blobs import BlobStore
-    from app.part_cache import MeshStore, part_cache_for
-    from app.records import MeshCache
+    from app.platform.blobs import BlobStore
+    from app.parts.cache import MeshStore, part_cache_for
+    from app.parts.meshes import MeshCache
 
     cache = part_cache_for(settings)
     meshes = MeshCache(BlobStore(settings.blob_dir), store=MeshStore(cache) if cache else None)

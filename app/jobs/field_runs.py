@@ -17,17 +17,22 @@ from typing import Any
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.probe_correction import refined, run_probe_calibration
-from app.jobs.results import ProbePlanResult, ProbeRunResult
-from app.models import Job
+from app.jobs.results.models import ProbePlanResult, ProbeRunResult
+from app.platform.models import Job
 from app.probing.field import stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.reconstruction.field import field_gradient, fit_bytes
 from app.reconstruction.field_trust import FieldCheck, checked_field
-from app.records import FIELD_FITS
+from app.parts.lru import BackedLru
+
+
+FIELD_FITS = BackedLru(64 * 2 ** 20)
+"""Fitted fields of field-plan probe runs by (run id, sigma): fitted once per process, and
+once per service when a compute process gives it a disk tier (``FIELD_FITS.backing``)."""
 
 
 def _rows(job: Job) -> list[dict[str, Any]]:

@@ -3,7 +3,7 @@
 Declared once, on the parameter models themselves, and published in their JSON schema
 (``GET /api/v1/job-kinds``), so the console has no label or unit table of its own:
 
-* every field of a :class:`~app.jobs.registry.JobParams` model gets a ``title`` made from its
+* every field of a :class:`~app.runtime.registry.JobParams` model gets a ``title`` made from its
   name without the unit suffix ("line_width_mm" -> "Line width") and an ``x-unit`` read
   from that suffix ("mm"); a field's own ``title`` or :func:`form` ``unit`` wins;
 * :func:`form` marks a field ``x-advanced`` (folded in the form), ``x-when`` (shown only

@@ -17,7 +17,7 @@ import hashlib
 import re
 from typing import Any
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.program_bounds import BoundsScan
 from app.gcode.reader import Program
 from hardware.protocol import CommandHasher, normalize_block, normalize_command, normalized_commands

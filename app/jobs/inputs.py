@@ -1,7 +1,7 @@
 """Loading what job parameters point to, shared by the job kinds (a kind never imports another).
 
 * :func:`succeeded_job`: THE check "job ``job_id`` is a succeeded job of kind K" at
-  submission (and, through :meth:`app.jobs.context.JobContext.job`, when a job runs);
+  submission (and, through :meth:`app.runtime.context.JobContext.job`, when a job runs);
 * placements: :func:`check_registration` (submission), :func:`placement_from` (run),
   :func:`registration_reference`, :func:`placed_params_of` (what a stored job was placed by);
 * a trace's stored nominal polyline: :func:`nominal_of`, :func:`placed_nominal`.
@@ -13,16 +13,16 @@ from typing import TYPE_CHECKING
 
 from sqlmodel import Session
 
-from app.errors import ConformaError, InvalidInput, NotFound
+from app.domain.errors import ConformaError, InvalidInput, NotFound
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
 from app.jobs.params import PlacedParams, PlacementParams
-from app.jobs.results import RegisterResult
-from app.models import Job, Trace
+from app.jobs.results.models import RegisterResult
+from app.platform.models import Job, Trace
 from app.registration.registration import place_path
 
 if TYPE_CHECKING:
-    from app.jobs.context import JobContext
+    from app.runtime.context import JobContext
 
 
 def succeeded_job(session: Session, job_id: str, kind: str | None, field: str, *,

@@ -9,7 +9,7 @@
   (``needs_attention`` when the verification failed);
 - ``print``: the compensated programs are ready, nothing is printed yet.
 
-At a pause the attempt ends (:meth:`app.jobs.store.JobStore.wait`): the job is ``waiting``,
+At a pause the attempt ends (:meth:`app.runtime.store.JobStore.wait`): the job is ``waiting``,
 holds no worker thread, keeps its machine from other programs, and its ``program_state``
 says where it waits (``waiting``: at, key, round, since, summary, needs_attention).  A
 restart of the service leaves it waiting.  An operator's action puts it back in the queue
@@ -21,7 +21,7 @@ continued (``passed``).  Actions:
 - ``accept``: go on although the verification failed (the result says it was accepted);
 - ``add_stations``: plan more stations from the run so far with the learned prior (a new
   ``round``: its plan, probed and verified points pause again);
-- ``abandon``: the job is cancelled (:meth:`app.jobs.store.JobStore.abandon`).
+- ``abandon``: the job is cancelled (:meth:`app.runtime.store.JobStore.abandon`).
 """
 
 from __future__ import annotations
@@ -31,12 +31,12 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from sqlmodel import Session
 
-from app.errors import Conflict, ConformaError, NotFound
-from app.models import Job, utcnow
+from app.domain.errors import Conflict, ConformaError, NotFound
+from app.platform.models import Job, utcnow
 
 if TYPE_CHECKING:
-    from app.jobs.context import JobContext
-    from app.jobs.runtime import Runtime
+    from app.runtime.context import JobContext
+    from app.runtime.engine import Runtime
 
 PausePoint = Literal["plan", "probed", "verified", "print"]
 PAUSE_POINTS: tuple[PausePoint, ...] = ("plan", "probed", "verified", "print")

@@ -22,14 +22,14 @@ from typing import Any
 from pydantic import ValidationError
 from sqlmodel import select
 
-from app.errors import Cancelled, ConformaError
-from app.jobs.context import JobContext
+from app.domain.errors import Cancelled, ConformaError
+from app.runtime.context import JobContext
 from app.jobs.inputs import nominal_of
-from app.jobs.registry import get_kind
-from app.jobs.results import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
+from app.runtime.registry import get_kind
+from app.jobs.results.models import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
                               program_artifacts, reconstruct_rows)
 from app.jobs.simulation import evaluate_print, xy_error
-from app.models import Job, Machine, Trace
+from app.platform.models import Job, Machine, Trace
 from app.reference.evaluation import predicted_width, table_row
 
 Done = tuple[str, Job, Job, Job, Job, float, tuple[str, str]]

@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from app.gcode.writer import DEFAULT_PROBING_DIALECT
 from app.jobs.form_hints import ONE_TRACE as _ONE, SEVERAL_TRACES as _SEVERAL, form
 from app.geometry.placement import Placement
-from app.jobs.registry import JobParams
+from app.runtime.registry import JobParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
 

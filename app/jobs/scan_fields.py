@@ -8,12 +8,12 @@ that the traces asked for are the scan's.
 
 from __future__ import annotations
 
-from app.errors import InvalidInput
-from app.jobs.context import JobContext
+from app.domain.errors import InvalidInput
+from app.runtime.context import JobContext
 from app.reconstruction.field import fit_bytes
 from app.reconstruction.scan_field import ScanFieldCheck
 from app.reconstruction.scan_field_store import scan_check_from_npz
-from app.records import ByteLru
+from app.parts.lru import ByteLru
 
 FIELD_ARTIFACT = "field.npz"
 SCAN_FIELDS = ByteLru(64 * 2 ** 20)

@@ -5,7 +5,7 @@ mm where each reading was exposed, ``values`` (n,) mm, NaN: no value, ``stamps``
 :class:`app.jobs.sensor_runs.ScannedPass`) and the job's ``program_state`` records how many passes are done
 (``passes_done``, with ``total``, ``executed`` and the plan's ``plan_sha256``).  When the
 machine's or the sensor's link drops, the job becomes ``interrupted`` and waits for an
-operator (:func:`app.jobs.machine_jobs.interrupt`; nothing moves); an operator's resume
+operator (:func:`app.runtime.machine_queue.interrupt`; nothing moves); an operator's resume
 re-homes the machine, keeps every stored pass and continues at the first pass not stored
 (the pass the link dropped in is scanned again whole: a pass is idempotent), hopping to it
 at the travel height.  A resume of a different plan (parameters or part changed) starts
@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from app.jobs.context import JobContext
-from app.jobs.machine_jobs import interrupt, rehomed_machine, resume_request, stopped_by_operator
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import interrupt, rehomed_machine, resume_request, stopped_by_operator
 from app.jobs.sensor_runs import ScannedPass, open_scanner
-from app.machines import hardware_errors
+from app.machines.live import hardware_errors
 from hardware.errors import HardwareError, LinkError
 
 PASS_MEDIA_TYPE = "application/octet-stream"

@@ -12,9 +12,9 @@ from sqlmodel import Session
 
 from app.calibration.errors import CalibrationError
 from app.calibration.sensor import SensorCalibration
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.jobs.calibration import latest_calibration_job
-from app.jobs.calibration_results import CalibrateSensorResult
+from app.jobs.results.calibration import CalibrateSensorResult
 
 
 def stored_sensor_calibration(session: Session, machine_id: str) -> tuple[SensorCalibration, str] | None:

@@ -35,8 +35,8 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.ndimage import gaussian_filter1d
 from scipy.special import j1
 
-from app.checks import require_non_negative, require_positive
-from app.errors import InvalidInput
+from app.domain.checks import require_non_negative, require_positive
+from app.domain.errors import InvalidInput
 from app.geometry.tolerance import COVARIANCE_JITTER_REL, DEGENERATE_LENGTH_MM
 from app.geometry.traces import TracePolyline
 

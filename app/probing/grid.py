@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = ["ProbeGridError", "ProbeRegion", "ProbeGridPlan", "plan_probe_grid"]
 

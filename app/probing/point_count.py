@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from scipy.stats import norm
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.tolerance import ROUNDOFF_SLACK
 
 

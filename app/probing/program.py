@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from app.checks import require_positive
+from app.domain.checks import require_positive
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DIALECTS, ProgramBuilder
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 from app.probing.selection import PlanError, ProbePlan

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.checks import require_non_negative, require_positive
-from app.errors import InvalidInput
+from app.domain.checks import require_non_negative, require_positive
+from app.domain.errors import InvalidInput
 
 
 class CostError(InvalidInput):

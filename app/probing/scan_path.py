@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 
 class ScanPathError(InvalidInput):

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.traces import TracePolyline
 from app.probing.deviation_prior import DeviationPrior, Sites, path_gradient
 from app.probing.scan_cost import MotionCost, link_time, nearest_order, pass_time

@@ -47,8 +47,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.checks import require_non_negative, require_positive
-from app.errors import InvalidInput
+from app.domain.checks import require_non_negative, require_positive
+from app.domain.errors import InvalidInput
 from app.probing.deviation_prior import DeviationPrior
 from app.probing.minimax import auto_count, design_grid, design_stations
 from app.geometry.traces import TracePolyline, as_trace_polyline

@@ -61,7 +61,7 @@ from scipy.optimize import minimize, minimize_scalar
 from scipy.special import j1, jv
 from scipy.stats import chi2, norm
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import DeviationPrior, Sites, placement_basis
 

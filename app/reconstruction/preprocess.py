@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.tolerance import LENGTH_EPS_MM
 from app.geometry.traces import TracePolyline
 

@@ -37,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from app.checks import require_non_negative, require_positive
-from app.errors import InvalidInput
+from app.domain.checks import require_non_negative, require_positive
+from app.domain.errors import InvalidInput
 from app.geometry.tolerance import LENGTH_EPS_MM
 
 __all__ = [

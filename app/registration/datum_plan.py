@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from app.checks import require_positive
+from app.domain.checks import require_positive
 from app.geometry.placement import Placement, apply_placement, remove_placement
 from app.registration.registration import (
     PARAMETERS,

@@ -44,8 +44,8 @@ from typing import Any
 
 import numpy as np
 
-from app.checks import require_positive
-from app.errors import InvalidInput
+from app.domain.checks import require_positive
+from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement, remove_placement
 from app.geometry.traces import TracePolyline, as_trace_polyline
 

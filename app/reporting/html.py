@@ -8,8 +8,8 @@ import html
 from datetime import datetime, timezone
 from typing import Any
 
-from app.jobs.loop_results import ClosedLoopResult
-from app.jobs.results import (CompensateBoardResult, CompensateResult, PrintResult, ProbePlanResult, ProbeRunResult,
+from app.jobs.results.loop import ClosedLoopResult
+from app.jobs.results.models import (CompensateBoardResult, CompensateResult, PrintResult, ProbePlanResult, ProbeRunResult,
                               ReconstructBoardResult, ReconstructBoardTrace, ReconstructResult, program_artifacts)
 from app.reporting.collect import RunRecords
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 
 class SlicingError(InvalidInput):

@@ -26,7 +26,7 @@ import manifold3d
 import numpy as np
 import numpy.typing as npt
 
-from app.checks import require_non_negative, require_positive
+from app.domain.checks import require_non_negative, require_positive
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
 from app.slicing.mesh_prep import PreparedMesh

@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 import shapely
 
-from app.checks import require_positive
+from app.domain.checks import require_positive
 from app.gcode.estimator import MachineLimits, estimate_moves
 from app.gcode.fdm import bead_area_mm2
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM

@@ -110,7 +110,7 @@ def program_summary_file(path: str, pivot_mm: Any = (0.0, 0.0, 0.0), tcp: bool =
                          dispense_on: str | None = None, dispense_off: str | None = None) -> dict[str, Any]:
     """:func:`program_summary` of the program stored at ``path`` (UTF-8, undecodable bytes
     replaced), with the arc budget of its size: what a bounded child process computes for
-    a program too large to summarise in a request (:func:`app.jobs.isolated.call_isolated`)."""
+    a program too large to summarise in a request (:func:`app.runtime.isolated.call_isolated`)."""
     with open(path, "rb") as handle:
         data = handle.read()
     text = data.decode("utf-8", errors="replace")

@@ -20,7 +20,7 @@ import numpy as np
 from sqlmodel import Session, select
 
 from app.geometry.placement import Placement
-from app.models import Artifact, Job, Program
+from app.platform.models import Artifact, Job, Program
 from app.viewer.layer_preview import ProgramPreview
 from app.viewer.scene_data import FocusScene
 

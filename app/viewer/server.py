@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 from sqlmodel import Session, col, select
 
-from app.config import Settings
-from app.errors import Conflict
-from app.models import Job, Part
+from app.platform.config import Settings
+from app.domain.errors import Conflict
+from app.platform.models import Job, Part
 from app.viewer.access import HandshakeGuard, TokenSigner, allowed_origins, guarded_viser_serve, load_secret
 from app.viewer.csp import ViewPolicy
 from app.viewer.gui import ViewerPanel

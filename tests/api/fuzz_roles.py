@@ -13,7 +13,7 @@ import schemathesis
 from schemathesis.checks import not_a_server_error
 from schemathesis.specs.openapi.checks import status_code_conformance
 
-from app.config import load_settings
+from app.platform.config import load_settings
 from app.main import create_app
 from tests.conftest import KEYS
 

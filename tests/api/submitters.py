@@ -13,7 +13,7 @@ from pathlib import Path
 
 import httpx
 
-from tests.async_run import run_async
+from tests.helpers.async_run import run_async
 
 JOB = {"kind": "test_sleep", "params": {"seconds": 0}}
 

@@ -9,7 +9,7 @@ import asyncio
 import httpx
 
 from app.api.admission import AdmissionMiddleware
-from tests.async_run import run_async
+from tests.helpers.async_run import run_async
 
 
 def _app(release: asyncio.Event):  # type: ignore[no-untyped-def]

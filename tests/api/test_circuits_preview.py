@@ -12,7 +12,7 @@ import pytest
 from app.reference.s1 import s1_mesh
 from tests.api.test_circuits import GERBER_MM
 from tests.conftest import auth
-from tests.processes import free_port
+from tests.helpers.processes import free_port
 
 OP = auth("operator")
 

@@ -7,7 +7,7 @@ import tracemalloc
 import numpy as np
 
 from tests.conftest import auth
-from tests.test_array_files import bomb, npy, npz
+from tests.platform.test_array_files import bomb, npy, npz
 
 OP = auth("operator")
 

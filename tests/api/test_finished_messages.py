@@ -10,9 +10,9 @@ from collections.abc import Iterator
 import pytest
 from pydantic import Field
 
-from app.errors import InvalidInput
-from app.jobs.context import JobContext
-from app.jobs.registry import JobParams, job_kind
+from app.domain.errors import InvalidInput
+from app.runtime.context import JobContext
+from app.runtime.registry import JobParams, job_kind
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 

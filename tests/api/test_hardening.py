@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.auth import CACHE_MAX_ENTRIES, LoginThrottle
+from app.platform.auth import CACHE_MAX_ENTRIES, LoginThrottle
 from tests.conftest import auth
 
 OP, VIEWER = auth("operator"), auth("viewer")
@@ -77,7 +77,7 @@ def live(settings_factory):  # type: ignore[no-untyped-def]
     import uvicorn
 
     from app.main import create_app
-    from tests.processes import free_port
+    from tests.helpers.processes import free_port
 
     port = free_port()
     server = uvicorn.Server(uvicorn.Config(create_app(settings_factory(max_upload_mb=1)), host="127.0.0.1",
@@ -138,7 +138,7 @@ def test_failed_keys_are_throttled_and_a_valid_key_still_works(client):  # type:
 
 def test_the_unknown_key_cache_is_bounded(client, monkeypatch):  # type: ignore[no-untyped-def]
     assert CACHE_MAX_ENTRIES == 4096
-    monkeypatch.setattr("app.auth.CACHE_MAX_ENTRIES", 100)  # the same code path, fewer queries
+    monkeypatch.setattr("app.platform.auth.CACHE_MAX_ENTRIES", 100)  # the same code path, fewer queries
     keyring = client.app.state.keyring
     for i in range(350):
         assert keyring.role_of(f"unknown-{i}") is None

@@ -11,7 +11,7 @@ import trimesh
 from sqlalchemy import func
 from sqlmodel import Session, select
 
-from app.models import Job, Machine, Part, Program, Trace, UploadedFile
+from app.platform.models import Job, Machine, Part, Program, Trace, UploadedFile
 from tests.conftest import auth
 
 OP, ADMIN = auth("operator"), auth("admin")

@@ -9,7 +9,7 @@ from datetime import datetime, timedelta, timezone
 import trimesh
 from sqlmodel import Session
 
-from app.models import JobReference
+from app.platform.models import JobReference
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 

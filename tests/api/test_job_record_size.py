@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 
 from app.api.job_results import ARTIFACTS_INLINE_MAX, RESULT_INLINE_MAX_BYTES
-from app.jobs.results import result_summary
+from app.jobs.results.models import result_summary
 from tests.conftest import auth
 from tests.helpers.jobs import submit, wait_for
 

@@ -9,7 +9,7 @@ import pytest
 from sqlalchemy import update
 from sqlmodel import Session
 
-from app.models import Job
+from app.platform.models import Job
 from tests.conftest import auth
 from tests.jobs.test_calibration_jobs import PROFILE, calibrate, calibration, physics_machine
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from app.api.machines import interrupted_program
+from app.api.routes.machines import interrupted_program
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 

@@ -5,7 +5,7 @@ dispenser switch, seen in what the mock firmware executed)."""
 from __future__ import annotations
 
 from app.jobs.kinds.toolpath import ToolpathJobParams
-from app.materials import BY_NAME
+from app.machines.materials import BY_NAME
 from hardware.mock import get_world
 from tests.api.test_machines import program_text, register, upload_program
 from tests.conftest import auth

@@ -2,9 +2,9 @@
 
 For each documented route, the functions its endpoint calls by name (in ``app``, followed
 to any depth) are read: every ``raise SomeConformaError(`` counts with its HTTP status
-(``app.problems.http_status``), every ``HTTPException(NNN`` with NNN, and a
+(``app.platform.problems.http_status``), every ``HTTPException(NNN`` with NNN, and a
 ``hardware_errors()`` block with every status a hardware error translates to (409, 422,
-502, 503: ``app.machines.translate``).  Each must be among the route's documented responses.
+502, 503: ``app.machines.live.translate``).  Each must be among the route's documented responses.
 Calls through attributes (``runtime.machines.require``) are not followed; the schemathesis
 run (test_fuzz_openapi.py) checks the answers themselves."""
 
@@ -19,9 +19,9 @@ from typing import Any
 import pytest
 from fastapi.routing import APIRoute
 
-from app.errors import ConformaError
+from app.domain.errors import ConformaError
 from app.main import create_app
-from app.problems import _STATUS
+from app.platform.problems import _STATUS
 
 HARDWARE = {409, 422, 502, 503}
 
@@ -68,7 +68,7 @@ def raised(fn: Callable[..., Any], seen: set | None = None) -> dict[int, str]:
 def _bare_settings():  # type: ignore[no-untyped-def]
     import tempfile
 
-    from app.config import load_settings
+    from app.platform.config import load_settings
 
     return load_settings({}, data_dir=tempfile.mkdtemp(prefix="conforma-audit-") + "/data", viewer=False,
                          embedded_worker=False)

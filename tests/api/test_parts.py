@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.mesh_intake import export_mesh
+from app.parts.intake import export_mesh
 from tests.conftest import auth
 
 OP = auth("operator")

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from app.api.programs import CHUNK_BYTES
+from app.api.routes.programs import CHUNK_BYTES
 from tests.conftest import auth
 
 OP = auth("operator")

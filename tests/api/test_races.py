@@ -12,7 +12,7 @@ import pytest
 import trimesh
 from sqlmodel import Session, select
 
-from app.models import Job, JobReference, Part, Trace
+from app.platform.models import Job, JobReference, Part, Trace
 from tests.conftest import auth
 
 OP = auth("operator")
@@ -25,7 +25,7 @@ LINE = {"name": "t", "geometry": {"type": "line", "start": [-10, 0], "end": [10,
 def racer(tmp_path_factory):  # type: ignore[no-untyped-def]
     from fastapi.testclient import TestClient
 
-    from app.config import load_settings
+    from app.platform.config import load_settings
     from app.main import create_app
     from tests.conftest import KEYS
 

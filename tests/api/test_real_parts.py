@@ -12,7 +12,7 @@ import pytest
 
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
-from tests.real_parts import bolt, inch_3mf, metre_glb, metre_stl, teapot_like, two_body_badly_wound
+from tests.helpers.real_parts import bolt, inch_3mf, metre_glb, metre_stl, teapot_like, two_body_badly_wound
 
 OP = auth("operator")
 BED = {"x": [0, 200], "y": [0, 200], "z": [0, 200]}

@@ -90,9 +90,9 @@ def test_a_second_record_of_a_connected_port_cannot_connect():
     moving machine's)."""
     from types import SimpleNamespace
 
-    from app.errors import Conflict
-    from app.machines import MachineManager
-    from app.models import Machine
+    from app.domain.errors import Conflict
+    from app.machines.live import MachineManager
+    from app.platform.models import Machine
 
     manager = MachineManager(lambda _part_id: None)
     manager._machines["mach_a"] = SimpleNamespace(url="socket://localhost:5999", state="printing")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import trimesh
 
-from tests.upload_memory import measure_upload
+from tests.helpers.upload_memory import measure_upload
 
 
 def test_upload_peak_memory_is_at_most_four_times_the_file(tmp_path):
@@ -18,7 +18,7 @@ def test_upload_peak_memory_is_at_most_four_times_the_file(tmp_path):
 def test_a_300k_line_program_uploads_within_100_mb_and_6_s_of_server_cpu(tmp_path):
     """The default suite's share of the 3M-line bench: memory growth independent of the lines,
     and a CPU budget (the server's own time) that a loaded box cannot fail."""
-    from tests.upload_memory import measure_program_upload, write_program
+    from tests.helpers.upload_memory import measure_program_upload, write_program
 
     path = tmp_path / "long.gcode"
     write_program(path, 300_000)

@@ -2,7 +2,7 @@
 
 Run: make bench (or .venv/bin/python -m pytest tests/bench/test_bench_api_slicers.py -s -o addopts="" -q)
 
-Each real-shaped part (:mod:`tests.real_parts`) is uploaded to a served app (compute jobs in
+Each real-shaped part (:mod:`tests.helpers.real_parts`) is uploaded to a served app (compute jobs in
 their pool processes, default limits), sliced and filled at the defaults (0.2 mm layers, one
 perimeter, 100 % raster infill), then given to PrusaSlicer (``prusa-slicer``, Debian) and
 CuraEngine (``cura-engine``, with the ``cura`` package's definition files) with the same layer
@@ -28,7 +28,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import auth
-from tests.real_parts import cad_part, large_plate, thin_tube
+from tests.helpers.real_parts import cad_part, large_plate, thin_tube
 
 OP = auth("operator")
 CURA_RESOURCES = Path(os.environ.get("CURA_RESOURCES", "/usr/share/cura/resources"))

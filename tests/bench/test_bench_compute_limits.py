@@ -195,7 +195,7 @@ def test_npz_bomb_is_refused_with_near_zero_growth(tmp_path):
         assert refused == "file"
     """, setup=f"""
         from pathlib import Path
-        from app.array_files import ArrayFileError, inspect_npz
+        from app.platform.array_files import ArrayFileError, inspect_npz
         data = Path({str(path)!r}).read_bytes()
     """)
     print(f"\nNPZ bomb ({path.stat().st_size / 1e6:.2f} MB holding 800 MiB): refused, peak growth "

@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from app.part_cache import journal
+from app.parts.cache import journal
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for

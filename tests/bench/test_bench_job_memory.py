@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import pytest
 
-from app.config import Settings
+from app.platform.config import Settings
 from tests.jobs.job_memory import measure_jobs
 
 SMALL_MB = 50.0

@@ -30,7 +30,7 @@ import pytest
 from hardware.linuxcnc import SimController, linuxcnc_available
 from tests.hardware.linuxcnc.conftest import PROFILE
 from tests.hardware.linuxcnc.test_machine import check_estop_figures, estop_summary, measure_estops
-from tests.real_components import missing
+from tests.helpers.real_components import missing
 
 STOPS = 30
 

@@ -35,7 +35,7 @@ from tests.hardware.linuxcnc.conftest import PROFILE, add_sim_machine
 from tests.hardware.linuxcnc.test_height_sensor import _scan
 from tests.hardware.linuxcnc.test_scan_run import PROFILE as API_PROFILE, TRACE_X, _box_stl
 from tests.helpers.jobs import submit, wait_for
-from tests.real_components import missing
+from tests.helpers.real_components import missing
 
 pytestmark = pytest.mark.timeout(900)
 OP = auth("operator")

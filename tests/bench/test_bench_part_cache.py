@@ -3,7 +3,7 @@
 Run: .venv/bin/python -m pytest tests/bench/test_bench_part_cache.py -s -o addopts="" -q
 
 Compute jobs run each in a fresh child process, so what one job builds on a part is lost
-with its process unless it is stored: :mod:`app.part_cache` keeps the parsed mesh, its face
+with its process unless it is stored: :mod:`app.parts.cache` keeps the parsed mesh, its face
 normals and its edge grid as memory-mapped files keyed by the mesh's sha256.
 
 1. In process, on the 1.34M-face S1 part: each precomputation built from scratch vs loaded
@@ -22,8 +22,8 @@ from datetime import datetime
 import numpy as np
 
 from app.geometry.edge_grid import edge_grid
-from app.mesh_intake import parse_mesh
-from app.part_cache import MeshStore, PartCache, journal
+from app.parts.intake import parse_mesh
+from app.parts.cache import MeshStore, PartCache, journal
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.upload_memory import measure_program_upload, write_program
+from tests.helpers.upload_memory import measure_program_upload, write_program
 
 LINES = 3_000_000
 

@@ -17,13 +17,13 @@ import time
 
 import pytest
 
-from app.mesh_intake import intake
+from app.parts.intake import intake
 from app.slicing.export import to_cli, to_json, to_slc
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.mesh_prep import prepare_mesh
 from tests.bench.test_bench_slicing import _table
-from tests.real_parts import cad_part
-from tests.upload_memory import measure_upload
+from tests.helpers.real_parts import cad_part
+from tests.helpers.upload_memory import measure_upload
 
 LAYER_MM = 0.2
 STAGES = ("intake (read STL, merge, check)", "repair check + manifold build", "slice", "SLC", "CLI", "JSON")

@@ -24,7 +24,7 @@ from app.jobs.gcode_meta import gcode_meta
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.export import from_json, to_json
 from app.slicing.toolpath import ToolpathParams, iter_toolpath
-from tests.real_parts import cad_part, thin_tube
+from tests.helpers.real_parts import cad_part, thin_tube
 
 PARTS = {"cube 20 mm": lambda: trimesh.creation.box((20.0, 20.0, 20.0)),
          "cad part 13k faces": lambda: cad_part(refine=1), "tube, 0.305 mm wall": thin_tube}

@@ -20,7 +20,7 @@ import httpx
 import numpy as np
 import pytest
 
-from app.jobs.registry import JobParams, job_kind
+from app.runtime.registry import JobParams, job_kind
 from tests.e2e.test_serve import env_for, free_port, start, stop, wait_healthy
 
 KEY = "bench-viewer-key-1"

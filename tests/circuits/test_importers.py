@@ -9,7 +9,7 @@ import ezdxf
 import numpy as np
 import pytest
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.circuits.errors import CircuitFileError
 from app.circuits.formats import detect_format, read_layout
 

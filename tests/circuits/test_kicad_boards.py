@@ -11,7 +11,7 @@ from shapely.geometry import Polygon
 
 from app.circuits.errors import CircuitFileError
 from app.circuits.formats import read_layout
-from app.problems import http_status
+from app.platform.problems import http_status
 from tests.circuits.boards import SPECIAL_PADS, PourBoard, kicad_board, kicad_pads_board
 
 VERSIONS = {"KiCad 5": 20171130, "KiCad 6": 20211014, "KiCad 7": 20221018, "KiCad 8": 20240108}

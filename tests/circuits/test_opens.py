@@ -11,7 +11,7 @@ from shapely.geometry import LineString, Point
 from app.circuits.formats import read_layout
 from app.circuits.nets import Copper, area_polygon, trace_copper
 from app.circuits.opens import NetOpenError, check_opens, curve_points, fill_coverage, find_opens
-from app.problems import http_status
+from app.platform.problems import http_status
 from tests.circuits.boards import OPENS, open_board
 
 LINE = 0.2

@@ -14,7 +14,7 @@ from app.circuits.formats import read_layout
 from app.circuits.mapping import map_layout
 from app.circuits.nets import Copper, NetShortError, area_polygon, check_nets, find_shorts, trace_copper
 from app.circuits.placement import LayoutPlacement
-from app.problems import http_status
+from app.platform.problems import http_status
 from tests.circuits.boards import PourBoard, gerber_x2, kicad_board
 
 BOARD = PourBoard()

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.compensation.print_path import SegmentationError, segment_adaptive
 from app.compensation.standoff import (
     CompensationError,

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import httpx
 
-from app.jobs.process_identity import identify, make_gone
+from app.runtime.process_identity import identify, make_gone
 from tests.e2e.test_serve import env_for, start
-from tests.processes import free_port, stop, wait_healthy
+from tests.helpers.processes import free_port, stop, wait_healthy
 
 KEY = "e2e-operator-key-1"
 HEADERS = {"Authorization": f"Bearer {KEY}"}

@@ -9,7 +9,7 @@ import subprocess
 import httpx
 
 from tests.e2e.test_serve import CONFORMA, ROOT, env_for, start
-from tests.processes import free_port, stop, wait_healthy
+from tests.helpers.processes import free_port, stop, wait_healthy
 
 ADMIN = "demo-admin-key-1"
 

@@ -1,5 +1,5 @@
 """A client that gives up on a circuit import stops the server's work: the import's child
-process (app.jobs.isolated) is gone within 2 s of the connection closing, and the server
+process (app.runtime.isolated) is gone within 2 s of the connection closing, and the server
 answers /health promptly all along (a real `conforma serve` over TCP)."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import httpx
 
 from app.reference.s1 import s1_mesh
 from tests.e2e.test_serve import env_for, start
-from tests.processes import free_port, stop, wait_healthy
+from tests.helpers.processes import free_port, stop, wait_healthy
 
 KEY = "e2e-operator-key-1"
 HEADERS = {"Authorization": f"Bearer {KEY}"}

@@ -10,7 +10,7 @@ import sys
 
 from hardware.protocol import commands_sha256
 from tests.hardware.mock.printrun_host import load_printcore, program, stream_with_printcore
-from tests.processes import stop
+from tests.helpers.processes import stop
 
 
 def test_printcore_streams_to_the_mock_printer_command():

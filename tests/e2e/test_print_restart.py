@@ -1,6 +1,6 @@
 """Resume on the real processes: `conforma serve` SIGKILLed mid-print and started
 again.  The printer (the mock firmware behind a TCP-serial bridge in its own process, see
-tests/mock_tcp_printer.py) outlives the server, as a real one does.  The job comes back
+tests/helpers/mock_tcp_printer.py) outlives the server, as a real one does.  The job comes back
 ``interrupted``, the printer executes nothing until an operator resumes, and the resumed
 job continues from the right command: the firmware executed the program exactly once."""
 
@@ -15,8 +15,8 @@ import httpx
 
 from hardware.protocol import normalized_commands
 from tests.e2e.test_serve import ROOT, env_for, start
-from tests.mock_tcp_printer import status
-from tests.processes import free_port, stop, wait_healthy
+from tests.helpers.mock_tcp_printer import status
+from tests.helpers.processes import free_port, stop, wait_healthy
 
 ADMIN = "e2e-admin-key-1"
 # ~30 ms per move in real time (1 mm at 2000 mm/min): long enough to kill it midway
@@ -25,7 +25,7 @@ PROGRAM = "G21\nG90\n" + "".join(f"G1 X{(i % 20) + 1}.0 Y{(i // 20) % 2}.0 F2000
 
 def _printer(log) -> tuple[subprocess.Popen, int, int]:  # type: ignore[no-untyped-def]
     port, status_port = free_port(), free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "tests.mock_tcp_printer", "--port", str(port),
+    proc = subprocess.Popen([sys.executable, "-m", "tests.helpers.mock_tcp_printer", "--port", str(port),
                              "--status-port", str(status_port), "--time-scale", "1"],
                             cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     deadline = time.monotonic() + 20

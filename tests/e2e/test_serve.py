@@ -13,7 +13,7 @@ from pathlib import Path
 import httpx
 import trimesh
 
-from tests.processes import free_port, stop, wait_healthy
+from tests.helpers.processes import free_port, stop, wait_healthy
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFORMA = [sys.executable, "-m", "app.cli"]

@@ -21,7 +21,7 @@ from app.five_axis.trace import trace_over_xy
 from app.geometry.fitting import fit_surface
 from app.geometry.nurbs_surface import NurbsSurface
 from tests.five_axis.conftest import SPHERE_R
-from tests.gcode_words import g1_rows
+from tests.helpers.gcode_words import g1_rows
 
 H = 0.5
 PIVOT = (5.0, -3.0, -20.0)

@@ -18,7 +18,7 @@ from app.gcode.writer import GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.toolpath import LayerStats, LayerToolpath, PathPiece, ToolpathParams, plan_toolpath
-from tests.real_parts import cad_part
+from tests.helpers.real_parts import cad_part
 
 
 def _reference(layers, tpp: ToolpathParams, params: FdmParams) -> str:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.lines import iter_lines
 from app.gcode.program_bounds import BoundsScan, LineBounds
 from app.gcode.reader import ReadOptions, read_program

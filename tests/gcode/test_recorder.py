@@ -23,7 +23,7 @@ from app.gcode.writer import GcodeError, ProgramBuilder
 from app.jobs.gcode_meta import gcode_meta
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.toolpath import ToolpathParams, plan_toolpath
-from tests.real_parts import cad_part, thin_tube
+from tests.helpers.real_parts import cad_part, thin_tube
 
 
 def _assert_same(recorded: Program, read: Program) -> None:

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.writer import DIALECTS, GcodeError, ProgramBuilder, format_number
 
 

@@ -8,7 +8,7 @@ from geomdl import NURBS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.geometry.errors import DegenerateGeometryError, GeometryError, KnotVectorError, WeightError
 from app.geometry.nurbs import NurbsCurve
 

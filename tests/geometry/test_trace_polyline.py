@@ -29,7 +29,7 @@ STORED = {
 
 
 def _old_stored_form(nominal, slope) -> dict:  # type: ignore[no-untyped-def]
-    """What app/records.py wrote before TracePolyline.to_dict (kept here as the format's reference)."""
+    """What the trace records held before TracePolyline.to_dict (kept here as the format's reference)."""
     return {
         "points": [[round(float(v), 6) for v in p] for p in nominal.points],
         "normals": [[round(float(v), 6) for v in n] for n in nominal.normals],

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.jetting.errors import JettingError
 from app.jetting.params import DropParams, TargetSpec
 from app.jetting.targets import (

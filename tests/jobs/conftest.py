@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from app.db import migrate
-from app.jobs.runtime import Runtime
+from app.platform.db import migrate
+from app.runtime.engine import Runtime
 
 
 @pytest.fixture

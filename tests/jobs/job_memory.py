@@ -30,7 +30,7 @@ def reset_peak():  # VmHWM back to the current RSS (Linux >= 4.0)
         f.write("5")
 
 from app.jobs.kinds import slice as slice_kind, toolpath as toolpath_kind
-import tests.real_parts as parts
+import tests.helpers.real_parts as parts
 
 mesh = eval(sys.argv[1], vars(parts))
 data = mesh.export(file_type="stl")
@@ -86,7 +86,7 @@ print(json.dumps({"faces": part.faces, "layers": job.result["layer_count"],
 
 
 def measure_jobs(part: str, slice_params: dict | None = None, toolpath_params: dict | None = None) -> dict:
-    """Slice then toolpath ``part`` (an expression over :mod:`tests.real_parts`, e.g.
+    """Slice then toolpath ``part`` (an expression over :mod:`tests.helpers.real_parts`, e.g.
     ``"thin_tube()"``) in a fresh process; returns faces, layers, program lines and per job
     ``rss_mb``, ``vm_mb`` (peak growth, MiB) and ``estimate_mb`` (the cost model's)."""
     out = subprocess.run([sys.executable, "-c", textwrap.dedent(_BODY), part, json.dumps(slice_params or {}),

@@ -7,10 +7,10 @@ from typing import Any, ClassVar
 
 from pydantic import Field
 
-from app.errors import InvalidInput
-from app.jobs.context import JobContext
-from app.jobs.registry import JobParams, job_kind
-from app.jobs.results import KindResult
+from app.domain.errors import InvalidInput
+from app.runtime.context import JobContext
+from app.runtime.registry import JobParams, job_kind
+from app.jobs.results.models import KindResult
 
 
 class SleepParams(JobParams):
@@ -124,7 +124,7 @@ class StubbornParams(JobParams):
 
 
 def _alive(pid: int) -> bool:
-    from app.jobs.process_identity import start_ticks
+    from app.runtime.process_identity import start_ticks
 
     return start_ticks(pid) is not None
 

@@ -21,12 +21,12 @@ from sqlmodel import Session, select
 
 from app.jobs import board_checkpoints
 from app.jobs.board_checkpoints import TraceCheckpoints, checkpoint_name
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.kinds import compensate as compensate_kind
 from app.jobs.kinds import reconstruct as reconstruct_kind
-from app.jobs.registry import get_kind
-from app.jobs.store import Claim
-from app.models import Artifact, Job
+from app.runtime.registry import get_kind
+from app.runtime.store import Claim
+from app.platform.models import Artifact, Job
 from app.reconstruction.stored import stored_name
 from app.reference.s1 import as_made, s1_mesh
 from tests.conftest import auth

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from app.jobs.kinds.circuit_program import station_runs
-from app.jobs.loop_results import LoopTrace
+from app.jobs.results.loop import LoopTrace
 
 
 def test_a_joint_loops_stations_count_once():

@@ -73,7 +73,7 @@ def test_a_reconstruct_job_without_its_stored_reconstruction_is_refused(client, 
     compensate is a 422 naming params.reconstruct_job_id, not a rebuild behind the user's back."""
     from sqlmodel import Session, select
 
-    from app.models import Artifact
+    from app.platform.models import Artifact
 
     part = client.post("/api/v1/parts", files={"file": ("s1.stl", s1_stl)}, headers=OP).json()
     trace = client.post(f"/api/v1/parts/{part['id']}/traces", json=s1_traces()[6].to_api(), headers=OP).json()

@@ -12,7 +12,7 @@ class _Node:
 
 
 def _child(queue) -> None:  # type: ignore[no-untyped-def]
-    from app.jobs.compute_child import freeze_startup_objects
+    from app.runtime.compute_child import freeze_startup_objects
 
     before = gc.get_freeze_count()
     freeze_startup_objects()

@@ -8,9 +8,9 @@ import time
 import pytest
 import trimesh
 
-from app.config import load_settings
-from app.errors import InvalidInput
-from app.jobs.cost import Cost, check_cost
+from app.platform.config import load_settings
+from app.domain.errors import InvalidInput
+from app.runtime.cost import Cost, check_cost
 from tests.conftest import auth
 from tests.helpers.jobs import submit, wait_for
 

@@ -1,4 +1,4 @@
-"""Long-lived compute processes (app.jobs.compute_pool): a job on a part a process already
+"""Long-lived compute processes (app.runtime.compute_pool): a job on a part a process already
 holds reuses what the earlier job built, with byte-identical results; cancel, recycling and
 affinity keep every isolation guarantee."""
 
@@ -10,8 +10,8 @@ from typing import Any
 
 import pytest
 
-from app.jobs.compute_pool import ComputePool, Member, retire_reason
-from app.part_cache import journal
+from app.runtime.compute_pool import ComputePool, Member, retire_reason
+from app.parts.cache import journal
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for

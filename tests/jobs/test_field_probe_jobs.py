@@ -202,7 +202,7 @@ def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(c
     # plan, the run and every finished batch job and only redoes the unfinished one
     from sqlalchemy import update
 
-    from app.models import Job
+    from app.platform.models import Job
 
     before = client.get(f"/api/v1/jobs?parent_id={loop['id']}", headers=OP).json()["total"]
     runtime = client.app.state.runtime
@@ -252,8 +252,8 @@ def test_a_board_reconstruct_stores_each_traces_reconstruction_and_compensate_re
     their board models."""
     import io
 
-    from app.jobs.results import CompensateBoardResult, ReconstructBoardResult
-    from app.models import Job
+    from app.jobs.results.models import CompensateBoardResult, ReconstructBoardResult
+    from app.platform.models import Job
     from app.reconstruction.stored import stored_name
 
     setup = board(client, coarse)

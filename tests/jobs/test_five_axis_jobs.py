@@ -15,11 +15,11 @@ import pytest
 import trimesh
 
 from app.geometry.nurbs_surface import NurbsSurface
-from app.jobs.results import FiveAxisResult, ProgramEcho, StoredResultError
-from app.models import Job
+from app.jobs.results.models import FiveAxisResult, ProgramEcho, StoredResultError
+from app.platform.models import Job
 from hardware.protocol import commands_sha256
 from tests.conftest import auth
-from tests.gcode_words import g1_lines_missing, g1_rows
+from tests.helpers.gcode_words import g1_lines_missing, g1_rows
 from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.geometry.nurbs_surface import NurbsSurface
-from tests.gcode_words import g1_rows
+from tests.helpers.gcode_words import g1_rows
 from tests.jobs.test_five_axis_jobs import (ARC, OP, add_trace, artifact, assert_normal_and_standoff, cap_stl,
                                             run_job, submit, upload)
 

@@ -9,7 +9,7 @@ import re
 import pytest
 
 from app.jobs.form_hints import title_of, unit_of
-from app.jobs.registry import load_kinds
+from app.runtime.registry import load_kinds
 
 KINDS = load_kinds()
 

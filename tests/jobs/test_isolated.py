@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from app.errors import Cancelled, InvalidInput, TooLarge
-from app.jobs.isolated import call_isolated
+from app.domain.errors import Cancelled, InvalidInput, TooLarge
+from app.runtime.isolated import call_isolated
 
 MIB = 2 ** 20
 

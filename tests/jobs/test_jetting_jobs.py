@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from app.jetting import DropParams, TargetSpec, target_from_spec
-from app.jobs.jetting_results import JettingResult, NextLayerResult
+from app.jobs.results.jetting import JettingResult, NextLayerResult
 from tests.conftest import auth
 from tests.helpers.jobs import submit, wait_for
 from tests.jobs.test_program_results import round_trips

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from sqlalchemy import update
 
-from app.errors import Cancelled
-from app.models import Job
+from app.domain.errors import Cancelled
+from app.platform.models import Job
 from hardware.mock import get_world
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
@@ -235,7 +235,7 @@ def test_a_loop_and_its_probe_run_both_interrupted_resume_child_first_then_the_l
     both are interrupted.  Resuming the loop first is refused naming the child; the child
     resumes its probes where they stopped; the loop stays interrupted until the operator
     resumes it, then reuses every finished child and probes nothing again."""
-    from app.jobs.context import JobContext
+    from app.runtime.context import JobContext
 
     params, flaky, clean = two_traces
     dead: set[str] = set()

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from sqlmodel import Session
 
-from app.errors import ConformaError
+from app.domain.errors import ConformaError
 from app.jobs.loop_steps import HOLD_ROUND_MM, end_hold
-from app.jobs.results import ReconstructResult
-from app.models import Job
+from app.jobs.results.models import ReconstructResult
+from app.platform.models import Job
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.helpers.jobs import submit, wait_for

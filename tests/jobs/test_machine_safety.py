@@ -9,7 +9,7 @@ import time
 import pytest
 from sqlalchemy import update
 
-from app.models import Job
+from app.platform.models import Job
 from hardware.mock import get_world
 from hardware.protocol import normalized_commands
 from tests.conftest import auth

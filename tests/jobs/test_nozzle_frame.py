@@ -16,9 +16,9 @@ import pytest
 from sqlmodel import Session
 
 from app.gcode.reader import read_program
-from app.models import Job
+from app.platform.models import Job
 from app.reference.s1 import height_field_mesh
-from app.jobs.results import PrintResult
+from app.jobs.results.models import PrintResult
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 from tests.jobs.test_program_results import round_trips

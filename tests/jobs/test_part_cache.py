@@ -1,4 +1,4 @@
-"""The per-part cache on disk (app.part_cache): round trips, corruption, eviction, and the
+"""The per-part cache on disk (app.parts.cache): round trips, corruption, eviction, and the
 service's second compute job loading what the first one built (in process isolation)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 
 from app.geometry.drape import drape_polyline
 from app.geometry.edge_grid import cached_edge_grid, edge_grid
-from app.part_cache import MeshStore, PartCache, journal, mesh_key
+from app.parts.cache import MeshStore, PartCache, journal, mesh_key
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 
@@ -126,7 +126,7 @@ def test_a_stored_edge_grid_drapes_exactly_like_a_fresh_one(tmp_path):
 
 
 def test_the_probe_programs_face_boxes_travel_with_the_mesh(tmp_path):
-    from app.part_cache import FACE_BOXES
+    from app.parts.cache import FACE_BOXES
     from app.probing import program, travel_height
 
     assert FACE_BOXES == travel_height.FACE_BOXES  # the key the probe program caches its boxes under
@@ -217,8 +217,8 @@ def test_the_mesh_cache_of_a_new_process_gets_the_placed_meshs_grid(tmp_path):
     import hashlib
     from types import SimpleNamespace
 
-    from app.blobs import BlobStore
-    from app.records import MeshCache
+    from app.platform.blobs import BlobStore
+    from app.parts.meshes import MeshCache
 
     data = s1_mesh(grid_mm=2.0).export(file_type="stl")
     blobs = BlobStore(tmp_path / "blobs")

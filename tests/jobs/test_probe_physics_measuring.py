@@ -18,7 +18,7 @@ import pytest
 from sqlmodel import Session
 
 from app.calibration import PretravelModel, ProbeCalibration
-from app.models import Job, new_id, utcnow
+from app.platform.models import Job, new_id, utcnow
 from app.reference.s1 import as_made, nominal_height, s1_mesh, s1_traces
 from tests.conftest import KEYS, auth
 from tests.helpers.jobs import wait_for
@@ -42,7 +42,7 @@ def client(tmp_path_factory) -> Iterator:
     the meshes are uploaded and parsed once, not once per test."""
     from fastapi.testclient import TestClient
 
-    from app.config import load_settings
+    from app.platform.config import load_settings
     from app.main import create_app
 
     settings = load_settings({}, data_dir=tmp_path_factory.mktemp("measuring") / "data",

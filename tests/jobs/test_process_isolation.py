@@ -97,7 +97,7 @@ def test_a_job_killed_for_memory_fails_once_with_the_reason_when_the_database_fi
     fails at its first attempt with the reason, never runs again as attempt 2 without an error."""
     from sqlalchemy.exc import OperationalError
 
-    from app.jobs.store import JobStore
+    from app.runtime.store import JobStore
 
     finish, refused = JobStore.finish, []
 
@@ -142,7 +142,7 @@ def test_a_stopping_worker_kills_its_child_and_puts_the_job_back(runtime):
     runtime.stop()
     from sqlmodel import Session
 
-    from app.models import Job
+    from app.platform.models import Job
 
     with Session(runtime.engine) as session:
         row = session.get(Job, job.id)
@@ -168,9 +168,9 @@ def test_a_parent_that_loses_its_lease_leaves_its_children_alone(runtime):
     probe run that holds measured points waiting for the operator's resume."""
     from sqlmodel import Session
 
-    from app.errors import Cancelled
-    from app.jobs.context import JobContext
-    from app.models import Job
+    from app.domain.errors import Cancelled
+    from app.runtime.context import JobContext
+    from app.platform.models import Job
 
     parent = runtime.submit("test_sleep", {"seconds": 0})
     claim = runtime.store.claim(parent.id, "w1")

@@ -12,10 +12,10 @@ import json
 import pytest
 from pydantic import ValidationError
 
-from app.jobs.jetting_results import JettingResult, NextLayerResult
-from app.jobs.program_results import CircuitProgramResult, ToolpathResult, WarpProgramResult
-from app.jobs.results import KindResult, PrintResult, StoredResultError
-from app.models import Job, utcnow
+from app.jobs.results.jetting import JettingResult, NextLayerResult
+from app.jobs.results.program import CircuitProgramResult, ToolpathResult, WarpProgramResult
+from app.jobs.results.models import KindResult, PrintResult, StoredResultError
+from app.platform.models import Job, utcnow
 
 
 def round_trips(model: type[KindResult], job: dict) -> KindResult:

@@ -8,7 +8,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.reader import read_program
 from app.jobs.gcode_meta import ProgramScan, gcode_meta
 from hardware.protocol import commands_sha256

@@ -16,7 +16,7 @@ import trimesh
 
 from app.geometry.placement import Placement, apply_placement
 from app.geometry.traces import as_trace_polyline
-from app.jobs.results import RegisterResult, StoredResultError
+from app.jobs.results.models import RegisterResult, StoredResultError
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.helpers.jobs import submit, wait_for

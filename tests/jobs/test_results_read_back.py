@@ -8,12 +8,12 @@ from __future__ import annotations
 import pytest
 from sqlmodel import Session
 
-from app.jobs.calibration_results import CalibrateNozzleResult, CalibrateProbeResult
-from app.jobs.loop_results import ClosedLoopResult
-from app.jobs.results import (FiveAxisResult, PrintResult, ProgramEcho, RegisterResult, SliceResult, StoredResultError,
+from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult
+from app.jobs.results.loop import ClosedLoopResult
+from app.jobs.results.models import (FiveAxisResult, PrintResult, ProgramEcho, RegisterResult, SliceResult, StoredResultError,
                               SurfaceFitResult)
-from app.models import Job, new_id, utcnow
-from app.problems import http_status
+from app.platform.models import Job, new_id, utcnow
+from app.platform.problems import http_status
 from app.reporting.collect import RunRecords
 from app.reporting.html import render_run_report
 from tests.jobs.test_slicing_jobs import box_with_hole, submit, upload

@@ -1,5 +1,5 @@
 """The scale-out profile on real PostgreSQL + Redis (skipped, with the reason, when absent;
-under ``CI=true`` a missing server fails the test: ``tests/real_components.py``).
+under ``CI=true`` a missing server fails the test: ``tests/helpers/real_components.py``).
 
 Same models, same migrations, same job code: only CONFORMA_DATABASE_URL and
 CONFORMA_QUEUE_URL change.  Servers default to the project machines' 127.0.0.1:5432 and
@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from tests.real_components import missing
+from tests.helpers.real_components import missing
 
 PG_ADMIN_URL = os.environ.get("CONFORMA_TEST_DATABASE_URL", "postgresql://postgres@127.0.0.1:5432/postgres")
 REDIS_URL = os.environ.get("CONFORMA_TEST_QUEUE_URL", "redis://127.0.0.1:6379/15")
@@ -84,8 +84,8 @@ def test_jobs_run_on_postgres_and_redis(scale_settings):
 
 
 def test_reaper_requeues_on_postgres(scale_settings):
-    from app.db import migrate
-    from app.jobs.runtime import Runtime
+    from app.platform.db import migrate
+    from app.runtime.engine import Runtime
 
     migrate(scale_settings)
     runtime = Runtime(scale_settings)

@@ -15,7 +15,7 @@ from shapely.geometry import Polygon
 from app.gcode.estimator import MachineLimits, estimate_gcode
 from app.gcode.reader import read_program
 from hardware.protocol import commands_sha256
-from app.jobs.program_results import ToolpathResult
+from app.jobs.results.program import ToolpathResult
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 from tests.jobs.test_program_results import round_trips
@@ -363,7 +363,7 @@ def test_toolpath_on_a_registered_machine_uses_its_travel_limits(client, part):
 
 
 def test_a_thin_walled_tube_prints_its_wall_and_a_part_with_nothing_to_extrude_fails_with_the_reason(client):
-    from tests.real_parts import thin_tube
+    from tests.helpers.real_parts import thin_tube
 
     printed = run(client, "slice", {"part_id": upload(client, thin_tube(0.305, 10.0, 1.0)), "layer_mm": 0.25})
     job = run(client, "toolpath", {"slice_job_id": printed["id"]})

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.probing.deviation_prior import (DeviationPrior, PriorError, Sites, fit_posterior,
                                          jinc_kernel, path_center, path_gradient, path_sites,
                                          placement_basis, prior_covariance)

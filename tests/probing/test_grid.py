@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.probing.grid import ProbeGridError, ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import grid_from_plan
 

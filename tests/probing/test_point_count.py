@@ -5,7 +5,7 @@ import math
 import pytest
 from scipy.stats import norm
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.probing.point_count import PointCountError, seed_point_count
 
 

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.geometry.traces import as_trace_polyline
 from app.probing.selection import (PlanError, PlanParams, chord_height_select, chord_heights,
                                    deviation_spacing, deviation_stations, plan_probes)

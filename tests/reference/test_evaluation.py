@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.reference.evaluation import (
     EvaluationError,
     LineWidthModel,

@@ -12,7 +12,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.registration.datum_plan import (
     DatumProbeParams,
     find_edge,

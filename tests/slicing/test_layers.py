@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.problems import http_status
+from app.platform.problems import http_status
 from app.slicing.errors import MeshError, SlicingError
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.rings import signed_area

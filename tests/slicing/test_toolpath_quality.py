@@ -15,7 +15,7 @@ import shapely
 from app.gcode.fdm import FdmParams, bead_area_mm2, write_fdm_gcode
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.toolpath import RESOLUTION_MM, ToolpathParams, plan_toolpath, simplify_paths
-from tests.real_parts import cad_part, thin_tube
+from tests.helpers.real_parts import cad_part, thin_tube
 from tests.slicing.conftest import to_trimesh
 
 MOVE = re.compile(r"^G1 X(-?[\d.]+) Y(-?[\d.]+)(?: F[\d.]+)?(?: E(-?[\d.]+))?$")

@@ -6,7 +6,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.processes import free_port
+from tests.helpers.processes import free_port
 
 __all__ = ["free_port", "viser_server"]
 

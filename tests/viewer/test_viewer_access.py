@@ -18,7 +18,7 @@ from websockets.exceptions import InvalidStatus
 
 from app.reference.s1 import s1_mesh
 from app.viewer.access import TokenError, TokenSigner, load_secret
-from tests.async_run import run_async
+from tests.helpers.async_run import run_async
 from tests.conftest import auth
 from tests.viewer.conftest import free_port
 
@@ -30,7 +30,7 @@ SUBPROTOCOL = f"viser-v{viser.__version__}"
 def served(tmp_path_factory):  # type: ignore[no-untyped-def]
     from fastapi.testclient import TestClient
 
-    from app.config import load_settings
+    from app.platform.config import load_settings
     from app.main import create_app
     from tests.conftest import KEYS
 

@@ -22,7 +22,7 @@ from websockets.exceptions import InvalidStatus
 
 from app.viewer.csp import ClientPageError, base88_decode, client_sources, other_policy
 from app.viewer.server import ViewerStartError, check_page_policy
-from tests.async_run import run_async
+from tests.helpers.async_run import run_async
 from tests.viewer.conftest import free_port
 
 API_PORT = 8123
@@ -31,7 +31,7 @@ ALPHABET = "!#$%()*+,-./0123456789:;=?@ABCDEFGHIJKLMNOPQRSTUVWXYZ[\\]^_abcdefghi
 
 @pytest.fixture(scope="module")
 def view(tmp_path_factory) -> Iterator:  # type: ignore[no-untyped-def]
-    from app.config import load_settings
+    from app.platform.config import load_settings
     from app.viewer.server import start_viewer
 
     settings = load_settings({}, data_dir=tmp_path_factory.mktemp("viewer-csp"), viewer=True,

@@ -16,15 +16,15 @@ from pydantic import Field
 from sqlmodel import Session
 
 from app.calibration import fit_qualification, plan_qualification, plan_times
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.jobs.calibration import agreement, latest_calibration_job, machine_profile, probe_values
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
-from app.jobs.calibration_results import CalibrateProbeResult
-from app.jobs.context import JobContext
-from app.jobs.machine_jobs import refuse_if_machine_busy
-from app.jobs.registry import JobParams, job_kind
-from app.models import Machine
-from app.records import get_or_404
+from app.jobs.results.calibration import CalibrateProbeResult
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import refuse_if_machine_busy
+from app.runtime.registry import JobParams, job_kind
+from app.platform.models import Machine
+from app.platform.lookup import get_or_404
 
 
 CAP_RINGS_DEG = (0.0, 30.0, 50.0, 65.0, 75.0)

@@ -9,7 +9,7 @@ pad's top height and the sphere's centre come from the machine's current probe c
 without one the probe touches the pad's centre once and the sphere is taken at the profile's
 nominal place (exact for an ideal probe only: the result's ``references.source`` says which).
 
-The result (:class:`app.jobs.calibration_results.CalibrateSensorResult`) is the stored
+The result (:class:`app.jobs.results.calibration.CalibrateSensorResult`) is the stored
 calibration: ``scan_run`` and ``closed_loop`` (measuring by scan) use the machine's newest
 one unless a calibration is given (:mod:`app.jobs.sensor_calibration`).  A failure stops
 the job (nothing moves afterwards); it is run again whole.
@@ -20,17 +20,17 @@ from __future__ import annotations
 from pydantic import Field
 from sqlmodel import Session
 
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.jobs.calibration import current_calibration, machine_profile
-from app.jobs.calibration_results import CalibrateSensorResult
+from app.jobs.results.calibration import CalibrateSensorResult
 from app.jobs.calibration_touch import travel_height
-from app.jobs.context import JobContext
-from app.jobs.machine_jobs import connected_machine, refuse_if_machine_busy
-from app.jobs.registry import JobParams, job_kind
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import connected_machine, refuse_if_machine_busy
+from app.runtime.registry import JobParams, job_kind
 from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor
-from app.machines import hardware_errors
-from app.models import Machine
-from app.records import get_or_404
+from app.machines.live import hardware_errors
+from app.platform.models import Machine
+from app.platform.lookup import get_or_404
 from hardware.height_sensor import HeightSensor
 
 PAD_TOUCH_FROM_MM = 2.0  # without a probe calibration: the pad touch starts this far above its nominal top

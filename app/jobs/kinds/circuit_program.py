@@ -40,19 +40,19 @@ from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import fill_tip_strokes, trace_passes_many
 from app.circuits.surface import PrintedPoints
 from app.jobs.circuit_surface import loop_placement, measured_surface
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.drape import drape_polyline
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.registry import JobParams, job_kind
-from app.errors import ConformaError
-from app.models import CircuitImport, Job, Trace
-from app.jobs.program_results import CircuitProgramResult
-from app.jobs.loop_results import ClosedLoopResult, LoopTrace
-from app.jobs.results import CompensateResult, ProbeRunResult, compensate_rows
+from app.runtime.registry import JobParams, job_kind
+from app.domain.errors import ConformaError
+from app.platform.models import CircuitImport, Job, Trace
+from app.jobs.results.program import CircuitProgramResult
+from app.jobs.results.loop import ClosedLoopResult, LoopTrace
+from app.jobs.results.models import CompensateResult, ProbeRunResult, compensate_rows
 from app.reconstruction.field_trust import with_bound
-from app.records import get_or_404
+from app.platform.lookup import get_or_404
 
 
 #: slack (mm) below surface + standoff a printed point may come on a fitted field (the traces'

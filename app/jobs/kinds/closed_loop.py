@@ -68,22 +68,22 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from sqlmodel import Session
 
-from app.errors import InvalidInput
-from app.jobs.context import JobContext
+from app.domain.errors import InvalidInput
+from app.runtime.context import JobContext
 from app.jobs.loop_files import write_loop_files
 from app.jobs.loop_gates import Gates, PausePoint
-from app.jobs.loop_results import ClosedLoopResult
+from app.jobs.results.loop import ClosedLoopResult
 from app.jobs.loop_steps import (Steps, TypedResults, board_batch, is_sequential, measured_by, more_rounds,
                                  plan_params, print_trace, probe_rings, run_params, scan_params, scanned_summary,
                                  trace_children)
-from app.jobs.machine_jobs import refuse_if_machine_busy
+from app.runtime.machine_queue import refuse_if_machine_busy
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
-from app.jobs.registry import JobParams, job_kind
+from app.runtime.registry import JobParams, job_kind
 from app.jobs.sensor_calibration import scan_calibration
-from app.jobs.results import ProbePlanResult, RegisterResult
-from app.models import Job, Machine, Trace
+from app.jobs.results.models import ProbePlanResult, RegisterResult
+from app.platform.models import Job, Machine, Trace
 from app.reconstruction.field_trust import measured_bound, verification_line
-from app.records import get_or_404
+from app.platform.lookup import get_or_404
 
 STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
 PROGRESS_EVERY_S = 0.5  # the per-trace phase reports its progress at most this often (thousands of traces)

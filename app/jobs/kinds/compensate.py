@@ -39,20 +39,20 @@ from app.gcode.writer import DEFAULT_DIALECT
 from app.calibration.clearance import nozzle_clearance
 from app.compensation.standoff import CompensationError, CompensationParams, compensate_trace, real_surface_height, \
     tip_path
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.drape import top_surface_z
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import placed_nominal, placed_params_of, placement_from, succeeded_job
 from app.jobs.params import MAX_FIELD_TRACES
-from app.jobs.registry import JobParams, job_kind
-from app.jobs.results import CompensateBoardResult, CompensateResult
-from app.models import Artifact, Machine
+from app.runtime.registry import JobParams, job_kind
+from app.jobs.results.models import CompensateBoardResult, CompensateResult
+from app.platform.models import Artifact, Machine
 from app.reconstruction.stored import read_reconstruction, stored_name
-from app.records import get_or_404
+from app.platform.lookup import get_or_404
 
 
 CLEARANCE_STEP_MM = 0.05  # tip stations of the nozzle-body check along the path

@@ -27,19 +27,19 @@ from pydantic import Field
 from sqlmodel import Session
 
 from app.calibration.sensor import SensorCalibration
-from app.errors import Cancelled, InvalidInput
+from app.domain.errors import Cancelled, InvalidInput
 from app.jetting import drop_kernel, surface_metrics
 from app.jetting.controller import mpc_layer
 from app.jetting.flow import mobility_map
 from app.jetting.machine_grid import Grid, fill_missing, predicted_heights, substrate_map
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.jetting_inputs import (NPZ_MEDIA_TYPE, PrintModelParams, check_target, core_errors, target_of,
                                      target_references)
 from app.jobs.jetting_machine import MachineSetup, cure, print_layer, scan_layer
-from app.jobs.jetting_results import JettingRunResult
-from app.jobs.machine_jobs import interrupt, refuse_if_machine_busy, rehomed_machine, resume_request, stopped_by_operator
-from app.jobs.registry import job_kind
-from app.machines import MachineFault, MachineUnavailable, translate
+from app.jobs.results.jetting import JettingRunResult
+from app.runtime.machine_queue import interrupt, refuse_if_machine_busy, rehomed_machine, resume_request, stopped_by_operator
+from app.runtime.registry import job_kind
+from app.machines.live import MachineFault, MachineUnavailable, translate
 from hardware.errors import HardwareError, LinkError
 from hardware.height_sensor import HeightSensor
 from hardware.printhead import PrintHead

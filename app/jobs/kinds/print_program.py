@@ -4,7 +4,7 @@ Cancel ends the program after the commands in flight; pause/resume act on the ma
 When the link drops mid-program (or the server dies) the job becomes ``interrupted`` and
 waits: ``POST /jobs/{id}/resume`` reconnects, takes the first command not known to be
 executed (``Machine.resume_line``), re-homes and streams on from there
-(``app.jobs.machine_jobs``).  ``program_state`` in the job record shows where it stands.
+(``app.runtime.machine_queue``).  ``program_state`` in the job record shows where it stands.
 
 Drift reference (``drift_reference``, default on): on a machine whose probe
 calibration has a pad reading and whose profile has a reference pad, the probe (T0)
@@ -25,22 +25,22 @@ import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session, select
 
-from app.errors import Cancelled, InvalidInput
+from app.domain.errors import Cancelled, InvalidInput
 from app.gcode.dispense_delays import with_dispense_delays
 from app.gcode.shift import shift_z
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.calibration_touch import travel_height
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.gcode_meta import check_gcode, gcode_meta
-from app.jobs.machine_jobs import (connected_machine, interrupt, machine_for_job, plan_eta, refuse_if_machine_busy,
+from app.runtime.machine_queue import (connected_machine, interrupt, machine_for_job, plan_eta, refuse_if_machine_busy,
                                    resume_point, resume_request, stopped_by_operator)
-from app.jobs.registry import JobParams, job_kind
-from app.jobs.results import PrintResult
+from app.runtime.registry import JobParams, job_kind
+from app.jobs.results.models import PrintResult
 from app.gcode.placement import check_inside, profile_volume
-from app.machines import MachineFault, MachineUnavailable, hardware_errors, translate
-from app.materials import BY_NAME, MATERIALS, DispenseProfile
-from app.models import Artifact, Machine, Program
-from app.records import get_or_404
+from app.machines.live import MachineFault, MachineUnavailable, hardware_errors, translate
+from app.machines.materials import BY_NAME, MATERIALS, DispenseProfile
+from app.platform.models import Artifact, Machine, Program
+from app.platform.lookup import get_or_404
 from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, LinkError
 from hardware.machine import Machine as LiveMachine

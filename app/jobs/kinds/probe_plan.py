@@ -25,14 +25,14 @@ from typing import Any
 import numpy as np
 from sqlmodel import Session
 
-from app.errors import InvalidInput
-from app.jobs.context import JobContext
+from app.domain.errors import InvalidInput
+from app.runtime.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import ProbePlanParams
-from app.jobs.registry import job_kind
-from app.jobs.results import ProbePlanResult
-from app.models import Trace
+from app.runtime.registry import job_kind
+from app.jobs.results.models import ProbePlanResult
+from app.platform.models import Trace
 from app.probing import (PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams,
                          build_probe_program, plan_probes)
 from app.probing.field import field_result, plan_field

@@ -21,17 +21,17 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
 from app.calibration import ProbeCalibration
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement
 from app.jobs.board_checkpoints import TraceCheckpoints, inputs_sha256, trace_inputs
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.inputs import (check_registration, placed_nominal, placement_from, registration_reference,
                              succeeded_job)
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
-from app.jobs.registry import job_kind
-from app.jobs.results import ProbePlanResult, ProbeRunResult, ReconstructBoardResult, ReconstructResult
-from app.models import Job, Trace
+from app.runtime.registry import job_kind
+from app.jobs.results.models import ProbePlanResult, ProbeRunResult, ReconstructBoardResult, ReconstructResult
+from app.platform.models import Job, Trace
 from app.probing import PlanParams
 from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
                                 preprocess, reconstruct)
@@ -41,7 +41,8 @@ from app.reconstruction.stored import reconstruction_npz, stored_name
 from app.jobs.field_runs import run_field
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.jobs.scan_fields import scan_field
-from app.records import get_or_404, joint_trace_ranges
+from app.jobs.results.models import joint_trace_ranges
+from app.platform.lookup import get_or_404
 
 DEGREE = 3
 NPZ_MEDIA_TYPE = "application/zip"  # an NPZ is a zip of .npy members

@@ -36,12 +36,12 @@ from app.reconstruction.surface_fit import (
 )
 from app.reconstruction.surface_fit.points import check_points, parse_points_csv
 from app.reconstruction.surface_fit.work import work_estimate
-from app.jobs.context import JobContext
-from app.jobs.cost import Cost
-from app.jobs.registry import JobParams, job_kind
-from app.jobs.results import SurfaceFitResult
-from app.models import Part
-from app.records import get_or_404
+from app.runtime.context import JobContext
+from app.runtime.cost import Cost
+from app.runtime.registry import JobParams, job_kind
+from app.jobs.results.models import SurfaceFitResult
+from app.platform.models import Part
+from app.platform.lookup import get_or_404
 
 MAX_POINTS = 100_000
 MAX_GRID = 200

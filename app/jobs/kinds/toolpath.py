@@ -25,16 +25,16 @@ from app.gcode.estimator import MachineLimits, estimate_program
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
-from app.jobs.context import JobContext
-from app.jobs.cost import Cost
+from app.runtime.context import JobContext
+from app.runtime.cost import Cost
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.registry import JobParams, job_kind
-from app.jobs.program_results import ToolpathResult
-from app.jobs.results import SliceResult
-from app.models import Job, Machine, Part
+from app.runtime.registry import JobParams, job_kind
+from app.jobs.results.program import ToolpathResult
+from app.jobs.results.models import SliceResult
+from app.platform.models import Job, Machine, Part
 from app.jobs.inputs import succeeded_job
-from app.records import get_or_404
+from app.platform.lookup import get_or_404
 from app.slicing import SlicingError, ToolpathParams
 from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
 from app.slicing.export import from_json

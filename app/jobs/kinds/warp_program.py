@@ -17,17 +17,17 @@ from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, arc_chord_budget, scan_pro
 from app.circuits.height_model import height_model_from_points
 from app.circuits.heightfield import points_region
 from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 from app.gcode.program_bounds import BoundsScan
 from app.geometry.nurbs_surface import NurbsSurface
-from app.jobs.context import JobContext
+from app.runtime.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.registry import JobParams, job_kind
-from app.models import Blob, Job, Program
+from app.runtime.registry import JobParams, job_kind
+from app.platform.models import Blob, Job, Program
 from app.jobs.inputs import succeeded_job
-from app.jobs.program_results import WarpProgramResult
-from app.jobs.results import ProbeRunResult, SurfaceFitResult
-from app.records import get_or_404
+from app.jobs.results.program import WarpProgramResult
+from app.jobs.results.models import ProbeRunResult, SurfaceFitResult
+from app.platform.lookup import get_or_404
 
 
 #: the largest program the submission checks itself (lines, bytes, arc chords: ~0.5 s of CPU at most)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from app.five_axis.errors import short
-from app.errors import InvalidInput
+from app.domain.errors import InvalidInput
 
 __all__ = ["SurfaceFitError", "GridHoleError"]
 

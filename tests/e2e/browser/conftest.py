@@ -1,7 +1,7 @@
 """Headless Chromium (the Debian ``chromium`` package) driven by playwright against a real
 ``conforma serve`` (API + worker + viser view).  Never downloads a browser: without
 chromium or playwright the tests skip and say why, except under ``CI=true``, where they
-fail (``tests/real_components.py``)."""
+fail (``tests/helpers/real_components.py``)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.processes import free_port, stop, wait_healthy
-from tests.real_components import missing
+from tests.helpers.processes import free_port, stop, wait_healthy
+from tests.helpers.real_components import missing
 
 ROOT = Path(__file__).resolve().parents[3]
 # Test runs write screenshots as test artifacts; `make screenshots` copies them to

@@ -9,7 +9,7 @@ from datetime import datetime, timedelta, timezone
 import pytest
 from sqlalchemy import create_engine, insert, select
 
-from app.models import Job, Part
+from app.platform.models import Job, Part
 
 PAGES = ["index.html", "parts.html", "traces.html", "jobs.html", "machines.html"]
 BUDGET_S = 1.0

@@ -24,7 +24,7 @@ from PIL import Image
 
 from app.viewer.scene_data import DeviationPlot, FocusScene, LayerStack, Polyline, ScalarSurface
 from tests.e2e.browser.pixels import PANEL_SELECTORS, slate_mask
-from tests.processes import free_port
+from tests.helpers.processes import free_port
 
 IFRAME = '<iframe srcdoc="<script>parent.pwned=1</script>">'
 IMG = "<img src=x onerror=window.pwned=1>"
@@ -57,7 +57,7 @@ def _hostile_scene() -> FocusScene:
 
 @pytest.fixture(scope="module")
 def hostile_view(tmp_path_factory) -> Iterator:  # type: ignore[no-untyped-def]
-    from app.config import load_settings
+    from app.platform.config import load_settings
     from app.viewer.server import start_viewer
 
     settings = load_settings({}, data_dir=tmp_path_factory.mktemp("hostile-view"), viewer=True,

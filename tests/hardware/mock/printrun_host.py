@@ -9,7 +9,7 @@ import time
 from dataclasses import dataclass, field
 
 
-from tests.real_components import missing
+from tests.helpers.real_components import missing
 
 
 def load_printcore():  # type: ignore[no-untyped-def]

@@ -1,0 +1,86 @@
+"""The typed results of the calibration kinds (``calibrate_probe``, ``calibrate_nozzle``,
+``calibrate_sensor``):
+the core's calibration (:meth:`app.calibration.ProbeCalibration.to_dict` /
+:meth:`~app.calibration.NozzleCalibration.to_dict`, the same keys), how it agrees with the
+one before it, and the touches it read.  Written and read through one model, see
+:mod:`app.jobs.results.models`; ``agreement`` and ``readings`` may be absent from results stored by
+hand (tests, imports), never from a job's."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from app.calibration import NozzleCalibration, ProbeCalibration
+from app.calibration.sensor import SensorCalibration
+from app.jobs.results.models import KindResult
+
+
+class Agreement(BaseModel):
+    """A calibration against the machine's previous one of the same kind (and tool):
+    ``differences_mm`` new - old per named value, ``disagrees`` the names beyond 3 sigma."""
+
+    model_config = ConfigDict(extra="forbid")
+    previous_job_id: str | None = None
+    differences_mm: dict[str, float] = Field(default_factory=dict)
+    disagrees: list[str] = Field(default_factory=list)
+
+
+class CalibrateProbeResult(KindResult):
+    kind: ClassVar[str] = "calibrate_probe"
+    ball_radius_mm: float
+    pretravel: dict[str, float]
+    sphere_centre_mm: list[float]
+    pad_reading_z_mm: float | None = None
+    std: dict[str, float] = Field(default_factory=dict)
+    residual_rms_mm: float = 0.0
+    touches: int = 0
+    drift_mm_per_min: float | None = None
+    agreement: Agreement = Field(default_factory=Agreement)
+    nominal_ball_radius_mm: float | None = None
+    readings: list[dict[str, Any]] = Field(default_factory=list)
+
+    def calibration(self) -> ProbeCalibration:
+        """The core's probe calibration (its own checks: finite values, a 3-vector centre)."""
+        return ProbeCalibration.from_dict(self.model_dump())
+
+
+class CalibrateNozzleResult(KindResult):
+    kind: ClassVar[str] = "calibrate_nozzle"
+    tool: int
+    offset_mm: list[float]
+    std_mm: list[float]
+    outer_diameter_mm: float | None = None
+    touches: int = 0
+    agreement: Agreement = Field(default_factory=Agreement)
+    nominal_offset_mm: list[float] | None = None
+    nominal_difference_mm: list[float] | None = None
+    probe_job_id: str | None = None  # the probe calibration the offsets rest on
+    readings: list[dict[str, Any]] = Field(default_factory=list)
+
+    def calibration(self) -> NozzleCalibration:
+        """The core's nozzle calibration."""
+        return NozzleCalibration.from_dict(self.model_dump())
+
+
+class CalibrateSensorResult(KindResult):
+    """The height sensor's calibration (:class:`app.calibration.sensor.SensorCalibration`'s
+    dict: offset_mm, scale, time_offset_s, slope_bias_mm, sd), the link it was made over,
+    the reference heights it rests on and each procedure's report."""
+
+    kind: ClassVar[str] = "calibrate_sensor"
+    offset_mm: list[float]
+    scale: float
+    time_offset_s: float
+    slope_bias_mm: float = 0.0
+    sd: dict[str, float] | None = None
+    sensor_port: str | None = None
+    sensor_rate_hz: float | None = None
+    references: dict[str, Any] = Field(default_factory=dict)
+    report: dict[str, Any] = Field(default_factory=dict)
+
+    def calibration(self) -> SensorCalibration:
+        """The core's sensor calibration."""
+        return SensorCalibration.from_dict(self.model_dump(include={"offset_mm", "scale", "time_offset_s",
+                                                                    "slope_bias_mm", "sd"}))

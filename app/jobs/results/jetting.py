@@ -1,0 +1,116 @@
+"""Typed results of the jetting kinds (``jetting``, ``jetting_next_layer``).
+
+Written by the kinds through :meth:`app.jobs.results.models.KindResult.written` and read back through
+:meth:`~app.jobs.results.models.KindResult.of` (see :mod:`app.jobs.results.models`).  Heights and surface
+metrics are in um, pitches in mm, solve times in ms.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from pydantic import BaseModel, ConfigDict
+
+from app.jobs.results.models import KindResult
+
+
+class JettingGrid(BaseModel):
+    """The print grid: ``shape`` [L, W] cells at ``pitch_mm``, ``part_cells`` on the part, the
+    nominal ``layer_height_um``."""
+
+    model_config = ConfigDict(extra="forbid")
+    shape: list[int]
+    pitch_mm: float
+    part_cells: int
+    layer_height_um: float
+
+
+class SurfaceFigures(BaseModel):
+    """Surface metrics of a height map over the part, um (:class:`app.jetting.metrics.SurfaceMetrics`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    sa_um: float
+    sa_interior_um: float
+    sz_um: float
+    rmse_um: float
+    edge_collapse_um: float
+    edge_collapse_outer_um: float
+    edge_collapse_hole_um: float
+    mean_height_um: float
+    target_height_um: float
+
+
+class JettingLayer(SurfaceFigures):
+    """One printed layer (:meth:`app.jetting.simulate.LayerRecord.as_dict`): its surface
+    metrics, drops fired and the controller's solve (ms, iterations, integer gap, KKT residual)."""
+
+    layer: int
+    drops: int
+    solve_ms: float
+    solve_cpu_ms: float
+    iterations: int
+    integer_gap: float
+    kkt_residual: float
+
+
+class JettingResult(KindResult):
+    """A jetting job: per-layer figures (``layers``), the last layer's again (``final``), the grid,
+    the controller, the median solve time (ms) and the pattern PNG artifacts' names."""
+
+    kind: ClassVar[str] = "jetting"
+    layers: list[JettingLayer]
+    final: JettingLayer
+    grid: JettingGrid
+    controller: str
+    solve_ms_median: float
+    pattern_pngs: list[str]
+
+
+class NextLayerResult(KindResult):
+    """A jetting_next_layer job: the pattern's drops, the layer QP's figures (gap, KKT
+    residual, solve ms, iterations, greedy flips, relaxed and binary objectives), the mean
+    reference height over the part (um), the snapshot layer used (None for inline / 2-D maps)
+    and the grid."""
+
+    kind: ClassVar[str] = "jetting_next_layer"
+    drops: int
+    integer_gap: float
+    kkt_residual: float
+    solve_ms: float
+    solve_cpu_ms: float
+    iterations: int
+    flips: int
+    objective_relaxed: float
+    objective_binary: float
+    reference_height_um: float
+    measured_layer: int | None
+    grid: JettingGrid
+
+
+class MachineLayer(SurfaceFigures):
+    """One layer jetted on a machine: the surface metrics of its MEASURED map (um; cells the scan
+    did not see taken from the model's prediction), the drops in its pattern and fired by the
+    head (-1: unknown, a layer an interruption cut short), the controller's solve (ms; 0 open loop), the scan's valid fraction, the cells filled
+    from the prediction, and the scan passes it took."""
+
+    layer: int
+    drops: int
+    fired: int
+    solve_ms: float
+    valid_fraction: float
+    filled_cells: int
+    scans: int
+
+
+class JettingRunResult(KindResult):
+    """A jetting_run job: per-layer figures (``layers``), the last layer's (``final``), the grid,
+    the controller, the operator's resumes and the median solve time (ms); each layer's measured
+    map is the artifact ``measured_NNNN.npz`` (the substrate's: ``substrate.npz``)."""
+
+    kind: ClassVar[str] = "jetting_run"
+    layers: list[MachineLayer]
+    final: MachineLayer
+    grid: JettingGrid
+    controller: str
+    resumes: int
+    solve_ms_median: float

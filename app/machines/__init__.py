@@ -1,0 +1,2 @@
+"""Live machines: the connected backends by id, where a head is, materials and dispense
+profiles."""

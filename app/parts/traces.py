@@ -1,0 +1,82 @@
+"""Making trace records: a trace's geometry draped or snapped onto its part, its slope
+checked, and the nominal polyline stored with the record."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+from app.domain.errors import ConformaError
+from app.geometry.slope import SlopePolicy, check_slope
+from app.geometry.tolerance import Tolerance
+from app.geometry.traces import TracePolyline, build_nominal_trace, build_nominal_traces
+from app.platform.models import Part, Trace, new_id, utcnow
+from app.parts.meshes import MeshCache
+
+
+def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = "") -> Trace:
+    """Drape/snap a trace (an API ``TraceCreate``) onto its part and make the record (not added).
+
+    Errors from the geometry core name their field under ``field_prefix`` (the index of a
+    trace in a bulk import)."""
+    geometry = body.geometry.model_dump()
+    return _trace_record(part, body, geometry, field_prefix,
+                         lambda: build_nominal_trace(meshes.mesh(part), geometry, body.frame, Tolerance()))
+
+
+def build_traces(meshes: MeshCache, part: Part, bodies: list[Any]) -> list[Trace]:
+    """:func:`build_trace` of each body (API ``TraceCreate``), errors named by index; top-view
+    traces are draped all at once (:func:`app.geometry.traces.build_nominal_traces`, the same
+    polylines), anything else (or a batch with an error) one by one."""
+    geometries = [body.geometry.model_dump() for body in bodies]
+    nominals = None
+    if all(body.frame == "xy" for body in bodies):
+        nominals = build_nominal_traces(meshes.mesh(part), geometries, Tolerance())
+    if nominals is None:
+        return [build_trace(meshes, part, body, field_prefix=str(i)) for i, body in enumerate(bodies)]
+    return [_trace_record(part, body, geometry, str(i), lambda n=nominal: n)
+            for i, (body, geometry, nominal) in enumerate(zip(bodies, geometries, nominals))]
+
+
+class DrapedAhead:
+    """Top-view trace geometries (API ``TraceGeometry`` dicts) draped all at once before their
+    records are made one by one (a circuit import's traces and probe rings): :meth:`build` is
+    :func:`build_trace` with the batch's polyline when the body's geometry is one of them
+    (equal to draping it alone), else (a batch with an error, another frame) draped alone,
+    which names the error."""
+
+    def __init__(self, meshes: MeshCache, part: Part, geometries: list[dict[str, Any]]) -> None:
+        nominals = build_nominal_traces(meshes.mesh(part), geometries, Tolerance()) if geometries else None
+        self._nominal = {} if nominals is None else {_geometry_key(g): n for g, n in zip(geometries, nominals)}
+
+    def build(self, meshes: MeshCache, part: Part, body: Any, field_prefix: str = "") -> Trace:
+        geometry = body.geometry.model_dump()
+        nominal = self._nominal.get(_geometry_key(geometry)) if body.frame == "xy" else None
+        if nominal is None:
+            return build_trace(meshes, part, body, field_prefix=field_prefix)
+        return _trace_record(part, body, geometry, field_prefix, lambda: nominal)
+
+
+def _geometry_key(geometry: dict[str, Any]) -> str:
+    return json.dumps(geometry, sort_keys=True)
+
+
+def _trace_record(part: Part, body: Any, geometry: dict[str, Any], field_prefix: str,
+                  nominal_of: Callable[[], TracePolyline]) -> Trace:
+    policy = SlopePolicy(warn_deg=min(body.slope_warn_deg, body.slope_max_deg), max_deg=body.slope_max_deg)
+    try:
+        nominal = nominal_of()
+        slope = check_slope(nominal.points, nominal.normals, policy)
+    except ConformaError as exc:
+        if field_prefix and exc.field:
+            exc.field = f"{field_prefix}.{exc.field}"
+        raise
+    return Trace(
+        id=new_id("trace"), part_id=part.id, name=body.name, frame=body.frame, geometry=geometry,
+        standoff_mm=body.standoff_mm, width_mm=body.width_mm, feed_mm_min=body.feed_mm_min,
+        length_mm=float(nominal.length_mm), z_min=float(nominal.z_range[0]), z_max=float(nominal.z_range[1]),
+        nominal=replace(nominal, slope=slope.to_json()).to_dict(),
+        created_at=utcnow(),
+    )

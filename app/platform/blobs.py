@@ -1,0 +1,132 @@
+"""Content-addressed files under ``data_dir/blobs/ab/abcdef...`` listed in the ``blobs`` table.
+
+A blob is written to a temporary file, fsynced and renamed into place before its row is
+inserted, so a crash never leaves a row pointing at a missing or partial file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+from collections.abc import Callable
+from typing import BinaryIO
+
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+from sqlmodel import Session
+
+from app.platform.models import Blob, utcnow
+
+
+
+def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
+    """Write ``target`` whole or not at all: ``write`` fills a temporary file beside it, which
+    is fsynced and renamed over ``target`` (a reader sees the old file, the new one, or none)."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            write(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+class BlobStore:
+    """Bytes in, sha256 out; files are immutable once written."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def path(self, sha256: str) -> Path:
+        return self.root / sha256[:2] / sha256
+
+    def put(self, session: Session, data: bytes) -> str:
+        """Store ``data`` (idempotent) and list it in ``session``; returns its sha256."""
+        digest = hashlib.sha256(data).hexdigest()
+        target = self.path(digest)
+        if not target.exists():
+            write_atomically(target, lambda handle: handle.write(data))
+        return _record(session, digest, len(data))
+
+    def put_file(self, session: Session, handle: BinaryIO, chunk: int = 1 << 20) -> str:
+        """Store the rest of the open binary file ``handle`` from its start (idempotent),
+        copying and hashing it chunk by chunk (memory: one chunk); returns its sha256."""
+        handle.seek(0)
+        self.root.mkdir(parents=True, exist_ok=True)
+        digest, size = hashlib.sha256(), 0
+        fd, tmp = tempfile.mkstemp(dir=self.root, prefix=".tmp-")
+        try:
+            with os.fdopen(fd, "wb") as out:
+                while block := handle.read(chunk):
+                    digest.update(block)
+                    out.write(block)
+                    size += len(block)
+                out.flush()
+                os.fsync(out.fileno())
+            sha = digest.hexdigest()
+            target = self.path(sha)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if target.exists():
+                Path(tmp).unlink()
+            else:
+                os.replace(tmp, target)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return _record(session, sha, size)
+
+    def read(self, sha256: str) -> bytes:
+        return self.path(sha256).read_bytes()
+
+
+#: a temporary or row-less file younger than this may belong to a write in flight (another
+#: process renames a blob into place before it inserts its row): the sweep leaves it
+SWEEP_GRACE_S = 3600.0
+
+
+def sweep_blobs(store: BlobStore, session: Session, grace_s: float = SWEEP_GRACE_S,
+                now: float | None = None) -> dict[str, int]:
+    """Delete what crashes left in ``store`` and no row lists: ``.tmp-*`` files and blob files
+    whose sha256 has no row, both only when older than ``grace_s``.  Returns the counts
+    ``{"temporary": n, "orphans": m}``."""
+    import time
+
+    from sqlmodel import select
+
+    now = time.time() if now is None else now
+    counts = {"temporary": 0, "orphans": 0}
+    if not store.root.is_dir():
+        return counts
+    known: set[str] | None = None
+    for path in store.root.rglob("*"):
+        try:
+            if not path.is_file() or now - path.stat().st_mtime < grace_s:
+                continue
+        except OSError:
+            continue
+        if path.name.startswith(".tmp-"):
+            path.unlink(missing_ok=True)
+            counts["temporary"] += 1
+            continue
+        if len(path.name) != 64 or path.parent.name != path.name[:2]:
+            continue
+        if known is None:
+            known = set(session.exec(select(Blob.sha256)).all())
+        if path.name not in known:
+            path.unlink(missing_ok=True)
+            counts["orphans"] += 1
+    return counts
+
+
+def _record(session: Session, sha: str, size: int) -> str:
+    """Insert the blob's row unless it exists (the file is already in place); its sha256."""
+    insert = pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert
+    session.exec(
+        insert(Blob).values(sha256=sha, bytes=size, created_at=utcnow()).on_conflict_do_nothing()
+    )
+    return sha
