@@ -92,11 +92,26 @@ def edge_lead_map(target: Target, ctrl: ControllerParams) -> npt.NDArray[np.floa
     return lead
 
 
-def references(target: Target, drop: DropParams, ctrl: ControllerParams, layer: int) -> npt.NDArray[np.float64]:
-    """(m, L, W) reference heights r_(l+1..l+m), mm, after ``layer`` printed layers."""
-    steps = layer + np.arange(1, ctrl.horizon + 1)
-    level = steps[:, None, None] * ctrl.fill * target.mask[None].astype(float)
-    refs: npt.NDArray[np.float64] = (level + edge_lead_map(target, ctrl)[None]) * drop.layer_mm
+def lead_ramp(level_mm: npt.NDArray[np.float64], threshold_mm: float) -> npt.NDArray[np.float64]:
+    """The share (0..1) of the edge lead at reference levels ``level_mm`` (any shape), mm: no
+    ink leaves an edge before it stands a flow threshold above the empty cell beside it, and
+    the drain grows with that step, so the lead comes in linearly while the level rises from
+    one threshold to two (all of it at once for a threshold of 0)."""
+    if threshold_mm <= 0.0:
+        return np.ones(np.shape(level_mm))
+    ramp: npt.NDArray[np.float64] = np.clip(np.asarray(level_mm) / threshold_mm - 1.0, 0.0, 1.0)
+    return ramp
+
+
+def references(target: Target, drop: DropParams, ctrl: ControllerParams, layer: int,
+               threshold_mm: float = 0.0) -> npt.NDArray[np.float64]:
+    """(m, L, W) reference heights r_(l+1..l+m), mm, after ``layer`` printed layers: the level
+    (l + i) * fill * t on the part plus the edge lead (:func:`edge_lead_map`) scaled by
+    :func:`lead_ramp` of that level and the flow's ``threshold_mm``."""
+    level = (layer + np.arange(1, ctrl.horizon + 1, dtype=np.float64)) * (ctrl.fill * drop.layer_mm)
+    lead = edge_lead_map(target, ctrl) * drop.layer_mm
+    refs: npt.NDArray[np.float64] = (level[:, None, None] * target.mask[None]
+                                     + lead_ramp(level, threshold_mm)[:, None, None] * lead[None])
     return refs
 
 
@@ -109,7 +124,7 @@ def build_qp(measured_mm: npt.NDArray[np.float64], target: Target, guess: npt.ND
     stage = np.full(m, ctrl.q_weight)
     stage[-1] = ctrl.f_weight
     cell_weight = np.where(target.mask, 1.0, ctrl.outside_weight)
-    return LayerQP(model=model, h0=measured_mm, references=references(target, drop, ctrl, layer),
+    return LayerQP(model=model, h0=measured_mm, references=references(target, drop, ctrl, layer, flow.threshold_mm),
                    free=target.mask, stage_weights=stage, cell_weight=cell_weight,
                    rho=ctrl.r_weight, scale_mm=drop.layer_mm)
 

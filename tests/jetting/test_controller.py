@@ -6,7 +6,7 @@ import pytest
 
 from app.jetting import ControllerParams, DropParams, FlowParams, JettingError, JettingParams, PlantParams, TargetSpec
 from app.jetting import drop_kernel, simulate, target_from_mask
-from app.jetting.controller import edge_lead_map, mpc_layer, references, validate_controller
+from app.jetting.controller import edge_lead_map, lead_ramp, mpc_layer, references, validate_controller
 from app.jetting.flow import mobility_map
 
 DROP = DropParams()
@@ -54,12 +54,26 @@ def test_references_are_the_published_ramp_plus_the_lead(horizon):
     assert np.allclose(lead, edge_lead_map(target, ctrl)[None] * t)  # the same lead at every step
 
 
+def test_the_lead_comes_in_between_one_and_two_flow_thresholds_of_level():
+    target = square_with_hole()
+    t, tau = DROP.layer_mm, 3e-3
+    ctrl = ControllerParams(fill=0.8)
+    full = edge_lead_map(target, ctrl) * t
+    for layer in range(0, 12):  # levels 0.67 .. 8.7 um: no lead up to 3 um, all of it from 6 um
+        level = (layer + 1) * 0.8 * t
+        share = min(max(level / tau - 1.0, 0.0), 1.0)
+        lead = references(target, DROP, ctrl, layer, tau)[0] - level * target.mask
+        assert np.allclose(lead, share * full, atol=1e-15)
+    assert lead_ramp(np.array([0.0, 3e-3, 4.5e-3, 6e-3, 1.0]), tau) == pytest.approx([0.0, 0.0, 0.5, 1.0, 1.0])
+    assert lead_ramp(np.array([0.0, 1.0]), 0.0) == pytest.approx([1.0, 1.0])
+
+
 def test_on_a_part_at_its_level_only_the_edge_rings_are_jetted():
     """The part stands exactly at the next reference level: the published MPC jets (almost)
     nothing, the edge-aware one jets the rings its lead raises and nothing farther in."""
     target = square_with_hole()
     flow = FlowParams()
-    layer = 10
+    layer = 10  # level 9.2 um: above two flow thresholds, all of the lead
     args = (target, drop_kernel(DROP), DROP, flow, mobility_map(np.zeros(target.shape), flow))
     measured = (layer + 1) * 0.8 * DROP.layer_mm * target.mask
     published = mpc_layer(measured, *args, ControllerParams(edge_lead=0.0), layer)
