@@ -9,8 +9,8 @@ part cell each layer; the MPC (horizon 1, default settings: the edge-aware targe
 0/1 patterns; the published MPC (flat reference, ``edge_lead`` 0) beside it. The early gain
 (smallest Sa ratio from layer 80 on) on plant seeds 2-6, held out from the edge lead's
 tuning (seeds 0 and 1). Goals: Sa >= 3x
-lower than open loop on every seed (at every layer from 80 on), >= 50 % less edge collapse, controller <= 50 ms per
-layer (median, one core) at 300 dpi and <= 0.25 s at 600 dpi. Times are CPU seconds of
+lower than open loop on every seed (held-out seeds: at every layer from 80 on), >= 50 %
+less edge collapse, controller <= 50 ms per layer (median, one core) at 300 dpi and <= 0.25 s at 600 dpi. Times are CPU seconds of
 the controller's thread (the machine is shared); wall-clock medians are printed beside.
 """
 
@@ -122,9 +122,8 @@ def early_gain(spread: float, seed: int, open_loop, **ctrl) -> tuple[float, int,
 @pytest.mark.timeout(7200)
 def test_bench_early_gain_on_held_out_seeds():
     """The edge-aware target (default) against the published flat reference at the default
-    fill 0.8 and at fill 0.75, on plant seeds never used to tune it."""
-    variants = {"edge-aware (default)": {}, "published, fill 0.8": {"edge_lead": 0.0},
-                "published, fill 0.75": {"edge_lead": 0.0, "fill": 0.75}}
+    fill 0.8, on plant seeds never used to tune it."""
+    variants = {"edge-aware (default)": {}, "published, fill 0.8": {"edge_lead": 0.0}}
     print(f"\nEarly gain: smallest Sa open loop / MPC over layers {FROM_LAYER}-{LAYERS} (at layer), and at layer"
           f" {LAYERS}: Sa, edge collapse, mean height (um); seeds {list(HELD_OUT_SEEDS)} held out"
           f" (tuned on {list(TUNING_SEEDS)})")
