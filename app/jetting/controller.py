@@ -2,7 +2,17 @@
 
 ``mpc_layer`` is what a real printer calls between layers: measured height map in,
 next 0/1 pattern out. The reference sequence R_l (eq. 14) is the part mask raised
-``fill`` nominal layer heights per layer: r_(l+i) = (l + i) * fill * t on the part, 0 off it.
+``fill`` nominal layer heights per layer: r_(l+i) = (l + i) * fill * t on the part, 0 off it
+(the published MPC, ``edge_lead`` 0). The edge-aware target adds a lead e_c * t on the cells
+near the part's edges (:func:`edge_lead_map`): r_(l+i) = ((l + i) * fill + e_c) * t.
+
+Why the edges need a lead: the threshold flow drains a liquid edge cell into the empty cell
+beside the part on every layer (it holds liquid only where it was just jetted), and that
+skirt rises with the part, so the edge loses about a layer's rise per layer. With ``fill`` f
+a part cell has (1 - f) of a drop to spare, so about f / (1 - f) rings of cells (4 at 0.8)
+must jet every layer and pass ink outwards through steps above the threshold. Against a
+flat reference the MPC starts jetting those rings only once they already lag; the lead makes
+it jet them from the first layers, so the edges fall behind later and less.
 """
 
 from __future__ import annotations
@@ -12,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
 
 from .binarize import BINARIZE_METHODS, binarize
 from .errors import JettingError
@@ -30,7 +41,8 @@ class LayerDecision:
     """pattern: (L, W) bool drops to print; relaxed: (m, L, W) QP optimum; objectives
     (relaxed and with the binary first layer), integer_gap, kkt_residual, iterations,
     solve_ms (model + QP + binarization, wall clock), solve_cpu_ms (its CPU time), flips
-    (greedy), reference_mm: (L, W) r_(l+1)."""
+    (greedy), reference_mm: (L, W) r_(l+1); level_mm: the reference's level (l + 1) * fill * t
+    away from the edges, mm."""
 
     pattern: npt.NDArray[np.bool_]
     relaxed: npt.NDArray[np.float64]
@@ -43,6 +55,7 @@ class LayerDecision:
     solve_cpu_ms: float
     flips: int
     reference_mm: npt.NDArray[np.float64]
+    level_mm: float
 
 
 def validate_controller(ctrl: ControllerParams) -> None:
@@ -57,6 +70,8 @@ def validate_controller(ctrl: ControllerParams) -> None:
         (ctrl.q_weight >= 0 and ctrl.f_weight > 0 and ctrl.r_weight >= 0, "controller.weights",
          [ctrl.q_weight, ctrl.r_weight, ctrl.f_weight]),
         (ctrl.outside_weight >= 0, "controller.outside_weight", ctrl.outside_weight),
+        (0.0 <= ctrl.edge_lead <= 1000.0, "controller.edge_lead", ctrl.edge_lead),
+        (0 <= ctrl.edge_rings <= 100, "controller.edge_rings", ctrl.edge_rings),
         (ctrl.max_iter >= 1 and ctrl.tol > 0, "controller.max_iter", [ctrl.max_iter, ctrl.tol]),
     ]
     for ok, name, value in checks:
@@ -64,10 +79,39 @@ def validate_controller(ctrl: ControllerParams) -> None:
             raise JettingError(f"invalid {name}", field=name, value=value)
 
 
-def references(target: Target, drop: DropParams, ctrl: ControllerParams, layer: int) -> npt.NDArray[np.float64]:
-    """(m, L, W) reference heights r_(l+1..l+m), mm, after ``layer`` printed layers."""
-    steps = layer + np.arange(1, ctrl.horizon + 1)
-    refs: npt.NDArray[np.float64] = steps[:, None, None] * (ctrl.fill * drop.layer_mm) * target.mask[None].astype(float)
+def edge_lead_map(target: Target, ctrl: ControllerParams) -> npt.NDArray[np.float64]:
+    """(L, W) lead e_c of the reference, nominal layer heights: on a part cell k cells from
+    the part's edge (k = 1: a part cell beside a cell off the part, 4-neighbour steps; holes
+    count as off the part) e_c = edge_lead * (R + 1 - k) / R for k <= R = ``edge_rings``,
+    0 farther in and off the part."""
+    if ctrl.edge_lead == 0.0 or ctrl.edge_rings == 0:
+        return np.zeros(target.shape)
+    ring = ndimage.distance_transform_cdt(target.mask, metric="taxicab")  # scipy: untyped
+    rings = ctrl.edge_rings
+    lead: npt.NDArray[np.float64] = ctrl.edge_lead * np.clip((rings + 1 - ring) / rings, 0.0, 1.0) * target.mask
+    return lead
+
+
+def lead_ramp(level_mm: npt.NDArray[np.float64], threshold_mm: float) -> npt.NDArray[np.float64]:
+    """The share (0..1) of the edge lead at reference levels ``level_mm`` (any shape), mm: no
+    ink leaves an edge before it stands a flow threshold above the empty cell beside it, and
+    the drain grows with that step, so the lead comes in linearly while the level rises from
+    one threshold to two (all of it at once for a threshold of 0)."""
+    if threshold_mm <= 0.0:
+        return np.ones(np.shape(level_mm))
+    ramp: npt.NDArray[np.float64] = np.clip(np.asarray(level_mm) / threshold_mm - 1.0, 0.0, 1.0)
+    return ramp
+
+
+def references(target: Target, drop: DropParams, ctrl: ControllerParams, layer: int,
+               threshold_mm: float = 0.0) -> npt.NDArray[np.float64]:
+    """(m, L, W) reference heights r_(l+1..l+m), mm, after ``layer`` printed layers: the level
+    (l + i) * fill * t on the part plus the edge lead (:func:`edge_lead_map`) scaled by
+    :func:`lead_ramp` of that level and the flow's ``threshold_mm``."""
+    level = (layer + np.arange(1, ctrl.horizon + 1, dtype=np.float64)) * (ctrl.fill * drop.layer_mm)
+    lead = edge_lead_map(target, ctrl) * drop.layer_mm
+    refs: npt.NDArray[np.float64] = (level[:, None, None] * target.mask[None]
+                                     + lead_ramp(level, threshold_mm)[:, None, None] * lead[None])
     return refs
 
 
@@ -80,7 +124,7 @@ def build_qp(measured_mm: npt.NDArray[np.float64], target: Target, guess: npt.ND
     stage = np.full(m, ctrl.q_weight)
     stage[-1] = ctrl.f_weight
     cell_weight = np.where(target.mask, 1.0, ctrl.outside_weight)
-    return LayerQP(model=model, h0=measured_mm, references=references(target, drop, ctrl, layer),
+    return LayerQP(model=model, h0=measured_mm, references=references(target, drop, ctrl, layer, flow.threshold_mm),
                    free=target.mask, stage_weights=stage, cell_weight=cell_weight,
                    rho=ctrl.r_weight, scale_mm=drop.layer_mm)
 
@@ -113,4 +157,4 @@ def mpc_layer(measured_mm: npt.NDArray[np.float64], target: Target, kernel: Drop
         kkt_residual=solution.kkt_residual, iterations=solution.iterations,
         solve_ms=(time.perf_counter() - start) * 1e3,
         solve_cpu_ms=(time.thread_time() - start_cpu) * 1e3, flips=binary.flips,
-        reference_mm=qp.references[0])
+        reference_mm=qp.references[0], level_mm=(layer + 1) * ctrl.fill * drop.layer_mm)

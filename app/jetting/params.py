@@ -90,7 +90,12 @@ class ControllerParams:
     sum_{i<m} q |h_i - r_i|^2 + f |h_m - r_m|^2 + r sum_k |f_k|^2, weights on part cells
     (``outside_weight`` times that off the part). The reference rises ``fill`` layer
     heights per layer (< 1 leaves the controller room to add drops where material is
-    missing). ``model``: "seed_diagonal" = the seed's (I + Dg) B; "transport" = the same
+    missing). ``edge_lead`` (nominal layer heights) raises the reference of the part cells
+    within ``edge_rings`` cells of the part's edge (outer and hole edges), tapering linearly
+    from ``edge_lead`` on the edge cells to ``edge_lead / edge_rings`` on the last ring, and
+    coming in while the reference level rises from one flow threshold to two: the edge-aware
+    target (:func:`app.jetting.controller.edge_lead_map`; chosen on plant seeds 0 and 1 of the
+    seed case); ``edge_lead`` 0 is the published MPC's flat reference. ``model``: "seed_diagonal" = the seed's (I + Dg) B; "transport" = the same
     frozen flow kept as a mass-conserving sparse transport operator. ``solver``:
     "fista" (fast) or "lbfgsb" (reference). ``binarize``: "threshold", "error_diffusion"
     or "greedy" (greedy flips on the model's QP, started from the threshold pattern).
@@ -103,6 +108,8 @@ class ControllerParams:
     f_weight: float = 1.0
     outside_weight: float = 0.0
     fill: float = 0.8
+    edge_lead: float = 8.0
+    edge_rings: int = 4
     model: str = "transport"
     solver: str = "fista"
     binarize: str = "greedy"

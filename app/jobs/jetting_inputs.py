@@ -132,6 +132,10 @@ class PrintModelParams(JobParams):
                                   description="weight of cells off the part relative to part cells")
     fill: float = Field(_C.fill, gt=0, le=1, allow_inf_nan=False,
                         description="MPC reference rise per layer in nominal layer heights")
+    edge_lead: float = Field(_C.edge_lead, ge=0, le=1000, allow_inf_nan=False,
+                             description="MPC reference lead on the part's edge cells, nominal layer heights "
+                             "(tapering to 0 over edge_rings; 0: the published flat reference)")
+    edge_rings: int = Field(_C.edge_rings, ge=0, le=100, description="cells from the part's edge the lead covers")
     model: Literal["transport", "seed_diagonal"] = Field(
         _C.model, description="seed_diagonal: the seed's (I + Dg) B; transport: mass-conserving flow operator")
     solver: Literal["fista", "lbfgsb"] = Field(_C.solver, description="fista (fast) or lbfgsb (reference)")

@@ -18,7 +18,7 @@ def small_qp(dpi=600.0, horizon=1, seed=0, model="transport", size=14, steps=2):
     layer = 30
     heights = target.mask * (layer * drop.layer_mm * (0.8 + 0.1 * rng.random(target.shape)))
     flow = FlowParams(threshold_um=1.0, flow_steps=steps)
-    ctrl = ControllerParams(horizon=horizon, model=model, r_weight=1e-2, q_weight=0.5)
+    ctrl = ControllerParams(horizon=horizon, model=model, r_weight=1e-2, q_weight=0.5, edge_lead=0.0)  # flat reference
     qp = build_qp(heights, target, 0.8 * target.mask, drop_kernel(drop), drop, flow,
                   mobility_map(np.zeros(target.shape), flow), ctrl, layer)
     return qp, target

@@ -187,7 +187,7 @@ def test_next_layer_fills_a_measured_trench(client):
     left = np.zeros(grid.shape, dtype=bool)
     left[:, : grid.shape[1] // 2] = True
     heights[left & grid.mask] -= layer_um
-    params = {"dpi": 150, "target": {"size_mm": 5, "hole_mm": 2}, "layer": 10,
+    params = {"dpi": 150, "target": {"size_mm": 5, "hole_mm": 2}, "layer": 10, "edge_lead": 0,  # a flat reference
               "measured": {"heights_um": heights.tolist()}}
     job, again = run_job(client, "jetting_next_layer", params), run_job(client, "jetting_next_layer", params)
     for name in ("next_pattern.png", "next_pattern.npz"):

@@ -197,7 +197,7 @@ def run(ctx: JobContext, params: NextLayerParams) -> dict:
         "flips": int(decision.flips),
         "objective_relaxed": float(decision.objective_relaxed),
         "objective_binary": float(decision.objective_binary),
-        "reference_height_um": float(decision.reference_mm[target.mask].mean() * UM_PER_MM),
+        "reference_height_um": float(decision.level_mm * UM_PER_MM),
         "measured_layer": snapshot,
         "grid": {"shape": grid, "pitch_mm": target.pitch_mm, "part_cells": int(target.mask.sum()),
                  "layer_height_um": core.drop.layer_mm * UM_PER_MM},

@@ -68,8 +68,8 @@ class JettingResult(KindResult):
 
 class NextLayerResult(KindResult):
     """A jetting_next_layer job: the pattern's drops, the layer QP's figures (gap, KKT
-    residual, solve ms, iterations, greedy flips, relaxed and binary objectives), the mean
-    reference height over the part (um), the snapshot layer used (None for inline / 2-D maps)
+    residual, solve ms, iterations, greedy flips, relaxed and binary objectives), the
+    reference's level over the part (um; the edge-aware lead near the edges comes on top), the snapshot layer used (None for inline / 2-D maps)
     and the grid."""
 
     kind: ClassVar[str] = "jetting_next_layer"
