@@ -24,6 +24,7 @@ import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -127,6 +128,21 @@ class HalScanner:
 
     def close(self) -> None:
         """Nothing stays open between passes."""
+
+
+def sensor_port_needed(machine_port: str) -> bool:
+    """False for a ``linuxcnc://`` machine (its controller samples the sensor with its joints:
+    no link of its own), True for every other machine (the LK-G sensor on ``sensor_port``)."""
+    return urlsplit(machine_port).scheme != "linuxcnc"
+
+
+def require_sensor_port(machine_id: str, machine_port: str, sensor_port: str | None, field: str) -> None:
+    """422 naming ``field`` when the machine reads its sensor over a link of its own and
+    ``sensor_port`` is not given (nothing to check on a ``linuxcnc://`` machine)."""
+    if not sensor_port and sensor_port_needed(machine_port):
+        raise InvalidInput(f"machine {machine_id!r} reads the height sensor over the sensor's own link: give "
+                           f"{field} (lkg://NAME for the mock, /dev/ttyUSB1, socket://host:port); only a "
+                           "linuxcnc:// machine samples it itself", field=field, value=sensor_port)
 
 
 def open_scanner(machine: Any, sensor_port: str | None, rate_hz: float) -> SerialScanner | HalScanner:
