@@ -125,7 +125,7 @@ class SimController:
         :mod:`hardware.linuxcnc.sim_surface`); on the three-axis simulator the height
         sensor sees the same block."""
         values = surface.setp_values()
-        if isinstance(surface, SimBlock) and self.has_sensor:
+        if self.has_sensor:
             values.update(surface.sensor_setp_values())
         self._setp(values)
 
@@ -199,7 +199,8 @@ class SimController:
     # and the dispense output (M64/M65 P0)
     SNAPSHOT_HAL = (*SimBlock.plane(0.0, 0.0).setp_values(), *SimSphere.none().setp_values(),
                     "motion.digital-out-00")
-    SNAPSHOT_SENSOR = (*SimBlock.plane(0.0, 0.0).sensor_setp_values(), *SimSensor().setp_values())
+    SNAPSHOT_SENSOR = (*SimBlock.plane(0.0, 0.0).sensor_setp_values(), *SimSphere.none().sensor_setp_values(),
+                       *SimSensor().setp_values())
     # (not "tool_offset": linuxcncrsh 2.9 answers it with an arbitrary integer, -1163042392
     # after one start, 115 after another; the tests apply no tool-length offset, G43)
     SNAPSHOT_RSH = ("estop", "machine", "mode", "joint_homed", "program_status", "program_codes",
