@@ -2,7 +2,7 @@
 
 Run by LinuxCNC under the *system* Python (it has LinuxCNC's ``hal`` module and numpy,
 not Conforma's packages): ``loadusr -Wn conforma-sensor python3 sensor_hal.py
-conforma-sensor SEED``.  It imports nothing of Conforma except the optics formula
+conforma-sensor SEED [MAP]``.  It imports nothing of Conforma except the optics formula
 (:mod:`hardware.height_sensor.optics_model`, loaded by file path), so it computes its
 values exactly as the mock LK-G does.
 
@@ -11,7 +11,11 @@ to the joints' ``pos-fb``), puts the spot at carriage + ``offset-x/y``, evaluate
 simulated part there (the block of :class:`hardware.linuxcnc.sim_surface.SimBlock`,
 pins ``u-*``/``v-*``: the placement, ``top-z``/``top-slope``: the top
 z = top-z + top-slope * u over the footprint, ``bed-z`` elsewhere; a reference sphere
-``sphere-x/y/z/r`` beside it, none when r <= 0) at the spot's seven lit points, and writes ``reading`` (mm from the sensor's zero at carriage z + ``offset-z``)
+``sphere-x/y/z/r`` beside it, none when r <= 0; plus what lies on the bed: the jetted ink of
+the height map file MAP, an ``.npz`` of ``heights`` (L, W) mm above the bed, ``origin``
+(x, y of cell [0, 0]'s centre) and ``pitch`` mm, read again whenever the file changes, as
+:class:`hardware.linuxcnc.sim_head.SimHeadBridge` writes it after each cure) at the spot's
+seven lit points, and writes ``reading`` (mm from the sensor's zero at carriage z + ``offset-z``)
 and ``valid`` (false: the sensor's alarm output: too steep, a random dropout, or beyond
 +-``range``).  Out pin ``updates`` counts the values written.  It stands for an analog
 input: the controller samples ``reading`` and ``valid`` with the joints in its servo
@@ -40,6 +44,7 @@ FLOAT_IN = ("x", "y", "z", "offset-x", "offset-y", "offset-z", "range", "noise",
             "u-gain0", "u-gain1", "u-offset", "v-gain0", "v-gain1", "v-offset",
             "u-min", "u-max", "v-min", "v-max", "top-z", "top-slope", "bed-z",
             "sphere-x", "sphere-y", "sphere-z", "sphere-r", "latency-ms")
+MAP_CHECK_S = 0.005  # how often the MAP file's modification time is looked at
 HISTORY = 400  # joint reads kept for the latency (0.2 s at PERIOD_S)
 
 
@@ -71,6 +76,42 @@ def block_heights(p: dict, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return heights, cos_tilt
 
 
+class InkMap:
+    """The MAP file's heights, read again when its modification time changes."""
+
+    def __init__(self, path):
+        self.path = Path(path) if path else None
+        self.stamp = None
+        self.heights = None
+        self.checked = 0.0
+
+    def refresh(self, now: float) -> None:
+        if self.path is None or now - self.checked < MAP_CHECK_S:
+            return
+        self.checked = now
+        try:
+            stamp = self.path.stat().st_mtime_ns
+        except OSError:
+            self.stamp, self.heights = None, None
+            return
+        if stamp != self.stamp:
+            with np.load(self.path) as data:
+                self.heights = np.asarray(data["heights"], dtype=float)
+                self.origin = np.asarray(data["origin"], dtype=float)
+                self.pitch = float(data["pitch"])
+            self.stamp = stamp
+
+    def at(self, points: np.ndarray) -> np.ndarray:
+        """The ink's height (n, k) mm at points (n, k, 2) (nearest cell; 0 off the map)."""
+        if self.heights is None:
+            return np.zeros(points.shape[:-1])
+        col = np.rint((points[..., 0] - self.origin[0]) / self.pitch).astype(int)
+        row = np.rint((points[..., 1] - self.origin[1]) / self.pitch).astype(int)
+        on = (row >= 0) & (row < self.heights.shape[0]) & (col >= 0) & (col < self.heights.shape[1])
+        return np.where(on, self.heights[np.clip(row, 0, self.heights.shape[0] - 1),
+                                         np.clip(col, 0, self.heights.shape[1] - 1)], 0.0)
+
+
 def position_at(history: list, when: float) -> tuple[float, float, float]:
     """The carriage (x, y, z) at clock count ``when`` from ``history`` [(count, x, y, z), ...]
     (increasing counts), interpolated; held at its ends."""
@@ -80,6 +121,7 @@ def position_at(history: list, when: float) -> tuple[float, float, float]:
 
 def main(argv):
     name, seed = argv[1], int(argv[2]) if len(argv) > 2 else 0
+    ink = InkMap(argv[3] if len(argv) > 3 else None)
     import hal  # LinuxCNC's, system Python only
     model = _optics_model()
     rng = np.random.default_rng(seed)
@@ -99,6 +141,7 @@ def main(argv):
     history: list = []
     try:
         while running[0]:
+            ink.refresh(time.monotonic())
             if not comp["enable"]:
                 history.clear()
                 time.sleep(IDLE_S)
@@ -113,6 +156,7 @@ def main(argv):
             x, y, z = position_at(history, tick - p["latency-ms"]) if p["latency-ms"] > 0 else (p["x"], p["y"], p["z"])
             points = model.spot_points(np.array([[x + p["offset-x"], y + p["offset-y"]]]), p["spot"])
             heights, cos_tilt = block_heights(p, points)
+            heights = heights + ink.at(points)
             value = model.optical_values(heights, cos_tilt, np.array([z + p["offset-z"]]), rng,
                                          noise_mm=p["noise"], resolution_mm=p["resolution"],
                                          scale_error=p["scale-error"], slope_bias_mm=p["slope-bias"],
