@@ -122,7 +122,7 @@ class SimHeadBridge:
         """The jetted fields' heights to the sensor map after a cure (atomically)."""
         for surface in self.world.surfaces:
             cures = getattr(surface, "cures", None)
-            if cures is None or self._cures.get(id(surface)) == cures:
+            if cures is None or self._cures.get(id(surface), 0) == cures:  # uncured: nothing to show yet
                 continue
             self._cures[id(surface)] = cures
             buf = io.BytesIO()
