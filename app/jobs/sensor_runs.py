@@ -12,8 +12,9 @@ joints in the servo thread (:class:`hardware.linuxcnc.hal_scan.HalScan`, the con
 on this host), so each sample carries the carriage's measured position; on a serial
 machine it is the LK-G sensor on its own link (``sensor_port``).
 
-:func:`calibrate_sensor` runs the three procedures of :mod:`app.calibration.sensor` on the
-reference pad (its probe-measured top height) and the datum sphere (its qualified centre
+:func:`calibrate_sensor` runs the three procedures of :mod:`app.calibration.sensor`, with
+either backend (still readings: a dwell sampled by the controller, or single measurements), on
+the reference pad (its probe-measured top height) and the datum sphere (its qualified centre
 and radius).  Machine and sensor errors pass through as hardware errors (the job kinds
 translate them).
 """
