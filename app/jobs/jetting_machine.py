@@ -9,7 +9,9 @@ machine's UV-lamp output, scan it with the height sensor.
   operator's pause holds it (the head fires on position, so each drop still fires once).
 * **cure**: ``cure_on``, a dwell of ``cure_s``, ``cure_off``, streamed after the moves.
 * **scan**: a serpentine raster (:func:`~app.jetting.machine_grid.raster_waypoints`) with the
-  sensor storing (:func:`app.jobs.sensor_runs.run_pass`); samples binned into the cells.  A
+  sensor (:func:`app.jobs.sensor_runs.open_scanner`): storing on its own link, the samples'
+  positions from the commanded pass; or sampled by a LinuxCNC controller with its joints,
+  each sample at its measured position); samples binned into the cells.  On its own link a
   pass that stored more samples than its motion lasts (a pause or feed hold mid-pass: the
   positions of the samples are not the commanded pass) is scanned again.
 
@@ -24,11 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.calibration.sensor import SensorCalibration
+from app.gcode.writer import DIALECTS
 from app.jetting.machine_grid import Grid, cell_means, raster_waypoints, swaths
-from app.jobs.sensor_runs import run_pass
-from app.probing.scan_path import pass_duration, sample_positions
+from app.jobs.sensor_runs import HalScanner, SerialScanner
+from app.probing.scan_path import pass_duration
 from hardware.errors import HardwareError, ProtocolError
-from hardware.height_sensor import HeightSensor
 from hardware.machine import Machine
 from hardware.printhead import PrintHead
 
@@ -80,7 +82,7 @@ def print_layer(machine: Machine, head: PrintHead, pattern: np.ndarray, grid: Gr
         machine.move(x=x, y=y_start, z=setup.print_z_mm)
         head.arm()  # at the swath's start: a travel move never crosses an armed row
         try:
-            machine.stream(["G90", f"G1 Y{y_end:.4f} F{feed:.1f}", machine.rules.wait_moves])
+            machine.stream(["G90", f"G1 Y{y_end:.4f} F{feed:.1f}", wait_moves(machine)])
             status = head.status()
         except HardwareError:
             with suppress(HardwareError):  # never leave the head armed: a later move would fire it
@@ -95,10 +97,18 @@ def print_layer(machine: Machine, head: PrintHead, pattern: np.ndarray, grid: Gr
     return PrintedLayer(int(np.count_nonzero(pattern)), fired)
 
 
+def wait_moves(machine: Machine) -> str:
+    """The dialect's wait for the planned moves (a LinuxCNC program ends only once its
+    motion did: ``G4 P0`` there, as its dialect writes it)."""
+    rules = getattr(machine, "rules", None)
+    return str(rules.wait_moves) if rules is not None else "G4 P0"
+
+
 def cure(machine: Machine, setup: MachineSetup) -> None:
-    """The UV lamp on for ``cure_s`` after the moves, then off."""
-    machine.stream([machine.rules.wait_moves, setup.cure_on, f"G4 P{max(round(setup.cure_s * 1000), 1)}",
-                    setup.cure_off])
+    """The UV lamp on for ``cure_s`` after the moves, then off (the dwell in the dialect's
+    unit: Marlin ``G4 P<ms>``, grbl and LinuxCNC ``G4 P<s>``)."""
+    dwell = DIALECTS[str(getattr(machine, "dialect", "marlin"))].dwell(max(setup.cure_s, 0.001))
+    machine.stream([wait_moves(machine), setup.cure_on, dwell, setup.cure_off])
 
 
 @dataclass(frozen=True)
@@ -113,34 +123,35 @@ class LayerScan:
     scans: int
 
 
-def scan_layer(machine: Machine, sensor: HeightSensor, grid: Grid, calibration: SensorCalibration,
+def scan_layer(machine: Machine, scanner: SerialScanner | HalScanner, grid: Grid, calibration: SensorCalibration,
                setup: MachineSetup, top_mm: float) -> LayerScan:
     """Raster the grid with the sensor, its zero ``top_mm`` above the bed (module docstring),
-    in as many passes as the sensor's storage needs."""
+    in as many passes as the sensor's storage needs (one when the controller samples it)."""
     z = setup.bed_z_mm + top_mm - calibration.offset_mm[2]
     spot = (calibration.offset_mm[0], calibration.offset_mm[1])
-    per_col = pass_duration(raster_waypoints(grid, spot, z, cols=np.array([0, 1])), setup.scan_speed_mm_s) \
-        * sensor.rate_hz / 2
-    chunk = max(1, int(STORAGE_SAMPLES // max(per_col, 1.0)))
+    serial = scanner.sensor if isinstance(scanner, SerialScanner) else None
+    chunk = grid.shape[1]
+    if serial is not None:
+        per_col = pass_duration(raster_waypoints(grid, spot, z, cols=np.array([0, 1])), setup.scan_speed_mm_s) \
+            * serial.rate_hz / 2
+        chunk = max(1, int(STORAGE_SAMPLES // max(per_col, 1.0)))
     xy, heights = [], []
     samples = valid = scans = 0
     for first in range(0, grid.shape[1], chunk):
         w = raster_waypoints(grid, spot, z, cols=np.arange(first, min(first + chunk, grid.shape[1])))
-        expected = pass_duration(w, setup.scan_speed_mm_s) * sensor.rate_hz + 1
         for attempt in range(1, MAX_RESCANS + 1):
-            data = run_pass(machine, sensor, w, setup.scan_speed_mm_s, setup.travel_z_mm)
+            data = scanner.run(w, setup.scan_speed_mm_s, setup.travel_z_mm, calibration.time_offset_s)
             machine.move(z=setup.travel_z_mm)
             scans += 1
-            if len(data.values) <= expected * (1 + EXTRA_SAMPLES) + 5:
+            if serial is None or len(data.values) <= (pass_duration(w, setup.scan_speed_mm_s) * serial.rate_hz + 1) \
+                    * (1 + EXTRA_SAMPLES) + 5:
                 break
             if attempt == MAX_RESCANS:
                 raise ProtocolError(f"{MAX_RESCANS} scans of a pass each stored more samples than their motion "
                                     "lasted (held mid-pass)", field="sensor_port", value=len(data.values))
-        carriage = sample_positions(w, setup.scan_speed_mm_s, len(data.values), sensor.rate_hz,
-                                    calibration.time_offset_s)
         ok = np.isfinite(data.values)
-        xy.append(calibration.spot_xy(carriage))
-        heights.append(np.where(ok, calibration.surface_z(carriage, np.nan_to_num(data.values)), np.nan)
+        xy.append(calibration.spot_xy(data.carriage))
+        heights.append(np.where(ok, calibration.surface_z(data.carriage, np.nan_to_num(data.values)), np.nan)
                        - setup.bed_z_mm)
         samples, valid = samples + len(data.values), valid + int(ok.sum())
     mean, counts = cell_means(np.concatenate(xy), np.concatenate(heights), grid)

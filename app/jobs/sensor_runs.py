@@ -12,8 +12,9 @@ joints in the servo thread (:class:`hardware.linuxcnc.hal_scan.HalScan`, the con
 on this host), so each sample carries the carriage's measured position; on a serial
 machine it is the LK-G sensor on its own link (``sensor_port``).
 
-:func:`calibrate_sensor` runs the three procedures of :mod:`app.calibration.sensor` on the
-reference pad (its probe-measured top height) and the datum sphere (its qualified centre
+:func:`calibrate_sensor` runs the three procedures of :mod:`app.calibration.sensor`, with
+either backend (still readings: a dwell sampled by the controller, or single measurements), on
+the reference pad (its probe-measured top height) and the datum sphere (its qualified centre
 and radius).  Machine and sensor errors pass through as hardware errors (the job kinds
 translate them).
 """
@@ -24,12 +25,13 @@ import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
 import numpy as np
 
 from app.calibration.sensor import (EdgePass, SensorCalibration, fit_scale_and_z, fit_sphere_scan,
                                     fit_time_offset)
-from app.probing.scan_path import positions_at, sample_positions
+from app.probing.scan_path import sample_positions
 from app.domain.errors import InvalidInput
 from app.reconstruction.scan_samples import exposure_positions
 from hardware.errors import HardwareError
@@ -76,12 +78,12 @@ class ScannedPass:
 
 
 class SerialScanner:
-    """The sensor on its own link; positions from the commanded pass at the sensor's rate."""
+    """The sensor on its own link (connected; closed by :meth:`close`); positions from the
+    commanded pass at the sensor's rate."""
 
-    def __init__(self, machine: Machine, port: str, rate_hz: float) -> None:
+    def __init__(self, machine: Machine, sensor: HeightSensor) -> None:
         self.machine = machine
-        self.sensor = HeightSensor(port, rate_hz)
-        self.sensor.connect()
+        self.sensor = sensor
 
     def run(self, waypoints: np.ndarray, speed_mm_s: float, travel_z: float | None,
             time_offset_s: float) -> ScannedPass:
@@ -89,6 +91,10 @@ class SerialScanner:
         n = len(data.values)
         carriage = sample_positions(data.waypoints, speed_mm_s, n, self.sensor.rate_hz, time_offset_s)
         return ScannedPass(carriage, data.values, self.sensor.stamps(n))
+
+    def still(self, count: int) -> np.ndarray:
+        """``count`` readings (count,) mm (NaN: no value) with the carriage at rest."""
+        return still_heights([self.sensor.measure() for _ in range(count)])
 
     def close(self) -> None:
         self.sensor.close()
@@ -125,8 +131,35 @@ class HalScanner:
         samples = self.scan.stop()
         return ScannedPass(exposure_positions(samples.t, samples.xyz, time_offset_s), samples.reading, samples.t)
 
+    def still(self, count: int) -> np.ndarray:
+        """The readings (n,) mm (NaN: no value) of ``count`` servo periods (a dwell) with the
+        carriage at rest."""
+        self.scan.start()
+        try:
+            self.machine.stream([f"G4 P{max(count, 1) * self.scan.period_s:.4f}"])
+        except BaseException:
+            with contextlib.suppress(HardwareError):
+                self.scan.stop()
+            raise
+        return self.scan.stop().reading
+
     def close(self) -> None:
         """Nothing stays open between passes."""
+
+
+def sensor_port_needed(machine_port: str) -> bool:
+    """False for a ``linuxcnc://`` machine (its controller samples the sensor with its joints:
+    no link of its own), True for every other machine (the LK-G sensor on ``sensor_port``)."""
+    return urlsplit(machine_port).scheme != "linuxcnc"
+
+
+def require_sensor_port(machine_id: str, machine_port: str, sensor_port: str | None, field: str) -> None:
+    """422 naming ``field`` when the machine reads its sensor over a link of its own and
+    ``sensor_port`` is not given (nothing to check on a ``linuxcnc://`` machine)."""
+    if not sensor_port and sensor_port_needed(machine_port):
+        raise InvalidInput(f"machine {machine_id!r} reads the height sensor over the sensor's own link: give "
+                           f"{field} (lkg://NAME for the mock, /dev/ttyUSB1, socket://host:port); only a "
+                           "linuxcnc:// machine samples it itself", field=field, value=sensor_port)
 
 
 def open_scanner(machine: Any, sensor_port: str | None, rate_hz: float) -> SerialScanner | HalScanner:
@@ -136,7 +169,9 @@ def open_scanner(machine: Any, sensor_port: str | None, rate_hz: float) -> Seria
     if not sensor_port:
         raise InvalidInput("a scan on a serial machine needs the sensor's link", field="params.sensor_port",
                            value=sensor_port)
-    return SerialScanner(machine, sensor_port, rate_hz)
+    sensor = HeightSensor(sensor_port, rate_hz)
+    sensor.connect()
+    return SerialScanner(machine, sensor)
 
 
 @dataclass(frozen=True)
@@ -162,8 +197,11 @@ class CalibrationSetup:
     sphere_speed_mm_s: float = 10.0
 
 
-def calibrate_sensor(machine: Machine, sensor: HeightSensor, setup: CalibrationSetup) -> tuple[SensorCalibration, dict]:
-    """The sensor's calibration and a report of each procedure (module docstring)."""
+def calibrate_sensor(machine: Machine, scanner: SerialScanner | HalScanner,
+                     setup: CalibrationSetup) -> tuple[SensorCalibration, dict]:
+    """The sensor's calibration and a report of each procedure (module docstring); the
+    sensor read by ``scanner`` (:func:`open_scanner`: its own link, or a LinuxCNC
+    controller sampling it with the joints)."""
     o = np.asarray(setup.nominal_offset, dtype=float)
     pad = np.asarray(setup.pad_centre, dtype=float)
     # 1. scale and z offset: still over the pad's centre at heights across the range
@@ -172,8 +210,8 @@ def calibrate_sensor(machine: Machine, sensor: HeightSensor, setup: CalibrationS
     still = []
     for z in heights:
         machine.move(x=float(pad[0] - o[0]), y=float(pad[1] - o[1]), z=float(z))
-        values = [sensor.measure() for _ in range(setup.still_readings)]
-        still.append(np.nanmean([np.nan if v is None else v for v in values]))
+        values = scanner.still(setup.still_readings)
+        still.append(np.nanmean(values) if np.isfinite(values).any() else np.nan)
     scale, oz, sd_oz = fit_scale_and_z(heights, np.array(still), float(pad[2]))
     # 2. time offset: across the pad's -x edge both ways, the zero 0.4 range below its top
     edge_x = pad[0] - setup.pad_size / 2
@@ -184,11 +222,9 @@ def calibrate_sensor(machine: Machine, sensor: HeightSensor, setup: CalibrationS
     for k in range(2 * setup.edge_passes):
         direction = 1 if k % 2 == 0 else -1
         a, b = edge_x - o[0] - 3.0 * direction, edge_x - o[0] + 3.0 * direction
-        data = run_pass(machine, sensor, np.array([[a, y, z], [b, y, z]]), setup.edge_speed_mm_s,
-                        setup.travel_z if k == 0 else None)
-        along = positions_at(data.waypoints, data.speed_mm_s, sensor.stamps(len(data.values)))[:, 0]
-        passes.append(EdgePass(along, data.values, direction,
-                               setup.edge_speed_mm_s))
+        data = scanner.run(np.array([[a, y, z], [b, y, z]]), setup.edge_speed_mm_s,
+                           setup.travel_z if k == 0 else None, 0.0)
+        passes.append(EdgePass(data.carriage[:, 0], data.values, direction, setup.edge_speed_mm_s))
     tau, _, sd_tau = fit_time_offset(passes, level)
     # 3. lateral offset and tilt bias: a serpentine raster over the sphere's cap
     c = np.asarray(setup.sphere_centre, dtype=float)
@@ -200,10 +236,9 @@ def calibrate_sensor(machine: Machine, sensor: HeightSensor, setup: CalibrationS
         sign = 1 if i % 2 == 0 else -1
         w = np.array([[c[0] - o[0] - sign * 0.45 * r, c[1] - o[1] + dy, z],
                       [c[0] - o[0] + sign * 0.45 * r, c[1] - o[1] + dy, z]])
-        data = run_pass(machine, sensor, w, setup.sphere_speed_mm_s, setup.travel_z if i == 0 else None)
-        p = sample_positions(w, data.speed_mm_s, len(data.values), sensor.rate_hz, tau)
-        carriage.append(p)
-        hs.append(p[:, 2] + oz + data.values / scale)
+        data = scanner.run(w, setup.sphere_speed_mm_s, setup.travel_z if i == 0 else None, tau)
+        carriage.append(data.carriage)
+        hs.append(data.carriage[:, 2] + oz + data.values / scale)
     machine.move(z=setup.travel_z)
     sphere = fit_sphere_scan(np.concatenate(carriage), np.concatenate(hs), c.tolist(), r, o[:2].tolist())
     calibration = SensorCalibration((sphere["o_x"], sphere["o_y"], oz), scale, tau, sphere["b"],

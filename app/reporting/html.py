@@ -320,7 +320,8 @@ def _droplet_layers(records: RunRecords) -> list[str]:
     out = ["<h2>Droplet layers</h2>",
            _facts([("controller", params.get("controller", "mpc")), ("layers measured", f"{len(layers)} of {params.get('layers')}"),
                    ("grid (cells, pitch mm)", f"{grid.get('shape')} at {grid.get('pitch_mm')}" if grid else None),
-                   ("head", params.get("head_port")), ("sensor", params.get("sensor_port")),
+                   ("head", params.get("head_port")),
+                   ("sensor", params.get("sensor_port") or "sampled by the controller with its joints (LinuxCNC HAL)"),
                    ("cure", f"{params.get('cure_on')} for {params.get('cure_s')} s, then {params.get('cure_off')}"),
                    ("operator resumes", result.get("resumes", state.get("resumes"))),
                    ("substrate map (sha256)", maps.get("substrate.npz"))])]

@@ -162,7 +162,7 @@ class LinuxCNCMachine(ClaimedOperations):
 
     # ------------------------------------------------------------------ MDI
     def _mode(self, mode: str) -> None:
-        self.link.set("mode", mode)
+        self.link.set_mode(mode)
 
     def _mdi(self, commands: Iterable[str]) -> None:
         """Run MDI commands one by one, each to completion; the controller's error (if

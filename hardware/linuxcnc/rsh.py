@@ -152,6 +152,22 @@ class RshSession:
         raise RshRejected(f"LinuxCNC rejected {command!r}" + (f": {reason}" if reason else ""),
                           command=command)
 
+    def set_mode(self, mode: str, timeout_s: float = 3.0) -> None:
+        """``set mode <mode>``, then wait until ``get mode`` reports it: the controller takes the
+        mode asynchronously and refuses it while it still finishes something (right after
+        homing an MDI command may otherwise meet "Must be in MDI mode").  Sent again every
+        0.5 s; after ``timeout_s`` the next command meets the controller's own refusal."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self.set("mode", mode)
+            resend = time.monotonic() + 0.5
+            while time.monotonic() < min(resend, deadline):
+                if self.get("mode").upper() == mode.upper():
+                    return
+                time.sleep(0.01)
+            if time.monotonic() >= deadline:
+                return
+
     def _next_line(self, command: str, timeout_s: float | None) -> str:
         try:
             return self._read_line(self.timeout_s if timeout_s is None else timeout_s)

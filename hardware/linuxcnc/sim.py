@@ -48,6 +48,7 @@ __all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSensor", "Sim
 SIM_DIR = Path(__file__).with_name("sim")
 CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
 SENSOR_COMPONENT = Path(__file__).with_name("sensor_hal.py")  # sim/sensor.hal's component
+SENSOR_MAP = "sensor_map.npz"  # in the run's directory: the jetted ink the sensor sees
 LOCK_PATH = os.path.join(tempfile.gettempdir(), "conforma-linuxcnc.lock")
 
 
@@ -125,7 +126,7 @@ class SimController:
         :mod:`hardware.linuxcnc.sim_surface`); on the three-axis simulator the height
         sensor sees the same block."""
         values = surface.setp_values()
-        if isinstance(surface, SimBlock) and self.has_sensor:
+        if self.has_sensor:
             values.update(surface.sensor_setp_values())
         self._setp(values)
 
@@ -140,6 +141,12 @@ class SimController:
     def has_sensor(self) -> bool:
         """True for the config with the height sensor component (three-axis)."""
         return self.config == "xyz"
+
+    @property
+    def sensor_map(self) -> Path:
+        """The height map file of the jetted ink the sensor sees (``sensor_hal.py``)."""
+        assert self.workdir is not None, "start the simulator first"
+        return self.workdir / SENSOR_MAP
 
     @property
     def hal_env(self) -> dict[str, str] | None:
@@ -199,7 +206,8 @@ class SimController:
     # and the dispense output (M64/M65 P0)
     SNAPSHOT_HAL = (*SimBlock.plane(0.0, 0.0).setp_values(), *SimSphere.none().setp_values(),
                     "motion.digital-out-00")
-    SNAPSHOT_SENSOR = (*SimBlock.plane(0.0, 0.0).sensor_setp_values(), *SimSensor().setp_values())
+    SNAPSHOT_SENSOR = (*SimBlock.plane(0.0, 0.0).sensor_setp_values(), *SimSphere.none().sensor_setp_values(),
+                       *SimSensor().setp_values())
     # (not "tool_offset": linuxcncrsh 2.9 answers it with an arbitrary integer, -1163042392
     # after one start, 115 after another; the tests apply no tool-length offset, G43)
     SNAPSHOT_RSH = ("estop", "machine", "mode", "joint_homed", "program_status", "program_codes",
@@ -248,6 +256,7 @@ class SimController:
         if self.has_sensor:
             self.set_sensor(SimSensor())
             self._setp_signal_off()
+            self.sensor_map.unlink(missing_ok=True)
         session = self.session(enable=True)
         try:
             session.set("estop", "off")
@@ -334,7 +343,8 @@ class SimController:
         (workdir / "programs").mkdir()
         fields = {"PORT": str(self.port), "CONNECTPW": self.connect_pw, "ENABLEPW": self.enable_pw,
                   "PIVOT_X": repr(self.pivot_mm[0]), "PIVOT_Y": repr(self.pivot_mm[1]),
-                  "PIVOT_Z": repr(self.pivot_mm[2]), "SENSOR_COMPONENT": str(SENSOR_COMPONENT)}
+                  "PIVOT_Z": repr(self.pivot_mm[2]), "SENSOR_COMPONENT": str(SENSOR_COMPONENT),
+                  "SENSOR_MAP": str(workdir / SENSOR_MAP)}
         ini = workdir / CONFIGS[self.config]
         text = ini.read_text()
         for key, value in fields.items():

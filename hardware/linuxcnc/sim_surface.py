@@ -26,6 +26,9 @@ optics (the fields of :class:`hardware.height_sensor.optics.SensorOptics` the co
 has; the defaults are ``sensor.hal``'s start-up values):
 
     sim.set_sensor(SimSensor(offset_mm=(30, 5, -10), noise_mm=0.0005))
+
+``latency_ms``: the sensor's value lags its exposure stamp by this much (the time offset a
+calibration must recover; the clock counts milliseconds on the simulator).
 """
 
 from __future__ import annotations
@@ -104,10 +107,12 @@ class SimBlock:
 
 @dataclass(frozen=True)
 class SimSphere:
-    """A reference sphere of the simulated probe (mm); see the module docstring."""
+    """A reference sphere of the simulated probe (mm); see the module docstring.  The height
+    sensor sees the sphere itself, radius ``radius_mm - ball_radius_mm``."""
 
     centre_mm: tuple[float, float, float]
     radius_mm: float
+    ball_radius_mm: float = 0.0
 
     @classmethod
     def none(cls) -> "SimSphere":
@@ -119,6 +124,12 @@ class SimSphere:
         cx, cy, cz = (float(v) for v in self.centre_mm)
         return {"conforma-dx.offset": -cx, "conforma-dy.offset": -cy, "conforma-dz.offset": -cz,
                 "conforma-sphere.in1": float(self.radius_mm) ** 2}
+
+    def sensor_setp_values(self) -> dict[str, float]:
+        """HAL pin values of ``sim/sensor.hal``'s sphere (the sphere without the ball)."""
+        cx, cy, cz = (float(v) for v in self.centre_mm)
+        return {"conforma-sensor.sphere-x": cx, "conforma-sensor.sphere-y": cy, "conforma-sensor.sphere-z": cz,
+                "conforma-sensor.sphere-r": max(float(self.radius_mm) - float(self.ball_radius_mm), 0.0)}
 
 
 @dataclass(frozen=True)
@@ -134,6 +145,7 @@ class SimSensor:
     scale_error: float = 0.0
     slope_bias_mm: float = 0.0
     dropout_rate: float = 0.0
+    latency_ms: float = 0.0
 
     def setp_values(self) -> dict[str, float]:
         """HAL pin values of ``sim/sensor.hal``'s component for these optics."""
@@ -141,5 +153,5 @@ class SimSensor:
         values = {"offset-x": ox, "offset-y": oy, "offset-z": oz, "range": self.range_mm, "noise": self.noise_mm,
                   "resolution": self.resolution_mm, "spot": self.spot_mm, "acceptance-deg": self.acceptance_deg,
                   "scale-error": self.scale_error, "slope-bias": self.slope_bias_mm,
-                  "dropout-rate": self.dropout_rate}
+                  "dropout-rate": self.dropout_rate, "latency-ms": self.latency_ms}
         return {f"conforma-sensor.{k}": float(v) for k, v in values.items()}

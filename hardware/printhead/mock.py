@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from urllib.parse import parse_qsl, urlsplit
 
@@ -181,6 +182,9 @@ class MockPrintHead:
         if head == "ID":
             return f"ID,MOCK-HEAD,{spec.nozzles},{spec.rows},{spec.dpi:g},{spec.row_gap_um:g}"
         world = self.world()
+        follower = _FOLLOWERS.get(self.machine)
+        if follower is not None:  # a world fed from a real controller: its clock catches up first
+            follower()
         with world.lock, self.lock:
             now = world.stats.machine_time_s
             if head == "LOAD":
@@ -223,6 +227,18 @@ class MockPrintHead:
 
 _REGISTRY: dict[str, MockPrintHead] = {}
 _LOCK = threading.Lock()
+_FOLLOWERS: dict[str, Callable[[], None]] = {}
+
+
+def follow_world(name: str, catch_up: Callable[[], None] | None) -> None:
+    """The world ``name`` is fed from a controller (its carriage and outputs, e.g. the LinuxCNC
+    simulator's HAL: :mod:`hardware.linuxcnc.sim_head`): a head on it calls ``catch_up()``
+    before each command that reads the machine clock, which returns once the world holds the
+    controller's state as of that call; None: forget it."""
+    if catch_up is None:
+        _FOLLOWERS.pop(name, None)
+    else:
+        _FOLLOWERS[name] = catch_up
 _FLOATS = {"dpi", "row_gap_um", "volume_pl", "spread", "drop_noise", "volume_bias", "cure_s"}
 _INTS = {"nozzles", "rows", "seed"}
 _INK = {"diameter_um": "drop_diameter_um", "threshold_um": "threshold_um", "mobility": "mobility",

@@ -43,7 +43,7 @@ from app.reconstruction.reconstruct import ReconstructParams
 from app.reconstruction.scan_field import fit_scan_field, verify_touches
 from app.reconstruction.scan_samples import block_average, pass_deviations
 from app.reference.boards import as_made_board, board_path, board_traces, dome_part
-from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor, run_pass
+from app.jobs.sensor_runs import CalibrationSetup, SerialScanner, calibrate_sensor, run_pass
 from hardware.height_sensor import HeightSensor
 from hardware.height_sensor.mock import unregister_sensor
 from hardware.machine import Machine
@@ -111,7 +111,7 @@ def test_scan_against_touches_on_the_1000_trace_board():
     sensor.connect()
     try:
         t_cal = world.stats.machine_time_s
-        calibration, _ = calibrate_sensor(machine, sensor, CalibrationSetup(
+        calibration, _ = calibrate_sensor(machine, SerialScanner(machine, sensor), CalibrationSetup(
             PAD, 20.0, SPHERE, 12.7, NOMINAL_OFFSET, 5.0, travel_z=40.0))
         cal_clock = world.stats.machine_time_s - t_cal
         allp = np.concatenate([p.points[:, :2] for p in paths])

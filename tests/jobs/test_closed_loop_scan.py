@@ -112,3 +112,24 @@ def test_scanning_without_a_stored_calibration_is_refused_at_submission(client):
     response = submit(client, "calibrate_sensor", {"machine_id": plain["id"], "sensor_port": bed.port,
                                                    "nominal_offset_mm": [30.0, 5.0, -10.0]})
     assert response.status_code == 422 and "profile.reference.pad" in response.text
+
+
+def test_only_a_machine_that_reads_the_sensor_over_its_own_link_needs_its_port(client):
+    """A serial machine needs ``scan.sensor_port`` (422 naming it); a ``linuxcnc://`` machine's
+    controller samples the sensor itself: no port is asked for, the next check (the stored
+    calibration) is the one that refuses."""
+    bed = scan_bed(client, 53, (0,))
+    lcnc = client.post("/api/v1/machines", json={"name": "lcnc", "port": "linuxcnc://127.0.0.1:5007?joints=3",
+                                                 "dialect": "linuxcnc"}, headers=OP).json()
+    base = {"part_id": bed.part["id"], "trace_ids": [bed.traces[0]["id"]], "measuring": "scan"}
+    calibration = {"offset_mm": [30.0, 5.0, -10.0], "scale": 1.0, "time_offset_s": 0.0, "slope_bias_mm": 0.0}
+    serial = submit(client, "closed_loop", {**base, "machine_id": bed.machine["id"],
+                                            "scan": {"calibration": calibration}})
+    assert serial.status_code == 422, serial.text
+    assert serial.json()["errors"][0]["loc"] == ["params", "scan", "sensor_port"], serial.text
+    on_lcnc = submit(client, "closed_loop", {**base, "machine_id": lcnc["id"], "scan": {}})
+    assert on_lcnc.status_code == 422 and "sensor_port" not in on_lcnc.text, on_lcnc.text
+    assert on_lcnc.json()["errors"][0]["loc"] == ["params", "scan", "calibration"], on_lcnc.text
+    scan = submit(client, "scan_run", {"machine_id": bed.machine["id"], "trace_ids": [bed.traces[0]["id"]],
+                                       "calibration": calibration})
+    assert scan.status_code == 422 and scan.json()["errors"][0]["loc"] == ["params", "sensor_port"], scan.text

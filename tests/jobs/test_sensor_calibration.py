@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from app.calibration.sensor import EdgePass, fit_scale_and_z, fit_time_offset
-from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor
+from app.jobs.sensor_runs import CalibrationSetup, SerialScanner, calibrate_sensor
 from hardware.height_sensor import HeightSensor
 from hardware.height_sensor.mock import unregister_sensor
 from hardware.machine import Machine
@@ -55,7 +55,7 @@ def test_the_mock_sensor_is_calibrated_within_1_ms_and_5_um(seed):
     sensor.connect()
     try:
         setup = CalibrationSetup(PAD, 20.0, SPHERE, DIAMETER / 2, NOMINAL, 5.0, travel_z=40.0)
-        cal, report = calibrate_sensor(machine, sensor, setup)
+        cal, report = calibrate_sensor(machine, SerialScanner(machine, sensor), setup)
     finally:
         sensor.close()
         unregister_sensor(name)

@@ -8,6 +8,8 @@ pad's top height and the sphere's centre come from the machine's current probe c
 (``calibrate_probe``: the pad surface and the qualified sphere centre in the probe frame);
 without one the probe touches the pad's centre once and the sphere is taken at the profile's
 nominal place (exact for an ideal probe only: the result's ``references.source`` says which).
+The sensor is read over ``sensor_port``, or on a ``linuxcnc://`` machine by the controller
+sampling it with the joints (:func:`app.jobs.sensor_runs.open_scanner`; no port).
 
 The result (:class:`app.jobs.results.calibration.CalibrateSensorResult`) is the stored
 calibration: ``scan_run`` and ``closed_loop`` (measuring by scan) use the machine's newest
@@ -27,19 +29,21 @@ from app.jobs.calibration_touch import travel_height
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import connected_machine, refuse_if_machine_busy
 from app.runtime.registry import JobParams, job_kind
-from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor
+from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor, open_scanner, require_sensor_port
 from app.machines.live import hardware_errors
 from app.platform.models import Machine
 from app.platform.lookup import get_or_404
-from hardware.height_sensor import HeightSensor
 
 PAD_TOUCH_FROM_MM = 2.0  # without a probe calibration: the pad touch starts this far above its nominal top
 
 
 class CalibrateSensorParams(JobParams):
     machine_id: str
-    sensor_port: str = Field(description="the sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port")
-    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the controller's sampling rate")
+    sensor_port: str | None = Field(None, max_length=500, description=(
+        "the sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port; not used on a linuxcnc:// "
+        "machine (the controller samples the sensor with its joints)"))
+    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the sensor controller's sampling rate "
+                                  "(a linuxcnc:// machine samples once per servo period)")
     nominal_offset_mm: list[float] = Field(min_length=3, max_length=3, description="the sensor's spot and zero "
                                            "relative to the carriage as mounted [x, y, z] mm (known to a few 0.1 mm)")
     range_mm: float = Field(5.0, gt=0, le=100, description="the sensor's half measuring range, mm")
@@ -50,6 +54,7 @@ class CalibrateSensorParams(JobParams):
 
 def _check(params: CalibrateSensorParams, session: Session) -> None:
     row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    require_sensor_port(params.machine_id, row.port, params.sensor_port, "params.sensor_port")
     profile = machine_profile(row)
     for name in ("pad", "sphere"):
         if profile.reference is None or getattr(profile.reference, name) is None:
@@ -88,12 +93,11 @@ def run(ctx: JobContext, params: CalibrateSensorParams) -> dict:
                                  edge_passes=params.edge_passes, still_heights=params.still_heights,
                                  sphere_lines=params.sphere_lines)
         ctx.progress(0.05, "calibrating the sensor on the pad and the sphere")
-        sensor = HeightSensor(params.sensor_port, params.sensor_rate_hz)
-        sensor.connect()
+        scanner = open_scanner(machine, params.sensor_port, params.sensor_rate_hz)
         try:
-            calibration, report = calibrate_sensor(machine, sensor, setup)
+            calibration, report = calibrate_sensor(machine, scanner, setup)
         finally:
-            sensor.close()
+            scanner.close()
     source = "probe calibration" if probe.probe is not None else "pad touched once, sphere at its nominal place"
     return CalibrateSensorResult.written({
         **calibration.to_dict(), "sensor_port": params.sensor_port, "sensor_rate_hz": params.sensor_rate_hz,

@@ -80,6 +80,7 @@ from app.runtime.machine_queue import refuse_if_machine_busy
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
 from app.runtime.registry import JobParams, job_kind
 from app.jobs.sensor_calibration import scan_calibration
+from app.jobs.sensor_runs import require_sensor_port
 from app.jobs.results.models import ProbePlanResult, RegisterResult
 from app.platform.models import Job, Machine, Trace
 from app.reconstruction.field_trust import measured_bound, verification_line
@@ -149,8 +150,9 @@ class ClosedLoopParams(JobParams):
                                                 "ONE scan_run child (the laser height sensor, verification touches "
                                                 "included), every trace rebuilt from its field in board jobs")
     scan: dict[str, Any] = Field(default_factory=dict, description="measuring scan: scan_run parameters (without "
-                                 "machine_id and trace_ids); sensor_port is required, calibration defaults to the "
-                                 "machine's stored one (the newest calibrate_sensor job)")
+                                 "machine_id and trace_ids); sensor_port is required except on a linuxcnc:// machine "
+                                 "(its controller samples the sensor), calibration defaults to the machine's stored "
+                                 "one (the newest calibrate_sensor job)")
     board_batch: int = Field(250, ge=1, le=MAX_FIELD_TRACES, description="traces per board reconstruct / compensate "
                              "job (a resumed loop reuses every finished batch)")
 
@@ -178,8 +180,6 @@ class ClosedLoopParams(JobParams):
             return self
         if "machine_id" in self.scan or "trace_ids" in self.scan:
             raise ValueError("scan parameters: leave out machine_id and trace_ids (the loop's are used)")
-        if "sensor_port" not in self.scan:
-            raise ValueError("measuring scan needs scan.sensor_port (the height sensor's link)")
         if self.registration or self.joint_probing or self.probe:
             raise ValueError("measuring scan scans in machine coordinates with its own plan: leave registration, "
                              "joint_probing and probe out")
@@ -217,6 +217,8 @@ def _check(params: ClosedLoopParams, session: Session) -> None:
     if params.evaluate and not (machine.mock and machine.mock.get("true_part_id")):
         raise InvalidInput("evaluate needs a mock machine with a true part", field="params.evaluate", value=True)
     if params.measuring == "scan":
+        require_sensor_port(params.machine_id, machine.port, params.scan.get("sensor_port"),
+                            "params.scan.sensor_port")
         scan_calibration(session, params.machine_id, params.scan.get("calibration"), field="params.scan.calibration")
     refuse_if_machine_busy(params.machine_id, session)
 

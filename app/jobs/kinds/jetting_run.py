@@ -2,7 +2,9 @@
 
 Per layer: the pattern (open loop: the part mask; ``mpc``: the published layer-to-layer MPC
 on the last measured map) goes to the print head swath by swath, the machine's UV-lamp
-output cures it, the sensor rasters the grid (:mod:`app.jobs.jetting_machine`).  Heights are
+output cures it, the sensor rasters the grid (:mod:`app.jobs.jetting_machine`; on a
+``linuxcnc://`` machine the controller samples the sensor with its joints, no
+``sensor_port``; the lamp is a motion digital output, ``M64 P3`` / ``M65 P3``).  Heights are
 measured from the substrate, scanned once before the first layer (``substrate.npz``).  Cells
 the scan saw nothing in (dropouts: dark spots, lost light) take the controller's prediction
 (:func:`app.jetting.machine_grid.fill_missing`).  Artifacts ``measured_NNNN.npz``: the layer's
@@ -39,9 +41,11 @@ from app.jobs.jetting_machine import MachineSetup, cure, print_layer, scan_layer
 from app.jobs.results.jetting import JettingRunResult
 from app.runtime.machine_queue import interrupt, refuse_if_machine_busy, rehomed_machine, resume_request, stopped_by_operator
 from app.runtime.registry import job_kind
+from app.jobs.sensor_runs import HalScanner, SerialScanner, open_scanner, require_sensor_port
+from app.platform.models import Machine
+from app.platform.lookup import get_or_404
 from app.machines.live import MachineFault, MachineUnavailable, translate
 from hardware.errors import HardwareError, LinkError
-from hardware.height_sensor import HeightSensor
 from hardware.printhead import PrintHead
 
 SCAN_ABOVE_MM = 0.1  # the sensor's zero this far above the expected top (well inside its range)
@@ -52,9 +56,11 @@ class JettingRunParams(PrintModelParams):
     machine_id: str
     head_port: str = Field(min_length=1, max_length=500,
                            description="the head driver's link: head://NAME (the mock), /dev/ttyUSB2, socket://host:port")
-    sensor_port: str = Field(min_length=1, max_length=500,
-                             description="the height sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port")
-    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the sensor's sampling rate")
+    sensor_port: str | None = Field(None, min_length=1, max_length=500, description=(
+        "the height sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port; not used on a "
+        "linuxcnc:// machine (the controller samples the sensor with its joints)"))
+    sensor_rate_hz: float = Field(2000.0, gt=0, le=100_000, description="the sensor's sampling rate (a "
+                                  "linuxcnc:// machine samples once per servo period)")
     calibration: dict[str, Any] = Field(description="the sensor's calibration: offset_mm [x, y, z], scale, "
                                         "time_offset_s, slope_bias_mm (app.calibration.sensor.SensorCalibration)")
     layers: int = Field(200, ge=1, le=10_000, description="layers to print")
@@ -68,8 +74,10 @@ class JettingRunParams(PrintModelParams):
     travel_z_mm: float = Field(10.0, ge=-500, le=500, description="carriage z between passes")
     print_speed_mm_s: float = Field(100.0, gt=0, le=2000)
     scan_speed_mm_s: float = Field(100.0, gt=0, le=1000)
-    cure_on: str = Field("M42 P6 S255", pattern=COMMAND, description="one command: the UV lamp on")
-    cure_off: str = Field("M42 P6 S0", pattern=COMMAND, description="one command: the UV lamp off")
+    cure_on: str = Field("M42 P6 S255", pattern=COMMAND, description="one command: the UV lamp on "
+                         "(LinuxCNC: a motion digital output, M64 P3)")
+    cure_off: str = Field("M42 P6 S0", pattern=COMMAND, description="one command: the UV lamp off "
+                          "(LinuxCNC: M65 P3)")
     cure_s: float = Field(0.3, ge=0, le=600, description="UV exposure per layer, s")
 
 
@@ -79,6 +87,8 @@ def _check(params: JettingRunParams, session: Session) -> None:
     except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInput(f"calibration: {exc}", field="params.calibration", value=str(params.calibration)[:80]) \
             from None
+    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    require_sensor_port(params.machine_id, row.port, params.sensor_port, "params.sensor_port")
     session.info["jetting_grid"] = check_target(params.target, params.core(), session)
     refuse_if_machine_busy(params.machine_id, session)
 
@@ -112,7 +122,8 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
     state.update({k: resume[k] for k in ("executed", "printed", "phase", "layers", "resumes", "substrate", "pattern")
                   if resume and k in resume})
     machine = rehomed_machine(ctx, params.machine_id, resume, state)
-    head, sensor = PrintHead(params.head_port), HeightSensor(params.sensor_port, params.sensor_rate_hz)
+    head = PrintHead(params.head_port)
+    scanner: SerialScanner | HalScanner | None = None
     records: list[dict[str, Any]] = state["layers"]
     mobility = mobility_map(np.zeros(target.shape), core.flow)
 
@@ -122,7 +133,8 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
     def measure(before: np.ndarray, pattern: np.ndarray | None) -> tuple[np.ndarray, dict[str, Any]]:
         state["phase"] = "scan"
         ctx.runtime.store.save_program_state(ctx.claim, state)
-        scan = scan_layer(machine, sensor, grid, calibration, setup, top_mm())
+        assert scanner is not None
+        scan = scan_layer(machine, scanner, grid, calibration, setup, top_mm())
         heights = scan.heights - substrate
         predicted = before if pattern is None else predicted_heights(before, pattern, kernel, core.flow, ctrl.model)
         filled, missing = fill_missing(heights, predicted)
@@ -145,11 +157,11 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
     try:
         with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
             head.connect()
-            sensor.connect()
+            scanner = open_scanner(machine, params.sensor_port, params.sensor_rate_hz)
             if head.info is not None and abs(head.info.dpi - params.dpi) > 1e-6:
                 raise InvalidInput(f"the head prints at {head.info.dpi:g} dpi, the job at {params.dpi:g}",
                                    field="params.dpi", value=params.dpi)
-            substrate = _substrate(ctx, machine, sensor, grid, calibration, setup, state)
+            substrate = _substrate(ctx, machine, scanner, grid, calibration, setup, state)
             measured = _last_measured(ctx, state, target.shape)
             pattern: np.ndarray | None = None
             warm: np.ndarray | None = None
@@ -189,7 +201,8 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
         raise
     finally:
         head.close()
-        sensor.close()
+        if scanner is not None:
+            scanner.close()
     solve = [r["solve_ms"] for r in records if r["solve_ms"] > 0]
     return JettingRunResult.written({
         "layers": records, "final": records[-1],
@@ -199,7 +212,7 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
         "solve_ms_median": float(np.median(solve)) if solve else 0.0})
 
 
-def _substrate(ctx: JobContext, machine: Any, sensor: HeightSensor, grid: Grid, calibration: SensorCalibration,
+def _substrate(ctx: JobContext, machine: Any, scanner: SerialScanner | HalScanner, grid: Grid, calibration: SensorCalibration,
                setup: MachineSetup, state: dict[str, Any]) -> np.ndarray:
     """The substrate's heights (L, W) mm under the grid: scanned before the first layer
     (``substrate.npz``, smoothed: :func:`app.jetting.machine_grid.substrate_map`), read back on a
@@ -207,7 +220,7 @@ def _substrate(ctx: JobContext, machine: Any, sensor: HeightSensor, grid: Grid, 
     if state.get("substrate"):
         with np.load(io.BytesIO(ctx.artifact_bytes(ctx.job_id, "substrate.npz"))) as data:
             return np.asarray(data["heights"], dtype=float)
-    scan = scan_layer(machine, sensor, grid, calibration, setup, SCAN_ABOVE_MM)
+    scan = scan_layer(machine, scanner, grid, calibration, setup, SCAN_ABOVE_MM)
     with core_errors():
         heights = substrate_map(scan.heights, grid.pitch_mm)
     ctx.artifact("substrate.npz", _npz(heights=heights.astype(np.float32), pitch_mm=np.float64(grid.pitch_mm)),

@@ -40,6 +40,7 @@ from app.jobs.probe_correction import machine_probe
 from app.jobs.scan_passes import interrupting, scan_passes
 from app.runtime.registry import JobParams, job_kind
 from app.jobs.sensor_calibration import scan_calibration
+from app.jobs.sensor_runs import require_sensor_port
 from app.machines.live import profile_of
 from app.platform.models import Machine
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
@@ -82,7 +83,8 @@ class ScanRunParams(JobParams):
 
 
 def _check(params: ScanRunParams, session: Session) -> None:
-    get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    require_sensor_port(params.machine_id, row.port, params.sensor_port, "params.sensor_port")
     scan_calibration(session, params.machine_id, params.calibration)
     refuse_if_machine_busy(params.machine_id, session)
 

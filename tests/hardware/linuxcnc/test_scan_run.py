@@ -102,3 +102,31 @@ def test_a_scan_run_whose_link_drops_waits_and_resumes_at_the_interrupted_pass(c
     assert done["result"]["resumes"] == 1 and done["result"]["passes"] == 2
     data = _check_against_truth(client, done, trace_ids)
     assert sorted(set(data["pass_index"].tolist())) == [0, 1]
+
+
+def test_a_closed_loop_measuring_by_scan_on_linuxcnc_needs_no_sensor_port(client, lcnc_env):
+    """``closed_loop`` with ``measuring: scan`` on the simulator, without ``scan.sensor_port``
+    (the controller samples the sensor): its scan_run child measures the block and the loop
+    compensates every trace from that field."""
+    lcnc_env.set_surface(TRUTH)
+    lcnc_env.set_sensor(SimSensor(offset_mm=OFFSET, noise_mm=0.0005))
+    part = client.post("/api/v1/parts", files={"file": ("box.stl", _box_stl())}, headers=OP).json()
+    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=[
+        {"name": f"line-{x:g}", "geometry": {"type": "line", "start": [x, 5.0], "end": [x, 25.0]}, "frame": "xy",
+         "standoff_mm": 0.08} for x in TRACE_X], headers=OP).json()["items"]
+    machine_id = add_sim_machine(client, lcnc_env, PROFILE, OP)
+    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": 0.0, "slope_bias_mm": 0.0}
+    response = submit(client, "closed_loop", {
+        "part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine_id,
+        "measuring": "scan", "scan": {"calibration": calibration, "mode": "traces", "scan_speed_mm_s": 50.0,
+                                      "deviation_amplitude_mm": 0.15, "deviation_wavelength_mm": 20.0,
+                                      "verify_count": 2}})
+    assert response.status_code == 202, response.text
+    loop = wait_for(client, response.json()["id"], timeout=300)
+    assert loop["status"] == "succeeded", (loop["error"], (loop["result"] or {}).get("verdict"))
+    rows = loop["result"]["traces"]
+    scan = wait_for(client, rows[0]["scan_run"], timeout=5)
+    assert scan["status"] == "succeeded" and scan["params"].get("sensor_port") is None
+    for trace in scan["result"]["traces"]:
+        x = TRACE_X[[t["id"] for t in traces].index(trace["trace_id"])]
+        assert trace["max_abs_deviation_mm"] == pytest.approx(0.02 + 0.003 * x, abs=0.003)

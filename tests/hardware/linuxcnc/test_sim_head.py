@@ -1,0 +1,115 @@
+"""The simulator's jetting pieces without LinuxCNC: the sensor component's surface (the sphere,
+the jetted ink map, the latency's position lookup) and :class:`SimHeadBridge` fed from a
+scripted HAL watcher (the carriage crossing a swath, the lamp on for the dose)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hardware.linuxcnc import sensor_hal
+from hardware.linuxcnc.sim_head import SimHeadBridge
+from hardware.printhead import PrintHead
+from hardware.printhead.mock import unregister_head
+
+FLAT = {"u-gain0": 1.0, "u-gain1": 0.0, "u-offset": 0.0, "v-gain0": 0.0, "v-gain1": 1.0, "v-offset": 0.0,
+        "u-min": -1e9, "u-max": 1e9, "v-min": -1e9, "v-max": 1e9, "top-z": -1.0, "top-slope": 0.0, "bed-z": -1e9,
+        "sphere-x": 10.0, "sphere-y": 0.0, "sphere-z": 0.0, "sphere-r": 5.0}
+
+
+def test_the_sensor_sees_the_sphere_above_the_plane_with_its_tilt():
+    points = np.array([[[10.0, 0.0]], [[13.0, 0.0]], [[20.0, 0.0]]])
+    heights, cos_tilt = sensor_hal.block_heights(FLAT, points)
+    assert heights[:, 0] == pytest.approx([5.0, 4.0, -1.0])
+    assert cos_tilt == pytest.approx([1.0, 0.8, 1.0])
+
+
+def test_the_latency_looks_up_where_the_carriage_was():
+    history = [(100.0, 0.0, 0.0, 5.0), (101.0, 0.1, 0.0, 5.0), (102.0, 0.2, 0.0, 5.0)]
+    assert sensor_hal.position_at(history, 101.5) == pytest.approx((0.15, 0.0, 5.0))
+    assert sensor_hal.position_at(history, 90.0) == pytest.approx((0.0, 0.0, 5.0))  # held at the first read
+
+
+def test_the_ink_map_is_read_again_when_its_file_changes(tmp_path: Path):
+    path = tmp_path / "map.npz"
+    ink = sensor_hal.InkMap(path)
+    ink.refresh(1.0)
+    assert ink.at(np.array([[[0.0, 0.0]]]))[0, 0] == 0.0  # no file: no ink
+    np.savez(path, heights=np.array([[0.001, 0.002], [0.003, 0.004]]), origin=np.array([5.0, 5.0]), pitch=0.1)
+    ink.refresh(2.0)
+    points = np.array([[[5.0, 5.0], [5.1, 5.0], [5.1, 5.1], [7.0, 7.0]]])
+    assert ink.at(points)[0] == pytest.approx([0.001, 0.002, 0.004, 0.0])
+
+
+class _Watch:
+    """A scripted hal_watch: (t_ns, [x, y, z, lamp, clock]) rows appended by the test."""
+
+    def __init__(self) -> None:
+        self.samples: list[tuple[int, list[float]]] = []
+        self.clock = 0.0
+
+    def at(self, x: float, y: float, lamp: float = 0.0) -> None:
+        self.clock += 1.0
+        self.samples.append((time.monotonic_ns(), [x, y, 5.0, lamp, self.clock]))
+
+    def close(self) -> None:
+        pass
+
+
+class _Sim:
+    def __init__(self, workdir: Path) -> None:
+        self.sensor_map = workdir / "sensor_map.npz"
+        self.watcher = _Watch()
+
+    def watch(self, names, period_s, max_s):
+        return self.watcher
+
+
+def test_the_bridge_fires_a_swath_on_the_followed_joints_and_maps_the_cured_ink(tmp_path: Path):
+    sim = _Sim(tmp_path)
+    bridge = SimHeadBridge(sim, "bridgetest")  # type: ignore[arg-type]
+    head = PrintHead("head://bridgetest?nozzles=4&rows=1&row_gap_um=0&offset=0,0&field=0,0,40,40&cure=P3&cure_s=0.05"
+                     "&spread=0&drop_noise=0")
+    watch = sim.watcher
+    try:
+        head.connect()
+        watch.at(1.0, 0.5)
+        bits = np.zeros((5, 4), dtype=bool)
+        bits[2, :] = True                                    # row 2 at y = 1 + 2 pitches: four drops
+        pitch = 25.4 / 300
+        head.load(bits, 1.0, 0)
+        head.arm()
+        for y in np.linspace(0.5, 1.0 + 6 * pitch, 40):     # the carriage crosses every row
+            watch.at(1.0, float(y))
+        assert head.status().rows_done == 5
+        assert head.disarm() == 4
+        watch.at(1.0, 1.6, lamp=1.0)
+        stop = threading.Event()
+
+        def keep_time() -> None:                             # the servo clock runs on while the lamp is on
+            while not stop.is_set():
+                watch.at(1.0, 1.6, lamp=1.0)
+                time.sleep(0.005)
+
+        ticker = threading.Thread(target=keep_time)
+        ticker.start()
+        time.sleep(0.1)
+        stop.set()
+        ticker.join()
+        watch.at(1.0, 1.6, lamp=0.0)
+        deadline = time.monotonic() + 5
+        while (bridge.maps_written == 0 or bridge.head.cures == 0) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert bridge.head.cures == 1 and bridge.head.field.drops == 4
+        with np.load(sim.sensor_map) as data:
+            assert data["heights"].sum() > 0 and np.allclose(data["heights"], bridge.head.field.heights())
+            assert float(data["pitch"]) == pytest.approx(pitch)
+    finally:
+        head.close()
+        bridge.close()
+        unregister_head("bridgetest")
+    assert not sim.sensor_map.exists()
