@@ -156,7 +156,7 @@ class FieldCheck:
         if self.worse_traces:
             out.append(f"the correction makes trace(s) {list(self.worse_traces)} worse than the nominal program at a "
                        "verification point")
-        if math.isfinite(self.bound_mm) and self.bound_mm > self.target_mm * TARGET_SLACK:
+        if not bound_meets_target(self.bound_mm, self.target_mm):
             out.append(f"under the fitted model the traces are known to {self.bound_mm * 1000:.1f} um, over the "
                        f"target {self.target_mm * 1000:.1f} um by more than {TARGET_SLACK - 1:.0%}: add stations "
                        "(plan with the fitted prior)")
@@ -353,6 +353,18 @@ def trace_bound(fit: FieldFit, path: Any, coverage: float, learned: dict[str, An
     s = np.linspace(0.0, path.length_mm, count)
     return simultaneous_bound(posterior.sd(path_sites(path, s)), path.length_mm / (count - 1), wavelength,
                               coverage, traces)
+
+
+def bound_meets_target(bound_mm: float, target_mm: float) -> bool:
+    """The verdict's test of a run's bound: within TARGET_SLACK x the target (a NaN bound, not
+    yet computed, passes: the caller has no traces)."""
+    return not bound_mm > target_mm * TARGET_SLACK
+
+
+def run_bounds(check: FieldCheck, paths: Sequence[Any]) -> tuple[float, ...]:
+    """Each trace's bound (T,) mm (:func:`trace_bound`) over the run's T traces ``paths``
+    (TracePolylines), the T sharing the confidence: the largest is the run's bound."""
+    return tuple(trace_bound(check.fit, p, check.coverage, check.learned, len(paths)) for p in paths)
 
 
 def with_bound(check: FieldCheck, trace_bounds_mm: Sequence[float] | np.ndarray) -> FieldCheck:
