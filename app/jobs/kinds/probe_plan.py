@@ -275,7 +275,9 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     if final:  # no stations: the verification points for every station touched so far
         more = replace(more, xy=more.xy[:0], z=more.z[:0], grad=more.grad[:0], trace=more.trace[:0],
                        s_mm=more.s_mm[:0], order=more.order[:0])
-        surprise = (field.trace[keep], field.s_mm[keep], learned.loo.z, learned.loo.residual_mm)  # the gaps beside the worst predicted
+        fitted = np.setdiff1d(np.arange(len(dz)), learned.screened)  # the learning's LOO: its unscreened touches
+        surprise = (field.trace[keep][fitted], field.s_mm[keep][fitted], learned.loo.z,
+                    learned.loo.residual_mm)  # the gaps beside the worst predicted
         more = with_sequential_verification(more, sites, nominals, learned_params.prior(), params.verify_count,
                                             surprise)
     return more, learned_params, {
