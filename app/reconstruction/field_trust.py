@@ -14,10 +14,9 @@
 Verdict: the field is *verified* when the learned model fits (no LOO misfit), every
 verification residual lies within ``coverage`` x its predictive sd (posterior sd and probe
 noise) and within the bound promised for the traces, and that bound meets the target
-within TARGET_SLACK: the plan meets the target at every trace point under the prior it was
-planned for (the probe's noise); the bound is over the whole trace and under the final fit's
-learned noise, which comes out 1.0-1.2 x that on parts the plan resolves.  The bound itself is
-reported as it is; a plan too sparse for the part is off by far more.  The bound is taken with
+within TARGET_SLACK (:func:`bound_meets_target`; the sequential planner adds stations until
+it does, :mod:`app.reconstruction.field_sequential`).  The bound itself is reported as it is;
+a plan too sparse for the part is off by far more.  The bound is taken with
 the learned amplitude and wavelength HYPER_SD of their own sd on the unfavourable side
 (:func:`cautious_prior`: they are estimates from a few dozen touches), and a run's traces share
 its confidence (:func:`trace_bound` ``traces``), so the run's bound holds over all of them.  A verification point
