@@ -123,9 +123,10 @@ def more_rounds(steps: Steps, params: Any, base: dict[str, Any], plan: Job, prob
     needs) or, single shot, one more touch of each suspected outlier."""
     run = run_params(params)
     if is_sequential(params):
-        for round_ in range(params.max_rounds):
+        for round_ in range(params.max_rounds):  # the last one adds no stations: it verifies
             following = steps.run("probe_plan", {**base, "fixed_run_job_id": probe.id,
-                                                 "touch_budget": params.touch_budget}, None)
+                                                 "touch_budget": params.touch_budget,
+                                                 "last_round": round_ == params.max_rounds - 1}, None)
             field = ProbePlanResult.of(following).field or {}
             steps.ctx.progress(progress, f"sequential round {round_ + 1}: {field['sequential']['added']} stations "
                                f"added, {ProbePlanResult.of(following).count} touches")

@@ -124,7 +124,8 @@ class ProbePlanParams(PlacedParams):
     fixed_run_job_id: str | None = Field(None, description="field planner, sequential round: a probe run of an "
                                          "earlier field plan of the same traces; the prior is learned from every "
                                          "station touched so far and the plan adds only the stations the fitted "
-                                         "field still needs (none: only the verification points)",
+                                         "field still needs for the run's bound to meet the target (none: only the "
+                                         "verification points)",
                                          json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
     pilot: bool = Field(False, description="field planner, the pilot of a sequential plan: a coarse plan for twice "
                         "deviation_wavelength_mm (the rounds add what the learned prior asks for)",
@@ -133,6 +134,10 @@ class ProbePlanParams(PlacedParams):
                                "fitted to that run would exclude as outliers (once each), add no stations and keep "
                                "the run's verification points (a single-shot plan's second run; none: no touches)",
                                json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
+    last_round: bool = Field(False, description="with fixed_run_job_id: the last sequential round the loop allows: "
+                             "adds no stations, only the verification points (stopped: rounds, unless the run's "
+                             "bound already holds)",
+                             json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
     touch_budget: int | None = Field(None, ge=1, le=100_000, description="sequential round: the most touches in all "
                                      "(stations so far + added + verification); a round that would pass it adds "
                                      "no stations and says so",

@@ -135,7 +135,7 @@ class GreedyField:
 
 
 def greedy_sequence(greedy: GreedyField, targets: np.ndarray, count: int | None, target_var: float,
-                    min_count: int) -> int:
+                    min_count: int, first_candidate: int = 0) -> int:
     """Run the greedy design: ``count`` stations in all, or (count None) until the largest
     variance over ``targets`` (indices into U) is <= target_var with >= min_count stations.
     Every site of U is a candidate.
@@ -144,13 +144,16 @@ def greedy_sequence(greedy: GreedyField, targets: np.ndarray, count: int | None,
     most, ``cov(j, t)^2 / (var_j + sigma^2)`` (the posterior covariance column of t costs
     O(n N)).  On traces this picks the worst point itself or a neighbour; with free
     candidates it avoids points off the traces whose own variance is large but irrelevant.
-    Returns the number of stations chosen."""
+    Sites before ``first_candidate`` (stations already touched) are not candidates: a second
+    touch there is a site of U at the same point.  Returns the number of stations chosen."""
     most = min(MAX_FIELD_PROBES, len(greedy.var)) if count is None else int(count)
     while len(greedy.chosen) < most:
         worst = int(targets[np.argmax(greedy.var[targets])])
         if count is None and len(greedy.chosen) >= min_count and greedy.var[worst] <= target_var:
             break
-        greedy.add(int(np.argmax(greedy.gain_for(worst))))
+        gain = greedy.gain_for(worst)
+        gain[:first_candidate] = -np.inf
+        greedy.add(int(np.argmax(gain)))
     return len(greedy.chosen)
 
 
@@ -413,7 +416,7 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     for j in range(nf):  # the stations already touched come first
         greedy.add(j)
     for _ in range(MAX_REFINE_ROUNDS):
-        greedy_sequence(greedy, np.flatnonzero(site_trace >= 0), count, target_var, max(2, params.min_count))
+        greedy_sequence(greedy, np.flatnonzero(site_trace >= 0), count, target_var, max(2, params.min_count), nf)
         chosen = np.array(greedy.chosen)
         parts = posterior_parts(prior, greedy.sites.take(chosen), samples.sites, region.center)
         over = np.flatnonzero(parts.var > target_var * (1 + 1e-9))

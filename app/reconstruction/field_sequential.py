@@ -1,5 +1,5 @@
-"""Sequential field planning: pilot, learn the prior, add stations until the fitted model
-meets the target (or a touch budget is spent), then verify.
+"""Sequential field planning: pilot, learn the prior, add stations until the run's bound
+under the fitted model meets the target (or a touch budget is spent), then verify.
 
 A single-shot field plan (:func:`app.probing.field.plan_field`) is only as good as the prior
 it was designed for.  When the prior is uncertain:
@@ -11,11 +11,16 @@ it was designed for.  When the prior is uncertain:
    far (:func:`app.reconstruction.field_learning.learn_prior`, gross outliers screened out);
 3. **add**: the field planner again, for the learned prior (:func:`round_params`), starting
    from every station already touched (``fixed``): it returns only the stations the fitted
-   posterior still needs for ``coverage`` x sd <= target on every trace point; none -> the
-   bound holds under the fitted model;
-4. repeat 2-3 until no station is added, ``max_rounds`` pass, or the next round would pass
+   posterior still needs for ``coverage`` x sd <= the round's pointwise target on every trace
+   point;
+4. **the run's bound**: when it adds none, the stations are fitted and bounded as the verdict
+   does it (:func:`stations_check`: the learned prior, the hyperparameters' own uncertainty,
+   the run's traces sharing the confidence, :func:`app.reconstruction.field_trust.run_bounds`);
+   a bound within the verdict's tolerance (``bound_meets_target``) ends the rounds, one over
+   it tightens the pointwise target (:func:`tightened_target`) and the round plans again;
+5. repeat 2-4 until the bound holds, ``max_rounds`` pass, or the next round would pass
    ``budget`` touches (the result says which);
-5. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
+6. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
    gaps beside the stations the others predict worst (where a step or another structure the
    smooth field cannot represent shows: :func:`app.probing.field_verify.gap_points`),
    touched last and never fitted (:mod:`app.reconstruction.field_trust`).
@@ -35,16 +40,17 @@ import numpy as np
 
 from app.geometry.traces import as_trace_polyline
 from app.probing.deviation_prior import DeviationPrior, Sites
-from app.probing.field import plan_field
+from app.probing.field import FieldPlan, plan_field
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
 from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, learn_prior, loo_check
-from app.reconstruction.field_trust import FieldCheck, checked_field, trace_bound, with_bound
+from app.reconstruction.field_trust import FieldCheck, bound_meets_target, checked_field, run_bounds, with_bound
 
 MAX_ROUNDS = 6
 DEFAULT_BUDGET = 2000
 PILOT_WAVELENGTH_FACTOR = 2.0  # the pilot plans for twice the user's wavelength
 SHRINK_PER_ROUND = 2.0         # a round plans for no less than the previous round's wavelength / 2
+TIGHTEN_MIN = 0.5              # a round's pointwise target is at most halved at once
 
 
 def pilot_params(params: PlanParams) -> PlanParams:
@@ -71,11 +77,52 @@ def round_params(params: PlanParams, learned: DeviationPrior, previous_wavelengt
                    probe_sigma_mm=user_sigma)
 
 
+def tightened_target(plan_target_mm: float, target_mm: float, bound_mm: float) -> float:
+    """The next round's pointwise target (mm) when the run's bound ``bound_mm`` under the
+    fitted model is over the verdict's tolerance after a round planned for ``plan_target_mm``:
+    scaled by target / bound (the bound scales about as the pointwise sd between the stations
+    does), so one round aims the bound at the target itself, within the tolerance with room;
+    at most halved at once (TIGHTEN_MIN).  Mm in, mm out."""
+    return plan_target_mm * max(TIGHTEN_MIN, min(1.0, target_mm / bound_mm))
+
+
+TIGHTEN_TRIES = 3  # a tightened round that adds no station is tightened again, this many times in all
+
+
+def plan_tightened(plan: Callable[[float], FieldPlan], plan_target_mm: float, target_mm: float,
+                   bound_mm: float) -> tuple[FieldPlan, float]:
+    """(the stations ``plan(pointwise target mm)`` adds, the target it planned for) after a
+    round whose run's bound ``bound_mm`` is over the verdict's tolerance: the target tightened
+    (:func:`tightened_target`) until the plan adds a station, at most TIGHTEN_TRIES times (a
+    learned noise far over the probe's can keep the bound over the target whatever is added:
+    then none, and the rounds end)."""
+    for _ in range(TIGHTEN_TRIES):
+        plan_target_mm = tightened_target(plan_target_mm, target_mm, bound_mm)
+        more = plan(plan_target_mm)
+        if more.count:
+            break
+    return more, plan_target_mm
+
+
+def stations_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray, trace: np.ndarray,
+                   s_mm: np.ndarray, paths: Sequence[object], coverage: float, target_mm: float) -> FieldCheck:
+    """The checked field of the stations touched so far, without verification points, its
+    bound the run's (:func:`app.reconstruction.field_trust.run_bounds` over ``paths``): the
+    verdict's own fit and bound of these touches.  sites / dz / trace / s_mm (n,): the
+    stations, their measured deviation (mm), trace index and arc length (mm)."""
+    n = len(sites.xy)
+    check = checked_field(prior, sites, np.zeros(n), np.column_stack([sites.xy, dz]), center, trace, s_mm,
+                          np.zeros(n, dtype=bool), coverage, target_mm)
+    return with_bound(check, run_bounds(check, paths))
+
+
 @dataclass(frozen=True)
 class SequentialResult:
     """check: the verified field (its bound: the largest trace bound under the fitted model); stations: every fitted station (n,); rounds:
     stations added per round (the pilot first); stopped: why the rounds ended ("bound
-    holds", "budget", "rounds"); params: the plan parameters of the last round;
+    holds": the run's bound within the verdict's tolerance, "budget", "rounds", "no station
+    helps": the target tightened TIGHTEN_TRIES times and still nothing added); params: the
+    plan parameters of the last round (its ``target_error_mm`` the pointwise target it planned for);
     trace_bounds_mm (T,): each trace's bound (:func:`app.reconstruction.field_trust.trace_bound`)."""
 
     check: FieldCheck
@@ -109,15 +156,27 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     rounds = [plan.count]
     stopped = "rounds"
     center = plan.center
+    plan_target = params.target_error_mm
     for _ in range(max_rounds):
         if len(dz) < MIN_TOUCHES:
             break
         learned = learn_prior(user, sites, dz, center)
-        current = round_params(params, learned.prior, current.deviation_wavelength_mm)
+        current = replace(round_params(params, learned.prior, current.deviation_wavelength_mm),
+                          target_error_mm=plan_target)
         more = plan_field(paths, current, fixed=sites)
         if more.count == 0:
-            stopped = "bound holds"
-            break
+            bound = stations_check(user, sites, dz, center, trace, s, paths, params.coverage,
+                                   params.target_error_mm).bound_mm
+            if bound_meets_target(bound, params.target_error_mm):
+                stopped = "bound holds"
+                break
+            def replan(t: float, at: PlanParams = current, touched: Sites = sites) -> FieldPlan:
+                return plan_field(paths, replace(at, target_error_mm=t), fixed=touched)
+            more, plan_target = plan_tightened(replan, plan_target, params.target_error_mm, bound)
+            current = replace(current, target_error_mm=plan_target)
+            if more.count == 0:
+                stopped = "no station helps"
+                break
         if len(dz) + more.count + verify_count > budget:
             stopped = "budget"
             break
@@ -144,5 +203,5 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     check = checked_field(user, all_sites, nominal_z, measured, center,
                           np.concatenate([trace, points.trace]), np.concatenate([s, points.s_mm]), mask,
                           params.coverage, params.target_error_mm)
-    bounds = tuple(trace_bound(check.fit, p, params.coverage, check.learned, len(paths)) for p in paths)
+    bounds = run_bounds(check, paths)
     return SequentialResult(with_bound(check, bounds), sites, trace, s, tuple(rounds), stopped, current, bounds)

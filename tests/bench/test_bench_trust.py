@@ -11,7 +11,7 @@ wavelengths in [lambda, 3 lambda], lambda = 6, 10, 15, 25, 40 mm, peak amplitude
 x = 30 mm.  Seven S1 traces, 1 um probe noise, the user's prior at the
 defaults (A 0.2 mm, lambda 20 mm, target 5 um, coverage 3).  Each part is probed by the
 sequential planner (:mod:`app.reconstruction.field_sequential`: a coarse pilot, learn, add
-stations, verify at 5 points and the gap points).  Truth, independently of the project's figures:
+stations until the run's bound meets the target, verify at 5 points and the gap points).  Truth, independently of the project's figures:
 the worst |model - true deviation| along every trace (every 0.1 mm; the compensated
 program's standoff error up to its chord error) and the worst |true deviation| (the
 nominal program's).  Counted: runs that call themselves done (no ``needs_attention``) whose

@@ -14,7 +14,7 @@ from app.probing.field_region import field_region
 from app.probing.field_verify import verification_indices, with_verification
 from app.probing.selection import PlanParams
 from app.reconstruction.field_sequential import plan_sequential
-from app.reconstruction.field_trust import TARGET_SLACK, checked_field, trace_bound, with_bound
+from app.reconstruction.field_trust import TARGET_SLACK, checked_field, run_bounds, trace_bound, with_bound
 from app.reference.s1 import nominal_path, s1_traces
 
 DEFAULT = PlanParams()  # the user's prior left at the defaults: A 0.2 mm, lambda 20 mm, target 5 um, coverage 3
@@ -84,16 +84,42 @@ def test_sequential_planning_holds_every_trace_within_its_verified_bound_on_the_
     result = plan_sequential(paths, DEFAULT, toucher(2), verify_count=5)
     check = result.check
     assert result.stopped == "bound holds" and len(result.rounds) >= 2   # the pilot, then stations added
-    # the run's bound (the 7 traces sharing its confidence, the learned amplitude and wavelength
-    # 2 sd on their unfavourable side) may come out over the target: then that is the only reason
-    # the check asks for attention (the model fits, every verification point is within its band)
-    assert all(r.startswith("under the fitted model the traces are known to") for r in check.reasons), check.reasons
+    # the rounds go on until the run's bound (the 7 traces sharing its confidence, the learned
+    # amplitude and wavelength 2 sd on their unfavourable side) meets the target: verified
+    assert check.bound_mm <= DEFAULT.target_error_mm * TARGET_SLACK and not check.needs_attention, check.reasons
+    assert result.params.target_error_mm < DEFAULT.target_error_mm   # a round planned for a tightened pointwise target
+    assert check.bound_mm == max(result.trace_bounds_mm) == pytest.approx(max(run_bounds(check, paths)))
     after, before = true_errors(check.fit, paths)
     assert (after < before).all()
     assert after.max() <= check.bound_mm
     assert (after <= np.array(result.trace_bounds_mm)).all()   # every trace within its own bound
     assert check.verification is not None and check.verification.within.all()
     assert check.verified_line().startswith(f"verified at {len(check.verification.xy)} points: max |residual| ")
+
+
+def test_a_round_over_the_bound_tightens_its_pointwise_target_by_target_over_bound():
+    from types import SimpleNamespace
+
+    from app.reconstruction.field_sequential import TIGHTEN_MIN, TIGHTEN_TRIES, plan_tightened, tightened_target
+
+    assert tightened_target(5.0, 5.0, 8.0) == pytest.approx(5.0 * 5.0 / 8.0)   # aims the bound at the target
+    assert tightened_target(3.0, 5.0, 6.0) == pytest.approx(2.5)               # from the round's own target
+    assert tightened_target(5.0, 5.0, 40.0) == pytest.approx(5.0 * TIGHTEN_MIN)  # at most halved at once
+    assert tightened_target(5.0, 5.0, 4.0) == 5.0                               # never loosened
+    asked: list[float] = []
+
+    def plan(t: float) -> SimpleNamespace:
+        asked.append(t)
+        return SimpleNamespace(count=int(t < 2.0))   # adds a station only below 2
+    more, target = plan_tightened(plan, 5.0, 5.0, 20.0)
+    assert more.count == 1 and asked == [2.5, 1.25] and target == 1.25
+    asked.clear()
+
+    def nothing(t: float) -> SimpleNamespace:
+        asked.append(t)
+        return SimpleNamespace(count=0)
+    more, target = plan_tightened(nothing, 5.0, 5.0, 20.0)
+    assert more.count == 0 and len(asked) == TIGHTEN_TRIES   # tightened that often, then the rounds end
 
 
 def stepped(xy: np.ndarray) -> np.ndarray:

@@ -134,11 +134,13 @@ class ClosedLoopParams(JobParams):
                              "(the result's traces name them)")
     sequential: bool = Field(True, description="with joint_probing and the field planner: plan sequentially - a pilot "
                              "plan for the given prior, then rounds that learn the prior from every touch so far and "
-                             "add the stations the fitted field still needs (probe_plan fixed_run_job_id), until it "
-                             "needs none, touch_budget is reached or max_rounds pass; then the verification points. "
+                             "add the stations the fitted field still needs (probe_plan fixed_run_job_id), until the "
+                             "run's bound as the verdict computes it meets the target (within its 25 %), touch_budget "
+                             "is reached or max_rounds pass; then the verification points. "
                              "false: one plan for the given prior (+ its verification points)")
     touch_budget: int = Field(2000, ge=1, le=100_000, description="sequential planning: the most touches in all")
-    max_rounds: int = Field(4, ge=1, le=10, description="sequential planning: the most rounds after the pilot")
+    max_rounds: int = Field(6, ge=1, le=10, description="sequential planning: the most rounds after the pilot "
+                            "(the last adds no stations: it touches the verification points)")
     pause_at: list[PausePoint] = Field(default_factory=list, max_length=4, description="where the loop waits "
                                        "for an operator (plan, probed, verified, print): the job is then waiting "
                                        "until POST /jobs/{id}/continue, accept, add-stations or abandon; none by "

@@ -42,7 +42,8 @@ from app.jobs.field_runs import field_touches, measured_array, touched_stations,
 from app.probing.field import stored_field
 from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
-from app.reconstruction.field_sequential import pilot_params, round_params
+from app.reconstruction.field_sequential import pilot_params, plan_tightened, round_params, stations_check
+from app.reconstruction.field_trust import bound_meets_target
 from app.probing.joint import plan_joint
 from app.probing.merge import merge_plans
 from app.probing.program import mesh_station_normals
@@ -213,8 +214,12 @@ def _retouched(plan: Any, field: Any, keep: np.ndarray, retouch: list[int]) -> A
 def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], plan_params: PlanParams,
                 top: Any) -> tuple[Any, PlanParams, dict[str, Any]]:
     """A sequential round: learn the prior from every station touched so far (the fixed
-    run's field), plan the stations the fitted field still needs; with none (or past the
-    touch budget) only the verification points.  Returns (the plan of what this round
+    run's field), plan the stations the fitted field still needs for coverage x sd <= the
+    round's pointwise target; with none, the run's bound as the verdict computes it
+    (:func:`stations_check`): within the verdict's tolerance -> only the verification points;
+    over it -> the pointwise target tightened (:func:`tightened_target`, kept for the next
+    round as ``plan_target_mm``) and the stations it needs.  Past the touch budget, or on the
+    loop's ``last_round``, only the verification points.  Returns (the plan of what this round
     touches, the learned plan parameters, the round's record incl. the fixed stations)."""
     run = ctx.job(str(params.fixed_run_job_id), kind="probe_run", field="params.fixed_run_job_id")
     plan_job = ctx.job(run.params["plan_job_id"], field="params.fixed_run_job_id")
@@ -228,7 +233,10 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     dz = measured_array(rows)[keep, 2] - field.z[keep]
     sites = field.stations.take(np.flatnonzero(keep))
     learned = learn_prior(plan_params.prior(), sites, dz, field.center)
-    learned_params = round_params(plan_params, learned.prior, field.prior.wavelength_mm)
+    before = plan_job.result.get("field", {}).get("sequential", {})
+    plan_target = float(before.get("plan_target_mm", plan_params.target_error_mm))
+    learned_params = replace(round_params(plan_params, learned.prior, field.prior.wavelength_mm),
+                             target_error_mm=plan_target)
     suspect = learned.prior
     if params.retouch_only:  # judged at the probe's repeatability: one bad touch inflates the learned noise
         suspect = replace(suspect, sigma_mm=min(suspect.sigma_mm, plan_params.probe_sigma_mm))
@@ -240,9 +248,22 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
             "final": True, "stopped": "retouched", "added": 0, "touched_before": len(fixed),
             "learned": learned.as_dict(), "retouch_of": [int(i) for i in retouch],
             "fixed": fixed + touched_verification(stored, run.id), "center": stored["center"]}
+    bound = None
+    if more.count == 0 and not retouch:  # the pointwise target holds: the run's bound as the verdict computes it
+        bound = stations_check(plan_params.prior(), sites, dz, field.center, field.trace[keep], field.s_mm[keep],
+                               nominals, plan_params.coverage, plan_params.target_error_mm).bound_mm
+        if not bound_meets_target(bound, plan_params.target_error_mm):
+            round_ = learned_params
+            more, plan_target = plan_tightened(
+                lambda t: plan_field(nominals, replace(round_, target_error_mm=t), params.stations, top, fixed=sites),
+                plan_target, plan_params.target_error_mm, bound)
+            learned_params = replace(learned_params, target_error_mm=plan_target)
     budget = params.touch_budget
     over = budget is not None and len(fixed) + more.count + len(retouch) + params.verify_count > budget
-    final = (more.count == 0 and not retouch) or over
+    final = (more.count == 0 and not retouch) or over or params.last_round
+    holds = bound is not None and bound_meets_target(bound, plan_params.target_error_mm)
+    stopped = ("budget" if over else "bound holds" if holds else "rounds" if params.last_round
+               else "no station helps" if final else None)
     if not final and retouch:  # a suspected outlier is touched again before the fit may exclude it
         idx = np.flatnonzero(keep)[retouch]
         more = replace(more, xy=np.concatenate([more.xy, field.stations.xy[idx]]),
@@ -254,13 +275,15 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     if final:  # no stations: the verification points for every station touched so far
         more = replace(more, xy=more.xy[:0], z=more.z[:0], grad=more.grad[:0], trace=more.trace[:0],
                        s_mm=more.s_mm[:0], order=more.order[:0])
-        surprise = (field.trace[keep], field.s_mm[keep], learned.loo.z, learned.loo.residual_mm)  # the gaps beside the worst predicted
+        fitted = np.setdiff1d(np.arange(len(dz)), learned.screened)  # the learning's LOO: its unscreened touches
+        surprise = (field.trace[keep][fitted], field.s_mm[keep][fitted], learned.loo.z,
+                    learned.loo.residual_mm)  # the gaps beside the worst predicted
         more = with_sequential_verification(more, sites, nominals, learned_params.prior(), params.verify_count,
                                             surprise)
     return more, learned_params, {
         "round": int(plan_job.result.get("field", {}).get("sequential", {}).get("round", 0)) + 1,
-        "final": final, "stopped": "budget" if over else ("bound holds" if final else None),
-        "added": 0 if final else more.count - len(retouch), "touched_before": len(fixed),
+        "final": final, "stopped": stopped, "plan_target_mm": plan_target,
+        "bound_mm": bound, "added": 0 if final else more.count - len(retouch), "touched_before": len(fixed),
         "learned": learned.as_dict(), "retouch_of": [] if final else [int(i) for i in retouch],
         "fixed": fixed, "center": stored["center"]}
 
