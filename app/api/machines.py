@@ -36,6 +36,7 @@ from app.materials import BY_NAME, MATERIALS
 from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
+from hardware.port_url import PortUrl
 from app.db import lock_for_delete
 from app.models import TERMINAL_STATES, Job, JobReference, Machine, Part, new_id, utcnow
 from app.records import get_or_404
@@ -108,7 +109,8 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
     claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
     if (replayed := idempotency.replay(session, claim)) is not None:
         return replayed  # type: ignore[return-value]
-    is_mock = body.port.startswith("mock://")
+    port = PortUrl.parse(body.port)
+    is_mock = port.is_mock
     if body.mock is not None and not is_mock:
         raise InvalidInput("mock settings need a mock:// port", field="mock", value=body.port)
     if body.mock is not None and body.mock.true_part_id is not None:
@@ -117,7 +119,7 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
                                value=body.mock.true_part_id)
     if is_mock:
         try:
-            parse_mock_options(body.port.split("?", 1)[1] if "?" in body.port else "")
+            parse_mock_options(port.query)
         except InvalidConfig as exc:  # 422 naming the option
             raise translate(exc) from exc
     machine_id = new_id("mach")

@@ -24,11 +24,12 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import fields
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import parse_qsl
 
 import numpy as np
 
 from ..errors import InvalidConfig
+from ..port_url import PortUrl
 from ..mock.timeline import MotionTimeline
 from ..mock.url_options import url_numbers
 from ..mock.world import MockWorld, get_world
@@ -192,10 +193,10 @@ def unregister_sensor(name: str) -> None:
 
 def sensor_from_url(url: str) -> MockHeightSensor:
     """Resolve ``lkg://NAME?options`` to a (possibly new, then registered) mock sensor."""
-    parts = urlsplit(url)
+    parts = PortUrl.parse(url)
     if parts.scheme != "lkg":
         raise InvalidConfig(f"not a sensor URL: {url!r}", field="port", value=url[:80])
-    name = (parts.netloc + parts.path).strip("/") or "default"
+    name = parts.name
     options = parse_options(parts.query)
     machine = str(options.pop("machine", name))
     known = {f.name for f in fields(SensorOptics) if f.init}

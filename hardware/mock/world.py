@@ -45,9 +45,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import parse_qsl
 
 from ..errors import InvalidConfig
+from ..port_url import PortUrl
 from ..dialects import DEFAULT_DIALECT, DIALECTS, dialect
 from ..protocol import CommandHasher, CommandDigest
 from .timeline import MotionTimeline
@@ -410,10 +411,10 @@ def parse_mock_options(query: str) -> dict[str, object]:
 
 def world_from_url(url: str) -> MockWorld:
     """Resolve ``mock://NAME?options`` to a (possibly new, then registered) world."""
-    parts = urlsplit(url)
+    parts = PortUrl.parse(url)
     if parts.scheme != "mock":
         raise InvalidConfig(f"not a mock URL: {url!r}", field="port", value=url[:80])
-    name = (parts.netloc + parts.path).strip("/") or "default"
+    name = parts.name
     options = parse_mock_options(parts.query)
     with _REGISTRY_LOCK:
         world = _REGISTRY.get(name)
