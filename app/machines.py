@@ -1,7 +1,8 @@
 """Live machine connections of this process (the one that owns the serial ports).
 
-A registered machine is a row; connecting builds a :class:`hardware.machine.Machine`
-from it.  For ``mock://`` ports the mock firmware's world is built from the row's
+A registered machine is a row; connecting builds a backend (:class:`hardware.backend.Machine`)
+from it: :class:`hardware.linuxcnc.LinuxCNCMachine` for ``linuxcnc://`` ports, else the serial
+:class:`hardware.machine.Machine`.  For ``mock://`` ports the mock firmware's world is built from the row's
 ``mock`` settings: the true part is the stored mesh of ``true_part_id`` with its rigid
 placement, probe noise, timing and faults.  Hardware errors are translated into the
 service's error family here, so routers and jobs only see :mod:`app.errors`.
@@ -21,7 +22,9 @@ from contextlib import contextmanager
 from typing import Any
 
 from hardware.errors import CommandRejected, HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
-from hardware.machine import Machine, MachineProfile
+from hardware.backend import Machine
+from hardware.machine import Machine as SerialMachine
+from hardware.machine_types import MachineProfile
 from hardware.port_url import PortUrl
 from hardware.mock import (FaultConfig, MockPad, MockSphere, MockTool, MockWorld, TruePlacement,
                            register_world, unregister_world)
@@ -71,7 +74,7 @@ def translate(exc: HardwareError) -> ConformaError:
 
 
 @contextmanager
-def hardware_errors():
+def hardware_errors() -> Iterator[None]:
     """Re-raise hardware errors as service errors."""
     try:
         yield
@@ -197,7 +200,7 @@ class MachineManager:
     """Machine objects by id; builds mock worlds; one lock per registry change."""
 
     def __init__(self, load_mesh: Any, linuxcnc: dict[str, str] | None = None) -> None:
-        self._linuxcnc = dict(linuxcnc or {})  # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
+        self._linuxcnc: dict[str, Any] = dict(linuxcnc or {})  # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
         self._machines: dict[str, Machine] = {}
         self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it (read-only: use lease)
         self._lock = threading.Lock()
@@ -287,7 +290,7 @@ class MachineManager:
     def build(self, row: MachineRow) -> Machine:
         """The machine object of ``row`` (made, not connected, on first use)."""
         with self._lock:
-            machine = self._machines.get(row.id)
+            machine: Machine | None = self._machines.get(row.id)
             if machine is None:
                 with hardware_errors():
                     port = PortUrl.parse(row.port)
@@ -298,7 +301,7 @@ class MachineManager:
 
                         machine = LinuxCNCMachine(row.port, profile_of(row), **self._linuxcnc)
                     else:
-                        machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
+                        machine = SerialMachine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
                                           boot_wait_s=0.0 if port.is_mock else 2.0)
                 self._machines[row.id] = machine
         return machine
@@ -346,11 +349,11 @@ class MachineManager:
 
 
 
-def physics_kwargs(physics: dict | None) -> dict:
+def physics_kwargs(physics: dict[str, Any] | None) -> dict[str, Any]:
     """``MockWorld`` keyword arguments from a stored ``mock.physics`` (``MockPhysics``) dict."""
     if not physics:
         return {}
-    kwargs = {name: float(physics.get(name, 0.0)) for name in (
+    kwargs: dict[str, Any] = {name: float(physics.get(name, 0.0)) for name in (
         "stylus_radius_mm", "pretravel_mm", "pretravel_sd_mm", "pretravel_lobing_mm",
         "drift_mm_per_min", "touchoff_sd_mm")}
     kwargs["tools"] = tuple(MockTool(tuple(t["offset_mm"]), t["outer_diameter_mm"])

@@ -26,7 +26,7 @@ from app.jobs.registry import machine_kinds
 from app.models import Job, JobReference, utcnow
 from app.machines import MachineFault, MachineUnavailable, hardware_errors
 from hardware.errors import HardwareError
-from hardware.machine import Machine
+from hardware.backend import Machine
 from hardware.protocol import validate_program
 
 if TYPE_CHECKING:

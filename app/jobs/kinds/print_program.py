@@ -43,7 +43,7 @@ from app.models import Artifact, Machine, Program
 from app.records import get_or_404
 from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, LinkError
-from hardware.machine import Machine as LiveMachine
+from hardware.backend import Machine as LiveMachine
 from hardware.protocol import validate_program
 
 PROGRESS_INTERVAL_S = 0.25
