@@ -34,9 +34,9 @@ from app.jobs.runtime import Runtime
 from app.machines import hardware_errors, port_key, port_owner, translate
 from app.materials import BY_NAME, MATERIALS
 from hardware.dialects import default_dispense
+from hardware.port_url import PortUrl
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
-from hardware.port_url import PortUrl
 from app.db import lock_for_delete
 from app.models import TERMINAL_STATES, Job, JobReference, Machine, Part, new_id, utcnow
 from app.records import get_or_404
