@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import fields
+from typing import Any
 from urllib.parse import parse_qsl
 
 import numpy as np
@@ -151,9 +152,9 @@ _REGISTRY: dict[str, MockHeightSensor] = {}
 _LOCK = threading.Lock()
 
 
-def parse_options(query: str) -> dict[str, object]:
+def parse_options(query: str) -> dict[str, Any]:
     """Typed options from a ``lkg://`` query string (``InvalidConfig`` when malformed)."""
-    out: dict[str, object] = {}
+    out: dict[str, Any] = {}  # each key's value typed as SensorOptics' field of that name
     try:
         pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
@@ -210,5 +211,5 @@ def sensor_from_url(url: str) -> MockHeightSensor:
         sensor.machine = machine
         merged = {f.name: getattr(sensor.optics, f.name) for f in fields(SensorOptics) if f.init}
         merged.update(options)
-        sensor.optics = SensorOptics(**merged)  # type: ignore[arg-type]
+        sensor.optics = SensorOptics(**merged)
     return sensor
