@@ -62,7 +62,7 @@ docs: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check app hardware tests
-	$(BIN)/python -m mypy  # the pure core: packages listed in pyproject's [tool.mypy]
+	$(BIN)/python -m mypy  # app/ and hardware/ (pyproject [tool.mypy]: strict for the core and the machine backends)
 
 clean-data:
 	rm -rf data

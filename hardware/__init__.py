@@ -14,8 +14,14 @@ Usable without the ``app`` package.  Layers (each usable alone):
   ``mock://``, registered lazily by ``hardware.transport``): the port, the reader thread and the lock
   applying the session's actions, per-command ``CommandResult``, ping-pong or windowed flow
   control, resends, keepalive-aware stall detection, out-of-band emergency stop.
+* ``hardware.port_url.PortUrl`` (pure) — a port URL parsed once: scheme, host, port, the
+  mock device's name, its options.
+* ``hardware.backend.Machine`` — the protocol every machine backend implements (what the
+  service drives): the serial ``hardware.machine.Machine`` and ``hardware.linuxcnc.LinuxCNCMachine``.
 * ``hardware.machine.Machine`` — connect/identify, home, move, position, probe,
-  stream with pause/resume/cancel, stop, resume after a disconnect (``resume_line``).
+  stream with pause/resume/cancel, stop, resume after a disconnect (``resume_line``); its
+  parts (``machine_grbl``, ``machine_outputs``, ``machine_probe``, ``machine_resume``)
+  use only what ``hardware.machine_host.SerialHost`` declares.
 * ``hardware.mock`` — firmware-like Marlin/grbl mock behind ``mock://NAME?options`` with
   a true part to probe, a deposition log, fault injection and an executed-command
   transcript (``MockWorld``, ``register_world``, ``get_world``).

@@ -59,7 +59,7 @@ def next_controller_state(known: ControllerState | None, event: ReplyEvent, now:
     refused with ``lock_error`` (grbl ``error:9``) proves a lock the host may have missed."""
     in_alarm = known is not None and known.name == "Alarm"
     if isinstance(event, StatusReport):
-        keep = known.reason if in_alarm and event.state.startswith("Alarm") else None  # type: ignore[union-attr]
+        keep = known.reason if known is not None and in_alarm and event.state.startswith("Alarm") else None
         return ControllerState(event.state, keep, now)
     if isinstance(event, Alarm):
         return ControllerState("Alarm", f"ALARM:{event.code} {event.message}".strip(), now)
@@ -68,8 +68,8 @@ def next_controller_state(known: ControllerState | None, event: ReplyEvent, now:
     if isinstance(event, Message):
         text = event.text.strip()
         if "'$X' to unlock" in text or "$X to unlock" in text:
-            reason = known.reason if in_alarm and known.reason else \
-                "the controller started locked (homing required, or an alarm before its reset)"  # type: ignore[union-attr]
+            reason = known.reason if known is not None and in_alarm and known.reason else \
+                "the controller started locked (homing required, or an alarm before its reset)"
             return ControllerState("Alarm", reason, now)
         if text.startswith("Caution: Unlocked"):
             return ControllerState("Idle", None, now)

@@ -55,6 +55,7 @@ class LinkError(HardwareError):
                  last_line: int | None = None) -> None:
         super().__init__(message, field=field, value=value)
         self.last_line = last_line
+        self.resume_line: int | None = None  # a failed stream's lower bound of where it resumes
 
 
 class FirmwareReset(LinkError):

@@ -57,23 +57,25 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from .console_log import ConsoleLog
 from .program_clock import ProgramClock
 from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
                      MachineStateError)
-from .events import Capability, FirmwareInfo, PositionReport, StartBanner
+from .events import Capability, FirmwareInfo, PositionReport, ReplyEvent, StartBanner
 from .link import CommandResult, Link, PendingCommand
 from .machine_grbl import GrblOperations
 from .machine_outputs import OutputOperations
 from .machine_probe import ProbeOperations
-from .machine_state import ClaimedOperations, axis_words
+from .machine_state import ClaimedOperations, axis_words, connected
 from .machine_resume import ResumeOperations
 from .machine_outputs import DISCONNECT_SAFE_OFF_S
 from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
                             _Interrupted)
 from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
 from .protocol import validate_program
+from .resume import ResumeLocation
 
 REPORT_INTERVAL_S = 0.1  # while streaming: a real-position report this often (hardware.reports)
 
@@ -111,10 +113,15 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         self.planner_blocks = 16  # Marlin BLOCK_BUFFER_SIZE; grbl: from [OPT:..] (15)
         self.last_preamble: list[str] = []  # what the last stream sent before its first command
         self.rejected_lines: list[int] = []  # command indices the controller rejected
-        self.outputs: dict | None = None  # the last safe_off: when, whether sent, why not
+        self.outputs: dict[str, Any] | None = None  # the last safe_off: when, whether sent, why not
         self.console = ConsoleLog()  # every line sent and received, across reconnects
         self.homed = False  # homed since this connection (the host's record: Marlin and grbl do not report it)
         self.clock = ProgramClock()  # elapsed time and time left of the running program
+        self._connected_at: float | None = None  # time.monotonic() of the last connect
+        self.last_resume: ResumeLocation | None = None  # what locate_resume found last
+        self._resume_commands: list[str] | None = None  # the interrupted program (locate_resume)
+        self._stream_started: float | None = None  # time.monotonic() when the last stream started
+        self._stream_origin: tuple[float, float, float] | None = None  # where the tool stood before it
 
     # ------------------------------------------------------------------ state
     @property
@@ -122,6 +129,11 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         """True when the transport failed under a connected machine (not after an emergency
         stop): reconnecting and resuming is safe."""
         return self.link is not None and not self.link.healthy and not self._estopped
+
+    @property
+    def live_link(self) -> Link:
+        """The open link; ``MachineStateError`` while disconnected."""
+        return connected(self.link)
 
     @property
     def state(self) -> str:
@@ -160,8 +172,8 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         self._state = "idle"
         return self.identity
 
-    def _await_quiet(self) -> list:
-        link = self.link
+    def _await_quiet(self) -> list[ReplyEvent]:
+        link = self.live_link
         deadline = time.monotonic() + self.boot_wait_s
         seen = 0
         quiet_since = time.monotonic()
@@ -176,9 +188,9 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         link.unsolicited.clear()
         return events
 
-    def _identify(self, banner: list, reset: bool) -> Identity:
+    def _identify(self, banner: list[ReplyEvent], reset: bool) -> Identity:
         command = self.rules.identify_command
-        result = self.link.send(command, self.timeout_s)
+        result = self.live_link.send(command, self.timeout_s)
         fields: dict[str, str] = {}
         caps: dict[str, bool] = {}
         for event in result.events:
@@ -189,10 +201,10 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         fields.update(self._build_fields(result.events))
         if self.rules.build_info:
             self._apply_build_info(fields)
-        elif self.rules.request_queued and caps.get("EMERGENCY_PARSER") and self.link.mode == "windowed" and self.link.advanced_ok:
+        elif self.rules.request_queued and caps.get("EMERGENCY_PARSER") and self.live_link.mode == "windowed" and self.live_link.advanced_ok:
             # S000 answered with the steppers' position (REALTIME_REPORTING_COMMANDS): nothing
             # in M115 says so; its plain ok needs ADVANCED_OK to stay apart from the others
-            caps["REALTIME_REPORTING_COMMANDS"] = self.link.probe_realtime_reports(min(1.0, self.timeout_s))
+            caps["REALTIME_REPORTING_COMMANDS"] = self.live_link.probe_realtime_reports(min(1.0, self.timeout_s))
         version = fields.get("VER", "").split(":")[0]  # [VER:1.1h.20190830:user string]
         name = (fields.get("FIRMWARE_NAME") or ("grbl " + version)).strip()
         return Identity(self.dialect, name, fields, caps, tuple(e.raw for e in banner), reset)
@@ -225,7 +237,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         system = command.strip().startswith("$")
         self._claim_motion("busy", f"run {command.strip()[:40]!r}", check=not system)
         try:
-            result = self.link.send(command, self.timeout_s * 10)
+            result = self.live_link.send(command, self.timeout_s * 10)
         except FirmwareError as exc:
             raise self._locked_reply(exc, f"run {command.strip()[:40]!r}") from exc
         finally:
@@ -247,7 +259,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
             raise
 
     def _run(self, commands: Iterable[str]) -> list[CommandResult]:
-        return [self.link.send(c, self.timeout_s * 10) for c in commands]
+        return [self.live_link.send(c, self.timeout_s * 10) for c in commands]
 
     @property
     def home_command(self) -> str:
@@ -300,9 +312,10 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
 
     def _position(self) -> tuple[float, float, float]:
         if self.rules.position_by_status:
-            status = self.link.query_status()
-            return tuple(status.mpos[:3]) if status.mpos else (0.0, 0.0, 0.0)
-        result = self.link.send("M114", self.timeout_s)
+            status = self.live_link.query_status()
+            mpos = status.mpos or (0.0, 0.0, 0.0)
+            return (mpos[0], mpos[1], mpos[2])
+        result = self.live_link.send("M114", self.timeout_s)
         report = result.payload
         if not isinstance(report, PositionReport):
             raise FirmwareError("M114 returned no position", command="M114")
@@ -327,7 +340,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         self._resume_event.set()
         self._interrupted = None
         self.last_resume = None  # located for the program interrupted before this one
-        link = self.link
+        link = self.live_link
         started = time.monotonic()
         inflight: deque[tuple[int, PendingCommand]] = deque()
         executed = start_line
@@ -381,9 +394,9 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
                 self._state = "printing"
         except LinkError as exc:
             while inflight and inflight[0][1].done() and inflight[0][1].failure is None \
-                    and inflight[0][1].outcome.status != "error":
+                    and (answer := inflight[0][1].outcome) is not None and answer.status != "error":
                 index_done, pending = inflight.popleft()  # answered before the failure
-                executed, acked_line = index_done + 1, pending.outcome.line_no
+                executed, acked_line = index_done + 1, answer.line_no
                 seqs[index_done] = pending.seq
             self.progress = (executed, total)
             self._interrupted = _Interrupted(total, executed, acked_line,
@@ -473,7 +486,7 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         self._state = "error"
         self._note_estop_outputs()
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         """JSON-friendly snapshot for the API: state, identity, ``program`` (see
         ``program_status``), link counters, the controller's own state and ``outputs``."""
         return {"state": self.state, "dialect": self.dialect, "url": self.url,

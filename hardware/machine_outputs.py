@@ -13,16 +13,23 @@ of the program: running, or interrupted and waiting for an operator."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from .errors import FirmwareError, FirmwareReset
+
+if TYPE_CHECKING:
+    from .machine_host import SerialHost
 
 DISCONNECT_SAFE_OFF_S = 5.0  # longest a disconnect waits for its safe_off to be answered
 
 
 class OutputOperations:
-    """Mixin of ``Machine`` (uses its link, rules, profile, controller, timeout_s,
-    ``_interrupted``, ``resume_line`` and ``last_resume``); sets ``outputs``."""
+    """Part of ``Machine`` (what it uses of it: ``hardware.machine_host.SerialHost``); sets
+    ``outputs``."""
 
-    def _outputs_off_on_connect(self, reset: bool) -> None:
+    outputs: dict[str, Any] | None
+
+    def _outputs_off_on_connect(self: SerialHost, reset: bool) -> None:
         """Every process output off once connected (``safe_off``): whatever an earlier
         connection, another host or the board's own state left on goes off before anything
         else runs.
@@ -39,17 +46,17 @@ class OutputOperations:
         gap = self._interrupted
         kept_running = gap is not None and not (reset or gap.reset or self.rules.resets_on_connect
                                                 or not self.rules.line_numbers)
-        if kept_running:
+        if kept_running and gap is not None:
             try:
                 settled = self.resume_line()
             except FirmwareReset:  # it restarted after all: its outputs are off, numbering starts again
                 gap.reset = True
-                self.link.reset_line_numbers(1)
+                self.live_link.reset_line_numbers(1)
             else:
                 gap.acked_index, gap.inflight = settled, []
         self._send_safe_off("connect")
 
-    def _send_safe_off(self, when: str, timeout_s: float | None = None) -> bool:
+    def _send_safe_off(self: SerialHost, when: str, timeout_s: float | None = None) -> bool:
         """Send the profile's ``safe_off`` (``when``: connect, disconnect, program) and note
         it in ``outputs`` (for ``status()``); False when the controller refuses G-code in
         its current state and the commands were not sent.
@@ -71,7 +78,7 @@ class OutputOperations:
         unknown: list[str] = []
         for command in self.profile.safe_off:
             try:
-                self.link.send(command, wait)
+                self.live_link.send(command, wait)
             except FirmwareError as exc:
                 if exc.code is not None and exc.code == self.rules.unknown_error:
                     unknown.append(command)  # no such output on this firmware: it cannot be on
@@ -86,7 +93,7 @@ class OutputOperations:
             "the profile names an output this firmware does not have")}
         return True
 
-    def _note_estop_outputs(self) -> None:
+    def _note_estop_outputs(self: SerialHost) -> None:
         """After an emergency stop nothing more can be sent: note what the firmware's own
         stop leaves on (``Dialect.estop_keeps``) until the reconnect resets it."""
         kept = [c for c in (self.profile.dispense_on, *self.profile.safe_off) if self.rules.keeps_through_estop(c)]
@@ -95,7 +102,7 @@ class OutputOperations:
             f"the firmware's stop leaves {words} outputs as they were until the controller resets: connect again"
             if kept else "the controller's emergency stop switched its outputs off")}
 
-    def program_status(self) -> dict | None:
+    def program_status(self: SerialHost) -> dict[str, Any] | None:
         """The program on this machine: while it runs ``{"state": "printing"|"paused",
         "line", "total"}`` (commands acknowledged so far, of the total); after it stopped on
         a lost link or a rejected line ``{"state": "interrupted", "line", "total",
@@ -111,7 +118,7 @@ class OutputOperations:
         gap = self._interrupted
         if gap is None:
             return None
-        located = getattr(self, "last_resume", None)
+        located = self.last_resume
         if located is not None:
             resume: int | None = located.start
         elif self.rules.resets_on_connect or gap.reset:

@@ -5,6 +5,8 @@ toward any point (``probe_toward``, always ``G38.2``) and tool selection (``T<n>
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import math
 import re
 
@@ -12,14 +14,18 @@ from .errors import FirmwareError, InvalidConfig, ProbeFailed
 from .events import ProbeReport
 from .machine_types import ProbeResult
 
+if TYPE_CHECKING:
+    from .machine_host import SerialHost
+
 _LOGICAL = re.compile(r"Logical:\s*X:\s*([-+]?[\d.]+)\s+Y:\s*([-+]?[\d.]+)\s+Z:\s*([-+]?[\d.]+)")
 MAX_TOOL = 255
 
 
 class ProbeOperations:
-    """Mixin of ``Machine``; every method expects a connected machine."""
+    """Part of ``Machine`` (what it uses of it: ``hardware.machine_host.SerialHost``); every
+    method expects a connected machine."""
 
-    def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
+    def probe(self: SerialHost, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
               feed_mm_min: float | None = None) -> ProbeResult:
         """Travel to (x, y) at ``z_start`` (default clearance), probe down to ``z_min``,
         retract; ``ProbeFailed`` when nothing is hit (the machine is left idle, unlocked
@@ -38,7 +44,7 @@ class ProbeOperations:
                        f"G1 X{x:.4f} Y{y:.4f} F{travel:.1f}"])
             command = f"G30 X{x:.4f} Y{y:.4f}" if kind == "G30" else f"G38.2 Z{z_min:.4f} F{feed:.1f}"
             try:
-                result = self.link.send(command, self.timeout_s * 10)
+                result = self.live_link.send(command, self.timeout_s * 10)
             except FirmwareError as exc:
                 self._recover_after_probe(z_start)
                 if any(line.strip() == "ALARM:4" for line in exc.reply_lines):
@@ -62,7 +68,7 @@ class ProbeOperations:
         finally:
             self._release()
 
-    def select_tool(self, tool: int) -> None:
+    def select_tool(self: SerialHost, tool: int) -> None:
         """``T<tool>`` (0 = the touch probe, 1.. = nozzles); waits for its ``ok``.  The
         firmware applies no offsets: programs are written in carriage coordinates.
         ``InvalidConfig`` (field ``tool``) for a number out of range or one the firmware
@@ -71,13 +77,13 @@ class ProbeOperations:
             raise InvalidConfig(f"tool must be an integer 0..{MAX_TOOL}", field="tool", value=tool)
         self._claim("busy")
         try:
-            result = self.link.send(f"T{tool}", self.timeout_s * 10)
+            result = self.live_link.send(f"T{tool}", self.timeout_s * 10)
         finally:
             self._release()
         if any("invalid extruder" in line.lower() for line in result.reply_lines):
             raise InvalidConfig(f"the firmware has no tool T{tool}", field="tool", value=tool)
 
-    def probe_toward(self, start: tuple[float, float, float], target: tuple[float, float, float],
+    def probe_toward(self: SerialHost, start: tuple[float, float, float], target: tuple[float, float, float],
                      feed_mm_min: float | None = None) -> ProbeResult:
         """Probe from ``start`` toward ``target`` (mm, carriage coordinates, any direction)
         with ``G38.2``; return the carriage position at the trigger.
@@ -108,7 +114,7 @@ class ProbeOperations:
             command = f"G38.2 X{tx:.4f} Y{ty:.4f} Z{tz:.4f} F{feed:.1f}"
             where = [round(v, 4) for v in target]
             try:
-                result = self.link.send(command, self.timeout_s * 10)
+                result = self.live_link.send(command, self.timeout_s * 10)
             except FirmwareError as exc:
                 self._recover_toward(back)
                 if any(line.strip() == "ALARM:4" for line in exc.reply_lines):
@@ -128,23 +134,24 @@ class ProbeOperations:
         finally:
             self._release()
 
-    def _precise_position(self) -> ProbeReport:
+    def _precise_position(self: SerialHost) -> ProbeReport:
         """Marlin: where G38.2 stopped, from ``M114 D`` (3 decimals; plain M114 has 2)."""
-        result = self.link.send("M114 D", self.timeout_s)
+        result = self.live_link.send("M114 D", self.timeout_s)
         for line in result.reply_lines:
             match = _LOGICAL.search(line)
             if match:
-                return ProbeReport(*(float(v) for v in match.groups()))
+                x, y, z = (float(v) for v in match.groups())
+                return ProbeReport(x, y, z)
         return ProbeReport(*self._position())
 
-    def _recover_toward(self, back: str) -> None:
+    def _recover_toward(self: SerialHost, back: str) -> None:
         if self.rules.unlock_command is not None:
-            self.link.send(self.rules.unlock_command, self.timeout_s)
+            self.live_link.send(self.rules.unlock_command, self.timeout_s)
         self._run([back, self._wait_motion()])
 
-    def _recover_after_probe(self, z_start: float) -> None:
+    def _recover_after_probe(self: SerialHost, z_start: float) -> None:
         if self.rules.unlock_command is not None:
-            self.link.send(self.rules.unlock_command, self.timeout_s)
+            self.live_link.send(self.rules.unlock_command, self.timeout_s)
         self._run([f"G1 Z{z_start:.4f} F{self.profile.travel_feed_mm_min:.1f}",
                    self._wait_motion()])
 
@@ -158,4 +165,4 @@ def _point(value: tuple[float, float, float], field: str) -> tuple[float, float,
     if len(point) != 3 or not all(math.isfinite(v) for v in point):
         raise InvalidConfig(f"{field} must be three finite numbers (mm)", field=field,
                             value=str(value)[:60])
-    return point  # type: ignore[return-value]
+    return (point[0], point[1], point[2])

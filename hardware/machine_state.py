@@ -4,13 +4,30 @@ is disconnected or in error) and releases it with the state it leaves."""
 
 from __future__ import annotations
 
+import threading
+from typing import Protocol, TypeVar
+
 from .errors import InvalidConfig, MachineBusy, MachineStateError
 
 
-class ClaimedOperations:
-    """Mixin: needs ``link``, ``_hold`` (a Lock), ``_state`` and a ``state`` property."""
+class Claimable(Protocol):
+    """What the rule needs of a backend: its link (None while disconnected), the lock an
+    operation holds, the state it sets and the state it reports."""
 
-    def _claim(self, state: str) -> None:
+    _state: str
+    _hold: threading.Lock
+
+    @property
+    def link(self) -> object | None: ...
+
+    @property
+    def state(self) -> str: ...
+
+
+class ClaimedOperations:
+    """Part of every backend (``Claimable``: what it uses of it)."""
+
+    def _claim(self: Claimable, state: str) -> None:
         if self.link is None:
             raise MachineStateError("machine is not connected", field="state", value="disconnected")
         if not self._hold.acquire(blocking=False):
@@ -21,9 +38,19 @@ class ClaimedOperations:
                                     value="error")
         self._state = state
 
-    def _release(self, state: str = "idle") -> None:
+    def _release(self: Claimable, state: str = "idle") -> None:
         self._state = state
         self._hold.release()
+
+
+_Link = TypeVar("_Link")
+
+
+def connected(link: _Link | None) -> _Link:
+    """``link``, an operation's open link; ``MachineStateError`` while disconnected (None)."""
+    if link is None:
+        raise MachineStateError("machine is not connected", field="state", value="disconnected")
+    return link
 
 
 def axis_words(x: float | None, y: float | None, z: float | None) -> str:

@@ -92,8 +92,10 @@ class PendingCommand:
         if self.failure is not None:
             raise self.failure
         outcome = self.outcome
+        assert outcome is not None  # set before _done is
         if check and outcome.status == "error":
             event = outcome.error
+            assert event is not None  # an "error" status holds its event
             rejected = isinstance(event, FirmwareErrorEvent) and event.kind == "command"
             raise (CommandRejected if rejected else FirmwareError)(
                 f"{self.command!r} failed: {getattr(event, 'message', event.raw)}",

@@ -52,7 +52,7 @@ GRBL_ALARMS = {
 class CommandDigest(NamedTuple):
     """Number of commands and the sha256 (hex) of ``cmd + "\\n"`` over all of them."""
 
-    count: int
+    count: int  # type: ignore[assignment]  # the field, named as the API always did, hides tuple.count
     sha256: str
 
 
@@ -277,7 +277,7 @@ def _parse_status(raw: str, text: str) -> ReplyEvent:
     body = text[1:-1]
     if "|" in body:
         parts = body.split("|")
-        fields = dict(part.split(":", 1) if ":" in part else (part, "") for part in parts[1:])
+        fields = {key: value for key, _, value in (part.partition(":") for part in parts[1:])}
     else:  # grbl 0.9: <Idle,MPos:0.000,0.000,0.000,WPos:0.000,0.000,0.000>
         parts = body.split(",", 1)
         fields = {key: value.rstrip(",") for key, value in
@@ -329,8 +329,8 @@ def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:
     if text == "ok" or text.startswith("ok ") or text.startswith("ok:"):
         return _parse_ok(raw, text.replace("ok:", "ok ", 1))
     head = text[0]
-    if head in "Rr" and _RESEND.match(text):
-        return Resend(int(_RESEND.match(text).group(1)), raw=raw)
+    if head in "Rr" and (resend := _RESEND.match(text)):
+        return Resend(int(resend.group(1)), raw=raw)
     if text.startswith(("Error:", "ERROR:", "error:", "Error ")):
         match = _GRBL_ERROR.match(text)
         if match:
@@ -356,13 +356,14 @@ def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:
     if head == "B" and text.startswith("Bed"):
         match = _BED.match(text)
         if match:
-            return ProbeReport(*(float(v) for v in match.groups()), raw=raw)
+            x, y, z = (float(v) for v in match.groups())
+            return ProbeReport(x, y, z, raw=raw)
     if head == "<" and text.endswith(">"):
         return _parse_status(raw, text)
     if head == "[" and text.endswith("]"):
         return _parse_bracket(raw, text)
-    if head == "$" and _SETTING.match(text):
-        key, value = _SETTING.match(text).groups()
+    if head == "$" and (setting := _SETTING.match(text)):
+        key, value = setting.groups()
         return Setting(key, value, raw=raw)
     if text.startswith("FIRMWARE_NAME:"):
         return _parse_m115(raw, text)

@@ -117,7 +117,7 @@ def modal_preamble(commands: list[str], start: int, *, dispense_on: str, dispens
     out = [dispense_off, "G20" if state.inches else "G21"] + ([state.wcs] if state.wcs else [])
     out.append("G90")
     x, y, z = state.position
-    if None not in (x, y, z) and not state.g92:
+    if x is not None and y is not None and z is not None and not state.g92:
         unit = 1.0 / 25.4 if state.inches else 1.0
         out += [f"G0 Z{max(z, clearance_z * unit):.4f}", f"G0 X{x:.4f} Y{y:.4f}",
                 f"G0 Z{z:.4f}"]

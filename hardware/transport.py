@@ -17,8 +17,9 @@ from typing import Any
 
 import serial
 
+from .port_url import PortUrl
+
 MOCK_PACKAGE = "hardware.mock"
-MOCK_SCHEME = "mock://"
 
 
 def register_mock_scheme() -> None:
@@ -30,6 +31,6 @@ def register_mock_scheme() -> None:
 def open_port(url: str, **options: Any) -> serial.SerialBase:
     """``serial.serial_for_url(url, **options)``, registering ``mock://`` first when the
     URL asks for it.  pyserial's exceptions pass through unchanged."""
-    if url.lower().startswith(MOCK_SCHEME):
+    if PortUrl.parse(url).is_mock:
         register_mock_scheme()
     return serial.serial_for_url(url, **options)

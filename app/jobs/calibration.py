@@ -82,7 +82,8 @@ def machine_profile(row: Machine) -> Profile:
 def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None], str]:
     """{(kind, tool or None): job id} of the newest succeeded calibration job of each kind
     and tool of ``machine_id`` (reads ids and times only, not the stored results)."""
-    rows = session.exec(select(col(Job.id), col(Job.kind), col(Job.params), col(Job.finished_at), col(Job.created_at)).where(
+    # sqlmodel types select() of up to four columns; this is five (rows of (id, kind, params, finished, created))
+    rows = session.exec(select(col(Job.id), col(Job.kind), col(Job.params), col(Job.finished_at), col(Job.created_at)).where(  # type: ignore[call-overload]
         col(Job.machine_id) == machine_id, col(Job.kind).in_(KINDS), col(Job.status) == "succeeded")).all()
     latest: dict[tuple[str, int | None], tuple[datetime, str]] = {}
     for job_id, kind, params, finished, created in rows:
@@ -249,9 +250,9 @@ def calibration_summary(machine_id: str, cal: MachineCalibration, profile: Profi
         nozzles.append(entry)
     sensor = None
     if cal.sensor is not None:
-        found = cal.sensor
+        stored = cal.sensor
         sensor = {"job_id": cal.sensor_job_id, "calibrated_at": cal.sensor_at, "age_h": cal.age_h(cal.sensor_at),
-                  "stale": cal.stale(cal.sensor_at), "sensor_port": found.sensor_port, "offset_mm": found.offset_mm,
-                  "scale": found.scale, "time_offset_s": found.time_offset_s, "slope_bias_mm": found.slope_bias_mm}
+                  "stale": cal.stale(cal.sensor_at), "sensor_port": stored.sensor_port, "offset_mm": stored.offset_mm,
+                  "scale": stored.scale, "time_offset_s": stored.time_offset_s, "slope_bias_mm": stored.slope_bias_mm}
     return {"machine_id": machine_id, "max_age_h": cal.max_age_h, "probe": probe, "nozzles": nozzles,
             "sensor": sensor, "flags": list(cal.flags)}

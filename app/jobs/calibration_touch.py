@@ -23,7 +23,7 @@ from app.runtime.context import JobContext
 from app.runtime.machine_queue import interrupt, rehomed_machine, resume_request, stopped_by_operator
 from app.machines.live import hardware_errors, translate
 from hardware.errors import HardwareError, LinkError
-from hardware.machine import Machine
+from hardware.backend import Machine
 
 MARGIN_MM = 2.0          # travel this far above the highest artifact (plus the tools' hang)
 OFFSET_DOUBT_MM = 1.0    # a nominal nozzle offset may be this far off (the profile says +-0.2 mm)

@@ -101,6 +101,7 @@ def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
     mesh = _mesh(settings, request.part) if layouts else None
     out = []
     for layout in layouts:
+        assert mesh is not None  # read above when there is a layout
         mapped = map_layout(layout, placement, mesh, request.mapping)
         out.append(FileMapped(layout.file, layout.format, layout.units, list(layout.layers), layout.notes,
                               len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), mapped,

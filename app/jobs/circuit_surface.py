@@ -52,7 +52,7 @@ def loop_placement(ctx: JobContext, entries: dict[str, LoopTrace], trace_ids: Se
 
 
 def measured_surface(ctx: JobContext, mesh: trimesh.Trimesh, entries: dict[str, LoopTrace], trace_ids: Sequence[str],
-                     runs: Sequence[str], stations: list[np.ndarray], deviations: list[float],
+                     runs: Sequence[str], stations: Sequence[Sequence[float]], deviations: list[float],
                      placement: Placement | None = None) -> tuple[MeasuredSurface, FieldCheck | None]:
     """(the surface, the loop's checked field or None) in the loop's frame: ``mesh`` is the
     part's mesh already moved by ``placement`` (the loop's, :func:`loop_placement`), and

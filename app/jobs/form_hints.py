@@ -21,7 +21,7 @@ from __future__ import annotations
 from typing import Any
 
 from pydantic import BaseModel
-from pydantic.fields import FieldInfo
+from pydantic.fields import ComputedFieldInfo, FieldInfo
 
 # suffix -> unit, longest first (so _mm_min is read before _mm)
 UNIT_SUFFIXES: tuple[tuple[str, str], ...] = (
@@ -55,7 +55,7 @@ def title_of(name: str) -> str:
     return (text[:1].upper() + text[1:]) if text else name
 
 
-def field_title(name: str, info: FieldInfo) -> str:
+def field_title(name: str, info: FieldInfo | ComputedFieldInfo) -> str:
     """pydantic's ``field_title_generator`` for job parameters."""
     return title_of(name)
 

@@ -25,7 +25,6 @@ import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
-from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -37,6 +36,7 @@ from app.reconstruction.scan_samples import exposure_positions
 from hardware.errors import HardwareError
 from hardware.height_sensor import HeightSensor
 from hardware.machine import Machine
+from hardware.port_url import PortUrl
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 
@@ -150,7 +150,7 @@ class HalScanner:
 def sensor_port_needed(machine_port: str) -> bool:
     """False for a ``linuxcnc://`` machine (its controller samples the sensor with its joints:
     no link of its own), True for every other machine (the LK-G sensor on ``sensor_port``)."""
-    return urlsplit(machine_port).scheme != "linuxcnc"
+    return PortUrl.parse(machine_port).scheme != "linuxcnc"
 
 
 def require_sensor_port(machine_id: str, machine_port: str, sensor_port: str | None, field: str) -> None:

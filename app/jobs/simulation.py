@@ -13,10 +13,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import shapely
+import trimesh
 
 from app.reference.evaluation import StandoffReport, evaluate_deposition
 from app.geometry.placement import Placement, apply_placement
@@ -29,7 +30,7 @@ def true_height_of(world: MockWorld) -> Callable[[np.ndarray], np.ndarray]:
     """xy (m, 2) -> height (m,) of the placed as-made part's top (NaN off the part)."""
     if world.true_part is None:
         raise ValueError("the mock world has no true part")
-    placed = world.true_part.copy()
+    placed = cast(trimesh.Trimesh, world.true_part).copy()  # MockWorld keeps it untyped (hardware has no trimesh)
     placed.apply_transform(placement_matrix(world.placement))
 
     def height(xy: np.ndarray) -> np.ndarray:

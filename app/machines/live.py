@@ -1,7 +1,8 @@
 """Live machine connections of this process (the one that owns the serial ports).
 
-A registered machine is a row; connecting builds a :class:`hardware.machine.Machine`
-from it.  For ``mock://`` ports the mock firmware's world is built from the row's
+A registered machine is a row; connecting builds a backend (:class:`hardware.backend.Machine`)
+from it: :class:`hardware.linuxcnc.LinuxCNCMachine` for ``linuxcnc://`` ports, else the serial
+:class:`hardware.machine.Machine`.  For ``mock://`` ports the mock firmware's world is built from the row's
 ``mock`` settings: the true part is the stored mesh of ``true_part_id`` with its rigid
 placement, probe noise, timing and faults.  Hardware errors are translated into the
 service's error family here, so routers and jobs only see :mod:`app.domain.errors`.
@@ -19,10 +20,12 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
-from urllib.parse import urlsplit
 
 from hardware.errors import CommandRejected, HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
-from hardware.machine import Machine, MachineProfile
+from hardware.backend import Machine
+from hardware.machine import Machine as SerialMachine
+from hardware.machine_types import MachineProfile
+from hardware.port_url import PortUrl
 from hardware.mock import (FaultConfig, MockPad, MockSphere, MockTool, MockWorld, TruePlacement,
                            register_world, unregister_world)
 
@@ -71,7 +74,7 @@ def translate(exc: HardwareError) -> ConformaError:
 
 
 @contextmanager
-def hardware_errors():
+def hardware_errors() -> Iterator[None]:
     """Re-raise hardware errors as service errors."""
     try:
         yield
@@ -87,8 +90,8 @@ def profile_of(row: MachineRow) -> MachineProfile:
 
 def port_url(row: MachineRow) -> str:
     """The URL to open: ``mock://`` ports get the machine's own world name."""
-    parts = urlsplit(row.port)
-    if parts.scheme == "mock":
+    parts = PortUrl.parse(row.port)
+    if parts.is_mock:
         query = f"?{parts.query}" if parts.query else ""
         return f"mock://{row.id}{query}"
     return row.port
@@ -114,15 +117,11 @@ def physical_port(port: str, machine_id: str) -> str:
     /dev); ``socket://`` and ``linuxcnc://`` as ``tcp://<host>:<port>`` with the host resolved
     (every loopback name is ``loopback``; the scheme and ``?joints=`` do not name another
     controller); ``mock://`` and ``loop://`` one per record."""
-    parts = urlsplit(port)
-    if parts.scheme == "mock":
+    parts = PortUrl.parse(port)
+    if parts.is_mock:
         return f"mock:{machine_id}"
-    if parts.scheme in ("socket", "linuxcnc"):  # a TCP controller: linuxcncrsh, a serial bridge
-        host = (parts.hostname or "").lower()
-        try:
-            number = parts.port
-        except ValueError:
-            number = None
+    if parts.is_tcp:  # a TCP controller: linuxcncrsh, a serial bridge
+        host, number = parts.host, parts.port
         query_ok = not parts.query or (parts.scheme == "linuxcnc" and re.fullmatch(r"joints=\d", parts.query))
         if not host or number is None or not 0 < number < 65536 or parts.path not in ("", "/") or not query_ok:
             raise InvalidInput(f"expected {parts.scheme}://host:port, got {port!r}", field="port", value=port)
@@ -146,10 +145,10 @@ def port_key(port: str, machine_id: str, socket_hosts: tuple[str, ...]) -> str:
     """:func:`physical_port` of a new record (stored under a unique constraint, so that two
     records can never name one controller); a ``socket://`` or ``linuxcnc://`` host must be
     in ``socket_hosts`` (settings), compared lower-cased."""
-    parts = urlsplit(port)
+    parts = PortUrl.parse(port)
     key = physical_port(port, machine_id)
-    if parts.scheme in ("socket", "linuxcnc"):
-        host = (parts.hostname or "").lower()
+    if parts.is_tcp:
+        host = parts.host
         allowed = {h.lower() for h in socket_hosts}
         if host not in allowed:
             raise InvalidInput(f"{parts.scheme} host {host!r} is not in the allow-list (CONFORMA_SOCKET_HOSTS: "
@@ -201,7 +200,7 @@ class MachineManager:
     """Machine objects by id; builds mock worlds; one lock per registry change."""
 
     def __init__(self, load_mesh: Any, linuxcnc: dict[str, str] | None = None) -> None:
-        self._linuxcnc = dict(linuxcnc or {})  # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
+        self._linuxcnc: dict[str, Any] = dict(linuxcnc or {})  # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
         self._machines: dict[str, Machine] = {}
         self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it (read-only: use lease)
         self._lock = threading.Lock()
@@ -247,7 +246,7 @@ class MachineManager:
     def world_by_id(self, machine_id: str) -> MockWorld | None:
         """The mock world of a connected mock machine, by id (None otherwise)."""
         machine = self.get(machine_id)
-        if machine is None or not machine.url.startswith("mock://"):
+        if machine is None or not PortUrl.parse(machine.url).is_mock:
             return None
         from hardware.mock import get_world
 
@@ -258,7 +257,7 @@ class MachineManager:
 
     def world(self, row: MachineRow) -> MockWorld | None:
         """The mock world of a mock machine (None for real ports)."""
-        if urlsplit(row.port).scheme != "mock":
+        if not PortUrl.parse(row.port).is_mock:
             return None
         from hardware.mock import get_world
 
@@ -291,18 +290,19 @@ class MachineManager:
     def build(self, row: MachineRow) -> Machine:
         """The machine object of ``row`` (made, not connected, on first use)."""
         with self._lock:
-            machine = self._machines.get(row.id)
+            machine: Machine | None = self._machines.get(row.id)
             if machine is None:
                 with hardware_errors():
-                    if urlsplit(row.port).scheme == "mock" and self.world(row) is None:
+                    port = PortUrl.parse(row.port)
+                    if port.is_mock and self.world(row) is None:
                         self._build_world(row)
-                    if urlsplit(row.port).scheme == "linuxcnc":  # LinuxCNC over linuxcncrsh
+                    if port.scheme == "linuxcnc":  # LinuxCNC over linuxcncrsh
                         from hardware.linuxcnc import LinuxCNCMachine
 
                         machine = LinuxCNCMachine(row.port, profile_of(row), **self._linuxcnc)
                     else:
-                        machine = Machine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
-                                          boot_wait_s=0.0 if row.port.startswith("mock://") else 2.0)
+                        machine = SerialMachine(port_url(row), row.dialect, profile_of(row), baudrate=row.baudrate,
+                                          boot_wait_s=0.0 if port.is_mock else 2.0)
                 self._machines[row.id] = machine
         return machine
 
@@ -349,11 +349,11 @@ class MachineManager:
 
 
 
-def physics_kwargs(physics: dict | None) -> dict:
+def physics_kwargs(physics: dict[str, Any] | None) -> dict[str, Any]:
     """``MockWorld`` keyword arguments from a stored ``mock.physics`` (``MockPhysics``) dict."""
     if not physics:
         return {}
-    kwargs = {name: float(physics.get(name, 0.0)) for name in (
+    kwargs: dict[str, Any] = {name: float(physics.get(name, 0.0)) for name in (
         "stylus_radius_mm", "pretravel_mm", "pretravel_sd_mm", "pretravel_lobing_mm",
         "drift_mm_per_min", "touchoff_sd_mm")}
     kwargs["tools"] = tuple(MockTool(tuple(t["offset_mm"]), t["outer_diameter_mm"])

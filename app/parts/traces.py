@@ -36,7 +36,7 @@ def build_traces(meshes: MeshCache, part: Part, bodies: list[Any]) -> list[Trace
         nominals = build_nominal_traces(meshes.mesh(part), geometries, Tolerance())
     if nominals is None:
         return [build_trace(meshes, part, body, field_prefix=str(i)) for i, body in enumerate(bodies)]
-    return [_trace_record(part, body, geometry, str(i), lambda n=nominal: n)
+    return [_trace_record(part, body, geometry, str(i), _given(nominal))
             for i, (body, geometry, nominal) in enumerate(zip(bodies, geometries, nominals))]
 
 
@@ -59,6 +59,10 @@ class DrapedAhead:
         return _trace_record(part, body, geometry, field_prefix, lambda: nominal)
 
 
+def _given(nominal: TracePolyline) -> Callable[[], TracePolyline]:
+    return lambda: nominal
+
+
 def _geometry_key(geometry: dict[str, Any]) -> str:
     return json.dumps(geometry, sort_keys=True)
 
@@ -68,6 +72,7 @@ def _trace_record(part: Part, body: Any, geometry: dict[str, Any], field_prefix:
     policy = SlopePolicy(warn_deg=min(body.slope_warn_deg, body.slope_max_deg), max_deg=body.slope_max_deg)
     try:
         nominal = nominal_of()
+        assert nominal.normals is not None, "a draped or snapped trace carries its surface normals"
         slope = check_slope(nominal.points, nominal.normals, policy)
     except ConformaError as exc:
         if field_prefix and exc.field:

@@ -26,7 +26,8 @@ from app.runtime.registry import machine_kinds
 from app.platform.models import Job, JobReference, utcnow
 from app.machines.live import MachineFault, MachineUnavailable, hardware_errors
 from hardware.errors import HardwareError
-from hardware.machine import Machine
+from hardware.backend import Machine
+from hardware.machine import Machine as SerialMachine
 from hardware.protocol import validate_program
 
 if TYPE_CHECKING:
@@ -189,10 +190,11 @@ def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[st
     twice).  The evidence is ``machine.last_resume`` (logged; the print job records it as
     ``resume_location``).  A machine that no longer knows the program
     (another process) continues from the recorded count."""
-    machine.last_resume = None  # what this resume found (the job records it), nothing older
+    if isinstance(machine, SerialMachine):
+        machine.last_resume = None  # what this resume found (the job records it), nothing older
     if machine.interrupted_program is None:
         start = int(resume["executed"])
-    elif hasattr(machine, "locate_resume"):
+    elif isinstance(machine, SerialMachine):
         located = machine.locate_resume()
         start = located.start
         log.info("resuming at command %d (%s: %s)", located.start, located.basis, located.detail)

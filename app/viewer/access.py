@@ -194,8 +194,8 @@ def guarded_viser_serve(guard: Callable[[Any, Any], Any],
             super().__init__(handler, *args, process_request=process, process_response=processed, **kwargs)
             installed.set()
 
-    ws_server.serve = _GuardedServe
+    ws_server.serve = _GuardedServe  # type: ignore[misc]  # websockets' serve, patched while viser starts
     try:
         yield installed
     finally:
-        ws_server.serve = original
+        ws_server.serve = original  # type: ignore[misc]

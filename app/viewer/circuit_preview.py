@@ -92,7 +92,7 @@ def circuit_preview_scene(part_id: str, mesh: trimesh.Trimesh, dry_run: dict[str
         toolpaths.append(Toolpath("warnings", ToolpathSegments(a, b, np.ones(m, bool), np.full(m, -1, np.int64),
                                                                np.zeros(m), np.zeros(m)), "warning"))
     verts, faces, values = [], [], []
-    outlines = [(p["outline_xy_mm"], [], 0.0 if p["on_part"] else 1.0) for p in dry_run.get("pads", [])]
+    outlines: list[tuple[Any, Any, float]] = [(p["outline_xy_mm"], [], 0.0 if p["on_part"] else 1.0) for p in dry_run.get("pads", [])]
     outlines += [(a["exterior_xy_mm"], a.get("holes_xy_mm") or [], 0.5) if isinstance(a, dict) else (a, [], 0.5)
                  for a in dry_run.get("areas", [])]
     offset = 0
@@ -104,7 +104,7 @@ def circuit_preview_scene(part_id: str, mesh: trimesh.Trimesh, dry_run: dict[str
         faces.append(patch[1] + offset)
         values.append(np.full(len(patch[0]), value))
         offset += len(patch[0])
-    surfaces = ()
+    surfaces: tuple[ScalarSurface, ...] = ()
     if verts:
         surfaces = (ScalarSurface("pads", np.concatenate(verts), np.concatenate(faces), np.concatenate(values),
                                   0.0, 1.0, unit="state (0 on the part, 0.5 area, 1 warned)"),)

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.gcode.reader import ArcBudgetError, GcodeReadError, ReadOptions, read_program
+from app.gcode.lines import GcodeReadError
+from app.gcode.reader import ArcBudgetError, ReadOptions, read_program
 
 
 class GcodeViewError(GcodeReadError):

@@ -83,9 +83,9 @@ class ViewerPanel:
             self._choices[user_text(label, "label")] = (ref, None) if ref.startswith("part_") else (None, ref)
         self.selector.options = list(self._choices)
         if current is not None:
-            label = next((lab for lab, ids in self._choices.items() if current in ids), None)
-            if label is not None:
-                self.selector.value = label
+            chosen = next((lab for lab, ids in self._choices.items() if current in ids), None)
+            if chosen is not None:
+                self.selector.value = chosen
 
     def show(self, scene: FocusScene) -> None:
         """Rebuild the dynamic parts of the panel for ``scene`` (already drawn)."""
@@ -112,8 +112,8 @@ class ViewerPanel:
                              self.builder.show_preview_layer)
             for name, stack in self.builder.layer_stacks.items():
                 self._slider(gui, name, stack.labels, self.builder.show_layer)
-            for name, stack in self.builder.height_stacks.items():
-                self._slider(gui, name, stack.labels, self.builder.show_height)
+            for name, heights in self.builder.height_stacks.items():
+                self._slider(gui, name, heights.labels, self.builder.show_height)
         self.plot_folder.visible = bool(scene.plots)
         with self.plot_folder:
             for plot in scene.plots:

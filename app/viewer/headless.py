@@ -8,7 +8,7 @@ browsers of that view get the same scene drawn into their own, per-client scene.
 from __future__ import annotations
 
 import inspect
-from typing import Any
+from typing import Any, Literal
 
 
 class NullHandle:
@@ -25,7 +25,7 @@ class NullHandle:
     def __enter__(self) -> NullHandle:
         return self
 
-    def __exit__(self, *exc: object) -> bool:
+    def __exit__(self, *exc: object) -> Literal[False]:
         return False
 
 

@@ -54,7 +54,7 @@ def residual_map(verdict: Mapping[str, Any] | None, trace_ids: Sequence[str],
         index = p.get("trace")
         owner = trace_ids[index] if isinstance(index, int) and 0 <= index < len(trace_ids) else None
         xy = np.asarray(p["xy"], float)
-        own = [nominals[owner]] if owner in nominals else every
+        own = [nominals[owner]] if owner is not None and owner in nominals else every
         xyz.append([xy[0], xy[1], _foot_z(xy, own) + float(p["measured_mm"])])
         owners.append(owner)
     residual = np.array([float(p["residual_mm"]) for p in points])

@@ -202,8 +202,8 @@ class SceneBuilder:
                 self._axes(glyphs)
             for stack in scene.layers:
                 self._layer_stack(stack)
-            for stack in scene.heights:
-                self._height_stack(stack)
+            for heights in scene.heights:
+                self._height_stack(heights)
             for preview in scene.previews:
                 self._previews[preview.name] = preview
                 preview_draw.draw_layers(self, preview, len(preview.layers) - 1)

@@ -276,7 +276,7 @@ def _camera_for(scene: FocusScene) -> tuple[np.ndarray, np.ndarray, float, float
         half = np.maximum((shown[1] - shown[0]) / 2, 0.2 * (bounds[1] - bounds[0]))
         bounds = np.stack([shown.mean(axis=0) - half, shown.mean(axis=0) + half])
     centre = bounds.mean(axis=0)
-    size = float(max(np.linalg.norm(bounds[1] - bounds[0]), 1.0))
+    size = max(float(np.linalg.norm(bounds[1] - bounds[0])), 1.0)
     # near at 1 % of the framed size: depth steps stay ~1 um at the framed distance, so a deviation
     # ribbon 10 um above the part does not z-fight with it
     return centre, centre + size * np.array([0.6, -0.9, 0.8]), max(size * 1e-2, 0.01), max(20.0 * size, 500.0)

@@ -24,11 +24,13 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import fields
-from urllib.parse import parse_qsl, urlsplit
+from typing import Any
+from urllib.parse import parse_qsl
 
 import numpy as np
 
 from ..errors import InvalidConfig
+from ..port_url import PortUrl
 from ..mock.timeline import MotionTimeline
 from ..mock.url_options import url_numbers
 from ..mock.world import MockWorld, get_world
@@ -150,9 +152,9 @@ _REGISTRY: dict[str, MockHeightSensor] = {}
 _LOCK = threading.Lock()
 
 
-def parse_options(query: str) -> dict[str, object]:
+def parse_options(query: str) -> dict[str, Any]:
     """Typed options from a ``lkg://`` query string (``InvalidConfig`` when malformed)."""
-    out: dict[str, object] = {}
+    out: dict[str, Any] = {}  # each key's value typed as SensorOptics' field of that name
     try:
         pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
@@ -192,10 +194,10 @@ def unregister_sensor(name: str) -> None:
 
 def sensor_from_url(url: str) -> MockHeightSensor:
     """Resolve ``lkg://NAME?options`` to a (possibly new, then registered) mock sensor."""
-    parts = urlsplit(url)
+    parts = PortUrl.parse(url)
     if parts.scheme != "lkg":
         raise InvalidConfig(f"not a sensor URL: {url!r}", field="port", value=url[:80])
-    name = (parts.netloc + parts.path).strip("/") or "default"
+    name = parts.name
     options = parse_options(parts.query)
     machine = str(options.pop("machine", name))
     known = {f.name for f in fields(SensorOptics) if f.init}
@@ -209,5 +211,5 @@ def sensor_from_url(url: str) -> MockHeightSensor:
         sensor.machine = machine
         merged = {f.name: getattr(sensor.optics, f.name) for f in fields(SensorOptics) if f.init}
         merged.update(options)
-        sensor.optics = SensorOptics(**merged)  # type: ignore[arg-type]
+        sensor.optics = SensorOptics(**merged)
     return sensor

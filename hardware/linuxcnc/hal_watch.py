@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 import time
+from typing import Any
 
 
 def main(argv):
@@ -25,7 +26,7 @@ def main(argv):
     import hal  # LinuxCNC's, system Python only
     component = hal.component(f"conforma-watch-{os.getpid()}")  # get_value needs one
     component.ready()
-    stat = None
+    stat: Any = None  # linuxcnc.stat() when task_state is watched
     if "task_state" in names:
         import linuxcnc
         stat = linuxcnc.stat()

@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterable
 from ..console_log import ConsoleLog
 from ..program_clock import ProgramClock
 from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
-from ..machine_state import ClaimedOperations, axis_words
+from ..machine_state import ClaimedOperations, axis_words, connected
 from ..machine_types import _Interrupted, Identity, MachineProfile, ProbeResult, StreamReport
 from ..dialects import LINUXCNC_DISPENSE
 from ..protocol import validate_program
@@ -162,7 +162,7 @@ class LinuxCNCMachine(ClaimedOperations):
 
     # ------------------------------------------------------------------ MDI
     def _mode(self, mode: str) -> None:
-        self.link.set_mode(mode)
+        connected(self.link).set_mode(mode)
 
     def _mdi(self, commands: Iterable[str]) -> None:
         """Run MDI commands one by one, each to completion; the controller's error (if
@@ -171,20 +171,20 @@ class LinuxCNCMachine(ClaimedOperations):
         for command in commands:
             if self._estopped:
                 raise MachineStateError("emergency stop: reconnect first", field="state", value="error")
-            self.link.pop_error()
+            connected(self.link).pop_error()
             self.console.record("sent", command)
             try:
                 # "set mdi" is answered once the controller received it (not after the
                 # motion): a reply lost by linuxcncrsh becomes a LinkError after timeout_s
                 # instead of an hour-long hang; "wait done" waits for the motion
-                self.link.set("mdi", command)
-                self.link.set("wait", "done", timeout_s=self.motion_timeout_s)
+                connected(self.link).set("mdi", command)
+                connected(self.link).set("wait", "done", timeout_s=self.motion_timeout_s)
             except RshRejected as exc:
                 raise FirmwareError(exc.message, command=command) from exc
             except LinkError:  # no watchdog on the controller: the move must not go on unsupervised
                 self._abort_best_effort()
                 raise
-            error = self.link.pop_error()
+            error = connected(self.link).pop_error()
             self.console.record("received", f"error: {error}" if error is not None else "done")
             if error is not None:
                 raise FirmwareError(f"LinuxCNC: {error}", command=command)
@@ -196,7 +196,7 @@ class LinuxCNCMachine(ClaimedOperations):
         self._claim("busy")
         try:
             self._mdi([command])
-            return self.link.get("operator_display")
+            return connected(self.link).get("operator_display")
         finally:
             self._release(self._fail_state())
 
@@ -210,15 +210,15 @@ class LinuxCNCMachine(ClaimedOperations):
         self._claim("busy")
         try:
             self._mode("manual")
-            self.link.set("teleop_enable", "off")  # homing needs joint mode
-            self.link.set("home", "-1")
+            connected(self.link).set("teleop_enable", "off")  # homing needs joint mode
+            connected(self.link).set("home", "-1")
             deadline = time.monotonic() + self.motion_timeout_s
             joints, last, stable_since = self.address.joints, None, time.monotonic()
             while True:
-                error = self.link.pop_error()
+                error = connected(self.link).pop_error()
                 if error is not None:
                     raise FirmwareError(f"LinuxCNC: {error}", command="home")
-                homed = [h.upper() == "YES" for h in self.link.get("joint_homed").split()]
+                homed = [h.upper() == "YES" for h in connected(self.link).get("joint_homed").split()]
                 now = time.monotonic()
                 if homed != last:
                     last, stable_since = homed, now
@@ -254,7 +254,7 @@ class LinuxCNCMachine(ClaimedOperations):
         return self._position()
 
     def _position(self) -> tuple[float, float, float]:
-        values = [float(v) for v in self.link.get("abs_act_pos").split()]
+        values = [float(v) for v in connected(self.link).get("abs_act_pos").split()]
         return values[0], values[1], values[2]
 
     def joint_positions(self) -> list[float]:
@@ -301,7 +301,7 @@ class LinuxCNCMachine(ClaimedOperations):
         self._probe_seq += 1
         tag = f"conforma-probe-{self._probe_seq}"
         self._mdi([f"(DEBUG,{tag} #5061 #5062 #5063 #5070)"])
-        words = self.link.get("operator_display").split()
+        words = connected(self.link).get("operator_display").split()
         if len(words) != 5 or words[0] != tag:
             raise FirmwareError(f"no probe result from LinuxCNC (operator display {' '.join(words)[:60]!r})",
                                 command="G38.2")
@@ -391,7 +391,7 @@ class LinuxCNCMachine(ClaimedOperations):
             self._interrupted = (total, executed)
             self._abort_best_effort()
             self._release("error")
-            exc.resume_line = executed  # type: ignore[attr-defined]
+            exc.resume_line = executed
             raise
         except HardwareError:
             self._release(self._fail_state())
@@ -438,7 +438,7 @@ class LinuxCNCMachine(ClaimedOperations):
         """Pause the running program (the controller decelerates and holds)."""
         if self._state != "printing":
             raise MachineStateError(f"cannot pause while {self.state}", field="state", value=self.state)
-        self.link.set("pause")
+        connected(self.link).set("pause")
         self.clock.pause()
         self._state = "paused"
 
@@ -446,7 +446,7 @@ class LinuxCNCMachine(ClaimedOperations):
         """Continue a paused program."""
         if self._state != "paused":
             raise MachineStateError(f"cannot resume while {self.state}", field="state", value=self.state)
-        self.link.set("resume")
+        connected(self.link).set("resume")
         self.clock.resume()
         self._state = "printing"
 
@@ -490,7 +490,7 @@ class LinuxCNCMachine(ClaimedOperations):
         except HardwareError:
             pass
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, object]:
         """JSON-friendly snapshot for the API (state, identity, program progress)."""
         executed, total = self.progress or (None, None)
         return {"state": self.state, "dialect": self.dialect, "url": self.url,

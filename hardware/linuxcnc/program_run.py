@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from ..errors import FirmwareError, LinkError
+from ..machine_state import connected
 from ..resume import modal_preamble
 
 if TYPE_CHECKING:
@@ -62,7 +63,7 @@ def run_program(machine: "LinuxCNCMachine", path: str, start_line: int, total: i
     """Run ``path`` (its first ``skip`` lines are a modal preamble, then line n is command
     ``start_line + n - 1 - skip``); returns (executed, cancelled).  ``machine.progress``
     is kept current."""
-    link = machine.link
+    link = connected(machine.link)
     count = total - start_line
     link.set("mode", "auto")
     link.pop_error()

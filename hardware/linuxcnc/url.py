@@ -19,9 +19,8 @@ from __future__ import annotations
 import os
 import tempfile
 from dataclasses import dataclass
-from urllib.parse import parse_qs, urlsplit
-
 from ..errors import InvalidConfig
+from ..port_url import PortUrl
 
 __all__ = ["LinuxCNCAddress", "parse_url"]
 
@@ -43,16 +42,13 @@ def parse_url(url: str, program_dir: str | None = None) -> LinuxCNCAddress:
     part); ``program_dir`` is the default of ``programs``.  linuxcncrsh reports 6 joints
     whatever the machine has: without ``joints``, homing counts as done when the homed flags
     stay unchanged for half a second."""
-    parts = urlsplit(url)
+    parts = PortUrl.parse(url)
     if parts.scheme != "linuxcnc":
         raise InvalidConfig("expected a linuxcnc://host:port URL", field="port", value=url)
-    try:
-        port = parts.port
-    except ValueError:
-        port = None
-    if not parts.hostname or port is None or not 0 < port < 65536:
+    port = parts.port
+    if not parts.host or port is None or not 0 < port < 65536:
         raise InvalidConfig("linuxcnc:// needs host:port", field="port", value=url)
-    query = parse_qs(parts.query, keep_blank_values=True)
+    query = parts.options
     unknown = sorted(set(query) - _OPTIONS)
     if unknown:
         raise InvalidConfig(f"unknown linuxcnc:// option {unknown[0]!r}", field="port", value=url)
@@ -64,7 +60,7 @@ def parse_url(url: str, program_dir: str | None = None) -> LinuxCNCAddress:
     joints = query.get("joints", [None])[0]
     if joints is not None and not (joints.isdigit() and 1 <= int(joints) <= 9):
         raise InvalidConfig("joints must be 1..9", field="port", value=url)
-    return LinuxCNCAddress(parts.hostname, port, program_dir, None if joints is None else int(joints))
+    return LinuxCNCAddress(parts.host, port, program_dir, None if joints is None else int(joints))
 
 
 def passwords(connect_pw: str | None, enable_pw: str | None) -> tuple[str, str]:

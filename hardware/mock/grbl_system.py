@@ -4,8 +4,9 @@
 from __future__ import annotations
 
 from collections.abc import Generator
+from typing import TYPE_CHECKING
 
-from .firmware import Wait, split_words
+from .firmware import FirmwareCore, Wait, split_words
 
 VERSION = "1.1h.20190830"
 BANNER = "Grbl 1.1h ['$' for help]"
@@ -20,19 +21,31 @@ DEFAULT_SETTINGS = {
 HOMING_S = 1.5  # model seconds a homing cycle takes
 
 
-class GrblSystem:
-    """Mixin: ``$`` commands, EEPROM settings, power-up and homing."""
+class GrblSystem(FirmwareCore):
+    """grbl's part of ``GrblFirmware`` over the firmware core: ``$`` commands, EEPROM settings,
+    power-up and homing."""
 
+    # grbl's state (set by GrblFirmware.cold_start)
     settings: dict[int, str]
+    check_mode: bool
+    jogging: bool
+    homing_until: float | None
+    booting_until: float
+    wcs: str
+
+    if TYPE_CHECKING:  # GrblFirmware's
+        def reply(self, text: str, now: float) -> None: ...
+
+        def soft_reset(self, now: float) -> None: ...
 
     def load_eeprom(self) -> None:
         """Settings as stored; a fresh EEPROM fails to read (``error:7``) and is restored."""
         world = self.world
-        if getattr(world, "_grbl_eeprom", None) is None:
-            world._grbl_eeprom = dict(DEFAULT_SETTINGS)
-            world._grbl_eeprom[22] = "1" if world.homing else "0"
-            world._grbl_eeprom_fresh = world.fresh_eeprom
-        self.settings = world._grbl_eeprom
+        if world.grbl_eeprom is None:
+            world.grbl_eeprom = dict(DEFAULT_SETTINGS)
+            world.grbl_eeprom[22] = "1" if world.homing else "0"
+            world.grbl_eeprom_fresh = world.fresh_eeprom
+        self.settings = world.grbl_eeprom
 
     # ------------------------------------------------------------------ power-up / reset
     def banner(self, now: float) -> None:
@@ -52,8 +65,8 @@ class GrblSystem:
         boot = self.world.boot_s * self.scale
         self.booting_until = now + boot if boot > 0 else float("-inf")
         self.out_free_at = max(self.out_free_at, now + boot)  # nothing leaves before the boot
-        if getattr(self.world, "_grbl_eeprom_fresh", False):
-            self.world._grbl_eeprom_fresh = False
+        if self.world.grbl_eeprom_fresh:
+            self.world.grbl_eeprom_fresh = False
             self.emit("error:7", now)  # settings_init: EEPROM read fail, defaults restored
             for key, value in self.settings.items():
                 self.emit(f"${key}={value}", now)

@@ -135,11 +135,11 @@ class MarlinFirmware(FirmwareCore):
         match = _NUMBERED.match(text)
         star_at = text.rfind("*")
         faulty = match is not None and "M110" not in text  # a lost M110 cannot be resent
-        if faulty and star_at > match.end() and self.chance(self.faults.checksum_rate, "checksum"):
+        if faulty and match is not None and star_at > match.end() and self.chance(self.faults.checksum_rate, "checksum"):
             i = self.rng.randrange(match.end(), star_at)
             flipped = chr(ord(text[i]) ^ 0x01)
             text = text[:i] + (flipped if flipped not in "*\r\n;(" else "#") + text[i + 1:]
-        if faulty and self.chance(self.faults.line_number_rate, "line_number"):
+        if faulty and match is not None and self.chance(self.faults.line_number_rate, "line_number"):
             digits = match.group(1)
             i = self.rng.randrange(len(digits)) if digits[0] != "-" else len(digits) - 1
             wrong = str((int(digits[i]) + 1 + self.rng.randrange(8)) % 10)

@@ -44,10 +44,11 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
-from typing import Any
-from urllib.parse import parse_qsl, urlsplit
+from typing import Any, cast
+from urllib.parse import parse_qsl
 
 from ..errors import InvalidConfig
+from ..port_url import PortUrl
 from ..dialects import DEFAULT_DIALECT, DIALECTS, dialect
 from ..protocol import CommandHasher, CommandDigest
 from .timeline import MotionTimeline
@@ -209,6 +210,9 @@ class MockWorld:
     homing_fails: bool = False
     fresh_eeprom: bool = False
     boot_s: float = 0.5
+    # a grbl board's EEPROM settings and whether the next boot finds it fresh (kept across reconnects)
+    grbl_eeprom: dict[int, str] | None = field(default=None, init=False, repr=False, compare=False)
+    grbl_eeprom_fresh: bool = field(default=False, init=False, repr=False, compare=False)
     line_numbers: bool = False
     # Marlin: REALTIME_REPORTING_COMMANDS (needs EMERGENCY_PARSER; off in Marlin's default
     # configuration): "S000" answered on arrival with the real stepper position
@@ -300,7 +304,7 @@ class MockWorld:
             where = tuple(float(v) for v in firmware.machine_position(now))
             firmware.hard_reset(now)
             self.cond.notify_all()
-            return where  # type: ignore[return-value]
+            return where
 
     def drift_mm(self) -> float:
         """Z drift now (mm): actual tool Z = commanded Z + this (machine clock based)."""
@@ -349,7 +353,7 @@ def unregister_world(name: str) -> None:
         _REGISTRY.pop(name, None)
 
 
-def _convert(key: str, text: str, kind: object) -> object:
+def _convert(key: str, text: str, kind: object) -> Any:
     try:
         if kind in (bool, "bool"):
             if text.lower() in ("1", "true", "yes", "on"):
@@ -410,10 +414,10 @@ def parse_mock_options(query: str) -> dict[str, object]:
 
 def world_from_url(url: str) -> MockWorld:
     """Resolve ``mock://NAME?options`` to a (possibly new, then registered) world."""
-    parts = urlsplit(url)
+    parts = PortUrl.parse(url)
     if parts.scheme != "mock":
         raise InvalidConfig(f"not a mock URL: {url!r}", field="port", value=url[:80])
-    name = (parts.netloc + parts.path).strip("/") or "default"
+    name = parts.name
     options = parse_mock_options(parts.query)
     with _REGISTRY_LOCK:
         world = _REGISTRY.get(name)
@@ -423,7 +427,7 @@ def world_from_url(url: str) -> MockWorld:
     if "dialect" in options and options["dialect"] != world.dialect:
         raise InvalidConfig(f"mock world {name!r} speaks {world.dialect}, not {options['dialect']}",
                             field="dialect", value=options["dialect"])
-    tools = {tool_number(k): v for k, v in options.items() if tool_number(k) is not None}
+    tools = {n: cast(MockTool, v) for k, v in options.items() if (n := tool_number(k)) is not None}  # tool<k>: a MockTool
     if tools:
         world.tools = merge_tools(world.tools, tools)
     for key, value in options.items():

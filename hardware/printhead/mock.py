@@ -34,11 +34,12 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import parse_qsl
 
 import numpy as np
 
 from ..errors import InvalidConfig
+from ..port_url import PortUrl
 from ..mock.timeline import MotionTimeline
 from ..mock.world import MockWorld, get_world
 from . import hdp
@@ -326,10 +327,10 @@ def get_head(name: str) -> MockPrintHead:
 
 def head_from_url(url: str) -> MockPrintHead:
     """Resolve ``head://NAME?options`` to a (possibly new, then registered) mock head."""
-    parts = urlsplit(url)
+    parts = PortUrl.parse(url)
     if parts.scheme != "head":
         raise InvalidConfig(f"not a head URL: {url!r}", field="port", value=url[:80])
-    name = (parts.netloc + parts.path).strip("/") or "default"
+    name = parts.name
     options = parse_options(parts.query)
     machine = str(options.pop("machine", name))
     with _LOCK:

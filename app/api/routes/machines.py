@@ -34,6 +34,7 @@ from app.runtime.engine import Runtime
 from app.machines.live import hardware_errors, port_key, port_owner, translate
 from app.machines.materials import BY_NAME, MATERIALS
 from hardware.dialects import default_dispense
+from hardware.port_url import PortUrl
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
 from app.platform.db import lock_for_delete
@@ -108,7 +109,8 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
     claim = idempotency.claim(request, idempotency_key, idempotency.canonical(body))
     if (replayed := idempotency.replay(session, claim)) is not None:
         return replayed  # type: ignore[return-value]
-    is_mock = body.port.startswith("mock://")
+    port = PortUrl.parse(body.port)
+    is_mock = port.is_mock
     if body.mock is not None and not is_mock:
         raise InvalidInput("mock settings need a mock:// port", field="mock", value=body.port)
     if body.mock is not None and body.mock.true_part_id is not None:
@@ -117,7 +119,7 @@ def register_machine(body: MachineCreate, runtime: RuntimeDep, session: SessionD
                                value=body.mock.true_part_id)
     if is_mock:
         try:
-            parse_mock_options(body.port.split("?", 1)[1] if "?" in body.port else "")
+            parse_mock_options(port.query)
         except InvalidConfig as exc:  # 422 naming the option
             raise translate(exc) from exc
     machine_id = new_id("mach")

@@ -77,7 +77,9 @@ def run(ctx: JobContext, params: CalibrateNozzleParams) -> dict:
     """Measure a nozzle's XYZ offset to the probe (Z by touch-off on the pad, XY on the sphere)."""
     profile = machine_profile(ctx.machine(params.machine_id))
     nozzle = _nozzle(params, profile)
-    sphere, pad = profile.reference.sphere, profile.reference.pad  # type: ignore[union-attr]
+    reference = profile.reference
+    assert reference is not None and reference.sphere is not None and reference.pad is not None  # _check's rule
+    sphere, pad = reference.sphere, reference.pad
     with ctx.session() as session:
         current = require_probe_calibration(session, params.machine_id)
     probe = current.probe

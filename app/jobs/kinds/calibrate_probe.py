@@ -62,7 +62,9 @@ def _check(params: CalibrateProbeParams, session: Session) -> None:
 def run(ctx: JobContext, params: CalibrateProbeParams) -> dict:
     """Qualify the probe on the reference sphere: ball radius, pre-travel, sphere centre, pad reading."""
     profile = machine_profile(ctx.machine(params.machine_id))
-    sphere, pad = profile.reference.sphere, profile.reference.pad  # type: ignore[union-attr]
+    reference = profile.reference
+    assert reference is not None and reference.sphere is not None  # _check refused a profile without one
+    sphere, pad = reference.sphere, reference.pad
     radius = profile.tools.probe.ball_radius_mm if profile.tools is not None else 0.0
     feed = params.probe_feed_mm_min or profile.probe_feed_mm_min
     # locate the sphere first (it may sit ~1 mm off its nominal place): the steep cap rings

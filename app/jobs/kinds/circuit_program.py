@@ -27,7 +27,7 @@ the request says ``accept_unverified: true``; a program so accepted says so in i
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -276,7 +276,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     placement = loop_placement(ctx, entries, imp.trace_ids)          # part -> machine, as the traces
     mesh = ctx.runtime.meshes.placed(ctx.part(imp.part_id), placement)
 
-    stations, deviations = [], []
+    stations: list[list[float]] = []
+    deviations: list[float] = []
     runs = station_runs(entries, probe_ids + list(imp.trace_ids))      # each probe run once
     for run_id in runs:
         probe = ctx.job(run_id, kind="probe_run", field="params.closed_loop_job_id")
@@ -299,17 +300,17 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
     strokes: list[Stroke] = []
     with ctx.session() as session:                                    # every trace in one query
-        traces = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()}  # type: ignore[attr-defined]
+        records = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()}  # type: ignore[attr-defined]
     compensated = _compensated(ctx, entries, imp.trace_ids)
     tips = [np.asarray(compensated[t][1].points, float) for t in imp.trace_ids]
-    passes = trace_passes_many(tips, [traces[t].width_mm or params.line_width_mm for t in imp.trace_ids],
+    passes = trace_passes_many(tips, [records[t].width_mm or params.line_width_mm for t in imp.trace_ids],
                                params.line_width_mm, surface_z)             # one surface evaluation for all
     for trace_id, trace_passes_ in zip(imp.trace_ids, passes):
-        trace = traces[trace_id]
+        record = records[trace_id]
         comp = compensated[trace_id][0]
         for k, p in enumerate(trace_passes_):
-            strokes.append(Stroke(p, "trace" if k == 0 else "pass", trace.name, trace.feed_mm_min or params.feed_mm_min))
-            printed.add(trace.name, "trace", p, float(comp.params.get("standoff_mm") or trace.standoff_mm))
+            strokes.append(Stroke(p, "trace" if k == 0 else "pass", record.name, record.feed_mm_min or params.feed_mm_min))
+            printed.add(record.name, "trace", p, float(comp.params.get("standoff_mm") or record.standoff_mm))
     ctx.progress(0.5, "filling pads and areas")
     fills = 0
     if params.pads and (imp.pads or imp.areas):
@@ -321,7 +322,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
             return ring if placement is None else placement.apply(ring)
 
         angle = 0.0 if placement is None else placement.rz_deg              # rasters stay along the part's x
-        outlines = [(p["outline_xy_mm"], [], p["name"], "pad") for p in imp.pads if p["on_part"]]
+        outlines: list[tuple[Any, Any, str, str]] = [(p["outline_xy_mm"], [], p["name"], "pad") for p in imp.pads
+                                                     if p["on_part"]]
         outlines += [(a["exterior_xy_mm"], a["holes_xy_mm"], a["name"], "area") for a in stored_areas(imp.areas)]
         for ring, holes, name, kind in outlines:
             for s in fill_tip_strokes(placed(ring), [placed(h) for h in holes],

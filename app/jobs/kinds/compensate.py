@@ -230,11 +230,11 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     stored = ctx.artifacts_of([(source.id, stored_name(t)) for t in params.trace_ids])  # one query
     records = _Records(ctx)
     for index, trace in enumerate(ctx.traces(params.trace_ids)):  # one query, not one per trace
-        reconstruction = stored[(source.id, stored_name(trace.id))]
-        inputs = inputs_sha256(shared, trace_inputs(trace, records.part(trace.part_id).sha256), reconstruction.sha256)
+        artifact = stored[(source.id, stored_name(trace.id))]
+        inputs = inputs_sha256(shared, trace_inputs(trace, records.part(trace.part_id).sha256), artifact.sha256)
         row = checkpoints.reusable(trace.id, inputs)
         if row is None:
-            row, outputs = _board_trace(ctx, params, choice, trace, ctx.blob(reconstruction.sha256), placement,
+            row, outputs = _board_trace(ctx, params, choice, trace, ctx.blob(artifact.sha256), placement,
                                         records)
             checkpoints.add(trace.id, inputs, outputs, row)  # stored with the group's checkpoint, one commit
         rows.append(row)

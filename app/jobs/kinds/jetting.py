@@ -13,7 +13,7 @@ The parameter and target models it shares with ``jetting_next_layer`` are in
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -134,7 +134,7 @@ def run(ctx: JobContext, params: JettingJobParams) -> dict:
         ctx.artifact(names[-1], pattern_png(pattern, params.dpi), "image/png",
                      {"layer": layer, "drops": int(pattern.sum()), "shape": grid, "dpi": params.dpi})
     summary = result.summary()
-    solve_ms = [row["solve_ms"] for row in summary["layers"]]
+    solve_ms = [row["solve_ms"] for row in cast(list[dict[str, Any]], summary["layers"])]
     return JettingResult.written({
         **summary,
         "grid": {"shape": grid, "pitch_mm": target.pitch_mm, "part_cells": int(target.mask.sum()),

@@ -43,7 +43,7 @@ from app.platform.models import Artifact, Machine, Program
 from app.platform.lookup import get_or_404
 from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, LinkError
-from hardware.machine import Machine as LiveMachine
+from hardware.backend import Machine as LiveMachine
 from hardware.protocol import validate_program
 
 PROGRESS_INTERVAL_S = 0.25
@@ -121,6 +121,7 @@ def _program_text(ctx: JobContext, params: PrintParams) -> str:
             program = get_or_404(session, Program, params.program_id, field="params.program_id")
         data = ctx.runtime.blobs.read(program.sha256)
     else:
+        assert params.job_id is not None and params.artifact is not None  # PrintParams' rule
         data = ctx.artifact_bytes(params.job_id, params.artifact)
     try:
         text = data.decode("utf-8")
@@ -187,6 +188,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:
     if drift is not None:  # what is streamed (and resumed) is the shifted program
         lines = shift_z(text, drift["dz_mm"]).text.splitlines()
         meta = gcode_meta("\n".join(lines))
+    assert machine is not None  # connected above, or by machine_for_job
     last_report = 0.0
     cancelled = False
 
@@ -241,6 +243,7 @@ def _dispense(ctx: JobContext, params: PrintParams) -> dict | None:
         row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
         profile = machine_profile(row)
         dialect = row.dialect
+    chosen: DispenseProfile | None
     if params.dispense is not None:
         chosen, source = params.dispense, "request"
     elif params.material in profile.dispense_by_material:

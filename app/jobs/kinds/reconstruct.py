@@ -159,6 +159,7 @@ def _check(params: ReconstructJobParams, session: Session) -> None:
             _check_joint_run(params, session)
         _check_scan_run(params, session)
         return
+    assert params.trace_id is not None  # the model's rule: trace_id or trace_ids
     trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
     _check_scan_run(params, session)
     if params.probe_run_job_id is not None:
@@ -215,12 +216,14 @@ def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
     run = session.get(Job, params.probe_run_job_id)
     plan = session.get(Job, (run.params or {}).get("plan_job_id")) if run is not None and run.kind == "probe_run" \
         else None
-    is_field = plan is not None and bool(ProbePlanResult.of(plan).field)
-    if plan is not None and is_field != (params.method == "field"):
+    if run is None or plan is None:  # nothing to check against
+        return
+    is_field = bool(ProbePlanResult.of(plan).field)
+    if is_field != (params.method == "field"):
         raise InvalidInput(f"probe run {run.id!r} comes from a {'field' if is_field else plan.params.get('method')!r} "
                            f"plan: reconstruct it with method {'field' if is_field else 'other than field'!r}, not "
                            f"{params.method!r}", field="params.method", value=params.method)
-    trace_ids = (plan.params or {}).get("trace_ids") if plan is not None else None
+    trace_ids = (plan.params or {}).get("trace_ids")
     if is_field and trace_ids is None:
         trace_ids = [plan.params.get("trace_id")]
     if trace_ids is None:
@@ -295,7 +298,7 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     checkpoints.flush()
     total = len(params.traces)
     ctx.progress(1.0, f"{total}/{total} traces rebuilt{checkpoints.note()}")
-    return [row for t in params.traces if (row := done[t]) is not None]
+    return [entry for t in params.traces if (entry := done[t]) is not None]
 
 
 def _store(ctx: JobContext, reconstruction: Reconstruction, name: str) -> str:
@@ -352,6 +355,7 @@ def rebuild(ctx: JobContext, params: ReconstructJobParams) -> Reconstruction:
     tilted by the reconstructed deviation's gradient) and the trace rebuilt, twice
     (:func:`refined`).  The probe noise is ``params.sigma_mm`` as :func:`run` resolved it
     (given, or the calibration's measured scatter with ``sigma_from_calibration``)."""
+    assert params.trace_id is not None  # one trace at a time (rebuild_board passes each)
     trace = ctx.trace(params.trace_id)
     placement = placement_from(ctx, params)
     if params.method == "field":
@@ -393,6 +397,7 @@ def run_calibration(ctx: JobContext, params: ReconstructJobParams) -> tuple[Any,
     ranges = joint_trace_ranges(plan)
     rows = ProbeRunResult.of(probe_run).rows()
     if ranges is not None:
+        assert params.trace_id is not None  # one trace at a time
         lo, hi = ranges[params.trace_id]
         rows = [p for p in rows if lo <= p["index"] < hi]
     return calibration, rows
@@ -418,6 +423,7 @@ def run_points(ctx: JobContext, params: ReconstructJobParams) -> tuple[list, dic
 def _field_rebuild(ctx: JobContext, params: ReconstructJobParams, nominal: Any) -> Reconstruction:
     """The trace from its run's fitted field (fitted once per run and sigma, cached)."""
     check, refinement, trace_ids = _run_field(ctx, params)
+    assert params.trace_id is not None  # one trace at a time
     return _field_trace(check, refinement, nominal, trace_ids.index(params.trace_id))
 
 

@@ -138,10 +138,10 @@ class SurfaceFitJobParams(JobParams):
 
     def fit_params(self) -> SurfaceFitParams:
         """The core's parameters (raises SurfaceFitError naming params.<field>)."""
-        resample = tuple(self.grid) if self.resample_to_grid and self.has_points else None
+        resample = (self.grid[0], self.grid[1]) if self.resample_to_grid and self.has_points else None
         return SurfaceFitParams(
             method=self.method, degree=self.degree,
-            control_points=None if self.control_points is None else tuple(self.control_points),
+            control_points=None if self.control_points is None else (self.control_points[0], self.control_points[1]),
             penalty=self.penalty, smoothing=self.smoothing,
             moving_average_window=self.moving_average_window, smoothing_passes=self.smoothing_passes,
             remove_bad_points=self.remove_bad_points, bad_point_sigma=self.bad_point_sigma,
