@@ -22,9 +22,14 @@ run: $(STAMP)
 	$(BIN)/conforma serve
 
 # both cores; tests that share one real resource of the host (LinuxCNC, Redis, the browser)
-# stay on one worker (tests/conftest.py, SHARED_RESOURCE_GROUPS)
+# stay on one worker (tests/conftest.py, SHARED_RESOURCE_GROUPS).  Bytecode is written even
+# where the environment sets PYTHONDONTWRITEBYTECODE: else every worker re-compiles the
+# sources and pytest re-rewrites the asserts of ~280 plugin modules (schemathesis, hypothesis)
+# at each start: 30 CPU s of a worker's collection against 15 with the caches
+# (`/usr/bin/time python -m pytest --collect-only -q`), and every server a test starts
+# compiles the service again
 test: $(STAMP)
-	$(PYTEST) -n 2 --dist loadgroup
+	env -u PYTHONDONTWRITEBYTECODE $(PYTEST) -n 2 --dist loadgroup
 
 # the browser and machine tests, STRESS_RUNS fresh sessions one after another beside stress-ng's
 # STRESS_LOAD; prints each run's failures and, last, how many runs failed (tests/helpers/stress.py)
