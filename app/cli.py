@@ -23,9 +23,9 @@ def _settings(args: argparse.Namespace, **extra: object) -> Settings:
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from app.main import create_app
     from app.platform.auth import KeyRing
     from app.platform.db import make_engine, migrate
-    from app.main import create_app
 
     settings = _settings(args, host=args.host, port=args.port, viewer_port=args.viewer_port,
                          viewer=False if args.no_viewer else None)

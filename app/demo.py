@@ -17,16 +17,16 @@ import time
 from sqlmodel import Session
 
 from app.api.schemas import TraceCreate
-from app.reference.evaluation import Table1Row, format_table
-from app.platform.config import Settings
-from app.platform.db import migrate
-from app.runtime.engine import QUEUES, Runtime
-from app.platform.ownership import MachineOwnerLock
-from app.platform.models import COMPLETED_STATES, Machine, TERMINAL_STATES, Job, new_id, utcnow
 from app.parts.intake import export_mesh
 from app.parts.storage import store_part
 from app.parts.traces import build_trace
+from app.platform.config import Settings
+from app.platform.db import migrate
+from app.platform.models import COMPLETED_STATES, TERMINAL_STATES, Job, Machine, new_id, utcnow
+from app.platform.ownership import MachineOwnerLock
+from app.reference.evaluation import Table1Row, format_table
 from app.reference.s1 import as_made, s1_mesh, s1_traces
+from app.runtime.engine import QUEUES, Runtime
 
 
 def _numbers(spec: str) -> list[int]:

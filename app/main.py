@@ -14,14 +14,25 @@ from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
 import app as app_package
-from app.api.routes import (circuits, files, jobs, loop_actions, machine_console, machines, parts, programs, reports, system,
-                     traces)
-from app.api.routes import viewer as viewer_api
 from app.api.admission import AdmissionMiddleware
 from app.api.errors import install_error_handlers
 from app.api.headers import SecurityHeadersMiddleware
 from app.api.limits import BodyLimitMiddleware
 from app.api.openapi_errors import document_error_responses
+from app.api.routes import (
+    circuits,
+    files,
+    jobs,
+    loop_actions,
+    machine_console,
+    machines,
+    parts,
+    programs,
+    reports,
+    system,
+    traces,
+)
+from app.api.routes import viewer as viewer_api
 from app.platform.auth import KeyRing, LoginThrottle
 from app.platform.config import Settings
 from app.platform.db import migrate

@@ -60,8 +60,9 @@ from collections.abc import Callable
 
 import serial
 
-from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
 from .console_log import ConsoleLog
+from .dialects import DEFAULT_DIALECT
+from .dialects import dialect as dialect_rules
 from .errors import FirmwareError, HardwareError, InvalidConfig, LinkError, ProtocolError
 from .events import ReplyEvent, StatusReport
 from .pending import CommandResult, PendingCommand

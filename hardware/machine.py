@@ -60,20 +60,18 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from .console_log import ConsoleLog
-from .program_clock import ProgramClock
-from .errors import (FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError,
-                     MachineStateError)
+from .dialects import DEFAULT_DIALECT
+from .dialects import dialect as dialect_rules
+from .errors import FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError, MachineStateError
 from .events import Capability, FirmwareInfo, PositionReport, ReplyEvent, StartBanner
 from .link import CommandResult, Link, PendingCommand
 from .machine_grbl import GrblOperations
-from .machine_outputs import OutputOperations
+from .machine_outputs import DISCONNECT_SAFE_OFF_S, OutputOperations
 from .machine_probe import ProbeOperations
-from .machine_state import ClaimedOperations, axis_words, connected
 from .machine_resume import ResumeOperations
-from .machine_outputs import DISCONNECT_SAFE_OFF_S
-from .machine_types import (STATES, Identity, MachineProfile, ProbeResult, StreamReport,
-                            _Interrupted)
-from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
+from .machine_state import ClaimedOperations, axis_words, connected
+from .machine_types import STATES, Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
+from .program_clock import ProgramClock
 from .protocol import validate_program
 from .resume import ResumeLocation
 

@@ -4,13 +4,12 @@ Check, Home), unlock, feed hold / cycle start, jogging and homing availability."
 
 from __future__ import annotations
 
+import time
 from typing import TYPE_CHECKING
 
-import time
-
+from .controller_state import ControllerState
 from .errors import ControllerLocked, FirmwareError, LinkError, MachineStateError
 from .events import Feedback, ReplyEvent, StartBanner
-from .controller_state import ControllerState
 
 if TYPE_CHECKING:
     from .link import Link

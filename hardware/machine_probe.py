@@ -5,10 +5,9 @@ toward any point (``probe_toward``, always ``G38.2``) and tool selection (``T<n>
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import math
 import re
+from typing import TYPE_CHECKING
 
 from .errors import FirmwareError, InvalidConfig, ProbeFailed
 from .events import ProbeReport

@@ -4,18 +4,28 @@ planned), and draining the lines a controller still runs after it rejected one."
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import math
 import time
 from collections import deque
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 from .errors import FirmwareError, FirmwareReset, HardwareError, MachineStateError
 from .events import PositionReport
 from .machine_types import ReportEvidence, _Interrupted
-from .resume import (POSITION_TOLERANCE_MM, ReportedResume, ResumeLocation, command_feeds, count_moves, end_positions, executed_bound,
-                     locate_by_position, locate_by_report, modal_preamble, planner_blocks)
+from .resume import (
+    POSITION_TOLERANCE_MM,
+    ReportedResume,
+    ResumeLocation,
+    command_feeds,
+    count_moves,
+    end_positions,
+    executed_bound,
+    locate_by_position,
+    locate_by_report,
+    modal_preamble,
+    planner_blocks,
+)
 
 if TYPE_CHECKING:
     from .link import PendingCommand

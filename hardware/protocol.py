@@ -17,13 +17,32 @@ import re
 from collections.abc import Iterable
 from typing import NamedTuple
 
-from .dialects import DEFAULT_DIALECT, dialect as dialect_rules
+from .dialects import DEFAULT_DIALECT
+from .dialects import dialect as dialect_rules
 from .errors import InvalidConfig
-from .events import (Alarm, Busy, Capability, Echo, Feedback, FirmwareErrorEvent,
-                     FirmwareInfo, Halted, HostAction, Message, Ok, PositionReport,
-                     ProbeReport, ReplyEvent, Resend, Setting, StartBanner, StatusReport,
-                     TemperatureReport, Unknown, Wait)
-
+from .events import (
+    Alarm,
+    Busy,
+    Capability,
+    Echo,
+    Feedback,
+    FirmwareErrorEvent,
+    FirmwareInfo,
+    Halted,
+    HostAction,
+    Message,
+    Ok,
+    PositionReport,
+    ProbeReport,
+    ReplyEvent,
+    Resend,
+    Setting,
+    StartBanner,
+    StatusReport,
+    TemperatureReport,
+    Unknown,
+    Wait,
+)
 
 GRBL_ERRORS = {
     1: "Expected command letter", 2: "Bad number format", 3: "Invalid statement",
@@ -313,7 +332,7 @@ def _parse_m115(raw: str, text: str) -> ReplyEvent:
     return FirmwareInfo(fields, raw=raw)
 
 
-def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:
+def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
     """Parse one reply line (terminator optional) into a typed event.
 
     Both dialects' forms are recognised whatever ``dialect`` says (grbl error texts are

@@ -21,13 +21,23 @@ from __future__ import annotations
 
 from collections import OrderedDict, deque
 
+from .controller_state import ControllerState, next_controller_state
 from .dialects import Dialect
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
-from .events import (Alarm, Feedback, FirmwareErrorEvent, Halted, Message, Ok,
-                     ReplyEvent, Resend, StartBanner, StatusReport)
+from .events import (
+    Alarm,
+    Feedback,
+    FirmwareErrorEvent,
+    Halted,
+    Message,
+    Ok,
+    ReplyEvent,
+    Resend,
+    StartBanner,
+    StatusReport,
+)
 from .protocol import dwell_budget_s, frame, parse_reply
 from .reports import PositionMark, PositionTracker
-from .controller_state import ControllerState, next_controller_state
 from .session_types import Action, Command, Complete, Halt, Observed, Position, Write
 
 WINDOWS = ("pingpong", "windowed")
@@ -177,7 +187,7 @@ class ReplySession:
         return best
 
     # ------------------------------------------------------------------ replies
-    def feed(self, line: str, now: float) -> list[Action]:
+    def feed(self, line: str, now: float) -> list[Action]:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
         """One reply line (terminator optional) received at ``now``."""
         event = parse_reply(line, self.rules.name)
         kind = type(event).__name__

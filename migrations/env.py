@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from alembic import context
 from sqlalchemy import create_engine, event, pool
+from sqlmodel import SQLModel
 
 import app.platform.models  # noqa: F401  (registers the tables)
-from sqlmodel import SQLModel
 
 target_metadata = SQLModel.metadata
 # (the naming convention is set on the metadata in app.platform.models, before the tables)

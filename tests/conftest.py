@@ -8,7 +8,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-
 from threadpoolctl import threadpool_limits
 
 # Tests and benchmarks call the core directly: run it as a job process does, with

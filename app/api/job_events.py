@@ -113,7 +113,7 @@ class JobWatch:
             while True:
                 try:
                     await asyncio.wait_for(subscriber.wake.wait(), KEEPALIVE_S)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     yield ": keepalive\n\n"
                     continue
                 subscriber.wake.clear()

@@ -18,7 +18,6 @@ from fastapi.routing import APIRoute
 
 from app.api.admission import _EXEMPT
 
-
 PROBLEM_SCHEMA: dict[str, Any] = {
     "type": "object",
     "description": "RFC 9457 problem details",

@@ -17,8 +17,8 @@ sample to the local maximum.  A second, separate peak narrower than the ring spa
 
 from __future__ import annotations
 
-from collections.abc import Callable
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np

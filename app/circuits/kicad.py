@@ -23,7 +23,7 @@ from app.circuits.curves import arc_three_points, line
 from app.circuits.errors import CircuitFileError
 from app.circuits.kicad_graphics import copper_graphics
 from app.circuits.kicad_pads import kicad_pad_outline
-from app.circuits.layout import Area, Dropped, Layout, copper_side, LayoutTrace, Pad, Source, Via, circle_ring
+from app.circuits.layout import Area, Dropped, Layout, LayoutTrace, Pad, Source, Via, circle_ring, copper_side
 from app.circuits.shapes import CHORD_MM, outline_rings, ring_of, rotate
 from app.geometry.tolerance import LENGTH_EPS_MM
 
@@ -172,7 +172,7 @@ def _reference(fp: Footprint) -> str:
     return str(getattr(fp, "libId", "") or "")
 
 
-def read_kicad(text: str, name: str, layer: str | None = None, graphics: bool = False) -> Layout:
+def read_kicad(text: str, name: str, layer: str | None = None, graphics: bool = False) -> Layout:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
     """Tracks and pads of ``layer`` (``top`` = F.Cu, the default; ``bottom`` = B.Cu; ``inner<n>``
     = In<n>.Cu; or a KiCad layer name) of a board; mm, y up; ``stack``: every copper layer counted.  Its copper
     graphics and text (:mod:`app.circuits.kicad_graphics`) are read when ``graphics`` asks,

@@ -17,8 +17,8 @@ from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
-import trimesh
 import shapely
+import trimesh
 from shapely import STRtree
 from shapely.geometry import LineString
 

@@ -13,12 +13,10 @@ A path's subpaths are separate traces; a trace's width is its stroke width when 
 from __future__ import annotations
 
 import io
-
-import numpy as np
 import re
-
 from collections.abc import Iterable, Iterator
 
+import numpy as np
 from svgelements import SVG, Arc, Close, CubicBezier, Group, Line, Move, Path, QuadraticBezier, Shape, Use
 
 from app.circuits.curves import arc_ccw, concatenated, line, transformed

@@ -34,8 +34,8 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from app.circuits.gcode_scan import EONLY, MODE, OTHER, PRINT, STILL, TRAVEL, ZONLY, Records, scan_program
 from app.circuits.errors import WarpError
+from app.circuits.gcode_scan import EONLY, MODE, OTHER, PRINT, STILL, TRAVEL, ZONLY, Records, scan_program
 from app.circuits.heightfield import HeightField, Inside
 
 __all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "check_region", "fixed_split_error"]

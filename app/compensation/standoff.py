@@ -35,18 +35,18 @@ surface: what the uncompensated machine would print.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from app.domain.checks import require_non_negative, require_positive
 from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
+from app.domain.checks import require_non_negative, require_positive
 from app.domain.errors import InvalidInput
-from app.geometry.slope import height_error_mm, surface_slopes_deg
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, ProgramBuilder
+from app.geometry.slope import height_error_mm, surface_slopes_deg
 
 __all__ = [
     "CompensatedPath",

@@ -5,13 +5,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from app.gcode.writer import DEFAULT_PROBING_DIALECT
 from app.domain.checks import require_positive
 from app.five_axis.contact import NormalSide, NormalSource
 from app.five_axis.errors import FiveAxisError
 from app.five_axis.kinematics import MachineConfig
 from app.five_axis.post import POSTS, PostName
 from app.five_axis.program import FeedMode, ProgramStyle
+from app.gcode.writer import DEFAULT_PROBING_DIALECT
 
 __all__ = ["FiveAxisParams"]
 

@@ -38,8 +38,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from app.five_axis.program import (FeedMode, ProgramStyle, dispensed_path,
-                                                end_program)
+from app.five_axis.program import FeedMode, ProgramStyle, dispensed_path, end_program
 from app.gcode.writer import ProgramBuilder
 
 __all__ = ["POSTS", "PostName", "linuxcnc_trt_program", "linuxcnc_trt_setup"]

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from app.gcode.lines import iter_lines
-from app.gcode.reader import FEED, RAPID, MAX_ARC_CHORDS, ModalReader, Program, ReadOptions
+from app.gcode.reader import FEED, MAX_ARC_CHORDS, RAPID, ModalReader, Program, ReadOptions
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
 _INDEX = {"X": 0, "Y": 1, "Z": 2, "E": 3}

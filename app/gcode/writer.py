@@ -168,14 +168,14 @@ class ProgramBuilder:
         return words
 
     # -- program content ----------------------------------------------------------
-    def comment(self, text: str) -> "ProgramBuilder":
+    def comment(self, text: str) -> ProgramBuilder:
         """Append ``; text`` (one line; newlines and parentheses are replaced)."""
         clean = " ".join(str(text).replace("(", "[").replace(")", "]").split())
         self._append(f"; {clean}" if clean else ";")
         return self
 
     def rapid(self, x: float | None = None, y: float | None = None,
-              z: float | None = None) -> "ProgramBuilder":
+              z: float | None = None) -> ProgramBuilder:
         """Rapid move ``G0`` to the given coordinates (mm); at least one axis."""
         words = self._words(x, y, z, {})
         if not words:
@@ -184,7 +184,7 @@ class ProgramBuilder:
         return self
 
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
-             feed_mm_min: float | None = None, **extra_axes: float) -> "ProgramBuilder":
+             feed_mm_min: float | None = None, **extra_axes: float) -> ProgramBuilder:
         """Linear move ``G1`` (mm, feed in mm/min); extra axes such as ``a=``, ``c=``, ``e=``."""
         words = self._words(x, y, z, extra_axes)
         if not words:
@@ -197,7 +197,7 @@ class ProgramBuilder:
         return self
 
     def probe(self, style: str, *, x: float | None = None, y: float | None = None,
-              z: float | None = None, feed_mm_min: float | None = None) -> "ProgramBuilder":
+              z: float | None = None, feed_mm_min: float | None = None) -> ProgramBuilder:
         """One probing command in this dialect.
 
         ``style="g38"``: ``G38.2 Z<z> F<feed>`` — move toward ``z`` (the deepest allowed
@@ -221,18 +221,18 @@ class ProgramBuilder:
         self._pos = None  # where a probing move stops is the part's business
         return self
 
-    def wait_for_moves(self) -> "ProgramBuilder":
+    def wait_for_moves(self) -> ProgramBuilder:
         """Block until all queued moves finished (``M400`` Marlin, ``G4 P0`` grbl)."""
         self._append(self.dialect.wait_for_moves)
         return self
 
-    def end(self) -> "ProgramBuilder":
+    def end(self) -> ProgramBuilder:
         """Program end marker where the dialect has one (grbl and LinuxCNC ``M2``)."""
         if self.dialect.program_end:
             self._append(self.dialect.program_end)
         return self
 
-    def raw(self, line: str) -> "ProgramBuilder":
+    def raw(self, line: str) -> ProgramBuilder:
         """Append one verbatim line (must not contain a newline)."""
         if "\n" in line or "\r" in line:
             raise GcodeError("raw line must not contain a newline", field="line",

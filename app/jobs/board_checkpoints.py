@@ -37,8 +37,8 @@ from sqlmodel import select
 
 import app
 from app.domain.errors import ConformaError
-from app.runtime.context import JobContext
 from app.platform.models import Artifact
+from app.runtime.context import JobContext
 
 CHECKPOINT_MEDIA_TYPE = "application/json"
 Output = tuple[str, bytes, str, dict[str, Any] | None]

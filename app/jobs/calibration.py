@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 from pydantic import ValidationError
@@ -23,8 +23,8 @@ from app.api.machine_schemas import Profile
 from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
 from app.domain.errors import InvalidInput
 from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult, CalibrateSensorResult
-from app.platform.models import Job, Machine
 from app.platform.lookup import get_or_404
+from app.platform.models import Job, Machine
 
 KINDS = ("calibrate_probe", "calibrate_nozzle", "calibrate_sensor")
 
@@ -49,7 +49,7 @@ class MachineCalibration:
     sensor: CalibrateSensorResult | None = None  # the height sensor's (calibrate_sensor), if any
     sensor_job_id: str | None = None
     sensor_at: datetime | None = None
-    now: datetime = field(default_factory=lambda: datetime.now(timezone.utc))
+    now: datetime = field(default_factory=lambda: datetime.now(UTC))
 
     def age_h(self, at: datetime | None) -> float | None:
         return None if at is None else (self.now - _utc(at)).total_seconds() / 3600.0
@@ -60,7 +60,7 @@ class MachineCalibration:
 
 
 def _utc(moment: datetime) -> datetime:
-    return moment if moment.tzinfo is not None else moment.replace(tzinfo=timezone.utc)
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
 
 
 def _done_at(job: Job) -> datetime:
@@ -105,7 +105,7 @@ def current_calibration(session: Session, machine_id: str, *, now: datetime | No
     row = get_or_404(session, Machine, machine_id, field="machine_id")
     profile = machine_profile(row)
     cal = MachineCalibration(max_age_h=float(profile.calibration_max_age_h),
-                             now=_utc(now) if now is not None else datetime.now(timezone.utc))
+                             now=_utc(now) if now is not None else datetime.now(UTC))
     for (kind, tool), job_id in _latest_ids(session, machine_id).items():
         job = session.get(Job, job_id)
         if job is None:  # deleted meanwhile

@@ -19,11 +19,11 @@ from app.calibration import Touch, hops
 from app.calibration.nozzle import pad_grid
 from app.calibration.qualify import PAD_SPACING_MM
 from app.domain.errors import ConformaError, InvalidInput
+from app.machines.live import hardware_errors, translate
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import interrupt, rehomed_machine, resume_request, stopped_by_operator
-from app.machines.live import hardware_errors, translate
-from hardware.errors import HardwareError, LinkError
 from hardware.backend import Machine
+from hardware.errors import HardwareError, LinkError
 
 MARGIN_MM = 2.0          # travel this far above the highest artifact (plus the tools' hang)
 OFFSET_DOUBT_MM = 1.0    # a nominal nozzle offset may be this far off (the profile says +-0.2 mm)
@@ -89,7 +89,7 @@ class TouchRun:
         self.previous: Step | None = None
         self.here: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
-    def __enter__(self) -> "TouchRun":
+    def __enter__(self) -> TouchRun:
         self._lease = self.ctx.runtime.machines.lease(self.machine_id, self.ctx.job_id)
         self._lease.__enter__()
         return self

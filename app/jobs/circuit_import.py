@@ -73,9 +73,9 @@ class ImportMapped:
 
 
 def _mesh(settings: Any, part: PartMesh) -> Any:
-    from app.platform.blobs import BlobStore
     from app.parts.cache import MeshStore, part_cache_for
     from app.parts.meshes import MeshCache
+    from app.platform.blobs import BlobStore
 
     cache = part_cache_for(settings)
     meshes = MeshCache(BlobStore(settings.blob_dir), store=MeshStore(cache) if cache else None)

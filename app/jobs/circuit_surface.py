@@ -22,16 +22,16 @@ import trimesh
 
 from app.circuits.strokes import deviation_field
 from app.circuits.surface import MeasuredSurface
-from app.runtime.context import JobContext
 from app.geometry.placement import Placement
 from app.jobs.field_runs import run_field
 from app.jobs.inputs import placement_from
-from app.jobs.results.loop import LoopTrace
 from app.jobs.params import PlacedParams
+from app.jobs.results.loop import LoopTrace
 from app.jobs.results.models import ProbePlanResult
 from app.probing.deviation_prior import Sites
 from app.probing.field_top import mesh_top_sampler
 from app.reconstruction.field_trust import FieldCheck
+from app.runtime.context import JobContext
 
 #: posterior sd evaluated this many points at a time (the cross-covariance is points x stations)
 SD_CHUNK = 2000

@@ -19,16 +19,15 @@ import numpy as np
 
 from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement
-from app.runtime.context import JobContext
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.jobs.results.models import ProbePlanResult, ProbeRunResult
+from app.parts.lru import BackedLru
 from app.platform.models import Job
 from app.probing.field import stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.reconstruction.field import field_gradient, fit_bytes
 from app.reconstruction.field_trust import FieldCheck, checked_field
-from app.parts.lru import BackedLru
-
+from app.runtime.context import JobContext
 
 FIELD_FITS = BackedLru(64 * 2 ** 20)
 """Fitted fields of field-plan probe runs by (run id, sigma): fitted once per process, and

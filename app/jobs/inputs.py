@@ -64,7 +64,7 @@ def placed_params_of(job: Job) -> PlacedParams:
                                         if job.params.get(k) is not None})
 
 
-def placement_from(ctx: "JobContext", params: PlacedParams) -> Placement | None:
+def placement_from(ctx: JobContext, params: PlacedParams) -> Placement | None:
     """The placement ``params`` asks for (explicit, or a register job's), else None."""
     if params.registration_job_id is not None:
         job = ctx.job(params.registration_job_id, kind="register", field="params.registration_job_id")

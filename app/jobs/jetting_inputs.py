@@ -36,9 +36,9 @@ from app.jetting import (
 )
 from app.jetting.targets import rings_grid_cells, target_shape
 from app.jobs.inputs import succeeded_job
-from app.runtime.registry import JobParams
 from app.jobs.results.models import SliceResult
 from app.platform.models import Artifact, Part
+from app.runtime.registry import JobParams
 from app.slicing import SlicingError
 from app.slicing.export import from_json
 

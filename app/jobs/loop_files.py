@@ -20,9 +20,9 @@ from typing import Any
 
 from app.gcode.concat import join_programs
 from app.gcode.estimator import estimate_gcode
-from app.runtime.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.results.loop import ClosedLoopResult, LoopTrace, PrintReport
+from app.runtime.context import JobContext
 
 SUMMARY_COLUMNS = ("index", "trace_id", "name", "probes", "deviation_max_um", "compensate_job", "program_lines",
                    "program_sha256", "standoff_max_before_um", "standoff_max_after_um", "standoff_rms_before_um",

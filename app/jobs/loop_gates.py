@@ -60,7 +60,7 @@ class Decisions:
     replans: list[dict[str, Any]] = field(default_factory=list)
 
     @classmethod
-    def of(cls, state: dict[str, Any] | None) -> "Decisions":
+    def of(cls, state: dict[str, Any] | None) -> Decisions:
         state = state or {}
         return cls(set(state.get("passed") or ()), state.get("accepted"), list(state.get("replans") or ()))
 
@@ -74,7 +74,7 @@ class Gates:
     """The pause points of one attempt of a loop: :meth:`gate` ends the attempt at a point in
     ``pause_at`` that no operator has passed yet."""
 
-    def __init__(self, ctx: "JobContext", pause_at: list[str]) -> None:
+    def __init__(self, ctx: JobContext, pause_at: list[str]) -> None:
         self.ctx = ctx
         self.pause_at = set(pause_at)
         with ctx.session() as session:
@@ -97,7 +97,7 @@ class Gates:
         raise Paused(message, field="job_id", value=self.ctx.job_id)
 
 
-def decide(runtime: "Runtime", job_id: str, action: Action, replan: dict[str, Any] | None = None) -> None:
+def decide(runtime: Runtime, job_id: str, action: Action, replan: dict[str, Any] | None = None) -> None:
     """An operator's decision on a waiting loop (``accept`` and ``add_stations`` also on one
     that ended ``needs_attention``): recorded in its ``program_state`` and the job queued
     again.  Conflict (409) naming why when the job is not where the action applies."""

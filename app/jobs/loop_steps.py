@@ -23,14 +23,20 @@ from pydantic import ValidationError
 from sqlmodel import select
 
 from app.domain.errors import Cancelled, ConformaError
-from app.runtime.context import JobContext
 from app.jobs.inputs import nominal_of
-from app.runtime.registry import get_kind
-from app.jobs.results.models import (CompensateBoardResult, CompensateResult, ProbePlanResult, ReconstructResult,
-                              program_artifacts, reconstruct_rows)
+from app.jobs.results.models import (
+    CompensateBoardResult,
+    CompensateResult,
+    ProbePlanResult,
+    ReconstructResult,
+    program_artifacts,
+    reconstruct_rows,
+)
 from app.jobs.simulation import evaluate_print, xy_error
 from app.platform.models import Job, Machine, Trace
 from app.reference.evaluation import predicted_width, table_row
+from app.runtime.context import JobContext
+from app.runtime.registry import get_kind
 
 Done = tuple[str, Job, Job, Job, Job, float, tuple[str, str]]
 """One trace's children: (trace_id, plan, probe run, reconstruct, compensate, deviation max mm,

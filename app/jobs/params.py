@@ -19,8 +19,10 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from app.gcode.writer import DEFAULT_PROBING_DIALECT
-from app.jobs.form_hints import ONE_TRACE as _ONE, SEVERAL_TRACES as _SEVERAL, form
 from app.geometry.placement import Placement
+from app.jobs.form_hints import ONE_TRACE as _ONE
+from app.jobs.form_hints import SEVERAL_TRACES as _SEVERAL
+from app.jobs.form_hints import form
 from app.runtime.registry import JobParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
@@ -57,7 +59,7 @@ class PlacedParams(JobParams):
         None, description="a succeeded register job whose placement maps the trace into machine coordinates")
 
     @model_validator(mode="after")
-    def _one_placement(self) -> "PlacedParams":
+    def _one_placement(self) -> PlacedParams:
         if self.placement is not None and self.registration_job_id is not None:
             raise ValueError("give at most one of placement or registration_job_id")
         return self
@@ -88,7 +90,7 @@ class RegisterParams(JobParams):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="seed of the candidate sampling (plans are deterministic)")
 
     @model_validator(mode="after")
-    def _search_within_margin(self) -> "RegisterParams":
+    def _search_within_margin(self) -> RegisterParams:
         if self.mode == "edges" and self.search_mm >= self.margin_mm:
             raise ValueError("search_mm must be below margin_mm (the edge search starts over the part)")
         return self
@@ -167,7 +169,7 @@ class ProbePlanParams(PlacedParams):
                                                       json_schema_extra=_MORE)
 
     @model_validator(mode="after")
-    def _both_or_neither(self) -> "ProbePlanParams":
+    def _both_or_neither(self) -> ProbePlanParams:
         if (self.capability_k is None) != (self.confidence is None):
             raise ValueError("capability_k and confidence go together (the published point-count formula)")
         if (self.trace_id is None) == (self.trace_ids is None):

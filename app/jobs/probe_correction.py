@@ -11,8 +11,8 @@ drift offset comes from re-touches of the reference pad (:mod:`app.calibration.d
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,9 +20,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from app.calibration import ProbeCalibration, surface_heights, tilted_normals
 from app.jobs.calibration import current_calibration
-from app.runtime.context import JobContext
 from app.jobs.results.models import ProbeRunResult
 from app.platform.models import Job
+from app.runtime.context import JobContext
 
 PAD_CLEARANCE_MM = 2.0   # the pad touch starts this far above the pad's top
 PAD_OVERTRAVEL_MM = 1.0  # ... and may go this far below it

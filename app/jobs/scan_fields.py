@@ -9,11 +9,11 @@ that the traces asked for are the scan's.
 from __future__ import annotations
 
 from app.domain.errors import InvalidInput
-from app.runtime.context import JobContext
+from app.parts.lru import ByteLru
 from app.reconstruction.field import fit_bytes
 from app.reconstruction.scan_field import ScanFieldCheck
 from app.reconstruction.scan_field_store import scan_check_from_npz
-from app.parts.lru import ByteLru
+from app.runtime.context import JobContext
 
 FIELD_ARTIFACT = "field.npz"
 SCAN_FIELDS = ByteLru(64 * 2 ** 20)

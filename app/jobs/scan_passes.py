@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from app.runtime.context import JobContext
-from app.runtime.machine_queue import interrupt, rehomed_machine, resume_request, stopped_by_operator
 from app.jobs.sensor_runs import ScannedPass, open_scanner
 from app.machines.live import hardware_errors
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import interrupt, rehomed_machine, resume_request, stopped_by_operator
 from hardware.errors import HardwareError, LinkError
 
 PASS_MEDIA_TYPE = "application/octet-stream"

@@ -28,10 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from app.calibration.sensor import (EdgePass, SensorCalibration, fit_scale_and_z, fit_sphere_scan,
-                                    fit_time_offset)
-from app.probing.scan_path import sample_positions
+from app.calibration.sensor import EdgePass, SensorCalibration, fit_scale_and_z, fit_sphere_scan, fit_time_offset
 from app.domain.errors import InvalidInput
+from app.probing.scan_path import sample_positions
 from app.reconstruction.scan_samples import exposure_positions
 from hardware.errors import HardwareError
 from hardware.height_sensor import HeightSensor

@@ -19,9 +19,9 @@ import numpy as np
 import shapely
 import trimesh
 
-from app.reference.evaluation import StandoffReport, evaluate_deposition
-from app.geometry.placement import Placement, apply_placement
 from app.geometry.drape import top_surface_z
+from app.geometry.placement import Placement, apply_placement
+from app.reference.evaluation import StandoffReport, evaluate_deposition
 from hardware.mock import MockWorld
 from hardware.mock.surface import placement_matrix
 

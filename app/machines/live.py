@@ -12,25 +12,40 @@ from __future__ import annotations
 
 import ipaddress
 import os
-import stat
 import re
 import socket
+import stat
 import threading
 from collections.abc import Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any
 
-from hardware.errors import CommandRejected, HardwareError, InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
-from hardware.backend import Machine
-from hardware.machine import Machine as SerialMachine
-from hardware.machine_types import MachineProfile
-from hardware.port_url import PortUrl
-from hardware.mock import (FaultConfig, MockPad, MockSphere, MockTool, MockWorld, TruePlacement,
-                           register_world, unregister_world)
-
 from app.domain.errors import Conflict, ConformaError, InvalidInput
 from app.platform.models import Machine as MachineRow
+from hardware.backend import Machine
+from hardware.errors import (
+    CommandRejected,
+    HardwareError,
+    InvalidConfig,
+    LinkError,
+    MachineBusy,
+    MachineStateError,
+    ProbeFailed,
+)
+from hardware.machine import Machine as SerialMachine
+from hardware.machine_types import MachineProfile
+from hardware.mock import (
+    FaultConfig,
+    MockPad,
+    MockSphere,
+    MockTool,
+    MockWorld,
+    TruePlacement,
+    register_world,
+    unregister_world,
+)
+from hardware.port_url import PortUrl
 
 
 class MachineUnavailable(ConformaError):

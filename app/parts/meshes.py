@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from app.platform.blobs import BlobStore
 from app.parts.intake import parse_mesh
-from app.platform.models import Part
 from app.parts.lru import ByteLru
+from app.platform.blobs import BlobStore
+from app.platform.models import Part
 
 MESH_CACHE_BYTES = 2 ** 30  # default bound of a process's mesh cache
 EMBREE_BYTES_PER_FACE = 160  # embree BVH + its float32 copy of the triangles (measured ~120-160)

@@ -7,10 +7,10 @@ from typing import BinaryIO
 
 from sqlmodel import Session
 
-from app.platform.blobs import BlobStore
 from app.parts.intake import intake
-from app.platform.models import Part, new_id, utcnow
 from app.parts.meshes import MeshCache
+from app.platform.blobs import BlobStore
+from app.platform.models import Part, new_id, utcnow
 
 
 def store_part(session: Session, blobs: BlobStore, meshes: MeshCache, data: bytes | BinaryIO, fmt: str, name: str,

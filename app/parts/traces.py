@@ -12,8 +12,8 @@ from app.domain.errors import ConformaError
 from app.geometry.slope import SlopePolicy, check_slope
 from app.geometry.tolerance import Tolerance
 from app.geometry.traces import TracePolyline, build_nominal_trace, build_nominal_traces
-from app.platform.models import Part, Trace, new_id, utcnow
 from app.parts.meshes import MeshCache
+from app.platform.models import Part, Trace, new_id, utcnow
 
 
 def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = "") -> Trace:

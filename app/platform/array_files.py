@@ -17,9 +17,9 @@ Pure: bytes in, arrays or :class:`ArrayFileError` (naming ``file``) out.
 from __future__ import annotations
 
 import io
-from typing import IO
 import zipfile
 from dataclasses import dataclass
+from typing import IO
 
 import numpy as np
 from numpy.lib import format as npy_format

@@ -9,8 +9,8 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import BinaryIO
 
 from sqlalchemy.dialects.postgresql import insert as pg_insert
@@ -18,7 +18,6 @@ from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlmodel import Session
 
 from app.platform.models import Blob, utcnow
-
 
 
 def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:

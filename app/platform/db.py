@@ -9,12 +9,11 @@ read-modify-write through the ORM.
 
 from __future__ import annotations
 
+import fcntl
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
-
-import fcntl
 
 from alembic import command
 from alembic.config import Config

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import TypeVar
 
-from sqlmodel import SQLModel, Session
+from sqlmodel import Session, SQLModel
 
 from app.domain.errors import NotFound
 from app.platform.models import Job, Machine, Part, Trace

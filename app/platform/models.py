@@ -8,7 +8,7 @@ structured parameters and results.  Schema changes go through an Alembic revisio
 from __future__ import annotations
 
 import secrets
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 from sqlalchemy import JSON, Column, DateTime, Index, UniqueConstraint, text
 from sqlmodel import Field, SQLModel
@@ -43,7 +43,7 @@ def new_id(prefix: str) -> str:
     return f"{prefix}_{secrets.token_hex(8)}"
 
 def utcnow() -> datetime:
-    return datetime.now(timezone.utc)
+    return datetime.now(UTC)
 
 class Blob(SQLModel, table=True):
     """A content-addressed file under ``data_dir/blobs`` (sha256 of its bytes)."""

@@ -91,13 +91,13 @@ class Sites:
     xy: np.ndarray
     grad: np.ndarray
 
-    def take(self, idx: np.ndarray) -> "Sites":
+    def take(self, idx: np.ndarray) -> Sites:
         return Sites(self.xy[idx], self.grad[idx])
 
 
 SLOPE_SMOOTHING_MM = 0.25   # Gaussian sigma (arc length) of the slope the placement term uses
 SLOPE_SAMPLE_MM = 0.02
-_SMOOTH_SLOPES: "weakref.WeakKeyDictionary[TracePolyline, BSpline]" = weakref.WeakKeyDictionary()
+_SMOOTH_SLOPES: weakref.WeakKeyDictionary[TracePolyline, BSpline] = weakref.WeakKeyDictionary()
 
 
 def raw_path_gradient(path: TracePolyline, s: np.ndarray) -> np.ndarray:

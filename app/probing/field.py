@@ -36,12 +36,18 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
-from app.probing.deviation_prior import (DeviationPrior, Sites, jinc_kernel, placement_basis, prior_covariance,
-                                         prior_variance)
+from app.geometry.traces import as_trace_polyline
+from app.probing.deviation_prior import (
+    DeviationPrior,
+    Sites,
+    jinc_kernel,
+    placement_basis,
+    prior_covariance,
+    prior_variance,
+)
 from app.probing.field_dof import mode_variances, truncation_dof
 from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
-from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
 StationMode = Literal["on_traces", "anywhere_on_top"]
@@ -351,7 +357,7 @@ class _Designed:
     kept: np.ndarray
     parts: PosteriorParts
 
-    def with_samples(self, samples: TracePoints, idx: np.ndarray) -> "_Designed":
+    def with_samples(self, samples: TracePoints, idx: np.ndarray) -> _Designed:
         """The same design with the trace samples ``idx`` appended to the candidate sites."""
         sites = Sites(np.concatenate([self.sites.xy, samples.sites.xy[idx]]),
                       np.concatenate([self.sites.grad, samples.sites.grad[idx]]))

@@ -32,9 +32,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from app.geometry.tolerance import LENGTH_EPS_MM
+from app.geometry.traces import TracePolyline
 from app.probing.deviation_prior import Sites, path_gradient
 from app.probing.joint import joint_center
-from app.geometry.traces import TracePolyline
 
 SAMPLES_PER_WAVELENGTH = 16
 CELLS_PER_WAVELENGTH = 8
@@ -69,7 +69,7 @@ class TracePoints:
     def __len__(self) -> int:
         return len(self.s)
 
-    def take(self, idx: np.ndarray) -> "TracePoints":
+    def take(self, idx: np.ndarray) -> TracePoints:
         return TracePoints(self.sites.take(idx), self.trace[idx], self.s[idx], self.z[idx])
 
 

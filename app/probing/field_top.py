@@ -56,7 +56,7 @@ def mesh_top_sampler(mesh: trimesh.Trimesh) -> TopSampler:
     return sample
 
 
-def field_sd_surface(mesh: trimesh.Trimesh, stations: "Sites", center: np.ndarray, prior: "DeviationPrior",
+def field_sd_surface(mesh: trimesh.Trimesh, stations: Sites, center: np.ndarray, prior: DeviationPrior,
                      margin_mm: float, max_points: int = 20_000, lift_mm: float = 0.02
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The field's posterior sd over the part's top around the stations, for a colour map.

@@ -33,10 +33,9 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
-from app.probing.deviation_prior import (DeviationPrior, Sites, path_sites, prior_covariance,
-                                         prior_variance)
-from app.probing.minimax import even_indices, fewest_probes
 from app.geometry.traces import TracePolyline, as_trace_polyline
+from app.probing.deviation_prior import DeviationPrior, Sites, path_sites, prior_covariance, prior_variance
+from app.probing.minimax import even_indices, fewest_probes
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
 POWER_LOG2 = 4

@@ -22,9 +22,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.probing.deviation_prior import (DeviationPrior, max_posterior_sd, path_center,
-                                         path_sites, prior_covariance, prior_variance)
 from app.geometry.traces import TracePolyline
+from app.probing.deviation_prior import (
+    DeviationPrior,
+    max_posterior_sd,
+    path_center,
+    path_sites,
+    prior_covariance,
+    prior_variance,
+)
 
 MAX_GRID = 401
 MIN_GRID = 33

@@ -49,9 +49,9 @@ import numpy as np
 
 from app.domain.checks import require_non_negative, require_positive
 from app.domain.errors import InvalidInput
+from app.geometry.traces import TracePolyline, as_trace_polyline
 from app.probing.deviation_prior import DeviationPrior
 from app.probing.minimax import auto_count, design_grid, design_stations
-from app.geometry.traces import TracePolyline, as_trace_polyline
 from app.probing.point_count import PointCount, seed_point_count
 
 Method = Literal["adaptive", "uniform", "deviation", "kriging"]

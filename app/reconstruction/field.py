@@ -26,14 +26,21 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 from scipy.linalg import cho_factor, cho_solve
 
+from app.geometry.fitting import interpolate_curve
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
-from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel,
-                                         path_sites, placement_basis, prior_covariance)
 from app.geometry.traces import TracePolyline
+from app.probing.deviation_prior import (
+    DeviationPosterior,
+    DeviationPrior,
+    Sites,
+    jinc_kernel,
+    path_sites,
+    placement_basis,
+    prior_covariance,
+)
 from app.reconstruction.heights import FieldHeight
 from app.reconstruction.preprocess import CleanPoints, ReconstructionError
-from app.geometry.fitting import interpolate_curve
-from app.reconstruction.reconstruct import ReconstructParams, Reconstruction
+from app.reconstruction.reconstruct import Reconstruction, ReconstructParams
 
 MAX_OFFSET_MM = 0.5
 OUTLIER_K_SIGMA = 6.0
@@ -83,7 +90,7 @@ class FieldFit:
         return out
 
 
-def field_gradient(fit: "FieldFit", sites: Sites, step_mm: float = 0.05,
+def field_gradient(fit: FieldFit, sites: Sites, step_mm: float = 0.05,
                    slope_at: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """Top-view gradient (m, 2) of the fitted deviation at ``sites`` by central differences
     over ``step_mm``.  ``slope_at(xy (k, 2)) -> (k, 2)``: the nominal slope at the shifted

@@ -42,7 +42,6 @@ from app.probing.deviation_prior import DeviationPosterior, DeviationPrior, Site
 from app.reconstruction.field import FieldFit, fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
 
-
 TARGET_SLACK = 1.25  # a bound up to 25 % over the target is the plan met (see the module doc)
 
 
@@ -91,7 +90,7 @@ class Verification:
                                                            "limit_mm")}, "noise_limit_mm": [self.noise_limit_mm]}
 
     @classmethod
-    def from_arrays(cls, data: dict[str, list[Any]]) -> "Verification":
+    def from_arrays(cls, data: dict[str, list[Any]]) -> Verification:
         measured, predicted, sd, limit = (np.asarray(data[k], dtype=float)
                                           for k in ("measured_mm", "predicted_mm", "sd_mm", "limit_mm"))
         return cls(np.asarray(data["xy"], dtype=float).reshape(-1, 2), np.asarray(data["trace"], dtype=int),

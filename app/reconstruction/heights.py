@@ -26,8 +26,8 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from app.geometry.nurbs import NurbsCurve
-from app.probing.deviation_prior import DeviationPrior, Sites, path_sites, prior_covariance
 from app.geometry.traces import TracePolyline
+from app.probing.deviation_prior import DeviationPrior, Sites, path_sites, prior_covariance
 from app.reconstruction.preprocess import ReconstructionError
 
 

@@ -28,9 +28,9 @@ curve's top view passes closest to the query point.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from collections.abc import Sequence
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline, make_splrep
@@ -39,14 +39,12 @@ from app.geometry.errors import GeometryError
 from app.geometry.fitting import interpolate_curve, smooth_curve
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
-from app.probing.deviation_prior import (DeviationPrior, Sites, fit_posterior, path_center,
-                                         path_gradient)
-from app.probing.joint import joint_center
 from app.geometry.traces import TracePolyline, as_trace_polyline
+from app.probing.deviation_prior import DeviationPrior, Sites, fit_posterior, path_center, path_gradient
+from app.probing.joint import joint_center
 from app.probing.selection import chord_height_select
 from app.reconstruction.heights import CurveHeight, HeightModel, KrigingHeight, SplineHeight
-from app.reconstruction.preprocess import (CleanPoints, PreprocessParams, ReconstructionError,
-                                           preprocess)
+from app.reconstruction.preprocess import CleanPoints, PreprocessParams, ReconstructionError, preprocess
 
 METHODS: tuple[str, ...] = ("interpolate", "approximate", "deviation", "kriging")
 

@@ -36,8 +36,15 @@ from scipy.spatial import cKDTree
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.geometry.traces import TracePolyline
-from app.probing.deviation_prior import (DeviationPosterior, DeviationPrior, Sites, jinc_kernel, path_sites,
-                                         placement_basis, prior_variance)
+from app.probing.deviation_prior import (
+    DeviationPosterior,
+    DeviationPrior,
+    Sites,
+    jinc_kernel,
+    path_sites,
+    placement_basis,
+    prior_variance,
+)
 from app.reconstruction.field import FieldFit
 from app.reconstruction.field_trust import FieldCheck, Verification, joint_coverage
 from app.reconstruction.preprocess import ReconstructionError

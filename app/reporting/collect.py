@@ -14,8 +14,8 @@ from typing import Any
 from sqlmodel import Session, col, select
 
 from app.domain.errors import InvalidInput
-from app.platform.models import Artifact, Job, JobReference, Machine, Part, Trace
 from app.platform.lookup import get_or_404
+from app.platform.models import Artifact, Job, JobReference, Machine, Part, Trace
 
 REPORTABLE = ("closed_loop", "probe_run", "jetting_run")
 MAX_JOBS = 2000  # a session of 300 traces has ~1,200 jobs; beyond this the report refuses

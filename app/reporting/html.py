@@ -5,12 +5,21 @@ printed, with the hashes that identify every program and input."""
 from __future__ import annotations
 
 import html
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 from app.jobs.results.loop import ClosedLoopResult
-from app.jobs.results.models import (CompensateBoardResult, CompensateResult, PrintResult, ProbePlanResult, ProbeRunResult,
-                              ReconstructBoardResult, ReconstructBoardTrace, ReconstructResult, program_artifacts)
+from app.jobs.results.models import (
+    CompensateBoardResult,
+    CompensateResult,
+    PrintResult,
+    ProbePlanResult,
+    ProbeRunResult,
+    ReconstructBoardResult,
+    ReconstructBoardTrace,
+    ReconstructResult,
+    program_artifacts,
+)
 from app.reporting.collect import RunRecords
 
 _CSS = """body{font:14px/1.45 system-ui,sans-serif;color:#1d2430;max-width:1000px;margin:1.5rem auto;padding:0 1rem}
@@ -252,7 +261,7 @@ def _printed_points(records: RunRecords) -> list[str]:
 def render_run_report(records: RunRecords, software_version: str) -> str:
     """The whole report as an HTML document."""
     root = records.root
-    now = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+    now = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
     part, machine = records.part or {}, records.machine or {}
     plan = next((j for j in records.of_kind("probe_plan") if j["status"] == "succeeded"), None)
     run = next((j for j in records.of_kind("probe_run")), None)

@@ -37,20 +37,20 @@ import threading
 import time
 from typing import Any
 
+from threadpoolctl import threadpool_limits
+
+from app.domain.errors import Cancelled, ConformaError
+from app.jobs.field_runs import FIELD_FITS
+from app.parts.cache import CacheStats, FieldFitStore, MeshStore, part_cache_for, record_job
+from app.parts.meshes import MeshCache
 from app.platform.blobs import BlobStore
 from app.platform.config import Settings
 from app.platform.db import make_engine
-from app.domain.errors import Cancelled, ConformaError
+from app.platform.problems import from_error, problem
 from app.runtime.context import JobContext
 from app.runtime.process_identity import start_ticks
 from app.runtime.registry import get_kind, load_kinds
 from app.runtime.store import Claim, JobStore, completed_status, json_result
-from threadpoolctl import threadpool_limits
-
-from app.parts.cache import CacheStats, FieldFitStore, MeshStore, part_cache_for, record_job
-from app.platform.problems import from_error, problem
-from app.jobs.field_runs import FIELD_FITS
-from app.parts.meshes import MeshCache
 
 log = logging.getLogger("conforma.jobs.child")
 _PR_SET_PDEATHSIG = 1

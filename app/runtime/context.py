@@ -14,20 +14,21 @@ from sqlmodel import Session, col, select
 
 from app.domain.errors import Cancelled, ConformaError, NotFound
 from app.jobs.inputs import succeeded_job
-from app.runtime.store import Claim
-from app.platform.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile, utcnow
 from app.platform.artifacts import add_artifact
 from app.platform.lookup import get_or_404
+from app.platform.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile, utcnow
+from app.runtime.store import Claim
 
 if TYPE_CHECKING:
     import trimesh
+
     from app.runtime.engine import Runtime
 
 
 class JobContext:
     """The service side of one running attempt of one job."""
 
-    def __init__(self, runtime: "Runtime", claim: Claim) -> None:
+    def __init__(self, runtime: Runtime, claim: Claim) -> None:
         self.runtime = runtime
         self.claim = claim
         self.job_id = claim.job_id

@@ -15,8 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from app.platform.config import Settings
 from app.domain.errors import InvalidInput
+from app.platform.config import Settings
 
 MIB = 2**20
 

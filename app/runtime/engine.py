@@ -25,25 +25,25 @@ from huey.storage import SqliteStorage
 from pydantic import ValidationError
 from sqlalchemy.exc import IntegrityError
 from sqlmodel import Session
+from threadpoolctl import threadpool_limits
 
 import app
+from app.domain.errors import Cancelled, Conflict, ConformaError, InvalidInput, NotFound
+from app.machines.live import MachineManager
+from app.parts.meshes import MeshCache
 from app.platform.blobs import BlobStore
 from app.platform.config import Settings
 from app.platform.db import existing_locked, make_engine
-from app.domain.errors import Cancelled, Conflict, ConformaError, InvalidInput, NotFound
-from app.runtime.context import JobContext
-from app.runtime.machine_queue import MachineThreads, machine_slot
-from app.runtime.cost import check_cost
-from app.runtime.process_worker import ProcessSupervisor, warm_up
-from threadpoolctl import threadpool_limits
-from app.runtime.registry import JobKind, get_kind, load_kinds
-from app.runtime.store import JobStore, completed_status, json_result
-from app.machines.live import MachineManager
+from app.platform.lookup import get_or_404
 from app.platform.models import Job, JobReference, Part, Trace, new_id, utcnow
 from app.platform.models import Machine as MachineRow
 from app.platform.problems import from_error, problem
-from app.parts.meshes import MeshCache
-from app.platform.lookup import get_or_404
+from app.runtime.context import JobContext
+from app.runtime.cost import check_cost
+from app.runtime.machine_queue import MachineThreads, machine_slot
+from app.runtime.process_worker import ProcessSupervisor, warm_up
+from app.runtime.registry import JobKind, get_kind, load_kinds
+from app.runtime.store import JobStore, completed_status, json_result
 
 log = logging.getLogger("conforma.jobs")
 QUEUES = ("default", "machine", "workflow")

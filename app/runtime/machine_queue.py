@@ -21,12 +21,12 @@ from sqlmodel import Session, col, select
 
 from app.domain.errors import Cancelled, Conflict, ConformaError
 from app.gcode.estimator import command_times
+from app.machines.live import MachineFault, MachineUnavailable, hardware_errors
+from app.platform.models import Job, JobReference, utcnow
 from app.runtime.context import JobContext
 from app.runtime.registry import machine_kinds
-from app.platform.models import Job, JobReference, utcnow
-from app.machines.live import MachineFault, MachineUnavailable, hardware_errors
-from hardware.errors import HardwareError
 from hardware.backend import Machine
+from hardware.errors import HardwareError
 from hardware.machine import Machine as SerialMachine
 from hardware.protocol import validate_program
 
@@ -205,7 +205,7 @@ def resume_point(machine: Machine, resume: dict[str, Any]) -> tuple[int, list[st
     return start, [home]
 
 
-def resume_preview(runtime: "Runtime", job: Job, row: Any) -> dict[str, Any]:
+def resume_preview(runtime: Runtime, job: Job, row: Any) -> dict[str, Any]:
     """What an operator's resume of the interrupted ``job`` will do, before it moves anything:
     the command it resumes at (``start``, 0-based; ``line`` 1-based), the ``basis``, the
     commands and moves that may run again and ``skipped: 0``, with a ``summary`` sentence.
@@ -233,7 +233,7 @@ def resume_preview(runtime: "Runtime", job: Job, row: Any) -> dict[str, Any]:
     return {"job_id": job.id, "machine_id": row.id, "total": total, "line": int(out["start"]) + 1, **out}
 
 
-def request_resume(store: "JobStore", job: Job) -> bool:
+def request_resume(store: JobStore, job: Job) -> bool:
     """interrupted -> queued with the operator's request recorded in ``program_state``.
 
     A workflow (``closed_loop``) whose current child is itself interrupted is refused (409
@@ -263,7 +263,7 @@ class MachineThreads:
     The ``machine`` queue's consumer only hands each job id to the thread of the job's
     machine (``jobs.machine_id``) and returns at once; the job is claimed and run there."""
 
-    def __init__(self, runtime: "Runtime") -> None:
+    def __init__(self, runtime: Runtime) -> None:
         self.runtime = runtime
         self._threads: dict[str, ThreadPoolExecutor] = {}
         self._lock = threading.Lock()

@@ -37,15 +37,14 @@ from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import select
-
 from sqlmodel import col
 
+from app.domain.errors import Cancelled
+from app.platform.models import TERMINAL_STATES, Job, JobReference, Part, Trace
+from app.platform.problems import from_error, problem
 from app.runtime import process_identity
 from app.runtime.compute_pool import ComputePool, Member, mp_context
 from app.runtime.store import Claim, JobStore
-from app.platform.models import TERMINAL_STATES, Job, JobReference, Part, Trace
-from app.domain.errors import Cancelled
-from app.platform.problems import from_error, problem
 
 if TYPE_CHECKING:
     from app.runtime.engine import Runtime
@@ -115,7 +114,7 @@ def _noop() -> None:
 class ProcessSupervisor:
     """Runs claimed compute jobs in the processes of a :class:`ComputePool`, one :class:`Runtime`'s."""
 
-    def __init__(self, runtime: "Runtime") -> None:
+    def __init__(self, runtime: Runtime) -> None:
         self.runtime = runtime
         self.settings = runtime.settings
         self.pool = ComputePool(runtime.settings)

@@ -52,7 +52,7 @@ MACHINE_QUEUE = "machine"  # the queue of the kinds that drive a machine (one th
 class JobKind:
     name: str
     params: type[JobParams]
-    run: Callable[["JobContext", Any], dict]
+    run: Callable[[JobContext, Any], dict]
     queue: str = "default"
     references: Callable[[Any], list[Reference]] = field(default=lambda _params: [])
     check: Callable[[Any, Any], None] | None = None  # (params, session): raise InvalidInput at submission
@@ -78,10 +78,10 @@ def job_kind(
     references: Callable[[Any], list[Reference]] | None = None,
     check: Callable[[Any, Any], None] | None = None,
     estimate: Callable[[Any, Any], Any] | None = None,
-) -> Callable[[Callable[["JobContext", Any], dict]], Callable[["JobContext", Any], dict]]:
+) -> Callable[[Callable[[JobContext, Any], dict]], Callable[[JobContext, Any], dict]]:
     """Register the decorated function as the runner of job kind ``name``."""
 
-    def register(run: Callable[["JobContext", Any], dict]) -> Callable[["JobContext", Any], dict]:
+    def register(run: Callable[[JobContext, Any], dict]) -> Callable[[JobContext, Any], dict]:
         if name in _KINDS and _KINDS[name].run is not run:
             raise ValueError(f"job kind {name!r} is registered twice")
         _KINDS[name] = JobKind(

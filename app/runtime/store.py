@@ -9,7 +9,6 @@ that watchers (SSE) can tell that something changed.
 from __future__ import annotations
 
 import json
-
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass

@@ -13,8 +13,8 @@ from app.slicing.errors import MeshError, SlicingError
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
 from app.slicing.layers import Layer, SliceParams, SliceResult
 from app.slicing.mesh_prep import place_on_bed, prepare_mesh
-from app.slicing.slicer import slice_mesh
 from app.slicing.offset import SEED_HAZ_TABLE, BeamWidthTable, compensate_beam
+from app.slicing.slicer import slice_mesh
 from app.slicing.toolpath import Toolpath, ToolpathParams, plan_toolpath
 
 __all__ = ["MeshError", "SlicingError", "SlcOptions", "layer_svg", "to_cli", "to_json",

@@ -12,8 +12,8 @@ polylines), jumps (travel moves between polylines) and the planner's estimated t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
 from typing import Literal, NamedTuple
 
 import numpy as np

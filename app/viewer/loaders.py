@@ -20,14 +20,23 @@ from app.domain.errors import NotFound
 from app.gcode.lines import GcodeReadError
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
+from app.jobs.inputs import nominal_of
+from app.jobs.results.models import (
+    CompensateResult,
+    ProbePlanResult,
+    ProbeRunResult,
+    ProgramEcho,
+    ReconstructResult,
+    SurfaceFitResult,
+    compensate_rows,
+    joint_trace_ranges,
+    program_artifacts,
+    reconstruct_rows,
+)
+from app.platform.lookup import get_or_404
 from app.platform.models import COMPLETED_STATES, Artifact, Job, JobReference, Part, Trace
 from app.probing.field import stored_field
 from app.probing.field_top import field_sd_surface
-from app.jobs.inputs import nominal_of
-from app.jobs.results.models import (CompensateResult, ProbePlanResult, ProbeRunResult, ProgramEcho, ReconstructResult,
-                              SurfaceFitResult, compensate_rows, program_artifacts, reconstruct_rows)
-from app.jobs.results.models import joint_trace_ranges
-from app.platform.lookup import get_or_404
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.gcode_paths import GcodeViewError
 from app.viewer.offload import ParsePool

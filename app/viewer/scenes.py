@@ -20,8 +20,8 @@ import trimesh
 from app.viewer import preview_draw
 from app.viewer.colors import PALETTE, Palette, deviation_colors, height_colors
 from app.viewer.deviation_map import scene_legends, signed_limit_mm
-from app.viewer.registry import NodeInfo, SceneRegistry
 from app.viewer.layer_preview import ProgramPreview
+from app.viewer.registry import NodeInfo, SceneRegistry
 from app.viewer.scene_data import FocusScene, HeightStack, LayerStack, ScalarSurface, Toolpath
 
 ROOT = "/focus"

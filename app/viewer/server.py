@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from sqlmodel import Session, col, select
 
-from app.platform.config import Settings
 from app.domain.errors import Conflict
+from app.platform.config import Settings
 from app.platform.models import Job, Part
 from app.viewer.access import HandshakeGuard, TokenSigner, allowed_origins, guarded_viser_serve, load_secret
 from app.viewer.csp import ViewPolicy

@@ -30,10 +30,10 @@ from urllib.parse import parse_qsl
 import numpy as np
 
 from ..errors import InvalidConfig
-from ..port_url import PortUrl
 from ..mock.timeline import MotionTimeline
 from ..mock.url_options import url_numbers
 from ..mock.world import MockWorld, get_world
+from ..port_url import PortUrl
 from . import lkg
 from .optics import Scene, SensorOptics, readings
 

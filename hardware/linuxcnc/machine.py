@@ -35,11 +35,11 @@ import time
 from collections.abc import Callable, Iterable
 
 from ..console_log import ConsoleLog
-from ..program_clock import ProgramClock
-from ..errors import (FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed)
-from ..machine_state import ClaimedOperations, axis_words, connected
-from ..machine_types import _Interrupted, Identity, MachineProfile, ProbeResult, StreamReport
 from ..dialects import LINUXCNC_DISPENSE
+from ..errors import FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
+from ..machine_state import ClaimedOperations, axis_words, connected
+from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
+from ..program_clock import ProgramClock
 from ..protocol import validate_program
 from .rsh import RshRejected, RshSession
 from .url import parse_url, passwords

@@ -58,7 +58,7 @@ def write_program(directory: str, commands: list[str]) -> str:
     return path
 
 
-def run_program(machine: "LinuxCNCMachine", path: str, start_line: int, total: int,
+def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int,
                 on_progress: Callable[[int, int], None] | None, skip: int = 0) -> tuple[int, bool]:
     """Run ``path`` (its first ``skip`` lines are a modal preamble, then line n is command
     ``start_line + n - 1 - skip``); returns (executed, cancelled).  ``machine.progress``

@@ -57,7 +57,7 @@ class RshSession:
 
     @classmethod
     def open(cls, host: str, port: int, connect_pw: str, *, timeout_s: float = 5.0,
-             client: str = "conforma") -> "RshSession":
+             client: str = "conforma") -> RshSession:
         """Connect, say hello, turn echo off and verbose on."""
         try:
             sock = socket.create_connection((host, port), timeout=timeout_s)

@@ -165,7 +165,7 @@ class SimController:
             raise SimUnavailable(f"halcmd setp failed: {done.stderr.strip()[:200]}", field="halcmd",
                                  value=sorted(values)[0])
 
-    def watch(self, names: list[str], period_s: float = 0.0005, max_s: float = 300.0) -> "HalWatch":
+    def watch(self, names: list[str], period_s: float = 0.0005, max_s: float = 300.0) -> HalWatch:
         """Start sampling HAL pins / ``task_state`` at the controller (``hal_watch.py``
         under the system Python); use as a context manager, samples in ``.samples``."""
         if not self.running:
@@ -194,7 +194,7 @@ class SimController:
     def running(self) -> bool:
         return self._process is not None and self._process.poll() is None
 
-    def __enter__(self) -> "SimController":
+    def __enter__(self) -> SimController:
         self.start()
         return self
 
@@ -488,7 +488,7 @@ class HalWatch:
                 self._process.wait(5)
         self._reader.join(5)
 
-    def __enter__(self) -> "HalWatch":
+    def __enter__(self) -> HalWatch:
         return self
 
     def __exit__(self, *exc: object) -> None:

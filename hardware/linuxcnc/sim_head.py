@@ -55,7 +55,7 @@ class SimHeadBridge:
     """Feeds the world ``name`` from the simulator's HAL (see the module docstring);
     ``lamp_output``: the motion digital output of the UV lamp (``M64 P<n>``)."""
 
-    def __init__(self, sim: "SimController", name: str, lamp_output: int = 3, max_s: float = 7200.0) -> None:
+    def __init__(self, sim: SimController, name: str, lamp_output: int = 3, max_s: float = 7200.0) -> None:
         self.sim = sim
         self.name = name
         self.key = f"P{lamp_output}"
@@ -72,7 +72,7 @@ class SimHeadBridge:
         self._t0_ns = time.monotonic_ns()
         self._cond = threading.Condition()
         self._running = True
-        self._watch: "HalWatch" = sim.watch(self.pins, 0.0005, max_s)
+        self._watch: HalWatch = sim.watch(self.pins, 0.0005, max_s)
         self._thread = threading.Thread(target=self._follow, daemon=True, name=f"sim-head-{name}")
         self._thread.start()
         follow_world(name, self.catch_up)
@@ -145,7 +145,7 @@ class SimHeadBridge:
         unregister_world(self.name)
         self.sim.sensor_map.unlink(missing_ok=True)
 
-    def __enter__(self) -> "SimHeadBridge":
+    def __enter__(self) -> SimHeadBridge:
         return self
 
     def __exit__(self, *exc: object) -> None:

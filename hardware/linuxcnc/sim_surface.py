@@ -56,7 +56,7 @@ class SimBlock:
     endless: bool = False
 
     @classmethod
-    def plane(cls, z0: float, slope_x: float) -> "SimBlock":
+    def plane(cls, z0: float, slope_x: float) -> SimBlock:
         """The endless plane z = z0 + slope_x * x (the simulators' start-up surface)."""
         return cls(0.0, 0.0, z0, slope_x, endless=True)
 
@@ -115,7 +115,7 @@ class SimSphere:
     ball_radius_mm: float = 0.0
 
     @classmethod
-    def none(cls) -> "SimSphere":
+    def none(cls) -> SimSphere:
         """No sphere (the start-up state)."""
         return cls((0.0, 0.0, 0.0), 0.0)
 

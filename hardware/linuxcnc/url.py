@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import tempfile
 from dataclasses import dataclass
+
 from ..errors import InvalidConfig
 from ..port_url import PortUrl
 

@@ -17,9 +17,20 @@ from __future__ import annotations
 
 from ..transport import register_mock_scheme
 from .artifacts import MockPad, MockSphere, MockTool
-from .world import (HOST_QUERIES, DepositedMove, FaultConfig, MockStats, MockWorld, TruePlacement,
-                    Transcript, get_world, parse_mock_options, register_world,
-                    unregister_world, world_from_url)
+from .world import (
+    HOST_QUERIES,
+    DepositedMove,
+    FaultConfig,
+    MockStats,
+    MockWorld,
+    Transcript,
+    TruePlacement,
+    get_world,
+    parse_mock_options,
+    register_world,
+    unregister_world,
+    world_from_url,
+)
 
 
 def register_protocol_handler() -> None:

@@ -119,7 +119,7 @@ class TcpMockServer:
         while not self._stop.is_set():
             try:
                 conn, _ = self._listener.accept()
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 continue
             except OSError:
                 return
@@ -138,7 +138,7 @@ class TcpMockServer:
             while not self._stop.is_set():
                 try:
                     data = conn.recv(4096)
-                except (TimeoutError, socket.timeout):
+                except TimeoutError:
                     continue
                 except OSError:
                     break

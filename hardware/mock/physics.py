@@ -31,8 +31,15 @@ import numpy as np
 
 from .artifacts import PAD_DEPTH_MM
 from .surface import PlacedSurface
-from .sweep import (Contact, in_triangles, sweep_ball_plane, sweep_ball_sphere, sweep_ball_triangles,
-                    sweep_nozzle_box, sweep_nozzle_sphere)
+from .sweep import (
+    Contact,
+    in_triangles,
+    sweep_ball_plane,
+    sweep_ball_sphere,
+    sweep_ball_triangles,
+    sweep_nozzle_box,
+    sweep_nozzle_sphere,
+)
 from .world import MockWorld
 
 _VERTICAL = np.array([0.0, 0.0, -1.0])

@@ -47,13 +47,21 @@ from dataclasses import dataclass, field, fields
 from typing import Any, cast
 from urllib.parse import parse_qsl
 
+from ..dialects import DEFAULT_DIALECT, DIALECTS, dialect
 from ..errors import InvalidConfig
 from ..port_url import PortUrl
-from ..dialects import DEFAULT_DIALECT, DIALECTS, dialect
-from ..protocol import CommandHasher, CommandDigest
+from ..protocol import CommandDigest, CommandHasher
+from .artifacts import (
+    PHYSICS_LIMITS,
+    MockPad,
+    MockSphere,
+    MockTool,
+    check_physics_value,
+    merge_tools,
+    parse_artifact_option,
+    tool_number,
+)
 from .timeline import MotionTimeline
-from .artifacts import (PHYSICS_LIMITS, MockPad, MockSphere, MockTool, check_physics_value,
-                        merge_tools, parse_artifact_option, tool_number)
 
 #: Host queries that do not change the machine; the transcript leaves them out so the
 #: executed digest compares directly with the program's ``commands_sha256``.

@@ -39,9 +39,9 @@ from urllib.parse import parse_qsl
 import numpy as np
 
 from ..errors import InvalidConfig
-from ..port_url import PortUrl
 from ..mock.timeline import MotionTimeline
 from ..mock.world import MockWorld, get_world
+from ..port_url import PortUrl
 from . import hdp
 from .ink import MM3_PER_PL, InkModel, JettedField
 

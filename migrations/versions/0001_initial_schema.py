@@ -5,10 +5,9 @@ Revises:
 Create Date: 2026-11-21 11:43:08.292829
 """
 
-from alembic import op
 import sqlalchemy as sa
 import sqlmodel.sql.sqltypes
-
+from alembic import op
 
 revision = '0001'
 down_revision = None

@@ -5,10 +5,9 @@ Revises: 0003
 Create Date: 2026-11-25 01:10:00
 """
 
-from alembic import op
 import sqlalchemy as sa
 import sqlmodel.sql.sqltypes
-
+from alembic import op
 
 revision = '0004'
 down_revision = '0005'

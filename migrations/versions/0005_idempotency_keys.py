@@ -4,10 +4,9 @@ Revision ID: 0005
 Revises: 0003
 """
 
-from alembic import op
 import sqlalchemy as sa
 import sqlmodel.sql.sqltypes
-
+from alembic import op
 
 revision = '0005'
 down_revision = '0006'

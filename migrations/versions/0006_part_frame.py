@@ -4,10 +4,9 @@ Revision ID: 0006
 Revises: 0003
 """
 
-from alembic import op
 import sqlalchemy as sa
 import sqlmodel.sql.sqltypes
-
+from alembic import op
 
 revision = '0006'
 down_revision = '0007'

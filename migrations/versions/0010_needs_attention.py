@@ -7,9 +7,8 @@ Revision ID: 0010
 Revises: 0009
 """
 
-from alembic import op
 import sqlmodel.sql.sqltypes
-
+from alembic import op
 
 revision = '0010'
 down_revision = '0009'

@@ -13,8 +13,8 @@ import schemathesis
 from schemathesis.checks import not_a_server_error
 from schemathesis.specs.openapi.checks import status_code_conformance
 
-from app.platform.config import load_settings
 from app.main import create_app
+from app.platform.config import load_settings
 from tests.conftest import KEYS
 
 ROLES = ("viewer", "operator", "admin", None)  # None: no key at all

@@ -32,7 +32,7 @@ def test_a_lone_surrogate_is_a_422_naming_the_field(client, headers):  # type: i
     nested = client.post("/api/v1/jobs", content=b'{"kind": "test_sleep", "params": {"x": ["\\udc00"]}}',
                          headers={**OP, "content-type": "application/json"})
     assert nested.status_code == 422 and nested.json()["errors"][0]["loc"] == ["body", "params", "x", "0"]
-    pair = client.post("/api/v1/jobs", content='{"kind": "\\ud83d\\ude00", "params": {}}'.encode(),
+    pair = client.post("/api/v1/jobs", content=b'{"kind": "\\ud83d\\ude00", "params": {}}',
                        headers={**OP, "content-type": "application/json"})  # a valid pair is just text
     assert pair.status_code == 422 and "\U0001F600" in pair.json()["detail"]
 

@@ -4,7 +4,7 @@ creation time and top level, with paging that stays consistent."""
 from __future__ import annotations
 
 import io
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 import trimesh
 from sqlmodel import Session
@@ -66,7 +66,7 @@ def test_filters_by_part_machine_kind_status_time_and_top_level(client):
     assert _ids(client, "kind=test_sleep&top_level=true") == {parent, on_machine}
     assert _ids(client, f"parent_id={parent}") == {child}
     assert _ids(client, "status=succeeded&kind=slice") == {slice_b}
-    now = datetime.now(timezone.utc)
+    now = datetime.now(UTC)
     assert len(_ids(client, f"created_after={(now - timedelta(minutes=5)).isoformat()}".replace("+", "%2B"))) == 5
     assert _ids(client, f"created_before={(now - timedelta(minutes=5)).isoformat()}".replace("+", "%2B")) == set()
     assert _ids(client, "part_id=part_nothing") == set()

@@ -3,10 +3,10 @@ when an idempotent retry replays the answer."""
 
 from __future__ import annotations
 
+from app.reference.s1 import s1_mesh
 from tests.api.test_machines import program_text, register, upload_program
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
-from app.reference.s1 import s1_mesh
 
 OP = auth("operator")
 

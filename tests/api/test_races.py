@@ -25,8 +25,8 @@ LINE = {"name": "t", "geometry": {"type": "line", "start": [-10, 0], "end": [10,
 def racer(tmp_path_factory):  # type: ignore[no-untyped-def]
     from fastapi.testclient import TestClient
 
-    from app.platform.config import load_settings
     from app.main import create_app
+    from app.platform.config import load_settings
     from tests.conftest import KEYS
 
     settings = load_settings({}, data_dir=tmp_path_factory.mktemp("races"), viewer=False, embedded_worker=False,

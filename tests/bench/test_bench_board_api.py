@@ -29,9 +29,8 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-import pytest
-
 import numpy as np
+import pytest
 
 from app.compensation.standoff import CompensationParams, compensate_trace
 from app.probing.field import plan_field

@@ -21,11 +21,11 @@ import time
 
 import numpy as np
 
-from app.reference.evaluation import evaluate_deposition, format_table, table_row
 from app.compensation.standoff import CompensationParams, compensate_trace
 from app.probing.joint import plan_joint
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
+from app.reference.evaluation import evaluate_deposition, format_table, table_row
 from app.reference.s1 import as_made, centred_placement, nominal_path, s1_traces
 
 SIGMA_MM = 0.001

@@ -35,17 +35,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from app.platform.blobs import BlobStore
 from app.compensation.standoff import CompensationParams, compensate_trace
 from app.geometry.tolerance import Tolerance
 from app.geometry.traces import build_nominal_trace
+from app.parts.meshes import MeshCache, mesh_bytes
+from app.platform.blobs import BlobStore
 from app.probing.deviation_prior import Sites, path_gradient
 from app.probing.field import plan_field
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.field import fit_field, trace_reconstruction
 from app.reconstruction.preprocess import ReconstructionError
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
-from app.parts.meshes import MeshCache, mesh_bytes
 from app.reference.boards import as_made_board, board_path, board_traces, dome_part, s1_part
 from app.reference.s1 import s1_mesh, s1_traces
 

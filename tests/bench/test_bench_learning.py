@@ -23,8 +23,8 @@ import pytest
 from scipy.optimize import minimize
 
 from app.probing.deviation_prior import DeviationPrior, Sites
-from tests.helpers.field_draws import draw
 from app.reconstruction.field_learning import _Likelihood, default_bounds, learn_prior
+from tests.helpers.field_draws import draw
 
 DRAWS = int(os.environ.get("LEARNING_DRAWS", "10"))
 USER = DeviationPrior()

@@ -24,7 +24,6 @@ import threading
 import time
 
 import numpy as np
-
 import pytest
 
 from hardware.linuxcnc import SimController, linuxcnc_available

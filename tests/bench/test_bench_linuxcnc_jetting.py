@@ -20,8 +20,15 @@ import time
 import numpy as np
 import pytest
 
-from app.jetting import (ControllerParams, JettingParams, PlantParams, TargetSpec, simulate, surface_metrics,
-                         target_from_spec)
+from app.jetting import (
+    ControllerParams,
+    JettingParams,
+    PlantParams,
+    TargetSpec,
+    simulate,
+    surface_metrics,
+    target_from_spec,
+)
 from hardware.linuxcnc import SimBlock, SimController, SimSensor, linuxcnc_available
 from hardware.linuxcnc.sim_head import SimHeadBridge
 from hardware.printhead.mock import unregister_head

@@ -33,7 +33,8 @@ from hardware.linuxcnc import SimBlock, SimController, SimSensor, linuxcnc_avail
 from tests.conftest import auth
 from tests.hardware.linuxcnc.conftest import PROFILE, add_sim_machine
 from tests.hardware.linuxcnc.test_height_sensor import _scan
-from tests.hardware.linuxcnc.test_scan_run import PROFILE as API_PROFILE, TRACE_X, _box_stl
+from tests.hardware.linuxcnc.test_scan_run import PROFILE as API_PROFILE
+from tests.hardware.linuxcnc.test_scan_run import TRACE_X, _box_stl
 from tests.helpers.jobs import submit, wait_for
 from tests.helpers.real_components import missing
 

@@ -22,8 +22,8 @@ from datetime import datetime
 import numpy as np
 
 from app.geometry.edge_grid import edge_grid
-from app.parts.intake import parse_mesh
 from app.parts.cache import MeshStore, PartCache, journal
+from app.parts.intake import parse_mesh
 from app.reference.s1 import s1_mesh, s1_traces
 from tests.conftest import auth
 

@@ -14,7 +14,6 @@ parts x draws; per trace type the worst trace.
 
 from __future__ import annotations
 
-
 from app.reference.s1 import as_made, nominal_path, s1_traces
 from tests.bench.test_bench_probing import needed, sweep, sweep_joint
 

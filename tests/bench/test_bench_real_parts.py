@@ -18,8 +18,8 @@ import time
 import pytest
 
 from app.parts.intake import intake
-from app.slicing.export import to_cli, to_json, to_slc
 from app.slicing import SliceParams, slice_mesh
+from app.slicing.export import to_cli, to_json, to_slc
 from app.slicing.mesh_prep import prepare_mesh
 from tests.bench.test_bench_slicing import _table
 from tests.helpers.real_parts import cad_part

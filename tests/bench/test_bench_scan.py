@@ -32,6 +32,7 @@ import numpy as np
 import pytest
 
 from app.compensation.standoff import CompensationParams, compensate_trace
+from app.jobs.sensor_runs import CalibrationSetup, SerialScanner, calibrate_sensor, run_pass
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.field import plan_field
 from app.probing.scan_cost import MotionCost, touch_order, touch_time
@@ -43,7 +44,6 @@ from app.reconstruction.reconstruct import ReconstructParams
 from app.reconstruction.scan_field import fit_scan_field, verify_touches
 from app.reconstruction.scan_samples import block_average, pass_deviations
 from app.reference.boards import as_made_board, board_path, board_traces, dome_part
-from app.jobs.sensor_runs import CalibrationSetup, SerialScanner, calibrate_sensor, run_pass
 from hardware.height_sensor import HeightSensor
 from hardware.height_sensor.mock import unregister_sensor
 from hardware.machine import Machine

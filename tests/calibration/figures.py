@@ -11,8 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.calibration import (fit_nozzle_offset, fit_qualification, plan_nozzle_calibration, plan_qualification,
-                             plan_times)
+from app.calibration import (
+    fit_nozzle_offset,
+    fit_qualification,
+    plan_nozzle_calibration,
+    plan_qualification,
+    plan_times,
+)
 from hardware.mock.world import get_world
 from tests.calibration import test_on_the_mock as t
 

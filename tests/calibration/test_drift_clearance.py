@@ -9,8 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.calibration import (CalibrationError, DriftTrack, disagreements, drift_offsets, nozzle_clearance,
-                             retouch_schedule, touch_times)
+from app.calibration import (
+    CalibrationError,
+    DriftTrack,
+    disagreements,
+    drift_offsets,
+    nozzle_clearance,
+    retouch_schedule,
+    touch_times,
+)
 
 
 def test_touch_times_follow_the_probe_kinematics():

@@ -5,8 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.calibration import (CalibrationError, NozzleCalibration, PretravelModel, ProbeCalibration,
-                             fit_nozzle_offset, fit_qualification, plan_nozzle_calibration, plan_qualification)
+from app.calibration import (
+    CalibrationError,
+    NozzleCalibration,
+    PretravelModel,
+    ProbeCalibration,
+    fit_nozzle_offset,
+    fit_qualification,
+    plan_nozzle_calibration,
+    plan_qualification,
+)
 from app.calibration.nozzle import pad_grid
 from tests.calibration.forward import TrueProbe, nozzle_pad_reading, nozzle_side_reading, sphere_reading
 

@@ -14,8 +14,14 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from app.calibration import (fit_nozzle_offset, fit_qualification, hops, plan_nozzle_calibration,
-                             plan_qualification, plan_times)
+from app.calibration import (
+    fit_nozzle_offset,
+    fit_qualification,
+    hops,
+    plan_nozzle_calibration,
+    plan_qualification,
+    plan_times,
+)
 from hardware.machine import Machine, MachineProfile
 from hardware.mock import MockWorld, register_world, unregister_world
 from hardware.mock.world import get_world

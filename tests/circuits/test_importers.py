@@ -9,9 +9,9 @@ import ezdxf
 import numpy as np
 import pytest
 
-from app.platform.problems import http_status
 from app.circuits.errors import CircuitFileError
 from app.circuits.formats import detect_format, read_layout
+from app.platform.problems import http_status
 
 UM = 1e-3
 

@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.platform.problems import http_status
 from app.compensation.print_path import SegmentationError, segment_adaptive
 from app.compensation.standoff import (
     CompensationError,
@@ -22,6 +21,7 @@ from app.compensation.standoff import (
     compensate_trace,
 )
 from app.geometry.traces import TracePolyline
+from app.platform.problems import http_status
 from app.reconstruction.reconstruct import reconstruct
 from app.reference import s1
 

@@ -13,11 +13,11 @@ import pytest
 import shapely
 from shapely.geometry import LineString, Polygon
 
+from app.jobs.results.models import PrintResult
+from app.jobs.results.program import CircuitProgramResult
 from app.jobs.simulation import deposited_since, true_height_of
 from app.reference.evaluation import evaluate_deposition
 from app.reference.s1 import as_made, s1_mesh
-from app.jobs.results.program import CircuitProgramResult
-from app.jobs.results.models import PrintResult
 from hardware.mock import get_world
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for

@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 
 from app.geometry.placement import Placement, apply_placement
-from app.reference.s1 import centred_placement
-from app.reference.s1 import as_made, s1_mesh, s1_traces
+from app.reference.s1 import as_made, centred_placement, s1_mesh, s1_traces
 from app.viewer.loaders import load_focus
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for

@@ -17,8 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.reference.s1 import centred_placement
-from app.reference.s1 import as_made, s1_mesh, s1_traces
+from app.reference.s1 import as_made, centred_placement, s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 

@@ -15,8 +15,17 @@ from hypothesis import strategies as st
 from app.gcode.arcs import MIN_ARC_TOLERANCE_MM, arc_chord_counts
 from app.gcode.lines import GcodeReadError
 from app.gcode.program_bounds import BoundsScan
-from app.gcode.reader import (ARC_CCW, ARC_CHORDS_PER_BYTE, ARC_CW, MAX_ARC_CHORDS, ArcBudgetError, ReadOptions, arc_chord_budget,
-                              beyond_size_budget, read_program)
+from app.gcode.reader import (
+    ARC_CCW,
+    ARC_CHORDS_PER_BYTE,
+    ARC_CW,
+    MAX_ARC_CHORDS,
+    ArcBudgetError,
+    ReadOptions,
+    arc_chord_budget,
+    beyond_size_budget,
+    read_program,
+)
 
 
 def _analytic_chords(radius: float, sweep: float, tol: float) -> int:

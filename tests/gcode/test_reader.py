@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from app.gcode.estimator import estimate_gcode
 from app.gcode.reader import ARC_CCW, ARC_CW, FEED, HOME, RAPID, GcodeReadError, ReadOptions, read_program

@@ -12,7 +12,6 @@ from app.geometry.drape import drape_polyline, snap_to_surface, top_surface_z
 from app.geometry.errors import DegenerateGeometryError, OffSurfaceError
 from tests.geometry.conftest import height_field_mesh, wavy
 
-
 # embree finds the facet in float32: within ~1e-6 mm of an edge it may name the neighbour facet,
 # whose plane is then extrapolated by that much -> height differences of ~1e-9 mm.
 EXACT_MM = 1e-7

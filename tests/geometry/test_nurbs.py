@@ -8,9 +8,9 @@ from geomdl import NURBS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.platform.problems import http_status
 from app.geometry.errors import DegenerateGeometryError, GeometryError, KnotVectorError, WeightError
 from app.geometry.nurbs import NurbsCurve
+from app.platform.problems import http_status
 
 S = np.sqrt(0.5)
 

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from hardware.errors import (InvalidConfig, LinkError, MachineBusy, MachineStateError,
-                             ProbeFailed)
+from hardware.errors import InvalidConfig, LinkError, MachineBusy, MachineStateError, ProbeFailed
 from hardware.machine import Machine, MachineProfile
 from hardware.mock import FaultConfig, TruePlacement
 from hardware.protocol import normalized_commands

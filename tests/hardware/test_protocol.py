@@ -12,8 +12,15 @@ from hypothesis import strategies as st
 
 from hardware import events
 from hardware.errors import InvalidConfig
-from hardware.protocol import (CommandHasher, checksum, commands_sha256, frame,
-                               normalize_command, parse_reply, validate_program)
+from hardware.protocol import (
+    CommandHasher,
+    checksum,
+    commands_sha256,
+    frame,
+    normalize_command,
+    parse_reply,
+    validate_program,
+)
 
 DATA = Path(__file__).parent / "data"
 

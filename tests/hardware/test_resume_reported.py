@@ -23,11 +23,10 @@ import pytest
 from hardware.errors import LinkError
 from hardware.events import PositionReport
 from hardware.machine import Machine, MachineProfile
-from hardware.protocol import normalized_commands
 from hardware.machine_types import ReportEvidence
+from hardware.protocol import normalized_commands
 from hardware.reports import PositionMark
 from hardware.resume import ResumeLocation, command_feeds, end_positions, locate_by_report
-
 from tests.helpers.machines import executed_before_the_cut
 
 PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}

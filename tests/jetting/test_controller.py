@@ -4,8 +4,18 @@ on the rings of cells along the part's edges), and what the lead buys early in a
 import numpy as np
 import pytest
 
-from app.jetting import ControllerParams, DropParams, FlowParams, JettingError, JettingParams, PlantParams, TargetSpec
-from app.jetting import drop_kernel, simulate, target_from_mask
+from app.jetting import (
+    ControllerParams,
+    DropParams,
+    FlowParams,
+    JettingError,
+    JettingParams,
+    PlantParams,
+    TargetSpec,
+    drop_kernel,
+    simulate,
+    target_from_mask,
+)
 from app.jetting.controller import edge_lead_map, lead_ramp, mpc_layer, references, validate_controller
 from app.jetting.flow import mobility_map
 

@@ -8,8 +8,15 @@ import pytest
 from app.jetting import DropParams, FlowParams, JettingError, drop_kernel
 from app.jetting.flow import flow_layer
 from app.jetting.kernel import deposit
-from app.jetting.machine_grid import (Grid, cell_means, fill_missing, predicted_heights, raster_waypoints,
-                                      substrate_map, swaths)
+from app.jetting.machine_grid import (
+    Grid,
+    cell_means,
+    fill_missing,
+    predicted_heights,
+    raster_waypoints,
+    substrate_map,
+    swaths,
+)
 from app.probing.scan_path import sample_positions
 
 GRID = Grid((6, 10), 0.1, (2.0, 3.0))

@@ -4,18 +4,18 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app.platform.problems import http_status
 from app.jetting.errors import JettingError
 from app.jetting.params import DropParams, TargetSpec
 from app.jetting.targets import (
     rings_grid_cells,
-    target_pad_cells,
-    target_shape,
     target_from_mask,
     target_from_png,
     target_from_rings,
     target_from_spec,
+    target_pad_cells,
+    target_shape,
 )
+from app.platform.problems import http_status
 
 DROP = DropParams()
 

@@ -12,8 +12,8 @@ import tempfile
 import numpy as np
 from fastapi.testclient import TestClient
 
-from app.platform.config import load_settings
 from app.main import create_app
+from app.platform.config import load_settings
 from tests.conftest import KEYS
 from tests.jobs import test_calibration_jobs as T
 

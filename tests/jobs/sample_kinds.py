@@ -8,9 +8,9 @@ from typing import Any, ClassVar
 from pydantic import Field
 
 from app.domain.errors import InvalidInput
+from app.jobs.results.models import KindResult
 from app.runtime.context import JobContext
 from app.runtime.registry import JobParams, job_kind
-from app.jobs.results.models import KindResult
 
 
 class SleepParams(JobParams):

@@ -21,17 +21,17 @@ from sqlmodel import Session, select
 
 from app.jobs import board_checkpoints
 from app.jobs.board_checkpoints import TraceCheckpoints, checkpoint_name
-from app.runtime.context import JobContext
 from app.jobs.kinds import compensate as compensate_kind
 from app.jobs.kinds import reconstruct as reconstruct_kind
-from app.runtime.registry import get_kind
-from app.runtime.store import Claim
 from app.platform.models import Artifact, Job
 from app.reconstruction.stored import stored_name
 from app.reference.s1 import as_made, s1_mesh
+from app.runtime.context import JobContext
+from app.runtime.registry import get_kind
+from app.runtime.store import Claim
 from tests.conftest import auth
-from tests.jobs.test_field_probe_jobs import board, job
 from tests.helpers.jobs import wait_for
+from tests.jobs.test_field_probe_jobs import board, job
 
 OP = auth("operator")
 TRACES = (0, 2, 4, 6, 8)  # five S1 traces: lines, arcs and NURBS curves

@@ -10,8 +10,8 @@ import pytest
 from app.gcode.lines import read_lines
 from app.geometry.drape import top_surface_z
 from app.geometry.nurbs_surface import NurbsSurface
-from app.reference.s1 import s1_mesh
 from app.jobs.results.program import WarpProgramResult
+from app.reference.s1 import s1_mesh
 from tests.conftest import auth
 from tests.jobs.test_five_axis_jobs import artifact, run_job, submit
 from tests.jobs.test_program_results import round_trips

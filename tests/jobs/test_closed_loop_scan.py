@@ -15,8 +15,8 @@ import time
 import numpy as np
 
 from hardware.height_sensor.mock import unregister_sensor
-from tests.helpers.jobs import submit, wait_for
 from tests.conftest import auth
+from tests.helpers.jobs import submit, wait_for
 from tests.helpers.scan_loop import calibrate, hidden_calibration, scan_bed, scan_loop, trace_errors
 
 TRACES = (0, 2, 4, 6, 8)

@@ -8,8 +8,8 @@ import time
 import pytest
 import trimesh
 
-from app.platform.config import load_settings
 from app.domain.errors import InvalidInput
+from app.platform.config import load_settings
 from app.runtime.cost import Cost, check_cost
 from tests.conftest import auth
 from tests.helpers.jobs import submit, wait_for

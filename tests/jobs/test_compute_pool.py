@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 
-from app.runtime.compute_pool import ComputePool, Member, retire_reason
 from app.parts.cache import journal
 from app.reference.s1 import s1_mesh, s1_traces
+from app.runtime.compute_pool import ComputePool, Member, retire_reason
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 

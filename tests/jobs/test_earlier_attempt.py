@@ -9,9 +9,9 @@ import time
 import pytest
 from sqlmodel import Session
 
-from app.runtime.process_identity import alive, identify, make_gone
-from app.runtime.engine import Runtime
 from app.platform.models import Job
+from app.runtime.engine import Runtime
+from app.runtime.process_identity import alive, identify, make_gone
 
 
 @pytest.fixture

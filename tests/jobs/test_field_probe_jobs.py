@@ -13,8 +13,8 @@ from app.probing.field import posterior_sd, stored_field
 from app.probing.field_top import first_hit_z, mesh_top_sampler
 from app.reconstruction.field_trust import TARGET_SLACK
 from app.reference.s1 import as_made, s1_mesh, s1_traces
-from tests.conftest import auth
 from app.viewer.loaders import load_focus
+from tests.conftest import auth
 from tests.helpers.jobs import submit, wait_for
 
 OP = auth("operator")
@@ -392,7 +392,8 @@ def test_a_suspected_outlier_is_touched_again_at_most_twice_before_it_may_be_exc
     from types import SimpleNamespace
 
     from app.jobs.kinds.probe_plan import _retouches
-    from app.probing.deviation_prior import DeviationPrior, Sites as S
+    from app.probing.deviation_prior import DeviationPrior
+    from app.probing.deviation_prior import Sites as S
 
     rng = np.random.default_rng(4)
     xy = rng.uniform([0, 0], [40, 30], (60, 2))

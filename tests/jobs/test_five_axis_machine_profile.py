@@ -6,8 +6,17 @@ import numpy as np
 
 from app.geometry.nurbs_surface import NurbsSurface
 from tests.helpers.gcode_words import g1_rows
-from tests.jobs.test_five_axis_jobs import (ARC, OP, add_trace, artifact, assert_normal_and_standoff, cap_stl,
-                                            run_job, submit, upload)
+from tests.jobs.test_five_axis_jobs import (
+    ARC,
+    OP,
+    add_trace,
+    artifact,
+    assert_normal_and_standoff,
+    cap_stl,
+    run_job,
+    submit,
+    upload,
+)
 
 __all__ = ["cap_stl"]  # the module-scoped part fixture, shared
 PIVOT = [1.0, 2.0, -12.0]

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from app.jetting import DropParams, JettingParams, PlantParams, TargetSpec, simulate, surface_metrics
-
 from hardware.height_sensor.mock import sensor_from_url
 from hardware.mock import get_world
 from tests.helpers.jetting_rig import OP, jetting_rig

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from sqlalchemy import update
 
-from app.geometry.placement import Placement, apply_placement
 from app.geometry.nurbs import NurbsCurve
-from app.platform.models import Job
+from app.geometry.placement import Placement, apply_placement
 from app.geometry.traces import as_trace_polyline
+from app.platform.models import Job
 from app.probing import segment_top_max
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from app.viewer.gcode_paths import parse_toolpath

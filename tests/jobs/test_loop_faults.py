@@ -12,8 +12,8 @@ from sqlalchemy import update
 
 from app.domain.errors import Cancelled
 from app.platform.models import Job
-from hardware.mock import get_world
 from app.reference.s1 import as_made, s1_mesh, s1_traces
+from hardware.mock import get_world
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 

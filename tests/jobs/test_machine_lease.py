@@ -8,11 +8,11 @@ from pathlib import Path
 import pytest
 
 from app.domain.errors import Conflict
+from app.machines.live import MachineManager
+from app.platform.problems import http_status
 from app.runtime.machine_queue import WORKFLOW_KINDS, machine_slot
 from app.runtime.registry import load_kinds, machine_kinds
 from app.runtime.store import OPERATOR_RESUMED_KINDS
-from app.machines.live import MachineManager
-from app.platform.problems import http_status
 
 ROOT = Path(__file__).resolve().parents[2]
 

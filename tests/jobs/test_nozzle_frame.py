@@ -9,16 +9,16 @@ diameter D over a tip at standoff s has the analytic clearance s - (D / 2) * 0.2
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import numpy as np
 import pytest
 from sqlmodel import Session
 
 from app.gcode.reader import read_program
+from app.jobs.results.models import PrintResult
 from app.platform.models import Job
 from app.reference.s1 import height_field_mesh
-from app.jobs.results.models import PrintResult
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 from tests.jobs.test_program_results import round_trips
@@ -74,7 +74,7 @@ def _calibrate(client, machine_id: str, tool: int, offset: tuple[float, float, f
               params={"machine_id": machine_id, "tool": tool}, queue="machine", machine_id=machine_id,
               result={"tool": tool, "offset_mm": list(offset), "std_mm": [0.001, 0.001, 0.001],
                       "outer_diameter_mm": 0.4, "touches": 7, "agreement": {"previous_job_id": None}},
-              created_at=datetime.now(timezone.utc), finished_at=datetime.now(timezone.utc))
+              created_at=datetime.now(UTC), finished_at=datetime.now(UTC))
     job_id = job.id
     with Session(client.app.state.runtime.engine) as session:
         session.add(job)

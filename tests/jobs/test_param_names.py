@@ -10,14 +10,20 @@ import io
 import numpy as np
 import pytest
 
-from app.reconstruction.surface_fit import SurfaceFitParams
 from app.five_axis import FiveAxisParams
 from app.jetting import ControllerParams, DropParams, FlowParams, JettingError, JettingParams, PlantParams, TargetSpec
 from app.jetting.controller import validate_controller
 from app.jetting.targets import target_from_rings
 from app.jobs.jetting_inputs import CORE_ONLY as JETTING_CORE_ONLY
-from app.jobs.jetting_inputs import (FLAT_GROUPS, PrintModelParams, SliceSource, TargetParams, api_field,
-                                     core_errors, target_of)
+from app.jobs.jetting_inputs import (
+    FLAT_GROUPS,
+    PrintModelParams,
+    SliceSource,
+    TargetParams,
+    api_field,
+    core_errors,
+    target_of,
+)
 from app.jobs.kinds.five_axis import CORE_ONLY as FIVE_AXIS_CORE_ONLY
 from app.jobs.kinds.five_axis import FiveAxisJobParams
 from app.jobs.kinds.jetting import JettingJobParams
@@ -27,10 +33,11 @@ from app.jobs.kinds.toolpath import ToolpathJobParams
 from app.jobs.params import ProbePlanParams
 from app.probing import PlanParams
 from app.probing.program import ProbeProgramParams
+from app.reconstruction.surface_fit import SurfaceFitParams
 from app.slicing import SliceParams, ToolpathParams
+from tests.conftest import auth
 from tests.jobs.test_five_axis_jobs import add_trace
 from tests.jobs.test_jetting_jobs import error_field, small_target, submit, wait_for
-from tests.conftest import auth
 from tests.jobs.test_slicing_jobs import box_with_hole, upload
 
 OP = auth("operator")

@@ -4,6 +4,7 @@ service's second compute job loading what the first one built (in process isolat
 from __future__ import annotations
 
 import os
+
 import numpy as np
 import pytest
 
@@ -217,8 +218,8 @@ def test_the_mesh_cache_of_a_new_process_gets_the_placed_meshs_grid(tmp_path):
     import hashlib
     from types import SimpleNamespace
 
-    from app.platform.blobs import BlobStore
     from app.parts.meshes import MeshCache
+    from app.platform.blobs import BlobStore
 
     data = s1_mesh(grid_mm=2.0).export(file_type="stl")
     blobs = BlobStore(tmp_path / "blobs")

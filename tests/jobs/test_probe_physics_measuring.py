@@ -42,8 +42,8 @@ def client(tmp_path_factory) -> Iterator:
     the meshes are uploaded and parsed once, not once per test."""
     from fastapi.testclient import TestClient
 
-    from app.platform.config import load_settings
     from app.main import create_app
+    from app.platform.config import load_settings
 
     settings = load_settings({}, data_dir=tmp_path_factory.mktemp("measuring") / "data",
                              api_keys=",".join(f"{k}:{r}" for r, k in KEYS.items()), viewer=False, lease_s=5.0,

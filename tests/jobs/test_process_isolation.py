@@ -8,8 +8,8 @@ from datetime import datetime
 
 import pytest
 
-from tests.api.test_machines import program_text, register, upload_program
 from hardware.protocol import commands_sha256
+from tests.api.test_machines import program_text, register, upload_program
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 
@@ -169,8 +169,8 @@ def test_a_parent_that_loses_its_lease_leaves_its_children_alone(runtime):
     from sqlmodel import Session
 
     from app.domain.errors import Cancelled
-    from app.runtime.context import JobContext
     from app.platform.models import Job
+    from app.runtime.context import JobContext
 
     parent = runtime.submit("test_sleep", {"seconds": 0})
     claim = runtime.store.claim(parent.id, "w1")

@@ -13,8 +13,8 @@ import pytest
 from pydantic import ValidationError
 
 from app.jobs.results.jetting import JettingResult, NextLayerResult
-from app.jobs.results.program import CircuitProgramResult, ToolpathResult, WarpProgramResult
 from app.jobs.results.models import KindResult, PrintResult, StoredResultError
+from app.jobs.results.program import CircuitProgramResult, ToolpathResult, WarpProgramResult
 from app.platform.models import Job, utcnow
 
 

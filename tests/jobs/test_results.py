@@ -6,10 +6,15 @@ from __future__ import annotations
 import pytest
 from pydantic import ValidationError
 
-from app.jobs.results.models import (CompensateResult, ProbePlanResult, ProbeRunResult, ReconstructResult,
-                              StoredResultError)
+from app.jobs.results.models import (
+    CompensateResult,
+    ProbePlanResult,
+    ProbeRunResult,
+    ReconstructResult,
+    StoredResultError,
+    joint_trace_ranges,
+)
 from app.platform.models import Job, utcnow
-from app.jobs.results.models import joint_trace_ranges
 
 JOINT_PLAN = {
     "count": 3, "method": "kriging", "points": [[0.0, 0.0, 1.0], [1.0, 0.0, 1.5], [5.0, 5.0, 2.0]],

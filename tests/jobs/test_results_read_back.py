@@ -10,8 +10,15 @@ from sqlmodel import Session
 
 from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult
 from app.jobs.results.loop import ClosedLoopResult
-from app.jobs.results.models import (FiveAxisResult, PrintResult, ProgramEcho, RegisterResult, SliceResult, StoredResultError,
-                              SurfaceFitResult)
+from app.jobs.results.models import (
+    FiveAxisResult,
+    PrintResult,
+    ProgramEcho,
+    RegisterResult,
+    SliceResult,
+    StoredResultError,
+    SurfaceFitResult,
+)
 from app.platform.models import Job, new_id, utcnow
 from app.platform.problems import http_status
 from app.reporting.collect import RunRecords

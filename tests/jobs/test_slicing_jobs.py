@@ -14,8 +14,8 @@ from shapely.geometry import Polygon
 
 from app.gcode.estimator import MachineLimits, estimate_gcode
 from app.gcode.reader import read_program
-from hardware.protocol import commands_sha256
 from app.jobs.results.program import ToolpathResult
+from hardware.protocol import commands_sha256
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 from tests.jobs.test_program_results import round_trips

@@ -63,8 +63,8 @@ def test_reaped_job_finishes_on_a_live_worker(runtime):
 def test_a_result_that_asks_for_attention_ends_the_job_in_that_state_with_its_closing_words(runtime):
     from sqlmodel import Session
 
-    from app.runtime.store import completed_status
     from app.platform.models import Job
+    from app.runtime.store import completed_status
 
     assert completed_status({"needs_attention": True}) == "needs_attention"
     assert completed_status({"needs_attention": False}) == completed_status({}) == "succeeded"

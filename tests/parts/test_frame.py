@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from app.domain.errors import InvalidInput
-from app.parts.frame import part_frame, parse_angles, size_warnings
+from app.parts.frame import parse_angles, part_frame, size_warnings
 
 
 @pytest.mark.parametrize(("up", "axis"), [("+z", [0, 0, 1]), ("-z", [0, 0, -1]), ("+y", [0, 1, 0]),

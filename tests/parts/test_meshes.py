@@ -9,11 +9,11 @@ from types import SimpleNamespace
 import numpy as np
 import trimesh
 
-from app.platform.blobs import BlobStore
-from app.geometry.placement import Placement
 from app.geometry.edge_grid import edge_grid
+from app.geometry.placement import Placement
 from app.parts.lru import ByteLru
 from app.parts.meshes import MeshCache, mesh_bytes
+from app.platform.blobs import BlobStore
 
 
 def test_byte_lru_drops_the_least_recently_used_until_under_the_bound():

@@ -76,8 +76,8 @@ def test_serve_starts_with_the_documented_linuxcnc_settings(tmp_path, monkeypatc
     import uvicorn
 
     from app.cli import main
-    from app.runtime.engine import Runtime
     from app.platform.models import Machine
+    from app.runtime.engine import Runtime
 
     served = []
     monkeypatch.setattr(uvicorn, "run", lambda app, **kwargs: served.append(app))

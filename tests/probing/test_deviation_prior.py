@@ -5,11 +5,20 @@ import math
 import numpy as np
 import pytest
 
-from app.platform.problems import http_status
-from app.probing.deviation_prior import (DeviationPrior, PriorError, Sites, fit_posterior,
-                                         jinc_kernel, path_center, path_gradient, path_sites,
-                                         placement_basis, prior_covariance)
 from app.geometry.traces import as_trace_polyline
+from app.platform.problems import http_status
+from app.probing.deviation_prior import (
+    DeviationPrior,
+    PriorError,
+    Sites,
+    fit_posterior,
+    jinc_kernel,
+    path_center,
+    path_gradient,
+    path_sites,
+    placement_basis,
+    prior_covariance,
+)
 from app.probing.selection import PlanParams
 from app.reference.s1 import as_made, centred_placement, nominal_gradient, nominal_path, s1_traces
 

@@ -4,11 +4,20 @@ rule, and the reconstruction that uses every trace's probes."""
 import numpy as np
 import pytest
 
-from app.probing.deviation_prior import Sites, fit_posterior, path_sites
-from app.probing.joint import (JointGrid, auto_joint_count, design_joint, even_joint_indices,
-                               joint_center, joint_exchange, joint_grid, move_variances,
-                               plan_joint, power_mean)
 from app.geometry.traces import as_trace_polyline
+from app.probing.deviation_prior import Sites, fit_posterior, path_sites
+from app.probing.joint import (
+    JointGrid,
+    auto_joint_count,
+    design_joint,
+    even_joint_indices,
+    joint_center,
+    joint_exchange,
+    joint_grid,
+    move_variances,
+    plan_joint,
+    power_mean,
+)
 from app.probing.selection import PlanError, PlanParams
 from app.reconstruction.preprocess import ReconstructionError
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from app.geometry.traces import as_trace_polyline
 from app.probing.deviation_prior import fit_posterior, path_center, path_sites
 from app.probing.minimax import auto_count, design_grid, design_stations, even_indices
-from app.geometry.traces import as_trace_polyline
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
 from app.reference.s1 import as_made, nominal_path, s1_traces

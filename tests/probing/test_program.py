@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from app.probing.program import (ProbeProgramParams, build_probe_program, segment_top_max)
+from app.probing.program import ProbeProgramParams, build_probe_program, segment_top_max
 from app.probing.selection import PlanError, PlanParams, plan_probes
 from app.reference.s1 import as_made, nominal_height, nominal_path, s1_mesh, s1_traces
 

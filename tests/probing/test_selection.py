@@ -5,10 +5,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from app.platform.problems import http_status
 from app.geometry.traces import as_trace_polyline
-from app.probing.selection import (PlanError, PlanParams, chord_height_select, chord_heights,
-                                   deviation_spacing, deviation_stations, plan_probes)
+from app.platform.problems import http_status
+from app.probing.selection import (
+    PlanError,
+    PlanParams,
+    chord_height_select,
+    chord_heights,
+    deviation_spacing,
+    deviation_stations,
+    plan_probes,
+)
 
 
 def wavy_curve(a1, a2, w1, w2, n=400):

@@ -10,9 +10,14 @@ import pytest
 from scipy.optimize import check_grad
 
 from app.probing.deviation_prior import DeviationPrior, Sites
+from app.reconstruction.field_learning import (
+    LearningError,
+    _Likelihood,
+    learn_prior,
+    log_marginal_likelihood,
+    loo_check,
+)
 from tests.helpers.field_draws import draw
-from app.reconstruction.field_learning import (LearningError, _Likelihood, learn_prior,
-                                               log_marginal_likelihood, loo_check)
 
 TRUTH = DeviationPrior(amplitude_mm=0.12, wavelength_mm=10.0, sigma_mm=0.004)
 USER = DeviationPrior()  # the defaults: A 0.2 mm, lambda 20 mm, 1 um noise

@@ -6,8 +6,8 @@ import pytest
 
 from app.compensation.standoff import CompensationParams, compensate_trace
 from app.geometry.drape import drape_polyline
-from app.probing.deviation_prior import path_gradient, raw_path_gradient
 from app.geometry.traces import as_trace_polyline
+from app.probing.deviation_prior import path_gradient, raw_path_gradient
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct
 from app.reference.s1 import as_made, s1_mesh, s1_traces, trace_xy

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from geomdl import fitting as geomdl_fitting
 
-from app.platform.problems import http_status
 from app.geometry.nurbs import NurbsCurve
+from app.platform.problems import http_status
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.preprocess import PreprocessParams, ReconstructionError
 from app.reconstruction.reconstruct import ReconstructParams, reconstruct

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.platform.problems import http_status
+from app.reference import s1
 from app.reference.evaluation import (
     EvaluationError,
     LineWidthModel,
@@ -19,7 +20,6 @@ from app.reference.evaluation import (
     predicted_width,
     table_row,
 )
-from app.reference import s1
 
 
 def plane(a: float = 0.0, b: float = 0.0, c: float = 1.0):

@@ -3,8 +3,16 @@
 import numpy as np
 import pytest
 
-from app.reference.s1 import (as_made, centred_placement, nominal_height, nominal_path, s1_mesh,
-                              s1_surface, s1_traces, trace_xy)
+from app.reference.s1 import (
+    as_made,
+    centred_placement,
+    nominal_height,
+    nominal_path,
+    s1_mesh,
+    s1_surface,
+    s1_traces,
+    trace_xy,
+)
 
 
 @pytest.fixture(scope="module")

@@ -12,14 +12,15 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.geometry.placement import Placement, apply_placement, remove_placement
 from app.platform.problems import http_status
+from app.reference import s1
 from app.registration.datum_plan import (
     DatumProbeParams,
     find_edge,
     plan_datum_probes,
     register_with_z_probe,
 )
-from app.geometry.placement import Placement, apply_placement, remove_placement
 from app.registration.registration import (
     DegenerateDatumError,
     RegistrationError,
@@ -27,7 +28,6 @@ from app.registration.registration import (
     fit_placement,
     place_path,
 )
-from app.reference import s1
 
 CENTER = (30.0, 20.0)
 TRUE = Placement.from_deg(dx=0.08, dy=-0.05, dz=0.03, rz_deg=0.15, pivot_xy=CENTER)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from app.slicing.cavity import theta
 from app.slicing import SliceParams, slice_mesh
+from app.slicing.cavity import theta
 from tests.slicing.conftest import cavity_block, stepped_block
 
 SEED = dict(l_min=0.03, l_max=0.1, eps0=0.05)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon
 
+from app.slicing import SliceParams, slice_mesh
 from app.slicing.errors import SlicingError
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
-from app.slicing import SliceParams, slice_mesh
 from tests.slicing.conftest import cavity_block
 from tests.slicing.readers import read_cli, read_slc
 

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from app.slicing import SliceParams, slice_mesh
 from app.slicing.errors import SlicingError
 from app.slicing.export import from_json, to_cli, to_json
-from app.slicing import SliceParams, slice_mesh
 from app.slicing.offset import compensate_beam
 from app.slicing.rings import signed_area
 from app.slicing.toolpath import ToolpathParams, plan_toolpath

@@ -9,8 +9,8 @@ import pytest
 import shapely
 from shapely.geometry import LineString, MultiLineString, Polygon
 
-from app.slicing.fractal import hilbert_d2xy, hilbert_fill, merged_fractal_fill
 from app.slicing import SliceParams, slice_mesh
+from app.slicing.fractal import hilbert_d2xy, hilbert_fill, merged_fractal_fill
 from app.slicing.ordering import order_paths
 from app.slicing.rings import Island
 from app.slicing.toolpath import PATTERNS, ToolpathParams, count_turns, plan_toolpath

@@ -9,8 +9,8 @@ import pytest
 import trimesh
 
 from app.platform.problems import http_status
-from app.slicing.errors import MeshError, SlicingError
 from app.slicing import SliceParams, slice_mesh
+from app.slicing.errors import MeshError, SlicingError
 from app.slicing.rings import signed_area
 from tests.slicing.conftest import cavity_block
 

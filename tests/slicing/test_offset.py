@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from shapely.geometry import Polygon
 
-from app.slicing.errors import SlicingError
 from app.slicing import SliceParams, slice_mesh
+from app.slicing.errors import SlicingError
 from app.slicing.offset import SEED_HAZ_TABLE, BeamWidthTable, compensate_beam, offset_islands
 from app.slicing.rings import Island, signed_area
 from tests.slicing.conftest import cavity_block

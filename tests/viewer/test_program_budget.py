@@ -13,8 +13,8 @@ import pytest
 from sqlmodel import Session
 
 from app.gcode.reader import ArcBudgetError, arc_chord_budget
-from app.platform.models import Job, new_id, utcnow
 from app.platform.artifacts import add_artifact
+from app.platform.models import Job, new_id, utcnow
 from app.viewer.gcode_paths import parse_toolpath
 from app.viewer.offload import ParsePool
 from app.viewer.program_profile import program_summary

@@ -13,6 +13,7 @@ from app.viewer.scene_data import FocusScene, Polyline
 from app.viewer.scenes import SceneBuilder
 from tests.helpers.residuals import NOMINALS, VERDICT
 
+
 def test_the_points_sit_on_their_traces_with_their_residuals():
     residuals = residual_map(VERDICT, ["t-ramp", "t-flat"], NOMINALS)
     assert residuals is not None

@@ -18,8 +18,8 @@ from websockets.exceptions import InvalidStatus
 
 from app.reference.s1 import s1_mesh
 from app.viewer.access import TokenError, TokenSigner, load_secret
-from tests.helpers.async_run import run_async
 from tests.conftest import auth
+from tests.helpers.async_run import run_async
 from tests.viewer.conftest import free_port
 
 OP, VIEWER = auth("operator"), auth("viewer")
@@ -30,8 +30,8 @@ SUBPROTOCOL = f"viser-v{viser.__version__}"
 def served(tmp_path_factory):  # type: ignore[no-untyped-def]
     from fastapi.testclient import TestClient
 
-    from app.platform.config import load_settings
     from app.main import create_app
+    from app.platform.config import load_settings
     from tests.conftest import KEYS
 
     settings = load_settings({}, data_dir=tmp_path_factory.mktemp("viewer-access"), viewer=True,

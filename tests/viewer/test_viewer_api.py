@@ -14,8 +14,8 @@ from app.five_axis.kinematics import (
     tool_axis_from_angles,
     workpiece_to_machine,
 )
-from app.platform.models import Job, JobReference, new_id, utcnow
 from app.platform.artifacts import add_artifact
+from app.platform.models import Job, JobReference, new_id, utcnow
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for

@@ -21,19 +21,19 @@ from pydantic import BaseModel, Field, ValidationError
 
 from app.api.circuit_pages import paged
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
-from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
-from app.api.routes.traces import trace_out
 from app.api.limits import lone_surrogate_path
+from app.api.routes.traces import trace_out
+from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.circuits.mapping import MappingOptions
 from app.circuits.nets import area_polygon
 from app.circuits.pad_probes import probe_ring
 from app.domain.errors import ConformaError, InvalidInput
 from app.jobs.circuit_import import ImportMapped, ImportRequest, PartMesh, read_and_map
-from app.runtime.isolated import call_isolated
 from app.jobs.kinds.circuit_program import import_probe_trace_ids, stored_areas
-from app.platform.models import CircuitImport, Part, Trace, new_id, utcnow
 from app.parts.traces import DrapedAhead
 from app.platform.lookup import get_or_404
+from app.platform.models import CircuitImport, Part, Trace, new_id, utcnow
+from app.runtime.isolated import call_isolated
 
 router = APIRouter(prefix="/api/v1", tags=["circuits"])
 MAX_FILES = 20

@@ -17,10 +17,10 @@ from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.downloads import attachment
 from app.api.schemas import Page, UtcDatetime
-from app.platform.array_files import check_upload
 from app.domain.errors import InvalidInput
-from app.platform.models import UploadedFile, new_id, utcnow
+from app.platform.array_files import check_upload
 from app.platform.lookup import get_or_404
+from app.platform.models import UploadedFile, new_id, utcnow
 
 router = APIRouter(prefix="/api/v1/files", tags=["files"])
 # media type by leading bytes; text formats by name

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
 from collections.abc import Sequence
+from datetime import UTC, datetime
 from typing import Annotated, Literal
 
 import anyio
@@ -21,14 +21,14 @@ from app.api.job_events import JobWatch, TooManyStreams
 from app.api.job_results import ARTIFACTS_INLINE_MAX, Include, inlined, shown_result, wants
 from app.api.job_titles import job_titles
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
-from app.jobs.results.models import ProgramEcho
 from app.domain.errors import Conflict, ConformaError, InvalidInput, NotFound, TooLarge
 from app.gcode.lines import GcodeReadError
 from app.gcode.reader import ArcBudgetError, arc_chord_budget, beyond_size_budget
-from app.runtime.machine_queue import request_resume, resume_preview
+from app.jobs.results.models import ProgramEcho
+from app.platform.lookup import get_or_404
 from app.platform.models import Artifact, Job, JobReference, Machine, Trace
 from app.platform.problems import PROBLEM_MEDIA_TYPE, problem
-from app.platform.lookup import get_or_404
+from app.runtime.machine_queue import request_resume, resume_preview
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
 JobStatus = Literal["queued", "running", "succeeded", "needs_attention", "failed", "cancelled", "interrupted",
@@ -140,7 +140,7 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
 
 def _utc(moment: datetime) -> datetime:
     """A naive time from a query is taken as UTC (jobs are stored in UTC)."""
-    return moment if moment.tzinfo is not None else moment.replace(tzinfo=timezone.utc)
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
 
 
 @router.get("/{job_id}", dependencies=[Viewer], response_model=JobOut)

@@ -14,8 +14,8 @@ from fastapi import APIRouter, Query
 
 from app.api.deps import RuntimeDep, SessionDep, Viewer
 from app.api.machine_schemas import ConsoleLine, ConsoleLogOut
-from app.platform.models import Machine
 from app.platform.lookup import get_or_404
+from app.platform.models import Machine
 
 router = APIRouter(prefix="/api/v1/machines", tags=["machines"])
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
@@ -22,24 +22,37 @@ from sqlmodel import Session, col, select
 
 from app.api import idempotency
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
+from app.api.machine_schemas import (
+    MAX_MATERIAL_PROFILES,
+    CalibrationOut,
+    ConsoleOut,
+    ConsoleRequest,
+    ControllerOut,
+    JogRequest,
+    MachineCreate,
+    MachineOut,
+    MachineUpdate,
+    MockSettings,
+    PrintRequest,
+    ProgramState,
+    StopOut,
+    UnlockRequest,
+)
 from app.api.routes.jobs import load_job_out
-from app.api.machine_schemas import (MAX_MATERIAL_PROFILES, CalibrationOut, ConsoleOut, ConsoleRequest,
-                                     ControllerOut, JogRequest, MachineCreate, MachineOut, MachineUpdate, MockSettings, PrintRequest, ProgramState, StopOut,
-                                     UnlockRequest)
 from app.api.schemas import JobOut, Page
 from app.domain.errors import Conflict, InvalidInput, NotFound
 from app.jobs.calibration import calibration_summary, current_calibration, machine_profile
-from app.runtime.machine_queue import holding_message
-from app.runtime.engine import Runtime
 from app.machines.live import hardware_errors, port_key, port_owner, translate
 from app.machines.materials import BY_NAME, MATERIALS
+from app.platform.db import lock_for_delete
+from app.platform.lookup import get_or_404
+from app.platform.models import TERMINAL_STATES, Job, JobReference, Machine, Part, new_id, utcnow
+from app.runtime.engine import Runtime
+from app.runtime.machine_queue import holding_message
 from hardware.dialects import default_dispense
-from hardware.port_url import PortUrl
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
-from app.platform.db import lock_for_delete
-from app.platform.models import TERMINAL_STATES, Job, JobReference, Machine, Part, new_id, utcnow
-from app.platform.lookup import get_or_404
+from hardware.port_url import PortUrl
 
 router = APIRouter(prefix="/api/v1/machines", tags=["machines"])
 log = logging.getLogger("conforma.api.machines")
@@ -68,7 +81,7 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
         program = ProgramState(job_id=runtime.machines.running_job.get(row.id) or (holder or {}).get("id"),
                                line=executed, total=total, state=state, elapsed_s=clock.elapsed_s(),
                                eta_s=clock.eta_s(executed, total),
-                               started_at=datetime.fromtimestamp(started, timezone.utc) if started else None)
+                               started_at=datetime.fromtimestamp(started, UTC) if started else None)
     elif holder is not None and holder["status"] == "interrupted":
         reported = getattr(live, "program_status", None)  # the serial machines report it; LinuxCNC does not
         program = interrupted_program(row.id, holder, reported() if callable(reported) else None)

@@ -11,16 +11,16 @@ from sqlmodel import col, select
 
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
-from app.api.schemas import Page, PartOut
 from app.api.downloads import attachment
 from app.api.part_checks import check_part_geometry
-from app.platform.db import lock_for_delete
+from app.api.schemas import Page, PartOut
 from app.domain.errors import Conflict, NotFound
 from app.parts.frame import Units, Up, parse_angles
 from app.parts.intake import detect_format, export_mesh
-from app.platform.models import JobReference, Part, Trace
 from app.parts.storage import store_part
+from app.platform.db import lock_for_delete
 from app.platform.lookup import get_or_404
+from app.platform.models import JobReference, Part, Trace
 
 router = APIRouter(prefix="/api/v1/parts", tags=["parts"])
 

@@ -14,8 +14,8 @@ from app.api.downloads import attachment
 from app.api.machine_schemas import ProgramOut
 from app.api.schemas import Page
 from app.jobs.gcode_meta import ProgramScan
-from app.platform.models import Program, new_id, utcnow
 from app.platform.lookup import get_or_404
+from app.platform.models import Program, new_id, utcnow
 
 router = APIRouter(prefix="/api/v1/programs", tags=["programs"])
 #: an upload is read, checked and hashed this many bytes at a time (its memory, whatever its lines)

@@ -13,11 +13,11 @@ from sqlmodel import col, select
 import app
 from app.api.deps import Admin, RuntimeDep, SessionDep, Viewer, get_keyring
 from app.api.schemas import JobKindOut, KeyCreate, KeyCreated, KeyOut, MaterialOut, Page
-from app.platform.auth import KeyRing
 from app.domain.errors import NotFound
-from app.runtime.registry import kinds
 from app.machines.materials import DEFAULT_MATERIAL, MATERIALS
+from app.platform.auth import KeyRing
 from app.platform.models import ApiKey
+from app.runtime.registry import kinds
 
 router = APIRouter(prefix="/api/v1", tags=["system"])
 

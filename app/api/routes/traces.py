@@ -12,11 +12,11 @@ from sqlmodel import Session, col, select
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import NominalOut, Page, TraceCreate, TraceOut
-from app.platform.db import lock_for_delete
 from app.domain.errors import Conflict, NotFound
-from app.platform.models import JobReference, Part, Trace
 from app.parts.traces import build_trace, build_traces
+from app.platform.db import lock_for_delete
 from app.platform.lookup import get_or_404
+from app.platform.models import JobReference, Part, Trace
 
 router = APIRouter(prefix="/api/v1", tags=["traces"])
 MAX_IMPORT = 1000

@@ -18,8 +18,8 @@ from app.api.deps import RuntimeDep, SessionDep
 from app.api.deps import Viewer as ViewerRole
 from app.domain.errors import Conflict
 from app.machines.head import head_of
-from app.platform.models import Machine
 from app.platform.lookup import get_or_404
+from app.platform.models import Machine
 
 router = APIRouter(prefix="/api/v1/viewer", tags=["viewer"])
 

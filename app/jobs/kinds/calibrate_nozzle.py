@@ -24,16 +24,20 @@ from sqlmodel import Session
 
 from app.calibration import fit_nozzle_offset, plan_nozzle_calibration
 from app.domain.errors import InvalidInput
-from app.jobs.calibration import (agreement, latest_calibration_job, machine_profile, nozzle_values,
-                                  require_probe_calibration)
+from app.jobs.calibration import (
+    agreement,
+    latest_calibration_job,
+    machine_profile,
+    nozzle_values,
+    require_probe_calibration,
+)
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
 from app.jobs.results.calibration import CalibrateNozzleResult
+from app.platform.lookup import get_or_404
+from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import refuse_if_machine_busy
 from app.runtime.registry import JobParams, job_kind
-from app.platform.models import Machine
-from app.platform.lookup import get_or_404
-
 
 LOCATED_CLEARANCE_MM = 0.3   # approach after locating: the located offset is good to microns, the pad flat
 

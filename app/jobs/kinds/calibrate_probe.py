@@ -20,12 +20,11 @@ from app.domain.errors import InvalidInput
 from app.jobs.calibration import agreement, latest_calibration_job, machine_profile, probe_values
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
 from app.jobs.results.calibration import CalibrateProbeResult
+from app.platform.lookup import get_or_404
+from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import refuse_if_machine_busy
 from app.runtime.registry import JobParams, job_kind
-from app.platform.models import Machine
-from app.platform.lookup import get_or_404
-
 
 CAP_RINGS_DEG = (0.0, 30.0, 50.0, 65.0, 75.0)
 PLACE_TOLERANCE_MM = 1.0     # the sphere may sit this far from its nominal place (profile)

@@ -24,15 +24,15 @@ from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
 from app.jobs.calibration import current_calibration, machine_profile
-from app.jobs.results.calibration import CalibrateSensorResult
 from app.jobs.calibration_touch import travel_height
+from app.jobs.results.calibration import CalibrateSensorResult
+from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor, open_scanner, require_sensor_port
+from app.machines.live import hardware_errors
+from app.platform.lookup import get_or_404
+from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import connected_machine, refuse_if_machine_busy
 from app.runtime.registry import JobParams, job_kind
-from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor, open_scanner, require_sensor_port
-from app.machines.live import hardware_errors
-from app.platform.models import Machine
-from app.platform.lookup import get_or_404
 
 PAD_TOUCH_FROM_MM = 2.0  # without a probe calibration: the pad touch starts this far above its nominal top
 

@@ -33,27 +33,25 @@ import numpy as np
 from pydantic import Field
 from sqlmodel import Session, select
 
-from app.gcode.writer import DEFAULT_DIALECT
 from app.circuits.nets import Copper, area_polygon, check_nets, trace_copper
 from app.circuits.opens import check_opens, fill_coverage
 from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import fill_tip_strokes, trace_passes_many
 from app.circuits.surface import PrintedPoints
-from app.jobs.circuit_surface import loop_placement, measured_surface
-from app.domain.errors import InvalidInput
+from app.domain.errors import ConformaError, InvalidInput
+from app.gcode.writer import DEFAULT_DIALECT
 from app.geometry.drape import drape_polyline
-from app.runtime.context import JobContext
+from app.jobs.circuit_surface import loop_placement, measured_surface
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
-from app.runtime.registry import JobParams, job_kind
-from app.domain.errors import ConformaError
-from app.platform.models import CircuitImport, Job, Trace
-from app.jobs.results.program import CircuitProgramResult
 from app.jobs.results.loop import ClosedLoopResult, LoopTrace
 from app.jobs.results.models import CompensateResult, ProbeRunResult, compensate_rows
-from app.reconstruction.field_trust import with_bound
+from app.jobs.results.program import CircuitProgramResult
 from app.platform.lookup import get_or_404
-
+from app.platform.models import CircuitImport, Job, Trace
+from app.reconstruction.field_trust import with_bound
+from app.runtime.context import JobContext
+from app.runtime.registry import JobParams, job_kind
 
 #: slack (mm) below surface + standoff a printed point may come on a fitted field (the traces'
 #: compensation samples the same field along its own curve); below the surface itself is

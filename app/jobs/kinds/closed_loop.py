@@ -69,22 +69,34 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
-from app.runtime.context import JobContext
 from app.jobs.loop_files import write_loop_files
 from app.jobs.loop_gates import Gates, PausePoint
-from app.jobs.results.loop import ClosedLoopResult
-from app.jobs.loop_steps import (Steps, TypedResults, board_batch, is_sequential, measured_by, more_rounds,
-                                 plan_params, print_trace, probe_rings, run_params, scan_params, scanned_summary,
-                                 trace_children)
-from app.runtime.machine_queue import refuse_if_machine_busy
+from app.jobs.loop_steps import (
+    Steps,
+    TypedResults,
+    board_batch,
+    is_sequential,
+    measured_by,
+    more_rounds,
+    plan_params,
+    print_trace,
+    probe_rings,
+    run_params,
+    scan_params,
+    scanned_summary,
+    trace_children,
+)
 from app.jobs.params import MAX_FIELD_TRACES, MAX_TRACES, ProbePlanParams, RegisterParams
-from app.runtime.registry import JobParams, job_kind
+from app.jobs.results.loop import ClosedLoopResult
+from app.jobs.results.models import ProbePlanResult, RegisterResult
 from app.jobs.sensor_calibration import scan_calibration
 from app.jobs.sensor_runs import require_sensor_port
-from app.jobs.results.models import ProbePlanResult, RegisterResult
+from app.platform.lookup import get_or_404
 from app.platform.models import Job, Machine, Trace
 from app.reconstruction.field_trust import measured_bound, verification_line
-from app.platform.lookup import get_or_404
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import refuse_if_machine_busy
+from app.runtime.registry import JobParams, job_kind
 
 STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
 PROGRESS_EVERY_S = 0.5  # the per-trace phase reports its progress at most this often (thousands of traces)
@@ -167,7 +179,7 @@ class ClosedLoopParams(JobParams):
         return value
 
     @model_validator(mode="after")
-    def _field_is_joint(self) -> "ClosedLoopParams":
+    def _field_is_joint(self) -> ClosedLoopParams:
         if self.probe.get("method") == "field" and not self.joint_probing:
             raise ValueError("the field planner probes all traces together: set joint_probing")
         if len(self.trace_ids) > MAX_TRACES and not (self.joint_probing and self.probe.get("method", "field") == "field"):
@@ -175,7 +187,7 @@ class ClosedLoopParams(JobParams):
         return self
 
     @model_validator(mode="after")
-    def _scan_params(self) -> "ClosedLoopParams":
+    def _scan_params(self) -> ClosedLoopParams:
         if self.measuring == "touch":
             if self.scan:
                 raise ValueError("scan parameters are for measuring scan")
@@ -199,7 +211,7 @@ class ClosedLoopParams(JobParams):
         return value
 
     @model_validator(mode="after")
-    def _one_placement(self) -> "ClosedLoopParams":
+    def _one_placement(self) -> ClosedLoopParams:
         if self.registration and ({"placement", "registration_job_id"} & set(self.probe)):
             raise ValueError("with registration the placement comes from the register step: leave "
                              "placement / registration_job_id out of probe")

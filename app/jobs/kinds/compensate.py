@@ -35,25 +35,29 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session, select
 
-from app.gcode.writer import DEFAULT_DIALECT
 from app.calibration.clearance import nozzle_clearance
-from app.compensation.standoff import CompensationError, CompensationParams, compensate_trace, real_surface_height, \
-    tip_path
+from app.compensation.standoff import (
+    CompensationError,
+    CompensationParams,
+    compensate_trace,
+    real_surface_height,
+    tip_path,
+)
 from app.domain.errors import InvalidInput
+from app.gcode.writer import DEFAULT_DIALECT
 from app.geometry.drape import top_surface_z
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
-from app.runtime.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import placed_nominal, placed_params_of, placement_from, succeeded_job
 from app.jobs.params import MAX_FIELD_TRACES
-from app.runtime.registry import JobParams, job_kind
 from app.jobs.results.models import CompensateBoardResult, CompensateResult
+from app.platform.lookup import get_or_404
 from app.platform.models import Artifact, Machine
 from app.reconstruction.stored import read_reconstruction, stored_name
-from app.platform.lookup import get_or_404
-
+from app.runtime.context import JobContext
+from app.runtime.registry import JobParams, job_kind
 
 CLEARANCE_STEP_MM = 0.05  # tip stations of the nozzle-body check along the path
 
@@ -97,7 +101,7 @@ class CompensateParams(JobParams):
                                                json_schema_extra=form(advanced=True))
 
     @model_validator(mode="after")
-    def _one_target(self) -> "CompensateParams":
+    def _one_target(self) -> CompensateParams:
         if (self.trace_id is None) == (self.trace_ids is None):
             raise ValueError("give exactly one of trace_id or trace_ids")
         if self.trace_ids is not None and len(set(self.trace_ids)) != len(self.trace_ids):
@@ -300,7 +304,7 @@ def _meta(program: str, bounds: list[list[float]] | None) -> dict[str, Any]:
 
 
 def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, reconstruction: Any,
-             placement: Any, records: "_Records | None" = None) -> tuple[dict[str, Any], Any]:
+             placement: Any, records: _Records | None = None) -> tuple[dict[str, Any], Any]:
     """(result, the compensated path with its programs) of one trace (``records``: a board
     job's machine and parts, read once for all its traces)."""
     dialect, on, off = params.dialect, params.dispense_on, params.dispense_off

@@ -38,22 +38,23 @@ import numpy as np
 from pydantic import Field, field_validator
 from sqlmodel import Session
 
+from app.domain.errors import InvalidInput
 from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
 from app.five_axis.errors import TraceOffSurfaceError
 from app.five_axis.trace import plan_view_points, trace_over_xy, uv_over_xy
+from app.gcode.writer import DEFAULT_PROBING_DIALECT
+from app.gcode.writer import DIALECTS as GCODE_DIALECTS
+from app.geometry.nurbs_surface import NurbsSurface
+from app.jobs.gcode_meta import gcode_meta
+from app.jobs.inputs import nominal_of, succeeded_job
+from app.jobs.results.models import FiveAxisResult, SurfaceFitResult
+from app.platform.lookup import get_or_404
+from app.platform.models import Job, Machine, Part, Trace
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top
-from app.domain.errors import InvalidInput
-from app.gcode.writer import DEFAULT_PROBING_DIALECT, DIALECTS as GCODE_DIALECTS
-from app.geometry.nurbs_surface import NurbsSurface
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
-from app.jobs.gcode_meta import gcode_meta
 from app.runtime.registry import JobParams, job_kind
-from app.jobs.results.models import FiveAxisResult, SurfaceFitResult
-from app.platform.models import Job, Machine, Part, Trace
-from app.jobs.inputs import nominal_of, succeeded_job
-from app.platform.lookup import get_or_404
 
 DEFAULT_FEED_MM_MIN = 600.0
 _DISPENSE_COMMAND = r"^[A-Z][0-9]+(\.[0-9]+)?( [A-Z]-?[0-9]+(\.[0-9]+)?)*$"

@@ -20,8 +20,6 @@ from pydantic import Field, model_validator
 from sqlmodel import Session
 
 from app.jetting import JettingParams, PlantParams, estimate_bytes, pattern_png, simulate
-from app.runtime.context import JobContext
-from app.runtime.cost import Cost
 from app.jobs.jetting_inputs import (
     MEMORY_LIMIT_BYTES,
     NPZ_MEDIA_TYPE,
@@ -33,6 +31,8 @@ from app.jobs.jetting_inputs import (
     target_references,
 )
 from app.jobs.results.jetting import JettingResult
+from app.runtime.context import JobContext
+from app.runtime.cost import Cost
 from app.runtime.registry import job_kind
 
 MAX_PNG_ARTIFACTS = 1000          # per-layer pattern PNGs one job may write

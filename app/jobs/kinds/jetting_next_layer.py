@@ -17,7 +17,6 @@ import numpy as np
 from pydantic import Field, model_validator
 from sqlmodel import Session
 
-from app.platform.array_files import load_npz
 from app.jetting import (
     JettingError,
     next_layer,
@@ -26,7 +25,6 @@ from app.jetting import (
     pattern_png,
     png_pattern,
 )
-from app.runtime.context import JobContext
 from app.jobs.jetting_inputs import (
     NPZ_MEDIA_TYPE,
     PrintModelParams,
@@ -39,7 +37,9 @@ from app.jobs.jetting_inputs import (
     target_references,
 )
 from app.jobs.results.jetting import NextLayerResult
+from app.platform.array_files import load_npz
 from app.platform.models import UploadedFile
+from app.runtime.context import JobContext
 from app.runtime.registry import job_kind
 
 MAX_INLINE_CELLS_PER_AXIS = 512

@@ -34,17 +34,29 @@ from app.jetting import drop_kernel, surface_metrics
 from app.jetting.controller import mpc_layer
 from app.jetting.flow import mobility_map
 from app.jetting.machine_grid import Grid, fill_missing, predicted_heights, substrate_map
-from app.runtime.context import JobContext
-from app.jobs.jetting_inputs import (NPZ_MEDIA_TYPE, PrintModelParams, check_target, core_errors, target_of,
-                                     target_references)
+from app.jobs.jetting_inputs import (
+    NPZ_MEDIA_TYPE,
+    PrintModelParams,
+    check_target,
+    core_errors,
+    target_of,
+    target_references,
+)
 from app.jobs.jetting_machine import MachineSetup, cure, print_layer, scan_layer
 from app.jobs.results.jetting import JettingRunResult
-from app.runtime.machine_queue import interrupt, refuse_if_machine_busy, rehomed_machine, resume_request, stopped_by_operator
-from app.runtime.registry import job_kind
 from app.jobs.sensor_runs import HalScanner, SerialScanner, open_scanner, require_sensor_port
-from app.platform.models import Machine
-from app.platform.lookup import get_or_404
 from app.machines.live import MachineFault, MachineUnavailable, translate
+from app.platform.lookup import get_or_404
+from app.platform.models import Machine
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import (
+    interrupt,
+    refuse_if_machine_busy,
+    rehomed_machine,
+    resume_request,
+    stopped_by_operator,
+)
+from app.runtime.registry import job_kind
 from hardware.errors import HardwareError, LinkError
 from hardware.printhead import PrintHead
 

@@ -27,23 +27,31 @@ from sqlmodel import Session, select
 
 from app.domain.errors import Cancelled, InvalidInput
 from app.gcode.dispense_delays import with_dispense_delays
+from app.gcode.placement import check_inside, profile_volume
 from app.gcode.shift import shift_z
 from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.calibration_touch import travel_height
-from app.runtime.context import JobContext
 from app.jobs.gcode_meta import check_gcode, gcode_meta
-from app.runtime.machine_queue import (connected_machine, interrupt, machine_for_job, plan_eta, refuse_if_machine_busy,
-                                   resume_point, resume_request, stopped_by_operator)
-from app.runtime.registry import JobParams, job_kind
 from app.jobs.results.models import PrintResult
-from app.gcode.placement import check_inside, profile_volume
 from app.machines.live import MachineFault, MachineUnavailable, hardware_errors, translate
 from app.machines.materials import BY_NAME, MATERIALS, DispenseProfile
-from app.platform.models import Artifact, Machine, Program
 from app.platform.lookup import get_or_404
+from app.platform.models import Artifact, Machine, Program
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import (
+    connected_machine,
+    interrupt,
+    machine_for_job,
+    plan_eta,
+    refuse_if_machine_busy,
+    resume_point,
+    resume_request,
+    stopped_by_operator,
+)
+from app.runtime.registry import JobParams, job_kind
+from hardware.backend import Machine as LiveMachine
 from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, LinkError
-from hardware.backend import Machine as LiveMachine
 from hardware.protocol import validate_program
 
 PROGRESS_INTERVAL_S = 0.25
@@ -69,7 +77,7 @@ class PrintParams(JobParams):
                                   "calibrated pad reading and a profile reference pad; others: no effect)")
 
     @model_validator(mode="after")
-    def _one_source(self) -> "PrintParams":
+    def _one_source(self) -> PrintParams:
         if (self.program_id is None) == (self.job_id is None):
             raise ValueError("give exactly one of program_id or job_id (+ artifact)")
         if self.job_id is not None and not self.artifact:
@@ -132,7 +140,7 @@ def _program_text(ctx: JobContext, params: PrintParams) -> str:
 
 
 @job_kind("print", PrintParams, queue="machine", check=_check, references=_references)
-def run(ctx: JobContext, params: PrintParams) -> dict:
+def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
     """Stream a program to the machine with progress and cancel; a dropped link interrupts
     the job, and only an operator's resume continues it (from the first command not known
     executed, after re-homing)."""

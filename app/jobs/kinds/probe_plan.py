@@ -26,27 +26,26 @@ import numpy as np
 from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
-from app.runtime.context import JobContext
+from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import ProbePlanParams
-from app.runtime.registry import job_kind
 from app.jobs.results.models import ProbePlanResult
 from app.platform.models import Trace
-from app.probing import (PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams,
-                         build_probe_program, plan_probes)
-from app.probing.field import field_result, plan_field
+from app.probing import PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams, build_probe_program, plan_probes
+from app.probing.field import field_result, plan_field, stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.field_verify import with_sequential_verification, with_verification
-from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
-from app.probing.field import stored_field
+from app.probing.joint import plan_joint
+from app.probing.merge import merge_plans
+from app.probing.program import mesh_station_normals
 from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
 from app.reconstruction.field_sequential import pilot_params, plan_tightened, round_params, stations_check
 from app.reconstruction.field_trust import bound_meets_target
-from app.probing.joint import plan_joint
-from app.probing.merge import merge_plans
-from app.probing.program import mesh_station_normals
+from app.runtime.context import JobContext
+from app.runtime.registry import job_kind
+
 
 def check_same_part(session: Session, trace_ids: list[str], field: str) -> None:
     """Submission check: the traces exist, are distinct and all lie on the first one's part;

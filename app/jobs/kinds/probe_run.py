@@ -28,14 +28,26 @@ from pydantic import Field
 from sqlmodel import Session
 
 from app.calibration import DriftTrack, drift_offsets, retouch_schedule, touch_times
-from app.runtime.context import JobContext
-from app.runtime.machine_queue import (interrupt, refuse_if_machine_busy, rehomed_machine,
-                                   resume_request, stopped_by_operator)
-from app.jobs.probe_correction import (PAD_CLEARANCE_MM, PAD_OVERTRAVEL_MM, Corrections, MachineProbe,
-                                       corrected_heights, machine_probe, station_normals)
-from app.runtime.registry import JobParams, job_kind
+from app.jobs.probe_correction import (
+    PAD_CLEARANCE_MM,
+    PAD_OVERTRAVEL_MM,
+    Corrections,
+    MachineProbe,
+    corrected_heights,
+    machine_probe,
+    station_normals,
+)
 from app.jobs.results.models import ProbePlanResult, ProbeRunResult
 from app.machines.live import profile_of, translate
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import (
+    interrupt,
+    refuse_if_machine_busy,
+    rehomed_machine,
+    resume_request,
+    stopped_by_operator,
+)
+from app.runtime.registry import JobParams, job_kind
 from hardware.errors import HardwareError, LinkError
 
 PAD = -1  # the op index of a pad visit

@@ -13,8 +13,8 @@ the part).  With ``points``, ``context`` gives the other traces' probes explicit
 
 from __future__ import annotations
 
-from dataclasses import replace
 from collections.abc import Iterator
+from dataclasses import replace
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -24,25 +24,35 @@ from app.calibration import ProbeCalibration
 from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement
 from app.jobs.board_checkpoints import TraceCheckpoints, inputs_sha256, trace_inputs
-from app.runtime.context import JobContext
+from app.jobs.field_runs import run_field
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
-from app.jobs.inputs import (check_registration, placed_nominal, placement_from, registration_reference,
-                             succeeded_job)
+from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference, succeeded_job
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
-from app.runtime.registry import job_kind
-from app.jobs.results.models import ProbePlanResult, ProbeRunResult, ReconstructBoardResult, ReconstructResult
+from app.jobs.probe_correction import refined, run_probe_calibration
+from app.jobs.results.models import (
+    ProbePlanResult,
+    ProbeRunResult,
+    ReconstructBoardResult,
+    ReconstructResult,
+    joint_trace_ranges,
+)
+from app.jobs.scan_fields import scan_field
+from app.platform.lookup import get_or_404
 from app.platform.models import Job, Trace
 from app.probing import PlanParams
-from app.reconstruction import (PreprocessParams, Reconstruction, ReconstructionError, ReconstructParams,
-                                preprocess, reconstruct)
+from app.reconstruction import (
+    PreprocessParams,
+    Reconstruction,
+    ReconstructionError,
+    ReconstructParams,
+    preprocess,
+    reconstruct,
+)
 from app.reconstruction.field import trace_reconstruction
 from app.reconstruction.field_trust import FieldCheck, trace_bound, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
-from app.jobs.field_runs import run_field
-from app.jobs.probe_correction import refined, run_probe_calibration
-from app.jobs.scan_fields import scan_field
-from app.jobs.results.models import joint_trace_ranges
-from app.platform.lookup import get_or_404
+from app.runtime.context import JobContext
+from app.runtime.registry import job_kind
 
 DEGREE = 3
 NPZ_MEDIA_TYPE = "application/zip"  # an NPZ is a zip of .npy members
@@ -105,7 +115,7 @@ class ReconstructJobParams(PlacedParams):
                                            json_schema_extra=form(when={"method": ["kriging"]}))
 
     @model_validator(mode="after")
-    def _one_source(self) -> "ReconstructJobParams":
+    def _one_source(self) -> ReconstructJobParams:
         if sum(x is not None for x in (self.probe_run_job_id, self.points, self.scan_run_job_id)) != 1:
             raise ValueError("give exactly one of probe_run_job_id, points or scan_run_job_id")
         if self.method == "field" and self.probe_run_job_id is None and self.scan_run_job_id is None:

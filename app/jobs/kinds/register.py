@@ -23,19 +23,25 @@ from typing import Any
 import numpy as np
 from sqlmodel import Session
 
+from app.calibration import surface_heights
+from app.jobs.params import RegisterParams
+from app.jobs.probe_correction import machine_probe
+from app.jobs.results.models import RegisterResult
+from app.machines.live import hardware_errors, translate
+from app.platform.lookup import get_or_404
+from app.platform.models import Part
 from app.registration.datum_plan import DatumProbeParams, plan_datum_probes, register_with_z_probe
 from app.runtime.context import JobContext
-from app.runtime.machine_queue import (interrupt, refuse_if_machine_busy, rehomed_machine, resume_request,
-                                   stopped_by_operator)
-from app.jobs.params import RegisterParams
+from app.runtime.machine_queue import (
+    interrupt,
+    refuse_if_machine_busy,
+    rehomed_machine,
+    resume_request,
+    stopped_by_operator,
+)
 from app.runtime.registry import job_kind
-from app.jobs.results.models import RegisterResult
-from app.calibration import surface_heights
-from app.jobs.probe_correction import machine_probe
-from app.machines.live import hardware_errors, translate
 from hardware.errors import HardwareError, LinkError
-from app.platform.models import Part
-from app.platform.lookup import get_or_404
+
 
 def _check(params: RegisterParams, session: Session) -> None:
     get_or_404(session, Part, params.part_id, field="params.part_id")

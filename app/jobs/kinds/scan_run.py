@@ -33,15 +33,13 @@ from pydantic import Field
 from sqlmodel import Session
 
 from app.calibration.correct import surface_heights
-from app.runtime.context import JobContext
 from app.jobs.inputs import nominal_of
-from app.runtime.machine_queue import refuse_if_machine_busy
 from app.jobs.probe_correction import machine_probe
 from app.jobs.scan_passes import interrupting, scan_passes
-from app.runtime.registry import JobParams, job_kind
 from app.jobs.sensor_calibration import scan_calibration
 from app.jobs.sensor_runs import require_sensor_port
 from app.machines.live import profile_of
+from app.platform.lookup import get_or_404
 from app.platform.models import Machine
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.scan_cost import MotionCost, touch_order, touch_time
@@ -49,8 +47,10 @@ from app.probing.scan_plan import plan_scans
 from app.reconstruction.field_trust import trace_bound, with_bound
 from app.reconstruction.scan_field import ScanFieldCheck, fit_scan_field, gap_sites, verify_touches
 from app.reconstruction.scan_field_store import scan_check_npz
-from app.platform.lookup import get_or_404
 from app.reconstruction.scan_samples import block_average, carriage_deviations
+from app.runtime.context import JobContext
+from app.runtime.machine_queue import refuse_if_machine_busy
+from app.runtime.registry import JobParams, job_kind
 
 
 class ScanRunParams(JobParams):

@@ -17,13 +17,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
+from app.jobs.form_hints import form
+from app.jobs.results.models import SliceResult
+from app.platform.lookup import get_or_404
+from app.platform.models import Part
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
-from app.jobs.form_hints import form
 from app.runtime.registry import JobParams, job_kind
-from app.jobs.results.models import SliceResult
-from app.platform.models import Part
-from app.platform.lookup import get_or_404
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
 from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc

@@ -25,6 +25,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from sqlmodel import Session
 
+from app.jobs.results.models import SurfaceFitResult
+from app.platform.lookup import get_or_404
+from app.platform.models import Part
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import (
     GridHoleError,
@@ -39,9 +42,6 @@ from app.reconstruction.surface_fit.work import work_estimate
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
 from app.runtime.registry import JobParams, job_kind
-from app.jobs.results.models import SurfaceFitResult
-from app.platform.models import Part
-from app.platform.lookup import get_or_404
 
 MAX_POINTS = 100_000
 MAX_GRID = 200

@@ -25,21 +25,21 @@ from app.gcode.estimator import MachineLimits, estimate_program
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
-from app.runtime.context import JobContext
-from app.runtime.cost import Cost
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
-from app.runtime.registry import JobParams, job_kind
-from app.jobs.results.program import ToolpathResult
-from app.jobs.results.models import SliceResult
-from app.platform.models import Job, Machine, Part
 from app.jobs.inputs import succeeded_job
+from app.jobs.results.models import SliceResult
+from app.jobs.results.program import ToolpathResult
 from app.platform.lookup import get_or_404
+from app.platform.models import Job, Machine, Part
+from app.runtime.context import JobContext
+from app.runtime.cost import Cost
+from app.runtime.registry import JobParams, job_kind
 from app.slicing import SlicingError, ToolpathParams
-from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
 from app.slicing.export import from_json
-from app.slicing.layers import translated
 from app.slicing.fractal import MergeWeights
+from app.slicing.layers import translated
+from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
 
 MM_MIN_PER_MM_S = 60.0
 _FILL = ToolpathParams()

@@ -20,15 +20,14 @@ from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp
 from app.domain.errors import InvalidInput
 from app.gcode.program_bounds import BoundsScan
 from app.geometry.nurbs_surface import NurbsSurface
-from app.runtime.context import JobContext
 from app.jobs.gcode_meta import gcode_meta
-from app.runtime.registry import JobParams, job_kind
-from app.platform.models import Blob, Job, Program
 from app.jobs.inputs import succeeded_job
-from app.jobs.results.program import WarpProgramResult
 from app.jobs.results.models import ProbeRunResult, SurfaceFitResult
+from app.jobs.results.program import WarpProgramResult
 from app.platform.lookup import get_or_404
-
+from app.platform.models import Blob, Job, Program
+from app.runtime.context import JobContext
+from app.runtime.registry import JobParams, job_kind
 
 #: the largest program the submission checks itself (lines, bytes, arc chords: ~0.5 s of CPU at most)
 CHECK_LINES = 10_000
@@ -52,7 +51,7 @@ class WarpProgramParams(JobParams):
     compare_split_mm: float = Field(5.0, gt=0, le=100, description="fixed split length reported beside ours")
 
     @model_validator(mode="after")
-    def _one_surface(self) -> "WarpProgramParams":
+    def _one_surface(self) -> WarpProgramParams:
         if (self.surface_fit_job_id is None) == (self.probe_run_job_id is None):
             raise ValueError("give exactly one of surface_fit_job_id and probe_run_job_id")
         return self

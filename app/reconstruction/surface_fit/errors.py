@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.five_axis.errors import short
 from app.domain.errors import InvalidInput
+from app.five_axis.errors import short
 
 __all__ = ["SurfaceFitError", "GridHoleError"]
 

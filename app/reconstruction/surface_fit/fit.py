@@ -25,6 +25,10 @@ from typing import Any, Literal
 
 import numpy as np
 
+from app.geometry.errors import GeometryError
+from app.geometry.fitting import fit_surface as lsq_surface
+from app.geometry.fitting import interpolate_surface
+from app.geometry.nurbs_surface import NurbsSurface
 from app.reconstruction.surface_fit.errors import GridHoleError, SurfaceFitError
 from app.reconstruction.surface_fit.grid import HeightGrid
 from app.reconstruction.surface_fit.preprocess import (
@@ -37,10 +41,6 @@ from app.reconstruction.surface_fit.preprocess import (
     smooth_grid,
     square_shape,
 )
-from app.geometry.errors import GeometryError
-from app.geometry.fitting import fit_surface as lsq_surface
-from app.geometry.fitting import interpolate_surface
-from app.geometry.nurbs_surface import NurbsSurface
 
 __all__ = ["SurfaceFitParams", "SurfaceFit", "fit_surface"]
 

@@ -32,12 +32,12 @@ from scipy.interpolate import (
     make_smoothing_spline,
 )
 
-from app.reconstruction.surface_fit.errors import SurfaceFitError
-from app.reconstruction.surface_fit.grid import HeightGrid
-from app.reconstruction.surface_fit.tiles import neighbourhood_tiles
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
 from app.geometry.tolerance import DEFAULT_TOLERANCE, DEGENERATE_LENGTH_MM, DIVISION_FLOOR
+from app.reconstruction.surface_fit.errors import SurfaceFitError
+from app.reconstruction.surface_fit.grid import HeightGrid
+from app.reconstruction.surface_fit.tiles import neighbourhood_tiles
 
 __all__ = ["BadPointResult", "PointSpread", "check_point_spread", "find_bad_points",
            "choose_control_count", "square_shape",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from app.reference.s1 import s1_mesh
 from tests.api.test_circuits import GERBER_MM
+
 try:
     from playwright.sync_api import expect
 except ImportError:  # the tests fail or skip in conftest; the module must still import

@@ -4,7 +4,7 @@ localhost with 1,000 jobs and 100 parts stored — the history a lab builds in a
 from __future__ import annotations
 
 import time
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 import pytest
 from sqlalchemy import create_engine, insert, select
@@ -35,7 +35,7 @@ def stored_history(served) -> None:
         with engine.begin() as conn:
             parts = conn.execute(select(Part.__table__)).mappings().all()
     template = dict(parts[0])
-    old = datetime.now(timezone.utc) - timedelta(days=7)
+    old = datetime.now(UTC) - timedelta(days=7)
     with engine.begin() as conn:
         have_parts = len(parts)
         conn.execute(insert(Part.__table__), [

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from hardware.errors import FirmwareError
-from hardware.height_sensor import HeightSensor, SensorRejected
-from hardware.height_sensor import lkg
+from hardware.height_sensor import HeightSensor, SensorRejected, lkg
 from hardware.height_sensor.mock import unregister_sensor
 from hardware.machine import Machine
 from hardware.mock import MockPad, MockSphere

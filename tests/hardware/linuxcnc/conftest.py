@@ -18,7 +18,6 @@ LinuxCNC the tests skip, except under ``CI=true`` where they fail (CI installs
 
 from __future__ import annotations
 
-
 import time
 import warnings
 from pathlib import Path
@@ -27,8 +26,8 @@ import pytest
 
 from hardware.linuxcnc import SimController, SimUnavailable, linuxcnc_available
 from hardware.machine_types import MachineProfile
-
 from tests.helpers.real_components import missing
+
 PROFILE = MachineProfile(dispense_on="M64 P0", dispense_off="M65 P0", probe_command="G38.2",
                          travel_feed_mm_min=6000.0, probe_feed_mm_min=300.0, clearance_z=3.0,
                          probe_z_min=-10.0)

@@ -30,8 +30,8 @@ from app.five_axis.contact import contact_frames
 from app.five_axis.trace import trace_over_xy
 from hardware.protocol import validate_program
 from tests.five_axis.conftest import sphere_cap
-from tests.helpers.gcode_words import g1_rows
 from tests.hardware.linuxcnc.conftest import PROFILE, TRT_PIVOT
+from tests.helpers.gcode_words import g1_rows
 
 PIVOT = TRT_PIVOT            # the simulator's xyzac-trt rot-point
 STANDOFF = 0.5

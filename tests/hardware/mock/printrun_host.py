@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-
 from tests.helpers.real_components import missing
 
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 import pytest
 
 from hardware.errors import InvalidConfig
-from hardware.mock import (MockPad, MockSphere, MockTool, MockWorld, parse_mock_options,
-                           unregister_world, world_from_url)
+from hardware.mock import MockPad, MockSphere, MockTool, MockWorld, parse_mock_options, unregister_world, world_from_url
 
 
 def test_defaults_are_the_ideal_probe():

@@ -5,8 +5,15 @@ from __future__ import annotations
 import pytest
 
 from hardware.errors import InvalidConfig
-from hardware.mock import (FaultConfig, MockWorld, get_world, parse_mock_options, register_world,
-                           unregister_world, world_from_url)
+from hardware.mock import (
+    FaultConfig,
+    MockWorld,
+    get_world,
+    parse_mock_options,
+    register_world,
+    unregister_world,
+    world_from_url,
+)
 
 
 def test_url_options_are_typed_and_applied():

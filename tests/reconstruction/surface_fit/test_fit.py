@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from app.geometry.nurbs_surface import NurbsSurface
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import (
     GridHoleError,
@@ -16,7 +17,6 @@ from app.reconstruction.surface_fit import (
     fit_surface,
     grid_from_plan,
 )
-from app.geometry.nurbs_surface import NurbsSurface
 
 R = 50.0
 NOISE = 0.005
