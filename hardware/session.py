@@ -21,21 +21,10 @@ from __future__ import annotations
 
 from collections import OrderedDict, deque
 
+from . import events as ev
 from .controller_state import ControllerState, next_controller_state
 from .dialects import Dialect
 from .errors import FirmwareError, FirmwareReset, HardwareError, LinkError, ProtocolError
-from .events import (
-    Alarm,
-    Feedback,
-    FirmwareErrorEvent,
-    Halted,
-    Message,
-    Ok,
-    ReplyEvent,
-    Resend,
-    StartBanner,
-    StatusReport,
-)
 from .protocol import dwell_budget_s, frame, parse_reply
 from .reports import PositionMark, PositionTracker
 from .session_types import Action, Command, Complete, Halt, Observed, Position, Write
@@ -63,7 +52,7 @@ class ReplySession:
         self.poke_s = poke_s
         self.fallbacks: list[str] = []  # why the link fell back to ping-pong
         self.stats = {"sent": 0, "resends": 0, "pokes": 0, "ignored_resends": 0, "assumed_ok": 0, "retries": 0}
-        self.unsolicited: deque[ReplyEvent] = deque(maxlen=200)
+        self.unsolicited: deque[ev.ReplyEvent] = deque(maxlen=200)
         self.outstanding: deque[Command] = deque()
         self.history: OrderedDict[int, Command] = OrderedDict()
         self.next_line = 1
@@ -71,8 +60,8 @@ class ReplySession:
         self.fatal: HardwareError | None = None
         self.failed_at: float | None = None  # the now at which the session failed
         self.status_seq = 0
-        self.last_status: StatusReport | None = None
-        self.status_marks: deque[tuple[StatusReport, int, float]] = deque(maxlen=64)
+        self.last_status: ev.StatusReport | None = None
+        self.status_marks: deque[tuple[ev.StatusReport, int, float]] = deque(maxlen=64)
         self.controller: ControllerState | None = None  # the firmware's own state (grbl)
         self.completed = 0  # commands answered so far (Command.seq)
         self._swallow = False  # the plain ok right after a Resend belongs to the request
@@ -203,42 +192,42 @@ class ReplySession:
             self._positioned(mark)
             if consumed:
                 return self._take()  # the S_XYZ line after an S000 answer (hardware.reports)
-        if isinstance(event, (Ok, Resend, FirmwareErrorEvent)):
+        if isinstance(event, (ev.Ok, ev.Resend, ev.FirmwareErrorEvent)):
             self._answered = True
         if self.rules.position_by_status:  # the firmware's own state (Marlin reports none)
             self.controller = next_controller_state(self.controller, event, now, self.rules.lock_error)
         swallow, self._swallow = self._swallow, False
-        if isinstance(event, Ok):
+        if isinstance(event, ev.Ok):
             self._on_ok(event, now, swallow)
-        elif isinstance(event, Resend):
+        elif isinstance(event, ev.Resend):
             self._on_resend(event.line, now)
         elif self.rules.says_busy(kind):  # the command in hand still runs: no stall poke
             self._last_ack = now
             if self.outstanding:
                 self.outstanding[0].replies.append(event)
-        elif isinstance(event, FirmwareErrorEvent) and event.is_transmission:
+        elif isinstance(event, ev.FirmwareErrorEvent) and event.is_transmission:
             pass  # the Resend that follows does the work
-        elif isinstance(event, FirmwareErrorEvent) and event.kind == "halted" or isinstance(event, Halted):
+        elif isinstance(event, ev.FirmwareErrorEvent) and event.kind == "halted" or isinstance(event, ev.Halted):
             self._fail(FirmwareError(f"firmware halted: {event.raw}"), now)
-        elif isinstance(event, FirmwareErrorEvent):
+        elif isinstance(event, ev.FirmwareErrorEvent):
             self._on_command_error(event, now)
-        elif isinstance(event, Alarm):
+        elif isinstance(event, ev.Alarm):
             self._on_alarm(event, now)
-        elif isinstance(event, StartBanner):
+        elif isinstance(event, ev.StartBanner):
             self._on_banner(event, now)
-        elif isinstance(event, StatusReport):
+        elif isinstance(event, ev.StatusReport):
             self._on_status(event, now)
-        elif self.rules.parser_marker and isinstance(event, Feedback) and event.tag == "GC":
+        elif self.rules.parser_marker and isinstance(event, ev.Feedback) and event.tag == "GC":
             self._on_parser_state(event, now)
         elif self.outstanding:
-            if isinstance(event, Message) and self.rules.announced_resets:
+            if isinstance(event, ev.Message) and self.rules.announced_resets:
                 self._expect_reset_after(event, now)
             self.outstanding[0].replies.append(event)
         elif event.raw.strip():
             self.unsolicited.append(event)
         return self._take()
 
-    def _complete_head(self, status: str, now: float, error: ReplyEvent | None = None) -> None:
+    def _complete_head(self, status: str, now: float, error: ev.ReplyEvent | None = None) -> None:
         command = self.outstanding.popleft()
         if command.error_event is not None and status == "ok":
             status, error = "error", command.error_event
@@ -255,7 +244,7 @@ class ReplySession:
         self._last_answer = now
         self._pokes_in_row = 0
 
-    def _on_ok(self, event: Ok, now: float, swallow: bool = False) -> None:
+    def _on_ok(self, event: ev.Ok, now: float, swallow: bool = False) -> None:
         if event.line is not None:
             self.n_ok = True
             while self.outstanding and self.outstanding[0].line_no is not None \
@@ -337,7 +326,7 @@ class ReplySession:
             self._replay_inflight = number
             self._write(command.data, "resend")
 
-    def _on_command_error(self, event: FirmwareErrorEvent, now: float) -> None:
+    def _on_command_error(self, event: ev.FirmwareErrorEvent, now: float) -> None:
         if not self.outstanding:
             self.unsolicited.append(event)
             return
@@ -350,7 +339,7 @@ class ReplySession:
         # error:1/2 are the parser's verdict on the line as received: never re-sent.
         self._complete_head("error", now, event)
 
-    def _on_alarm(self, event: Alarm, now: float) -> None:
+    def _on_alarm(self, event: ev.Alarm, now: float) -> None:
         """grbl alarm: the running command fails (its ``ok`` still follows for probe
         alarms); later lines are refused with ``error:9`` by the firmware itself."""
         if self.outstanding:
@@ -362,7 +351,7 @@ class ReplySession:
         else:
             self.unsolicited.append(event)
 
-    def _on_banner(self, event: StartBanner, now: float) -> None:
+    def _on_banner(self, event: ev.StartBanner, now: float) -> None:
         """The controller (re)started and flushed its receive buffer: the host's own markers
         are forgotten (never matched to a later reply); an announced reset fails what is
         still in flight, an unannounced one with commands in flight fails the session."""
@@ -391,7 +380,7 @@ class ReplySession:
                                      last_line=self.last_acked_line()), now)
         self.unsolicited.append(event)
 
-    def _on_status(self, event: StatusReport, now: float) -> None:
+    def _on_status(self, event: ev.StatusReport, now: float) -> None:
         self.status_seq += 1
         self.last_status = event
         self.unsolicited.append(event)
@@ -401,13 +390,13 @@ class ReplySession:
         # No lost-ok inference here: grbl reports Idle with an empty RX buffer while it
         # dwells, so only the $G marker (below) proves that answers were lost.
 
-    def _expect_reset_after(self, event: Message, now: float) -> None:
+    def _expect_reset_after(self, event: ev.Message, now: float) -> None:
         """``[MSG:Disabled]`` answers a ``$C`` that leaves check mode: grbl resets next."""
         head = self.outstanding[0]
         if event.text.strip() == "Disabled" and head.command.upper().replace(" ", "") == "$C":
             self._expect_banner_until = now + RESET_BANNER_WAIT_S
 
-    def _on_parser_state(self, event: ReplyEvent, now: float) -> None:
+    def _on_parser_state(self, event: ev.ReplyEvent, now: float) -> None:
         """grbl prints ``[GC:...]`` when it executes a ``$G``; it answers in order, so every
         command sent before the oldest outstanding ``$G`` was answered: their lost oks
         are taken as received (status ``assumed``)."""
