@@ -8,6 +8,11 @@ ARTIFACTS_INLINE_MAX artifacts are listed, and ``artifact_count`` counts them al
 compensate writes two programs per trace).  So a client polling a job's status pays for a
 small record; ``?include=result`` returns the result whole, ``?include=artifacts`` every
 artifact (as ``GET /jobs/{id}/artifacts`` does).
+
+Parameters likewise: a board job's ``trace_ids`` (thousands of ids) would make every poll
+of it hundreds of KiB.  When the parameters' JSON is over PARAMS_INLINE_MAX_BYTES, each
+top-level list or object larger than PARAM_VALUE_INLINE_MAX_BYTES is left out of ``params``
+and named in ``params_omitted`` with its length; ``?include=params`` returns them whole.
 """
 
 from __future__ import annotations
@@ -22,13 +27,18 @@ from app.jobs.results import result_summary
 from app.models import Job
 
 RESULT_INLINE_MAX_BYTES = 16 * 1024
+PARAMS_INLINE_MAX_BYTES = 16 * 1024
+PARAM_VALUE_INLINE_MAX_BYTES = 1024
 ARTIFACTS_INLINE_MAX = 20
 
-Include = Annotated[list[Literal["result", "artifacts"]] | None, Query(description=(
+Include = Annotated[list[Literal["result", "artifacts", "params"]] | None, Query(description=(
     "result: the job's result whole, however large (by default a result larger than "
     f"{RESULT_INLINE_MAX_BYTES // 1024} KiB of JSON is left out: result null, result_omitted true, "
     f"result_bytes and result_summary say what it holds); artifacts: every artifact (by default the first "
-    f"{ARTIFACTS_INLINE_MAX}; artifact_count counts them all).  Repeat to ask for both."))]
+    f"{ARTIFACTS_INLINE_MAX}; artifact_count counts them all); params: the parameters whole (by default, "
+    f"when they are over {PARAMS_INLINE_MAX_BYTES // 1024} KiB of JSON, their long lists and objects, "
+    "e.g. a board's trace_ids, are left out and params_omitted gives each one's length).  Repeat to ask "
+    "for more than one."))]
 
 
 def wants(include: Sequence[str] | None, what: str) -> bool:
@@ -39,6 +49,17 @@ def wants(include: Sequence[str] | None, what: str) -> bool:
 def inlined(result_bytes: int | None, include: bool) -> bool:
     """Whether a result of ``result_bytes`` (None: not recorded) is shown whole."""
     return include or result_bytes is None or result_bytes <= RESULT_INLINE_MAX_BYTES
+
+
+def shown_params(params: dict[str, Any] | None, include: bool) -> dict[str, Any]:
+    """The record's ``params`` and ``params_omitted`` (name -> length of each value left out;
+    None when nothing is) for a job's ``params``, whole when ``include`` or small."""
+    params = params or {}
+    if include or len(json.dumps(params)) <= PARAMS_INLINE_MAX_BYTES:
+        return {"params": params, "params_omitted": None}
+    omitted = {name: len(value) for name, value in params.items()
+               if isinstance(value, (list, dict)) and len(json.dumps(value)) > PARAM_VALUE_INLINE_MAX_BYTES}
+    return {"params": {k: v for k, v in params.items() if k not in omitted}, "params_omitted": omitted or None}
 
 
 def shown_result(job: Job, include: bool) -> dict[str, Any]:

@@ -151,7 +151,11 @@ class JobOut(BaseModel):
                     "waiting"]
     progress: float
     message: str
-    params: dict[str, Any]
+    params: dict[str, Any] = Field(description=(
+        "the parameters; when over 16 KiB of JSON their long lists and objects (a board's trace_ids) "
+        "are left out unless asked for with ?include=params (params_omitted names them)"))
+    params_omitted: dict[str, int] | None = Field(None, description=(
+        "the parameters left out of params (name -> the value's length); null when none is"))
     parent_id: str | None
     attempts: int
     cancel_requested: bool
