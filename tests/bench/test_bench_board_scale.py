@@ -30,6 +30,7 @@ from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
+FINISHED = ("succeeded", "needs_attention", "failed", "cancelled", "interrupted")  # interrupted: a lost lease
 TICK_S = 1.0 / os.sysconf("SC_CLK_TCK")
 
 
@@ -118,7 +119,7 @@ def _step(client, kind: str, params: dict, timeout: float) -> tuple[dict, float,
     t0, c0 = time.perf_counter(), cpu_s()
     job = client.post("/api/v1/jobs", headers=OP, json={"kind": kind, "params": params})
     assert job.status_code == 202, job.text
-    done = wait_for(client, job.json()["id"], timeout=timeout)
+    done = wait_for(client, job.json()["id"], timeout=timeout, states=FINISHED)
     return done, time.perf_counter() - t0, cpu_s() - c0
 
 
@@ -166,7 +167,7 @@ def test_a_5000_track_board_imports_checks_loops_and_prints(client):
               "(POST /jobs/{id}/accept), so the program is recorded as accepted unverified", flush=True)
         t2, c2 = time.perf_counter(), cpu_s()
         assert client.post(f"/api/v1/jobs/{loop['id']}/accept", headers=OP).status_code == 202
-        loop = wait_for(client, loop["id"], timeout=3600)
+        loop = wait_for(client, loop["id"], timeout=3600, states=FINISHED)
         print(f"  the accepted loop finished, {loop['status']}: {time.perf_counter() - t2:.1f} s wall, "
               f"{cpu_s() - c2:.1f} s CPU", flush=True)
     assert loop["status"] == "succeeded", (loop["error"], (loop["result"] or {}).get("verdict", {}).get("reasons"))
