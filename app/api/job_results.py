@@ -13,6 +13,9 @@ Parameters likewise: a board job's ``trace_ids`` (thousands of ids) would make e
 of it hundreds of KiB.  When the parameters' JSON is over PARAMS_INLINE_MAX_BYTES, each
 top-level list or object larger than PARAM_VALUE_INLINE_MAX_BYTES is left out of ``params``
 and named in ``params_omitted`` with its length; ``?include=params`` returns them whole.
+The input hashes too (one per referenced trace): over INPUT_HASHES_INLINE_MAX entries the
+record's ``input_hashes`` is empty and ``input_hashes_omitted`` counts them;
+``?include=input_hashes`` returns them.
 """
 
 from __future__ import annotations
@@ -29,16 +32,18 @@ from app.models import Job
 RESULT_INLINE_MAX_BYTES = 16 * 1024
 PARAMS_INLINE_MAX_BYTES = 16 * 1024
 PARAM_VALUE_INLINE_MAX_BYTES = 1024
+INPUT_HASHES_INLINE_MAX = 100
 ARTIFACTS_INLINE_MAX = 20
 
-Include = Annotated[list[Literal["result", "artifacts", "params"]] | None, Query(description=(
+Include = Annotated[list[Literal["result", "artifacts", "params", "input_hashes"]] | None, Query(description=(
     "result: the job's result whole, however large (by default a result larger than "
     f"{RESULT_INLINE_MAX_BYTES // 1024} KiB of JSON is left out: result null, result_omitted true, "
     f"result_bytes and result_summary say what it holds); artifacts: every artifact (by default the first "
     f"{ARTIFACTS_INLINE_MAX}; artifact_count counts them all); params: the parameters whole (by default, "
     f"when they are over {PARAMS_INLINE_MAX_BYTES // 1024} KiB of JSON, their long lists and objects, "
-    "e.g. a board's trace_ids, are left out and params_omitted gives each one's length).  Repeat to ask "
-    "for more than one."))]
+    "e.g. a board's trace_ids, are left out and params_omitted gives each one's length); input_hashes: "
+    f"every input hash (by default more than {INPUT_HASHES_INLINE_MAX}, one per trace of a board, are left "
+    "out and input_hashes_omitted counts them).  Repeat to ask for more than one."))]
 
 
 def wants(include: Sequence[str] | None, what: str) -> bool:
@@ -60,6 +65,15 @@ def shown_params(params: dict[str, Any] | None, include: bool) -> dict[str, Any]
     omitted = {name: len(value) for name, value in params.items()
                if isinstance(value, (list, dict)) and len(json.dumps(value)) > PARAM_VALUE_INLINE_MAX_BYTES}
     return {"params": {k: v for k, v in params.items() if k not in omitted}, "params_omitted": omitted or None}
+
+
+def shown_input_hashes(hashes: dict[str, str] | None, include: bool) -> dict[str, Any]:
+    """The record's ``input_hashes`` and ``input_hashes_omitted`` (how many were left out;
+    None when none was)."""
+    hashes = hashes or {}
+    if include or len(hashes) <= INPUT_HASHES_INLINE_MAX:
+        return {"input_hashes": hashes, "input_hashes_omitted": None}
+    return {"input_hashes": {}, "input_hashes_omitted": len(hashes)}
 
 
 def shown_result(job: Job, include: bool) -> dict[str, Any]:

@@ -18,7 +18,8 @@ from sqlmodel import Session, col, select
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.job_events import JobWatch, TooManyStreams
-from app.api.job_results import ARTIFACTS_INLINE_MAX, Include, inlined, shown_params, shown_result, wants
+from app.api.job_results import (ARTIFACTS_INLINE_MAX, Include, inlined, shown_input_hashes, shown_params,
+                                 shown_result, wants)
 from app.api.job_titles import job_titles
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
 from app.jobs.results import ProgramEcho
@@ -57,8 +58,9 @@ def job_out(job: Job, artifacts: list[Artifact], include: Sequence[str] | None =
     listed = artifacts if wants(include, "artifacts") else artifacts[:ARTIFACTS_INLINE_MAX]
     return JobOut(
         **job.model_dump(exclude={"queue", "max_attempts", "worker", "lease_until", "revision", "enqueued_at",
-                                  "result", "result_bytes", "result_summary", "params"}),
+                                  "result", "result_bytes", "result_summary", "params", "input_hashes"}),
         **shown_params(job.params, wants(include, "params")),
+        **shown_input_hashes(job.input_hashes, wants(include, "input_hashes")),
         **shown_result(job, wants(include, "result")),
         artifacts=[ArtifactOut(name=a.name, media_type=a.media_type, bytes=a.bytes, sha256=a.sha256, meta=a.meta,
                                url=f"/api/v1/jobs/{job.id}/artifacts/{a.name}") for a in listed],

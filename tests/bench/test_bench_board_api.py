@@ -40,7 +40,7 @@ from app.compensation.standoff import CompensationParams, compensate_trace
 from app.probing.field import plan_field
 from app.probing.selection import PlanParams
 from app.reconstruction.field import trace_reconstruction
-from app.reconstruction.field_trust import checked_field, trace_bound
+from app.reconstruction.field_trust import checked_field
 from app.reconstruction.reconstruct import ReconstructParams
 from app.reference.boards import BoardPart, as_made_board, board_path, board_traces, dome_part
 from tests.conftest import auth
@@ -92,8 +92,9 @@ def true_part(seed: int = 11) -> BoardPart:
 
 def core_board(part: BoardPart, n: int, seed: int = 11) -> dict[str, float]:
     """Process CPU s of the core functions on the same board: the field plan, the field fit
-    (its prior learned from the touches, as the job does), every trace's reconstruction with
-    its bound and compensation (the API's defaults: coverage 3, chord 2 um)."""
+    (its prior learned from the touches, as the job does), every trace's reconstruction and
+    compensation (the API's defaults: coverage 3, chord 2 um).  The job also states each
+    trace's bound (:func:`app.reconstruction.field_trust.trace_bound`), which this leaves out."""
     params = PlanParams(**PROCESS)
     paths = [board_path(part, g, 0.05) for g in board_traces(part, n)]
     made = as_made_board(part, seed)
@@ -102,12 +103,9 @@ def core_board(part: BoardPart, n: int, seed: int = 11) -> dict[str, float]:
     c1 = time.process_time()
     measured = plan.points.copy()
     measured[:, 2] = made.true_height(plan.xy) + np.random.default_rng(seed).normal(0, 0.001, len(plan.xy))
-    check = checked_field(params.prior(), plan.sites, plan.z, measured, plan.center, plan.trace, plan.s_mm,
-                          np.zeros(len(plan.z), dtype=bool), 3.0, 0.005, learn=True)  # as the job: prior learned
-    fit = check.fit
+    fit = checked_field(params.prior(), plan.sites, plan.z, measured, plan.center, plan.trace, plan.s_mm,
+                        np.zeros(len(plan.z), dtype=bool), 3.0, 0.005, learn=True).fit  # as the job: prior learned
     rebuilt = [trace_reconstruction(fit, path, i, ReconstructParams(prior=params.prior())) for i, path in enumerate(paths)]
-    for r in rebuilt:  # each trace's bound, as the job's rows report it
-        trace_bound(fit, r.nominal, check.coverage, check.learned, len(rebuilt))
     c2 = time.process_time()
     for r in rebuilt:
         compensate_trace(r, CompensationParams(standoff_mm=0.1))

@@ -72,3 +72,17 @@ def test_the_first_missing_or_repeated_trace_is_named_by_its_index(client):
     assert twice.json()["errors"][0]["loc"] == ["params", "trace_ids", "40"], twice.text
     plan_twice = submit(client, "probe_plan", {"trace_ids": ids[:5] + [ids[2]]})
     assert plan_twice.status_code == 422 and plan_twice.json()["errors"][0]["loc"] == ["params", "trace_ids", "5"]
+
+
+def test_a_board_loops_record_leaves_its_input_hashes_out_unless_asked(client):
+    part_id, ids, machine_id = _board(client, 300)
+    job = submit(client, "closed_loop", _loop(part_id, ids, machine_id))
+    assert job.status_code == 202, job.text
+    brief = client.get(f"/api/v1/jobs/{job.json()['id']}", headers=OP)
+    record = brief.json()
+    assert len(brief.content) <= 12_000, len(brief.content)  # the 301 hashes alone are ~28 KB
+    assert record["params"]["trace_ids"] == ids and record["params_omitted"] is None  # 8 KB of ids: under 16 KiB
+    assert record["input_hashes"] == {} and record["input_hashes_omitted"] == 301  # the part and each trace
+    whole = client.get(f"/api/v1/jobs/{job.json()['id']}", headers=OP, params={"include": "input_hashes"}).json()
+    assert set(whole["input_hashes"]) == {f"part:{part_id}", *(f"trace:{t}" for t in ids)}
+    assert whole["input_hashes_omitted"] is None
