@@ -317,9 +317,12 @@ class Runtime:
         self._threads.append(reaper)
 
     def reap_once(self) -> list[str]:
+        stale_s = max(2 * self.settings.lease_s, 5.0)
+        if not self.store.reap_due(stale_s):  # the usual pass: one read, no writes
+            return []
         for job_id in self.store.quarantine_lost_compute_jobs():
             log.warning("job %s quarantined: its worker was lost twice while running it", job_id)
-        ids = self.store.reap(stale_enqueue_s=max(2 * self.settings.lease_s, 5.0))
+        ids = self.store.reap(stale_enqueue_s=stale_s)
         for job_id in ids:
             with Session(self.engine) as session:
                 job = session.get(Job, job_id)
