@@ -151,7 +151,11 @@ class JobOut(BaseModel):
                     "waiting"]
     progress: float
     message: str
-    params: dict[str, Any]
+    params: dict[str, Any] = Field(description=(
+        "the parameters; when over 16 KiB of JSON their long lists and objects (a board's trace_ids) "
+        "are left out unless asked for with ?include=params (params_omitted names them)"))
+    params_omitted: dict[str, int] | None = Field(None, description=(
+        "the parameters left out of params (name -> the value's length); null when none is"))
     parent_id: str | None
     attempts: int
     cancel_requested: bool
@@ -167,7 +171,10 @@ class JobOut(BaseModel):
     result_summary: dict[str, Any] | None = Field(None, description=(
         "when the result is omitted: its top-level scalars, the kind's summary fields and <list>_count "
         "(the length of each top-level list)"))
-    input_hashes: dict[str, str]
+    input_hashes: dict[str, str] = Field(description=(
+        "what the job was made from (part:<id>, trace:<id> ... -> sha256); more than 100 (a board's traces) "
+        "are left out unless asked for with ?include=input_hashes (input_hashes_omitted counts them)"))
+    input_hashes_omitted: int | None = Field(None, description="how many input hashes were left out; null when none")
     software_version: str
     artifacts: list[ArtifactOut] = Field(description=(
         "the artifacts the job wrote, in order: the first 20 unless asked for with ?include=artifacts"))

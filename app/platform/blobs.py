@@ -11,13 +11,16 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlmodel import Session
 
 from app.platform.models import Blob, utcnow
+
+_BLOBS = Blob.__table__  # type: ignore[attr-defined]
+
 
 
 def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
@@ -51,6 +54,22 @@ class BlobStore:
         if not target.exists():
             write_atomically(target, lambda handle: handle.write(data))
         return _record(session, digest, len(data))
+
+    def put_many(self, session: Session, items: list[bytes]) -> list[str]:
+        """:meth:`put` of each of ``items`` (each file written and fsynced first), their rows
+        inserted in ONE statement (a board job stores hundreds at once); their sha256 in order."""
+        digests = [hashlib.sha256(data).hexdigest() for data in items]
+        sizes: dict[str, int] = {}
+        for digest, data in zip(digests, items):
+            target = self.path(digest)
+            if digest not in sizes and not target.exists():
+                write_atomically(target, lambda handle, data=data: handle.write(data))  # type: ignore[misc]
+            sizes[digest] = len(data)
+        if sizes:
+            now = utcnow()
+            session.connection().execute(_insert_new(session), [
+                {"sha256": sha, "bytes": size, "created_at": now} for sha, size in sizes.items()])
+        return digests
 
     def put_file(self, session: Session, handle: BinaryIO, chunk: int = 1 << 20) -> str:
         """Store the rest of the open binary file ``handle`` from its start (idempotent),
@@ -122,10 +141,14 @@ def sweep_blobs(store: BlobStore, session: Session, grace_s: float = SWEEP_GRACE
     return counts
 
 
+def _insert_new(session: Session) -> Any:
+    """``INSERT INTO blobs ... ON CONFLICT DO NOTHING`` in the session's dialect, its values
+    bound per execution (one compiled statement, executed for one row or many)."""
+    insert = pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert
+    return insert(_BLOBS).on_conflict_do_nothing()
+
+
 def _record(session: Session, sha: str, size: int) -> str:
     """Insert the blob's row unless it exists (the file is already in place); its sha256."""
-    insert = pg_insert if session.get_bind().dialect.name == "postgresql" else sqlite_insert
-    session.exec(
-        insert(Blob).values(sha256=sha, bytes=size, created_at=utcnow()).on_conflict_do_nothing()
-    )
+    session.connection().execute(_insert_new(session), {"sha256": sha, "bytes": size, "created_at": utcnow()})
     return sha

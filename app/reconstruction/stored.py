@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import zipfile
 from typing import Any
 
@@ -90,12 +91,34 @@ def reconstruction_npz(rec: Reconstruction) -> bytes:
     return out.getvalue()
 
 
+# the header numpy writes (``numpy.lib.format``): a dict of descr, fortran_order and shape
+_NPY_HEADER = re.compile(rb"\{'descr': '([<>|=][a-zA-Z]\d*)', 'fortran_order': False, 'shape': \(([\d, ]*)\), \}\s*$")
+
+
+def _npy_array(member: bytes) -> np.ndarray:
+    """One ``.npy`` member's array.  The header numpy itself writes (version 1.0, C order, a
+    plain dtype) is matched directly: numpy's reader evaluates every header as a Python
+    literal, which cost more than the rest of reading a board's reconstructions.  Anything
+    else (another version, Fortran order, a structured dtype) goes to numpy's reader; object
+    arrays (pickles) are refused either way."""
+    if member[:8] == b"\x93NUMPY\x01\x00":
+        size = int.from_bytes(member[8:10], "little")
+        match = _NPY_HEADER.match(member[10:10 + size])
+        if match is not None:
+            dtype = np.dtype(match.group(1).decode())
+            if not dtype.hasobject:
+                shape = tuple(int(n) for n in match.group(2).split(b",") if n.strip())
+                return np.frombuffer(member, dtype=dtype, count=int(np.prod(shape, dtype=np.int64)),
+                                     offset=10 + size).reshape(shape).copy()
+    return np.lib.format.read_array(io.BytesIO(member), allow_pickle=False)
+
+
 def read_reconstruction(data: bytes, nominal: TracePolyline) -> Reconstruction:
     """Inverse of :func:`reconstruction_npz` over ``nominal``."""
     try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-            arrays = {name: archive[name] for name in archive.files}
-    except (ValueError, OSError, zipfile.BadZipFile) as exc:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            arrays = {name[:-4]: _npy_array(archive.read(name)) for name in archive.namelist() if name.endswith(".npy")}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise ReconstructionError(f"the stored reconstruction is not a readable NPZ ({exc})",
                                   field="reconstruction", value=len(data)) from None
     return reconstruction_from_arrays(arrays, nominal)

@@ -19,6 +19,8 @@ from app.platform.lookup import get_or_404
 from app.platform.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile, utcnow
 from app.runtime.store import Claim
 
+_ARTIFACTS = Artifact.__table__  # type: ignore[attr-defined]
+
 if TYPE_CHECKING:
     import trimesh
 
@@ -144,17 +146,19 @@ class JobContext:
         with self.session() as session:
             existing = {row.name: row for row in session.exec(select(Artifact).where(
                 Artifact.job_id == self.job_id, Artifact.name.in_(names))).all()}  # type: ignore[attr-defined]
-            shas = []
-            for name, data, media_type, meta in items:
-                sha = self.runtime.blobs.put(session, data)
+            shas = self.runtime.blobs.put_many(session, [data for _, data, _, _ in items])
+            new: dict[str, dict[str, Any]] = {}
+            now = utcnow()
+            for (name, data, media_type, meta), sha in zip(items, shas):
                 row = existing.get(name)
-                if row is None:
-                    row = existing[name] = Artifact(job_id=self.job_id, name=name, created_at=utcnow(),
-                                                    media_type=media_type, bytes=len(data), sha256=sha, meta=meta or {})
-                else:  # a retried attempt rewrites its artifact
+                if row is not None:  # a retried attempt rewrites its artifact
                     row.sha256, row.bytes, row.media_type, row.meta = sha, len(data), media_type, meta or {}
-                session.add(row)
-                shas.append(sha)
+                    session.add(row)
+                else:  # the last of one name wins, as it would row by row
+                    new[name] = {"job_id": self.job_id, "name": name, "created_at": now, "media_type": media_type,
+                                 "bytes": len(data), "sha256": sha, "meta": meta or {}}
+            if new:  # one statement for every new row (a board job stores hundreds at a time)
+                session.connection().execute(_ARTIFACTS.insert(), list(new.values()))
             session.commit()
             return shas
 

@@ -24,7 +24,7 @@ from huey.consumer import Consumer
 from huey.storage import SqliteStorage
 from pydantic import ValidationError
 from sqlalchemy.exc import IntegrityError
-from sqlmodel import Session
+from sqlmodel import Session, col, select
 from threadpoolctl import threadpool_limits
 
 import app
@@ -103,12 +103,35 @@ _REFERENCED: dict[str, type[Part] | type[Trace] | type[Job] | type[MachineRow]] 
     "part": Part, "trace": Trace, "job": Job, "machine": MachineRow}
 
 
-def _recheck_references(session: Session, references: list[tuple[str, str]], validated: Any) -> None:
-    """After the job's rows are written (the transaction holds the write lock): every
-    referenced record still exists, else NotFound naming the parameter (rolled back)."""
+def _by_model(references: list[tuple[str, str]]) -> dict[Any, list[str]]:
+    """The referenced record ids grouped by their table (references to no table left out)."""
+    out: dict[Any, list[str]] = {}
     for ref_kind, ref_id in references:
         model = _REFERENCED.get(ref_kind)
-        if model is not None and not existing_locked(session, model, [ref_id]):
+        if model is not None:
+            out.setdefault(model, []).append(ref_id)
+    return out
+
+
+def _preload(session: Session, references: list[tuple[str, str]]) -> list[Any]:
+    """Read every referenced record in one query per table (a board loop references thousands
+    of traces), so that the checks' ``session.get`` of each finds it in the session; the
+    records are returned to be held (the session keeps them only while they are referenced)."""
+    held: list[Any] = []
+    for model, ids in _by_model(references).items():
+        if len(ids) > 1:
+            held += session.exec(select(model).where(col(model.id).in_(ids))).all()
+    return held
+
+
+def _recheck_references(session: Session, references: list[tuple[str, str]], validated: Any) -> None:
+    """After the job's rows are written (the transaction holds the write lock): every
+    referenced record still exists, else NotFound naming the parameter (rolled back); one
+    locked read per table."""
+    present = {model: existing_locked(session, model, ids) for model, ids in _by_model(references).items()}
+    for ref_kind, ref_id in references:
+        model = _REFERENCED.get(ref_kind)
+        if model is not None and ref_id not in present[model]:
             raise NotFound(f"{ref_kind} {ref_id!r} was deleted while the job was being submitted",
                            field=f"params.{_param_holding(validated, ref_id, ref_kind)}", value=ref_id)
 
@@ -179,6 +202,7 @@ class Runtime:
         references = kind.references(validated)
         with Session(self.engine, expire_on_commit=False) as session:
             hashes: dict[str, str] = {}
+            held = _preload(session, references)  # noqa: F841 (held while the checks read them)
             for ref_kind, ref_id in references:
                 model = _REFERENCED.get(ref_kind)
                 if model is None:
@@ -294,9 +318,12 @@ class Runtime:
         self._threads.append(reaper)
 
     def reap_once(self) -> list[str]:
+        stale_s = max(2 * self.settings.lease_s, 5.0)
+        if not self.store.reap_due(stale_s):  # the usual pass: one read, no writes
+            return []
         for job_id in self.store.quarantine_lost_compute_jobs():
             log.warning("job %s quarantined: its worker was lost twice while running it", job_id)
-        ids = self.store.reap(stale_enqueue_s=max(2 * self.settings.lease_s, 5.0))
+        ids = self.store.reap(stale_enqueue_s=stale_s)
         for job_id in ids:
             with Session(self.engine) as session:
                 job = session.get(Job, job_id)

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import ColumnElement, Engine, Executable, and_, case, literal, or_, select, update
+from sqlalchemy import ColumnElement, Engine, Executable, and_, bindparam, case, literal, or_, select, update
 from sqlalchemy.exc import DBAPIError
 from sqlmodel import col
 
@@ -25,6 +25,14 @@ FINISH_TRIES = 6  # JobStore.finish_surely: tries of an outcome's write...
 FINISH_WAIT_S = 0.5  # ...this far apart, doubling (~16 s in all)
 # Jobs that move a machine: when their process dies or their link drops they become
 # ``interrupted`` and wait for an operator (never requeued by the reaper).
+# One read, built once: is there anything for a reaper pass to do (a running job whose lease
+# expired, a queued one whose enqueue is stale)?  Most passes find nothing, and their five
+# conditional UPDATEs would each take the database's write lock for nothing.
+_REAP_DUE = select(col(Job.id)).where(or_(
+    and_(col(Job.status) == "running", col(Job.lease_until) < bindparam("now")),
+    and_(col(Job.status) == "queued", col(Job.cancel_requested).is_(False),
+         or_(col(Job.enqueued_at).is_(None), col(Job.enqueued_at) < bindparam("stale_before"))))).limit(1)
+
 OPERATOR_RESUMED_KINDS = ("print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle",
                           "scan_run", "calibrate_sensor", "jetting_run")
 
@@ -153,6 +161,13 @@ class JobStore:
             .values(status="cancelled", finished_at=utcnow(), message="cancelled before start", revision=col(Job.revision) + 1)
         )
         return "cancelled" if rows[0][0] == "queued" else "running"
+
+    def reap_due(self, stale_enqueue_s: float) -> bool:
+        """Whether :meth:`quarantine_lost_compute_jobs` or :meth:`reap` has anything to do now
+        (one read, no write lock)."""
+        now = time.time()
+        with self.engine.connect() as conn:
+            return conn.execute(_REAP_DUE, {"now": now, "stale_before": now - stale_enqueue_s}).first() is not None
 
     def reap(self, stale_enqueue_s: float) -> list[str]:
         """Requeue jobs whose lease expired (attempts left) and fail the rest.

@@ -156,7 +156,7 @@ def run_stubborn(ctx: JobContext, params: StubbornParams) -> dict:
 
 
 class BoardResultParams(JobParams):
-    trace_ids: list[str] = Field(min_length=1, max_length=1000)
+    trace_ids: list[str] = Field(min_length=1, max_length=10_000)
     points: int = Field(100, ge=1, le=10_000)
     artifacts_per_trace: int = Field(2, ge=0, le=2)
 

@@ -2,9 +2,8 @@
 
 The first attempt runs in the test's thread and "dies" (its worker is gone: no finish, no
 heartbeat) while storing its second group of finished traces (checkpoints in groups of two
-here), i.e. after traces 3 and 4's own artifacts were stored (reconstruct) or their files
-written to be listed in the checkpoint's commit (compensate), before they were recorded as
-done; its lease then runs out, the reaper puts the job back and the service's worker runs
+here), i.e. after the files of traces 3 and 4's artifacts were written to be listed in the
+checkpoint's commit, before they were recorded as done; its lease then runs out, the reaper puts the job back and the service's worker runs
 the second attempt.  That attempt reuses the first K traces (their artifacts untouched, their
 computation not repeated), redoes the unrecorded ones and the rest, says how many it reused,
 and its result is a clean run's.
@@ -90,17 +89,14 @@ def dies_after(client, monkeypatch, kind: str, params: dict, k: int) -> str:
     real, recorded = TraceCheckpoints.flush, []
 
     def flush(self):  # type: ignore[no-untyped-def]
-        if len(recorded) + len(self.pending) > k:  # dies storing the checkpoint: the group's outputs
-            put, written = runtime.blobs.put, len(self.outputs)  # not stored yet are written first
+        if len(recorded) + len(self.pending) > k:  # dies storing the checkpoint: the files of the
+            put_many, written = runtime.blobs.put_many, len(self.outputs)  # group's outputs are written first
 
-            def dying(session, data):  # type: ignore[no-untyped-def]
-                nonlocal written
-                if written == 0:
-                    raise WorkerDied([p["trace_id"] for p in self.pending])
-                written -= 1
-                return put(session, data)
+            def dying(session, items):  # type: ignore[no-untyped-def]
+                put_many(session, items[:written])  # their rows never committed
+                raise WorkerDied([p["trace_id"] for p in self.pending])
 
-            m.setattr(runtime.blobs, "put", dying)
+            m.setattr(runtime.blobs, "put_many", dying)
         else:
             recorded.extend(p["trace_id"] for p in self.pending)
         real(self)

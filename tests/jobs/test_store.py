@@ -43,6 +43,20 @@ def test_lost_lease_is_requeued_then_failed_after_max_attempts(runtime):
     assert status == "failed"
 
 
+def test_a_reaper_pass_reads_before_it_writes(runtime):
+    """The pass's one read says whether there is anything to reap: nothing while the lease
+    holds and the enqueue is fresh; a lost lease, or a queued job whose enqueue went stale."""
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    assert not runtime.store.reap_due(stale_enqueue_s=60)  # queued, just enqueued
+    assert runtime.store.reap_due(stale_enqueue_s=-1)  # ...its enqueue called stale
+    runtime.store.claim(job.id, "dead-worker")
+    assert not runtime.store.reap_due(stale_enqueue_s=60)  # running, lease valid
+    assert runtime.reap_once() == []
+    time.sleep(1.1)
+    assert runtime.store.reap_due(stale_enqueue_s=60)  # the lease ran out
+    assert runtime.reap_once() == [job.id] and runtime.store.status(job.id)[0] == "queued"
+
+
 def test_cancel_of_queued_job_is_immediate(runtime):
     job = runtime.submit("test_sleep", {"seconds": 0})
     assert runtime.store.request_cancel(job.id) == "cancelled"

@@ -81,3 +81,30 @@ def test_a_different_nominal_or_a_missing_array_is_refused(path):
     np.savez(buf, **arrays)
     with pytest.raises(ReconstructionError, match="incomplete"):
         read_reconstruction(buf.getvalue(), path)
+
+
+def test_the_members_read_as_numpy_reads_them_and_pickles_are_refused(path):
+    """The header numpy writes is read directly; every member equals numpy's own reading of
+    it (dtype, shape, values), a Fortran-ordered member goes through numpy's reader, and an
+    object array (a pickle) or a cut archive is refused."""
+    import io
+    import zipfile
+
+    from app.reconstruction.stored import _npy_array
+
+    rec = reconstruct(path, _measured(path), "deviation", sigma_mm=0.001)
+    data = reconstruction_npz(rec)
+    with np.load(io.BytesIO(data), allow_pickle=False) as archive, zipfile.ZipFile(io.BytesIO(data)) as z:
+        for name in archive.files:
+            mine, theirs = _npy_array(z.read(name + ".npy")), archive[name]
+            assert mine.dtype == theirs.dtype and mine.shape == theirs.shape and np.array_equal(mine, theirs), name
+    odd = {**reconstruction_arrays(rec), "curve_control_points": np.asfortranarray(rec.curve.control_points)}
+    buf = io.BytesIO()
+    np.savez(buf, **odd)
+    assert np.array_equal(read_reconstruction(buf.getvalue(), path).curve.control_points, rec.curve.control_points)
+    pickled = io.BytesIO()
+    np.savez(pickled, **{**reconstruction_arrays(rec), "method": np.asarray([{"a": 1}], dtype=object)})
+    with pytest.raises(ReconstructionError, match="readable NPZ"):
+        read_reconstruction(pickled.getvalue(), path)
+    with pytest.raises(ReconstructionError, match="readable NPZ"):
+        read_reconstruction(data[: len(data) // 2], path)

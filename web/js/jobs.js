@@ -214,7 +214,7 @@ function follow(job) {
     streams.delete(job.id);
     if (err) { showError(err, `Live progress of ${job.id}`); return; }
     await guarded("Jobs", async () => {
-      const fresh = await get(`jobs/${job.id}?include=result&include=artifacts`);
+      const fresh = await get(`jobs/${job.id}?include=result&include=artifacts&include=params`);
       updateRow(fresh);
       if (selected === job.id) renderDetail(fresh);
     });
@@ -333,13 +333,16 @@ function renderDetail(job) {
   detail.dataset.status = job.status;
 }
 
+// A job's parameters whole (a record in brief leaves long ones out: params_omitted names them).
+const allParams = async (job) => (job.params_omitted ? (await get(`jobs/${job.id}?include=params`)).params : job.params);
+
 // Run a job again with exactly its parameters (a machine job asks first: it moves a machine).
 async function rerun(job) {
   const moves = ["print", "probe_run", "register", "closed_loop", "calibrate_probe", "calibrate_nozzle", "scan_run",
     "calibrate_sensor"].includes(job.kind);
   if (moves && !window.confirm(`Run ${job.kind} again? It will move the machine.`)) return;
   await guarded("Run again", async () => {
-    const copy = await post("jobs", { kind: job.kind, params: job.params });
+    const copy = await post("jobs", { kind: job.kind, params: await allParams(job) });
     showInfo(`${copy.kind.replaceAll("_", " ")} queued again with the same parameters.`);
     await refresh();
     openJob(copy.id);
@@ -349,7 +352,7 @@ async function rerun(job) {
 // Fill the submission form with this job's parameters, to change some before submitting.
 async function editCopy(job) {
   kindSelect.value = job.kind;
-  await buildForm(job.params);
+  await buildForm(await allParams(job));
   kindSelect.scrollIntoView({ behavior: "smooth", block: "start" });
 }
 
@@ -358,7 +361,7 @@ async function openJob(jobId) {
   tbody.querySelectorAll("tr.selected").forEach((r) => r.classList.remove("selected"));
   tbody.querySelector(`tr[data-id="${jobId}"]`)?.classList.add("selected");
   await guarded(`Job ${jobId}`, async () => {
-    const job = await get(`jobs/${jobId}?include=result&include=artifacts`);
+    const job = await get(`jobs/${jobId}?include=result&include=artifacts&include=params`);
     renderDetail(job);
     follow(job);
   });

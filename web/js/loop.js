@@ -172,8 +172,14 @@ async function follow(jobId) {
 }
 
 let shownRevision = "";
+// the loop's parameters whole, read once per loop: a board's trace_ids are left out of a poll
+const fullParams = { id: null, params: null };
 async function refresh(jobId) {
   const job = await get(`jobs/${jobId}?include=result`);
+  if (job.params_omitted) {
+    if (fullParams.id !== jobId) Object.assign(fullParams, { id: jobId, params: (await get(`jobs/${jobId}?include=params`)).params });
+    job.params = fullParams.params;
+  }
   const kids = (await get(`jobs?parent_id=${jobId}&limit=500`)).items;
   const signature = `${job.status}|${job.message}|${kids.map((k) => k.status).join(",")}`;
   state.loop = job;

@@ -18,7 +18,15 @@ from sqlmodel import Session, col, select
 from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.job_events import JobWatch, TooManyStreams
-from app.api.job_results import ARTIFACTS_INLINE_MAX, Include, inlined, shown_result, wants
+from app.api.job_results import (
+    ARTIFACTS_INLINE_MAX,
+    Include,
+    inlined,
+    shown_input_hashes,
+    shown_params,
+    shown_result,
+    wants,
+)
 from app.api.job_titles import job_titles
 from app.api.schemas import ArtifactOut, JobCreate, JobOut, Page, ResumeRequest
 from app.domain.errors import Conflict, ConformaError, InvalidInput, NotFound, TooLarge
@@ -50,14 +58,16 @@ SSE_RETRY_AFTER_S = 5
 
 def job_out(job: Job, artifacts: list[Artifact], include: Sequence[str] | None = None,
             artifact_count: int | None = None) -> JobOut:
-    """The record of ``job`` (its result in brief unless ``include`` has "result"; its first
-    ARTIFACTS_INLINE_MAX ``artifacts`` unless it has "artifacts"; ``artifact_count``: how
-    many it wrote, when ``artifacts`` are not all of them)."""
+    """The record of ``job`` (its result in brief unless ``include`` has "result", its large
+    parameters unless it has "params"; its first ARTIFACTS_INLINE_MAX ``artifacts`` unless it
+    has "artifacts"; ``artifact_count``: how many it wrote, when ``artifacts`` are not all of them)."""
     count = len(artifacts) if artifact_count is None else artifact_count
     listed = artifacts if wants(include, "artifacts") else artifacts[:ARTIFACTS_INLINE_MAX]
     return JobOut(
         **job.model_dump(exclude={"queue", "max_attempts", "worker", "lease_until", "revision", "enqueued_at",
-                                  "result", "result_bytes", "result_summary"}),
+                                  "result", "result_bytes", "result_summary", "params", "input_hashes"}),
+        **shown_params(job.params, wants(include, "params")),
+        **shown_input_hashes(job.input_hashes, wants(include, "input_hashes")),
         **shown_result(job, wants(include, "result")),
         artifacts=[ArtifactOut(name=a.name, media_type=a.media_type, bytes=a.bytes, sha256=a.sha256, meta=a.meta,
                                url=f"/api/v1/jobs/{job.id}/artifacts/{a.name}") for a in listed],

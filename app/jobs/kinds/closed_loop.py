@@ -220,14 +220,16 @@ class ClosedLoopParams(JobParams):
 
 def _check(params: ClosedLoopParams, session: Session) -> None:
     machine = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    seen: set[str] = set()
     for index, trace_id in enumerate(params.trace_ids):
-        trace = session.get(Trace, trace_id)
+        trace = session.get(Trace, trace_id)  # read with the others at submission (Runtime.submit)
         if trace is None or trace.part_id != params.part_id:
             raise InvalidInput(f"trace {trace_id!r} is not a trace of part {params.part_id!r}",
                                field=f"params.trace_ids.{index}", value=trace_id)
-        if params.joint_probing and trace_id in params.trace_ids[:index]:
+        if params.joint_probing and trace_id in seen:
             raise InvalidInput(f"trace {trace_id!r} is listed twice; a joint plan probes each trace once",
                                field=f"params.trace_ids.{index}", value=trace_id)
+        seen.add(trace_id)
     if params.evaluate and not (machine.mock and machine.mock.get("true_part_id")):
         raise InvalidInput("evaluate needs a mock machine with a true part", field="params.evaluate", value=True)
     if params.measuring == "scan":

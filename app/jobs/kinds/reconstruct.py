@@ -23,7 +23,7 @@ from sqlmodel import Session
 from app.calibration import ProbeCalibration
 from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement
-from app.jobs.board_checkpoints import TraceCheckpoints, inputs_sha256, trace_inputs
+from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.field_runs import run_field
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference, succeeded_job
@@ -288,8 +288,9 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     parts: dict[str, str] = {}
     keys: dict[str, str] = {}
     done: dict[str, dict[str, Any] | None] = {}
+    records = {t.id: t for t in ctx.traces(params.traces)}  # one query, not one per trace
     for trace_id in params.traces:
-        trace = ctx.trace(trace_id)
+        trace = records[trace_id]
         if trace.part_id not in parts:
             parts[trace.part_id] = ctx.part(trace.part_id).sha256
         keys[trace_id] = inputs_sha256(shared, trace_inputs(trace, parts[trace.part_id]))
@@ -298,12 +299,13 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     if checkpoints.reused:
         ctx.progress(0.2, f"{checkpoints.reused}/{len(params.traces)} traces reused from an earlier attempt")
     check = _run_field(ctx, params)[0] if left else None  # once: it reads the run and the plan
-    for trace_id, rec in zip(left, rebuild_board(ctx, params, left) if left else ()):
+    for trace_id, rec in zip(left, rebuild_board(ctx, params, [records[t] for t in left]) if left else ()):
         assert check is not None
         name = stored_name(trace_id)
         row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec),
                "bound_mm": _trace_bound(check, rec.nominal, len(params.traces))}
-        checkpoints.done(trace_id, keys[trace_id], {name: _store(ctx, rec, name)}, row)
+        # stored with its group's checkpoint in one commit (a commit per trace cost more than its bound)
+        checkpoints.add(trace_id, keys[trace_id], [_stored(rec, name)], row)
         done[trace_id] = row
     checkpoints.flush()
     total = len(params.traces)
@@ -311,11 +313,15 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     return [entry for t in params.traces if (entry := done[t]) is not None]
 
 
+def _stored(reconstruction: Reconstruction, name: str) -> Output:
+    """``reconstruction`` as the artifact ``name`` to store (``compensate`` reads it back exactly)."""
+    return (name, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
+            {"format": "npz", "height_model": reconstruction.height_model.kind})
+
+
 def _store(ctx: JobContext, reconstruction: Reconstruction, name: str) -> str:
-    """Store ``reconstruction`` as the artifact ``name`` (``compensate`` reads it back exactly);
-    its sha256."""
-    return ctx.artifact(name, reconstruction_npz(reconstruction), NPZ_MEDIA_TYPE,
-                        {"format": "npz", "height_model": reconstruction.height_model.kind})
+    """Store ``reconstruction`` as the artifact ``name`` now; its sha256."""
+    return ctx.artifact(*_stored(reconstruction, name))
 
 
 def calibrated_sigma(ctx: JobContext, params: ReconstructJobParams) -> dict[str, Any] | None:
@@ -341,17 +347,17 @@ def board_entry(rec: Reconstruction) -> dict[str, Any]:
 
 
 def rebuild_board(ctx: JobContext, params: ReconstructJobParams,
-                  trace_ids: list[str] | None = None) -> Iterator[Reconstruction]:
-    """The reconstructions a board reconstruct makes, one after the other (in ``trace_ids``
-    order, default ``params.traces``): one field fit (cached per run, as for one trace)
-    evaluated along each trace (the probe noise as for one trace: ``params.sigma_mm``,
-    resolved by :func:`run`)."""
+                  traces: list[Trace] | None = None) -> Iterator[Reconstruction]:
+    """The reconstructions a board reconstruct makes, one after the other (over the trace
+    records ``traces``, default those of ``params.traces``, read in one query): one field fit
+    (cached per run, as for one trace) evaluated along each trace (the probe noise as for
+    one trace: ``params.sigma_mm``, resolved by :func:`run`)."""
     placement = placement_from(ctx, params)
     check, refinement, plan_traces = _run_field(ctx, params)
     where = {t: i for i, t in enumerate(plan_traces)}
-    wanted = params.traces if trace_ids is None else trace_ids
-    for index, trace_id in enumerate(wanted):
-        yield _field_trace(check, refinement, placed_nominal(ctx.trace(trace_id), placement), where[trace_id])
+    wanted = ctx.traces(params.traces) if traces is None else traces
+    for index, trace in enumerate(wanted):
+        yield _field_trace(check, refinement, placed_nominal(trace, placement), where[trace.id])
         if index % 50 == 49:
             ctx.progress(0.2 + 0.7 * (index + 1) / len(wanted), f"{index + 1}/{len(wanted)} traces rebuilt")
 
