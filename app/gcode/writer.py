@@ -22,6 +22,9 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+import numpy.typing as npt
+
 from app.errors import InvalidInput
 from app.gcode.reader import Program
 from app.gcode.recorder import ProgramRecorder
@@ -170,9 +173,14 @@ class ProgramBuilder:
     # -- program content ----------------------------------------------------------
     def comment(self, text: str) -> "ProgramBuilder":
         """Append ``; text`` (one line; newlines and parentheses are replaced)."""
-        clean = " ".join(str(text).replace("(", "[").replace(")", "]").split())
-        self._append(f"; {clean}" if clean else ";")
+        self._append(self.comment_text(text))
         return self
+
+    @staticmethod
+    def comment_text(text: str) -> str:
+        """The line :meth:`comment` writes for ``text``."""
+        clean = " ".join(str(text).replace("(", "[").replace(")", "]").split())
+        return f"; {clean}" if clean else ";"
 
     def rapid(self, x: float | None = None, y: float | None = None,
               z: float | None = None) -> "ProgramBuilder":
@@ -266,6 +274,20 @@ class ProgramBuilder:
                 self._moved([f"X{x!r}", f"Y{y!r}"])
         if self._recorder is not None:
             self._recorder.xy_block(lines, xs, ys, es, feed_mm_min)
+
+    def extend_block(self, lines: list[str], rows: npt.NDArray[np.float64]) -> None:
+        """Append ``lines`` the caller formatted as :meth:`move` and :meth:`comment` write
+        them: ``G1`` moves with X Y Z E words at this builder's decimals and an optional F
+        word, or comments without a layer tag; ``rows`` (len(lines), 5): per line the X, Y,
+        Z, E and F (mm/min) values as written, NaN for a word the line has not (all NaN: a
+        comment)."""
+        self._lines.extend(lines)
+        if self._pos is not None:
+            for x, y, z, e, _ in rows.tolist():
+                if x == x or y == y or z == z or e == e:   # a move (NaN != NaN: no such word)
+                    self._moved([f"{a}{v!r}" for a, v in zip("XYZ", (x, y, z)) if v == v])
+        if self._recorder is not None:
+            self._recorder.block(lines, rows)
 
     def _append(self, line: str) -> None:
         self._lines.append(line)
