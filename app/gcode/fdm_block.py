@@ -8,7 +8,7 @@ equal the last written is folded into the next (its filament goes with it), E is
 sum of each move's length times its piece's filament per mm (a sequential sum, as the loop
 adds), a retract (``-retract_mm``) and its undo (``+retract_mm``) go into that sum where
 they are written.  Numbers are written at the builder's decimals from values rounded as the
-text reads back (:func:`as_written`), so the record handed to the builder
+text reads back (:func:`app.gcode.writer.as_written`), so the record handed to the builder
 (:meth:`app.gcode.writer.ProgramBuilder.extend_block`) is what the reader reads.
 Units: mm, mm/min in the words.
 """
@@ -21,31 +21,12 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from app.gcode.writer import as_written
 from app.geometry.tolerance import LENGTH_EPS_MM
 
 if TYPE_CHECKING:
     from app.gcode.writer import ProgramBuilder
     from app.slicing.toolpath import PathPiece
-
-_AMBIGUOUS = 1e-6   # of the last decimal: closer than this to a half, numpy's scaled rounding may differ
-_SCALED_MAX = 2.0 ** 40   # beyond this many units of the last decimal, round in Python
-
-
-def as_written(values: npt.NDArray[np.float64], decimals: int) -> npt.NDArray[np.float64]:
-    """``values`` (any shape) as ``f"{v:.{decimals}f}"`` reads back: ``round(v, decimals) + 0.0``
-    (correctly rounded; -0.0 becomes 0.0), vectorised; the rare value whose scaled rounding is
-    ambiguous is rounded by Python itself."""
-    unit = 10.0 ** decimals
-    scaled = values * unit
-    out: npt.NDArray[np.float64] = np.rint(scaled) / unit
-    frac = scaled - np.floor(scaled)
-    doubt = (np.abs(frac - 0.5) < _AMBIGUOUS) | ~(np.abs(scaled) < _SCALED_MAX)
-    if doubt.any():
-        flat, src = out.reshape(-1), values.reshape(-1)
-        for i in np.flatnonzero(doubt.reshape(-1)).tolist():
-            flat[i] = round(float(src[i]), decimals)
-    return out + 0.0
-
 
 class ExtrudeState(NamedTuple):
     """The writer's running state between layers: absolute ``e`` (mm of filament), whether

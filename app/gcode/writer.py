@@ -101,6 +101,26 @@ def format_number(value: float, decimals: int, field: str = "value") -> str:
     return text
 
 
+_AMBIGUOUS = 1e-6   # of the last decimal: closer than this to a half, numpy's scaled rounding may differ
+_SCALED_MAX = 2.0 ** 40   # beyond this many units of the last decimal, round in Python
+
+
+def as_written(values: npt.NDArray[np.float64], decimals: int) -> npt.NDArray[np.float64]:
+    """``values`` (any shape) as ``f"{v:.{decimals}f}"`` reads back: ``round(v, decimals) + 0.0``
+    (correctly rounded; -0.0 becomes 0.0), vectorised; the rare value whose scaled rounding is
+    ambiguous is rounded by Python itself."""
+    unit = 10.0 ** decimals
+    scaled = values * unit
+    out: npt.NDArray[np.float64] = np.rint(scaled) / unit
+    frac = scaled - np.floor(scaled)
+    doubt = (np.abs(frac - 0.5) < _AMBIGUOUS) | ~(np.abs(scaled) < _SCALED_MAX)
+    if doubt.any():
+        flat, src = out.reshape(-1), values.reshape(-1)
+        for i in np.flatnonzero(doubt.reshape(-1)).tolist():
+            flat[i] = round(float(src[i]), decimals)
+    return out + 0.0
+
+
 #: a raw line that moves nothing: a tool change, an M code with settings, a dwell
 _STILL = re.compile(r"^\s*(T\d+|M\d+(\s+[SPQRT][-+]?[\d.]+)*|G4(\s+[PS][\d.]+)?)\s*$", re.IGNORECASE)
 

@@ -27,6 +27,7 @@ from app.records import get_or_404
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
 from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
+from app.slicing.export_binary import NAME as BINARY_LAYERS, to_binary
 from app.slicing.mesh_prep import default_max_hole_mm
 from app.slicing.rings import ring_length
 
@@ -258,18 +259,21 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         widths = [table.width(layer.thickness) for layer in sliced.layers]
     ctx.progress(0.7, "writing SLC, CLI, JSON and SVG")
     slc = to_slc(sliced, SlcOptions(quantum_mm=params.slc_quantum_mm))
-    ctx.artifact("layers.slc", slc.data, "application/octet-stream",
-                 {"layers": len(sliced.layers), "sampling_table_entries": len(slc.table)})
-    ctx.artifact("layers.cli", to_cli(sliced).encode(), "text/plain", {"layers": len(sliced.layers)})
-    ctx.artifact("layers.json", to_json(sliced).encode(), "application/json", {"layers": len(sliced.layers)})
     notes = list(sliced.notes) + list(slc.notes)
     svg_index = len(sliced.layers) // 2 if params.svg_layer is None else params.svg_layer
     if svg_index >= len(sliced.layers):
         notes.append(f"svg_layer {svg_index} is beyond the {len(sliced.layers)} layers; layer.svg shows the last one")
         svg_index = len(sliced.layers) - 1
     chosen = sliced.layers[svg_index]
-    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml",
-                 {"layer": svg_index, "z": chosen.z_top})
+    count = {"layers": len(sliced.layers)}
+    ctx.artifacts([  # one commit
+        ("layers.slc", slc.data, "application/octet-stream", {**count, "sampling_table_entries": len(slc.table)}),
+        ("layers.cli", to_cli(sliced).encode(), "text/plain", count),
+        ("layers.json", to_json(sliced).encode(), "application/json", count),
+        ("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml", {"layer": svg_index, "z": chosen.z_top}),
+        (BINARY_LAYERS, to_binary(sliced), "application/octet-stream",
+         {**count, "note": "layers.json's content as arrays (what the toolpath job reads)"}),
+    ])
     return SliceResult.written({
         "mode": params.mode,
         "layer_count": len(sliced.layers),

@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
+from app.errors import ConformaError
 from app.gcode.estimator import MachineLimits, estimate_program
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
@@ -38,6 +39,8 @@ from app.records import get_or_404
 from app.slicing import SlicingError, ToolpathParams
 from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
 from app.slicing.export import from_json
+from app.slicing.export_binary import NAME as BINARY_LAYERS, from_binary
+from app.slicing.layers import SliceResult as SlicedLayers
 from app.slicing.layers import translated
 from app.slicing.fractal import MergeWeights
 
@@ -310,11 +313,22 @@ def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
     return Cost(memory_mb=memory_mb, time_s=seconds, field=field, value=value, basis=basis)
 
 
+def _layers(ctx: JobContext, slice_job_id: str) -> SlicedLayers:
+    """The slice job's layers: its ``layers.npz`` (no text to parse), else (a slice job
+    stored before it wrote one) its ``layers.json``; the same contours either way."""
+    try:
+        return from_binary(ctx.artifact_bytes(slice_job_id, BINARY_LAYERS))
+    except ConformaError as exc:
+        if exc.field != "artifact":
+            raise
+    return from_json(ctx.artifact_bytes(slice_job_id, "layers.json"))
+
+
 @job_kind("toolpath", ToolpathJobParams, references=_references, check=_check, estimate=_estimate)
 def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
     slice_job = ctx.job(params.slice_job_id, kind="slice", field="params.slice_job_id")
-    sliced = from_json(ctx.artifact_bytes(slice_job.id, "layers.json"))
+    sliced = _layers(ctx, slice_job.id)
     machine = (ctx.machine(params.machine_id) if params.machine_id is not None and params.volume_mm is None
                else None)
     volume = machine_volume(params, machine)
