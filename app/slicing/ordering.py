@@ -40,9 +40,10 @@ def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.floa
 
     Every place a path may start is one candidate point: an open path's first and last
     vertex, a closed path's every vertex but the repeated last, grouped by path in order;
-    each step takes the nearest living candidate (ties: the lowest path, its first vertex
-    before its last; a closed path starting at its first vertex is printed as it is) and
-    retires that path's candidates.  Returns the re-ordered polylines and the final nozzle
+    each step takes the nearest living candidate (by squared distance; ties: the lowest
+    path, its first vertex before its last; a closed path starting at its first vertex is
+    printed as it is) and retires that path's candidates (the living ones are compacted
+    whenever half of those held have retired).  Returns the re-ordered polylines and the final nozzle
     position (2,) (:class:`OrderedPaths`).
     """
     remaining = [np.asarray(p, dtype=float) for p in paths if len(p) >= 2]
@@ -59,10 +60,13 @@ def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.floa
     cand = np.concatenate([p[:-1] if c else p[[0, -1]] for p, c in zip(remaining, closed)])
     owner_first = np.concatenate([[0], np.cumsum(counts)])
     owner_of = np.repeat(np.arange(len(remaining)), counts)
+    index = np.arange(len(cand))              # the candidates still held (compacted as paths retire)
     cx, cy = cand[:, 0].copy(), cand[:, 1].copy()
+    retired = 0
     px, py = float(pos[0]), float(pos[1])
     for _ in range(len(remaining)):
-        j = int(np.argmin(np.hypot(cx - px, cy - py)))
+        dx, dy = cx - px, cy - py
+        j = int(index[np.argmin(dx * dx + dy * dy)])
         k = int(owner_of[j])
         v = j - int(owner_first[k])
         p = remaining[k]
@@ -72,6 +76,11 @@ def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.floa
         elif v:
             p = p[::-1]
         out.append(p)
-        cx[owner_first[k]:owner_first[k + 1]] = np.inf
+        lo, hi = np.searchsorted(index, [owner_first[k], owner_first[k + 1]])
+        cx[lo:hi] = np.inf
+        retired += hi - lo
+        if 2 * retired > len(index):          # keep only the living candidates
+            keep = np.isfinite(cx)
+            index, cx, cy, retired = index[keep], cx[keep], cy[keep], 0
         px, py = float(p[-1, 0]), float(p[-1, 1])
     return OrderedPaths(out, out[-1][-1])
