@@ -43,7 +43,10 @@ class Ctx:
     def progress(self, *a, **k): pass
     def mesh(self, part_id): return trimesh.load(io.BytesIO(data), file_type="stl")
     def artifact(self, name, blob, media, meta=None):
-        artifacts[name] = blob if name == "layers.json" else len(blob)
+        artifacts[name] = blob if name in ("layers.json", "layers.npz") else len(blob)
+    def artifacts(self, items):
+        for name, blob, media, meta in items:
+            self.artifact(name, blob, media, meta)
     def job(self, job_id, **k): return SimpleNamespace(id=job_id)
     def artifact_bytes(self, job_id, name): return artifacts[name]
 

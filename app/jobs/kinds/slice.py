@@ -266,14 +266,14 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         svg_index = len(sliced.layers) - 1
     chosen = sliced.layers[svg_index]
     count = {"layers": len(sliced.layers)}
-    ctx.artifacts([  # one commit
-        ("layers.slc", slc.data, "application/octet-stream", {**count, "sampling_table_entries": len(slc.table)}),
-        ("layers.cli", to_cli(sliced).encode(), "text/plain", count),
-        ("layers.json", to_json(sliced).encode(), "application/json", count),
-        ("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml", {"layer": svg_index, "z": chosen.z_top}),
-        (BINARY_LAYERS, to_binary(sliced), "application/octet-stream",
-         {**count, "note": "layers.json's content as arrays (what the toolpath job reads)"}),
-    ])
+    # one artifact at a time: each one's bytes are let go before the next is made
+    ctx.artifact("layers.slc", slc.data, "application/octet-stream",
+                 {**count, "sampling_table_entries": len(slc.table)})
+    ctx.artifact("layers.cli", to_cli(sliced).encode(), "text/plain", count)
+    ctx.artifact("layers.json", to_json(sliced).encode(), "application/json", count)
+    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml", {"layer": svg_index, "z": chosen.z_top})
+    ctx.artifact(BINARY_LAYERS, to_binary(sliced), "application/octet-stream",
+                 {**count, "note": "layers.json's content as arrays (what the toolpath job reads)"})
     return SliceResult.written({
         "mode": params.mode,
         "layer_count": len(sliced.layers),

@@ -1,7 +1,8 @@
 """Job ``toolpath``: fill paths for the layers of a slice job, G-code and its print time.
 
-The layers come from the slice job's ``layers.json`` artifact (exactly the contours that
-job exported, beam compensation included); nothing is re-sliced.  ``time_s`` is the
+The layers come from the slice job's ``layers.npz`` artifact (exactly the contours of its
+``layers.json``, beam compensation included, as arrays; ``layers.json`` itself for a slice
+job stored before it wrote one); nothing is re-sliced.  ``time_s`` is the
 estimate of the written ``print.gcode`` by :func:`app.gcode.estimator.estimate_gcode` with
 the machine limits below (so anyone can re-run it on the downloaded file; the job takes
 the moves from the writer, :func:`app.gcode.fdm.write_fdm_program`, which records exactly
@@ -256,14 +257,14 @@ def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
 # 40-80 us per cell.  The other fills are planned and written a layer at a time, so what
 # grows is the program, ~PROGRAM_LINE_BYTES per written line (its text and the compact rows
 # the writer records for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
-# read from layers.json (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
+# read from layers.npz (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
 # slice: ~INFILL_LINES per sqrt(layer area) / pitch (scan lines at the angle, with their
 # links) and ~CONTOUR_LINES per mm of contour per perimeter (simplified to the resolution,
 # so a finer mesh of the same part writes the same lines).
 CELL_BYTES = 500.0
 CELL_S = 80e-6
 PROGRAM_LINE_BYTES = 600.0
-SLICE_VERTEX_BYTES = 125.0
+SLICE_VERTEX_BYTES = 60.0
 LINE_S = 150e-6
 INFILL_LINES = 6.7
 CONTOUR_LINES = 0.5
