@@ -30,17 +30,19 @@ def to_binary(result: SliceResult, decimals: int = 6) -> bytes:
     """``result`` as ``layers.npz`` bytes (contours at ``decimals``, as ``to_json`` writes them)."""
     doc = document_head(result)
     doc["layers"] = layer_rows(result)
-    table: list[tuple[int, int, int, int]] = []
-    rings = []
-    for k, lay in enumerate(result.layers):
-        for j, isl in enumerate(lay.islands):
-            for hole, ring in ((0, isl.outer), *((1, h) for h in isl.holes)):
-                table.append((k, j, hole, len(ring)))
-                rings.append(np.asarray(ring, dtype=np.float64))
-    points = as_written(np.concatenate(rings), decimals) if rings else np.zeros((0, 2))
+    table = [(k, j, hole, len(ring)) for k, lay in enumerate(result.layers) for j, isl in enumerate(lay.islands)
+             for hole, ring in ((0, isl.outer), *((1, h) for h in isl.holes))]
+    points = np.empty((sum(row[3] for row in table), 2))
+    at = 0
+    for lay in result.layers:   # ring by ring: no temporaries of the whole stack
+        for isl in lay.islands:
+            for ring in isl.rings():
+                points[at:at + len(ring)] = as_written(np.asarray(ring, dtype=np.float64), decimals)
+                at += len(ring)
     out = io.BytesIO()
     np.savez(out, header=np.frombuffer(json.dumps(doc, separators=(",", ":")).encode(), dtype=np.uint8),
              points=points, rings=np.array(table, dtype=np.int64).reshape(-1, 4))
+    del points
     return out.getvalue()
 
 

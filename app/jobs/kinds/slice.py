@@ -220,12 +220,12 @@ def _layer_row(layer, beam_offset_mm: float | None) -> dict:
 # Cost model, calibrated against measured peaks (tests/bench/test_bench_job_memory.py): the
 # mesh ~FACE_BYTES per face (trimesh's arrays and caches, the vectorised slicer's edge arrays),
 # the contours ~VERTEX_BYTES per vertex (~VERTICES_PER_ROOT_FACE sqrt(faces) per layer) with
-# their SLC / CLI / JSON text.  Adaptive modes are counted at their thinnest layer (the worst case).
+# their SLC / CLI / JSON text and the layers.npz arrays.  Adaptive modes are counted at their thinnest layer (the worst case).
 FACE_BYTES = 560.0
-VERTEX_BYTES = 45.0
+VERTEX_BYTES = 75.0
 VERTICES_PER_ROOT_FACE = 10.0
 LAYER_S = 2e-3
-BASE_MB = 4.0
+BASE_MB = 8.0
 
 
 def _estimate(params: SliceJobParams, session: Session) -> Cost | None:
