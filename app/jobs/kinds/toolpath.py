@@ -264,7 +264,7 @@ def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
 CELL_BYTES = 500.0
 CELL_S = 80e-6
 PROGRAM_LINE_BYTES = 600.0
-SLICE_VERTEX_BYTES = 60.0
+SLICE_VERTEX_BYTES = 30.0
 LINE_S = 150e-6
 INFILL_LINES = 6.7
 CONTOUR_LINES = 0.5
