@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
+from app.gcode.fdm_block import ExtrudeState, extrude_layer
 from app.gcode.reader import Program
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
@@ -189,6 +190,12 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
         h = tpp.layer_height_mm or lay.thickness
         b.raw(f";LAYER:{lay.index}")
         b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
+        if params.mode == "extrude" and all(np.isfinite(piece.points).all() for piece in lay.pieces):
+            rates = [bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area for piece in lay.pieces]
+            e, extruded, pos = extrude_layer(b, lay.pieces, rates, z, ExtrudeState(e, extruded, pos), travel,
+                                             params.retract_mm, params.retract_feed_mm_s * 60.0,
+                                             params.min_travel_for_retract_mm, params.z_lift_mm)
+            continue
         for piece in lay.pieces:
             start = piece.points[0]
             dist = math.inf if pos is None else math.hypot(*(start - pos))

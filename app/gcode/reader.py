@@ -67,7 +67,9 @@ SETTING_CODES = frozenset({"G17", "G40", "G49", "G54", "G61", "G64", "G80", "G94
 _MOVING_M = DEFAULT_ON | DEFAULT_OFF | {"M82", "M83"}
 RAPID, FEED, ARC_CW, ARC_CCW, HOME = 0, 1, 2, 3, 28
 
-_LAYER = re.compile(r";\s*LAYER[:\s]*(-?\d+)", re.IGNORECASE)
+#: a ``;LAYER:n`` tag: the moves after it belong to layer n
+LAYER_TAG = re.compile(r";\s*LAYER[:\s]*(-?\d+)", re.IGNORECASE)
+_LAYER = LAYER_TAG
 _PAREN = re.compile(r"\([^)]*\)")
 _LINE_NUMBER = re.compile(r"^N\d+\s*")
 _AXES = "XYZE"

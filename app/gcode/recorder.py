@@ -16,9 +16,10 @@ moves, which need the reader's running sums, go through the reader.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from app.gcode.lines import iter_lines
-from app.gcode.reader import FEED, MAX_ARC_CHORDS, RAPID, ModalReader, Program, ReadOptions
+from app.gcode.reader import FEED, LAYER_TAG, MAX_ARC_CHORDS, RAPID, ModalReader, Program, ReadOptions
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
 _INDEX = {"X": 0, "Y": 1, "Z": 2, "E": 3}
@@ -122,6 +123,50 @@ class ProgramRecorder:
         self.reader.ints.extend(ints)
         self.number, self._pos, self._synced = number, pos, False
         s.feed, s.motion, s.stop_pending = feed, FEED, stop
+
+    def block(self, texts: list[str], rows: npt.NDArray[np.float64]) -> None:
+        """Consecutive written lines ``texts`` at once: ``G1`` moves whose X Y Z E values and
+        F (mm/min) as written are ``rows`` (len(texts), 5; NaN: the line has no such word),
+        or comments (a row of NaN) that carry no layer tag."""
+        s = self.reader.state
+        is_move = ~np.isnan(rows[:, :4]).all(axis=1)
+        quiet = {texts[i] for i in np.flatnonzero(~is_move).tolist()}
+        if s.relative or s.relative_e or any(not t.startswith(";") or LAYER_TAG.search(t) for t in quiet):
+            for text in texts:
+                self.line(text)
+            return
+        n = len(texts)
+        if n == 0:
+            return
+        unit = np.array([s.scale, s.scale, s.scale, 1.0])
+        given = np.vstack([self._pos, rows[:, :4] * unit + s.shift])        # (n + 1, 4), the machine frame
+        since = np.where(np.isnan(given), 0, np.arange(n + 1)[:, None])
+        np.maximum.accumulate(since, axis=0, out=since)
+        at = given[since, np.arange(4)]                                     # the position after each line
+        feed = np.concatenate([[s.feed], rows[:, 4] * s.scale / 60.0])
+        held = np.where(np.isnan(feed), 0, np.arange(n + 1))
+        feed = feed[np.maximum.accumulate(held)][1:]
+        start, end = at[:-1], at[1:]
+        emitted = is_move & (end != start).any(axis=1)                    # the reader leaves out still lines
+        k = np.flatnonzero(emitted)
+        if len(k):
+            floats = np.empty((len(k), 11))
+            floats[:, 0:4], floats[:, 4:8], floats[:, 8:10], floats[:, 10] = start[k], end[k], s.rot, feed[k]
+            ints = np.empty((len(k), 5), dtype=np.int64)
+            ints[:, 0] = FEED
+            ints[:, 1] = s.dispensing | (end[k, 3] > start[k, 3] + DEGENERATE_LENGTH_MM)
+            ints[:, 2] = s.layer
+            ints[:, 3] = self.number + 1 + k
+            ints[:, 4] = 0
+            ints[0, 4] = s.stop_pending
+            self.reader.floats.frombytes(floats.tobytes())
+            self.reader.ints.frombytes(ints.tobytes())
+            s.stop_pending = False
+        if is_move.any():
+            s.motion = FEED
+        s.feed = float(feed[-1])
+        self.number += n
+        self._pos, self._synced = at[-1].tolist(), False
 
     def program(self) -> Program:
         """The moves, dwells and limits of every line fed so far."""

@@ -22,6 +22,9 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+import numpy.typing as npt
+
 from app.domain.errors import InvalidInput
 from app.gcode.reader import Program
 from app.gcode.recorder import ProgramRecorder
@@ -98,6 +101,26 @@ def format_number(value: float, decimals: int, field: str = "value") -> str:
     return text
 
 
+_AMBIGUOUS = 1e-6   # of the last decimal: closer than this to a half, numpy's scaled rounding may differ
+_SCALED_MAX = 2.0 ** 40   # beyond this many units of the last decimal, round in Python
+
+
+def as_written(values: npt.NDArray[np.float64], decimals: int) -> npt.NDArray[np.float64]:
+    """``values`` (any shape) as ``f"{v:.{decimals}f}"`` reads back: ``round(v, decimals) + 0.0``
+    (correctly rounded; -0.0 becomes 0.0), vectorised; the rare value whose scaled rounding is
+    ambiguous is rounded by Python itself."""
+    unit = 10.0 ** decimals
+    scaled = values * unit
+    out: npt.NDArray[np.float64] = np.rint(scaled) / unit
+    frac = scaled - np.floor(scaled)
+    doubt = (np.abs(frac - 0.5) < _AMBIGUOUS) | ~(np.abs(scaled) < _SCALED_MAX)
+    if doubt.any():
+        flat, src = out.reshape(-1), values.reshape(-1)
+        for i in np.flatnonzero(doubt.reshape(-1)).tolist():
+            flat[i] = round(float(src[i]), decimals)
+    return out + 0.0
+
+
 #: a raw line that moves nothing: a tool change, an M code with settings, a dwell
 _STILL = re.compile(r"^\s*(T\d+|M\d+(\s+[SPQRT][-+]?[\d.]+)*|G4(\s+[PS][\d.]+)?)\s*$", re.IGNORECASE)
 
@@ -170,9 +193,14 @@ class ProgramBuilder:
     # -- program content ----------------------------------------------------------
     def comment(self, text: str) -> ProgramBuilder:
         """Append ``; text`` (one line; newlines and parentheses are replaced)."""
-        clean = " ".join(str(text).replace("(", "[").replace(")", "]").split())
-        self._append(f"; {clean}" if clean else ";")
+        self._append(self.comment_text(text))
         return self
+
+    @staticmethod
+    def comment_text(text: str) -> str:
+        """The line :meth:`comment` writes for ``text``."""
+        clean = " ".join(str(text).replace("(", "[").replace(")", "]").split())
+        return f"; {clean}" if clean else ";"
 
     def rapid(self, x: float | None = None, y: float | None = None,
               z: float | None = None) -> ProgramBuilder:
@@ -266,6 +294,20 @@ class ProgramBuilder:
                 self._moved([f"X{x!r}", f"Y{y!r}"])
         if self._recorder is not None:
             self._recorder.xy_block(lines, xs, ys, es, feed_mm_min)
+
+    def extend_block(self, lines: list[str], rows: npt.NDArray[np.float64]) -> None:
+        """Append ``lines`` the caller formatted as :meth:`move` and :meth:`comment` write
+        them: ``G1`` moves with X Y Z E words at this builder's decimals and an optional F
+        word, or comments without a layer tag; ``rows`` (len(lines), 5): per line the X, Y,
+        Z, E and F (mm/min) values as written, NaN for a word the line has not (all NaN: a
+        comment)."""
+        self._lines.extend(lines)
+        if self._pos is not None:
+            for x, y, z, e, _ in rows.tolist():
+                if x == x or y == y or z == z or e == e:   # a move (NaN != NaN: no such word)
+                    self._moved([f"{a}{v!r}" for a, v in zip("XYZ", (x, y, z)) if v == v])
+        if self._recorder is not None:
+            self._recorder.block(lines, rows)
 
     def _append(self, line: str) -> None:
         self._lines.append(line)

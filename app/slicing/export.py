@@ -21,8 +21,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -173,23 +174,31 @@ def _island_json(isl: Island, decimals: int) -> str:
     return f'{{"outer":{_points_json(isl.outer, decimals)},"holes":[{holes}]}}'
 
 
+def layer_rows(result: SliceResult) -> list[dict[str, Any]]:
+    """Each layer's statistics as :func:`to_json` writes them (without its contours)."""
+    return [{"index": lay.index, "z_bottom": round(lay.z_bottom, 9),
+             "z_top": round(lay.z_top, 9), "z_sample": round(lay.z_sample, 9),
+             "thickness": round(lay.thickness, 9), "area_mm2": round(lay.area, 9),
+             "rings": lay.ring_count, "inner_rings": lay.inner_ring_count,
+             "sigma": round(lay.sigma, 9), "mu": round(lay.mu, 9), "eps": round(lay.eps, 9),
+             "reason": lay.reason}
+            for lay in result.layers]
+
+
+def document_head(result: SliceResult) -> dict[str, Any]:
+    """The fields of :func:`to_json`'s document but its layers (an empty list)."""
+    return {"units": "mm", "mode": result.params.mode, "z_min": result.z_min,
+            "z_max": result.z_max, "bounds": np.asarray(result.bounds, dtype=float).tolist(),
+            "volume_mm3": float(result.volume), "params": dataclasses.asdict(result.params),
+            "repairs": list(result.repairs), "notes": list(result.notes), "layers": []}
+
+
 def to_json(result: SliceResult, decimals: int = 6) -> str:
     """Per-layer contours and statistics as JSON text (mm, mm^2)."""
-    layers = [{"index": lay.index, "z_bottom": round(lay.z_bottom, 9),
-               "z_top": round(lay.z_top, 9), "z_sample": round(lay.z_sample, 9),
-               "thickness": round(lay.thickness, 9), "area_mm2": round(lay.area, 9),
-               "rings": lay.ring_count, "inner_rings": lay.inner_ring_count,
-               "sigma": round(lay.sigma, 9), "mu": round(lay.mu, 9), "eps": round(lay.eps, 9),
-               "reason": lay.reason}
-              for lay in result.layers]
-    doc = {"units": "mm", "mode": result.params.mode, "z_min": result.z_min,
-           "z_max": result.z_max, "bounds": np.asarray(result.bounds, dtype=float).tolist(),
-           "volume_mm3": float(result.volume), "params": dataclasses.asdict(result.params),
-           "repairs": list(result.repairs), "notes": list(result.notes), "layers": []}
-    head = json.dumps(doc, separators=(",", ":"))[:-len("[]}")]
+    head = json.dumps(document_head(result), separators=(",", ":"))[:-len("[]}")]
     rows = (json.dumps(row, separators=(",", ":"))[:-1] + ',"islands":['
             + ",".join(_island_json(i, decimals) for i in lay.islands) + "]}"
-            for row, lay in zip(layers, result.layers))
+            for row, lay in zip(layer_rows(result), result.layers))
     return head + "[" + ",".join(rows) + "]}"
 
 
@@ -210,38 +219,44 @@ def from_json(text: str | bytes) -> SliceResult:
     """
     try:
         doc = json.loads(text)
-        params = SliceParams(**doc["params"]) if "params" in doc else SliceParams(mode=doc["mode"])
-        rows = doc["layers"]
-        layers: list[Layer] = []
-        for k, row in enumerate(rows):
-            where = f"layers[{k}]"
-            islands = tuple(
-                Island(oriented(_ring(isl["outer"], f"{where}.outer"), ccw=True),
-                       tuple(oriented(_ring(h, f"{where}.holes"), ccw=False)
-                             for h in isl["holes"]))
-                for isl in row["islands"])
-            layers.append(Layer(index=int(row["index"]), z_bottom=float(row["z_bottom"]),
-                                z_top=float(row["z_top"]), z_sample=float(row["z_sample"]),
-                                islands=islands, area=float(row["area_mm2"]),
-                                ring_count=int(row["rings"]),
-                                inner_ring_count=int(row["inner_rings"]),
-                                sigma=float(row["sigma"]), mu=float(row["mu"]),
-                                eps=float(row["eps"]), reason=str(row["reason"])))
-        z_min, z_max = float(doc["z_min"]), float(doc["z_max"])
-        if "bounds" in doc:
-            bounds = np.asarray(doc["bounds"], dtype=np.float64).reshape(2, 3)
-        else:
-            xy = np.vstack([r for lay in layers for isl in lay.islands for r in isl.rings()])
-            bounds = np.array([[*xy.min(axis=0), z_min], [*xy.max(axis=0), z_max]])
-        volume = float(doc.get("volume_mm3", float("nan")))
-        repairs, notes = tuple(map(str, doc["repairs"])), tuple(map(str, doc["notes"]))
+        return from_document(doc, [[(isl["outer"], isl["holes"]) for isl in row["islands"]] for row in doc["layers"]])
     except SlicingError:
         raise
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
         raise SlicingError(f"not a layers.json document: {type(exc).__name__}: {exc}",
                            field="layers.json", value=str(exc)[:80]) from None
-    if not layers:
+
+
+def from_document(doc: dict[str, Any], contours: Sequence[Sequence[tuple[Any, Sequence[Any]]]]) -> SliceResult:
+    """A :class:`SliceResult` from :func:`to_json`'s document ``doc`` (its layers' islands
+    ignored) and, per layer, per island, the outer ring and the holes ((n, 2) mm each);
+    rings are oriented (outer CCW, holes CW).  KeyError, ValueError or TypeError for a
+    malformed document, :class:`SlicingError` naming a bad ring."""
+    params = SliceParams(**doc["params"]) if "params" in doc else SliceParams(mode=doc["mode"])
+    if not doc["layers"]:
         raise SlicingError("layers.json has no layers", field="layers.json", value=0)
+    layers: list[Layer] = []
+    for k, (row, islands_in) in enumerate(zip(doc["layers"], contours, strict=True)):
+        where = f"layers[{k}]"
+        islands = tuple(
+            Island(oriented(_ring(outer, f"{where}.outer"), ccw=True),
+                   tuple(oriented(_ring(h, f"{where}.holes"), ccw=False) for h in holes))
+            for outer, holes in islands_in)
+        layers.append(Layer(index=int(row["index"]), z_bottom=float(row["z_bottom"]),
+                            z_top=float(row["z_top"]), z_sample=float(row["z_sample"]),
+                            islands=islands, area=float(row["area_mm2"]),
+                            ring_count=int(row["rings"]),
+                            inner_ring_count=int(row["inner_rings"]),
+                            sigma=float(row["sigma"]), mu=float(row["mu"]),
+                            eps=float(row["eps"]), reason=str(row["reason"])))
+    z_min, z_max = float(doc["z_min"]), float(doc["z_max"])
+    if "bounds" in doc:
+        bounds = np.asarray(doc["bounds"], dtype=np.float64).reshape(2, 3)
+    else:
+        xy = np.vstack([r for lay in layers for isl in lay.islands for r in isl.rings()])
+        bounds = np.array([[*xy.min(axis=0), z_min], [*xy.max(axis=0), z_max]])
+    volume = float(doc.get("volume_mm3", float("nan")))
+    repairs, notes = tuple(map(str, doc["repairs"])), tuple(map(str, doc["notes"]))
     return SliceResult(layers=tuple(layers), params=params, z_min=z_min, z_max=z_max,
                        bounds=bounds, volume=volume, repairs=repairs, notes=notes)
 

@@ -38,44 +38,49 @@ class OrderedPaths(NamedTuple):
 def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.float64]) -> OrderedPaths:
     """Order (and orient) ``paths`` (list of (n, 2) mm) starting at ``start`` (2,).
 
-    Returns the re-ordered polylines and the final nozzle position (2,) (:class:`OrderedPaths`).
+    Every place a path may start is one candidate point: an open path's first and last
+    vertex, a closed path's every vertex but the repeated last, grouped by path in order;
+    each step takes the nearest living candidate (by squared distance; ties: the lowest
+    path, its first vertex before its last; a closed path starting at its first vertex is
+    printed as it is) and retires that path's candidates (the living ones are compacted
+    whenever half of those held have retired).  Returns the re-ordered polylines and the final nozzle
+    position (2,) (:class:`OrderedPaths`).
     """
     remaining = [np.asarray(p, dtype=float) for p in paths if len(p) >= 2]
     out: list[npt.NDArray[np.float64]] = []
     pos = np.asarray(start, dtype=float)
     if not remaining:
         return OrderedPaths(out, pos)
+    sizes = np.array([len(p) for p in remaining])
     heads = np.array([p[0] for p in remaining])
     tails = np.array([p[-1] for p in remaining])
-    closed = _closed_mask(heads, tails, np.array([len(p) for p in remaining]))
-    alive = np.ones(len(remaining), dtype=bool)
-    loops = np.flatnonzero(closed)
-    # every closed loop's vertices (the repeated last one left out), and whose they are:
-    # the nearest vertex of any loop still to print is one vectorised argmin
-    loop_points = np.concatenate([remaining[k][:-1] for k in loops]) if len(loops) else np.zeros((0, 2))
-    loop_of = np.repeat(loops, [len(remaining[k]) - 1 for k in loops])
-    loop_first = np.concatenate([[0], np.cumsum([len(remaining[k]) - 1 for k in loops])])[:-1]
-    first_vertex = dict(zip(loops.tolist(), loop_first.tolist()))
+    closed = _closed_mask(heads, tails, sizes).tolist()
+    # candidates per path: open -> [first, last]; closed -> its vertices but the last
+    counts = [n - 1 if c else 2 for n, c in zip(sizes.tolist(), closed)]
+    cand = np.concatenate([p[:-1] if c else p[[0, -1]] for p, c in zip(remaining, closed)])
+    owner_first = np.concatenate([[0], np.cumsum(counts)])
+    owner_of = np.repeat(np.arange(len(remaining)), counts)
+    index = np.arange(len(cand))              # the candidates still held (compacted as paths retire)
+    cx, cy = cand[:, 0].copy(), cand[:, 1].copy()
+    retired = 0
+    px, py = float(pos[0]), float(pos[1])
     for _ in range(len(remaining)):
-        dh = np.where(alive, np.hypot(*(heads - pos).T), np.inf)
-        dt = np.where(alive & ~closed, np.hypot(*(tails - pos).T), np.inf)
-        k_h, k_t = int(np.argmin(dh)), int(np.argmin(dt))
-        best_closed, best_d, best_v = -1, np.inf, 0
-        if len(loop_points):
-            dl = np.where(alive[loop_of], np.hypot(*(loop_points - pos).T), np.inf)
-            j = int(np.argmin(dl))
-            if np.isfinite(dl[j]):
-                best_closed, best_d = int(loop_of[j]), float(dl[j])
-                best_v = j - first_vertex[best_closed]
-        cands = [(dh[k_h], k_h, "head"), (dt[k_t], k_t, "tail"),
-                 (best_d, best_closed, "loop")]
-        d, k, how = min(cands, key=lambda c: (c[0], c[1]))
+        dx, dy = cx - px, cy - py
+        j = int(index[np.argmin(dx * dx + dy * dy)])
+        k = int(owner_of[j])
+        v = j - int(owner_first[k])
         p = remaining[k]
-        if how == "tail":
+        if closed[k]:
+            if v:
+                p = _rotate_closed(p, v)
+        elif v:
             p = p[::-1]
-        elif how == "loop":
-            p = _rotate_closed(p, best_v)
         out.append(p)
-        alive[k] = False
-        pos = p[-1]
-    return OrderedPaths(out, pos)
+        lo, hi = np.searchsorted(index, [owner_first[k], owner_first[k + 1]])
+        cx[lo:hi] = np.inf
+        retired += hi - lo
+        if 2 * retired > len(index):          # keep only the living candidates
+            keep = np.isfinite(cx)
+            index, cx, cy, retired = index[keep], cx[keep], cy[keep], 0
+        px, py = float(p[-1, 0]), float(p[-1, 1])
+    return OrderedPaths(out, out[-1][-1])

@@ -30,12 +30,12 @@ from app.slicing.fractal import MergeWeights, hilbert_fill, merged_fractal_fill
 from app.slicing.layers import SliceResult
 from app.slicing.offset import offset_islands
 from app.slicing.ordering import order_paths
+from app.slicing.path_memo import LayerMemo, PathMemo
 from app.slicing.rings import Island
 
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
 RESOLUTION_MM = 0.0125  # PrusaSlicer's G-code resolution: paths simplified to it, no move shorter
 THINNEST_WALL = 0.25  # of the nozzle: a wall thinner than this is not printed (PrusaSlicer's min feature)
-COLLINEAR_MM = 1e-6  # a vertex this close to the line through its neighbours adds nothing to a ring
 THIN_WALL_STEPS = 10  # bisection steps finding a thin wall's half thickness (w/2 / 2^10: 0.2 um at 0.4 mm)
 PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
 
@@ -349,57 +349,22 @@ def layer_paths(islands: tuple[Island, ...], layer_index: int, params: ToolpathP
                       simplify_paths(infill_paths(islands, params, layer_index), res))
 
 
-def _without_collinear(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """``ring`` (n, 2) mm without the vertices that lie on the line through their neighbours
-    (within ``COLLINEAR_MM``): a mesh's side faces cut a straight wall into pieces whose
-    joints move from layer to layer; the wall is the same."""
-    prev, nxt = np.roll(ring, 1, axis=0), np.roll(ring, -1, axis=0)
-    chord = np.hypot(*(nxt - prev).T)
-    cross = np.abs((ring[:, 0] - prev[:, 0]) * (nxt[:, 1] - prev[:, 1])
-                   - (ring[:, 1] - prev[:, 1]) * (nxt[:, 0] - prev[:, 0]))
-    keep = cross > COLLINEAR_MM * chord
-    return ring[keep] if np.count_nonzero(keep) >= 3 else ring
-
-
-def normalised(islands: tuple[Island, ...]) -> tuple[Island, ...]:
-    """``islands`` with every ring's collinear vertices dropped (:func:`_without_collinear`):
-    the same region, and the same arrays for the same section at another height."""
-    return tuple(Island(_without_collinear(isl.outer), tuple(_without_collinear(h) for h in isl.holes))
-                 for isl in islands)
-
-
-class PathMemo:
-    """The last few sections' :class:`LayerPaths` by their exact geometry and infill angle:
-    the layers of a prismatic stretch of a part (a cube, a tube, a plate's walls) repeat one
-    section bit for bit, so their paths are made once (ordering still runs per layer).
-    Holds at most ``size`` sections."""
-
-    def __init__(self, params: ToolpathParams, size: int = 4) -> None:
-        self.params = params
-        self.size = size
-        self.entries: dict[tuple[bytes, float, int], LayerPaths] = {}
-
-    def paths(self, islands: tuple[Island, ...], layer_index: int) -> LayerPaths:
-        p = self.params
-        islands = normalised(islands)
-        rings = [r for isl in islands for r in (isl.outer, *isl.holes, np.array([[np.nan, np.nan]]))]
-        key = (np.concatenate(rings).tobytes() if rings else b"",
-               round((p.angle_deg + layer_index * p.angle_step_deg) % 360.0, 9), layer_index % 2)
-        found = self.entries.pop(key, None)
-        if found is None:
-            found = layer_paths(islands, layer_index, p)
-            if len(self.entries) >= self.size:
-                self.entries.pop(next(iter(self.entries)))
-        self.entries[key] = found
-        return found
-
-
 def layer_pieces(islands: tuple[Island, ...], layer_index: int, start: npt.NDArray[np.float64],
                  params: ToolpathParams,
-                 memo: PathMemo | None = None) -> tuple[tuple[PathPiece, ...], npt.NDArray[np.float64]]:
+                 memo: PathMemo[LayerPaths] | None = None) -> tuple[tuple[PathPiece, ...], npt.NDArray[np.float64]]:
     """One section's print-ordered pieces from ``start`` (2,) mm: perimeters, thin walls'
     single beads, infill, each simplified to ``params.resolution_mm``; and where it ends."""
-    paths = memo.paths(islands, layer_index) if memo is not None else layer_paths(islands, layer_index, params)
+    if memo is not None:
+        key, normal = memo.key(islands, layer_index)
+        paths = memo.lookup(key, normal, layer_index)
+    else:
+        paths = layer_paths(islands, layer_index, params)
+    return ordered_pieces(paths, start, params)
+
+
+def ordered_pieces(paths: LayerPaths, start: npt.NDArray[np.float64],
+                   params: ToolpathParams) -> tuple[tuple[PathPiece, ...], npt.NDArray[np.float64]]:
+    """``paths`` in print order from ``start`` (2,) mm as pieces, and where they end."""
     per, pos = order_paths(paths.perimeters, start)
     walls: list[PathPiece] = []
     for wall, width in paths.walls:  # each wall's bead has its own width
@@ -411,28 +376,41 @@ def layer_pieces(islands: tuple[Island, ...], layer_index: int, start: npt.NDArr
     return pieces, (end if len(inf) else pos)
 
 
+def _layer_stats(pieces: tuple[PathPiece, ...], pos: npt.NDArray[np.float64], z: float, h: float,
+                 params: ToolpathParams, thr: float) -> LayerStats:
+    """The statistics of a layer's ``pieces`` printed from ``pos`` (2,) mm at height ``z`` with
+    beads ``h`` mm high (``thr``: the turn threshold, rad)."""
+    positions, feeds, stops = _layer_moves(pieces, pos, z, h, params)
+    hops = np.hypot(*np.diff(positions[:, :2], axis=0).T)
+    sizes = np.array([len(p.points) for p in pieces], dtype=np.int64)
+    heads = np.cumsum(sizes) - sizes
+    is_head = np.zeros(len(hops), dtype=bool)
+    is_head[heads] = True                                 # the moves onto each piece
+    gaps = hops[heads[1:]]                                # from one piece's end to the next one's start
+    t = estimate_moves(positions, feeds, params.limits, stops) if len(feeds) else [0.0]
+    return LayerStats(path_mm=float(hops[~is_head].sum()), travel_mm=float(hops[is_head].sum()),
+                      turns=turns_of([p.points for p in pieces], thr),
+                      jumps=int(np.count_nonzero(gaps > LENGTH_EPS_MM)), time_s=float(np.sum(t)))
+
+
 def iter_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathParams()) -> Iterator[LayerToolpath]:
     """The layers of :func:`plan_toolpath` one at a time (a caller that writes each one out
     holds one layer's paths, never all of them)."""
     params.validate()
     thr = math.radians(params.turn_threshold_deg)
     pos = np.zeros(2)
-    memo = PathMemo(params)
+    memo: PathMemo[LayerPaths] = PathMemo(params, layer_paths)
+    done: LayerMemo[tuple[tuple[PathPiece, ...], npt.NDArray[np.float64], LayerStats]] = LayerMemo()
     for lay in slice_result.layers:
         h = params.layer_height_mm or lay.thickness
-        pieces, end = layer_pieces(lay.islands, lay.index, pos, params, memo)
-        positions, feeds, stops = _layer_moves(pieces, pos, lay.z_top, h, params)
-        hops = np.hypot(*np.diff(positions[:, :2], axis=0).T)
-        sizes = np.array([len(p.points) for p in pieces], dtype=np.int64)
-        heads = np.cumsum(sizes) - sizes
-        is_head = np.zeros(len(hops), dtype=bool)
-        is_head[heads] = True                                 # the moves onto each piece
-        gaps = hops[heads[1:]]                                # from one piece's end to the next one's start
-        t = estimate_moves(positions, feeds, params.limits, stops) if len(feeds) else [0.0]
-        stats = LayerStats(path_mm=float(hops[~is_head].sum()), travel_mm=float(hops[is_head].sum()),
-                           turns=turns_of([p.points for p in pieces], thr),
-                           jumps=int(np.count_nonzero(gaps > LENGTH_EPS_MM)),
-                           time_s=float(np.sum(t)))
+        key, normal = memo.key(lay.islands, lay.index)
+        found = done.get(key, h, pos)
+        if found is None:
+            pieces, end = ordered_pieces(memo.lookup(key, normal, lay.index), pos, params)
+            stats = _layer_stats(pieces, pos, lay.z_top, h, params, thr)
+            done.put(key, h, pos, (pieces, end, stats))
+        else:
+            pieces, end, stats = found
         yield LayerToolpath(lay.index, lay.z_top, lay.thickness, pieces, stats)
         pos = end
 

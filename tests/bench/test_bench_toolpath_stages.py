@@ -3,8 +3,8 @@
 Run: .venv/bin/python -m pytest tests/bench/test_bench_toolpath_stages.py -s -o addopts="" -q
 
 The stages of the toolpath job's body (:func:`app.jobs.kinds.toolpath.run`) at the defaults,
-each timed by ``time.process_time`` in this process: parsing the slice's ``layers.json``
-(``from_json``), planning (``iter_toolpath``), writing G-code while recording its moves
+each timed by ``time.process_time`` in this process: reading the slice's ``layers.npz``
+(``from_binary``; parsing its ``layers.json`` instead, ``from_json``, is timed beside it), planning (``iter_toolpath``), writing G-code while recording its moves
 (``write_fdm_program``), the time estimate and the meta (``commands_sha256``, bounds); beside
 them what the job no longer does: reading ``print.gcode`` back (``read_program``), which must
 give exactly the recorded moves.
@@ -23,6 +23,7 @@ from app.gcode.reader import read_program
 from app.jobs.gcode_meta import gcode_meta
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.export import from_json, to_json
+from app.slicing.export_binary import from_binary, to_binary
 from app.slicing.toolpath import ToolpathParams, iter_toolpath
 from tests.helpers.real_parts import cad_part, thin_tube
 
@@ -42,9 +43,12 @@ def test_bench_toolpath_job_stages():
         mesh = make()
         mesh.apply_translation([100.0, 100.0, 0.0] - (mesh.bounds[0] + mesh.bounds[1]) * [0.5, 0.5, 0.0]
                                - [0.0, 0.0, mesh.bounds[0][2]])
-        text = to_json(slice_mesh(mesh, SliceParams(layer_mm=0.2)))
+        layers_ = slice_mesh(mesh, SliceParams(layer_mm=0.2))
+        text, data = to_json(layers_), to_binary(layers_)
         clock = [time.process_time()]
-        sliced = from_json(text)
+        from_json(text)
+        t_text = _lap(clock)
+        sliced = from_binary(data)
         t_json = _lap(clock)
         layers = list(iter_toolpath(sliced, ToolpathParams()))
         t_plan = _lap(clock)
@@ -59,8 +63,9 @@ def test_bench_toolpath_job_stages():
         assert np.array_equal(read.end, program.end) and np.array_equal(read.feed_mm_s, program.feed_mm_s)
         assert estimate_program(read).total_s == estimate.total_s
         job = t_json + t_plan + t_write + t_estimate + t_meta
-        rows.append([name, meta["lines"], t_json, t_plan, t_write, t_estimate, t_meta, job, t_read])
+        rows.append([name, meta["lines"], t_json, t_text, t_plan, t_write, t_estimate, t_meta, job, t_read])
     print("\ntoolpath job stages, CPU s (defaults: 0.2 mm layers, 1 perimeter, 100 % raster)")
-    print("part | lines | layers.json | plan | write + record | estimate | meta | job total | read back (not done)")
+    print("part | lines | layers.npz | layers.json (not done) | plan | write + record | estimate | meta | job total | "
+          "read back (not done)")
     for row in rows:
         print(" | ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row))

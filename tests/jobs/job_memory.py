@@ -43,7 +43,10 @@ class Ctx:
     def progress(self, *a, **k): pass
     def mesh(self, part_id): return trimesh.load(io.BytesIO(data), file_type="stl")
     def artifact(self, name, blob, media, meta=None):
-        artifacts[name] = blob if name == "layers.json" else len(blob)
+        artifacts[name] = blob if name in ("layers.json", "layers.npz") else len(blob)
+    def artifacts(self, items):
+        for name, blob, media, meta in items:
+            self.artifact(name, blob, media, meta)
     def job(self, job_id, **k): return SimpleNamespace(id=job_id)
     def artifact_bytes(self, job_id, name): return artifacts[name]
 
@@ -55,8 +58,12 @@ def sample():  # VmPeak cannot be reset: the address space's peak is sampled (st
         threading.Event().wait(0.005)
 threading.Thread(target=sample, daemon=True).start()
 
+import ctypes
+libc = ctypes.CDLL("libc.so.6")
+
 def measured(fn):
     gc.collect()
+    libc.malloc_trim(0)  # the heap an earlier job freed goes back to the system: growth is measured from there
     reset_peak()
     rss, vm = kib("VmRSS:"), kib("VmSize:")
     top[0] = vm

@@ -92,7 +92,7 @@ def test_uniform_slice_distributes_the_remainder_with_exact_areas_and_readable_e
     files = artifacts(client, job)
     assert {name: a["media_type"] for name, (a, _) in files.items()} == {
         "layers.slc": "application/octet-stream", "layers.cli": "text/plain",
-        "layers.json": "application/json", "layer.svg": "image/svg+xml"}
+        "layers.json": "application/json", "layer.svg": "image/svg+xml", "layers.npz": "application/octet-stream"}
     slc = read_slc(files["layers.slc"][1])
     assert slc["header"].startswith("-SLCVER 2.0 -UNIT MM")
     assert [z for z, _ in slc["layers"]] == pytest.approx([lay["z_bottom"] for lay in layers], abs=1e-6)

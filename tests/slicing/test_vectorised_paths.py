@@ -13,16 +13,9 @@ import shapely
 
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.fills import flat_intervals, region_geometry, scan_intervals
+from app.slicing.path_memo import normalised
 from app.slicing.rings import Island
-from app.slicing.toolpath import (
-    RESOLUTION_MM,
-    ToolpathParams,
-    iter_toolpath,
-    layer_pieces,
-    normalised,
-    plan_toolpath,
-    turns_of,
-)
+from app.slicing.toolpath import RESOLUTION_MM, ToolpathParams, iter_toolpath, layer_pieces, plan_toolpath, turns_of
 from tests.helpers.real_parts import cad_part
 
 W = 0.4

@@ -27,6 +27,8 @@ from app.runtime.registry import JobParams, job_kind
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
 from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
+from app.slicing.export_binary import NAME as BINARY_LAYERS
+from app.slicing.export_binary import to_binary
 from app.slicing.mesh_prep import default_max_hole_mm
 from app.slicing.rings import ring_length
 
@@ -219,12 +221,12 @@ def _layer_row(layer, beam_offset_mm: float | None) -> dict:
 # Cost model, calibrated against measured peaks (tests/bench/test_bench_job_memory.py): the
 # mesh ~FACE_BYTES per face (trimesh's arrays and caches, the vectorised slicer's edge arrays),
 # the contours ~VERTEX_BYTES per vertex (~VERTICES_PER_ROOT_FACE sqrt(faces) per layer) with
-# their SLC / CLI / JSON text.  Adaptive modes are counted at their thinnest layer (the worst case).
+# their SLC / CLI / JSON text and the layers.npz arrays.  Adaptive modes are counted at their thinnest layer (the worst case).
 FACE_BYTES = 560.0
-VERTEX_BYTES = 45.0
+VERTEX_BYTES = 75.0
 VERTICES_PER_ROOT_FACE = 10.0
 LAYER_S = 2e-3
-BASE_MB = 4.0
+BASE_MB = 8.0
 
 
 def _estimate(params: SliceJobParams, session: Session) -> Cost | None:
@@ -258,18 +260,21 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         widths = [table.width(layer.thickness) for layer in sliced.layers]
     ctx.progress(0.7, "writing SLC, CLI, JSON and SVG")
     slc = to_slc(sliced, SlcOptions(quantum_mm=params.slc_quantum_mm))
-    ctx.artifact("layers.slc", slc.data, "application/octet-stream",
-                 {"layers": len(sliced.layers), "sampling_table_entries": len(slc.table)})
-    ctx.artifact("layers.cli", to_cli(sliced).encode(), "text/plain", {"layers": len(sliced.layers)})
-    ctx.artifact("layers.json", to_json(sliced).encode(), "application/json", {"layers": len(sliced.layers)})
     notes = list(sliced.notes) + list(slc.notes)
     svg_index = len(sliced.layers) // 2 if params.svg_layer is None else params.svg_layer
     if svg_index >= len(sliced.layers):
         notes.append(f"svg_layer {svg_index} is beyond the {len(sliced.layers)} layers; layer.svg shows the last one")
         svg_index = len(sliced.layers) - 1
     chosen = sliced.layers[svg_index]
-    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml",
-                 {"layer": svg_index, "z": chosen.z_top})
+    count = {"layers": len(sliced.layers)}
+    # one artifact at a time: each one's bytes are let go before the next is made
+    ctx.artifact("layers.slc", slc.data, "application/octet-stream",
+                 {**count, "sampling_table_entries": len(slc.table)})
+    ctx.artifact("layers.cli", to_cli(sliced).encode(), "text/plain", count)
+    ctx.artifact("layers.json", to_json(sliced).encode(), "application/json", count)
+    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml", {"layer": svg_index, "z": chosen.z_top})
+    ctx.artifact(BINARY_LAYERS, to_binary(sliced), "application/octet-stream",
+                 {**count, "note": "layers.json's content as arrays (what the toolpath job reads)"})
     return SliceResult.written({
         "mode": params.mode,
         "layer_count": len(sliced.layers),

@@ -1,7 +1,8 @@
 """Job ``toolpath``: fill paths for the layers of a slice job, G-code and its print time.
 
-The layers come from the slice job's ``layers.json`` artifact (exactly the contours that
-job exported, beam compensation included); nothing is re-sliced.  ``time_s`` is the
+The layers come from the slice job's ``layers.npz`` artifact (exactly the contours of its
+``layers.json``, beam compensation included, as arrays; ``layers.json`` itself for a slice
+job stored before it wrote one); nothing is re-sliced.  ``time_s`` is the
 estimate of the written ``print.gcode`` by :func:`app.gcode.estimator.estimate_gcode` with
 the machine limits below (so anyone can re-run it on the downloaded file; the job takes
 the moves from the writer, :func:`app.gcode.fdm.write_fdm_program`, which records exactly
@@ -21,6 +22,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlmodel import Session
 
+from app.domain.errors import ConformaError
 from app.gcode.estimator import MachineLimits, estimate_program
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
@@ -37,7 +39,10 @@ from app.runtime.cost import Cost
 from app.runtime.registry import JobParams, job_kind
 from app.slicing import SlicingError, ToolpathParams
 from app.slicing.export import from_json
+from app.slicing.export_binary import NAME as BINARY_LAYERS
+from app.slicing.export_binary import from_binary
 from app.slicing.fractal import MergeWeights
+from app.slicing.layers import SliceResult as SlicedLayers
 from app.slicing.layers import translated
 from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
 
@@ -253,14 +258,14 @@ def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
 # 40-80 us per cell.  The other fills are planned and written a layer at a time, so what
 # grows is the program, ~PROGRAM_LINE_BYTES per written line (its text and the compact rows
 # the writer records for the time estimate and bounds) and ~LINE_S each, beside the slice's contours
-# read from layers.json (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
+# read from layers.npz (~SLICE_VERTEX_BYTES per vertex).  Lines are predicted from the
 # slice: ~INFILL_LINES per sqrt(layer area) / pitch (scan lines at the angle, with their
 # links) and ~CONTOUR_LINES per mm of contour per perimeter (simplified to the resolution,
 # so a finer mesh of the same part writes the same lines).
 CELL_BYTES = 500.0
 CELL_S = 80e-6
 PROGRAM_LINE_BYTES = 600.0
-SLICE_VERTEX_BYTES = 125.0
+SLICE_VERTEX_BYTES = 30.0
 LINE_S = 150e-6
 INFILL_LINES = 6.7
 CONTOUR_LINES = 0.5
@@ -310,11 +315,22 @@ def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
     return Cost(memory_mb=memory_mb, time_s=seconds, field=field, value=value, basis=basis)
 
 
+def _layers(ctx: JobContext, slice_job_id: str) -> SlicedLayers:
+    """The slice job's layers: its ``layers.npz`` (no text to parse), else (a slice job
+    stored before it wrote one) its ``layers.json``; the same contours either way."""
+    try:
+        return from_binary(ctx.artifact_bytes(slice_job_id, BINARY_LAYERS))
+    except ConformaError as exc:
+        if exc.field != "artifact":
+            raise
+    return from_json(ctx.artifact_bytes(slice_job_id, "layers.json"))
+
+
 @job_kind("toolpath", ToolpathJobParams, references=_references, check=_check, estimate=_estimate)
 def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
     slice_job = ctx.job(params.slice_job_id, kind="slice", field="params.slice_job_id")
-    sliced = from_json(ctx.artifact_bytes(slice_job.id, "layers.json"))
+    sliced = _layers(ctx, slice_job.id)
     machine = (ctx.machine(params.machine_id) if params.machine_id is not None and params.volume_mm is None
                else None)
     volume = machine_volume(params, machine)

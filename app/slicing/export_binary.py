@@ -1,0 +1,71 @@
+"""``layers.npz``: a slice's layers as arrays, for the toolpath job to read without parsing text.
+
+The same content as :func:`app.slicing.export.to_json`'s document: its head and per-layer
+rows as JSON (``header``, UTF-8 bytes), and the contours, each number rounded to the JSON's
+decimals exactly as that text reads back (:func:`app.gcode.writer.as_written`), so that
+``from_binary(to_binary(r))`` equals ``from_json(to_json(r))`` ring for ring, bit for bit
+(``tests/slicing/test_export_binary.py``).  Arrays (``numpy.savez``, no pickles): ``points``
+(V, 2) float64 mm, every ring after the other in the JSON's order (per layer, per island: the
+outer, then its holes); ``rings`` (R, 4) int64: layer position, island position, 1 for a
+hole, vertex count.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+
+from app.gcode.writer import as_written
+from app.slicing.errors import SlicingError
+from app.slicing.export import document_head, from_document, layer_rows
+from app.slicing.layers import SliceResult
+
+NAME = "layers.npz"
+
+
+def to_binary(result: SliceResult, decimals: int = 6) -> bytes:
+    """``result`` as ``layers.npz`` bytes (contours at ``decimals``, as ``to_json`` writes them)."""
+    doc = document_head(result)
+    doc["layers"] = layer_rows(result)
+    table = [(k, j, hole, len(ring)) for k, lay in enumerate(result.layers) for j, isl in enumerate(lay.islands)
+             for hole, ring in ((0, isl.outer), *((1, h) for h in isl.holes))]
+    points = np.empty((sum(row[3] for row in table), 2))
+    at = 0
+    for lay in result.layers:   # ring by ring: no temporaries of the whole stack
+        for isl in lay.islands:
+            for ring in isl.rings():
+                points[at:at + len(ring)] = as_written(np.asarray(ring, dtype=np.float64), decimals)
+                at += len(ring)
+    out = io.BytesIO()
+    np.savez(out, header=np.frombuffer(json.dumps(doc, separators=(",", ":")).encode(), dtype=np.uint8),
+             points=points, rings=np.array(table, dtype=np.int64).reshape(-1, 4))
+    del points
+    return out.getvalue()
+
+
+def from_binary(data: bytes) -> SliceResult:
+    """The :class:`SliceResult` of ``layers.npz`` bytes (as :func:`app.slicing.export.from_json`
+    of the same slice's ``layers.json``).  :class:`SlicingError` (field ``layers.npz``) for
+    anything else."""
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as arrays:
+            doc = json.loads(arrays["header"].tobytes())
+            points, table = arrays["points"], arrays["rings"]
+        if points.ndim != 2 or points.shape[1] != 2 or table.ndim != 2 or table.shape[1] != 4 \
+                or table[:, 3].sum() != len(points):
+            raise ValueError(f"points {points.shape} and ring table {table.shape} do not agree")
+        contours: list[list[tuple[np.ndarray, list[np.ndarray]]]] = [[] for _ in doc["layers"]]
+        for (k, j, hole, _), ring in zip(table.tolist(), np.split(points, np.cumsum(table[:, 3])[:-1])):
+            if hole:
+                contours[k][j][1].append(ring)
+            else:
+                contours[k].append((ring, []))
+        return from_document(doc, contours)
+    except SlicingError:
+        raise
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise SlicingError(f"not a {NAME} document: {type(exc).__name__}: {exc}", field=NAME,
+                           value=str(exc)[:80]) from None
