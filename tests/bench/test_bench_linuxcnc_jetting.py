@@ -33,7 +33,7 @@ from hardware.linuxcnc import SimBlock, SimController, SimSensor, linuxcnc_avail
 from hardware.linuxcnc.sim_head import SimHeadBridge
 from hardware.printhead.mock import unregister_head
 from tests.conftest import auth
-from tests.hardware.linuxcnc.conftest import add_sim_machine
+from tests.hardware.linuxcnc.conftest import add_sim_machine, service_finds
 from tests.hardware.linuxcnc.test_jetting_run import PROFILE, SENSOR_OFFSET, head_truth, jetting_params
 from tests.helpers.jobs import submit, wait_for
 from tests.helpers.real_components import missing
@@ -55,9 +55,7 @@ def test_bench_linuxcnc_jetting_against_the_simulation(client, monkeypatch):
     if not linuxcnc_available():
         missing("LinuxCNC", "not installed (apt-get install linuxcnc-uspace)")
     with SimController("xyz") as sim:
-        monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", sim.connect_pw)
-        monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", sim.enable_pw)
-        monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(sim.workdir / "programs"))
+        service_finds(sim, monkeypatch)
         machine, elapsed, layers, fired_once = _machine_run(client, sim)
     _report(machine, elapsed, layers, fired_once)
 

@@ -31,7 +31,7 @@ import pytest
 from app.calibration.sensor import EdgePass, fit_time_offset
 from hardware.linuxcnc import SimBlock, SimController, SimSensor, linuxcnc_available
 from tests.conftest import auth
-from tests.hardware.linuxcnc.conftest import PROFILE, add_sim_machine
+from tests.hardware.linuxcnc.conftest import PROFILE, add_sim_machine, service_finds
 from tests.hardware.linuxcnc.test_height_sensor import _scan
 from tests.hardware.linuxcnc.test_scan_run import PROFILE as API_PROFILE
 from tests.hardware.linuxcnc.test_scan_run import TRACE_X, _box_stl
@@ -77,9 +77,7 @@ def test_bench_linuxcnc_height_sensor(client, monkeypatch):
     if not linuxcnc_available():
         missing("LinuxCNC", "not installed (apt-get install linuxcnc-uspace)")
     with SimController("xyz") as sim:
-        monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", sim.connect_pw)
-        monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", sim.enable_pw)
-        monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(sim.workdir / "programs"))
+        service_finds(sim, monkeypatch)
         machine = sim.machine(PROFILE)
         machine.connect()
         machine.home()

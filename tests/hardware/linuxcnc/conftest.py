@@ -130,13 +130,18 @@ def lcnc_trt(_one_simulator, request) -> SimController:
     return _one_simulator.get("xyzac-trt", request.module.__name__)
 
 
+def service_finds(sim: SimController, monkeypatch) -> SimController:
+    """The service finds the simulator's passwords and program directory in its environment."""
+    monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", sim.connect_pw)
+    monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", sim.enable_pw)
+    monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(sim.workdir / "programs"))
+    return sim
+
+
 @pytest.fixture
 def lcnc_env(lcnc_xyz, monkeypatch):
-    """The service finds the simulator's passwords and program directory in its environment."""
-    monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", lcnc_xyz.connect_pw)
-    monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", lcnc_xyz.enable_pw)
-    monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(lcnc_xyz.workdir / "programs"))
-    return lcnc_xyz
+    """The three-axis simulator, found by the service (:func:`service_finds`)."""
+    return service_finds(lcnc_xyz, monkeypatch)
 
 
 @pytest.fixture

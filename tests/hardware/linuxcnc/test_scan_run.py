@@ -33,16 +33,25 @@ def _box_stl() -> bytes:
     return box.export(file_type="stl")
 
 
-def _submit_scan(client, sim, speed_mm_s: float, verify_count: int) -> tuple[str, str, list[str]]:
-    """(job id, machine id, trace ids) of a scan_run of the two traces on the box."""
+CALIBRATION = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": 0.0, "slope_bias_mm": 0.0}
+
+
+def _box_on_the_simulator(client, sim) -> tuple[dict, list[dict], str]:
+    """(part, traces, machine id): the block under the simulated sensor, its two traces, and
+    the simulator added as a machine."""
     sim.set_surface(TRUTH)
     sim.set_sensor(SimSensor(offset_mm=OFFSET, noise_mm=0.0005))
     part = client.post("/api/v1/parts", files={"file": ("box.stl", _box_stl())}, headers=OP).json()
     traces = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=[
         {"name": f"line-{x:g}", "geometry": {"type": "line", "start": [x, 5.0], "end": [x, 25.0]}, "frame": "xy",
          "standoff_mm": 0.08} for x in TRACE_X], headers=OP).json()["items"]
-    machine_id = add_sim_machine(client, sim, PROFILE, OP)
-    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": 0.0, "slope_bias_mm": 0.0}
+    return part, traces, add_sim_machine(client, sim, PROFILE, OP)
+
+
+def _submit_scan(client, sim, speed_mm_s: float, verify_count: int) -> tuple[str, str, list[str]]:
+    """(job id, machine id, trace ids) of a scan_run of the two traces on the box."""
+    _, traces, machine_id = _box_on_the_simulator(client, sim)
+    calibration = CALIBRATION
     response = submit(client, "scan_run", {
         "machine_id": machine_id, "trace_ids": [t["id"] for t in traces], "calibration": calibration,
         "mode": "traces", "scan_speed_mm_s": speed_mm_s, "deviation_amplitude_mm": 0.15,
@@ -108,14 +117,8 @@ def test_a_closed_loop_measuring_by_scan_on_linuxcnc_needs_no_sensor_port(client
     """``closed_loop`` with ``measuring: scan`` on the simulator, without ``scan.sensor_port``
     (the controller samples the sensor): its scan_run child measures the block and the loop
     compensates every trace from that field."""
-    lcnc_env.set_surface(TRUTH)
-    lcnc_env.set_sensor(SimSensor(offset_mm=OFFSET, noise_mm=0.0005))
-    part = client.post("/api/v1/parts", files={"file": ("box.stl", _box_stl())}, headers=OP).json()
-    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=[
-        {"name": f"line-{x:g}", "geometry": {"type": "line", "start": [x, 5.0], "end": [x, 25.0]}, "frame": "xy",
-         "standoff_mm": 0.08} for x in TRACE_X], headers=OP).json()["items"]
-    machine_id = add_sim_machine(client, lcnc_env, PROFILE, OP)
-    calibration = {"offset_mm": list(OFFSET), "scale": 1.0, "time_offset_s": 0.0, "slope_bias_mm": 0.0}
+    part, traces, machine_id = _box_on_the_simulator(client, lcnc_env)
+    calibration = CALIBRATION
     response = submit(client, "closed_loop", {
         "part_id": part["id"], "trace_ids": [t["id"] for t in traces], "machine_id": machine_id,
         "measuring": "scan", "scan": {"calibration": calibration, "mode": "traces", "scan_speed_mm_s": 50.0,
