@@ -65,8 +65,18 @@ screenshots: $(STAMP)
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -f docs/config/mkdocs.yml
 
-lint: $(STAMP)
+# the console's JavaScript lint: ESLint pinned by web/package-lock.json, installed into
+# web/node_modules (git-ignored) by `npm ci` on first use and again when the lockfile changes
+WEB_STAMP := web/node_modules/.installed-stamp
+
+$(WEB_STAMP): web/package-lock.json
+	command -v npm >/dev/null || { echo "lint: the console's lint needs node and npm (apt-get install nodejs npm)"; exit 1; }
+	cd web && npm ci --no-audit --no-fund
+	touch $(WEB_STAMP)
+
+lint: $(STAMP) $(WEB_STAMP)
 	$(BIN)/ruff check app hardware tests
+	cd web && node_modules/.bin/eslint --max-warnings 0 js  # web/eslint.config.js
 	$(BIN)/python -m mypy  # app/ and hardware/ (pyproject [tool.mypy]: strict for the core and the machine backends)
 
 clean-data:

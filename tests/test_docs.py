@@ -92,7 +92,7 @@ def _text_files() -> list[Path]:
     files = [README, ROOT / "pyproject.toml", ROOT / "Makefile", ROOT / ".ci" / "run"]
     for top in ("docs", "app", "hardware", "web", "tests"):
         files += [p for p in (ROOT / top).rglob("*") if p.is_file() and p.suffix in _TEXT
-                  and "artifacts" not in p.parts and "__pycache__" not in p.parts]
+                  and not {"artifacts", "__pycache__", "node_modules"} & set(p.parts)]
     return files
 
 

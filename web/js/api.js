@@ -48,7 +48,7 @@ const STATUS_HINTS = {
 
 // Turn a non-2xx response into an ApiError with the problem's detail and field errors.
 export async function errorFrom(response) {
-  let problem = null;
+  let problem;
   const text = await response.text().catch(() => "");
   try { problem = text ? JSON.parse(text) : null; } catch { problem = null; }
   let message;

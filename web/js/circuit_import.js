@@ -83,13 +83,13 @@ export function circuitImportSection({ partSelect, getPart, onDone, viewer, view
   const output = el("div", { id: "circuit-result" });
   const accept = el("button", { type: "button", id: "circuit-accept", disabled: true }, "Accept (store the traces)");
 
-  function options(dryRun, viewId) {
+  function options(dryRun, view) {
     const layers = inputs.layers.value.split(",").map((s) => s.trim()).filter(Boolean);
     const origin = inputs.ox.value !== "" && inputs.oy.value !== ""
       ? { origin_mm: [Number(inputs.ox.value), Number(inputs.oy.value)] } : {};
     return { ...origin, rotation_deg: Number(inputs.rot.value),
       mirror: inputs.mirror.checked, mapping: inputs.mapping.value, standoff_mm: Number(inputs.standoff.value),
-      layers: layers.length ? layers : null, dry_run: dryRun, ...(dryRun && viewId ? { view_id: viewId } : {}) };
+      layers: layers.length ? layers : null, dry_run: dryRun, ...(dryRun && view ? { view_id: view } : {}) };
   }
 
   // The page's 3-D view (opened on demand): its view id, or null when the view is off.

@@ -66,8 +66,8 @@ async function suggestions(kind) {
 let materials = null;
 const loadMaterials = () => (materials ??= get("materials").catch(() => []));
 
-function materialPicker(form, presets, fresh) {
-  const fits = (m) => Object.keys(m.params).filter((k) => form.names.includes(k)).length >= 2;
+function materialPicker(fields, presets, fresh) {
+  const fits = (m) => Object.keys(m.params).filter((k) => fields.names.includes(k)).length >= 2;
   const usable = presets.filter(fits);
   if (!usable.length) return null;
   const select = el("select", { id: "material-preset", "aria-label": "material preset" },
@@ -76,11 +76,11 @@ function materialPicker(form, presets, fresh) {
   const apply = (name) => {
     const preset = usable.find((m) => m.name === name);
     if (!preset) { note.textContent = ""; return; }
-    const set = Object.entries(preset.params).filter(([k, v]) => form.set(k, v)).map(([k]) => k);
+    const set = Object.entries(preset.params).filter(([k, v]) => fields.set(k, v)).map(([k]) => k);
     note.textContent = ` ${preset.description}; sets ${set.length} field${set.length === 1 ? "" : "s"}`;
   };
   select.addEventListener("change", () => apply(select.value));
-  const start = fresh && form.names.includes("mode") ? usable.find((m) => m.default) : null;
+  const start = fresh && fields.names.includes("mode") ? usable.find((m) => m.default) : null;
   if (start) { select.value = start.name; apply(start.name); }
   return el("div", { class: "field material-field" }, el("label", { for: "material-preset" }, "Material"), select, note);
 }
@@ -225,10 +225,10 @@ function follow(job) {
 const historyLatest = latest();  // filters changed quickly: only the newest query's answer is shown
 
 async function refresh() {
-  const current = historyLatest();
+  const isLatest = historyLatest();
   await guarded("Jobs", async () => {
     const page = await get(`jobs?${historyQuery()}`);
-    if (!current()) return;
+    if (!isLatest()) return;
     tbody.replaceChildren(...page.items.map(row));
     if (!page.items.length) tbody.append(el("tr", {}, el("td", { colspan: 4, class: "small" }, offset ? "No older jobs." : "No jobs match.")));
     const last = Math.min(offset + page.items.length, page.total);

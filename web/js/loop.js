@@ -5,7 +5,7 @@
 // stations, resume, abandon); reload it, open it in another browser: the same run, at the
 // same step.  Nothing moves a machine without a click and a confirmation.
 import { download, get, post } from "./api.js";
-import { chart, length } from "./results.js";
+import { length } from "./results.js";
 import { el, guarded, initPage, latest, markReady, query, showInfo, viewerPanel } from "./ui.js";
 
 const main = initPage("loop.html");

@@ -127,11 +127,11 @@ async function onImport(event) {
   let items;
   if (/\.svg$/i.test(file.name) || text.trimStart().startsWith("<")) {
     await guarded(`Import of ${file.name}`, async () => {
-      const form = new FormData();
-      form.append("files", file, file.name);
+      const body = new FormData();
+      body.append("files", file, file.name);
       // a drawing in the part's own coordinates: its (0, 0) is the part's
-      form.append("options", JSON.stringify({ format: "svg", anchor: "file_origin" }));
-      const result = await upload(`parts/${partSelect.value}/circuits:import`, form);
+      body.append("options", JSON.stringify({ format: "svg", anchor: "file_origin" }));
+      const result = await upload(`parts/${partSelect.value}/circuits:import`, body);
       showInfo(`${result.traces.length} trace(s) imported from ${file.name}.`);
       await refresh();
     });
