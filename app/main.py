@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 import time
 from collections.abc import AsyncIterator
@@ -44,6 +45,18 @@ ROUTERS = (system.router, parts.router, traces.router, jobs.router, loop_actions
            files.router, viewer_api.router, reports.router, circuits.router)
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 log = logging.getLogger("conforma")
+
+
+class ConsoleFiles(StaticFiles):
+    """``web/`` as the console: its pages, scripts and styles, not the lint tooling kept
+    beside them (``node_modules/``, the npm manifest and the ESLint config): a 404."""
+
+    TOOLING = frozenset({"node_modules", "package.json", "package-lock.json", "eslint.config.js"})
+
+    def lookup_path(self, path: str) -> tuple[str, os.stat_result | None]:
+        if Path(path).parts[:1] and Path(path).parts[0] in self.TOOLING:
+            return "", None
+        return super().lookup_path(path)
 
 
 def _sweep(runtime: Runtime) -> None:
@@ -113,5 +126,5 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
                        max_waiting=settings.max_waiting_requests, wait_s=settings.request_wait_s)
     api.add_middleware(SecurityHeadersMiddleware)
     if WEB_DIR.is_dir():
-        api.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
+        api.mount("/", ConsoleFiles(directory=WEB_DIR, html=True), name="web")
     return api

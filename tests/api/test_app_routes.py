@@ -22,3 +22,13 @@ def test_every_app_serves_the_routers_own_routes(settings_factory, tmp_path):  #
             assert client.get("/api/v1/health", headers=auth("viewer")).status_code == 200
             assert client.get("/api/v1/parts", headers=auth("viewer")).json() is not None
             assert client.get("/api/v1/parts/nope", headers=auth("viewer")).status_code == 404
+
+
+def test_the_console_serves_its_pages_not_the_lint_tooling_beside_them(client):  # type: ignore[no-untyped-def]
+    """``web/`` holds the console and, once ``make lint`` ran, npm's ``node_modules`` and the
+    ESLint set-up: only the console is served."""
+    assert client.get("/js/api.js").status_code == 200
+    assert client.get("/index.html").status_code == 200
+    for path in ("/package.json", "/package-lock.json", "/eslint.config.js",
+                 "/node_modules/eslint/package.json", "/node_modules/.package-lock.json"):
+        assert client.get(path).status_code == 404, path
