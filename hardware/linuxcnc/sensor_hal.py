@@ -46,6 +46,9 @@ FLOAT_IN = ("x", "y", "z", "offset-x", "offset-y", "offset-z", "range", "noise",
             "sphere-x", "sphere-y", "sphere-z", "sphere-r", "latency-ms")
 MAP_CHECK_S = 0.005  # how often the MAP file's modification time is looked at
 HISTORY = 400  # joint reads kept for the latency (0.2 s at PERIOD_S)
+# tries at reading the three joints within one servo period; a starved process that keeps
+# missing takes its last read (off by at most one period) rather than writing no value
+POSITION_READS = 3
 
 
 def _optics_model():
@@ -146,10 +149,12 @@ def main(argv):
                 history.clear()
                 time.sleep(IDLE_S)
                 continue
-            tick = comp["tick"]
-            p = {pin: comp[pin] for pin in FLOAT_IN}
-            if comp["tick"] != tick:  # a servo period passed while reading: read again
-                continue
+            p = {pin: comp[pin] for pin in FLOAT_IN}  # the settings and the part: they change slowly
+            for _ in range(POSITION_READS):  # the joints and their clock count from one servo period
+                tick = comp["tick"]
+                p["x"], p["y"], p["z"] = comp["x"], comp["y"], comp["z"]
+                if comp["tick"] == tick:
+                    break
             if not history or tick > history[-1][0]:
                 history.append((tick, p["x"], p["y"], p["z"]))
                 del history[:-HISTORY]
