@@ -18,11 +18,11 @@ Pure: no I/O.  Byte counts are bytes on the wire; times are not kept here.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Final, Literal
 
 from .errors import InvalidConfig
 
-DEFAULT_DIALECT = "marlin"  # the hardware's default (Link.open, Machine, the mock world)
+DEFAULT_DIALECT: Final = "marlin"  # the hardware's default (Link.open, Machine, the mock world)
 
 
 class UnknownDialect(InvalidConfig):

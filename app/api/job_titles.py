@@ -6,6 +6,7 @@ on hover in the console); lists show these names."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 from sqlmodel import Session, select
 
@@ -23,6 +24,15 @@ KIND_WORDS = {
 
 
 _REFS = select(JobReference.job_id, JobReference.ref_kind, JobReference.ref_id)
+
+
+class _TraceRow(NamedTuple):
+    """The trace columns a title reads."""
+
+    id: str
+    name: str
+    part_id: str
+    source: dict[str, Any] | None
 
 
 def kind_words(kind: str) -> str:
@@ -64,7 +74,7 @@ def job_titles(session: Session, jobs: Sequence[Job]) -> dict[str, str]:
     trace_ids = {ref for i, rows in refs.items() if counts[i] <= NAMED_TRACES for kind, ref in rows if kind == "trace"}
     rows_of_traces = select(Trace.id, Trace.name, Trace.part_id, Trace.source).where(
         Trace.id.in_(trace_ids))  # type: ignore[attr-defined]
-    traces = {t.id: t for t in session.exec(rows_of_traces).all()} if trace_ids else {}
+    traces = {t.id: t for t in map(_TraceRow._make, session.exec(rows_of_traces).all())} if trace_ids else {}
     part_ids = {ref for rows in refs.values() for kind, ref in rows if kind == "part"} | {
         t.part_id for t in traces.values()}
     named_parts = select(Part.id, Part.name).where(Part.id.in_(part_ids))  # type: ignore[attr-defined]

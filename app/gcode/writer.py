@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Literal
+from typing import Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -30,7 +30,7 @@ from app.gcode.reader import Program
 from app.gcode.recorder import ProgramRecorder
 
 DialectName = Literal["marlin", "grbl", "linuxcnc"]
-DEFAULT_DIALECT: DialectName = "marlin"  # programs for a printer (FDM, compensated traces, circuits, machines)
+DEFAULT_DIALECT: Final = "marlin"  # programs for a printer (FDM, compensated traces, circuits, machines)
 # probing and five-axis programs default to grbl (their API defaults since they were written)
 DEFAULT_PROBING_DIALECT: DialectName = "grbl"
 ProbeStyle = Literal["g38", "g30"]

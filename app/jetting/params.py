@@ -7,6 +7,11 @@ Units: mm inside; user-facing fields carry their unit in the name (``_um``, ``_p
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
+
+LayerModelKind = Literal["transport", "seed_diagonal"]  # ControllerParams.model
+SolverKind = Literal["fista", "lbfgsb"]  # ControllerParams.solver
+BinarizeKind = Literal["greedy", "threshold", "error_diffusion"]  # ControllerParams.binarize
 
 MM_PER_INCH = 25.4
 MM3_PER_PL = 1e-6  # 1 pL = 1e-9 cm^3 = 1e-6 mm^3
@@ -110,9 +115,9 @@ class ControllerParams:
     fill: float = 0.8
     edge_lead: float = 8.0
     edge_rings: int = 4
-    model: str = "transport"
-    solver: str = "fista"
-    binarize: str = "greedy"
+    model: LayerModelKind = "transport"
+    solver: SolverKind = "fista"
+    binarize: BinarizeKind = "greedy"
     max_iter: int = 300
     tol: float = 1e-2
     greedy_rounds: int = 1

@@ -34,6 +34,7 @@ from app.jetting import (
     target_from_rings,
     target_from_spec,
 )
+from app.jetting.params import BinarizeKind, LayerModelKind, SolverKind
 from app.jetting.targets import rings_grid_cells, target_shape
 from app.jobs.inputs import succeeded_job
 from app.jobs.results.models import SliceResult
@@ -136,10 +137,10 @@ class PrintModelParams(JobParams):
                              description="MPC reference lead on the part's edge cells, nominal layer heights "
                              "(tapering to 0 over edge_rings; 0: the published flat reference)")
     edge_rings: int = Field(_C.edge_rings, ge=0, le=100, description="cells from the part's edge the lead covers")
-    model: Literal["transport", "seed_diagonal"] = Field(
+    model: LayerModelKind = Field(
         _C.model, description="seed_diagonal: the seed's (I + Dg) B; transport: mass-conserving flow operator")
-    solver: Literal["fista", "lbfgsb"] = Field(_C.solver, description="fista (fast) or lbfgsb (reference)")
-    binarize: Literal["greedy", "threshold", "error_diffusion"] = Field(
+    solver: SolverKind = Field(_C.solver, description="fista (fast) or lbfgsb (reference)")
+    binarize: BinarizeKind = Field(
         _C.binarize, description="relaxed -> 0/1 drops: greedy flips on the model's QP, threshold, error diffusion")
     max_iter: int = Field(_C.max_iter, ge=1, le=100_000, description="solver iteration cap per layer")
     tol: float = Field(_C.tol, gt=0, le=1, allow_inf_nan=False, description="solver tolerance (relative)")

@@ -30,8 +30,8 @@ from app.gcode.writer import DIALECTS
 from app.jetting.machine_grid import Grid, cell_means, raster_waypoints, swaths
 from app.jobs.sensor_runs import HalScanner, SerialScanner
 from app.probing.scan_path import pass_duration
+from hardware.backend import Machine
 from hardware.errors import HardwareError, ProtocolError
-from hardware.machine import Machine
 from hardware.printhead import PrintHead
 
 RUN_IN_MM = 1.0        # the nozzles start and end this far outside the swath's rows

@@ -36,7 +36,7 @@ from app.jobs.simulation import evaluate_print, xy_error
 from app.platform.models import Job, Machine, Trace
 from app.reference.evaluation import predicted_width, table_row
 from app.runtime.context import JobContext
-from app.runtime.registry import get_kind
+from app.runtime.registry import kinds
 
 Done = tuple[str, Job, Job, Job, Job, float, tuple[str, str]]
 """One trace's children: (trace_id, plan, probe run, reconstruct, compensate, deviation max mm,
@@ -55,7 +55,7 @@ class Steps:
         self.reusable = {(j.kind, json.dumps(j.params, sort_keys=True)): j for j in done}
 
     def run(self, kind: str, params: dict[str, Any], trace_id: str | None) -> Job:
-        normalized = get_kind(kind).params.model_validate(params).model_dump(mode="json")
+        normalized = kinds()[kind].params.model_validate(params).model_dump(mode="json")
         key = (kind, json.dumps(normalized, sort_keys=True))
         if key in self.reusable:
             return self.reusable[key]
@@ -75,7 +75,7 @@ class Steps:
 def scan_params(params: dict[str, Any]) -> dict[str, Any]:
     """A closed loop's scan_run parameters, validated by the kind's model (ValueError naming the field)."""
     try:
-        out: dict[str, Any] = get_kind("scan_run").params.model_validate(params).model_dump(mode="json")
+        out: dict[str, Any] = kinds()["scan_run"].params.model_validate(params).model_dump(mode="json")
     except ValidationError as exc:
         first = exc.errors()[0]
         raise ValueError(f"scan.{'.'.join(str(p) for p in first['loc'])}: {first['msg']}") from None
@@ -260,6 +260,7 @@ def print_trace(ctx: JobContext, steps: Steps, params: Any, machine: Machine, in
     if params.evaluate:
         trace = ctx.trace(trace_id)
         world = ctx.runtime.machines.world(machine)  # built when the probe run connected
+        assert world is not None  # evaluate runs on a mock machine (the kind checks it)
         reports = {}
         for artifact in ("nominal.gcode", "print.gcode"):
             start = len(world.deposition_log)
@@ -282,7 +283,7 @@ def print_trace(ctx: JobContext, steps: Steps, params: Any, machine: Machine, in
 def corrections_for(kind: str, params: Any) -> dict[str, Any]:
     """The measuring corrections (radius, pretravel, drift) a child kind takes, as its
     ``corrections`` parameter lists them (nothing for a kind without one)."""
-    fields = get_kind(kind).params.model_fields
+    fields = kinds()[kind].params.model_fields
     if "corrections" not in fields:
         return {}
     wanted = params.corrections.model_dump()

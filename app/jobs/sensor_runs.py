@@ -32,6 +32,7 @@ from app.calibration.sensor import EdgePass, SensorCalibration, fit_scale_and_z,
 from app.domain.errors import InvalidInput
 from app.probing.scan_path import sample_positions
 from app.reconstruction.scan_samples import exposure_positions
+from hardware import backend
 from hardware.errors import HardwareError
 from hardware.height_sensor import HeightSensor
 from hardware.machine import Machine
@@ -196,7 +197,7 @@ class CalibrationSetup:
     sphere_speed_mm_s: float = 10.0
 
 
-def calibrate_sensor(machine: Machine, scanner: SerialScanner | HalScanner,
+def calibrate_sensor(machine: backend.Machine, scanner: SerialScanner | HalScanner,
                      setup: CalibrationSetup) -> tuple[SensorCalibration, dict]:
     """The sensor's calibration and a report of each procedure (module docstring); the
     sensor read by ``scanner`` (:func:`open_scanner`: its own link, or a LinuxCNC

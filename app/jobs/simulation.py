@@ -13,11 +13,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import shapely
-import trimesh
 
 from app.geometry.drape import top_surface_z
 from app.geometry.placement import Placement, apply_placement
@@ -30,7 +29,7 @@ def true_height_of(world: MockWorld) -> Callable[[np.ndarray], np.ndarray]:
     """xy (m, 2) -> height (m,) of the placed as-made part's top (NaN off the part)."""
     if world.true_part is None:
         raise ValueError("the mock world has no true part")
-    placed = cast(trimesh.Trimesh, world.true_part).copy()  # MockWorld keeps it untyped (hardware has no trimesh)
+    placed = world.true_part.copy()
     placed.apply_transform(placement_matrix(world.placement))
 
     def height(xy: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from scipy.optimize import brentq
@@ -365,6 +365,9 @@ def run_bounds(check: FieldCheck, paths: Sequence[Any]) -> tuple[float, ...]:
     return tuple(trace_bound(check.fit, p, check.coverage, check.learned, len(paths)) for p in paths)
 
 
-def with_bound(check: FieldCheck, trace_bounds_mm: Sequence[float] | np.ndarray) -> FieldCheck:
+_Check = TypeVar("_Check", bound=FieldCheck)
+
+
+def with_bound(check: _Check, trace_bounds_mm: Sequence[float] | np.ndarray) -> _Check:
     """``check`` with its bound: the largest of the traces' bounds (T,) mm (:func:`trace_bound`)."""
     return replace(check, bound_mm=float(np.max(trace_bounds_mm)))

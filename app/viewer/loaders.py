@@ -11,6 +11,7 @@ import io
 import json
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -183,8 +184,7 @@ class Loader:
                 "compensate": self._compensate, "closed_loop": self._closed_loop, "surface_fit": self._surface_fit,
                 "five_axis": self._five_axis, "slice": self._slice, "jetting": self._jetting, "jetting_run": self._jetting_run,
                 "print": lambda session, job: print_scene(self, session, job),
-                **{kind: (lambda session, job, build=build: build(self, session, job))
-                   for kind, build in PROGRAM_SCENES.items()}}
+                **{kind: partial(build, self) for kind, build in PROGRAM_SCENES.items()}}
 
     def _with_trace(self, session: Session, job: Job, **parts: Any) -> FocusScene:
         trace = self._trace_of(session, job)
@@ -282,7 +282,9 @@ class Loader:
             list(compensate_rows(job).items())
         source = job if job.kind == "reconstruct" else session.get(Job, job.params.get("reconstruct_job_id") or "")
         samples_of = {t: r.deviation.samples for t, r in reconstruct_rows(source).items()} if source else {}
-        lines, ribbons, paths = [], [], []
+        lines: list[Polyline] = []
+        ribbons: list[ScalarSurface] = []
+        paths: list[Toolpath] = []
         for trace_id, row in rows[:BOARD_DRAWN]:
             trace = self._trace(session, trace_id)
             if trace is None:
@@ -304,10 +306,10 @@ class Loader:
         if job.params.get("points") is not None:
             measured = np.asarray(job.params["points"], float).reshape(-1, 3)
         else:
-            run = session.get(Job, job.params.get("probe_run_job_id"))
+            run = session.get(Job, job.params.get("probe_run_job_id") or "")
             rows = ProbeRunResult.of(run).points if run else []
             plan = session.get(Job, run.params.get("plan_job_id", "")) if run else None
-            own = (joint_trace_ranges(plan) or {}).get(job.params.get("trace_id")) if plan else None
+            own = (joint_trace_ranges(plan) or {}).get(job.params.get("trace_id", "")) if plan else None
             if own:  # a joint run: only this trace's own probes (the others are context)
                 rows = [row for row in rows if own[0] <= row.index < own[1]]
             measured = np.asarray([r.measured for r in rows], float).reshape(-1, 3)
@@ -377,11 +379,12 @@ class Loader:
         if not verdict:
             return scene
         trace_ids = list((job.params or {}).get("trace_ids") or [])
-        traces = {t: self._trace(session, t) for t in trace_ids}
-        nominals = {t: nominal_of(tr).points for t, tr in traces.items() if tr is not None}
+        found = {t: self._trace(session, t) for t in trace_ids}
+        traces = {t: tr for t, tr in found.items() if tr is not None}
+        nominals = {t: nominal_of(tr).points for t, tr in traces.items()}
         residuals = residual_map(verdict, trace_ids, nominals)
         flagged = tuple(Polyline(f"{traces[t].name} {t} worse than nominal", nominals[t], role="flagged")
-                        for t in verdict.get("worse_traces") or [] if t in nominals and traces[t] is not None)
+                        for t in verdict.get("worse_traces") or [] if t in nominals)
         return replace(scene, polylines=scene.polylines + flagged,
                        residuals=scene.residuals + ((residuals,) if residuals is not None else ()))
 
@@ -420,7 +423,8 @@ class Loader:
         if data is None:
             return FocusScene({}, "", notes=("slice job has no layers.json",))
         doc = json.loads(data)
-        segments, labels = [], []
+        segments: list[np.ndarray] = []
+        labels: list[str] = []
         for layer in doc.get("layers", []):
             z = float(layer.get("z_top", layer.get("z", 0.0)))
             rings = [r for isl in layer.get("islands", []) for r in [isl["outer"], *isl.get("holes", [])]]

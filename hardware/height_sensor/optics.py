@@ -80,7 +80,7 @@ class Scene:
         self.world = world
         self.mesh = None
         if world.true_part is not None:
-            placed = world.true_part.copy()  # type: ignore[attr-defined]
+            placed = world.true_part.copy()
             placed.apply_transform(placement_matrix(world.placement))
             self.mesh = placed
             self.top = float(placed.bounds[1][2]) + 1.0

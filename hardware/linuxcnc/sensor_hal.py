@@ -54,6 +54,8 @@ POSITION_READS = 3
 def _optics_model():
     path = Path(__file__).resolve().parents[1] / "height_sensor" / "optics_model.py"
     spec = importlib.util.spec_from_file_location("conforma_optics_model", path)
+    if spec is None or spec.loader is None:  # a file path always has a source loader
+        raise ImportError(f"cannot load {path}")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -119,7 +121,8 @@ def position_at(history: list, when: float) -> tuple[float, float, float]:
     """The carriage (x, y, z) at clock count ``when`` from ``history`` [(count, x, y, z), ...]
     (increasing counts), interpolated; held at its ends."""
     rows = np.asarray(history, dtype=float)
-    return tuple(float(np.interp(when, rows[:, 0], rows[:, k])) for k in (1, 2, 3))
+    x, y, z = (float(np.interp(when, rows[:, 0], rows[:, k])) for k in (1, 2, 3))
+    return x, y, z
 
 
 def main(argv):

@@ -36,6 +36,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import IO
 
 from ..errors import HardwareError, LinkError
 from ..machine_types import MachineProfile
@@ -100,7 +101,7 @@ class SimController:
         self.startup_s: float | None = None
         self._process: subprocess.Popen | None = None
         self._env: dict[str, str] | None = None
-        self._lock_file = None
+        self._lock_file: IO[str] | None = None
 
     # ------------------------------------------------------------------ public
     @property
@@ -157,6 +158,7 @@ class SimController:
         """``setp`` each value in one ``halcmd -f`` run."""
         if not self.running:
             raise SimUnavailable("the simulator is not running", field="linuxcnc")
+        assert self.workdir is not None  # set while running
         script = self.workdir / "setp.hal"
         script.write_text("".join(f"setp {name} {float(value)!r}\n" for name, value in values.items()))
         done = subprocess.run(["halcmd", "-f", str(script)], capture_output=True, text=True, timeout=10,
@@ -227,6 +229,7 @@ class SimController:
             state: dict[str, float | str] = {name: session.get(name) for name in self.SNAPSHOT_RSH}
         finally:
             session.close()
+        assert self.workdir is not None  # set while running
         script = self.workdir / "snapshot.hal"
         names = self.SNAPSHOT_HAL + (self.SNAPSHOT_SENSOR if self.has_sensor else ())
         script.write_text("".join(f"getp {name}\n" for name in names))
@@ -379,16 +382,16 @@ class SimController:
                                              env=env, stdout=log, stderr=subprocess.STDOUT,
                                              stdin=subprocess.DEVNULL, start_new_session=True)
             log.close()
-            self._await_hello(started + timeout_s)
+            self._await_hello(self._process, started + timeout_s)
         except BaseException:
             self.stop()
             raise
         self.startup_s = time.monotonic() - started
 
-    def _await_hello(self, deadline: float) -> None:
+    def _await_hello(self, process: subprocess.Popen[bytes], deadline: float) -> None:
         while time.monotonic() < deadline:
-            if self._process.poll() is not None:
-                raise SimUnavailable(f"LinuxCNC exited with {self._process.returncode}: "
+            if process.poll() is not None:
+                raise SimUnavailable(f"LinuxCNC exited with {process.returncode}: "
                                      f"{self.log_tail()}", field="linuxcnc")
             try:
                 self.session().close()
@@ -399,6 +402,8 @@ class SimController:
 
     def log_tail(self, chars: int = 600) -> str:
         """The end of LinuxCNC's console output."""
+        if self.workdir is None:
+            return ""
         try:
             return (self.workdir / "linuxcnc.log").read_text(errors="replace")[-chars:]
         except (OSError, TypeError):

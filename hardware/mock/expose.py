@@ -23,6 +23,7 @@ import select
 import socket
 import threading
 import tty
+from collections.abc import Callable
 
 import serial
 
@@ -31,7 +32,7 @@ from . import register_protocol_handler
 register_protocol_handler()
 
 
-def _pump_port_to(port: serial.SerialBase, send: object, stop: threading.Event) -> None:
+def _pump_port_to(port: serial.SerialBase, send: Callable[[bytes], object], stop: threading.Event) -> None:
     """Copy the mock's replies to the host (``send(bytes)``) until ``stop`` or the port dies."""
     while not stop.is_set():
         try:

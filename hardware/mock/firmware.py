@@ -12,8 +12,7 @@ A discrete-event model of a controller, driven by ``advance(now)``:
   (``length / feed``); the "stepper" retires blocks at their end time;
 * replies leave through the same kind of wire (baud + latency) into the port's buffer.
 
-Times are real seconds: every modelled duration is multiplied by ``time_scale``
-(1 = real time, 0 = as fast as possible, everything instantaneous).
+Times are real seconds, every modelled duration times ``time_scale`` (1: real time, 0: all instantaneous).
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ import math
 import random
 import re
 from collections import deque
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from typing import Any
 
 import numpy as np
@@ -30,7 +29,7 @@ import numpy as np
 from ..protocol import normalize_command
 from .physics import ProbePhysics, Touch
 from .surface import PlacedSurface
-from .world import HOST_QUERIES, DepositedMove, MockWorld
+from .world import HOST_QUERIES, DepositedMove, MockTool, MockWorld
 
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 KEEPALIVE_S = 2.0
@@ -60,8 +59,8 @@ class FirmwareCore:
     """State and timing common to both dialects (see module docstring)."""
 
     dialect = "base"
-    # disconnect_at_line fires when the N-th command is recorded (Marlin); grbl fires it
-    # in its own receive path (hardware.mock.grbl)
+    hard_reset: Callable[[float], None]  # MockWorld.reset_controller: grbl's mock defines it, Marlin's does not
+    # disconnect_at_line fires when the N-th command is recorded (Marlin); grbl's receive path fires it itself
     DISCONNECT_WHEN_RECORDED = False
 
     def __init__(self, world: MockWorld, baudrate: int) -> None:
@@ -220,6 +219,7 @@ class FirmwareCore:
         self._step(now)
 
     def _step(self, now: float) -> None:
+        assert self.current is not None, "a command was started"  # callers set it just before
         try:
             self.waiting = self.current.send(None)
         except StopIteration:
@@ -312,7 +312,7 @@ class FirmwareCore:
         b = tuple(float(v + o) for v, o in zip(end, offset))
         return (a[0], a[1], a[2] + drift_before), (b[0], b[1], b[2] + drift_after)
 
-    def tool_spec(self):  # type: ignore[no-untyped-def]
+    def tool_spec(self) -> MockTool | None:
         """The active nozzle's ``MockTool`` (None for T0 or a tool the world lacks)."""
         tools = self.world.tools
         return tools[self.active_tool - 1] if 1 <= self.active_tool <= len(tools) else None
@@ -358,7 +358,7 @@ class FirmwareCore:
         planned end (also between two advances of the event loop)."""
         i = self._running(now) if self.blocks else None
         if i is None:
-            return tuple(self.position)
+            return self.position[0], self.position[1], self.position[2]
         _, _, begin, start, end = self.blocks[i]
         t = self.held_since if self.held_since is not None else now
         span = self.planner[i] - begin

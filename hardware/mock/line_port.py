@@ -21,6 +21,7 @@ class LineDevicePort(SerialBase):
     """A serial port to a mock line-protocol device (see the module docstring)."""
 
     terminator = b"\n"
+    is_open: bool  # set by SerialBase.__init__ and by open/close
 
     def _open_device(self, url: str) -> object:
         """The device the port's URL names (InvalidConfig if there is none)."""

@@ -25,7 +25,8 @@ a downward touch reads z + noise as before).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -42,8 +43,17 @@ from .sweep import (
 )
 from .world import MockWorld
 
+if TYPE_CHECKING:
+    import trimesh
+
 _VERTICAL = np.array([0.0, 0.0, -1.0])
 DUST_RADIUS_MM = 0.5  # a touch this close (xy) to a speck of MockWorld.probe_dust lands on it
+
+
+def _xyz(values: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
+    """A point (3,) mm as three floats."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
 
 
 class Touch(NamedTuple):
@@ -61,7 +71,7 @@ class MeshIndex:
     """The placed part's triangles with their bounding boxes, sorted by x-min, so a
     swept body's candidate triangles come from a strip search plus a box filter."""
 
-    def __init__(self, mesh: object) -> None:
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
         tris = np.asarray(mesh.vertices, dtype=float)[np.asarray(mesh.faces)]
         lo, hi = tris.min(axis=1), tris.max(axis=1)
         order = np.argsort(lo[:, 0], kind="stable")
@@ -136,9 +146,10 @@ class ProbePhysics:
         self._index: MeshIndex | None = None
 
     @property
-    def index(self) -> MeshIndex | None:
-        """The mesh index, built on first use (only physics-enabled touches need it)."""
-        if self._index is None and self.surface.mesh is not None:
+    def index(self) -> MeshIndex:
+        """The mesh index, built on first use (only physics-enabled touches on a part need it)."""
+        if self._index is None:
+            assert self.surface.mesh is not None, "a flat bed has no mesh to index"
             self._index = MeshIndex(self.surface.mesh)
         return self._index
 
@@ -207,21 +218,22 @@ class ProbePhysics:
         chord = np.asarray(target, float) - start_c
         length = float(np.linalg.norm(chord))
         if length <= 0.0:
-            return Touch("miss", tuple(start), 0.0, None)
+            return Touch("miss", _xyz(start), 0.0, None)
         direction = chord / length
         world.stats.touches += 1
+        what: str | None
         if tool == 0:
             actual = start_c + offset
             ideal = world.stylus_radius_mm == 0.0 and world.pretravel_lobing_mm == 0.0 \
                 and bool(np.allclose(direction, _VERTICAL))
             if self.started_inside(actual, exact_old=ideal):
-                return Touch("inside", tuple(start), 0.0, None)
+                return Touch("inside", _xyz(start), 0.0, None)
             found = self._ball_contacts(actual, direction, length)
             if not found:
-                return Touch("miss", tuple(float(v) for v in target), length, None)
+                return Touch("miss", _xyz(target), length, None)
             contact, what = min(found, key=lambda f: f[0].s)
             if contact.s < -1e-9:
-                return Touch("inside", tuple(start), 0.0, what)
+                return Touch("inside", _xyz(start), 0.0, what)
             delta = self.pretravel(contact.normal)
             # the ball centre at contact, back in commanded coordinates (bit-exact for r = 0)
             at_contact = contact.point + world.stylus_radius_mm * contact.normal - offset
@@ -232,16 +244,16 @@ class ProbePhysics:
                                                    tool_spec.outer_diameter_mm)
             self._count_collision(tip, direction, length if contact_s is None else max(contact_s, 0.0))
             if contact_s is None:
-                return Touch("miss", tuple(float(v) for v in target), length, None)
+                return Touch("miss", _xyz(target), length, None)
             if contact_s < 0.0:
-                return Touch("inside", tuple(start), 0.0, what)
+                return Touch("inside", _xyz(start), 0.0, what)
             contact = Contact(contact_s, tip + contact_s * direction, -direction)
             at_contact = start_c + contact_s * direction
             sd = world.touchoff_sd_mm
             delta = float(self.rng.normal(0.0, sd)) if sd > 0 else 0.0
         travel = max(contact.s + delta, 0.0)
         if travel > length + 1e-12:
-            return Touch("miss", tuple(float(v) for v in target), length, what)
+            return Touch("miss", _xyz(target), length, what)
         reading = at_contact + delta * direction if travel > 0.0 else start_c
         for i, (x, y, dz) in enumerate(world.probe_dust):
             if i not in world.dust_gone and math.hypot(reading[0] - x, reading[1] - y) <= DUST_RADIUS_MM:
@@ -250,7 +262,7 @@ class ProbePhysics:
         noise = world.probe_noise_mm
         if noise > 0:
             reading = reading - float(self.noise_draw(noise)) * direction
-        return Touch("hit", tuple(float(v) for v in reading), travel, what)
+        return Touch("hit", _xyz(reading), travel, what)
 
     def noise_draw(self, sd: float) -> float:
         return float(self.rng.normal(0.0, sd))

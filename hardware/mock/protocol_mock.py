@@ -18,6 +18,7 @@ from collections import deque
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
+from .firmware import FirmwareCore
 from .grbl import GrblFirmware
 from .marlin import MarlinFirmware
 from .world import MockWorld, world_from_url
@@ -27,7 +28,7 @@ def _clock(world: MockWorld) -> float:
     return 0.0 if world.time_scale == 0 else time.monotonic()
 
 
-def _drive(world: MockWorld, firmware: object) -> None:
+def _drive(world: MockWorld, firmware: FirmwareCore) -> None:
     """Real-time driver thread: advance the firmware whenever something is due."""
     with world.cond:
         while world.firmware is firmware:
@@ -42,7 +43,7 @@ def _drive(world: MockWorld, firmware: object) -> None:
 FIRMWARES = {"marlin": MarlinFirmware, "grbl": GrblFirmware}  # the mock firmware per dialect
 
 
-def _firmware_for(world: MockWorld, baudrate: int) -> tuple[object, bool]:
+def _firmware_for(world: MockWorld, baudrate: int) -> tuple[FirmwareCore, bool]:
     if world.firmware is not None:
         return world.firmware, False
     kind = FIRMWARES[world.dialect]
@@ -56,6 +57,8 @@ def _firmware_for(world: MockWorld, baudrate: int) -> tuple[object, bool]:
 
 class Serial(SerialBase):
     """A serial port whose other end is the mock firmware of a ``MockWorld``."""
+
+    is_open: bool  # set by SerialBase.__init__ and by open/close
 
     def open(self) -> None:
         if self._port is None:

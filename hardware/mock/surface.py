@@ -7,11 +7,14 @@ The true part (a ``trimesh.Trimesh``) is moved once by the world's ``TruePlaceme
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from .world import TruePlacement
+
+if TYPE_CHECKING:
+    import trimesh
 
 
 class ProbeHit(NamedTuple):
@@ -33,9 +36,9 @@ def placement_matrix(placement: TruePlacement) -> np.ndarray:
 class PlacedSurface:
     """The as-made part at its placement, answering vertical probe queries."""
 
-    def __init__(self, mesh: object | None, placement: TruePlacement, bed_z: float) -> None:
+    def __init__(self, mesh: trimesh.Trimesh | None, placement: TruePlacement, bed_z: float) -> None:
         self.bed_z = float(bed_z)
-        self.mesh = None
+        self.mesh: trimesh.Trimesh | None = None
         if mesh is not None:
             placed = mesh.copy()
             placed.apply_transform(placement_matrix(placement))

@@ -44,7 +44,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 from urllib.parse import parse_qsl
 
 from ..dialects import DEFAULT_DIALECT, DIALECTS, dialect
@@ -62,6 +62,11 @@ from .artifacts import (
     tool_number,
 )
 from .timeline import MotionTimeline
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from .firmware import FirmwareCore
 
 #: Host queries that do not change the machine; the transcript leaves them out so the
 #: executed digest compares directly with the program's ``commands_sha256``.
@@ -185,7 +190,7 @@ class MockStats:
 class MockWorld:
     """Everything the mock printer is: part, placement, noise, dialect, timing, faults."""
 
-    true_part: object | None = None  # trimesh.Trimesh of the as-made part, or None (flat bed)
+    true_part: trimesh.Trimesh | None = None  # trimesh.Trimesh of the as-made part, or None (flat bed)
     placement: TruePlacement = field(default_factory=TruePlacement)
     probe_noise_mm: float = 0.0
     # dust (x, y, dz) mm: the first touch within DUST_RADIUS_MM of (x, y) reads dz high
@@ -257,7 +262,7 @@ class MockWorld:
         self.transcript = Transcript(self.keep_transcript)
         self.deposition_log: list[DepositedMove] = []
         self.stats = MockStats()
-        self.firmware = None  # created by the first connection (hardware.mock.firmware)
+        self.firmware: FirmwareCore | None = None  # created by the first connection (hardware.mock.firmware)
         # the carriage's path on the machine clock, kept while a device shares the position
         # stream (hardware.mock.timeline; the mock height sensor sets it)
         self.timeline: MotionTimeline | None = None
@@ -291,7 +296,10 @@ class MockWorld:
     def position(self) -> tuple[float, float, float]:
         """Planned tool position (mm); (0, 0, 0) before the first connection."""
         fw = self.firmware
-        return tuple(fw.position) if fw is not None else (0.0, 0.0, 0.0)
+        if fw is None:
+            return (0.0, 0.0, 0.0)
+        x, y, z = fw.position
+        return x, y, z
 
     @property
     def active_tool(self) -> int:
@@ -309,10 +317,10 @@ class MockWorld:
             if firmware is None:
                 return None
             now = 0.0 if self.time_scale == 0 else time.monotonic()
-            where = tuple(float(v) for v in firmware.machine_position(now))
+            x, y, z = (float(v) for v in firmware.machine_position(now))
             firmware.hard_reset(now)
             self.cond.notify_all()
-            return where
+            return x, y, z
 
     def drift_mm(self) -> float:
         """Z drift now (mm): actual tool Z = commanded Z + this (machine clock based)."""

@@ -257,6 +257,8 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         registration = steps.run("register", {**params.registration_params, "part_id": params.part_id,
                                               "machine_id": params.machine_id}, None)
         placed = {"registration_job_id": registration.id}
+    shared: tuple[Job, Job] | None  # the joint (plan, run) of a field plan or a scan
+    runs: list[tuple[Job, Job]]
     if params.measuring == "scan":
         ctx.progress(0.0, f"scanning all {total} traces")
         scanned = steps.run("scan_run", {**params.scan, "machine_id": params.machine_id,
@@ -311,9 +313,9 @@ def run(ctx: JobContext, params: ClosedLoopParams) -> dict:
         result["verdict"] |= {"accepted": accepted, "printing_held": False}
     hold = attention and accepted is None
     rings = probe_rings(ctx, params.trace_ids) if params.print or params.evaluate else set()
-    printed = [entry for entry in per_trace if entry["trace_id"] not in rings]
+    to_print = [entry for entry in per_trace if entry["trace_id"] not in rings]
     if (params.print or params.evaluate) and not hold:
-        gates.gate("print", _print_summary(printed, params), round_=rounds)
+        gates.gate("print", _print_summary(to_print, params), round_=rounds)
     reported = time.monotonic()
     for index, entry in enumerate(per_trace):
         if entry["trace_id"] in rings:
@@ -357,7 +359,8 @@ def _probe(steps: Steps, gates: Gates, params: ClosedLoopParams, placed: dict[st
     plan, probe = more_rounds(steps, params, base, plan, probe, 0.05)
     runs = [(plan, probe)]
     for round_, asked in enumerate(gates.decisions.replans, start=1):  # stations an operator added
-        prior = {k: asked[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm") if k in asked}
+        prior: dict[str, Any] = {k: asked[k] for k in ("deviation_amplitude_mm", "deviation_wavelength_mm")
+                                 if k in asked}
         following = steps.run("probe_plan", {**base, **prior, "fixed_run_job_id": probe.id,
                                              "touch_budget": asked.get("touch_budget") or params.touch_budget}, None)
         gates.gate("plan", _plan_summary([following], total), round_=round_)

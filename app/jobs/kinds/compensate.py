@@ -28,6 +28,7 @@ naming the trace, where and by how much).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -137,6 +138,12 @@ class ToolChoice:
                 "outer_diameter_mm": self.outer_diameter_mm}
 
 
+def _xyz(values: Sequence[float]) -> tuple[float, float, float]:
+    """An [x, y, z] offset (mm) as three floats."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
 def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
     """The tool and offset of the programs (422 ``params.tool`` for a tool the machine does
     not have or an uncalibrated nozzle without ``allow_uncalibrated``)."""
@@ -155,7 +162,7 @@ def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
         raise InvalidInput(f"machine {row.id!r} has no nozzle T{tool} (its nozzles: "
                            f"{sorted(nozzles) or 'none'})", field="params.tool", value=tool)
     nozzle = nozzles[tool]
-    choice = ToolChoice(tool=tool, name=nozzle.name, offset_mm=tuple(float(v) for v in nozzle.offset_mm),
+    choice = ToolChoice(tool=tool, name=nozzle.name, offset_mm=_xyz(nozzle.offset_mm),
                         source="nominal", outer_diameter_mm=float(nozzle.outer_diameter_mm),
                         dispense_on=nozzle.dispense_on, dispense_off=nozzle.dispense_off)
     if not params.corrections.offsets:
@@ -172,7 +179,7 @@ def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
         choice.warnings.append(f"T{tool} is not calibrated: its NOMINAL offset {list(choice.offset_mm)} mm "
                                "is used (allow_uncalibrated)")
         return choice
-    choice.offset_mm = tuple(float(v) for v in calibrated.offset_mm)
+    choice.offset_mm = _xyz(calibrated.offset_mm)
     choice.source, choice.calibration_job_id = "calibrated", calibration.nozzle_job_ids[tool]
     if calibrated.outer_diameter_mm:
         choice.outer_diameter_mm = float(calibrated.outer_diameter_mm)
@@ -307,7 +314,8 @@ def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trac
              placement: Any, records: _Records | None = None) -> tuple[dict[str, Any], Any]:
     """(result, the compensated path with its programs) of one trace (``records``: a board
     job's machine and parts, read once for all its traces)."""
-    dialect, on, off = params.dialect, params.dispense_on, params.dispense_off
+    dialect: str = params.dialect
+    on, off = params.dispense_on, params.dispense_off
     if params.machine_id:
         machine: Machine = records.machine(params.machine_id) if records else ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]

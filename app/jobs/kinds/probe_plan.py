@@ -225,6 +225,7 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     if not ProbePlanResult.of(plan_job).field or plan_job.params.get("trace_ids") != params.trace_ids:
         raise InvalidInput(f"probe run {run.id!r} is not a run of a field plan of the same traces",
                            field="params.fixed_run_job_id", value=run.id)
+    assert plan_job.result is not None  # it holds the field plan read above
     stored, rows = field_touches(ctx, run)
     field = stored_field(stored)
     fixed = touched_stations(stored, run.id)

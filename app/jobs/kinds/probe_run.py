@@ -196,7 +196,8 @@ def _correct(points: list[dict], probe: MachineProbe, params: ProbeRunParams,
     drift_mm = np.zeros(len(points))
     if track is not None and track["times_s"]:
         order = np.argsort(track["times_s"], kind="stable")
-        drift_track = DriftTrack(np.asarray(track["times_s"])[order], np.asarray(track["pad_z_mm"])[order])
+        drift_track = DriftTrack(tuple(np.asarray(track["times_s"])[order]),
+                                 tuple(np.asarray(track["pad_z_mm"])[order]))
         drift_mm = drift_offsets(drift_track, times, float(probe.calibration.pad_reading_z_mm))  # type: ignore[arg-type]
     z = corrected_heights(readings, normals, drift_mm, probe.calibration, params.corrections)
     for p, zi, di in zip(points, z, drift_mm):

@@ -26,6 +26,7 @@ from app.domain.errors import ConformaError
 from app.gcode.estimator import MachineLimits, estimate_program
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
+from app.gcode.writer import DEFAULT_DIALECT
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
@@ -154,7 +155,7 @@ class ToolpathJobParams(JobParams):
     max_accel_mm_s2: tuple[Accel, Accel, Accel, Accel] = Field(_LIMITS.max_accel_mm_s2,
                                                                description="axis acceleration limits X Y Z E (M201)",
                                                                json_schema_extra=_MORE)
-    dialect: Literal["marlin", "grbl"] = Field(_FDM.dialect, description="G-code dialect (extrude needs marlin)")
+    dialect: Literal["marlin", "grbl"] = Field(DEFAULT_DIALECT, description="G-code dialect (extrude needs marlin)")
     mode: Literal["extrude", "dispense"] = Field(_FDM.mode, description="E-axis extrusion or dispenser on/off")
     nozzle_temp_c: float = Field(_FDM.nozzle_temp_c, ge=0, le=500, allow_inf_nan=False, description="extrude, deg C",
                                  json_schema_extra=_EXTRUDE)
@@ -185,7 +186,7 @@ class ToolpathJobParams(JobParams):
         return MachineLimits(accel_mm_s2=self.accel_mm_s2, travel_accel_mm_s2=self.travel_accel_mm_s2,
                              retract_accel_mm_s2=self.retract_accel_mm_s2,
                              junction_deviation_mm=self.junction_deviation_mm,
-                             max_feed_mm_s=tuple(self.max_feed_mm_s), max_accel_mm_s2=tuple(self.max_accel_mm_s2))
+                             max_feed_mm_s=self.max_feed_mm_s, max_accel_mm_s2=self.max_accel_mm_s2)
 
     def fill(self) -> ToolpathParams:
         return ToolpathParams(
