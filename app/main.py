@@ -40,8 +40,8 @@ from app.platform.db import migrate
 from app.runtime.engine import QUEUES, Runtime
 
 # The API's routers, in the order their routes are matched
-ROUTERS = (system.router, parts.router, traces.router, jobs.router, loop_actions.router, programs.router, machines.router,
-           machine_console.router,
+ROUTERS = (system.router, parts.router, traces.router, jobs.router, loop_actions.router, programs.router,
+           machines.router, machine_console.router,
            files.router, viewer_api.router, reports.router, circuits.router)
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 log = logging.getLogger("conforma")

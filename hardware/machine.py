@@ -199,7 +199,8 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         fields.update(self._build_fields(result.events))
         if self.rules.build_info:
             self._apply_build_info(fields)
-        elif self.rules.request_queued and caps.get("EMERGENCY_PARSER") and self.live_link.mode == "windowed" and self.live_link.advanced_ok:
+        elif (self.rules.request_queued and caps.get("EMERGENCY_PARSER") and self.live_link.mode == "windowed"
+              and self.live_link.advanced_ok):
             # S000 answered with the steppers' position (REALTIME_REPORTING_COMMANDS): nothing
             # in M115 says so; its plain ok needs ADVANCED_OK to stay apart from the others
             caps["REALTIME_REPORTING_COMMANDS"] = self.live_link.probe_realtime_reports(min(1.0, self.timeout_s))

@@ -151,7 +151,8 @@ class ResumeOperations:
         if mark is not None and mark.moving is False and mark.asked_at >= started:
             self._stream_origin = mark.position
 
-    def _report_evidence(self: SerialHost, seqs: dict[int, int], start_line: int, exc: Exception) -> ReportEvidence | None:
+    def _report_evidence(self: SerialHost, seqs: dict[int, int], start_line: int,
+                         exc: Exception) -> ReportEvidence | None:
         """The last real position reported during the stream, before the link failed
         (``hardware.reports``), with the commands acknowledged when it arrived; None when
         there was none."""
@@ -289,7 +290,8 @@ class ResumeOperations:
         return ResumeLocation(start, "position", f"the tool stood at {where}: command {start} is the first "
                                                  "not completed")
 
-    def _drain_after_rejection(self: SerialHost, exc: FirmwareError, inflight: deque[tuple[int, PendingCommand]], executed: int) -> int:
+    def _drain_after_rejection(self: SerialHost, exc: FirmwareError, inflight: deque[tuple[int, PendingCommand]],
+                               executed: int) -> int:
         """A line was rejected: the controller still runs the lines it already holds
         (grbl: up to a buffer's worth).  Wait for each answer; return the index after the
         last one answered, and name the rejected line in ``exc.line_index``."""

@@ -332,7 +332,8 @@ def _parse_m115(raw: str, text: str) -> ReplyEvent:
     return FirmwareInfo(fields, raw=raw)
 
 
-def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
+# one flat dispatch over cases; splitting it hides their order
+def parse_reply(line: str, dialect: str = DEFAULT_DIALECT) -> ReplyEvent:  # noqa: C901
     """Parse one reply line (terminator optional) into a typed event.
 
     Both dialects' forms are recognised whatever ``dialect`` says (grbl error texts are

@@ -1,6 +1,6 @@
 """Position reports during streaming (``PositionTracker``, owned by
-``hardware.session.ReplySession``; pure: every method takes ``now``): where motion really is, asked for at a bounded rate while the
-reader thread ticks the session, so that after a controller
+``hardware.session.ReplySession``; pure: every method takes ``now``): where motion really is, asked for at a bounded
+rate while the reader thread ticks the session, so that after a controller
 reset the host knows how far the tool got (``hardware.resume.locate_by_report``).
 
 * grbl: the real-time ``?`` status report (``MPos`` or ``WPos`` per ``$10``; ``WCO`` turns

@@ -230,11 +230,11 @@ def locate_by_position(ends: list[tuple[float, float, float] | None], position: 
 
     The tool at the end of move k (the position after command k) means k completed when k
     moved it there (a command that moves nothing may not have run: k itself is an answer
-    too; ``origin``: where the tool stood before command 0, when known): the answer is k + 1, or later over the commands after k that do not move (a dispenser
-    switch, a dwell) and were acknowledged (``acked``: commands [0, acked) were; such a
-    command ran when it was answered); the others are sent again rather than skipped.  The tool strictly inside move k's straight segment means k
-    was cut: the answer is k (the resume's modal replay goes back to k's start point; the
-    move runs again whole).  Arcs (G2/G3) and moves from an unknown start are only
+    too; ``origin``: where the tool stood before command 0, when known): the answer is k + 1, or later over the commands
+    after k that do not move (a dispenser switch, a dwell) and were acknowledged (``acked``: commands [0, acked) were;
+    such a command ran when it was answered); the others are sent again rather than skipped.  The tool strictly inside
+    move k's straight segment means k was cut: the answer is k (the resume's modal replay goes back to k's start point;
+    the move runs again whole).  Arcs (G2/G3) and moves from an unknown start are only
     recognised at their ends; the program's opening before its first fully known position
     (units, modes, a first move naming only some axes) cannot be placed and is passed over.
     Places of the window [lo - 1, hi) that the path visits more than once, an unknown

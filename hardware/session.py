@@ -176,7 +176,8 @@ class ReplySession:
         return best
 
     # ------------------------------------------------------------------ replies
-    def feed(self, line: str, now: float) -> list[Action]:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
+    # one flat dispatch over cases; splitting it hides their order
+    def feed(self, line: str, now: float) -> list[Action]:  # noqa: C901
         """One reply line (terminator optional) received at ``now``."""
         event = parse_reply(line, self.rules.name)
         kind = type(event).__name__

@@ -106,5 +106,6 @@ def test_the_work_item_check_sees_them():
     for line in ("# iss" "ue 14: strict", "see iss" "ue #7", "on st" "op 23's run", "the se" "ed S1 method",
                  "se" "ed eq. 1", "S1." ".S5"):
         assert _WORK_ITEMS.search(line), line
-    for line in ("the S1 reference part", "30 stops", "issued 3 commands", "seed=11", "stop(1)", "start / stop 2.1-2.5 s"):
+    for line in ("the S1 reference part", "30 stops", "issued 3 commands", "seed=11", "stop(1)",
+                 "start / stop 2.1-2.5 s"):
         assert not _WORK_ITEMS.search(line), line

@@ -49,7 +49,8 @@ def authenticate(keyring: KeyRing, throttle: LoginThrottle, key: str | None, add
             raise HTTPException(429, f"too many failed API key attempts from {address}; retry in {wait} s",
                                 headers={"Retry-After": str(wait)})
         throttle.failed(address)
-        raise HTTPException(401, "the API key is not valid (unknown or revoked)", headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPException(401, "the API key is not valid (unknown or revoked)",
+                            headers={"WWW-Authenticate": "Bearer"})
     return role
 
 

@@ -135,8 +135,8 @@ class Profile(Strict):
     calibration_max_age_h: Finite = Field(24.0, gt=0, le=24 * 365,
                                           description="a calibration older than this is flagged stale")
     dispense: DispenseProfile | None = Field(None, description="the material this machine dispenses: pressure, "
-                                             "on/off delays, standoff, speed (app.machines.materials); print jobs apply "
-                                             "its delays and record it")
+                                             "on/off delays, standoff, speed (app.machines.materials); print jobs "
+                                             "apply its delays and record it")
     dispense_by_material: dict[MaterialName, DispenseProfile] = Field(
         default_factory=dict, max_length=MAX_MATERIAL_PROFILES,
         description="this machine's own profile of each material it has dispensed, by preset name: set whenever "

@@ -27,7 +27,8 @@ PROBLEM_SCHEMA: dict[str, Any] = {
         "detail": {"type": "string"},
         "errors": {"type": "array", "description": "the offending fields and values", "items": {
             "type": "object", "required": ["loc", "msg"],
-            "properties": {"loc": {"type": "array", "items": {"type": "string"}}, "msg": {"type": "string"}, "value": {}},
+            "properties": {"loc": {"type": "array", "items": {"type": "string"}}, "msg": {"type": "string"},
+                           "value": {}},
         }},
     },
 }

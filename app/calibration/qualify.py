@@ -277,7 +277,8 @@ def fit_qualification(touches: Sequence[Touch], readings: npt.ArrayLike, sphere_
         raise CalibrationError(f"readings[{i}] ({touches[i].kind} touch) is {robust.fun[worst]:.3f} mm "
                                "(along its move) off what the other readings describe (a bad touch: dust or a bounce?)",
                                field=f"readings[{i}]", value=p_all[i])
-    fit = least_squares(residuals, robust.x, method="lm", xtol=_LM_TOL, ftol=_LM_TOL, gtol=_LM_TOL, max_nfev=200 * n_par)
+    fit = least_squares(residuals, robust.x, method="lm", xtol=_LM_TOL, ftol=_LM_TOL, gtol=_LM_TOL,
+                        max_nfev=200 * n_par)
     res = fit.fun
     jac = fit.jac
     sv = np.linalg.svd(jac, compute_uv=False)

@@ -41,8 +41,8 @@ from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
 from app.gcode.reader import HOME, ArcBudgetError, ModalReader, ReadOptions, arc_chord_budget
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
-__all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_line", "MIN_ARC_CHORD_MM", "PRINT", "TRAVEL", "ZONLY",
-           "EONLY", "STILL", "HOME_KIND", "MODE", "OTHER", "KIND_NAMES"]
+__all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_line", "MIN_ARC_CHORD_MM", "PRINT",
+           "TRAVEL", "ZONLY", "EONLY", "STILL", "HOME_KIND", "MODE", "OTHER", "KIND_NAMES"]
 
 PRINT, TRAVEL, ZONLY, EONLY, STILL, HOME_KIND, MODE, OTHER = range(8)
 KIND_NAMES = ("print", "travel", "zonly", "eonly", "still", "home", "mode", "other")

@@ -153,10 +153,12 @@ def points_region(points: npt.ArrayLike) -> Region:
     lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
     hull = Delaunay(pts[:, :2])
 
-    def inside(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64], slack: float = LENGTH_EPS_MM) -> npt.NDArray[np.bool_]:
+    def inside(x: npt.NDArray[np.float64], y: npt.NDArray[np.float64],
+               slack: float = LENGTH_EPS_MM) -> npt.NDArray[np.bool_]:
         """True where (x, y) mm is in the points' convex hull."""
         box = (x >= lo[0] - slack) & (x <= hi[0] + slack) & (y >= lo[1] - slack) & (y <= hi[1] + slack)
-        ok: npt.NDArray[np.bool_] = box & (hull.find_simplex(np.column_stack([x, y]), tol=_HULL_BARYCENTRIC_TOL) >= 0)  # scipy: untyped
+        # scipy: untyped
+        ok: npt.NDArray[np.bool_] = box & (hull.find_simplex(np.column_stack([x, y]), tol=_HULL_BARYCENTRIC_TOL) >= 0)
         return ok
 
     return Region(inside, (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])))

@@ -172,7 +172,8 @@ def _reference(fp: Footprint) -> str:
     return str(getattr(fp, "libId", "") or "")
 
 
-def read_kicad(text: str, name: str, layer: str | None = None, graphics: bool = False) -> Layout:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
+# one flat dispatch over cases; splitting it hides their order
+def read_kicad(text: str, name: str, layer: str | None = None, graphics: bool = False) -> Layout:  # noqa: C901
     """Tracks and pads of ``layer`` (``top`` = F.Cu, the default; ``bottom`` = B.Cu; ``inner<n>``
     = In<n>.Cu; or a KiCad layer name) of a board; mm, y up; ``stack``: every copper layer counted.  Its copper
     graphics and text (:mod:`app.circuits.kicad_graphics`) are read when ``graphics`` asks,

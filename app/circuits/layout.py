@@ -21,8 +21,8 @@ _MIN_ARC_STEP_RAD = 1e-9
 #: closer than this counts as joined
 RESOLUTION_MM = 0.001
 
-__all__ = ["copper_side", "Source", "LayoutTrace", "Pad", "Area", "Via", "Dropped", "Connection", "Layout", "circle_ring",
-           "arc_points", "RESOLUTION_MM"]
+__all__ = ["copper_side", "Source", "LayoutTrace", "Pad", "Area", "Via", "Dropped", "Connection", "Layout",
+           "circle_ring", "arc_points", "RESOLUTION_MM"]
 
 
 def copper_side(layer: str) -> str:

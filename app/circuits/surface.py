@@ -111,7 +111,8 @@ class PrintedPoints:
         np.minimum.at(clear, owner[ok], clearance[ok])
         np.minimum.at(low, owner[ok], clearance[ok] - standoff[ok])
         worst_sd = np.zeros(len(names))
-        sds = [self.surface.at(tips[judged[i:i + self.chunk], :2], sd=True)[1] for i in range(0, len(judged), self.chunk)]
+        sds = [self.surface.at(tips[judged[i:i + self.chunk], :2], sd=True)[1]
+               for i in range(0, len(judged), self.chunk)]
         if sds and all(sd is not None for sd in sds):
             sd = np.concatenate([np.asarray(v, dtype=float) for v in sds if v is not None])
             good = np.isfinite(sd)

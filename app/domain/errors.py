@@ -1,9 +1,9 @@
 """The domain's small exception family.
 
 Every layer raises one of these (or a subclass of its own); the API edge
-(``app.platform.problems``) maps each class to an HTTP status and turns it into RFC 9457 problem details.  Each error may name the offending input ``field`` (a dotted
-path such as ``"geometry.knots"``) and ``value`` so that the client sees exactly what
-was wrong.  This module is pure: the compute core may import it.
+(``app.platform.problems``) maps each class to an HTTP status and turns it into RFC 9457 problem details.  Each error
+may name the offending input ``field`` (a dotted path such as ``"geometry.knots"``) and ``value`` so that the client
+sees exactly what was wrong.  This module is pure: the compute core may import it.
 """
 
 from __future__ import annotations

@@ -70,7 +70,8 @@ def trace_on_surface(surface: NurbsSurface, uv: npt.NDArray[np.float64], degree:
     return interpolate_curve(surface.evaluate(uv[:, 0], uv[:, 1]), degree, field="trace.uv")
 
 
-def uv_over_xy(surface: NurbsSurface, xy: npt.NDArray[np.float64], tol_mm: float = _XY_INVERSION_TOL_MM) -> npt.NDArray[np.float64]:
+def uv_over_xy(surface: NurbsSurface, xy: npt.NDArray[np.float64],
+               tol_mm: float = _XY_INVERSION_TOL_MM) -> npt.NDArray[np.float64]:
     """Surface parameters (k,2) whose points lie over the plan-view points xy (k,2) mm.
 
     Newton on S_xy(u, v) = (x, y) from the nearest of a 41 x 41 parameter sample.

@@ -190,7 +190,8 @@ def _apply_limit_commands(limits: MachineLimits,
     return limits
 
 
-def estimate_gcode(text: str, limits: MachineLimits = MachineLimits(), max_arc_chords: int | None = None) -> TimeEstimate:
+def estimate_gcode(text: str, limits: MachineLimits = MachineLimits(),
+                   max_arc_chords: int | None = None) -> TimeEstimate:
     """Estimate the run time of G-code ``text`` as :func:`app.gcode.reader.read_program`
     reads it (arcs timed along their chords at the reader's tolerance, at most
     ``max_arc_chords`` of them: by default the budget of the text's size).  The last

@@ -101,7 +101,8 @@ class ProgramRecorder:
             for text in texts:
                 self.line(text)
             return
-        scale, (sx, sy, _, se), rot, layer, dispensing = s.scale, s.shift.tolist(), s.rot.tolist(), s.layer, s.dispensing
+        scale, (sx, sy, _, se), rot = s.scale, s.shift.tolist(), s.rot.tolist()
+        layer, dispensing = s.layer, s.dispensing
         feed, stop, number, pos = feed_mm_min * scale / 60.0, s.stop_pending, self.number, self._pos
         z, e_end = pos[2], pos[3]
         floats: list[float] = []

@@ -196,7 +196,8 @@ class NurbsSurface:
             with np.errstate(divide="ignore", invalid="ignore"):
                 step = np.column_stack([(c * g[:, 0] - b * g[:, 1]) / det, (a * g[:, 1] - b * g[:, 0]) / det])
                 # fall back to a scaled gradient step where the Hessian is not positive definite
-                gd = g / np.maximum(np.column_stack([np.einsum("ij,ij->i", su, su), np.einsum("ij,ij->i", sv, sv)]), DIVISION_FLOOR)
+                gd = g / np.maximum(np.column_stack([np.einsum("ij,ij->i", su, su), np.einsum("ij,ij->i", sv, sv)]),
+                                    DIVISION_FLOOR)
             step = np.where(ok[:, None], step, gd)
             step = np.where(np.isfinite(step), step, 0.0)
             new = np.clip(uv - step, lo, hi)
@@ -264,7 +265,8 @@ class NurbsSurface:
         pts = np.asarray(surface.ctrlpts, float).reshape(nu, nv, 3)
         weights = getattr(surface, "weights", None)
         w = np.asarray(weights, float).reshape(nu, nv) if weights else None
-        return cls(int(surface.degree_u), int(surface.degree_v), np.asarray(surface.knotvector_u), np.asarray(surface.knotvector_v), pts, w)
+        return cls(int(surface.degree_u), int(surface.degree_v), np.asarray(surface.knotvector_u),
+                   np.asarray(surface.knotvector_v), pts, w)
 
 
 def _validated(
@@ -274,7 +276,8 @@ def _validated(
     try:
         net = np.asarray(control_points, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise GeometryError(f"{field}.control_points must be a [nu][nv][3] grid", field=f"{field}.control_points", value=None) from exc
+        raise GeometryError(f"{field}.control_points must be a [nu][nv][3] grid", field=f"{field}.control_points",
+                            value=None) from exc
     if net.ndim != 3 or net.shape[2] != 3:
         raise GeometryError(
             f"{field}.control_points must be a [nu][nv][3] grid", field=f"{field}.control_points", value=list(net.shape)

@@ -34,7 +34,8 @@ def _require(geometry: Mapping[str, Any], key: str, field: str) -> Any:
 
 
 def _number(value: Any, field: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value):
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not np.isfinite(value)):
         raise GeometryError(f"{field} must be a finite number", field=field, value=value)
     return float(value)
 

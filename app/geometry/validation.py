@@ -96,7 +96,8 @@ def check_weights(weights: Any, shape: tuple[int, ...], field: str) -> np.ndarra
     except (TypeError, ValueError) as exc:
         raise WeightError(f"{field} must be numbers", field=field, value=weights) from exc
     if w.shape != shape:
-        raise WeightError(f"{field} must have shape {list(shape)}, got {list(w.shape)}", field=field, value=list(w.shape))
+        raise WeightError(f"{field} must have shape {list(shape)}, got {list(w.shape)}", field=field,
+                          value=list(w.shape))
     bad = ~(np.isfinite(w) & (w > 0))
     if bad.any():
         idx = np.unravel_index(int(np.argmax(bad)), shape)

@@ -100,8 +100,8 @@ class ControllerParams:
     from ``edge_lead`` on the edge cells to ``edge_lead / edge_rings`` on the last ring, and
     coming in while the reference level rises from one flow threshold to two: the edge-aware
     target (:func:`app.jetting.controller.edge_lead_map`; chosen on plant seeds 0 and 1 of the
-    seed case); ``edge_lead`` 0 is the published MPC's flat reference. ``model``: "seed_diagonal" = the seed's (I + Dg) B; "transport" = the same
-    frozen flow kept as a mass-conserving sparse transport operator. ``solver``:
+    seed case); ``edge_lead`` 0 is the published MPC's flat reference. ``model``: "seed_diagonal" = the seed's
+    (I + Dg) B; "transport" = the same frozen flow kept as a mass-conserving sparse transport operator. ``solver``:
     "fista" (fast) or "lbfgsb" (reference). ``binarize``: "threshold", "error_diffusion"
     or "greedy" (greedy flips on the model's QP, started from the threshold pattern).
     """

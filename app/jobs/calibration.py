@@ -1,6 +1,6 @@
 """A machine's current calibration: the latest succeeded ``calibrate_probe`` job, per
-nozzle the latest succeeded ``calibrate_nozzle`` job and the latest ``calibrate_sensor`` job, with what an operator must know
-about them (``flags``): too old, a re-check that disagrees with the calibration before it,
+nozzle the latest succeeded ``calibrate_nozzle`` job and the latest ``calibrate_sensor`` job, with what an operator must
+know about them (``flags``): too old, a re-check that disagrees with the calibration before it,
 a nozzle calibrated against an earlier probe calibration (a nozzle's Z offset rests on the
 probe's ball radius and pre-travel).
 
@@ -83,7 +83,8 @@ def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None
     """{(kind, tool or None): job id} of the newest succeeded calibration job of each kind
     and tool of ``machine_id`` (reads ids and times only, not the stored results)."""
     # sqlmodel types select() of up to four columns; this is five (rows of (id, kind, params, finished, created))
-    rows = session.exec(select(col(Job.id), col(Job.kind), col(Job.params), col(Job.finished_at), col(Job.created_at)).where(  # type: ignore[call-overload]
+    rows = session.exec(select(col(Job.id), col(Job.kind), col(Job.params),  # type: ignore[call-overload]
+                               col(Job.finished_at), col(Job.created_at)).where(
         col(Job.machine_id) == machine_id, col(Job.kind).in_(KINDS), col(Job.status) == "succeeded")).all()
     latest: dict[tuple[str, int | None], tuple[datetime, str]] = {}
     for job_id, kind, params, finished, created in rows:
@@ -237,7 +238,8 @@ def calibration_summary(machine_id: str, cal: MachineCalibration, profile: Profi
                  "disagrees": list(cal.probe_result.agreement.disagrees) if cal.probe_result is not None else []}
     nozzles = []
     for nozzle in (profile.tools.nozzles if profile.tools is not None else []):
-        entry: dict[str, Any] = {"tool": nozzle.tool, "name": nozzle.name, "outer_diameter_mm": nozzle.outer_diameter_mm,
+        entry: dict[str, Any] = {"tool": nozzle.tool, "name": nozzle.name,
+                                 "outer_diameter_mm": nozzle.outer_diameter_mm,
                                  "nominal_offset_mm": list(nozzle.offset_mm), "calibrated": nozzle.tool in cal.nozzles}
         if nozzle.tool in cal.nozzles:
             found, at, result = cal.nozzles[nozzle.tool], cal.nozzle_at[nozzle.tool], cal.nozzle_results[nozzle.tool]

@@ -2,7 +2,8 @@
 ``calibrate_nozzle``): select each touch's tool, travel at the safe height, go down to the
 touch's start, probe toward its target, record the reading (the carriage position at the
 trigger, mm).  A ``local`` touch right after one of its kind and tool hops there instead
-(``Touch.local``: up to the start's height, across, down; no trip to the travel height).  Ends retracted with the probe (T0) selected, also when a touch fails.
+(``Touch.local``: up to the start's height, across, down; no trip to the travel height).  Ends retracted with the probe
+(T0) selected, also when a touch fails.
 
 Recovery follows ``probe_run``: a dropped link interrupts the job with the readings so far
 in ``program_state``; an operator's resume re-homes and touches the interrupted one again

@@ -65,7 +65,8 @@ class PrintedLayer:
     fired: int
 
 
-def print_layer(machine: Machine, head: PrintHead, pattern: np.ndarray, grid: Grid, setup: MachineSetup) -> PrintedLayer:
+def print_layer(machine: Machine, head: PrintHead, pattern: np.ndarray, grid: Grid,
+                setup: MachineSetup) -> PrintedLayer:
     """Jet the (L, W) 0/1 ``pattern`` swath by swath (module docstring)."""
     info = head.info
     assert info is not None, "connect the head first"

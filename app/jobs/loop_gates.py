@@ -113,8 +113,8 @@ def decide(runtime: Runtime, job_id: str, action: Action, replan: dict[str, Any]
     done = Decisions.of(state)
     allowed = ("waiting", "needs_attention") if action in ("accept", "add_stations") else ("waiting",)
     if job.status not in allowed:
-        raise Conflict(f"job {job_id!r} is {job.status}: {action} needs a loop that "
-                       f"{'waits at a pause point or needs attention' if len(allowed) > 1 else 'waits at a pause point'}",
+        raise Conflict(f"job {job_id!r} is {job.status}: {action} needs a loop that waits at a pause point"
+                       f"{' or needs attention' if len(allowed) > 1 else ''}",
                        field="job_id", value=job_id)
     if action == "continue" and waiting.get("needs_attention"):
         raise Conflict(f"job {job_id!r} waits at {waiting.get('at')!r} because its verification failed: accept it "

@@ -215,7 +215,8 @@ class MachineManager:
     """Machine objects by id; builds mock worlds; one lock per registry change."""
 
     def __init__(self, load_mesh: Any, linuxcnc: dict[str, str] | None = None) -> None:
-        self._linuxcnc: dict[str, Any] = dict(linuxcnc or {})  # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
+        # LinuxCNCMachine keywords: connect_pw, enable_pw, program_dir
+        self._linuxcnc: dict[str, Any] = dict(linuxcnc or {})
         self._machines: dict[str, Machine] = {}
         self.running_job: dict[str, str] = {}  # machine id -> id of the job driving it (read-only: use lease)
         self._lock = threading.Lock()

@@ -96,7 +96,8 @@ def _body_boxes(mesh: trimesh.Trimesh, labels: np.ndarray, bodies: int) -> tuple
             np.maximum.reduceat(vertices[order], starts, axis=0))
 
 
-def _volume_if_meaningful(mesh: trimesh.Trimesh, facts: EdgeFacts, signed: np.ndarray) -> tuple[float | None, list[str]]:
+def _volume_if_meaningful(mesh: trimesh.Trimesh, facts: EdgeFacts,
+                          signed: np.ndarray) -> tuple[float | None, list[str]]:
     """(volume or None, notes): a volume is reported only for a closed, consistently wound
     mesh whose inside-out bodies (if any) lie inside an outward one (a cavity)."""
     if not (facts.watertight and facts.consistent):

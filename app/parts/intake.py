@@ -237,8 +237,8 @@ def ply_bytes(mesh: trimesh.Trimesh) -> bytes:
     return header.encode("ascii") + vertices.tobytes() + faces.tobytes()
 
 
-def intake(data: bytes | BinaryIO, fmt: str, *, max_unzipped_bytes: int, units: str | None = None, up: str | None = None,
-           rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Intake:
+def intake(data: bytes | BinaryIO, fmt: str, *, max_unzipped_bytes: int, units: str | None = None,
+           up: str | None = None, rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Intake:
     """Parse an upload and bring it into the part's frame (mm, +Z up).
 
     Raises :class:`MeshError`/:class:`InvalidInput` (422, naming ``file``, ``units``,

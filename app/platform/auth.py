@@ -72,7 +72,8 @@ class KeyRing:
         if not lookup:
             return self.stored_role(digest)
         with Session(self.engine) as session:
-            row = session.exec(select(ApiKey).where(ApiKey.key_sha256 == digest, col(ApiKey.revoked_at).is_(None))).first()
+            row = session.exec(select(ApiKey).where(ApiKey.key_sha256 == digest,
+                                                    col(ApiKey.revoked_at).is_(None))).first()
         role = row.role if row is not None else None
         with self._lock:
             self._cache[digest] = (role, now + CACHE_TTL_S)
@@ -89,7 +90,8 @@ class KeyRing:
             stored, valid_until = self._stored
         if valid_until <= now:
             with Session(self.engine) as session:
-                rows = session.exec(select(ApiKey.key_sha256, col(ApiKey.role)).where(col(ApiKey.revoked_at).is_(None))).all()
+                rows = session.exec(select(ApiKey.key_sha256, col(ApiKey.role))
+                                    .where(col(ApiKey.revoked_at).is_(None))).all()
             stored = {sha: role for sha, role in rows}
             with self._lock:
                 self._stored = (stored, now + CACHE_TTL_S)
@@ -104,7 +106,8 @@ class KeyRing:
         if role not in ROLES:
             raise ValueError(f"role must be one of {ROLES}")
         key = generate_key()
-        record = ApiKey(id=new_id("key"), name=name, role=role, prefix=key[:8], key_sha256=hash_key(key), created_at=utcnow())
+        record = ApiKey(id=new_id("key"), name=name, role=role, prefix=key[:8], key_sha256=hash_key(key),
+                        created_at=utcnow())
         with Session(self.engine, expire_on_commit=False) as session:
             session.add(record)
             session.commit()
@@ -115,7 +118,8 @@ class KeyRing:
     def revoke(self, key_id: str) -> bool:
         with Session(self.engine) as session:
             result = session.exec(
-                update(ApiKey).where(col(ApiKey.id) == key_id, col(ApiKey.revoked_at).is_(None)).values(revoked_at=utcnow())
+                update(ApiKey).where(col(ApiKey.id) == key_id,
+                                     col(ApiKey.revoked_at).is_(None)).values(revoked_at=utcnow())
             )
             session.commit()
         with self._lock:

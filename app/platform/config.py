@@ -43,7 +43,8 @@ class Settings(BaseSettings):
     viewer_port: int = Field(8080, ge=1, le=65535)
     viewer_token_ttl_s: float = Field(120.0, ge=5, le=86_400, description="life of a view token (checked at connect)")
     viewer_origins: str = Field("", description="extra Origins allowed to open the view, comma-separated")
-    viewer_secret: str | None = Field(None, min_length=16, description="view token key; default <data_dir>/viewer.secret")
+    viewer_secret: str | None = Field(None, min_length=16,
+                                      description="view token key; default <data_dir>/viewer.secret")
     embedded_worker: bool = True
     worker_threads: int = Field(2, ge=1, le=64)
     compute_isolation: Literal["process", "thread"] = Field(

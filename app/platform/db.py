@@ -55,7 +55,8 @@ def make_engine(settings: Settings) -> Engine:
         )
         event.listen(engine, "connect", _apply_sqlite_pragmas)
         return engine
-    return create_engine(url, pool_size=settings.db_pool_size // 2, max_overflow=settings.db_pool_size, pool_pre_ping=True)
+    return create_engine(url, pool_size=settings.db_pool_size // 2, max_overflow=settings.db_pool_size,
+                         pool_pre_ping=True)
 
 
 @contextmanager

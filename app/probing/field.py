@@ -456,8 +456,8 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
 def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict[str, Any]:
     """JSON form of a field plan: what the reconstruction and the viewer read back.
 
-    ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the
-    traces; a verification point has ``verify: true``); ``prior``: the deviation prior the design used (the reconstruction must use it).
+    ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the traces; a verification
+    point has ``verify: true``); ``prior``: the deviation prior the design used (the reconstruction must use it).
     """
     return {
         "stations_mode": plan.stations_mode,

@@ -137,7 +137,8 @@ class DesignPosterior:
         f = int(free[0])
         ks = self.rms2 * jinc_kernel(self.candidates.xy[cand:cand + 1], self.slot_xy, self.prior.wavelength_mm)[0] + \
             self.slot_basis @ self.basis[cand]
-        k = self.rms2 * jinc_kernel(self.candidates.xy[cand:cand + 1], self.candidates.xy, self.prior.wavelength_mm)[0] + \
+        k = self.rms2 * jinc_kernel(self.candidates.xy[cand:cand + 1], self.candidates.xy,
+                                    self.prior.wavelength_mm)[0] + \
             self.basis @ self.basis[cand]
         cov = k - np.einsum("nc,c->n", self.stale, ks) - \
             self.y[:, :self.q] @ (ks @ self.x[:, :self.q])
@@ -309,8 +310,8 @@ def exchange_stations(prior: DeviationPrior, center: np.ndarray, candidates: Sit
     """Exchange refinement of ``design`` (n,) indices into ``candidates`` (N,) (Sites; on_trace
     (N,) bool marks the ones on traces, the targets).  Runs ``trials`` moves (default
     max(MIN_TRIALS, TRIALS_PER_STATION x n); none if TRIALS_PER_STATION is 0), each centred
-    on a station drawn with a fixed seed, and keeps every move that does not add stations and keeps every on-trace candidate within
-    target_var.  Returns the new design's candidate indices (no more than n; the caller
+    on a station drawn with a fixed seed, and keeps every move that does not add stations and keeps every on-trace
+    candidate within target_var.  Returns the new design's candidate indices (no more than n; the caller
     verifies it on every trace sample)."""
     design = np.asarray(design, dtype=np.int64)
     total = int(max(MIN_TRIALS * (TRIALS_PER_STATION > 0), TRIALS_PER_STATION * len(design))) if trials is None \

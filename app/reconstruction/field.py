@@ -77,7 +77,8 @@ class FieldFit:
         """The machining-error part (m,) mm of the posterior mean at xy (m, 2) (band-limited:
         smooth on the scale of lambda)."""
         prior = self.posterior.prior
-        out: np.ndarray = prior.rms_mm ** 2 * jinc_kernel(xy, self.posterior.probes.xy, prior.wavelength_mm) @ self.posterior.alpha
+        out: np.ndarray = prior.rms_mm ** 2 * jinc_kernel(xy, self.posterior.probes.xy,
+                                                          prior.wavelength_mm) @ self.posterior.alpha
         return out
 
     def placement(self, sites: Sites) -> np.ndarray:

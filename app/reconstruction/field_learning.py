@@ -68,7 +68,8 @@ from app.probing.deviation_prior import DeviationPrior, Sites, placement_basis
 AMPLITUDE_RANGE = 20.0      # the learned amplitude within [user / 20, user x 20]
 WAVELENGTH_FLOOR_MM = 3.0   # the shortest wavelength the learning may find (a probe ball's scale)
 WAVELENGTH_RANGE = 4.0      # longest: user x 4
-NOISE_RANGE = (1.0, 50.0)   # the learned probe noise within [user x 1, user x 50]: never below the probe's repeatability
+# the learned probe noise within [user x 1, user x 50]: never below the probe's repeatability
+NOISE_RANGE = (1.0, 50.0)
 GRID_WAVELENGTHS = 10       # start points of the search (log-spaced over the wavelength bounds)
 MISFIT_ALPHA = 0.01         # false-alarm level of the misfit test
 HESSIAN_STEP = 1e-3         # central-difference step in the log parameters

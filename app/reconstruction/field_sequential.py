@@ -118,8 +118,8 @@ def stations_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: 
 
 @dataclass(frozen=True)
 class SequentialResult:
-    """check: the verified field (its bound: the largest trace bound under the fitted model); stations: every fitted station (n,); rounds:
-    stations added per round (the pilot first); stopped: why the rounds ended ("bound
+    """check: the verified field (its bound: the largest trace bound under the fitted model); stations: every
+    fitted station (n,); rounds: stations added per round (the pilot first); stopped: why the rounds ended ("bound
     holds": the run's bound within the verdict's tolerance, "budget", "rounds", "no station
     helps": the target tightened TIGHTEN_TRIES times and still nothing added); params: the
     plan parameters of the last round (its ``target_error_mm`` the pointwise target it planned for);

@@ -118,8 +118,8 @@ class FieldCheck:
     """The checked field of one probe run.
 
     fit: the field (fitted with the learned prior); learned: the learning's JSON form
-    (:meth:`LearnedPrior.as_dict`; None below MIN_TOUCHES stations: the user's prior is used); verification (None without points);
-    coverage, target_mm: the promise (coverage x sd <= target); bound_mm: the largest of the
+    (:meth:`LearnedPrior.as_dict`; None below MIN_TOUCHES stations: the user's prior is used); verification (None
+    without points); coverage, target_mm: the promise (coverage x sd <= target); bound_mm: the largest of the
     traces' bounds under the fitted model (:func:`trace_bound`: over each whole trace, at the
     confidence ``coverage`` gives one point; set by the caller, who has the traces; NaN until
     then)."""
@@ -232,7 +232,8 @@ def verification_line(points: Sequence[dict[str, Any]], bound_mm: float | None,
     bound = math.nan if bound_mm is None else float(bound_mm)
     ok = all(p["within"] for p in points) and not top > measured_bound(bound_mm, noise_allowance_mm)
     said = f"bound {bound * 1000:.1f} um" if math.isfinite(bound) else "no bound"
-    line = f"{'verified' if ok else 'NOT verified'} at {len(points)} points: max |residual| {top * 1000:.1f} um ({said})"
+    line = (f"{'verified' if ok else 'NOT verified'} at {len(points)} points: "
+            f"max |residual| {top * 1000:.1f} um ({said})")
     if not ok:
         outside = max((p for p in points if not p["within"]), key=lambda p: abs(p["residual_mm"]), default=worst)
         line += f", worst at [{outside['xy'][0]:.2f}, {outside['xy'][1]:.2f}] mm"

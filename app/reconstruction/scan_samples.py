@@ -4,8 +4,8 @@ how much it differs from the nominal.
 For one pass (carriage waypoints (m, 3), speed, the stored readings (n,)): the carriage at
 each sample's exposure (:func:`app.probing.scan_path.sample_positions`, the calibrated time
 offset; or, when the controller sampled its axes with the sensor,
-:func:`exposure_positions` from those positions), the spot there (+ the calibrated lateral offset), the surface height from the
-calibrated offset, scale and tilt bias (the tilt from the nominal slope), minus the nominal
+:func:`exposure_positions` from those positions), the spot there (+ the calibrated lateral offset), the surface height
+from the calibrated offset, scale and tilt bias (the tilt from the nominal slope), minus the nominal
 height at the spot: the deviation.  Dropouts (NaN readings) are dropped.
 :func:`block_average` then averages each run of ``k`` consecutive valid samples of a pass
 (their mean position and deviation; noise down by sqrt(k)) so a fit sees fewer, better points.

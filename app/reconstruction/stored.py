@@ -43,8 +43,10 @@ def reconstruction_arrays(rec: Reconstruction) -> dict[str, np.ndarray]:
     """Every number of ``rec`` but its nominal, as named arrays."""
     curve = rec.curve
     out = {
-        "format": np.asarray(FORMAT), "method": np.asarray(rec.method), "height_kind": np.asarray(rec.height_model.kind),
-        "curve_degree": np.asarray(curve.degree), "curve_knots": curve.knots, "curve_control_points": curve.control_points,
+        "format": np.asarray(FORMAT), "method": np.asarray(rec.method),
+        "height_kind": np.asarray(rec.height_model.kind),
+        "curve_degree": np.asarray(curve.degree), "curve_knots": curve.knots,
+        "curve_control_points": curve.control_points,
         "curve_weights": curve.w, "samples": np.asarray(rec.samples, dtype=float).reshape(-1, 2),
         "max_mm": np.asarray(rec.max_mm), "rms_mm": np.asarray(rec.rms_mm), "span_mm": np.asarray(rec.span_mm),
         "clean_points": np.asarray(rec.clean.points, dtype=float).reshape(-1, 3), "clean_s": rec.clean.s,

@@ -76,7 +76,8 @@ def _dome_gradient(xy: Any) -> np.ndarray:
     u, v = p[:, 0] / DOME_SIZE[0] * 2 - 1, p[:, 1] / DOME_SIZE[1] * 2 - 1
     du, dv = 2 / DOME_SIZE[0], 2 / DOME_SIZE[1]
     a, b = 2 * math.pi / 60.0, 2 * math.pi / 50.0
-    hx = DOME_RISE_MM * (-2 * u * du) * (1 - 0.5 * v * v) + DOME_RIPPLE_MM * a * np.cos(a * p[:, 0]) * np.cos(b * p[:, 1])
+    hx = (DOME_RISE_MM * (-2 * u * du) * (1 - 0.5 * v * v)
+          + DOME_RIPPLE_MM * a * np.cos(a * p[:, 0]) * np.cos(b * p[:, 1]))
     hy = DOME_RISE_MM * (1 - u * u) * (-v * dv) - DOME_RIPPLE_MM * b * np.sin(a * p[:, 0]) * np.sin(b * p[:, 1])
     return np.stack([hx, hy], axis=1)
 

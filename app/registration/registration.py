@@ -191,7 +191,8 @@ def fit_placement(nominal_points: Any, normals: Any, measured: Any,
     theta = np.zeros(4)
     foot, nrm = q, n
     for iteration in range(1, params.max_iterations + 1):
-        pl = Placement(float(theta[0]), float(theta[1]), float(theta[2]), float(theta[3]), float(pivot[0]), float(pivot[1]))
+        pl = Placement(float(theta[0]), float(theta[1]), float(theta[2]), float(theta[3]), float(pivot[0]),
+                       float(pivot[1]))
         p_part = remove_placement(m, pl)
         if surface is not None:
             foot, nrm = (np.asarray(a, dtype=float) for a in surface(p_part))

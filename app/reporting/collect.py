@@ -66,7 +66,8 @@ def collect_run(session: Session, job_id: str) -> RunRecords:
         raise InvalidInput(f"the session has more than {MAX_JOBS} jobs", field="job_id", value=job_id)
     jobs = session.exec(select(Job).where(col(Job.id).in_(ids)).order_by(col(Job.created_at), col(Job.id))).all()
     records = RunRecords(root=root.model_dump(mode="json"), jobs=[j.model_dump(mode="json") for j in jobs])
-    for artifact in session.exec(select(Artifact).where(col(Artifact.job_id).in_(ids)).order_by(col(Artifact.id))).all():
+    for artifact in session.exec(select(Artifact).where(col(Artifact.job_id).in_(ids))
+                                 .order_by(col(Artifact.id))).all():
         records.artifacts.setdefault(artifact.job_id, []).append(artifact.model_dump(mode="json"))
     trace_ids = {tid for job in records.jobs for tid in _trace_ids(job["params"])}
     for trace in session.exec(select(Trace).where(Trace.id.in_(trace_ids))).all():  # type: ignore[attr-defined]

@@ -23,9 +23,11 @@ from app.jobs.results.models import (
 from app.reporting.collect import RunRecords
 
 _CSS = """body{font:14px/1.45 system-ui,sans-serif;color:#1d2430;max-width:1000px;margin:1.5rem auto;padding:0 1rem}
-h1{font-size:1.5rem;margin:.2rem 0}h2{font-size:1.15rem;border-bottom:1px solid #d9dde5;padding-bottom:.2rem;margin-top:1.6rem}
-table{border-collapse:collapse;width:100%;margin:.4rem 0}th,td{text-align:left;padding:.25rem .4rem;border-bottom:1px solid #e5e8ee;
-vertical-align:top}th{color:#647084;font-weight:600}td.n{font-variant-numeric:tabular-nums;text-align:right}
+h1{font-size:1.5rem;margin:.2rem 0}
+h2{font-size:1.15rem;border-bottom:1px solid #d9dde5;padding-bottom:.2rem;margin-top:1.6rem}
+table{border-collapse:collapse;width:100%;margin:.4rem 0}
+th,td{text-align:left;padding:.25rem .4rem;border-bottom:1px solid #e5e8ee;vertical-align:top}
+th{color:#647084;font-weight:600}td.n{font-variant-numeric:tabular-nums;text-align:right}
 .mono{font-family:ui-monospace,monospace;font-size:.85em;word-break:break-all}.muted{color:#647084}
 .ok{color:#1a7f37;font-weight:600}.bad{color:#cf222e;font-weight:600}svg{background:#fff;border:1px solid #d9dde5}
 @media print{body{margin:0}h2{break-after:avoid}}"""
@@ -40,13 +42,16 @@ def _um(mm: Any) -> str:
 
 
 def _table(head: list[str], rows: list[list[Any]], numeric: set[int] = frozenset()) -> str:  # type: ignore[assignment]
-    cells = "".join("<tr>" + "".join(f'<td class="{"n" if i in numeric else ""}">{_e(v)}</td>' for i, v in enumerate(row))
+    cells = "".join("<tr>"
+                    + "".join(f'<td class="{"n" if i in numeric else ""}">{_e(v)}</td>' for i, v in enumerate(row))
                     + "</tr>" for row in rows)
-    return "<table><thead><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + f"</tr></thead><tbody>{cells}</tbody></table>"
+    return ("<table><thead><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head)
+            + f"</tr></thead><tbody>{cells}</tbody></table>")
 
 
 def _facts(pairs: list[tuple[str, Any]]) -> str:
-    return "<table>" + "".join(f'<tr><th style="width:30%">{_e(k)}</th><td>{_e(v)}</td></tr>' for k, v in pairs) + "</table>"
+    return ("<table>" + "".join(f'<tr><th style="width:30%">{_e(k)}</th><td>{_e(v)}</td></tr>' for k, v in pairs)
+            + "</table>")
 
 
 def _plot(samples: list[list[float]], title: str) -> str:
@@ -210,7 +215,8 @@ def _verdict(verdict: dict[str, Any]) -> list[str]:
                 _facts([("touches", learned.get("touches")),
                         ("LOO statistic mean z² (limit)", f"{learned['loo']['statistic']:.2f} "
                                                          f"({learned['loo']['statistic_limit']:.2f})"),
-                        ("largest |z| (limit)", f"{learned['loo']['max_abs_z']:.2f} ({learned['loo']['z_limit']:.2f})")])]
+                        ("largest |z| (limit)",
+                         f"{learned['loo']['max_abs_z']:.2f} ({learned['loo']['z_limit']:.2f})")])]
     points = verdict.get("verification") or []
     if points:
         out += ["<h3>Verification points (touched after the stations, never fitted)</h3>",
@@ -282,9 +288,11 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
         return _page(root, body, records)
     body += ["<h2>Probing</h2>",
             _facts([("plan job", (plan or {}).get("id")),
-                    ("method", ((plan or {}).get("params") or {}).get("method") or (planned.method if planned else None)),
+                    ("method",
+                     ((plan or {}).get("params") or {}).get("method") or (planned.method if planned else None)),
                     ("probes planned", planned.count if planned else None),
-                    ("probe program (commands sha256)", _artifact_hash(records, plan["id"], "probe.gcode") if plan else None),
+                    ("probe program (commands sha256)",
+                     _artifact_hash(records, plan["id"], "probe.gcode") if plan else None),
                     ("probe run job", (run or {}).get("id")), ("run status", (run or {}).get("status")),
                     ("probes measured", stats.count if stats else None),
                     ("largest |measured − model| (µm)", _um(stats.max_abs_mm if stats else None)),
@@ -301,7 +309,8 @@ def render_run_report(records: RunRecords, software_version: str) -> str:
         body += ["<h2>Deposited standoff: nominal program vs compensated (measured on the machine)</h2>",
                  _table(["trace", "probes", "max before (µm)", "max after (µm)", "rms before (µm)", "rms after (µm)"],
                         [[r.get("name", r.get("trace")), r.get("probes"), r.get("standoff_max_before_um"),
-                          r.get("standoff_max_after_um"), r.get("standoff_rms_before_um"), r.get("standoff_rms_after_um")]
+                          r.get("standoff_max_after_um"), r.get("standoff_rms_before_um"),
+                          r.get("standoff_rms_after_um")]
                          for r in table], numeric={1, 2, 3, 4, 5})]
     body += plots and ["<h2>Real surface minus model along each trace</h2>", *plots] or []
     body += _printed_points(records)
@@ -312,7 +321,8 @@ def _page(root: dict[str, Any], body: list[str], records: RunRecords) -> str:
     """The document: ``body`` and the table of the session's jobs."""
     body = body + ["<h2>Jobs</h2>", _table(["job", "kind", "status", "started", "finished", "input hashes"],
                                            [[j["id"], j["kind"], j["status"], j["started_at"], j["finished_at"],
-                                             "; ".join(f"{k}={v[:12]}" for k, v in (j.get("input_hashes") or {}).items())]
+                                             "; ".join(f"{k}={v[:12]}"
+                                                       for k, v in (j.get("input_hashes") or {}).items())]
                                             for j in records.jobs])]
     return (f'<!doctype html><html lang="en"><head><meta charset="utf-8"><title>Conforma run report '
             f'{_e(root["id"])}</title><style>{_CSS}</style></head><body>{"".join(body)}</body></html>')
@@ -327,7 +337,8 @@ def _droplet_layers(records: RunRecords) -> list[str]:
     maps = {a["name"]: a["sha256"] for a in records.artifacts.get(root["id"], [])}
     grid = result.get("grid") or {}
     out = ["<h2>Droplet layers</h2>",
-           _facts([("controller", params.get("controller", "mpc")), ("layers measured", f"{len(layers)} of {params.get('layers')}"),
+           _facts([("controller", params.get("controller", "mpc")),
+                   ("layers measured", f"{len(layers)} of {params.get('layers')}"),
                    ("grid (cells, pitch mm)", f"{grid.get('shape')} at {grid.get('pitch_mm')}" if grid else None),
                    ("head", params.get("head_port")),
                    ("sensor", params.get("sensor_port") or "sampled by the controller with its joints (LinuxCNC HAL)"),

@@ -91,7 +91,8 @@ class JobContext:
 
     def artifact_bytes(self, job_id: str, name: str) -> bytes:
         with self.session() as session:
-            row = session.query(Artifact).filter(col(Artifact.job_id) == job_id, col(Artifact.name) == name).one_or_none()
+            row = session.query(Artifact).filter(col(Artifact.job_id) == job_id,
+                                                 col(Artifact.name) == name).one_or_none()
         if row is None:
             raise ConformaError(f"job {job_id!r} has no artifact {name!r}", field="artifact", value=name)
         return self.runtime.blobs.read(row.sha256)

@@ -162,7 +162,8 @@ class Runtime:
         self.kinds = load_kinds(settings.job_plugins.split(","))
         self.queues = {name: make_queue(settings, name) for name in QUEUES}
         self.machine_threads = MachineThreads(self)  # one execution thread per machine
-        self.tasks = {name: huey.task(name="run_job")(self.machine_threads.dispatch if name == "machine" else self.execute)
+        self.tasks = {name: huey.task(name="run_job")(self.machine_threads.dispatch if name == "machine"
+                                                      else self.execute)
                       for name, huey in self.queues.items()}
         self._consumers: list[Consumer] = []
         self._stop = threading.Event()

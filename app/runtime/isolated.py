@@ -76,8 +76,8 @@ def call_isolated(fn: Callable[..., T], *args: Any, memory_bytes: int, time_s: f
 
     context = mp_context()
     parent, child = context.Pipe(duplex=False)
-    process = context.Process(target=_child, args=(child, memory_bytes, os.getpid(), fn, args), name="conforma-isolated",
-                              daemon=True)
+    process = context.Process(target=_child, args=(child, memory_bytes, os.getpid(), fn, args),
+                              name="conforma-isolated", daemon=True)
     process.start()
     child.close()
     deadline = time.monotonic() + time_s

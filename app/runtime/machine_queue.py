@@ -80,7 +80,8 @@ def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
     ``jobs.machine_id`` is what makes two concurrent submissions impossible.  A workflow's
     own children (``session.info["parent_id"]``) may use the machine it holds."""
     parent_id = session.info.get("parent_id")
-    query = (select(Job.id, col(Job.kind), col(Job.status), col(Job.program_state)).join(JobReference, col(JobReference.job_id) == col(Job.id))
+    query = (select(Job.id, col(Job.kind), col(Job.status), col(Job.program_state))
+             .join(JobReference, col(JobReference.job_id) == col(Job.id))
              .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
                     col(Job.status).in_(("queued", "running", "interrupted", "waiting")),
                     col(Job.kind).in_(machine_kinds() + WORKFLOW_KINDS)))

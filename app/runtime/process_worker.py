@@ -201,7 +201,8 @@ class ProcessSupervisor:
                 store.release(claim, "released by a stopping worker")
                 return
             log.exception("could not start a process for job %s", claim.job_id)
-            store.finish(claim, "failed", error=problem(500, "Job could not start", f"{type(exc).__name__}: {exc}"[:500]))
+            store.finish(claim, "failed",
+                         error=problem(500, "Job could not start", f"{type(exc).__name__}: {exc}"[:500]))
             return
         started = time.monotonic()
         renew_every = self.settings.lease_s / 3
@@ -219,7 +220,8 @@ class ProcessSupervisor:
                 continue
             if verdict is None and time.monotonic() - renewed >= renew_every:
                 renewed = time.monotonic()
-        if report is None and verdict in ("cancel", "time", "lost") and self._recorded(claim) and member.conn.poll(KILL_WAIT_S):
+        if (report is None and verdict in ("cancel", "time", "lost") and self._recorded(claim)
+                and member.conn.poll(KILL_WAIT_S)):
             report = self._receive(member)  # the job recorded its own end first: let it report
         if report is not None:
             self.pool.release(member, report)
@@ -275,7 +277,8 @@ class ProcessSupervisor:
             if store.finish_surely(claim, "failed", error=quarantine_problem(exitcode)):
                 log.warning("job %s (%s) quarantined: its process ended with %s", claim.job_id, claim.kind, exitcode)
         elif verdict is None:  # exited without an outcome: a bug, not a retry
-            store.finish_surely(claim, "failed", error=problem(500, "Job crashed", "the job's process ended without a result"))
+            store.finish_surely(claim, "failed",
+                                error=problem(500, "Job crashed", "the job's process ended without a result"))
 
     def stop(self, timeout_s: float = 3.0) -> None:
         """Kill running jobs' processes and wait (up to ``timeout_s``) until their jobs are

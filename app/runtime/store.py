@@ -149,7 +149,8 @@ class JobStore:
         """
         rows = self._run(
             update(Job)
-            .where(and_(col(Job.id) == job_id, col(Job.status).in_(("queued", "running")), col(Job.cancel_requested).is_(False)))
+            .where(and_(col(Job.id) == job_id, col(Job.status).in_(("queued", "running")),
+                        col(Job.cancel_requested).is_(False)))
             .values(cancel_requested=True, revision=col(Job.revision) + 1)
             .returning(col(Job.status))
         )
@@ -158,7 +159,8 @@ class JobStore:
         self._run(
             update(Job)
             .where(and_(col(Job.id) == job_id, col(Job.status) == "queued"))
-            .values(status="cancelled", finished_at=utcnow(), message="cancelled before start", revision=col(Job.revision) + 1)
+            .values(status="cancelled", finished_at=utcnow(), message="cancelled before start",
+                    revision=col(Job.revision) + 1)
         )
         return "cancelled" if rows[0][0] == "queued" else "running"
 
@@ -315,7 +317,8 @@ class JobStore:
         return {"id": job_id, "kind": kind, "status": status, "program_state": state}
 
     def jobs_on_machine(self, machine_id: str, statuses: tuple[str, ...]) -> list[str]:
-        rows = self._run(select(col(Job.id)).where(and_(col(Job.machine_id) == machine_id, col(Job.status).in_(statuses))))
+        rows = self._run(select(col(Job.id)).where(and_(col(Job.machine_id) == machine_id,
+                                                        col(Job.status).in_(statuses))))
         return [r[0] for r in rows]
 
     # compute jobs in processes (app.runtime.process_worker) ---------------------------------
@@ -342,8 +345,8 @@ class JobStore:
         """
         rows = self._run(
             update(Job)
-            .where(and_(col(Job.status) == "running", col(Job.lease_until) < time.time(), col(Job.queue) == compute_queue,
-                        col(Job.attempts) >= max_lost))
+            .where(and_(col(Job.status) == "running", col(Job.lease_until) < time.time(),
+                        col(Job.queue) == compute_queue, col(Job.attempts) >= max_lost))
             .values(
                 status="failed", finished_at=utcnow(), lease_until=None, revision=col(Job.revision) + 1,
                 message=f"failed: quarantined after its worker was lost {max_lost} times",
@@ -362,7 +365,8 @@ def final_message(status: str, error: dict | None) -> Any:
     "9/9 traces done"), else "done"; failed / cancelled: the status and the error's detail.
     Returns a SQL expression for :meth:`JobStore.finish`'s conditional UPDATE."""
     if status in COMPLETED_STATES:
-        return case((and_(col(Job.progress) >= 1.0, col(Job.message).is_not(None), col(Job.message) != ""), col(Job.message)),
+        return case((and_(col(Job.progress) >= 1.0, col(Job.message).is_not(None), col(Job.message) != ""),
+                     col(Job.message)),
                     else_=literal("done"))
     detail = (error or {}).get("detail") or (error or {}).get("title") or ""
     return literal(f"{status}: {detail}"[:500] if detail else status)

@@ -92,7 +92,8 @@ def circuit_preview_scene(part_id: str, mesh: trimesh.Trimesh, dry_run: dict[str
         toolpaths.append(Toolpath("warnings", ToolpathSegments(a, b, np.ones(m, bool), np.full(m, -1, np.int64),
                                                                np.zeros(m), np.zeros(m)), "warning"))
     verts, faces, values = [], [], []
-    outlines: list[tuple[Any, Any, float]] = [(p["outline_xy_mm"], [], 0.0 if p["on_part"] else 1.0) for p in dry_run.get("pads", [])]
+    outlines: list[tuple[Any, Any, float]] = [(p["outline_xy_mm"], [], 0.0 if p["on_part"] else 1.0)
+                                              for p in dry_run.get("pads", [])]
     outlines += [(a["exterior_xy_mm"], a.get("holes_xy_mm") or [], 0.5) if isinstance(a, dict) else (a, [], 0.5)
                  for a in dry_run.get("areas", [])]
     offset = 0
@@ -113,7 +114,8 @@ def circuit_preview_scene(part_id: str, mesh: trimesh.Trimesh, dry_run: dict[str
     warnings = dry_run.get("warnings", [])
     notes = tuple(f"{w.get('kind')}: {w.get('message', '')}"[:200] for w in warnings[:NOTES_SHOWN])
     if len(warnings) > NOTES_SHOWN:
-        notes += (f"... and {len(warnings) - NOTES_SHOWN} more warnings (the import page lists them all, page by page)",)
+        notes += (f"... and {len(warnings) - NOTES_SHOWN} more warnings "
+                  "(the import page lists them all, page by page)",)
     return FocusScene(
         focus={"part_id": part_id, "preview": dry_run.get("import_id")},
         title=f"circuit preview {dry_run.get('import_id')} (dry run, nothing stored)",

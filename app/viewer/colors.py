@@ -39,7 +39,8 @@ _RAMP = np.array([[48, 18, 59], [40, 110, 200], [30, 190, 150], [190, 220, 60], 
 def _stops(anchors: np.ndarray) -> tuple[tuple[float, str], ...]:
     """The anchors as legend gradient stops [(position 0..1, "#rrggbb")]."""
     grid = np.linspace(0.0, 1.0, len(anchors))
-    return tuple((float(t), "#{:02x}{:02x}{:02x}".format(*(int(round(c)) for c in rgb))) for t, rgb in zip(grid, anchors))
+    return tuple((float(t), "#{:02x}{:02x}{:02x}".format(*(int(round(c)) for c in rgb)))
+                 for t, rgb in zip(grid, anchors))
 
 
 DIVERGING_STOPS = _stops(_DIVERGING)

@@ -21,7 +21,8 @@ from app.viewer.scenes import SceneBuilder
 from app.viewer.text import user_text
 
 log = logging.getLogger("conforma.viewer")
-GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces", "head")
+GROUPS = ("part", "traces", "probes", "curves", "toolpaths", "deviation", "layers", "axes", "heights", "surfaces",
+          "head")
 NO_JOB = "(none)"
 
 
@@ -153,7 +154,8 @@ class ViewerPanel:
         handle = gui.add_uplot(
             (s, dz),
             (uplot.Series(label="s (mm)"), uplot.Series(label="dz (mm)", stroke="#d33", width=2)),
-            title=user_text(plot.title, "label"), scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)},
+            title=user_text(plot.title, "label"),
+            scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True)},
             axes=(uplot.Axis(label="mm along the trace"), uplot.Axis(label="dz (mm)")),
             aspect=1.6,
         )
@@ -172,5 +174,7 @@ def legend_html(legend: dict[str, Any]) -> str:
     return (f'<div class="conforma-legend" data-name="{name}" style="font-size:12px;margin:4px 0">'
             f'<div><b>{title}</b> ({unit_text})</div>'
             f'<div style="height:12px;border:1px solid #555;background:linear-gradient(to right, {stops})"></div>'
-            f'<div style="display:flex;justify-content:space-between"><span>{lo:.3g}</span>{mid}<span>{hi:.3g}</span></div>'
-            f'<div style="color:#555">data {legend["data_min"]:.3g} .. {legend["data_max"]:.3g} {unit_text}</div></div>')
+            '<div style="display:flex;justify-content:space-between">'
+            f'<span>{lo:.3g}</span>{mid}<span>{hi:.3g}</span></div>'
+            f'<div style="color:#555">data {legend["data_min"]:.3g} .. {legend["data_max"]:.3g} {unit_text}</div>'
+            '</div>')

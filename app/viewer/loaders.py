@@ -98,7 +98,8 @@ class Loader:
     def part_scene(self, part_id: str) -> FocusScene:
         with Session(self.runtime.engine) as session:
             part = get_or_404(session, Part, part_id)
-            traces = session.exec(select(Trace).where(col(Trace.part_id) == part_id).order_by(col(Trace.created_at))).all()
+            traces = session.exec(select(Trace).where(col(Trace.part_id) == part_id)
+                                  .order_by(col(Trace.created_at))).all()
             vertices, faces = self._mesh(part)
             lines = tuple(Polyline(t.name, nominal_of(t).points) for t in traces)
         return FocusScene({"part_id": part_id}, f"part {part.name}", vertices, faces, polylines=lines)
@@ -182,8 +183,8 @@ class Loader:
     def _loaders(self) -> dict[str, Callable[[Session, Job], FocusScene]]:
         return {"probe_plan": self._probe_plan, "probe_run": self._probe_run, "reconstruct": self._reconstruct,
                 "compensate": self._compensate, "closed_loop": self._closed_loop, "surface_fit": self._surface_fit,
-                "five_axis": self._five_axis, "slice": self._slice, "jetting": self._jetting, "jetting_run": self._jetting_run,
-                "print": lambda session, job: print_scene(self, session, job),
+                "five_axis": self._five_axis, "slice": self._slice, "jetting": self._jetting,
+                "jetting_run": self._jetting_run, "print": lambda session, job: print_scene(self, session, job),
                 **{kind: partial(build, self) for kind, build in PROGRAM_SCENES.items()}}
 
     def _with_trace(self, session: Session, job: Job, **parts: Any) -> FocusScene:
@@ -246,8 +247,8 @@ class Loader:
         part = self._part_of(session, job)
         maps: tuple[ScalarSurface, ...] = ()
         if part is not None and len(planned):
-            vertices, faces, sd = field_sd_surface(self.runtime.meshes.mesh(part), stored.stations.take(~stored.verify), stored.center,
-                                                   stored.prior, stored.prior.wavelength_mm / 4)
+            vertices, faces, sd = field_sd_surface(self.runtime.meshes.mesh(part), stored.stations.take(~stored.verify),
+                                                   stored.center, stored.prior, stored.prior.wavelength_mm / 4)
             if len(faces):
                 maps = (ScalarSurface("posterior sd", vertices, faces, sd, 0.0, float(np.nanmax(sd))),)
                 notes.append(f"colour: posterior sd 0 .. {float(np.nanmax(sd)) * 1000:.1f} um")
@@ -325,7 +326,8 @@ class Loader:
         return self._with_trace(session, job, polylines=(rebuilt,), probes=(probes,), plots=(plot,),
                                 scalar_surfaces=_ribbon(trace, samples, name))
 
-    def _gcode(self, session: Session, job: Job, name: str, role: str, label: str | None = None) -> tuple[Toolpath, ...]:
+    def _gcode(self, session: Session, job: Job, name: str, role: str,
+               label: str | None = None) -> tuple[Toolpath, ...]:
         segments = self._program(session, job, name)
         if segments is None:
             return ()
@@ -336,7 +338,8 @@ class Loader:
         surface (the nominal program's is minus the deviation), and the deviation ribbon."""
         if job.params.get("trace_ids"):
             return self._board(session, job)
-        paths = self._gcode(session, job, "nominal.gcode", "nominal") + self._gcode(session, job, "print.gcode", "compensated")
+        paths = (self._gcode(session, job, "nominal.gcode", "nominal")
+                 + self._gcode(session, job, "print.gcode", "compensated"))
         result = CompensateResult.of(job)
         offset = np.asarray(result.tool.get("offset_mm") or (0.0, 0.0, 0.0), float)
         if offset.any():  # a nozzle's programs are carriage positions: draw its tip (carriage + offset)
@@ -414,8 +417,8 @@ class Loader:
             paths.append(Toolpath("five_axis", seg, "compensated"))
             extent = float(np.ptp(ends, axis=0).max()) if len(ends) else 10.0
             axes = (AxisGlyphs("nozzle axis", ends[seg.dispense] if seg.dispense.any() else ends,
-                               tool_axis_from_angles(a, c)[seg.dispense] if seg.dispense.any() else tool_axis_from_angles(a, c),
-                               max(0.06 * extent, 0.5)),)
+                               tool_axis_from_angles(a, c)[seg.dispense] if seg.dispense.any()
+                               else tool_axis_from_angles(a, c), max(0.06 * extent, 0.5)),)
         return self._with_trace(session, job, toolpaths=tuple(paths), axes=axes)
 
     def _slice(self, session: Session, job: Job) -> FocusScene:
@@ -443,8 +446,10 @@ class Loader:
         if key is None:
             return FocusScene({}, "", notes=("heights.npz holds no height array",))
         heights = arrays[key] if arrays[key].ndim == 3 else arrays[key][None]
-        layer_ids = next((arrays[k] for k in ("snapshot_layers", "layers") if k in arrays and arrays[k].ndim == 1), None)
-        labels = tuple(f"layer {int(i)}" for i in layer_ids) if layer_ids is not None and len(layer_ids) == len(heights) \
+        layer_ids = next((arrays[k] for k in ("snapshot_layers", "layers") if k in arrays and arrays[k].ndim == 1),
+                         None)
+        labels = tuple(f"layer {int(i)}" for i in layer_ids) \
+            if layer_ids is not None and len(layer_ids) == len(heights) \
             else tuple(f"snapshot {i}" for i in range(len(heights)))
         pitch = float(arrays["pitch_mm"]) if "pitch_mm" in arrays else 25.4 / float(job.params.get("dpi", 300))
         return FocusScene({}, "", heights=(HeightStack("heights", np.asarray(heights, float), pitch, labels),))
@@ -463,7 +468,8 @@ class Loader:
         if not maps:
             return FocusScene({}, "", notes=("jetting_run job has measured no layer yet",))
         labels = tuple(f"layer {int(n[9:13])} (measured)" for n in picked)
-        return FocusScene({}, "", heights=(HeightStack("measured", np.stack([m for m, _ in maps]), maps[0][1], labels),))
+        return FocusScene({}, "",
+                          heights=(HeightStack("measured", np.stack([m for m, _ in maps]), maps[0][1], labels),))
 
     def _generic(self, session: Session, job: Job) -> FocusScene:
         rows = session.exec(select(Artifact).where(Artifact.job_id == job.id)).all()

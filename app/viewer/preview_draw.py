@@ -75,8 +75,8 @@ def preview_info(preview: ProgramPreview, k: int) -> dict[str, Any]:
         "legend": [{"type": kind, "label": LABELS.get(kind, kind), "color": hex_of(color_of(kind)),
                     "moves": counts[kind], "shown": int(np.count_nonzero(shown & (preview.kind == i)))}
                    for i, kind in enumerate(preview.kinds)]
-        + [{"type": "dispense_on", "label": "dispense on", "color": hex_of(DISPENSE_ON), "moves": len(preview.on_points),
-            "shown": int(np.count_nonzero(preview.on_layer <= k))},
+        + [{"type": "dispense_on", "label": "dispense on", "color": hex_of(DISPENSE_ON),
+            "moves": len(preview.on_points), "shown": int(np.count_nonzero(preview.on_layer <= k))},
            {"type": "dispense_off", "label": "dispense off", "color": hex_of(DISPENSE_OFF),
             "moves": len(preview.off_points), "shown": int(np.count_nonzero(preview.off_layer <= k))}],
     }

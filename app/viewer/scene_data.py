@@ -167,7 +167,8 @@ class FocusScene:
         for h in self.heights:
             _k, rows, cols = h.heights.shape
             x0, y0 = h.origin_xy
-            chunks.append(np.array([[x0, y0, 0.0], [x0 + cols * h.pitch_mm, y0 + rows * h.pitch_mm, float(np.nanmax(h.heights))]]))
+            chunks.append(np.array([[x0, y0, 0.0],
+                                    [x0 + cols * h.pitch_mm, y0 + rows * h.pitch_mm, float(np.nanmax(h.heights))]]))
         chunks = [np.asarray(c, dtype=float).reshape(-1, 3) for c in chunks if c is not None and np.size(c)]
         if not chunks:
             return None

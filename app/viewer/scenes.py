@@ -269,7 +269,8 @@ class SceneBuilder:
             per_move = None
             if move == "dispense" and errors is not None:  # coloured by standoff error, on the scene's scale
                 values = np.asarray(errors, float)[mask]
-                per_move = np.repeat(deviation_colors(np.nan_to_num(values, nan=0.0), self._signed_limit)[:, None], 2, 1)
+                per_move = np.repeat(deviation_colors(np.nan_to_num(values, nan=0.0), self._signed_limit)[:, None],
+                                     2, 1)
             step = self.params.max_segments_per_node
             for part, start in enumerate(range(0, len(chosen), step)):
                 suffix = "" if len(chosen) <= step else f"_{part}"
@@ -281,8 +282,10 @@ class SceneBuilder:
                     width = self.params.toolpath_px * (3.5 if toolpath.role == "nominal" else 1.6)
                 if toolpath.role == "warning":  # over the traces' lines (line_px * 1.5), visibly wider
                     width = self.params.line_px * 2.5
-                handle = self.server.scene.add_line_segments(name, chunk, color, thickness=width, thickness_units="screen")
-                meta = {} if per_move is None else {"colored_by": "standoff_error", "signed_limit_mm": self._signed_limit}
+                handle = self.server.scene.add_line_segments(name, chunk, color, thickness=width,
+                                                             thickness_units="screen")
+                meta = {} if per_move is None else {"colored_by": "standoff_error",
+                                                    "signed_limit_mm": self._signed_limit}
                 self._add(name, "toolpaths", handle, "segments", len(chunk), role=toolpath.role, move=move, **meta)
 
     def _axes(self, glyphs: Any) -> None:

@@ -6,8 +6,8 @@ periods; ``exposed`` is the count at which the value in ``reading`` was measured
 Conforma's simulator (``sim/sensor.hal``) the sensor's HAL component stamps each value with
 the count it read the joints at, however late the scheduler ran it.  On a machine whose
 sensor is an analog input sampled in the servo thread, ``exposed`` is the clock itself and
-the sensor's own latency is the calibrated time offset.  :class:`HalScan` runs ``halsampler`` (LinuxCNC's reader of the sampler's
-FIFO) on this host while a scan pass runs:
+the sensor's own latency is the calibrated time offset.  :class:`HalScan` runs ``halsampler`` (LinuxCNC's reader of the
+sampler's FIFO) on this host while a scan pass runs:
 
     scan = HalScan()                # halcmd / halsampler of the controller on this host
     scan.start()                    # halsampler attached, then ``sets conforma:sensor-on 1``

@@ -44,7 +44,8 @@ from .machine import LinuxCNCMachine
 from .rsh import RshSession
 from .sim_surface import SimBlock, SimSensor, SimSphere
 
-__all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSensor", "SimSphere", "SimUnavailable", "linuxcnc_available"]
+__all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSensor", "SimSphere", "SimUnavailable",
+           "linuxcnc_available"]
 
 SIM_DIR = Path(__file__).with_name("sim")
 CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
@@ -460,7 +461,8 @@ class HalWatch:
         self._reader.start()
         if not self._ready.wait(15.0):
             self.close()
-            raise SimUnavailable(f"hal_watch did not start: {self._process.stderr.read()[:300] if self._process.stderr else ''}",
+            raise SimUnavailable("hal_watch did not start: "
+                                 f"{self._process.stderr.read()[:300] if self._process.stderr else ''}",
                                  field="hal_watch")
 
     def _read(self) -> None:

@@ -135,7 +135,8 @@ class MarlinFirmware(FirmwareCore):
         match = _NUMBERED.match(text)
         star_at = text.rfind("*")
         faulty = match is not None and "M110" not in text  # a lost M110 cannot be resent
-        if faulty and match is not None and star_at > match.end() and self.chance(self.faults.checksum_rate, "checksum"):
+        if (faulty and match is not None and star_at > match.end()
+                and self.chance(self.faults.checksum_rate, "checksum")):
             i = self.rng.randrange(match.end(), star_at)
             flipped = chr(ord(text[i]) ^ 0x01)
             text = text[:i] + (flipped if flipped not in "*\r\n;(" else "#") + text[i + 1:]
@@ -188,7 +189,8 @@ class MarlinFirmware(FirmwareCore):
             self.emit(f"Resend: {max(self.last_n - self.rng.randrange(0, 2), 1)}", now)
             self.emit("ok", now)
 
-    def run(self, line_no: int | None, command: str, now: float) -> Generator[Wait, None, None]:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
+    # one flat dispatch over cases; splitting it hides their order
+    def run(self, line_no: int | None, command: str, now: float) -> Generator[Wait, None, None]:  # noqa: C901
         head, params = split_words(command)
         if self.chance(self.faults.busy_rate, "busy"):
             for _ in range(self.rng.randrange(2, 6)):

@@ -30,8 +30,8 @@ lose / repeat the ``ok``; ``resend_rate`` emits a spurious ``Resend:`` for a lin
 accepted (Marlin); ``garbage_rate`` puts a line of random bytes before a reply;
 ``busy_rate`` emits a burst of ``echo:busy: processing`` (Marlin); ``slow_rate`` makes the
 command take 2.5 s (times ``time_scale``); ``line_number_rate`` damages a numbered line's
-``N`` word on the wire (Marlin answers "Line Number is not Last Line Number+1").  ``disconnect_at_line=N`` drops the link right
-after the firmware executed its N-th recorded command (before its ``ok``): Marlin keeps
+``N`` word on the wire (Marlin answers "Line Number is not Last Line Number+1").  ``disconnect_at_line=N`` drops the
+link right after the firmware executed its N-th recorded command (before its ``ok``): Marlin keeps
 running and keeps its line number; grbl resets (Arduino boards reset on re-enumeration)
 and loses its receive buffer.  ``reset_at_line=N`` restarts the controller instead of
 executing its N-th command (it is not executed; queued commands are lost; grbl's
@@ -443,7 +443,8 @@ def world_from_url(url: str) -> MockWorld:
     if "dialect" in options and options["dialect"] != world.dialect:
         raise InvalidConfig(f"mock world {name!r} speaks {world.dialect}, not {options['dialect']}",
                             field="dialect", value=options["dialect"])
-    tools = {n: cast(MockTool, v) for k, v in options.items() if (n := tool_number(k)) is not None}  # tool<k>: a MockTool
+    # tool<k>: a MockTool
+    tools = {n: cast(MockTool, v) for k, v in options.items() if (n := tool_number(k)) is not None}
     if tools:
         world.tools = merge_tools(world.tools, tools)
     for key, value in options.items():

@@ -199,7 +199,8 @@ class MockPrintHead:
             self.settle(world, now)
             if head == "ST":
                 rows = 0 if self.swath is None else int(self.swath[2].shape[0])
-                used = sorted({int(n) % spec.rows for n in range(self.swath[1], self.swath[1] + self.swath[2].shape[1])}) \
+                used = sorted({int(n) % spec.rows
+                               for n in range(self.swath[1], self.swath[1] + self.swath[2].shape[1])}) \
                     if self.swath is not None else []
                 done = int(self.crossed[:, used].all(axis=1).sum()) if self.armed and used else 0
                 return f"ST,{int(self.armed)},{done},{rows},{self.fired}"

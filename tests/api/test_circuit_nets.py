@@ -111,9 +111,10 @@ def test_a_kicad_board_as_saved_lands_over_the_part_with_vias_and_outline(client
     far = kicad_pads_board().replace("(at 40 20)", "(at 140 120)").replace("(start 30 30) (end 45 30)",
                                                                              "(start 130 130) (end 145 130)")
     far = far.replace("(via (at 45 30)", "(via (at 145 130)")
-    for a, b in (("(start 0 0)", "(start 100 100)"), ("(end 60 0)", "(end 160 100)"), ("(start 60 0)", "(start 160 100)"),
-                 ("(end 60 40)", "(end 160 140)"), ("(start 60 40)", "(start 160 140)"), ("(end 0 40)", "(end 100 140)"),
-                 ("(start 0 40)", "(start 100 140)"), ("(end 0 0)", "(end 100 100)")):
+    for a, b in (("(start 0 0)", "(start 100 100)"), ("(end 60 0)", "(end 160 100)"),
+                 ("(start 60 0)", "(start 160 100)"),
+                 ("(end 60 40)", "(end 160 140)"), ("(start 60 40)", "(start 160 140)"),
+                 ("(end 0 40)", "(end 100 140)"), ("(start 0 40)", "(start 100 140)"), ("(end 0 0)", "(end 100 100)")):
         far = far.replace(a, b)
     response = client.post(f"/api/v1/parts/{part['id']}/circuits:import", headers=OP,
                            files=[("files", ("board.kicad_pcb", far.encode()))],

@@ -63,7 +63,8 @@ def test_a_board_jobs_record_is_small_and_the_result_whole_on_request(client):
 
     page = client.get("/api/v1/jobs", params={"kind": "test_board_result"}, headers=OP).json()
     assert page["items"][0]["result"] is None and page["items"][0]["result_summary"] == record["result_summary"]
-    assert page["items"][0]["params"] == record["params"] and page["items"][0]["params_omitted"] == {"trace_ids": TRACES}
+    assert (page["items"][0]["params"] == record["params"]
+            and page["items"][0]["params_omitted"] == {"trace_ids": TRACES})
     full_page = client.get("/api/v1/jobs", params={"kind": "test_board_result", "include": "result"}, headers=OP).json()
     assert full_page["items"][0]["result"] == whole["result"]
 
@@ -99,7 +100,8 @@ def test_the_openapi_document_describes_include(client):
         assert "include" in params, path
         schema = json.dumps(params["include"]["schema"])
         assert "result" in schema and "artifacts" in schema and "params" in schema
-        assert "result_omitted" in params["include"]["description"] and "params_omitted" in params["include"]["description"]
+        assert ("result_omitted" in params["include"]["description"]
+                and "params_omitted" in params["include"]["description"])
 
 
 def test_a_summary_keeps_scalars_declared_fields_and_list_lengths():

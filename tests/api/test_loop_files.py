@@ -60,7 +60,8 @@ def test_a_closed_loop_lists_its_summary_and_a_whole_part_program(client, meshes
     whole = _artifact(client, done["id"], "whole_part.gcode").decode()
     options = ReadOptions(dispense_on="M106", dispense_off="M107")
     info = done["result"]["files"]["whole_part"]
-    assert info["dialect"] == "marlin" and info["lines"] == len(whole.splitlines()) == listed["whole_part.gcode"]["meta"]["lines"]
+    assert (info["dialect"] == "marlin"
+            and info["lines"] == len(whole.splitlines()) == listed["whole_part.gcode"]["meta"]["lines"])
     assert info["time_s"] > 0 and sorted(info["order"]) == sorted(t["id"] for t in traces)
     by_trace = {e["trace_id"]: e["compensate"] for e in done["result"]["traces"]}
 

@@ -24,7 +24,8 @@ def test_an_alarm_shows_refuses_motion_with_409_and_clears_on_a_confirmed_unlock
         refused = client.post(f"{base}/{path}", json=body, headers=OP)
         assert refused.status_code == 409, refused.text
         problem = refused.json()
-        assert "Alarm" in problem["detail"] and "$X" in problem["detail"] and problem["errors"][0]["loc"][-1] == "controller"
+        assert ("Alarm" in problem["detail"] and "$X" in problem["detail"]
+                and problem["errors"][0]["loc"][-1] == "controller")
     assert client.post(f"{base}/unlock", json={}, headers=OP).status_code == 422  # the operator must confirm
     assert client.post(f"{base}/unlock", json={"confirm": False}, headers=OP).status_code == 422
     unlocked = client.post(f"{base}/unlock", json={"confirm": True}, headers=OP)

@@ -35,7 +35,8 @@ def test_home_jog_and_console_move_the_firmware_as_asked(client, machine):
     assert console.status_code == 200, console.text
     assert console.json()["command"] == "M114" and any("X:5" in line for line in console.json()["reply"])
     unknown = client.post(f"{base}/command", json={"command": "M9999"}, headers=OP)  # Marlin's own answer
-    assert unknown.status_code == 200 and any("Unknown command" in line for line in unknown.json()["reply"]), unknown.text
+    assert unknown.status_code == 200 and any("Unknown command" in line
+                                              for line in unknown.json()["reply"]), unknown.text
 
 
 @pytest.mark.parametrize("body", ['{}', '{"dx_mm": 0}', '{"dx_mm": 500}', '{"dy_mm": NaN}', '{"dq_mm": 1}'])

@@ -17,7 +17,8 @@ PROGRAM = "G21\nG90\n" + "".join(f"G1 X{(i % 40) * 0.5:.2f} Y{(i // 40) * 0.5:.2
 @pytest.mark.parametrize("dialect", ["marlin", "grbl"])
 def test_an_interrupted_print_shows_on_its_machine_and_names_itself_in_every_409(client, dialect):
     profile = {"dispense_on": "M3 S1000", "dispense_off": "M5"} if dialect == "grbl" else {}
-    machine = client.post("/api/v1/machines", json={"name": "m", "port": "mock://", "dialect": dialect, "profile": profile,
+    machine = client.post("/api/v1/machines",
+                          json={"name": "m", "port": "mock://", "dialect": dialect, "profile": profile,
                                                     "mock": {"faults": {"disconnect_at_line": 60}}}, headers=OP).json()
     program = client.post("/api/v1/programs", files={"file": ("p.gcode", PROGRAM.encode())}, headers=OP).json()
     job = client.post(f"/api/v1/machines/{machine['id']}/print", json={"program_id": program["id"]}, headers=OP).json()
@@ -36,7 +37,8 @@ def test_an_interrupted_print_shows_on_its_machine_and_names_itself_in_every_409
     else:                   # a Marlin that may have kept running: the reconnect settles it by line numbers
         assert shown["resume_line"] is None
     assert f"command {executed} of {total}" in shown["message"]
-    assert f"/api/v1/jobs/{job['id']}/resume" in shown["message"] and f"/api/v1/jobs/{job['id']}/abandon" in shown["message"]
+    assert (f"/api/v1/jobs/{job['id']}/resume" in shown["message"]
+            and f"/api/v1/jobs/{job['id']}/abandon" in shown["message"])
 
     again = client.post(f"/api/v1/machines/{machine['id']}/print", json={"program_id": program["id"]}, headers=OP)
     home = client.post(f"/api/v1/machines/{machine['id']}/home", headers=OP)
@@ -53,14 +55,16 @@ def test_an_interrupted_print_shows_on_its_machine_and_names_itself_in_every_409
 def test_a_restarted_server_shows_the_interrupted_program_from_the_job_record():
     job = {"id": "job_1", "kind": "print", "status": "interrupted", "program_state": {"executed": 40, "total": 100}}
     shown = interrupted_program("mach_1", job, None)
-    assert (shown.state, shown.line, shown.total, shown.resume_line, shown.job_id) == ("interrupted", 40, 100, None, "job_1")
+    assert ((shown.state, shown.line, shown.total, shown.resume_line, shown.job_id)
+            == ("interrupted", 40, 100, None, "job_1"))
     assert "command 40 of 100" in shown.message and "job_1" in shown.message
 
 
 @pytest.mark.parametrize("dialect, why", [("marlin", "M106"), ("grbl", "switched its outputs off")])
 def test_the_record_says_when_the_outputs_last_went_off_and_what_a_stop_left_on(client, dialect, why):
     profile = {"dispense_on": "M3 S1000", "dispense_off": "M5"} if dialect == "grbl" else {}
-    machine = client.post("/api/v1/machines", json={"name": "m", "port": "mock://", "dialect": dialect, "profile": profile},
+    machine = client.post("/api/v1/machines",
+                          json={"name": "m", "port": "mock://", "dialect": dialect, "profile": profile},
                           headers=OP).json()
     connected = client.post(f"/api/v1/machines/{machine['id']}/connect", headers=OP).json()
     assert connected["outputs"] == {"safe_off": "connect", "sent": True, "why": None}

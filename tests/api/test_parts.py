@@ -18,7 +18,8 @@ OP = auth("operator")
 def box_bytes(fmt: str) -> bytes:
     box = trimesh.creation.box([40.0, 60.0, 10.0])
     if fmt == "stl_ascii":
-        return box.export(file_type="stl_ascii").encode() if isinstance(box.export(file_type="stl_ascii"), str) else box.export(file_type="stl_ascii")
+        return (box.export(file_type="stl_ascii").encode() if isinstance(box.export(file_type="stl_ascii"), str)
+                else box.export(file_type="stl_ascii"))
     if fmt == "glb":  # as glTF specifies: metres, +Y up
         return export_mesh(box, "glb")
     data = box.export(file_type=fmt)

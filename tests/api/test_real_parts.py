@@ -100,7 +100,8 @@ def test_open_teapot_is_repaired_or_refused_with_the_hole_size(client):
     sliced, _, _ = slice_and_place(client, part, 1.0)
     repairs = sliced["result"]["repairs"]
     assert any(r.startswith("filled holes: 1 (64 open edges") for r in repairs), repairs
-    assert sliced["result"]["volume_mm3"] == pytest.approx(closed_volume, rel=1e-6)   # closed flat, as designed (float32 STL)
+    # closed flat, as designed (float32 STL)
+    assert sliced["result"]["volume_mm3"] == pytest.approx(closed_volume, rel=1e-6)
     assert part["defects"]["holes"] == 1 and part["defects"]["open_edges"] == 64
     assert part["defects"]["largest_hole_mm"] == pytest.approx(opening, rel=1e-6)
     # a hole larger than allowed is refused at submission, not after queuing

@@ -29,7 +29,8 @@ def test_stop_with_a_stored_key_is_delivered_after_a_thousand_wrong_keys(client)
     mine = {"Authorization": f"Bearer {stored}"}
     machine_id = _mock_machine(client, mine)
     world = client.app.state.runtime.machines.world_by_id(machine_id)
-    codes = [client.post(f"/api/v1/machines/{machine_id}/stop", headers={"Authorization": f"Bearer wrong-{i}"}).status_code
+    codes = [client.post(f"/api/v1/machines/{machine_id}/stop",
+                         headers={"Authorization": f"Bearer wrong-{i}"}).status_code
              for i in range(1000)]
     assert codes.count(401) == 20 and codes.count(429) == 980          # the guessing is throttled
     assert world.stats.stops == 0

@@ -45,7 +45,8 @@ def test_stored_keys_are_hashed_and_revocable(client, settings):
     # only the hash is stored
     import sqlite3
 
-    rows = sqlite3.connect(settings.data_dir / "conforma.db").execute("select key_sha256, prefix from api_keys").fetchall()
+    rows = sqlite3.connect(settings.data_dir / "conforma.db").execute(
+        "select key_sha256, prefix from api_keys").fetchall()
     assert all(key not in row[0] for row in rows) and rows[0][1] == key[:8]
     assert client.delete(f"/api/v1/keys/{created.json()['id']}", headers=auth("admin")).status_code == 204
     assert client.get("/api/v1/parts", headers={"Authorization": f"Bearer {key}"}).status_code == 401

@@ -35,5 +35,6 @@ def test_importing_a_1000_trace_board_costs_seconds_of_cpu(client):
         points = t["nominal"]["points"]
         assert len(points) >= 2
         assert max(abs(z - h) for (_, _, z), h in zip(points, dome.height([p[:2] for p in points]))) < 0.05
-    assert client.get(f"/api/v1/parts/{part['id']}/traces", params={"limit": 1}, headers=OP).json()["total"] == TRACES + 1
+    assert client.get(f"/api/v1/parts/{part['id']}/traces", params={"limit": 1},
+                      headers=OP).json()["total"] == TRACES + 1
     assert cpu <= CPU_LIMIT_S, f"traces:import of {TRACES} traces took {cpu:.2f} s of CPU"

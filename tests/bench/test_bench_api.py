@@ -74,5 +74,6 @@ def test_submit_to_start_latency(server):
         pickups.append((started - created).total_seconds() * 1000)
         time.sleep(0.05)  # let the worker go idle, as between real submissions
     p50, p95 = statistics.median(pickups), float(np.percentile(pickups, 95))
-    print(f"\njob submit -> start (server timestamps), 60 jobs: p50 {p50:.1f} ms, p95 {p95:.1f} ms, max {max(pickups):.1f} ms")
+    print(f"\njob submit -> start (server timestamps), 60 jobs: p50 {p50:.1f} ms, p95 {p95:.1f} ms, max "
+          f"{max(pickups):.1f} ms")
     assert p50 < 50

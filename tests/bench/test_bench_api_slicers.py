@@ -11,8 +11,8 @@ may be loaded; wall times are printed too): ours is the whole service tree's (th
 fork server and the compute processes), theirs the CLI's.  Jobs are polled as a client polls
 them (the status every 0.2 s, the result once); the service's idle work (its queue consumers'
 polling) grows with the wall time, so a loaded box inflates our CPU seconds a little.  Peak
-memory: the compute processes' largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part,
-``BENCH_QUICK=1`` leaves the 300 mm plate out.
+memory: the compute processes' largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face
+part, ``BENCH_QUICK=1`` leaves the 300 mm plate out.
 
 The tools are installed by ``make bench-tools`` (``apt-get install prusa-slicer cura-engine``,
 the ``cura`` package's definitions extracted to ``CURA_RESOURCES``); without them this bench
@@ -152,7 +152,8 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
             ours_wall = time.perf_counter() - started
             ours_cpu, ours_peak = _tree_cpu_and_peak(os.getpid())
             ours_cpu -= cpu0
-            result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts", headers=OP).json()["result"]
+            result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts",
+                                headers=OP).json()["result"]
             prusa = _timed(["prusa-slicer", "--export-gcode", "--layer-height", "0.2", "--first-layer-height", "0.2",
                             "--perimeters", "1", "--fill-density", "100%", "--fill-pattern", "rectilinear",
                             "--top-solid-layers", "0", "--bottom-solid-layers", "0", "--skirts", "0",

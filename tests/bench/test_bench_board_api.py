@@ -104,7 +104,8 @@ def core_board(part: BoardPart, n: int, seed: int = 11) -> dict[str, float]:
     measured[:, 2] = made.true_height(plan.xy) + np.random.default_rng(seed).normal(0, 0.001, len(plan.xy))
     fit = checked_field(params.prior(), plan.sites, plan.z, measured, plan.center, plan.trace, plan.s_mm,
                         np.zeros(len(plan.z), dtype=bool), 3.0, 0.005, learn=True).fit  # as the job: prior learned
-    rebuilt = [trace_reconstruction(fit, path, i, ReconstructParams(prior=params.prior())) for i, path in enumerate(paths)]
+    rebuilt = [trace_reconstruction(fit, path, i, ReconstructParams(prior=params.prior()))
+               for i, path in enumerate(paths)]
     c2 = time.process_time()
     for r in rebuilt:
         compensate_trace(r, CompensationParams(standoff_mm=0.1))
@@ -218,16 +219,18 @@ def test_board_through_the_api(client, settings):
           f"{rc_core:>11.2f} {rc_api / rc_core:>9.2f}")
     print(f"closed_loop whole: {loop_wall:.1f} s wall; server process {s1 - s0:.2f} s CPU, compute processes "
           f"{d1 - d0:.2f} s CPU (live ones)")
-    print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB (server alone {peak_server / 2**20:.0f}"
-          f" MiB, with the test's own data; compute processes {peak_compute / 2**20:.0f} MiB)")
+    print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB (server alone "
+          f"{peak_server / 2**20:.0f} MiB, with the test's own data; compute processes {peak_compute / 2**20:.0f} MiB)")
     print(f"GET /jobs/{{compensate}}: {small[0] / 1024:.1f} KiB in {small[1] * 1e3:.1f} ms; "
           f"?include=result: {whole[0] / 1024:.1f} KiB in {whole[1] * 1e3:.1f} ms")
     print("GET /jobs/{id} after the loop, largest of each kind (KiB, best ms of 5): " + ", ".join(
         f"{kind} {size / 1024:.1f} KiB {ms * 1e3:.1f} ms" for kind, (size, ms) in records.items()))
     print(f"the loop's {len(polls)} polls while it ran: largest {max(b for b, _ in polls) / 1024:.1f} KiB, median "
-          f"{sorted(t for _, t in polls)[len(polls) // 2] * 1e3:.1f} ms; load average {os.getloadavg()[0]:.1f} at the end")
+          f"{sorted(t for _, t in polls)[len(polls) // 2] * 1e3:.1f} ms; load average {os.getloadavg()[0]:.1f} "
+          "at the end")
     if accepted is not None:
-        print(f"the loop ended needs_attention and was ACCEPTED by the bench as an operator would: {accepted['reasons']}")
+        print("the loop ended needs_attention and was ACCEPTED by the bench as an operator would: "
+              f"{accepted['reasons']}")
     print(json.dumps({"import_cpu_s": import_cpu, "loop_server_cpu_s": s1 - s0, "loop_compute_cpu_s": d1 - d0,
                       "steps_wall_s": steps, "steps_cpu_s": api_cpu, "core_cpu_s": core,
                       "get_bytes": small[0], "get_ms": small[1] * 1e3,

@@ -76,7 +76,8 @@ def test_closed_loop_board_mode_against_per_trace_jobs(client):
         after, new = _loop(client, setup, board=True)
         assert new["message"] == f"{n}/{n} traces done"
         assert len(_programs(client, new)) == n  # every trace's program readable as the result names it
-        children = {e["reconstruct"] for e in new["result"]["traces"]} | {e["compensate"] for e in new["result"]["traces"]}
+        children = ({e["reconstruct"] for e in new["result"]["traces"]}
+                    | {e["compensate"] for e in new["result"]["traces"]})
         rows.append((n, before, after, 2 * n, len(children)))
     print("\n\nclosed_loop on S1 boards (joint_probing, field planner, mock machine, no print), wall s from submission")
     print(f"{'traces':>6} {'per-trace jobs s':>16} {'board mode s':>12} {'ratio':>6} {'rec+comp jobs before':>20} "

@@ -172,7 +172,8 @@ def test_a_5000_track_board_imports_checks_loops_and_prints(client):
               f"{cpu_s() - c2:.1f} s CPU", flush=True)
     assert loop["status"] == "succeeded", (loop["error"], (loop["result"] or {}).get("verdict", {}).get("reasons"))
     polled = {"loop": record_cost(client, loop["id"]),
-              "compensate (largest)": max(record_cost(client, j) for j in {e["compensate"] for e in loop["result"]["traces"]})}
+              "compensate (largest)": max(record_cost(client, j)
+                                          for j in {e["compensate"] for e in loop["result"]["traces"]})}
     print("  GET /jobs/{id}: " + ", ".join(f"{what} {size / 1024:.1f} KiB in {ms:.1f} ms" for what, (size, ms)
                                             in polled.items()) + " (best of 5)", flush=True)
     assert max(size for size, _ in polled.values()) <= 50_000, polled

@@ -80,7 +80,8 @@ def p_range_exceeds(sd: float, n: int, limit: float) -> float:
 def test_bench_twenty_calibrations_repeat_within_two_microns(client):
     truth = np.array([0.5, 0.015, *T.TOOL1_MM]) * 1000
     rows, times, touches = [], [], []
-    print(f"\n{'seed':>5s} {'r um':>8s} {'p0 um':>8s} {'T1 x um':>8s} {'T1 y um':>8s} {'T1 z um':>8s}   (error against the truth)")
+    print(f"\n{'seed':>5s} {'r um':>8s} {'p0 um':>8s} {'T1 x um':>8s} {'T1 y um':>8s} {'T1 z um':>8s}   "
+          "(error against the truth)")
     for seed in SEEDS:
         machine = T.physics_machine(client, physics=f"{T.PHYSICS}&drift_mm_per_min={DRIFT_MM_PER_MIN}", seed=seed)
         assert client.post(f"/api/v1/machines/{machine['id']}/connect", headers=T.OP).status_code == 200

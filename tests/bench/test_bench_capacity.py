@@ -15,8 +15,8 @@ KEY = "bench-capacity-key"
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):  # type: ignore[no-untyped-def]
-    with capacity_server(tmp_path_factory.mktemp("bench-capacity") / "data", tmp_path_factory.mktemp("logs") / "serve.log",
-                         KEY) as base:
+    with capacity_server(tmp_path_factory.mktemp("bench-capacity") / "data",
+                         tmp_path_factory.mktemp("logs") / "serve.log", KEY) as base:
         yield base
 
 

@@ -143,8 +143,8 @@ def test_surface_least_squares_solve_old_against_new():
         setup = _SOLVE_SETUP.format(n=n, m=m, smoothing=smoothing)
         old = measure(_OLD_SOLVE, setup=setup)
         new = measure(_NEW_SOLVE, setup=setup)
-        print(f"  n={n:>3} m={m:>3} penalty {smoothing:<4g}: peak +{old['peak_mb']:6.1f} -> +{new['peak_mb']:6.1f} MiB, "
-              f"{old['s']:6.2f} -> {new['s']:6.2f} s ({'tensor grid' if not smoothing else 'banded Cholesky'})")
+        print(f"  n={n:>3} m={m:>3} penalty {smoothing:<4g}: peak +{old['peak_mb']:6.1f} -> +{new['peak_mb']:6.1f} "
+              f"MiB, {old['s']:6.2f} -> {new['s']:6.2f} s ({'tensor grid' if not smoothing else 'banded Cholesky'})")
         assert new["peak_mb"] < old["peak_mb"] or new["peak_mb"] < 5
 
 
@@ -170,8 +170,9 @@ def test_toolpath_hilbert_merged_peak_memory_against_the_cost_model():
             sliced = slice_mesh(mesh, SliceParams(mode="uniform", layer_mm=1.0))
         """)
         first = first or got
-        print(f"  line width {width:4.2f} mm: peak +{got['peak_mb']:7.1f} MiB ({got['peak_mb'] / max(first['peak_mb'], 1):5.1f}x),"
-              f" predicted {predicted.memory_mb:7.1f} MiB; {got['s']:6.1f} s, predicted {predicted.time_s:6.1f} s")
+        print(f"  line width {width:4.2f} mm: peak +{got['peak_mb']:7.1f} MiB "
+              f"({got['peak_mb'] / max(first['peak_mb'], 1):5.1f}x), predicted {predicted.memory_mb:7.1f} MiB; "
+              f"{got['s']:6.1f} s, predicted {predicted.time_s:6.1f} s")
         assert got["peak_mb"] <= predicted.memory_mb
     bomb = ToolpathJobParams(slice_job_id="s", pattern="hilbert_merged", line_width_mm=0.005, nozzle_mm=0.005)
     print(f"  line width 0.005 mm (the attack): predicted {toolpath_estimate(bomb, session).memory_mb:,.0f} MiB "

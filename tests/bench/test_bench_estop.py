@@ -114,7 +114,8 @@ def _timed(client: httpx.Client, method: str, url: str, headers: dict[str, str] 
 
 async def _load(base: str, watched_job: str, streams: int, submitters: int, ready, done, out) -> None:
     stop_event = asyncio.Event()
-    limits = httpx.Limits(max_connections=streams + submitters + 20, max_keepalive_connections=streams + submitters + 20)
+    limits = httpx.Limits(max_connections=streams + submitters + 20,
+                          max_keepalive_connections=streams + submitters + 20)
     async with httpx.AsyncClient(timeout=60, limits=limits) as load:
         opened: list[int] = []
         codes: list[int] = []

@@ -7,8 +7,9 @@ Boards of 9, 81, 300 and 1000 traces (lines, arcs and free cubic curves in turn;
 doubly curved part (:mod:`app.reference.boards`); process told to the planners: A = 0.15 mm
 peak, lambda >= 15 mm, placement tolerances at their defaults; 1 um probe noise; target 5 um
 with coverage 4 (3 is the default: over 20 parts x 1000 traces the worst point reaches
-3.3-3.7 sd; measured with 3.5: worst 5.27 um on the 150 x 100 mm part) and compensation chord error 1 um (``chord_error_mm``, default 2 um).  Truth: held-out as-made parts, seeds 300..319 (never used
-while the planner was designed or tuned; tuning used seeds 100..110, 200..210, 2, 7, 8).
+3.3-3.7 sd; measured with 3.5: worst 5.27 um on the 150 x 100 mm part) and compensation chord error 1 um
+(``chord_error_mm``, default 2 um).  Truth: held-out as-made parts, seeds 300..319 (never used while the planner was
+designed or tuned; tuning used seeds 100..110, 200..210, 2, 7, 8).
 
 Measured per board: field plan time (wall and CPU s) and peak traced memory; stations vs the
 field's degrees of freedom at the target (``dof``: the Karhunen-Loeve truncation dimension over
@@ -186,9 +187,9 @@ def test_field_planner_on_boards(part):
         print(f"{n:>6} {plan.count:>8} {plan.dof:>6.0f} {plan.count / plan.dof:>6.2f} {plan.nyquist_dof:>7.1f} "
               f"{plan.count / plan.nyquist_dof:>6.2f} {r['wall']:>7.2f} "
               f"{r['cpu']:>6.2f} {r['peak'] / 2**20:>8.1f} {plan.max_sd_mm * 1e3:>9.2f} "
-              f"{r['rec_err'].max() * 1e3:>10.2f} {r['comp_err'].max() * 1e3:>11.2f} {COMPENSATED_PARTS[part.name][n]:>10} "
-              f"{r['comp_time'][0]:>10.2f} {r['comp_time'][1]:>6.2f} {r['exchanged'].count:>18} "
-              f"{r['exchange_wall']:>6.2f}")
+              f"{r['rec_err'].max() * 1e3:>10.2f} {r['comp_err'].max() * 1e3:>11.2f} "
+              f"{COMPENSATED_PARTS[part.name][n]:>10} {r['comp_time'][0]:>10.2f} {r['comp_time'][1]:>6.2f} "
+              f"{r['exchanged'].count:>18} {r['exchange_wall']:>6.2f}")
     print(f"\nComparison (probes / worst error over {BASELINE_PARTS} held-out parts for the per-trace methods, "
           f"{len(HOLDOUT)} for the field / plan time s):")
     print(f"{'traces':>6} {'method':<18} {'probes':>7} {'err um':>8} {'plan s':>8}")
@@ -228,7 +229,7 @@ def test_per_part_cache_skips_the_ray_structure_and_edge_grid_on_the_second_job(
 
     first, second = job(), job()
     held = cache.bytes
-    print(f"\n\nPer-part cache, {len(mesh.faces):,} faces: first job {first:.2f} s (parse + ray structure + edge grid), "
-          f"second {second:.3f} s ({first / second:.0f}x); the cached part holds {held / 2**20:.0f} MiB "
+    print(f"\n\nPer-part cache, {len(mesh.faces):,} faces: first job {first:.2f} s (parse + ray structure + "
+          f"edge grid), second {second:.3f} s ({first / second:.0f}x); the cached part holds {held / 2**20:.0f} MiB "
           f"(bound {cache.max_bytes / 2**20:.0f} MiB)")
     assert second < 0.25 * first and held == mesh_bytes(cache.mesh(part))

@@ -10,8 +10,8 @@ part cell each layer; the MPC (horizon 1, default settings: the edge-aware targe
 (smallest Sa ratio from layer 80 on) on plant seeds 2-6, held out from the edge lead's
 tuning (seeds 0 and 1). Goals: Sa >= 3x
 lower than open loop on every seed (held-out seeds: at every layer from 80 on), >= 50 %
-less edge collapse, controller <= 50 ms per layer (median, one core) at 300 dpi and <= 0.25 s at 600 dpi. Times are CPU seconds of
-the controller's thread (the machine is shared); wall-clock medians are printed beside.
+less edge collapse, controller <= 50 ms per layer (median, one core) at 300 dpi and <= 0.25 s at 600 dpi. Times are CPU
+seconds of the controller's thread (the machine is shared); wall-clock medians are printed beside.
 """
 
 from __future__ import annotations
@@ -87,9 +87,9 @@ def print_rows(title: str, rows: list[dict]) -> None:
     for r in rows:
         print(f"  {r['spread']:.2f}  {r['seed']:3d}  | {r['sa_ol']:5.2f}  {r['sa_mpc']:5.2f}  {r['sa_ratio']:4.1f}x |"
               f"  {r['sai_ol']:5.2f}  {r['sai_mpc']:5.2f} | {r['rmse_ol']:5.2f}  {r['rmse_mpc']:5.2f} |"
-              f" {r['sz_ol']:5.1f} {r['sz_mpc']:5.1f} | {r['ec_ol']:5.1f}  {r['ec_mpc']:5.1f}  {100 * r['ec_cut']:3.0f}% |"
-              f"   {100 * r['ecr_cut']:3.0f}%   | {r['h_ol']:4.0f}  {r['h_mpc']:4.0f} ({r['tgt_mpc']:4.0f}) |"
-              f"  {r['cpu_ms']:5.1f} / {r['wall_ms']:5.1f}")
+              f" {r['sz_ol']:5.1f} {r['sz_mpc']:5.1f} | {r['ec_ol']:5.1f}  {r['ec_mpc']:5.1f}  "
+              f"{100 * r['ec_cut']:3.0f}% |   {100 * r['ecr_cut']:3.0f}%   | {r['h_ol']:4.0f}  {r['h_mpc']:4.0f} "
+              f"({r['tgt_mpc']:4.0f}) |  {r['cpu_ms']:5.1f} / {r['wall_ms']:5.1f}")
 
 
 @pytest.mark.timeout(7200)
@@ -137,7 +137,8 @@ def test_bench_early_gain_on_held_out_seeds():
             for name, ctrl in variants.items():
                 ratio, at, m = early_gain(spread, seed, ol, **ctrl)
                 worst[name] = min(worst[name], ratio)
-                cells.append(f"{ratio:4.2f}x ({at:3d}) {m.sa_um:4.2f} {m.edge_collapse_um:4.1f} {m.mean_height_um:5.1f}")
+                cells.append(f"{ratio:4.2f}x ({at:3d}) {m.sa_um:4.2f} {m.edge_collapse_um:4.1f} "
+                             f"{m.mean_height_um:5.1f}")
             print(f"  {spread:.2f}  {seed:3d}  |  {o.sa_um:5.2f}  {o.edge_collapse_um:5.1f} {o.mean_height_um:5.1f} | "
                   + " | ".join(cells), flush=True)
     print("worst: " + ", ".join(f"{name} {value:.2f}x" for name, value in worst.items()) + " (goal >= 3x)")
@@ -167,8 +168,8 @@ def test_bench_fista_vs_lbfgsb():
             gap = (fast.objective - ref.objective) / abs(ref.objective)
             worst = max(worst, gap)
             print(f"  {layer:4d} {m:2d} | {fast.objective:13.6g}  {ref.objective:13.6g}  {gap:+.1e} |"
-                  f"  {fast.kkt_residual:.1e}    {ref.kkt_residual:.1e} | {1e3 * (t1 - t0):7.1f}  {1e3 * (t2 - t1):8.1f}"
-                  f"  {(t2 - t1) / max(t1 - t0, 1e-9):5.1f}x")
+                  f"  {fast.kkt_residual:.1e}    {ref.kkt_residual:.1e} | {1e3 * (t1 - t0):7.1f}  "
+                  f"{1e3 * (t2 - t1):8.1f}  {(t2 - t1) / max(t1 - t0, 1e-9):5.1f}x")
     print(f"worst relative objective gap (FISTA at its default tolerance) {worst:.1e}")
     assert worst < 1e-4
 
@@ -184,8 +185,9 @@ def test_bench_binarization_methods():
                   f" {m.sa_um:6.2f}  {m.sa_interior_um:6.2f}  {m.edge_collapse_um:5.1f} |"
                   f" {med(r.solve_cpu_ms for r in result.layers):6.1f}")
         relaxed = relaxed_loop(0.02, 0, layers, DropParams(dpi=dpi))
-        print(f" {dpi:3d} {layers:4d}  relaxed drops    |      0     | {relaxed.sa_um:6.2f}  {relaxed.sa_interior_um:6.2f}"
-              f"  {relaxed.edge_collapse_um:5.1f} |  (fractional volumes: the bound 0/1 patterns chase)")
+        print(f" {dpi:3d} {layers:4d}  relaxed drops    |      0     | {relaxed.sa_um:6.2f}  "
+              f"{relaxed.sa_interior_um:6.2f}  {relaxed.edge_collapse_um:5.1f} |  "
+              "(fractional volumes: the bound 0/1 patterns chase)")
 
 
 def relaxed_loop(spread: float, seed: int, layers: int, drop: DropParams):
@@ -206,7 +208,8 @@ def relaxed_loop(spread: float, seed: int, layers: int, drop: DropParams):
 
 def test_bench_horizon_dead_nozzles_and_600_dpi():
     print("\nHorizon and dead nozzles (spread 2 %, seed 0)")
-    for label, kwargs, plant in (("m=2", {"horizon": 2}, None), ("m=1, 3 dead nozzles", {}, {"dead_nozzles": (20, 60, 90)})):
+    for label, kwargs, plant in (("m=2", {"horizon": 2}, None),
+                                 ("m=1, 3 dead nozzles", {}, {"dead_nozzles": (20, 60, 90)})):
         ol = run("open_loop", 0.02, 0, plant=plant).final.metrics
         res = run("mpc", 0.02, 0, plant=plant, **kwargs)
         m = res.final.metrics

@@ -94,15 +94,16 @@ def test_bench_machine_against_the_simulation(client):
         pub_ratios = [o.sa_um / m.sa_um for o, m in zip(sim_ol, published)][FROM_LAYER - 1:]
         rows.append((spread, mpc[-1], sim_mpc[-1], ol[-1], sim_ol[-1], min(ratios), min(sim_ratios),
                      float(np.median([r["solve_ms"] for r in layers])), min(pub_ratios), published[-1]))
-    print(f"\nDroplet jetting, {LAYERS} layers, 300 dpi, seed {SEED}: the mock machine (true heights) vs the simulation")
-    print(" spread | Sa MPC machine  sim   diff | EC MPC machine  sim   diff | Sa OL machine  sim | EC OL machine  sim |"
-          f" min Sa OL/MPC from layer {FROM_LAYER}: machine  sim | MPC ms | published MPC (sim): min ratio, Sa, EC")
+    print(f"\nDroplet jetting, {LAYERS} layers, 300 dpi, seed {SEED}: "
+          "the mock machine (true heights) vs the simulation")
+    print(" spread | Sa MPC machine  sim   diff | EC MPC machine  sim   diff | Sa OL machine  sim | EC OL machine  sim "
+          f"| min Sa OL/MPC from layer {FROM_LAYER}: machine  sim | MPC ms | published MPC (sim): min ratio, Sa, EC")
     for spread, m, s, o, so, ratio, sim_ratio, ms, pub_ratio, pub in rows:
         print(f"  {spread:.2f}  |   {m.sa_um:6.3f}   {s.sa_um:6.3f} {100 * (m.sa_um / s.sa_um - 1):+4.0f}% |"
-              f"   {m.edge_collapse_um:6.2f}  {s.edge_collapse_um:6.2f} {100 * (m.edge_collapse_um / s.edge_collapse_um - 1):+4.0f}% |"
-              f"   {o.sa_um:6.3f}  {so.sa_um:6.3f} |   {o.edge_collapse_um:6.2f}  {so.edge_collapse_um:6.2f} |"
-              f"        {ratio:5.2f}x  {sim_ratio:5.2f}x       | {ms:5.1f}  | {pub_ratio:5.2f}x {pub.sa_um:6.3f}"
-              f" {pub.edge_collapse_um:6.2f}")
+              f"   {m.edge_collapse_um:6.2f}  {s.edge_collapse_um:6.2f} "
+              f"{100 * (m.edge_collapse_um / s.edge_collapse_um - 1):+4.0f}% |   {o.sa_um:6.3f}  {so.sa_um:6.3f} |   "
+              f"{o.edge_collapse_um:6.2f}  {so.edge_collapse_um:6.2f} |        {ratio:5.2f}x  {sim_ratio:5.2f}x       "
+              f"| {ms:5.1f}  | {pub_ratio:5.2f}x {pub.sa_um:6.3f} {pub.edge_collapse_um:6.2f}")
     for spread, m, s, o, so, ratio, sim_ratio, ms, pub_ratio, pub in rows:
         assert abs(m.sa_um / s.sa_um - 1) <= 0.10
         assert abs(m.edge_collapse_um / s.edge_collapse_um - 1) <= 0.10
@@ -181,7 +182,8 @@ def test_bench_the_loop_survives_a_pause_dropouts_a_lost_sensor_and_a_dead_nozzl
     clean = [r for r in layers if r["fired"] >= 0]  # (-1: the layer the lost link cut short)
     assert all(r["fired"] == r["drops"] for r in clean)
     missing = sum(r["drops"] for r in layers) - head.field.drops
-    dead_bits = sum(int(measured_pattern(client, done, k)[:, DEAD_NOZZLE].sum()) for k in range(at["dead"] + 1, LAYERS + 1))
+    dead_bits = sum(int(measured_pattern(client, done, k)[:, DEAD_NOZZLE].sum())
+                    for k in range(at["dead"] + 1, LAYERS + 1))
     print(f"  drops that did not land: {missing} = the dead nozzle's drops after it failed: {dead_bits}")
     assert missing == dead_bits > 0
     ol = sim_curve(0.02, "open_loop")[-1]

@@ -75,9 +75,9 @@ def test_hyperparameters_recovered_from_touches():
             a_ok = np.abs(np.array(ra) - 1) < 0.2
             w_ok = np.abs(np.array(rw) - 1) < 0.2
             summary[(n, truth.wavelength_mm)] = int((a_ok & w_ok).sum())
-            print(f"{n:4d} {truth.wavelength_mm:6.0f} {truth.amplitude_mm:7.2f}   {int(a_ok.sum()):3d} {int(w_ok.sum()):3d} "
-                  f"{int((a_ok & w_ok).sum()):3d} of {DRAWS}           {sum(cover):3d}             {sum(found):3d}"
-                  f"          {min(ra):.2f}-{max(ra):.2f}          {min(rw):.2f}-{max(rw):.2f}"
+            print(f"{n:4d} {truth.wavelength_mm:6.0f} {truth.amplitude_mm:7.2f}   {int(a_ok.sum()):3d} "
+                  f"{int(w_ok.sum()):3d} {int((a_ok & w_ok).sum()):3d} of {DRAWS}           {sum(cover):3d}            "
+                  f" {sum(found):3d}          {min(ra):.2f}-{max(ra):.2f}          {min(rw):.2f}-{max(rw):.2f}"
                   f"            {np.nanmedian(np.array(sds)[:, 0]):.2f} {np.nanmedian(np.array(sds)[:, 1]):.2f}"
                   f"   (the global maximum: both within 20 % in {sum(glob)})",
                   flush=True)

@@ -4,9 +4,9 @@ Run: .venv/bin/python -m pytest tests/bench/test_bench_toolpath_stages.py -s -o 
 
 The stages of the toolpath job's body (:func:`app.jobs.kinds.toolpath.run`) at the defaults,
 each timed by ``time.process_time`` in this process: reading the slice's ``layers.npz``
-(``from_binary``; parsing its ``layers.json`` instead, ``from_json``, is timed beside it), planning (``iter_toolpath``), writing G-code while recording its moves
-(``write_fdm_program``), the time estimate and the meta (``commands_sha256``, bounds); beside
-them what the job no longer does: reading ``print.gcode`` back (``read_program``), which must
+(``from_binary``; parsing its ``layers.json`` instead, ``from_json``, is timed beside it), planning (``iter_toolpath``),
+writing G-code while recording its moves (``write_fdm_program``), the time estimate and the meta (``commands_sha256``,
+bounds); beside them what the job no longer does: reading ``print.gcode`` back (``read_program``), which must
 give exactly the recorded moves.
 """
 

@@ -5,14 +5,14 @@ Run: .venv/bin/python -m pytest tests/bench/test_bench_trust.py -s -o addopts=""
 ``TRUST_WAVELENGTHS`` e.g. "6,14").  Shards run side by side with different starts.
 
 Held-out as-made S1 parts (seeds 620.., never used while the method was written; 500-504 were
-looked at while the step check was written, 600-619 while the bound and the gap points were): machining error of 6 plane waves with
-wavelengths in [lambda, 3 lambda], lambda = 6, 10, 15, 25, 40 mm, peak amplitude drawn in
+looked at while the step check was written, 600-619 while the bound and the gap points were): machining error of 6 plane
+waves with wavelengths in [lambda, 3 lambda], lambda = 6, 10, 15, 25, 40 mm, peak amplitude drawn in
 0.05-0.3 mm; every seed divisible by 10 also has a 1 mrad tilt and a 20 um step across
 x = 30 mm.  Seven S1 traces, 1 um probe noise, the user's prior at the
 defaults (A 0.2 mm, lambda 20 mm, target 5 um, coverage 3).  Each part is probed by the
 sequential planner (:mod:`app.reconstruction.field_sequential`: a coarse pilot, learn, add
-stations until the run's bound meets the target, verify at 5 points and the gap points).  Truth, independently of the project's figures:
-the worst |model - true deviation| along every trace (every 0.1 mm; the compensated
+stations until the run's bound meets the target, verify at 5 points and the gap points).  Truth, independently of the
+project's figures: the worst |model - true deviation| along every trace (every 0.1 mm; the compensated
 program's standoff error up to its chord error) and the worst |true deviation| (the
 nominal program's).  Counted: runs that call themselves done (no ``needs_attention``) whose
 true worst error exceeds the reported bound, and traces whose model error is not below
@@ -81,7 +81,8 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
             v = check.verification
             learned = (check.learned or {}).get("wavelength_mm", {}).get("value", float("nan"))
             over = int((after > np.array(result.trace_bounds_mm)).sum())
-            row = dict(over=over, learned_ratio=learned / wavelength, wavelength=wavelength, seed=seed, step=seed % 10 == 0, amplitude=amplitude, touches=result.touches, oracle=oracle,
+            row = dict(over=over, learned_ratio=learned / wavelength, wavelength=wavelength, seed=seed,
+                       step=seed % 10 == 0, amplitude=amplitude, touches=result.touches, oracle=oracle,
                        rounds=result.rounds, stopped=result.stopped, learned=learned, bound=check.bound_mm,
                        true=float(after.max()), verified=0.0 if v is None else v.max_abs_residual_mm,
                        attention=check.needs_attention, worse=int((after >= before).sum()), s=elapsed)
@@ -107,7 +108,8 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
     for wavelength in WAVELENGTHS:
         sub = [r for r in rows if r["wavelength"] == wavelength]
         print(f"lambda {wavelength:4.0f}: touches / oracle median "
-              f"{np.median([r['touches'] / r['oracle'] for r in sub]):.2f}; done {sum(not r['attention'] for r in sub)}/{len(sub)}, worst true "
-              f"{max(r['true'] for r in sub) * 1000:.2f} um, touches median {np.median([r['touches'] for r in sub]):.0f}"
-              f" (oracle {np.median([r['oracle'] for r in sub]):.0f})")
+              f"{np.median([r['touches'] / r['oracle'] for r in sub]):.2f}; done "
+              f"{sum(not r['attention'] for r in sub)}/{len(sub)}, "
+              f"worst true {max(r['true'] for r in sub) * 1000:.2f} um, touches median "
+              f"{np.median([r['touches'] for r in sub]):.0f} (oracle {np.median([r['oracle'] for r in sub]):.0f})")
     assert not false_done and worse == 0

@@ -28,7 +28,8 @@ def flat(height: float):
 
 def dome(base: float, rise: float):
     """A smooth raised part, highest (base + rise) at the grid's centre node."""
-    return lambda x, y: base + rise * np.cos(np.pi * (np.asarray(x) - 20) / 50) * np.cos(np.pi * (np.asarray(y) - 20) / 50)
+    return lambda x, y: base + (rise * np.cos(np.pi * (np.asarray(x) - 20) / 50)
+                                * np.cos(np.pi * (np.asarray(y) - 20) / 50))
 
 
 def field(h) -> HeightField:

@@ -81,7 +81,8 @@ def test_gerber_circuit_printed_at_its_standoff_with_pads_covered(client, meshes
     pads = [Polygon(p["outline_xy_mm"]) for p in body["pads"]]
     entries = {e["trace_id"]: e for e in loop["result"]["traces"]}
     for pad in body["pads"]:
-        run = client.get(f"/api/v1/jobs/{entries[pad['probe_trace_id']]['probe_run']}?include=result", headers=OP).json()
+        run = client.get(f"/api/v1/jobs/{entries[pad['probe_trace_id']]['probe_run']}?include=result",
+                         headers=OP).json()
         stations = shapely.points(np.array([p["nominal"][:2] for p in run["result"]["points"]]))
         on_pad = shapely.contains(Polygon(pad["outline_xy_mm"]), stations)
         print(f"pad {pad['name']}: {int(on_pad.sum())} of {len(on_pad)} probe stations on the pad")

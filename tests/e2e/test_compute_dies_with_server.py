@@ -46,7 +46,8 @@ def _is_compute(pid: int) -> bool:
 def _wait_job(base: str, job_id: str, states: tuple[str, ...], timeout: float = 60) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        job = httpx.get(f"{base}/api/v1/jobs/{job_id}?include=result&include=artifacts", headers=HEADERS, timeout=10).json()
+        job = httpx.get(f"{base}/api/v1/jobs/{job_id}?include=result&include=artifacts", headers=HEADERS,
+                        timeout=10).json()
         if job["status"] in states:
             return job
         time.sleep(0.1)

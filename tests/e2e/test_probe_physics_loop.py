@@ -118,7 +118,8 @@ def calibrated_loop_holds_standoff_and_path(client, true_stl: bytes, name: str, 
     children = _children(client, loop)
     for comp in (j for j in children if j["kind"] == "compensate"):
         tool = comp["result"]["tool"]
-        assert tool["tool"] == 1 and tool["offset_source"] == "calibrated" and tool["calibration_job_id"] == nozzle["id"]
+        assert (tool["tool"] == 1 and tool["offset_source"] == "calibrated"
+                and tool["calibration_job_id"] == nozzle["id"])
         assert comp["result"]["clearance"]["min_mm"] > 0.0
     prints = [j for j in children if j["kind"] == "print"]
     assert len(prints) == 2 * len(TRACES)

@@ -64,7 +64,8 @@ def test_the_chords_counted_before_reading_are_the_chords_the_reader_makes(arc):
         centre_words = f"I{-start[0]:.6f} J{-start[1]:.6f}"
     else:  # R: negative for the long way round
         centre_words = f"R{radius if sweep <= math.pi else -radius:.6f}"
-    text = f"G1 X{start[0]:.6f} Y{start[1]:.6f} F600\n{'G2' if clockwise else 'G3'} X{end[0]:.6f} Y{end[1]:.6f} {centre_words}\n"
+    text = (f"G1 X{start[0]:.6f} Y{start[1]:.6f} F600\n"
+            f"{'G2' if clockwise else 'G3'} X{end[0]:.6f} Y{end[1]:.6f} {centre_words}\n")
     scan = BoundsScan(arc_chord_mm=tol)
     try:
         scan.block(text, 1)

@@ -144,4 +144,5 @@ def test_prusaslicer_file_reads_as_prusaslicer_describes_it():
     assert np.hypot(*(program.end[program.dispense, :2] - centre).T).max() < 13.0
     # our planner vs PrusaSlicer's own estimate ("normal mode = 2m 4s"), different models: within 10 %
     assert estimate_gcode(text).total_s == pytest.approx(124.0, rel=0.10)
-    assert program.home.sum() == 2 and gcode_meta(text)["bounds"][1][2] == pytest.approx(program.end[~program.home, 2].max())
+    assert (program.home.sum() == 2
+            and gcode_meta(text)["bounds"][1][2] == pytest.approx(program.end[~program.home, 2].max()))

@@ -37,7 +37,8 @@ def test_xy_trace_points_are_on_the_surface() -> None:
     top = top_surface_z(mesh, trace.points[:, :2])
     assert np.abs(top.z - trace.points[:, 2]).max() < 1e-9
     # top view stays within the chord tolerance of the design curve
-    assert trace_curve(g, tolerance=Tolerance()).invert(trace.points[:, :2]).distance.max() <= Tolerance().chord_mm + 1e-12
+    assert (trace_curve(g, tolerance=Tolerance()).invert(trace.points[:, :2]).distance.max()
+            <= Tolerance().chord_mm + 1e-12)
 
 
 def test_3d_trace_is_snapped_and_off_surface_points_are_named() -> None:

@@ -17,11 +17,12 @@ def submit(client: Any, kind: str, params: dict[str, Any]) -> Any:
     return client.post("/api/v1/jobs", json={"kind": kind, "params": params}, headers=OP)
 
 
-def wait_for(client: Any, job_id: str, states: tuple[str, ...] = ("succeeded", "needs_attention", "failed", "cancelled"),
+def wait_for(client: Any, job_id: str,
+             states: tuple[str, ...] = ("succeeded", "needs_attention", "failed", "cancelled"),
              timeout: float = 20.0) -> dict[str, Any]:
     """The job once its status is one of ``states``, whole (``?include=result&include=artifacts``
-    ``&include=params&include=input_hashes``: what a test reads).  Polled (the small record) every 20 ms at first, then ever less often
-    (every 5 % of the time waited so far, at most every 0.2 s): each poll is a request through
+    ``&include=params&include=input_hashes``: what a test reads).  Polled (the small record) every 20 ms at first, then
+    ever less often (every 5 % of the time waited so far, at most every 0.2 s): each poll is a request through
     the whole app (~5 ms of CPU), which a 20 ms poll took from the job it waits for for as
     long as the job ran."""
     start = time.monotonic()

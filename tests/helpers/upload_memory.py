@@ -66,7 +66,8 @@ def write_program(path: Path, lines: int) -> None:
     """A program of ``lines`` G1 moves (x 0..99.6, y 0.5..36.5, z 0.2 mm), ~26 bytes a line."""
     with path.open("w") as out:
         for k in range(0, lines, 10_000):
-            out.write("".join(f"G1 X{j % 100}.{j % 7} Y{j % 37}.5 Z0.2 F1200\n" for j in range(k, min(k + 10_000, lines))))
+            out.write("".join(f"G1 X{j % 100}.{j % 7} Y{j % 37}.5 Z0.2 F1200\n"
+                              for j in range(k, min(k + 10_000, lines))))
 
 
 def measure_program_upload(path: Path, data_dir: Path) -> ProgramUpload:

@@ -112,7 +112,8 @@ def test_the_edge_aware_target_holds_the_early_gain():
     and both far below open loop (the full case: tests/bench/test_bench_jetting.py)."""
     def run(**ctrl):
         return simulate(JettingParams(layers=80, target=TargetSpec(size_mm=3.0, hole_mm=1.0),
-                                      plant=PlantParams(nozzle_spread=0.06, seed=3), controller=ControllerParams(**ctrl)))
+                                      plant=PlantParams(nozzle_spread=0.06, seed=3),
+                                      controller=ControllerParams(**ctrl)))
 
     open_loop, published, edge = run(kind="open_loop"), run(edge_lead=0.0), run()
     for o, p, e in list(zip(open_loop.layers, published.layers, edge.layers))[59:]:

@@ -40,4 +40,5 @@ if __name__ == "__main__":
         print(f"radius error max {np.abs(rs - 0.5).max() * 1e3:.2f} um, spread {np.ptp(rs) * 1e3:.2f} um")
         print(f"pre-travel error max {np.abs(ps - 0.015).max() * 1e3:.2f} um, spread {np.ptp(ps) * 1e3:.2f} um")
         err = np.abs(os_ - np.array(T.TOOL1_MM)).max(axis=0) * 1e3
-        print(f"T1 offset error max x/y/z {err.round(2).tolist()} um, spread {(np.ptp(os_, axis=0) * 1e3).round(2).tolist()} um")
+        print(f"T1 offset error max x/y/z {err.round(2).tolist()} um, spread "
+              f"{(np.ptp(os_, axis=0) * 1e3).round(2).tolist()} um")

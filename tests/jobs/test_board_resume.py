@@ -3,8 +3,8 @@
 The first attempt runs in the test's thread and "dies" (its worker is gone: no finish, no
 heartbeat) while storing its second group of finished traces (checkpoints in groups of two
 here), i.e. after the files of traces 3 and 4's artifacts were written to be listed in the
-checkpoint's commit, before they were recorded as done; its lease then runs out, the reaper puts the job back and the service's worker runs
-the second attempt.  That attempt reuses the first K traces (their artifacts untouched, their
+checkpoint's commit, before they were recorded as done; its lease then runs out, the reaper puts the job back and the
+service's worker runs the second attempt.  That attempt reuses the first K traces (their artifacts untouched, their
 computation not repeated), redoes the unrecorded ones and the rest, says how many it reused,
 and its result is a clean run's.
 """

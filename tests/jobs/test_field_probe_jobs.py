@@ -40,7 +40,8 @@ def job(client, kind: str, params: dict, timeout: float = 120) -> dict:
     response = submit(client, kind, params)
     assert response.status_code == 202, response.text
     done = wait_for(client, response.json()["id"], timeout=timeout)
-    assert done["status"] == "succeeded", done["error"] or ((done.get("result") or {}).get("verdict") or {}).get("reasons")
+    assert done["status"] == "succeeded", \
+        done["error"] or ((done.get("result") or {}).get("verdict") or {}).get("reasons")
     return done
 
 
@@ -155,7 +156,8 @@ def test_the_viewer_shows_the_field_sd_as_a_colour_map_with_the_stations(client,
     grad = np.array([mesh_top_sampler(coarse[0])(sd_map.vertices[i:i + 1, :2]).grad[0]
                      for i in range(0, len(sd_map.vertices), 997)])
     sites = Sites(sd_map.vertices[::997, :2], grad)
-    assert np.allclose(sd_map.values[::997], posterior_sd(field.prior, field.stations.take(~field.verify), sites, field.center), atol=1e-12)
+    assert np.allclose(sd_map.values[::997],
+                       posterior_sd(field.prior, field.stations.take(~field.verify), sites, field.center), atol=1e-12)
     # low at the stations, high far from them
     near = np.linalg.norm(sd_map.vertices[:, None, :2] - field.stations.xy[None], axis=2).min(axis=1)
     assert sd_map.values[near < 0.3].max() < sd_map.values[near > 5].min()
@@ -187,7 +189,8 @@ def test_board_mode_rebuilds_and_compensates_in_batches_with_the_same_programs(c
                                 headers=OP).text
         assert gcode_meta(board_text)["commands_sha256"] == gcode_meta(alone)["commands_sha256"]
         # the loop's own summary reads the board program the same way
-        assert row["program_sha256"] == gcode_meta(alone)["commands_sha256"] and row["compensate_job"] == entry["compensate"]
+        assert (row["program_sha256"] == gcode_meta(alone)["commands_sha256"]
+                and row["compensate_job"] == entry["compensate"])
         rebuilt = client.get(f"/api/v1/jobs/{entry['reconstruct']}?include=result&include=artifacts", headers=OP).json()
         assert entry["trace_id"] in rebuilt["params"]["trace_ids"] and rebuilt["params"]["method"] == "field"
     whole = client.get(f"/api/v1/jobs/{loop['id']}/artifacts/whole_part.gcode", headers=OP).text
@@ -340,11 +343,13 @@ def test_the_sequential_loop_on_the_14_mm_part_holds_every_trace_within_its_veri
     assert done["status"] == "succeeded" and verdict["reasons"] == [], (done["error"], verdict["reasons"])
     target = ProbePlanParams.model_fields["target_error_mm"].default
     assert verdict["bound_mm"] <= TARGET_SLACK * target
-    plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}?include=result&include=artifacts", headers=OP).json()
+    plan = client.get(f"/api/v1/jobs/{done['result']['traces'][0]['probe_plan']}?include=result&include=artifacts",
+                      headers=OP).json()
     sequential = plan["result"]["field"]["sequential"]
     assert sequential["final"] and sequential["stopped"] == "bound holds" and sequential["touched_before"] > 0
     assert sequential["bound_mm"] == pytest.approx(verdict["bound_mm"], rel=0.05)  # the verdict's own bound
-    points = verdict["verification"]   # 5 where the field is least certain, the gaps beside the worst predicted stations
+    # 5 where the field is least certain, the gaps beside the worst predicted stations
+    points = verdict["verification"]
     assert 5 <= len(points) <= 13 and verdict["verified"].startswith(f"verified at {len(points)} points")
     print(f"\n{verdict['verified']}; learned lambda {verdict['learned']['wavelength_mm']['value']:.2f} mm; "
           f"{sequential['touched_before'] + len(points)} touches in {sequential['round'] + 1} plans")

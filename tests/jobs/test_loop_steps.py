@@ -58,11 +58,13 @@ def test_a_trace_starting_at_a_pad_centre_is_held_at_the_nearest_probe_and_print
     plan, rebuilt = _jobs(client, trace, truth, PAD_RADIUS_MM, length)
     loop = SimpleNamespace(hold_mm=0.0, end_hold_max_mm=0.5)
     hold, held = end_hold(loop, plan, rebuilt, trace["id"])
-    assert held is not None and held[0] == pytest.approx(PAD_RADIUS_MM, abs=1e-6) and held[1] == pytest.approx(0, abs=1e-6)
+    assert (held is not None and held[0] == pytest.approx(PAD_RADIUS_MM, abs=1e-6)
+            and held[1] == pytest.approx(0, abs=1e-6))
     assert PAD_RADIUS_MM < hold <= PAD_RADIUS_MM + 2 * HOLD_ROUND_MM
     # without the hold the compensation refuses the unprobed start; with it the trace gets its program
     refused = wait_for(client, submit(client, "compensate", {"trace_id": trace["id"],
-                                                             "reconstruct_job_id": rebuilt.id}).json()["id"], timeout=120)
+                                                             "reconstruct_job_id": rebuilt.id}).json()["id"],
+                       timeout=120)
     assert refused["status"] == "failed" and "probes cover only" in refused["error"]["detail"]
     held_job = wait_for(client, submit(client, "compensate", {"trace_id": trace["id"], "reconstruct_job_id": rebuilt.id,
                                                               "hold_mm": hold}).json()["id"], timeout=120)

@@ -168,7 +168,8 @@ def test_a_nozzle_body_that_would_touch_the_part_is_refused(client, rebuilt):
     detail = error["detail"]
     assert f"trace {trace['name']} ({trace['id']})" in detail and "outer diameter 1.5 mm" in detail
     assert "s = " in detail and f"by {by:.4f} mm" in detail
-    assert not any(a["name"] == "print.gcode" for a in client.get(f"/api/v1/jobs/{done['id']}?include=result&include=artifacts", headers=OP)
+    assert not any(a["name"] == "print.gcode"
+                   for a in client.get(f"/api/v1/jobs/{done['id']}?include=result&include=artifacts", headers=OP)
                    .json().get("artifacts", []))
 
 
@@ -242,13 +243,15 @@ def test_a_shifted_print_interrupted_mid_program_resumes_the_same_shifted_progra
     recorded = interrupted["program_state"]["drift"]
     assert recorded["dz_mm"] < 0
     touches = world.stats.machine_time_s
-    assert client.post(f"/api/v1/jobs/{interrupted['id']}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    assert client.post(f"/api/v1/jobs/{interrupted['id']}/resume", json={"confirm": True},
+                       headers=OP).status_code == 202
     done = wait_for(client, interrupted["id"], timeout=120)
     assert done["status"] == "succeeded", done["error"]
     assert done["result"]["drift"] == recorded and world.stats.machine_time_s > touches
     start, preamble = done["result"]["start_line"], done["result"]["resume_preamble"]
     dz = recorded["dz_mm"]
-    shifted = normalized_commands([line.replace(f"Z{z}", f"Z{float(z) + dz:.4f}") if (z := line.split("Z")[-1].split()[0])
+    shifted = normalized_commands([line.replace(f"Z{z}", f"Z{float(z) + dz:.4f}")
+                                   if (z := line.split("Z")[-1].split()[0])
                                    and line.startswith("G1") else line for line in text.splitlines()])
     executed = world.transcript.commands[base:]
     assert executed[-(len(shifted) - start + len(preamble)):] == preamble + shifted[start:]

@@ -330,7 +330,8 @@ def test_probe_calibrated_through_the_api_then_measured(client, meshes, plan7):
     true = meshes["true"]
     sphere = (75.3, 45.2, 10.25)
     row = client.post("/api/v1/machines", json={
-        "name": "qualified", "port": f"mock://?{physics()}&pretravel_sd_mm=0.002&sphere={','.join(map(str, sphere))},10",
+        "name": "qualified",
+        "port": f"mock://?{physics()}&pretravel_sd_mm=0.002&sphere={','.join(map(str, sphere))},10",
         "dialect": "marlin",
         "profile": {"tools": {"probe": {"ball_radius_mm": 0.5}},
                     "reference": {"pad": {"centre_mm": [80.2, 19.8, 5.0], "size_mm": PAD[3]},

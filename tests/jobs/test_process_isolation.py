@@ -48,7 +48,8 @@ def test_out_of_memory_and_crashing_jobs_fail_alone_while_a_print_runs_to_its_la
     hog_done, crash_done = wait_for(client, hog["id"]), wait_for(client, crash["id"])
     # both ended while the print was still streaming...
     still = client.get(f"/api/v1/jobs/{printing['id']}", headers=OP).json()
-    assert still["status"] == "running" or still["finished_at"] > max(hog_done["finished_at"], crash_done["finished_at"])
+    assert still["status"] == "running" or still["finished_at"] > max(hog_done["finished_at"],
+                                                                      crash_done["finished_at"])
     assert hog_done["status"] == "failed" and hog_done["error"]["title"] == "Job exceeded its memory limit"
     assert "256 MiB" in hog_done["error"]["detail"]
     assert crash_done["status"] == "failed" and "SIGKILL" in crash_done["error"]["detail"]
@@ -78,7 +79,8 @@ def test_a_job_past_its_time_limit_is_killed_and_failed(limited_client):
     done = wait_for(limited_client, job["id"], timeout=20)
     assert done["status"] == "failed" and done["error"]["title"] == "Job exceeded its time limit"
     assert "5 s" in done["error"]["detail"]
-    assert 5.0 <= (datetime.fromisoformat(done["finished_at"]) - datetime.fromisoformat(done["started_at"])).total_seconds()
+    assert 5.0 <= (datetime.fromisoformat(done["finished_at"])
+                   - datetime.fromisoformat(done["started_at"])).total_seconds()
 
 
 def test_a_job_that_kills_its_process_is_quarantined_after_one_crash(client):

@@ -21,7 +21,8 @@ BOX.apply_translation([60.0, 60.0, 2.0])
 def _board(client, count: int) -> tuple[str, list[str], str]:  # type: ignore[no-untyped-def]
     """(part id, ``count`` trace ids on it, a mock machine's id)."""
     part = client.post("/api/v1/parts", files={"file": ("box.stl", BOX.export(file_type="stl"))}, headers=OP).json()
-    body = [{"name": f"t{i}", "frame": "xy", "geometry": {"type": "line", "start": [5 + (i % 30) * 3, 5 + (i // 30) * 5],
+    body = [{"name": f"t{i}", "frame": "xy",
+             "geometry": {"type": "line", "start": [5 + (i % 30) * 3, 5 + (i // 30) * 5],
                                                         "end": [6 + (i % 30) * 3, 5 + (i // 30) * 5]}}
             for i in range(count)]
     imported = client.post(f"/api/v1/parts/{part['id']}/traces:import", json=body, headers=OP)
@@ -66,7 +67,8 @@ def test_a_board_loops_submission_reads_each_table_once(client):
 def test_the_first_missing_or_repeated_trace_is_named_by_its_index(client):
     part_id, ids, machine_id = _board(client, 40)
     missing = submit(client, "closed_loop", _loop(part_id, ids[:7] + ["trace_nowhere"] + ids[7:], machine_id))
-    assert missing.status_code == 422 and missing.json()["errors"][0]["loc"] == ["params", "trace_ids", "7"], missing.text
+    assert (missing.status_code == 422
+            and missing.json()["errors"][0]["loc"] == ["params", "trace_ids", "7"]), missing.text
     twice = submit(client, "closed_loop", _loop(part_id, ids + [ids[12]], machine_id))
     assert twice.status_code == 422 and "listed twice" in twice.text, twice.text
     assert twice.json()["errors"][0]["loc"] == ["params", "trace_ids", "40"], twice.text

@@ -79,7 +79,8 @@ def test_elimination_downdates_equal_a_fresh_posterior_and_drop_only_what_keeps_
     assert np.allclose(kept.var, fresh, atol=1e-13) and fresh.max() <= target_var
     jitter = PRIOR.sigma_mm ** 2
     k = prior_covariance(PRIOR, stations.take(kept.keep), stations.take(kept.keep), region.center)
-    assert np.allclose(kept.precision, np.linalg.inv(k + jitter * np.eye(len(k))), rtol=1e-6, atol=1e-6 * abs(kept.precision).max())
+    assert np.allclose(kept.precision, np.linalg.inv(k + jitter * np.eye(len(k))), rtol=1e-6,
+                       atol=1e-6 * abs(kept.precision).max())
 
 
 def test_the_design_depends_on_the_region_not_on_the_number_of_traces(nine):

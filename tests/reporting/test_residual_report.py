@@ -21,7 +21,8 @@ def _learned() -> dict:
 
 
 def _report(verdict: dict) -> str:
-    root = {"id": "job_loop", "kind": "closed_loop", "status": "needs_attention", "created_at": "t0", "started_at": "t0",
+    root = {"id": "job_loop", "kind": "closed_loop", "status": "needs_attention", "created_at": "t0",
+            "started_at": "t0",
             "finished_at": "t1", "result": {"traces": [], "table": [], "verdict": verdict, "needs_attention": True}}
     return render_run_report(RunRecords(root, jobs=[root]), "test")
 

@@ -77,7 +77,8 @@ def test_the_layer_request_hides_the_layers_above(vclient, toolpath_job):  # noq
     for kind in ("perimeter", "infill"):
         drawn = np.asarray(builder._handles[f"/focus/preview/{name}/{kind}"][1].points, float)
         assert drawn[:, :, 2].max() == pytest.approx(z1)                   # nothing above layer 1
-        assert shot["nodes"][f"/focus/preview/{name}/{kind}"]["count"] < top["nodes"][f"/focus/preview/{name}/{kind}"]["count"]
+        assert (shot["nodes"][f"/focus/preview/{name}/{kind}"]["count"]
+                < top["nodes"][f"/focus/preview/{name}/{kind}"]["count"])
     bad = vclient.post("/api/v1/viewer/layer", json={"layer": -1}, headers=OP)
     assert bad.status_code == 422
     focus(vclient, part_id=part["id"])                                       # a part alone: no preview

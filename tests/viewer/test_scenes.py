@@ -127,7 +127,8 @@ def test_group_toggles_hide_and_show_nodes(viser_server):
 
 def test_viewer_show_registers_plots_and_aims_the_camera(viewer):
     s = np.linspace(0, 30, 7)
-    scene = FocusScene({"job_id": "job_1"}, "reconstruct job_1", polylines=(Polyline("t", np.array([[0, 0, 0], [30, 0, 6.0]])),),
+    scene = FocusScene({"job_id": "job_1"}, "reconstruct job_1",
+                       polylines=(Polyline("t", np.array([[0, 0, 0], [30, 0, 6.0]])),),
                        axes=(AxisGlyphs("nozzle", np.zeros((3, 3)), np.tile([0, 0, 1.0], (3, 1)), 2.0),),
                        plots=(DeviationPlot("t", "t: dz", s, 0.01 * np.sin(s)),))
     snap = viewer.show(scene)

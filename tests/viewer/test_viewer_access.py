@@ -87,7 +87,8 @@ def test_no_token_forged_or_expired_token_and_foreign_origins_are_refused(served
 
 def test_a_refused_handshake_carries_no_data(served):  # type: ignore[no-untyped-def]
     """The refusal is a bare HTTP status with its reason: no part names or ids."""
-    part = served.post("/api/v1/parts", files={"file": ("secret-name.stl", s1_mesh(grid_mm=4.0).export(file_type="stl"))},
+    part = served.post("/api/v1/parts",
+                       files={"file": ("secret-name.stl", s1_mesh(grid_mm=4.0).export(file_type="stl"))},
                        headers=OP).json()
     port = _port(served)
     served.post("/api/v1/viewer/focus", json={"part_id": part["id"]}, headers=OP)
@@ -130,7 +131,8 @@ def test_each_view_has_its_own_focus_drawn_only_into_its_own_browsers(served):  
 
     async def two_browsers() -> None:
         origin = f"http://127.0.0.1:{port}"
-        async with connect(f"ws://127.0.0.1:{port}/?token={a['token']}", origin=origin, subprotocols=[SUBPROTOCOL]) as wa, \
+        async with connect(f"ws://127.0.0.1:{port}/?token={a['token']}", origin=origin,
+                           subprotocols=[SUBPROTOCOL]) as wa, \
                 connect(f"ws://127.0.0.1:{port}/?token={b['token']}", origin=origin, subprotocols=[SUBPROTOCOL]) as wb:
             await wa.send(_camera_message())
             await wb.send(_camera_message())

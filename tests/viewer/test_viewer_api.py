@@ -69,7 +69,8 @@ def stored_job(client, kind: str, part_id: str, params: dict, result: dict,  # t
 def test_where_the_view_is(vclient, client):
     info = vclient.get("/api/v1/viewer", headers=OP).json()
     assert info["enabled"] and info["host"] == "127.0.0.1" and info["url"] == f"http://127.0.0.1:{info['port']}/"
-    assert client.get("/api/v1/viewer", headers=OP).json() == {"enabled": False, "host": None, "port": None, "url": None}
+    assert client.get("/api/v1/viewer", headers=OP).json() == {"enabled": False, "host": None, "port": None,
+                                                               "url": None}
     off = client.post("/api/v1/viewer/focus", json={"part_id": "x"}, headers=OP)
     assert off.status_code == 409 and "not running" in off.json()["detail"]
     assert vclient.get("/api/v1/viewer").status_code == 401
@@ -148,7 +149,8 @@ def test_a_jetting_runs_measured_maps_get_a_slider(vclient, part_and_trace):
     maps = {}
     for layer in range(1, 26):
         buf = io.BytesIO()
-        np.savez(buf, heights=np.full((20, 30), np.nan, np.float32), filled=np.full((20, 30), 0.001 * layer, np.float32),
+        np.savez(buf, heights=np.full((20, 30), np.nan, np.float32),
+                 filled=np.full((20, 30), 0.001 * layer, np.float32),
                  pattern=np.ones((20, 30), bool), mask=np.ones((20, 30), bool), pitch_mm=np.float64(0.0847))
         maps[f"measured_{layer:04d}.npz"] = buf.getvalue()
     job_id = stored_job(vclient, "jetting_run", part["id"], {"dpi": 300}, {"layers": []}, maps)

@@ -141,7 +141,8 @@ def test_every_response_of_the_view_port_carries_the_csp(view):  # type: ignore[
         assert headers["content-security-policy"] == expected, (path, status)
     own = f"http://127.0.0.1:{port}"
     token = view.guard.signer.mint("csp_view").token
-    for token_sent, origin, status_expected in ((None, own, 401), (token, "http://evil.example", 403), (token, own, 101)):
+    for token_sent, origin, status_expected in ((None, own, 401), (token, "http://evil.example", 403),
+                                                (token, own, 101)):
         status, headers = _upgrade(port, token_sent, origin)
         assert status == status_expected
         assert headers["content-security-policy"] == rest

@@ -278,7 +278,8 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
             pad.probe_trace_id = trace.id
         out.probe_trace_ids = [t.id for item, t in records if item is None]
         session.add(CircuitImport(
-            id=import_id, part_id=part.id, files=[dict(f.model_dump(), connections=r.connections, interconnects=r.mapped.vias)
+            id=import_id, part_id=part.id,
+            files=[dict(f.model_dump(), connections=r.connections, interconnects=r.mapped.vias)
                                                   for f, r in zip(out.files, read_all.files)],
             options=opts.model_dump(), trace_ids=[trace.id for item, trace in records if item is not None],
             pads=[p.model_dump() for p in out.pads], areas=[a.model_dump() for a in out.areas],

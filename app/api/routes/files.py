@@ -78,7 +78,8 @@ def upload_file(runtime: RuntimeDep, session: SessionDep, request: Request, file
 @router.get("", dependencies=[Viewer])
 def list_files(session: SessionDep, limit: Limit = 100, offset: Offset = 0) -> Page[FileOut]:
     total = session.exec(select(func.count()).select_from(UploadedFile)).one()
-    rows = session.exec(select(UploadedFile).order_by(col(UploadedFile.created_at).desc()).offset(offset).limit(limit)).all()
+    rows = session.exec(select(UploadedFile).order_by(col(UploadedFile.created_at).desc())
+                        .offset(offset).limit(limit)).all()
     return Page(items=[FileOut(**r.model_dump()) for r in rows], total=total)
 
 

@@ -113,7 +113,8 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
               part_id: Annotated[str | None, Query(max_length=40, description=(
                   "jobs that read this part or one of its traces"))] = None,
               machine_id: Annotated[str | None, Query(max_length=40, description="jobs that use this machine")] = None,
-              top_level: Annotated[bool, Query(description="only jobs without a parent (hide workflow children)")] = False,
+              top_level: Annotated[bool,
+                                   Query(description="only jobs without a parent (hide workflow children)")] = False,
               created_after: Annotated[datetime | None, Query(description="ISO 8601; inclusive")] = None,
               created_before: Annotated[datetime | None, Query(description="ISO 8601; exclusive")] = None,
               limit: Limit = 100, offset: Offset = 0, include: Include = None) -> Page[JobOut]:
@@ -140,7 +141,8 @@ def list_jobs(session: SessionDep, kind: str | None = None, status: JobStatus | 
     results = dict(session.exec(select(Job.id, Job.result).where(Job.id.in_(shown))).all()) if shown else {}  # type: ignore[attr-defined]
     by_job: dict[str, list[Artifact]] = {i: [] for i in ids}
     if ids:
-        for artifact in session.exec(select(Artifact).where(col(Artifact.job_id).in_(ids)).order_by(col(Artifact.id))).all():
+        for artifact in session.exec(select(Artifact).where(col(Artifact.job_id).in_(ids))
+                                     .order_by(col(Artifact.id))).all():
             by_job[artifact.job_id].append(artifact)
     titles = job_titles(session, jobs)
     return Page(items=[job_out(Job.model_construct(**{**j.model_dump(exclude={"result"}), "result": results.get(j.id)}),
@@ -180,7 +182,8 @@ def cancel_job(job_id: str, runtime: RuntimeDep, session: SessionDep) -> JobOut:
     job = get_or_404(session, Job, job_id)
     if runtime.store.request_cancel(job_id) is None:
         session.refresh(job)
-        state = "cancel was already requested" if job.cancel_requested and job.status == "running" else f"it is {job.status}"
+        state = ("cancel was already requested" if job.cancel_requested and job.status == "running"
+                 else f"it is {job.status}")
         raise Conflict(f"job {job_id!r} cannot be cancelled: {state}", field="job_id", value=job_id)
     for child in session.exec(select(Job.id).where(Job.parent_id == job_id)).all():
         runtime.store.request_cancel(child)
@@ -227,7 +230,8 @@ def artifact_summary(job_id: str, name: str, request: Request, runtime: RuntimeD
     if artifact is None:
         raise NotFound(f"job {job_id!r} has no artifact {name!r}", field="name", value=name)
     if artifact.media_type != "text/x-gcode":
-        raise InvalidInput(f"artifact {name!r} is {artifact.media_type}, not a G-code program", field="name", value=name)
+        raise InvalidInput(f"artifact {name!r} is {artifact.media_type}, not a G-code program", field="name",
+                           value=name)
     echo = ProgramEcho.of_any(job)
     pivot = echo.pivot or [0.0, 0.0, 0.0]
     tcp = echo.post == "linuxcnc_xyzac_trt"

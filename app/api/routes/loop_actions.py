@@ -15,7 +15,8 @@ from app.api.schemas import JobOut, Strict
 from app.jobs.loop_gates import decide
 
 router = APIRouter(prefix="/api/v1/jobs", tags=["jobs"])
-_409: dict[int | str, dict[str, Any]] = {409: {"description": "the job is not a closed loop where this action applies (the detail says why)"}}
+_409: dict[int | str, dict[str, Any]] = {409: {"description": "the job is not a closed loop where this action applies "
+                                                              "(the detail says why)"}}
 
 
 class AddStations(Strict):

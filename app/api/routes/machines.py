@@ -97,7 +97,8 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
         homed = live.homed and state != "error" and not (known is not None and known.state == "Alarm")
     return MachineOut(**row.model_dump(exclude={"mock"}), mock=mock, state=state, position=position, homed=homed,
                       program=program, held_by=holder["id"] if holder is not None else None,
-                      outputs=getattr(live, "outputs", None) if state != "disconnected" else None, firmware=live.identity.firmware if live is not None and live.identity else None,
+                      outputs=getattr(live, "outputs", None) if state != "disconnected" else None,
+                      firmware=live.identity.firmware if live is not None and live.identity else None,
                       controller=ControllerOut(**known.as_dict()) if known is not None else None)
 
 
@@ -111,7 +112,8 @@ def interrupted_program(machine_id: str, job: dict, live: dict | None) -> Progra
     total = live.get("total", recorded.get("total"))
     return ProgramState(job_id=job["id"], line=line, total=total, state="interrupted",
                         resume_line=live.get("resume_line"), waits="resume or abandon",
-                        message=holding_message(machine_id, {**job, "program_state": {"executed": line, "total": total}}))
+                        message=holding_message(machine_id,
+                                                {**job, "program_state": {"executed": line, "total": total}}))
 
 
 @router.post("", status_code=201, dependencies=[Operator])
@@ -171,7 +173,8 @@ def get_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep) -> Ma
 
 
 @router.patch("/{machine_id}", dependencies=[Operator],
-              responses={409: {"description": "the profile or baud rate of a connected machine, or a program holds it"}})
+              responses={409: {"description": "the profile or baud rate of a connected machine, "
+                                               "or a program holds it"}})
 def update_machine(machine_id: str, body: MachineUpdate, runtime: RuntimeDep, session: SessionDep) -> MachineOut:
     """Rename a machine (any time), or change its baud rate or profile (409 unless it is
     disconnected: the live connection was opened with them).  Never while a program holds it."""
@@ -415,7 +418,8 @@ def delete_machine(machine_id: str, runtime: RuntimeDep, session: SessionDep, ro
         Job.status.not_in(TERMINAL_STATES))).all()  # type: ignore[attr-defined]
     if active and not force:
         session.rollback()
-        raise Conflict(f"machine {machine_id!r} has {len(set(active))} unfinished job(s), e.g. {sorted(set(active))[0]}: "
+        raise Conflict(f"machine {machine_id!r} has {len(set(active))} unfinished job(s), e.g. "
+                       f"{sorted(set(active))[0]}: "
                        "cancel or finish them first", field="machine_id", value=machine_id)
     runtime.machines.forget(machine_id)
     session.exec(delete(JobReference).where(col(JobReference.ref_kind) == "machine",

@@ -82,7 +82,8 @@ def upload_part(
 def list_parts(session: SessionDep, limit: Limit = 100,
                offset: Offset = 0) -> Page[PartOut]:
     total = session.exec(select(func.count()).select_from(Part)).one()
-    rows = session.exec(select(Part).order_by(col(Part.created_at).desc(), col(Part.id)).offset(offset).limit(limit)).all()
+    rows = session.exec(select(Part).order_by(col(Part.created_at).desc(), col(Part.id))
+                        .offset(offset).limit(limit)).all()
     return Page(items=[part_out(p) for p in rows], total=total)
 
 
@@ -119,7 +120,8 @@ def delete_part(part_id: str, session: SessionDep, role: str = Operator,
     part = get_or_404(session, Part, part_id)
     trace_ids = list(session.exec(select(Trace.id).where(Trace.part_id == part_id)).all())
     lock_for_delete(session, Trace, trace_ids)
-    refs = session.exec(select(col(JobReference.job_id)).where(col(JobReference.ref_id).in_([part_id, *trace_ids]))).all()
+    refs = session.exec(select(col(JobReference.job_id))
+                        .where(col(JobReference.ref_id).in_([part_id, *trace_ids]))).all()
     if refs and not force:
         session.rollback()
         raise Conflict(f"part {part_id!r} is referenced by {len(set(refs))} job(s), e.g. {sorted(set(refs))[0]}",

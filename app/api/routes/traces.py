@@ -79,7 +79,8 @@ def list_traces(part_id: str, session: SessionDep, limit: Limit = 100,
                 offset: Offset = 0) -> Page[TraceOut]:
     get_or_404(session, Part, part_id)
     total = session.exec(select(func.count()).select_from(Trace).where(Trace.part_id == part_id)).one()
-    rows = session.exec(select(Trace).where(col(Trace.part_id) == part_id).order_by(col(Trace.created_at), col(Trace.id))
+    rows = session.exec(select(Trace).where(col(Trace.part_id) == part_id)
+                        .order_by(col(Trace.created_at), col(Trace.id))
                         .offset(offset).limit(limit)).all()
     return Page(items=[trace_out(t) for t in rows], total=total)
 

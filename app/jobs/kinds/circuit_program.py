@@ -86,7 +86,8 @@ def accepted_loop(loop: Job, accept_unverified: bool, error: type[ConformaError]
             return loop
         verdict = (loop.result or {}).get("verdict") or {}
         reasons = "; ".join(verdict.get("reasons") or []) or "its field's check failed"
-        raise error(f"closed loop {loop.id!r} ended needs_attention ({reasons}; {verdict.get('verified') or 'not verified'}): "
+        raise error(f"closed loop {loop.id!r} ended needs_attention ({reasons}; "
+                    f"{verdict.get('verified') or 'not verified'}): "
                     "its surface is not verified, so this program could put the nozzle off the real part. Run the "
                     "loop again (verdict.suggested_probe), or accept it explicitly with accept_unverified=true",
                     field=field, value=loop.id)
@@ -307,7 +308,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         record = records[trace_id]
         comp = compensated[trace_id][0]
         for k, p in enumerate(trace_passes_):
-            strokes.append(Stroke(p, "trace" if k == 0 else "pass", record.name, record.feed_mm_min or params.feed_mm_min))
+            strokes.append(Stroke(p, "trace" if k == 0 else "pass", record.name,
+                                  record.feed_mm_min or params.feed_mm_min))
             printed.add(record.name, "trace", p, float(comp.params.get("standoff_mm") or record.standoff_mm))
     ctx.progress(0.5, "filling pads and areas")
     fills = 0
@@ -346,7 +348,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                                     clearance_mm=params.clearance_mm, part_top_mm=float(mesh.bounds[1][2]),
                                     job_id=ctx.job_id)
     ctx.artifact("circuit.gcode", program.text.encode(), "text/x-gcode", gcode_meta(program.text))
-    return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids), "fill_strokes": fills,
+    return CircuitProgramResult.written({"strokes": program.strokes, "traces": len(imp.trace_ids),
+                                         "fill_strokes": fills,
             "pad_probe_traces": probe_ids, "nets_checked": nets,
             "stations": len(stations) if check is None else len(check.fit.stations.xy),  # every round's, once
             "connections_checked": pieces, "loop": loop_state(loop),

@@ -41,8 +41,8 @@ points touched after the stations): the result's ``verdict`` states "verified at
 max |residual| X um (bound Y um)", the learned prior, every excluded touch and the traces
 the correction makes worse at a verification point.  When the check fails (``verdict.
 needs_attention``) the loop ends in the state ``needs_attention`` (not ``succeeded``) with
-its programs, and ``print`` is refused for every trace (nothing is printed automatically; the operator accepts explicitly
-by printing from the machines page, or runs the loop again with ``verdict.suggested_probe``)
+its programs, and ``print`` is refused for every trace (nothing is printed automatically; the operator accepts
+explicitly by printing from the machines page, or runs the loop again with ``verdict.suggested_probe``)
 and its message says so.  An operator may then accept it (``POST /jobs/{id}/accept``: it
 runs again, reuses every child, prints and ends ``succeeded`` with ``verdict.accepted``) or
 add stations (``POST /jobs/{id}/add-stations``: one more round planned from the run so far).
@@ -117,8 +117,8 @@ class ClosedLoopParams(JobParams):
     trace_ids: list[str] = Field(min_length=1, max_length=MAX_FIELD_TRACES)
     machine_id: str
     probe: dict[str, Any] = Field(default_factory=dict,
-                                  description="probe_plan parameters (without trace_id); dialect comes from the machine; "
-                                  "method defaults to deviation per trace and to field with joint_probing")
+                                  description="probe_plan parameters (without trace_id); dialect comes from the "
+                                  "machine; method defaults to deviation per trace and to field with joint_probing")
     reconstruct_method: Literal["interpolate", "approximate", "deviation", "kriging"] = "deviation"
     sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma) for the reconstruction")
     chord_error_mm: float = Field(0.002, gt=0, le=1)
@@ -135,8 +135,8 @@ class ClosedLoopParams(JobParams):
                              "tool; default: the machine profile's first nozzle)")
     joint_probing: bool = Field(False, description="one plan and one probe run for all traces; with the field "
                                 "planner (the default here) stations are chosen over the region the traces cover and "
-                                "every trace is rebuilt from the one field fitted to the run (reconstruct method field, "
-                                "automatic); with kriging the stations are designed per trace together and each "
+                                "every trace is rebuilt from the one field fitted to the run (reconstruct method "
+                                "field, automatic); with kriging the stations are designed per trace together and each "
                                 "trace's reconstruction uses every trace's probes (with reconstruct_method kriging); "
                                 "trace_ids must be distinct")
     board_jobs: bool = Field(True, description="with joint_probing and a field plan: rebuild and compensate the "
@@ -182,7 +182,8 @@ class ClosedLoopParams(JobParams):
     def _field_is_joint(self) -> ClosedLoopParams:
         if self.probe.get("method") == "field" and not self.joint_probing:
             raise ValueError("the field planner probes all traces together: set joint_probing")
-        if len(self.trace_ids) > MAX_TRACES and not (self.joint_probing and self.probe.get("method", "field") == "field"):
+        if len(self.trace_ids) > MAX_TRACES and not (self.joint_probing
+                                                     and self.probe.get("method", "field") == "field"):
             raise ValueError(f"more than {MAX_TRACES} traces need joint_probing with the field planner")
         return self
 
@@ -470,6 +471,7 @@ def loop_verdict(checks: list[dict[str, Any]], traces: list[dict[str, Any]], pri
             "actions": [] if not reasons else [
                 "add stations and refit: POST /jobs/{id}/add-stations (one more round planned from the run, "
                 "with suggested_probe, the fitted prior, as its start)",
-                "or accept explicitly: POST /jobs/{id}/accept (the loop prints what it holds and says it was accepted)"]}
+                "or accept explicitly: POST /jobs/{id}/accept (the loop prints what it holds and says it was "
+                "accepted)"]}
 
 

@@ -83,7 +83,8 @@ class CompensateParams(JobParams):
                                     "traces)")
     standoff_mm: float | None = Field(None, gt=0, le=50, description="default: the trace's standoff")
     feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="default: the trace's, else 300")
-    chord_error_mm: float = Field(0.002, gt=0, le=1, description="largest polyline-to-curve distance, proved per segment")
+    chord_error_mm: float = Field(0.002, gt=0, le=1,
+                                  description="largest polyline-to-curve distance, proved per segment")
     machine_id: str | None = Field(None, description="take dialect and dispense commands from this machine's profile")
     dialect: Literal["marlin", "grbl"] = DEFAULT_DIALECT
     dispense_on: str = Field("M106", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$",
@@ -267,7 +268,8 @@ def _board_inputs(ctx: JobContext, params: CompensateParams, choice: ToolChoice,
         machine = {"dialect": row.dialect, "dispense_on": row.profile.get("dispense_on"),
                    "dispense_off": row.profile.get("dispense_off")}
     return {"kind": "compensate", "params": params.model_dump(mode="json", exclude={"trace_ids"}),
-            "tool": choice.to_result(), "warnings": choice.warnings, "dispense": [choice.dispense_on, choice.dispense_off],
+            "tool": choice.to_result(), "warnings": choice.warnings,
+            "dispense": [choice.dispense_on, choice.dispense_off],
             "machine": machine, "placement": None if placement is None else placement.to_dict(),
             "reconstruct_job_id": source_id}
 

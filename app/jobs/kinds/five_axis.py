@@ -109,7 +109,8 @@ class FiveAxisJobParams(JobParams):
         "xyzac-trt in identity mode); linuxcnc_xyzac_trt: M428 TCP, X Y Z = tip in workpiece coordinates")
     program_end: str | None = Field(None, max_length=40, pattern=_DISPENSE_COMMAND,
                                     description="the machine's program end, e.g. M2; default: the dialect's")
-    dialect: Literal["grbl", "marlin", "linuxcnc"] = Field(DEFAULT_PROBING_DIALECT, description="G-code dialect of the program")
+    dialect: Literal["grbl", "marlin", "linuxcnc"] = Field(DEFAULT_PROBING_DIALECT,
+                                                           description="G-code dialect of the program")
     machine_id: str | None = Field(None, description="take the dialect, dispense codes, program end, post and "
                                    "pivot (when set) from this machine's profile instead of the fields above")
     fit_grid: list[Annotated[int, Field(ge=4, le=100)]] = Field(

@@ -67,7 +67,8 @@ COMMAND = r"^[^\n\r;]{1,80}$"
 class JettingRunParams(PrintModelParams):
     machine_id: str
     head_port: str = Field(min_length=1, max_length=500,
-                           description="the head driver's link: head://NAME (the mock), /dev/ttyUSB2, socket://host:port")
+                           description="the head driver's link: head://NAME (the mock), /dev/ttyUSB2, "
+                                       "socket://host:port")
     sensor_port: str | None = Field(None, min_length=1, max_length=500, description=(
         "the height sensor's link: lkg://NAME (the mock), /dev/ttyUSB1, socket://host:port; not used on a "
         "linuxcnc:// machine (the controller samples the sensor with its joints)"))
@@ -224,8 +225,8 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
         "solve_ms_median": float(np.median(solve)) if solve else 0.0})
 
 
-def _substrate(ctx: JobContext, machine: Any, scanner: SerialScanner | HalScanner, grid: Grid, calibration: SensorCalibration,
-               setup: MachineSetup, state: dict[str, Any]) -> np.ndarray:
+def _substrate(ctx: JobContext, machine: Any, scanner: SerialScanner | HalScanner, grid: Grid,
+               calibration: SensorCalibration, setup: MachineSetup, state: dict[str, Any]) -> np.ndarray:
     """The substrate's heights (L, W) mm under the grid: scanned before the first layer
     (``substrate.npz``, smoothed: :func:`app.jetting.machine_grid.substrate_map`), read back on a
     resume."""

@@ -139,8 +139,9 @@ def _program_text(ctx: JobContext, params: PrintParams) -> str:
     return text
 
 
+# one flat dispatch over cases; splitting it hides their order
 @job_kind("print", PrintParams, queue="machine", check=_check, references=_references)
-def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901 (one flat dispatch over cases; splitting it hides their order)
+def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901
     """Stream a program to the machine with progress and cancel; a dropped link interrupts
     the job, and only an operator's resume continues it (from the first command not known
     executed, after re-homing)."""

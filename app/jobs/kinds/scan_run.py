@@ -179,7 +179,8 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         gaps = gaps.take(touch_order(gaps.xy, plan.passes[-1].spot[-1, :2]))  # from where the scan ended
         if len(gaps.xy):  # the sensor left holes (steep flanks, dark spots): touch them and fit again
             ctx.progress(0.88, f"touching {len(gaps.xy)} points the sensor could not see")
-            xy, dz = np.concatenate([xy, gaps.xy]), np.concatenate([dz, _touch(machine, profile, height, slope, gaps.xy, probe)])
+            xy, dz = (np.concatenate([xy, gaps.xy]),
+                      np.concatenate([dz, _touch(machine, profile, height, slope, gaps.xy, probe)]))
             noise = np.concatenate([np.full(len(dz) - len(gaps.xy), prior.sigma_mm),
                                     np.full(len(gaps.xy), params.probe_sigma_mm)])
             fit = fit_scan_field(prior, Sites(xy, slope(xy)), dz, (lo + hi) / 2, slope, noise_mm=noise)

@@ -221,7 +221,8 @@ def _layer_row(layer, beam_offset_mm: float | None) -> dict:
 # Cost model, calibrated against measured peaks (tests/bench/test_bench_job_memory.py): the
 # mesh ~FACE_BYTES per face (trimesh's arrays and caches, the vectorised slicer's edge arrays),
 # the contours ~VERTEX_BYTES per vertex (~VERTICES_PER_ROOT_FACE sqrt(faces) per layer) with
-# their SLC / CLI / JSON text and the layers.npz arrays.  Adaptive modes are counted at their thinnest layer (the worst case).
+# their SLC / CLI / JSON text and the layers.npz arrays.  Adaptive modes are counted at their
+# thinnest layer (the worst case).
 FACE_BYTES = 560.0
 VERTEX_BYTES = 75.0
 VERTICES_PER_ROOT_FACE = 10.0
@@ -272,13 +273,15 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
                  {**count, "sampling_table_entries": len(slc.table)})
     ctx.artifact("layers.cli", to_cli(sliced).encode(), "text/plain", count)
     ctx.artifact("layers.json", to_json(sliced).encode(), "application/json", count)
-    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml", {"layer": svg_index, "z": chosen.z_top})
+    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml",
+                 {"layer": svg_index, "z": chosen.z_top})
     ctx.artifact(BINARY_LAYERS, to_binary(sliced), "application/octet-stream",
                  {**count, "note": "layers.json's content as arrays (what the toolpath job reads)"})
     return SliceResult.written({
         "mode": params.mode,
         "layer_count": len(sliced.layers),
-        "vertices": int(sum(len(ring) for layer in sliced.layers for island in layer.islands for ring in island.rings())),
+        "vertices": int(sum(len(ring) for layer in sliced.layers for island in layer.islands
+                            for ring in island.rings())),
         "contour_mm": float(sum(ring_length(ring) for layer in sliced.layers for island in layer.islands
                                 for ring in island.rings())),
         "z_min": sliced.z_min,

@@ -123,7 +123,8 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
                                                    arc_chord_mm=params.arc_chord_mm))
     ctx.artifact("warped.gcode", result.text.encode(), "text/x-gcode", gcode_meta(result.text))
     pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
-    return WarpProgramResult.written({"lines_in": result.lines_in, "lines_out": result.lines_out, "printing_moves": result.printing_moves,
+    return WarpProgramResult.written({"lines_in": result.lines_in, "lines_out": result.lines_out,
+                                      "printing_moves": result.printing_moves,
             "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm,
             "model_error_mm": _finite(model.cv_max_mm), "safe_z_mm": result.safe_z_mm,
             "height_model": {"kind": model.kind, "cv": model.cv, "cv_rms_mm": _finite(model.cv_rms_mm),

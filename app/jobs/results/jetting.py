@@ -69,8 +69,8 @@ class JettingResult(KindResult):
 class NextLayerResult(KindResult):
     """A jetting_next_layer job: the pattern's drops, the layer QP's figures (gap, KKT
     residual, solve ms, iterations, greedy flips, relaxed and binary objectives), the
-    reference's level over the part (um; the edge-aware lead near the edges comes on top), the snapshot layer used (None for inline / 2-D maps)
-    and the grid."""
+    reference's level over the part (um; the edge-aware lead near the edges comes on top), the snapshot layer used (None
+    for inline / 2-D maps) and the grid."""
 
     kind: ClassVar[str] = "jetting_next_layer"
     drops: int
@@ -90,8 +90,8 @@ class NextLayerResult(KindResult):
 class MachineLayer(SurfaceFigures):
     """One layer jetted on a machine: the surface metrics of its MEASURED map (um; cells the scan
     did not see taken from the model's prediction), the drops in its pattern and fired by the
-    head (-1: unknown, a layer an interruption cut short), the controller's solve (ms; 0 open loop), the scan's valid fraction, the cells filled
-    from the prediction, and the scan passes it took."""
+    head (-1: unknown, a layer an interruption cut short), the controller's solve (ms; 0 open loop), the scan's valid
+    fraction, the cells filled from the prediction, and the scan passes it took."""
 
     layer: int
     drops: int

@@ -369,7 +369,8 @@ class PrintResult(KindResult):
     resume_location: dict[str, Any] | None = None
     source_program: dict[str, Any] | None = None
     drift: dict[str, Any] | None = None
-    dispense: dict[str, Any] | None = None  # the dispense profile applied (app.machines.materials), with its dwell counts
+    # the dispense profile applied (app.machines.materials), with its dwell counts
+    dispense: dict[str, Any] | None = None
 
 
 # five_axis --------------------------------------------------------------------------------

@@ -2,8 +2,8 @@
 
 1. bad-point removal: each point is compared with a least-squares cubic B-spline height
    surface (net by GCV, leave-one-out residuals; above 2,000 points one surface per
-   k-d-tree neighbourhood tile of 600 points, so memory stays bounded); points whose residual exceeds ``k_sigma`` robust standard
-   deviations (1.4826 MAD), and at least ``min_mm``, are removed and the surface refitted
+   k-d-tree neighbourhood tile of 600 points, so memory stays bounded); points whose residual exceeds ``k_sigma`` robust
+   standard deviations (1.4826 MAD), and at least ``min_mm``, are removed and the surface refitted
    (dominant ones first, until stable).  A local quadratic through the nearest neighbours was tried first: its
    model error on steep, strongly curved parts (a cylinder's flanks) exceeded 10 um and
    flagged good points;

@@ -55,7 +55,8 @@ def neighbourhood_tiles(xy: np.ndarray, core: int) -> list[Tile]:
     for cell in _cells(xy, np.arange(xy.shape[0]), core, 0):
         lo, hi = xy[cell].min(axis=0), xy[cell].max(axis=0)
         centre, half = (lo + hi) / 2, float(np.max(hi - lo)) / 2
-        around = np.asarray(tree.query_ball_point(centre, r=half * (1 + 2 * MARGIN) + LENGTH_EPS_MM, p=np.inf), dtype=int)
+        around = np.asarray(tree.query_ball_point(centre, r=half * (1 + 2 * MARGIN) + LENGTH_EPS_MM, p=np.inf),
+                            dtype=int)
         others = np.setdiff1d(around, cell, assume_unique=False)
         if others.size > limit - cell.size:
             distance = np.max(np.abs(xy[others] - centre), axis=1)

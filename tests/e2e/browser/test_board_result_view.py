@@ -23,7 +23,8 @@ def um(text: str) -> float:
 @pytest.fixture(scope="module")
 def board(served) -> dict:
     api = served.api()
-    part = api.post("/api/v1/parts", files={"file": ("board-s1.stl", s1_mesh(grid_mm=0.6).export(file_type="stl"))}).json()
+    part = api.post("/api/v1/parts",
+                    files={"file": ("board-s1.stl", s1_mesh(grid_mm=0.6).export(file_type="stl"))}).json()
     real = api.post("/api/v1/parts", files={"file": ("board-real.stl", as_made(seed=7, amplitude_mm=0.15).mesh(
         grid_mm=0.6).export(file_type="stl"))}).json()
     lines = [{"name": f"line-{i + 1:02d}", "frame": "xy", "standoff_mm": 0.08,
@@ -132,7 +133,8 @@ def test_the_selected_traces_chart_or_why_there_is_none(page, board):
                      page.locator("#standoff-plot polyline").nth(1).get_attribute("points").split()}
     assert len(band_y) == 2 and len(compensated_y) == 1
     assert (band_y[0] + band_y[1]) / 2 == pytest.approx(compensated_y.pop(), abs=0.15)
-    assert f"± the reconstruction's bound ({bound * 1000:.2f} µm" in page.get_attribute("#standoff-plot svg", "aria-label")
+    assert f"± the reconstruction's bound ({bound * 1000:.2f} µm" in page.get_attribute("#standoff-plot svg",
+                                                                                        "aria-label")
     if without is not None:  # a trace with fewer than two stations: the view says there is no chart, and why
         page.click(f'#board-traces tr[data-trace="{without}"] td[data-key="trace"]')
         note = page.wait_for_selector("#board-no-samples")

@@ -14,7 +14,8 @@ from tests.jobs.test_calibration_jobs import PHYSICS, PROFILE
 def test_the_calibration_panel_runs_and_shows_a_probe_calibration(page, served):
     api = served.api()
     machine = api.post("/api/v1/machines", json={"name": "calib-browser", "port": f"mock://?{PHYSICS}",
-                                                 "profile": {**PROFILE, "calibration_max_age_h": 0.0005},  # stale after 1.8 s
+                                                 # stale after 1.8 s
+                                                 "profile": {**PROFILE, "calibration_max_age_h": 0.0005},
                                                  "mock": {"probe_noise_mm": 0.001}}).json()
     page.goto("/machines.html")
     panel = f'.calibration-panel[data-id="{machine["id"]}"]'

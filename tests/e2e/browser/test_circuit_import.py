@@ -38,7 +38,8 @@ def test_preview_then_accept_a_gerber(page, served, tmp_path):
     page.locator("#circuit-preview").scroll_into_view_if_needed()
     screenshot(page, "circuit-preview")
     page.click("#circuit-accept")
-    expect(page.locator("#traces-body tr[data-id]")).to_have_count(3, timeout=60_000)   # two traces + the pad's probe ring
+    # two traces + the pad's probe ring
+    expect(page.locator("#traces-body tr[data-id]")).to_have_count(3, timeout=60_000)
     traces = api.get(f"/api/v1/parts/{part['id']}/traces").json()["items"]
     assert {t["source"].get("file", "top.gbr") for t in traces} == {"top.gbr"}
     svg = tmp_path / "art.svg"

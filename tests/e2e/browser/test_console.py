@@ -31,7 +31,9 @@ def sliced(served) -> dict:
     mesh.apply_translation([10, 10, 2.5])
     mesh.export(buffer, file_type="stl")
     part = api.post("/api/v1/parts", files={"file": ("console-box.stl", buffer.getvalue())}).json()
-    sliced = wait_job(api, api.post("/api/v1/jobs", json={"kind": "slice", "params": {"part_id": part["id"]}}).json()["id"], 90)
+    sliced = wait_job(api,
+                      api.post("/api/v1/jobs", json={"kind": "slice", "params": {"part_id": part["id"]}}).json()["id"],
+                      90)
     assert sliced["status"] == "succeeded", sliced
     toolpath = wait_job(api, api.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
         "slice_job_id": sliced["id"], "pattern": "lines"}}).json()["id"], 90)

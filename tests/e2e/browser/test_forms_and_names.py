@@ -40,7 +40,8 @@ def dome(served) -> dict:
     api = served.api()
     stl = s1_mesh(grid_mm=1.0).export(file_type="stl")
     part = api.post("/api/v1/parts", files={"file": ("dome.stl", stl)}, data={"name": "dome"}).json()
-    done = api.post(f"/api/v1/parts/{part['id']}/circuits:import", files=[("files", ("usb.kicad_pcb", USB_PADS_BOARD.encode()))],
+    done = api.post(f"/api/v1/parts/{part['id']}/circuits:import",
+                    files=[("files", ("usb.kicad_pcb", USB_PADS_BOARD.encode()))],
                     data={"options": json.dumps({"origin_mm": [20.0, 20.0]})})
     assert done.status_code == 201, done.text
     (trace,) = [t["trace"] for t in done.json()["traces"]]

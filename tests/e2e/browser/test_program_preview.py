@@ -102,7 +102,8 @@ def test_the_toolpath_preview_hides_the_layers_above_the_slider(page, served, to
     from axe_playwright_python.sync_playwright import Axe
 
     violations = Axe().run(page, context={"include": [["#preview-panel"]]}).response["violations"]
-    serious = [(v["id"], [n["target"] for n in v["nodes"]][:3]) for v in violations if v["impact"] in ("serious", "critical")]
+    serious = [(v["id"], [n["target"] for n in v["nodes"]][:3]) for v in violations
+               if v["impact"] in ("serious", "critical")]
     assert serious == [], serious
 
 
@@ -138,7 +139,8 @@ def test_the_machine_page_draws_the_head_on_the_path_while_printing(page, served
                 break
             page.wait_for_timeout(500)
         readout = page.inner_text("#head-readout")
-        assert re.search(r"Head of head-bench: X \d+\.\d{3}\s+Y \d+\.\d{3}\s+Z \d+\.\d{3} · line \d+ of \d+", readout), readout
+        assert re.search(r"Head of head-bench: X \d+\.\d{3}\s+Y \d+\.\d{3}\s+Z \d+\.\d{3} · line \d+ of \d+",
+                         readout), readout
         # the head is where the mock machine is: on the program's path (machine coordinates)
         position = np.asarray([float(v) for v in page.get_attribute("#head-readout", "data-position").split(",")])
         assert distance_to_path(position, moves.starts, moves.ends) < 1e-3, position

@@ -23,7 +23,8 @@ def test_the_dry_run_in_3d_before_accepting(page, served, tmp_path):
     part = api.post("/api/v1/parts", files={"file": ("s1.stl", s1_mesh(grid_mm=1.0).export(file_type="stl"))}).json()
     gerber = tmp_path / "top.gbr"
     # a third trace crossing the first: a spacing warning, drawn in red
-    gerber.write_text(GERBER_MM.replace("X0Y5000000D02*", "X10000000Y-3000000D02*\nX10000000Y3000000D01*\nX0Y5000000D02*"))
+    gerber.write_text(GERBER_MM.replace("X0Y5000000D02*",
+                                        "X10000000Y-3000000D02*\nX10000000Y3000000D01*\nX0Y5000000D02*"))
     page.goto(f"/traces.html?part={part['id']}")
     page.set_input_files("#circuit-file", str(gerber))       # opens the page's 3-D view
     frame = page.frame_locator("#viewer-iframe")

@@ -44,7 +44,8 @@ def run(api, kind: str, params: dict, timeout: float = 120) -> dict:
 @pytest.fixture(scope="module")
 def jobs(served) -> dict:
     api = served.api()
-    part = api.post("/api/v1/parts", files={"file": ("views-s1.stl", s1_mesh(grid_mm=0.5).export(file_type="stl"))}).json()
+    part = api.post("/api/v1/parts",
+                    files={"file": ("views-s1.stl", s1_mesh(grid_mm=0.5).export(file_type="stl"))}).json()
     traces = api.post(f"/api/v1/parts/{part['id']}/traces:import",
                       json=[s1_traces()[i].to_api() for i in TRACES]).json()["items"]
     truth = as_made(seed=5, amplitude_mm=0.15)
@@ -53,7 +54,8 @@ def jobs(served) -> dict:
     xy = np.asarray(one["result"]["points"])[:, :2]
     measured = np.column_stack([xy, truth.true_height(xy)])
     rebuilt = run(api, "reconstruct", {"trace_id": traces[0]["id"], "points": measured.tolist(), "method": "deviation"})
-    compensated = run(api, "compensate", {"trace_id": traces[0]["id"], "reconstruct_job_id": rebuilt["id"], "hold_mm": 1.0})
+    compensated = run(api, "compensate",
+                      {"trace_id": traces[0]["id"], "reconstruct_job_id": rebuilt["id"], "hold_mm": 1.0})
     five = run(api, "five_axis", {"part_id": part["id"], "trace_id": traces[1]["id"], "pivot": [0.0, 0.0, -10.0]})
     return {"part": part, "traces": traces, "plan": plan, "rebuilt": rebuilt, "compensate": compensated, "five": five}
 

@@ -112,7 +112,8 @@ def test_hostile_names_are_text_and_run_nothing_in_the_3d_view(browser, hostile_
         legends = page.evaluate("""[...document.querySelectorAll('.conforma-legend')].map(
             e => [e.dataset.name, e.querySelector('b').textContent])""")
         assert legends == [[f"map:{TRACE} sd", f"{TRACE} sd"]]  # the colour scale, in viser's HTML element
-        slider_label = page.evaluate("[...document.querySelectorAll('label')].map(l => l.innerText.replace(/\\s+/g, ''))")
+        slider_label = page.evaluate("[...document.querySelectorAll('label')]"
+                                     ".map(l => l.innerText.replace(/\\s+/g, ''))")
         assert MACHINE.replace(" ", "") in slider_label
         for drawer in hostile_view.view().clients.values():  # the selector names the shown part
             drawer.panel.refresh_jobs(current="part_hostile")

@@ -159,7 +159,8 @@ def test_wizard_probes_the_pads_of_an_imported_circuit_by_itself(page, served, n
     truth = as_made(seed=13, amplitude_mm=0.1).mesh(grid_mm=1.0).export(file_type="stl")
     part = api.post("/api/v1/parts", files={"file": ("wizard-circuit.stl", nominal)}).json()
     real = api.post("/api/v1/parts", files={"file": ("wizard-circuit-as-made.stl", truth)}).json()
-    imported = api.post(f"/api/v1/parts/{part['id']}/circuits:import", files=[("files", ("top.gbr", GERBER_MM.encode()))],
+    imported = api.post(f"/api/v1/parts/{part['id']}/circuits:import",
+                        files=[("files", ("top.gbr", GERBER_MM.encode()))],
                         data={"options": json.dumps({"origin_mm": [5, 10], "standoff_mm": 0.08})})
     assert imported.status_code == 201, imported.text
     body = imported.json()
