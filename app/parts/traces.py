@@ -6,7 +6,9 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from sqlalchemy import insert
 
 from app.domain.errors import ConformaError
 from app.geometry.slope import SlopePolicy, check_slope
@@ -14,6 +16,9 @@ from app.geometry.tolerance import Tolerance
 from app.geometry.traces import TracePolyline, build_nominal_trace, build_nominal_traces
 from app.parts.meshes import MeshCache
 from app.platform.models import Part, Trace, new_id, utcnow
+
+if TYPE_CHECKING:
+    from sqlmodel import Session
 
 
 def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = "") -> Trace:
@@ -26,18 +31,27 @@ def build_trace(meshes: MeshCache, part: Part, body: Any, field_prefix: str = ""
                          lambda: build_nominal_trace(meshes.mesh(part), geometry, body.frame, Tolerance()))
 
 
-def build_traces(meshes: MeshCache, part: Part, bodies: list[Any]) -> list[Trace]:
-    """:func:`build_trace` of each body (API ``TraceCreate``), errors named by index; top-view
-    traces are draped all at once (:func:`app.geometry.traces.build_nominal_traces`, the same
-    polylines), anything else (or a batch with an error) one by one."""
+def build_traces(meshes: MeshCache, part: Part, bodies: list[Any]) -> list[dict[str, Any]]:
+    """:func:`build_trace` of each body (API ``TraceCreate``), errors named by index, as the
+    records' column values (every field of :class:`Trace`; :func:`insert_traces` stores them
+    in one statement, the ORM's per-object work left out); top-view traces are draped all at
+    once (:func:`app.geometry.traces.build_nominal_traces`, the same polylines), anything else
+    (or a batch with an error) one by one."""
     geometries = [body.geometry.model_dump() for body in bodies]
     nominals = None
     if all(body.frame == "xy" for body in bodies):
         nominals = build_nominal_traces(meshes.mesh(part), geometries, Tolerance())
     if nominals is None:
-        return [build_trace(meshes, part, body, field_prefix=str(i)) for i, body in enumerate(bodies)]
-    return [_trace_record(part, body, geometry, str(i), _given(nominal))
+        return [_columns(build_trace(meshes, part, body, field_prefix=str(i))) for i, body in enumerate(bodies)]
+    return [_trace_row(part, body, geometry, str(i), _given(nominal))
             for i, (body, geometry, nominal) in enumerate(zip(bodies, geometries, nominals))]
+
+
+def insert_traces(session: Session, rows: list[dict[str, Any]]) -> None:
+    """Insert trace records (:func:`build_traces`' column values) in one executemany, in the
+    session's transaction; raises ``sqlalchemy.exc.IntegrityError`` when the part is gone."""
+    if rows:
+        session.execute(insert(Trace), rows)
 
 
 class DrapedAhead:
@@ -67,8 +81,17 @@ def _geometry_key(geometry: dict[str, Any]) -> str:
     return json.dumps(geometry, sort_keys=True)
 
 
+def _columns(trace: Trace) -> dict[str, Any]:
+    return {name: getattr(trace, name) for name in Trace.model_fields}
+
+
 def _trace_record(part: Part, body: Any, geometry: dict[str, Any], field_prefix: str,
                   nominal_of: Callable[[], TracePolyline]) -> Trace:
+    return Trace(**_trace_row(part, body, geometry, field_prefix, nominal_of))
+
+
+def _trace_row(part: Part, body: Any, geometry: dict[str, Any], field_prefix: str,
+               nominal_of: Callable[[], TracePolyline]) -> dict[str, Any]:
     policy = SlopePolicy(warn_deg=min(body.slope_warn_deg, body.slope_max_deg), max_deg=body.slope_max_deg)
     try:
         nominal = nominal_of()
@@ -78,10 +101,10 @@ def _trace_record(part: Part, body: Any, geometry: dict[str, Any], field_prefix:
         if field_prefix and exc.field:
             exc.field = f"{field_prefix}.{exc.field}"
         raise
-    return Trace(
+    return dict(
         id=new_id("trace"), part_id=part.id, name=body.name, frame=body.frame, geometry=geometry,
         standoff_mm=body.standoff_mm, width_mm=body.width_mm, feed_mm_min=body.feed_mm_min,
         length_mm=float(nominal.length_mm), z_min=float(nominal.z_range[0]), z_max=float(nominal.z_range[1]),
         nominal=replace(nominal, slope=slope.to_json()).to_dict(),
-        created_at=utcnow(),
+        created_at=utcnow(), source=None,
     )

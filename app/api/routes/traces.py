@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Mapping
+from functools import partial
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Request, Response
 from sqlalchemy import func
@@ -13,7 +15,7 @@ from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import NominalOut, Page, TraceCreate, TraceOut
 from app.domain.errors import Conflict, NotFound
-from app.parts.traces import build_trace, build_traces
+from app.parts.traces import build_trace, build_traces, insert_traces
 from app.platform.db import lock_for_delete
 from app.platform.lookup import get_or_404
 from app.platform.models import JobReference, Part, Trace
@@ -22,12 +24,14 @@ router = APIRouter(prefix="/api/v1", tags=["traces"])
 MAX_IMPORT = 1000
 
 
-def trace_out(trace: Trace) -> TraceOut:
-    """The API form of a stored trace, built without validating it again (the record was
-    validated when it was made; its nominal polyline is thousands of floats)."""
-    fields = {name: getattr(trace, name) for name in TraceOut.model_fields if name not in ("z_range", "nominal")}
-    return TraceOut.model_construct(**fields, z_range=[trace.z_min, trace.z_max],
-                                    nominal=NominalOut.model_construct(**trace.nominal))
+def trace_out(trace: Trace | Mapping[str, Any]) -> TraceOut:
+    """The API form of a stored trace (a record or its column values), built without
+    validating it again (the record was validated when it was made; its nominal polyline is
+    thousands of floats)."""
+    get = trace.__getitem__ if isinstance(trace, Mapping) else partial(getattr, trace)
+    fields = {name: get(name) for name in TraceOut.model_fields if name not in ("z_range", "nominal")}
+    return TraceOut.model_construct(**fields, z_range=[get("z_min"), get("z_max")],
+                                    nominal=NominalOut.model_construct(**get("nominal")))
 
 
 @router.post("/parts/{part_id}/traces", status_code=201, dependencies=[Operator])
@@ -57,9 +61,12 @@ def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep, reques
     if replayed is not None:
         return replayed  # type: ignore[return-value]
     part = get_or_404(session, Part, part_id)
-    traces = build_traces(runtime.meshes, part, body)
-    out = Page[TraceOut](items=[trace_out(t) for t in traces], total=len(traces))
-    session.add_all(traces)
+    rows = build_traces(runtime.meshes, part, body)
+    out = Page[TraceOut](items=[trace_out(row) for row in rows], total=len(rows))
+    try:
+        insert_traces(session, rows)
+    except IntegrityError:
+        raise _part_gone(part_id) from None
     idempotency.remember(session, claim, 201, out)
     return _commit(session, claim, part_id) or out  # type: ignore[return-value]
 
@@ -70,8 +77,12 @@ def _commit(session: Session, claim: idempotency.Claim | None, part_id: str) -> 
     try:
         return idempotency.commit(session, claim)
     except IntegrityError:
-        raise NotFound(f"part {part_id!r} does not exist (deleted while the trace was built)",
-                       field="part_id", value=part_id) from None
+        raise _part_gone(part_id) from None
+
+
+def _part_gone(part_id: str) -> NotFound:
+    return NotFound(f"part {part_id!r} does not exist (deleted while the trace was built)",
+                    field="part_id", value=part_id)
 
 
 @router.get("/parts/{part_id}/traces", dependencies=[Viewer])
