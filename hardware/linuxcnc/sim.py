@@ -33,13 +33,13 @@ import signal
 import socket
 import subprocess
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import IO
 
 from ..errors import HardwareError, LinkError
 from ..machine_types import MachineProfile
+from .hal_watcher import HalWatch, SimUnavailable
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
 from .sim_surface import SimBlock, SimSensor, SimSphere
@@ -52,12 +52,6 @@ CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
 SENSOR_COMPONENT = Path(__file__).with_name("sensor_hal.py")  # sim/sensor.hal's component
 SENSOR_MAP = "sensor_map.npz"  # in the run's directory: the jetted ink the sensor sees
 LOCK_PATH = os.path.join(tempfile.gettempdir(), "conforma-linuxcnc.lock")
-
-
-class SimUnavailable(HardwareError):
-    """LinuxCNC is not installed, or the simulator did not come up."""
-
-    status = 503
 
 
 def linuxcnc_available() -> bool:
@@ -441,62 +435,3 @@ class SimController:
                 return
             except subprocess.TimeoutExpired:
                 continue
-
-
-class HalWatch:
-    """A running ``hal_watch.py`` (see :meth:`SimController.watch`): ``samples`` is the
-    list of ``(t_ns, values)`` it printed, ``t_ns`` on the host's CLOCK_MONOTONIC (the
-    clock of ``time.monotonic_ns()``), one entry each time a value changed."""
-
-    SCRIPT = Path(__file__).with_name("hal_watch.py")
-
-    def __init__(self, names: list[str], env: dict[str, str] | None, period_s: float, max_s: float) -> None:
-        self.names = list(names)
-        self.samples: list[tuple[int, list[float]]] = []
-        self._ready = threading.Event()
-        python = shutil.which("python3", path="/usr/bin:/bin") or "python3"
-        self._process = subprocess.Popen([python, str(self.SCRIPT), repr(period_s), repr(max_s), *self.names],
-                                         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-        if not self._ready.wait(15.0):
-            self.close()
-            raise SimUnavailable("hal_watch did not start: "
-                                 f"{self._process.stderr.read()[:300] if self._process.stderr else ''}",
-                                 field="hal_watch")
-
-    def _read(self) -> None:
-        assert self._process.stdout is not None
-        for line in self._process.stdout:
-            if line.startswith("ready"):
-                self._ready.set()
-                continue
-            words = line.split()
-            self.samples.append((int(words[0]), [float(w) for w in words[1:]]))
-        self._ready.set()
-
-    def first(self, name: str, predicate, after_ns: int = 0) -> int | None:
-        """The time (ns) of the first sample at or after ``after_ns`` whose ``name`` value
-        satisfies ``predicate`` (None if none)."""
-        k = self.names.index(name)
-        for t_ns, values in list(self.samples):
-            if t_ns >= after_ns and predicate(values[k]):
-                return t_ns
-        return None
-
-    def close(self) -> None:
-        """Stop the sampler (SIGTERM to the process this object started) and collect the rest."""
-        if self._process.poll() is None:
-            self._process.terminate()
-            try:
-                self._process.wait(5)
-            except subprocess.TimeoutExpired:
-                self._process.kill()
-                self._process.wait(5)
-        self._reader.join(5)
-
-    def __enter__(self) -> HalWatch:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

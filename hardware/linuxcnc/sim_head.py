@@ -43,7 +43,8 @@ from ..mock.world import MockWorld, register_world, unregister_world
 from ..printhead.mock import MockPrintHead, follow_world, get_head
 
 if TYPE_CHECKING:
-    from .sim import HalWatch, SimController
+    from .hal_watcher import HalWatch
+    from .sim import SimController
 
 __all__ = ["SimHeadBridge"]
 
