@@ -75,7 +75,10 @@ class Settings(BaseSettings):
     lease_s: float = Field(30.0, gt=0.5, le=3600)
     max_attempts: int = Field(3, ge=1, le=100)
     reaper_interval_s: float = Field(1.0, gt=0.01, le=600)
-    poll_max_delay_s: float = Field(0.02, gt=0.0, le=10)
+    queue_poll_s: float = Field(1.0, gt=0.0, le=60,
+                                description="an idle queue consumer's fallback poll: a job submitted in the same "
+                                "process wakes it at once; one submitted by another process (SQLite queue) "
+                                "waits at most this long (a Redis queue wakes it at once)")
     max_upload_mb: float = Field(200.0, gt=0, le=100_000)
     max_json_mb: float = Field(20.0, gt=0, le=10_000)
     max_unzipped_mb: float = Field(1000.0, gt=0, le=100_000)

@@ -32,6 +32,7 @@ import gc
 import logging
 import os
 import resource
+import select
 import signal
 import threading
 import time
@@ -90,19 +91,28 @@ def process_limits(hard_bytes: int) -> None:
 
 
 def bind_to(server_pid: int, every_s: float = 0.1) -> None:
-    """Die (SIGKILL) within ``every_s`` of the server process ``server_pid`` ending.
+    """Die (SIGKILL) as soon as the server process ``server_pid`` ends.
 
     ``PR_SET_PDEATHSIG`` binds a process to its parent, which is the fork server here, and a
     fork server outlives its server by as long as its own shutdown takes; so a daemon thread
-    watches the server itself (its pid and start time, so a reused pid is not mistaken for
-    it).  Without /proc it does nothing."""
+    watches the server itself: it sleeps on a pidfd of the server (readable when it exits; no
+    CPU while it lives), or where pidfds are missing checks the server's pid and start time
+    every ``every_s`` (so a reused pid is not mistaken for it).  Without /proc it does nothing."""
     started = start_ticks(server_pid)
     if started is None:
         return
 
     def watch() -> None:
-        while start_ticks(server_pid) == started:
-            time.sleep(every_s)
+        try:
+            pidfd: int | None = os.pidfd_open(server_pid)
+        except (AttributeError, OSError):
+            pidfd = None
+        if pidfd is not None:
+            if start_ticks(server_pid) == started:  # the pidfd is the server's, not a reused pid's
+                select.select([pidfd], [], [])  # returns when the server exits
+        else:
+            while start_ticks(server_pid) == started:
+                time.sleep(every_s)
         os.kill(os.getpid(), signal.SIGKILL)
 
     threading.Thread(target=watch, name="conforma-lifeline", daemon=True).start()

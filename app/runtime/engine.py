@@ -20,7 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from huey import RedisHuey, SqliteHuey
-from huey.consumer import Consumer
+from huey.consumer import BaseProcess, Consumer, Worker
 from huey.storage import SqliteStorage
 from pydantic import ValidationError
 from sqlalchemy.exc import IntegrityError
@@ -61,8 +61,75 @@ class _NormalSyncSqliteStorage(SqliteStorage):
         return conn
 
 
+class QueueWake:
+    """Wakes a queue's idle consumer threads when this process enqueues onto it.
+
+    A worker takes a ticket (the count of enqueues so far) before it reads the queue; if the
+    queue was empty it sleeps until the count moves past its ticket (an enqueue it may have
+    missed), the stop flag is set, or ``timeout_s`` passes (work enqueued by another process)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._count = 0
+        self.wakeups = 0  # sleeps ended, for tests and measurements
+
+    def ticket(self) -> int:
+        with self._cond:
+            return self._count
+
+    def notify(self, everyone: bool = False) -> None:
+        """One more job on the queue: wake one sleeping worker (``everyone``: all, to stop)."""
+        with self._cond:
+            self._count += 1
+            if everyone:
+                self._cond.notify_all()
+            else:
+                self._cond.notify()
+
+    def wait(self, ticket: int, timeout_s: float, stop: threading.Event) -> None:
+        with self._cond:
+            self._cond.wait_for(lambda: self._count != ticket or stop.is_set(), timeout_s)
+            self.wakeups += 1
+
+
+class _WakeableWorker(Worker):
+    """A huey worker that sleeps on its queue's :class:`QueueWake` instead of polling."""
+
+    wake: QueueWake
+    _ticket = 0
+
+    def loop(self, now: Any = None) -> None:
+        self._ticket = self.wake.ticket()
+        super().loop(now)
+
+    def sleep(self) -> None:
+        self.wake.wait(self._ticket, self.max_delay, self.stop_flag)
+
+
+class _NoScheduler(BaseProcess):
+    """The consumer's scheduler, idle: jobs are never scheduled for later (no huey retries or
+    ETAs), so reading the schedule every second would be wasted work."""
+
+    def loop(self, now: Any = None) -> None:
+        self.stop_flag.wait(3600.0)
+
+
 class _EmbeddedConsumer(Consumer):
-    """A huey consumer that can run in a non-main thread (no signal handlers)."""
+    """A huey consumer that can run in a non-main thread (no signal handlers), whose workers
+    sleep until this process enqueues (or the fallback poll ``max_delay`` passes)."""
+
+    def __init__(self, huey: Any, wake: QueueWake, **options: Any) -> None:
+        self.wake = wake  # before the base class creates the workers
+        super().__init__(huey, **options)
+
+    def _create_worker(self) -> Worker:
+        worker = _WakeableWorker(huey=self.huey, stop_flag=self.stop_flag, default_delay=self.max_delay,
+                                 max_delay=self.max_delay, backoff=1.0)
+        worker.wake = self.wake
+        return worker
+
+    def _create_scheduler(self) -> BaseProcess:
+        return _NoScheduler(self.huey, self.stop_flag)
 
     def _set_signal_handlers(self) -> None:
         return None
@@ -165,6 +232,7 @@ class Runtime:
         self.tasks = {name: huey.task(name="run_job")(self.machine_threads.dispatch if name == "machine"
                                                       else self.execute)
                       for name, huey in self.queues.items()}
+        self.wakes = {name: QueueWake() for name in QUEUES}
         self._consumers: list[Consumer] = []
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -248,8 +316,10 @@ class Runtime:
         return job
 
     def enqueue(self, job_id: str, queue: str = "default") -> None:
+        queue = queue if queue in self.tasks else "default"
         try:
-            self.tasks.get(queue, self.tasks["default"])(job_id)
+            self.tasks[queue](job_id)
+            self.wakes[queue].notify()  # this process's idle worker starts it now
             self.store.mark_enqueued(job_id)
         except Exception:  # the reaper enqueues it again later
             log.exception("could not enqueue job %s", job_id)
@@ -305,11 +375,9 @@ class Runtime:
             threadpool_limits(limits=self.settings.blas_threads)
         for name in queues:
             threads = _THREADS.get(name, self.settings.worker_threads)
-            consumer = _EmbeddedConsumer(
-                self.queues[name], workers=threads, worker_type="thread", periodic=False,
-                initial_delay=min(0.005, self.settings.poll_max_delay_s), backoff=1.5,
-                max_delay=self.settings.poll_max_delay_s, check_worker_health=False,
-            )
+            consumer = _EmbeddedConsumer(self.queues[name], self.wakes[name], workers=threads, worker_type="thread",
+                                         periodic=False, max_delay=self.settings.queue_poll_s,
+                                         check_worker_health=False)
             consumer.start()
             self._consumers.append(consumer)
         if "machine" in queues:  # this process owns the machines: an earlier one's jobs are orphans
@@ -346,6 +414,8 @@ class Runtime:
         self.machine_threads.shutdown()
         for consumer in self._consumers:
             consumer.stop(graceful=False)
+        for wake in self.wakes.values():
+            wake.notify(everyone=True)  # sleeping workers see the stop flag now
         self._consumers.clear()
         for huey in self.queues.values():
             try:

@@ -9,10 +9,11 @@ CuraEngine (``cura-engine``, with the ``cura`` package's definition files) with 
 height, perimeters and infill and no skins, skirt or brim.  CPU seconds are compared (the box
 may be loaded; wall times are printed too): ours is the whole service tree's (the server, the
 fork server and the compute processes), theirs the CLI's.  Jobs are polled as a client polls
-them (the status every 0.2 s, the result once); the service's idle work (its queue consumers'
-polling) grows with the wall time, so a loaded box inflates our CPU seconds a little.  Peak
-memory: the compute processes' largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face
-part, ``BENCH_QUICK=1`` leaves the 300 mm plate out.
+them (the status every 0.2 s, the result once); the service's idle work (its reaper, its
+consumers' 1 s fallback poll, the client's status polls) grows with the wall time, so a loaded
+box inflates our CPU seconds a little.  Peak memory: the compute processes' largest resident
+peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part, ``BENCH_QUICK=1``
+leaves the 300 mm plate out.
 
 The tools are installed by ``make bench-tools`` (``apt-get install prusa-slicer cura-engine``,
 the ``cura`` package's definitions extracted to ``CURA_RESOURCES``); without them this bench
