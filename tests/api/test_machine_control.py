@@ -78,8 +78,11 @@ def test_a_used_machine_is_removed_once_its_jobs_ended(client, machine):
     program = upload_program(client, program_text(5)).json()
     done = client.post(f"{base}/print", json={"program_id": program["id"]}, headers=OP).json()
     assert wait_for(client, done["id"])["status"] == "succeeded"
-    client.post(f"{base}/disconnect", headers=OP)      # a queued print waits for the machine: an unfinished job
-    queued = client.post(f"{base}/print", json={"program_id": program["id"]}, headers=OP).json()
+    # an unfinished job: a print connects the machine itself, so it is a long one (400 moves at
+    # 10 mm/s) that the cancel below reaches while it runs
+    client.post(f"{base}/disconnect", headers=OP)
+    long_program = upload_program(client, program_text(400)).json()
+    queued = client.post(f"{base}/print", json={"program_id": long_program["id"]}, headers=OP).json()
     refused = client.delete(base, headers=OP)
     assert refused.status_code == 409 and queued["id"] in refused.json()["detail"], refused.text
     assert client.delete(f"{base}?force=true", headers=OP).status_code == 403
