@@ -31,6 +31,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import auth
+from tests.helpers.cputime import tree_cpu_and_peak
 from tests.helpers.real_parts import cad_part, large_plate, thin_tube
 
 OP = auth("operator")
@@ -45,36 +46,6 @@ if os.environ.get("BENCH_QUICK"):  # the small parts only
     del PARTS["plate 300 mm, 69k faces"]
 if os.environ.get("BENCH_LARGE"):
     PARTS["cad part 1.34M faces"] = "cad_part(refine=10)"
-
-
-def _tree_cpu_and_peak(root: int) -> tuple[float, float]:
-    """CPU seconds (user + system) of ``root`` and every descendant, and the largest resident
-    peak (VmHWM, MiB) among the descendants."""
-    children: dict[int, list[int]] = {}
-    stats: dict[int, list[str]] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            stats[int(entry)] = fields
-            children.setdefault(int(fields[1]), []).append(int(entry))
-    tick = os.sysconf("SC_CLK_TCK")
-    cpu, peak, todo = 0.0, 0.0, [root]
-    while todo:
-        pid = todo.pop()
-        if pid in stats:
-            cpu += (int(stats[pid][11]) + int(stats[pid][12])) / tick
-        if pid != root:
-            try:
-                hwm = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines()
-                           if line.startswith("VmHWM:"))
-                peak = max(peak, int(hwm.split()[1]) / 1024)
-            except (OSError, StopIteration):
-                pass
-        todo.extend(children.get(pid, []))
-    return cpu, peak
 
 
 def _timed(cmd: list[str], env: dict | None = None) -> tuple[float, float, float, subprocess.CompletedProcess]:
@@ -135,7 +106,7 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
                                    - [0.0, 0.0, mesh.bounds[0][2]])
             stl = tmp_path / "part.stl"
             mesh.export(stl)
-            cpu0, _ = _tree_cpu_and_peak(os.getpid())
+            cpu0, _ = tree_cpu_and_peak(os.getpid())
             started = time.perf_counter()
             response = client.post("/api/v1/parts", files={"file": ("part.stl", stl.read_bytes())}, headers=OP)
             assert response.status_code == 201, response.text
@@ -151,7 +122,7 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
             tool_job = _wait(client, filled.json()["id"])
             assert tool_job["status"] == "succeeded", tool_job["error"]
             ours_wall = time.perf_counter() - started
-            ours_cpu, ours_peak = _tree_cpu_and_peak(os.getpid())
+            ours_cpu, ours_peak = tree_cpu_and_peak(os.getpid())
             ours_cpu -= cpu0
             result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts",
                                 headers=OP).json()["result"]

@@ -12,7 +12,6 @@ over ``CONFORMA_BENCH_IDLE_S`` (30 s by default) and printed per minute of wall 
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -21,42 +20,17 @@ from pathlib import Path
 import httpx
 import pytest
 
+from tests.helpers.cputime import tree_cpu_and_peak
+from tests.helpers.processes import free_port
+
 IDLE_S = float(os.environ.get("CONFORMA_BENCH_IDLE_S", "30"))
 SETTLED_CPU_S = 0.15  # started: the tree used less than this in each of two 3 s windows (imports: seconds)
 GOAL_CPU_PER_MIN_S = 0.6  # an idle service wakes about once a second: ~no CPU
 
 
-def _tree_cpu(root: int) -> float:
-    """CPU seconds (user + system) of ``root`` and every descendant."""
-    children: dict[int, list[int]] = {}
-    stats: dict[int, list[str]] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            stats[int(entry)] = fields
-            children.setdefault(int(fields[1]), []).append(int(entry))
-    tick = os.sysconf("SC_CLK_TCK")
-    cpu, todo = 0.0, [root]
-    while todo:
-        pid = todo.pop()
-        if pid in stats:
-            cpu += (int(stats[pid][11]) + int(stats[pid][12])) / tick
-        todo.extend(children.get(pid, []))
-    return cpu
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @pytest.mark.timeout(IDLE_S + 300)
 def test_bench_an_idle_service_uses_almost_no_cpu(tmp_path):
-    port = _free_port()
+    port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("CONFORMA_")}
     server = subprocess.Popen([sys.executable, "-m", "app.cli", "serve", "--data-dir", str(tmp_path / "data"),
                                "--port", str(port), "--no-viewer"], env=env, cwd=Path(__file__).parents[2],
@@ -75,13 +49,13 @@ def test_bench_an_idle_service_uses_almost_no_cpu(tmp_path):
             time.sleep(0.2)
         quiet = 0
         while quiet < 2:  # the compute processes' warm-up: seconds of imports, in stages
-            settle0 = _tree_cpu(server.pid)
+            settle0 = tree_cpu_and_peak(server.pid)[0]
             time.sleep(3.0)
-            quiet = quiet + 1 if _tree_cpu(server.pid) - settle0 < SETTLED_CPU_S else 0
+            quiet = quiet + 1 if tree_cpu_and_peak(server.pid)[0] - settle0 < SETTLED_CPU_S else 0
             assert time.monotonic() < deadline + 120, "the server did not settle in 240 s"
-        cpu0, wall0 = _tree_cpu(server.pid), time.monotonic()
+        cpu0, wall0 = tree_cpu_and_peak(server.pid)[0], time.monotonic()
         time.sleep(IDLE_S)
-        cpu, wall = _tree_cpu(server.pid) - cpu0, time.monotonic() - wall0
+        cpu, wall = tree_cpu_and_peak(server.pid)[0] - cpu0, time.monotonic() - wall0
         per_min = cpu / wall * 60
         print(f"\nidle service tree: {cpu:.2f} s CPU in {wall:.1f} s wall = {per_min:.2f} s CPU per minute")
         assert per_min < GOAL_CPU_PER_MIN_S

@@ -15,9 +15,40 @@ import resource
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 PR_SET_CHILD_SUBREAPER = 36
 REAP_WAIT_S = 30.0  # how long orphans (a fork server) may take to exit after the command
+
+
+def tree_cpu_and_peak(root: int) -> tuple[float, float]:
+    """CPU seconds (user + system) of process ``root`` and every descendant alive now, and the
+    largest resident peak (VmHWM, MiB) among the descendants (``root`` itself left out)."""
+    children: dict[int, list[int]] = {}
+    stats: dict[int, list[str]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            stats[int(entry)] = fields
+            children.setdefault(int(fields[1]), []).append(int(entry))
+    tick = os.sysconf("SC_CLK_TCK")
+    cpu, peak, todo = 0.0, 0.0, [root]
+    while todo:
+        pid = todo.pop()
+        if pid in stats:
+            cpu += (int(stats[pid][11]) + int(stats[pid][12])) / tick
+        if pid != root:
+            try:
+                hwm = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+                           if line.startswith("VmHWM:"))
+                peak = max(peak, int(hwm.split()[1]) / 1024)
+            except (OSError, StopIteration):
+                pass
+        todo.extend(children.get(pid, []))
+    return cpu, peak
 
 
 def main(argv: list[str]) -> int:
