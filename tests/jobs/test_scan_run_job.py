@@ -25,6 +25,27 @@ def sensor_port(machine_id: str) -> str:
             "&noise_mm=0.0005&rate_hz=2000&seed=4")
 
 
+def _part_traces_and_truth(client, meshes, indices: tuple[int, ...]) -> tuple[list[dict], dict]:
+    """(traces, as-made part record): the reference part's traces ``indices`` on the nominal
+    part, and the as-made part a mock machine holds as its truth."""
+    nominal, true_stl, _ = meshes
+    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
+                       headers=OP).json()
+    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
+    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
+                         json=[s1_traces()[i].to_api() for i in indices], headers=OP).json()["items"]
+    return traces, real
+
+
+def _submit_scan(client, machine_id: str, traces: list[dict], mode: str = "traces"):
+    """Submit a scan_run of ``traces`` with the mock sensor on ``machine_id`` and its true
+    calibration; the response."""
+    return submit(client, "scan_run", {
+        "machine_id": machine_id, "trace_ids": [t["id"] for t in traces], "sensor_port": sensor_port(machine_id),
+        "calibration": dict(CALIBRATION), "mode": mode, "deviation_amplitude_mm": 0.15,
+        "deviation_wavelength_mm": 15.0, "verify_count": 3})
+
+
 @pytest.fixture(scope="module")
 def meshes():
     truth = as_made(seed=11, amplitude_mm=0.15)
@@ -33,22 +54,13 @@ def meshes():
 
 @pytest.mark.parametrize("mode", ["traces", "raster"])
 def test_a_scan_run_records_samples_and_verifies_its_field(client, meshes, mode):
-    nominal, true_stl, truth = meshes
-    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
-                       headers=OP).json()
-    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
-    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
-                         json=[s1_traces()[i].to_api() for i in (0, 4)], headers=OP).json()["items"]
+    truth = meshes[2]
+    traces, real = _part_traces_and_truth(client, meshes, (0, 4))
     machine = client.post("/api/v1/machines", json={
         "name": "sim", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001}}, headers=OP).json()
-    port = sensor_port(machine['id'])
-    calibration = dict(CALIBRATION)
     try:
-        response = submit(client, "scan_run", {
-            "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
-            "calibration": calibration, "mode": mode, "deviation_amplitude_mm": 0.15,
-            "deviation_wavelength_mm": 15.0, "verify_count": 3})
+        response = _submit_scan(client, machine["id"], traces, mode)
         assert response.status_code == 202, response.text
         done = wait_for(client, response.json()["id"], timeout=120)
     finally:
@@ -80,23 +92,13 @@ def test_a_malformed_calibration_is_refused_at_submission(client):
 
 
 def test_a_dropped_link_interrupts_the_scan_and_a_resume_keeps_the_stored_passes(client, meshes):
-    nominal, true_stl, _truth = meshes
-    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
-                       headers=OP).json()
-    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
-    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
-                         json=[s1_traces()[i].to_api() for i in (0, 2, 4, 6)], headers=OP).json()["items"]
+    traces, real = _part_traces_and_truth(client, meshes, (0, 2, 4, 6))
     machine = client.post("/api/v1/machines", json={
         "name": "flaky", "port": "mock://", "dialect": "marlin",
         "mock": {"true_part_id": real["id"], "probe_noise_mm": 0.001, "faults": {"disconnect_at_line": 30}}},
         headers=OP).json()
-    port = sensor_port(machine['id'])
-    calibration = dict(CALIBRATION)
     try:
-        response = submit(client, "scan_run", {
-            "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
-            "calibration": calibration, "mode": "traces", "deviation_amplitude_mm": 0.15,
-            "deviation_wavelength_mm": 15.0, "verify_count": 3})
+        response = _submit_scan(client, machine["id"], traces)
         assert response.status_code == 202, response.text
         job_id = response.json()["id"]
         stopped = wait_for(client, job_id, states=("interrupted", "succeeded", "failed"), timeout=120)
@@ -121,12 +123,7 @@ def test_with_a_calibrated_ball_stylus_the_touches_are_corrected_as_a_probe_runs
     """A 0.5 mm ball with 15 um pre-travel reads ~0.49 mm high on the part: calibrated
     (calibrate_probe), the scan's gap and verification touches are corrected and agree with
     the sensor's field."""
-    nominal, true_stl, _truth = meshes
-    part = client.post("/api/v1/parts", files={"file": ("s1.stl", nominal.export(file_type="stl"))},
-                       headers=OP).json()
-    real = client.post("/api/v1/parts", files={"file": ("real.stl", true_stl)}, headers=OP).json()
-    traces = client.post(f"/api/v1/parts/{part['id']}/traces:import",
-                         json=[s1_traces()[i].to_api() for i in (0, 4)], headers=OP).json()["items"]
+    traces, real = _part_traces_and_truth(client, meshes, (0, 4))
     physics = "stylus_radius_mm=0.5&pretravel_mm=0.015&pad=150,10,3,20&sphere=110,12,12,10"
     profile = {"tools": {"probe": {"ball_radius_mm": 0.5}},
                "reference": {"pad": {"centre_mm": [150.0, 10.0, 3.0], "size_mm": 20.0},
@@ -137,13 +134,8 @@ def test_with_a_calibrated_ball_stylus_the_touches_are_corrected_as_a_probe_runs
     qualified = wait_for(client, submit(client, "calibrate_probe", {"machine_id": machine["id"], "per_ring": 4,
                                                                     "equator": 8}).json()["id"], timeout=180)
     assert qualified["status"] == "succeeded", qualified["error"]
-    port = sensor_port(machine['id'])
-    calibration = dict(CALIBRATION)
     try:
-        response = submit(client, "scan_run", {
-            "machine_id": machine["id"], "trace_ids": [t["id"] for t in traces], "sensor_port": port,
-            "calibration": calibration, "mode": "traces", "deviation_amplitude_mm": 0.15,
-            "deviation_wavelength_mm": 15.0, "verify_count": 3})
+        response = _submit_scan(client, machine["id"], traces)
         done = wait_for(client, response.json()["id"], timeout=120)
     finally:
         unregister_sensor(machine["id"])
