@@ -7,6 +7,9 @@
 * no loose module in ``app/`` but the entry points;
 * job kinds never import each other (what several kinds share lives in ``app/jobs``: inputs,
   params, jetting_inputs; math in the core);
+* job kinds and their shared helpers (``app/jobs``) never query the database: they read
+  through their context (``ctx.reads()``, :class:`app.runtime.reads.JobReads`), never a session
+  nor the runtime behind it;
 * no import cycles between modules (function-local imports included);
 * every module can be read in one sitting.
 """
@@ -26,6 +29,7 @@ CORE = ("geometry", "probing", "reconstruction", "registration", "compensation",
 FORBIDDEN_IN_CORE = ("fastapi", "starlette", "sqlmodel", "sqlalchemy", "viser", "hardware", "huey", "uvicorn",
                      "app.api", "app.jobs", "app.viewer", "app.platform", "app.parts", "app.machines",
                      "app.runtime", "app.reporting", "app.main")
+FORBIDDEN_IN_JOBS = ("sqlmodel", "sqlalchemy", "app.platform.db", "app.platform.lookup")
 ENTRY_POINTS = {"app.main", "app.cli", "app.demo"}  # the only modules at app/'s top
 MAX_MODULE_LINES = 500
 # import cycles that exist today; the list may only shrink
@@ -139,6 +143,32 @@ def test_the_kind_import_check_sees_an_import(tmp_path):
                       "def run():\n    from app.jobs.kinds.reconstruct import run\n")
     imports = {"app.jobs.kinds.compensate": _imports(source, "app.jobs.kinds.compensate")}
     assert _kind_imports(imports) == {("compensate", "reconstruct")}
+
+
+def test_job_kinds_and_their_helpers_never_import_the_database():
+    offenders = {(m, i) for m, names in IMPORTS.items() if m.startswith("app.jobs") for i in names
+                 if any(i == f or i.startswith(f"{f}.") for f in FORBIDDEN_IN_JOBS)}
+    assert offenders == set(), "read through the job's context (app/runtime/reads.py), not the database"
+
+
+def _session_or_runtime_uses(path: Path) -> set[tuple[str, int]]:
+    """(what, line) of every ``.session(...)`` call and ``.runtime`` attribute in ``path``."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    return {(f".{node.attr}", node.lineno) for node in ast.walk(tree)
+            if isinstance(node, ast.Attribute) and node.attr in ("session", "runtime")}
+
+
+def test_job_kinds_and_their_helpers_never_reach_a_session_or_the_runtime():
+    offenders = {(m, *use) for m, path in MODULES.items() if m.startswith("app.jobs")
+                 for use in _session_or_runtime_uses(path)}
+    assert offenders == set(), "use the named reads and methods of JobContext (app/runtime/context.py)"
+
+
+def test_the_session_check_sees_a_session_and_the_runtime(tmp_path):
+    source = tmp_path / "kind.py"
+    source.write_text("def run(ctx):\n    with ctx.session() as s:\n        pass\n"
+                      "    ctx.runtime.store.wait()\n    ctx.reads()\n")
+    assert _session_or_runtime_uses(source) == {(".session", 2), (".runtime", 4)}
 
 
 def test_no_import_cycles():

@@ -33,11 +33,8 @@ import json
 import time
 from typing import Any
 
-from sqlmodel import select
-
 import app
 from app.domain.errors import ConformaError
-from app.platform.models import Artifact
 from app.runtime.context import JobContext
 
 CHECKPOINT_MEDIA_TYPE = "application/json"
@@ -70,9 +67,8 @@ def trace_inputs(trace: Any, part_sha256: str) -> dict[str, Any]:
 
 def artifact_shas(ctx: JobContext, job_id: str) -> dict[str, str]:
     """{artifact name: sha256} of ``job_id``'s stored artifacts."""
-    with ctx.session() as session:
-        rows = session.exec(select(Artifact.name, Artifact.sha256).where(Artifact.job_id == job_id)).all()
-    return {name: sha for name, sha in rows}
+    with ctx.reads() as reads:
+        return reads.artifact_shas(job_id)
 
 
 class TraceCheckpoints:

@@ -14,17 +14,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
-from sqlmodel import Session, col, select
 
 from app.api.machine_schemas import Profile
 from app.calibration import NozzleCalibration, ProbeCalibration, disagreements
 from app.domain.errors import InvalidInput
 from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult, CalibrateSensorResult
-from app.platform.lookup import get_or_404
 from app.platform.models import Job, Machine
+
+if TYPE_CHECKING:
+    from app.runtime.reads import JobReads
 
 KINDS = ("calibrate_probe", "calibrate_nozzle", "calibrate_sensor")
 
@@ -79,13 +80,10 @@ def machine_profile(row: Machine) -> Profile:
                            f"{exc.errors()[0]['msg']}", field=f"profile.{where}", value=row.id) from exc
 
 
-def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None], str]:
+def _latest_ids(reads: JobReads, machine_id: str) -> dict[tuple[str, int | None], str]:
     """{(kind, tool or None): job id} of the newest succeeded calibration job of each kind
     and tool of ``machine_id`` (reads ids and times only, not the stored results)."""
-    # sqlmodel types select() of up to four columns; this is five (rows of (id, kind, params, finished, created))
-    rows = session.exec(select(col(Job.id), col(Job.kind), col(Job.params),  # type: ignore[call-overload]
-                               col(Job.finished_at), col(Job.created_at)).where(
-        col(Job.machine_id) == machine_id, col(Job.kind).in_(KINDS), col(Job.status) == "succeeded")).all()
+    rows = reads.succeeded_on_machine(machine_id, KINDS)
     latest: dict[tuple[str, int | None], tuple[datetime, str]] = {}
     for job_id, kind, params, finished, created in rows:
         key = (kind, int(params["tool"]) if kind == "calibrate_nozzle" else None)
@@ -95,20 +93,20 @@ def _latest_ids(session: Session, machine_id: str) -> dict[tuple[str, int | None
     return {key: job_id for key, (_at, job_id) in latest.items()}
 
 
-def latest_calibration_job(session: Session, machine_id: str, kind: str, tool: int | None = None) -> Job | None:
+def latest_calibration_job(reads: JobReads, machine_id: str, kind: str, tool: int | None = None) -> Job | None:
     """The newest succeeded ``kind`` job of the machine (of nozzle ``tool``), or None."""
-    job_id = _latest_ids(session, machine_id).get((kind, tool if kind == "calibrate_nozzle" else None))
-    return None if job_id is None else session.get(Job, job_id)
+    job_id = _latest_ids(reads, machine_id).get((kind, tool if kind == "calibrate_nozzle" else None))
+    return None if job_id is None else reads.find_job(job_id)
 
 
-def current_calibration(session: Session, machine_id: str, *, now: datetime | None = None) -> MachineCalibration:
+def current_calibration(reads: JobReads, machine_id: str, *, now: datetime | None = None) -> MachineCalibration:
     """The machine's current calibration with its flags (NotFound for an unknown machine)."""
-    row = get_or_404(session, Machine, machine_id, field="machine_id")
+    row = reads.machine(machine_id, field="machine_id")
     profile = machine_profile(row)
     cal = MachineCalibration(max_age_h=float(profile.calibration_max_age_h),
                              now=_utc(now) if now is not None else datetime.now(UTC))
-    for (kind, tool), job_id in _latest_ids(session, machine_id).items():
-        job = session.get(Job, job_id)
+    for (kind, tool), job_id in _latest_ids(reads, machine_id).items():
+        job = reads.find_job(job_id)
         if job is None:  # deleted meanwhile
             continue
         if kind == "calibrate_probe":
@@ -211,9 +209,9 @@ def agreement(previous: Job | None, values: dict[str, float], std: dict[str, flo
             "disagrees": sorted(bad)}
 
 
-def require_probe_calibration(session: Session, machine_id: str) -> MachineCalibration:
+def require_probe_calibration(reads: JobReads, machine_id: str) -> MachineCalibration:
     """The machine's calibration; 422 when it has no probe calibration yet."""
-    cal = current_calibration(session, machine_id)
+    cal = current_calibration(reads, machine_id)
     if cal.probe is None:
         raise InvalidInput(f"machine {machine_id!r} has no probe calibration: calibrate the probe first "
                            "(job calibrate_probe)", field="params.machine_id", value=machine_id)

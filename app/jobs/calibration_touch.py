@@ -91,7 +91,7 @@ class TouchRun:
         self.here: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __enter__(self) -> TouchRun:
-        self._lease = self.ctx.runtime.machines.lease(self.machine_id, self.ctx.job_id)
+        self._lease = self.ctx.lease(self.machine_id)
         self._lease.__enter__()
         return self
 
@@ -128,7 +128,7 @@ class TouchRun:
                 self.previous, self.here = step, (x, y, z)   # probe_toward ends back at the start
                 readings.append([float(hit.x), float(hit.y), float(hit.z)])
                 state["executed"] = sum(len(v) for v in state["stages"].values())
-                self.ctx.runtime.store.save_program_state(self.ctx.claim, state)
+                self.ctx.save_program_state(state)
                 self.ctx.progress(span[0] + (span[1] - span[0]) * len(readings) / len(steps),
                                   f"{label}: touch {len(readings)}/{len(steps)} ({step.touch.kind}, T{step.tool})")
         except LinkError as exc:  # a touch is idempotent: a resume touches this one again

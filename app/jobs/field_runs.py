@@ -133,7 +133,7 @@ def run_field(ctx: JobContext, probe_run_job_id: str, sigma_mm: float | None, le
         if calibration is not None:
             stations = field.stations
             trace = ctx.trace(traces[0])
-            top = mesh_top_sampler(ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement))
+            top = mesh_top_sampler(ctx.placed_mesh(ctx.part(trace.part_id), placement))
             check, refinement = refined(check, rows, calibration, lambda c, _xy: field_gradient(
                 c.fit, stations, slope_at=lambda xy: top(xy).grad), fit_of)
         cached = (check, refinement)

@@ -1,7 +1,8 @@
 """Loading what job parameters point to, shared by the job kinds (a kind never imports another).
 
-* :func:`succeeded_job`: THE check "job ``job_id`` is a succeeded job of kind K" at
-  submission (and, through :meth:`app.runtime.context.JobContext.job`, when a job runs);
+* THE check "job ``job_id`` is a succeeded job of kind K" is
+  :meth:`app.runtime.reads.JobReads.succeeded_job` at submission (and, through
+  :meth:`app.runtime.context.JobContext.job`, when a job runs);
 * placements: :func:`check_registration` (submission), :func:`placement_from` (run),
   :func:`registration_reference`, :func:`placed_params_of` (what a stored job was placed by);
 * a trace's stored nominal polyline: :func:`nominal_of`, :func:`placed_nominal`.
@@ -11,9 +12,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from sqlmodel import Session
-
-from app.domain.errors import ConformaError, InvalidInput, NotFound
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
 from app.jobs.params import PlacedParams, PlacementParams
@@ -23,26 +21,7 @@ from app.registration.registration import place_path
 
 if TYPE_CHECKING:
     from app.runtime.context import JobContext
-
-
-def succeeded_job(session: Session, job_id: str, kind: str | None, field: str, *,
-                  error: type[ConformaError] = InvalidInput, missing_is_invalid: bool = False,
-                  hint: str = "") -> Job:
-    """The job ``job_id`` when it succeeded (and is of ``kind``, unless None).
-
-    A missing job is a NotFound (404) naming ``field``, or with ``missing_is_invalid`` an
-    ``error``; a job of another kind or state is an ``error`` (InvalidInput: 422) naming
-    ``field`` and the job id; ``hint`` is appended to its message."""
-    needed = f"a succeeded {kind} job" if kind else "a succeeded job"
-    job = session.get(Job, job_id)
-    if job is None:
-        if missing_is_invalid:
-            raise error(f"{field}: job {job_id!r} does not exist; {needed} is needed{hint}", field=field, value=job_id)
-        raise NotFound(f"job {job_id!r} does not exist", field=field, value=job_id)
-    if job.status != "succeeded" or (kind is not None and job.kind != kind):
-        raise error(f"job {job_id!r} is a {job.status} {job.kind} job; {needed} is needed{hint}",
-                    field=field, value=job_id)
-    return job
+    from app.runtime.reads import JobReads
 
 
 # placements -------------------------------------------------------------------------------
@@ -50,11 +29,11 @@ def registration_reference(params: PlacedParams) -> list[tuple[str, str]]:
     return [("job", params.registration_job_id)] if params.registration_job_id else []
 
 
-def check_registration(params: PlacedParams, session: Session) -> Placement | None:
+def check_registration(params: PlacedParams, reads: JobReads) -> Placement | None:
     """Submission check: the referenced job is a succeeded register job; its placement."""
     if params.registration_job_id is None:
         return None if params.placement is None else params.placement.to_placement()
-    job = succeeded_job(session, params.registration_job_id, "register", "params.registration_job_id")
+    job = reads.succeeded_job(params.registration_job_id, "register", "params.registration_job_id")
     return PlacementParams.model_validate(RegisterResult.of(job).placement).to_placement()
 
 

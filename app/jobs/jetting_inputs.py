@@ -15,11 +15,10 @@ import binascii
 import dataclasses
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from sqlmodel import Session, col
 
 from app.jetting import (
     ControllerParams,
@@ -36,12 +35,14 @@ from app.jetting import (
 )
 from app.jetting.params import BinarizeKind, LayerModelKind, SolverKind
 from app.jetting.targets import rings_grid_cells, target_shape
-from app.jobs.inputs import succeeded_job
 from app.jobs.results.models import SliceResult
-from app.platform.models import Artifact, Part
+from app.platform.models import Artifact
 from app.runtime.registry import JobParams
 from app.slicing import SlicingError
 from app.slicing.export import from_json
+
+if TYPE_CHECKING:
+    from app.runtime.reads import JobReads
 
 MEMORY_LIMIT_BYTES = 2 * 1024**3  # one run's working set (patterns, snapshots, solver temporaries)
 MAX_MASK_BASE64 = 4_000_000       # inline mask PNG, base64 characters
@@ -251,10 +252,10 @@ def _slice_layers(data: bytes) -> list[Any]:
                            value=exc.value) from None
 
 
-def stored_artifact(session: Session, job_id: str, name: str, field: str, media_type: str) -> Artifact:
+def stored_artifact(reads: JobReads, job_id: str, name: str, field: str, media_type: str) -> Artifact:
     """The artifact row of a succeeded job with the expected media type, or a 422 naming ``field``."""
-    succeeded_job(session, job_id, None, field, error=JettingError, missing_is_invalid=True)
-    row = session.query(Artifact).filter(col(Artifact.job_id) == job_id, col(Artifact.name) == name).one_or_none()
+    reads.succeeded_job(job_id, None, field, error=JettingError, missing_is_invalid=True)
+    row = reads.artifact(job_id, name)
     if row is None or row.media_type != media_type or row.bytes == 0:
         what = "does not exist" if row is None else f"is an empty or {row.media_type} file"
         raise JettingError(f"{field}: artifact {name!r} of job {job_id!r} {what}; a {media_type} is needed",
@@ -262,14 +263,14 @@ def stored_artifact(session: Session, job_id: str, name: str, field: str, media_
     return row
 
 
-def check_target(spec: TargetParams, core: JettingParams, session: Session) -> tuple[int, int] | None:
+def check_target(spec: TargetParams, core: JettingParams, reads: JobReads) -> tuple[int, int] | None:
     """Submission-time checks of the target: the grid's memory need, the mask artifact's
     type and part cells, the slice layer's existence and the sliced part's extent; when the
-    session can read stored files (as it can at submission), the target is built and fully
+    reads can read stored files (as they can at submission), the target is built and fully
     validated now.  Returns the grid shape when it is known."""
-    reader = _stored_reader(session)
+    reader = _stored_reader(reads)
     if spec.mask is not None and spec.mask.job_id is not None:
-        row = stored_artifact(session, spec.mask.job_id, spec.mask.artifact or "", "params.target.mask", "image/png")
+        row = stored_artifact(reads, spec.mask.job_id, spec.mask.artifact or "", "params.target.mask", "image/png")
         if row.meta.get("drops") == 0:
             raise JettingError("params.target.mask: the mask image is all black (no part cells)",
                                field="params.target.mask", value=spec.mask.artifact)
@@ -278,13 +279,13 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
             check_grid(target_shape(image, core.drop, core.margin_mm), core)
         return target_of(spec, core, reader).shape if reader is not None else None
     if spec.slice is not None:
-        job = succeeded_job(session, spec.slice.slice_job_id, "slice", "params.target.slice.slice_job_id",
-                            error=JettingError, missing_is_invalid=True)
+        job = reads.succeeded_job(spec.slice.slice_job_id, "slice", "params.target.slice.slice_job_id",
+                                  error=JettingError, missing_is_invalid=True)
         count = SliceResult.of(job).layer_count
         if spec.slice.layer >= count:
             raise JettingError(f"params.target.slice.layer: layer {spec.slice.layer} does not exist "
                                f"({count} layers)", field="params.target.slice.layer", value=spec.slice.layer)
-        part = session.get(Part, job.params.get("part_id", ""))
+        part = reads.find_part(job.params.get("part_id", ""))
         if part is not None:
             # a layer lies within the part's footprint: the core's grid of that footprint bounds it
             extent = np.ptp(np.asarray(part.bounds, dtype=float)[:, :2], axis=0)
@@ -294,15 +295,18 @@ def check_target(spec: TargetParams, core: JettingParams, session: Session) -> t
     return target_of(spec, core, _no_reader).shape  # parametric or inline mask: built now
 
 
-def _stored_reader(session: Session) -> ArtifactReader | None:
-    """Reads a stored artifact's bytes during a submission check (the runtime puts a blob
-    reader in ``session.info``), so stored masks and slices are fully checked up front."""
-    read_blob = session.info.get("read_blob")
+def _stored_reader(reads: JobReads) -> ArtifactReader | None:
+    """Reads a stored artifact's bytes during a submission check (the runtime gives the
+    reads a blob reader), so stored masks and slices are fully checked up front."""
+    read_blob = reads.read_blob
     if read_blob is None:
         return None
 
     def read(job_id: str, name: str) -> bytes:
-        row = session.query(Artifact).filter(col(Artifact.job_id) == job_id, col(Artifact.name) == name).one()
+        row = reads.artifact(job_id, name)
+        if row is None:
+            raise JettingError(f"artifact {name!r} of job {job_id!r} does not exist", field="params.target",
+                               value=name)
         return read_blob(row.sha256)
 
     return read

@@ -29,8 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
-from sqlmodel import Session
-
 from app.domain.errors import Conflict, ConformaError, NotFound
 from app.platform.models import Job, utcnow
 
@@ -77,8 +75,8 @@ class Gates:
     def __init__(self, ctx: JobContext, pause_at: list[str]) -> None:
         self.ctx = ctx
         self.pause_at = set(pause_at)
-        with ctx.session() as session:
-            job = session.get(Job, ctx.job_id)
+        with ctx.reads() as reads:
+            job = reads.find_job(ctx.job_id)
         self.state: dict[str, Any] = dict((job.program_state if job is not None else None) or {})
         self.decisions = Decisions.of(self.state)
 
@@ -91,7 +89,7 @@ class Gates:
         waiting = {"at": point, "key": key, "round": round_, "since": utcnow().isoformat(), "summary": summary,
                    "needs_attention": attention}
         message = f"waiting at {point}: {summary.get('headline', '')}".rstrip(": ")
-        if not self.ctx.runtime.store.wait(self.ctx.claim, {**self.state, "waiting": waiting}, message):
+        if not self.ctx.wait_for_operator({**self.state, "waiting": waiting}, message):
             self.ctx.lost_event.set()
             self.ctx.check_cancelled()
         raise Paused(message, field="job_id", value=self.ctx.job_id)
@@ -101,8 +99,8 @@ def decide(runtime: Runtime, job_id: str, action: Action, replan: dict[str, Any]
     """An operator's decision on a waiting loop (``accept`` and ``add_stations`` also on one
     that ended ``needs_attention``): recorded in its ``program_state`` and the job queued
     again.  Conflict (409) naming why when the job is not where the action applies."""
-    with Session(runtime.engine) as session:
-        job = session.get(Job, job_id)
+    with runtime.reads() as reads:
+        job = reads.find_job(job_id)
         if job is None:
             raise NotFound(f"job {job_id!r} does not exist", field="job_id", value=job_id)
     if job.kind not in LOOP_KINDS:

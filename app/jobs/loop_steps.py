@@ -20,7 +20,6 @@ import math
 from typing import Any
 
 from pydantic import ValidationError
-from sqlmodel import select
 
 from app.domain.errors import Cancelled, ConformaError
 from app.jobs.inputs import nominal_of
@@ -33,7 +32,7 @@ from app.jobs.results.models import (
     reconstruct_rows,
 )
 from app.jobs.simulation import evaluate_print, xy_error
-from app.platform.models import Job, Machine, Trace
+from app.platform.models import Job, Machine
 from app.reference.evaluation import predicted_width, table_row
 from app.runtime.context import JobContext
 from app.runtime.registry import kinds
@@ -50,8 +49,8 @@ class Steps:
 
     def __init__(self, ctx: JobContext) -> None:
         self.ctx = ctx
-        with ctx.session() as session:
-            done = session.exec(select(Job).where(Job.parent_id == ctx.job_id, Job.status == "succeeded")).all()
+        with ctx.reads() as reads:
+            done = reads.succeeded_children(ctx.job_id)
         self.reusable = {(j.kind, json.dumps(j.params, sort_keys=True)): j for j in done}
 
     def run(self, kind: str, params: dict[str, Any], trace_id: str | None) -> Job:
@@ -103,9 +102,9 @@ def scanned_summary(scan: Job, total: int) -> dict[str, Any]:
 def probe_rings(ctx: JobContext, trace_ids: list[str]) -> set[str]:
     """The pad / area probe rings among ``trace_ids`` (traces with ``source.role`` ``pad_probe``,
     made by a circuit import): probed and rebuilt with the traces, never printed."""
-    with ctx.session() as session:
-        rows = session.exec(select(Trace.id, Trace.source).where(Trace.id.in_(trace_ids))).all()  # type: ignore[attr-defined]
-    return {trace_id for trace_id, source in rows if (source or {}).get("role") == "pad_probe"}
+    with ctx.reads() as reads:
+        sources = reads.trace_sources(trace_ids)
+    return {trace_id for trace_id, source in sources.items() if source.get("role") == "pad_probe"}
 
 
 def plan_params(params: Any, placed: dict[str, Any], dialect: str, trace_id: str | None) -> dict[str, Any]:
@@ -259,7 +258,7 @@ def print_trace(ctx: JobContext, steps: Steps, params: Any, machine: Machine, in
                  "print.gcode": entry.get("print_artifact", "print.gcode")}
     if params.evaluate:
         trace = ctx.trace(trace_id)
-        world = ctx.runtime.machines.world(machine)  # built when the probe run connected
+        world = ctx.machine_world(machine)  # built when the probe run connected
         assert world is not None  # evaluate runs on a mock machine (the kind checks it)
         reports = {}
         for artifact in ("nominal.gcode", "print.gcode"):

@@ -52,8 +52,8 @@ class MachineProbe:
 def machine_probe(ctx: JobContext, machine_id: str) -> MachineProbe | None:
     """The machine's current probe calibration with its profile's reference pad, or None
     when the probe has never been calibrated (today's ideal-probe behaviour)."""
-    with ctx.session() as session:
-        current = current_calibration(session, machine_id)
+    with ctx.reads() as reads:
+        current = current_calibration(reads, machine_id)
     if current.probe is None:
         return None
     profile = ctx.machine(machine_id).profile or {}

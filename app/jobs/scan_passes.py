@@ -72,7 +72,7 @@ def scan_passes(ctx: JobContext, machine_id: str, sensor_port: str | None, rate_
                              "resumes": int((resume or {}).get("resumes", 0))}
     machine = rehomed_machine(ctx, machine_id, resume, state)
     passes = [_stored(ctx.artifact_bytes(ctx.job_id, pass_name(k))) for k in range(done)]
-    with ctx.runtime.machines.lease(machine_id, ctx.job_id), interrupting(ctx, machine, state):
+    with ctx.lease(machine_id), interrupting(ctx, machine, state):
         if probe_tool and done < len(waypoints):
             machine.select_tool(0)
         scanner = open_scanner(machine, sensor_port, rate_hz)
@@ -83,7 +83,7 @@ def scan_passes(ctx: JobContext, machine_id: str, sensor_port: str | None, rate_
                 ctx.artifact(pass_name(k), _npz(one), PASS_MEDIA_TYPE, {"samples": len(one.values)})
                 passes.append(one)
                 state.update(passes_done=k + 1, executed=k + 1)
-                ctx.runtime.store.save_program_state(ctx.claim, state)
+                ctx.save_program_state(state)
                 ctx.progress(0.8 * (k + 1) / len(waypoints), f"scanned {k + 1}/{len(waypoints)} passes")
         finally:
             scanner.close()

@@ -1,22 +1,27 @@
 """What a running job sees: its parameters, progress reporting, cancel, inputs, artifacts.
 
 Job kinds are thin adapters; everything they need from the service goes through this
-object, so a kind never opens the database or the blob directory itself.
+object, so a kind never opens the database or the blob directory itself: stored records
+through :meth:`JobContext.reads` (named queries, :class:`app.runtime.reads.JobReads`) and the
+shortcuts below, live machines through :meth:`JobContext.lease` and
+:meth:`JobContext.machine_world`, its program state through :meth:`JobContext.save_program_state`.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 from typing import TYPE_CHECKING, Any
 
-from sqlmodel import Session, col, select
+from sqlmodel import Session, select
 
-from app.domain.errors import Cancelled, ConformaError, NotFound
-from app.jobs.inputs import succeeded_job
+from app.domain.errors import Cancelled, ConformaError
 from app.platform.artifacts import add_artifact
 from app.platform.lookup import get_or_404
 from app.platform.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile, utcnow
+from app.runtime.reads import JobReads
 from app.runtime.store import Claim
 
 _ARTIFACTS = Artifact.__table__  # type: ignore[attr-defined]
@@ -24,7 +29,9 @@ _ARTIFACTS = Artifact.__table__  # type: ignore[attr-defined]
 if TYPE_CHECKING:
     import trimesh
 
+    from app.geometry.placement import Placement
     from app.runtime.engine import Runtime
+    from hardware.mock import MockWorld
 
 
 class JobContext:
@@ -55,44 +62,50 @@ class JobContext:
 
     # inputs ----------------------------------------------------------------------
     def session(self) -> Session:
+        """A session of the job engine's own (the runtime's modules; kinds use :meth:`reads`)."""
         return Session(self.runtime.engine, expire_on_commit=False)
 
-    def part(self, part_id: str) -> Part:
+    @contextmanager
+    def reads(self) -> Iterator[JobReads]:
+        """Named reads of stored records over one session (several queries, one snapshot)."""
         with self.session() as session:
-            return get_or_404(session, Part, part_id)
+            yield JobReads(session, read_blob=self.runtime.blobs.read)
+
+    def part(self, part_id: str) -> Part:
+        with self.reads() as reads:
+            return reads.part(part_id)
 
     def mesh(self, part_id: str) -> trimesh.Trimesh:
         return self.runtime.meshes.mesh(self.part(part_id))
 
+    def placed_mesh(self, part: Part, placement: Placement | None) -> trimesh.Trimesh:
+        """The part's mesh in machine coordinates (as stored without a placement); cached."""
+        return self.runtime.meshes.placed(part, placement)
+
     def trace(self, trace_id: str) -> Trace:
-        with self.session() as session:
-            return get_or_404(session, Trace, trace_id)
+        with self.reads() as reads:
+            return reads.trace(trace_id)
 
     def traces(self, trace_ids: list[str]) -> list[Trace]:
         """The traces ``trace_ids`` in order, read in one query (a board's thousand); a missing
         one is a NotFound naming it."""
-        with self.session() as session:
-            rows = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(trace_ids))).all()}  # type: ignore[attr-defined]
-        missing = next((t for t in trace_ids if t not in rows), None)
-        if missing is not None:
-            raise NotFound(f"trace {missing!r} does not exist", field="trace_id", value=missing)
-        return [rows[t] for t in trace_ids]
+        with self.reads() as reads:
+            return reads.traces(trace_ids)
 
-    def machine(self, machine_id: str) -> Machine:
-        with self.session() as session:
-            return get_or_404(session, Machine, machine_id)
+    def machine(self, machine_id: str, field: str | None = None) -> Machine:
+        with self.reads() as reads:
+            return reads.machine(machine_id, field=field)
 
     def job(self, job_id: str, *, kind: str | None = None, field: str = "job_id") -> Job:
         """Another job's record; with ``kind``, it must be of that kind and have succeeded."""
-        with self.session() as session:
+        with self.reads() as reads:
             if kind is None:
-                return get_or_404(session, Job, job_id, field=field)
-            return succeeded_job(session, job_id, kind, field, error=ConformaError)
+                return reads.job(job_id, field=field)
+            return reads.succeeded_job(job_id, kind, field, error=ConformaError)
 
     def artifact_bytes(self, job_id: str, name: str) -> bytes:
-        with self.session() as session:
-            row = session.query(Artifact).filter(col(Artifact.job_id) == job_id,
-                                                 col(Artifact.name) == name).one_or_none()
+        with self.reads() as reads:
+            row = reads.artifact(job_id, name)
         if row is None:
             raise ConformaError(f"job {job_id!r} has no artifact {name!r}", field="artifact", value=name)
         return self.runtime.blobs.read(row.sha256)
@@ -121,15 +134,37 @@ class JobContext:
 
     def trace_names(self, trace_ids: list[str]) -> dict[str, str]:
         """trace id -> name, in one query (without the traces' nominal polylines)."""
-        with self.session() as session:
-            rows = session.exec(select(Trace.id, Trace.name).where(Trace.id.in_(trace_ids))).all()  # type: ignore[attr-defined]
-        return dict(rows)
+        with self.reads() as reads:
+            return reads.trace_names(trace_ids)
 
     def file_bytes(self, file_id: str, field: str = "file_id") -> bytes:
         """The content of an uploaded file (``POST /api/v1/files``)."""
         with self.session() as session:
             row = get_or_404(session, UploadedFile, file_id, field=field)
         return self.runtime.blobs.read(row.sha256)
+
+    @property
+    def max_upload_bytes(self) -> int:
+        """The largest upload the service accepts (bytes): what a file a job reads may hold."""
+        return int(self.runtime.settings.max_upload_mb * 2**20)
+
+    # machines and program state --------------------------------------------------
+    def lease(self, machine_id: str) -> AbstractContextManager[None]:
+        """Hold ``machine_id`` for this job while it moves it (one program per machine)."""
+        return self.runtime.machines.lease(machine_id, self.job_id)
+
+    def machine_world(self, machine: Machine) -> MockWorld | None:
+        """The simulated world of the mock machine ``machine`` (what it deposited), None on
+        real hardware."""
+        return self.runtime.machines.world(machine)
+
+    def save_program_state(self, state: dict[str, Any]) -> bool:
+        """Record where this job's program stands (what a resume continues from)."""
+        return self.runtime.store.save_program_state(self.claim, state)
+
+    def wait_for_operator(self, state: dict[str, Any], message: str) -> bool:
+        """End this attempt waiting at a pause point with ``state`` (False: the lease was lost)."""
+        return self.runtime.store.wait(self.claim, state, message)
 
     # outputs ---------------------------------------------------------------------
     def artifact(self, name: str, data: bytes, media_type: str, meta: dict[str, Any] | None = None) -> str:

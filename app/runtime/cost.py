@@ -1,6 +1,6 @@
 """Cost estimates at submission: hopeless parameters are a 422, not an out-of-memory worker.
 
-A kind may register ``estimate(params, session) -> Cost``: its predicted peak memory (MiB,
+A kind may register ``estimate(params, reads) -> Cost``: its predicted peak memory (MiB,
 above the worker's baseline) and wall-clock time (s) from the parameters alone, with the
 parameter that drives the cost.  The models are simple formulas in each kind's module
 (how many cells, points, unknowns or path segments a job allocates), with constants
@@ -36,12 +36,12 @@ class Cost:
     basis: str
 
 
-def check_cost(kind: Any, params: Any, session: Any, settings: Settings) -> Cost | None:
+def check_cost(kind: Any, params: Any, reads: Any, settings: Settings) -> Cost | None:
     """Raise :class:`InvalidInput` (naming the driving parameter) when ``kind``'s estimate of
     ``params`` exceeds the job memory or time limit; returns the estimate (None without one)."""
     if kind.estimate is None:
         return None
-    cost = kind.estimate(params, session)
+    cost = kind.estimate(params, reads)
     if cost is None:
         return None
     if cost.memory_mb > settings.job_memory_mb:

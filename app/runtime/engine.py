@@ -16,7 +16,8 @@ import os
 import socket
 import sqlite3
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from huey import RedisHuey, SqliteHuey
@@ -42,6 +43,7 @@ from app.runtime.context import JobContext
 from app.runtime.cost import check_cost
 from app.runtime.machine_queue import MachineThreads, machine_slot
 from app.runtime.process_worker import ProcessSupervisor, warm_up
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobKind, get_kind, load_kinds
 from app.runtime.store import JobStore, completed_status, json_result
 
@@ -238,6 +240,13 @@ class Runtime:
         self._threads: list[threading.Thread] = []
         self.supervisor = ProcessSupervisor(self)
 
+    @contextmanager
+    def reads(self) -> Iterator[JobReads]:
+        """Named reads of stored records over one session (for what acts on jobs from outside
+        a running one, e.g. an operator's decision on a waiting loop)."""
+        with Session(self.engine, expire_on_commit=False) as session:
+            yield JobReads(session, read_blob=self.blobs.read)
+
     def _part_mesh(self, part_id: str) -> Any:
         with Session(self.engine) as session:
             return self.meshes.mesh(get_or_404(session, Part, part_id))
@@ -285,11 +294,11 @@ class Runtime:
                     hashes[f"part:{ref_id}"] = record.sha256
                 elif isinstance(record, Trace):
                     hashes[f"trace:{ref_id}"] = _canonical_hash([record.geometry, record.frame, record.standoff_mm])
+            # checks may need to know whose child this is, and to read stored files
+            reads = JobReads(session, parent_id=parent_id, read_blob=self.blobs.read)
             if kind.check is not None:
-                session.info["parent_id"] = parent_id  # checks may need to know whose child this is
-                session.info["read_blob"] = self.blobs.read  # ...and to read stored files
-                kind.check(validated, session)
-            check_cost(kind, validated, session, self.settings)  # hopeless parameters: 422 naming them
+                kind.check(validated, reads)
+            check_cost(kind, validated, reads, self.settings)  # hopeless parameters: 422 naming them
             job = Job(
                 id=new_id("job"), kind=kind.name, params=validated.model_dump(mode="json"),
                 parent_id=parent_id, queue=kind.queue, max_attempts=self.settings.max_attempts,

@@ -17,12 +17,12 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlmodel import Session, col, select
+from sqlmodel import Session, select
 
 from app.domain.errors import Cancelled, Conflict, ConformaError
 from app.gcode.estimator import command_times
 from app.machines.live import MachineFault, MachineUnavailable, hardware_errors
-from app.platform.models import Job, JobReference, utcnow
+from app.platform.models import Job, utcnow
 from app.runtime.context import JobContext
 from app.runtime.registry import machine_kinds
 from hardware.backend import Machine
@@ -32,6 +32,7 @@ from hardware.protocol import validate_program
 
 if TYPE_CHECKING:
     from app.runtime.engine import Runtime
+    from app.runtime.reads import JobReads
     from app.runtime.store import JobStore
 
 log = logging.getLogger("conforma.machines")
@@ -74,23 +75,14 @@ def holding_message(machine_id: str, job: dict[str, Any]) -> str:
             f"wait for it or cancel it (POST /api/v1/jobs/{job_id}/cancel)")
 
 
-def refuse_if_machine_busy(machine_id: str, session: Session) -> None:
+def refuse_if_machine_busy(machine_id: str, reads: JobReads) -> None:
     """409 when another machine job, or a workflow holding the machine, is queued, running,
     interrupted or waiting (at a pause point) on ``machine_id``.  A friendly early answer only: the unique index on
     ``jobs.machine_id`` is what makes two concurrent submissions impossible.  A workflow's
-    own children (``session.info["parent_id"]``) may use the machine it holds."""
-    parent_id = session.info.get("parent_id")
-    query = (select(Job.id, col(Job.kind), col(Job.status), col(Job.program_state))
-             .join(JobReference, col(JobReference.job_id) == col(Job.id))
-             .where(JobReference.ref_kind == "machine", JobReference.ref_id == machine_id,
-                    col(Job.status).in_(("queued", "running", "interrupted", "waiting")),
-                    col(Job.kind).in_(machine_kinds() + WORKFLOW_KINDS)))
-    if parent_id is not None:
-        query = query.where(Job.id != parent_id)
-    busy = session.exec(query).first()
+    own children (``reads.parent_id``) may use the machine it holds."""
+    busy = reads.machine_holder(machine_id, machine_kinds() + WORKFLOW_KINDS)
     if busy is not None:
-        job = {"id": busy[0], "kind": busy[1], "status": busy[2], "program_state": busy[3]}
-        raise Conflict(holding_message(machine_id, job), field="params.machine_id", value=machine_id)
+        raise Conflict(holding_message(machine_id, busy), field="params.machine_id", value=machine_id)
 
 
 def connected_machine(ctx: JobContext, machine_id: str) -> Machine:
@@ -106,8 +98,8 @@ def connected_machine(ctx: JobContext, machine_id: str) -> Machine:
 def resume_request(ctx: JobContext) -> dict[str, Any] | None:
     """The program state of this job when an operator asked to resume it after it had
     started, else None (a job interrupted before it started simply starts)."""
-    with ctx.session() as session:
-        job = session.get(Job, ctx.job_id)
+    with ctx.reads() as reads:
+        job = reads.find_job(ctx.job_id)
     state = job.program_state if job is not None else None
     return state if state and state.get("resume_requested") and "total" in state else None
 

@@ -3,12 +3,13 @@
 A kind names its parameter model (validated at submission, so bad parameters are a 422
 before anything is queued), the function that runs it, the queue it belongs on
 (``"machine"`` for jobs that own a serial port: :func:`machine_kinds`, each leasing its
-machine through ``ctx.runtime.machines.lease`` while it moves it), and what stored records it reads (so
-that those cannot be deleted from under it).  An optional ``check(params, session)``
+machine through ``ctx.lease`` while it moves it), and what stored records it reads (so
+that those cannot be deleted from under it).  An optional ``check(params, reads)``
 runs content checks that need stored records (e.g. measured points against the trace)
-at submission, so that bad input is a 422 then and never a failed job later; the session's
-``info`` carries ``parent_id`` (of a child job) and ``read_blob(sha256) -> bytes``.
-An optional ``estimate(params, session) -> Cost`` predicts the job's peak memory and time
+at submission, so that bad input is a 422 then and never a failed job later; ``reads``
+(:class:`app.runtime.reads.JobReads`) are the named queries a kind reads stored records
+with, and carry ``parent_id`` (of a child job) and ``read_blob(sha256) -> bytes``.
+An optional ``estimate(params, reads) -> Cost`` predicts the job's peak memory and time
 from its parameters (:mod:`app.runtime.cost`): a job predicted beyond the compute limits is a
 422 naming the parameter that drives the cost, before anything is queued.
 
@@ -35,6 +36,7 @@ from app.jobs.form_hints import add_titles_and_units, field_title
 
 if TYPE_CHECKING:
     from app.runtime.context import JobContext
+    from app.runtime.reads import JobReads
 
 
 class JobParams(BaseModel):
@@ -55,10 +57,10 @@ class JobKind:
     run: Callable[[JobContext, Any], dict]
     queue: str = "default"
     references: Callable[[Any], list[Reference]] = field(default=lambda _params: [])
-    check: Callable[[Any, Any], None] | None = None  # (params, session): raise InvalidInput at submission
+    check: Callable[[Any, JobReads], None] | None = None  # (params, reads): raise InvalidInput at submission
     description: str = ""
-    # (params, session) -> app.runtime.cost.Cost: memory and time predicted at submission
-    estimate: Callable[[Any, Any], Any] | None = None
+    # (params, reads) -> app.runtime.cost.Cost: memory and time predicted at submission
+    estimate: Callable[[Any, JobReads], Any] | None = None
 
     @property
     def drives_machine(self) -> bool:
@@ -76,8 +78,8 @@ def job_kind(
     *,
     queue: str = "default",
     references: Callable[[Any], list[Reference]] | None = None,
-    check: Callable[[Any, Any], None] | None = None,
-    estimate: Callable[[Any, Any], Any] | None = None,
+    check: Callable[[Any, JobReads], None] | None = None,
+    estimate: Callable[[Any, JobReads], Any] | None = None,
 ) -> Callable[[Callable[[JobContext, Any], dict]], Callable[[JobContext, Any], dict]]:
     """Register the decorated function as the runner of job kind ``name``."""
 

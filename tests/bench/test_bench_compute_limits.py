@@ -155,12 +155,12 @@ def test_toolpath_hilbert_merged_peak_memory_against_the_cost_model():
         "frame": "part", "volume_mm3": 1600.0, "repairs": [], "notes": [], "beam": {}, "slc": {}, "svg": {},
         "layers": []})
     part = SimpleNamespace(bounds=[[0, 0, 0], [40, 40, 1]])
-    session = SimpleNamespace(get=lambda model, key: job if model.__name__ == "Job" else part)
+    reads = SimpleNamespace(find_job=lambda _id: job, find_part=lambda _id: part)
     first = None
     for width in (0.4, 0.2, 0.1):
         params = ToolpathJobParams(slice_job_id="s", pattern="hilbert_merged", line_width_mm=width,
                                    nozzle_mm=min(width, 0.4))
-        predicted = toolpath_estimate(params, session)
+        predicted = toolpath_estimate(params, reads)
         got = measure(f"plan_toolpath(sliced, ToolpathParams(pattern='hilbert_merged', line_width_mm={width}, "
                       f"nozzle_mm={min(width, 0.4)}))", setup="""
             import trimesh
@@ -175,7 +175,7 @@ def test_toolpath_hilbert_merged_peak_memory_against_the_cost_model():
               f"{got['s']:6.1f} s, predicted {predicted.time_s:6.1f} s")
         assert got["peak_mb"] <= predicted.memory_mb
     bomb = ToolpathJobParams(slice_job_id="s", pattern="hilbert_merged", line_width_mm=0.005, nozzle_mm=0.005)
-    print(f"  line width 0.005 mm (the attack): predicted {toolpath_estimate(bomb, session).memory_mb:,.0f} MiB "
+    print(f"  line width 0.005 mm (the attack): predicted {toolpath_estimate(bomb, reads).memory_mb:,.0f} MiB "
           "-> 422 at submission")
 
 

@@ -75,14 +75,14 @@ sp = slice_kind.SliceJobParams(part_id="p", **json.loads(sys.argv[2]))
 probe = trimesh.load(io.BytesIO(data), file_type="stl")
 part = SimpleNamespace(bounds=probe.bounds.tolist(), faces=len(probe.faces))
 del probe
-slice_cost = slice_kind._estimate(sp, SimpleNamespace(get=lambda model, key: part))
+slice_cost = slice_kind._estimate(sp, SimpleNamespace(find_part=lambda _id: part))
 sliced, s_rss, s_vm = measured(lambda: slice_kind.run(Ctx(), sp))
 job = SimpleNamespace(id="s", kind="slice", status="succeeded", params={"part_id": "p"}, result=sliced,
                       artifacts={"layers.json": len(artifacts["layers.json"])})
 del sliced
 tp = toolpath_kind.ToolpathJobParams(slice_job_id="s", **json.loads(sys.argv[3]))
 lookup = {"s": job, "p": part}
-tool_cost = toolpath_kind._estimate(tp, SimpleNamespace(get=lambda model, key: lookup[key],
+tool_cost = toolpath_kind._estimate(tp, SimpleNamespace(find_job=lookup.get, find_part=lookup.get,
                                                         layers_json_bytes=len(artifacts["layers.json"])))
 toolpath, t_rss, t_vm = measured(lambda: toolpath_kind.run(Ctx(), tp))
 print(json.dumps({"faces": part.faces, "layers": job.result["layer_count"],

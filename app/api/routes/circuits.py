@@ -34,6 +34,7 @@ from app.parts.traces import DrapedAhead
 from app.platform.lookup import get_or_404
 from app.platform.models import CircuitImport, Part, Trace, new_id, utcnow
 from app.runtime.isolated import call_isolated
+from app.runtime.reads import JobReads
 
 router = APIRouter(prefix="/api/v1", tags=["circuits"])
 MAX_FILES = 20
@@ -384,4 +385,4 @@ def get_circuit_import(import_id: str, session: SessionDep) -> CircuitImportReco
     imp = get_or_404(session, CircuitImport, import_id, field="import_id")
     record = imp.model_dump()
     record["areas"] = [ImportedArea(**a) for a in stored_areas(imp.areas)]
-    return CircuitImportRecord(**record, probe_trace_ids=import_probe_trace_ids(session, imp))
+    return CircuitImportRecord(**record, probe_trace_ids=import_probe_trace_ids(JobReads(session), imp))

@@ -49,6 +49,7 @@ from app.platform.lookup import get_or_404
 from app.platform.models import TERMINAL_STATES, Job, JobReference, Machine, Part, new_id, utcnow
 from app.runtime.engine import Runtime
 from app.runtime.machine_queue import holding_message
+from app.runtime.reads import JobReads
 from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
@@ -244,8 +245,8 @@ def get_calibration(machine_id: str, session: SessionDep) -> CalibrationOut:
     """The machine's current calibration (probe radius and pre-travel, nozzle offsets) with
     uncertainties, ages, the jobs that measured them and flags (stale, disagreeing re-check)."""
     row = get_or_404(session, Machine, machine_id)
-    return CalibrationOut.model_validate(calibration_summary(machine_id, current_calibration(session, machine_id),
-                                                             machine_profile(row)))
+    current = current_calibration(JobReads(session), machine_id)
+    return CalibrationOut.model_validate(calibration_summary(machine_id, current, machine_profile(row)))
 
 
 def _cancel_what_runs(runtime: Runtime, machine_id: str) -> None:

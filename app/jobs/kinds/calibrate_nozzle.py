@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import Field
-from sqlmodel import Session
 
 from app.calibration import fit_nozzle_offset, plan_nozzle_calibration
 from app.domain.errors import InvalidInput
@@ -33,10 +32,9 @@ from app.jobs.calibration import (
 )
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
 from app.jobs.results.calibration import CalibrateNozzleResult
-from app.platform.lookup import get_or_404
-from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import refuse_if_machine_busy
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 LOCATED_CLEARANCE_MM = 0.3   # approach after locating: the located offset is good to microns, the pad flat
@@ -61,8 +59,8 @@ def _nozzle(params: CalibrateNozzleParams, profile):
                        f"(profile.tools.nozzles: {known})", field="params.tool", value=params.tool)
 
 
-def _check(params: CalibrateNozzleParams, session: Session) -> None:
-    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+def _check(params: CalibrateNozzleParams, reads: JobReads) -> None:
+    row = reads.machine(params.machine_id, field="params.machine_id")
     profile = machine_profile(row)
     _nozzle(params, profile)
     for name in ("pad", "sphere"):
@@ -71,8 +69,8 @@ def _check(params: CalibrateNozzleParams, session: Session) -> None:
                                f"(profile.reference.{name}): nozzle offsets are measured on the pad and sphere",
                                field=f"profile.reference.{name}", value=params.machine_id)
     check_pad_room(profile.reference.pad.size_mm, params.pad_touches, grid=True)  # type: ignore[union-attr]
-    require_probe_calibration(session, params.machine_id)
-    refuse_if_machine_busy(params.machine_id, session)
+    require_probe_calibration(reads, params.machine_id)
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 @job_kind("calibrate_nozzle", CalibrateNozzleParams, queue="machine", check=_check,
@@ -84,8 +82,8 @@ def run(ctx: JobContext, params: CalibrateNozzleParams) -> dict:
     reference = profile.reference
     assert reference is not None and reference.sphere is not None and reference.pad is not None  # _check's rule
     sphere, pad = reference.sphere, reference.pad
-    with ctx.session() as session:
-        current = require_probe_calibration(session, params.machine_id)
+    with ctx.reads() as reads:
+        current = require_probe_calibration(reads, params.machine_id)
     probe = current.probe
     assert probe is not None  # require_probe_calibration
     # locate first (one pad spot, one touch per side, the full clearance for the nominal offset's doubt),
@@ -110,8 +108,8 @@ def run(ctx: JobContext, params: CalibrateNozzleParams) -> dict:
     ctx.progress(0.92, f"fitting T{params.tool}'s offset")
     calibration = fit_nozzle_offset(params.tool, touches, np.asarray(readings, dtype=float), probe,
                                     nozzle.outer_diameter_mm, sphere.diameter_mm)
-    with ctx.session() as session:
-        previous = latest_calibration_job(session, params.machine_id, "calibrate_nozzle", params.tool)
+    with ctx.reads() as reads:
+        previous = latest_calibration_job(reads, params.machine_id, "calibrate_nozzle", params.tool)
     values, std = nozzle_values(calibration)
     return CalibrateNozzleResult.written({**calibration.to_dict(), "agreement": agreement(previous, values, std),
             "nominal_offset_mm": list(nozzle.offset_mm),

@@ -13,17 +13,15 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import Field
-from sqlmodel import Session
 
 from app.calibration import fit_qualification, plan_qualification, plan_times
 from app.domain.errors import InvalidInput
 from app.jobs.calibration import agreement, latest_calibration_job, machine_profile, probe_values
 from app.jobs.calibration_touch import Step, TouchRun, check_pad_room, travel_height
 from app.jobs.results.calibration import CalibrateProbeResult
-from app.platform.lookup import get_or_404
-from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import refuse_if_machine_busy
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 CAP_RINGS_DEG = (0.0, 30.0, 50.0, 65.0, 75.0)
@@ -44,8 +42,8 @@ class CalibrateProbeParams(JobParams):
     probe_feed_mm_min: float | None = Field(None, gt=0, le=10_000, description="default: the machine profile's")
 
 
-def _check(params: CalibrateProbeParams, session: Session) -> None:
-    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+def _check(params: CalibrateProbeParams, reads: JobReads) -> None:
+    row = reads.machine(params.machine_id, field="params.machine_id")
     reference = machine_profile(row).reference
     if reference is None or reference.sphere is None:
         raise InvalidInput(f"machine {params.machine_id!r} has no reference sphere in its profile "
@@ -53,7 +51,7 @@ def _check(params: CalibrateProbeParams, session: Session) -> None:
                            field="profile.reference.sphere", value=params.machine_id)
     if reference.pad is not None and params.pad_touches:
         check_pad_room(reference.pad.size_mm, params.pad_touches)
-    refuse_if_machine_busy(params.machine_id, session)
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 @job_kind("calibrate_probe", CalibrateProbeParams, queue="machine", check=_check,
@@ -88,8 +86,8 @@ def run(ctx: JobContext, params: CalibrateProbeParams) -> dict:
         times = plan_times(every, all_readings, travel_z=touching.travel_z, travel_feed=profile.travel_feed_mm_min,
                            probe_feed=feed, start_mm=touching.origin)
     calibration = fit_qualification(every, all_readings, sphere.diameter_mm, times_s=times)
-    with ctx.session() as session:
-        previous = latest_calibration_job(session, params.machine_id, "calibrate_probe")
+    with ctx.reads() as reads:
+        previous = latest_calibration_job(reads, params.machine_id, "calibrate_probe")
     values, std = probe_values(calibration)
     return CalibrateProbeResult.written({**calibration.to_dict(), "agreement": agreement(previous, values, std),
             "nominal_ball_radius_mm": radius,

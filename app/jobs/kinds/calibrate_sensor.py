@@ -20,7 +20,6 @@ the job (nothing moves afterwards); it is run again whole.
 from __future__ import annotations
 
 from pydantic import Field
-from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
 from app.jobs.calibration import current_calibration, machine_profile
@@ -28,10 +27,9 @@ from app.jobs.calibration_touch import travel_height
 from app.jobs.results.calibration import CalibrateSensorResult
 from app.jobs.sensor_runs import CalibrationSetup, calibrate_sensor, open_scanner, require_sensor_port
 from app.machines.live import hardware_errors
-from app.platform.lookup import get_or_404
-from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import connected_machine, refuse_if_machine_busy
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 PAD_TOUCH_FROM_MM = 2.0  # without a probe calibration: the pad touch starts this far above its nominal top
@@ -52,8 +50,8 @@ class CalibrateSensorParams(JobParams):
     sphere_lines: int = Field(9, ge=3, le=50, description="raster lines over the sphere's cap")
 
 
-def _check(params: CalibrateSensorParams, session: Session) -> None:
-    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+def _check(params: CalibrateSensorParams, reads: JobReads) -> None:
+    row = reads.machine(params.machine_id, field="params.machine_id")
     require_sensor_port(params.machine_id, row.port, params.sensor_port, "params.sensor_port")
     profile = machine_profile(row)
     for name in ("pad", "sphere"):
@@ -61,7 +59,7 @@ def _check(params: CalibrateSensorParams, session: Session) -> None:
             raise InvalidInput(f"machine {params.machine_id!r} has no reference {name} in its profile "
                                f"(profile.reference.{name}): the sensor is calibrated on the pad and sphere",
                                field=f"profile.reference.{name}", value=params.machine_id)
-    refuse_if_machine_busy(params.machine_id, session)
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 @job_kind("calibrate_sensor", CalibrateSensorParams, queue="machine", check=_check,
@@ -71,11 +69,11 @@ def run(ctx: JobContext, params: CalibrateSensorParams) -> dict:
     profile = machine_profile(ctx.machine(params.machine_id))
     pad, sphere = profile.reference.pad, profile.reference.sphere  # type: ignore[union-attr]
     assert pad is not None and sphere is not None  # _check
-    with ctx.session() as session:
-        probe = current_calibration(session, params.machine_id)
+    with ctx.reads() as reads:
+        probe = current_calibration(reads, params.machine_id)
     o = [float(v) for v in params.nominal_offset_mm]
     machine = connected_machine(ctx, params.machine_id)
-    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), hardware_errors():
+    with ctx.lease(params.machine_id), hardware_errors():
         travel = travel_height(profile, 0.0 if probe.probe is None else probe.probe.ball_radius_mm) \
             + max(0.0, -o[2]) + params.range_mm
         pad_z = None if probe.probe is None else probe.probe.pad_surface_z_mm()

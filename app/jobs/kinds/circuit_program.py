@@ -31,7 +31,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from pydantic import Field
-from sqlmodel import Session, select
 
 from app.circuits.nets import Copper, area_polygon, check_nets, trace_copper
 from app.circuits.opens import check_opens, fill_coverage
@@ -47,10 +46,10 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.results.loop import ClosedLoopResult, LoopTrace
 from app.jobs.results.models import CompensateResult, ProbeRunResult, compensate_rows
 from app.jobs.results.program import CircuitProgramResult
-from app.platform.lookup import get_or_404
-from app.platform.models import CircuitImport, Job, Trace
+from app.platform.models import CircuitImport, Job
 from app.reconstruction.field_trust import with_bound
 from app.runtime.context import JobContext
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 #: slack (mm) below surface + standoff a printed point may come on a fitted field (the traces'
@@ -133,10 +132,9 @@ def _loop_entries(loop: Job) -> dict[str, LoopTrace]:
     return ClosedLoopResult.of(loop).by_trace()
 
 
-def import_probe_trace_ids(session: Session, imp: CircuitImport) -> list[str]:
+def import_probe_trace_ids(reads: JobReads, imp: CircuitImport) -> list[str]:
     """The import's pad / area probe rings (traces with source.role pad_probe), oldest first."""
-    rows = session.exec(select(Trace).where(Trace.part_id == imp.part_id)).all()
-    return [t.id for t in sorted(rows, key=lambda t: (t.created_at, t.id))
+    return [t.id for t in reads.traces_of_part(imp.part_id)
             if (t.source or {}).get("import_id") == imp.id and (t.source or {}).get("role") == "pad_probe"]
 
 
@@ -175,23 +173,21 @@ class ImportTrace(NamedTuple):
     xy: np.ndarray
 
 
-def import_traces(session: Session, imp: CircuitImport) -> dict[str, ImportTrace]:
+def import_traces(reads: JobReads, imp: CircuitImport) -> dict[str, ImportTrace]:
     """{trace id: :class:`ImportTrace`} of the import's stored traces, read once for both net
     checks (the columns they use; the nominal's points as stored, which
     :meth:`TracePolyline.to_dict` wrote valid)."""
-    rows = session.exec(select(Trace.id, Trace.name, Trace.source, Trace.width_mm, Trace.nominal)  # type: ignore[call-overload]
-                        .where(Trace.id.in_(imp.trace_ids))).all()  # type: ignore[attr-defined]
-    return {i: ImportTrace(name, str((source or {}).get("net") or ""), width,
-                           np.asarray(nominal["points"], dtype=float)[:, :2])
-            for i, name, source, width, nominal in rows}
+    return {t.id: ImportTrace(t.name, str((t.source or {}).get("net") or ""), t.width_mm,
+                              np.asarray(t.nominal["points"], dtype=float)[:, :2])
+            for t in reads.trace_summaries(imp.trace_ids)}
 
 
-def import_copper(session: Session, imp: CircuitImport, pads: bool,
+def import_copper(reads: JobReads, imp: CircuitImport, pads: bool,
                   traces: dict[str, ImportTrace] | None = None) -> list[Copper]:
     """The copper a circuit program prints: the import's traces at their width, and (with
     ``pads``) its on-part pads and its areas with their holes; top view, mm, with their nets.
     ``traces``: :func:`import_traces` when already read."""
-    rows = import_traces(session, imp) if traces is None else traces
+    rows = import_traces(reads, imp) if traces is None else traces
     copper = [Copper("trace", t.name, t.net, trace_copper(t.xy, t.width_mm or 0.0)) for t in rows.values()]
     if pads:
         copper += [Copper("pad", p["name"], str((p.get("source") or {}).get("net") or ""),
@@ -201,13 +197,13 @@ def import_copper(session: Session, imp: CircuitImport, pads: bool,
     return copper
 
 
-def printed_copper(session: Session, imp: CircuitImport, line_width_mm: float, fills: bool,
+def printed_copper(reads: JobReads, imp: CircuitImport, line_width_mm: float, fills: bool,
                    traces: dict[str, ImportTrace] | None = None) -> tuple[list[Copper], list[list[int]]]:
     """The copper as printed (traces at max(width, line), on-part pads and areas as their fills
     cover them when ``fills``, else as drawn) and the source's connected pieces of each named
     net (the files' stored ``connections``) as indices into it.  ``traces``:
     :func:`import_traces` when already read."""
-    rows = import_traces(session, imp) if traces is None else traces
+    rows = import_traces(reads, imp) if traces is None else traces
     copper: list[Copper] = []
     where: dict[tuple[str, int], int] = {}
 
@@ -238,19 +234,19 @@ def printed_copper(session: Session, imp: CircuitImport, line_width_mm: float, f
     return copper, pieces
 
 
-def _check(params: CircuitProgramParams, session: Session) -> None:
-    imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
-    traces = import_traces(session, imp)
-    check_nets(import_copper(session, imp, params.pads, traces), params.net_clearance_mm, field="params.import_id")
-    check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads, traces), field="params.import_id")
-    loop = accepted_loop(get_or_404(session, Job, params.closed_loop_job_id, field="params.closed_loop_job_id"),
+def _check(params: CircuitProgramParams, reads: JobReads) -> None:
+    imp = reads.circuit_import(params.import_id, field="params.import_id")
+    traces = import_traces(reads, imp)
+    check_nets(import_copper(reads, imp, params.pads, traces), params.net_clearance_mm, field="params.import_id")
+    check_opens(*printed_copper(reads, imp, params.line_width_mm, params.pads, traces), field="params.import_id")
+    loop = accepted_loop(reads.job(params.closed_loop_job_id, field="params.closed_loop_job_id"),
                          params.accept_unverified)
     entries = _loop_entries(loop)                        # the loop's result read once, not once per trace
     missing = [t for t in imp.trace_ids if t not in entries]
     if missing:
         raise InvalidInput(f"the closed loop did not compensate trace {missing[0]!r} of the import",
                            field="params.closed_loop_job_id", value=missing[0])
-    unprobed = [t for t in import_probe_trace_ids(session, imp) if t not in entries] if params.pads else []
+    unprobed = [t for t in import_probe_trace_ids(reads, imp) if t not in entries] if params.pads else []
     if unprobed:
         raise InvalidInput(f"the closed loop did not probe the pad ring {unprobed[0]!r} of the import: give it the "
                            "import's probe_trace_ids too (or pads=false)", field="params.closed_loop_job_id",
@@ -261,19 +257,19 @@ def _check(params: CircuitProgramParams, session: Session) -> None:
           references=lambda p: [("job", p.closed_loop_job_id)] + ([("machine", p.machine_id)] if p.machine_id else []))
 def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     """One program for the whole circuit; artifact ``circuit.gcode``."""
-    with ctx.session() as session:
-        imp = get_or_404(session, CircuitImport, params.import_id, field="params.import_id")
-        probe_ids = import_probe_trace_ids(session, imp) if params.pads else []
-        traces = import_traces(session, imp)
-        nets = check_nets(import_copper(session, imp, params.pads, traces), params.net_clearance_mm,
+    with ctx.reads() as reads:
+        imp = reads.circuit_import(params.import_id, field="params.import_id")
+        probe_ids = import_probe_trace_ids(reads, imp) if params.pads else []
+        traces = import_traces(reads, imp)
+        nets = check_nets(import_copper(reads, imp, params.pads, traces), params.net_clearance_mm,
                           field="params.import_id")
-        pieces = check_opens(*printed_copper(session, imp, params.line_width_mm, params.pads, traces),
+        pieces = check_opens(*printed_copper(reads, imp, params.line_width_mm, params.pads, traces),
                              field="params.import_id")
     loop = accepted_loop(ctx.job(params.closed_loop_job_id, field="params.closed_loop_job_id"),
                          params.accept_unverified, ConformaError)
     entries = _loop_entries(loop)
     placement = loop_placement(ctx, entries, imp.trace_ids)          # part -> machine, as the traces
-    mesh = ctx.runtime.meshes.placed(ctx.part(imp.part_id), placement)
+    mesh = ctx.placed_mesh(ctx.part(imp.part_id), placement)
 
     stations: list[list[float]] = []
     deviations: list[float] = []
@@ -298,8 +294,8 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
 
     standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
     strokes: list[Stroke] = []
-    with ctx.session() as session:                                    # every trace in one query
-        records = {t.id: t for t in session.exec(select(Trace).where(Trace.id.in_(imp.trace_ids))).all()}  # type: ignore[attr-defined]
+    with ctx.reads() as reads:                                    # every trace in one query
+        records = reads.traces_by_id(imp.trace_ids)
     compensated = _compensated(ctx, entries, imp.trace_ids)
     tips = [np.asarray(compensated[t][1].points, float) for t in imp.trace_ids]
     passes = trace_passes_many(tips, [records[t].width_mm or params.line_width_mm for t in imp.trace_ids],

@@ -66,7 +66,6 @@ import time
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
-from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
 from app.jobs.loop_files import write_loop_files
@@ -91,11 +90,11 @@ from app.jobs.results.loop import ClosedLoopResult
 from app.jobs.results.models import ProbePlanResult, RegisterResult
 from app.jobs.sensor_calibration import scan_calibration
 from app.jobs.sensor_runs import require_sensor_port
-from app.platform.lookup import get_or_404
-from app.platform.models import Job, Machine, Trace
+from app.platform.models import Job
 from app.reconstruction.field_trust import measured_bound, verification_line
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import refuse_if_machine_busy
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 STEPS = ("probe_plan", "probe_run", "reconstruct", "compensate")
@@ -219,11 +218,11 @@ class ClosedLoopParams(JobParams):
         return self
 
 
-def _check(params: ClosedLoopParams, session: Session) -> None:
-    machine = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+def _check(params: ClosedLoopParams, reads: JobReads) -> None:
+    machine = reads.machine(params.machine_id, field="params.machine_id")
     seen: set[str] = set()
     for index, trace_id in enumerate(params.trace_ids):
-        trace = session.get(Trace, trace_id)  # read with the others at submission (Runtime.submit)
+        trace = reads.find_trace(trace_id)  # read with the others at submission (Runtime.submit)
         if trace is None or trace.part_id != params.part_id:
             raise InvalidInput(f"trace {trace_id!r} is not a trace of part {params.part_id!r}",
                                field=f"params.trace_ids.{index}", value=trace_id)
@@ -236,8 +235,8 @@ def _check(params: ClosedLoopParams, session: Session) -> None:
     if params.measuring == "scan":
         require_sensor_port(params.machine_id, machine.port, params.scan.get("sensor_port"),
                             "params.scan.sensor_port")
-        scan_calibration(session, params.machine_id, params.scan.get("calibration"), field="params.scan.calibration")
-    refuse_if_machine_busy(params.machine_id, session)
+        scan_calibration(reads, params.machine_id, params.scan.get("calibration"), field="params.scan.calibration")
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 def _references(params: ClosedLoopParams) -> list[tuple[str, str]]:

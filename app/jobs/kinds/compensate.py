@@ -28,13 +28,10 @@ naming the trace, where and by how much).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from sqlmodel import Session, select
 
 from app.calibration.clearance import nozzle_clearance
 from app.compensation.standoff import (
@@ -48,16 +45,16 @@ from app.domain.errors import InvalidInput
 from app.gcode.writer import DEFAULT_DIALECT
 from app.geometry.drape import top_surface_z
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
-from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.inputs import placed_nominal, placed_params_of, placement_from, succeeded_job
+from app.jobs.inputs import placed_nominal, placed_params_of, placement_from
 from app.jobs.params import MAX_FIELD_TRACES
 from app.jobs.results.models import CompensateBoardResult, CompensateResult
-from app.platform.lookup import get_or_404
-from app.platform.models import Artifact, Machine
+from app.jobs.tool_choice import ToolChoice, choose_tool
+from app.platform.models import Machine
 from app.reconstruction.stored import read_reconstruction, stored_name
 from app.runtime.context import JobContext
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 CLEARANCE_STEP_MM = 0.05  # tip stations of the nozzle-body check along the path
@@ -116,80 +113,8 @@ def board_artifacts(trace_id: str) -> tuple[str, str]:
     return f"print.{trace_id}.gcode", f"nominal.{trace_id}.gcode"
 
 
-@dataclass
-class ToolChoice:
-    """The frame the programs are written in: ``tool`` None = the probe frame of before.
-
-    offset_mm (3,) mm, source "calibrated" | "nominal" | "probe"; outer_diameter_mm None
-    skips the body check."""
-
-    tool: int | None = None
-    name: str = ""
-    offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    source: str = "probe"
-    calibration_job_id: str | None = None
-    outer_diameter_mm: float | None = None
-    dispense_on: str | None = None
-    dispense_off: str | None = None
-    warnings: list[str] = field(default_factory=list)
-
-    def to_result(self) -> dict[str, Any]:
-        return {"tool": self.tool, "name": self.name, "offset_mm": [round(v, 6) for v in self.offset_mm],
-                "offset_source": self.source, "calibration_job_id": self.calibration_job_id,
-                "outer_diameter_mm": self.outer_diameter_mm}
-
-
-def _xyz(values: Sequence[float]) -> tuple[float, float, float]:
-    """An [x, y, z] offset (mm) as three floats."""
-    x, y, z = (float(v) for v in values)
-    return x, y, z
-
-
-def choose_tool(params: CompensateParams, session: Session) -> ToolChoice:
-    """The tool and offset of the programs (422 ``params.tool`` for a tool the machine does
-    not have or an uncalibrated nozzle without ``allow_uncalibrated``)."""
-    if params.machine_id is None:
-        if params.tool not in (None, 0):
-            raise InvalidInput(f"tool {params.tool} needs machine_id (its offset is the machine's)",
-                               field="params.tool", value=params.tool)
-        return ToolChoice(tool=params.tool)
-    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
-    tools = machine_profile(row).tools
-    nozzles = {n.tool: n for n in (tools.nozzles if tools else [])}
-    tool = params.tool if params.tool is not None else next(iter(nozzles), None)  # the profile's first
-    if tool in (None, 0):
-        return ToolChoice(tool=tool)
-    if tool not in nozzles:
-        raise InvalidInput(f"machine {row.id!r} has no nozzle T{tool} (its nozzles: "
-                           f"{sorted(nozzles) or 'none'})", field="params.tool", value=tool)
-    nozzle = nozzles[tool]
-    choice = ToolChoice(tool=tool, name=nozzle.name, offset_mm=_xyz(nozzle.offset_mm),
-                        source="nominal", outer_diameter_mm=float(nozzle.outer_diameter_mm),
-                        dispense_on=nozzle.dispense_on, dispense_off=nozzle.dispense_off)
-    if not params.corrections.offsets:
-        choice.warnings.append(f"T{tool} at its NOMINAL offset {list(choice.offset_mm)} mm "
-                               "(corrections.offsets is false)")
-        return choice
-    calibration = current_calibration(session, row.id)
-    calibrated = calibration.nozzles.get(tool)
-    if calibrated is None:
-        if not params.allow_uncalibrated:
-            raise InvalidInput(f"nozzle T{tool} of machine {row.id!r} has no calibration: run calibrate_nozzle "
-                               f"with tool {tool} first, or set allow_uncalibrated to print at its nominal "
-                               f"offset {list(choice.offset_mm)} mm", field="params.tool", value=tool)
-        choice.warnings.append(f"T{tool} is not calibrated: its NOMINAL offset {list(choice.offset_mm)} mm "
-                               "is used (allow_uncalibrated)")
-        return choice
-    choice.offset_mm = _xyz(calibrated.offset_mm)
-    choice.source, choice.calibration_job_id = "calibrated", calibration.nozzle_job_ids[tool]
-    if calibrated.outer_diameter_mm:
-        choice.outer_diameter_mm = float(calibrated.outer_diameter_mm)
-    choice.warnings += [f for f in calibration.flags if f"T{tool}" in f]
-    return choice
-
-
-def _check(params: CompensateParams, session: Session) -> None:
-    job = succeeded_job(session, params.reconstruct_job_id, "reconstruct", "params.reconstruct_job_id")
+def _check(params: CompensateParams, reads: JobReads) -> None:
+    job = reads.succeeded_job(params.reconstruct_job_id, "reconstruct", "params.reconstruct_job_id")
     if params.trace_ids is not None:
         rebuilt = set(job.params.get("trace_ids") or ())
         missing = [t for t in params.trace_ids if t not in rebuilt]
@@ -200,14 +125,14 @@ def _check(params: CompensateParams, session: Session) -> None:
         raise InvalidInput(f"job {job.id!r} is not a succeeded reconstruct job of trace {params.trace_id!r}",
                            field="params.reconstruct_job_id", value=job.id)
     names = [stored_name(t) for t in params.trace_ids] if params.trace_ids is not None else [stored_name()]
-    stored = set(session.exec(select(Artifact.name).where(Artifact.job_id == job.id,
-                                                          Artifact.name.in_(names))).all())  # type: ignore[attr-defined]
+    stored = reads.artifact_names(job.id, names)
     lacking = next((name for name in names if name not in stored), None)
     if lacking is not None:
         raise InvalidInput(f"reconstruct job {job.id!r} has no stored reconstruction ({lacking}: it ran before "
                            "reconstructions were stored); run the reconstruction again",
                            field="params.reconstruct_job_id", value=job.id)
-    choose_tool(params, session)
+    choose_tool(reads, params.machine_id, params.tool, offsets=params.corrections.offsets,
+                allow_uncalibrated=params.allow_uncalibrated)
 
 
 def _references(params: CompensateParams) -> list[tuple[str, str]]:
@@ -223,8 +148,9 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     mode: every listed trace's, each from its reconstruction the board reconstruct stored)."""
     source = ctx.job(params.reconstruct_job_id, kind="reconstruct", field="params.reconstruct_job_id")
     placement = placement_from(ctx, placed_params_of(source))  # the reconstruction's frame (machine, when placed)
-    with ctx.session() as session:
-        choice = choose_tool(params, session)
+    with ctx.reads() as reads:
+        choice = choose_tool(reads, params.machine_id, params.tool, offsets=params.corrections.offsets,
+                             allow_uncalibrated=params.allow_uncalibrated)
     if params.trace_ids is None:
         trace = ctx.trace(str(params.trace_id))
         reconstruction = read_reconstruction(ctx.artifact_bytes(source.id, stored_name()),
@@ -322,7 +248,7 @@ def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trac
         machine: Machine = records.machine(params.machine_id) if records else ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
         on, off = choice.dispense_on or on, choice.dispense_off or off
-    mesh = ctx.runtime.meshes.placed(records.part(trace.part_id) if records else ctx.part(trace.part_id), placement)
+    mesh = ctx.placed_mesh(records.part(trace.part_id) if records else ctx.part(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
         standoff_mm=params.standoff_mm or trace.standoff_mm,
         feed_mm_min=params.feed_mm_min or trace.feed_mm_min or 300.0,

@@ -36,7 +36,6 @@ from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 from pydantic import Field, field_validator
-from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
 from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
@@ -46,14 +45,14 @@ from app.gcode.writer import DEFAULT_PROBING_DIALECT
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.geometry.nurbs_surface import NurbsSurface
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.inputs import nominal_of, succeeded_job
+from app.jobs.inputs import nominal_of
 from app.jobs.results.models import FiveAxisResult, SurfaceFitResult
-from app.platform.lookup import get_or_404
 from app.platform.models import Job, Machine, Part, Trace
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 DEFAULT_FEED_MM_MIN = 600.0
@@ -180,12 +179,12 @@ def _fitted_surface(job: Job, field: str) -> NurbsSurface:
     return NurbsSurface.from_dict(SurfaceFitResult.of(job).surface, field=field)
 
 
-def _check(params: FiveAxisJobParams, session: Session) -> None:
+def _check(params: FiveAxisJobParams, reads: JobReads) -> None:
     """At submission: the trace belongs to the part, the surface_fit job is a succeeded fit
     of the same part, and the trace lies over its surface."""
-    trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
+    trace = reads.trace(params.trace_id, field="params.trace_id")
     if params.machine_id is not None:
-        params = with_machine(params, get_or_404(session, Machine, params.machine_id, field="params.machine_id"))
+        params = with_machine(params, reads.machine(params.machine_id, field="params.machine_id"))
     if trace.part_id != params.part_id:
         raise InvalidInput(f"trace {trace.id!r} belongs to part {trace.part_id!r}, not {params.part_id!r}",
                            field="params.trace_id", value=params.trace_id)
@@ -196,7 +195,7 @@ def _check(params: FiveAxisJobParams, session: Session) -> None:
     if params.surface_fit_job_id is None:
         return
     field = "params.surface_fit_job_id"
-    job = succeeded_job(session, params.surface_fit_job_id, "surface_fit", field)
+    job = reads.succeeded_job(params.surface_fit_job_id, "surface_fit", field)
     if job.params.get("part_id") != params.part_id:
         raise InvalidInput(f"surface_fit job {job.id!r} fitted part {job.params.get('part_id')!r}, "
                            f"not {params.part_id!r}", field=field, value=job.id)
@@ -247,10 +246,10 @@ LINE_S = 200e-6
 BASE_MB = 60.0
 
 
-def _estimate(params: FiveAxisJobParams, session: Session) -> Cost | None:
+def _estimate(params: FiveAxisJobParams, reads: JobReads) -> Cost | None:
     """Predicted memory and time from the trace length, the feed, the servo period and the
     line spacing; names params.period_s (or params.segment_mm, params.feed_mm_min)."""
-    trace = session.get(Trace, params.trace_id)
+    trace = reads.find_trace(params.trace_id)
     if trace is None:
         return None
     feed = params.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN

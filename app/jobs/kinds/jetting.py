@@ -17,7 +17,6 @@ from typing import Any, Literal, cast
 
 import numpy as np
 from pydantic import Field, model_validator
-from sqlmodel import Session
 
 from app.jetting import JettingParams, PlantParams, estimate_bytes, pattern_png, simulate
 from app.jobs.jetting_inputs import (
@@ -33,6 +32,7 @@ from app.jobs.jetting_inputs import (
 from app.jobs.results.jetting import JettingResult
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
+from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
 
 MAX_PNG_ARTIFACTS = 1000          # per-layer pattern PNGs one job may write
@@ -81,8 +81,8 @@ class JettingJobParams(PrintModelParams):
 
 
 # the job -------------------------------------------------------------------------------
-def _check(params: JettingJobParams, session: Session) -> None:
-    session.info["jetting_grid"] = check_target(params.target, params.core(), session)
+def _check(params: JettingJobParams, reads: JobReads) -> None:
+    reads.notes["jetting_grid"] = check_target(params.target, params.core(), reads)
 
 
 # Time model: a layer costs ~CELL_LAYER_S per cell and horizon step (FISTA solve, flow sub-steps,
@@ -90,10 +90,10 @@ def _check(params: JettingJobParams, session: Session) -> None:
 CELL_LAYER_S = 2e-6
 
 
-def _estimate(params: JettingJobParams, session: Session) -> Cost | None:
+def _estimate(params: JettingJobParams, reads: JobReads) -> Cost | None:
     """Predicted memory (the core's own estimate) and time of the run; names params.dpi
     (or params.layers when the layer count is what makes it long)."""
-    shape = session.info.get("jetting_grid")
+    shape = reads.notes.get("jetting_grid")
     if shape is None:
         return None
     core = params.core()

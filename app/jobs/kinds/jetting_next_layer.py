@@ -15,7 +15,6 @@ from typing import Annotated
 
 import numpy as np
 from pydantic import Field, model_validator
-from sqlmodel import Session
 
 from app.jetting import (
     JettingError,
@@ -38,8 +37,8 @@ from app.jobs.jetting_inputs import (
 )
 from app.jobs.results.jetting import NextLayerResult
 from app.platform.array_files import load_npz
-from app.platform.models import UploadedFile
 from app.runtime.context import JobContext
+from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
 
 MAX_INLINE_CELLS_PER_AXIS = 512
@@ -109,22 +108,22 @@ def _mismatch(field: str, got: list[int], grid: tuple[int, int]) -> JettingError
                         "print grid (same target, dpi, drop and margin as the print)", field=field, value=got)
 
 
-def _check(params: NextLayerParams, session: Session) -> None:
+def _check(params: NextLayerParams, reads: JobReads) -> None:
     """The target, the grid sizes of the measured map and previous pattern, the snapshot layer."""
-    grid = check_target(params.target, params.core(), session)
+    grid = check_target(params.target, params.core(), reads)
     measured = params.measured
     if measured.heights_um is not None:
         got = [len(measured.heights_um), len(measured.heights_um[0])]
         if grid is not None and tuple(got) != grid:
             raise _mismatch("params.measured.heights_um", got, grid)
     elif measured.file_id is not None:
-        upload = session.get(UploadedFile, measured.file_id)
+        upload = reads.find_upload(measured.file_id)
         if upload is None or upload.media_type != NPZ_MEDIA_TYPE:
             state = "does not exist" if upload is None else f"is {upload.media_type}"
             raise JettingError(f"params.measured.file_id: file {measured.file_id!r} {state}; an NPZ is needed",
                                field="params.measured.file_id", value=measured.file_id)
     else:
-        row = stored_artifact(session, measured.job_id or "", measured.npz_name, "params.measured", NPZ_MEDIA_TYPE)
+        row = stored_artifact(reads, measured.job_id or "", measured.npz_name, "params.measured", NPZ_MEDIA_TYPE)
         shape = row.meta.get("arrays", {}).get("heights")
         if shape is None:
             raise JettingError("params.measured: the artifact holds no heights array",
@@ -137,7 +136,7 @@ def _check(params: NextLayerParams, session: Session) -> None:
                                value=measured.layer)
     if params.previous_pattern is not None:
         ref = params.previous_pattern
-        row = stored_artifact(session, ref.job_id, ref.artifact, "params.previous_pattern", "image/png")
+        row = stored_artifact(reads, ref.job_id, ref.artifact, "params.previous_pattern", "image/png")
         shape = row.meta.get("shape")
         if grid is not None and shape is not None and tuple(shape) != grid:
             raise _mismatch("params.previous_pattern", shape, grid)
@@ -150,7 +149,7 @@ def measured_heights_mm(ctx: JobContext, measured: MeasuredSource) -> tuple[np.n
     if measured.file_id is not None:
         # an upload: inflated under a hard cap, whatever its zip directory says
         arrays = load_npz(ctx.file_bytes(measured.file_id, field="params.measured.file_id"),
-                          int(ctx.runtime.settings.max_upload_mb * 2**20), field="params.measured.file_id")
+                          ctx.max_upload_bytes, field="params.measured.file_id")
         if arrays.get("heights") is not None and arrays["heights"].ndim == 2:
             return np.asarray(arrays["heights"], dtype=float), None
     else:

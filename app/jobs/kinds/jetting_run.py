@@ -26,7 +26,6 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
-from sqlmodel import Session
 
 from app.calibration.sensor import SensorCalibration
 from app.domain.errors import Cancelled, InvalidInput
@@ -46,8 +45,6 @@ from app.jobs.jetting_machine import MachineSetup, cure, print_layer, scan_layer
 from app.jobs.results.jetting import JettingRunResult
 from app.jobs.sensor_runs import HalScanner, SerialScanner, open_scanner, require_sensor_port
 from app.machines.live import MachineFault, MachineUnavailable, translate
-from app.platform.lookup import get_or_404
-from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import (
     interrupt,
@@ -56,6 +53,7 @@ from app.runtime.machine_queue import (
     resume_request,
     stopped_by_operator,
 )
+from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
 from hardware.errors import HardwareError, LinkError
 from hardware.printhead import PrintHead
@@ -94,16 +92,16 @@ class JettingRunParams(PrintModelParams):
     cure_s: float = Field(0.3, ge=0, le=600, description="UV exposure per layer, s")
 
 
-def _check(params: JettingRunParams, session: Session) -> None:
+def _check(params: JettingRunParams, reads: JobReads) -> None:
     try:
         SensorCalibration.from_dict(params.calibration)
     except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInput(f"calibration: {exc}", field="params.calibration", value=str(params.calibration)[:80]) \
             from None
-    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    row = reads.machine(params.machine_id, field="params.machine_id")
     require_sensor_port(params.machine_id, row.port, params.sensor_port, "params.sensor_port")
-    session.info["jetting_grid"] = check_target(params.target, params.core(), session)
-    refuse_if_machine_busy(params.machine_id, session)
+    reads.notes["jetting_grid"] = check_target(params.target, params.core(), reads)
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 def _setup(params: JettingRunParams) -> MachineSetup:
@@ -145,7 +143,7 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
 
     def measure(before: np.ndarray, pattern: np.ndarray | None) -> tuple[np.ndarray, dict[str, Any]]:
         state["phase"] = "scan"
-        ctx.runtime.store.save_program_state(ctx.claim, state)
+        ctx.save_program_state(state)
         assert scanner is not None
         scan = scan_layer(machine, scanner, grid, calibration, setup, top_mm())
         heights = scan.heights - substrate
@@ -164,11 +162,11 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
         records.append({"layer": layer, **metrics, "drops": int(pattern.sum()), "fired": fired, "solve_ms": solve_ms,
                         **{k: scan[k] for k in ("valid_fraction", "filled_cells", "scans")}})
         state.update(executed=layer, phase="measured")
-        ctx.runtime.store.save_program_state(ctx.claim, state)
+        ctx.save_program_state(state)
         ctx.progress(layer / params.layers, f"layer {layer}/{params.layers} measured")
 
     try:
-        with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
+        with ctx.lease(params.machine_id):
             head.connect()
             scanner = open_scanner(machine, params.sensor_port, params.sensor_rate_hz)
             if head.info is not None and abs(head.info.dpi - params.dpi) > 1e-6:
@@ -197,7 +195,7 @@ def run(ctx: JobContext, params: JettingRunParams) -> dict:
                 else:
                     pattern = target.mask
                 state.update(printed=layer + 1, phase="print", pattern=np.packbits(pattern).tobytes().hex())
-                ctx.runtime.store.save_program_state(ctx.claim, state)
+                ctx.save_program_state(state)
                 printed = print_layer(machine, head, pattern, grid, setup)
                 state["phase"] = "cure"
                 cure(machine, setup)
@@ -239,7 +237,7 @@ def _substrate(ctx: JobContext, machine: Any, scanner: SerialScanner | HalScanne
     ctx.artifact("substrate.npz", _npz(heights=heights.astype(np.float32), pitch_mm=np.float64(grid.pitch_mm)),
                  NPZ_MEDIA_TYPE, {"shape": list(grid.shape), "valid_fraction": scan.valid / max(scan.samples, 1)})
     state["substrate"] = True
-    ctx.runtime.store.save_program_state(ctx.claim, state)
+    ctx.save_program_state(state)
     return heights
 
 

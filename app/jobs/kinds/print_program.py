@@ -23,7 +23,6 @@ import time
 
 import numpy as np
 from pydantic import Field, model_validator
-from sqlmodel import Session, select
 
 from app.domain.errors import Cancelled, InvalidInput
 from app.gcode.dispense_delays import with_dispense_delays
@@ -35,8 +34,7 @@ from app.jobs.gcode_meta import check_gcode, gcode_meta
 from app.jobs.results.models import PrintResult
 from app.machines.live import MachineFault, MachineUnavailable, hardware_errors, translate
 from app.machines.materials import BY_NAME, MATERIALS, DispenseProfile
-from app.platform.lookup import get_or_404
-from app.platform.models import Artifact, Machine, Program
+from app.platform.models import Artifact
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import (
     connected_machine,
@@ -48,6 +46,7 @@ from app.runtime.machine_queue import (
     resume_request,
     stopped_by_operator,
 )
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 from hardware.backend import Machine as LiveMachine
 from hardware.dialects import default_dispense
@@ -91,29 +90,29 @@ class PrintParams(JobParams):
         return self
 
 
-def _refuse_outside_travel(params: PrintParams, session: Session, bounds: list | None, field: str) -> None:
+def _refuse_outside_travel(params: PrintParams, reads: JobReads, bounds: list | None, field: str) -> None:
     """A program whose moves leave the machine's ``profile.volume_mm`` is refused (real-parts)."""
-    machine = session.get(Machine, params.machine_id)
+    machine = reads.find_machine(params.machine_id)
     volume = profile_volume(machine.profile if machine else None, f"machine {params.machine_id}")
     if volume is not None and bounds is not None:
         check_inside(np.asarray(bounds, dtype=float), volume, field=field, what="the program")
 
 
-def _check(params: PrintParams, session: Session) -> None:
-    refuse_if_machine_busy(params.machine_id, session)
+def _check(params: PrintParams, reads: JobReads) -> None:
+    refuse_if_machine_busy(params.machine_id, reads)
     if params.program_id is not None:
-        program = get_or_404(session, Program, params.program_id, field="params.program_id")
-        _refuse_outside_travel(params, session, program.bounds, "params.program_id")
+        program = reads.program(params.program_id, field="params.program_id")
+        _refuse_outside_travel(params, reads, program.bounds, "params.program_id")
         return
-    artifact = session.exec(select(Artifact).where(Artifact.job_id == params.job_id,
-                                                   Artifact.name == params.artifact)).first()
+    assert params.job_id is not None and params.artifact is not None  # PrintParams' rule
+    artifact = reads.artifact(params.job_id, params.artifact)
     if artifact is None:
         raise InvalidInput(f"job {params.job_id!r} has no artifact {params.artifact!r}", field="params.artifact",
                            value=params.artifact)
     if artifact.media_type != GCODE_MEDIA_TYPE:
         raise InvalidInput(f"artifact {params.artifact!r} is {artifact.media_type}, not G-code",
                            field="params.artifact", value=params.artifact)
-    _refuse_outside_travel(params, session, (artifact.meta or {}).get("bounds"), "params.artifact")
+    _refuse_outside_travel(params, reads, (artifact.meta or {}).get("bounds"), "params.artifact")
 
 
 def _references(params: PrintParams) -> list[tuple[str, str]]:
@@ -125,9 +124,9 @@ def _references(params: PrintParams) -> list[tuple[str, str]]:
 
 def _program_text(ctx: JobContext, params: PrintParams) -> str:
     if params.program_id is not None:
-        with ctx.session() as session:
-            program = get_or_404(session, Program, params.program_id, field="params.program_id")
-        data = ctx.runtime.blobs.read(program.sha256)
+        with ctx.reads() as reads:
+            program = reads.program(params.program_id, field="params.program_id")
+        data = ctx.blob(program.sha256)
     else:
         assert params.job_id is not None and params.artifact is not None  # PrintParams' rule
         data = ctx.artifact_bytes(params.job_id, params.artifact)
@@ -173,7 +172,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901
                     raise interrupt(ctx, machine, exc, state) from exc
                 raise translate(exc) from exc
             state["drift"] = drift
-            ctx.runtime.store.save_program_state(ctx.claim, state)
+            ctx.save_program_state(state)
         resume = None
     else:
         state.update({k: resume[k] for k in ("executed", "acked_line_no") if k in resume})
@@ -192,7 +191,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901
                       "detail": "this process does not know the interrupted program: the recorded count"})
         if drift is not None:
             state["drift"] = drift
-        ctx.runtime.store.save_program_state(ctx.claim, state)
+        ctx.save_program_state(state)
     meta = source_meta
     if drift is not None:  # what is streamed (and resumed) is the shifted program
         lines = shift_z(text, drift["dz_mm"]).text.splitlines()
@@ -208,7 +207,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901
             return
         last_report = now
         state.update(executed=executed, acked_line_no=machine.acked_line_no)
-        ctx.runtime.store.save_program_state(ctx.claim, dict(state))
+        ctx.save_program_state(dict(state))
         try:
             ctx.progress(executed / max(total, 1), f"{executed}/{total} commands")
         except Cancelled:
@@ -217,7 +216,7 @@ def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901
                 machine.cancel()
 
     plan_eta(machine, lines)
-    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
+    with ctx.lease(params.machine_id):
         try:
             report = machine.stream(lines, on_progress=on_progress, start_line=state["start_line"])
         except HardwareError as exc:
@@ -248,8 +247,8 @@ def _dispense(ctx: JobContext, params: PrintParams) -> dict | None:
     """The dispense profile this print applies, with the machine's on/off commands and
     dialect: the request's; for a material, the machine's own profile of it, else the
     preset's; else the machine's ``profile.dispense`` (or None)."""
-    with ctx.session() as session:
-        row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    with ctx.reads() as reads:
+        row = reads.machine(params.machine_id, field="params.machine_id")
         profile = machine_profile(row)
         dialect = row.dialect
     chosen: DispenseProfile | None
@@ -281,13 +280,13 @@ def _drift_reference(ctx: JobContext, params: PrintParams) -> dict | None:
     its job, the travel height), or None when the drift reference does not apply."""
     if not params.drift_reference:
         return None
-    with ctx.session() as session:
-        row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+    with ctx.reads() as reads:
+        row = reads.machine(params.machine_id, field="params.machine_id")
         profile = machine_profile(row)
         pad = profile.reference.pad if profile.reference is not None else None
         if pad is None:
             return None
-        calibration = current_calibration(session, params.machine_id)
+        calibration = current_calibration(reads, params.machine_id)
     probe = calibration.probe
     if probe is None or probe.pad_reading_z_mm is None:
         return None
@@ -306,7 +305,7 @@ def _touch_pad(ctx: JobContext, machine: LiveMachine, machine_id: str, reference
     travel, start = reference["travel_z_mm"], z + reference["ball_radius_mm"] + PAD_APPROACH_MM
     ctx.progress(0.0, "touching the reference pad (drift since calibration)")
     readings = []
-    with ctx.runtime.machines.lease(machine_id, ctx.job_id):
+    with ctx.lease(machine_id):
         machine.move(z=travel)
         machine.select_tool(0)
         for k in range(PAD_TOUCHES):

@@ -23,7 +23,6 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
 from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
@@ -31,7 +30,6 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import ProbePlanParams
 from app.jobs.results.models import ProbePlanResult
-from app.platform.models import Trace
 from app.probing import PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams, build_probe_program, plan_probes
 from app.probing.field import field_result, plan_field, stored_field
 from app.probing.field_top import mesh_top_sampler
@@ -44,10 +42,11 @@ from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
 from app.reconstruction.field_sequential import pilot_params, plan_tightened, round_params, stations_check
 from app.reconstruction.field_trust import bound_meets_target
 from app.runtime.context import JobContext
+from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
 
 
-def check_same_part(session: Session, trace_ids: list[str], field: str) -> None:
+def check_same_part(reads: JobReads, trace_ids: list[str], field: str) -> None:
     """Submission check: the traces exist, are distinct and all lie on the first one's part;
     otherwise a 422 naming ``{field}.<i>``."""
     seen: dict[str, int] = {}
@@ -57,7 +56,7 @@ def check_same_part(session: Session, trace_ids: list[str], field: str) -> None:
             raise InvalidInput(f"trace {trace_id!r} is listed twice (also at {field}.{seen[trace_id]})",
                                field=f"{field}.{index}", value=trace_id)
         seen[trace_id] = index
-        trace = session.get(Trace, trace_id)
+        trace = reads.find_trace(trace_id)
         if trace is None:
             raise InvalidInput(f"trace {trace_id!r} does not exist", field=f"{field}.{index}", value=trace_id)
         part_id = part_id or trace.part_id
@@ -66,10 +65,10 @@ def check_same_part(session: Session, trace_ids: list[str], field: str) -> None:
                                f"{field}.0: one plan probes one part", field=f"{field}.{index}", value=trace_id)
 
 
-def _check(params: ProbePlanParams, session: Session) -> None:
-    check_registration(params, session)
+def _check(params: ProbePlanParams, reads: JobReads) -> None:
+    check_registration(params, reads)
     if params.trace_ids is not None:
-        check_same_part(session, params.trace_ids, "params.trace_ids")
+        check_same_part(reads, params.trace_ids, "params.trace_ids")
 
 
 def _references(params: ProbePlanParams) -> list[tuple[str, str]]:
@@ -113,7 +112,7 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
         return _run_joint(ctx, params, params.trace_ids)
     trace = ctx.trace(str(params.trace_id))
     placement = placement_from(ctx, params)
-    mesh = ctx.runtime.meshes.placed(ctx.part(trace.part_id), placement)
+    mesh = ctx.placed_mesh(ctx.part(trace.part_id), placement)
     ctx.progress(0.1, "planning probe points")
     plan = plan_probes(placed_nominal(trace, placement), params.planner, _plan_params(params))
     ctx.progress(0.5, f"{plan.count} probe points; writing the program")
@@ -140,7 +139,7 @@ def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     """Part-level plan: stations per trace (jointly for kriging), one program in trace order."""
     traces = ctx.traces(trace_ids)  # one query, not one per trace
     placement = placement_from(ctx, params)
-    mesh = ctx.runtime.meshes.placed(ctx.part(traces[0].part_id), placement)
+    mesh = ctx.placed_mesh(ctx.part(traces[0].part_id), placement)
     nominals = [placed_nominal(trace, placement) for trace in traces]
     ctx.progress(0.1, f"planning probe points on {len(traces)} traces")
     if params.planner == "kriging":
@@ -292,7 +291,7 @@ def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -
     """Board plan: stations over the region the traces cover, one program in probing order."""
     traces = ctx.traces(trace_ids)  # one query, not one per trace
     placement = placement_from(ctx, params)
-    mesh = ctx.runtime.meshes.placed(ctx.part(traces[0].part_id), placement)
+    mesh = ctx.placed_mesh(ctx.part(traces[0].part_id), placement)
     nominals = [placed_nominal(trace, placement) for trace in traces]
     ctx.progress(0.1, f"planning field stations over {len(traces)} traces")
     plan_params = _plan_params(params)

@@ -25,7 +25,6 @@ from typing import Any
 
 import numpy as np
 from pydantic import Field
-from sqlmodel import Session
 
 from app.calibration import DriftTrack, drift_offsets, retouch_schedule, touch_times
 from app.jobs.probe_correction import (
@@ -47,6 +46,7 @@ from app.runtime.machine_queue import (
     resume_request,
     stopped_by_operator,
 )
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 from hardware.errors import HardwareError, LinkError
 
@@ -65,8 +65,8 @@ class ProbeRunParams(JobParams):
                                     "re-touched when this much estimated machine time passed since its last touch")
 
 
-def _check(params: ProbeRunParams, session: Session) -> None:
-    refuse_if_machine_busy(params.machine_id, session)
+def _check(params: ProbeRunParams, reads: JobReads) -> None:
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 class TouchSequence:
@@ -136,7 +136,7 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
                 raise interrupt(ctx, machine, exc, state) from exc
             raise translate(exc) from exc
 
-    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
+    with ctx.lease(params.machine_id):
         if probe is not None:
             try:
                 machine.select_tool(0)
@@ -167,7 +167,7 @@ def run(ctx: JobContext, params: ProbeRunParams) -> dict:
                 state["executed"] = len(points)
                 ctx.progress(len(points) / len(records), f"probed {len(points)}/{len(records)}")
             state["ops_done"] = k + 1
-            ctx.runtime.store.save_program_state(ctx.claim, state)
+            ctx.save_program_state(state)
     result: dict[str, Any] = {"points": points, "resumes": state["resumes"]}
     if probe is not None:
         result["calibration"] = _correct(points, probe, params, track if drift else None)

@@ -18,7 +18,6 @@ from dataclasses import replace
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from sqlmodel import Session
 
 from app.calibration import ProbeCalibration
 from app.domain.errors import InvalidInput
@@ -26,7 +25,7 @@ from app.geometry.placement import Placement
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.field_runs import run_field
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
-from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference, succeeded_job
+from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.jobs.results.models import (
@@ -37,8 +36,7 @@ from app.jobs.results.models import (
     joint_trace_ranges,
 )
 from app.jobs.scan_fields import scan_field
-from app.platform.lookup import get_or_404
-from app.platform.models import Job, Trace
+from app.platform.models import Trace
 from app.probing import PlanParams
 from app.reconstruction import (
     PreprocessParams,
@@ -52,6 +50,7 @@ from app.reconstruction.field import trace_reconstruction
 from app.reconstruction.field_trust import FieldCheck, trace_bound, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
 from app.runtime.context import JobContext
+from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
 
 DEGREE = 3
@@ -152,30 +151,30 @@ def _references(params: ReconstructJobParams) -> list[tuple[str, str]]:
     return refs
 
 
-def _check(params: ReconstructJobParams, session: Session) -> None:
+def _check(params: ReconstructJobParams, reads: JobReads) -> None:
     """Given points must be finite, near the (placed) trace and enough for the method after
     cleaning; context only for kriging, on other traces of the same part; a joint probe run
     must have probed the trace."""
-    placement = check_registration(params, session)
+    placement = check_registration(params, reads)
     if params.trace_ids is not None:
         part_id = None
         for index, trace_id in enumerate(params.trace_ids):
-            row = get_or_404(session, Trace, trace_id, field=f"params.trace_ids.{index}")
+            row = reads.trace(trace_id, field=f"params.trace_ids.{index}")
             if part_id is not None and row.part_id != part_id:
                 raise InvalidInput(f"trace {trace_id!r} is on part {row.part_id!r}, not on part {part_id!r} of the "
                                    "first trace", field=f"params.trace_ids.{index}", value=trace_id)
             part_id = row.part_id
         if params.probe_run_job_id is not None:
-            _check_joint_run(params, session)
-        _check_scan_run(params, session)
+            _check_joint_run(params, reads)
+        _check_scan_run(params, reads)
         return
     assert params.trace_id is not None  # the model's rule: trace_id or trace_ids
-    trace = get_or_404(session, Trace, params.trace_id, field="params.trace_id")
-    _check_scan_run(params, session)
+    trace = reads.trace(params.trace_id, field="params.trace_id")
+    _check_scan_run(params, reads)
     if params.probe_run_job_id is not None:
-        _check_joint_run(params, session)
+        _check_joint_run(params, reads)
     if params.context is not None:
-        _check_context(params, trace, placement, session)
+        _check_context(params, trace, placement, reads)
     if params.points is None:
         return
     clean = preprocess(placed_nominal(trace, placement), params.points, PreprocessParams(), field="params.points")
@@ -186,7 +185,7 @@ def _check(params: ReconstructJobParams, session: Session) -> None:
 
 
 def _check_context(params: ReconstructJobParams, trace: Trace, placement: Placement | None,
-                   session: Session) -> None:
+                   reads: JobReads) -> None:
     if params.method != "kriging":
         raise InvalidInput(f"context (other traces' probes) is only used by method kriging, not {params.method!r}",
                            field="params.context", value=params.method)
@@ -196,7 +195,7 @@ def _check_context(params: ReconstructJobParams, trace: Trace, placement: Placem
     seen = {params.trace_id}
     for index, entry in enumerate(params.context or ()):
         field = f"params.context.{index}"
-        other = get_or_404(session, Trace, entry.trace_id, field=f"{field}.trace_id")
+        other = reads.trace(entry.trace_id, field=f"{field}.trace_id")
         if entry.trace_id in seen:
             raise InvalidInput(f"{field}.trace_id: trace {entry.trace_id!r} is trace_id itself or listed twice",
                                field=f"{field}.trace_id", value=entry.trace_id)
@@ -207,11 +206,11 @@ def _check_context(params: ReconstructJobParams, trace: Trace, placement: Placem
         preprocess(placed_nominal(other, placement), entry.points, PreprocessParams(), field=f"{field}.points")
 
 
-def _check_scan_run(params: ReconstructJobParams, session: Session) -> None:
+def _check_scan_run(params: ReconstructJobParams, reads: JobReads) -> None:
     """A scan run must be a succeeded scan_run that scanned every trace asked for (404 / 422)."""
     if params.scan_run_job_id is None:
         return
-    job = succeeded_job(session, params.scan_run_job_id, "scan_run", "params.scan_run_job_id")
+    job = reads.succeeded_job(params.scan_run_job_id, "scan_run", "params.scan_run_job_id")
     scanned = set((job.params or {}).get("trace_ids") or ())
     for index, trace_id in enumerate(params.traces):
         if trace_id not in scanned:
@@ -220,11 +219,11 @@ def _check_scan_run(params: ReconstructJobParams, session: Session) -> None:
                                field=field, value=trace_id)
 
 
-def _check_joint_run(params: ReconstructJobParams, session: Session) -> None:
+def _check_joint_run(params: ReconstructJobParams, reads: JobReads) -> None:
     """A run of a joint plan must have probed trace_id (422 ``params.trace_id``); method field
     goes with runs of field plans and only with them (422 ``params.method``)."""
-    run = session.get(Job, params.probe_run_job_id)
-    plan = session.get(Job, (run.params or {}).get("plan_job_id")) if run is not None and run.kind == "probe_run" \
+    run = reads.find_job(params.probe_run_job_id)
+    plan = reads.find_job((run.params or {}).get("plan_job_id")) if run is not None and run.kind == "probe_run" \
         else None
     if run is None or plan is None:  # nothing to check against
         return

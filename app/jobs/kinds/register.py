@@ -21,15 +21,12 @@ import math
 from typing import Any
 
 import numpy as np
-from sqlmodel import Session
 
 from app.calibration import surface_heights
 from app.jobs.params import RegisterParams
 from app.jobs.probe_correction import machine_probe
 from app.jobs.results.models import RegisterResult
 from app.machines.live import hardware_errors, translate
-from app.platform.lookup import get_or_404
-from app.platform.models import Part
 from app.registration.datum_plan import DatumProbeParams, plan_datum_probes, register_with_z_probe
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import (
@@ -39,13 +36,14 @@ from app.runtime.machine_queue import (
     resume_request,
     stopped_by_operator,
 )
+from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
 from hardware.errors import HardwareError, LinkError
 
 
-def _check(params: RegisterParams, session: Session) -> None:
-    get_or_404(session, Part, params.part_id, field="params.part_id")
-    refuse_if_machine_busy(params.machine_id, session)
+def _check(params: RegisterParams, reads: JobReads) -> None:
+    reads.part(params.part_id, field="params.part_id")
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 @job_kind("register", RegisterParams, queue="machine", check=_check,
@@ -89,7 +87,7 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
             ctx.progress(min(0.9, 0.1 + touches / 100), f"{touches} datum touches")
         return touch.z
 
-    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id):
+    with ctx.lease(params.machine_id):
         fitted = register_with_z_probe(plan, probe_z, float(z_bottom), DatumProbeParams(
             search_mm=params.search_mm, resolution_mm=params.resolution_mm, tip_radius_mm=tip_radius,
             sigma_mm=params.sigma_mm, pivot_xy=(params.pivot_xy[0], params.pivot_xy[1])), surface_z=surface_z)

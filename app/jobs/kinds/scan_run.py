@@ -30,7 +30,6 @@ from typing import Any
 
 import numpy as np
 from pydantic import Field
-from sqlmodel import Session
 
 from app.calibration.correct import surface_heights
 from app.jobs.inputs import nominal_of
@@ -39,8 +38,6 @@ from app.jobs.scan_passes import interrupting, scan_passes
 from app.jobs.sensor_calibration import scan_calibration
 from app.jobs.sensor_runs import require_sensor_port
 from app.machines.live import profile_of
-from app.platform.lookup import get_or_404
-from app.platform.models import Machine
 from app.probing.deviation_prior import DeviationPrior, Sites, path_sites
 from app.probing.scan_cost import MotionCost, touch_order, touch_time
 from app.probing.scan_plan import plan_scans
@@ -50,6 +47,7 @@ from app.reconstruction.scan_field_store import scan_check_npz
 from app.reconstruction.scan_samples import block_average, carriage_deviations
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import refuse_if_machine_busy
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 
@@ -82,11 +80,11 @@ class ScanRunParams(JobParams):
                                    "(a larger one asks for attention: scan finer)")
 
 
-def _check(params: ScanRunParams, session: Session) -> None:
-    row = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+def _check(params: ScanRunParams, reads: JobReads) -> None:
+    row = reads.machine(params.machine_id, field="params.machine_id")
     require_sensor_port(params.machine_id, row.port, params.sensor_port, "params.sensor_port")
-    scan_calibration(session, params.machine_id, params.calibration)
-    refuse_if_machine_busy(params.machine_id, session)
+    scan_calibration(reads, params.machine_id, params.calibration)
+    refuse_if_machine_busy(params.machine_id, reads)
 
 
 def _top(mesh: Any) -> tuple[Any, Any]:
@@ -134,8 +132,8 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
     traces = [ctx.trace(t) for t in params.trace_ids]
     paths = [nominal_of(t) for t in traces]
     height, slope = _top(ctx.mesh(traces[0].part_id))
-    with ctx.session() as session:
-        calibration, calibration_source = scan_calibration(session, params.machine_id, params.calibration)
+    with ctx.reads() as reads:
+        calibration, calibration_source = scan_calibration(reads, params.machine_id, params.calibration)
     profile = profile_of(ctx.machine(params.machine_id))
     cost = MotionCost(travel_mm_s=profile.travel_feed_mm_min / 60.0, probe_mm_s=profile.probe_feed_mm_min / 60.0,
                       scan_mm_s=params.scan_speed_mm_s)
@@ -159,7 +157,7 @@ def run(ctx: JobContext, params: ScanRunParams) -> dict:
         got_xy, got_dz = block_average(got_xy, got_dz, params.block)
         xy_fit.append(got_xy)
         dz_fit.append(got_dz)
-    with ctx.runtime.machines.lease(params.machine_id, ctx.job_id), interrupting(ctx, machine, state):
+    with ctx.lease(params.machine_id), interrupting(ctx, machine, state):
         machine.move(z=travel_z)
         if probe is not None:
             machine.select_tool(0)  # the calibrated probe touches

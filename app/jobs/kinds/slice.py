@@ -15,14 +15,13 @@ from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from sqlmodel import Session
 
 from app.jobs.form_hints import form
 from app.jobs.results.models import SliceResult
-from app.platform.lookup import get_or_404
 from app.platform.models import Part
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
 from app.slicing.adaptive import uniform_plan
@@ -177,7 +176,7 @@ def _check_repairable(part: Part, params: SliceJobParams) -> None:
                            field="params.max_hole_mm", value=params.max_hole_mm)
 
 
-def _check(params: SliceJobParams, session: Session) -> None:
+def _check(params: SliceJobParams, reads: JobReads) -> None:
     """Cross-field rules and the part's height and watertightness, before anything is queued."""
     params.core().validate()  # names params.l_min, params.mu0 ... (SlicingError, 422)
     if params.offset_mm is not None and params.beam != "none":
@@ -186,7 +185,7 @@ def _check(params: SliceJobParams, session: Session) -> None:
     if (params.beam == "table") != (params.beam_table is not None):
         raise SlicingError("beam_table is required with beam: table and only then",
                            field="params.beam_table", value=params.beam)
-    part = get_or_404(session, Part, params.part_id, field="params.part_id")
+    part = reads.part(params.part_id, field="params.part_id")
     if not part.watertight and not params.repair:
         raise SlicingError("the part's mesh is not watertight; slice it with repair: true or upload a closed mesh",
                            field="params.repair", value=False)
@@ -230,10 +229,10 @@ LAYER_S = 2e-3
 BASE_MB = 8.0
 
 
-def _estimate(params: SliceJobParams, session: Session) -> Cost | None:
+def _estimate(params: SliceJobParams, reads: JobReads) -> Cost | None:
     """Predicted memory and time from the part's height and faces and the layer thickness;
     names params.layer_mm (uniform) or params.l_min (adaptive)."""
-    part = session.get(Part, params.part_id)
+    part = reads.find_part(params.part_id)
     if part is None:
         return None
     height = float(part.bounds[1][2] - part.bounds[0][2])

@@ -23,11 +23,8 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
-from sqlmodel import Session
 
 from app.jobs.results.models import SurfaceFitResult
-from app.platform.lookup import get_or_404
-from app.platform.models import Part
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import (
     GridHoleError,
@@ -41,6 +38,7 @@ from app.reconstruction.surface_fit.points import check_points, parse_points_csv
 from app.reconstruction.surface_fit.work import work_estimate
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 MAX_POINTS = 100_000
@@ -153,9 +151,9 @@ class SurfaceFitJobParams(JobParams):
         return self.points is not None or self.points_csv is not None
 
 
-def _check(params: SurfaceFitJobParams, session: Session) -> None:
+def _check(params: SurfaceFitJobParams, reads: JobReads) -> None:
     """Content checks at submission: region over the part, grid and net sizes, point count."""
-    part = get_or_404(session, Part, params.part_id, field="params.part_id")
+    part = reads.part(params.part_id, field="params.part_id")
     fit = params.fit_params()
     (x_lo, y_lo, _), (x_hi, y_hi, _) = part.bounds
     if not params.has_points and (params.region.x[0] < x_lo or params.region.x[1] > x_hi
@@ -237,7 +235,7 @@ def _net_cost(net: tuple[float, float], degree: int, separable: bool) -> tuple[f
     return BAND_OVERHEAD * work.band_bytes / 2**20, FLOP_S * work.flops, SAMPLE_MB * work.inversion_samples
 
 
-def _estimate(params: SurfaceFitJobParams, session: Session) -> Cost:
+def _estimate(params: SurfaceFitJobParams, reads: JobReads) -> Cost:
     """Predicted peak memory and time of the fit (see the model above), naming the parameter
     that drives it: the grid, the point count, the densification or the control net."""
     measured = (len(params.points) if params.points is not None

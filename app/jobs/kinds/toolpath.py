@@ -20,7 +20,6 @@ from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from sqlmodel import Session
 
 from app.domain.errors import ConformaError
 from app.gcode.estimator import MachineLimits, estimate_program
@@ -30,13 +29,12 @@ from app.gcode.writer import DEFAULT_DIALECT
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.inputs import succeeded_job
 from app.jobs.results.models import SliceResult
 from app.jobs.results.program import ToolpathResult
-from app.platform.lookup import get_or_404
-from app.platform.models import Job, Machine, Part
+from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 from app.slicing import SlicingError, ToolpathParams
 from app.slicing.export import from_json
@@ -207,9 +205,9 @@ class ToolpathJobParams(JobParams):
                          dispense_on=self.dispense_on, dispense_off=self.dispense_off)
 
 
-def _check(params: ToolpathJobParams, session: Session) -> None:
+def _check(params: ToolpathJobParams, reads: JobReads) -> None:
     """The slice job must be a succeeded slice job; extrusion needs the marlin dialect."""
-    job = succeeded_job(session, params.slice_job_id, "slice", "params.slice_job_id", error=SlicingError,
+    job = reads.succeeded_job(params.slice_job_id, "slice", "params.slice_job_id", error=SlicingError,
                         hint=" (submit the toolpath once the slice has succeeded)")
     if params.mode == "extrude" and not GCODE_DIALECTS[params.dialect].extrusion:
         raise SlicingError("extrusion (E axis) output needs the marlin dialect; use mode: dispense on grbl",
@@ -217,7 +215,7 @@ def _check(params: ToolpathJobParams, session: Session) -> None:
     params.fill().validate()
     machine = None
     if params.machine_id is not None and params.volume_mm is None:
-        machine = get_or_404(session, Machine, params.machine_id, field="params.machine_id")
+        machine = reads.machine(params.machine_id, field="params.machine_id")
     volume = machine_volume(params, machine)
     bounds = SliceResult.of(job).bounds
     if bounds:
@@ -289,11 +287,11 @@ def slice_vertices(slice_result: SliceResult, faces: int) -> int:
     return int(8 * math.sqrt(max(faces, 1)) * max(1, slice_result.layer_count))
 
 
-def _estimate(params: ToolpathJobParams, session: Session) -> Cost | None:
+def _estimate(params: ToolpathJobParams, reads: JobReads) -> Cost | None:
     """Predicted peak memory and time of the fill from the slice job's layers and the part's
     footprint; names params.line_width_mm (or params.infill when that is what shrinks the pitch)."""
-    job = session.get(Job, params.slice_job_id)
-    part = session.get(Part, (job.params or {}).get("part_id")) if job is not None else None
+    job = reads.find_job(params.slice_job_id)
+    part = reads.find_part((job.params or {}).get("part_id")) if job is not None else None
     if job is None or part is None or job.kind != "slice" or job.status != "succeeded":
         return None
     (x0, y0, _), (x1, y1, _) = part.bounds

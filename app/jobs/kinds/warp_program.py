@@ -10,7 +10,6 @@ import math
 
 import numpy as np
 from pydantic import Field, model_validator
-from sqlmodel import Session
 
 from app.circuits.errors import WarpError
 from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, arc_chord_budget, scan_program
@@ -21,12 +20,11 @@ from app.domain.errors import InvalidInput
 from app.gcode.program_bounds import BoundsScan
 from app.geometry.nurbs_surface import NurbsSurface
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.inputs import succeeded_job
 from app.jobs.results.models import ProbeRunResult, SurfaceFitResult
 from app.jobs.results.program import WarpProgramResult
-from app.platform.lookup import get_or_404
-from app.platform.models import Blob, Job, Program
+from app.platform.models import Job
 from app.runtime.context import JobContext
+from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 #: the largest program the submission checks itself (lines, bytes, arc chords: ~0.5 s of CPU at most)
@@ -63,19 +61,19 @@ def _surface_job(params: WarpProgramParams) -> tuple[str, str]:
     return "probe_run", str(params.probe_run_job_id)
 
 
-def _check(params: WarpProgramParams, session: Session) -> None:
+def _check(params: WarpProgramParams, reads: JobReads) -> None:
     """The program must be readable, its arcs' chords within the budget, and (unless
     ``allow_outside``) print only inside the surface's measured region: a 422 naming the line
     and its coordinates before any job runs.  Bounded work in the request: a program beyond
     :data:`CHECK_LINES` lines or :data:`CHECK_BYTES` bytes, or whose arcs need more than
     :data:`CHECK_CHORDS` chords, is checked the same way by the job in its own process."""
-    program = get_or_404(session, Program, params.program_id, field="params.program_id")
+    program = reads.program(params.program_id, field="params.program_id")
     kind, job_id = _surface_job(params)
-    job = succeeded_job(session, job_id, kind, f"params.{kind}_job_id")
-    read_blob = session.info.get("read_blob")
+    job = reads.succeeded_job(job_id, kind, f"params.{kind}_job_id")
+    read_blob = reads.read_blob
     if read_blob is None:                     # a check without the store (never in the service)
         return
-    if program.lines > CHECK_LINES or get_or_404(session, Blob, program.sha256).bytes > CHECK_BYTES:
+    if program.lines > CHECK_LINES or reads.blob_bytes(program.sha256) > CHECK_BYTES:
         return                                # the job checks it in its own process
     try:
         text = read_blob(program.sha256).decode("utf-8")
@@ -111,9 +109,9 @@ def _finite(value: float) -> float | None:
           references=lambda p: [("job", _surface_job(p)[1])])
 def run(ctx: JobContext, params: WarpProgramParams) -> dict:
     """Warp the program onto the surface; artifact ``warped.gcode``."""
-    with ctx.session() as session:
-        program = get_or_404(session, Program, params.program_id, field="params.program_id")
-    text = ctx.runtime.blobs.read(program.sha256).decode("utf-8")
+    with ctx.reads() as reads:
+        program = reads.program(params.program_id, field="params.program_id")
+    text = ctx.blob(program.sha256).decode("utf-8")
     kind, job_id = _surface_job(params)
     field, model = height_model_from_points(
         _surface_points(ctx.job(job_id, kind=kind, field=f"params.{kind}_job_id")), params.grid_mm)
