@@ -208,7 +208,7 @@ class ToolpathJobParams(JobParams):
 def _check(params: ToolpathJobParams, reads: JobReads) -> None:
     """The slice job must be a succeeded slice job; extrusion needs the marlin dialect."""
     job = reads.succeeded_job(params.slice_job_id, "slice", "params.slice_job_id", error=SlicingError,
-                        hint=" (submit the toolpath once the slice has succeeded)")
+                              hint=" (submit the toolpath once the slice has succeeded)")
     if params.mode == "extrude" and not GCODE_DIALECTS[params.dialect].extrusion:
         raise SlicingError("extrusion (E axis) output needs the marlin dialect; use mode: dispense on grbl",
                            field="params.dialect", value=params.dialect)
