@@ -34,7 +34,6 @@ from app.jobs.gcode_meta import check_gcode, gcode_meta
 from app.jobs.results.models import PrintResult
 from app.machines.live import MachineFault, MachineUnavailable, hardware_errors, translate
 from app.machines.materials import BY_NAME, MATERIALS, DispenseProfile
-from app.platform.models import Artifact
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import (
     connected_machine,
