@@ -61,14 +61,14 @@ class JobContext:
             raise Cancelled("this attempt lost its lease to another worker", field="job_id", value=self.job_id)
 
     # inputs ----------------------------------------------------------------------
-    def session(self) -> Session:
-        """A session of the job engine's own (the runtime's modules; kinds use :meth:`reads`)."""
+    def _session(self) -> Session:
+        """A session of its own (kinds read through :meth:`reads`)."""
         return Session(self.runtime.engine, expire_on_commit=False)
 
     @contextmanager
     def reads(self) -> Iterator[JobReads]:
         """Named reads of stored records over one session (several queries, one snapshot)."""
-        with self.session() as session:
+        with self._session() as session:
             yield JobReads(session, read_blob=self.runtime.blobs.read)
 
     def part(self, part_id: str) -> Part:
@@ -118,7 +118,7 @@ class JobContext:
         for job_id, name in wanted:
             by_job.setdefault(job_id, set()).add(name)
         found: dict[tuple[str, str], Artifact] = {}
-        with self.session() as session:
+        with self._session() as session:
             for job_id, names in by_job.items():
                 for row in session.exec(select(Artifact).where(Artifact.job_id == job_id)).all():
                     if row.name in names:
@@ -139,7 +139,7 @@ class JobContext:
 
     def file_bytes(self, file_id: str, field: str = "file_id") -> bytes:
         """The content of an uploaded file (``POST /api/v1/files``)."""
-        with self.session() as session:
+        with self._session() as session:
             row = get_or_404(session, UploadedFile, file_id, field=field)
         return self.runtime.blobs.read(row.sha256)
 
@@ -169,7 +169,7 @@ class JobContext:
     # outputs ---------------------------------------------------------------------
     def artifact(self, name: str, data: bytes, media_type: str, meta: dict[str, Any] | None = None) -> str:
         """Store an artifact of this job; returns its sha256."""
-        with self.session() as session:
+        with self._session() as session:
             artifact = add_artifact(session, self.runtime.blobs, self.job_id, name, data, media_type, meta)
             session.commit()
             return artifact.sha256
@@ -179,7 +179,7 @@ class JobContext:
         (each blob written and fsynced before it; the rows an earlier attempt left under these
         names looked up in one query); their sha256 in order: all of them or none are listed."""
         names = [name for name, _, _, _ in items]
-        with self.session() as session:
+        with self._session() as session:
             existing = {row.name: row for row in session.exec(select(Artifact).where(
                 Artifact.job_id == self.job_id, Artifact.name.in_(names))).all()}  # type: ignore[attr-defined]
             shas = self.runtime.blobs.put_many(session, [data for _, data, _, _ in items])
@@ -207,7 +207,7 @@ class JobContext:
         cancels them too; a lost lease does not (another attempt of this job takes over and
         reuses them: an interrupted child keeps its measured points for the operator's resume)."""
         while True:
-            with self.session() as session:  # each poll reads the states only, not the results
+            with self._session() as session:  # each poll reads the states only, not the results
                 states = dict(session.exec(select(Job.id, Job.status).where(Job.id.in_(job_ids))).all())  # type: ignore[attr-defined]
                 if all(states.get(job_id) in TERMINAL_STATES for job_id in job_ids):
                     jobs = {job.id: job for job in session.exec(select(Job).where(Job.id.in_(job_ids))).all()}  # type: ignore[attr-defined]
