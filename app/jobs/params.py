@@ -6,7 +6,11 @@
 * :class:`RegisterParams`: the ``register`` kind's parameters (closed_loop validates its
   ``registration_params`` with them);
 * :class:`ProbePlanParams`: the ``probe_plan`` kind's parameters (closed_loop validates its
-  ``probe`` with them).
+  ``probe`` with them);
+* :data:`DispensingDialect`: the dialects a print program can target without a machine
+  (the writer's :data:`~app.gcode.writer.DISPENSING_DIALECTS`, a subset of its one list);
+* :data:`StandoffMm` and :func:`standoff_of`: a job's standoff and how it falls back to the
+  trace's, then to the one default.
 
 Loading what the parameters point to (placements, nominals, succeeded jobs) is in
 :mod:`app.jobs.inputs`.
@@ -14,11 +18,12 @@ Loading what the parameters point to (placements, nominals, succeeded jobs) is i
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from app.gcode.writer import DEFAULT_PROBING_DIALECT
+from app.compensation.standoff import DEFAULT_STANDOFF_MM
+from app.gcode.writer import DEFAULT_PROBING_DIALECT, DISPENSING_DIALECTS, DialectName
 from app.geometry.placement import Placement
 from app.jobs.form_hints import ONE_TRACE as _ONE
 from app.jobs.form_hints import SEVERAL_TRACES as _SEVERAL
@@ -26,6 +31,21 @@ from app.jobs.form_hints import form
 from app.runtime.registry import JobParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
+#: a job's standoff (nozzle tip above the surface), mm; None in a job: :func:`standoff_of`
+StandoffMm = Annotated[float, Field(gt=0, le=50)]
+
+if TYPE_CHECKING:  # mypy checks against the one list; pydantic and the OpenAPI schema see the subset
+    DispensingDialect = DialectName
+else:
+    DispensingDialect = Literal[DISPENSING_DIALECTS]
+
+
+def standoff_of(job_mm: float | None, trace_mm: float | None) -> float:
+    """The standoff a program is written for, mm: the job's, else the trace's (or its circuit
+    import's), else :data:`~app.compensation.standoff.DEFAULT_STANDOFF_MM`."""
+    if job_mm is not None:
+        return float(job_mm)
+    return float(trace_mm) if trace_mm is not None else DEFAULT_STANDOFF_MM
 
 _MORE = form(advanced=True)  # a folded field (app.jobs.form_hints)
 MAX_TRACES = 200
@@ -164,7 +184,7 @@ class ProbePlanParams(PlacedParams):
     approach_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
     overtravel_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
     probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000, json_schema_extra=_MORE)
-    dialect: Literal["grbl", "marlin", "linuxcnc"] = DEFAULT_PROBING_DIALECT
+    dialect: DialectName = DEFAULT_PROBING_DIALECT
     probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin",
                                                       json_schema_extra=_MORE)
 
