@@ -30,9 +30,6 @@ from app.jobs.kinds.jetting import JettingJobParams
 from app.jobs.kinds.slice import SliceJobParams
 from app.jobs.kinds.surface_fit import SurfaceFitJobParams
 from app.jobs.kinds.toolpath import ToolpathJobParams
-from app.jobs.params import ProbePlanParams
-from app.probing import PlanParams
-from app.probing.program import ProbeProgramParams
 from app.reconstruction.surface_fit import SurfaceFitParams
 from app.slicing import SliceParams, ToolpathParams
 from tests.conftest import auth
@@ -119,9 +116,6 @@ def test_a_straight_trace_with_the_principal_normal_is_a_422_naming_params_norma
 OTHER_CORE_ONLY = {
     "slice": (SliceParams, SliceJobParams, {"max_layers", "z_tol"}),
     "surface_fit": (SurfaceFitParams, SurfaceFitJobParams, {"resample_shape"}),
-    "probe_plan": (PlanParams, ProbePlanParams, {"end_ratio", "min_count", "peak_factor", "placement_rz_deg",
-                                                 "placement_xy_mm", "placement_z_mm", "tilt_rad"}),
-    "probe_program": (ProbeProgramParams, ProbePlanParams, {"decimals", "part_max_z_mm", "sample_mm"}),
     "toolpath": (ToolpathParams, ToolpathJobParams, {"limits", "merge_weights", "perimeter_feed_mm_s",
                                                      "print_feed_mm_s", "travel_feed_mm_s"}),
 }

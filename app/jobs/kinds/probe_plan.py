@@ -26,6 +26,7 @@ import numpy as np
 from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
+from app.jobs.core_fields import core_values
 from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
@@ -78,13 +79,8 @@ def _references(params: ProbePlanParams) -> list[tuple[str, str]]:
 
 
 def _plan_params(params: ProbePlanParams) -> PlanParams:
-    return PlanParams(
-        chord_error_mm=params.chord_error_mm, cl_tolerance_mm=params.cl_tolerance_mm, count=params.count,
-        capability_k=params.capability_k, confidence=params.confidence,
-        deviation_amplitude_mm=params.deviation_amplitude_mm, deviation_wavelength_mm=params.deviation_wavelength_mm,
-        target_error_mm=params.target_error_mm, probe_sigma_mm=params.probe_sigma_mm, coverage=params.coverage,
-        exchange=params.exchange,
-    )
+    """The planners' parameters: every one the job has, by name (the others the core's defaults)."""
+    return PlanParams(**core_values(PlanParams, params))
 
 
 def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: Any) -> tuple[ProbeProgram, dict]:
@@ -93,10 +89,7 @@ def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: An
     if plan.normals is None:
         plan = replace(plan, normals=mesh_station_normals(mesh, plan.points[:, :2]))
     program = build_probe_program(plan, mesh, ProbeProgramParams(
-        dialect=params.dialect, probe_style=params.probe_style, clearance_mm=params.clearance_mm,
-        approach_mm=params.approach_mm, overtravel_mm=params.overtravel_mm,
-        probe_feed_mm_min=params.probe_feed_mm_min, part_max_z_mm=float(mesh.bounds[1][2]),
-    ), job_id=ctx.job_id)
+        **core_values(ProbeProgramParams, params, part_max_z_mm=float(mesh.bounds[1][2]))), job_id=ctx.job_id)
     meta = gcode_meta(program.gcode)
     ctx.artifact("probe.gcode", program.gcode.encode(), "text/x-gcode", meta)
     return program, meta
