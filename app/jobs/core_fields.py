@@ -14,9 +14,11 @@ form hint); :func:`core_field` reads the default and the bounds from the core, a
     class ProbePlanParams(JobParams):
         chord_error_mm: float = core_field(PlanParams, "chord_error_mm", description="...")
 
-    PlanParams(**core_values(PlanParams, params))
+    PlanParams(**core_values(PlanParams, params, core_only={"end_ratio", ...}))
 
-A name the core does not have fails when the kind's module is imported.
+A name the core does not have fails when the kind's module is imported; a core field the
+model lacks (and that the kind does not declare as the core's own) fails when the core's
+object is built.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import dataclasses
 import functools
 import types
 import typing
+from collections.abc import Collection
 from typing import Any
 
 import annotated_types
@@ -70,9 +73,14 @@ def core_field(core: type, name: str, **extra: Any) -> Any:
     return Field(field.default, **core_bounds(core, name), **extra)
 
 
-def core_values(core: type, model: BaseModel, **given: Any) -> dict[str, Any]:
+def core_values(core: type, model: BaseModel, core_only: Collection[str] = (), **given: Any) -> dict[str, Any]:
     """The keyword arguments of ``core(...)``: every core field ``model`` has, by name (lists
-    as tuples), then ``given`` (the values the kind derives itself)."""
+    as tuples), then ``given`` (the values the kind derives itself).  Each core field comes
+    from the model or ``given`` or is named in ``core_only`` (the core's default kept); one
+    that is none of them (a name that drifted) is a TypeError naming it."""
     names = type(model).model_fields
-    values = {name: getattr(model, name) for name in _fields(core) if name in names}
+    values = {name: getattr(model, name) for name in _fields(core) if name in names and name not in given}
+    lost = set(_fields(core)) - set(values) - set(given) - set(core_only)
+    if lost:
+        raise TypeError(f"{core.__name__} fields {sorted(lost)} are not parameters of {type(model).__name__}")
     return {**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}, **given}

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import base64
 import binascii
-import dataclasses
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, Literal
@@ -36,6 +35,7 @@ from app.jetting import (
 )
 from app.jetting.params import BinarizeKind, LayerModelKind, SolverKind
 from app.jetting.targets import rings_grid_cells, target_shape
+from app.jobs.core_fields import core_values
 from app.jobs.inputs import succeeded_job
 from app.jobs.results.models import SliceResult
 from app.platform.models import Artifact, Part
@@ -146,9 +146,10 @@ class PrintModelParams(JobParams):
     tol: float = Field(_C.tol, gt=0, le=1, allow_inf_nan=False, description="solver tolerance (relative)")
     greedy_rounds: int = Field(_C.greedy_rounds, ge=0, le=50, description="greedy flip sweeps")
 
-    def named(self, core: type[Any]) -> dict[str, Any]:
-        """This model's values of the ``core`` dataclass's fields, by the same names."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(core) if f.name not in CORE_ONLY}
+    def named(self, core: type[Any], **given: Any) -> dict[str, Any]:
+        """This model's values of the ``core`` dataclass's fields, by the same names (the
+        ``CORE_ONLY`` ones the core's defaults), then ``given``."""
+        return core_values(core, self, CORE_ONLY, **given)
 
     def drop(self) -> DropParams:
         return DropParams(**self.named(DropParams))
@@ -157,7 +158,7 @@ class PrintModelParams(JobParams):
         return FlowParams(**self.named(FlowParams))
 
     def controller_params(self, kind: str = "mpc") -> ControllerParams:
-        return ControllerParams(kind=kind, **self.named(ControllerParams))
+        return ControllerParams(**self.named(ControllerParams, kind=kind))
 
     def core(self) -> JettingParams:
         """The pure core's parameters (``layers`` 1: the next-layer kind plans one layer)."""

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from app.compensation.standoff import DEFAULT_STANDOFF_MM
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DISPENSING_DIALECTS, DialectName, ProbeStyle
 from app.geometry.placement import Placement
-from app.jobs.core_fields import core_field
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.form_hints import ONE_TRACE as _ONE
 from app.jobs.form_hints import SEVERAL_TRACES as _SEVERAL
 from app.jobs.form_hints import form
@@ -120,6 +120,12 @@ class RegisterParams(JobParams):
         return self
 
 
+#: the planners' and the probe program's fields a probe_plan job keeps at the core's defaults
+PLAN_CORE_ONLY = frozenset({"end_ratio", "min_count", "peak_factor", "placement_xy_mm", "placement_z_mm",
+                            "placement_rz_deg", "tilt_rad"})
+PROGRAM_CORE_ONLY = frozenset({"sample_mm", "decimals"})
+
+
 class ProbePlanParams(PlacedParams):
     trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)",
                                  json_schema_extra=_ONE)
@@ -200,6 +206,15 @@ class ProbePlanParams(PlacedParams):
         if self.trace_ids is not None and len(self.trace_ids) > MAX_TRACES and self.planner != "field":
             raise ValueError(f"more than {MAX_TRACES} traces are planned by the field planner only")
         return self
+
+    def plan_params(self) -> PlanParams:
+        """The planners' parameters: every one this job has, by name."""
+        return PlanParams(**core_values(PlanParams, self, PLAN_CORE_ONLY))
+
+    def program_params(self, part_max_z_mm: float) -> ProbeProgramParams:
+        """The probe program's parameters; ``part_max_z_mm``: the (placed) part's top, mm."""
+        return ProbeProgramParams(**core_values(ProbeProgramParams, self, PROGRAM_CORE_ONLY,
+                                                part_max_z_mm=part_max_z_mm))
 
     @property
     def planner(self) -> str:

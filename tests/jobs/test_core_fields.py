@@ -53,15 +53,18 @@ def test_the_core_object_is_built_by_name():
     values = core_values(Core, Model(width_mm=2.0, name="job"), ratio=0.25)
     assert values == {"width_mm": 2.0, "count": None, "name": "job", "ratio": 0.25}
     assert Core(**values) == Core(width_mm=2.0, ratio=0.25, name="job")
+    assert core_values(Core, Model(), core_only={"ratio"}) == {"width_mm": 1.5, "count": None, "name": "core"}
+    with pytest.raises(TypeError, match="ratio"):  # a core field the model lost is not silently the default
+        core_values(Core, Model())
 
 
 def test_probe_plan_builds_the_planners_parameters_from_its_own():
     params = ProbePlanParams(trace_id="trc_x", chord_error_mm=0.01, count=12, coverage=2.0, probe_feed_mm_min=50.0,
                              dialect="marlin", probe_style="g30")
-    plan = PlanParams(**core_values(PlanParams, params))
+    plan = params.plan_params()
     assert (plan.chord_error_mm, plan.count, plan.coverage) == (0.01, 12, 2.0)
     assert plan.end_ratio == PlanParams().end_ratio and plan.min_count == PlanParams().min_count  # the core's own
-    program = ProbeProgramParams(**core_values(ProbeProgramParams, params, part_max_z_mm=3.0))
+    program = params.program_params(part_max_z_mm=3.0)
     assert (program.probe_feed_mm_min, program.dialect, program.style, program.part_max_z_mm) == (50.0, "marlin",
                                                                                                   "g30", 3.0)
     assert program.sample_mm == ProbeProgramParams().sample_mm

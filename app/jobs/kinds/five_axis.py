@@ -31,7 +31,6 @@ A pose needing A beyond ``a_limits_deg`` fails the job with a 422 problem naming
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Annotated, Any, NamedTuple
 
 import numpy as np
@@ -48,6 +47,7 @@ from app.five_axis.trace import plan_view_points, trace_over_xy, uv_over_xy
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DialectName, own_dispense
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.geometry.nurbs_surface import NurbsSurface
+from app.jobs.core_fields import core_values
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import nominal_of, succeeded_job
 from app.jobs.params import StandoffMm, standoff_of
@@ -142,11 +142,10 @@ class FiveAxisJobParams(JobParams):
     def plan_params(self, trace: Trace, job_id: str | None) -> FiveAxisParams:
         """The core's parameters, field by field of the same name (lists as tuples); standoff
         and feed default to the trace's."""
-        given = {f.name: getattr(self, f.name) for f in dataclasses.fields(FiveAxisParams) if f.name not in CORE_ONLY}
-        given = {name: tuple(value) if isinstance(value, list) else value for name, value in given.items()}
-        return FiveAxisParams(**{
-            **given, "job_id": job_id, "standoff_mm": standoff_of(self.standoff_mm, trace.standoff_mm),
-            "feed_mm_min": self.feed_mm_min or trace.feed_mm_min or _CORE.feed_mm_min})
+        return FiveAxisParams(**core_values(
+            FiveAxisParams, self, CORE_ONLY, job_id=job_id,
+            standoff_mm=standoff_of(self.standoff_mm, trace.standoff_mm),
+            feed_mm_min=self.feed_mm_min or trace.feed_mm_min or _CORE.feed_mm_min))
 
 
 def with_machine(params: FiveAxisJobParams, machine: Machine) -> FiveAxisJobParams:

@@ -73,7 +73,7 @@ class JettingJobParams(PrintModelParams):
         return self
 
     def core(self) -> JettingParams:
-        plant = PlantParams(**{**self.named(PlantParams), "dead_nozzles": tuple(self.dead_nozzles)})
+        plant = PlantParams(**self.named(PlantParams))
         return JettingParams(drop=self.drop(), flow=self.flow(), plant=plant,
                              controller=self.controller_params(self.controller), target=self.target_spec(),
                              layers=self.layers, margin_mm=self.margin_mm, snapshot_every=self.snapshot_every,

@@ -26,14 +26,13 @@ import numpy as np
 from sqlmodel import Session
 
 from app.domain.errors import InvalidInput
-from app.jobs.core_fields import core_values
 from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import ProbePlanParams
 from app.jobs.results.models import ProbePlanResult
 from app.platform.models import Trace
-from app.probing import PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams, build_probe_program, plan_probes
+from app.probing import PlanParams, ProbePlan, ProbeProgram, build_probe_program, plan_probes
 from app.probing.field import field_result, plan_field, stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.field_verify import with_sequential_verification, with_verification
@@ -79,8 +78,7 @@ def _references(params: ProbePlanParams) -> list[tuple[str, str]]:
 
 
 def _plan_params(params: ProbePlanParams) -> PlanParams:
-    """The planners' parameters: every one the job has, by name (the others the core's defaults)."""
-    return PlanParams(**core_values(PlanParams, params))
+    return params.plan_params()
 
 
 def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: Any) -> tuple[ProbeProgram, dict]:
@@ -88,8 +86,7 @@ def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: An
     Stations without a planned normal take the placed mesh's face normal below them."""
     if plan.normals is None:
         plan = replace(plan, normals=mesh_station_normals(mesh, plan.points[:, :2]))
-    program = build_probe_program(plan, mesh, ProbeProgramParams(
-        **core_values(ProbeProgramParams, params, part_max_z_mm=float(mesh.bounds[1][2]))), job_id=ctx.job_id)
+    program = build_probe_program(plan, mesh, params.program_params(float(mesh.bounds[1][2])), job_id=ctx.job_id)
     meta = gcode_meta(program.gcode)
     ctx.artifact("probe.gcode", program.gcode.encode(), "text/x-gcode", meta)
     return program, meta

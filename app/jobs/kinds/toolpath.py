@@ -28,6 +28,7 @@ from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.gcode.writer import DEFAULT_DIALECT, DISPENSING_DIALECTS
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
+from app.jobs.core_fields import core_values
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import succeeded_job
@@ -198,15 +199,12 @@ class ToolpathJobParams(JobParams):
                              max_feed_mm_s=self.max_feed_mm_s, max_accel_mm_s2=self.max_accel_mm_s2)
 
     def fill(self) -> ToolpathParams:
-        return ToolpathParams(
-            pattern=self.pattern, line_width_mm=self.line_width_mm, nozzle_mm=self.nozzle_mm,
-            layer_height_mm=self.layer_height_mm, infill=self.infill, perimeters=self.perimeters,
-            angle_deg=self.angle_deg, angle_step_deg=self.angle_step_deg,
-            print_feed_mm_s=self.print_feed_mm_min / MM_MIN_PER_MM_S,
+        """The planner's parameters: this job's by name, the feeds in mm/s from the job's mm/min."""
+        return ToolpathParams(**core_values(
+            ToolpathParams, self, print_feed_mm_s=self.print_feed_mm_min / MM_MIN_PER_MM_S,
             perimeter_feed_mm_s=self.perimeter_feed_mm_min / MM_MIN_PER_MM_S,
-            travel_feed_mm_s=self.travel_feed_mm_min / MM_MIN_PER_MM_S, filament_mm=self.filament_mm,
-            turn_threshold_deg=self.turn_threshold_deg, resolution_mm=self.resolution_mm, limits=self.limits(),
-            merge_weights=MergeWeights(along=self.merge_weight_along, across=self.merge_weight_across))
+            travel_feed_mm_s=self.travel_feed_mm_min / MM_MIN_PER_MM_S, limits=self.limits(),
+            merge_weights=MergeWeights(along=self.merge_weight_along, across=self.merge_weight_across)))
 
     def fdm(self, job_id: str | None) -> FdmParams:
         return FdmParams(dialect=self.dialect, mode=self.mode, job_id=job_id, nozzle_temp_c=self.nozzle_temp_c,
