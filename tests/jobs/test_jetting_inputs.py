@@ -8,11 +8,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from app.jetting import DropParams, JettingError
+from app.jetting import ControllerParams, DropParams, JettingError, PlantParams
 from app.jetting.controller import validate_controller
 from app.jetting.targets import target_from_rings
 from app.jobs.jetting_inputs import PrintModelParams, SliceSource, TargetParams, core_errors, target_of
 from app.jobs.kinds.jetting import JettingJobParams
+from tests.conftest import auth
+from tests.helpers.jobs import submit
 
 
 def test_the_core_objects_carry_the_jobs_values():
@@ -46,3 +48,20 @@ def test_core_errors_about_the_slice_target_name_params_target_slice():
     with pytest.raises(JettingError) as caught, core_errors():
         validate_controller(dataclasses.replace(core.controller, kind="pid"))
     assert caught.value.field == "params.controller"
+
+
+@pytest.mark.parametrize("kind", ["jetting", "jetting_next_layer"])
+def test_the_schema_shows_the_cores_defaults_and_bounds_and_a_bad_value_is_named(client, kind):
+    kinds = {k["name"]: k["params_schema"] for k in client.get("/api/v1/job-kinds", headers=auth("viewer")).json()}
+    fields = kinds[kind]["properties"]
+    assert (fields["dpi"]["default"], fields["dpi"]["minimum"], fields["dpi"]["maximum"]) == (DropParams().dpi, 25,
+                                                                                           2400)
+    assert (fields["fill"]["default"], fields["fill"]["exclusiveMinimum"]) == (ControllerParams().fill, 0)
+    assert ("seed" in fields) == (kind == "jetting")  # the plant is the simulation's
+    if kind == "jetting":
+        assert (fields["seed"]["default"], fields["seed"]["maximum"]) == (PlantParams().seed, 2**32 - 1)
+    for name, bad in (("dpi", 24), ("horizon", 11), ("mobility", 1.5)):
+        refused = submit(client, kind, {name: bad})
+        assert refused.status_code == 422, refused.text
+        error = refused.json()["errors"][0]
+        assert error["loc"] == ["params", name] and error["value"] == bad
