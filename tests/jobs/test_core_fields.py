@@ -11,6 +11,7 @@ import pytest
 from annotated_types import Ge, Gt, Le, Lt
 from pydantic import BaseModel, ValidationError
 
+from app.five_axis import FiveAxisParams
 from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.params import ProbePlanParams
 from app.probing import PlanParams
@@ -83,3 +84,15 @@ def test_the_probe_plan_schema_shows_the_cores_bounds_and_a_bad_value_is_named(c
         assert refused.status_code == 422, refused.text
         error = refused.json()["errors"][0]
         assert error["loc"] == ["params", name] and error["value"] == bad
+
+
+def test_the_five_axis_schema_shows_the_cores_bounds(client):
+    kinds = {k["name"]: k["params_schema"] for k in client.get("/api/v1/job-kinds", headers=auth("viewer")).json()}
+    fields = kinds["five_axis"]["properties"]
+    core = FiveAxisParams()
+    assert (fields["period_s"]["default"], fields["period_s"]["minimum"], fields["period_s"]["maximum"]) == (
+        core.period_s, 1e-4, 0.1)
+    assert (fields["pole_window_deg"]["default"], fields["pole_window_deg"]["maximum"]) == (core.pole_window_deg, 5)
+    assert {"minimum": -1000, "maximum": 1000, "type": "number"} in fields["safe_z_mm"]["anyOf"]
+    refused = submit(client, "five_axis", {"part_id": "prt_none", "trace_id": "trc_none", "decimals": 7})
+    assert refused.status_code == 422 and refused.json()["errors"][0]["loc"] == ["params", "decimals"]

@@ -47,7 +47,7 @@ from app.five_axis.trace import plan_view_points, trace_over_xy, uv_over_xy
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DialectName, own_dispense
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.geometry.nurbs_surface import NurbsSurface
-from app.jobs.core_fields import core_values
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import nominal_of, succeeded_job
 from app.jobs.params import StandoffMm, standoff_of
@@ -81,8 +81,8 @@ class FiveAxisJobParams(JobParams):
                                            "nozzle axis; default: the trace's")
     feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="print speed along the trace; "
                                       f"default: the trace's, else {_CORE.feed_mm_min:g}")
-    period_s: float = Field(_CORE.period_s, ge=1e-4, le=0.1, description="servo period T of the Taylor update")
-    segment_mm: float = Field(_CORE.segment_mm, gt=0, le=50, description="program line spacing along the trace")
+    period_s: float = core_field(FiveAxisParams, "period_s", description="servo period T of the Taylor update")
+    segment_mm: float = core_field(FiveAxisParams, "segment_mm", description="program line spacing along the trace")
     pivot: list[Finite] = Field(list(_CORE.pivot), min_length=3, max_length=3,
                                 description="table pivot [x0, y0, z0] mm (workpiece coordinates at A = C = 0)")
     normal: NormalSource = Field(
@@ -91,22 +91,22 @@ class FiveAxisJobParams(JobParams):
                                       description="[min, max] table tilt A")
     c_limits_deg: list[Finite] | None = Field(None, min_length=2, max_length=2,
                                               description="[min, max] C; default endless")
-    c_start_deg: float = Field(_CORE.c_start_deg, ge=-3600, le=3600, description="C before the path (biases the "
-                               "first branch; held if the whole path is within the pole window)")
-    pole_window_deg: float = Field(_CORE.pole_window_deg, ge=0, le=5, description="within this tilt of the normal from "
-                                   "vertical (A = 0) C is blended smoothly and the nozzle may lean "
-                                   "from the normal by at most this angle; 0 = exact normals")
-    midpoint_tol_mm: float = Field(_CORE.midpoint_tol_mm, gt=0, le=1, description="max tip deviation from its "
-                                   "planned path halfway between program lines (longer lines are split)")
+    c_start_deg: float = core_field(FiveAxisParams, "c_start_deg", description="C before the path (biases the "
+                                    "first branch; held if the whole path is within the pole window)")
+    pole_window_deg: float = core_field(FiveAxisParams, "pole_window_deg", description="within this tilt of the "
+                                        "normal from vertical (A = 0) C is blended smoothly and the nozzle may lean "
+                                        "from the normal by at most this angle; 0 = exact normals")
+    midpoint_tol_mm: float = core_field(FiveAxisParams, "midpoint_tol_mm", description="max tip deviation from its "
+                                        "planned path halfway between program lines (longer lines are split)")
     feed_mode: FeedMode = Field(
         _CORE.feed_mode, description="inverse_time: G93, F = 1/minutes per line; tcp: G94, F = tip mm/min")
-    on_surface_tol_mm: float = Field(_CORE.on_surface_tol_mm, gt=0, le=5,
-                                     description="max distance of the trace from the surface")
-    decimals: int = Field(_CORE.decimals, ge=3, le=6, description="digits of mm and degrees in the program")
-    safe_z_mm: float | None = Field(None, ge=-1000, le=1000, description="machine Z of the approach "
-                                    "rapids; default: straight approach move")
-    approach_feed_mm_min: float = Field(_CORE.approach_feed_mm_min, gt=0, le=100_000,
-                                        description="feed of the approach move")
+    on_surface_tol_mm: float = core_field(FiveAxisParams, "on_surface_tol_mm",
+                                          description="max distance of the trace from the surface")
+    decimals: int = core_field(FiveAxisParams, "decimals", description="digits of mm and degrees in the program")
+    safe_z_mm: float | None = core_field(FiveAxisParams, "safe_z_mm", description="machine Z of the approach "
+                                         "rapids; default: straight approach move")
+    approach_feed_mm_min: float = core_field(FiveAxisParams, "approach_feed_mm_min",
+                                             description="feed of the approach move")
     dispense_on: str = Field(_OWN_DISPENSE[0], max_length=40, pattern=_DISPENSE_COMMAND,
                              description="command that starts dispensing (after the approach)")
     dispense_off: str = Field(_OWN_DISPENSE[1], max_length=40, pattern=_DISPENSE_COMMAND,
