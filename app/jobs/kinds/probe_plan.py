@@ -78,6 +78,7 @@ def _references(params: ProbePlanParams) -> list[tuple[str, str]]:
 
 
 def _plan_params(params: ProbePlanParams) -> PlanParams:
+    """The planners' parameters (:meth:`ProbePlanParams.plan_params`: the job's, by name)."""
     return params.plan_params()
 
 
