@@ -17,6 +17,7 @@ import time
 from sqlmodel import Session
 
 from app.api.schemas import TraceCreate
+from app.gcode.writer import DEFAULT_DIALECT
 from app.parts.intake import export_mesh
 from app.parts.storage import store_part
 from app.parts.traces import build_trace
@@ -27,6 +28,7 @@ from app.platform.ownership import MachineOwnerLock
 from app.reference.evaluation import Table1Row, format_table
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from app.runtime.engine import QUEUES, Runtime
+from hardware.dialects import default_dispense
 
 
 def _numbers(spec: str) -> list[int]:
@@ -62,9 +64,10 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
             session.flush()
             traces = [build_trace(runtime.meshes, part, TraceCreate.model_validate(s1_traces()[n - 1].to_api()))
                       for n in numbers]
+            on, off = default_dispense(DEFAULT_DIALECT)  # a machine's dispenser unless its profile names one
             machine = Machine(
-                id=new_id("mach"), name="S1 demo mock", port="mock://", dialect="marlin",
-                profile={"dispense_on": "M106", "dispense_off": "M107"},
+                id=new_id("mach"), name="S1 demo mock", port="mock://", dialect=DEFAULT_DIALECT,
+                profile={"dispense_on": on, "dispense_off": off},
                 mock={"true_part_id": real.id, "placement": {"dz": args.dz_mm},
                       "probe_noise_mm": args.noise_um / 1000.0, "faults": {"seed": args.seed}},
                 created_at=utcnow())

@@ -8,8 +8,10 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, Field, field_validator, model_validator
 
 from app.api.schemas import Finite, Strict, UtcDatetime
+from app.five_axis.post import PostName
+from app.gcode.writer import DEFAULT_DIALECT, DialectName
 from app.machines.materials import DispenseProfile
-from hardware.dialects import DEFAULT_DIALECT, default_dispense
+from hardware.dialects import default_dispense
 
 MaterialName = Annotated[str, Field(min_length=1, max_length=80)]
 MAX_MATERIAL_PROFILES = 32
@@ -128,7 +130,7 @@ class Profile(Strict):
     pivot_mm: list[Finite] | None = Field(None, min_length=3, max_length=3,
                                           description="five-axis table pivot [x, y, z] mm (LinuxCNC xyzac-trt "
                                           "x/y/z-rot-point); five_axis jobs with machine_id use it")
-    five_axis_post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
+    five_axis_post: PostName = Field(
         "conforma", description="how five_axis jobs with machine_id write X Y Z A C (see docs/five-axis.md)")
     tools: Tools | None = Field(None, description="T0 = the touch probe, T1..T8 = nozzles (nominal offsets)")
     reference: Reference | None = Field(None, description="reference pad and sphere for the calibration jobs")
@@ -219,7 +221,7 @@ class MachineCreate(Strict):
     name: str = Field(min_length=1, max_length=200)
     port: str = Field(description='"mock://", "socket://host:port" or a device such as "/dev/ttyUSB0"')
     baudrate: int = Field(115200, ge=300, le=4_000_000)
-    dialect: Literal["marlin", "grbl", "linuxcnc"] = DEFAULT_DIALECT
+    dialect: DialectName = DEFAULT_DIALECT
     profile: Profile = Field(default_factory=Profile)
     mock: MockSettings | None = None
 

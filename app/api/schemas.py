@@ -7,6 +7,7 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
+from app.compensation.standoff import DEFAULT_STANDOFF_MM
 from app.machines.materials import DispenseProfile
 
 T = TypeVar("T")
@@ -93,7 +94,7 @@ class TraceCreate(Strict):
     name: str = Field(min_length=1, max_length=200)
     geometry: Geometry
     frame: Literal["xy", "3d"] = "xy"
-    standoff_mm: Finite = Field(0.10, gt=0, le=50)
+    standoff_mm: Finite = Field(DEFAULT_STANDOFF_MM, gt=0, le=50)
     width_mm: Finite | None = Field(None, gt=0, le=50)
     feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
     slope_warn_deg: Finite = Field(30.0, ge=0, le=90, description="warn when the surface under the trace is "

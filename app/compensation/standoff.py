@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -67,6 +67,10 @@ class OutsideProbedSpanError(CompensationError):
     """The trace runs beyond the probed span by more than the policy allows."""
 
 
+#: a trace's standoff when neither the job nor the trace (or circuit import) gives one, mm
+DEFAULT_STANDOFF_MM: Final = 0.10
+
+
 @dataclass(frozen=True)
 class CompensationParams:
     """Compensation settings (mm, mm/min, s).
@@ -91,7 +95,7 @@ class CompensationParams:
         written in carriage coordinates, carriage = tip - o (points stay tips).
     """
 
-    standoff_mm: float = 0.10
+    standoff_mm: float = DEFAULT_STANDOFF_MM
     feed_mm_min: float = 300.0
     chord_error_mm: float = 0.002
     dispense_on: str = "M106"

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
+
+from annotated_types import Ge, Gt, Le
 
 from app.domain.checks import require_positive
 from app.five_axis.contact import NormalSide, NormalSource
@@ -50,28 +53,30 @@ class FiveAxisParams:
     post: "conforma" (X Y Z = tip in machine coordinates, the project's convention) or
     "linuxcnc_xyzac_trt" (LinuxCNC TCP mode: M428, X Y Z = tip in workpiece
     coordinates), see :mod:`.post`.
+    The bounds in the annotations are the ranges a job may ask for (a kind's parameter model
+    reads them); ``__post_init__`` checks what the planner needs.
     """
 
     standoff_mm: float = 0.5
     feed_mm_min: float = 600.0
-    period_s: float = 0.001
-    segment_mm: float = 0.5
+    period_s: Annotated[float, Ge(1e-4), Le(0.1)] = 0.001
+    segment_mm: Annotated[float, Gt(0), Le(50)] = 0.5
     normal: NormalSource = "surface"
     normal_side: NormalSide = "up"
     pivot: tuple[float, float, float] = (0.0, 0.0, 0.0)
     a_limits_deg: tuple[float, float] = (-90.0, 90.0)
     c_limits_deg: tuple[float, float] | None = None
-    c_start_deg: float = 0.0
-    pole_window_deg: float = 0.05
-    midpoint_tol_mm: float = 0.01
+    c_start_deg: Annotated[float, Ge(-3600), Le(3600)] = 0.0
+    pole_window_deg: Annotated[float, Ge(0), Le(_MAX_POLE_WINDOW_DEG)] = 0.05
+    midpoint_tol_mm: Annotated[float, Gt(0), Le(1)] = 0.01
     max_split_rounds: int = 10
-    on_surface_tol_mm: float = 0.05
+    on_surface_tol_mm: Annotated[float, Gt(0), Le(5)] = 0.05
     feed_mode: FeedMode = "inverse_time"
     dialect: str = DEFAULT_PROBING_DIALECT
     job_id: str | None = None
-    decimals: int = 4
-    safe_z_mm: float | None = None
-    approach_feed_mm_min: float = 300.0
+    decimals: Annotated[int, Ge(3), Le(6)] = 4
+    safe_z_mm: Annotated[float, Ge(-1000), Le(1000)] | None = None
+    approach_feed_mm_min: Annotated[float, Gt(0), Le(100_000)] = 300.0
     dispense_on: str | None = None
     dispense_off: str | None = None
     program_end: str | None = None

@@ -176,8 +176,12 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
                          value=params.dialect)
     b = ProgramBuilder(params.dialect, "toolpath", params.job_id, record=record)  # GcodeError: unknown dialect
     rules = b.dialect
-    on, off = rules.dispense
-    on, off = params.dispense_on or on, params.dispense_off or off
+    on, off = params.dispense_on or "", params.dispense_off or ""  # "": the dialect's
+    if rules.dispense is not None:
+        on, off = on or rules.dispense[0], off or rules.dispense[1]
+    elif params.mode == "dispense" and not (on and off):
+        raise GcodeError(f"the {params.dialect} dialect has no dispenser commands of its own: give dispense_on "
+                         "and dispense_off", field="dispense_on" if not on else "dispense_off", value=None)
     fil_area = math.pi * (tpp.filament_mm / 2) ** 2
     _start(b, tpp, params, rules)
     b.comment("process")

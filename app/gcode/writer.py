@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Final, Literal
+from typing import Final, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -29,10 +29,13 @@ from app.domain.errors import InvalidInput
 from app.gcode.reader import Program
 from app.gcode.recorder import ProgramRecorder
 
+#: the one list of G-code dialects a program is written for (a job kind that targets fewer
+#: derives its subset from a capability of :data:`DIALECTS`, e.g. :data:`DISPENSING_DIALECTS`)
 DialectName = Literal["marlin", "grbl", "linuxcnc"]
-DEFAULT_DIALECT: Final = "marlin"  # programs for a printer (FDM, compensated traces, circuits, machines)
+DIALECT_NAMES: Final[tuple[DialectName, ...]] = get_args(DialectName)
+DEFAULT_DIALECT: Final[DialectName] = "marlin"  # programs for a printer (FDM, compensated traces, circuits, machines)
 # probing and five-axis programs default to grbl (their API defaults since they were written)
-DEFAULT_PROBING_DIALECT: DialectName = "grbl"
+DEFAULT_PROBING_DIALECT: Final[DialectName] = "grbl"
 ProbeStyle = Literal["g38", "g30"]
 
 
@@ -52,6 +55,8 @@ class Dialect:
     ``machine_limits``: the program sets acceleration and junction deviation
     (``M204``/``M205``); ``motors_off``: the end section's motors-off command;
     ``dispense``: the default dispenser on/off commands (a machine profile overrides them);
+    None: the dialect has none of its own (LinuxCNC's outputs are numbered, ``M64``/``M65 P<n>``,
+    so its commands come from a machine profile or the request);
     ``dwell_ms``: ``G4 P`` counts milliseconds (Marlin) rather than seconds.
     """
 
@@ -63,7 +68,7 @@ class Dialect:
     extrusion: bool = False
     machine_limits: bool = False
     motors_off: str | None = None
-    dispense: tuple[str, str] = ("M106 S255", "M107")
+    dispense: tuple[str, str] | None = ("M106 S255", "M107")
     dwell_ms: bool = False
 
     def dwell(self, seconds: float) -> str:
@@ -84,8 +89,22 @@ DIALECTS: dict[str, Dialect] = {
     # its dispense outputs are M64/M65 P<n> (machine profile), not M106/M107 or M8/M9
     # G64 P0.001: LinuxCNC blends corners within 1 um (its default G64 has no bound)
     "linuxcnc": Dialect("linuxcnc", probe_styles=("g38",), wait_for_moves="G4 P0",
-                        program_end="M2", preamble=("G64 P0.001",)),
+                        program_end="M2", preamble=("G64 P0.001",), dispense=None),
 }
+#: the dialects a print program can target without a machine profile: those whose dispenser
+#: commands are the dialect's own (``Dialect.dispense``), in :data:`DialectName`'s order
+DISPENSING_DIALECTS: Final[tuple[DialectName, ...]] = tuple(
+    name for name in DIALECT_NAMES if DIALECTS[name].dispense is not None)
+
+def own_dispense(name: str) -> tuple[str, str]:
+    """The dispenser (on, off) commands of dialect ``name`` itself; GcodeError (field
+    ``dialect``) for an unknown dialect or one without its own (LinuxCNC)."""
+    rules = DIALECTS.get(name)
+    if rules is None or rules.dispense is None:
+        raise GcodeError(f"the dialect {name!r} has no dispenser commands of its own; expected one of "
+                         f"{', '.join(DISPENSING_DIALECTS)}", field="dialect", value=name)
+    return rules.dispense
+
 
 _AXIS_RE = re.compile(r"^[ABCEUVW]$")
 

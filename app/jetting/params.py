@@ -2,12 +2,16 @@
 
 Units: mm inside; user-facing fields carry their unit in the name (``_um``, ``_pl``,
 ``_rad``). Every number the package uses lives here, so one object is passed explicitly.
+The bounds in the annotations are the ranges a job may ask for (a kind's parameter model
+reads them); the package checks what it needs where it uses a value.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
+
+from annotated_types import Ge, Gt, Le
 
 LayerModelKind = Literal["transport", "seed_diagonal"]  # ControllerParams.model
 SolverKind = Literal["fista", "lbfgsb"]  # ControllerParams.solver
@@ -27,9 +31,9 @@ class DropParams:
     seed's 2.65 um (Sa ~ 0.8 * spread * height).
     """
 
-    dpi: float = 300.0
-    drop_diameter_um: float = 60.0
-    drop_volume_pl: float = 6.0
+    dpi: Annotated[float, Ge(25), Le(2400)] = 300.0
+    drop_diameter_um: Annotated[float, Gt(0), Le(2000)] = 60.0
+    drop_volume_pl: Annotated[float, Gt(0), Le(10_000)] = 6.0
     supersample: int = 9  # sub-samples per cell and axis when integrating the drop cap
 
     @property
@@ -58,11 +62,11 @@ class FlowParams:
     tilt k above ``slope_lambda_rad``. ``flow_steps`` explicit sub-steps per layer (how far the
     liquid travels before UV cure)."""
 
-    threshold_um: float = 3.0
-    mobility: float = 0.5
+    threshold_um: Annotated[float, Ge(0), Le(1000)] = 3.0
+    mobility: Annotated[float, Ge(0), Le(1)] = 0.5
     slope_lambda_rad: float = 0.2
     slope_gain: float = 1.0
-    flow_steps: int = 1
+    flow_steps: Annotated[int, Ge(0), Le(50)] = 1
 
     @property
     def threshold_mm(self) -> float:
@@ -76,15 +80,15 @@ class PlantParams:
     factors), dead nozzles (indices) and height-sensor noise. Seeded, reproducible.
     Grid column j is printed by nozzle ``j % n_nozzles`` (GH2220: 384 nozzles)."""
 
-    nozzle_spread: float = 0.02
-    drop_noise: float = 0.01
-    volume_bias: float = 1.0
-    mobility_factor: float = 1.0
-    threshold_factor: float = 1.0
+    nozzle_spread: Annotated[float, Ge(0), Le(0.5)] = 0.02
+    drop_noise: Annotated[float, Ge(0), Le(0.5)] = 0.01
+    volume_bias: Annotated[float, Ge(0.1), Le(10)] = 1.0
+    mobility_factor: Annotated[float, Ge(0), Le(10)] = 1.0
+    threshold_factor: Annotated[float, Ge(0), Le(10)] = 1.0
     dead_nozzles: tuple[int, ...] = ()
-    n_nozzles: int = 384
-    sensor_noise_um: float = 0.2
-    seed: int = 0
+    n_nozzles: Annotated[int, Ge(1), Le(100_000)] = 384
+    sensor_noise_um: Annotated[float, Ge(0), Le(100)] = 0.2
+    seed: Annotated[int, Ge(0), Le(2**32 - 1)] = 0
 
 
 @dataclass(frozen=True)
@@ -107,20 +111,20 @@ class ControllerParams:
     """
 
     kind: str = "mpc"
-    horizon: int = 1
-    q_weight: float = 1.0
-    r_weight: float = 1e-3
-    f_weight: float = 1.0
-    outside_weight: float = 0.0
-    fill: float = 0.8
-    edge_lead: float = 8.0
-    edge_rings: int = 4
+    horizon: Annotated[int, Ge(1), Le(10)] = 1
+    q_weight: Annotated[float, Ge(0), Le(1e6)] = 1.0
+    r_weight: Annotated[float, Ge(0), Le(1e6)] = 1e-3
+    f_weight: Annotated[float, Gt(0), Le(1e6)] = 1.0
+    outside_weight: Annotated[float, Ge(0), Le(1e6)] = 0.0
+    fill: Annotated[float, Gt(0), Le(1)] = 0.8
+    edge_lead: Annotated[float, Ge(0), Le(1000)] = 8.0
+    edge_rings: Annotated[int, Ge(0), Le(100)] = 4
     model: LayerModelKind = "transport"
     solver: SolverKind = "fista"
     binarize: BinarizeKind = "greedy"
-    max_iter: int = 300
-    tol: float = 1e-2
-    greedy_rounds: int = 1
+    max_iter: Annotated[int, Ge(1), Le(100_000)] = 300
+    tol: Annotated[float, Gt(0), Le(1)] = 1e-2
+    greedy_rounds: Annotated[int, Ge(0), Le(50)] = 1
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import base64
 import binascii
-import dataclasses
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any, Literal
@@ -35,6 +34,7 @@ from app.jetting import (
 )
 from app.jetting.params import BinarizeKind, LayerModelKind, SolverKind
 from app.jetting.targets import rings_grid_cells, target_shape
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.results.models import SliceResult
 from app.platform.models import Artifact
 from app.runtime.registry import JobParams
@@ -51,7 +51,7 @@ FLAT_GROUPS = ("drop", "flow", "plant", "controller")  # the core's parameter gr
 # core fields the API does not expose (the core's defaults): DropParams.supersample, the slope
 # response of the flow, and the controller's kind (``controller`` of the jetting kind; next-layer is MPC)
 CORE_ONLY = frozenset({"supersample", "slope_lambda_rad", "slope_gain", "kind"})
-_D, _F, _C, _T = DropParams(), FlowParams(), ControllerParams(), TargetSpec()
+_T = TargetSpec()
 
 
 class StrictModel(BaseModel):
@@ -115,41 +115,47 @@ class PrintModelParams(JobParams):
     """The print grid, droplet, threshold flow and MPC settings (shared by both jetting kinds)."""
 
     target: TargetParams = Field(default_factory=TargetParams, description="the part to print")
-    dpi: float = Field(_D.dpi, ge=25, le=2400, allow_inf_nan=False, description="print resolution, dots per inch")
-    drop_diameter_um: float = Field(_D.drop_diameter_um, gt=0, le=2000, allow_inf_nan=False,
-                                    description="spread (landed) droplet diameter, um")
-    drop_volume_pl: float = Field(_D.drop_volume_pl, gt=0, le=10_000, allow_inf_nan=False,
-                                  description="nominal droplet volume, pL")
+    dpi: float = core_field(DropParams, "dpi", allow_inf_nan=False, description="print resolution, dots per inch")
+    drop_diameter_um: float = core_field(DropParams, "drop_diameter_um", allow_inf_nan=False,
+                                         description="spread (landed) droplet diameter, um")
+    drop_volume_pl: float = core_field(DropParams, "drop_volume_pl", allow_inf_nan=False,
+                                       description="nominal droplet volume, pL")
     margin_mm: float = Field(0.25, ge=0, le=10, allow_inf_nan=False, description="empty border around the part, mm")
-    threshold_um: float = Field(_F.threshold_um, ge=0, le=1000, allow_inf_nan=False,
-                                description="threshold flow: ink flows between neighbours only above this step, um")
-    mobility: float = Field(_F.mobility, ge=0, le=1, allow_inf_nan=False,
-                            description="flow mobility (2/pi) eta_s on a flat substrate, 0..1")
-    flow_steps: int = Field(_F.flow_steps, ge=0, le=50, description="flow sub-steps per layer before cure")
-    horizon: int = Field(_C.horizon, ge=1, le=10, description="MPC horizon m, layers")
-    q_weight: float = Field(_C.q_weight, ge=0, le=1e6, allow_inf_nan=False, description="MPC stage weight Q")
-    r_weight: float = Field(_C.r_weight, ge=0, le=1e6, allow_inf_nan=False, description="MPC input weight R")
-    f_weight: float = Field(_C.f_weight, gt=0, le=1e6, allow_inf_nan=False, description="MPC terminal weight F")
-    outside_weight: float = Field(_C.outside_weight, ge=0, le=1e6, allow_inf_nan=False,
-                                  description="weight of cells off the part relative to part cells")
-    fill: float = Field(_C.fill, gt=0, le=1, allow_inf_nan=False,
-                        description="MPC reference rise per layer in nominal layer heights")
-    edge_lead: float = Field(_C.edge_lead, ge=0, le=1000, allow_inf_nan=False,
-                             description="MPC reference lead on the part's edge cells, nominal layer heights "
-                             "(tapering to 0 over edge_rings; 0: the published flat reference)")
-    edge_rings: int = Field(_C.edge_rings, ge=0, le=100, description="cells from the part's edge the lead covers")
-    model: LayerModelKind = Field(
-        _C.model, description="seed_diagonal: the seed's (I + Dg) B; transport: mass-conserving flow operator")
-    solver: SolverKind = Field(_C.solver, description="fista (fast) or lbfgsb (reference)")
-    binarize: BinarizeKind = Field(
-        _C.binarize, description="relaxed -> 0/1 drops: greedy flips on the model's QP, threshold, error diffusion")
-    max_iter: int = Field(_C.max_iter, ge=1, le=100_000, description="solver iteration cap per layer")
-    tol: float = Field(_C.tol, gt=0, le=1, allow_inf_nan=False, description="solver tolerance (relative)")
-    greedy_rounds: int = Field(_C.greedy_rounds, ge=0, le=50, description="greedy flip sweeps")
+    threshold_um: float = core_field(
+        FlowParams, "threshold_um", allow_inf_nan=False,
+        description="threshold flow: ink flows between neighbours only above this step, um")
+    mobility: float = core_field(FlowParams, "mobility", allow_inf_nan=False,
+                                 description="flow mobility (2/pi) eta_s on a flat substrate, 0..1")
+    flow_steps: int = core_field(FlowParams, "flow_steps", description="flow sub-steps per layer before cure")
+    horizon: int = core_field(ControllerParams, "horizon", description="MPC horizon m, layers")
+    q_weight: float = core_field(ControllerParams, "q_weight", allow_inf_nan=False, description="MPC stage weight Q")
+    r_weight: float = core_field(ControllerParams, "r_weight", allow_inf_nan=False, description="MPC input weight R")
+    f_weight: float = core_field(ControllerParams, "f_weight", allow_inf_nan=False,
+                                 description="MPC terminal weight F")
+    outside_weight: float = core_field(ControllerParams, "outside_weight", allow_inf_nan=False,
+                                       description="weight of cells off the part relative to part cells")
+    fill: float = core_field(ControllerParams, "fill", allow_inf_nan=False,
+                             description="MPC reference rise per layer in nominal layer heights")
+    edge_lead: float = core_field(ControllerParams, "edge_lead", allow_inf_nan=False,
+                                  description="MPC reference lead on the part's edge cells, nominal layer heights "
+                                  "(tapering to 0 over edge_rings; 0: the published flat reference)")
+    edge_rings: int = core_field(ControllerParams, "edge_rings",
+                                 description="cells from the part's edge the lead covers")
+    model: LayerModelKind = core_field(
+        ControllerParams, "model",
+        description="seed_diagonal: the seed's (I + Dg) B; transport: mass-conserving flow operator")
+    solver: SolverKind = core_field(ControllerParams, "solver", description="fista (fast) or lbfgsb (reference)")
+    binarize: BinarizeKind = core_field(
+        ControllerParams, "binarize",
+        description="relaxed -> 0/1 drops: greedy flips on the model's QP, threshold, error diffusion")
+    max_iter: int = core_field(ControllerParams, "max_iter", description="solver iteration cap per layer")
+    tol: float = core_field(ControllerParams, "tol", allow_inf_nan=False, description="solver tolerance (relative)")
+    greedy_rounds: int = core_field(ControllerParams, "greedy_rounds", description="greedy flip sweeps")
 
-    def named(self, core: type[Any]) -> dict[str, Any]:
-        """This model's values of the ``core`` dataclass's fields, by the same names."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(core) if f.name not in CORE_ONLY}
+    def named(self, core: type[Any], **given: Any) -> dict[str, Any]:
+        """This model's values of the ``core`` dataclass's fields, by the same names (the
+        ``CORE_ONLY`` ones the core's defaults), then ``given``."""
+        return core_values(core, self, CORE_ONLY, **given)
 
     def drop(self) -> DropParams:
         return DropParams(**self.named(DropParams))
@@ -158,7 +164,7 @@ class PrintModelParams(JobParams):
         return FlowParams(**self.named(FlowParams))
 
     def controller_params(self, kind: str = "mpc") -> ControllerParams:
-        return ControllerParams(kind=kind, **self.named(ControllerParams))
+        return ControllerParams(**self.named(ControllerParams, kind=kind))
 
     def core(self) -> JettingParams:
         """The pure core's parameters (``layers`` 1: the next-layer kind plans one layer)."""

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.calibration.sensor import SensorCalibration
-from app.gcode.writer import DIALECTS
+from app.gcode.writer import DEFAULT_DIALECT, DIALECTS
 from app.jetting.machine_grid import Grid, cell_means, raster_waypoints, swaths
 from app.jobs.sensor_runs import HalScanner, SerialScanner
 from app.probing.scan_path import pass_duration
@@ -108,7 +108,7 @@ def wait_moves(machine: Machine) -> str:
 def cure(machine: Machine, setup: MachineSetup) -> None:
     """The UV lamp on for ``cure_s`` after the moves, then off (the dwell in the dialect's
     unit: Marlin ``G4 P<ms>``, grbl and LinuxCNC ``G4 P<s>``)."""
-    dwell = DIALECTS[str(getattr(machine, "dialect", "marlin"))].dwell(max(setup.cure_s, 0.001))
+    dwell = DIALECTS[str(getattr(machine, "dialect", DEFAULT_DIALECT))].dwell(max(setup.cure_s, 0.001))
     machine.stream([wait_moves(machine), setup.cure_on, dwell, setup.cure_off])
 
 

@@ -6,7 +6,11 @@
 * :class:`RegisterParams`: the ``register`` kind's parameters (closed_loop validates its
   ``registration_params`` with them);
 * :class:`ProbePlanParams`: the ``probe_plan`` kind's parameters (closed_loop validates its
-  ``probe`` with them).
+  ``probe`` with them);
+* :data:`DispensingDialect`: the dialects a print program can target without a machine
+  (the writer's :data:`~app.gcode.writer.DISPENSING_DIALECTS`, a subset of its one list);
+* :data:`StandoffMm` and :func:`standoff_of`: a job's standoff and how it falls back to the
+  trace's, then to the one default.
 
 Loading what the parameters point to (placements, nominals, succeeded jobs) is in
 :mod:`app.jobs.inputs`.
@@ -14,20 +18,40 @@ Loading what the parameters point to (placements, nominals, succeeded jobs) is i
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from app.gcode.writer import DEFAULT_PROBING_DIALECT
+from app.compensation.standoff import DEFAULT_STANDOFF_MM
+from app.gcode.writer import DEFAULT_PROBING_DIALECT, DISPENSING_DIALECTS, DialectName, ProbeStyle
 from app.geometry.placement import Placement
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.form_hints import ONE_TRACE as _ONE
 from app.jobs.form_hints import SEVERAL_TRACES as _SEVERAL
 from app.jobs.form_hints import form
+from app.probing import PlanParams
+from app.probing.program import ProbeProgramParams
 from app.runtime.registry import JobParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
+#: a job's standoff (nozzle tip above the surface), mm; None in a job: :func:`standoff_of`
+StandoffMm = Annotated[float, Field(gt=0, le=50)]
+
+if TYPE_CHECKING:  # mypy checks against the one list; pydantic and the OpenAPI schema see the subset
+    DispensingDialect = DialectName
+else:
+    DispensingDialect = Literal[DISPENSING_DIALECTS]
+
+
+def standoff_of(job_mm: float | None, trace_mm: float | None) -> float:
+    """The standoff a program is written for, mm: the job's, else the trace's (or its circuit
+    import's), else :data:`~app.compensation.standoff.DEFAULT_STANDOFF_MM`."""
+    if job_mm is not None:
+        return float(job_mm)
+    return float(trace_mm) if trace_mm is not None else DEFAULT_STANDOFF_MM
 
 _MORE = form(advanced=True)  # a folded field (app.jobs.form_hints)
+_DEVIATION = form(when={"method": ["deviation", "kriging", "field"]})
 MAX_TRACES = 200
 #: traces of one field-planned loop: a whole circuit import (its traces and the probe rings
 #: of its pads and areas: at most the import's MAX_SHAPES, app.circuits.budget)
@@ -96,6 +120,12 @@ class RegisterParams(JobParams):
         return self
 
 
+#: the planners' and the probe program's fields a probe_plan job keeps at the core's defaults
+PLAN_CORE_ONLY = frozenset({"end_ratio", "min_count", "peak_factor", "placement_xy_mm", "placement_z_mm",
+                            "placement_rz_deg", "tilt_rad"})
+PROGRAM_CORE_ONLY = frozenset({"sample_mm", "decimals"})
+
+
 class ProbePlanParams(PlacedParams):
     trace_id: str | None = Field(None, description="the trace to probe (give this or trace_ids)",
                                  json_schema_extra=_ONE)
@@ -114,11 +144,12 @@ class ProbePlanParams(PlacedParams):
     stations: Literal["on_traces", "anywhere_on_top"] = Field(
         "on_traces", description="field planner: stations on the traces, or anywhere on the part's top the probe "
         "reaches (within a quarter wavelength of a trace)", json_schema_extra=form(when={"method": ["field"]}))
-    chord_error_mm: float = Field(0.005, gt=0, le=10, json_schema_extra=form(when={"method": [None, "adaptive"]}))
-    count: int | None = Field(None, ge=4, le=10_000, description="probe count (uniform/deviation; per trace "
-                              "with trace_ids; field: for the whole board)")
-    coverage: float = Field(3.0, gt=0, le=10, description="kriging/field: coverage x largest predicted sd <= "
-                            "target_error_mm", json_schema_extra=form(when={"method": ["kriging", "field"]}))
+    chord_error_mm: float = core_field(PlanParams, "chord_error_mm",
+                                       json_schema_extra=form(when={"method": [None, "adaptive"]}))
+    count: int | None = core_field(PlanParams, "count", description="probe count (uniform/deviation; per trace "
+                                   "with trace_ids; field: for the whole board)")
+    coverage: float = core_field(PlanParams, "coverage", description="kriging/field: coverage x largest predicted "
+                                 "sd <= target_error_mm", json_schema_extra=form(when={"method": ["kriging", "field"]}))
     verify_count: int = Field(5, ge=0, le=100, description="field planner: verification points touched after the "
                               "stations where the traces' posterior is least certain; never used in the fit, they "
                               "check it (reconstruct's field_check)",
@@ -144,29 +175,27 @@ class ProbePlanParams(PlacedParams):
                                      "(stations so far + added + verification); a round that would pass it adds "
                                      "no stations and says so",
                                      json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
-    exchange: bool = Field(False, description="field planner, automatic count: refine the design by exchange "
-                           "moves (2-11 % fewer stations, about twice the planning time, less slack when a "
-                           "touch is rejected as an outlier)",
-                           json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
-    capability_k: float | None = Field(None, gt=0, lt=1, description="point-count formula: process capability K",
-                                       json_schema_extra=_MORE)
-    confidence: float | None = Field(None, gt=0.5, lt=1, description="point-count formula: confidence gamma",
-                                     json_schema_extra=_MORE)
-    cl_tolerance_mm: float = Field(0.001, gt=0, le=1, json_schema_extra=_MORE)
-    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10,
-                                          json_schema_extra=form(when={"method": ["deviation", "kriging", "field"]}))
-    deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
-                                           json_schema_extra=form(when={"method": ["deviation", "kriging", "field"]}))
-    target_error_mm: float = Field(0.005, gt=0, le=10,
-                                   json_schema_extra=form(when={"method": ["kriging", "field", None]}))
-    probe_sigma_mm: float = Field(0.001, ge=0, le=1, json_schema_extra=_MORE)
-    clearance_mm: float = Field(2.0, gt=0, le=100, json_schema_extra=_MORE)
-    approach_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
-    overtravel_mm: float = Field(1.0, gt=0, le=50, json_schema_extra=_MORE)
-    probe_feed_mm_min: float = Field(100.0, gt=0, le=10_000, json_schema_extra=_MORE)
-    dialect: Literal["grbl", "marlin", "linuxcnc"] = DEFAULT_PROBING_DIALECT
-    probe_style: Literal["g38", "g30"] | None = Field(None, description="default: G38.2 on grbl, G30 on Marlin",
-                                                      json_schema_extra=_MORE)
+    exchange: bool = core_field(PlanParams, "exchange", description="field planner, automatic count: refine the "
+                                "design by exchange moves (2-11 % fewer stations, about twice the planning time, "
+                                "less slack when a touch is rejected as an outlier)",
+                                json_schema_extra=form(advanced=True, when={"method": ["field", None]}))
+    capability_k: float | None = core_field(PlanParams, "capability_k", json_schema_extra=_MORE,
+                                            description="point-count formula: process capability K")
+    confidence: float | None = core_field(PlanParams, "confidence", json_schema_extra=_MORE,
+                                          description="point-count formula: confidence gamma")
+    cl_tolerance_mm: float = core_field(PlanParams, "cl_tolerance_mm", json_schema_extra=_MORE)
+    deviation_amplitude_mm: float = core_field(PlanParams, "deviation_amplitude_mm", json_schema_extra=_DEVIATION)
+    deviation_wavelength_mm: float = core_field(PlanParams, "deviation_wavelength_mm", json_schema_extra=_DEVIATION)
+    target_error_mm: float = core_field(PlanParams, "target_error_mm",
+                                        json_schema_extra=form(when={"method": ["kriging", "field", None]}))
+    probe_sigma_mm: float = core_field(PlanParams, "probe_sigma_mm", json_schema_extra=_MORE)
+    clearance_mm: float = core_field(ProbeProgramParams, "clearance_mm", json_schema_extra=_MORE)
+    approach_mm: float = core_field(ProbeProgramParams, "approach_mm", json_schema_extra=_MORE)
+    overtravel_mm: float = core_field(ProbeProgramParams, "overtravel_mm", json_schema_extra=_MORE)
+    probe_feed_mm_min: float = core_field(ProbeProgramParams, "probe_feed_mm_min", json_schema_extra=_MORE)
+    dialect: DialectName = Field(DEFAULT_PROBING_DIALECT, description="G-code dialect of the probe program")
+    probe_style: ProbeStyle | None = core_field(ProbeProgramParams, "probe_style", json_schema_extra=_MORE,
+                                                description="default: G38.2 on grbl, G30 on Marlin")
 
     @model_validator(mode="after")
     def _both_or_neither(self) -> ProbePlanParams:
@@ -177,6 +206,15 @@ class ProbePlanParams(PlacedParams):
         if self.trace_ids is not None and len(self.trace_ids) > MAX_TRACES and self.planner != "field":
             raise ValueError(f"more than {MAX_TRACES} traces are planned by the field planner only")
         return self
+
+    def plan_params(self) -> PlanParams:
+        """The planners' parameters: every one this job has, by name."""
+        return PlanParams(**core_values(PlanParams, self, PLAN_CORE_ONLY))
+
+    def program_params(self, part_max_z_mm: float) -> ProbeProgramParams:
+        """The probe program's parameters; ``part_max_z_mm``: the (placed) part's top, mm."""
+        return ProbeProgramParams(**core_values(ProbeProgramParams, self, PROGRAM_CORE_ONLY,
+                                                part_max_z_mm=part_max_z_mm))
 
     @property
     def planner(self) -> str:

@@ -25,6 +25,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.compensation.standoff import DEFAULT_STANDOFF_MM
 from app.jobs.form_hints import add_titles_and_units, form
 
 MaterialKind = Literal["conductive", "dielectric", "substrate"]
@@ -45,7 +46,7 @@ class DispenseProfile(BaseModel):
                                description="dwell after the dispenser is switched on, before the head moves")
     off_delay_ms: float = Field(0.0, ge=0, le=10_000, allow_inf_nan=False, title="Off delay",
                                 description="dwell after the dispenser is switched off, before the travel")
-    standoff_mm: float = Field(0.1, gt=0, le=50, allow_inf_nan=False, title="Standoff",
+    standoff_mm: float = Field(DEFAULT_STANDOFF_MM, gt=0, le=50, allow_inf_nan=False, title="Standoff",
                                description="nozzle height above the surface the programs are written for")
     feed_mm_min: float = Field(300.0, gt=0, le=100_000, allow_inf_nan=False, title="Speed",
                                description="dispensing speed the programs are written for")

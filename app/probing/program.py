@@ -21,9 +21,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from annotated_types import Gt, Le
 
 from app.domain.checks import require_positive
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DIALECTS, ProgramBuilder
@@ -43,14 +44,15 @@ class ProbeProgramParams:
     overtravel_mm: the probe may travel this far below the expected height (G38.2 target).
     part_max_z_mm: highest point of the whole part if known; the program's first move
         raises Z to max(this, every travel height) + clearance before any X/Y move.
+    The bounds in the annotations are the ranges a job may ask for (a kind's model reads them).
     """
 
     dialect: str = DEFAULT_PROBING_DIALECT
     probe_style: str | None = None
-    clearance_mm: float = 2.0
-    approach_mm: float = 1.0
-    overtravel_mm: float = 1.0
-    probe_feed_mm_min: float = 100.0
+    clearance_mm: Annotated[float, Gt(0), Le(100)] = 2.0
+    approach_mm: Annotated[float, Gt(0), Le(50)] = 1.0
+    overtravel_mm: Annotated[float, Gt(0), Le(50)] = 1.0
+    probe_feed_mm_min: Annotated[float, Gt(0), Le(10_000)] = 100.0
     sample_mm: float = 0.25
     part_max_z_mm: float | None = None
     decimals: int = 4

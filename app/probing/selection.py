@@ -43,9 +43,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from annotated_types import Ge, Gt, Le, Lt
 
 from app.domain.checks import require_non_negative, require_positive
 from app.domain.errors import InvalidInput
@@ -82,17 +83,19 @@ class PlanParams:
     exchange: "field" automatic count: refine the minimal design by exchange moves
         (:mod:`app.probing.field_exchange`): 2-11 % fewer stations on the bench's boards, about
         twice the planning time, and less slack when a touch is rejected as an outlier.
+    The bounds in the annotations are the ranges a job may ask for (a kind's parameter model
+    reads them); ``__post_init__`` checks what the planners need.
     """
 
-    chord_error_mm: float = 0.005
-    cl_tolerance_mm: float = 0.001
-    count: int | None = None
-    capability_k: float | None = None
-    confidence: float | None = None
-    deviation_amplitude_mm: float = 0.2
-    deviation_wavelength_mm: float = 20.0
-    target_error_mm: float = 0.005
-    probe_sigma_mm: float = 0.001
+    chord_error_mm: Annotated[float, Gt(0), Le(10)] = 0.005
+    cl_tolerance_mm: Annotated[float, Gt(0), Le(1)] = 0.001
+    count: Annotated[int, Ge(4), Le(10_000)] | None = None
+    capability_k: Annotated[float, Gt(0), Lt(1)] | None = None
+    confidence: Annotated[float, Gt(0.5), Lt(1)] | None = None
+    deviation_amplitude_mm: Annotated[float, Gt(0), Le(10)] = 0.2
+    deviation_wavelength_mm: Annotated[float, Gt(0), Le(10_000)] = 20.0
+    target_error_mm: Annotated[float, Gt(0), Le(10)] = 0.005
+    probe_sigma_mm: Annotated[float, Ge(0), Le(1)] = 0.001
     end_ratio: float = 0.7
     min_count: int = 4
     placement_xy_mm: float = 0.1
@@ -100,7 +103,7 @@ class PlanParams:
     placement_rz_deg: float = 0.2
     tilt_rad: float = 0.001
     peak_factor: float = 3.0
-    coverage: float = 3.0
+    coverage: Annotated[float, Gt(0), Le(10)] = 3.0
     exchange: bool = False
 
     def __post_init__(self) -> None:

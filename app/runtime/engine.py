@@ -38,7 +38,7 @@ from app.platform.db import existing_locked, make_engine
 from app.platform.lookup import get_or_404
 from app.platform.models import Job, JobReference, Part, Trace, new_id, utcnow
 from app.platform.models import Machine as MachineRow
-from app.platform.problems import from_error, problem
+from app.platform.problems import _short, from_error, problem
 from app.runtime.context import JobContext
 from app.runtime.cost import check_cost
 from app.runtime.machine_queue import MachineThreads, machine_slot
@@ -265,7 +265,9 @@ class Runtime:
         except ValidationError as exc:
             first = exc.errors()[0]
             loc = ".".join(str(p) for p in ("params", *first["loc"]))
-            raise InvalidInput(f"{loc}: {first['msg']}", field=loc, value=first.get("input")) from None
+            given = "input" in first and first["type"] != "missing"  # the bad value, as the API's 422 says it
+            got = f" (got {_short(first['input'])!r})" if given else ""
+            raise InvalidInput(f"{loc}: {first['msg']}{got}", field=loc, value=first.get("input")) from None
         return kind, validated
 
     def submit(self, kind_name: str, params: dict[str, Any], *, parent_id: str | None = None,

@@ -57,3 +57,14 @@ def test_dispense_mode_switches_per_piece(toolpath):
     assert " E" not in g and g.rstrip().endswith("M2")
     with pytest.raises(GcodeError):
         write_fdm_gcode(toolpath, FdmParams(dialect="grbl", mode="extrude"))
+
+
+def test_linuxcnc_dispenses_with_the_commands_it_is_given(toolpath):
+    """LinuxCNC has no dispenser words of its own (numbered outputs): a dispense program names them."""
+    with pytest.raises(GcodeError) as caught:
+        write_fdm_gcode(toolpath, FdmParams(dialect="linuxcnc", mode="dispense"))
+    assert caught.value.field == "dispense_on" and "linuxcnc" in caught.value.message
+    g = write_fdm_gcode(toolpath, FdmParams(dialect="linuxcnc", mode="dispense", dispense_on="M64 P0",
+                                            dispense_off="M65 P0"))
+    pieces = sum(len(lay.pieces) for lay in toolpath.layers)
+    assert g.count("\nM64 P0\n") == pieces and g.count("\nM65 P0\n") == pieces + 1 and "M106" not in g

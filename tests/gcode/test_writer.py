@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.domain.errors import InvalidInput
-from app.gcode.writer import DIALECTS, GcodeError, ProgramBuilder, format_number
+from app.gcode.writer import DEFAULT_DIALECT, DIALECT_NAMES, DIALECTS, GcodeError, ProgramBuilder, format_number
+from hardware import dialects as host
 
 
 def test_header_and_units():
@@ -104,3 +105,11 @@ def test_the_builders_bounds_are_what_the_reader_reads_and_none_when_it_cannot_f
     b.probe("g38", z=-1.0, feed_mm_min=100.0)
     assert b.bounds() is None  # where a probe stops is the part's business
     assert ProgramBuilder("grbl", "x").bounds() is None  # no moves
+
+
+def test_the_hardware_serves_the_writers_dialects_with_the_same_default():
+    """A machine's dialect is one of the writer's (``DialectName``); the serial host drives the
+    serial ones, the LinuxCNC backend the rest, and both default to the same dialect."""
+    assert set(host.DIALECTS) | {"linuxcnc"} == set(DIALECT_NAMES) and host.DEFAULT_DIALECT == DEFAULT_DIALECT
+    for name in DIALECT_NAMES:
+        assert len(host.default_dispense(name)) == 2  # every machine has a dispenser unless its profile names one

@@ -354,3 +354,18 @@ def test_bad_input_is_refused_at_submission_and_nothing_is_stored(client, cap_st
     assert nan.status_code == 422
     jobs = client.get("/api/v1/jobs", headers=OP).json()
     assert sorted(job["kind"] for job in jobs["items"]) == ["probe_plan", "surface_fit"]
+
+
+def test_a_straight_trace_with_the_principal_normal_is_a_422_naming_params_normal(client):
+    """The core's ``params.normal`` is this job's parameter of the same name."""
+    box = trimesh.creation.box(extents=(20.0, 20.0, 3.0))
+    box.apply_translation((10.0, 10.0, 1.5))  # a flat top at z = 3: a straight trace stays straight
+    part = upload(client, box.export(file_type="stl"), "box.stl")["id"]
+    trace = add_trace(client, part, {"type": "line", "start": [2.0, 2.0], "end": [18.0, 2.5]})
+    response = submit(client, "five_axis", {"part_id": part, "trace_id": trace["id"], "normal": "principal"})
+    assert response.status_code == 202, response.text
+    done = wait_for(client, response.json()["id"], timeout=60.0)
+    assert done["status"] == "failed" and done["error"]["status"] == 422, done
+    assert done["error"]["errors"][0]["loc"] == ["params", "normal"] and "straight" in done["error"]["detail"]
+    refused = submit(client, "five_axis", {"part_id": part, "trace_id": trace["id"], "period_s": 0})
+    assert refused.status_code == 422 and refused.json()["errors"][0]["loc"] == ["params", "period_s"]

@@ -305,3 +305,18 @@ def test_job_kinds_describe_every_jetting_parameter(client):
     assert {"dpi", "drop_diameter_um", "layers", "controller", "horizon", "nozzle_spread", "seed",
             "png_every"} <= set(schemas["jetting"]["properties"])
     assert schemas["jetting"]["properties"]["dpi"]["maximum"] == 2400
+
+
+def test_a_non_finite_measured_map_is_a_422_naming_params_measured(client):
+    """The core's ``measured`` error names the job's parameter of the same name."""
+    base = {"dpi": 150, "target": {"size_mm": 5, "hole_mm": 2}, "layer": 4}
+    heights = np.zeros(small_target().shape)  # the grid of base's target
+    heights[0, 0] = np.nan
+    buffer = io.BytesIO()
+    np.savez(buffer, heights=heights)
+    upload_row = client.post("/api/v1/files", files={"file": ("nan.npz", buffer.getvalue())}, headers=OP).json()
+    response = submit(client, "jetting_next_layer", {**base, "measured": {"file_id": upload_row["id"]}})
+    assert response.status_code == 202, response.text
+    done = wait_for(client, response.json()["id"])
+    assert done["status"] == "failed" and done["error"]["status"] == 422
+    assert done["error"]["errors"][0]["loc"] == ["params", "measured"] and "non-finite" in done["error"]["detail"]

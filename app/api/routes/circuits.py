@@ -27,6 +27,7 @@ from app.api.schemas import Finite, Strict, TraceCreate, UtcDatetime
 from app.circuits.mapping import MappingOptions
 from app.circuits.nets import area_polygon
 from app.circuits.pad_probes import probe_ring
+from app.compensation.standoff import DEFAULT_STANDOFF_MM
 from app.domain.errors import ConformaError, InvalidInput
 from app.jobs.circuit_import import ImportMapped, ImportRequest, PartMesh, read_and_map
 from app.jobs.kinds.circuit_program import import_probe_trace_ids, stored_areas
@@ -59,7 +60,7 @@ class CircuitImportOptions(Strict):
     mirror: bool = Field(False, description="mirror the layout in x (bottom layers)")
     mapping: Literal["project", "wrap"] = "project"
     max_stretch: Finite = Field(1.01, ge=1.0, le=10.0, description="warn above this stretch")
-    standoff_mm: Finite = Field(0.10, gt=0, le=50)
+    standoff_mm: Finite = Field(DEFAULT_STANDOFF_MM, gt=0, le=50)
     feed_mm_min: Finite | None = Field(None, gt=0, le=100_000)
     layer: str | None = Field(None, max_length=40, description="the copper layer printed: top (the default), "
                               "bottom, inner<n> or a KiCad layer name; the others are reported in files[].stack")

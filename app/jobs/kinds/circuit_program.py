@@ -37,12 +37,13 @@ from app.circuits.opens import check_opens, fill_coverage
 from app.circuits.program import Stroke, write_circuit_program
 from app.circuits.strokes import fill_tip_strokes, trace_passes_many
 from app.circuits.surface import PrintedPoints
+from app.compensation.standoff import CompensationParams
 from app.domain.errors import ConformaError, InvalidInput
-from app.gcode.writer import DEFAULT_DIALECT
 from app.geometry.drape import drape_polyline
 from app.jobs.circuit_surface import loop_placement, measured_surface
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
+from app.jobs.params import StandoffMm, standoff_of
 from app.jobs.results.loop import ClosedLoopResult, LoopTrace
 from app.jobs.results.models import CompensateResult, ProbeRunResult, compensate_rows
 from app.jobs.results.program import CircuitProgramResult
@@ -57,6 +58,7 @@ from app.runtime.registry import JobParams, job_kind
 #: always refused (also on a surface interpolated between stations, which the traces'
 #: per-trace reconstructions do not follow point for point)
 SURFACE_TOLERANCE_MM = 0.002
+_COMPENSATION = CompensationParams()  # without a machine: the compensated traces' dialect and dispenser
 
 
 class CircuitProgramParams(JobParams):
@@ -64,7 +66,7 @@ class CircuitProgramParams(JobParams):
     closed_loop_job_id: str = Field(description="a succeeded closed_loop over the import's traces")
     machine_id: str | None = Field(None, description="dialect and dispense codes from this machine's profile")
     line_width_mm: float = Field(0.2, gt=0.01, le=5, description="the nozzle's line: pass pitch and fill spacing")
-    standoff_mm: float | None = Field(None, gt=0, le=50, description="pads and areas; default: the import's")
+    standoff_mm: StandoffMm | None = Field(None, description="pads and areas; default: the import's")
     feed_mm_min: float = Field(300.0, gt=0, le=100_000)
     clearance_mm: float = Field(2.0, gt=0, le=100, json_schema_extra=form(advanced=True))
     pads: bool = Field(True, description="fill pads and areas")
@@ -292,7 +294,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
     def surface_z(xy: np.ndarray) -> np.ndarray:
         return surface.at(xy)[0]
 
-    standoff = params.standoff_mm or float(imp.options.get("standoff_mm", 0.1))
+    standoff = standoff_of(params.standoff_mm, imp.options.get("standoff_mm"))
     strokes: list[Stroke] = []
     with ctx.reads() as reads:                                    # every trace in one query
         records = reads.traces_by_id(imp.trace_ids)
@@ -306,7 +308,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
         for k, p in enumerate(trace_passes_):
             strokes.append(Stroke(p, "trace" if k == 0 else "pass", record.name,
                                   record.feed_mm_min or params.feed_mm_min))
-            printed.add(record.name, "trace", p, float(comp.params.get("standoff_mm") or record.standoff_mm))
+            printed.add(record.name, "trace", p, standoff_of(comp.params.get("standoff_mm"), record.standoff_mm))
     ctx.progress(0.5, "filling pads and areas")
     fills = 0
     if params.pads and (imp.pads or imp.areas):
@@ -336,7 +338,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                            value=params.closed_loop_job_id)
     if not strokes:
         raise InvalidInput("the import has nothing to print", field="params.import_id", value=params.import_id)
-    dialect, on, off = DEFAULT_DIALECT, "M106", "M107"
+    dialect, on, off = _COMPENSATION.dialect, _COMPENSATION.dispense_on, _COMPENSATION.dispense_off
     if params.machine_id:
         machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]

@@ -28,7 +28,7 @@ naming the trace, where and by how much).
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -48,7 +48,7 @@ from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, 
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import placed_nominal, placed_params_of, placement_from
-from app.jobs.params import MAX_FIELD_TRACES
+from app.jobs.params import MAX_FIELD_TRACES, DispensingDialect, StandoffMm, standoff_of
 from app.jobs.results.models import CompensateBoardResult, CompensateResult
 from app.jobs.tool_choice import ToolChoice, choose_tool
 from app.platform.models import Machine
@@ -58,6 +58,8 @@ from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
 CLEARANCE_STEP_MM = 0.05  # tip stations of the nozzle-body check along the path
+_CORE = CompensationParams()  # the core's defaults are this kind's
+_COMMAND = r"^[A-Za-z0-9 .\-]+$"  # one G-code line
 
 
 class CompensateCorrections(BaseModel):
@@ -78,19 +80,21 @@ class CompensateParams(JobParams):
         json_schema_extra=SEVERAL_TRACES)
     reconstruct_job_id: str = Field(description="a succeeded reconstruct job of this trace (board mode: of these "
                                     "traces)")
-    standoff_mm: float | None = Field(None, gt=0, le=50, description="default: the trace's standoff")
-    feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="default: the trace's, else 300")
-    chord_error_mm: float = Field(0.002, gt=0, le=1,
+    standoff_mm: StandoffMm | None = Field(None, description="default: the trace's standoff")
+    feed_mm_min: float | None = Field(None, gt=0, le=100_000,
+                                      description=f"default: the trace's, else {_CORE.feed_mm_min:g}")
+    chord_error_mm: float = Field(_CORE.chord_error_mm, gt=0, le=1,
                                   description="largest polyline-to-curve distance, proved per segment")
     machine_id: str | None = Field(None, description="take dialect and dispense commands from this machine's profile")
-    dialect: Literal["marlin", "grbl"] = DEFAULT_DIALECT
-    dispense_on: str = Field("M106", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$",
+    dialect: DispensingDialect = Field(DEFAULT_DIALECT, description="G-code dialect of the programs (without "
+                                       "machine_id)")
+    dispense_on: str = Field(_CORE.dispense_on, min_length=1, max_length=80, pattern=_COMMAND,
                              json_schema_extra=form(advanced=True))
-    dispense_off: str = Field("M107", min_length=1, max_length=80, pattern=r"^[A-Za-z0-9 .\-]+$",
+    dispense_off: str = Field(_CORE.dispense_off, min_length=1, max_length=80, pattern=_COMMAND,
                               json_schema_extra=form(advanced=True))
-    hold_mm: float = Field(0.0, ge=0, le=5, description="hold the end deviation over gaps to the probed span "
-                           "up to this length (0: refuse moves outside the probed span)")
-    clearance_mm: float = Field(2.0, gt=0, le=100, json_schema_extra=form(advanced=True))
+    hold_mm: float = Field(_CORE.hold_mm, ge=0, le=5, description="hold the end deviation over gaps to the probed "
+                           "span up to this length (0: refuse moves outside the probed span)")
+    clearance_mm: float = Field(_CORE.clearance_mm, gt=0, le=100, json_schema_extra=form(advanced=True))
     tool: int | None = Field(None, ge=0, le=8, description="the nozzle T<tool> the programs are written for "
                              "(default: the machine profile's first nozzle; none: the probe frame); 0 = the "
                              "probe's frame with T0")
@@ -250,8 +254,8 @@ def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trac
         on, off = choice.dispense_on or on, choice.dispense_off or off
     mesh = ctx.placed_mesh(records.part(trace.part_id) if records else ctx.part(trace.part_id), placement)
     path = compensate_trace(reconstruction, CompensationParams(
-        standoff_mm=params.standoff_mm or trace.standoff_mm,
-        feed_mm_min=params.feed_mm_min or trace.feed_mm_min or 300.0,
+        standoff_mm=standoff_of(params.standoff_mm, trace.standoff_mm),
+        feed_mm_min=params.feed_mm_min or trace.feed_mm_min or _CORE.feed_mm_min,
         chord_error_mm=params.chord_error_mm, dispense_on=on, dispense_off=off, dialect=dialect,
         clearance_mm=params.clearance_mm, part_max_z_mm=float(mesh.bounds[1][2]), hold_mm=params.hold_mm,
         tool=choice.tool, tool_offset_mm=choice.offset_mm,

@@ -31,21 +31,25 @@ A pose needing A beyond ``a_limits_deg`` fails the job with a 422 problem naming
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import Annotated, Any, NamedTuple
 
 import numpy as np
 from pydantic import Field, field_validator
 
 from app.domain.errors import InvalidInput
 from app.five_axis import FiveAxisError, FiveAxisParams, plan_five_axis
+from app.five_axis.contact import NormalSource
 from app.five_axis.errors import TraceOffSurfaceError
+from app.five_axis.post import PostName
+from app.five_axis.program import FeedMode
 from app.five_axis.trace import plan_view_points, trace_over_xy, uv_over_xy
-from app.gcode.writer import DEFAULT_PROBING_DIALECT
+from app.gcode.writer import DEFAULT_PROBING_DIALECT, DialectName, own_dispense
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.geometry.nurbs_surface import NurbsSurface
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import nominal_of
+from app.jobs.params import StandoffMm, standoff_of
 from app.jobs.results.models import FiveAxisResult, SurfaceFitResult
 from app.platform.models import Job, Machine, Part, Trace
 from app.probing.grid import ProbeRegion, plan_probe_grid
@@ -55,12 +59,13 @@ from app.runtime.cost import Cost
 from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 
-DEFAULT_FEED_MM_MIN = 600.0
 _DISPENSE_COMMAND = r"^[A-Z][0-9]+(\.[0-9]+)?( [A-Z]-?[0-9]+(\.[0-9]+)?)*$"
 # FiveAxisParams fields this job does not expose (the core's defaults); every other core field
 # has this job's parameter's name, so a core error's ``params.<name>`` is this job's parameter
 CORE_ONLY = frozenset({"normal_side", "max_split_rounds", "job_id"})
 
+_CORE = FiveAxisParams()  # the core's defaults are this job's
+_OWN_DISPENSE = own_dispense(DEFAULT_PROBING_DIALECT)  # grbl's M8 / M9
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Angle = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
 
@@ -71,45 +76,46 @@ class FiveAxisJobParams(JobParams):
     surface_fit_job_id: str | None = Field(
         None, description="a succeeded surface_fit job of the part: its surface is the real surface; "
         "default: a fit of the part's nominal top over the trace's region")
-    standoff_mm: float | None = Field(None, gt=0, le=50, description="nozzle height h above the "
-                                      "surface along the nozzle axis; default: the trace's")
+    standoff_mm: StandoffMm | None = Field(None, description="nozzle height h above the surface along the "
+                                           "nozzle axis; default: the trace's")
     feed_mm_min: float | None = Field(None, gt=0, le=100_000, description="print speed along the trace; "
-                                      f"default: the trace's, else {DEFAULT_FEED_MM_MIN:g}")
-    period_s: float = Field(0.001, ge=1e-4, le=0.1, description="servo period T of the Taylor update")
-    segment_mm: float = Field(0.5, gt=0, le=50, description="program line spacing along the trace")
-    pivot: list[Finite] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
+                                      f"default: the trace's, else {_CORE.feed_mm_min:g}")
+    period_s: float = core_field(FiveAxisParams, "period_s", description="servo period T of the Taylor update")
+    segment_mm: float = core_field(FiveAxisParams, "segment_mm", description="program line spacing along the trace")
+    pivot: list[Finite] = Field(list(_CORE.pivot), min_length=3, max_length=3,
                                 description="table pivot [x0, y0, z0] mm (workpiece coordinates at A = C = 0)")
-    normal: Literal["surface", "principal"] = Field(
-        "surface", description="nozzle direction: surface normal, or the trace's principal normal (patent)")
-    a_limits_deg: list[Angle] = Field([-90.0, 90.0], min_length=2, max_length=2,
+    normal: NormalSource = Field(
+        _CORE.normal, description="nozzle direction: surface normal, or the trace's principal normal (patent)")
+    a_limits_deg: list[Angle] = Field(list(_CORE.a_limits_deg), min_length=2, max_length=2,
                                       description="[min, max] table tilt A")
     c_limits_deg: list[Finite] | None = Field(None, min_length=2, max_length=2,
                                               description="[min, max] C; default endless")
-    c_start_deg: float = Field(0.0, ge=-3600, le=3600, description="C before the path (biases the "
-                               "first branch; held if the whole path is within the pole window)")
-    pole_window_deg: float = Field(0.05, ge=0, le=5, description="within this tilt of the normal from "
-                                   "vertical (A = 0) C is blended smoothly and the nozzle may lean "
-                                   "from the normal by at most this angle; 0 = exact normals")
-    midpoint_tol_mm: float = Field(0.01, gt=0, le=1, description="max tip deviation from its planned path "
-                                   "halfway between program lines (longer lines are split)")
-    feed_mode: Literal["inverse_time", "tcp"] = Field(
-        "inverse_time", description="inverse_time: G93, F = 1/minutes per line; tcp: G94, F = tip mm/min")
-    on_surface_tol_mm: float = Field(0.05, gt=0, le=5, description="max distance of the trace from the surface")
-    decimals: int = Field(4, ge=3, le=6, description="digits of mm and degrees in the program")
-    safe_z_mm: float | None = Field(None, ge=-1000, le=1000, description="machine Z of the approach "
-                                    "rapids; default: straight approach move")
-    approach_feed_mm_min: float = Field(300.0, gt=0, le=100_000, description="feed of the approach move")
-    dispense_on: str = Field("M8", max_length=40, pattern=_DISPENSE_COMMAND,
+    c_start_deg: float = core_field(FiveAxisParams, "c_start_deg", description="C before the path (biases the "
+                                    "first branch; held if the whole path is within the pole window)")
+    pole_window_deg: float = core_field(FiveAxisParams, "pole_window_deg", description="within this tilt of the "
+                                        "normal from vertical (A = 0) C is blended smoothly and the nozzle may lean "
+                                        "from the normal by at most this angle; 0 = exact normals")
+    midpoint_tol_mm: float = core_field(FiveAxisParams, "midpoint_tol_mm", description="max tip deviation from its "
+                                        "planned path halfway between program lines (longer lines are split)")
+    feed_mode: FeedMode = Field(
+        _CORE.feed_mode, description="inverse_time: G93, F = 1/minutes per line; tcp: G94, F = tip mm/min")
+    on_surface_tol_mm: float = core_field(FiveAxisParams, "on_surface_tol_mm",
+                                          description="max distance of the trace from the surface")
+    decimals: int = core_field(FiveAxisParams, "decimals", description="digits of mm and degrees in the program")
+    safe_z_mm: float | None = core_field(FiveAxisParams, "safe_z_mm", description="machine Z of the approach "
+                                         "rapids; default: straight approach move")
+    approach_feed_mm_min: float = core_field(FiveAxisParams, "approach_feed_mm_min",
+                                             description="feed of the approach move")
+    dispense_on: str = Field(_OWN_DISPENSE[0], max_length=40, pattern=_DISPENSE_COMMAND,
                              description="command that starts dispensing (after the approach)")
-    dispense_off: str = Field("M9", max_length=40, pattern=_DISPENSE_COMMAND,
+    dispense_off: str = Field(_OWN_DISPENSE[1], max_length=40, pattern=_DISPENSE_COMMAND,
                               description="command that stops dispensing (after the last move)")
-    post: Literal["conforma", "linuxcnc_xyzac_trt"] = Field(
-        "conforma", description="conforma: X Y Z = tip in machine coordinates (any controller; LinuxCNC "
+    post: PostName = Field(
+        _CORE.post, description="conforma: X Y Z = tip in machine coordinates (any controller; LinuxCNC "
         "xyzac-trt in identity mode); linuxcnc_xyzac_trt: M428 TCP, X Y Z = tip in workpiece coordinates")
     program_end: str | None = Field(None, max_length=40, pattern=_DISPENSE_COMMAND,
                                     description="the machine's program end, e.g. M2; default: the dialect's")
-    dialect: Literal["grbl", "marlin", "linuxcnc"] = Field(DEFAULT_PROBING_DIALECT,
-                                                           description="G-code dialect of the program")
+    dialect: DialectName = Field(DEFAULT_PROBING_DIALECT, description="G-code dialect of the program")
     machine_id: str | None = Field(None, description="take the dialect, dispense codes, program end, post and "
                                    "pivot (when set) from this machine's profile instead of the fields above")
     fit_grid: list[Annotated[int, Field(ge=4, le=100)]] = Field(
@@ -135,11 +141,10 @@ class FiveAxisJobParams(JobParams):
     def plan_params(self, trace: Trace, job_id: str | None) -> FiveAxisParams:
         """The core's parameters, field by field of the same name (lists as tuples); standoff
         and feed default to the trace's."""
-        given = {f.name: getattr(self, f.name) for f in dataclasses.fields(FiveAxisParams) if f.name not in CORE_ONLY}
-        given = {name: tuple(value) if isinstance(value, list) else value for name, value in given.items()}
-        return FiveAxisParams(**{
-            **given, "job_id": job_id, "standoff_mm": self.standoff_mm or trace.standoff_mm,
-            "feed_mm_min": self.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN})
+        return FiveAxisParams(**core_values(
+            FiveAxisParams, self, CORE_ONLY, job_id=job_id,
+            standoff_mm=standoff_of(self.standoff_mm, trace.standoff_mm),
+            feed_mm_min=self.feed_mm_min or trace.feed_mm_min or _CORE.feed_mm_min))
 
 
 def with_machine(params: FiveAxisJobParams, machine: Machine) -> FiveAxisJobParams:
@@ -147,7 +152,7 @@ def with_machine(params: FiveAxisJobParams, machine: Machine) -> FiveAxisJobPara
     profile = machine.profile or {}
     update: dict[str, Any] = {key: profile[key] for key in ("dispense_on", "dispense_off", "program_end")
                               if profile.get(key)}
-    update["post"] = profile.get("five_axis_post") or "conforma"
+    update["post"] = profile.get("five_axis_post") or _CORE.post
     if profile.get("pivot_mm") is not None:
         update["pivot"] = [float(v) for v in profile["pivot_mm"]]
     known = GCODE_DIALECTS.get(machine.dialect)  # a dialect the program writer knows
@@ -252,7 +257,7 @@ def _estimate(params: FiveAxisJobParams, reads: JobReads) -> Cost | None:
     trace = reads.find_trace(params.trace_id)
     if trace is None:
         return None
-    feed = params.feed_mm_min or trace.feed_mm_min or DEFAULT_FEED_MM_MIN
+    feed = params.feed_mm_min or trace.feed_mm_min or _CORE.feed_mm_min
     samples = trace.length_mm / (feed / 60.0) / params.period_s
     lines = trace.length_mm / params.segment_mm
     sample_mb, line_mb = SAMPLE_BYTES * samples / 2**20, LINE_BYTES * lines / 2**20

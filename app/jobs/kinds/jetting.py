@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from app.jetting import JettingParams, PlantParams, estimate_bytes, pattern_png, simulate
+from app.jobs.core_fields import core_field
 from app.jobs.jetting_inputs import (
     MEMORY_LIMIT_BYTES,
     NPZ_MEDIA_TYPE,
@@ -36,29 +37,28 @@ from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
 
 MAX_PNG_ARTIFACTS = 1000          # per-layer pattern PNGs one job may write
-_P = PlantParams()
 
 
 class JettingJobParams(PrintModelParams):
     layers: int = Field(200, ge=1, le=10_000, description="layers to print")
     controller: Literal["mpc", "open_loop"] = Field(
         "mpc", description="open_loop: the part mask every layer; mpc: the seed's layer-to-layer MPC")
-    nozzle_spread: float = Field(_P.nozzle_spread, ge=0, le=0.5, allow_inf_nan=False,
-                                 description="plant: per-nozzle volume spread (relative std)")
-    drop_noise: float = Field(_P.drop_noise, ge=0, le=0.5, allow_inf_nan=False,
-                              description="plant: per-drop volume noise (relative std)")
-    volume_bias: float = Field(_P.volume_bias, ge=0.1, le=10, allow_inf_nan=False,
-                               description="plant: true mean drop volume / nominal (model mismatch)")
-    mobility_factor: float = Field(_P.mobility_factor, ge=0, le=10, allow_inf_nan=False,
-                                   description="plant: true flow mobility / model's (clipped to 1)")
-    threshold_factor: float = Field(_P.threshold_factor, ge=0, le=10, allow_inf_nan=False,
-                                    description="plant: true flow threshold / model's")
-    n_nozzles: int = Field(_P.n_nozzles, ge=1, le=100_000, description="plant: nozzles; column j uses j % n_nozzles")
+    nozzle_spread: float = core_field(PlantParams, "nozzle_spread", allow_inf_nan=False,
+                                      description="plant: per-nozzle volume spread (relative std)")
+    drop_noise: float = core_field(PlantParams, "drop_noise", allow_inf_nan=False,
+                                   description="plant: per-drop volume noise (relative std)")
+    volume_bias: float = core_field(PlantParams, "volume_bias", allow_inf_nan=False,
+                                    description="plant: true mean drop volume / nominal (model mismatch)")
+    mobility_factor: float = core_field(PlantParams, "mobility_factor", allow_inf_nan=False,
+                                        description="plant: true flow mobility / model's (clipped to 1)")
+    threshold_factor: float = core_field(PlantParams, "threshold_factor", allow_inf_nan=False,
+                                         description="plant: true flow threshold / model's")
+    n_nozzles: int = core_field(PlantParams, "n_nozzles", description="plant: nozzles; column j uses j % n_nozzles")
     dead_nozzles: list[int] = Field(default_factory=list, max_length=1000,
                                     description="plant: indices of nozzles that never fire")
-    sensor_noise_um: float = Field(_P.sensor_noise_um, ge=0, le=100, allow_inf_nan=False,
-                                   description="plant: height-sensor noise (std), um")
-    seed: int = Field(_P.seed, ge=0, le=2**32 - 1, description="plant random seed (same seed, same run)")
+    sensor_noise_um: float = core_field(PlantParams, "sensor_noise_um", allow_inf_nan=False,
+                                        description="plant: height-sensor noise (std), um")
+    seed: int = core_field(PlantParams, "seed", description="plant random seed (same seed, same run)")
     png_every: int = Field(1, ge=0, le=10_000, description="write pattern_NNNN.png every k layers (0: none)")
     snapshot_every: int = Field(0, ge=0, le=10_000, description="keep a height map every k layers in "
                                 "heights.npz (0: the final one only)")
@@ -73,7 +73,7 @@ class JettingJobParams(PrintModelParams):
         return self
 
     def core(self) -> JettingParams:
-        plant = PlantParams(**{**self.named(PlantParams), "dead_nozzles": tuple(self.dead_nozzles)})
+        plant = PlantParams(**self.named(PlantParams))
         return JettingParams(drop=self.drop(), flow=self.flow(), plant=plant,
                              controller=self.controller_params(self.controller), target=self.target_spec(),
                              layers=self.layers, margin_mm=self.margin_mm, snapshot_every=self.snapshot_every,

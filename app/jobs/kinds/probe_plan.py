@@ -30,7 +30,7 @@ from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import ProbePlanParams
 from app.jobs.results.models import ProbePlanResult
-from app.probing import PlanParams, ProbePlan, ProbeProgram, ProbeProgramParams, build_probe_program, plan_probes
+from app.probing import PlanParams, ProbePlan, ProbeProgram, build_probe_program, plan_probes
 from app.probing.field import field_result, plan_field, stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.field_verify import with_sequential_verification, with_verification
@@ -77,13 +77,8 @@ def _references(params: ProbePlanParams) -> list[tuple[str, str]]:
 
 
 def _plan_params(params: ProbePlanParams) -> PlanParams:
-    return PlanParams(
-        chord_error_mm=params.chord_error_mm, cl_tolerance_mm=params.cl_tolerance_mm, count=params.count,
-        capability_k=params.capability_k, confidence=params.confidence,
-        deviation_amplitude_mm=params.deviation_amplitude_mm, deviation_wavelength_mm=params.deviation_wavelength_mm,
-        target_error_mm=params.target_error_mm, probe_sigma_mm=params.probe_sigma_mm, coverage=params.coverage,
-        exchange=params.exchange,
-    )
+    """The planners' parameters (:meth:`ProbePlanParams.plan_params`: the job's, by name)."""
+    return params.plan_params()
 
 
 def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: Any) -> tuple[ProbeProgram, dict]:
@@ -91,11 +86,7 @@ def _program(ctx: JobContext, params: ProbePlanParams, plan: ProbePlan, mesh: An
     Stations without a planned normal take the placed mesh's face normal below them."""
     if plan.normals is None:
         plan = replace(plan, normals=mesh_station_normals(mesh, plan.points[:, :2]))
-    program = build_probe_program(plan, mesh, ProbeProgramParams(
-        dialect=params.dialect, probe_style=params.probe_style, clearance_mm=params.clearance_mm,
-        approach_mm=params.approach_mm, overtravel_mm=params.overtravel_mm,
-        probe_feed_mm_min=params.probe_feed_mm_min, part_max_z_mm=float(mesh.bounds[1][2]),
-    ), job_id=ctx.job_id)
+    program = build_probe_program(plan, mesh, params.program_params(float(mesh.bounds[1][2])), job_id=ctx.job_id)
     meta = gcode_meta(program.gcode)
     ctx.artifact("probe.gcode", program.gcode.encode(), "text/x-gcode", meta)
     return program, meta

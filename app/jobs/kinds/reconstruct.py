@@ -23,6 +23,7 @@ from app.calibration import ProbeCalibration
 from app.domain.errors import InvalidInput
 from app.geometry.placement import Placement
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
+from app.jobs.core_fields import core_field
 from app.jobs.field_runs import run_field
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
@@ -107,11 +108,12 @@ class ReconstructJobParams(PlacedParams):
                               "the stations' touches (type-II maximum likelihood, the plan's prior as start) and "
                               "fit the field with it; false: the plan's prior as stated",
                               json_schema_extra=form(when={"method": ["field"]}))
-    deviation_amplitude_mm: float = Field(0.2, gt=0, le=10, description="kriging: expected machining error amplitude",
-                                          json_schema_extra=form(when={"method": ["kriging"]}))
-    deviation_wavelength_mm: float = Field(20.0, gt=0, le=10_000,
-                                           description="kriging: shortest wavelength of the machining error",
-                                           json_schema_extra=form(when={"method": ["kriging"]}))
+    deviation_amplitude_mm: float = core_field(PlanParams, "deviation_amplitude_mm",
+                                               description="kriging: expected machining error amplitude",
+                                               json_schema_extra=form(when={"method": ["kriging"]}))
+    deviation_wavelength_mm: float = core_field(PlanParams, "deviation_wavelength_mm",
+                                                description="kriging: shortest wavelength of the machining error",
+                                                json_schema_extra=form(when={"method": ["kriging"]}))
 
     @model_validator(mode="after")
     def _one_source(self) -> ReconstructJobParams:

@@ -16,6 +16,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from app.jobs.core_fields import core_values
 from app.jobs.form_hints import form
 from app.jobs.results.models import SliceResult
 from app.platform.models import Part
@@ -125,12 +126,7 @@ class SliceJobParams(JobParams):
 
     def core(self) -> SliceParams:
         """The pure core's parameters."""
-        return SliceParams(mode=self.mode, layer_mm=self.layer_mm, l_min=self.l_min, l_max=self.l_max,
-                           eps0=self.eps0, sigma0=self.sigma0, mu0=self.mu0, mu1=self.mu1,
-                           theta_rule=self.theta_rule, step9_resets_to_lmax=self.step9_resets_to_lmax,
-                           cusp_mm=self.cusp_mm, seed_sample=self.seed_sample, remainder=self.remainder,
-                           repair=self.repair, max_hole_mm=self.max_hole_mm,
-                           max_layers=MAX_LAYERS)
+        return SliceParams(**core_values(SliceParams, self, {"z_tol"}, max_layers=MAX_LAYERS))
 
     def beam_compensation(self) -> BeamWidthTable | float | None:
         """What :func:`compensate_beam` gets (None: no compensation)."""

@@ -24,6 +24,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from app.jobs.core_fields import core_values
 from app.jobs.results.models import SurfaceFitResult
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import (
@@ -137,14 +138,7 @@ class SurfaceFitJobParams(JobParams):
     def fit_params(self) -> SurfaceFitParams:
         """The core's parameters (raises SurfaceFitError naming params.<field>)."""
         resample = (self.grid[0], self.grid[1]) if self.resample_to_grid and self.has_points else None
-        return SurfaceFitParams(
-            method=self.method, degree=self.degree,
-            control_points=None if self.control_points is None else (self.control_points[0], self.control_points[1]),
-            penalty=self.penalty, smoothing=self.smoothing,
-            moving_average_window=self.moving_average_window, smoothing_passes=self.smoothing_passes,
-            remove_bad_points=self.remove_bad_points, bad_point_sigma=self.bad_point_sigma,
-            bad_point_min_mm=self.bad_point_min_mm, hole_policy=self.hole_policy,
-            densify_factor=self.densify_factor, resample_shape=resample)
+        return SurfaceFitParams(**core_values(SurfaceFitParams, self, resample_shape=resample))
 
     @property
     def has_points(self) -> bool:

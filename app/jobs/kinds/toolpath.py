@@ -25,10 +25,12 @@ from app.domain.errors import ConformaError
 from app.gcode.estimator import MachineLimits, estimate_program
 from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
-from app.gcode.writer import DEFAULT_DIALECT
+from app.gcode.writer import DEFAULT_DIALECT, DISPENSING_DIALECTS
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
+from app.jobs.core_fields import core_values
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
+from app.jobs.params import DispensingDialect
 from app.jobs.results.models import SliceResult
 from app.jobs.results.program import ToolpathResult
 from app.platform.models import Machine
@@ -49,6 +51,14 @@ MM_MIN_PER_MM_S = 60.0
 _FILL = ToolpathParams()
 _LIMITS = MachineLimits()
 _FDM = FdmParams()
+
+
+def _dialects_own(index: int) -> str:
+    """The dispensing dialects' own on (0) or off (1) commands, e.g. ``"M106 S255 / M8"``."""
+    return " / ".join(own[index] for name in DISPENSING_DIALECTS if (own := GCODE_DIALECTS[name].dispense))
+
+
+_DEFAULT_ON, _DEFAULT_OFF = _dialects_own(0), _dialects_own(1)
 _WEIGHTS = MergeWeights()
 
 Speed = Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)]
@@ -153,7 +163,7 @@ class ToolpathJobParams(JobParams):
     max_accel_mm_s2: tuple[Accel, Accel, Accel, Accel] = Field(_LIMITS.max_accel_mm_s2,
                                                                description="axis acceleration limits X Y Z E (M201)",
                                                                json_schema_extra=_MORE)
-    dialect: Literal["marlin", "grbl"] = Field(DEFAULT_DIALECT, description="G-code dialect (extrude needs marlin)")
+    dialect: DispensingDialect = Field(DEFAULT_DIALECT, description="G-code dialect (extrude needs marlin)")
     mode: Literal["extrude", "dispense"] = Field(_FDM.mode, description="E-axis extrusion or dispenser on/off")
     nozzle_temp_c: float = Field(_FDM.nozzle_temp_c, ge=0, le=500, allow_inf_nan=False, description="extrude, deg C",
                                  json_schema_extra=_EXTRUDE)
@@ -169,9 +179,9 @@ class ToolpathJobParams(JobParams):
                                              description="retract only before longer travels, mm",
                                              json_schema_extra=_EXTRUDE_MORE)
     home: bool = Field(_FDM.home, description="home (G28) in the start section", json_schema_extra=_MORE)
-    dispense_on: Command | None = Field(None, description="dispense mode: on command (default M106 S255 / M8)",
+    dispense_on: Command | None = Field(None, description=f"dispense mode: on command (default {_DEFAULT_ON})",
                                         json_schema_extra=_DISPENSE_MORE)
-    dispense_off: Command | None = Field(None, description="dispense mode: off command (default M107 / M9)",
+    dispense_off: Command | None = Field(None, description=f"dispense mode: off command (default {_DEFAULT_OFF})",
                                          json_schema_extra=_DISPENSE_MORE)
     placement: PlacementIn = Field(default_factory=PlacementIn, description="where the part goes on the machine "
                                    "(default: dropped to the bed and centred)", json_schema_extra=_MORE)
@@ -187,15 +197,12 @@ class ToolpathJobParams(JobParams):
                              max_feed_mm_s=self.max_feed_mm_s, max_accel_mm_s2=self.max_accel_mm_s2)
 
     def fill(self) -> ToolpathParams:
-        return ToolpathParams(
-            pattern=self.pattern, line_width_mm=self.line_width_mm, nozzle_mm=self.nozzle_mm,
-            layer_height_mm=self.layer_height_mm, infill=self.infill, perimeters=self.perimeters,
-            angle_deg=self.angle_deg, angle_step_deg=self.angle_step_deg,
-            print_feed_mm_s=self.print_feed_mm_min / MM_MIN_PER_MM_S,
+        """The planner's parameters: this job's by name, the feeds in mm/s from the job's mm/min."""
+        return ToolpathParams(**core_values(
+            ToolpathParams, self, print_feed_mm_s=self.print_feed_mm_min / MM_MIN_PER_MM_S,
             perimeter_feed_mm_s=self.perimeter_feed_mm_min / MM_MIN_PER_MM_S,
-            travel_feed_mm_s=self.travel_feed_mm_min / MM_MIN_PER_MM_S, filament_mm=self.filament_mm,
-            turn_threshold_deg=self.turn_threshold_deg, resolution_mm=self.resolution_mm, limits=self.limits(),
-            merge_weights=MergeWeights(along=self.merge_weight_along, across=self.merge_weight_across))
+            travel_feed_mm_s=self.travel_feed_mm_min / MM_MIN_PER_MM_S, limits=self.limits(),
+            merge_weights=MergeWeights(along=self.merge_weight_along, across=self.merge_weight_across)))
 
     def fdm(self, job_id: str | None) -> FdmParams:
         return FdmParams(dialect=self.dialect, mode=self.mode, job_id=job_id, nozzle_temp_c=self.nozzle_temp_c,

@@ -20,6 +20,7 @@ from app.domain.errors import InvalidInput
 from app.gcode.program_bounds import BoundsScan
 from app.geometry.nurbs_surface import NurbsSurface
 from app.jobs.gcode_meta import gcode_meta
+from app.jobs.params import StandoffMm
 from app.jobs.results.models import ProbeRunResult, SurfaceFitResult
 from app.jobs.results.program import WarpProgramResult
 from app.platform.models import Job
@@ -37,7 +38,7 @@ class WarpProgramParams(JobParams):
     program_id: str = Field(description="an uploaded program (POST /api/v1/programs)")
     surface_fit_job_id: str | None = Field(None, description="a succeeded surface_fit job")
     probe_run_job_id: str | None = Field(None, description="a succeeded probe_run job (its measured points)")
-    standoff_mm: float | None = Field(None, gt=0, le=50, description="printing moves at the surface + this; "
+    standoff_mm: StandoffMm | None = Field(None, description="printing moves at the surface + this; "
                                       "default: the program's z + the surface height")
     chord_error_mm: float = Field(0.002, gt=0, le=1, description="bound per emitted piece against the height model")
     arc_chord_mm: float = Field(0.001, ge=MIN_ARC_CHORD_MM, le=1,

@@ -10,8 +10,12 @@ from __future__ import annotations
 from typing import ClassVar
 
 from pydantic import BaseModel, ConfigDict
+from pydantic.dataclasses import dataclass
 
+from app.jetting.metrics import SurfaceMetrics
 from app.jobs.results.models import KindResult
+
+_STRICT = ConfigDict(extra="forbid")  # a stored layer with an unknown key is an error, as in KindResult
 
 
 class JettingGrid(BaseModel):
@@ -25,24 +29,11 @@ class JettingGrid(BaseModel):
     layer_height_um: float
 
 
-class SurfaceFigures(BaseModel):
-    """Surface metrics of a height map over the part, um (:class:`app.jetting.metrics.SurfaceMetrics`)."""
-
-    model_config = ConfigDict(extra="forbid")
-    sa_um: float
-    sa_interior_um: float
-    sz_um: float
-    rmse_um: float
-    edge_collapse_um: float
-    edge_collapse_outer_um: float
-    edge_collapse_hole_um: float
-    mean_height_um: float
-    target_height_um: float
-
-
-class JettingLayer(SurfaceFigures):
+@dataclass(frozen=True, config=_STRICT)
+class JettingLayer(SurfaceMetrics):
     """One printed layer (:meth:`app.jetting.simulate.LayerRecord.as_dict`): its surface
-    metrics, drops fired and the controller's solve (ms, iterations, integer gap, KKT residual)."""
+    metrics (the core's :class:`~app.jetting.metrics.SurfaceMetrics`, um), drops fired and the
+    controller's solve (ms, iterations, integer gap, KKT residual)."""
 
     layer: int
     drops: int
@@ -87,7 +78,8 @@ class NextLayerResult(KindResult):
     grid: JettingGrid
 
 
-class MachineLayer(SurfaceFigures):
+@dataclass(frozen=True, config=_STRICT)
+class MachineLayer(SurfaceMetrics):
     """One layer jetted on a machine: the surface metrics of its MEASURED map (um; cells the scan
     did not see taken from the model's prediction), the drops in its pattern and fired by the
     head (-1: unknown, a layer an interruption cut short), the controller's solve (ms; 0 open loop), the scan's valid

@@ -1,0 +1,98 @@
+"""A kind's parameters composed from the core's dataclasses: the schema shows the core's
+defaults and bounds, a value outside them is a 422 naming the field, and the core's object is
+built from the job's parameters by name."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Annotated
+
+import pytest
+from annotated_types import Ge, Gt, Le, Lt
+from pydantic import BaseModel, ValidationError
+
+from app.five_axis import FiveAxisParams
+from app.jobs.core_fields import core_bounds, core_field, core_values
+from app.jobs.params import ProbePlanParams
+from app.probing import PlanParams
+from app.probing.program import ProbeProgramParams
+from tests.conftest import auth
+from tests.helpers.jobs import submit
+
+
+@dataclass(frozen=True)
+class Core:
+    width_mm: Annotated[float, Gt(0), Le(5)] = 1.5
+    count: Annotated[int, Ge(2)] | None = None
+    ratio: Annotated[float, Gt(0), Lt(1)] = 0.5
+    name: str = "core"
+
+
+class Model(BaseModel):
+    width_mm: float = core_field(Core, "width_mm", description="the model's words")
+    count: int | None = core_field(Core, "count")
+    name: str = core_field(Core, "name")
+
+
+def test_a_field_takes_the_cores_default_and_bounds():
+    assert core_bounds(Core, "width_mm") == {"gt": 0, "le": 5} and core_bounds(Core, "count") == {"ge": 2}
+    assert core_bounds(Core, "name") == {}
+    schema = Model.model_json_schema()["properties"]
+    assert schema["width_mm"] == {"default": 1.5, "description": "the model's words", "exclusiveMinimum": 0,
+                                  "maximum": 5, "title": "Width Mm", "type": "number"}
+    assert {"minimum": 2, "type": "integer"} in schema["count"]["anyOf"]
+    assert Model().width_mm == 1.5 and Model(width_mm=5).width_mm == 5
+    for bad in ({"width_mm": 0}, {"width_mm": 5.01}, {"count": 1}):
+        with pytest.raises(ValidationError) as caught:
+            Model(**bad)
+        assert caught.value.errors()[0]["loc"] == tuple(bad)
+    with pytest.raises(KeyError):
+        core_field(Core, "height_mm")  # a name the core does not have fails where the model is declared
+
+
+def test_the_core_object_is_built_by_name():
+    values = core_values(Core, Model(width_mm=2.0, name="job"), ratio=0.25)
+    assert values == {"width_mm": 2.0, "count": None, "name": "job", "ratio": 0.25}
+    assert Core(**values) == Core(width_mm=2.0, ratio=0.25, name="job")
+    assert core_values(Core, Model(), core_only={"ratio"}) == {"width_mm": 1.5, "count": None, "name": "core"}
+    with pytest.raises(TypeError, match="ratio"):  # a core field the model lost is not silently the default
+        core_values(Core, Model())
+
+
+def test_probe_plan_builds_the_planners_parameters_from_its_own():
+    params = ProbePlanParams(trace_id="trc_x", chord_error_mm=0.01, count=12, coverage=2.0, probe_feed_mm_min=50.0,
+                             dialect="marlin", probe_style="g30")
+    plan = params.plan_params()
+    assert (plan.chord_error_mm, plan.count, plan.coverage) == (0.01, 12, 2.0)
+    assert plan.end_ratio == PlanParams().end_ratio and plan.min_count == PlanParams().min_count  # the core's own
+    program = params.program_params(part_max_z_mm=3.0)
+    assert (program.probe_feed_mm_min, program.dialect, program.style, program.part_max_z_mm) == (50.0, "marlin",
+                                                                                                  "g30", 3.0)
+    assert program.sample_mm == ProbeProgramParams().sample_mm
+
+
+def test_the_probe_plan_schema_shows_the_cores_bounds_and_a_bad_value_is_named(client):
+    kinds = {k["name"]: k["params_schema"] for k in client.get("/api/v1/job-kinds", headers=auth("viewer")).json()}
+    fields = kinds["probe_plan"]["properties"]
+    assert fields["chord_error_mm"]["default"] == PlanParams().chord_error_mm
+    assert (fields["chord_error_mm"]["exclusiveMinimum"], fields["chord_error_mm"]["maximum"]) == (0, 10)
+    assert (fields["probe_sigma_mm"]["minimum"], fields["probe_sigma_mm"]["maximum"]) == (0, 1)
+    assert fields["approach_mm"]["default"] == ProbeProgramParams().approach_mm
+    assert {"exclusiveMinimum": 0.5, "exclusiveMaximum": 1, "type": "number"} in fields["confidence"]["anyOf"]
+    for name, bad in (("chord_error_mm", 0), ("count", 3), ("approach_mm", 51)):
+        refused = submit(client, "probe_plan", {"trace_id": "trc_none", name: bad})
+        assert refused.status_code == 422, refused.text
+        error = refused.json()["errors"][0]
+        assert error["loc"] == ["params", name] and error["value"] == bad
+
+
+def test_the_five_axis_schema_shows_the_cores_bounds(client):
+    kinds = {k["name"]: k["params_schema"] for k in client.get("/api/v1/job-kinds", headers=auth("viewer")).json()}
+    fields = kinds["five_axis"]["properties"]
+    core = FiveAxisParams()
+    assert (fields["period_s"]["default"], fields["period_s"]["minimum"], fields["period_s"]["maximum"]) == (
+        core.period_s, 1e-4, 0.1)
+    assert (fields["pole_window_deg"]["default"], fields["pole_window_deg"]["maximum"]) == (core.pole_window_deg, 5)
+    assert {"minimum": -1000, "maximum": 1000, "type": "number"} in fields["safe_z_mm"]["anyOf"]
+    refused = submit(client, "five_axis", {"part_id": "prt_none", "trace_id": "trc_none", "decimals": 7})
+    assert refused.status_code == 422 and refused.json()["errors"][0]["loc"] == ["params", "decimals"]
