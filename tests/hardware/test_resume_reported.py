@@ -238,6 +238,7 @@ def test_only_reports_of_this_stream_count_and_an_unknown_opening_is_not_placed(
     fallback = ResumeLocation(0, "planner bound", "the controller reports the power-on origin")
     found = resumer.locate_by_report(fallback, ReportEvidence((10.0, 0.0, 0.0), 2, 0.0, 0.5), 6, 6)
     assert found.basis == "planner bound" and "opening" in found.detail
-    placed = resumer.locate_by_report(fallback, ReportEvidence((10.0, 2.0, 0.0), 2, 0.0, 0.5, origin=(0.0, 0.0, 0.0)), 6, 6)
+    known_origin = ReportEvidence((10.0, 2.0, 0.0), 2, 0.0, 0.5, origin=(0.0, 0.0, 0.0))
+    placed = resumer.locate_by_report(fallback, known_origin, 6, 6)
     assert placed.basis == "reported position" and placed.start == 3  # the origin makes the opening known
     m.disconnect()
