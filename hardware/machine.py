@@ -64,7 +64,7 @@ from .dialects import dialect as dialect_rules
 from .errors import FirmwareError, HardwareError, MachineStateError
 from .events import Capability, FirmwareInfo, ReplyEvent, StartBanner
 from .link import CommandResult, Link
-from .machine_args import axis_words
+from .machine_args import straight_move
 from .machine_grbl import GrblControl
 from .machine_host import SerialCommands
 from .machine_outputs import DISCONNECT_SAFE_OFF_S, OutputGuard
@@ -289,14 +289,13 @@ class Machine(StateReadout[Link]):
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
         """Absolute straight move; returns once the motion is finished."""
-        feed = feed_mm_min or self.profile.travel_feed_mm_min
-        words = axis_words(x, y, z)
+        move = straight_move(self.profile, x, y, z, feed_mm_min)
         c = self.commands
         c.claim_motion("busy", "move")
         try:
             if self.rules.jog_locks_gcode:
                 c.wait_not_jogging()  # G-code during a jog is error:9
-            c.run(["G90", f"G1{words} F{feed:.1f}", c.wait_motion])
+            c.run(["G90", move, c.wait_motion])
             return c.position()
         finally:
             self.machine_state.release()

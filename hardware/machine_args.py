@@ -14,7 +14,7 @@ from .machine_types import MachineProfile
 from .protocol import validate_program
 
 __all__ = ["ProbeDown", "ProbeToward", "axis_words", "check_tool", "probe_down", "probe_missed", "probe_toward",
-           "program_commands"]
+           "program_commands", "straight_move"]
 
 Point = tuple[float, float, float]
 
@@ -25,6 +25,14 @@ def axis_words(x: float | None, y: float | None, z: float | None) -> str:
     if not words:
         raise InvalidConfig("move needs at least one of x, y, z", field="move")
     return words
+
+
+def straight_move(profile: MachineProfile, x: float | None, y: float | None, z: float | None,
+                  feed_mm_min: float | None) -> str:
+    """``G1 X.. Y.. Z.. F..`` to the axes given (mm) at ``feed_mm_min`` (default: the travel
+    feed, mm/min); ``InvalidConfig`` (field ``move``) when no axis is given."""
+    words = axis_words(x, y, z)
+    return f"G1{words} F{feed_mm_min or profile.travel_feed_mm_min:.1f}"
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable
 from ..console_log import ConsoleLog
 from ..dialects import LINUXCNC_DISPENSE
 from ..errors import FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
-from ..machine_args import axis_words, check_tool, probe_down, probe_missed, probe_toward, program_commands
+from ..machine_args import check_tool, probe_down, probe_missed, probe_toward, program_commands, straight_move
 from ..machine_state import MachineState, StateReadout, base_status, connected
 from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
 from ..program_clock import ProgramClock
@@ -218,11 +218,10 @@ class LinuxCNCMachine(StateReadout[RshSession]):
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
         """Absolute straight move (G90 G1); returns once the motion is finished."""
-        feed = feed_mm_min or self.profile.travel_feed_mm_min
-        words = axis_words(x, y, z)
+        move = straight_move(self.profile, x, y, z, feed_mm_min)
         self.machine_state.claim("busy")
         try:
-            self._mdi([f"G90 G1{words} F{feed:.1f}"])
+            self._mdi([f"G90 {move}"])
             return self._position()
         finally:
             self.machine_state.release(self.machine_state.fail_state())

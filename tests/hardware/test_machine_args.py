@@ -11,7 +11,15 @@ import pytest
 from hardware.errors import InvalidConfig
 from hardware.linuxcnc import LinuxCNCMachine
 from hardware.machine import Machine as SerialMachine
-from hardware.machine_args import axis_words, check_tool, probe_down, probe_missed, probe_toward, program_commands
+from hardware.machine_args import (
+    axis_words,
+    check_tool,
+    probe_down,
+    probe_missed,
+    probe_toward,
+    program_commands,
+    straight_move,
+)
 from hardware.machine_types import MachineProfile
 
 PROFILE = MachineProfile(clearance_z=5.0, probe_z_min=-10.0, probe_feed_mm_min=100.0, travel_feed_mm_min=3000.0)
@@ -19,6 +27,8 @@ PROFILE = MachineProfile(clearance_z=5.0, probe_z_min=-10.0, probe_feed_mm_min=1
 
 def test_move_words_name_only_the_axes_given() -> None:
     assert axis_words(1.0, None, -2.5) == " X1.0000 Z-2.5000"
+    assert straight_move(PROFILE, None, 4.0, None, None) == "G1 Y4.0000 F3000.0"  # the travel feed
+    assert straight_move(PROFILE, 1.0, 2.0, 3.0, 600.0) == "G1 X1.0000 Y2.0000 Z3.0000 F600.0"
     with pytest.raises(InvalidConfig) as none:
         axis_words(None, None, None)
     assert none.value.field == "move"
