@@ -84,13 +84,13 @@ class Machine(StateReadout[Link]):
     for a second caller); pause/resume/cancel/stop/status work from any thread.
 
     Composed of collaborators, each built with what it uses: ``machine_state`` (link, state,
-    claim, cancel and emergency-stop flags, progress: ``hardware.machine_state``; read
-    through ``StateReadout``),
-    ``commands`` (commands and positions over the link, the controller's lock:
-    ``hardware.machine_host``), ``grbl`` (boot, build info, unlock, jog:
+    claim, cancel and emergency-stop flags, progress: ``hardware.machine_state``, read through
+    ``StateReadout``), ``commands`` (commands and positions over the link, the controller's
+    lock: ``hardware.machine_host``), ``grbl`` (boot, build info, unlock, jog:
     ``hardware.machine_grbl``), ``output_guard`` (``safe_off``: ``hardware.machine_outputs``),
     ``prober`` (``hardware.machine_probe``), ``resumer`` (the interrupted program:
-    ``hardware.machine_resume``) and ``programs`` (streaming: ``hardware.machine_stream``)."""
+    ``hardware.machine_resume``) and ``programs`` (streaming: ``hardware.machine_stream``).
+    Its public calls delegate to them."""
 
     def __init__(self, url: str, dialect: str = DEFAULT_DIALECT, profile: MachineProfile | None = None,
                  *, baudrate: int = 115200, window: str = "windowed", timeout_s: float = 30.0,
