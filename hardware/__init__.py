@@ -19,9 +19,10 @@ Usable without the ``app`` package.  Layers (each usable alone):
 * ``hardware.backend.Machine`` — the protocol every machine backend implements (what the
   service drives): the serial ``hardware.machine.Machine`` and ``hardware.linuxcnc.LinuxCNCMachine``.
 * ``hardware.machine.Machine`` — connect/identify, home, move, position, probe,
-  stream with pause/resume/cancel, stop, resume after a disconnect (``resume_line``); its
-  parts (``machine_grbl``, ``machine_outputs``, ``machine_probe``, ``machine_resume``)
-  use only what ``hardware.machine_host.SerialHost`` declares.
+  stream with pause/resume/cancel, stop, resume after a disconnect (``resume_line``);
+  composed of collaborators built with what they use (``machine_host.SerialCommands``,
+  ``machine_grbl``, ``machine_outputs``, ``machine_probe``, ``machine_resume``,
+  ``machine_stream``) around the ``machine_state.MachineState`` every backend keeps.
 * ``hardware.mock`` — firmware-like Marlin/grbl mock behind ``mock://NAME?options`` with
   a true part to probe, a deposition log, fault injection and an executed-command
   transcript (``MockWorld``, ``register_world``, ``get_world``).

@@ -53,35 +53,44 @@ dispenser, turned back on only where the program had it on;
 
 from __future__ import annotations
 
-import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
 from .console_log import ConsoleLog
+from .controller_state import ControllerState
 from .dialects import DEFAULT_DIALECT
 from .dialects import dialect as dialect_rules
-from .errors import FirmwareError, FirmwareReset, HardwareError, InvalidConfig, LinkError, MachineStateError
-from .events import Capability, FirmwareInfo, PositionReport, ReplyEvent, StartBanner
-from .link import CommandResult, Link, PendingCommand
-from .machine_grbl import GrblOperations
-from .machine_outputs import DISCONNECT_SAFE_OFF_S, OutputOperations
-from .machine_probe import ProbeOperations
-from .machine_resume import ResumeOperations
-from .machine_state import ClaimedOperations, axis_words, connected
+from .errors import FirmwareError, HardwareError, MachineStateError
+from .events import Capability, FirmwareInfo, ReplyEvent, StartBanner
+from .link import CommandResult, Link
+from .machine_args import straight_move
+from .machine_grbl import GrblControl
+from .machine_host import SerialCommands
+from .machine_outputs import DISCONNECT_SAFE_OFF_S, OutputGuard
+from .machine_probe import Prober
+from .machine_resume import ResumeHelper
+from .machine_state import MachineState, StateReadout, base_status
+from .machine_stream import ProgramStream
 from .machine_types import STATES, Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
 from .program_clock import ProgramClock
-from .protocol import validate_program
 from .resume import ResumeLocation
-
-REPORT_INTERVAL_S = 0.1  # while streaming: a real-position report this often (hardware.reports)
 
 __all__ = ["STATES", "Identity", "Machine", "MachineProfile", "ProbeResult", "StreamReport"]
 
-class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperations, ClaimedOperations):
+
+class Machine(StateReadout[Link]):
     """See the module docstring.  Blocking operations hold the machine (``MachineBusy``
-    for a second caller); pause/resume/cancel/stop/status work from any thread."""
+    for a second caller); pause/resume/cancel/stop/status work from any thread.
+
+    Composed of collaborators, each built with what it uses: ``machine_state`` (link, state,
+    claim, cancel and emergency-stop flags, progress: ``hardware.machine_state``, read through
+    ``StateReadout``), ``commands`` (commands and positions over the link, the controller's
+    lock: ``hardware.machine_host``), ``grbl`` (boot, build info, unlock, jog:
+    ``hardware.machine_grbl``), ``output_guard`` (``safe_off``: ``hardware.machine_outputs``),
+    ``prober`` (``hardware.machine_probe``), ``resumer`` (the interrupted program:
+    ``hardware.machine_resume``) and ``programs`` (streaming: ``hardware.machine_stream``).
+    Its public calls delegate to them."""
 
     def __init__(self, url: str, dialect: str = DEFAULT_DIALECT, profile: MachineProfile | None = None,
                  *, baudrate: int = 115200, window: str = "windowed", timeout_s: float = 30.0,
@@ -94,53 +103,78 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         self.baudrate = baudrate
         self.window = window
         self.timeout_s = timeout_s
-        self.boot_wait_s = boot_wait_s
-        self.boot_quiet_s = boot_quiet_s
         self.poke_s = poke_s
-        self.link: Link | None = None
         self.identity: Identity | None = None
-        self.progress: tuple[int, int] | None = None  # (executed, total) of the running program
-        self.acked_line_no: int | None = None  # firmware line number of the last acknowledged command
-        self._state = "disconnected"
-        self._hold = threading.Lock()
-        self._resume_event = threading.Event()
-        self._resume_event.set()
-        self._cancel = False
-        self._interrupted: _Interrupted | None = None
-        self._estopped = False
-        self.planner_blocks = 16  # Marlin BLOCK_BUFFER_SIZE; grbl: from [OPT:..] (15)
-        self.last_preamble: list[str] = []  # what the last stream sent before its first command
-        self.rejected_lines: list[int] = []  # command indices the controller rejected
-        self.outputs: dict[str, Any] | None = None  # the last safe_off: when, whether sent, why not
         self.console = ConsoleLog()  # every line sent and received, across reconnects
         self.homed = False  # homed since this connection (the host's record: Marlin and grbl do not report it)
         self.clock = ProgramClock()  # elapsed time and time left of the running program
-        self._connected_at: float | None = None  # time.monotonic() of the last connect
-        self.last_resume: ResumeLocation | None = None  # what locate_resume found last
-        self._resume_commands: list[str] | None = None  # the interrupted program (locate_resume)
-        self._stream_started: float | None = None  # time.monotonic() when the last stream started
-        self._stream_origin: tuple[float, float, float] | None = None  # where the tool stood before it
+        super().__init__(MachineState(error_when_lost=("idle", "busy")))
+        self.commands = SerialCommands(self.machine_state, self.rules, self.profile, timeout_s)
+        self.grbl = GrblControl(self.commands, boot_wait_s=boot_wait_s, boot_quiet_s=boot_quiet_s)
+        self.output_guard = OutputGuard(self.commands)
+        self.prober = Prober(self.commands)
+        self.resumer = ResumeHelper(self.commands, self.grbl, self.output_guard)
+        self.programs = ProgramStream(self.commands, self.resumer, self.clock)
 
     # ------------------------------------------------------------------ state
     @property
-    def link_lost(self) -> bool:
-        """True when the transport failed under a connected machine (not after an emergency
-        stop): reconnecting and resuming is safe."""
-        return self.link is not None and not self.link.healthy and not self._estopped
-
-    @property
     def live_link(self) -> Link:
         """The open link; ``MachineStateError`` while disconnected."""
-        return connected(self.link)
+        return self.machine_state.live_link
 
     @property
-    def state(self) -> str:
-        """disconnected | idle | busy | printing | paused | error."""
-        if self.link is None:
-            return "disconnected"
-        if not self.link.healthy and self._state in ("idle", "busy"):
-            return "error"
-        return self._state
+    def acked_line_no(self) -> int | None:
+        """The firmware's line number of the last acknowledged command."""
+        return self.programs.acked_line_no
+
+    @property
+    def interrupted_program(self) -> _Interrupted | None:
+        """What is known of a program that stopped on a link failure (``resume_line``)."""
+        return self.resumer.interrupted
+
+    @property
+    def last_preamble(self) -> list[str]:
+        """What the last stream sent before its first command."""
+        return self.resumer.last_preamble
+
+    @property
+    def rejected_lines(self) -> list[int]:
+        """Command indices the controller rejected in the last stream."""
+        return self.resumer.rejected_lines
+
+    @property
+    def last_resume(self) -> ResumeLocation | None:
+        """What ``locate_resume`` found last (None: nothing yet, or forgotten)."""
+        return self.resumer.last_resume
+
+    @last_resume.setter
+    def last_resume(self, found: ResumeLocation | None) -> None:
+        self.resumer.last_resume = found
+
+    @property
+    def outputs(self) -> dict[str, Any] | None:
+        """The last ``safe_off``: when, whether sent, why not."""
+        return self.output_guard.last
+
+    @property
+    def planner_blocks(self) -> int:
+        """Marlin's BLOCK_BUFFER_SIZE (16); grbl's from ``[OPT:..]`` (15)."""
+        return self.grbl.planner_blocks
+
+    @property
+    def held_moves(self) -> int:
+        """Acknowledged moves the controller may hold unmoved (``GrblControl.held_moves``)."""
+        return self.grbl.held_moves
+
+    @property
+    def controller(self) -> ControllerState | None:
+        """The firmware's own state with its reason (``hardware.session_types``), or None."""
+        return self.commands.controller
+
+    @property
+    def home_command(self) -> str:
+        """What ``home`` sends: the profile's command, else the dialect's (G28 / $H)."""
+        return self.profile.home_command or self.rules.home_command
 
     # ------------------------------------------------------------------ connection
     def connect(self) -> Identity:
@@ -148,47 +182,34 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         unless an interrupted program waits for ``resume_line``) and identify."""
         if self.link is not None:
             self.disconnect()
-        self._connected_at = time.monotonic()  # a controller that kept running stopped by now at the latest
-        self.link = Link.open(self.url, baudrate=self.baudrate, dialect=self.dialect,
-                              timeout_s=self.timeout_s, window=self.window, poke_s=self.poke_s,
-                              console=self.console)
-        self._state = "busy"
-        self._estopped = False
+        self.resumer.connected_at = time.monotonic()  # a controller that kept running stopped by now at the latest
+        link = self.machine_state.link = Link.open(
+            self.url, baudrate=self.baudrate, dialect=self.dialect, timeout_s=self.timeout_s, window=self.window,
+            poke_s=self.poke_s, console=self.console)
+        self.machine_state.connecting()
         self.homed = False
         try:
-            banner = self._await_boot() if self.rules.boot_banner else self._await_quiet()
+            banner = self.grbl.await_boot() if self.rules.boot_banner else self.grbl.await_quiet()
             reset = any(isinstance(e, StartBanner) for e in banner)
-            if self._interrupted is not None and reset:
-                self._interrupted.reset = True
-            if self.rules.line_numbers and (self._interrupted is None or self._interrupted.reset):
-                self.link.reset_line_numbers(1)
+            gap = self.resumer.interrupted
+            if gap is not None and reset:
+                gap.reset = True
+            if self.rules.line_numbers and (gap is None or gap.reset):
+                link.reset_line_numbers(1)
             self.identity = self._identify(banner, reset)
-            self._outputs_off_on_connect(reset)
+            # a controller that kept running settles where its program stands, then every
+            # output goes off (queued after what it accepted; hardware.machine_outputs)
+            self.resumer.settle_on_connect(reset)
+            self.output_guard.send_safe_off("connect")
         except HardwareError:
-            self._state = "error"
+            self.machine_state.current = "error"
             raise
-        self._state = "idle"
+        self.machine_state.current = "idle"
         return self.identity
 
-    def _await_quiet(self) -> list[ReplyEvent]:
-        link = self.live_link
-        deadline = time.monotonic() + self.boot_wait_s
-        seen = 0
-        quiet_since = time.monotonic()
-        while time.monotonic() < deadline:
-            time.sleep(min(0.02, self.boot_quiet_s / 2))
-            if len(link.unsolicited) != seen:
-                seen = len(link.unsolicited)
-                quiet_since = time.monotonic()
-            elif time.monotonic() - quiet_since > self.boot_quiet_s:
-                break
-        events = list(link.unsolicited)
-        link.unsolicited.clear()
-        return events
-
     def _identify(self, banner: list[ReplyEvent], reset: bool) -> Identity:
-        command = self.rules.identify_command
-        result = self.live_link.send(command, self.timeout_s)
+        link = self.live_link
+        result = link.send(self.rules.identify_command, self.timeout_s)
         fields: dict[str, str] = {}
         caps: dict[str, bool] = {}
         for event in result.events:
@@ -196,14 +217,14 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
                 fields.update(event.fields)
             elif isinstance(event, Capability):
                 caps[event.name] = event.enabled
-        fields.update(self._build_fields(result.events))
+        fields.update(self.grbl.build_fields(result.events))
         if self.rules.build_info:
-            self._apply_build_info(fields)
-        elif (self.rules.request_queued and caps.get("EMERGENCY_PARSER") and self.live_link.mode == "windowed"
-              and self.live_link.advanced_ok):
+            self.grbl.apply_build_info(fields)
+        elif self.rules.request_queued and caps.get("EMERGENCY_PARSER") and link.mode == "windowed" \
+                and link.advanced_ok:
             # S000 answered with the steppers' position (REALTIME_REPORTING_COMMANDS): nothing
             # in M115 says so; its plain ok needs ADVANCED_OK to stay apart from the others
-            caps["REALTIME_REPORTING_COMMANDS"] = self.live_link.probe_realtime_reports(min(1.0, self.timeout_s))
+            caps["REALTIME_REPORTING_COMMANDS"] = link.probe_realtime_reports(min(1.0, self.timeout_s))
         version = fields.get("VER", "").split(":")[0]  # [VER:1.1h.20190830:user string]
         name = (fields.get("FIRMWARE_NAME") or ("grbl " + version)).strip()
         return Identity(self.dialect, name, fields, caps, tuple(e.raw for e in banner), reset)
@@ -212,67 +233,48 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
         """Close the link (a running program fails with ``LinkError``).  An idle machine on a
         healthy link (not emergency-stopped) gets ``safe_off`` first (best effort, within
         ``DISCONNECT_SAFE_OFF_S``): nothing is left dispensing behind a closed port."""
-        link = self.link
-        if link is not None and link.healthy and not self._estopped and self._state == "idle" \
-                and self._hold.acquire(blocking=False):
+        st = self.machine_state
+        link = st.link
+        if link is not None and link.healthy and not st.estopped and st.current == "idle" \
+                and st.hold.acquire(blocking=False):
             try:
-                self._send_safe_off("disconnect", min(self.timeout_s, DISCONNECT_SAFE_OFF_S))
+                self.output_guard.send_safe_off("disconnect", min(self.timeout_s, DISCONNECT_SAFE_OFF_S))
             except HardwareError:
                 pass  # the port closes anyway; the next connect sends safe_off again
             finally:
-                self._hold.release()
-        self.link = None
-        self._cancel = True
-        self._resume_event.set()
+                st.hold.release()
+        st.link = None
+        st.cancel_requested = True
+        self.programs.open_gate()
         if link is not None:
             link.close()
-        self._state = "disconnected"
+        st.current = "disconnected"
 
     # ------------------------------------------------------------------ simple commands
     def send(self, command: str) -> CommandResult:
         """Raw console command (blocking; FirmwareError when rejected).  G-code while the
         controller refuses motion (grbl Alarm, Hold, Door, Check) is ``ControllerLocked``
         naming the state and how to clear it; ``$`` system commands always go through."""
-        system = command.strip().startswith("$")
-        self._claim_motion("busy", f"run {command.strip()[:40]!r}", check=not system)
+        what = f"run {command.strip()[:40]!r}"
+        self.commands.claim_motion("busy", what, check=not command.strip().startswith("$"))
         try:
-            result = self.live_link.send(command, self.timeout_s * 10)
+            result = self.commands.send(command)
         except FirmwareError as exc:
-            raise self._locked_reply(exc, f"run {command.strip()[:40]!r}") from exc
+            raise self.commands.locked_reply(exc, what) from exc
         finally:
-            self._release()
+            self.machine_state.release()
         if command.strip().upper() == self.home_command.strip().upper():
             self.homed = True  # the operator homed from the console
         return result
 
-    def _claim_motion(self, state: str, what: str, *, check: bool = True) -> None:
-        """Claim the machine for an operation that moves it (``what``, for the message):
-        ``ControllerLocked`` while the firmware refuses motion (see ``_refuse_locked``)."""
-        self._claim(state)
-        if not check:
-            return
-        try:
-            self._refuse_locked(what)
-        except HardwareError:
-            self._release()
-            raise
-
-    def _run(self, commands: Iterable[str]) -> list[CommandResult]:
-        return [self.live_link.send(c, self.timeout_s * 10) for c in commands]
-
-    @property
-    def home_command(self) -> str:
-        """What ``home`` sends: the profile's command, else the dialect's (G28 / $H)."""
-        return self.profile.home_command or self.rules.home_command
-
     def home(self) -> tuple[float, float, float]:
         """Home all axes; returns the position afterwards."""
         command = self.home_command
-        self._claim("busy")
+        self.machine_state.claim("busy")
         self.homed = False  # until this homing succeeds
         try:
             try:
-                self._run([command])
+                self.commands.send(command)
             except FirmwareError as exc:
                 if self.rules.homing_disabled_error is not None and exc.code == self.rules.homing_disabled_error:
                     raise MachineStateError("homing is disabled on this controller ($22=0): "
@@ -280,219 +282,138 @@ class Machine(GrblOperations, ResumeOperations, ProbeOperations, OutputOperation
                                             value=command) from exc
                 raise
             self.homed = True
-            return self._position()
+            return self.commands.position()
         finally:
-            self._release()
-
-    def _wait_motion(self) -> str:
-        return self.rules.wait_moves
+            self.machine_state.release()
 
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
         """Absolute straight move; returns once the motion is finished."""
-        feed = feed_mm_min or self.profile.travel_feed_mm_min
-        words = axis_words(x, y, z)
-        self._claim_motion("busy", "move")
+        move = straight_move(self.profile, x, y, z, feed_mm_min)
+        c = self.commands
+        c.claim_motion("busy", "move")
         try:
             if self.rules.jog_locks_gcode:
-                self._wait_not_jogging()  # G-code during a jog is error:9
-            self._run(["G90", f"G1{words} F{feed:.1f}", self._wait_motion()])
-            return self._position()
+                c.wait_not_jogging()  # G-code during a jog is error:9
+            c.run(["G90", move, c.wait_motion])
+            return c.position()
         finally:
-            self._release()
+            self.machine_state.release()
 
     def position(self) -> tuple[float, float, float]:
         """Current position: Marlin ``M114`` (planned), grbl status ``MPos``."""
-        self._claim("busy")
+        self.machine_state.claim("busy")
         try:
-            return self._position()
+            return self.commands.position()
         finally:
-            self._release()
+            self.machine_state.release()
 
-    def _position(self) -> tuple[float, float, float]:
-        if self.rules.position_by_status:
-            status = self.live_link.query_status()
-            mpos = status.mpos or (0.0, 0.0, 0.0)
-            return (mpos[0], mpos[1], mpos[2])
-        result = self.live_link.send("M114", self.timeout_s)
-        report = result.payload
-        if not isinstance(report, PositionReport):
-            raise FirmwareError("M114 returned no position", command="M114")
-        return (report.axes.get("X", 0.0), report.axes.get("Y", 0.0), report.axes.get("Z", 0.0))
+    # ------------------------------------------------------------------ grbl (hardware.machine_grbl)
+    def controller_state(self) -> str:
+        """grbl's own state from a fresh status report (``Idle``, ``Run``, ``Hold:0``...)."""
+        return self.grbl.controller_state()
 
-    # ------------------------------------------------------------------ programs
+    def last_controller_state(self) -> str | None:
+        """The firmware's own state as last learned (no query); None when unknown."""
+        return self.grbl.last_controller_state()
+
+    def unlock(self) -> None:
+        """``$X``: leave grbl's Alarm lock; ``MachineStateError`` on Marlin."""
+        self.grbl.unlock()
+
+    def feed_hold(self) -> None:
+        """grbl ``!``: decelerate and hold planned motion (works from any thread)."""
+        self.grbl.feed_hold()
+
+    def cycle_start(self) -> None:
+        """grbl ``~``: resume after a feed hold."""
+        self.grbl.cycle_start()
+
+    def jog(self, x: float = 0.0, y: float = 0.0, z: float = 0.0,
+            feed_mm_min: float | None = None) -> tuple[float, float, float]:
+        """Relative ``$J=`` jog; returns the position once the jog has finished."""
+        return self.grbl.jog(x, y, z, feed_mm_min)
+
+    def can_home(self) -> bool:
+        """grbl: homing cycle enabled (``$22=1``); Marlin: always."""
+        return self.grbl.can_home()
+
+    # ------------------------------------------------------------------ probing (hardware.machine_probe)
+    def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
+              feed_mm_min: float | None = None) -> ProbeResult:
+        """Probe down at (x, y) (``Prober.probe``); ``ProbeFailed`` when nothing is hit."""
+        return self.prober.probe(x, y, z_start, z_min, feed_mm_min)
+
+    def probe_toward(self, start: tuple[float, float, float], target: tuple[float, float, float],
+                     feed_mm_min: float | None = None) -> ProbeResult:
+        """Probe from ``start`` toward ``target`` (``Prober.probe_toward``)."""
+        return self.prober.probe_toward(start, target, feed_mm_min)
+
+    def select_tool(self, tool: int) -> None:
+        """``T<tool>`` (0 = the touch probe, 1.. = nozzles; ``Prober.select_tool``)."""
+        self.prober.select_tool(tool)
+
+    # ------------------------------------------------------------------ programs (hardware.machine_stream)
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
                start_line: int = 0) -> StreamReport:
-        """Send a program (comments/blank lines dropped) from command ``start_line``.
-        ``InvalidConfig`` (field ``program``) when a line is not G-code.
-
-        Returns when every command is acknowledged, or when cancelled (after the commands
-        in flight were answered).  On ``LinkError`` the machine remembers what is known to
-        be executed (see ``resume_line``) and re-raises."""
-        commands = validate_program(lines)
-        total = len(commands)
-        if not 0 <= start_line <= total:
-            raise InvalidConfig(f"start_line must be within 0..{total}", field="start_line",
-                                value=start_line)
-        self._claim_motion("printing", "start a program")
-        self._cancel = False
-        self._resume_event.set()
-        self._interrupted = None
-        self.last_resume = None  # located for the program interrupted before this one
-        link = self.live_link
-        started = time.monotonic()
-        inflight: deque[tuple[int, PendingCommand]] = deque()
-        executed = start_line
-        acked_line: int | None = None
-        self.progress = (executed, total)
-        self.clock.start(start_line)
-        seqs: dict[int, int] = {}  # command index -> completion order (Link.status_marks)
-        self._note_stream_start(start_line)  # where the tool stands, for reports (hardware.reports)
-        try:
-            self._replay_modes(commands, start_line)
-        except HardwareError as exc:
-            if isinstance(exc, LinkError):  # nothing of the program was sent: it resumes where it was to start
-                self._interrupted = _Interrupted(total, start_line, None, [], True, start_line)
-                self._resume_commands = list(commands)
-            self._release("error" if not link.healthy else "idle")
-            raise
-
-        def retire_oldest() -> None:
-            """Wait for the oldest in-flight command (its LinkError propagates, leaving it
-            in flight) and count it as executed."""
-            nonlocal executed, acked_line
-            index_done, pending = inflight[0]
-            outcome = pending.result()
-            inflight.popleft()
-            seqs[index_done] = pending.seq
-            executed, acked_line = index_done + 1, outcome.line_no
-            self.progress = (executed, total)
-            self.acked_line_no = acked_line
-            if on_progress is not None:
-                on_progress(executed, total)
-
-        if not self.rules.request_queued or link.realtime_reports:
-            link.report_interval_s = REPORT_INTERVAL_S  # the reader asks; the stream never waits for it
-        try:
-            for index in range(start_line, total):
-                link.wait_room(commands[index])  # see every answer before the next line
-                while inflight and inflight[0][1].done():
-                    retire_oldest()
-                if not self._resume_event.is_set():
-                    self._state = "paused"
-                    self._resume_event.wait()
-                    self._state = "printing"
-                if self._cancel:
-                    break
-                inflight.append((index, link.send_async(commands[index])))
-            while inflight:
-                retire_oldest()
-            if not self._resume_event.is_set() and not self._cancel:  # paused after its last line went out:
-                self._state = "paused"  # the program holds there until resumed (the pause is not lost)
-                self._resume_event.wait()
-                self._state = "printing"
-        except LinkError as exc:
-            while inflight and inflight[0][1].done() and inflight[0][1].failure is None \
-                    and (answer := inflight[0][1].outcome) is not None and answer.status != "error":
-                index_done, pending = inflight.popleft()  # answered before the failure
-                executed, acked_line = index_done + 1, answer.line_no
-                seqs[index_done] = pending.seq
-            self.progress = (executed, total)
-            self._interrupted = _Interrupted(total, executed, acked_line,
-                                             [(p.line_no, i) for i, p in inflight],
-                                             isinstance(exc, FirmwareReset),
-                                             self._moved_bound(commands, executed, seqs),
-                                             report=self._report_evidence(seqs, start_line, exc))
-            self._release("error")
-            exc.resume_line = executed  # lower bound; resume_line() refines it
-            raise
-        except FirmwareError as exc:
-            executed = self._drain_after_rejection(exc, inflight, executed)
-            self.progress = (executed, total)
-            self._interrupted = _Interrupted(total, executed, acked_line, [], False, executed)
-            self._release("error" if not link.healthy or self._estopped else "idle")
-            raise
-        except HardwareError:
-            self._interrupted = _Interrupted(total, executed, acked_line, [], True)
-            self._release("error" if not link.healthy or self._estopped else "idle")
-            raise
-        finally:
-            link.report_interval_s = 0.0
-        cancelled = self._cancel
-        self._release("idle")
-        return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started,
-                            dict(link.stats))
-
-    @property
-    def estopped(self) -> bool:
-        """True after an emergency stop, until the next ``connect``."""
-        return self._estopped
-
-    @property
-    def interrupted_program(self) -> _Interrupted | None:
-        """What is known of a program that stopped on a link failure (``resume_line``)."""
-        return self._interrupted
+        """Send a program from command ``start_line`` (``ProgramStream.stream``)."""
+        return self.programs.stream(lines, on_progress, start_line)
 
     def pause(self) -> None:
         """Stop sending program lines (commands already sent still run)."""
-        if self._state != "printing":
-            raise MachineStateError(f"cannot pause while {self.state}", field="state",
-                                    value=self.state)
-        self._resume_event.clear()
-        self.clock.pause()
-        if self.rules.feed_hold is not None and self.link is not None:
-            self.link.realtime(self.rules.feed_hold)  # feed hold: motion already planned stops too
-        self._state = "paused"
+        self.programs.pause()
 
     def resume(self) -> None:
         """Continue a paused program."""
-        if self._state != "paused":
-            raise MachineStateError(f"cannot resume while {self.state}", field="state",
-                                    value=self.state)
-        if self.rules.cycle_start is not None and self.link is not None:
-            self.link.realtime(self.rules.cycle_start)  # cycle start after the feed hold
-        self._state = "printing"
-        self.clock.resume()
-        self._resume_event.set()
+        self.programs.resume()
 
     def cancel(self) -> None:
         """End the program after the commands in flight (no emergency stop)."""
-        if self._state not in ("printing", "paused"):
-            raise MachineStateError(f"no program to cancel while {self.state}", field="state",
-                                    value=self.state)
-        self._cancel = True
-        self._resume_event.set()
+        self.programs.cancel()
 
+    # ------------------------------------------------------------------ resume (hardware.machine_resume)
+    def resume_line(self) -> int:
+        """After reconnecting: index of the first command not known to be executed."""
+        return self.resumer.resume_line()
+
+    def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None:
+        """Before ``connect`` in a new host process: take over an interrupted program."""
+        self.resumer.adopt_interrupted(total, acked_index, acked_line_no)
+
+    def locate_resume(self) -> ResumeLocation:
+        """After reconnecting: where the interrupted program continues, and on what evidence."""
+        return self.resumer.locate_resume()
+
+    def program_status(self) -> dict[str, Any] | None:
+        """The program on this machine, running or interrupted (``ResumeHelper.program_status``)."""
+        return self.resumer.program_status()
+
+    # ------------------------------------------------------------------ stop
     def stop(self) -> None:
         """The service's stop: emergency stop while something runs; ``MachineStateError``
         while idle or disconnected (nothing is sent, the machine stays as it is)."""
-        state = self.state
-        if state not in ("printing", "paused", "busy"):
-            raise MachineStateError(f"nothing to stop: machine is {state}", field="state",
-                                    value=state)
+        self.machine_state.require_stoppable()
         self.emergency_stop()
 
     def emergency_stop(self) -> None:
-        """Out-of-band emergency stop (M112 / 0x18) whatever runs; the machine goes to
-        ``error`` (Marlin halts until reconnected; grbl resets)."""
-        if self.link is None:
-            raise MachineStateError("machine is not connected", field="state", value="disconnected")
-        self._cancel = True
-        self._estopped = True
+        """Out-of-band emergency stop (M112 / 0x18) whatever runs, never queued behind an
+        operation (no claim); the machine goes to ``error`` (Marlin halts until reconnected;
+        grbl resets)."""
+        st = self.machine_state
+        link = st.stopping()
         self.homed = False
-        self._resume_event.set()
-        self.link.emergency_stop()
-        self._state = "error"
-        self._note_estop_outputs()
+        self.programs.open_gate()
+        link.emergency_stop()
+        st.current = "error"
+        self.output_guard.note_estop()
 
     def status(self) -> dict[str, Any]:
         """JSON-friendly snapshot for the API: state, identity, ``program`` (see
         ``program_status``), link counters, the controller's own state and ``outputs``."""
-        return {"state": self.state, "dialect": self.dialect, "url": self.url,
-                "firmware": self.identity.firmware if self.identity else None,
-                "program": self.program_status(),
-                "link": dict(self.link.stats) if self.link else None,
+        link, controller, outputs = self.link, self.controller, self.outputs
+        return {**base_status(self.machine_state, self.dialect, self.url, self.identity, self.program_status()),
+                "link": dict(link.stats) if link else None,
                 "controller": self.last_controller_state(),
-                "controller_state": self.controller.as_dict() if self.controller is not None else None,
-                "outputs": dict(self.outputs) if self.outputs is not None else None,
-                "fallbacks": list(self.link.fallbacks) if self.link else []}
+                "controller_state": controller.as_dict() if controller is not None else None,
+                "outputs": dict(outputs) if outputs is not None else None,
+                "fallbacks": list(link.fallbacks) if link else []}

@@ -1,88 +1,76 @@
-"""Probing of ``hardware.machine.Machine`` (a mixin): travel to a station, touch down with
-the firmware's probe command (Marlin ``G30`` / ``G38.2``, grbl ``G38.2``), read the contact
-point, retract; failures leave the machine idle, unlocked and retracted.  Also probing
-toward any point (``probe_toward``, always ``G38.2``) and tool selection (``T<n>``)."""
+"""Probing on the serial machine: :class:`Prober`, built with the machine's
+``SerialCommands``.  It travels to a station, touches down with the firmware's probe command
+(Marlin ``G30`` / ``G38.2``, grbl ``G38.2``), reads the contact point and retracts; failures
+leave the machine idle, unlocked and retracted.  Also probing toward any point
+(``probe_toward``, always ``G38.2``) and tool selection (``T<n>``)."""
 
 from __future__ import annotations
 
-import math
 import re
-from typing import TYPE_CHECKING
 
 from .errors import FirmwareError, InvalidConfig, ProbeFailed
 from .events import ProbeReport
+from .machine_args import ProbeDown, ProbeToward, check_tool, probe_down, probe_missed, probe_toward
+from .machine_host import SerialCommands
 from .machine_types import ProbeResult
 
-if TYPE_CHECKING:
-    from .machine_host import SerialHost
+__all__ = ["MAX_TOOL", "Prober"]
 
 _LOGICAL = re.compile(r"Logical:\s*X:\s*([-+]?[\d.]+)\s+Y:\s*([-+]?[\d.]+)\s+Z:\s*([-+]?[\d.]+)")
 MAX_TOOL = 255
 
 
-class ProbeOperations:
-    """Part of ``Machine`` (what it uses of it: ``hardware.machine_host.SerialHost``); every
-    method expects a connected machine."""
+class Prober:
+    """Probes and selects tools on a connected serial machine (see the module docstring)."""
 
-    def probe(self: SerialHost, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
+    def __init__(self, commands: SerialCommands) -> None:
+        self.commands = commands
+
+    def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
               feed_mm_min: float | None = None) -> ProbeResult:
         """Travel to (x, y) at ``z_start`` (default clearance), probe down to ``z_min``,
         retract; ``ProbeFailed`` when nothing is hit (the machine is left idle, unlocked
         and retracted)."""
-        p = self.profile
-        z_start = p.clearance_z if z_start is None else z_start
-        z_min = p.probe_z_min if z_min is None else z_min
-        feed = feed_mm_min or p.probe_feed_mm_min
-        if z_min >= z_start:
-            raise InvalidConfig("z_min must be below z_start", field="z_min", value=z_min)
-        kind = p.probe_command or self.rules.probe_command
-        travel = p.travel_feed_mm_min
-        self._claim_motion("busy", "probe")
+        c = self.commands
+        down = probe_down(c.profile, x, y, z_start, z_min, feed_mm_min)
+        kind = c.profile.probe_command or c.rules.probe_command
+        c.claim_motion("busy", "probe")
         try:
-            self._run(["G90", f"G1 Z{z_start:.4f} F{travel:.1f}",
-                       f"G1 X{x:.4f} Y{y:.4f} F{travel:.1f}"])
-            command = f"G30 X{x:.4f} Y{y:.4f}" if kind == "G30" else f"G38.2 Z{z_min:.4f} F{feed:.1f}"
+            c.run(["G90", down.retract, f"G1 X{x:.4f} Y{y:.4f} F{down.travel:.1f}"])
+            command = f"G30 X{x:.4f} Y{y:.4f}" if kind == "G30" else f"G38.2 Z{down.z_min:.4f} F{down.feed:.1f}"
             try:
-                result = self.live_link.send(command, self.timeout_s * 10)
+                result = c.send(command)
             except FirmwareError as exc:
-                self._recover_after_probe(z_start)
-                if any(line.strip() == "ALARM:4" for line in exc.reply_lines):
-                    raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) was already triggered "
-                                      "before it moved (grbl ALARM:4): check the probe",
-                                      x=x, y=y, field="probe", value=[x, y],
-                                      reason="triggered_before_motion") from exc
-                raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
-                                  f"z={z_min:.3f}: {exc.message}", x=x, y=y, field="probe",
-                                  value=[x, y]) from exc
-            if kind == "G30" or self.rules.probe_reports_contact:
+                self._recover(down.retract)
+                raise _already_triggered(exc, down) or probe_missed(down, f": {exc.message}") from exc
+            if kind == "G30" or c.rules.probe_reports_contact:
                 report = result.payload  # "Bed X: .. Y: .. Z: .." / "[PRB:x,y,z:1]"
             else:  # Marlin G38.2 prints nothing: it stopped at the contact point (M114 D: 3 decimals)
                 report = self._precise_position()
-            if not isinstance(report, ProbeReport) or not report.triggered or report.z < z_min:
-                self._recover_after_probe(z_start)
-                raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
-                                  f"z={z_min:.3f}", x=x, y=y, field="probe", value=[x, y])
-            self._run([f"G1 Z{z_start:.4f} F{travel:.1f}", self._wait_motion()])
+            if not isinstance(report, ProbeReport) or not report.triggered or report.z < down.z_min:
+                self._recover(down.retract)
+                raise probe_missed(down)
+            c.run([down.retract, c.wait_motion])
             return ProbeResult(report.x, report.y, report.z)
         finally:
-            self._release()
+            c.state.release()
 
-    def select_tool(self: SerialHost, tool: int) -> None:
+    def select_tool(self, tool: int) -> None:
         """``T<tool>`` (0 = the touch probe, 1.. = nozzles); waits for its ``ok``.  The
         firmware applies no offsets: programs are written in carriage coordinates.
         ``InvalidConfig`` (field ``tool``) for a number out of range or one the firmware
         refuses (Marlin ``Invalid extruder``)."""
-        if isinstance(tool, bool) or not isinstance(tool, int) or not 0 <= tool <= MAX_TOOL:
-            raise InvalidConfig(f"tool must be an integer 0..{MAX_TOOL}", field="tool", value=tool)
-        self._claim("busy")
+        check_tool(tool, MAX_TOOL)
+        c = self.commands
+        c.state.claim("busy")
         try:
-            result = self.live_link.send(f"T{tool}", self.timeout_s * 10)
+            result = c.send(f"T{tool}")
         finally:
-            self._release()
+            c.state.release()
         if any("invalid extruder" in line.lower() for line in result.reply_lines):
             raise InvalidConfig(f"the firmware has no tool T{tool}", field="tool", value=tool)
 
-    def probe_toward(self: SerialHost, start: tuple[float, float, float], target: tuple[float, float, float],
+    def probe_toward(self, start: tuple[float, float, float], target: tuple[float, float, float],
                      feed_mm_min: float | None = None) -> ProbeResult:
         """Probe from ``start`` toward ``target`` (mm, carriage coordinates, any direction)
         with ``G38.2``; return the carriage position at the trigger.
@@ -93,75 +81,54 @@ class ProbeOperations:
         straight back to ``start``.  ``ProbeFailed`` when nothing is touched before the
         target (``reason`` ``triggered_before_motion`` when the probe was already
         triggered); ``InvalidConfig`` (field ``target``) when target equals start."""
-        start = _point(start, "start")
-        target = _point(target, "target")
-        if math.dist(start, target) < 1e-6:
-            raise InvalidConfig("probe target equals its start", field="target", value=list(target))
-        p = self.profile
-        feed = feed_mm_min or p.probe_feed_mm_min
-        if not feed > 0:
-            raise InvalidConfig("feed_mm_min must be > 0", field="feed_mm_min", value=feed)
-        travel = p.travel_feed_mm_min
-        sx, sy, sz = start
-        back = f"G1 X{sx:.4f} Y{sy:.4f} Z{sz:.4f} F{travel:.1f}"
-        self._claim_motion("busy", "probe")
+        c = self.commands
+        toward = probe_toward(c.profile, start, target, feed_mm_min)
+        c.claim_motion("busy", "probe")
         try:
-            here = self._position()
-            self._run(["G90", f"G1 Z{max(here[2], sz):.4f} F{travel:.1f}",
-                       f"G1 X{sx:.4f} Y{sy:.4f} F{travel:.1f}", f"G1 Z{sz:.4f} F{travel:.1f}"])
-            tx, ty, tz = target
-            command = f"G38.2 X{tx:.4f} Y{ty:.4f} Z{tz:.4f} F{feed:.1f}"
-            where = [round(v, 4) for v in target]
+            here = c.position()
+            c.run(["G90", *toward.approach(here[2])])
             try:
-                result = self.live_link.send(command, self.timeout_s * 10)
+                result = c.send(toward.command)
             except FirmwareError as exc:
-                self._recover_toward(back)
-                if any(line.strip() == "ALARM:4" for line in exc.reply_lines):
-                    raise ProbeFailed(f"probe toward {where} was already triggered before it "
-                                      "moved (grbl ALARM:4): check the probe", x=tx, y=ty,
-                                      field="probe", value=where,
-                                      reason="triggered_before_motion") from exc
-                raise ProbeFailed(f"probe from {list(start)} toward {where} touched nothing: "
-                                  f"{exc.message}", x=tx, y=ty, field="probe", value=where) from exc
-            report = result.payload if self.rules.probe_reports_contact else self._precise_position()
+                self._recover(toward.back)
+                raise _already_triggered(exc, toward) or probe_missed(toward, f": {exc.message}") from exc
+            report = result.payload if c.rules.probe_reports_contact else self._precise_position()
             if not isinstance(report, ProbeReport) or not report.triggered:
-                self._recover_toward(back)
-                raise ProbeFailed(f"probe from {list(start)} toward {where} touched nothing",
-                                  x=tx, y=ty, field="probe", value=where)
-            self._run([back, self._wait_motion()])
+                self._recover(toward.back)
+                raise probe_missed(toward)
+            c.run([toward.back, c.wait_motion])
             return ProbeResult(report.x, report.y, report.z)
         finally:
-            self._release()
+            c.state.release()
 
-    def _precise_position(self: SerialHost) -> ProbeReport:
+    def _precise_position(self) -> ProbeReport:
         """Marlin: where G38.2 stopped, from ``M114 D`` (3 decimals; plain M114 has 2)."""
-        result = self.live_link.send("M114 D", self.timeout_s)
+        c = self.commands
+        result = c.send("M114 D", c.timeout_s)
         for line in result.reply_lines:
             match = _LOGICAL.search(line)
             if match:
                 x, y, z = (float(v) for v in match.groups())
                 return ProbeReport(x, y, z)
-        return ProbeReport(*self._position())
+        return ProbeReport(*c.position())
 
-    def _recover_toward(self: SerialHost, back: str) -> None:
-        if self.rules.unlock_command is not None:
-            self.live_link.send(self.rules.unlock_command, self.timeout_s)
-        self._run([back, self._wait_motion()])
-
-    def _recover_after_probe(self: SerialHost, z_start: float) -> None:
-        if self.rules.unlock_command is not None:
-            self.live_link.send(self.rules.unlock_command, self.timeout_s)
-        self._run([f"G1 Z{z_start:.4f} F{self.profile.travel_feed_mm_min:.1f}",
-                   self._wait_motion()])
+    def _recover(self, back: str) -> None:
+        """After a failed probe: unlock (grbl's probe alarm), then ``back`` and wait for it."""
+        c = self.commands
+        if c.rules.unlock_command is not None:
+            c.send(c.rules.unlock_command, c.timeout_s)
+        c.run([back, c.wait_motion])
 
 
-
-def _point(value: tuple[float, float, float], field: str) -> tuple[float, float, float]:
-    try:
-        point = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise InvalidConfig(f"{field} must be (x, y, z) in mm", field=field, value=str(value)[:60]) from None
-    if len(point) != 3 or not all(math.isfinite(v) for v in point):
-        raise InvalidConfig(f"{field} must be three finite numbers (mm)", field=field,
-                            value=str(value)[:60])
-    return (point[0], point[1], point[2])
+def _already_triggered(exc: FirmwareError, probe: ProbeDown | ProbeToward) -> ProbeFailed | None:
+    """grbl's ``ALARM:4``: the probe was triggered before it moved; None for any other failure."""
+    if not any(line.strip() == "ALARM:4" for line in exc.reply_lines):
+        return None
+    if isinstance(probe, ProbeDown):
+        x, y = probe.x, probe.y
+        return ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) was already triggered before it moved (grbl ALARM:4): "
+                           "check the probe", x=x, y=y, field="probe", value=[x, y],
+                           reason="triggered_before_motion")
+    return ProbeFailed(f"probe toward {probe.where} was already triggered before it moved (grbl ALARM:4): "
+                       "check the probe", x=probe.target[0], y=probe.target[1], field="probe", value=probe.where,
+                       reason="triggered_before_motion")

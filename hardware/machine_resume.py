@@ -1,6 +1,10 @@
-"""Resume support of ``hardware.machine.Machine`` (a mixin): the modal replay before a
-resumed stream, the bound on what really moved when a controller reset (``ok`` means
-planned), and draining the lines a controller still runs after it rejected one."""
+"""Resume support of the serial machine: :class:`ResumeHelper`, built with the machine's
+``SerialCommands``, its ``GrblControl`` (how many moves the controller may hold) and its
+``OutputGuard`` (``safe_off`` before a program).  It keeps what is known of an interrupted
+program, settles it on reconnect, replays the modal state before a resumed stream, bounds
+what really moved when a controller reset (``ok`` means planned), locates the resume point
+from the controller's position or its reports, and drains the lines a controller still runs
+after it rejected one."""
 
 from __future__ import annotations
 
@@ -8,10 +12,14 @@ import math
 import time
 from collections import deque
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Any
 
 from .errors import FirmwareError, FirmwareReset, HardwareError, MachineStateError
 from .events import PositionReport
+from .link import PendingCommand
+from .machine_grbl import GrblControl
+from .machine_host import SerialCommands
+from .machine_outputs import OutputGuard
 from .machine_types import ReportEvidence, _Interrupted
 from .resume import (
     POSITION_TOLERANCE_MM,
@@ -27,58 +35,103 @@ from .resume import (
     planner_blocks,
 )
 
-if TYPE_CHECKING:
-    from .link import PendingCommand
-    from .machine_host import SerialHost
+__all__ = ["ResumeHelper"]
 
 
-class ResumeOperations:
-    """Part of ``Machine`` (what it uses of it: ``hardware.machine_host.SerialHost``)."""
+class ResumeHelper:
+    """An interrupted program and its resume (see the module docstring)."""
 
-    # what these methods set (declared with their types in SerialHost)
-    _interrupted: _Interrupted | None
-    last_preamble: list[str]
-    rejected_lines: list[int]
-    last_resume: ResumeLocation | None
-    _resume_commands: list[str] | None
-    _stream_started: float | None
-    _stream_origin: tuple[float, float, float] | None
+    def __init__(self, commands: SerialCommands, grbl: GrblControl, outputs: OutputGuard) -> None:
+        self.commands = commands
+        self.grbl = grbl
+        self.outputs = outputs
+        self.interrupted: _Interrupted | None = None  # what is known of the program a failure stopped
+        self.program: list[str] | None = None  # the interrupted program's commands (locate_resume)
+        self.last_preamble: list[str] = []  # what the last stream sent before its first command
+        self.rejected_lines: list[int] = []  # command indices the controller rejected
+        self.last_resume: ResumeLocation | None = None  # what locate_resume found last
+        self.connected_at: float | None = None  # time.monotonic() of the last connect
+        self.stream_started: float | None = None  # time.monotonic() when the last stream started
+        self.stream_origin: tuple[float, float, float] | None = None  # where the tool stood before it, mm
 
-    def resume_line(self: SerialHost) -> int:
+    def resume_line(self) -> int:
         """After reconnecting: index of the first command not known to be executed."""
-        gap = self._interrupted
+        gap = self.interrupted
         if gap is None:
             raise MachineStateError("no interrupted program to resume", field="state")
-        if self.link is None:
+        link = self.commands.state.link
+        if link is None:
             raise MachineStateError("connect before resuming", field="state", value="disconnected")
-        if self.rules.resets_on_connect or gap.reset:
+        if self.commands.rules.resets_on_connect or gap.reset:
             return gap.moved_index if gap.moved_index is not None else gap.acked_index
         if not gap.inflight:
             return gap.acked_index
         first_line = gap.inflight[0][0]
         assert first_line is not None, "a controller numbering lines numbered every line sent"
-        last = self.link.sync_line_number(first_line)
+        last = link.sync_line_number(first_line)
         if gap.acked_line_no is not None and last < gap.acked_line_no:
-            self.link.reset_line_numbers(1)  # the firmware restarted meanwhile
+            link.reset_line_numbers(1)  # the firmware restarted meanwhile
             return gap.acked_index
         done = [index + 1 for number, index in gap.inflight if number is not None and number <= last]
         return max([gap.acked_index, *done])
 
-    def adopt_interrupted(self: SerialHost, total: int, acked_index: int, acked_line_no: int | None) -> None:
+    def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None:
         """Before ``connect`` in a new host process: take over what an earlier process
         recorded of an interrupted program (commands [0, acked_index) acknowledged, the
         last of them numbered ``acked_line_no``; later commands were numbered on from
         it), so that ``connect`` keeps the firmware's line numbering and ``resume_line``
         can ask the firmware which of the later lines it accepted."""
-        if self.link is not None:
+        if self.commands.state.link is not None:
             raise MachineStateError("adopt an interrupted program before connecting", field="state",
-                                    value=self.state)
+                                    value=self.commands.state.state)
         inflight: list[tuple[int | None, int]] = [] if acked_line_no is None else \
             [(acked_line_no + 1 + k, acked_index + k) for k in range(total - acked_index)]
-        self._interrupted = _Interrupted(total, acked_index, acked_line_no, inflight,
-                                         reset=acked_line_no is None)
+        self.interrupted = _Interrupted(total, acked_index, acked_line_no, inflight,
+                                        reset=acked_line_no is None)
 
-    def _replay_modes(self: SerialHost, commands: list[str], start_line: int) -> None:
+    def settle_on_connect(self, reset: bool) -> None:
+        """Once connected (``reset``: the controller announced a restart): a controller that
+        kept running through a lost link (a Marlin board that does not reset on connect)
+        still holds the interrupted program's queue.  Settle where the program stands by line
+        numbers (``resume_line``) before anything else is sent, so that the ``safe_off``
+        queued after it leaves the resume unchanged."""
+        gap = self.interrupted
+        rules = self.commands.rules
+        if gap is None or reset or gap.reset or rules.resets_on_connect or not rules.line_numbers:
+            return
+        try:
+            settled = self.resume_line()
+        except FirmwareReset:  # it restarted after all: its outputs are off, numbering starts again
+            gap.reset = True
+            self.commands.link.reset_line_numbers(1)
+        else:
+            gap.acked_index, gap.inflight = settled, []
+
+    def program_status(self) -> dict[str, Any] | None:
+        """The program on this machine: while it runs ``{"state": "printing"|"paused",
+        "line", "total"}`` (commands acknowledged so far, of the total); after it stopped on
+        a lost link or a rejected line ``{"state": "interrupted", "line", "total",
+        "resume_line"}``: commands known processed, and the first command a resume would
+        send when that is known without asking the controller (a controller that reset: its
+        planner bound or a located resume; a Marlin that kept running: once the reconnect
+        settled it by line numbers), else None.  The interrupted program waits for an
+        operator to resume (``stream(start_line=...)``) or abandon it; None when neither."""
+        running = self.commands.state.running_program()
+        if running is not None:
+            return running
+        gap = self.interrupted
+        if gap is None:
+            return None
+        located = self.last_resume
+        if located is not None:
+            resume: int | None = located.start
+        elif self.commands.rules.resets_on_connect or gap.reset:
+            resume = gap.moved_index if gap.moved_index is not None else gap.acked_index
+        else:
+            resume = None if gap.inflight else gap.acked_index
+        return {"state": "interrupted", "line": gap.acked_index, "total": gap.total, "resume_line": resume}
+
+    def replay_modes(self, commands: list[str], start_line: int) -> None:
         """Before a program's first command: every process output off (``safe_off``), so a
         program starts with them off unless it turns them on.  Resuming mid-program, then
         restore units, coordinate system, motion mode, feed, the start point, distance mode
@@ -87,8 +140,8 @@ class ResumeOperations:
         ``start_line`` (``safe_off``; resuming, then the modal replay without its own
         ``dispense_off``, already sent)."""
         self.last_preamble = []
-        p = self.profile
-        if self._send_safe_off("program"):
+        p = self.commands.profile
+        if self.outputs.send_safe_off("program"):
             self.last_preamble = list(p.safe_off)
         if start_line == 0:
             return
@@ -97,26 +150,20 @@ class ResumeOperations:
         if preamble[:1] == [p.dispense_off]:
             preamble = preamble[1:]  # sent with safe_off
         for command in preamble:
-            self.live_link.send(command, self.timeout_s * 10)
+            self.commands.send(command)
         self.last_preamble = [*p.safe_off, *preamble]
 
-    @property
-    def held_moves(self: SerialHost) -> int:
-        """Acknowledged moves the controller may hold unmoved: its planner's blocks plus what
-        its stepper holds after the planner released them (``Dialect.stepper_queue``: grbl's
-        step segments, each possibly the end of another short block)."""
-        return self.planner_blocks + self.rules.stepper_queue
-
-    def _moved_bound(self: SerialHost, commands: list[str], acked: int, seqs: dict[int, int]) -> int:
+    def moved_bound(self, commands: list[str], acked: int, seqs: dict[int, int]) -> int:
         """First command not known to have *moved* (``ok`` = planned): from what the
         controller can hold (``held_moves``), tightened by the last grbl status report (Idle:
         nothing held; ``Bf:`` free planner blocks, plus the stepper's) that came after some
         of the acknowledgements."""
-        p = self.profile
-        self._resume_commands = list(commands)  # for locate_resume after the reconnect
+        p = self.commands.profile
+        self.program = list(commands)  # for locate_resume after the reconnect
         blocks = planner_blocks(commands, p.dispense_on, p.dispense_off)
-        bound = executed_bound(blocks, acked, self.held_moves)
-        marks = list(self.link.status_marks) if self.link is not None else []
+        bound = executed_bound(blocks, acked, self.grbl.held_moves)
+        link = self.commands.state.link
+        marks = list(link.status_marks) if link is not None else []
         for status, completed, _ in reversed(marks):
             done = [i for i, seq in seqs.items() if seq is not None and seq <= completed]
             if not done:
@@ -125,50 +172,51 @@ class ResumeOperations:
             if status.state.split(":")[0] in ("Idle", "Alarm", "Check"):
                 pending = 0
             elif "," in free:
-                pending = max(self.planner_blocks - int(free.split(",")[0]), 0) + self.rules.stepper_queue
+                pending = max(self.grbl.planner_blocks - int(free.split(",")[0]), 0) + self.commands.rules.stepper_queue
             else:
-                pending = self.held_moves
+                pending = self.grbl.held_moves
             return max(bound, executed_bound(blocks, max(done) + 1, pending))
         return bound
 
-    def _note_stream_start(self: SerialHost, start_line: int) -> None:
+    def note_stream_start(self, start_line: int) -> None:
         """Before a stream: only reports asked for from now on are evidence about it, and
         (a stream from its first command) where the tool stands still, so that the
         program's opening move, from wherever the tool was, is placeable too."""
-        self._stream_started = started = time.monotonic()
-        self._stream_origin = None
-        link = self.link
+        self.stream_started = started = time.monotonic()
+        self.stream_origin = None
+        link = self.commands.state.link
         if start_line != 0 or link is None:
             return
         try:
-            if not self.rules.request_queued:  # a real-time status (grbl): always available
+            if not self.commands.rules.request_queued:  # a real-time status (grbl): always available
                 link.query_status()
-            elif not (link.realtime_reports and link.probe_realtime_reports(min(1.0, self.timeout_s))):
+            elif not (link.realtime_reports and link.probe_realtime_reports(min(1.0, self.commands.timeout_s))):
                 return
         except HardwareError:
             return
         mark = link.position_marks[-1] if link.position_marks else None
         if mark is not None and mark.moving is False and mark.asked_at >= started:
-            self._stream_origin = mark.position
+            self.stream_origin = mark.position
 
-    def _report_evidence(self: SerialHost, seqs: dict[int, int], start_line: int,
+    def report_evidence(self, seqs: dict[int, int], start_line: int,
                          exc: Exception) -> ReportEvidence | None:
         """The last real position reported during the stream, before the link failed
         (``hardware.reports``), with the commands acknowledged when it arrived; None when
         there was none."""
-        started = self._stream_started
-        marks = [m for m in (self.link.position_marks if self.link is not None else [])
+        started = self.stream_started
+        link = self.commands.state.link
+        marks = [m for m in (link.position_marks if link is not None else [])
                  if started is not None and m.asked_at >= started]
         if not marks:
             return None
         mark = marks[-1]
         done = [i for i, seq in seqs.items() if seq is not None and seq <= mark.completed]
         acked = max(done) + 1 if done else start_line
-        stopped = self.live_link.failed_at if isinstance(exc, FirmwareReset) else None
+        stopped = self.commands.link.failed_at if isinstance(exc, FirmwareReset) else None
         return ReportEvidence(mark.position, max(acked, start_line), mark.asked_at, stopped,
-                              self._stream_origin)
+                              self.stream_origin)
 
-    def locate_resume(self: SerialHost) -> ResumeLocation:
+    def locate_resume(self) -> ResumeLocation:
         """After reconnecting: where the interrupted program continues, and on what evidence.
 
         Marlin that kept running answers by line numbers (exact).  After a controller reset
@@ -185,20 +233,20 @@ class ResumeOperations:
         twice).  Otherwise the bound stands, and ``detail`` says why.  Must run before
         re-homing.  Sets ``last_resume``."""
         bound = self.resume_line()
-        gap = self._interrupted
+        gap = self.interrupted
         assert gap is not None  # resume_line() raised otherwise
-        if not self.rules.resets_on_connect and not gap.reset:
+        if not self.commands.rules.resets_on_connect and not gap.reset:
             found = ResumeLocation(bound, "line numbers", "the controller kept running and numbering lines")
         else:
             sent = gap.acked_index + len(gap.inflight)
-            found = self._locate_by_position(bound, gap.acked_index, sent, gap.total)
+            found = self.locate_by_position(bound, gap.acked_index, sent, gap.total)
             if found.basis == "planner bound" and gap.report is not None:
-                found = self._locate_by_report(found, gap.report, sent, gap.total)
-        found = self._with_repeats(found, gap.acked_index + len(gap.inflight))
+                found = self.locate_by_report(found, gap.report, sent, gap.total)
+        found = self.with_repeats(found, gap.acked_index + len(gap.inflight))
         self.last_resume = found
         return found
 
-    def _with_repeats(self: SerialHost, found: ResumeLocation, sent: int) -> ResumeLocation:
+    def with_repeats(self, found: ResumeLocation, sent: int) -> ResumeLocation:
         """``found`` with what may run twice counted: by line numbers nothing; by position the
         move the tool stood in; by a reported position its bound; by the planner bound every
         command from the start up to the last one sent (any of them may have moved)."""
@@ -210,25 +258,25 @@ class ResumeOperations:
             last = found.start + found.repeat_bound_lines
         else:
             last = max(sent, found.start)
-        commands = self._resume_commands or []
+        commands = self.program or []
         last = min(last, len(commands)) if commands else last
         moves = count_moves(commands[found.start:last]) if commands else last - found.start
         return replace(found, repeats=max(last - found.start, 0), repeat_moves=moves)
 
-    def _locate_by_report(self: SerialHost, fallback: ResumeLocation, report: ReportEvidence, sent: int,
+    def locate_by_report(self, fallback: ResumeLocation, report: ReportEvidence, sent: int,
                           total: int) -> ResumeLocation:
         """The controller lost its position: place the last position it reported while
         streaming on the program (``hardware.resume.locate_by_report``).  A real position is
         evidence: it is used whether it lies after the bound (fewer repeats) or before it
         (the bound assumed less was held than really was: resume earlier, never skip)."""
-        commands = self._resume_commands
+        commands = self.program
         if commands is None or len(commands) != total:
             return fallback
-        p = self.profile
+        p = self.commands.profile
         blocks = planner_blocks(commands, p.dispense_on, p.dispense_off)
-        lo = executed_bound(blocks, report.acked_index, self.held_moves)
+        lo = executed_bound(blocks, report.acked_index, self.grbl.held_moves)
         stopped = report.stopped_at if report.stopped_at is not None else (
-            self._connected_at if self._connected_at is not None else time.monotonic())
+            self.connected_at if self.connected_at is not None else time.monotonic())
         seconds = max(stopped - report.asked_at, 0.0)
         ends = end_positions(commands, p.dispense_on, p.dispense_off, start=report.origin)
         opening = next((k for k, end in enumerate(ends) if end is not None), len(ends))
@@ -255,24 +303,24 @@ class ResumeOperations:
                   f"{mm} of motion up to the reset); the planner bound was command {fallback.start}{behind}")
         return ResumeLocation(found.start, "reported position", detail, found.bound_mm, found.bound_lines)
 
-    def _locate_by_position(self: SerialHost, bound: int, acked: int, sent: int, total: int) -> ResumeLocation:
-        commands = self._resume_commands
+    def locate_by_position(self, bound: int, acked: int, sent: int, total: int) -> ResumeLocation:
+        commands = self.program
         fallback = "planner bound"
         if commands is None or len(commands) != total:
             return ResumeLocation(bound, fallback, "the program is not known to this process")
-        self._claim("busy")
+        self.commands.state.claim("busy")
         try:
-            if self.rules.position_by_status:
+            if self.commands.rules.position_by_status:
                 # an Alarm at boot (homing required) is no evidence either way: a board whose
                 # reset zeroed its position reports the origin, refused below
-                status = self.live_link.query_status()
+                status = self.commands.link.query_status()
                 position = status.wpos or status.mpos
             else:
-                report = self.live_link.send("M114", self.timeout_s).payload
+                report = self.commands.send("M114", self.commands.timeout_s).payload
                 position = (tuple(report.axes.get(a, 0.0) for a in "XYZ")
                             if isinstance(report, PositionReport) else None)
         finally:
-            self._release("idle")
+            self.commands.state.release("idle")
         if position is None:
             return ResumeLocation(bound, fallback, "the controller reported no position")
         x, y, z = (float(v) for v in position[:3])
@@ -280,7 +328,7 @@ class ResumeOperations:
         if all(abs(v) < 1e-9 for v in position):
             return ResumeLocation(bound, fallback, "the controller reports the power-on origin: its position "
                                                    "was lost with the reset")
-        p = self.profile
+        p = self.commands.profile
         start = locate_by_position(end_positions(commands, p.dispense_on, p.dispense_off), position, bound,
                                    max(sent, bound), acked=acked)
         where = "(" + ", ".join(f"{v:.3f}" for v in position) + ")"
@@ -290,7 +338,7 @@ class ResumeOperations:
         return ResumeLocation(start, "position", f"the tool stood at {where}: command {start} is the first "
                                                  "not completed")
 
-    def _drain_after_rejection(self: SerialHost, exc: FirmwareError, inflight: deque[tuple[int, PendingCommand]],
+    def drain_after_rejection(self, exc: FirmwareError, inflight: deque[tuple[int, PendingCommand]],
                                executed: int) -> int:
         """A line was rejected: the controller still runs the lines it already holds
         (grbl: up to a buffer's worth).  Wait for each answer; return the index after the
@@ -302,7 +350,7 @@ class ResumeOperations:
         while inflight:
             index, pending = inflight.popleft()
             try:
-                outcome = pending.result(self.timeout_s * 10, check=False)
+                outcome = pending.result(self.commands.timeout_s * 10, check=False)
             except HardwareError:
                 break
             if outcome.status == "error":

@@ -30,28 +30,30 @@ Probe results are the G38.2 result parameters, read back with a ``(DEBUG,...)`` 
 from __future__ import annotations
 
 import contextlib
-import threading
 import time
 from collections.abc import Callable, Iterable
 
 from ..console_log import ConsoleLog
 from ..dialects import LINUXCNC_DISPENSE
 from ..errors import FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
-from ..machine_state import ClaimedOperations, axis_words, connected
+from ..machine_args import check_tool, probe_down, probe_missed, probe_toward, program_commands, straight_move
+from ..machine_state import MachineState, StateReadout, base_status, connected
 from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
 from ..program_clock import ProgramClock
-from ..protocol import validate_program
 from .rsh import RshRejected, RshSession
 from .url import parse_url, passwords
 
 __all__ = ["LinuxCNCMachine"]
 
 _NO_CONTACT = "without making contact"
+MAX_TOOL = 99  # the highest tool number select_tool accepts
 
 
-class LinuxCNCMachine(ClaimedOperations):
+class LinuxCNCMachine(StateReadout[RshSession]):
     """See the module docstring.  Blocking calls hold the machine (``MachineBusy`` for a
-    second caller); pause/resume/cancel/stop/status work from any thread."""
+    second caller); pause/resume/cancel/stop/status work from any thread.  The command
+    session, state, claim, flags and progress live in ``machine_state``
+    (``hardware.machine_state``, kept as the serial machine keeps its own)."""
 
     dialect = "linuxcnc"
 
@@ -66,39 +68,16 @@ class LinuxCNCMachine(ClaimedOperations):
         self.timeout_s = timeout_s
         self.motion_timeout_s = motion_timeout_s
         self.poll_s = poll_s
-        self.link: RshSession | None = None      # the command session
+        # the command session is machine_state.link; a lost one is an error even mid-program
+        super().__init__(MachineState(error_when_lost=("idle", "busy", "printing", "paused")))
         self._stop_link: RshSession | None = None
         self.identity: Identity | None = None
-        self.progress: tuple[int, int] | None = None
-        self._state = "disconnected"
-        self._hold = threading.Lock()
-        self._cancel = False
-        self._pause_requested = False
-        self._estopped = False
         self._interrupted: tuple[int, int] | None = None   # (total, executed) at the loss
         self._probe_seq = 0
         self.last_preamble: list[str] = []  # the modal replay written before a resumed program
         self.console = ConsoleLog()  # MDI commands sent and the controller's answers, across reconnects
         self.homed = False  # every joint homed, as the controller reported at connect and after homing
         self.clock = ProgramClock()  # elapsed time and time left of the running program
-
-    # ------------------------------------------------------------------ state
-    @property
-    def link_lost(self) -> bool:
-        """True when the command session failed (not after an emergency stop)."""
-        return self.link is not None and not self.link.healthy and not self._estopped
-
-    @property
-    def state(self) -> str:
-        """disconnected | idle | busy | printing | paused | error."""
-        if self.link is None:
-            return "disconnected"
-        if not self.link.healthy and self._state in ("idle", "busy", "printing", "paused"):
-            return "error"
-        return self._state
-
-    def _fail_state(self) -> str:
-        return "error" if self._estopped or self.link is None or not self.link.healthy else "idle"
 
     # ------------------------------------------------------------------ connection
     def _open_session(self) -> RshSession:
@@ -108,39 +87,39 @@ class LinuxCNCMachine(ClaimedOperations):
     def connect(self) -> Identity:
         """Open both sessions, take control, leave e-stop and switch the machine on.
         Nothing moves; ``home()`` is the caller's decision."""
-        if self.link is not None:
+        st = self.machine_state
+        if st.link is not None:
             self._close_sessions()
-        self._state = "busy"
-        self._estopped = False
+        st.connecting()
         try:
             self._stop_link = self._open_session()
-            self.link = self._open_session()
-            self.link.enable(self._enable_pw)
+            link = st.link = self._open_session()
+            link.enable(self._enable_pw)
             for _ in range(50):  # errors left over from before this connection
-                if self.link.pop_error() is None:
+                if link.pop_error() is None:
                     break
-            self.link.set("estop", "off")
-            self.link.set("machine", "on")
-            homed = self.link.get("joint_homed")
-            kins = self.link.get("kinematics_type")
+            link.set("estop", "off")
+            link.set("machine", "on")
+            homed = link.get("joint_homed")
+            kins = link.get("kinematics_type")
             self.homed = self._homed(homed)
-            if self.homed and self.link.get("program_status").upper() == "IDLE":
+            if self.homed and link.get("program_status").upper() == "IDLE":
                 self._mdi(self.profile.safe_off)  # an output left on before this connection goes off
         except HardwareError:
-            self._state = "error"
+            st.current = "error"
             raise
-        server = self.link.server or "linuxcncrsh"
+        server = link.server or "linuxcncrsh"
         self.identity = Identity("linuxcnc", f"LinuxCNC ({server})",
                                  {"server": server, "joint_homed": homed, "kinematics_type": kins},
                                  {}, (), False)
-        self._state = "idle"
+        st.current = "idle"
         return self.identity
 
     def _close_sessions(self) -> None:
-        for session in (self.link, self._stop_link):
+        for session in (self.machine_state.link, self._stop_link):
             if session is not None:
                 session.close()
-        self.link, self._stop_link = None, None
+        self.machine_state.link, self._stop_link = None, None
 
     def _homed(self, joint_homed: str) -> bool:
         """True when ``get joint_homed`` says every joint this machine has is homed."""
@@ -150,15 +129,16 @@ class LinuxCNCMachine(ClaimedOperations):
     def disconnect(self) -> None:
         """Close both sessions; a running program is aborted first (never unsupervised), an
         idle machine gets ``safe_off`` first (best effort)."""
-        if self._state in ("printing", "paused"):
+        st, link = self.machine_state, self.machine_state.link
+        if st.current in ("printing", "paused"):
             self._abort_best_effort()
-        elif self._state == "idle" and self.link is not None and self.link.healthy and not self._estopped:
+        elif st.current == "idle" and link is not None and link.healthy and not st.estopped:
             with contextlib.suppress(HardwareError):
-                if self._homed(self.link.get("joint_homed")):
+                if self._homed(link.get("joint_homed")):
                     self._mdi(self.profile.safe_off)
-        self._cancel = True
+        st.cancel_requested = True
         self._close_sessions()
-        self._state = "disconnected"
+        st.current = "disconnected"
 
     # ------------------------------------------------------------------ MDI
     def _mode(self, mode: str) -> None:
@@ -169,7 +149,7 @@ class LinuxCNCMachine(ClaimedOperations):
         any) becomes ``FirmwareError``.  Refuses after an emergency stop."""
         self._mode("mdi")
         for command in commands:
-            if self._estopped:
+            if self.machine_state.estopped:
                 raise MachineStateError("emergency stop: reconnect first", field="state", value="error")
             connected(self.link).pop_error()
             self.console.record("sent", command)
@@ -188,17 +168,17 @@ class LinuxCNCMachine(ClaimedOperations):
             self.console.record("received", f"error: {error}" if error is not None else "done")
             if error is not None:
                 raise FirmwareError(f"LinuxCNC: {error}", command=command)
-            if self._estopped:
+            if self.machine_state.estopped:
                 raise MachineStateError("emergency stop during MDI", field="state", value="error")
 
     def send(self, command: str) -> str:
         """One MDI command (blocking); returns the controller's operator message or ``ok``."""
-        self._claim("busy")
+        self.machine_state.claim("busy")
         try:
             self._mdi([command])
             return connected(self.link).get("operator_display")
         finally:
-            self._release(self._fail_state())
+            self.machine_state.release(self.machine_state.fail_state())
 
     @property
     def home_command(self) -> str:
@@ -207,7 +187,7 @@ class LinuxCNCMachine(ClaimedOperations):
 
     def home(self) -> tuple[float, float, float]:
         """Home all joints (``set home -1``) and wait until every joint reports homed."""
-        self._claim("busy")
+        self.machine_state.claim("busy")
         try:
             self._mode("manual")
             connected(self.link).set("teleop_enable", "off")  # homing needs joint mode
@@ -233,24 +213,22 @@ class LinuxCNCMachine(ClaimedOperations):
             self._mdi(self.profile.safe_off)  # first chance after a connect to an un-homed machine
             return self._position()
         finally:
-            self._release(self._fail_state())
+            self.machine_state.release(self.machine_state.fail_state())
 
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
         """Absolute straight move (G90 G1); returns once the motion is finished."""
-        feed = feed_mm_min or self.profile.travel_feed_mm_min
-        words = axis_words(x, y, z)
-        self._claim("busy")
+        move = straight_move(self.profile, x, y, z, feed_mm_min)
+        self.machine_state.claim("busy")
         try:
-            self._mdi([f"G90 G1{words} F{feed:.1f}"])
+            self._mdi([f"G90 {move}"])
             return self._position()
         finally:
-            self._release(self._fail_state())
+            self.machine_state.release(self.machine_state.fail_state())
 
     def position(self) -> tuple[float, float, float]:
         """Actual X Y Z in absolute (machine) coordinates (``get abs_act_pos``)."""
-        if self.link is None:
-            raise MachineStateError("machine is not connected", field="state", value="disconnected")
+        connected(self.link)
         return self._position()
 
     def _position(self) -> tuple[float, float, float]:
@@ -259,9 +237,7 @@ class LinuxCNCMachine(ClaimedOperations):
 
     def joint_positions(self) -> list[float]:
         """Every joint's actual position (mm / deg), ``get joint_pos``."""
-        if self.link is None:
-            raise MachineStateError("machine is not connected", field="state", value="disconnected")
-        return [float(v) for v in self.link.get("joint_pos").split()]
+        return [float(v) for v in connected(self.link).get("joint_pos").split()]
 
     # ------------------------------------------------------------------ probing
     def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
@@ -269,25 +245,18 @@ class LinuxCNCMachine(ClaimedOperations):
         """Travel to (x, y) at ``z_start``, ``G38.2`` down to ``z_min``, read the trip
         point, retract to ``z_start``.  ``ProbeFailed`` (retracted) when nothing is hit;
         a probe already tripped at the start is a ``FirmwareError``."""
-        p = self.profile
-        z_start = p.clearance_z if z_start is None else z_start
-        z_min = p.probe_z_min if z_min is None else z_min
-        feed = feed_mm_min or p.probe_feed_mm_min
-        if z_min >= z_start:
-            raise InvalidConfig("z_min must be below z_start", field="z_min", value=z_min)
-        travel = p.travel_feed_mm_min
-        retract = f"G90 G1 Z{z_start:.4f} F{travel:.1f}"
-        self._claim("busy")
+        down = probe_down(self.profile, x, y, z_start, z_min, feed_mm_min)
+        retract = f"G90 {down.retract}"
+        self.machine_state.claim("busy")
         try:
-            self._mdi([retract, f"G90 G1 X{x:.4f} Y{y:.4f} F{travel:.1f}"])
+            self._mdi([retract, f"G90 G1 X{x:.4f} Y{y:.4f} F{down.travel:.1f}"])
             try:
-                self._mdi([f"G38.2 Z{z_min:.4f} F{feed:.1f}"])
+                self._mdi([f"G38.2 Z{down.z_min:.4f} F{down.feed:.1f}"])
             except FirmwareError as exc:
                 if _NO_CONTACT not in exc.message:
                     raise
                 self._mdi([retract])
-                raise ProbeFailed(f"probe at ({x:.3f}, {y:.3f}) found no surface above "
-                                  f"z={z_min:.3f}", x=x, y=y, field="probe", value=[x, y]) from exc
+                raise probe_missed(down) from exc
             px, py, pz, tripped = self._probe_parameters()
             self._mdi([retract])
             if tripped != 1.0:
@@ -295,7 +264,7 @@ class LinuxCNCMachine(ClaimedOperations):
                                   field="probe", value=[x, y])
             return ProbeResult(px, py, pz)
         finally:
-            self._release(self._fail_state())
+            self.machine_state.release(self.machine_state.fail_state())
 
     def _probe_parameters(self) -> tuple[float, float, float, float]:
         self._probe_seq += 1
@@ -311,9 +280,8 @@ class LinuxCNCMachine(ClaimedOperations):
         """``T<tool> M6`` by MDI (no ``G43``: no tool-length offset is applied, programs stay
         in carriage coordinates as on serial machines).  LinuxCNC's T0 means "no tool"; the
         tool must be in the controller's tool table, else ``InvalidConfig`` (field ``tool``)."""
-        if isinstance(tool, bool) or not isinstance(tool, int) or not 0 <= tool <= 99:
-            raise InvalidConfig("tool must be an integer 0..99", field="tool", value=tool)
-        self._claim("busy")
+        check_tool(tool, MAX_TOOL)
+        self.machine_state.claim("busy")
         try:
             try:
                 self._mdi([f"T{tool} M6"])
@@ -321,42 +289,34 @@ class LinuxCNCMachine(ClaimedOperations):
                 raise InvalidConfig(f"LinuxCNC refused tool T{tool}: {exc.message}", field="tool",
                                     value=tool) from exc
         finally:
-            self._release(self._fail_state())
+            self.machine_state.release(self.machine_state.fail_state())
 
     def probe_toward(self, start: tuple[float, float, float], target: tuple[float, float, float],
                      feed_mm_min: float | None = None) -> ProbeResult:
         """Travel to ``start`` (Z up first, then XY, then Z down), ``G38.2`` toward ``target``
         (any direction), read #5061-#5063, go straight back to ``start``.  ``ProbeFailed``
         when nothing is touched (the machine is back at ``start``)."""
-        sx, sy, sz = (float(v) for v in start)
-        tx, ty, tz = (float(v) for v in target)
-        if max(abs(sx - tx), abs(sy - ty), abs(sz - tz)) < 1e-6:
-            raise InvalidConfig("probe target equals its start", field="target", value=[tx, ty, tz])
-        p = self.profile
-        feed = feed_mm_min or p.probe_feed_mm_min
-        travel = p.travel_feed_mm_min
-        back = f"G90 G1 X{sx:.4f} Y{sy:.4f} Z{sz:.4f} F{travel:.1f}"
-        where = [round(tx, 4), round(ty, 4), round(tz, 4)]
-        self._claim("busy")
+        toward = probe_toward(self.profile, start, target, feed_mm_min)
+        back = f"G90 {toward.back}"
+        self.machine_state.claim("busy")
         try:
-            here = self._position()
-            self._mdi([f"G90 G1 Z{max(here[2], sz):.4f} F{travel:.1f}", f"G1 X{sx:.4f} Y{sy:.4f} F{travel:.1f}",
-                       f"G1 Z{sz:.4f} F{travel:.1f}"])
+            up, *rest = toward.approach(self._position()[2])
+            self._mdi([f"G90 {up}", *rest])
             try:
-                self._mdi([f"G38.2 X{tx:.4f} Y{ty:.4f} Z{tz:.4f} F{feed:.1f}"])
+                self._mdi([toward.command])
             except FirmwareError as exc:
                 if _NO_CONTACT not in exc.message:
                     raise
                 self._mdi([back])
-                raise ProbeFailed(f"probe from {[sx, sy, sz]} toward {where} touched nothing", x=tx, y=ty,
-                                  field="probe", value=where) from exc
+                raise probe_missed(toward) from exc
             px, py, pz, tripped = self._probe_parameters()
             self._mdi([back])
             if tripped != 1.0:
-                raise ProbeFailed(f"probe toward {where} did not trip", x=tx, y=ty, field="probe", value=where)
+                raise ProbeFailed(f"probe toward {toward.where} did not trip", x=toward.target[0],
+                                  y=toward.target[1], field="probe", value=toward.where)
             return ProbeResult(px, py, pz)
         finally:
-            self._release(self._fail_state())
+            self.machine_state.release(self.machine_state.fail_state())
 
     # ------------------------------------------------------------------ programs
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
@@ -365,16 +325,13 @@ class LinuxCNCMachine(ClaimedOperations):
         docstring); returns when it ended or was cancelled (``set abort``)."""
         from .program_run import resume_preamble, run_program, write_program
 
-        commands = validate_program(lines)
+        commands = program_commands(lines, start_line)
         total = len(commands)
-        if not 0 <= start_line <= total:
-            raise InvalidConfig(f"start_line must be within 0..{total}", field="start_line",
-                                value=start_line)
-        self._claim("printing")
-        self._cancel = False
-        self._pause_requested = False
+        st = self.machine_state
+        st.claim("printing")
+        st.cancel_requested = False
         self._interrupted = None
-        self.progress = (start_line, total)
+        st.progress = (start_line, total)
         self.clock.start(start_line)
         started = time.monotonic()
         try:
@@ -387,25 +344,20 @@ class LinuxCNCMachine(ClaimedOperations):
                 executed, cancelled = run_program(self, path, start_line, total, on_progress,
                                                   skip=len(preamble))
         except LinkError as exc:
-            executed = self.progress[0]
+            executed = st.progress[0]
             self._interrupted = (total, executed)
             self._abort_best_effort()
-            self._release("error")
+            st.release("error")
             exc.resume_line = executed
             raise
         except HardwareError:
-            self._release(self._fail_state())
+            st.release(st.fail_state())
             raise
-        self._release("idle")
+        st.release("idle")
         return StreamReport(executed, total, start_line, cancelled, time.monotonic() - started, {})
 
     # ------------------------------------------------------------------ interruption (the
     # same calls as hardware.machine.Machine: the service's interrupted/resume workflow)
-    @property
-    def estopped(self) -> bool:
-        """True after an emergency stop until the next connect."""
-        return self._estopped
-
     @property
     def acked_line_no(self) -> None:
         """LinuxCNC numbers no lines on the wire (progress is its ``program_line``)."""
@@ -428,49 +380,45 @@ class LinuxCNCMachine(ClaimedOperations):
         controller still runs is aborted first."""
         if self._interrupted is None:
             raise MachineStateError("no interrupted program to resume", field="state")
-        if self.link is None or not self.link.healthy:
+        link = self.link
+        if link is None or not link.healthy:
             raise MachineStateError("connect before resuming", field="state", value="disconnected")
-        if self.link.get("program_status").upper() != "IDLE":
-            self.link.set("abort")
+        if link.get("program_status").upper() != "IDLE":
+            link.set("abort")
         return self._interrupted[1]
 
     def pause(self) -> None:
         """Pause the running program (the controller decelerates and holds)."""
-        if self._state != "printing":
-            raise MachineStateError(f"cannot pause while {self.state}", field="state", value=self.state)
-        connected(self.link).set("pause")
+        st = self.machine_state
+        st.require(("printing",), "cannot pause")
+        st.live_link.set("pause")
         self.clock.pause()
-        self._state = "paused"
+        st.current = "paused"
 
     def resume(self) -> None:
         """Continue a paused program."""
-        if self._state != "paused":
-            raise MachineStateError(f"cannot resume while {self.state}", field="state", value=self.state)
-        connected(self.link).set("resume")
+        st = self.machine_state
+        st.require(("paused",), "cannot resume")
+        st.live_link.set("resume")
         self.clock.resume()
-        self._state = "printing"
+        st.current = "printing"
 
     def cancel(self) -> None:
         """Abort the running program (controlled stop, no emergency stop)."""
-        if self._state not in ("printing", "paused"):
-            raise MachineStateError(f"no program to cancel while {self.state}", field="state",
-                                    value=self.state)
-        self._cancel = True
+        self.machine_state.require(("printing", "paused"), "no program to cancel")
+        self.machine_state.cancel_requested = True
 
     def stop(self) -> None:
         """The service's stop: emergency stop while something runs; ``MachineStateError``
         while idle or disconnected."""
-        state = self.state
-        if state not in ("printing", "paused", "busy"):
-            raise MachineStateError(f"nothing to stop: machine is {state}", field="state", value=state)
+        self.machine_state.require_stoppable()
         self.emergency_stop()
 
     def emergency_stop(self) -> None:
-        """``set estop on`` over the stop session (reopened if it died); machine -> error."""
-        if self.link is None:
-            raise MachineStateError("machine is not connected", field="state", value="disconnected")
-        self._estopped = True
-        self._cancel = True
+        """``set estop on`` over the stop session (reopened if it died), never queued behind
+        the command session's operation (no claim); machine -> error."""
+        st = self.machine_state
+        st.stopping()
         self.homed = False
         self.console.record("sent", "set estop on")
         session = self._stop_link
@@ -478,7 +426,7 @@ class LinuxCNCMachine(ClaimedOperations):
             session = self._stop_link = self._open_session()
         session.enable(self._enable_pw)
         session.set("estop", "on")
-        self._state = "error"
+        st.current = "error"
 
     def _abort_best_effort(self) -> None:
         try:
@@ -492,9 +440,6 @@ class LinuxCNCMachine(ClaimedOperations):
 
     def status(self) -> dict[str, object]:
         """JSON-friendly snapshot for the API (state, identity, program progress)."""
-        executed, total = self.progress or (None, None)
-        return {"state": self.state, "dialect": self.dialect, "url": self.url,
-                "firmware": self.identity.firmware if self.identity else None,
-                "program": None if self.progress is None or self.state not in ("printing", "paused")
-                else {"line": executed, "total": total},
+        running = self.machine_state.running_program()
+        return {**base_status(self.machine_state, self.dialect, self.url, self.identity, running),
                 "link": None, "fallbacks": []}

@@ -61,9 +61,10 @@ def write_program(directory: str, commands: list[str]) -> str:
 def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int,
                 on_progress: Callable[[int, int], None] | None, skip: int = 0) -> tuple[int, bool]:
     """Run ``path`` (its first ``skip`` lines are a modal preamble, then line n is command
-    ``start_line + n - 1 - skip``); returns (executed, cancelled).  ``machine.progress``
+    ``start_line + n - 1 - skip``); returns (executed, cancelled).  The machine's progress
     is kept current."""
-    link = connected(machine.link)
+    st = machine.machine_state
+    link = connected(st.link)
     count = total - start_line
     link.set("mode", "auto")
     link.pop_error()
@@ -73,9 +74,9 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
     seen_running = False
     executed = start_line
     while True:
-        if machine._estopped:
+        if st.estopped:
             raise FirmwareError("emergency stop: the program was stopped", command="estop")
-        if machine._cancel:
+        if st.cancel_requested:
             link.set("abort")
             return executed, True
         status = link.get("program_status").upper()
@@ -91,9 +92,9 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
                 executed = max(executed, start_line + min(line - 1 - skip, count))
         elif seen_running or time.monotonic() - started > _START_GRACE_S:
             executed = total
-        if machine._state in ("printing", "paused"):
-            machine._state = "paused" if status == "PAUSED" else "printing"
-        machine.progress = (executed, total)
+        if st.current in ("printing", "paused"):
+            st.current = "paused" if status == "PAUSED" else "printing"
+        st.progress = (executed, total)
         if on_progress is not None:
             on_progress(executed, total)
         if executed == total:

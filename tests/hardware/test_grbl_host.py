@@ -270,7 +270,7 @@ def test_6_8_resume_starts_at_what_moved_and_restores_the_modes(make_world):
     safe = normalized_commands(machine.profile.safe_off)  # the program started with its outputs off
     assert world.transcript.commands[:len(safe)] == safe
     ran = len(world.transcript.commands) - len(safe)  # lines whose motion completed before the drop
-    acked = machine._interrupted.acked_index
+    acked = machine.interrupted_program.acked_index
     assert acked - ran >= 10  # many acknowledged moves never ran
     machine.connect()
     start = machine.resume_line()

@@ -229,13 +229,16 @@ def test_only_reports_of_this_stream_count_and_an_unknown_opening_is_not_placed(
     url, _ = make_world(dialect="grbl")
     m = machine(url, "grbl")
     m.connect()
-    m._note_stream_start(5)  # a resumed stream: no origin query
-    m.link.position_marks.append(PositionMark((10.0, 0.0, 0.0), 0, m._stream_started - 1.0, m._stream_started))
-    assert m._report_evidence({}, 5, LinkError("gone")) is None  # asked before the stream: stale
-    m._resume_commands = ["G21", "G90", "G1 X10 F600", "G1 Y5", "G1 X0", "G1 Y0"]  # opening from nowhere known
+    resumer = m.resumer
+    resumer.note_stream_start(5)  # a resumed stream: no origin query
+    started = resumer.stream_started
+    m.link.position_marks.append(PositionMark((10.0, 0.0, 0.0), 0, started - 1.0, started))
+    assert resumer.report_evidence({}, 5, LinkError("gone")) is None  # asked before the stream: stale
+    resumer.program = ["G21", "G90", "G1 X10 F600", "G1 Y5", "G1 X0", "G1 Y0"]  # opening from nowhere known
     fallback = ResumeLocation(0, "planner bound", "the controller reports the power-on origin")
-    found = m._locate_by_report(fallback, ReportEvidence((10.0, 0.0, 0.0), 2, 0.0, 0.5), 6, 6)
+    found = resumer.locate_by_report(fallback, ReportEvidence((10.0, 0.0, 0.0), 2, 0.0, 0.5), 6, 6)
     assert found.basis == "planner bound" and "opening" in found.detail
-    placed = m._locate_by_report(fallback, ReportEvidence((10.0, 2.0, 0.0), 2, 0.0, 0.5, origin=(0.0, 0.0, 0.0)), 6, 6)
+    known_origin = ReportEvidence((10.0, 2.0, 0.0), 2, 0.0, 0.5, origin=(0.0, 0.0, 0.0))
+    placed = resumer.locate_by_report(fallback, known_origin, 6, 6)
     assert placed.basis == "reported position" and placed.start == 3  # the origin makes the opening known
     m.disconnect()
