@@ -37,6 +37,7 @@ Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merg
 RESOLUTION_MM = 0.0125  # PrusaSlicer's G-code resolution: paths simplified to it, no move shorter
 THINNEST_WALL = 0.25  # of the nozzle: a wall thinner than this is not printed (PrusaSlicer's min feature)
 THIN_WALL_STEPS = 10  # bisection steps finding a thin wall's half thickness (w/2 / 2^10: 0.2 um at 0.4 mm)
+HEIGHT_DECIMALS = 9  # a layer's bead height in the planner's statistics and memo, to the nm
 PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
 
 
@@ -402,7 +403,9 @@ def iter_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathPa
     memo: PathMemo[LayerPaths] = PathMemo(params, layer_paths)
     done: LayerMemo[tuple[tuple[PathPiece, ...], npt.NDArray[np.float64], LayerStats]] = LayerMemo()
     for lay in slice_result.layers:
-        h = params.layer_height_mm or lay.thickness
+        # the bead height to the nm: a layer's thickness is a difference of its heights, whose
+        # last bits differ from layer to layer (layers.npz rounds them), the layer does not
+        h = round(params.layer_height_mm or lay.thickness, HEIGHT_DECIMALS)
         key, normal = memo.key(lay.islands, lay.index)
         found = done.get(key, h, pos)
         if found is None:
