@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
-from app.gcode.fdm_block import ExtrudeState, extrude_layer
+from app.gcode.fdm_block import ExtrudeState, LayerBlock, extrude_layers
 from app.gcode.reader import Program
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
@@ -34,6 +34,9 @@ if TYPE_CHECKING:  # the slicer imports this writer; the toolpath types are need
     from app.slicing.toolpath import LayerToolpath, Toolpath, ToolpathParams
 
 END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
+# extrusion layers are written in blocks of about this many points (a few layers of a small
+# part at once: a block costs its lines; its arrays stay a few MB)
+BLOCK_POINTS = 50_000
 
 
 def bead_area_mm2(width_mm: float, height_mm: float) -> float:
@@ -185,17 +188,30 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
     pos: npt.NDArray[np.float64] | None = None
     travel = tpp.travel_feed_mm_s * 60.0
     z = 0.0
+    batch: list[LayerBlock] = []   # extrusion layers written together, up to BLOCK_POINTS points
+    held = 0
+
+    def flush() -> None:
+        nonlocal e, extruded, pos, held
+        e, extruded, pos = extrude_layers(b, batch, ExtrudeState(e, extruded, pos), travel, params.retract_mm,
+                                          params.retract_feed_mm_s * 60.0, params.min_travel_for_retract_mm,
+                                          params.z_lift_mm)
+        batch.clear()
+        held = 0
+
     for lay in layers:
         z = lay.z
         h = tpp.layer_height_mm or lay.thickness
-        b.raw(f";LAYER:{lay.index}")
-        b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
         if params.mode == "extrude" and all(np.isfinite(piece.points).all() for piece in lay.pieces):
             rates = [bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area for piece in lay.pieces]
-            e, extruded, pos = extrude_layer(b, lay.pieces, rates, z, ExtrudeState(e, extruded, pos), travel,
-                                             params.retract_mm, params.retract_feed_mm_s * 60.0,
-                                             params.min_travel_for_retract_mm, params.z_lift_mm)
+            batch.append(LayerBlock(lay.index, z, lay.pieces, rates))
+            held += sum(len(piece.points) for piece in lay.pieces) + 1
+            if held >= BLOCK_POINTS:
+                flush()
             continue
+        flush()
+        b.raw(f";LAYER:{lay.index}")
+        b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
         for piece in lay.pieces:
             start = piece.points[0]
             dist = math.inf if pos is None else math.hypot(*(start - pos))
@@ -224,5 +240,6 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
             pos = piece.points[-1]
             if params.z_lift_mm:
                 b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
+    flush()
     _end(b, params, z, off, rules)
     return b
