@@ -28,6 +28,9 @@ def _rotate_closed(p: npt.NDArray[np.float64], k: int) -> npt.NDArray[np.float64
     return np.vstack([body, body[:1]])
 
 
+MATRIX_CANDIDATES = 1024  # up to this many places to start, the distances between all of them at once (8 MB)
+
+
 class OrderedPaths(NamedTuple):
     """Polylines (n, 2) mm in print order and orientation, and the nozzle's final position (2,) mm."""
 
@@ -60,15 +63,11 @@ def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.floa
     cand = np.concatenate([p[:-1] if c else p[[0, -1]] for p, c in zip(remaining, closed)])
     owner_first = np.concatenate([[0], np.cumsum(counts)])
     owner_of = np.repeat(np.arange(len(remaining)), counts)
-    index = np.arange(len(cand))              # the candidates still held (compacted as paths retire)
-    cx, cy = cand[:, 0].copy(), cand[:, 1].copy()
-    retired = 0
-    px, py = float(pos[0]), float(pos[1])
-    for _ in range(len(remaining)):
-        dx, dy = cx - px, cy - py
-        j = int(index[np.argmin(dx * dx + dy * dy)])
-        k = int(owner_of[j])
-        v = j - int(owner_first[k])
+    if len(cand) <= MATRIX_CANDIDATES:
+        order = _greedy_by_matrix(cand, owner_first, owner_of, closed, tails, pos)
+    else:
+        order = _greedy(cand, owner_first, owner_of, closed, tails, pos)
+    for k, v in order:
         p = remaining[k]
         if closed[k]:
             if v:
@@ -76,11 +75,69 @@ def order_paths(paths: list[npt.NDArray[np.float64]], start: npt.NDArray[np.floa
         elif v:
             p = p[::-1]
         out.append(p)
-        lo, hi = np.searchsorted(index, [owner_first[k], owner_first[k + 1]])
+    return OrderedPaths(out, out[-1][-1])
+
+
+
+
+def _stop(first: int, closed: bool, j: int) -> int:
+    """The candidate where the nozzle stops after a path whose candidates start at ``first``,
+    entered at candidate ``j``: an open path's other end; a closed path's entry (it comes back
+    there; printed from its first vertex, it stops at its last, equal within the closing
+    tolerance: the caller takes that vertex itself)."""
+    return j if closed else 2 * first + 1 - j
+
+
+def _greedy(cand: npt.NDArray[np.float64], owner_first: npt.NDArray[np.int64], owner_of: npt.NDArray[np.int64],
+            closed: list[bool], tails: npt.NDArray[np.float64], pos: npt.NDArray[np.float64]) -> list[tuple[int, int]]:
+    """The greedy order of :func:`order_paths` as (path, candidate within it) pairs, the
+    distances from the nozzle computed afresh at each step (any number of candidates)."""
+    index = np.arange(len(cand))              # the candidates still held (compacted as paths retire)
+    cx, cy = cand[:, 0].copy(), cand[:, 1].copy()
+    retired = 0
+    px, py = float(pos[0]), float(pos[1])
+    order: list[tuple[int, int]] = []
+    first = owner_first.tolist()
+    for _ in range(len(closed)):
+        dx, dy = cx - px, cy - py
+        j = int(index[np.argmin(dx * dx + dy * dy)])
+        k = int(owner_of[j])
+        order.append((k, j - first[k]))
+        lo, hi = np.searchsorted(index, [first[k], first[k + 1]])
         cx[lo:hi] = np.inf
         retired += hi - lo
         if 2 * retired > len(index):          # keep only the living candidates
             keep = np.isfinite(cx)
             index, cx, cy, retired = index[keep], cx[keep], cy[keep], 0
-        px, py = float(p[-1, 0]), float(p[-1, 1])
-    return OrderedPaths(out, out[-1][-1])
+        px, py = (tails[k] if closed[k] and j == first[k] else cand[_stop(first[k], closed[k], j)]).tolist()
+    return order
+
+
+def _greedy_by_matrix(cand: npt.NDArray[np.float64], owner_first: npt.NDArray[np.int64],
+                      owner_of: npt.NDArray[np.int64], closed: list[bool], tails: npt.NDArray[np.float64],
+                      pos: npt.NDArray[np.float64]) -> list[tuple[int, int]]:
+    """:func:`_greedy` with every candidate's squared distance to every other computed at
+    once ((c, c) for c candidates, the same arithmetic): a step is one argmin of a row.
+    Retired candidates are pushed to infinity, so ties still go to the lowest candidate."""
+
+    def row_from(point: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        dx, dy = cand[:, 0] - float(point[0]), cand[:, 1] - float(point[1])
+        return dx * dx + dy * dy
+
+    row = row_from(pos)
+    dx, dy = cand[None, :, 0] - cand[:, None, 0], cand[None, :, 1] - cand[:, None, 1]
+    dist = dx * dx + dy * dy
+    del dx, dy
+    dead = np.zeros(len(cand))
+    order: list[tuple[int, int]] = []
+    first = owner_first.tolist()
+    for _ in range(len(closed)):
+        j = int(np.argmin(row + dead))
+        k = int(owner_of[j])
+        order.append((k, j - first[k]))
+        dead[first[k]:first[k + 1]] = np.inf
+        if closed[k] and j == first[k] and not (tails[k] == cand[j]).all():
+            row = row_from(tails[k])
+        else:
+            row = dist[_stop(first[k], closed[k], j)]
+    return order
