@@ -188,30 +188,15 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
     pos: npt.NDArray[np.float64] | None = None
     travel = tpp.travel_feed_mm_s * 60.0
     z = 0.0
-    batch: list[LayerBlock] = []   # extrusion layers written together, up to BLOCK_POINTS points
+    batch: list[tuple[LayerBlock, LayerToolpath, float]] = []   # extrusion layers written together
     held = 0
 
-    def flush() -> None:
-        nonlocal e, extruded, pos, held
-        e, extruded, pos = extrude_layers(b, batch, ExtrudeState(e, extruded, pos), travel, params.retract_mm,
-                                          params.retract_feed_mm_s * 60.0, params.min_travel_for_retract_mm,
-                                          params.z_lift_mm)
-        batch.clear()
-        held = 0
-
-    for lay in layers:
-        z = lay.z
-        h = tpp.layer_height_mm or lay.thickness
-        if params.mode == "extrude" and all(np.isfinite(piece.points).all() for piece in lay.pieces):
-            rates = [bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area for piece in lay.pieces]
-            batch.append(LayerBlock(lay.index, z, lay.pieces, rates))
-            held += sum(len(piece.points) for piece in lay.pieces) + 1
-            if held >= BLOCK_POINTS:
-                flush()
-            continue
-        flush()
+    def one_by_one(lay: LayerToolpath, h: float) -> None:
+        """A layer written move by move (dispensing, or a point that is not finite: the
+        builder names its axis)."""
+        nonlocal e, extruded, pos, retracted
         b.raw(f";LAYER:{lay.index}")
-        b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
+        b.move(z=lay.z + params.z_lift_mm, feed_mm_min=travel)
         for piece in lay.pieces:
             start = piece.points[0]
             dist = math.inf if pos is None else math.hypot(*(start - pos))
@@ -223,7 +208,7 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
             if dist > LENGTH_EPS_MM:
                 b.move(x=start[0], y=start[1], feed_mm_min=travel)
             if params.z_lift_mm:
-                b.move(z=z, feed_mm_min=travel)
+                b.move(z=lay.z, feed_mm_min=travel)
             if retracted:
                 e += params.retract_mm
                 b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
@@ -239,7 +224,40 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
                 b.raw(off)
             pos = piece.points[-1]
             if params.z_lift_mm:
-                b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
+                b.move(z=lay.z + params.z_lift_mm, feed_mm_min=travel)
+
+    def in_blocks(blocks: list[LayerBlock]) -> None:
+        nonlocal e, extruded, pos
+        e, extruded, pos = extrude_layers(b, blocks, ExtrudeState(e, extruded, pos), travel, params.retract_mm,
+                                          params.retract_feed_mm_s * 60.0, params.min_travel_for_retract_mm,
+                                          params.z_lift_mm)
+
+    def flush() -> None:
+        """Write the held layers: in one block when every point is finite, else each on its own."""
+        nonlocal held
+        points = [piece.points for block, _, _ in batch for piece in block.pieces]
+        if not points or np.isfinite(np.concatenate(points)).all():
+            in_blocks([block for block, _, _ in batch])
+        else:
+            for block, lay, h in batch:
+                if all(np.isfinite(piece.points).all() for piece in block.pieces):
+                    in_blocks([block])
+                else:
+                    one_by_one(lay, h)
+        batch.clear()
+        held = 0
+
+    for lay in layers:
+        z = lay.z
+        h = tpp.layer_height_mm or lay.thickness
+        if params.mode != "extrude":
+            one_by_one(lay, h)
+            continue
+        rates = [bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area for piece in lay.pieces]
+        batch.append((LayerBlock(lay.index, z, lay.pieces, rates), lay, h))
+        held += sum(len(piece.points) for piece in lay.pieces) + 1
+        if held >= BLOCK_POINTS:
+            flush()
     flush()
     _end(b, params, z, off, rules)
     return b

@@ -141,3 +141,12 @@ def test_layers_written_in_blocks_of_any_size_write_and_record_alike(cad, monkey
             a, b = getattr(recorded, f.name), getattr(read, f.name)
             assert np.array_equal(a, b) if isinstance(b, np.ndarray) else a == b, f.name
         assert set(read.layer.tolist()) == {-1, *range(len(toolpath.layers))}   # -1: homing, before any tag
+
+
+def test_a_non_finite_point_after_finite_layers_is_refused_naming_its_axis():
+    good = _layer(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]))
+    bad = LayerToolpath(1, 0.4, 0.2, (PathPiece("infill", np.array([[0.0, 0.0], [1.0, np.inf]]), 40.0),),
+                        LayerStats(0.0, 0.0, 0, 0, 0.0))
+    with pytest.raises(GcodeError) as info:
+        write_fdm_layers([good, good, bad], ToolpathParams())
+    assert info.value.field == "y"
