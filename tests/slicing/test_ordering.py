@@ -1,7 +1,7 @@
-"""Travel ordering: the greedy order found from a table of all distances at once is the order
-the per-step search finds (the reference below is that search as it was written before,
-nearest living candidate recomputed from the nozzle at each step), ties and nearly closed
-loops included."""
+"""Travel ordering: the greedy order found from a table of all distances at once, or from each
+candidate's nearest neighbours, is the order the per-step search finds (the reference below
+is that search as it was written before, nearest living candidate recomputed from the nozzle
+at each step), ties and nearly closed loops included."""
 
 from __future__ import annotations
 
@@ -54,11 +54,11 @@ def _paths(rng, n_open, n_closed, grid):
 
 
 @pytest.mark.parametrize("matrix_candidates", [0, ordering.MATRIX_CANDIDATES])
-@pytest.mark.parametrize("seed", range(12))
+@pytest.mark.parametrize("seed", range(16))
 def test_the_greedy_order_is_the_per_step_search(monkeypatch, matrix_candidates, seed):
     monkeypatch.setattr(ordering, "MATRIX_CANDIDATES", matrix_candidates)
     rng = np.random.default_rng(seed)
-    paths = _paths(rng, int(rng.integers(0, 40)), int(rng.integers(0, 8)), grid=seed % 2 == 0)
+    paths = _paths(rng, int(rng.integers(0, 40 if seed < 8 else 200)), int(rng.integers(0, 8)), grid=seed % 2 == 0)
     start = rng.uniform(0, 30, 2)
     got, end = order_paths(paths, start)
     want = _reference(paths, start)
