@@ -31,7 +31,7 @@ from app.slicing.layers import SliceResult
 from app.slicing.offset import offset_islands
 from app.slicing.ordering import order_paths
 from app.slicing.path_memo import LayerMemo, PathMemo
-from app.slicing.rings import Island
+from app.slicing.rings import Island, split_at
 
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
 RESOLUTION_MM = 0.0125  # PrusaSlicer's G-code resolution: paths simplified to it, no move shorter
@@ -240,7 +240,7 @@ def simplify_paths(paths: list[npt.NDArray[np.float64]], resolution: float) -> l
     short[index[1:][inside & (seg < resolution)]] = True
     length = np.bincount(index[1:][inside], weights=seg[inside], minlength=len(paths))
     out: list[npt.NDArray[np.float64]] = []
-    for k, points in enumerate(np.split(coords, np.flatnonzero(np.diff(index)) + 1)):
+    for k, points in enumerate(split_at(coords, np.flatnonzero(np.diff(index)) + 1)):
         if short[k]:
             points = _drop_short(points, resolution)
             if len(points) >= 2 and np.hypot(*np.diff(points, axis=0).T).sum() >= resolution:
