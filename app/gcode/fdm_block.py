@@ -23,12 +23,15 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from app.gcode.fixed_text import xye_lines
 from app.gcode.writer import as_written
 from app.geometry.tolerance import LENGTH_EPS_MM
 
 if TYPE_CHECKING:
     from app.gcode.writer import ProgramBuilder
     from app.slicing.toolpath import PathPiece
+
+NUMPY_TEXT_LINES = 4000  # a block with this many moves has their text built by numpy (xye_lines)
 
 
 class ExtrudeState(NamedTuple):
@@ -195,8 +198,11 @@ def _emit(b: ProgramBuilder, layers: list[LayerBlock], per_layer: npt.NDArray[np
     has = np.flatnonzero(w.per_piece > 0)
     rows[at_comment[has] + 1, 4] = [float(piece_feed[p][1:]) for p in has.tolist()]
     # the text, each kind of line formatted in one pass and put in its place
-    moves = list(map(f"G1 X{{:{spec}}} Y{{:{spec}}} E{{:{spec}}}".format, w.moves[:, 0].tolist(),
-                     w.moves[:, 1].tolist(), w.e_moves.tolist()))
+    if len(w.moves) >= NUMPY_TEXT_LINES:
+        moves = xye_lines(w.moves[:, 0], w.moves[:, 1], w.e_moves, b.decimals)
+    else:
+        moves = list(map(f"G1 X{{:{spec}}} Y{{:{spec}}} E{{:{spec}}}".format, w.moves[:, 0].tolist(),
+                         w.moves[:, 1].tolist(), w.e_moves.tolist()))
     for p, k in zip(has.tolist(), starts[has].tolist()):
         moves[k] += " " + piece_feed[p]
     text = np.empty(len(rows), dtype=object)
