@@ -253,7 +253,8 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
         if params.mode != "extrude":
             one_by_one(lay, h)
             continue
-        rates = [bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area for piece in lay.pieces]
+        line_rate = bead_area_mm2(tpp.line_width_mm, h) / fil_area   # most pieces are a line wide
+        rates = [bead_area_mm2(piece.width_mm, h) / fil_area if piece.width_mm else line_rate for piece in lay.pieces]
         batch.append((LayerBlock(lay.index, z, lay.pieces, rates), lay, h))
         held += sum(len(piece.points) for piece in lay.pieces) + 1
         if held >= BLOCK_POINTS:
