@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
-from app.gcode.fdm_block import ExtrudeState, extrude_layer
+from app.gcode.fdm_block import ExtrudeState, LayerBlock, extrude_layers
 from app.gcode.reader import Program
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
@@ -34,6 +34,9 @@ if TYPE_CHECKING:  # the slicer imports this writer; the toolpath types are need
     from app.slicing.toolpath import LayerToolpath, Toolpath, ToolpathParams
 
 END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
+# extrusion layers are written in blocks of about this many points (a few layers of a small
+# part at once: a block costs its lines; its arrays stay a few MB)
+BLOCK_POINTS = 50_000
 
 
 def bead_area_mm2(width_mm: float, height_mm: float) -> float:
@@ -189,17 +192,15 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
     pos: npt.NDArray[np.float64] | None = None
     travel = tpp.travel_feed_mm_s * 60.0
     z = 0.0
-    for lay in layers:
-        z = lay.z
-        h = tpp.layer_height_mm or lay.thickness
+    batch: list[tuple[LayerBlock, LayerToolpath, float]] = []   # extrusion layers written together
+    held = 0
+
+    def one_by_one(lay: LayerToolpath, h: float) -> None:
+        """A layer written move by move (dispensing, or a point that is not finite: the
+        builder names its axis)."""
+        nonlocal e, extruded, pos, retracted
         b.raw(f";LAYER:{lay.index}")
-        b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
-        if params.mode == "extrude" and all(np.isfinite(piece.points).all() for piece in lay.pieces):
-            rates = [bead_area_mm2(piece.width_mm or tpp.line_width_mm, h) / fil_area for piece in lay.pieces]
-            e, extruded, pos = extrude_layer(b, lay.pieces, rates, z, ExtrudeState(e, extruded, pos), travel,
-                                             params.retract_mm, params.retract_feed_mm_s * 60.0,
-                                             params.min_travel_for_retract_mm, params.z_lift_mm)
-            continue
+        b.move(z=lay.z + params.z_lift_mm, feed_mm_min=travel)
         for piece in lay.pieces:
             start = piece.points[0]
             dist = math.inf if pos is None else math.hypot(*(start - pos))
@@ -211,7 +212,7 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
             if dist > LENGTH_EPS_MM:
                 b.move(x=start[0], y=start[1], feed_mm_min=travel)
             if params.z_lift_mm:
-                b.move(z=z, feed_mm_min=travel)
+                b.move(z=lay.z, feed_mm_min=travel)
             if retracted:
                 e += params.retract_mm
                 b.move(e=e, feed_mm_min=params.retract_feed_mm_s * 60.0)
@@ -227,6 +228,41 @@ def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmPara
                 b.raw(off)
             pos = piece.points[-1]
             if params.z_lift_mm:
-                b.move(z=z + params.z_lift_mm, feed_mm_min=travel)
+                b.move(z=lay.z + params.z_lift_mm, feed_mm_min=travel)
+
+    def in_blocks(blocks: list[LayerBlock]) -> None:
+        nonlocal e, extruded, pos
+        e, extruded, pos = extrude_layers(b, blocks, ExtrudeState(e, extruded, pos), travel, params.retract_mm,
+                                          params.retract_feed_mm_s * 60.0, params.min_travel_for_retract_mm,
+                                          params.z_lift_mm)
+
+    def flush() -> None:
+        """Write the held layers: in one block when every point is finite, else each on its own."""
+        nonlocal held
+        points = [piece.points for block, _, _ in batch for piece in block.pieces]
+        if not points or np.isfinite(np.concatenate(points)).all():
+            in_blocks([block for block, _, _ in batch])
+        else:
+            for block, lay, h in batch:
+                if all(np.isfinite(piece.points).all() for piece in block.pieces):
+                    in_blocks([block])
+                else:
+                    one_by_one(lay, h)
+        batch.clear()
+        held = 0
+
+    for lay in layers:
+        z = lay.z
+        h = tpp.layer_height_mm or lay.thickness
+        if params.mode != "extrude":
+            one_by_one(lay, h)
+            continue
+        line_rate = bead_area_mm2(tpp.line_width_mm, h) / fil_area   # most pieces are a line wide
+        rates = [bead_area_mm2(piece.width_mm, h) / fil_area if piece.width_mm else line_rate for piece in lay.pieces]
+        batch.append((LayerBlock(lay.index, z, lay.pieces, rates), lay, h))
+        held += sum(len(piece.points) for piece in lay.pieces) + 1
+        if held >= BLOCK_POINTS:
+            flush()
+    flush()
     _end(b, params, z, off, rules)
     return b

@@ -128,17 +128,26 @@ class ProgramRecorder:
     def block(self, texts: list[str], rows: npt.NDArray[np.float64]) -> None:
         """Consecutive written lines ``texts`` at once: ``G1`` moves whose X Y Z E values and
         F (mm/min) as written are ``rows`` (len(texts), 5; NaN: the line has no such word),
-        or comments (a row of NaN) that carry no layer tag."""
+        or comments (a row of NaN); a comment's layer tag (``;LAYER:n``) puts the moves after
+        it in layer n, as the reader does."""
         s = self.reader.state
         is_move = ~np.isnan(rows[:, :4]).all(axis=1)
-        quiet = {texts[i] for i in np.flatnonzero(~is_move).tolist()}
-        if s.relative or s.relative_e or any(not t.startswith(";") or LAYER_TAG.search(t) for t in quiet):
+        quiet = np.flatnonzero(~is_move).tolist()
+        if s.relative or s.relative_e or any(not texts[i].startswith(";") for i in quiet):
             for text in texts:
                 self.line(text)
             return
         n = len(texts)
         if n == 0:
             return
+        layer = np.zeros(n + 1, dtype=np.int64)           # the layer after each line, from the tags
+        tagged = np.zeros(n + 1, dtype=np.int64)          # the last line (+ 1) that set it
+        layer[0] = s.layer
+        for i in quiet:
+            tag = LAYER_TAG.search(texts[i])
+            if tag:
+                layer[i + 1], tagged[i + 1] = int(tag.group(1)), i + 1
+        layer = layer[np.maximum.accumulate(tagged)][1:]
         unit = np.array([s.scale, s.scale, s.scale, 1.0])
         given = np.vstack([self._pos, rows[:, :4] * unit + s.shift])        # (n + 1, 4), the machine frame
         since = np.where(np.isnan(given), 0, np.arange(n + 1)[:, None])
@@ -156,7 +165,7 @@ class ProgramRecorder:
             ints = np.empty((len(k), 5), dtype=np.int64)
             ints[:, 0] = FEED
             ints[:, 1] = s.dispensing | (end[k, 3] > start[k, 3] + DEGENERATE_LENGTH_MM)
-            ints[:, 2] = s.layer
+            ints[:, 2] = layer[k]
             ints[:, 3] = self.number + 1 + k
             ints[:, 4] = 0
             ints[0, 4] = s.stop_pending
@@ -166,6 +175,7 @@ class ProgramRecorder:
         if is_move.any():
             s.motion = FEED
         s.feed = float(feed[-1])
+        s.layer = int(layer[-1])
         self.number += n
         self._pos, self._synced = at[-1].tolist(), False
 

@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from app.domain.errors import InvalidInput
-from app.gcode.reader import Program
+from app.gcode.reader import LAYER_TAG, Program
 from app.gcode.recorder import ProgramRecorder
 
 #: the one list of G-code dialects a program is written for (a job kind that targets fewer
@@ -317,10 +317,13 @@ class ProgramBuilder:
     def extend_block(self, lines: list[str], rows: npt.NDArray[np.float64]) -> None:
         """Append ``lines`` the caller formatted as :meth:`move` and :meth:`comment` write
         them: ``G1`` moves with X Y Z E words at this builder's decimals and an optional F
-        word, or comments without a layer tag; ``rows`` (len(lines), 5): per line the X, Y,
-        Z, E and F (mm/min) values as written, NaN for a word the line has not (all NaN: a
-        comment)."""
+        word, or comments (a layer tag ``;LAYER:n`` as :meth:`raw` writes it: the builder
+        follows no bounds after it); ``rows`` (len(lines), 5): per line the X, Y, Z, E and F
+        (mm/min) values as written, NaN for a word the line has not (all NaN: a comment)."""
         self._lines.extend(lines)
+        if self._pos is not None and any(LAYER_TAG.match(lines[i]) for i in
+                                         np.flatnonzero(np.isnan(rows[:, :4]).all(axis=1)).tolist()):
+            self._pos = None
         if self._pos is not None:
             for x, y, z, e, _ in rows.tolist():
                 if x == x or y == y or z == z or e == e:   # a move (NaN != NaN: no such word)

@@ -22,6 +22,7 @@ from app.gcode.writer import as_written
 from app.slicing.errors import SlicingError
 from app.slicing.export import document_head, from_document, layer_rows
 from app.slicing.layers import SliceResult
+from app.slicing.rings import split_at
 
 NAME = "layers.npz"
 
@@ -58,7 +59,7 @@ def from_binary(data: bytes) -> SliceResult:
                 or table[:, 3].sum() != len(points):
             raise ValueError(f"points {points.shape} and ring table {table.shape} do not agree")
         contours: list[list[tuple[np.ndarray, list[np.ndarray]]]] = [[] for _ in doc["layers"]]
-        for (k, j, hole, _), ring in zip(table.tolist(), np.split(points, np.cumsum(table[:, 3])[:-1])):
+        for (k, j, hole, _), ring in zip(table.tolist(), split_at(points, np.cumsum(table[:, 3])[:-1])):
             if hole:
                 contours[k][j][1].append(ring)
             else:

@@ -19,7 +19,7 @@ from shapely.geometry.base import BaseGeometry
 
 from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.offset import offset_islands
-from app.slicing.rings import Island
+from app.slicing.rings import Island, split_at
 
 
 def region_geometry(islands: tuple[Island, ...]) -> MultiPolygon:
@@ -97,7 +97,7 @@ def scan_intervals(islands: tuple[Island, ...], pitch: float, angle: float = 0.0
         return ScanIntervals(flat.ys, [])
     bounds = np.searchsorted(flat.row, np.arange(1, len(flat.ys)))
     pairs = np.c_[flat.x0, flat.x1]
-    return ScanIntervals(flat.ys, np.split(pairs, bounds))
+    return ScanIntervals(flat.ys, split_at(pairs, bounds))
 
 
 def _to_world(points: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
@@ -124,7 +124,7 @@ def _chain_segments(segs: npt.NDArray[np.float64], region: BaseGeometry,
         return []
     ok = _links_ok(region, segs[:-1, 1], segs[1:, 0], max_link)
     points = segs.reshape(-1, 2)
-    return np.split(points, 2 * (np.flatnonzero(~ok) + 1))
+    return split_at(points, 2 * (np.flatnonzero(~ok) + 1))
 
 
 def _chain(segments: list[npt.NDArray[np.float64]], region: BaseGeometry,

@@ -17,7 +17,10 @@ from app.slicing.rings import Island
 if TYPE_CHECKING:
     from app.slicing.toolpath import ToolpathParams
 
-COLLINEAR_MM = 1e-6  # a vertex this close to the line through its neighbours adds nothing to a ring
+# a vertex this close to the line through its neighbours adds nothing to a ring: ten times the
+# quantum of the layers the toolpath job reads (layers.npz holds 6 decimals, so a vertex on a
+# straight wall may sit ~1.4e-6 mm off the line through its rounded neighbours)
+COLLINEAR_MM = 1e-5
 _SEPARATOR = np.array([[np.nan, np.nan]])
 T = TypeVar("T")
 

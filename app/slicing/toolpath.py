@@ -31,12 +31,13 @@ from app.slicing.layers import SliceResult
 from app.slicing.offset import offset_islands
 from app.slicing.ordering import order_paths
 from app.slicing.path_memo import LayerMemo, PathMemo
-from app.slicing.rings import Island
+from app.slicing.rings import Island, split_at
 
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
 RESOLUTION_MM = 0.0125  # PrusaSlicer's G-code resolution: paths simplified to it, no move shorter
 THINNEST_WALL = 0.25  # of the nozzle: a wall thinner than this is not printed (PrusaSlicer's min feature)
 THIN_WALL_STEPS = 10  # bisection steps finding a thin wall's half thickness (w/2 / 2^10: 0.2 um at 0.4 mm)
+HEIGHT_DECIMALS = 9  # a layer's bead height in the planner's statistics and memo, to the nm
 PATTERNS = ("raster", "lines", "contour", "zone", "hilbert", "hilbert_merged")
 
 
@@ -239,7 +240,7 @@ def simplify_paths(paths: list[npt.NDArray[np.float64]], resolution: float) -> l
     short[index[1:][inside & (seg < resolution)]] = True
     length = np.bincount(index[1:][inside], weights=seg[inside], minlength=len(paths))
     out: list[npt.NDArray[np.float64]] = []
-    for k, points in enumerate(np.split(coords, np.flatnonzero(np.diff(index)) + 1)):
+    for k, points in enumerate(split_at(coords, np.flatnonzero(np.diff(index)) + 1)):
         if short[k]:
             points = _drop_short(points, resolution)
             if len(points) >= 2 and np.hypot(*np.diff(points, axis=0).T).sum() >= resolution:
@@ -402,7 +403,9 @@ def iter_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathPa
     memo: PathMemo[LayerPaths] = PathMemo(params, layer_paths)
     done: LayerMemo[tuple[tuple[PathPiece, ...], npt.NDArray[np.float64], LayerStats]] = LayerMemo()
     for lay in slice_result.layers:
-        h = params.layer_height_mm or lay.thickness
+        # the bead height to the nm: a layer's thickness is a difference of its heights, whose
+        # last bits differ from layer to layer (layers.npz rounds them), the layer does not
+        h = round(params.layer_height_mm or lay.thickness, HEIGHT_DECIMALS)
         key, normal = memo.key(lay.islands, lay.index)
         found = done.get(key, h, pos)
         if found is None:

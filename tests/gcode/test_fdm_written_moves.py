@@ -1,4 +1,4 @@
-"""The FDM writer's piece loop writes exactly what one ``ProgramBuilder.move`` per move writes.
+"""The FDM writer's piece loop and its blocks of layers write exactly what one ``ProgramBuilder.move`` per move writes.
 
 The writer formats a piece's moves itself (plain floats, one f-string per line) instead of
 calling :meth:`ProgramBuilder.move` per move; the reference below is that per-move loop as it
@@ -8,12 +8,14 @@ every fill pattern, both modes, negative coordinates and repeated/near-zero move
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from app.gcode.fdm import FdmParams, _end, _start, bead_area_mm2, write_fdm_layers
+from app.gcode.reader import Program, read_program
 from app.gcode.writer import GcodeError, ProgramBuilder
 from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing import SliceParams, slice_mesh
@@ -121,3 +123,30 @@ def test_a_non_finite_point_is_refused_naming_its_axis():
     with pytest.raises(GcodeError) as info:
         write_fdm_layers([_layer(points)], ToolpathParams())
     assert info.value.field == "x"
+
+
+@pytest.mark.parametrize("block_points", [1, 400])
+def test_layers_written_in_blocks_of_any_size_write_and_record_alike(cad, monkeypatch, block_points):
+    """Each layer a block of its own, or a few layers per block: the bytes of the per-move
+    reference and the record of what the reader reads (layers included) either way."""
+    import app.gcode.fdm as fdm
+
+    toolpath = plan_toolpath(cad, ToolpathParams())
+    for params in (FdmParams(), FdmParams(z_lift_mm=0.3, min_travel_for_retract_mm=0.0)):
+        monkeypatch.setattr(fdm, "BLOCK_POINTS", block_points)
+        text, recorded = fdm.write_fdm_program(toolpath.layers, toolpath.params, params)
+        assert text == _reference(toolpath.layers, toolpath.params, params)
+        read = read_program(text)
+        for f in dataclasses.fields(Program):
+            a, b = getattr(recorded, f.name), getattr(read, f.name)
+            assert np.array_equal(a, b) if isinstance(b, np.ndarray) else a == b, f.name
+        assert set(read.layer.tolist()) == {-1, *range(len(toolpath.layers))}   # -1: homing, before any tag
+
+
+def test_a_non_finite_point_after_finite_layers_is_refused_naming_its_axis():
+    good = _layer(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]))
+    bad = LayerToolpath(1, 0.4, 0.2, (PathPiece("infill", np.array([[0.0, 0.0], [1.0, np.inf]]), 40.0),),
+                        LayerStats(0.0, 0.0, 0, 0, 0.0))
+    with pytest.raises(GcodeError) as info:
+        write_fdm_layers([good, good, bad], ToolpathParams())
+    assert info.value.field == "y"

@@ -86,3 +86,17 @@ def test_a_builder_records_probes_rapids_extra_axes_and_raw_lines():
 def test_a_builder_without_record_has_no_program():
     with pytest.raises(GcodeError):
         ProgramBuilder("marlin", "x").program()
+
+
+def test_a_block_with_layer_tags_records_each_move_in_its_layer():
+    b = ProgramBuilder("marlin", "x", record=True)
+    nan = np.nan
+    lines = [";LAYER:-2", "G1 X1.0000 Y2.0000 F600.0", "; TYPE:infill", ";LAYER:7", "G1 Z0.2000",
+             "G1 X3.0000 Y2.0000 E0.5000", ";LAYER:3", "G1 X3.0000 Y4.0000 E1.0000"]
+    rows = np.array([[nan] * 5, [1.0, 2.0, nan, nan, 600.0], [nan] * 5, [nan] * 5, [nan, nan, 0.2, nan, nan],
+                     [3.0, 2.0, nan, 0.5, nan], [nan] * 5, [3.0, 4.0, nan, 1.0, nan]])
+    b.extend_block(lines, rows)
+    recorded, read = b.program(), read_program(b.text())
+    assert read.layer.tolist() == [-2, 7, 7, 3]
+    _assert_same(recorded, read)
+    assert b.bounds() is None   # a layer tag is a raw line: the builder follows no bounds after it

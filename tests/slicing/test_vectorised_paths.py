@@ -12,11 +12,12 @@ import pytest
 import shapely
 
 from app.slicing import SliceParams, slice_mesh
+from app.slicing.export_binary import from_binary, to_binary
 from app.slicing.fills import flat_intervals, region_geometry, scan_intervals
-from app.slicing.path_memo import normalised
-from app.slicing.rings import Island
+from app.slicing.path_memo import _geometry, normalised
+from app.slicing.rings import Island, split_at
 from app.slicing.toolpath import RESOLUTION_MM, ToolpathParams, iter_toolpath, layer_pieces, plan_toolpath, turns_of
-from tests.helpers.real_parts import cad_part
+from tests.helpers.real_parts import cad_part, thin_tube
 
 W = 0.4
 
@@ -109,3 +110,28 @@ def test_a_prismatic_stretch_shares_one_section_and_normalising_keeps_the_region
     assert sorted(map(tuple, a.outer)) == sorted(map(tuple, b.outer))
     triangle = Island(np.array([[0, 0], [1, 0], [0, 1.0]]))
     assert np.array_equal(normalised((triangle,))[0].outer, triangle.outer)  # nothing to drop
+
+
+def test_a_prismatic_part_read_back_from_layers_npz_is_one_section_and_plans_as_sliced():
+    """The toolpath job reads layers.npz (6 decimals): rounding moves a straight wall's vertices
+    off its line by a micrometre, and a layer's thickness in its last bits; neither makes a
+    tube's repeated section a new one, nor changes what is planned."""
+    sliced = slice_mesh(thin_tube(height_mm=6.0), SliceParams(layer_mm=0.2))
+    read = from_binary(to_binary(sliced))
+    middle = read.layers[1:-1]
+    assert len({_geometry(normalised(lay.islands)) for lay in middle}) == 1
+    for a, b in zip(iter_toolpath(sliced), iter_toolpath(read)):
+        assert a.stats.path_mm == pytest.approx(b.stats.path_mm, rel=1e-9, abs=1e-6)
+        assert a.stats.time_s == pytest.approx(b.stats.time_s, rel=1e-9)
+        assert [p.points.shape for p in a.pieces] == [p.points.shape for p in b.pieces]
+
+
+def test_split_at_is_numpy_split():
+    rng = np.random.default_rng(5)
+    for n in (0, 1, 7, 50):
+        values = rng.uniform(-1, 1, (n, 2))
+        for _ in range(20):
+            cuts = np.sort(rng.integers(0, n + 1, rng.integers(0, 6)))
+            mine, numpy_s = split_at(values, cuts), np.split(values, cuts)
+            assert len(mine) == len(numpy_s)
+            assert all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(mine, numpy_s))
