@@ -170,21 +170,31 @@ def write_fdm_program(layers: Iterable[LayerToolpath], tpp: ToolpathParams,
     return b.text(), b.program()
 
 
-def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmParams, record: bool) -> ProgramBuilder:
+def _dispense_commands(params: FdmParams) -> tuple[str, str]:
+    """The dispenser's (on, off) commands: the job's, else its dialect's own.  GcodeError on an
+    unknown mode, extrusion on a dialect without an E axis, or dispensing on a dialect
+    with no dispenser commands of its own when the job gives none."""
     if params.mode not in ("extrude", "dispense"):
         raise GcodeError(f"unknown mode {params.mode!r}", field="mode", value=params.mode)
     rules = DIALECTS.get(params.dialect)
     if params.mode == "extrude" and not (rules is not None and rules.extrusion):
         raise GcodeError("extrusion (E axis) output needs the marlin dialect", field="dialect",
                          value=params.dialect)
-    b = ProgramBuilder(params.dialect, "toolpath", params.job_id, record=record)  # GcodeError: unknown dialect
-    rules = b.dialect
     on, off = params.dispense_on or "", params.dispense_off or ""  # "": the dialect's
+    if rules is None:
+        return on, off   # the builder names the unknown dialect
     if rules.dispense is not None:
-        on, off = on or rules.dispense[0], off or rules.dispense[1]
-    elif params.mode == "dispense" and not (on and off):
+        return on or rules.dispense[0], off or rules.dispense[1]
+    if params.mode == "dispense" and not (on and off):
         raise GcodeError(f"the {params.dialect} dialect has no dispenser commands of its own: give dispense_on "
                          "and dispense_off", field="dispense_on" if not on else "dispense_off", value=None)
+    return on, off
+
+
+def _write(layers: Iterable[LayerToolpath], tpp: ToolpathParams, params: FdmParams, record: bool) -> ProgramBuilder:
+    on, off = _dispense_commands(params)
+    b = ProgramBuilder(params.dialect, "toolpath", params.job_id, record=record)
+    rules = b.dialect
     fil_area = math.pi * (tpp.filament_mm / 2) ** 2
     _start(b, tpp, params, rules)
     b.comment("process")
