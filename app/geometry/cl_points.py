@@ -70,10 +70,16 @@ def segment_sagitta(curve: NurbsCurve, u: np.ndarray) -> np.ndarray:
 def _sagittas(batch: CurveBatch, curve: np.ndarray, a_u: np.ndarray, b_u: np.ndarray) -> np.ndarray:
     """Sagitta (m,) mm of the chords of ``curve`` (m,) between parameters ``a_u`` and ``b_u`` (m,):
     the largest of 24 samples, refined by golden-section steps (every chord at once)."""
-    a, b = batch.evaluate(curve, a_u), batch.evaluate(curve, b_u)
+    span_a, span_b = batch.span(curve, a_u), batch.span(curve, b_u)
+    a, b = batch.evaluate(curve, a_u, span_a), batch.evaluate(curve, b_u, span_b)
+    # a chord within one knot span has every parameter between its ends in that span
     frac = np.linspace(0.0, 1.0, _VERIFY_SAMPLES + 2)[1:-1]
     samples = a_u[:, None] + (b_u - a_u)[:, None] * frac[None, :]
-    dense = batch.evaluate(np.repeat(curve, _VERIFY_SAMPLES), samples.ravel()).reshape(a.shape[0], _VERIFY_SAMPLES, -1)
+    dense_curve = np.repeat(curve, _VERIFY_SAMPLES)
+    known = np.where(span_a == span_b, span_a, -1)
+    dense_span = np.repeat(known, _VERIFY_SAMPLES)
+    dense = batch.evaluate(dense_curve, samples.ravel(), _spans(batch, dense_curve, samples.ravel(), dense_span))
+    dense = dense.reshape(a.shape[0], _VERIFY_SAMPLES, -1)
     d = _distance_to_chords(dense, a, b)
     j = np.argmax(d, axis=1)
     step = (b_u - a_u) / (_VERIFY_SAMPLES + 1)
@@ -86,8 +92,9 @@ def _sagittas(batch: CurveBatch, curve: np.ndarray, a_u: np.ndarray, b_u: np.nda
     ll = _dot(ab, ab)
     inv = np.divide(1.0, ll, out=np.zeros_like(ll), where=ll > 0)
 
+
     def dist(x: np.ndarray) -> np.ndarray:
-        ap = batch.evaluate(curve, x) - a
+        ap = batch.evaluate(curve, x, _spans(batch, curve, x, known)) - a
         t = np.clip(_dot(ap, ab) * inv, 0.0, 1.0)
         r = ap - t[:, None] * ab
         out: np.ndarray = np.sqrt(_dot(r, r))
@@ -105,6 +112,16 @@ def _sagittas(batch: CurveBatch, curve: np.ndarray, a_u: np.ndarray, b_u: np.nda
         f1, f2 = np.where(left, fx, f2), np.where(left, f1, fx)
         best = np.maximum(best, np.maximum(f1, f2))
     out: np.ndarray = best
+    return out
+
+
+def _spans(batch: CurveBatch, curve: np.ndarray, u: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Knot spans (m,) of the queries: ``known`` (m,) where it is >= 0, else searched."""
+    unknown = np.flatnonzero(known < 0)
+    if not unknown.size:
+        return known
+    out = known.copy()
+    out[unknown] = batch.span(curve[unknown], u[unknown])
     return out
 
 

@@ -4,8 +4,10 @@
 curves sampled at a few points each pays that call's overhead a thousand times.
 :class:`CurveBatch` holds the curves' knots and homogeneous control points (and those of
 their derivative curves) in flat arrays and evaluates any mix of (curve, parameter) queries
-at once: each query's knot span by a binary search inside its own curve's knots, then the
-Cox-de Boor triangle (NURBS Book A2.2) over all queries of one degree.  Every query's value
+at once: each query's knot span by a binary search inside its own curve's knots (or given
+by the caller), then that span's polynomial by Horner's rule.  The polynomials (homogeneous
+coefficients about the span's left knot) are made once per curve set from the Cox-de Boor
+triangle (NURBS Book A2.2) and the derivative curves' control points.  Every query's value
 is computed by elementwise operations on that query alone, so it does not depend on which
 other queries share the call (a curve evaluated alone gives the same bits as in a batch);
 it equals :meth:`NurbsCurve.evaluate` / :meth:`NurbsCurve.derivatives` to round-off.
@@ -15,7 +17,7 @@ Parameters must lie in their curve's domain (no check).  Units: mm.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from math import comb
+from math import comb, factorial
 
 import numpy as np
 
@@ -66,11 +68,37 @@ class _Degree:
             self.points.append(np.where(span[:, None] > 0, diff, 0.0))
             curve_of_point, index_in_curve = owner[keep], i[keep]
             self.point_start.append(np.concatenate([[0], np.cumsum(self.n_ctrl - k)[:-1]]))
+        # each span's homogeneous polynomial about its left knot: H(u) = sum_k C_k (u - U[s])^k,
+        # C_k = H^(k)(U[s]) / k! (Cox-de Boor on the span itself); taylor[nu][k - nu] holds
+        # k! / (k - nu)! C_k, the coefficients of the nu-th derivative
+        spans = self.n_ctrl - p  # s = p..n
+        self.span_start = np.concatenate([[0], np.cumsum(spans)[:-1]])
+        curve_of_span = np.repeat(np.arange(len(curves)), spans)
+        s = p + np.arange(curve_of_span.size) - np.repeat(self.span_start, spans)
+        u0 = self.knots[self.knot_start[curve_of_span] + s]
+        with np.errstate(divide="ignore", invalid="ignore"):  # empty spans (never looked up): nan
+            differences = self.differences(curve_of_span, u0, s)
+            taylor = [self.homogeneous(curve_of_span, s, k, differences) / factorial(k) for k in range(p + 1)]
+        self.taylor = [np.stack([factorial(k) // factorial(k - nu) * taylor[k] for k in range(nu, p + 1)])
+                       for nu in range(p + 1)]
 
     def span(self, curve: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Knot span s (m,) with U[s] <= u < U[s+1] (the last non-empty span at the domain's end)."""
         found = row_search(self.knots, self.knot_start[curve], self.knot_count[curve], u) - 1
         out: np.ndarray = np.clip(found, self.p, self.n_ctrl[curve] - 1)
+        return out
+
+    def polynomial(self, curve: np.ndarray, u: np.ndarray, span: np.ndarray, nu: int) -> np.ndarray:
+        """The nu-th homogeneous derivative (m, d + 1) from the span's polynomial (Horner in
+        u - U[s])."""
+        if nu > self.p:
+            return np.zeros((u.size, self.points[0].shape[1]))
+        t = (u - self.knots[self.knot_start[curve] + span])[:, None]
+        row = self.span_start[curve] + span - self.p
+        coefficients = self.taylor[nu]
+        out: np.ndarray = coefficients[-1][row]
+        for k in range(coefficients.shape[0] - 2, -1, -1):
+            out = out * t + coefficients[k][row]
         return out
 
     def differences(self, curve: np.ndarray, u: np.ndarray, span: np.ndarray) -> tuple[list[np.ndarray], ...]:
@@ -123,23 +151,34 @@ class CurveBatch:
             self._group_of[members] = g
             self._index_in_group[members] = np.arange(members.size)
 
-    def homogeneous_derivatives(self, curve: np.ndarray, u: np.ndarray, order: int) -> np.ndarray:
-        """Homogeneous derivatives 0..order of ``curve`` (m,) at ``u`` (m,) -> (order + 1, m, d + 1)."""
+    def span(self, curve: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The knot span (m,) of each query (``curve`` (m,), ``u`` (m,)): s with
+        U[s] <= u < U[s+1] in that curve's knots (the last non-empty span at the domain's end)."""
+        out = np.empty(u.size, dtype=np.int64)
+        group = self._group_of[curve]
+        for g, (_, degree) in enumerate(self._groups):
+            sel = slice(None) if len(self._groups) == 1 else np.flatnonzero(group == g)
+            out[sel] = degree.span(self._index_in_group[curve[sel]], u[sel])
+        return out
+
+    def homogeneous_derivatives(self, curve: np.ndarray, u: np.ndarray, order: int,
+                                span: np.ndarray | None = None) -> np.ndarray:
+        """Homogeneous derivatives 0..order of ``curve`` (m,) at ``u`` (m,) -> (order + 1, m, d + 1);
+        ``span``: the queries' knot spans (:meth:`span`) when the caller knows them."""
         u = np.asarray(u, dtype=float)
         out = np.empty((order + 1, u.size, self.dimension + 1))
         group = self._group_of[curve]
         for g, (_, degree) in enumerate(self._groups):
             sel = slice(None) if len(self._groups) == 1 else np.flatnonzero(group == g)
             local, uu = self._index_in_group[curve[sel]], u[sel]
-            span = degree.span(local, uu)
-            differences = degree.differences(local, uu, span)
+            s = degree.span(local, uu) if span is None else span[sel]
             for nu in range(order + 1):
-                out[nu, sel] = degree.homogeneous(local, span, nu, differences)
+                out[nu, sel] = degree.polynomial(local, uu, s, nu)
         return out
 
-    def evaluate(self, curve: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Points (m, d) mm of ``curve`` (m,) at ``u`` (m,)."""
-        h = self.homogeneous_derivatives(curve, u, 0)[0]
+    def evaluate(self, curve: np.ndarray, u: np.ndarray, span: np.ndarray | None = None) -> np.ndarray:
+        """Points (m, d) mm of ``curve`` (m,) at ``u`` (m,) (``span``: as for :meth:`homogeneous_derivatives`)."""
+        h = self.homogeneous_derivatives(curve, u, 0, span)[0]
         out: np.ndarray = h[:, :-1] / h[:, -1:]
         return out
 
