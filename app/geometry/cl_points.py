@@ -72,11 +72,10 @@ def _sagittas(batch: CurveBatch, curve: np.ndarray, a_u: np.ndarray, b_u: np.nda
     the largest of 24 samples, refined by golden-section steps (every chord at once)."""
     span_a, span_b = batch.span(curve, a_u), batch.span(curve, b_u)
     a, b = batch.evaluate(curve, a_u, span_a), batch.evaluate(curve, b_u, span_b)
-    # a chord within one knot span has every parameter between its ends in that span
     frac = np.linspace(0.0, 1.0, _VERIFY_SAMPLES + 2)[1:-1]
     samples = a_u[:, None] + (b_u - a_u)[:, None] * frac[None, :]
     dense_curve = np.repeat(curve, _VERIFY_SAMPLES)
-    known = np.where(span_a == span_b, span_a, -1)
+    known = np.where(span_a == span_b, span_a, -1)  # a chord in one span: every parameter between its ends
     dense_span = np.repeat(known, _VERIFY_SAMPLES)
     dense = batch.evaluate(dense_curve, samples.ravel(), _spans(batch, dense_curve, samples.ravel(), dense_span))
     dense = dense.reshape(a.shape[0], _VERIFY_SAMPLES, -1)
@@ -91,7 +90,6 @@ def _sagittas(batch: CurveBatch, curve: np.ndarray, a_u: np.ndarray, b_u: np.nda
     ab = b - a
     ll = _dot(ab, ab)
     inv = np.divide(1.0, ll, out=np.zeros_like(ll), where=ll > 0)
-
 
     def dist(x: np.ndarray) -> np.ndarray:
         ap = batch.evaluate(curve, x, _spans(batch, curve, x, known)) - a
