@@ -12,8 +12,16 @@ import pytest
 from app.geometry.cl_points import cl_points
 from app.geometry.errors import GeometryError
 from app.geometry.shapes import trace_curve
-from app.geometry.shapes_limits import MAX_POINTS, estimated_cl_points
+from app.geometry.shapes_limits import (
+    MAX_CL_POINTS,
+    MAX_LENGTH_MM,
+    MAX_POINTS,
+    _lengths_and_needs,
+    curves_clearly_within_limits,
+    estimated_cl_points,
+)
 from app.geometry.tolerance import Tolerance
+from app.reference.boards import board_traces, dome_part
 
 
 @pytest.mark.parametrize(("geometry", "field"), [
@@ -44,9 +52,6 @@ def test_the_sampling_estimate_matches_the_chordal_count_of_a_circle(radius):
 
 
 def test_a_batch_of_curves_passes_the_limits_exactly_when_each_does_with_a_margin():
-    from app.geometry.shapes_limits import MAX_CL_POINTS, MAX_LENGTH_MM, _lengths_and_needs, curves_clearly_within_limits
-    from app.reference.boards import board_traces, dome_part
-
     chord = Tolerance().chord_mm
     board = [trace_curve(g, check_size=False) for g in board_traces(dome_part(), 120)]
     curved = [c for c in board if c.degree > 1]
