@@ -1,6 +1,7 @@
 """Pure geometry core (no web, database, viewer, hardware or file-system access).
 
-- ``nurbs``: NurbsCurve (scipy BSpline on homogeneous coordinates; geomdl for exchange)
+- ``nurbs``: NurbsCurve (scipy BSpline on homogeneous coordinates; geomdl for exchange);
+  ``nurbs_batch``: many curves evaluated together
 - ``nurbs_surface``: NurbsSurface (scipy NdBSpline), inversion, normals, triangulation
 - ``fitting``: interpolation (NURBS Book A9.1/A9.4), least squares (A9.6), smoothing, surface fits
 - ``shapes``: API geometry dicts (line, arc, polyline, nurbs) -> NurbsCurve

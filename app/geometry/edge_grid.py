@@ -22,6 +22,9 @@ __all__ = ["EdgeGrid", "attach_edge_grid", "cached_edge_grid", "edge_grid", "edg
 _CACHE_KEY = "conforma_edge_grid"
 _MAX_CELLS = 4_000_000
 _MAX_ENTRIES = 40_000_000
+_MARGIN_CELLS = 1e-6  # an edge is registered in every cell within this fraction of a cell (plus:)
+_MARGIN_REL = 1e-9  # this fraction of its extent
+_STEEP_CELLS = 1e-3  # an edge narrower than this fraction of a cell takes its whole box
 
 
 class EdgeGrid(NamedTuple):
@@ -64,22 +67,63 @@ def edge_grid(mesh: trimesh.Trimesh) -> EdgeGrid:
     cell = max(mean_len, float(np.sqrt(extent.prod() / _MAX_CELLS)), float(extent.max()) / 4096)
     while True:
         shape = (int(extent[0] // cell) + 1, int(extent[1] // cell) + 1)
-        i0 = ((np.minimum(a, b) - lo) // cell).astype(np.int64)
-        i1 = ((np.maximum(a, b) - lo) // cell).astype(np.int64)
-        span = i1 - i0 + 1
-        counts = span[:, 0] * span[:, 1]
-        if counts.sum() <= _MAX_ENTRIES:
+        found = _traversed_cells(a, b, lo, cell, shape)
+        if found is not None:
             break
         cell *= 2.0
-    owner, k = _expand_ranges(None, counts)
-    ci = i0[owner, 0] + k // span[owner, 1]
-    cj = i0[owner, 1] + k % span[owner, 1]
-    cell_id = ci * shape[1] + cj
+    owner, cell_id = found
     order = np.argsort(cell_id, kind="stable")
     indptr = np.concatenate([[0], np.cumsum(np.bincount(cell_id, minlength=shape[0] * shape[1]))])
     grid = EdgeGrid(a, b, lo, cell, shape, indptr.astype(np.int32), owner[order].astype(np.int32))
     attach_edge_grid(mesh, grid)
     return grid
+
+
+def _traversed_cells(a: np.ndarray, b: np.ndarray, lo: np.ndarray, cell: float,
+                     shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The cells each edge a -> b (E, 2) passes through or comes within a margin of
+    (``_MARGIN_CELLS`` of a cell plus ``_MARGIN_REL`` of the edge, far beyond round-off and
+    the crossing test's slack at the edge's ends): (edge index (n,), cell id (n,)), or None
+    when there would be more than ``_MAX_ENTRIES``.
+
+    Column by column of the grid: the edge's y range over the column's x range (widened by
+    the margin) gives the rows.  An edge of a cell's length meets 2-3 cells where its
+    bounding box would give it as many as the box covers (a long diagonal edge: thousands),
+    so a query finds the same crossings among far fewer candidates.  Nearly vertical edges
+    (x extent under ``_STEEP_CELLS`` of a cell) take the rows of their whole box."""
+    nx, ny = shape
+    mn, mx = np.minimum(a, b), np.maximum(a, b)
+    d = b - a
+    margin = _MARGIN_CELLS * cell + _MARGIN_REL * np.abs(d).max(axis=1, keepdims=True)
+    i0 = np.clip(((mn - margin - lo) // cell).astype(np.int64), 0, [nx - 1, ny - 1])
+    i1 = np.clip(((mx + margin - lo) // cell).astype(np.int64), 0, [nx - 1, ny - 1])
+    columns = i1[:, 0] - i0[:, 0] + 1
+    if columns.sum() > _MAX_ENTRIES:
+        return None
+    edge, k = _expand_ranges(None, columns)
+    ix = i0[edge, 0] + k
+    m = margin[edge, 0]
+    x_lo = np.maximum(lo[0] + ix * cell - m, mn[edge, 0])
+    x_hi = np.minimum(lo[0] + (ix + 1) * cell + m, mx[edge, 0])
+    dx, dy = d[edge, 0], d[edge, 1]
+    steep = np.abs(dx) < _STEEP_CELLS * cell
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_lo = np.clip((x_lo - a[edge, 0]) / dx, 0.0, 1.0)
+        t_hi = np.clip((x_hi - a[edge, 0]) / dx, 0.0, 1.0)
+    y_lo = a[edge, 1] + np.minimum(t_lo, t_hi) * dy
+    y_hi = a[edge, 1] + np.maximum(t_lo, t_hi) * dy
+    y_lo, y_hi = np.where(dy >= 0, y_lo, y_hi), np.where(dy >= 0, y_hi, y_lo)
+    with np.errstate(divide="ignore", invalid="ignore"):  # the round-off of t, times the edge's slope
+        m_y = m + np.where(steep, 0.0, np.abs(dy) * 1e-15 * (np.abs(a[edge, 0]) + np.abs(x_hi) + cell) / np.abs(dx))
+    y_lo = np.where(steep, mn[edge, 1], y_lo) - m_y
+    y_hi = np.where(steep, mx[edge, 1], y_hi) + m_y
+    row0 = np.clip(((y_lo - lo[1]) // cell).astype(np.int64), i0[edge, 1], i1[edge, 1])
+    row1 = np.clip(((y_hi - lo[1]) // cell).astype(np.int64), i0[edge, 1], i1[edge, 1])
+    rows = row1 - row0 + 1
+    if rows.sum() > _MAX_ENTRIES:
+        return None
+    column, r = _expand_ranges(None, rows)
+    return edge[column], ix[column] * ny + row0[column] + r
 
 
 def cached_edge_grid(mesh: trimesh.Trimesh) -> EdgeGrid | None:

@@ -24,8 +24,8 @@ from app.geometry.validation import as_degree, as_points, check_knots, check_wei
 
 __all__ = ["NurbsCurve", "CurveInversion"]
 
-_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(16)
-_PIECES_PER_SPAN = 4
+GAUSS_X, GAUSS_W = np.polynomial.legendre.leggauss(16)  # arc length: 16 nodes on each piece,
+PIECES_PER_SPAN = 4  # 4 pieces per knot span
 
 
 class CurveInversion(NamedTuple):
@@ -162,16 +162,16 @@ class NurbsCurve:
     def _length_table(self) -> tuple[np.ndarray, np.ndarray]:
         a, b = self.domain
         br = np.unique(self.knots[(self.knots >= a) & (self.knots <= b)])
-        parts = [np.linspace(br[i], br[i + 1], _PIECES_PER_SPAN + 1)[:-1] for i in range(br.size - 1)]
+        parts = [np.linspace(br[i], br[i + 1], PIECES_PER_SPAN + 1)[:-1] for i in range(br.size - 1)]
         edges = np.append(np.concatenate(parts), b)
         lengths = self._gauss_length(edges[:-1], edges[1:])
         return edges, np.concatenate([[0.0], np.cumsum(lengths)])
 
     def _gauss_length(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         half = 0.5 * (hi - lo)
-        nodes = (0.5 * (hi + lo))[:, None] + half[:, None] * _GAUSS_X[None, :]
+        nodes = (0.5 * (hi + lo))[:, None] + half[:, None] * GAUSS_X[None, :]
         speed = self.speed(nodes.ravel()).reshape(nodes.shape)
-        out: np.ndarray = half * (speed @ _GAUSS_W)
+        out: np.ndarray = half * (speed @ GAUSS_W)
         return out
 
     def _length_to(self, u: np.ndarray) -> np.ndarray:

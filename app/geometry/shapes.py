@@ -100,12 +100,14 @@ def _arc(geometry: Mapping[str, Any], field: str, tolerance: Tolerance) -> Nurbs
 
 
 def trace_curve(geometry: Mapping[str, Any], *, field: str = "geometry",
-                tolerance: Tolerance = DEFAULT_TOLERANCE) -> NurbsCurve:
+                tolerance: Tolerance = DEFAULT_TOLERANCE, check_size: bool = True) -> NurbsCurve:
     """The API's geometry dict -> NurbsCurve (2-D or 3-D control points).
 
     Raises GeometryError subclasses naming the field (e.g. ``geometry.knots``) and value.
     Degenerate (zero-length) traces raise DegenerateGeometryError; traces beyond the size
     limits of :mod:`app.geometry.shapes_limits` (points, radius, length, sampling) a GeometryError.
+    ``check_size=False`` leaves the built curve's length and sampling checks to the caller
+    (:func:`~app.geometry.shapes_limits.curves_clearly_within_limits` of many curves at once).
     """
     if not isinstance(geometry, Mapping):
         raise GeometryError(f"{field} must be an object", field=field, value=str(type(geometry).__name__))
@@ -125,6 +127,8 @@ def trace_curve(geometry: Mapping[str, Any], *, field: str = "geometry",
     else:
         raise GeometryError(f"{field}.type must be one of {', '.join(SHAPE_TYPES)}", field=f"{field}.type",
                             value=kind)
+    if not check_size:
+        return curve
     check_curve_size(curve, tolerance.chord_mm, field)  # length and sampling work bounded
     if curve.length <= tolerance.dedup_mm:
         raise DegenerateGeometryError(f"{field}: the trace has zero length", field=field, value=curve.length)

@@ -31,6 +31,7 @@ from app.geometry.drape import drape_polyline, snap_to_surface
 from app.geometry.drape_batch import drape_polylines
 from app.geometry.errors import DegenerateGeometryError, GeometryError
 from app.geometry.shapes import trace_curve
+from app.geometry.shapes_limits import curves_clearly_within_limits
 from app.geometry.tolerance import DEFAULT_TOLERANCE, LENGTH_EPS_MM, STORED_DECIMALS, Tolerance
 
 __all__ = ["TracePolyline", "TracePolylineError", "XYProjection", "as_trace_polyline", "build_nominal_trace",
@@ -250,12 +251,14 @@ def build_nominal_traces(
     curves = []
     for geometry in geometries:
         try:
-            curve = trace_curve(geometry, tolerance=tolerance)
+            curve = trace_curve(geometry, tolerance=tolerance, check_size=False)
         except (GeometryError, ValueError):
             return None
         if curve.dimension != 2:
             return None
         curves.append(curve)
+    if not curves_clearly_within_limits(curves, tolerance.chord_mm, tolerance.dedup_mm):
+        return None
     top_views = [c.points for c in cl_points_many(curves, tolerance.chord_mm)]
     draped = drape_polylines(mesh, top_views, tolerance)
     if draped is None:

@@ -74,6 +74,8 @@ def test_a_board_builds_the_same_nominal_traces_batched(dome):  # type: ignore[n
         np.testing.assert_array_equal(b.s, s.s)
     assert build_nominal_traces(mesh, [*geometries[:3], {"type": "line", "start": [0, 0, 0], "end": [1, 1, 1]}],
                                 Tolerance()) is None
+    too_long = {"type": "line", "start": [0, 0], "end": [20_000, 0]}  # over the length limit
+    assert build_nominal_traces(mesh, [*geometries[:3], too_long], Tolerance()) is None
 
 
 def test_cl_points_of_many_curves_are_each_curves_own(dome):  # type: ignore[no-untyped-def]

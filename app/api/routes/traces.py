@@ -15,7 +15,7 @@ from app.api import idempotency
 from app.api.deps import Limit, Offset, Operator, RuntimeDep, SessionDep, Viewer
 from app.api.schemas import NominalOut, Page, TraceCreate, TraceOut
 from app.domain.errors import Conflict, NotFound
-from app.parts.traces import build_trace, build_traces, insert_traces
+from app.parts.traces import build_trace, build_traces, collection_paused, insert_traces
 from app.platform.db import lock_for_delete
 from app.platform.lookup import get_or_404
 from app.platform.models import JobReference, Part, Trace
@@ -61,14 +61,15 @@ def import_traces(part_id: str, runtime: RuntimeDep, session: SessionDep, reques
     if replayed is not None:
         return replayed  # type: ignore[return-value]
     part = get_or_404(session, Part, part_id)
-    rows = build_traces(runtime.meshes, part, body)
-    out = Page[TraceOut](items=[trace_out(row) for row in rows], total=len(rows))
-    try:
-        insert_traces(session, rows)
-    except IntegrityError:
-        raise _part_gone(part_id) from None
-    idempotency.remember(session, claim, 201, out)
-    return _commit(session, claim, part_id) or out  # type: ignore[return-value]
+    with collection_paused():
+        rows = build_traces(runtime.meshes, part, body)
+        out = Page[TraceOut](items=[trace_out(row) for row in rows], total=len(rows))
+        try:
+            insert_traces(session, rows)
+        except IntegrityError:
+            raise _part_gone(part_id) from None
+        idempotency.remember(session, claim, 201, out)
+        return _commit(session, claim, part_id) or out  # type: ignore[return-value]
 
 
 def _commit(session: Session, claim: idempotency.Claim | None, part_id: str) -> Response | None:
