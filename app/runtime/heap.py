@@ -13,8 +13,7 @@ at that peak's resident size long after.  And each thread that allocates may get
 * :func:`limit_arenas` (``mallopt(M_ARENA_MAX, n)``) caps the number of arenas of a
   process with many threads; threads then share the existing arenas (contention only for
   threads that allocate at the same moment).  Set before the threads start: the server sets
-  SERVER_ARENAS when its app is built (measured on a 1000-trace import: the server at 352 MiB
-  resident after it instead of 474, 334 instead of 352 once trimmed).
+  SERVER_ARENAS when its app is built.
 """
 
 from __future__ import annotations
