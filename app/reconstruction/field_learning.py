@@ -173,9 +173,10 @@ class _Likelihood:
 
     def __init__(self, prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray) -> None:
         xy = sites.xy
-        self.r = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-        self.upper = np.triu_indices(len(xy))
-        self.r_upper = self.r[self.upper]
+        self.n = len(xy)
+        upper = np.triu_indices(self.n)  # (i, j) i <= j, row-major; int32: half the memory of int64
+        self.upper = (upper[0].astype(np.int32), upper[1].astype(np.int32))
+        self.r_upper = np.hypot(xy[upper[0], 0] - xy[upper[1], 0], xy[upper[0], 1] - xy[upper[1], 1])
         basis = placement_basis(sites, center) * prior.basis_sd
         self.placement = basis @ basis.T
         self.peak = prior.peak_factor
@@ -183,7 +184,7 @@ class _Likelihood:
 
     def _symmetric(self, upper: np.ndarray) -> np.ndarray:
         """The (n, n) symmetric matrix whose upper triangle (row-major, i <= j) is ``upper``."""
-        out = np.empty(self.r.shape)
+        out = np.empty((self.n, self.n))
         out[self.upper] = upper
         out[self.upper[1], self.upper[0]] = upper
         return out
