@@ -38,6 +38,7 @@ from app.platform.auth import KeyRing, LoginThrottle
 from app.platform.config import Settings
 from app.platform.db import migrate
 from app.runtime.engine import QUEUES, Runtime
+from app.runtime.heap import SERVER_ARENAS, limit_arenas
 
 # The API's routers, in the order their routes are matched
 ROUTERS = (system.router, parts.router, traces.router, jobs.router, loop_actions.router, programs.router,
@@ -79,6 +80,7 @@ def _sweep(runtime: Runtime) -> None:
 def create_app(settings: Settings, *, start_workers: bool | None = None) -> FastAPI:
     """Build the API for ``settings``.  On start-up: migrate, open the runtime, start the
     embedded worker (unless disabled) and the viewer (if enabled)."""
+    limit_arenas(SERVER_ARENAS)  # before the server's threads start (app.runtime.heap)
 
     @asynccontextmanager
     async def lifespan(api: FastAPI) -> AsyncIterator[None]:

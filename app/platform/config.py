@@ -72,6 +72,10 @@ class Settings(BaseSettings):
                                       "memory (or its address space's growth) above this")
     compute_warm_up: bool = Field(True, description="start the compute processes (and the fork server that imports "
                                   "the compute core) when the server starts, not at the first compute job")
+    compute_idle_processes: int = Field(1, ge=1, le=64,
+                                        description="compute processes kept while no job needs them (the ones the "
+                                        "warm-up starts); more start while jobs run at once (up to worker_threads) "
+                                        "and end after 30 s without a job")
     lease_s: float = Field(30.0, gt=0.5, le=3600)
     max_attempts: int = Field(3, ge=1, le=100)
     reaper_interval_s: float = Field(1.0, gt=0.01, le=600)

@@ -13,15 +13,16 @@ import fcntl
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from alembic import command
-from alembic.config import Config
 from sqlalchemy import Engine, create_engine, event, select, text, update
 from sqlalchemy.pool import NullPool
 from sqlmodel import Session
 
 from app.platform.config import Settings
+
+if TYPE_CHECKING:
+    from alembic.config import Config
 
 MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
 _PG_MIGRATION_LOCK = 0x436F6E66  # "Conf"
@@ -72,6 +73,8 @@ def session_scope(engine: Engine) -> Iterator[Session]:
 
 
 def alembic_config(url: str) -> Config:
+    from alembic.config import Config  # here, not at the top: a compute process never migrates (~10 MiB resident)
+
     config = Config()
     config.set_main_option("script_location", str(MIGRATIONS_DIR))
     config.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
@@ -84,6 +87,8 @@ def migrate(settings: Settings, revision: str = "head") -> None:
     Processes starting together (API and workers) take turns: a file lock on SQLite, an
     advisory lock on PostgreSQL.
     """
+    from alembic import command
+
     config = alembic_config(settings.resolved_database_url)
     if settings.is_sqlite:
         settings.data_dir.mkdir(parents=True, exist_ok=True)

@@ -167,24 +167,38 @@ class LearnedPrior:
 
 class _Likelihood:
     """-log p(dz | theta) and its gradient over theta = (log amplitude, log wavelength,
-    log sigma), with the distances and the placement part computed once."""
+    log sigma), with the distances and the placement part computed once.  The kernel is
+    symmetric (r_ij = r_ji exactly): its Bessel functions are evaluated on the upper triangle
+    (i <= j) and mirrored."""
 
     def __init__(self, prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray) -> None:
         xy = sites.xy
-        self.r = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        self.n = len(xy)
+        upper = np.triu_indices(self.n)  # (i, j) i <= j, row-major; int32: half the memory of int64
+        self.upper = (upper[0].astype(np.int32), upper[1].astype(np.int32))
+        self.r_upper = np.hypot(xy[upper[0], 0] - xy[upper[1], 0], xy[upper[0], 1] - xy[upper[1], 1])
         basis = placement_basis(sites, center) * prior.basis_sd
         self.placement = basis @ basis.T
         self.peak = prior.peak_factor
         self.dz = dz
 
-    def parts(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-        """(K, jinc, d jinc / d log wavelength, rms^2, noise variance) at theta."""
+    def _symmetric(self, upper: np.ndarray) -> np.ndarray:
+        """The (n, n) symmetric matrix whose upper triangle (row-major, i <= j) is ``upper``."""
+        out = np.empty((self.n, self.n))
+        out[self.upper] = upper
+        out[self.upper[1], self.upper[0]] = upper
+        return out
+
+    def parts(self, theta: np.ndarray, gradient: bool = True
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]:
+        """(K, jinc, d jinc / d log wavelength (None without ``gradient``), rms^2, noise
+        variance) at theta."""
         rms2 = (math.exp(theta[0]) / self.peak) ** 2
-        x = self.r * (2.0 * math.pi / math.exp(theta[1]))
+        x = self.r_upper * (2.0 * math.pi / math.exp(theta[1]))
         small = x < 1e-6
         safe = np.where(small, 1.0, x)
-        jinc = np.where(small, 1.0 - x ** 2 / 8.0, 2.0 * j1(safe) / safe)
-        djinc = np.where(small, x ** 2 / 4.0, 2.0 * jv(2, safe))
+        jinc = self._symmetric(np.where(small, 1.0 - x ** 2 / 8.0, 2.0 * j1(safe) / safe))
+        djinc = self._symmetric(np.where(small, x ** 2 / 4.0, 2.0 * jv(2, safe))) if gradient else None
         noise = max(math.exp(2 * theta[2]), COVARIANCE_JITTER_REL * rms2)
         k = rms2 * jinc + self.placement
         k[np.diag_indices_from(k)] += noise
@@ -192,20 +206,34 @@ class _Likelihood:
 
     def __call__(self, theta: np.ndarray) -> tuple[float, np.ndarray]:
         k, jinc, djinc, rms2, noise = self.parts(theta)
+        assert djinc is not None
         try:
             factor = cho_factor(k, lower=True)
         except np.linalg.LinAlgError:
             return 1e30, np.zeros(3)
         alpha = cho_solve(factor, self.dz)
-        value = float(0.5 * self.dz @ alpha + np.sum(np.log(np.diag(factor[0])))
-                      + 0.5 * len(self.dz) * math.log(2 * math.pi))
+        value = self._value(factor, alpha)
         w = cho_solve(factor, np.eye(len(k))) - np.outer(alpha, alpha)   # K^-1 - alpha alpha'
         grad = 0.5 * np.array([np.sum(w * (2 * rms2 * jinc)), np.sum(w * (rms2 * djinc)),
                                np.trace(w) * 2 * noise])
         return value, grad
 
+    def _value(self, factor: tuple[np.ndarray, bool], alpha: np.ndarray) -> float:
+        return float(0.5 * self.dz @ alpha + np.sum(np.log(np.diag(factor[0])))
+                     + 0.5 * len(self.dz) * math.log(2 * math.pi))
+
     def value(self, theta: np.ndarray) -> float:
-        return self(theta)[0]
+        """-log p(dz | theta) alone (the same number :meth:`__call__` gives, without the gradient)."""
+        k = self.parts(theta, gradient=False)[0]
+        try:
+            factor = cho_factor(k, lower=True)
+        except np.linalg.LinAlgError:
+            return 1e30
+        return self._value(factor, cho_solve(factor, self.dz))
+
+    def covariance(self, theta: np.ndarray) -> np.ndarray:
+        """K (n, n) mm^2 at theta."""
+        return self.parts(theta, gradient=False)[0]
 
 
 def _theta(prior: DeviationPrior) -> np.ndarray:
@@ -220,7 +248,7 @@ def log_marginal_likelihood(prior: DeviationPrior, sites: Sites, dz: np.ndarray,
 def loo_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
               alpha: float = MISFIT_ALPHA) -> LooCheck:
     """Standardised LOO residuals of the GP ``prior`` on the touches and the misfit test."""
-    q = np.linalg.inv(_Likelihood(prior, sites, dz, center).parts(_theta(prior))[0])
+    q = np.linalg.inv(_Likelihood(prior, sites, dz, center).covariance(_theta(prior)))
     d = np.diag(q)
     resid = (q @ dz) / d
     sd = 1.0 / np.sqrt(d)

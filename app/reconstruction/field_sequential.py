@@ -43,7 +43,7 @@ from app.probing.deviation_prior import DeviationPrior, Sites
 from app.probing.field import FieldPlan, plan_field
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
-from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, learn_prior, loo_check
+from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior, loo_check
 from app.reconstruction.field_trust import FieldCheck, bound_meets_target, checked_field, run_bounds, with_bound
 
 MAX_ROUNDS = 6
@@ -105,14 +105,16 @@ def plan_tightened(plan: Callable[[float], FieldPlan], plan_target_mm: float, ta
 
 
 def stations_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray, trace: np.ndarray,
-                   s_mm: np.ndarray, paths: Sequence[object], coverage: float, target_mm: float) -> FieldCheck:
+                   s_mm: np.ndarray, paths: Sequence[object], coverage: float, target_mm: float,
+                   learned: LearnedPrior | None = None) -> FieldCheck:
     """The checked field of the stations touched so far, without verification points, its
     bound the run's (:func:`app.reconstruction.field_trust.run_bounds` over ``paths``): the
     verdict's own fit and bound of these touches.  sites / dz / trace / s_mm (n,): the
-    stations, their measured deviation (mm), trace index and arc length (mm)."""
+    stations, their measured deviation (mm), trace index and arc length (mm); ``learned``:
+    ``learn_prior(prior, sites, dz, center)`` when the caller has it (not learned again)."""
     n = len(sites.xy)
     check = checked_field(prior, sites, np.zeros(n), np.column_stack([sites.xy, dz]), center, trace, s_mm,
-                          np.zeros(n, dtype=bool), coverage, target_mm)
+                          np.zeros(n, dtype=bool), coverage, target_mm, learned_first=learned)
     return with_bound(check, run_bounds(check, paths))
 
 
@@ -166,7 +168,7 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
         more = plan_field(paths, current, fixed=sites)
         if more.count == 0:
             bound = stations_check(user, sites, dz, center, trace, s, paths, params.coverage,
-                                   params.target_error_mm).bound_mm
+                                   params.target_error_mm, learned).bound_mm
             if bound_meets_target(bound, params.target_error_mm):
                 stopped = "bound holds"
                 break

@@ -30,17 +30,20 @@ Pure: numpy/scipy.  Units: mm.
 from __future__ import annotations
 
 import math
+import threading
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any, TypeVar
 
 import numpy as np
 from scipy.optimize import brentq
+from scipy.special import ndtr
 from scipy.stats import norm
 
 from app.probing.deviation_prior import DeviationPosterior, DeviationPrior, Sites, fit_posterior, path_sites
 from app.reconstruction.field import FieldFit, fit_field
-from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
+from app.reconstruction.field_learning import MIN_TOUCHES, LearnedPrior, learn_prior
 
 TARGET_SLACK = 1.25  # a bound up to 25 % over the target is the plan met (see the module doc)
 
@@ -243,12 +246,14 @@ def verification_line(points: Sequence[dict[str, Any]], bound_mm: float | None,
 def checked_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray, measured: np.ndarray,
                   center: np.ndarray, trace: np.ndarray, s_mm: np.ndarray, verify_mask: np.ndarray,
                   coverage: float, target_mm: float, learn: bool = True,
-                  field: str = "points") -> FieldCheck:
+                  field: str = "points", learned_first: LearnedPrior | None = None) -> FieldCheck:
     """Learn, fit and verify the field of one run (see the module doc).
 
     stations (n,) every touched point of the plan (stations and verification points, the
     latter marked by ``verify_mask`` (n,) bool); nominal_z (n,), measured (n, 3) mm in the
-    same order; trace / s_mm (n,) as for :func:`fit_field`."""
+    same order; trace / s_mm (n,) as for :func:`fit_field`.  ``learned_first``: the caller's
+    own :func:`learn_prior` of ``prior`` over the same fit stations and deviations (it is
+    the first learning here, not repeated)."""
     mask = np.asarray(verify_mask, dtype=bool)
     keep = np.flatnonzero(~mask)
     pts = np.asarray(measured, dtype=float)
@@ -261,7 +266,7 @@ def checked_field(prior: DeviationPrior, stations: Sites, nominal_z: np.ndarray,
     learned = None
     if learn and len(keep) >= MIN_TOUCHES:
         dz = pts[keep, 2] - nominal[keep]
-        learned = learn_prior(prior, fit_sites, dz, center)
+        learned = learned_first or learn_prior(prior, fit_sites, dz, center)
         fit = fitted(learned.prior)
         if fit.outliers:
             kept = fit.kept
@@ -301,13 +306,27 @@ def cautious_prior(prior: DeviationPrior, learned: dict[str, Any] | None) -> Dev
                    wavelength_mm=prior.wavelength_mm * math.exp(-HYPER_SD * log_sd("wavelength_mm")))
 
 
+_BOUND_POSTERIORS: weakref.WeakKeyDictionary[FieldFit, dict[DeviationPrior, DeviationPosterior]] = \
+    weakref.WeakKeyDictionary()
+_BOUND_POSTERIORS_LOCK = threading.Lock()
+
+
 def bound_posterior(fit: FieldFit, learned: dict[str, Any] | None) -> DeviationPosterior:
     """The posterior of the fit's kept touches under :func:`cautious_prior` (its sd is what the
-    bound is built from; the field itself stays the fit's)."""
+    bound is built from; the field itself stays the fit's).  Factorised once per fit and
+    prior (kept while the fit lives): every trace of a run asks for the same one."""
     prior = cautious_prior(fit.posterior.prior, learned)
     if prior == fit.posterior.prior:
         return fit.posterior
-    return fit_posterior(prior, fit.stations.take(np.flatnonzero(fit.kept)), fit.dz[fit.kept], fit.posterior.center)
+    with _BOUND_POSTERIORS_LOCK:
+        known = _BOUND_POSTERIORS.get(fit, {}).get(prior)
+    if known is not None:
+        return known
+    posterior = fit_posterior(prior, fit.stations.take(np.flatnonzero(fit.kept)), fit.dz[fit.kept],
+                              fit.posterior.center)
+    with _BOUND_POSTERIORS_LOCK:
+        _BOUND_POSTERIORS.setdefault(fit, {})[prior] = posterior
+    return posterior
 
 
 def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, coverage: float,
@@ -322,11 +341,11 @@ def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, 
     share the confidence (each gets 1 / traces of it: the largest of their bounds then holds
     for the whole run at the confidence ``coverage`` gives one point)."""
     sd = np.maximum(np.asarray(sd_mm, dtype=float), 1e-12)
-    alpha = 2.0 * float(norm.sf(coverage)) / max(int(traces), 1)
+    alpha = 2.0 * float(ndtr(-coverage)) / max(int(traces), 1)
     weight = min(1.0, 2.0 * step_mm / wavelength_mm)
 
     def excess(u: float) -> float:
-        return float(weight * np.sum(2.0 * norm.sf(u / sd))) - alpha
+        return float(weight * np.sum(2.0 * ndtr(-(u / sd)))) - alpha
 
     lo = coverage * float(sd.max())
     if excess(lo) <= 0.0:

@@ -21,7 +21,8 @@ bounded by ``CONFORMA_COMPUTE_CACHE_MB`` (least recently used out).  Limits:
 Outcomes the job itself decides (succeeded, failed, cancelled) are written here, with the
 same conditional transitions as a thread worker; what it cannot report (a crash, a kill, a
 time limit) is the supervisor's business (:mod:`app.runtime.process_worker`).  After each job
-the process reports its memory and the parts it holds; the supervisor decides whether it is
+the process returns the heap memory the job freed to the system (:func:`app.runtime.heap.trim_heap`),
+then reports its memory and the parts it holds; the supervisor decides whether it is
 reused or replaced.
 """
 
@@ -49,6 +50,7 @@ from app.platform.config import Settings
 from app.platform.db import make_engine
 from app.platform.problems import from_error, problem
 from app.runtime.context import JobContext
+from app.runtime.heap import trim_heap
 from app.runtime.process_identity import start_ticks
 from app.runtime.registry import get_kind, load_kinds
 from app.runtime.store import Claim, JobStore, completed_status, json_result
@@ -178,6 +180,7 @@ class ChildRuntime:
         """After a job: memory and the parts held (the supervisor's reuse and affinity)."""
         cache_bytes = self.meshes.bytes  # re-measured: evicts down to the bound
         gc.collect()  # trimesh objects hold cycles: an evicted mesh is freed now
+        trim_heap()  # what the job freed goes back to the system, not kept at the job's peak
         return {"served": self.served, "rss_bytes": _status_bytes("VmRSS"), "vm_bytes": _vm_size_bytes(),
                 "cache_bytes": cache_bytes, "held": sorted(self.meshes.parts())}
 

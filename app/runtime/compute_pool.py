@@ -14,6 +14,10 @@ in-memory cache of what its jobs built.
   (:mod:`app.runtime.process_worker`) keeps each job's wall-clock limit, its SIGKILL on
   cancel and its quarantine on a crash; a process that was killed or died is
   :meth:`discarded <ComputePool.discard>` and a fresh one takes its place.
+* **Small while idle.**  The pool keeps ``CONFORMA_COMPUTE_IDLE_PROCESSES`` processes (1)
+  while no job needs more (the warm-up starts that many); a process started because jobs ran
+  at once ends once it has been idle EXTRA_IDLE_S, so a service whose jobs run one after
+  another (a board's closed loop) holds one compute process's memory, not ``size``.
 * **Recycled.**  After a job that leaves its process above ``CONFORMA_COMPUTE_RECYCLE_MB``
   resident (or its address space grown by more), after ``CONFORMA_COMPUTE_RECYCLE_JOBS``
   jobs, or after a job that ran out of memory or crashed in Python, the process is ended and
@@ -36,6 +40,7 @@ from app.runtime.compute_child import serve_jobs
 log = logging.getLogger("conforma.jobs.pool")
 MIB = 2 ** 20
 STOP_WAIT_S = 2.0
+EXTRA_IDLE_S = 30.0  # a process beyond the ones kept idle ends after this long without a job
 # Imported once by the fork server, so that every child starts with the compute core loaded
 # (and the circuit importers with their ECAD libraries: an import's child reads at once).
 PRELOAD = ["app.runtime.compute_child", "app.jobs.circuit_import", "app.circuits.dxf", "app.circuits.svg",
@@ -124,7 +129,9 @@ class ComputePool:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.size = settings.worker_threads
+        self.keep = min(settings.compute_idle_processes, self.size)  # processes kept while idle
         self._members: list[Member] = []
+        self._shrinker: threading.Timer | None = None
         self._lock = threading.Condition()
         self._starting = 0  # processes being started by replenish()
         self._waiting = 0  # jobs waiting for one of them
@@ -208,11 +215,49 @@ class ComputePool:
             log.info("compute process %s retired: the pool has more processes than its size", extra.pid)
             extra.stop()
         if reason is None:
+            self._shrink_later()
             return None
         log.info("compute process %s retired: %s", member.pid, reason)
         member.stop()
         self.replenish()
         return reason
+
+    def _shrink_later(self, delay_s: float | None = None) -> None:
+        """Have :meth:`shrink` run once in ``delay_s`` (default EXTRA_IDLE_S) when the pool
+        holds more processes than it keeps idle and no such run is pending."""
+        with self._lock:
+            if self.closed or len(self._members) <= self.keep:
+                return
+            if self._shrinker is not None and self._shrinker.is_alive():
+                return
+            self._shrinker = threading.Timer(EXTRA_IDLE_S if delay_s is None else delay_s, self.shrink)
+            self._shrinker.daemon = True
+            self._shrinker.name = "compute-pool-shrink"
+            self._shrinker.start()
+
+    def shrink(self) -> list[int | None]:
+        """End the idle processes beyond the ones kept idle (``keep``) that have been idle
+        EXTRA_IDLE_S or longer, those holding no part and used least recently first; run
+        again later while others are still beyond it.  Returns the pids ended."""
+        ended: list[Member] = []
+        now = time.monotonic()
+        with self._lock:
+            while len(self._members) > self.keep:
+                idle = [m for m in self._members if not m.busy and now - m.last_used >= EXTRA_IDLE_S]
+                if not idle:
+                    break
+                member = min(idle, key=lambda m: (bool(m.held), m.last_used))
+                self._members.remove(member)
+                ended.append(member)
+            waiting = [m for m in self._members if not m.busy] if len(self._members) > self.keep else []
+            self._shrinker = None
+        for member in ended:
+            log.info("compute process %s ended: idle %.0f s beyond the %d kept", member.pid, now - member.last_used,
+                     self.keep)
+            member.stop()
+        if waiting:  # extras that are idle, not for long enough yet
+            self._shrink_later(max(0.1, EXTRA_IDLE_S - (now - max(m.last_used for m in waiting))))
+        return [m.pid for m in ended]
 
     def discard(self, member: Member, wait_s: float = 5.0) -> int | None:
         """Forget ``member`` (killed, crashed, or unusable): SIGKILL it if it still runs;
@@ -223,10 +268,11 @@ class ComputePool:
         return member.kill(wait_s)
 
     def replenish(self) -> None:
-        """Start processes until the pool holds ``size`` (a fresh one takes a lost one's place)."""
+        """Start processes until the pool holds the ``keep`` it keeps idle (a fresh one takes a
+        lost one's place; more are started by :meth:`acquire` when jobs run at once)."""
         while True:
             with self._lock:
-                if self.closed or len(self._members) + self._starting >= self.size:
+                if self.closed or len(self._members) + self._starting >= self.keep:
                     return
                 self._starting += 1
             member = None
@@ -250,6 +296,8 @@ class ComputePool:
         """End the idle processes (busy ones are ended by their supervisors, then released)."""
         with self._lock:
             self.closed = True
+            if self._shrinker is not None:
+                self._shrinker.cancel()
             idle = [m for m in self._members if not m.busy]
             for member in idle:
                 self._members.remove(member)

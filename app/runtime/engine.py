@@ -16,6 +16,7 @@ import os
 import socket
 import sqlite3
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -41,6 +42,7 @@ from app.platform.models import Machine as MachineRow
 from app.platform.problems import _short, from_error, problem
 from app.runtime.context import JobContext
 from app.runtime.cost import check_cost
+from app.runtime.heap import trim_heap
 from app.runtime.machine_queue import MachineThreads, machine_slot
 from app.runtime.process_worker import ProcessSupervisor, warm_up
 from app.runtime.reads import JobReads
@@ -52,6 +54,7 @@ QUEUES = ("default", "machine", "workflow")
 # Threads per queue: "machine" owns serial ports (one job at a time); "workflow" runs
 # parents that only submit children and wait, so they never starve compute jobs.
 _THREADS = {"machine": 1, "workflow": 2}
+HEAP_TRIM_S = 10.0  # the reaper returns freed heap memory to the system this often (app.runtime.heap)
 
 
 class _NormalSyncSqliteStorage(SqliteStorage):
@@ -412,11 +415,15 @@ class Runtime:
         return ids
 
     def _reap_forever(self) -> None:
+        trimmed = time.monotonic()
         while not self._stop.wait(self.settings.reaper_interval_s):
             try:
                 self.reap_once()
             except Exception:
                 log.exception("reaper pass failed")
+            if time.monotonic() - trimmed >= HEAP_TRIM_S:  # what requests and jobs freed goes back to the system
+                trim_heap()
+                trimmed = time.monotonic()
 
     def stop(self) -> None:
         self._stop.set()

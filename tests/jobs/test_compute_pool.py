@@ -155,10 +155,10 @@ def test_after_a_crash_the_pool_serves_the_next_job(settings_factory, signal):
 
 
 def test_the_warm_up_starts_the_pool_with_the_app_and_without_it_the_first_job_does(settings_factory):
-    """``compute_warm_up`` on (the default): the pool holds its ``worker_threads`` processes
-    soon after the app starts, before any job; off: none until the first compute job, which
-    starts one and succeeds all the same."""
-    client, _ = _service(settings_factory, worker_threads=2, compute_warm_up=True)
+    """``compute_warm_up`` on (the default): the pool holds the processes it keeps idle
+    (``compute_idle_processes``) soon after the app starts, before any job; off: none until
+    the first compute job, which starts one and succeeds all the same."""
+    client, _ = _service(settings_factory, worker_threads=2, compute_warm_up=True, compute_idle_processes=2)
     with client:
         pool = client.app.state.runtime.supervisor.pool
         deadline = time.monotonic() + 120
@@ -173,3 +173,31 @@ def test_the_warm_up_starts_the_pool_with_the_app_and_without_it_the_first_job_d
         assert pool.members == [] and pool.started == 0
         assert _job(client, "test_sleep", {"seconds": 0})["status"] == "succeeded"
         assert pool.started == 1
+
+
+def test_one_process_while_idle_a_second_while_two_jobs_run_at_once_then_it_ends(settings_factory, monkeypatch):
+    """The default keeps ONE compute process while idle (the warm-up starts one, not
+    ``worker_threads``); two jobs at once start a second (no job waits for a busy one), which
+    ends after EXTRA_IDLE_S without a job: the one that stays is the one used last."""
+    from app.runtime import compute_pool
+
+    monkeypatch.setattr(compute_pool, "EXTRA_IDLE_S", 1.0)
+    client, _ = _service(settings_factory, worker_threads=2, compute_warm_up=True)
+    with client:
+        pool = client.app.state.runtime.supervisor.pool
+        deadline = time.monotonic() + 120
+        while len(pool.members) < 1 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        assert pool.keep == 1 and len(pool.members) == 1 and pool.started == 1
+        ids = [client.post("/api/v1/jobs", json={"kind": "test_sleep", "params": {"seconds": 2.0}}, headers=OP
+                           ).json()["id"] for _ in range(2)]
+        assert [wait_for(client, i, timeout=180)["status"] for i in ids] == ["succeeded", "succeeded"]
+        assert pool.started == 2
+        last = max(pool.members, key=lambda m: m.last_used).pid
+        deadline = time.monotonic() + 30
+        while len(pool.members) > 1 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert [m.pid for m in pool.members] == [last]
+        assert _job(client, "test_sleep", {"seconds": 0})["status"] == "succeeded"
+        assert pool.started == 2  # the one kept serves the next job

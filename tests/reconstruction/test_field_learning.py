@@ -31,6 +31,30 @@ def test_the_gradient_is_the_likelihoods():
     assert math.isclose(-lk.value(np.log([0.2, 20.0, 0.001])), log_marginal_likelihood(USER, sites, dz, center))
 
 
+def test_the_kernel_from_its_upper_triangle_is_the_full_matrix_and_the_value_alone_is_the_value():
+    """The likelihood evaluates its Bessel functions on the upper triangle and mirrors them:
+    the covariance is, bit for bit, the kernel evaluated on every pair (an independent
+    reference: jinc(x) = 2 J1(x) / x on the full distance matrix); the value without the
+    gradient is the same number as the value with it."""
+    from scipy.special import j1
+
+    from app.probing.deviation_prior import placement_basis
+
+    sites, center, dz = draw(TRUTH, 40, 2)
+    lk = _Likelihood(USER, sites, dz, center)
+    theta = np.log([0.1, 12.0, 0.003])
+    x = np.hypot(*(sites.xy[:, None, :] - sites.xy[None, :, :]).transpose(2, 0, 1)) * (2 * np.pi / math.exp(theta[1]))
+    jinc = np.where(x < 1e-6, 1.0 - x ** 2 / 8.0, 2.0 * j1(np.where(x < 1e-6, 1.0, x)) / np.where(x < 1e-6, 1.0, x))
+    basis = placement_basis(sites, center) * USER.basis_sd
+    rms2 = (math.exp(theta[0]) / USER.peak_factor) ** 2
+    expected = rms2 * jinc + basis @ basis.T
+    expected[np.diag_indices_from(expected)] += math.exp(2 * theta[2])
+    assert np.array_equal(lk.covariance(theta), expected)
+    assert np.array_equal(lk.parts(theta)[0], expected)
+    for t in (theta, np.log([0.2, 20.0, 0.001]), np.log([0.05, 5.0, 0.01])):
+        assert lk.value(t) == lk(t)[0]
+
+
 @pytest.mark.parametrize("seed", [3, 4, 5])
 def test_amplitude_wavelength_and_noise_recovered_within_20_percent_from_60_touches(seed):
     sites, center, dz = draw(TRUTH, 60, seed, pairs=12)

@@ -233,3 +233,39 @@ def test_a_round_refines_the_wavelength_step_by_step_and_plans_for_the_probes_no
     assert noisy.deviation_wavelength_mm == 10.0 and noisy.probe_sigma_mm == DEFAULT.probe_sigma_mm
     resolved = round_params(DEFAULT, DeviationPrior(amplitude_mm=0.1, wavelength_mm=13.0, sigma_mm=0.0013), 20.0)
     assert resolved.deviation_wavelength_mm == 13.0 and resolved.probe_sigma_mm == DEFAULT.probe_sigma_mm
+
+
+def test_a_runs_trace_bounds_factorise_the_bound_posterior_once_and_equal_each_trace_bound_alone(paths, monkeypatch):
+    """Every trace of a run asks for the same posterior under the cautious prior: it is
+    factorised once per fit, and each trace's bound is the one :func:`trace_bound` gives for a
+    fresh copy of the fit (its own factorisation), bit for bit."""
+    from dataclasses import replace
+
+    from app.reconstruction import field_trust
+
+    plan = plan_field(paths, DEFAULT)
+    dz = toucher(3)(plan.xy)
+    check = checked_field(DEFAULT.prior(), plan.sites, np.zeros(plan.count), np.column_stack([plan.xy, dz]),
+                          plan.center, plan.trace, plan.s_mm, np.zeros(plan.count, dtype=bool), DEFAULT.coverage,
+                          DEFAULT.target_error_mm)
+    assert field_trust.cautious_prior(check.fit.posterior.prior, check.learned) != check.fit.posterior.prior
+    alone = [trace_bound(replace(check.fit), p, DEFAULT.coverage, check.learned, len(paths)) for p in paths]
+    factorised = []
+    real = field_trust.fit_posterior
+    monkeypatch.setattr(field_trust, "fit_posterior", lambda *a, **k: factorised.append(1) or real(*a, **k))
+    assert run_bounds(check, paths) == tuple(alone)
+    assert len(factorised) == 1
+
+
+def test_the_stations_check_given_the_callers_learning_is_the_check_that_learns_itself(paths):
+    from app.reconstruction.field_learning import learn_prior
+    from app.reconstruction.field_sequential import stations_check
+
+    plan = plan_field(paths, DEFAULT)
+    dz = toucher(5)(plan.xy)
+    args = (DEFAULT.prior(), plan.sites, dz, plan.center, plan.trace, plan.s_mm, paths, DEFAULT.coverage,
+            DEFAULT.target_error_mm)
+    learned = learn_prior(DEFAULT.prior(), plan.sites, dz, plan.center)
+    given, itself = stations_check(*args, learned=learned), stations_check(*args)
+    assert given.learned == itself.learned and given.bound_mm == itself.bound_mm
+    assert np.array_equal(given.fit.dz, itself.fit.dz) and given.fit.outliers == itself.fit.outliers

@@ -241,7 +241,7 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     bound = None
     if more.count == 0 and not retouch:  # the pointwise target holds: the run's bound as the verdict computes it
         bound = stations_check(plan_params.prior(), sites, dz, field.center, field.trace[keep], field.s_mm[keep],
-                               nominals, plan_params.coverage, plan_params.target_error_mm).bound_mm
+                               nominals, plan_params.coverage, plan_params.target_error_mm, learned).bound_mm
         if not bound_meets_target(bound, plan_params.target_error_mm):
             round_ = learned_params
             more, plan_target = plan_tightened(

@@ -1,0 +1,62 @@
+"""Handing freed heap memory back to the system (glibc's malloc; elsewhere these do nothing).
+
+CPython keeps small objects in its own arenas (returned when empty); numpy arrays, large
+strings and bytes come from malloc.  glibc keeps what is freed for reuse and gives back only
+the top of each heap once it passes a threshold that grows with the largest block freed, so
+a process that built one large result (a board job's arrays, a thousand traces' JSON) stays
+at that peak's resident size long after.  And each thread that allocates may get a heap
+(an *arena*) of its own, up to 8 per core, each holding its own freed memory.
+
+* :func:`trim_heap` (``malloc_trim(0)``) returns every free page of every arena: the top of
+  each, and whole free pages inside them (glibc >= 2.8, by ``madvise``).  Cheap (milliseconds
+  on a few hundred MiB); called after each job.
+* :func:`limit_arenas` (``mallopt(M_ARENA_MAX, n)``) caps the number of arenas of a
+  process with many threads; threads then share the existing arenas (contention only for
+  threads that allocate at the same moment).  Set before the threads start: the server sets
+  SERVER_ARENAS when its app is built.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+import threading
+
+log = logging.getLogger("conforma.heap")
+M_ARENA_MAX = -8  # glibc's mallopt parameter
+SERVER_ARENAS = 2  # the server's threads (requests, queue consumers, machines) share this many
+_libc_lock = threading.Lock()
+_libc: list[ctypes.CDLL | None] = []  # empty: not looked up yet; [None]: no glibc
+
+
+def _glibc() -> ctypes.CDLL | None:
+    """The C library when it is glibc (it has malloc_trim and mallopt), else None."""
+    with _libc_lock:
+        if not _libc:
+            try:
+                libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+                _libc.append(libc if hasattr(libc, "malloc_trim") and hasattr(libc, "mallopt") else None)
+            except OSError:
+                _libc.append(None)
+        return _libc[0]
+
+
+def trim_heap() -> bool:
+    """Return the free pages of every malloc arena to the system; True when some were."""
+    libc = _glibc()
+    if libc is None:
+        return False
+    return bool(libc.malloc_trim(0))
+
+
+def limit_arenas(count: int) -> bool:
+    """At most ``count`` malloc arenas in this process (threads started later share them);
+    True when glibc took the setting."""
+    libc = _glibc()
+    if libc is None:
+        return False
+    ok = bool(libc.mallopt(M_ARENA_MAX, int(count)))
+    if not ok:
+        log.warning("mallopt(M_ARENA_MAX, %d) was refused", count)
+    return ok
