@@ -156,7 +156,12 @@ class RshSession:
         """``set mode <mode>``, then wait until ``get mode`` reports it: the controller takes the
         mode asynchronously and refuses it while it still finishes something (right after
         homing an MDI command may otherwise meet "Must be in MDI mode").  Sent again every
-        0.5 s; after ``timeout_s`` the next command meets the controller's own refusal."""
+        0.5 s; after ``timeout_s`` the next command meets the controller's own refusal.
+        Nothing is sent when the controller already reports ``mode`` (as LinuxCNC's own GUIs
+        switch modes): linuxcncrsh answers a ``set`` only after polling the controller every
+        0.1 s, so a redundant switch before each MDI command cost 0.1 s per command."""
+        if self.get("mode").upper() == mode.upper():
+            return
         deadline = time.monotonic() + timeout_s
         while True:
             self.set("mode", mode)

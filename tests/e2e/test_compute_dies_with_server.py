@@ -62,8 +62,10 @@ def test_compute_processes_die_with_the_server_and_the_job_runs_once_after_resta
     server = start(["serve", "--port", str(port)], env, tmp_path / "serve.log")
     try:
         wait_healthy(base, server, log=tmp_path / "serve.log")
-        job = httpx.post(f"{base}/api/v1/jobs", json={"kind": "test_spin", "params": {"seconds": 8}},
-                         headers=HEADERS, timeout=30).json()
+        # the first attempt spins on until the server's death ends it; the re-run after the restart is short
+        spin = {"seconds": 60, "later_seconds": 0.5}
+        job = httpx.post(f"{base}/api/v1/jobs", json={"kind": "test_spin", "params": spin}, headers=HEADERS,
+                         timeout=30).json()
         _wait_job(base, job["id"], ("running",))
         assert len(_session_members(server.pid)) >= 2  # the server and its compute process(es)
         os.kill(server.pid, signal.SIGKILL)

@@ -26,8 +26,9 @@ def test_demo_runs_through_the_server_that_owns_the_data_dir(tmp_path):
         second = subprocess.run(CONFORMA + ["serve", "--port", str(free_port())], env=env, cwd=ROOT,
                                 capture_output=True, text=True, timeout=60)
         assert second.returncode == 1 and "already runs on" in second.stderr
-        demo = subprocess.run(CONFORMA + ["demo", "--traces", "1-2"], env=env, cwd=ROOT, capture_output=True,
-                              text=True, timeout=300)
+        # the part's meshes as coarse as tests/test_demo.py's run: the same loop, a third of the faces
+        demo = subprocess.run(CONFORMA + ["demo", "--traces", "1-2", "--grid-mm", "0.5"], env=env, cwd=ROOT,
+                              capture_output=True, text=True, timeout=300)
         assert demo.returncode == 0, demo.stdout[-2000:] + demo.stderr[-2000:] + log.read_text()[-2000:]
         assert "the demo's jobs run there" in demo.stdout and "err max after" in demo.stdout
         headers = {"Authorization": f"Bearer {ADMIN}"}

@@ -71,12 +71,15 @@ def run_crash(ctx: JobContext, params: CrashParams) -> dict:
 
 class SpinParams(JobParams):
     seconds: float = Field(30, ge=0, le=600)
+    later_seconds: float | None = Field(None, ge=0, le=600, description="the attempts after the first spin this "
+                                        "long (default: seconds)")
 
 
 @job_kind("test_spin", SpinParams)
 def run_spin(ctx: JobContext, params: SpinParams) -> dict:
     """Busy-loop without ever checking for cancel (a long native loop)."""
-    deadline = time.monotonic() + params.seconds
+    later = ctx.claim.attempt > 1 and params.later_seconds is not None
+    deadline = time.monotonic() + (params.later_seconds if later else params.seconds)
     while time.monotonic() < deadline:
         pass
     return {}

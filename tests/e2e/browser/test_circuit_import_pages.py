@@ -56,6 +56,9 @@ def test_the_preview_pages_warnings_and_rows(page, served, tmp_path):
     assert totals["traces"] == BOARD.tracks == 240 and totals["warnings"] > PAGE_ROWS, totals
 
     page.goto(f"/traces.html?part={part['id']}")
+    # the import form is on the page before its part list has loaded: a preview sent earlier
+    # finds no part chosen ("upload a part first") and never shows its rows
+    page.wait_for_selector('body[data-ready="1"]')
     page.set_input_files("#circuit-file", str(board))
     page.click("#circuit-preview-button")
     page.wait_for_selector("#circuit-rows-count", timeout=120_000)

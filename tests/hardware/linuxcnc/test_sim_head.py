@@ -46,18 +46,41 @@ def test_the_ink_map_is_read_again_when_its_file_changes(tmp_path: Path):
 
 
 class _Watch:
-    """A scripted hal_watch: (t_ns, [x, y, z, lamp, clock]) rows appended by the test."""
+    """A scripted hal_watch: (t_ns, [x, y, z, lamp, clock]) rows; the test sets where the
+    carriage is (:meth:`at`), and from then on, as HAL's servo thread does, the watcher keeps
+    sampling that state every ``TICK_S`` until closed (a head command waits for a sample newer than itself:
+    ``SimHeadBridge.catch_up``)."""
+
+    TICK_S = 0.002
 
     def __init__(self) -> None:
         self.samples: list[tuple[int, list[float]]] = []
         self.clock = 0.0
+        self._state: list[float] | None = None   # nothing to sample before the first at()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._ticker = threading.Thread(target=self._tick, daemon=True)
+        self._ticker.start()
+
+    def _sample(self) -> None:
+        with self._lock:
+            if self._state is None:
+                return
+            self.clock += 1.0
+            self.samples.append((time.monotonic_ns(), [*self._state, self.clock]))
+
+    def _tick(self) -> None:
+        while not self._stop.wait(self.TICK_S):
+            self._sample()
 
     def at(self, x: float, y: float, lamp: float = 0.0) -> None:
-        self.clock += 1.0
-        self.samples.append((time.monotonic_ns(), [x, y, 5.0, lamp, self.clock]))
+        with self._lock:
+            self._state = [x, y, 5.0, lamp]
+        self._sample()
 
     def close(self) -> None:
-        pass
+        self._stop.set()
+        self._ticker.join()
 
 
 class _Sim:
@@ -88,18 +111,7 @@ def test_the_bridge_fires_a_swath_on_the_followed_joints_and_maps_the_cured_ink(
         assert head.status().rows_done == 5
         assert head.disarm() == 4
         watch.at(1.0, 1.6, lamp=1.0)
-        stop = threading.Event()
-
-        def keep_time() -> None:                             # the servo clock runs on while the lamp is on
-            while not stop.is_set():
-                watch.at(1.0, 1.6, lamp=1.0)
-                time.sleep(0.005)
-
-        ticker = threading.Thread(target=keep_time)
-        ticker.start()
-        time.sleep(0.1)
-        stop.set()
-        ticker.join()
+        time.sleep(0.1)                                      # the lamp on for twice the dose (the clock runs on)
         watch.at(1.0, 1.6, lamp=0.0)
         deadline = time.monotonic() + 5
         while (bridge.maps_written == 0 or bridge.head.cures == 0) and time.monotonic() < deadline:
