@@ -9,23 +9,15 @@ it was designed for.  When the prior is uncertain:
    than a plan for its true prior would;
 2. **learn**: the prior's amplitude, wavelength and noise by type-II ML from every touch so
    far (:func:`app.reconstruction.field_learning.learn_prior`, gross outliers screened out);
-3. **stop or add**: the posterior sd depends on where the stations are, not on what they
-   read, so the run's bound of any design under the learned prior is known before it is
-   touched (:func:`design_bound`, as the verdict takes it: the learned amplitude and
-   wavelength on the unfavourable side of their own uncertainty, ``cautious_prior``).  When
-   the stations touched so far are within AIM x the verdict's tolerance and the verdict's own
-   fit agrees (:func:`stations_check`), the rounds end.  Otherwise the field planner runs
-   again for that cautious prior (:func:`round_params`), starting from every station already
-   touched (``fixed``): it returns only the stations still needed for ``coverage`` x sd <= a
-   pointwise target on every trace point, the loosest of LOOSE_TARGETS x the target whose
-   design's bound is within AIM x the tolerance (:func:`loosest_plan`; a pointwise target
-   at the target itself over-delivers on smooth parts), else the round's pointwise target;
+3. **add**: the field planner again, for the learned prior (:func:`round_params`), starting
+   from every station already touched (``fixed``): it returns only the stations the fitted
+   posterior still needs for ``coverage`` x sd <= the round's pointwise target on every trace
+   point;
 4. **the run's bound**: when it adds none, the stations are fitted and bounded as the verdict
    does it (:func:`stations_check`: the learned prior, the hyperparameters' own uncertainty,
    the run's traces sharing the confidence, :func:`app.reconstruction.field_trust.run_bounds`);
    a bound within the verdict's tolerance (``bound_meets_target``) ends the rounds, one over
-   it tightens the pointwise target (:func:`tightened_target`, aimed just inside the
-   tolerance) and the round plans again;
+   it tightens the pointwise target (:func:`tightened_target`) and the round plans again;
 5. repeat 2-4 until the bound holds, ``max_rounds`` pass, or the next round would pass
    ``budget`` touches (the result says which);
 6. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
@@ -46,31 +38,19 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from app.geometry.traces import TracePolyline, as_trace_polyline
-from app.probing.deviation_prior import DeviationPrior, Sites, fit_posterior, path_sites
+from app.geometry.traces import as_trace_polyline
+from app.probing.deviation_prior import DeviationPrior, Sites
 from app.probing.field import FieldPlan, plan_field
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
-from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior, loo_check
-from app.reconstruction.field_trust import (
-    BOUND_STEP_PER_WAVELENGTH,
-    TARGET_SLACK,
-    FieldCheck,
-    bound_meets_target,
-    cautious_prior,
-    checked_field,
-    run_bounds,
-    simultaneous_bound,
-    with_bound,
-)
+from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, learn_prior, loo_check
+from app.reconstruction.field_trust import FieldCheck, bound_meets_target, checked_field, run_bounds, with_bound
 
 MAX_ROUNDS = 6
 DEFAULT_BUDGET = 2000
 PILOT_WAVELENGTH_FACTOR = 2.0  # the pilot plans for twice the user's wavelength
 SHRINK_PER_ROUND = 2.0         # a round plans for no less than the previous round's wavelength / 2
 TIGHTEN_MIN = 0.5              # a round's pointwise target is at most halved at once
-AIM = 0.9                      # a round aims the run's bound at this share of the verdict's tolerance
-LOOSE_TARGETS = (TARGET_SLACK, 0.5 * (1.0 + TARGET_SLACK))  # pointwise targets (x the target) tried first
 
 
 def pilot_params(params: PlanParams) -> PlanParams:
@@ -100,11 +80,10 @@ def round_params(params: PlanParams, learned: DeviationPrior, previous_wavelengt
 def tightened_target(plan_target_mm: float, target_mm: float, bound_mm: float) -> float:
     """The next round's pointwise target (mm) when the run's bound ``bound_mm`` under the
     fitted model is over the verdict's tolerance after a round planned for ``plan_target_mm``:
-    scaled by AIM x tolerance / bound (the bound scales about as the pointwise sd between the
-    stations does; the tolerance TARGET_SLACK x ``target_mm``), so one round aims the bound
-    just inside the tolerance, not at the target (that over-delivers); at most halved at
-    once (TIGHTEN_MIN), never loosened.  Mm in, mm out."""
-    return plan_target_mm * max(TIGHTEN_MIN, min(1.0, AIM * TARGET_SLACK * target_mm / bound_mm))
+    scaled by target / bound (the bound scales about as the pointwise sd between the stations
+    does), so one round aims the bound at the target itself, within the tolerance with room;
+    at most halved at once (TIGHTEN_MIN).  Mm in, mm out."""
+    return plan_target_mm * max(TIGHTEN_MIN, min(1.0, target_mm / bound_mm))
 
 
 TIGHTEN_TRIES = 3  # a tightened round that adds no station is tightened again, this many times in all
@@ -123,38 +102,6 @@ def plan_tightened(plan: Callable[[float], FieldPlan], plan_target_mm: float, ta
         if more.count:
             break
     return more, plan_target_mm
-
-
-def design_bound(learned: LearnedPrior, sites: Sites, center: np.ndarray, paths: Sequence[TracePolyline],
-                 coverage: float) -> float:
-    """The run's bound (mm) the stations ``sites`` (n,) would have under the ``learned`` prior
-    (as the verdict takes it: :func:`app.reconstruction.field_trust.cautious_prior`, the run's
-    traces ``paths`` sharing the confidence): the posterior sd depends on where the stations
-    are, not on what they read, so a design's bound is known before it is touched."""
-    prior = cautious_prior(learned.prior, learned.as_dict())
-    posterior = fit_posterior(prior, sites, np.zeros(len(sites.xy)), center)
-    step = prior.wavelength_mm / BOUND_STEP_PER_WAVELENGTH
-    worst = 0.0
-    for path in paths:
-        length = float(path.length_mm)
-        count = max(2, int(np.ceil(length / step)) + 1)
-        s = np.linspace(0.0, length, count)
-        worst = max(worst, simultaneous_bound(posterior.sd(path_sites(path, s)), length / (count - 1),
-                                              prior.wavelength_mm, coverage, len(paths)))
-    return worst
-
-
-def loosest_plan(plan: Callable[[float], FieldPlan], bound_of: Callable[[FieldPlan], float],
-                 target_mm: float) -> FieldPlan | None:
-    """The plan of the loosest pointwise target among LOOSE_TARGETS x ``target_mm`` whose
-    design's run bound (``bound_of``, :func:`design_bound`) is within AIM x the verdict's
-    tolerance (TARGET_SLACK x the target), or None when none is: a plan for the pointwise
-    target itself over-delivers where the bound runs below the pointwise figure."""
-    for factor in LOOSE_TARGETS:
-        more = plan(factor * target_mm)
-        if bound_of(more) <= AIM * TARGET_SLACK * target_mm:
-            return more
-    return None
 
 
 def stations_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray, trace: np.ndarray,
@@ -214,33 +161,18 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
         if len(dz) < MIN_TOUCHES:
             break
         learned = learn_prior(user, sites, dz, center)
-        cautious = cautious_prior(learned.prior, learned.as_dict())  # the prior the verdict bounds under
-        current = replace(round_params(params, cautious, current.deviation_wavelength_mm),
+        current = replace(round_params(params, learned.prior, current.deviation_wavelength_mm),
                           target_error_mm=plan_target)
-        tolerance = AIM * TARGET_SLACK * params.target_error_mm
-        if design_bound(learned, sites, center, paths, params.coverage) <= tolerance and bound_meets_target(
-                stations_check(user, sites, dz, center, trace, s, paths, params.coverage,
-                               params.target_error_mm).bound_mm, params.target_error_mm):
-            stopped = "bound holds"
-            break
-
-        def planned(t: float, at: PlanParams = current, touched: Sites = sites) -> FieldPlan:
-            return plan_field(paths, replace(at, target_error_mm=t), fixed=touched)
-
-        def bound_of(more: FieldPlan, touched: Sites = sites, learned: LearnedPrior = learned) -> float:
-            every = Sites(np.concatenate([touched.xy, more.xy]), np.concatenate([touched.grad, more.grad]))
-            return design_bound(learned, every, center, paths, params.coverage)
-
-        loose = loosest_plan(planned, bound_of, params.target_error_mm) if plan_target == params.target_error_mm \
-            else None
-        more = loose if loose is not None else planned(plan_target)
+        more = plan_field(paths, current, fixed=sites)
         if more.count == 0:
             bound = stations_check(user, sites, dz, center, trace, s, paths, params.coverage,
                                    params.target_error_mm).bound_mm
             if bound_meets_target(bound, params.target_error_mm):
                 stopped = "bound holds"
                 break
-            more, plan_target = plan_tightened(planned, plan_target, params.target_error_mm, bound)
+            def replan(t: float, at: PlanParams = current, touched: Sites = sites) -> FieldPlan:
+                return plan_field(paths, replace(at, target_error_mm=t), fixed=touched)
+            more, plan_target = plan_tightened(replan, plan_target, params.target_error_mm, bound)
             current = replace(current, target_error_mm=plan_target)
             if more.count == 0:
                 stopped = "no station helps"

@@ -97,17 +97,15 @@ def test_sequential_planning_holds_every_trace_within_its_verified_bound_on_the_
     assert check.verified_line().startswith(f"verified at {len(check.verification.xy)} points: max |residual| ")
 
 
-def test_a_round_over_the_bound_tightens_its_pointwise_target_by_tolerance_over_bound():
+def test_a_round_over_the_bound_tightens_its_pointwise_target_by_target_over_bound():
     from types import SimpleNamespace
 
-    from app.reconstruction.field_sequential import AIM, TIGHTEN_MIN, TIGHTEN_TRIES, plan_tightened, tightened_target
-    from app.reconstruction.field_trust import TARGET_SLACK
+    from app.reconstruction.field_sequential import TIGHTEN_MIN, TIGHTEN_TRIES, plan_tightened, tightened_target
 
-    aim = AIM * TARGET_SLACK * 5.0   # just inside the verdict's tolerance
-    assert tightened_target(5.0, 5.0, 8.0) == pytest.approx(5.0 * aim / 8.0)
-    assert tightened_target(3.0, 5.0, 7.5) == pytest.approx(3.0 * aim / 7.5)   # from the round's own target
+    assert tightened_target(5.0, 5.0, 8.0) == pytest.approx(5.0 * 5.0 / 8.0)   # aims the bound at the target
+    assert tightened_target(3.0, 5.0, 6.0) == pytest.approx(2.5)               # from the round's own target
     assert tightened_target(5.0, 5.0, 40.0) == pytest.approx(5.0 * TIGHTEN_MIN)  # at most halved at once
-    assert tightened_target(5.0, 5.0, 0.99 * aim) == 5.0                        # never loosened
+    assert tightened_target(5.0, 5.0, 4.0) == 5.0                               # never loosened
     asked: list[float] = []
 
     def plan(t: float) -> SimpleNamespace:
