@@ -16,6 +16,12 @@ rigid terms is not identifiable from a few dozen touches beside the field).  The
 is multimodal in the wavelength (a short-wavelength model can explain any data as noise), so
 the search starts from a coarse grid of wavelengths and refines the best.
 
+``method="reml"`` maximises the restricted likelihood instead: the offset and the two tilts
+are fixed effects with a flat prior, integrated out (the likelihood of the touches' contrasts
+those terms cannot change), the other placement terms kept at their tolerances
+(:class:`_Likelihood`).  ML treats the offset and tilts as known to their tolerances; REML
+does not lean on those tolerances.  The bench ``tests/bench/test_bench_learning.py`` measures both.
+
 Gross outliers (a chip or dust under the stylus, a bounced touch) would be explained by a
 short wavelength or a large noise: one 0.3 mm spike can halve the learned wavelength.  So
 before the fit, :func:`screen_outliers` takes out the touches their own re-touches contradict
@@ -80,6 +86,9 @@ SCREEN_K = 6.0              # a touch this many robust sd off what the others pr
 SCREEN_FLOOR_MM = 0.03      # ... and this far (mm): no smooth part's touch is screened for noise
 SCREEN_SHARE = 0.1          # at most this share of the touches is screened out
 REPEAT_RADIUS_MM = 0.5      # touches this close read the same spot (a re-touch)
+FIXED_TERMS = (0, 4, 5)     # placement_basis columns REML integrates out: the offset and the two tilts
+METHODS = ("ml", "reml")
+DEFAULT_METHOD = "ml"
 
 
 class LearningError(InvalidInput):
@@ -131,7 +140,8 @@ class LearnedPrior:
     start: the user's prior; bounds; log_sd (3,): sd of (log amplitude, log wavelength,
     log sigma) from the Hessian (NaN where a parameter sits on a bound); at_bound (3,) str:
     "lower" / "upper" / ""; log_likelihood (at the optimum) and start_log_likelihood (the
-    user's prior); loo: the fit check under the learned prior; n: touches used."""
+    user's prior); loo: the fit check under the learned prior; n: touches used; screened: the
+    touches screened out; method: "ml" or "reml" (the likelihood maximised)."""
 
     prior: DeviationPrior
     start: DeviationPrior
@@ -143,6 +153,7 @@ class LearnedPrior:
     loo: LooCheck
     n: int
     screened: tuple[int, ...] = ()
+    method: str = DEFAULT_METHOD
 
     @property
     def misfit(self) -> bool:
@@ -157,7 +168,8 @@ class LearnedPrior:
                    "relative_sd": None if not math.isfinite(sd) else float(math.expm1(sd)),
                    "at_bound": b or None}
             for name, v, s, sd, b in zip(NAMES, values, starts, self.log_sd, self.at_bound)}
-        out |= {"touches": self.n, "screened": list(self.screened), "log_likelihood": self.log_likelihood,
+        out |= {"touches": self.n, "screened": list(self.screened), "method": self.method,
+                "log_likelihood": self.log_likelihood,
                 "prior_log_likelihood": self.start_log_likelihood,
                 "loo": {"statistic": self.loo.statistic, "statistic_limit": self.loo.statistic_limit,
                         "max_abs_z": float(np.abs(self.loo.z).max()), "z_limit": self.loo.z_limit,
@@ -169,15 +181,34 @@ class _Likelihood:
     """-log p(dz | theta) and its gradient over theta = (log amplitude, log wavelength,
     log sigma), with the distances and the placement part computed once.  The kernel is
     symmetric (r_ij = r_ji exactly): its Bessel functions are evaluated on the upper triangle
-    (i <= j) and mirrored."""
+    (i <= j) and mirrored.
 
-    def __init__(self, prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray) -> None:
+    ``method`` "reml": the restricted likelihood instead, the offset and the tilts
+    (FIXED_TERMS, the (n, 3) basis H) fixed effects with a flat prior, integrated out:
+
+        -log p_R = 1/2 dz' P dz + 1/2 log det K + 1/2 log det H'K^-1 H + (n - 3)/2 log 2 pi,
+        P = K^-1 - K^-1 H (H'K^-1 H)^-1 H'K^-1,   d(-log p_R) = 1/2 tr((P - P dz dz' P) dK)
+
+    with K = the field + the other placement terms (their tolerances) + the noise; "ml"
+    is the same with P = K^-1 and no H term.  ML estimates the amplitude and the wavelength
+    as if the offset and tilts were known; REML accounts for their being estimated."""
+
+    def __init__(self, prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
+                 method: str = "ml") -> None:
+        if method not in METHODS:
+            raise LearningError(f"unknown learning method {method!r} (one of {', '.join(METHODS)})",
+                                field="method", value=method)
         xy = sites.xy
         self.n = len(xy)
         upper = np.triu_indices(self.n)  # (i, j) i <= j, row-major; int32: half the memory of int64
         self.upper = (upper[0].astype(np.int32), upper[1].astype(np.int32))
         self.r_upper = np.hypot(xy[upper[0], 0] - xy[upper[1], 0], xy[upper[0], 1] - xy[upper[1], 1])
         basis = placement_basis(sites, center) * prior.basis_sd
+        self.fixed: np.ndarray | None = None
+        if method == "reml":
+            random = [i for i in range(basis.shape[1]) if i not in FIXED_TERMS]
+            self.fixed = placement_basis(sites, center)[:, list(FIXED_TERMS)]
+            basis = basis[:, random]
         self.placement = basis @ basis.T
         self.peak = prior.peak_factor
         self.dz = dz
@@ -211,9 +242,21 @@ class _Likelihood:
             factor = cho_factor(k, lower=True)
         except np.linalg.LinAlgError:
             return 1e30, np.zeros(3)
-        alpha = cho_solve(factor, self.dz)
-        value = self._value(factor, alpha)
-        w = cho_solve(factor, np.eye(len(k))) - np.outer(alpha, alpha)   # K^-1 - alpha alpha'
+        if self.fixed is None:
+            alpha = cho_solve(factor, self.dz)
+            value = self._value(factor, alpha)
+            w = cho_solve(factor, np.eye(len(k))) - np.outer(alpha, alpha)   # K^-1 - alpha alpha'
+        else:
+            p = cho_solve(factor, np.eye(len(k)))   # K^-1, then P
+            kh = p @ self.fixed
+            try:
+                inner = cho_factor(self.fixed.T @ kh, lower=True)
+            except np.linalg.LinAlgError:
+                return 1e30, np.zeros(3)
+            p = p - kh @ cho_solve(inner, kh.T)
+            alpha = p @ self.dz
+            value = self._restricted_value(factor, inner, alpha)
+            w = p - np.outer(alpha, alpha)   # P - P dz dz' P
         grad = 0.5 * np.array([np.sum(w * (2 * rms2 * jinc)), np.sum(w * (rms2 * djinc)),
                                np.trace(w) * 2 * noise])
         return value, grad
@@ -222,6 +265,14 @@ class _Likelihood:
         return float(0.5 * self.dz @ alpha + np.sum(np.log(np.diag(factor[0])))
                      + 0.5 * len(self.dz) * math.log(2 * math.pi))
 
+    def _restricted_value(self, factor: tuple[np.ndarray, bool], inner: tuple[np.ndarray, bool],
+                          alpha: np.ndarray) -> float:
+        """-log p_R from K's factor, H'K^-1 H's factor and alpha = P dz (n,)."""
+        assert self.fixed is not None
+        dof = len(self.dz) - self.fixed.shape[1]
+        return float(0.5 * self.dz @ alpha + np.sum(np.log(np.diag(factor[0])))
+                     + np.sum(np.log(np.diag(inner[0]))) + 0.5 * dof * math.log(2 * math.pi))
+
     def value(self, theta: np.ndarray) -> float:
         """-log p(dz | theta) alone (the same number :meth:`__call__` gives, without the gradient)."""
         k = self.parts(theta, gradient=False)[0]
@@ -229,7 +280,16 @@ class _Likelihood:
             factor = cho_factor(k, lower=True)
         except np.linalg.LinAlgError:
             return 1e30
-        return self._value(factor, cho_solve(factor, self.dz))
+        kinv_dz = cho_solve(factor, self.dz)
+        if self.fixed is None:
+            return self._value(factor, kinv_dz)
+        kinv_h = cho_solve(factor, self.fixed)   # (n, 3)
+        try:
+            inner = cho_factor(self.fixed.T @ kinv_h, lower=True)
+        except np.linalg.LinAlgError:
+            return 1e30
+        alpha = kinv_dz - kinv_h @ cho_solve(inner, self.fixed.T @ kinv_dz)   # P dz
+        return self._restricted_value(factor, inner, alpha)
 
     def covariance(self, theta: np.ndarray) -> np.ndarray:
         """K (n, n) mm^2 at theta."""
@@ -240,9 +300,11 @@ def _theta(prior: DeviationPrior) -> np.ndarray:
     return np.log([prior.amplitude_mm, prior.wavelength_mm, max(prior.sigma_mm, 1e-9)])
 
 
-def log_marginal_likelihood(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray) -> float:
-    """log p(dz (n,) | prior) mm-based, of the touches at ``sites`` (n,)."""
-    return -_Likelihood(prior, sites, np.asarray(dz, dtype=float), center).value(_theta(prior))
+def log_marginal_likelihood(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
+                            method: str = "ml") -> float:
+    """log p(dz (n,) | prior) mm-based, of the touches at ``sites`` (n,) (``method`` "reml":
+    the restricted likelihood, see :class:`_Likelihood`)."""
+    return -_Likelihood(prior, sites, np.asarray(dz, dtype=float), center, method).value(_theta(prior))
 
 
 def loo_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
@@ -307,10 +369,11 @@ def screen_outliers(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center:
 
 
 def learn_prior(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
-                bounds: Bounds | None = None, screen: bool = True) -> LearnedPrior:
+                bounds: Bounds | None = None, screen: bool = True, method: str = DEFAULT_METHOD) -> LearnedPrior:
     """Type-II ML fit of amplitude, wavelength and noise to deviations dz (n,) mm measured at
     ``sites`` (n,), placement centre ``center`` (2,), gross outliers screened out first
     (:func:`screen_outliers` under the user's prior, then again under the learned one).
+    ``method``: "ml" the marginal likelihood, "reml" the restricted one (:class:`_Likelihood`).
     Raises LearningError below MIN_TOUCHES touches or for non-finite values."""
     dz = np.asarray(dz, dtype=float)
     n = len(dz)
@@ -320,7 +383,7 @@ def learn_prior(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.
     if not np.isfinite(dz).all():
         raise LearningError("a measured deviation is not finite", field="dz", value=None)
     if not screen:
-        return _learn(prior, sites, dz, center, bounds)
+        return _learn(prior, sites, dz, center, bounds, method)
     out = np.zeros(0, dtype=int)
     learned = None
     for _ in range(2):  # under the user's prior, then under the learned one
@@ -329,19 +392,19 @@ def learn_prior(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.
             break
         out = now
         kept = np.setdiff1d(np.arange(n), out)
-        learned = _learn(prior, sites.take(kept), dz[kept], center, bounds)
+        learned = _learn(prior, sites.take(kept), dz[kept], center, bounds, method)
     assert learned is not None
     return replace(learned, n=n, screened=tuple(int(i) for i in out))
 
 
 def _learn(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
-           bounds: Bounds | None) -> LearnedPrior:
+           bounds: Bounds | None, method: str) -> LearnedPrior:
     """:func:`learn_prior` on the touches given, none screened out."""
     n = len(dz)
     bounds = bounds or default_bounds(prior)
     lo = np.log([bounds.amplitude_mm[0], bounds.wavelength_mm[0], bounds.sigma_mm[0]])
     hi = np.log([bounds.amplitude_mm[1], bounds.wavelength_mm[1], bounds.sigma_mm[1]])
-    likelihood = _Likelihood(prior, sites, dz, center)
+    likelihood = _Likelihood(prior, sites, dz, center, method)
     objective = likelihood.value
     start = np.clip(_theta(prior), lo, hi)
     starts = [start]
@@ -377,7 +440,7 @@ def _learn(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarr
             f"the touches scatter {scatter * 1000:.1f} um about the field, {scatter / prior.sigma_mm:.0f}x "
             "the probe's repeatability: structure shorter than the stations resolve, or misreading touches",))
     return LearnedPrior(learned, prior, bounds, log_sd, (at[0], at[1], at[2]), -float(best.fun),
-                        -objective(start), loo, n)
+                        -objective(start), loo, n, method=method)
 
 
 def _as_noise(likelihood: _Likelihood, theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float]:

@@ -1,7 +1,8 @@
 """Bench: how well the deviation prior's hyperparameters are learned from n touches.
 
 Run: .venv/bin/python -m pytest tests/bench/test_bench_learning.py -s -o addopts="" -q
-(``LEARNING_DRAWS`` draws per case, default 10).
+(``LEARNING_DRAWS`` draws per case, default 10; ``LEARNING_COUNTS`` the touch counts, default
+"30,60,120"; ``LEARNING_METHODS`` the likelihoods compared, default "ml,reml").
 
 Fields drawn from a known prior (the truth: amplitude, wavelength and noise are defined),
 touched at n = 30, 60 and 120 points scattered over 40 x 30 mm, a fifth of them touched again
@@ -10,7 +11,9 @@ touched at n = 30, 60 and 120 points scattered over 40 x 30 mm, a fifth of them 
 the truth (within 20 %?), whether the truth lies within 2 stated sd (the Laplace sd of the
 log parameters), and whether :func:`learn_prior` found the likelihood's global maximum
 (L-BFGS-B from a 12 x 2 grid of wavelengths and amplitudes, the best kept): a miss is a local
-optimum, not the data.
+optimum, not the data.  Each case is learned by both likelihoods: the marginal one (ML) and
+the restricted one (REML: the offset and the tilts integrated out), each against its own
+global maximum.
 """
 
 from __future__ import annotations
@@ -32,12 +35,13 @@ TRUTHS = (DeviationPrior(amplitude_mm=0.2, wavelength_mm=6.0, sigma_mm=0.002),
           DeviationPrior(amplitude_mm=0.12, wavelength_mm=10.0, sigma_mm=0.002),
           DeviationPrior(amplitude_mm=0.06, wavelength_mm=15.0, sigma_mm=0.002))
 COUNTS = tuple(int(n) for n in os.environ.get("LEARNING_COUNTS", "30,60,120").split(","))
+METHODS = tuple(os.environ.get("LEARNING_METHODS", "ml,reml").split(","))
 
 
-def global_optimum(sites: Sites, dz: np.ndarray, center: np.ndarray) -> tuple[float, np.ndarray]:
-    """The largest log marginal likelihood found from a 12 x 2 grid of starts and its
-    (amplitude, wavelength, noise) (3,) mm."""
-    likelihood = _Likelihood(USER, sites, dz, center)
+def global_optimum(sites: Sites, dz: np.ndarray, center: np.ndarray, method: str) -> tuple[float, np.ndarray]:
+    """The largest log (``method``: marginal or restricted) likelihood found from a 12 x 2 grid
+    of starts and its (amplitude, wavelength, noise) (3,) mm."""
+    likelihood = _Likelihood(USER, sites, dz, center, method)
     b = default_bounds(USER)
     lo = np.log([b.amplitude_mm[0], b.wavelength_mm[0], b.sigma_mm[0]])
     hi = np.log([b.amplitude_mm[1], b.wavelength_mm[1], b.sigma_mm[1]])
@@ -53,37 +57,37 @@ def global_optimum(sites: Sites, dz: np.ndarray, center: np.ndarray) -> tuple[fl
 
 @pytest.mark.timeout(3600)
 def test_hyperparameters_recovered_from_touches():
-    print("\n  n  lambda  A_true  within 20 % (A, lambda, both)  truth within 2 sd  global max found  "
+    print("\nmethod  n  lambda  A_true  within 20 % (A, lambda, both)  truth within 2 sd  global max found  "
           "A ratio (min-max)  lambda ratio (min-max)  median rel sd (A, lambda)")
     summary = {}
-    for n in COUNTS:
-        for truth in TRUTHS:
-            ra, rw, cover, found, sds, glob = [], [], [], [], [], []
-            for seed in range(DRAWS):
-                sites, center, dz = draw(truth, n, 1000 * n + seed, pairs=n // 5)
-                learned = learn_prior(USER, sites, dz, center)
-                got = learned.prior
-                ra.append(got.amplitude_mm / truth.amplitude_mm)
-                rw.append(got.wavelength_mm / truth.wavelength_mm)
-                err = np.abs(np.log([ra[-1], rw[-1]]))
-                sd = learned.log_sd[:2]
-                cover.append(bool(np.all(np.isfinite(sd)) and np.all(err <= 2 * sd)))
-                sds.append(np.expm1(sd))
-                best, where = global_optimum(sites, dz, center)
-                found.append(learned.log_likelihood >= best - 1e-3)
-                glob.append(bool(np.all(np.abs(where[:2] / [truth.amplitude_mm, truth.wavelength_mm] - 1) < 0.2)))
-            a_ok = np.abs(np.array(ra) - 1) < 0.2
-            w_ok = np.abs(np.array(rw) - 1) < 0.2
-            summary[(n, truth.wavelength_mm)] = int((a_ok & w_ok).sum())
-            print(f"{n:4d} {truth.wavelength_mm:6.0f} {truth.amplitude_mm:7.2f}   {int(a_ok.sum()):3d} "
-                  f"{int(w_ok.sum()):3d} {int((a_ok & w_ok).sum()):3d} of {DRAWS}           {sum(cover):3d}            "
-                  f" {sum(found):3d}          {min(ra):.2f}-{max(ra):.2f}          {min(rw):.2f}-{max(rw):.2f}"
-                  f"            {np.nanmedian(np.array(sds)[:, 0]):.2f} {np.nanmedian(np.array(sds)[:, 1]):.2f}"
-                  f"   (the global maximum: both within 20 % in {sum(glob)})",
-                  flush=True)
-    for n in COUNTS:
-        both = sum(v for (m, _), v in summary.items() if m == n)
-        print(f"n = {n}: amplitude and wavelength both within 20 % in {both} of {DRAWS * len(TRUTHS)}")
+    for method, n, truth in ((m, n, t) for m in METHODS for n in COUNTS for t in TRUTHS):
+        ra, rw, cover, found, sds, glob = [], [], [], [], [], []
+        for seed in range(DRAWS):
+            sites, center, dz = draw(truth, n, 1000 * n + seed, pairs=n // 5)
+            learned = learn_prior(USER, sites, dz, center, method=method)
+            got = learned.prior
+            ra.append(got.amplitude_mm / truth.amplitude_mm)
+            rw.append(got.wavelength_mm / truth.wavelength_mm)
+            err = np.abs(np.log([ra[-1], rw[-1]]))
+            sd = learned.log_sd[:2]
+            cover.append(bool(np.all(np.isfinite(sd)) and np.all(err <= 2 * sd)))
+            sds.append(np.expm1(sd))
+            best, where = global_optimum(sites, dz, center, method)
+            found.append(learned.log_likelihood >= best - 1e-3)
+            glob.append(bool(np.all(np.abs(where[:2] / [truth.amplitude_mm, truth.wavelength_mm] - 1) < 0.2)))
+        a_ok = np.abs(np.array(ra) - 1) < 0.2
+        w_ok = np.abs(np.array(rw) - 1) < 0.2
+        summary[(method, n, truth.wavelength_mm)] = int((a_ok & w_ok).sum())
+        print(f"{method:5s} {n:4d} {truth.wavelength_mm:6.0f} {truth.amplitude_mm:7.2f}   {int(a_ok.sum()):3d} "
+              f"{int(w_ok.sum()):3d} {int((a_ok & w_ok).sum()):3d} of {DRAWS}           {sum(cover):3d}            "
+              f" {sum(found):3d}          {min(ra):.2f}-{max(ra):.2f}          {min(rw):.2f}-{max(rw):.2f}"
+              f"            {np.nanmedian(np.array(sds)[:, 0]):.2f} {np.nanmedian(np.array(sds)[:, 1]):.2f}"
+              f"   (the global maximum: both within 20 % in {sum(glob)})",
+              flush=True)
+    for method, n in ((m, n) for m in METHODS for n in COUNTS):
+        both = sum(v for (m, k, _), v in summary.items() if (m, k) == (method, n))
+        print(f"{method}, n = {n}: amplitude and wavelength both within 20 % in {both} of {DRAWS * len(TRUTHS)}")
     # the figures are the result; the one hard promise: more touches never learn worse overall
-    assert sum(v for (m, _), v in summary.items() if m == COUNTS[-1]) >= sum(
-        v for (m, _), v in summary.items() if m == COUNTS[0])
+    for method in METHODS:
+        assert sum(v for (m, k, _), v in summary.items() if (m, k) == (method, COUNTS[-1])) >= sum(
+            v for (m, k, _), v in summary.items() if (m, k) == (method, COUNTS[0]))

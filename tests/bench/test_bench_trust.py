@@ -17,7 +17,10 @@ program's standoff error up to its chord error) and the worst |true deviation| (
 nominal program's).  Counted: runs that call themselves done (no ``needs_attention``) whose
 true worst error exceeds the reported bound, and traces whose model error is not below
 the nominal error.  Oracle: the single-shot field plan for the part's true shortest
-wavelength and amplitude (+ the same 5 verification points): touches vs the sequential's.
+wavelength and amplitude (+ the same 5 verification points): touches vs the sequential's, and
+the parts of it: the stations vs the oracle's, and the sequential's verification touches (the 5
+points and the gap points beside the most surprising stations) vs the oracle's 5; over the parts
+without a tilt and step (on those the loop is to refuse, whatever it touches).
 """
 
 from __future__ import annotations
@@ -81,8 +84,10 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
             v = check.verification
             learned = (check.learned or {}).get("wavelength_mm", {}).get("value", float("nan"))
             over = int((after > np.array(result.trace_bounds_mm)).sum())
-            row = dict(over=over, learned_ratio=learned / wavelength, wavelength=wavelength, seed=seed,
-                       step=seed % 10 == 0, amplitude=amplitude, touches=result.touches, oracle=oracle,
+            stations = len(result.stations.xy)
+            row = dict(over=over, stations=stations, oracle_stations=oracle - VERIFY,
+                       verify=result.touches - stations, learned_ratio=learned / wavelength, wavelength=wavelength,
+                       seed=seed, step=seed % 10 == 0, amplitude=amplitude, touches=result.touches, oracle=oracle,
                        rounds=result.rounds, stopped=result.stopped, learned=learned, bound=check.bound_mm,
                        true=float(after.max()), verified=0.0 if v is None else v.max_abs_residual_mm,
                        attention=check.needs_attention, worse=int((after >= before).sum()), s=elapsed)
@@ -112,4 +117,12 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
               f"{sum(not r['attention'] for r in sub)}/{len(sub)}, "
               f"worst true {max(r['true'] for r in sub) * 1000:.2f} um, touches median "
               f"{np.median([r['touches'] for r in sub]):.0f} (oracle {np.median([r['oracle'] for r in sub]):.0f})")
+    smooth = [r for r in rows if not r["step"]]
+    if smooth:
+        total = np.array([r["touches"] / r["oracle"] for r in smooth])
+        by_station = np.array([r["stations"] / r["oracle_stations"] for r in smooth])
+        print(f"parts without the tilt and step: {len(smooth)}; touches / oracle median {np.median(total):.2f}, "
+              f"max {total.max():.2f}, over 1.3x {int((total > 1.3).sum())}; stations / oracle's stations median "
+              f"{np.median(by_station):.2f}, max {by_station.max():.2f}, over 1.3x {int((by_station > 1.3).sum())}; "
+              f"verification touches median {np.median([r['verify'] for r in smooth]):.0f} (oracle {VERIFY})")
     assert not false_done and worse == 0

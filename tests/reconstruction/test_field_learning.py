@@ -55,11 +55,34 @@ def test_the_kernel_from_its_upper_triangle_is_the_full_matrix_and_the_value_alo
         assert lk.value(t) == lk(t)[0]
 
 
+def test_the_restricted_likelihoods_gradient_and_its_blindness_to_an_offset_and_tilts():
+    sites, center, dz = draw(TRUTH, 30, 1)
+    lk = _Likelihood(USER, sites, dz, center, "reml")
+    theta = np.log([0.1, 12.0, 0.003])
+    assert check_grad(lk.value, lambda t: lk(t)[1], theta) < 1e-4 * np.linalg.norm(lk(theta)[1])
+    for t in (theta, np.log([0.2, 20.0, 0.001]), np.log([0.05, 5.0, 0.01])):
+        assert math.isclose(lk.value(t), lk(t)[0], rel_tol=1e-9)   # the value alone is the value
+    # REML integrates the offset and the tilts out: adding any of them changes nothing, while
+    # the marginal likelihood (their tolerances as prior sd) sees them
+    x = sites.xy - center
+    shifted = dz + 0.3 + 0.01 * x[:, 0] - 0.02 * x[:, 1]
+    assert math.isclose(_Likelihood(USER, sites, shifted, center, "reml").value(theta), lk.value(theta),
+                        rel_tol=1e-9, abs_tol=1e-9)
+    ml = _Likelihood(USER, sites, dz, center)
+    assert _Likelihood(USER, sites, shifted, center).value(theta) > ml.value(theta) + 10.0
+    assert math.isclose(-lk.value(np.log([0.2, 20.0, 0.001])),
+                        log_marginal_likelihood(USER, sites, dz, center, method="reml"))
+    with pytest.raises(LearningError):
+        learn_prior(USER, sites, dz, center, method="map")
+
+
+@pytest.mark.parametrize("method", ["ml", "reml"])
 @pytest.mark.parametrize("seed", [3, 4, 5])
-def test_amplitude_wavelength_and_noise_recovered_within_20_percent_from_60_touches(seed):
+def test_amplitude_wavelength_and_noise_recovered_within_20_percent_from_60_touches(seed, method):
     sites, center, dz = draw(TRUTH, 60, seed, pairs=12)
-    learned = learn_prior(USER, sites, dz, center)
+    learned = learn_prior(USER, sites, dz, center, method=method)
     got = learned.prior
+    assert learned.method == method and learned.as_dict()["method"] == method
     assert abs(got.amplitude_mm / TRUTH.amplitude_mm - 1) < 0.2
     assert abs(got.wavelength_mm / TRUTH.wavelength_mm - 1) < 0.2
     assert abs(got.sigma_mm / TRUTH.sigma_mm - 1) < 0.5   # noise from 12 repeated pairs: a coarser figure
