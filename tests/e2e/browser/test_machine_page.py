@@ -40,9 +40,13 @@ def test_a_technician_homes_jogs_by_keyboard_reads_the_console_and_watches_a_pri
     page.wait_for_timeout(500)
     assert _position(api, made["id"]) == [0.0, 0.0, 0.0]
     page.check(f"{sel} .keyboard-jog")
+    page.wait_for_selector(f"{sel} .jog-xp:enabled")
     page.focus(f"{sel} .jog-pad")
     page.keyboard.press("ArrowRight")
     page.wait_for_selector(f'{sel} .pos:has-text("X 10.000")')
+    # the pad ignores keys while the card shows the machine busy (its jog buttons off): a
+    # status poll sent during the X move may answer after the jog and show it busy a while
+    page.wait_for_selector(f"{sel} .jog-yp:enabled")
     page.keyboard.press("ArrowUp")
     page.wait_for_selector(f'{sel} .pos:has-text("Y 10.000")')
     assert _position(api, made["id"])[:2] == [10.0, 10.0]
