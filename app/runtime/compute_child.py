@@ -99,9 +99,13 @@ def bind_to(server_pid: int, every_s: float = 0.1) -> None:
     fork server outlives its server by as long as its own shutdown takes; so a daemon thread
     watches the server itself: it sleeps on a pidfd of the server (readable when it exits; no
     CPU while it lives), or where pidfds are missing checks the server's pid and start time
-    every ``every_s`` (so a reused pid is not mistaken for it).  Without /proc it does nothing."""
+    every ``every_s`` (so a reused pid is not mistaken for it).  A server already gone when
+    the process binds (it died while this process was being started) ends the process at
+    once.  Without /proc it does nothing."""
     started = start_ticks(server_pid)
     if started is None:
+        if os.path.exists("/proc/self/stat"):  # /proc is there: the server is not
+            os.kill(os.getpid(), signal.SIGKILL)
         return
 
     def watch() -> None:

@@ -30,3 +30,20 @@ def test_a_bound_process_dies_at_once_when_its_server_is_killed():
             if process.poll() is None:
                 process.kill()
                 process.wait()
+
+
+def test_a_process_bound_to_a_server_already_gone_dies_at_once():
+    """A compute process whose server died while it was being started (before it bound
+    itself) does not outlive it."""
+    server = subprocess.Popen(["true"])
+    server.wait()   # reaped: its pid names no process
+    code = (f"import time\nfrom app.runtime.compute_child import bind_to\nbind_to({server.pid})\n"
+            "print('bound', flush=True)\ntime.sleep(120)\n")
+    child = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.wait(timeout=30) == -signal.SIGKILL
+        assert child.stdout is not None and child.stdout.read() == ""
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
