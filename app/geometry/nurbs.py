@@ -36,6 +36,20 @@ class CurveInversion(NamedTuple):
     distance: np.ndarray
 
 
+def rational_derivatives(hom: np.ndarray) -> np.ndarray:
+    """The rational curve's derivatives d^k C / du^k, k = 0..K, from the homogeneous ones
+    ``hom`` (K + 1, m, d + 1) (the weighted point and the weight last): the quotient rule
+    A^(k) = sum_i C(k, i) w^(i) C^(k-i) solved for C^(k) -> (K + 1, m, d)."""
+    a, w = hom[..., :-1], hom[..., -1:]
+    out = np.empty_like(a)
+    for k in range(len(hom)):
+        acc = a[k].copy()
+        for i in range(1, k + 1):
+            acc -= comb(k, i) * w[i] * out[k - i]
+        out[k] = acc / w[0]
+    return out
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=float)
     a.flags.writeable = False
@@ -122,15 +136,7 @@ class NurbsCurve:
     def derivatives(self, u: ArrayLike, order: int = 2) -> np.ndarray:
         """Rational derivatives d^i C / du^i for i = 0..order at ``u`` (k,) -> (order+1, k, d)."""
         uu = self._params(u)
-        hom = np.stack([self._hom_derivative(uu, i) for i in range(order + 1)])
-        a, w = hom[..., :-1], hom[..., -1:]
-        out = np.empty_like(a)
-        for k in range(order + 1):
-            acc = a[k].copy()
-            for i in range(1, k + 1):
-                acc -= comb(k, i) * w[i] * out[k - i]
-            out[k] = acc / w[0]
-        return out
+        return rational_derivatives(np.stack([self._hom_derivative(uu, i) for i in range(order + 1)]))
 
     def _hom_derivative(self, u: np.ndarray, nu: int) -> np.ndarray:
         if nu > self.degree:

@@ -17,11 +17,11 @@ Parameters must lie in their curve's domain (no check).  Units: mm.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from math import comb, factorial
+from math import factorial
 
 import numpy as np
 
-from app.geometry.nurbs import NurbsCurve
+from app.geometry.nurbs import NurbsCurve, rational_derivatives
 
 __all__ = ["CurveBatch", "row_search"]
 
@@ -185,15 +185,7 @@ class CurveBatch:
     def derivatives(self, curve: np.ndarray, u: np.ndarray, order: int = 2) -> np.ndarray:
         """Rational derivatives d^i C / du^i, i = 0..order -> (order + 1, m, d), by the same
         formula as :meth:`NurbsCurve.derivatives`."""
-        hom = self.homogeneous_derivatives(curve, u, order)
-        a, w = hom[..., :-1], hom[..., -1:]
-        out = np.empty_like(a)
-        for k in range(order + 1):
-            acc = a[k].copy()
-            for i in range(1, k + 1):
-                acc -= comb(k, i) * w[i] * out[k - i]
-            out[k] = acc / w[0]
-        return out
+        return rational_derivatives(self.homogeneous_derivatives(curve, u, order))
 
     def curvature(self, derivatives: np.ndarray) -> np.ndarray:
         """Curvature (m,) 1/mm from :meth:`derivatives` (order >= 2), as :meth:`NurbsCurve.curvature`."""
