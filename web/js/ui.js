@@ -140,12 +140,19 @@ function setConnection(state, text) {
   document.body.classList.toggle("is-offline", state === "offline");
 }
 
-// Poll the health endpoint: every 5 s, every second while the API is unreachable.
+// When a request last found the API unreachable (performance.now() ms).
+let lastOfflineAt = -Infinity;
+
+// Poll the health endpoint: every 5 s, every second while the API is unreachable.  An answer
+// to a check sent before a later request failed says nothing about now: it is not shown (the
+// next check, a second later, tells).
 async function checkHealth() {
   let offline = false;
+  const sentAt = performance.now();
   try {
     const r = await fetch("/api/v1/health", { cache: "no-store" });
-    if (r.ok) setConnection("online", "API online");
+    if (sentAt < lastOfflineAt) offline = true;
+    else if (r.ok) setConnection("online", "API online");
     else setConnection("degraded", `API error ${r.status}`);
   } catch {
     offline = true;
@@ -160,7 +167,10 @@ export function initPage(active) {
   const banner = el("div", { id: "offline-banner", role: "alert" },
     "Connection to the Conforma API lost — retrying. Actions are paused until it is back.");
   document.body.insertBefore(banner, document.querySelector("main"));
-  document.addEventListener("conforma:offline", () => setConnection("offline", "API unreachable"));
+  document.addEventListener("conforma:offline", () => {
+    lastOfflineAt = performance.now();
+    setConnection("offline", "API unreachable");
+  });
   document.addEventListener("conforma:online", () => setConnection("online", "API online"));
   checkHealth();
   document.addEventListener("keydown", (e) => { if (e.altKey && (e.key === "s" || e.key === "S")) { e.preventDefault(); stopAll(); } });
