@@ -21,6 +21,7 @@ from .params import (
 )
 from .simulate import (
                      LayerRecord,
+                     LayerSolve,
                      SimulationResult,
                      estimate_bytes,
                      next_layer,
@@ -36,7 +37,7 @@ from .targets import (
 
 __all__ = [
     "ControllerParams", "DropKernel", "DropParams", "FlowParams", "JettingError", "JettingParams",
-    "LayerDecision", "LayerRecord", "PlantParams", "SimulationResult", "SurfaceMetrics", "Target",
+    "LayerDecision", "LayerRecord", "LayerSolve", "PlantParams", "SimulationResult", "SurfaceMetrics", "Target",
     "TargetSpec", "drop_kernel", "estimate_bytes", "next_layer", "npz_arrays", "npz_bytes",
     "pattern_png", "png_pattern", "simulate", "surface_metrics", "target_from_mask",
     "target_from_png", "target_from_rings", "target_from_spec",

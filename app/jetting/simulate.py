@@ -23,17 +23,24 @@ WORK_ARRAYS_PER_CELL = 40  # float64 temporaries of one layer (flow, transport, 
 
 
 @dataclass(frozen=True)
-class LayerRecord:
-    """One printed layer: its metrics (true heights), drops printed, controller figures."""
+class LayerSolve:
+    """A printed layer's own figures: its number, the drops printed and the controller's
+    solve (ms, iterations, integer gap, KKT residual; 0 open loop)."""
 
     layer: int
-    metrics: SurfaceMetrics
     drops: int
     solve_ms: float
     solve_cpu_ms: float
     iterations: int
     integer_gap: float
     kkt_residual: float
+
+
+@dataclass(frozen=True)
+class LayerRecord(LayerSolve):
+    """One printed layer: its figures (:class:`LayerSolve`) and its metrics (true heights)."""
+
+    metrics: SurfaceMetrics
 
     def as_dict(self) -> dict[str, float | int]:
         out: dict[str, float | int] = {"layer": self.layer, **self.metrics.as_dict()}

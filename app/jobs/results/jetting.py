@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict
 from pydantic.dataclasses import dataclass
 
 from app.jetting.metrics import SurfaceMetrics
+from app.jetting.simulate import LayerSolve
 from app.jobs.results.models import KindResult
 
 _STRICT = ConfigDict(extra="forbid")  # a stored layer with an unknown key is an error, as in KindResult
@@ -30,18 +31,10 @@ class JettingGrid(BaseModel):
 
 
 @dataclass(frozen=True, config=_STRICT)
-class JettingLayer(SurfaceMetrics):
+class JettingLayer(LayerSolve, SurfaceMetrics):
     """One printed layer (:meth:`app.jetting.simulate.LayerRecord.as_dict`): its surface
-    metrics (the core's :class:`~app.jetting.metrics.SurfaceMetrics`, um), drops fired and the
-    controller's solve (ms, iterations, integer gap, KKT residual)."""
-
-    layer: int
-    drops: int
-    solve_ms: float
-    solve_cpu_ms: float
-    iterations: int
-    integer_gap: float
-    kkt_residual: float
+    metrics (the core's :class:`~app.jetting.metrics.SurfaceMetrics`, um) and its own figures
+    (the core's :class:`~app.jetting.simulate.LayerSolve`: drops, the controller's solve)."""
 
 
 class JettingResult(KindResult):
