@@ -101,7 +101,9 @@ def bind_to(server_pid: int, every_s: float = 0.1) -> None:
     CPU while it lives), or where pidfds are missing checks the server's pid and start time
     every ``every_s`` (so a reused pid is not mistaken for it).  A server already gone when
     the process binds (it died while this process was being started) ends the process at
-    once.  Without /proc it does nothing."""
+    once.  Without /proc it does nothing.  Bind before capping the address space
+    (:func:`process_limits`): a thread whose start-up meets the cap dies before it reports
+    started, and ``Thread.start`` waits for that report forever."""
     started = start_ticks(server_pid)
     if started is None:
         if os.path.exists("/proc/self/stat"):  # /proc is there: the server is not
@@ -249,9 +251,9 @@ def serve_jobs(settings: Settings, conn: Any, server_pid: int | None = None) -> 
     process that owns the pool: :func:`bind_to`), then jobs from ``conn`` (a pipe end) until
     it sends None or closes.  After each job it sends its report (:meth:`ChildRuntime.report`
     plus ``fit``: False when it should not serve another job)."""
-    process_limits(_vm_size_bytes() + int((settings.job_memory_mb + settings.compute_recycle_mb) * MIB))
     if server_pid is not None:
-        bind_to(server_pid)
+        bind_to(server_pid)  # before the cap (see bind_to)
+    process_limits(_vm_size_bytes() + int((settings.job_memory_mb + settings.compute_recycle_mb) * MIB))
     threadpool_limits(limits=settings.blas_threads)  # once per process, never inside the core
     load_kinds(settings.job_plugins.split(","))
     runtime = ChildRuntime(settings)

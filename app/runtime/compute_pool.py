@@ -251,13 +251,14 @@ class ComputePool:
                 ended.append(member)
             waiting = [m for m in self._members if not m.busy] if len(self._members) > self.keep else []
             self._shrinker = None
+        pids = [m.pid for m in ended]  # read before stop(): a stopped member's process is closed
         for member in ended:
             log.info("compute process %s ended: idle %.0f s beyond the %d kept", member.pid, now - member.last_used,
                      self.keep)
             member.stop()
         if waiting:  # extras that are idle, not for long enough yet
             self._shrink_later(max(0.1, EXTRA_IDLE_S - (now - max(m.last_used for m in waiting))))
-        return [m.pid for m in ended]
+        return pids
 
     def discard(self, member: Member, wait_s: float = 5.0) -> int | None:
         """Forget ``member`` (killed, crashed, or unusable): SIGKILL it if it still runs;

@@ -37,8 +37,8 @@ def _child(conn: Any, memory_bytes: int, server_pid: int, fn: Callable[..., Any]
     """The child's body: limits, then ``fn(*args)``; sends ("ok", result) or ("error", fields)."""
     from app.runtime.compute_child import _vm_size_bytes, bind_to, process_limits
 
+    bind_to(server_pid)  # before the cap: the lifeline thread's stack and arena count in the size at start
     process_limits(_vm_size_bytes() + memory_bytes)
-    bind_to(server_pid)
     try:
         answer: tuple[str, Any] = ("ok", fn(*args))
     except MemoryError:
