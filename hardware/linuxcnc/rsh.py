@@ -67,16 +67,29 @@ class RshSession:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         session = cls(sock, timeout_s)
         try:
-            hello = session.request(f"hello {connect_pw} {client} 1.0")
-            if not hello.upper().startswith("HELLO ACK"):
-                raise LinkError("linuxcncrsh refused the connect password", field="connect_pw")
-            session.server = hello[len("HELLO ACK"):].strip()
+            session.server = session._hello(connect_pw, client)
             session.request("set echo off")       # answered by its echo
             session.set("verbose", "on")
         except Exception:
             session.close()
             raise
         return session
+
+    def _hello(self, connect_pw: str, client: str, retries: int = 5) -> str:
+        """Say hello; returns what follows ``HELLO ACK`` (the server's name and version).
+        ``HELLO NAK`` is a wrong password.  Any other reply is another session's, which
+        linuxcncrsh now and then hands over while sessions talk at once (seen under load as a
+        connect refused with the right password): hello is sent again, as ``get`` is."""
+        reply = ""
+        for attempt in range(retries + 1):
+            reply = self.request(f"hello {connect_pw} {client} 1.0")
+            head = reply.upper()
+            if head.startswith("HELLO ACK"):
+                return reply[len("HELLO ACK"):].strip()
+            if head.startswith("HELLO NAK"):
+                raise LinkError("linuxcncrsh refused the connect password", field="connect_pw")
+            time.sleep(0.002 * (attempt + 1))
+        raise LinkError(f"linuxcncrsh answered hello with {reply[:60]!r} {retries + 1} times", field="port")
 
     # ------------------------------------------------------------------ transport
     def _read_line(self, timeout_s: float) -> str:
