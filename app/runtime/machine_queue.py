@@ -209,8 +209,8 @@ def resume_preview(runtime: Runtime, job: Job, row: Any) -> dict[str, Any]:
     state = job.program_state or {}
     total = state.get("total")
     machine = runtime.machines.get(row.id)
-    gap = getattr(machine, "interrupted_program", None)
-    if job.kind == "print" and machine is not None and gap is not None and hasattr(machine, "locate_resume"):
+    gap = machine.interrupted_program if machine is not None else None
+    if job.kind == "print" and gap is not None and isinstance(machine, SerialMachine):
         with hardware_errors():
             if machine.state == "disconnected" or machine.link_lost:
                 runtime.machines.connect(row)
