@@ -82,6 +82,7 @@ def test_a_print_whose_link_drops_shows_where_linuxcnc_stopped_and_resumes_from_
     assert done["status"] == "succeeded", done["error"]
     assert done["result"]["executed"] == done["result"]["total"] == len(lines)
     assert done["program_state"]["resumed_from"] == gap.acked_index and live.interrupted_program is None
+    assert done["program_state"]["resume_location"]["start"] == gap.acked_index
     status = client.get(f"/api/v1/machines/{machine_id}", headers=OP).json()
     assert status["program"] is None and status["position"] == pytest.approx([9.0, 5.0, 5.0], abs=1e-6)
 
