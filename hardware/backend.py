@@ -20,7 +20,8 @@ from collections.abc import Callable, Iterable
 from typing import Any, Protocol, runtime_checkable
 
 from .console_log import ConsoleLog
-from .machine_types import Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
+from .machine_state import InterruptedProgram
+from .machine_types import Identity, MachineProfile, ProbeResult, StreamReport
 from .program_clock import ProgramClock
 
 __all__ = ["Machine"]
@@ -76,7 +77,10 @@ class Machine(Protocol):
     def estopped(self) -> bool: ...
 
     @property
-    def interrupted_program(self) -> _Interrupted | None: ...
+    def interrupted_program(self) -> InterruptedProgram | None:
+        """What is known of the program a failure stopped, recorded when it was lost and
+        kept in the machine state (``hardware.machine_state.InterruptedProgram``, one type for
+        every backend); None when no program waits for a resume."""
 
     @property
     def acked_line_no(self) -> int | None: ...
@@ -109,9 +113,17 @@ class Machine(Protocol):
     def stream(self, lines: Iterable[str], on_progress: Callable[[int, int], None] | None = None,
                start_line: int = 0) -> StreamReport: ...
 
-    def resume_line(self) -> int: ...
+    def resume_line(self) -> int:
+        """After reconnecting: the first command of the interrupted program not known to be
+        executed (what its record tells, asking the controller where it must)."""
 
-    def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None: ...
+    def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None:
+        """Before connecting in a new process: take over what an earlier one recorded
+        (``InterruptedProgram.adopted``)."""
+
+    def program_status(self) -> dict[str, Any] | None:
+        """The program on this machine, running or interrupted
+        (``hardware.machine_state.MachineState.program_status``); None when neither."""
 
     def pause(self) -> None: ...
 

@@ -72,7 +72,7 @@ from .machine_probe import Prober
 from .machine_resume import ResumeHelper
 from .machine_state import MachineState, StateReadout, base_status
 from .machine_stream import ProgramStream
-from .machine_types import STATES, Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
+from .machine_types import STATES, Identity, MachineProfile, ProbeResult, StreamReport
 from .program_clock import ProgramClock
 from .resume import ResumeLocation
 
@@ -84,12 +84,13 @@ class Machine(StateReadout[Link]):
     for a second caller); pause/resume/cancel/stop/status work from any thread.
 
     Composed of collaborators, each built with what it uses: ``machine_state`` (link, state,
-    claim, cancel and emergency-stop flags, progress: ``hardware.machine_state``, read through
-    ``StateReadout``), ``commands`` (commands and positions over the link, the controller's
-    lock: ``hardware.machine_host``), ``grbl`` (boot, build info, unlock, jog:
-    ``hardware.machine_grbl``), ``output_guard`` (``safe_off``: ``hardware.machine_outputs``),
-    ``prober`` (``hardware.machine_probe``), ``resumer`` (the interrupted program:
-    ``hardware.machine_resume``) and ``programs`` (streaming: ``hardware.machine_stream``).
+    claim, cancel and emergency-stop flags, progress, the interrupted program's record:
+    ``hardware.machine_state``, read through ``StateReadout``), ``commands`` (commands and
+    positions over the link, the controller's lock: ``hardware.machine_host``), ``grbl``
+    (boot, build info, unlock, jog: ``hardware.machine_grbl``), ``output_guard``
+    (``safe_off``: ``hardware.machine_outputs``), ``prober`` (``hardware.machine_probe``),
+    ``resumer`` (resuming the interrupted program: ``hardware.machine_resume``) and
+    ``programs`` (streaming: ``hardware.machine_stream``).
     Its public calls delegate to them."""
 
     def __init__(self, url: str, dialect: str = DEFAULT_DIALECT, profile: MachineProfile | None = None,
@@ -126,11 +127,6 @@ class Machine(StateReadout[Link]):
     def acked_line_no(self) -> int | None:
         """The firmware's line number of the last acknowledged command."""
         return self.programs.acked_line_no
-
-    @property
-    def interrupted_program(self) -> _Interrupted | None:
-        """What is known of a program that stopped on a link failure (``resume_line``)."""
-        return self.resumer.interrupted
 
     @property
     def last_preamble(self) -> list[str]:
@@ -191,7 +187,7 @@ class Machine(StateReadout[Link]):
         try:
             banner = self.grbl.await_boot() if self.rules.boot_banner else self.grbl.await_quiet()
             reset = any(isinstance(e, StartBanner) for e in banner)
-            gap = self.resumer.interrupted
+            gap = self.machine_state.interrupted
             if gap is not None and reset:
                 gap.reset = True
             if self.rules.line_numbers and (gap is None or gap.reset):

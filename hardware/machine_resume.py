@@ -1,10 +1,11 @@
 """Resume support of the serial machine: :class:`ResumeHelper`, built with the machine's
 ``SerialCommands``, its ``GrblControl`` (how many moves the controller may hold) and its
-``OutputGuard`` (``safe_off`` before a program).  It keeps what is known of an interrupted
-program, settles it on reconnect, replays the modal state before a resumed stream, bounds
-what really moved when a controller reset (``ok`` means planned), locates the resume point
-from the controller's position or its reports, and drains the lines a controller still runs
-after it rejected one."""
+``OutputGuard`` (``safe_off`` before a program).  It reads and refines what is known of an
+interrupted program (the ``InterruptedProgram`` kept in the machine state), settles it on
+reconnect, replays the modal state before a resumed stream, bounds what really moved when a
+controller reset (``ok`` means planned), locates the resume point from the controller's
+position or its reports, and drains the lines a controller still runs after it rejected
+one."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ from .link import PendingCommand
 from .machine_grbl import GrblControl
 from .machine_host import SerialCommands
 from .machine_outputs import OutputGuard
-from .machine_types import ReportEvidence, _Interrupted
+from .machine_state import InterruptedProgram
+from .machine_types import ReportEvidence
 from .resume import (
     POSITION_TOLERANCE_MM,
     ReportedResume,
@@ -45,7 +47,6 @@ class ResumeHelper:
         self.commands = commands
         self.grbl = grbl
         self.outputs = outputs
-        self.interrupted: _Interrupted | None = None  # what is known of the program a failure stopped
         self.program: list[str] | None = None  # the interrupted program's commands (locate_resume)
         self.last_preamble: list[str] = []  # what the last stream sent before its first command
         self.rejected_lines: list[int] = []  # command indices the controller rejected
@@ -54,18 +55,28 @@ class ResumeHelper:
         self.stream_started: float | None = None  # time.monotonic() when the last stream started
         self.stream_origin: tuple[float, float, float] | None = None  # where the tool stood before it, mm
 
+    @property
+    def interrupted(self) -> InterruptedProgram | None:
+        """What is known of the program a failure stopped (``MachineState.interrupted``)."""
+        return self.commands.state.interrupted
+
+    @interrupted.setter
+    def interrupted(self, gap: InterruptedProgram | None) -> None:
+        self.commands.state.interrupted = gap
+
     def resume_line(self) -> int:
-        """After reconnecting: index of the first command not known to be executed."""
+        """After reconnecting: index of the first command not known to be executed: what
+        the record tells alone (``InterruptedProgram.known_resume``), else the commands in
+        flight that the firmware's line number says it took."""
         gap = self.interrupted
         if gap is None:
             raise MachineStateError("no interrupted program to resume", field="state")
         link = self.commands.state.link
         if link is None:
             raise MachineStateError("connect before resuming", field="state", value="disconnected")
-        if self.commands.rules.resets_on_connect or gap.reset:
-            return gap.moved_index if gap.moved_index is not None else gap.acked_index
-        if not gap.inflight:
-            return gap.acked_index
+        known = gap.known_resume(self.commands.rules.resets_on_connect)
+        if known is not None:
+            return known
         first_line = gap.inflight[0][0]
         assert first_line is not None, "a controller numbering lines numbered every line sent"
         last = link.sync_line_number(first_line)
@@ -84,10 +95,7 @@ class ResumeHelper:
         if self.commands.state.link is not None:
             raise MachineStateError("adopt an interrupted program before connecting", field="state",
                                     value=self.commands.state.state)
-        inflight: list[tuple[int | None, int]] = [] if acked_line_no is None else \
-            [(acked_line_no + 1 + k, acked_index + k) for k in range(total - acked_index)]
-        self.interrupted = _Interrupted(total, acked_index, acked_line_no, inflight,
-                                        reset=acked_line_no is None)
+        self.interrupted = InterruptedProgram.adopted(total, acked_index, acked_line_no)
 
     def settle_on_connect(self, reset: bool) -> None:
         """Once connected (``reset``: the controller announced a restart): a controller that
@@ -116,20 +124,9 @@ class ResumeHelper:
         planner bound or a located resume; a Marlin that kept running: once the reconnect
         settled it by line numbers), else None.  The interrupted program waits for an
         operator to resume (``stream(start_line=...)``) or abandon it; None when neither."""
-        running = self.commands.state.running_program()
-        if running is not None:
-            return running
-        gap = self.interrupted
-        if gap is None:
-            return None
         located = self.last_resume
-        if located is not None:
-            resume: int | None = located.start
-        elif self.commands.rules.resets_on_connect or gap.reset:
-            resume = gap.moved_index if gap.moved_index is not None else gap.acked_index
-        else:
-            resume = None if gap.inflight else gap.acked_index
-        return {"state": "interrupted", "line": gap.acked_index, "total": gap.total, "resume_line": resume}
+        return self.commands.state.program_status(self.commands.rules.resets_on_connect,
+                                                  located.start if located is not None else None)
 
     def replay_modes(self, commands: list[str], start_line: int) -> None:
         """Before a program's first command: every process output off (``safe_off``), so a

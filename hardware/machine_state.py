@@ -4,22 +4,27 @@ One object per machine holds its open link, the state machine (disconnected | id
 printing | paused | error), the one-operation-at-a-time rule (an operation claims the
 machine: ``MachineBusy`` while another holds it, ``MachineStateError`` when it is
 disconnected or in error, and releases it with the state it leaves), the cancel and
-emergency-stop flags and the running program's progress.  The backends and their
-collaborators receive it in their constructors; none reaches into another's attributes.
+emergency-stop flags, the running program's progress and, once a program is lost, what is
+known of it (:class:`InterruptedProgram`, one record type for every backend).  The backends
+and their collaborators receive it in their constructors; none reaches into another's
+attributes.
 
 The checks both backends make before an operation (``require``, ``require_stoppable``,
-``connected``) and the status both report (``base_status``) live here too.
+``connected``), the status both report (``base_status``, ``program_status``) and
+the part of a resume an interrupted program's record tells alone
+(``InterruptedProgram.known_resume``) live here too.
 """
 
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
 from .errors import MachineBusy, MachineStateError
-from .machine_types import Identity
+from .machine_types import Identity, ReportEvidence
 
-__all__ = ["MachineState", "StateReadout", "base_status", "connected"]
+__all__ = ["InterruptedProgram", "MachineState", "StateReadout", "base_status", "connected"]
 
 
 class _Health(Protocol):
@@ -38,6 +43,54 @@ def connected(link: _Link | None) -> _Link:
     return link
 
 
+@dataclass
+class InterruptedProgram:
+    """What a backend knows of a program it lost (a dropped link; on the serial link also a
+    rejected line), recorded at that moment and kept in ``MachineState.interrupted`` until
+    the next program starts:
+
+    * ``total`` commands; commands ``[0, acked_index)`` known processed (serial: acknowledged;
+      LinuxCNC: before the file line its ``program_line`` reported running);
+    * ``acked_line_no``: the firmware's line number of the last acknowledged command (Marlin
+      numbers the lines it receives; None where no line is numbered on the wire);
+    * ``inflight``: (line number, command index) of the commands sent but not acknowledged;
+    * ``reset``: the controller restarted (its queue and line numbering are gone);
+    * ``moved_index``: commands ``[0, moved_index)`` known to have *moved* (a serial ``ok``
+      only means planned; LinuxCNC's ``program_line`` is the line in motion); None: not bounded;
+    * ``report``: the last real position the controller reported while streaming
+      (``hardware.reports``; serial only);
+    * ``program_file``: the file the controller itself ran (LinuxCNC: the modal preamble,
+      then the commands from the start line); None when the host sent the lines one by one."""
+
+    total: int
+    acked_index: int
+    acked_line_no: int | None
+    inflight: list[tuple[int | None, int]]
+    reset: bool
+    moved_index: int | None = None
+    report: ReportEvidence | None = None
+    program_file: str | None = None
+
+    @classmethod
+    def adopted(cls, total: int, acked_index: int, acked_line_no: int | None) -> InterruptedProgram:
+        """What an earlier process recorded (a job's ``program_state``), taken over by a new
+        one: commands ``[0, acked_index)`` processed, the last of them numbered
+        ``acked_line_no`` and the later ones numbered on from it (the controller is asked which
+        of them it took); without a line number the controller's queue counts as gone."""
+        inflight: list[tuple[int | None, int]] = [] if acked_line_no is None else \
+            [(acked_line_no + 1 + k, acked_index + k) for k in range(total - acked_index)]
+        return cls(int(total), int(acked_index), acked_line_no, inflight, reset=acked_line_no is None)
+
+    def known_resume(self, resets_on_connect: bool = False) -> int | None:
+        """The first command a resume sends when this record alone tells it: after a reset
+        (``resets_on_connect``: the controller restarts whenever the host connects) the
+        first command not known to have moved; with nothing in flight the first not known
+        processed; None while commands in flight wait for the controller's line numbers."""
+        if resets_on_connect or self.reset:
+            return self.moved_index if self.moved_index is not None else self.acked_index
+        return None if self.inflight else self.acked_index
+
+
 class MachineState(Generic[L]):
     """A machine's link, state, claim, flags and progress (see the module docstring).
 
@@ -51,6 +104,7 @@ class MachineState(Generic[L]):
         self.cancel_requested = False
         self.estopped = False  # after an emergency stop, until the next connect
         self.progress: tuple[int, int] | None = None  # (executed, total) of the running program
+        self.interrupted: InterruptedProgram | None = None  # the program a failure stopped, until the next
         self._error_when_lost = error_when_lost
 
     @property
@@ -122,6 +176,28 @@ class MachineState(Generic[L]):
         self.estopped = True
         return link
 
+    def program_started(self, start_line: int, total: int) -> None:
+        """A program's run begins (the machine claimed): no cancel pending, the interrupted
+        program it may resume is forgotten, progress at ``start_line`` of ``total``."""
+        self.cancel_requested = False
+        self.interrupted = None
+        self.progress = (start_line, total)
+
+    def program_status(self, resets_on_connect: bool = False, located: int | None = None) -> dict[str, Any] | None:
+        """The program on this machine: while it runs ``running_program``; once interrupted
+        ``{"state": "interrupted", "line", "total", "resume_line"}``: commands known
+        processed, of the total, and the first command a resume sends: ``located`` when the
+        backend located it, else what the record tells alone (``known_resume``; None: the
+        controller is asked).  None when there is neither."""
+        running = self.running_program()
+        if running is not None:
+            return running
+        gap = self.interrupted
+        if gap is None:
+            return None
+        resume = located if located is not None else gap.known_resume(resets_on_connect)
+        return {"state": "interrupted", "line": gap.acked_index, "total": gap.total, "resume_line": resume}
+
     def running_program(self) -> dict[str, Any] | None:
         """``{"state": "printing"|"paused", "line", "total"}`` while a program runs
         (commands acknowledged so far, of the total), else None."""
@@ -134,7 +210,7 @@ class MachineState(Generic[L]):
 
 class StateReadout(Generic[L]):
     """What every backend reports of its ``MachineState`` (built with it, read only here):
-    ``link``, ``state``, ``link_lost``, ``estopped``, ``progress``."""
+    ``link``, ``state``, ``link_lost``, ``estopped``, ``progress``, ``interrupted_program``."""
 
     def __init__(self, machine_state: MachineState[L]) -> None:
         self.machine_state = machine_state
@@ -164,6 +240,11 @@ class StateReadout(Generic[L]):
     def progress(self) -> tuple[int, int] | None:
         """(executed, total) commands of the running (or last) program."""
         return self.machine_state.progress
+
+    @property
+    def interrupted_program(self) -> InterruptedProgram | None:
+        """What is known of the program a failure stopped (None: none waits for a resume)."""
+        return self.machine_state.interrupted
 
 
 def base_status(machine_state: MachineState[Any], dialect: str, url: str, identity: Identity | None,

@@ -1,7 +1,8 @@
 """Programs on the serial machine: :class:`ProgramStream` sends a program's commands over the
 link, windowed (every answer seen before the next line), with pause (a gate the sending loop
 waits at, plus grbl's feed hold), resume and cancel from any thread, and records what is
-known executed when the link fails or the controller rejects a line (``ResumeHelper``).
+known executed when the link fails or the controller rejects a line (an ``InterruptedProgram``
+in the machine state, which ``ResumeHelper`` reads and refines).
 Built with the machine's ``SerialCommands``, its ``ResumeHelper`` and its program clock."""
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from .link import PendingCommand
 from .machine_args import program_commands
 from .machine_host import SerialCommands
 from .machine_resume import ResumeHelper
-from .machine_types import StreamReport, _Interrupted
+from .machine_state import InterruptedProgram
+from .machine_types import StreamReport
 from .program_clock import ProgramClock
 
 __all__ = ["REPORT_INTERVAL_S", "ProgramStream"]
@@ -51,16 +53,14 @@ class ProgramStream:
         commands = program_commands(lines, start_line)
         total = len(commands)
         c.claim_motion("printing", "start a program")
-        st.cancel_requested = False
+        st.program_started(start_line, total)
         self.gate.set()
-        r.interrupted = None
         r.last_resume = None  # located for the program interrupted before this one
         link = c.link
         started = time.monotonic()
         inflight: deque[tuple[int, PendingCommand]] = deque()
         executed = start_line
         acked_line: int | None = None
-        st.progress = (executed, total)
         self.clock.start(start_line)
         seqs: dict[int, int] = {}  # command index -> completion order (Link.status_marks)
         r.note_stream_start(start_line)  # where the tool stands, for reports (hardware.reports)
@@ -68,7 +68,7 @@ class ProgramStream:
             r.replay_modes(commands, start_line)
         except HardwareError as exc:
             if isinstance(exc, LinkError):  # nothing of the program was sent: it resumes where it was to start
-                r.interrupted = _Interrupted(total, start_line, None, [], True, start_line)
+                st.interrupted = InterruptedProgram(total, start_line, None, [], True, start_line)
                 r.program = list(commands)
             st.release("error" if not link.healthy else "idle")
             raise
@@ -114,22 +114,22 @@ class ProgramStream:
                 executed, acked_line = index_done + 1, answer.line_no
                 seqs[index_done] = pending.seq
             st.progress = (executed, total)
-            r.interrupted = _Interrupted(total, executed, acked_line,
-                                         [(p.line_no, i) for i, p in inflight],
-                                         isinstance(exc, FirmwareReset),
-                                         r.moved_bound(commands, executed, seqs),
-                                         report=r.report_evidence(seqs, start_line, exc))
+            st.interrupted = InterruptedProgram(total, executed, acked_line,
+                                                [(p.line_no, i) for i, p in inflight],
+                                                isinstance(exc, FirmwareReset),
+                                                r.moved_bound(commands, executed, seqs),
+                                                report=r.report_evidence(seqs, start_line, exc))
             st.release("error")
             exc.resume_line = executed  # lower bound; resume_line() refines it
             raise
         except FirmwareError as exc:
             executed = r.drain_after_rejection(exc, inflight, executed)
             st.progress = (executed, total)
-            r.interrupted = _Interrupted(total, executed, acked_line, [], False, executed)
+            st.interrupted = InterruptedProgram(total, executed, acked_line, [], False, executed)
             st.release("error" if not link.healthy or st.estopped else "idle")
             raise
         except HardwareError:
-            r.interrupted = _Interrupted(total, executed, acked_line, [], True)
+            st.interrupted = InterruptedProgram(total, executed, acked_line, [], True)
             st.release("error" if not link.healthy or st.estopped else "idle")
             raise
         finally:

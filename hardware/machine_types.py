@@ -1,4 +1,5 @@
-"""Value types of ``hardware.machine``: profile, identity, probe result, stream report."""
+"""Value types of ``hardware.machine``: profile, identity, probe result, stream report, the
+last position reported while streaming."""
 
 from __future__ import annotations
 
@@ -79,17 +80,6 @@ class StreamReport:
     cancelled: bool
     elapsed_s: float
     link_stats: dict[str, int] = field(default_factory=dict)
-
-
-@dataclass
-class _Interrupted:
-    total: int
-    acked_index: int                      # commands [0, acked_index) known processed
-    acked_line_no: int | None
-    inflight: list[tuple[int | None, int]]  # (line number, command index)
-    reset: bool
-    moved_index: int | None = None        # commands [0, moved_index) known to have moved
-    report: ReportEvidence | None = None  # the last real position reported before the failure
 
 
 @dataclass(frozen=True)

@@ -209,8 +209,8 @@ def resume_preview(runtime: Runtime, job: Job, row: Any) -> dict[str, Any]:
     state = job.program_state or {}
     total = state.get("total")
     machine = runtime.machines.get(row.id)
-    gap = getattr(machine, "interrupted_program", None)
-    if job.kind == "print" and machine is not None and gap is not None and hasattr(machine, "locate_resume"):
+    gap = machine.interrupted_program if machine is not None else None
+    if job.kind == "print" and gap is not None and isinstance(machine, SerialMachine):
         with hardware_errors():
             if machine.state == "disconnected" or machine.link_lost:
                 runtime.machines.connect(row)
@@ -220,7 +220,8 @@ def resume_preview(runtime: Runtime, job: Job, row: Any) -> dict[str, Any]:
     else:
         start = int(state.get("executed", 0))
         out = {"start": start, "basis": "recorded count", "repeats": 0, "repeat_moves": 0, "skipped": 0,
-               "detail": "this process does not hold the interrupted program: the resume asks the machine again",
+               "detail": "no resume located on this machine (a LinuxCNC machine, or a process that does not hold "
+                         "the interrupted program): the resume asks the machine again",
                "summary": f"resumes at command {start + 1} as recorded (the machine is asked again when it "
                           "resumes; it never starts later than what is known to have run)"}
     return {"job_id": job.id, "machine_id": row.id, "total": total, "line": int(out["start"]) + 1, **out}

@@ -32,13 +32,14 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from ..console_log import ConsoleLog
 from ..dialects import LINUXCNC_DISPENSE
 from ..errors import FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
 from ..machine_args import check_tool, probe_down, probe_missed, probe_toward, program_commands, straight_move
-from ..machine_state import MachineState, StateReadout, base_status, connected
-from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport, _Interrupted
+from ..machine_state import InterruptedProgram, MachineState, StateReadout, base_status, connected
+from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport
 from ..program_clock import ProgramClock
 from .rsh import RshRejected, RshSession
 from .url import parse_url, passwords
@@ -52,8 +53,8 @@ MAX_TOOL = 99  # the highest tool number select_tool accepts
 class LinuxCNCMachine(StateReadout[RshSession]):
     """See the module docstring.  Blocking calls hold the machine (``MachineBusy`` for a
     second caller); pause/resume/cancel/stop/status work from any thread.  The command
-    session, state, claim, flags and progress live in ``machine_state``
-    (``hardware.machine_state``, kept as the serial machine keeps its own)."""
+    session, state, claim, flags, progress and the interrupted program's record live in
+    ``machine_state`` (``hardware.machine_state``, kept as the serial machine keeps its own)."""
 
     dialect = "linuxcnc"
 
@@ -72,7 +73,6 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         super().__init__(MachineState(error_when_lost=("idle", "busy", "printing", "paused")))
         self._stop_link: RshSession | None = None
         self.identity: Identity | None = None
-        self._interrupted: tuple[int, int] | None = None   # (total, executed) at the loss
         self._probe_seq = 0
         self.last_preamble: list[str] = []  # the modal replay written before a resumed program
         self.console = ConsoleLog()  # MDI commands sent and the controller's answers, across reconnects
@@ -329,11 +329,10 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         total = len(commands)
         st = self.machine_state
         st.claim("printing")
-        st.cancel_requested = False
-        self._interrupted = None
-        st.progress = (start_line, total)
+        st.program_started(start_line, total)
         self.clock.start(start_line)
         started = time.monotonic()
+        path: str | None = None
         try:
             if start_line == total:
                 executed, cancelled = total, False
@@ -344,8 +343,11 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                 executed, cancelled = run_program(self, path, start_line, total, on_progress,
                                                   skip=len(preamble))
         except LinkError as exc:
-            executed = st.progress[0]
-            self._interrupted = (total, executed)
+            # what the controller told before the loss: the commands before the line in
+            # motion (program_line) are done; no line is numbered on the wire, nothing is in flight
+            executed, _ = st.progress or (start_line, total)
+            st.interrupted = InterruptedProgram(total, executed, None, [], reset=False, moved_index=executed,
+                                                program_file=path)
             self._abort_best_effort()
             st.release("error")
             exc.resume_line = executed
@@ -363,29 +365,31 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         """LinuxCNC numbers no lines on the wire (progress is its ``program_line``)."""
         return None
 
-    @property
-    def interrupted_program(self) -> _Interrupted | None:
-        """What is known of a program whose link was lost: commands [0, acked_index) done."""
-        if self._interrupted is None:
-            return None
-        total, executed = self._interrupted
-        return _Interrupted(total, executed, None, [], False, executed)
-
     def adopt_interrupted(self, total: int, acked_index: int, acked_line_no: int | None) -> None:
-        """A new process resumes a program an earlier one recorded (before connecting)."""
-        self._interrupted = (int(total), int(acked_index))
+        """A new process resumes a program an earlier one recorded (before connecting):
+        ``InterruptedProgram.adopted``; LinuxCNC numbers no line on the wire, so
+        ``acked_line_no`` (always None here) is not used."""
+        self.machine_state.interrupted = InterruptedProgram.adopted(total, acked_index, None)
 
     def resume_line(self) -> int:
-        """After reconnecting: the first command not known to be executed.  A program the
-        controller still runs is aborted first."""
-        if self._interrupted is None:
+        """After reconnecting: the first command not known to be executed, as the record
+        tells it (``InterruptedProgram.known_resume``: nothing was in flight).  A program
+        the controller still runs is aborted first."""
+        gap = self.machine_state.interrupted
+        if gap is None:
             raise MachineStateError("no interrupted program to resume", field="state")
         link = self.link
         if link is None or not link.healthy:
             raise MachineStateError("connect before resuming", field="state", value="disconnected")
         if link.get("program_status").upper() != "IDLE":
             link.set("abort")
-        return self._interrupted[1]
+        start = gap.known_resume()
+        assert start is not None  # nothing is ever in flight on LinuxCNC
+        return start
+
+    def program_status(self) -> dict[str, Any] | None:
+        """The program on this machine, running or interrupted (``MachineState.program_status``)."""
+        return self.machine_state.program_status()
 
     def pause(self) -> None:
         """Pause the running program (the controller decelerates and holds)."""
@@ -440,6 +444,5 @@ class LinuxCNCMachine(StateReadout[RshSession]):
 
     def status(self) -> dict[str, object]:
         """JSON-friendly snapshot for the API (state, identity, program progress)."""
-        running = self.machine_state.running_program()
-        return {**base_status(self.machine_state, self.dialect, self.url, self.identity, running),
+        return {**base_status(self.machine_state, self.dialect, self.url, self.identity, self.program_status()),
                 "link": None, "fallbacks": []}

@@ -12,7 +12,7 @@ import pytest
 from hardware.errors import MachineBusy, MachineStateError
 from hardware.linuxcnc import LinuxCNCMachine
 from hardware.machine import Machine as SerialMachine
-from hardware.machine_state import MachineState
+from hardware.machine_state import InterruptedProgram, MachineState
 
 
 @dataclass
@@ -106,3 +106,50 @@ def test_both_backends_refuse_pause_and_stop_alike_before_connecting(machine) ->
     with pytest.raises(MachineStateError, match="not connected"):
         machine.emergency_stop()
     assert not machine.estopped and machine.state == "disconnected"
+
+
+def test_an_interrupted_record_tells_the_resume_alone_unless_lines_in_flight_wait_for_their_numbers() -> None:
+    # 3 acknowledged, 2 more sent numbered 12 and 13; the planner bound says only 2 moved
+    sent = InterruptedProgram(8, 3, 11, [(12, 3), (13, 4)], reset=False, moved_index=2)
+    assert sent.known_resume() is None  # the controller must say which of lines 12, 13 it took
+    assert sent.known_resume(resets_on_connect=True) == 2  # a reset: from the first not known moved
+    sent.reset = True
+    assert sent.known_resume() == 2
+    assert InterruptedProgram(8, 3, 11, [], reset=False, moved_index=2).known_resume() == 3  # nothing in flight
+    assert InterruptedProgram(8, 3, None, [], reset=True).known_resume() == 3  # no bound on what moved
+    # taken over by a new process: the later commands were numbered on from the last acknowledged
+    numbered = InterruptedProgram.adopted(6, 3, 11)
+    assert numbered.inflight == [(12, 3), (13, 4), (14, 5)] and not numbered.reset
+    assert numbered.known_resume() is None
+    unnumbered = InterruptedProgram.adopted(6, 3, None)
+    assert unnumbered == InterruptedProgram(6, 3, None, [], reset=True)
+    assert unnumbered.known_resume() == 3
+
+
+def test_a_program_that_starts_forgets_the_interrupted_one() -> None:
+    state = connected_state()
+    state.interrupted = InterruptedProgram(10, 4, None, [], reset=True)
+    state.cancel_requested = True
+    assert state.program_status() == {"state": "interrupted", "line": 4, "total": 10, "resume_line": 4}
+    assert state.program_status(located=5) == {"state": "interrupted", "line": 4, "total": 10, "resume_line": 5}
+    state.claim("printing")
+    state.program_started(4, 10)
+    assert state.interrupted is None and not state.cancel_requested and state.progress == (4, 10)
+    assert state.program_status() == {"state": "printing", "line": 4, "total": 10}
+
+
+@pytest.mark.parametrize("machine", [SerialMachine("mock://state-adopt", "grbl"),
+                                     LinuxCNCMachine("linuxcnc://127.0.0.1:5007")], ids=["serial", "linuxcnc"])
+def test_both_backends_keep_an_adopted_program_in_their_machine_state_alike(machine) -> None:
+    """A new process takes over what an earlier one recorded (``adopt_interrupted``, as the
+    service does on a resume after a restart): the same record type in the same place, the
+    same status, and a resume refused until connected."""
+    assert machine.interrupted_program is None and machine.program_status() is None
+    machine.adopt_interrupted(12, 5, None)
+    gap = machine.interrupted_program
+    assert gap is machine.machine_state.interrupted
+    assert gap == InterruptedProgram(12, 5, None, [], reset=True)
+    assert machine.program_status() == {"state": "interrupted", "line": 5, "total": 12, "resume_line": 5}
+    assert machine.status()["program"] == machine.program_status()
+    with pytest.raises(MachineStateError, match="connect before resuming"):
+        machine.resume_line()

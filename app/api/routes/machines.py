@@ -84,8 +84,7 @@ def machine_out(runtime: Runtime, row: Machine) -> MachineOut:
                                eta_s=clock.eta_s(executed, total),
                                started_at=datetime.fromtimestamp(started, UTC) if started else None)
     elif holder is not None and holder["status"] == "interrupted":
-        reported = getattr(live, "program_status", None)  # the serial machines report it; LinuxCNC does not
-        program = interrupted_program(row.id, holder, reported() if callable(reported) else None)
+        program = interrupted_program(row.id, holder, live.program_status() if live is not None else None)
     mock = None
     if row.mock is not None:
         mock = dict(row.mock)

@@ -187,7 +187,8 @@ def run(ctx: JobContext, params: PrintParams) -> dict:  # noqa: C901
                      resume_preamble=preamble, resumed_from=state["start_line"],
                      resume_location=located.as_dict() if located is not None else
                      {"start": state["start_line"], "basis": "recorded count",
-                      "detail": "this process does not know the interrupted program: the recorded count"})
+                      "detail": "no resume located on this machine: the first command not known done, from "
+                                "its record of the lost program (or, in a new process, the job's count)"})
         if drift is not None:
             state["drift"] = drift
         ctx.save_program_state(state)

@@ -12,6 +12,7 @@ import time
 import pytest
 
 from hardware.errors import FirmwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
+from hardware.machine_state import InterruptedProgram
 from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, wait_until
 
 SQUARE = ["G21 G90 G64 P0.001", "G1 X0 Y0 Z5 F6000"] + [
@@ -237,6 +238,55 @@ def test_lost_connection_aborts_and_resumes(machine, lcnc_xyz):
     assert 4 <= start < len(SQUARE)
     report = machine.stream(SQUARE, start_line=start)
     assert report.executed == len(SQUARE) and report.start_line == start
+    assert _joints(observer) == pytest.approx([0.0, 0.0, 5.0], abs=1e-6)
+
+
+def _square_ends() -> list[tuple[float, float, float] | None]:
+    """Where each SQUARE command leaves the tool (mm; None: no motion), worked out by hand."""
+    corners = [(x, y, 5.0) for _ in range(2) for x, y in ((20, 0), (20, 20), (0, 20), (0, 0))]
+    return [None, (0.0, 0.0, 5.0), *corners]
+
+
+def _distance_to_segment(p, a, b) -> float:
+    ab, ap = [bj - aj for aj, bj in zip(a, b, strict=True)], [pj - aj for aj, pj in zip(a, p, strict=True)]
+    t = max(0.0, min(1.0, sum(u * v for u, v in zip(ab, ap, strict=True)) / max(sum(u * u for u in ab), 1e-12)))
+    return math.dist(p, [aj + t * u for aj, u in zip(a, ab, strict=True)])
+
+
+def test_a_lost_program_is_recorded_as_the_controller_ran_it_and_resumed_from_that_record(machine, lcnc_xyz):
+    """Held by a pause at a line the controller reports, then the link drops: the machine
+    records the program in the record type the serial backend keeps, with what LinuxCNC
+    told (the commands before the line in motion, the file it ran), which the held tool
+    confirms by geometry; its status shows it; the reconnect's resume starts there and the
+    square ends where it ends uninterrupted."""
+    observer = lcnc_xyz.session()
+    thread, outcome = _run_in_thread(machine, SQUARE)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 4)
+    machine.pause()
+    assert wait_until(lambda: observer.get("program_status") == "PAUSED")
+    line = int(float(observer.get("program_line")))  # the file's line in motion (a fresh start: no preamble)
+    assert wait_until(lambda: machine.progress[0] == line - 1)  # the machine's poll has seen it
+    held = _joints(observer)
+    machine.link.sever()
+    thread.join(10)
+    assert isinstance(outcome.get("error"), LinkError) and outcome["error"].resume_line == line - 1
+    gap = machine.interrupted_program
+    assert isinstance(gap, InterruptedProgram) and gap is machine.machine_state.interrupted
+    assert (gap.total, gap.acked_index, gap.moved_index) == (len(SQUARE), line - 1, line - 1)
+    assert (gap.acked_line_no, gap.inflight, gap.reset, gap.report) == (None, [], False, None)
+    with open(gap.program_file, encoding="utf-8") as program:  # what the controller ran
+        assert program.read().splitlines() == [*SQUARE, "M2"]
+    # the tool held on the move of command line - 1: every command before it had finished
+    ends = _square_ends()
+    assert 5 <= line <= len(SQUARE)  # command line - 1 >= 4: an edge of the square after its first
+    assert _distance_to_segment(held, ends[line - 2], ends[line - 1]) < 0.01, (line, held)
+    assert machine.status()["program"] == {"state": "interrupted", "line": line - 1, "total": len(SQUARE),
+                                           "resume_line": line - 1}
+    machine.connect()
+    assert machine.resume_line() == gap.acked_index
+    report = machine.stream(SQUARE, start_line=gap.acked_index)
+    assert report.executed == len(SQUARE) and report.start_line == line - 1
+    assert machine.interrupted_program is None and machine.status()["program"] is None
     assert _joints(observer) == pytest.approx([0.0, 0.0, 5.0], abs=1e-6)
 
 

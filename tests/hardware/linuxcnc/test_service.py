@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from app.reference.s1 import s1_mesh, s1_traces
+from hardware.machine_state import InterruptedProgram
 from tests.conftest import auth
-from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z
+from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, wait_until
 from tests.helpers.jobs import wait_for
 
 OP = auth("operator")
@@ -45,6 +46,45 @@ def test_print_job_runs_a_program_on_linuxcnc(client, lcnc_env):
     assert stop.status_code == 200 and stop.json()["stop_sent"] is True, stop.text
     assert client.get(f"/api/v1/machines/{machine_id}", headers=OP).json()["state"] == "error"
     assert register_bad(client).status_code == 422
+
+
+def test_a_print_whose_link_drops_shows_where_linuxcnc_stopped_and_resumes_from_its_record(client, lcnc_env):
+    """The service reads a LinuxCNC machine's interrupted program as it reads a serial one's:
+    the machine's record (``InterruptedProgram``) gives the job its count, the machine record
+    shows it live with the resume line it tells, and the operator's resume starts there and
+    ends where the uninterrupted program ends."""
+    body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{lcnc_env.port}?joints=3", "dialect": "linuxcnc",
+            "profile": PROFILE}
+    machine_id = client.post("/api/v1/machines", json=body, headers=OP).json()["id"]
+    client.post(f"/api/v1/machines/{machine_id}/connect", headers=OP)
+    live = client.app.state.runtime.machines.get(machine_id)
+    live.home()
+    lines = ["G21", "G90", "G1 X0 Y0 Z2 F6000"]  # then 1 mm moves at 600 mm/min: 0.1 s each, rows back 0.9 s
+    lines += [f"G1 X{i % 10:.1f} Y{i // 10:.1f} F600" for i in range(60)] + ["G0 Z5"]
+    program = client.post("/api/v1/programs", files={"file": ("p.ngc", ("\n".join(lines) + "\n").encode())},
+                          headers=OP).json()
+    job_id = client.post(f"/api/v1/machines/{machine_id}/print", json={"program_id": program["id"]},
+                         headers=OP).json()["id"]
+    assert wait_until(lambda: live.state == "printing" and live.progress[0] >= 10, 60.0)
+    live.link.sever()
+    job = wait_for(client, job_id, states=("interrupted", "succeeded", "failed"), timeout=60)
+    assert job["status"] == "interrupted", job["error"]
+    gap = live.interrupted_program
+    assert isinstance(gap, InterruptedProgram) and gap.total == len(lines) and 10 <= gap.acked_index < len(lines)
+    assert job["program_state"]["executed"] == gap.acked_index and job["program_state"]["total"] == len(lines)
+    shown = client.get(f"/api/v1/machines/{machine_id}", headers=OP).json()["program"]
+    assert (shown["state"], shown["job_id"], shown["line"], shown["total"], shown["resume_line"]) == \
+        ("interrupted", job_id, gap.acked_index, len(lines), gap.acked_index)
+    preview = client.get(f"/api/v1/jobs/{job_id}/resume", headers=OP).json()
+    assert preview["start"] == gap.acked_index and preview["skipped"] == 0
+    assert client.post(f"/api/v1/jobs/{job_id}/resume", json={"confirm": True}, headers=OP).status_code == 202
+    done = wait_for(client, job_id, timeout=120)
+    assert done["status"] == "succeeded", done["error"]
+    assert done["result"]["executed"] == done["result"]["total"] == len(lines)
+    assert done["program_state"]["resumed_from"] == gap.acked_index and live.interrupted_program is None
+    assert done["program_state"]["resume_location"]["start"] == gap.acked_index
+    status = client.get(f"/api/v1/machines/{machine_id}", headers=OP).json()
+    assert status["program"] is None and status["position"] == pytest.approx([9.0, 5.0, 5.0], abs=1e-6)
 
 
 def register_bad(client):
