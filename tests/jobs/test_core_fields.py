@@ -16,6 +16,7 @@ from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.params import ProbePlanParams
 from app.probing import PlanParams
 from app.probing.program import ProbeProgramParams
+from app.slicing import SliceParams, SlicingError
 from tests.conftest import auth
 from tests.helpers.jobs import submit
 
@@ -96,3 +97,31 @@ def test_the_five_axis_schema_shows_the_cores_bounds(client):
     assert {"minimum": -1000, "maximum": 1000, "type": "number"} in fields["safe_z_mm"]["anyOf"]
     refused = submit(client, "five_axis", {"part_id": "prt_none", "trace_id": "trc_none", "decimals": 7})
     assert refused.status_code == 422 and refused.json()["errors"][0]["loc"] == ["params", "decimals"]
+
+
+def _fields_of(client, kind):
+    kinds = {k["name"]: k["params_schema"] for k in client.get("/api/v1/job-kinds", headers=auth("viewer")).json()}
+    return kinds[kind]["properties"]
+
+
+def _refused(client, kind, params, name, bad):
+    """A submission of ``kind`` with ``params`` and ``name: bad`` is a 422 naming the field and the value."""
+    refused = submit(client, kind, {**params, name: bad})
+    assert refused.status_code == 422, refused.text
+    error = refused.json()["errors"][0]
+    assert error["loc"] == ["params", name] and error["value"] == bad, error
+
+
+def test_slice_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "slice"), SliceParams()
+    assert (fields["layer_mm"]["default"], fields["layer_mm"]["exclusiveMinimum"], fields["layer_mm"]["maximum"]) == (
+        core.layer_mm, 0, 100)
+    assert (fields["mu1"]["default"], fields["mu1"]["maximum"], fields["remainder"]["default"]) == (
+        core.mu1, 1, core.remainder)
+    for name, bad in (("layer_mm", 100.5), ("cusp_mm", 0), ("sigma0", 1.2), ("max_hole_mm", 200_000)):
+        _refused(client, "slice", {"part_id": "prt_none"}, name, bad)
+        with pytest.raises(SlicingError) as caught:
+            SliceParams(**{name: bad}).validate()
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    SliceParams(layer_mm=100, cusp_mm=10, sigma0=1, max_hole_mm=100_000).validate()  # the bounds themselves pass
+
