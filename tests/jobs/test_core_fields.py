@@ -16,6 +16,7 @@ from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.params import ProbePlanParams
 from app.probing import PlanParams
 from app.probing.program import ProbeProgramParams
+from app.reconstruction.surface_fit import SurfaceFitError, SurfaceFitParams
 from app.slicing import SliceParams, SlicingError
 from tests.conftest import auth
 from tests.helpers.jobs import submit
@@ -125,3 +126,16 @@ def test_slice_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
         assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
     SliceParams(layer_mm=100, cusp_mm=10, sigma0=1, max_hole_mm=100_000).validate()  # the bounds themselves pass
 
+
+def test_surface_fit_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "surface_fit"), SurfaceFitParams()
+    assert (fields["degree"]["default"], fields["degree"]["minimum"], fields["degree"]["maximum"]) == (
+        core.degree, 1, 5)
+    assert (fields["moving_average_window"]["maximum"], fields["bad_point_sigma"]["maximum"]) == (15, 100)
+    base = {"part_id": "prt_none", "region": {"x": [0, 1], "y": [0, 1]}}
+    for name, bad in (("degree", 6), ("penalty", 2e6), ("moving_average_window", 17), ("bad_point_min_mm", -0.1)):
+        _refused(client, "surface_fit", base, name, bad)
+        with pytest.raises(SurfaceFitError) as caught:
+            SurfaceFitParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    SurfaceFitParams(degree=5, penalty=1e6, moving_average_window=15, bad_point_min_mm=0)  # the bounds pass
