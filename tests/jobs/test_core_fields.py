@@ -12,12 +12,17 @@ from annotated_types import Ge, Gt, Le, Lt
 from pydantic import BaseModel, ValidationError
 
 from app.five_axis import FiveAxisParams
+from app.gcode.estimator import MachineLimits
+from app.gcode.fdm import FdmParams
+from app.gcode.writer import GcodeError
 from app.jobs.core_fields import core_bounds, core_field, core_values
+from app.jobs.kinds.toolpath import ToolpathJobParams
 from app.jobs.params import ProbePlanParams
 from app.probing import PlanParams
 from app.probing.program import ProbeProgramParams
 from app.reconstruction.surface_fit import SurfaceFitError, SurfaceFitParams
-from app.slicing import SliceParams, SlicingError
+from app.slicing import SliceParams, SlicingError, ToolpathParams
+from app.slicing.fractal import MergeWeights
 from tests.conftest import auth
 from tests.helpers.jobs import submit
 
@@ -139,3 +144,40 @@ def test_surface_fit_takes_the_cores_bounds_and_the_core_refuses_them_too(client
             SurfaceFitParams(**{name: bad})
         assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
     SurfaceFitParams(degree=5, penalty=1e6, moving_average_window=15, bad_point_min_mm=0)  # the bounds pass
+
+
+def test_toolpath_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "toolpath"), ToolpathParams()
+    assert (fields["resolution_mm"]["default"], fields["resolution_mm"]["minimum"]) == (core.resolution_mm, 0.001)
+    assert (fields["merge_weight_across"]["default"], fields["merge_weight_across"]["maximum"]) == (
+        core.merge_weights.across, 1000)
+    for name, bad in (("line_width_mm", 25), ("infill", 0), ("perimeters", 101), ("resolution_mm", 0.0005),
+                      ("angle_deg", -400), ("layer_height_mm", 0)):
+        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
+        with pytest.raises(SlicingError) as caught:
+            ToolpathParams(**{name: bad}).validate()
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    _refused(client, "toolpath", {"slice_job_id": "job_none"}, "merge_weight_along", 1001)
+    with pytest.raises(SlicingError) as caught:
+        ToolpathParams(merge_weights=MergeWeights(along=1001)).validate()
+    assert (caught.value.field, caught.value.value) == ("params.merge_weight_along", 1001)
+    ToolpathParams(line_width_mm=20, infill=1, perimeters=100, resolution_mm=0.001, angle_deg=-360).validate()
+
+
+def test_toolpath_takes_the_machine_limits_and_program_options_bounds_from_their_cores(client):
+    fields = _fields_of(client, "toolpath")
+    assert (fields["junction_deviation_mm"]["default"], fields["junction_deviation_mm"]["maximum"]) == (
+        MachineLimits().junction_deviation_mm, 10)
+    assert (fields["bed_temp_c"]["default"], fields["bed_temp_c"]["maximum"]) == (FdmParams().bed_temp_c, 200)
+    for name, bad in (("accel_mm_s2", 2e6), ("junction_deviation_mm", -0.01)):
+        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
+        with pytest.raises(SlicingError) as caught:
+            ToolpathParams(limits=MachineLimits(**{name: bad})).validate()
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    for name, bad in (("nozzle_temp_c", 501), ("z_lift_mm", 51), ("min_travel_for_retract_mm", -1)):
+        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
+        with pytest.raises(GcodeError) as caught:
+            FdmParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    params = {"slice_job_id": "job_x", "accel_mm_s2": 2500.0, "junction_deviation_mm": 0.02, "bed_temp_c": 80.0}
+    assert ToolpathJobParams(**params).limits() == MachineLimits(accel_mm_s2=2500.0, junction_deviation_mm=0.02)
