@@ -11,6 +11,7 @@ import pytest
 from annotated_types import Ge, Gt, Le, Lt
 from pydantic import BaseModel, ValidationError
 
+from app.compensation.standoff import CompensationError, CompensationParams
 from app.five_axis import FiveAxisParams
 from app.gcode.estimator import MachineLimits
 from app.gcode.fdm import FdmParams
@@ -181,3 +182,18 @@ def test_toolpath_takes_the_machine_limits_and_program_options_bounds_from_their
         assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
     params = {"slice_job_id": "job_x", "accel_mm_s2": 2500.0, "junction_deviation_mm": 0.02, "bed_temp_c": 80.0}
     assert ToolpathJobParams(**params).limits() == MachineLimits(accel_mm_s2=2500.0, junction_deviation_mm=0.02)
+
+
+def test_compensate_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "compensate"), CompensationParams()
+    assert (fields["chord_error_mm"]["default"], fields["chord_error_mm"]["maximum"]) == (core.chord_error_mm, 1)
+    assert (fields["hold_mm"]["default"], fields["hold_mm"]["maximum"], fields["clearance_mm"]["maximum"]) == (
+        core.hold_mm, 5, 100)
+    assert {"exclusiveMinimum": 0, "maximum": 100_000, "type": "number"} in fields["feed_mm_min"]["anyOf"]
+    base = {"trace_id": "trc_none", "reconstruct_job_id": "job_none"}
+    for name, bad in (("chord_error_mm", 1.5), ("hold_mm", 5.5), ("clearance_mm", 0), ("feed_mm_min", 200_000)):
+        _refused(client, "compensate", base, name, bad)
+        with pytest.raises(CompensationError) as caught:
+            CompensationParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (name, bad)
+    CompensationParams(chord_error_mm=1, hold_mm=5, clearance_mm=100, feed_mm_min=100_000)  # the bounds pass
