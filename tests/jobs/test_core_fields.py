@@ -18,10 +18,12 @@ from app.gcode.fdm import FdmParams
 from app.gcode.writer import GcodeError
 from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.kinds.toolpath import ToolpathJobParams
-from app.jobs.params import ProbePlanParams
+from app.jobs.params import ProbePlanParams, RegisterParams
 from app.probing import PlanParams
 from app.probing.program import ProbeProgramParams
 from app.reconstruction.surface_fit import SurfaceFitError, SurfaceFitParams
+from app.registration.datum_plan import DatumProbeParams
+from app.registration.registration import RegistrationError
 from app.slicing import SliceParams, SlicingError, ToolpathParams
 from app.slicing.fractal import MergeWeights
 from tests.conftest import auth
@@ -197,3 +199,17 @@ def test_compensate_takes_the_cores_bounds_and_the_core_refuses_them_too(client)
             CompensationParams(**{name: bad})
         assert (caught.value.field, caught.value.value) == (name, bad)
     CompensationParams(chord_error_mm=1, hold_mm=5, clearance_mm=100, feed_mm_min=100_000)  # the bounds pass
+
+
+def test_register_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "register"), DatumProbeParams()
+    assert (fields["search_mm"]["default"], fields["search_mm"]["maximum"]) == (core.search_mm, 20)
+    assert {"minimum": 0, "maximum": 10, "type": "number"} in fields["tip_radius_mm"]["anyOf"]
+    base = {"part_id": "prt_none", "machine_id": "mch_none"}
+    for name, bad in (("search_mm", 25), ("resolution_mm", 0), ("sigma_mm", 2), ("tip_radius_mm", 10.5)):
+        _refused(client, "register", base, name, bad)
+        with pytest.raises(RegistrationError) as caught:
+            DatumProbeParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (name, bad)
+    probe = RegisterParams(part_id="prt_x", machine_id="mch_x", search_mm=1.0, pivot_xy=[3.0, 4.0]).probe_params(10.0)
+    assert probe == DatumProbeParams(search_mm=1.0, tip_radius_mm=10.0, pivot_xy=(3.0, 4.0))  # built by name
