@@ -87,7 +87,7 @@ def require_declared_bounds(obj: Any, error_type: type[ConformaError], *, prefix
     annotation declares (see :func:`declared_bounds`), naming it and its value; None passes
     for an optional field, and a bounded number must be finite."""
     compare = {key: (test, words) for key, test, words in _BOUNDS}
-    for name, bounds in declared_bounds(type(obj)).items():
+    for name, bounds in declared_bounds(obj.__class__).items():
         value = getattr(obj, name)
         if value is None:
             continue
