@@ -199,6 +199,9 @@ def test_compensate_takes_the_cores_bounds_and_the_core_refuses_them_too(client)
             CompensationParams(**{name: bad})
         assert (caught.value.field, caught.value.value) == (name, bad)
     CompensationParams(chord_error_mm=1, hold_mm=5, clearance_mm=100, feed_mm_min=100_000)  # the bounds pass
+    loop = {"part_id": "prt_none", "trace_ids": ["trc_none"], "machine_id": "mch_none"}  # its compensate steps'
+    _refused(client, "closed_loop", loop, "hold_mm", 5.5)
+    _refused(client, "closed_loop", loop, "chord_error_mm", 1.5)
 
 
 def test_register_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
