@@ -85,7 +85,7 @@ def declared_bounds(cls: type) -> dict[str, tuple[tuple[str, Any], ...]]:
 def require_declared_bounds(obj: Any, error_type: type[ConformaError], *, prefix: str = "") -> None:
     """Raise ``error_type`` for the first field of the dataclass ``obj`` outside the bounds its
     annotation declares (see :func:`declared_bounds`), naming it and its value; None passes
-    for an optional field, and a bounded number must be finite."""
+    (an optional field left out), any other value must be a finite number."""
     compare = {key: (test, words) for key, test, words in _BOUNDS}
     for name, bounds in declared_bounds(obj.__class__).items():
         value = getattr(obj, name)
