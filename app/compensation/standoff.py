@@ -37,13 +37,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Annotated, Any, Final
 
 import numpy as np
+from annotated_types import Ge, Gt, Le
 from scipy.spatial import cKDTree
 
 from app.compensation.print_path import SegmentedPath, dense_stations, segment_adaptive
-from app.domain.checks import require_non_negative, require_positive
+from app.domain.checks import require_declared_bounds, require_non_negative, require_positive
 from app.domain.errors import InvalidInput
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, ProgramBuilder
 from app.geometry.slope import height_error_mm, surface_slopes_deg
@@ -93,21 +94,23 @@ class CompensationParams:
         probe-frame program of before (no tool line, carriage = tip).
         tool_offset_mm: (3,) that nozzle's offset o (tip = carriage + o); the programs are
         written in carriage coordinates, carriage = tip - o (points stay tips).
+    The bounds in the annotations are the ranges a compensate job may ask for (its
+    parameter model reads them); a value outside them is refused here too.
     """
 
     standoff_mm: float = DEFAULT_STANDOFF_MM
-    feed_mm_min: float = 300.0
-    chord_error_mm: float = 0.002
+    feed_mm_min: Annotated[float, Gt(0), Le(100_000)] = 300.0
+    chord_error_mm: Annotated[float, Gt(0), Le(1)] = 0.002
     dispense_on: str = "M106"
     dispense_off: str = "M107"
     dialect: str = DEFAULT_DIALECT
-    clearance_mm: float = 2.0
+    clearance_mm: Annotated[float, Gt(0), Le(100)] = 2.0
     part_max_z_mm: float | None = None
     approach_mm: float = 0.5
     plunge_feed_mm_min: float = 60.0
     dwell_s: float = 0.0
     span_tolerance_mm: float = 0.005
-    hold_mm: float = 0.0
+    hold_mm: Annotated[float, Ge(0), Le(5)] = 0.0
     max_deviation_mm: float = 1.0
     verify_step_mm: float = 0.01
     curvature_safety: float = 2.0
@@ -123,6 +126,7 @@ class CompensationParams:
         require_positive(self, positive, CompensationError)
         require_non_negative(self, ("dwell_s", "span_tolerance_mm", "hold_mm"),
                              CompensationError)
+        require_declared_bounds(self, CompensationError)
         if self.part_max_z_mm is not None and not math.isfinite(self.part_max_z_mm):
             raise CompensationError("part_max_z_mm must be finite", field="part_max_z_mm",
                                     value=str(self.part_max_z_mm))

@@ -27,9 +27,11 @@ retraction (G10/G11), heating waits.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Annotated
 
 import numpy as np
 import numpy.typing as npt
+from annotated_types import Ge, Gt, Le
 
 from app.domain.errors import InvalidInput
 from app.gcode.reader import Program, ReadOptions, read_program
@@ -49,12 +51,14 @@ Axes4 = tuple[float, float, float, float]  # one value per axis X, Y, Z, E
 
 @dataclass(frozen=True)
 class MachineLimits:
-    """Planner limits (mm, s).  ``max_feed_mm_s`` / ``max_accel_mm_s2`` per axis X, Y, Z, E."""
+    """Planner limits (mm, s).  ``max_feed_mm_s`` / ``max_accel_mm_s2`` per axis X, Y, Z, E.
+    The bounds in the annotations are the ranges a toolpath job may ask for (its parameter
+    model reads them, :meth:`app.slicing.toolpath.ToolpathParams.validate` refuses the rest)."""
 
-    accel_mm_s2: float = 1000.0
-    travel_accel_mm_s2: float = 1500.0
-    retract_accel_mm_s2: float = 1500.0
-    junction_deviation_mm: float = 0.013
+    accel_mm_s2: Annotated[float, Gt(0), Le(1_000_000)] = 1000.0
+    travel_accel_mm_s2: Annotated[float, Gt(0), Le(1_000_000)] = 1500.0
+    retract_accel_mm_s2: Annotated[float, Gt(0), Le(1_000_000)] = 1500.0
+    junction_deviation_mm: Annotated[float, Ge(0), Le(10)] = 0.013
     max_feed_mm_s: Axes4 = (300.0, 300.0, 10.0, 60.0)
     max_accel_mm_s2: Axes4 = (5000.0, 5000.0, 200.0, 5000.0)
 

@@ -20,11 +20,13 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import numpy.typing as npt
+from annotated_types import Ge, Le
 
+from app.domain.checks import require_declared_bounds
 from app.gcode.fdm_block import ExtrudeState, LayerBlock, extrude_layers
 from app.gcode.reader import Program
 from app.gcode.writer import DEFAULT_DIALECT, DIALECTS, Dialect, GcodeError, ProgramBuilder
@@ -33,6 +35,7 @@ from app.geometry.tolerance import LENGTH_EPS_MM
 if TYPE_CHECKING:  # the slicer imports this writer; the toolpath types are needed only here
     from app.slicing.toolpath import LayerToolpath, Toolpath, ToolpathParams
 
+FdmMode = Literal["extrude", "dispense"]  # E-axis extrusion or dispenser on/off
 END_LIFT_MM = 5.0  # the end section lifts the nozzle this far above the last layer
 # extrusion layers are written in blocks of about this many points (a few layers of a small
 # part at once: a block costs its lines; its arrays stay a few MB)
@@ -51,20 +54,25 @@ def bead_area_mm2(width_mm: float, height_mm: float) -> float:
 
 @dataclass(frozen=True)
 class FdmParams:
-    """G-code output options (mm, mm/s, deg C)."""
+    """G-code output options (mm, mm/s, deg C).  The bounds in the annotations are the ranges
+    a toolpath job may ask for (its parameter model reads them); a value outside them is a
+    :class:`GcodeError` naming it."""
 
     dialect: str = DEFAULT_DIALECT
-    mode: Literal["extrude", "dispense"] = "extrude"
+    mode: FdmMode = "extrude"
     job_id: str | None = None
-    nozzle_temp_c: float = 210.0
-    bed_temp_c: float = 60.0
-    retract_mm: float = 0.8
+    nozzle_temp_c: Annotated[float, Ge(0), Le(500)] = 210.0
+    bed_temp_c: Annotated[float, Ge(0), Le(200)] = 60.0
+    retract_mm: Annotated[float, Ge(0), Le(50)] = 0.8
     retract_feed_mm_s: float = 35.0
-    z_lift_mm: float = 0.0
-    min_travel_for_retract_mm: float = 1.0
+    z_lift_mm: Annotated[float, Ge(0), Le(50)] = 0.0
+    min_travel_for_retract_mm: Annotated[float, Ge(0), Le(1000)] = 1.0
     home: bool = True
     dispense_on: str | None = None
     dispense_off: str | None = None
+
+    def __post_init__(self) -> None:
+        require_declared_bounds(self, GcodeError, prefix="params.")
 
 
 def _start(b: ProgramBuilder, tpp: ToolpathParams, p: FdmParams, rules: Dialect) -> None:

@@ -25,12 +25,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from app.compensation.standoff import DEFAULT_STANDOFF_MM
 from app.gcode.writer import DEFAULT_PROBING_DIALECT, DISPENSING_DIALECTS, DialectName, ProbeStyle
 from app.geometry.placement import Placement
-from app.jobs.core_fields import core_field, core_values
+from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.form_hints import ONE_TRACE as _ONE
 from app.jobs.form_hints import SEVERAL_TRACES as _SEVERAL
 from app.jobs.form_hints import form
 from app.probing import PlanParams
 from app.probing.program import ProbeProgramParams
+from app.registration.datum_plan import DatumProbeParams
 from app.runtime.registry import JobParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-10_000, le=10_000)]
@@ -96,12 +97,14 @@ class RegisterParams(JobParams):
         "edges", description="edges: side faces found by -Z bisection across each wall + top heights "
         "(dx, dy, rz from planar walls); z_only: -Z touches on the top only")
     count: int | None = Field(None, ge=1, le=50, description="datum features to touch (default 6 edges, 8 z_only)")
-    sigma_mm: float = Field(0.001, gt=0, le=1, description="probe repeatability (1 sigma)")
-    search_mm: float = Field(1.5, gt=0, le=20, description="edge search half-width: the largest placement "
-                             "error the edge search finds; below margin_mm")
-    resolution_mm: float = Field(0.001, gt=0, le=1, description="edge bisection stops at this bracket")
-    tip_radius_mm: float | None = Field(None, ge=0, le=5, description="probe ball radius (the top edge is caught "
-                                        "early); default: the machine's calibrated ball radius, else 0")
+    sigma_mm: float = core_field(DatumProbeParams, "sigma_mm", description="probe repeatability (1 sigma)")
+    search_mm: float = core_field(DatumProbeParams, "search_mm", description="edge search half-width: the largest "
+                                  "placement error the edge search finds; below margin_mm")
+    resolution_mm: float = core_field(DatumProbeParams, "resolution_mm",
+                                      description="edge bisection stops at this bracket")
+    tip_radius_mm: float | None = Field(None, **core_bounds(DatumProbeParams, "tip_radius_mm"),
+                                        description="probe ball radius (the top edge is caught early); default: "
+                                        "the machine's calibrated ball radius, else 0")
     margin_mm: float = Field(2.0, gt=0, le=50, description="datum touches keep this far from face edges")
     pivot_xy: list[Finite] = Field(default_factory=lambda: [0.0, 0.0], min_length=2, max_length=2,
                                    description="rotation axis of the reported placement (machine x, y) mm")
@@ -118,6 +121,12 @@ class RegisterParams(JobParams):
         if self.mode == "edges" and self.search_mm >= self.margin_mm:
             raise ValueError("search_mm must be below margin_mm (the edge search starts over the part)")
         return self
+
+    def probe_params(self, tip_radius_mm: float) -> DatumProbeParams:
+        """How the datum touches are made: this job's fields by name; ``tip_radius_mm``: the
+        job's, else the machine's calibrated ball radius, else 0 (mm)."""
+        return DatumProbeParams(**core_values(DatumProbeParams, self, {"max_touches_per_edge"},
+                                              tip_radius_mm=tip_radius_mm))
 
 
 #: the planners' and the probe program's fields a probe_plan job keeps at the core's defaults

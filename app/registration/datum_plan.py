@@ -27,12 +27,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import trimesh
+from annotated_types import Ge, Gt, Le
 
-from app.domain.checks import require_positive
+from app.domain.checks import require_declared_bounds, require_positive
 from app.geometry.placement import Placement, apply_placement, remove_placement
 from app.registration.registration import (
     PARAMETERS,
@@ -250,17 +251,20 @@ class DatumProbeParams:
     nominal wall, so it finds walls displaced by less than that (keep it below the plan's
     ``margin_mm``).  resolution_mm / tip_radius_mm / max_touches_per_edge: see
     :func:`find_edge`.  sigma_mm: probe repeatability (1 sigma).  pivot_xy: rotation axis
-    of the estimated placement (mm, machine frame)."""
+    of the estimated placement (mm, machine frame).  The bounds in the annotations are the
+    ranges a register job may ask for (its parameter model reads them); a value outside them
+    is refused here too."""
 
-    search_mm: float = 1.5
-    resolution_mm: float = 0.001
-    tip_radius_mm: float = 0.0
+    search_mm: Annotated[float, Gt(0), Le(20)] = 1.5
+    resolution_mm: Annotated[float, Gt(0), Le(1)] = 0.001
+    tip_radius_mm: Annotated[float, Ge(0), Le(10)] = 0.0  # the largest stylus ball a machine profile declares
     max_touches_per_edge: int = 40
-    sigma_mm: float = 0.001
+    sigma_mm: Annotated[float, Gt(0), Le(1)] = 0.001
     pivot_xy: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         require_positive(self, ("search_mm", "resolution_mm", "sigma_mm"), RegistrationError)
+        require_declared_bounds(self, RegistrationError)
 
 
 @dataclass(frozen=True)

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Annotated, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
+from annotated_types import Ge, Le
 from scipy.sparse.csgraph import minimum_spanning_tree
 from shapely import contains_xy
 from shapely.geometry import MultiLineString, MultiPolygon
@@ -38,10 +39,11 @@ Edges = set[tuple[int, int]]
 
 @dataclass(frozen=True)
 class MergeWeights:
-    """Merge weights of the improved fractal fill (dimensionless)."""
+    """Merge weights of the improved fractal fill (dimensionless; the bounds are the range a
+    toolpath may ask for, see :meth:`ToolpathParams.validate <app.slicing.toolpath.ToolpathParams.validate>`)."""
 
-    along: float = 1.0
-    across: float = 2.0
+    along: Annotated[float, Ge(0), Le(1000)] = 1.0
+    across: Annotated[float, Ge(0), Le(1000)] = 2.0
 
 
 def hilbert_d2xy(order: int, d: npt.ArrayLike) -> IntArray:

@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal, NamedTuple
+from typing import Annotated, Literal, NamedTuple
 
 import manifold3d
 import numpy as np
 import numpy.typing as npt
+from annotated_types import Ge, Gt, Le
 
-from app.domain.checks import require_non_negative, require_positive
+from app.domain.checks import require_declared_bounds, require_non_negative, require_positive
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
 from app.slicing.mesh_prep import PreparedMesh
@@ -34,6 +35,8 @@ from app.slicing.rings import Island, SectionStats, oriented, section_stats
 
 SliceMode = Literal["uniform", "area", "cavity", "cusp"]
 ThetaRule = Literal["indicator", "printed"]
+SeedSample = Literal["top", "mid"]
+Remainder = Literal["distribute", "merge"]
 
 
 @dataclass(frozen=True)
@@ -56,24 +59,26 @@ class SliceParams:
     height (cusp mode).  ``z_tol``: planes at the very bottom/top are moved this far into
     the part.  ``repair``: repair bad meshes instead of refusing them; ``max_hole_mm``: the
     longest hole boundary repair fills (None: the perimeter of the bounding box's largest face).
+    The bounds in the annotations are the ranges a slice may ask for (the slice job's
+    parameter model reads them); :meth:`validate` refuses a value outside them.
     """
 
     mode: SliceMode = "uniform"
-    layer_mm: float = 0.2
-    l_min: float = 0.03
-    l_max: float = 0.1
-    eps0: float = 0.05
-    sigma0: float = 0.45
-    mu0: float = 0.005
-    mu1: float = 0.167
+    layer_mm: Annotated[float, Gt(0), Le(100)] = 0.2
+    l_min: Annotated[float, Gt(0), Le(100)] = 0.03
+    l_max: Annotated[float, Gt(0), Le(100)] = 0.1
+    eps0: Annotated[float, Ge(0), Le(10)] = 0.05
+    sigma0: Annotated[float, Ge(0), Le(1)] = 0.45
+    mu0: Annotated[float, Ge(0), Le(1)] = 0.005
+    mu1: Annotated[float, Ge(0), Le(1)] = 0.167
     theta_rule: ThetaRule = "indicator"
     step9_resets_to_lmax: bool = False
-    cusp_mm: float = 0.02
-    seed_sample: Literal["top", "mid"] = "mid"
-    remainder: Literal["distribute", "merge"] = "distribute"
+    cusp_mm: Annotated[float, Gt(0), Le(10)] = 0.02
+    seed_sample: SeedSample = "mid"
+    remainder: Remainder = "distribute"
     z_tol: float = 1e-5
     repair: bool = True
-    max_hole_mm: float | None = None
+    max_hole_mm: Annotated[float, Gt(0), Le(100_000)] | None = None
     max_layers: int = 200_000
 
     def validate(self) -> None:
@@ -88,6 +93,7 @@ class SliceParams:
                                f"({self.l_max} mm)", field="params.l_min", value=self.l_min)
         require_non_negative(self, ("eps0", "sigma0", "mu0", "mu1"), SlicingError,
                              prefix="params.")
+        require_declared_bounds(self, SlicingError, prefix="params.")
         if self.mu0 > self.mu1:
             raise SlicingError(f"mu0 ({self.mu0}) is larger than mu1 ({self.mu1})",
                                field="params.mu0", value=self.mu0)

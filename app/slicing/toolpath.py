@@ -14,13 +14,14 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Literal, NamedTuple
+from typing import Annotated, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 import shapely
+from annotated_types import Ge, Gt, Le
 
-from app.domain.checks import require_positive
+from app.domain.checks import require_declared_bounds, require_positive
 from app.gcode.estimator import MachineLimits, estimate_moves
 from app.gcode.fdm import bead_area_mm2
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM, LENGTH_EPS_MM
@@ -50,22 +51,24 @@ class ToolpathParams:
     ``filament_mm``: filament diameter for E (extrusion mode).  ``resolution_mm``: every
     path is simplified to it (a vertex is dropped when the path moves less than this from
     the computed one) and no move is shorter (the firmware plans shorter moves uselessly).
+    The bounds in the annotations are the ranges a toolpath may ask for (the toolpath job's
+    parameter model reads them); :meth:`validate` refuses a value outside them.
     """
 
     pattern: Pattern = "raster"
-    line_width_mm: float = 0.4
-    nozzle_mm: float = 0.4
-    layer_height_mm: float | None = None
-    infill: float = 1.0
-    perimeters: int = 1
-    angle_deg: float = 45.0
-    angle_step_deg: float = 90.0
+    line_width_mm: Annotated[float, Gt(0), Le(20)] = 0.4
+    nozzle_mm: Annotated[float, Gt(0), Le(20)] = 0.4
+    layer_height_mm: Annotated[float, Gt(0), Le(20)] | None = None
+    infill: Annotated[float, Gt(0), Le(1)] = 1.0
+    perimeters: Annotated[int, Ge(0), Le(100)] = 1
+    angle_deg: Annotated[float, Ge(-360), Le(360)] = 45.0
+    angle_step_deg: Annotated[float, Ge(-360), Le(360)] = 90.0
     print_feed_mm_s: float = 40.0
     perimeter_feed_mm_s: float = 30.0
     travel_feed_mm_s: float = 120.0
-    filament_mm: float = 1.75
-    turn_threshold_deg: float = 10.0
-    resolution_mm: float = RESOLUTION_MM
+    filament_mm: Annotated[float, Gt(0), Le(10)] = 1.75
+    turn_threshold_deg: Annotated[float, Ge(0), Le(180)] = 10.0
+    resolution_mm: Annotated[float, Ge(0.001), Le(1)] = RESOLUTION_MM
     limits: MachineLimits = field(default_factory=MachineLimits)
     merge_weights: MergeWeights = field(default_factory=MergeWeights)
 
@@ -74,18 +77,11 @@ class ToolpathParams:
         if self.pattern not in PATTERNS:
             raise SlicingError(f"unknown fill pattern {self.pattern!r}; expected one of "
                                f"{list(PATTERNS)}", field="params.pattern", value=self.pattern)
-        require_positive(self, ("line_width_mm", "nozzle_mm", "print_feed_mm_s",
-                                "perimeter_feed_mm_s", "travel_feed_mm_s", "filament_mm", "resolution_mm"),
+        require_positive(self, ("print_feed_mm_s", "perimeter_feed_mm_s", "travel_feed_mm_s"),
                          SlicingError, prefix="params.")
-        if not (0 < self.infill <= 1):
-            raise SlicingError(f"infill must be in (0, 1], got {self.infill!r}",
-                               field="params.infill", value=self.infill)
-        if self.perimeters < 0 or self.perimeters > 100:
-            raise SlicingError("perimeters must be in 0..100", field="params.perimeters",
-                               value=self.perimeters)
-        if self.layer_height_mm is not None and not self.layer_height_mm > 0:
-            raise SlicingError("layer_height_mm must be > 0", field="params.layer_height_mm",
-                               value=self.layer_height_mm)
+        require_declared_bounds(self, SlicingError, prefix="params.")
+        require_declared_bounds(self.merge_weights, SlicingError, prefix="params.merge_weight_")
+        require_declared_bounds(self.limits, SlicingError, prefix="params.")
         self.limits.validate()
 
 

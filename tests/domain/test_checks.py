@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 import pytest
+from annotated_types import Ge, Gt, Le, Lt
 
-from app.domain.checks import is_finite_number, require_non_negative, require_positive
+from app.domain.checks import (
+    declared_bounds,
+    is_finite_number,
+    require_declared_bounds,
+    require_non_negative,
+    require_positive,
+)
 from app.domain.errors import InvalidInput
 from app.platform.problems import http_status
 
@@ -52,3 +60,27 @@ def test_non_negative_message_field_and_value():
     err = info.value
     assert (err.field, err.value, err.message) == ("b", -0.5, "b must be a finite number >= 0")
     assert http_status(err)[0] == 422
+
+
+@dataclass(frozen=True)
+class Bounded:
+    width_mm: Annotated[float, Gt(0), Le(5)] = 1.0
+    count: Annotated[int, Ge(2), Lt(10)] | None = None
+    free: float = -1e9
+
+
+def test_declared_bounds_are_read_from_the_annotations():
+    assert declared_bounds(Bounded) == {"width_mm": (("gt", 0), ("le", 5)), "count": (("ge", 2), ("lt", 10))}
+    require_declared_bounds(Bounded(width_mm=5, count=9), SampleError)  # the ends the bounds allow
+    require_declared_bounds(Bounded(count=None), SampleError)  # an optional field's None passes
+
+
+@pytest.mark.parametrize(("values", "name", "bad"), [
+    ({"width_mm": 0.0}, "width_mm", 0.0), ({"width_mm": 5.001}, "width_mm", 5.001), ({"count": 1}, "count", 1),
+    ({"count": 10}, "count", 10), ({"width_mm": math.nan}, "width_mm", None), ({"width_mm": True}, "width_mm", True)])
+def test_a_value_outside_its_declared_bounds_is_refused_by_name(values, name, bad):
+    with pytest.raises(SampleError) as caught:
+        require_declared_bounds(Bounded(**values), SampleError, prefix="params.")
+    assert caught.value.field == f"params.{name}"
+    if bad is not None:
+        assert caught.value.value == bad

@@ -11,11 +11,21 @@ import pytest
 from annotated_types import Ge, Gt, Le, Lt
 from pydantic import BaseModel, ValidationError
 
+from app.compensation.standoff import CompensationError, CompensationParams
 from app.five_axis import FiveAxisParams
+from app.gcode.estimator import MachineLimits
+from app.gcode.fdm import FdmParams
+from app.gcode.writer import GcodeError
 from app.jobs.core_fields import core_bounds, core_field, core_values
-from app.jobs.params import ProbePlanParams
+from app.jobs.kinds.toolpath import ToolpathJobParams
+from app.jobs.params import ProbePlanParams, RegisterParams
 from app.probing import PlanParams
 from app.probing.program import ProbeProgramParams
+from app.reconstruction.surface_fit import SurfaceFitError, SurfaceFitParams
+from app.registration.datum_plan import DatumProbeParams
+from app.registration.registration import RegistrationError
+from app.slicing import SliceParams, SlicingError, ToolpathParams
+from app.slicing.fractal import MergeWeights
 from tests.conftest import auth
 from tests.helpers.jobs import submit
 
@@ -96,3 +106,113 @@ def test_the_five_axis_schema_shows_the_cores_bounds(client):
     assert {"minimum": -1000, "maximum": 1000, "type": "number"} in fields["safe_z_mm"]["anyOf"]
     refused = submit(client, "five_axis", {"part_id": "prt_none", "trace_id": "trc_none", "decimals": 7})
     assert refused.status_code == 422 and refused.json()["errors"][0]["loc"] == ["params", "decimals"]
+
+
+def _fields_of(client, kind):
+    kinds = {k["name"]: k["params_schema"] for k in client.get("/api/v1/job-kinds", headers=auth("viewer")).json()}
+    return kinds[kind]["properties"]
+
+
+def _refused(client, kind, params, name, bad):
+    """A submission of ``kind`` with ``params`` and ``name: bad`` is a 422 naming the field and the value."""
+    refused = submit(client, kind, {**params, name: bad})
+    assert refused.status_code == 422, refused.text
+    error = refused.json()["errors"][0]
+    assert error["loc"] == ["params", name] and error["value"] == bad, error
+
+
+def test_slice_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "slice"), SliceParams()
+    assert (fields["layer_mm"]["default"], fields["layer_mm"]["exclusiveMinimum"], fields["layer_mm"]["maximum"]) == (
+        core.layer_mm, 0, 100)
+    assert (fields["mu1"]["default"], fields["mu1"]["maximum"], fields["remainder"]["default"]) == (
+        core.mu1, 1, core.remainder)
+    for name, bad in (("layer_mm", 100.5), ("cusp_mm", 0), ("sigma0", 1.2), ("max_hole_mm", 200_000)):
+        _refused(client, "slice", {"part_id": "prt_none"}, name, bad)
+        with pytest.raises(SlicingError) as caught:
+            SliceParams(**{name: bad}).validate()
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    SliceParams(layer_mm=100, cusp_mm=10, sigma0=1, max_hole_mm=100_000).validate()  # the bounds themselves pass
+
+
+def test_surface_fit_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "surface_fit"), SurfaceFitParams()
+    assert (fields["degree"]["default"], fields["degree"]["minimum"], fields["degree"]["maximum"]) == (
+        core.degree, 1, 5)
+    assert (fields["moving_average_window"]["maximum"], fields["bad_point_sigma"]["maximum"]) == (15, 100)
+    base = {"part_id": "prt_none", "region": {"x": [0, 1], "y": [0, 1]}}
+    for name, bad in (("degree", 6), ("penalty", 2e6), ("moving_average_window", 17), ("bad_point_min_mm", -0.1)):
+        _refused(client, "surface_fit", base, name, bad)
+        with pytest.raises(SurfaceFitError) as caught:
+            SurfaceFitParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    SurfaceFitParams(degree=5, penalty=1e6, moving_average_window=15, bad_point_min_mm=0)  # the bounds pass
+
+
+def test_toolpath_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "toolpath"), ToolpathParams()
+    assert (fields["resolution_mm"]["default"], fields["resolution_mm"]["minimum"]) == (core.resolution_mm, 0.001)
+    assert (fields["merge_weight_across"]["default"], fields["merge_weight_across"]["maximum"]) == (
+        core.merge_weights.across, 1000)
+    for name, bad in (("line_width_mm", 25), ("infill", 0), ("perimeters", 101), ("resolution_mm", 0.0005),
+                      ("angle_deg", -400), ("layer_height_mm", 0)):
+        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
+        with pytest.raises(SlicingError) as caught:
+            ToolpathParams(**{name: bad}).validate()
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    _refused(client, "toolpath", {"slice_job_id": "job_none"}, "merge_weight_along", 1001)
+    with pytest.raises(SlicingError) as caught:
+        ToolpathParams(merge_weights=MergeWeights(along=1001)).validate()
+    assert (caught.value.field, caught.value.value) == ("params.merge_weight_along", 1001)
+    ToolpathParams(line_width_mm=20, infill=1, perimeters=100, resolution_mm=0.001, angle_deg=-360).validate()
+
+
+def test_toolpath_takes_the_machine_limits_and_program_options_bounds_from_their_cores(client):
+    fields = _fields_of(client, "toolpath")
+    assert (fields["junction_deviation_mm"]["default"], fields["junction_deviation_mm"]["maximum"]) == (
+        MachineLimits().junction_deviation_mm, 10)
+    assert (fields["bed_temp_c"]["default"], fields["bed_temp_c"]["maximum"]) == (FdmParams().bed_temp_c, 200)
+    for name, bad in (("accel_mm_s2", 2e6), ("junction_deviation_mm", -0.01)):
+        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
+        with pytest.raises(SlicingError) as caught:
+            ToolpathParams(limits=MachineLimits(**{name: bad})).validate()
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    for name, bad in (("nozzle_temp_c", 501), ("z_lift_mm", 51), ("min_travel_for_retract_mm", -1)):
+        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
+        with pytest.raises(GcodeError) as caught:
+            FdmParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+    params = {"slice_job_id": "job_x", "accel_mm_s2": 2500.0, "junction_deviation_mm": 0.02, "bed_temp_c": 80.0}
+    assert ToolpathJobParams(**params).limits() == MachineLimits(accel_mm_s2=2500.0, junction_deviation_mm=0.02)
+
+
+def test_compensate_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "compensate"), CompensationParams()
+    assert (fields["chord_error_mm"]["default"], fields["chord_error_mm"]["maximum"]) == (core.chord_error_mm, 1)
+    assert (fields["hold_mm"]["default"], fields["hold_mm"]["maximum"], fields["clearance_mm"]["maximum"]) == (
+        core.hold_mm, 5, 100)
+    assert {"exclusiveMinimum": 0, "maximum": 100_000, "type": "number"} in fields["feed_mm_min"]["anyOf"]
+    base = {"trace_id": "trc_none", "reconstruct_job_id": "job_none"}
+    for name, bad in (("chord_error_mm", 1.5), ("hold_mm", 5.5), ("clearance_mm", 0), ("feed_mm_min", 200_000)):
+        _refused(client, "compensate", base, name, bad)
+        with pytest.raises(CompensationError) as caught:
+            CompensationParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (name, bad)
+    CompensationParams(chord_error_mm=1, hold_mm=5, clearance_mm=100, feed_mm_min=100_000)  # the bounds pass
+    loop = {"part_id": "prt_none", "trace_ids": ["trc_none"], "machine_id": "mch_none"}  # its compensate steps'
+    _refused(client, "closed_loop", loop, "hold_mm", 5.5)
+    _refused(client, "closed_loop", loop, "chord_error_mm", 1.5)
+
+
+def test_register_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
+    fields, core = _fields_of(client, "register"), DatumProbeParams()
+    assert (fields["search_mm"]["default"], fields["search_mm"]["maximum"]) == (core.search_mm, 20)
+    assert {"minimum": 0, "maximum": 10, "type": "number"} in fields["tip_radius_mm"]["anyOf"]
+    base = {"part_id": "prt_none", "machine_id": "mch_none"}
+    for name, bad in (("search_mm", 25), ("resolution_mm", 0), ("sigma_mm", 2), ("tip_radius_mm", 10.5)):
+        _refused(client, "register", base, name, bad)
+        with pytest.raises(RegistrationError) as caught:
+            DatumProbeParams(**{name: bad})
+        assert (caught.value.field, caught.value.value) == (name, bad)
+    probe = RegisterParams(part_id="prt_x", machine_id="mch_x", search_mm=1.0, pivot_xy=[3.0, 4.0]).probe_params(10.0)
+    assert probe == DatumProbeParams(search_mm=1.0, tip_radius_mm=10.0, pivot_xy=(3.0, 4.0))  # built by name

@@ -67,7 +67,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from app.compensation.standoff import CompensationParams
 from app.domain.errors import InvalidInput
+from app.jobs.core_fields import core_field
 from app.jobs.loop_files import write_loop_files
 from app.jobs.loop_gates import Gates, PausePoint
 from app.jobs.loop_steps import (
@@ -120,8 +122,8 @@ class ClosedLoopParams(JobParams):
                                   "machine; method defaults to deviation per trace and to field with joint_probing")
     reconstruct_method: Literal["interpolate", "approximate", "deviation", "kriging"] = "deviation"
     sigma_mm: float | None = Field(None, ge=0, le=1, description="probe noise (1 sigma) for the reconstruction")
-    chord_error_mm: float = Field(0.002, gt=0, le=1)
-    hold_mm: float = Field(0.0, ge=0, le=5)
+    chord_error_mm: float = core_field(CompensationParams, "chord_error_mm")  # the compensate steps'
+    hold_mm: float = core_field(CompensationParams, "hold_mm")
     print: bool = Field(False, description="print each compensated program on the machine")
     evaluate: bool = Field(False, description="simulation: print nominal and compensated programs on the mock "
                            "and measure the standoff against its true part")

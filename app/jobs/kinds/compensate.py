@@ -45,6 +45,7 @@ from app.domain.errors import InvalidInput
 from app.gcode.writer import DEFAULT_DIALECT
 from app.geometry.drape import top_surface_z
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
+from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import placed_nominal, placed_params_of, placement_from
@@ -59,6 +60,10 @@ from app.runtime.registry import JobParams, job_kind
 
 CLEARANCE_STEP_MM = 0.05  # tip stations of the nozzle-body check along the path
 _CORE = CompensationParams()  # the core's defaults are this kind's
+# CompensationParams fields this job does not expose (the core's defaults); the others are this
+# job's parameters of the same name or derived in the job (standoff, feed, dispenser, tool)
+CORE_ONLY = frozenset({"approach_mm", "plunge_feed_mm_min", "dwell_s", "span_tolerance_mm", "max_deviation_mm",
+                       "verify_step_mm", "curvature_safety", "decimals", "xy_uncertainty_mm"})
 _COMMAND = r"^[A-Za-z0-9 .\-]+$"  # one G-code line
 
 
@@ -81,10 +86,10 @@ class CompensateParams(JobParams):
     reconstruct_job_id: str = Field(description="a succeeded reconstruct job of this trace (board mode: of these "
                                     "traces)")
     standoff_mm: StandoffMm | None = Field(None, description="default: the trace's standoff")
-    feed_mm_min: float | None = Field(None, gt=0, le=100_000,
+    feed_mm_min: float | None = Field(None, **core_bounds(CompensationParams, "feed_mm_min"),
                                       description=f"default: the trace's, else {_CORE.feed_mm_min:g}")
-    chord_error_mm: float = Field(_CORE.chord_error_mm, gt=0, le=1,
-                                  description="largest polyline-to-curve distance, proved per segment")
+    chord_error_mm: float = core_field(CompensationParams, "chord_error_mm",
+                                       description="largest polyline-to-curve distance, proved per segment")
     machine_id: str | None = Field(None, description="take dialect and dispense commands from this machine's profile")
     dialect: DispensingDialect = Field(DEFAULT_DIALECT, description="G-code dialect of the programs (without "
                                        "machine_id)")
@@ -92,9 +97,9 @@ class CompensateParams(JobParams):
                              json_schema_extra=form(advanced=True))
     dispense_off: str = Field(_CORE.dispense_off, min_length=1, max_length=80, pattern=_COMMAND,
                               json_schema_extra=form(advanced=True))
-    hold_mm: float = Field(_CORE.hold_mm, ge=0, le=5, description="hold the end deviation over gaps to the probed "
-                           "span up to this length (0: refuse moves outside the probed span)")
-    clearance_mm: float = Field(_CORE.clearance_mm, gt=0, le=100, json_schema_extra=form(advanced=True))
+    hold_mm: float = core_field(CompensationParams, "hold_mm", description="hold the end deviation over gaps to the "
+                                "probed span up to this length (0: refuse moves outside the probed span)")
+    clearance_mm: float = core_field(CompensationParams, "clearance_mm", json_schema_extra=form(advanced=True))
     tool: int | None = Field(None, ge=0, le=8, description="the nozzle T<tool> the programs are written for "
                              "(default: the machine profile's first nozzle; none: the probe frame); 0 = the "
                              "probe's frame with T0")
@@ -253,13 +258,13 @@ def _program(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trac
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]
         on, off = choice.dispense_on or on, choice.dispense_off or off
     mesh = ctx.placed_mesh(records.part(trace.part_id) if records else ctx.part(trace.part_id), placement)
-    path = compensate_trace(reconstruction, CompensationParams(
+    path = compensate_trace(reconstruction, CompensationParams(**core_values(
+        CompensationParams, params, CORE_ONLY,
         standoff_mm=standoff_of(params.standoff_mm, trace.standoff_mm),
         feed_mm_min=params.feed_mm_min or trace.feed_mm_min or _CORE.feed_mm_min,
-        chord_error_mm=params.chord_error_mm, dispense_on=on, dispense_off=off, dialect=dialect,
-        clearance_mm=params.clearance_mm, part_max_z_mm=float(mesh.bounds[1][2]), hold_mm=params.hold_mm,
-        tool=choice.tool, tool_offset_mm=choice.offset_mm,
-    ), job_id=ctx.job_id)
+        dispense_on=on, dispense_off=off, dialect=dialect,
+        part_max_z_mm=float(mesh.bounds[1][2]), tool=choice.tool, tool_offset_mm=choice.offset_mm,
+    )), job_id=ctx.job_id)
     clearance = None
     if choice.tool and choice.outer_diameter_mm:
         if params.trace_ids is None:

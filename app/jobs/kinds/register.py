@@ -27,7 +27,7 @@ from app.jobs.params import RegisterParams
 from app.jobs.probe_correction import machine_probe
 from app.jobs.results.models import RegisterResult
 from app.machines.live import hardware_errors, translate
-from app.registration.datum_plan import DatumProbeParams, plan_datum_probes, register_with_z_probe
+from app.registration.datum_plan import plan_datum_probes, register_with_z_probe
 from app.runtime.context import JobContext
 from app.runtime.machine_queue import (
     interrupt,
@@ -88,9 +88,8 @@ def run(ctx: JobContext, params: RegisterParams) -> dict[str, Any]:
         return touch.z
 
     with ctx.lease(params.machine_id):
-        fitted = register_with_z_probe(plan, probe_z, float(z_bottom), DatumProbeParams(
-            search_mm=params.search_mm, resolution_mm=params.resolution_mm, tip_radius_mm=tip_radius,
-            sigma_mm=params.sigma_mm, pivot_xy=(params.pivot_xy[0], params.pivot_xy[1])), surface_z=surface_z)
+        fitted = register_with_z_probe(plan, probe_z, float(z_bottom), params.probe_params(tip_radius),
+                                       surface_z=surface_z)
     ctx.progress(0.95, f"placement fitted from {fitted.probe_count} touches")
     calibrated = {} if probe is None else {"calibration": {"probe_job_id": probe.job_id, "tip_radius_mm": tip_radius,
                                                             "probe": probe.calibration.to_dict()}}

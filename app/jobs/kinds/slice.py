@@ -16,7 +16,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from app.jobs.core_fields import core_values
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.form_hints import form
 from app.jobs.results.models import SliceResult
 from app.platform.models import Part
@@ -29,6 +29,7 @@ from app.slicing.adaptive import uniform_plan
 from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
 from app.slicing.export_binary import NAME as BINARY_LAYERS
 from app.slicing.export_binary import to_binary
+from app.slicing.layers import Remainder, SeedSample, SliceMode, ThetaRule
 from app.slicing.mesh_prep import default_max_hole_mm
 from app.slicing.rings import ring_length
 
@@ -64,51 +65,50 @@ class BeamTable(BaseModel):
 
 class SliceJobParams(JobParams):
     part_id: str = Field(description="the part to slice")
-    mode: Literal["uniform", "area", "cavity", "cusp"] = Field(
-        "uniform", description="uniform: layers of layer_mm, the remainder distributed or merged (see "
+    mode: SliceMode = core_field(
+        SliceParams, "mode", description="uniform: layers of layer_mm, the remainder distributed or merged (see "
         "remainder); area: the published area-deviation rule (eps0, l_min, l_max); cavity: the multi-cavity "
         "refinement (adds sigma0, mu0, mu1); cusp: our cusp-height rule (cusp_mm, l_min, l_max)")
-    layer_mm: float = Field(_CORE.layer_mm, gt=0, le=100, allow_inf_nan=False,
-                            description="uniform layer thickness, mm", title="Layer thickness",
-                            json_schema_extra=form(unit="mm", when={"mode": ["uniform"]}))
-    l_min: float = Field(_CORE.l_min, gt=0, le=100, allow_inf_nan=False, description="thinnest adaptive layer, mm",
-                         title="Thinnest layer", json_schema_extra=_ADAPTIVE)
-    l_max: float = Field(_CORE.l_max, gt=0, le=100, allow_inf_nan=False, description="thickest adaptive layer, mm",
-                         title="Thickest layer", json_schema_extra=_ADAPTIVE)
-    eps0: float = Field(_CORE.eps0, ge=0, le=10, allow_inf_nan=False,
-                        description="allowed relative area change between layers (S4)", title="Allowed area change ε0",
-                        json_schema_extra=form(when={"mode": ["area", "cavity"]}))
-    sigma0: float = Field(_CORE.sigma0, ge=0, le=1, allow_inf_nan=False,
-                          description="S4 inner-area ratio threshold sum(A_in)/A_out",
-                          title="Inner-area ratio threshold σ0", json_schema_extra=form(when={"mode": ["cavity"]}))
-    mu0: float = Field(_CORE.mu0, ge=0, le=1, allow_inf_nan=False, description="S4 lower mean inner ratio",
-                       title="Lower mean inner ratio μ0", json_schema_extra=form(when={"mode": ["cavity"]}))
-    mu1: float = Field(_CORE.mu1, ge=0, le=1, allow_inf_nan=False, description="S4 upper mean inner ratio",
-                       title="Upper mean inner ratio μ1", json_schema_extra=form(when={"mode": ["cavity"]}))
-    theta_rule: Literal["indicator", "printed"] = Field(
-        _CORE.theta_rule, description="S4 theta: indicator (sigma >= sigma0, the seed's text) or the printed formula",
-        title="θ rule", json_schema_extra=form(advanced=True, when={"mode": ["cavity"]}))
-    step9_resets_to_lmax: bool = Field(
-        _CORE.step9_resets_to_lmax, description="read S4 step 9 literally (non-cavity layers always l_max)",
+    layer_mm: float = core_field(SliceParams, "layer_mm", allow_inf_nan=False, description="uniform layer "
+                                 "thickness, mm", title="Layer thickness",
+                                 json_schema_extra=form(unit="mm", when={"mode": ["uniform"]}))
+    l_min: float = core_field(SliceParams, "l_min", allow_inf_nan=False, description="thinnest adaptive layer, mm",
+                              title="Thinnest layer", json_schema_extra=_ADAPTIVE)
+    l_max: float = core_field(SliceParams, "l_max", allow_inf_nan=False, description="thickest adaptive layer, mm",
+                              title="Thickest layer", json_schema_extra=_ADAPTIVE)
+    eps0: float = core_field(SliceParams, "eps0", allow_inf_nan=False,
+                             description="allowed relative area change between layers (S4)",
+                             title="Allowed area change ε0", json_schema_extra=form(when={"mode": ["area", "cavity"]}))
+    sigma0: float = core_field(SliceParams, "sigma0", allow_inf_nan=False,
+                               description="S4 inner-area ratio threshold sum(A_in)/A_out",
+                               title="Inner-area ratio threshold σ0", json_schema_extra=form(when={"mode": ["cavity"]}))
+    mu0: float = core_field(SliceParams, "mu0", allow_inf_nan=False, description="S4 lower mean inner ratio",
+                            title="Lower mean inner ratio μ0", json_schema_extra=form(when={"mode": ["cavity"]}))
+    mu1: float = core_field(SliceParams, "mu1", allow_inf_nan=False, description="S4 upper mean inner ratio",
+                            title="Upper mean inner ratio μ1", json_schema_extra=form(when={"mode": ["cavity"]}))
+    theta_rule: ThetaRule = core_field(
+        SliceParams, "theta_rule", description="S4 theta: indicator (sigma >= sigma0, the seed's text) or the "
+        "printed formula", title="θ rule", json_schema_extra=form(advanced=True, when={"mode": ["cavity"]}))
+    step9_resets_to_lmax: bool = core_field(
+        SliceParams, "step9_resets_to_lmax", description="read S4 step 9 literally (non-cavity layers always l_max)",
         title="Step 9 resets to the thickest layer", json_schema_extra=form(advanced=True, when={"mode": ["cavity"]}))
-    seed_sample: Literal["top", "mid"] = Field(
-        _CORE.seed_sample, description="area/cavity modes: contour at mid-height (default, inside the layer) or "
-        "at the layer top (as published)", title="Contour sampled at",
+    seed_sample: SeedSample = core_field(
+        SliceParams, "seed_sample", description="area/cavity modes: contour at mid-height (default, inside the "
+        "layer) or at the layer top (as published)", title="Contour sampled at",
         json_schema_extra=form(advanced=True, when={"mode": ["area", "cavity"]}))
-    remainder: Literal["distribute", "merge"] = Field(
-        _CORE.remainder, description="uniform mode, a height that is not a multiple of layer_mm: distribute "
-        "(round(H / layer_mm) equal layers) or merge (layer_mm layers; a remainder under half a layer joins the "
-        "last one). Never a sliver.", json_schema_extra=form(when={"mode": ["uniform"]}))
-    cusp_mm: float = Field(_CORE.cusp_mm, gt=0, le=10, allow_inf_nan=False,
-                           description="allowed cusp height (cusp mode), mm", title="Allowed cusp height",
-                           json_schema_extra=form(when={"mode": ["cusp"]}))
-    repair: bool = Field(_CORE.repair, description="repair a bad mesh (reported) instead of refusing it: winding "
-                         "and normals fixed, holes filled, shells united", title="Repair a bad mesh")
-    max_hole_mm: float | None = Field(None, gt=0, le=100_000, allow_inf_nan=False,
-                                      description="repair fills holes up to this perimeter, mm (default: the perimeter "
-                                      "of the part's bounding box's largest face); larger holes are refused with their "
-                                      "size",
-                                      title="Largest hole repaired", json_schema_extra=_MORE)
+    remainder: Remainder = core_field(
+        SliceParams, "remainder", description="uniform mode, a height that is not a multiple of layer_mm: "
+        "distribute (round(H / layer_mm) equal layers) or merge (layer_mm layers; a remainder under half a layer "
+        "joins the last one). Never a sliver.", json_schema_extra=form(when={"mode": ["uniform"]}))
+    cusp_mm: float = core_field(SliceParams, "cusp_mm", allow_inf_nan=False,
+                                description="allowed cusp height (cusp mode), mm", title="Allowed cusp height",
+                                json_schema_extra=form(when={"mode": ["cusp"]}))
+    repair: bool = core_field(SliceParams, "repair", description="repair a bad mesh (reported) instead of refusing "
+                              "it: winding and normals fixed, holes filled, shells united", title="Repair a bad mesh")
+    max_hole_mm: float | None = core_field(
+        SliceParams, "max_hole_mm", allow_inf_nan=False, description="repair fills holes up to this perimeter, mm "
+        "(default: the perimeter of the part's bounding box's largest face); larger holes are refused with their "
+        "size", title="Largest hole repaired", json_schema_extra=_MORE)
     beam: Literal["none", "seed_haz", "table"] = Field(
         "none", description="beam compensation: none, seed_haz (the published heat-affected widths 21-28 um for "
         "20-40 um layers, linear in thickness) or table (beam_table)", title="Beam compensation",

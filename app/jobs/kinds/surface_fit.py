@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from app.jobs.core_fields import core_values
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.results.models import SurfaceFitResult
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import (
@@ -35,6 +35,7 @@ from app.reconstruction.surface_fit import (
     grid_from_plan,
     sample_nominal_grid,
 )
+from app.reconstruction.surface_fit.fit import FitMethod, HolePolicy, Smoothing
 from app.reconstruction.surface_fit.points import check_points, parse_points_csv
 from app.reconstruction.surface_fit.work import work_estimate
 from app.runtime.context import JobContext
@@ -80,24 +81,31 @@ class SurfaceFitJobParams(JobParams):
     points_csv: str | None = Field(
         None, max_length=8_000_000,
         description="CMM points as CSV text, one 'x, y, z' per line (mm); instead of points")
-    method: Literal["least_squares", "interpolate"] = Field(
-        "least_squares", description="least_squares: smoothing NURBS fit (control net by GCV unless "
+    method: FitMethod = core_field(
+        SurfaceFitParams, "method", description="least_squares: smoothing NURBS fit (control net by GCV unless "
         "control_points); interpolate: through every (preprocessed) grid point")
-    degree: int = Field(3, ge=1, le=5, description="degree in u and v")
+    degree: int = core_field(SurfaceFitParams, "degree", description="degree in u and v")
     control_points: list[Annotated[int, Field(ge=2, le=MAX_GRID * 8)]] | None = Field(
         None, min_length=2, max_length=2, description="least-squares control net [n_u, n_v]; default: GCV")
-    penalty: float = Field(0.0, ge=0, le=1e6, description="second-difference smoothing weight (least squares)")
-    smoothing: Literal["none", "moving_average", "five_point_cubic", "spline"] = Field(
-        "none", description="grid smoothing of the patent's preprocessing")
-    moving_average_window: int = Field(3, ge=1, le=15, description="odd window of the moving average")
-    smoothing_passes: int = Field(1, ge=1, le=20, description="how often the smoothing is applied")
-    remove_bad_points: bool = Field(True, description="remove outliers before fitting (reported)")
-    bad_point_sigma: float = Field(5.0, gt=0, le=100, description="outlier threshold in robust sigmas")
-    bad_point_min_mm: float = Field(0.01, ge=0, le=10, description="never call a point bad below this residual")
-    hole_policy: Literal["error", "fill"] = Field(
-        "error", description="missing grid heights (a probe that failed, a grid point off the part): "
-        "error, or fill by interpolation")
-    densify_factor: int = Field(1, ge=1, le=8, description="grid refinement factor before smoothing and fit")
+    penalty: float = core_field(SurfaceFitParams, "penalty",
+                                description="second-difference smoothing weight (least squares)")
+    smoothing: Smoothing = core_field(SurfaceFitParams, "smoothing",
+                                      description="grid smoothing of the patent's preprocessing")
+    moving_average_window: int = core_field(SurfaceFitParams, "moving_average_window",
+                                            description="odd window of the moving average")
+    smoothing_passes: int = core_field(SurfaceFitParams, "smoothing_passes",
+                                       description="how often the smoothing is applied")
+    remove_bad_points: bool = core_field(SurfaceFitParams, "remove_bad_points",
+                                         description="remove outliers before fitting (reported)")
+    bad_point_sigma: float = core_field(SurfaceFitParams, "bad_point_sigma",
+                                        description="outlier threshold in robust sigmas")
+    bad_point_min_mm: float = core_field(SurfaceFitParams, "bad_point_min_mm",
+                                         description="never call a point bad below this residual")
+    hole_policy: HolePolicy = core_field(
+        SurfaceFitParams, "hole_policy", description="missing grid heights (a probe that failed, a grid point off "
+        "the part): error, or fill by interpolation")
+    densify_factor: int = core_field(SurfaceFitParams, "densify_factor",
+                                     description="grid refinement factor before smoothing and fit")
     resample_to_grid: bool = Field(False, description="points: resample onto the grid before the fit")
 
     @field_validator("moving_average_window")

@@ -23,11 +23,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from app.domain.errors import ConformaError
 from app.gcode.estimator import MachineLimits, estimate_program
-from app.gcode.fdm import END_LIFT_MM, FdmParams, write_fdm_program
+from app.gcode.fdm import END_LIFT_MM, FdmMode, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
 from app.gcode.writer import DEFAULT_DIALECT, DISPENSING_DIALECTS
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
-from app.jobs.core_fields import core_values
+from app.jobs.core_fields import core_field, core_values
 from app.jobs.form_hints import form
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.params import DispensingDialect
@@ -45,7 +45,7 @@ from app.slicing.export_binary import from_binary
 from app.slicing.fractal import MergeWeights
 from app.slicing.layers import SliceResult as SlicedLayers
 from app.slicing.layers import translated
-from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, iter_toolpath, totals_of
+from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, Pattern, iter_toolpath, totals_of
 
 MM_MIN_PER_MM_S = 60.0
 _FILL = ToolpathParams()
@@ -59,7 +59,6 @@ def _dialects_own(index: int) -> str:
 
 
 _DEFAULT_ON, _DEFAULT_OFF = _dialects_own(0), _dialects_own(1)
-_WEIGHTS = MergeWeights()
 
 Speed = Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)]
 Accel = Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)]
@@ -117,46 +116,50 @@ class PlacementIn(BaseModel):
 
 class ToolpathJobParams(JobParams):
     slice_job_id: str = Field(description="a succeeded slice job; its layers.json is filled")
-    pattern: Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"] = Field(
-        "raster", description="raster (zigzag), lines (raster without links), contour (offsets), zone (partition "
-        "scanning), hilbert (plain fractal), hilbert_merged (the published improved fractal: one circuit)")
-    line_width_mm: float = Field(_FILL.line_width_mm, gt=0, le=20, allow_inf_nan=False, description="bead width, mm")
-    nozzle_mm: float = Field(_FILL.nozzle_mm, gt=0, le=20, allow_inf_nan=False, description="nozzle diameter, mm")
-    layer_height_mm: float | None = Field(None, gt=0, le=20, allow_inf_nan=False,
-                                          description="bead height for E; default each layer's thickness")
-    infill: float = Field(_FILL.infill, gt=0, le=1, allow_inf_nan=False, description="infill density (0, 1]")
-    perimeters: int = Field(_FILL.perimeters, ge=0, le=100, description="closed loops inside each ring")
-    angle_deg: float = Field(_FILL.angle_deg, ge=-360, le=360, allow_inf_nan=False, description="raster angle, deg",
-                             json_schema_extra=_MORE)
-    angle_step_deg: float = Field(_FILL.angle_step_deg, ge=-360, le=360, allow_inf_nan=False,
-                                  description="raster angle change per layer, deg", json_schema_extra=_MORE)
+    pattern: Pattern = core_field(
+        ToolpathParams, "pattern", description="raster (zigzag), lines (raster without links), contour (offsets), "
+        "zone (partition scanning), hilbert (plain fractal), hilbert_merged (the published improved fractal: one "
+        "circuit)")
+    line_width_mm: float = core_field(ToolpathParams, "line_width_mm", allow_inf_nan=False,
+                                      description="bead width, mm")
+    nozzle_mm: float = core_field(ToolpathParams, "nozzle_mm", allow_inf_nan=False, description="nozzle diameter, mm")
+    layer_height_mm: float | None = core_field(ToolpathParams, "layer_height_mm", allow_inf_nan=False,
+                                               description="bead height for E; default each layer's thickness")
+    infill: float = core_field(ToolpathParams, "infill", allow_inf_nan=False, description="infill density (0, 1]")
+    perimeters: int = core_field(ToolpathParams, "perimeters", description="closed loops inside each ring")
+    angle_deg: float = core_field(ToolpathParams, "angle_deg", allow_inf_nan=False, description="raster angle, deg",
+                                  json_schema_extra=_MORE)
+    angle_step_deg: float = core_field(ToolpathParams, "angle_step_deg", allow_inf_nan=False,
+                                       description="raster angle change per layer, deg", json_schema_extra=_MORE)
     print_feed_mm_min: Speed = Field(_mm_min(_FILL.print_feed_mm_s), description="infill feed, mm/min")
     perimeter_feed_mm_min: Speed = Field(_mm_min(_FILL.perimeter_feed_mm_s), description="perimeter feed, mm/min",
                                          json_schema_extra=_MORE)
     travel_feed_mm_min: Speed = Field(_mm_min(_FILL.travel_feed_mm_s), description="travel feed, mm/min",
                                       json_schema_extra=_MORE)
-    filament_mm: float = Field(_FILL.filament_mm, gt=0, le=10, allow_inf_nan=False, description="filament diameter, mm",
-                               json_schema_extra=_EXTRUDE_MORE)
-    turn_threshold_deg: float = Field(_FILL.turn_threshold_deg, ge=0, le=180, allow_inf_nan=False,
-                                      description="direction changes above this count as turns, deg",
-                                      json_schema_extra=_MORE)
-    resolution_mm: float = Field(_FILL.resolution_mm, ge=0.001, le=1, allow_inf_nan=False,
-                                 description="the machine's resolution: paths are simplified to it and no move "
-                                             "is shorter, mm", json_schema_extra=_MORE)
-    merge_weight_along: float = Field(_WEIGHTS.along, ge=0, le=1000, allow_inf_nan=False,
-                                      description="hilbert_merged: weight of merging along the layer direction",
-                                      json_schema_extra=_MERGED)
-    merge_weight_across: float = Field(_WEIGHTS.across, ge=0, le=1000, allow_inf_nan=False,
-                                       description="hilbert_merged: weight of merging across it",
-                                       json_schema_extra=_MERGED)
-    accel_mm_s2: Accel = Field(_LIMITS.accel_mm_s2, description="printing acceleration (M204 P), mm/s^2",
-                               json_schema_extra=_MORE)
-    travel_accel_mm_s2: Accel = Field(_LIMITS.travel_accel_mm_s2, description="travel acceleration (M204 T)",
-                                      json_schema_extra=_MORE)
-    retract_accel_mm_s2: Accel = Field(_LIMITS.retract_accel_mm_s2, description="retract acceleration (M204 R)",
-                                       json_schema_extra=_EXTRUDE_MORE)
-    junction_deviation_mm: float = Field(_LIMITS.junction_deviation_mm, ge=0, le=10, allow_inf_nan=False,
-                                         description="Marlin junction deviation (M205 J), mm", json_schema_extra=_MORE)
+    filament_mm: float = core_field(ToolpathParams, "filament_mm", allow_inf_nan=False,
+                                    description="filament diameter, mm", json_schema_extra=_EXTRUDE_MORE)
+    turn_threshold_deg: float = core_field(ToolpathParams, "turn_threshold_deg", allow_inf_nan=False,
+                                           description="direction changes above this count as turns, deg",
+                                           json_schema_extra=_MORE)
+    resolution_mm: float = core_field(ToolpathParams, "resolution_mm", allow_inf_nan=False,
+                                      description="the machine's resolution: paths are simplified to it and no move "
+                                                  "is shorter, mm", json_schema_extra=_MORE)
+    merge_weight_along: float = core_field(MergeWeights, "along", allow_inf_nan=False,
+                                           description="hilbert_merged: weight of merging along the layer direction",
+                                           json_schema_extra=_MERGED)
+    merge_weight_across: float = core_field(MergeWeights, "across", allow_inf_nan=False,
+                                            description="hilbert_merged: weight of merging across it",
+                                            json_schema_extra=_MERGED)
+    accel_mm_s2: float = core_field(MachineLimits, "accel_mm_s2", allow_inf_nan=False,
+                                    description="printing acceleration (M204 P), mm/s^2", json_schema_extra=_MORE)
+    travel_accel_mm_s2: float = core_field(MachineLimits, "travel_accel_mm_s2", allow_inf_nan=False,
+                                           description="travel acceleration (M204 T)", json_schema_extra=_MORE)
+    retract_accel_mm_s2: float = core_field(MachineLimits, "retract_accel_mm_s2", allow_inf_nan=False,
+                                            description="retract acceleration (M204 R)",
+                                            json_schema_extra=_EXTRUDE_MORE)
+    junction_deviation_mm: float = core_field(MachineLimits, "junction_deviation_mm", allow_inf_nan=False,
+                                              description="Marlin junction deviation (M205 J), mm",
+                                              json_schema_extra=_MORE)
     max_feed_mm_s: tuple[Speed, Speed, Speed, Speed] = Field(_LIMITS.max_feed_mm_s,
                                                              description="axis feed limits X Y Z E (M203), mm/s",
                                                              json_schema_extra=_MORE)
@@ -164,21 +167,21 @@ class ToolpathJobParams(JobParams):
                                                                description="axis acceleration limits X Y Z E (M201)",
                                                                json_schema_extra=_MORE)
     dialect: DispensingDialect = Field(DEFAULT_DIALECT, description="G-code dialect (extrude needs marlin)")
-    mode: Literal["extrude", "dispense"] = Field(_FDM.mode, description="E-axis extrusion or dispenser on/off")
-    nozzle_temp_c: float = Field(_FDM.nozzle_temp_c, ge=0, le=500, allow_inf_nan=False, description="extrude, deg C",
-                                 json_schema_extra=_EXTRUDE)
-    bed_temp_c: float = Field(_FDM.bed_temp_c, ge=0, le=200, allow_inf_nan=False, description="extrude, deg C",
-                              json_schema_extra=_EXTRUDE)
-    retract_mm: float = Field(_FDM.retract_mm, ge=0, le=50, allow_inf_nan=False, description="retraction length, mm",
-                              json_schema_extra=_EXTRUDE_MORE)
+    mode: FdmMode = core_field(FdmParams, "mode", description="E-axis extrusion or dispenser on/off")
+    nozzle_temp_c: float = core_field(FdmParams, "nozzle_temp_c", allow_inf_nan=False, description="extrude, deg C",
+                                      json_schema_extra=_EXTRUDE)
+    bed_temp_c: float = core_field(FdmParams, "bed_temp_c", allow_inf_nan=False, description="extrude, deg C",
+                                   json_schema_extra=_EXTRUDE)
+    retract_mm: float = core_field(FdmParams, "retract_mm", allow_inf_nan=False, description="retraction length, mm",
+                                   json_schema_extra=_EXTRUDE_MORE)
     retract_feed_mm_min: Speed = Field(_mm_min(_FDM.retract_feed_mm_s), description="retraction feed, mm/min",
                                        json_schema_extra=_EXTRUDE_MORE)
-    z_lift_mm: float = Field(_FDM.z_lift_mm, ge=0, le=50, allow_inf_nan=False, description="lift during travel, mm",
-                             json_schema_extra=_MORE)
-    min_travel_for_retract_mm: float = Field(_FDM.min_travel_for_retract_mm, ge=0, le=1000, allow_inf_nan=False,
-                                             description="retract only before longer travels, mm",
-                                             json_schema_extra=_EXTRUDE_MORE)
-    home: bool = Field(_FDM.home, description="home (G28) in the start section", json_schema_extra=_MORE)
+    z_lift_mm: float = core_field(FdmParams, "z_lift_mm", allow_inf_nan=False, description="lift during travel, mm",
+                                  json_schema_extra=_MORE)
+    min_travel_for_retract_mm: float = core_field(FdmParams, "min_travel_for_retract_mm", allow_inf_nan=False,
+                                                  description="retract only before longer travels, mm",
+                                                  json_schema_extra=_EXTRUDE_MORE)
+    home: bool = core_field(FdmParams, "home", description="home (G28) in the start section", json_schema_extra=_MORE)
     dispense_on: Command | None = Field(None, description=f"dispense mode: on command (default {_DEFAULT_ON})",
                                         json_schema_extra=_DISPENSE_MORE)
     dispense_off: Command | None = Field(None, description=f"dispense mode: off command (default {_DEFAULT_OFF})",
@@ -191,10 +194,7 @@ class ToolpathJobParams(JobParams):
                                        json_schema_extra=_MORE)
 
     def limits(self) -> MachineLimits:
-        return MachineLimits(accel_mm_s2=self.accel_mm_s2, travel_accel_mm_s2=self.travel_accel_mm_s2,
-                             retract_accel_mm_s2=self.retract_accel_mm_s2,
-                             junction_deviation_mm=self.junction_deviation_mm,
-                             max_feed_mm_s=self.max_feed_mm_s, max_accel_mm_s2=self.max_accel_mm_s2)
+        return MachineLimits(**core_values(MachineLimits, self))
 
     def fill(self) -> ToolpathParams:
         """The planner's parameters: this job's by name, the feeds in mm/s from the job's mm/min."""

@@ -21,10 +21,12 @@ the field.  Units: mm.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from annotated_types import Ge, Gt, Le
 
+from app.domain.checks import require_declared_bounds
 from app.geometry.errors import GeometryError
 from app.geometry.fitting import fit_surface as lsq_surface
 from app.geometry.fitting import interpolate_surface
@@ -45,6 +47,8 @@ from app.reconstruction.surface_fit.preprocess import (
 __all__ = ["SurfaceFitParams", "SurfaceFit", "fit_surface"]
 
 Smoothing = Literal["none", "moving_average", "five_point_cubic", "spline"]
+FitMethod = Literal["least_squares", "interpolate"]
+HolePolicy = Literal["error", "fill"]
 
 
 @dataclass(frozen=True)
@@ -60,39 +64,36 @@ class SurfaceFitParams:
     hole_policy: "error" (NaN heights in the input are an error) or "fill".
     densify_factor: grid refinement factor (>= 1) before smoothing/fit.
     resample_shape: (nx, ny) to resample scattered points onto a grid (None: fit directly).
+    The bounds in the annotations are the ranges a fit may ask for (the surface_fit job's
+    parameter model reads them); a value outside them is refused here too.
     """
 
-    method: Literal["least_squares", "interpolate"] = "least_squares"
-    degree: int = 3
+    method: FitMethod = "least_squares"
+    degree: Annotated[int, Ge(1), Le(5)] = 3
     control_points: tuple[int, int] | None = None
-    penalty: float = 0.0
+    penalty: Annotated[float, Ge(0), Le(1e6)] = 0.0
     smoothing: Smoothing = "none"
-    moving_average_window: int = 3
-    smoothing_passes: int = 1
+    moving_average_window: Annotated[int, Ge(1), Le(15)] = 3
+    smoothing_passes: Annotated[int, Ge(1), Le(20)] = 1
     remove_bad_points: bool = True
-    bad_point_sigma: float = 5.0
-    bad_point_min_mm: float = 0.01
-    hole_policy: Literal["error", "fill"] = "error"
-    densify_factor: int = 1
+    bad_point_sigma: Annotated[float, Gt(0), Le(100)] = 5.0
+    bad_point_min_mm: Annotated[float, Ge(0), Le(10)] = 0.01
+    hole_policy: HolePolicy = "error"
+    densify_factor: Annotated[int, Ge(1), Le(8)] = 1
     resample_shape: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
+        require_declared_bounds(self, SurfaceFitError, prefix="params.")
         checks = [
             ("method", self.method in ("least_squares", "interpolate")),
-            ("degree", isinstance(self.degree, int) and 1 <= self.degree <= 5),
+            ("degree", isinstance(self.degree, int)),
             ("smoothing", self.smoothing in ("none", "moving_average", "five_point_cubic",
                                              "spline")),
             ("moving_average_window", isinstance(self.moving_average_window, int)
-             and self.moving_average_window >= 1 and self.moving_average_window % 2 == 1),
-            ("smoothing_passes", isinstance(self.smoothing_passes, int)
-             and 1 <= self.smoothing_passes <= 20),
-            ("penalty", np.isfinite(self.penalty) and self.penalty >= 0),
-            ("bad_point_sigma", np.isfinite(self.bad_point_sigma) and self.bad_point_sigma > 0),
-            ("bad_point_min_mm", np.isfinite(self.bad_point_min_mm)
-             and self.bad_point_min_mm >= 0),
+             and self.moving_average_window % 2 == 1),
+            ("smoothing_passes", isinstance(self.smoothing_passes, int)),
             ("hole_policy", self.hole_policy in ("error", "fill")),
-            ("densify_factor", isinstance(self.densify_factor, int)
-             and 1 <= self.densify_factor <= 8),
+            ("densify_factor", isinstance(self.densify_factor, int)),
             ("control_points", self.control_points is None or (
                 len(self.control_points) == 2
                 and all(isinstance(n, int) and n > self.degree for n in self.control_points))),
