@@ -27,6 +27,7 @@ from typing import Any, ClassVar, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from app.domain.errors import ConformaError
+from app.five_axis.planner import FiveAxisFigures
 from app.platform.models import Job
 
 R = TypeVar("R", bound="KindResult")
@@ -374,41 +375,17 @@ class PrintResult(KindResult):
 
 
 # five_axis --------------------------------------------------------------------------------
-class FiveAxisResult(KindResult):
-    """A five_axis job: the path's figures (:meth:`app.five_axis.planner.FiveAxisPath.summary`:
-    degrees, mm, percent), the program's frame (``pivot`` [x0, y0, z0] mm, ``post``) and
+class FiveAxisResult(KindResult, FiveAxisFigures):
+    """A five_axis job: the path's figures (the core's :class:`~app.five_axis.planner.FiveAxisFigures`:
+    degrees, mm, s, percent), the program's frame (``pivot`` [x0, y0, z0] mm, ``post``) and
     dispense codes, the surface it was planned on (``surface``:
     :meth:`~app.geometry.nurbs_surface.NurbsSurface.to_dict`, ``surface_source`` says which),
     the nozzle tips' curve (``offset_curve``) and both programs' G-code summaries."""
 
     kind: ClassVar[str] = "five_axis"
-    normal_source: str
-    lines: int
-    servo_periods: int
-    duration_s: float
-    max_normal_error_deg: float
-    max_standoff_error_mm: float
-    max_midpoint_error_mm: float
-    nominal_max_normal_error_deg: float
-    nominal_max_standoff_error_mm: float
-    feed_fluctuation_pct: float
-    feed_fluctuation_rms_pct: float
-    feed_fluctuation_first_order_pct: float
-    feed_fluctuation_first_order_rms_pct: float
-    max_c_step_deg: float
-    max_a_step_deg: float
-    max_c_speed_deg_s: float
-    max_a_speed_deg_s: float
-    pole_lines: int
-    split_lines: int
-    split_rounds: int
-    a_range_deg: list[float]
-    max_trace_deviation_mm: float
     dispense_on: str
     dispense_off: str
     post: str
-    feed_fluctuation: float
-    feed_fluctuation_first_order: float
     standoff_mm: float
     feed_mm_min: float
     feed_mode: str

@@ -1,0 +1,54 @@
+"""Result models that compose the core's dataclasses instead of copying their fields: the result's
+fields are the core's (declared once there), and a core value written as a result and stored as
+JSON reads back equal."""
+
+from __future__ import annotations
+
+import json
+import typing
+from dataclasses import asdict, fields
+
+import numpy as np
+
+from app.five_axis import FiveAxisParams, plan_five_axis
+from app.five_axis.planner import FiveAxisFigures
+from app.five_axis.trace import trace_over_xy
+from app.jobs.results.models import FiveAxisResult
+from tests.five_axis.conftest import sphere_cap
+
+# the keys a stored five_axis result has always had (clients read them flat, at the top level)
+FIVE_AXIS_KEYS = {
+    "normal_source", "lines", "servo_periods", "duration_s", "max_normal_error_deg", "max_standoff_error_mm",
+    "max_midpoint_error_mm", "nominal_max_normal_error_deg", "nominal_max_standoff_error_mm",
+    "feed_fluctuation_pct", "feed_fluctuation_rms_pct", "feed_fluctuation_first_order_pct",
+    "feed_fluctuation_first_order_rms_pct", "max_c_step_deg", "max_a_step_deg", "max_c_speed_deg_s",
+    "max_a_speed_deg_s", "pole_lines", "split_lines", "split_rounds", "a_range_deg", "max_trace_deviation_mm",
+    "dispense_on", "dispense_off", "post", "feed_fluctuation", "feed_fluctuation_first_order", "standoff_mm",
+    "feed_mm_min", "feed_mode", "pivot", "surface_source", "surface", "offset_curve", "program",
+    "nominal_program"}
+FIVE_AXIS_JOB_KEYS = {"dispense_on": "M8", "dispense_off": "M9", "post": "conforma", "standoff_mm": 0.5,
+                      "feed_mm_min": 1200.0, "feed_mode": "inverse_time", "pivot": [5.0, -3.0, -20.0],
+                      "surface_source": {"kind": "surface_fit", "job_id": "j0"}, "surface": {}, "offset_curve": {},
+                      "program": {"lines": 1}, "nominal_program": {"lines": 1}}
+
+
+def test_the_five_axis_result_declares_only_the_jobs_own_fields_beside_the_cores_figures():
+    core = typing.get_type_hints(FiveAxisFigures)
+    result = FiveAxisResult.model_fields
+    assert set(core) == {f.name for f in fields(FiveAxisFigures)}
+    assert all(result[name].annotation == kind for name, kind in core.items())
+    assert set(result) - set(core) == set(FIVE_AXIS_JOB_KEYS)
+    assert set(result) == FIVE_AXIS_KEYS  # the stored shape stays flat, key for key
+
+
+def test_a_planned_paths_figures_round_trip_through_the_stored_result():
+    surface = sphere_cap()
+    t = np.linspace(0, 2 * np.pi, 40)
+    trace = trace_over_xy(surface, np.column_stack([4.0 + 14.0 * np.cos(t), 2.0 + 9.0 * np.sin(t)]))
+    path = plan_five_axis(surface, trace, FiveAxisParams(standoff_mm=0.5, feed_mm_min=1200, period_s=0.002,
+                                                         segment_mm=2.0, pivot=(5.0, -3.0, -20.0)))
+    stored = json.loads(json.dumps(FiveAxisResult.written({**asdict(path.figures), **FIVE_AXIS_JOB_KEYS})))
+    assert set(stored) == FIVE_AXIS_KEYS
+    typed = FiveAxisResult.of_record({"id": "j1", "kind": "five_axis", "result": stored})
+    assert FiveAxisFigures(**{f.name: getattr(typed, f.name) for f in fields(FiveAxisFigures)}) == path.figures
+    assert typed.lines == path.u.size and typed.post == "conforma"
