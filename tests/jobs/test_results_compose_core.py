@@ -9,11 +9,16 @@ import typing
 from dataclasses import asdict, fields
 
 import numpy as np
+import trimesh
+from pydantic import TypeAdapter
 
 from app.five_axis import FiveAxisParams, plan_five_axis
 from app.five_axis.planner import FiveAxisFigures
 from app.five_axis.trace import trace_over_xy
 from app.jobs.results.models import FiveAxisResult
+from app.jobs.results.program import ToolpathLayer, ToolpathResult
+from app.slicing import SliceParams, slice_mesh
+from app.slicing.toolpath import PathCounts, plan_toolpath
 from tests.five_axis.conftest import sphere_cap
 
 # the keys a stored five_axis result has always had (clients read them flat, at the top level)
@@ -52,3 +57,29 @@ def test_a_planned_paths_figures_round_trip_through_the_stored_result():
     typed = FiveAxisResult.of_record({"id": "j1", "kind": "five_axis", "result": stored})
     assert FiveAxisFigures(**{f.name: getattr(typed, f.name) for f in fields(FiveAxisFigures)}) == path.figures
     assert typed.lines == path.u.size and typed.post == "conforma"
+
+
+def _counts(value: object) -> PathCounts:
+    return PathCounts(**{f.name: getattr(value, f.name) for f in fields(PathCounts)})
+
+
+def test_the_toolpath_results_compose_the_cores_path_counts():
+    counts = typing.get_type_hints(PathCounts)
+    layer = {f.name: f.type for f in fields(ToolpathLayer)}
+    assert set(layer) - set(counts) == {"index", "z", "thickness", "time_s", "planner_time_s", "pieces"}
+    assert set(ToolpathResult.model_fields) - set(counts) == {
+        "time_s", "planner_time_s", "estimator", "pattern", "layer_count", "program", "placement", "layers"}
+    assert all(ToolpathResult.model_fields[name].annotation == kind for name, kind in counts.items())
+    assert all(typing.get_type_hints(ToolpathLayer)[name] == kind for name, kind in counts.items())
+
+
+def test_a_planned_layers_counts_round_trip_through_the_stored_layer():
+    toolpath = plan_toolpath(slice_mesh(trimesh.creation.box((12.0, 8.0, 1.0)), SliceParams(layer_mm=0.5)))
+    layer = toolpath.layers[0]
+    assert layer.stats.path_mm > 0 and layer.stats.turns > 0
+    row = {"index": layer.index, "z": layer.z, "thickness": layer.thickness, **asdict(_counts(layer.stats)),
+           "time_s": 1.5, "planner_time_s": layer.stats.time_s, "pieces": len(layer.pieces)}
+    adapter = TypeAdapter(ToolpathLayer)
+    stored = json.loads(adapter.dump_json(adapter.validate_python(row)))
+    assert stored == row
+    assert _counts(adapter.validate_python(stored)) == _counts(layer.stats)

@@ -10,8 +10,10 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict
+from pydantic.dataclasses import dataclass
 
 from app.jobs.results.models import KindResult
+from app.slicing.toolpath import PathCounts
 
 
 # circuit_program --------------------------------------------------------------------------
@@ -126,26 +128,24 @@ class ToolpathPlacement(BaseModel):
     note: str
 
 
-class ToolpathLayer(BaseModel):
-    """One layer's figures: z and thickness (mm), path and travel (mm), turns, jumps, estimated
-    and planner time (s), pieces."""
+@dataclass(frozen=True, config=ConfigDict(extra="forbid"))
+class ToolpathLayer(PathCounts):
+    """One layer's figures: its moves (the core's :class:`~app.slicing.toolpath.PathCounts`:
+    path and travel mm, turns, jumps), z and thickness (mm), the estimated and the planner's
+    time (s) and its pieces."""
 
-    model_config = ConfigDict(extra="forbid")
     index: int
     z: float
     thickness: float
-    path_mm: float
-    travel_mm: float
-    turns: int
-    jumps: int
     time_s: float
     planner_time_s: float
     pieces: int
 
 
-class ToolpathResult(KindResult):
-    """A toolpath job: the estimated and the planner's time (s), totals, the program's G-code
-    summary (``program``: :func:`app.jobs.gcode_meta.gcode_meta`), the placement and each layer."""
+class ToolpathResult(KindResult, PathCounts):
+    """A toolpath job: the totals of its moves (the core's :class:`~app.slicing.toolpath.PathCounts`),
+    the estimated and the planner's time (s), the program's G-code summary (``program``:
+    :func:`app.jobs.gcode_meta.gcode_meta`), the placement and each layer."""
 
     kind: ClassVar[str] = "toolpath"
     time_s: float
@@ -153,10 +153,6 @@ class ToolpathResult(KindResult):
     estimator: ToolpathEstimator
     pattern: str
     layer_count: int
-    path_mm: float
-    travel_mm: float
-    turns: int
-    jumps: int
     program: dict[str, Any]
     placement: ToolpathPlacement
     layers: list[ToolpathLayer]
