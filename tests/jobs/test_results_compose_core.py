@@ -6,15 +6,18 @@ from __future__ import annotations
 
 import json
 import typing
-from dataclasses import asdict, fields
+from dataclasses import MISSING, asdict, fields
 
 import numpy as np
 import trimesh
 from pydantic import TypeAdapter
 
+from app.calibration import NozzleCalibration
+from app.calibration.sensor import SensorCalibration
 from app.five_axis import FiveAxisParams, plan_five_axis
 from app.five_axis.planner import FiveAxisFigures
 from app.five_axis.trace import trace_over_xy
+from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateSensorResult
 from app.jobs.results.models import FiveAxisResult
 from app.jobs.results.program import ToolpathLayer, ToolpathResult
 from app.slicing import SliceParams, slice_mesh
@@ -83,3 +86,31 @@ def test_a_planned_layers_counts_round_trip_through_the_stored_layer():
     stored = json.loads(adapter.dump_json(adapter.validate_python(row)))
     assert stored == row
     assert _counts(adapter.validate_python(stored)) == _counts(layer.stats)
+
+
+def test_the_calibration_results_compose_the_cores_calibrations():
+    for result, core, own in (
+            (CalibrateNozzleResult, NozzleCalibration, {"agreement", "nominal_offset_mm", "nominal_difference_mm",
+                                                        "probe_job_id", "readings"}),
+            (CalibrateSensorResult, SensorCalibration, {"sensor_port", "sensor_rate_hz", "references", "report"})):
+        hints = typing.get_type_hints(core)
+        assert set(result.model_fields) - set(hints) == own
+        assert all(result.model_fields[name].annotation == kind for name, kind in hints.items())
+        assert {name for name, f in result.model_fields.items() if not f.is_required()} >= {
+            f.name for f in fields(core) if f.default is not MISSING}
+
+
+def test_a_calibration_round_trips_through_the_stored_result():
+    nozzle = NozzleCalibration(tool=2, offset_mm=(1.25, -0.5, 3.0), std_mm=(1e-3, 2e-3, 3e-3), outer_diameter_mm=0.8,
+                               touches=14)
+    stored = json.loads(json.dumps(CalibrateNozzleResult.written({**nozzle.to_dict(), "probe_job_id": "jp"})))
+    assert stored == {**nozzle.to_dict(), "probe_job_id": "jp"}
+    assert CalibrateNozzleResult.of_record({"id": "j", "kind": "calibrate_nozzle", "result": stored}).calibration() \
+        == nozzle
+    sensor = SensorCalibration(offset_mm=(0.1, -0.2, 12.5), scale=1.002, time_offset_s=0.004, slope_bias_mm=0.01,
+                               sd={"scale": 1e-4})
+    stored = json.loads(json.dumps(CalibrateSensorResult.written(sensor.to_dict())))
+    assert stored == sensor.to_dict()
+    assert CalibrateSensorResult.of_record({"id": "j", "kind": "calibrate_sensor", "result": stored}).calibration() \
+        == sensor
+
