@@ -17,7 +17,9 @@ from app.calibration.sensor import SensorCalibration
 from app.five_axis import FiveAxisParams, plan_five_axis
 from app.five_axis.planner import FiveAxisFigures
 from app.five_axis.trace import trace_over_xy
+from app.jetting import JettingParams, LayerSolve, QpFigures, SurfaceMetrics, TargetSpec, next_layer, target_from_spec
 from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateSensorResult
+from app.jobs.results.jetting import JettingLayer, NextLayerResult
 from app.jobs.results.models import FiveAxisResult
 from app.jobs.results.program import ToolpathLayer, ToolpathResult
 from app.slicing import SliceParams, slice_mesh
@@ -114,3 +116,27 @@ def test_a_calibration_round_trips_through_the_stored_result():
     assert CalibrateSensorResult.of_record({"id": "j", "kind": "calibrate_sensor", "result": stored}).calibration() \
         == sensor
 
+
+def test_the_jetting_results_compose_the_cores_figures():
+    qp = typing.get_type_hints(QpFigures)
+    assert set(NextLayerResult.model_fields) - set(qp) == {"drops", "reference_height_um", "measured_layer", "grid"}
+    assert all(NextLayerResult.model_fields[name].annotation == kind for name, kind in qp.items())
+    assert {f.name for f in fields(JettingLayer)} == {f.name for f in fields(LayerSolve)} | {
+        f.name for f in fields(SurfaceMetrics)}
+
+
+def test_a_layer_decisions_figures_round_trip_through_the_stored_result():
+    params = JettingParams(target=TargetSpec(size_mm=2, hole_mm=0))
+    target = target_from_spec(params.target, params.drop)
+    measured = target.mask * (10 * params.controller.fill * params.drop.layer_mm)
+    decision = next_layer(measured, target, params)
+    figures = {f.name: getattr(decision, f.name) for f in fields(QpFigures)}
+    assert decision.solve_ms > 0 and decision.integer_gap >= -1e-9
+    grid = {"shape": list(target.shape), "pitch_mm": target.pitch_mm, "part_cells": int(target.mask.sum()),
+            "layer_height_um": 10.0}
+    own = {"drops": int(decision.pattern.sum()), "reference_height_um": decision.level_mm * 1e3,
+           "measured_layer": None, "grid": grid}
+    stored = json.loads(json.dumps(NextLayerResult.written({**figures, **own})))
+    assert stored == {**figures, **own}
+    typed = NextLayerResult.of_record({"id": "j", "kind": "jetting_next_layer", "result": stored})
+    assert QpFigures(**{name: getattr(typed, name) for name in figures}) == QpFigures(**figures)
