@@ -14,6 +14,8 @@ from pydantic import TypeAdapter
 
 from app.calibration import NozzleCalibration
 from app.calibration.sensor import SensorCalibration
+from app.circuits.heightfield import HeightField
+from app.circuits.warp import WarpFigures, WarpOptions, warp_program
 from app.five_axis import FiveAxisParams, plan_five_axis
 from app.five_axis.planner import FiveAxisFigures
 from app.five_axis.trace import trace_over_xy
@@ -21,7 +23,7 @@ from app.jetting import JettingParams, LayerSolve, QpFigures, SurfaceMetrics, Ta
 from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateSensorResult
 from app.jobs.results.jetting import JettingLayer, NextLayerResult
 from app.jobs.results.models import FiveAxisResult
-from app.jobs.results.program import ToolpathLayer, ToolpathResult
+from app.jobs.results.program import ToolpathLayer, ToolpathResult, WarpProgramResult
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.toolpath import PathCounts, plan_toolpath
 from tests.five_axis.conftest import sphere_cap
@@ -140,3 +142,26 @@ def test_a_layer_decisions_figures_round_trip_through_the_stored_result():
     assert stored == {**figures, **own}
     typed = NextLayerResult.of_record({"id": "j", "kind": "jetting_next_layer", "result": stored})
     assert QpFigures(**{name: getattr(typed, name) for name in figures}) == QpFigures(**figures)
+
+
+WARP_JOB_KEYS = {"model_error_mm": 0.001, "fixed_split": {"split_mm": 5.0, "pieces": 3, "max_error_mm": 0.01}}
+
+
+def test_the_warp_result_composes_the_cores_figures():
+    core = typing.get_type_hints(WarpFigures)
+    assert set(WarpProgramResult.model_fields) - set(core) == {"model_error_mm", "height_model", "fixed_split"}
+    assert all(WarpProgramResult.model_fields[name].annotation == kind for name, kind in core.items())
+
+
+def test_a_warps_figures_round_trip_through_the_stored_result():
+    x, y = np.linspace(0, 60, 13), np.linspace(0, 40, 9)
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    surface = HeightField(x, y, 3.0 + 0.002 * xx**2 - 0.0004 * xx * yy)
+    program = "G21\nG90\nM83\nG0 X5 Y5\nG1 Z0.2\nG1 X45 Y15 E1.0 F600\nG1 X10 Y25 E0.5\n"
+    warped = warp_program(program, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
+    figures = {f.name: getattr(warped, f.name) for f in fields(WarpFigures)}
+    assert figures["printing_moves"] == 2 and 0 < figures["max_chord_bound_mm"] <= 0.002
+    stored = json.loads(json.dumps(WarpProgramResult.written({**figures, **WARP_JOB_KEYS})))
+    assert stored == {**figures, **WARP_JOB_KEYS}
+    typed = WarpProgramResult.of_record({"id": "j", "kind": "warp_program", "result": stored})
+    assert WarpFigures(**{name: getattr(typed, name) for name in figures}) == WarpFigures(**figures)

@@ -12,6 +12,7 @@ from typing import Any, ClassVar
 from pydantic import BaseModel, ConfigDict
 from pydantic.dataclasses import dataclass
 
+from app.circuits.warp import WarpFigures
 from app.jobs.results.models import KindResult
 from app.slicing.toolpath import PathCounts
 
@@ -76,21 +77,16 @@ class WarpHeightModel(BaseModel):
     posterior_sd_max_mm: float | None = None
 
 
-class WarpProgramResult(KindResult):
-    """A warp_program job: lines in and out, printing moves, emitted pieces, the largest chord
-    bound against the height model (mm) and beside it ``model_error_mm``, how far the height
+class WarpProgramResult(KindResult, WarpFigures):
+    """A warp_program job: the warp's figures (the core's :class:`~app.circuits.warp.WarpFigures`:
+    lines in and out, printing moves, emitted pieces, the largest chord bound against the height
+    model and the travel height, mm) and beside them ``model_error_mm``, how far the height
     model itself may be from the part (its cross-validated max error, mm; None when it cannot
-    be measured): the chord bound is conditional on the model.  The travel height (mm), the
-    height model and how it was chosen, and the fixed split compared."""
+    be measured): the chord bound is conditional on the model.  The height model and how it
+    was chosen, and the fixed split compared."""
 
     kind: ClassVar[str] = "warp_program"
-    lines_in: int
-    lines_out: int
-    printing_moves: int
-    pieces: int
-    max_chord_bound_mm: float
     model_error_mm: float | None = None
-    safe_z_mm: float
     height_model: WarpHeightModel | None = None
     fixed_split: FixedSplit
 
