@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 from pydantic import TypeAdapter
 
-from app.calibration import NozzleCalibration
+from app.calibration import NozzleCalibration, PretravelModel, ProbeCalibration
 from app.calibration.sensor import SensorCalibration
 from app.circuits.heightfield import HeightField
 from app.circuits.warp import WarpFigures, WarpOptions, warp_program
@@ -20,7 +20,7 @@ from app.five_axis import FiveAxisParams, plan_five_axis
 from app.five_axis.planner import FiveAxisFigures
 from app.five_axis.trace import trace_over_xy
 from app.jetting import JettingParams, LayerSolve, QpFigures, SurfaceMetrics, TargetSpec, next_layer, target_from_spec
-from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateSensorResult
+from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult, CalibrateSensorResult
 from app.jobs.results.jetting import JettingLayer, NextLayerResult
 from app.jobs.results.models import FiveAxisResult
 from app.jobs.results.program import ToolpathLayer, ToolpathResult, WarpProgramResult
@@ -94,6 +94,7 @@ def test_a_planned_layers_counts_round_trip_through_the_stored_layer():
 
 def test_the_calibration_results_compose_the_cores_calibrations():
     for result, core, own in (
+            (CalibrateProbeResult, ProbeCalibration, {"agreement", "nominal_ball_radius_mm", "readings"}),
             (CalibrateNozzleResult, NozzleCalibration, {"agreement", "nominal_offset_mm", "nominal_difference_mm",
                                                         "probe_job_id", "readings"}),
             (CalibrateSensorResult, SensorCalibration, {"sensor_port", "sensor_rate_hz", "references", "report"})):
@@ -101,10 +102,19 @@ def test_the_calibration_results_compose_the_cores_calibrations():
         assert set(result.model_fields) - set(hints) == own
         assert all(result.model_fields[name].annotation == kind for name, kind in hints.items())
         assert {name for name, f in result.model_fields.items() if not f.is_required()} >= {
-            f.name for f in fields(core) if f.default is not MISSING}
+            f.name for f in fields(core) if f.default is not MISSING or f.default_factory is not MISSING}
 
 
 def test_a_calibration_round_trips_through_the_stored_result():
+    probe = ProbeCalibration(ball_radius_mm=0.498, pretravel=PretravelModel(0.012, 0.001, -0.002),
+                             sphere_centre_mm=(10.0, 20.0, -5.5), pad_reading_z_mm=1.25,
+                             std={"ball_radius_mm": 5e-4}, residual_rms_mm=0.001, touches=40, drift_mm_per_min=0.002)
+    stored = json.loads(json.dumps(CalibrateProbeResult.written(probe.to_dict())))
+    assert stored == probe.to_dict()
+    assert CalibrateProbeResult.of_record({"id": "j", "kind": "calibrate_probe", "result": stored}).calibration() \
+        == probe
+    without_std = {k: v for k, v in stored.items() if k != "std"}
+    assert CalibrateProbeResult.of_record({"id": "j", "kind": "calibrate_probe", "result": without_std}).std == {}
     nozzle = NozzleCalibration(tool=2, offset_mm=(1.25, -0.5, 3.0), std_mm=(1e-3, 2e-3, 3e-3), outer_diameter_mm=0.8,
                                touches=14)
     stored = json.loads(json.dumps(CalibrateNozzleResult.written({**nozzle.to_dict(), "probe_job_id": "jp"})))

@@ -1,10 +1,10 @@
 """The typed results of the calibration kinds (``calibrate_probe``, ``calibrate_nozzle``,
-``calibrate_sensor``):
-the core's calibration (:meth:`app.calibration.ProbeCalibration.to_dict` /
-:meth:`~app.calibration.NozzleCalibration.to_dict`, the same keys), how it agrees with the
-one before it, and the touches it read.  Written and read through one model, see
-:mod:`app.jobs.results.models`; ``agreement`` and ``readings`` may be absent from results stored by
-hand (tests, imports), never from a job's."""
+``calibrate_sensor``): the core's calibration (each model is built on the core's dataclass,
+:class:`app.calibration.ProbeCalibration`, :class:`~app.calibration.NozzleCalibration` or
+:class:`~app.calibration.sensor.SensorCalibration`: its fields, stored as its ``to_dict`` writes
+them), how it agrees with the one before it, and the touches it read.  Written and read through
+one model, see :mod:`app.jobs.results.models`; ``agreement`` and ``readings`` may be absent from
+results stored by hand (tests, imports), never from a job's."""
 
 from __future__ import annotations
 
@@ -28,16 +28,14 @@ class Agreement(BaseModel):
     disagrees: list[str] = Field(default_factory=list)
 
 
-class CalibrateProbeResult(KindResult):
+class CalibrateProbeResult(KindResult, ProbeCalibration):
+    """A probe qualification (the core's :class:`~app.calibration.ProbeCalibration`: ball radius,
+    pre-travel model, sphere centre, pad reading, their std, residual rms, touches, drift; mm),
+    its agreement with the one before, the nominal ball radius and the touches it read."""
+
     kind: ClassVar[str] = "calibrate_probe"
-    ball_radius_mm: float
-    pretravel: dict[str, float]
-    sphere_centre_mm: list[float]
-    pad_reading_z_mm: float | None = None
+    # the core's default factory: a model built on a stdlib dataclass takes its plain defaults only
     std: dict[str, float] = Field(default_factory=dict)
-    residual_rms_mm: float = 0.0
-    touches: int = 0
-    drift_mm_per_min: float | None = None
     agreement: Agreement = Field(default_factory=Agreement)
     nominal_ball_radius_mm: float | None = None
     readings: list[dict[str, Any]] = Field(default_factory=list)
