@@ -21,8 +21,8 @@ from app.five_axis.planner import FiveAxisFigures
 from app.five_axis.trace import trace_over_xy
 from app.jetting import JettingParams, LayerSolve, QpFigures, SurfaceMetrics, TargetSpec, next_layer, target_from_spec
 from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult, CalibrateSensorResult
+from app.jobs.results.five_axis import FiveAxisResult
 from app.jobs.results.jetting import JettingLayer, NextLayerResult
-from app.jobs.results.models import FiveAxisResult
 from app.jobs.results.program import ToolpathLayer, ToolpathResult, WarpProgramResult
 from app.slicing import SliceParams, slice_mesh
 from app.slicing.toolpath import PathCounts, plan_toolpath

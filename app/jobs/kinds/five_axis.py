@@ -51,7 +51,8 @@ from app.jobs.core_fields import core_field, core_values
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import nominal_of
 from app.jobs.params import StandoffMm, standoff_of
-from app.jobs.results.models import FiveAxisResult, SurfaceFitResult
+from app.jobs.results.five_axis import FiveAxisResult
+from app.jobs.results.models import SurfaceFitResult
 from app.platform.models import Job, Machine, Part, Trace
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top

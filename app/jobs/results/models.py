@@ -1,5 +1,6 @@
 """Typed results of the job kinds whose results other code reads back (probe_plan,
-probe_run, reconstruct, compensate, slice, surface_fit, print, five_axis, register; closed_loop's in
+probe_run, reconstruct, compensate, slice, surface_fit, print, register; five_axis's in
+:mod:`app.jobs.results.five_axis`, closed_loop's in
 :mod:`app.jobs.results.loop`, the calibrations' in :mod:`app.jobs.results.calibration`,
 circuit_program / warp_program / toolpath's in :mod:`app.jobs.results.program`, the jetting
 kinds' in :mod:`app.jobs.results.jetting`).
@@ -27,7 +28,6 @@ from typing import Any, ClassVar, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from app.domain.errors import ConformaError
-from app.five_axis.planner import FiveAxisFigures
 from app.platform.models import Job
 
 R = TypeVar("R", bound="KindResult")
@@ -372,29 +372,6 @@ class PrintResult(KindResult):
     drift: dict[str, Any] | None = None
     # the dispense profile applied (app.machines.materials), with its dwell counts
     dispense: dict[str, Any] | None = None
-
-
-# five_axis --------------------------------------------------------------------------------
-class FiveAxisResult(KindResult, FiveAxisFigures):
-    """A five_axis job: the path's figures (the core's :class:`~app.five_axis.planner.FiveAxisFigures`:
-    degrees, mm, s, percent), the program's frame (``pivot`` [x0, y0, z0] mm, ``post``) and
-    dispense codes, the surface it was planned on (``surface``:
-    :meth:`~app.geometry.nurbs_surface.NurbsSurface.to_dict`, ``surface_source`` says which),
-    the nozzle tips' curve (``offset_curve``) and both programs' G-code summaries."""
-
-    kind: ClassVar[str] = "five_axis"
-    dispense_on: str
-    dispense_off: str
-    post: str
-    standoff_mm: float
-    feed_mm_min: float
-    feed_mode: str
-    pivot: list[float]
-    surface_source: dict[str, Any]
-    surface: dict[str, Any]
-    offset_curve: dict[str, Any]
-    program: dict[str, Any]
-    nominal_program: dict[str, Any]
 
 
 # register ---------------------------------------------------------------------------------
