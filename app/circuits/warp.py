@@ -38,7 +38,8 @@ from app.circuits.errors import WarpError
 from app.circuits.gcode_scan import EONLY, MODE, OTHER, PRINT, STILL, TRAVEL, ZONLY, Records, scan_program
 from app.circuits.heightfield import HeightField, Inside
 
-__all__ = ["WarpOptions", "WarpResult", "warp_program", "check_program", "check_region", "fixed_split_error"]
+__all__ = ["WarpFigures", "WarpOptions", "WarpResult", "warp_program", "check_program", "check_region",
+           "fixed_split_error"]
 
 
 @dataclass(frozen=True)
@@ -53,19 +54,26 @@ class WarpOptions:
 
 
 @dataclass(frozen=True)
-class WarpResult:
-    """text: the warped program; lines_in (records read: a source line, or an arc's chord) /
-    lines_out; printing_moves; pieces (emitted printing segments); max_bound_mm: the largest
-    chord bound of an emitted piece (<= chord_error_mm), proved against the height field, not
-    the part (how far the field is from the part is the height model's own error)."""
+class WarpFigures:
+    """What a warp wrote: lines_in (records read: a source line, or an arc's chord) / lines_out;
+    printing_moves; pieces (emitted printing segments); max_chord_bound_mm: the largest chord
+    bound of an emitted piece (<= chord_error_mm), proved against the height field, not the
+    part (how far the field is from the part is the height model's own error); safe_z_mm: the
+    travel height (mm)."""
 
-    text: str
     lines_in: int
     lines_out: int
     printing_moves: int
     pieces: int
-    max_bound_mm: float
+    max_chord_bound_mm: float
     safe_z_mm: float
+
+
+@dataclass(frozen=True)
+class WarpResult(WarpFigures):
+    """The warped program (``text``) and its figures (:class:`WarpFigures`)."""
+
+    text: str
 
 
 def _fmt(v: float, d: int) -> str:
@@ -233,8 +241,9 @@ def warp_program(text: str, surface: HeightField, opts: WarpOptions = WarpOption
     body: list[str] = out.tolist()
     text_out = "; warped onto a measured surface by conforma (absolute mm)\nG21\nG90\n" + \
         "".join(body) % tuple(values)
-    return WarpResult(text_out, len(kind), len(out) + 3, len(k_print), int(n.sum()),
-                      float(piece_bound.max(initial=0.0)), float(safe_z))
+    return WarpResult(text=text_out, lines_in=len(kind), lines_out=len(out) + 3, printing_moves=len(k_print),
+                      pieces=int(n.sum()), max_chord_bound_mm=float(piece_bound.max(initial=0.0)),
+                      safe_z_mm=float(safe_z))
 
 
 def _write(recs: Records, z_move: npt.NDArray[np.float64], z_start: npt.NDArray[np.float64],

@@ -16,12 +16,12 @@ from app.five_axis.kinematics import (
     inverse_kinematics,
 )
 from app.five_axis.params import FiveAxisParams
-from app.five_axis.planner import FiveAxisPath, plan_five_axis
+from app.five_axis.planner import FiveAxisFigures, FiveAxisPath, plan_five_axis
 from app.five_axis.trace import trace_on_surface
 
 __all__ = [
     "AxisLimitError", "AxisPose", "BranchChoice", "DegenerateTraceError", "FiveAxisError",
-    "FiveAxisParams", "FiveAxisPath", "MachineConfig", "ToolPose", "TraceOffSurfaceError",
+    "FiveAxisFigures", "FiveAxisParams", "FiveAxisPath", "MachineConfig", "ToolPose", "TraceOffSurfaceError",
     "choose_axes", "forward_kinematics", "inverse_kinematics", "plan_five_axis",
     "trace_on_surface",
 ]

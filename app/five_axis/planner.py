@@ -25,7 +25,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -52,9 +51,60 @@ from app.geometry.fitting import interpolate_curve
 from app.geometry.nurbs import NurbsCurve
 from app.geometry.nurbs_surface import NurbsSurface
 
-__all__ = ["FiveAxisPath", "plan_five_axis", "line_indices", "servo_times"]
+__all__ = ["FiveAxisFigures", "FiveAxisPath", "plan_five_axis", "line_indices", "servo_times"]
 
 _Z = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class FiveAxisFigures:
+    """A planned traverse's figures, as a job reports them (degrees, mm, s, percent or fraction).
+
+    normal_source: "surface" or "principal"; lines: program lines (poses); servo_periods: number
+    of servo periods; duration_s: total print time (s).
+    max_normal_error_deg: max angle between +Z and the surface normal after A, C.
+    max_standoff_error_mm: max | distance(tip, surface) - h | (surface inversion).
+    max_midpoint_error_mm: max distance between the tip halfway (in time) through a linear
+    move and the planned tip at that moment (contact + h * planned nozzle axis; the planned
+    axis is the surface normal outside the pole window); at most ``midpoint_tol_mm``
+    unless ``split_rounds`` reached ``max_split_rounds``.
+    nominal_max_normal_error_deg / nominal_max_standoff_error_mm: same for the 3-axis program.
+    feed_fluctuation_pct / feed_fluctuation_rms_pct: max and RMS relative feed error of the
+    second-order interpolator (percent); ``*_first_order_*``: the same for the first-order one.
+    max_c_step_deg / max_a_step_deg: largest rotary move between consecutive lines;
+    max_c_speed_deg_s / max_a_speed_deg_s: largest rotary speed the program asks for.
+    pole_lines: lines inside the pole window; split_lines: lines added by midpoint splits;
+    split_rounds: halving rounds used.
+    a_range_deg: [min, max] of the program's A angles (deg).
+    max_trace_deviation_mm: max distance of the trace from the surface.
+    feed_fluctuation / feed_fluctuation_first_order: the max relative feed errors again, as
+    fractions.
+    """
+
+    normal_source: str
+    lines: int
+    servo_periods: int
+    duration_s: float
+    max_normal_error_deg: float
+    max_standoff_error_mm: float
+    max_midpoint_error_mm: float
+    nominal_max_normal_error_deg: float
+    nominal_max_standoff_error_mm: float
+    feed_fluctuation_pct: float
+    feed_fluctuation_rms_pct: float
+    feed_fluctuation_first_order_pct: float
+    feed_fluctuation_first_order_rms_pct: float
+    max_c_step_deg: float
+    max_a_step_deg: float
+    max_c_speed_deg_s: float
+    max_a_speed_deg_s: float
+    pole_lines: int
+    split_lines: int
+    split_rounds: int
+    a_range_deg: list[float]
+    max_trace_deviation_mm: float
+    feed_fluctuation: float
+    feed_fluctuation_first_order: float
 
 
 @dataclass(frozen=True)
@@ -66,21 +116,8 @@ class FiveAxisPath:
     u: (k,) trace parameters of the poses; frames: their contact data.
     durations_s: (k-1,) segment times at the set feed.
     offset_curve: f(u), a NURBS curve through the nozzle tips (workpiece coordinates).
-    normal_source: "surface" or "principal".
-    max_normal_error_deg: max angle between +Z and the surface normal after A, C.
-    max_standoff_error_mm: max | distance(tip, surface) - h | (surface inversion).
-    max_midpoint_error_mm: max distance between the tip halfway (in time) through a linear
-    move and the planned tip at that moment (contact + h * planned nozzle axis; the planned
-    axis is the surface normal outside the pole window); at most ``midpoint_tol_mm``
-    unless ``split_rounds`` reached ``max_split_rounds``.
-    nominal_max_normal_error_deg / nominal_max_standoff_error_mm: same for the 3-axis program.
     feed: second-order feed fluctuation; feed_first_order: the first-order one.
-    max_c_step_deg / max_a_step_deg: largest rotary move between consecutive lines;
-    max_c_speed_deg_s / max_a_speed_deg_s: largest rotary speed the program asks for.
-    pole_lines: lines inside the pole window; split_lines: lines added by midpoint splits;
-    split_rounds: halving rounds used.
-    max_trace_deviation_mm: max distance of the trace from the surface.
-    servo_periods: number of servo periods; duration_s: total print time.
+    figures: the traverse's figures (:class:`FiveAxisFigures`: errors, rotary moves, time).
     """
 
     program: str
@@ -90,57 +127,9 @@ class FiveAxisPath:
     frames: ContactFrames
     durations_s: npt.NDArray[np.float64]
     offset_curve: NurbsCurve
-    normal_source: str
-    max_normal_error_deg: float
-    max_standoff_error_mm: float
-    max_midpoint_error_mm: float
-    nominal_max_normal_error_deg: float
-    nominal_max_standoff_error_mm: float
     feed: FeedFluctuation
     feed_first_order: FeedFluctuation
-    max_c_step_deg: float
-    max_a_step_deg: float
-    max_c_speed_deg_s: float
-    max_a_speed_deg_s: float
-    pole_lines: int
-    split_lines: int
-    split_rounds: int
-    max_trace_deviation_mm: float
-    servo_periods: int
-    duration_s: float
-
-    @property
-    def feed_fluctuation(self) -> float:
-        """Max relative feed error of the second-order interpolator."""
-        return self.feed.max_rel
-
-    def summary(self) -> dict[str, Any]:
-        """JSON-friendly metrics (degrees, mm, percent) for a job result."""
-        return {
-            "normal_source": self.normal_source,
-            "lines": int(self.u.size),
-            "servo_periods": self.servo_periods,
-            "duration_s": self.duration_s,
-            "max_normal_error_deg": self.max_normal_error_deg,
-            "max_standoff_error_mm": self.max_standoff_error_mm,
-            "max_midpoint_error_mm": self.max_midpoint_error_mm,
-            "nominal_max_normal_error_deg": self.nominal_max_normal_error_deg,
-            "nominal_max_standoff_error_mm": self.nominal_max_standoff_error_mm,
-            "feed_fluctuation_pct": 100.0 * self.feed.max_rel,
-            "feed_fluctuation_rms_pct": 100.0 * self.feed.rms_rel,
-            "feed_fluctuation_first_order_pct": 100.0 * self.feed_first_order.max_rel,
-            "feed_fluctuation_first_order_rms_pct": 100.0 * self.feed_first_order.rms_rel,
-            "max_c_step_deg": self.max_c_step_deg,
-            "max_a_step_deg": self.max_a_step_deg,
-            "max_c_speed_deg_s": self.max_c_speed_deg_s,
-            "max_a_speed_deg_s": self.max_a_speed_deg_s,
-            "pole_lines": self.pole_lines,
-            "split_lines": self.split_lines,
-            "split_rounds": self.split_rounds,
-            "a_range_deg": [float(np.degrees(self.axes.a_rad.min())),
-                            float(np.degrees(self.axes.a_rad.max()))],
-            "max_trace_deviation_mm": self.max_trace_deviation_mm,
-        }
+    figures: FiveAxisFigures
 
 
 def line_indices(n_samples: int, stride: int) -> npt.NDArray[np.int64]:
@@ -284,20 +273,26 @@ def plan_five_axis(surface: NurbsSurface, trace: NurbsCurve,
     offset_curve = interpolate_curve(frames.contact + h * frames.direction, 3,
                                      field="trace")
     c_step, a_step = np.diff(c_deg), np.diff(a_deg)
-    return FiveAxisPath(
-        program=program, nominal_program=nominal, axes=axes, u=frames.u, frames=frames,
-        durations_s=durations, offset_curve=offset_curve, normal_source=frames.normal_source,
+    figures = FiveAxisFigures(
+        normal_source=frames.normal_source, lines=int(frames.u.size), servo_periods=int(n - 1),
+        duration_s=float(durations.sum()),
         max_normal_error_deg=float(normal_err.max()),
         max_standoff_error_mm=float(standoff_err.max()),
         max_midpoint_error_mm=float(poses.midpoint_error_mm.max(initial=0.0)),
         nominal_max_normal_error_deg=float(_angle_to_z_deg(frames.surface_normal).max()),
         nominal_max_standoff_error_mm=float(nominal_standoff_err.max()),
-        feed=fluct2, feed_first_order=fluct1,
+        feed_fluctuation_pct=100.0 * fluct2.max_rel, feed_fluctuation_rms_pct=100.0 * fluct2.rms_rel,
+        feed_fluctuation_first_order_pct=100.0 * fluct1.max_rel,
+        feed_fluctuation_first_order_rms_pct=100.0 * fluct1.rms_rel,
         max_c_step_deg=float(np.abs(c_step).max(initial=0.0)),
         max_a_step_deg=float(np.abs(a_step).max(initial=0.0)),
         max_c_speed_deg_s=_max_speed(c_step, durations),
         max_a_speed_deg_s=_max_speed(a_step, durations),
         pole_lines=int(poses.pole.sum()), split_lines=int(u_lines.size - first_count),
-        split_rounds=rounds,
+        split_rounds=rounds, a_range_deg=[float(np.degrees(a.min())), float(np.degrees(a.max()))],
         max_trace_deviation_mm=float(frames.trace_deviation_mm.max()),
-        servo_periods=int(n - 1), duration_s=float(durations.sum()))
+        feed_fluctuation=fluct2.max_rel, feed_fluctuation_first_order=fluct1.max_rel)
+    return FiveAxisPath(
+        program=program, nominal_program=nominal, axes=axes, u=frames.u, frames=frames,
+        durations_s=durations, offset_curve=offset_curve, feed=fluct2, feed_first_order=fluct1,
+        figures=figures)

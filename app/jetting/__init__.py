@@ -6,7 +6,7 @@ Entry points for the job adapter: ``JettingParams``, ``simulate``, ``next_layer`
 ``npz_bytes``. Pure: arrays and bytes in, named results out.
 """
 
-from .controller import LayerDecision
+from .controller import LayerDecision, QpFigures, SolveFigures
 from .encode import npz_arrays, npz_bytes, pattern_png, png_pattern
 from .errors import JettingError
 from .kernel import DropKernel, drop_kernel
@@ -37,7 +37,8 @@ from .targets import (
 
 __all__ = [
     "ControllerParams", "DropKernel", "DropParams", "FlowParams", "JettingError", "JettingParams",
-    "LayerDecision", "LayerRecord", "LayerSolve", "PlantParams", "SimulationResult", "SurfaceMetrics", "Target",
+    "LayerDecision", "LayerRecord", "LayerSolve", "PlantParams", "QpFigures", "SimulationResult", "SolveFigures",
+    "SurfaceMetrics", "Target",
     "TargetSpec", "drop_kernel", "estimate_bytes", "next_layer", "npz_arrays", "npz_bytes",
     "pattern_png", "png_pattern", "simulate", "surface_metrics", "target_from_mask",
     "target_from_png", "target_from_rings", "target_from_spec",

@@ -37,23 +37,36 @@ SOLVERS = ("fista", "lbfgsb")
 
 
 @dataclass(frozen=True)
-class LayerDecision:
-    """pattern: (L, W) bool drops to print; relaxed: (m, L, W) QP optimum; objectives
-    (relaxed and with the binary first layer), integer_gap, kkt_residual, iterations,
-    solve_ms (model + QP + binarization, wall clock), solve_cpu_ms (its CPU time), flips
-    (greedy), reference_mm: (L, W) r_(l+1); level_mm: the reference's level (l + 1) * fill * t
-    away from the edges, mm."""
+class SolveFigures:
+    """The controller's solve of one layer: ``solve_ms`` (model + QP + binarization, wall clock)
+    and ``solve_cpu_ms`` (its CPU time), the solver's ``iterations``, the binarization's
+    ``integer_gap`` and the QP's ``kkt_residual`` (all 0 open loop)."""
+
+    solve_ms: float
+    solve_cpu_ms: float
+    iterations: int
+    integer_gap: float
+    kkt_residual: float
+
+
+@dataclass(frozen=True)
+class QpFigures(SolveFigures):
+    """A layer QP's figures: its solve (:class:`SolveFigures`), its objectives (relaxed, and
+    with the binary first layer) and the greedy binarization's ``flips``."""
+
+    objective_relaxed: float
+    objective_binary: float
+    flips: int
+
+
+@dataclass(frozen=True)
+class LayerDecision(QpFigures):
+    """The next layer: its QP's figures (:class:`QpFigures`), pattern: (L, W) bool drops to
+    print; relaxed: (m, L, W) QP optimum; reference_mm: (L, W) r_(l+1); level_mm: the
+    reference's level (l + 1) * fill * t away from the edges, mm."""
 
     pattern: npt.NDArray[np.bool_]
     relaxed: npt.NDArray[np.float64]
-    objective_relaxed: float
-    objective_binary: float
-    integer_gap: float
-    kkt_residual: float
-    iterations: int
-    solve_ms: float
-    solve_cpu_ms: float
-    flips: int
     reference_mm: npt.NDArray[np.float64]
     level_mm: float
 
@@ -152,9 +165,9 @@ def mpc_layer(measured_mm: npt.NDArray[np.float64], target: Target, kernel: Drop
     solution = solve_qp(qp, ctrl, warm)
     binary = binarize(qp, solution.x, solution.objective, ctrl.binarize, ctrl.greedy_rounds)
     return LayerDecision(
-        pattern=binary.pattern, relaxed=solution.x, objective_relaxed=solution.objective,
-        objective_binary=binary.objective, integer_gap=binary.integer_gap,
-        kkt_residual=solution.kkt_residual, iterations=solution.iterations,
+        pattern=binary.pattern, relaxed=solution.x, objective_relaxed=float(solution.objective),
+        objective_binary=float(binary.objective), integer_gap=float(binary.integer_gap),
+        kkt_residual=float(solution.kkt_residual), iterations=int(solution.iterations),
         solve_ms=(time.perf_counter() - start) * 1e3,
-        solve_cpu_ms=(time.thread_time() - start_cpu) * 1e3, flips=binary.flips,
+        solve_cpu_ms=(time.thread_time() - start_cpu) * 1e3, flips=int(binary.flips),
         reference_mm=qp.references[0], level_mm=(layer + 1) * ctrl.fill * drop.layer_mm)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from .controller import LayerDecision, mpc_layer, validate_controller
+from .controller import LayerDecision, SolveFigures, mpc_layer, validate_controller
 from .encode import npz_bytes
 from .errors import JettingError
 from .flow import mobility_map, substrate_tilt
@@ -23,17 +23,13 @@ WORK_ARRAYS_PER_CELL = 40  # float64 temporaries of one layer (flow, transport, 
 
 
 @dataclass(frozen=True)
-class LayerSolve:
+class LayerSolve(SolveFigures):
     """A printed layer's own figures: its number, the drops printed and the controller's
-    solve (ms, iterations, integer gap, KKT residual; 0 open loop)."""
+    solve (:class:`~app.jetting.controller.SolveFigures`: ms, iterations, integer gap, KKT
+    residual; 0 open loop)."""
 
     layer: int
     drops: int
-    solve_ms: float
-    solve_cpu_ms: float
-    iterations: int
-    integer_gap: float
-    kkt_residual: float
 
 
 @dataclass(frozen=True)

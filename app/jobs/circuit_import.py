@@ -10,13 +10,14 @@ bounded: the files' facts and their :class:`~app.circuits.mapping.MappedLayout`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from app.circuits.budget import MAX_SHAPES
 from app.circuits.errors import CircuitFileError
 from app.circuits.formats import read_layout
+from app.circuits.layout import Layout
 from app.circuits.mapping import MappedLayout, MappingOptions, map_layout
 from app.circuits.placement import LayoutPlacement, board_center
 
@@ -47,8 +48,9 @@ class ImportRequest:
 
 
 @dataclass(frozen=True)
-class FileMapped:
-    """One file read and mapped: its facts (format, units, layers, notes, counts) and layout."""
+class FileFacts:
+    """One file as read: its name, format, units, the layers read, the reader's notes and how many
+    traces, pads, areas and vias it holds (``metadata["description"]``: what the API says of a field)."""
 
     file: str
     format: str
@@ -58,10 +60,25 @@ class FileMapped:
     traces: int
     pads: int
     areas: int
-    vias: int
+    vias: int = field(default=0, metadata={"description": "vias read (interconnect points; not pads, not filled)"})
+    stack: list[dict[str, object]] = field(default_factory=list, metadata={
+        "description": "the file's copper layers, top to bottom: layer, side (top/inner/bottom), printed, tracks, "
+                       "pads, zones, vias"})
+
+    @classmethod
+    def of(cls, layout: Layout) -> FileFacts:
+        """The facts of a layout as read (:func:`~app.circuits.formats.read_layout`)."""
+        return cls(layout.file, layout.format, layout.units, list(layout.layers), list(layout.notes),
+                   len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), list(layout.stack))
+
+
+@dataclass(frozen=True)
+class FileMapped:
+    """One file read and mapped: its facts and its layout on the part."""
+
+    facts: FileFacts
     mapped: MappedLayout
     connections: list[dict[str, object]]   # the named nets' connected pieces in the file (indices)
-    stack: list[dict[str, object]]         # the file's copper layers (side, printed, counts)
 
 
 @dataclass(frozen=True)
@@ -103,7 +120,5 @@ def read_and_map(request: ImportRequest, settings: Any) -> ImportMapped:
     for layout in layouts:
         assert mesh is not None  # read above when there is a layout
         mapped = map_layout(layout, placement, mesh, request.mapping)
-        out.append(FileMapped(layout.file, layout.format, layout.units, list(layout.layers), layout.notes,
-                              len(layout.traces), len(layout.pads), len(layout.areas), len(layout.vias), mapped,
-                              [c.to_dict() for c in layout.connections], layout.stack))
+        out.append(FileMapped(FileFacts.of(layout), mapped, [c.to_dict() for c in layout.connections]))
     return ImportMapped(placement, out)

@@ -97,13 +97,21 @@ class PathPiece:
 
 
 @dataclass(frozen=True)
-class LayerStats:
-    """Per-layer (or total) statistics: mm, counts, s."""
+class PathCounts:
+    """A layer's (or all layers') moves: extruded ``path_mm`` and ``travel_mm`` (mm), the
+    ``turns`` sharper than the turn threshold and the ``jumps`` between pieces (counts)."""
 
     path_mm: float
     travel_mm: float
     turns: int
     jumps: int
+
+
+@dataclass(frozen=True)
+class LayerStats(PathCounts):
+    """Per-layer (or total) statistics: the moves' :class:`PathCounts` and the planner's own
+    estimate of their time, ``time_s`` (s)."""
+
     time_s: float
 
 

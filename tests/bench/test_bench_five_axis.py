@@ -112,9 +112,9 @@ def test_bench_five_axis_plan() -> None:
             feed_mm_min=feed, period_s=period, segment_mm=0.5, pivot=(0, 0, -30)))
         elapsed = time.perf_counter() - t0
         f2, f1 = path.feed.max_rel, path.feed_first_order.max_rel
-        print(f"{feed:11.0f} {period * 1e3:5.1f} {path.servo_periods:8d} {100 * f2:12.2e} "
-              f"{100 * f1:12.2e} {f1 / f2:8.1f} {path.max_normal_error_deg:10.2e} "
-              f"{path.max_standoff_error_mm * 1e3:11.2e} "
-              f"{path.nominal_max_normal_error_deg:11.2f} {path.u.size:6d} {elapsed:6.2f}")
+        print(f"{feed:11.0f} {period * 1e3:5.1f} {path.figures.servo_periods:8d} {100 * f2:12.2e} "
+              f"{100 * f1:12.2e} {f1 / f2:8.1f} {path.figures.max_normal_error_deg:10.2e} "
+              f"{path.figures.max_standoff_error_mm * 1e3:11.2e} "
+              f"{path.figures.nominal_max_normal_error_deg:11.2f} {path.u.size:6d} {elapsed:6.2f}")
         assert f2 < 1e-3 and f2 < f1
-        assert path.max_normal_error_deg < 0.05 and path.max_standoff_error_mm < 1e-3
+        assert path.figures.max_normal_error_deg < 0.05 and path.figures.max_standoff_error_mm < 1e-3

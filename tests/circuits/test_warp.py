@@ -55,7 +55,7 @@ def _moves(text):
 
 def test_printing_moves_lie_at_the_standoff_within_the_proved_bound(surface):
     result = warp_program(PROGRAM, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
-    assert result.printing_moves == 3 and result.max_bound_mm <= 0.002
+    assert result.printing_moves == 3 and result.max_chord_bound_mm <= 0.002
     moves = _moves(result.text)
     printing = [m for m in moves if m[0] == 1.0 and m[3] is not None]
     assert sum(m[3] for m in printing) == pytest.approx(1.9, abs=1e-4)   # extrusion conserved
@@ -106,7 +106,7 @@ def test_arcs_outside_the_xy_plane_are_refused_naming_the_line(surface):
 def test_fixed_length_split_leaves_a_larger_error_than_ours(surface):
     pieces, worst = fixed_split_error(PROGRAM, surface, split_mm=5.0, standoff_mm=0.1)
     ours = warp_program(PROGRAM, surface, WarpOptions(standoff_mm=0.1, chord_error_mm=0.002))
-    assert worst > 0.002 >= ours.max_bound_mm
+    assert worst > 0.002 >= ours.max_chord_bound_mm
     assert pieces > 0
 
 

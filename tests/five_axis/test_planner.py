@@ -59,7 +59,7 @@ def test_program_brings_normal_to_z_at_standoff(sphere: NurbsSurface) -> None:
     rows = _check_program(sphere, path.program, H, PIVOT)
     assert rows.shape[0] == path.u.size
     assert np.abs(np.diff(rows[:, 4])).max() <= 180.0
-    assert path.max_normal_error_deg < 0.05 and path.max_standoff_error_mm < 1e-3
+    assert path.figures.max_normal_error_deg < 0.05 and path.figures.max_standoff_error_mm < 1e-3
     # inverse-time feed: F = 1 / minutes of each segment, segments at the set feed
     f = rows[1:, 5]
     seg_len = np.array([trace.arc_length(u0, u1) for u0, u1 in zip(path.u[:-1], path.u[1:])])
@@ -72,11 +72,14 @@ def test_program_brings_normal_to_z_at_standoff(sphere: NurbsSurface) -> None:
     # the nominal program is 3-axis, h above the contact points, but tilted from the normal
     nominal = g1_rows(path.nominal_program)
     assert not np.any(nominal[:, 3:5]) and all(" A" not in line for line in path.nominal_program.splitlines())
-    assert path.nominal_max_normal_error_deg > 10.0
-    assert path.nominal_max_standoff_error_mm > 0.01
+    assert path.figures.nominal_max_normal_error_deg > 10.0
+    assert path.figures.nominal_max_standoff_error_mm > 0.01
     assert path.offset_curve.dimension == 3
-    summary = path.summary()
-    assert summary["normal_source"] == "surface" and summary["lines"] == path.u.size
+    figures = path.figures
+    assert figures.normal_source == "surface" and figures.lines == path.u.size == rows.shape[0]
+    assert figures.a_range_deg == pytest.approx([rows[:, 3].min(), rows[:, 3].max()], abs=1e-9)
+    assert figures.feed_fluctuation_pct == pytest.approx(100.0 * figures.feed_fluctuation) \
+        == pytest.approx(100.0 * path.feed.max_rel)
 
 
 def test_path_over_the_apex_holds_c_and_never_flips(sphere: NurbsSurface) -> None:
@@ -109,8 +112,8 @@ def test_principal_normal_option(sphere: NurbsSurface) -> None:
     for y, expected in ((0.0, 0.0), (10.0, np.degrees(np.arcsin(10.0 / 40.0)))):
         xy = np.column_stack([np.linspace(-15, 15, 31), np.full(31, y)])
         path = plan_five_axis(sphere, trace_over_xy(sphere, xy), params)
-        assert path.normal_source == "principal"
-        assert path.max_normal_error_deg == pytest.approx(expected, abs=0.05)
+        assert path.figures.normal_source == "principal"
+        assert path.figures.max_normal_error_deg == pytest.approx(expected, abs=0.05)
 
 
 def test_principal_normal_on_straight_trace_is_an_error(sphere: NurbsSurface) -> None:
@@ -203,16 +206,16 @@ def test_straight_trace_over_the_apex_keeps_the_tip_on_the_path(
     inv = surface.invert(_midpoint_tips(path.program, PIVOT))
     assert np.abs(inv.distance - H).max() < 0.01
     assert np.abs(inv.closest[:, :2] @ across - offset_mm).max() < 0.01
-    assert path.max_midpoint_error_mm < 0.01
-    assert np.abs(np.diff(rows[:, 4])).max() < 10.0 and path.max_c_step_deg < 10.0
+    assert path.figures.max_midpoint_error_mm < 0.01
+    assert np.abs(np.diff(rows[:, 4])).max() < 10.0 and path.figures.max_c_step_deg < 10.0
     xyz, a, c = rows[:, :3], np.radians(rows[:, 3]), np.radians(rows[:, 4])
     assert np.abs(surface.invert(machine_to_workpiece(xyz, a, c, np.array(PIVOT))).distance
                   - H).max() < 1e-3
     # the nozzle axis leaves the normal only inside the pole window, by at most the
     # normal's tilt there (~ offset / R on the sphere)
-    assert path.max_normal_error_deg <= params.pole_window_deg
+    assert path.figures.max_normal_error_deg <= params.pole_window_deg
     if surface_kind == "sphere":
-        assert path.max_normal_error_deg < max(0.05, np.degrees(offset_mm / SPHERE_R) + 0.01)
+        assert path.figures.max_normal_error_deg < max(0.05, np.degrees(offset_mm / SPHERE_R) + 0.01)
     assert rows[0, 3] * rows[-1, 3] < 0  # A changes sign instead of C turning
 
 
@@ -225,9 +228,9 @@ def test_exact_normals_beside_the_apex_are_kept_by_splitting_lines(sphere: Nurbs
             "pivot": PIVOT, "pole_window_deg": 0.0}
     path = plan_five_axis(sphere, trace, FiveAxisParams(**base))
     unsplit = plan_five_axis(sphere, trace, FiveAxisParams(**base, max_split_rounds=0))
-    assert unsplit.max_midpoint_error_mm > 0.1 and unsplit.split_lines == 0
-    assert path.max_midpoint_error_mm < 0.01 < path.split_lines
-    assert path.u.size == unsplit.u.size + path.split_lines
+    assert unsplit.figures.max_midpoint_error_mm > 0.1 and unsplit.figures.split_lines == 0
+    assert path.figures.max_midpoint_error_mm < 0.01 < path.figures.split_lines
+    assert path.u.size == unsplit.u.size + path.figures.split_lines
     tips = _midpoint_tips(path.program, PIVOT)
     radius = np.linalg.norm(tips, axis=1)
     assert np.abs(radius - (SPHERE_R + H)).max() < 0.01
@@ -235,12 +238,11 @@ def test_exact_normals_beside_the_apex_are_kept_by_splitting_lines(sphere: Nurbs
     _check_program(sphere, path.program, H, PIVOT)  # normals within 0.05 deg at every line
     # the price: C turns ~180 deg within a millimetre, far faster than with the window
     windowed = plan_five_axis(sphere, trace, FiveAxisParams(**{**base, "pole_window_deg": 0.5}))
-    assert path.max_c_speed_deg_s > 5 * windowed.max_c_speed_deg_s
+    assert path.figures.max_c_speed_deg_s > 5 * windowed.figures.max_c_speed_deg_s
     # inverse-time F still adds up to the print time
     f = g1_rows(path.program)[1:, 5]
-    assert (1.0 / f).sum() * 60.0 == pytest.approx(path.duration_s, rel=1e-3)
-    summary = path.summary()
-    assert summary["split_lines"] == path.split_lines and summary["pole_lines"] == 0
+    assert (1.0 / f).sum() * 60.0 == pytest.approx(path.figures.duration_s, rel=1e-3)
+    assert path.figures.pole_lines == 0
 
 
 def test_dispense_commands_follow_the_approach_and_the_last_move(sphere: NurbsSurface) -> None:

@@ -15,7 +15,8 @@ import pytest
 import trimesh
 
 from app.geometry.nurbs_surface import NurbsSurface
-from app.jobs.results.models import FiveAxisResult, ProgramEcho, StoredResultError
+from app.jobs.results.five_axis import FiveAxisResult
+from app.jobs.results.models import ProgramEcho, StoredResultError
 from app.platform.models import Job
 from hardware.protocol import commands_sha256
 from tests.conftest import auth

@@ -9,9 +9,9 @@ import pytest
 from sqlmodel import Session
 
 from app.jobs.results.calibration import CalibrateNozzleResult, CalibrateProbeResult
+from app.jobs.results.five_axis import FiveAxisResult
 from app.jobs.results.loop import ClosedLoopResult
 from app.jobs.results.models import (
-    FiveAxisResult,
     PrintResult,
     ProgramEcho,
     RegisterResult,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
+from dataclasses import asdict
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -18,6 +19,7 @@ import anyio
 import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from pydantic import BaseModel, Field, ValidationError
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from app.api.circuit_pages import paged
 from app.api.deps import Operator, RuntimeDep, SessionDep, Viewer
@@ -29,7 +31,7 @@ from app.circuits.nets import area_polygon
 from app.circuits.pad_probes import probe_ring
 from app.compensation.standoff import DEFAULT_STANDOFF_MM
 from app.domain.errors import ConformaError, InvalidInput
-from app.jobs.circuit_import import ImportMapped, ImportRequest, PartMesh, read_and_map
+from app.jobs.circuit_import import FileFacts, ImportMapped, ImportRequest, PartMesh, read_and_map
 from app.jobs.kinds.circuit_program import import_probe_trace_ids, stored_areas
 from app.parts.traces import DrapedAhead
 from app.platform.lookup import get_or_404
@@ -72,18 +74,9 @@ class CircuitImportOptions(Strict):
                                             "(from POST /viewer/token) before accepting")
 
 
-class ImportedFile(BaseModel):
-    file: str
-    format: str
-    units: str
-    layers: list[str]
-    notes: list[str]
-    traces: int
-    pads: int
-    areas: int
-    vias: int = Field(0, description="vias read (interconnect points; not pads, not filled)")
-    stack: list[dict[str, Any]] = Field(default_factory=list, description="the file's copper layers, top to "
-                                        "bottom: layer, side (top/inner/bottom), printed, tracks, pads, zones, vias")
+@pydantic_dataclass(frozen=True)
+class ImportedFile(FileFacts):
+    """One file of the import as read: its format, units, layers, the reader's notes and its counts."""
 
 
 class ImportedTrace(BaseModel):
@@ -217,10 +210,8 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
         _xy_geometry(mt.geometry) for read in read_all.files for mt in read.mapped.traces if mt.on_part]
         + [_xy_geometry({"type": "polyline", "points": r.tolist()}) for file in rings for r in file if r is not None])
     for file_rings, read in zip(rings, read_all.files):
-        name, mapped = read.file, read.mapped
-        out.files.append(ImportedFile(file=name, format=read.format, units=read.units, layers=read.layers,
-                                      notes=read.notes, traces=read.traces, pads=read.pads, areas=read.areas,
-                                      vias=read.vias, stack=read.stack))
+        name, mapped = read.facts.file, read.mapped
+        out.files.append(ImportedFile(**asdict(read.facts)))
         out.vias += [dict(v, file=name) for v in mapped.vias]
         out.outline += [r.round(6).tolist() for r in mapped.outline]
         base = len(out.traces)
@@ -281,7 +272,7 @@ def import_circuit(part_id: str, runtime: RuntimeDep, session: SessionDep, reque
         out.probe_trace_ids = [t.id for item, t in records if item is None]
         session.add(CircuitImport(
             id=import_id, part_id=part.id,
-            files=[dict(f.model_dump(), connections=r.connections, interconnects=r.mapped.vias)
+            files=[dict(asdict(f), connections=r.connections, interconnects=r.mapped.vias)
                                                   for f, r in zip(out.files, read_all.files)],
             options=opts.model_dump(), trace_ids=[trace.id for item, trace in records if item is not None],
             pads=[p.model_dump() for p in out.pads], areas=[a.model_dump() for a in out.areas],

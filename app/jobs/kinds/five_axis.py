@@ -31,6 +31,7 @@ A pose needing A beyond ``a_limits_deg`` fails the job with a 422 problem naming
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Annotated, Any, NamedTuple
 
 import numpy as np
@@ -50,7 +51,8 @@ from app.jobs.core_fields import core_field, core_values
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.inputs import nominal_of
 from app.jobs.params import StandoffMm, standoff_of
-from app.jobs.results.models import FiveAxisResult, SurfaceFitResult
+from app.jobs.results.five_axis import FiveAxisResult
+from app.jobs.results.models import SurfaceFitResult
 from app.platform.models import Job, Machine, Part, Trace
 from app.probing.grid import ProbeRegion, plan_probe_grid
 from app.reconstruction.surface_fit import SurfaceFitParams, fit_part_top
@@ -294,12 +296,10 @@ def run(ctx: JobContext, params: FiveAxisJobParams) -> dict:
         metas[name] = gcode_meta(text)
         ctx.artifact(name, text.encode(), "text/x-gcode", metas[name])
     return FiveAxisResult.written({
-        **path.summary(),
+        **asdict(path.figures),
         "dispense_on": params.dispense_on,
         "dispense_off": params.dispense_off,
         "post": params.post,
-        "feed_fluctuation": path.feed.max_rel,
-        "feed_fluctuation_first_order": path.feed_first_order.max_rel,
         "standoff_mm": plan_params.standoff_mm,
         "feed_mm_min": plan_params.feed_mm_min,
         "feed_mode": plan_params.feed_mode,

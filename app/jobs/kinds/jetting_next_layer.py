@@ -11,6 +11,7 @@ Artifacts: ``next_pattern.png`` (1 bit, one pixel per print cell, white = drop) 
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Annotated
 
 import numpy as np
@@ -18,6 +19,7 @@ from pydantic import Field, model_validator
 
 from app.jetting import (
     JettingError,
+    QpFigures,
     next_layer,
     npz_arrays,
     npz_bytes,
@@ -187,15 +189,8 @@ def run(ctx: JobContext, params: NextLayerParams) -> dict:
                  NPZ_MEDIA_TYPE, npz_meta(pattern=grid, relaxed=list(decision.relaxed.shape), reference_mm=grid,
                                           mask=grid, pitch_mm=[]))
     return NextLayerResult.written({
+        **{f.name: getattr(decision, f.name) for f in fields(QpFigures)},
         "drops": drops,
-        "integer_gap": float(decision.integer_gap),
-        "kkt_residual": float(decision.kkt_residual),
-        "solve_ms": float(decision.solve_ms),
-        "solve_cpu_ms": float(decision.solve_cpu_ms),
-        "iterations": int(decision.iterations),
-        "flips": int(decision.flips),
-        "objective_relaxed": float(decision.objective_relaxed),
-        "objective_binary": float(decision.objective_binary),
         "reference_height_um": float(decision.level_mm * UM_PER_MM),
         "measured_layer": snapshot,
         "grid": {"shape": grid, "pitch_mm": target.pitch_mm, "part_cells": int(target.mask.sum()),

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterator
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -45,7 +45,7 @@ from app.slicing.export_binary import from_binary
 from app.slicing.fractal import MergeWeights
 from app.slicing.layers import SliceResult as SlicedLayers
 from app.slicing.layers import translated
-from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, Pattern, iter_toolpath, totals_of
+from app.slicing.toolpath import THINNEST_WALL, LayerStats, LayerToolpath, PathCounts, Pattern, iter_toolpath, totals_of
 
 MM_MIN_PER_MM_S = 60.0
 _FILL = ToolpathParams()
@@ -247,11 +247,15 @@ def machine_volume(params: ToolpathJobParams, machine: Machine | None) -> Machin
 
 def _per_layer(stats: list[tuple[int, float, float, LayerStats, int]], layer_times: tuple[float, ...]) -> list[dict]:
     """Per-layer rows from (index, z, thickness, stats, pieces) and the estimated layer times."""
-    return [{"index": index, "z": z, "thickness": thickness, "path_mm": st.path_mm,
-             "travel_mm": st.travel_mm, "turns": st.turns, "jumps": st.jumps,
+    return [{"index": index, "z": z, "thickness": thickness, **_counts(st),
              "time_s": layer_times[index] if index < len(layer_times) else 0.0,
              "planner_time_s": st.time_s, "pieces": pieces}
             for index, z, thickness, st, pieces in stats]
+
+
+def _counts(stats: LayerStats) -> dict[str, Any]:
+    """The moves' counts of ``stats`` (:class:`PathCounts`' fields; its ``time_s`` is the planner's)."""
+    return {f.name: getattr(stats, f.name) for f in dataclasses.fields(PathCounts)}
 
 
 def _references(params: ToolpathJobParams) -> list[tuple[str, str]]:
@@ -373,10 +377,7 @@ def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
                       "description": limits.describe(), "limits": dataclasses.asdict(limits)},
         "pattern": params.pattern,
         "layer_count": len(stats),
-        "path_mm": totals.path_mm,
-        "travel_mm": totals.travel_mm,
-        "turns": totals.turns,
-        "jumps": totals.jumps,
+        **_counts(totals),
         "program": meta,
         "placement": {**params.placement.model_dump(), "shift_mm": [float(v) for v in shift],
                       "volume_mm": volume.describe(),

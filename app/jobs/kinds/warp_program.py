@@ -7,6 +7,7 @@ measured points; see :mod:`app.circuits.warp` for what happens to each move.
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -15,7 +16,7 @@ from app.circuits.errors import WarpError
 from app.circuits.gcode_scan import MIN_ARC_CHORD_MM, arc_chord_budget, scan_program
 from app.circuits.height_model import height_model_from_points
 from app.circuits.heightfield import points_region
-from app.circuits.warp import WarpOptions, check_region, fixed_split_error, warp_program
+from app.circuits.warp import WarpFigures, WarpOptions, check_region, fixed_split_error, warp_program
 from app.domain.errors import InvalidInput
 from app.gcode.program_bounds import BoundsScan
 from app.geometry.nurbs_surface import NurbsSurface
@@ -122,10 +123,8 @@ def run(ctx: JobContext, params: WarpProgramParams) -> dict:
                                                    arc_chord_mm=params.arc_chord_mm))
     ctx.artifact("warped.gcode", result.text.encode(), "text/x-gcode", gcode_meta(result.text))
     pieces, worst = fixed_split_error(text, field, params.compare_split_mm, params.standoff_mm or 0.0)
-    return WarpProgramResult.written({"lines_in": result.lines_in, "lines_out": result.lines_out,
-                                      "printing_moves": result.printing_moves,
-            "pieces": result.pieces, "max_chord_bound_mm": result.max_bound_mm,
-            "model_error_mm": _finite(model.cv_max_mm), "safe_z_mm": result.safe_z_mm,
+    return WarpProgramResult.written({**{f.name: getattr(result, f.name) for f in fields(WarpFigures)},
+            "model_error_mm": _finite(model.cv_max_mm),
             "height_model": {"kind": model.kind, "cv": model.cv, "cv_rms_mm": _finite(model.cv_rms_mm),
                              "cv_max_mm": _finite(model.cv_max_mm),
                              "alternatives": {k: _finite(v) for k, v in model.alternatives.items()},

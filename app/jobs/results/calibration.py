@@ -1,13 +1,14 @@
 """The typed results of the calibration kinds (``calibrate_probe``, ``calibrate_nozzle``,
-``calibrate_sensor``):
-the core's calibration (:meth:`app.calibration.ProbeCalibration.to_dict` /
-:meth:`~app.calibration.NozzleCalibration.to_dict`, the same keys), how it agrees with the
-one before it, and the touches it read.  Written and read through one model, see
-:mod:`app.jobs.results.models`; ``agreement`` and ``readings`` may be absent from results stored by
-hand (tests, imports), never from a job's."""
+``calibrate_sensor``): the core's calibration (each model is built on the core's dataclass,
+:class:`app.calibration.ProbeCalibration`, :class:`~app.calibration.NozzleCalibration` or
+:class:`~app.calibration.sensor.SensorCalibration`: its fields, stored as its ``to_dict`` writes
+them), how it agrees with the one before it, and the touches it read.  Written and read through
+one model, see :mod:`app.jobs.results.models`; ``agreement`` and ``readings`` may be absent from
+results stored by hand (tests, imports), never from a job's."""
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -27,16 +28,14 @@ class Agreement(BaseModel):
     disagrees: list[str] = Field(default_factory=list)
 
 
-class CalibrateProbeResult(KindResult):
+class CalibrateProbeResult(KindResult, ProbeCalibration):
+    """A probe qualification (the core's :class:`~app.calibration.ProbeCalibration`: ball radius,
+    pre-travel model, sphere centre, pad reading, their std, residual rms, touches, drift; mm),
+    its agreement with the one before, the nominal ball radius and the touches it read."""
+
     kind: ClassVar[str] = "calibrate_probe"
-    ball_radius_mm: float
-    pretravel: dict[str, float]
-    sphere_centre_mm: list[float]
-    pad_reading_z_mm: float | None = None
+    # the core's default factory: a model built on a stdlib dataclass takes its plain defaults only
     std: dict[str, float] = Field(default_factory=dict)
-    residual_rms_mm: float = 0.0
-    touches: int = 0
-    drift_mm_per_min: float | None = None
     agreement: Agreement = Field(default_factory=Agreement)
     nominal_ball_radius_mm: float | None = None
     readings: list[dict[str, Any]] = Field(default_factory=list)
@@ -46,13 +45,12 @@ class CalibrateProbeResult(KindResult):
         return ProbeCalibration.from_dict(self.model_dump())
 
 
-class CalibrateNozzleResult(KindResult):
+class CalibrateNozzleResult(KindResult, NozzleCalibration):
+    """A nozzle's calibration (the core's :class:`~app.calibration.NozzleCalibration`: tool, offset_mm
+    and its std_mm (3,) mm, outer_diameter_mm, touches), its agreement with the one before, the
+    machine profile's nominal offset and the difference (mm), the probe job it rests on and the touches."""
+
     kind: ClassVar[str] = "calibrate_nozzle"
-    tool: int
-    offset_mm: list[float]
-    std_mm: list[float]
-    outer_diameter_mm: float | None = None
-    touches: int = 0
     agreement: Agreement = Field(default_factory=Agreement)
     nominal_offset_mm: list[float] | None = None
     nominal_difference_mm: list[float] | None = None
@@ -64,17 +62,12 @@ class CalibrateNozzleResult(KindResult):
         return NozzleCalibration.from_dict(self.model_dump())
 
 
-class CalibrateSensorResult(KindResult):
-    """The height sensor's calibration (:class:`app.calibration.sensor.SensorCalibration`'s
-    dict: offset_mm, scale, time_offset_s, slope_bias_mm, sd), the link it was made over,
+class CalibrateSensorResult(KindResult, SensorCalibration):
+    """The height sensor's calibration (the core's :class:`app.calibration.sensor.SensorCalibration`:
+    offset_mm (3,) mm, scale, time_offset_s, slope_bias_mm, sd), the link it was made over,
     the reference heights it rests on and each procedure's report."""
 
     kind: ClassVar[str] = "calibrate_sensor"
-    offset_mm: list[float]
-    scale: float
-    time_offset_s: float
-    slope_bias_mm: float = 0.0
-    sd: dict[str, float] | None = None
     sensor_port: str | None = None
     sensor_rate_hz: float | None = None
     references: dict[str, Any] = Field(default_factory=dict)
@@ -82,5 +75,4 @@ class CalibrateSensorResult(KindResult):
 
     def calibration(self) -> SensorCalibration:
         """The core's sensor calibration."""
-        return SensorCalibration.from_dict(self.model_dump(include={"offset_mm", "scale", "time_offset_s",
-                                                                    "slope_bias_mm", "sd"}))
+        return SensorCalibration.from_dict(self.model_dump(include={f.name for f in fields(SensorCalibration)}))

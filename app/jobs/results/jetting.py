@@ -12,6 +12,7 @@ from typing import ClassVar
 from pydantic import BaseModel, ConfigDict
 from pydantic.dataclasses import dataclass
 
+from app.jetting.controller import QpFigures
 from app.jetting.metrics import SurfaceMetrics
 from app.jetting.simulate import LayerSolve
 from app.jobs.results.models import KindResult
@@ -50,22 +51,15 @@ class JettingResult(KindResult):
     pattern_pngs: list[str]
 
 
-class NextLayerResult(KindResult):
-    """A jetting_next_layer job: the pattern's drops, the layer QP's figures (gap, KKT
-    residual, solve ms, iterations, greedy flips, relaxed and binary objectives), the
-    reference's level over the part (um; the edge-aware lead near the edges comes on top), the snapshot layer used (None
+class NextLayerResult(KindResult, QpFigures):
+    """A jetting_next_layer job: the layer QP's figures (the core's
+    :class:`~app.jetting.controller.QpFigures`: solve ms, iterations, gap, KKT residual, relaxed
+    and binary objectives, greedy flips), the pattern's drops, the reference's level over the
+    part (um; the edge-aware lead near the edges comes on top), the snapshot layer used (None
     for inline / 2-D maps) and the grid."""
 
     kind: ClassVar[str] = "jetting_next_layer"
     drops: int
-    integer_gap: float
-    kkt_residual: float
-    solve_ms: float
-    solve_cpu_ms: float
-    iterations: int
-    flips: int
-    objective_relaxed: float
-    objective_binary: float
     reference_height_um: float
     measured_layer: int | None
     grid: JettingGrid

@@ -1,5 +1,6 @@
 """Typed results of the job kinds whose results other code reads back (probe_plan,
-probe_run, reconstruct, compensate, slice, surface_fit, print, five_axis, register; closed_loop's in
+probe_run, reconstruct, compensate, slice, surface_fit, print, register; five_axis's in
+:mod:`app.jobs.results.five_axis`, closed_loop's in
 :mod:`app.jobs.results.loop`, the calibrations' in :mod:`app.jobs.results.calibration`,
 circuit_program / warp_program / toolpath's in :mod:`app.jobs.results.program`, the jetting
 kinds' in :mod:`app.jobs.results.jetting`).
@@ -371,53 +372,6 @@ class PrintResult(KindResult):
     drift: dict[str, Any] | None = None
     # the dispense profile applied (app.machines.materials), with its dwell counts
     dispense: dict[str, Any] | None = None
-
-
-# five_axis --------------------------------------------------------------------------------
-class FiveAxisResult(KindResult):
-    """A five_axis job: the path's figures (:meth:`app.five_axis.planner.FiveAxisPath.summary`:
-    degrees, mm, percent), the program's frame (``pivot`` [x0, y0, z0] mm, ``post``) and
-    dispense codes, the surface it was planned on (``surface``:
-    :meth:`~app.geometry.nurbs_surface.NurbsSurface.to_dict`, ``surface_source`` says which),
-    the nozzle tips' curve (``offset_curve``) and both programs' G-code summaries."""
-
-    kind: ClassVar[str] = "five_axis"
-    normal_source: str
-    lines: int
-    servo_periods: int
-    duration_s: float
-    max_normal_error_deg: float
-    max_standoff_error_mm: float
-    max_midpoint_error_mm: float
-    nominal_max_normal_error_deg: float
-    nominal_max_standoff_error_mm: float
-    feed_fluctuation_pct: float
-    feed_fluctuation_rms_pct: float
-    feed_fluctuation_first_order_pct: float
-    feed_fluctuation_first_order_rms_pct: float
-    max_c_step_deg: float
-    max_a_step_deg: float
-    max_c_speed_deg_s: float
-    max_a_speed_deg_s: float
-    pole_lines: int
-    split_lines: int
-    split_rounds: int
-    a_range_deg: list[float]
-    max_trace_deviation_mm: float
-    dispense_on: str
-    dispense_off: str
-    post: str
-    feed_fluctuation: float
-    feed_fluctuation_first_order: float
-    standoff_mm: float
-    feed_mm_min: float
-    feed_mode: str
-    pivot: list[float]
-    surface_source: dict[str, Any]
-    surface: dict[str, Any]
-    offset_curve: dict[str, Any]
-    program: dict[str, Any]
-    nominal_program: dict[str, Any]
 
 
 # register ---------------------------------------------------------------------------------

@@ -10,8 +10,11 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict
+from pydantic.dataclasses import dataclass
 
+from app.circuits.warp import WarpFigures
 from app.jobs.results.models import KindResult
+from app.slicing.toolpath import PathCounts
 
 
 # circuit_program --------------------------------------------------------------------------
@@ -74,21 +77,16 @@ class WarpHeightModel(BaseModel):
     posterior_sd_max_mm: float | None = None
 
 
-class WarpProgramResult(KindResult):
-    """A warp_program job: lines in and out, printing moves, emitted pieces, the largest chord
-    bound against the height model (mm) and beside it ``model_error_mm``, how far the height
+class WarpProgramResult(KindResult, WarpFigures):
+    """A warp_program job: the warp's figures (the core's :class:`~app.circuits.warp.WarpFigures`:
+    lines in and out, printing moves, emitted pieces, the largest chord bound against the height
+    model and the travel height, mm) and beside them ``model_error_mm``, how far the height
     model itself may be from the part (its cross-validated max error, mm; None when it cannot
-    be measured): the chord bound is conditional on the model.  The travel height (mm), the
-    height model and how it was chosen, and the fixed split compared."""
+    be measured): the chord bound is conditional on the model.  The height model and how it
+    was chosen, and the fixed split compared."""
 
     kind: ClassVar[str] = "warp_program"
-    lines_in: int
-    lines_out: int
-    printing_moves: int
-    pieces: int
-    max_chord_bound_mm: float
     model_error_mm: float | None = None
-    safe_z_mm: float
     height_model: WarpHeightModel | None = None
     fixed_split: FixedSplit
 
@@ -126,26 +124,24 @@ class ToolpathPlacement(BaseModel):
     note: str
 
 
-class ToolpathLayer(BaseModel):
-    """One layer's figures: z and thickness (mm), path and travel (mm), turns, jumps, estimated
-    and planner time (s), pieces."""
+@dataclass(frozen=True, config=ConfigDict(extra="forbid"))
+class ToolpathLayer(PathCounts):
+    """One layer's figures: its moves (the core's :class:`~app.slicing.toolpath.PathCounts`:
+    path and travel mm, turns, jumps), z and thickness (mm), the estimated and the planner's
+    time (s) and its pieces."""
 
-    model_config = ConfigDict(extra="forbid")
     index: int
     z: float
     thickness: float
-    path_mm: float
-    travel_mm: float
-    turns: int
-    jumps: int
     time_s: float
     planner_time_s: float
     pieces: int
 
 
-class ToolpathResult(KindResult):
-    """A toolpath job: the estimated and the planner's time (s), totals, the program's G-code
-    summary (``program``: :func:`app.jobs.gcode_meta.gcode_meta`), the placement and each layer."""
+class ToolpathResult(KindResult, PathCounts):
+    """A toolpath job: the totals of its moves (the core's :class:`~app.slicing.toolpath.PathCounts`),
+    the estimated and the planner's time (s), the program's G-code summary (``program``:
+    :func:`app.jobs.gcode_meta.gcode_meta`), the placement and each layer."""
 
     kind: ClassVar[str] = "toolpath"
     time_s: float
@@ -153,10 +149,6 @@ class ToolpathResult(KindResult):
     estimator: ToolpathEstimator
     pattern: str
     layer_count: int
-    path_mm: float
-    travel_mm: float
-    turns: int
-    jumps: int
     program: dict[str, Any]
     placement: ToolpathPlacement
     layers: list[ToolpathLayer]

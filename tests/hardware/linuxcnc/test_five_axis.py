@@ -149,7 +149,7 @@ def test_five_axis_program_on_xyzac_trt(lcnc_trt, planned, post):
     print(f"\n{post}: {len(samples)} samples, A {a_deg.min():.2f}..{a_deg.max():.2f} deg, "
           f"C {c_deg.min():.1f}..{c_deg.max():.1f} deg; max tip-to-path {path_error.max() * 1000:.2f} um, "
           f"max standoff error {standoff_error.max() * 1000:.2f} um, max axis-to-normal "
-          f"{axis_error.max():.4f} deg; run {report.elapsed_s:.1f} s, planned {path.duration_s:.1f} s")
+          f"{axis_error.max():.4f} deg; run {report.elapsed_s:.1f} s, planned {path.figures.duration_s:.1f} s")
     assert path_error.max() < TIP_TOL_MM
     assert standoff_error.max() < STANDOFF_TOL_MM
     assert axis_error.max() < AXIS_TOL_DEG
