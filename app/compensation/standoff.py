@@ -79,9 +79,10 @@ class CompensationParams:
     chord_error_mm: largest distance between the emitted polyline and the compensated
         curve (proved per segment).  dispense_on / dispense_off: the machine profile's
         commands; None: the dialect's own (:func:`app.gcode.writer.own_dispense`, resolved
-        here, so the fields read as text afterwards).  dialect: "marlin" | "grbl".  clearance_mm: travel height above the
-        highest of the path and ``part_max_z_mm``.  approach_mm: the plunge starts this far
-        above the first point and runs at ``plunge_feed_mm_min``.  dwell_s: pause after
+        here, so the fields read as text afterwards).  dialect: "marlin" | "grbl".
+        clearance_mm: travel height above the highest of the path and ``part_max_z_mm``.
+        approach_mm: the plunge starts this far above the first point and runs at
+        ``plunge_feed_mm_min``.  dwell_s: pause after
         dispense_on (valve opening).  span_tolerance_mm: gap to the probed span that is
         accepted silently (probe xy placement noise).  hold_mm: largest gap over which the
         end deviation may be held (0: refuse).  max_deviation_mm: refuse a reconstruction
