@@ -5,10 +5,10 @@ A serial machine's are its dialect's own, from the one table the G-code writer k
 LinuxCNC numbers its outputs, so the dialect has none of its own; a LinuxCNC machine's
 default is the output its backend drives the dispenser with
 (:data:`hardware.dialects.LINUXCNC_DISPENSE`, ``M64``/``M65 P0``).  The service hands every
-machine it builds its profile's commands (``hardware`` may not import ``app``; the mock
-firmware's own table, ``hardware.dialects.Dialect.dispense``, is held equal to the writer's
-by
-``tests/hardware/mock/test_dispenser_defaults.py``).
+machine it builds its profile's commands.  ``hardware`` may not import ``app``: its own table
+(``hardware.dialects.Dialect.dispense``, what a ``Machine`` made without a profile sends and
+the output the mock firmware's dispenser is wired to) repeats the pair, and
+``tests/hardware/mock/test_dispenser_defaults.py`` holds the two equal.
 """
 
 from __future__ import annotations
