@@ -229,8 +229,8 @@ class GrblFirmware(GrblSystem, FirmwareCore):
                 self.world.set_output("M7", 0.0)
             self.world.set_output("M8" if head != "M7" else "M7", 0.0 if head == "M9" else 1.0)
         switch = self.world.dispenser_switch(command, head, params)
-        if switch is not None:
-            self.dispensing = switch
+        if switch is not None:  # a dispenser on the spindle output runs at its S: off at S0
+            self.dispensing = switch and (head not in ("M3", "M4") or self.spindle_speed > 0)
 
     # ------------------------------------------------------------------ execution
     def run(self, line_no: int | None, command: str, now: float) -> Generator[Wait, None, None]:
@@ -252,7 +252,8 @@ class GrblFirmware(GrblSystem, FirmwareCore):
             pass  # check mode: parsed, nothing runs
         elif head in ("M3", "M4", "M5", "M7", "M8", "M9"):  # spindle, coolant: synced with motion
             yield ("drain",)
-            self.switch_output(command, head, params)
+            if not self.check_mode:  # check mode parses them, switches nothing (coolant_sync, spindle_sync)
+                self.switch_output(command, head, params)
         elif (yield from self.run_shared(command, head, params)):
             pass  # dispense on/off, G20, G21, G90, G91, G92
         elif head == "G4":

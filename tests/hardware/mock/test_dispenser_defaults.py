@@ -115,3 +115,28 @@ def test_the_mock_firmware_dispenses_the_moves_the_written_program_dispenses(nam
     n += 1
     _send(port, frame(n, "G1 X0 Y0 F600") if framed else "G1 X0 Y0 F600")
     assert len(world.deposition_log) == len(expected)  # the program's last off command held
+
+
+def test_the_mock_grbl_models_spindle_and_coolant_as_grbl_does(make_world):
+    """grbl's spindle is PWM at the modal S (0 after a reset: a bare ``M3`` switches nothing),
+    its coolant a plain pin; ``$G`` reports both, a soft reset clears both."""
+    url, world = make_world(dialect="grbl", dispense_on="M3 S1000", dispense_off="M5")
+    port = serial.serial_for_url(url, timeout=0.05)
+    port.read(4096)
+    _send(port, "G1 X1 F600")
+    _send(port, "M3")                                    # S0: no output, nothing deposited
+    _send(port, "G1 X2")
+    assert world.deposition_log == [] and world.outputs["spindle"] == 0.0
+    assert " M3 M9 " in _send(port, "$G")
+    _send(port, "M3 S1000")
+    _send(port, "G1 X3")
+    assert len(world.deposition_log) == 1 and world.outputs["spindle"] == 1000.0
+    _send(port, "M5")
+    _send(port, "M8")
+    _send(port, "G1 X4")
+    assert len(world.deposition_log) == 1 and world.outputs["M8"] == 1.0
+    modes = _send(port, "$G")
+    assert " M5 M8 " in modes and " S1000]" in modes     # the modal S stays
+    port.write(b"\x18")                                  # soft reset: spindle and coolant off
+    port.read(4096)
+    assert world.outputs["M8"] == 0.0 and world.outputs["spindle"] == 0.0
