@@ -18,6 +18,7 @@ from sqlmodel import Session
 
 from app.api.schemas import TraceCreate
 from app.gcode.writer import DEFAULT_DIALECT
+from app.machines.dispenser import machine_dispense
 from app.parts.intake import export_mesh
 from app.parts.storage import store_part
 from app.parts.traces import build_trace
@@ -28,7 +29,6 @@ from app.platform.ownership import MachineOwnerLock
 from app.reference.evaluation import Table1Row, format_table
 from app.reference.s1 import as_made, s1_mesh, s1_traces
 from app.runtime.engine import QUEUES, Runtime
-from hardware.dialects import default_dispense
 
 
 def _numbers(spec: str) -> list[int]:
@@ -64,7 +64,7 @@ def run_demo(settings: Settings, args: argparse.Namespace, out=sys.stdout) -> li
             session.flush()
             traces = [build_trace(runtime.meshes, part, TraceCreate.model_validate(s1_traces()[n - 1].to_api()))
                       for n in numbers]
-            on, off = default_dispense(DEFAULT_DIALECT)  # a machine's dispenser unless its profile names one
+            on, off = machine_dispense(DEFAULT_DIALECT)  # a machine's dispenser unless its profile names one
             machine = Machine(
                 id=new_id("mach"), name="S1 demo mock", port="mock://", dialect=DEFAULT_DIALECT,
                 profile={"dispense_on": on, "dispense_off": off},

@@ -103,9 +103,15 @@ class Dialect:
       ``protocol_execute_realtime()``, also while dwelling, homing or in Alarm), which a
       stall poke asks first; None: none (Marlin's ``M105``/``M114`` queue behind a
       blocking command).
-    Mock
-      ``mock_dispense``: the dispenser on/off commands a machine of this dialect uses unless
-      its profile says otherwise (the mock world's too; :func:`default_dispense`).
+    Dispenser
+      ``dispense``: the dispenser on/off commands a machine of this dialect gets when made
+      without a profile, and the output the mock firmware's dispenser is wired to unless its
+      world names others.  The same pair as the G-code writer's own table
+      (``app.gcode.writer.DIALECTS``, which every service default derives from; ``hardware``
+      may not import ``app``, so a test holds the two equal): Marlin's fan at full duty,
+      ``M106 S255``/``M107``; grbl's flood coolant ``M8``/``M9``, a plain digital pin (grbl
+      has no fan word, ``M106`` is its ``error:20``; its spindle ``M3`` drives PWM at the
+      modal S, 0 after reset, so a bare ``M3`` switches nothing).
     """
 
     name: str
@@ -143,7 +149,7 @@ class Dialect:
     busy_replies: tuple[str, ...]
     keepalive_s: float | None
     life_query: bytes | None
-    mock_dispense: tuple[str, str]
+    dispense: tuple[str, str]
 
     def proves_alive(self, kind: str) -> bool:
         """True when a reply of kind ``kind`` (an event class name) proves the firmware alive."""
@@ -183,7 +189,7 @@ MARLIN = Dialect(
                    "PositionReport", "ProbeReport", "FirmwareInfo", "Capability", "Echo", "Message", "Setting",
                    "HostAction", "StartBanner", "Alarm", "StatusReport", "Feedback"),
     busy_replies=("Busy",), keepalive_s=2.0, life_query=None,
-    mock_dispense=("M106", "M107"))
+    dispense=("M106 S255", "M107"))
 
 GRBL = Dialect(
     name="grbl", identify_command="$I", boot_banner=True, banner_words=(),
@@ -197,7 +203,7 @@ GRBL = Dialect(
     alive_replies=("Ok", "FirmwareErrorEvent", "Alarm", "StatusReport", "ProbeReport", "Feedback", "FirmwareInfo",
                    "Message", "Setting", "Echo", "StartBanner"),
     busy_replies=(), keepalive_s=None, life_query=b"?",
-    mock_dispense=("M3", "M5"))
+    dispense=("M8", "M9"))
 
 # RepRapFirmware would be one more record here (M115, G28, M400, G30, M112, line numbers
 # and checksums, "ok" without ADVANCED_OK); LinuxCNC is driven through its own Python
@@ -218,9 +224,3 @@ def dialect(name: str) -> Dialect:
 #: LinuxCNC's dispenser: digital output 0 (``motion.digital-out-00``), synchronised with motion
 LINUXCNC_DISPENSE = ("M64 P0", "M65 P0")
 
-
-def default_dispense(name: str) -> tuple[str, str]:
-    """The dispenser on/off commands a ``name`` machine (a serial dialect or ``linuxcnc``)
-    gets when its profile names none: Marlin's fan output ``M106``/``M107``, grbl's spindle
-    ``M3``/``M5`` (grbl has no fan word: ``M106`` is its ``error:20``), LinuxCNC ``M64``/``M65 P0``."""
-    return LINUXCNC_DISPENSE if name == "linuxcnc" else dialect(name).mock_dispense

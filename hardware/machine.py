@@ -1,7 +1,7 @@
 """A printer as one object: connect/identify, home, move, probe, stream programs with
 pause/resume/cancel, emergency stop, and resume after a disconnect.
 
-    machine = Machine("mock://bench", "marlin", MachineProfile(dispense_on="M106"))
+    machine = Machine("mock://bench", "marlin", MachineProfile(dispense_on="M106 S255"))
     identity = machine.connect()
     machine.home()
     point = machine.probe(10.0, 20.0)                 # ProbeResult(x, y, z) or ProbeFailed
@@ -100,7 +100,7 @@ class Machine(StateReadout[Link]):
         self.url = url
         self.rules = dialect_rules(dialect)  # what this firmware does (hardware.dialects)
         self.dialect = self.rules.name
-        self.profile = profile or MachineProfile()
+        self.profile = profile or MachineProfile(*self.rules.dispense)
         self.baudrate = baudrate
         self.window = window
         self.timeout_s = timeout_s

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from .dialects import MARLIN
 from .errors import InvalidConfig
 
 STATES = ("disconnected", "idle", "busy", "printing", "paused", "error")
@@ -12,10 +13,14 @@ STATES = ("disconnected", "idle", "busy", "printing", "paused", "error")
 
 @dataclass(frozen=True)
 class MachineProfile:
-    """Machine-specific commands and motion defaults (mm, mm/min)."""
+    """Machine-specific commands and motion defaults (mm, mm/min).
 
-    dispense_on: str = "M106"
-    dispense_off: str = "M107"
+    ``dispense_on``/``dispense_off`` default to Marlin's (``hardware.dialects``' table, the
+    default dialect); a ``Machine`` made without a profile gets its own dialect's.
+    """
+
+    dispense_on: str = MARLIN.dispense[0]
+    dispense_off: str = MARLIN.dispense[1]
     probe_feed_mm_min: float = 100.0
     travel_feed_mm_min: float = 3000.0
     clearance_z: float = 5.0

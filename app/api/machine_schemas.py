@@ -10,8 +10,8 @@ from pydantic import BaseModel, Field, field_validator, model_validator
 from app.api.schemas import Finite, Strict, UtcDatetime
 from app.five_axis.post import PostName
 from app.gcode.writer import DEFAULT_DIALECT, DialectName
+from app.machines.dispenser import described, machine_dispense
 from app.machines.materials import DispenseProfile
-from hardware.dialects import default_dispense
 
 MaterialName = Annotated[str, Field(min_length=1, max_length=80)]
 MAX_MATERIAL_PROFILES = 32
@@ -109,9 +109,9 @@ class Reference(Strict):
 
 class Profile(Strict):
     dispense_on: str | None = Field(None, min_length=1, max_length=80, description=(
-        "G-code that starts dispensing; default: the dialect's (Marlin M106, grbl M3, LinuxCNC M64 P0)"))
+        f"G-code that starts dispensing; default: the dialect's ({described(0)})"))
     dispense_off: str | None = Field(None, min_length=1, max_length=80, description=(
-        "G-code that stops dispensing; default: the dialect's (Marlin M107, grbl M5, LinuxCNC M65 P0)"))
+        f"G-code that stops dispensing; default: the dialect's ({described(1)})"))
     outputs_off: list[Annotated[str, Field(min_length=1, max_length=80)]] = Field(
         default_factory=list, max_length=16,
         description="G-code that switches every other process output off (spindle, high voltage, heaters), sent "
@@ -234,8 +234,8 @@ class MachineCreate(Strict):
 
     @model_validator(mode="after")
     def _dialect_dispense(self) -> MachineCreate:
-        """A profile that names no dispenser gets its dialect's (``default_dispense``)."""
-        on, off = default_dispense(self.dialect)
+        """A profile that names no dispenser gets its dialect's (``machine_dispense``)."""
+        on, off = machine_dispense(self.dialect)
         if self.profile.dispense_on is None:
             self.profile.dispense_on = on
         if self.profile.dispense_off is None:

@@ -38,7 +38,7 @@ import numpy.typing as npt
 
 from app.circuits.errors import WarpError
 from app.gcode.lines import GcodeLine, GcodeReadError, read_lines
-from app.gcode.reader import HOME, ArcBudgetError, ModalReader, ReadOptions, arc_chord_budget
+from app.gcode.reader import DEFAULT_OFF, DEFAULT_ON, HOME, ArcBudgetError, ModalReader, ReadOptions, arc_chord_budget
 from app.geometry.tolerance import DEGENERATE_LENGTH_MM
 
 __all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_line", "MIN_ARC_CHORD_MM", "PRINT",
@@ -46,8 +46,8 @@ __all__ = ["Records", "scan_program", "scan_lines", "arc_chord_budget", "refuse_
 
 PRINT, TRAVEL, ZONLY, EONLY, STILL, HOME_KIND, MODE, OTHER = range(8)
 KIND_NAMES = ("print", "travel", "zonly", "eonly", "still", "home", "mode", "other")
-DISPENSE_ON = frozenset({106.0, 8.0, 3.0, 4.0, 7.0})
-DISPENSE_OFF = frozenset({107.0, 9.0, 5.0})
+DISPENSE_ON = frozenset(float(word[1:]) for word in DEFAULT_ON)    # the reader's dispenser words
+DISPENSE_OFF = frozenset(float(word[1:]) for word in DEFAULT_OFF)
 #: codes the warp rewrites: its output is absolute mm in the XY plane and machine coordinates
 REWRITTEN_G = frozenset({17.0, 20.0, 21.0, 90.0, 91.0, 92.0})
 #: settings written unchanged (feed per minute, cancels of cutter/length compensation and
@@ -356,6 +356,8 @@ def _scan_fast(text: str) -> Records | None:
     # M codes in order on a line, the last one winning
     disp_tok = m_tok & np.isin(value, list(DISPENSE_ON | DISPENSE_OFF))
     d_has, d_last = _last_per_line(disp_tok, tok_line, np.isin(value, list(DISPENSE_ON)).astype(float), n_lines)
+    s_has, s_first = _first_per_line(code == ord("S"), tok_line, value, n_lines)
+    d_last[s_has & (s_first == 0.0)] = 0.0            # an on word at duty 0 (M106 S0) is off, as the reader reads it
     dispensing = _ffill(d_last, d_has, 0.0) > 0.5
     e_tok = m_tok & np.isin(value, (82.0, 83.0))
     e_has, e_last = _last_per_line(e_tok, tok_line, (value == 82.0).astype(float), n_lines)

@@ -79,9 +79,11 @@ class CompensationParams:
     standoff_mm: vertical nozzle-to-surface gap.  feed_mm_min: printing feed.
     chord_error_mm: largest distance between the emitted polyline and the compensated
         curve (proved per segment).  dispense_on / dispense_off: the machine profile's
-        commands.  dialect: "marlin" | "grbl".  clearance_mm: travel height above the
-        highest of the path and ``part_max_z_mm``.  approach_mm: the plunge starts this far
-        above the first point and runs at ``plunge_feed_mm_min``.  dwell_s: pause after
+        commands; None: the dialect's own (:func:`app.gcode.writer.own_dispense`, resolved
+        here, so the fields read as text afterwards).  dialect: "marlin" | "grbl".
+        clearance_mm: travel height above the highest of the path and ``part_max_z_mm``.
+        approach_mm: the plunge starts this far above the first point and runs at
+        ``plunge_feed_mm_min``.  dwell_s: pause after
         dispense_on (valve opening).  span_tolerance_mm: gap to the probed span that is
         accepted silently (probe xy placement noise).  hold_mm: largest gap over which the
         end deviation may be held (0: refuse).  max_deviation_mm: refuse a reconstruction
@@ -101,8 +103,8 @@ class CompensationParams:
     standoff_mm: float = DEFAULT_STANDOFF_MM
     feed_mm_min: Annotated[float, Gt(0), Le(100_000)] = 300.0
     chord_error_mm: Annotated[float, Gt(0), Le(1)] = 0.002
-    dispense_on: str = "M106"
-    dispense_off: str = "M107"
+    dispense_on: str | None = None
+    dispense_off: str | None = None
     dialect: str = DEFAULT_DIALECT
     clearance_mm: Annotated[float, Gt(0), Le(100)] = 2.0
     part_max_z_mm: float | None = None
@@ -133,7 +135,9 @@ class CompensationParams:
         if self.dialect not in DIALECTS:
             raise CompensationError(f"unknown dialect {self.dialect!r}; expected one of "
                                     f"{sorted(DIALECTS)}", field="dialect", value=self.dialect)
-        for name in ("dispense_on", "dispense_off"):
+        for name, own in zip(("dispense_on", "dispense_off"), self._dialect_dispense(), strict=True):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, own)
             text = getattr(self, name)
             if not isinstance(text, str) or not text.strip() or "\n" in text or "\r" in text:
                 raise CompensationError(f"{name} must be one non-empty G-code line",
@@ -149,6 +153,17 @@ class CompensationParams:
         if self.verify_step_mm > self.chord_error_mm * 50:
             raise CompensationError("verify_step_mm must be <= 50 x chord_error_mm",
                                     field="verify_step_mm", value=self.verify_step_mm)
+
+    def _dialect_dispense(self) -> tuple[str | None, str | None]:
+        """The dialect's own (on, off) dispenser commands, (None, None) when it has none
+        (LinuxCNC: its outputs are numbered, so a profile or the request names them)."""
+        rules = DIALECTS[self.dialect]
+        return rules.dispense if rules.dispense is not None else (None, None)
+
+    @property
+    def dispense(self) -> tuple[str, str]:
+        """The program's dispenser (on, off) commands (text once ``__post_init__`` resolved them)."""
+        return str(self.dispense_on), str(self.dispense_off)
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,12 +307,12 @@ def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
     x0, y0, z0 = points[0]
     b.rapid(z=travel_z).rapid(x=x0, y=y0).rapid(z=z0 + params.approach_mm)
     b.move(z=z0, feed_mm_min=params.plunge_feed_mm_min)
-    b.raw(params.dispense_on.strip())
+    b.raw(params.dispense[0].strip())
     if params.dwell_s > 0:
         b.raw(b.dialect.dwell(params.dwell_s))
     for i, (x, y, z) in enumerate(points[1:]):
         b.move(x=x, y=y, z=z, feed_mm_min=params.feed_mm_min if i == 0 else None)
-    b.raw(params.dispense_off.strip())
+    b.raw(params.dispense[1].strip())
     b.rapid(z=travel_z)
     b.end()
     return b.text(), b.bounds()
@@ -362,8 +377,8 @@ def compensate_trace(reconstruction: Any, params: CompensationParams | None = No
         length_mm=float(np.linalg.norm(np.diff(seg.points, axis=0), axis=1).sum()),
         max_chord_error_mm=seg.max_error_mm, segment_error_mm=seg.segment_error_mm,
         span=(s0, s1), trace_extent=(0.0, length), extension_mm=extension,
-        standoff_mm=float(params.standoff_mm), dispense_on=params.dispense_on.strip(),
-        dispense_off=params.dispense_off.strip(), method=method,
+        standoff_mm=float(params.standoff_mm), dispense_on=params.dispense[0].strip(),
+        dispense_off=params.dispense[1].strip(), method=method,
         slope=slope_error_model(nominal, seg.s, params))
 
 

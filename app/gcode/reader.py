@@ -30,7 +30,8 @@ Semantics (RS274/NGC as Marlin, grbl and LinuxCNC share them):
   except beside the dispenser's and E mode's codes; G10, G53, G38.x... own their axis words too;
   the settings :data:`SETTING_CODES` do not;
 * the dispenser is on between the profile's exact ``dispense_on`` and ``dispense_off`` lines
-  when given, else between the command words ``M3 M4 M7 M8 M106`` and ``M5 M9 M107``;
+  when given, else between the command words ``M3 M4 M7 M8 M106`` and ``M5 M9 M107`` (an on
+  word with ``S0``, e.g. Marlin's ``M106 S0``, is off);
 * ``;LAYER:n`` (or ``;LAYER n``) comments tag the following moves with layer ``n``;
 * ``M201 M203 M204 M205`` (machine limits) are collected in order for the estimator.
 """
@@ -300,7 +301,7 @@ class ModalReader:
         """Apply one non-motion code; True when it consumes the line's axis words."""
         s = self.state
         if self.on_line is None and code in DEFAULT_ON:
-            s.dispensing = True
+            s.dispensing = values.get("S") != 0.0  # M106 S0, M3 S0: the output at duty 0 is off
         elif self.off_line is None and code in DEFAULT_OFF:
             s.dispensing = False
         elif code == "G20":

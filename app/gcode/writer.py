@@ -79,6 +79,13 @@ class Dialect:
         return f"G4 P{seconds:.3f}"
 
 
+#: the one table of the dialects' own dispenser commands (``Dialect.dispense``): every other
+#: default (compensation, the job kinds, a new machine's profile, the mock firmware's dispenser
+#: wiring) derives from it.  grbl: flood coolant ``M8``/``M9``, a plain digital pin (a valve or
+#: a dispenser's trigger input) switched in step with motion; its spindle ``M3`` drives a PWM
+#: output at the modal S word, which is 0 after reset, so a bare ``M3`` switches nothing.
+#: Marlin: the part-cooling fan at full duty, ``M106 S255`` spelled out (Marlin's bare ``M106``
+#: means S255 too, RepRapFirmware's bare ``M106`` only reports the fan).
 DIALECTS: dict[str, Dialect] = {
     "grbl": Dialect("grbl", probe_styles=("g38",), wait_for_moves="G4 P0", program_end="M2",
                     dispense=("M8", "M9")),
@@ -95,6 +102,12 @@ DIALECTS: dict[str, Dialect] = {
 #: commands are the dialect's own (``Dialect.dispense``), in :data:`DialectName`'s order
 DISPENSING_DIALECTS: Final[tuple[DialectName, ...]] = tuple(
     name for name in DIALECT_NAMES if DIALECTS[name].dispense is not None)
+
+def own_dispense_text(index: int) -> str:
+    """The dispensing dialects' own on (``index`` 0) or off (1) commands as text for a form or
+    an API description, e.g. ``"marlin M106 S255, grbl M8"``."""
+    return ", ".join(f"{name} {own_dispense(name)[index]}" for name in DISPENSING_DIALECTS)
+
 
 def own_dispense(name: str) -> tuple[str, str]:
     """The dispenser (on, off) commands of dialect ``name`` itself; GcodeError (field

@@ -442,13 +442,10 @@ class FirmwareCore:
                    ) -> Generator[Wait, None, bool]:
         """Run a command both dialects treat alike (the world's dispense on/off commands,
         G20, G21, G90, G91, G92); False, doing nothing, for any other command."""
-        dispense_on, dispense_off = self.world.dispense_commands
-        if command == dispense_on or head == dispense_on.split(" ")[0]:
+        switch = self.world.dispenser_switch(command, head, params)
+        if switch is not None:
             yield ("drain",)
-            self.dispensing = True
-        elif command == dispense_off or head == dispense_off.split(" ")[0]:
-            yield ("drain",)
-            self.dispensing = False
+            self.dispensing = switch
         elif head in ("G20", "G21"):
             self.inches = head == "G20"
         elif head == "G90":

@@ -75,6 +75,10 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         self.feed = 0.0  # grbl boots with no feed rate: G1 without F is error:22
         self.alarm = getattr(self, "alarm", False)
         self.check_mode = False
+        self.spindle, self.spindle_speed = "M5", 0.0  # grbl's reset stops spindle and coolant
+        for output in ("spindle", "M7", "M8"):
+            if self.world.outputs.get(output):
+                self.world.set_output(output, 0.0)
         self.jogging = False
         self.homing_until: float | None = None
         self.booting_until = float("-inf")
@@ -211,6 +215,23 @@ class GrblFirmware(GrblSystem, FirmwareCore):
         if text == "ok" and self.chance(self.faults.duplicate_ok_rate, "duplicate_ok"):
             self.emit(text, now)
 
+    def switch_output(self, command: str, head: str, params: dict[str, float]) -> None:
+        """``M3``/``M4``/``M5`` (spindle: PWM at the modal S word, 0 after reset, so a bare
+        ``M3`` switches nothing; world output ``"spindle"``) or ``M7``/``M8``/``M9`` (mist and
+        flood coolant, plain pins: outputs ``"M7"``/``"M8"``, e.g. a UV lamp or a dispenser),
+        and the dispenser when ``command`` is its on/off command."""
+        if head in ("M3", "M4", "M5"):
+            self.spindle_speed = params.get("S", self.spindle_speed)
+            self.spindle = head
+            self.world.set_output("spindle", self.spindle_speed if head != "M5" else 0.0)
+        else:
+            if head == "M9":
+                self.world.set_output("M7", 0.0)
+            self.world.set_output("M8" if head != "M7" else "M7", 0.0 if head == "M9" else 1.0)
+        switch = self.world.dispenser_switch(command, head, params)
+        if switch is not None:  # a dispenser on the spindle output runs at its S: off at S0
+            self.dispensing = switch and (head not in ("M3", "M4") or self.spindle_speed > 0)
+
     # ------------------------------------------------------------------ execution
     def run(self, line_no: int | None, command: str, now: float) -> Generator[Wait, None, None]:
         head, params = split_words(command)
@@ -229,6 +250,10 @@ class GrblFirmware(GrblSystem, FirmwareCore):
             self.wcs = head
         elif self.check_mode and head in ("G4", "G28", "G30", "G38.2", "G38.3"):
             pass  # check mode: parsed, nothing runs
+        elif head in ("M3", "M4", "M5", "M7", "M8", "M9"):  # spindle, coolant: synced with motion
+            yield ("drain",)
+            if not self.check_mode:  # check mode parses them, switches nothing (coolant_sync, spindle_sync)
+                self.switch_output(command, head, params)
         elif (yield from self.run_shared(command, head, params)):
             pass  # dispense on/off, G20, G21, G90, G91, G92
         elif head == "G4":
@@ -238,11 +263,6 @@ class GrblFirmware(GrblSystem, FirmwareCore):
             yield ("drain",)
             self.advance_clock(params["P"])
             yield from self.dwell(params["P"], now)
-        elif head in ("M7", "M8", "M9"):  # coolant (a UV lamp on the flood output): synced with motion
-            yield ("drain",)
-            if head == "M9":
-                self.world.set_output("M7", 0.0)
-            self.world.set_output("M8" if head != "M7" else "M7", 0.0 if head == "M9" else 1.0)
         elif _TOOL.match(head):
             if int(head[1:]) > MAX_TOOL_NUMBER:
                 self.reply("error:38", now)  # STATUS_GCODE_MAX_VALUE_EXCEEDED

@@ -32,6 +32,8 @@ class GrblSystem(FirmwareCore):
     homing_until: float | None
     booting_until: float
     wcs: str
+    spindle: str   # "M3" | "M4" | "M5"
+    spindle_speed: float   # the modal S word
 
     if TYPE_CHECKING:  # GrblFirmware's
         def reply(self, text: str, now: float) -> None: ...
@@ -117,10 +119,11 @@ class GrblSystem(FirmwareCore):
     def modes(self, now: float) -> None:
         motion = "G91" if not self.absolute else "G90"
         units = "G20" if self.inches else "G21"
-        spindle = "M3" if self.dispensing else "M5"
+        outputs = self.world.outputs
+        coolant = " ".join(word for word in ("M7", "M8") if outputs.get(word)) or "M9"  # report_gcode_modes
         feed = self.feed / (25.4 if self.inches else 1.0)
-        self.emit(f"[GC:G0 {self.wcs} G17 {units} {motion} G94 M0 {spindle} M9 T0 F{feed:g} S0]",
-                  now)
+        self.emit(f"[GC:G0 {self.wcs} G17 {units} {motion} G94 M0 {self.spindle} {coolant} T0 F{feed:g} "
+                  f"S{self.spindle_speed:g}]", now)
         self.reply("ok", now)
 
     def parameters(self, now: float) -> None:

@@ -201,8 +201,10 @@ class MockWorld:
     dialect: str = DEFAULT_DIALECT
     time_scale: float = 0.0
     faults: FaultConfig = field(default_factory=FaultConfig)
-    dispense_on: str | None = None   # None: "M106" (marlin) / "M3" (grbl)
-    dispense_off: str | None = None  # None: "M107" (marlin) / "M5" (grbl)
+    # the dispenser's on/off commands (a profile's); None: the dialect's (``Dialect.dispense``:
+    # Marlin's fan ``M106 S255``/``M107``, grbl's flood coolant ``M8``/``M9``)
+    dispense_on: str | None = None
+    dispense_off: str | None = None
     advanced_ok: bool = True
     latency_ms: float = 1.0
     rx_buffer: int = 128
@@ -289,8 +291,21 @@ class MockWorld:
 
     @property
     def dispense_commands(self) -> tuple[str, str]:
-        default = dialect(self.dialect).mock_dispense
+        """The dispenser's (on, off) commands: the world's, else its dialect's."""
+        default = dialect(self.dialect).dispense
         return (self.dispense_on or default[0], self.dispense_off or default[1])
+
+    def dispenser_switch(self, command: str, head: str, params: dict[str, float]) -> bool | None:
+        """True (on) or False (off) when the normalised ``command`` (first word ``head``,
+        words ``params``) switches the dispenser's output, else None.  A command matches
+        its on/off line exactly or by first word; the on word with an explicit ``S0`` sets
+        the output's duty to 0, which is off (Marlin ``M106 S0``, grbl ``M3 S0``, ``M42 ... S0``)."""
+        on, off = self.dispense_commands
+        if command == on or head == on.split(" ")[0]:
+            return command == on or params.get("S") != 0.0
+        if command == off or head == off.split(" ")[0]:
+            return False
+        return None
 
     @property
     def position(self) -> tuple[float, float, float]:

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from app.gcode.reader import ReadOptions, read_program
+from app.gcode.writer import own_dispense
 from app.reference.s1 import as_made, s1_mesh
 from tests.conftest import auth
 from tests.e2e.test_closed_loop import _mock_setup
@@ -58,7 +59,8 @@ def test_a_closed_loop_lists_its_summary_and_a_whole_part_program(client, meshes
 
     # the whole-part program dispenses exactly each compensated program's path, in the loop's order
     whole = _artifact(client, done["id"], "whole_part.gcode").decode()
-    options = ReadOptions(dispense_on="M106", dispense_off="M107")
+    on, off = own_dispense("marlin")  # the mock machine's profile names none: its dialect's
+    options = ReadOptions(dispense_on=on, dispense_off=off)
     info = done["result"]["files"]["whole_part"]
     assert (info["dialect"] == "marlin"
             and info["lines"] == len(whole.splitlines()) == listed["whole_part.gcode"]["meta"]["lines"])

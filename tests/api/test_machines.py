@@ -14,7 +14,7 @@ OP = auth("operator")
 
 
 def program_text(n: int = 400) -> str:
-    lines = ["; test program", "G21", "G90", "M106"]
+    lines = ["; test program", "G21", "G90", "M106 S255"]  # marlin's default dispenser commands
     for i in range(n):
         lines.append(f"G1 X{10 + (i % 50) * 0.1:.3f} Y{20 + (i // 50) * 0.1:.3f} Z1.000 F600 ; move {i}")
     lines += ["M107", "G0 Z5"]
@@ -124,16 +124,16 @@ def test_probe_run_measures_the_true_part_within_three_sigma(client):
     assert done["result"]["stats"]["count"] == 10
 
 
-@pytest.mark.parametrize("dialect, port, on, off", [("marlin", "mock://", "M106", "M107"),
-                                                    ("grbl", "mock://", "M3", "M5"),
+@pytest.mark.parametrize("dialect, port, on, off", [("marlin", "mock://", "M106 S255", "M107"),
+                                                    ("grbl", "mock://", "M8", "M9"),
                                                     ("linuxcnc", "linuxcnc://127.0.0.1:5007", "M64 P0", "M65 P0")])
 def test_a_profile_without_a_dispenser_gets_its_dialects(client, dialect, port, on, off):
     machine = register(client, port=port, dialect=dialect).json()
     assert (machine["profile"]["dispense_on"], machine["profile"]["dispense_off"]) == (on, off)
     named = client.post("/api/v1/machines", json={"name": "own", "port": "mock://", "dialect": dialect,
-                                                  "profile": {"dispense_on": "M8", "dispense_off": "M9"}},
+                                                  "profile": {"dispense_on": "M7", "dispense_off": "M9"}},
                         headers=OP).json()
-    assert (named["profile"]["dispense_on"], named["profile"]["dispense_off"]) == ("M8", "M9")
+    assert (named["profile"]["dispense_on"], named["profile"]["dispense_off"]) == ("M7", "M9")
 
 
 def test_a_grbl_registered_without_a_profile_switches_its_dispenser_off_on_connect(client):

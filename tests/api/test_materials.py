@@ -43,7 +43,7 @@ def test_a_machine_takes_a_preset_or_its_own_profile_while_connected(client):
     own = {"material": None, "pressure_kpa": 180, "on_delay_ms": 40, "off_delay_ms": 25, "standoff_mm": 0.08,
            "feed_mm_min": 350}
     assert client.patch(base, json={"dispense": own}, headers=OP).json()["profile"]["dispense"] == own
-    assert client.get(base, headers=VIEWER).json()["profile"]["dispense_on"] == "M106"
+    assert client.get(base, headers=VIEWER).json()["profile"]["dispense_on"] == "M106 S255"
     bad = client.patch(base, json={"material": "pla"}, headers=OP)          # a plastic is not dispensed
     assert bad.status_code == 422 and bad.json()["errors"][0]["loc"][-1] == "material"
     negative = client.patch(base, json={"dispense": {**own, "on_delay_ms": -1}}, headers=OP)
@@ -66,7 +66,7 @@ def test_a_print_dwells_after_each_dispenser_switch_by_the_machines_profile(clie
     assert (applied["material"], applied["source"], applied["on_dwells"], applied["off_dwells"]) == \
         ("silver_paste", "machine profile", 1, 1)
     executed = get_world(row["id"]).transcript.commands
-    on = executed.index("M106")
+    on = executed.index("M106 S255")
     off = executed.index("M107", on)                 # (the connect's own M107 comes before the program)
     assert executed[on + 1] == "G4 P120" and executed[off + 1] == "G4 P80"  # the preset's 120 / 80 ms
     assert done["result"]["total"] == program["commands"] + 2

@@ -14,7 +14,7 @@ from hardware.mock import MockWorld, register_world, unregister_world
 from hardware.protocol import normalized_commands
 
 IDLE_S = float(os.environ.get("CONFORMA_BENCH_IDLE_S", "600"))
-PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
+PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M8", dispense_off="M9")}
 WAIT = {"marlin": "M400", "grbl": "G4 P0"}
 
 

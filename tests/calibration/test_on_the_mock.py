@@ -44,7 +44,7 @@ def mock_machine(dialect: str = "marlin", seed: int = 3):
                f"&pretravel_lobing_mm={LOBE}&probe_noise_mm={NOISE}&drift_mm_per_min={DRIFT}"
                f"&touchoff_sd_mm=0.0005&tool1={','.join(map(str, OFFSET))},{NOZZLE_D}"
                f"&pad={','.join(map(str, PAD_TRUE))},20&sphere={','.join(map(str, SPHERE_TRUE))},{SPHERE_D}")
-    profile = MachineProfile() if dialect == "marlin" else MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
+    profile = MachineProfile() if dialect == "marlin" else MachineProfile(dispense_on="M8", dispense_off="M9")
     m = Machine(f"mock://{name}?{options}", dialect, profile, boot_wait_s=0.5, boot_quiet_s=0.01, poke_s=0.02,
                 timeout_s=10)
     try:

@@ -84,7 +84,8 @@ N140 M5
 @pytest.mark.parametrize("text", [MODAL, MODAL.replace("\n", "\r\n"), MODAL.rstrip("\n"), "G1 X1 Y1 E1\n", "",
                                   "; only a comment\n", "\n\n", "G21\nG0 X1 Y1\n", POSTS,
                                   "(comment first)\n" + MODAL, "G1 X1 (a comment) Y1 E1\n",
-                                  "G0 X1 Y1 M8\nG1 X2 Y2 S100\n"])
+                                  "G0 X1 Y1 M8\nG1 X2 Y2 S100\n",
+                                  "M106 S255\nG1 X1 Y1 F60\nM106 S0\nG1 X2 Y2\nM3 S0\nG1 X3 Y3\nM3 S9\nG1 X4 Y4\n"])
 def test_the_vectorised_reader_gives_the_line_readers_records(text):
     fast = _scan_fast(text)
     assert fast is not None

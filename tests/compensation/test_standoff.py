@@ -251,7 +251,7 @@ def test_nominal_program_is_standoff_above_cad():
     np.testing.assert_allclose(cp.nominal_points[:, 2] - z_cad, 0.08, atol=1e-5)
     assert "NOMINAL" in cp.nominal_program and cp.nominal_program.count("M106") == 1
     result = cp.to_result()
-    assert result["segments"] == cp.segments and result["dispense_on"] == "M106"
+    assert result["segments"] == cp.segments and result["dispense_on"] == "M106 S255"  # marlin's own, spelled out
 
 
 @settings(max_examples=12, deadline=None)

@@ -102,6 +102,9 @@ def test_dispense_words_and_profile_lines():
     exact = read_program("G1 X1 F60\nM64 P0\nG1 X2\nM65 P0\nG1 X3\n",
                          ReadOptions(dispense_on="m64  p0", dispense_off="M65 P0"))
     assert list(exact.dispense) == [False, True, False]
+    # an on word at duty 0 switches the output off (Marlin's M106 S0 is its fan off; grbl's M3 S0 no PWM)
+    zero = read_program("M106 S255\nG1 X1 F60\nM106 S0\nG1 X2\nM3 S1000\nG1 X3\nM3 S0\nG1 X4\nM8\nG1 X5\n")
+    assert list(zero.dispense) == [True, False, True, False, True]
 
 
 def test_viewer_estimator_and_metadata_read_g92_and_g28_alike():

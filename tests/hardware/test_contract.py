@@ -48,7 +48,7 @@ def target(request):
         name = f"contract-{request.param}"
         world = register_world(name, MockWorld(dialect=dialect,
                                                homing=request.param.endswith("homing")))
-        profile = MachineProfile() if dialect == "marlin" else MachineProfile("M3 S1000", "M5")
+        profile = MachineProfile() if dialect == "marlin" else MachineProfile("M8", "M9")
         machine = Machine(f"mock://{name}", dialect, profile, boot_quiet_s=0.01, poke_s=0.02)
         motion = True
     machine.connect()

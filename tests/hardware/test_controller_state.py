@@ -12,7 +12,7 @@ import pytest
 from hardware.errors import ControllerLocked, FirmwareError, MachineStateError
 from hardware.machine import Machine, MachineProfile
 
-GRBL = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
+GRBL = MachineProfile(dispense_on="M8", dispense_off="M9")
 
 
 def grbl_machine(make_world, **world) -> tuple[Machine, object]:

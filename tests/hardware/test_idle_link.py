@@ -13,7 +13,7 @@ import pytest
 from hardware.machine import Machine, MachineProfile
 from hardware.protocol import normalized_commands
 
-PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
+PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M8", dispense_off="M9")}
 
 
 WAIT = {"marlin": "M400", "grbl": "G4 P0"}  # answered once the motion before it has ended

@@ -18,7 +18,7 @@ from hardware.mock import FaultConfig, TruePlacement
 from hardware.protocol import normalized_commands
 from tests.helpers.machines import executed_before_the_cut
 
-GRBL_PROFILE = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
+GRBL_PROFILE = MachineProfile(dispense_on="M8", dispense_off="M9")
 
 
 def _machine(url: str, dialect: str, **kwargs) -> Machine:

@@ -20,7 +20,7 @@ from hardware.protocol import normalized_commands
 from hardware.resume import end_positions, locate_by_position
 from tests.helpers.machines import executed_before_the_cut
 
-PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
+PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M8", dispense_off="M9")}
 
 
 def program(dialect: str, moves: int = 40) -> list[str]:

@@ -29,7 +29,7 @@ from hardware.reports import PositionMark
 from hardware.resume import ResumeLocation, command_feeds, end_positions, locate_by_report
 from tests.helpers.machines import executed_before_the_cut
 
-PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M3 S1000", dispense_off="M5")}
+PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M8", dispense_off="M9")}
 SYNC = {"marlin": "M400", "grbl": "G4 P0"}  # the program ends when its motion has ended
 
 

@@ -24,7 +24,7 @@ from hardware.protocol import normalized_commands
 from hardware.resume import ResumeLocation, executed_bound, modal_preamble, planner_blocks
 from tests.helpers.machines import executed_before_the_cut
 
-PROFILE = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
+PROFILE = MachineProfile(dispense_on="M8", dispense_off="M9")
 
 
 def short_moves(count: int) -> list[str]:

@@ -62,7 +62,7 @@ def test_the_program_from_the_stored_reconstruction_is_the_rebuilt_ones(client, 
     mesh = trimesh.load(io.BytesIO(s1_stl), file_type="stl")
     path = compensate_trace(rebuilt, CompensationParams(
         standoff_mm=trace["standoff_mm"], feed_mm_min=trace.get("feed_mm_min") or 300.0, chord_error_mm=0.002,
-        dispense_on="M106", dispense_off="M107", dialect="marlin", clearance_mm=2.0,
+        dialect="marlin", clearance_mm=2.0,  # no dispense commands: the dialect's, as the job without a machine
         part_max_z_mm=float(mesh.bounds[1][2]), hold_mm=0.0, tool=None, tool_offset_mm=(0.0, 0.0, 0.0)),
         job_id=job["id"])
     assert stored_program == path.program.encode()

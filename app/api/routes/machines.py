@@ -42,6 +42,7 @@ from app.api.routes.jobs import load_job_out
 from app.api.schemas import JobOut, Page
 from app.domain.errors import Conflict, InvalidInput, NotFound
 from app.jobs.calibration import calibration_summary, current_calibration, machine_profile
+from app.machines.dispenser import machine_dispense
 from app.machines.live import hardware_errors, port_key, port_owner, translate
 from app.machines.materials import BY_NAME, MATERIALS
 from app.platform.db import lock_for_delete
@@ -50,7 +51,6 @@ from app.platform.models import TERMINAL_STATES, Job, JobReference, Machine, Par
 from app.runtime.engine import Runtime
 from app.runtime.machine_queue import holding_message
 from app.runtime.reads import JobReads
-from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, InvalidConfig
 from hardware.mock import parse_mock_options
 from hardware.port_url import PortUrl
@@ -191,7 +191,7 @@ def update_machine(machine_id: str, body: MachineUpdate, runtime: RuntimeDep, se
     if body.baudrate is not None:
         row.baudrate = body.baudrate
     if body.profile is not None:
-        on, off = default_dispense(row.dialect)
+        on, off = machine_dispense(row.dialect)
         profile = body.profile.model_dump()
         profile["dispense_on"] = profile["dispense_on"] or on
         profile["dispense_off"] = profile["dispense_off"] or off

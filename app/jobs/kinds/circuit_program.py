@@ -338,7 +338,7 @@ def run(ctx: JobContext, params: CircuitProgramParams) -> dict:
                            value=params.closed_loop_job_id)
     if not strokes:
         raise InvalidInput("the import has nothing to print", field="params.import_id", value=params.import_id)
-    dialect, on, off = _COMPENSATION.dialect, _COMPENSATION.dispense_on, _COMPENSATION.dispense_off
+    dialect, (on, off) = _COMPENSATION.dialect, _COMPENSATION.dispense  # without a machine: the dialect's own
     if params.machine_id:
         machine = ctx.machine(params.machine_id)
         dialect, on, off = machine.dialect, machine.profile["dispense_on"], machine.profile["dispense_off"]

@@ -42,7 +42,7 @@ from app.compensation.standoff import (
     tip_path,
 )
 from app.domain.errors import InvalidInput
-from app.gcode.writer import DEFAULT_DIALECT
+from app.gcode.writer import DEFAULT_DIALECT, own_dispense_text
 from app.geometry.drape import top_surface_z
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.core_fields import core_bounds, core_field, core_values
@@ -65,6 +65,7 @@ _CORE = CompensationParams()  # the core's defaults are this kind's
 CORE_ONLY = frozenset({"approach_mm", "plunge_feed_mm_min", "dwell_s", "span_tolerance_mm", "max_deviation_mm",
                        "verify_step_mm", "curvature_safety", "decimals", "xy_uncertainty_mm"})
 _COMMAND = r"^[A-Za-z0-9 .\-]+$"  # one G-code line
+_OWN_ON, _OWN_OFF = own_dispense_text(0), own_dispense_text(1)
 
 
 class CompensateCorrections(BaseModel):
@@ -93,10 +94,12 @@ class CompensateParams(JobParams):
     machine_id: str | None = Field(None, description="take dialect and dispense commands from this machine's profile")
     dialect: DispensingDialect = Field(DEFAULT_DIALECT, description="G-code dialect of the programs (without "
                                        "machine_id)")
-    dispense_on: str = Field(_CORE.dispense_on, min_length=1, max_length=80, pattern=_COMMAND,
-                             json_schema_extra=form(advanced=True))
-    dispense_off: str = Field(_CORE.dispense_off, min_length=1, max_length=80, pattern=_COMMAND,
-                              json_schema_extra=form(advanced=True))
+    dispense_on: str | None = Field(None, min_length=1, max_length=80, pattern=_COMMAND,
+                                    description=f"without machine_id; default: the dialect's ({_OWN_ON})",
+                                    json_schema_extra=form(advanced=True))
+    dispense_off: str | None = Field(None, min_length=1, max_length=80, pattern=_COMMAND,
+                                     description=f"without machine_id; default: the dialect's ({_OWN_OFF})",
+                                     json_schema_extra=form(advanced=True))
     hold_mm: float = core_field(CompensationParams, "hold_mm", description="hold the end deviation over gaps to the "
                                 "probed span up to this length (0: refuse moves outside the probed span)")
     clearance_mm: float = core_field(CompensationParams, "clearance_mm", json_schema_extra=form(advanced=True))

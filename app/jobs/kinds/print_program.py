@@ -32,6 +32,7 @@ from app.jobs.calibration import current_calibration, machine_profile
 from app.jobs.calibration_touch import travel_height
 from app.jobs.gcode_meta import check_gcode, gcode_meta
 from app.jobs.results.models import PrintResult
+from app.machines.dispenser import machine_dispense
 from app.machines.live import MachineFault, MachineUnavailable, hardware_errors, translate
 from app.machines.materials import BY_NAME, MATERIALS, DispenseProfile
 from app.runtime.context import JobContext
@@ -48,7 +49,6 @@ from app.runtime.machine_queue import (
 from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 from hardware.backend import Machine as LiveMachine
-from hardware.dialects import default_dispense
 from hardware.errors import HardwareError, LinkError
 from hardware.protocol import validate_program
 
@@ -262,7 +262,7 @@ def _dispense(ctx: JobContext, params: PrintParams) -> dict | None:
         chosen, source = profile.dispense, "machine profile"
     if chosen is None:
         return None
-    on, off = default_dispense(dialect)
+    on, off = machine_dispense(dialect)
     return {**chosen.model_dump(), "source": source, "dialect": dialect,
             "dispense_on": profile.dispense_on or on, "dispense_off": profile.dispense_off or off}
 

@@ -25,7 +25,7 @@ from app.domain.errors import ConformaError
 from app.gcode.estimator import MachineLimits, estimate_program
 from app.gcode.fdm import END_LIFT_MM, FdmMode, FdmParams, write_fdm_program
 from app.gcode.placement import BedPlacement, MachineVolume, check_inside, placement_shift
-from app.gcode.writer import DEFAULT_DIALECT, DISPENSING_DIALECTS
+from app.gcode.writer import DEFAULT_DIALECT, own_dispense_text
 from app.gcode.writer import DIALECTS as GCODE_DIALECTS
 from app.jobs.core_fields import core_field, core_values
 from app.jobs.form_hints import form
@@ -51,14 +51,7 @@ MM_MIN_PER_MM_S = 60.0
 _FILL = ToolpathParams()
 _LIMITS = MachineLimits()
 _FDM = FdmParams()
-
-
-def _dialects_own(index: int) -> str:
-    """The dispensing dialects' own on (0) or off (1) commands, e.g. ``"M106 S255 / M8"``."""
-    return " / ".join(own[index] for name in DISPENSING_DIALECTS if (own := GCODE_DIALECTS[name].dispense))
-
-
-_DEFAULT_ON, _DEFAULT_OFF = _dialects_own(0), _dialects_own(1)
+_DEFAULT_ON, _DEFAULT_OFF = own_dispense_text(0), own_dispense_text(1)
 
 Speed = Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)]
 Accel = Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)]
@@ -182,9 +175,11 @@ class ToolpathJobParams(JobParams):
                                                   description="retract only before longer travels, mm",
                                                   json_schema_extra=_EXTRUDE_MORE)
     home: bool = core_field(FdmParams, "home", description="home (G28) in the start section", json_schema_extra=_MORE)
-    dispense_on: Command | None = Field(None, description=f"dispense mode: on command (default {_DEFAULT_ON})",
+    dispense_on: Command | None = Field(None, description=f"dispense mode: on command (default: the dialect's, "
+                                        f"{_DEFAULT_ON})",
                                         json_schema_extra=_DISPENSE_MORE)
-    dispense_off: Command | None = Field(None, description=f"dispense mode: off command (default {_DEFAULT_OFF})",
+    dispense_off: Command | None = Field(None, description=f"dispense mode: off command (default: the dialect's, "
+                                         f"{_DEFAULT_OFF})",
                                          json_schema_extra=_DISPENSE_MORE)
     placement: PlacementIn = Field(default_factory=PlacementIn, description="where the part goes on the machine "
                                    "(default: dropped to the bed and centred)", json_schema_extra=_MORE)

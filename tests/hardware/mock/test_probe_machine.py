@@ -8,11 +8,12 @@ import math
 import numpy as np
 import pytest
 
+from hardware.dialects import dialect as dialect_rules
 from hardware.errors import InvalidConfig, ProbeFailed
 from hardware.machine import Machine, MachineProfile
 from hardware.mock import MockPad, MockSphere, MockTool
 
-GRBL_PROFILE = MachineProfile(dispense_on="M3 S1000", dispense_off="M5")
+GRBL_PROFILE = MachineProfile(dispense_on="M8", dispense_off="M9")
 PAD = MockPad((50.0, 10.0, 5.0), 20.0)
 SPHERE = MockSphere((100.0, 10.0, 12.0), 20.0)
 OFFSET = (12.3, -4.1, -8.7)
@@ -91,7 +92,7 @@ def test_drift_lowers_the_pad_reading_by_the_dwell(make_world, dialect):
 def test_tool_selection_and_deposits_at_the_tip(make_world, dialect):
     machine, world = _connect(make_world, dialect, tools=(MockTool(OFFSET, 0.8),), pad=PAD,
                               sphere=SPHERE)
-    on, off = ("M106", "M107") if dialect == "marlin" else ("M3 S1000", "M5")
+    on, off = dialect_rules(dialect).dispense  # the dialect's default output, the mock's dispenser
     try:
         machine.select_tool(1)
         assert world.active_tool == 1
