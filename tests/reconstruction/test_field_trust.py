@@ -180,6 +180,35 @@ def test_gap_points_also_lie_beside_the_station_the_others_predict_worst_in_mm()
                        [2.5, 7.5, 17.5])
 
 
+def test_sequential_verification_counts_the_gap_points_among_its_points(paths):
+    """The gap points count among the ``count`` verification points: the least certain ones
+    fill the rest, at least MIN_LEAST_CERTAIN, chosen as if the gap points were touched."""
+    from app.probing.field_verify import MIN_LEAST_CERTAIN, gap_points, with_sequential_verification
+
+    plan = plan_field(paths, DEFAULT)
+    none = with_sequential_verification(replace_empty(plan), plan.sites, paths, DEFAULT.prior(), 5)
+    assert none.count == 5 and none.verify_mask.all()                     # no surprise given: 5 least certain
+    z = np.zeros(plan.count)
+    z[np.flatnonzero(plan.trace >= 0)[[3, 10]]] = [4.0, -3.5]             # two surprising stations
+    surprise = (plan.trace, plan.s_mm, z)
+    gaps = gap_points(paths, plan.trace, plan.s_mm, z)
+    assert len(gaps) >= 2
+    for count in (2, 5, 8):
+        with_gaps = with_sequential_verification(replace_empty(plan), plan.sites, paths, DEFAULT.prior(), count,
+                                                 surprise)
+        assert with_gaps.count == max(count, len(gaps) + min(count, MIN_LEAST_CERTAIN))
+        assert np.allclose(with_gaps.xy[-len(gaps):], gaps.sites.xy)      # the gap points last
+        least = with_gaps.xy[:-len(gaps)]
+        assert not np.isin(least.round(6), gaps.sites.xy.round(6)).all(axis=1).any()
+
+
+def replace_empty(plan):
+    """``plan`` without stations (a sequential round that adds none)."""
+    from dataclasses import replace
+    return replace(plan, xy=plan.xy[:0], z=plan.z[:0], grad=plan.grad[:0], trace=plan.trace[:0],
+                   s_mm=plan.s_mm[:0], order=plan.order[:0])
+
+
 def test_a_chip_touched_again_does_not_shorten_the_learned_wavelength(paths):
     """The default plan on the 14 mm part, one touch on a 0.3 mm chip: learned from every touch
     the wavelength collapses; with the spot touched again twice (the chip gone) the chip is
