@@ -100,10 +100,13 @@ def test_sequential_planning_holds_every_trace_within_its_verified_bound_on_the_
 def test_a_round_over_the_bound_tightens_its_pointwise_target_by_target_over_bound():
     from types import SimpleNamespace
 
-    from app.reconstruction.field_sequential import TIGHTEN_MIN, TIGHTEN_TRIES, plan_tightened, tightened_target
+    from app.reconstruction.field_sequential import (BOUND_AIM, TIGHTEN_MIN, TIGHTEN_TRIES, plan_tightened,
+                                                     tightened_target)
 
-    assert tightened_target(5.0, 5.0, 8.0) == pytest.approx(5.0 * 5.0 / 8.0)   # aims the bound at the target
-    assert tightened_target(3.0, 5.0, 6.0) == pytest.approx(2.5)               # from the round's own target
+    aim = BOUND_AIM * TARGET_SLACK * 5.0                                         # inside the verdict's tolerance
+    assert 5.0 <= aim < TARGET_SLACK * 5.0
+    assert tightened_target(5.0, 5.0, 8.0) == pytest.approx(5.0 * aim / 8.0)   # aims the bound at the aim
+    assert tightened_target(3.0, 5.0, 2 * aim) == pytest.approx(1.5)           # from the round's own target
     assert tightened_target(5.0, 5.0, 40.0) == pytest.approx(5.0 * TIGHTEN_MIN)  # at most halved at once
     assert tightened_target(5.0, 5.0, 4.0) == 5.0                               # never loosened
     asked: list[float] = []
