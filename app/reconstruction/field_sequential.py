@@ -44,8 +44,14 @@ from app.probing.field import FieldPlan, plan_field
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
 from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior, loo_check
-from app.reconstruction.field_trust import (TARGET_SLACK, FieldCheck, bound_meets_target, checked_field, run_bounds,
-                                           with_bound)
+from app.reconstruction.field_trust import (
+    TARGET_SLACK,
+    FieldCheck,
+    bound_meets_target,
+    checked_field,
+    run_bounds,
+    with_bound,
+)
 
 MAX_ROUNDS = 6
 DEFAULT_BUDGET = 2000

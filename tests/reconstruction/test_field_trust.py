@@ -97,11 +97,16 @@ def test_sequential_planning_holds_every_trace_within_its_verified_bound_on_the_
     assert check.verified_line().startswith(f"verified at {len(check.verification.xy)} points: max |residual| ")
 
 
-def test_a_round_over_the_bound_tightens_its_pointwise_target_by_target_over_bound():
+def test_a_round_over_the_bound_tightens_its_pointwise_target_by_aim_over_bound():
     from types import SimpleNamespace
 
-    from app.reconstruction.field_sequential import (BOUND_AIM, TIGHTEN_MIN, TIGHTEN_TRIES, plan_tightened,
-                                                     tightened_target)
+    from app.reconstruction.field_sequential import (
+        BOUND_AIM,
+        TIGHTEN_MIN,
+        TIGHTEN_TRIES,
+        plan_tightened,
+        tightened_target,
+    )
 
     aim = BOUND_AIM * TARGET_SLACK * 5.0                                         # inside the verdict's tolerance
     assert 5.0 <= aim < TARGET_SLACK * 5.0
