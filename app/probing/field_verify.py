@@ -13,7 +13,10 @@ When the touches so far are known (the last round of a sequential plan), :func:`
 adds points in the gaps along the trace on either side of the stations that the others
 predict worst (largest standardised leave-one-out residual): a step between stations bends
 the smooth fit there, and a touch in the gap reads the step against the fit (far outside
-its predictive band), where a touch far from it reads nothing unusual.
+its predictive band), where a touch far from it reads nothing unusual.  A gap point sits
+midway between two stations, where the posterior is uncertain too: it counts among the
+verification points, and the least certain points fill the rest (at least MIN_LEAST_CERTAIN
+of them), chosen as if the gap points were touched.
 
 Pure: numpy/scipy.  Units: mm.
 """
@@ -33,6 +36,7 @@ from app.probing.field_region import TracePoints, field_region
 GAP_STATIONS = 2      # the stations whose gaps are verified (the worst predicted by the others, in sd)
 GAP_RESIDUAL_STATIONS = 2  # ... and the worst predicted in mm (where the leave-one-out sd is large: a trace's end)
 MIN_GAP_MM = 0.5      # a neighbour closer than this along the trace is the same spot (a re-touch)
+MIN_LEAST_CERTAIN = 2  # least-certain verification points beside the gap points, however many those are
 
 
 def verification_indices(prior: DeviationPrior, stations: Sites, samples: Sites, center: np.ndarray,
@@ -113,16 +117,22 @@ def with_sequential_verification(plan: FieldPlan, touched: Sites, nominals: Sequ
     verification points chosen given every station: the ``touched`` ones (earlier rounds)
     and the plan's own.  ``surprise``: (trace (n,), s_mm (n,), loo_z (n,)[, loo_residual_mm (n,)])
     of the touched stations: then the :func:`gap_points` beside the most surprising ones are
-    verified too."""
+    verified too and count among the ``count``: the least certain points, chosen as if the
+    gap points were touched too, are ``count`` less the gap points, at least
+    MIN_LEAST_CERTAIN (of ``count``)."""
     if count <= 0:
         return plan
     paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     samples = field_region(paths, prior.wavelength_mm).samples
     every = Sites(np.concatenate([touched.xy, plan.xy]), np.concatenate([touched.grad, plan.grad]))
-    idx = verification_indices(prior, every, samples.sites, plan.center, count)
-    points = samples.take(idx)
+    gaps, least = None, count
     if surprise is not None:
         gaps = gap_points(paths, surprise[0], surprise[1], surprise[2], surprise[3] if len(surprise) > 3 else None)
+        every = Sites(np.concatenate([every.xy, gaps.sites.xy]), np.concatenate([every.grad, gaps.sites.grad]))
+        least = max(count - len(gaps), min(count, MIN_LEAST_CERTAIN))
+    idx = verification_indices(prior, every, samples.sites, plan.center, least)
+    points = samples.take(idx)
+    if gaps is not None:
         points = TracePoints(Sites(np.concatenate([points.sites.xy, gaps.sites.xy]),
                                    np.concatenate([points.sites.grad, gaps.sites.grad])),
                              np.concatenate([points.trace, gaps.trace]), np.concatenate([points.s, gaps.s]),

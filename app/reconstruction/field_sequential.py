@@ -44,13 +44,21 @@ from app.probing.field import FieldPlan, plan_field
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
 from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior, loo_check
-from app.reconstruction.field_trust import FieldCheck, bound_meets_target, checked_field, run_bounds, with_bound
+from app.reconstruction.field_trust import (
+    TARGET_SLACK,
+    FieldCheck,
+    bound_meets_target,
+    checked_field,
+    run_bounds,
+    with_bound,
+)
 
 MAX_ROUNDS = 6
 DEFAULT_BUDGET = 2000
 PILOT_WAVELENGTH_FACTOR = 2.0  # the pilot plans for twice the user's wavelength
 SHRINK_PER_ROUND = 2.0         # a round plans for no less than the previous round's wavelength / 2
 TIGHTEN_MIN = 0.5              # a round's pointwise target is at most halved at once
+BOUND_AIM = 0.9                # a tightened round aims the run's bound at this fraction of the verdict's tolerance
 
 
 def pilot_params(params: PlanParams) -> PlanParams:
@@ -80,10 +88,13 @@ def round_params(params: PlanParams, learned: DeviationPrior, previous_wavelengt
 def tightened_target(plan_target_mm: float, target_mm: float, bound_mm: float) -> float:
     """The next round's pointwise target (mm) when the run's bound ``bound_mm`` under the
     fitted model is over the verdict's tolerance after a round planned for ``plan_target_mm``:
-    scaled by target / bound (the bound scales about as the pointwise sd between the stations
-    does), so one round aims the bound at the target itself, within the tolerance with room;
-    at most halved at once (TIGHTEN_MIN).  Mm in, mm out."""
-    return plan_target_mm * max(TIGHTEN_MIN, min(1.0, target_mm / bound_mm))
+    scaled by aim / bound, the aim BOUND_AIM x the tolerance (TARGET_SLACK x the target; the
+    bound scales about as the pointwise sd between the stations does, and stations come whole,
+    so the bound lands at or under the aim: inside the tolerance with room, without buying the
+    stations a bound at the target itself would cost); at most halved at once (TIGHTEN_MIN).
+    Mm in, mm out."""
+    aim = BOUND_AIM * TARGET_SLACK * target_mm
+    return plan_target_mm * max(TIGHTEN_MIN, min(1.0, aim / bound_mm))
 
 
 TIGHTEN_TRIES = 3  # a tightened round that adds no station is tightened again, this many times in all

@@ -97,13 +97,21 @@ def test_sequential_planning_holds_every_trace_within_its_verified_bound_on_the_
     assert check.verified_line().startswith(f"verified at {len(check.verification.xy)} points: max |residual| ")
 
 
-def test_a_round_over_the_bound_tightens_its_pointwise_target_by_target_over_bound():
+def test_a_round_over_the_bound_tightens_its_pointwise_target_by_aim_over_bound():
     from types import SimpleNamespace
 
-    from app.reconstruction.field_sequential import TIGHTEN_MIN, TIGHTEN_TRIES, plan_tightened, tightened_target
+    from app.reconstruction.field_sequential import (
+        BOUND_AIM,
+        TIGHTEN_MIN,
+        TIGHTEN_TRIES,
+        plan_tightened,
+        tightened_target,
+    )
 
-    assert tightened_target(5.0, 5.0, 8.0) == pytest.approx(5.0 * 5.0 / 8.0)   # aims the bound at the target
-    assert tightened_target(3.0, 5.0, 6.0) == pytest.approx(2.5)               # from the round's own target
+    aim = BOUND_AIM * TARGET_SLACK * 5.0                                         # inside the verdict's tolerance
+    assert 5.0 <= aim < TARGET_SLACK * 5.0
+    assert tightened_target(5.0, 5.0, 8.0) == pytest.approx(5.0 * aim / 8.0)   # aims the bound at the aim
+    assert tightened_target(3.0, 5.0, 2 * aim) == pytest.approx(1.5)           # from the round's own target
     assert tightened_target(5.0, 5.0, 40.0) == pytest.approx(5.0 * TIGHTEN_MIN)  # at most halved at once
     assert tightened_target(5.0, 5.0, 4.0) == 5.0                               # never loosened
     asked: list[float] = []
@@ -178,6 +186,35 @@ def test_gap_points_also_lie_beside_the_station_the_others_predict_worst_in_mm()
     # the station already picked by its z is not picked again: the next worst in mm is
     assert np.allclose(gap_points([line], trace, s, z, residual * [1, 9, 1, 1, 1], stations=1, by_residual=1).s,
                        [2.5, 7.5, 17.5])
+
+
+def test_sequential_verification_counts_the_gap_points_among_its_points(paths):
+    """The gap points count among the ``count`` verification points: the least certain ones
+    fill the rest, at least MIN_LEAST_CERTAIN, chosen as if the gap points were touched."""
+    from app.probing.field_verify import MIN_LEAST_CERTAIN, gap_points, with_sequential_verification
+
+    plan = plan_field(paths, DEFAULT)
+    none = with_sequential_verification(replace_empty(plan), plan.sites, paths, DEFAULT.prior(), 5)
+    assert none.count == 5 and none.verify_mask.all()                     # no surprise given: 5 least certain
+    z = np.zeros(plan.count)
+    z[np.flatnonzero(plan.trace >= 0)[[3, 10]]] = [4.0, -3.5]             # two surprising stations
+    surprise = (plan.trace, plan.s_mm, z)
+    gaps = gap_points(paths, plan.trace, plan.s_mm, z)
+    assert len(gaps) >= 2
+    for count in (2, 5, 8):
+        with_gaps = with_sequential_verification(replace_empty(plan), plan.sites, paths, DEFAULT.prior(), count,
+                                                 surprise)
+        assert with_gaps.count == max(count, len(gaps) + min(count, MIN_LEAST_CERTAIN))
+        assert np.allclose(with_gaps.xy[-len(gaps):], gaps.sites.xy)      # the gap points last
+        least = with_gaps.xy[:-len(gaps)]
+        assert not np.isin(least.round(6), gaps.sites.xy.round(6)).all(axis=1).any()
+
+
+def replace_empty(plan):
+    """``plan`` without stations (a sequential round that adds none)."""
+    from dataclasses import replace
+    return replace(plan, xy=plan.xy[:0], z=plan.z[:0], grad=plan.grad[:0], trace=plan.trace[:0],
+                   s_mm=plan.s_mm[:0], order=plan.order[:0])
 
 
 def test_a_chip_touched_again_does_not_shorten_the_learned_wavelength(paths):
