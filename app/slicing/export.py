@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import struct
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -32,6 +32,7 @@ from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.errors import SlicingError
 from app.slicing.layers import Layer, SliceParams, SliceResult
 from app.slicing.rings import Island, oriented
+from app.slicing.ring_text import ring_texts
 
 SLC_END = 0xFFFFFFFF
 
@@ -128,22 +129,6 @@ def to_slc(result: SliceResult, options: SlcOptions = SlcOptions()) -> SlcExport
     return SlcExport(b"".join(out), table, tuple(notes))
 
 
-def _joined(values: npt.NDArray[np.float64], decimals: int, sep: str = ",") -> str:
-    """Fixed-decimal numbers of ``values`` (flattened) joined by ``sep``, formatted in C
-    (printf), never ``-0.000...``."""
-    flat = np.asarray(values, dtype=np.float64).ravel() + 0.0
-    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
-    return (sep.join([f"%.{decimals}f"] * len(flat))) % tuple(flat.tolist())
-
-
-def _points_json(ring: npt.NDArray[np.float64], decimals: int) -> str:
-    """A ring (n, 2) as JSON text ``[[x,y],...]`` at ``decimals`` (formatted in C)."""
-    flat = np.asarray(ring, dtype=np.float64).ravel() + 0.0
-    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
-    pair = f"[%.{decimals}f,%.{decimals}f]"
-    return "[" + ",".join([pair] * (len(flat) // 2)) % tuple(flat.tolist()) + "]"
-
-
 def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | None = None, label: str = "part",
            decimals: int = 6) -> str:
     """Encode ``result`` as ASCII CLI text; ``hatches[layer_index]``: (k, 4) x1,y1,x2,y2 mm."""
@@ -155,13 +140,15 @@ def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | No
              f"$$LABEL/1,{label}",
              "$$DIMENSION/" + ",".join(f(v) for v in (*b[0], *b[1])),
              f"$$LAYERS/{len(result.layers)}", "$$HEADEREND", "$$GEOMETRYSTART"]
+    closed = (_closed(ring) for lay in result.layers for isl in lay.islands
+              for ring in (oriented(isl.outer, True), *(oriented(h, False) for h in isl.holes)))
+    texts = ring_texts(closed, decimals)  # formatted a block of rings at a time, consumed in order
     for lay in result.layers:
         lines.append(f"$$LAYER/{f(lay.z_top)}")
         for isl in lay.islands:
-            for ring, direction in ((oriented(isl.outer, True), 1),
-                                    *((oriented(h, False), 0) for h in isl.holes)):
-                pts = _closed(ring)
-                lines.append(f"$$POLYLINE/1,{direction},{len(pts)},{_joined(pts, decimals)}")
+            for direction in (1, *(0 for _ in isl.holes)):
+                text = next(texts)
+                lines.append(f"$$POLYLINE/1,{direction},{text.count(',') // 2 + 1},{text}")
         if hatches and lay.index in hatches and len(hatches[lay.index]):
             h = np.asarray(hatches[lay.index], dtype=float).reshape(-1, 4)
             lines.append(f"$$HATCHES/1,{len(h)}," + ",".join(f(v) for v in h.ravel()))
@@ -169,9 +156,11 @@ def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | No
     return "\n".join(lines) + "\n"
 
 
-def _island_json(isl: Island, decimals: int) -> str:
-    holes = ",".join(_points_json(h, decimals) for h in isl.holes)
-    return f'{{"outer":{_points_json(isl.outer, decimals)},"holes":[{holes}]}}'
+def _island_json(isl: Island, texts: Iterator[str]) -> str:
+    """An island as JSON, its rings' ``[x,y],...`` the next texts of ``texts`` (outer, then holes)."""
+    outer = next(texts)
+    holes = ",".join(f"[{next(texts)}]" for _ in isl.holes)
+    return f'{{"outer":[{outer}],"holes":[{holes}]}}'
 
 
 def layer_rows(result: SliceResult) -> list[dict[str, Any]]:
@@ -196,8 +185,10 @@ def document_head(result: SliceResult) -> dict[str, Any]:
 def to_json(result: SliceResult, decimals: int = 6) -> str:
     """Per-layer contours and statistics as JSON text (mm, mm^2)."""
     head = json.dumps(document_head(result), separators=(",", ":"))[:-len("[]}")]
+    texts = ring_texts((ring for lay in result.layers for isl in lay.islands for ring in isl.rings()), decimals,
+                       pairs=True)  # formatted a block of rings at a time, consumed in order
     rows = (json.dumps(row, separators=(",", ":"))[:-1] + ',"islands":['
-            + ",".join(_island_json(i, decimals) for i in lay.islands) + "]}"
+            + ",".join(_island_json(i, texts) for i in lay.islands) + "]}"
             for row, lay in zip(layer_rows(result), result.layers))
     return head + "[" + ",".join(rows) + "]}"
 
