@@ -30,7 +30,7 @@ from app.domain.checks import require_non_negative, require_positive
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
 from app.slicing.mesh_prep import PreparedMesh
-from app.slicing.rings import Island, SectionStats, oriented, section_stats
+from app.slicing.rings import Island, SectionStats, following, oriented, section_stats
 
 SliceMode = Literal["uniform", "area", "cavity", "cusp"]
 ThetaRule = Literal["indicator", "printed"]
@@ -164,9 +164,9 @@ def section_at(solid: manifold3d.Manifold, z: float) -> tuple[Island, ...]:
         polys = [np.asarray(p, dtype=np.float64) for p in part.to_polygons()]
         if not polys:
             continue
-        areas = [abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1))
-                            - np.dot(np.roll(p[:, 0], -1), p[:, 1]))) for p in polys]
-        k = int(np.argmax(areas))
+        areas = [abs(float(np.dot(p[:, 0], following(p[:, 1])) - np.dot(following(p[:, 0]), p[:, 1])))
+                 for p in polys] if len(polys) > 1 else [0.0]
+        k = int(np.argmax(areas))  # the outer ring: the largest
         holes = tuple(oriented(p, ccw=False) for i, p in enumerate(polys) if i != k)
         islands.append(Island(oriented(polys[k], ccw=True), holes))
     islands.sort(key=lambda i: (float(i.outer[:, 1].min()), float(i.outer[:, 0].min())))
