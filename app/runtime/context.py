@@ -103,6 +103,12 @@ class JobContext:
                 return reads.job(job_id, field=field)
             return reads.succeeded_job(job_id, kind, field, error=ConformaError)
 
+    def require_succeeded(self, job_id: str, kind: str, field: str) -> None:
+        """Raise (as :meth:`job` with ``kind``) unless ``job_id`` is a succeeded job of ``kind``;
+        reads its kind and state only, not its record's result."""
+        with self.reads() as reads:
+            reads.require_succeeded(job_id, kind, field, error=ConformaError)
+
     def artifact_bytes(self, job_id: str, name: str) -> bytes:
         with self.reads() as reads:
             row = reads.artifact(job_id, name)
