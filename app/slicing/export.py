@@ -140,15 +140,16 @@ def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | No
              f"$$LABEL/1,{label}",
              "$$DIMENSION/" + ",".join(f(v) for v in (*b[0], *b[1])),
              f"$$LAYERS/{len(result.layers)}", "$$HEADEREND", "$$GEOMETRYSTART"]
-    closed = (_closed(ring) for lay in result.layers for isl in lay.islands
-              for ring in (oriented(isl.outer, True), *(oriented(h, False) for h in isl.holes)))
-    texts = ring_texts(closed, decimals)  # formatted a block of rings at a time, consumed in order
+    rings = (ring for lay in result.layers for isl in lay.islands
+             for ring in (oriented(isl.outer, True), *(oriented(h, False) for h in isl.holes)))
+    texts = ring_texts(rings, decimals)  # formatted a block of rings at a time, consumed in order
     for lay in result.layers:
         lines.append(f"$$LAYER/{f(lay.z_top)}")
         for isl in lay.islands:
-            for direction in (1, *(0 for _ in isl.holes)):
-                text = next(texts)
-                lines.append(f"$$POLYLINE/1,{direction},{text.count(',') // 2 + 1},{text}")
+            for direction, ring in ((1, isl.outer), *((0, h) for h in isl.holes)):
+                text = next(texts)  # the polyline closed: its first point again at the end
+                first = text[:text.index(",", text.index(",") + 1)] if len(ring) > 1 else text
+                lines.append(f"$$POLYLINE/1,{direction},{len(ring) + 1},{text},{first}")
         if hatches and lay.index in hatches and len(hatches[lay.index]):
             h = np.asarray(hatches[lay.index], dtype=float).reshape(-1, 4)
             lines.append(f"$$HATCHES/1,{len(h)}," + ",".join(f(v) for v in h.ravel()))
