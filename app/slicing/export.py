@@ -219,11 +219,13 @@ def from_json(text: str | bytes) -> SliceResult:
                            field="layers.json", value=str(exc)[:80]) from None
 
 
-def from_document(doc: dict[str, Any], contours: Sequence[Sequence[tuple[Any, Sequence[Any]]]]) -> SliceResult:
+def from_document(doc: dict[str, Any], contours: Sequence[Sequence[tuple[Any, Sequence[Any]]]], *,
+                  checked: bool = False) -> SliceResult:
     """A :class:`SliceResult` from :func:`to_json`'s document ``doc`` (its layers' islands
     ignored) and, per layer, per island, the outer ring and the holes ((n, 2) mm each);
-    rings are oriented (outer CCW, holes CW).  KeyError, ValueError or TypeError for a
-    malformed document, :class:`SlicingError` naming a bad ring."""
+    rings are oriented (outer CCW, holes CW), unless ``checked``: rings the caller has already
+    checked (finite (n >= 3, 2) float64 arrays) and oriented are taken as they are.  KeyError,
+    ValueError or TypeError for a malformed document, :class:`SlicingError` naming a bad ring."""
     params = SliceParams(**doc["params"]) if "params" in doc else SliceParams(mode=doc["mode"])
     if not doc["layers"]:
         raise SlicingError("layers.json has no layers", field="layers.json", value=0)
@@ -231,6 +233,7 @@ def from_document(doc: dict[str, Any], contours: Sequence[Sequence[tuple[Any, Se
     for k, (row, islands_in) in enumerate(zip(doc["layers"], contours, strict=True)):
         where = f"layers[{k}]"
         islands = tuple(
+            Island(outer, tuple(holes)) if checked else
             Island(oriented(_ring(outer, f"{where}.outer"), ccw=True),
                    tuple(oriented(_ring(h, f"{where}.holes"), ccw=False) for h in holes))
             for outer, holes in islands_in)
