@@ -31,8 +31,8 @@ import numpy.typing as npt
 from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.errors import SlicingError
 from app.slicing.layers import Layer, SliceParams, SliceResult
-from app.slicing.rings import Island, oriented
 from app.slicing.ring_text import ring_texts
+from app.slicing.rings import Island, oriented
 
 SLC_END = 0xFFFFFFFF
 
