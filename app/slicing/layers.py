@@ -30,7 +30,7 @@ from app.domain.checks import require_non_negative, require_positive
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
 from app.slicing.mesh_prep import PreparedMesh
-from app.slicing.rings import Island, SectionStats, following, oriented, section_stats
+from app.slicing.rings import Island, SectionStats, following, oriented, section_stats, signed_area
 
 SliceMode = Literal["uniform", "area", "cavity", "cusp"]
 ThetaRule = Literal["indicator", "printed"]
@@ -160,8 +160,13 @@ class SliceResult:
 def section_at(solid: manifold3d.Manifold, z: float) -> tuple[Island, ...]:
     """Section of ``solid`` by the plane at height ``z`` (mm) as sorted islands."""
     islands = []
-    for part in solid.slice(float(z)).decompose():
-        polys = [np.asarray(p, dtype=np.float64) for p in part.to_polygons()]
+    section = solid.slice(float(z))
+    whole = [np.asarray(p, dtype=np.float64) for p in section.to_polygons()]
+    # one outer boundary (every other ring a hole in it): one island, its rings as decompose gives them
+    # (the same arrays in the same order); else the islands one by one
+    parts = [whole] if sum(signed_area(p) > 0 for p in whole) == 1 else \
+        [[np.asarray(p, dtype=np.float64) for p in part.to_polygons()] for part in section.decompose()]
+    for polys in parts:
         if not polys:
             continue
         areas = [abs(float(np.dot(p[:, 0], following(p[:, 1])) - np.dot(following(p[:, 0]), p[:, 1])))
