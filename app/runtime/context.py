@@ -103,6 +103,12 @@ class JobContext:
                 return reads.job(job_id, field=field)
             return reads.succeeded_job(job_id, kind, field, error=ConformaError)
 
+    def require_succeeded(self, job_id: str, kind: str, field: str) -> None:
+        """Raise (as :meth:`job` with ``kind``) unless ``job_id`` is a succeeded job of ``kind``;
+        reads its kind and state only, not its record's result."""
+        with self.reads() as reads:
+            reads.require_succeeded(job_id, kind, field, error=ConformaError)
+
     def artifact_bytes(self, job_id: str, name: str) -> bytes:
         with self.reads() as reads:
             row = reads.artifact(job_id, name)
@@ -198,6 +204,11 @@ class JobContext:
             session.commit()
             return shas
 
+    def artifact_batch(self, max_bytes: int = 64 * 2**20) -> ArtifactBatch:
+        """Artifacts stored together (:meth:`artifacts`: one commit for several files) while
+        what waits is under ``max_bytes``; use it as a context manager (the rest is stored on exit)."""
+        return ArtifactBatch(self, max_bytes)
+
     # children --------------------------------------------------------------------
     def submit_child(self, kind: str, params: dict[str, Any]) -> str:
         return self.runtime.submit(kind, params, parent_id=self.job_id).id
@@ -220,3 +231,37 @@ class JobContext:
                         self.runtime.store.request_cancel(job_id)
                 raise
             time.sleep(poll_s)
+
+
+class ArtifactBatch:
+    """Artifacts of one job stored a few at a time: each :meth:`add` waits in memory until what
+    waits reaches ``max_bytes`` (then all of it is stored in one commit, :meth:`JobContext.artifacts`),
+    the rest on :meth:`flush` or at the end of the ``with`` block.  Small files cost one commit
+    between them instead of one each; large ones are still let go one at a time.  The rows keep
+    the order of the calls."""
+
+    def __init__(self, ctx: JobContext, max_bytes: int) -> None:
+        self.ctx = ctx
+        self.max_bytes = max_bytes
+        self.waiting: list[tuple[str, bytes, str, dict[str, Any] | None]] = []
+        self.bytes = 0
+
+    def add(self, name: str, data: bytes, media_type: str, meta: dict[str, Any] | None = None) -> None:
+        """Store ``data`` as artifact ``name`` (now, or with the next ones)."""
+        self.waiting.append((name, data, media_type, meta))
+        self.bytes += len(data)
+        if self.bytes >= self.max_bytes:
+            self.flush()
+
+    def flush(self) -> None:
+        """Store what waits (one commit)."""
+        if self.waiting:
+            waiting, self.waiting, self.bytes = self.waiting, [], 0
+            self.ctx.artifacts(waiting)
+
+    def __enter__(self) -> ArtifactBatch:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        if kind is None:  # a job that failed half way stores nothing more
+            self.flush()

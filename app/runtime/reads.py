@@ -112,17 +112,17 @@ class JobReads:
         A missing job is a NotFound (404) naming ``field``, or with ``missing_is_invalid`` an
         ``error``; a job of another kind or state is an ``error`` (InvalidInput: 422) naming
         ``field`` and the job id; ``hint`` is appended to its message."""
-        needed = f"a succeeded {kind} job" if kind else "a succeeded job"
         job = self._session.get(Job, job_id)
-        if job is None:
-            if missing_is_invalid:
-                raise error(f"{field}: job {job_id!r} does not exist; {needed} is needed{hint}", field=field,
-                            value=job_id)
-            raise NotFound(f"job {job_id!r} does not exist", field=field, value=job_id)
-        if job.status != "succeeded" or (kind is not None and job.kind != kind):
-            raise error(f"job {job_id!r} is a {job.status} {job.kind} job; {needed} is needed{hint}",
-                        field=field, value=job_id)
+        _require_succeeded(job_id, None if job is None else (job.kind, job.status), kind, field, error=error,
+                           missing_is_invalid=missing_is_invalid, hint=hint)
+        assert job is not None
         return job
+
+    def require_succeeded(self, job_id: str, kind: str | None, field: str, *,
+                          error: type[ConformaError] = InvalidInput) -> None:
+        """:meth:`succeeded_job`'s refusals, reading the job's kind and state only (not its result)."""
+        state = self._session.exec(select(col(Job.kind), col(Job.status)).where(col(Job.id) == job_id)).first()
+        _require_succeeded(job_id, None if state is None else (state[0], state[1]), kind, field, error=error)
 
     # traces ----------------------------------------------------------------------------------
     def traces(self, trace_ids: list[str]) -> list[Trace]:
@@ -207,3 +207,19 @@ class JobReads:
         if busy is None:
             return None
         return {"id": busy[0], "kind": busy[1], "status": busy[2], "program_state": busy[3]}
+
+
+def _require_succeeded(job_id: str, state: tuple[str, str] | None, kind: str | None, field: str, *,
+                       error: type[ConformaError], missing_is_invalid: bool = False, hint: str = "") -> None:
+    """Raise unless ``state`` (the job's kind and status; None: no such job) is a succeeded job
+    of ``kind`` (see :meth:`JobReads.succeeded_job`)."""
+    needed = f"a succeeded {kind} job" if kind else "a succeeded job"
+    if state is None:
+        if missing_is_invalid:
+            raise error(f"{field}: job {job_id!r} does not exist; {needed} is needed{hint}", field=field,
+                        value=job_id)
+        raise NotFound(f"job {job_id!r} does not exist", field=field, value=job_id)
+    job_kind, status = state
+    if status != "succeeded" or (kind is not None and job_kind != kind):
+        raise error(f"job {job_id!r} is a {status} {job_kind} job; {needed} is needed{hint}", field=field,
+                    value=job_id)

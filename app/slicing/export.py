@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import struct
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -31,6 +31,7 @@ import numpy.typing as npt
 from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.errors import SlicingError
 from app.slicing.layers import Layer, SliceParams, SliceResult
+from app.slicing.ring_text import ring_texts
 from app.slicing.rings import Island, oriented
 
 SLC_END = 0xFFFFFFFF
@@ -128,22 +129,6 @@ def to_slc(result: SliceResult, options: SlcOptions = SlcOptions()) -> SlcExport
     return SlcExport(b"".join(out), table, tuple(notes))
 
 
-def _joined(values: npt.NDArray[np.float64], decimals: int, sep: str = ",") -> str:
-    """Fixed-decimal numbers of ``values`` (flattened) joined by ``sep``, formatted in C
-    (printf), never ``-0.000...``."""
-    flat = np.asarray(values, dtype=np.float64).ravel() + 0.0
-    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
-    return (sep.join([f"%.{decimals}f"] * len(flat))) % tuple(flat.tolist())
-
-
-def _points_json(ring: npt.NDArray[np.float64], decimals: int) -> str:
-    """A ring (n, 2) as JSON text ``[[x,y],...]`` at ``decimals`` (formatted in C)."""
-    flat = np.asarray(ring, dtype=np.float64).ravel() + 0.0
-    flat[np.abs(flat) < 0.5 * 10.0 ** -decimals] = 0.0
-    pair = f"[%.{decimals}f,%.{decimals}f]"
-    return "[" + ",".join([pair] * (len(flat) // 2)) % tuple(flat.tolist()) + "]"
-
-
 def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | None = None, label: str = "part",
            decimals: int = 6) -> str:
     """Encode ``result`` as ASCII CLI text; ``hatches[layer_index]``: (k, 4) x1,y1,x2,y2 mm."""
@@ -155,13 +140,16 @@ def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | No
              f"$$LABEL/1,{label}",
              "$$DIMENSION/" + ",".join(f(v) for v in (*b[0], *b[1])),
              f"$$LAYERS/{len(result.layers)}", "$$HEADEREND", "$$GEOMETRYSTART"]
+    rings = (ring for lay in result.layers for isl in lay.islands
+             for ring in (oriented(isl.outer, True), *(oriented(h, False) for h in isl.holes)))
+    texts = ring_texts(rings, decimals)  # formatted a block of rings at a time, consumed in order
     for lay in result.layers:
         lines.append(f"$$LAYER/{f(lay.z_top)}")
         for isl in lay.islands:
-            for ring, direction in ((oriented(isl.outer, True), 1),
-                                    *((oriented(h, False), 0) for h in isl.holes)):
-                pts = _closed(ring)
-                lines.append(f"$$POLYLINE/1,{direction},{len(pts)},{_joined(pts, decimals)}")
+            for direction, ring in ((1, isl.outer), *((0, h) for h in isl.holes)):
+                text = next(texts)  # the polyline closed: its first point again at the end
+                first = text[:text.index(",", text.index(",") + 1)] if len(ring) > 1 else text
+                lines.append(f"$$POLYLINE/1,{direction},{len(ring) + 1},{text},{first}")
         if hatches and lay.index in hatches and len(hatches[lay.index]):
             h = np.asarray(hatches[lay.index], dtype=float).reshape(-1, 4)
             lines.append(f"$$HATCHES/1,{len(h)}," + ",".join(f(v) for v in h.ravel()))
@@ -169,9 +157,11 @@ def to_cli(result: SliceResult, hatches: dict[int, npt.NDArray[np.float64]] | No
     return "\n".join(lines) + "\n"
 
 
-def _island_json(isl: Island, decimals: int) -> str:
-    holes = ",".join(_points_json(h, decimals) for h in isl.holes)
-    return f'{{"outer":{_points_json(isl.outer, decimals)},"holes":[{holes}]}}'
+def _island_json(isl: Island, texts: Iterator[str]) -> str:
+    """An island as JSON, its rings' ``[x,y],...`` the next texts of ``texts`` (outer, then holes)."""
+    outer = next(texts)
+    holes = ",".join(f"[{next(texts)}]" for _ in isl.holes)
+    return f'{{"outer":[{outer}],"holes":[{holes}]}}'
 
 
 def layer_rows(result: SliceResult) -> list[dict[str, Any]]:
@@ -196,8 +186,10 @@ def document_head(result: SliceResult) -> dict[str, Any]:
 def to_json(result: SliceResult, decimals: int = 6) -> str:
     """Per-layer contours and statistics as JSON text (mm, mm^2)."""
     head = json.dumps(document_head(result), separators=(",", ":"))[:-len("[]}")]
+    texts = ring_texts((ring for lay in result.layers for isl in lay.islands for ring in isl.rings()), decimals,
+                       pairs=True)  # formatted a block of rings at a time, consumed in order
     rows = (json.dumps(row, separators=(",", ":"))[:-1] + ',"islands":['
-            + ",".join(_island_json(i, decimals) for i in lay.islands) + "]}"
+            + ",".join(_island_json(i, texts) for i in lay.islands) + "]}"
             for row, lay in zip(layer_rows(result), result.layers))
     return head + "[" + ",".join(rows) + "]}"
 
@@ -227,11 +219,13 @@ def from_json(text: str | bytes) -> SliceResult:
                            field="layers.json", value=str(exc)[:80]) from None
 
 
-def from_document(doc: dict[str, Any], contours: Sequence[Sequence[tuple[Any, Sequence[Any]]]]) -> SliceResult:
+def from_document(doc: dict[str, Any], contours: Sequence[Sequence[tuple[Any, Sequence[Any]]]], *,
+                  checked: bool = False) -> SliceResult:
     """A :class:`SliceResult` from :func:`to_json`'s document ``doc`` (its layers' islands
     ignored) and, per layer, per island, the outer ring and the holes ((n, 2) mm each);
-    rings are oriented (outer CCW, holes CW).  KeyError, ValueError or TypeError for a
-    malformed document, :class:`SlicingError` naming a bad ring."""
+    rings are oriented (outer CCW, holes CW), unless ``checked``: rings the caller has already
+    checked (finite (n >= 3, 2) float64 arrays) and oriented are taken as they are.  KeyError,
+    ValueError or TypeError for a malformed document, :class:`SlicingError` naming a bad ring."""
     params = SliceParams(**doc["params"]) if "params" in doc else SliceParams(mode=doc["mode"])
     if not doc["layers"]:
         raise SlicingError("layers.json has no layers", field="layers.json", value=0)
@@ -239,6 +233,7 @@ def from_document(doc: dict[str, Any], contours: Sequence[Sequence[tuple[Any, Se
     for k, (row, islands_in) in enumerate(zip(doc["layers"], contours, strict=True)):
         where = f"layers[{k}]"
         islands = tuple(
+            Island(outer, tuple(holes)) if checked else
             Island(oriented(_ring(outer, f"{where}.outer"), ccw=True),
                    tuple(oriented(_ring(h, f"{where}.holes"), ccw=False) for h in holes))
             for outer, holes in islands_in)

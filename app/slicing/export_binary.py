@@ -22,7 +22,7 @@ from app.gcode.writer import as_written
 from app.slicing.errors import SlicingError
 from app.slicing.export import document_head, from_document, layer_rows
 from app.slicing.layers import SliceResult
-from app.slicing.rings import split_at
+from app.slicing.rings import oriented, split_at
 
 NAME = "layers.npz"
 
@@ -59,14 +59,43 @@ def from_binary(data: bytes) -> SliceResult:
                 or table[:, 3].sum() != len(points):
             raise ValueError(f"points {points.shape} and ring table {table.shape} do not agree")
         contours: list[list[tuple[np.ndarray, list[np.ndarray]]]] = [[] for _ in doc["layers"]]
-        for (k, j, hole, _), ring in zip(table.tolist(), split_at(points, np.cumsum(table[:, 3])[:-1])):
+        checked = points.dtype == np.float64 and bool((table[:, 3] >= 3).all()) and bool(np.isfinite(points).all())
+        rings = split_at(points, np.cumsum(table[:, 3])[:-1])
+        if checked:  # every ring valid: oriented here at once (else from_document names the bad one)
+            rings = _oriented(points, table, rings)
+        for (k, j, hole, _), ring in zip(table.tolist(), rings):
             if hole:
                 contours[k][j][1].append(ring)
             else:
                 contours[k].append((ring, []))
-        return from_document(doc, contours)
+        return from_document(doc, contours, checked=checked)
     except SlicingError:
         raise
     except (ValueError, KeyError, TypeError, IndexError, AttributeError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise SlicingError(f"not a {NAME} document: {type(exc).__name__}: {exc}", field=NAME,
                            value=str(exc)[:80]) from None
+
+
+def _oriented(points: np.ndarray, table: np.ndarray, rings: list[np.ndarray]) -> list[np.ndarray]:
+    """``rings`` (views of ``points`` (V, 2) mm, the rows of ``table``) each as
+    :func:`app.slicing.rings.oriented` makes it: outer rings anticlockwise, holes clockwise.
+    Every ring's shoelace sum at once; a ring whose sum is too close to zero for its sign to
+    be sure (within the rounding of either summation) is decided by ``signed_area`` itself."""
+    if not len(rings):
+        return rings
+    sizes = table[:, 3]
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    following = np.arange(1, len(points) + 1)
+    following[starts + sizes - 1] = starts  # each ring's last vertex is followed by its first
+    x, y = points[:, 0], points[:, 1]
+    terms = x * y[following] - x[following] * y
+    twice = np.add.reduceat(terms, starts)
+    scale = np.add.reduceat(np.abs(x * y[following]) + np.abs(x[following] * y), starts)
+    sure = np.abs(twice) > 4.0 * (sizes + 4) * np.finfo(np.float64).eps * scale
+    wrong = np.where(table[:, 2] == 1, twice > 0, twice < 0) & sure  # a hole anticlockwise, an outer clockwise
+    out = list(rings)
+    for i in np.flatnonzero(wrong).tolist():
+        out[i] = rings[i][::-1].copy()
+    for i in np.flatnonzero(~sure).tolist():
+        out[i] = oriented(rings[i], ccw=not table[i, 2])
+    return out

@@ -31,7 +31,7 @@ from app.domain.checks import require_declared_bounds, require_non_negative, req
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
 from app.slicing.mesh_prep import PreparedMesh
-from app.slicing.rings import Island, SectionStats, oriented, section_stats
+from app.slicing.rings import Island, SectionStats, following, oriented, section_stats, signed_area
 
 SliceMode = Literal["uniform", "area", "cavity", "cusp"]
 ThetaRule = Literal["indicator", "printed"]
@@ -166,13 +166,18 @@ class SliceResult:
 def section_at(solid: manifold3d.Manifold, z: float) -> tuple[Island, ...]:
     """Section of ``solid`` by the plane at height ``z`` (mm) as sorted islands."""
     islands = []
-    for part in solid.slice(float(z)).decompose():
-        polys = [np.asarray(p, dtype=np.float64) for p in part.to_polygons()]
+    section = solid.slice(float(z))
+    whole = [np.asarray(p, dtype=np.float64) for p in section.to_polygons()]
+    # one outer boundary (every other ring a hole in it): one island, its rings as decompose gives them
+    # (the same arrays in the same order); else the islands one by one
+    parts = [whole] if sum(signed_area(p) > 0 for p in whole) == 1 else \
+        [[np.asarray(p, dtype=np.float64) for p in part.to_polygons()] for part in section.decompose()]
+    for polys in parts:
         if not polys:
             continue
-        areas = [abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1))
-                            - np.dot(np.roll(p[:, 0], -1), p[:, 1]))) for p in polys]
-        k = int(np.argmax(areas))
+        areas = [abs(float(np.dot(p[:, 0], following(p[:, 1])) - np.dot(following(p[:, 0]), p[:, 1])))
+                 for p in polys] if len(polys) > 1 else [0.0]
+        k = int(np.argmax(areas))  # the outer ring: the largest
         holes = tuple(oriented(p, ccw=False) for i, p in enumerate(polys) if i != k)
         islands.append(Island(oriented(polys[k], ccw=True), holes))
     islands.sort(key=lambda i: (float(i.outer[:, 1].min()), float(i.outer[:, 0].min())))

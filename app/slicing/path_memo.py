@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from app.slicing.rings import Island
+from app.slicing.rings import Island, following, preceding
 
 if TYPE_CHECKING:
     from app.slicing.toolpath import ToolpathParams
@@ -31,7 +31,7 @@ def _without_collinear(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]
     """``ring`` (n, 2) mm without the vertices that lie on the line through their neighbours
     (within ``COLLINEAR_MM``): a mesh's side faces cut a straight wall into pieces whose
     joints move from layer to layer; the wall is the same."""
-    prev, nxt = np.roll(ring, 1, axis=0), np.roll(ring, -1, axis=0)
+    prev, nxt = preceding(ring), following(ring)
     chord = np.hypot(*(nxt - prev).T)
     cross = np.abs((ring[:, 0] - prev[:, 0]) * (nxt[:, 1] - prev[:, 1])
                    - (ring[:, 1] - prev[:, 1]) * (nxt[:, 0] - prev[:, 0]))

@@ -14,6 +14,17 @@ import numpy as np
 import numpy.typing as npt
 
 
+def following(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Each vertex's successor around the closed ``ring`` (n, ...): ``np.roll(ring, -1, axis=0)``
+    (the same array, without ``np.roll``'s generic set-up: ~10x faster on a short ring)."""
+    return np.concatenate((ring[1:], ring[:1]))
+
+
+def preceding(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Each vertex's predecessor around the closed ``ring`` (n, ...): ``np.roll(ring, 1, axis=0)``."""
+    return np.concatenate((ring[-1:], ring[:-1]))
+
+
 def signed_area(ring: npt.NDArray[np.float64]) -> float:
     """Shoelace signed area of a closed ring ``(n, 2)`` in mm^2 (CCW positive)."""
     x = ring[:, 0]
@@ -132,7 +143,7 @@ def islands_from_polygons(polygons: list[npt.NDArray[np.float64]]) -> tuple[Isla
 
 def ring_length(ring: npt.NDArray[np.float64]) -> float:
     """Perimeter of a closed ring (n, 2) mm (the closing edge included), mm."""
-    return float(np.hypot(*(np.roll(ring, -1, axis=0) - ring).T).sum())
+    return float(np.hypot(*(following(ring) - ring).T).sum())
 
 
 def split_at(values: npt.NDArray[np.float64], cuts: npt.NDArray[np.int64]) -> list[npt.NDArray[np.float64]]:

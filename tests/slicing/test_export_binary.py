@@ -46,3 +46,43 @@ def test_what_is_not_a_layers_array_file_is_refused_naming_it():
         with pytest.raises(SlicingError) as info:
             from_binary(data)
         assert info.value.field == "layers.npz"
+
+
+def test_rings_stored_the_wrong_way_round_are_oriented_as_ring_by_ring():
+    """The orientation of every ring at once (the shoelace sums of all rings together) turns
+    the same rings as :func:`oriented` ring by ring: outer rings and holes written reversed,
+    and sliver rings whose area is all rounding."""
+    import io
+
+    from app.slicing.export import from_document
+    from app.slicing.rings import oriented
+
+    data = to_binary(_parts()["tube"])
+    with np.load(io.BytesIO(data)) as arrays:
+        header, points, table = arrays["header"], arrays["points"].copy(), arrays["rings"].copy()
+    ends = np.cumsum(table[:, 3])
+    for i in range(0, len(table), 3):  # every third ring reversed in the file
+        points[ends[i] - table[i, 3]:ends[i]] = points[ends[i] - table[i, 3]:ends[i]][::-1].copy()
+    sliver = np.array([[0.0, 0.0], [1.0, 1e-17], [2.0, 0.0], [3.0, -1e-17]])  # area ~1e-17 mm^2
+    points = np.vstack([points, sliver + 40.0, sliver[::-1] + 40.0])
+    table = np.vstack([table, [table[-1, 0], 0, 1, 4], [table[-1, 0], 0, 1, 4]])  # two more holes, last layer
+    out = io.BytesIO()
+    np.savez(out, header=header, points=points, rings=table)
+    ours = from_binary(out.getvalue())
+    import json
+    doc = json.loads(header.tobytes())
+    contours: list[list[tuple[np.ndarray, list[np.ndarray]]]] = [[] for _ in doc["layers"]]
+    starts = np.concatenate([[0], ends[:-1].tolist() + [ends[-1], ends[-1] + 4]])
+    for (k, j, hole, n), start in zip(table.tolist(), starts.tolist()):
+        ring = points[start:start + n]
+        if hole:
+            contours[k][j][1].append(ring)
+        else:
+            contours[k].append((ring, []))
+    reference = from_document(doc, contours)  # ring by ring, through oriented
+    rings = [r for lay in ours.layers for isl in lay.islands for r in isl.rings()]
+    expected = [r for lay in reference.layers for isl in lay.islands for r in isl.rings()]
+    assert len(rings) == len(expected) == len(table)
+    for a, b in zip(rings, expected):
+        assert np.array_equal(a, b)
+    assert np.array_equal(expected[-1], oriented(sliver[::-1] + 40.0, ccw=False))

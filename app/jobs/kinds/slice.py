@@ -36,6 +36,7 @@ from app.slicing.rings import ring_length
 MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at submission)
 _CORE = SliceParams()
 _SLC = SlcOptions()
+ARTIFACT_BATCH_BYTES = 16 * 2**20  # the exports wait for one commit together up to this many bytes
 
 # form hints (app.jobs.form_hints): folded fields, and the fields of one mode or beam only
 _MORE = form(advanced=True)
@@ -263,15 +264,16 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         svg_index = len(sliced.layers) - 1
     chosen = sliced.layers[svg_index]
     count = {"layers": len(sliced.layers)}
-    # one artifact at a time: each one's bytes are let go before the next is made
-    ctx.artifact("layers.slc", slc.data, "application/octet-stream",
-                 {**count, "sampling_table_entries": len(slc.table)})
-    ctx.artifact("layers.cli", to_cli(sliced).encode(), "text/plain", count)
-    ctx.artifact("layers.json", to_json(sliced).encode(), "application/json", count)
-    ctx.artifact("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml",
-                 {"layer": svg_index, "z": chosen.z_top})
-    ctx.artifact(BINARY_LAYERS, to_binary(sliced), "application/octet-stream",
-                 {**count, "note": "layers.json's content as arrays (what the toolpath job reads)"})
+    # the small files in one commit; a large one is stored (and let go) before the next is made
+    with ctx.artifact_batch(ARTIFACT_BATCH_BYTES) as batch:
+        batch.add("layers.slc", slc.data, "application/octet-stream",
+                  {**count, "sampling_table_entries": len(slc.table)})
+        batch.add("layers.cli", to_cli(sliced).encode(), "text/plain", count)
+        batch.add("layers.json", to_json(sliced).encode(), "application/json", count)
+        batch.add("layer.svg", layer_svg(sliced, svg_index).encode(), "image/svg+xml",
+                  {"layer": svg_index, "z": chosen.z_top})
+        batch.add(BINARY_LAYERS, to_binary(sliced), "application/octet-stream",
+                  {**count, "note": "layers.json's content as arrays (what the toolpath job reads)"})
     return SliceResult.written({
         "mode": params.mode,
         "layer_count": len(sliced.layers),

@@ -334,8 +334,8 @@ def _layers(ctx: JobContext, slice_job_id: str) -> SlicedLayers:
 @job_kind("toolpath", ToolpathJobParams, references=_references, check=_check, estimate=_estimate)
 def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
-    slice_job = ctx.job(params.slice_job_id, kind="slice", field="params.slice_job_id")
-    sliced = _layers(ctx, slice_job.id)
+    ctx.require_succeeded(params.slice_job_id, "slice", "params.slice_job_id")
+    sliced = _layers(ctx, params.slice_job_id)
     machine = (ctx.machine(params.machine_id) if params.machine_id is not None and params.volume_mm is None
                else None)
     volume = machine_volume(params, machine)
