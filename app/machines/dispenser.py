@@ -16,13 +16,14 @@ from __future__ import annotations
 from app.gcode.writer import DIALECT_NAMES, own_dispense
 from hardware.dialects import LINUXCNC_DISPENSE
 
+#: the dialects whose dispenser is a numbered output their backend drives, not a command of their own
+OUTPUT_DISPENSE: dict[str, tuple[str, str]] = {"linuxcnc": LINUXCNC_DISPENSE}
+
 
 def machine_dispense(dialect: str) -> tuple[str, str]:
     """The (on, off) dispenser commands a ``dialect`` machine gets when its profile names
     none; GcodeError (field ``dialect``) for an unknown dialect."""
-    if dialect == "linuxcnc":
-        return LINUXCNC_DISPENSE
-    return own_dispense(dialect)
+    return OUTPUT_DISPENSE.get(dialect) or own_dispense(dialect)
 
 
 def described(index: int) -> str:
