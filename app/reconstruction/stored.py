@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import re
 import zipfile
 import zlib
@@ -134,7 +135,7 @@ def _npy_array(member: bytes) -> np.ndarray:
             dtype = np.dtype(match.group(1).decode())
             if not dtype.hasobject:
                 shape = tuple(int(n) for n in match.group(2).split(b",") if n.strip())
-                return np.frombuffer(member, dtype=dtype, count=int(np.prod(shape, dtype=np.int64)),
+                return np.frombuffer(member, dtype=dtype, count=math.prod(shape),
                                      offset=10 + size).reshape(shape).copy()
     return np.lib.format.read_array(io.BytesIO(member), allow_pickle=False)
 
