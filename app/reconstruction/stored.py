@@ -16,6 +16,7 @@ import io
 import json
 import math
 import re
+import struct
 import zipfile
 import zlib
 from typing import Any
@@ -143,32 +144,43 @@ def _npy_array(member: bytes) -> np.ndarray:
 def read_reconstruction(data: bytes, nominal: TracePolyline) -> Reconstruction:
     """Inverse of :func:`reconstruction_npz` over ``nominal``."""
     try:
-        with zipfile.ZipFile(io.BytesIO(data)) as archive:
-            arrays = {info.filename[:-4]: _npy_array(_member(archive, info, data)) for info in archive.infolist()
-                      if info.filename.endswith(".npy")}
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        members = _stored_members(data)
+        if members is None:  # deflated (stored before they were stored uncompressed), or another writer's
+            with zipfile.ZipFile(io.BytesIO(data)) as archive:
+                members = {name: archive.read(name) for name in archive.namelist()}
+        arrays = {name[:-4]: _npy_array(member) for name, member in members.items() if name.endswith(".npy")}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, struct.error) as exc:
         raise ReconstructionError(f"the stored reconstruction is not a readable NPZ ({exc})",
                                   field="reconstruction", value=len(data)) from None
     return reconstruction_from_arrays(arrays, nominal)
 
 
-_LOCAL_HEADER = 30  # bytes of a zip member's local header before its name and extra field
+_LOCAL_HEADER = struct.Struct("<4s2xHH4xIIIHH")  # a zip member's local header: signature, flags,
+# method, CRC-32, compressed and uncompressed size, name and extra field lengths (30 bytes)
+_DATA_DESCRIPTOR = 0x08  # flag: the sizes follow the data instead of being in the header
+_UTF8_NAME = 0x800  # flag: the name is UTF-8 (else code page 437)
 
 
-def _member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, data: bytes) -> bytes:
-    """The bytes of the member ``info`` of ``archive`` (whose whole content is ``data``): a
-    stored (uncompressed) member is cut out of ``data`` where its local header says it
-    starts, its CRC-32 checked as ``zipfile`` checks it (opening each member through
-    ``zipfile`` cost more than the rest of reading it); a compressed one (the reconstructions
-    stored before they were stored uncompressed) is read by ``zipfile``."""
-    if info.compress_type != zipfile.ZIP_STORED:
-        return archive.read(info)
-    at = info.header_offset
-    head = data[at:at + _LOCAL_HEADER]
-    if len(head) != _LOCAL_HEADER or head[:4] != b"PK\x03\x04":
-        raise zipfile.BadZipFile(f"member {info.filename!r} has no local header")
-    start = at + _LOCAL_HEADER + int.from_bytes(head[26:28], "little") + int.from_bytes(head[28:30], "little")
-    member = data[start:start + info.compress_size]
-    if len(member) != info.compress_size or zlib.crc32(member) != info.CRC:
-        raise zipfile.BadZipFile(f"member {info.filename!r} is cut or its CRC-32 does not match")
-    return member
+def _stored_members(data: bytes) -> dict[str, bytes] | None:
+    """{name: bytes} of an archive of stored (uncompressed) members, as
+    :func:`reconstruction_npz` writes it, read member after member from the local headers,
+    each CRC-32 checked as ``zipfile`` checks it (``zipfile`` parsing the central directory
+    and opening each member cost more than the rest of reading a reconstruction); None when
+    a member is compressed or its sizes are not in its header, or when the members are not
+    followed by the central directory (``zipfile`` then reads it, or refuses it).
+    BadZipFile when a member is cut or its CRC-32 does not match."""
+    members: dict[str, bytes] = {}
+    at = 0
+    while data[at:at + 4] == b"PK\x03\x04":
+        _, flags, method, crc, size, plain_size, name_len, extra_len = _LOCAL_HEADER.unpack_from(data, at)
+        if method != zipfile.ZIP_STORED or flags & _DATA_DESCRIPTOR or size != plain_size or size == 0xFFFFFFFF:
+            return None
+        begin = at + _LOCAL_HEADER.size
+        name = data[begin:begin + name_len].decode("utf-8" if flags & _UTF8_NAME else "cp437")
+        begin += name_len + extra_len
+        member = data[begin:begin + size]
+        if len(member) != size or zlib.crc32(member) != crc:
+            raise zipfile.BadZipFile(f"member {name!r} is cut or its CRC-32 does not match")
+        members[name] = member
+        at = begin + size
+    return members if members and data[at:at + 4] == b"PK\x01\x02" else None
