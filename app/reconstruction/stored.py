@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import re
+import struct
 import zipfile
+import zlib
 from typing import Any
 
 import numpy as np
@@ -87,10 +90,35 @@ def reconstruction_from_arrays(arrays: dict[str, np.ndarray], nominal: TracePoly
 
 
 def reconstruction_npz(rec: Reconstruction) -> bytes:
-    """``rec`` as NPZ bytes (no pickles)."""
+    """``rec`` as NPZ bytes (no pickles): one ``<name>.npy`` member per array, stored
+    uncompressed (a board stores a thousand, and deflating them cost more than the rest of
+    writing them; they are ~1.3x larger), each member byte for byte what
+    ``numpy.lib.format.write_array`` writes, so ``numpy.load`` reads them as usual."""
     out = io.BytesIO()
-    np.savez_compressed(out, **reconstruction_arrays(rec))  # type: ignore[arg-type]
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
+        for name, array in reconstruction_arrays(rec).items():
+            member = zipfile.ZipInfo(name + ".npy")  # dated 1980-01-01 as numpy's are: the same
+            member.compress_type = zipfile.ZIP_STORED  # reconstruction is the same bytes at any time
+            archive.writestr(member, _npy_bytes(np.asarray(array)))
     return out.getvalue()
+
+
+_NPY_ALIGN = 64  # numpy aligns a format 1.0 header (with its magic and length) to this many bytes
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    """``array`` (a plain dtype, any order) as a format 1.0 ``.npy`` member, the header built
+    as numpy builds it (its keys sorted, padded with spaces to the alignment, then a newline;
+    the room numpy leaves for a growing first axis included); the data in C order."""
+    if array.dtype.hasobject:
+        raise ValueError("an object array has no .npy form without pickles")
+    header = (f"{{'descr': {np.lib.format.dtype_to_descr(array.dtype)!r}, 'fortran_order': False, "
+              f"'shape': {array.shape!r}, }}")
+    if array.shape:  # numpy leaves room for the first axis to grow to 21 digits
+        header += " " * (21 - len(repr(array.shape[0])))
+    header += " " * (_NPY_ALIGN - (10 + len(header) + 1) % _NPY_ALIGN) + "\n"
+    encoded = header.encode("latin1")
+    return b"\x93NUMPY\x01\x00" + len(encoded).to_bytes(2, "little") + encoded + array.tobytes(order="C")
 
 
 # the header numpy writes (``numpy.lib.format``): a dict of descr, fortran_order and shape
@@ -110,7 +138,7 @@ def _npy_array(member: bytes) -> np.ndarray:
             dtype = np.dtype(match.group(1).decode())
             if not dtype.hasobject:
                 shape = tuple(int(n) for n in match.group(2).split(b",") if n.strip())
-                return np.frombuffer(member, dtype=dtype, count=int(np.prod(shape, dtype=np.int64)),
+                return np.frombuffer(member, dtype=dtype, count=math.prod(shape),
                                      offset=10 + size).reshape(shape).copy()
     return np.lib.format.read_array(io.BytesIO(member), allow_pickle=False)
 
@@ -118,9 +146,43 @@ def _npy_array(member: bytes) -> np.ndarray:
 def read_reconstruction(data: bytes, nominal: TracePolyline) -> Reconstruction:
     """Inverse of :func:`reconstruction_npz` over ``nominal``."""
     try:
-        with zipfile.ZipFile(io.BytesIO(data)) as archive:
-            arrays = {name[:-4]: _npy_array(archive.read(name)) for name in archive.namelist() if name.endswith(".npy")}
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        members = _stored_members(data)
+        if members is None:  # deflated (stored before they were stored uncompressed), or another writer's
+            with zipfile.ZipFile(io.BytesIO(data)) as archive:
+                members = {name: archive.read(name) for name in archive.namelist()}
+        arrays = {name[:-4]: _npy_array(member) for name, member in members.items() if name.endswith(".npy")}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, struct.error) as exc:
         raise ReconstructionError(f"the stored reconstruction is not a readable NPZ ({exc})",
                                   field="reconstruction", value=len(data)) from None
     return reconstruction_from_arrays(arrays, nominal)
+
+
+_LOCAL_HEADER = struct.Struct("<4s2xHH4xIIIHH")  # a zip member's local header: signature, flags,
+# method, CRC-32, compressed and uncompressed size, name and extra field lengths (30 bytes)
+_DATA_DESCRIPTOR = 0x08  # flag: the sizes follow the data instead of being in the header
+_UTF8_NAME = 0x800  # flag: the name is UTF-8 (else code page 437)
+
+
+def _stored_members(data: bytes) -> dict[str, bytes] | None:
+    """{name: bytes} of an archive of stored (uncompressed) members, as
+    :func:`reconstruction_npz` writes it, read member after member from the local headers,
+    each CRC-32 checked as ``zipfile`` checks it (``zipfile`` parsing the central directory
+    and opening each member cost more than the rest of reading a reconstruction); None when
+    a member is compressed or its sizes are not in its header, or when the members are not
+    followed by the central directory (``zipfile`` then reads it, or refuses it).
+    BadZipFile when a member is cut or its CRC-32 does not match."""
+    members: dict[str, bytes] = {}
+    at = 0
+    while data[at:at + 4] == b"PK\x03\x04":
+        _, flags, method, crc, size, plain_size, name_len, extra_len = _LOCAL_HEADER.unpack_from(data, at)
+        if method != zipfile.ZIP_STORED or flags & _DATA_DESCRIPTOR or size != plain_size or size == 0xFFFFFFFF:
+            return None
+        begin = at + _LOCAL_HEADER.size
+        name = data[begin:begin + name_len].decode("utf-8" if flags & _UTF8_NAME else "cp437")
+        begin += name_len + extra_len
+        member = data[begin:begin + size]
+        if len(member) != size or zlib.crc32(member) != crc:
+            raise zipfile.BadZipFile(f"member {name!r} is cut or its CRC-32 does not match")
+        members[name] = member
+        at = begin + size
+    return members if members and data[at:at + 4] == b"PK\x01\x02" else None

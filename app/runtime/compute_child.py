@@ -53,7 +53,7 @@ from app.runtime.context import JobContext
 from app.runtime.heap import trim_heap
 from app.runtime.process_identity import start_ticks
 from app.runtime.registry import get_kind, load_kinds
-from app.runtime.store import Claim, JobStore, completed_status, json_result
+from app.runtime.store import Claim, JobStore, completed_status, encoded_result
 
 log = logging.getLogger("conforma.jobs.child")
 _PR_SET_PDEATHSIG = 1
@@ -215,11 +215,11 @@ def run_job(runtime: ChildRuntime, claim: Claim) -> bool:
     wall, cpu = time.perf_counter(), time.process_time()
     try:
         result = kind.run(ctx, kind.params.model_validate(claim.params))
-        encoded = json_result(result)
+        encoded, size = encoded_result(result)
         lift_job_limit()
         start.update(wall_s=round(time.perf_counter() - wall, 4), cpu_s=round(time.process_time() - cpu, 4))
         runtime.persist_caches(claim, start)  # before the outcome: the next job may start at once
-        runtime.store.finish(claim, completed_status(encoded), result=encoded)
+        runtime.store.finish(claim, completed_status(encoded), result=encoded, result_bytes=size)
     except Cancelled as exc:
         lift_job_limit()
         runtime.store.finish(claim, "cancelled", error=from_error(exc))

@@ -25,6 +25,8 @@ from app.runtime.reads import JobReads
 from app.runtime.store import Claim
 
 _ARTIFACTS = Artifact.__table__  # type: ignore[attr-defined]
+WAIT_POLL_GROWTH = 1.5  # each wait for child jobs this many times the one before...
+WAIT_POLL_MAX_S = 0.5  # ...up to this long (s): a finished child is seen within this
 
 if TYPE_CHECKING:
     import trimesh
@@ -213,10 +215,15 @@ class JobContext:
     def submit_child(self, kind: str, params: dict[str, Any]) -> str:
         return self.runtime.submit(kind, params, parent_id=self.job_id).id
 
-    def wait_for(self, job_ids: list[str], *, poll_s: float = 0.05) -> list[Job]:
+    def wait_for(self, job_ids: list[str], *, poll_s: float = 0.05, max_poll_s: float = WAIT_POLL_MAX_S) -> list[Job]:
         """Block until every job in ``job_ids`` is finished.  An operator's cancel of this job
         cancels them too; a lost lease does not (another attempt of this job takes over and
-        reuses them: an interrupted child keeps its measured points for the operator's resume)."""
+        reuses them: an interrupted child keeps its measured points for the operator's resume).
+        The states are read ``poll_s`` after the first read, then each wait WAIT_POLL_GROWTH
+        times the one before up to ``max_poll_s`` (a child of seconds is seen within a few
+        tenths; one of minutes is not read twenty times a second, each read a query of this
+        process's CPU)."""
+        wait_s = poll_s
         while True:
             with self._session() as session:  # each poll reads the states only, not the results
                 states = dict(session.exec(select(Job.id, Job.status).where(Job.id.in_(job_ids))).all())  # type: ignore[attr-defined]
@@ -230,7 +237,8 @@ class JobContext:
                     for job_id in job_ids:
                         self.runtime.store.request_cancel(job_id)
                 raise
-            time.sleep(poll_s)
+            time.sleep(wait_s)
+            wait_s = min(wait_s * WAIT_POLL_GROWTH, max(max_poll_s, poll_s))
 
 
 class ArtifactBatch:

@@ -47,7 +47,7 @@ from app.runtime.machine_queue import MachineThreads, machine_slot
 from app.runtime.process_worker import ProcessSupervisor, warm_up
 from app.runtime.reads import JobReads
 from app.runtime.registry import JobKind, get_kind, load_kinds
-from app.runtime.store import JobStore, completed_status, json_result
+from app.runtime.store import JobStore, completed_status, encoded_result
 
 log = logging.getLogger("conforma.jobs")
 QUEUES = ("default", "machine", "workflow")
@@ -356,8 +356,8 @@ class Runtime:
         threading.Thread(target=self._heartbeat, args=(ctx, done), daemon=True, name=f"lease-{job_id}").start()
         try:
             params = kind.params.model_validate(claim.params)
-            result = json_result(kind.run(ctx, params))
-            self.store.finish(claim, completed_status(result), result=result)
+            result, size = encoded_result(kind.run(ctx, params))
+            self.store.finish(claim, completed_status(result), result=result, result_bytes=size)
         except Cancelled as exc:
             self.store.finish(claim, "cancelled", error=from_error(exc))
         except ConformaError as exc:

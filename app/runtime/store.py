@@ -105,14 +105,18 @@ class JobStore:
         rows = self._run(update(Job).where(self._owned(claim)).values(**values).returning(col(Job.cancel_requested)))
         return bool(rows[0][0]) if rows else None
 
-    def finish(self, claim: Claim, status: str, *, result: dict | None = None, error: dict | None = None) -> bool:
+    def finish(self, claim: Claim, status: str, *, result: dict | None = None, error: dict | None = None,
+               result_bytes: int | None = None) -> bool:
         """running -> succeeded/needs_attention/failed/cancelled, only while ``claim`` still
-        owns the job."""
+        owns the job (``result_bytes``: the size of ``result``'s JSON when the caller encoded
+        it already, :func:`encoded_result`; else it is encoded here to be measured)."""
         assert status in TERMINAL_STATES
+        if result is not None and result_bytes is None:
+            result_bytes = len(json.dumps(result).encode())
         values: dict[str, Any] = {
             "status": status,
             "result": result,
-            "result_bytes": None if result is None else len(json.dumps(result).encode()),
+            "result_bytes": None if result is None else result_bytes,
             "result_summary": result_summary(claim.kind, result),
             "error": error,
             "finished_at": utcnow(),
@@ -374,7 +378,15 @@ def final_message(status: str, error: dict | None) -> Any:
 
 def json_result(result: Any) -> dict:
     """A job's result as plain JSON (numpy arrays and scalars converted), as it is stored."""
-    return json.loads(json.dumps(result or {}, default=_json_default))
+    return encoded_result(result)[0]
+
+
+def encoded_result(result: Any) -> tuple[dict, int]:
+    """(:func:`json_result` of ``result``, the size in bytes of its JSON), from one encoding
+    (the size is what :meth:`JobStore.finish` records as ``result_bytes``: the JSON of the
+    plain result is the same text)."""
+    text = json.dumps(result or {}, default=_json_default)
+    return json.loads(text), len(text.encode())
 
 
 def _json_default(value: Any) -> Any:

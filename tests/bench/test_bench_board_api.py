@@ -12,7 +12,8 @@ and writing its results and artifacts included); the loop's process CPU s of the
 process: the TestClient's app) and of the compute processes (its descendants, from /proc);
 ``GET /jobs/{id}`` of the board compensate job (bytes and ms, default and ``?include=result``)
 and of the loop and the largest job of each kind (default: what a polling client reads);
-the service's peak resident memory (this process and its descendants).
+the service's peak resident memory (this process and its descendants); the sha256 of the
+board jobs' results and programs (ids written as indices and kinds), to compare runs and trees.
 
 The core: the same board's field plan (:func:`app.probing.field.plan_field`), field fit and
 every trace's reconstruction (:mod:`app.reconstruction.field`) and compensation
@@ -25,6 +26,7 @@ would (``POST /jobs/{id}/accept``) and says so.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -124,6 +126,36 @@ def compute_cpu(data_dir: Path) -> dict[str, float]:
     return out
 
 
+def outputs_sha256(client, children: list[dict], trace_ids: list[str],  # type: ignore[no-untyped-def]
+                   others: dict[str, str]) -> dict[str, str]:
+    """sha256 of what the board jobs made, comparable between runs (and trees): each kind's
+    results in trace order and the compensate jobs' programs, with every trace id written as
+    its index on the board, every job id as its kind and the ``others`` ids (the part, the
+    machine, the loop) as their names (ids are new each run)."""
+    runtime = client.app.state.runtime
+    names = {t: f"trace-{i}" for i, t in enumerate(trace_ids)}
+    jobs = {**{c["id"]: c["kind"] for c in children}, **others}
+
+    def plain(text: str) -> str:
+        for old, new in (*names.items(), *jobs.items()):
+            text = text.replace(old, new)
+        return text
+
+    out: dict[str, str] = {}
+    for kind in ("reconstruct", "compensate"):
+        digest = hashlib.sha256()
+        for child in (c for c in children if c["kind"] == kind):
+            record = client.get(f"/api/v1/jobs/{child['id']}", params=[("include", "result"), ("include", "artifacts")],
+                                headers=OP).json()
+            digest.update(plain(json.dumps(record["result"], sort_keys=True)).encode())
+            for artifact in sorted(record["artifacts"], key=lambda a: plain(a["name"])):
+                if artifact["name"].endswith(".gcode"):
+                    digest.update(plain(artifact["name"]).encode())
+                    digest.update(plain(runtime.blobs.read(artifact["sha256"]).decode()).encode())
+        out[kind] = digest.hexdigest()
+    return out
+
+
 def _span(job: dict) -> float:
     return (datetime.fromisoformat(job["finished_at"]) - datetime.fromisoformat(job["started_at"])).total_seconds()
 
@@ -202,6 +234,11 @@ def test_board_through_the_api(client, settings):
     whole = timed_get(f"/api/v1/jobs/{compensate}?include=result")
     records = {"closed_loop": timed_get(f"/api/v1/jobs/{job_id}"),
                **{kind: max(timed_get(f"/api/v1/jobs/{j['id']}") for j in jobs) for kind, jobs in by_kind.items()}}
+    try:
+        outputs = outputs_sha256(client, children, trace_ids, {part["id"]: "part", truth["id"]: "truth",
+                                                              machine["id"]: "machine", job_id: "closed_loop"})
+    except Exception as exc:  # the figures are printed even so
+        outputs = {"error": repr(exc)}
     journal = compute_cpu(Path(settings.data_dir))
     api_cpu = {k: sum(journal.get(j["id"], math.nan) for j in v) for k, v in by_kind.items()}
     core = core_board(dome, TRACES)
@@ -235,5 +272,5 @@ def test_board_through_the_api(client, settings):
                       "steps_wall_s": steps, "steps_cpu_s": api_cpu, "core_cpu_s": core,
                       "get_bytes": small[0], "get_ms": small[1] * 1e3,
                       "records": {k: [b, ms * 1e3] for k, (b, ms) in records.items()},
-                      "accepted": accepted is not None, "load": os.getloadavg()}))
+                      "accepted": accepted is not None, "load": os.getloadavg(), "outputs_sha256": outputs}))
     assert max(size for size, _ in records.values()) <= 50_000, records

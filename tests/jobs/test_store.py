@@ -92,3 +92,48 @@ def test_a_result_that_asks_for_attention_ends_the_job_in_that_state_with_its_cl
                                                               "3/3 traces done; NEEDS ATTENTION: a step")
         assert done.finished_at is not None and done.lease_until is None
     assert runtime.store.claim(job.id, "w2") is None          # terminal: never run again
+
+
+def test_a_result_is_encoded_once_and_its_size_is_its_stored_json():
+    """:func:`encoded_result` gives the plain result and the size of the JSON that plain
+    result encodes to (what ``finish`` records as ``result_bytes``), numpy values included."""
+    import json
+
+    import numpy as np
+
+    from app.runtime.store import encoded_result, json_result
+
+    result = {"traces": [{"points": np.linspace(0.0, 1.0, 7).reshape(-1, 1) * [1.0, 2.0, np.pi],
+                          "max_um": np.float64(3.25), "count": np.int64(12), "name": "t\u00e9\"1"}],
+              "nan": float("nan"), "ok": True, "none": None}
+    plain, size = encoded_result(result)
+    assert json.dumps(plain) == json.dumps(json_result(result)) and plain["traces"][0]["points"][6][2] == np.pi
+    assert size == len(json.dumps(plain).encode())
+    assert encoded_result(None) == ({}, 2)
+
+
+def test_a_parent_reads_its_childrens_states_less_often_the_longer_they_run(runtime, monkeypatch):
+    """``wait_for`` reads the states ``poll_s`` after the first read, each wait then
+    WAIT_POLL_GROWTH times the one before up to ``max_poll_s``; it returns the children once
+    they are finished (here: after the seventh read)."""
+    from types import SimpleNamespace
+
+    from app.runtime import context as context_module
+    from app.runtime.context import WAIT_POLL_GROWTH, JobContext
+
+    parent = runtime.submit("test_sleep", {"seconds": 0})
+    ctx = JobContext(runtime, runtime.store.claim(parent.id, "w1"))
+    child = runtime.submit("test_sleep", {"seconds": 0}, parent_id=parent.id)
+    child_claim = runtime.store.claim(child.id, "w2")
+    waits: list[float] = []
+
+    def sleep(seconds: float) -> None:  # the child ends during the sixth wait
+        waits.append(seconds)
+        if len(waits) == 6:
+            assert runtime.store.finish(child_claim, "succeeded", result={"n": 1})
+
+    monkeypatch.setattr(context_module, "time", SimpleNamespace(sleep=sleep))  # this module's waits only
+    [done] = ctx.wait_for([child.id], poll_s=0.05, max_poll_s=0.2)
+    assert done.id == child.id and done.status == "succeeded" and done.result == {"n": 1}
+    expected = [0.05, 0.05 * WAIT_POLL_GROWTH, 0.05 * WAIT_POLL_GROWTH ** 2, 0.05 * WAIT_POLL_GROWTH ** 3, 0.2, 0.2]
+    assert waits == pytest.approx(expected)

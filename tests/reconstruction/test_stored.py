@@ -108,3 +108,35 @@ def test_the_members_read_as_numpy_reads_them_and_pickles_are_refused(path):
         read_reconstruction(pickled.getvalue(), path)
     with pytest.raises(ReconstructionError, match="readable NPZ"):
         read_reconstruction(data[: len(data) // 2], path)
+
+
+def test_members_are_what_numpy_writes_stored_and_an_older_deflated_archive_still_reads(path):
+    """Every member is stored (not deflated), dated as numpy dates them (the same
+    reconstruction is the same bytes whenever it is written: a retried board job's are a clean
+    run's) and byte for byte what ``numpy.lib.format`` writes for its array; a reconstruction
+    stored deflated (``numpy.savez_compressed``, how they were stored before) reads back the
+    same; a stored member whose bytes changed fails its CRC-32 and is refused."""
+    import io
+    import zipfile
+
+    rec = reconstruct(path, _measured(path), "kriging", sigma_mm=0.001, params=ReconstructParams(prior=PRIOR))
+    data = reconstruction_npz(rec)
+    arrays = reconstruction_arrays(rec)
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        assert sorted(z.namelist()) == sorted(name + ".npy" for name in arrays)
+        for info in z.infolist():
+            assert info.compress_type == zipfile.ZIP_STORED, info.filename
+            assert info.date_time == (1980, 1, 1, 0, 0, 0), info.filename  # not the time it was written
+            numpy_own = io.BytesIO()
+            np.lib.format.write_array(numpy_own, np.asarray(arrays[info.filename[:-4]]), allow_pickle=False)
+            assert z.read(info) == numpy_own.getvalue(), info.filename
+    deflated = io.BytesIO()
+    np.savez_compressed(deflated, **arrays)
+    _assert_same(rec, read_reconstruction(deflated.getvalue(), path), path)
+    _assert_same(rec, read_reconstruction(data, path), path)
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        info = z.getinfo("curve_control_points.npy")
+    at = info.header_offset + 30 + len(info.filename) + len(info.extra) + 200  # inside the array's data
+    altered = data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1:]
+    with pytest.raises(ReconstructionError, match="readable NPZ"):
+        read_reconstruction(altered, path)
