@@ -46,9 +46,10 @@ FLOAT_IN = ("x", "y", "z", "offset-x", "offset-y", "offset-z", "range", "noise",
             "sphere-x", "sphere-y", "sphere-z", "sphere-r", "latency-ms")
 MAP_CHECK_S = 0.005  # how often the MAP file's modification time is looked at
 HISTORY = 400  # joint reads kept for the latency (0.2 s at PERIOD_S)
-# tries at reading the three joints within one servo period; a starved process that keeps
-# missing takes its last read (off by at most one period) rather than writing no value
-POSITION_READS = 3
+# tries at reading the three joints within one servo period (a read spans a period only when
+# the process is preempted in it); a process that misses every time writes no value this time
+# rather than one paired with the wrong period's joints (off by a period's travel: 2 um at 2 mm/s)
+POSITION_READS = 20
 
 
 def _optics_model():
@@ -158,6 +159,9 @@ def main(argv):
                 p["x"], p["y"], p["z"] = comp["x"], comp["y"], comp["z"]
                 if comp["tick"] == tick:
                     break
+            else:
+                time.sleep(PERIOD_S)
+                continue
             if not history or tick > history[-1][0]:
                 history.append((tick, p["x"], p["y"], p["z"]))
                 del history[:-HISTORY]
