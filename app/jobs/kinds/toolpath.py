@@ -200,11 +200,8 @@ class ToolpathJobParams(JobParams):
             merge_weights=MergeWeights(along=self.merge_weight_along, across=self.merge_weight_across)))
 
     def fdm(self, job_id: str | None) -> FdmParams:
-        return FdmParams(dialect=self.dialect, mode=self.mode, job_id=job_id, nozzle_temp_c=self.nozzle_temp_c,
-                         bed_temp_c=self.bed_temp_c, retract_mm=self.retract_mm,
-                         retract_feed_mm_s=self.retract_feed_mm_min / MM_MIN_PER_MM_S, z_lift_mm=self.z_lift_mm,
-                         min_travel_for_retract_mm=self.min_travel_for_retract_mm, home=self.home,
-                         dispense_on=self.dispense_on, dispense_off=self.dispense_off)
+        return FdmParams(**core_values(FdmParams, self, job_id=job_id,
+                                       retract_feed_mm_s=self.retract_feed_mm_min / MM_MIN_PER_MM_S))
 
 
 def _check(params: ToolpathJobParams, reads: JobReads) -> None:
