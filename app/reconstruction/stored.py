@@ -103,22 +103,11 @@ def reconstruction_npz(rec: Reconstruction) -> bytes:
     return out.getvalue()
 
 
-_NPY_ALIGN = 64  # numpy aligns a format 1.0 header (with its magic and length) to this many bytes
-
-
 def _npy_bytes(array: np.ndarray) -> bytes:
-    """``array`` (a plain dtype, any order) as a format 1.0 ``.npy`` member, the header built
-    as numpy builds it (its keys sorted, padded with spaces to the alignment, then a newline;
-    the room numpy leaves for a growing first axis included); the data in C order."""
-    if array.dtype.hasobject:
-        raise ValueError("an object array has no .npy form without pickles")
-    header = (f"{{'descr': {np.lib.format.dtype_to_descr(array.dtype)!r}, 'fortran_order': False, "
-              f"'shape': {array.shape!r}, }}")
-    if array.shape:  # numpy leaves room for the first axis to grow to 21 digits
-        header += " " * (21 - len(repr(array.shape[0])))
-    header += " " * (_NPY_ALIGN - (10 + len(header) + 1) % _NPY_ALIGN) + "\n"
-    encoded = header.encode("latin1")
-    return b"\x93NUMPY\x01\x00" + len(encoded).to_bytes(2, "little") + encoded + array.tobytes(order="C")
+    """``array`` as a ``.npy`` member in C order (numpy's own writer; no pickles)."""
+    out = io.BytesIO()
+    np.lib.format.write_array(out, np.asarray(array, order="C"), allow_pickle=False)
+    return out.getvalue()
 
 
 # the header numpy writes (``numpy.lib.format``): a dict of descr, fortran_order and shape
