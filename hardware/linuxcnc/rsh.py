@@ -17,7 +17,8 @@ Protocol facts this module relies on (linuxcncrsh of LinuxCNC 2.9, measured):
   session silently takes control): the emergency-stop session enables itself right
   before it stops.
 * ``get`` now and then answers ``GET NAK`` (status read raced an update), and sessions
-  that talk at the same moment sometimes receive each other's replies: ``get`` retries,
+  that talk at the same moment sometimes receive each other's replies or a NAK (its parser's
+  ``strtok`` state is shared by every session's thread): ``get`` and ``hello`` retry,
   ``set`` skips lines that are not its own ACK/NAK.  Keep concurrent sessions rare (the
   machine polls on one session; the stop session speaks only to stop).
 * ``get error`` returns the oldest unread controller error once (then ``OK``).
@@ -75,21 +76,32 @@ class RshSession:
             raise
         return session
 
-    def _hello(self, connect_pw: str, client: str, retries: int = 5) -> str:
+    def _hello(self, connect_pw: str, client: str, retries: int = 5, refusals: int = 3) -> str:
         """Say hello; returns what follows ``HELLO ACK`` (the server's name and version).
-        ``HELLO NAK`` is a wrong password.  Any other reply is another session's, which
-        linuxcncrsh now and then hands over while sessions talk at once (seen under load as a
-        connect refused with the right password): hello is sent again, as ``get`` is."""
-        reply = ""
-        for attempt in range(retries + 1):
+
+        linuxcncrsh (LinuxCNC 2.9) parses every session's line with ``strtok``, whose state
+        all its session threads share: while another session talks, a hello can be parsed
+        with that session's words and answered ``HELLO NAK`` although the password is right,
+        and one session's reply can reach another (both seen under load).  Hello changes
+        nothing, so it is said again: ``refusals`` NAKs in a row are a wrong password, any
+        other reply is retried up to ``retries`` times."""
+        naks = others = 0
+        while True:
             reply = self.request(f"hello {connect_pw} {client} 1.0")
             head = reply.upper()
             if head.startswith("HELLO ACK"):
                 return reply[len("HELLO ACK"):].strip()
             if head.startswith("HELLO NAK"):
-                raise LinkError("linuxcncrsh refused the connect password", field="connect_pw")
-            time.sleep(0.002 * (attempt + 1))
-        raise LinkError(f"linuxcncrsh answered hello with {reply[:60]!r} {retries + 1} times", field="port")
+                naks += 1
+                if naks >= refusals:
+                    raise LinkError(f"linuxcncrsh refused the connect password ({naks} hellos in a "
+                                    "row answered HELLO NAK)", field="connect_pw")
+            else:
+                naks, others = 0, others + 1
+                if others > retries:
+                    raise LinkError(f"linuxcncrsh answered hello with {reply[:60]!r} {others} times",
+                                    field="port")
+            time.sleep(0.002 * (naks + others))
 
     # ------------------------------------------------------------------ transport
     def _read_line(self, timeout_s: float) -> str:

@@ -6,6 +6,7 @@ plays linuxcncrsh's side of the hello (no simulator needed)."""
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 
@@ -26,8 +27,8 @@ def _serve(replies_to_hello: list[str]) -> tuple[int, list[str]]:
         conn, _ = listener.accept()
         listener.close()
         replies = iter(replies_to_hello)
-        with conn, conn.makefile("rwb") as stream:
-            for raw in stream:
+        with conn, conn.makefile("rwb") as stream, contextlib.suppress(ConnectionError):
+            for raw in stream:  # until the client closes (a reset when it closes unread)
                 line = raw.decode().strip()
                 received.append(line)
                 if line.startswith("hello"):
@@ -53,12 +54,23 @@ def test_another_sessions_reply_is_answered_by_a_second_hello():
         session.close()
 
 
-def test_a_wrong_password_is_refused_at_once_naming_the_field():
+def test_a_nak_while_another_session_talks_is_answered_by_a_second_hello():
     port, received = _serve(["HELLO NAK", "HELLO ACK EMCNETSVR 1.1"])
+    session = RshSession.open("127.0.0.1", port, "pw", timeout_s=5.0)
+    try:
+        assert session.server == "EMCNETSVR 1.1"
+        assert sum(line.startswith("hello") for line in received) == 2
+    finally:
+        session.close()
+
+
+def test_a_wrong_password_is_refused_after_three_naks_naming_the_field():
+    port, received = _serve(["HELLO NAK", "ESTOP OFF", "HELLO NAK", "HELLO NAK", "HELLO NAK",
+                             "HELLO ACK EMCNETSVR 1.1"])
     with pytest.raises(LinkError, match="refused the connect password") as refused:
         RshSession.open("127.0.0.1", port, "wrong", timeout_s=5.0)
     assert refused.value.field == "connect_pw"
-    assert sum(line.startswith("hello") for line in received) == 1
+    assert sum(line.startswith("hello") for line in received) == 5   # three NAKs in a row
 
 
 def test_a_server_that_never_says_hello_is_a_link_error_with_its_answer():
