@@ -20,7 +20,8 @@ and ``valid`` (false: the sensor's alarm output: too steep, a random dropout, or
 +-``range``).  Out pin ``updates`` counts the values written.  It stands for an analog
 input: the controller samples ``reading`` and ``valid`` with the joints in its servo
 thread (``sampler``).  Each value is stamped ``exposed`` with the clock count (``tick``, ms
-on the simulator) at which the component read the joints; with ``latency-ms`` > 0 the value
+on the simulator) of the servo period whose joints the component read (checked against
+``tick-started``, the count the servo thread sets before it writes the joints); with ``latency-ms`` > 0 the value
 is computed where the carriage was that long before (the joints it read then, interpolated
 over the counts): a sensor whose output lags its exposure, the time offset
 ``calibrate_sensor`` must find.
@@ -29,6 +30,7 @@ Units: mm, degrees.  Stops on SIGTERM (LinuxCNC's shutdown).
 """
 
 import importlib.util
+import os
 import signal
 import sys
 import time
@@ -46,10 +48,12 @@ FLOAT_IN = ("x", "y", "z", "offset-x", "offset-y", "offset-z", "range", "noise",
             "sphere-x", "sphere-y", "sphere-z", "sphere-r", "latency-ms")
 MAP_CHECK_S = 0.005  # how often the MAP file's modification time is looked at
 HISTORY = 400  # joint reads kept for the latency (0.2 s at PERIOD_S)
-# tries at reading the three joints within one servo period (a read spans a period only when
-# the process is preempted in it); a process that misses every time writes no value this time
-# rather than one paired with the wrong period's joints (off by a period's travel: 2 um at 2 mm/s)
-POSITION_READS = 20
+# how long the component tries to read the three joints while no servo period writes them
+# (sim/sensor.hal's sequence lock: ``tick``, the joints, then ``tick-started``, the same count),
+# yielding the processor between tries so that a servo thread preempted mid-period can finish
+# it; a component that misses for this long writes no value this time rather than one paired
+# with the wrong period's joints (off by a period's travel: 2 um at 2 mm/s)
+POSITION_WAIT_S = 0.005
 
 
 def _optics_model():
@@ -126,6 +130,19 @@ def position_at(history: list, when: float) -> tuple[float, float, float]:
     return x, y, z
 
 
+def read_joints(comp, p: dict, deadline: float):
+    """Read the joints of one servo period into ``p`` (keys x y z) -> that period's count, or
+    None when no read before ``deadline`` (``time.monotonic``) saw a whole period."""
+    while True:
+        tick = comp["tick"]  # the last period that finished writing the joints
+        p["x"], p["y"], p["z"] = comp["x"], comp["y"], comp["z"]
+        if comp["tick-started"] == tick:  # no later period began writing them meanwhile
+            return tick
+        if time.monotonic() > deadline:
+            return None
+        os.sched_yield()
+
+
 def main(argv):
     name, seed = argv[1], int(argv[2]) if len(argv) > 2 else 0
     ink = InkMap(argv[3] if len(argv) > 3 else None)
@@ -140,6 +157,7 @@ def main(argv):
     comp.newpin("valid", hal.HAL_BIT, hal.HAL_OUT)
     comp.newpin("updates", hal.HAL_U32, hal.HAL_OUT)
     comp.newpin("tick", hal.HAL_FLOAT, hal.HAL_IN)
+    comp.newpin("tick-started", hal.HAL_FLOAT, hal.HAL_IN)
     comp.newpin("exposed", hal.HAL_FLOAT, hal.HAL_OUT)
     comp.ready()
     running = [True]
@@ -154,13 +172,8 @@ def main(argv):
                 time.sleep(IDLE_S)
                 continue
             p = {pin: comp[pin] for pin in FLOAT_IN}  # the settings and the part: they change slowly
-            for _ in range(POSITION_READS):  # the joints and their clock count from one servo period
-                tick = comp["tick"]
-                p["x"], p["y"], p["z"] = comp["x"], comp["y"], comp["z"]
-                if comp["tick"] == tick:
-                    break
-            else:
-                time.sleep(PERIOD_S)
+            tick = read_joints(comp, p, time.monotonic() + POSITION_WAIT_S)
+            if tick is None:
                 continue
             if not history or tick > history[-1][0]:
                 history.append((tick, p["x"], p["y"], p["z"]))

@@ -34,6 +34,33 @@ def test_the_latency_looks_up_where_the_carriage_was():
     assert sensor_hal.position_at(history, 90.0) == pytest.approx((0.0, 0.0, 5.0))  # held at the first read
 
 
+class _ServoPins(dict):
+    """A component's pins as a servo thread writes them (``sim/sensor.hal``): each period sets
+    the started count, then the joints one by one, then the finished count; ``stall_in`` reads
+    pass mid-period (a preempted servo thread)."""
+
+    def __init__(self, stall_in: int) -> None:
+        super().__init__({"tick": 7.0, "tick-started": 7.0, "x": 7.0, "y": 7.0, "z": 7.0})
+        self.reads, self.stall_in = 0, stall_in
+
+    def __getitem__(self, pin: str) -> float:
+        self.reads += 1
+        if self.reads == 2:  # a period starts after the first read: x written, y and z not yet
+            self.update({"tick-started": 8.0, "x": 8.0})
+        if self.reads == 2 + self.stall_in:
+            self.update({"y": 8.0, "z": 8.0, "tick": 8.0})
+        return dict.__getitem__(self, pin)
+
+
+def test_the_sensor_keeps_only_joints_read_within_one_servo_period():
+    p: dict = {}
+    pins = _ServoPins(stall_in=30)
+    assert sensor_hal.read_joints(pins, p, time.monotonic() + 5.0) == 8.0
+    assert (p["x"], p["y"], p["z"]) == (8.0, 8.0, 8.0)  # never x of period 8 with y of period 7
+    p = {}
+    assert sensor_hal.read_joints(_ServoPins(stall_in=10**9), p, time.monotonic() + 0.01) is None
+
+
 def test_the_ink_map_is_read_again_when_its_file_changes(tmp_path: Path):
     path = tmp_path / "map.npz"
     ink = sensor_hal.InkMap(path)
