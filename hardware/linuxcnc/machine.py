@@ -48,6 +48,11 @@ __all__ = ["LinuxCNCMachine"]
 
 _NO_CONTACT = "without making contact"
 MAX_TOOL = 99  # the highest tool number select_tool accepts
+# an emergency stop is sent until the controller reports it: linuxcncrsh can parse a line with
+# another session's words (rsh.py) and so answer, or act on, something else
+ESTOP_TRIES = 3
+ESTOP_REPLY_S = 1.0  # linuxcncrsh answers a set once the controller took it (0.1-0.2 s)
+ESTOP_CONFIRM_S = 0.5  # how long the controller's status may lag the ACK
 
 
 class LinuxCNCMachine(StateReadout[RshSession]):
@@ -420,17 +425,39 @@ class LinuxCNCMachine(StateReadout[RshSession]):
 
     def emergency_stop(self) -> None:
         """``set estop on`` over the stop session (reopened if it died), never queued behind
-        the command session's operation (no claim); machine -> error."""
+        the command session's operation (no claim), until the controller reports it (up to
+        ``ESTOP_TRIES`` times, else ``LinkError``); machine -> error."""
         st = self.machine_state
         st.stopping()
         self.homed = False
-        self.console.record("sent", "set estop on")
+        failure: HardwareError | None = None
+        try:
+            for _ in range(ESTOP_TRIES):
+                self.console.record("sent", "set estop on")
+                try:
+                    if self._send_estop():
+                        return
+                except (LinkError, RshRejected) as exc:
+                    failure = exc
+        finally:
+            st.current = "error"
+        raise LinkError(f"LinuxCNC did not report the emergency stop sent {ESTOP_TRIES} times"
+                        + (f": {failure}" if failure else ""), field="port")
+
+    def _send_estop(self) -> bool:
+        """``set estop on`` over the stop session (reopened if it died); True once ``get
+        estop`` reports it within ``ESTOP_CONFIRM_S``."""
         session = self._stop_link
         if session is None or not session.healthy:
             session = self._stop_link = self._open_session()
         session.enable(self._enable_pw)
-        session.set("estop", "on")
-        st.current = "error"
+        session.set("estop", "on", timeout_s=ESTOP_REPLY_S)
+        deadline = time.monotonic() + ESTOP_CONFIRM_S
+        while session.get("estop").upper() != "ON":
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.005)
+        return True
 
     def _abort_best_effort(self) -> None:
         try:

@@ -1,0 +1,68 @@
+"""A scripted linuxcncrsh on loopback: plays the server's side of the text protocol so that the
+host's session and machine code meet the replies real linuxcncrsh gives now and then (another
+session's words, a NAK under concurrent sessions) on demand, without a simulator.
+
+    server = ScriptedRsh(lambda line, connection: "HELLO ACK EMCNETSVR 1.1" if ... else None)
+    RshSession.open("127.0.0.1", server.port, "pw")
+
+``answer(line, connection)`` gets each request line and the 0-based number of the connection it
+came on, and returns the reply line, or None for the standard reply: ``hello`` -> ``HELLO ACK
+EMCNETSVR 1.1``, ``set echo off`` -> its echo, any other ``set <name> ...`` -> ``SET <NAME>
+ACK``, ``get <name>`` -> ``<NAME> OK``.  ``received`` holds (connection, line) in arrival order.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import threading
+from collections.abc import Callable
+
+Answer = Callable[[str, int], "str | None"]
+
+
+def standard_reply(line: str) -> str:
+    """What linuxcncrsh (echo off, verbose on) answers to a request that goes through."""
+    words = line.split()
+    if words[0] == "hello":
+        return "HELLO ACK EMCNETSVR 1.1"
+    if line == "set echo off":
+        return line
+    if words[0] == "set":
+        return f"SET {words[1].upper()} ACK"
+    return f"{words[1].upper()} OK"
+
+
+class ScriptedRsh:
+    """A loopback server answering every connection by ``answer`` (see the module docstring)."""
+
+    def __init__(self, answer: Answer) -> None:
+        self.answer = answer
+        self.received: list[tuple[int, str]] = []
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self.port: int = self._listener.getsockname()[1]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def lines(self, prefix: str) -> list[str]:
+        """The received lines that start with ``prefix``."""
+        return [line for _, line in self.received if line.startswith(prefix)]
+
+    def close(self) -> None:
+        self._listener.close()
+
+    def _accept(self) -> None:
+        connection = 0
+        with contextlib.suppress(OSError):  # the listener closed
+            while True:
+                conn, _ = self._listener.accept()
+                threading.Thread(target=self._talk, args=(conn, connection), daemon=True).start()
+                connection += 1
+
+    def _talk(self, conn: socket.socket, connection: int) -> None:
+        with conn, conn.makefile("rwb") as stream, contextlib.suppress(ConnectionError):
+            for raw in stream:  # until the client closes (a reset when it closes unread)
+                line = raw.decode().strip()
+                self.received.append((connection, line))
+                reply = self.answer(line, connection)
+                stream.write((standard_reply(line) if reply is None else reply).encode() + b"\r\n")
+                stream.flush()
