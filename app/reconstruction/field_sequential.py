@@ -17,7 +17,9 @@ it was designed for.  When the prior is uncertain:
    does it (:func:`stations_check`: the learned prior, the hyperparameters' own uncertainty,
    the run's traces sharing the confidence, :func:`app.reconstruction.field_trust.run_bounds`);
    a bound within the verdict's tolerance (``bound_meets_target``) ends the rounds, one over
-   it tightens the pointwise target (:func:`tightened_target`) and the round plans again;
+   it tightens the pointwise target and the round plans again, as many stations as the
+   forecast of the bound they will give asks for (:func:`tighten_round`,
+   :mod:`app.reconstruction.field_forecast`);
 5. repeat 2-4 until the bound holds, ``max_rounds`` pass, or the next round would pass
    ``budget`` touches (the result says which);
 6. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
