@@ -17,7 +17,9 @@ it was designed for.  When the prior is uncertain:
    does it (:func:`stations_check`: the learned prior, the hyperparameters' own uncertainty,
    the run's traces sharing the confidence, :func:`app.reconstruction.field_trust.run_bounds`);
    a bound within the verdict's tolerance (``bound_meets_target``) ends the rounds, one over
-   it tightens the pointwise target (:func:`tightened_target`) and the round plans again;
+   it tightens the pointwise target and the round plans again, as many stations as the
+   forecast of the bound they will give asks for (:func:`tighten_round`,
+   :mod:`app.reconstruction.field_forecast`);
 5. repeat 2-4 until the bound holds, ``max_rounds`` pass, or the next round would pass
    ``budget`` touches (the result says which);
 6. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
@@ -43,6 +45,7 @@ from app.probing.deviation_prior import DeviationPrior, Sites
 from app.probing.field import FieldPlan, plan_field
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
+from app.reconstruction.field_forecast import SEARCH_FLOOR, forecast_run_bound, plan_for_bound
 from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior, loo_check
 from app.reconstruction.field_trust import (
     TARGET_SLACK,
@@ -85,6 +88,41 @@ def round_params(params: PlanParams, learned: DeviationPrior, previous_wavelengt
                    probe_sigma_mm=user_sigma)
 
 
+def bound_aim(target_mm: float) -> float:
+    """Where a round aims the run's bound (mm): BOUND_AIM x the verdict's tolerance."""
+    return BOUND_AIM * TARGET_SLACK * target_mm
+
+
+def round_forecast(learned: LearnedPrior, sites: Sites, center: np.ndarray, paths: Sequence[object],
+                   params: PlanParams, current: PlanParams,
+                   bound_mm: float | None = None) -> Callable[[FieldPlan], float] | None:
+    """The forecast of the run's bound after a round's stations (``plan`` -> mm,
+    :func:`app.reconstruction.field_forecast.forecast_run_bound`) under the prior ``learned``
+    from the touches at ``sites`` (n,), for the probe's noise as the round plans for it (a
+    learned noise a little over the probe's is mostly structure the stations do not resolve
+    yet, and falls as they are added).  ``bound_mm``: the stations' own run's bound, given when
+    the forecast missed once (an earlier round was tightened for the bound, and it is over the
+    tolerance again): the forecast is then scaled to give it for the stations touched (the
+    learned noise did not fall, or a touch was excluded).  None when the round does not plan
+    for the learned prior (``current``: its wavelength held at the previous round's half, or a
+    learned noise over NOISE_MISFIT x the probe's: the stations do not resolve the field yet,
+    and the next round learns again).  The learning's screened touches are left out of its
+    information."""
+    if current.deviation_wavelength_mm != learned.prior.wavelength_mm \
+            or learned.prior.sigma_mm > NOISE_MISFIT * params.probe_sigma_mm:
+        return None
+    learned_from = sites.take(np.setdiff1d(np.arange(len(sites.xy)), learned.screened))
+
+    def unscaled(after: Sites) -> float:
+        return forecast_run_bound(learned, learned_from, after, center, paths, params.coverage,
+                                  params.probe_sigma_mm)
+    scale = 1.0 if bound_mm is None else max(1.0, bound_mm / unscaled(sites))
+
+    def forecast(more: FieldPlan) -> float:
+        return scale * unscaled(Sites(np.concatenate([sites.xy, more.xy]), np.concatenate([sites.grad, more.grad])))
+    return forecast
+
+
 def tightened_target(plan_target_mm: float, target_mm: float, bound_mm: float) -> float:
     """The next round's pointwise target (mm) when the run's bound ``bound_mm`` under the
     fitted model is over the verdict's tolerance after a round planned for ``plan_target_mm``:
@@ -113,6 +151,20 @@ def plan_tightened(plan: Callable[[float], FieldPlan], plan_target_mm: float, ta
         if more.count:
             break
     return more, plan_target_mm
+
+
+def tighten_round(plan: Callable[[float], FieldPlan], forecast: Callable[[FieldPlan], float] | None,
+                  plan_target_mm: float, target_mm: float, bound_mm: float,
+                  missed: bool = False) -> tuple[FieldPlan, float]:
+    """(the stations a round adds, the pointwise target it planned for) after a round whose
+    run's bound ``bound_mm`` is over the verdict's tolerance: sized by the ``forecast`` of the
+    bound its stations will give (:func:`round_forecast`: the loosest target whose stations'
+    forecast is within :func:`bound_aim`, :func:`app.reconstruction.field_forecast.plan_for_bound`,
+    searched from :func:`tightened_target`); without a forecast, :func:`plan_tightened`."""
+    if forecast is None:
+        return plan_tightened(plan, plan_target_mm, target_mm, bound_mm)
+    return plan_for_bound(plan, forecast, tightened_target(plan_target_mm, target_mm, bound_mm), plan_target_mm,
+                          bound_aim(target_mm), TIGHTEN_MIN if missed else SEARCH_FLOOR)
 
 
 def stations_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray, trace: np.ndarray,
@@ -183,9 +235,12 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
             if bound_meets_target(bound, params.target_error_mm):
                 stopped = "bound holds"
                 break
+
             def replan(t: float, at: PlanParams = current, touched: Sites = sites) -> FieldPlan:
                 return plan_field(paths, replace(at, target_error_mm=t), fixed=touched)
-            more, plan_target = plan_tightened(replan, plan_target, params.target_error_mm, bound)
+            missed = plan_target < params.target_error_mm
+            forecast = round_forecast(learned, sites, center, paths, params, current, bound if missed else None)
+            more, plan_target = tighten_round(replan, forecast, plan_target, params.target_error_mm, bound, missed)
             current = replace(current, target_error_mm=plan_target)
             if more.count == 0:
                 stopped = "no station helps"

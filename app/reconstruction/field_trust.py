@@ -364,7 +364,12 @@ def trace_bound(fit: FieldFit, path: Any, coverage: float, learned: dict[str, An
     learning's JSON form) under :func:`cautious_prior` (the hyperparameters' own uncertainty);
     ``traces``: how many traces of the run share the confidence (the run's bound, the largest
     trace bound, then holds over every trace together)."""
-    posterior = bound_posterior(fit, learned)
+    return posterior_trace_bound(bound_posterior(fit, learned), path, coverage, traces)
+
+
+def posterior_trace_bound(posterior: DeviationPosterior, path: Any, coverage: float, traces: int = 1) -> float:
+    """:func:`trace_bound` of a given ``posterior`` (its prior's wavelength sets the step and the
+    independent values): the bound (mm) over the TracePolyline ``path``."""
     wavelength = posterior.prior.wavelength_mm
     step = wavelength / BOUND_STEP_PER_WAVELENGTH
     count = max(2, int(np.ceil(path.length_mm / step)) + 1)

@@ -134,6 +134,9 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
           f"(>= 30 touches): median {np.median(ratio):.2f}, within 20 % in {int((np.abs(ratio - 1) < 0.2).sum())} of "
           f"{len(ratio)}")
     print(f"\nstep parts: {len(steps)}, called done {sum(not r['attention'] for r in steps)}")
+    if done:
+        largest = max(r["true"] / r["bound"] for r in done)
+        print(f"\nlargest true worst / run's bound of the runs called done: {largest:.2f}")
     print(f"\nruns {len(rows)}; called done {len(done)}; done but true worst > bound: {len(false_done)}; "
           f"traces worse than nominal: {worse} of {7 * len(rows)}; touches / oracle: median "
           f"{np.median(ratios):.2f}, max {ratios.max():.2f}")

@@ -39,7 +39,13 @@ from app.probing.merge import merge_plans
 from app.probing.program import mesh_station_normals
 from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
-from app.reconstruction.field_sequential import pilot_params, plan_tightened, round_params, stations_check
+from app.reconstruction.field_sequential import (
+    pilot_params,
+    round_forecast,
+    round_params,
+    stations_check,
+    tighten_round,
+)
 from app.reconstruction.field_trust import bound_meets_target
 from app.runtime.context import JobContext
 from app.runtime.reads import JobReads
@@ -206,9 +212,10 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     run's field), plan the stations the fitted field still needs for coverage x sd <= the
     round's pointwise target; with none, the run's bound as the verdict computes it
     (:func:`stations_check`): within the verdict's tolerance -> only the verification points;
-    over it -> the pointwise target tightened (:func:`tightened_target`, kept for the next
-    round as ``plan_target_mm``) and the stations it needs.  Past the touch budget, or on the
-    loop's ``last_round``, only the verification points.  Returns (the plan of what this round
+    over it -> the pointwise target tightened (:func:`tighten_round`: sized by the forecast of
+    the bound its stations will give; kept for the next round as ``plan_target_mm``) and the
+    stations it needs.  Past the touch budget, or on the loop's ``last_round``, only the
+    verification points.  Returns (the plan of what this round
     touches, the learned plan parameters, the round's record incl. the fixed stations)."""
     run = ctx.job(str(params.fixed_run_job_id), kind="probe_run", field="params.fixed_run_job_id")
     plan_job = ctx.job(run.params["plan_job_id"], field="params.fixed_run_job_id")
@@ -244,9 +251,11 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
                                nominals, plan_params.coverage, plan_params.target_error_mm, learned).bound_mm
         if not bound_meets_target(bound, plan_params.target_error_mm):
             round_ = learned_params
-            more, plan_target = plan_tightened(
+            missed = plan_target < plan_params.target_error_mm   # an earlier round was tightened already
+            more, plan_target = tighten_round(
                 lambda t: plan_field(nominals, replace(round_, target_error_mm=t), params.stations, top, fixed=sites),
-                plan_target, plan_params.target_error_mm, bound)
+                round_forecast(learned, sites, field.center, nominals, plan_params, round_, bound if missed else None),
+                plan_target, plan_params.target_error_mm, bound, missed)
             learned_params = replace(learned_params, target_error_mm=plan_target)
     budget = params.touch_budget
     over = budget is not None and len(fixed) + more.count + len(retouch) + params.verify_count > budget
