@@ -35,10 +35,15 @@ def to_binary(result: SliceResult, decimals: int = 6) -> bytes:
              for hole, ring in ((0, isl.outer), *((1, h) for h in isl.holes))]
     points = np.empty((sum(row[3] for row in table), 2))
     at = 0
+    done: dict[int, int] = {}  # a ring array already written (a prismatic stretch's shared rings): where
     for lay in result.layers:   # ring by ring: no temporaries of the whole stack
         for isl in lay.islands:
             for ring in isl.rings():
-                points[at:at + len(ring)] = as_written(np.asarray(ring, dtype=np.float64), decimals)
+                if id(ring) in done:
+                    points[at:at + len(ring)] = points[done[id(ring)]:done[id(ring)] + len(ring)]
+                else:
+                    done[id(ring)] = at
+                    points[at:at + len(ring)] = as_written(np.asarray(ring, dtype=np.float64), decimals)
                 at += len(ring)
     out = io.BytesIO()
     np.savez(out, header=np.frombuffer(json.dumps(doc, separators=(",", ":")).encode(), dtype=np.uint8),

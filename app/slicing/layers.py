@@ -197,7 +197,7 @@ class Sampler:
     def __init__(self, prepared: PreparedMesh, z_tol: float) -> None:
         self.prepared = prepared
         self.z_tol = z_tol
-        self._cache: dict[float, Section] = {}
+        self._cache: dict[float | tuple[str, int], Section] = {}
 
     def clamp(self, z: float) -> float:
         """``z`` moved inside ``[z_min + z_tol, z_max - z_tol]``."""
@@ -206,10 +206,15 @@ class Sampler:
         return min(max(z, lo), hi)
 
     def section(self, z: float) -> Section:
-        """The section (islands, stats) at ``clamp(z)``."""
-        key = round(self.clamp(z), 12)
+        """The section (islands, stats) at ``clamp(z)``; inside a prismatic band of the mesh
+        (:func:`app.slicing.mesh_prep.prism_bands`: the same region at every height) the one
+        taken first in that band, the same objects (its rings' collinear points, where the
+        walls' diagonals cross, at that height)."""
+        at = round(self.clamp(z), 12)
+        band = self.prepared.prism_band(at)
+        key: float | tuple[str, int] = at if band is None else ("band", band)
         if key not in self._cache:
-            islands = section_at(self.prepared.solid, key)
+            islands = section_at(self.prepared.solid, at)
             self._cache[key] = Section(islands, section_stats(islands))
         return self._cache[key]
 

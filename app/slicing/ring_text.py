@@ -83,14 +83,31 @@ def _block_texts(rings: Sequence[npt.NDArray[np.float64]], decimals: int, pairs:
 
 def ring_texts(rings: Iterable[npt.NDArray[np.float64]], decimals: int, *, pairs: bool = False) -> Iterator[str]:
     """The text of each of ``rings`` in order (:func:`points_text`, or :func:`pairs_text` with
-    ``pairs``), formatted a block of about :data:`BLOCK_VALUES` numbers at a time."""
+    ``pairs``), formatted a block of about :data:`BLOCK_VALUES` numbers at a time.  A ring that
+    is the same array as one before it (the layers of a prismatic stretch share their section's
+    rings) is formatted once."""
+    every = list(rings)  # held while formatting: an array's id names it alone meanwhile
+    text: dict[int, str] = {}
     block: list[npt.NDArray[np.float64]] = []
     values = 0
-    for ring in rings:
-        block.append(ring)
-        values += 2 * len(ring)
-        if values >= BLOCK_VALUES:
-            yield from _block_texts(block, decimals, pairs)
-            block, values = [], 0
+    queued: set[int] = set()
+    done = 0  # every[:done] have their text
+
+    def format_block() -> None:
+        nonlocal block, values
+        for ring, t in zip(block, _block_texts(block, decimals, pairs)):
+            text[id(ring)] = t
+        block, values = [], 0
+
+    for k, ring in enumerate(every):
+        if id(ring) not in queued:
+            queued.add(id(ring))
+            block.append(ring)
+            values += 2 * len(ring)
+            if values >= BLOCK_VALUES:
+                format_block()
+                yield from (text[id(r)] for r in every[done:k + 1])
+                done = k + 1
     if block:
-        yield from _block_texts(block, decimals, pairs)
+        format_block()
+    yield from (text[id(r)] for r in every[done:])
