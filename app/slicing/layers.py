@@ -241,9 +241,18 @@ def translated(result: SliceResult, shift: npt.NDArray[np.float64]) -> SliceResu
     """``result`` moved by ``shift`` (3,) mm: every ring, every z and the bounds (the machine
     placement of a part sliced in its own frame)."""
     dx, dz = np.asarray(shift[:2], dtype=np.float64), float(shift[2])
+    moved: dict[int, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = {}
+
+    def move(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """``ring + dx``, once per array (layers that share a ring share the moved one)."""
+        done = moved.get(id(ring))
+        if done is None:
+            done = moved[id(ring)] = (ring, ring + dx)  # the ring held: its id stays its own
+        return done[1]
+
     layers = tuple(dataclasses.replace(
         lay, z_bottom=lay.z_bottom + dz, z_top=lay.z_top + dz, z_sample=lay.z_sample + dz,
-        islands=tuple(Island(isl.outer + dx, tuple(h + dx for h in isl.holes)) for isl in lay.islands))
+        islands=tuple(Island(move(isl.outer), tuple(move(h) for h in isl.holes)) for isl in lay.islands))
         for lay in result.layers)
     return dataclasses.replace(result, layers=layers, z_min=result.z_min + dz, z_max=result.z_max + dz,
                                bounds=np.asarray(result.bounds, dtype=np.float64) + np.asarray(shift, dtype=float))
