@@ -58,6 +58,9 @@ from app.runtime.store import Claim, JobStore, completed_status, encoded_result
 log = logging.getLogger("conforma.jobs.child")
 _PR_SET_PDEATHSIG = 1
 MIB = 2 ** 20
+# a job's progress below 1 is written at most this often (s): its lease and cancel are the
+# supervisor's, so progress is only what a client reads (a 50 ms job wrote two rows for it)
+PROGRESS_EVERY_S = 0.25
 
 
 def _status_bytes(field: str) -> int:
@@ -161,6 +164,7 @@ class ChildRuntime:
         FIELD_FITS.backing = FieldFitStore(self.part_cache) if self.part_cache else None
         self.store = JobStore(self.engine, settings.lease_s)
         self.served = 0
+        self.progress_every_s = PROGRESS_EVERY_S
 
     def begin_job(self) -> dict[str, Any]:
         """Before each job: per-job cache counters; returns what the process held then."""
