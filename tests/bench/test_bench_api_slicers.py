@@ -2,16 +2,21 @@
 
 Run: make bench (or .venv/bin/python -m pytest tests/bench/test_bench_api_slicers.py -s -o addopts="" -q)
 
-Each real-shaped part (:mod:`tests.helpers.real_parts`) is uploaded to a served app (compute jobs in
-their pool processes, default limits), sliced and filled at the defaults (0.2 mm layers, one
+Each real-shaped part (:mod:`tests.helpers.real_parts`) is uploaded to a ``conforma serve`` process
+at its defaults (compute jobs in its pool processes, default limits; its compute processes warmed
+up by a first slice), sliced and filled at the defaults (0.2 mm layers, one
 perimeter, 100 % raster infill), then given to PrusaSlicer (``prusa-slicer``, Debian) and
 CuraEngine (``cura-engine``, with the ``cura`` package's definition files) with the same layer
 height, perimeters and infill and no skins, skirt or brim.  CPU seconds are compared (the box
 may be loaded; wall times are printed too): ours is the whole service tree's (the server, the
-fork server and the compute processes), theirs the CLI's.  Jobs are polled as a client polls
-them (the status every 0.2 s, the result once); the service's idle work (its reaper, its
-consumers' 1 s fallback poll, the client's status polls) grows with the wall time, so a loaded
-box inflates our CPU seconds a little.  Peak memory: the compute processes' largest resident
+fork server and the compute processes), theirs the CLI's; the client (this process, httpx) is
+not counted.  ``BENCH_IN_PROCESS=1`` serves the app inside this process instead (Starlette's
+``TestClient``, the service's lease and reaper period), as this bench did before: its figure
+then also holds the test client's own work on each request (~1.4 ms a request for
+``/api/v1/health``).  Jobs are polled as a client polls them (the status every 0.2 s, the
+result once); the service's idle work (its reaper, its consumers' 1 s fallback poll, the
+client's status polls) grows with the wall time, so a loaded box inflates our CPU seconds a
+little.  Peak memory: the compute processes' largest resident
 peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part, ``BENCH_QUICK=1``
 leaves the 300 mm plate out.
 
@@ -22,19 +27,24 @@ fails and says so, it never skips.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 
 from tests.conftest import auth
+from tests.e2e.test_serve import env_for, free_port, start, stop, wait_healthy
 from tests.helpers.cputime import tree_cpu_and_peak
 from tests.helpers.real_parts import cad_part, large_plate, thin_tube
 
 OP = auth("operator")
+KEY = OP["Authorization"].removeprefix("Bearer ")
 CURA_RESOURCES = Path(os.environ.get("CURA_RESOURCES", "/usr/share/cura/resources"))
 PARTS = {
     "cube 20 mm": "trimesh.creation.box((20.0, 20.0, 20.0))",
@@ -81,18 +91,38 @@ def tools():
                     "install prusa-slicer cura-engine, Cura's definitions extracted)")
 
 
+@contextlib.contextmanager
+def _service(settings_factory, tmp_path: Path) -> Iterator[tuple[object, int]]:
+    """(a client of the service, the pid whose process tree is the service)."""
+    if os.environ.get("BENCH_IN_PROCESS"):
+        from fastapi.testclient import TestClient
+
+        from app.main import create_app
+
+        # the service's own lease and reaper period (the test apps' reaper runs every 0.2 s)
+        settings = settings_factory(lease_s=30.0, reaper_interval_s=1.0, compute_isolation="process")
+        with TestClient(create_app(settings), raise_server_exceptions=False) as client:
+            yield client, os.getpid()
+        return
+    port = free_port()
+    proc = start(["serve", "--port", str(port)], env_for(tmp_path / "data", CONFORMA_API_KEYS=f"{KEY}:operator",
+                                                         CONFORMA_LOG_LEVEL="warning"), tmp_path / "serve.log")
+    try:
+        base = f"http://127.0.0.1:{port}"
+        wait_healthy(base, proc, timeout=120, log=tmp_path / "serve.log")
+        with httpx.Client(base_url=base, timeout=600) as client:
+            yield client, proc.pid
+    finally:
+        stop(proc)
+
+
 @pytest.mark.timeout(7200)  # the 300 mm plate and the reference slicers take minutes on a loaded box
 def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaengine(tools, settings_factory,
                                                                                        tmp_path):
     import trimesh  # noqa: F401  (the part expressions use it)
-    from fastapi.testclient import TestClient
 
-    from app.main import create_app
-
-    # the service's own lease and reaper period (the test apps' reaper runs every 0.2 s)
-    settings = settings_factory(lease_s=30.0, reaper_interval_s=1.0, compute_isolation="process")
     rows = []
-    with TestClient(create_app(settings), raise_server_exceptions=False) as client:
+    with _service(settings_factory, tmp_path) as (client, service):
         # warm: the fork server and compute processes start (imports: seconds of CPU) before any figure
         warm = client.post("/api/v1/parts", files={"file": ("warm.stl", trimesh.creation.box((5.0, 5.0, 1.0))
                                                             .export(file_type="stl"))}, headers=OP).json()
@@ -106,7 +136,7 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
                                    - [0.0, 0.0, mesh.bounds[0][2]])
             stl = tmp_path / "part.stl"
             mesh.export(stl)
-            cpu0, _ = tree_cpu_and_peak(os.getpid())
+            cpu0, _ = tree_cpu_and_peak(service)
             started = time.perf_counter()
             response = client.post("/api/v1/parts", files={"file": ("part.stl", stl.read_bytes())}, headers=OP)
             assert response.status_code == 201, response.text
@@ -122,7 +152,7 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
             tool_job = _wait(client, filled.json()["id"])
             assert tool_job["status"] == "succeeded", tool_job["error"]
             ours_wall = time.perf_counter() - started
-            ours_cpu, ours_peak = tree_cpu_and_peak(os.getpid())
+            ours_cpu, ours_peak = tree_cpu_and_peak(service)
             ours_cpu -= cpu0
             result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts",
                                 headers=OP).json()["result"]
@@ -146,7 +176,8 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
                          ours_cpu / prusa[0], ours_cpu / cura[0]])
     header = ["part", "faces", "our lines", "our path mm", "ours CPU s", "ours wall s", "compute peak MiB",
               "Prusa CPU s", "Prusa MiB", "Cura CPU s", "Cura MiB", "CPU x Prusa", "CPU x Cura"]
-    print("\nslice + toolpath through the API (0.2 mm layers, 1 perimeter, 100 % raster infill, no skins) "
+    print(f"\nslice + toolpath through the API ({'in process' if os.environ.get('BENCH_IN_PROCESS') else 'served'}, "
+          "0.2 mm layers, 1 perimeter, 100 % raster infill, no skins) "
           "beside PrusaSlicer 2.5 and CuraEngine 4.13, same run")
     print(" | ".join(header))
     for row in rows:
