@@ -16,8 +16,10 @@ then also holds the test client's own work on each request (~1.4 ms a request fo
 ``/api/v1/health``).  Jobs are polled as a client polls them (the status every 0.2 s, the
 result once); the service's idle work (its reaper, its consumers' 1 s fallback poll, the
 client's status polls) grows with the wall time, so a loaded box inflates our CPU seconds a
-little.  Peak memory: the compute processes' largest resident
-peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part, ``BENCH_QUICK=1``
+little.  ``BENCH_REPEAT=N`` runs each part N times (each a new upload) and each CLI N times
+and prints the medians and each run's ratio to CuraEngine's (CPU seconds are counted in
+10 ms ticks: a 0.1 s figure moves by a tenth between runs).  Peak memory: the compute
+processes' largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part, ``BENCH_QUICK=1``
 leaves the 300 mm plate out.
 
 The tools are installed by ``make bench-tools`` (``apt-get install prusa-slicer cura-engine``,
@@ -30,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import statistics
 import subprocess
 import time
 from collections.abc import Iterator
@@ -56,6 +59,7 @@ if os.environ.get("BENCH_QUICK"):  # the small parts only
     del PARTS["plate 300 mm, 69k faces"]
 if os.environ.get("BENCH_LARGE"):
     PARTS["cad part 1.34M faces"] = "cad_part(refine=10)"
+REPEAT = int(os.environ.get("BENCH_REPEAT", "1"))  # runs of each part (and of each CLI): the medians are printed
 
 
 def _timed(cmd: list[str], env: dict | None = None) -> tuple[float, float, float, subprocess.CompletedProcess]:
@@ -89,6 +93,54 @@ def tools():
     if missing:
         pytest.fail(f"the reference slicers are missing: {', '.join(missing)}; run `make bench-tools` (apt-get "
                     "install prusa-slicer cura-engine, Cura's definitions extracted)")
+
+
+def _ours(client, service: int, data: bytes) -> tuple[float, float, float, dict]:  # type: ignore[no-untyped-def]
+    """(CPU s of the service tree, wall s, its compute peak MiB, the toolpath job's result) of
+    uploading the STL ``data``, slicing it and filling it at the defaults."""
+    cpu0, _ = tree_cpu_and_peak(service)
+    started = time.perf_counter()
+    response = client.post("/api/v1/parts", files={"file": ("part.stl", data)}, headers=OP)
+    assert response.status_code == 201, response.text
+    sliced = client.post("/api/v1/jobs", json={"kind": "slice", "params": {
+        "part_id": response.json()["id"], "layer_mm": 0.2}}, headers=OP)
+    assert sliced.status_code == 202, sliced.text
+    slice_job = _wait(client, sliced.json()["id"])
+    assert slice_job["status"] == "succeeded", slice_job["error"]
+    volume = {"x": [0, 400], "y": [0, 400], "z": [0, 400]}
+    filled = client.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
+        "slice_job_id": slice_job["id"], "volume_mm": volume}}, headers=OP)
+    assert filled.status_code == 202, filled.text
+    tool_job = _wait(client, filled.json()["id"])
+    assert tool_job["status"] == "succeeded", tool_job["error"]
+    wall = time.perf_counter() - started
+    cpu, peak = tree_cpu_and_peak(service)
+    result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts", headers=OP).json()["result"]
+    return cpu - cpu0, wall, peak, result
+
+
+def _prusa(stl: Path, tmp_path: Path) -> tuple[float, float]:
+    """(CPU s, max RSS MiB) of PrusaSlicer on ``stl`` at the bench's settings."""
+    prusa = _timed(["prusa-slicer", "--export-gcode", "--layer-height", "0.2", "--first-layer-height", "0.2",
+                    "--perimeters", "1", "--fill-density", "100%", "--fill-pattern", "rectilinear",
+                    "--top-solid-layers", "0", "--bottom-solid-layers", "0", "--skirts", "0",
+                    "--bed-shape", "0x0,400x0,400x400,0x400", "--max-print-height", "400",
+                    "-o", str(tmp_path / "prusa.gcode"), str(stl)])
+    assert prusa[3].returncode == 0, prusa[3].stderr[-500:]
+    return prusa[0], prusa[1]
+
+
+def _cura(stl: Path, tmp_path: Path) -> tuple[float, float]:
+    """(CPU s, max RSS MiB) of CuraEngine on ``stl`` at the bench's settings."""
+    env = dict(os.environ, CURA_ENGINE_SEARCH_PATH=f"{CURA_RESOURCES}/definitions:{CURA_RESOURCES}/extruders")
+    cmd = ["CuraEngine", "slice", "-j", str(CURA_RESOURCES / "definitions/fdmprinter.def.json")]
+    for setting in ("layer_height=0.2", "layer_height_0=0.2", "wall_line_count=1", "infill_sparse_density=100",
+                    "infill_pattern=lines", "top_layers=0", "bottom_layers=0", "adhesion_type=none",
+                    "machine_width=400", "machine_depth=400", "machine_height=400"):
+        cmd += ["-s", setting]
+    cura = _timed([*cmd, "-l", str(stl), "-o", str(tmp_path / "cura.gcode")], env)
+    assert cura[3].returncode == 0, cura[3].stderr[-500:]
+    return cura[0], cura[1]
 
 
 @contextlib.contextmanager
@@ -136,49 +188,23 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
                                    - [0.0, 0.0, mesh.bounds[0][2]])
             stl = tmp_path / "part.stl"
             mesh.export(stl)
-            cpu0, _ = tree_cpu_and_peak(service)
-            started = time.perf_counter()
-            response = client.post("/api/v1/parts", files={"file": ("part.stl", stl.read_bytes())}, headers=OP)
-            assert response.status_code == 201, response.text
-            sliced = client.post("/api/v1/jobs", json={"kind": "slice", "params": {
-                "part_id": response.json()["id"], "layer_mm": 0.2}}, headers=OP)
-            assert sliced.status_code == 202, sliced.text
-            slice_job = _wait(client, sliced.json()["id"])
-            assert slice_job["status"] == "succeeded", slice_job["error"]
-            volume = {"x": [0, 400], "y": [0, 400], "z": [0, 400]}
-            filled = client.post("/api/v1/jobs", json={"kind": "toolpath", "params": {
-                "slice_job_id": slice_job["id"], "volume_mm": volume}}, headers=OP)
-            assert filled.status_code == 202, filled.text
-            tool_job = _wait(client, filled.json()["id"])
-            assert tool_job["status"] == "succeeded", tool_job["error"]
-            ours_wall = time.perf_counter() - started
-            ours_cpu, ours_peak = tree_cpu_and_peak(service)
-            ours_cpu -= cpu0
-            result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts",
-                                headers=OP).json()["result"]
-            prusa = _timed(["prusa-slicer", "--export-gcode", "--layer-height", "0.2", "--first-layer-height", "0.2",
-                            "--perimeters", "1", "--fill-density", "100%", "--fill-pattern", "rectilinear",
-                            "--top-solid-layers", "0", "--bottom-solid-layers", "0", "--skirts", "0",
-                            "--bed-shape", "0x0,400x0,400x400,0x400", "--max-print-height", "400",
-                            "-o", str(tmp_path / "prusa.gcode"), str(stl)])
-            assert prusa[3].returncode == 0, prusa[3].stderr[-500:]
-            env = dict(os.environ, CURA_ENGINE_SEARCH_PATH=f"{CURA_RESOURCES}/definitions:"
-                                                           f"{CURA_RESOURCES}/extruders")
-            cura_cmd = ["CuraEngine", "slice", "-j", str(CURA_RESOURCES / "definitions/fdmprinter.def.json")]
-            for setting in ("layer_height=0.2", "layer_height_0=0.2", "wall_line_count=1",
-                            "infill_sparse_density=100", "infill_pattern=lines", "top_layers=0", "bottom_layers=0",
-                            "adhesion_type=none", "machine_width=400", "machine_depth=400", "machine_height=400"):
-                cura_cmd += ["-s", setting]
-            cura = _timed([*cura_cmd, "-l", str(stl), "-o", str(tmp_path / "cura.gcode")], env)
-            assert cura[3].returncode == 0, cura[3].stderr[-500:]
+            runs = []
+            for rep in range(REPEAT):  # each a new part: the binary STL's free header told apart
+                data = f"conforma bench {name} {rep}".encode().ljust(80) + stl.read_bytes()[80:]
+                ours_cpu, ours_wall, ours_peak, result = _ours(client, service, data)
+                runs.append((ours_cpu, ours_wall, ours_peak, _prusa(stl, tmp_path), _cura(stl, tmp_path)))
+            ours, prusa, cura = (statistics.median(r[0] for r in runs), statistics.median(r[3][0] for r in runs),
+                                 statistics.median(r[4][0] for r in runs))
+            each = [r[0] / r[4][0] for r in runs]
             rows.append([name, f"{len(mesh.faces):,}", result["program"]["lines"], f"{result['path_mm']:,.0f}",
-                         ours_cpu, ours_wall, ours_peak, prusa[0], prusa[1], cura[0], cura[1],
-                         ours_cpu / prusa[0], ours_cpu / cura[0]])
+                         ours, statistics.median(r[1] for r in runs), max(r[2] for r in runs), prusa,
+                         max(r[3][1] for r in runs), cura, max(r[4][1] for r in runs), ours / prusa, ours / cura,
+                         f"{min(each):.2f}-{max(each):.2f}"])
     header = ["part", "faces", "our lines", "our path mm", "ours CPU s", "ours wall s", "compute peak MiB",
-              "Prusa CPU s", "Prusa MiB", "Cura CPU s", "Cura MiB", "CPU x Prusa", "CPU x Cura"]
+              "Prusa CPU s", "Prusa MiB", "Cura CPU s", "Cura MiB", "CPU x Prusa", "CPU x Cura", "each run x Cura"]
     print(f"\nslice + toolpath through the API ({'in process' if os.environ.get('BENCH_IN_PROCESS') else 'served'}, "
           "0.2 mm layers, 1 perimeter, 100 % raster infill, no skins) "
-          "beside PrusaSlicer 2.5 and CuraEngine 4.13, same run")
+          f"beside PrusaSlicer 2.5 and CuraEngine 4.13, same run; medians of {REPEAT} run(s) each")
     print(" | ".join(header))
     for row in rows:
         print(" | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in row))
