@@ -17,8 +17,10 @@ then also holds the test client's own work on each request (~1.4 ms a request fo
 result once); the service's idle work (its reaper, its consumers' 1 s fallback poll, the
 client's status polls) grows with the wall time, so a loaded box inflates our CPU seconds a
 little.  ``BENCH_REPEAT=N`` runs each part N times (each a new upload) and each CLI N times
-and prints the medians and each run's ratio to CuraEngine's (CPU seconds are counted in
-10 ms ticks: a 0.1 s figure moves by a tenth between runs).  Peak memory: the compute
+and prints the medians and each run's ratio to CuraEngine's.  CPU seconds: the service tree's
+from its threads' run times in nanoseconds, a CLI's from ``getrusage`` of the waited-for
+process (microseconds; ``/proc/<pid>/stat`` and GNU time count hundredths, as large as a
+small part's differences).  Peak memory: the compute
 processes' largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part, ``BENCH_QUICK=1``
 leaves the 300 mm plate out.
 
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -63,13 +66,46 @@ REPEAT = int(os.environ.get("BENCH_REPEAT", "1"))  # runs of each part (and of e
 
 
 def _timed(cmd: list[str], env: dict | None = None) -> tuple[float, float, float, subprocess.CompletedProcess]:
-    """(CPU s, max RSS MiB, wall s, the run) of ``cmd`` under GNU time."""
+    """(CPU s, max RSS MiB, wall s, the run) of ``cmd`` under GNU time; the CPU seconds from
+    this process's waited-for children (``getrusage``: microseconds, not GNU time's hundredths)."""
     started = time.perf_counter()
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     run = subprocess.run(["/usr/bin/time", "-f", "@@%U %S %M", *cmd], capture_output=True, text=True, timeout=3600,
                          env=env)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     wall = time.perf_counter() - started
-    user, system, rss_kib = run.stderr.rsplit("@@", 1)[1].split()
-    return float(user) + float(system), int(rss_kib) / 1024, wall, run
+    rss_kib = run.stderr.rsplit("@@", 1)[1].split()[2]
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    return cpu, int(rss_kib) / 1024, wall, run
+
+
+def _tree_cpu(root: int) -> float:
+    """CPU s of process ``root``'s tree (``root`` and every descendant) from each live thread's
+    run time in nanoseconds (``/proc/<pid>/task/<tid>/schedstat``; ``/proc/<pid>/stat`` counts
+    10 ms ticks, as large as a small part's differences; a thread that ended is not counted:
+    the service's threads live as long as it does)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                parent = int(Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(parent, []).append(int(entry))
+    total, todo = 0, [root]
+    while todo:
+        pid = todo.pop()
+        todo.extend(children.get(pid, []))
+        try:
+            tasks = os.listdir(f"/proc/{pid}/task")
+        except OSError:
+            continue
+        for tid in tasks:
+            try:
+                total += int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0])
+            except (OSError, IndexError, ValueError):
+                pass
+    return total / 1e9
 
 
 def _wait(client, job_id: str, timeout: float = 3600.0) -> dict:
@@ -98,7 +134,7 @@ def tools():
 def _ours(client, service: int, data: bytes) -> tuple[float, float, float, dict]:  # type: ignore[no-untyped-def]
     """(CPU s of the service tree, wall s, its compute peak MiB, the toolpath job's result) of
     uploading the STL ``data``, slicing it and filling it at the defaults."""
-    cpu0, _ = tree_cpu_and_peak(service)
+    cpu0 = _tree_cpu(service)
     started = time.perf_counter()
     response = client.post("/api/v1/parts", files={"file": ("part.stl", data)}, headers=OP)
     assert response.status_code == 201, response.text
@@ -114,7 +150,8 @@ def _ours(client, service: int, data: bytes) -> tuple[float, float, float, dict]
     tool_job = _wait(client, filled.json()["id"])
     assert tool_job["status"] == "succeeded", tool_job["error"]
     wall = time.perf_counter() - started
-    cpu, peak = tree_cpu_and_peak(service)
+    cpu = _tree_cpu(service)
+    _, peak = tree_cpu_and_peak(service)
     result = client.get(f"/api/v1/jobs/{tool_job['id']}?include=result&include=artifacts", headers=OP).json()["result"]
     return cpu - cpu0, wall, peak, result
 
@@ -207,4 +244,4 @@ def test_bench_slice_and_toolpath_through_the_api_against_prusaslicer_and_curaen
           f"beside PrusaSlicer 2.5 and CuraEngine 4.13, same run; medians of {REPEAT} run(s) each")
     print(" | ".join(header))
     for row in rows:
-        print(" | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in row))
+        print(" | ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row))
