@@ -22,7 +22,7 @@ from its threads' run times in nanoseconds, a CLI's from ``getrusage`` of the wa
 process (microseconds; ``/proc/<pid>/stat`` and GNU time count hundredths, as large as a
 small part's differences).  Peak memory: the compute
 processes' largest resident peak, the CLI's maximum RSS.  ``BENCH_LARGE=1`` adds the 1.34M-face part, ``BENCH_QUICK=1``
-leaves the 300 mm plate out.
+leaves the 300 mm plate out, ``BENCH_PARTS=cube,tube`` keeps the parts whose names start so.
 
 The tools are installed by ``make bench-tools`` (``apt-get install prusa-slicer cura-engine``,
 the ``cura`` package's definitions extracted to ``CURA_RESOURCES``); without them this bench
@@ -62,6 +62,8 @@ if os.environ.get("BENCH_QUICK"):  # the small parts only
     del PARTS["plate 300 mm, 69k faces"]
 if os.environ.get("BENCH_LARGE"):
     PARTS["cad part 1.34M faces"] = "cad_part(refine=10)"
+if os.environ.get("BENCH_PARTS"):  # e.g. "cube,tube": the parts whose names start so
+    PARTS = {k: v for k, v in PARTS.items() if k.startswith(tuple(os.environ["BENCH_PARTS"].split(",")))}
 REPEAT = int(os.environ.get("BENCH_REPEAT", "1"))  # runs of each part (and of each CLI): the medians are printed
 
 
