@@ -79,12 +79,10 @@ def prism_bands(vertex_z: npt.NDArray[np.float64], normals_z: npt.NDArray[np.flo
     heights = np.unique(vertex_z)
     if len(heights) < 2:
         return heights, np.zeros(0, dtype=bool)
-    slanted = face_z[np.abs(normals_z) > VERTICAL_NZ]
-    first = np.searchsorted(heights, slanted[:, 0])  # the band each slanted face starts in...
-    last = np.searchsorted(heights, slanted[:, 1])  # ...and the one after its last
-    crossed = np.zeros(len(heights), dtype=np.int64)
-    np.add.at(crossed, first, 1)
-    np.add.at(crossed, last, -1)
+    slanted = np.abs(normals_z) > VERTICAL_NZ
+    # the band each slanted face starts in, and the one after its last: +1 and -1 there
+    crossed = np.bincount(np.searchsorted(heights, face_z[slanted, 0]), minlength=len(heights))
+    crossed -= np.bincount(np.searchsorted(heights, face_z[slanted, 1]), minlength=len(heights))
     return heights, np.cumsum(crossed)[:-1] == 0
 
 
