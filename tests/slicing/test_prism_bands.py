@@ -71,3 +71,25 @@ def test_every_layer_is_the_region_manifold_cuts_at_its_height(make):
         assert shared == 0
     else:
         assert shared > 0
+
+
+def test_the_exports_of_shared_rings_are_those_of_the_same_rings_unshared():
+    """Every export of a slice whose layers share their rings (SLC, CLI, JSON, layers.npz) is
+    byte for byte that of the same slice with each layer's rings copied apart."""
+    import dataclasses
+
+    from app.jobs.kinds.slice import _contour_mm
+    from app.slicing.export import SlcOptions, to_cli, to_json, to_slc
+    from app.slicing.export_binary import to_binary
+    from app.slicing.rings import Island, ring_length
+
+    shared = slice_mesh(thin_tube(), SliceParams(mode="uniform", layer_mm=0.2))
+    assert shared.layers[10].islands is shared.layers[11].islands
+    apart = dataclasses.replace(shared, layers=tuple(
+        dataclasses.replace(lay, islands=tuple(Island(isl.outer.copy(), tuple(h.copy() for h in isl.holes))
+                                               for isl in lay.islands)) for lay in shared.layers))
+    assert to_slc(shared, SlcOptions()).data == to_slc(apart, SlcOptions()).data
+    assert to_cli(shared) == to_cli(apart) and to_json(shared) == to_json(apart)
+    assert to_binary(shared) == to_binary(apart)
+    assert _contour_mm(shared) == _contour_mm(apart) == sum(
+        ring_length(r) for lay in apart.layers for isl in lay.islands for r in isl.rings())
