@@ -11,6 +11,7 @@ decimal, or a negative one that would read ``-0.000...``, as printf writes it).
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
@@ -87,6 +88,7 @@ def ring_texts(rings: Iterable[npt.NDArray[np.float64]], decimals: int, *, pairs
     is the same array as one before it (the layers of a prismatic stretch share their section's
     rings) is formatted once."""
     every = list(rings)  # held while formatting: an array's id names it alone meanwhile
+    uses = Counter(id(ring) for ring in every)  # a text is let go after its ring's last use
     text: dict[int, str] = {}
     block: list[npt.NDArray[np.float64]] = []
     values = 0
@@ -99,6 +101,12 @@ def ring_texts(rings: Iterable[npt.NDArray[np.float64]], decimals: int, *, pairs
             text[id(ring)] = t
         block, values = [], 0
 
+    def texts(upto: int) -> Iterator[str]:
+        for ring in every[done:upto]:
+            key = id(ring)
+            uses[key] -= 1
+            yield text[key] if uses[key] else text.pop(key)
+
     for k, ring in enumerate(every):
         if id(ring) not in queued:
             queued.add(id(ring))
@@ -106,8 +114,8 @@ def ring_texts(rings: Iterable[npt.NDArray[np.float64]], decimals: int, *, pairs
             values += 2 * len(ring)
             if values >= BLOCK_VALUES:
                 format_block()
-                yield from (text[id(r)] for r in every[done:k + 1])
+                yield from texts(k + 1)
                 done = k + 1
     if block:
         format_block()
-    yield from (text[id(r)] for r in every[done:])
+    yield from texts(len(every))
