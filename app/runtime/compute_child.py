@@ -58,6 +58,11 @@ from app.runtime.store import Claim, JobStore, completed_status, encoded_result
 log = logging.getLogger("conforma.jobs.child")
 _PR_SET_PDEATHSIG = 1
 MIB = 2 ** 20
+# a job's progress below 1 is written at most this often (s): its lease and cancel are the
+# supervisor's, so progress is only what a client reads (a 50 ms job wrote two rows for it)
+PROGRESS_EVERY_S = 0.25
+# after a job the heap is trimmed when the process grew by this much since it last was
+TRIM_GROWTH_BYTES = 32 * MIB
 
 
 def _status_bytes(field: str) -> int:
@@ -161,6 +166,8 @@ class ChildRuntime:
         FIELD_FITS.backing = FieldFitStore(self.part_cache) if self.part_cache else None
         self.store = JobStore(self.engine, settings.lease_s)
         self.served = 0
+        self.progress_every_s = PROGRESS_EVERY_S
+        self.trimmed_rss = _status_bytes("VmRSS")  # resident bytes when the heap was last trimmed
 
     def begin_job(self) -> dict[str, Any]:
         """Before each job: per-job cache counters; returns what the process held then."""
@@ -183,12 +190,21 @@ class ChildRuntime:
                    memory={**self.meshes.counts, **start})
 
     def report(self) -> dict[str, Any]:
-        """After a job: memory and the parts held (the supervisor's reuse and affinity)."""
+        """After a job: memory and the parts held (the supervisor's reuse and affinity).  When
+        the cache let a part go, or the process grew by TRIM_GROWTH_BYTES since it last
+        trimmed, the cycle collector runs (trimesh objects hold cycles: an evicted mesh is freed
+        now) and the freed heap goes back to the system; after a small job neither (a full
+        collection and ``malloc_trim`` cost more than a 20 mm cube's slice)."""
+        held = self.meshes.parts()
         cache_bytes = self.meshes.bytes  # re-measured: evicts down to the bound
-        gc.collect()  # trimesh objects hold cycles: an evicted mesh is freed now
-        trim_heap()  # what the job freed goes back to the system, not kept at the job's peak
-        return {"served": self.served, "rss_bytes": _status_bytes("VmRSS"), "vm_bytes": _vm_size_bytes(),
-                "cache_bytes": cache_bytes, "held": sorted(self.meshes.parts())}
+        parts = self.meshes.parts()
+        rss = _status_bytes("VmRSS")
+        if len(parts) < len(held) or rss > self.trimmed_rss + TRIM_GROWTH_BYTES:
+            gc.collect()
+            trim_heap()  # what the job freed goes back to the system, not kept at the job's peak
+            rss = self.trimmed_rss = _status_bytes("VmRSS")
+        return {"served": self.served, "rss_bytes": rss, "vm_bytes": _vm_size_bytes(),
+                "cache_bytes": cache_bytes, "held": sorted(parts)}
 
     def submit(self, kind_name: str, params: dict[str, Any], *, parent_id: str | None = None) -> Any:
         raise ConformaError("compute jobs cannot submit child jobs (use a workflow kind)",

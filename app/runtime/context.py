@@ -45,10 +45,23 @@ class JobContext:
         self.job_id = claim.job_id
         self.cancel_event = threading.Event()
         self.lost_event = threading.Event()
+        # a runtime whose jobs' leases and cancels are watched from outside (a compute process:
+        # its supervisor renews the lease and kills the process on a cancel) writes progress below
+        # 1 at most this often, counted from the start: a job shorter than that writes none
+        self.progress_every_s = float(getattr(runtime, "progress_every_s", 0.0))
+        self._progress_at = time.monotonic()
 
     # progress and cancel ---------------------------------------------------------
     def progress(self, fraction: float, message: str | None = None) -> None:
-        """Report progress (0..1); renews the lease.  Raises Cancelled when asked to stop."""
+        """Report progress (0..1); renews the lease.  Raises Cancelled when asked to stop.
+        Where the runtime says so (``progress_every_s``), progress below 1 reported sooner than
+        that after the last written is not written (progress 1, the closing words, always is)."""
+        if self.progress_every_s > 0.0 and fraction < 1.0:
+            now = time.monotonic()
+            if now - self._progress_at < self.progress_every_s:
+                self.check_cancelled()
+                return
+            self._progress_at = now
         answer = self.runtime.store.heartbeat(self.claim, fraction, message)
         if answer is None:
             self.lost_event.set()

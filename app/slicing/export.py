@@ -117,14 +117,17 @@ def to_slc(result: SliceResult, options: SlcOptions = SlcOptions()) -> SlcExport
     out = [header, bytes(256), struct.pack("<B", len(table))]
     for min_z, thick, comp in table:
         out.append(struct.pack("<4f", min_z, thick, comp, 0.0))
+    written: dict[int, tuple[npt.NDArray[np.float64], bytes]] = {}  # a ring array shared by layers: once
     for lay, z in zip(result.layers, zq[:-1]):
         rings = [r for isl in lay.islands for r in
                  (oriented(isl.outer, True), *(oriented(h, False) for h in isl.holes))]
         out.append(struct.pack("<fI", z, len(rings)))
         for r in rings:
-            pts = _closed(r).astype("<f4")
-            out.append(struct.pack("<II", len(pts), 0))
-            out.append(pts.tobytes())
+            done = written.get(id(r))
+            if done is None or done[0] is not r:
+                pts = _closed(r).astype("<f4")
+                done = written[id(r)] = (r, struct.pack("<II", len(pts), 0) + pts.tobytes())
+            out.append(done[1])
     out.append(struct.pack("<fI", zq[-1], SLC_END))
     return SlcExport(b"".join(out), table, tuple(notes))
 

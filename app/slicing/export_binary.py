@@ -35,10 +35,15 @@ def to_binary(result: SliceResult, decimals: int = 6) -> bytes:
              for hole, ring in ((0, isl.outer), *((1, h) for h in isl.holes))]
     points = np.empty((sum(row[3] for row in table), 2))
     at = 0
+    done: dict[int, int] = {}  # a ring array already written (a prismatic stretch's shared rings): where
     for lay in result.layers:   # ring by ring: no temporaries of the whole stack
         for isl in lay.islands:
             for ring in isl.rings():
-                points[at:at + len(ring)] = as_written(np.asarray(ring, dtype=np.float64), decimals)
+                if id(ring) in done:
+                    points[at:at + len(ring)] = points[done[id(ring)]:done[id(ring)] + len(ring)]
+                else:
+                    done[id(ring)] = at
+                    points[at:at + len(ring)] = as_written(np.asarray(ring, dtype=np.float64), decimals)
                 at += len(ring)
     out = io.BytesIO()
     np.savez(out, header=np.frombuffer(json.dumps(doc, separators=(",", ":")).encode(), dtype=np.uint8),
@@ -62,7 +67,7 @@ def from_binary(data: bytes) -> SliceResult:
         checked = points.dtype == np.float64 and bool((table[:, 3] >= 3).all()) and bool(np.isfinite(points).all())
         rings = split_at(points, np.cumsum(table[:, 3])[:-1])
         if checked:  # every ring valid: oriented here at once (else from_document names the bad one)
-            rings = _oriented(points, table, rings)
+            rings = _shared_repeats(table, _oriented(points, table, rings))
         for (k, j, hole, _), ring in zip(table.tolist(), rings):
             if hole:
                 contours[k][j][1].append(ring)
@@ -74,6 +79,26 @@ def from_binary(data: bytes) -> SliceResult:
     except (ValueError, KeyError, TypeError, IndexError, AttributeError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise SlicingError(f"not a {NAME} document: {type(exc).__name__}: {exc}", field=NAME,
                            value=str(exc)[:80]) from None
+
+
+def _shared_repeats(table: np.ndarray, rings: list[np.ndarray]) -> list[np.ndarray]:
+    """``rings`` (the rows of ``table``), each ring equal bit for bit to the ring at its place in
+    the layer before (a prismatic stretch: one section for many layers) replaced by that ring's
+    array, so that the layers share it as the slice's layers did (what reads them may then
+    work on each array once)."""
+    out = list(rings)
+    before: list[np.ndarray] = []
+    current: list[np.ndarray] = []
+    layer = -1
+    for i, k in enumerate(table[:, 0].tolist()):
+        if k != layer:
+            before, current, layer = current, [], k
+        if len(current) < len(before):
+            other = before[len(current)]
+            if other.shape == out[i].shape and other.tobytes() == out[i].tobytes():
+                out[i] = other
+        current.append(out[i])
+    return out
 
 
 def _oriented(points: np.ndarray, table: np.ndarray, rings: list[np.ndarray]) -> list[np.ndarray]:

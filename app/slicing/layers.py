@@ -197,7 +197,7 @@ class Sampler:
     def __init__(self, prepared: PreparedMesh, z_tol: float) -> None:
         self.prepared = prepared
         self.z_tol = z_tol
-        self._cache: dict[float, Section] = {}
+        self._cache: dict[float | tuple[str, int], Section] = {}
 
     def clamp(self, z: float) -> float:
         """``z`` moved inside ``[z_min + z_tol, z_max - z_tol]``."""
@@ -206,10 +206,15 @@ class Sampler:
         return min(max(z, lo), hi)
 
     def section(self, z: float) -> Section:
-        """The section (islands, stats) at ``clamp(z)``."""
-        key = round(self.clamp(z), 12)
+        """The section (islands, stats) at ``clamp(z)``; inside a prismatic band of the mesh
+        (:func:`app.slicing.mesh_prep.prism_bands`: the same region at every height) the one
+        taken first in that band, the same objects (its rings' collinear points, where the
+        walls' diagonals cross, at that height)."""
+        at = round(self.clamp(z), 12)
+        band = self.prepared.prism_band(at)
+        key: float | tuple[str, int] = at if band is None else ("band", band)
         if key not in self._cache:
-            islands = section_at(self.prepared.solid, key)
+            islands = section_at(self.prepared.solid, at)
             self._cache[key] = Section(islands, section_stats(islands))
         return self._cache[key]
 
@@ -236,9 +241,18 @@ def translated(result: SliceResult, shift: npt.NDArray[np.float64]) -> SliceResu
     """``result`` moved by ``shift`` (3,) mm: every ring, every z and the bounds (the machine
     placement of a part sliced in its own frame)."""
     dx, dz = np.asarray(shift[:2], dtype=np.float64), float(shift[2])
+    moved: dict[int, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = {}
+
+    def move(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """``ring + dx``, once per array (layers that share a ring share the moved one)."""
+        done = moved.get(id(ring))
+        if done is None:
+            done = moved[id(ring)] = (ring, ring + dx)  # the ring held: its id stays its own
+        return done[1]
+
     layers = tuple(dataclasses.replace(
         lay, z_bottom=lay.z_bottom + dz, z_top=lay.z_top + dz, z_sample=lay.z_sample + dz,
-        islands=tuple(Island(isl.outer + dx, tuple(h + dx for h in isl.holes)) for isl in lay.islands))
+        islands=tuple(Island(move(isl.outer), tuple(move(h) for h in isl.holes)) for isl in lay.islands))
         for lay in result.layers)
     return dataclasses.replace(result, layers=layers, z_min=result.z_min + dz, z_max=result.z_max + dz,
                                bounds=np.asarray(result.bounds, dtype=np.float64) + np.asarray(shift, dtype=float))

@@ -15,6 +15,7 @@ positive fill rule (the union of the overlapping parts).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import manifold3d
@@ -37,7 +38,10 @@ class PreparedMesh:
 
     ``solid``: manifold3d.Manifold; ``z_min``/``z_max``: mm; ``bounds``: (2, 3) mm;
     ``normals_z``: (F,) z component of unit face normals; ``face_z``: (F, 2) min/max z of
-    each face (mm); ``repairs``: human-readable notes of what was repaired.
+    each face (mm); ``repairs``: human-readable notes of what was repaired;
+    ``prism_z``: (B + 1,) sorted distinct vertex heights (mm) and ``prism``: (B,) bool, True
+    for a band between two of them that only vertical faces cross (:func:`prism_bands`): the
+    section is the same region at every height strictly inside such a band.
     """
 
     solid: manifold3d.Manifold
@@ -48,6 +52,38 @@ class PreparedMesh:
     face_z: npt.NDArray[np.float64]
     volume: float
     repairs: tuple[str, ...]
+    prism_z: npt.NDArray[np.float64] = dataclasses.field(default_factory=lambda: np.zeros(0))
+    prism: npt.NDArray[np.bool_] = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def prism_band(self, z: float) -> int | None:
+        """The index of the prismatic band ``z`` (mm) lies strictly inside, else None."""
+        i = int(np.searchsorted(self.prism_z, z, side="right")) - 1
+        if 0 <= i < len(self.prism) and self.prism[i] and self.prism_z[i] < z < self.prism_z[i + 1]:
+            return i
+        return None
+
+
+#: a face whose unit normal's z is at most this is vertical: over a 1 m band its section moves
+#: by at most 1e-9 mm, a thousandth of the exports' last decimal
+VERTICAL_NZ = 1e-12
+
+
+def prism_bands(vertex_z: npt.NDArray[np.float64], normals_z: npt.NDArray[np.float64],
+                face_z: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """The mesh's distinct vertex heights ``(B + 1,)`` mm and, for each band between two
+    consecutive ones, whether only vertical faces (``|normals_z|`` <= :data:`VERTICAL_NZ`)
+    cross it.  No vertex lies inside a band, so the same faces cross it from bottom to top;
+    when they are all vertical, every section inside it is the same region (a prism's walls:
+    only the triangulation's diagonals, collinear points on its edges, move with the height).
+    ``vertex_z`` (V,) mm; ``normals_z`` (F,); ``face_z`` (F, 2) min/max z of each face, mm."""
+    heights = np.unique(vertex_z)
+    if len(heights) < 2:
+        return heights, np.zeros(0, dtype=bool)
+    slanted = np.abs(normals_z) > VERTICAL_NZ
+    # the band each slanted face starts in, and the one after its last: +1 and -1 there
+    crossed = np.bincount(np.searchsorted(heights, face_z[slanted, 0]), minlength=len(heights))
+    crossed -= np.bincount(np.searchsorted(heights, face_z[slanted, 1]), minlength=len(heights))
+    return heights, np.cumsum(crossed)[:-1] == 0
 
 
 def _open_edge_count(mesh: trimesh.Trimesh) -> int:
@@ -134,9 +170,10 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, max_hole_mm: float 
     norm = np.linalg.norm(normals, axis=1)
     normals_z = np.divide(normals[:, 2], norm, out=np.zeros(len(norm)), where=norm > 0)
     face_z = np.stack([tri[:, :, 2].min(axis=1), tri[:, :, 2].max(axis=1)], axis=1)
+    prism_z, prism = prism_bands(np.asarray(m.vertices, dtype=np.float64)[:, 2], normals_z, face_z)
     return PreparedMesh(solid=solid, z_min=float(bounds[0, 2]), z_max=float(bounds[1, 2]),
                         bounds=bounds, normals_z=normals_z, face_z=face_z,
-                        volume=float(solid.volume()), repairs=tuple(repairs))
+                        volume=float(solid.volume()), repairs=tuple(repairs), prism_z=prism_z, prism=prism)
 
 
 def place_on_bed(mesh: trimesh.Trimesh, center_xy: tuple[float, float] = (0.0, 0.0)

@@ -11,6 +11,7 @@ decimal, or a negative one that would read ``-0.000...``, as printf writes it).
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
@@ -83,14 +84,38 @@ def _block_texts(rings: Sequence[npt.NDArray[np.float64]], decimals: int, pairs:
 
 def ring_texts(rings: Iterable[npt.NDArray[np.float64]], decimals: int, *, pairs: bool = False) -> Iterator[str]:
     """The text of each of ``rings`` in order (:func:`points_text`, or :func:`pairs_text` with
-    ``pairs``), formatted a block of about :data:`BLOCK_VALUES` numbers at a time."""
+    ``pairs``), formatted a block of about :data:`BLOCK_VALUES` numbers at a time.  A ring that
+    is the same array as one before it (the layers of a prismatic stretch share their section's
+    rings) is formatted once."""
+    every = list(rings)  # held while formatting: an array's id names it alone meanwhile
+    uses = Counter(id(ring) for ring in every)  # a text is let go after its ring's last use
+    text: dict[int, str] = {}
     block: list[npt.NDArray[np.float64]] = []
     values = 0
-    for ring in rings:
-        block.append(ring)
-        values += 2 * len(ring)
-        if values >= BLOCK_VALUES:
-            yield from _block_texts(block, decimals, pairs)
-            block, values = [], 0
+    queued: set[int] = set()
+    done = 0  # every[:done] have their text
+
+    def format_block() -> None:
+        nonlocal block, values
+        for ring, t in zip(block, _block_texts(block, decimals, pairs)):
+            text[id(ring)] = t
+        block, values = [], 0
+
+    def texts(upto: int) -> Iterator[str]:
+        for ring in every[done:upto]:
+            key = id(ring)
+            uses[key] -= 1
+            yield text[key] if uses[key] else text.pop(key)
+
+    for k, ring in enumerate(every):
+        if id(ring) not in queued:
+            queued.add(id(ring))
+            block.append(ring)
+            values += 2 * len(ring)
+            if values >= BLOCK_VALUES:
+                format_block()
+                yield from texts(k + 1)
+                done = k + 1
     if block:
-        yield from _block_texts(block, decimals, pairs)
+        format_block()
+    yield from texts(len(every))

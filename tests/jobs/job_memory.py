@@ -47,7 +47,11 @@ class Ctx:
     def artifacts(self, items):
         for name, blob, media, meta in items:
             self.artifact(name, blob, media, meta)
+    def artifact_batch(self, max_bytes=64 * 2**20):
+        from app.runtime.context import ArtifactBatch
+        return ArtifactBatch(self, max_bytes)
     def job(self, job_id, **k): return SimpleNamespace(id=job_id)
+    def require_succeeded(self, job_id, kind, field): pass
     def artifact_bytes(self, job_id, name): return artifacts[name]
 
 import threading

@@ -201,3 +201,30 @@ def test_one_process_while_idle_a_second_while_two_jobs_run_at_once_then_it_ends
         assert [m.pid for m in pool.members] == [last]
         assert _job(client, "test_sleep", {"seconds": 0})["status"] == "succeeded"
         assert pool.started == 2  # the one kept serves the next job
+
+
+def test_after_a_small_job_the_heap_is_left_and_after_growth_or_an_eviction_it_is_trimmed(settings_factory,
+                                                                                          monkeypatch):
+    """A compute process collects cycles and trims its heap after a job only when it grew by
+    TRIM_GROWTH_BYTES since it last did, or its mesh cache let a part go."""
+    from app.runtime import compute_child
+
+    runtime = compute_child.ChildRuntime(settings_factory())
+    try:
+        resident = {"now": runtime.trimmed_rss}
+        trims: list[int] = []
+        monkeypatch.setattr(compute_child, "_status_bytes", lambda field: resident["now"])
+        monkeypatch.setattr(compute_child, "trim_heap", lambda: trims.append(resident["now"]) or True)
+        resident["now"] += compute_child.TRIM_GROWTH_BYTES // 2  # a small job's growth
+        assert runtime.report()["rss_bytes"] == resident["now"] and trims == []
+        resident["now"] += compute_child.TRIM_GROWTH_BYTES  # more than the bound since the last trim
+        runtime.report()
+        assert len(trims) == 1 and runtime.trimmed_rss == resident["now"]
+        box = s1_mesh()
+        runtime.meshes.put("a" * 64, box)
+        runtime.meshes.put("b" * 64, box.copy())
+        monkeypatch.setattr(runtime.meshes._items, "max_bytes", 0)  # the report's re-measure lets "a" go
+        assert runtime.report()["held"] == ["b" * 64]
+        assert len(trims) == 2
+    finally:
+        runtime.engine.dispose()

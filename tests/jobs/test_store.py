@@ -137,3 +137,39 @@ def test_a_parent_reads_its_childrens_states_less_often_the_longer_they_run(runt
     assert done.id == child.id and done.status == "succeeded" and done.result == {"n": 1}
     expected = [0.05, 0.05 * WAIT_POLL_GROWTH, 0.05 * WAIT_POLL_GROWTH ** 2, 0.05 * WAIT_POLL_GROWTH ** 3, 0.2, 0.2]
     assert waits == pytest.approx(expected)
+
+
+def test_a_compute_process_writes_progress_below_one_at_most_every_quarter_second(runtime, monkeypatch):
+    """Where the runtime sets ``progress_every_s`` (a compute process's), progress below 1
+    reported sooner than that after the job's start or the last written one is not written; the
+    closing words at progress 1 always are, and a cancel is still seen."""
+    from sqlmodel import Session
+
+    from app.domain.errors import Cancelled
+    from app.platform.models import Job
+    from app.runtime.compute_child import PROGRESS_EVERY_S
+    from app.runtime.context import JobContext
+
+    def stored(job_id: str) -> tuple[float, str | None]:
+        with Session(runtime.engine) as session:
+            job = session.get(Job, job_id)
+            return job.progress, job.message
+
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    monkeypatch.setattr(runtime, "progress_every_s", PROGRESS_EVERY_S, raising=False)
+    ctx = JobContext(runtime, runtime.store.claim(job.id, "w1"))
+    ctx.progress(0.5, "halfway")
+    assert stored(job.id) == (0.0, "")  # within the first quarter second: not written
+    ctx._progress_at -= PROGRESS_EVERY_S  # a quarter second later
+    ctx.progress(0.6, "further")
+    ctx.progress(0.7, "soon after")
+    assert stored(job.id) == (0.6, "further")
+    ctx.progress(1.0, "3/3 done")
+    assert stored(job.id) == (1.0, "3/3 done")
+    ctx.cancel_event.set()
+    with pytest.raises(Cancelled):
+        ctx.progress(0.8)
+    other = runtime.submit("test_sleep", {"seconds": 0})
+    monkeypatch.delattr(runtime, "progress_every_s")  # a runtime of jobs in threads: every report written
+    JobContext(runtime, runtime.store.claim(other.id, "w1")).progress(0.5, "halfway")
+    assert stored(other.id) == (0.5, "halfway")

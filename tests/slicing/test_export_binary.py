@@ -86,3 +86,27 @@ def test_rings_stored_the_wrong_way_round_are_oriented_as_ring_by_ring():
     for a, b in zip(rings, expected):
         assert np.array_equal(a, b)
     assert np.array_equal(expected[-1], oriented(sliver[::-1] + 40.0, ccw=False))
+
+
+def test_layers_that_repeat_a_section_share_its_arrays_read_back_and_moved():
+    """A prismatic stretch's layers share their rings' arrays as read back (the same numbers as
+    the JSON reads, per layer), and moving the layers moves each shared array once."""
+    from app.slicing.layers import translated
+
+    sliced = slice_mesh(thin_tube(), SliceParams(mode="uniform", layer_mm=0.2))
+    back, text = from_binary(to_binary(sliced)), from_json(to_json(sliced))
+    shared = 0
+    for before, layer, truth in zip(back.layers, back.layers[1:], text.layers[1:]):
+        for a, b, c in zip(before.islands, layer.islands, truth.islands):
+            for ra, rb, rc in zip(a.rings(), b.rings(), c.rings()):
+                assert np.array_equal(rb, rc)
+                if np.array_equal(ra, rb):
+                    assert rb is ra
+                    shared += 1
+    assert shared >= len(back.layers) - 3
+    moved = translated(back, np.array([1.5, -2.0, 0.25]))
+    for layer, src in zip(moved.layers, back.layers):
+        for isl, orig in zip(layer.islands, src.islands):
+            for ring, o in zip(isl.rings(), orig.rings()):
+                assert np.array_equal(ring, o + [1.5, -2.0])
+    assert moved.layers[5].islands[0].outer is moved.layers[6].islands[0].outer

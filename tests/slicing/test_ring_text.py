@@ -28,6 +28,7 @@ def _rings(rng: np.random.Generator) -> list[np.ndarray]:
 def test_ring_texts_are_printf_ring_by_ring(monkeypatch, decimals, block):
     monkeypatch.setattr(ring_text, "BLOCK_VALUES", block)  # rings split across blocks, and all in one
     rings = _rings(np.random.default_rng(decimals + block))
+    rings = [*rings, *rings[:5], rings[0], rings[-1]]  # some arrays again (a prismatic stretch's shared rings)
     points = list(ring_texts(rings, decimals))
     pairs = list(ring_texts(rings, decimals, pairs=True))
     assert len(points) == len(pairs) == len(rings)

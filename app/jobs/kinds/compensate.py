@@ -48,6 +48,7 @@ from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, 
 from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.gcode_meta import gcode_meta
+from app.jobs.held_reconstructions import stored_reconstruction
 from app.jobs.inputs import placed_nominal, placed_params_of, placement_from
 from app.jobs.params import MAX_FIELD_TRACES, DispensingDialect, StandoffMm, standoff_of
 from app.jobs.results.models import CompensateBoardResult, CompensateResult
@@ -184,8 +185,7 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
         inputs = inputs_sha256(shared, trace_inputs(trace, records.part(trace.part_id).sha256), artifact.sha256)
         row = checkpoints.reusable(trace.id, inputs)
         if row is None:
-            row, outputs = _board_trace(ctx, params, choice, trace, ctx.blob(artifact.sha256), placement,
-                                        records)
+            row, outputs = _board_trace(ctx, params, choice, trace, artifact.sha256, placement, records)
             checkpoints.add(trace.id, inputs, outputs, row)  # stored with the group's checkpoint, one commit
         rows.append(row)
         if index % 25 == 24 or index + 1 == total:
@@ -231,11 +231,13 @@ class _Records:
         return self._parts[part_id]
 
 
-def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, stored: bytes,
+def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, stored: str,
                  placement: Any, records: _Records) -> tuple[dict[str, Any], list[Output]]:
-    """Compensate one trace of a board job from its ``stored`` reconstruction (the npz
-    bytes): its result row and its two programs as artifacts to store."""
-    reconstruction = read_reconstruction(stored, placed_nominal(trace, placement))
+    """Compensate one trace of a board job from its ``stored`` reconstruction (the sha256 of
+    its npz bytes: held in this process by the reconstruct job that stored them, else read,
+    :func:`app.jobs.held_reconstructions.stored_reconstruction`): its result row and its two
+    programs as artifacts to store."""
+    reconstruction = stored_reconstruction(stored, lambda: ctx.blob(stored), placed_nominal(trace, placement))
     result, path = _program(ctx, params, choice, trace, reconstruction, placement, records)
     printed, plain = board_artifacts(trace.id)
     outputs: list[Output] = [(printed, path.program.encode(), "text/x-gcode", _meta(path.program, path.program_bounds)),

@@ -26,6 +26,7 @@ from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, 
 from app.jobs.core_fields import core_field
 from app.jobs.field_runs import run_field
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
+from app.jobs.held_reconstructions import HELD
 from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
 from app.jobs.probe_correction import refined, run_probe_calibration
@@ -306,7 +307,9 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
         row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec),
                "bound_mm": _trace_bound(check, rec.nominal, len(params.traces))}
         # stored with its group's checkpoint in one commit (a commit per trace cost more than its bound)
-        checkpoints.add(trace_id, keys[trace_id], [_stored(rec, name)], row)
+        stored = _stored(rec, name)
+        checkpoints.add(trace_id, keys[trace_id], [stored], row)
+        HELD.hold(rec, stored[1])  # for the compensate job that reads it next, in this process
         done[trace_id] = row
     checkpoints.flush()
     total = len(params.traces)

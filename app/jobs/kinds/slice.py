@@ -30,6 +30,7 @@ from app.slicing.export import SlcOptions, layer_svg, to_cli, to_json, to_slc
 from app.slicing.export_binary import NAME as BINARY_LAYERS
 from app.slicing.export_binary import to_binary
 from app.slicing.layers import Remainder, SeedSample, SliceMode, ThetaRule
+from app.slicing.layers import SliceResult as SlicedLayers
 from app.slicing.mesh_prep import default_max_hole_mm
 from app.slicing.rings import ring_length
 
@@ -242,6 +243,20 @@ def _estimate(params: SliceJobParams, reads: JobReads) -> Cost | None:
                 basis=f"{layers:,} layers of ~{vertices:,.0f} contour vertices, {part.faces:,} faces")
 
 
+def _contour_mm(sliced: SlicedLayers) -> float:
+    """The length of every layer's rings, mm (a ring array the layers of a prismatic band share
+    measured once)."""
+    lengths: dict[int, float] = {}
+    total = 0.0
+    for layer in sliced.layers:
+        for island in layer.islands:
+            for ring in island.rings():  # held by the layers: an id stays its array's meanwhile
+                if id(ring) not in lengths:
+                    lengths[id(ring)] = ring_length(ring)
+                total += lengths[id(ring)]
+    return total
+
+
 @job_kind("slice", SliceJobParams, references=lambda p: [("part", p.part_id)], check=_check, estimate=_estimate)
 def run(ctx: JobContext, params: SliceJobParams) -> dict:
     """Slice a part into layers (uniform, S4 area / multi-cavity adaptive, or cusp) and export them."""
@@ -279,8 +294,7 @@ def run(ctx: JobContext, params: SliceJobParams) -> dict:
         "layer_count": len(sliced.layers),
         "vertices": int(sum(len(ring) for layer in sliced.layers for island in layer.islands
                             for ring in island.rings())),
-        "contour_mm": float(sum(ring_length(ring) for layer in sliced.layers for island in layer.islands
-                                for ring in island.rings())),
+        "contour_mm": _contour_mm(sliced),
         "z_min": sliced.z_min,
         "z_max": sliced.z_max,
         "bounds": [[float(v) for v in row] for row in sliced.bounds],
