@@ -235,6 +235,13 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         values = [float(v) for v in connected(self.link).get("abs_act_pos").split()]
         return values[0], values[1], values[2]
 
+    def _commanded(self) -> tuple[float, float, float]:
+        """Commanded X Y Z in the coordinates a program's G90 words are in (``get
+        rel_cmd_pos``: less the work, G92 and tool offsets): where the last move ended, as
+        it was written."""
+        values = [float(v) for v in connected(self.link).get("rel_cmd_pos").split()]
+        return values[0], values[1], values[2]
+
     def joint_positions(self) -> list[float]:
         """Every joint's actual position (mm / deg), ``get joint_pos``."""
         return [float(v) for v in connected(self.link).get("joint_pos").split()]
@@ -242,16 +249,17 @@ class LinuxCNCMachine(StateReadout[RshSession]):
     # ------------------------------------------------------------------ probing
     def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
               feed_mm_min: float | None = None) -> ProbeResult:
-        """Travel to (x, y) at ``z_start``, ``G38.2`` down to ``z_min``, read the trip
-        point, retract to ``z_start``.  ``ProbeFailed`` (retracted) when nothing is hit;
-        a probe already tripped at the start is a ``FirmwareError``."""
+        """Travel to (x, y) at ``z_start`` (moves that would not move the tool are not
+        sent), ``G38.2`` down to ``z_min``, read the trip point, retract to ``z_start``.
+        ``ProbeFailed`` (retracted) when nothing is hit; a probe already tripped at the
+        start is a ``FirmwareError``."""
         down = probe_down(self.profile, x, y, z_start, z_min, feed_mm_min)
         retract = f"G90 {down.retract}"
         self.machine_state.claim("busy")
         try:
-            self._mdi([retract, f"G90 G1 X{x:.4f} Y{y:.4f} F{down.travel:.1f}"])
+            self._mdi([f"G90 {move}" for move in down.approach_moves(self._commanded())])
             try:
-                self._mdi([f"G38.2 Z{down.z_min:.4f} F{down.feed:.1f}"])
+                self._mdi([f"G90 G38.2 Z{down.z_min:.4f} F{down.feed:.1f}"])
             except FirmwareError as exc:
                 if _NO_CONTACT not in exc.message:
                     raise
@@ -293,17 +301,17 @@ class LinuxCNCMachine(StateReadout[RshSession]):
 
     def probe_toward(self, start: tuple[float, float, float], target: tuple[float, float, float],
                      feed_mm_min: float | None = None) -> ProbeResult:
-        """Travel to ``start`` (Z up first, then XY, then Z down), ``G38.2`` toward ``target``
-        (any direction), read #5061-#5063, go straight back to ``start``.  ``ProbeFailed``
-        when nothing is touched (the machine is back at ``start``)."""
+        """Travel to ``start`` (Z up first, then XY, then Z down; a move that would not move
+        the tool is not sent: each MDI command costs linuxcncrsh's 0.1 s), ``G38.2`` toward
+        ``target`` (any direction), read #5061-#5063, go straight back to ``start``.
+        ``ProbeFailed`` when nothing is touched (the machine is back at ``start``)."""
         toward = probe_toward(self.profile, start, target, feed_mm_min)
         back = f"G90 {toward.back}"
         self.machine_state.claim("busy")
         try:
-            up, *rest = toward.approach(self._position()[2])
-            self._mdi([f"G90 {up}", *rest])
+            self._mdi([f"G90 {move}" for move in toward.approach_moves(self._commanded())])
             try:
-                self._mdi([toward.command])
+                self._mdi([f"G90 {toward.command}"])
             except FirmwareError as exc:
                 if _NO_CONTACT not in exc.message:
                     raise
