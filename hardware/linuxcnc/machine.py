@@ -158,6 +158,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                 # motion): a reply lost by linuxcncrsh becomes a LinkError after timeout_s
                 # instead of an hour-long hang; "wait done" waits for the motion
                 connected(self.link).set("mdi", command)
+                self._await_interpreter()
                 connected(self.link).set("wait", "done", timeout_s=self.motion_timeout_s)
             except RshRejected as exc:
                 raise FirmwareError(exc.message, command=command) from exc
@@ -170,6 +171,17 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                 raise FirmwareError(f"LinuxCNC: {error}", command=command)
             if self.machine_state.estopped:
                 raise MachineStateError("emergency stop during MDI", field="state", value="error")
+
+    def _await_interpreter(self) -> None:
+        """While the controller's interpreter reports the MDI command running (``get
+        program_status`` RUNNING), poll it every ``poll_s`` (at most ``motion_timeout_s``).
+        Only a head start for ``set wait done``, which stays the judge of done and failed:
+        linuxcncrsh checks for done every 0.1 s, so a command that ends while it sleeps
+        was answered up to 0.1 s late; once the interpreter is idle its first check
+        answers."""
+        deadline = time.monotonic() + self.motion_timeout_s
+        while connected(self.link).get("program_status").upper() == "RUNNING" and time.monotonic() < deadline:
+            time.sleep(self.poll_s)
 
     def send(self, command: str) -> str:
         """One MDI command (blocking); returns the controller's operator message or ``ok``."""
