@@ -14,7 +14,7 @@ from .machine_types import MachineProfile
 from .protocol import validate_program
 
 __all__ = ["ProbeDown", "ProbeToward", "axis_words", "check_tool", "probe_down", "probe_missed", "probe_toward",
-           "program_commands", "straight_move"]
+           "program_commands", "straight_move", "written_at"]
 
 Point = tuple[float, float, float]
 
@@ -162,6 +162,12 @@ def program_commands(lines: Iterable[str], start_line: int) -> list[str]:
     if not 0 <= start_line <= total:
         raise InvalidConfig(f"start_line must be within 0..{total}", field="start_line", value=start_line)
     return commands
+
+
+def written_at(here: Point, x: float | None, y: float | None, z: float | None) -> bool:
+    """True when a move to the axes given (mm), as written (4 decimals), would not move a
+    tool commanded at ``here`` (x, y, z mm)."""
+    return all(_written_at(v, h) for v, h in zip((x, y, z), here) if v is not None)
 
 
 def _written_at(target: float, position: float) -> bool:

@@ -30,6 +30,7 @@ Probe results are the G38.2 result parameters, read back with a ``(DEBUG,...)`` 
 from __future__ import annotations
 
 import contextlib
+import re
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -37,7 +38,15 @@ from typing import Any
 from ..console_log import ConsoleLog
 from ..dialects import LINUXCNC_DISPENSE
 from ..errors import FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
-from ..machine_args import check_tool, probe_down, probe_missed, probe_toward, program_commands, straight_move
+from ..machine_args import (
+    check_tool,
+    probe_down,
+    probe_missed,
+    probe_toward,
+    program_commands,
+    straight_move,
+    written_at,
+)
 from ..machine_state import InterruptedProgram, MachineState, StateReadout, base_status, connected
 from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport
 from ..program_clock import ProgramClock
@@ -47,6 +56,7 @@ from .url import parse_url, passwords
 __all__ = ["LinuxCNCMachine"]
 
 _NO_CONTACT = "without making contact"
+_OWN_MOVE = re.compile(r"G90 G1(?: [XYZ]-?\d+\.\d{4})+ F\d+\.\d")  # as move() and the probes write them
 MAX_TOOL = 99  # the highest tool number select_tool accepts
 
 
@@ -78,6 +88,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         self.console = ConsoleLog()  # MDI commands sent and the controller's answers, across reconnects
         self.homed = False  # every joint homed, as the controller reported at connect and after homing
         self.clock = ProgramClock()  # elapsed time and time left of the running program
+        self._last_move: str | None = None  # the last command _mdi ran, when it was one of _OWN_MOVE
 
     # ------------------------------------------------------------------ connection
     def _open_session(self) -> RshSession:
@@ -90,6 +101,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         st = self.machine_state
         if st.link is not None:
             self._close_sessions()
+        self._last_move = None
         st.connecting()
         try:
             self._stop_link = self._open_session()
@@ -149,6 +161,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         any) becomes ``FirmwareError``.  Refuses after an emergency stop."""
         self._mode("mdi")
         for command in commands:
+            self._last_move = None
             if self.machine_state.estopped:
                 raise MachineStateError("emergency stop: reconnect first", field="state", value="error")
             connected(self.link).pop_error()
@@ -171,6 +184,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                 raise FirmwareError(f"LinuxCNC: {error}", command=command)
             if self.machine_state.estopped:
                 raise MachineStateError("emergency stop during MDI", field="state", value="error")
+            self._last_move = command if _OWN_MOVE.fullmatch(command) else None
 
     def _await_interpreter(self) -> None:
         """While the controller's interpreter reports the MDI command running (``get
@@ -229,14 +243,25 @@ class LinuxCNCMachine(StateReadout[RshSession]):
 
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
-        """Absolute straight move (G90 G1); returns once the motion is finished."""
-        move = straight_move(self.profile, x, y, z, feed_mm_min)
+        """Absolute straight move (G90 G1); returns once the motion is finished.  Not sent
+        when it would change nothing (:meth:`_moves_nothing`): each MDI command costs
+        linuxcncrsh's 0.1 s."""
+        move = f"G90 {straight_move(self.profile, x, y, z, feed_mm_min)}"
         self.machine_state.claim("busy")
         try:
-            self._mdi([f"G90 {move}"])
+            if not self._moves_nothing(move, x, y, z):
+                self._mdi([move])
             return self._position()
         finally:
             self.machine_state.release(self.machine_state.fail_state())
+
+    def _moves_nothing(self, move: str, x: float | None, y: float | None, z: float | None) -> bool:
+        """True when ``move`` (``G90 G1 .. F..``) would change nothing: the last command this
+        machine ran was its own absolute ``G1`` move at the same feed (so the modal state
+        is what ``move`` sets) and the tool is commanded at ``move``'s target already."""
+        last = self._last_move
+        return (last is not None and last.rpartition(" F")[2] == move.rpartition(" F")[2]
+                and written_at(self._commanded(), x, y, z))
 
     def position(self) -> tuple[float, float, float]:
         """Actual X Y Z in absolute (machine) coordinates (``get abs_act_pos``)."""
@@ -444,6 +469,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         st = self.machine_state
         st.stopping()
         self.homed = False
+        self._last_move = None
         self.console.record("sent", "set estop on")
         session = self._stop_link
         if session is None or not session.healthy:

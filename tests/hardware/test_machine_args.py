@@ -19,6 +19,7 @@ from hardware.machine_args import (
     probe_toward,
     program_commands,
     straight_move,
+    written_at,
 )
 from hardware.machine_types import MachineProfile
 
@@ -42,6 +43,7 @@ def test_a_probe_down_takes_the_profiles_defaults_and_refuses_a_floor_above_its_
     assert down.approach_moves((0.0, 0.0, 5.0)) == ["G1 X10.0000 Y20.0000 F3000.0"]
     assert down.approach_moves((10.0, 20.0, 1.0)) == ["G1 Z5.0000 F3000.0"]
     assert down.approach_moves((10.0, 20.0, 5.0)) == []
+    assert written_at((10.0, 20.0, 5.0), 10.00004, None, 5.0) and not written_at((10.0, 20.0, 5.0), None, 20.0001, None)
     with pytest.raises(InvalidConfig) as above:
         probe_down(PROFILE, 0.0, 0.0, 1.0, 1.0, None)
     assert (above.value.field, above.value.value) == ("z_min", 1.0)

@@ -50,6 +50,16 @@ def test_connect_home_and_mdi_moves(machine, lcnc_xyz):
         machine.send("G1 X")  # the controller's parse error, not a silent success
     assert machine.state == "idle"
     assert machine.move(x=0.0) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    # a move that would change nothing is not sent; after another command (its modal state
+    # unknown) or to another place at another feed it is
+    seen = machine.console.last_seq
+    assert machine.move(x=0.0, z=4.0) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    assert machine.console.since(seen, direction="sent").entries == []
+    machine.send("G91")
+    assert machine.move(x=0.0) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    assert machine.move(x=0.0, feed_mm_min=600) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    sent = [entry.text for entry in machine.console.since(seen, direction="sent").entries]
+    assert sent == ["G91", "G90 G1 X0.0000 F6000.0", "G90 G1 X0.0000 F600.0"], sent
 
 
 def test_probe_cycle_reads_the_trip_point(machine, lcnc_xyz):
