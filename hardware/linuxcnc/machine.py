@@ -187,14 +187,16 @@ class LinuxCNCMachine(StateReadout[RshSession]):
             self._last_move = command if _OWN_MOVE.fullmatch(command) else None
 
     def _await_interpreter(self) -> None:
-        """While the controller's interpreter reports the MDI command running (``get
-        program_status`` RUNNING), poll it every ``poll_s`` (at most ``motion_timeout_s``).
-        Only a head start for ``set wait done``, which stays the judge of done and failed:
-        linuxcncrsh checks for done every 0.1 s, so a command that ends while it sleeps
-        was answered up to 0.1 s late; once the interpreter is idle its first check
-        answers."""
-        deadline = time.monotonic() + self.motion_timeout_s
-        while connected(self.link).get("program_status").upper() == "RUNNING" and time.monotonic() < deadline:
+        """While the controller is in MDI mode and its interpreter runs (``get mode`` MDI,
+        ``get program_status`` RUNNING: the MDI command), poll both every ``poll_s`` (at
+        most ``motion_timeout_s``).  Only a head start for ``set wait done``, which stays
+        the judge of done and failed: linuxcncrsh checks for done every 0.1 s, so a command
+        that ends while it sleeps was answered up to 0.1 s late; once the interpreter is
+        idle its first check answers.  In any other mode (a program the controller still
+        runs, which refuses the MDI command) nothing is waited here."""
+        link, deadline = connected(self.link), time.monotonic() + self.motion_timeout_s
+        while (link.get("mode").upper() == "MDI" and link.get("program_status").upper() == "RUNNING"
+               and time.monotonic() < deadline):
             time.sleep(self.poll_s)
 
     def send(self, command: str) -> str:
