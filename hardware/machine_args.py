@@ -14,7 +14,7 @@ from .machine_types import MachineProfile
 from .protocol import validate_program
 
 __all__ = ["ProbeDown", "ProbeToward", "axis_words", "check_tool", "probe_down", "probe_missed", "probe_toward",
-           "program_commands", "straight_move"]
+           "program_commands", "straight_move", "written_at"]
 
 Point = tuple[float, float, float]
 
@@ -51,6 +51,16 @@ class ProbeDown:
     def retract(self) -> str:
         """Back up to ``z_start`` at the travel feed (absolute)."""
         return f"G1 Z{self.z_start:.4f} F{self.travel:.1f}"
+
+    def approach_moves(self, here: Point) -> list[str]:
+        """From a tool commanded at ``here`` (x, y, z mm) to (x, y, ``z_start``): Z first
+        (:attr:`retract`), then XY, without the moves that would not move it (see
+        :meth:`ProbeToward.approach_moves`)."""
+        hx, hy, hz = here
+        moves = [] if _written_at(self.z_start, hz) else [self.retract]
+        if not (_written_at(self.x, hx) and _written_at(self.y, hy)):
+            moves.append(f"G1 X{self.x:.4f} Y{self.y:.4f} F{self.travel:.1f}")
+        return moves
 
 
 def probe_down(profile: MachineProfile, x: float, y: float, z_start: float | None, z_min: float | None,
@@ -90,6 +100,23 @@ class ProbeToward:
         sx, sy, sz = self.start
         t = self.travel
         return [f"G1 Z{max(z_now, sz):.4f} F{t:.1f}", f"G1 X{sx:.4f} Y{sy:.4f} F{t:.1f}", f"G1 Z{sz:.4f} F{t:.1f}"]
+
+    def approach_moves(self, here: Point) -> list[str]:
+        """:meth:`approach` from a tool commanded at ``here`` (x, y, z mm) without the moves
+        that would not move it: a move whose target, as written (4 decimals), is where the
+        tool already is.  For a controller that answers each command a polling period
+        after it took it (linuxcncrsh: 0.1 s), where a move of nothing costs as much."""
+        (sx, sy, sz), (hx, hy, hz), t = self.start, here, self.travel
+        up = max(hz, sz)
+        moves = []
+        if not _written_at(up, hz):
+            moves.append(f"G1 Z{up:.4f} F{t:.1f}")
+            hz = float(f"{up:.4f}")
+        if not (_written_at(sx, hx) and _written_at(sy, hy)):
+            moves.append(f"G1 X{sx:.4f} Y{sy:.4f} F{t:.1f}")
+        if not _written_at(sz, hz):
+            moves.append(f"G1 Z{sz:.4f} F{t:.1f}")
+        return moves
 
     @property
     def command(self) -> str:
@@ -135,6 +162,17 @@ def program_commands(lines: Iterable[str], start_line: int) -> list[str]:
     if not 0 <= start_line <= total:
         raise InvalidConfig(f"start_line must be within 0..{total}", field="start_line", value=start_line)
     return commands
+
+
+def written_at(here: Point, x: float | None, y: float | None, z: float | None) -> bool:
+    """True when a move to the axes given (mm), as written (4 decimals), would not move a
+    tool commanded at ``here`` (x, y, z mm)."""
+    return all(_written_at(v, h) for v, h in zip((x, y, z), here) if v is not None)
+
+
+def _written_at(target: float, position: float) -> bool:
+    """True when ``target`` written with 4 decimals (as every move is) is ``position`` (mm)."""
+    return abs(float(f"{target:.4f}") - position) < 5e-7
 
 
 def _point(value: Point, field: str) -> Point:

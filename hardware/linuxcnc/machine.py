@@ -9,11 +9,11 @@
     machine.stream(lines)         # writes a program file, open + run, polls progress
 
 Two linuxcncrsh sessions: the *command* session (MDI, programs, status) and the *stop*
-session, which is used only by :meth:`emergency_stop` (it takes control with
-``set enable`` and sends ``set estop on``): a stop is never queued behind a command that
-waits for motion.  After an emergency stop, a controller error or a lost link the machine
-is in ``error`` and sends nothing until :meth:`connect` (no automatic motion after a
-failure).  When the command session is lost while a program runs, the stop session aborts
+session (:mod:`hardware.linuxcnc.stop_session`), which is used only by :meth:`emergency_stop`
+(it takes control with ``set enable`` and sends ``set estop on`` until the controller reports
+it): a stop is never queued behind a command that waits for motion.  After an emergency
+stop, a controller error or a lost link the machine is in ``error`` and sends nothing until
+:meth:`connect` (no automatic motion after a failure).  When the command session is lost while a program runs, the stop session aborts
 the program (best effort): LinuxCNC has no link watchdog and would go on unsupervised.
 
 Process outputs: an e-stop keeps ``M64`` outputs on and MDI cannot run in e-stop, so the
@@ -30,6 +30,7 @@ Probe results are the G38.2 result parameters, read back with a ``(DEBUG,...)`` 
 from __future__ import annotations
 
 import contextlib
+import re
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -37,22 +38,27 @@ from typing import Any
 from ..console_log import ConsoleLog
 from ..dialects import LINUXCNC_DISPENSE
 from ..errors import FirmwareError, HardwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
-from ..machine_args import check_tool, probe_down, probe_missed, probe_toward, program_commands, straight_move
+from ..machine_args import (
+    check_tool,
+    probe_down,
+    probe_missed,
+    probe_toward,
+    program_commands,
+    straight_move,
+    written_at,
+)
 from ..machine_state import InterruptedProgram, MachineState, StateReadout, base_status, connected
 from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport
 from ..program_clock import ProgramClock
 from .rsh import RshRejected, RshSession
+from .stop_session import StopSession
 from .url import parse_url, passwords
 
 __all__ = ["LinuxCNCMachine"]
 
 _NO_CONTACT = "without making contact"
+_OWN_MOVE = re.compile(r"G90 G1(?: [XYZ]-?\d+\.\d{4})+ F\d+\.\d")  # as move() and the probes write them
 MAX_TOOL = 99  # the highest tool number select_tool accepts
-# an emergency stop is sent until the controller reports it: linuxcncrsh can parse a line with
-# another session's words (rsh.py) and so answer, or act on, something else
-ESTOP_TRIES = 3
-ESTOP_REPLY_S = 1.0  # linuxcncrsh answers a set once the controller took it (0.1-0.2 s)
-ESTOP_CONFIRM_S = 0.5  # how long the controller's status may lag the ACK
 
 
 class LinuxCNCMachine(StateReadout[RshSession]):
@@ -76,13 +82,14 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         self.poll_s = poll_s
         # the command session is machine_state.link; a lost one is an error even mid-program
         super().__init__(MachineState(error_when_lost=("idle", "busy", "printing", "paused")))
-        self._stop_link: RshSession | None = None
+        self._stopper = StopSession(self._open_session, self._enable_pw)
         self.identity: Identity | None = None
         self._probe_seq = 0
         self.last_preamble: list[str] = []  # the modal replay written before a resumed program
         self.console = ConsoleLog()  # MDI commands sent and the controller's answers, across reconnects
         self.homed = False  # every joint homed, as the controller reported at connect and after homing
         self.clock = ProgramClock()  # elapsed time and time left of the running program
+        self._last_move: str | None = None  # the last command _mdi ran, when it was one of _OWN_MOVE
 
     # ------------------------------------------------------------------ connection
     def _open_session(self) -> RshSession:
@@ -95,9 +102,10 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         st = self.machine_state
         if st.link is not None:
             self._close_sessions()
+        self._last_move = None
         st.connecting()
         try:
-            self._stop_link = self._open_session()
+            self._stopper.open()
             link = st.link = self._open_session()
             link.enable(self._enable_pw)
             for _ in range(50):  # errors left over from before this connection
@@ -121,10 +129,10 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         return self.identity
 
     def _close_sessions(self) -> None:
-        for session in (self.machine_state.link, self._stop_link):
-            if session is not None:
-                session.close()
-        self.machine_state.link, self._stop_link = None, None
+        if self.machine_state.link is not None:
+            self.machine_state.link.close()
+        self.machine_state.link = None
+        self._stopper.close()
 
     def _homed(self, joint_homed: str) -> bool:
         """True when ``get joint_homed`` says every joint this machine has is homed."""
@@ -136,7 +144,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         idle machine gets ``safe_off`` first (best effort)."""
         st, link = self.machine_state, self.machine_state.link
         if st.current in ("printing", "paused"):
-            self._abort_best_effort()
+            self._stopper.abort()
         elif st.current == "idle" and link is not None and link.healthy and not st.estopped:
             with contextlib.suppress(HardwareError):
                 if self._homed(link.get("joint_homed")):
@@ -154,6 +162,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         any) becomes ``FirmwareError``.  Refuses after an emergency stop."""
         self._mode("mdi")
         for command in commands:
+            self._last_move = None
             if self.machine_state.estopped:
                 raise MachineStateError("emergency stop: reconnect first", field="state", value="error")
             connected(self.link).pop_error()
@@ -163,11 +172,12 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                 # motion): a reply lost by linuxcncrsh becomes a LinkError after timeout_s
                 # instead of an hour-long hang; "wait done" waits for the motion
                 connected(self.link).set("mdi", command)
+                self._await_interpreter()
                 connected(self.link).set("wait", "done", timeout_s=self.motion_timeout_s)
             except RshRejected as exc:
                 raise FirmwareError(exc.message, command=command) from exc
             except LinkError:  # no watchdog on the controller: the move must not go on unsupervised
-                self._abort_best_effort()
+                self._stopper.abort()
                 raise
             error = connected(self.link).pop_error()
             self.console.record("received", f"error: {error}" if error is not None else "done")
@@ -175,6 +185,20 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                 raise FirmwareError(f"LinuxCNC: {error}", command=command)
             if self.machine_state.estopped:
                 raise MachineStateError("emergency stop during MDI", field="state", value="error")
+            self._last_move = command if _OWN_MOVE.fullmatch(command) else None
+
+    def _await_interpreter(self) -> None:
+        """While the controller is in MDI mode and its interpreter runs (``get mode`` MDI,
+        ``get program_status`` RUNNING: the MDI command), poll both every ``poll_s`` (at
+        most ``motion_timeout_s``).  Only a head start for ``set wait done``, which stays
+        the judge of done and failed: linuxcncrsh checks for done every 0.1 s, so a command
+        that ends while it sleeps was answered up to 0.1 s late; once the interpreter is
+        idle its first check answers.  In any other mode (a program the controller still
+        runs, which refuses the MDI command) nothing is waited here."""
+        link, deadline = connected(self.link), time.monotonic() + self.motion_timeout_s
+        while (link.get("mode").upper() == "MDI" and link.get("program_status").upper() == "RUNNING"
+               and time.monotonic() < deadline):
+            time.sleep(self.poll_s)
 
     def send(self, command: str) -> str:
         """One MDI command (blocking); returns the controller's operator message or ``ok``."""
@@ -222,14 +246,25 @@ class LinuxCNCMachine(StateReadout[RshSession]):
 
     def move(self, x: float | None = None, y: float | None = None, z: float | None = None,
              feed_mm_min: float | None = None) -> tuple[float, float, float]:
-        """Absolute straight move (G90 G1); returns once the motion is finished."""
-        move = straight_move(self.profile, x, y, z, feed_mm_min)
+        """Absolute straight move (G90 G1); returns once the motion is finished.  Not sent
+        when it would change nothing (:meth:`_moves_nothing`): each MDI command costs
+        linuxcncrsh's 0.1 s."""
+        move = f"G90 {straight_move(self.profile, x, y, z, feed_mm_min)}"
         self.machine_state.claim("busy")
         try:
-            self._mdi([f"G90 {move}"])
+            if not self._moves_nothing(move, x, y, z):
+                self._mdi([move])
             return self._position()
         finally:
             self.machine_state.release(self.machine_state.fail_state())
+
+    def _moves_nothing(self, move: str, x: float | None, y: float | None, z: float | None) -> bool:
+        """True when ``move`` (``G90 G1 .. F..``) would change nothing: the last command this
+        machine ran was its own absolute ``G1`` move at the same feed (so the modal state
+        is what ``move`` sets) and the tool is commanded at ``move``'s target already."""
+        last = self._last_move
+        return (last is not None and last.rpartition(" F")[2] == move.rpartition(" F")[2]
+                and written_at(self._commanded(), x, y, z))
 
     def position(self) -> tuple[float, float, float]:
         """Actual X Y Z in absolute (machine) coordinates (``get abs_act_pos``)."""
@@ -240,6 +275,13 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         values = [float(v) for v in connected(self.link).get("abs_act_pos").split()]
         return values[0], values[1], values[2]
 
+    def _commanded(self) -> tuple[float, float, float]:
+        """Commanded X Y Z in the coordinates a program's G90 words are in (``get
+        rel_cmd_pos``: less the work, G92 and tool offsets): where the last move ended, as
+        it was written."""
+        values = [float(v) for v in connected(self.link).get("rel_cmd_pos").split()]
+        return values[0], values[1], values[2]
+
     def joint_positions(self) -> list[float]:
         """Every joint's actual position (mm / deg), ``get joint_pos``."""
         return [float(v) for v in connected(self.link).get("joint_pos").split()]
@@ -247,16 +289,17 @@ class LinuxCNCMachine(StateReadout[RshSession]):
     # ------------------------------------------------------------------ probing
     def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,
               feed_mm_min: float | None = None) -> ProbeResult:
-        """Travel to (x, y) at ``z_start``, ``G38.2`` down to ``z_min``, read the trip
-        point, retract to ``z_start``.  ``ProbeFailed`` (retracted) when nothing is hit;
-        a probe already tripped at the start is a ``FirmwareError``."""
+        """Travel to (x, y) at ``z_start`` (moves that would not move the tool are not
+        sent), ``G38.2`` down to ``z_min``, read the trip point, retract to ``z_start``.
+        ``ProbeFailed`` (retracted) when nothing is hit; a probe already tripped at the
+        start is a ``FirmwareError``."""
         down = probe_down(self.profile, x, y, z_start, z_min, feed_mm_min)
         retract = f"G90 {down.retract}"
         self.machine_state.claim("busy")
         try:
-            self._mdi([retract, f"G90 G1 X{x:.4f} Y{y:.4f} F{down.travel:.1f}"])
+            self._mdi([f"G90 {move}" for move in down.approach_moves(self._commanded())])
             try:
-                self._mdi([f"G38.2 Z{down.z_min:.4f} F{down.feed:.1f}"])
+                self._mdi([f"G90 G38.2 Z{down.z_min:.4f} F{down.feed:.1f}"])
             except FirmwareError as exc:
                 if _NO_CONTACT not in exc.message:
                     raise
@@ -298,17 +341,17 @@ class LinuxCNCMachine(StateReadout[RshSession]):
 
     def probe_toward(self, start: tuple[float, float, float], target: tuple[float, float, float],
                      feed_mm_min: float | None = None) -> ProbeResult:
-        """Travel to ``start`` (Z up first, then XY, then Z down), ``G38.2`` toward ``target``
-        (any direction), read #5061-#5063, go straight back to ``start``.  ``ProbeFailed``
-        when nothing is touched (the machine is back at ``start``)."""
+        """Travel to ``start`` (Z up first, then XY, then Z down; a move that would not move
+        the tool is not sent: each MDI command costs linuxcncrsh's 0.1 s), ``G38.2`` toward
+        ``target`` (any direction), read #5061-#5063, go straight back to ``start``.
+        ``ProbeFailed`` when nothing is touched (the machine is back at ``start``)."""
         toward = probe_toward(self.profile, start, target, feed_mm_min)
         back = f"G90 {toward.back}"
         self.machine_state.claim("busy")
         try:
-            up, *rest = toward.approach(self._position()[2])
-            self._mdi([f"G90 {up}", *rest])
+            self._mdi([f"G90 {move}" for move in toward.approach_moves(self._commanded())])
             try:
-                self._mdi([toward.command])
+                self._mdi([f"G90 {toward.command}"])
             except FirmwareError as exc:
                 if _NO_CONTACT not in exc.message:
                     raise
@@ -353,7 +396,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
             executed, _ = st.progress or (start_line, total)
             st.interrupted = InterruptedProgram(total, executed, None, [], reset=False, moved_index=executed,
                                                 program_file=path)
-            self._abort_best_effort()
+            self._stopper.abort()
             st.release("error")
             exc.resume_line = executed
             raise
@@ -430,44 +473,11 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         st = self.machine_state
         st.stopping()
         self.homed = False
-        failure: HardwareError | None = None
+        self._last_move = None
         try:
-            for _ in range(ESTOP_TRIES):
-                self.console.record("sent", "set estop on")
-                try:
-                    if self._send_estop():
-                        return
-                except (LinkError, RshRejected) as exc:
-                    failure = exc
+            self._stopper.estop(self.console)
         finally:
             st.current = "error"
-        raise LinkError(f"LinuxCNC did not report the emergency stop sent {ESTOP_TRIES} times"
-                        + (f": {failure}" if failure else ""), field="port")
-
-    def _send_estop(self) -> bool:
-        """``set estop on`` over the stop session (reopened if it died); True once ``get
-        estop`` reports it within ``ESTOP_CONFIRM_S``."""
-        session = self._stop_link
-        if session is None or not session.healthy:
-            session = self._stop_link = self._open_session()
-        session.enable(self._enable_pw)
-        session.set("estop", "on", timeout_s=ESTOP_REPLY_S)
-        deadline = time.monotonic() + ESTOP_CONFIRM_S
-        while session.get("estop").upper() != "ON":
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.005)
-        return True
-
-    def _abort_best_effort(self) -> None:
-        try:
-            session = self._stop_link
-            if session is None or not session.healthy:
-                session = self._stop_link = self._open_session()
-            session.enable(self._enable_pw)
-            session.set("abort")
-        except HardwareError:
-            pass
 
     def status(self) -> dict[str, object]:
         """JSON-friendly snapshot for the API (state, identity, program progress)."""

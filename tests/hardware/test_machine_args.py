@@ -19,6 +19,7 @@ from hardware.machine_args import (
     probe_toward,
     program_commands,
     straight_move,
+    written_at,
 )
 from hardware.machine_types import MachineProfile
 
@@ -38,6 +39,11 @@ def test_a_probe_down_takes_the_profiles_defaults_and_refuses_a_floor_above_its_
     down = probe_down(PROFILE, 10.0, 20.0, None, None, None)
     assert (down.z_start, down.z_min, down.feed, down.travel) == (5.0, -10.0, 100.0, 3000.0)
     assert down.retract == "G1 Z5.0000 F3000.0"
+    assert down.approach_moves((0.0, 0.0, 30.0)) == ["G1 Z5.0000 F3000.0", "G1 X10.0000 Y20.0000 F3000.0"]
+    assert down.approach_moves((0.0, 0.0, 5.0)) == ["G1 X10.0000 Y20.0000 F3000.0"]
+    assert down.approach_moves((10.0, 20.0, 1.0)) == ["G1 Z5.0000 F3000.0"]
+    assert down.approach_moves((10.0, 20.0, 5.0)) == []
+    assert written_at((10.0, 20.0, 5.0), 10.00004, None, 5.0) and not written_at((10.0, 20.0, 5.0), None, 20.0001, None)
     with pytest.raises(InvalidConfig) as above:
         probe_down(PROFILE, 0.0, 0.0, 1.0, 1.0, None)
     assert (above.value.field, above.value.value) == ("z_min", 1.0)
@@ -51,6 +57,16 @@ def test_a_probe_toward_reaches_its_start_up_over_and_down() -> None:
     assert toward.approach(8.0) == ["G1 Z8.0000 F3000.0", "G1 X1.0000 Y2.0000 F3000.0", "G1 Z3.0000 F3000.0"]
     assert toward.approach(0.0)[0] == "G1 Z3.0000 F3000.0"  # never lower than the start on the way
     assert toward.command == "G38.2 X1.0000 Y2.0000 Z-4.0000 F50.0"
+    # without the moves that would not move the tool (its target, as written, is where it is)
+    assert toward.approach_moves((5.0, 6.0, 8.0)) == toward.approach(8.0)[1:]  # already up
+    assert toward.approach_moves((1.0, 2.0, 8.0)) == ["G1 Z3.0000 F3000.0"]
+    assert toward.approach_moves((5.0, 6.0, 3.0)) == ["G1 X1.0000 Y2.0000 F3000.0"]
+    assert toward.approach_moves((5.0, 6.0, 0.0)) == ["G1 Z3.0000 F3000.0", "G1 X1.0000 Y2.0000 F3000.0"]
+    assert toward.approach_moves((1.0, 2.00004, 3.0)) == ["G1 X1.0000 Y2.0000 F3000.0"]  # 0.04 um away
+    assert toward.approach_moves((1.0, 2.0, 3.0)) == []
+    odd = probe_toward(PROFILE, (1.0, 2.0, 3.00004), (1.0, 2.0, -4.0), 50.0)
+    assert odd.approach_moves((1.0, 2.0, 3.0)) == []  # "Z3.0000" is where the tool is
+    assert odd.approach_moves((1.0, 2.0, 1.0)) == ["G1 Z3.0000 F3000.0"]  # up once, not again down
     assert toward.back == "G1 X1.0000 Y2.0000 Z3.0000 F3000.0"
     assert probe_missed(toward).message == "probe from [1.0, 2.0, 3.0] toward [1.0, 2.0, -4.0] touched nothing"
 

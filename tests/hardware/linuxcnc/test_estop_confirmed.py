@@ -8,8 +8,9 @@ from __future__ import annotations
 import pytest
 
 from hardware.errors import LinkError
-from hardware.linuxcnc.machine import ESTOP_TRIES, LinuxCNCMachine
+from hardware.linuxcnc.machine import LinuxCNCMachine
 from hardware.linuxcnc.rsh import RshSession
+from hardware.linuxcnc.stop_session import ESTOP_TRIES
 from tests.helpers.scripted_rsh import ScriptedRsh
 
 

@@ -50,6 +50,16 @@ def test_connect_home_and_mdi_moves(machine, lcnc_xyz):
         machine.send("G1 X")  # the controller's parse error, not a silent success
     assert machine.state == "idle"
     assert machine.move(x=0.0) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    # a move that would change nothing is not sent; after another command (its modal state
+    # unknown) or to another place at another feed it is
+    seen = machine.console.last_seq
+    assert machine.move(x=0.0, z=4.0) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    assert machine.console.since(seen, direction="sent").entries == []
+    machine.send("G91")
+    assert machine.move(x=0.0) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    assert machine.move(x=0.0, feed_mm_min=600) == pytest.approx((0.0, -7.25, 4.0), abs=1e-6)
+    sent = [entry.text for entry in machine.console.since(seen, direction="sent").entries]
+    assert sent == ["G91", "G90 G1 X0.0000 F6000.0", "G90 G1 X0.0000 F600.0"], sent
 
 
 def test_probe_cycle_reads_the_trip_point(machine, lcnc_xyz):
@@ -301,6 +311,12 @@ def test_probe_toward_and_select_tool(machine, lcnc_xyz):
     assert touch.z == pytest.approx(z, abs=0.005) and touch.x == pytest.approx(10 + (-1 - touch.z) / 2, abs=1e-4)
     assert touch.y == pytest.approx(5.0, abs=1e-6)
     assert _joints(observer) == pytest.approx(list(start), abs=1e-6)  # back at the start
+    seen = machine.console.last_seq  # again from there: no move of nothing is sent
+    again = machine.probe_toward(start, target, feed_mm_min=100.0)
+    sent = [entry.text for entry in machine.console.since(seen, direction="sent").entries]
+    assert len(sent) == 3 and sent[0].startswith("G90 G38.2 ") and sent[1].startswith("(DEBUG,"), sent
+    assert sent[2] == "G90 G1 X10.0000 Y5.0000 Z-1.0000 F6000.0", sent  # straight back
+    assert again.z == pytest.approx(touch.z, abs=0.005)
     with pytest.raises(ProbeFailed):
         machine.probe_toward((0.0, 0.0, -0.5), (0.0, 0.0, -1.5))
     assert _joints(observer) == pytest.approx([0.0, 0.0, -0.5], abs=1e-6)
