@@ -13,8 +13,9 @@ session (:mod:`hardware.linuxcnc.stop_session`), which is used only by :meth:`em
 (it takes control with ``set enable`` and sends ``set estop on`` until the controller reports
 it): a stop is never queued behind a command that waits for motion.  After an emergency
 stop, a controller error or a lost link the machine is in ``error`` and sends nothing until
-:meth:`connect` (no automatic motion after a failure).  When the command session is lost while a program runs, the stop session aborts
-the program (best effort): LinuxCNC has no link watchdog and would go on unsupervised.
+:meth:`connect` (no automatic motion after a failure).  When the command session is lost
+while a program runs, the stop session aborts the program (best effort): LinuxCNC has no
+link watchdog and would go on unsupervised.
 
 Process outputs: an e-stop keeps ``M64`` outputs on and MDI cannot run in e-stop, so the
 controller's ``ON_ABORT_COMMAND`` switches them off (``sim/remap/on_abort.ngc``); the host
