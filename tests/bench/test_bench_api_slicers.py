@@ -47,6 +47,7 @@ import pytest
 from tests.conftest import auth
 from tests.e2e.test_serve import env_for, free_port, start, stop, wait_healthy
 from tests.helpers.cputime import tree_cpu_and_peak
+from tests.helpers.processes import process_tree
 from tests.helpers.real_parts import cad_part, large_plate, thin_tube
 
 OP = auth("operator")
@@ -86,18 +87,8 @@ def _tree_cpu(root: int) -> float:
     run time in nanoseconds (``/proc/<pid>/task/<tid>/schedstat``; ``/proc/<pid>/stat`` counts
     10 ms ticks, as large as a small part's differences; a thread that ended is not counted:
     the service's threads live as long as it does)."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                parent = int(Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            children.setdefault(parent, []).append(int(entry))
-    total, todo = 0, [root]
-    while todo:
-        pid = todo.pop()
-        todo.extend(children.get(pid, []))
+    total = 0
+    for pid in process_tree(root):
         try:
             tasks = os.listdir(f"/proc/{pid}/task")
         except OSError:

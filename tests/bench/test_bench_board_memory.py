@@ -27,27 +27,10 @@ from app.reference.boards import board_traces, dome_part
 from tests.bench.test_bench_board_api import PROCESS, TRACES, true_part
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
+from tests.helpers.processes import process_tree
 
 OP = auth("operator")
 MIB = 1024
-
-
-def _tree(root: int) -> list[int]:
-    """``root`` and every live process below it."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                ppid = int(Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            children.setdefault(ppid, []).append(int(entry))
-    out, todo = [], [root]
-    while todo:
-        pid = todo.pop()
-        out.append(pid)
-        todo += children.get(pid, [])
-    return out
 
 
 def _role(pid: int, root: int) -> str:
@@ -66,7 +49,7 @@ def _kb(path: str, key: str) -> int:
 def sample(pss: bool = False) -> dict[int, tuple[str, float, float]]:
     """pid -> (role, resident MiB, PSS MiB (0 unless ``pss``)) of the service's processes."""
     root, out = os.getpid(), {}
-    for pid in _tree(root):
+    for pid in process_tree(root):
         try:
             rss = _kb(f"/proc/{pid}/status", "VmRSS") / MIB
             share = _kb(f"/proc/{pid}/smaps_rollup", "Pss") / MIB if pss else 0.0
