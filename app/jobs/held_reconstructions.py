@@ -4,8 +4,8 @@ reads them next.
 A board's closed loop runs ``reconstruct`` and then ``compensate`` on the same traces, and the
 compute pool gives the second the process that ran the first (it holds their part).  Each
 stored reconstruction is an artifact (``reconstruction.<trace_id>.npz``) that the compensate
-job parsed back, spline by spline, for every trace: about a fifth of compensating it.  The
-reconstruct job now also leaves each :class:`Reconstruction` here, under the sha256 of the
+job would parse back, spline by spline, for every trace: about a fifth of compensating it.  The
+reconstruct job also leaves each :class:`Reconstruction` here, under the sha256 of the
 bytes it stored, and the compensate job takes it (once) instead of parsing those bytes: a
 stored artifact's sha256 names exactly those bytes, so what it takes is what it would have
 read (:func:`app.reconstruction.stored.read_reconstruction` of the same bytes writes the same

@@ -193,7 +193,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         ``get program_status`` RUNNING: the MDI command), poll both every ``poll_s`` (at
         most ``motion_timeout_s``).  Only a head start for ``set wait done``, which stays
         the judge of done and failed: linuxcncrsh checks for done every 0.1 s, so a command
-        that ends while it sleeps was answered up to 0.1 s late; once the interpreter is
+        that ends while it sleeps would be answered up to 0.1 s late; once the interpreter is
         idle its first check answers.  In any other mode (a program the controller still
         runs, which refuses the MDI command) nothing is waited here."""
         link, deadline = connected(self.link), time.monotonic() + self.motion_timeout_s
