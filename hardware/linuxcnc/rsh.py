@@ -147,15 +147,17 @@ class RshSession:
                 raise LinkError(f"linuxcncrsh session lost: {exc}", field="port") from exc
 
     # ------------------------------------------------------------------ commands
-    def get(self, name: str, *args: str, retries: int = 5) -> str:
-        """``get name args`` -> the value part of ``NAME value``.  A ``GET NAK`` or a reply
-        to another request is retried (``get`` has no side effects): linuxcncrsh answers
-        NAK when its status read races an update, and while sessions talk concurrently it
-        now and then hands one session's reply to another (measured in 2.9)."""
+    def get(self, name: str, *args: str, retries: int = 5, words: int = 0) -> str:
+        """``get name args`` -> the value part of ``NAME value``.  A ``GET NAK``, a reply
+        to another request or a value of fewer than ``words`` words is retried (``get`` has
+        no side effects): linuxcncrsh answers NAK when its status read races an update, and
+        while sessions talk concurrently it now and then hands one session's reply to another
+        or reads an argument from the other session's line (``get joint_pos`` answered for
+        one joint, ``JOINT_POS <n> <value>``; measured in 2.9)."""
         for attempt in range(retries + 1):
             reply = self.request(" ".join(["get", name, *args]))
             head, _, value = reply.partition(" ")
-            if head.upper() == name.upper():
+            if head.upper() == name.upper() and len(value.split()) >= words:
                 return value.strip()
             time.sleep(0.002 * (attempt + 1))
         raise RshRejected(f"linuxcncrsh answered 'get {name}' with {reply[:60]!r} {retries + 1} "

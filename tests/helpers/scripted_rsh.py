@@ -24,6 +24,8 @@ Answer = Callable[[str, int], "str | None"]
 def standard_reply(line: str) -> str:
     """What linuxcncrsh (echo off, verbose on) answers to a request that goes through."""
     words = line.split()
+    if len(words) < 2:  # quit, shutdown
+        return line.upper()
     if words[0] == "hello":
         return "HELLO ACK EMCNETSVR 1.1"
     if line == "set echo off":

@@ -96,7 +96,7 @@ def _run_and_sample(sim, program: str):
         k = 0
         while not done.is_set():
             line = int(observer.get("program_line"))
-            joints = [float(v) for v in observer.get("joint_pos").split()[:5]]
+            joints = [float(v) for v in observer.get("joint_pos", words=5).split()[:5]]
             if on + 1 < line < off - 1 and int(observer.get("program_line")) == line:
                 samples.append(joints)
             k += 1
