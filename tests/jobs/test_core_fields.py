@@ -121,6 +121,15 @@ def _refused(client, kind, params, name, bad):
     assert error["loc"] == ["params", name] and error["value"] == bad, error
 
 
+def _refused_by_both(client, kind, params, name, bad, core, error, field=None):
+    """:func:`_refused`, and ``core(name=bad)`` (the core's own check of the same value) raises
+    ``error`` naming ``field`` (default ``params.<name>``) and the value."""
+    _refused(client, kind, params, name, bad)
+    with pytest.raises(error) as caught:
+        core(**{name: bad})
+    assert (caught.value.field, caught.value.value) == (field or f"params.{name}", bad)
+
+
 def test_slice_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
     fields, core = _fields_of(client, "slice"), SliceParams()
     assert (fields["layer_mm"]["default"], fields["layer_mm"]["exclusiveMinimum"], fields["layer_mm"]["maximum"]) == (
@@ -128,10 +137,8 @@ def test_slice_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
     assert (fields["mu1"]["default"], fields["mu1"]["maximum"], fields["remainder"]["default"]) == (
         core.mu1, 1, core.remainder)
     for name, bad in (("layer_mm", 100.5), ("cusp_mm", 0), ("sigma0", 1.2), ("max_hole_mm", 200_000)):
-        _refused(client, "slice", {"part_id": "prt_none"}, name, bad)
-        with pytest.raises(SlicingError) as caught:
-            SliceParams(**{name: bad}).validate()
-        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+        _refused_by_both(client, "slice", {"part_id": "prt_none"}, name, bad,
+                         lambda **kw: SliceParams(**kw).validate(), SlicingError)
     SliceParams(layer_mm=100, cusp_mm=10, sigma0=1, max_hole_mm=100_000).validate()  # the bounds themselves pass
 
 
@@ -142,10 +149,7 @@ def test_surface_fit_takes_the_cores_bounds_and_the_core_refuses_them_too(client
     assert (fields["moving_average_window"]["maximum"], fields["bad_point_sigma"]["maximum"]) == (15, 100)
     base = {"part_id": "prt_none", "region": {"x": [0, 1], "y": [0, 1]}}
     for name, bad in (("degree", 6), ("penalty", 2e6), ("moving_average_window", 17), ("bad_point_min_mm", -0.1)):
-        _refused(client, "surface_fit", base, name, bad)
-        with pytest.raises(SurfaceFitError) as caught:
-            SurfaceFitParams(**{name: bad})
-        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+        _refused_by_both(client, "surface_fit", base, name, bad, SurfaceFitParams, SurfaceFitError)
     SurfaceFitParams(degree=5, penalty=1e6, moving_average_window=15, bad_point_min_mm=0)  # the bounds pass
 
 
@@ -156,14 +160,11 @@ def test_toolpath_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
         core.merge_weights.across, 1000)
     for name, bad in (("line_width_mm", 25), ("infill", 0), ("perimeters", 101), ("resolution_mm", 0.0005),
                       ("angle_deg", -400), ("layer_height_mm", 0)):
-        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
-        with pytest.raises(SlicingError) as caught:
-            ToolpathParams(**{name: bad}).validate()
-        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
-    _refused(client, "toolpath", {"slice_job_id": "job_none"}, "merge_weight_along", 1001)
-    with pytest.raises(SlicingError) as caught:
-        ToolpathParams(merge_weights=MergeWeights(along=1001)).validate()
-    assert (caught.value.field, caught.value.value) == ("params.merge_weight_along", 1001)
+        _refused_by_both(client, "toolpath", {"slice_job_id": "job_none"}, name, bad,
+                         lambda **kw: ToolpathParams(**kw).validate(), SlicingError)
+    _refused_by_both(client, "toolpath", {"slice_job_id": "job_none"}, "merge_weight_along", 1001,
+                     lambda merge_weight_along: ToolpathParams(
+                         merge_weights=MergeWeights(along=merge_weight_along)).validate(), SlicingError)
     ToolpathParams(line_width_mm=20, infill=1, perimeters=100, resolution_mm=0.001, angle_deg=-360).validate()
 
 
@@ -173,15 +174,10 @@ def test_toolpath_takes_the_machine_limits_and_program_options_bounds_from_their
         MachineLimits().junction_deviation_mm, 10)
     assert (fields["bed_temp_c"]["default"], fields["bed_temp_c"]["maximum"]) == (FdmParams().bed_temp_c, 200)
     for name, bad in (("accel_mm_s2", 2e6), ("junction_deviation_mm", -0.01)):
-        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
-        with pytest.raises(SlicingError) as caught:
-            ToolpathParams(limits=MachineLimits(**{name: bad})).validate()
-        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+        _refused_by_both(client, "toolpath", {"slice_job_id": "job_none"}, name, bad,
+                         lambda **kw: ToolpathParams(limits=MachineLimits(**kw)).validate(), SlicingError)
     for name, bad in (("nozzle_temp_c", 501), ("z_lift_mm", 51), ("min_travel_for_retract_mm", -1)):
-        _refused(client, "toolpath", {"slice_job_id": "job_none"}, name, bad)
-        with pytest.raises(GcodeError) as caught:
-            FdmParams(**{name: bad})
-        assert (caught.value.field, caught.value.value) == (f"params.{name}", bad)
+        _refused_by_both(client, "toolpath", {"slice_job_id": "job_none"}, name, bad, FdmParams, GcodeError)
     params = {"slice_job_id": "job_x", "accel_mm_s2": 2500.0, "junction_deviation_mm": 0.02, "bed_temp_c": 80.0}
     assert ToolpathJobParams(**params).limits() == MachineLimits(accel_mm_s2=2500.0, junction_deviation_mm=0.02)
 
@@ -194,10 +190,7 @@ def test_compensate_takes_the_cores_bounds_and_the_core_refuses_them_too(client)
     assert {"exclusiveMinimum": 0, "maximum": 100_000, "type": "number"} in fields["feed_mm_min"]["anyOf"]
     base = {"trace_id": "trc_none", "reconstruct_job_id": "job_none"}
     for name, bad in (("chord_error_mm", 1.5), ("hold_mm", 5.5), ("clearance_mm", 0), ("feed_mm_min", 200_000)):
-        _refused(client, "compensate", base, name, bad)
-        with pytest.raises(CompensationError) as caught:
-            CompensationParams(**{name: bad})
-        assert (caught.value.field, caught.value.value) == (name, bad)
+        _refused_by_both(client, "compensate", base, name, bad, CompensationParams, CompensationError, field=name)
     CompensationParams(chord_error_mm=1, hold_mm=5, clearance_mm=100, feed_mm_min=100_000)  # the bounds pass
     loop = {"part_id": "prt_none", "trace_ids": ["trc_none"], "machine_id": "mch_none"}  # its compensate steps'
     _refused(client, "closed_loop", loop, "hold_mm", 5.5)
@@ -210,9 +203,6 @@ def test_register_takes_the_cores_bounds_and_the_core_refuses_them_too(client):
     assert {"minimum": 0, "maximum": 10, "type": "number"} in fields["tip_radius_mm"]["anyOf"]
     base = {"part_id": "prt_none", "machine_id": "mch_none"}
     for name, bad in (("search_mm", 25), ("resolution_mm", 0), ("sigma_mm", 2), ("tip_radius_mm", 10.5)):
-        _refused(client, "register", base, name, bad)
-        with pytest.raises(RegistrationError) as caught:
-            DatumProbeParams(**{name: bad})
-        assert (caught.value.field, caught.value.value) == (name, bad)
+        _refused_by_both(client, "register", base, name, bad, DatumProbeParams, RegistrationError, field=name)
     probe = RegisterParams(part_id="prt_x", machine_id="mch_x", search_mm=1.0, pivot_xy=[3.0, 4.0]).probe_params(10.0)
     assert probe == DatumProbeParams(search_mm=1.0, tip_radius_mm=10.0, pivot_xy=(3.0, 4.0))  # built by name
