@@ -32,7 +32,7 @@ from app.geometry.tolerance import LENGTH_EPS_MM
 from app.slicing.errors import SlicingError
 from app.slicing.layers import Layer, SliceParams, SliceResult
 from app.slicing.ring_text import ring_texts
-from app.slicing.rings import Island, oriented
+from app.slicing.rings import Island, oriented, per_array
 
 SLC_END = 0xFFFFFFFF
 
@@ -93,6 +93,12 @@ def _sampling_table(zq: npt.NDArray[np.float64], comp: float,
     return tuple((float(r[0]), float(r[1]), comp) for r in runs)
 
 
+def _slc_ring(ring: npt.NDArray[np.float64]) -> bytes:
+    """One SLC boundary: its point count, a zero, then the closed ring's points as float32."""
+    pts = _closed(ring).astype("<f4")
+    return struct.pack("<II", len(pts), 0) + pts.tobytes()
+
+
 def to_slc(result: SliceResult, options: SlcOptions = SlcOptions()) -> SlcExport:
     """Encode ``result`` (a SliceResult) as SLC bytes; see the module docstring."""
     if not result.layers:
@@ -117,17 +123,12 @@ def to_slc(result: SliceResult, options: SlcOptions = SlcOptions()) -> SlcExport
     out = [header, bytes(256), struct.pack("<B", len(table))]
     for min_z, thick, comp in table:
         out.append(struct.pack("<4f", min_z, thick, comp, 0.0))
-    written: dict[int, tuple[npt.NDArray[np.float64], bytes]] = {}  # a ring array shared by layers: once
+    packed = per_array(_slc_ring)  # a ring array shared by layers: packed once
     for lay, z in zip(result.layers, zq[:-1]):
         rings = [r for isl in lay.islands for r in
                  (oriented(isl.outer, True), *(oriented(h, False) for h in isl.holes))]
         out.append(struct.pack("<fI", z, len(rings)))
-        for r in rings:
-            done = written.get(id(r))
-            if done is None or done[0] is not r:
-                pts = _closed(r).astype("<f4")
-                done = written[id(r)] = (r, struct.pack("<II", len(pts), 0) + pts.tobytes())
-            out.append(done[1])
+        out.extend(packed(r) for r in rings)
     out.append(struct.pack("<fI", zq[-1], SLC_END))
     return SlcExport(b"".join(out), table, tuple(notes))
 

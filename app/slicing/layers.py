@@ -31,7 +31,7 @@ from app.domain.checks import require_declared_bounds, require_non_negative, req
 from app.slicing.cavity import cavity_mu
 from app.slicing.errors import SlicingError
 from app.slicing.mesh_prep import PreparedMesh
-from app.slicing.rings import Island, SectionStats, following, oriented, section_stats, signed_area
+from app.slicing.rings import Island, SectionStats, following, oriented, per_array, section_stats, signed_area
 
 SliceMode = Literal["uniform", "area", "cavity", "cusp"]
 ThetaRule = Literal["indicator", "printed"]
@@ -241,14 +241,7 @@ def translated(result: SliceResult, shift: npt.NDArray[np.float64]) -> SliceResu
     """``result`` moved by ``shift`` (3,) mm: every ring, every z and the bounds (the machine
     placement of a part sliced in its own frame)."""
     dx, dz = np.asarray(shift[:2], dtype=np.float64), float(shift[2])
-    moved: dict[int, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = {}
-
-    def move(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """``ring + dx``, once per array (layers that share a ring share the moved one)."""
-        done = moved.get(id(ring))
-        if done is None:
-            done = moved[id(ring)] = (ring, ring + dx)  # the ring held: its id stays its own
-        return done[1]
+    move = per_array(lambda ring: ring + dx)  # layers that share a ring share the moved one
 
     layers = tuple(dataclasses.replace(
         lay, z_bottom=lay.z_bottom + dz, z_top=lay.z_top + dz, z_sample=lay.z_sample + dz,

@@ -8,10 +8,29 @@ hole areas negative.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
+
+T = TypeVar("T")
+
+
+def per_array(fn: Callable[[npt.NDArray[np.float64]], T]) -> Callable[[npt.NDArray[np.float64]], T]:
+    """``fn`` computed once per ring array: the layers of a prismatic band share their section's
+    ring arrays (:meth:`app.slicing.mesh_prep.PreparedMesh.prism_band`), so what works layer by
+    layer (a length, an export's bytes, a move) works on each array once.  Keyed by identity
+    and holding each array, so a key never names another array while the function lives."""
+    done: dict[int, tuple[npt.NDArray[np.float64], T]] = {}
+
+    def once(ring: npt.NDArray[np.float64]) -> T:
+        hit = done.get(id(ring))
+        if hit is None:
+            hit = done[id(ring)] = (ring, fn(ring))
+        return hit[1]
+    return once
 
 
 def following(ring: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:

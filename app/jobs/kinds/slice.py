@@ -32,7 +32,7 @@ from app.slicing.export_binary import to_binary
 from app.slicing.layers import Remainder, SeedSample, SliceMode, ThetaRule
 from app.slicing.layers import SliceResult as SlicedLayers
 from app.slicing.mesh_prep import default_max_hole_mm
-from app.slicing.rings import ring_length
+from app.slicing.rings import per_array, ring_length
 
 MAX_LAYERS = 100_000  # a slice job never makes more layers than this (422 at submission)
 _CORE = SliceParams()
@@ -246,15 +246,9 @@ def _estimate(params: SliceJobParams, reads: JobReads) -> Cost | None:
 def _contour_mm(sliced: SlicedLayers) -> float:
     """The length of every layer's rings, mm (a ring array the layers of a prismatic band share
     measured once)."""
-    lengths: dict[int, float] = {}
-    total = 0.0
-    for layer in sliced.layers:
-        for island in layer.islands:
-            for ring in island.rings():  # held by the layers: an id stays its array's meanwhile
-                if id(ring) not in lengths:
-                    lengths[id(ring)] = ring_length(ring)
-                total += lengths[id(ring)]
-    return total
+    length = per_array(ring_length)
+    return float(sum(length(ring) for layer in sliced.layers for island in layer.islands
+                     for ring in island.rings()))
 
 
 @job_kind("slice", SliceJobParams, references=lambda p: [("part", p.part_id)], check=_check, estimate=_estimate)
