@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import socket
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 Answer = Callable[[str, int], "str | None"]
 
@@ -33,6 +33,13 @@ def standard_reply(line: str) -> str:
     if words[0] == "set":
         return f"SET {words[1].upper()} ACK"
     return f"{words[1].upper()} OK"
+
+
+def in_turn(prefix: str, *replies: str) -> Answer:
+    """An ``answer`` giving the lines that start with ``prefix`` the ``replies`` in turn, every
+    other line the standard reply."""
+    queue: Iterator[str] = iter(replies)
+    return lambda line, _: next(queue) if line.startswith(prefix) else None
 
 
 class ScriptedRsh:

@@ -5,24 +5,17 @@ again.  A scripted server plays linuxcncrsh (no simulator needed)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 
 from hardware.errors import FirmwareError
 from hardware.linuxcnc.rsh import RshSession
-from tests.helpers.scripted_rsh import ScriptedRsh
+from tests.helpers.scripted_rsh import ScriptedRsh, in_turn
 
 ALL_JOINTS = "JOINT_POS " + " ".join(["1.000000", "2.000000", "5.000000"] + ["0.000000"] * 6)
 
 
-def _joint_pos(*replies: str):
-    queue: Iterator[str] = iter(replies)
-    return lambda line, _: next(queue) if line == "get joint_pos" else None
-
-
 def test_a_one_joint_answer_is_asked_again_when_every_joint_was_asked_for():
-    server = ScriptedRsh(_joint_pos("JOINT_POS 20 0.145864", ALL_JOINTS))
+    server = ScriptedRsh(in_turn("get joint_pos", "JOINT_POS 20 0.145864", ALL_JOINTS))
     session = RshSession.open("127.0.0.1", server.port, "pw")
     try:
         assert session.get("joint_pos", words=3).split()[:3] == ["1.000000", "2.000000", "5.000000"]
@@ -32,7 +25,7 @@ def test_a_one_joint_answer_is_asked_again_when_every_joint_was_asked_for():
 
 
 def test_a_value_that_stays_short_is_a_firmware_error_naming_the_request():
-    server = ScriptedRsh(_joint_pos(*["JOINT_POS 20 0.145864"] * 6))
+    server = ScriptedRsh(in_turn("get joint_pos", *["JOINT_POS 20 0.145864"] * 6))
     session = RshSession.open("127.0.0.1", server.port, "pw")
     try:
         with pytest.raises(FirmwareError, match="get joint_pos") as failed:

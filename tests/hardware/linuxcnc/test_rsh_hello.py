@@ -8,23 +8,15 @@ simulator needed)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 
 from hardware.errors import LinkError
 from hardware.linuxcnc.rsh import RshSession
-from tests.helpers.scripted_rsh import ScriptedRsh
-
-
-def _hellos(*replies: str):
-    """Answer the hellos with ``replies`` in turn, every other line as linuxcncrsh does."""
-    queue: Iterator[str] = iter(replies)
-    return lambda line, _: next(queue) if line.startswith("hello") else None
+from tests.helpers.scripted_rsh import ScriptedRsh, in_turn
 
 
 def test_another_sessions_reply_is_answered_by_a_second_hello():
-    server = ScriptedRsh(_hellos("ESTOP OFF", "HELLO ACK EMCNETSVR 1.1"))
+    server = ScriptedRsh(in_turn("hello", "ESTOP OFF", "HELLO ACK EMCNETSVR 1.1"))
     session = RshSession.open("127.0.0.1", server.port, "pw", timeout_s=5.0)
     try:
         assert session.server == "EMCNETSVR 1.1"
@@ -34,7 +26,7 @@ def test_another_sessions_reply_is_answered_by_a_second_hello():
 
 
 def test_a_nak_while_another_session_talks_is_answered_by_a_second_hello():
-    server = ScriptedRsh(_hellos("HELLO NAK", "HELLO ACK EMCNETSVR 1.1"))
+    server = ScriptedRsh(in_turn("hello", "HELLO NAK", "HELLO ACK EMCNETSVR 1.1"))
     session = RshSession.open("127.0.0.1", server.port, "pw", timeout_s=5.0)
     try:
         assert session.server == "EMCNETSVR 1.1"
@@ -44,7 +36,7 @@ def test_a_nak_while_another_session_talks_is_answered_by_a_second_hello():
 
 
 def test_a_wrong_password_is_refused_after_three_naks_naming_the_field():
-    server = ScriptedRsh(_hellos("HELLO NAK", "ESTOP OFF", "HELLO NAK", "HELLO NAK", "HELLO NAK",
+    server = ScriptedRsh(in_turn("hello", "HELLO NAK", "ESTOP OFF", "HELLO NAK", "HELLO NAK", "HELLO NAK",
                                  "HELLO ACK EMCNETSVR 1.1"))
     with pytest.raises(LinkError, match="refused the connect password") as refused:
         RshSession.open("127.0.0.1", server.port, "wrong", timeout_s=5.0)
@@ -53,7 +45,7 @@ def test_a_wrong_password_is_refused_after_three_naks_naming_the_field():
 
 
 def test_a_server_that_never_says_hello_is_a_link_error_with_its_answer():
-    server = ScriptedRsh(_hellos(*["JOINT_HOMED YES"] * 6))
+    server = ScriptedRsh(in_turn("hello", *["JOINT_HOMED YES"] * 6))
     with pytest.raises(LinkError, match="JOINT_HOMED YES") as failed:
         RshSession.open("127.0.0.1", server.port, "pw", timeout_s=5.0)
     assert failed.value.field == "port"
