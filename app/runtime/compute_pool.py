@@ -222,6 +222,20 @@ class ComputePool:
         self.replenish()
         return reason
 
+    def give_back(self, member: Member) -> None:
+        """``member`` was acquired for a job that was cancelled before it was sent: idle again,
+        unused (ended instead when the pool has closed meanwhile)."""
+        with self._lock:
+            closed = self.closed
+            if closed and member in self._members:
+                self._members.remove(member)
+            member.busy = closed
+            self._lock.notify_all()
+        if closed:
+            member.stop()
+        else:
+            self._shrink_later()
+
     def _shrink_later(self, delay_s: float | None = None) -> None:
         """Have :meth:`shrink` run once in ``delay_s`` (default EXTRA_IDLE_S) when the pool
         holds more processes than it keeps idle and no such run is pending."""

@@ -9,7 +9,9 @@ it prefers a process that already holds the job's part), while the thread
 
 * renews the job's lease and polls its cancel flag every ``POLL_S`` (0.1 s): a cancel is
   a ``SIGKILL`` of the job's process, recorded as ``cancelled`` well within 1 s, whatever
-  loop the job is in; a fresh process takes the killed one's place;
+  loop the job is in; a fresh process takes the killed one's place.  It polls while the job
+  still waits for its process too (a process being started takes seconds): the job is then
+  cancelled at once and never sent to the process found for it;
 * kills the process after ``CONFORMA_JOB_TIME_S`` wall-clock seconds of the job (failed,
   with the limit);
 * when the process dies without reporting the job's end (a signal: the OOM killer, a
@@ -34,6 +36,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import select
@@ -98,6 +101,19 @@ def _lease_kept(store: JobStore, claim: Claim, every_s: float) -> Iterator[None]
         thread.join()
 
 
+@dataclass(eq=False)
+class _Handoff:
+    """What the thread that finds a job's process and the thread that supervises the job
+    share: the job is sent only under ``lock`` and only while not ``abandoned``."""
+
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    done: threading.Event = field(default_factory=threading.Event)
+    abandoned: bool = False
+    sent: bool = False
+    member: Member | None = None
+    error: BaseException | None = None
+
+
 def warm_up(pool: ComputePool | None = None) -> None:
     """Start the fork server now (it imports the compute core: seconds), not at the first
     job; with ``pool``, start its processes too."""
@@ -150,8 +166,9 @@ class ProcessSupervisor:
                 self._active -= 1
                 self._idle.notify_all()
 
-    def _start(self, claim: Claim) -> Member:
-        """A pool process that has received ``claim`` (a process that died idle is replaced)."""
+    def _start(self, claim: Claim, handoff: _Handoff) -> Member | None:
+        """A pool process that has received ``claim`` (a process that died idle is replaced),
+        or None when the supervisor gave the job up while the process was being found."""
         try:
             parts = self.parts_of(claim.job_id)
         except Exception:  # affinity is an optimisation: never a reason to fail the job
@@ -159,18 +176,60 @@ class ProcessSupervisor:
             parts = set()
         for attempt in range(3):
             member = self.pool.acquire(parts)
-            try:  # recorded before the job starts: a server killed after the send leaves its trace
-                self.runtime.store.record_process(claim, process_identity.identify(member.pid))
-            except Exception:
-                log.exception("could not record the process of job %s", claim.job_id)
-            try:
-                member.conn.send(claim)
-                return member
-            except (OSError, ValueError):  # it died while idle: another one
-                self.pool.discard(member)
-                if attempt == 2:
-                    raise
+            with handoff.lock:
+                if handoff.abandoned:  # cancelled or stopping meanwhile: the job never reaches it
+                    self.pool.give_back(member)
+                    return None
+                try:  # recorded before the job starts: a server killed after the send leaves its trace
+                    self.runtime.store.record_process(claim, process_identity.identify(member.pid))
+                except Exception:
+                    log.exception("could not record the process of job %s", claim.job_id)
+                try:
+                    member.conn.send(claim)
+                    handoff.sent = True
+                    return member
+                except (OSError, ValueError):  # it died while idle: another one
+                    self.pool.discard(member)
+                    if attempt == 2:
+                        raise
         raise AssertionError("unreachable")
+
+    def _start_watched(self, claim: Claim) -> Member | str:
+        """:meth:`_start` in a thread of its own while this one keeps polling the cancel flag
+        and the stop: a job waits for a process for seconds when the pool starts one (the
+        first start imports the compute core), and a cancel in that time takes effect at once.
+        Returns the member that received the job, or the verdict (``cancel``, ``stop``) that
+        ended the wait; raises what :meth:`_start` raised."""
+        handoff = _Handoff()
+
+        def start() -> None:
+            try:
+                handoff.member = self._start(claim, handoff)
+            except BaseException as exc:  # handed over to the supervising thread
+                handoff.error = exc
+            finally:
+                handoff.done.set()
+
+        threading.Thread(target=start, name=f"conforma-start-{claim.job_id[:8]}", daemon=True).start()
+        while not handoff.done.wait(POLL_S):
+            try:
+                verdict = "stop" if self.stopping.is_set() else (
+                    "cancel" if self._cancel_requested(claim.job_id) else None)
+            except Exception:  # a database hiccup: ask again at the next poll
+                log.exception("waiting for a process for job %s", claim.job_id)
+                continue
+            if verdict is not None:
+                with handoff.lock:
+                    if not handoff.sent:
+                        handoff.abandoned = True
+                        return verdict
+                break  # the job reached its process just now: supervise it
+        handoff.done.wait()
+        if handoff.error is not None:
+            raise handoff.error
+        if handoff.member is None:  # abandoned only by this thread, which returned above
+            raise AssertionError("a process start ended without a process")
+        return handoff.member
 
     def _earlier_process_gone(self, claim: Claim) -> bool:
         """Whether the process of ``claim``'s earlier attempt has ended (waited for, or
@@ -195,7 +254,7 @@ class ProcessSupervisor:
             return
         try:
             with _lease_kept(store, claim, self.settings.lease_s / 3):
-                member = self._start(claim)
+                started_or_verdict = self._start_watched(claim)
         except Exception as exc:  # no process, no job: say so rather than leave it running
             if self.stopping.is_set():  # the pool closed while the job waited for a process
                 store.release(claim, "released by a stopping worker")
@@ -204,6 +263,10 @@ class ProcessSupervisor:
             store.finish(claim, "failed",
                          error=problem(500, "Job could not start", f"{type(exc).__name__}: {exc}"[:500]))
             return
+        if isinstance(started_or_verdict, str):  # cancelled or stopped before it reached a process
+            self._record(claim, started_or_verdict, None, before_start=True)
+            return
+        member = started_or_verdict
         started = time.monotonic()
         renew_every = self.settings.lease_s / 3
         renewed = started
@@ -262,12 +325,14 @@ class ProcessSupervisor:
             return "lost"
         return None
 
-    def _record(self, claim: Claim, verdict: str | None, exitcode: int | None) -> None:
+    def _record(self, claim: Claim, verdict: str | None, exitcode: int | None, before_start: bool = False) -> None:
         """The outcome the process could not record itself (each transition is conditional on
-        ``claim`` still owning a running job, so a result the process wrote first stands)."""
+        ``claim`` still owning a running job, so a result the process wrote first stands);
+        ``before_start``: the job never reached a process."""
         store = self.runtime.store
         if verdict == "cancel":
-            cancelled = Cancelled("the job was cancelled (its process was killed)", field="job_id", value=claim.job_id)
+            how = "before it reached a compute process" if before_start else "(its process was killed)"
+            cancelled = Cancelled(f"the job was cancelled {how}", field="job_id", value=claim.job_id)
             store.finish_surely(claim, "cancelled", error=from_error(cancelled))
         elif verdict == "time":
             store.finish_surely(claim, "failed", error=time_limit_problem(self.settings.job_time_s))

@@ -74,6 +74,40 @@ def test_cancel_kills_a_loop_that_never_checks_within_a_second(client):
     assert time.monotonic() - asked < 1.0
 
 
+def test_a_cancel_while_the_job_waits_for_its_process_takes_effect_at_once(client, monkeypatch):
+    """The pool needs seconds to find the job a process (the first start imports the compute
+    core): a cancel meanwhile ends the job within a second, and the process found afterwards
+    never receives it."""
+    from app.runtime.compute_pool import ComputePool
+
+    acquire, give_back, given = ComputePool.acquire, ComputePool.give_back, []
+
+    def slow_acquire(self, parts):
+        time.sleep(3.0)
+        return acquire(self, parts)
+
+    def recorded_give_back(self, member):
+        given.append(member)
+        give_back(self, member)
+
+    monkeypatch.setattr(ComputePool, "acquire", slow_acquire)
+    monkeypatch.setattr(ComputePool, "give_back", recorded_give_back)
+    job = submit(client, "test_spin", seconds=60)
+    wait_for(client, job["id"], states=("running",))
+    asked = time.monotonic()
+    assert client.post(f"/api/v1/jobs/{job['id']}/cancel", headers=OP).status_code == 202
+    done = wait_for(client, job["id"], timeout=5)
+    assert time.monotonic() - asked < 1.0
+    assert done["status"] == "cancelled"
+    assert "before it reached a compute process" in done["error"]["detail"]
+    deadline = time.monotonic() + 10
+    while not given and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(given) == 1 and given[0].alive() and not given[0].busy  # idle again, never sent the job
+    assert given[0] in client.app.state.runtime.supervisor.pool.members
+    assert client.get(f"/api/v1/jobs/{job['id']}", headers=OP).json()["status"] == "cancelled"
+
+
 def test_a_job_past_its_time_limit_is_killed_and_failed(limited_client):
     job = submit(limited_client, "test_spin", seconds=60)
     done = wait_for(limited_client, job["id"], timeout=20)
