@@ -348,7 +348,8 @@ def test_probe_toward_and_select_tool(machine, lcnc_xyz):
     assert machine.state == "idle"
 
 
-INCH_RELATIVE = ["G20 G90 G64 P0.0001", "G1 X0 Y0 Z0.2 F240", "G91"] + [
+# F120 (51 mm/s): the last five moves take ~1.4 s, the window in which the link is cut
+INCH_RELATIVE = ["G20 G90 G64 P0.0001", "G1 X0 Y0 Z0.2 F120", "G91"] + [
     f"G1 X{dx:.2f} Y{dy:.2f}" for _ in range(2) for dx, dy in ((0.8, 0), (0, 0.8), (-0.4, 0), (0, -0.4))]
 
 
@@ -360,11 +361,16 @@ def test_a_resumed_program_replays_its_modal_state(machine, lcnc_xyz):
     uninterrupted = _joints(observer)
     machine.send("G21 G90")
     machine.move(x=0, y=0, z=5)
-    thread, outcome = _run_in_thread(machine, INCH_RELATIVE)
-    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 5, timeout_s=20)
-    machine.link.sever()
-    thread.join(10)
-    assert isinstance(outcome.get("error"), LinkError)
+    cut_at: list[int] = []
+
+    def cut_after_five(executed: int, total: int) -> None:  # in the program's own polling loop
+        if 5 <= executed < total and not cut_at:
+            cut_at.append(executed)
+            machine.link.sever()
+
+    with pytest.raises(LinkError):
+        machine.stream(INCH_RELATIVE, on_progress=cut_after_five)
+    assert cut_at, "the program ended before its progress reached line 5"
     machine.connect()
     start = machine.resume_line()
     machine.send("G21 G90 G1 F6000")  # the operator leaves mm / absolute / another feed
