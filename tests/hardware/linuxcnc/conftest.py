@@ -24,6 +24,7 @@ from pathlib import Path
 
 import pytest
 
+from hardware.errors import LinkError
 from hardware.linuxcnc import SimController, SimUnavailable, linuxcnc_available
 from hardware.machine_types import MachineProfile
 from tests.helpers.real_components import missing
@@ -86,7 +87,7 @@ class _OneSimulator:
             deadline = time.monotonic() + RESET_SETTLE_S
             while (state := sim.snapshot()) != self.start_state and time.monotonic() < deadline:
                 time.sleep(0.1)
-        except SimUnavailable as exc:
+        except (SimUnavailable, LinkError) as exc:  # e.g. a linuxcncrsh that stopped answering
             state = {"reset failed": str(exc)}
         if state == self.start_state:
             self.resets += 1
