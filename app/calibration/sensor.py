@@ -22,7 +22,9 @@ Procedures (each a plan and a fit; the job drives the machine and the sensor):
   radius R known in the probe frame from the probe qualification); the corrected heights are
   fitted by ``c_z + dz + sqrt(R^2 - d^2) + b tan^2(theta)``, d the spot's distance from c's
   axis, over (o_x, o_y, dz, b) (:func:`fit_sphere_scan`); an even bias does not move the
-  apparent centre, so o_x, o_y and b separate.
+  apparent centre, so o_x, o_y and b separate.  Their stated sd include the time offset's:
+  the raster is paired with the fitted tau, and a tau off by its sd moves the lines
+  (:func:`with_time_offset_sd`).
 
 Pure: numpy/scipy.  Units: mm, s.
 """
@@ -185,4 +187,31 @@ def fit_sphere_scan(carriage: np.ndarray, heights_mm: np.ndarray, centre_mm: Seq
     out = {n: float(v) for n, v in zip(names, fit.x)}
     out.update({f"sd_{n}": float(s) for n, s in zip(names, sd)})
     out["rms_mm"] = float(math.sqrt(float(res @ res) / len(res)))
+    return out
+
+
+TAU_STEP_S = 1e-3  # the time offset step of the sensitivity below
+
+
+def with_time_offset_sd(fit: dict[str, float], carriage: np.ndarray, heights_mm: np.ndarray,
+                        along: np.ndarray, speed_mm_s: float, sd_tau_s: float, centre_mm: Sequence[float],
+                        radius_mm: float) -> dict[str, float]:
+    """``fit`` (from :func:`fit_sphere_scan` on ``carriage`` (n, 3) mm and ``heights_mm``
+    (n,)) with the time offset's uncertainty added to the sd of o_x, o_y and b.
+
+    The raster was scanned with the fitted time offset tau applied: a tau off by d moves every
+    sample along its line by ``speed_mm_s * d``, forward on lines scanned +x, backward on the
+    others (``along`` (n,): +1 or -1 per sample).  The fit's own sd sees none of that, so the
+    fit is repeated with the samples moved by one ``TAU_STEP_S``; the change per second times
+    ``sd_tau_s`` is added in quadrature.  A serpentine of as many lines each way cancels it to
+    first order; one more line one way leaves ~1/n of the shift in o_x."""
+    out = dict(fit)
+    if not math.isfinite(sd_tau_s) or sd_tau_s <= 0:
+        return out
+    moved = np.asarray(carriage, dtype=float).copy()
+    moved[:, 0] += np.asarray(along, dtype=float) * speed_mm_s * TAU_STEP_S
+    refit = fit_sphere_scan(moved, heights_mm, centre_mm, radius_mm, (fit["o_x"], fit["o_y"]))
+    for name in ("o_x", "o_y", "b"):
+        slope = (refit[name] - fit[name]) / TAU_STEP_S
+        out[f"sd_{name}"] = float(math.hypot(fit[f"sd_{name}"], slope * sd_tau_s))
     return out

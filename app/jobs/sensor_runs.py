@@ -28,7 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from app.calibration.sensor import EdgePass, SensorCalibration, fit_scale_and_z, fit_sphere_scan, fit_time_offset
+from app.calibration.sensor import (
+    EdgePass,
+    SensorCalibration,
+    fit_scale_and_z,
+    fit_sphere_scan,
+    fit_time_offset,
+    with_time_offset_sd,
+)
 from app.domain.errors import InvalidInput
 from app.probing.scan_path import sample_positions
 from app.reconstruction.scan_samples import exposure_positions
@@ -230,7 +237,7 @@ def calibrate_sensor(machine: backend.Machine, scanner: SerialScanner | HalScann
     c = np.asarray(setup.sphere_centre, dtype=float)
     r = setup.sphere_radius
     z = c[2] + r - oz - 0.05 * r
-    carriage, hs = [], []
+    carriage, hs, along = [], [], []
     machine.move(z=setup.travel_z)
     for i, dy in enumerate(np.linspace(-0.35, 0.35, setup.sphere_lines) * r):
         sign = 1 if i % 2 == 0 else -1
@@ -239,8 +246,11 @@ def calibrate_sensor(machine: backend.Machine, scanner: SerialScanner | HalScann
         data = scanner.run(w, setup.sphere_speed_mm_s, setup.travel_z if i == 0 else None, tau)
         carriage.append(data.carriage)
         hs.append(data.carriage[:, 2] + oz + data.values / scale)
+        along.append(np.full(len(data.carriage), float(sign)))
     machine.move(z=setup.travel_z)
-    sphere = fit_sphere_scan(np.concatenate(carriage), np.concatenate(hs), c.tolist(), r, o[:2].tolist())
+    raster, raster_h = np.concatenate(carriage), np.concatenate(hs)
+    sphere = with_time_offset_sd(fit_sphere_scan(raster, raster_h, c.tolist(), r, o[:2].tolist()), raster, raster_h,
+                                 np.concatenate(along), setup.sphere_speed_mm_s, sd_tau, c.tolist(), r)
     calibration = SensorCalibration((sphere["o_x"], sphere["o_y"], oz), scale, tau, sphere["b"],
                                     {"o_x": sphere["sd_o_x"], "o_y": sphere["sd_o_y"], "o_z": sd_oz,
                                      "time_offset_s": sd_tau, "slope_bias_mm": sphere["sd_b"]})

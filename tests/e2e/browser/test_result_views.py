@@ -136,8 +136,11 @@ def test_five_axis_view_plots_angles_and_tip_speed(page, served, jobs):
 def test_machines_page_prints_a_listed_program_after_a_confirmation(page, served, jobs):
     api = served.api()
     job = jobs["compensate"]
+    # every modelled duration x 5: the print outlasts the page's checks on a loaded box (at
+    # real time it ended between the progress bar showing and its text being read); the
+    # e-stop at the end stops it
     machine = api.post("/api/v1/machines", json={"name": "print-list-mock", "port": "mock://", "dialect": "marlin",
-                                                 "mock": {"time_scale": 1.0}}).json()
+                                                 "mock": {"time_scale": 5.0}}).json()
     assert api.post(f"/api/v1/machines/{machine['id']}/connect").status_code == 200
     summary = api.get(f"/api/v1/jobs/{job['id']}/artifacts/print.gcode/summary").json()
     page.goto("/machines.html")
