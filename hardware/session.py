@@ -193,8 +193,8 @@ class ReplySession:
             self._positioned(mark)
             if consumed:
                 return self._take()  # the S_XYZ line after an S000 answer (hardware.reports)
-        if isinstance(event, (ev.Ok, ev.Resend, ev.FirmwareErrorEvent)):
-            self._answered = True
+        if isinstance(event, (ev.Ok, ev.Resend, ev.FirmwareErrorEvent)) and self.outstanding:
+            self._answered = True  # an answer to a command (a fresh grbl's error:7 at boot is none)
         if self.rules.position_by_status:  # the firmware's own state (Marlin reports none)
             self.controller = next_controller_state(self.controller, event, now, self.rules.lock_error)
         swallow, self._swallow = self._swallow, False
@@ -355,7 +355,7 @@ class ReplySession:
     def _on_banner(self, event: ev.StartBanner, now: float) -> None:
         """The controller (re)started and flushed its receive buffer: the host's own markers
         are forgotten (never matched to a later reply); an announced reset fails what is
-        still in flight, an unannounced one with commands in flight fails the session."""
+        still in flight, an unannounced one after the first answer fails the session."""
         self.next_line = 1
         self._swallow = False
         self._guard = None
@@ -375,9 +375,13 @@ class ReplySession:
                                          "flushed with its receive buffer", last_line=self.last_acked_line()))
             self.unsolicited.append(event)
             return
-        if self.outstanding and self._answered:  # a restart, not the boot banner of open()
-            # poison the session: nothing may be sent into the new firmware session
-            self._fail(FirmwareReset("the controller restarted with commands in flight",
+        if self._answered:  # a restart, not the boot banner of open()
+            # poison the session: nothing may be sent into the new firmware session, whether
+            # commands were in flight or the host was between two of them (the firmware lost
+            # its modal state: a line sent now would run without the program's units and feed,
+            # or be ignored by a booting grbl and never answered)
+            self._fail(FirmwareReset("the controller restarted with commands in flight" if self.outstanding
+                                     else "the controller restarted between two commands",
                                      last_line=self.last_acked_line()), now)
         self.unsolicited.append(event)
 

@@ -77,6 +77,31 @@ def test_6_3_connect_waits_for_the_boot_banner(make_world):
         machine.disconnect()
 
 
+def test_a_restart_between_two_commands_fails_the_session_before_the_next_line(make_world):
+    """grbl restarts while the host waits between two lines (nothing in flight): its modal
+    state (units, feed) is gone and its bootloader ignores input for a second.  The next line
+    must not be sent: it would run without the program's feed ("Undefined feed rate") or
+    never be answered."""
+    from hardware.errors import FirmwareReset
+
+    url, world = make_world(dialect="grbl", time_scale=1.0, boot_s=0.02)
+    machine = _machine(url)
+    machine.connect()
+    machine.send("G21 G90 G1 F600")
+    received = world.stats.lines_received
+    world.reset_controller()
+    deadline = time.monotonic() + 5.0
+    while machine.link.session.fatal is None and time.monotonic() < deadline:
+        time.sleep(0.01)  # the banner reaches the host's reader
+    assert isinstance(machine.link.session.fatal, FirmwareReset)
+    assert "restarted between two commands" in str(machine.link.session.fatal)
+    with pytest.raises(HardwareError):  # the machine is in error: reconnect first
+        machine.send("G1 X1")
+    assert machine.state == "error"
+    assert world.stats.lines_received == received  # nothing went into the new firmware session
+    machine.disconnect()
+
+
 def test_6_4_pingpong_stops_at_the_rejected_line(make_world):
     url, world = make_world(dialect="grbl")
     machine = _machine(url, window="pingpong")
