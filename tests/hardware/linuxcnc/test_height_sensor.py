@@ -101,7 +101,9 @@ def test_steep_slopes_drop_out_and_noiseless_values_are_exact(lcnc_xyz, machine)
     spot_u = samples.xyz[:, 0] + OFFSET[0] - steep.dx
     top = (spot_u > 0.05) & (spot_u < steep.length_mm - 0.05)
     bed = (spot_u < -0.05) | (spot_u > steep.length_mm + 0.05)
-    assert top.sum() > 50 and np.isnan(samples.reading[top]).all()  # beyond the acceptance angle
+    # 0.3 s over the top: ~300 values on a quiet host, 32-44 seen at load 18-25 (the component
+    # shares the cores); each one must be a drop-out, beyond the acceptance angle
+    assert top.sum() >= 20 and np.isnan(samples.reading[top]).all()
     assert np.isfinite(samples.reading[bed]).all()
     surface, zero = _truth(steep, samples.xyz)
     assert np.abs(zero + samples.reading - surface)[bed] == pytest.approx(0.0, abs=6e-5)  # no noise: exact
