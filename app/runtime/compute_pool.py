@@ -45,8 +45,6 @@ EXTRA_IDLE_S = 30.0  # a process beyond the ones kept idle ends after this long 
 # (and the circuit importers with their ECAD libraries: an import's child reads at once).
 PRELOAD = ["app.runtime.compute_child", "app.jobs.circuit_import", "app.circuits.dxf", "app.circuits.svg",
            "app.circuits.gerber", "app.circuits.kicad"]
-# Imported after PRELOAD and the job kinds: freezes what they made, shared with every child
-FREEZE = "app.runtime.fork_freeze"
 _context_lock = threading.Lock()
 _context: multiprocessing.context.ForkServerContext | None = None
 
@@ -60,7 +58,7 @@ def mp_context() -> multiprocessing.context.ForkServerContext:
 
             context = multiprocessing.get_context("forkserver")
             assert isinstance(context, multiprocessing.context.ForkServerContext)
-            context.set_forkserver_preload(PRELOAD + kind_modules() + [FREEZE])
+            context.set_forkserver_preload(PRELOAD + kind_modules())
             _context = context
         return _context
 
