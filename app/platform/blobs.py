@@ -57,9 +57,9 @@ _SYNCFS = _syncfs()
 def sync_written(root: str, paths: list[str]) -> None:
     """Make the files ``paths`` (written, closed, all on the filesystem of the folder ``root``)
     durable: one ``syncfs`` of that filesystem when there are several and the platform has
-    it (a group's hundreds of files cost one flush, not an fsync and a journal commit each;
-    it also waits for other writers' dirty pages on that filesystem), else an fsync of each.
-    OSError when the flush fails."""
+    it (a group's hundreds of files cost one flush, not an fsync each; it also waits for
+    other writers' dirty pages on that filesystem), else an fsync of each.  OSError when the
+    flush fails."""
     if len(paths) > 1 and _SYNCFS is not None:
         fd = os.open(root, os.O_RDONLY | os.O_CLOEXEC)
         try:
