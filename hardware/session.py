@@ -375,11 +375,8 @@ class ReplySession:
                                          "flushed with its receive buffer", last_line=self.last_acked_line()))
             self.unsolicited.append(event)
             return
-        if self._answered:  # a restart, not the boot banner of open()
-            # poison the session: nothing may be sent into the new firmware session, whether
-            # commands were in flight or the host was between two of them (the firmware lost
-            # its modal state: a line sent now would run without the program's units and feed,
-            # or be ignored by a booting grbl and never answered)
+        if self._answered:  # a restart, not open()'s boot banner: nothing may be sent into the
+            # new firmware session, in flight or not (it lost units and feed; a booting grbl ignores input)
             self._fail(FirmwareReset("the controller restarted with commands in flight" if self.outstanding
                                      else "the controller restarted between two commands",
                                      last_line=self.last_acked_line()), now)
