@@ -375,8 +375,7 @@ class ReplySession:
                                          "flushed with its receive buffer", last_line=self.last_acked_line()))
             self.unsolicited.append(event)
             return
-        if self._answered:  # a restart, not open()'s boot banner: nothing may be sent into the
-            # new firmware session, in flight or not (it lost units and feed; a booting grbl ignores input)
+        if self._answered:  # a restart, not open()'s boot banner: it lost units and feed, and may ignore input
             self._fail(FirmwareReset("the controller restarted with commands in flight" if self.outstanding
                                      else "the controller restarted between two commands",
                                      last_line=self.last_acked_line()), now)
