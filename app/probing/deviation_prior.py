@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.ndimage import gaussian_filter1d
 from scipy.special import j1
 
@@ -220,10 +220,13 @@ class DeviationPosterior:
         return out
 
     def sd(self, sites: Sites) -> np.ndarray:
-        """Posterior standard deviation (q,) mm at ``sites``."""
+        """Posterior standard deviation (q,) mm at ``sites``: prior variance - |L^-1 k|^2 with
+        K = L L' the probes' factor (one triangular solve per site, not the two of K^-1 k)."""
         kq = prior_covariance(self.prior, sites, self.probes, self.center)
         prior_var = prior_variance(self.prior, sites, self.center)
-        v = prior_var - np.sum(kq.T * cho_solve(self.factor, kq.T), axis=0)
+        c, lower = self.factor
+        w = solve_triangular(c, kq.T, lower=lower, trans=0 if lower else 1, check_finite=False)
+        v = prior_var - np.einsum("ij,ij->j", w, w)
         out: np.ndarray = np.sqrt(np.maximum(v, 0.0))
         return out
 
@@ -245,5 +248,6 @@ def max_posterior_sd(cov: np.ndarray, prior_var: np.ndarray, chosen: np.ndarray,
     kc = cov[np.ix_(chosen, chosen)]
     factor = _factor(kc, sigma_mm, float(prior_var.max()))
     kq = cov[np.ix_(chosen, targets)]
-    v = prior_var[targets] - np.sum(kq * cho_solve(factor, kq), axis=0)
+    w = solve_triangular(factor[0], kq, lower=factor[1], trans=0 if factor[1] else 1, check_finite=False)
+    v = prior_var[targets] - np.einsum("ij,ij->j", w, w)
     return float(np.sqrt(max(float(v.max()), 0.0)))

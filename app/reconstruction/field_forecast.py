@@ -12,8 +12,9 @@ hyperparameters' own sd (fewer touches, less known).  The latter is forecast fro
     F_ab = 1/2 tr(K^-1 dK/dtheta_a K^-1 dK/dtheta_b),   theta = (log A, log lambda, log sigma)
 
 (the Laplace sd the learning reports is the observed-information counterpart): the learned
-relative sd scaled by sqrt((F_after^-1)_aa / (F_now^-1)_aa) (:func:`forecast_learned`), a
-parameter on its bound kept out of F as the learning keeps it out of its Hessian.
+relative sd scaled by sqrt((F_after^-1)_aa / (F_now^-1)_aa), at most sqrt((F_after^-1)_aa)
+itself (:func:`forecast_learned`), a parameter on its bound kept out of F as the learning
+keeps it out of its Hessian.
 
 :func:`plan_for_bound` sizes a round by the forecast: the loosest pointwise target (fewest
 stations) whose planned stations' forecast bound is within the aim, searched by bisection in
@@ -37,10 +38,11 @@ from scipy.linalg import cho_factor, cho_solve
 from app.probing.deviation_prior import DeviationPrior, Sites, fit_posterior
 from app.probing.field import FieldPlan
 from app.reconstruction.field_learning import NAMES, LearnedPrior, _Likelihood
-from app.reconstruction.field_trust import cautious_prior, posterior_trace_bound
+from app.reconstruction.field_trust import cautious_prior, posterior_trace_bounds
 
 SEARCH_FLOOR = 0.2   # a round's pointwise target is searched down to this fraction of its own
 SEARCH_STEPS = 6     # bisection steps in log target (the first at the proportional guess)
+SEARCH_WITHIN = 0.1  # the search ends once the loosest target within the aim is known to this fraction
 
 
 def expected_log_sd(prior: DeviationPrior, sites: Sites, center: np.ndarray,
@@ -70,36 +72,49 @@ def expected_log_sd(prior: DeviationPrior, sites: Sites, center: np.ndarray,
     return out
 
 
+def learned_free(learned: LearnedPrior) -> list[bool]:
+    """The parameters (3,) the learning estimated: those not on a bound."""
+    return [not b for b in learned.at_bound]
+
+
 def forecast_learned(learned: LearnedPrior, sites_now: Sites, sites_after: Sites,
-                     center: np.ndarray) -> dict[str, Any]:
+                     center: np.ndarray, now_log_sd: np.ndarray | None = None) -> dict[str, Any]:
     """``learned``'s JSON form (:meth:`LearnedPrior.as_dict`) with the amplitude's and the
     wavelength's relative sd forecast for the touches at ``sites_after`` (m,) instead of
     ``sites_now`` (n,): each log sd scaled by the ratio of their expected-information sd
-    (:func:`expected_log_sd`).  A parameter on a bound or without an sd is kept as it is."""
+    (:func:`expected_log_sd`), and no larger than the expected-information sd of
+    ``sites_after`` itself (the Cramer-Rao forecast: the learning's Laplace sd from a few
+    dozen touches scatters about it, and the rounds overshot on a pilot's large one; the
+    rounds still end on the bound of the stations touched, learned again).  A parameter on a
+    bound or without an sd is kept as it is.  ``now_log_sd`` (3,): ``expected_log_sd`` of
+    ``sites_now`` when the caller has it (a round's search forecasts many designs from the
+    same touches)."""
     out = learned.as_dict()
-    free = [not b for b in learned.at_bound]
-    now = expected_log_sd(learned.prior, sites_now, center, free)
+    free = learned_free(learned)
+    now = expected_log_sd(learned.prior, sites_now, center, free) if now_log_sd is None else now_log_sd
     after = expected_log_sd(learned.prior, sites_after, center, free)
     for i, name in enumerate(NAMES[:2]):
         rel = out[name]["relative_sd"]
         if rel is None or not (now[i] > 0 and math.isfinite(after[i])):
             continue
-        out[name] = dict(out[name], relative_sd=float(math.expm1(math.log1p(rel) * after[i] / now[i])))
+        log_sd = min(math.log1p(rel) * after[i] / now[i], float(after[i]))
+        out[name] = dict(out[name], relative_sd=float(math.expm1(log_sd)))
     return out
 
 
 def forecast_run_bound(learned: LearnedPrior, sites_now: Sites, sites_after: Sites, center: np.ndarray,
-                       paths: Sequence[Any], coverage: float, sigma_mm: float | None = None) -> float:
+                       paths: Sequence[Any], coverage: float, sigma_mm: float | None = None,
+                       now_log_sd: np.ndarray | None = None) -> float:
     """The run's bound (mm) the stations ``sites_after`` (m,) will give, forecast under the
     prior ``learned`` from the touches at ``sites_now`` (n,): the largest trace bound of the
     posterior under :func:`cautious_prior` with the forecast sd (:func:`forecast_learned`),
     over the TracePolylines ``paths`` sharing the confidence (as
-    :func:`app.reconstruction.field_trust.run_bounds`)."""
-    prior = cautious_prior(learned.prior, forecast_learned(learned, sites_now, sites_after, center))
+    :func:`app.reconstruction.field_trust.run_bounds`).  ``now_log_sd``: as :func:`forecast_learned`."""
+    prior = cautious_prior(learned.prior, forecast_learned(learned, sites_now, sites_after, center, now_log_sd))
     if sigma_mm is not None:
         prior = replace(prior, sigma_mm=sigma_mm)
     posterior = fit_posterior(prior, sites_after, np.zeros(len(sites_after.xy)), center)
-    return max(posterior_trace_bound(posterior, p, coverage, len(paths)) for p in paths)
+    return max(posterior_trace_bounds(posterior, paths, coverage))
 
 
 def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[FieldPlan], float],
@@ -108,18 +123,23 @@ def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[Field
     """(the stations ``plan(pointwise target mm)`` adds, the target) for the loosest target in
     [``floor`` x ``plan_target_mm``, ``plan_target_mm``) whose stations' forecast run's
     bound ``forecast(plan)`` (mm) is within ``aim_mm``: bisection in log target from
-    ``guess_mm``, SEARCH_STEPS plans (the target is taken to be monotone in the stations it
-    buys).  None within the aim: the tightest target's plan (the next round learns from it
-    and goes on)."""
+    ``guess_mm``, at most SEARCH_STEPS plans (the target is taken to be monotone in the
+    stations it buys), ended early once a target within the aim is known within SEARCH_WITHIN
+    of the loosest (the bracket that narrow) or its plan has at most one station more than a
+    looser target's that misses the aim (stations come whole: none lies between).  None within
+    the aim: the tightest target's plan (the next round learns from it and goes on)."""
     lo, hi = math.log(plan_target_mm * floor), math.log(plan_target_mm)
     t = min(max(math.log(guess_mm), lo), hi)
     best: tuple[FieldPlan, float] | None = None
+    missing = -1   # the most stations a looser target's plan bought without meeting the aim
     for _ in range(SEARCH_STEPS):
         more = plan(math.exp(t))
         if more.count and forecast(more) <= aim_mm:
             best, lo = (more, math.exp(t)), t
         else:
-            hi = t
+            hi, missing = t, max(missing, more.count)
+        if best is not None and (hi - lo <= math.log1p(SEARCH_WITHIN) or best[0].count <= missing + 1):
+            break
         t = 0.5 * (lo + hi)
     if best is not None:
         return best

@@ -45,7 +45,13 @@ from app.probing.deviation_prior import DeviationPrior, Sites
 from app.probing.field import FieldPlan, plan_field
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
-from app.reconstruction.field_forecast import SEARCH_FLOOR, forecast_run_bound, plan_for_bound
+from app.reconstruction.field_forecast import (
+    SEARCH_FLOOR,
+    expected_log_sd,
+    forecast_run_bound,
+    learned_free,
+    plan_for_bound,
+)
 from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior, loo_check
 from app.reconstruction.field_trust import (
     TARGET_SLACK,
@@ -61,7 +67,7 @@ DEFAULT_BUDGET = 2000
 PILOT_WAVELENGTH_FACTOR = 2.0  # the pilot plans for twice the user's wavelength
 SHRINK_PER_ROUND = 2.0         # a round plans for no less than the previous round's wavelength / 2
 TIGHTEN_MIN = 0.5              # a round's pointwise target is at most halved at once
-BOUND_AIM = 0.9                # a tightened round aims the run's bound at this fraction of the verdict's tolerance
+BOUND_AIM = 1.0                # a tightened round aims the run's bound at this fraction of the verdict's tolerance
 
 
 def pilot_params(params: PlanParams) -> PlanParams:
@@ -112,10 +118,11 @@ def round_forecast(learned: LearnedPrior, sites: Sites, center: np.ndarray, path
             or learned.prior.sigma_mm > NOISE_MISFIT * params.probe_sigma_mm:
         return None
     learned_from = sites.take(np.setdiff1d(np.arange(len(sites.xy)), learned.screened))
+    now = expected_log_sd(learned.prior, learned_from, center, learned_free(learned))  # once for every design
 
     def unscaled(after: Sites) -> float:
         return forecast_run_bound(learned, learned_from, after, center, paths, params.coverage,
-                                  params.probe_sigma_mm)
+                                  params.probe_sigma_mm, now)
     scale = 1.0 if bound_mm is None else max(1.0, bound_mm / unscaled(sites))
 
     def forecast(more: FieldPlan) -> float:
@@ -128,9 +135,9 @@ def tightened_target(plan_target_mm: float, target_mm: float, bound_mm: float) -
     fitted model is over the verdict's tolerance after a round planned for ``plan_target_mm``:
     scaled by aim / bound, the aim BOUND_AIM x the tolerance (TARGET_SLACK x the target; the
     bound scales about as the pointwise sd between the stations does, and stations come whole,
-    so the bound lands at or under the aim: inside the tolerance with room, without buying the
-    stations a bound at the target itself would cost); at most halved at once (TIGHTEN_MIN).
-    Mm in, mm out."""
+    so the bound lands at or under the aim: inside the tolerance, without buying the stations
+    a bound at the target itself would cost; a round that lands over it is followed by a small
+    one); at most halved at once (TIGHTEN_MIN).  Mm in, mm out."""
     aim = BOUND_AIM * TARGET_SLACK * target_mm
     return plan_target_mm * max(TIGHTEN_MIN, min(1.0, aim / bound_mm))
 

@@ -370,12 +370,35 @@ def trace_bound(fit: FieldFit, path: Any, coverage: float, learned: dict[str, An
 def posterior_trace_bound(posterior: DeviationPosterior, path: Any, coverage: float, traces: int = 1) -> float:
     """:func:`trace_bound` of a given ``posterior`` (its prior's wavelength sets the step and the
     independent values): the bound (mm) over the TracePolyline ``path``."""
+    return posterior_trace_bounds(posterior, [path], coverage, traces)[0]
+
+
+SD_BATCH = 4096  # trace points whose posterior sd is computed in one solve
+
+
+def _bound_samples(path: Any, wavelength_mm: float) -> np.ndarray:
+    """Arc lengths (m,) mm where a trace's sd is judged: every wavelength / BOUND_STEP_PER_WAVELENGTH."""
+    count = max(2, int(np.ceil(path.length_mm / (wavelength_mm / BOUND_STEP_PER_WAVELENGTH))) + 1)
+    return np.linspace(0.0, path.length_mm, count)
+
+
+def posterior_trace_bounds(posterior: DeviationPosterior, paths: Sequence[Any], coverage: float,
+                           traces: int | None = None) -> tuple[float, ...]:
+    """:func:`posterior_trace_bound` of every TracePolyline of ``paths`` (T,), mm: the
+    traces' points batched into SD_BATCH-point solves (one factor, many traces).
+    ``traces``: how many share the confidence (default T)."""
     wavelength = posterior.prior.wavelength_mm
-    step = wavelength / BOUND_STEP_PER_WAVELENGTH
-    count = max(2, int(np.ceil(path.length_mm / step)) + 1)
-    s = np.linspace(0.0, path.length_mm, count)
-    return simultaneous_bound(posterior.sd(path_sites(path, s)), path.length_mm / (count - 1), wavelength,
-                              coverage, traces)
+    samples = [_bound_samples(p, wavelength) for p in paths]
+    sites = [path_sites(p, s) for p, s in zip(paths, samples)]
+    sd = np.empty(sum(len(s) for s in samples))
+    xy, grad = np.concatenate([q.xy for q in sites]), np.concatenate([q.grad for q in sites])
+    for start in range(0, len(sd), SD_BATCH):
+        stop = start + SD_BATCH
+        sd[start:stop] = posterior.sd(Sites(xy[start:stop], grad[start:stop]))
+    edges = np.cumsum([0] + [len(s) for s in samples])
+    shared = len(paths) if traces is None else traces
+    return tuple(simultaneous_bound(sd[a:b], p.length_mm / (len(s) - 1), wavelength, coverage, shared)
+                 for p, s, a, b in zip(paths, samples, edges[:-1], edges[1:]))
 
 
 def bound_meets_target(bound_mm: float, target_mm: float) -> bool:
@@ -387,7 +410,7 @@ def bound_meets_target(bound_mm: float, target_mm: float) -> bool:
 def run_bounds(check: FieldCheck, paths: Sequence[Any]) -> tuple[float, ...]:
     """Each trace's bound (T,) mm (:func:`trace_bound`) over the run's T traces ``paths``
     (TracePolylines), the T sharing the confidence: the largest is the run's bound."""
-    return tuple(trace_bound(check.fit, p, check.coverage, check.learned, len(paths)) for p in paths)
+    return posterior_trace_bounds(bound_posterior(check.fit, check.learned), paths, check.coverage)
 
 
 _Check = TypeVar("_Check", bound=FieldCheck)

@@ -40,9 +40,10 @@ from app.probing.deviation_prior import path_sites
 from app.probing.field import plan_field
 from app.probing.selection import PlanParams
 from app.reconstruction.field import fit_field
+from app.reconstruction.field_forecast import expected_log_sd
 from app.reconstruction.field_sequential import plan_sequential, tightened_target
 from app.reconstruction.field_trust import FieldCheck, bound_meets_target, run_bounds
-from app.reference.s1 import as_made, nominal_path, s1_traces
+from app.reference.s1 import LENGTH_X_MM, WIDTH_Y_MM, as_made, nominal_path, s1_traces
 
 WAVELENGTHS = tuple(float(w) for w in os.environ.get("TRUST_WAVELENGTHS", "6,10,15,25,40").split(","))
 SEEDS = int(os.environ.get("TRUST_SEEDS", "10"))
@@ -50,6 +51,42 @@ SEED_START = int(os.environ.get("TRUST_SEED_START", "620"))
 NOISE_MM = 0.001
 DEFAULT = PlanParams()
 VERIFY = 5
+WITHIN = 0.2      # hyperparameters "recovered" when within 20 % of the truth
+COVER_SD = 2.0    # the reported uncertainty: this many (log) sd either side
+
+
+def part_rms(seed: int, wavelength: float, amplitude: float) -> float:
+    """The machining error's rms (mm) over the part (the grid the peak is scaled on): the
+    prior's amplitude is PEAK_FACTOR x its rms, so the truth its learned amplitude estimates
+    is 3 x this (the part's peak, ``amplitude``, is one draw's, a few rms at most)."""
+    gx, gy = np.meshgrid(np.linspace(0, LENGTH_X_MM, 121), np.linspace(0, WIDTH_Y_MM, 81))
+    made = as_made(seed=seed, amplitude_mm=amplitude, min_wavelength_mm=wavelength)
+    return float(np.sqrt(np.mean(made.machining_error(np.column_stack([gx.ravel(), gy.ravel()])) ** 2)))
+
+
+def recovery(check, stations, truth: PlanParams, rms_amplitude: float) -> dict:
+    """The learned amplitude and wavelength against the truth: ratios learned / true (the
+    amplitude against the part's peak and against 3 x its rms), the reported relative sd
+    (the learning's Laplace sd), the relative sd the expected Fisher information at the true
+    prior forecasts for these stations (:func:`expected_log_sd`: the Cramer-Rao bound of an
+    efficient estimate), and whether the reported COVER_SD sd cover the truth (log scale)."""
+    learned = check.learned or {}
+    fisher = np.expm1(expected_log_sd(truth.prior(), stations, check.fit.posterior.center))
+    out = {}
+    for name, true, i in (("amplitude_mm", truth.deviation_amplitude_mm, 0),
+                          ("wavelength_mm", truth.deviation_wavelength_mm, 1)):
+        value = learned.get(name, {}).get("value", float("nan"))
+        rel = learned.get(name, {}).get("relative_sd")
+        rel = float("nan") if rel is None else float(rel)
+        out[name] = dict(ratio=value / true, rel_sd=rel, fisher=float(fisher[i]),
+                         covered=abs(np.log(value / true)) <= COVER_SD * np.log1p(rel) if rel == rel else False)
+    out["amplitude_mm"]["rms_ratio"] = out["amplitude_mm"]["ratio"] * true_ratio(truth, rms_amplitude)
+    return out
+
+
+def true_ratio(truth: PlanParams, rms_amplitude: float) -> float:
+    """peak / (3 x rms): turns learned / peak into learned / (3 x rms)."""
+    return truth.deviation_amplitude_mm / rms_amplitude
 
 
 def oracle_at_the_bound(paths, truth: PlanParams, field) -> tuple[int, float]:
@@ -89,7 +126,7 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
     dense = [path_sites(p, p.s[::2]) for p in paths]
     rows = []
     print("\nlambda seed  A_mm  touches oracle ratio rounds  stopped      learned_lambda  bound_um  true_um  "
-          "verified_max_um  attention  worse_traces  s")
+          "verified_max_um  attention  worse_traces  over  s")
     for wavelength in WAVELENGTHS:
         for k in range(SEEDS):
             seed = SEED_START + k
@@ -118,11 +155,12 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
                        rounds=result.rounds, stopped=result.stopped, learned=learned, bound=check.bound_mm,
                        true=float(after.max()), verified=0.0 if v is None else v.max_abs_residual_mm,
                        attention=check.needs_attention, worse=int((after >= before).sum()), s=elapsed)
+            row["recovery"] = recovery(check, result.stations, truth, 3.0 * part_rms(seed, wavelength, amplitude))
             rows.append(row)
             print(f"{wavelength:5.0f} {seed:4d} {amplitude:5.3f} {row['touches']:7d} {oracle:6d} "
                   f"{row['touches'] / oracle:5.2f} {str(result.rounds):14s} {result.stopped:12s} {learned:8.2f} "
                   f"{check.bound_mm * 1000:9.2f} {row['true'] * 1000:8.2f} {row['verified'] * 1000:10.2f} "
-                  f"{str(check.needs_attention):9s} {row['worse']:5d} {elapsed:6.1f}", flush=True)
+                  f"{str(check.needs_attention):9s} {row['worse']:5d} {over:4d} {elapsed:6.1f}", flush=True)
     done = [r for r in rows if not r["attention"]]
     false_done = [r for r in done if r["true"] > r["bound"]]
     worse = sum(r["worse"] for r in rows)
@@ -147,6 +185,7 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
               f"{sum(not r['attention'] for r in sub)}/{len(sub)}, "
               f"worst true {max(r['true'] for r in sub) * 1000:.2f} um, touches median "
               f"{np.median([r['touches'] for r in sub]):.0f} (oracle {np.median([r['oracle'] for r in sub]):.0f})")
+    print_recovery(rows)
     smooth = [r for r in rows if not r["step"]]
     if smooth:
         total = np.array([r["touches"] / r["oracle"] for r in smooth])
@@ -160,3 +199,28 @@ def test_sequential_field_check_never_claims_more_than_it_delivers():
               f"{sum(r['held'] == r['oracle'] for r in smooth)} of {len(smooth)}; touches / it median "
               f"{np.median(held):.2f}, max {held.max():.2f}")
     assert not false_done and worse == 0
+
+
+def print_recovery(rows: list[dict]) -> None:
+    """Per wavelength, over the parts without the tilt and step and with >= 30 touches: the
+    fraction whose learned amplitude (against the peak, and against 3 x rms) and wavelength
+    are within WITHIN of the truth, the median reported and Fisher-forecast relative sd, and
+    the fraction the reported COVER_SD sd cover."""
+    print(f"\nhyperparameters (parts without the tilt and step, >= 30 touches): within {WITHIN:.0%} of the truth, "
+          f"median relative sd reported / Fisher at the truth, covered by {COVER_SD:.0f} sd")
+    for wavelength in WAVELENGTHS:
+        sub = [r["recovery"] for r in rows if r["wavelength"] == wavelength and not r["step"] and r["touches"] >= 30]
+        if not sub:
+            continue
+        a = [x["amplitude_mm"] for x in sub]
+        w = [x["wavelength_mm"] for x in sub]
+
+        print(f"lambda {wavelength:4.0f}: amplitude {described(a)} (within of 3 x rms "
+              f"{sum(abs(x['rms_ratio'] - 1) < WITHIN for x in a)}/{len(a)}); wavelength {described(w)}")
+
+
+def described(xs: list[dict]) -> str:
+    """One parameter's line: within WITHIN, learned / true median, reported / Fisher sd, covered."""
+    return (f"within {sum(abs(x['ratio'] - 1) < WITHIN for x in xs)}/{len(xs)}, learned / true median "
+            f"{np.median([x['ratio'] for x in xs]):.2f}, sd {np.nanmedian([x['rel_sd'] for x in xs]):.2f} / Fisher "
+            f"{np.nanmedian([x['fisher'] for x in xs]):.2f}, covered {sum(x['covered'] for x in xs)}/{len(xs)}")

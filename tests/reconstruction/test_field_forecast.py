@@ -72,11 +72,17 @@ def test_the_amplitudes_information_saturates_with_the_parts_area_not_the_touche
 
 def test_the_forecast_for_the_stations_touched_is_the_bound_they_give(paths):
     """Nothing added: the forecast is the run's bound the verdict computes for the same
-    stations and learning (the posterior sd does not depend on what the stations read)."""
+    stations and learning (the posterior sd does not depend on what the stations read), the
+    learning's sd within the expected-information sd of its touches (the forecast's cap: the
+    Laplace sd taken at most that)."""
+    from dataclasses import replace
+
     made = as_made(seed=3, amplitude_mm=0.15, min_wavelength_mm=25.0)
     plan = plan_field(paths, DEFAULT)
     dz = made.machining_error(plan.xy) + np.random.default_rng(3).normal(0.0, 0.001, plan.count)
     learned = learn_prior(DEFAULT.prior(), plan.sites, dz, plan.center)
+    learned = replace(learned, log_sd=np.minimum(learned.log_sd, expected_log_sd(learned.prior, plan.sites,
+                                                                                   plan.center)))
     check = stations_check(DEFAULT.prior(), plan.sites, dz, plan.center, plan.trace, plan.s_mm, paths,
                            DEFAULT.coverage, DEFAULT.target_error_mm, learned)
     assert not check.fit.outliers and not learned.screened
@@ -100,6 +106,87 @@ def test_a_round_is_the_fewest_stations_whose_forecast_is_within_the_aim():
     assert more.count == 4 and 2.5 <= target < 10.0 / 3.0
     more, target = plan_for_bound(plan, forecast, 2.0, 5.0, 0.1)   # out of reach: the tightest target
     assert target == pytest.approx(1.0) and more.count == 10
+
+
+def test_a_forecast_sd_is_at_most_the_expected_information_sd_of_the_design(paths):
+    """A pilot's Laplace sd scattered far over the expected-information sd of its own touches
+    (here made 3 x): the forecast sd for a design is no more than that design's expected
+    information gives (the Cramer-Rao forecast), and no more than the scaled Laplace sd when
+    that is the smaller."""
+    from dataclasses import replace
+
+    from app.reconstruction.field_forecast import forecast_learned
+
+    made = as_made(seed=3, amplitude_mm=0.15, min_wavelength_mm=25.0)
+    plan = plan_field(paths, DEFAULT)
+    dz = made.machining_error(plan.xy) + np.random.default_rng(3).normal(0.0, 0.001, plan.count)
+    learned = learn_prior(DEFAULT.prior(), plan.sites, dz, plan.center)
+    assert not any(learned.at_bound)
+    more = plan_field(paths, PlanParams(target_error_mm=0.003), fixed=plan.sites)
+    after = Sites(np.concatenate([plan.sites.xy, more.xy]), np.concatenate([plan.sites.grad, more.grad]))
+    fisher_now = expected_log_sd(learned.prior, plan.sites, plan.center)
+    fisher_after = expected_log_sd(learned.prior, after, plan.center)
+    wide = replace(learned, log_sd=3.0 * fisher_now)
+    forecast = forecast_learned(wide, plan.sites, after, plan.center)
+    narrow = forecast_learned(replace(learned, log_sd=0.5 * fisher_now), plan.sites, after, plan.center)
+    for i, name in enumerate(("amplitude_mm", "wavelength_mm")):
+        assert forecast[name]["relative_sd"] == pytest.approx(math.expm1(fisher_after[i]), rel=1e-9)
+        assert narrow[name]["relative_sd"] == pytest.approx(math.expm1(0.5 * fisher_after[i]), rel=1e-9)
+
+
+def test_the_search_ends_once_no_station_fewer_can_meet_the_aim():
+    """The same plans as above: at target 3.16 (4 stations, bound 5: the aim) the next try,
+    3.98, buys 3 and misses; no plan lies between, the search ends there (3 plans, not
+    SEARCH_STEPS) with the same answer."""
+    from types import SimpleNamespace
+
+    from app.reconstruction.field_forecast import SEARCH_STEPS
+    targets: list[float] = []
+
+    def plan(t: float) -> SimpleNamespace:
+        targets.append(t)
+        return SimpleNamespace(count=math.ceil(10.0 / t))
+    more, target = plan_for_bound(plan, lambda m: 20.0 / m.count, 2.0, 5.0, 5.0)
+    assert more.count == 4 and 2.5 <= target < 10.0 / 3.0
+    assert len(targets) == 3 < SEARCH_STEPS
+
+
+def test_a_rounds_forecast_computes_the_touched_stations_information_once(paths, monkeypatch):
+    """A round's search forecasts many designs from the same touches: the expected information
+    of the touched stations is computed once, each design's once (k forecasts: k + 1), and the
+    forecast is the same as computed afresh."""
+    import app.reconstruction.field_forecast as field_forecast
+    import app.reconstruction.field_sequential as field_sequential
+    from app.reconstruction.field_sequential import round_forecast
+
+    made = as_made(seed=3, amplitude_mm=0.15, min_wavelength_mm=25.0)
+    plan = plan_field(paths, DEFAULT)
+    dz = made.machining_error(plan.xy) + np.random.default_rng(3).normal(0.0, 0.001, plan.count)
+    learned = learn_prior(DEFAULT.prior(), plan.sites, dz, plan.center)
+    current = PlanParams(deviation_amplitude_mm=learned.prior.amplitude_mm,
+                         deviation_wavelength_mm=learned.prior.wavelength_mm, target_error_mm=0.003)
+    designs = [plan_field(paths, PlanParams(target_error_mm=t), fixed=plan.sites) for t in (0.004, 0.003, 0.002)]
+    calls = []
+    counted = field_forecast.expected_log_sd
+
+    def counting(*args, **kwargs):
+        calls.append(len(args[1].xy))
+        return counted(*args, **kwargs)
+    monkeypatch.setattr(field_forecast, "expected_log_sd", counting)
+    monkeypatch.setattr(field_sequential, "expected_log_sd", counting, raising=False)
+    forecast = round_forecast(learned, plan.sites, plan.center, paths, DEFAULT, current)
+    assert forecast is not None
+    values = [forecast(more) for more in designs]
+    assert len(calls) == len(designs) + 1 and calls.count(plan.count) == 1
+    for more, value in zip(designs, values):
+        after = Sites(np.concatenate([plan.sites.xy, more.xy]), np.concatenate([plan.sites.grad, more.grad]))
+        assert value == pytest.approx(counted_bound(learned, plan, after, paths), rel=1e-12)
+
+
+def counted_bound(learned, plan, after: Sites, paths) -> float:
+    """The forecast afresh (the touched stations' information computed again)."""
+    return forecast_run_bound(learned, plan.sites, after, plan.center, paths, DEFAULT.coverage,
+                              DEFAULT.probe_sigma_mm)
 
 
 def test_sequential_planning_on_a_long_wavelength_part_uses_at_most_1_3x_the_touches_of_a_plan_that_knows_it(paths):

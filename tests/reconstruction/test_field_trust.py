@@ -306,3 +306,25 @@ def test_the_stations_check_given_the_callers_learning_is_the_check_that_learns_
     given, itself = stations_check(*args, learned=learned), stations_check(*args)
     assert given.learned == itself.learned and given.bound_mm == itself.bound_mm
     assert np.array_equal(given.fit.dz, itself.fit.dz) and given.fit.outliers == itself.fit.outliers
+
+
+def test_the_run_bounds_batched_are_each_traces_bound_and_the_sd_the_dense_formula(paths, monkeypatch):
+    """Every trace's bound from one batched solve (batches of 7 points, across the traces)
+    is the bound of that trace alone, and the posterior sd is prior variance - k' K^-1 k
+    with K^-1 from a dense solve (an independent reference)."""
+    import app.reconstruction.field_trust as field_trust
+    from app.probing.deviation_prior import fit_posterior, prior_covariance, prior_variance
+
+    plan = plan_field(paths, PlanParams())
+    posterior = fit_posterior(PlanParams().prior(), plan.sites, np.zeros(plan.count), plan.center)
+    alone = [field_trust.posterior_trace_bound(posterior, p, 3.0, len(paths)) for p in paths]
+    monkeypatch.setattr(field_trust, "SD_BATCH", 7)
+    assert field_trust.posterior_trace_bounds(posterior, paths, 3.0) == pytest.approx(alone, rel=1e-9)
+    sites = path_sites(paths[0], np.linspace(0.0, paths[0].length_mm, 9))
+    prior = posterior.prior
+    k = prior_covariance(prior, plan.sites, plan.sites, plan.center)
+    jitter = max(prior.sigma_mm ** 2, 1e-10 * prior.rms_mm ** 2)
+    kq = prior_covariance(prior, plan.sites, sites, plan.center)
+    dense = prior_variance(prior, sites, plan.center) - np.sum(kq * np.linalg.solve(k + jitter * np.eye(len(k)), kq),
+                                                               axis=0)
+    assert posterior.sd(sites) == pytest.approx(np.sqrt(np.maximum(dense, 0.0)), rel=1e-6, abs=1e-9)
