@@ -60,6 +60,15 @@ class HalWatch:
                 return t_ns
         return None
 
+    def ended(self) -> str | None:
+        """Why the sampler stopped early (its exit code and the end of its stderr), or None
+        while it runs: a test that saw no change says whether it was watching."""
+        code = self._process.poll()
+        if code is None:
+            return None
+        err = self._process.stderr.read()[-300:] if self._process.stderr else ""
+        return f"hal_watch exited with {code}: {err.strip()}"
+
     def close(self) -> None:
         """Stop the sampler (SIGTERM to the process this object started) and collect the rest."""
         if self._process.poll() is None:
