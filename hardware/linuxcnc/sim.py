@@ -23,9 +23,8 @@ the simulated sensor (a userspace HAL component sampled every 0.5 ms) must not w
 core behind the suites, browsers and compute jobs that share this host.  At nice 0, in test
 runs at load 17-23 beside a Chromium that raises its own priority (nice -8), a sensor
 calibration found no edge in its scan once and an offset 13 um off once (limit 5 um), while
-both passed alone at the same load.  Without a realtime kernel (Debian's uspace build here)
-the servo thread of ``rtapi_app`` is an ordinary thread too (SCHED_OTHER): the nice value
-applies to it as well.
+both passed alone at the same load.  The realtime servo thread has its own realtime
+priority either way.
 
 Stop: ``shutdown`` over linuxcncrsh (about 3 s), then SIGTERM / SIGKILL to the process
 group this object started (never to processes found by name).
