@@ -17,15 +17,6 @@ uspace realtime needs ``RTAPI_UID`` (an unprivileged uid: ``CONFORMA_RTAPI_UID``
 linuxcncrsh listens on every interface (it has no bind option): the random passwords and
 a port chosen per run are the only guard here; firewall the port on shared hosts.
 
-As root, LinuxCNC runs at nice ``SIM_NICE`` (-10; every process it starts inherits it): the
-simulator stands for a controller with a computer of its own, so its task, linuxcncrsh and
-the simulated sensor (a userspace HAL component sampled every 0.5 ms) must not wait for a
-core behind the suites, browsers and compute jobs that share this host.  At nice 0, in test
-runs at load 17-23 beside a Chromium that raises its own priority (nice -8), a sensor
-calibration found no edge in its scan once and an offset 13 um off once (limit 5 um), while
-both passed alone at the same load.  The realtime servo thread has its own realtime
-priority either way.
-
 Stop: ``shutdown`` over linuxcncrsh (about 3 s), then SIGTERM / SIGKILL to the process
 group this object started (never to processes found by name).
 """
@@ -61,7 +52,6 @@ CONFIGS = {"xyz": "xyz.ini", "xyzac-trt": "xyzac-trt.ini"}
 SENSOR_COMPONENT = Path(__file__).with_name("sensor_hal.py")  # sim/sensor.hal's component
 SENSOR_MAP = "sensor_map.npz"  # in the run's directory: the jetted ink the sensor sees
 LOCK_PATH = os.path.join(tempfile.gettempdir(), "conforma-linuxcnc.lock")
-SIM_NICE = -10  # the simulator's nice value as root (see the module)
 
 
 def linuxcnc_available() -> bool:
@@ -383,8 +373,7 @@ class SimController:
             self.workdir, env = self._prepare()
             self._env = env
             log = open(self.workdir / "linuxcnc.log", "wb")
-            nice = ["nice", "-n", str(SIM_NICE)] if os.geteuid() == 0 else []
-            self._process = subprocess.Popen([*nice, "linuxcnc", CONFIGS[self.config]], cwd=self.workdir,
+            self._process = subprocess.Popen(["linuxcnc", CONFIGS[self.config]], cwd=self.workdir,
                                              env=env, stdout=log, stderr=subprocess.STDOUT,
                                              stdin=subprocess.DEVNULL, start_new_session=True)
             log.close()

@@ -8,15 +8,11 @@ sensor's optics; the controller samples it with the joints in the servo thread a
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from hardware.linuxcnc import SimBlock, SimSensor
 from hardware.linuxcnc.hal_scan import HalScan
-from hardware.linuxcnc.sim import SIM_NICE
 
 OFFSET = (30.0, 5.0, -10.0)
 BLOCK = SimBlock(40.0, 30.0, 2.0, 0.02, dx=10.0, dy=-5.0, dz=0.1, rz_deg=1.0)
@@ -39,29 +35,6 @@ def _truth(block, xyz):
     """(surface under the spot, the sensor's zero) for carriage positions (n, 3)."""
     spot = xyz[:, :2] + OFFSET[:2]
     return np.array([block.top_z(x, y) for x, y in spot]), xyz[:, 2] + OFFSET[2]
-
-
-def _group_nice(pgid: int) -> dict[str, set[int]]:
-    """Nice value(s) per command name of the processes in process group ``pgid`` (/proc)."""
-    found: dict[str, set[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            text = stat.read_text()
-        except OSError:  # ended meanwhile
-            continue
-        comm, rest = text[text.index("(") + 1:text.rindex(")")], text[text.rindex(")") + 2:].split()
-        if int(rest[2]) == pgid:  # fields after the name: state ppid pgrp ... nice is the 17th
-            found.setdefault(comm, set()).add(int(rest[16]))
-    return found
-
-
-def test_the_controller_and_its_sensor_run_at_the_simulators_nice(lcnc_xyz):
-    """As root, every process of the simulator (the task, linuxcncrsh, the sensor component)
-    runs at ``SIM_NICE``, ahead of what else shares the host's cores."""
-    expected = SIM_NICE if os.geteuid() == 0 else os.getpriority(os.PRIO_PROCESS, 0)
-    found = _group_nice(lcnc_xyz._process.pid)
-    assert {"linuxcncrsh", "milltask", "python3"} <= set(found), found
-    assert all(values == {expected} for values in found.values()), found
 
 
 def test_a_scan_pass_samples_the_block_under_the_spot_every_servo_period(lcnc_xyz, machine):
