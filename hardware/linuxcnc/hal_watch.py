@@ -47,7 +47,11 @@ def main(argv):
     out.flush()
     try:
         while running[0] and time.monotonic() < end:
-            values = [read(name) for name in names]
+            try:
+                values = [read(name) for name in names]
+            except SystemError:  # linuxcnc.stat.poll() now and then "returned NULL": read again
+                time.sleep(period)
+                continue
             now = time.monotonic_ns()
             if values != last:
                 out.write(f"{now} " + " ".join(repr(v) for v in values) + "\n")

@@ -24,7 +24,10 @@ if TYPE_CHECKING:
 
 __all__ = ["resume_preamble", "run_program", "write_program"]
 
-_START_GRACE_S = 1.0  # IDLE right after "set run" may mean "not started yet"
+# IDLE right after "set run" with the program line at 0 means "not started yet" ("set open"
+# resets the line to 0; a program that ran, however quickly, leaves its last line): waited for
+# up to this long, on a loaded host the task may take seconds to start it
+_START_GRACE_S = 10.0
 _PROGRAM_ENDS = ("M2", "M30")
 
 
@@ -90,7 +93,7 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
             seen_running = True
             if line > skip:
                 executed = max(executed, start_line + min(line - 1 - skip, count))
-        elif seen_running or time.monotonic() - started > _START_GRACE_S:
+        elif seen_running or line > 0 or time.monotonic() - started > _START_GRACE_S:
             executed = total
         if st.current in ("printing", "paused"):
             st.current = "paused" if status == "PAUSED" else "printing"
