@@ -1,0 +1,64 @@
+"""A program that the controller starts late: ``run_program`` must not take the IDLE it reads
+right after ``set run`` for the program's end.  A scripted linuxcncrsh plays a task that starts
+the program 1.5 s after ``set run`` (a loaded host), runs it for 0.5 s and ends it; no
+simulator needed."""
+
+from __future__ import annotations
+
+import time
+
+from hardware.linuxcnc.machine import LinuxCNCMachine
+from hardware.linuxcnc.program_run import run_program
+from hardware.linuxcnc.rsh import RshSession
+from tests.helpers.scripted_rsh import ScriptedRsh
+
+START_S, RUN_S, LINES = 1.5, 0.5, 3
+
+
+class _LateTask:
+    """linuxcncrsh whose program starts ``START_S`` after ``set run``: IDLE at line 0 until
+    then (``set open`` reset it), RUNNING through lines 1..LINES for ``RUN_S``, then IDLE at
+    its last line."""
+
+    def __init__(self) -> None:
+        self.run_at: float | None = None
+        self.reported_running = False
+
+    def _state(self) -> tuple[str, int]:
+        if self.run_at is None:
+            return "IDLE", 0
+        t = time.monotonic() - self.run_at - START_S
+        if t < 0:
+            return "IDLE", 0
+        if t < RUN_S:
+            self.reported_running = True
+            return "RUNNING", 1 + min(int(t / RUN_S * LINES), LINES - 1)
+        return "IDLE", LINES
+
+    def __call__(self, line: str, connection: int) -> str | None:
+        if line == "set run":
+            self.run_at = time.monotonic()
+        if line == "get program_status":
+            return f"PROGRAM_STATUS {self._state()[0]}"
+        if line == "get program_line":
+            return f"PROGRAM_LINE {self._state()[1]}"
+        if line == "get error":
+            return "ERROR OK"
+        return None
+
+
+def test_a_program_started_late_is_waited_for_and_not_reported_finished_before_it_ran():
+    task = _LateTask()
+    server = ScriptedRsh(task)
+    machine = LinuxCNCMachine(f"linuxcnc://127.0.0.1:{server.port}?joints=3", connect_pw="pw",
+                              enable_pw="pw", timeout_s=5.0)
+    machine.machine_state.link = RshSession.open("127.0.0.1", server.port, "pw")
+    machine.machine_state.current = "printing"
+    seen: list[tuple[int, int]] = []
+    started = time.monotonic()
+    executed, cancelled = run_program(machine, "/tmp/program.ngc", 0, LINES, lambda e, t: seen.append((e, t)))
+    assert (executed, cancelled) == (LINES, False)
+    assert task.reported_running  # it returned after the program ran, not before
+    assert time.monotonic() - started >= START_S + RUN_S
+    assert any(0 < e < LINES for e, _ in seen)  # its progress was seen on the way
+    server.close()
