@@ -15,16 +15,15 @@ job stored itself are recorded with :meth:`TraceCheckpoints.done`.  A checkpoint
 trace's outputs were made from (:func:`inputs_sha256`: the job's parameters, the trace's
 record, the part's and the input artifacts' sha256, the software version...).
 
-Why a trace can be trusted: a blob is written to a temporary file, made durable (its contents,
-not only its directory entry; a group's files by one flush) and renamed before its artifact row
-is committed (:mod:`app.platform.blobs`), so a SIGKILL leaves either no row or a row over a
-whole file; a group's checkpoint is committed with (or after) its traces' artifacts, so a kill
-before that commit leaves traces without a record (and, for :meth:`~TraceCheckpoints.add`, files
-without rows, which the blob sweep removes), which are done again: at most a group's worth of
-work is lost. On reuse the checkpoint's bytes must hash to its listed sha256, every artifact the
-trace's record names must still be listed with that sha256 and its bytes hash to it (an attempt
-that rewrote an artifact and was killed before recording it, a missing or altered blob: the
-trace is done again), and the inputs must be this attempt's.
+Why a trace can be trusted: a blob is written to a temporary file, fsynced (its contents,
+not only its directory entry) and renamed before its artifact row is committed
+(:mod:`app.platform.blobs`), so a SIGKILL leaves either no row or a row over a whole file; a group's
+checkpoint is committed with (or after) its traces' artifacts, so a kill before that commit
+leaves traces without a record (and, for :meth:`~TraceCheckpoints.add`, files without rows,
+which the blob sweep removes), which are done again: at most a group's worth of work is lost.  On reuse the checkpoint's
+bytes must hash to its listed sha256, every artifact the trace's record names must still be listed with that sha256 and
+its bytes hash to it (an attempt that rewrote an artifact and was killed before recording it, a missing or altered
+blob: the trace is done again), and the inputs must be this attempt's.
 """
 
 from __future__ import annotations

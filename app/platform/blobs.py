@@ -1,13 +1,11 @@
 """Content-addressed files under ``data_dir/blobs/ab/abcdef...`` listed in the ``blobs`` table.
 
-A blob is written to a temporary file, made durable (fsynced; a group of them by one flush
-of the filesystem, :func:`sync_written`) and renamed into place before its row is inserted,
-so a crash never leaves a row pointing at a missing or partial file.
+A blob is written to a temporary file, fsynced and renamed into place before its row is
+inserted, so a crash never leaves a row pointing at a missing or partial file.
 """
 
 from __future__ import annotations
 
-import ctypes
 import hashlib
 import os
 import tempfile
@@ -25,6 +23,7 @@ from app.platform.models import Blob, utcnow
 _BLOBS = Blob.__table__  # type: ignore[attr-defined]
 
 
+
 def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
     """Write ``target`` whole or not at all: ``write`` fills a temporary file beside it, which
     is fsynced and renamed over ``target`` (a reader sees the old file, the new one, or none)."""
@@ -39,43 +38,6 @@ def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-
-def _syncfs() -> Callable[[int], int] | None:
-    """libc's ``syncfs(fd)`` (Linux), or None where the platform lacks it."""
-    try:
-        call = ctypes.CDLL(None, use_errno=True).syncfs
-    except (OSError, AttributeError):
-        return None
-    call.argtypes = [ctypes.c_int]
-    call.restype = ctypes.c_int
-    return call
-
-
-_SYNCFS = _syncfs()
-
-
-def sync_written(root: str, paths: list[str]) -> None:
-    """Make the files ``paths`` (written, closed, all on the filesystem of the folder ``root``)
-    durable: one ``syncfs`` of that filesystem when there are several and the platform has
-    it (a group's hundreds of files cost one flush, not an fsync each; it also waits for
-    other writers' dirty pages on that filesystem), else an fsync of each.  OSError when the
-    flush fails."""
-    if len(paths) > 1 and _SYNCFS is not None:
-        fd = os.open(root, os.O_RDONLY | os.O_CLOEXEC)
-        try:
-            if _SYNCFS(fd) != 0:
-                error = ctypes.get_errno()
-                raise OSError(error, os.strerror(error))
-        finally:
-            os.close(fd)
-        return
-    for path in paths:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
 
 class BlobStore:
     """Bytes in, sha256 out; files are immutable once written."""
@@ -95,48 +57,32 @@ class BlobStore:
         return _record(session, digest, len(data))
 
     def put_many(self, session: Session, items: list[bytes]) -> list[str]:
-        """:meth:`put` of each of ``items``, their rows inserted in ONE statement (a board job
-        stores hundreds at once); their sha256 in order.  The group's new files are written
-        to temporary files, made durable together (:func:`sync_written`: one flush of the
-        filesystem, not an fsync per file) and only then renamed into place, so a failure or
-        a crash before the renames leaves none of them visible (only temporary files, which
-        the writer removes or :func:`sweep_blobs` later does) and one after them leaves whole
-        files without rows."""
+        """:meth:`put` of each of ``items`` (each file written and fsynced first), their rows
+        inserted in ONE statement (a board job stores hundreds at once); their sha256 in order."""
         digests = [hashlib.sha256(data).hexdigest() for data in items]
         sizes: dict[str, int] = {}
         folders: set[str] = set()
-        written: list[tuple[str, str]] = []  # (temporary, target) of the files written
-        try:
-            for digest, data in zip(digests, items):
-                if digest not in sizes:
-                    pending = self._write_temporary(digest, data, folders)
-                    if pending is not None:
-                        written.append(pending)
-                sizes[digest] = len(data)
-            sync_written(str(self.root), [tmp for tmp, _ in written])
-            for tmp, target in written:
-                os.replace(tmp, target)
-        except BaseException:
-            for tmp, _ in written:
-                Path(tmp).unlink(missing_ok=True)
-            raise
+        for digest, data in zip(digests, items):
+            if digest not in sizes:
+                self._put_file(digest, data, folders)
+            sizes[digest] = len(data)
         if sizes:
             now = utcnow()
             session.connection().execute(_insert_new(session), [
                 {"sha256": sha, "bytes": size, "created_at": now} for sha, size in sizes.items()])
         return digests
 
-    def _write_temporary(self, digest: str, data: bytes, folders: set[str]) -> tuple[str, str] | None:
-        """Write ``data`` (the blob ``digest``) to a temporary file beside its place, unless
-        the blob's file exists (None); returns (temporary, target), not yet durable nor
-        renamed.  ``folders`` (the ones known to exist) grows as it creates them; the
-        temporary name is the blob's, this process's and this thread's (no other writer
-        uses it; one a dead process with the same pid left is overwritten), not one of random
-        names tried until one is free."""
+    def _put_file(self, digest: str, data: bytes, folders: set[str]) -> None:
+        """Write the blob ``digest`` (``data``) unless its file exists, as
+        :func:`write_atomically` does (a temporary file beside it, fsynced, renamed into
+        place) with the calls a group of hundreds needs only: ``folders`` (the ones known
+        to exist) grows as it creates them; the temporary name is the blob's, this process's
+        and this thread's (no other writer uses it; one a dead process with the same pid
+        left is overwritten), not one of random names tried until one is free."""
         folder = os.path.join(self.root, digest[:2])
         target = os.path.join(folder, digest)
         if os.path.exists(target):
-            return None
+            return
         if folder not in folders:
             os.makedirs(folder, exist_ok=True)
             folders.add(folder)
@@ -147,12 +93,13 @@ class BlobStore:
                 view = memoryview(data)
                 while view:
                     view = view[os.write(fd, view):]
+                os.fsync(fd)
             finally:
                 os.close(fd)
+            os.replace(tmp, target)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-        return tmp, target
 
     def put_file(self, session: Session, handle: BinaryIO, chunk: int = 1 << 20) -> str:
         """Store the rest of the open binary file ``handle`` from its start (idempotent),

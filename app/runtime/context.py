@@ -197,9 +197,8 @@ class JobContext:
 
     def artifacts(self, items: list[tuple[str, bytes, str, dict[str, Any] | None]]) -> list[str]:
         """Store several artifacts of this job (name, data, media type, meta) in one commit
-        (the blobs written and made durable before it, :meth:`BlobStore.put_many`; the rows an
-        earlier attempt left under these names looked up in one query); their sha256 in order:
-        all of them or none are listed."""
+        (each blob written and fsynced before it; the rows an earlier attempt left under these
+        names looked up in one query); their sha256 in order: all of them or none are listed."""
         names = [name for name, _, _, _ in items]
         with self._session() as session:
             existing = {row.name: row for row in session.exec(select(Artifact).where(
