@@ -114,7 +114,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                     break
             link.set("estop", "off")
             link.set("machine", "on")
-            homed = link.get("joint_homed", words=3)
+            homed = link.get("joint_homed")
             kins = link.get("kinematics_type")
             self.homed = self._homed(homed)
             if self.homed and link.get("program_status").upper() == "IDLE":
@@ -148,7 +148,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
             self._stopper.abort()
         elif st.current == "idle" and link is not None and link.healthy and not st.estopped:
             with contextlib.suppress(HardwareError):
-                if self._homed(link.get("joint_homed", words=3)):
+                if self._homed(link.get("joint_homed")):
                     self._mdi(self.profile.safe_off)
         st.cancel_requested = True
         self._close_sessions()
@@ -228,7 +228,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                 error = connected(self.link).pop_error()
                 if error is not None:
                     raise FirmwareError(f"LinuxCNC: {error}", command="home")
-                homed = [h.upper() == "YES" for h in connected(self.link).get("joint_homed", words=3).split()]
+                homed = [h.upper() == "YES" for h in connected(self.link).get("joint_homed").split()]
                 now = time.monotonic()
                 if homed != last:
                     last, stable_since = homed, now
@@ -273,19 +273,19 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         return self._position()
 
     def _position(self) -> tuple[float, float, float]:
-        values = [float(v) for v in connected(self.link).get("abs_act_pos", words=3).split()]
+        values = [float(v) for v in connected(self.link).get("abs_act_pos").split()]
         return values[0], values[1], values[2]
 
     def _commanded(self) -> tuple[float, float, float]:
         """Commanded X Y Z in the coordinates a program's G90 words are in (``get
         rel_cmd_pos``: less the work, G92 and tool offsets): where the last move ended, as
         it was written."""
-        values = [float(v) for v in connected(self.link).get("rel_cmd_pos", words=3).split()]
+        values = [float(v) for v in connected(self.link).get("rel_cmd_pos").split()]
         return values[0], values[1], values[2]
 
     def joint_positions(self) -> list[float]:
         """Every joint's actual position (mm / deg), ``get joint_pos``."""
-        return [float(v) for v in connected(self.link).get("joint_pos", words=3).split()]
+        return [float(v) for v in connected(self.link).get("joint_pos").split()]
 
     # ------------------------------------------------------------------ probing
     def probe(self, x: float, y: float, z_start: float | None = None, z_min: float | None = None,

@@ -261,7 +261,7 @@ class SimController:
             session.set("machine", "on")
             session.set("abort")
             session.set("wait", "done", timeout_s=timeout_s)
-            if all(h.upper() == "YES" for h in session.get("joint_homed", words=3).split()[:self.joints]):
+            if all(h.upper() == "YES" for h in session.get("joint_homed").split()[:self.joints]):
                 session.set("mode", "mdi")
                 for command in ("M65 P0", "T0 M6"):
                     session.set("mdi", command)

@@ -21,7 +21,7 @@ SQUARE = ["G21 G90 G64 P0.001", "G1 X0 Y0 Z5 F6000"] + [
 
 
 def _joints(observer) -> list[float]:
-    return [float(v) for v in observer.get("joint_pos", words=3).split()[:3]]
+    return [float(v) for v in observer.get("joint_pos").split()[:3]]
 
 
 def _run_in_thread(machine, lines):
@@ -43,7 +43,7 @@ def test_connect_home_and_mdi_moves(machine, lcnc_xyz):
     observer = lcnc_xyz.session()
     assert machine.identity.firmware.startswith("LinuxCNC")
     assert machine.state == "idle"
-    assert observer.get("joint_homed", words=3).split()[:3] == ["YES"] * 3
+    assert observer.get("joint_homed").split()[:3] == ["YES"] * 3
     assert observer.get("estop") == "OFF" and observer.get("machine") == "ON"
     assert machine.move(x=12.5, y=-7.25, z=4.0, feed_mm_min=6000) == pytest.approx((12.5, -7.25, 4.0), abs=1e-6)
     assert _joints(observer) == pytest.approx([12.5, -7.25, 4.0], abs=1e-6)
@@ -145,7 +145,7 @@ def measure_estops(machine, sim, n: int) -> dict[str, list[float]]:
     figures: dict[str, list[float]] = {key: [] for key in (*ESTOP_SIGNALS, "call")}
     try:
         for _ in range(n):
-            if "NO" in observer.get("joint_homed", words=3).upper().split()[:3]:
+            if "NO" in observer.get("joint_homed").upper().split()[:3]:
                 machine.home()
             with sim.watch(names) as watch:
                 thread, outcome = _run_in_thread(machine, SQUARE)

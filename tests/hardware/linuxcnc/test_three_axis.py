@@ -60,7 +60,7 @@ def test_compensated_print_program_runs_on_the_path(lcnc_xyz):
     def sample() -> None:
         while not done.is_set():
             line = int(link.get("program_line"))
-            joints = [float(v) for v in link.get("joint_pos", words=3).split()[:3]]
+            joints = [float(v) for v in link.get("joint_pos").split()[:3]]
             if on + 1 < line < off and int(link.get("program_line")) == line:
                 samples.append(joints)
                 if len(samples) % 200 == 1:
