@@ -201,6 +201,15 @@ def _factor(k: np.ndarray, sigma_mm: float, scale: float) -> tuple[np.ndarray, b
     return factor
 
 
+def _explained_variance(factor: tuple[np.ndarray, bool], k: np.ndarray) -> np.ndarray:
+    """k' K^-1 k per column of ``k`` (m, q) with K = L L' given by its Cholesky ``factor``
+    (m, m): |L^-1 k|^2, one triangular solve (q,) mm^2."""
+    c, lower = factor
+    w = solve_triangular(c, k, lower=lower, trans=0 if lower else 1, check_finite=False)
+    out: np.ndarray = np.einsum("ij,ij->j", w, w)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class DeviationPosterior:
     """The deviation given measurements: mean and sd at any sites.
@@ -224,9 +233,7 @@ class DeviationPosterior:
         K = L L' the probes' factor (one triangular solve per site, not the two of K^-1 k)."""
         kq = prior_covariance(self.prior, sites, self.probes, self.center)
         prior_var = prior_variance(self.prior, sites, self.center)
-        c, lower = self.factor
-        w = solve_triangular(c, kq.T, lower=lower, trans=0 if lower else 1, check_finite=False)
-        v = prior_var - np.einsum("ij,ij->j", w, w)
+        v = prior_var - _explained_variance(self.factor, kq.T)
         out: np.ndarray = np.sqrt(np.maximum(v, 0.0))
         return out
 
@@ -248,6 +255,5 @@ def max_posterior_sd(cov: np.ndarray, prior_var: np.ndarray, chosen: np.ndarray,
     kc = cov[np.ix_(chosen, chosen)]
     factor = _factor(kc, sigma_mm, float(prior_var.max()))
     kq = cov[np.ix_(chosen, targets)]
-    w = solve_triangular(factor[0], kq, lower=factor[1], trans=0 if factor[1] else 1, check_finite=False)
-    v = prior_var[targets] - np.einsum("ij,ij->j", w, w)
+    v = prior_var[targets] - _explained_variance(factor, kq)
     return float(np.sqrt(max(float(v.max()), 0.0)))
