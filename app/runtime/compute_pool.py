@@ -227,10 +227,11 @@ class ComputePool:
         unused (ended instead when the pool has closed meanwhile)."""
         with self._lock:
             closed = self.closed
-            if closed and member in self._members:
+            if not closed:
+                member.busy = False
+                self._lock.notify_all()
+            elif member in self._members:
                 self._members.remove(member)
-            member.busy = closed
-            self._lock.notify_all()
         if closed:
             member.stop()
         else:
