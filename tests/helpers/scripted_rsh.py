@@ -75,3 +75,16 @@ class ScriptedRsh:
                 reply = self.answer(line, connection)
                 stream.write((standard_reply(line) if reply is None else reply).encode() + b"\r\n")
                 stream.flush()
+
+
+def printing_machine(server: ScriptedRsh):  # type: ignore[no-untyped-def]
+    """A ``LinuxCNCMachine`` talking to ``server`` on one session, in ``printing`` (as a
+    program's run or a stop finds it)."""
+    from hardware.linuxcnc.machine import LinuxCNCMachine
+    from hardware.linuxcnc.rsh import RshSession
+
+    machine = LinuxCNCMachine(f"linuxcnc://127.0.0.1:{server.port}?joints=3", connect_pw="pw",
+                              enable_pw="pw", timeout_s=5.0)
+    machine.machine_state.link = RshSession.open("127.0.0.1", server.port, "pw")
+    machine.machine_state.current = "printing"
+    return machine

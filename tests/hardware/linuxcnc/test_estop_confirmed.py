@@ -8,10 +8,8 @@ from __future__ import annotations
 import pytest
 
 from hardware.errors import LinkError
-from hardware.linuxcnc.machine import LinuxCNCMachine
-from hardware.linuxcnc.rsh import RshSession
 from hardware.linuxcnc.stop_session import ESTOP_TRIES
-from tests.helpers.scripted_rsh import ScriptedRsh
+from tests.helpers.scripted_rsh import ScriptedRsh, printing_machine
 
 
 class _Controller:
@@ -33,19 +31,11 @@ class _Controller:
         return None
 
 
-def _connected(server: ScriptedRsh) -> LinuxCNCMachine:
-    machine = LinuxCNCMachine(f"linuxcnc://127.0.0.1:{server.port}?joints=3", connect_pw="pw",
-                              enable_pw="pw", timeout_s=5.0)
-    machine.machine_state.link = RshSession.open("127.0.0.1", server.port, "pw")
-    machine.machine_state.current = "printing"
-    return machine
-
-
 @pytest.mark.parametrize("how", ["nak", "other", "ignored"])
 def test_a_stop_the_controller_did_not_take_is_sent_again_until_it_reports_it(how):
     controller = _Controller(how, broken=1)
     server = ScriptedRsh(controller)
-    machine = _connected(server)
+    machine = printing_machine(server)
     machine.stop()
     assert controller.estop == "ON"
     assert server.lines("set estop on") == ["set estop on"] * 2
@@ -57,7 +47,7 @@ def test_a_stop_the_controller_did_not_take_is_sent_again_until_it_reports_it(ho
 def test_a_stop_never_reported_is_a_link_error_and_the_machine_stays_in_error():
     controller = _Controller("ignored", broken=ESTOP_TRIES)
     server = ScriptedRsh(controller)
-    machine = _connected(server)
+    machine = printing_machine(server)
     with pytest.raises(LinkError, match="did not report the emergency stop") as failed:
         machine.stop()
     assert failed.value.field == "port"

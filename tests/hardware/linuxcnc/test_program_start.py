@@ -7,10 +7,8 @@ from __future__ import annotations
 
 import time
 
-from hardware.linuxcnc.machine import LinuxCNCMachine
 from hardware.linuxcnc.program_run import run_program
-from hardware.linuxcnc.rsh import RshSession
-from tests.helpers.scripted_rsh import ScriptedRsh
+from tests.helpers.scripted_rsh import ScriptedRsh, printing_machine
 
 START_S, RUN_S, LINES = 1.5, 0.5, 3
 
@@ -50,10 +48,7 @@ class _LateTask:
 def test_a_program_started_late_is_waited_for_and_not_reported_finished_before_it_ran():
     task = _LateTask()
     server = ScriptedRsh(task)
-    machine = LinuxCNCMachine(f"linuxcnc://127.0.0.1:{server.port}?joints=3", connect_pw="pw",
-                              enable_pw="pw", timeout_s=5.0)
-    machine.machine_state.link = RshSession.open("127.0.0.1", server.port, "pw")
-    machine.machine_state.current = "printing"
+    machine = printing_machine(server)
     seen: list[tuple[int, int]] = []
     started = time.monotonic()
     executed, cancelled = run_program(machine, "/tmp/program.ngc", 0, LINES, lambda e, t: seen.append((e, t)))
