@@ -152,14 +152,14 @@ class RshSession:
                 raise LinkError(f"linuxcncrsh session lost: {exc}", field="port") from exc
 
     # ------------------------------------------------------------------ commands
-    def get(self, name: str, *args: str, retries: int = 5) -> str:
+    def get(self, name: str, *args: str, retries: int = 5, words: int = 0) -> str:
         """``get name args`` -> the value part of ``NAME value``.  A ``GET NAK``, a reply
-        to another request or a value of fewer words than ``VALUE_WORDS`` says is retried
+        to another request or a value of fewer words than ``words`` or ``VALUE_WORDS`` says is retried
         (``get`` has no side effects): linuxcncrsh answers NAK when its status read races an
         update, and while sessions talk concurrently it now and then hands one session's reply
         to another or reads an argument from the other session's line (``get joint_pos``
         answered for one joint, ``JOINT_POS <n> <value>``; measured in 2.9)."""
-        words = VALUE_WORDS.get(name.lower(), 0) if not args else 0
+        words = max(words, VALUE_WORDS.get(name.lower(), 0) if not args else 0)
         for attempt in range(retries + 1):
             reply = self.request(" ".join(["get", name, *args]))
             head, _, value = reply.partition(" ")
