@@ -18,8 +18,6 @@ angle to the surface normal.
 from __future__ import annotations
 
 import math
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -31,6 +29,7 @@ from app.five_axis.trace import trace_over_xy
 from hardware.protocol import validate_program
 from tests.five_axis.conftest import sphere_cap
 from tests.hardware.linuxcnc.conftest import PROFILE, TRT_PIVOT
+from tests.hardware.linuxcnc.sampling import LineSampler
 from tests.helpers.gcode_words import g1_rows
 
 PIVOT = TRT_PIVOT            # the simulator's xyzac-trt rot-point
@@ -85,34 +84,21 @@ def _run_and_sample(sim, program: str):
     machine = sim.machine(PROFILE)
     machine.connect()
     machine.home()
-    observer = machine.link  # shared with the machine (serialised): concurrent linuxcncrsh
-    # sessions sometimes receive each other's replies
     commands = validate_program(program.splitlines())
     on = commands.index(PROFILE.dispense_on) + 1   # file line numbers (1-based)
     off = commands.index(PROFILE.dispense_off) + 1
-    samples, limits, done = [], set(), threading.Event()
+    limits: set[str] = set()
 
-    def sample() -> None:
-        k = 0
-        while not done.is_set():
-            line = int(observer.get("program_line"))
-            joints = [float(v) for v in observer.get("joint_pos", words=5).split()[:5]]
-            if on + 1 < line < off - 1 and int(observer.get("program_line")) == line:
-                samples.append(joints)
-            k += 1
-            if k % 25 == 0:
-                limits.update(observer.get("joint_limit").split()[:5])
-            time.sleep(0.0005)
+    def read_limits(n: int) -> None:
+        if n % 25 == 0:
+            limits.update(machine.link.get("joint_limit").split()[:5])
 
-    sampler = threading.Thread(target=sample)
-    sampler.start()
     try:
-        report = machine.stream(program.splitlines())
+        with LineSampler(machine.link, on + 1, off - 1, 5, each=read_limits) as sampler:
+            report = machine.stream(program.splitlines())
     finally:
-        done.set()
-        sampler.join(5)
         machine.disconnect()
-    return report, np.asarray(samples), limits, len(commands)
+    return report, np.asarray(sampler.samples), limits, len(commands)
 
 
 def _deviations(samples, tip_path):

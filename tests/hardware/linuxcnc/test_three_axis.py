@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -21,6 +19,7 @@ from app.compensation.standoff import CompensationParams, compensate_trace
 from hardware.protocol import validate_program
 from tests.compensation.test_standoff import full_rec
 from tests.hardware.linuxcnc.conftest import PROFILE
+from tests.hardware.linuxcnc.sampling import LineSampler
 
 STANDOFF = 0.1
 
@@ -54,32 +53,21 @@ def test_compensated_print_program_runs_on_the_path(lcnc_xyz):
     machine = lcnc_xyz.machine(PROFILE)
     machine.connect()
     machine.home()
-    link = machine.link  # sampled on the machine's own session (serialised with its polling)
-    samples, outputs, done = [], [], threading.Event()
+    link = machine.link
+    outputs: list[bool | None] = []
 
-    def sample() -> None:
-        while not done.is_set():
-            line = int(link.get("program_line"))
-            joints = [float(v) for v in link.get("joint_pos").split()[:3]]
-            if on + 1 < line < off and int(link.get("program_line")) == line:
-                samples.append(joints)
-                if len(samples) % 200 == 1:
-                    value = _digital_out()  # halcmd: slow under load, so the line is checked again
-                    if int(link.get("program_line")) < off:  # read before the dispense-off line ran
-                        outputs.append(value)
-            time.sleep(0.0005)
+    def check_output(n: int) -> None:
+        if n % 200 == 1:
+            value = _digital_out()  # halcmd: slow under load, so the line is checked again
+            if sampler.line() < off:  # read before the dispense-off line ran
+                outputs.append(value)
 
-    sampler = threading.Thread(target=sample)
-    sampler.start()
-    try:
+    with LineSampler(link, on + 1, off, 3, each=check_output) as sampler:
         report = machine.stream(program)
-    finally:
-        done.set()
-        sampler.join(5)
     after = _digital_out()
     machine.disconnect()
     assert report.executed == report.total == len(commands)
-    samples = np.asarray(samples)
+    samples = np.asarray(sampler.samples)
     # the host polls linuxcncrsh for them, up to every 0.5 ms: hundreds on a quiet box, a few
     # dozen at load 30 (44 seen); what is asserted holds for each one
     assert len(samples) >= 30
