@@ -54,6 +54,20 @@ HISTORY = 400  # joint reads kept for the latency (0.2 s at PERIOD_S)
 # it; a component that misses for this long writes no value this time rather than one paired
 # with the wrong period's joints (off by a period's travel: 2 um at 2 mm/s)
 POSITION_WAIT_S = 0.005
+YIELD_S = 0.00005  # a sleep, not sched_yield: at a real-time priority that yields to no ordinary task
+
+
+def realtime_if_allowed() -> bool:
+    """Run at the lowest SCHED_FIFO priority where permitted (root or CAP_SYS_NICE): the
+    component stands for an analog input, whose values do not wait for a busy host's
+    scheduler (at ordinary priority a loaded host left it one value in several servo
+    periods).  It sleeps PERIOD_S after every value, so ordinary tasks keep most of a core.
+    False (ordinary scheduling) where not permitted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except (OSError, AttributeError):
+        return False
+    return True
 
 
 def _optics_model():
@@ -140,7 +154,7 @@ def read_joints(comp, p: dict, deadline: float):
             return tick
         if time.monotonic() > deadline:
             return None
-        os.sched_yield()
+        time.sleep(YIELD_S)
 
 
 def main(argv):
@@ -160,6 +174,7 @@ def main(argv):
     comp.newpin("tick-started", hal.HAL_FLOAT, hal.HAL_IN)
     comp.newpin("exposed", hal.HAL_FLOAT, hal.HAL_OUT)
     comp.ready()
+    realtime_if_allowed()
     running = [True]
     signal.signal(signal.SIGTERM, lambda *_: running.__setitem__(0, False))
     updates = 0
@@ -174,6 +189,7 @@ def main(argv):
             p = {pin: comp[pin] for pin in FLOAT_IN}  # the settings and the part: they change slowly
             tick = read_joints(comp, p, time.monotonic() + POSITION_WAIT_S)
             if tick is None:
+                time.sleep(PERIOD_S)
                 continue
             if not history or tick > history[-1][0]:
                 history.append((tick, p["x"], p["y"], p["z"]))

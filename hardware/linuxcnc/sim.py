@@ -17,6 +17,10 @@ uspace realtime needs ``RTAPI_UID`` (an unprivileged uid: ``CONFORMA_RTAPI_UID``
 linuxcncrsh listens on every interface (it has no bind option): the random passwords and
 a port chosen per run are the only guard here; firewall the port on shared hosts.
 
+Once linuxcncrsh answers, the HAL threads are given a real-time priority where the host
+permits it (:mod:`hardware.linuxcnc.sim_realtime`: a controller's servo thread does not wait
+for a busy host's scheduler); ``realtime_threads`` / ``realtime_note`` say what was done.
+
 Stop: ``shutdown`` over linuxcncrsh (about 3 s), then SIGTERM / SIGKILL to the process
 group this object started (never to processes found by name).
 """
@@ -42,6 +46,7 @@ from ..machine_types import MachineProfile
 from .hal_watcher import HalWatch, SimUnavailable
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
+from .sim_realtime import servo_threads_realtime
 from .sim_surface import SimBlock, SimSensor, SimSphere
 
 __all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSensor", "SimSphere", "SimUnavailable",
@@ -94,6 +99,9 @@ class SimController:
         self.enable_pw = secrets.token_hex(7)
         self.workdir: Path | None = None
         self.startup_s: float | None = None
+        # the HAL threads made real-time after the start (sim_realtime), and why not when none
+        self.realtime_threads = 0
+        self.realtime_note: str | None = None
         self._process: subprocess.Popen | None = None
         self._env: dict[str, str] | None = None
         self._lock_file: IO[str] | None = None
@@ -378,6 +386,7 @@ class SimController:
                                              stdin=subprocess.DEVNULL, start_new_session=True)
             log.close()
             self._await_hello(self._process, started + timeout_s)
+            self.realtime_threads, self.realtime_note = servo_threads_realtime()
         except BaseException:
             self.stop()
             raise
