@@ -34,8 +34,9 @@ prior (a touch the first screen missed or wrongly took out is judged again).  Th
 touches are reported (``screened``); the fit and its outlier rejection still see every touch.
 
 Uncertainty: the inverse of the Hessian of -log p in the log parameters at the optimum (the
-Laplace approximation; central differences), reported as the sd of each log parameter
-(a relative sd) — a parameter at its bound says so instead.
+Laplace approximation; central differences, :func:`app.reconstruction.laplace.laplace_sd`),
+reported as the sd of each log parameter (a relative sd) — a parameter at its bound says so
+instead.
 
 Fit check: the exact leave-one-out residuals of the fitted GP, r_i = (K^-1 dz)_i / (K^-1)_ii
 with sd_i = (K^-1)_ii^-1/2, standardised z_i = r_i / sd_i (N(0, 1) each if the model holds).
@@ -71,6 +72,7 @@ from scipy.stats import chi2, norm
 from app.domain.errors import InvalidInput
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import DeviationPrior, Sites, placement_basis
+from app.reconstruction.laplace import laplace_sd
 
 AMPLITUDE_RANGE = 20.0      # the learned amplitude within [user / 20, user x 20]
 WAVELENGTH_FLOOR_MM = 3.0   # the shortest wavelength the learning may find (a probe ball's scale)
@@ -451,7 +453,7 @@ def _learn(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarr
     span = hi - lo
     at = tuple("lower" if t - a < 1e-3 * s else "upper" if b - t < 1e-3 * s else ""
                for t, a, b, s in zip(theta, lo, hi, span))
-    log_sd = _laplace_sd(objective, theta, at)
+    log_sd = laplace_sd(objective, theta, at, HESSIAN_STEP)
     learned = replace(prior, amplitude_mm=float(math.exp(theta[0])), wavelength_mm=float(math.exp(theta[1])),
                       sigma_mm=float(math.exp(theta[2])))
     loo = loo_check(learned, sites, dz, center)
@@ -480,34 +482,3 @@ def _as_noise(likelihood: _Likelihood, theta: np.ndarray, lo: np.ndarray, hi: np
 
     res = minimize_scalar(value, bounds=(lo[2], hi[2]), method="bounded")
     return float(res.fun), float(math.exp(res.x))
-
-
-def _laplace_sd(objective: Any, theta: np.ndarray, at: tuple[str, ...]) -> np.ndarray:
-    """sd (3,) of the log parameters from the inverse Hessian of ``objective`` at ``theta``
-    (central differences over the parameters not on a bound; NaN for those on one)."""
-    free = [i for i in range(len(theta)) if not at[i]]
-    out = np.full(len(theta), np.nan)
-    if not free:
-        return out
-    h = HESSIAN_STEP
-    m = len(free)
-    hess = np.zeros((m, m))
-    f0 = objective(theta)
-    for a, i in enumerate(free):
-        for b, j in enumerate(free[a:], a):
-            def f(di: float, dj: float, i: int = i, j: int = j) -> float:
-                t = theta.copy()
-                t[i] += di
-                t[j] += dj
-                return float(objective(t))
-            if i == j:
-                hess[a, a] = (f(h, 0) - 2 * f0 + f(-h, 0)) / h ** 2
-            else:
-                hess[a, b] = hess[b, a] = (f(h, h) - f(h, -h) - f(-h, h) + f(-h, -h)) / (4 * h * h)
-    try:
-        cov = np.linalg.inv(hess)
-    except np.linalg.LinAlgError:
-        return out
-    diag = np.diag(cov)
-    out[free] = np.where(diag > 0, np.sqrt(np.abs(diag)), np.nan)
-    return out
