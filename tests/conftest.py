@@ -8,10 +8,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS before the limit below)
 from threadpoolctl import threadpool_limits
 
 # Tests and benchmarks call the core directly: run it as a job process does, with
 # CONFORMA_BLAS_THREADS's default of one BLAS thread (set once per process, never in the core).
+# threadpoolctl limits the BLAS libraries loaded when it is called: numpy's and scipy's are
+# two (scipy.linalg loads its own), so scipy.linalg is imported first (a job process has it
+# loaded by its imports before its limit is set).
 threadpool_limits(limits=1)
 
 KEYS = {"viewer": "viewer-key-123", "operator": "operator-key-123", "admin": "admin-key-123"}

@@ -153,10 +153,18 @@ def path_sites(path: TracePolyline, s: np.ndarray) -> Sites:
     return Sites(path.at(s)[:, :2], path_gradient(path, s))
 
 
+_CENTERS: weakref.WeakKeyDictionary[TracePolyline, np.ndarray] = weakref.WeakKeyDictionary()
+
+
 def path_center(path: TracePolyline) -> np.ndarray:
-    """Rotation/tilt centre (2,) mm of a trace: mean top-view point, even in arc length."""
-    out: np.ndarray = path.at(np.linspace(0.0, path.length_mm, 65))[:, :2].mean(axis=0)
-    return out
+    """Rotation/tilt centre (2,) mm of a trace: mean top-view point, even in arc length (65
+    samples; kept per path, as its smoothed slope is: a board's centre is asked for by every
+    plan of it).  A copy: the kept one is not the caller's to change."""
+    out = _CENTERS.get(path)
+    if out is None:
+        out = path.at(np.linspace(0.0, path.length_mm, 65))[:, :2].mean(axis=0)
+        _CENTERS[path] = out
+    return out.copy()
 
 
 def placement_basis(sites: Sites, center: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any, Literal
 
 import numpy as np
@@ -45,7 +46,7 @@ from app.probing.deviation_prior import (
     prior_covariance,
     prior_variance,
 )
-from app.probing.field_dof import mode_variances, truncation_dof
+from app.probing.field_dof import Deferred, region_dof
 from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
 from app.probing.selection import PlanError, PlanParams, ProbePlan
@@ -245,7 +246,7 @@ class FieldPlan:
     arc length there (NaN off the traces).  center (2,) mm: the placement terms' centre.
     max_sd_mm: largest posterior sd over every trace sample; trace_sd_mm (T,) per trace.
     dof: the field's degrees of freedom at the target (the truncation dimension,
-    :mod:`app.probing.field_dof`); nyquist_dof: the rule-of-thumb ``A / (lambda/2)^2 + 6``;
+    :mod:`app.probing.field_dof`; counted when first read); nyquist_dof: the rule-of-thumb ``A / (lambda/2)^2 + 6``;
     area_mm2: the covered area.  order: (n,) the
     order in which the greedy added them (index into the stations; with the automatic count
     the stations elimination dropped are not in it).  verify (n,) bool or None: the last
@@ -261,12 +262,12 @@ class FieldPlan:
     center: np.ndarray
     max_sd_mm: float
     trace_sd_mm: np.ndarray
-    dof: float
     area_mm2: float
     stations_mode: str
     order: np.ndarray
     nyquist_dof: float = math.nan
     verify: np.ndarray | None = None
+    dof: Deferred = Deferred()
 
     @property
     def verify_mask(self) -> np.ndarray:
@@ -336,9 +337,8 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
     prior = params.prior()
     region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
     plan = _design(region, prior, params, stations, fixed)
-    dof = truncation_dof(mode_variances(prior, region.samples, region.center),
-                         params.target_error_mm / params.coverage)
-    return replace(plan, dof=float(dof), nyquist_dof=region.nyquist_dof)
+    dof = partial(region_dof, prior, region.samples, region.center, params.target_error_mm / params.coverage)
+    return replace(plan, dof=dof, nyquist_dof=region.nyquist_dof)   # counted when first read
 
 
 MAX_REFINE_ROUNDS = 6
@@ -449,7 +449,7 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     per_trace = np.zeros(int(samples.trace.max()) + 1)
     np.maximum.at(per_trace, samples.trace, sd)
     return FieldPlan(station_sites.xy, site_z[picked], station_sites.grad, site_trace[picked], site_s[picked],
-                     region.center, float(sd.max()), per_trace, region.nyquist_dof, region.area_mm2, stations,
+                     region.center, float(sd.max()), per_trace, region.area_mm2, stations,
                      np.argsort(order))
 
 

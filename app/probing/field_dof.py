@@ -23,12 +23,18 @@ GRID_PER_WAVELENGTH over R (each node weighs 1 / m of the region): counts at lam
 within 1 % of lambda / 8 on the bench's boards (S1 and a 150 x 100 mm part).  The jinc
 kernel on a grid depends only on the node offset (di, dj), so it is tabulated once.
 
+The count costs an eigendecomposition of the grid's covariance (O(m^3), m up to
+MAX_GRID_NODES): a plan carries it as a :class:`Deferred` figure (:func:`region_dof`), computed
+when it is first read, so the plans a sequential planner makes and never reports cost none.
+
 Units: mm.  Shapes in the docstrings.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from scipy.linalg import eigvalsh
@@ -88,3 +94,31 @@ def truncation_dof(variances: np.ndarray, target_sd_mm: float) -> int:
     tail = np.cumsum(variances[::-1])[::-1]      # tail[n] = sum of variances[n:]
     within = np.flatnonzero(tail <= target_sd_mm ** 2)
     return int(within[0]) if len(within) else len(variances)
+
+
+def region_dof(prior: DeviationPrior, samples: TracePoints, center: np.ndarray, target_sd_mm: float) -> int:
+    """The truncation dof (:func:`truncation_dof`) of the prior over the region the trace
+    ``samples`` cover, placement centre ``center`` (2,) mm, at the pointwise ``target_sd_mm``."""
+    return truncation_dof(mode_variances(prior, samples, center), target_sd_mm)
+
+
+class Deferred:
+    """A float field of a frozen dataclass given either as a value or as a function of no
+    arguments, called when the field is first read and its value kept (a figure a caller
+    may never read costs nothing).  Give a ``functools.partial`` of a module-level function
+    where the object may be pickled.  The field's default is NaN (not counted)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.slot = f"_deferred_{name}"
+
+    def __get__(self, obj: Any, owner: type | None = None) -> float:
+        if obj is None:
+            return math.nan   # the dataclass's default
+        value = obj.__dict__[self.slot]
+        if callable(value):
+            value = float(value())
+            obj.__dict__[self.slot] = value
+        return float(value)
+
+    def __set__(self, obj: Any, value: float | Callable[[], float]) -> None:
+        obj.__dict__[self.slot] = value

@@ -25,6 +25,7 @@ Units: mm.  Shapes in the docstrings.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -73,15 +74,35 @@ class TracePoints:
         return TracePoints(self.sites.take(idx), self.trace[idx], self.s[idx], self.z[idx])
 
 
+# per path: (step mm, its samples' s (m,), points (m, 3), slopes (m, 2)) at the last step asked
+_SAMPLED: weakref.WeakKeyDictionary[TracePolyline, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = \
+    weakref.WeakKeyDictionary()
+
+
+def path_samples(path: TracePolyline, step_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(s (m,) mm, points (m, 3) mm, nominal slopes (m, 2)) of ``path`` every about ``step_mm``
+    of arc length, both ends included.  The last step's are kept per path (the plans of one
+    round, and its verification, sample at one wavelength): read-only arrays."""
+    kept = _SAMPLED.get(path)
+    if kept is not None and kept[0] == step_mm:
+        return kept[1], kept[2], kept[3]
+    s = np.linspace(0.0, path.length_mm, max(2, int(math.ceil(path.length_mm / step_mm)) + 1))
+    pts, grad = path.at(s), path_gradient(path, s)
+    for a in (s, pts, grad):
+        a.setflags(write=False)
+    _SAMPLED[path] = (step_mm, s, pts, grad)
+    return s, pts, grad
+
+
 def sample_traces(paths: Sequence[TracePolyline], step_mm: float) -> TracePoints:
-    """Every path sampled about every ``step_mm`` of arc length, both ends included."""
+    """Every path sampled about every ``step_mm`` of arc length, both ends included
+    (:func:`path_samples`)."""
     xy, grad, trace, s_all, z = [], [], [], [], []
     for i, path in enumerate(paths):
-        s = np.linspace(0.0, path.length_mm, max(2, int(math.ceil(path.length_mm / step_mm)) + 1))
-        pts = path.at(s)
+        s, pts, slope = path_samples(path, step_mm)
         xy.append(pts[:, :2])
         z.append(pts[:, 2])
-        grad.append(path_gradient(path, s))
+        grad.append(slope)
         trace.append(np.full(len(s), i))
         s_all.append(s)
     return TracePoints(Sites(np.concatenate(xy), np.concatenate(grad)), np.concatenate(trace),

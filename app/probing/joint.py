@@ -34,7 +34,14 @@ from scipy.linalg import solve_triangular
 
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.geometry.traces import TracePolyline, as_trace_polyline
-from app.probing.deviation_prior import DeviationPrior, Sites, path_sites, prior_covariance, prior_variance
+from app.probing.deviation_prior import (
+    DeviationPrior,
+    Sites,
+    path_center,
+    path_sites,
+    prior_covariance,
+    prior_variance,
+)
 from app.probing.minimax import even_indices, fewest_probes
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
@@ -50,10 +57,10 @@ MAX_AUTO_COUNT = 60
 
 def joint_center(paths: Sequence[TracePolyline]) -> np.ndarray:
     """Rotation/tilt centre (2,) mm of a set of traces: mean top-view point, each trace
-    weighted by its length (65 samples per trace, even in arc length)."""
-    pts = [p.at(np.linspace(0.0, p.length_mm, 65))[:, :2] for p in paths]
+    weighted by its length (:func:`app.probing.deviation_prior.path_center`: 65 samples per
+    trace, even in arc length)."""
     weights = np.array([p.length_mm for p in paths])
-    out: np.ndarray = np.sum([w * q.mean(axis=0) for w, q in zip(weights, pts)], axis=0) / weights.sum()
+    out: np.ndarray = np.sum([w * path_center(p) for w, p in zip(weights, paths)], axis=0) / weights.sum()
     return out
 
 

@@ -37,7 +37,6 @@ from dataclasses import dataclass, replace
 from typing import Any, TypeVar
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import ndtr
 from scipy.stats import norm
 
@@ -329,6 +328,9 @@ def bound_posterior(fit: FieldFit, learned: dict[str, Any] | None) -> DeviationP
     return posterior
 
 
+NEWTON_STEPS = 100  # at most (Newton converges quadratically: a trace stops after a handful)
+
+
 def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, coverage: float,
                        traces: int = 1) -> float:
     """The bound u (mm) on |model - truth| over a whole trace whose posterior sd, sampled every
@@ -340,20 +342,38 @@ def simultaneous_bound(sd_mm: np.ndarray, step_mm: float, wavelength_mm: float, 
     never below coverage x max sd (one point's bound).  ``traces``: the traces of the run that
     share the confidence (each gets 1 / traces of it: the largest of their bounds then holds
     for the whole run at the confidence ``coverage`` gives one point)."""
+    sd = np.asarray(sd_mm, dtype=float)
+    return float(simultaneous_bounds(sd, np.array([0, len(sd)]), np.array([step_mm]), wavelength_mm, coverage,
+                                     traces)[0])
+
+
+def simultaneous_bounds(sd_mm: np.ndarray, edges: np.ndarray, step_mm: np.ndarray, wavelength_mm: float,
+                        coverage: float, traces: int = 1) -> np.ndarray:
+    """:func:`simultaneous_bound` of T traces at once, (T,) mm: trace t's sd samples are
+    ``sd_mm[edges[t]:edges[t + 1]]`` (edges (T + 1,), each trace at least one sample), sampled
+    every ``step_mm[t]`` (T,).  Each equation f(u) = 0 is convex and decreasing in u, and
+    f > 0 at one point's bound (else that is the bound): Newton's steps from there rise to the
+    root without passing it, and a trace stops when its f is no longer positive or its step
+    no longer moves it (at most NEWTON_STEPS; every trace on its own, so a trace's bound is
+    the same number whichever traces share the solve)."""
     sd = np.maximum(np.asarray(sd_mm, dtype=float), 1e-12)
+    starts = np.asarray(edges[:-1], dtype=np.intp)
+    owner = np.repeat(np.arange(len(starts)), np.diff(edges))
     alpha = 2.0 * float(ndtr(-coverage)) / max(int(traces), 1)
-    weight = min(1.0, 2.0 * step_mm / wavelength_mm)
-
-    def excess(u: float) -> float:
-        return float(weight * np.sum(2.0 * ndtr(-(u / sd)))) - alpha
-
-    lo = coverage * float(sd.max())
-    if excess(lo) <= 0.0:
-        return lo
-    hi = 2.0 * lo
-    while excess(hi) > 0.0:
-        hi *= 2.0
-    return float(brentq(excess, lo, hi, xtol=1e-9 * lo))
+    weight = np.minimum(1.0, 2.0 * np.asarray(step_mm, dtype=float) / wavelength_mm)
+    u = coverage * np.maximum.reduceat(sd, starts)
+    active = np.ones(len(u), dtype=bool)
+    for _ in range(NEWTON_STEPS):
+        z = u[owner] / sd
+        f = weight * np.add.reduceat(2.0 * ndtr(-z), starts) - alpha
+        slope = -weight * np.add.reduceat(2.0 * np.exp(-0.5 * z * z) / (math.sqrt(2.0 * math.pi) * sd), starts)
+        active &= (f > 0.0) & (slope < 0.0)
+        step = np.where(active, f / np.where(active, -slope, 1.0), 0.0)
+        active &= u + step > u
+        if not active.any():
+            break
+        u = np.where(active, u + step, u)
+    return u
 
 
 def trace_bound(fit: FieldFit, path: Any, coverage: float, learned: dict[str, Any] | None = None,
@@ -397,8 +417,8 @@ def posterior_trace_bounds(posterior: DeviationPosterior, paths: Sequence[Any], 
         sd[start:stop] = posterior.sd(Sites(xy[start:stop], grad[start:stop]))
     edges = np.cumsum([0] + [len(s) for s in samples])
     shared = len(paths) if traces is None else traces
-    return tuple(simultaneous_bound(sd[a:b], p.length_mm / (len(s) - 1), wavelength, coverage, shared)
-                 for p, s, a, b in zip(paths, samples, edges[:-1], edges[1:]))
+    steps = np.array([p.length_mm / (len(s) - 1) for p, s in zip(paths, samples)])
+    return tuple(float(u) for u in simultaneous_bounds(sd, edges, steps, wavelength, coverage, shared))
 
 
 def bound_meets_target(bound_mm: float, target_mm: float) -> bool:

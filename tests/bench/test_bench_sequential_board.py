@@ -9,7 +9,9 @@ wavelength 15 mm) touched with 1 um probe noise (seeded), the process told to th
 (A 0.15 mm, lambda 15 mm, target 5 um); :func:`app.reconstruction.field_sequential.plan_sequential`
 timed with the process CPU clock (its BLAS threads included): pilot, rounds, verification.
 Printed: CPU and wall s, the stations per round, why the rounds ended, the touches, the
-run's bound and the load average (the box is shared: trust CPU over wall)."""
+run's bound and the load average (the box is shared: trust CPU over wall); then the prior
+the verdict learned from the stations and the sum of the traces' bounds, every digit (two
+builds of the planner compared: the same numbers to rounding)."""
 
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import numpy as np
 import pytest
 
 from app.probing.selection import PlanParams
+from app.reconstruction.field_learning import NAMES
 from app.reconstruction.field_sequential import plan_sequential
 from app.reference.boards import as_made_board, board_path, board_traces, dome_part
 
@@ -41,4 +44,7 @@ def test_sequential_planner_cpu_on_a_board():
     print(f"\n{TRACES} traces: plan_sequential CPU {cpu:.1f} s, wall {wall:.1f} s; rounds {result.rounds}, stopped "
           f"{result.stopped!r}, touches {result.touches}, run's bound {result.check.bound_mm * 1e3:.2f} um; "
           f"load average {os.getloadavg()[0]:.1f}")
+    learned = result.check.learned or {}
+    print("learned from the stations: " + ", ".join(f"{k} {learned[k]['value']!r}" for k in NAMES if k in learned)
+          + f"; trace bounds sum {sum(result.trace_bounds_mm)!r} mm")
     assert result.touches > 0 and np.isfinite(result.check.bound_mm)

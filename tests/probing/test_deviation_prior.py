@@ -114,3 +114,15 @@ def test_bad_prior_is_a_typed_422():
     with pytest.raises(PriorError) as info:
         PlanParams(placement_xy_mm=-1.0)
     assert info.value.field == "placement_xy_mm"
+
+
+def test_a_paths_kept_centre_is_the_centre_from_scratch_and_not_the_callers_to_change():
+    """path_center keeps each trace's centre: the first and every later call give, bit for
+    bit, the mean of 65 points even in arc length (computed here independently), and
+    changing a returned array changes no later answer."""
+    path = as_trace_polyline(np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 1.0], [10.0, 20.0, 2.0]]))
+    expected = path.at(np.linspace(0.0, path.length_mm, 65))[:, :2].mean(axis=0)
+    first = path_center(path)
+    assert np.array_equal(first, expected)
+    first[:] = -1.0
+    assert np.array_equal(path_center(path), expected)

@@ -7,6 +7,8 @@ posterior variance to the target, analytic cases, and the grid's convergence."""
 from __future__ import annotations
 
 import math
+import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -100,3 +102,22 @@ def test_the_plan_reports_both_counts_and_they_do_not_depend_on_the_trace_count(
     region = field_region(paths, 15.0)
     assert once.nyquist_dof == pytest.approx(region.area_mm2 / 7.5 ** 2 + 6)
     assert once.dof == truncation_dof(mode_variances(PRIOR, region.samples, region.center), TARGET_SD)
+
+
+def test_the_plans_dof_is_counted_when_first_read_once_and_equals_the_cold_count(monkeypatch):
+    """The plan carries its dof deferred (an eigendecomposition a caller may never read): no
+    count until it is read, one however often it is read, the same number the count from
+    scratch gives, and a pickled plan (a compute process's result) counts the same."""
+    part = s1_part()
+    paths = [board_path(part, g, 0.05) for g in board_traces(part, 9)]
+    counted = []
+    cold = field_dof.mode_variances
+    monkeypatch.setattr(field_dof, "mode_variances", lambda *a: counted.append(1) or cold(*a))
+    plan = plan_field(paths, PARAMS)
+    copy = pickle.loads(pickle.dumps(plan))
+    assert counted == []
+    region = field_region(paths, 15.0)
+    expected = truncation_dof(cold(PRIOR, region.samples, region.center), TARGET_SD)
+    assert plan.dof == expected and plan.dof == expected and len(counted) == 1
+    assert copy.dof == expected and len(counted) == 2
+    assert replace(plan, xy=plan.xy[:0]).dof == expected and len(counted) == 2

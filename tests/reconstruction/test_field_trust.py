@@ -328,3 +328,29 @@ def test_the_run_bounds_batched_are_each_traces_bound_and_the_sd_the_dense_formu
     dense = prior_variance(prior, sites, plan.center) - np.sum(kq * np.linalg.solve(k + jitter * np.eye(len(k)), kq),
                                                                axis=0)
     assert posterior.sd(sites) == pytest.approx(np.sqrt(np.maximum(dense, 0.0)), rel=1e-6, abs=1e-9)
+
+
+def test_the_batched_bounds_are_each_traces_root_and_do_not_depend_on_the_batch():
+    """simultaneous_bounds solves T traces' equations together: each is the root brentq finds
+    for that trace alone (an independent solver, to its tolerance), the same number, bit for
+    bit, as the trace solved alone."""
+    from scipy.optimize import brentq
+    from scipy.special import ndtr
+
+    from app.reconstruction.field_trust import simultaneous_bound, simultaneous_bounds
+
+    rng = np.random.default_rng(4)
+    lengths = rng.integers(1, 60, 200)
+    edges = np.concatenate([[0], np.cumsum(lengths)])
+    sd = rng.uniform(0.0005, 0.002, edges[-1]) * np.repeat(rng.uniform(0.2, 3.0, len(lengths)), lengths)
+    steps = rng.uniform(0.5, 1.5, len(lengths))
+    together = simultaneous_bounds(sd, edges, steps, 15.0, 3.0, len(lengths))
+    alpha = 2.0 * ndtr(-3.0) / len(lengths)
+    for t, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+        w = min(1.0, 2.0 * steps[t] / 15.0)
+        lo = 3.0 * sd[a:b].max()
+        def excess(u: float, a: int = a, b: int = b, w: float = w) -> float:
+            return w * float(np.sum(2.0 * ndtr(-u / sd[a:b]))) - alpha
+        root = lo if excess(lo) <= 0 else brentq(excess, lo, 64 * lo, xtol=1e-14, rtol=1e-14)
+        assert together[t] == pytest.approx(root, rel=1e-12)
+        assert together[t] == simultaneous_bound(sd[a:b], steps[t], 15.0, 3.0, len(lengths))

@@ -1,0 +1,22 @@
+"""The Laplace sd against a Gaussian's: exact for a quadratic negative log density."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.reconstruction.laplace import laplace_sd
+
+
+def test_the_laplace_sd_of_a_gaussian_is_its_sd_and_a_bound_parameter_is_held_fixed():
+    a = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])   # the precision
+    mu = np.array([0.3, -1.0, 2.0])
+
+    def objective(t: np.ndarray) -> float:
+        return float(0.5 * (t - mu) @ a @ (t - mu))
+
+    free = laplace_sd(objective, mu, ("", "", ""), 1e-3)
+    assert np.allclose(free, np.sqrt(np.diag(np.linalg.inv(a))), rtol=1e-6)
+    held = laplace_sd(objective, mu, ("", "lower", ""), 1e-3)
+    sub = np.linalg.inv(a[np.ix_([0, 2], [0, 2])])
+    assert np.isnan(held[1]) and np.allclose(held[[0, 2]], np.sqrt(np.diag(sub)), rtol=1e-6)
+    assert np.isnan(laplace_sd(objective, mu, ("upper", "lower", "upper"), 1e-3)).all()
