@@ -189,6 +189,60 @@ def stations_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: 
 
 
 @dataclass(frozen=True)
+class Round:
+    """A round's decision (:func:`decide_round`).  more: the stations it adds (count 0: none);
+    params: its plan parameters (the learned prior as :func:`round_params` plans for it,
+    ``target_error_mm`` the pointwise target it planned for); bound_mm: the run's bound of the
+    stations touched so far (mm; None: not computed, the round added stations at its target);
+    stopped: why the rounds end here ("bound holds", "no station helps", "budget"), None: they
+    go on with ``more``."""
+
+    more: FieldPlan
+    params: PlanParams
+    bound_mm: float | None
+    stopped: str | None
+
+
+def decide_round(params: PlanParams, learned: LearnedPrior, sites: Sites, dz: np.ndarray, trace: np.ndarray,
+                 s_mm: np.ndarray, center: np.ndarray, paths: Sequence[object],
+                 plan: Callable[[PlanParams], FieldPlan], plan_target_mm: float, previous_wavelength_mm: float,
+                 room: int | None = None, judge: bool = True) -> Round:
+    """One round after the touches so far (steps 3-4 of the module doc): the stations the
+    fitted field still needs for the ``learned`` prior (:func:`round_params` from the previous
+    round's ``previous_wavelength_mm``) at the pointwise target ``plan_target_mm`` (mm); with
+    none, the run's bound of the touched stations (:func:`stations_check`): within the
+    verdict's tolerance ends the rounds, over it tightens the target (:func:`tighten_round`,
+    sized by :func:`round_forecast`).  ``params``: the user's plan parameters (the target, the
+    coverage, the probe's noise); sites / dz / trace / s_mm (n,): the stations touched, their
+    measured deviation (mm), trace index and arc length (mm); ``center`` (2,): the field's
+    centre; ``paths``: the TracePolylines; ``plan(round parameters)``: the field planner from
+    the touched stations (``fixed``), only the stations it adds; ``room``: the most stations
+    the round may add within the touch budget (None: no budget); ``judge``: False when the
+    bound is not to be computed this round (a suspected outlier is touched again first)."""
+    target = params.target_error_mm
+    current = replace(round_params(params, learned.prior, previous_wavelength_mm), target_error_mm=plan_target_mm)
+    more = plan(current)
+    bound = None
+    if more.count == 0 and judge:
+        bound = stations_check(params.prior(), sites, dz, center, trace, s_mm, paths, params.coverage, target,
+                               learned).bound_mm
+        if bound_meets_target(bound, target):
+            return Round(more, current, bound, "bound holds")
+        missed = plan_target_mm < target  # an earlier round was tightened for the bound already
+        forecast = round_forecast(learned, sites, center, paths, params, current, bound if missed else None)
+
+        def replan(t: float, at: PlanParams = current) -> FieldPlan:
+            return plan(replace(at, target_error_mm=t))
+        more, tightened = tighten_round(replan, forecast, plan_target_mm, target, bound, missed)
+        current = replace(current, target_error_mm=tightened)
+        if more.count == 0:
+            return Round(more, current, bound, "no station helps")
+    if room is not None and more.count > room:
+        return Round(more, current, bound, "budget")
+    return Round(more, current, bound, None)
+
+
+@dataclass(frozen=True)
 class SequentialResult:
     """check: the verified field (its bound: the largest trace bound under the fitted model); stations: every
     fitted station (n,); rounds: stations added per round (the pilot first); stopped: why the rounds ended ("bound
@@ -232,28 +286,15 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     for _ in range(max_rounds):
         if len(dz) < MIN_TOUCHES:
             break
-        learned = learn_prior(user, sites, dz, center)
-        current = replace(round_params(params, learned.prior, current.deviation_wavelength_mm),
-                          target_error_mm=plan_target)
-        more = plan_field(paths, current, fixed=sites)
-        if more.count == 0:
-            bound = stations_check(user, sites, dz, center, trace, s, paths, params.coverage,
-                                   params.target_error_mm, learned).bound_mm
-            if bound_meets_target(bound, params.target_error_mm):
-                stopped = "bound holds"
-                break
 
-            def replan(t: float, at: PlanParams = current, touched: Sites = sites) -> FieldPlan:
-                return plan_field(paths, replace(at, target_error_mm=t), fixed=touched)
-            missed = plan_target < params.target_error_mm
-            forecast = round_forecast(learned, sites, center, paths, params, current, bound if missed else None)
-            more, plan_target = tighten_round(replan, forecast, plan_target, params.target_error_mm, bound, missed)
-            current = replace(current, target_error_mm=plan_target)
-            if more.count == 0:
-                stopped = "no station helps"
-                break
-        if len(dz) + more.count + verify_count > budget:
-            stopped = "budget"
+        def planned(at: PlanParams, touched: Sites = sites) -> FieldPlan:
+            return plan_field(paths, at, fixed=touched)
+        decision = decide_round(params, learn_prior(user, sites, dz, center), sites, dz, trace, s, center, paths,
+                                planned, plan_target, current.deviation_wavelength_mm,
+                                room=budget - len(dz) - verify_count)
+        more, current, plan_target = decision.more, decision.params, decision.params.target_error_mm
+        if decision.stopped is not None:
+            stopped = decision.stopped
             break
         rounds.append(more.count)
         sites = Sites(np.concatenate([sites.xy, more.xy]), np.concatenate([sites.grad, more.grad]))
