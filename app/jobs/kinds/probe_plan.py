@@ -242,7 +242,8 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     budget = params.touch_budget
     room = None if budget is None else budget - len(fixed) - len(retouch) - params.verify_count
     decision = decide_round(plan_params, learned, sites, dz, field.trace[keep], field.s_mm[keep], field.center,
-                            nominals, plan, plan_target, field.prior.wavelength_mm, room, judge=not retouch)
+                            nominals, plan, plan_target, field.prior.wavelength_mm, room, judge=not retouch,
+                            first=not before)
     more, learned_params, bound = decision.more, decision.params, decision.bound_mm
     plan_target = learned_params.target_error_mm
     final = decision.stopped is not None or params.last_round
