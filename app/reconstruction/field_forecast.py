@@ -16,11 +16,12 @@ relative sd scaled by sqrt((F_after^-1)_aa / (F_now^-1)_aa), at most sqrt((F_aft
 itself (:func:`forecast_learned`), a parameter on its bound kept out of F as the learning
 keeps it out of its Hessian.
 
-:func:`plan_for_bound` sizes a round by the forecast: the loosest pointwise target (fewest
-stations) whose planned stations' forecast bound is within the aim, searched by bisection in
-log target.  The forecast only sizes the round: the rounds still end on the bound of the
-stations actually touched, learned again from what they read
-(:mod:`app.reconstruction.field_sequential`), and the verification points decide the verdict.
+:func:`plan_for_bound` sizes a round by the forecast (the first round after the pilot, and
+a round after a bound over the tolerance): the loosest pointwise target (fewest stations)
+whose planned stations' forecast bound is within the aim, searched by bisection in log
+target.  The forecast only sizes the round: the rounds still end on the bound of the stations
+actually touched, learned again from what they read (:mod:`app.reconstruction.field_sequential`),
+and the verification points decide the verdict.
 
 Pure: numpy/scipy.  Units: mm.
 """
@@ -119,7 +120,7 @@ def forecast_run_bound(learned: LearnedPrior, sites_now: Sites, sites_after: Sit
 
 def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[FieldPlan], float],
                    guess_mm: float, plan_target_mm: float, aim_mm: float,
-                   floor: float = SEARCH_FLOOR) -> tuple[FieldPlan, float]:
+                   floor: float = SEARCH_FLOOR, otherwise_mm: float | None = None) -> tuple[FieldPlan, float]:
     """(the stations ``plan(pointwise target mm)`` adds, the target) for the loosest target in
     [``floor`` x ``plan_target_mm``, ``plan_target_mm``) whose stations' forecast run's
     bound ``forecast(plan)`` (mm) is within ``aim_mm``: bisection in log target from
@@ -127,7 +128,8 @@ def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[Field
     stations it buys), ended early once a target within the aim is known within SEARCH_WITHIN
     of the loosest (the bracket that narrow) or its plan has at most one station more than a
     looser target's that misses the aim (stations come whole: none lies between).  None within
-    the aim: the tightest target's plan (the next round learns from it and goes on)."""
+    the aim: the plan for ``otherwise_mm``, by default the tightest target (the next round
+    learns from it and goes on)."""
     lo, hi = math.log(plan_target_mm * floor), math.log(plan_target_mm)
     t = min(max(math.log(guess_mm), lo), hi)
     best: tuple[FieldPlan, float] | None = None
@@ -143,4 +145,5 @@ def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[Field
         t = 0.5 * (lo + hi)
     if best is not None:
         return best
-    return plan(plan_target_mm * floor), plan_target_mm * floor
+    otherwise = plan_target_mm * floor if otherwise_mm is None else otherwise_mm
+    return plan(otherwise), otherwise

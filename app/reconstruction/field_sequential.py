@@ -12,7 +12,9 @@ it was designed for.  When the prior is uncertain:
 3. **add**: the field planner again, for the learned prior (:func:`round_params`), starting
    from every station already touched (``fixed``): it returns only the stations the fitted
    posterior still needs for ``coverage`` x sd <= the round's pointwise target on every trace
-   point;
+   point; the first round after the pilot for the loosest pointwise target whose stations'
+   forecast run's bound is within the aim (:func:`first_round`), later rounds for the target
+   the previous one planned for;
 4. **the run's bound**: when it adds none, the stations are fitted and bounded as the verdict
    does it (:func:`stations_check`: the learned prior, the hyperparameters' own uncertainty,
    the run's traces sharing the confidence, :func:`app.reconstruction.field_trust.run_bounds`);
@@ -21,7 +23,8 @@ it was designed for.  When the prior is uncertain:
    forecast of the bound they will give asks for (:func:`tighten_round`,
    :mod:`app.reconstruction.field_forecast`);
 5. repeat 2-4 until the bound holds, ``max_rounds`` pass, or the next round would pass
-   ``budget`` touches (the result says which);
+   ``budget`` touches (the result says which); one round's decision is :func:`decide_round`,
+   the same for the loop here and for the ``probe_plan`` job's round between probe runs;
 6. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
    gaps beside the stations the others predict worst (where a step or another structure the
    smooth field cannot represent shows: :func:`app.probing.field_verify.gap_points`),
@@ -35,6 +38,7 @@ Pure: numpy/scipy.  Units: mm.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
@@ -188,6 +192,87 @@ def stations_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: 
     return with_bound(check, run_bounds(check, paths))
 
 
+def first_round(params: PlanParams, learned: LearnedPrior, sites: Sites, center: np.ndarray,
+                paths: Sequence[object], plan: Callable[[PlanParams], FieldPlan], current: PlanParams,
+                at_target: FieldPlan) -> tuple[FieldPlan, PlanParams]:
+    """(the stations, the round's plan parameters) of the first round after the pilot, whose
+    plan ``at_target`` for the ``learned`` prior at the user's pointwise target adds stations:
+    sized by the forecast of the run's bound (:func:`round_forecast`) as a round after a bound
+    over the tolerance is: the loosest pointwise target in [SEARCH_FLOOR x the target,
+    :func:`bound_aim`) whose stations' forecast is within the aim
+    (:func:`app.reconstruction.field_forecast.plan_for_bound`, searched from the target), not
+    the stations the target buys whatever bound they give.  ``at_target`` as it is when the
+    round does not plan for the learned prior (no forecast: the pilot does not resolve the
+    field) or no target searched meets the aim."""
+    forecast = round_forecast(learned, sites, center, paths, params, current)
+    if forecast is None:
+        return at_target, current
+    target, aim = params.target_error_mm, bound_aim(params.target_error_mm)
+
+    def replan(t: float) -> FieldPlan:
+        return at_target if math.isclose(t, target) else plan(replace(current, target_error_mm=t))
+    more, sized = plan_for_bound(replan, forecast, target, aim, aim, SEARCH_FLOOR * target / aim, target)
+    return more, replace(current, target_error_mm=sized)
+
+
+@dataclass(frozen=True)
+class Round:
+    """A round's decision (:func:`decide_round`).  more: the stations it adds (count 0: none);
+    params: its plan parameters (the learned prior as :func:`round_params` plans for it,
+    ``target_error_mm`` the pointwise target it planned for); bound_mm: the run's bound of the
+    stations touched so far (mm; None: not computed, the round added stations at its target);
+    stopped: why the rounds end here ("bound holds", "no station helps", "budget"), None: they
+    go on with ``more``."""
+
+    more: FieldPlan
+    params: PlanParams
+    bound_mm: float | None
+    stopped: str | None
+
+
+def decide_round(params: PlanParams, learned: LearnedPrior, sites: Sites, dz: np.ndarray, trace: np.ndarray,
+                 s_mm: np.ndarray, center: np.ndarray, paths: Sequence[object],
+                 plan: Callable[[PlanParams], FieldPlan], plan_target_mm: float, previous_wavelength_mm: float,
+                 room: int | None = None, judge: bool = True, first: bool = False) -> Round:
+    """One round after the touches so far (steps 3-4 of the module doc): the stations the
+    fitted field still needs for the ``learned`` prior (:func:`round_params` from the previous
+    round's ``previous_wavelength_mm``) at the pointwise target ``plan_target_mm`` (mm); with
+    none, the run's bound of the touched stations (:func:`stations_check`): within the
+    verdict's tolerance ends the rounds, over it tightens the target (:func:`tighten_round`,
+    sized by :func:`round_forecast`).  ``params``: the user's plan parameters (the target, the
+    coverage, the probe's noise); sites / dz / trace / s_mm (n,): the stations touched, their
+    measured deviation (mm), trace index and arc length (mm); ``center`` (2,): the field's
+    centre; ``paths``: the TracePolylines; ``plan(round parameters)``: the field planner from
+    the touched stations (``fixed``), only the stations it adds; ``room``: the most stations
+    the round may add within the touch budget (None: no budget); ``judge``: False when the
+    bound is not to be computed this round (a suspected outlier is touched again first);
+    ``first``: the first round after the pilot (or the user's own first design), whose
+    stations are sized by the forecast when it adds any (:func:`first_round`)."""
+    target = params.target_error_mm
+    current = replace(round_params(params, learned.prior, previous_wavelength_mm), target_error_mm=plan_target_mm)
+    more = plan(current)
+    bound = None
+    if first and more.count:
+        more, current = first_round(params, learned, sites, center, paths, plan, current, more)
+    if more.count == 0 and judge:
+        bound = stations_check(params.prior(), sites, dz, center, trace, s_mm, paths, params.coverage, target,
+                               learned).bound_mm
+        if bound_meets_target(bound, target):
+            return Round(more, current, bound, "bound holds")
+        missed = plan_target_mm != target  # an earlier round was sized for the bound already
+        forecast = round_forecast(learned, sites, center, paths, params, current, bound if missed else None)
+
+        def replan(t: float, at: PlanParams = current) -> FieldPlan:
+            return plan(replace(at, target_error_mm=t))
+        more, tightened = tighten_round(replan, forecast, plan_target_mm, target, bound, missed)
+        current = replace(current, target_error_mm=tightened)
+        if more.count == 0:
+            return Round(more, current, bound, "no station helps")
+    if room is not None and more.count > room:
+        return Round(more, current, bound, "budget")
+    return Round(more, current, bound, None)
+
+
 @dataclass(frozen=True)
 class SequentialResult:
     """check: the verified field (its bound: the largest trace bound under the fitted model); stations: every
@@ -232,28 +317,15 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     for _ in range(max_rounds):
         if len(dz) < MIN_TOUCHES:
             break
-        learned = learn_prior(user, sites, dz, center)
-        current = replace(round_params(params, learned.prior, current.deviation_wavelength_mm),
-                          target_error_mm=plan_target)
-        more = plan_field(paths, current, fixed=sites)
-        if more.count == 0:
-            bound = stations_check(user, sites, dz, center, trace, s, paths, params.coverage,
-                                   params.target_error_mm, learned).bound_mm
-            if bound_meets_target(bound, params.target_error_mm):
-                stopped = "bound holds"
-                break
 
-            def replan(t: float, at: PlanParams = current, touched: Sites = sites) -> FieldPlan:
-                return plan_field(paths, replace(at, target_error_mm=t), fixed=touched)
-            missed = plan_target < params.target_error_mm
-            forecast = round_forecast(learned, sites, center, paths, params, current, bound if missed else None)
-            more, plan_target = tighten_round(replan, forecast, plan_target, params.target_error_mm, bound, missed)
-            current = replace(current, target_error_mm=plan_target)
-            if more.count == 0:
-                stopped = "no station helps"
-                break
-        if len(dz) + more.count + verify_count > budget:
-            stopped = "budget"
+        def planned(at: PlanParams, touched: Sites = sites) -> FieldPlan:
+            return plan_field(paths, at, fixed=touched)
+        decision = decide_round(params, learn_prior(user, sites, dz, center), sites, dz, trace, s, center, paths,
+                                planned, plan_target, current.deviation_wavelength_mm,
+                                room=budget - len(dz) - verify_count, first=len(rounds) == 1)
+        more, current, plan_target = decision.more, decision.params, decision.params.target_error_mm
+        if decision.stopped is not None:
+            stopped = decision.stopped
             break
         rounds.append(more.count)
         sites = Sites(np.concatenate([sites.xy, more.xy]), np.concatenate([sites.grad, more.grad]))

@@ -39,14 +39,7 @@ from app.probing.merge import merge_plans
 from app.probing.program import mesh_station_normals
 from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
-from app.reconstruction.field_sequential import (
-    pilot_params,
-    round_forecast,
-    round_params,
-    stations_check,
-    tighten_round,
-)
-from app.reconstruction.field_trust import bound_meets_target
+from app.reconstruction.field_sequential import decide_round, pilot_params, round_params
 from app.runtime.context import JobContext
 from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
@@ -209,14 +202,14 @@ def _retouched(plan: Any, field: Any, keep: np.ndarray, retouch: list[int]) -> A
 def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], plan_params: PlanParams,
                 top: Any) -> tuple[Any, PlanParams, dict[str, Any]]:
     """A sequential round: learn the prior from every station touched so far (the fixed
-    run's field), plan the stations the fitted field still needs for coverage x sd <= the
-    round's pointwise target; with none, the run's bound as the verdict computes it
-    (:func:`stations_check`): within the verdict's tolerance -> only the verification points;
-    over it -> the pointwise target tightened (:func:`tighten_round`: sized by the forecast of
-    the bound its stations will give; kept for the next round as ``plan_target_mm``) and the
-    stations it needs.  Past the touch budget, or on the loop's ``last_round``, only the
-    verification points.  Returns (the plan of what this round
-    touches, the learned plan parameters, the round's record incl. the fixed stations)."""
+    run's field) and decide the round as the core's loop does
+    (:func:`app.reconstruction.field_sequential.decide_round`: the stations the fitted field
+    still needs at the round's pointwise target, kept for the next round as
+    ``plan_target_mm``; the run's bound when it needs none); the rounds ended (the bound
+    holds, no station helps, past the touch budget) or on the loop's ``last_round``: only the
+    verification points.  A suspected outlier is touched again before the bound is judged.
+    Returns (the plan of what this round touches, the learned plan parameters, the round's
+    record incl. the fixed stations)."""
     run = ctx.job(str(params.fixed_run_job_id), kind="probe_run", field="params.fixed_run_job_id")
     plan_job = ctx.job(run.params["plan_job_id"], field="params.fixed_run_job_id")
     if not ProbePlanResult.of(plan_job).field or plan_job.params.get("trace_ids") != params.trace_ids:
@@ -232,37 +225,29 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
     learned = learn_prior(plan_params.prior(), sites, dz, field.center)
     before = plan_job.result.get("field", {}).get("sequential", {})
     plan_target = float(before.get("plan_target_mm", plan_params.target_error_mm))
-    learned_params = replace(round_params(plan_params, learned.prior, field.prior.wavelength_mm),
-                             target_error_mm=plan_target)
     suspect = learned.prior
     if params.retouch_only:  # judged at the probe's repeatability: one bad touch inflates the learned noise
         suspect = replace(suspect, sigma_mm=min(suspect.sigma_mm, plan_params.probe_sigma_mm))
     retouch = _retouches(suspect, sites, dz, field, keep, fixed)
-    more = plan_field(nominals, learned_params, params.stations, top, fixed=sites)
+
+    def plan(at: PlanParams) -> Any:
+        return plan_field(nominals, at, params.stations, top, fixed=sites)
     if params.retouch_only:  # the prior stays the user's: a single-shot plan's second run
-        return _retouched(more, field, keep, retouch), plan_params, {
+        at = replace(round_params(plan_params, learned.prior, field.prior.wavelength_mm), target_error_mm=plan_target)
+        return _retouched(plan(at), field, keep, retouch), plan_params, {
             "round": int(plan_job.result.get("field", {}).get("sequential", {}).get("round", 0)) + 1,
             "final": True, "stopped": "retouched", "added": 0, "touched_before": len(fixed),
             "learned": learned.as_dict(), "retouch_of": [int(i) for i in retouch],
             "fixed": fixed + touched_verification(stored, run.id), "center": stored["center"]}
-    bound = None
-    if more.count == 0 and not retouch:  # the pointwise target holds: the run's bound as the verdict computes it
-        bound = stations_check(plan_params.prior(), sites, dz, field.center, field.trace[keep], field.s_mm[keep],
-                               nominals, plan_params.coverage, plan_params.target_error_mm, learned).bound_mm
-        if not bound_meets_target(bound, plan_params.target_error_mm):
-            round_ = learned_params
-            missed = plan_target < plan_params.target_error_mm   # an earlier round was tightened already
-            more, plan_target = tighten_round(
-                lambda t: plan_field(nominals, replace(round_, target_error_mm=t), params.stations, top, fixed=sites),
-                round_forecast(learned, sites, field.center, nominals, plan_params, round_, bound if missed else None),
-                plan_target, plan_params.target_error_mm, bound, missed)
-            learned_params = replace(learned_params, target_error_mm=plan_target)
     budget = params.touch_budget
-    over = budget is not None and len(fixed) + more.count + len(retouch) + params.verify_count > budget
-    final = (more.count == 0 and not retouch) or over or params.last_round
-    holds = bound is not None and bound_meets_target(bound, plan_params.target_error_mm)
-    stopped = ("budget" if over else "bound holds" if holds else "rounds" if params.last_round
-               else "no station helps" if final else None)
+    room = None if budget is None else budget - len(fixed) - len(retouch) - params.verify_count
+    decision = decide_round(plan_params, learned, sites, dz, field.trace[keep], field.s_mm[keep], field.center,
+                            nominals, plan, plan_target, field.prior.wavelength_mm, room, judge=not retouch,
+                            first=not before)
+    more, learned_params, bound = decision.more, decision.params, decision.bound_mm
+    plan_target = learned_params.target_error_mm
+    final = decision.stopped is not None or params.last_round
+    stopped = decision.stopped or ("rounds" if params.last_round else None)
     if not final and retouch:  # a suspected outlier is touched again before the fit may exclude it
         idx = np.flatnonzero(keep)[retouch]
         more = replace(more, xy=np.concatenate([more.xy, field.stations.xy[idx]]),
