@@ -314,13 +314,15 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     stopped = "rounds"
     center = plan.center
     plan_target = params.target_error_mm
+    learned: LearnedPrior | None = None  # the last learning, while no touch was added after it
     for _ in range(max_rounds):
         if len(dz) < MIN_TOUCHES:
             break
 
         def planned(at: PlanParams, touched: Sites = sites) -> FieldPlan:
             return plan_field(paths, at, fixed=touched)
-        decision = decide_round(params, learn_prior(user, sites, dz, center), sites, dz, trace, s, center, paths,
+        learned = learn_prior(user, sites, dz, center)
+        decision = decide_round(params, learned, sites, dz, trace, s, center, paths,
                                 planned, plan_target, current.deviation_wavelength_mm,
                                 room=budget - len(dz) - verify_count, first=len(rounds) == 1)
         more, current, plan_target = decision.more, decision.params, decision.params.target_error_mm
@@ -333,6 +335,7 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
         s = np.concatenate([s, more.s_mm])
         z = np.concatenate([z, more.z])
         dz = np.concatenate([dz, np.asarray(measure(more.xy), dtype=float)])
+        learned = None
     prior_now = current.prior()
     surprise = None
     if len(dz) >= MIN_TOUCHES:
@@ -349,6 +352,6 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
     mask = np.concatenate([np.zeros(n, dtype=bool), np.ones(points.count, dtype=bool)])
     check = checked_field(user, all_sites, nominal_z, measured, center,
                           np.concatenate([trace, points.trace]), np.concatenate([s, points.s_mm]), mask,
-                          params.coverage, params.target_error_mm)
+                          params.coverage, params.target_error_mm, learned_first=learned)
     bounds = run_bounds(check, paths)
     return SequentialResult(with_bound(check, bounds), sites, trace, s, tuple(rounds), stopped, current, bounds)
