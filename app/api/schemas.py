@@ -159,6 +159,9 @@ class JobOut(BaseModel):
         "the parameters left out of params (name -> the value's length); null when none is"))
     parent_id: str | None
     attempts: int
+    earlier_attempts: list[dict[str, Any]] | None = Field(None, description=(
+        "the attempts that ended without finishing and were queued again, oldest first: attempt, "
+        "ended_at, reason (e.g. its worker stopped reporting); null when the job ran once"))
     cancel_requested: bool
     created_at: UtcDatetime
     started_at: UtcDatetime | None

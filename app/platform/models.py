@@ -131,6 +131,9 @@ class Job(SQLModel, table=True):
     # compute jobs: the process that runs (ran) its latest attempt, {"pid", "start_ticks",
     # "boot_id"} (app.runtime.process_identity): a later attempt runs only once it has ended
     process: dict | None = Field(default=None, sa_column=Column(JSON, nullable=True))
+    # the attempts that ended without finishing and were queued again (a lost lease: the
+    # worker stopped reporting), oldest first: [{"attempt", "ended_at" (ISO 8601 UTC), "reason"}]
+    earlier_attempts: list | None = Field(default=None, sa_column=Column(JSON, nullable=True))
 
 class JobReference(SQLModel, table=True):
     """Which stored records a job reads (parts, traces, other jobs): guards deletion."""

@@ -190,13 +190,8 @@ class JobStore:
             .values(status="interrupted", lease_until=None, worker=None, revision=col(Job.revision) + 1,
                     message="interrupted: its process stopped reporting; resume or abandon it")
         )
-        requeued = self._run(
-            update(Job)
-            .where(and_(expired, col(Job.attempts) < col(Job.max_attempts), col(Job.cancel_requested).is_(False)))
-            .values(status="queued", worker=None, lease_until=None, enqueued_at=now,
-                    message="requeued after lost lease", revision=col(Job.revision) + 1)
-            .returning(col(Job.id))
-        )
+        requeued = self._requeue_lost(
+            and_(expired, col(Job.attempts) < col(Job.max_attempts), col(Job.cancel_requested).is_(False)), now)
         self._run(
             update(Job)
             .where(and_(expired, or_(col(Job.attempts) >= col(Job.max_attempts), col(Job.cancel_requested).is_(True))))
@@ -339,6 +334,25 @@ class JobStore:
         """The process that runs ``claim``'s attempt (while ``claim`` owns the job)."""
         return bool(self._run(update(Job).where(self._owned(claim)).values(process=process).returning(col(Job.id))))
 
+    def _requeue_lost(self, due: ColumnElement[bool], now: float) -> list[tuple[str]]:
+        """running -> queued for each job ``due`` (its lease expired, attempts left), its
+        ``earlier_attempts`` told why the attempt ended (a job run again is never run again
+        silently); one transaction, each row conditional on ``due`` still holding.  Returns
+        [(id,), ...] of the jobs requeued."""
+        with self.engine.begin() as conn:
+            rows = conn.execute(select(col(Job.id), col(Job.attempts), col(Job.earlier_attempts)).where(due)).fetchall()
+            requeued: list[tuple[str]] = []
+            for job_id, attempt, earlier in rows:
+                entry = {"attempt": attempt, "ended_at": utcnow().isoformat(), "reason": LOST_LEASE_REASON}
+                done = conn.execute(
+                    update(Job).where(and_(col(Job.id) == job_id, due))
+                    .values(status="queued", worker=None, lease_until=None, enqueued_at=now,
+                            message="requeued after lost lease", revision=col(Job.revision) + 1,
+                            earlier_attempts=[*(earlier or []), entry])
+                    .returning(col(Job.id))).fetchall()
+                requeued += [(row[0],) for row in done]
+            return requeued
+
     def quarantine_lost_compute_jobs(self, compute_queue: str = "default", max_lost: int = 2) -> list[str]:
         """Fail (quarantine) compute jobs whose lease expired for the ``max_lost``-th time.
 
@@ -359,6 +373,9 @@ class JobStore:
                                  "failed instead of being claimed again"})
             .returning(col(Job.id)))
         return [r[0] for r in rows]
+
+
+LOST_LEASE_REASON = "its worker stopped reporting (the lease expired); the job was queued again"
 
 
 def final_message(status: str, error: dict | None) -> Any:

@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import time
+from datetime import datetime
 
 import pytest
+from sqlmodel import Session
 
+from app.api.routes.jobs import job_out
 from app.platform.db import migrate
+from app.platform.models import Job, utcnow
 from app.runtime.engine import Runtime
+from app.runtime.store import LOST_LEASE_REASON
 
 
 @pytest.fixture
@@ -41,6 +46,35 @@ def test_lost_lease_is_requeued_then_failed_after_max_attempts(runtime):
     runtime.store.reap(stale_enqueue_s=60)
     status, _ = runtime.store.status(job.id)
     assert status == "failed"
+
+
+def test_a_job_run_again_after_a_lost_lease_keeps_why_its_first_attempt_ended(runtime):
+    """Never run again silently: the record of a job that succeeded on its second attempt
+    still says that the first ended without finishing, and why."""
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    runtime.store.claim(job.id, "dead-worker")
+    time.sleep(1.1)
+    assert job.id in runtime.store.reap(stale_enqueue_s=60)
+    second = runtime.store.claim(job.id, "w2")
+    assert second is not None and second.attempt == 2
+    runtime.store.heartbeat(second, 0.5, message="running again")
+    assert runtime.store.finish(second, "succeeded", result={"ok": True})
+    with Session(runtime.engine) as session:
+        row = session.get(Job, job.id)
+    assert row.status == "succeeded" and row.attempts == 2
+    assert len(row.earlier_attempts) == 1
+    first = row.earlier_attempts[0]
+    assert first["attempt"] == 1 and first["reason"] == LOST_LEASE_REASON
+    assert datetime.fromisoformat(first["ended_at"]) <= utcnow()
+    assert job_out(row, []).earlier_attempts == row.earlier_attempts  # what GET /jobs/{id} shows
+
+
+def test_a_job_that_ran_once_has_no_earlier_attempts(runtime):
+    job = runtime.submit("test_sleep", {"seconds": 0})
+    claim = runtime.store.claim(job.id, "w1")
+    assert runtime.store.finish(claim, "succeeded", result={})
+    with Session(runtime.engine) as session:
+        assert session.get(Job, job.id).earlier_attempts is None
 
 
 def test_a_reaper_pass_reads_before_it_writes(runtime):

@@ -310,6 +310,10 @@ function renderDetail(job) {
       el("a", { href: `loop.html?job=${job.id}` }, "continue, accept, add stations or abandon it on the Closed loop page")));
   }
   if (job.error) parts.push(el("div", { class: "msg error", id: "job-error" }, `${job.error.title}: ${job.error.detail}`));
+  if (job.earlier_attempts?.length) {  // a job run again is never run again silently
+    parts.push(el("div", { class: "msg", id: "earlier-attempts" }, `Run ${job.attempts} times: `,
+      job.earlier_attempts.map((a) => `attempt ${a.attempt} ended ${fmt.time(a.ended_at)}: ${a.reason}`).join("; ")));
+  }
   const samples = job.result?.deviation?.samples;
   if (Array.isArray(samples) && samples.length > 1) {
     parts.push(el("h3", {}, "Deviation along the trace"),
