@@ -432,9 +432,12 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
         for j in range(nf):  # the stations already touched come first
             out.add(j)
         return out
-    greedy = started() if reuse is None else reuse.start(prior, u, region.center, nf, started)
-    for _ in range(MAX_REFINE_ROUNDS):
+    stop = None if count is not None else (target_var, max(2, params.min_count))
+    greedy = started() if reuse is None else reuse.start(prior, u, region.center, nf, started, stop)
+    for step in range(MAX_REFINE_ROUNDS):
         greedy_sequence(greedy, np.flatnonzero(site_trace >= 0), count, target_var, max(2, params.min_count), nf)
+        if reuse is not None and stop is not None and step == 0:
+            reuse.stopped(prior, u, region.center, nf, stop, greedy)
         chosen = np.array(greedy.chosen)
         jinc = None if reuse is None else reuse.jinc(greedy.sites.take(chosen).xy, samples.sites, prior.wavelength_mm)
         parts = posterior_parts(prior, greedy.sites.take(chosen), samples.sites, region.center, jinc)

@@ -6,7 +6,8 @@ the prior, the traces and the stations already touched are the same.  So they sh
 
 * the region (:func:`app.probing.field_region.field_region`) at the prior's wavelength;
 * the greedy state after the touched stations (:class:`app.probing.field.GreedyField` with
-  the ``fixed`` stations added first): each plan continues from a copy of it;
+  the ``fixed`` stations added first), and where a looser target's greedy sequence stopped:
+  a plan for a tighter one continues from a copy of it;
 * the rows of the unit kernel (:func:`app.probing.deviation_prior.jinc_kernel`, the
   Bessel function: most of the prior covariance's cost) between a station and the trace
   samples (the fresh posterior every plan checks its stations on): a greedy sequence does
@@ -40,6 +41,14 @@ if TYPE_CHECKING:
     from app.probing.field import GreedyField
 
 
+def _copy(greedy: GreedyField) -> GreedyField:
+    """A copy of ``greedy`` to go on from: the arrays it changes in place copied (the others
+    are replaced, never changed, as it goes on)."""
+    out = copy.copy(greedy)
+    out.rows, out.low, out.chosen = greedy.rows.copy(), greedy.low.copy(), list(greedy.chosen)
+    return out
+
+
 class PlanReuse:
     """The shared parts of one round's field plans (see the module doc); pass the same
     object to every :func:`app.probing.field.plan_field` call of the round."""
@@ -47,6 +56,7 @@ class PlanReuse:
     def __init__(self) -> None:
         self._regions: dict[tuple[object, ...], tuple[Sequence[TracePolyline], FieldRegion]] = {}
         self._starts: dict[tuple[object, ...], GreedyField] = {}
+        self._stops: dict[tuple[object, ...], dict[tuple[float, int], GreedyField]] = {}
         self._rows: dict[tuple[object, ...], tuple[Sites, dict[bytes, np.ndarray]]] = {}
 
     def region(self, paths: Sequence[TracePolyline], wavelength_mm: float, top: TopSampler | None) -> FieldRegion:
@@ -59,18 +69,27 @@ class PlanReuse:
         return kept[1]
 
     def start(self, prior: DeviationPrior, sites: Sites, center: np.ndarray, fixed: int,
-              make: Callable[[], GreedyField]) -> GreedyField:
+              make: Callable[[], GreedyField], stop: tuple[float, int] | None = None) -> GreedyField:
         """A copy of the greedy state ``make()`` gives over ``sites`` (N,) after its first
-        ``fixed`` sites were added (kept per prior, centre and sites, bit for bit): the
-        arrays it changes in place copied, the kept one never changed."""
+        ``fixed`` sites were added (kept per prior, centre and sites, bit for bit).  ``stop``:
+        (target variance mm^2, least stations) of an automatic count: the state where the
+        sequence of a looser or equal target stopped (:meth:`stopped`), the most stations
+        such, when one was kept: a step's choice does not depend on the target, and a looser
+        target's stop comes first, so the tighter sequence passes through that state."""
         key = (prior, center.tobytes(), sites.xy.tobytes(), sites.grad.tobytes(), fixed)
         kept = self._starts.get(key)
         if kept is None:
             kept = make()
             self._starts[key] = kept
-        out = copy.copy(kept)
-        out.rows, out.low, out.chosen = kept.rows.copy(), kept.low.copy(), list(kept.chosen)
-        return out
+        looser = [g for (t, least), g in self._stops.get(key, {}).items()
+                  if stop is not None and least == stop[1] and t >= stop[0]]
+        return _copy(max(looser, key=lambda g: len(g.chosen)) if looser else kept)
+
+    def stopped(self, prior: DeviationPrior, sites: Sites, center: np.ndarray, fixed: int,
+                stop: tuple[float, int], greedy: GreedyField) -> None:
+        """Keep (a copy of) ``greedy`` where its first sequence for ``stop`` stopped (as :meth:`start`)."""
+        key = (prior, center.tobytes(), sites.xy.tobytes(), sites.grad.tobytes(), fixed)
+        self._stops.setdefault(key, {})[stop] = _copy(greedy)
 
     def jinc(self, xy: np.ndarray, where: Sites, wavelength_mm: float) -> np.ndarray:
         """:func:`app.probing.deviation_prior.jinc_kernel` (n, N) of the points ``xy`` (n, 2)

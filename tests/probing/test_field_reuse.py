@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from app.probing.deviation_prior import jinc_kernel, prior_covariance
-from app.probing.field import FieldPlan, plan_field
+from app.probing.field import FieldPlan, GreedyField, plan_field
 from app.probing.field_region import field_region
 from app.probing.field_reuse import PlanReuse
 from app.probing.selection import PlanParams
@@ -29,15 +29,20 @@ def _same(a: FieldPlan, b: FieldPlan) -> None:
     assert a.max_sd_mm == b.max_sd_mm
 
 
-def test_a_rounds_plans_with_the_reuse_are_the_cold_plans_to_the_bit(nine):
+def test_a_rounds_plans_with_the_reuse_are_the_cold_plans_to_the_bit(nine, monkeypatch):
     pilot = plan_field(nine, replace(PARAMS, deviation_wavelength_mm=30.0))
     fixed = pilot.sites
     reuse = PlanReuse()
+    added: list[int] = []
+    add = GreedyField.add
+    monkeypatch.setattr(GreedyField, "add", lambda self, j: added.append(j) or add(self, j))
     targets = [0.005, 0.0025, 0.004, 0.0025, 0.0032]   # looser and tighter, one asked twice
     plans = [plan_field(nine, replace(PARAMS, target_error_mm=t), fixed=fixed, reuse=reuse) for t in targets]
+    warm = len(added)
     assert len({p.count for p in plans}) > 2   # the targets buy different designs
-    for t, warm in zip(targets, plans):
-        _same(warm, plan_field(nine, replace(PARAMS, target_error_mm=t), fixed=fixed))
+    for t, plan in zip(targets, plans):
+        _same(plan, plan_field(nine, replace(PARAMS, target_error_mm=t), fixed=fixed))
+    assert warm < (len(added) - warm) / 2   # the kept states spared most of the greedy's steps
     # another prior (a new key) beside the kept one
     other = replace(PARAMS, deviation_amplitude_mm=0.2)
     _same(plan_field(nine, other, fixed=fixed, reuse=reuse), plan_field(nine, other, fixed=fixed))
