@@ -236,7 +236,7 @@ class _Likelihood:
         Laplace sd's differences step the other parameters at one wavelength): read-only."""
         kept = self._kernels.get(float(theta[1]))
         if kept is not None and (kept[1] is not None or not gradient):
-            return kept
+            return kept[0], kept[1] if gradient else None
         x = self.r_upper * (2.0 * math.pi / math.exp(theta[1]))
         small = x < 1e-6
         safe = np.where(small, 1.0, x)
