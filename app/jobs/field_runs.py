@@ -23,7 +23,7 @@ from app.jobs.probe_correction import refined, run_probe_calibration
 from app.jobs.results.models import ProbePlanResult, ProbeRunResult
 from app.parts.lru import BackedLru
 from app.platform.models import Job
-from app.probing.field import stored_field
+from app.probing.field_stored import stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.reconstruction.field import field_gradient, fit_bytes
 from app.reconstruction.field_trust import FieldCheck, checked_field

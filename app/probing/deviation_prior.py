@@ -188,12 +188,14 @@ def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float) -> np.ndarra
 
 
 def prior_covariance(prior: DeviationPrior, a: Sites, b: Sites,
-                     center: np.ndarray) -> np.ndarray:
-    """Prior covariance (m, k) mm^2 of the deviation between sites a and b."""
+                     center: np.ndarray, jinc: np.ndarray | None = None) -> np.ndarray:
+    """Prior covariance (m, k) mm^2 of the deviation between sites a and b; ``jinc``:
+    ``jinc_kernel(a.xy, b.xy, prior.wavelength_mm)`` (m, k) when the caller has it."""
     sd = prior.basis_sd
     ba = placement_basis(a, center) * sd
     bb = placement_basis(b, center) * sd
-    out: np.ndarray = prior.rms_mm ** 2 * jinc_kernel(a.xy, b.xy, prior.wavelength_mm) + ba @ bb.T
+    k = jinc_kernel(a.xy, b.xy, prior.wavelength_mm) if jinc is None else jinc
+    out: np.ndarray = prior.rms_mm ** 2 * k + ba @ bb.T
     return out
 
 

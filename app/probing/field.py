@@ -31,7 +31,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import partial
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -49,6 +49,7 @@ from app.probing.deviation_prior import (
 from app.probing.field_dof import Deferred, region_dof
 from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
+from app.probing.field_reuse import PlanReuse
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
 StationMode = Literal["on_traces", "anywhere_on_top"]
@@ -176,8 +177,10 @@ class PosteriorParts:
     keep: np.ndarray
 
 
-def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray) -> PosteriorParts:
-    """:class:`PosteriorParts` from one factorisation (cost O(n^2 N))."""
+def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray,
+                    jinc: np.ndarray | None = None) -> PosteriorParts:
+    """:class:`PosteriorParts` from one factorisation (cost O(n^2 N)); ``jinc``: the unit
+    kernel (n, N) of the stations and ``where`` when the caller has it."""
     n = len(stations.xy)
     jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     precision = np.linalg.inv(prior_covariance(prior, stations, stations, center) + jitter * np.eye(n))
@@ -186,7 +189,8 @@ def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center
     weights = np.empty((n, len(var)))
     for lo in range(0, len(var), SD_CHUNK):
         part = where.take(np.arange(lo, min(lo + SD_CHUNK, len(var))))
-        cov = prior_covariance(prior, stations, part, center)
+        cov = prior_covariance(prior, stations, part, center,
+                               None if jinc is None else np.ascontiguousarray(jinc[:, lo:lo + len(part.xy)]))
         weights[:, lo:lo + len(part.xy)] = precision @ cov
         var[lo:lo + len(part.xy)] -= np.einsum("ij,ij->j", cov, weights[:, lo:lo + len(part.xy)])
     return PosteriorParts(precision, weights, np.maximum(var, 0.0), np.arange(n))
@@ -316,14 +320,15 @@ def travel_order(xy: np.ndarray, band_mm: float) -> np.ndarray:
 
 def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
                stations: str = "on_traces", top: TopSampler | None = None,
-               fixed: Sites | None = None) -> FieldPlan:
+               fixed: Sites | None = None, reuse: PlanReuse | None = None) -> FieldPlan:
     """Field stations for every trace in ``nominals`` (TracePolyline-like, one frame).
 
     params: the deviation prior, ``target_error_mm``, ``coverage``, ``min_count`` and an
     optional total ``count``.  stations: "on_traces" or "anywhere_on_top" (needs ``top``,
     the part's nominal top).  fixed: stations already touched (a sequential plan's
     earlier rounds): the design starts from them and returns only the stations it adds
-    (none when they already meet the target; its sd figures count them).  Raises PlanError
+    (none when they already meet the target; its sd figures count them).  reuse: what the
+    plans of one round share (:class:`app.probing.field_reuse.PlanReuse`).  Raises PlanError
     for bad input.
     """
     params = params or PlanParams()
@@ -335,8 +340,10 @@ def plan_field(nominals: Sequence[object], params: PlanParams | None = None,
         raise PlanError("the field planner needs at least one trace", field="traces", value=0)
     paths = [as_trace_polyline(n, field=f"traces[{i}]") for i, n in enumerate(nominals)]
     prior = params.prior()
-    region = field_region(paths, prior.wavelength_mm, top if stations == "anywhere_on_top" else None)
-    plan = _design(region, prior, params, stations, fixed)
+    top = top if stations == "anywhere_on_top" else None
+    region = field_region(paths, prior.wavelength_mm, top) if reuse is None else \
+        reuse.region(paths, prior.wavelength_mm, top)
+    plan = _design(region, prior, params, stations, fixed, reuse)
     dof = partial(region_dof, prior, region.samples, region.center, params.target_error_mm / params.coverage)
     return replace(plan, dof=dof, nyquist_dof=region.nyquist_dof)   # counted when first read
 
@@ -398,7 +405,7 @@ def _exchanged(design: _Designed, region: FieldRegion, prior: DeviationPrior, ta
 
 
 def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stations: str,
-            fixed: Sites | None = None) -> FieldPlan:
+            fixed: Sites | None = None, reuse: PlanReuse | None = None) -> FieldPlan:
     """Greedy design on the thinned targets (and the free candidates); then (automatic
     count) every trace sample is checked, the ones still over the target join the sites
     (appended: the greedy's factor is extended, not rebuilt) and the greedy sequence
@@ -417,14 +424,23 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     site_trace = np.concatenate([np.full(nf, -2), pool.trace, np.full(len(region.free_z), -1)])
     site_s = np.concatenate([np.full(nf, np.nan), pool.s, np.full(len(region.free_z), np.nan)])
     site_z = np.concatenate([np.full(nf, np.nan), pool.z, region.free_z])
-    greedy = GreedyField(prior, Sites(np.concatenate([fixed.xy, pool.sites.xy, region.free.xy]),
-                                      np.concatenate([fixed.grad, pool.sites.grad, region.free.grad])), region.center)
-    for j in range(nf):  # the stations already touched come first
-        greedy.add(j)
-    for _ in range(MAX_REFINE_ROUNDS):
+    u = Sites(np.concatenate([fixed.xy, pool.sites.xy, region.free.xy]),
+              np.concatenate([fixed.grad, pool.sites.grad, region.free.grad]))
+
+    def started() -> GreedyField:
+        out = GreedyField(prior, u, region.center)
+        for j in range(nf):  # the stations already touched come first
+            out.add(j)
+        return out
+    stop = None if count is not None else (target_var, max(2, params.min_count))
+    greedy = started() if reuse is None else reuse.start(prior, u, region.center, nf, started, stop)
+    for step in range(MAX_REFINE_ROUNDS):
         greedy_sequence(greedy, np.flatnonzero(site_trace >= 0), count, target_var, max(2, params.min_count), nf)
+        if reuse is not None and stop is not None and step == 0:
+            reuse.stopped(prior, u, region.center, nf, stop, greedy)
         chosen = np.array(greedy.chosen)
-        parts = posterior_parts(prior, greedy.sites.take(chosen), samples.sites, region.center)
+        jinc = None if reuse is None else reuse.jinc(greedy.sites.take(chosen).xy, samples.sites, prior.wavelength_mm)
+        parts = posterior_parts(prior, greedy.sites.take(chosen), samples.sites, region.center, jinc)
         over = np.flatnonzero(parts.var > target_var * (1 + 1e-9))
         if count is not None or len(over) == 0:
             break
@@ -451,50 +467,3 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
     return FieldPlan(station_sites.xy, site_z[picked], station_sites.grad, site_trace[picked], site_s[picked],
                      region.center, float(sd.max()), per_trace, region.area_mm2, stations,
                      np.argsort(order))
-
-
-def field_result(plan: FieldPlan, prior: DeviationPrior) -> dict[str, Any]:
-    """JSON form of a field plan: what the reconstruction and the viewer read back.
-
-    ``stations``: [{xy, z, grad, trace, s_mm}] in probing order (trace -1 / s_mm None off the traces; a verification
-    point has ``verify: true``); ``prior``: the deviation prior the design used (the reconstruction must use it).
-    """
-    return {
-        "stations_mode": plan.stations_mode,
-        "center": plan.center.tolist(),
-        "dof": plan.dof,
-        "nyquist_dof": plan.nyquist_dof,
-        "area_mm2": plan.area_mm2,
-        "max_sd_mm": plan.max_sd_mm,
-        "prior": {k: float(v) for k, v in prior.__dict__.items()},
-        "stations": [{"xy": [float(a), float(b)], "z": float(z), "grad": [float(g), float(h)], "trace": int(t),
-                      "s_mm": None if math.isnan(s) else float(s)} | ({"verify": True} if v else {})
-                     for (a, b), z, (g, h), t, s, v in zip(plan.xy, plan.z, plan.grad, plan.trace, plan.s_mm,
-                                                           plan.verify_mask)],
-    }
-
-
-@dataclass(frozen=True, eq=False)
-class StoredField:
-    """A field plan read back from :func:`field_result`: prior, center (2,), stations Sites
-    (n,), nominal z (n,), trace (n,), s_mm (n,), verify (n,) bool (verification points)."""
-
-    prior: DeviationPrior
-    center: np.ndarray
-    stations: Sites
-    z: np.ndarray
-    trace: np.ndarray
-    s_mm: np.ndarray
-    verify: np.ndarray
-
-
-def stored_field(result: dict[str, Any]) -> StoredField:
-    """Inverse of :func:`field_result` (its ``field`` entry)."""
-    rows = result["stations"]
-    return StoredField(
-        DeviationPrior(**result["prior"]), np.asarray(result["center"], dtype=float),
-        Sites(np.array([r["xy"] for r in rows], dtype=float).reshape(-1, 2),
-              np.array([r["grad"] for r in rows], dtype=float).reshape(-1, 2)),
-        np.array([r["z"] for r in rows], dtype=float), np.array([r["trace"] for r in rows], dtype=int),
-        np.array([np.nan if r["s_mm"] is None else r["s_mm"] for r in rows], dtype=float),
-        np.array([bool(r.get("verify", False)) for r in rows], dtype=bool))

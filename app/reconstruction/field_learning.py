@@ -82,6 +82,7 @@ NOISE_RANGE = (1.0, 50.0)
 GRID_WAVELENGTHS = 10       # start points of the search (log-spaced over the wavelength bounds)
 MISFIT_ALPHA = 0.01         # false-alarm level of the misfit test
 HESSIAN_STEP = 1e-3         # central-difference step in the log parameters
+KERNELS_KEPT = 2            # a likelihood keeps the kernels of its last this many wavelengths
 MIN_TOUCHES = 8
 NOISE_MISFIT = 5.0          # learned noise over the user's (the probe's repeatability) that is a misfit
 NAMES = ("amplitude_mm", "wavelength_mm", "sigma_mm")
@@ -205,6 +206,7 @@ class _Likelihood:
         self.n = len(xy)
         upper = np.triu_indices(self.n)  # (i, j) i <= j, row-major; int32: half the memory of int64
         self.upper = (upper[0].astype(np.int32), upper[1].astype(np.int32))
+        self._kernels: dict[float, tuple[np.ndarray, np.ndarray | None]] = {}   # log wavelength -> kernel
         self.r_upper = np.hypot(xy[upper[0], 0] - xy[upper[1], 0], xy[upper[0], 1] - xy[upper[1], 1])
         self.diagonal = upper[0] == upper[1]                         # (n (n + 1) / 2,) bool
         self.pair_weight = np.where(self.diagonal, 1.0, 2.0)         # an off-diagonal pair counts twice
@@ -230,14 +232,24 @@ class _Likelihood:
         (n (n + 1) / 2,) at theta.  d jinc / d log wavelength = x jinc'(x) = 2 J2(x), and
         J2(x) = 2 J1(x) / x - J0(x) = jinc(x) - J0(x) (the Bessel recurrence): one J0 beside
         the J1 jinc needs, not a general-order J2 (~20x the cost of J0); absolute error a few
-        ulp, below x = 1e-6 the series."""
+        ulp, below x = 1e-6 the series.  The last KERNELS_KEPT wavelengths' are kept (the
+        Laplace sd's differences step the other parameters at one wavelength): read-only."""
+        kept = self._kernels.get(float(theta[1]))
+        if kept is not None and (kept[1] is not None or not gradient):
+            return kept[0], kept[1] if gradient else None
         x = self.r_upper * (2.0 * math.pi / math.exp(theta[1]))
         small = x < 1e-6
         safe = np.where(small, 1.0, x)
         jinc = np.where(small, 1.0 - x ** 2 / 8.0, 2.0 * j1(safe) / safe)
-        if not gradient:
-            return jinc, None
-        return jinc, np.where(small, x ** 2 / 4.0, 2.0 * (jinc - j0(safe)))
+        djinc = np.where(small, x ** 2 / 4.0, 2.0 * (jinc - j0(safe))) if gradient else None
+        for a in (jinc, djinc):
+            if a is not None:
+                a.setflags(write=False)
+        self._kernels.pop(float(theta[1]), None)
+        self._kernels[float(theta[1])] = (jinc, djinc)
+        while len(self._kernels) > KERNELS_KEPT:
+            del self._kernels[next(iter(self._kernels))]
+        return jinc, djinc
 
     def _covariance(self, theta: np.ndarray, jinc: np.ndarray) -> tuple[np.ndarray, float, float]:
         """(K (n, n) mm^2, rms^2, noise variance) at theta from the upper-triangle ``jinc``."""

@@ -47,6 +47,7 @@ import numpy as np
 from app.geometry.traces import as_trace_polyline
 from app.probing.deviation_prior import DeviationPrior, Sites
 from app.probing.field import FieldPlan, plan_field
+from app.probing.field_reuse import PlanReuse
 from app.probing.field_verify import with_sequential_verification
 from app.probing.selection import PlanParams
 from app.reconstruction.field_forecast import (
@@ -319,8 +320,10 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
         if len(dz) < MIN_TOUCHES:
             break
 
-        def planned(at: PlanParams, touched: Sites = sites) -> FieldPlan:
-            return plan_field(paths, at, fixed=touched)
+        shared = PlanReuse()   # what this round's plans share
+
+        def planned(at: PlanParams, touched: Sites = sites, reuse: PlanReuse = shared) -> FieldPlan:
+            return plan_field(paths, at, fixed=touched, reuse=reuse)
         learned = learn_prior(user, sites, dz, center)
         decision = decide_round(params, learned, sites, dz, trace, s, center, paths,
                                 planned, plan_target, current.deviation_wavelength_mm,

@@ -394,12 +394,24 @@ def posterior_trace_bound(posterior: DeviationPosterior, path: Any, coverage: fl
 
 
 SD_BATCH = 4096  # trace points whose posterior sd is computed in one solve
+# per path: (count, arc lengths (count,), their Sites) at the last count asked
+_BOUND_SITES: weakref.WeakKeyDictionary[Any, tuple[int, np.ndarray, Sites]] = weakref.WeakKeyDictionary()
 
 
-def _bound_samples(path: Any, wavelength_mm: float) -> np.ndarray:
-    """Arc lengths (m,) mm where a trace's sd is judged: every wavelength / BOUND_STEP_PER_WAVELENGTH."""
+def _bound_samples(path: Any, wavelength_mm: float) -> tuple[np.ndarray, Sites]:
+    """(arc lengths (m,) mm, their Sites) where a trace's sd is judged: every wavelength /
+    BOUND_STEP_PER_WAVELENGTH, both ends included.  The last count's are kept per path (the
+    forecasts of one round ask at close wavelengths, most traces at the same count)."""
     count = max(2, int(np.ceil(path.length_mm / (wavelength_mm / BOUND_STEP_PER_WAVELENGTH))) + 1)
-    return np.linspace(0.0, path.length_mm, count)
+    kept = _BOUND_SITES.get(path)
+    if kept is not None and kept[0] == count:
+        return kept[1], kept[2]
+    s = np.linspace(0.0, path.length_mm, count)
+    sites = path_sites(path, s)
+    for a in (s, sites.xy, sites.grad):
+        a.setflags(write=False)
+    _BOUND_SITES[path] = (count, s, sites)
+    return s, sites
 
 
 def posterior_trace_bounds(posterior: DeviationPosterior, paths: Sequence[Any], coverage: float,
@@ -408,8 +420,7 @@ def posterior_trace_bounds(posterior: DeviationPosterior, paths: Sequence[Any], 
     traces' points batched into SD_BATCH-point solves (one factor, many traces).
     ``traces``: how many share the confidence (default T)."""
     wavelength = posterior.prior.wavelength_mm
-    samples = [_bound_samples(p, wavelength) for p in paths]
-    sites = [path_sites(p, s) for p, s in zip(paths, samples)]
+    samples, sites = zip(*(_bound_samples(p, wavelength) for p in paths))
     sd = np.empty(sum(len(s) for s in samples))
     xy, grad = np.concatenate([q.xy for q in sites]), np.concatenate([q.grad for q in sites])
     for start in range(0, len(sd), SD_BATCH):

@@ -36,7 +36,7 @@ from app.jobs.results.models import (
 )
 from app.platform.lookup import get_or_404
 from app.platform.models import COMPLETED_STATES, Artifact, Job, JobReference, Part, Trace
-from app.probing.field import stored_field
+from app.probing.field_stored import stored_field
 from app.probing.field_top import field_sd_surface
 from app.viewer.deviation_map import ribbon_surface, standoff_errors
 from app.viewer.gcode_paths import GcodeViewError

@@ -9,7 +9,8 @@ import pytest
 
 from app.jobs.params import ProbePlanParams
 from app.probing.deviation_prior import Sites
-from app.probing.field import posterior_sd, stored_field
+from app.probing.field import posterior_sd
+from app.probing.field_stored import stored_field
 from app.probing.field_top import first_hit_z, mesh_top_sampler
 from app.reconstruction.field_trust import TARGET_SLACK
 from app.reference.s1 import as_made, s1_mesh, s1_traces

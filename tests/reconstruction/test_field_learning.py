@@ -139,3 +139,19 @@ def test_two_touches_of_one_spot_that_disagree_are_both_screened():
     dz = np.array([0.0, 0.2, 0.01, 0.011, 0.3, 0.05])       # spot 1: 2 disagree; spot 2: the third is off the median
     assert repeat_outliers(sites, dz, 0.001).tolist() == [0, 1, 4]
     assert repeat_outliers(sites, dz[[0, 2, 5, 1, 3, 4]] * 0.0, 0.001).tolist() == []
+
+
+def test_a_likelihood_with_its_kept_kernels_gives_what_a_fresh_one_gives():
+    """The kernels kept for the last wavelengths asked give, bit for bit, the value and the
+    gradient a fresh likelihood computes, in an order that hits and misses them (value alone
+    first, then with the gradient, wavelengths coming back)."""
+    sites, center, dz = draw(TRUTH, 40, 3)
+    warm = _Likelihood(USER, sites, dz, center)
+    thetas = [np.log(t) for t in ([0.1, 12.0, 0.003], [0.11, 12.0, 0.003], [0.1, 9.0, 0.002], [0.1, 12.0, 0.004],
+                                  [0.2, 15.0, 0.001], [0.2, 9.0, 0.001], [0.1, 12.0, 0.003])]
+    for theta in thetas:
+        value = warm.value(theta)
+        got, grad = warm(theta)
+        fresh = _Likelihood(USER, sites, dz, center)
+        want, want_grad = fresh(theta)
+        assert value == fresh.value(theta) and got == want and np.array_equal(grad, want_grad)

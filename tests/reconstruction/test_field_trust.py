@@ -354,3 +354,21 @@ def test_the_batched_bounds_are_each_traces_root_and_do_not_depend_on_the_batch(
         root = lo if excess(lo) <= 0 else brentq(excess, lo, 64 * lo, xtol=1e-14, rtol=1e-14)
         assert together[t] == pytest.approx(root, rel=1e-12)
         assert together[t] == simultaneous_bound(sd[a:b], steps[t], 15.0, 3.0, len(lengths))
+
+
+def test_the_kept_bound_sites_are_the_fresh_ones_at_every_wavelength(paths):
+    """A trace's bound sites kept at its last count asked give the bounds the fresh sites give,
+    bit for bit, at wavelengths asked in turn (most traces keep their count, some do not)."""
+    import app.reconstruction.field_trust as field_trust
+    from app.probing.deviation_prior import DeviationPrior, fit_posterior
+
+    plan = plan_field(paths, PlanParams())
+    bounds = []
+    for wavelength in (15.0, 15.3, 15.0, 30.0, 15.3):
+        posterior = fit_posterior(DeviationPrior(0.15, wavelength), plan.sites, np.zeros(plan.count), plan.center)
+        kept = field_trust.posterior_trace_bounds(posterior, paths, 3.0)
+        field_trust._BOUND_SITES.clear()
+        fresh = field_trust.posterior_trace_bounds(posterior, paths, 3.0)
+        assert kept == fresh
+        bounds.append(kept)
+    assert bounds[0] == bounds[2] and bounds[1] == bounds[4] and bounds[0] != bounds[1]

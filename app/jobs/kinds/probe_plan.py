@@ -31,7 +31,9 @@ from app.jobs.inputs import check_registration, placed_nominal, placement_from, 
 from app.jobs.params import ProbePlanParams
 from app.jobs.results.models import ProbePlanResult
 from app.probing import PlanParams, ProbePlan, ProbeProgram, build_probe_program, plan_probes
-from app.probing.field import field_result, plan_field, stored_field
+from app.probing.field import plan_field
+from app.probing.field_reuse import PlanReuse
+from app.probing.field_stored import field_result, stored_field
 from app.probing.field_top import mesh_top_sampler
 from app.probing.field_verify import with_sequential_verification, with_verification
 from app.probing.joint import plan_joint
@@ -230,8 +232,10 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
         suspect = replace(suspect, sigma_mm=min(suspect.sigma_mm, plan_params.probe_sigma_mm))
     retouch = _retouches(suspect, sites, dz, field, keep, fixed)
 
+    reuse = PlanReuse()   # what the round's plans share
+
     def plan(at: PlanParams) -> Any:
-        return plan_field(nominals, at, params.stations, top, fixed=sites)
+        return plan_field(nominals, at, params.stations, top, fixed=sites, reuse=reuse)
     if params.retouch_only:  # the prior stays the user's: a single-shot plan's second run
         at = replace(round_params(plan_params, learned.prior, field.prior.wavelength_mm), target_error_mm=plan_target)
         return _retouched(plan(at), field, keep, retouch), plan_params, {
