@@ -16,7 +16,8 @@ at that peak's resident size long after.  And each thread that allocates may get
   where a freed one is kept for reuse and a long-lived block above it keeps the heap from
   shrinking: a job's numpy temporaries (a planner's blocks of a few MiB) leave the process at
   the sum of what it ever held there.  Fixed, the process's resident size follows the arrays
-  it holds (a compute process sets COMPUTE_MMAP_BYTES before its first job).  A mapped
+  it holds (a compute process sets LARGE_BLOCK_BYTES before its first job, the server when
+  its app is built).  A mapped
   block costs its page faults once per allocation; the arithmetic is the same.
 * :func:`limit_arenas` (``mallopt(M_ARENA_MAX, n)``) caps the number of arenas of a
   process with many threads; threads then share the existing arenas (contention only for
@@ -34,7 +35,7 @@ import threading
 log = logging.getLogger("conforma.heap")
 M_ARENA_MAX = -8  # glibc's mallopt parameters
 M_MMAP_THRESHOLD = -3
-COMPUTE_MMAP_BYTES = 2 ** 20  # a compute process maps the blocks of this size or more on their own
+LARGE_BLOCK_BYTES = 2 ** 20  # the server and the compute processes map blocks of this size or more on their own
 SERVER_ARENAS = 2  # the server's threads (requests, queue consumers, machines) share this many
 _libc_lock = threading.Lock()
 _libc: list[ctypes.CDLL | None] = []  # empty: not looked up yet; [None]: no glibc
