@@ -47,7 +47,9 @@ from app.probing.deviation_prior import (
 )
 from app.probing.field_dof import Deferred, region_dof
 from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
+from app.probing.field_posterior import SD_CHUNK as SD_CHUNK  # re-exported: the planner's names stay importable here
 from app.probing.field_posterior import PosteriorParts, eliminate_redundant, posterior_parts
+from app.probing.field_posterior import posterior_sd as posterior_sd
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
 from app.probing.selection import PlanError, PlanParams, ProbePlan
 
