@@ -38,7 +38,7 @@ from app.platform.auth import KeyRing, LoginThrottle
 from app.platform.config import Settings
 from app.platform.db import migrate
 from app.runtime.engine import QUEUES, Runtime
-from app.runtime.heap import SERVER_ARENAS, limit_arenas
+from app.runtime.heap import LARGE_BLOCK_BYTES, SERVER_ARENAS, limit_arenas, map_large_blocks
 
 # The API's routers, in the order their routes are matched
 ROUTERS = (system.router, parts.router, traces.router, jobs.router, loop_actions.router, programs.router,
@@ -81,6 +81,7 @@ def create_app(settings: Settings, *, start_workers: bool | None = None) -> Fast
     """Build the API for ``settings``.  On start-up: migrate, open the runtime, start the
     embedded worker (unless disabled) and the viewer (if enabled)."""
     limit_arenas(SERVER_ARENAS)  # before the server's threads start (app.runtime.heap)
+    map_large_blocks(LARGE_BLOCK_BYTES)  # a request's or a workflow's freed buffers leave at once
 
     @asynccontextmanager
     async def lifespan(api: FastAPI) -> AsyncIterator[None]:

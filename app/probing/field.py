@@ -44,10 +44,12 @@ from app.probing.deviation_prior import (
     jinc_kernel,
     placement_basis,
     prior_covariance,
-    prior_variance,
 )
 from app.probing.field_dof import Deferred, region_dof
 from app.probing.field_exchange import TIGHT_SAMPLE, exchange_stations, repair_stations
+from app.probing.field_posterior import SD_CHUNK as SD_CHUNK  # re-exported: the planner's names stay importable here
+from app.probing.field_posterior import PosteriorParts, eliminate_redundant, posterior_parts
+from app.probing.field_posterior import posterior_sd as posterior_sd
 from app.probing.field_region import FieldRegion, TopSampler, TracePoints, field_region
 from app.probing.field_reuse import PlanReuse
 from app.probing.selection import PlanError, PlanParams, ProbePlan
@@ -55,7 +57,6 @@ from app.probing.selection import PlanError, PlanParams, ProbePlan
 StationMode = Literal["on_traces", "anywhere_on_top"]
 STATION_MODES: tuple[str, ...] = ("on_traces", "anywhere_on_top")
 MAX_FIELD_PROBES = 4000
-SD_CHUNK = 4096
 
 
 class GreedyField:
@@ -163,82 +164,6 @@ def greedy_sequence(greedy: GreedyField, targets: np.ndarray, count: int | None,
         gain[:first_candidate] = -np.inf
         greedy.add(int(np.argmax(gain)))
     return len(greedy.chosen)
-
-
-@dataclass
-class PosteriorParts:
-    """The posterior of the field at points ``where`` (N,) given stations S (n,):
-    precision (n, n) = (K(S, S) + sigma^2 I)^-1, weights (n, N) = precision K(S, where)
-    (the kriging weights), var (N,) mm^2 posterior variance, keep (n,) station indices."""
-
-    precision: np.ndarray
-    weights: np.ndarray
-    var: np.ndarray
-    keep: np.ndarray
-
-
-def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray,
-                    jinc: np.ndarray | None = None) -> PosteriorParts:
-    """:class:`PosteriorParts` from one factorisation (cost O(n^2 N)); ``jinc``: the unit
-    kernel (n, N) of the stations and ``where`` when the caller has it."""
-    n = len(stations.xy)
-    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
-    precision = np.linalg.inv(prior_covariance(prior, stations, stations, center) + jitter * np.eye(n))
-    precision = (precision + precision.T) / 2
-    var = prior_variance(prior, where, center)
-    weights = np.empty((n, len(var)))
-    for lo in range(0, len(var), SD_CHUNK):
-        part = where.take(np.arange(lo, min(lo + SD_CHUNK, len(var))))
-        cov = prior_covariance(prior, stations, part, center,
-                               None if jinc is None else np.ascontiguousarray(jinc[:, lo:lo + len(part.xy)]))
-        weights[:, lo:lo + len(part.xy)] = precision @ cov
-        var[lo:lo + len(part.xy)] -= np.einsum("ij,ij->j", cov, weights[:, lo:lo + len(part.xy)])
-    return PosteriorParts(precision, weights, np.maximum(var, 0.0), np.arange(n))
-
-
-def eliminate_redundant(parts: PosteriorParts, target_var: float, keep_at_least: int) -> PosteriorParts:
-    """Backward elimination: drop stations while the largest posterior variance over the
-    points stays <= target_var.  Returns the parts of the kept stations (``keep``: their
-    indices, ascending, into the stations ``parts`` was made from).
-
-    A greedy design adds each station for the worst point of its moment; later stations
-    often make an early one redundant.  With P = (K(S, S) + sigma^2 I)^-1 and the kriging
-    weights W = P K(S, where), removing station j raises the variance at every point u by
-    exactly ``W[j, u]^2 / P[j, j]``.  Each step removes the station whose removal leaves the
-    smallest largest variance (if that meets the target) and downdates P and W by rank one
-    (``P -= P[:, j] P[j, :] / P[j, j]``, the same for W): a step costs O(n N).
-    """
-    precision, weights, var, keep = parts.precision, parts.weights, parts.var, parts.keep
-    while len(keep) > keep_at_least:
-        d = np.diag(precision).copy()
-        worst = np.empty(len(keep))
-        for lo in range(0, len(var), SD_CHUNK):
-            w = weights[:, lo:lo + SD_CHUNK]
-            worst_part = (w * w / d[:, None] + var[None, lo:lo + SD_CHUNK]).max(axis=1)
-            worst = worst_part if lo == 0 else np.maximum(worst, worst_part)
-        j = int(np.argmin(worst))
-        if worst[j] > target_var:
-            break
-        var = var + weights[j] ** 2 / d[j]
-        weights = weights - np.outer(precision[:, j] / d[j], weights[j])
-        precision = precision - np.outer(precision[:, j] / d[j], precision[j])
-        mask = np.ones(len(keep), dtype=bool)
-        mask[j] = False
-        weights, precision, keep = weights[mask], precision[mask][:, mask], keep[mask]
-    return PosteriorParts(precision, weights, var, keep)
-
-
-def posterior_sd(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray) -> np.ndarray:
-    """Posterior sd (m,) mm of the field at ``where`` given stations (fresh factorisation)."""
-    jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
-    k = prior_covariance(prior, stations, stations, center)
-    low = np.linalg.cholesky(k + jitter * np.eye(len(k)))
-    out = np.empty(len(where.xy))
-    for lo in range(0, len(out), SD_CHUNK):
-        part = where.take(np.arange(lo, min(lo + SD_CHUNK, len(out))))
-        a = solve_triangular(low, prior_covariance(prior, stations, part, center), lower=True)
-        out[lo:lo + len(part.xy)] = prior_variance(prior, part, center) - np.sum(a * a, axis=0)
-    return np.sqrt(np.maximum(out, 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -393,6 +318,7 @@ def _exchanged(design: _Designed, region: FieldRegion, prior: DeviationPrior, ta
                 return _Designed(work.sites, work.trace, work.s, work.z, trial, fresh)
             trial = trial[shorter.keep]
             continue
+        assert fresh.weights is not None  # posterior_parts keeps them by default
         added, precision, weights, var = repair_stations(
             prior, region.center, work.sites.take(trial), samples.sites, fresh.precision, fresh.weights,
             fresh.var, target_var)
@@ -440,7 +366,8 @@ def _design(region: FieldRegion, prior: DeviationPrior, params: PlanParams, stat
             reuse.stopped(prior, u, region.center, nf, stop, greedy)
         chosen = np.array(greedy.chosen)
         jinc = None if reuse is None else reuse.jinc(greedy.sites.take(chosen).xy, samples.sites, prior.wavelength_mm)
-        parts = posterior_parts(prior, greedy.sites.take(chosen), samples.sites, region.center, jinc)
+        parts = posterior_parts(prior, greedy.sites.take(chosen), samples.sites, region.center, jinc=jinc,
+                                weights=count is None and nf == 0)  # the elimination's, below
         over = np.flatnonzero(parts.var > target_var * (1 + 1e-9))
         if count is not None or len(over) == 0:
             break

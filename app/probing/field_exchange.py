@@ -345,7 +345,7 @@ def repair_stations(prior: DeviationPrior, center: np.ndarray, stations: Sites, 
     """Worst-point greedy over the points ``where`` (N,) until every one has variance <=
     target_var: each step adds, as a station, the point that lowers the worst point's
     variance most.  precision (n, n), weights (n, N), var (N,) describe the posterior given
-    ``stations`` (n,) (as :func:`app.probing.field.posterior_parts` makes them).  Returns the
+    ``stations`` (n,) (as :func:`app.probing.field_posterior.posterior_parts` makes them).  Returns the
     added points' indices into ``where`` and the updated precision, weights, var."""
     jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     added: list[int] = []

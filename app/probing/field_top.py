@@ -67,7 +67,7 @@ def field_sd_surface(mesh: trimesh.Trimesh, stations: Sites, center: np.ndarray,
     four corners hit the part) and sd (v,) mm at the vertices.
     """
     from app.probing.deviation_prior import Sites
-    from app.probing.field import posterior_sd
+    from app.probing.field_posterior import posterior_sd
 
     lo = stations.xy.min(axis=0) - margin_mm
     hi = stations.xy.max(axis=0) + margin_mm

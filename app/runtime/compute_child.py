@@ -20,8 +20,10 @@ bounded by ``CONFORMA_COMPUTE_CACHE_MB`` (least recently used out).  Limits:
 
 Outcomes the job itself decides (succeeded, failed, cancelled) are written here, with the
 same conditional transitions as a thread worker; what it cannot report (a crash, a kill, a
-time limit) is the supervisor's business (:mod:`app.runtime.process_worker`).  After each job
-the process returns the heap memory the job freed to the system (:func:`app.runtime.heap.trim_heap`),
+time limit) is the supervisor's business (:mod:`app.runtime.process_worker`).  Its large
+blocks (arrays of LARGE_BLOCK_BYTES or more) are mapped on their own, so a job's freed arrays
+leave at once (:func:`app.runtime.heap.map_large_blocks`); after each job the process
+returns the rest of the heap memory the job freed (:func:`app.runtime.heap.trim_heap`),
 then reports its memory and the parts it holds; the supervisor decides whether it is
 reused or replaced.
 """
@@ -50,7 +52,7 @@ from app.platform.config import Settings
 from app.platform.db import make_engine
 from app.platform.problems import from_error, problem
 from app.runtime.context import JobContext
-from app.runtime.heap import trim_heap
+from app.runtime.heap import LARGE_BLOCK_BYTES, map_large_blocks, trim_heap
 from app.runtime.process_identity import start_ticks
 from app.runtime.registry import get_kind, load_kinds
 from app.runtime.store import Claim, JobStore, completed_status, encoded_result
@@ -271,6 +273,7 @@ def serve_jobs(settings: Settings, conn: Any, server_pid: int | None = None) -> 
         bind_to(server_pid)  # before the cap (see bind_to)
     process_limits(_vm_size_bytes() + int((settings.job_memory_mb + settings.compute_recycle_mb) * MIB))
     threadpool_limits(limits=settings.blas_threads)  # once per process, never inside the core
+    map_large_blocks(LARGE_BLOCK_BYTES)  # a job's large arrays go back to the system when freed
     load_kinds(settings.job_plugins.split(","))
     runtime = ChildRuntime(settings)
     freeze_startup_objects()

@@ -10,6 +10,15 @@ at that peak's resident size long after.  And each thread that allocates may get
 * :func:`trim_heap` (``malloc_trim(0)``) returns every free page of every arena: the top of
   each, and whole free pages inside them (glibc >= 2.8, by ``madvise``).  Cheap (milliseconds
   on a few hundred MiB); called after each job.
+* :func:`map_large_blocks` (``mallopt(M_MMAP_THRESHOLD, n)``) maps every block of ``n`` bytes
+  or more on its own and unmaps it when freed.  glibc's threshold otherwise rises to the
+  largest mapped block freed (up to 32 MiB), and the arrays below it then come from the heap,
+  where a freed one is kept for reuse and a long-lived block above it keeps the heap from
+  shrinking: a job's numpy temporaries (a planner's blocks of a few MiB) leave the process at
+  the sum of what it ever held there.  Fixed, the process's resident size follows the arrays
+  it holds (a compute process sets LARGE_BLOCK_BYTES before its first job, the server when
+  its app is built).  A mapped
+  block costs its page faults once per allocation; the arithmetic is the same.
 * :func:`limit_arenas` (``mallopt(M_ARENA_MAX, n)``) caps the number of arenas of a
   process with many threads; threads then share the existing arenas (contention only for
   threads that allocate at the same moment).  Set before the threads start: the server sets
@@ -24,7 +33,9 @@ import logging
 import threading
 
 log = logging.getLogger("conforma.heap")
-M_ARENA_MAX = -8  # glibc's mallopt parameter
+M_ARENA_MAX = -8  # glibc's mallopt parameters
+M_MMAP_THRESHOLD = -3
+LARGE_BLOCK_BYTES = 2 ** 20  # the server and the compute processes map blocks of this size or more on their own
 SERVER_ARENAS = 2  # the server's threads (requests, queue consumers, machines) share this many
 _libc_lock = threading.Lock()
 _libc: list[ctypes.CDLL | None] = []  # empty: not looked up yet; [None]: no glibc
@@ -59,4 +70,16 @@ def limit_arenas(count: int) -> bool:
     ok = bool(libc.mallopt(M_ARENA_MAX, int(count)))
     if not ok:
         log.warning("mallopt(M_ARENA_MAX, %d) was refused", count)
+    return ok
+
+
+def map_large_blocks(threshold_bytes: int) -> bool:
+    """Map every malloc block of ``threshold_bytes`` or more on its own, unmapped when freed
+    (a fixed threshold: glibc no longer raises it); True when glibc took the setting."""
+    libc = _glibc()
+    if libc is None:
+        return False
+    ok = bool(libc.mallopt(M_MMAP_THRESHOLD, int(threshold_bytes)))
+    if not ok:
+        log.warning("mallopt(M_MMAP_THRESHOLD, %d) was refused", threshold_bytes)
     return ok

@@ -43,3 +43,38 @@ def test_trim_heap_returns_the_free_pages_inside_the_heap_and_the_arena_cap_is_t
     assert freed - before > 150       # freed by Python, still resident: glibc keeps it for reuse
     assert said and freed - trimmed > 150 and trimmed - before < 50
     assert capped
+
+
+def _large_blocks_child(queue, fixed: bool) -> None:  # type: ignore[no-untyped-def]
+    import numpy as np
+
+    from app.runtime.heap import map_large_blocks
+
+    taken = map_large_blocks(2 ** 20) if fixed else None
+    np.ones(2 ** 21)  # a 16 MiB block, mapped and freed: glibc's own threshold rises to it
+    before = _resident_mib()
+    # 200 MiB in 4 MiB arrays (over the fixed threshold, under the risen one), each followed
+    # by a 200 KiB one that stays (too large for a free piece of the heap: carved from its
+    # top): in the heap the top never comes free, only its inside
+    blocks, kept = [], []
+    for _ in range(50):
+        blocks.append(np.ones(2 ** 19))
+        kept.append(np.ones(25_600))
+    del blocks
+    queue.put((before, _resident_mib(), taken))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt: Linux")
+def test_with_large_blocks_mapped_freed_arrays_leave_at_once_and_without_they_stay():
+    context = multiprocessing.get_context("spawn")
+    out = {}
+    for fixed in (False, True):
+        queue = context.Queue()
+        process = context.Process(target=_large_blocks_child, args=(queue, fixed))
+        process.start()
+        out[fixed] = queue.get(timeout=120)
+        process.join(timeout=60)
+    before, freed, _ = out[False]
+    assert freed - before > 150  # glibc's rising threshold: the arrays came from the heap and stay
+    before, freed, taken = out[True]
+    assert taken and freed - before < 30  # the 10 MiB kept, the 200 MiB gone

@@ -10,7 +10,8 @@ import pytest
 from scipy.linalg import solve_triangular
 
 from app.probing.deviation_prior import Sites, prior_covariance, prior_variance
-from app.probing.field import GreedyField, PlanError, eliminate_redundant, plan_field, posterior_parts, posterior_sd
+from app.probing.field import GreedyField, PlanError, plan_field
+from app.probing.field_posterior import eliminate_redundant, posterior_parts, posterior_sd
 from app.probing.field_region import covered_area_mm2, field_region, sample_traces
 from app.probing.selection import PlanParams, plan_probes
 from app.reconstruction.field import fit_field, trace_reconstruction

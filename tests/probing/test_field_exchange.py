@@ -11,7 +11,8 @@ import pytest
 
 import app.probing.field_exchange as fx
 from app.probing.deviation_prior import Sites
-from app.probing.field import plan_field, posterior_parts, posterior_sd
+from app.probing.field import plan_field
+from app.probing.field_posterior import posterior_parts, posterior_sd
 from app.probing.field_region import field_region, sample_traces
 from app.probing.selection import PlanParams
 from app.reference.boards import board_path, board_traces, s1_part
