@@ -61,25 +61,24 @@ def trim_heap() -> bool:
     return bool(libc.malloc_trim(0))
 
 
-def limit_arenas(count: int) -> bool:
-    """At most ``count`` malloc arenas in this process (threads started later share them);
-    True when glibc took the setting."""
+def _mallopt(param: int, name: str, value: int) -> bool:
+    """``mallopt(param, value)`` in glibc; True when glibc took it (a refusal is logged)."""
     libc = _glibc()
     if libc is None:
         return False
-    ok = bool(libc.mallopt(M_ARENA_MAX, int(count)))
+    ok = bool(libc.mallopt(param, int(value)))
     if not ok:
-        log.warning("mallopt(M_ARENA_MAX, %d) was refused", count)
+        log.warning("mallopt(%s, %d) was refused", name, value)
     return ok
+
+
+def limit_arenas(count: int) -> bool:
+    """At most ``count`` malloc arenas in this process (threads started later share them);
+    True when glibc took the setting."""
+    return _mallopt(M_ARENA_MAX, "M_ARENA_MAX", count)
 
 
 def map_large_blocks(threshold_bytes: int) -> bool:
     """Map every malloc block of ``threshold_bytes`` or more on its own, unmapped when freed
     (a fixed threshold: glibc no longer raises it); True when glibc took the setting."""
-    libc = _glibc()
-    if libc is None:
-        return False
-    ok = bool(libc.mallopt(M_MMAP_THRESHOLD, int(threshold_bytes)))
-    if not ok:
-        log.warning("mallopt(M_MMAP_THRESHOLD, %d) was refused", threshold_bytes)
-    return ok
+    return _mallopt(M_MMAP_THRESHOLD, "M_MMAP_THRESHOLD", threshold_bytes)
