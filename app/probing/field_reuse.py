@@ -49,6 +49,11 @@ def _copy(greedy: GreedyField) -> GreedyField:
     return out
 
 
+def _greedy_key(prior: DeviationPrior, sites: Sites, center: np.ndarray, fixed: int) -> tuple[object, ...]:
+    """What a kept greedy state is kept under: the prior, the centre, the sites bit for bit, ``fixed``."""
+    return (prior, center.tobytes(), sites.xy.tobytes(), sites.grad.tobytes(), fixed)
+
+
 class PlanReuse:
     """The shared parts of one round's field plans (see the module doc); pass the same
     object to every :func:`app.probing.field.plan_field` call of the round."""
@@ -76,7 +81,7 @@ class PlanReuse:
         sequence of a looser or equal target stopped (:meth:`stopped`), the most stations
         such, when one was kept: a step's choice does not depend on the target, and a looser
         target's stop comes first, so the tighter sequence passes through that state."""
-        key = (prior, center.tobytes(), sites.xy.tobytes(), sites.grad.tobytes(), fixed)
+        key = _greedy_key(prior, sites, center, fixed)
         kept = self._starts.get(key)
         if kept is None:
             kept = make()
@@ -88,7 +93,7 @@ class PlanReuse:
     def stopped(self, prior: DeviationPrior, sites: Sites, center: np.ndarray, fixed: int,
                 stop: tuple[float, int], greedy: GreedyField) -> None:
         """Keep (a copy of) ``greedy`` where its first sequence for ``stop`` stopped (as :meth:`start`)."""
-        key = (prior, center.tobytes(), sites.xy.tobytes(), sites.grad.tobytes(), fixed)
+        key = _greedy_key(prior, sites, center, fixed)
         self._stops.setdefault(key, {})[stop] = _copy(greedy)
 
     def jinc(self, xy: np.ndarray, where: Sites, wavelength_mm: float) -> np.ndarray:
