@@ -93,6 +93,7 @@ function markFields(err) {
 
 async function onCreate(event) {
   event.preventDefault();
+  await partsListed;  // a trace created while the page still loads waits for the parts, not "upload a part first"
   if (!partSelect.value) { showError(new Error("upload a part first (Parts page)"), "New trace"); return; }
   let body;
   try {
@@ -211,6 +212,7 @@ async function refresh(highlight) {
 }
 
 document.addEventListener("conforma:key", async () => { await loadParts(); await refresh(); });
-await loadParts();
+const partsListed = loadParts();
+await partsListed;
 await refresh();
 markReady();
