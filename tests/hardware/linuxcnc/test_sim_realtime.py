@@ -30,9 +30,10 @@ def test_the_simulators_servo_thread_runs_real_time_where_the_host_permits(lcnc_
     tids = hal_thread_ids()
     assert tids, "the running simulator has no HAL thread"
     if os.geteuid() != 0:  # an unprivileged host: ordinary scheduling, and the simulator says why
-        assert lcnc_xyz.realtime_threads == len(tids) or lcnc_xyz.realtime_note
+        assert lcnc_xyz.realtime_threads >= len(tids) or lcnc_xyz.realtime_note
         return
-    assert lcnc_xyz.realtime_threads == len(tids), lcnc_xyz.realtime_note
+    # at least its own (a host shows every simulator's threads: another PID namespace's too)
+    assert lcnc_xyz.realtime_threads >= len(tids), lcnc_xyz.realtime_note
     for tid in tids:
         assert os.sched_getscheduler(tid) == os.SCHED_FIFO
         assert os.sched_getparam(tid).sched_priority == SERVO_PRIORITY
