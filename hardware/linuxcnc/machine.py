@@ -14,8 +14,9 @@ session (:mod:`hardware.linuxcnc.stop_session`), which is used only by :meth:`em
 it): a stop is never queued behind a command that waits for motion.  After an emergency
 stop, a controller error or a lost link the machine is in ``error`` and sends nothing until
 :meth:`connect` (no automatic motion after a failure).  When the command session is lost
-while a program runs, the stop session aborts the program (best effort): LinuxCNC has no
-link watchdog and would go on unsupervised.
+while a program runs, the stop session aborts the program until the controller reports it
+idle (``StopSession.abort``, bounded; the console tells whether it was confirmed): LinuxCNC
+has no link watchdog and would go on unsupervised.
 
 Process outputs: an e-stop keeps ``M64`` outputs on and MDI cannot run in e-stop, so the
 controller's ``ON_ABORT_COMMAND`` switches them off (``sim/remap/on_abort.ngc``); the host
@@ -145,7 +146,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         idle machine gets ``safe_off`` first (best effort)."""
         st, link = self.machine_state, self.machine_state.link
         if st.current in ("printing", "paused"):
-            self._stopper.abort()
+            self._stopper.abort(self.console)
         elif st.current == "idle" and link is not None and link.healthy and not st.estopped:
             with contextlib.suppress(HardwareError):
                 if self._homed(link.get("joint_homed")):
@@ -178,7 +179,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
             except RshRejected as exc:
                 raise FirmwareError(exc.message, command=command) from exc
             except LinkError:  # no watchdog on the controller: the move must not go on unsupervised
-                self._stopper.abort()
+                self._stopper.abort(self.console)
                 raise
             error = connected(self.link).pop_error()
             self.console.record("received", f"error: {error}" if error is not None else "done")
@@ -397,7 +398,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
             executed, _ = st.progress or (start_line, total)
             st.interrupted = InterruptedProgram(total, executed, None, [], reset=False, moved_index=executed,
                                                 program_file=path)
-            self._stopper.abort()
+            self._stopper.abort(self.console)
             st.release("error")
             exc.resume_line = executed
             raise

@@ -215,10 +215,11 @@ class RshSession:
             raise LinkError(f"linuxcncrsh session lost waiting for {command!r}: {exc}",
                             field="port") from exc
 
-    def enable(self, enable_pw: str) -> None:
-        """Take control of the machine for this session."""
+    def enable(self, enable_pw: str, timeout_s: float | None = None) -> None:
+        """Take control of the machine for this session (the reply awaited ``timeout_s``,
+        default the session's own)."""
         try:
-            self.set("enable", enable_pw)
+            self.set("enable", enable_pw, timeout_s=timeout_s)
         except RshRejected as exc:
             raise LinkError("linuxcncrsh refused the enable password", field="enable_pw") from exc
 

@@ -41,11 +41,13 @@ class StopSession:
             self.session.close()
         self.session = None
 
-    def _enabled(self) -> RshSession:
+    def _enabled(self, reply_s: float | None = None) -> RshSession:
+        """The session, reopened if it died, after ``set enable`` (its reply awaited ``reply_s``,
+        default the session's own timeout)."""
         session = self.session
         if session is None or not session.healthy:
             session = self.session = self._open_session()
-        session.enable(self._enable_pw)
+        session.enable(self._enable_pw, timeout_s=reply_s)
         return session
 
     def estop(self, console: ConsoleLog) -> None:
@@ -73,10 +75,33 @@ class StopSession:
             time.sleep(0.005)
         return True
 
-    def abort(self) -> None:
-        """``set abort``, best effort (the command session is lost or a command failed: the
-        program must not run on unsupervised); a failure here is not reported."""
-        try:
-            self._enabled().set("abort")
-        except HardwareError:
-            pass
+    def abort(self, console: ConsoleLog) -> bool:
+        """``set abort`` until ``get program_status`` reports IDLE, up to ``ESTOP_TRIES`` times,
+        each reply awaited ``ESTOP_REPLY_S`` (a reply linuxcncrsh lost costs that, not the
+        machine's timeout; the session is then reopened).  Called when the command session is
+        lost or a command failed: the program must not run on unsupervised.  Every try and the
+        outcome are recorded in ``console``; True once the controller reported IDLE."""
+        failure: HardwareError | None = None
+        for _ in range(ESTOP_TRIES):
+            console.record("sent", "set abort")
+            try:
+                if self._abort_once():
+                    console.record("received", "program_status IDLE: the program is aborted")
+                    return True
+            except HardwareError as exc:
+                failure = exc
+        console.record("received", f"the abort was not confirmed after {ESTOP_TRIES} tries"
+                       + (f": {failure}" if failure else ""))
+        return False
+
+    def _abort_once(self) -> bool:
+        """One ``set abort``; True once ``get program_status`` reports IDLE within
+        ``ESTOP_CONFIRM_S``."""
+        session = self._enabled(ESTOP_REPLY_S)
+        session.set("abort", timeout_s=ESTOP_REPLY_S)
+        deadline = time.monotonic() + ESTOP_CONFIRM_S
+        while session.get("program_status").upper() != "IDLE":
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.005)
+        return True
