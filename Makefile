@@ -22,10 +22,10 @@ run: $(STAMP)
 	$(BIN)/conforma serve
 
 # three workers on the two cores: tests that share one real resource of the host (LinuxCNC,
-# Redis, the browser) stay on one worker (tests/conftest.py, SHARED_RESOURCE_GROUPS), and the
-# LinuxCNC group's worker mostly waits on the simulator's real time (49 CPU s of pytest over
-# 1,074 s of wall), so the third worker keeps both cores busy: 9 min 23 s on an idle box
-# against about 12.5 min with two.  Bytecode is written even
+# Redis, the browser) stay on one worker per group (tests/conftest.py, SHARED_RESOURCE_GROUPS;
+# as root the LinuxCNC modules are two groups, each with a simulator of its own), and a LinuxCNC
+# group's worker mostly waits on its simulator's real time, so the third worker keeps both
+# cores busy (docs/measured.md, "The default suite").  Bytecode is written even
 # where the environment sets PYTHONDONTWRITEBYTECODE: else every worker re-compiles the
 # sources and pytest re-rewrites the asserts of ~280 plugin modules (schemathesis, hypothesis)
 # at each start: 30 CPU s of a worker's collection against 15 with the caches

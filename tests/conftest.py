@@ -101,14 +101,29 @@ SHARED_RESOURCE_GROUPS = {
     "tests/jobs/test_scale_out.py": "redis-postgresql",
     "tests/e2e/browser/": "browser",
 }
+# Where each simulator runs in namespaces of its own (as root: hardware.linuxcnc.sim_namespace),
+# these LinuxCNC modules (about half of the group's ~500 s, the five-axis one among them, so
+# only this group switches config) are a second group with its own simulator on another worker
+LINUXCNC_SECOND_GROUP = ("test_machine.py", "test_jetting_run.py", "test_scan_run.py", "test_outputs_off.py",
+                         "test_three_axis.py", "test_five_axis.py")
 
 
 def shared_resource_group(nodeid: str) -> str | None:
-    """The ``SHARED_RESOURCE_GROUPS`` group of a test node id (relative to the repository root)."""
+    """The ``SHARED_RESOURCE_GROUPS`` group of a test node id or path (relative to the
+    repository root); ``linuxcnc-2`` for ``LINUXCNC_SECOND_GROUP`` where simulators run side by side."""
     for prefix, group in SHARED_RESOURCE_GROUPS.items():
         if nodeid.startswith(prefix):
+            module = nodeid[len(prefix):].split("::")[0]
+            if group == "linuxcnc" and module in LINUXCNC_SECOND_GROUP and _simulators_side_by_side():
+                return "linuxcnc-2"
             return group
     return None
+
+
+def _simulators_side_by_side() -> bool:
+    from hardware.linuxcnc.sim_namespace import isolation_available
+
+    return isolation_available()
 
 
 @pytest.hookimpl(optionalhook=True)
@@ -138,11 +153,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     linuxcnc: list[int] = []
     for k, item in enumerate(items):
         where = item.path.resolve().relative_to(root).as_posix()
-        for prefix, group in SHARED_RESOURCE_GROUPS.items():
-            if where.startswith(prefix):
-                item.add_marker(pytest.mark.xdist_group(group))
-                if group == "linuxcnc":
-                    linuxcnc.append(k)
+        group = shared_resource_group(where)
+        if group is not None:
+            item.add_marker(pytest.mark.xdist_group(group))
+            if group.startswith("linuxcnc"):
+                linuxcnc.append(k)
     # the LinuxCNC tests of the five-axis simulator after all three-axis ones (a stable
     # sort): one simulator serves many modules, and the config then switches once
     ordered = sorted((items[k] for k in linuxcnc), key=lambda item: "lcnc_trt" in item.fixturenames)

@@ -118,7 +118,7 @@ class HalScanner:
             raise InvalidInput(f"scanning on a LinuxCNC machine samples its HAL on this host; {host!r} is another",
                                field="machine.port", value=machine.url)
         self.machine = machine
-        self.scan = HalScan()
+        self.scan = HalScan(hal_prefix=machine.hal_prefix)
 
     def run(self, waypoints: np.ndarray, speed_mm_s: float, travel_z: float | None,
             time_offset_s: float) -> ScannedPass:

@@ -8,6 +8,7 @@ out-of-range values are errors at start-up, not surprises later.
 from __future__ import annotations
 
 import os
+import shlex
 from pathlib import Path
 from typing import Literal
 
@@ -20,7 +21,8 @@ Role = Literal["viewer", "operator", "admin"]
 # Variables with the prefix that are read elsewhere (the tests, the hardware contract suite,
 # the LinuxCNC simulator): accepted at start-up, not settings of the service.
 _FOREIGN_VARIABLES = {"CONFORMA_TEST_PORT", "CONFORMA_TEST_DIALECT", "CONFORMA_TEST_BAUD", "CONFORMA_TEST_MOTION",
-                      "CONFORMA_TEST_DATABASE_URL", "CONFORMA_TEST_QUEUE_URL", "CONFORMA_RTAPI_UID"}
+                      "CONFORMA_TEST_DATABASE_URL", "CONFORMA_TEST_QUEUE_URL", "CONFORMA_RTAPI_UID",
+                      "CONFORMA_SIM_SHARED_NAMESPACES"}
 
 
 class SettingsError(Exception):
@@ -101,6 +103,22 @@ class Settings(BaseSettings):
                                           description="linuxcncrsh enable password; default LinuxCNC's EMCTOO")
     linuxcnc_programs: Path | None = Field(None, description="absolute directory LinuxCNC reads program files from "
                                            "(same path on the controller); default <tmp>/conforma-linuxcnc")
+    linuxcnc_hal_prefix: str | None = Field(None, min_length=1,
+                                            description="command (shell words) that enters the LinuxCNC "
+                                            "controller's IPC namespace for halcmd / halsampler (e.g. "
+                                            "'docker exec linuxcnc'); default this host's HAL")
+
+    @field_validator("linuxcnc_hal_prefix")
+    @classmethod
+    def _check_hal_prefix(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                words = shlex.split(value)
+            except ValueError as exc:
+                raise ValueError(f"not shell words: {exc}") from exc
+            if not words or not words[0]:
+                raise ValueError("names no command")
+        return value
 
     @field_validator("linuxcnc_programs")
     @classmethod

@@ -216,7 +216,8 @@ def linuxcnc_options(settings: Settings) -> dict[str, str]:
     """``LinuxCNCMachine`` keyword arguments from the ``CONFORMA_LINUXCNC_*`` settings (the
     ones set: the others fall back to the environment, then to LinuxCNC's defaults)."""
     given = {"connect_pw": settings.linuxcnc_connectpw, "enable_pw": settings.linuxcnc_enablepw,
-             "program_dir": str(settings.linuxcnc_programs) if settings.linuxcnc_programs else None}
+             "program_dir": str(settings.linuxcnc_programs) if settings.linuxcnc_programs else None,
+             "hal_prefix": settings.linuxcnc_hal_prefix}
     return {name: value for name, value in given.items() if value is not None}
 
 

@@ -20,11 +20,14 @@ are the exposure's (a gap in the sampler's sequence numbers means the FIFO overr
 an error).  A value exposed before the first row (the sensor not yet awake) and repeats of
 one exposure (the sensor had nothing new) are dropped; ``lag_s`` is how late each value
 reached the sampler.  The HAL must be on this host (``halcmd`` reaches the
-controller's shared memory): a ``linuxcnc://`` machine elsewhere cannot be scanned this way.
+controller's shared memory; in another namespace through ``CONFORMA_LINUXCNC_HAL_PREFIX``,
+:mod:`hardware.linuxcnc.hal_command`): a ``linuxcnc://`` machine elsewhere cannot be scanned
+this way.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import threading
@@ -34,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import HardwareError
+from .hal_command import HAL_PREFIX_VAR, hal_command
 
 __all__ = ["HalScan", "HalScanError", "HalSamples", "servo_period_s"]
 
@@ -61,7 +65,8 @@ class HalSamples:
 
 
 def _halcmd(args: list[str], env: dict[str, str] | None, timeout_s: float = 10.0) -> str:
-    done = subprocess.run(["halcmd", *args], capture_output=True, text=True, timeout=timeout_s, env=env)
+    done = subprocess.run(hal_command(["halcmd", *args], env), capture_output=True, text=True, timeout=timeout_s,
+                          env=env)
     if done.returncode != 0:
         raise HalScanError(f"halcmd {' '.join(args)} failed: {done.stderr.strip()[:200]}", field="halcmd",
                            value=args[0])
@@ -105,12 +110,16 @@ def parse_rows(lines: list[str], period_s: float) -> HalSamples:
 
 class HalScan:
     """One sampling session at a time (see the module docstring); ``env``: the controller's
-    environment for ``halcmd`` (the simulator's, :attr:`SimController.hal_env`)."""
+    environment for ``halcmd`` (the simulator's, :attr:`SimController.hal_env`); ``hal_prefix``:
+    the command that enters the controller's namespace (:mod:`hardware.linuxcnc.hal_command`)."""
 
-    def __init__(self, env: dict[str, str] | None = None, signal: str = SENSOR_ON, channel: int = 0) -> None:
+    def __init__(self, env: dict[str, str] | None = None, signal: str = SENSOR_ON, channel: int = 0,
+                 hal_prefix: str | None = None) -> None:
         if shutil.which("halsampler") is None or shutil.which("halcmd") is None:
             raise HalScanError("halcmd / halsampler are not on this host (LinuxCNC not installed)",
                                field="halsampler")
+        if hal_prefix is not None:  # else the environment's HAL_PREFIX_VAR, if any
+            env = {**(os.environ if env is None else env), HAL_PREFIX_VAR: hal_prefix}
         self.env = env
         self.signal = signal
         self.channel = channel
@@ -128,8 +137,8 @@ class HalScan:
         command = ["halsampler", "-t", "-c", str(self.channel)]
         if shutil.which("stdbuf"):
             command = ["stdbuf", "-oL", *command]  # rows reach us as they are read, not at exit
-        self._process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                         env=self.env)
+        self._process = subprocess.Popen(hal_command(command, self.env), stdout=subprocess.PIPE,
+                                         stderr=subprocess.PIPE, text=True, env=self.env)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
         try:

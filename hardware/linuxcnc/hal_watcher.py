@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 
 from ..errors import HardwareError
+from .hal_command import hal_command
 
 
 class SimUnavailable(HardwareError):
@@ -31,8 +32,8 @@ class HalWatch:
         self.samples: list[tuple[int, list[float]]] = []
         self._ready = threading.Event()
         python = shutil.which("python3", path="/usr/bin:/bin") or "python3"
-        self._process = subprocess.Popen([python, str(self.SCRIPT), repr(period_s), repr(max_s), *self.names],
-                                         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        command = hal_command([python, str(self.SCRIPT), repr(period_s), repr(max_s), *self.names], env)
+        self._process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
         if not self._ready.wait(15.0):

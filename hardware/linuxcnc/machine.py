@@ -73,12 +73,14 @@ class LinuxCNCMachine(StateReadout[RshSession]):
 
     def __init__(self, url: str, profile: MachineProfile | None = None, *,
                  connect_pw: str | None = None, enable_pw: str | None = None, program_dir: str | None = None,
-                 timeout_s: float = 10.0, motion_timeout_s: float = 3600.0,
+                 hal_prefix: str | None = None, timeout_s: float = 10.0, motion_timeout_s: float = 3600.0,
                  poll_s: float = 0.02) -> None:
         self.url = url
         self.address = parse_url(url, program_dir)
         self.profile = profile or MachineProfile(*LINUXCNC_DISPENSE, probe_command="G38.2")
         self._connect_pw, self._enable_pw = passwords(connect_pw, enable_pw)
+        # how this host's HAL commands reach the controller (hal_command; None: the environment's)
+        self.hal_prefix = hal_prefix
         self.timeout_s = timeout_s
         self.motion_timeout_s = motion_timeout_s
         self.poll_s = poll_s

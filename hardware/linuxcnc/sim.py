@@ -4,10 +4,13 @@
         machine = sim.machine()              # a LinuxCNCMachine on sim.url
         ...
 
-Only one LinuxCNC may run per host, and LinuxCNC's own clean-up ends processes *by
-name*: a ``SimController`` holds an exclusive lock (``/tmp/conforma-linuxcnc.lock``) from
-start to stop, so two of them (two test processes) wait for each other instead of killing
-each other's controller.
+LinuxCNC allows one instance per host.  Where the host permits it (root), each simulator runs
+in namespaces of its own (:mod:`hardware.linuxcnc.sim_namespace`), so several run at once,
+and HAL commands enter its namespace (``hal_env`` carries the prefix,
+:mod:`hardware.linuxcnc.hal_command`).  Elsewhere a ``SimController`` holds an exclusive
+lock (``/tmp/conforma-linuxcnc.lock``) from start to stop, so two of them (two test
+processes) wait for each other instead of killing each other's controller (LinuxCNC's own
+clean-up ends processes *by name*).
 
 Each start copies the config into a fresh directory (LinuxCNC writes its parameter file
 and a HAL dump next to the INI), fills in a free port and fresh random linuxcncrsh
@@ -43,9 +46,11 @@ from typing import IO
 
 from ..errors import HardwareError, LinkError
 from ..machine_types import MachineProfile
+from .hal_command import HAL_PREFIX_VAR, hal_command
 from .hal_watcher import HalWatch, SimUnavailable
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
+from .sim_namespace import SYSTEM_NML, isolation_available, launch_command, nsenter_prefix, write_nml
 from .sim_realtime import servo_threads_realtime
 from .sim_surface import SimBlock, SimSensor, SimSphere
 
@@ -78,6 +83,14 @@ def _number_or_text(value: str) -> float | str:
         return value
 
 
+def _ipc_namespace(pid: int) -> str:
+    """The ``/proc/<pid>/ns/ipc`` link of process ``pid`` (``ipc:[<inode>]``)."""
+    try:
+        return os.readlink(f"/proc/{pid}/ns/ipc")
+    except OSError as exc:
+        raise SimUnavailable(f"the simulator's namespace is gone: {exc}", field="linuxcnc") from exc
+
+
 def _rtapi_uid() -> int:
     value = os.environ.get("CONFORMA_RTAPI_UID")
     return int(value) if value else pwd.getpwnam("nobody").pw_uid
@@ -102,6 +115,8 @@ class SimController:
         # the HAL threads made real-time after the start (sim_realtime), and why not when none
         self.realtime_threads = 0
         self.realtime_note: str | None = None
+        # in namespaces of its own (sim_namespace): the /proc/<pid>/ns/ipc link of its IPC namespace
+        self.ipc_namespace: str | None = None
         self._process: subprocess.Popen | None = None
         self._env: dict[str, str] | None = None
         self._lock_file: IO[str] | None = None
@@ -157,6 +172,11 @@ class SimController:
         """The environment ``halcmd`` / ``halsampler`` need for this simulator."""
         return self._env
 
+    def _hal_run(self, args: list[str], timeout_s: float) -> subprocess.CompletedProcess[str]:
+        """Run a HAL command (``halcmd``, LinuxCNC's Python) at this simulator (text output)."""
+        return subprocess.run(hal_command(args, self._env), capture_output=True, text=True, timeout=timeout_s,
+                              env=self._env)
+
     def _setp(self, values: dict[str, float]) -> None:
         """``setp`` each value in one ``halcmd -f`` run."""
         if not self.running:
@@ -164,8 +184,7 @@ class SimController:
         assert self.workdir is not None  # set while running
         script = self.workdir / "setp.hal"
         script.write_text("".join(f"setp {name} {float(value)!r}\n" for name, value in values.items()))
-        done = subprocess.run(["halcmd", "-f", str(script)], capture_output=True, text=True, timeout=10,
-                              env=self._env)
+        done = self._hal_run(["halcmd", "-f", str(script)], timeout_s=10)
         if done.returncode != 0:
             raise SimUnavailable(f"halcmd setp failed: {done.stderr.strip()[:200]}", field="halcmd",
                                  value=sorted(values)[0])
@@ -189,8 +208,7 @@ class SimController:
         if not self.running:
             raise SimUnavailable("the simulator is not running", field="linuxcnc")
         python = shutil.which("python3", path="/usr/bin:/bin") or "python3"
-        done = subprocess.run([python, "-c", self._OUTPUTS], capture_output=True, text=True, timeout=20,
-                              env=self._env)
+        done = self._hal_run([python, "-c", self._OUTPUTS], timeout_s=20)
         if done.returncode != 0:
             raise SimUnavailable(f"reading linuxcnc.stat failed: {done.stderr.strip()[-300:]}", field="linuxcnc")
         return json.loads(done.stdout)
@@ -236,8 +254,7 @@ class SimController:
         script = self.workdir / "snapshot.hal"
         names = self.SNAPSHOT_HAL + (self.SNAPSHOT_SENSOR if self.has_sensor else ())
         script.write_text("".join(f"getp {name}\n" for name in names))
-        done = subprocess.run(["halcmd", "-f", str(script)], capture_output=True, text=True,
-                              timeout=10, env=self._env)
+        done = self._hal_run(["halcmd", "-f", str(script)], timeout_s=10)
         values = done.stdout.split()
         if done.returncode != 0 or len(values) != len(names):
             raise SimUnavailable(f"halcmd getp failed: {done.stderr.strip()[:200]}", field="halcmd")
@@ -288,8 +305,7 @@ class SimController:
 
     def _setp_signal_off(self) -> None:
         """The height sensor and its sampler off (``sets conforma:sensor-on 0``)."""
-        subprocess.run(["halcmd", "sets", "conforma:sensor-on", "0"], capture_output=True, timeout=10,
-                       env=self._env)
+        self._hal_run(["halcmd", "sets", "conforma:sensor-on", "0"], timeout_s=10)
 
     _UNHOME = ("import linuxcnc, sys\n"
                "c = linuxcnc.command()\n"
@@ -299,8 +315,7 @@ class SimController:
 
     def _unhome(self, timeout_s: float) -> None:
         python = shutil.which("python3", path="/usr/bin:/bin") or "python3"
-        done = subprocess.run([python, "-c", self._UNHOME], capture_output=True, text=True,
-                              timeout=timeout_s, env=self._env)
+        done = self._hal_run([python, "-c", self._UNHOME], timeout_s=timeout_s)
         if done.returncode != 0:
             raise SimUnavailable(f"unhome failed: {done.stderr.strip()[-300:]}", field="linuxcnc")
 
@@ -350,7 +365,10 @@ class SimController:
         fields = {"PORT": str(self.port), "CONNECTPW": self.connect_pw, "ENABLEPW": self.enable_pw,
                   "PIVOT_X": repr(self.pivot_mm[0]), "PIVOT_Y": repr(self.pivot_mm[1]),
                   "PIVOT_Z": repr(self.pivot_mm[2]), "SENSOR_COMPONENT": str(SENSOR_COMPONENT),
-                  "SENSOR_MAP": str(workdir / SENSOR_MAP)}
+                  "SENSOR_MAP": str(workdir / SENSOR_MAP), "NML_FILE": str(SYSTEM_NML)}
+        if SYSTEM_NML.exists():  # its NML server on a port of its own (several simulators per host)
+            write_nml(workdir / "linuxcnc.nml", _free_port())
+            fields["NML_FILE"] = str(workdir / "linuxcnc.nml")
         ini = workdir / CONFIGS[self.config]
         text = ini.read_text()
         for key, value in fields.items():
@@ -374,19 +392,26 @@ class SimController:
         if not linuxcnc_available():
             raise SimUnavailable("LinuxCNC is not installed (Debian: apt-get install linuxcnc-uspace)",
                                  field="linuxcnc")
-        self._lock()
+        isolated = isolation_available()
+        if not isolated:
+            self._lock()
         started = time.monotonic()
         try:
             self.port = _free_port()
             self.workdir, env = self._prepare()
             self._env = env
+            command = ["linuxcnc", CONFIGS[self.config]]
+            if isolated:
+                command = launch_command(self.workdir, CONFIGS[self.config])
             log = open(self.workdir / "linuxcnc.log", "wb")
-            self._process = subprocess.Popen(["linuxcnc", CONFIGS[self.config]], cwd=self.workdir,
-                                             env=env, stdout=log, stderr=subprocess.STDOUT,
+            self._process = subprocess.Popen(command, cwd=self.workdir, env=env, stdout=log, stderr=subprocess.STDOUT,
                                              stdin=subprocess.DEVNULL, start_new_session=True)
             log.close()
             self._await_hello(self._process, started + timeout_s)
-            self.realtime_threads, self.realtime_note = servo_threads_realtime()
+            if isolated:  # (unshare has entered its namespaces once linuxcncrsh answers)
+                self._env = {**env, HAL_PREFIX_VAR: nsenter_prefix(self._process.pid)}
+                self.ipc_namespace = _ipc_namespace(self._process.pid)
+            self.realtime_threads, self.realtime_note = servo_threads_realtime(ipc_namespace=self.ipc_namespace)
         except BaseException:
             self.stop()
             raise

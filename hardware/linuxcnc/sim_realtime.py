@@ -26,12 +26,22 @@ def _comm(path: Path) -> str:
         return ""
 
 
-def hal_thread_ids(proc: Path = Path("/proc")) -> list[int]:
-    """The thread ids of every ``rtapi_app`` HAL thread visible in ``proc`` (one simulator per
-    host or PID namespace: the simulator's file lock)."""
+def _ipc_namespace(pid: Path) -> str | None:
+    try:
+        return os.readlink(pid / "ns" / "ipc")
+    except OSError:
+        return None
+
+
+def hal_thread_ids(proc: Path = Path("/proc"), ipc_namespace: str | None = None) -> list[int]:
+    """The thread ids of every ``rtapi_app`` HAL thread visible in ``proc``; with
+    ``ipc_namespace`` (a ``/proc/<pid>/ns/ipc`` link, ``ipc:[<inode>]``) only those of the
+    simulator in that namespace (a host shows every namespace's simulator)."""
     tids = []
     for pid in proc.iterdir():
         if not pid.name.isdigit() or _comm(pid) != "rtapi_app":
+            continue
+        if ipc_namespace is not None and _ipc_namespace(pid) != ipc_namespace:
             continue
         try:
             tasks = list((pid / "task").iterdir())
@@ -41,9 +51,10 @@ def hal_thread_ids(proc: Path = Path("/proc")) -> list[int]:
     return tids
 
 
-def servo_threads_realtime(priority: int = SERVO_PRIORITY) -> tuple[int, str | None]:
-    """(how many HAL threads now run SCHED_FIFO at ``priority``, why none did or None)."""
-    tids = hal_thread_ids()
+def servo_threads_realtime(priority: int = SERVO_PRIORITY, ipc_namespace: str | None = None) -> tuple[int, str | None]:
+    """(how many HAL threads now run SCHED_FIFO at ``priority``, why none did or None); with
+    ``ipc_namespace`` only the simulator's in that namespace (:func:`hal_thread_ids`)."""
+    tids = hal_thread_ids(ipc_namespace=ipc_namespace)
     if not tids:
         return 0, "no rtapi_app HAL thread found"
     done = 0

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import re
+import shlex
 from pathlib import Path
 
 import pytest
 
 from app.platform.config import SettingsError, load_settings, unknown_variables
+from app.runtime.engine import linuxcnc_options
 
 
 def test_defaults_resolve_under_data_dir(tmp_path):
@@ -63,7 +65,12 @@ def test_linuxcnc_settings_are_read_and_checked(tmp_path):
                               "CONFORMA_LINUXCNC_ENABLEPW": "en4ble", "CONFORMA_LINUXCNC_PROGRAMS": "/srv/ngc"})
     assert (settings.linuxcnc_connectpw, settings.linuxcnc_enablepw) == ("c0nnect", "en4ble")
     assert settings.linuxcnc_programs == Path("/srv/ngc")
+    prefixed = load_settings({"CONFORMA_LINUXCNC_HAL_PREFIX": "docker exec 'lin cnc'"})
+    assert shlex.split(prefixed.linuxcnc_hal_prefix) == ["docker", "exec", "lin cnc"]
+    assert linuxcnc_options(prefixed) == {"hal_prefix": "docker exec 'lin cnc'"}
     for env, needle in (({"CONFORMA_LINUXCNC_PROGRAMS": "ngc"}, "absolute"),
+                        ({"CONFORMA_LINUXCNC_HAL_PREFIX": "docker exec 'open"}, "not shell words"),
+                        ({"CONFORMA_LINUXCNC_HAL_PREFIX": "''"}, "names no command"),
                         ({"CONFORMA_LINUXCNC_ENABLEPW": "two words"}, "CONFORMA_LINUXCNC_ENABLEPW")):
         with pytest.raises(SettingsError) as info:
             load_settings(env)

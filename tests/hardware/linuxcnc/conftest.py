@@ -1,4 +1,4 @@
-"""The LinuxCNC simulator for these tests: at most one instance, started on demand.
+"""The LinuxCNC simulator for these tests: at most one instance per test process, started on demand.
 
 ``lcnc_xyz`` / ``lcnc_trt`` give a running :class:`hardware.linuxcnc.SimController` of the
 three-axis or the five-axis (xyzac-trt) config.  One manager per test process owns the
@@ -10,8 +10,10 @@ taken right after its start, else it is restarted; so no module inherits another
 surface, e-stop, tool, units, homing or dispense output.  It is shut down as soon as the
 next test is not a LinuxCNC test (or at the end of the session): no idle simulator uses
 CPU beside the rest of the suite.  The tests that need the five-axis config run after the
-three-axis ones (tests/conftest.py), so the config switches once.  The simulator's file
-lock keeps a second test process from starting another LinuxCNC meanwhile.  Without
+three-axis ones (tests/conftest.py), so the config switches once.  As root each simulator
+runs in namespaces of its own (:mod:`hardware.linuxcnc.sim_namespace`) and the modules form
+two groups on two workers, each with its simulator (tests/conftest.py); elsewhere the
+simulator's file lock keeps a second test process from starting another LinuxCNC meanwhile.  Without
 LinuxCNC the tests skip, except under ``CI=true`` where they fail (CI installs
 ``linuxcnc-uspace``).
 """
@@ -26,6 +28,7 @@ import pytest
 
 from hardware.errors import LinkError
 from hardware.linuxcnc import SimController, SimUnavailable, linuxcnc_available
+from hardware.linuxcnc.hal_command import HAL_PREFIX_VAR
 from hardware.machine_types import MachineProfile
 from tests.helpers.real_components import missing
 
@@ -136,6 +139,9 @@ def service_finds(sim: SimController, monkeypatch) -> SimController:
     monkeypatch.setenv("CONFORMA_LINUXCNC_CONNECTPW", sim.connect_pw)
     monkeypatch.setenv("CONFORMA_LINUXCNC_ENABLEPW", sim.enable_pw)
     monkeypatch.setenv("CONFORMA_LINUXCNC_PROGRAMS", str(sim.workdir / "programs"))
+    prefix = (sim.hal_env or {}).get(HAL_PREFIX_VAR)
+    if prefix is not None:  # the simulator in namespaces of its own: its HAL reached through them
+        monkeypatch.setenv(HAL_PREFIX_VAR, prefix)
     return sim
 
 

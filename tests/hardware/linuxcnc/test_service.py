@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from app.reference.s1 import s1_mesh, s1_traces
+from hardware.linuxcnc.hal_command import hal_command
 from hardware.machine_state import InterruptedProgram
 from tests.conftest import auth
 from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, wait_until
@@ -92,8 +93,9 @@ def register_bad(client):
     return client.post("/api/v1/machines", json=body, headers=OP)
 
 
-def _halcmd(*args: str) -> str:
-    return subprocess.run(["halcmd", *args], capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+def _halcmd(sim, *args: str) -> str:  # type: ignore[no-untyped-def]
+    return subprocess.run(hal_command(["halcmd", *args], sim.hal_env), capture_output=True, text=True, timeout=10,
+                          check=True, env=sim.hal_env).stdout.strip()
 
 
 def test_probe_run_job_touches_the_simulated_surface(client, lcnc_env):
@@ -110,7 +112,7 @@ def test_probe_run_job_touches_the_simulated_surface(client, lcnc_env):
     z0 = float(np.median(nominal[:, 2] - SURFACE_SLOPE_X * nominal[:, 0]))
     plane = z0 + SURFACE_SLOPE_X * nominal[:, 0]
     assert all(r["target_z_mm"] < z < r["safe_z_mm"] for r, z in zip(records, plane))  # reachable
-    _halcmd("setp", "conforma-surface.offset", repr(z0))
+    _halcmd(lcnc_env, "setp", "conforma-surface.offset", repr(z0))
     try:
         body = {"name": "lcnc", "port": f"linuxcnc://127.0.0.1:{lcnc_env.port}?joints=3", "dialect": "linuxcnc",
                 "profile": PROFILE}
@@ -122,7 +124,7 @@ def test_probe_run_job_touches_the_simulated_surface(client, lcnc_env):
         assert run.status_code == 202, run.text
         done = wait_for(client, run.json()["id"], timeout=120)
     finally:
-        _halcmd("setp", "conforma-surface.offset", repr(SURFACE_Z))
+        _halcmd(lcnc_env, "setp", "conforma-surface.offset", repr(SURFACE_Z))
     assert done["status"] == "succeeded", done["error"]
     measured = np.array([p["measured"] for p in done["result"]["points"]])
     assert measured[:, :2] == pytest.approx(nominal[:, :2], abs=1e-4)

@@ -27,12 +27,12 @@ def test_hal_threads_are_the_rtapi_app_threads_named_for_hal(tmp_path):
 
 
 def test_the_simulators_servo_thread_runs_real_time_where_the_host_permits(lcnc_xyz):
-    tids = hal_thread_ids()
+    tids = hal_thread_ids(ipc_namespace=lcnc_xyz.ipc_namespace)  # its own (None: every one on the host)
     assert tids, "the running simulator has no HAL thread"
     if os.geteuid() != 0:  # an unprivileged host: ordinary scheduling, and the simulator says why
         assert lcnc_xyz.realtime_threads >= len(tids) or lcnc_xyz.realtime_note
         return
-    # at least its own (a host shows every simulator's threads: another PID namespace's too)
+    # at least its own (a simulator sharing the host's namespaces finds every one's threads)
     assert lcnc_xyz.realtime_threads >= len(tids), lcnc_xyz.realtime_note
     for tid in tids:
         assert os.sched_getscheduler(tid) == os.SCHED_FIFO

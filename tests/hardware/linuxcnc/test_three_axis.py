@@ -9,13 +9,13 @@ surface.  The dispense output itself is read from HAL (``motion.digital-out-00``
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 
 import numpy as np
 import pytest
 
 from app.compensation.standoff import CompensationParams, compensate_trace
+from hardware.linuxcnc.hal_command import hal_command
 from hardware.protocol import validate_program
 from tests.compensation.test_standoff import full_rec
 from tests.hardware.linuxcnc.conftest import PROFILE
@@ -24,13 +24,13 @@ from tests.hardware.linuxcnc.sampling import LineSampler
 STANDOFF = 0.1
 
 
-def _digital_out() -> bool | None:
-    """motion.digital-out-00 read straight from HAL (None without halcmd)."""
-    if shutil.which("halcmd") is None:
-        return None
-    text = subprocess.run(["halcmd", "getp", "motion.digital-out-00"], capture_output=True,
-                          text=True, timeout=10).stdout.strip()
-    return {"TRUE": True, "FALSE": False}.get(text)
+def _digital_out(sim) -> bool:  # type: ignore[no-untyped-def]
+    """motion.digital-out-00 read straight from the simulator's HAL (``halcmd getp``)."""
+    done = subprocess.run(hal_command(["halcmd", "getp", "motion.digital-out-00"], sim.hal_env), capture_output=True,
+                          text=True, timeout=10, env=sim.hal_env)
+    value = {"TRUE": True, "FALSE": False}.get(done.stdout.strip())
+    assert value is not None, f"halcmd getp: {done.stdout!r} {done.stderr!r}"
+    return value
 
 
 def _distance_to_polyline(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
@@ -54,17 +54,17 @@ def test_compensated_print_program_runs_on_the_path(lcnc_xyz):
     machine.connect()
     machine.home()
     link = machine.link
-    outputs: list[bool | None] = []
+    outputs: list[bool] = []
 
     def check_output(n: int) -> None:
         if n % 200 == 1:
-            value = _digital_out()  # halcmd: slow under load, so the line is checked again
+            value = _digital_out(lcnc_xyz)  # halcmd: slow under load, so the line is checked again
             if sampler.line() < off:  # read before the dispense-off line ran
                 outputs.append(value)
 
     with LineSampler(link, on + 1, off, 3, each=check_output) as sampler:
         report = machine.stream(program)
-    after = _digital_out()
+    after = _digital_out(lcnc_xyz)
     machine.disconnect()
     assert report.executed == report.total == len(commands)
     samples = np.asarray(sampler.samples)
@@ -78,5 +78,4 @@ def test_compensated_print_program_runs_on_the_path(lcnc_xyz):
           f"dispense output samples {outputs}, after the program {after}")
     assert error.max() < 0.002  # the G64 P0.001 blending bound plus rounding
     assert gap == pytest.approx(STANDOFF, abs=path.max_chord_error_mm + 0.002)
-    if after is not None:
-        assert outputs and all(outputs) and after is False
+    assert outputs and all(outputs) and after is False

@@ -1,0 +1,65 @@
+"""Simulators side by side, each in namespaces of its own (hardware/linuxcnc/sim_namespace.py):
+one's HAL, controller state and shutdown never reach the other, and HAL commands reach the
+simulator they name (hardware/linuxcnc/hal_command.py)."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from hardware.linuxcnc import SimBlock, SimController
+from hardware.linuxcnc.hal_command import HAL_PREFIX_VAR, hal_command
+from hardware.linuxcnc.sim_namespace import isolation_available, write_nml
+from hardware.linuxcnc.sim_realtime import hal_thread_ids
+from tests.helpers.real_components import missing
+
+
+def test_a_hal_command_runs_through_the_prefix_its_environment_names():
+    env = {HAL_PREFIX_VAR: "docker exec 'the controller'"}
+    assert hal_command(["halcmd", "show"], env) == ["docker", "exec", "the controller", "halcmd", "show"]
+    assert hal_command(["halcmd", "show"], {}) == ["halcmd", "show"]
+
+
+def test_the_nml_file_serves_on_the_runs_port(tmp_path):
+    from hardware.linuxcnc.sim_namespace import SYSTEM_NML
+
+    if not SYSTEM_NML.exists():
+        missing("LinuxCNC", f"{SYSTEM_NML} not installed")
+    write_nml(tmp_path / "run.nml", 40123)
+    system, ours = SYSTEM_NML.read_text(), (tmp_path / "run.nml").read_text()
+    assert "TCP=5005" in system and "TCP=5005" not in ours
+    assert ours.count("TCP=40123") == system.count("TCP=5005")
+    assert ours.replace("TCP=40123", "TCP=5005") == system
+
+
+def test_hal_threads_of_one_namespace(tmp_path):
+    for pid, namespace in ((10, "ipc:[1]"), (30, "ipc:[2]")):
+        (tmp_path / str(pid) / "ns").mkdir(parents=True)
+        (tmp_path / str(pid) / "comm").write_text("rtapi_app\n")
+        (tmp_path / str(pid) / "ns" / "ipc").symlink_to(namespace)
+        (tmp_path / str(pid) / "task" / str(pid + 1)).mkdir(parents=True)
+        (tmp_path / str(pid) / "task" / str(pid + 1) / "comm").write_text("rtapi_app:T#0\n")
+    assert sorted(hal_thread_ids(tmp_path)) == [11, 31]
+    assert hal_thread_ids(tmp_path, ipc_namespace="ipc:[2]") == [31]
+
+
+def test_two_simulators_run_side_by_side_and_neither_reaches_the_other(lcnc_xyz):
+    if not isolation_available():
+        missing("simulator namespaces", "creating namespaces needs root and util-linux's unshare / nsenter")
+    first = lcnc_xyz.snapshot()
+    with SimController("xyz") as second:
+        assert second.ipc_namespace is not None and second.ipc_namespace != lcnc_xyz.ipc_namespace
+        assert second.ipc_namespace != os.readlink("/proc/self/ns/ipc")
+        second.set_surface(SimBlock.plane(-7.5, 0.0))
+        assert second.snapshot()["conforma-surface.offset"] == pytest.approx(-7.5)
+        session = second.session(enable=True)
+        try:
+            session.set("estop", "off")
+            assert session.get("estop") == "OFF"
+        finally:
+            session.close()
+        assert lcnc_xyz.snapshot() == first  # not its surface, not its e-stop
+        assert set(hal_thread_ids(ipc_namespace=second.ipc_namespace)).isdisjoint(
+            hal_thread_ids(ipc_namespace=lcnc_xyz.ipc_namespace))
+    assert lcnc_xyz.running and lcnc_xyz.snapshot() == first  # the other's shutdown ended only its own
