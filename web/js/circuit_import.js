@@ -64,9 +64,12 @@ function pagedList(id, label, items, total, wrap, render) {
   return el("div", { id: `${id}-pages`, class: "paged" }, el("div", { class: "row" }, count, " ", prev, " ", next), holder);
 }
 
-// A section for the traces page: partSelect gives the part; onDone(result) after an accepted import.
+// A section for the traces page: partSelect gives the part; partsListed() the promise of its
+// options (an import sent while the page still lists the parts waits for them, not "upload a
+// part first"); onDone(result) after an accepted import.
 // viewer / viewerBox (optional): the page's viewerPanel and its container (its view id).
-export function circuitImportSection({ partSelect, getPart, onDone, viewer, viewerBox }) {
+export function circuitImportSection({ partSelect, partsListed = () => Promise.resolve(), getPart, onDone, viewer,
+  viewerBox }) {
   const file = el("input", { type: "file", id: "circuit-file", multiple: true, "aria-label": "circuit files (KiCad, Gerber, Excellon, DXF, SVG)",
     accept: ".kicad_pcb,.gbr,.ger,.gtl,.gbl,.drl,.xln,.dxf,.svg" });
   const num = (id, value) => el("input", { type: "number", step: "any", id, value, class: "narrow" });
@@ -107,6 +110,7 @@ export function circuitImportSection({ partSelect, getPart, onDone, viewer, view
 
   async function send(dryRun) {
     if (!file.files.length) throw new Error("choose one or more circuit files");
+    await partsListed();
     if (!partSelect.value) throw new Error("upload a part first");
     const form = new FormData();
     for (const f of file.files) form.append("files", f, f.name);

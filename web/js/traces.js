@@ -123,6 +123,7 @@ async function onImport(event) {
   event.preventDefault();
   const file = importFile.files[0];
   if (!file) { showError(new Error("choose a .json or .svg file"), "Import"); return; }
+  await partsListed;  // as in onCreate
   if (!partSelect.value) { showError(new Error("upload a part first"), "Import"); return; }
   const text = await file.text();
   let items;
@@ -158,8 +159,8 @@ async function onImport(event) {
 
 // ---- list ---------------------------------------------------------------------------
 const tbody = el("tbody", { id: "traces-body" });
-left.append(circuitImportSection({ partSelect, getPart: (id) => get(`parts/${id}`), onDone: () => refresh(),
-  viewer, viewerBox: right }));
+left.append(circuitImportSection({ partSelect, partsListed: () => partsListed, getPart: (id) => get(`parts/${id}`),
+  onDone: () => refresh(), viewer, viewerBox: right }));
 
 left.append(el("section", {}, el("h2", {}, "Traces on this part"),
   el("table", { id: "traces-table" }, el("thead", {}, el("tr", {},

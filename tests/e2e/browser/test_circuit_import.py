@@ -22,9 +22,6 @@ def test_preview_then_accept_a_gerber(page, served, tmp_path):
     gerber = tmp_path / "top.gbr"
     gerber.write_text(GERBER_MM)
     page.goto(f"/traces.html?part={part['id']}")
-    # the import form is on the page before its part list has loaded: a preview sent earlier
-    # finds no part chosen ("upload a part first") and never shows its rows
-    page.wait_for_selector('body[data-ready="1"]')
     page.set_input_files("#circuit-file", str(gerber))
     page.fill("#circuit-origin-x", "5")
     page.fill("#circuit-origin-y", "10")
