@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING, Any
 from sqlmodel import Session, select
 
 from app.domain.errors import Cancelled, ConformaError
-from app.platform.artifacts import add_artifact
 from app.platform.lookup import get_or_404
 from app.platform.models import TERMINAL_STATES, Artifact, Job, Machine, Part, Trace, UploadedFile, utcnow
 from app.runtime.reads import JobReads
@@ -189,11 +188,9 @@ class JobContext:
 
     # outputs ---------------------------------------------------------------------
     def artifact(self, name: str, data: bytes, media_type: str, meta: dict[str, Any] | None = None) -> str:
-        """Store an artifact of this job; returns its sha256."""
-        with self._session() as session:
-            artifact = add_artifact(session, self.runtime.blobs, self.job_id, name, data, media_type, meta)
-            session.commit()
-            return artifact.sha256
+        """Store an artifact of this job; returns its sha256 (:meth:`artifacts` of one: its row
+        written by one statement, not through the ORM's unit of work)."""
+        return self.artifacts([(name, data, media_type, meta)])[0]
 
     def artifacts(self, items: list[tuple[str, bytes, str, dict[str, Any] | None]]) -> list[str]:
         """Store several artifacts of this job (name, data, media type, meta) in one commit

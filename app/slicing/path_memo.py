@@ -81,16 +81,26 @@ class PathMemo(Generic[T]):
         self.make = make
         self.normal: _Recent[tuple[bytes, tuple[Island, ...]]] = _Recent(size)
         self.paths: _Recent[T] = _Recent(size)
+        # the ring arrays of the section seen last (held: their ids stay theirs) and its normal form
+        self._last: tuple[list[np.ndarray | None], tuple[bytes, tuple[Island, ...]]] | None = None
 
     def key(self, islands: tuple[Island, ...], layer_index: int) -> tuple[SectionKey, tuple[Island, ...]]:
         """The section's key (normalised geometry, infill angle, layer parity) and its
-        normalised islands (a section seen as it is lately is not normalised again)."""
-        raw = _geometry(islands)
-        known = self.normal.get(raw)
-        if known is None:
-            normal = normalised(islands)
-            known = (_geometry(normal), normal)
-            self.normal.put(raw, known)
+        normalised islands (a section seen as it is lately is not normalised again; the very ring
+        arrays of the section before, a prismatic stretch's shared rings, are not even read)."""
+        rings = [ring for isl in islands for ring in (isl.outer, *isl.holes, None)]
+        last = self._last
+        if last is not None and len(last[0]) == len(rings) and all(a is b for a, b in zip(last[0], rings)):
+            known = last[1]
+        else:
+            raw = _geometry(islands)
+            found = self.normal.get(raw)
+            if found is None:
+                normal = normalised(islands)
+                found = (_geometry(normal), normal)
+                self.normal.put(raw, found)
+            known = found
+            self._last = (rings, known)
         p = self.params
         return (known[0], round((p.angle_deg + layer_index * p.angle_step_deg) % 360.0, 9), layer_index % 2), known[1]
 
@@ -100,6 +110,28 @@ class PathMemo(Generic[T]):
         if found is None:
             found = self.make(normal, layer_index, self.params)
             self.paths.put(key, found)
+        return found
+
+
+class ShellMemo(Generic[T]):
+    """The last few sections' paths that do not turn with the layer (``make(islands, params)``
+    of the normalised islands: the perimeters and thin walls) by their exact geometry alone;
+    :class:`PathMemo`'s keys also hold the infill angle and parity, so a prismatic stretch
+    has up to four of those for one section (angle steps of 90 degrees)."""
+
+    def __init__(self, params: ToolpathParams, make: Callable[[tuple[Island, ...], ToolpathParams], T],
+                 size: int = 4) -> None:
+        self.params = params
+        self.make = make
+        self.recent: _Recent[T] = _Recent(size)
+
+    def get(self, normal: tuple[Island, ...]) -> T:
+        """The paths of the section ``normal`` (made unless remembered)."""
+        geometry = _geometry(normal)
+        found = self.recent.get(geometry)
+        if found is None:
+            found = self.make(normal, self.params)
+            self.recent.put(geometry, found)
         return found
 
 

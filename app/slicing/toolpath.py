@@ -31,7 +31,7 @@ from app.slicing.fractal import MergeWeights, hilbert_fill, merged_fractal_fill
 from app.slicing.layers import SliceResult
 from app.slicing.offset import offset_islands
 from app.slicing.ordering import order_paths
-from app.slicing.path_memo import LayerMemo, PathMemo
+from app.slicing.path_memo import LayerMemo, PathMemo, ShellMemo
 from app.slicing.rings import Island, split_at
 
 Pattern = Literal["raster", "lines", "contour", "zone", "hilbert", "hilbert_merged"]
@@ -345,13 +345,25 @@ class LayerPaths(NamedTuple):
     infill: list[npt.NDArray[np.float64]]
 
 
-def layer_paths(islands: tuple[Island, ...], layer_index: int, params: ToolpathParams) -> LayerPaths:
-    """The unordered polylines of one section (:class:`LayerPaths`)."""
+Shell = tuple[list[npt.NDArray[np.float64]], list[tuple[list[npt.NDArray[np.float64]], float]]]
+
+
+def layer_shell(islands: tuple[Island, ...], params: ToolpathParams) -> Shell:
+    """A section's perimeters and thin walls (:class:`LayerPaths`' first two fields): what
+    does not depend on the layer's infill angle."""
     res = params.resolution_mm
     inset = offset_islands(islands, -params.line_width_mm / 2)   # the outer perimeter and the thin-wall test
     walls = [(simplify_paths([path], res), width) for path, width in thin_wall_paths(islands, params, inset)]
-    return LayerPaths(simplify_paths(perimeter_paths(islands, params, inset), res), walls,
-                      simplify_paths(infill_paths(islands, params, layer_index), res))
+    return simplify_paths(perimeter_paths(islands, params, inset), res), walls
+
+
+def layer_paths(islands: tuple[Island, ...], layer_index: int, params: ToolpathParams,
+                shell: Shell | None = None) -> LayerPaths:
+    """The unordered polylines of one section (:class:`LayerPaths`); ``shell``: its
+    :func:`layer_shell` when the caller has it (the same section at another angle)."""
+    perimeters, walls = layer_shell(islands, params) if shell is None else shell
+    return LayerPaths(perimeters, walls, simplify_paths(infill_paths(islands, params, layer_index),
+                                                        params.resolution_mm))
 
 
 def layer_pieces(islands: tuple[Island, ...], layer_index: int, start: npt.NDArray[np.float64],
@@ -404,7 +416,9 @@ def iter_toolpath(slice_result: SliceResult, params: ToolpathParams = ToolpathPa
     params.validate()
     thr = math.radians(params.turn_threshold_deg)
     pos = np.zeros(2)
-    memo: PathMemo[LayerPaths] = PathMemo(params, layer_paths)
+    shells: ShellMemo[Shell] = ShellMemo(params, layer_shell)
+    memo: PathMemo[LayerPaths] = PathMemo(params, lambda normal, index, p: layer_paths(normal, index, p,
+                                                                                        shells.get(normal)))
     done: LayerMemo[tuple[tuple[PathPiece, ...], npt.NDArray[np.float64], LayerStats]] = LayerMemo()
     for lay in slice_result.layers:
         # the bead height to the nm: a layer's thickness is a difference of its heights, whose

@@ -30,7 +30,8 @@ _ODD_ARC = st.builds(lambda g, x, r: f"{g} X{x} Y{x} R{r}", st.sampled_from(["G2
 _OTHER = st.sampled_from(["G90", "G91", "G20", "G21", "M82", "M83", "G92 X1 Y-2", "G92 E0", "G28", "G28 X", "G4 P10",
                           "G91 G4 P1", "M104 S200", "M92 X80", "; comment G1 X900", "(paren) G1 X3", "N10 G1 X1 Y1*45",
                           "%", "M117 hello world", "", "G17", "G1 A5", "G1 X1E2", "G1 X1 Y2 ; tail", "M106 G1 X2",
-                          "G1 X" + "9" * 400, "  G1\tX-3  ", "G54", "G1 X1.2.3", "T0", "M201 X500"])
+                          "G1 X" + "9" * 400, "  G1\tX-3  ", "G54", "G1 X1.2.3", "T0", "M201 X500", "n3 G1 X2",
+                          "\tM82", " N4 G1 X1"])
 _LINE = st.one_of(_MOVE, _MOVE, _MOVE, _ARC, _ODD_ARC, _OTHER)
 
 

@@ -78,3 +78,39 @@ def test_with_large_blocks_mapped_freed_arrays_leave_at_once_and_without_they_st
     assert freed - before > 150  # glibc's rising threshold: the arrays came from the heap and stay
     before, freed, taken = out[True]
     assert taken and freed - before < 30  # the 10 MiB kept, the 200 MiB gone
+
+
+def _heap_top_child(queue, keep: int | None) -> None:  # type: ignore[no-untyped-def]
+    import numpy as np
+
+    from app.runtime.heap import map_large_blocks
+
+    taken = map_large_blocks(2 ** 20) if keep is None else map_large_blocks(2 ** 20, keep)
+    rounds = []
+    for _ in range(3):
+        # 6 MiB in 512 KiB arrays (under the mmap threshold: carved from the heap's top), freed
+        blocks = [np.ones(2 ** 16) for _ in range(12)]
+        held = _resident_mib()
+        del blocks
+        rounds.append(held - _resident_mib())
+    queue.put((rounds, taken))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt: Linux")
+def test_with_large_blocks_mapped_the_heap_top_keeps_a_few_mib_instead_of_handing_back_each_free():
+    """glibc's trim threshold is fixed with the mmap threshold (128 KiB unless set): every
+    free at the heap's top went back to the system and was faulted in again by the next
+    allocation.  With the default keep (8 MiB) a job's freed 6 MiB stays for the next
+    allocation; with 128 KiB it leaves at each free."""
+    context = multiprocessing.get_context("spawn")
+    out = {}
+    for keep in (None, 128 * 1024):
+        queue = context.Queue()
+        process = context.Process(target=_heap_top_child, args=(queue, keep))
+        process.start()
+        out[keep] = queue.get(timeout=120)
+        process.join(timeout=60)
+    kept, taken = out[None]
+    assert taken and max(kept) < 1.0  # nothing handed back: the next arrays reuse the pages
+    given_back, taken = out[128 * 1024]
+    assert taken and min(given_back) > 4.0  # the freed 6 MiB left at once, each round

@@ -101,6 +101,27 @@ def test_remembered_paths_are_the_paths_made_afresh(part_layers):
             assert a.points.shape == b.points.shape and np.allclose(a.points, b.points, rtol=0, atol=1e-9)
 
 
+def test_a_tube_makes_its_shell_once_for_every_infill_angle_and_plans_as_made_afresh(monkeypatch):
+    """The perimeters and thin walls do not turn with the infill: one section at four angles
+    (0, 90, 180, 270 degrees) has four sets of paths but one shell, and each layer's pieces
+    are the ones made afresh."""
+    from app.slicing import toolpath
+
+    sliced = slice_mesh(thin_tube(height_mm=3.0), SliceParams(layer_mm=0.2))
+    made: list[int] = []
+    shell = toolpath.layer_shell
+    monkeypatch.setattr(toolpath, "layer_shell", lambda islands, params: made.append(1) or shell(islands, params))
+    planned = list(toolpath.iter_toolpath(sliced, ToolpathParams()))
+    sections = {_geometry(normalised(lay.islands)) for lay in sliced.layers}
+    assert len(made) == len(sections) < len(sliced.layers)
+    monkeypatch.undo()
+    pos = np.zeros(2)
+    for layer, layer_planned in zip(sliced.layers, planned):
+        fresh, pos = layer_pieces(normalised(layer.islands), layer.index, pos, ToolpathParams())
+        assert [(p.kind, p.width_mm) for p in fresh] == [(p.kind, p.width_mm) for p in layer_planned.pieces]
+        assert all(np.array_equal(a.points, b.points) for a, b in zip(fresh, layer_planned.pieces))
+
+
 def test_a_prismatic_stretch_shares_one_section_and_normalising_keeps_the_region():
     box = Island(np.array([[0, 0], [5, 0], [10, 0], [10, 3.3], [10, 10], [0, 10], [0, 4.0]]))
     other = Island(np.array([[10, 0], [10, 7.1], [10, 10], [0, 10], [0, 0], [2.5, 0.0]]))
