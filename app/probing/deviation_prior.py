@@ -188,14 +188,17 @@ def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float) -> np.ndarra
 
 
 def prior_covariance(prior: DeviationPrior, a: Sites, b: Sites,
-                     center: np.ndarray, jinc: np.ndarray | None = None) -> np.ndarray:
+                     center: np.ndarray, jinc: np.ndarray | None = None, *, spend_jinc: bool = False) -> np.ndarray:
     """Prior covariance (m, k) mm^2 of the deviation between sites a and b; ``jinc``:
-    ``jinc_kernel(a.xy, b.xy, prior.wavelength_mm)`` (m, k) when the caller has it."""
+    ``jinc_kernel(a.xy, b.xy, prior.wavelength_mm)`` (m, k) when the caller has it, and
+    with ``spend_jinc`` its array becomes the result (written over: one (m, k) array in
+    all, not three, while it is made).  The same numbers either way."""
     sd = prior.basis_sd
     ba = placement_basis(a, center) * sd
     bb = placement_basis(b, center) * sd
     k = jinc_kernel(a.xy, b.xy, prior.wavelength_mm) if jinc is None else jinc
-    out: np.ndarray = prior.rms_mm ** 2 * k + ba @ bb.T
+    out: np.ndarray = np.multiply(k, prior.rms_mm ** 2, out=k if jinc is None or spend_jinc else None)
+    out += ba @ bb.T
     return out
 
 

@@ -87,6 +87,8 @@ class GreedyField:
         n = len(self.chosen)
         basis = placement_basis(sites, self.center) * self.prior.basis_sd         # (m, 6)
         prior_var = self.prior.rms_mm ** 2 + np.sum(basis ** 2, axis=1)
+        if n:  # the rows in use only: the new R is made without the room for more stations
+            self.rows = self.rows[:n]
         rows = np.empty((len(self.rows), len(prior_var)))
         var = prior_var.copy()
         if n:
@@ -127,9 +129,9 @@ class GreedyField:
     def add(self, j: int) -> None:
         """Add a station at site j: one new row of R and of L, variance downdated."""
         n = len(self.chosen)
-        if n == len(self.rows):
-            self.rows = np.concatenate([self.rows, np.empty_like(self.rows)])
-            low = np.zeros((2 * n, 2 * n))
+        if n == len(self.rows):  # room for half as many stations again
+            self.rows = np.concatenate([self.rows, np.empty((max(n // 2, 1), self.rows.shape[1]))])
+            low = np.zeros((len(self.rows), len(self.rows)))
             low[:n, :n] = self.low[:n, :n]
             self.low = low
         row = self.posterior_cov(j) / 1.0   # a copy: the kept column stays as it was

@@ -24,6 +24,23 @@ from app.probing.deviation_prior import DeviationPrior, Sites, prior_covariance,
 SD_CHUNK = 4096  # columns of K(S, where) (and of the kriging weights) handled at once
 
 
+class KernelRows:
+    """The unit kernel (n, N) of n stations and N sites held as its rows (n arrays (N,),
+    e.g. views into the blocks they were computed in, kept across plans): a block of columns
+    is copied out when it is used (:meth:`block`), so the (n, N) matrix itself is never
+    assembled (38 MB at ~600 stations x ~8000 samples)."""
+
+    def __init__(self, rows: list[np.ndarray], columns: int) -> None:
+        self.rows = rows
+        self.shape = (len(rows), columns)
+
+    def block(self, lo: int, hi: int) -> np.ndarray:
+        """Columns ``lo:hi`` (n, hi - lo), C-contiguous: the same numbers as the rows'."""
+        if not self.rows:
+            return np.zeros((0, hi - lo))
+        return np.stack([row[lo:hi] for row in self.rows])
+
+
 @dataclass
 class PosteriorParts:
     """The posterior of the field at points ``where`` (N,) given stations S (n,):
@@ -38,11 +55,12 @@ class PosteriorParts:
 
 
 def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center: np.ndarray, *,
-                    weights: bool = True, block: int = SD_CHUNK, jinc: np.ndarray | None = None) -> PosteriorParts:
+                    weights: bool = True, block: int = SD_CHUNK,
+                    jinc: np.ndarray | KernelRows | None = None) -> PosteriorParts:
     """:class:`PosteriorParts` from one factorisation (cost O(n^2 N)), K(S, where) in blocks
     of ``block`` columns; with ``weights`` False the (n, N) kriging weights are not kept
     (``weights`` None: only what the variance needs, one block at a time); ``jinc``: the unit
-    kernel (n, N) of the stations and ``where`` when the caller has it."""
+    kernel (n, N) of the stations and ``where`` (or its rows) when the caller has it."""
     n = len(stations.xy)
     jitter = max(prior.sigma_mm ** 2, COVARIANCE_JITTER_REL * prior.rms_mm ** 2)
     precision = np.linalg.inv(prior_covariance(prior, stations, stations, center) + jitter * np.eye(n))
@@ -51,8 +69,12 @@ def posterior_parts(prior: DeviationPrior, stations: Sites, where: Sites, center
     kept = np.empty((n, len(var))) if weights else None
     for lo in range(0, len(var), block):
         hi = min(lo + block, len(var))
-        cov = prior_covariance(prior, stations, where.take(np.arange(lo, hi)), center,
-                               None if jinc is None else np.ascontiguousarray(jinc[:, lo:hi]))
+        block_of = where.take(np.arange(lo, hi))
+        if isinstance(jinc, KernelRows):  # a copy of the kept rows' columns: spent on the covariance
+            cov = prior_covariance(prior, stations, block_of, center, jinc.block(lo, hi), spend_jinc=True)
+        else:
+            cov = prior_covariance(prior, stations, block_of, center,
+                                   None if jinc is None else np.ascontiguousarray(jinc[:, lo:hi]))
         solved = precision @ cov
         var[lo:hi] -= np.einsum("ij,ij->j", cov, solved)
         if kept is not None:

@@ -35,6 +35,7 @@ import numpy as np
 
 from app.geometry.traces import TracePolyline
 from app.probing.deviation_prior import DeviationPrior, Sites, jinc_kernel
+from app.probing.field_posterior import KernelRows
 from app.probing.field_region import FieldRegion, TopSampler, field_region
 
 if TYPE_CHECKING:
@@ -43,9 +44,12 @@ if TYPE_CHECKING:
 
 def _copy(greedy: GreedyField) -> GreedyField:
     """A copy of ``greedy`` to go on from: the arrays it changes in place copied (the others
-    are replaced, never changed, as it goes on)."""
+    are replaced, never changed, as it goes on), only their rows in use (n stations: R (n, N)
+    and L (n, n), at least one row; the greedy's room for more, up to as many again, is made
+    when it adds the next station)."""
     out = copy.copy(greedy)
-    out.rows, out.low, out.chosen = greedy.rows.copy(), greedy.low.copy(), list(greedy.chosen)
+    n = max(len(greedy.chosen), 1)
+    out.rows, out.low, out.chosen = greedy.rows[:n].copy(), greedy.low[:n, :n].copy(), list(greedy.chosen)
     return out
 
 
@@ -62,6 +66,7 @@ class PlanReuse:
         self._regions: dict[tuple[object, ...], tuple[Sequence[TracePolyline], FieldRegion]] = {}
         self._starts: dict[tuple[object, ...], GreedyField] = {}
         self._stops: dict[tuple[object, ...], dict[tuple[float, int], GreedyField]] = {}
+        self._spines: dict[tuple[object, ...], np.ndarray] = {}   # per key: the longest kept state's R
         self._rows: dict[tuple[object, ...], tuple[Sites, dict[bytes, np.ndarray]]] = {}
 
     def region(self, paths: Sequence[TracePolyline], wavelength_mm: float, top: TopSampler | None) -> FieldRegion:
@@ -92,13 +97,32 @@ class PlanReuse:
 
     def stopped(self, prior: DeviationPrior, sites: Sites, center: np.ndarray, fixed: int,
                 stop: tuple[float, int], greedy: GreedyField) -> None:
-        """Keep (a copy of) ``greedy`` where its first sequence for ``stop`` stopped (as :meth:`start`)."""
-        key = _greedy_key(prior, sites, center, fixed)
-        self._stops.setdefault(key, {})[stop] = _copy(greedy)
+        """Keep (a copy of) ``greedy`` where its first sequence for ``stop`` stopped (as :meth:`start`).
 
-    def jinc(self, xy: np.ndarray, where: Sites, wavelength_mm: float) -> np.ndarray:
+        The kept states of one key are points of one greedy sequence, so the rows R of the
+        one with fewer stations are the first rows of the other's: they are held once (the
+        longest R, the others views of its first rows) where they are equal bit for bit,
+        checked here (a state whose rows differ keeps its own)."""
+        key = _greedy_key(prior, sites, center, fixed)
+        kept = _copy(greedy)
+        stops = self._stops.setdefault(key, {})
+        spine = self._spines.get(key)
+        n = len(kept.rows)
+        if spine is None:
+            self._spines[key] = kept.rows
+        elif n <= len(spine) and np.array_equal(spine[:n], kept.rows):
+            kept.rows = spine[:n]
+        elif n > len(spine) and np.array_equal(kept.rows[:len(spine)], spine):
+            for other in stops.values():  # the shorter states: views of the longer R
+                if other.rows.base is spine or other.rows is spine:
+                    other.rows = kept.rows[:len(other.rows)]
+            self._spines[key] = kept.rows
+        stops[stop] = kept
+
+    def jinc(self, xy: np.ndarray, where: Sites, wavelength_mm: float) -> KernelRows:
         """:func:`app.probing.deviation_prior.jinc_kernel` (n, N) of the points ``xy`` (n, 2)
-        and ``where`` (N,), its rows kept per point (for this wavelength and ``where``)."""
+        and ``where`` (N,), its rows kept per point (for this wavelength and ``where``); given
+        as those rows (:class:`app.probing.field_posterior.KernelRows`), not a new (n, N) copy."""
         key = (wavelength_mm, id(where))
         kept = self._rows.get(key)
         if kept is None:
@@ -110,6 +134,4 @@ class PlanReuse:
         if missing:
             first = {k: i for i, k in reversed(list(enumerate(keys)))}
             rows.update(zip(missing, jinc_kernel(xy[[first[k] for k in missing]], where.xy, wavelength_mm)))
-        if not keys:
-            return np.zeros((0, len(where.xy)))
-        return np.stack([rows[k] for k in keys])
+        return KernelRows([rows[k] for k in keys], len(where.xy))

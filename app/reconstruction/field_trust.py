@@ -37,8 +37,7 @@ from dataclasses import dataclass, replace
 from typing import Any, TypeVar
 
 import numpy as np
-from scipy.special import ndtr
-from scipy.stats import norm
+from scipy.special import ndtr, ndtri
 
 from app.probing.deviation_prior import DeviationPosterior, DeviationPrior, Sites, fit_posterior, path_sites
 from app.reconstruction.field import FieldFit, fit_field
@@ -103,7 +102,7 @@ def joint_coverage(coverage: float, count: int) -> float:
     """The per-point limit in sd for ``count`` points tested together at the confidence
     ``coverage`` gives one point (Bonferroni: the false alarms of all of them together at
     2 Phi(-coverage), so a model that holds asks for attention as rarely as one point would)."""
-    return float(norm.isf(norm.sf(coverage) / max(count, 1)))
+    return -float(ndtri(ndtr(-coverage) / max(count, 1)))  # the normal's upper tail and its quantile
 
 
 def verify(fit: FieldFit, sites: Sites, measured_mm: np.ndarray, trace: np.ndarray, coverage: float) -> Verification:

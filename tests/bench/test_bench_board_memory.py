@@ -10,7 +10,10 @@ read from /proc: its resident memory (VmRSS) and proportional share (PSS: shared
 between the processes that map them) when the service is idle after the part, traces and
 machine are set up; the largest total resident memory while the closed loop runs (sampled
 every 0.25 s, with the PSS of the same sample) with each process's share of it and each one's
-own peak, and the largest PSS total of those samples; and again after the loop.  The sum of
+own peak, and the largest PSS total of those samples; and again after the loop.  With them the
+loop's wall time and CPU: the server process's, the compute processes' jobs' (the part cache's
+journal) and the live descendants' (a process that ended during the loop is not counted: a
+lower bound), so that a change of the memory is seen beside what it costs.  The sum of
 the resident memories counts a page shared by the fork server and its children once per
 process; the PSS sum counts it once.
 """
@@ -25,7 +28,7 @@ from pathlib import Path
 import pytest
 
 from app.reference.boards import board_traces, dome_part
-from tests.bench.test_bench_board_api import PROCESS, TRACES, true_part
+from tests.bench.test_bench_board_api import PROCESS, TRACES, compute_cpu, cpu_now, true_part
 from tests.conftest import auth
 from tests.helpers.jobs import wait_for
 from tests.helpers.processes import process_tree
@@ -112,6 +115,7 @@ def test_board_loop_memory_per_process(client, settings):
 
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
+    (s0, d0), w0 = cpu_now(), time.perf_counter()
     submitted = client.post("/api/v1/jobs", json={"kind": "closed_loop", "params": {
         "part_id": part["id"], "trace_ids": trace_ids, "machine_id": machine["id"], "joint_probing": True,
         "probe": PROCESS, "sigma_mm": 0.001, "board_jobs": True}}, headers=OP)
@@ -121,6 +125,7 @@ def test_board_loop_memory_per_process(client, settings):
     if accepted:  # as an operator would; the bench says so
         assert client.post(f"/api/v1/jobs/{done['id']}/accept", headers=OP).status_code == 202
         done = wait_for(client, done["id"], states=("succeeded", "failed", "cancelled"), timeout=3600)
+    loop_wall, (s1, d1) = time.perf_counter() - w0, cpu_now()
     stop.set()
     watcher.join()
     assert done["status"] == "succeeded", done["error"]
@@ -130,4 +135,6 @@ def test_board_loop_memory_per_process(client, settings):
     print(line("largest total in the loop", peak))
     print(f"largest PSS total in the loop {peak_pss:.0f} MiB")
     print("each process's own peak:   " + ", ".join(f"{role} {rss:.0f}" for role, rss in sorted(own.values())))
+    print(f"the loop: wall {loop_wall:.1f} s; CPU server process {s1 - s0:.1f} s, compute jobs "
+          f"{sum(compute_cpu(Path(settings.data_dir)).values()):.1f} s (journal), live descendants {d1 - d0:.1f} s")
     print(line("after the loop", after) + ("  (the loop needed attention: ACCEPTED by the bench)" if accepted else ""))

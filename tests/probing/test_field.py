@@ -46,6 +46,25 @@ def test_rank_one_rows_equal_a_fresh_cholesky_factorisation(nine):
     assert np.allclose(greedy.prior_var, prior_variance(PRIOR, sites, region.center))
 
 
+def test_the_greedys_room_for_more_stations_is_at_most_half_again_and_extending_keeps_none(nine):
+    region = field_region(nine[:4], 15.0)
+    sites = region.targets.sites
+    greedy = GreedyField(PRIOR, sites, region.center)
+    for n, j in enumerate(np.random.default_rng(5).choice(len(sites.xy), 60, replace=False), start=1):
+        greedy.add(int(j))
+        assert n <= len(greedy.rows) <= max(16, n + n // 2 + 1) and greedy.low.shape == (len(greedy.rows),) * 2
+    extra = region.samples.sites.take(np.arange(10))
+    greedy.extend(extra)
+    assert greedy.rows.shape == (60, len(sites.xy) + 10)   # the rows in use, one column per site
+    stations = greedy.sites.take(np.array(greedy.chosen))
+    k = prior_covariance(PRIOR, stations, stations, region.center) + greedy.jitter * np.eye(60)
+    fresh = solve_triangular(np.linalg.cholesky(k), prior_covariance(PRIOR, stations, greedy.sites, region.center),
+                             lower=True)
+    assert np.allclose(greedy.rows, fresh, atol=1e-12, rtol=1e-9)
+    greedy.add(int(len(sites.xy) + 3))   # adding after the extension makes room again
+    assert len(greedy.chosen) == 61 and 61 <= len(greedy.rows) <= 91
+
+
 def test_the_automatic_count_meets_the_target_and_no_station_can_be_dropped(nine):
     plan = plan_field(nine, PARAMS)
     target_sd = PARAMS.target_error_mm / PARAMS.coverage

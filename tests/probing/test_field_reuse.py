@@ -48,6 +48,34 @@ def test_a_rounds_plans_with_the_reuse_are_the_cold_plans_to_the_bit(nine, monke
     _same(plan_field(nine, other, fixed=fixed, reuse=reuse), plan_field(nine, other, fixed=fixed))
 
 
+def test_a_rounds_kept_states_hold_their_rows_once(nine):
+    fixed = plan_field(nine, replace(PARAMS, deviation_wavelength_mm=30.0)).sites
+    reuse = PlanReuse()
+    for t in [0.0032, 0.005, 0.0025, 0.004]:   # the longest state comes neither first nor last
+        plan_field(nine, replace(PARAMS, target_error_mm=t), fixed=fixed, reuse=reuse)
+    (stops,) = reuse._stops.values()
+    states = list(stops.values())
+    assert len({len(g.chosen) for g in states}) > 2
+    longest = max(states, key=lambda g: len(g.chosen))
+    for g in states:   # the first rows of the longest, no room for more: one R in memory
+        assert len(g.rows) == max(len(g.chosen), 1)
+        assert np.shares_memory(g.rows, longest.rows)
+        assert np.array_equal(g.rows, longest.rows[:len(g.rows)])
+
+
+def test_a_spent_kernel_gives_the_same_covariance(nine):
+    region = field_region(nine, 15.0)
+    prior = PARAMS.prior()
+    stations, where = region.targets.sites.take(np.arange(0, 40, 3)), region.samples.sites
+    fresh = prior_covariance(prior, stations, where, region.center)
+    unit = jinc_kernel(stations.xy, where.xy, prior.wavelength_mm)
+    kept = unit.copy()
+    assert np.array_equal(prior_covariance(prior, stations, where, region.center, unit), fresh)
+    assert np.array_equal(unit, kept)   # not spent: left as it was
+    spent = prior_covariance(prior, stations, where, region.center, unit, spend_jinc=True)
+    assert spent is unit and np.array_equal(spent, fresh)
+
+
 def test_the_kept_kernel_rows_are_the_fresh_kernel(nine):
     region = field_region(nine, 15.0)
     prior = PARAMS.prior()
@@ -60,10 +88,13 @@ def test_the_kept_kernel_rows_are_the_fresh_kernel(nine):
     for idx in (first, second, first[:1]):
         stations = pool.take(idx)
         got = reuse.jinc(stations.xy, where, prior.wavelength_mm)
-        assert np.array_equal(got, jinc_kernel(stations.xy, where.xy, prior.wavelength_mm))
-        assert np.array_equal(prior_covariance(prior, stations, where, region.center, got),
+        fresh = jinc_kernel(stations.xy, where.xy, prior.wavelength_mm)
+        assert got.shape == fresh.shape
+        assert np.array_equal(got.block(0, len(where.xy)), fresh)
+        assert np.array_equal(got.block(3, 40), fresh[:, 3:40]) and got.block(3, 40).flags.c_contiguous
+        assert np.array_equal(prior_covariance(prior, stations, where, region.center, got.block(0, len(where.xy))),
                               prior_covariance(prior, stations, where, region.center))
-    assert reuse.jinc(np.zeros((0, 2)), where, prior.wavelength_mm).shape == (0, len(where.xy))
+    assert reuse.jinc(np.zeros((0, 2)), where, prior.wavelength_mm).block(0, 5).shape == (0, 5)
 
 
 def test_the_region_is_kept_per_wavelength(nine):
