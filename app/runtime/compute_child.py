@@ -52,7 +52,7 @@ from app.platform.config import Settings
 from app.platform.db import make_engine
 from app.platform.problems import from_error, problem
 from app.runtime.context import JobContext
-from app.runtime.heap import LARGE_BLOCK_BYTES, map_large_blocks, trim_heap
+from app.runtime.heap import GLIBC_TRIM_BYTES, LARGE_BLOCK_BYTES, keep_heap_top, map_large_blocks, trim_heap
 from app.runtime.process_identity import start_ticks
 from app.runtime.registry import get_kind, load_kinds
 from app.runtime.store import Claim, JobStore, completed_status, encoded_result
@@ -229,6 +229,7 @@ def run_job(runtime: ChildRuntime, claim: Claim) -> bool:
         runtime.store.finish(claim, "failed", error=problem(422, "Unknown job kind", f"no worker kind {claim.kind!r}"))
         return True
     ctx = JobContext(runtime, claim)  # type: ignore[arg-type]
+    keep_heap_top(kind.heap_keep_bytes or GLIBC_TRIM_BYTES)  # the kind's own, else glibc's
     job_limit(int(settings.job_memory_mb * MIB))
     wall, cpu = time.perf_counter(), time.process_time()
     try:

@@ -23,10 +23,12 @@ at that peak's resident size long after.  And each thread that allocates may get
   free that leaves more than that at the top of the heap hands it back (``sbrk``), and the
   next allocation faults the same pages in again (measured on the thin tube's slice exports
   and G-code writer, blocks of a few hundred KiB: 30-80 % more CPU each than with the
-  dynamic thresholds).  So :func:`map_large_blocks` keeps up to ``HEAP_TOP_KEEP_BYTES`` free at
-  the heap's top (glibc's own dynamic rule keeps twice the mmap threshold; the tube's churn
-  needed 4-8 MiB); what a job leaves there beyond its last trim is bounded by that, and
-  :func:`trim_heap` still returns it all.
+  dynamic thresholds).  Keeping free memory at the top costs resident memory in jobs that
+  hold large working sets (the 1000-trace board's compute process peaked 24 MiB higher with
+  4 or 8 MiB kept), so the threshold is set per job (:func:`keep_heap_top`): the kinds that
+  churn medium blocks (slicing, toolpaths) keep ``HEAP_TOP_KEEP_BYTES`` (glibc's own dynamic
+  rule keeps twice the mmap threshold; the tube's churn needed 4-8 MiB), every other job
+  glibc's ``GLIBC_TRIM_BYTES``; :func:`trim_heap` still returns it all.
 * :func:`limit_arenas` (``mallopt(M_ARENA_MAX, n)``) caps the number of arenas of a
   process with many threads; threads then share the existing arenas (contention only for
   threads that allocate at the same moment).  Set before the threads start: the server sets
@@ -46,6 +48,7 @@ M_MMAP_THRESHOLD = -3
 M_TRIM_THRESHOLD = -1
 LARGE_BLOCK_BYTES = 2 ** 20  # the server and the compute processes map blocks of this size or more on their own
 HEAP_TOP_KEEP_BYTES = 8 * 2 ** 20  # free bytes the heap's top may keep without handing them back (M_TRIM_THRESHOLD)
+GLIBC_TRIM_BYTES = 128 * 2 ** 10  # glibc's default M_TRIM_THRESHOLD
 SERVER_ARENAS = 2  # the server's threads (requests, queue consumers, machines) share this many
 _libc_lock = threading.Lock()
 _libc: list[ctypes.CDLL | None] = []  # empty: not looked up yet; [None]: no glibc
@@ -88,10 +91,17 @@ def limit_arenas(count: int) -> bool:
     return _mallopt(M_ARENA_MAX, "M_ARENA_MAX", count)
 
 
-def map_large_blocks(threshold_bytes: int, keep_bytes: int = HEAP_TOP_KEEP_BYTES) -> bool:
+def map_large_blocks(threshold_bytes: int, keep_bytes: int = GLIBC_TRIM_BYTES) -> bool:
     """Map every malloc block of ``threshold_bytes`` or more on its own, unmapped when freed
     (a fixed threshold: glibc no longer raises it), and let the heap's top keep up to
-    ``keep_bytes`` free before handing it back (without it glibc's fixed trim threshold is
-    128 KiB: see the module's notes); True when glibc took both settings."""
+    ``keep_bytes`` free before handing it back (:func:`keep_heap_top`); True when glibc took
+    both settings."""
     mapped = _mallopt(M_MMAP_THRESHOLD, "M_MMAP_THRESHOLD", threshold_bytes)
-    return _mallopt(M_TRIM_THRESHOLD, "M_TRIM_THRESHOLD", keep_bytes) and mapped
+    return keep_heap_top(keep_bytes) and mapped
+
+
+def keep_heap_top(keep_bytes: int) -> bool:
+    """Let the heap's top keep up to ``keep_bytes`` free before handing it back to the system
+    (``M_TRIM_THRESHOLD``; fixed at glibc's 128 KiB once the mmap threshold is: see the
+    module's notes); True when glibc took it."""
+    return _mallopt(M_TRIM_THRESHOLD, "M_TRIM_THRESHOLD", keep_bytes)

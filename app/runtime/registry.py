@@ -61,6 +61,9 @@ class JobKind:
     description: str = ""
     # (params, reads) -> app.runtime.cost.Cost: memory and time predicted at submission
     estimate: Callable[[Any, JobReads], Any] | None = None
+    # free bytes the compute process's heap top keeps while this kind runs (0: glibc's
+    # default; app.runtime.heap.keep_heap_top): kinds that churn medium blocks
+    heap_keep_bytes: int = 0
 
     @property
     def drives_machine(self) -> bool:
@@ -80,6 +83,7 @@ def job_kind(
     references: Callable[[Any], list[Reference]] | None = None,
     check: Callable[[Any, JobReads], None] | None = None,
     estimate: Callable[[Any, JobReads], Any] | None = None,
+    heap_keep_bytes: int = 0,
 ) -> Callable[[Callable[[JobContext, Any], dict]], Callable[[JobContext, Any], dict]]:
     """Register the decorated function as the runner of job kind ``name``."""
 
@@ -94,6 +98,7 @@ def job_kind(
             references=references or (lambda _params: []),
             check=check,
             estimate=estimate,
+            heap_keep_bytes=heap_keep_bytes,
             description=(run.__doc__ or "").strip().split("\n")[0],
         )
         return run

@@ -83,9 +83,11 @@ def test_with_large_blocks_mapped_freed_arrays_leave_at_once_and_without_they_st
 def _heap_top_child(queue, keep: int | None) -> None:  # type: ignore[no-untyped-def]
     import numpy as np
 
-    from app.runtime.heap import map_large_blocks
+    from app.runtime.heap import keep_heap_top, map_large_blocks
 
     taken = map_large_blocks(2 ** 20) if keep is None else map_large_blocks(2 ** 20, keep)
+    if keep is not None:
+        assert keep_heap_top(keep)  # as the compute process sets it per job
     rounds = []
     for _ in range(3):
         # 6 MiB in 512 KiB arrays (under the mmap threshold: carved from the heap's top), freed
@@ -100,17 +102,28 @@ def _heap_top_child(queue, keep: int | None) -> None:  # type: ignore[no-untyped
 def test_with_large_blocks_mapped_the_heap_top_keeps_a_few_mib_instead_of_handing_back_each_free():
     """glibc's trim threshold is fixed with the mmap threshold (128 KiB unless set): every
     free at the heap's top went back to the system and was faulted in again by the next
-    allocation.  With the default keep (8 MiB) a job's freed 6 MiB stays for the next
-    allocation; with 128 KiB it leaves at each free."""
+    allocation.  With the churning kinds' keep (8 MiB) a job's freed 6 MiB stays for the
+    next allocation; with glibc's 128 KiB (every other job's) it leaves at each free."""
+    from app.runtime.heap import HEAP_TOP_KEEP_BYTES
+
     context = multiprocessing.get_context("spawn")
     out = {}
-    for keep in (None, 128 * 1024):
+    for keep in (HEAP_TOP_KEEP_BYTES, None):
         queue = context.Queue()
         process = context.Process(target=_heap_top_child, args=(queue, keep))
         process.start()
         out[keep] = queue.get(timeout=120)
         process.join(timeout=60)
-    kept, taken = out[None]
+    kept, taken = out[HEAP_TOP_KEEP_BYTES]
     assert taken and max(kept) < 1.0  # nothing handed back: the next arrays reuse the pages
-    given_back, taken = out[128 * 1024]
+    given_back, taken = out[None]
     assert taken and min(given_back) > 4.0  # the freed 6 MiB left at once, each round
+
+
+def test_the_kinds_that_churn_medium_blocks_keep_the_heap_top_and_the_others_do_not():
+    from app.runtime.heap import HEAP_TOP_KEEP_BYTES
+    from app.runtime.registry import get_kind, load_kinds
+
+    load_kinds([])
+    assert get_kind("slice").heap_keep_bytes == get_kind("toolpath").heap_keep_bytes == HEAP_TOP_KEEP_BYTES
+    assert get_kind("reconstruct").heap_keep_bytes == get_kind("compensate").heap_keep_bytes == 0

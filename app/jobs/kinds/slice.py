@@ -22,6 +22,7 @@ from app.jobs.results.models import SliceResult
 from app.platform.models import Part
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
+from app.runtime.heap import HEAP_TOP_KEEP_BYTES
 from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 from app.slicing import SEED_HAZ_TABLE, BeamWidthTable, SliceParams, SlicingError, compensate_beam, slice_mesh
@@ -251,7 +252,8 @@ def _contour_mm(sliced: SlicedLayers) -> float:
                      for ring in island.rings()))
 
 
-@job_kind("slice", SliceJobParams, references=lambda p: [("part", p.part_id)], check=_check, estimate=_estimate)
+@job_kind("slice", SliceJobParams, references=lambda p: [("part", p.part_id)], check=_check, estimate=_estimate,
+          heap_keep_bytes=HEAP_TOP_KEEP_BYTES)  # its exports churn blocks of a few hundred KiB
 def run(ctx: JobContext, params: SliceJobParams) -> dict:
     """Slice a part into layers (uniform, S4 area / multi-cavity adaptive, or cusp) and export them."""
     mesh = ctx.mesh(params.part_id)

@@ -36,6 +36,7 @@ from app.jobs.results.program import ToolpathResult
 from app.platform.models import Machine
 from app.runtime.context import JobContext
 from app.runtime.cost import Cost
+from app.runtime.heap import HEAP_TOP_KEEP_BYTES
 from app.runtime.reads import JobReads
 from app.runtime.registry import JobParams, job_kind
 from app.slicing import SlicingError, ToolpathParams
@@ -328,7 +329,8 @@ def _layers(ctx: JobContext, slice_job_id: str) -> SlicedLayers:
     return from_json(ctx.artifact_bytes(slice_job_id, "layers.json"))
 
 
-@job_kind("toolpath", ToolpathJobParams, references=_references, check=_check, estimate=_estimate)
+@job_kind("toolpath", ToolpathJobParams, references=_references, check=_check, estimate=_estimate,
+          heap_keep_bytes=HEAP_TOP_KEEP_BYTES)  # the writer churns blocks of a few hundred KiB
 def run(ctx: JobContext, params: ToolpathJobParams) -> dict:
     """Fill the layers of a slice job (raster, contour, zone, Hilbert, S5 merged fractal) and write G-code."""
     ctx.require_succeeded(params.slice_job_id, "slice", "params.slice_job_id")
