@@ -68,12 +68,7 @@ class StopSession:
         """One ``set estop on``; True once ``get estop`` reports it within ``ESTOP_CONFIRM_S``."""
         session = self._enabled()
         session.set("estop", "on", timeout_s=ESTOP_REPLY_S)
-        deadline = time.monotonic() + ESTOP_CONFIRM_S
-        while session.get("estop").upper() != "ON":
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.005)
-        return True
+        return _reported(session, "estop", "ON")
 
     def abort(self, console: ConsoleLog) -> bool:
         """``set abort`` until ``get program_status`` reports IDLE, up to ``ESTOP_TRIES`` times,
@@ -99,9 +94,15 @@ class StopSession:
         ``ESTOP_CONFIRM_S``."""
         session = self._enabled(ESTOP_REPLY_S)
         session.set("abort", timeout_s=ESTOP_REPLY_S)
-        deadline = time.monotonic() + ESTOP_CONFIRM_S
-        while session.get("program_status").upper() != "IDLE":
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.005)
-        return True
+        return _reported(session, "program_status", "IDLE")
+
+
+def _reported(session: RshSession, name: str, value: str) -> bool:
+    """True once ``get name`` reports ``value`` (case-insensitive) within ``ESTOP_CONFIRM_S``
+    (the controller's status lags the ACK)."""
+    deadline = time.monotonic() + ESTOP_CONFIRM_S
+    while session.get(name).upper() != value:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
