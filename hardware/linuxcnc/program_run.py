@@ -1,7 +1,7 @@
 """Write a program file and run it on LinuxCNC, following it (``LinuxCNCMachine.stream``).
 
 The controller reads the file itself; the host opens it (``set mode auto``, ``set open``,
-``set run``) and polls ``program_status`` / ``program_line`` / ``error`` every
+``set run``) and polls ``program_line``, then ``program_status``, then ``error`` every
 ``poll_s``.  A cancel request becomes ``set abort``; an emergency stop or a controller
 error ends the run with ``FirmwareError``; a lost session raises ``LinkError`` (the caller
 records what is known executed).
@@ -82,8 +82,11 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
         if st.cancel_requested:
             link.set("abort")
             return executed, True
-        status = link.get("program_status").upper()
+        # the line before the status: a status read IDLE just before the program starts and a
+        # line read just after (line 1) would pass for a program that ran and ended; read the
+        # other way, a line > 0 before an IDLE status means it started, and has ended since
         line = int(float(link.get("program_line") or 0))
+        status = link.get("program_status").upper()
         error = link.pop_error()
         if error is not None:
             link.set("abort")

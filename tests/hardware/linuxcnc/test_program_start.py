@@ -57,3 +57,25 @@ def test_a_program_started_late_is_waited_for_and_not_reported_finished_before_i
     assert time.monotonic() - started >= START_S + RUN_S
     assert any(0 < e < LINES for e, _ in seen)  # its progress was seen on the way
     server.close()
+
+
+class _StartsBetweenReads(_LateTask):
+    """linuxcncrsh whose program starts right after it answered the first ``get
+    program_status`` (IDLE): a status and a line read around that moment straddle the start."""
+
+    def __call__(self, line: str, connection: int) -> str | None:
+        reply = super().__call__(line, connection)
+        if line == "get program_status" and self.run_at is not None and self.run_at > time.monotonic() - START_S:
+            self.run_at = time.monotonic() - START_S  # it starts now
+        return reply
+
+
+def test_a_program_that_starts_between_the_status_and_the_line_read_is_not_taken_for_finished():
+    task = _StartsBetweenReads()
+    server = ScriptedRsh(task)
+    machine = printing_machine(server)
+    started = time.monotonic()
+    executed, cancelled = run_program(machine, "/tmp/program.ngc", 0, LINES, None)
+    assert (executed, cancelled) == (LINES, False)
+    assert time.monotonic() - started >= RUN_S  # it returned after the program ran, not at its start
+    server.close()
