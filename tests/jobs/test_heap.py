@@ -64,16 +64,23 @@ def _large_blocks_child(queue, fixed: bool) -> None:  # type: ignore[no-untyped-
     queue.put((before, _resident_mib(), taken))
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt: Linux")
-def test_with_large_blocks_mapped_freed_arrays_leave_at_once_and_without_they_stay():
+def _each_in_a_fresh_process(child, variants) -> dict:  # type: ignore[no-untyped-def]
+    """``{variant: what child(queue, variant) put}``, each variant in a process of its own
+    (spawned: a fresh heap with glibc's own settings)."""
     context = multiprocessing.get_context("spawn")
     out = {}
-    for fixed in (False, True):
+    for variant in variants:
         queue = context.Queue()
-        process = context.Process(target=_large_blocks_child, args=(queue, fixed))
+        process = context.Process(target=child, args=(queue, variant))
         process.start()
-        out[fixed] = queue.get(timeout=120)
+        out[variant] = queue.get(timeout=120)
         process.join(timeout=60)
+    return out
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt: Linux")
+def test_with_large_blocks_mapped_freed_arrays_leave_at_once_and_without_they_stay():
+    out = _each_in_a_fresh_process(_large_blocks_child, (False, True))
     before, freed, _ = out[False]
     assert freed - before > 150  # glibc's rising threshold: the arrays came from the heap and stay
     before, freed, taken = out[True]
@@ -106,14 +113,7 @@ def test_with_large_blocks_mapped_the_heap_top_keeps_a_few_mib_instead_of_handin
     next allocation; with glibc's 128 KiB (every other job's) it leaves at each free."""
     from app.runtime.heap import HEAP_TOP_KEEP_BYTES
 
-    context = multiprocessing.get_context("spawn")
-    out = {}
-    for keep in (HEAP_TOP_KEEP_BYTES, None):
-        queue = context.Queue()
-        process = context.Process(target=_heap_top_child, args=(queue, keep))
-        process.start()
-        out[keep] = queue.get(timeout=120)
-        process.join(timeout=60)
+    out = _each_in_a_fresh_process(_heap_top_child, (HEAP_TOP_KEEP_BYTES, None))
     kept, taken = out[HEAP_TOP_KEEP_BYTES]
     assert taken and max(kept) < 1.0  # nothing handed back: the next arrays reuse the pages
     given_back, taken = out[None]
