@@ -7,16 +7,18 @@ name* (``pidof``), and the NML server listens on TCP port 5005.  Started through
 directory bound back at its own path) and an NML file whose server port is free, a
 simulator shares none of these with another; HAL commands reach it through
 ``nsenter --target <pid> --ipc`` (:mod:`hardware.linuxcnc.hal_command`).  Creating
-namespaces needs root (CAP_SYS_ADMIN) and util-linux's ``unshare`` / ``nsenter``; elsewhere
+namespaces needs root (CAP_SYS_ADMIN; tried once) and util-linux's ``unshare`` / ``nsenter``; elsewhere
 simulators run in the host's namespaces, one at a time (``SimController``'s file lock).
 ``CONFORMA_SIM_SHARED_NAMESPACES=1`` keeps them there.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import shutil
+import subprocess
 from pathlib import Path
 
 __all__ = ["SYSTEM_NML", "isolation_available", "launch_command", "nsenter_prefix", "write_nml"]
@@ -35,7 +37,21 @@ def isolation_available() -> bool:
     """True when simulators can each run in namespaces of their own (see the module docstring)."""
     if os.environ.get("CONFORMA_SIM_SHARED_NAMESPACES") == "1":
         return False
-    return os.geteuid() == 0 and shutil.which("unshare") is not None and shutil.which("nsenter") is not None
+    return os.geteuid() == 0 and _namespaces_permitted()
+
+
+@functools.cache
+def _namespaces_permitted() -> bool:
+    """``unshare`` and ``nsenter`` exist and the kernel lets this process create the namespaces
+    (root in a container without CAP_SYS_ADMIN may not): tried once per process."""
+    if shutil.which("unshare") is None or shutil.which("nsenter") is None:
+        return False
+    try:
+        done = subprocess.run(["unshare", "--ipc", "--pid", "--mount", "--fork", "--mount-proc", "true"],
+                              capture_output=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return done.returncode == 0
 
 
 def launch_command(workdir: Path, ini: str) -> list[str]:

@@ -63,3 +63,24 @@ def test_two_simulators_run_side_by_side_and_neither_reaches_the_other(lcnc_xyz)
         assert set(hal_thread_ids(ipc_namespace=second.ipc_namespace)).isdisjoint(
             hal_thread_ids(ipc_namespace=lcnc_xyz.ipc_namespace))
     assert lcnc_xyz.running and lcnc_xyz.snapshot() == first  # the other's shutdown ended only its own
+
+
+def test_a_host_that_refuses_namespaces_runs_simulators_in_its_own(monkeypatch):
+    """Root without CAP_SYS_ADMIN (a plain container): ``unshare`` fails, so simulators keep
+    the file lock instead of failing to start."""
+    import subprocess
+
+    from hardware.linuxcnc import sim_namespace
+
+    monkeypatch.setattr(sim_namespace.os, "geteuid", lambda: 0)
+    monkeypatch.setattr(sim_namespace.shutil, "which", lambda name: f"/usr/bin/{name}")
+    refused = b"unshare: unshare failed: Operation not permitted"
+    monkeypatch.setattr(sim_namespace.subprocess, "run",
+                        lambda args, **_: subprocess.CompletedProcess(args, 1, b"", refused))
+    sim_namespace._namespaces_permitted.cache_clear()
+    try:
+        assert not sim_namespace.isolation_available()
+    finally:
+        sim_namespace._namespaces_permitted.cache_clear()
+    monkeypatch.setenv("CONFORMA_SIM_SHARED_NAMESPACES", "1")
+    assert not sim_namespace.isolation_available()
