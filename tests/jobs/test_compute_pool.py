@@ -14,7 +14,7 @@ from app.parts.cache import journal
 from app.reference.s1 import s1_mesh, s1_traces
 from app.runtime.compute_pool import ComputePool, Member, retire_reason
 from tests.conftest import auth
-from tests.helpers.jobs import wait_for
+from tests.helpers.jobs import CANCEL_BOUND_S, wait_for
 
 OP = auth("operator")
 XY = [[3.0, 4.0], [20.0, 31.0], [41.5, 12.25], [57.0, 36.0]]
@@ -92,7 +92,7 @@ def test_cancel_kills_the_process_and_a_fresh_one_takes_its_place(settings_facto
         asked = time.monotonic()
         assert client.post(f"/api/v1/jobs/{spin['id']}/cancel", headers=OP).status_code == 202
         assert wait_for(client, spin["id"], timeout=5)["status"] == "cancelled"
-        assert time.monotonic() - asked < 1.0
+        assert time.monotonic() - asked < CANCEL_BOUND_S
         after = _job(client, "test_sleep", {"seconds": 0})
         new = {m.pid for m in pool.members}
         assert len(pool.members) == 1 and not (new & old)  # the killed process was replaced

@@ -11,7 +11,7 @@ import pytest
 from hardware.protocol import commands_sha256
 from tests.api.test_machines import program_text, register, upload_program
 from tests.conftest import auth
-from tests.helpers.jobs import wait_for
+from tests.helpers.jobs import CANCEL_BOUND_S, wait_for
 
 OP = auth("operator")
 
@@ -71,7 +71,7 @@ def test_cancel_kills_a_loop_that_never_checks_within_a_second(client):
     assert client.post(f"/api/v1/jobs/{job['id']}/cancel", headers=OP).status_code == 202
     done = wait_for(client, job["id"], timeout=5)
     assert done["status"] == "cancelled"
-    assert time.monotonic() - asked < 1.0
+    assert time.monotonic() - asked < CANCEL_BOUND_S
 
 
 def test_a_cancel_while_the_job_waits_for_its_process_takes_effect_at_once(client, monkeypatch):
@@ -97,7 +97,7 @@ def test_a_cancel_while_the_job_waits_for_its_process_takes_effect_at_once(clien
     asked = time.monotonic()
     assert client.post(f"/api/v1/jobs/{job['id']}/cancel", headers=OP).status_code == 202
     done = wait_for(client, job["id"], timeout=5)
-    assert time.monotonic() - asked < 1.0
+    assert time.monotonic() - asked < CANCEL_BOUND_S
     assert done["status"] == "cancelled"
     assert "before it reached a compute process" in done["error"]["detail"]
     deadline = time.monotonic() + 10
