@@ -51,7 +51,7 @@ from .hal_watcher import HalWatch, SimUnavailable
 from .machine import LinuxCNCMachine
 from .rsh import RshSession
 from .sim_namespace import SYSTEM_NML, isolation_available, launch_command, nsenter_prefix, write_nml
-from .sim_realtime import servo_threads_realtime
+from .sim_realtime import ipc_namespace_of, servo_threads_realtime
 from .sim_surface import SimBlock, SimSensor, SimSphere
 
 __all__ = ["CONFIGS", "HalWatch", "SimBlock", "SimController", "SimSensor", "SimSphere", "SimUnavailable",
@@ -85,10 +85,10 @@ def _number_or_text(value: str) -> float | str:
 
 def _ipc_namespace(pid: int) -> str:
     """The ``/proc/<pid>/ns/ipc`` link of process ``pid`` (``ipc:[<inode>]``)."""
-    try:
-        return os.readlink(f"/proc/{pid}/ns/ipc")
-    except OSError as exc:
-        raise SimUnavailable(f"the simulator's namespace is gone: {exc}", field="linuxcnc") from exc
+    namespace = ipc_namespace_of(Path(f"/proc/{pid}"))
+    if namespace is None:
+        raise SimUnavailable("the simulator's namespace is gone", field="linuxcnc", value=pid)
+    return namespace
 
 
 def _rtapi_uid() -> int:

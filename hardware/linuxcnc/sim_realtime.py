@@ -26,7 +26,8 @@ def _comm(path: Path) -> str:
         return ""
 
 
-def _ipc_namespace(pid: Path) -> str | None:
+def ipc_namespace_of(pid: Path) -> str | None:
+    """The ``ns/ipc`` link of the process directory ``pid`` (``ipc:[<inode>]``), None when gone."""
     try:
         return os.readlink(pid / "ns" / "ipc")
     except OSError:
@@ -41,7 +42,7 @@ def hal_thread_ids(proc: Path = Path("/proc"), ipc_namespace: str | None = None)
     for pid in proc.iterdir():
         if not pid.name.isdigit() or _comm(pid) != "rtapi_app":
             continue
-        if ipc_namespace is not None and _ipc_namespace(pid) != ipc_namespace:
+        if ipc_namespace is not None and ipc_namespace_of(pid) != ipc_namespace:
             continue
         try:
             tasks = list((pid / "task").iterdir())
