@@ -30,6 +30,7 @@ group this object started (never to processes found by name).
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import os
@@ -217,6 +218,18 @@ class SimController:
     def running(self) -> bool:
         return self._process is not None and self._process.poll() is None
 
+    def task_pids(self) -> list[int]:
+        """The pids of this simulator's task processes (``milltask`` in its IPC namespace; the
+        host's when it shares that): empty once the task died."""
+        namespace = self.ipc_namespace or ipc_namespace_of(Path("/proc/self"))
+        found = []
+        for pid in Path("/proc").iterdir():
+            with contextlib.suppress(OSError):
+                if pid.name.isdigit() and (pid / "comm").read_text().strip() == "milltask" \
+                        and ipc_namespace_of(pid) == namespace:
+                    found.append(int(pid.name))
+        return found
+
     def __enter__(self) -> SimController:
         self.start()
         return self
@@ -378,6 +391,9 @@ class SimController:
         workdir.chmod(0o711)   # the realtime process (RTAPI_UID) must reach rtapi/
         env = dict(os.environ)
         env.pop("DISPLAY", None)
+        # LinuxCNC maps its tool table from $HOME/.tool.mmap: simulators sharing a HOME share the
+        # file, and one starting or stopping resizes it under the other's task (SIGBUS)
+        env["HOME"] = str(workdir)
         if os.geteuid() == 0:
             uid = _rtapi_uid()
             fifo_dir = workdir / "rtapi"

@@ -5,6 +5,8 @@ simulator they name (hardware/linuxcnc/hal_command.py)."""
 from __future__ import annotations
 
 import os
+import time
+from pathlib import Path
 
 import pytest
 
@@ -44,10 +46,22 @@ def test_hal_threads_of_one_namespace(tmp_path):
     assert hal_thread_ids(tmp_path, ipc_namespace="ipc:[2]") == [31]
 
 
+def _tool_maps(sim: SimController) -> set[str]:
+    """The tool table files ``sim``'s task processes map (``.tool.mmap``, from /proc/<pid>/maps)."""
+    found = set()
+    for pid in sim.task_pids():
+        for line in Path(f"/proc/{pid}/maps").read_text().splitlines():
+            if line.endswith(".tool.mmap"):
+                found.add(line.split(maxsplit=5)[-1])
+    return found
+
+
 def test_two_simulators_run_side_by_side_and_neither_reaches_the_other(lcnc_xyz):
     if not isolation_available():
         missing("simulator namespaces", "creating namespaces needs root and util-linux's unshare / nsenter")
     first = lcnc_xyz.snapshot()
+    task = lcnc_xyz.task_pids()
+    assert len(task) == 1
     with SimController("xyz") as second:
         assert second.ipc_namespace is not None and second.ipc_namespace != lcnc_xyz.ipc_namespace
         assert second.ipc_namespace != os.readlink("/proc/self/ns/ipc")
@@ -60,9 +74,22 @@ def test_two_simulators_run_side_by_side_and_neither_reaches_the_other(lcnc_xyz)
         finally:
             session.close()
         assert lcnc_xyz.snapshot() == first  # not its surface, not its e-stop
+        # each task maps a tool table of its own: a shared one is resized under the other's task
+        # when a simulator starts or stops, and that task dies of SIGBUS at its next tool read
+        ours, theirs = _tool_maps(lcnc_xyz), _tool_maps(second)
+        assert len(ours) == len(theirs) == 1 and ours != theirs, (ours, theirs)
+        assert next(iter(ours)).startswith(str(lcnc_xyz.workdir)), ours
         assert set(hal_thread_ids(ipc_namespace=second.ipc_namespace)).isdisjoint(
             hal_thread_ids(ipc_namespace=lcnc_xyz.ipc_namespace))
     assert lcnc_xyz.running and lcnc_xyz.snapshot() == first  # the other's shutdown ended only its own
+    # the other's start and stop left this one's task running
+    time.sleep(1.0)  # several task cycles, each reading the tool table
+    assert lcnc_xyz.task_pids() == task
+    session = lcnc_xyz.session(enable=True)
+    try:  # a command the task must receive is answered
+        session.set("estop", "on")
+    finally:
+        session.close()
 
 
 def test_a_host_that_refuses_namespaces_runs_simulators_in_its_own(monkeypatch):
