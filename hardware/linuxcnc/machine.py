@@ -16,7 +16,9 @@ stop, a controller error or a lost link the machine is in ``error`` and sends no
 :meth:`connect` (no automatic motion after a failure).  When the command session is lost
 while a program runs, the stop session aborts the program until the controller reports it
 idle (``StopSession.abort``, bounded; the console tells whether it was confirmed): LinuxCNC
-has no link watchdog and would go on unsupervised.
+has no link watchdog and would go on unsupervised.  Homing, an MDI command and a program
+ask the task for a no-op command every few seconds (:mod:`hardware.linuxcnc.task_watch`): a
+task that died leaves a frozen status, which would otherwise read "busy" for an hour.
 
 Process outputs: an e-stop keeps ``M64`` outputs on and MDI cannot run in e-stop, so the
 controller's ``ON_ABORT_COMMAND`` switches them off (``sim/remap/on_abort.ngc``); the host
@@ -54,6 +56,7 @@ from ..machine_types import Identity, MachineProfile, ProbeResult, StreamReport
 from ..program_clock import ProgramClock
 from .rsh import RshRejected, RshSession
 from .stop_session import StopSession
+from .task_watch import TaskWatch
 from .url import parse_url, passwords
 
 __all__ = ["LinuxCNCMachine"]
@@ -200,8 +203,10 @@ class LinuxCNCMachine(StateReadout[RshSession]):
         idle its first check answers.  In any other mode (a program the controller still
         runs, which refuses the MDI command) nothing is waited here."""
         link, deadline = connected(self.link), time.monotonic() + self.motion_timeout_s
+        watch = TaskWatch(link, "the MDI command")
         while (link.get("mode").upper() == "MDI" and link.get("program_status").upper() == "RUNNING"
                and time.monotonic() < deadline):
+            watch.check()
             time.sleep(self.poll_s)
 
     def send(self, command: str) -> str:
@@ -227,6 +232,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
             connected(self.link).set("home", "-1")
             deadline = time.monotonic() + self.motion_timeout_s
             joints, last, stable_since = self.address.joints, None, time.monotonic()
+            watch = TaskWatch(connected(self.link), "homing")
             while True:
                 error = connected(self.link).pop_error()
                 if error is not None:
@@ -241,6 +247,7 @@ class LinuxCNCMachine(StateReadout[RshSession]):
                     break
                 if now > deadline:
                     raise LinkError("homing did not finish in time", field="home")
+                watch.check()
                 time.sleep(self.poll_s)
             self.homed = True
             self._mdi(self.profile.safe_off)  # first chance after a connect to an un-homed machine

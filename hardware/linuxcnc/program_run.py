@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 from ..errors import FirmwareError, LinkError
 from ..machine_state import connected
 from ..resume import modal_preamble
+from .task_watch import TaskWatch
 
 if TYPE_CHECKING:
     from .machine import LinuxCNCMachine
@@ -74,6 +75,7 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
     link.set("open", path)
     link.set("run")
     started = time.monotonic()
+    watch = TaskWatch(link, "the program")
     seen_running = False
     executed = start_line
     while True:
@@ -107,4 +109,5 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
             return executed, False
         if time.monotonic() - started > machine.motion_timeout_s:
             raise LinkError("the program did not finish in time", field="program")
+        watch.check()
         time.sleep(machine.poll_s)
