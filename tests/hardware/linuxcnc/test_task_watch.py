@@ -107,10 +107,11 @@ def test_a_program_whose_controller_task_dies_fails_in_seconds_and_says_so(_one_
         machine.connect()
         machine.home()
         outcome: list[BaseException | None] = []
+        polling = threading.Event()  # the stream's wait has begun (its ``set run`` was answered)
 
         def stream() -> None:
             try:
-                machine.stream(["G1 X40 F120"])  # 20 s
+                machine.stream(["G1 X40 F120"], on_progress=lambda *_: polling.set())  # 20 s
                 outcome.append(None)
             except BaseException as exc:  # noqa: BLE001 - handed to the test's thread
                 outcome.append(exc)
@@ -118,8 +119,7 @@ def test_a_program_whose_controller_task_dies_fails_in_seconds_and_says_so(_one_
         runner = threading.Thread(target=stream, daemon=True)
         observer = sim.session()
         runner.start()
-        assert wait_until(lambda: observer.get("mode") == "AUTO" and observer.get("program_status") == "RUNNING",
-                          timeout_s=15.0)
+        assert wait_until(lambda: polling.is_set() and observer.get("program_status") == "RUNNING", timeout_s=30.0)
         observer.close()
         tasks = sim.task_pids()
         if not tasks:
