@@ -373,3 +373,40 @@ def test_the_kept_bound_sites_are_the_fresh_ones_at_every_wavelength(paths):
         assert kept == fresh
         bounds.append(kept)
     assert bounds[0] == bounds[2] and bounds[1] == bounds[4] and bounds[0] != bounds[1]
+
+
+def test_the_ellipse_bound_takes_the_largest_over_its_points_and_the_corner_without_a_correlation(paths, monkeypatch):
+    """HYPER_BOUND "ellipse": each trace's bound is at least its bound under the learned prior
+    itself (the estimate is one of the points) and is that bound where the hyperparameters'
+    sd are zero; a learning without a correlation (a cached one) is taken at the corner; the
+    run's largest trace's own bound is the run's bound (a trace alone finds the ellipse's worst
+    point by its own bound, the run by its largest); the learning's correlation of log A and log
+    lambda is positive (a longer wavelength with a larger amplitude explains the same touches)."""
+    from dataclasses import replace
+
+    from app.reconstruction import field_trust
+    from app.reconstruction.field_trust import posterior_trace_bounds, posterior_under
+
+    plan = plan_field(paths, DEFAULT)
+    dz = toucher(3)(plan.xy)
+    check = checked_field(DEFAULT.prior(), plan.sites, np.zeros(plan.count), np.column_stack([plan.xy, dz]),
+                          plan.center, plan.trace, plan.s_mm, np.zeros(plan.count, dtype=bool), DEFAULT.coverage,
+                          DEFAULT.target_error_mm)
+    assert check.learned is not None and 0.0 < check.learned["amplitude_wavelength_correlation"] < 1.0
+    corner = run_bounds(check, paths)
+    at_estimate = np.array(posterior_trace_bounds(check.fit.posterior, paths, DEFAULT.coverage))
+    monkeypatch.setattr(field_trust, "HYPER_BOUND", "ellipse")
+    ellipse = np.array(run_bounds(check, paths))
+    assert (ellipse >= at_estimate).all() and ellipse.max() > at_estimate.max()
+    alone = np.array([trace_bound(check.fit, p, DEFAULT.coverage, check.learned, len(paths)) for p in paths])
+    largest = int(np.argmax(ellipse))
+    assert alone[largest] == pytest.approx(ellipse[largest], rel=1e-12) and (alone >= at_estimate).all()
+    exact = {**check.learned, **{k: {**check.learned[k], "relative_sd": 0.0}
+                                 for k in ("amplitude_mm", "wavelength_mm")}}
+    assert np.array_equal(run_bounds(replace(check, learned=exact), paths), at_estimate)
+    cached = {k: v for k, v in check.learned.items() if k != "amplitude_wavelength_correlation"}
+    assert run_bounds(replace(check, learned=cached), paths) == corner
+    with pytest.raises(ValueError):
+        field_trust.cautious_bounds(lambda p: np.array(posterior_trace_bounds(posterior_under(check.fit, p), paths,
+                                                                              DEFAULT.coverage)),
+                                    check.fit.posterior.prior, check.learned, "box")
