@@ -1,8 +1,8 @@
 """The run's bound forecast for stations not touched yet, and a round sized by it.
 
 The run's bound (:func:`app.reconstruction.field_trust.run_bounds`) depends on where the
-stations are and on the learned prior taken HYPER_SD of its own sd on the unfavourable side
-(:func:`app.reconstruction.field_trust.cautious_prior`), not on what the stations read.  So
+stations are and on the learned prior and its own uncertainty
+(:func:`app.reconstruction.field_trust.cautious_bounds`), not on what the stations read.  So
 the bound a round's stations will give can be computed before they are touched, under the
 prior learned so far (:func:`forecast_run_bound`).  Two parts of it change as stations are
 added: the posterior sd between them (computed exactly for the planned stations) and the
@@ -107,13 +107,10 @@ def forecast_run_bound(learned: LearnedPrior, sites_now: Sites, sites_after: Sit
                        paths: Sequence[Any], coverage: float, sigma_mm: float | None = None,
                        now_log_sd: np.ndarray | None = None) -> float:
     """The run's bound (mm) the stations ``sites_after`` (m,) will give, forecast under the
-    prior ``learned`` from the touches at ``sites_now`` (n,): the largest trace bound of the
-    posterior under :func:`app.reconstruction.field_trust.cautious_prior` with the forecast sd
-    (:func:`forecast_learned`),
-    over the TracePolylines ``paths`` sharing the confidence (as
-    :func:`app.reconstruction.field_trust.run_bounds`; with HYPER_BOUND ``"ellipse"`` the largest
-    over the joint ellipse, :func:`app.reconstruction.field_trust.cautious_bounds`, the
-    correlation the learning's).
+    prior ``learned`` from the touches at ``sites_now`` (n,): the largest trace bound over the
+    TracePolylines ``paths`` sharing the confidence, allowing for the hyperparameters' forecast
+    sd (:func:`forecast_learned`; the correlation the learning's) as
+    :func:`app.reconstruction.field_trust.run_bounds` does (:func:`app.reconstruction.field_trust.cautious_bounds`).
     ``now_log_sd``: as :func:`forecast_learned`."""
     def bounds(prior: DeviationPrior) -> np.ndarray:
         if sigma_mm is not None:

@@ -16,11 +16,11 @@ verification residual lies within ``coverage`` x its predictive sd (posterior sd
 noise) and within the bound promised for the traces, and that bound meets the target
 within TARGET_SLACK (:func:`bound_meets_target`; the sequential planner adds stations until
 it does, :mod:`app.reconstruction.field_sequential`).  The bound itself is reported as it is;
-a plan too sparse for the part is off by far more.  The bound is taken with
-the learned amplitude and wavelength HYPER_SD of their own sd on the unfavourable side
-(:func:`cautious_prior`: they are estimates from a few dozen touches; HYPER_BOUND ``"ellipse"``
-takes the largest bound over their joint ellipse instead, :mod:`app.reconstruction.hyper_bound`),
-and a run's traces share
+a plan too sparse for the part is off by far more.  The bound allows for the learned
+amplitude's and wavelength's own uncertainty (they are estimates from a few dozen touches,
+:func:`cautious_bounds`): with HYPER_BOUND ``"corner"`` each is taken HYPER_SD of its own sd
+on its unfavourable side (:func:`cautious_prior`); ``"ellipse"`` takes the largest bound over
+their joint ELLIPSE_SD-sd ellipse (:mod:`app.reconstruction.hyper_bound`).  A run's traces share
 its confidence (:func:`trace_bound` ``traces``), so the run's bound holds over all of them.  A verification point
 where the compensated program would be off by more than the uncompensated one
 (|measured - predicted| >= |measured|, by more than the probe's noise: the correction does not

@@ -276,11 +276,13 @@ def test_a_runs_trace_bounds_factorise_the_bound_posterior_once_and_equal_each_t
     """Every trace of a run asks for the same posterior under the cautious prior: it is
     factorised once per fit, and each trace's bound is the one :func:`trace_bound` gives for a
     fresh copy of the fit (its own factorisation), to rounding: the run's traces are bounded
-    in one batch, whose sums the vector units may order differently from one trace's."""
+    in one batch, whose sums the vector units may order differently from one trace's (the
+    corner's prior: on the ellipse each trace alone finds its own worst point)."""
     from dataclasses import replace
 
     from app.reconstruction import field_trust
 
+    monkeypatch.setattr(field_trust, "HYPER_BOUND", "corner")
     plan = plan_field(paths, DEFAULT)
     dz = toucher(3)(plan.xy)
     check = checked_field(DEFAULT.prior(), plan.sites, np.zeros(plan.count), np.column_stack([plan.xy, dz]),
@@ -376,9 +378,10 @@ def test_the_kept_bound_sites_are_the_fresh_ones_at_every_wavelength(paths):
 
 
 def test_the_ellipse_bound_takes_the_largest_over_its_points_and_the_corner_without_a_correlation(paths, monkeypatch):
-    """HYPER_BOUND "ellipse": each trace's bound is at least its bound under the learned prior
-    itself (the estimate is one of the points) and is that bound where the hyperparameters'
-    sd are zero; a learning without a correlation (a cached one) is taken at the corner; the
+    """HYPER_BOUND "ellipse": the same bounds again without a factorisation; each trace's bound
+    is at least its bound under the learned prior itself (the estimate is one of the points)
+    and is that bound where the hyperparameters' sd are zero; a learning without a correlation
+    (a cached one) is taken at the corner; the
     run's largest trace's own bound is the run's bound (a trace alone finds the ellipse's worst
     point by its own bound, the run by its largest); the learning's correlation of log A and log
     lambda is positive (a longer wavelength with a larger amplitude explains the same touches)."""
@@ -393,10 +396,15 @@ def test_the_ellipse_bound_takes_the_largest_over_its_points_and_the_corner_with
                           plan.center, plan.trace, plan.s_mm, np.zeros(plan.count, dtype=bool), DEFAULT.coverage,
                           DEFAULT.target_error_mm)
     assert check.learned is not None and 0.0 < check.learned["amplitude_wavelength_correlation"] < 1.0
+    monkeypatch.setattr(field_trust, "HYPER_BOUND", "corner")
     corner = run_bounds(check, paths)
     at_estimate = np.array(posterior_trace_bounds(check.fit.posterior, paths, DEFAULT.coverage))
     monkeypatch.setattr(field_trust, "HYPER_BOUND", "ellipse")
     ellipse = np.array(run_bounds(check, paths))
+    factorised = []
+    real = field_trust.fit_posterior
+    monkeypatch.setattr(field_trust, "fit_posterior", lambda *a, **k: factorised.append(1) or real(*a, **k))
+    assert np.array_equal(run_bounds(check, paths), ellipse) and not factorised   # each point's posterior kept
     assert (ellipse >= at_estimate).all() and ellipse.max() > at_estimate.max()
     alone = np.array([trace_bound(check.fit, p, DEFAULT.coverage, check.learned, len(paths)) for p in paths])
     largest = int(np.argmax(ellipse))
