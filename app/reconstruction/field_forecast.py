@@ -1,8 +1,8 @@
 """The run's bound forecast for stations not touched yet, and a round sized by it.
 
 The run's bound (:func:`app.reconstruction.field_trust.run_bounds`) depends on where the
-stations are and on the learned prior taken HYPER_SD of its own sd on the unfavourable side
-(:func:`app.reconstruction.field_trust.cautious_prior`), not on what the stations read.  So
+stations are and on the learned prior and its own uncertainty
+(:func:`app.reconstruction.field_trust.cautious_bounds`), not on what the stations read.  So
 the bound a round's stations will give can be computed before they are touched, under the
 prior learned so far (:func:`forecast_run_bound`).  Two parts of it change as stations are
 added: the posterior sd between them (computed exactly for the planned stations) and the
@@ -39,7 +39,7 @@ from scipy.linalg import cho_factor, cho_solve
 from app.probing.deviation_prior import DeviationPrior, Sites, fit_posterior
 from app.probing.field import FieldPlan
 from app.reconstruction.field_learning import NAMES, LearnedPrior, _Likelihood
-from app.reconstruction.field_trust import cautious_prior, posterior_trace_bounds
+from app.reconstruction.field_trust import cautious_bounds, posterior_trace_bounds
 
 SEARCH_FLOOR = 0.2   # a round's pointwise target is searched down to this fraction of its own
 SEARCH_STEPS = 6     # bisection steps in log target (the first at the proportional guess)
@@ -107,15 +107,18 @@ def forecast_run_bound(learned: LearnedPrior, sites_now: Sites, sites_after: Sit
                        paths: Sequence[Any], coverage: float, sigma_mm: float | None = None,
                        now_log_sd: np.ndarray | None = None) -> float:
     """The run's bound (mm) the stations ``sites_after`` (m,) will give, forecast under the
-    prior ``learned`` from the touches at ``sites_now`` (n,): the largest trace bound of the
-    posterior under :func:`cautious_prior` with the forecast sd (:func:`forecast_learned`),
-    over the TracePolylines ``paths`` sharing the confidence (as
-    :func:`app.reconstruction.field_trust.run_bounds`).  ``now_log_sd``: as :func:`forecast_learned`."""
-    prior = cautious_prior(learned.prior, forecast_learned(learned, sites_now, sites_after, center, now_log_sd))
-    if sigma_mm is not None:
-        prior = replace(prior, sigma_mm=sigma_mm)
-    posterior = fit_posterior(prior, sites_after, np.zeros(len(sites_after.xy)), center)
-    return max(posterior_trace_bounds(posterior, paths, coverage))
+    prior ``learned`` from the touches at ``sites_now`` (n,): the largest trace bound over the
+    TracePolylines ``paths`` sharing the confidence, allowing for the hyperparameters' forecast
+    sd (:func:`forecast_learned`; the correlation the learning's) as
+    :func:`app.reconstruction.field_trust.run_bounds` does (:func:`app.reconstruction.field_trust.cautious_bounds`).
+    ``now_log_sd``: as :func:`forecast_learned`."""
+    def bounds(prior: DeviationPrior) -> np.ndarray:
+        if sigma_mm is not None:
+            prior = replace(prior, sigma_mm=sigma_mm)
+        posterior = fit_posterior(prior, sites_after, np.zeros(len(sites_after.xy)), center)
+        return np.array(posterior_trace_bounds(posterior, paths, coverage))
+    forecast = forecast_learned(learned, sites_now, sites_after, center, now_log_sd)
+    return float(cautious_bounds(bounds, learned.prior, forecast).max())
 
 
 def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[FieldPlan], float],

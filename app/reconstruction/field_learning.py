@@ -36,7 +36,7 @@ touches are reported (``screened``); the fit and its outlier rejection still see
 Uncertainty: the inverse of the Hessian of -log p in the log parameters at the optimum (the
 Laplace approximation; central differences, :func:`app.reconstruction.laplace.laplace_sd`),
 reported as the sd of each log parameter (a relative sd) — a parameter at its bound says so
-instead.
+instead — and the correlation of the log amplitude and log wavelength (:mod:`app.reconstruction.hyper_bound`).
 
 Fit check: the exact leave-one-out residuals of the fitted GP, r_i = (K^-1 dz)_i / (K^-1)_ii
 with sd_i = (K^-1)_ii^-1/2, standardised z_i = r_i / sd_i (N(0, 1) each if the model holds).
@@ -71,7 +71,7 @@ from scipy.special import chdtri, j0, j1, ndtri
 from app.domain.errors import InvalidInput
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
 from app.probing.deviation_prior import DeviationPrior, Sites, placement_basis
-from app.reconstruction.laplace import laplace_sd
+from app.reconstruction.laplace import correlation, covariance_sd, laplace_covariance
 
 AMPLITUDE_RANGE = 20.0      # the learned amplitude within [user / 20, user x 20]
 WAVELENGTH_FLOOR_MM = 3.0   # the shortest wavelength the learning may find (a probe ball's scale)
@@ -144,7 +144,9 @@ class LearnedPrior:
     log sigma) from the Hessian (NaN where a parameter sits on a bound); at_bound (3,) str:
     "lower" / "upper" / ""; log_likelihood (at the optimum) and start_log_likelihood (the
     user's prior); loo: the fit check under the learned prior; n: touches used; screened: the
-    touches screened out; method: "ml" or "reml" (the likelihood maximised)."""
+    touches screened out; method: "ml" or "reml" (the likelihood maximised);
+    log_correlation: the correlation of the log amplitude and log wavelength estimates (the
+    same Hessian's; NaN where either sits on a bound)."""
 
     prior: DeviationPrior
     start: DeviationPrior
@@ -157,13 +159,14 @@ class LearnedPrior:
     n: int
     screened: tuple[int, ...] = ()
     method: str = DEFAULT_METHOD
+    log_correlation: float = math.nan
 
     @property
     def misfit(self) -> bool:
         return self.loo.misfit
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON form: each parameter's value, the user's value, its relative sd and bound."""
+        """JSON form: each parameter's value, the user's value, its relative sd and bound; the log correlation."""
         values = (self.prior.amplitude_mm, self.prior.wavelength_mm, self.prior.sigma_mm)
         starts = (self.start.amplitude_mm, self.start.wavelength_mm, self.start.sigma_mm)
         out: dict[str, Any] = {
@@ -171,8 +174,9 @@ class LearnedPrior:
                    "relative_sd": None if not math.isfinite(sd) else float(math.expm1(sd)),
                    "at_bound": b or None}
             for name, v, s, sd, b in zip(NAMES, values, starts, self.log_sd, self.at_bound)}
-        out |= {"touches": self.n, "screened": list(self.screened), "method": self.method,
-                "log_likelihood": self.log_likelihood,
+        rho = self.log_correlation
+        out |= {"amplitude_wavelength_correlation": float(rho) if math.isfinite(rho) else None, "touches": self.n,
+                "screened": list(self.screened), "method": self.method, "log_likelihood": self.log_likelihood,
                 "prior_log_likelihood": self.start_log_likelihood,
                 "loo": {"statistic": self.loo.statistic, "statistic_limit": self.loo.statistic_limit,
                         "max_abs_z": float(np.abs(self.loo.z).max()), "z_limit": self.loo.z_limit,
@@ -464,7 +468,8 @@ def _learn(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarr
     span = hi - lo
     at = tuple("lower" if t - a < 1e-3 * s else "upper" if b - t < 1e-3 * s else ""
                for t, a, b, s in zip(theta, lo, hi, span))
-    log_sd = laplace_sd(objective, theta, at, HESSIAN_STEP)
+    log_cov = laplace_covariance(objective, theta, at, HESSIAN_STEP)
+    log_sd = covariance_sd(log_cov)
     learned = replace(prior, amplitude_mm=float(math.exp(theta[0])), wavelength_mm=float(math.exp(theta[1])),
                       sigma_mm=float(math.exp(theta[2])))
     loo = loo_check(learned, sites, dz, center)
@@ -482,7 +487,7 @@ def _learn(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarr
             f"the touches scatter {scatter * 1000:.1f} um about the field, {scatter / prior.sigma_mm:.0f}x "
             "the probe's repeatability: structure shorter than the stations resolve, or misreading touches",))
     return LearnedPrior(learned, prior, bounds, log_sd, (at[0], at[1], at[2]), -float(best.fun),
-                        -objective(start), loo, n, method=method)
+                        -objective(start), loo, n, method=method, log_correlation=correlation(log_cov, 0, 1))
 
 
 def _as_noise(likelihood: _Likelihood, theta: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float]:

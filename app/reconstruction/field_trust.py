@@ -16,9 +16,11 @@ verification residual lies within ``coverage`` x its predictive sd (posterior sd
 noise) and within the bound promised for the traces, and that bound meets the target
 within TARGET_SLACK (:func:`bound_meets_target`; the sequential planner adds stations until
 it does, :mod:`app.reconstruction.field_sequential`).  The bound itself is reported as it is;
-a plan too sparse for the part is off by far more.  The bound is taken with
-the learned amplitude and wavelength HYPER_SD of their own sd on the unfavourable side
-(:func:`cautious_prior`: they are estimates from a few dozen touches), and a run's traces share
+a plan too sparse for the part is off by far more.  The bound allows for the learned
+amplitude's and wavelength's own uncertainty (they are estimates from a few dozen touches,
+:func:`cautious_bounds`): with HYPER_BOUND ``"corner"`` each is taken HYPER_SD of its own sd
+on its unfavourable side (:func:`cautious_prior`); ``"ellipse"`` takes the largest bound over
+their joint ELLIPSE_SD-sd ellipse (:mod:`app.reconstruction.hyper_bound`).  A run's traces share
 its confidence (:func:`trace_bound` ``traces``), so the run's bound holds over all of them.  A verification point
 where the compensated program would be off by more than the uncompensated one
 (|measured - predicted| >= |measured|, by more than the probe's noise: the correction does not
@@ -32,7 +34,7 @@ from __future__ import annotations
 import math
 import threading
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, TypeVar
 
@@ -42,6 +44,7 @@ from scipy.special import ndtr, ndtri
 from app.probing.deviation_prior import DeviationPosterior, DeviationPrior, Sites, fit_posterior, path_sites
 from app.reconstruction.field import FieldFit, fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, LearnedPrior, learn_prior
+from app.reconstruction.hyper_bound import ELLIPSE_SD, METHODS, ellipse_max, log_covariance
 
 TARGET_SLACK = 1.25  # a bound up to 25 % over the target is the plan met (see the module doc)
 
@@ -304,16 +307,49 @@ def cautious_prior(prior: DeviationPrior, learned: dict[str, Any] | None) -> Dev
                    wavelength_mm=prior.wavelength_mm * math.exp(-HYPER_SD * log_sd("wavelength_mm")))
 
 
+HYPER_BOUND = "corner"  # how a bound allows for the hyperparameters' uncertainty (hyper_bound.METHODS)
+
+
+def cautious_bounds(bound_of: Callable[[DeviationPrior], np.ndarray], prior: DeviationPrior,
+                    learned: dict[str, Any] | None, method: str | None = None) -> np.ndarray:
+    """Bounds (T,) mm under the learned ``prior`` allowing for its amplitude's and wavelength's
+    uncertainty (``learned``: :meth:`LearnedPrior.as_dict`), ``bound_of(prior) -> (T,)`` mm
+    the bounds under a given prior: ``method`` (default HYPER_BOUND) ``"corner"``, under
+    :func:`cautious_prior`; ``"ellipse"``, each the largest over the joint ELLIPSE_SD-sd ellipse
+    of (log A, log lambda) (:func:`app.reconstruction.hyper_bound.ellipse_max`; the corner
+    where ``learned`` carries no correlation)."""
+    method = HYPER_BOUND if method is None else method
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}: one of {METHODS}")
+    if method == "corner" or learned is None or "amplitude_wavelength_correlation" not in learned:
+        return np.asarray(bound_of(cautious_prior(prior, learned)), dtype=float)
+
+    def log_sd(name: str) -> float:
+        rel = learned.get(name, {}).get("relative_sd")
+        return math.nan if rel is None or not math.isfinite(rel) else math.log1p(float(rel))
+    rho = learned["amplitude_wavelength_correlation"]
+    cov = log_covariance((log_sd("amplitude_mm"), log_sd("wavelength_mm")), math.nan if rho is None else float(rho))
+
+    def at(d: np.ndarray) -> np.ndarray:
+        return np.asarray(bound_of(replace(prior, amplitude_mm=prior.amplitude_mm * math.exp(d[0]),
+                                           wavelength_mm=prior.wavelength_mm * math.exp(d[1]))), dtype=float)
+    return ellipse_max(at, cov, ELLIPSE_SD)
+
+
 _BOUND_POSTERIORS: weakref.WeakKeyDictionary[FieldFit, dict[DeviationPrior, DeviationPosterior]] = \
     weakref.WeakKeyDictionary()
 _BOUND_POSTERIORS_LOCK = threading.Lock()
 
 
 def bound_posterior(fit: FieldFit, learned: dict[str, Any] | None) -> DeviationPosterior:
-    """The posterior of the fit's kept touches under :func:`cautious_prior` (its sd is what the
-    bound is built from; the field itself stays the fit's).  Factorised once per fit and
-    prior (kept while the fit lives): every trace of a run asks for the same one."""
-    prior = cautious_prior(fit.posterior.prior, learned)
+    """The posterior of the fit's kept touches under :func:`cautious_prior` (:func:`posterior_under`)."""
+    return posterior_under(fit, cautious_prior(fit.posterior.prior, learned))
+
+
+def posterior_under(fit: FieldFit, prior: DeviationPrior) -> DeviationPosterior:
+    """The posterior of the fit's kept touches under ``prior`` (its sd is what a bound is built
+    from; the field itself stays the fit's).  Factorised once per fit and prior (kept while the
+    fit lives): every trace of a run asks for the same one."""
     if prior == fit.posterior.prior:
         return fit.posterior
     with _BOUND_POSTERIORS_LOCK:
@@ -380,10 +416,13 @@ def trace_bound(fit: FieldFit, path: Any, coverage: float, learned: dict[str, An
     """The bound (mm) on the fitted field's error over the whole trace ``path`` (a
     TracePolyline) under the fitted model: :func:`simultaneous_bound` of its posterior sd
     every wavelength / BOUND_STEP_PER_WAVELENGTH of arc length; with ``learned`` (the
-    learning's JSON form) under :func:`cautious_prior` (the hyperparameters' own uncertainty);
+    learning's JSON form) allowing for the hyperparameters' own uncertainty (:func:`cautious_bounds`;
+    on the ellipse a trace alone finds the worst point by its own bound, a run by its largest);
     ``traces``: how many traces of the run share the confidence (the run's bound, the largest
     trace bound, then holds over every trace together)."""
-    return posterior_trace_bound(bound_posterior(fit, learned), path, coverage, traces)
+    return float(cautious_bounds(lambda p: np.array([posterior_trace_bound(posterior_under(fit, p), path, coverage,
+                                                                           traces)]),
+                                 fit.posterior.prior, learned)[0])
 
 
 def posterior_trace_bound(posterior: DeviationPosterior, path: Any, coverage: float, traces: int = 1) -> float:
@@ -440,7 +479,9 @@ def bound_meets_target(bound_mm: float, target_mm: float) -> bool:
 def run_bounds(check: FieldCheck, paths: Sequence[Any]) -> tuple[float, ...]:
     """Each trace's bound (T,) mm (:func:`trace_bound`) over the run's T traces ``paths``
     (TracePolylines), the T sharing the confidence: the largest is the run's bound."""
-    return posterior_trace_bounds(bound_posterior(check.fit, check.learned), paths, check.coverage)
+    def bounds(prior: DeviationPrior) -> np.ndarray:
+        return np.array(posterior_trace_bounds(posterior_under(check.fit, prior), paths, check.coverage))
+    return tuple(float(u) for u in cautious_bounds(bounds, check.fit.posterior.prior, check.learned))
 
 
 _Check = TypeVar("_Check", bound=FieldCheck)

@@ -1,4 +1,4 @@
-"""The Laplace approximation's sd of parameters at a minimum (pure: numpy).
+"""The Laplace approximation's covariance and sd of parameters at a minimum (pure: numpy).
 
 Units: those of the parameters (the learning's are log amplitude, log wavelength, log sigma).
 """
@@ -10,14 +10,15 @@ from collections.abc import Callable
 import numpy as np
 
 
-def laplace_sd(objective: Callable[[np.ndarray], float], theta: np.ndarray, at: tuple[str, ...],
-               h: float) -> np.ndarray:
-    """sd (p,) of the parameters ``theta`` (p,) at the minimum of ``objective`` (a negative log
-    density) from its inverse Hessian there, by central differences of step ``h``, over the
-    parameters not on a bound (``at`` (p,): "lower" / "upper" / ""); NaN for those on one, and
-    where the Hessian is singular or its inverse has no positive variance."""
+def laplace_covariance(objective: Callable[[np.ndarray], float], theta: np.ndarray, at: tuple[str, ...],
+                       h: float) -> np.ndarray:
+    """Covariance (p, p) of the parameters ``theta`` (p,) at the minimum of ``objective`` (a
+    negative log density): the inverse of its Hessian there, by central differences of step
+    ``h``, over the parameters not on a bound (``at`` (p,): "lower" / "upper" / ""); the rows
+    and columns of those on one are NaN (held fixed), and all of it is NaN where the Hessian
+    of the free parameters is singular."""
     free = [i for i in range(len(theta)) if not at[i]]
-    out = np.full(len(theta), np.nan)
+    out = np.full((len(theta), len(theta)), np.nan)
     if not free:
         return out
     m = len(free)
@@ -38,6 +39,28 @@ def laplace_sd(objective: Callable[[np.ndarray], float], theta: np.ndarray, at: 
         cov = np.linalg.inv(hess)
     except np.linalg.LinAlgError:
         return out
-    diag = np.diag(cov)
-    out[free] = np.where(diag > 0, np.sqrt(np.abs(diag)), np.nan)
+    out[np.ix_(free, free)] = cov
     return out
+
+
+def covariance_sd(cov: np.ndarray) -> np.ndarray:
+    """sd (p,) from a covariance (p, p) of :func:`laplace_covariance`: NaN where the variance
+    is NaN or not positive."""
+    diag = np.diag(cov)
+    with np.errstate(invalid="ignore"):
+        return np.where(diag > 0, np.sqrt(np.abs(diag)), np.nan)
+
+
+def laplace_sd(objective: Callable[[np.ndarray], float], theta: np.ndarray, at: tuple[str, ...],
+               h: float) -> np.ndarray:
+    """sd (p,) of the parameters ``theta`` (p,) at the minimum of ``objective``
+    (:func:`laplace_covariance`'s diagonal): NaN for those on a bound, and where the Hessian is
+    singular or its inverse has no positive variance."""
+    return covariance_sd(laplace_covariance(objective, theta, at, h))
+
+
+def correlation(cov: np.ndarray, i: int, j: int) -> float:
+    """The correlation of parameters ``i`` and ``j`` of a covariance (p, p); NaN where either
+    has no positive variance."""
+    sd = covariance_sd(cov)
+    return float(cov[i, j] / (sd[i] * sd[j])) if np.isfinite(sd[i]) and np.isfinite(sd[j]) else float("nan")

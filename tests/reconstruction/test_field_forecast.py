@@ -70,12 +70,17 @@ def test_the_amplitudes_information_saturates_with_the_parts_area_not_the_touche
     assert many[0] > 0.1 and many[0] > 0.5 * few[0]
     assert many[1] < 0.4 * few[1]
 
-def test_the_forecast_for_the_stations_touched_is_the_bound_they_give(paths):
+@pytest.mark.parametrize("hyper", ["corner", "ellipse"])
+def test_the_forecast_for_the_stations_touched_is_the_bound_they_give(paths, hyper, monkeypatch):
     """Nothing added: the forecast is the run's bound the verdict computes for the same
     stations and learning (the posterior sd does not depend on what the stations read), the
     learning's sd within the expected-information sd of its touches (the forecast's cap: the
-    Laplace sd taken at most that)."""
+    Laplace sd taken at most that); with either allowance for the hyperparameters' uncertainty."""
     from dataclasses import replace
+
+    from app.reconstruction import field_trust
+
+    monkeypatch.setattr(field_trust, "HYPER_BOUND", hyper)
 
     made = as_made(seed=3, amplitude_mm=0.15, min_wavelength_mm=25.0)
     plan = plan_field(paths, DEFAULT)

@@ -276,11 +276,13 @@ def test_a_runs_trace_bounds_factorise_the_bound_posterior_once_and_equal_each_t
     """Every trace of a run asks for the same posterior under the cautious prior: it is
     factorised once per fit, and each trace's bound is the one :func:`trace_bound` gives for a
     fresh copy of the fit (its own factorisation), to rounding: the run's traces are bounded
-    in one batch, whose sums the vector units may order differently from one trace's."""
+    in one batch, whose sums the vector units may order differently from one trace's (the
+    corner's prior: on the ellipse each trace alone finds its own worst point)."""
     from dataclasses import replace
 
     from app.reconstruction import field_trust
 
+    monkeypatch.setattr(field_trust, "HYPER_BOUND", "corner")
     plan = plan_field(paths, DEFAULT)
     dz = toucher(3)(plan.xy)
     check = checked_field(DEFAULT.prior(), plan.sites, np.zeros(plan.count), np.column_stack([plan.xy, dz]),
@@ -373,3 +375,46 @@ def test_the_kept_bound_sites_are_the_fresh_ones_at_every_wavelength(paths):
         assert kept == fresh
         bounds.append(kept)
     assert bounds[0] == bounds[2] and bounds[1] == bounds[4] and bounds[0] != bounds[1]
+
+
+def test_the_ellipse_bound_takes_the_largest_over_its_points_and_the_corner_without_a_correlation(paths, monkeypatch):
+    """HYPER_BOUND "ellipse": the same bounds again without a factorisation; each trace's bound
+    is at least its bound under the learned prior itself (the estimate is one of the points)
+    and is that bound where the hyperparameters' sd are zero; a learning without a correlation
+    (a cached one) is taken at the corner; the
+    run's largest trace's own bound is the run's bound (a trace alone finds the ellipse's worst
+    point by its own bound, the run by its largest); the learning's correlation of log A and log
+    lambda is positive (a longer wavelength with a larger amplitude explains the same touches)."""
+    from dataclasses import replace
+
+    from app.reconstruction import field_trust
+    from app.reconstruction.field_trust import posterior_trace_bounds, posterior_under
+
+    plan = plan_field(paths, DEFAULT)
+    dz = toucher(3)(plan.xy)
+    check = checked_field(DEFAULT.prior(), plan.sites, np.zeros(plan.count), np.column_stack([plan.xy, dz]),
+                          plan.center, plan.trace, plan.s_mm, np.zeros(plan.count, dtype=bool), DEFAULT.coverage,
+                          DEFAULT.target_error_mm)
+    assert check.learned is not None and 0.0 < check.learned["amplitude_wavelength_correlation"] < 1.0
+    monkeypatch.setattr(field_trust, "HYPER_BOUND", "corner")
+    corner = run_bounds(check, paths)
+    at_estimate = np.array(posterior_trace_bounds(check.fit.posterior, paths, DEFAULT.coverage))
+    monkeypatch.setattr(field_trust, "HYPER_BOUND", "ellipse")
+    ellipse = np.array(run_bounds(check, paths))
+    factorised = []
+    real = field_trust.fit_posterior
+    monkeypatch.setattr(field_trust, "fit_posterior", lambda *a, **k: factorised.append(1) or real(*a, **k))
+    assert np.array_equal(run_bounds(check, paths), ellipse) and not factorised   # each point's posterior kept
+    assert (ellipse >= at_estimate).all() and ellipse.max() > at_estimate.max()
+    alone = np.array([trace_bound(check.fit, p, DEFAULT.coverage, check.learned, len(paths)) for p in paths])
+    largest = int(np.argmax(ellipse))
+    assert alone[largest] == pytest.approx(ellipse[largest], rel=1e-12) and (alone >= at_estimate).all()
+    exact = {**check.learned, **{k: {**check.learned[k], "relative_sd": 0.0}
+                                 for k in ("amplitude_mm", "wavelength_mm")}}
+    assert np.array_equal(run_bounds(replace(check, learned=exact), paths), at_estimate)
+    cached = {k: v for k, v in check.learned.items() if k != "amplitude_wavelength_correlation"}
+    assert run_bounds(replace(check, learned=cached), paths) == corner
+    with pytest.raises(ValueError):
+        field_trust.cautious_bounds(lambda p: np.array(posterior_trace_bounds(posterior_under(check.fit, p), paths,
+                                                                              DEFAULT.coverage)),
+                                    check.fit.posterior.prior, check.learned, "box")
