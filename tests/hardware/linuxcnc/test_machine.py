@@ -16,6 +16,9 @@ from hardware.errors import FirmwareError, InvalidConfig, LinkError, MachineStat
 from hardware.machine_state import InterruptedProgram
 from tests.hardware.linuxcnc.conftest import SURFACE_SLOPE_X, SURFACE_Z, wait_until
 
+# how long a program may take to reach a line: the preamble's MDI, the file's open and run take
+# seconds on a loaded host (the programs themselves run a few seconds)
+PROGRAM_START_S = 30.0
 SQUARE = ["G21 G90 G64 P0.001", "G1 X0 Y0 Z5 F6000"] + [
     f"G1 X{x:.1f} Y{y:.1f} F2400" for _ in range(2) for x, y in ((20, 0), (20, 20), (0, 20), (0, 0))]
 
@@ -98,7 +101,7 @@ def test_stream_10000_lines_runs_to_the_last_point(machine, lcnc_xyz):
 def test_pause_holds_and_resume_finishes(machine, lcnc_xyz):
     observer = lcnc_xyz.session()
     thread, outcome = _run_in_thread(machine, SQUARE)
-    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3, timeout_s=PROGRAM_START_S)
     machine.pause()
     assert wait_until(lambda: observer.get("program_status") == "PAUSED")
     held = _joints(observer)
@@ -113,7 +116,7 @@ def test_pause_holds_and_resume_finishes(machine, lcnc_xyz):
 def test_cancel_aborts_the_program(machine, lcnc_xyz):
     observer = lcnc_xyz.session()
     thread, outcome = _run_in_thread(machine, SQUARE)
-    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3, timeout_s=PROGRAM_START_S)
     machine.cancel()
     thread.join(10)
     report = outcome["report"]
@@ -149,7 +152,8 @@ def measure_estops(machine, sim, n: int) -> dict[str, list[float]]:
                 machine.home()
             with sim.watch(names) as watch:
                 thread, outcome = _run_in_thread(machine, SQUARE)
-                assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3)
+                assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 3,
+                                  timeout_s=PROGRAM_START_S)
                 issued = time.monotonic_ns()
                 machine.emergency_stop()
                 figures["call"].append((time.monotonic_ns() - issued) / 1e6)
@@ -252,7 +256,7 @@ def test_every_emergency_stop_reaches_the_controller(machine, lcnc_xyz):
 def test_lost_connection_aborts_and_resumes(machine, lcnc_xyz):
     observer = lcnc_xyz.session()
     thread, outcome = _run_in_thread(machine, SQUARE)
-    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 4)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 4, timeout_s=PROGRAM_START_S)
     machine.link.sever()
     thread.join(10)
     assert isinstance(outcome.get("error"), LinkError)
@@ -292,7 +296,7 @@ def test_a_lost_program_is_recorded_as_the_controller_ran_it_and_resumed_from_th
     square ends where it ends uninterrupted."""
     observer = lcnc_xyz.session()
     thread, outcome = _run_in_thread(machine, SQUARE)
-    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 4)
+    assert wait_until(lambda: machine.state == "printing" and machine.progress[0] >= 4, timeout_s=PROGRAM_START_S)
     machine.pause()
     assert wait_until(lambda: observer.get("program_status") == "PAUSED")
     line = int(float(observer.get("program_line")))  # the file's line in motion (a fresh start: no preamble)
