@@ -18,8 +18,9 @@ keeps it out of its Hessian.
 
 :func:`plan_for_bound` sizes a round by the forecast (the first round after the pilot, and
 a round after a bound over the tolerance): the loosest pointwise target (fewest stations)
-whose planned stations' forecast bound is within the aim, searched by bisection in log
-target.  The forecast only sizes the round: the rounds still end on the bound of the stations
+whose planned stations' forecast bound is within the aim, searched by bracketing in log
+target, each step where the forecast's line in log-log through the bracket meets the aim.
+The forecast only sizes the round: the rounds still end on the bound of the stations
 actually touched, learned again from what they read (:mod:`app.reconstruction.field_sequential`),
 and the verification points decide the verdict.
 
@@ -42,7 +43,8 @@ from app.reconstruction.field_learning import NAMES, LearnedPrior, _Likelihood
 from app.reconstruction.field_trust import cautious_bounds, posterior_trace_bounds
 
 SEARCH_FLOOR = 0.2   # a round's pointwise target is searched down to this fraction of its own
-SEARCH_STEPS = 6     # bisection steps in log target (the first at the proportional guess)
+SEARCH_STEPS = 6     # steps in log target (the first at the proportional guess)
+SEARCH_GUARD = 0.25  # a step lands at least this fraction of the bracket (log target) inside either end
 SEARCH_WITHIN = 0.1  # the search ends once the loosest target within the aim is known to this fraction
 
 
@@ -121,13 +123,30 @@ def forecast_run_bound(learned: LearnedPrior, sites_now: Sites, sites_after: Sit
     return float(cautious_bounds(bounds, learned.prior, forecast).max())
 
 
+def _next_target(lo: float, hi: float, at_lo: float | None, at_hi: float | None, aim: float,
+                 extrapolate: bool) -> float:
+    """The next log target in the bracket (``lo``, ``hi``) (log mm) whose ends' log forecasts
+    are ``at_lo`` / ``at_hi`` (None: not forecast, a bound of the bracket or a plan adding
+    nothing): where the line through them meets the log ``aim``, kept SEARCH_GUARD of the
+    bracket inside either end (it shrinks by at least that much a step); with one end's
+    forecast and ``extrapolate`` (once a search: a plan's count can stay put over a range of
+    targets, its forecast with it), that line at slope 1 through it (the bound scales about
+    as the pointwise target does); else, or that point outside the bracket, the middle."""
+    if at_lo is not None and at_hi is not None and at_hi > at_lo:
+        t = lo + (aim - at_lo) * (hi - lo) / (at_hi - at_lo)
+        return min(max(t, lo + SEARCH_GUARD * (hi - lo)), hi - SEARCH_GUARD * (hi - lo))
+    t = hi + aim - at_hi if at_hi is not None else lo + aim - at_lo if at_lo is not None else lo
+    return t if extrapolate and lo < t < hi else 0.5 * (lo + hi)
+
+
 def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[FieldPlan], float],
                    guess_mm: float, plan_target_mm: float, aim_mm: float,
                    floor: float = SEARCH_FLOOR, otherwise_mm: float | None = None) -> tuple[FieldPlan, float]:
     """(the stations ``plan(pointwise target mm)`` adds, the target) for the loosest target in
     [``floor`` x ``plan_target_mm``, ``plan_target_mm``) whose stations' forecast run's
-    bound ``forecast(plan)`` (mm) is within ``aim_mm``: bisection in log target from
-    ``guess_mm``, at most SEARCH_STEPS plans (the target is taken to be monotone in the
+    bound ``forecast(plan)`` (mm) is within ``aim_mm``: a bracket in log target narrowed from
+    ``guess_mm``, each next target where the forecasts at its ends say the aim lies
+    (:func:`_next_target`), at most SEARCH_STEPS plans (the target is taken to be monotone in the
     stations it buys), ended early once a target within the aim is known within SEARCH_WITHIN
     of the loosest (the bracket that narrow) or its plan has at most one station more than a
     looser target's that misses the aim (stations come whole: none lies between).  None within
@@ -137,15 +156,22 @@ def plan_for_bound(plan: Callable[[float], FieldPlan], forecast: Callable[[Field
     t = min(max(math.log(guess_mm), lo), hi)
     best: tuple[FieldPlan, float] | None = None
     missing = -1   # the most stations a looser target's plan bought without meeting the aim
+    at_lo: float | None = None   # the log forecast at the bracket's ends (None: not forecast)
+    at_hi: float | None = None
+    extrapolated = False   # a step from one end's forecast alone was taken
     for _ in range(SEARCH_STEPS):
         more = plan(math.exp(t))
-        if more.count and forecast(more) <= aim_mm:
-            best, lo = (more, math.exp(t)), t
+        bound = forecast(more) if more.count else None
+        if bound is not None and bound <= aim_mm:
+            best, lo, at_lo = (more, math.exp(t)), t, math.log(bound)
         else:
             hi, missing = t, max(missing, more.count)
+            at_hi = None if bound is None else math.log(bound)
         if best is not None and (hi - lo <= math.log1p(SEARCH_WITHIN) or best[0].count <= missing + 1):
             break
-        t = 0.5 * (lo + hi)
+        one_sided = (at_lo is None) != (at_hi is None)
+        t = _next_target(lo, hi, at_lo, at_hi, math.log(aim_mm), one_sided and not extrapolated)
+        extrapolated |= one_sided
     if best is not None:
         return best
     otherwise = plan_target_mm * floor if otherwise_mm is None else otherwise_mm

@@ -140,9 +140,9 @@ def test_a_forecast_sd_is_at_most_the_expected_information_sd_of_the_design(path
 
 
 def test_the_search_ends_once_no_station_fewer_can_meet_the_aim():
-    """The same plans as above: at target 3.16 (4 stations, bound 5: the aim) the next try,
-    3.98, buys 3 and misses; no plan lies between, the search ends there (3 plans, not
-    SEARCH_STEPS) with the same answer."""
+    """The same plans as above: 2 and 2.5 buy 5 stations (bound 4), 3.54 buys 3 and misses,
+    2.91 buys 4 (bound 5: the aim); no plan lies between 4 and 3 stations, the search ends
+    there (4 plans, not SEARCH_STEPS) with the same answer."""
     from types import SimpleNamespace
 
     from app.reconstruction.field_forecast import SEARCH_STEPS
@@ -153,7 +153,7 @@ def test_the_search_ends_once_no_station_fewer_can_meet_the_aim():
         return SimpleNamespace(count=math.ceil(10.0 / t))
     more, target = plan_for_bound(plan, lambda m: 20.0 / m.count, 2.0, 5.0, 5.0)
     assert more.count == 4 and 2.5 <= target < 10.0 / 3.0
-    assert len(targets) == 3 < SEARCH_STEPS
+    assert len(targets) == 4 < SEARCH_STEPS
 
 
 def test_a_rounds_forecast_computes_the_touched_stations_information_once(paths, monkeypatch):
@@ -227,3 +227,41 @@ def test_a_round_after_a_missed_forecast_tightens_at_most_by_half():
     _, proportional = tighten_round(plan, None, 5.0, 5.0, 20.0)   # no forecast: aim / bound, at most halved
     assert proportional == pytest.approx(2.5)
 
+
+
+def test_a_bound_proportional_to_the_target_is_met_in_one_step_from_a_miss():
+    """The bound a target buys exactly proportional to it (1.5 x the target): from a guess
+    that misses the aim, the step at slope 1 in log-log lands on aim / 1.5 itself, within the
+    aim; the next step (between the two forecasts, kept SEARCH_GUARD of the bracket inside)
+    misses, and the bracket is then within SEARCH_WITHIN: three plans."""
+    from types import SimpleNamespace
+
+    from app.reconstruction.field_forecast import SEARCH_GUARD, SEARCH_WITHIN
+    targets: list[float] = []
+
+    def plan(t: float) -> SimpleNamespace:
+        targets.append(t)
+        return SimpleNamespace(count=math.ceil(100.0 / t), target=t)
+    more, target = plan_for_bound(plan, lambda m: 1.5 * m.target, 5.0, 6.25, 6.0)
+    assert targets[1] == pytest.approx(4.0, rel=1e-12) and target == targets[1] and more.target == target
+    assert targets[2] == pytest.approx(4.0 * (5.0 / 4.0) ** SEARCH_GUARD, rel=1e-12)
+    assert len(targets) == 3 and targets[2] / target <= 1 + SEARCH_WITHIN
+
+
+def test_the_next_target_meets_the_aim_on_a_power_law_and_keeps_inside_the_bracket():
+    """A forecast c t^p (a line in log-log): the step between its two ends' forecasts is the
+    target whose forecast is the aim (to rounding), unless that lies within SEARCH_GUARD of an
+    end; one end's forecast alone gives the slope-1 step when allowed, else the middle."""
+    from app.reconstruction.field_forecast import SEARCH_GUARD, _next_target
+
+    def log_forecast(t: float) -> float:   # 0.8 t^1.7, log target in, log forecast out
+        return math.log(0.8) + 1.7 * t
+    lo, hi = math.log(2.0), math.log(6.0)
+    aim = log_forecast(math.log(3.5))
+    assert _next_target(lo, hi, log_forecast(lo), log_forecast(hi), aim, False) == pytest.approx(math.log(3.5))
+    near = log_forecast(math.log(2.05))
+    assert _next_target(lo, hi, log_forecast(lo), log_forecast(hi), near, False) == \
+        pytest.approx(lo + SEARCH_GUARD * (hi - lo))
+    assert _next_target(lo, hi, None, log_forecast(hi), aim, True) == pytest.approx(hi + aim - log_forecast(hi))
+    assert _next_target(lo, hi, None, log_forecast(hi), aim, False) == pytest.approx(0.5 * (lo + hi))
+    assert _next_target(lo, hi, None, None, aim, True) == pytest.approx(0.5 * (lo + hi))
