@@ -97,6 +97,7 @@ class Sites:
 
 SLOPE_SMOOTHING_MM = 0.25   # Gaussian sigma (arc length) of the slope the placement term uses
 SLOPE_SAMPLE_MM = 0.02
+JINC_BLOCK_ELEMENTS = 2 ** 16   # elements of the kernel made at once (jinc_kernel's temporaries: 512 KiB each)
 _SMOOTH_SLOPES: weakref.WeakKeyDictionary[TracePolyline, BSpline] = weakref.WeakKeyDictionary()
 
 
@@ -175,15 +176,31 @@ def placement_basis(sites: Sites, center: np.ndarray) -> np.ndarray:
     return np.stack([np.ones(len(x)), -hx, -hy, hx * y - hy * x, x, y], axis=1)
 
 
-def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float) -> np.ndarray:
-    """Unit-variance band-limited isotropic kernel (m, k) between points a (m, 2), b (k, 2)."""
-    x = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
-    x *= 2.0 * math.pi / wavelength_mm
-    out: np.ndarray = j1(x)
-    out *= 2.0
-    small = x < 1e-6
-    np.divide(out, x, out=out, where=~small)
-    out[small] = 1.0 - x[small] ** 2 / 8.0
+def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float,
+                block_elements: int = JINC_BLOCK_ELEMENTS) -> np.ndarray:
+    """Unit-variance band-limited isotropic kernel (m, k) between points a (m, 2), b (k, 2) mm.
+
+    Made ``block_elements // k`` rows at a time (at least one) into the result, the
+    distances' temporaries two reused (rows, k) buffers: besides the (m, k) result it holds
+    ~2 x ``block_elements`` float64, not three more (m, k) arrays (on a board's round, ~500
+    stations x ~8000 samples: 32 MB each).  Elementwise: the same numbers for any block."""
+    m, k = len(a), len(b)
+    out = np.empty((m, k))
+    rows = max(1, min(m, block_elements // max(k, 1)))
+    dx, dy = np.empty((rows, k)), np.empty((rows, k))
+    scale = 2.0 * math.pi / wavelength_mm
+    for lo in range(0, m, rows):
+        hi = min(lo + rows, m)
+        x, y, part = dx[:hi - lo], dy[:hi - lo], out[lo:hi]
+        np.subtract(a[lo:hi, None, 0], b[None, :, 0], out=x)
+        np.subtract(a[lo:hi, None, 1], b[None, :, 1], out=y)
+        np.hypot(x, y, out=x)
+        x *= scale
+        j1(x, out=part)
+        part *= 2.0
+        small = x < 1e-6
+        np.divide(part, x, out=part, where=~small)
+        part[small] = 1.0 - x[small] ** 2 / 8.0
     return out
 
 
