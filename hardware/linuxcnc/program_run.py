@@ -29,6 +29,10 @@ __all__ = ["resume_preamble", "run_program", "write_program"]
 # resets the line to 0; a program that ran, however quickly, leaves its last line): waited for
 # up to this long, on a loaded host the task may take seconds to start it
 _START_GRACE_S = 10.0
+# an end is taken when this many status reads in a row say so: under twice the stress load a
+# stream was seen to return while the controller still ran its program (the next MDI refused
+# in AUTO), so one read is not trusted for an end; it costs one poll
+_END_READS = 2
 _PROGRAM_ENDS = ("M2", "M30")
 
 
@@ -77,6 +81,7 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
     started = time.monotonic()
     watch = TaskWatch(link, "the program")
     seen_running = False
+    ended_reads = 0
     executed = start_line
     while True:
         if st.estopped:
@@ -95,11 +100,13 @@ def run_program(machine: LinuxCNCMachine, path: str, start_line: int, total: int
             raise FirmwareError(f"LinuxCNC stopped the program at line {line}: {error}",
                                 command=f"line {line}")
         if status in ("RUNNING", "PAUSED"):
-            seen_running = True
+            seen_running, ended_reads = True, 0
             if line > skip:
                 executed = max(executed, start_line + min(line - 1 - skip, count))
         elif seen_running or line > 0 or time.monotonic() - started > _START_GRACE_S:
-            executed = total
+            ended_reads += 1
+            if ended_reads >= _END_READS:
+                executed = total
         if st.current in ("printing", "paused"):
             st.current = "paused" if status == "PAUSED" else "printing"
         st.progress = (executed, total)

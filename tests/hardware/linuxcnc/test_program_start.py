@@ -79,3 +79,30 @@ def test_a_program_that_starts_between_the_status_and_the_line_read_is_not_taken
     assert (executed, cancelled) == (LINES, False)
     assert time.monotonic() - started >= RUN_S  # it returned after the program ran, not at its start
     server.close()
+
+
+class _GlitchedStatus(_LateTask):
+    """linuxcncrsh whose status reads IDLE once while the program runs (read mid-update on a
+    loaded host): the program itself runs on."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.glitched = False
+
+    def __call__(self, line: str, connection: int) -> str | None:
+        reply = super().__call__(line, connection)
+        if line == "get program_status" and reply == "PROGRAM_STATUS RUNNING" and not self.glitched:
+            self.glitched = True
+            return "PROGRAM_STATUS IDLE"
+        return reply
+
+
+def test_one_read_of_an_ended_program_while_it_runs_does_not_end_the_stream():
+    task = _GlitchedStatus()
+    server = ScriptedRsh(task)
+    machine = printing_machine(server)
+    started = time.monotonic()
+    executed, cancelled = run_program(machine, "/tmp/program.ngc", 0, LINES, None)
+    assert task.glitched and (executed, cancelled) == (LINES, False)
+    assert time.monotonic() - started >= START_S + RUN_S  # after the program's true end
+    server.close()
