@@ -70,15 +70,19 @@ class _StartsBetweenReads(_LateTask):
         return reply
 
 
-def test_a_program_that_starts_between_the_status_and_the_line_read_is_not_taken_for_finished():
-    task = _StartsBetweenReads()
+def _run(task: _LateTask) -> tuple[int, bool, float]:
+    """(executed, cancelled, seconds until it returned) of ``run_program`` against ``task``."""
     server = ScriptedRsh(task)
-    machine = printing_machine(server)
     started = time.monotonic()
-    executed, cancelled = run_program(machine, "/tmp/program.ngc", 0, LINES, None)
-    assert (executed, cancelled) == (LINES, False)
-    assert time.monotonic() - started >= RUN_S  # it returned after the program ran, not at its start
+    executed, cancelled = run_program(printing_machine(server), "/tmp/program.ngc", 0, LINES, None)
     server.close()
+    return executed, cancelled, time.monotonic() - started
+
+
+def test_a_program_that_starts_between_the_status_and_the_line_read_is_not_taken_for_finished():
+    executed, cancelled, seconds = _run(_StartsBetweenReads())
+    assert (executed, cancelled) == (LINES, False)
+    assert seconds >= RUN_S  # it returned after the program ran, not at its start
 
 
 class _GlitchedStatus(_LateTask):
@@ -99,10 +103,6 @@ class _GlitchedStatus(_LateTask):
 
 def test_one_read_of_an_ended_program_while_it_runs_does_not_end_the_stream():
     task = _GlitchedStatus()
-    server = ScriptedRsh(task)
-    machine = printing_machine(server)
-    started = time.monotonic()
-    executed, cancelled = run_program(machine, "/tmp/program.ngc", 0, LINES, None)
+    executed, cancelled, seconds = _run(task)
     assert task.glitched and (executed, cancelled) == (LINES, False)
-    assert time.monotonic() - started >= START_S + RUN_S  # after the program's true end
-    server.close()
+    assert seconds >= START_S + RUN_S  # after the program's true end
