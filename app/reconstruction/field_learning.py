@@ -34,7 +34,7 @@ prior (a touch the first screen missed or wrongly took out is judged again).  Th
 touches are reported (``screened``); the fit and its outlier rejection still see every touch.
 
 Uncertainty: the inverse of the Hessian of -log p in the log parameters at the optimum (the
-Laplace approximation; central differences, :func:`app.reconstruction.laplace.laplace_sd`),
+Laplace approximation; central differences, :func:`app.reconstruction.laplace.laplace_covariance`),
 reported as the sd of each log parameter (a relative sd) — a parameter at its bound says so
 instead — and the correlation of the log amplitude and log wavelength (:mod:`app.reconstruction.hyper_bound`).
 

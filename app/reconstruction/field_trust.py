@@ -290,6 +290,13 @@ BOUND_STEP_PER_WAVELENGTH = 16  # a trace's posterior sd judged every lambda / 1
 HYPER_SD = 2.0  # the bound is taken with the learned amplitude and wavelength this many sd on their unfavourable side
 
 
+def _learned_log_sd(learned: dict[str, Any], name: str) -> float:
+    """The sd of the log of ``learned``'s parameter ``name`` (:meth:`LearnedPrior.as_dict`), NaN
+    where it has none (on a bound)."""
+    rel = learned.get(name, {}).get("relative_sd")
+    return math.nan if rel is None or not math.isfinite(rel) else math.log1p(float(rel))
+
+
 def cautious_prior(prior: DeviationPrior, learned: dict[str, Any] | None) -> DeviationPrior:
     """The fitted ``prior`` with its amplitude HYPER_SD relative sd larger and its wavelength
     HYPER_SD relative sd shorter (the Laplace sd of ``learned``, :meth:`LearnedPrior.as_dict`;
@@ -301,8 +308,8 @@ def cautious_prior(prior: DeviationPrior, learned: dict[str, Any] | None) -> Dev
         return prior
 
     def log_sd(name: str) -> float:
-        rel = learned.get(name, {}).get("relative_sd")
-        return 0.0 if rel is None or not math.isfinite(rel) else math.log1p(float(rel))
+        sd = _learned_log_sd(learned, name)
+        return sd if math.isfinite(sd) else 0.0
     return replace(prior, amplitude_mm=prior.amplitude_mm * math.exp(HYPER_SD * log_sd("amplitude_mm")),
                    wavelength_mm=prior.wavelength_mm * math.exp(-HYPER_SD * log_sd("wavelength_mm")))
 
@@ -323,12 +330,9 @@ def cautious_bounds(bound_of: Callable[[DeviationPrior], np.ndarray], prior: Dev
         raise ValueError(f"unknown method {method!r}: one of {METHODS}")
     if method == "corner" or learned is None or "amplitude_wavelength_correlation" not in learned:
         return np.asarray(bound_of(cautious_prior(prior, learned)), dtype=float)
-
-    def log_sd(name: str) -> float:
-        rel = learned.get(name, {}).get("relative_sd")
-        return math.nan if rel is None or not math.isfinite(rel) else math.log1p(float(rel))
     rho = learned["amplitude_wavelength_correlation"]
-    cov = log_covariance((log_sd("amplitude_mm"), log_sd("wavelength_mm")), math.nan if rho is None else float(rho))
+    cov = log_covariance((_learned_log_sd(learned, "amplitude_mm"), _learned_log_sd(learned, "wavelength_mm")),
+                         math.nan if rho is None else float(rho))
 
     def at(d: np.ndarray) -> np.ndarray:
         return np.asarray(bound_of(replace(prior, amplitude_mm=prior.amplitude_mm * math.exp(d[0]),

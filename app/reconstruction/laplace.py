@@ -51,14 +51,6 @@ def covariance_sd(cov: np.ndarray) -> np.ndarray:
         return np.where(diag > 0, np.sqrt(np.abs(diag)), np.nan)
 
 
-def laplace_sd(objective: Callable[[np.ndarray], float], theta: np.ndarray, at: tuple[str, ...],
-               h: float) -> np.ndarray:
-    """sd (p,) of the parameters ``theta`` (p,) at the minimum of ``objective``
-    (:func:`laplace_covariance`'s diagonal): NaN for those on a bound, and where the Hessian is
-    singular or its inverse has no positive variance."""
-    return covariance_sd(laplace_covariance(objective, theta, at, h))
-
-
 def correlation(cov: np.ndarray, i: int, j: int) -> float:
     """The correlation of parameters ``i`` and ``j`` of a covariance (p, p); NaN where either
     has no positive variance."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.reconstruction.laplace import correlation, laplace_covariance, laplace_sd
+from app.reconstruction.laplace import correlation, covariance_sd, laplace_covariance
 
 
 def test_the_laplace_sd_of_a_gaussian_is_its_sd_and_a_bound_parameter_is_held_fixed():
@@ -15,12 +15,12 @@ def test_the_laplace_sd_of_a_gaussian_is_its_sd_and_a_bound_parameter_is_held_fi
     def objective(t: np.ndarray) -> float:
         return float(0.5 * (t - mu) @ a @ (t - mu))
 
-    free = laplace_sd(objective, mu, ("", "", ""), 1e-3)
+    free = covariance_sd(laplace_covariance(objective, mu, ("", "", ""), 1e-3))
     assert np.allclose(free, np.sqrt(np.diag(np.linalg.inv(a))), rtol=1e-6)
-    held = laplace_sd(objective, mu, ("", "lower", ""), 1e-3)
+    held = covariance_sd(laplace_covariance(objective, mu, ("", "lower", ""), 1e-3))
     sub = np.linalg.inv(a[np.ix_([0, 2], [0, 2])])
     assert np.isnan(held[1]) and np.allclose(held[[0, 2]], np.sqrt(np.diag(sub)), rtol=1e-6)
-    assert np.isnan(laplace_sd(objective, mu, ("upper", "lower", "upper"), 1e-3)).all()
+    assert np.isnan(covariance_sd(laplace_covariance(objective, mu, ("upper", "lower", "upper"), 1e-3))).all()
 
 
 def test_the_laplace_covariance_of_a_gaussian_is_its_inverse_precision_and_a_bound_parameter_is_held_fixed():
