@@ -66,10 +66,11 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.lapack import dpotri
 from scipy.optimize import minimize, minimize_scalar
-from scipy.special import chdtri, j0, j1, ndtri
+from scipy.special import chdtri, ndtri
 
 from app.domain.errors import InvalidInput
 from app.geometry.tolerance import COVARIANCE_JITTER_REL
+from app.probing import bessel_table
 from app.probing.deviation_prior import DeviationPrior, Sites, placement_basis
 from app.reconstruction.laplace import correlation, covariance_sd, laplace_covariance
 
@@ -234,17 +235,16 @@ class _Likelihood:
         """(jinc, d jinc / d log wavelength (None without ``gradient``)) on the upper triangle
         (n (n + 1) / 2,) at theta.  d jinc / d log wavelength = x jinc'(x) = 2 J2(x), and
         J2(x) = 2 J1(x) / x - J0(x) = jinc(x) - J0(x) (the Bessel recurrence): one J0 beside
-        the J1 jinc needs, not a general-order J2 (~20x the cost of J0); absolute error a few
-        ulp, below x = 1e-6 the series.  The last KERNELS_KEPT wavelengths' are kept (the
-        Laplace sd's differences step the other parameters at one wavelength): read-only."""
+        the J1 jinc needs, not a general-order J2 (~20x the cost of J0); both from their
+        tables (:mod:`app.probing.bessel_table`, absolute error ~1e-14).  The last
+        KERNELS_KEPT wavelengths' are kept (the Laplace sd's differences step the other
+        parameters at one wavelength): read-only."""
         kept = self._kernels.get(float(theta[1]))
         if kept is not None and (kept[1] is not None or not gradient):
             return kept[0], kept[1] if gradient else None
         x = self.r_upper * (2.0 * math.pi / math.exp(theta[1]))
-        small = x < 1e-6
-        safe = np.where(small, 1.0, x)
-        jinc = np.where(small, 1.0 - x ** 2 / 8.0, 2.0 * j1(safe) / safe)
-        djinc = np.where(small, x ** 2 / 4.0, 2.0 * (jinc - j0(safe))) if gradient else None
+        jinc = bessel_table.jinc(x)
+        djinc = 2.0 * (jinc - bessel_table.bessel_j0(x)) if gradient else None
         for a in (jinc, djinc):
             if a is not None:
                 a.setflags(write=False)
