@@ -33,12 +33,12 @@ import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.ndimage import gaussian_filter1d
-from scipy.special import j1
 
 from app.domain.checks import require_non_negative, require_positive
 from app.domain.errors import InvalidInput
 from app.geometry.tolerance import COVARIANCE_JITTER_REL, DEGENERATE_LENGTH_MM
 from app.geometry.traces import TracePolyline
+from app.probing.bessel_table import jinc
 
 
 class PriorError(InvalidInput):
@@ -178,12 +178,15 @@ def placement_basis(sites: Sites, center: np.ndarray) -> np.ndarray:
 
 def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float,
                 block_elements: int = JINC_BLOCK_ELEMENTS) -> np.ndarray:
-    """Unit-variance band-limited isotropic kernel (m, k) between points a (m, 2), b (k, 2) mm.
+    """Unit-variance band-limited isotropic kernel (m, k) between points a (m, 2), b (k, 2) mm:
+    jinc(x) = 2 J1(x) / x, x = 2 pi |a - b| / wavelength, from its table
+    (:func:`app.probing.bessel_table.jinc`: within 1e-14 of scipy's j1).
 
     Made ``block_elements // k`` rows at a time (at least one) into the result, the
     distances' temporaries two reused (rows, k) buffers: besides the (m, k) result it holds
-    ~2 x ``block_elements`` float64, not three more (m, k) arrays (on a board's round, ~500
-    stations x ~8000 samples: 32 MB each).  Elementwise: the same numbers for any block."""
+    ~2 x ``block_elements`` float64 (and the table's few temporaries of a block), not three
+    more (m, k) arrays (on a board's round, ~500 stations x ~8000 samples: 32 MB each).
+    Elementwise: the same numbers for any block."""
     m, k = len(a), len(b)
     out = np.empty((m, k))
     rows = max(1, min(m, block_elements // max(k, 1)))
@@ -191,16 +194,15 @@ def jinc_kernel(a: np.ndarray, b: np.ndarray, wavelength_mm: float,
     scale = 2.0 * math.pi / wavelength_mm
     for lo in range(0, m, rows):
         hi = min(lo + rows, m)
-        x, y, part = dx[:hi - lo], dy[:hi - lo], out[lo:hi]
+        x, y = dx[:hi - lo], dy[:hi - lo]
         np.subtract(a[lo:hi, None, 0], b[None, :, 0], out=x)
         np.subtract(a[lo:hi, None, 1], b[None, :, 1], out=y)
-        np.hypot(x, y, out=x)
+        x *= x
+        y *= y
+        x += y
+        np.sqrt(x, out=x)
         x *= scale
-        j1(x, out=part)
-        part *= 2.0
-        small = x < 1e-6
-        np.divide(part, x, out=part, where=~small)
-        part[small] = 1.0 - x[small] ** 2 / 8.0
+        jinc(x, out=out[lo:hi])
     return out
 
 

@@ -48,8 +48,7 @@ def verification_indices(prior: DeviationPrior, stations: Sites, samples: Sites,
     greedy = GreedyField(prior, Sites(np.concatenate([stations.xy, samples.xy]),
                                       np.concatenate([stations.grad, samples.grad])), center)
     n = len(stations.xy)
-    for j in range(n):
-        greedy.add(j)
+    greedy.add_many(np.arange(n))
     picked: list[int] = []
     for _ in range(min(count, len(samples.xy))):
         var = greedy.var[n:].copy()

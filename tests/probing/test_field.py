@@ -65,6 +65,30 @@ def test_the_greedys_room_for_more_stations_is_at_most_half_again_and_extending_
     assert len(greedy.chosen) == 61 and 61 <= len(greedy.rows) <= 91
 
 
+def test_stations_added_at_once_are_the_stations_added_one_at_a_time(nine):
+    # from no station and from some, a re-touch (the same site twice) among them; R, L and the
+    # variance to rounding, against the one-at-a-time factor and a fresh Cholesky factorisation
+    region = field_region(nine[:4], 15.0)
+    sites = region.targets.sites
+    js = np.random.default_rng(4).choice(len(sites.xy), 70, replace=False)
+    js[9] = js[2]
+    one, block = GreedyField(PRIOR, sites, region.center), GreedyField(PRIOR, sites, region.center)
+    for j in js:
+        one.add(int(j))
+    block.add_many(js[:30])
+    block.add_many(js[30:])
+    block.add_many(np.zeros(0, dtype=int))
+    assert block.chosen == one.chosen and len(block.rows) == 70 and block.low.shape == (70, 70)
+    assert np.allclose(block.rows, one.rows[:70], atol=1e-12, rtol=1e-9)
+    assert np.allclose(block.low, one.low[:70, :70], atol=1e-12, rtol=1e-9)
+    assert np.allclose(block.var, one.var, atol=1e-14)
+    stations = sites.take(js)
+    k = prior_covariance(PRIOR, stations, stations, region.center) + block.jitter * np.eye(70)
+    assert np.allclose(block.low @ block.low.T, k, atol=1e-12, rtol=1e-9)
+    block.add(int(js[40]) + 1)   # one more after: room made as after the one-at-a-time adds
+    assert len(block.chosen) == 71 and 71 <= len(block.rows) <= 106
+
+
 def test_the_automatic_count_meets_the_target_and_no_station_can_be_dropped(nine):
     plan = plan_field(nine, PARAMS)
     target_sd = PARAMS.target_error_mm / PARAMS.coverage
