@@ -11,12 +11,16 @@ Those points are where the *model* is least certain; a structure the smooth fiel
 represent (a step, a scratch) is elsewhere: where the touches disagree with each other.
 When the touches so far are known (the last round of a sequential plan), :func:`gap_points`
 adds points in the gaps along the trace on either side of the stations that the others
-predict worst (largest standardised leave-one-out residual): a step between stations bends
-the smooth fit there, and a touch in the gap reads the step against the fit (far outside
-its predictive band), where a touch far from it reads nothing unusual.  A gap point sits
-midway between two stations, where the posterior is uncertain too: it counts among the
-verification points, and the least certain points fill the rest (at least MIN_LEAST_CERTAIN
-of them), chosen as if the gap points were touched.
+predict worst (the residual of each station's spot left out, re-touches and all:
+:mod:`app.reconstruction.field_surprise`): a step between stations bends the smooth fit
+there, and a touch in the gap reads the step against the fit (far outside its predictive
+band), where a touch far from it reads nothing unusual.  The fit passes through the
+surprising station and bends towards the others over the gap, so a step at or beside the
+station is off the fit by nearly its whole height close to the station and by about half at
+the gap's middle: a gap point lies GAP_FRACTION of the gap from its station.  It sits between
+two stations, where the posterior is uncertain too: it counts among the verification points,
+and the least certain points fill the rest (at least MIN_LEAST_CERTAIN of them), chosen as
+if the gap points were touched.
 
 Pure: numpy/scipy.  Units: mm.
 """
@@ -37,6 +41,7 @@ GAP_STATIONS = 2      # the stations whose gaps are verified (the worst predicte
 GAP_RESIDUAL_STATIONS = 2  # ... and the worst predicted in mm (where the leave-one-out sd is large: a trace's end)
 MIN_GAP_MM = 0.5      # a neighbour closer than this along the trace is the same spot (a re-touch)
 MIN_LEAST_CERTAIN = 2  # least-certain verification points beside the gap points, however many those are
+GAP_FRACTION = 0.25   # a gap point lies this fraction of the gap from its surprising station
 
 
 def verification_indices(prior: DeviationPrior, stations: Sites, samples: Sites, center: np.ndarray,
@@ -65,30 +70,32 @@ def gap_points(paths: Sequence[TracePolyline], trace: np.ndarray, s_mm: np.ndarr
     """Points (<= 2 x (``stations`` + ``by_residual``)) in the gaps beside the most surprising stations.
 
     trace (n,) / s_mm (n,): each fitted station's trace index and arc length (-1 / NaN off
-    the traces); loo_z (n,): its standardised leave-one-out residual under the fitted prior;
+    the traces); loo_z (n,): its standardised leave-one-out residual under the fitted prior
+    (its spot's: :func:`app.reconstruction.field_surprise.spot_residuals`);
     loo_residual_mm (n,): the same residual in mm (optional).  For the ``stations`` on-trace
     stations of largest |z| and the ``by_residual`` others of largest |residual| (a station
     the others predict far off in mm though within their sd: where the leave-one-out sd is
     large, at a trace's end, a step or an edge at the station itself bends the fit over the
-    gap beside it unseen by the z), the midpoint (in arc length) of the gap to the next
-    station along the same trace on each side (none past a trace's end; neighbours within
-    MIN_GAP_MM are the same spot).  Sorted by (trace, s), duplicates dropped."""
+    gap beside it unseen by the z), the point GAP_FRACTION (in arc length) of the way from it
+    to the next station along the same trace on each side (none past a trace's end;
+    neighbours within MIN_GAP_MM are the same spot, and a spot is picked once: :func:`worst_spots`).
+    Sorted by (trace, s), duplicates dropped."""
     trace = np.asarray(trace, dtype=int)
     s_mm = np.asarray(s_mm, dtype=float)
     on = np.flatnonzero(trace >= 0)
-    worst = list(on[np.argsort(-np.abs(np.asarray(loo_z, dtype=float)[on]), kind="stable")][:stations])
+    worst = worst_spots(trace, s_mm, on[np.argsort(-np.abs(np.asarray(loo_z, dtype=float)[on]), kind="stable")],
+                        stations, [])
     if loo_residual_mm is not None and by_residual > 0:
-        rest = np.array([i for i in on if i not in set(worst)], dtype=int)
-        order = np.argsort(-np.abs(np.asarray(loo_residual_mm, dtype=float)[rest]), kind="stable")
-        worst += list(rest[order][:by_residual])
+        order = on[np.argsort(-np.abs(np.asarray(loo_residual_mm, dtype=float)[on]), kind="stable")]
+        worst = worst_spots(trace, s_mm, order, by_residual, worst)
     picked: set[tuple[int, float]] = set()
     for i in worst:
         along = s_mm[trace == trace[i]]
         below, above = along[along < s_mm[i] - MIN_GAP_MM], along[along > s_mm[i] + MIN_GAP_MM]
         if len(below):
-            picked.add((int(trace[i]), round(float(below.max() + s_mm[i]) / 2, 6)))
+            picked.add((int(trace[i]), round(float(s_mm[i] + GAP_FRACTION * (below.max() - s_mm[i])), 6)))
         if len(above):
-            picked.add((int(trace[i]), round(float(above.min() + s_mm[i]) / 2, 6)))
+            picked.add((int(trace[i]), round(float(s_mm[i] + GAP_FRACTION * (above.min() - s_mm[i])), 6)))
     rows = sorted(picked)
     xy, grad, z = [], [], []
     for t, s in rows:
@@ -100,6 +107,19 @@ def gap_points(paths: Sequence[TracePolyline], trace: np.ndarray, s_mm: np.ndarr
         return TracePoints(Sites(np.zeros((0, 2)), np.zeros((0, 2))), np.zeros(0, dtype=int), np.zeros(0), np.zeros(0))
     return TracePoints(Sites(np.concatenate(xy), np.concatenate(grad)), np.array([t for t, _ in rows], dtype=int),
                        np.array([s for _, s in rows]), np.concatenate(z))
+
+
+def worst_spots(trace: np.ndarray, s_mm: np.ndarray, order: np.ndarray, count: int, chosen: list[int]) -> list[int]:
+    """``chosen`` and ``count`` more stations, the first in ``order`` (station indices, worst
+    first) whose spot (the same trace within MIN_GAP_MM of arc length: its re-touches) no
+    chosen station holds: a spot touched three times is one surprise, not three."""
+    out = list(chosen)
+    for i in order:
+        if len(out) == len(chosen) + count:
+            break
+        if not any(trace[j] == trace[i] and abs(s_mm[j] - s_mm[i]) <= MIN_GAP_MM for j in out):
+            out.append(int(i))
+    return out
 
 
 def with_verification(plan: FieldPlan, nominals: Sequence[object], prior: DeviationPrior, count: int) -> FieldPlan:

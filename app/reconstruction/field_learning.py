@@ -10,48 +10,43 @@ likelihood of a zero-mean Gaussian process with covariance
 
     log p(dz | theta) = -1/2 dz' K^-1 dz - 1/2 log det K - n/2 log 2 pi
 
-is maximised over theta = (log rms, log wavelength, log sigma) with L-BFGS-B inside bounds
-around the user's values (the placement sd's are kept at the user's tolerances: a handful of
-rigid terms is not identifiable from a few dozen touches beside the field).  The likelihood
-is multimodal in the wavelength (a short-wavelength model can explain any data as noise), so
-the search starts from a coarse grid of wavelengths and refines the best.
+is maximised over theta = (log rms, log wavelength, log sigma) with L-BFGS-B inside bounds around the user's
+values (the placement sd's are kept at the user's tolerances: a handful of rigid terms is not identifiable from
+a few dozen touches beside the field).  The likelihood is multimodal in the wavelength (a short-wavelength model
+can explain any data as noise), so the search starts from a coarse grid of wavelengths and refines the best.
 
-``method="reml"`` maximises the restricted likelihood instead: the offset and the two tilts
-are fixed effects with a flat prior, integrated out (the likelihood of the touches' contrasts
-those terms cannot change), the other placement terms kept at their tolerances
-(:class:`_Likelihood`).  ML treats the offset and tilts as known to their tolerances; REML
-does not lean on those tolerances.  The bench ``tests/bench/test_bench_learning.py`` measures both.
+``method="reml"`` maximises the restricted likelihood instead: the offset and the two tilts are fixed effects
+with a flat prior, integrated out (the likelihood of the touches' contrasts those terms cannot change), the
+other placement terms kept at their tolerances (:class:`_Likelihood`).  ML treats the offset and tilts as known
+to their tolerances; REML does not lean on those tolerances.  The bench ``tests/bench/test_bench_learning.py``
+measures both.
 
-Gross outliers (a chip or dust under the stylus, a bounced touch) would be explained by a
-short wavelength or a large noise: one 0.3 mm spike can halve the learned wavelength.  So
-before the fit, :func:`screen_outliers` takes out the touches their own re-touches contradict
-(a spot touched again reads the part where the first touch read the chip), then those whose
-standardised
-leave-one-out residual is more than SCREEN_K robust sd (1.4826 x the median |z|, at least 1)
-of all of them and more than SCREEN_FLOOR_MM, the least consistent first, under the user's
-prior; the prior is learned from the rest, and the screen is run again under the learned
-prior (a touch the first screen missed or wrongly took out is judged again).  The screened
-touches are reported (``screened``); the fit and its outlier rejection still see every touch.
+Gross outliers (a chip or dust under the stylus, a bounced touch) would be explained by a short wavelength or a
+large noise: one 0.3 mm spike can halve the learned wavelength.  So before the fit, :func:`screen_outliers`
+takes out the touches their own re-touches contradict (a spot touched again reads the part where the first touch
+read the chip), then those whose standardised leave-one-out residual is more than SCREEN_K robust sd (1.4826 x
+the median |z|, at least 1) of all of them and more than SCREEN_FLOOR_MM, the least consistent first, under the
+user's prior; the prior is learned from the rest, and the screen is run again under the learned prior (a touch
+the first screen missed or wrongly took out is judged again).  The screened touches are reported (``screened``);
+the fit and its outlier rejection still see every touch.
 
-Uncertainty: the inverse of the Hessian of -log p in the log parameters at the optimum (the
-Laplace approximation; central differences, :func:`app.reconstruction.laplace.laplace_covariance`),
-reported as the sd of each log parameter (a relative sd) — a parameter at its bound says so
-instead — and the correlation of the log amplitude and log wavelength (:mod:`app.reconstruction.hyper_bound`).
+Uncertainty: the inverse of the Hessian of -log p in the log parameters at the optimum (the Laplace
+approximation; central differences, :func:`app.reconstruction.laplace.laplace_covariance`), reported as the sd
+of each log parameter (a relative sd) — a parameter at its bound says so instead — and the correlation of the
+log amplitude and log wavelength (:mod:`app.reconstruction.hyper_bound`).
 
-Fit check: the exact leave-one-out residuals of the fitted GP, r_i = (K^-1 dz)_i / (K^-1)_ii
-with sd_i = (K^-1)_ii^-1/2, standardised z_i = r_i / sd_i (N(0, 1) each if the model holds).
-The misfit statistic is ``mean(z^2)`` (1 for a model that holds); the model **misfits** when the
-largest |z| exceeds the two-sided Bonferroni quantile at ``MISFIT_ALPHA`` over the n touches, when
-``mean(z^2)`` exceeds its chi-square quantile at the same level, or when the fitted wavelength
-sits on its lower bound (the field is shorter than the shortest wavelength allowed), or when the
-learned noise exceeds NOISE_MISFIT x the user's (the probe's repeatability): what the stations
-cannot resolve shows up as noise.  A field on the wavelength's lower bound is a misfit only when
-it is likelier than noise: the likelihood ratio against the same model with the field at its
-smallest amplitude and the noise refitted passes its level-``MISFIT_ALPHA`` quantile (the
-50:50 mixture of chi-square 0 and 1 of a variance on its bound).  Below that the short field
-stands for no more than noise (a part with no field beyond the rigid terms, touches a little
-noisier than the stated repeatability: the readout's rounding), the wavelength is not
-determined, and the touches are judged by the noise rule with the refitted noise.
+Fit check: the exact leave-one-out residuals of the fitted GP, r_i = (K^-1 dz)_i / (K^-1)_ii with sd_i =
+(K^-1)_ii^-1/2, standardised z_i = r_i / sd_i (N(0, 1) each if the model holds). The misfit statistic is
+``mean(z^2)`` (1 for a model that holds); the model **misfits** when the largest |z| exceeds the two-sided
+Bonferroni quantile at ``MISFIT_ALPHA`` over the n touches, when ``mean(z^2)`` exceeds its chi-square quantile
+at the same level, or when the fitted wavelength sits on its lower bound (the field is shorter than the shortest
+wavelength allowed), or when the learned noise exceeds NOISE_MISFIT x the user's (the probe's repeatability):
+what the stations cannot resolve shows up as noise.  A field on the wavelength's lower bound is a misfit only
+when it is likelier than noise: the likelihood ratio against the same model with the field at its smallest
+amplitude and the noise refitted passes its level-``MISFIT_ALPHA`` quantile (the 50:50 mixture of chi-square 0
+and 1 of a variance on its bound).  Below that the short field stands for no more than noise (a part with no
+field beyond the rigid terms, touches a little noisier than the stated repeatability: the readout's rounding),
+the wavelength is not determined, and the touches are judged by the noise rule with the refitted noise.
 
 Pure: numpy/scipy.  Units: mm.
 """
@@ -352,10 +347,15 @@ def log_marginal_likelihood(prior: DeviationPrior, sites: Sites, dz: np.ndarray,
     return -_Likelihood(prior, sites, np.asarray(dz, dtype=float), center, method).value(_theta(prior))
 
 
+def touch_precision(prior: DeviationPrior, sites: Sites, center: np.ndarray) -> np.ndarray:
+    """K^-1 (n, n) 1/mm^2 of the touches at ``sites`` (n,) under ``prior`` (field, placement terms, noise)."""
+    return np.linalg.inv(_Likelihood(prior, sites, np.zeros(len(sites.xy)), center).covariance(_theta(prior)))
+
+
 def loo_check(prior: DeviationPrior, sites: Sites, dz: np.ndarray, center: np.ndarray,
               alpha: float = MISFIT_ALPHA) -> LooCheck:
     """Standardised LOO residuals of the GP ``prior`` on the touches and the misfit test."""
-    q = np.linalg.inv(_Likelihood(prior, sites, dz, center).covariance(_theta(prior)))
+    q = touch_precision(prior, sites, center)
     d = np.diag(q)
     resid = (q @ dz) / d
     sd = 1.0 / np.sqrt(d)

@@ -26,8 +26,9 @@ it was designed for.  When the prior is uncertain:
    ``budget`` touches (the result says which); one round's decision is :func:`decide_round`,
    the same for the loop here and for the ``probe_plan`` job's round between probe runs;
 6. **verify**: ``verify_count`` points where the fitted posterior is least certain, and the
-   gaps beside the stations the others predict worst (where a step or another structure the
-   smooth field cannot represent shows: :func:`app.probing.field_verify.gap_points`),
+   gaps beside the stations the others predict worst, each with its spot left out
+   (:mod:`app.reconstruction.field_surprise`: where a step or another structure the smooth
+   field cannot represent shows: :func:`app.probing.field_verify.gap_points`),
    touched last and never fitted (:mod:`app.reconstruction.field_trust`).
 
 ``measure(xy (m, 2)) -> dz (m,)`` touches points and returns the measured deviation (mm):
@@ -57,7 +58,8 @@ from app.reconstruction.field_forecast import (
     learned_free,
     plan_for_bound,
 )
-from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior, loo_check
+from app.reconstruction.field_learning import MIN_TOUCHES, NOISE_MISFIT, LearnedPrior, learn_prior
+from app.reconstruction.field_surprise import surprise
 from app.reconstruction.field_trust import (
     TARGET_SLACK,
     FieldCheck,
@@ -340,13 +342,10 @@ def plan_sequential(nominals: Sequence[object], params: PlanParams,
         dz = np.concatenate([dz, np.asarray(measure(more.xy), dtype=float)])
         learned = None
     prior_now = current.prior()
-    surprise = None
-    if len(dz) >= MIN_TOUCHES:
-        loo = loo_check(prior_now, sites, dz, center)
-        surprise = (trace, s, loo.z, loo.residual_mm)
+    surprised = surprise(prior_now, sites, dz, center, trace, s) if len(dz) >= MIN_TOUCHES else None
     empty = replace(plan, xy=plan.xy[:0], z=plan.z[:0], grad=plan.grad[:0], trace=plan.trace[:0],
                     s_mm=plan.s_mm[:0], order=plan.order[:0])
-    points = with_sequential_verification(empty, sites, paths, prior_now, verify_count, surprise)
+    points = with_sequential_verification(empty, sites, paths, prior_now, verify_count, surprised)
     v_dz = np.asarray(measure(points.xy), dtype=float) if points.count else np.zeros(0)
     all_sites = Sites(np.concatenate([sites.xy, points.xy]), np.concatenate([sites.grad, points.grad]))
     n = len(sites.xy)

@@ -155,17 +155,21 @@ def test_a_step_in_the_part_is_not_verified_and_a_gap_point_reads_it(paths):
     assert not v.within.all() or check.bound_mm > DEFAULT.target_error_mm * TARGET_SLACK  # the step: off, or as noise
 
 
-def test_gap_points_lie_midway_to_the_neighbours_of_the_worst_predicted_stations():
+def test_gap_points_lie_a_quarter_of_the_way_to_the_neighbours_of_the_worst_predicted_stations():
     from app.geometry.traces import TracePolyline
-    from app.probing.field_verify import gap_points
+    from app.probing.field_verify import GAP_FRACTION, gap_points
 
     line = TracePolyline.from_points(np.column_stack([np.linspace(0, 20, 41), np.full(41, 5.0), np.zeros(41)]))
     trace = np.array([0, 0, 0, 0, 0, -1])
     s = np.array([0.0, 5.0, 10.0, 10.2, 20.0, np.nan])      # 10.2: a re-touch of the station at 10 (same spot)
     z = np.array([0.1, 0.5, -3.0, 0.2, 2.0, 9.0])            # off-trace station (z 9) has no gap along a trace
     points = gap_points([line], trace, s, z, stations=2)       # worst: s 10 (both sides), s 20 (the end: one side)
-    assert np.allclose(points.s, [7.5, 15.0, 15.1])
-    assert np.allclose(points.sites.xy, [[7.5, 5.0], [15.0, 5.0], [15.1, 5.0]])
+    assert GAP_FRACTION == 0.25
+    assert np.allclose(points.s, [8.75, 12.5, 17.55])
+    assert np.allclose(points.sites.xy, [[8.75, 5.0], [12.5, 5.0], [17.55, 5.0]])
+    # a spot touched again is one surprise: its re-touch (s 10.2, z next worst) gives way to s 20
+    z_spot = np.array([0.1, 0.5, -3.0, 2.5, 2.0, 9.0])
+    assert np.allclose(gap_points([line], trace, s, z_spot, stations=2).s, [8.75, 12.5, 17.55])
     assert (points.trace == 0).all() and len(gap_points([line], trace, s, z, stations=0)) == 0
 
 
@@ -181,11 +185,11 @@ def test_gap_points_also_lie_beside_the_station_the_others_predict_worst_in_mm()
     s = np.array([0.0, 5.0, 10.0, 15.0, 20.0])
     z = np.array([0.5, -3.0, 0.1, 0.2, 0.9])
     residual = np.array([0.004, 0.003, 0.001, 0.002, 0.012])  # the end at s 20: small z, largest in mm
-    assert np.allclose(gap_points([line], trace, s, z, stations=1).s, [2.5, 7.5])
-    assert np.allclose(gap_points([line], trace, s, z, residual, stations=1, by_residual=1).s, [2.5, 7.5, 17.5])
+    assert np.allclose(gap_points([line], trace, s, z, stations=1).s, [3.75, 6.25])
+    assert np.allclose(gap_points([line], trace, s, z, residual, stations=1, by_residual=1).s, [3.75, 6.25, 18.75])
     # the station already picked by its z is not picked again: the next worst in mm is
     assert np.allclose(gap_points([line], trace, s, z, residual * [1, 9, 1, 1, 1], stations=1, by_residual=1).s,
-                       [2.5, 7.5, 17.5])
+                       [3.75, 6.25, 18.75])
 
 
 def test_sequential_verification_counts_the_gap_points_among_its_points(paths):

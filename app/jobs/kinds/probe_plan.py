@@ -42,6 +42,7 @@ from app.probing.program import mesh_station_normals
 from app.reconstruction.field import fit_field
 from app.reconstruction.field_learning import MIN_TOUCHES, learn_prior
 from app.reconstruction.field_sequential import decide_round, pilot_params, round_params
+from app.reconstruction.field_surprise import surprise
 from app.runtime.context import JobContext
 from app.runtime.reads import JobReads
 from app.runtime.registry import job_kind
@@ -264,10 +265,10 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
         more = replace(more, xy=more.xy[:0], z=more.z[:0], grad=more.grad[:0], trace=more.trace[:0],
                        s_mm=more.s_mm[:0], order=more.order[:0])
         fitted = np.setdiff1d(np.arange(len(dz)), learned.screened)  # the learning's LOO: its unscreened touches
-        surprise = (field.trace[keep][fitted], field.s_mm[keep][fitted], learned.loo.z,
-                    learned.loo.residual_mm)  # the gaps beside the worst predicted
+        surprised = surprise(learned.prior, sites.take(fitted), dz[fitted], field.center, field.trace[keep][fitted],
+                             field.s_mm[keep][fitted])  # the gaps beside the worst predicted
         more = with_sequential_verification(more, sites, nominals, learned_params.prior(), params.verify_count,
-                                            surprise)
+                                            surprised)
     return more, learned_params, {
         "round": int(plan_job.result.get("field", {}).get("sequential", {}).get("round", 0)) + 1,
         "final": final, "stopped": stopped, "plan_target_mm": plan_target,
