@@ -21,17 +21,17 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/conforma serve
 
-# three workers on the two cores: tests that share one real resource of the host (LinuxCNC,
+# four workers on the two cores: tests that share one real resource of the host (LinuxCNC,
 # Redis, the browser) stay on one worker per group (tests/conftest.py, SHARED_RESOURCE_GROUPS;
 # as root the LinuxCNC modules are two groups, each with a simulator of its own), and a LinuxCNC
-# group's worker mostly waits on its simulator's real time, so the third worker keeps both
-# cores busy (docs/measured.md, "The default suite").  Bytecode is written even
-# where the environment sets PYTHONDONTWRITEBYTECODE: else every worker re-compiles the
+# group's worker mostly waits on its simulator's real time, so two more workers keep both cores
+# busy (idle 4 % of the run; 0.88x the wall time of three workers, docs/measured.md, "The default
+# suite").  Bytecode is written even where the environment sets PYTHONDONTWRITEBYTECODE: else every worker re-compiles the
 # sources and pytest re-rewrites the asserts of ~280 plugin modules (schemathesis, hypothesis)
 # at each start: 30 CPU s of a worker's collection against 15 with the caches
 # (`/usr/bin/time python -m pytest --collect-only -q`), and every server a test starts
 # compiles the service again
-XDIST := -n 3 --dist loadgroup
+XDIST := -n 4 --dist loadgroup
 test: $(STAMP)
 	env -u PYTHONDONTWRITEBYTECODE $(PYTEST) $(XDIST)
 

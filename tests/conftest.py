@@ -91,7 +91,7 @@ def client(settings) -> Iterator:  # type: ignore[no-untyped-def]
         yield test_client
 
 
-# ---- running on both cores (pytest-xdist, `make test` runs `-n 3 --dist loadgroup`) -------
+# ---- running on both cores (pytest-xdist, `make test` runs `-n 4 --dist loadgroup`) -------
 # Tests that share one real resource of the host run on ONE worker, one after another:
 # the LinuxCNC simulator (one HAL / linuxcncrsh per host), the Redis database and the
 # PostgreSQL databases of the scale-out tests (keys and databases deleted per fixture), and

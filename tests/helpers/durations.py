@@ -1,10 +1,10 @@
 """Sum a ``--durations-log`` file: where the suite's time goes, and what bounds its wall time.
 
-``python -m pytest -n 3 --dist loadgroup --durations-log=/tmp/d.tsv`` writes one line per test
+``python -m pytest -n 4 --dist loadgroup --durations-log=/tmp/d.tsv`` writes one line per test
 phase (worker, node id, phase, seconds, outcome; ``tests/conftest.py``);
 ``python -m tests.helpers.durations /tmp/d.tsv [--top N]`` prints the totals per phase, per
 worker, per ``SHARED_RESOURCE_GROUPS`` group and per file, the slowest tests, and the estimated
-wall time of ``make test`` (three workers on two cores): the larger of the longest group (a
+wall time of ``make test`` (four workers on two cores): the larger of the longest group (a
 group runs on one worker, one test after another) and the durations outside the waiting groups
 (the LinuxCNC groups, which mostly wait on their simulator's real time) over the two cores.
 Compare two runs file by file: on a shared box both runs' durations swing with the load, so
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from tests.conftest import shared_resource_group
 
-CORES = 2  # `make test`: -n 3, the LinuxCNC group's worker mostly waiting
+CORES = 2  # `make test`: -n 4, the LinuxCNC groups' workers mostly waiting
 WAITING_GROUPS = "linuxcnc"  # the prefix of the LinuxCNC groups' names
 
 

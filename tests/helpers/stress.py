@@ -1,6 +1,6 @@
 """Run a pytest selection again and again beside an artificial load, and count what failed.
 
-``python -m tests.helpers.stress --runs 20 --load "--cpu 2 --cpu-load 60" -- -n 3 --dist loadgroup
+``python -m tests.helpers.stress --runs 20 --load "--cpu 2 --cpu-load 60" -- -n 4 --dist loadgroup
 tests/e2e/browser tests/hardware`` starts ``stress-ng`` with the ``--load`` arguments (in its own
 process group, stopped at the end), then runs ``python -m pytest <args>`` ``--runs`` times, each
 a fresh session (a new served instance, Chromium, LinuxCNC simulator: the starts and shutdowns
