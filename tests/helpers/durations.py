@@ -7,8 +7,10 @@ worker, per ``SHARED_RESOURCE_GROUPS`` group and per file, the slowest tests, an
 wall time of ``make test`` (four workers on two cores): the larger of the longest group (a
 group runs on one worker, one test after another) and the durations outside the waiting groups
 (the LinuxCNC groups, which mostly wait on their simulator's real time) over the two cores.
-Compare two runs file by file: on a shared box both runs' durations swing with the load, so
-compare files measured side by side.
+With more workers than cores every test's duration is stretched by the CPU the others take,
+so the estimate runs high (771 s for a four-worker run of 585 s); the CPU seconds of a run
+(``/proc/stat``) over the cores are the floor.  Compare two runs file by file: on a shared
+box both runs' durations swing with the load, so compare files measured side by side.
 """
 
 from __future__ import annotations
