@@ -75,6 +75,11 @@ class HermiteTable:
         return out
 
 
+def _nodes() -> np.ndarray:
+    """The tables' nodes x = k STEP, 0 <= x <= TABLE_END (M + 1,)."""
+    return np.arange(int(TABLE_END / STEP) + 1) * STEP
+
+
 def _jinc_exact(x: np.ndarray) -> np.ndarray:
     """2 J1(x) / x by scipy (x != 0; |x| for the sign: jinc is even)."""
     x = np.abs(x)
@@ -85,7 +90,7 @@ def _jinc_exact(x: np.ndarray) -> np.ndarray:
 @cache
 def jinc_table() -> HermiteTable:
     """The table of jinc(x) = 2 J1(x) / x (made once, at first use: 4 x 1 MiB of coefficients)."""
-    x = np.arange(int(TABLE_END / STEP) + 1) * STEP
+    x = _nodes()
     safe = np.where(x < SMALL_X, 1.0, x)
     values = np.where(x < SMALL_X, 1.0 - x * x / 8.0, 2.0 * j1(safe) / safe)
     slopes = np.where(x < SMALL_X, -x / 4.0, -2.0 * (values - j0(safe)) / safe)
@@ -95,7 +100,7 @@ def jinc_table() -> HermiteTable:
 @cache
 def j0_table() -> HermiteTable:
     """The table of J0(x) (made once, at first use)."""
-    x = np.arange(int(TABLE_END / STEP) + 1) * STEP
+    x = _nodes()
 
     def exact(v: np.ndarray) -> np.ndarray:
         out: np.ndarray = j0(v)
