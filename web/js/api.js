@@ -101,12 +101,13 @@ export async function request(method, path, body) {
     init.body = JSON.stringify(body);
   }
   let response;
+  const sentAt = performance.now();
   try {
     response = await fetch(path.startsWith("/") ? path : `${API}/${path}`, init);
   } catch (cause) {
     throw offlineError(cause);
   }
-  document.dispatchEvent(new CustomEvent("conforma:online"));
+  document.dispatchEvent(new CustomEvent("conforma:online", { detail: { sentAt } }));
   if (!response.ok) throw await errorFrom(response);
   if (response.status === 204) return null;
   const text = await response.text();
@@ -126,9 +127,10 @@ export function upload(path, formData, onProgress) {
     for (const [k, v] of Object.entries(headers())) xhr.setRequestHeader(k, v);
     xhr.upload.onprogress = (e) => { if (e.lengthComputable && onProgress) onProgress(e.loaded / e.total); };
     xhr.onerror = () => reject(offlineError(new Error("upload failed")));
+    const sentAt = performance.now();
     xhr.onload = async () => {
       if (xhr.status >= 200 && xhr.status < 300) {
-        document.dispatchEvent(new CustomEvent("conforma:online"));
+        document.dispatchEvent(new CustomEvent("conforma:online", { detail: { sentAt } }));
         resolve(xhr.responseText ? JSON.parse(xhr.responseText) : null);
       } else {
         reject(await errorFrom(new Response(xhr.responseText, { status: xhr.status, statusText: xhr.statusText })));

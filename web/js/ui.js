@@ -140,12 +140,12 @@ function setConnection(state, text) {
   document.body.classList.toggle("is-offline", state === "offline");
 }
 
-// When a request last found the API unreachable (performance.now() ms).
+// When a request last found the API unreachable (performance.now() ms).  An answer to a
+// request (or a health check) sent before that says nothing about now: it does not show the
+// API online again (the next one sent, at most a second later, tells).
 let lastOfflineAt = -Infinity;
 
-// Poll the health endpoint: every 5 s, every second while the API is unreachable.  An answer
-// to a check sent before a later request failed says nothing about now: it is not shown (the
-// next check, a second later, tells).
+// Poll the health endpoint: every 5 s, every second while the API is unreachable.
 async function checkHealth() {
   let offline = false;
   const sentAt = performance.now();
@@ -171,7 +171,9 @@ export function initPage(active) {
     lastOfflineAt = performance.now();
     setConnection("offline", "API unreachable");
   });
-  document.addEventListener("conforma:online", () => setConnection("online", "API online"));
+  document.addEventListener("conforma:online", (e) => {
+    if (e.detail.sentAt >= lastOfflineAt) setConnection("online", "API online");
+  });
   checkHealth();
   document.addEventListener("keydown", (e) => { if (e.altKey && (e.key === "s" || e.key === "S")) { e.preventDefault(); stopAll(); } });
   listMachines();

@@ -76,3 +76,26 @@ def test_lost_connection_is_shown_clearly(page, served):
     page.unroute("**/api/v1/**")
     page.wait_for_selector("#conn.online", timeout=12_000)  # the health poll notices the return
     assert not page.locator("#offline-banner").is_visible()
+
+
+def test_an_answer_to_a_request_sent_before_the_connection_failed_does_not_show_it_online(page, served):
+    """A request in flight when a later one finds the API unreachable (a slow answer, a
+    server going down) may still be answered; that answer says nothing about now.  The
+    machines list is held on its way, every later request is refused, then the held one is
+    let through and answered: the page stays 'API unreachable'."""
+    page.goto("/parts.html")
+    page.wait_for_selector("#conn.online")
+    held = []
+    page.route("**/api/v1/machines*", lambda route: held.append(route))
+    page.evaluate("document.dispatchEvent(new CustomEvent('conforma:key'))")  # lists the machines
+    while not held:
+        page.wait_for_timeout(20)
+    page.route("**/api/v1/**", lambda route: route.abort("connectionrefused"))
+    page.evaluate("document.dispatchEvent(new CustomEvent('conforma:key'))")  # these fail
+    page.wait_for_selector("#conn.offline")
+    with page.expect_response(lambda response: response.url.endswith("/api/v1/machines")) as answered:
+        held[0].continue_()  # to the server, past the refusing route
+    assert answered.value.ok
+    page.evaluate("new Promise((done) => setTimeout(done, 100))")  # the answer's handlers have run
+    assert page.inner_text("#conn") == "API unreachable"
+    assert page.locator("#offline-banner").is_visible()
