@@ -10,6 +10,7 @@ import os
 import threading
 import time
 
+import numpy as np
 import pytest
 
 from hardware.errors import FirmwareError, InvalidConfig, LinkError, MachineStateError, ProbeFailed
@@ -96,6 +97,23 @@ def test_stream_10000_lines_runs_to_the_last_point(machine, lcnc_xyz):
     assert _joints(observer) == pytest.approx([-3.0, 0.0, 2.0], abs=1e-6)
     assert observer.get("program_status") == "IDLE" and observer.pop_error() is None
     assert machine.state == "idle"
+
+
+def test_every_hal_watch_sample_is_one_moment_of_all_its_pins(machine, lcnc_xyz):
+    """``HalWatch`` reads its pins one after another.  Along a straight move every sample
+    must lie on the line: a pass of reads the host paused between X and Z while the servo
+    thread moved on would pair one period's X with a later period's Z (8 um off the line per
+    period at this feed); the watcher prints a pass only when a second pass agreed."""
+    names = ["joint.0.motor-pos-fb", "joint.1.motor-pos-fb", "joint.2.motor-pos-fb"]
+    line = ["G1 X40 Y28 Z25 F1200", "G1 X10 Y10 Z10 F1200"]   # y = 0.6 x + 4, z = 0.5 x + 5
+    with lcnc_xyz.watch(names) as watch:
+        machine.stream(["G21 G90 G61", "G1 X10 Y10 Z10 F6000", *line, *line, "G64"])  # G61: no corner blends
+    xyz = np.array([values for _, values in watch.samples])
+    on_line = xyz[(xyz[:, 0] > 10.01) & (xyz[:, 0] < 39.99)]  # the approach from home ends at x = 10
+    assert len(on_line) > 1000, len(on_line)
+    for k, slope in ((1, 0.6), (2, 0.5)):  # the same offset for every sample: where homing latched
+        off_line = on_line[:, k] - slope * on_line[:, 0]
+        assert np.ptp(off_line) < 1e-4, (k, np.ptp(off_line))
 
 
 def test_pause_holds_and_resume_finishes(machine, lcnc_xyz):
