@@ -60,7 +60,17 @@ export function manualControls(m, { update, onRemoved }) {
   };
   filter.addEventListener("input", render);
   showPolls.addEventListener("change", render);
-  async function poll() {
+  // one poll on its way at a time, so a line is never appended twice (the timer's poll and a
+  // command's would both ask for what follows the same `after`); at most one more waits
+  let polling = Promise.resolve();
+  let waiting = 0;
+  function poll() {
+    if (waiting > 1) return polling;
+    waiting += 1;
+    polling = polling.then(pollOnce).finally(() => { waiting -= 1; });
+    return polling;
+  }
+  async function pollOnce() {
     if (!details.open || document.hidden) return;
     try {
       const page = await get(`machines/${m.id}/console?after=${after}&limit=1000`);
