@@ -113,8 +113,9 @@ function card(m) {
     el("div", { class: "row" }, ...Object.values(buttons)),
     el("details", { class: "programs", open: true }, el("summary", {}, "Programs"), programs),
     dispense.node, manual.node);
-  cards.set(m.id, { node, state, homed, pos, prog, outputs, bar, programs, controller, unlock, buttons, manual, dispense, machine: m });
-  update(m);
+  cards.set(m.id, { node, state, homed, pos, prog, outputs, bar, programs, controller, unlock, buttons, manual, dispense,
+    machine: m, actedAt: -Infinity });
+  update(m, performance.now());
   return node;
 }
 
@@ -126,9 +127,14 @@ function forget(id) {
   cards.delete(id);
 }
 
-function update(m) {
+// `sentAt`: when the poll that read `m` was sent (performance.now() ms); none for an action's
+// answer.  A poll sent before an action's answer was shown read the machine as it was before
+// the action: it would turn the card back (Connect answered "idle", then "disconnected").
+function update(m, sentAt = Infinity) {
   const c = cards.get(m.id);
   if (!c) return;
+  if (sentAt < c.actedAt) return;
+  if (sentAt === Infinity) c.actedAt = performance.now();
   c.machine = m;
   c.state.className = `badge ${m.state}`;
   c.state.dataset.state = m.state;
@@ -190,6 +196,7 @@ async function refreshPrograms() {
 let available = true;
 async function refresh() {
   try {
+    const sentAt = performance.now();
     const page = await get("machines");
     available = true;
     unavailable.hidden = true;
@@ -197,7 +204,7 @@ async function refresh() {
     const ids = new Set(page.items.map((m) => m.id));
     for (const id of [...cards.keys()]) if (!ids.has(id)) forget(id);
     for (const m of page.items) {
-      if (cards.has(m.id)) update(m);
+      if (cards.has(m.id)) update(m, sentAt);
       else list.append(card(m));
     }
     if (!page.items.length && !list.querySelector(".empty")) list.append(el("p", { class: "small empty" }, "No machines registered yet."));

@@ -44,8 +44,7 @@ def test_a_technician_homes_jogs_by_keyboard_reads_the_console_and_watches_a_pri
     page.focus(f"{sel} .jog-pad")
     page.keyboard.press("ArrowRight")
     page.wait_for_selector(f'{sel} .pos:has-text("X 10.000")')
-    # the pad ignores keys while the card shows the machine busy (its jog buttons off): a
-    # status poll sent during the X move may answer after the jog and show it busy a while
+    # the pad ignores keys while the card shows the machine busy (its jog buttons off)
     page.wait_for_selector(f"{sel} .jog-yp:enabled")
     page.keyboard.press("ArrowUp")
     page.wait_for_selector(f'{sel} .pos:has-text("Y 10.000")')
@@ -82,3 +81,67 @@ def test_a_technician_homes_jogs_by_keyboard_reads_the_console_and_watches_a_pri
     page.wait_for_selector(f'{sel} .machine-name:has-text("bench left")')
     assert api.get(f"/api/v1/machines/{made['id']}").json()["name"] == "bench left"
     assert page.js_errors == []
+
+
+def test_a_console_line_is_shown_once_when_two_polls_would_cross(page, served):
+    """The console polls every second and once more after a command; both ask for what
+    follows the same last line.  A slow poll (held here on its way) must not let the
+    command's poll fetch the same lines again: each line is shown once."""
+    api = served.api()
+    made = api.post("/api/v1/machines", json={"name": "bench-b", "port": "mock://", "dialect": "marlin"}).json()
+    sel = f'.machine-card[data-id="{made["id"]}"]'
+    page.goto("/machines.html")
+    page.click(f"{sel} .act-connect")
+    page.wait_for_selector(f'{sel} [data-state="idle"]')
+    page.click(f"{sel} details.manual summary")
+    held, released = [], []
+
+    def hold(route):  # type: ignore[no-untyped-def]
+        if released:
+            route.continue_()
+        else:
+            held.append(route)
+    page.route(f"**/api/v1/machines/{made['id']}/console*", hold)
+    while not held:  # the next timed poll, held on its way
+        page.wait_for_timeout(20)
+    with page.expect_response(lambda response: response.url.endswith("/command")):
+        page.fill(f"{sel} .console-line", "M114")
+        page.press(f"{sel} .console-line", "Enter")
+    page.wait_for_timeout(300)  # the command's own poll, if it went out beside the held one
+    released.append(True)
+    for route in held:
+        route.continue_()
+    page.wait_for_selector(f'{sel} .console-log:has-text("< X:")')
+    page.wait_for_timeout(1500)  # the polls after
+    lines = page.inner_text(f"{sel} .console-log").splitlines()
+    assert sum(line.startswith(">") and "M114" in line for line in lines) == 1, lines
+    assert sum(line.startswith("< X:") for line in lines) == 1, lines
+
+
+def test_a_poll_answered_after_an_action_does_not_turn_the_card_back(page, served):
+    """The machines list is polled every second; a poll read before an action (here:
+    Connect) and answered after it would show the machine as it was before.  The poll's
+    answer is read from the server, then held back until Connect's answer is shown."""
+    api = served.api()
+    made = api.post("/api/v1/machines", json={"name": "bench-c", "port": "mock://", "dialect": "marlin"}).json()
+    sel = f'.machine-card[data-id="{made["id"]}"]'
+    page.goto("/machines.html")
+    page.wait_for_selector(f'{sel} [data-state="disconnected"]')
+    held, released = [], []
+
+    def hold(route):  # type: ignore[no-untyped-def]
+        if released or route.request.method != "GET":
+            route.continue_()
+        else:
+            held.append((route, route.fetch()))  # the machine as it is now: disconnected
+    page.route("**/api/v1/machines", hold)
+    while not held:  # the next timed poll
+        page.wait_for_timeout(20)
+    page.click(f"{sel} .act-connect")
+    page.wait_for_selector(f'{sel} [data-state="idle"]')
+    released.append(True)
+    for route, answer in held:
+        assert {m["id"]: m["state"] for m in answer.json()["items"]}[made["id"]] == "disconnected"
+        route.fulfill(response=answer)
+    page.evaluate("new Promise((done) => setTimeout(done, 100))")  # the answers' handlers have run
+    assert page.get_attribute(f"{sel} h2 .badge[data-state]", "data-state") == "idle"
