@@ -11,10 +11,13 @@ On the simulator :class:`SimHeadBridge` plays the driver's encoder input and the
 wiring: it follows the simulator's HAL from the controller's side (``hal_watch.py``: the
 joints' ``pos-fb``, the lamp's ``motion.digital-out-NN`` and the servo clock every 0.5 ms) and
 feeds a :class:`hardware.mock.world.MockWorld` named ``name``: the carriage's segments on the
-host's monotonic clock (its :class:`~hardware.mock.timeline.MotionTimeline`) and the lamp as
-the world's output ``P<n>``.  The mock head ``head://name?cure=P<n>`` rides on that world
-exactly as on the mock machine (:mod:`hardware.printhead.mock`: it fires each drop when its
-nozzle crosses its row, cures the ink when the lamp was on long enough).  Before each of the
+controller's servo clock (``conforma:clock``, ms of servo time; its
+:class:`~hardware.mock.timeline.MotionTimeline`) and the lamp as the world's output ``P<n>``.
+The servo clock, not the moment the watcher read a sample, times them: a busy host reads the
+lamp's edges late by different amounts, and a 0.3 s exposure read 0.1 s short would not cure.
+The mock head ``head://name?cure=P<n>`` rides on that world exactly as on the mock machine
+(:mod:`hardware.printhead.mock`: it fires each drop when its nozzle crosses its row, cures the
+ink when the lamp was on long enough).  Before each of the
 head's commands the bridge catches up with HAL (:func:`hardware.printhead.mock.follow_world`).
 After each cure it writes the head's field (the ink's heights above the bed) to the
 simulator's sensor map (:attr:`SimController.sensor_map`), which the simulated height sensor
@@ -70,7 +73,7 @@ class SimHeadBridge:
         self._lamp: float | None = None
         self._cures: dict[int, int] = {}
         self.maps_written = 0
-        self._t0_ns = time.monotonic_ns()
+        self._clock0: float | None = None  # the servo clock's first count (ms)
         self._cond = threading.Condition()
         self._running = True
         self._watch: HalWatch = sim.watch(self.pins, 0.0005, max_s)
@@ -103,8 +106,10 @@ class SimHeadBridge:
         world, timeline = self.world, self.world.timeline
         assert timeline is not None
         with world.lock:
-            for t_ns, values in samples:
-                t = (t_ns - self._t0_ns) * 1e-9
+            for _, values in samples:
+                if self._clock0 is None:
+                    self._clock0 = values[4]
+                t = (values[4] - self._clock0) * 1e-3  # s of servo time since the first sample
                 p = (values[0], values[1], values[2])
                 if self._prev is not None and p != self._prev[1]:
                     timeline.add(self._prev[0], t, self._prev[1], p)

@@ -83,6 +83,7 @@ class _Watch:
     def __init__(self) -> None:
         self.samples: list[tuple[int, list[float]]] = []
         self.clock = 0.0
+        self._t0_ns = time.monotonic_ns()
         self._state: list[float] | None = None   # nothing to sample before the first at()
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -93,8 +94,9 @@ class _Watch:
         with self._lock:
             if self._state is None:
                 return
-            self.clock += 1.0
-            self.samples.append((time.monotonic_ns(), [*self._state, self.clock]))
+            now = time.monotonic_ns()
+            self.clock = (now - self._t0_ns) / 1e6  # ms, as conforma:clock counts 1 ms servo periods
+            self.samples.append((now, [*self._state, self.clock]))
 
     def _tick(self) -> None:
         while not self._stop.wait(self.TICK_S):
