@@ -9,13 +9,15 @@ environment.  It imports nothing of Conforma.
 NAME is a HAL pin / signal (read with ``hal.get_value``) or ``task_state`` (the
 controller's reported task state, ``linuxcnc.stat().task_state``: 1 = ESTOP).  Every
 PERIOD_S it reads them all and, when any value changed, prints one line
-``<CLOCK_MONOTONIC ns> <value> ...`` (booleans as 0/1), flushed.  The pins are read one
-after another, and a busy host can pause this process between two reads while the servo
-thread moves on: a line would pair one servo period's X with a later period's Z.  So each
-line is a snapshot read twice in a row and printed only when both reads agree (no pin
-changed between its two reads, so every value held at the moment between the passes).  The clock is the one
+``<CLOCK_MONOTONIC ns> <value> ...`` (booleans as 0/1), flushed.  The clock is the one
 ``time.monotonic_ns()`` reads in any process on the host, so a test can compare these
 times with the moment it issued a command.  It stops after MAX_S or on SIGTERM.
+
+The pins are read one after another, and a busy host can pause this process between two
+reads while the servo thread moves on: a line would pair one servo period's X with a later
+period's Z.  So each line is a pass of reads repeated at once and printed only when both
+passes agree (no pin changed between its two reads: every value held at the moment between
+the passes).
 """
 
 import os

@@ -17,8 +17,8 @@ The servo clock, not the moment the watcher read a sample, times them: a busy ho
 lamp's edges late by different amounts, and a 0.3 s exposure read 0.1 s short would not cure.
 The mock head ``head://name?cure=P<n>`` rides on that world exactly as on the mock machine
 (:mod:`hardware.printhead.mock`: it fires each drop when its nozzle crosses its row, cures the
-ink when the lamp was on long enough).  Before each of the
-head's commands the bridge catches up with HAL (:func:`hardware.printhead.mock.follow_world`).
+ink when the lamp was on long enough).  Before each of the head's commands the bridge catches
+up with HAL (:func:`hardware.printhead.mock.follow_world`).
 After each cure it writes the head's field (the ink's heights above the bed) to the
 simulator's sensor map (:attr:`SimController.sensor_map`), which the simulated height sensor
 adds to the part under its spot (``sensor_hal.py``).
