@@ -126,3 +126,38 @@ def screenshot(page, name: str) -> Path:  # type: ignore[no-untyped-def]
     path = screenshot_path(name)
     page.screenshot(path=str(path), full_page=False)
     return path
+
+
+class HeldRequests:
+    """A ``page.route`` handler that holds the requests it gets (GETs only with
+    ``gets_only``) until :meth:`release`; with ``read_now`` each one's answer is read from the
+    server when it arrives and delivered on release (an answer about the moment it was
+    asked), else the request goes to the server on release.  Later requests pass through."""
+
+    def __init__(self, page, read_now: bool = False, gets_only: bool = False) -> None:  # type: ignore[no-untyped-def]
+        self.page, self.read_now, self.gets_only = page, read_now, gets_only
+        self.held: list = []
+        self.released = False
+
+    def __call__(self, route) -> None:  # type: ignore[no-untyped-def]
+        if self.released or (self.gets_only and route.request.method != "GET"):
+            route.continue_()
+        else:
+            self.held.append((route, route.fetch() if self.read_now else None))
+
+    def wait(self) -> None:
+        """Until one request is held."""
+        while not self.held:
+            self.page.wait_for_timeout(20)
+
+    def release(self, count: int | None = None) -> list:
+        """Let the first ``count`` (all) held requests go; later ones pass; their read answers."""
+        self.released = True
+        answers = []
+        for route, answer in self.held[:count]:
+            if answer is None:
+                route.continue_()
+            else:
+                route.fulfill(response=answer)
+                answers.append(answer)
+        return answers

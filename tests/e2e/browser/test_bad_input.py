@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from tests.e2e.browser.conftest import screenshot
+from tests.e2e.browser.conftest import HeldRequests, screenshot
 
 
 def last_error(page) -> str:  # type: ignore[no-untyped-def]
@@ -85,16 +85,15 @@ def test_an_answer_to_a_request_sent_before_the_connection_failed_does_not_show_
     let through and answered: the page stays 'API unreachable'."""
     page.goto("/parts.html")
     page.wait_for_selector("#conn.online")
-    held = []
-    page.route("**/api/v1/machines*", lambda route: held.append(route))
+    held = HeldRequests(page)
+    page.route("**/api/v1/machines*", held)
     page.evaluate("document.dispatchEvent(new CustomEvent('conforma:key'))")  # lists the machines
-    while not held:
-        page.wait_for_timeout(20)
+    held.wait()
     page.route("**/api/v1/**", lambda route: route.abort("connectionrefused"))
     page.evaluate("document.dispatchEvent(new CustomEvent('conforma:key'))")  # these fail
     page.wait_for_selector("#conn.offline")
     with page.expect_response(lambda response: response.url.endswith("/api/v1/machines")) as answered:
-        held[0].continue_()  # to the server, past the refusing route
+        held.release(1)  # to the server, past the refusing route
     assert answered.value.ok
     page.evaluate("new Promise((done) => setTimeout(done, 100))")  # the answer's handlers have run
     assert page.inner_text("#conn") == "API unreachable"

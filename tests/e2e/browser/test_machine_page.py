@@ -4,7 +4,7 @@ running program's elapsed time and time left, renaming."""
 
 from __future__ import annotations
 
-from tests.e2e.browser.conftest import screenshot
+from tests.e2e.browser.conftest import HeldRequests, screenshot
 
 # long uniform moves on a real-time mock: a print that runs for ~20 s
 PROGRAM = "G21\nG90\nG1 X1 Y1 Z5 F600\n" + "".join(f"G1 X{2 + i % 2 * 3} Y{1 + i // 2 % 2} F900\n" for i in range(60))
@@ -94,23 +94,14 @@ def test_a_console_line_is_shown_once_when_two_polls_would_cross(page, served):
     page.click(f"{sel} .act-connect")
     page.wait_for_selector(f'{sel} [data-state="idle"]')
     page.click(f"{sel} details.manual summary")
-    held, released = [], []
-
-    def hold(route):  # type: ignore[no-untyped-def]
-        if released:
-            route.continue_()
-        else:
-            held.append(route)
-    page.route(f"**/api/v1/machines/{made['id']}/console*", hold)
-    while not held:  # the next timed poll, held on its way
-        page.wait_for_timeout(20)
+    held = HeldRequests(page)
+    page.route(f"**/api/v1/machines/{made['id']}/console*", held)
+    held.wait()  # the next timed poll, held on its way
     with page.expect_response(lambda response: response.url.endswith("/command")):
         page.fill(f"{sel} .console-line", "M114")
         page.press(f"{sel} .console-line", "Enter")
     page.wait_for_timeout(300)  # the command's own poll, if it went out beside the held one
-    released.append(True)
-    for route in held:
-        route.continue_()
+    held.release()
     page.wait_for_selector(f'{sel} .console-log:has-text("< X:")')
     page.wait_for_timeout(1500)  # the polls after
     lines = page.inner_text(f"{sel} .console-log").splitlines()
@@ -127,21 +118,12 @@ def test_a_poll_answered_after_an_action_does_not_turn_the_card_back(page, serve
     sel = f'.machine-card[data-id="{made["id"]}"]'
     page.goto("/machines.html")
     page.wait_for_selector(f'{sel} [data-state="disconnected"]')
-    held, released = [], []
-
-    def hold(route):  # type: ignore[no-untyped-def]
-        if released or route.request.method != "GET":
-            route.continue_()
-        else:
-            held.append((route, route.fetch()))  # the machine as it is now: disconnected
-    page.route("**/api/v1/machines", hold)
-    while not held:  # the next timed poll
-        page.wait_for_timeout(20)
+    held = HeldRequests(page, read_now=True, gets_only=True)  # the machine as it is now: disconnected
+    page.route("**/api/v1/machines", held)
+    held.wait()  # the next timed poll
     page.click(f"{sel} .act-connect")
     page.wait_for_selector(f'{sel} [data-state="idle"]')
-    released.append(True)
-    for route, answer in held:
+    for answer in held.release():
         assert {m["id"]: m["state"] for m in answer.json()["items"]}[made["id"]] == "disconnected"
-        route.fulfill(response=answer)
     page.evaluate("new Promise((done) => setTimeout(done, 100))")  # the answers' handlers have run
     assert page.get_attribute(f"{sel} h2 .badge[data-state]", "data-state") == "idle"
