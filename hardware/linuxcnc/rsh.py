@@ -9,7 +9,8 @@ Protocol facts this module relies on (linuxcncrsh of LinuxCNC 2.9, measured):
 
 * ``hello <pw> <client> <version>`` answers ``HELLO ACK <server> <version>`` / ``HELLO NAK``;
   echo starts ON (``set echo off`` is answered by its own echo), verbose starts OFF (with
-  ``set verbose on`` every ``set`` answers ``SET <NAME> ACK`` or ``SET <NAME> NAK``).
+  ``set verbose on`` every ``set`` answers ``SET <NAME> ACK`` or ``SET <NAME> NAK``);
+  ``get echo`` / ``get verbose`` answer ``ECHO ON|OFF`` / ``VERBOSE ON|OFF``.
 * ``get <name>`` answers ``<NAME> <value>``; replies end in ``\\r\\n`` (ACKs in ``\\n\\r``).
 * A ``set`` that reaches the controller is answered only after the controller received
   it (about 100-200 ms); ``get`` answers at once, also while another session waits.
@@ -18,9 +19,10 @@ Protocol facts this module relies on (linuxcncrsh of LinuxCNC 2.9, measured):
   before it stops.
 * ``get`` now and then answers ``GET NAK`` (status read raced an update), and sessions
   that talk at the same moment sometimes receive each other's replies or a NAK (its parser's
-  ``strtok`` state is shared by every session's thread): ``get`` and ``hello`` retry,
-  ``set`` skips lines that are not its own ACK/NAK.  Keep concurrent sessions rare (the
-  machine polls on one session; the stop session speaks only to stop).
+  ``strtok`` state is shared by every session's thread): ``get`` and ``hello`` retry, echo
+  and verbose are read back until they hold, ``set`` skips lines that are not its own
+  ACK/NAK.  Keep concurrent sessions rare (the machine polls on one session; the stop
+  session speaks only to stop).
 * ``get error`` returns the oldest unread controller error once (then ``OK``).
 * ``set timeout`` (``set_timeout`` in the manual): any value > 0 makes every wait fail
   at once in this build, so waits are bounded by the socket timeout instead.
@@ -74,8 +76,8 @@ class RshSession:
         session = cls(sock, timeout_s)
         try:
             session.server = session._hello(connect_pw, client)
-            session.request("set echo off")       # answered by its echo
-            session.set("verbose", "on")
+            session._switch("echo", "off")
+            session._switch("verbose", "on")
         except Exception:
             session.close()
             raise
@@ -107,6 +109,32 @@ class RshSession:
                     raise LinkError(f"linuxcncrsh answered hello with {reply[:60]!r} {others} times",
                                     field="port")
             time.sleep(0.002 * (naks + others))
+
+    def _switch(self, flag: str, value: str, attempts: int = 5) -> None:
+        """``set <flag> <value>`` for one of this session's own flags (echo, verbose), read back
+        with ``get <flag>`` and said again until it holds.
+
+        Under load the shared ``strtok`` can parse the ``set`` with another session's words: it
+        is answered NAK and the flag keeps its old value.  Echo left on puts a copy of every
+        request before its reply; verbose left off leaves every ``set`` without an ACK; either
+        would make the next ``set`` read the wrong line.  The flags belong to this session
+        alone, so saying them again changes nothing else.  The read-back's answer is the first
+        line that is neither a copy of a request nor a ``SET`` reply; anything but
+        ``<FLAG> <VALUE>`` (a ``GET NAK``, another session's words) means try again."""
+        requests = (f"set {flag} {value}", f"get {flag}")
+        for attempt in range(attempts):
+            with self._lock:
+                for line in requests:
+                    self.send_only(line)
+                while True:
+                    reply = self._next_line(requests[1], None)
+                    if reply not in requests and not reply.upper().startswith("SET "):
+                        break
+            if reply.upper().split() == [flag.upper(), value.upper()]:
+                return
+            time.sleep(0.002 * (attempt + 1))
+        raise LinkError(f"linuxcncrsh did not keep 'set {flag} {value}' in {attempts} tries (last "
+                        f"read back {reply[:60]!r})", field="port")
 
     # ------------------------------------------------------------------ transport
     def _read_line(self, timeout_s: float) -> str:

@@ -6,9 +6,11 @@ session's words, a NAK under concurrent sessions) on demand, without a simulator
     RshSession.open("127.0.0.1", server.port, "pw")
 
 ``answer(line, connection)`` gets each request line and the 0-based number of the connection it
-came on, and returns the reply line, or None for the standard reply: ``hello`` -> ``HELLO ACK
-EMCNETSVR 1.1``, ``set echo off`` -> its echo, any other ``set <name> ...`` -> ``SET <NAME>
-ACK``, ``get <name>`` -> ``<NAME> OK``.  ``received`` holds (connection, line) in arrival order.
+came on, and returns the reply line, or None for the standard reply (``Session.reply``).  Each
+connection keeps linuxcncrsh's own flags: echo starts on (every line after a good hello is copied
+back before its reply), verbose off (a ``set`` goes through without an ACK); ``set echo|verbose``
+answered by the standard reply changes them, one answered by ``answer`` (a NAK) does not.
+``received`` holds (connection, line) in arrival order.
 """
 
 from __future__ import annotations
@@ -21,25 +23,37 @@ from collections.abc import Callable, Iterator
 Answer = Callable[[str, int], "str | None"]
 
 
-def standard_reply(line: str) -> str:
-    """What linuxcncrsh (echo off, verbose on) answers to a request that goes through."""
-    words = line.split()
-    if len(words) < 2:  # quit, shutdown
-        return line.upper()
-    if words[0] == "hello":
-        return "HELLO ACK EMCNETSVR 1.1"
-    if line == "set echo off":
-        return line
-    if words[0] == "set":
-        return f"SET {words[1].upper()} ACK"
-    return f"{words[1].upper()} OK"
+class Session:
+    """One connection's flags, as linuxcncrsh keeps them per session."""
+
+    def __init__(self) -> None:
+        self.linked, self.echo, self.verbose = False, True, False
+
+    def reply(self, line: str) -> str | None:
+        """What linuxcncrsh answers to a request that goes through (None: no line), updating
+        the flags: ``hello`` -> ``HELLO ACK EMCNETSVR 1.1``; ``set <name> ...`` -> ``SET <NAME>
+        ACK`` when verbose, else nothing; ``get echo|verbose`` -> the flag; any other ``get
+        <name>`` -> ``<NAME> OK``."""
+        words = line.split()
+        if len(words) < 2:  # quit, shutdown
+            return line.upper()
+        if words[0] == "hello":
+            self.linked = True
+            return "HELLO ACK EMCNETSVR 1.1"
+        if words[0] == "set":
+            if words[1] in ("echo", "verbose") and len(words) > 2:
+                setattr(self, words[1], words[2] == "on")
+            return f"SET {words[1].upper()} ACK" if self.verbose else None
+        if words[1] in ("echo", "verbose"):
+            return f"{words[1].upper()} {'ON' if getattr(self, words[1]) else 'OFF'}"
+        return f"{words[1].upper()} OK"
 
 
 def in_turn(prefix: str, *replies: str) -> Answer:
-    """An ``answer`` giving the lines that start with ``prefix`` the ``replies`` in turn, every
-    other line the standard reply."""
+    """An ``answer`` giving the lines that start with ``prefix`` the ``replies`` in turn (then
+    the standard reply), every other line the standard reply."""
     queue: Iterator[str] = iter(replies)
-    return lambda line, _: next(queue) if line.startswith(prefix) else None
+    return lambda line, _: next(queue, None) if line.startswith(prefix) else None
 
 
 class ScriptedRsh:
@@ -68,12 +82,17 @@ class ScriptedRsh:
                 connection += 1
 
     def _talk(self, conn: socket.socket, connection: int) -> None:
+        session = Session()
         with conn, conn.makefile("rwb") as stream, contextlib.suppress(ConnectionError):
             for raw in stream:  # until the client closes (a reset when it closes unread)
                 line = raw.decode().strip()
                 self.received.append((connection, line))
+                copy = line if session.echo and session.linked else None
                 reply = self.answer(line, connection)
-                stream.write((standard_reply(line) if reply is None else reply).encode() + b"\r\n")
+                if reply is None:
+                    reply = session.reply(line)
+                session.linked = session.linked or reply.startswith("HELLO ACK")
+                stream.write(b"".join(text.encode() + b"\r\n" for text in (copy, reply) if text is not None))
                 stream.flush()
 
 
