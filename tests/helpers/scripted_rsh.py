@@ -31,15 +31,17 @@ class Session:
 
     def reply(self, line: str) -> str | None:
         """What linuxcncrsh answers to a request that goes through (None: no line), updating
-        the flags: ``hello`` -> ``HELLO ACK EMCNETSVR 1.1``; ``set <name> ...`` -> ``SET <NAME>
-        ACK`` when verbose, else nothing; ``get echo|verbose`` -> the flag; any other ``get
-        <name>`` -> ``<NAME> OK``."""
+        the flags: ``hello`` -> ``HELLO ACK EMCNETSVR 1.1``; ``set`` before it -> ``SET NAK``;
+        ``set <name> ...`` -> ``SET <NAME> ACK`` when verbose, else nothing; ``get
+        echo|verbose`` -> the flag; any other ``get <name>`` -> ``<NAME> OK``."""
         words = line.split()
         if len(words) < 2:  # quit, shutdown
             return line.upper()
         if words[0] == "hello":
             self.linked = True
             return "HELLO ACK EMCNETSVR 1.1"
+        if words[0] == "set" and not self.linked:
+            return "SET NAK"
         if words[0] == "set":
             if words[1] in ("echo", "verbose") and len(words) > 2:
                 setattr(self, words[1], words[2] == "on")
@@ -91,7 +93,8 @@ class ScriptedRsh:
                 reply = self.answer(line, connection)
                 if reply is None:
                     reply = session.reply(line)
-                session.linked = session.linked or reply.startswith("HELLO ACK")
+                elif reply.startswith("HELLO ACK"):
+                    session.linked = True
                 stream.write(b"".join(text.encode() + b"\r\n" for text in (copy, reply) if text is not None))
                 stream.flush()
 

@@ -9,6 +9,8 @@ session's flags (no simulator needed)."""
 
 from __future__ import annotations
 
+import socket
+
 import pytest
 
 from hardware.errors import LinkError
@@ -49,3 +51,24 @@ def test_a_flag_that_never_holds_is_a_link_error_naming_the_port():
         _opened(server)
     assert failed.value.field == "port"
     assert len(server.lines("set verbose")) == 5
+
+
+
+def test_the_scripted_server_keeps_a_sessions_flags_as_linuxcncrsh_does():
+    """Read on a raw socket, as any client would: no ``set`` before hello, no copy before
+    hello, a copy of every line after it while echo is on, an ACK only when verbose."""
+    server = ScriptedRsh(lambda line, _: None)
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5.0) as sock, \
+            sock.makefile("rwb") as stream:
+        def say(line: str) -> bytes:
+            stream.write(line.encode() + b"\r\n")
+            stream.flush()
+            return stream.readline()
+
+        assert say("set echo off") == b"SET NAK\r\n"
+        assert say("get echo") == b"ECHO ON\r\n"
+        assert say("hello pw me 1.0") == b"HELLO ACK EMCNETSVR 1.1\r\n"
+        assert say("get verbose") == b"get verbose\r\n" and stream.readline() == b"VERBOSE OFF\r\n"
+        assert say("set verbose on") == b"set verbose on\r\n" and stream.readline() == b"SET VERBOSE ACK\r\n"
+        assert say("set echo off") == b"set echo off\r\n" and stream.readline() == b"SET ECHO ACK\r\n"
+        assert say("get echo") == b"ECHO OFF\r\n"
