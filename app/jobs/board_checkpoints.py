@@ -15,8 +15,8 @@ job stored itself are recorded with :meth:`TraceCheckpoints.done`.  A checkpoint
 trace's outputs were made from (:func:`inputs_sha256`: the job's parameters, the trace's
 record, the part's and the input artifacts' sha256, the software version...).
 
-Why a trace can be trusted: a blob is written to a temporary file, fsynced (its contents,
-not only its directory entry) and renamed before its artifact row is committed
+Why a trace can be trusted: a blob is written to a temporary file, put on disk (its contents,
+and after its rename its directory entry) before its artifact row is committed
 (:mod:`app.platform.blobs`), so a SIGKILL leaves either no row or a row over a whole file; a group's
 checkpoint is committed with (or after) its traces' artifacts, so a kill before that commit
 leaves traces without a record (and, for :meth:`~TraceCheckpoints.add`, files without rows,

@@ -1,11 +1,15 @@
 """Content-addressed files under ``data_dir/blobs/ab/abcdef...`` listed in the ``blobs`` table.
 
-A blob is written to a temporary file, fsynced and renamed into place before its row is
-inserted, so a crash never leaves a row pointing at a missing or partial file.
+A blob is written to a temporary file, flushed to disk and renamed into place before its row
+is inserted, so a crash never leaves a row pointing at a missing or partial file.  A group
+(:meth:`BlobStore.put_many`, a board job's hundreds of programs) is flushed with two syncs of
+the store's filesystem, one for the files and one for their names, not one fsync per file.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import hashlib
 import os
 import tempfile
@@ -39,6 +43,39 @@ def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
         Path(tmp).unlink(missing_ok=True)
         raise
 
+def _syncfs() -> Callable[[int], int] | None:
+    """libc's ``syncfs(fd)`` (Linux), or None where it is missing."""
+    name = ctypes.util.find_library("c")
+    function = getattr(ctypes.CDLL(name, use_errno=True), "syncfs", None) if name else None
+    if function is not None:
+        function.argtypes, function.restype = [ctypes.c_int], ctypes.c_int
+    return function
+
+
+_SYNCFS = _syncfs()
+
+
+def flush_to_disk(root: Path, paths: list[str]) -> None:
+    """Put ``paths`` (files or folders under ``root``) on disk: one ``syncfs`` of ``root``'s
+    filesystem (every dirty page of it, so one call for hundreds of files; it reports
+    write-back errors since Linux 5.8), else an fsync of each path.  OSError when it fails."""
+    if _SYNCFS is not None:
+        fd = os.open(root, os.O_RDONLY | os.O_CLOEXEC)
+        try:
+            if _SYNCFS(fd) != 0:
+                error = ctypes.get_errno()
+                raise OSError(error, f"syncfs {root}: {os.strerror(error)}")
+        finally:
+            os.close(fd)
+        return
+    for path in paths:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 class BlobStore:
     """Bytes in, sha256 out; files are immutable once written."""
 
@@ -57,49 +94,63 @@ class BlobStore:
         return _record(session, digest, len(data))
 
     def put_many(self, session: Session, items: list[bytes]) -> list[str]:
-        """:meth:`put` of each of ``items`` (each file written and fsynced first), their rows
-        inserted in ONE statement (a board job stores hundreds at once); their sha256 in order."""
+        """:meth:`put` of each of ``items``, their rows inserted in ONE statement (a board job
+        stores hundreds at once); their sha256 in order.  The new files are written as
+        temporary files, flushed together (:func:`flush_to_disk`), renamed into place and
+        their names flushed, all before the rows: a failure before the renames leaves no
+        file, one after them files without rows (complete; the sweep removes them)."""
         digests = [hashlib.sha256(data).hexdigest() for data in items]
         sizes: dict[str, int] = {}
         folders: set[str] = set()
-        for digest, data in zip(digests, items):
-            if digest not in sizes:
-                self._put_file(digest, data, folders)
-            sizes[digest] = len(data)
+        written: list[tuple[str, str]] = []
+        try:
+            for digest, data in zip(digests, items):
+                if digest not in sizes and not os.path.exists(target := self._target(digest, folders)):
+                    written.append((self._write_temporary(target, data), target))
+                sizes[digest] = len(data)
+            if written:
+                flush_to_disk(self.root, [tmp for tmp, _ in written])
+                for tmp, target in written:
+                    os.replace(tmp, target)
+                flush_to_disk(self.root, sorted({os.path.dirname(target) for _, target in written}))
+        except BaseException:
+            for tmp, _ in written:
+                Path(tmp).unlink(missing_ok=True)
+            raise
         if sizes:
             now = utcnow()
             session.connection().execute(_insert_new(session), [
                 {"sha256": sha, "bytes": size, "created_at": now} for sha, size in sizes.items()])
         return digests
 
-    def _put_file(self, digest: str, data: bytes, folders: set[str]) -> None:
-        """Write the blob ``digest`` (``data``) unless its file exists, as
-        :func:`write_atomically` does (a temporary file beside it, fsynced, renamed into
-        place) with the calls a group of hundreds needs only: ``folders`` (the ones known
-        to exist) grows as it creates them; the temporary name is the blob's, this process's
-        and this thread's (no other writer uses it; one a dead process with the same pid
-        left is overwritten), not one of random names tried until one is free."""
+    def _target(self, digest: str, folders: set[str]) -> str:
+        """The blob's file name; its folder created unless in ``folders`` (the ones known to
+        exist, grown as they are created)."""
         folder = os.path.join(self.root, digest[:2])
-        target = os.path.join(folder, digest)
-        if os.path.exists(target):
-            return
         if folder not in folders:
             os.makedirs(folder, exist_ok=True)
             folders.add(folder)
-        tmp = os.path.join(folder, f".tmp-{digest}-{os.getpid()}-{threading.get_ident()}")
+        return os.path.join(folder, digest)
+
+    @staticmethod
+    def _write_temporary(target: str, data: bytes) -> str:
+        """``data`` written (not flushed) to a temporary file beside ``target``; its name.  The
+        name is the blob's, this process's and this thread's (no other writer uses it; one a
+        dead process with the same pid left is overwritten), not one of random names tried
+        until one is free."""
+        tmp = f"{os.path.dirname(target)}/.tmp-{os.path.basename(target)}-{os.getpid()}-{threading.get_ident()}"
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o600)
             try:
                 view = memoryview(data)
                 while view:
                     view = view[os.write(fd, view):]
-                os.fsync(fd)
             finally:
                 os.close(fd)
-            os.replace(tmp, target)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
+        return tmp
 
     def put_file(self, session: Session, handle: BinaryIO, chunk: int = 1 << 20) -> str:
         """Store the rest of the open binary file ``handle`` from its start (idempotent),

@@ -194,7 +194,7 @@ class JobContext:
 
     def artifacts(self, items: list[tuple[str, bytes, str, dict[str, Any] | None]]) -> list[str]:
         """Store several artifacts of this job (name, data, media type, meta) in one commit
-        (each blob written and fsynced before it; the rows an earlier attempt left under these
+        (each blob on disk before it, a group's files flushed together; the rows an earlier attempt left under these
         names looked up in one query); their sha256 in order: all of them or none are listed."""
         names = [name for name, _, _, _ in items]
         with self._session() as session:
