@@ -1,13 +1,18 @@
 """Sample a LinuxCNC controller's height sensor with its joints, in the servo thread.
 
-The controller's HAL has a ``sampler`` whose channels are ``x y z reading valid clock
+The controller's HAL has a ``sampler`` whose channels are ``x y z exposed reading valid clock
 exposed`` and a signal that switches the sensor and the sampler on.  ``clock`` counts servo
-periods; ``exposed`` is the count at which the value in ``reading`` was measured.  On
-Conforma's simulator (``sim/sensor.hal``) the sensor's HAL component stamps each value with
-the count it read the joints at, however late the scheduler ran it.  On a machine whose
-sensor is an analog input sampled in the servo thread, ``exposed`` is the clock itself and
-the sensor's own latency is the calibrated time offset.  :class:`HalScan` runs ``halsampler`` (LinuxCNC's reader of the
-sampler's FIFO) on this host while a scan pass runs:
+periods; ``exposed`` is the count at which the value in ``reading`` was measured, sampled
+twice, before and after ``reading`` and ``valid``.  On Conforma's simulator
+(``sim/sensor.hal``) the sensor's HAL component stamps each value with the count it read the
+joints at, however late the scheduler ran it; it runs beside the servo thread, so it sets
+``exposed`` to -1 before it writes a value and to the count after: a row whose two reads of
+``exposed`` differ (or are -1) was sampled while a value was being written and is dropped (a
+sequence lock: under load the sampler can be held between two channels for a whole write, and
+the row would pair one value with another's count).  On a machine whose sensor is an analog
+input sampled in the servo thread, both ``exposed`` channels are the clock itself and the
+sensor's own latency is the calibrated time offset.  :class:`HalScan` runs ``halsampler``
+(LinuxCNC's reader of the sampler's FIFO) on this host while a scan pass runs:
 
     scan = HalScan()                # halcmd / halsampler of the controller on this host
     scan.start()                    # halsampler attached, then ``sets conforma:sensor-on 1``
@@ -42,7 +47,7 @@ from .hal_command import HAL_PREFIX_VAR, hal_command
 __all__ = ["HalScan", "HalScanError", "HalSamples", "servo_period_s"]
 
 SENSOR_ON = "conforma:sensor-on"
-CHANNELS = 7  # x y z reading valid clock exposed
+CHANNELS = 8  # x y z exposed reading valid clock exposed
 
 
 class HalScanError(HardwareError):
@@ -83,8 +88,8 @@ def servo_period_s(env: dict[str, str] | None = None) -> float:
 
 
 def parse_rows(lines: list[str], period_s: float) -> HalSamples:
-    """``halsampler -t`` lines (``seq x y z reading valid clock exposed``) -> samples (see
-    the module docstring); a gap in the sequence (FIFO overrun) raises ``HalScanError``."""
+    """``halsampler -t`` lines (``seq x y z exposed reading valid clock exposed``) -> samples
+    (see the module docstring); a gap in the sequence (FIFO overrun) raises ``HalScanError``."""
     lines = [line for line in lines if line.strip()]
     while lines and lines[0].strip() == "overrun":  # halsampler counts from 0: the sampler's
         lines = lines[1:]                             # numbers went on since its last session
@@ -99,12 +104,13 @@ def parse_rows(lines: list[str], period_s: float) -> HalSamples:
     if np.any(np.diff(seq) != 1):
         raise HalScanError("samples were lost (a gap in the sampler's sequence)", field="sampler",
                            value=int(np.count_nonzero(np.diff(seq) != 1)))
-    at = np.rint(rows[:, 7] - rows[0, 6]).astype(int)  # the row each value was exposed in
-    keep = (at >= 0) & (at <= np.arange(len(rows)))
-    keep[1:] &= at[1:] != at[:-1]  # a repeat: nothing new since the previous row
-    exposed, sampled = at[keep], rows[keep]
-    reading = np.where(sampled[:, 5] > 0.5, sampled[:, 4], np.nan)
-    return HalSamples(exposed * period_s, rows[exposed, 1:4], reading, (sampled[:, 6] - sampled[:, 7]) * period_s,
+    whole = np.flatnonzero((rows[:, 4] == rows[:, 8]) & (rows[:, 8] >= 0))  # not sampled mid-write
+    at = np.rint(rows[whole, 8] - rows[0, 7]).astype(int)  # the row each value was exposed in
+    keep = (at >= 0) & (at <= whole)
+    keep[1:] &= at[1:] != at[:-1]  # a repeat: nothing new since the previous whole row
+    exposed, sampled = at[keep], rows[whole[keep]]
+    reading = np.where(sampled[:, 6] > 0.5, sampled[:, 5], np.nan)
+    return HalSamples(exposed * period_s, rows[exposed, 1:4], reading, (sampled[:, 7] - sampled[:, 8]) * period_s,
                       period_s)
 
 

@@ -21,7 +21,8 @@ and ``valid`` (false: the sensor's alarm output: too steep, a random dropout, or
 input: the controller samples ``reading`` and ``valid`` with the joints in its servo
 thread (``sampler``).  Each value is stamped ``exposed`` with the clock count (``tick``, ms
 on the simulator) of the servo period whose joints the component read (checked against
-``tick-started``, the count the servo thread sets before it writes the joints); with ``latency-ms`` > 0 the value
+``tick-started``, the count the servo thread sets before it writes the joints), and
+``exposed`` is -1 while a value is written (:func:`publish`); with ``latency-ms`` > 0 the value
 is computed where the carriage was that long before (the joints it read then, interpolated
 over the counts): a sensor whose output lags its exposure, the time offset
 ``calibrate_sensor`` must find.
@@ -157,6 +158,19 @@ def read_joints(comp, p: dict, deadline: float):
         time.sleep(YIELD_S)
 
 
+def publish(comp, value: float, tick: float, range_mm: float) -> None:
+    """Write one value (mm; NaN: none) exposed at count ``tick`` to ``comp``'s pins: ``exposed``
+    -1 first, then ``reading`` and ``valid`` (false beyond +-``range_mm`` or without a value),
+    then ``exposed``.  The servo thread's sampler reads ``exposed`` before and after the value,
+    so a row it samples while this writes shows two different counts (or -1) and is dropped,
+    not paired with the wrong count (``hardware/linuxcnc/hal_scan.py``)."""
+    ok = bool(np.isfinite(value) and abs(value) <= range_mm)
+    comp["exposed"] = -1.0
+    comp["reading"] = value if ok else 0.0
+    comp["valid"] = ok
+    comp["exposed"] = tick
+
+
 def main(argv):
     name, seed = argv[1], int(argv[2]) if len(argv) > 2 else 0
     ink = InkMap(argv[3] if len(argv) > 3 else None)
@@ -202,10 +216,7 @@ def main(argv):
                                          noise_mm=p["noise"], resolution_mm=p["resolution"],
                                          scale_error=p["scale-error"], slope_bias_mm=p["slope-bias"],
                                          acceptance_deg=p["acceptance-deg"], dropout_rate=p["dropout-rate"])[0]
-            ok = bool(np.isfinite(value) and abs(value) <= p["range"])
-            comp["reading"] = float(value) if ok else 0.0
-            comp["valid"] = ok
-            comp["exposed"] = tick
+            publish(comp, float(value), tick, p["range"])
             updates = (updates + 1) & 0xFFFFFFFF
             comp["updates"] = updates
             time.sleep(PERIOD_S)
