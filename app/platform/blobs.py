@@ -43,6 +43,7 @@ def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
         Path(tmp).unlink(missing_ok=True)
         raise
 
+
 def _syncfs() -> Callable[[int], int] | None:
     """libc's ``syncfs(fd)`` (Linux), or None where it is missing."""
     name = ctypes.util.find_library("c")
