@@ -9,7 +9,6 @@ the store's filesystem, one for the files and one for their names, not one fsync
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import hashlib
 import os
 import tempfile
@@ -45,9 +44,9 @@ def write_atomically(target: Path, write: Callable[[BinaryIO], object]) -> None:
 
 
 def _syncfs() -> Callable[[int], int] | None:
-    """libc's ``syncfs(fd)`` (Linux), or None where it is missing."""
-    name = ctypes.util.find_library("c")
-    function = getattr(ctypes.CDLL(name, use_errno=True), "syncfs", None) if name else None
+    """libc's ``syncfs(fd)`` (Linux), or None where it is missing.  Looked up among the
+    symbols the process already has (no ``find_library``: it runs ``ldconfig`` at import)."""
+    function = getattr(ctypes.CDLL(None, use_errno=True), "syncfs", None)
     if function is not None:
         function.argtypes, function.restype = [ctypes.c_int], ctypes.c_int
     return function
