@@ -12,6 +12,7 @@ Pure: numpy.  Units: mm.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import math
@@ -93,20 +94,71 @@ def reconstruction_npz(rec: Reconstruction) -> bytes:
     """``rec`` as NPZ bytes (no pickles): one ``<name>.npy`` member per array, stored
     uncompressed (a board stores a thousand, and deflating them cost more than the rest of
     writing them; they are ~1.3x larger), each member byte for byte what
-    ``numpy.lib.format.write_array`` writes, so ``numpy.load`` reads them as usual."""
-    out = io.BytesIO()
-    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
-        for name, array in reconstruction_arrays(rec).items():
-            member = zipfile.ZipInfo(name + ".npy")  # dated 1980-01-01 as numpy's are: the same
-            member.compress_type = zipfile.ZIP_STORED  # reconstruction is the same bytes at any time
-            archive.writestr(member, _npy_bytes(np.asarray(array)))
-    return out.getvalue()
+    ``numpy.lib.format.write_array`` writes, so ``numpy.load`` reads them as usual; the
+    archive byte for byte what ``zipfile`` writes for them (:func:`stored_archive`)."""
+    return stored_archive([(name + ".npy", _npy_bytes(np.asarray(array)))
+                           for name, array in reconstruction_arrays(rec).items()])
+
+
+_FILE_HEADER = struct.Struct("<4s2B4HL2L2H")      # a member's local header (30 bytes), as zipfile packs it
+_CENTRAL_ENTRY = struct.Struct("<4s4B4HL2L5H2L")  # its central directory entry (46 bytes)
+_END_RECORD = struct.Struct("<4s4H2LH")           # the end of the central directory (22 bytes)
+_ZIP_VERSION = 20        # made by and needed to extract: zipfile's default
+_UNIX = 3                # made on: zipfile's create_system off Windows
+_DOS_DATE_1980 = 33      # 1980-01-01 as a DOS date ((1980 - 1980) << 9 | 1 << 5 | 1), time 0: numpy's date
+_OWNER_RW = 0o600 << 16  # the external attributes zipfile gives a member written from bytes
+_SMALL = 2 ** 31 - 1     # zipfile's ZIP64_LIMIT: an archive near it is left to zipfile
+
+
+def stored_archive(members: list[tuple[str, bytes]]) -> bytes:
+    """A zip archive of ``members`` (name, bytes), each stored (not compressed) and dated
+    1980-01-01: byte for byte what ``zipfile.ZipFile(..., "w", ZIP_STORED).writestr`` writes
+    for a ``ZipInfo(name)`` of each, in order (tests/reconstruction/test_stored.py compares
+    them), packed here because ``zipfile``'s bookkeeping per member cost more than the
+    member's own bytes (a board job writes some 24 000).  ASCII names; an archive that
+    would need ZIP64 (over 2 GiB) is written by ``zipfile`` itself."""
+    if sum(len(data) for _, data in members) * 1.05 > _SMALL or not all(name.isascii() for name, _ in members):
+        out = io.BytesIO()
+        with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
+            for name, data in members:
+                archive.writestr(zipfile.ZipInfo(name), data)
+        return out.getvalue()
+    parts: list[bytes] = []
+    central: list[bytes] = []
+    offset = 0
+    for name, data in members:
+        raw, crc, size = name.encode("ascii"), zlib.crc32(data), len(data)
+        local = _FILE_HEADER.pack(b"PK\x03\x04", _ZIP_VERSION, 0, 0, zipfile.ZIP_STORED, 0, _DOS_DATE_1980,
+                                  crc, size, size, len(raw), 0)
+        central.append(_CENTRAL_ENTRY.pack(b"PK\x01\x02", _ZIP_VERSION, _UNIX, _ZIP_VERSION, 0, 0,
+                                           zipfile.ZIP_STORED, 0, _DOS_DATE_1980, crc, size, size, len(raw),
+                                           0, 0, 0, 0, _OWNER_RW, offset) + raw)
+        parts += [local, raw, data]
+        offset += len(local) + len(raw) + size
+    directory = b"".join(central)
+    end = _END_RECORD.pack(b"PK\x05\x06", 0, 0, len(central), len(central), len(directory), offset, 0)
+    return b"".join([*parts, directory, end])
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
-    """``array`` as a ``.npy`` member in C order (numpy's own writer; no pickles)."""
+    """``array`` as a ``.npy`` member in C order: numpy's own header for its dtype and shape
+    (:func:`_npy_header`), then its bytes; no pickles (an object array is a ValueError, as
+    ``numpy.lib.format.write_array`` with ``allow_pickle=False`` raises)."""
+    array = np.asarray(array, order="C")
+    if array.dtype.hasobject:
+        raise ValueError("object arrays cannot be stored without pickles")
+    return _npy_header(array.dtype, array.shape) + array.tobytes()
+
+
+@functools.lru_cache(maxsize=4096)
+def _npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
+    """The header ``numpy.lib.format.write_array`` writes before an array of ``dtype`` and
+    ``shape`` (format 1.0, C order), made by numpy's own header writer once per dtype and
+    shape (a board's members repeat a few dozen: building it per member cost as much as the
+    member's bytes)."""
     out = io.BytesIO()
-    np.lib.format.write_array(out, np.asarray(array, order="C"), allow_pickle=False)
+    np.lib.format.write_array_header_1_0(out, {"descr": np.lib.format.dtype_to_descr(dtype),
+                                               "fortran_order": False, "shape": shape})
     return out.getvalue()
 
 

@@ -140,3 +140,38 @@ def test_members_are_what_numpy_writes_stored_and_an_older_deflated_archive_stil
     altered = data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1:]
     with pytest.raises(ReconstructionError, match="readable NPZ"):
         read_reconstruction(altered, path)
+
+
+def _zipfile_archive(members):
+    """The archive ``zipfile`` writes for ``members`` (name, bytes): each a ``ZipInfo(name)``, stored."""
+    import io
+    import zipfile
+
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
+        for name, data in members:
+            archive.writestr(zipfile.ZipInfo(name), data)
+    return out.getvalue()
+
+
+def test_the_archive_is_byte_for_byte_what_zipfile_and_numpy_write(path):
+    """A stored reconstruction is exactly the archive ``zipfile`` makes of the members
+    ``numpy.lib.format.write_array`` writes (the packing here only saves their bookkeeping);
+    so is any list of members, empty ones and none at all included, and a name beyond ASCII
+    (left to ``zipfile``)."""
+    import io
+
+    from app.reconstruction.stored import stored_archive
+
+    rec = reconstruct(path, _measured(path), "deviation", sigma_mm=0.001)
+    members = []
+    for name, array in reconstruction_arrays(rec).items():
+        member = io.BytesIO()
+        np.lib.format.write_array(member, np.asarray(array), allow_pickle=False)
+        members.append((name + ".npy", member.getvalue()))
+    assert reconstruction_npz(rec) == _zipfile_archive(members)
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        some = [(f"m{i}.{trial}.npy", rng.bytes(int(rng.integers(0, 2000)))) for i in range(int(rng.integers(0, 12)))]
+        assert stored_archive(some) == _zipfile_archive(some), trial
+    assert stored_archive([("höhe.npy", b"\x01\x02")]) == _zipfile_archive([("höhe.npy", b"\x01\x02")])
