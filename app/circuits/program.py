@@ -102,8 +102,7 @@ def write_circuit_program(strokes: list[Stroke], *, dialect: str, dispense_on: s
         b.rapid(x=x0, y=y0).rapid(z=z0 + approach_mm)
         b.move(z=z0, feed_mm_min=plunge_feed_mm_min)
         b.raw(dispense_on.strip())
-        for i, (x, y, z) in enumerate(pts[1:]):
-            b.move(x=x, y=y, z=z, feed_mm_min=s.feed_mm_min if i == 0 else None)
+        b.extend_moves(pts[1:], s.feed_mm_min)   # the feed on the first move only
         b.raw(dispense_off.strip())
         b.rapid(z=travel_z)
     b.end()

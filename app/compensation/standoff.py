@@ -310,8 +310,7 @@ def _program(points: np.ndarray, params: CompensationParams, job_id: str | None,
     b.raw(params.dispense[0].strip())
     if params.dwell_s > 0:
         b.raw(b.dialect.dwell(params.dwell_s))
-    for i, (x, y, z) in enumerate(points[1:]):
-        b.move(x=x, y=y, z=z, feed_mm_min=params.feed_mm_min if i == 0 else None)
+    b.extend_moves(points[1:], params.feed_mm_min)   # the feed on the first move only
     b.raw(params.dispense[1].strip())
     b.rapid(z=travel_z)
     b.end()

@@ -327,6 +327,38 @@ class ProgramBuilder:
         if self._recorder is not None:
             self._recorder.xy_block(lines, xs, ys, es, feed_mm_min)
 
+    def extend_moves(self, points: npt.NDArray[np.float64], feed_mm_min: float | None = None) -> ProgramBuilder:
+        """``G1 X.. Y.. Z..`` to each of ``points`` (k, 3) mm in order, the ``feed_mm_min`` on
+        the first only: the lines and bounds ``k`` calls of :meth:`move` make, formatted at
+        once (each number is :func:`as_written`'s value printed at the builder's decimals:
+        the text ``move`` writes, negative zero as zero).  A non-finite coordinate is the
+        GcodeError ``move`` raises, and nothing is written."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        bad = np.argwhere(~np.isfinite(pts))
+        if len(bad):
+            row, axis = (int(v) for v in bad[0])
+            format_number(pts[row, axis], self.decimals, field="xyz"[axis])
+        feed = None if feed_mm_min is None else self._feed(feed_mm_min)
+        if len(pts) == 0:
+            return self
+        written = as_written(pts, self.decimals)
+        line = f"G1 X{{:.{self.decimals}f}} Y{{:.{self.decimals}f}} Z{{:.{self.decimals}f}}"
+        lines = [line.format(*row) for row in written.tolist()]
+        if feed is not None:
+            lines[0] += " " + feed
+        self._lines.extend(lines)
+        if self._pos is not None:
+            lo, hi = written.min(axis=0), written.max(axis=0)
+            self._lo = lo.tolist() if self._lo is None else np.minimum(self._lo, lo).tolist()
+            self._hi = hi.tolist() if self._hi is None else np.maximum(self._hi, hi).tolist()
+            self._pos = written[-1].tolist()
+        if self._recorder is not None:
+            rows = np.column_stack([written, np.full(len(written), np.nan), np.full(len(written), np.nan)])
+            if feed is not None:
+                rows[0, 4] = float(feed[1:])
+            self._recorder.block(lines, rows)
+        return self
+
     def extend_block(self, lines: list[str], rows: npt.NDArray[np.float64]) -> None:
         """Append ``lines`` the caller formatted as :meth:`move` and :meth:`comment` write
         them: ``G1`` moves with X Y Z E words at this builder's decimals and an optional F

@@ -111,3 +111,31 @@ def test_the_hardware_serves_the_writers_dialects_with_the_same_default():
     """A machine's dialect is one of the writer's (``DialectName``); the serial host drives the
     serial ones, the LinuxCNC backend the rest, and both default to the same dialect."""
     assert set(host.DIALECTS) | {"linuxcnc"} == set(DIALECT_NAMES) and host.DEFAULT_DIALECT == DEFAULT_DIALECT
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(*[st.one_of(st.floats(-1e4, 1e4), st.sampled_from([-0.0, -0.00004, 0.00005, -0.00005,
+                                                                               1.00005, -2.5e-5, 12.34565])),
+                            ] * 3), min_size=1, max_size=40),
+       st.integers(0, 6), st.one_of(st.none(), st.floats(1.0, 6000.0)))
+def test_moves_made_at_once_are_the_moves_made_one_by_one(points, decimals, feed):
+    """extend_moves writes the text, bounds and recorded program k calls of move write."""
+    one = ProgramBuilder("marlin", "compensate", "j1", decimals=decimals, record=True).rapid(z=5.0)
+    many = ProgramBuilder("marlin", "compensate", "j1", decimals=decimals, record=True).rapid(z=5.0)
+    for i, (x, y, z) in enumerate(points):
+        one.move(x=x, y=y, z=z, feed_mm_min=feed if i == 0 else None)
+    many.extend_moves(np.array(points), feed)
+    assert many.text() == one.text()
+    assert many.bounds() == one.bounds()
+    mine, theirs = many.program(), one.program()
+    for name in ("start", "end", "feed_mm_s", "motion", "line"):
+        assert np.array_equal(getattr(mine, name), getattr(theirs, name), equal_nan=name != "motion"), name
+
+
+def test_moves_made_at_once_refuse_a_non_finite_coordinate_and_write_nothing():
+    b = ProgramBuilder("grbl", "compensate", "j1")
+    before = b.text()
+    with pytest.raises(GcodeError) as err:
+        b.extend_moves(np.array([[0.0, 1.0, 2.0], [1.0, math.nan, 2.0]]), 300.0)
+    assert err.value.field == "y" and b.text() == before
+    assert b.extend_moves(np.zeros((0, 3)), 300.0).text() == before
