@@ -424,15 +424,20 @@ def trace_bound(fit: FieldFit, path: Any, coverage: float, learned: dict[str, An
     on the ellipse a trace alone finds the worst point by its own bound, a run by its largest);
     ``traces``: how many traces of the run share the confidence (the run's bound, the largest
     trace bound, then holds over every trace together)."""
-    return float(cautious_bounds(lambda p: np.array([posterior_trace_bound(posterior_under(fit, p), path, coverage,
-                                                                           traces)]),
+    return float(cautious_bounds(lambda p: np.array(posterior_trace_bounds(posterior_under(fit, p), [path], coverage,
+                                                                           traces)),
                                  fit.posterior.prior, learned)[0])
 
 
-def posterior_trace_bound(posterior: DeviationPosterior, path: Any, coverage: float, traces: int = 1) -> float:
-    """:func:`trace_bound` of a given ``posterior`` (its prior's wavelength sets the step and the
-    independent values): the bound (mm) over the TracePolyline ``path``."""
-    return posterior_trace_bounds(posterior, [path], coverage, traces)[0]
+def trace_bounds(fit: FieldFit, paths: Sequence[Any], coverage: float, learned: dict[str, Any] | None = None,
+                 traces: int = 1) -> np.ndarray:
+    """:func:`trace_bound` of each TracePolyline of ``paths`` (T,) mm, each on its own: one
+    batched solve when the bound's prior is every trace's (the corner, or no correlation
+    learned; equal to rounding, ~1e-14 mm), else (the ellipse: each trace's own worst point) one by one."""
+    if HYPER_BOUND != "corner" and learned is not None and "amplitude_wavelength_correlation" in learned:
+        return np.array([trace_bound(fit, path, coverage, learned, traces) for path in paths])
+    posterior = posterior_under(fit, cautious_prior(fit.posterior.prior, learned))
+    return np.array(posterior_trace_bounds(posterior, paths, coverage, traces))
 
 
 SD_BATCH = 4096  # trace points whose posterior sd is computed in one solve
@@ -458,9 +463,8 @@ def _bound_samples(path: Any, wavelength_mm: float) -> tuple[np.ndarray, Sites]:
 
 def posterior_trace_bounds(posterior: DeviationPosterior, paths: Sequence[Any], coverage: float,
                            traces: int | None = None) -> tuple[float, ...]:
-    """:func:`posterior_trace_bound` of every TracePolyline of ``paths`` (T,), mm: the
-    traces' points batched into SD_BATCH-point solves (one factor, many traces).
-    ``traces``: how many share the confidence (default T)."""
+    """The bound (mm) over each TracePolyline of ``paths`` (T,) under ``posterior`` (:func:`trace_bound`), the
+    traces' points batched into SD_BATCH-point solves; ``traces``: how many share the confidence (default T)."""
     wavelength = posterior.prior.wavelength_mm
     samples, sites = zip(*(_bound_samples(p, wavelength) for p in paths))
     sd = np.empty(sum(len(s) for s in samples))

@@ -299,6 +299,9 @@ def test_a_runs_trace_bounds_factorise_the_bound_posterior_once_and_equal_each_t
     monkeypatch.setattr(field_trust, "fit_posterior", lambda *a, **k: factorised.append(1) or real(*a, **k))
     assert run_bounds(check, paths) == pytest.approx(alone, rel=1e-12, abs=0)
     assert len(factorised) == 1
+    # a board job's trace bounds, batched: each trace's own (the trace count shares the confidence)
+    assert field_trust.trace_bounds(check.fit, paths, DEFAULT.coverage, check.learned, len(paths)).tolist() \
+        == pytest.approx(alone, rel=1e-12, abs=0)
 
 
 def test_the_stations_check_given_the_callers_learning_is_the_check_that_learns_itself(paths):
@@ -324,7 +327,7 @@ def test_the_run_bounds_batched_are_each_traces_bound_and_the_sd_the_dense_formu
 
     plan = plan_field(paths, PlanParams())
     posterior = fit_posterior(PlanParams().prior(), plan.sites, np.zeros(plan.count), plan.center)
-    alone = [field_trust.posterior_trace_bound(posterior, p, 3.0, len(paths)) for p in paths]
+    alone = [field_trust.posterior_trace_bounds(posterior, [p], 3.0, len(paths))[0] for p in paths]
     monkeypatch.setattr(field_trust, "SD_BATCH", 7)
     assert field_trust.posterior_trace_bounds(posterior, paths, 3.0) == pytest.approx(alone, rel=1e-9)
     sites = path_sites(paths[0], np.linspace(0.0, paths[0].length_mm, 9))
@@ -413,6 +416,8 @@ def test_the_ellipse_bound_takes_the_largest_over_its_points_and_the_corner_with
     alone = np.array([trace_bound(check.fit, p, DEFAULT.coverage, check.learned, len(paths)) for p in paths])
     largest = int(np.argmax(ellipse))
     assert alone[largest] == pytest.approx(ellipse[largest], rel=1e-12) and (alone >= at_estimate).all()
+    assert np.array_equal(field_trust.trace_bounds(check.fit, paths, DEFAULT.coverage, check.learned, len(paths)),
+                          alone)   # each trace's own worst point, not the run's
     exact = {**check.learned, **{k: {**check.learned[k], "relative_sd": 0.0}
                                  for k in ("amplitude_mm", "wavelength_mm")}}
     assert np.array_equal(run_bounds(replace(check, learned=exact), paths), at_estimate)

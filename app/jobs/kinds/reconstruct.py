@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import replace
+from itertools import islice
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -49,7 +50,7 @@ from app.reconstruction import (
     reconstruct,
 )
 from app.reconstruction.field import trace_reconstruction
-from app.reconstruction.field_trust import FieldCheck, trace_bound, with_bound
+from app.reconstruction.field_trust import FieldCheck, trace_bound, trace_bounds, with_bound
 from app.reconstruction.stored import reconstruction_npz, stored_name
 from app.runtime.context import JobContext
 from app.runtime.reads import JobReads
@@ -280,6 +281,9 @@ def run(ctx: JobContext, params: ReconstructJobParams) -> dict:
                       "rms_mm": max(r["deviation"]["rms_mm"] for r in rows)}})
 
 
+BOUND_GROUP = 50  # the traces whose bounds are computed in one solve (trace_bounds), as they are rebuilt
+
+
 def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, Any]) -> list[dict[str, Any]]:
     """The board result's rows (``params.traces`` order), each trace's reconstruction stored
     as it is made; a trace an earlier attempt of this job finished from the same inputs is
@@ -301,16 +305,19 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     if checkpoints.reused:
         ctx.progress(0.2, f"{checkpoints.reused}/{len(params.traces)} traces reused from an earlier attempt")
     check = _run_field(ctx, params)[0] if left else None  # once: it reads the run and the plan
-    for trace_id, rec in zip(left, rebuild_board(ctx, params, [records[t] for t in left]) if left else ()):
+    made = zip(left, rebuild_board(ctx, params, [records[t] for t in left]) if left else ())
+    while group := list(islice(made, BOUND_GROUP)):
         assert check is not None
-        name = stored_name(trace_id)
-        row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec),
-               "bound_mm": _trace_bound(check, rec.nominal, len(params.traces))}
-        # stored with its group's checkpoint in one commit (a commit per trace cost more than its bound)
-        stored = _stored(rec, name)
-        checkpoints.add(trace_id, keys[trace_id], [stored], row)
-        HELD.hold(rec, stored[1])  # for the compensate job that reads it next, in this process
-        done[trace_id] = row
+        bounds = trace_bounds(check.fit, [rec.nominal for _, rec in group], check.coverage, check.learned,
+                              len(params.traces))
+        for (trace_id, rec), bound in zip(group, bounds.tolist()):
+            name = stored_name(trace_id)
+            row = {"trace_id": trace_id, "reconstruction": name, **board_entry(rec), "bound_mm": bound}
+            # stored with its group's checkpoint in one commit (a commit per trace cost more than its bound)
+            stored = _stored(rec, name)
+            checkpoints.add(trace_id, keys[trace_id], [stored], row)
+            HELD.hold(rec, stored[1])  # for the compensate job that reads it next, in this process
+            done[trace_id] = row
     checkpoints.flush()
     total = len(params.traces)
     ctx.progress(1.0, f"{total}/{total} traces rebuilt{checkpoints.note()}")
