@@ -334,13 +334,13 @@ class ProgramBuilder:
         the text ``move`` writes, negative zero as zero).  A non-finite coordinate is the
         GcodeError ``move`` raises, and nothing is written."""
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        if len(pts) == 0:
+            return self
         bad = np.argwhere(~np.isfinite(pts))
         if len(bad):
             row, axis = (int(v) for v in bad[0])
             format_number(pts[row, axis], self.decimals, field="xyz"[axis])
         feed = None if feed_mm_min is None else self._feed(feed_mm_min)
-        if len(pts) == 0:
-            return self
         written = as_written(pts, self.decimals)
         line = f"G1 X{{:.{self.decimals}f}} Y{{:.{self.decimals}f}} Z{{:.{self.decimals}f}}"
         lines = [line.format(*row) for row in written.tolist()]

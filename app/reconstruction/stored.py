@@ -108,6 +108,7 @@ _UNIX = 3                # made on: zipfile's create_system off Windows
 _DOS_DATE_1980 = 33      # 1980-01-01 as a DOS date ((1980 - 1980) << 9 | 1 << 5 | 1), time 0: numpy's date
 _OWNER_RW = 0o600 << 16  # the external attributes zipfile gives a member written from bytes
 _SMALL = 2 ** 31 - 1     # zipfile's ZIP64_LIMIT: an archive near it is left to zipfile
+_MANY = 0xFFFF          # zipfile's ZIP_FILECOUNT_LIMIT: as many members, too
 
 
 def stored_archive(members: list[tuple[str, bytes]]) -> bytes:
@@ -116,8 +117,9 @@ def stored_archive(members: list[tuple[str, bytes]]) -> bytes:
     for a ``ZipInfo(name)`` of each, in order (tests/reconstruction/test_stored.py compares
     them), packed here because ``zipfile``'s bookkeeping per member cost more than the
     member's own bytes (a board job writes some 24 000).  ASCII names; an archive that
-    would need ZIP64 (over 2 GiB) is written by ``zipfile`` itself."""
-    if sum(len(data) for _, data in members) * 1.05 > _SMALL or not all(name.isascii() for name, _ in members):
+    would need ZIP64 (over 2 GiB or 65,535 members) is written by ``zipfile`` itself."""
+    if sum(len(data) for _, data in members) * 1.05 > _SMALL or len(members) >= _MANY \
+            or not all(name.isascii() for name, _ in members):
         out = io.BytesIO()
         with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
             for name, data in members:
