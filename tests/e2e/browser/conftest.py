@@ -138,6 +138,7 @@ class HeldRequests:
         self.page, self.read_now, self.gets_only = page, read_now, gets_only
         self.held: list = []
         self.released = False
+        self.let_go = 0   # how many of the held requests have been released
 
     def __call__(self, route) -> None:  # type: ignore[no-untyped-def]
         if self.released or (self.gets_only and route.request.method != "GET"):
@@ -151,10 +152,13 @@ class HeldRequests:
             self.page.wait_for_timeout(20)
 
     def release(self, count: int | None = None) -> list:
-        """Let the first ``count`` (all) held requests go; later ones pass; their read answers."""
+        """Let the next ``count`` (all) held requests go, in the order they came; requests that
+        come after the first release pass; the read answers of those let go."""
         self.released = True
+        first = self.let_go
+        self.let_go = len(self.held) if count is None else min(len(self.held), first + count)
         answers = []
-        for route, answer in self.held[:count]:
+        for route, answer in self.held[first:self.let_go]:
             if answer is None:
                 route.continue_()
             else:
