@@ -70,6 +70,9 @@ def test_two_simulators_run_side_by_side_and_neither_reaches_the_other(lcnc_xyz)
         session = second.session(enable=True)
         try:
             session.set("estop", "off")
+            deadline = time.monotonic() + 5.0   # the controller's status lags the ACK (a loaded host's by more)
+            while session.get("estop") != "OFF" and time.monotonic() < deadline:
+                time.sleep(0.02)
             assert session.get("estop") == "OFF"
         finally:
             session.close()
