@@ -321,9 +321,7 @@ class ProgramBuilder:
         (:meth:`coord_text`, :meth:`feed_word`; the feed on the first line only), with the
         values as written: ``xs``, ``ys``, ``es`` (None: no E words), ``feed_mm_min``."""
         self._lines.extend(lines)
-        if self._pos is not None:
-            for x, y in zip(xs, ys):
-                self._moved([f"X{x!r}", f"Y{y!r}"])
+        self._follow(np.column_stack([xs, ys, np.full(len(xs), np.nan)]))
         if self._recorder is not None:
             self._recorder.xy_block(lines, xs, ys, es, feed_mm_min)
 
@@ -346,17 +344,10 @@ class ProgramBuilder:
         lines = [line.format(*row) for row in written.tolist()]
         if feed is not None:
             lines[0] += " " + feed
-        self._lines.extend(lines)
-        if self._pos is not None:
-            lo, hi = written.min(axis=0), written.max(axis=0)
-            self._lo = lo.tolist() if self._lo is None else np.minimum(self._lo, lo).tolist()
-            self._hi = hi.tolist() if self._hi is None else np.maximum(self._hi, hi).tolist()
-            self._pos = written[-1].tolist()
-        if self._recorder is not None:
-            rows = np.column_stack([written, np.full(len(written), np.nan), np.full(len(written), np.nan)])
-            if feed is not None:
-                rows[0, 4] = float(feed[1:])
-            self._recorder.block(lines, rows)
+        rows = np.column_stack([written, np.full(len(written), np.nan), np.full(len(written), np.nan)])
+        if feed is not None:
+            rows[0, 4] = float(feed[1:])
+        self.extend_block(lines, rows)
         return self
 
     def extend_block(self, lines: list[str], rows: npt.NDArray[np.float64]) -> None:
@@ -369,10 +360,7 @@ class ProgramBuilder:
         if self._pos is not None and any(LAYER_TAG.match(lines[i]) for i in
                                          np.flatnonzero(np.isnan(rows[:, :4]).all(axis=1)).tolist()):
             self._pos = None
-        if self._pos is not None:
-            for x, y, z, e, _ in rows.tolist():
-                if x == x or y == y or z == z or e == e:   # a move (NaN != NaN: no such word)
-                    self._moved([f"{a}{v!r}" for a, v in zip("XYZ", (x, y, z)) if v == v])
+        self._follow(rows[~np.isnan(rows[:, :4]).all(axis=1), :3])
         if self._recorder is not None:
             self._recorder.block(lines, rows)
 
@@ -406,6 +394,20 @@ class ProgramBuilder:
             self._pos["XYZ".index(word[0])] = float(word[1:])
         self._lo = list(self._pos) if self._lo is None else [min(a, b) for a, b in zip(self._lo, self._pos)]
         self._hi = list(self._pos) if self._hi is None else [max(a, b) for a, b in zip(self._hi, self._pos)]
+
+    def _follow(self, xyz: npt.NDArray[np.float64]) -> None:
+        """Follow moves to the XYZ values as written ``xyz`` (m, 3), NaN where a move leaves an
+        axis out (it keeps its value): :meth:`_moved` of each, at once."""
+        if self._pos is None or len(xyz) == 0:
+            return
+        given = np.vstack([self._pos, xyz])
+        since = np.where(np.isnan(given), 0, np.arange(len(given))[:, None])
+        np.maximum.accumulate(since, axis=0, out=since)
+        at = given[since, np.arange(3)][1:]   # the position after each move
+        lo, hi = at.min(axis=0), at.max(axis=0)
+        self._lo = lo.tolist() if self._lo is None else np.minimum(self._lo, lo).tolist()
+        self._hi = hi.tolist() if self._hi is None else np.maximum(self._hi, hi).tolist()
+        self._pos = at[-1].tolist()
 
     def bounds(self) -> list[list[float]] | None:
         """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` mm of the moves written, what

@@ -370,9 +370,8 @@ def test_probe_toward_and_select_tool(machine, lcnc_xyz):
     assert machine.state == "idle"
 
 
-# F120 (51 mm/s): the last five moves take ~1.4 s, the window in which the link is cut
-# 4.8 in of moves at 40 in/min: 7.2 s, long enough for the program's polling loop to see it mid-way
-# under load (at 120 in/min, 2.4 s, a loaded host's first progress report once came at the end)
+# F40 (16.9 mm/s): 4.8 in of moves take 7.2 s, long enough for the program's polling loop to report
+# it mid-way on a loaded host (at F120, 2.4 s, the first progress report can come at the end)
 INCH_RELATIVE = ["G20 G90 G64 P0.0001", "G1 X0 Y0 Z0.2 F40", "G91"] + [
     f"G1 X{dx:.2f} Y{dy:.2f}" for _ in range(2) for dx, dy in ((0.8, 0), (0, 0.8), (-0.4, 0), (0, -0.4))]
 
