@@ -12,9 +12,11 @@ wiring: it follows the simulator's HAL from the controller's side (``hal_watch.p
 joints' ``pos-fb``, the lamp's ``motion.digital-out-NN`` and the servo clock every 0.5 ms) and
 feeds a :class:`hardware.mock.world.MockWorld` named ``name``: the carriage's segments on the
 controller's servo clock (``conforma:clock``, ms of servo time; its
-:class:`~hardware.mock.timeline.MotionTimeline`) and the lamp as the world's output ``P<n>``.
-The servo clock, not the moment the watcher read a sample, times them: a busy host reads the
-lamp's edges late by different amounts, and a 0.3 s exposure read 0.1 s short would not cure.
+:class:`~hardware.mock.timeline.MotionTimeline`) and the lamp (``motion.digital-out-03``,
+``sim/sensor.hal``) as the world's output ``P3``.  The servo clock, not the moment the watcher
+read a sample, times them, and the lamp's edges come from HAL's count of its on-time
+(``conforma:lamp-ms``): a busy host reads the watcher's samples tens of ms apart, and a 0.3 s
+exposure read 0.1 s short would not cure.
 The mock head ``head://name?cure=P<n>`` rides on that world exactly as on the mock machine
 (:mod:`hardware.printhead.mock`: it fires each drop when its nozzle crosses its row, cures the
 ink when the lamp was on long enough).  Before each of the head's commands the bridge catches
@@ -51,26 +53,28 @@ if TYPE_CHECKING:
 
 __all__ = ["SimHeadBridge"]
 
+LAMP_OUTPUT = 3      # the motion digital output sim/sensor.hal counts the on-time of
 FOLLOW_S = 0.002     # how often the bridge takes the watcher's new samples
 CATCH_UP_S = 5.0     # the longest a head command waits for HAL to be followed up to its call
 
 
 class SimHeadBridge:
-    """Feeds the world ``name`` from the simulator's HAL (see the module docstring);
-    ``lamp_output``: the motion digital output of the UV lamp (``M64 P<n>``)."""
+    """Feeds the world ``name`` from the simulator's HAL (see the module docstring)."""
 
-    def __init__(self, sim: SimController, name: str, lamp_output: int = 3, max_s: float = 7200.0) -> None:
+    key = f"P{LAMP_OUTPUT}"  # the lamp as the world's output (``head://...&cure=P3``)
+
+    def __init__(self, sim: SimController, name: str, max_s: float = 7200.0) -> None:
         self.sim = sim
         self.name = name
-        self.key = f"P{lamp_output}"
         self.world = register_world(name, MockWorld(keep_transcript=False))
         self.world.timeline = MotionTimeline()
-        self.pins = ["joint.0.pos-fb", "joint.1.pos-fb", "joint.2.pos-fb", f"motion.digital-out-{lamp_output:02d}",
-                     "conforma:clock"]
+        self.pins = ["joint.0.pos-fb", "joint.1.pos-fb", "joint.2.pos-fb", f"motion.digital-out-{LAMP_OUTPUT:02d}",
+                     "conforma:clock", "conforma:lamp-ms"]
         self._done = 0          # watcher samples taken
         self._last_ns = 0       # the newest sample's time (monotonic ns)
         self._prev: tuple[float, tuple[float, float, float]] | None = None
         self._lamp: float | None = None
+        self._read: tuple[float, float] | None = None  # the last sample's servo time (s) and lamp count (ms)
         self._cures: dict[int, int] = {}
         self.maps_written = 0
         self._clock0: float | None = None  # the servo clock's first count (ms)
@@ -115,14 +119,25 @@ class SimHeadBridge:
                     timeline.add(self._prev[0], t, self._prev[1], p)
                 if self._prev is None or p != self._prev[1] or t - self._prev[0] > 0.05:
                     self._prev = (t, p)
-                world.stats.machine_time_s = t
                 if values[3] != self._lamp:
+                    world.stats.machine_time_s = self._edge(t, values[5], values[3])
                     self._lamp = values[3]
                     world.set_output(self.key, values[3])
+                world.stats.machine_time_s = t
+                self._read = (t, values[5])
             self._write_map()
         with self._cond:
             self._last_ns = samples[-1][0]
             self._cond.notify_all()
+
+    def _edge(self, t: float, lamp_ms: float, on: float) -> float:
+        """The servo time (s) the lamp switched, seen at the sample (``t`` s, ``lamp_ms``):
+        on, it has been on for the count's growth since the last read; off, it stayed on for
+        that growth after the last read."""
+        if self._read is None:
+            return t
+        grown = (lamp_ms - self._read[1]) * 1e-3
+        return t - grown if on else self._read[0] + grown
 
     def _write_map(self) -> None:
         """The jetted fields' heights to the sensor map after a cure (atomically)."""

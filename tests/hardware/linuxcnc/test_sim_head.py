@@ -73,16 +73,19 @@ def test_the_ink_map_is_read_again_when_its_file_changes(tmp_path: Path):
 
 
 class _Watch:
-    """A scripted hal_watch: (t_ns, [x, y, z, lamp, clock]) rows; the test sets where the
+    """A scripted hal_watch: (t_ns, [x, y, z, lamp, clock, lamp_ms]) rows; the test sets where the
     carriage is (:meth:`at`), and from then on, as HAL's servo thread does, the watcher keeps
     sampling that state every ``TICK_S`` until closed (a head command waits for a sample newer than itself:
-    ``SimHeadBridge.catch_up``)."""
+    ``SimHeadBridge.catch_up``).  ``lamp_ms`` counts the lamp's on-time as ``sim/sensor.hal`` does,
+    also while :attr:`paused` (a busy host's watcher that reads nothing)."""
 
     TICK_S = 0.002
 
     def __init__(self) -> None:
         self.samples: list[tuple[int, list[float]]] = []
         self.clock = 0.0
+        self.lamp_ms = 0.0
+        self.paused = False
         self._t0_ns = time.monotonic_ns()
         self._state: list[float] | None = None   # nothing to sample before the first at()
         self._lock = threading.Lock()
@@ -95,8 +98,11 @@ class _Watch:
             if self._state is None:
                 return
             now = time.monotonic_ns()
-            self.clock = (now - self._t0_ns) / 1e6  # ms, as conforma:clock counts 1 ms servo periods
-            self.samples.append((now, [*self._state, self.clock]))
+            clock = (now - self._t0_ns) / 1e6  # ms, as conforma:clock counts 1 ms servo periods
+            self.lamp_ms += self._state[3] * (clock - self.clock)
+            self.clock = clock
+            if not self.paused:
+                self.samples.append((now, [*self._state, self.clock, self.lamp_ms]))
 
     def _tick(self) -> None:
         while not self._stop.wait(self.TICK_S):
@@ -154,3 +160,36 @@ def test_the_bridge_fires_a_swath_on_the_followed_joints_and_maps_the_cured_ink(
         bridge.close()
         unregister_head("bridgetest")
     assert not sim.sensor_map.exists()
+
+
+@pytest.mark.parametrize("late, exposure_s, cures", [("on", 0.12, 1), ("off", 0.04, 0)])
+def test_the_lamps_edges_read_late_by_a_busy_host_keep_their_servo_times(tmp_path: Path, late, exposure_s, cures):
+    """The watcher reads nothing for 0.1 s around one of the lamp's edges: a 0.12 s exposure
+    seen on 0.1 s late still cures (dose 0.1 s), a 0.04 s one seen off 0.1 s late does not."""
+    sim = _Sim(tmp_path)
+    bridge = SimHeadBridge(sim, "lamptest")  # type: ignore[arg-type]
+    head = PrintHead("head://lamptest?nozzles=4&rows=1&offset=0,0&field=0,0,40,40&cure=P3&cure_s=0.1")
+    watch = sim.watcher
+    try:
+        head.connect()
+        watch.at(1.0, 0.5)
+        head.status()                                        # the head rides on the world from here
+        watch.paused = late == "on"
+        watch.at(1.0, 0.5, lamp=1.0)
+        if late == "on":
+            time.sleep(0.1)
+            watch.paused = False
+            time.sleep(exposure_s - 0.1)
+        else:
+            time.sleep(exposure_s)
+            watch.paused = True
+        watch.at(1.0, 0.5, lamp=0.0)
+        time.sleep(0.1 if late == "off" else 0.0)
+        watch.paused = False
+        watch.at(1.0, 0.5)
+        head.status()                                        # caught up with a sample after the off edge
+        assert bridge.head.cures == cures
+    finally:
+        head.close()
+        bridge.close()
+        unregister_head("lamptest")
