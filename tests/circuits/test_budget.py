@@ -1,5 +1,5 @@
 """Circuit files are counted before they are expanded: bombs are refused in well under a
-second, naming what was counted; the same constructions within the bounds are read whole."""
+second of CPU, naming what was counted; the same constructions within the bounds are read whole."""
 
 from __future__ import annotations
 
@@ -32,10 +32,10 @@ BOMBS = {
 def test_a_bomb_is_refused_before_it_expands(name):
     make, field, counted = BOMBS[name]
     data = make().encode()
-    started = time.perf_counter()
+    started = time.thread_time()  # this thread's CPU: the work done, not the host's load
     with pytest.raises(CircuitFileError) as raised:
         read_layout(data, name)
-    assert time.perf_counter() - started < 1.0
+    assert time.thread_time() - started < 1.0
     assert raised.value.field == field and counted in raised.value.message
     assert raised.value.value["file"] == name
 
