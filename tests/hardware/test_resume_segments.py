@@ -18,7 +18,7 @@ import time
 import pytest
 
 from hardware.dialects import GRBL
-from hardware.errors import LinkError
+from hardware.errors import LinkError, MachineStateError
 from hardware.machine import Machine, MachineProfile
 from hardware.protocol import normalized_commands
 from hardware.resume import ResumeLocation, executed_bound, modal_preamble, planner_blocks
@@ -51,8 +51,13 @@ def stream_until_reset(m: Machine, world, lines: list[str], start: int, after_s:
         m.stream(lines, start_line=start)
     except LinkError:
         return True
+    except MachineStateError as exc:  # the link failed before the stream began: say how
+        fatal = m.link.session.fatal if m.link is not None else None
+        raise AssertionError(f"{exc}; the link's failure: {fatal!r}; the controller said: "
+                             f"{world.transcript.commands[-5:]}") from exc
     finally:
         timer.cancel()
+        timer.join()  # a reset already under way lands before the caller reconnects
     return False
 
 
