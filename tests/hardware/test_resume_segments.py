@@ -25,6 +25,7 @@ from hardware.resume import ResumeLocation, executed_bound, modal_preamble, plan
 from tests.helpers.machines import executed_before_the_cut
 
 PROFILE = MachineProfile(dispense_on="M8", dispense_off="M9")
+RESET_TIMES: list[float] = []  # when the tests' timers reset the controller (Unix time, s)
 
 
 def short_moves(count: int) -> list[str]:
@@ -45,20 +46,29 @@ def grbl(make_world, time_scale: float = 1.0) -> tuple[Machine, object]:
 def stream_until_reset(m: Machine, world, lines: list[str], start: int, after_s: float) -> bool:
     """Stream from ``start``; the controller resets ``after_s`` later.  False when the
     program ended first."""
-    timer = threading.Timer(after_s, world.reset_controller)
+    timer = threading.Timer(after_s, lambda: (RESET_TIMES.append(time.time()), world.reset_controller()))
     timer.start()
     try:
         m.stream(lines, start_line=start)
     except LinkError:
         return True
     except MachineStateError as exc:  # the link failed before the stream began: say how
-        fatal = m.link.session.fatal if m.link is not None else None
-        raise AssertionError(f"{exc}; the link's failure: {fatal!r}; the controller said: "
-                             f"{world.transcript.commands[-5:]}") from exc
+        raise AssertionError(f"{exc}; {wire_story(m, world)}") from exc
     finally:
         timer.cancel()
         timer.join()  # a reset already under way lands before the caller reconnects
     return False
+
+
+def wire_story(m: Machine, world) -> str:
+    """What a failure message needs to tell a late reset from a lost answer: the link's
+    failure, the controller's last commands and faults, the resets and the last lines."""
+    fatal = m.link.session.fatal if m.link is not None else None
+    now = time.time()
+    wire = [(round(e.t - now, 3), e.direction, e.text) for e in m.console.since(m.console.last_seq - 30).entries]
+    return (f"the link's failure: {fatal!r}; the controller ran {world.transcript.commands[-5:]}; faults "
+            f"{world.stats.faults}; resets (s ago) {[round(t - now, 3) for t in RESET_TIMES[-2:]]}; the wire (s ago): "
+            f"{wire}")
 
 
 def reset_when_held(world, held: int, limit_s: float = 5.0) -> threading.Thread:
@@ -69,6 +79,7 @@ def reset_when_held(world, held: int, limit_s: float = 5.0) -> threading.Thread:
         while time.monotonic() < deadline:
             firmware = world.firmware
             if firmware is not None and len(firmware.planner) >= held:
+                RESET_TIMES.append(time.time())
                 world.reset_controller()
                 return
             time.sleep(0.0005)
@@ -93,7 +104,7 @@ def test_the_mock_holds_a_segment_buffer_beyond_the_planner(make_world):
     gap = m.interrupted_program
     ran, _, _ = executed_before_the_cut(world, m)  # the commands whose motion completed
     blocks = planner_blocks(commands, PROFILE.dispense_on, PROFILE.dispense_off)
-    assert gap.acked_index - ran > 15  # acknowledged and never moved: planner + segments
+    assert gap.acked_index - ran > 15, wire_story(m, world)  # acknowledged and never moved: planner + segments
     assert executed_bound(blocks, gap.acked_index, 15) > ran  # the planner alone would skip
     assert m.resume_line() <= ran  # planner + stepper: none skipped
     m.disconnect()
