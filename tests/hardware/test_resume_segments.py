@@ -25,7 +25,7 @@ from hardware.resume import ResumeLocation, executed_bound, modal_preamble, plan
 from tests.helpers.machines import executed_before_the_cut
 
 PROFILE = MachineProfile(dispense_on="M8", dispense_off="M9")
-RESET_TIMES: list[float] = []  # when the tests' timers reset the controller (Unix time, s)
+RESET_TIMES: list[float] = []  # when the tests reset the controller (Unix time, s)
 
 
 def short_moves(count: int) -> list[str]:
@@ -43,10 +43,16 @@ def grbl(make_world, time_scale: float = 1.0) -> tuple[Machine, object]:
     return m, world
 
 
+def reset_now(world) -> None:
+    """The controller resets now; the moment goes to ``RESET_TIMES``."""
+    RESET_TIMES.append(time.time())
+    world.reset_controller()
+
+
 def stream_until_reset(m: Machine, world, lines: list[str], start: int, after_s: float) -> bool:
     """Stream from ``start``; the controller resets ``after_s`` later.  False when the
     program ended first."""
-    timer = threading.Timer(after_s, lambda: (RESET_TIMES.append(time.time()), world.reset_controller()))
+    timer = threading.Timer(after_s, reset_now, (world,))
     timer.start()
     try:
         m.stream(lines, start_line=start)
@@ -79,8 +85,7 @@ def reset_when_held(world, held: int, limit_s: float = 5.0) -> threading.Thread:
         while time.monotonic() < deadline:
             firmware = world.firmware
             if firmware is not None and len(firmware.planner) >= held:
-                RESET_TIMES.append(time.time())
-                world.reset_controller()
+                reset_now(world)
                 return
             time.sleep(0.0005)
     thread = threading.Thread(target=watch, daemon=True)
