@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
+from app.jobs.held_nominals import HELD
 from app.jobs.params import PlacedParams, PlacementParams
 from app.jobs.results.models import RegisterResult
 from app.platform.models import Job, Trace
@@ -58,6 +59,12 @@ def nominal_of(trace: Trace) -> TracePolyline:
 
 
 def placed_nominal(trace: Trace, placement: Placement | None) -> TracePolyline:
-    """The trace's nominal in machine coordinates (unchanged without a placement)."""
-    nominal = nominal_of(trace)
-    return nominal if placement is None else place_path(nominal, placement)
+    """The trace's nominal in machine coordinates (unchanged without a placement): the one
+    this process holds for the stored trace and placement (:mod:`app.jobs.held_nominals`,
+    read-only arrays), else parsed and held."""
+    def make() -> TracePolyline:
+        nominal = nominal_of(trace)
+        return nominal if placement is None else place_path(nominal, placement)
+    if trace.id is None or trace.created_at is None:  # not a stored trace
+        return make()
+    return HELD.get((trace.id, trace.created_at, placement), make)
