@@ -26,6 +26,7 @@ from huey.consumer import BaseProcess, Consumer, Worker
 from huey.storage import SqliteStorage
 from pydantic import ValidationError
 from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import defer
 from sqlmodel import Session, col, select
 from threadpoolctl import threadpool_limits
 
@@ -185,14 +186,21 @@ def _by_model(references: list[tuple[str, str]]) -> dict[Any, list[str]]:
     return out
 
 
+#: columns a submission's checks and input hashes never read, left unread when the referenced
+#: records are read together (a trace's draped nominal: ~6 KB of JSON each, most of a board's bytes)
+_UNREAD_AT_SUBMISSION: dict[type, tuple[str, ...]] = {Trace: ("nominal", "source")}
+
+
 def _preload(session: Session, references: list[tuple[str, str]]) -> list[Any]:
     """Read every referenced record in one query per table (a board loop references thousands
     of traces), so that the checks' ``session.get`` of each finds it in the session; the
-    records are returned to be held (the session keeps them only while they are referenced)."""
+    records are returned to be held (the session keeps them only while they are referenced).
+    The columns of :data:`_UNREAD_AT_SUBMISSION` are deferred: a check that reads one loads it."""
     held: list[Any] = []
     for model, ids in _by_model(references).items():
         if len(ids) > 1:
-            held += session.exec(select(model).where(col(model.id).in_(ids))).all()
+            unread = [defer(getattr(model, name)) for name in _UNREAD_AT_SUBMISSION.get(model, ())]
+            held += session.exec(select(model).where(col(model.id).in_(ids)).options(*unread)).all()
     return held
 
 
