@@ -156,6 +156,17 @@ def compute_cpu(data_dir: Path) -> dict[str, float]:
     return out
 
 
+def compute_pids(data_dir: Path) -> dict[str, tuple[int, float]]:
+    """job id -> (the pid of the compute process that ran it, the wall s it spent there) (the
+    part cache's journal)."""
+    out: dict[str, tuple[int, float]] = {}
+    for journal in data_dir.rglob("journal*.jsonl"):
+        for line in journal.read_text().splitlines():
+            row = json.loads(line)
+            out[row["job_id"]] = (int(row["pid"]), float(row.get("memory", {}).get("wall_s", math.nan)))
+    return out
+
+
 def outputs_sha256(client, children: list[dict], trace_ids: list[str],  # type: ignore[no-untyped-def]
                    others: dict[str, str]) -> dict[str, str]:
     """sha256 of what the board jobs made, comparable between runs (and trees): each kind's
@@ -192,9 +203,11 @@ def _span(job: dict) -> float:
 
 @pytest.fixture
 def settings(settings_factory):  # type: ignore[no-untyped-def]
-    """The service at its default job lease (30 s; the test suite's 5 s lease lets a loaded
+    """The service as deployed: its compute process started with the server (the test suite
+    starts it at the first compute job, which then waits seconds for the fork server to import
+    the compute core), at the default job lease (30 s; the test suite's 5 s lease lets a loaded
     shared box's reaper take a loop whose lease thread was not scheduled for 5 s)."""
-    return settings_factory(lease_s=30.0)
+    return settings_factory(lease_s=30.0, compute_warm_up=True)
 
 
 @pytest.mark.timeout(3600)
@@ -288,6 +301,10 @@ def test_board_through_the_api(client, settings):
           f"{rc_core:>11.2f} {rc_api / rc_core:>9.2f}")
     print(f"{'compensate, the core on':<22} {'':>8} {api_cpu['compensate']:>10.2f} {core_stored:>11.2f} "
           f"{api_cpu['compensate'] / core_stored:>9.2f}  (the API's own stored reconstructions)")
+    pids = compute_pids(Path(settings.data_dir))
+    print("the probe plan jobs in turn (wall from claim / wall in the compute process / CPU s, its pid): " + ", ".join(
+        f"{_span(j):.2f} / {pids.get(j['id'], (0, math.nan))[1]:.2f} / {journal.get(j['id'], math.nan):.2f} "
+        f"({pids.get(j['id'], (0,))[0]})" for j in by_kind["probe_plan"]))
     print(f"closed_loop whole: {loop_wall:.1f} s wall; server process {s1 - s0:.2f} s CPU, compute processes "
           f"{d1 - d0:.2f} s CPU (live ones)")
     print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB (server alone "
