@@ -79,14 +79,19 @@ def wire_story(m: Machine, world) -> str:
 
 def reset_when_held(world, held: int, limit_s: float = 5.0) -> threading.Thread:
     """A thread that resets the controller as soon as its planner holds ``held`` blocks
-    (the mock's truth: acknowledged, planned and not finished)."""
+    (the mock's truth: acknowledged, planned and not finished *now*).  The count and the reset
+    happen under the world's lock at one instant: the planner's list keeps a finished block
+    until the mock's own thread next runs, so on a busy host its length alone counts blocks
+    that ended before the reset lands."""
     def watch() -> None:
         deadline = time.monotonic() + limit_s
         while time.monotonic() < deadline:
-            firmware = world.firmware
-            if firmware is not None and len(firmware.planner) >= held:
-                reset_now(world)
-                return
+            with world.cond:
+                firmware = world.firmware
+                now = time.monotonic()
+                if firmware is not None and sum(end > now for end in firmware.planner) >= held:
+                    reset_now(world)
+                    return
             time.sleep(0.0005)
     thread = threading.Thread(target=watch, daemon=True)
     thread.start()
@@ -150,3 +155,39 @@ def test_the_summary_names_line_basis_and_repeats():
     found = ResumeLocation(41, "planner bound", "why", repeats=3, repeat_moves=2)
     assert found.summary().startswith("resumes at command 42 (by planner bound); commands 42..44 may run")
     assert "2 moves" in found.summary() and found.as_dict()["repeats"] == 3
+
+
+def test_the_watcher_counts_the_blocks_held_at_the_reset_when_the_mock_was_not_scheduled(make_world):
+    """A busy host: the mock's driver thread is not scheduled for 0.3 s once 18 blocks are
+    planned (so its planner list keeps blocks that end meanwhile), and the watcher starts
+    0.2 s late.  The planner list's length then still says 18 while every block has ended;
+    the watcher counts the blocks unfinished at the reset's instant and resets at 18 held."""
+    m, world = grbl(make_world)
+    firmware, frozen = world.firmware, []
+    driven = firmware.advance
+
+    def starved(now: float) -> float | None:
+        if not frozen and len(firmware.planner) >= 18:
+            frozen.append(now)
+        return now + 0.002 if frozen and now < frozen[0] + 0.3 else driven(now)
+    firmware.advance = starved
+    failed: list[LinkError] = []
+
+    def stream() -> None:
+        try:
+            m.stream(short_moves(400))
+        except LinkError as exc:
+            failed.append(exc)
+    streamer = threading.Thread(target=stream)
+    streamer.start()
+    while not frozen:
+        time.sleep(0.001)
+    time.sleep(0.2)
+    assert len(firmware.planner) >= 18 and sum(end > time.monotonic() for end in firmware.planner) < 18
+    reset_when_held(world, 18).join()
+    streamer.join()
+    assert failed, "the stream ended without the reset"
+    m.connect()
+    ran, _, _ = executed_before_the_cut(world, m)
+    assert m.interrupted_program.acked_index - ran >= 18, wire_story(m, world)
+    m.disconnect()
