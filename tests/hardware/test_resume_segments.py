@@ -158,18 +158,18 @@ def test_the_summary_names_line_basis_and_repeats():
 
 
 def test_the_watcher_counts_the_blocks_held_at_the_reset_when_the_mock_was_not_scheduled(make_world):
-    """A busy host: the mock's driver thread is not scheduled for 0.3 s once 18 blocks are
-    planned (so its planner list keeps blocks that end meanwhile), and the watcher starts
-    0.2 s late.  The planner list's length then still says 18 while every block has ended;
-    the watcher counts the blocks unfinished at the reset's instant and resets at 18 held."""
+    """A busy host: the mock's driver thread is not scheduled once 18 blocks are planned (so
+    its planner list keeps the blocks that end meanwhile) until every one of them has ended.
+    The list's length then still says 18 or more with none held: the watcher does not reset
+    then, and resets once the driver runs again and 18 are truly held."""
     m, world = grbl(make_world)
-    firmware, frozen = world.firmware, []
+    firmware, frozen, scheduled = world.firmware, [], threading.Event()
     driven = firmware.advance
 
     def starved(now: float) -> float | None:
         if not frozen and len(firmware.planner) >= 18:
             frozen.append(now)
-        return now + 0.002 if frozen and now < frozen[0] + 0.3 else driven(now)
+        return now + 0.002 if frozen and not scheduled.is_set() else driven(now)
     firmware.advance = starved
     failed: list[LinkError] = []
 
@@ -180,11 +180,14 @@ def test_the_watcher_counts_the_blocks_held_at_the_reset_when_the_mock_was_not_s
             failed.append(exc)
     streamer = threading.Thread(target=stream)
     streamer.start()
-    while not frozen:
-        time.sleep(0.001)
-    time.sleep(0.2)
-    assert len(firmware.planner) >= 18 and sum(end > time.monotonic() for end in firmware.planner) < 18
-    reset_when_held(world, 18).join()
+    deadline = time.monotonic() + 10.0
+    while not (frozen and time.monotonic() > max(firmware.planner)) and time.monotonic() < deadline:
+        time.sleep(0.005)  # until every planned block has ended, unretired
+    assert len(firmware.planner) >= 18 and not any(end > time.monotonic() for end in firmware.planner)
+    watcher = reset_when_held(world, 18, limit_s=10.0)
+    time.sleep(0.05)  # the watcher looks while the list is stale
+    scheduled.set()
+    watcher.join()
     streamer.join()
     assert failed, "the stream ended without the reset"
     m.connect()
