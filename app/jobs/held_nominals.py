@@ -20,11 +20,10 @@ Bounded by the estimated bytes held (points, arc lengths, normals and the slope 
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from collections.abc import Callable, Hashable
 
 from app.geometry.traces import TracePolyline
+from app.parts.lru import ByteLru
 from app.probing.deviation_prior import SLOPE_SAMPLE_MM
 
 MAX_BYTES = 64 * 2**20           # ~6,000 board traces of the dome (~11 KB each with their slope splines)
@@ -44,39 +43,14 @@ def _read_only(path: TracePolyline) -> TracePolyline:
     return path
 
 
-class HeldNominals:
-    """(trace id, created at, placement) -> its placed nominal polyline, least recently used out."""
+#: (trace id, created at, placement) -> its placed nominal polyline, least recently used out
+HELD = ByteLru(MAX_BYTES)
 
-    def __init__(self, max_bytes: int = MAX_BYTES) -> None:
-        self.max_bytes = max_bytes
-        self._items: OrderedDict[Hashable, tuple[TracePolyline, int]] = OrderedDict()
-        self._bytes = 0
-        self._lock = threading.Lock()
 
-    def get(self, key: Hashable, make: Callable[[], TracePolyline]) -> TracePolyline:
-        """The polyline held under ``key``, else ``make()``'s, held (read-only)."""
-        with self._lock:
-            item = self._items.get(key)
-            if item is not None:
-                self._items.move_to_end(key)
-                return item[0]
+def held_polyline(key: Hashable, make: Callable[[], TracePolyline], held: ByteLru = HELD) -> TracePolyline:
+    """The polyline ``held`` keeps under ``key``, else ``make()``'s, kept (read-only)."""
+    path: TracePolyline | None = held.get(key)
+    if path is None:
         path = _read_only(make())
-        size = held_bytes(path)
-        with self._lock:
-            old = self._items.pop(key, None)
-            self._bytes += size - (old[1] if old else 0)
-            self._items[key] = (path, size)
-            while self._bytes > self.max_bytes and len(self._items) > 1:
-                _, (_, gone) = self._items.popitem(last=False)
-                self._bytes -= gone
-        return path
-
-    @property
-    def bytes(self) -> int:
-        return self._bytes
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-
-HELD = HeldNominals()
+        held.put(key, path, held_bytes(path))
+    return path

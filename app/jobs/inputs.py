@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
-from app.jobs.held_nominals import HELD
+from app.jobs.held_nominals import held_polyline
 from app.jobs.params import PlacedParams, PlacementParams
 from app.jobs.results.models import RegisterResult
 from app.platform.models import Job, Trace
@@ -67,4 +67,4 @@ def placed_nominal(trace: Trace, placement: Placement | None) -> TracePolyline:
         return nominal if placement is None else place_path(nominal, placement)
     if trace.id is None or trace.created_at is None:  # not a stored trace
         return make()
-    return HELD.get((trace.id, trace.created_at, placement), make)
+    return held_polyline((trace.id, trace.created_at, placement), make)

@@ -20,12 +20,12 @@ class ByteLru:
     def __init__(self, max_bytes: int) -> None:
         self.max_bytes = int(max_bytes)
         self._items: OrderedDict[Any, tuple[Any, int]] = OrderedDict()
+        self._total = 0  # the sum of the entries' bytes, kept as they change
         self._lock = threading.Lock()
 
     @property
     def bytes(self) -> int:
-        with self._lock:
-            return sum(n for _, n in self._items.values())
+        return self._total
 
     def __len__(self) -> int:
         return len(self._items)
@@ -43,21 +43,25 @@ class ByteLru:
 
     def put(self, key: Any, value: Any, nbytes: int) -> None:
         with self._lock:
-            self._items[key] = (value, int(nbytes))
+            self._set(key, value, int(nbytes))
             self._items.move_to_end(key)
             self._evict()
 
     def resize(self, key: Any, nbytes: int) -> None:
         with self._lock:
             if key in self._items:
-                self._items[key] = (self._items[key][0], int(nbytes))
+                self._set(key, self._items[key][0], int(nbytes))
                 self._evict()
 
+    def _set(self, key: Any, value: Any, nbytes: int) -> None:
+        old = self._items.get(key)
+        self._total += nbytes - (old[1] if old is not None else 0)
+        self._items[key] = (value, nbytes)
+
     def _evict(self) -> None:
-        total = sum(n for _, n in self._items.values())
-        while total > self.max_bytes and len(self._items) > 1:
+        while self._total > self.max_bytes and len(self._items) > 1:
             _, (_, n) = self._items.popitem(last=False)
-            total -= n
+            self._total -= n
 
 
 class BackedLru(ByteLru):

@@ -145,26 +145,21 @@ def core_on_stored(runtime, compensate_jobs: list[dict]) -> float:  # type: igno
     return time.process_time() - c0
 
 
+def journal_rows(data_dir: Path) -> dict[str, dict]:
+    """job id -> its row of the part cache's journal (``pid``; under ``memory`` the job's
+    ``cpu_s`` and ``wall_s`` in its compute process)."""
+    out: dict[str, dict] = {}
+    for journal in data_dir.rglob("journal*.jsonl"):
+        for line in journal.read_text().splitlines():
+            row = json.loads(line)
+            out[row["job_id"]] = row
+    return out
+
+
 def compute_cpu(data_dir: Path) -> dict[str, float]:
     """job id -> CPU s the compute process spent in it (the part cache's journal)."""
-    out: dict[str, float] = {}
-    for journal in data_dir.rglob("journal*.jsonl"):
-        for line in journal.read_text().splitlines():
-            row = json.loads(line)
-            if "cpu_s" in row.get("memory", {}):
-                out[row["job_id"]] = float(row["memory"]["cpu_s"])
-    return out
-
-
-def compute_pids(data_dir: Path) -> dict[str, tuple[int, float]]:
-    """job id -> (the pid of the compute process that ran it, the wall s it spent there) (the
-    part cache's journal)."""
-    out: dict[str, tuple[int, float]] = {}
-    for journal in data_dir.rglob("journal*.jsonl"):
-        for line in journal.read_text().splitlines():
-            row = json.loads(line)
-            out[row["job_id"]] = (int(row["pid"]), float(row.get("memory", {}).get("wall_s", math.nan)))
-    return out
+    return {job: float(row["memory"]["cpu_s"]) for job, row in journal_rows(data_dir).items()
+            if "cpu_s" in row.get("memory", {})}
 
 
 def outputs_sha256(client, children: list[dict], trace_ids: list[str],  # type: ignore[no-untyped-def]
@@ -301,10 +296,11 @@ def test_board_through_the_api(client, settings):
           f"{rc_core:>11.2f} {rc_api / rc_core:>9.2f}")
     print(f"{'compensate, the core on':<22} {'':>8} {api_cpu['compensate']:>10.2f} {core_stored:>11.2f} "
           f"{api_cpu['compensate'] / core_stored:>9.2f}  (the API's own stored reconstructions)")
-    pids = compute_pids(Path(settings.data_dir))
+    rows = journal_rows(Path(settings.data_dir))
+    plans = [(j, rows.get(j["id"], {})) for j in by_kind["probe_plan"]]
     print("the probe plan jobs in turn (wall from claim / wall in the compute process / CPU s, its pid): " + ", ".join(
-        f"{_span(j):.2f} / {pids.get(j['id'], (0, math.nan))[1]:.2f} / {journal.get(j['id'], math.nan):.2f} "
-        f"({pids.get(j['id'], (0,))[0]})" for j in by_kind["probe_plan"]))
+        f"{_span(j):.2f} / {row.get('memory', {}).get('wall_s', math.nan):.2f} / "
+        f"{journal.get(j['id'], math.nan):.2f} ({row.get('pid', '?')})" for j, row in plans))
     print(f"closed_loop whole: {loop_wall:.1f} s wall; server process {s1 - s0:.2f} s CPU, compute processes "
           f"{d1 - d0:.2f} s CPU (live ones)")
     print(f"service peak RSS (server + compute processes): {peak / 2**20:.0f} MiB (server alone "

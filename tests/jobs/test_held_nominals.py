@@ -9,8 +9,9 @@ import pytest
 
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
-from app.jobs.held_nominals import HELD, HeldNominals, held_bytes
+from app.jobs.held_nominals import HELD, held_bytes, held_polyline
 from app.jobs.inputs import nominal_of, placed_nominal
+from app.parts.lru import ByteLru
 from app.platform.models import Trace
 from app.probing.deviation_prior import path_gradient
 from app.reference.boards import board_path, board_traces, dome_part
@@ -58,19 +59,19 @@ def test_a_trace_stored_again_under_the_same_id_is_parsed_again(paths):
 
 
 def test_the_held_polylines_are_bounded_by_their_bytes(paths):
-    held = HeldNominals(max_bytes=2 * held_bytes(paths[0]))   # room for two polylines of this size
+    held = ByteLru(max_bytes=2 * held_bytes(paths[0]))   # room for two polylines of this size
     made = []
 
     def make() -> TracePolyline:
         made.append(1)
         return TracePolyline.from_points(paths[0].points.copy())
-    a = held.get("a", make)
-    held.get("b", make)
-    assert held.get("a", make) is a and len(made) == 2   # a hit, and "a" is now the most recent
-    held.get("c", make)                                   # over the bound: "b" (least recent) goes
+    a = held_polyline("a", make, held)
+    held_polyline("b", make, held)
+    assert held_polyline("a", make, held) is a and len(made) == 2   # a hit, and "a" is now the most recent
+    held_polyline("c", make, held)                                   # over the bound: "b" (least recent) goes
     assert len(held) == 2 and held.bytes == held.max_bytes
-    assert held.get("a", make) is a and len(made) == 3
-    held.get("b", make)
+    assert held_polyline("a", make, held) is a and len(made) == 3
+    held_polyline("b", make, held)
     assert len(made) == 4
 
 
