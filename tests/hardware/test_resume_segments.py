@@ -50,10 +50,23 @@ def reset_now(world) -> None:
 
 
 def stream_until_reset(m: Machine, world, lines: list[str], start: int, after_s: float) -> bool:
-    """Stream from ``start``; the controller resets ``after_s`` later.  False when the
-    program ended first."""
-    timer = threading.Timer(after_s, reset_now, (world,))
-    timer.start()
+    """Stream from ``start``; the controller resets ``after_s`` after the stream holds the
+    machine.  False when the program ended first.
+
+    The clock starts at the stream's claim, not at the call: on a loaded host the calling
+    thread can lose the processor for longer than ``after_s`` before it claims, and a reset
+    that lands first is one the machine rightly refuses to stream after (its link already
+    failed: ``test_a_reset_before_the_stream_claims_refuses_it``), not a reset in the stream."""
+    ended = threading.Event()
+
+    def reset_in_the_stream() -> None:
+        while m.machine_state.current != "printing":
+            if ended.wait(0.0005):
+                return
+        if not ended.wait(after_s):
+            reset_now(world)
+    resetter = threading.Thread(target=reset_in_the_stream, daemon=True)
+    resetter.start()
     try:
         m.stream(lines, start_line=start)
     except LinkError:
@@ -61,8 +74,8 @@ def stream_until_reset(m: Machine, world, lines: list[str], start: int, after_s:
     except MachineStateError as exc:  # the link failed before the stream began: say how
         raise AssertionError(f"{exc}; {wire_story(m, world)}") from exc
     finally:
-        timer.cancel()
-        timer.join()  # a reset already under way lands before the caller reconnects
+        ended.set()
+        resetter.join()  # a reset already under way lands before the caller reconnects
     return False
 
 
@@ -193,4 +206,42 @@ def test_the_watcher_counts_the_blocks_held_at_the_reset_when_the_mock_was_not_s
     m.connect()
     ran, _, _ = executed_before_the_cut(world, m)
     assert m.interrupted_program.acked_index - ran >= 18, wire_story(m, world)
+    m.disconnect()
+
+
+def test_a_reset_before_the_stream_claims_refuses_it(make_world):
+    """A reset that lands between a resume's connect and its stream: the machine has seen
+    its link fail, so the stream is refused before a line is sent, and the reconnect
+    locates the same resume."""
+    m, world = grbl(make_world)
+    lines = short_moves(120)
+    assert stream_until_reset(m, world, lines, 0, 0.05)
+    m.connect()
+    found = m.locate_resume()
+    sent = len(world.transcript.commands)
+    reset_now(world)
+    deadline = time.monotonic() + 5.0
+    while m.machine_state.state != "error" and time.monotonic() < deadline:
+        time.sleep(0.005)
+    with pytest.raises(MachineStateError, match="reconnect first"):
+        m.stream(lines, start_line=found.start)
+    assert len(world.transcript.commands) == sent  # nothing ran
+    m.connect()
+    assert m.locate_resume().start == found.start
+    m.disconnect()
+
+
+def test_the_reset_lands_in_the_stream_when_the_caller_is_late_to_claim(make_world):
+    """A loaded host: the streaming thread claims the machine 0.2 s after the call, well
+    after the 0.03 s the reset waits.  The reset still lands in the stream."""
+    m, world = grbl(make_world)
+    stream = m.stream
+
+    def late_stream(*args, **kwargs):
+        time.sleep(0.2)
+        return stream(*args, **kwargs)
+    m.stream = late_stream
+    assert stream_until_reset(m, world, short_moves(120), 0, 0.03)
+    assert m.interrupted_program is not None and RESET_TIMES[-1] > 0
+    m.connect()
     m.disconnect()
