@@ -5,18 +5,21 @@
   :meth:`app.runtime.context.JobContext.job`, when a job runs);
 * placements: :func:`check_registration` (submission), :func:`placement_from` (run),
   :func:`registration_reference`, :func:`placed_params_of` (what a stored job was placed by);
-* a trace's stored nominal polyline: :func:`nominal_of`, :func:`placed_nominal`.
+* a trace's stored nominal polyline: :func:`nominal_of`, :func:`placed_nominal`, a board's
+  :func:`placed_nominals`.
 """
 
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING
 
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
-from app.jobs.held_nominals import held_polyline
+from app.jobs.held_nominals import HELD, held_polyline
 from app.jobs.params import PlacedParams, PlacementParams
 from app.jobs.results.models import RegisterResult
+from app.parts.lru import ByteLru
 from app.platform.models import Job, Trace
 from app.registration.registration import place_path
 
@@ -68,3 +71,20 @@ def placed_nominal(trace: Trace, placement: Placement | None) -> TracePolyline:
     if trace.id is None or trace.created_at is None:  # not a stored trace
         return make()
     return held_polyline((trace.id, trace.created_at, placement), make)
+
+
+def placed_nominals(ctx: JobContext, traces: list[Trace], placement: Placement | None,
+                    held: ByteLru = HELD) -> list[TracePolyline]:
+    """:func:`placed_nominal` of each of ``traces`` (stored traces, read with or without their
+    nominals: ``JobContext.traces(..., nominals=False)``), the nominals this process does not
+    hold yet (in ``held``) read in one query: a board's later jobs read and decode none."""
+    keys = [(trace.id, trace.created_at, placement) for trace in traces]
+    missing = [trace.id for trace, key in zip(traces, keys) if held.get(key) is None]
+    stored = ctx.trace_nominals(missing) if missing else {}
+
+    def make(trace_id: str) -> TracePolyline:
+        if trace_id not in stored:  # let go since the look above (more traces than the process holds)
+            stored.update(ctx.trace_nominals([trace_id]))
+        nominal = TracePolyline.from_dict(stored.pop(trace_id), field="trace.nominal")
+        return nominal if placement is None else place_path(nominal, placement)
+    return [held_polyline(key, partial(make, trace.id), held) for trace, key in zip(traces, keys)]

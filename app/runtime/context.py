@@ -100,11 +100,17 @@ class JobContext:
         with self.reads() as reads:
             return reads.trace(trace_id)
 
-    def traces(self, trace_ids: list[str]) -> list[Trace]:
+    def traces(self, trace_ids: list[str], *, nominals: bool = True) -> list[Trace]:
         """The traces ``trace_ids`` in order, read in one query (a board's thousand); a missing
-        one is a NotFound naming it."""
+        one is a NotFound naming it.  ``nominals=False``: without their nominal and source
+        (reading one raises: :func:`app.jobs.inputs.placed_nominals` reads what it needs)."""
         with self.reads() as reads:
-            return reads.traces(trace_ids)
+            return reads.traces(trace_ids, nominals=nominals)
+
+    def trace_nominals(self, trace_ids: list[str]) -> dict[str, dict[str, Any]]:
+        """trace id -> its stored nominal (the JSON), in one query."""
+        with self.reads() as reads:
+            return reads.trace_nominals(trace_ids)
 
     def machine(self, machine_id: str, field: str | None = None) -> Machine:
         with self.reads() as reads:

@@ -46,7 +46,7 @@ from app.runtime.cost import check_cost
 from app.runtime.heap import trim_heap
 from app.runtime.machine_queue import MachineThreads, machine_slot
 from app.runtime.process_worker import ProcessSupervisor, warm_up
-from app.runtime.reads import JobReads
+from app.runtime.reads import UNREAD_WITHOUT_NOMINALS, JobReads
 from app.runtime.registry import JobKind, get_kind, load_kinds
 from app.runtime.store import JobStore, completed_status, encoded_result
 
@@ -187,8 +187,8 @@ def _by_model(references: list[tuple[str, str]]) -> dict[Any, list[str]]:
 
 
 #: columns a submission's checks and input hashes never read, left unread when the referenced
-#: records are read together (a trace's draped nominal: ~6 KB of JSON each, most of a board's bytes)
-_UNREAD_AT_SUBMISSION: dict[type, tuple[str, ...]] = {Trace: ("nominal", "source")}
+#: records are read together
+_UNREAD_AT_SUBMISSION: dict[type, tuple[str, ...]] = {Trace: UNREAD_WITHOUT_NOMINALS}
 
 
 def _preload(session: Session, references: list[tuple[str, str]]) -> list[Any]:

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterable
 from datetime import datetime
 from typing import Any, NamedTuple
 
+from sqlalchemy.orm import defer
 from sqlmodel import Session, col, select
 
 from app.domain.errors import ConformaError, InvalidInput, NotFound
@@ -29,6 +30,11 @@ from app.platform.models import (
     Trace,
     UploadedFile,
 )
+
+#: a trace's columns a board job need not read with the rest: its draped nominal (~6 KB of JSON
+#: each, most of a board's bytes, parsed once per process: :mod:`app.jobs.held_nominals`) and
+#: its source
+UNREAD_WITHOUT_NOMINALS = ("nominal", "source")
 
 
 class TraceSummary(NamedTuple):
@@ -125,19 +131,29 @@ class JobReads:
         _require_succeeded(job_id, None if state is None else (state[0], state[1]), kind, field, error=error)
 
     # traces ----------------------------------------------------------------------------------
-    def traces(self, trace_ids: list[str]) -> list[Trace]:
+    def traces(self, trace_ids: list[str], *, nominals: bool = True) -> list[Trace]:
         """The traces ``trace_ids`` in order, read in one query (a board's thousand); a missing
-        one is a NotFound naming it."""
-        rows = self.traces_by_id(trace_ids)
+        one is a NotFound naming it.  ``nominals=False``: without their nominal and source
+        (:data:`UNREAD_WITHOUT_NOMINALS`; reading one once the session has closed raises)."""
+        rows = self.traces_by_id(trace_ids, nominals=nominals)
         missing = next((t for t in trace_ids if t not in rows), None)
         if missing is not None:
             raise NotFound(f"trace {missing!r} does not exist", field="trace_id", value=missing)
         return [rows[t] for t in trace_ids]
 
-    def traces_by_id(self, trace_ids: Iterable[str]) -> dict[str, Trace]:
-        """{id: trace} of those of ``trace_ids`` that exist, in one query."""
-        rows = self._session.exec(select(Trace).where(col(Trace.id).in_(list(trace_ids)))).all()
+    def traces_by_id(self, trace_ids: Iterable[str], *, nominals: bool = True) -> dict[str, Trace]:
+        """{id: trace} of those of ``trace_ids`` that exist, in one query (``nominals`` as
+        for :meth:`traces`)."""
+        query = select(Trace).where(col(Trace.id).in_(list(trace_ids)))
+        if not nominals:
+            query = query.options(*(defer(getattr(Trace, name)) for name in UNREAD_WITHOUT_NOMINALS))
+        rows = self._session.exec(query).all()
         return {t.id: t for t in rows}
+
+    def trace_nominals(self, trace_ids: list[str]) -> dict[str, dict[str, Any]]:
+        """trace id -> its stored nominal (the JSON), in one query."""
+        rows = self._session.exec(select(col(Trace.id), col(Trace.nominal)).where(col(Trace.id).in_(trace_ids))).all()
+        return dict(rows)
 
     def traces_of_part(self, part_id: str) -> list[Trace]:
         """Every trace on ``part_id``, oldest first (ties by id)."""

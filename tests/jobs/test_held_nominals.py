@@ -10,7 +10,7 @@ import pytest
 from app.geometry.placement import Placement
 from app.geometry.traces import TracePolyline
 from app.jobs.held_nominals import HELD, held_bytes, held_polyline
-from app.jobs.inputs import nominal_of, placed_nominal
+from app.jobs.inputs import nominal_of, placed_nominal, placed_nominals
 from app.parts.lru import ByteLru
 from app.platform.models import Trace
 from app.probing.deviation_prior import path_gradient
@@ -77,3 +77,47 @@ def test_the_held_polylines_are_bounded_by_their_bytes(paths):
 
 def test_the_process_holder_is_bounded():
     assert HELD.max_bytes <= 64 * 2**20
+
+
+class _Reads:
+    """The job context's nominal reads: each call's ids, from the stored traces ``rows``."""
+
+    def __init__(self, rows: list[Trace]) -> None:
+        self.rows = {t.id: t for t in rows}
+        self.calls: list[list[str]] = []
+
+    def trace_nominals(self, trace_ids: list[str]) -> dict[str, dict]:
+        self.calls.append(list(trace_ids))
+        return {t: self.rows[t].nominal for t in trace_ids}
+
+
+def _unread(trace: Trace) -> Trace:
+    """``trace`` as read without its nominal (reading it would fail)."""
+    return Trace(**{k: v for k, v in trace.model_dump().items() if k not in ("nominal", "source")})
+
+
+def test_a_board_reads_in_one_query_only_the_nominals_the_process_does_not_hold(paths):
+    rows = [_stored(p, f"trace_board_{i}") for i, p in enumerate(paths)]
+    reads, held = _Reads(rows), ByteLru(2**20)
+    placement = Placement(dx=0.5, dy=0.0, dz=0.0, rz_rad=0.0)
+    first = placed_nominals(reads, [_unread(t) for t in rows[:2]], placement, held)
+    assert reads.calls == [["trace_board_0", "trace_board_1"]]
+    again = placed_nominals(reads, [_unread(t) for t in rows], placement, held)
+    assert reads.calls[1:] == [["trace_board_2"]]                           # only the one not held
+    assert again[0] is first[0] and again[1] is first[1]
+    for row, path in zip(rows, again):
+        np.testing.assert_array_equal(path.points, place_path(nominal_of(row), placement).points)
+    placed_nominals(reads, [_unread(t) for t in rows], placement, held)
+    assert len(reads.calls) == 2                                            # all held: no read
+
+
+def test_a_nominal_let_go_while_a_board_is_read_is_read_again(paths):
+    rows = [_stored(p, f"trace_evicted_{i}") for i, p in enumerate(paths)]
+    reads = _Reads(rows)
+    held = ByteLru(held_bytes(nominal_of(rows[0])) + 1)                     # room for about one
+    placed_nominals(reads, [_unread(rows[0])], None, held)
+    order = [rows[1], rows[2], rows[0]]                                     # trace 0 held at the look,
+    out = placed_nominals(reads, [_unread(t) for t in order], None, held)  # let go by the two before it
+    for row, path in zip(order, out):
+        np.testing.assert_array_equal(path.points, nominal_of(row).points)
+    assert reads.calls[1:] == [["trace_evicted_1", "trace_evicted_2"], ["trace_evicted_0"]]

@@ -6,6 +6,8 @@ from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
 
 import pytest
+from sqlalchemy import event
+from sqlalchemy.orm.exc import DetachedInstanceError
 from sqlalchemy.pool import StaticPool
 from sqlmodel import Session, SQLModel, create_engine
 
@@ -99,3 +101,22 @@ def test_jobs_by_machine_and_by_parent_are_the_succeeded_ones(session):
     assert (probe.id, probe.kind, probe.finished_at.replace(tzinfo=UTC)) == ("probe-old", "calibrate_probe", T0)
     assert [j.id for j in reads.succeeded_children("loop")] == ["child"]
     assert reads.succeeded_children("print-running") == []
+
+
+def test_traces_without_nominals_leave_the_nominal_and_source_unread_and_their_nominals_come_in_one_query():
+    engine = create_engine("sqlite://", connect_args={"check_same_thread": False}, poolclass=StaticPool)
+    SQLModel.metadata.create_all(engine)
+    with Session(engine) as session:
+        session.add_all([_trace("t-1", "p", 1, {"net": "GND"}), _trace("t-2", "p", 2)])
+        session.commit()
+    statements: list[str] = []
+    event.listen(engine, "before_cursor_execute", lambda *args: statements.append(args[2]))
+    with Session(engine) as session:
+        traces = JobReads(session).traces(["t-2", "t-1"], nominals=False)
+        assert [t.id for t in traces] == ["t-2", "t-1"] and len(statements) == 1
+        assert "nominal" not in statements[0] and "source" not in statements[0] and "geometry" in statements[0]
+        assert traces[0].standoff_mm == 0.1 and traces[0].geometry == {} and len(statements) == 1
+        nominals = JobReads(session).trace_nominals(["t-1", "t-2", "gone"])
+        assert nominals == {"t-1": {"points": [[0, 0, 0]]}, "t-2": {"points": [[0, 0, 0]]}} and len(statements) == 2
+    with pytest.raises(DetachedInstanceError):  # never read by accident once the session has closed
+        _ = traces[1].nominal

@@ -44,12 +44,13 @@ from app.compensation.standoff import (
 from app.domain.errors import InvalidInput
 from app.gcode.writer import DEFAULT_DIALECT, own_dispense_text
 from app.geometry.drape import top_surface_z
+from app.geometry.traces import TracePolyline
 from app.jobs.board_checkpoints import Output, TraceCheckpoints, inputs_sha256, trace_inputs
 from app.jobs.core_fields import core_bounds, core_field, core_values
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.gcode_meta import gcode_meta
 from app.jobs.held_reconstructions import stored_reconstruction
-from app.jobs.inputs import placed_nominal, placed_params_of, placement_from
+from app.jobs.inputs import placed_nominal, placed_nominals, placed_params_of, placement_from
 from app.jobs.params import MAX_FIELD_TRACES, DispensingDialect, StandoffMm, standoff_of
 from app.jobs.results.models import CompensateBoardResult, CompensateResult
 from app.jobs.tool_choice import ToolChoice, choose_tool
@@ -180,12 +181,13 @@ def run(ctx: JobContext, params: CompensateParams) -> dict:
     shared = inputs_sha256(_board_inputs(ctx, params, choice, source.id, placement))
     stored = ctx.artifacts_of([(source.id, stored_name(t)) for t in params.trace_ids])  # one query
     records = _Records(ctx)
-    for index, trace in enumerate(ctx.traces(params.trace_ids)):  # one query, not one per trace
+    traces = ctx.traces(params.trace_ids, nominals=False)  # one query, not one per trace
+    for index, (trace, nominal) in enumerate(zip(traces, placed_nominals(ctx, traces, placement))):
         artifact = stored[(source.id, stored_name(trace.id))]
         inputs = inputs_sha256(shared, trace_inputs(trace, records.part(trace.part_id).sha256), artifact.sha256)
         row = checkpoints.reusable(trace.id, inputs)
         if row is None:
-            row, outputs = _board_trace(ctx, params, choice, trace, artifact.sha256, placement, records)
+            row, outputs = _board_trace(ctx, params, choice, trace, nominal, artifact.sha256, placement, records)
             checkpoints.add(trace.id, inputs, outputs, row)  # stored with the group's checkpoint, one commit
         rows.append(row)
         if index % 25 == 24 or index + 1 == total:
@@ -231,13 +233,13 @@ class _Records:
         return self._parts[part_id]
 
 
-def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, stored: str,
-                 placement: Any, records: _Records) -> tuple[dict[str, Any], list[Output]]:
-    """Compensate one trace of a board job from its ``stored`` reconstruction (the sha256 of
-    its npz bytes: held in this process by the reconstruct job that stored them, else read,
-    :func:`app.jobs.held_reconstructions.stored_reconstruction`): its result row and its two
-    programs as artifacts to store."""
-    reconstruction = stored_reconstruction(stored, lambda: ctx.blob(stored), placed_nominal(trace, placement))
+def _board_trace(ctx: JobContext, params: CompensateParams, choice: ToolChoice, trace: Any, nominal: TracePolyline,
+                 stored: str, placement: Any, records: _Records) -> tuple[dict[str, Any], list[Output]]:
+    """Compensate one trace of a board job (its placed ``nominal``) from its ``stored``
+    reconstruction (the sha256 of its npz bytes: held in this process by the reconstruct job
+    that stored them, else read, :func:`app.jobs.held_reconstructions.stored_reconstruction`):
+    its result row and its two programs as artifacts to store."""
+    reconstruction = stored_reconstruction(stored, lambda: ctx.blob(stored), nominal)
     result, path = _program(ctx, params, choice, trace, reconstruction, placement, records)
     printed, plain = board_artifacts(trace.id)
     outputs: list[Output] = [(printed, path.program.encode(), "text/x-gcode", _meta(path.program, path.program_bounds)),

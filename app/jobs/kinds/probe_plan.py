@@ -27,7 +27,13 @@ import numpy as np
 from app.domain.errors import InvalidInput
 from app.jobs.field_runs import field_touches, measured_array, touched_stations, touched_verification
 from app.jobs.gcode_meta import gcode_meta
-from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
+from app.jobs.inputs import (
+    check_registration,
+    placed_nominal,
+    placed_nominals,
+    placement_from,
+    registration_reference,
+)
 from app.jobs.params import ProbePlanParams
 from app.jobs.results.models import ProbePlanResult
 from app.probing import PlanParams, ProbePlan, ProbeProgram, build_probe_program, plan_probes
@@ -130,10 +136,10 @@ def run(ctx: JobContext, params: ProbePlanParams) -> dict:
 
 def _run_joint(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
     """Part-level plan: stations per trace (jointly for kriging), one program in trace order."""
-    traces = ctx.traces(trace_ids)  # one query, not one per trace
+    traces = ctx.traces(trace_ids, nominals=False)  # one query, not one per trace
     placement = placement_from(ctx, params)
     mesh = ctx.placed_mesh(ctx.part(traces[0].part_id), placement)
-    nominals = [placed_nominal(trace, placement) for trace in traces]
+    nominals = placed_nominals(ctx, traces, placement)
     ctx.progress(0.1, f"planning probe points on {len(traces)} traces")
     if params.planner == "kriging":
         plans = plan_joint(nominals, _plan_params(params))
@@ -279,10 +285,10 @@ def _next_round(ctx: JobContext, params: ProbePlanParams, nominals: list[Any], p
 
 def _run_field(ctx: JobContext, params: ProbePlanParams, trace_ids: list[str]) -> dict:
     """Board plan: stations over the region the traces cover, one program in probing order."""
-    traces = ctx.traces(trace_ids)  # one query, not one per trace
+    traces = ctx.traces(trace_ids, nominals=False)  # one query, not one per trace
     placement = placement_from(ctx, params)
     mesh = ctx.placed_mesh(ctx.part(traces[0].part_id), placement)
-    nominals = [placed_nominal(trace, placement) for trace in traces]
+    nominals = placed_nominals(ctx, traces, placement)
     ctx.progress(0.1, f"planning field stations over {len(traces)} traces")
     plan_params = _plan_params(params)
     top = mesh_top_sampler(mesh) if params.stations == "anywhere_on_top" else None

@@ -28,7 +28,13 @@ from app.jobs.core_fields import core_field
 from app.jobs.field_runs import run_field
 from app.jobs.form_hints import ONE_TRACE, SEVERAL_TRACES, form
 from app.jobs.held_reconstructions import HELD
-from app.jobs.inputs import check_registration, placed_nominal, placement_from, registration_reference
+from app.jobs.inputs import (
+    check_registration,
+    placed_nominal,
+    placed_nominals,
+    placement_from,
+    registration_reference,
+)
 from app.jobs.params import MAX_FIELD_TRACES, PlacedParams
 from app.jobs.probe_correction import refined, run_probe_calibration
 from app.jobs.results.models import (
@@ -294,7 +300,7 @@ def _board_rows(ctx: JobContext, params: ReconstructJobParams, sigma: dict[str, 
     parts: dict[str, str] = {}
     keys: dict[str, str] = {}
     done: dict[str, dict[str, Any] | None] = {}
-    records = {t.id: t for t in ctx.traces(params.traces)}  # one query, not one per trace
+    records = {t.id: t for t in ctx.traces(params.traces, nominals=False)}  # one query, not one per trace
     for trace_id in params.traces:
         trace = records[trace_id]
         if trace.part_id not in parts:
@@ -366,9 +372,9 @@ def rebuild_board(ctx: JobContext, params: ReconstructJobParams,
     placement = placement_from(ctx, params)
     check, refinement, plan_traces = _run_field(ctx, params)
     where = {t: i for i, t in enumerate(plan_traces)}
-    wanted = ctx.traces(params.traces) if traces is None else traces
-    for index, trace in enumerate(wanted):
-        yield _field_trace(check, refinement, placed_nominal(trace, placement), where[trace.id])
+    wanted = ctx.traces(params.traces, nominals=False) if traces is None else traces
+    for index, (trace, nominal) in enumerate(zip(wanted, placed_nominals(ctx, wanted, placement))):
+        yield _field_trace(check, refinement, nominal, where[trace.id])
         if index % 50 == 49:
             ctx.progress(0.2 + 0.7 * (index + 1) / len(wanted), f"{index + 1}/{len(wanted)} traces rebuilt")
 
