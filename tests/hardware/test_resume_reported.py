@@ -27,7 +27,7 @@ from hardware.machine_types import ReportEvidence
 from hardware.protocol import normalized_commands
 from hardware.reports import PositionMark
 from hardware.resume import ResumeLocation, command_feeds, end_positions, locate_by_report
-from tests.helpers.machines import executed_before_the_cut
+from tests.helpers.machines import executed_before_the_cut, reset_in_stream
 
 PROFILES = {"marlin": MachineProfile(), "grbl": MachineProfile(dispense_on="M8", dispense_off="M9")}
 SYNC = {"marlin": "M400", "grbl": "G4 P0"}  # the program ends when its motion has ended
@@ -74,13 +74,9 @@ def reset_and_resume(make_world, dialect: str, lines: list[str], reset_after_s: 
         m.home()
     w.transcript.reset()
     truth: dict = {}
-    timer = threading.Timer(reset_after_s, lambda: truth.setdefault("where", w.reset_controller()))
-    timer.start()
-    try:
-        with pytest.raises(LinkError):
-            m.stream(lines)
-    finally:
-        timer.cancel()
+    with reset_in_stream(m, reset_after_s, lambda: truth.setdefault("where", w.reset_controller())), \
+            pytest.raises(LinkError):
+        m.stream(lines)
     m.connect()
     ran, safe, reconnect = executed_before_the_cut(w, m)  # commands whose motion completed before the reset
     bound = m.resume_line()

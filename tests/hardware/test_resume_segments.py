@@ -22,7 +22,7 @@ from hardware.errors import LinkError, MachineStateError
 from hardware.machine import Machine, MachineProfile
 from hardware.protocol import normalized_commands
 from hardware.resume import ResumeLocation, executed_bound, modal_preamble, planner_blocks
-from tests.helpers.machines import executed_before_the_cut
+from tests.helpers.machines import executed_before_the_cut, reset_in_stream
 
 PROFILE = MachineProfile(dispense_on="M8", dispense_off="M9")
 RESET_TIMES: list[float] = []  # when the tests reset the controller (Unix time, s)
@@ -51,31 +51,16 @@ def reset_now(world) -> None:
 
 def stream_until_reset(m: Machine, world, lines: list[str], start: int, after_s: float) -> bool:
     """Stream from ``start``; the controller resets ``after_s`` after the stream holds the
-    machine.  False when the program ended first.
-
-    The clock starts at the stream's claim, not at the call: on a loaded host the calling
-    thread can lose the processor for longer than ``after_s`` before it claims, and a reset
-    that lands first is one the machine rightly refuses to stream after (its link already
-    failed: ``test_a_reset_before_the_stream_claims_refuses_it``), not a reset in the stream."""
-    ended = threading.Event()
-
-    def reset_in_the_stream() -> None:
-        while m.machine_state.current != "printing":
-            if ended.wait(0.0005):
-                return
-        if not ended.wait(after_s):
-            reset_now(world)
-    resetter = threading.Thread(target=reset_in_the_stream, daemon=True)
-    resetter.start()
-    try:
-        m.stream(lines, start_line=start)
-    except LinkError:
-        return True
-    except MachineStateError as exc:  # the link failed before the stream began: say how
-        raise AssertionError(f"{exc}; {wire_story(m, world)}") from exc
-    finally:
-        ended.set()
-        resetter.join()  # a reset already under way lands before the caller reconnects
+    machine (:func:`tests.helpers.machines.reset_in_stream`: a reset landing before the claim
+    is one the machine rightly refuses to stream after,
+    ``test_a_reset_before_the_stream_claims_refuses_it``).  False when the program ended first."""
+    with reset_in_stream(m, after_s, lambda: reset_now(world)):
+        try:
+            m.stream(lines, start_line=start)
+        except LinkError:
+            return True
+        except MachineStateError as exc:  # the link failed before the stream began: say how
+            raise AssertionError(f"{exc}; {wire_story(m, world)}") from exc
     return False
 
 
